@@ -1,0 +1,248 @@
+"""Typed configuration: one dataclass per concern, each field with a default and a docstring.
+
+YAML files in ``configs/`` and CLI flags fill the same dataclasses (``from_dict``); unknown keys are
+an error, never silently ignored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A configuration file or value is invalid."""
+
+
+@dataclass
+class SensorConfig:
+    """Planar range sensor. Defaults are the LIMO's EAI X2L LiDAR (front 180 degrees, 0.1-8 m)."""
+
+    fov_deg: float = 180.0
+    """Field of view centred on the robot's heading, degrees (360 for a full ring)."""
+    resolution_deg: float = 1.0
+    """Angle between beams, degrees."""
+    range_min_m: float = 0.1
+    """Closer returns are invalid."""
+    range_max_m: float = 8.0
+    """Beams with no return within this range report inf and clear free space up to it."""
+    range_noise_std_m: float = 0.0
+    """Gaussian range noise of the simulated sensor."""
+    rate_hz: float = 8.0
+    """Scan rate of the real sensor (used by the real-time simulator)."""
+    mount_x_m: float = 0.0
+    """Sensor position ahead of the robot centre (the LIMO's LiDAR sits at 0.103 m)."""
+
+    @staticmethod
+    def preset(name: str, fov_deg: float | None = None) -> "SensorConfig":
+        """Named presets: ``lidar`` (EAI X2L) and ``depth`` (LIMO depth camera seen as a 2D scan)."""
+        if name == "lidar":
+            cfg = SensorConfig()
+        elif name == "depth":
+            cfg = SensorConfig(fov_deg=79.0, resolution_deg=0.5, range_min_m=0.3, range_max_m=3.0, rate_hz=15.0)
+        else:
+            raise ConfigError(f"unknown sensor preset {name!r}; choose lidar or depth")
+        if fov_deg is not None:
+            cfg.fov_deg = float(fov_deg)
+        cfg.validate()
+        return cfg
+
+    def validate(self) -> None:
+        if not 0 < self.fov_deg <= 360:
+            raise ConfigError("sensor.fov_deg must be in (0, 360]")
+        if not 0 < self.resolution_deg <= self.fov_deg:
+            raise ConfigError("sensor.resolution_deg must be in (0, fov_deg]")
+        if not 0 <= self.range_min_m < self.range_max_m:
+            raise ConfigError("sensor needs 0 <= range_min_m < range_max_m")
+
+
+@dataclass
+class RobotConfig:
+    """The AgileX LIMO in differential (skid-steer) mode."""
+
+    radius_m: float = 0.2
+    """Obstacles are inflated by this radius before planning (circumscribes the LIMO's footprint)."""
+    length_m: float = 0.322
+    """Body length (LIMO), used for the clearance ahead."""
+    width_m: float = 0.220
+    """Body width (LIMO), used for the clearance ahead."""
+    max_linear_mps: float = 1.0
+    """Top linear speed."""
+    max_angular_radps: float = 0.78
+    """Top turn rate."""
+    control_period_s: float = 0.25
+    """One step: the period of one velocity command."""
+
+
+@dataclass
+class FrontierConfig:
+    """Frontier extraction and the frontier-based entropy of Eq. 4."""
+
+    min_cluster_size_m: float = 0.3
+    """Frontier clusters shorter than this (cells x resolution) are ignored as noise."""
+    entropy_window_m: float = 2.0
+    """gamma of Eq. 4: side of the square window in which frontier cells are counted. The paper does
+    not publish its value; 2 m is roughly a room's half width for the LIMO."""
+
+
+@dataclass
+class MaskConfig:
+    """Action masks of section 3.3. Defaults are the paper's values, read as metres and square metres."""
+
+    use_valid_distance: bool = True
+    """Apply the valid distance mask (Eq. 5)."""
+    beta_near_m: float = 0.2
+    """Frontiers geodesically closer than this are masked (first fallback drops this bound)."""
+    beta_far_m: float = 2.0
+    """Frontiers geodesically farther than this are masked (second fallback drops this bound)."""
+    use_stuck: bool = True
+    """Apply the stuck mask (Algorithm 1)."""
+    alpha1_m: float = 1.0
+    """Stuck when the longest move between the last 3 decisions is below this ..."""
+    alpha2_m2: float = 1.0
+    """... and the largest explored-area gain between them is below this."""
+    alpha3_m: float = 1.0
+    """When stuck, goals closer than this to any of the last 3 decision positions are masked."""
+
+
+@dataclass
+class EpisodeConfig:
+    """How an exploration episode runs and ends (section 4.1)."""
+
+    max_steps: int = 3000
+    """Hard step limit."""
+    replan_every_steps: int = 25
+    """A new long-term goal is chosen at least this often."""
+    goal_tolerance_m: float = 0.3
+    """The goal counts as reached within this distance."""
+    done_coverage_pct: float = 99.0
+    """Done when coverage is above this ..."""
+    done_unexplored_m2: float = 1.0
+    """... and less than this much traversable area is unexplored."""
+
+
+@dataclass
+class PlannerConfig:
+    """Local planner: path following with pure pursuit and a Nav2-style progress checker."""
+
+    lookahead_m: float = 0.4
+    """Pure-pursuit lookahead distance along the path."""
+    rotate_in_place_rad: float = 0.9
+    """Rotate in place when the heading error to the lookahead point exceeds this."""
+    slow_down_distance_m: float = 0.5
+    """Scale speed down when the nearest obstacle in the robot's path is closer than this to its front."""
+    stop_distance_m: float = 0.03
+    """Stop forward motion when an obstacle in the robot's path is closer than this to its front."""
+    progress_required_m: float = 0.5
+    """no_progress is reported when the robot moved less than this ..."""
+    progress_window_s: float = 10.0
+    """... within this much time."""
+
+
+@dataclass
+class ExplorationConfig:
+    """Everything an exploration episode needs, in one place."""
+
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    frontier: FrontierConfig = field(default_factory=FrontierConfig)
+    masks: MaskConfig = field(default_factory=MaskConfig)
+    episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
+
+
+def _convert(value: Any, annotation: Any, where: str) -> Any:
+    origin = typing.get_origin(annotation)
+    if dataclasses.is_dataclass(annotation):
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a mapping, got {type(value).__name__}")
+        return from_dict(annotation, value, where)
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}")
+        if not math.isfinite(float(value)):
+            raise ConfigError(f"{where}: must be finite")
+        return float(value)
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+        return value
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where}: expected true/false, got {value!r}")
+        return value
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"{where}: expected a string, got {value!r}")
+        return value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in typing.get_args(annotation):
+            return None
+        for arg in typing.get_args(annotation):
+            if arg is type(None):
+                continue
+            try:
+                return _convert(value, arg, where)
+            except ConfigError:
+                continue
+        raise ConfigError(f"{where}: {value!r} does not fit {annotation}")
+    if origin in (list, tuple):
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}: expected a list")
+        (inner, *_) = typing.get_args(annotation) or (Any,)
+        items = [_convert(v, inner, f"{where}[{i}]") if inner is not Any else v for i, v in enumerate(value)]
+        return items if origin is list else tuple(items)
+    if origin is dict:
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where}: expected a mapping")
+        return dict(value)
+    return value
+
+
+def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:
+    """Build dataclass ``cls`` from a (possibly partial) mapping; unknown keys raise ConfigError."""
+    data = data or {}
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}")
+    kwargs = {k: _convert(v, hints[k], f"{where}.{k}") for k, v in data.items()}
+    obj = cls(**kwargs)
+    validate = getattr(obj, "validate", None)
+    if callable(validate):
+        try:
+            validate()
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+    return obj
+
+
+def to_dict(obj: Any) -> dict[str, Any]:
+    """Plain-data view of a config dataclass (for logs and result files)."""
+    return dataclasses.asdict(obj)
+
+
+def load_yaml(path: str | Path) -> dict[str, Any]:
+    """Read a YAML mapping, with a clear error for a missing or malformed file."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"config file not found: {p}")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{p}: not valid YAML: {exc}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"{p}: top level must be a mapping")
+    return data

@@ -1,0 +1,239 @@
+"""One exploration episode: map, decide, plan, move, until section 4.1's termination criteria hold.
+
+``Explorer`` is the loop every caller shares (eval, the training environment, tests): it is driven
+step by step so the Gymnasium environment can stop at each decision. ``run_episode`` runs it to the
+end with a goal selector and returns the Table 1 metrics.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cso_runtime.config import ExplorationConfig
+from cso_runtime.geodesic import disk
+from cso_runtime.geometry import Pose2D
+from cso_runtime.observation import Observation, ObservationBuilder
+from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.planner import LocalPlanner, PlannerStatus
+from cso_runtime.policies import Goal, GoalSelector
+from cso_runtime.simulator import Simulator
+
+TERMINATED_COVERAGE = "coverage"
+TERMINATED_NO_FRONTIER = "no_frontier"
+TERMINATED_MAX_STEPS = "max_steps"
+
+
+@dataclass
+class EpisodeResult:
+    """Table 1 metrics of one episode plus what the plots need."""
+
+    scene: str
+    steps: int
+    explored_area_m2: float
+    coverage_pct: float
+    traversable_area_m2: float
+    path_length_m: float
+    terminated_by: str
+    decisions: int
+    decision_ms: list[float]
+    trajectory_xy_m: np.ndarray
+    coverage_curve_pct: np.ndarray
+    explored_free: np.ndarray
+    """Explored free cells on the plan's grid (row 0 at the bottom)."""
+
+    @property
+    def efficiency_m2_per_step(self) -> float:
+        return self.explored_area_m2 / max(self.steps, 1)
+
+    @property
+    def decision_ms_p50(self) -> float:
+        return float(np.percentile(self.decision_ms, 50)) if self.decision_ms else float("nan")
+
+    @property
+    def decision_ms_p99(self) -> float:
+        return float(np.percentile(self.decision_ms, 99)) if self.decision_ms else float("nan")
+
+
+@dataclass
+class DecisionReason:
+    why: str
+    goal: Goal | None = None
+
+
+@dataclass
+class Explorer:
+    """The exploration loop around a simulator. Ground truth is used only for metrics and stopping."""
+
+    sim: Simulator
+    config: ExplorationConfig = field(default_factory=ExplorationConfig)
+
+    def __post_init__(self) -> None:
+        self.builder = ObservationBuilder(self.config.frontier, self.config.robot)
+        self.region = self.sim.plan.traversable_region()
+        self.region_area_m2 = float(np.count_nonzero(self.region)) * self.sim.plan.resolution_m**2
+        self.reset()
+
+    def reset(self, seed: int | None = None) -> None:
+        if seed is not None:
+            self.sim.reset(seed)
+        self.map = OccupancyMap(self.sim.plan.geometry)
+        self.planner = LocalPlanner(
+            self.config.robot, self.config.planner, self.config.episode.goal_tolerance_m, self.config.sensor.mount_x_m
+        )
+        self.steps = 0
+        self.goal: Goal | None = None
+        self.steps_since_decision = 0
+        self.decisions = 0
+        self.decision_ms: list[float] = []
+        self.dead_frontier = np.zeros(self.map.geometry.shape, dtype=bool)
+        self.path_nodes: list[tuple[float, float]] = []
+        self.trajectory: list[tuple[float, float]] = [tuple(self.sim.true_pose().xy)]
+        self.path_length_m = 0.0
+        self.terminated_by: str | None = None
+        self._integrate()
+        self.coverage_curve: list[float] = [self.coverage_pct()]
+
+    # --- metrics (ground truth) ---
+    def explored_free(self) -> np.ndarray:
+        return self.map.open & self.region
+
+    def explored_area_m2(self) -> float:
+        return float(np.count_nonzero(self.explored_free())) * self.map.geometry.cell_area_m2
+
+    def coverage_pct(self) -> float:
+        return 100.0 * self.explored_area_m2() / max(self.region_area_m2, 1e-9)
+
+    def coverage_done(self) -> bool:
+        e = self.config.episode
+        explored = self.explored_area_m2()
+        return 100.0 * explored / self.region_area_m2 > e.done_coverage_pct and self.region_area_m2 - explored < e.done_unexplored_m2
+
+    # --- the loop ---
+    def _integrate(self) -> None:
+        self.last_scan = self.sim.scan()
+        self.map.integrate_scan(self.sim.sensor_pose(), self.last_scan)
+
+    def _goal_still_frontier(self) -> bool:
+        if self.goal is None:
+            return False
+        g = self.map.geometry
+        iy, ix = g.world_to_cell(self.goal.x_m, self.goal.y_m)
+        iy, ix = int(iy), int(ix)
+        if not self.map.open[iy, ix]:
+            return False
+        win = self.map.explored[max(iy - 1, 0) : iy + 2, max(ix - 1, 0) : ix + 2]
+        return not win.all()
+
+    def decision_reason(self) -> str | None:
+        """Why a new goal is needed now, or None to keep following the current one."""
+        if self.goal is None:
+            return "no_goal"
+        if self.planner.status != PlannerStatus.FOLLOWING:
+            return self.planner.status.value
+        if not self._goal_still_frontier():
+            return "not_frontier"
+        if self.steps_since_decision >= self.config.episode.replan_every_steps:
+            return "timeout"
+        return None
+
+    def _mark_dead(self, xy: tuple[float, float]) -> None:
+        """A goal reached (or unreachable in practice) that is still a frontier is noise: drop it."""
+        g = self.map.geometry
+        r = max(1, int(math.ceil(self.config.episode.goal_tolerance_m / g.resolution_m)))
+        iy, ix = g.world_to_cell(xy[0], xy[1])
+        offs = np.argwhere(disk(r)) - r
+        yy, xx = offs[:, 0] + int(iy), offs[:, 1] + int(ix)
+        ok = g.in_bounds(yy, xx)
+        self.dead_frontier[yy[ok], xx[ok]] = True
+
+    def observe(self) -> Observation:
+        """The state at a decision (frontiers minus those marked dead)."""
+        pose = self.sim.odometry()
+        self.path_nodes.append((pose.x_m, pose.y_m))
+        obs = self.builder.build(self.map, pose, np.array(self.path_nodes), exclude_frontier=self.dead_frontier)
+        return obs
+
+    def handle_reason(self, reason: str) -> None:
+        """Bookkeeping before a decision: forget goals that failed in place."""
+        if self.goal is not None and reason in ("reached", "no_progress") and self._goal_still_frontier():
+            self._mark_dead((self.goal.x_m, self.goal.y_m))
+
+    def apply_goal(self, obs: Observation, goal: Goal | None) -> None:
+        """Send the robot to ``goal`` (None ends the episode: no reachable frontier)."""
+        self.goal = goal
+        self.steps_since_decision = 0
+        self.decisions += 1
+        if goal is None:
+            self.planner.clear()
+            self.terminated_by = TERMINATED_NO_FRONTIER
+            return
+        status = self.planner.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_m)
+        if status == PlannerStatus.BLOCKED:
+            self._mark_dead((goal.x_m, goal.y_m))
+
+    def advance(self) -> None:
+        """One control period: command, move, scan, map, metrics, termination."""
+        result = self.planner.update(self.sim.odometry(), self.sim.time_s, self.last_scan)
+        before = self.sim.true_pose()
+        self.sim.step(result.command)
+        after = self.sim.true_pose()
+        self.path_length_m += math.hypot(after.x_m - before.x_m, after.y_m - before.y_m)
+        self.trajectory.append((after.x_m, after.y_m))
+        self.steps += 1
+        self.steps_since_decision += 1
+        self._integrate()
+        self.planner.check_blocked(self.map.occupied, self.map.geometry, self.sim.odometry())
+        self.coverage_curve.append(self.coverage_pct())
+        if self.coverage_done():
+            self.terminated_by = TERMINATED_COVERAGE
+        elif self.steps >= self.config.episode.max_steps:
+            self.terminated_by = TERMINATED_MAX_STEPS
+
+    @property
+    def done(self) -> bool:
+        return self.terminated_by is not None
+
+    def result(self) -> EpisodeResult:
+        return EpisodeResult(
+            scene=self.sim.plan.name,
+            steps=self.steps,
+            explored_area_m2=self.explored_area_m2(),
+            coverage_pct=self.coverage_pct(),
+            traversable_area_m2=self.region_area_m2,
+            path_length_m=self.path_length_m,
+            terminated_by=self.terminated_by or "running",
+            decisions=self.decisions,
+            decision_ms=list(self.decision_ms),
+            trajectory_xy_m=np.array(self.trajectory, dtype=float),
+            coverage_curve_pct=np.array(self.coverage_curve, dtype=float),
+            explored_free=self.explored_free(),
+        )
+
+
+def run_episode(sim: Simulator, policy: GoalSelector, config: ExplorationConfig | None = None, seed: int | None = None, on_step=None) -> EpisodeResult:
+    """Explore one scene with ``policy`` until termination; ``on_step(explorer)`` is called each step."""
+    explorer = Explorer(sim, config or ExplorationConfig())
+    sim.reset(seed)
+    explorer.reset()
+    policy.reset(seed)
+    if explorer.coverage_done():
+        explorer.terminated_by = TERMINATED_COVERAGE
+    while not explorer.done:
+        reason = explorer.decision_reason()
+        if reason is not None:
+            explorer.handle_reason(reason)
+            t0 = time.perf_counter()
+            obs = explorer.observe()
+            goal = policy.select(obs)
+            explorer.decision_ms.append((time.perf_counter() - t0) * 1e3)
+            explorer.apply_goal(obs, goal)
+            if explorer.done:
+                break
+        explorer.advance()
+        if on_step is not None:
+            on_step(explorer)
+    return explorer.result()

@@ -1,0 +1,116 @@
+"""Frontiers F_t, frontier clusters, and the frontier-based entropy I(M_t) of Eq. 4."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from cso_runtime.geometry import GridGeometry
+
+_EIGHT = np.ones((3, 3), dtype=bool)
+
+
+def frontier_cells(open_cells: np.ndarray, explored: np.ndarray) -> np.ndarray:
+    """Open cells with at least one 4-connected unknown neighbour (cells outside the map are not unknown)."""
+    unknown = ~explored
+    near_unknown = np.zeros_like(unknown)
+    near_unknown[1:, :] |= unknown[:-1, :]
+    near_unknown[:-1, :] |= unknown[1:, :]
+    near_unknown[:, 1:] |= unknown[:, :-1]
+    near_unknown[:, :-1] |= unknown[:, 1:]
+    return open_cells & near_unknown
+
+
+def frontier_entropy(frontier: np.ndarray, window_m: float, resolution_m: float) -> np.ndarray:
+    """I_{x,y}: number of frontier cells in the gamma x gamma window centred on each cell (Eq. 4).
+
+    Computed for the whole map at once with a summed-area table; gamma is rounded to an odd number
+    of cells so the window is centred.
+    """
+    half = max(0, int(round(window_m / resolution_m / 2.0)))
+    sat = np.zeros((frontier.shape[0] + 1, frontier.shape[1] + 1), dtype=np.int32)
+    np.cumsum(np.cumsum(frontier, axis=0, dtype=np.int32), axis=1, out=sat[1:, 1:])
+    ny, nx = frontier.shape
+    y0 = np.clip(np.arange(ny) - half, 0, ny)
+    y1 = np.clip(np.arange(ny) + half + 1, 0, ny)
+    x0 = np.clip(np.arange(nx) - half, 0, nx)
+    x1 = np.clip(np.arange(nx) + half + 1, 0, nx)
+    return (
+        sat[y1[:, None], x1[None, :]]
+        - sat[y0[:, None], x1[None, :]]
+        - sat[y1[:, None], x0[None, :]]
+        + sat[y0[:, None], x0[None, :]]
+    )
+
+
+@dataclass(frozen=True)
+class FrontierCluster:
+    """A connected group of frontier cells: one candidate long-term goal (one action)."""
+
+    cluster_id: int
+    cells: np.ndarray
+    """(k, 2) array of (iy, ix) cell indices."""
+    goal_cell: tuple[int, int]
+    """The reachable cell of the cluster nearest to the robot: where the robot is sent."""
+    goal_xy_m: tuple[float, float]
+    distance_m: float
+    """Geodesic distance from the robot to ``goal_cell``."""
+    size_m: float
+    """Frontier length: number of cells times the resolution (explore_lite's ``size``)."""
+    entropy: float
+    """Frontier-based entropy I at ``goal_cell``."""
+    centroid_xy_m: tuple[float, float]
+
+
+def cluster_frontiers(
+    frontier: np.ndarray,
+    distance_m: np.ndarray,
+    entropy: np.ndarray,
+    geometry: GridGeometry,
+    min_cluster_size_m: float,
+) -> list[FrontierCluster]:
+    """Group frontier cells into 8-connected clusters and describe the reachable ones.
+
+    Clusters shorter than ``min_cluster_size_m`` and clusters with no reachable cell are dropped.
+    The result is sorted by distance, then position, so it is deterministic.
+    """
+    labels, count = ndimage.label(frontier, structure=_EIGHT)
+    if count == 0:
+        return []
+    iy, ix = np.nonzero(labels)
+    lab = labels[iy, ix]
+    order = np.argsort(lab, kind="stable")
+    iy, ix, lab = iy[order], ix[order], lab[order]
+    splits = np.flatnonzero(np.diff(lab)) + 1
+    min_cells = max(1, int(np.ceil(min_cluster_size_m / geometry.resolution_m - 1e-9)))
+    res = geometry.resolution_m
+    clusters: list[FrontierCluster] = []
+    for cy, cx in zip(np.split(iy, splits), np.split(ix, splits)):
+        if len(cy) < min_cells:
+            continue
+        d = distance_m[cy, cx]
+        best = int(np.argmin(d))
+        if not np.isfinite(d[best]):
+            continue
+        gy, gx = int(cy[best]), int(cx[best])
+        gxm, gym = geometry.cell_to_world(gy, gx)
+        mx, my = geometry.cell_to_world(cy.mean(), cx.mean())
+        clusters.append(
+            FrontierCluster(
+                cluster_id=0,
+                cells=np.stack([cy, cx], axis=1),
+                goal_cell=(gy, gx),
+                goal_xy_m=(float(gxm), float(gym)),
+                distance_m=float(d[best]),
+                size_m=len(cy) * res,
+                entropy=float(entropy[gy, gx]),
+                centroid_xy_m=(float(mx), float(my)),
+            )
+        )
+    clusters.sort(key=lambda c: (c.distance_m, c.goal_cell))
+    return [
+        FrontierCluster(i, c.cells, c.goal_cell, c.goal_xy_m, c.distance_m, c.size_m, c.entropy, c.centroid_xy_m)
+        for i, c in enumerate(clusters)
+    ]

@@ -1,0 +1,122 @@
+"""Metric types shared by every module: poses, grid geometry, scans and velocity commands.
+
+Conventions follow ROS (REP-103): x forward/east, y left/north, yaw counter-clockwise in radians,
+metres everywhere. Grids are indexed ``[iy, ix]`` with row 0 at the map origin (the bottom edge),
+exactly like ``nav_msgs/OccupancyGrid`` data.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def wrap_angle_rad(angle_rad: float) -> float:
+    """Wrap an angle to [-pi, pi)."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@dataclass(frozen=True)
+class Pose2D:
+    """Planar pose in the map frame: position in metres, heading in radians."""
+
+    x_m: float
+    y_m: float
+    yaw_rad: float
+
+    @property
+    def xy(self) -> np.ndarray:
+        return np.array([self.x_m, self.y_m], dtype=float)
+
+    def compose_offset(self, forward_m: float, left_m: float = 0.0) -> "Pose2D":
+        """Pose of a frame mounted at (forward_m, left_m) in this pose's body frame."""
+        c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
+        return Pose2D(self.x_m + c * forward_m - s * left_m, self.y_m + s * forward_m + c * left_m, self.yaw_rad)
+
+
+@dataclass(frozen=True)
+class VelocityCommand:
+    """Body-frame twist: linear speed in m/s, angular speed in rad/s (like geometry_msgs/Twist)."""
+
+    linear_mps: float = 0.0
+    angular_radps: float = 0.0
+
+    def clamped(self, max_linear_mps: float, max_angular_radps: float) -> "VelocityCommand":
+        v = float(np.clip(self.linear_mps, -max_linear_mps, max_linear_mps))
+        w = float(np.clip(self.angular_radps, -max_angular_radps, max_angular_radps))
+        return VelocityCommand(v, w)
+
+
+@dataclass(frozen=True)
+class GridGeometry:
+    """Where a grid lies in the map frame: cell size and the metric position of cell (0, 0)'s corner."""
+
+    resolution_m: float
+    shape: tuple[int, int]  # (ny, nx)
+    origin_x_m: float = 0.0
+    origin_y_m: float = 0.0
+
+    @property
+    def cell_area_m2(self) -> float:
+        return self.resolution_m * self.resolution_m
+
+    @property
+    def width_m(self) -> float:
+        return self.shape[1] * self.resolution_m
+
+    @property
+    def height_m(self) -> float:
+        return self.shape[0] * self.resolution_m
+
+    def world_to_cell(self, x_m, y_m):
+        """Cell indices (iy, ix) of metric points; may lie outside the grid (see ``in_bounds``)."""
+        ix = np.floor((np.asarray(x_m) - self.origin_x_m) / self.resolution_m).astype(np.int64)
+        iy = np.floor((np.asarray(y_m) - self.origin_y_m) / self.resolution_m).astype(np.int64)
+        return iy, ix
+
+    def cell_to_world(self, iy, ix):
+        """Metric centres (x_m, y_m) of cells."""
+        x = self.origin_x_m + (np.asarray(ix) + 0.5) * self.resolution_m
+        y = self.origin_y_m + (np.asarray(iy) + 0.5) * self.resolution_m
+        return x, y
+
+    def in_bounds(self, iy, ix):
+        return (np.asarray(iy) >= 0) & (np.asarray(iy) < self.shape[0]) & (np.asarray(ix) >= 0) & (np.asarray(ix) < self.shape[1])
+
+
+@dataclass(frozen=True)
+class LaserScan:
+    """One planar range scan, as in sensor_msgs/LaserScan.
+
+    ``ranges_m[i]`` is the range of the beam at ``angle_min_rad + i * angle_increment_rad`` in the
+    sensor frame; ``inf`` means no return within ``range_max_m``. Readings below ``range_min_m`` are
+    invalid and ignored by the mapper.
+    """
+
+    angle_min_rad: float
+    angle_increment_rad: float
+    range_min_m: float
+    range_max_m: float
+    ranges_m: np.ndarray
+    stamp_s: float = 0.0
+
+    @property
+    def angles_rad(self) -> np.ndarray:
+        return self.angle_min_rad + self.angle_increment_rad * np.arange(len(self.ranges_m))
+
+    def validate(self) -> None:
+        """Raise ValueError for a scan that cannot be integrated (NaN, bad limits)."""
+        r = np.asarray(self.ranges_m)
+        if r.ndim != 1 or r.size == 0:
+            raise ValueError("scan ranges must be a non-empty 1-D array")
+        if np.isnan(r).any():
+            raise ValueError(f"scan has {int(np.isnan(r).sum())} NaN ranges")
+        if (r < 0).any():
+            raise ValueError("scan has negative ranges")
+        for name in ("angle_min_rad", "angle_increment_rad", "range_min_m", "range_max_m"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"scan {name} is not finite")
+        if not 0.0 <= self.range_min_m < self.range_max_m:
+            raise ValueError("scan needs 0 <= range_min_m < range_max_m")

@@ -1,0 +1,103 @@
+"""The state s(w_t) = (M_t, D(M_t, w_t), I(M_t)) of Eq. 2, with the frontier clusters as actions."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from cso_runtime.config import FrontierConfig, RobotConfig
+from cso_runtime.frontiers import FrontierCluster, cluster_frontiers, frontier_cells, frontier_entropy
+from cso_runtime.geodesic import geodesic_distance, traversable_cells
+from cso_runtime.geometry import GridGeometry, Pose2D
+from cso_runtime.occupancy import OccupancyMap
+
+
+@dataclass
+class Observation:
+    """What a goal selector sees at one decision. Arrays are indexed [iy, ix] on ``geometry``."""
+
+    geometry: GridGeometry
+    pose: Pose2D
+    explored: np.ndarray
+    occupied: np.ndarray
+    traversable: np.ndarray
+    distance_m: np.ndarray
+    """D(M_t, w_t): geodesic distance from the robot, inf where unreachable."""
+    frontier: np.ndarray
+    """F_t as a boolean grid."""
+    entropy: np.ndarray
+    """I(M_t): frontier cells in the gamma x gamma window of each cell."""
+    clusters: list[FrontierCluster]
+    """Candidate goals (actions), sorted by distance."""
+    open_area_m2: float
+    """||M_t||, the explored open area."""
+    path_nodes_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    """Omega_t: the robot's past decision positions (oldest first), for the graph policy."""
+    _extra_distance: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def goal_xy_m(self) -> np.ndarray:
+        """(n, 2) goal positions of the clusters."""
+        if not self.clusters:
+            return np.zeros((0, 2))
+        return np.array([c.goal_xy_m for c in self.clusters], dtype=float)
+
+    @property
+    def goal_distance_m(self) -> np.ndarray:
+        return np.array([c.distance_m for c in self.clusters], dtype=float)
+
+    def distance_map_from(self, source_xy_m: tuple[float, float]) -> np.ndarray:
+        """Geodesic distance map from another source on the same map (cached per source)."""
+        key = (round(float(source_xy_m[0]), 4), round(float(source_xy_m[1]), 4))
+        if key not in self._extra_distance:
+            self._extra_distance[key] = geodesic_distance(self.traversable, self.geometry, np.asarray(key))
+        return self._extra_distance[key]
+
+    def goal_distances_from(self, source_xy_m: tuple[float, float]) -> np.ndarray:
+        """Geodesic distances from ``source_xy_m`` to each cluster's goal cell."""
+        if not self.clusters:
+            return np.zeros(0)
+        d = self.distance_map_from(source_xy_m)
+        cells = np.array([c.goal_cell for c in self.clusters])
+        return d[cells[:, 0], cells[:, 1]]
+
+
+class ObservationBuilder:
+    """Turns (M_t, w_t) into an Observation: frontiers, one fast-marching pass, entropy, clusters."""
+
+    def __init__(self, frontier: FrontierConfig | None = None, robot: RobotConfig | None = None):
+        self.frontier_config = frontier or FrontierConfig()
+        self.robot_config = robot or RobotConfig()
+
+    def build(
+        self,
+        occupancy: OccupancyMap,
+        pose: Pose2D,
+        path_nodes_xy_m: np.ndarray | None = None,
+        exclude_frontier: np.ndarray | None = None,
+    ) -> Observation:
+        """``exclude_frontier`` marks frontier cells known to be unclearable (they are not actions)."""
+        g = occupancy.geometry
+        open_cells = occupancy.open
+        traversable = traversable_cells(open_cells, occupancy.occupied, self.robot_config.radius_m, g.resolution_m)
+        distance = geodesic_distance(traversable, g, pose.xy)
+        frontier = frontier_cells(open_cells, occupancy.explored)
+        if exclude_frontier is not None:
+            frontier &= ~exclude_frontier
+        entropy = frontier_entropy(frontier, self.frontier_config.entropy_window_m, g.resolution_m)
+        clusters = cluster_frontiers(frontier, distance, entropy, g, self.frontier_config.min_cluster_size_m)
+        nodes = np.zeros((0, 2)) if path_nodes_xy_m is None else np.asarray(path_nodes_xy_m, dtype=float).reshape(-1, 2)
+        return Observation(
+            geometry=g,
+            pose=pose,
+            explored=occupancy.explored.copy(),
+            occupied=occupancy.occupied.copy(),
+            traversable=traversable,
+            distance_m=distance,
+            frontier=frontier,
+            entropy=entropy,
+            clusters=clusters,
+            open_area_m2=float(np.count_nonzero(open_cells)) * g.cell_area_m2,
+            path_nodes_xy_m=nodes,
+        )

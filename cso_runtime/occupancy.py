@@ -1,0 +1,106 @@
+"""Occupancy map M_t (section 3.2): an explored channel and an occupied channel in a metric frame."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
+from cso_runtime.raycast import beam_samples
+
+UNKNOWN, FREE, OCCUPIED = -1, 0, 100
+"""nav_msgs/OccupancyGrid cell values."""
+
+LOG_ODDS_HIT = 0.9
+LOG_ODDS_MISS = -0.4
+LOG_ODDS_MIN, LOG_ODDS_MAX = -2.0, 3.5
+
+
+class OccupancyMap:
+    """Two-channel occupancy map built from range scans.
+
+    ``explored`` only ever grows (a cell once seen is never unknown again). ``occupied`` follows a
+    clamped log-odds of hits and pass-throughs, so a noisy return is corrected by later scans.
+    """
+
+    def __init__(self, geometry: GridGeometry):
+        self.geometry = geometry
+        self.explored = np.zeros(geometry.shape, dtype=bool)
+        self.log_odds = np.zeros(geometry.shape, dtype=np.float32)
+        self.occupied = np.zeros(geometry.shape, dtype=bool)
+
+    @property
+    def open(self) -> np.ndarray:
+        """Explored and not occupied ("open" cells of the paper)."""
+        return self.explored & ~self.occupied
+
+    @property
+    def unknown(self) -> np.ndarray:
+        return ~self.explored
+
+    def open_area_m2(self) -> float:
+        """||M_t||: the area of open space, the quantity rewarded by Eq. 6."""
+        return float(np.count_nonzero(self.open)) * self.geometry.cell_area_m2
+
+    def integrate_scan(self, sensor_pose: Pose2D, scan: LaserScan) -> int:
+        """Ray-cast one scan taken at ``sensor_pose`` into the map; returns newly explored cells.
+
+        Beams with no return (``inf`` or beyond ``range_max_m``) clear free space up to the max range;
+        readings below ``range_min_m`` are ignored. Raises ValueError on NaN or malformed scans.
+        """
+        scan.validate()
+        ranges = np.asarray(scan.ranges_m, dtype=float)
+        angles = scan.angles_rad + sensor_pose.yaw_rad
+        usable = ranges >= scan.range_min_m
+        is_hit = usable & (ranges <= scan.range_max_m)
+        clear_len = np.where(is_hit, ranges, scan.range_max_m)
+        angles, clear_len, is_hit = angles[usable], clear_len[usable], is_hit[usable]
+        if len(angles) == 0:
+            return 0
+        origin = np.array([sensor_pose.x_m, sensor_pose.y_m])
+        iy, ix, dist = beam_samples(self.geometry, origin, angles, clear_len)
+        free_sel = (dist < clear_len[:, None] - 1e-9) & self.geometry.in_bounds(iy, ix)
+        fy, fx = iy[free_sel], ix[free_sel]
+        hit_xy = origin[None, :] + (clear_len[is_hit] + 1e-6)[:, None] * np.stack(
+            [np.cos(angles[is_hit]), np.sin(angles[is_hit])], axis=1
+        )
+        hy, hx = self.geometry.world_to_cell(hit_xy[:, 0], hit_xy[:, 1])
+        keep = self.geometry.in_bounds(hy, hx)
+        hy, hx = hy[keep], hx[keep]
+        touched_free = np.zeros(self.geometry.shape, dtype=bool)
+        touched_free[fy, fx] = True
+        touched_hit = np.zeros(self.geometry.shape, dtype=bool)
+        touched_hit[hy, hx] = True
+        touched_free &= ~touched_hit
+        newly = np.count_nonzero((touched_free | touched_hit) & ~self.explored)
+        self.log_odds[touched_free] = np.maximum(self.log_odds[touched_free] + LOG_ODDS_MISS, LOG_ODDS_MIN)
+        self.log_odds[touched_hit] = np.minimum(self.log_odds[touched_hit] + LOG_ODDS_HIT, LOG_ODDS_MAX)
+        changed = touched_free | touched_hit
+        self.occupied[changed] = self.log_odds[changed] > 0.0
+        self.explored |= changed
+        return int(newly)
+
+    def to_occupancy_grid(self) -> np.ndarray:
+        """int8 grid with ROS values: -1 unknown, 0 free, 100 occupied (row 0 at the origin)."""
+        grid = np.full(self.geometry.shape, UNKNOWN, dtype=np.int8)
+        grid[self.explored] = FREE
+        grid[self.explored & self.occupied] = OCCUPIED
+        return grid
+
+    @classmethod
+    def from_occupancy_grid(cls, grid: np.ndarray, geometry: GridGeometry) -> "OccupancyMap":
+        """Inverse of ``to_occupancy_grid`` (values above 50 are occupied, ROS convention)."""
+        grid = np.asarray(grid)
+        if grid.shape != tuple(geometry.shape):
+            raise ValueError(f"grid shape {grid.shape} does not match geometry {geometry.shape}")
+        m = cls(geometry)
+        m.explored = grid >= 0
+        m.occupied = grid > 50
+        m.log_odds = np.where(m.occupied, LOG_ODDS_HIT, np.where(m.explored, LOG_ODDS_MISS, 0.0)).astype(np.float32)
+        return m
+
+    def copy(self) -> "OccupancyMap":
+        m = OccupancyMap(self.geometry)
+        m.explored = self.explored.copy()
+        m.log_odds = self.log_odds.copy()
+        m.occupied = self.occupied.copy()
+        return m

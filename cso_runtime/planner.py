@@ -1,0 +1,281 @@
+"""Local planner: a path on the inflated map and a pure-pursuit follower that drives it safely.
+
+Split like Nav2: ``plan_path`` is the planner server (path by descending the fast-marching distance
+field), ``PathFollower`` the controller (pure pursuit with rotate-in-place and an obstacle slow-down),
+``ProgressChecker`` Nav2's progress checker. ``LocalPlanner`` ties them and reports a status the
+policy can act on: ``following``, ``reached``, ``blocked`` (no path) or ``no_progress``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+
+from cso_runtime.config import PlannerConfig, RobotConfig
+from cso_runtime.geodesic import disk, geodesic_distance
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
+
+_NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
+
+
+class PlannerStatus(str, Enum):
+    IDLE = "idle"
+    FOLLOWING = "following"
+    REACHED = "reached"
+    BLOCKED = "blocked"
+    NO_PROGRESS = "no_progress"
+
+
+class NoPath(Exception):
+    """The goal cannot be reached through known free space (reported as ``blocked``)."""
+
+
+def descend_path(distance_m: np.ndarray, geometry: GridGeometry, goal_cell: tuple[int, int]) -> np.ndarray:
+    """Path (N x 2, metres, robot first) from the robot to ``goal_cell`` by steepest descent of D.
+
+    ``distance_m`` must be a geodesic distance map from the robot (``geodesic_distance``); a goal at
+    infinite distance raises NoPath.
+    """
+    y, x = int(goal_cell[0]), int(goal_cell[1])
+    if not np.isfinite(distance_m[y, x]):
+        raise NoPath(f"goal cell {goal_cell} is unreachable")
+    ny, nx = distance_m.shape
+    cells = [(y, x)]
+    for _ in range(ny * nx):
+        here = distance_m[y, x]
+        if here <= geometry.resolution_m:
+            break
+        nb = _NEIGHBOURS + (y, x)
+        ok = (nb[:, 0] >= 0) & (nb[:, 0] < ny) & (nb[:, 1] >= 0) & (nb[:, 1] < nx)
+        nb = nb[ok]
+        values = distance_m[nb[:, 0], nb[:, 1]]
+        k = int(np.argmin(values))
+        if not values[k] < here:
+            break
+        y, x = int(nb[k, 0]), int(nb[k, 1])
+        cells.append((y, x))
+    arr = np.array(cells[::-1])
+    xs, ys = geometry.cell_to_world(arr[:, 0], arr[:, 1])
+    return np.stack([xs, ys], axis=1)
+
+
+def plan_path(
+    traversable: np.ndarray,
+    geometry: GridGeometry,
+    start_xy_m: np.ndarray,
+    goal_xy_m: np.ndarray,
+    distance_from_start: np.ndarray | None = None,
+) -> np.ndarray:
+    """Shortest path from start to goal through ``traversable`` cells, as metric waypoints.
+
+    Pass ``distance_from_start`` when a distance map from the start already exists (one fast-marching
+    pass per decision is enough). Raises NoPath when the goal is unreachable or off the map.
+    """
+    d = distance_from_start if distance_from_start is not None else geodesic_distance(traversable, geometry, start_xy_m)
+    gy, gx = geometry.world_to_cell(goal_xy_m[0], goal_xy_m[1])
+    if not geometry.in_bounds(gy, gx):
+        raise NoPath("goal is outside the map")
+    path = descend_path(d, geometry, (int(gy), int(gx)))
+    path[-1] = np.asarray(goal_xy_m, dtype=float)
+    return path
+
+
+def path_is_blocked(path_xy_m: np.ndarray, start_index: int, occupied: np.ndarray, geometry: GridGeometry, radius_m: float, horizon: int = 60) -> bool:
+    """True when an occupied cell lies within ``radius_m`` of the next ``horizon`` path points."""
+    pts = path_xy_m[start_index : start_index + horizon]
+    if len(pts) == 0:
+        return False
+    r = int(math.ceil(radius_m / geometry.resolution_m - 1e-9))
+    offsets = np.argwhere(disk(r)) - r
+    iy, ix = geometry.world_to_cell(pts[:, 0], pts[:, 1])
+    yy = (iy[:, None] + offsets[None, :, 0]).ravel()
+    xx = (ix[:, None] + offsets[None, :, 1]).ravel()
+    ok = geometry.in_bounds(yy, xx)
+    return bool(occupied[yy[ok], xx[ok]].any())
+
+
+@dataclass
+class FollowResult:
+    command: VelocityCommand
+    status: PlannerStatus
+
+
+class PathFollower:
+    """Pure pursuit along a path: rotate in place on sharp turns, slow down near scanned obstacles."""
+
+    def __init__(self, robot: RobotConfig, config: PlannerConfig, sensor_mount_x_m: float = 0.0):
+        self.robot = robot
+        self.config = config
+        self.sensor_mount_x_m = sensor_mount_x_m
+
+    def lookahead_index(self, pose: Pose2D, path_xy_m: np.ndarray, progress_index: int) -> tuple[int, int]:
+        """(nearest, lookahead) indices on the path, never moving backwards from ``progress_index``."""
+        tail = path_xy_m[progress_index:]
+        d = np.hypot(tail[:, 0] - pose.x_m, tail[:, 1] - pose.y_m)
+        nearest = progress_index + int(np.argmin(d[: max(1, min(len(d), 40))]))
+        ahead = np.hypot(path_xy_m[nearest:, 0] - pose.x_m, path_xy_m[nearest:, 1] - pose.y_m)
+        beyond = np.flatnonzero(ahead >= self.config.lookahead_m)
+        look = nearest + int(beyond[0]) if beyond.size else len(path_xy_m) - 1
+        return nearest, look
+
+    def clearance_ahead(self, scan: LaserScan | None) -> tuple[float, float]:
+        """(travel_m, bearing_rad): how far the robot can drive straight before touching a scanned
+        obstacle, and the bearing of that obstacle. The body is swept forward as a circle of half the
+        robot's width plus 1 cm, so walls beside a narrow door do not count."""
+        if scan is None:
+            return math.inf, 0.0
+        r = np.asarray(scan.ranges_m, dtype=float)
+        ang = scan.angles_rad
+        valid = np.isfinite(r) & (r >= scan.range_min_m)
+        r, ang = r[valid], ang[valid]
+        radius = 0.5 * self.robot.width_m + 0.01
+        forward = r * np.cos(ang) + self.sensor_mount_x_m
+        lateral = r * np.sin(ang)
+        ahead = (forward > 0.0) & (np.abs(lateral) < radius)
+        if not ahead.any():
+            return math.inf, 0.0
+        travel = forward[ahead] - np.sqrt(radius**2 - lateral[ahead] ** 2)
+        k = int(np.argmin(travel))
+        return float(travel[k]), float(math.atan2(lateral[ahead][k], forward[ahead][k]))
+
+    def obstacle_speed_scale(self, travel_m: float) -> float:
+        """1 when the way ahead is clear, falling to 0 at ``stop_distance_m`` before contact."""
+        c = self.config
+        return float(np.clip((travel_m - c.stop_distance_m) / max(c.slow_down_distance_m - c.stop_distance_m, 1e-6), 0.0, 1.0))
+
+    def command(self, pose: Pose2D, target_xy_m: np.ndarray, distance_to_goal_m: float, scan: LaserScan | None) -> VelocityCommand:
+        dx, dy = target_xy_m[0] - pose.x_m, target_xy_m[1] - pose.y_m
+        heading_error = wrap_angle_rad(math.atan2(dy, dx) - pose.yaw_rad)
+        v_max, w_max = self.robot.max_linear_mps, self.robot.max_angular_radps
+        if abs(heading_error) > self.config.rotate_in_place_rad:
+            return VelocityCommand(0.0, math.copysign(w_max, heading_error))
+        dist = max(math.hypot(dx, dy), 1e-6)
+        curvature = 2.0 * math.sin(heading_error) / dist
+        travel, bearing = self.clearance_ahead(scan)
+        v = v_max * self.obstacle_speed_scale(travel)
+        if v < 0.05 and abs(heading_error) < 0.3:
+            # Too close to an obstacle to go on (cut a corner): turn away from it in place.
+            return VelocityCommand(0.0, -math.copysign(0.5 * w_max, bearing))
+        # Arrive: never overshoot the goal within one control period.
+        v = min(v, distance_to_goal_m / self.robot.control_period_s)
+        if abs(curvature) * v > w_max:
+            v = w_max / abs(curvature)
+        w = curvature * v
+        if v < 0.05:  # too slow to steer by moving: turn towards the target instead
+            w = float(np.clip(2.0 * heading_error, -w_max, w_max))
+        return VelocityCommand(v, w).clamped(v_max, w_max)
+
+
+class ProgressChecker:
+    """Nav2's simple progress checker: at least ``required_m`` of movement within ``window_s``."""
+
+    def __init__(self, required_m: float, window_s: float):
+        self.required_m = required_m
+        self.window_s = window_s
+        self.reset()
+
+    def reset(self) -> None:
+        self._anchor: tuple[float, float, float] | None = None
+
+    def check(self, pose: Pose2D, time_s: float) -> bool:
+        """False when the robot failed to make progress in time (then the anchor restarts)."""
+        if self._anchor is None or math.hypot(pose.x_m - self._anchor[0], pose.y_m - self._anchor[1]) >= self.required_m:
+            self._anchor = (pose.x_m, pose.y_m, time_s)
+            return True
+        if time_s - self._anchor[2] > self.window_s:
+            self._anchor = (pose.x_m, pose.y_m, time_s)
+            return False
+        return True
+
+
+class LocalPlanner:
+    """Follows one goal at a time: path, pure pursuit, goal check, progress check, blocked check."""
+
+    def __init__(
+        self,
+        robot: RobotConfig | None = None,
+        config: PlannerConfig | None = None,
+        goal_tolerance_m: float = 0.3,
+        sensor_mount_x_m: float = 0.0,
+    ):
+        self.robot = robot or RobotConfig()
+        self.config = config or PlannerConfig()
+        self.goal_tolerance_m = goal_tolerance_m
+        self.follower = PathFollower(self.robot, self.config, sensor_mount_x_m)
+        self.progress = ProgressChecker(self.config.progress_required_m, self.config.progress_window_s)
+        self.path: np.ndarray | None = None
+        self.progress_index = 0
+        self.status = PlannerStatus.IDLE
+
+    def set_path(self, path_xy_m: np.ndarray) -> None:
+        """Follow a new path. Progress is tracked across re-plans to the same goal, so re-sending a
+        goal cannot hide a robot that makes no progress."""
+        path = np.asarray(path_xy_m, dtype=float)
+        if self.path is None or np.hypot(*(path[-1] - self.path[-1])) > self.goal_tolerance_m:
+            self.progress.reset()
+        self.path = path
+        self.progress_index = 0
+        self.status = PlannerStatus.FOLLOWING
+
+    def set_goal(
+        self,
+        traversable: np.ndarray,
+        geometry: GridGeometry,
+        pose: Pose2D,
+        goal_xy_m: np.ndarray,
+        distance_from_robot: np.ndarray | None = None,
+    ) -> PlannerStatus:
+        """Plan to a new goal; the status is ``blocked`` when there is no path."""
+        try:
+            self.set_path(plan_path(traversable, geometry, pose.xy, np.asarray(goal_xy_m, dtype=float), distance_from_robot))
+        except NoPath:
+            self.path = None
+            self.progress.reset()
+            self.status = PlannerStatus.BLOCKED
+        return self.status
+
+    def clear(self) -> None:
+        self.path = None
+        self.status = PlannerStatus.IDLE
+
+    def remaining_path(self) -> np.ndarray:
+        if self.path is None:
+            return np.zeros((0, 2))
+        return self.path[self.progress_index :]
+
+    def check_blocked(self, occupied: np.ndarray, geometry: GridGeometry, pose: Pose2D) -> bool:
+        """Mark the path blocked when newly mapped obstacles cut it ahead (call after a map update).
+
+        Path points within two robot radii of the robot are skipped: the robot is already there.
+        """
+        if self.path is None or self.status != PlannerStatus.FOLLOWING:
+            return False
+        ahead = self.path[self.progress_index :]
+        near = np.hypot(ahead[:, 0] - pose.x_m, ahead[:, 1] - pose.y_m) < 2.0 * self.robot.radius_m
+        skip = int(np.argmin(near)) if not near.all() else len(ahead)
+        if path_is_blocked(self.path, self.progress_index + skip, occupied, geometry, self.robot.radius_m * 0.75):
+            self.status = PlannerStatus.BLOCKED
+            return True
+        return False
+
+    def update(self, pose: Pose2D, time_s: float, scan: LaserScan | None = None) -> FollowResult:
+        """One control period: the command to send and the resulting status."""
+        stop = VelocityCommand(0.0, 0.0)
+        if self.path is None or self.status in (PlannerStatus.BLOCKED, PlannerStatus.IDLE):
+            return FollowResult(stop, self.status)
+        goal = self.path[-1]
+        to_goal = math.hypot(goal[0] - pose.x_m, goal[1] - pose.y_m)
+        if to_goal <= self.goal_tolerance_m:
+            self.status = PlannerStatus.REACHED
+            return FollowResult(stop, self.status)
+        if not self.progress.check(pose, time_s):
+            self.status = PlannerStatus.NO_PROGRESS
+            return FollowResult(stop, self.status)
+        nearest, look = self.follower.lookahead_index(pose, self.path, self.progress_index)
+        self.progress_index = nearest
+        cmd = self.follower.command(pose, self.path[look], to_goal, scan)
+        self.status = PlannerStatus.FOLLOWING
+        return FollowResult(cmd, self.status)

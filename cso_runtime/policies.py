@@ -1,0 +1,186 @@
+"""Goal selectors: the baselines of the paper and explore_lite, behind one small interface.
+
+A selector takes an Observation and returns a Goal (or None when no frontier is reachable). The
+learned CSO policy implements the same Protocol, so every caller treats them alike.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+from cso_runtime.config import MaskConfig
+from cso_runtime.masks import StuckMask, valid_distance_mask
+from cso_runtime.observation import Observation
+
+
+@dataclass(frozen=True)
+class Goal:
+    """A long-term goal: a frontier cluster's goal cell in the map frame."""
+
+    x_m: float
+    y_m: float
+    cluster_index: int
+    """Index of the chosen cluster in ``Observation.clusters``."""
+    distance_m: float
+
+
+@runtime_checkable
+class GoalSelector(Protocol):
+    """Chooses the next long-term goal among the frontier clusters."""
+
+    name: str
+
+    def reset(self, seed: int | None = None) -> None:
+        """Forget history at the start of an episode; re-seed any randomness."""
+
+    def select(self, obs: Observation) -> Goal | None:
+        """The next goal, or None when there is no reachable frontier."""
+
+
+def goal_of(obs: Observation, index: int) -> Goal:
+    c = obs.clusters[index]
+    return Goal(c.goal_xy_m[0], c.goal_xy_m[1], index, c.distance_m)
+
+
+class ActionMasker:
+    """Both masks of section 3.3 over an observation's clusters, as used by the learned policy.
+
+    ``mask(obs)`` also records the decision for Algorithm 1, so call it exactly once per decision.
+    """
+
+    def __init__(self, config: MaskConfig):
+        self.config = config
+        self.stuck = StuckMask(config)
+        self.last_rule = "off"
+
+    def reset(self) -> None:
+        self.stuck.reset()
+
+    def mask(self, obs: Observation) -> np.ndarray:
+        n = len(obs.clusters)
+        d = obs.goal_distance_m
+        allowed = np.isfinite(d)
+        if self.config.use_valid_distance:
+            vdm, self.last_rule = valid_distance_mask(d, self.config.beta_near_m, self.config.beta_far_m)
+            allowed &= vdm
+        moved = np.inf
+        if self.stuck.history:
+            px, py = self.stuck.history[-1].position_xy_m
+            gy, gx = obs.geometry.world_to_cell(px, py)
+            if obs.geometry.in_bounds(gy, gx):
+                moved = float(obs.distance_m[int(gy), int(gx)])
+        self.stuck.record((obs.pose.x_m, obs.pose.y_m), obs.open_area_m2, moved)
+        if self.config.use_stuck:
+            stuck_allowed = self.stuck.mask(n, obs.goal_distances_from)
+            if (allowed & stuck_allowed).any():
+                allowed &= stuck_allowed
+        return allowed
+
+
+class _ScoreSelector:
+    """A baseline that picks the reachable cluster with the best score (lowest cost)."""
+
+    name = "base"
+
+    def reset(self, seed: int | None = None) -> None:
+        pass
+
+    def cost(self, obs: Observation) -> np.ndarray:
+        raise NotImplementedError
+
+    def select(self, obs: Observation) -> Goal | None:
+        if not obs.clusters:
+            return None
+        cost = np.where(np.isfinite(obs.goal_distance_m), self.cost(obs), np.inf)
+        if not np.isfinite(cost).any():
+            return None
+        return goal_of(obs, int(np.argmin(cost)))  # ties: the nearer cluster (clusters are sorted by distance)
+
+
+class GreedyDist(_ScoreSelector):
+    """Greedy-Dist: the nearest frontier cluster by geodesic distance."""
+
+    name = "greedy-dist"
+
+    def cost(self, obs: Observation) -> np.ndarray:
+        return obs.goal_distance_m
+
+
+class GreedyInfo(_ScoreSelector):
+    """Greedy-Info: the cluster with the highest frontier-based entropy I (Eq. 4)."""
+
+    name = "greedy-info"
+
+    def cost(self, obs: Observation) -> np.ndarray:
+        return -np.array([c.entropy for c in obs.clusters], dtype=float)
+
+
+class Utility(_ScoreSelector):
+    """explore_lite's frontier cost: potential_scale * distance - gain_scale * size (lowest wins)."""
+
+    name = "utility"
+
+    def __init__(self, potential_scale: float = 3.0, gain_scale: float = 1.0):
+        self.potential_scale = potential_scale
+        self.gain_scale = gain_scale
+
+    def cost(self, obs: Observation) -> np.ndarray:
+        size = np.array([c.size_m for c in obs.clusters], dtype=float)
+        return self.potential_scale * obs.goal_distance_m - self.gain_scale * size
+
+
+class RandomFrontier:
+    """Random: a uniformly random reachable cluster (seeded)."""
+
+    name = "random"
+
+    def __init__(self, seed: int | None = None):
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self, seed: int | None = None) -> None:
+        if seed is not None:
+            self.rng = np.random.default_rng(seed)
+
+    def select(self, obs: Observation) -> Goal | None:
+        reachable = np.flatnonzero(np.isfinite(obs.goal_distance_m))
+        if reachable.size == 0:
+            return None
+        return goal_of(obs, int(self.rng.choice(reachable)))
+
+
+BASELINES: dict[str, Callable[[], GoalSelector]] = {
+    "greedy-dist": GreedyDist,
+    "greedy-info": GreedyInfo,
+    "utility": Utility,
+    "random": RandomFrontier,
+}
+
+LEARNED_METHODS = ("cso", "cso-no-info", "cso-no-mask", "cso-sm", "cso-vdm", "gnn-baseline")
+
+
+def available_methods() -> list[str]:
+    return list(BASELINES) + [m for m in LEARNED_METHODS if _learned_available(m)]
+
+
+def _learned_available(name: str) -> bool:
+    try:
+        from cso_runtime.learned import registry  # noqa: PLC0415 - optional, heavy (torch)
+    except ImportError:
+        return False
+    return registry.has_method(name)
+
+
+def make_policy(name: str, mask_config: MaskConfig | None = None, seed: int | None = None, device: str = "cpu") -> GoalSelector:
+    """Build a goal selector by name (``greedy-dist``, ``greedy-info``, ``utility``, ``random``, ``cso``...)."""
+    if name in BASELINES:
+        policy = BASELINES[name]()
+        policy.reset(seed)
+        return policy
+    if name in LEARNED_METHODS:
+        from cso_runtime.learned import registry  # noqa: PLC0415 - torch only when needed
+
+        return registry.make_learned_policy(name, mask_config or MaskConfig(), seed=seed, device=device)
+    raise ValueError(f"unknown method {name!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")

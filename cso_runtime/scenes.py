@@ -1,0 +1,171 @@
+"""Floor plans: ground-truth free space, metric scale, start pose, and the paper's scale classes.
+
+Sources: the Dungeon PNG plans (any folder of them, or the few shipped in the package) and the
+seeded apartment generator (``cso_runtime.scene_generator``). Scene specs used by the CLI:
+``DIR`` (every PNG in it), a single ``FILE.png``, ``builtin`` (plans shipped in the package) or
+``generated:SCALE:N:SEED``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+from cso_runtime.geometry import GridGeometry, Pose2D
+
+FREE_RGB = (195, 195, 194)
+WALL_RGB = (127, 127, 127)
+START_RGB = (255, 216, 0)
+
+SCALES = ("small", "middle", "large", "super_large")
+"""Section 4.1: traversable area < 30, 30-100, 100-260, > 260 m2."""
+
+
+class SceneError(ValueError):
+    """A floor plan is missing, corrupt or unusable."""
+
+
+def scale_of(area_m2: float) -> str:
+    """The paper's scale class of a scene from its traversable area."""
+    if area_m2 < 30.0:
+        return "small"
+    if area_m2 < 100.0:
+        return "middle"
+    if area_m2 < 260.0:
+        return "large"
+    return "super_large"
+
+
+@dataclass
+class FloorPlan:
+    """Ground truth of one scene. ``free[iy, ix]`` is True for floor; row 0 is the bottom (y = 0)."""
+
+    name: str
+    free: np.ndarray
+    resolution_m: float
+    start: Pose2D
+    source: str = ""
+
+    @property
+    def geometry(self) -> GridGeometry:
+        return GridGeometry(self.resolution_m, tuple(self.free.shape))
+
+    @property
+    def occupied(self) -> np.ndarray:
+        return ~self.free
+
+    def traversable_region(self) -> np.ndarray:
+        """Free cells connected to the start: what a perfect explorer could see and count."""
+        labels, _ = ndimage.label(self.free)
+        iy, ix = self.geometry.world_to_cell(self.start.x_m, self.start.y_m)
+        lab = labels[int(iy), int(ix)]
+        if lab == 0:
+            raise SceneError(f"{self.name}: start pose is not on free space")
+        return labels == lab
+
+    def traversable_area_m2(self) -> float:
+        return float(np.count_nonzero(self.traversable_region())) * self.resolution_m**2
+
+    @property
+    def scale(self) -> str:
+        return scale_of(self.traversable_area_m2())
+
+    def pixels_from_grid(self, grid: np.ndarray) -> np.ndarray:
+        """Turn a grid array back into the PNG's own pixel layout (row 0 at the top)."""
+        return np.flipud(grid)
+
+
+def floor_plan_from_rgb(name: str, rgb: np.ndarray, resolution_m: float, start_yaw_rad: float = 0.0, source: str = "") -> FloorPlan:
+    """Decode a Dungeon-style image: free (195,195,194), wall (127,127,127), start square (255,216,0)."""
+    if rgb.ndim != 3 or rgb.shape[2] < 3:
+        raise SceneError(f"{name}: expected an RGB(A) image, got shape {rgb.shape}")
+    rgb = rgb[:, :, :3].astype(np.int16)
+    start = np.all(np.abs(rgb - np.array(START_RGB)) <= 10, axis=2)
+    free_px = np.all(np.abs(rgb - np.array(FREE_RGB)) <= 10, axis=2) | start
+    if not start.any():
+        raise SceneError(f"{name}: no start marker (colour {START_RGB})")
+    if not free_px.any():
+        raise SceneError(f"{name}: no free space (colour {FREE_RGB})")
+    free = np.flipud(free_px)
+    sy, sx = np.nonzero(np.flipud(start))
+    x = (sx.mean() + 0.5) * resolution_m
+    y = (sy.mean() + 0.5) * resolution_m
+    return FloorPlan(name, free.copy(), float(resolution_m), Pose2D(float(x), float(y), float(start_yaw_rad)), source)
+
+
+def load_floor_plan(path: str | Path, resolution_m: float = 0.1, start_yaw_rad: float = 0.0) -> FloorPlan:
+    """Load one PNG floor plan at ``resolution_m`` metres per pixel. Raises SceneError if unusable."""
+    from PIL import Image, UnidentifiedImageError  # noqa: PLC0415 - only needed for PNG input
+
+    p = Path(path)
+    if not p.is_file():
+        raise SceneError(f"{p.name}: file not found ({p})")
+    if not resolution_m > 0:
+        raise SceneError("metres per pixel must be positive")
+    try:
+        with Image.open(p) as im:
+            rgb = np.asarray(im.convert("RGB"))
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        raise SceneError(f"{p.name}: not a readable image ({exc})") from None
+    return floor_plan_from_rgb(p.stem, rgb, resolution_m, start_yaw_rad, source=str(p))
+
+
+def _natural_key(p: Path) -> tuple:
+    return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name))
+
+
+def builtin_scene_dir() -> Path:
+    """Folder of the Dungeon plans shipped inside the package (MIT licence alongside)."""
+    return Path(str(resources.files("cso_runtime") / "data" / "scenes"))
+
+
+@dataclass(frozen=True)
+class SceneRef:
+    """A scene to load lazily in a worker: a PNG path or a generator spec."""
+
+    name: str
+    path: str | None = None
+    generated: tuple[str, int] | None = None  # (scale, seed)
+    resolution_m: float = 0.1
+
+    def load(self) -> FloorPlan:
+        if self.generated is not None:
+            from cso_runtime.scene_generator import generate_floor_plan  # noqa: PLC0415
+
+            scale, seed = self.generated
+            return generate_floor_plan(scale, seed)
+        assert self.path is not None
+        return load_floor_plan(self.path, self.resolution_m)
+
+
+def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.1) -> list[SceneRef]:
+    """Expand a scene spec into scene references (see the module docstring for the forms)."""
+    if spec.startswith("generated:"):
+        parts = spec.split(":")
+        if len(parts) != 4:
+            raise SceneError(f"bad generated spec {spec!r}; use generated:SCALE:N:SEED")
+        _, scale, n, seed = parts
+        if scale not in ("small", "middle"):
+            raise SceneError(f"generated scale must be small or middle, got {scale!r}")
+        try:
+            n_i, seed_i = int(n), int(seed)
+        except ValueError:
+            raise SceneError(f"bad generated spec {spec!r}: N and SEED must be integers") from None
+        refs = [SceneRef(f"gen_{scale}_{seed_i + k}", generated=(scale, seed_i + k)) for k in range(n_i)]
+    else:
+        p = builtin_scene_dir() if spec == "builtin" else Path(spec)
+        if p.is_dir():
+            files = sorted(p.glob("*.png"), key=_natural_key)
+            if not files:
+                raise SceneError(f"no PNG floor plans in {p}")
+        elif p.suffix.lower() == ".png":
+            files = [p]  # a missing file is reported per scene, as a failure
+        else:
+            raise SceneError(f"scene spec {spec!r} is not a folder, a .png, 'builtin' or generated:SCALE:N:SEED")
+        refs = [SceneRef(f.stem, path=str(f), resolution_m=resolution_m) for f in files]
+    return refs[:limit] if limit is not None else refs

@@ -1,0 +1,117 @@
+"""Simulators behind one interface, and the fast 2D kinematic simulator used for eval and training.
+
+The 2D simulator ray-casts the LiDAR on the ground-truth plan and integrates a unicycle for one
+control period per ``step``; the MuJoCo LIMO (``robot_sim``) implements the same ``Simulator``
+protocol with physics. Mapping, frontiers, policies and the planner never know which one runs.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from cso_runtime.config import RobotConfig, SensorConfig
+from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
+from cso_runtime.raycast import cast_rays
+from cso_runtime.scenes import FloorPlan
+
+
+@runtime_checkable
+class Simulator(Protocol):
+    """A robot in a floor plan that takes velocity commands and returns scans."""
+
+    plan: FloorPlan
+    time_s: float
+
+    def reset(self, seed: int | None = None) -> None:
+        """Put the robot at the plan's start pose; re-seed noise."""
+
+    def scan(self) -> LaserScan:
+        """The latest range scan, in the sensor frame."""
+
+    def odometry(self) -> Pose2D:
+        """The robot's own pose estimate in the map frame (odometry starts at the start pose)."""
+
+    def sensor_pose(self) -> Pose2D:
+        """Pose of the range sensor according to odometry (where the mapper puts the scan)."""
+
+    def true_pose(self) -> Pose2D:
+        """Ground-truth pose: for evaluation only, never for the robot's decisions."""
+
+    def step(self, command: VelocityCommand) -> None:
+        """Apply ``command`` for one control period (0.25 s by default) and advance time."""
+
+
+COLLISION_RADIUS_M = 0.12
+"""Footprint of the kinematic robot: half the LIMO's 0.22 m width plus 1 cm; planning inflates by more."""
+
+
+class KinematicSimulator:
+    """Fast 2D simulator: unicycle motion that stops at walls, LiDAR by ray casting the plan."""
+
+    substeps = 5
+
+    def __init__(self, plan: FloorPlan, sensor: SensorConfig | None = None, robot: RobotConfig | None = None, seed: int | None = None):
+        self.plan = plan
+        self.sensor = sensor or SensorConfig()
+        self.robot = robot or RobotConfig()
+        ring = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
+        self._footprint = np.concatenate([[[0.0, 0.0]], COLLISION_RADIUS_M * np.stack([np.cos(ring), np.sin(ring)], axis=1)])
+        n = max(1, int(round(self.sensor.fov_deg / self.sensor.resolution_deg)))
+        fov = math.radians(self.sensor.fov_deg)
+        inc = fov / n
+        full_ring = self.sensor.fov_deg >= 360.0
+        self._angle_min = -math.pi if full_ring else -fov / 2.0
+        self._increment = inc
+        self._n_beams = n if full_ring else n + 1
+        self.reset(seed)
+
+    def reset(self, seed: int | None = None) -> None:
+        self.rng = np.random.default_rng(seed)
+        self._pose = self.plan.start
+        self.time_s = 0.0
+        self.collisions = 0
+
+    def true_pose(self) -> Pose2D:
+        return self._pose
+
+    def odometry(self) -> Pose2D:
+        return self._pose
+
+    def sensor_pose(self) -> Pose2D:
+        return self._pose.compose_offset(self.sensor.mount_x_m)
+
+    def scan(self) -> LaserScan:
+        sp = self._pose.compose_offset(self.sensor.mount_x_m)
+        rel = self._angle_min + self._increment * np.arange(self._n_beams)
+        ranges = cast_rays(self.plan.occupied, self.plan.geometry, sp.xy, rel + sp.yaw_rad, self.sensor.range_max_m)
+        if self.sensor.range_noise_std_m > 0:
+            finite = np.isfinite(ranges)
+            ranges[finite] += self.rng.normal(0.0, self.sensor.range_noise_std_m, int(finite.sum()))
+            ranges[finite] = np.maximum(ranges[finite], 0.0)
+        return LaserScan(self._angle_min, self._increment, self.sensor.range_min_m, self.sensor.range_max_m, ranges.astype(np.float32), self.time_s)
+
+    def _free_at(self, x_m: float, y_m: float) -> bool:
+        """The circular footprint centred at (x, y) touches no wall cell (checked on its rim)."""
+        g = self.plan.geometry
+        iy, ix = g.world_to_cell(x_m + self._footprint[:, 0], y_m + self._footprint[:, 1])
+        if not g.in_bounds(iy, ix).all():
+            return False
+        return bool(self.plan.free[iy, ix].all())
+
+    def step(self, command: VelocityCommand) -> None:
+        cmd = command.clamped(self.robot.max_linear_mps, self.robot.max_angular_radps)
+        dt = self.robot.control_period_s / self.substeps
+        x, y, yaw = self._pose.x_m, self._pose.y_m, self._pose.yaw_rad
+        for _ in range(self.substeps):
+            yaw_mid = yaw + 0.5 * cmd.angular_radps * dt
+            nx, ny = x + cmd.linear_mps * dt * math.cos(yaw_mid), y + cmd.linear_mps * dt * math.sin(yaw_mid)
+            if self._free_at(nx, ny):
+                x, y = nx, ny
+            elif cmd.linear_mps != 0.0:
+                self.collisions += 1
+            yaw = wrap_angle_rad(yaw + cmd.angular_radps * dt)
+        self._pose = Pose2D(x, y, yaw)
+        self.time_s += self.robot.control_period_s
