@@ -16,6 +16,14 @@ app = typer.Typer(
 )
 
 
+@app.callback()
+def _root(verbose: bool = typer.Option(False, "--verbose", "-v", help="Debug logging")) -> None:
+    """Active scene mapping with CSO (ACM MM 2024) on a LIMO robot: eval, train, and the Zenoh runtime."""
+    import logging  # noqa: PLC0415
+
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
 @app.command("eval")
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", help="Comma-separated methods: greedy-dist,greedy-info,utility,random,cso,..."),

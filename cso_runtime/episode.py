@@ -158,8 +158,13 @@ class Explorer:
         return obs
 
     def handle_reason(self, reason: str) -> None:
-        """Bookkeeping before a decision: forget goals that failed in place."""
-        if self.goal is not None and reason in ("reached", "no_progress") and self._goal_still_frontier():
+        """Bookkeeping before a decision: forget goals that failed in place (reached, or no progress
+        right next to them, and still frontiers: unobservable noise)."""
+        if self.goal is None or not self._goal_still_frontier():
+            return
+        pose = self.sim.odometry()
+        near = math.hypot(self.goal.x_m - pose.x_m, self.goal.y_m - pose.y_m) < 1.0
+        if reason == "reached" or (reason == "no_progress" and near):
             self._mark_dead((self.goal.x_m, self.goal.y_m))
 
     def apply_goal(self, obs: Observation, goal: Goal | None) -> None:

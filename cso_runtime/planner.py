@@ -146,28 +146,48 @@ class PathFollower:
         c = self.config
         return float(np.clip((travel_m - c.stop_distance_m) / max(c.slow_down_distance_m - c.stop_distance_m, 1e-6), 0.0, 1.0))
 
-    def command(self, pose: Pose2D, target_xy_m: np.ndarray, distance_to_goal_m: float, scan: LaserScan | None) -> VelocityCommand:
-        dx, dy = target_xy_m[0] - pose.x_m, target_xy_m[1] - pose.y_m
-        heading_error = wrap_angle_rad(math.atan2(dy, dx) - pose.yaw_rad)
+    def _heading_error(self, pose: Pose2D, target_xy_m: np.ndarray) -> float:
+        return wrap_angle_rad(math.atan2(target_xy_m[1] - pose.y_m, target_xy_m[0] - pose.x_m) - pose.yaw_rad)
+
+    def command(
+        self, pose: Pose2D, path_xy_m: np.ndarray, nearest: int, look: int, distance_to_goal_m: float, scan: LaserScan | None
+    ) -> VelocityCommand:
+        """Velocity for one control period.
+
+        Pure pursuit towards the lookahead point; when an obstacle in the sweep blocks it (the robot
+        cut a corner), it falls back to the path itself: face the path point just ahead, creep
+        along it, or back off when even that is blocked.
+        """
         v_max, w_max = self.robot.max_linear_mps, self.robot.max_angular_radps
+        target = path_xy_m[look]
+        heading_error = self._heading_error(pose, target)
         if abs(heading_error) > self.config.rotate_in_place_rad:
             return VelocityCommand(0.0, math.copysign(w_max, heading_error))
-        dist = max(math.hypot(dx, dy), 1e-6)
+        travel, _ = self.clearance_ahead(scan)
+        scale = self.obstacle_speed_scale(travel)
+        if scale * v_max < 0.05:
+            return self._recover(pose, path_xy_m, nearest, travel)
+        dist = max(math.hypot(target[0] - pose.x_m, target[1] - pose.y_m), 1e-6)
         curvature = 2.0 * math.sin(heading_error) / dist
-        travel, bearing = self.clearance_ahead(scan)
-        v = v_max * self.obstacle_speed_scale(travel)
-        if v < 0.05 and abs(heading_error) < 0.3:
-            # Too close to an obstacle to go on (cut a corner): turn away from it in place.
-            return VelocityCommand(0.0, -math.copysign(0.5 * w_max, bearing))
-        # Arrive: never overshoot the goal within one control period.
-        v = min(v, distance_to_goal_m / self.robot.control_period_s)
+        v = min(v_max * scale, distance_to_goal_m / self.robot.control_period_s)  # never overshoot the goal
         if abs(curvature) * v > w_max:
             v = w_max / abs(curvature)
         w = curvature * v
         if v < 0.05:  # too slow to steer by moving: turn towards the target instead
-            w = float(np.clip(2.0 * heading_error, -w_max, w_max))
+            return VelocityCommand(0.0, float(np.clip(2.0 * heading_error, -w_max, w_max)))
         return VelocityCommand(v, w).clamped(v_max, w_max)
 
+    def _recover(self, pose: Pose2D, path_xy_m: np.ndarray, nearest: int, travel_m: float) -> VelocityCommand:
+        """Blocked ahead: align with the path point ~0.2 m ahead (the path keeps clear of walls)."""
+        w_max = self.robot.max_angular_radps
+        step_m = max(float(np.median(np.hypot(*np.diff(path_xy_m[: nearest + 3], axis=0).T))) if nearest + 2 < len(path_xy_m) else 0.1, 1e-3)
+        k = min(len(path_xy_m) - 1, nearest + max(1, int(round(0.2 / step_m))))
+        error = self._heading_error(pose, path_xy_m[k])
+        if abs(error) > 0.25:
+            return VelocityCommand(0.0, math.copysign(0.5 * w_max, error))
+        if travel_m > 0.02:
+            return VelocityCommand(0.05, float(np.clip(error, -w_max, w_max)))
+        return VelocityCommand(-0.15, 0.0)
 
 class ProgressChecker:
     """Nav2's simple progress checker: at least ``required_m`` of movement within ``window_s``."""
@@ -276,6 +296,6 @@ class LocalPlanner:
             return FollowResult(stop, self.status)
         nearest, look = self.follower.lookahead_index(pose, self.path, self.progress_index)
         self.progress_index = nearest
-        cmd = self.follower.command(pose, self.path[look], to_goal, scan)
+        cmd = self.follower.command(pose, self.path, nearest, look, to_goal, scan)
         self.status = PlannerStatus.FOLLOWING
         return FollowResult(cmd, self.status)

@@ -115,3 +115,17 @@ class KinematicSimulator:
             yaw = wrap_angle_rad(yaw + cmd.angular_radps * dt)
         self._pose = Pose2D(x, y, yaw)
         self.time_s += self.robot.control_period_s
+
+
+SIMULATORS = ("2d", "mujoco")
+
+
+def make_simulator(name: str, plan: FloorPlan, sensor: SensorConfig, robot: RobotConfig, seed: int | None = None) -> Simulator:
+    """Simulator by name: ``2d`` (kinematic, fast) or ``mujoco`` (the physics LIMO in ``robot_sim``)."""
+    if name == "2d":
+        return KinematicSimulator(plan, sensor, robot, seed=seed)
+    if name == "mujoco":
+        from robot_sim import MujocoSimulator  # noqa: PLC0415 - MuJoCo only when asked for
+
+        return MujocoSimulator(plan, sensor, robot, seed=seed)
+    raise ValueError(f"unknown simulator {name!r}; choose one of {', '.join(SIMULATORS)}")

@@ -1,0 +1,339 @@
+"""``cso-runtime eval``: run methods over scenes and write Table 1 metrics, curves and trajectory plots.
+
+Outputs (contract relied on by scripts): ``summary.json``, ``episodes.csv``,
+``episodes/<method>/<map>.npz`` (explored, trajectory, coverage_curve), ``coverage_curves.png`` and
+``trajectories/<map>.png``.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import math
+import multiprocessing
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
+from cso_runtime.episode import EpisodeResult, run_episode
+from cso_runtime.policies import BASELINES, LEARNED_METHODS, make_policy
+from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, scale_of
+from cso_runtime.simulator import SIMULATORS, make_simulator
+
+log = logging.getLogger(__name__)
+
+METRICS = (
+    "explored_area_m2",
+    "coverage_pct",
+    "steps",
+    "efficiency_m2_per_step",
+    "path_length_m",
+    "decision_ms_p50",
+    "decision_ms_p99",
+)
+CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s")
+
+
+@dataclass
+class EvalRequest:
+    """What the eval command was asked to do (CLI flags and config file)."""
+
+    methods: list[str]
+    maps: str = "builtin"
+    limit: int | None = None
+    out_dir: Path = Path("results/eval")
+    m_per_px: float = 0.1
+    seed: int = 0
+    max_steps: int = 3000
+    lidar_fov_deg: float = 180.0
+    sensor: str = "lidar"
+    workers: int = 1
+    sim: str = "2d"
+    config_path: Path | None = None
+
+    def exploration_config(self) -> ExplorationConfig:
+        """The config file (if any) with the CLI's sensor and step-limit flags applied on top."""
+        data: dict[str, Any] = load_yaml(self.config_path) if self.config_path else {}
+        cfg = from_dict(ExplorationConfig, data, where=str(self.config_path or "config"))
+        preset = SensorConfig.preset(self.sensor, fov_deg=self.lidar_fov_deg if self.sensor == "lidar" else None)
+        preset.range_noise_std_m = cfg.sensor.range_noise_std_m
+        preset.mount_x_m = cfg.sensor.mount_x_m
+        cfg.sensor = preset
+        cfg.episode = EpisodeConfig(**{**to_dict(cfg.episode), "max_steps": int(self.max_steps)})
+        return cfg
+
+    def validate(self) -> None:
+        known = set(BASELINES) | set(LEARNED_METHODS)
+        unknown = [m for m in self.methods if m not in known]
+        if not self.methods:
+            raise ConfigError("no --method given")
+        if unknown:
+            raise ConfigError(f"unknown method(s) {', '.join(unknown)}; available: {', '.join(sorted(known))}")
+        if self.sim not in SIMULATORS:
+            raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
+        if self.max_steps <= 0 or self.workers <= 0:
+            raise ConfigError("--max-steps and --workers must be positive")
+        if self.sensor == "lidar" and self.lidar_fov_deg not in (180.0, 360.0):
+            raise ConfigError("--lidar-fov must be 180 or 360")
+
+
+@dataclass
+class EpisodeJob:
+    method: str
+    scene: SceneRef
+    seed: int
+    sim: str
+    config: ExplorationConfig
+    npz_path: Path
+
+
+@dataclass
+class EpisodeOutcome:
+    """What a worker sends back: the metric row, or the failure, plus arrays for the plots."""
+
+    method: str
+    map: str
+    row: dict[str, Any] | None = None
+    error: str | None = None
+    free: np.ndarray | None = None
+    resolution_m: float = 0.0
+    explored: np.ndarray | None = None
+    trajectory_xy_m: np.ndarray | None = None
+    coverage_curve_pct: np.ndarray | None = None
+
+
+def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float) -> dict[str, Any]:
+    """One CSV row / JSON record of Table 1 metrics."""
+    return {
+        "method": method,
+        "map": result.scene,
+        "scale": scale_of(result.traversable_area_m2),
+        "seed": seed,
+        "explored_area_m2": round(result.explored_area_m2, 4),
+        "coverage_pct": round(result.coverage_pct, 4),
+        "steps": result.steps,
+        "efficiency_m2_per_step": round(result.efficiency_m2_per_step, 6),
+        "path_length_m": round(result.path_length_m, 4),
+        "decision_ms_p50": round(result.decision_ms_p50, 4),
+        "decision_ms_p99": round(result.decision_ms_p99, 4),
+        "terminated_by": result.terminated_by,
+        "traversable_area_m2": round(result.traversable_area_m2, 4),
+        "decisions": result.decisions,
+        "wall_s": round(wall_s, 3),
+    }
+
+
+def save_episode_npz(path: Path, result: EpisodeResult) -> None:
+    """``explored`` in the plan's pixel layout (row 0 at the top, like the PNG), trajectory in metres."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        path,
+        explored=np.flipud(result.explored_free),
+        trajectory=result.trajectory_xy_m.astype(np.float32),
+        coverage_curve=result.coverage_curve_pct.astype(np.float32),
+    )
+
+
+def run_job(job: EpisodeJob) -> EpisodeOutcome:
+    """Run one episode; any failure (bad map, crash) is returned, never raised."""
+    try:
+        plan = job.scene.load()
+    except SceneError as exc:
+        return EpisodeOutcome(job.method, job.scene.name, error=str(exc))
+    try:
+        t0 = time.perf_counter()
+        sim = make_simulator(job.sim, plan, job.config.sensor, job.config.robot, seed=job.seed)
+        policy = make_policy(job.method, job.config.masks, seed=job.seed)
+        result = run_episode(sim, policy, job.config, seed=job.seed)
+        wall_s = time.perf_counter() - t0
+        save_episode_npz(job.npz_path, result)
+    except Exception as exc:  # noqa: BLE001 - one bad episode must not stop the run; it is reported
+        log.debug("episode failed", exc_info=True)
+        return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
+    return EpisodeOutcome(
+        job.method,
+        plan.name,
+        row=episode_row(job.method, job.seed, result, wall_s),
+        free=plan.free,
+        resolution_m=plan.resolution_m,
+        explored=result.explored_free,
+        trajectory_xy_m=result.trajectory_xy_m,
+        coverage_curve_pct=result.coverage_curve_pct,
+    )
+
+
+def _mean(rows: list[dict[str, Any]], key: str) -> float | None:
+    values = [float(r[key]) for r in rows if r.get(key) is not None and math.isfinite(float(r[key]))]
+    return round(float(np.mean(values)), 6) if values else None
+
+
+def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any]) -> dict[str, Any]:
+    """Per-method means of the Table 1 metrics, a per-scale breakdown, and the failures."""
+    summary: dict[str, Any] = {"meta": meta, "methods": {}}
+    for method in methods:
+        mine = [r for r in rows if r["method"] == method]
+        entry: dict[str, Any] = {k: _mean(mine, k) for k in METRICS}
+        entry["episodes"] = len(mine)
+        entry["terminated_by"] = {t: sum(1 for r in mine if r["terminated_by"] == t) for t in sorted({r["terminated_by"] for r in mine})}
+        entry["by_scale"] = {}
+        for scale in ("small", "middle", "large", "super_large"):
+            part = [r for r in mine if r["scale"] == scale]
+            if part:
+                entry["by_scale"][scale] = {**{k: _mean(part, k) for k in METRICS}, "episodes": len(part)}
+        entry["failures"] = [f for f in failures if f["method"] == method]
+        summary["methods"][method] = entry
+    summary["failures"] = failures
+    return summary
+
+
+def write_outputs(out_dir: Path, rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any]) -> dict[str, Any]:
+    """summary.json and episodes.csv."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    summary = summarize(rows, failures, methods, meta)
+    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False, default=str))
+    with (out_dir / "episodes.csv").open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(CSV_FIELDS), extrasaction="ignore")
+        writer.writeheader()
+        for r in sorted(rows, key=lambda r: (r["method"], r["map"])):
+            writer.writerow(r)
+    return summary
+
+
+def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
+    """Run every (method, scene) episode and write all outputs; returns the summary."""
+    request.validate()
+    config = request.exploration_config()
+    scenes = resolve_scenes(request.maps, request.limit, request.m_per_px)
+    out = Path(request.out_dir)
+    jobs = [
+        EpisodeJob(m, s, request.seed, request.sim, config, out / "episodes" / m / f"{s.name}.npz")
+        for s in scenes
+        for m in request.methods
+    ]
+    outcomes: list[EpisodeOutcome] = []
+    if progress is not None:
+        progress.start(len(jobs))
+
+    def done(outcome: EpisodeOutcome) -> None:
+        outcomes.append(outcome)
+        if progress is not None:
+            progress.advance(outcome)
+
+    if request.workers == 1:
+        for job in jobs:
+            done(run_job(job))
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=request.workers, mp_context=ctx) as pool:
+            futures = [pool.submit(run_job, job) for job in jobs]
+            for fut in as_completed(futures):
+                done(fut.result())
+    rows = [o.row for o in outcomes if o.row is not None]
+    failures = [{"method": o.method, "map": o.map, "error": o.error or ""} for o in outcomes if o.row is None]
+    meta = {
+        "command": "cso-runtime eval",
+        "maps": request.maps,
+        "m_per_px": request.m_per_px,
+        "seed": request.seed,
+        "sim": request.sim,
+        "scenes": len(scenes),
+        "config": to_dict(config),
+    }
+    summary = write_outputs(out, rows, failures, request.methods, meta)
+    from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
+
+    plot_coverage_curves(out / "coverage_curves.png", [o for o in outcomes if o.row is not None])
+    by_map: dict[str, list[EpisodeOutcome]] = {}
+    for o in outcomes:
+        if o.row is not None:
+            by_map.setdefault(o.map, []).append(o)
+    for name, group in by_map.items():
+        plot_trajectories(out / "trajectories" / f"{name}.png", name, sorted(group, key=lambda o: request.methods.index(o.method)))
+    return summary
+
+
+class RichProgress:
+    """Progress bar on stderr with the last episode's result."""
+
+    def __init__(self) -> None:
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
+
+        self.progress = Progress(
+            TextColumn("[bold]eval"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            TextColumn("{task.description}"),
+        )
+        self.task = None
+
+    def start(self, total: int) -> None:
+        self.progress.start()
+        self.task = self.progress.add_task("", total=total)
+
+    def advance(self, outcome: EpisodeOutcome) -> None:
+        if outcome.row is not None:
+            r = outcome.row
+            text = f"{outcome.method} {outcome.map}: {r['coverage_pct']:.1f}% in {r['steps']} steps ({r['terminated_by']})"
+        else:
+            text = f"[red]{outcome.method} {outcome.map}: FAILED"
+        self.progress.update(self.task, advance=1, description=text)
+
+    def stop(self) -> None:
+        self.progress.stop()
+
+
+def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
+    from rich.console import Console  # noqa: PLC0415
+    from rich.table import Table  # noqa: PLC0415
+
+    table = Table(title=f"Table 1 metrics ({out_dir}/summary.json)")
+    for col in ("method", "episodes", "explored m2", "coverage %", "steps", "m2/step", "path m", "decision ms p50/p99"):
+        table.add_column(col, justify="right")
+
+    def fmt(v: Any, nd: int) -> str:
+        return "-" if v is None else f"{v:.{nd}f}"
+
+    for method, e in summary["methods"].items():
+        table.add_row(
+            method,
+            str(e["episodes"]),
+            fmt(e["explored_area_m2"], 1),
+            fmt(e["coverage_pct"], 2),
+            fmt(e["steps"], 1),
+            fmt(e["efficiency_m2_per_step"], 4),
+            fmt(e["path_length_m"], 1),
+            f"{fmt(e['decision_ms_p50'], 1)}/{fmt(e['decision_ms_p99'], 1)}",
+        )
+    console = Console()
+    console.print(table)
+    for f in summary["failures"]:
+        console.print(f"[red]failed[/red] {f['method']} {f['map']}: {f['error'].splitlines()[0] if f['error'] else ''}")
+
+
+def run_eval_cli(request: EvalRequest) -> int:
+    """CLI entry: clear errors for bad arguments, exit code 0 when every episode ran."""
+    try:
+        request.validate()
+        request.exploration_config()
+        resolve_scenes(request.maps, request.limit, request.m_per_px)
+    except (ConfigError, SceneError, ValueError) as exc:
+        from rich.console import Console  # noqa: PLC0415
+
+        Console(stderr=True).print(f"[red]error:[/red] {exc}")
+        return 2
+    progress = RichProgress()
+    try:
+        summary = run_eval(request, progress)
+    finally:
+        progress.stop()
+    print_summary(summary, Path(request.out_dir))
+    return 1 if summary["failures"] else 0
