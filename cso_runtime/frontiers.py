@@ -30,19 +30,12 @@ def frontier_entropy(frontier: np.ndarray, window_m: float, resolution_m: float)
     of cells so the window is centred.
     """
     half = max(0, int(round(window_m / resolution_m / 2.0)))
-    sat = np.zeros((frontier.shape[0] + 1, frontier.shape[1] + 1), dtype=np.int32)
-    np.cumsum(np.cumsum(frontier, axis=0, dtype=np.int32), axis=1, out=sat[1:, 1:])
+    k = 2 * half + 1
     ny, nx = frontier.shape
-    y0 = np.clip(np.arange(ny) - half, 0, ny)
-    y1 = np.clip(np.arange(ny) + half + 1, 0, ny)
-    x0 = np.clip(np.arange(nx) - half, 0, nx)
-    x1 = np.clip(np.arange(nx) + half + 1, 0, nx)
-    return (
-        sat[y1[:, None], x1[None, :]]
-        - sat[y0[:, None], x1[None, :]]
-        - sat[y1[:, None], x0[None, :]]
-        + sat[y0[:, None], x0[None, :]]
-    )
+    sat = np.zeros((ny + k, nx + k), dtype=np.int32)
+    padded = np.pad(frontier, half).astype(np.int32)
+    np.cumsum(np.cumsum(padded, axis=0, out=padded), axis=1, out=sat[1:, 1:])
+    return sat[k:, k:] - sat[:-k, k:][:ny] - sat[k:, :-k][:, :nx] + sat[:ny, :nx]
 
 
 @dataclass(frozen=True)

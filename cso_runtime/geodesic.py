@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import skfmm
-from scipy import ndimage
-
 from cso_runtime.geometry import GridGeometry
 
 
@@ -17,11 +15,23 @@ def disk(radius_cells: int) -> np.ndarray:
 
 
 def inflate(occupied: np.ndarray, radius_m: float, resolution_m: float) -> np.ndarray:
-    """Occupied cells grown by ``radius_m``: the cells where the robot centre would collide."""
+    """Occupied cells grown by ``radius_m``: the cells where the robot centre would collide.
+
+    A dilation by a disk, done as one shifted OR per disk offset: for robot-sized radii (a few
+    cells) this is an order of magnitude faster than a generic morphological dilation.
+    """
     r = int(np.ceil(radius_m / resolution_m - 1e-9))
+    out = occupied.copy()
     if r <= 0 or not occupied.any():
-        return occupied.copy()
-    return ndimage.binary_dilation(occupied, structure=disk(r))
+        return out
+    ny, nx = occupied.shape
+    for dy, dx in np.argwhere(disk(r)) - r:
+        if dy == 0 and dx == 0:
+            continue
+        out[max(dy, 0) : ny + min(dy, 0), max(dx, 0) : nx + min(dx, 0)] |= occupied[
+            max(-dy, 0) : ny + min(-dy, 0), max(-dx, 0) : nx + min(-dx, 0)
+        ]
+    return out
 
 
 def traversable_cells(open_cells: np.ndarray, occupied: np.ndarray, robot_radius_m: float, resolution_m: float) -> np.ndarray:
@@ -55,25 +65,31 @@ def geodesic_distance(traversable: np.ndarray, geometry: GridGeometry, source_xy
     sy, sx = int(sy), int(sx)
     if not geometry.in_bounds(sy, sx):
         return out
-    passable = traversable.copy()
-    passable[max(sy - 1, 0) : sy + 2, max(sx - 1, 0) : sx + 2] = True
-    box = _bounding_box(passable, margin=1)
-    assert box is not None
-    by, bx = box
-    sub = passable[by, bx]
-    ys, xs = np.mgrid[by, bx]
-    cx, cy = geometry.cell_to_world(ys, xs)
-    # Signed field whose zero level is a small circle around the source: FMM measures from it.
+    box = _bounding_box(traversable, margin=2)
+    if box is None:
+        box = (slice(max(sy - 2, 0), sy + 3), slice(max(sx - 2, 0), sx + 3))
+    by = slice(min(box[0].start, max(sy - 2, 0)), max(box[0].stop, sy + 3))
+    bx = slice(min(box[1].start, max(sx - 2, 0)), max(box[1].stop, sx + 3))
+    sub = traversable[by, bx].copy()
+    ly, lx = sy - by.start, sx - bx.start
+    sub[max(ly - 1, 0) : ly + 2, max(lx - 1, 0) : lx + 2] = True  # the robot's own cell is passable
+    # Signed field whose zero level is a small circle around the source (only a 5x5 patch around
+    # it needs true values; everywhere else any positive number will do): FMM measures from it.
     r0 = 0.75 * res
-    phi = np.hypot(cx - source_xy_m[0], cy - source_xy_m[1]) - r0
-    phi_masked = np.ma.MaskedArray(phi, mask=~sub)
+    phi = np.ones(sub.shape)
+    py, px = slice(max(ly - 2, 0), ly + 3), slice(max(lx - 2, 0), lx + 3)
+    pys, pxs = np.mgrid[py, px]
+    cx, cy = geometry.cell_to_world(pys + by.start, pxs + bx.start)
+    near = np.hypot(cx - source_xy_m[0], cy - source_xy_m[1])
+    phi[py, px] = near - r0
     try:
-        dist = skfmm.distance(phi_masked, dx=res)
+        dist = skfmm.distance(np.ma.MaskedArray(phi, mask=~sub), dx=res)
     except ValueError:  # no zero contour inside the passable region
         return out
-    values = np.ma.filled(dist, np.inf).astype(float)
+    values = np.ma.filled(dist, np.inf)
     values = np.where(np.ma.getmaskarray(dist) | ~sub, np.inf, np.abs(values) + r0)
-    inside = phi < 0
-    values[inside & sub] = np.hypot(cx - source_xy_m[0], cy - source_xy_m[1])[inside & sub]
+    patch = values[py, px]
+    inside = (near < r0) & sub[py, px]
+    patch[inside] = near[inside]
     out[by, bx] = values
     return out

@@ -284,8 +284,8 @@ class LocalPlanner:
     def update(self, pose: Pose2D, time_s: float, scan: LaserScan | None = None) -> FollowResult:
         """One control period: the command to send and the resulting status."""
         stop = VelocityCommand(0.0, 0.0)
-        if self.path is None or self.status in (PlannerStatus.BLOCKED, PlannerStatus.IDLE):
-            return FollowResult(stop, self.status)
+        if self.path is None or self.status != PlannerStatus.FOLLOWING:
+            return FollowResult(stop, self.status)  # outcomes stick until the next goal
         goal = self.path[-1]
         to_goal = math.hypot(goal[0] - pose.x_m, goal[1] - pose.y_m)
         if to_goal <= self.goal_tolerance_m:

@@ -1,0 +1,41 @@
+"""Shared test helpers: small synthetic floor plans with known geometry."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cso_runtime.geometry import Pose2D
+from cso_runtime.scenes import FloorPlan
+
+
+def box_room(width_m: float = 4.0, height_m: float = 3.0, resolution_m: float = 0.05, wall_cells: int = 2) -> FloorPlan:
+    """A closed rectangular room: free interior of width x height metres, walls all round."""
+    nx = int(round(width_m / resolution_m)) + 2 * wall_cells
+    ny = int(round(height_m / resolution_m)) + 2 * wall_cells
+    free = np.zeros((ny, nx), dtype=bool)
+    free[wall_cells:-wall_cells, wall_cells:-wall_cells] = True
+    start = Pose2D((wall_cells * resolution_m) + width_m / 2, (wall_cells * resolution_m) + height_m / 2, 0.0)
+    return FloorPlan("box", free, resolution_m, start)
+
+
+def l_shaped(resolution_m: float = 0.1) -> FloorPlan:
+    """An L-shaped corridor 1.2 m wide: east along the bottom, then north. Start at the west end."""
+    free = np.zeros((80, 80), dtype=bool)  # 8 x 8 m
+    free[2:14, 2:78] = True  # bottom leg: y 0.2-1.4 m
+    free[2:78, 64:76] = True  # right leg: x 6.4-7.6 m
+    return FloorPlan("l_shape", free, resolution_m, Pose2D(0.8, 0.8, 0.0))
+
+
+def two_rooms(resolution_m: float = 0.1) -> FloorPlan:
+    """Two 3 x 3 m rooms joined by a 1 m door."""
+    free = np.zeros((34, 66), dtype=bool)
+    free[2:32, 2:32] = True
+    free[2:32, 34:64] = True
+    free[12:22, 32:34] = True  # door
+    return FloorPlan("two_rooms", free, resolution_m, Pose2D(1.5, 1.7, 0.0))
+
+
+@pytest.fixture
+def room() -> FloorPlan:
+    return box_room()

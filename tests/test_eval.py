@@ -1,0 +1,114 @@
+"""Episodes end to end and the ``cso-runtime eval`` outputs."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cso_runtime.config import ExplorationConfig, SensorConfig
+from cso_runtime.episode import run_episode
+from cso_runtime.evaluation import CSV_FIELDS, METRICS, EvalRequest, run_eval
+from cso_runtime.policies import make_policy
+from cso_runtime.scenes import builtin_scene_dir, load_floor_plan
+from cso_runtime.simulator import KinematicSimulator
+from tests.conftest import two_rooms
+
+
+def test_greedy_dist_explores_two_rooms_completely():
+    plan = two_rooms()
+    cfg = ExplorationConfig(sensor=SensorConfig.preset("lidar", fov_deg=180))
+    result = run_episode(KinematicSimulator(plan, cfg.sensor, cfg.robot), make_policy("greedy-dist"), cfg, seed=0)
+    assert result.terminated_by in ("coverage", "no_frontier")
+    assert result.coverage_pct > 97.0
+    assert result.steps < 400
+    assert len(result.coverage_curve_pct) == result.steps + 1
+    assert np.all(np.diff(result.coverage_curve_pct) >= -1e-9) or result.coverage_curve_pct[-1] > 97
+    assert result.trajectory_xy_m.shape == (result.steps + 1, 2)
+    assert result.decision_ms and result.efficiency_m2_per_step > 0
+
+
+def test_greedy_dist_covers_a_dungeon_plan_with_360_lidar():
+    plan = load_floor_plan(builtin_scene_dir() / "img_2.png", 0.1)
+    cfg = ExplorationConfig(sensor=SensorConfig.preset("lidar", fov_deg=360))
+    result = run_episode(KinematicSimulator(plan, cfg.sensor, cfg.robot), make_policy("greedy-dist"), cfg, seed=0)
+    assert result.terminated_by == "coverage"
+    assert result.coverage_pct > 99.0
+    assert result.traversable_area_m2 - result.explored_area_m2 < 1.0
+
+
+def test_max_steps_terminates():
+    plan = load_floor_plan(builtin_scene_dir() / "img_1.png", 0.1)
+    cfg = ExplorationConfig()
+    cfg.episode.max_steps = 20
+    result = run_episode(KinematicSimulator(plan, cfg.sensor, cfg.robot), make_policy("random", seed=1), cfg, seed=1)
+    assert result.terminated_by == "max_steps" and result.steps == 20
+
+
+def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    shutil.copy(builtin_scene_dir() / "img_1.png", maps / "img_1.png")
+    (maps / "img_0_corrupt.png").write_bytes(b"\x89PNG\r\n\x1a\nthis is not a png")
+    out = tmp_path / "out"
+    methods = ["greedy-dist", "greedy-info", "utility", "random"]
+    summary = run_eval(EvalRequest(methods=methods, maps=str(maps), out_dir=out, max_steps=60, lidar_fov_deg=360.0))
+
+    assert set(summary["methods"]) == set(methods)
+    for m in methods:
+        entry = summary["methods"][m]
+        assert entry["episodes"] == 1
+        for k in METRICS:
+            assert entry[k] is not None
+        assert set(entry["by_scale"]) == {"super_large"}
+    assert {f["map"] for f in summary["failures"]} == {"img_0_corrupt"}
+    assert len(summary["failures"]) == len(methods)
+    assert "img_0_corrupt" in summary["failures"][0]["error"]
+    assert json.loads((out / "summary.json").read_text()) == summary
+
+    with (out / "episodes.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 4 and tuple(rows[0].keys()) == CSV_FIELDS
+    assert all(int(r["steps"]) <= 60 for r in rows)
+
+    data = np.load(out / "episodes" / "greedy-dist" / "img_1.npz")
+    assert data["explored"].shape == (480, 640) and data["explored"].dtype == bool
+    assert data["trajectory"].shape[1] == 2 and len(data["coverage_curve"]) == len(data["trajectory"])
+    # explored is in the PNG's own layout (row 0 at the top): explored cells are free pixels there.
+    from PIL import Image
+
+    png = np.asarray(Image.open(maps / "img_1.png").convert("RGB"))
+    free_px = (png[:, :, 0] > 150)
+    assert data["explored"].any() and not (data["explored"] & ~free_px).any()
+    assert (out / "coverage_curves.png").stat().st_size > 1000
+    assert (out / "trajectories" / "img_1.png").stat().st_size > 1000
+
+
+def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
+    exe = [sys.executable, "-m", "cso_runtime.cli"]
+    ok = subprocess.run(
+        exe + ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:3", "--out", str(tmp_path / "o"), "--max-steps", "40"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert ok.returncode == 0, ok.stderr
+    assert (tmp_path / "o" / "summary.json").exists()
+    bad = subprocess.run(exe + ["eval", "--method", "greedy-best"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "unknown method" in bad.stderr
+    bad_maps = subprocess.run(exe + ["eval", "--maps", str(tmp_path / "nowhere")], capture_output=True, text=True, timeout=60)
+    assert bad_maps.returncode == 2 and "nowhere" in bad_maps.stderr
+
+
+@pytest.mark.parametrize("spec", ["generated:small:2:5"])
+def test_eval_on_generated_scenes_is_deterministic(tmp_path: Path, spec: str):
+    a = run_eval(EvalRequest(methods=["greedy-dist"], maps=spec, out_dir=tmp_path / "a", max_steps=80))
+    b = run_eval(EvalRequest(methods=["greedy-dist"], maps=spec, out_dir=tmp_path / "b", max_steps=80))
+    assert a["methods"]["greedy-dist"]["coverage_pct"] == b["methods"]["greedy-dist"]["coverage_pct"]
+    assert a["methods"]["greedy-dist"]["steps"] == b["methods"]["greedy-dist"]["steps"]

@@ -1,0 +1,116 @@
+"""Occupancy map M_t, ray casting and the simulated LiDAR."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cso_runtime.config import SensorConfig
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
+from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
+from cso_runtime.raycast import cast_rays
+from cso_runtime.simulator import KinematicSimulator
+from tests.conftest import box_room
+
+
+def test_cast_rays_match_analytic_wall_distances():
+    plan = box_room(4.0, 3.0, 0.05)  # interior x in [0.1, 4.1], y in [0.1, 3.1]
+    origin = np.array([1.1, 1.6])
+    angles = np.array([0.0, math.pi / 2, math.pi, -math.pi / 2, math.atan2(1.5, 3.0)])
+    ranges = cast_rays(plan.occupied, plan.geometry, origin, angles, 8.0)
+    expected = [3.0, 1.5, 1.0, 1.5, math.hypot(3.0, 1.5)]
+    np.testing.assert_allclose(ranges, expected, atol=1e-6)
+
+
+def test_cast_rays_no_return_is_inf():
+    plan = box_room(4.0, 3.0, 0.05)
+    ranges = cast_rays(plan.occupied, plan.geometry, np.array([1.1, 1.6]), np.array([0.0, math.pi]), 0.5)
+    assert np.all(np.isinf(ranges))
+
+
+def test_sensor_presets():
+    lidar = SensorConfig.preset("lidar")
+    assert (lidar.fov_deg, lidar.range_min_m, lidar.range_max_m) == (180.0, 0.1, 8.0)
+    assert SensorConfig.preset("lidar", fov_deg=360).fov_deg == 360
+    depth = SensorConfig.preset("depth")
+    assert depth.fov_deg == pytest.approx(79.0) and depth.range_max_m == 3.0 and depth.range_min_m == 0.3
+    with pytest.raises(ValueError):
+        SensorConfig.preset("sonar")
+
+
+def test_simulated_scan_field_of_view():
+    plan = box_room(4.0, 3.0, 0.05)
+    front = KinematicSimulator(plan, SensorConfig.preset("lidar")).scan()
+    assert front.angles_rad[0] == pytest.approx(-math.pi / 2) and front.angles_rad[-1] == pytest.approx(math.pi / 2)
+    assert len(front.ranges_m) == 181
+    ring = KinematicSimulator(plan, SensorConfig.preset("lidar", fov_deg=360)).scan()
+    assert len(ring.ranges_m) == 360 and ring.angles_rad[0] == pytest.approx(-math.pi)
+    # Robot at the room centre facing +x: the wall ahead is 2 m away.
+    assert front.ranges_m[90] == pytest.approx(2.0, abs=1e-5)
+
+
+def test_scan_integration_marks_free_and_occupied():
+    plan = box_room(4.0, 3.0, 0.05)
+    sim = KinematicSimulator(plan, SensorConfig.preset("lidar", fov_deg=360))
+    m = OccupancyMap(plan.geometry)
+    m.integrate_scan(sim.sensor_pose(), sim.scan())
+    interior = plan.free
+    # The whole convex room is seen from its centre: every interior cell is open.
+    assert m.open[interior].mean() > 0.99
+    # Wall cells hit by beams are occupied; nothing free is reported inside walls.
+    assert not (m.open & plan.occupied).any()
+    assert m.occupied[plan.occupied].any()
+    grid = m.to_occupancy_grid()
+    assert set(np.unique(grid)) <= {UNKNOWN, FREE, OCCUPIED}
+    back = OccupancyMap.from_occupancy_grid(grid, plan.geometry)
+    np.testing.assert_array_equal(back.to_occupancy_grid(), grid)
+
+
+def test_no_return_beams_clear_up_to_max_range():
+    g = GridGeometry(0.1, (100, 100))
+    m = OccupancyMap(g)
+    scan = LaserScan(0.0, 0.0, 0.1, 3.0, np.array([np.inf], dtype=np.float32))
+    m.integrate_scan(Pose2D(1.0, 5.05, 0.0), scan)
+    row = m.explored[50]
+    assert row[10:39].all() and not row[41:].any()
+    assert not m.occupied.any()
+
+
+def test_nan_scan_is_rejected_and_map_unchanged():
+    g = GridGeometry(0.1, (20, 20))
+    m = OccupancyMap(g)
+    bad = LaserScan(0.0, 0.1, 0.1, 3.0, np.array([1.0, np.nan], dtype=np.float32))
+    with pytest.raises(ValueError, match="NaN"):
+        m.integrate_scan(Pose2D(1.0, 1.0, 0.0), bad)
+    assert not m.explored.any()
+
+
+scan_strategy = st.lists(
+    st.one_of(st.floats(0.0, 6.0), st.just(float("inf"))), min_size=1, max_size=60
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    scans=st.lists(
+        st.tuples(st.floats(0.5, 4.5), st.floats(0.5, 4.5), st.floats(-math.pi, math.pi), scan_strategy),
+        min_size=1,
+        max_size=5,
+    )
+)
+def test_scan_integration_invariants(scans):
+    """A cell seen free never becomes unknown, nothing becomes NaN, grid values stay ROS-valid."""
+    m = OccupancyMap(GridGeometry(0.1, (50, 50)))
+    for x, y, yaw, ranges in scans:
+        before = m.explored.copy()
+        n = len(ranges)
+        scan = LaserScan(-math.pi, 2 * math.pi / n, 0.1, 5.0, np.array(ranges, dtype=np.float32))
+        m.integrate_scan(Pose2D(x, y, yaw), scan)
+        assert (m.explored | ~before).all()
+        assert np.isfinite(m.log_odds).all()
+        assert set(np.unique(m.to_occupancy_grid())) <= {UNKNOWN, FREE, OCCUPIED}
+        assert not (m.occupied & ~m.explored).any()

@@ -1,0 +1,100 @@
+"""Local planner: path on the inflated map, pure pursuit, progress checker, status reports."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cso_runtime.config import RobotConfig, SensorConfig
+from cso_runtime.geodesic import geodesic_distance, traversable_cells
+from cso_runtime.geometry import Pose2D, VelocityCommand
+from cso_runtime.planner import LocalPlanner, NoPath, PlannerStatus, ProgressChecker, plan_path
+from cso_runtime.simulator import KinematicSimulator
+from tests.conftest import box_room, l_shaped
+
+
+def ground_truth_traversable(plan, radius_m=0.2):
+    return traversable_cells(plan.free, plan.occupied, radius_m, plan.resolution_m)
+
+
+def test_path_in_open_room_is_near_straight():
+    plan = box_room(4.0, 3.0, 0.05)
+    t = ground_truth_traversable(plan)
+    path = plan_path(t, plan.geometry, np.array([1.0, 1.0]), np.array([3.0, 2.0]))
+    length = float(np.sum(np.hypot(*np.diff(path, axis=0).T)))
+    assert length == pytest.approx(math.hypot(2.0, 1.0), rel=0.1)
+    assert np.allclose(path[-1], [3.0, 2.0])
+    assert np.hypot(*(path[0] - [1.0, 1.0])) < 0.1
+
+
+def test_goal_behind_wall_is_blocked():
+    plan = box_room(4.0, 3.0, 0.05)
+    free = plan.free.copy()
+    free[:, 40:42] = False  # full-height wall splits the room
+    plan.free = free
+    t = ground_truth_traversable(plan)
+    with pytest.raises(NoPath):
+        plan_path(t, plan.geometry, np.array([1.0, 1.5]), np.array([3.5, 1.5]))
+    planner = LocalPlanner()
+    status = planner.set_goal(t, plan.geometry, Pose2D(1.0, 1.5, 0.0), np.array([3.5, 1.5]))
+    assert status == PlannerStatus.BLOCKED
+    assert planner.update(Pose2D(1.0, 1.5, 0.0), 0.0).command == VelocityCommand(0.0, 0.0)
+
+
+def drive(plan, goal_xy, max_steps=200):
+    robot = RobotConfig()
+    sim = KinematicSimulator(plan, SensorConfig.preset("lidar", fov_deg=360), robot)
+    t = ground_truth_traversable(plan)
+    planner = LocalPlanner(robot)
+    assert planner.set_goal(t, plan.geometry, sim.odometry(), np.array(goal_xy)) == PlannerStatus.FOLLOWING
+    poses = []
+    for _ in range(max_steps):
+        result = planner.update(sim.odometry(), sim.time_s, sim.scan())
+        if result.status != PlannerStatus.FOLLOWING:
+            break
+        cmd = result.command
+        assert abs(cmd.linear_mps) <= robot.max_linear_mps + 1e-9
+        assert abs(cmd.angular_radps) <= robot.max_angular_radps + 1e-9
+        sim.step(cmd)
+        poses.append(sim.true_pose())
+    return planner, sim, poses
+
+
+def test_planner_reaches_goal_round_the_corner_of_an_l():
+    plan = l_shaped()
+    planner, sim, poses = drive(plan, (7.0, 7.0))
+    assert planner.status == PlannerStatus.REACHED
+    assert math.hypot(sim.true_pose().x_m - 7.0, sim.true_pose().y_m - 7.0) <= 0.3
+    assert sim.collisions == 0
+    # Never further than the LIMO's 0.25 m per step.
+    xy = np.array([[p.x_m, p.y_m] for p in poses])
+    assert np.max(np.hypot(*np.diff(xy, axis=0).T)) <= 0.25 + 1e-9
+
+
+def test_progress_checker_reports_no_progress():
+    checker = ProgressChecker(0.5, 10.0)
+    assert checker.check(Pose2D(0, 0, 0), 0.0)
+    assert checker.check(Pose2D(0.2, 0, 0), 5.0)
+    assert not checker.check(Pose2D(0.3, 0, 0), 10.5)
+    assert checker.check(Pose2D(0.9, 0, 0), 11.0)
+
+
+def test_planner_reports_no_progress_when_robot_cannot_move():
+    plan = l_shaped()
+    t = ground_truth_traversable(plan)
+    planner = LocalPlanner()
+    planner.set_goal(t, plan.geometry, Pose2D(0.8, 0.8, 0.0), np.array([5.0, 0.8]))
+    statuses = [planner.update(Pose2D(0.8, 0.8, 0.0), k * 0.25).status for k in range(45)]
+    assert statuses[0] == PlannerStatus.FOLLOWING and statuses[-1] == PlannerStatus.NO_PROGRESS
+
+
+def test_kinematic_robot_stops_at_wall():
+    plan = box_room(4.0, 3.0, 0.05)  # east wall inner face at x = 4.1
+    sim = KinematicSimulator(plan)
+    for _ in range(20):
+        sim.step(VelocityCommand(1.0, 0.0))
+    x = sim.true_pose().x_m
+    assert x < 4.1 and x > 3.8
+    assert sim.collisions > 0
