@@ -1,0 +1,51 @@
+"""Typed configs: YAML files fill the dataclasses; bad keys and values are clear errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from cso_runtime.config import ConfigError, ExplorationConfig, from_dict, load_yaml, to_dict
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
+
+
+def test_eval_yaml_documents_the_defaults():
+    data = load_yaml(CONFIGS / "eval.yaml")
+    defaults = to_dict(ExplorationConfig())
+    assert set(data) == set(defaults)
+    for section, values in data.items():
+        for key, value in values.items():
+            assert defaults[section][key] == value, f"{section}.{key}"
+    assert to_dict(from_dict(ExplorationConfig, data)) == defaults
+
+
+@pytest.mark.parametrize(
+    "data, message",
+    [
+        ({"masks": {"beta_far": 3}}, "unknown key"),
+        ({"masks": {"beta_far_m": "far"}}, "expected a number"),
+        ({"episode": {"max_steps": 2.5}}, "expected an integer"),
+        ({"masks": {"use_stuck": "yes"}}, "true/false"),
+        ({"sensor": {"fov_deg": 400.0}}, "fov_deg"),
+        ({"robot": {"radius_m": float("nan")}}, "finite"),
+        ({"sensor": 3}, "mapping"),
+    ],
+)
+def test_bad_values_are_clear_errors(data, message):
+    with pytest.raises(ConfigError, match=message):
+        from_dict(ExplorationConfig, data)
+
+
+def test_load_yaml_errors(tmp_path: Path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_yaml(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("a: [1, 2\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_yaml(bad)
+    listy = tmp_path / "list.yaml"
+    listy.write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="mapping"):
+        load_yaml(listy)
