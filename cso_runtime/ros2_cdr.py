@@ -1,0 +1,249 @@
+"""ROS 2 messages as CDR bytes, for zenoh-bridge-ros2dds: LaserScan, Odometry, Twist, OccupancyGrid,
+PoseStamped and explore_lite-style frontier MarkerArrays.
+
+Encoding and decoding use the rosbags typestore (the CDR payloads carry their 4-byte encapsulation
+header), never a hand-written serializer. Conversions follow REP-103/REP-117: +inf is "no return",
+-inf "too close" and NaN "invalid"; everything the LaserScan header says is honoured.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+
+LASER_SCAN = "sensor_msgs/msg/LaserScan"
+ODOMETRY = "nav_msgs/msg/Odometry"
+TWIST = "geometry_msgs/msg/Twist"
+OCCUPANCY_GRID = "nav_msgs/msg/OccupancyGrid"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+
+
+class CdrError(ValueError):
+    """A payload is not a valid CDR message of the expected type."""
+
+
+@lru_cache(maxsize=1)
+def typestore():
+    from rosbags.typesys import Stores, get_typestore  # noqa: PLC0415 - import cost only when ROS is used
+
+    return get_typestore(Stores.ROS2_HUMBLE)
+
+
+def _types():
+    return typestore().types
+
+
+def decode(raw: bytes, typename: str):
+    """Deserialize CDR (with encapsulation header) into a rosbags message object."""
+    try:
+        return typestore().deserialize_cdr(bytes(raw), typename)
+    except Exception as exc:  # noqa: BLE001 - rosbags raises several types; all mean "bad payload"
+        raise CdrError(f"not a valid {typename} CDR payload: {exc}") from None
+
+
+def encode(msg, typename: str) -> bytes:
+    return bytes(typestore().serialize_cdr(msg, typename))
+
+
+def _stamp(stamp_s: float):
+    t = _types()["builtin_interfaces/msg/Time"]
+    sec = int(math.floor(stamp_s))
+    return t(sec=sec, nanosec=int(round((stamp_s - sec) * 1e9)) % 1_000_000_000)
+
+
+def _header(stamp_s: float, frame_id: str):
+    return _types()["std_msgs/msg/Header"](stamp=_stamp(stamp_s), frame_id=frame_id)
+
+
+def stamp_seconds(header) -> float:
+    return float(header.stamp.sec) + 1e-9 * float(header.stamp.nanosec)
+
+
+def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _quaternion(yaw_rad: float):
+    return _types()["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(yaw_rad / 2), w=math.cos(yaw_rad / 2))
+
+
+@dataclass(frozen=True)
+class ScanConversion:
+    """A decoded LaserScan and what had to be cleaned: counts of NaN, -inf and out-of-range beams."""
+
+    scan: LaserScan
+    frame_id: str
+    invalid_beams: int
+    too_close_beams: int
+    no_return_beams: int
+
+
+def laserscan_from_cdr(raw: bytes) -> ScanConversion:
+    """sensor_msgs/LaserScan CDR -> our LaserScan, honouring the header's angles and limits.
+
+    NaN (invalid) and -inf or below ``range_min`` (too close) become 0 m, which the mapper ignores;
+    +inf and anything beyond ``range_max`` become +inf (no return: free space up to the max range).
+    """
+    msg = decode(raw, LASER_SCAN)
+    ranges = np.asarray(msg.ranges, dtype=np.float64)
+    values = (msg.angle_min, msg.angle_increment, msg.range_min, msg.range_max)
+    if not all(math.isfinite(v) for v in values) or msg.angle_increment == 0.0 or ranges.size == 0:
+        raise CdrError("LaserScan header has non-finite angles/limits, a zero increment, or no ranges")
+    span = msg.angle_max - msg.angle_min
+    expected = int(round(span / msg.angle_increment)) + 1 if math.isfinite(span) else ranges.size
+    if abs(expected - ranges.size) > 1:
+        raise CdrError(f"LaserScan has {ranges.size} ranges but its angles imply {expected}")
+    invalid = np.isnan(ranges)
+    too_close = ~invalid & (ranges < msg.range_min)
+    no_return = ~invalid & (ranges > msg.range_max)
+    clean = np.where(invalid | too_close, 0.0, np.where(no_return, np.inf, ranges))
+    if msg.angle_increment < 0:  # beams listed clockwise: reverse so angles increase
+        clean = clean[::-1]
+        angle_min, increment = msg.angle_min + msg.angle_increment * (ranges.size - 1), -msg.angle_increment
+    else:
+        angle_min, increment = msg.angle_min, msg.angle_increment
+    scan = LaserScan(float(angle_min), float(increment), float(msg.range_min), float(msg.range_max), clean.astype(np.float32), stamp_seconds(msg.header))
+    return ScanConversion(scan, msg.header.frame_id, int(invalid.sum()), int(too_close.sum()), int(no_return.sum()))
+
+
+def laserscan_to_cdr(scan: LaserScan, frame_id: str = "laser") -> bytes:
+    """Our LaserScan -> sensor_msgs/LaserScan CDR (for fake robots and tests)."""
+    n = len(scan.ranges_m)
+    msg = _types()[LASER_SCAN](
+        header=_header(scan.stamp_s, frame_id),
+        angle_min=float(scan.angle_min_rad),
+        angle_max=float(scan.angle_min_rad + scan.angle_increment_rad * (n - 1)),
+        angle_increment=float(scan.angle_increment_rad),
+        time_increment=0.0,
+        scan_time=0.0,
+        range_min=float(scan.range_min_m),
+        range_max=float(scan.range_max_m),
+        ranges=np.asarray(scan.ranges_m, dtype=np.float32),
+        intensities=np.zeros(0, dtype=np.float32),
+    )
+    return encode(msg, LASER_SCAN)
+
+
+@dataclass(frozen=True)
+class OdometrySample:
+    pose: Pose2D
+    velocity: VelocityCommand
+    stamp_s: float
+    frame_id: str
+    child_frame_id: str
+
+
+def odometry_from_cdr(raw: bytes) -> OdometrySample:
+    msg = decode(raw, ODOMETRY)
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    values = (p.x, p.y, q.x, q.y, q.z, q.w, msg.twist.twist.linear.x, msg.twist.twist.angular.z)
+    if not all(math.isfinite(v) for v in values):
+        raise CdrError("Odometry has non-finite values")
+    pose = Pose2D(float(p.x), float(p.y), yaw_from_quaternion(q.x, q.y, q.z, q.w))
+    vel = VelocityCommand(float(msg.twist.twist.linear.x), float(msg.twist.twist.angular.z))
+    return OdometrySample(pose, vel, stamp_seconds(msg.header), msg.header.frame_id, msg.child_frame_id)
+
+
+def odometry_to_cdr(pose: Pose2D, velocity: VelocityCommand, stamp_s: float, frame_id: str = "odom", child_frame_id: str = "base_link") -> bytes:
+    t = _types()
+    point = t["geometry_msgs/msg/Point"](x=pose.x_m, y=pose.y_m, z=0.0)
+    cov = np.zeros(36, dtype=np.float64)
+    msg = t[ODOMETRY](
+        header=_header(stamp_s, frame_id),
+        child_frame_id=child_frame_id,
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=t["geometry_msgs/msg/Pose"](position=point, orientation=_quaternion(pose.yaw_rad)), covariance=cov),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](twist=_twist(velocity), covariance=cov.copy()),
+    )
+    return encode(msg, ODOMETRY)
+
+
+def _twist(cmd: VelocityCommand):
+    t = _types()
+    v3 = t["geometry_msgs/msg/Vector3"]
+    return t[TWIST](linear=v3(x=float(cmd.linear_mps), y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=float(cmd.angular_radps)))
+
+
+def twist_to_cdr(cmd: VelocityCommand) -> bytes:
+    """Our velocity command -> geometry_msgs/Twist CDR for the LIMO's ``cmd_vel``."""
+    return encode(_twist(cmd), TWIST)
+
+
+def twist_from_cdr(raw: bytes) -> VelocityCommand:
+    msg = decode(raw, TWIST)
+    if not (math.isfinite(msg.linear.x) and math.isfinite(msg.angular.z)):
+        raise CdrError("Twist has non-finite values")
+    return VelocityCommand(float(msg.linear.x), float(msg.angular.z))
+
+
+def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_s: float, frame_id: str = "map") -> bytes:
+    """int8 grid (-1/0/100, row 0 at the origin) -> nav_msgs/OccupancyGrid CDR."""
+    t = _types()
+    grid = np.asarray(grid, dtype=np.int8)
+    if grid.shape != tuple(geometry.shape):
+        raise ValueError("grid and geometry shapes differ")
+    origin = t["geometry_msgs/msg/Pose"](
+        position=t["geometry_msgs/msg/Point"](x=geometry.origin_x_m, y=geometry.origin_y_m, z=0.0), orientation=_quaternion(0.0)
+    )
+    info = t["nav_msgs/msg/MapMetaData"](
+        map_load_time=_stamp(stamp_s), resolution=float(geometry.resolution_m), width=int(geometry.shape[1]), height=int(geometry.shape[0]), origin=origin
+    )
+    msg = t[OCCUPANCY_GRID](header=_header(stamp_s, frame_id), info=info, data=grid.ravel())
+    return encode(msg, OCCUPANCY_GRID)
+
+
+def occupancy_grid_from_cdr(raw: bytes) -> tuple[np.ndarray, GridGeometry]:
+    msg = decode(raw, OCCUPANCY_GRID)
+    h, w = int(msg.info.height), int(msg.info.width)
+    data = np.asarray(msg.data, dtype=np.int8)
+    if data.size != h * w:
+        raise CdrError(f"OccupancyGrid has {data.size} cells, expected {h} x {w}")
+    g = GridGeometry(float(msg.info.resolution), (h, w), float(msg.info.origin.position.x), float(msg.info.origin.position.y))
+    return data.reshape(h, w), g
+
+
+def pose_stamped_to_cdr(x_m: float, y_m: float, yaw_rad: float, stamp_s: float, frame_id: str = "map") -> bytes:
+    t = _types()
+    pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=x_m, y=y_m, z=0.0), orientation=_quaternion(yaw_rad))
+    return encode(t[POSE_STAMPED](header=_header(stamp_s, frame_id), pose=pose), POSE_STAMPED)
+
+
+def pose_stamped_from_cdr(raw: bytes) -> tuple[Pose2D, float]:
+    msg = decode(raw, POSE_STAMPED)
+    p, q = msg.pose.position, msg.pose.orientation
+    return Pose2D(float(p.x), float(p.y), yaw_from_quaternion(q.x, q.y, q.z, q.w)), stamp_seconds(msg.header)
+
+
+def frontier_markers_to_cdr(frontier_points_xy_m: list[np.ndarray], goal_xy_m: list[tuple[float, float]], stamp_s: float, frame_id: str = "map") -> bytes:
+    """explore_lite's frontier visualisation: one POINTS marker per frontier cluster (namespace
+    ``frontiers``) and one SPHERE at each cluster's goal (namespace ``frontiers_goals``); a DELETEALL
+    first clears the previous set."""
+    t = _types()
+    marker_t, point_t = t["visualization_msgs/msg/Marker"], t["geometry_msgs/msg/Point"]
+    color_t, vec_t = t["std_msgs/msg/ColorRGBA"], t["geometry_msgs/msg/Vector3"]
+    dur = t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0)
+    identity = t["geometry_msgs/msg/Pose"](position=point_t(x=0.0, y=0.0, z=0.0), orientation=_quaternion(0.0))
+
+    def marker(ns: str, mid: int, mtype: int, action: int, pose, scale, color, points):
+        return marker_t(
+            header=_header(stamp_s, frame_id), ns=ns, id=mid, type=mtype, action=action, pose=pose,
+            scale=scale, color=color, lifetime=dur, frame_locked=False, points=points, colors=[],
+            texture_resource="", texture=t["sensor_msgs/msg/CompressedImage"](header=_header(stamp_s, frame_id), format="", data=np.zeros(0, dtype=np.uint8)),
+            uv_coordinates=[], text="", mesh_resource="",
+            mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, dtype=np.uint8)),
+            mesh_use_embedded_materials=False,
+        )
+
+    markers = [marker("frontiers", 0, marker_t.POINTS, marker_t.DELETEALL, identity, vec_t(x=0.0, y=0.0, z=0.0), color_t(r=0.0, g=0.0, b=0.0, a=0.0), [])]
+    for i, pts in enumerate(frontier_points_xy_m):
+        points = [point_t(x=float(x), y=float(y), z=0.0) for x, y in np.asarray(pts, dtype=float).reshape(-1, 2)]
+        markers.append(marker("frontiers", i + 1, marker_t.POINTS, marker_t.ADD, identity, vec_t(x=0.05, y=0.05, z=0.05), color_t(r=0.0, g=0.0, b=1.0, a=1.0), points))
+    for i, (x, y) in enumerate(goal_xy_m):
+        pose = t["geometry_msgs/msg/Pose"](position=point_t(x=float(x), y=float(y), z=0.0), orientation=_quaternion(0.0))
+        markers.append(marker("frontiers_goals", i + 1, marker_t.SPHERE, marker_t.ADD, pose, vec_t(x=0.2, y=0.2, z=0.2), color_t(r=0.0, g=1.0, b=0.0, a=1.0), []))
+    return encode(t[MARKER_ARRAY](markers=markers), MARKER_ARRAY)

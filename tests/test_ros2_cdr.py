@@ -1,0 +1,95 @@
+"""ROS 2 CDR conversions: bytes made by the rosbags library, round trips, REP-117 range handling."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from cso_runtime import ros2_cdr as cdr
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+
+
+def limo_scan_bytes(ranges, angle_min=-math.pi / 2, angle_max=math.pi / 2, range_min=0.1, range_max=8.0):
+    """A LaserScan as the real LIMO publishes it, serialized by rosbags (not by our encoder)."""
+    ts = cdr.typestore()
+    t = ts.types
+    n = len(ranges)
+    msg = t[cdr.LASER_SCAN](
+        header=t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=12, nanosec=500_000_000), frame_id="laser_link"),
+        angle_min=angle_min, angle_max=angle_max, angle_increment=(angle_max - angle_min) / (n - 1),
+        time_increment=0.0, scan_time=0.125, range_min=range_min, range_max=range_max,
+        ranges=np.asarray(ranges, dtype=np.float32), intensities=np.zeros(0, dtype=np.float32),
+    )
+    return bytes(ts.serialize_cdr(msg, cdr.LASER_SCAN))
+
+
+def test_limo_front_scan_is_decoded_with_its_own_angles():
+    raw = limo_scan_bytes([1.0] * 181)
+    assert raw[:2] in (b"\x00\x01", b"\x00\x00")  # CDR encapsulation header
+    conv = cdr.laserscan_from_cdr(raw)
+    assert conv.frame_id == "laser_link" and conv.scan.stamp_s == pytest.approx(12.5)
+    assert conv.scan.angles_rad[0] == pytest.approx(-math.pi / 2) and conv.scan.angles_rad[-1] == pytest.approx(math.pi / 2, abs=1e-5)
+    assert conv.scan.range_max_m == 8.0
+
+
+def test_other_angle_range_nan_and_inf_are_handled():
+    ranges = [np.nan, -np.inf, 0.05, 2.0, np.inf, 12.0]
+    conv = cdr.laserscan_from_cdr(limo_scan_bytes(ranges, angle_min=-0.5, angle_max=0.5, range_min=0.1, range_max=10.0))
+    assert conv.scan.angle_min_rad == pytest.approx(-0.5)
+    r = conv.scan.ranges_m
+    assert r[0] == 0.0 and r[1] == 0.0 and r[2] == 0.0  # invalid / too close: ignored by the mapper
+    assert r[3] == pytest.approx(2.0) and np.isinf(r[4]) and np.isinf(r[5])  # beyond range_max: no return
+    assert (conv.invalid_beams, conv.too_close_beams, conv.no_return_beams) == (1, 2, 2)
+    conv.scan.validate()  # no NaN reaches the mapper
+
+
+def test_clockwise_scan_is_reordered():
+    conv = cdr.laserscan_from_cdr(limo_scan_bytes([1.0, 2.0, 3.0], angle_min=0.5, angle_max=-0.5))
+    assert conv.scan.angle_increment_rad > 0
+    assert conv.scan.angles_rad[0] == pytest.approx(-0.5) and conv.scan.ranges_m[0] == pytest.approx(3.0)
+
+
+def test_laserscan_round_trip():
+    scan = LaserScan(-1.0, 0.01, 0.1, 8.0, np.linspace(0.5, 7.5, 201).astype(np.float32), 3.25)
+    back = cdr.laserscan_from_cdr(cdr.laserscan_to_cdr(scan)).scan
+    np.testing.assert_allclose(back.ranges_m, scan.ranges_m)
+    assert back.angle_min_rad == pytest.approx(-1.0) and back.stamp_s == pytest.approx(3.25)
+
+
+def test_odometry_and_twist_round_trip():
+    raw = cdr.odometry_to_cdr(Pose2D(1.5, -2.0, 2.5), VelocityCommand(0.4, -0.3), 7.125)
+    odo = cdr.odometry_from_cdr(raw)
+    assert odo.pose.x_m == pytest.approx(1.5) and odo.pose.y_m == pytest.approx(-2.0) and odo.pose.yaw_rad == pytest.approx(2.5)
+    assert odo.velocity.linear_mps == pytest.approx(0.4) and odo.stamp_s == pytest.approx(7.125)
+    assert odo.frame_id == "odom" and odo.child_frame_id == "base_link"
+    cmd = cdr.twist_from_cdr(cdr.twist_to_cdr(VelocityCommand(0.8, 0.5)))
+    assert cmd == VelocityCommand(0.8, 0.5)
+
+
+def test_occupancy_grid_round_trip():
+    g = GridGeometry(0.05, (30, 40), origin_x_m=-1.0, origin_y_m=2.0)
+    grid = np.full(g.shape, -1, dtype=np.int8)
+    grid[5:10, 5:20] = 0
+    grid[5, 5:20] = 100
+    back, g2 = cdr.occupancy_grid_from_cdr(cdr.occupancy_grid_to_cdr(grid, g, 1.0))
+    np.testing.assert_array_equal(back, grid)
+    assert g2.shape == g.shape and (g2.origin_x_m, g2.origin_y_m) == (-1.0, 2.0)
+    assert g2.resolution_m == pytest.approx(0.05)  # float32 on the wire
+
+
+def test_pose_and_markers_encode():
+    pose, stamp = cdr.pose_stamped_from_cdr(cdr.pose_stamped_to_cdr(1.0, 2.0, 0.5, 4.0))
+    assert pose.yaw_rad == pytest.approx(0.5) and stamp == pytest.approx(4.0)
+    raw = cdr.frontier_markers_to_cdr([np.array([[0.0, 0.0], [0.1, 0.0]]), np.array([[3.0, 1.0]])], [(0.05, 0.0), (3.0, 1.0)], 1.0)
+    msg = cdr.decode(raw, cdr.MARKER_ARRAY)
+    assert [m.ns for m in msg.markers] == ["frontiers", "frontiers", "frontiers", "frontiers_goals", "frontiers_goals"]
+    assert msg.markers[0].action == 3 and len(msg.markers[1].points) == 2
+
+
+def test_garbage_is_a_clear_error():
+    with pytest.raises(cdr.CdrError, match="LaserScan"):
+        cdr.laserscan_from_cdr(b"\x00\x01\x00\x00garbage")
+    with pytest.raises(cdr.CdrError):
+        cdr.odometry_from_cdr(b"")
