@@ -57,6 +57,8 @@ class EvalRequest:
     workers: int = 1
     sim: str = "2d"
     config_path: Path | None = None
+    resume: bool = False
+    """Reuse episodes already finished in ``out_dir`` (same method, map and seed)."""
 
     def exploration_config(self) -> ExplorationConfig:
         """The config file (if any) with the CLI's sensor and step-limit flags applied on top."""
@@ -130,15 +132,38 @@ def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float) ->
     }
 
 
-def save_episode_npz(path: Path, result: EpisodeResult) -> None:
-    """``explored`` in the plan's pixel layout (row 0 at the top, like the PNG), trajectory in metres."""
+def save_episode_npz(path: Path, result: EpisodeResult, row: dict[str, Any]) -> None:
+    """``explored`` in the plan's pixel layout (row 0 at the top, like the PNG), trajectory in metres,
+    and the metric row as JSON (``metrics``) so an interrupted eval can resume."""
     path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".partial.npz")
     np.savez_compressed(
-        path,
+        tmp,
         explored=np.flipud(result.explored_free),
         trajectory=result.trajectory_xy_m.astype(np.float32),
         coverage_curve=result.coverage_curve_pct.astype(np.float32),
+        metrics=np.array(json.dumps(row)),
     )
+    tmp.replace(path)  # atomic: a half-written file never looks finished
+
+
+def load_finished(job: "EpisodeJob") -> "EpisodeOutcome | None":
+    """The outcome of an episode a previous run already finished with the same settings, if any."""
+    if not job.npz_path.is_file():
+        return None
+    try:
+        with np.load(job.npz_path) as data:
+            row = json.loads(str(data["metrics"]))
+            explored = np.flipud(data["explored"]).copy()
+            trajectory = data["trajectory"].astype(float)
+            curve = data["coverage_curve"].astype(float)
+        if row.get("seed") != job.seed or row.get("method") != job.method:
+            return None
+        plan = job.scene.load()
+    except (OSError, KeyError, ValueError, SceneError):
+        return None
+    return EpisodeOutcome(job.method, plan.name, row=row, free=plan.free, resolution_m=plan.resolution_m,
+                          explored=explored, trajectory_xy_m=trajectory, coverage_curve_pct=curve)
 
 
 def run_job(job: EpisodeJob) -> EpisodeOutcome:
@@ -153,14 +178,15 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         policy = make_policy(job.method, job.config.masks, seed=job.seed)
         result = run_episode(sim, policy, job.config, seed=job.seed)
         wall_s = time.perf_counter() - t0
-        save_episode_npz(job.npz_path, result)
+        row = episode_row(job.method, job.seed, result, wall_s)
+        save_episode_npz(job.npz_path, result, row)
     except Exception as exc:  # noqa: BLE001 - one bad episode must not stop the run; it is reported
         log.debug("episode failed", exc_info=True)
         return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
     return EpisodeOutcome(
         job.method,
         plan.name,
-        row=episode_row(job.method, job.seed, result, wall_s),
+        row=row,
         free=plan.free,
         resolution_m=plan.resolution_m,
         explored=result.explored_free,
@@ -226,6 +252,15 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         if progress is not None:
             progress.advance(outcome)
 
+    if request.resume:
+        todo = []
+        for job in jobs:
+            finished = load_finished(job)
+            if finished is None:
+                todo.append(job)
+            else:
+                done(finished)
+        jobs = todo
     if request.workers == 1:
         for job in jobs:
             done(run_job(job))

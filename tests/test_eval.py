@@ -112,3 +112,19 @@ def test_eval_on_generated_scenes_is_deterministic(tmp_path: Path, spec: str):
     b = run_eval(EvalRequest(methods=["greedy-dist"], maps=spec, out_dir=tmp_path / "b", max_steps=80))
     assert a["methods"]["greedy-dist"]["coverage_pct"] == b["methods"]["greedy-dist"]["coverage_pct"]
     assert a["methods"]["greedy-dist"]["steps"] == b["methods"]["greedy-dist"]["steps"]
+
+
+def test_resume_reuses_finished_episodes(tmp_path: Path):
+    req = EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:1:11", out_dir=tmp_path, max_steps=30)
+    first = run_eval(req)
+    npz = tmp_path / "episodes" / "random" / "gen_small_11.npz"
+    stamp = npz.stat().st_mtime_ns
+    npz_other = tmp_path / "episodes" / "greedy-dist" / "gen_small_11.npz"
+    npz_other.unlink()
+    req.resume = True
+    second = run_eval(req)
+    assert npz.stat().st_mtime_ns == stamp  # not re-run
+    assert npz_other.exists()  # the missing one was run again
+    for m in ("greedy-dist", "random"):
+        assert second["methods"][m]["coverage_pct"] == first["methods"][m]["coverage_pct"]
+        assert second["methods"][m]["steps"] == first["methods"][m]["steps"]
