@@ -134,7 +134,7 @@ class EpisodeConfig:
 class PlannerConfig:
     """Local planner: path following with pure pursuit and a Nav2-style progress checker."""
 
-    lookahead_m: float = 0.4
+    lookahead_m: float = 0.5
     """Pure-pursuit lookahead distance along the path."""
     rotate_in_place_rad: float = 0.9
     """Rotate in place when the heading error to the lookahead point exceeds this."""

@@ -13,13 +13,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cso_runtime.config import ExplorationConfig
+from cso_runtime.config import EpisodeConfig, ExplorationConfig
 from cso_runtime.geodesic import disk
-from cso_runtime.geometry import Pose2D
+from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import LocalPlanner, PlannerStatus
 from cso_runtime.policies import Goal, GoalSelector
+from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import Simulator
 
 TERMINATED_COVERAGE = "coverage"
@@ -64,6 +65,82 @@ class DecisionReason:
     goal: Goal | None = None
 
 
+
+@dataclass
+class GroundTruthMetrics:
+    """Coverage of a map against a plan's traversable region (section 4.1). Ground truth: only the
+    evaluator (in-process ``Explorer`` or the runtime's sim service) may use it."""
+
+    plan: FloorPlan
+    config: EpisodeConfig = field(default_factory=EpisodeConfig)
+
+    def __post_init__(self) -> None:
+        self.region = self.plan.traversable_region()
+        self.region_area_m2 = float(np.count_nonzero(self.region)) * self.plan.resolution_m**2
+
+    def explored_free(self, occupancy: OccupancyMap) -> np.ndarray:
+        return occupancy.open & self.region
+
+    def explored_area_m2(self, occupancy: OccupancyMap) -> float:
+        return float(np.count_nonzero(self.explored_free(occupancy))) * occupancy.geometry.cell_area_m2
+
+    def coverage_pct(self, occupancy: OccupancyMap) -> float:
+        return 100.0 * self.explored_area_m2(occupancy) / max(self.region_area_m2, 1e-9)
+
+    def coverage_done(self, occupancy: OccupancyMap) -> bool:
+        e = self.config
+        explored = self.explored_area_m2(occupancy)
+        return 100.0 * explored / self.region_area_m2 > e.done_coverage_pct and self.region_area_m2 - explored < e.done_unexplored_m2
+
+
+def goal_still_frontier(occupancy: OccupancyMap, goal: Goal | None) -> bool:
+    """The goal cell is open and still touches unknown space."""
+    if goal is None:
+        return False
+    g = occupancy.geometry
+    iy, ix = g.world_to_cell(goal.x_m, goal.y_m)
+    iy, ix = int(iy), int(ix)
+    if not g.in_bounds(iy, ix) or not occupancy.open[iy, ix]:
+        return False
+    win = occupancy.explored[max(iy - 1, 0) : iy + 2, max(ix - 1, 0) : ix + 2]
+    return not win.all()
+
+
+def decision_reason(
+    goal: Goal | None, planner_status: PlannerStatus, occupancy: OccupancyMap, steps_since_decision: int, replan_every_steps: int
+) -> str | None:
+    """The re-decision rule every caller shares (in-process Explorer, the runtime's frontier service):
+    why a new goal is needed now, or None to keep following the current one."""
+    if goal is None:
+        return "no_goal"
+    if planner_status != PlannerStatus.FOLLOWING:
+        return PlannerStatus(planner_status).value
+    if not goal_still_frontier(occupancy, goal):
+        return "not_frontier"
+    if steps_since_decision >= replan_every_steps:
+        return "timeout"
+    return None
+
+
+def goal_failed_in_place(reason: str, goal: Goal, occupancy: OccupancyMap, pose: Pose2D) -> bool:
+    """A goal reached that is still a frontier is unobservable noise, and one the robot made no
+    progress towards is out of its reach in practice: either is marked dead so it is not chosen again
+    (explore_lite blacklists such goals the same way)."""
+    if not goal_still_frontier(occupancy, goal):
+        return False
+    return reason in ("reached", "no_progress")
+
+
+def mark_dead_frontier(dead: np.ndarray, geometry: GridGeometry, xy: tuple[float, float], goal_tolerance_m: float) -> None:
+    """Mark the frontier cells within the goal tolerance of ``xy`` as dead (not actions any more)."""
+    r = max(1, int(math.ceil(goal_tolerance_m / geometry.resolution_m)))
+    iy, ix = geometry.world_to_cell(xy[0], xy[1])
+    offs = np.argwhere(disk(r)) - r
+    yy, xx = offs[:, 0] + int(iy), offs[:, 1] + int(ix)
+    ok = geometry.in_bounds(yy, xx)
+    dead[yy[ok], xx[ok]] = True
+
+
 @dataclass
 class Explorer:
     """The exploration loop around a simulator. Ground truth is used only for metrics and stopping."""
@@ -73,8 +150,9 @@ class Explorer:
 
     def __post_init__(self) -> None:
         self.builder = ObservationBuilder(self.config.frontier, self.config.robot)
-        self.region = self.sim.plan.traversable_region()
-        self.region_area_m2 = float(np.count_nonzero(self.region)) * self.sim.plan.resolution_m**2
+        self.metrics = GroundTruthMetrics(self.sim.plan, self.config.episode)
+        self.region = self.metrics.region
+        self.region_area_m2 = self.metrics.region_area_m2
         self.reset()
 
     def reset(self, seed: int | None = None) -> None:
@@ -99,18 +177,16 @@ class Explorer:
 
     # --- metrics (ground truth) ---
     def explored_free(self) -> np.ndarray:
-        return self.map.open & self.region
+        return self.metrics.explored_free(self.map)
 
     def explored_area_m2(self) -> float:
-        return float(np.count_nonzero(self.explored_free())) * self.map.geometry.cell_area_m2
+        return self.metrics.explored_area_m2(self.map)
 
     def coverage_pct(self) -> float:
-        return 100.0 * self.explored_area_m2() / max(self.region_area_m2, 1e-9)
+        return self.metrics.coverage_pct(self.map)
 
     def coverage_done(self) -> bool:
-        e = self.config.episode
-        explored = self.explored_area_m2()
-        return 100.0 * explored / self.region_area_m2 > e.done_coverage_pct and self.region_area_m2 - explored < e.done_unexplored_m2
+        return self.metrics.coverage_done(self.map)
 
     # --- the loop ---
     def _integrate(self) -> None:
@@ -118,37 +194,14 @@ class Explorer:
         self.map.integrate_scan(self.sim.sensor_pose(), self.last_scan)
 
     def _goal_still_frontier(self) -> bool:
-        if self.goal is None:
-            return False
-        g = self.map.geometry
-        iy, ix = g.world_to_cell(self.goal.x_m, self.goal.y_m)
-        iy, ix = int(iy), int(ix)
-        if not self.map.open[iy, ix]:
-            return False
-        win = self.map.explored[max(iy - 1, 0) : iy + 2, max(ix - 1, 0) : ix + 2]
-        return not win.all()
+        return goal_still_frontier(self.map, self.goal)
 
     def decision_reason(self) -> str | None:
         """Why a new goal is needed now, or None to keep following the current one."""
-        if self.goal is None:
-            return "no_goal"
-        if self.planner.status != PlannerStatus.FOLLOWING:
-            return self.planner.status.value
-        if not self._goal_still_frontier():
-            return "not_frontier"
-        if self.steps_since_decision >= self.config.episode.replan_every_steps:
-            return "timeout"
-        return None
+        return decision_reason(self.goal, self.planner.status, self.map, self.steps_since_decision, self.config.episode.replan_every_steps)
 
     def _mark_dead(self, xy: tuple[float, float]) -> None:
-        """A goal reached (or unreachable in practice) that is still a frontier is noise: drop it."""
-        g = self.map.geometry
-        r = max(1, int(math.ceil(self.config.episode.goal_tolerance_m / g.resolution_m)))
-        iy, ix = g.world_to_cell(xy[0], xy[1])
-        offs = np.argwhere(disk(r)) - r
-        yy, xx = offs[:, 0] + int(iy), offs[:, 1] + int(ix)
-        ok = g.in_bounds(yy, xx)
-        self.dead_frontier[yy[ok], xx[ok]] = True
+        mark_dead_frontier(self.dead_frontier, self.map.geometry, xy, self.config.episode.goal_tolerance_m)
 
     def observe(self) -> Observation:
         """The state at a decision (frontiers minus those marked dead)."""
@@ -160,11 +213,7 @@ class Explorer:
     def handle_reason(self, reason: str) -> None:
         """Bookkeeping before a decision: forget goals that failed in place (reached, or no progress
         right next to them, and still frontiers: unobservable noise)."""
-        if self.goal is None or not self._goal_still_frontier():
-            return
-        pose = self.sim.odometry()
-        near = math.hypot(self.goal.x_m - pose.x_m, self.goal.y_m - pose.y_m) < 1.0
-        if reason == "reached" or (reason == "no_progress" and near):
+        if self.goal is not None and goal_failed_in_place(reason, self.goal, self.map, self.sim.odometry()):
             self._mark_dead((self.goal.x_m, self.goal.y_m))
 
     def apply_goal(self, obs: Observation, goal: Goal | None) -> None:

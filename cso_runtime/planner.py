@@ -97,6 +97,22 @@ def path_is_blocked(path_xy_m: np.ndarray, start_index: int, occupied: np.ndarra
     return bool(occupied[yy[ok], xx[ok]].any())
 
 
+@dataclass(frozen=True)
+class FreeSpace:
+    """The traversable (inflated) grid a path was planned on, for line-of-sight checks."""
+
+    traversable: np.ndarray
+    geometry: GridGeometry
+
+    def line_is_free(self, a_xy_m: np.ndarray, b_xy_m: np.ndarray) -> bool:
+        n = max(2, int(np.ceil(np.hypot(*(b_xy_m - a_xy_m)) / (0.5 * self.geometry.resolution_m))) + 1)
+        t = np.linspace(0.0, 1.0, n)[1:]
+        pts = a_xy_m[None, :] + t[:, None] * (b_xy_m - a_xy_m)[None, :]
+        iy, ix = self.geometry.world_to_cell(pts[:, 0], pts[:, 1])
+        ok = self.geometry.in_bounds(iy, ix)
+        return bool(ok.all() and self.traversable[iy, ix].all())
+
+
 @dataclass
 class FollowResult:
     command: VelocityCommand
@@ -111,14 +127,23 @@ class PathFollower:
         self.config = config
         self.sensor_mount_x_m = sensor_mount_x_m
 
-    def lookahead_index(self, pose: Pose2D, path_xy_m: np.ndarray, progress_index: int) -> tuple[int, int]:
-        """(nearest, lookahead) indices on the path, never moving backwards from ``progress_index``."""
+    def lookahead_index(
+        self, pose: Pose2D, path_xy_m: np.ndarray, progress_index: int, free: "FreeSpace | None" = None
+    ) -> tuple[int, int]:
+        """(nearest, lookahead) indices on the path, never moving backwards from ``progress_index``.
+
+        With ``free`` (the inflated map the path was planned on), the lookahead point is pulled back
+        until the straight line to it stays in free space, so the robot never cuts a corner.
+        """
         tail = path_xy_m[progress_index:]
         d = np.hypot(tail[:, 0] - pose.x_m, tail[:, 1] - pose.y_m)
         nearest = progress_index + int(np.argmin(d[: max(1, min(len(d), 40))]))
         ahead = np.hypot(path_xy_m[nearest:, 0] - pose.x_m, path_xy_m[nearest:, 1] - pose.y_m)
         beyond = np.flatnonzero(ahead >= self.config.lookahead_m)
         look = nearest + int(beyond[0]) if beyond.size else len(path_xy_m) - 1
+        if free is not None:
+            while look > nearest + 1 and not free.line_is_free(pose.xy, path_xy_m[look]):
+                look -= 1
         return nearest, look
 
     def clearance_ahead(self, scan: LaserScan | None) -> tuple[float, float]:
@@ -178,16 +203,15 @@ class PathFollower:
         return VelocityCommand(v, w).clamped(v_max, w_max)
 
     def _recover(self, pose: Pose2D, path_xy_m: np.ndarray, nearest: int, travel_m: float) -> VelocityCommand:
-        """Blocked ahead: align with the path point ~0.2 m ahead (the path keeps clear of walls)."""
+        """Blocked ahead (Nav2's recovery, in two moves): face the path point ~0.2 m ahead (the path
+        keeps clear of walls); if already facing it, back up a little."""
         w_max = self.robot.max_angular_radps
         step_m = max(float(np.median(np.hypot(*np.diff(path_xy_m[: nearest + 3], axis=0).T))) if nearest + 2 < len(path_xy_m) else 0.1, 1e-3)
         k = min(len(path_xy_m) - 1, nearest + max(1, int(round(0.2 / step_m))))
         error = self._heading_error(pose, path_xy_m[k])
         if abs(error) > 0.25:
             return VelocityCommand(0.0, math.copysign(0.5 * w_max, error))
-        if travel_m > 0.02:
-            return VelocityCommand(0.05, float(np.clip(error, -w_max, w_max)))
-        return VelocityCommand(-0.15, 0.0)
+        return VelocityCommand(-0.2, 0.0)
 
 class ProgressChecker:
     """Nav2's simple progress checker: at least ``required_m`` of movement within ``window_s``."""
@@ -227,16 +251,18 @@ class LocalPlanner:
         self.follower = PathFollower(self.robot, self.config, sensor_mount_x_m)
         self.progress = ProgressChecker(self.config.progress_required_m, self.config.progress_window_s)
         self.path: np.ndarray | None = None
+        self.free: FreeSpace | None = None
         self.progress_index = 0
         self.status = PlannerStatus.IDLE
 
-    def set_path(self, path_xy_m: np.ndarray) -> None:
+    def set_path(self, path_xy_m: np.ndarray, free: FreeSpace | None = None) -> None:
         """Follow a new path. Progress is tracked across re-plans to the same goal, so re-sending a
         goal cannot hide a robot that makes no progress."""
         path = np.asarray(path_xy_m, dtype=float)
         if self.path is None or np.hypot(*(path[-1] - self.path[-1])) > self.goal_tolerance_m:
             self.progress.reset()
         self.path = path
+        self.free = free
         self.progress_index = 0
         self.status = PlannerStatus.FOLLOWING
 
@@ -250,7 +276,8 @@ class LocalPlanner:
     ) -> PlannerStatus:
         """Plan to a new goal; the status is ``blocked`` when there is no path."""
         try:
-            self.set_path(plan_path(traversable, geometry, pose.xy, np.asarray(goal_xy_m, dtype=float), distance_from_robot))
+            path = plan_path(traversable, geometry, pose.xy, np.asarray(goal_xy_m, dtype=float), distance_from_robot)
+            self.set_path(path, FreeSpace(traversable, geometry))
         except NoPath:
             self.path = None
             self.progress.reset()
@@ -294,7 +321,7 @@ class LocalPlanner:
         if not self.progress.check(pose, time_s):
             self.status = PlannerStatus.NO_PROGRESS
             return FollowResult(stop, self.status)
-        nearest, look = self.follower.lookahead_index(pose, self.path, self.progress_index)
+        nearest, look = self.follower.lookahead_index(pose, self.path, self.progress_index, self.free)
         self.progress_index = nearest
         cmd = self.follower.command(pose, self.path, nearest, look, to_goal, scan)
         self.status = PlannerStatus.FOLLOWING

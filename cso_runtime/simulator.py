@@ -57,8 +57,6 @@ class KinematicSimulator:
         self.plan = plan
         self.sensor = sensor or SensorConfig()
         self.robot = robot or RobotConfig()
-        ring = np.linspace(0.0, 2.0 * math.pi, 24, endpoint=False)
-        self._footprint = np.concatenate([[[0.0, 0.0]], COLLISION_RADIUS_M * np.stack([np.cos(ring), np.sin(ring)], axis=1)])
         n = max(1, int(round(self.sensor.fov_deg / self.sensor.resolution_deg)))
         fov = math.radians(self.sensor.fov_deg)
         inc = fov / n
@@ -93,25 +91,45 @@ class KinematicSimulator:
             ranges[finite] = np.maximum(ranges[finite], 0.0)
         return LaserScan(self._angle_min, self._increment, self.sensor.range_min_m, self.sensor.range_max_m, ranges.astype(np.float32), self.time_s)
 
-    def _free_at(self, x_m: float, y_m: float) -> bool:
-        """The circular footprint centred at (x, y) touches no wall cell (checked on its rim)."""
+    def clearance_m(self, x_m: float, y_m: float) -> float:
+        """Exact distance from (x, y) to the nearest wall cell (cells are squares), up to 2 radii."""
         g = self.plan.geometry
-        iy, ix = g.world_to_cell(x_m + self._footprint[:, 0], y_m + self._footprint[:, 1])
-        if not g.in_bounds(iy, ix).all():
-            return False
-        return bool(self.plan.free[iy, ix].all())
+        r = int(np.ceil(2 * COLLISION_RADIUS_M / g.resolution_m)) + 1
+        cy, cx = g.world_to_cell(x_m, y_m)
+        iy = np.arange(int(cy) - r, int(cy) + r + 1)
+        ix = np.arange(int(cx) - r, int(cx) + r + 1)
+        yy, xx = np.meshgrid(iy, ix, indexing="ij")
+        inside = g.in_bounds(yy, xx)
+        wall = ~inside
+        wall[inside] = ~self.plan.free[yy[inside], xx[inside]]
+        if not wall.any():
+            return math.inf
+        x0 = g.origin_x_m + xx[wall] * g.resolution_m
+        y0 = g.origin_y_m + yy[wall] * g.resolution_m
+        dx = np.maximum(np.maximum(x0 - x_m, 0.0), x_m - (x0 + g.resolution_m))
+        dy = np.maximum(np.maximum(y0 - y_m, 0.0), y_m - (y0 + g.resolution_m))
+        return float(np.min(np.hypot(dx, dy)))
+
+    def _can_move(self, clearance_now_m: float, x_m: float, y_m: float) -> tuple[bool, float]:
+        """A move is allowed when the footprint stays clear of walls, or, for a robot already in
+        contact, when it does not push further into them (so it can always back away)."""
+        c = self.clearance_m(x_m, y_m)
+        return c >= min(COLLISION_RADIUS_M, clearance_now_m), c
 
     def step(self, command: VelocityCommand) -> None:
         cmd = command.clamped(self.robot.max_linear_mps, self.robot.max_angular_radps)
         dt = self.robot.control_period_s / self.substeps
         x, y, yaw = self._pose.x_m, self._pose.y_m, self._pose.yaw_rad
+        clearance = self.clearance_m(x, y)
         for _ in range(self.substeps):
             yaw_mid = yaw + 0.5 * cmd.angular_radps * dt
             nx, ny = x + cmd.linear_mps * dt * math.cos(yaw_mid), y + cmd.linear_mps * dt * math.sin(yaw_mid)
-            if self._free_at(nx, ny):
-                x, y = nx, ny
-            elif cmd.linear_mps != 0.0:
-                self.collisions += 1
+            if cmd.linear_mps != 0.0:
+                ok, c = self._can_move(clearance, nx, ny)
+                if ok:
+                    x, y, clearance = nx, ny, c
+                else:
+                    self.collisions += 1
             yaw = wrap_angle_rad(yaw + cmd.angular_radps * dt)
         self._pose = Pose2D(x, y, yaw)
         self.time_s += self.robot.control_period_s

@@ -1,0 +1,243 @@
+"""Floor plans: the seeded apartment generator, PNG loading, scene specs and scale classes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+from scipy import ndimage
+
+from cso_runtime.geodesic import geodesic_distance, traversable_cells
+from cso_runtime.scene_generator import generate_floor_plan
+from cso_runtime.scenes import (
+    FREE_RGB,
+    START_RGB,
+    WALL_RGB,
+    SceneError,
+    builtin_scene_dir,
+    load_floor_plan,
+    resolve_scenes,
+    scale_of,
+)
+
+SEEDS = range(6)
+ROBOT_RADIUS_M = 0.2
+
+
+@pytest.fixture(scope="module")
+def plans():
+    """A few generated plans of both scales, built once for the whole file."""
+    return [generate_floor_plan(scale, seed) for scale in ("small", "middle") for seed in SEEDS]
+
+
+# --- generator ---------------------------------------------------------------------------------
+
+
+def test_same_seed_same_plan_and_different_seed_different_plan():
+    a, b = generate_floor_plan("middle", 11), generate_floor_plan("middle", 11)
+    assert np.array_equal(a.free, b.free)
+    assert a.start == b.start
+    c = generate_floor_plan("middle", 12)
+    assert a.free.shape != c.free.shape or not np.array_equal(a.free, c.free)
+
+
+def test_generator_leaves_the_global_rng_alone():
+    np.random.seed(0)
+    expected = np.random.random()
+    np.random.seed(0)
+    generate_floor_plan("small", 4)
+    assert np.random.random() == expected
+
+
+def test_scale_class_name_and_start(plans):
+    for plan in plans:
+        scale = plan.name.split("_")[1]
+        assert plan.name.startswith(f"gen_{scale}_")
+        assert plan.scale == scale, (plan.name, plan.traversable_area_m2())
+        assert plan.start.yaw_rad == 0.0
+        clearance = ndimage.distance_transform_edt(plan.free)
+        iy, ix = plan.geometry.world_to_cell(plan.start.x_m, plan.start.y_m)
+        # Distance from the start cell's centre to the nearest wall cell's edge.
+        assert (clearance[int(iy), int(ix)] - 0.5) * plan.resolution_m >= 0.4, plan.name
+
+
+def test_middle_areas_vary_across_the_class():
+    areas = [generate_floor_plan("middle", seed).traversable_area_m2() for seed in range(20)]
+    assert min(areas) < 55.0 and max(areas) > 75.0, areas
+
+
+def test_every_free_cell_is_reachable_and_the_outer_wall_is_closed(plans):
+    for plan in plans:
+        assert np.count_nonzero(plan.traversable_region()) == np.count_nonzero(plan.free), plan.name
+        wall_cells = int(np.ceil(0.1 / plan.resolution_m))
+        assert not plan.free[:wall_cells].any() and not plan.free[-wall_cells:].any(), plan.name
+        assert not plan.free[:, :wall_cells].any() and not plan.free[:, -wall_cells:].any(), plan.name
+
+
+def test_walls_are_at_least_ten_centimetres_thick(plans):
+    for plan in plans:
+        k = int(np.ceil(0.1 / plan.resolution_m - 1e-9))
+        walls = plan.occupied
+        # Every wall cell lies inside some k x k block of wall cells: no wall is thinner than k cells.
+        assert np.array_equal(ndimage.binary_opening(walls, np.ones((k, k), dtype=bool)), walls), plan.name
+
+
+@pytest.mark.parametrize("radius_m", [ROBOT_RADIUS_M, 0.35])
+def test_a_robot_passes_every_door(plans, radius_m):
+    """The robot (radius 0.2 m) reaches every room. With a 0.35 m radius the check is strict: a door
+    of 0.8 m (16 cells) still leaves a 2-cell passage after inflation, one of 0.7 m leaves none."""
+    for plan in plans:
+        traversable = traversable_cells(plan.free, plan.occupied, radius_m, plan.resolution_m)
+        distance_m = geodesic_distance(traversable, plan.geometry, plan.start.xy)
+        roomy = ndimage.distance_transform_edt(plan.free) * plan.resolution_m > radius_m + 0.05
+        assert roomy.any()
+        assert np.isfinite(distance_m[roomy]).all(), f"{plan.name}: {int((~np.isfinite(distance_m[roomy])).sum())} cells cut off"
+
+
+def test_several_rooms_per_plan(plans):
+    for plan in plans:
+        # Eroding by more than half the widest door (1 m) closes the doors and splits the rooms
+        # (a 1 m corridor vanishes too, so a middle plan keeps at least 3 of its 4 rooms).
+        size = int(round(1.0 / plan.resolution_m)) + 1
+        _, n = ndimage.label(ndimage.binary_erosion(plan.free, np.ones((size, size), dtype=bool)))
+        assert n >= (2 if plan.name.startswith("gen_small") else 3), (plan.name, n)
+
+
+def test_generator_rejects_bad_arguments():
+    with pytest.raises(SceneError, match="large"):
+        generate_floor_plan("large", 0)
+    with pytest.raises(SceneError, match="seed"):
+        generate_floor_plan("small", -1)
+    with pytest.raises(SceneError, match="resolution"):
+        generate_floor_plan("small", 0, resolution_m=0.5)
+
+
+def test_generator_works_at_the_dungeon_resolution():
+    plan = generate_floor_plan("middle", 2, resolution_m=0.1)
+    assert plan.scale == "middle"
+    assert np.count_nonzero(plan.traversable_region()) == np.count_nonzero(plan.free)
+
+
+# --- PNG plans ---------------------------------------------------------------------------------
+
+
+def _write_png(path, pixels_rgb: np.ndarray) -> None:
+    Image.fromarray(pixels_rgb.astype(np.uint8), "RGB").save(path)
+
+
+def _tiny_plan_pixels() -> np.ndarray:
+    """8 rows x 10 columns: wall border, free inside, 2x2 start near the top, one wall pixel near the bottom."""
+    px = np.empty((8, 10, 3), dtype=np.uint8)
+    px[:] = WALL_RGB
+    px[1:7, 1:9] = FREE_RGB
+    px[1:3, 3:5] = START_RGB  # image rows 1-2 (top), columns 3-4
+    px[6, 2] = WALL_RGB  # image row 6: grid row 1
+    return px
+
+
+def test_png_colours_start_and_y_flip(tmp_path):
+    _write_png(tmp_path / "tiny.png", _tiny_plan_pixels())
+    plan = load_floor_plan(tmp_path / "tiny.png", resolution_m=0.1)
+    assert plan.name == "tiny"
+    assert plan.free.shape == (8, 10)
+    assert np.count_nonzero(plan.free) == 6 * 8 - 1  # the start square counts as free
+    assert not plan.free[0].any() and not plan.free[-1].any()
+    assert not plan.free[1, 2] and plan.free[6, 2]  # row 0 is the image's bottom row
+    # Start square covers grid rows 5-6 and columns 3-4: centre (0.4 m, 0.6 m).
+    assert plan.start.x_m == pytest.approx(0.4)
+    assert plan.start.y_m == pytest.approx(0.6)
+    assert plan.start.yaw_rad == 0.0
+    assert plan.traversable_area_m2() == pytest.approx(47 * 0.01)
+    assert np.array_equal(plan.pixels_from_grid(plan.free)[6], plan.free[1])
+
+
+def test_png_with_alpha_channel_loads(tmp_path):
+    rgba = np.concatenate([_tiny_plan_pixels(), np.full((8, 10, 1), 255, dtype=np.uint8)], axis=2)
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "rgba.png")
+    assert np.count_nonzero(load_floor_plan(tmp_path / "rgba.png").free) == 47
+
+
+def test_corrupt_missing_and_markerless_pngs_raise_scene_error(tmp_path):
+    (tmp_path / "broken.png").write_bytes(b"\x89PNG\r\n\x1a\n this is not a png")
+    with pytest.raises(SceneError, match="broken.png"):
+        load_floor_plan(tmp_path / "broken.png")
+    with pytest.raises(SceneError, match="missing.png"):
+        load_floor_plan(tmp_path / "missing.png")
+    px = _tiny_plan_pixels()
+    px[px[:, :, 0] == START_RGB[0]] = FREE_RGB
+    _write_png(tmp_path / "nostart.png", px)
+    with pytest.raises(SceneError, match="nostart.*start"):
+        load_floor_plan(tmp_path / "nostart.png")
+
+
+def test_builtin_scenes_load_with_licence():
+    folder = builtin_scene_dir()
+    assert "MIT" in (folder / "LICENSE").read_text()
+    assert (folder / "README.md").is_file()
+    refs = resolve_scenes("builtin")
+    assert [r.name for r in refs] == [f"img_{i}" for i in range(1, 6)]
+    for ref in refs:
+        plan = ref.load()
+        assert plan.free.shape == (480, 640)
+        assert plan.resolution_m == 0.1
+        assert plan.scale == "super_large"
+
+
+# --- scene specs -------------------------------------------------------------------------------
+
+
+def test_resolve_generated_spec():
+    refs = resolve_scenes("generated:small:3:7")
+    assert [r.name for r in refs] == ["gen_small_7", "gen_small_8", "gen_small_9"]
+    assert [r.generated for r in refs] == [("small", 7), ("small", 8), ("small", 9)]
+    plan = refs[0].load()
+    assert plan.name == "gen_small_7" and plan.scale == "small"
+    assert np.array_equal(plan.free, generate_floor_plan("small", 7).free)
+    assert len(resolve_scenes("generated:middle:5:0", limit=2)) == 2
+
+
+def test_resolve_folder_in_natural_order(tmp_path):
+    for name in ("img_10.png", "img_2.png", "img_1.png"):
+        _write_png(tmp_path / name, _tiny_plan_pixels())
+    (tmp_path / "notes.txt").write_text("not a plan")
+    refs = resolve_scenes(str(tmp_path), resolution_m=0.05)
+    assert [r.name for r in refs] == ["img_1", "img_2", "img_10"]
+    assert refs[0].load().resolution_m == 0.05
+    single = resolve_scenes(str(tmp_path / "img_2.png"))
+    assert [r.name for r in single] == ["img_2"]
+
+
+def test_resolve_missing_png_fails_when_loaded(tmp_path):
+    (ref,) = resolve_scenes(str(tmp_path / "gone.png"))
+    with pytest.raises(SceneError, match="gone.png"):
+        ref.load()
+
+
+@pytest.mark.parametrize(
+    "spec",
+    ["generated:large:1:0", "generated:small:x:0", "generated:small:1", "generated:small:1:0:9", "plans.txt", "nowhere"],
+)
+def test_bad_specs_raise_scene_error(spec):
+    with pytest.raises(SceneError):
+        resolve_scenes(spec)
+
+
+def test_empty_folder_is_an_error(tmp_path):
+    with pytest.raises(SceneError, match="no PNG"):
+        resolve_scenes(str(tmp_path))
+
+
+@pytest.mark.parametrize(
+    ("area_m2", "scale"),
+    [
+        (0.0, "small"),
+        (29.99, "small"),
+        (30.0, "middle"),
+        (99.99, "middle"),
+        (100.0, "large"),
+        (259.99, "large"),
+        (260.0, "super_large"),
+    ],
+)
+def test_scale_of_boundaries(area_m2, scale):
+    assert scale_of(area_m2) == scale
