@@ -38,6 +38,8 @@ METRICS = (
     "decision_ms_p50",
     "decision_ms_p99",
 )
+LIMO_LIDAR_MOUNT_X_M = 0.103
+"""Where the LIMO's EAI X2L sits ahead of the robot centre (the MuJoCo model mounts it there)."""
 CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s")
 
 
@@ -66,7 +68,9 @@ class EvalRequest:
         cfg = from_dict(ExplorationConfig, data, where=str(self.config_path or "config"))
         preset = SensorConfig.preset(self.sensor, fov_deg=self.lidar_fov_deg if self.sensor == "lidar" else None)
         preset.range_noise_std_m = cfg.sensor.range_noise_std_m
-        preset.mount_x_m = cfg.sensor.mount_x_m
+        explicit_mount = "mount_x_m" in (data.get("sensor") or {})
+        # The MuJoCo LIMO carries its LiDAR 0.103 m ahead of the centre; the planner must know it.
+        preset.mount_x_m = cfg.sensor.mount_x_m if explicit_mount or self.sim != "mujoco" else LIMO_LIDAR_MOUNT_X_M
         cfg.sensor = preset
         cfg.episode = EpisodeConfig(**{**to_dict(cfg.episode), "max_steps": int(self.max_steps)})
         return cfg

@@ -1,0 +1,84 @@
+"""Parameters of the MuJoCo LIMO simulator (defaults documented; YAML in ``configs/robot_sim.yaml``).
+
+The robot's footprint and velocity limits come from ``cso_runtime.config.RobotConfig`` and the range
+sensor from ``SensorConfig``, exactly as for the 2D simulator; this dataclass holds only what the
+physics adds: time step, acceleration limits, watchdog, odometry drift, the LIMO's body and the walls.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from cso_runtime.config import ConfigError
+
+
+@dataclass
+class MujocoSimConfig:
+    """Physics, control and odometry parameters of the MuJoCo LIMO."""
+
+    timestep_s: float = 0.005
+    """Physics step. The control period (RobotConfig.control_period_s, 0.25 s) must be a whole number of steps."""
+    watchdog_s: float = 0.5
+    """The base brakes to a stop when no command arrived for this long (simulated seconds)."""
+    max_linear_accel_mps2: float = 2.0
+    """Linear acceleration limit of the command path (assumed; Nav2's DWB default is 2.5 m/s^2)."""
+    max_angular_accel_radps2: float = 3.0
+    """Angular acceleration limit of the command path (assumed; Nav2's DWB default is 3.2 rad/s^2)."""
+    actuator_time_constant_s: float = 0.02
+    """Time constant with which the base's velocity servos track the rate-limited command."""
+    traction_force_n: float = 38.0
+    """Force limit of the planar servos: tyre grip, about 0.8 x 4.8 kg x g. A wall pushes back harder."""
+    yaw_torque_nm: float = 6.0
+    """Torque limit of the yaw servo (skid-steer turning grip)."""
+    wall_friction: float = 0.3
+    """Sliding friction between the body and walls (a bumper scraping along a wall)."""
+    contact_time_constant_s: float = 0.01
+    """Stiffness of robot-wall contacts (MuJoCo solref time constant, at least two physics steps): a
+    stiffer contact lets the body sink less into a wall it hits at full speed."""
+    wall_height_m: float = 1.0
+    """Height of the wall boxes built from occupied cells."""
+    walls_boundary_only: bool = False
+    """Build walls only from occupied cells 8-adjacent to free space (thick walls become hollow shells,
+    which rays and the robot cannot tell apart from solid ones). Off by default: solid rectilinear walls
+    merge into fewer boxes (Dungeon img_1: 22 solid vs 42 shell boxes); it helps for blobby walls."""
+    mass_kg: float = 4.8
+    """LIMO mass."""
+    body_height_m: float = 0.251
+    """LIMO overall height (body length and width come from RobotConfig)."""
+    wheelbase_m: float = 0.200
+    """Distance between front and rear axles (wheels are visual only)."""
+    track_m: float = 0.175
+    """Distance between left and right wheels (visual only)."""
+    wheel_radius_m: float = 0.045
+    """Wheel radius (visual only); also the body's ground clearance."""
+    lidar_mount_x_m: float | None = 0.103
+    """LiDAR position ahead of the robot centre (the LIMO's EAI X2L). None: use SensorConfig.mount_x_m.
+    The simulator's ``sensor_pose`` always uses the position the rays are cast from."""
+    lidar_height_m: float = 0.2
+    """Height of the scan plane above the floor (below wall_height_m)."""
+    odometry_rate_hz: float = 40.0
+    """Rate at which odometry increments are measured (and drift noise is added)."""
+    odom_trans_noise_frac: float = 0.0
+    """Odometry drift: std of the position error of each increment, as a fraction of its length."""
+    odom_rot_noise_frac: float = 0.0
+    """Odometry drift: std of the heading error of each increment, as a fraction of its rotation."""
+    odom_rot_per_trans_noise_radpm: float = 0.0
+    """Odometry drift: std of the heading error of each increment per metre travelled."""
+
+    def validate(self) -> None:
+        positive = (
+            "timestep_s", "watchdog_s", "max_linear_accel_mps2", "max_angular_accel_radps2", "actuator_time_constant_s",
+            "contact_time_constant_s", "traction_force_n", "yaw_torque_nm", "wall_height_m", "mass_kg", "body_height_m", "wheel_radius_m",
+            "lidar_height_m", "odometry_rate_hz",
+        )  # fmt: skip
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"robot_sim.{name} must be positive")
+        for name in ("wall_friction", "odom_trans_noise_frac", "odom_rot_noise_frac", "odom_rot_per_trans_noise_radpm"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"robot_sim.{name} must not be negative")
+        for name in ("actuator_time_constant_s", "contact_time_constant_s"):
+            if getattr(self, name) < 2 * self.timestep_s - 1e-12:
+                raise ConfigError(f"robot_sim.{name} must be at least two physics steps")
+        if not self.lidar_height_m < self.wall_height_m:
+            raise ConfigError("robot_sim.lidar_height_m must be below wall_height_m or beams pass over the walls")

@@ -1,0 +1,91 @@
+"""Floor plan -> MuJoCo world: occupied cells become 1 m high wall boxes, merged into few rectangles.
+
+Outside the plan counts as wall (as in ``cso_runtime.raycast``), so the grid is padded by one ring of
+occupied cells before merging. Optionally only wall cells 8-adjacent to free space are kept: a ray or
+a robot entering a wall region from free space always crosses such a cell first, so a hollow shell
+is indistinguishable from a solid wall (fewer boxes for blobby walls; for the rectilinear Dungeon
+plans solid walls merge into fewer boxes, hence the default).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import ndimage
+
+from cso_runtime.config import RobotConfig
+from cso_runtime.scenes import FloorPlan
+from robot_sim.config import MujocoSimConfig
+from robot_sim.limo import GROUP_FLOOR, GROUP_WALLS, limo_mjcf
+
+
+def merge_rectangles(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Cover the True cells of ``mask`` exactly by disjoint rectangles ``(iy0, ix0, iy1, ix1)`` (ends exclusive).
+
+    Greedy row-run merge: each maximal run of a row is grown over the following rows while they are
+    True on the whole run. Not minimal, but few boxes for walls made of straight segments.
+    """
+    remaining = np.asarray(mask, dtype=bool).copy()
+    ny = remaining.shape[0]
+    rects: list[tuple[int, int, int, int]] = []
+    for y in range(ny):
+        row = remaining[y]
+        if not row.any():
+            continue
+        edges = np.diff(np.concatenate(([0], row.astype(np.int8), [0])))
+        for x0, x1 in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)):
+            y1 = y + 1
+            while y1 < ny and remaining[y1, x0:x1].all():
+                y1 += 1
+            remaining[y:y1, x0:x1] = False
+            rects.append((y, int(x0), y1, int(x1)))
+    return rects
+
+
+def wall_cells(plan: FloorPlan, boundary_only: bool = False) -> np.ndarray:
+    """Occupied cells of the plan padded by one ring (outside = wall); grid cell (0, 0) is padded (1, 1)."""
+    occupied = np.pad(plan.occupied, 1, constant_values=True)
+    if not boundary_only:
+        return occupied
+    near_free = ndimage.binary_dilation(~occupied, structure=np.ones((3, 3), dtype=bool))
+    return occupied & near_free
+
+
+def wall_boxes(plan: FloorPlan, boundary_only: bool = False) -> np.ndarray:
+    """Wall rectangles in metres, one row per box: (centre_x, centre_y, half_x, half_y)."""
+    res = plan.resolution_m
+    rects = np.array(merge_rectangles(wall_cells(plan, boundary_only)), dtype=float).reshape(-1, 4)
+    y0, x0, y1, x1 = (rects[:, k] - 1.0 for k in range(4))  # undo the padding
+    return np.stack([0.5 * (x0 + x1) * res, 0.5 * (y0 + y1) * res, 0.5 * (x1 - x0) * res, 0.5 * (y1 - y0) * res], axis=1)
+
+
+def world_mjcf(plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float) -> tuple[str, int]:
+    """The MJCF of the whole world (walls, floor, LIMO) and its number of wall boxes."""
+    boxes = wall_boxes(plan, sim.walls_boundary_only)
+    h = 0.5 * sim.wall_height_m
+    walls = "\n".join(
+        f'    <geom name="wall{i}" type="box" pos="{cx:.6g} {cy:.6g} {h:.6g}" size="{hx:.6g} {hy:.6g} {h:.6g}"/>'
+        for i, (cx, cy, hx, hy) in enumerate(boxes)
+    )
+    limo = limo_mjcf(robot, sim, lidar_mount_x_m)
+    g = plan.geometry
+    xml = f"""<mujoco model="limo_{plan.name}">
+  <compiler angle="radian" autolimits="true"/>
+  <option timestep="{sim.timestep_s:.6g}" integrator="implicitfast" gravity="0 0 -9.81"/>
+  <size memory="8M"/>
+  <default>
+    <geom type="box" group="{GROUP_WALLS}" contype="1" conaffinity="1" rgba="0.5 0.5 0.5 1"
+          friction="{sim.wall_friction:.6g} 0.005 0.0001" solref="{sim.contact_time_constant_s:.6g} 1"/>
+  </default>
+  <worldbody>
+    <light pos="{0.5 * g.width_m:.6g} {0.5 * g.height_m:.6g} 10" dir="0 0 -1" directional="true"/>
+    <geom name="floor" type="plane" pos="{0.5 * g.width_m:.6g} {0.5 * g.height_m:.6g} 0"
+          size="{0.5 * g.width_m + 1:.6g} {0.5 * g.height_m + 1:.6g} 0.1" contype="0" conaffinity="0"
+          group="{GROUP_FLOOR}" rgba="0.76 0.76 0.76 1"/>
+{walls}
+{limo.body_xml}
+  </worldbody>
+  <actuator>{limo.actuator_xml}
+  </actuator>
+</mujoco>
+"""
+    return xml, len(boxes)

@@ -1,0 +1,393 @@
+"""The MuJoCo LIMO behind ``cso_runtime.simulator.Simulator``, with a lockstep and a real-time clock.
+
+Lockstep (eval, tests, training checks): ``step(cmd)`` is one command and advances exactly one
+control period (0.25 s = 50 physics steps at 5 ms); runs are deterministic for a seed.
+Real time (``up --profile sim``): commands arrive asynchronously through ``set_command(cmd, stamp_s)``
+and ``RealTimePacer`` calls ``advance(dt_s)`` against the wall clock, so the watchdog matters.
+
+Sensing. The LiDAR fires at ``SensorConfig.rate_hz`` in simulated time (8 Hz: every 25 physics
+steps, i.e. at 0.125 s and at the end of each 0.25 s step). A scan is a pure function of the sensor
+pose at its firing time (walls are static) and of (seed, scan index) for the noise, so scans are cast
+lazily: ``scan()`` returns the latest fired scan (in lockstep, the one taken at the end of the step,
+which the episode runner integrates), ``drain_scans()`` every scan fired since the last drain (what a
+real-time service publishes at 8 Hz; a benchmark uses it to map at the full rate). Ranges come from
+``mujoco.mj_multiRay`` from the LiDAR site, seeing only wall geoms (geom group 0, robot body excluded).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import deque
+from typing import Callable
+
+import mujoco
+import numpy as np
+
+from cso_runtime.config import ConfigError, RobotConfig, SensorConfig
+from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
+from cso_runtime.scenes import FloorPlan
+from robot_sim.config import MujocoSimConfig
+from robot_sim.limo import ACTUATORS, GROUP_WALLS, JOINTS, LIDAR_SITE, ROBOT_BODY
+from robot_sim.scene import world_mjcf
+
+log = logging.getLogger(__name__)
+
+_COLLISION_GAP_STEPS = 20
+"""Physics steps without contact (0.1 s at 5 ms) after which a contact counts as a new collision."""
+_MAX_PENDING_SCANS = 64
+"""Fired scans kept for ``drain_scans`` (8 s at 8 Hz); older ones are dropped and counted."""
+
+
+def _steps_for(duration_s: float, timestep_s: float, what: str) -> int:
+    n = duration_s / timestep_s
+    if abs(n - round(n)) > 1e-6 or round(n) < 1:
+        raise ConfigError(f"{what} ({duration_s} s) must be a whole number of physics steps ({timestep_s} s)")
+    return int(round(n))
+
+
+def _relative(a: Pose2D, b: Pose2D) -> tuple[float, float, float]:
+    """Pose of b in a's frame (dx, dy, dyaw)."""
+    c, s = math.cos(a.yaw_rad), math.sin(a.yaw_rad)
+    dx, dy = b.x_m - a.x_m, b.y_m - a.y_m
+    return c * dx + s * dy, -s * dx + c * dy, wrap_angle_rad(b.yaw_rad - a.yaw_rad)
+
+
+def _compose(a: Pose2D, dx: float, dy: float, dyaw: float) -> Pose2D:
+    c, s = math.cos(a.yaw_rad), math.sin(a.yaw_rad)
+    return Pose2D(a.x_m + c * dx - s * dy, a.y_m + s * dx + c * dy, wrap_angle_rad(a.yaw_rad + dyaw))
+
+
+class MujocoSimulator:
+    """Physics simulation of the LIMO in a floor plan; implements ``cso_runtime.simulator.Simulator``.
+
+    Ground truth (``true_pose``) is for evaluation only; the robot's decisions use ``odometry`` and
+    ``sensor_pose`` (odometry composed with the LiDAR mount).
+    """
+
+    def __init__(
+        self,
+        plan: FloorPlan,
+        sensor: SensorConfig | None = None,
+        robot: RobotConfig | None = None,
+        seed: int | None = None,
+        config: MujocoSimConfig | None = None,
+    ):
+        self.plan = plan
+        self.sensor = sensor or SensorConfig()
+        self.robot = robot or RobotConfig()
+        self.config = config or MujocoSimConfig()
+        self.sensor.validate()
+        self.config.validate()
+        c = self.config
+        self.lidar_mount_x_m = self.sensor.mount_x_m if c.lidar_mount_x_m is None else float(c.lidar_mount_x_m)
+        if abs(self.lidar_mount_x_m - self.sensor.mount_x_m) > 1e-9:
+            log.info(
+                "LiDAR mounted at x=%.3f m on the LIMO (SensorConfig.mount_x_m=%.3f is used only by the planner's "
+                "clearance check; set it to %.3f to match)", self.lidar_mount_x_m, self.sensor.mount_x_m, self.lidar_mount_x_m,
+            )  # fmt: skip
+        self.steps_per_control = _steps_for(self.robot.control_period_s, c.timestep_s, "control period")
+        self._odom_every = max(1, int(round(1.0 / (c.odometry_rate_hz * c.timestep_s))))
+        self._scan_period_steps = 1.0 / (self.sensor.rate_hz * c.timestep_s)
+
+        xml, self.n_wall_boxes = world_mjcf(plan, self.robot, c, self.lidar_mount_x_m)
+        self.model = mujoco.MjModel.from_xml_string(xml)
+        self.data = mujoco.MjData(self.model)
+        self._qadr = np.array([self.model.joint(j).qposadr[0] for j in JOINTS])
+        self._vadr = np.array([self.model.joint(j).dofadr[0] for j in JOINTS])
+        self._act = np.array([self.model.actuator(a).id for a in ACTUATORS])
+        self._robot_body = self.model.body(ROBOT_BODY).id
+        self._lidar_height_m = float(self.model.site(LIDAR_SITE).pos[2])
+        self._geomgroup = np.zeros(6, dtype=np.uint8)
+        self._geomgroup[GROUP_WALLS] = 1
+
+        n = max(1, int(round(self.sensor.fov_deg / self.sensor.resolution_deg)))
+        fov = math.radians(self.sensor.fov_deg)
+        full_ring = self.sensor.fov_deg >= 360.0
+        self._angle_min = -math.pi if full_ring else -fov / 2.0
+        self._increment = fov / n
+        self._n_beams = n if full_ring else n + 1
+        self._beam_rel = self._angle_min + self._increment * np.arange(self._n_beams)
+        self._ray_vec = np.zeros((self._n_beams, 3))
+        self._ray_geom = np.zeros(self._n_beams, dtype=np.int32)
+        self._ray_dist = np.zeros(self._n_beams)
+        self._lock = threading.RLock()
+        self.reset(seed)
+
+    # --- episode ---
+    def reset(self, seed: int | None = None) -> None:
+        """Robot at rest at the plan's start pose, odometry there too; clocks, watchdog, noise re-seeded."""
+        with self._lock:
+            seq = np.random.SeedSequence(seed)
+            self._scan_entropy = int(seq.generate_state(1)[0])
+            self._odom_rng = np.random.default_rng(seq.spawn(1)[0])
+            mujoco.mj_resetData(self.model, self.data)
+            start = self.plan.start
+            self.data.qpos[self._qadr] = (start.x_m, start.y_m, start.yaw_rad)
+            mujoco.mj_forward(self.model, self.data)
+            if self.data.ncon:
+                log.warning("%s: the LIMO's body overlaps a wall at the start pose %s", self.plan.name, start)
+            self._steps = 0
+            self.time_s = 0.0
+            self._target = VelocityCommand(0.0, 0.0)
+            self._command_stamp_s = 0.0
+            self._have_command = False
+            self.watchdog_stops = 0
+            self._watchdog_tripped = False
+            self._applied_v = 0.0
+            self._applied_w = 0.0
+            self.collisions = 0
+            self.contact_steps = 0
+            self._last_contact_step = -(10**9)
+            self.rejected_commands = 0
+            self._odom_pose = start
+            self._odom_anchor_true = start
+            self._scan_index = 0
+            self._next_scan_step = 0
+            self._fired: deque[tuple[int, float, Pose2D, Pose2D]] = deque(maxlen=_MAX_PENDING_SCANS)
+            self.dropped_scans = 0
+            self._latest: tuple[int, float, Pose2D, Pose2D] | None = None
+            self._latest_scan: LaserScan | None = None
+            self._fire_due_scans()
+
+    # --- poses ---
+    def true_pose(self) -> Pose2D:
+        with self._lock:
+            q = self.data.qpos[self._qadr].copy()
+        return Pose2D(float(q[0]), float(q[1]), wrap_angle_rad(float(q[2])))
+
+    def odometry(self) -> Pose2D:
+        """Dead reckoning: the last odometry tick plus the (noise-free) motion since then."""
+        with self._lock:
+            return _compose(self._odom_pose, *_relative(self._odom_anchor_true, self.true_pose()))
+
+    def sensor_pose(self) -> Pose2D:
+        return self.odometry().compose_offset(self.lidar_mount_x_m)
+
+    def body_velocity(self) -> tuple[float, float, float]:
+        """Ground-truth body-frame velocity (forward m/s, left m/s, yaw rad/s)."""
+        v = self.data.qvel[self._vadr]
+        yaw = float(self.data.qpos[self._qadr[2]])
+        c, s = math.cos(yaw), math.sin(yaw)
+        return c * v[0] + s * v[1], -s * v[0] + c * v[1], float(v[2])
+
+    @property
+    def applied_command(self) -> VelocityCommand:
+        """The rate-limited command the servos track now."""
+        return VelocityCommand(self._applied_v, self._applied_w)
+
+    # --- control ---
+    def set_command(self, command: VelocityCommand, stamp_s: float | None = None) -> bool:
+        """Set the velocity target (clamped to the limits), stamped in simulated time (default: now).
+
+        Non-finite commands are rejected (logged and counted in ``rejected_commands``); returns whether
+        the command was accepted. The watchdog stops the robot ``watchdog_s`` after the newest stamp.
+        """
+        if not (math.isfinite(command.linear_mps) and math.isfinite(command.angular_radps)):
+            self.rejected_commands += 1
+            log.warning("rejected non-finite velocity command %s", command)
+            return False
+        with self._lock:
+            stamp = self.time_s if stamp_s is None else float(stamp_s)
+            self._target = command.clamped(self.robot.max_linear_mps, self.robot.max_angular_radps)
+            self._command_stamp_s = stamp
+            self._have_command = True
+            return True
+
+    def step(self, command: VelocityCommand) -> None:
+        """Lockstep: apply ``command`` for exactly one control period."""
+        if not self.set_command(command):
+            raise ValueError(f"velocity command must be finite, got {command}")
+        self._advance_steps(self.steps_per_control)
+
+    def advance(self, dt_s: float) -> int:
+        """Run physics for ``dt_s`` simulated seconds (rounded down to whole steps); returns the steps run."""
+        if not dt_s >= 0 or not math.isfinite(dt_s):
+            raise ValueError(f"dt_s must be a finite non-negative number, got {dt_s}")
+        n = int(math.floor(dt_s / self.config.timestep_s + 1e-9))
+        self._advance_steps(n)
+        return n
+
+    def _advance_steps(self, n: int) -> None:
+        """Run ``n`` physics steps: watchdog, acceleration limits, odometry ticks and LiDAR firings.
+
+        While the command ramps (acceleration limit) the servo targets change every step; otherwise
+        MuJoCo runs uninterrupted up to the next event (odometry tick, LiDAR firing, watchdog expiry).
+        """
+        c = self.config
+        dt = c.timestep_s
+        dv = c.max_linear_accel_mps2 * dt
+        dw = c.max_angular_accel_radps2 * dt
+        m, d = self.model, self.data
+        ctrl = d.ctrl
+        tau = c.actuator_time_constant_s
+        i_fwd, i_lat, i_yaw = (int(a) for a in self._act)
+        with self._lock:
+            remaining = n
+            while remaining > 0:
+                # Watchdog: the command is live while (now - stamp) <= watchdog_s, checked before each step.
+                last_live_step = -1
+                if self._have_command:
+                    last_live_step = int(math.floor((self._command_stamp_s + c.watchdog_s) / dt + 1e-6))
+                if self._steps <= last_live_step:
+                    target_v, target_w = self._target.linear_mps, self._target.angular_radps
+                    self._watchdog_tripped = False
+                else:
+                    if self._have_command and not self._watchdog_tripped:
+                        self.watchdog_stops += 1
+                        self._watchdog_tripped = True
+                        log.info("watchdog: no command for %.2f s, stopping", self.time_s - self._command_stamp_s)
+                    target_v, target_w = 0.0, 0.0
+                if self._applied_v != target_v or self._applied_w != target_w:
+                    # Acceleration limits: the applied command moves towards the target at a bounded rate.
+                    self._applied_v += min(max(target_v - self._applied_v, -dv), dv)
+                    self._applied_w += min(max(target_w - self._applied_w, -dw), dw)
+                    k = 1
+                else:
+                    next_odom = (self._steps // self._odom_every + 1) * self._odom_every
+                    k = min(remaining, next_odom - self._steps, max(self._next_scan_step - self._steps, 1))
+                    if self._steps <= last_live_step:
+                        k = min(k, last_live_step - self._steps + 1)
+                ctrl[i_fwd] = self._applied_v
+                # Centripetal feed-forward: a P servo holding zero lateral speed while turning would
+                # otherwise lag by v * w * tau (1.6 cm/s at full speed).
+                ctrl[i_lat] = self._applied_v * self._applied_w * tau
+                ctrl[i_yaw] = self._applied_w
+                mujoco.mj_step(m, d, k)
+                self._steps += k
+                remaining -= k
+                self.time_s = self._steps * dt
+                if d.ncon:  # walls are static and the floor does not collide: any contact is robot-wall
+                    self._on_contact(k)
+                if self._steps % self._odom_every == 0:
+                    self._odometry_tick()
+                if self._steps >= self._next_scan_step:
+                    self._fire_due_scans()
+
+    def _on_contact(self, steps: int) -> None:
+        """Count ``contact_steps`` and ``collisions`` (a contact after at least _COLLISION_GAP_STEPS
+        without one: contacts flicker while the body scrapes along a wall). Contacts are sampled at the
+        end of each uninterrupted run of physics steps (at most one odometry period, 25 ms)."""
+        if self._steps - steps - self._last_contact_step > _COLLISION_GAP_STEPS:
+            self.collisions += 1
+        self.contact_steps += steps
+        self._last_contact_step = self._steps
+
+    def _odometry_tick(self) -> None:
+        """Add the base's motion since the last tick to the estimate, with drift noise."""
+        c = self.config
+        now = self.true_pose()
+        dx, dy, dyaw = _relative(self._odom_anchor_true, now)
+        trans = math.hypot(dx, dy)
+        if c.odom_trans_noise_frac > 0 and trans > 0:
+            dx, dy = dx + self._odom_rng.normal(0.0, c.odom_trans_noise_frac * trans), dy + self._odom_rng.normal(0.0, c.odom_trans_noise_frac * trans)
+        rot_std = c.odom_rot_noise_frac * abs(dyaw) + c.odom_rot_per_trans_noise_radpm * trans
+        if rot_std > 0:
+            dyaw += self._odom_rng.normal(0.0, rot_std)
+        self._odom_pose = _compose(self._odom_pose, dx, dy, dyaw)
+        self._odom_anchor_true = now
+
+    # --- LiDAR ---
+    def _fire_due_scans(self) -> None:
+        while self._steps >= self._next_scan_step:
+            pose = self.true_pose().compose_offset(self.lidar_mount_x_m)
+            fired = (self._scan_index, self.time_s, pose, self.sensor_pose())
+            if len(self._fired) == self._fired.maxlen:
+                self.dropped_scans += 1
+            self._fired.append(fired)
+            self._latest = fired
+            self._latest_scan = None
+            self._scan_index += 1
+            self._next_scan_step = int(round(self._scan_index * self._scan_period_steps))
+
+    def cast_scan(self, sensor_pose: Pose2D, noise_key: int | None = None, stamp_s: float = 0.0) -> LaserScan:
+        """Cast the LiDAR from a true sensor pose; noise seeded by (seed, ``noise_key``) if configured."""
+        ang = self._beam_rel + sensor_pose.yaw_rad
+        pnt = np.array([sensor_pose.x_m, sensor_pose.y_m, self._lidar_height_m])
+        with self._lock:  # the ray buffers are shared
+            self._ray_vec[:, 0] = np.cos(ang)
+            self._ray_vec[:, 1] = np.sin(ang)
+            mujoco.mj_multiRay(
+                self.model, self.data, pnt, self._ray_vec.ravel(), self._geomgroup, 1, self._robot_body,
+                self._ray_geom, self._ray_dist, None, self._n_beams, self.sensor.range_max_m,
+            )  # fmt: skip
+            ranges = np.where((self._ray_geom >= 0) & (self._ray_dist <= self.sensor.range_max_m), self._ray_dist, np.inf)
+        if self.sensor.range_noise_std_m > 0:
+            rng = np.random.default_rng([self._scan_entropy, 0 if noise_key is None else noise_key])
+            finite = np.isfinite(ranges)
+            ranges[finite] = np.maximum(ranges[finite] + rng.normal(0.0, self.sensor.range_noise_std_m, int(finite.sum())), 0.0)
+        return LaserScan(self._angle_min, self._increment, self.sensor.range_min_m, self.sensor.range_max_m, ranges.astype(np.float32), stamp_s)
+
+    def scan(self) -> LaserScan:
+        """The latest scan the LiDAR fired (at ``rate_hz`` in simulated time), in the sensor frame."""
+        with self._lock:
+            if self._latest_scan is None:
+                assert self._latest is not None
+                index, stamp, pose, _ = self._latest
+                self._latest_scan = self.cast_scan(pose, index, stamp)
+            return self._latest_scan
+
+    def drain_scans(self) -> list[tuple[Pose2D, LaserScan]]:
+        """Every scan fired since the last drain, oldest first, each with the odometry sensor pose at its
+        firing time (what the mapper needs). At most the last 64 are kept; drops are counted."""
+        with self._lock:
+            out = []
+            latest_index = self._latest[0] if self._latest is not None else -1
+            for index, stamp, pose, odom_sensor_pose in self._fired:
+                scan = self.scan() if index == latest_index else self.cast_scan(pose, index, stamp)
+                out.append((odom_sensor_pose, scan))
+            self._fired.clear()
+            return out
+
+
+class RealTimePacer:
+    """Runs a simulator's ``advance`` against the wall clock (``speed`` x real time).
+
+    ``poll()`` advances simulated time to where the wall clock says it should be; ``run(stop)`` polls
+    every ``period_s`` until ``stop`` is set. When the machine falls more than ``max_lag_s`` behind,
+    the backlog is dropped (counted in ``overruns``) rather than simulated in a burst.
+    """
+
+    def __init__(
+        self,
+        sim: MujocoSimulator,
+        speed: float = 1.0,
+        max_lag_s: float = 0.5,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        if not speed > 0:
+            raise ValueError("speed must be positive")
+        self.sim = sim
+        self.speed = speed
+        self.max_lag_s = max_lag_s
+        self.clock = clock
+        self.overruns = 0
+        self._anchor_wall_s: float | None = None
+        self._anchor_sim_s = 0.0
+
+    def start(self) -> None:
+        self._anchor_wall_s = self.clock()
+        self._anchor_sim_s = self.sim.time_s
+
+    def poll(self) -> int:
+        """Advance the simulation to the wall clock; returns the physics steps run."""
+        if self._anchor_wall_s is None:
+            self.start()
+        assert self._anchor_wall_s is not None
+        target = self._anchor_sim_s + (self.clock() - self._anchor_wall_s) * self.speed
+        behind = target - self.sim.time_s
+        if behind > self.max_lag_s * self.speed:
+            self.overruns += 1
+            log.warning("real-time simulation %.2f s behind the wall clock; dropping the backlog", behind)
+            self.start()
+            return 0
+        return self.sim.advance(behind) if behind > 0 else 0
+
+    def run(self, stop: threading.Event, period_s: float = 0.01) -> None:
+        """Poll until ``stop`` is set (call from a dedicated thread)."""
+        self.start()
+        while not stop.is_set():
+            self.poll()
+            stop.wait(period_s)
