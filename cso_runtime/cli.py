@@ -38,6 +38,7 @@ def eval_command(
     workers: int = typer.Option(1, "--workers", help="Parallel worker processes"),
     sim: str = typer.Option("2d", "--sim", help="Simulator: 2d (fast kinematic) or mujoco (physics)"),
     config: Optional[Path] = typer.Option(None, "--config", help="YAML with exploration parameters (see configs/eval.yaml)"),
+    resume: bool = typer.Option(False, "--resume", help="Keep episodes already finished in --out (same method, map, seed)"),
 ) -> None:
     """Run exploration episodes and write the paper's Table 1 metrics, curves and trajectory plots."""
     from cso_runtime.evaluation import EvalRequest, run_eval_cli  # noqa: PLC0415 - keep CLI start fast
@@ -55,11 +56,196 @@ def eval_command(
         workers=workers,
         sim=sim,
         config_path=config,
+        resume=resume,
     )
     raise typer.Exit(run_eval_cli(request))
 
 
 # Further commands (service, up, status, down, train, record, replay) register below.
+
+
+@app.command("record")
+def record_command(
+    out: Optional[Path] = typer.Option(None, "--out", help="MCAP file (default: recordings/<robot>-<UTC time>.mcap)"),
+    robot: Optional[str] = typer.Option(None, "--robot", help="Robot id, or '*' for every robot (default: the current run's, else r0)"),
+    connect: Optional[list[str]] = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
+) -> None:
+    """Record every cso/<robot>/** message to MCAP (Foxglove and the mcap tools open it) until Ctrl-C."""
+    import signal  # noqa: PLC0415
+    import threading  # noqa: PLC0415
+    import time  # noqa: PLC0415
+
+    from cso_runtime.recording import record  # noqa: PLC0415
+    from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
+    from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
+
+    endpoints, run_robot = (list(connect), None) if connect else endpoints_from_run_file(runs_dir)
+    robot = robot or run_robot or "r0"
+    if not endpoints:
+        typer.echo("error: no current run; give --connect ENDPOINT", err=True)
+        raise typer.Exit(2)
+    path = out or Path("recordings") / f"{robot.replace('*', 'all')}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.mcap"
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
+            typer.echo(f"recording cso/{robot}/** from {', '.join(endpoints)} into {path} (Ctrl-C to stop)")
+            stats = record(session, robot, path, stop)
+    except (TransportError, ValueError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    typer.echo(f"{stats.messages} messages on {len(stats.per_key)} keys ({stats.raw} kept verbatim) -> {path}")
+
+
+@app.command("replay")
+def replay_command(
+    file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record`"),
+    speed: str = typer.Option("1.0", "--speed", help="Playback speed factor, or 'max' for as fast as possible"),
+    topics: Optional[str] = typer.Option(None, "--topics", help="Comma-separated topic names to replay (e.g. clock,odom,scan); default all"),
+    connect: Optional[list[str]] = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
+) -> None:
+    """Publish a recording back into Zenoh with the exact original payloads, at recorded or faster speed."""
+    import signal  # noqa: PLC0415
+    import threading  # noqa: PLC0415
+
+    from cso_runtime.recording import RecordingError, parse_speed, replay  # noqa: PLC0415
+    from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
+    from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
+
+    endpoints = list(connect) if connect else endpoints_from_run_file(runs_dir)[0]
+    if not endpoints:
+        typer.echo("error: no current run; give --connect ENDPOINT", err=True)
+        raise typer.Exit(2)
+    if not file.is_file():
+        typer.echo(f"error: no such recording {file}", err=True)
+        raise typer.Exit(2)
+    try:
+        parse_speed(speed)
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    wanted = [t.strip() for t in topics.split(",") if t.strip()] if topics else None
+    try:
+        with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
+            stats = replay(session, file, speed, stop, wanted)
+    except (TransportError, RecordingError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1) from None
+    typer.echo(f"replayed {stats.messages} messages on {len(stats.per_key)} keys in {stats.duration_s:.2f} s (recorded span {stats.recorded_s:.2f} s)")
+
+
+@app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def service_command(
+    ctx: typer.Context,
+    name: str = typer.Argument(..., help="sim, mapper, frontier, policy or planner"),
+) -> None:
+    """Run one service in this process (same as python -m services.NAME; pass --config FILE --robot ID --connect EP)."""
+    from services import service_class  # noqa: PLC0415
+    from services.common import service_main  # noqa: PLC0415
+
+    try:
+        cls = service_class(name)
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    raise typer.Exit(service_main(cls, list(ctx.args)))
+
+
+@app.command("up")
+def up_command(
+    profile: str = typer.Option("sim", "--profile", help="Profile name in configs/profiles/ or a YAML path"),
+    scene: Optional[str] = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, generated:SCALE:N:SEED"),
+    method: Optional[str] = typer.Option(None, "--method", help="Goal selector (overrides the profile)"),
+    robot: Optional[str] = typer.Option(None, "--robot", help="Robot id (overrides the profile)"),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Episode seed (overrides the profile)"),
+    lockstep: Optional[bool] = typer.Option(None, "--lockstep/--real-time", help="Deterministic lockstep or real time (overrides the profile)"),
+    detach: bool = typer.Option(False, "--detach", help="Run in the background until `cso-runtime down`"),
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where runs/<run-id>/ (logs, results) go"),
+    live: bool = typer.Option(True, "--live/--no-live", help="Show the live view (foreground only)"),
+) -> None:
+    """Start the router and every service of a profile, supervise them, write results when the episode ends."""
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.launcher import load_profile, read_current_run, pid_alive, run_foreground, start_detached  # noqa: PLC0415
+
+    try:
+        prof, data = load_profile(profile, {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep})
+    except (ConfigError, ValueError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    current = read_current_run(runs_dir)
+    if current is not None and pid_alive(current.get("launcher_pid")) and current.get("robot") == prof.robot:
+        typer.echo(f"error: run {current.get('run_id')} is already running for robot {prof.robot}; `cso-runtime down` first", err=True)
+        raise typer.Exit(2)
+    if detach:
+        code, message = start_detached(prof, data, runs_dir)
+        typer.echo(message, err=code != 0)
+        raise typer.Exit(code)
+    import logging  # noqa: PLC0415
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    raise typer.Exit(run_foreground(prof, data, runs_dir, live=live))
+
+
+@app.command("status")
+def status_command(
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
+    watch: bool = typer.Option(False, "--watch", help="Refresh every second until Ctrl-C"),
+    robot: Optional[str] = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
+    connect: Optional[list[str]] = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
+) -> None:
+    """State, step, coverage, explored area, path length, goal, decisions and service health of the running episode."""
+    from cso_runtime.status import status_main  # noqa: PLC0415
+
+    raise typer.Exit(status_main(list(connect or []), robot, as_json, watch, runs_dir))
+
+
+@app.command("down")
+def down_command(
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
+    timeout: float = typer.Option(10.0, "--timeout-s", help="How long the launcher may take to stop its services before escalating"),
+) -> None:
+    """Stop the running episode and every service process (SIGINT, then SIGTERM, then SIGKILL)."""
+    from cso_runtime.launcher import down  # noqa: PLC0415
+
+    ok, message = down(runs_dir, timeout)
+    typer.echo(message, err=not ok)
+    raise typer.Exit(0 if ok else 1)
+
+
+@app.command("train")
+def train_command(
+    config: Optional[Path] = typer.Option(Path("configs/train.yaml"), "--config", help="YAML with the fields of learned.ppo.Args"),
+    variant: Optional[str] = typer.Option(None, "--variant", help="cso, cso-no-info, cso-no-mask, cso-sm, cso-vdm or gnn-baseline"),
+    out: Optional[Path] = typer.Option(None, "--out", help="Output folder (overrides out_dir)"),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Seed (overrides the config)"),
+    total_decisions: Optional[int] = typer.Option(None, "--total-decisions", help="PPO budget in goal choices"),
+    time_limit: Optional[float] = typer.Option(None, "--time-limit-s", help="Stop after this much wall time (0 = none)"),
+    resume: Optional[Path] = typer.Option(None, "--resume", help="checkpoint.pt to continue from"),
+    device: Optional[str] = typer.Option(None, "--device", help="auto, cpu or cuda"),
+) -> None:
+    """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
+    from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
+    from cso_runtime.learned.ppo import Args, train  # noqa: PLC0415 - torch only for this command
+
+    data = load_yaml(config) if config is not None else {}
+    overrides = {"variant": variant, "out_dir": str(out) if out else None, "seed": seed, "total_decisions": total_decisions,
+                 "time_limit_s": time_limit, "resume": str(resume) if resume else None, "device": device}
+    data.update({k: v for k, v in overrides.items() if v is not None})
+    try:
+        args = from_dict(Args, data, "train")
+        args.validate()
+    except (ConfigError, ValueError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    record = train(args, log=typer.echo)
+    typer.echo(f"done: {record['ppo_decisions']} PPO decisions, {record['warm_start_decisions']} warm-start decisions, {record['wall_time_s']} s -> {args.out_dir}")
 
 
 def main() -> None:

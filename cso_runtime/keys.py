@@ -1,0 +1,132 @@
+"""Zenoh key expressions: everything of one robot lives under ``cso/<robot>/...``.
+
+The table with schemas is in docs/messages.md. ``--robot ID`` changes only the ``<robot>`` part, so
+several robots share one network, and a service may subscribe with the wildcard robot ``*``.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+ROOT = "cso"
+WILDCARD = "*"
+_ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+
+TOPICS = {
+    "scan": "scan",
+    "odom": "odom",
+    "cmd_vel": "cmd_vel",
+    "map": "map",
+    "frontiers": "frontiers",
+    "goal": "goal",
+    "path": "path",
+    "planner_feedback": "planner/feedback",
+    "clock": "clock",
+    "episode_status": "episode/status",
+    "episode_result": "episode/result",
+}
+"""Topic name -> key suffix under ``cso/<robot>/``."""
+
+
+class KeyExprError(ValueError):
+    """A robot id or key expression is not valid."""
+
+
+def check_robot_id(robot: str, allow_wildcard: bool = False) -> str:
+    if allow_wildcard and robot == WILDCARD:
+        return robot
+    if not _ROBOT_ID.match(robot):
+        raise KeyExprError(f"robot id {robot!r} must be 1-64 letters, digits, '_' or '-'")
+    return robot
+
+
+@dataclass(frozen=True)
+class RobotKeys:
+    """All key expressions of one robot (or of every robot, with ``robot='*'``)."""
+
+    robot: str
+
+    def __post_init__(self) -> None:
+        check_robot_id(self.robot, allow_wildcard=True)
+
+    def topic(self, name: str) -> str:
+        return f"{ROOT}/{self.robot}/{TOPICS[name]}"
+
+    @property
+    def scan(self) -> str:
+        return self.topic("scan")
+
+    @property
+    def odom(self) -> str:
+        return self.topic("odom")
+
+    @property
+    def cmd_vel(self) -> str:
+        return self.topic("cmd_vel")
+
+    @property
+    def map(self) -> str:
+        return self.topic("map")
+
+    @property
+    def frontiers(self) -> str:
+        return self.topic("frontiers")
+
+    @property
+    def goal(self) -> str:
+        return self.topic("goal")
+
+    @property
+    def path(self) -> str:
+        return self.topic("path")
+
+    @property
+    def planner_feedback(self) -> str:
+        return self.topic("planner_feedback")
+
+    @property
+    def clock(self) -> str:
+        return self.topic("clock")
+
+    @property
+    def episode_status(self) -> str:
+        return self.topic("episode_status")
+
+    @property
+    def episode_result(self) -> str:
+        return self.topic("episode_result")
+
+    def alive(self, service: str) -> str:
+        """Liveliness token of one service (``*`` for all)."""
+        return f"{ROOT}/{self.robot}/alive/{service}"
+
+    def service_status(self, service: str) -> str:
+        """Queryable with a service's own health (``ServiceStatusMsg``)."""
+        return f"{ROOT}/{self.robot}/service/{service}/status"
+
+    @property
+    def launcher_status(self) -> str:
+        """Queryable of the launcher that runs this robot's services (``LauncherStatusMsg``)."""
+        return f"{ROOT}/{self.robot}/launcher/status"
+
+    def cache(self, name: str) -> str:
+        """Launcher-held copy of the latest ``map``/``goal`` for restarted services (queryable)."""
+        return f"{ROOT}/{self.robot}/cache/{TOPICS[name]}"
+
+
+def robot_of(key_expr: str) -> str:
+    """The robot id of a concrete key ``cso/<robot>/...``."""
+    parts = str(key_expr).split("/")
+    if len(parts) < 3 or parts[0] != ROOT:
+        raise KeyExprError(f"{key_expr!r} is not a cso/<robot>/... key")
+    return check_robot_id(parts[1])
+
+
+def topic_of(key_expr: str) -> str:
+    """The topic name of a concrete key (inverse of ``RobotKeys.topic``)."""
+    suffix = "/".join(str(key_expr).split("/")[2:])
+    for name, s in TOPICS.items():
+        if s == suffix:
+            return name
+    raise KeyExprError(f"{key_expr!r} is not a known topic")

@@ -1,0 +1,670 @@
+"""``cso-runtime up``: an embedded Zenoh router, one OS process per service, supervision, results.
+
+A profile (``configs/profiles/<name>.yaml``) lists the services and their parameters, the scene, the
+method and the Zenoh endpoints, like a dora-rs dataflow file; it is validated completely before
+anything starts. The launcher opens a Zenoh session in router mode on loopback (no external router
+to install), spawns ``python -m services.<name>`` per service with its own process group and log
+file in ``runs/<run-id>/logs/``, restarts a crashed service with exponential back-off (and gives up
+after ``max_restarts``, saying so), keeps the latest map and goal for restarted services, shows a live
+view, and writes the same ``summary.json``, trajectory plot and final map as ``eval`` when the episode
+ends. Ctrl-C, SIGTERM and ``cso-runtime down`` stop every process group: SIGINT, then SIGTERM, then
+SIGKILL, each with a deadline.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from cso_runtime.config import ConfigError, ExplorationConfig, from_dict, load_yaml
+from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
+from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, MapMsg, MessageError, PathMsg, decode, encode
+from cso_runtime.scenes import SceneError, resolve_scenes
+from cso_runtime.transport import TransportConfig, free_tcp_port, open_session
+
+log = logging.getLogger("cso.launcher")
+
+RUNS_DIR = Path("runs")
+CURRENT_RUN = "current.json"
+
+
+@dataclass
+class RouterConfig:
+    """The launcher's embedded Zenoh router."""
+
+    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:0"])
+    """Endpoints to listen on; port 0 picks a free port at start."""
+    connect: list[str] = field(default_factory=list)
+    """Other routers to join (services on other hosts)."""
+    service_mode: str = "client"
+    """Zenoh mode of the services: ``client`` (every message through the router) or ``peer`` (services
+    also listen on a loopback port and talk directly once the router has introduced them)."""
+
+    def validate(self) -> None:
+        if self.service_mode not in ("client", "peer"):
+            raise ConfigError(f"router.service_mode must be client or peer, got {self.service_mode!r}")
+
+
+@dataclass
+class SupervisionConfig:
+    """How crashed services are restarted and how everything is stopped."""
+
+    max_restarts: int = 3
+    """Restarts per service before the launcher gives up on it (and says so)."""
+    backoff_s: float = 0.5
+    """Delay before the first restart; doubled after each restart."""
+    backoff_max_s: float = 8.0
+    """Longest delay between restarts."""
+    stop_timeout_s: float = 3.0
+    """Deadline of each stop stage (SIGINT, then SIGTERM, then SIGKILL)."""
+
+    def validate(self) -> None:
+        if self.max_restarts < 0 or self.backoff_s < 0 or self.backoff_max_s < self.backoff_s or not self.stop_timeout_s > 0:
+            raise ConfigError("supervision needs max_restarts >= 0, 0 <= backoff_s <= backoff_max_s, stop_timeout_s > 0")
+
+
+@dataclass
+class Profile:
+    """One runtime configuration: what to explore, with which services and parameters."""
+
+    name: str = "sim"
+    """Profile name (for logs and run ids)."""
+    robot: str = "r0"
+    """Robot id: namespaces every key (cso/<robot>/...)."""
+    scene: str = "generated:small:1:0"
+    """Scene spec: builtin, a folder or PNG of floor plans, or generated:SCALE:N:SEED (first scene used)."""
+    m_per_px: float = 0.1
+    """Metres per pixel of PNG plans."""
+    method: str = "greedy-dist"
+    """Goal selector of the policy service."""
+    seed: int = 0
+    """Episode seed (simulator noise, random policy)."""
+    lockstep: bool = False
+    """Deterministic lockstep (the sim waits for the pipeline) instead of real time."""
+    exploration: dict[str, Any] = field(default_factory=dict)
+    """ExplorationConfig overrides (sensor, robot, frontier, masks, episode, planner)."""
+    router: RouterConfig = field(default_factory=RouterConfig)
+    supervision: SupervisionConfig = field(default_factory=SupervisionConfig)
+    services: dict[str, Any] = field(default_factory=dict)
+    """Service name -> its parameters (a mapping, possibly empty). Only listed services are started."""
+
+    def validate(self) -> None:
+        check_robot_id(self.robot)
+        from_dict(ExplorationConfig, self.exploration, where="exploration")
+        from services import SERVICE_NAMES, service_class  # noqa: PLC0415 - services import zenoh
+
+        if not self.services:
+            raise ConfigError("a profile must list at least one service")
+        for name, params in self.services.items():
+            if name not in SERVICE_NAMES:
+                raise ConfigError(f"services: unknown service {name!r}; known: {', '.join(SERVICE_NAMES)}")
+            if params is not None and not isinstance(params, dict):
+                raise ConfigError(f"services.{name}: expected a mapping of parameters")
+            params_cls = getattr(sys.modules[service_class(name).__module__], f"{name.capitalize()}Params", None)
+            if params_cls is not None:
+                from_dict(params_cls, params or {}, where=f"services.{name}")
+            elif params:
+                raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
+        from cso_runtime.policies import BASELINES, LEARNED_METHODS  # noqa: PLC0415
+
+        if self.method not in BASELINES and self.method not in LEARNED_METHODS:
+            raise ConfigError(f"unknown method {self.method!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")
+        try:
+            if not resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px):
+                raise ConfigError(f"scene {self.scene!r} resolves to no scene")
+        except SceneError as exc:
+            raise ConfigError(f"scene: {exc}") from None
+        TransportConfig(mode="router", listen=self.router.listen, connect=self.router.connect).validate()
+
+
+def profile_search_path() -> list[Path]:
+    """Where ``--profile NAME`` is looked up: ./configs/profiles, then the source checkout's."""
+    here = Path(__file__).resolve().parents[1] / "configs" / "profiles"
+    return [Path("configs") / "profiles", here]
+
+
+def find_profile(name_or_path: str) -> Path:
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") and p.is_file():
+        return p
+    for folder in profile_search_path():
+        for ext in (".yaml", ".yml"):
+            cand = folder / f"{name_or_path}{ext}"
+            if cand.is_file():
+                return cand
+    known = sorted({f.stem for folder in profile_search_path() if folder.is_dir() for f in folder.glob("*.y*ml")})
+    raise ConfigError(f"unknown profile {name_or_path!r}; known profiles: {', '.join(known) or 'none'} (or give a .yaml path)")
+
+
+def load_profile(name_or_path: str, overrides: dict[str, Any] | None = None) -> tuple[Profile, dict[str, Any]]:
+    """Load, apply CLI overrides (``None`` values ignored) and validate; returns the profile and its data."""
+    path = find_profile(name_or_path)
+    data = load_yaml(path)
+    for k, v in (overrides or {}).items():
+        if v is not None:
+            data[k] = v
+    data.setdefault("name", path.stem)
+    profile = from_dict(Profile, data, where=str(path))
+    return profile, data
+
+
+# --- process supervision ---------------------------------------------------------------------------
+
+
+@dataclass
+class Child:
+    """One supervised service process."""
+
+    name: str
+    argv: list[str]
+    log_path: Path
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    gave_up: bool = False
+    restart_at: float | None = None
+    exit_codes: list[int] = field(default_factory=list)
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def spawn(self) -> None:
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        with self.log_path.open("ab") as fh:
+            env = {**os.environ, "PYTHONUNBUFFERED": "1", "CSO_PARENT_PID": str(os.getpid())}
+            self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env)
+        self.restart_at = None
+
+
+def signal_group(pid: int, sig: int) -> None:
+    try:
+        os.killpg(pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def stop_children(children: list[Child], stage_timeout_s: float) -> None:
+    """SIGINT every process group, then SIGTERM, then SIGKILL, each stage with a deadline."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+        running = [c for c in children if c.alive]
+        if not running:
+            break
+        for c in running:
+            assert c.proc is not None
+            signal_group(c.proc.pid, sig)
+        deadline = time.monotonic() + stage_timeout_s
+        for c in running:
+            assert c.proc is not None
+            try:
+                c.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                log.warning("%s (pid %d) still running after %s", c.name, c.proc.pid, signal.Signals(sig).name)
+    for c in children:  # the groups may hold grandchildren
+        if c.proc is not None:
+            signal_group(c.proc.pid, signal.SIGKILL)
+
+
+# --- the launcher ----------------------------------------------------------------------------------
+
+
+class Launcher:
+    """Runs one profile: router, services, supervision, live state, results."""
+
+    def __init__(self, profile: Profile, profile_data: dict[str, Any], run_dir: Path):
+        self.profile = profile
+        self.data = profile_data
+        self.run_dir = run_dir
+        self.run_id = run_dir.name
+        self.keys = RobotKeys(profile.robot)
+        self.stop_event = threading.Event()
+        self.children: list[Child] = []
+        self.endpoints: list[str] = []
+        self.status: EpisodeStatusMsg | None = None
+        self.alive_services: set[str] = set()
+        self.latest: dict[str, bytes] = {}
+        self.latest_step: dict[str, int] = {}
+        self.rejected: dict[str, int] = {}
+        self.goal: GoalMsg | None = None
+        self.outputs_written = False
+        self.exit_code = 0
+        self._lock = threading.Lock()
+        self.started_s = time.monotonic()
+
+    # --- files ------------------------------------------------------------------------------------
+    @property
+    def profile_path(self) -> Path:
+        return self.run_dir / "profile.yaml"
+
+    def write_run_file(self, state: str) -> None:
+        info = {
+            "run_id": self.run_id,
+            "run_dir": str(self.run_dir.resolve()),
+            "robot": self.profile.robot,
+            "endpoints": self.endpoints,
+            "launcher_pid": os.getpid(),
+            "state": state,
+            "services": {c.name: {"pid": c.proc.pid if c.proc else None, "restarts": c.restarts, "gave_up": c.gave_up} for c in self.children},
+        }
+        text = json.dumps(info, indent=2)
+        for path in (self.run_dir / "run.json", self.run_dir.parent / CURRENT_RUN):
+            tmp = path.with_suffix(".tmp")
+            tmp.write_text(text)
+            tmp.replace(path)
+
+    def remove_current_pointer(self) -> None:
+        cur = self.run_dir.parent / CURRENT_RUN
+        try:
+            if json.loads(cur.read_text()).get("run_id") == self.run_id:
+                cur.unlink()
+        except (OSError, ValueError):
+            pass
+
+    # --- zenoh side -------------------------------------------------------------------------------
+    def _on_sample(self, sample: Any) -> None:
+        key = str(sample.key_expr)
+        try:
+            topic = topic_of(key)
+        except ValueError:
+            return
+        payload = sample.payload.to_bytes()
+        expected = {"episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg, "map": MapMsg, "goal": GoalMsg, "path": PathMsg}.get(topic)
+        if expected is None:
+            return
+        try:
+            msg = decode(payload, expected)
+        except MessageError as exc:
+            with self._lock:
+                n = self.rejected[topic] = self.rejected.get(topic, 0) + 1
+            if n <= 5:
+                log.warning("rejected payload on %s: %s", key, exc)
+            return
+        if isinstance(msg, EpisodeStatusMsg):
+            self.status = msg
+        elif isinstance(msg, (MapMsg, GoalMsg)):
+            step = msg.step
+            if step >= self.latest_step.get(topic, -1):
+                self.latest[topic], self.latest_step[topic] = payload, step
+            if isinstance(msg, GoalMsg):
+                self.goal = msg
+
+    def _on_cache_query(self, query: Any) -> None:
+        topic = str(query.key_expr).rsplit("/", 1)[-1]
+        payload = self.latest.get(topic)
+        if payload is not None and topic in ("map", "goal"):
+            query.reply(self.keys.cache(topic), payload)
+
+    def _on_status_query(self, query: Any) -> None:
+        query.reply(self.keys.launcher_status, encode(self.launcher_status()))
+
+    def _on_alive(self, sample: Any) -> None:
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        if str(sample.kind).endswith("PUT"):
+            self.alive_services.add(name)
+        else:
+            self.alive_services.discard(name)
+
+    def launcher_status(self) -> LauncherStatusMsg:
+        services = {
+            c.name: {
+                "pid": c.proc.pid if c.proc else 0,
+                "process_alive": c.alive,
+                "liveliness": c.name in self.alive_services,
+                "restarts": c.restarts,
+                "gave_up": c.gave_up,
+            }
+            for c in self.children
+        }
+        with self._lock:
+            rejected = dict(self.rejected)
+        state = "stopping" if self.stop_event.is_set() else "running"
+        return LauncherStatusMsg(self.run_id, state, services, rejected)
+
+    # --- supervision ------------------------------------------------------------------------------
+    def spawn_all(self) -> None:
+        for name in self.profile.services:
+            mode = self.profile.router.service_mode
+            argv = [sys.executable, "-m", f"services.{name}", "--config", str(self.profile_path), "--robot", self.profile.robot, "--mode", mode]
+            for ep in self.endpoints:
+                argv += ["--connect", ep]
+            if mode == "peer":
+                argv += ["--listen", "tcp/127.0.0.1:0"]
+            child = Child(name, argv, self.run_dir / "logs" / f"{name}.log")
+            child.spawn()
+            self.children.append(child)
+            log.info("started %s (pid %d)", name, child.proc.pid if child.proc else -1)
+
+    def supervise(self) -> None:
+        sup = self.profile.supervision
+        now = time.monotonic()
+        changed = False
+        for c in self.children:
+            if c.gave_up or c.alive:
+                continue
+            if c.restart_at is None:
+                code = c.proc.returncode if c.proc is not None else -1
+                c.exit_codes.append(code)
+                if c.restarts >= sup.max_restarts:
+                    c.gave_up = True
+                    log.error("%s exited (code %s) and was restarted %d times: giving up on it (see %s)", c.name, code, c.restarts, c.log_path)
+                    changed = True
+                    continue
+                delay = min(sup.backoff_s * (2**c.restarts), sup.backoff_max_s)
+                c.restart_at = now + delay
+                log.warning("%s exited (code %s); restart %d/%d in %.1f s", c.name, code, c.restarts + 1, sup.max_restarts, delay)
+            elif now >= c.restart_at:
+                c.restarts += 1
+                c.spawn()
+                changed = True
+                log.info("restarted %s (pid %d)", c.name, c.proc.pid if c.proc else -1)
+        if changed:
+            self.write_run_file("running")
+
+    # --- results ----------------------------------------------------------------------------------
+    def fetch_result(self, session: Any, timeout_s: float = 3.0) -> EpisodeResultMsg | None:
+        for reply in session.get(self.keys.episode_result, timeout=timeout_s):
+            if reply.ok is None:
+                continue
+            try:
+                msg = decode(reply.ok.payload.to_bytes(), EpisodeResultMsg)
+            except MessageError as exc:
+                log.warning("bad episode result: %s", exc)
+                continue
+            assert isinstance(msg, EpisodeResultMsg)
+            return msg
+        return None
+
+    def write_outputs(self, result: EpisodeResultMsg) -> Path:
+        out = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, {"command": "cso-runtime up", "profile": self.data})
+        log.info("episode %s: %.2f%% coverage in %d steps; results in %s", result.terminated_by, result.coverage_pct, result.steps, out)
+        return out
+
+    # --- main loop --------------------------------------------------------------------------------
+    def run(self, live: bool = False, stay_after_done: bool = False) -> int:
+        """Start everything and supervise until the episode ends (or until stopped when ``stay_after_done``)."""
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.profile_path.write_text(yaml.safe_dump(self.data, sort_keys=False))
+        listen = [ep.replace(":0", f":{free_tcp_port()}") if ep.endswith(":0") else ep for ep in self.profile.router.listen]
+        self.endpoints = listen
+        transport = TransportConfig(mode="router", listen=listen, connect=list(self.profile.router.connect))
+        view = LiveView(self) if live else None
+        with open_session(transport) as session:
+            subs = [session.declare_subscriber(self.keys.topic(t), self._on_sample) for t in ("episode_status", "episode_result", "map", "goal", "path")]
+            qs = [
+                session.declare_queryable(self.keys.cache("map"), self._on_cache_query),
+                session.declare_queryable(self.keys.cache("goal"), self._on_cache_query),
+                session.declare_queryable(self.keys.launcher_status, self._on_status_query),
+            ]
+            alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._on_alive, history=True)
+            try:
+                self.spawn_all()
+                self.write_run_file("running")
+                if view is not None:
+                    view.start()
+                while not self.stop_event.wait(0.1):
+                    self.supervise()
+                    if view is not None:
+                        view.update()
+                    st = self.status
+                    if st is not None and st.state in ("done", "failed") and not self.outputs_written:
+                        result = self.fetch_result(session)
+                        if result is not None:
+                            self.write_outputs(result)
+                        self.outputs_written = True
+                        self.exit_code = 0 if st.state == "done" else 1
+                        self.write_run_file(st.state)
+                        if not stay_after_done:
+                            break
+                    if self.children and all(c.gave_up for c in self.children if c.name == "sim") and any(c.name == "sim" for c in self.children):
+                        log.error("the sim service is gone for good: stopping")
+                        self.exit_code = 1
+                        break
+            finally:
+                if view is not None:
+                    view.stop()
+                log.info("stopping services")
+                self.stop_event.set()
+                stop_children(self.children, self.profile.supervision.stop_timeout_s)
+                alive_sub.undeclare()
+                for q in qs:
+                    q.undeclare()
+                for s in subs:
+                    s.undeclare()
+                self.write_run_file("stopped")
+                self.remove_current_pointer()
+        return self.exit_code
+
+
+def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float, meta: dict[str, Any]) -> Path:
+    """The same files as ``eval`` for one episode: summary.json, episodes.csv, the final map (npz),
+    the coverage curve and the trajectory plot (reusing ``cso_runtime.evaluation`` writers)."""
+    from cso_runtime.episode import EpisodeResult  # noqa: PLC0415
+    from cso_runtime.evaluation import EpisodeOutcome, episode_row, save_episode_npz, write_outputs  # noqa: PLC0415
+    from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415
+
+    er = EpisodeResult(
+        scene=result.scene,
+        steps=result.steps,
+        explored_area_m2=result.explored_area_m2,
+        coverage_pct=result.coverage_pct,
+        traversable_area_m2=result.traversable_area_m2,
+        path_length_m=result.path_length_m,
+        terminated_by=result.terminated_by,
+        decisions=result.decisions,
+        decision_ms=[float(v) for v in result.decision_ms],
+        trajectory_xy_m=result.trajectory_xy_m,
+        coverage_curve_pct=result.coverage_curve_pct,
+        explored_free=result.explored_free,
+    )
+    method = result.method or "unknown"
+    row = episode_row(method, result.seed, er, wall_s)
+    write_outputs(out_dir, [row], [], [method], meta)
+    save_episode_npz(out_dir / "episodes" / method / f"{result.scene}.npz", er, row)
+    outcome = EpisodeOutcome(
+        method,
+        result.scene,
+        row=row,
+        free=result.plan_free,
+        resolution_m=result.resolution_m,
+        explored=result.explored_free,
+        trajectory_xy_m=result.trajectory_xy_m,
+        coverage_curve_pct=result.coverage_curve_pct,
+    )
+    plot_coverage_curves(out_dir / "coverage_curves.png", [outcome])
+    plot_trajectories(out_dir / "trajectories" / f"{result.scene}.png", result.scene, [outcome])
+    return out_dir
+
+
+class LiveView:
+    """A rich table refreshed a few times a second: episode progress and service health."""
+
+    def __init__(self, launcher: Launcher):
+        self.launcher = launcher
+        self._live = None
+        self._last = 0.0
+
+    def render(self):
+        from rich.table import Table  # noqa: PLC0415
+
+        la = self.launcher
+        st = la.status
+        t = Table(title=f"cso-runtime {la.run_id} (robot {la.profile.robot}, {la.profile.method}, {'lockstep' if la.profile.lockstep else 'real time'})")
+        t.add_column("")
+        t.add_column("")
+        if st is None:
+            t.add_row("state", "starting")
+        else:
+            goal = "-" if st.goal_xy_m is None else f"({st.goal_xy_m[0]:.2f}, {st.goal_xy_m[1]:.2f}) m"
+            for k, v in (
+                ("state", st.state + (f" ({st.terminated_by})" if st.terminated_by else "")),
+                ("scene", st.scene),
+                ("step", str(st.step)),
+                ("coverage", f"{st.coverage_pct:.1f} %"),
+                ("explored", f"{st.explored_area_m2:.2f} m2"),
+                ("path length", f"{st.path_length_m:.2f} m"),
+                ("goal", goal),
+                ("decisions", f"{st.decisions} (last {st.last_decision_ms:.1f} ms)"),
+            ):
+                t.add_row(k, v)
+        for c in la.children:
+            health = "up" if c.alive and c.name in la.alive_services else ("starting" if c.alive else ("gave up" if c.gave_up else "restarting"))
+            t.add_row(f"[bold]{c.name}", f"{health}, pid {c.proc.pid if c.proc else '-'}, restarts {c.restarts}")
+        return t
+
+    def start(self) -> None:
+        from rich.live import Live  # noqa: PLC0415
+
+        self._live = Live(self.render(), refresh_per_second=4, transient=False)
+        self._live.start()
+
+    def update(self) -> None:
+        if self._live is not None and time.monotonic() - self._last > 0.25:
+            self._last = time.monotonic()
+            self._live.update(self.render())
+
+    def stop(self) -> None:
+        if self._live is not None:
+            self._live.update(self.render())
+            self._live.stop()
+
+
+# --- entry points -----------------------------------------------------------------------------------
+
+
+def new_run_dir(runs_dir: Path, profile: Profile) -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+    base = runs_dir / f"{stamp}-{profile.name}-{profile.robot}"
+    run_dir, n = base, 1
+    while run_dir.exists():
+        n += 1
+        run_dir = base.with_name(f"{base.name}-{n}")
+    return run_dir
+
+
+def read_current_run(runs_dir: Path) -> dict[str, Any] | None:
+    try:
+        return json.loads((runs_dir / CURRENT_RUN).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def pid_alive(pid: int | None) -> bool:
+    if not pid:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:  # a zombie is not running
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return True
+
+
+def down(runs_dir: Path, timeout_s: float = 10.0) -> tuple[bool, str]:
+    """Stop the current run: SIGINT to the launcher (it stops its services), then escalate."""
+    info = read_current_run(runs_dir)
+    if info is None:
+        return False, f"nothing running (no {runs_dir / CURRENT_RUN})"
+    pid = int(info.get("launcher_pid") or 0)
+    service_pids = [int(s["pid"]) for s in info.get("services", {}).values() if s.get("pid")]
+    for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0)):
+        if not pid_alive(pid):
+            break
+        try:
+            os.kill(pid, sig)
+        except ProcessLookupError:
+            break
+        deadline = time.monotonic() + wait_s
+        while pid_alive(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    for spid in service_pids:  # whatever the launcher could not stop
+        if pid_alive(spid):
+            signal_group(spid, signal.SIGKILL)
+    try:
+        cur = read_current_run(runs_dir)
+        if cur is not None and cur.get("run_id") == info.get("run_id"):
+            (runs_dir / CURRENT_RUN).unlink()
+    except OSError:
+        pass
+    left = [p for p in [pid, *service_pids] if pid_alive(p)]
+    if left:
+        return False, f"processes still running: {left}"
+    return True, f"stopped run {info.get('run_id')}"
+
+
+def _install_signal_handlers(launcher: Launcher) -> None:
+    def handler(signum: int, _frame: Any) -> None:
+        launcher.stop_event.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+
+
+def run_foreground(profile: Profile, data: dict[str, Any], runs_dir: Path, live: bool = True, stay_after_done: bool = False) -> int:
+    launcher = Launcher(profile, data, new_run_dir(runs_dir, profile))
+    _install_signal_handlers(launcher)
+    return launcher.run(live=live, stay_after_done=stay_after_done)
+
+
+def start_detached(profile: Profile, data: dict[str, Any], runs_dir: Path, ready_timeout_s: float = 30.0) -> tuple[int, str]:
+    """Start a launcher in the background (own session); returns once its services are spawned."""
+    run_dir = new_run_dir(runs_dir, profile)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    data_path = run_dir / "profile.requested.yaml"
+    data_path.write_text(yaml.safe_dump(data, sort_keys=False))
+    log_path = run_dir / "logs" / "launcher.log"
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    with log_path.open("ab") as fh:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "cso_runtime.launcher", "--profile-data", str(data_path), "--run-dir", str(run_dir)],
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+    deadline = time.monotonic() + ready_timeout_s
+    while time.monotonic() < deadline:
+        try:
+            info = json.loads((run_dir / "run.json").read_text())
+            if info.get("services") and info.get("endpoints"):
+                return 0, f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'}"
+        except (OSError, ValueError):
+            pass
+        if proc.poll() is not None:
+            return 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_path.read_text()[-2000:]}"
+        time.sleep(0.05)
+    return 1, f"the launcher did not start within {ready_timeout_s:.0f} s; see {log_path}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Detached launcher process (started by ``up --detach``): runs until ``down``."""
+    p = argparse.ArgumentParser(prog="python -m cso_runtime.launcher")
+    p.add_argument("--profile-data", type=Path, required=True)
+    p.add_argument("--run-dir", type=Path, required=True)
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    data = load_yaml(args.profile_data)
+    profile = from_dict(Profile, data, where=str(args.profile_data))
+    launcher = Launcher(profile, data, args.run_dir)
+    _install_signal_handlers(launcher)
+    return launcher.run(live=False, stay_after_done=True)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
+

@@ -1,0 +1,837 @@
+"""Every message the services exchange over Zenoh, and its wire format.
+
+A payload is a msgpack map ``{"schema": NAME, "v": VERSION, "body": {...}}``. Numpy arrays travel as
+``{"dtype", "shape", "data"}`` with raw little-endian bytes; map-sized arrays are zlib-compressed
+(``"z": true``). ``decode`` validates everything (schema, version, types, shapes, ranges, finiteness)
+and raises ``MessageError`` so a service can log and count a rejection instead of crashing. The
+table of keys and schemas is in docs/messages.md.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import msgpack
+import numpy as np
+
+from cso_runtime.frontiers import FrontierCluster
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+from cso_runtime.observation import Observation
+
+SCHEMA_VERSION = 1
+MAX_GRID_CELLS = 50_000_000
+MAX_BEAMS = 100_000
+COMPRESS_MIN_BYTES = 4096
+"""Arrays at least this large are zlib-compressed."""
+_DTYPES = {"bool", "int8", "int16", "int32", "int64", "uint8", "float32", "float64"}
+
+
+class MessageError(ValueError):
+    """A payload is malformed, out of range, non-finite, of another schema or of an unknown version."""
+
+
+# --- low-level helpers -------------------------------------------------------------------------
+
+
+def pack_array(a: np.ndarray, compress: bool | None = None) -> dict[str, Any]:
+    a = np.ascontiguousarray(a)
+    if a.dtype.name not in _DTYPES:
+        raise MessageError(f"cannot send arrays of dtype {a.dtype}")
+    data = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
+    z = len(data) >= COMPRESS_MIN_BYTES if compress is None else compress
+    return {"dtype": a.dtype.name, "shape": list(a.shape), "z": bool(z), "data": zlib.compress(data, 1) if z else data}
+
+
+def unpack_array(obj: Any, where: str, ndim: int | None = None, finite: bool = False, no_nan: bool = True) -> np.ndarray:
+    """Decode and check one array; ``finite`` rejects inf too, ``no_nan`` rejects NaN."""
+    if not isinstance(obj, dict) or set(obj) != {"dtype", "shape", "z", "data"}:
+        raise MessageError(f"{where}: not an array record")
+    dtype, shape, data = obj["dtype"], obj["shape"], obj["data"]
+    if dtype not in _DTYPES:
+        raise MessageError(f"{where}: unsupported dtype {dtype!r}")
+    if not isinstance(shape, list) or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in shape):
+        raise MessageError(f"{where}: bad shape {shape!r}")
+    if ndim is not None and len(shape) != ndim:
+        raise MessageError(f"{where}: expected {ndim}-D, got shape {shape}")
+    n = math.prod(shape)
+    if n > MAX_GRID_CELLS:
+        raise MessageError(f"{where}: too large ({n} elements)")
+    if not isinstance(data, bytes):
+        raise MessageError(f"{where}: data is not bytes")
+    if obj["z"] is True:
+        try:
+            data = zlib.decompress(data, bufsize=max(n, 1))
+        except zlib.error as exc:
+            raise MessageError(f"{where}: corrupt compressed data ({exc})") from None
+    elif obj["z"] is not False:
+        raise MessageError(f"{where}: bad compression flag")
+    dt = np.dtype(dtype).newbyteorder("<")
+    if len(data) != n * dt.itemsize:
+        raise MessageError(f"{where}: {len(data)} bytes do not fit shape {shape} of {dtype}")
+    a = np.frombuffer(data, dtype=dt).reshape(shape).astype(np.dtype(dtype), copy=True)
+    if a.dtype.kind == "f":
+        if finite and not np.isfinite(a).all():
+            raise MessageError(f"{where}: non-finite values")
+        if no_nan and np.isnan(a).any():
+            raise MessageError(f"{where}: NaN values")
+    return a
+
+
+def _get(body: dict, key: str, where: str) -> Any:
+    if key not in body:
+        raise MessageError(f"{where}: missing field {key!r}")
+    return body[key]
+
+
+def _num(body: dict, key: str, where: str, lo: float = -math.inf, hi: float = math.inf, allow_inf: bool = False) -> float:
+    v = _get(body, key, where)
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise MessageError(f"{where}.{key}: expected a number, got {type(v).__name__}")
+    v = float(v)
+    if math.isnan(v) or (not allow_inf and math.isinf(v)):
+        raise MessageError(f"{where}.{key}: not finite ({v})")
+    if not lo <= v <= hi:
+        raise MessageError(f"{where}.{key}: {v} out of range [{lo}, {hi}]")
+    return v
+
+
+def _int(body: dict, key: str, where: str, lo: int = 0, hi: int = 2**62) -> int:
+    v = _get(body, key, where)
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise MessageError(f"{where}.{key}: expected an integer, got {type(v).__name__}")
+    if not lo <= v <= hi:
+        raise MessageError(f"{where}.{key}: {v} out of range [{lo}, {hi}]")
+    return v
+
+
+def _str(body: dict, key: str, where: str, choices: tuple[str, ...] | None = None, max_len: int = 4096) -> str:
+    v = _get(body, key, where)
+    if not isinstance(v, str) or len(v) > max_len:
+        raise MessageError(f"{where}.{key}: expected a string")
+    if choices is not None and v not in choices:
+        raise MessageError(f"{where}.{key}: {v!r} not one of {', '.join(choices)}")
+    return v
+
+
+def _bool(body: dict, key: str, where: str) -> bool:
+    v = _get(body, key, where)
+    if not isinstance(v, bool):
+        raise MessageError(f"{where}.{key}: expected true/false")
+    return v
+
+
+def _pose_out(p: Pose2D) -> list[float]:
+    return [float(p.x_m), float(p.y_m), float(p.yaw_rad)]
+
+
+def _pose_in(body: dict, key: str, where: str) -> Pose2D:
+    v = _get(body, key, where)
+    if not isinstance(v, list) or len(v) != 3:
+        raise MessageError(f"{where}.{key}: expected [x_m, y_m, yaw_rad]")
+    d = dict(zip("xyt", v))
+    return Pose2D(_num(d, "x", where + "." + key), _num(d, "y", where + "." + key), _num(d, "t", where + "." + key, -10.0, 10.0))
+
+
+def _geometry_out(g: GridGeometry) -> dict[str, Any]:
+    return {"resolution_m": g.resolution_m, "shape": list(g.shape), "origin": [g.origin_x_m, g.origin_y_m]}
+
+
+def _geometry_in(body: dict, where: str) -> GridGeometry:
+    g = _get(body, "geometry", where)
+    if not isinstance(g, dict):
+        raise MessageError(f"{where}.geometry: expected a mapping")
+    res = _num(g, "resolution_m", where + ".geometry", 1e-4, 100.0)
+    shape = _get(g, "shape", where + ".geometry")
+    if not isinstance(shape, list) or len(shape) != 2 or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in shape):
+        raise MessageError(f"{where}.geometry.shape: expected two positive integers")
+    if shape[0] * shape[1] > MAX_GRID_CELLS:
+        raise MessageError(f"{where}.geometry.shape: grid too large")
+    origin = _get(g, "origin", where + ".geometry")
+    if not isinstance(origin, list) or len(origin) != 2:
+        raise MessageError(f"{where}.geometry.origin: expected [x_m, y_m]")
+    ox = _num({"x": origin[0]}, "x", where + ".geometry.origin")
+    oy = _num({"y": origin[1]}, "y", where + ".geometry.origin")
+    return GridGeometry(res, (shape[0], shape[1]), ox, oy)
+
+
+def _grid_in(body: dict, key: str, where: str, geometry: GridGeometry, dtype: str) -> np.ndarray:
+    a = unpack_array(_get(body, key, where), f"{where}.{key}", ndim=2, finite=dtype != "float64")
+    if tuple(a.shape) != tuple(geometry.shape):
+        raise MessageError(f"{where}.{key}: shape {a.shape} does not match the geometry {geometry.shape}")
+    if a.dtype.name != dtype:
+        raise MessageError(f"{where}.{key}: expected {dtype}, got {a.dtype}")
+    return a
+
+
+# --- messages ---------------------------------------------------------------------------------
+
+
+class Message:
+    """Base of every message: a schema name, a step stamp, and a body codec."""
+
+    SCHEMA: ClassVar[str] = ""
+
+    def body(self) -> dict[str, Any]:
+        raise NotImplementedError
+
+    @classmethod
+    def from_body(cls, body: dict[str, Any]) -> "Message":
+        raise NotImplementedError
+
+
+@dataclass
+class ScanMsg(Message):
+    """A range scan at one simulation step, with the odometry pose of the sensor when it was taken."""
+
+    SCHEMA: ClassVar[str] = "scan"
+    step: int
+    scan: LaserScan
+    sensor_pose: Pose2D
+
+    def body(self) -> dict[str, Any]:
+        s = self.scan
+        return {
+            "step": self.step,
+            "stamp_s": float(s.stamp_s),
+            "angle_min_rad": float(s.angle_min_rad),
+            "angle_increment_rad": float(s.angle_increment_rad),
+            "range_min_m": float(s.range_min_m),
+            "range_max_m": float(s.range_max_m),
+            "ranges_m": pack_array(np.asarray(s.ranges_m, dtype=np.float32), compress=False),
+            "sensor_pose": _pose_out(self.sensor_pose),
+        }
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "ScanMsg":
+        w = "scan"
+        ranges = unpack_array(_get(b, "ranges_m", w), "scan.ranges_m", ndim=1)
+        if ranges.dtype.kind != "f" or not 0 < ranges.size <= MAX_BEAMS:
+            raise MessageError("scan.ranges_m: expected 1 to 100000 float ranges")
+        if (ranges < 0).any():
+            raise MessageError("scan.ranges_m: negative ranges")
+        scan = LaserScan(
+            _num(b, "angle_min_rad", w, -2 * math.pi, 2 * math.pi),
+            _num(b, "angle_increment_rad", w, 1e-6, 2 * math.pi),
+            _num(b, "range_min_m", w, 0.0, 1e3),
+            _num(b, "range_max_m", w, 0.0, 1e3),
+            ranges,
+            _num(b, "stamp_s", w, 0.0),
+        )
+        try:
+            scan.validate()
+        except ValueError as exc:
+            raise MessageError(f"scan: {exc}") from None
+        return cls(_int(b, "step", w), scan, _pose_in(b, "sensor_pose", w))
+
+
+@dataclass
+class OdometryMsg(Message):
+    """The robot's own pose estimate (and the last applied twist) at one step."""
+
+    SCHEMA: ClassVar[str] = "odom"
+    step: int
+    stamp_s: float
+    pose: Pose2D
+    twist: VelocityCommand = field(default_factory=VelocityCommand)
+
+    def body(self) -> dict[str, Any]:
+        return {"step": self.step, "stamp_s": self.stamp_s, "pose": _pose_out(self.pose), "twist": [self.twist.linear_mps, self.twist.angular_radps]}
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "OdometryMsg":
+        w = "odom"
+        tw = _get(b, "twist", w)
+        if not isinstance(tw, list) or len(tw) != 2:
+            raise MessageError("odom.twist: expected [linear_mps, angular_radps]")
+        t = {"v": tw[0], "w": tw[1]}
+        twist = VelocityCommand(_num(t, "v", "odom.twist", -100, 100), _num(t, "w", "odom.twist", -100, 100))
+        return cls(_int(b, "step", w), _num(b, "stamp_s", w, 0.0), _pose_in(b, "pose", w), twist)
+
+
+@dataclass
+class CmdVelMsg(Message):
+    """The velocity command for one step (lockstep: the sim advances when it has the command of its step)."""
+
+    SCHEMA: ClassVar[str] = "cmd_vel"
+    step: int
+    command: VelocityCommand
+    reason: str = ""
+    """Why the robot is stopped (``stale: ...``, ``reached``...), empty while following a path."""
+
+    def body(self) -> dict[str, Any]:
+        return {"step": self.step, "linear_mps": self.command.linear_mps, "angular_radps": self.command.angular_radps, "reason": self.reason}
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "CmdVelMsg":
+        w = "cmd_vel"
+        cmd = VelocityCommand(_num(b, "linear_mps", w, -100, 100), _num(b, "angular_radps", w, -100, 100))
+        return cls(_int(b, "step", w), cmd, _str(b, "reason", w))
+
+
+@dataclass
+class MapMsg(Message):
+    """The occupancy grid M_t (ROS values -1/0/100, row 0 at the origin), compressed."""
+
+    SCHEMA: ClassVar[str] = "map"
+    step: int
+    geometry: GridGeometry
+    grid: np.ndarray
+
+    def body(self) -> dict[str, Any]:
+        return {"step": self.step, "geometry": _geometry_out(self.geometry), "grid": pack_array(np.asarray(self.grid, dtype=np.int8), compress=True)}
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "MapMsg":
+        geometry = _geometry_in(b, "map")
+        grid = _grid_in(b, "grid", "map", geometry, "int8")
+        if not ((grid == -1) | (grid == 0) | (grid == 100)).all():
+            raise MessageError("map.grid: values must be -1, 0 or 100")
+        return cls(_int(b, "step", "map"), geometry, grid)
+
+
+CLUSTER_FIELDS = ("goal_cell", "goal_xy_m", "distance_m", "size_m", "entropy", "centroid_xy_m", "cells")
+
+
+@dataclass
+class FrontiersMsg(Message):
+    """The decision input of one step. ``decide`` false: keep the current goal (no arrays sent).
+
+    ``decide`` true: everything a goal selector needs to rebuild the Observation without recomputing the
+    fast-marching distance (explored, occupied, traversable, D, F, I, clusters, path nodes).
+    """
+
+    SCHEMA: ClassVar[str] = "frontiers"
+    step: int
+    decide: bool
+    reason: str = ""
+    pose: Pose2D | None = None
+    geometry: GridGeometry | None = None
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    """explored, occupied, traversable, frontier (bool), distance_m (float64, inf = unreachable), entropy (int32)."""
+    clusters: list[dict[str, Any]] = field(default_factory=list)
+    open_area_m2: float = 0.0
+    path_nodes_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    build_ms: float = 0.0
+
+    GRIDS: ClassVar[dict[str, str]] = {
+        "explored": "bool",
+        "occupied": "bool",
+        "traversable": "bool",
+        "frontier": "bool",
+        "distance_m": "float64",
+        "entropy": "int32",
+    }
+
+    def body(self) -> dict[str, Any]:
+        b: dict[str, Any] = {"step": self.step, "decide": self.decide, "reason": self.reason}
+        if not self.decide:
+            return b
+        assert self.pose is not None and self.geometry is not None
+        b.update(
+            pose=_pose_out(self.pose),
+            geometry=_geometry_out(self.geometry),
+            # Boolean grids compress 20-50x for almost nothing; D and I are sent raw (zlib would cost more
+            # CPU than loopback bandwidth).
+            arrays={k: pack_array(np.asarray(self.arrays[k], dtype=dt), compress=dt == "bool") for k, dt in self.GRIDS.items()},
+            clusters=[
+                {
+                    "goal_cell": [int(c["goal_cell"][0]), int(c["goal_cell"][1])],
+                    "goal_xy_m": [float(c["goal_xy_m"][0]), float(c["goal_xy_m"][1])],
+                    "distance_m": float(c["distance_m"]),
+                    "size_m": float(c["size_m"]),
+                    "entropy": float(c["entropy"]),
+                    "centroid_xy_m": [float(c["centroid_xy_m"][0]), float(c["centroid_xy_m"][1])],
+                    "cells": pack_array(np.asarray(c["cells"], dtype=np.int32)),
+                }
+                for c in self.clusters
+            ],
+            open_area_m2=self.open_area_m2,
+            path_nodes_xy_m=pack_array(np.asarray(self.path_nodes_xy_m, dtype=np.float64).reshape(-1, 2)),
+            build_ms=self.build_ms,
+        )
+        return b
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "FrontiersMsg":
+        w = "frontiers"
+        step, decide, reason = _int(b, "step", w), _bool(b, "decide", w), _str(b, "reason", w)
+        if not decide:
+            return cls(step, False, reason)
+        geometry = _geometry_in(b, w)
+        raw = _get(b, "arrays", w)
+        if not isinstance(raw, dict) or set(raw) != set(cls.GRIDS):
+            raise MessageError(f"frontiers.arrays: expected exactly {', '.join(cls.GRIDS)}")
+        arrays = {k: _grid_in(raw, k, "frontiers.arrays", geometry, dt) for k, dt in cls.GRIDS.items()}
+        if (arrays["distance_m"] < 0).any():
+            raise MessageError("frontiers.arrays.distance_m: negative distances")
+        if (arrays["entropy"] < 0).any():
+            raise MessageError("frontiers.arrays.entropy: negative entropy")
+        clusters_raw = _get(b, "clusters", w)
+        if not isinstance(clusters_raw, list):
+            raise MessageError("frontiers.clusters: expected a list")
+        clusters = []
+        ny, nx = geometry.shape
+        for i, c in enumerate(clusters_raw):
+            cw = f"frontiers.clusters[{i}]"
+            if not isinstance(c, dict) or set(c) != set(CLUSTER_FIELDS):
+                raise MessageError(f"{cw}: expected fields {', '.join(CLUSTER_FIELDS)}")
+            gc = c["goal_cell"]
+            if not (isinstance(gc, list) and len(gc) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in gc)):
+                raise MessageError(f"{cw}.goal_cell: expected [iy, ix]")
+            if not (0 <= gc[0] < ny and 0 <= gc[1] < nx):
+                raise MessageError(f"{cw}.goal_cell: outside the grid")
+            cells = unpack_array(c["cells"], f"{cw}.cells", ndim=2)
+            if cells.dtype.kind != "i" or cells.shape[1:] != (2,) or (cells < 0).any() or (cells[:, 0] >= ny).any() or (cells[:, 1] >= nx).any():
+                raise MessageError(f"{cw}.cells: expected (k, 2) cell indices inside the grid")
+            xy = {f"g{j}": v for j, v in enumerate(c["goal_xy_m"])} if isinstance(c["goal_xy_m"], list) and len(c["goal_xy_m"]) == 2 else None
+            cxy = {f"c{j}": v for j, v in enumerate(c["centroid_xy_m"])} if isinstance(c["centroid_xy_m"], list) and len(c["centroid_xy_m"]) == 2 else None
+            if xy is None or cxy is None:
+                raise MessageError(f"{cw}: goal_xy_m and centroid_xy_m must be [x_m, y_m]")
+            clusters.append(
+                {
+                    "goal_cell": (gc[0], gc[1]),
+                    "goal_xy_m": (_num(xy, "g0", cw), _num(xy, "g1", cw)),
+                    "distance_m": _num(c, "distance_m", cw, 0.0),
+                    "size_m": _num(c, "size_m", cw, 0.0),
+                    "entropy": _num(c, "entropy", cw, 0.0),
+                    "centroid_xy_m": (_num(cxy, "c0", cw), _num(cxy, "c1", cw)),
+                    "cells": cells,
+                }
+            )
+        nodes = unpack_array(_get(b, "path_nodes_xy_m", w), "frontiers.path_nodes_xy_m", ndim=2, finite=True)
+        if nodes.shape[1:] != (2,):
+            raise MessageError("frontiers.path_nodes_xy_m: expected (n, 2)")
+        return cls(
+            step,
+            True,
+            reason,
+            _pose_in(b, "pose", w),
+            geometry,
+            arrays,
+            clusters,
+            _num(b, "open_area_m2", w, 0.0),
+            nodes,
+            _num(b, "build_ms", w, 0.0),
+        )
+
+
+
+def frontiers_from_observation(step: int, reason: str, obs: Observation, build_ms: float) -> FrontiersMsg:
+    """The decision message for ``obs`` (the frontier service's output)."""
+    arrays = {k: getattr(obs, k) for k in FrontiersMsg.GRIDS}
+    clusters = [
+        {
+            "goal_cell": c.goal_cell,
+            "goal_xy_m": c.goal_xy_m,
+            "distance_m": c.distance_m,
+            "size_m": c.size_m,
+            "entropy": c.entropy,
+            "centroid_xy_m": c.centroid_xy_m,
+            "cells": c.cells,
+        }
+        for c in obs.clusters
+    ]
+    return FrontiersMsg(step, True, reason, obs.pose, obs.geometry, arrays, clusters, obs.open_area_m2, obs.path_nodes_xy_m, build_ms)
+
+
+def observation_from_frontiers(msg: FrontiersMsg) -> Observation:
+    """Rebuild the Observation a goal selector needs, without recomputing the fast-marching distance."""
+    if not msg.decide or msg.geometry is None or msg.pose is None:
+        raise MessageError("frontiers: no observation in a keep-goal message")
+    a = msg.arrays
+    clusters = [
+        FrontierCluster(i, c["cells"], tuple(c["goal_cell"]), tuple(c["goal_xy_m"]), c["distance_m"], c["size_m"], c["entropy"], tuple(c["centroid_xy_m"]))
+        for i, c in enumerate(msg.clusters)
+    ]
+    return Observation(
+        geometry=msg.geometry,
+        pose=msg.pose,
+        explored=a["explored"],
+        occupied=a["occupied"],
+        traversable=a["traversable"],
+        distance_m=a["distance_m"],
+        frontier=a["frontier"],
+        entropy=a["entropy"],
+        clusters=clusters,
+        open_area_m2=msg.open_area_m2,
+        path_nodes_xy_m=msg.path_nodes_xy_m,
+    )
+
+@dataclass
+class GoalMsg(Message):
+    """The policy's answer for one step: the current long-term goal (None: no reachable frontier)."""
+
+    SCHEMA: ClassVar[str] = "goal"
+    step: int
+    decided: bool
+    """True when this step's frontiers asked for a decision and this is its result."""
+    x_m: float | None = None
+    y_m: float | None = None
+    cluster_index: int = -1
+    distance_m: float = 0.0
+    decision_ms: float = 0.0
+    method: str = ""
+    reason: str = ""
+
+    @property
+    def has_goal(self) -> bool:
+        return self.x_m is not None
+
+    def body(self) -> dict[str, Any]:
+        return {
+            "step": self.step,
+            "decided": self.decided,
+            "goal": None if self.x_m is None else [self.x_m, self.y_m, self.cluster_index, self.distance_m],
+            "decision_ms": self.decision_ms,
+            "method": self.method,
+            "reason": self.reason,
+        }
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "GoalMsg":
+        w = "goal"
+        g = _get(b, "goal", w)
+        x = y = None
+        idx, dist = -1, 0.0
+        if g is not None:
+            if not isinstance(g, list) or len(g) != 4:
+                raise MessageError("goal.goal: expected [x_m, y_m, cluster_index, distance_m] or null")
+            d = dict(zip(("x", "y", "i", "d"), g))
+            x, y, idx, dist = _num(d, "x", w), _num(d, "y", w), _int(d, "i", w, 0, 10**9), _num(d, "d", w, 0.0)
+        return cls(_int(b, "step", w), _bool(b, "decided", w), x, y, idx, dist, _num(b, "decision_ms", w, 0.0), _str(b, "method", w), _str(b, "reason", w))
+
+
+@dataclass
+class PathMsg(Message):
+    """The planner's current path (metres, robot first); empty when idle."""
+
+    SCHEMA: ClassVar[str] = "path"
+    step: int
+    path_xy_m: np.ndarray
+
+    def body(self) -> dict[str, Any]:
+        return {"step": self.step, "path_xy_m": pack_array(np.asarray(self.path_xy_m, dtype=np.float32).reshape(-1, 2))}
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "PathMsg":
+        p = unpack_array(_get(b, "path_xy_m", "path"), "path.path_xy_m", ndim=2, finite=True)
+        if p.shape[1:] != (2,):
+            raise MessageError("path.path_xy_m: expected (n, 2)")
+        return cls(_int(b, "step", "path"), p)
+
+
+PLANNER_STATUSES = ("idle", "following", "reached", "blocked", "no_progress", "stale")
+
+
+@dataclass
+class PlannerFeedbackMsg(Message):
+    """Planner status after this step's map (``check_blocked``) or command (``update``)."""
+
+    SCHEMA: ClassVar[str] = "planner_feedback"
+    step: int
+    status: str
+    phase: str
+    """``map``: after check_blocked on this step's map; ``command``: after this step's command."""
+    set_goal_blocked: bool = False
+    """True when the last new goal had no path (the decider drops it as a frontier)."""
+    reason: str = ""
+
+    def body(self) -> dict[str, Any]:
+        return {"step": self.step, "status": self.status, "phase": self.phase, "set_goal_blocked": self.set_goal_blocked, "reason": self.reason}
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "PlannerFeedbackMsg":
+        w = "planner_feedback"
+        return cls(
+            _int(b, "step", w),
+            _str(b, "status", w, PLANNER_STATUSES),
+            _str(b, "phase", w, ("map", "command")),
+            _bool(b, "set_goal_blocked", w),
+            _str(b, "reason", w),
+        )
+
+
+@dataclass
+class ClockMsg(Message):
+    """Simulated time: the step number and its time in seconds."""
+
+    SCHEMA: ClassVar[str] = "clock"
+    step: int
+    time_s: float
+    arena: GridGeometry | None = None
+    """Extent of the area the robot may map (the mapper sizes its grid from it unless configured)."""
+
+    def body(self) -> dict[str, Any]:
+        b: dict[str, Any] = {"step": self.step, "time_s": self.time_s}
+        if self.arena is not None:
+            b["geometry"] = _geometry_out(self.arena)
+        return b
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "ClockMsg":
+        arena = _geometry_in(b, "clock") if "geometry" in b else None
+        return cls(_int(b, "step", "clock"), _num(b, "time_s", "clock", 0.0), arena)
+
+
+EPISODE_STATES = ("starting", "exploring", "done", "failed")
+
+
+@dataclass
+class EpisodeStatusMsg(Message):
+    """Ground-truth progress of the episode, published by the sim (the only one that knows the truth)."""
+
+    SCHEMA: ClassVar[str] = "episode_status"
+    state: str
+    step: int
+    scene: str = ""
+    method: str = ""
+    coverage_pct: float = 0.0
+    explored_area_m2: float = 0.0
+    path_length_m: float = 0.0
+    goal_xy_m: list[float] | None = None
+    decisions: int = 0
+    last_decision_ms: float = 0.0
+    terminated_by: str = ""
+    reason: str = ""
+    lockstep_timeouts: int = 0
+
+    def body(self) -> dict[str, Any]:
+        return {
+            "state": self.state,
+            "step": self.step,
+            "scene": self.scene,
+            "method": self.method,
+            "coverage_pct": self.coverage_pct,
+            "explored_area_m2": self.explored_area_m2,
+            "path_length_m": self.path_length_m,
+            "goal_xy_m": self.goal_xy_m,
+            "decisions": self.decisions,
+            "last_decision_ms": self.last_decision_ms,
+            "terminated_by": self.terminated_by,
+            "reason": self.reason,
+            "lockstep_timeouts": self.lockstep_timeouts,
+        }
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "EpisodeStatusMsg":
+        w = "episode_status"
+        g = _get(b, "goal_xy_m", w)
+        if g is not None:
+            if not isinstance(g, list) or len(g) != 2:
+                raise MessageError("episode_status.goal_xy_m: expected [x_m, y_m] or null")
+            g = [_num({"x": g[0]}, "x", w), _num({"y": g[1]}, "y", w)]
+        return cls(
+            _str(b, "state", w, EPISODE_STATES),
+            _int(b, "step", w),
+            _str(b, "scene", w),
+            _str(b, "method", w),
+            _num(b, "coverage_pct", w, 0.0, 100.0 + 1e-6),
+            _num(b, "explored_area_m2", w, 0.0),
+            _num(b, "path_length_m", w, 0.0),
+            g,
+            _int(b, "decisions", w),
+            _num(b, "last_decision_ms", w, 0.0),
+            _str(b, "terminated_by", w),
+            _str(b, "reason", w),
+            _int(b, "lockstep_timeouts", w),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return self.body()
+
+
+@dataclass
+class EpisodeResultMsg(Message):
+    """The finished episode: what ``eval`` writes (EpisodeResult) plus the plan for the plots."""
+
+    SCHEMA: ClassVar[str] = "episode_result"
+    scene: str
+    steps: int
+    explored_area_m2: float
+    coverage_pct: float
+    traversable_area_m2: float
+    path_length_m: float
+    terminated_by: str
+    decisions: int
+    decision_ms: np.ndarray
+    trajectory_xy_m: np.ndarray
+    coverage_curve_pct: np.ndarray
+    explored_free: np.ndarray
+    plan_free: np.ndarray
+    resolution_m: float
+    method: str = ""
+    seed: int = 0
+
+    SCALARS: ClassVar[tuple[str, ...]] = ("explored_area_m2", "coverage_pct", "traversable_area_m2", "path_length_m", "resolution_m")
+
+    def body(self) -> dict[str, Any]:
+        b: dict[str, Any] = {k: float(getattr(self, k)) for k in self.SCALARS}
+        b.update(
+            scene=self.scene,
+            steps=self.steps,
+            terminated_by=self.terminated_by,
+            decisions=self.decisions,
+            method=self.method,
+            seed=self.seed,
+            decision_ms=pack_array(np.asarray(self.decision_ms, dtype=np.float64)),
+            trajectory_xy_m=pack_array(np.asarray(self.trajectory_xy_m, dtype=np.float64).reshape(-1, 2)),
+            coverage_curve_pct=pack_array(np.asarray(self.coverage_curve_pct, dtype=np.float64)),
+            explored_free=pack_array(np.asarray(self.explored_free, dtype=bool), compress=True),
+            plan_free=pack_array(np.asarray(self.plan_free, dtype=bool), compress=True),
+        )
+        return b
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "EpisodeResultMsg":
+        w = "episode_result"
+        scalars = {k: _num(b, k, w, 0.0) for k in cls.SCALARS}
+        ef = unpack_array(_get(b, "explored_free", w), w + ".explored_free", ndim=2)
+        pf = unpack_array(_get(b, "plan_free", w), w + ".plan_free", ndim=2)
+        if ef.shape != pf.shape or ef.dtype != bool or pf.dtype != bool:
+            raise MessageError(f"{w}: explored_free and plan_free must be boolean grids of one shape")
+        traj = unpack_array(_get(b, "trajectory_xy_m", w), w + ".trajectory_xy_m", ndim=2, finite=True)
+        if traj.shape[1:] != (2,):
+            raise MessageError(f"{w}.trajectory_xy_m: expected (n, 2)")
+        return cls(
+            scene=_str(b, "scene", w),
+            steps=_int(b, "steps", w),
+            terminated_by=_str(b, "terminated_by", w),
+            decisions=_int(b, "decisions", w),
+            decision_ms=unpack_array(_get(b, "decision_ms", w), w + ".decision_ms", ndim=1, finite=True),
+            trajectory_xy_m=traj,
+            coverage_curve_pct=unpack_array(_get(b, "coverage_curve_pct", w), w + ".coverage_curve_pct", ndim=1, finite=True),
+            explored_free=ef,
+            plan_free=pf,
+            method=_str(b, "method", w),
+            seed=_int(b, "seed", w, -(2**62)),
+            **scalars,
+        )
+
+
+@dataclass
+class ServiceStatusMsg(Message):
+    """One service's own health: what it last did, why it is not commanding, what it rejected."""
+
+    SCHEMA: ClassVar[str] = "service_status"
+    service: str
+    robot: str
+    state: str
+    """``running`` or ``stale`` (inputs too old: the service does not command)."""
+    last_step: int = 0
+    reason: str = ""
+    rejected: dict[str, int] = field(default_factory=dict)
+    """Rejected payloads per input key suffix (malformed, out of range, non-finite, unknown version)."""
+    processed: int = 0
+
+    def body(self) -> dict[str, Any]:
+        return {
+            "service": self.service,
+            "robot": self.robot,
+            "state": self.state,
+            "last_step": self.last_step,
+            "reason": self.reason,
+            "rejected": dict(self.rejected),
+            "processed": self.processed,
+        }
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "ServiceStatusMsg":
+        w = "service_status"
+        rej = _get(b, "rejected", w)
+        if not isinstance(rej, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0 for k, v in rej.items()):
+            raise MessageError("service_status.rejected: expected a mapping of counts")
+        return cls(
+            _str(b, "service", w),
+            _str(b, "robot", w),
+            _str(b, "state", w, ("running", "stale")),
+            _int(b, "last_step", w),
+            _str(b, "reason", w),
+            dict(rej),
+            _int(b, "processed", w),
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return self.body()
+
+
+@dataclass
+class LauncherStatusMsg(Message):
+    """The launcher's view: run id, each service process (pid, alive, restarts, given up), rejections."""
+
+    SCHEMA: ClassVar[str] = "launcher_status"
+    run_id: str
+    state: str
+    services: dict[str, dict[str, Any]] = field(default_factory=dict)
+    rejected: dict[str, int] = field(default_factory=dict)
+
+    def body(self) -> dict[str, Any]:
+        return {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected}
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> "LauncherStatusMsg":
+        w = "launcher_status"
+        services = _get(b, "services", w)
+        if not isinstance(services, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in services.items()):
+            raise MessageError("launcher_status.services: expected a mapping of mappings")
+        rej = _get(b, "rejected", w)
+        if not isinstance(rej, dict) or not all(isinstance(k, str) and isinstance(v, int) for k, v in rej.items()):
+            raise MessageError("launcher_status.rejected: expected a mapping of counts")
+        return cls(_str(b, "run_id", w), _str(b, "state", w), services, rej)
+
+    def to_dict(self) -> dict[str, Any]:
+        return self.body()
+
+
+MESSAGE_TYPES: dict[str, type[Message]] = {
+    cls.SCHEMA: cls
+    for cls in (
+        ScanMsg,
+        OdometryMsg,
+        CmdVelMsg,
+        MapMsg,
+        FrontiersMsg,
+        GoalMsg,
+        PathMsg,
+        PlannerFeedbackMsg,
+        ClockMsg,
+        EpisodeStatusMsg,
+        EpisodeResultMsg,
+        ServiceStatusMsg,
+        LauncherStatusMsg,
+    )
+}
+
+
+def encode(msg: Message) -> bytes:
+    """The wire bytes of ``msg``."""
+    return msgpack.packb({"schema": msg.SCHEMA, "v": SCHEMA_VERSION, "body": msg.body()}, use_bin_type=True)
+
+
+def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
+    """Parse and validate a payload; raises MessageError for anything it cannot trust."""
+    if not isinstance(payload, (bytes, bytearray, memoryview)):
+        raise MessageError("payload is not bytes")
+    try:
+        raw = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True, max_bin_len=MAX_GRID_CELLS * 8)
+    except (msgpack.ExtraData, msgpack.FormatError, msgpack.StackError, ValueError, TypeError) as exc:
+        raise MessageError(f"not a msgpack payload ({type(exc).__name__}: {exc})") from None
+    if not isinstance(raw, dict) or set(raw) != {"schema", "v", "body"}:
+        raise MessageError("payload is not a {schema, v, body} envelope")
+    schema, version, body = raw["schema"], raw["v"], raw["body"]
+    if not isinstance(schema, str) or schema not in MESSAGE_TYPES:
+        raise MessageError(f"unknown schema {schema!r}")
+    if isinstance(version, bool) or not isinstance(version, int) or version != SCHEMA_VERSION:
+        raise MessageError(f"{schema}: unknown version {version!r} (this build speaks v{SCHEMA_VERSION})")
+    if expected is not None and schema != expected.SCHEMA:
+        raise MessageError(f"expected schema {expected.SCHEMA!r}, got {schema!r}")
+    if not isinstance(body, dict):
+        raise MessageError(f"{schema}: body is not a mapping")
+    try:
+        return MESSAGE_TYPES[schema].from_body(body)
+    except MessageError:
+        raise
+    except (TypeError, ValueError, KeyError, IndexError, OverflowError) as exc:
+        raise MessageError(f"{schema}: malformed body ({type(exc).__name__}: {exc})") from None

@@ -1,0 +1,173 @@
+"""``cso-runtime status``: ask a running episode over Zenoh how it is doing.
+
+Queries the sim's episode-status queryable, the launcher's status, each service's status queryable
+and the liveliness tokens, with short timeouts: when nothing answers it says so quickly.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from cso_runtime.keys import RobotKeys
+from cso_runtime.messages import EpisodeStatusMsg, LauncherStatusMsg, MessageError, ServiceStatusMsg, decode
+from cso_runtime.transport import TransportConfig, TransportError, zenoh_config
+
+SERVICES = ("sim", "mapper", "frontier", "policy", "planner")
+
+
+def _collect(replies: Any) -> list[bytes]:
+    return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
+
+
+def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) -> dict[str, Any] | None:
+    """The episode's status as a plain dict, or None when nothing answers."""
+    conf = TransportConfig(mode="client", connect=list(connect))
+    cfg = zenoh_config(conf)
+    cfg.insert_json5("connect/timeout_ms", "800")
+    try:
+        session = zenoh.open(cfg)
+    except zenoh.ZError:
+        return None
+    keys = RobotKeys(robot)
+    with session:
+        # All four questions at once: each handler fills while the others wait.
+        opts = {"target": zenoh.QueryTarget.ALL, "consolidation": zenoh.ConsolidationMode.NONE, "timeout": timeout_s}
+        ep_replies = session.get(keys.episode_status, **opts)
+        la_replies = session.get(keys.launcher_status, **opts)
+        sv_replies = session.get(keys.service_status("*"), **opts)
+        alive_replies = session.liveliness().get(keys.alive("*"), timeout=timeout_s)
+        episode: dict[str, Any] | None = None
+        for payload in _collect(ep_replies):
+            try:
+                msg = decode(payload, EpisodeStatusMsg)
+            except MessageError:
+                continue
+            assert isinstance(msg, EpisodeStatusMsg)
+            episode = msg.to_dict()
+        launcher: dict[str, Any] | None = None
+        for payload in _collect(la_replies):
+            try:
+                lmsg = decode(payload, LauncherStatusMsg)
+            except MessageError:
+                continue
+            assert isinstance(lmsg, LauncherStatusMsg)
+            launcher = lmsg.to_dict()
+        services: dict[str, dict[str, Any]] = {}
+        for payload in _collect(sv_replies):
+            try:
+                smsg = decode(payload, ServiceStatusMsg)
+            except MessageError:
+                continue
+            assert isinstance(smsg, ServiceStatusMsg)
+            services[smsg.service] = smsg.to_dict()
+        alive = {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in alive_replies if r.ok is not None}
+    if episode is None and launcher is None and not alive:
+        return None
+    names = sorted(set(SERVICES) | set(services) | set((launcher or {}).get("services", {})))
+    table = {}
+    for name in names:
+        entry: dict[str, Any] = {"alive": name in alive}
+        s = services.get(name)
+        if s is not None:
+            entry.update(state=s["state"], reason=s["reason"], last_step=s["last_step"], rejected=s["rejected"], processed=s["processed"])
+        lsv = (launcher or {}).get("services", {}).get(name)
+        if lsv is not None:
+            entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"))
+        table[name] = entry
+    ep = episode or {"state": "starting"}
+    return {
+        "robot": robot,
+        "run_id": (launcher or {}).get("run_id", ""),
+        "state": ep.get("state", "starting"),
+        "step": ep.get("step", 0),
+        "coverage_pct": ep.get("coverage_pct", 0.0),
+        "explored_area_m2": ep.get("explored_area_m2", 0.0),
+        "path_length_m": ep.get("path_length_m", 0.0),
+        "goal": ep.get("goal_xy_m"),
+        "decisions": ep.get("decisions", 0),
+        "last_decision_ms": ep.get("last_decision_ms", 0.0),
+        "terminated_by": ep.get("terminated_by", ""),
+        "reason": ep.get("reason", ""),
+        "scene": ep.get("scene", ""),
+        "method": ep.get("method", ""),
+        "lockstep_timeouts": ep.get("lockstep_timeouts", 0),
+        "services": table,
+        "launcher_rejected": (launcher or {}).get("rejected", {}),
+    }
+
+
+def endpoints_from_run_file(runs_dir: Path) -> tuple[list[str], str | None]:
+    """Router endpoints and robot of the current run (``runs/current.json``), if any."""
+    try:
+        info = json.loads((runs_dir / "current.json").read_text())
+    except (OSError, ValueError):
+        return [], None
+    return list(info.get("endpoints") or []), info.get("robot")
+
+
+def render_table(status: dict[str, Any]):
+    from rich.table import Table  # noqa: PLC0415
+
+    t = Table(title=f"robot {status['robot']}  run {status['run_id'] or '-'}")
+    t.add_column("field")
+    t.add_column("value")
+    goal = status["goal"]
+    for k, v in (
+        ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "")),
+        ("scene / method", f"{status['scene']} / {status['method']}"),
+        ("step", str(status["step"])),
+        ("coverage", f"{status['coverage_pct']:.2f} %"),
+        ("explored", f"{status['explored_area_m2']:.2f} m2"),
+        ("path length", f"{status['path_length_m']:.2f} m"),
+        ("goal", "-" if goal is None else f"({goal[0]:.2f}, {goal[1]:.2f}) m"),
+        ("decisions", f"{status['decisions']} (last {status['last_decision_ms']:.1f} ms)"),
+    ):
+        t.add_row(k, v)
+    for name, s in status["services"].items():
+        bits = ["alive" if s["alive"] else "DOWN"]
+        if s.get("state"):
+            bits.append(s["state"] + (f" ({s['reason']})" if s.get("reason") else ""))
+        if s.get("restarts"):
+            bits.append(f"restarts {s['restarts']}" + (" (gave up)" if s.get("gave_up") else ""))
+        rejected = sum((s.get("rejected") or {}).values())
+        if rejected:
+            bits.append(f"rejected {rejected}")
+        t.add_row(f"service {name}", ", ".join(bits))
+    return t
+
+
+def status_main(connect: list[str], robot: str | None, as_json: bool, watch: bool, runs_dir: Path, period_s: float = 1.0) -> int:
+    """The ``status`` command; exit code 1 when nothing answers."""
+    from rich.console import Console  # noqa: PLC0415
+
+    console = Console()
+    if not connect:
+        connect, run_robot = endpoints_from_run_file(runs_dir)
+        robot = robot or run_robot
+    robot = robot or "r0"
+    if not connect:
+        print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
+        return 1
+    try:
+        while True:
+            status = query_status(connect, robot)
+            if status is None:
+                print(f"nothing running for robot {robot} at {', '.join(connect)}")
+                return 1
+            if as_json:
+                print(json.dumps(status), flush=True)
+            else:
+                console.print(render_table(status))
+            if not watch:
+                return 0
+            time.sleep(period_s)
+    except KeyboardInterrupt:
+        return 0
+    except TransportError as exc:
+        print(f"nothing running: {exc}")
+        return 1

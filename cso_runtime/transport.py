@@ -1,0 +1,74 @@
+"""The one Zenoh configuration helper every process uses (launcher, services, status client, tests).
+
+Multicast scouting is always off: processes find each other only through the endpoints given
+(``--connect`` / ``--listen``), so two runs on one machine, or a test next to a real robot, never
+cross-talk by accident.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+from dataclasses import dataclass, field
+
+import zenoh
+
+MODES = ("peer", "client", "router")
+
+
+class TransportError(RuntimeError):
+    """A Zenoh session could not be configured or opened."""
+
+
+@dataclass
+class TransportConfig:
+    """How a process joins the Zenoh network."""
+
+    mode: str = "client"
+    """Zenoh mode: ``client`` (services, via the launcher's router), ``peer`` or ``router``."""
+    connect: list[str] = field(default_factory=list)
+    """Endpoints to connect to, e.g. ``tcp/127.0.0.1:7447``."""
+    listen: list[str] = field(default_factory=list)
+    """Endpoints to listen on (the launcher's embedded router: ``tcp/127.0.0.1:<port>``)."""
+
+    def validate(self) -> None:
+        if self.mode not in MODES:
+            raise TransportError(f"zenoh mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        for ep in [*self.connect, *self.listen]:
+            if "/" not in ep:
+                raise TransportError(f"bad zenoh endpoint {ep!r}; expected PROTO/HOST:PORT, e.g. tcp/127.0.0.1:7447")
+        if self.mode == "client" and not self.connect:
+            raise TransportError("client mode needs at least one --connect endpoint")
+
+
+def zenoh_config(conf: TransportConfig) -> zenoh.Config:
+    """A zenoh.Config with the mode and endpoints of ``conf`` and multicast scouting disabled."""
+    conf.validate()
+    cfg = zenoh.Config()
+    cfg.insert_json5("mode", json.dumps(conf.mode))
+    cfg.insert_json5("scouting/multicast/enabled", "false")
+    cfg.insert_json5("connect/endpoints", json.dumps(list(conf.connect)))
+    cfg.insert_json5("listen/endpoints", json.dumps(list(conf.listen)))
+    if conf.mode == "client":
+        # Keep retrying the router for a while instead of failing at once: services may start first.
+        cfg.insert_json5("connect/timeout_ms", "10000")
+    return cfg
+
+
+def open_session(conf: TransportConfig) -> zenoh.Session:
+    """Open a Zenoh session (use it in a ``with`` block so it always closes)."""
+    try:
+        return zenoh.open(zenoh_config(conf))
+    except zenoh.ZError as exc:
+        raise TransportError(f"cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {exc}") from None
+
+
+def free_tcp_port(host: str = "127.0.0.1") -> int:
+    """A TCP port that is free right now on ``host`` (for the embedded router and tests)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def loopback_endpoint(port: int) -> str:
+    return f"tcp/127.0.0.1:{port}"

@@ -1,0 +1,268 @@
+"""What every service shares: arguments, the profile file, the Zenoh session, one event loop.
+
+A service subclasses ``Service``: it names its inputs (topic -> message type), handles each decoded
+message in ``on_message`` and may act periodically in ``on_tick``. ``run_service`` opens the session
+(the shared transport helper, multicast scouting off), declares the liveliness token
+``cso/<robot>/alive/<name>`` and the status queryable, and runs a single loop that pops inputs from a
+queue filled by Zenoh callbacks. Payloads that fail validation are logged and counted per key, never
+crash the service. SIGINT/SIGTERM stop the loop; the ``with`` blocks close the session.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import logging
+import os
+import queue
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, ClassVar
+
+import zenoh
+
+from cso_runtime.config import ConfigError, ExplorationConfig, from_dict, load_yaml
+from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
+from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
+from cso_runtime.transport import TransportConfig, TransportError, open_session
+
+log = logging.getLogger("cso.service")
+
+
+@dataclass
+class ServiceContext:
+    """Everything a service is started with."""
+
+    name: str
+    robot: str
+    profile: dict[str, Any]
+    exploration: ExplorationConfig
+    transport: TransportConfig
+    params: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def keys(self) -> RobotKeys:
+        return RobotKeys(self.robot)
+
+    @property
+    def lockstep(self) -> bool:
+        """The profile's ``lockstep``: every service handles steps strictly in order (deterministic)."""
+        return bool(self.profile.get("lockstep", False))
+
+
+def load_profile_for_service(path: Path, name: str) -> tuple[dict[str, Any], ExplorationConfig, dict[str, Any]]:
+    """The profile mapping, its exploration config and this service's parameter section."""
+    profile = load_yaml(path)
+    exploration = from_dict(ExplorationConfig, profile.get("exploration") or {}, where=f"{path}:exploration")
+    services = profile.get("services") or {}
+    if not isinstance(services, dict):
+        raise ConfigError(f"{path}: services must be a mapping")
+    sim_params = services.get("sim") or {}
+    explicit_mount = "mount_x_m" in ((profile.get("exploration") or {}).get("sensor") or {})
+    if isinstance(sim_params, dict) and sim_params.get("backend") == "mujoco" and not explicit_mount:
+        from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M  # noqa: PLC0415
+
+        exploration.sensor.mount_x_m = LIMO_LIDAR_MOUNT_X_M  # as eval --sim mujoco: every service must agree
+    params = services.get(name) or {}
+    if not isinstance(params, dict):
+        raise ConfigError(f"{path}: services.{name} must be a mapping")
+    return profile, exploration, params
+
+
+class Service:
+    """Base of the five services: inputs, handlers, publishing, health."""
+
+    name: ClassVar[str] = ""
+    inputs: ClassVar[dict[str, type[Message]]] = {}
+    """Topic name (see ``cso_runtime.keys.TOPICS``) -> expected message type."""
+    tick_period_s: ClassVar[float] = 0.2
+
+    def __init__(self, ctx: ServiceContext):
+        self.ctx = ctx
+        self.session: zenoh.Session | None = None
+        self.subscribe_robot = ctx.robot
+        """Robot id whose inputs are subscribed; ``*`` serves every robot on the network."""
+        self.rejected: dict[str, int] = {}
+        self.processed = 0
+        self.last_step = 0
+        self.state = "running"
+        self.reason = ""
+        self._publishers: dict[str, Any] = {}
+        self._lock = threading.Lock()
+
+    # --- hooks -----------------------------------------------------------------------------------
+    def start(self) -> None:
+        """Called once the session is open (late-joiner queries, queryables)."""
+
+    def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        raise NotImplementedError
+
+    def on_tick(self, now_s: float) -> None:
+        """Called at least every ``tick_period_s`` (staleness checks, real-time stepping)."""
+
+    def extra_status(self) -> dict[str, Any]:
+        return {}
+
+    # --- helpers ---------------------------------------------------------------------------------
+    def publish(self, topic: str, msg: Message, robot: str | None = None) -> None:
+        key = RobotKeys(robot or self.ctx.robot).topic(topic)
+        pub = self._publishers.get(key)
+        if pub is None:
+            assert self.session is not None
+            pub = self._publishers[key] = self.session.declare_publisher(key)
+        pub.put(encode(msg))
+
+    def reject(self, topic: str, why: str) -> None:
+        with self._lock:
+            n = self.rejected[topic] = self.rejected.get(topic, 0) + 1
+        if n <= 5 or n % 100 == 0:
+            log.warning("%s: rejected payload on %s (%d so far): %s", self.name, topic, n, why)
+
+    def set_state(self, state: str, reason: str = "") -> None:
+        if (state, reason) != (self.state, self.reason):
+            log.info("%s: %s%s", self.name, state, f" ({reason})" if reason else "")
+        self.state, self.reason = state, reason
+
+    def status_msg(self) -> ServiceStatusMsg:
+        with self._lock:
+            rejected = dict(self.rejected)
+        return ServiceStatusMsg(self.name, self.ctx.robot, self.state, self.last_step, self.reason, rejected, self.processed)
+
+    def query_latest(self, key: str, expected: type[Message], timeout_s: float = 1.0) -> Message | None:
+        """The newest valid reply to ``key`` (by ``step``), for late joiners and restarts."""
+        assert self.session is not None
+        best: Message | None = None
+        for reply in self.session.get(key, target=zenoh.QueryTarget.ALL, timeout=timeout_s):
+            if reply.ok is None:
+                continue
+            try:
+                msg = decode(reply.ok.payload.to_bytes(), expected)
+            except MessageError as exc:
+                self.reject(expected.SCHEMA, f"query reply: {exc}")
+                continue
+            if best is None or getattr(msg, "step", 0) >= getattr(best, "step", 0):
+                best = msg
+        return best
+
+
+def _install_stop_handlers(stop: threading.Event) -> None:
+    def handler(signum: int, _frame: Any) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, handler)
+    signal.signal(signal.SIGTERM, handler)
+
+
+def run_service(service: Service, stop: threading.Event | None = None) -> int:
+    """Open the session and run the service's event loop until ``stop`` is set (or a signal)."""
+    ctx = service.ctx
+    stop = stop or threading.Event()
+    inbox: queue.Queue[tuple[str, str, bytes, float]] = queue.Queue()
+    sub_robot = service.subscribe_robot
+    keys = RobotKeys(sub_robot)
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        inbox.put((str(sample.key_expr), "", sample.payload.to_bytes(), time.monotonic()))
+
+    def on_status_query(query: zenoh.Query) -> None:
+        query.reply(ctx.keys.service_status(service.name), encode(service.status_msg()))
+
+    with open_session(ctx.transport) as session:
+        service.session = session
+        subs = [session.declare_subscriber(keys.topic(t), on_sample) for t in service.inputs]
+        status_q = session.declare_queryable(ctx.keys.service_status(service.name), on_status_query)
+        token = session.liveliness().declare_token(ctx.keys.alive(service.name))
+        log.info("%s: up for robot %s (inputs: %s)", service.name, sub_robot, ", ".join(service.inputs) or "none")
+        try:
+            service.start()
+            next_tick = time.monotonic()
+            while not stop.is_set():
+                timeout = max(0.0, next_tick - time.monotonic())
+                try:
+                    key, _, payload, received_s = inbox.get(timeout=min(timeout, 0.1))
+                except queue.Empty:
+                    key = ""
+                if key:
+                    _dispatch(service, key, payload, received_s)
+                now = time.monotonic()
+                if now >= next_tick:
+                    service.on_tick(now)
+                    next_tick = now + service.tick_period_s
+        finally:
+            token.undeclare()
+            status_q.undeclare()
+            for s in subs:
+                s.undeclare()
+            service.session = None
+    log.info("%s: stopped", service.name)
+    return 0
+
+
+def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> None:
+    try:
+        robot, topic = robot_of(key), topic_of(key)
+    except ValueError as exc:
+        service.reject(key, str(exc))
+        return
+    expected = service.inputs.get(topic)
+    if expected is None:
+        service.reject(topic, "unexpected topic")
+        return
+    try:
+        msg = decode(payload, expected)
+    except MessageError as exc:
+        service.reject(topic, str(exc))
+        return
+    service.processed += 1
+    service.on_message(robot, topic, msg, received_s)
+
+
+def parse_args(name: str, argv: list[str] | None = None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog=f"python -m services.{name}", description=f"cso-runtime {name} service")
+    p.add_argument("--config", required=True, type=Path, help="Profile YAML (configs/profiles/*.yaml)")
+    p.add_argument("--robot", default="r0", help="Robot id: namespaces every key (cso/<robot>/...)")
+    p.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to (repeatable)")
+    p.add_argument("--listen", action="append", default=[], help="Zenoh endpoint to listen on (repeatable)")
+    p.add_argument("--mode", default="client", help="Zenoh mode: client, peer or router")
+    p.add_argument("--log-level", default="INFO")
+    return p.parse_args(argv)
+
+
+def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
+    """``python -m services.<name>`` entry point: parse, load the profile, run; config errors exit 2."""
+    args = parse_args(cls.name, argv)
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    try:
+        check_robot_id(args.robot)
+        profile, exploration, params = load_profile_for_service(args.config, cls.name)
+        transport = TransportConfig(mode=args.mode, connect=list(args.connect), listen=list(args.listen))
+        transport.validate()
+        service = cls(ServiceContext(cls.name, args.robot, profile, exploration, transport, params))
+    except (ConfigError, ValueError) as exc:
+        log.error("%s: bad configuration: %s", cls.name, exc)
+        return 2
+    stop = threading.Event()
+    _install_stop_handlers(stop)
+    _die_with_launcher()
+    try:
+        return run_service(service, stop)
+    except TransportError as exc:
+        log.error("%s: %s", cls.name, exc)
+        return 3
+
+
+def _die_with_launcher() -> None:
+    """When started by a launcher, get SIGTERM if it dies (Linux), so no service outlives it."""
+    parent = os.environ.get("CSO_PARENT_PID")
+    if not parent or not sys.platform.startswith("linux"):
+        return
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except OSError:
+        return
+    if os.getppid() != int(parent):
+        os.kill(os.getpid(), signal.SIGTERM)

@@ -1,0 +1,112 @@
+"""Mapper service: ``OccupancyMap.integrate_scan`` on every scan, publishes the map M_t.
+
+The grid is sized from the clock's arena (or ``services.mapper`` width/height when set). A scan it
+has already integrated is not integrated twice: the map is re-published (lockstep retries). On start
+it restores the latest map from the launcher's cache so a restarted mapper keeps what was explored;
+it answers queries on its map key so late joiners get the latest map at once.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import zenoh
+
+from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.geometry import GridGeometry
+from cso_runtime.messages import ClockMsg, MapMsg, Message, ScanMsg, encode
+from cso_runtime.occupancy import OccupancyMap
+from services.common import Service, ServiceContext, service_main
+
+log = logging.getLogger("cso.mapper")
+
+
+@dataclass
+class MapperParams:
+    """Parameters of the mapper service (``services.mapper`` in a profile)."""
+
+    resolution_m: float = 0.0
+    """Grid cell size; 0 = take the arena announced on the clock topic."""
+    width_m: float = 0.0
+    """Grid width when ``resolution_m`` is set."""
+    height_m: float = 0.0
+    """Grid height when ``resolution_m`` is set."""
+    restore_timeout_s: float = 1.0
+    """How long to wait for the cached map at start."""
+
+    def validate(self) -> None:
+        if self.resolution_m < 0 or (self.resolution_m > 0 and not (self.width_m > 0 and self.height_m > 0)):
+            raise ConfigError("an explicit grid needs resolution_m, width_m and height_m > 0")
+
+
+class MapperService(Service):
+    name = "mapper"
+    inputs = {"clock": ClockMsg, "scan": ScanMsg}
+
+    def __init__(self, ctx: ServiceContext):
+        super().__init__(ctx)
+        self.params = from_dict(MapperParams, ctx.params, where="services.mapper")
+        self.map: OccupancyMap | None = None
+        self.map_step = -1
+        self.pending: list[ScanMsg] = []
+        self._queryable = None
+        if self.params.resolution_m > 0:
+            p = self.params
+            self.map = OccupancyMap(GridGeometry(p.resolution_m, (round(p.height_m / p.resolution_m), round(p.width_m / p.resolution_m))))
+
+    def start(self) -> None:
+        assert self.session is not None
+        self._queryable = self.session.declare_queryable(self.ctx.keys.map, self._on_query)
+        cached = self.query_latest(self.ctx.keys.cache("map"), MapMsg, self.params.restore_timeout_s)
+        if isinstance(cached, MapMsg) and (self.map is None or self.map.geometry == cached.geometry):
+            self.map = OccupancyMap.from_occupancy_grid(cached.grid, cached.geometry)
+            self.map_step = cached.step
+            log.info("restored the map of step %d from the cache", cached.step)
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        m = self.map
+        if m is not None and self.map_step >= 0:
+            query.reply(self.ctx.keys.map, encode(MapMsg(self.map_step, m.geometry, m.to_occupancy_grid())))
+
+    def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        if isinstance(msg, ClockMsg):
+            if self.map is None and msg.arena is not None:
+                self.map = OccupancyMap(msg.arena)
+                log.info("map %dx%d cells at %.3f m", msg.arena.shape[1], msg.arena.shape[0], msg.arena.resolution_m)
+            if self.map is not None and self.map_step > msg.step:
+                log.warning("clock went back to step %d (map at %d): new episode, clearing the map", msg.step, self.map_step)
+                self.map = OccupancyMap(self.map.geometry)
+                self.map_step = -1
+            if self.map is not None and self.pending:
+                pending, self.pending = self.pending, []
+                for scan in pending:
+                    self.integrate(scan)
+            return
+        assert isinstance(msg, ScanMsg)
+        if self.map is None:
+            self.pending = [*self.pending[-9:], msg]
+            self.set_state("stale", "no map geometry yet (waiting for the clock)")
+            return
+        self.integrate(msg)
+
+    def integrate(self, scan: ScanMsg) -> None:
+        assert self.map is not None
+        if scan.step > self.map_step:
+            try:
+                self.map.integrate_scan(scan.sensor_pose, scan.scan)
+            except ValueError as exc:
+                self.reject("scan", str(exc))
+                return
+            self.map_step = scan.step
+        self.last_step = self.map_step
+        self.set_state("running")
+        self.publish("map", MapMsg(self.map_step, self.map.geometry, self.map.to_occupancy_grid()))
+
+
+def main(argv: list[str] | None = None) -> int:
+    return service_main(MapperService, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,131 @@
+"""Policy service: ``make_policy(method)`` and ``select`` on each decision's Observation.
+
+With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers`` and
+keeps one selector per robot). It answers every step: ``decided: true`` with the new goal when asked to decide, otherwise
+the current goal. A decision input older than ``stale_after_s`` is not acted on (the status says why).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import zenoh
+
+from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.messages import FrontiersMsg, GoalMsg, Message, encode, observation_from_frontiers
+from cso_runtime.policies import GoalSelector, make_policy
+from services.common import Service, ServiceContext, service_main
+
+log = logging.getLogger("cso.policy")
+
+
+@dataclass
+class PolicyParams:
+    """Parameters of the policy service (``services.policy`` in a profile)."""
+
+    method: str = ""
+    """Goal selector by name (greedy-dist, greedy-info, utility, random, cso...); empty = the profile's method."""
+    stale_after_s: float = 5.0
+    """Decision inputs older than this (wall clock) are not acted on; no input for this long = stale."""
+    device: str = "cpu"
+    """Torch device of a learned policy."""
+    serve_all_robots: bool = False
+    """Answer every robot on the network (``cso/*/frontiers``), not only ``--robot``: one policy server
+    for several robots (then start one policy per network, not one per robot)."""
+
+    def validate(self) -> None:
+        if not self.stale_after_s > 0:
+            raise ConfigError("stale_after_s must be positive")
+
+
+@dataclass
+class RobotState:
+    selector: GoalSelector
+    current: GoalMsg | None = None
+    answered_step: int = -1
+    last_answer: GoalMsg | None = None
+    last_input_s: float = 0.0
+
+
+class PolicyService(Service):
+    name = "policy"
+    inputs = {"frontiers": FrontiersMsg}
+
+    def __init__(self, ctx: ServiceContext):
+        super().__init__(ctx)
+        self.params = from_dict(PolicyParams, ctx.params, where="services.policy")
+        self.method = self.params.method or str(ctx.profile.get("method", "greedy-dist"))
+        if self.params.serve_all_robots:
+            self.subscribe_robot = "*"
+        self.seed = int(ctx.profile.get("seed", 0))
+        self.robots: dict[str, RobotState] = {}
+        self.new_selector()  # fail early on an unknown method
+        self._queryables: list = []
+
+    def new_selector(self) -> GoalSelector:
+        try:
+            return make_policy(self.method, self.ctx.exploration.masks, seed=self.seed, device=self.params.device)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+
+    def start(self) -> None:
+        assert self.session is not None
+        self._queryables.append(self.session.declare_queryable(f"cso/{self.subscribe_robot}/goal", self._on_query))
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        robot = str(query.key_expr).split("/")[1]
+        for name, st in list(self.robots.items()):
+            if st.last_answer is not None and robot in (name, "*"):
+                query.reply(f"cso/{name}/goal", encode(st.last_answer))
+
+    def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        assert isinstance(msg, FrontiersMsg)
+        st = self.robots.get(robot)
+        if st is None:
+            st = self.robots[robot] = RobotState(self.new_selector())
+            log.info("serving robot %s with %s", robot, self.method)
+        st.last_input_s = received_s
+        if msg.step == 0 and st.answered_step > 0:
+            log.info("robot %s restarted at step 0: new episode, new selector", robot)
+            st = self.robots[robot] = RobotState(self.new_selector(), last_input_s=received_s)
+        if msg.step <= st.answered_step:
+            if msg.step == st.answered_step and st.last_answer is not None:
+                self.publish("goal", st.last_answer, robot)  # lockstep retry
+            return
+        age_s = time.monotonic() - received_s
+        if age_s > self.params.stale_after_s:
+            self.set_state("stale", f"robot {robot}: decision input of step {msg.step} is {age_s:.1f} s old; not commanding")
+            return
+        self.set_state("running")
+        if msg.decide:
+            t0 = time.perf_counter()
+            goal = st.selector.select(observation_from_frontiers(msg))
+            ms = msg.build_ms + (time.perf_counter() - t0) * 1e3
+            if goal is None:
+                out = GoalMsg(msg.step, True, decision_ms=ms, method=self.method, reason=msg.reason)
+            else:
+                out = GoalMsg(msg.step, True, goal.x_m, goal.y_m, goal.cluster_index, goal.distance_m, ms, self.method, msg.reason)
+            st.current = out
+        else:
+            cur = st.current
+            out = GoalMsg(msg.step, False, method=self.method)
+            if cur is not None and cur.has_goal:
+                out = GoalMsg(msg.step, False, cur.x_m, cur.y_m, cur.cluster_index, cur.distance_m, 0.0, self.method)
+        st.answered_step = self.last_step = msg.step
+        st.last_answer = out
+        self.publish("goal", out, robot)
+
+    def on_tick(self, now_s: float) -> None:
+        for robot, st in self.robots.items():
+            if now_s - st.last_input_s > self.params.stale_after_s and self.state != "stale":
+                self.set_state("stale", f"robot {robot}: no frontiers for {now_s - st.last_input_s:.1f} s; not commanding")
+
+
+def main(argv: list[str] | None = None) -> int:
+    return service_main(PolicyService, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

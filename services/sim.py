@@ -1,0 +1,330 @@
+"""Simulator service: a ``cso_runtime.simulator.Simulator`` on Zenoh, and the episode's referee.
+
+Publishes clock, odometry and scan each step, applies ``cmd_vel``, and, being the only process that
+knows the ground truth, measures coverage on the mapper's map (``GroundTruthMetrics``, the same code
+as ``eval``), decides when the episode ends (section 4.1), and answers status/result queries.
+
+Lockstep (deterministic): step k+1 happens only when the map, the goal and the command of step k
+have arrived; a missing answer is re-requested by re-publishing the step after ``lockstep_timeout_s``
+(logged, counted) and the episode fails after ``lockstep_give_up_s``. Real time: one step every
+``control_period_s / real_time_factor`` with the latest command (a stop when it is older than
+``cmd_timeout_s``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.episode import TERMINATED_COVERAGE, TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER, GroundTruthMetrics
+from cso_runtime.geometry import VelocityCommand
+from cso_runtime.messages import (
+    ClockMsg,
+    CmdVelMsg,
+    EpisodeResultMsg,
+    EpisodeStatusMsg,
+    GoalMsg,
+    MapMsg,
+    Message,
+    OdometryMsg,
+    ScanMsg,
+    encode,
+)
+from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.scenes import resolve_scenes
+from cso_runtime.simulator import Simulator, make_simulator
+from services.common import Service, ServiceContext, service_main
+
+log = logging.getLogger("cso.sim")
+
+BACKENDS = {"kinematic": "2d", "2d": "2d", "mujoco": "mujoco"}
+
+
+@dataclass
+class SimParams:
+    """Parameters of the sim service (``services.sim`` in a profile)."""
+
+    backend: str = "kinematic"
+    """Simulator by name: ``kinematic`` (fast 2D) or ``mujoco`` (physics LIMO, ``robot_sim``)."""
+    real_time_factor: float = 1.0
+    """Real-time mode: simulated seconds per wall-clock second."""
+    cmd_timeout_s: float = 1.0
+    """Real-time mode: a command older than this (wall clock) is replaced by a stop."""
+    lockstep_timeout_s: float = 2.0
+    """Lockstep: re-publish the current step when no progress for this long (wall clock)."""
+    lockstep_give_up_s: float = 60.0
+    """Lockstep: the episode fails when one step waits longer than this."""
+    min_step_period_s: float = 0.0
+    """Lockstep: wall-clock floor per step (0 = as fast as the pipeline; demos and tests slow it)."""
+    start_delay_s: float = 0.5
+    """Wait this long after start before step 0, so subscribers have joined (then re-publishing covers it)."""
+
+    def validate(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ConfigError(f"backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
+        for name in ("real_time_factor", "cmd_timeout_s", "lockstep_timeout_s", "lockstep_give_up_s"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name} must be positive")
+        if self.min_step_period_s < 0 or self.start_delay_s < 0:
+            raise ConfigError("min_step_period_s and start_delay_s must be >= 0")
+
+
+def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceContext) -> Simulator:
+    """The scene of the profile in the simulator named by ``params.backend``."""
+    spec = str(profile.get("scene", "generated:small:1:0"))
+    refs = resolve_scenes(spec, limit=1, resolution_m=float(profile.get("m_per_px", 0.1)))
+    if not refs:
+        raise ConfigError(f"scene {spec!r} resolves to no scene")
+    plan = refs[0].load()
+    seed = int(profile.get("seed", 0))
+    return make_simulator(BACKENDS[params.backend], plan, ctx.exploration.sensor, ctx.exploration.robot, seed=seed)
+
+
+class SimService(Service):
+    name = "sim"
+    inputs = {"cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
+    tick_period_s = 0.02
+
+    def __init__(self, ctx: ServiceContext):
+        super().__init__(ctx)
+        self.params = from_dict(SimParams, ctx.params, where="services.sim")
+        self.sim = build_simulator(ctx.profile, self.params, ctx)
+        self.seed = int(ctx.profile.get("seed", 0))
+        self.sim.reset(self.seed)
+        self.metrics = GroundTruthMetrics(self.sim.plan, ctx.exploration.episode)
+        self.max_steps = ctx.exploration.episode.max_steps
+        self.period_s = ctx.exploration.robot.control_period_s
+        self.method = str(ctx.profile.get("method", ""))
+        self.step = 0
+        self.episode_state = "starting"
+        self.terminated_by = ""
+        self.fail_reason = ""
+        self.maps: dict[int, MapMsg] = {}
+        self.goals: dict[int, GoalMsg] = {}
+        self.cmds: dict[int, CmdVelMsg] = {}
+        self.measured_step = -1
+        self.goal_step = -1
+        self.last_map: OccupancyMap | None = None
+        self.coverage_curve: list[float] = []
+        self.trajectory: list[tuple[float, float]] = [tuple(self.sim.true_pose().xy)]
+        self.path_length_m = 0.0
+        self.decisions = 0
+        self.decision_ms: list[float] = []
+        self.goal_xy: list[float] | None = None
+        self.last_cmd: tuple[CmdVelMsg, float] | None = None
+        self.started_s = time.monotonic()
+        self.step_started_s = math.inf
+        self.last_publish_s = 0.0
+        self.timeouts = 0
+        self.result: EpisodeResultMsg | None = None
+        self._queryables: list[Any] = []
+
+    # --- wiring ---------------------------------------------------------------------------------
+    def start(self) -> None:
+        assert self.session is not None
+        keys = self.ctx.keys
+        self._queryables.append(self.session.declare_queryable(keys.episode_status, self._on_status_query))
+        self._queryables.append(self.session.declare_queryable(keys.episode_result, self._on_result_query))
+
+    def _on_status_query(self, query: zenoh.Query) -> None:
+        query.reply(self.ctx.keys.episode_status, encode(self.episode_status()))
+
+    def _on_result_query(self, query: zenoh.Query) -> None:
+        if self.result is not None:
+            query.reply(self.ctx.keys.episode_result, encode(self.result))
+        else:
+            query.reply_err(b"episode not finished")
+
+    # --- the step ---------------------------------------------------------------------------------
+    def publish_step(self) -> None:
+        """Clock, odometry and scan of the current step (also used to re-request a lost step)."""
+        scan = self.sim.scan()
+        self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry))
+        self.publish("odom", OdometryMsg(self.step, self.sim.time_s, self.sim.odometry()))
+        self.publish("scan", ScanMsg(self.step, scan, self.sim.sensor_pose()))
+        self.last_publish_s = time.monotonic()
+
+    def episode_status(self) -> EpisodeStatusMsg:
+        explored = self.metrics.explored_area_m2(self.last_map) if self.last_map is not None else 0.0
+        cov = self.coverage_curve[-1] if self.coverage_curve else 0.0
+        return EpisodeStatusMsg(
+            state=self.episode_state,
+            step=self.step,
+            scene=self.sim.plan.name,
+            method=self.method,
+            coverage_pct=float(min(cov, 100.0)),
+            explored_area_m2=explored,
+            path_length_m=self.path_length_m,
+            goal_xy_m=self.goal_xy,
+            decisions=self.decisions,
+            last_decision_ms=self.decision_ms[-1] if self.decision_ms else 0.0,
+            terminated_by=self.terminated_by,
+            reason=self.fail_reason,
+            lockstep_timeouts=self.timeouts,
+        )
+
+    def finish(self, state: str, terminated_by: str, reason: str = "") -> None:
+        self.episode_state, self.terminated_by, self.fail_reason = state, terminated_by, reason
+        explored_free = self.metrics.explored_free(self.last_map) if self.last_map is not None else np.zeros(self.sim.plan.free.shape, bool)
+        self.result = EpisodeResultMsg(
+            scene=self.sim.plan.name,
+            steps=self.step,
+            explored_area_m2=self.metrics.explored_area_m2(self.last_map) if self.last_map is not None else 0.0,
+            coverage_pct=self.coverage_curve[-1] if self.coverage_curve else 0.0,
+            traversable_area_m2=self.metrics.region_area_m2,
+            path_length_m=self.path_length_m,
+            terminated_by=terminated_by,
+            decisions=self.decisions,
+            decision_ms=np.array(self.decision_ms, dtype=float),
+            trajectory_xy_m=np.array(self.trajectory, dtype=float),
+            coverage_curve_pct=np.array(self.coverage_curve, dtype=float),
+            explored_free=explored_free,
+            plan_free=self.sim.plan.free,
+            resolution_m=self.sim.plan.resolution_m,
+            method=self.method,
+            seed=self.seed,
+        )
+        log.info("episode %s at step %d: %s %s (coverage %.2f%%)", state, self.step, terminated_by, reason, self.result.coverage_pct)
+        self.publish("episode_status", self.episode_status())
+        self.publish("episode_result", self.result)
+
+    @property
+    def running(self) -> bool:
+        return self.episode_state in ("starting", "exploring")
+
+    def measure(self, m: MapMsg) -> None:
+        """Ground-truth metrics of a map; the termination criteria of section 4.1."""
+        self.last_map = OccupancyMap.from_occupancy_grid(m.grid, m.geometry)
+        self.coverage_curve.append(self.metrics.coverage_pct(self.last_map))
+        if self.metrics.coverage_done(self.last_map):
+            self.finish("done", TERMINATED_COVERAGE)
+        elif self.step >= self.max_steps:
+            self.finish("done", TERMINATED_MAX_STEPS)
+        else:
+            self.publish("episode_status", self.episode_status())
+
+    def take_goal(self, g: GoalMsg) -> None:
+        if g.decided:
+            self.decisions += 1
+            self.decision_ms.append(g.decision_ms)
+            if not g.has_goal:
+                self.goal_xy = None
+                self.finish("done", TERMINATED_NO_FRONTIER)
+                return
+        self.goal_xy = [float(g.x_m), float(g.y_m)] if g.has_goal else None
+
+    def advance(self, command: VelocityCommand) -> None:
+        before = self.sim.true_pose()
+        self.sim.step(command)
+        after = self.sim.true_pose()
+        self.path_length_m += math.hypot(after.x_m - before.x_m, after.y_m - before.y_m)
+        self.trajectory.append((after.x_m, after.y_m))
+        self.step += 1
+        self.step_started_s = time.monotonic()
+        self.publish_step()
+
+    # --- inputs ---------------------------------------------------------------------------------
+    def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        if not self.running:
+            return
+        if self.ctx.lockstep:
+            step = getattr(msg, "step", -1)
+            if step < self.step:
+                return
+            if topic == "map":
+                self.maps[step] = msg  # type: ignore[assignment]
+            elif topic == "goal":
+                self.goals[step] = msg  # type: ignore[assignment]
+            elif topic == "cmd_vel" and not msg.reason.startswith("stale"):  # type: ignore[attr-defined]
+                self.cmds[step] = msg  # type: ignore[assignment]
+            self.lockstep_progress()
+        else:
+            if topic == "map":
+                self.measure(msg)  # type: ignore[arg-type]
+            elif topic == "goal":
+                self.take_goal(msg)  # type: ignore[arg-type]
+            elif topic == "cmd_vel":
+                self.last_cmd = (msg, received_s)  # type: ignore[assignment]
+
+    def lockstep_progress(self) -> None:
+        """Consume this step's map, goal and command in that order; step when all three are in."""
+        k = self.step
+        if self.measured_step < k:
+            m = self.maps.pop(k, None)
+            if m is None:
+                return
+            self.measured_step = k
+            self.measure(m)
+            if not self.running:
+                return
+        if self.goal_step < k:
+            g = self.goals.pop(k, None)
+            if g is None:
+                return
+            self.goal_step = k
+            self.take_goal(g)
+            if not self.running:
+                return
+        cmd = self.cmds.get(k)
+        if cmd is None:
+            return
+        if time.monotonic() - self.step_started_s < self.params.min_step_period_s:
+            return  # on_tick comes back
+        self.cmds.pop(k)
+        for d in (self.maps, self.goals, self.cmds):
+            for s in [s for s in d if s <= k]:
+                d.pop(s)
+        self.advance(cmd.command)
+
+    def on_tick(self, now_s: float) -> None:
+        if self.episode_state == "starting":
+            if now_s - self.started_s >= self.params.start_delay_s:
+                self.episode_state = "exploring"
+                self.step_started_s = now_s
+                self.publish_step()
+            return
+        if not self.running:
+            return
+        if self.ctx.lockstep:
+            self.lockstep_progress()
+            if not self.running:
+                return
+            waited = now_s - self.step_started_s
+            if waited > self.params.lockstep_give_up_s:
+                self.finish("failed", "lockstep_timeout", f"step {self.step}: waited {waited:.1f} s for {self.missing()}")
+            elif now_s - self.last_publish_s > self.params.lockstep_timeout_s:
+                self.timeouts += 1
+                log.warning("step %d: no %s after %.1f s; re-publishing the step", self.step, self.missing(), now_s - self.last_publish_s)
+                self.publish_step()
+            return
+        if now_s - self.step_started_s >= self.period_s / self.params.real_time_factor:
+            cmd = VelocityCommand()
+            if self.last_cmd is not None and now_s - self.last_cmd[1] <= self.params.cmd_timeout_s:
+                cmd = self.last_cmd[0].command
+            if self.step >= self.max_steps:
+                self.finish("done", TERMINATED_MAX_STEPS)
+                return
+            self.advance(cmd)
+
+    def missing(self) -> str:
+        k = self.step
+        if self.measured_step < k:
+            return "map (mapper)"
+        if self.goal_step < k:
+            return "goal (frontier/policy)"
+        return "cmd_vel (planner)"
+
+
+def main(argv: list[str] | None = None) -> int:
+    return service_main(SimService, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

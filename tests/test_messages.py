@@ -1,0 +1,288 @@
+"""Wire format of the runtime's messages: round trips and rejection of anything untrustworthy."""
+
+from __future__ import annotations
+
+import math
+import zlib
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id, robot_of, topic_of
+from cso_runtime.messages import (
+    SCHEMA_VERSION,
+    ClockMsg,
+    CmdVelMsg,
+    EpisodeResultMsg,
+    EpisodeStatusMsg,
+    FrontiersMsg,
+    GoalMsg,
+    LauncherStatusMsg,
+    MapMsg,
+    MessageError,
+    OdometryMsg,
+    PathMsg,
+    PlannerFeedbackMsg,
+    ScanMsg,
+    ServiceStatusMsg,
+    decode,
+    encode,
+    frontiers_from_observation,
+    observation_from_frontiers,
+)
+from cso_runtime.observation import ObservationBuilder
+from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.policies import make_policy
+
+GEOM = GridGeometry(0.1, (30, 40), 0.0, 0.0)
+
+
+def _scan(ranges=None) -> ScanMsg:
+    r = np.array([1.0, np.inf, 2.5, 0.05], dtype=np.float32) if ranges is None else ranges
+    return ScanMsg(7, LaserScan(-math.pi / 2, 0.01, 0.1, 8.0, r, 1.75), Pose2D(1.0, 2.0, 0.3))
+
+
+def _observation():
+    """A real Observation: a room scanned once from its centre."""
+    m = OccupancyMap(GEOM)
+    angles = np.linspace(-math.pi, math.pi, 360, endpoint=False)
+    m.integrate_scan(Pose2D(2.0, 1.5, 0.0), LaserScan(-math.pi, angles[1] - angles[0], 0.1, 1.2, np.full(360, np.inf, np.float32)))
+    return ObservationBuilder().build(m, Pose2D(2.0, 1.5, 0.0), np.array([[2.0, 1.5]]))
+
+
+def _wire(schema: str, body: dict, version: int = SCHEMA_VERSION) -> bytes:
+    return msgpack.packb({"schema": schema, "v": version, "body": body}, use_bin_type=True)
+
+
+def _body(msg) -> dict:
+    return msgpack.unpackb(encode(msg), raw=False)["body"]
+
+
+# --- round trips ---------------------------------------------------------------------------------
+
+
+def test_scan_round_trip_keeps_inf_and_values():
+    msg = decode(encode(_scan()), ScanMsg)
+    assert isinstance(msg, ScanMsg)
+    assert msg.step == 7 and msg.sensor_pose == Pose2D(1.0, 2.0, 0.3)
+    np.testing.assert_array_equal(msg.scan.ranges_m, _scan().scan.ranges_m)
+    assert msg.scan.stamp_s == 1.75 and msg.scan.angle_min_rad == -math.pi / 2
+
+
+@pytest.mark.parametrize(
+    "msg",
+    [
+        OdometryMsg(3, 0.75, Pose2D(1.0, -2.0, 3.1), VelocityCommand(0.4, -0.2)),
+        CmdVelMsg(3, VelocityCommand(0.5, 0.1), ""),
+        CmdVelMsg(4, VelocityCommand(), "stale: odom 3.0 s old"),
+        GoalMsg(5, True, 1.5, 2.5, 2, 3.25, 12.5, "greedy-dist", "reached"),
+        GoalMsg(5, True, decision_ms=1.0, method="greedy-dist"),
+        PlannerFeedbackMsg(9, "blocked", "map", True, ""),
+        ClockMsg(2, 0.5, GEOM),
+        ClockMsg(2, 0.5),
+        EpisodeStatusMsg("exploring", 12, "gen_small_0", "greedy-dist", 45.5, 10.0, 3.2, [1.0, 2.0], 4, 11.0),
+        ServiceStatusMsg("mapper", "r0", "running", 12, "", {"scan": 3}, 40),
+        LauncherStatusMsg("run1", "running", {"sim": {"pid": 12, "restarts": 0}}, {"path": 1}),
+    ],
+)
+def test_small_messages_round_trip(msg):
+    assert decode(encode(msg), type(msg)) == msg
+
+
+def test_keep_goal_frontiers_round_trip():
+    back = decode(encode(FrontiersMsg(6, False, "")), FrontiersMsg)
+    assert isinstance(back, FrontiersMsg) and back.step == 6 and not back.decide and not back.clusters
+
+
+def test_map_round_trip_is_compressed():
+    m = OccupancyMap(GridGeometry(0.05, (200, 300)))
+    grid = m.to_occupancy_grid()
+    grid[10:20, 10:50] = 0
+    grid[15, 10:50] = 100
+    payload = encode(MapMsg(4, m.geometry, grid))
+    assert len(payload) < grid.size / 20
+    back = decode(payload, MapMsg)
+    assert isinstance(back, MapMsg) and back.geometry == m.geometry
+    np.testing.assert_array_equal(back.grid, grid)
+
+
+def test_path_and_result_round_trip():
+    p = decode(encode(PathMsg(3, np.array([[0.0, 0.0], [1.0, 0.5]]))), PathMsg)
+    np.testing.assert_allclose(p.path_xy_m, [[0.0, 0.0], [1.0, 0.5]])
+    free = np.zeros((5, 6), bool)
+    free[1:4, 1:5] = True
+    res = EpisodeResultMsg(
+        "s", 10, 1.2, 98.0, 1.3, 4.5, "coverage", 3, np.array([1.0, 2.0]), np.zeros((11, 2)), np.linspace(0, 98, 11), free, free, 0.1, "greedy-dist", 0
+    )
+    back = decode(encode(res), EpisodeResultMsg)
+    assert back.steps == 10 and back.terminated_by == "coverage" and back.method == "greedy-dist"
+    np.testing.assert_array_equal(back.explored_free, free)
+    np.testing.assert_allclose(back.coverage_curve_pct, res.coverage_curve_pct)
+
+
+def test_frontiers_rebuild_the_same_observation_and_decision():
+    obs = _observation()
+    assert obs.clusters, "the fixture must have frontier clusters"
+    back = decode(encode(frontiers_from_observation(3, "no_goal", obs, 4.5)), FrontiersMsg)
+    assert isinstance(back, FrontiersMsg) and back.decide and back.reason == "no_goal"
+    rebuilt = observation_from_frontiers(back)
+    for name in ("explored", "occupied", "traversable", "frontier", "entropy", "distance_m"):
+        np.testing.assert_array_equal(getattr(rebuilt, name), getattr(obs, name))
+    assert rebuilt.geometry == obs.geometry and rebuilt.pose == obs.pose
+    assert [c.goal_cell for c in rebuilt.clusters] == [c.goal_cell for c in obs.clusters]
+    for name in ("greedy-dist", "greedy-info", "utility"):
+        assert make_policy(name).select(rebuilt) == make_policy(name).select(obs)
+
+
+# --- rejections ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [
+        b"",
+        b"garbage",
+        b"\xc1\xc1\xc1",
+        msgpack.packb([1, 2, 3]),
+        msgpack.packb({"schema": "scan", "v": 1}),
+        _wire("nope", {}),
+        _wire("scan", {}, version=2),
+        _wire("scan", {}, version=True),
+        _wire("scan", []),
+    ],
+)
+def test_malformed_envelopes_are_rejected(payload):
+    with pytest.raises(MessageError):
+        decode(payload)
+
+
+def test_unknown_version_says_so():
+    body = _body(_scan())
+    with pytest.raises(MessageError, match="unknown version"):
+        decode(_wire("scan", body, version=SCHEMA_VERSION + 1))
+
+
+def test_wrong_schema_for_the_key_is_rejected():
+    with pytest.raises(MessageError, match="expected schema"):
+        decode(encode(_scan()), MapMsg)
+
+
+@pytest.mark.parametrize(
+    "ranges",
+    [np.array([1.0, np.nan], np.float32), np.array([1.0, -0.5], np.float32), np.zeros(0, np.float32), np.array([[1.0]], np.float32)],
+)
+def test_bad_scan_ranges_are_rejected(ranges):
+    with pytest.raises(MessageError):
+        decode(encode(_scan(ranges)))
+
+
+def _mutate(msg, **changes) -> bytes:
+    body = _body(msg)
+    body.update(changes)
+    return _wire(msg.SCHEMA, body)
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [
+        _mutate(_scan(), sensor_pose=[1.0, float("nan"), 0.0]),
+        _mutate(_scan(), sensor_pose=[1.0, 2.0]),
+        _mutate(_scan(), range_max_m=float("inf")),
+        _mutate(_scan(), range_min_m=9.0),
+        _mutate(_scan(), step=-1),
+        _mutate(_scan(), step=True),
+        _mutate(_scan(), step=1.5),
+        _mutate(CmdVelMsg(1, VelocityCommand()), linear_mps=float("inf")),
+        _mutate(CmdVelMsg(1, VelocityCommand()), angular_radps="fast"),
+        _mutate(OdometryMsg(1, 0.0, Pose2D(0, 0, 0)), pose=[0.0, 0.0, float("nan")]),
+        _mutate(GoalMsg(1, True, 1.0, 2.0, 0, 1.0), goal=[1.0, float("nan"), 0, 1.0]),
+        _mutate(PlannerFeedbackMsg(1, "following", "map"), status="dancing"),
+        _mutate(EpisodeStatusMsg("exploring", 1), coverage_pct=250.0),
+        _mutate(ClockMsg(1, 0.25), time_s=-1.0),
+        _mutate(ServiceStatusMsg("mapper", "r0", "running"), rejected={"scan": -1}),
+    ],
+)
+def test_out_of_range_and_non_finite_fields_are_rejected(payload):
+    with pytest.raises(MessageError):
+        decode(payload)
+
+
+def test_bad_maps_are_rejected():
+    grid = np.zeros(GEOM.shape, np.int8)
+    good = _body(MapMsg(1, GEOM, grid))
+    bad_values = grid.copy()
+    bad_values[0, 0] = 5
+    cases = [
+        {**good, "grid": _body(MapMsg(1, GEOM, bad_values))["grid"]},
+        {**good, "grid": _body(MapMsg(1, GridGeometry(0.1, (3, 4)), np.zeros((3, 4), np.int8)))["grid"]},
+        {**good, "grid": {**good["grid"], "data": b"\x00\x01"}},
+        {**good, "grid": {**good["grid"], "data": zlib.compress(b"\x00" * 7)}},
+        {**good, "grid": {**good["grid"], "dtype": "object"}},
+        {**good, "geometry": {**good["geometry"], "resolution_m": 0.0}},
+        {**good, "geometry": {**good["geometry"], "shape": [0, 4]}},
+        {**good, "geometry": {**good["geometry"], "origin": [float("nan"), 0.0]}},
+    ]
+    for body in cases:
+        with pytest.raises(MessageError):
+            decode(_wire("map", body))
+
+
+def test_bad_frontiers_are_rejected():
+    obs = _observation()
+    good = _body(frontiers_from_observation(3, "no_goal", obs, 1.0))
+    d = obs.distance_m.copy()
+    d[0, 0] = np.nan
+    nan_dist = _body(frontiers_from_observation(3, "no_goal", type(obs)(**{**obs.__dict__, "distance_m": d}), 1.0))
+    bad_cluster = dict(good["clusters"][0], goal_cell=[999, 0])
+    cases = [
+        nan_dist,
+        {**good, "clusters": [bad_cluster]},
+        {**good, "clusters": [dict(good["clusters"][0], distance_m=float("nan"))]},
+        {**good, "arrays": {k: v for k, v in good["arrays"].items() if k != "entropy"}},
+        {**good, "path_nodes_xy_m": _body(PathMsg(0, np.array([[np.inf, 0.0]])))["path_xy_m"]},
+    ]
+    for body in cases:
+        with pytest.raises(MessageError):
+            decode(_wire("frontiers", body))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.binary(max_size=200))
+def test_random_bytes_only_ever_raise_message_error(data):
+    try:
+        decode(data)
+    except MessageError:
+        pass
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.dictionaries(st.sampled_from(["step", "stamp_s", "pose", "twist", "x"]), st.one_of(st.none(), st.integers(-(2**63), 2**64 - 1), st.floats(), st.text(max_size=3), st.lists(st.floats(), max_size=4))))
+def test_random_odometry_bodies_decode_or_raise_message_error(body):
+    try:
+        msg = decode(_wire("odom", body), OdometryMsg)
+    except MessageError:
+        return
+    assert isinstance(msg, OdometryMsg) and math.isfinite(msg.pose.x_m) and msg.step >= 0
+
+
+# --- keys ---------------------------------------------------------------------------------------
+
+
+def test_keys_are_namespaced_by_robot():
+    k = RobotKeys("robot_2")
+    assert k.scan == "cso/robot_2/scan"
+    assert k.planner_feedback == "cso/robot_2/planner/feedback"
+    assert k.alive("mapper") == "cso/robot_2/alive/mapper"
+    assert RobotKeys("*").frontiers == "cso/*/frontiers"
+    assert robot_of("cso/robot_2/episode/status") == "robot_2"
+    assert topic_of("cso/robot_2/episode/status") == "episode_status"
+
+
+@pytest.mark.parametrize("bad", ["", "a/b", "r 1", "*", "x" * 65, "r?"])
+def test_bad_robot_ids_are_rejected(bad):
+    with pytest.raises(KeyExprError):
+        check_robot_id(bad)

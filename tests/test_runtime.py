@@ -1,0 +1,296 @@
+"""The Zenoh runtime: one service in-process over loopback, then real processes started by ``up``.
+
+Every test uses free loopback ports with multicast scouting off, waits on conditions with deadlines,
+and stops whatever it started in ``finally`` blocks (``down``, then SIGKILL of any pid left).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import pytest
+import yaml
+
+from cso_runtime.config import ExplorationConfig
+from cso_runtime.episode import run_episode
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
+from cso_runtime.keys import TOPICS, RobotKeys
+from cso_runtime.launcher import pid_alive
+from cso_runtime.messages import ClockMsg, MapMsg, ScanMsg, ServiceStatusMsg, decode, encode
+from cso_runtime.policies import make_policy
+from cso_runtime.scenes import resolve_scenes
+from cso_runtime.simulator import KinematicSimulator
+from cso_runtime.status import query_status
+from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+
+REPO = Path(__file__).resolve().parents[1]
+SCENE = "generated:small:1:0"
+
+
+def wait_for(cond: Callable[[], Any], timeout_s: float, what: str, period_s: float = 0.05) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = cond()
+        if value:
+            return value
+        time.sleep(period_s)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def cli(*args: str, cwd: Path, timeout_s: float = 60.0) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cso_runtime.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=timeout_s)
+
+
+def write_profile(tmp_path: Path, **sim_params: Any) -> Path:
+    data = yaml.safe_load((REPO / "configs" / "profiles" / "lockstep.yaml").read_text())
+    data["scene"] = SCENE
+    data["services"]["sim"].update(sim_params)
+    path = tmp_path / "test_profile.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def run_pids(runs: Path) -> list[int]:
+    pids = []
+    for f in runs.glob("*/run.json"):
+        info = json.loads(f.read_text())
+        pids.append(int(info["launcher_pid"]))
+        pids += [int(s["pid"]) for s in info["services"].values() if s.get("pid")]
+    return pids
+
+
+def kill_leftovers(runs: Path, extra: list[int] = ()) -> list[int]:
+    left = [p for p in [*run_pids(runs), *extra] if pid_alive(p)]
+    for p in left:
+        try:
+            os.killpg(p, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            try:
+                os.kill(p, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+    return left
+
+
+def in_process_result():
+    plan = resolve_scenes(SCENE)[0].load()
+    return run_episode(KinematicSimulator(plan, seed=0), make_policy("greedy-dist", seed=0), ExplorationConfig(), seed=0)
+
+
+# --- tier 2: one service in this process, a second session on explicit loopback endpoints --------
+
+
+def test_mapper_service_over_loopback_maps_and_counts_rejections():
+    from services.common import ServiceContext, run_service
+    from services.mapper import MapperService
+
+    port = free_tcp_port()
+    router = TransportConfig(mode="router", listen=[loopback_endpoint(port)])
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    with open_session(router) as session:
+        maps: list[MapMsg] = []
+        sub = session.declare_subscriber(keys.map, lambda s: maps.append(decode(s.payload.to_bytes(), MapMsg)))
+        svc = MapperService(ServiceContext("mapper", "t1", {}, ExplorationConfig(), client, {"restore_timeout_s": 0.2}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: any(True for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5) if r.ok), 10, "the mapper's liveliness token")
+            geom = GridGeometry(0.1, (40, 40))
+            scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
+            session.put(keys.clock, encode(ClockMsg(0, 0.0, geom)))
+            session.put(keys.scan, b"not msgpack")
+            nan_scan = ScanMsg(0, LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.nan, np.float32)), Pose2D(2, 2, 0))
+            session.put(keys.scan, encode(nan_scan))  # encoding does not validate; decoding does
+            session.put(keys.scan, encode(ScanMsg(0, scan, Pose2D(2.0, 2.0, 0.0))))
+            wait_for(lambda: maps, 10, "a map")
+            assert maps[-1].step == 0 and (maps[-1].grid == 0).sum() > 100
+            replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(keys.service_status("mapper"), timeout=2.0) if r.ok]
+            assert replies and replies[0].rejected.get("scan") == 2, replies
+            late = [decode(r.ok.payload.to_bytes(), MapMsg) for r in session.get(keys.map, timeout=2.0) if r.ok]
+            assert late and late[0].step == 0, "a late joiner gets the latest map"
+        finally:
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+    assert not thread.is_alive()
+
+
+def test_one_policy_server_answers_several_robots():
+    from services.common import ServiceContext, run_service
+    from services.policy import PolicyService
+    from tests.test_messages import _observation
+    from cso_runtime.messages import GoalMsg, frontiers_from_observation
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        goals: dict[str, GoalMsg] = {}
+        sub = session.declare_subscriber("cso/*/goal", lambda s: goals.__setitem__(str(s.key_expr).split("/")[1], decode(s.payload.to_bytes(), GoalMsg)))
+        profile = {"method": "greedy-dist", "seed": 0}
+        svc = PolicyService(ServiceContext("policy", "a", profile, ExplorationConfig(), client, {"serve_all_robots": True}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: any(True for r in session.liveliness().get(RobotKeys("a").alive("policy"), timeout=0.5) if r.ok), 10, "the policy")
+            obs = _observation()
+            expected = make_policy("greedy-dist").select(obs)
+            for robot in ("a", "b"):
+                session.put(RobotKeys(robot).frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+            wait_for(lambda: set(goals) == {"a", "b"}, 10, "a goal for each robot")
+            for g in goals.values():
+                assert g.decided and g.step == 0 and (g.x_m, g.y_m) == (expected.x_m, expected.y_m)
+        finally:
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+
+
+# --- tier 3: real processes ------------------------------------------------------------------------
+
+
+def test_bad_profiles_fail_before_anything_starts(tmp_path):
+    r = cli("up", "--profile", "no-such-profile", "--no-live", cwd=tmp_path)
+    assert r.returncode == 2 and "unknown profile 'no-such-profile'" in r.stderr
+    bad = yaml.safe_load((REPO / "configs" / "profiles" / "lockstep.yaml").read_text())
+    bad["services"]["sim"]["warp_speed"] = 9
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
+    r = cli("up", "--profile", str(tmp_path / "bad.yaml"), "--no-live", cwd=tmp_path)
+    assert r.returncode == 2 and "warp_speed" in r.stderr
+    r = cli("up", "--profile", "lockstep", "--scene", "generated:huge:1:0", "--no-live", cwd=tmp_path)
+    assert r.returncode == 2 and "scene" in r.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+def test_status_and_down_with_nothing_running(tmp_path):
+    r = cli("status", "--json", cwd=tmp_path, timeout_s=10)
+    assert r.returncode == 1 and "nothing running" in r.stdout
+    port = free_tcp_port()
+    t0 = time.monotonic()
+    assert query_status([loopback_endpoint(port)], "r0") is None
+    assert time.monotonic() - t0 < 2.0
+    r = cli("down", cwd=tmp_path, timeout_s=10)
+    assert r.returncode == 1 and "nothing running" in r.stderr
+
+
+def test_up_in_lockstep_matches_the_in_process_episode(tmp_path):
+    """Foreground ``up``: the same steps and coverage as ``run_episode`` on the same scene and seed."""
+    profile = write_profile(tmp_path)
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=120)
+        assert r.returncode == 0, r.stderr[-3000:]
+        (run_dir,) = list(runs.glob("*/summary.json"))
+        summary = json.loads(run_dir.read_text())
+        zenoh_metrics = summary["methods"]["greedy-dist"]
+        expected = in_process_result()
+        assert zenoh_metrics["steps"] == expected.steps
+        assert abs(zenoh_metrics["coverage_pct"] - expected.coverage_pct) < 1e-3
+        assert zenoh_metrics["terminated_by"] == {expected.terminated_by: 1}
+        out = run_dir.parent
+        assert (out / "trajectories" / f"{expected.scene}.png").is_file()
+        assert (out / "episodes" / "greedy-dist" / f"{expected.scene}.npz").is_file()
+        for name in ("sim", "mapper", "frontier", "policy", "planner"):
+            assert (out / "logs" / f"{name}.log").is_file()
+        assert not (runs / "current.json").exists()
+        assert [p for p in run_pids(runs) if pid_alive(p)] == []
+    finally:
+        kill_leftovers(runs)
+
+
+def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_path):
+    """``up --detach``; during the episode: malformed payloads on every key, SIGKILL of the mapper;
+    ``status --json`` during and after; ``down`` leaves no process."""
+    profile = write_profile(tmp_path, min_step_period_s=0.1, lockstep_timeout_s=0.5)
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        info = json.loads((runs / "current.json").read_text())
+        endpoints = info["endpoints"]
+
+        def status() -> dict | None:
+            return query_status(endpoints, "r0", timeout_s=0.5)
+
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0, r.stdout + r.stderr
+        during = json.loads(r.stdout)
+        assert during["state"] == "exploring" and all(s["alive"] for s in during["services"].values())
+
+        # Malformed payloads on every key of the robot.
+        keys = RobotKeys("r0")
+        nan_scan = encode(ScanMsg(1, LaserScan(0.0, 0.1, 0.1, 5.0, np.array([1.0, np.nan], np.float32)), Pose2D(0, 0, 0)))
+        with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
+            for topic in TOPICS:
+                for payload in (b"\x93garbage", nan_scan, b'{"schema": "x"}'):
+                    session.put(keys.topic(topic), payload)
+
+        def rejected_topics() -> set[str]:
+            s = status()
+            if s is None:
+                return set()
+            counted = {t for svc in s["services"].values() for t, n in (svc.get("rejected") or {}).items() if n > 0}
+            return counted | {t for t, n in s["launcher_rejected"].items() if n > 0}
+
+        wait_for(lambda: rejected_topics() >= set(TOPICS), 20, f"rejections counted on every key ({sorted(TOPICS)})")
+
+        # Kill the mapper mid-episode: the launcher restarts it and the episode still completes.
+        s = status()
+        assert s is not None and s["state"] == "exploring", s
+        mapper_pid = s["services"]["mapper"]["pid"]
+        os.kill(mapper_pid, signal.SIGKILL)
+        wait_for(lambda: (s := status()) and s["services"]["mapper"].get("restarts", 0) >= 1, 30, "the mapper to be restarted")
+        final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2)
+        assert final["state"] == "done" and final["terminated_by"] == "coverage", final
+        expected = in_process_result()
+        assert abs(final["coverage_pct"] - expected.coverage_pct) <= 5.0
+
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0 and json.loads(r.stdout)["state"] == "done"
+        wait_for(lambda: list(runs.glob("*/summary.json")), 20, "summary.json")
+        pids = run_pids(runs)
+        assert mapper_pid not in pids  # the restarted mapper replaced it in the run file
+        r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stderr
+        assert [p for p in [*pids, mapper_pid] if pid_alive(p)] == []
+        r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=10)
+        assert r.returncode == 1
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT])
+def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
+    profile = write_profile(tmp_path, min_step_period_s=0.2)
+    runs = tmp_path / "runs"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cso_runtime.cli", "up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs)],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
+    try:
+        wait_for(lambda: (runs / "current.json").exists() and len(run_pids(runs)) == 6, 30, "the services to start")
+        info = json.loads((runs / "current.json").read_text())
+        wait_for(lambda: (s := query_status(info["endpoints"], "r0", 0.5)) and s["step"] >= 1, 60, "the first steps")
+        os.killpg(proc.pid, sig)  # what Ctrl-C in a terminal does: the whole foreground group
+        proc.wait(timeout=30)
+        assert [p for p in run_pids(runs) if pid_alive(p)] == []
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        kill_leftovers(runs)
