@@ -1,0 +1,346 @@
+"""Record every ``cso/<robot>/**`` message to MCAP, and play a recording back into Zenoh.
+
+Storage format (chosen so that replay is byte-exact *and* Foxglove / the ``mcap`` CLI can read it):
+
+* One MCAP channel per Zenoh key (the channel topic is the key, e.g. ``cso/r0/scan``) and message
+  type; one schema per message type, named ``cso.<schema>`` with ``jsonschema`` encoding.
+* A message is our msgpack envelope ``{"schema", "v", "body"}`` written as JSON
+  (``message_encoding: json``, which Foxglove decodes), msgpack ``bin`` values as
+  ``{"$base64": "..."}``. Before writing, the recorder checks that packing the decoded envelope
+  again gives back exactly the received bytes; every payload that passes is replayed exactly.
+* Anything that would not come back byte-identical through JSON (not msgpack, NaN/inf floats,
+  non-string map keys, extension types, another packer's choices) is stored verbatim on a channel
+  with ``message_encoding: cso-raw`` (no schema) and replayed verbatim, so replay never alters a
+  payload, malformed ones included.
+
+``log_time`` is the reception time (ns, strictly increasing in arrival order), so replay in log-time
+order reproduces the order and the timing of the original run.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import logging
+import math
+import queue
+import threading
+import time
+from collections import Counter
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import zenoh
+
+from cso_runtime.keys import ROOT, check_robot_id, topic_of
+
+log = logging.getLogger("cso.recording")
+
+JSON_ENCODING = "json"
+RAW_ENCODING = "cso-raw"
+"""Message encoding of payloads kept verbatim (not representable as exact JSON)."""
+BIN_TAG = "$base64"
+"""JSON form of a msgpack ``bin`` value: ``{"$base64": "<base64>"}``."""
+MCAP_PROFILE = ""
+LIBRARY = "cso-runtime recording"
+
+
+class RecordingError(RuntimeError):
+    """A recording cannot be read or written."""
+
+
+class _NotExactJson(ValueError):
+    """This msgpack value has no exact JSON form."""
+
+
+def _to_json(obj: Any) -> Any:
+    if obj is None or isinstance(obj, (bool, int, str)):
+        return obj
+    if isinstance(obj, float):
+        if not math.isfinite(obj):
+            raise _NotExactJson("non-finite float")
+        return obj
+    if isinstance(obj, bytes):
+        return {BIN_TAG: base64.b64encode(obj).decode("ascii")}
+    if isinstance(obj, list):
+        return [_to_json(v) for v in obj]
+    if isinstance(obj, dict):
+        if set(obj) == {BIN_TAG}:
+            raise _NotExactJson("a map that looks like a tagged bin")
+        if not all(isinstance(k, str) for k in obj):
+            raise _NotExactJson("non-string map key")
+        return {k: _to_json(v) for k, v in obj.items()}
+    raise _NotExactJson(f"unsupported msgpack type {type(obj).__name__}")
+
+
+def _from_json(obj: Any) -> Any:
+    if isinstance(obj, list):
+        return [_from_json(v) for v in obj]
+    if isinstance(obj, dict):
+        if set(obj) == {BIN_TAG}:
+            return base64.b64decode(obj[BIN_TAG])
+        return {k: _from_json(v) for k, v in obj.items()}
+    return obj
+
+
+def payload_to_json(payload: bytes) -> tuple[str, bytes] | None:
+    """(schema name, JSON bytes) when ``payload`` round-trips exactly through JSON, else None."""
+    try:
+        obj = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+        text = json.dumps(_to_json(obj), separators=(",", ":"), allow_nan=False).encode("utf-8")
+        exact = msgpack.packb(obj, use_bin_type=True) == payload
+    except (_NotExactJson, ValueError, TypeError, msgpack.ExtraData, msgpack.FormatError, msgpack.StackError):
+        return None
+    if not exact:
+        return None
+    schema = obj.get("schema") if isinstance(obj, dict) and set(obj) == {"schema", "v", "body"} else None
+    return (schema if isinstance(schema, str) and schema else "any"), text
+
+
+def payload_from_json(data: bytes) -> bytes:
+    """The original msgpack bytes of a JSON-encoded recorded message."""
+    return msgpack.packb(_from_json(json.loads(data)), use_bin_type=True)
+
+
+def json_schema(schema: str) -> bytes:
+    """The jsonschema of one message type's JSON form (fields are documented in docs/messages.md)."""
+    doc: dict[str, Any] = {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": f"cso.{schema}",
+        "description": f"cso-runtime '{schema}' message: the msgpack envelope as JSON; msgpack bin values are "
+        f'{{"{BIN_TAG}": "..."}}, numpy arrays are {{dtype, shape, z (zlib), data}}. See docs/messages.md.',
+        "type": "object",
+    }
+    if schema != "any":
+        doc["properties"] = {"schema": {"type": "string", "const": schema}, "v": {"type": "integer"}, "body": {"type": "object"}}
+        doc["required"] = ["schema", "v", "body"]
+    return json.dumps(doc).encode("utf-8")
+
+
+def robot_key_expr(robot: str) -> str:
+    """Everything of one robot (``*``: every robot)."""
+    return f"{ROOT}/{check_robot_id(robot, allow_wildcard=True)}/**"
+
+
+@dataclass
+class RecordStats:
+    """What a recording holds."""
+
+    path: Path = field(default_factory=Path)
+    messages: int = 0
+    per_key: Counter = field(default_factory=Counter)
+    raw: int = 0
+    """Payloads stored verbatim (``cso-raw``) because they have no exact JSON form."""
+    bytes_in: int = 0
+
+
+class _McapSink:
+    """An MCAP writer that registers a schema per message type and a channel per (key, type)."""
+
+    def __init__(self, fh: Any, robot: str):
+        from mcap.writer import CompressionType, Writer
+
+        self.writer = Writer(fh, compression=CompressionType.ZSTD)
+        self.writer.start(profile=MCAP_PROFILE, library=LIBRARY)
+        self.writer.add_metadata(
+            "cso-runtime", {"robot": robot, "payload": "msgpack envelope as JSON, see cso_runtime/recording.py"}
+        )
+        self.schemas: dict[str, int] = {}
+        self.channels: dict[tuple[str, str], int] = {}
+        self.sequence = 0
+
+    def channel(self, key: str, schema: str | None) -> int:
+        ident = (key, schema or "")
+        cid = self.channels.get(ident)
+        if cid is None:
+            if schema is None:
+                cid = self.writer.register_channel(key, RAW_ENCODING, 0, {"zenoh_key": key})
+            else:
+                sid = self.schemas.get(schema)
+                if sid is None:
+                    sid = self.schemas[schema] = self.writer.register_schema(f"cso.{schema}", "jsonschema", json_schema(schema))
+                cid = self.writer.register_channel(key, JSON_ENCODING, sid, {"zenoh_key": key})
+            self.channels[ident] = cid
+        return cid
+
+    def write(self, key: str, payload: bytes, log_time_ns: int) -> bool:
+        """Write one message; True when it went in as JSON, False when stored verbatim."""
+        converted = payload_to_json(payload)
+        schema, data = converted if converted is not None else (None, payload)
+        self.sequence += 1
+        self.writer.add_message(
+            self.channel(key, schema), log_time=log_time_ns, data=data, publish_time=log_time_ns, sequence=self.sequence
+        )
+        return converted is not None
+
+    def finish(self) -> None:
+        self.writer.finish()
+
+
+def record(
+    session: zenoh.Session,
+    robot: str,
+    out_path: Path,
+    stop_event: threading.Event,
+    ready: threading.Event | None = None,
+    stats: RecordStats | None = None,
+) -> RecordStats:
+    """Record every ``cso/<robot>/**`` sample into ``out_path`` until ``stop_event`` is set.
+
+    The Zenoh callback only stamps and queues (stamps strictly increase in arrival order); this thread
+    writes, so the MCAP writer is used from one thread. ``ready`` is set once the subscriber is declared;
+    ``stats`` (optional) is updated as messages are written, for callers that watch progress.
+    """
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    inbox: queue.Queue[tuple[str, bytes, int]] = queue.Queue()
+    lock = threading.Lock()
+    last_ns = [0]
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        payload = sample.payload.to_bytes()
+        with lock:
+            now = max(time.time_ns(), last_ns[0] + 1)
+            last_ns[0] = now
+            inbox.put((str(sample.key_expr), payload, now))
+
+    stats = stats if stats is not None else RecordStats(out_path)
+    stats.path = out_path
+    with out_path.open("wb") as fh:
+        sink = _McapSink(fh, robot)
+        sub = session.declare_subscriber(robot_key_expr(robot), on_sample)
+        if ready is not None:
+            ready.set()
+        log.info("recording %s into %s", robot_key_expr(robot), out_path)
+        try:
+            while True:
+                try:
+                    key, payload, t_ns = inbox.get(timeout=0.05)
+                except queue.Empty:
+                    if stop_event.is_set():
+                        break
+                    continue
+                _write(sink, stats, key, payload, t_ns)
+        finally:
+            sub.undeclare()
+            while not inbox.empty():  # what arrived before the undeclare
+                _write(sink, stats, *inbox.get_nowait())
+            sink.finish()
+    log.info("recorded %d messages (%d verbatim) on %d keys into %s", stats.messages, stats.raw, len(stats.per_key), out_path)
+    return stats
+
+
+def _write(sink: _McapSink, stats: RecordStats, key: str, payload: bytes, t_ns: int) -> None:
+    exact = sink.write(key, payload, t_ns)
+    stats.raw += not exact
+    stats.bytes_in += len(payload)
+    stats.per_key[key] += 1
+    stats.messages += 1
+
+
+@dataclass(frozen=True)
+class RecordedMessage:
+    """One message of a recording: its Zenoh key, reception time and the exact original payload."""
+
+    key: str
+    log_time_ns: int
+    payload: bytes
+
+
+def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[RecordedMessage]:
+    """The messages of an MCAP recording in log-time order, payloads restored byte-exactly.
+
+    ``topics``: only keys whose topic name (``cso_runtime.keys.TOPICS``, e.g. ``scan``) is listed.
+    """
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    wanted = set(topics) if topics is not None else None
+    try:
+        with Path(path).open("rb") as fh:
+            reader = make_reader(fh)
+            for _schema, channel, message in reader.iter_messages(log_time_order=True):
+                if wanted is not None:
+                    try:
+                        if topic_of(channel.topic) not in wanted:
+                            continue
+                    except ValueError:
+                        continue
+                if channel.message_encoding == JSON_ENCODING:
+                    payload = payload_from_json(message.data)
+                elif channel.message_encoding == RAW_ENCODING:
+                    payload = bytes(message.data)
+                else:
+                    log.warning("skipping channel %s with foreign encoding %r", channel.topic, channel.message_encoding)
+                    continue
+                yield RecordedMessage(channel.topic, message.log_time, payload)
+    except (McapError, OSError, ValueError) as exc:
+        raise RecordingError(f"cannot read {path}: {exc}") from None
+
+
+@dataclass
+class ReplayStats:
+    messages: int = 0
+    per_key: Counter = field(default_factory=Counter)
+    duration_s: float = 0.0
+    """Wall time the replay took."""
+    recorded_s: float = 0.0
+    """Time between the first and the last recorded message."""
+
+
+def parse_speed(speed: float | str) -> float:
+    """``max`` (as fast as possible) -> inf; otherwise a positive factor of the recorded speed."""
+    if isinstance(speed, str):
+        if speed.strip().lower() == "max":
+            return math.inf
+        try:
+            speed = float(speed)
+        except ValueError:
+            raise ValueError(f"speed must be a positive number or 'max', got {speed!r}") from None
+    if not (speed > 0):
+        raise ValueError(f"speed must be a positive number or 'max', got {speed!r}")
+    return float(speed)
+
+
+def replay(
+    session: zenoh.Session,
+    path: Path,
+    speed: float | str = 1.0,
+    stop_event: threading.Event | None = None,
+    topics: Iterable[str] | None = None,
+) -> ReplayStats:
+    """Publish every recorded payload, unchanged, on its original key at the recorded timing / ``speed``
+    (``'max'``: no waiting). Publishers block instead of dropping so nothing is lost at full speed."""
+    rate = parse_speed(speed)
+    stop_event = stop_event or threading.Event()
+    pubs: dict[str, zenoh.Publisher] = {}
+    stats = ReplayStats()
+    t0_wall = time.monotonic()
+    first_ns: int | None = None
+    try:
+        for m in read_recording(path, topics):
+            if first_ns is None:
+                first_ns = m.log_time_ns
+            offset_s = (m.log_time_ns - first_ns) / 1e9
+            stats.recorded_s = offset_s
+            if math.isfinite(rate):
+                wait_s = t0_wall + offset_s / rate - time.monotonic()
+                if wait_s > 0 and stop_event.wait(wait_s):
+                    break
+            if stop_event.is_set():
+                break
+            pub = pubs.get(m.key)
+            if pub is None:
+                pub = pubs[m.key] = session.declare_publisher(m.key, congestion_control=zenoh.CongestionControl.BLOCK)
+            pub.put(m.payload)
+            stats.messages += 1
+            stats.per_key[m.key] += 1
+    finally:
+        for pub in pubs.values():
+            pub.undeclare()
+    stats.duration_s = time.monotonic() - t0_wall
+    log.info("replayed %d messages in %.2f s (recorded span %.2f s)", stats.messages, stats.duration_s, stats.recorded_s)
+    return stats

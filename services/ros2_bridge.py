@@ -1,0 +1,549 @@
+"""ROS 2 bridge service: a real LIMO (through zenoh-bridge-ros2dds) in place of the simulator.
+
+zenoh-bridge-ros2dds publishes a ROS 2 topic ``/NS/scan`` on the Zenoh key ``NS/scan`` (no leading
+slash, no ``rt/`` prefix) with the CDR bytes of the DDS sample, and forwards what is put on
+``NS/cmd_vel`` to the ROS topic. This service:
+
+* decodes ``scan`` (sensor_msgs/LaserScan) and ``odom`` (nav_msgs/Odometry) with the rosbags
+  typestore (``cso_runtime.ros2_cdr``), matches each scan with the odometry at the scan's time
+  (interpolated between the two samples around it, or the nearest one within a tolerance), and
+  publishes one step of our messages per matched scan: ``clock`` (with the mapping arena),
+  ``odom`` and ``scan`` -- exactly what the sim service publishes, so mapper, frontier, policy and
+  planner run unchanged. Stale, out-of-order, unmatched and undecodable scans are dropped and counted;
+* turns our ``cmd_vel`` into geometry_msgs/Twist CDR on ``NS/cmd_vel``, clamped to the robot's limits,
+  and sends a zero Twist when no command arrived for ``cmd_timeout_s`` (watchdog) and when it stops;
+* publishes the map (nav_msgs/OccupancyGrid on ``NS/map``), the goal (geometry_msgs/PoseStamped on
+  ``NS/goal_pose``) and the frontiers (visualization_msgs/MarkerArray on ``NS/explore/frontiers``,
+  explore_lite's conventions) for RViz;
+* plays the sim's referee part where it can without ground truth: episode status (explored area
+  from the map, path length from odometry, decisions) and the end of the episode (no reachable
+  frontier left, or ``max_steps``). Coverage is not known on a real robot and reported as 0.
+
+The time matching (``OdometryBuffer``) is pure and unit-tested; the service is the thin shell.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import re
+import threading
+import time
+from bisect import bisect_right
+from collections import Counter, deque
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import zenoh
+
+from cso_runtime import ros2_cdr
+from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
+from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand, wrap_angle_rad
+from cso_runtime.messages import (
+    ClockMsg,
+    CmdVelMsg,
+    EpisodeResultMsg,
+    EpisodeStatusMsg,
+    FrontiersMsg,
+    GoalMsg,
+    MapMsg,
+    Message,
+    MessageError,
+    OdometryMsg,
+    ScanMsg,
+    decode,
+    encode,
+)
+from services.common import Service, ServiceContext, service_main
+
+log = logging.getLogger("cso.ros2_bridge")
+
+_ROS_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
+
+
+@dataclass
+class Ros2BridgeParams:
+    """Parameters of the ROS 2 bridge service (``services.ros2_bridge`` in a profile)."""
+
+    namespace: str = ""
+    """ROS namespace of the robot's topics: ``limo1`` -> keys ``limo1/scan``...; empty: bare keys."""
+    scan_topic: str = "scan"
+    """sensor_msgs/LaserScan in (ROS topic name relative to the namespace)."""
+    odom_topic: str = "odom"
+    """nav_msgs/Odometry in."""
+    cmd_vel_topic: str = "cmd_vel"
+    """geometry_msgs/Twist out."""
+    map_topic: str = "map"
+    """nav_msgs/OccupancyGrid out."""
+    goal_topic: str = "goal_pose"
+    """geometry_msgs/PoseStamped out (the current long-term goal)."""
+    frontiers_topic: str = "explore/frontiers"
+    """visualization_msgs/MarkerArray out (explore_lite's frontier markers)."""
+    map_frame_id: str = "odom"
+    """frame_id of the map, goal and frontiers: the map is built in the odometry frame."""
+    match_tolerance_s: float = 0.05
+    """A scan that cannot be interpolated takes the nearest odometry sample within this time."""
+    interpolate_max_gap_s: float = 0.25
+    """Interpolate only between odometry samples at most this far apart."""
+    max_scan_lag_s: float = 0.5
+    """Stale: a scan older than the newest odometry by more than this (robot clock) is dropped."""
+    odom_history_s: float = 2.0
+    """Odometry kept for matching."""
+    pending_timeout_s: float = 0.5
+    """A scan newer than every odometry sample waits this long (wall clock) for odometry, then is dropped."""
+    cmd_timeout_s: float = 0.5
+    """Watchdog: no velocity command for this long (wall clock) sends one zero Twist."""
+    resolution_m: float = 0.05
+    """Cell size of the mapping arena announced on ``clock``."""
+    arena_width_m: float = 20.0
+    """Arena width, centred on the first matched odometry pose unless ``arena_origin_xy_m`` is set."""
+    arena_height_m: float = 20.0
+    """Arena height."""
+    arena_origin_xy_m: list[float] | None = None
+    """Lower-left corner of the arena in the odometry frame; None: centred on the first pose."""
+    log_period_s: float = 10.0
+    """How often the counters are logged."""
+
+    def validate(self) -> None:
+        self.namespace = self.namespace.strip("/")
+        if self.namespace and not _ROS_NAME.match(self.namespace):
+            raise ConfigError(f"namespace {self.namespace!r} is not a ROS name (letters, digits, '_', '/')")
+        for name in ("scan_topic", "odom_topic", "cmd_vel_topic", "map_topic", "goal_topic", "frontiers_topic"):
+            value = getattr(self, name).strip("/")
+            if not _ROS_NAME.match(value):
+                raise ConfigError(f"{name} {value!r} is not a ROS topic name")
+            setattr(self, name, value)
+        for name in (
+            "match_tolerance_s",
+            "interpolate_max_gap_s",
+            "max_scan_lag_s",
+            "odom_history_s",
+            "pending_timeout_s",
+            "cmd_timeout_s",
+            "resolution_m",
+            "arena_width_m",
+            "arena_height_m",
+            "log_period_s",
+        ):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name} must be positive")
+        if self.arena_origin_xy_m is not None and len(self.arena_origin_xy_m) != 2:
+            raise ConfigError("arena_origin_xy_m must be [x_m, y_m]")
+
+    def ros_key(self, topic: str) -> str:
+        """The Zenoh key zenoh-bridge-ros2dds uses for a ROS topic of this robot."""
+        return f"{self.namespace}/{topic}" if self.namespace else topic
+
+
+Ros2_bridgeParams = Ros2BridgeParams
+"""The launcher looks a service's parameters up as ``<Name>Params`` with ``name.capitalize()``."""
+
+
+# --- time matching (pure) -------------------------------------------------------------------------
+
+
+class OdometryBuffer:
+    """Recent odometry samples in time order, and the pose at a scan's time.
+
+    ``match`` interpolates between the samples just before and after the time when they are at most
+    ``max_gap_s`` apart (position linearly, yaw along the shorter arc), else takes the nearest sample
+    within ``tolerance_s``. Reasons when there is no match: ``no_odometry``, ``stale`` (older than the
+    newest sample by more than ``max_lag_s``, or than the history), ``waiting`` (newer than every
+    sample: odometry may still come), ``gap`` (odometry around the time is missing).
+    """
+
+    def __init__(self, history_s: float, tolerance_s: float, max_gap_s: float, max_lag_s: float):
+        self.history_s, self.tolerance_s, self.max_gap_s, self.max_lag_s = history_s, tolerance_s, max_gap_s, max_lag_s
+        self.samples: deque[ros2_cdr.OdometrySample] = deque()
+
+    @property
+    def newest_s(self) -> float | None:
+        return self.samples[-1].stamp_s if self.samples else None
+
+    def add(self, sample: ros2_cdr.OdometrySample) -> bool:
+        """Append a sample; False (not added) when it is not newer than the last one."""
+        if self.samples and sample.stamp_s <= self.samples[-1].stamp_s:
+            return False
+        self.samples.append(sample)
+        while self.samples and self.samples[0].stamp_s < sample.stamp_s - self.history_s:
+            self.samples.popleft()
+        return True
+
+    def match(self, stamp_s: float) -> tuple[ros2_cdr.OdometrySample | None, str]:
+        if not self.samples:
+            return None, "no_odometry"
+        newest = self.samples[-1].stamp_s
+        if stamp_s < newest - self.max_lag_s:
+            return None, "stale"
+        stamps = [s.stamp_s for s in self.samples]
+        i = bisect_right(stamps, stamp_s)  # samples[:i] are at or before the scan
+        before = self.samples[i - 1] if i > 0 else None
+        after = self.samples[i] if i < len(self.samples) else None
+        if before is not None and before.stamp_s == stamp_s:
+            return before, ""
+        if before is not None and after is not None and after.stamp_s - before.stamp_s <= self.max_gap_s:
+            return _interpolate(before, after, stamp_s), ""
+        near = min((s for s in (before, after) if s is not None), key=lambda s: abs(s.stamp_s - stamp_s))
+        if abs(near.stamp_s - stamp_s) <= self.tolerance_s:
+            return near, ""
+        if after is None:
+            return None, "waiting"
+        return None, "stale" if before is None else "gap"
+
+
+def _interpolate(a: ros2_cdr.OdometrySample, b: ros2_cdr.OdometrySample, stamp_s: float) -> ros2_cdr.OdometrySample:
+    f = (stamp_s - a.stamp_s) / (b.stamp_s - a.stamp_s)
+    pa, pb = a.pose, b.pose
+    yaw = wrap_angle_rad(pa.yaw_rad + f * wrap_angle_rad(pb.yaw_rad - pa.yaw_rad))
+    pose = Pose2D(pa.x_m + f * (pb.x_m - pa.x_m), pa.y_m + f * (pb.y_m - pa.y_m), yaw)
+    velocity = a.velocity if f < 0.5 else b.velocity
+    return ros2_cdr.OdometrySample(pose, velocity, stamp_s, a.frame_id, a.child_frame_id)
+
+
+# --- the service ----------------------------------------------------------------------------------
+
+
+class Ros2BridgeService(Service):
+    name = "ros2_bridge"
+    inputs: ClassVar[dict[str, type[Message]]] = {"cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg}
+    tick_period_s = 0.05
+    namespace_override: ClassVar[str | None] = None
+    """Set by ``--namespace`` on the command line (overrides the profile)."""
+
+    def __init__(self, ctx: ServiceContext):
+        params = dict(ctx.params)
+        if self.namespace_override is not None:
+            params["namespace"] = self.namespace_override
+        self.params = from_dict(Ros2BridgeParams, params, where="services.ros2_bridge")
+        self._session: zenoh.Session | None = None
+        super().__init__(ctx)
+        p = self.params
+        self.odometry = OdometryBuffer(p.odom_history_s, p.match_tolerance_s, p.interpolate_max_gap_s, p.max_scan_lag_s)
+        self.robot_cfg = ctx.exploration.robot
+        self.mount_x_m = ctx.exploration.sensor.mount_x_m
+        self.max_steps = ctx.exploration.episode.max_steps
+        self.counters: Counter[str] = Counter()
+        self.step = -1
+        self.arena: GridGeometry | None = None
+        self.last_scan_stamp_s = -math.inf
+        self.pending: tuple[ros2_cdr.ScanConversion, float] | None = None
+        self.stamps: dict[int, float] = {}
+        self.last_pose: Pose2D | None = None
+        self.path_length_m = 0.0
+        self.trajectory: list[tuple[float, float]] = []
+        self.last_cmd_s: float | None = None
+        self.zero_sent = True
+        self.sent_any_command = False
+        self.last_goal_xy: tuple[float, float] | None = None
+        self.episode_state = "starting"
+        self.terminated_by = ""
+        self.decisions = 0
+        self.decision_ms: list[float] = []
+        self.last_map: MapMsg | None = None
+        self.last_log_s = time.monotonic()
+        self._bridge_lock = threading.RLock()
+        self._ros_subs: list[Any] = []
+        self._queryables: list[Any] = []
+
+    # The shared loop sets ``session`` to None just before it closes the session: the last chance to
+    # stop the robot.
+    @property
+    def session(self) -> zenoh.Session | None:
+        return self._session
+
+    @session.setter
+    def session(self, value: zenoh.Session | None) -> None:
+        old = getattr(self, "_session", None)
+        if value is None and old is not None and getattr(self, "sent_any_command", False):
+            try:
+                old.put(self.params.ros_key(self.params.cmd_vel_topic), ros2_cdr.twist_to_cdr(VelocityCommand()))
+                log.info("stopping: sent a zero Twist on %s", self.params.ros_key(self.params.cmd_vel_topic))
+            except zenoh.ZError as exc:
+                log.error("could not send the final zero Twist: %s", exc)
+        self._session = value
+
+    # --- wiring ---------------------------------------------------------------------------------
+    def start(self) -> None:
+        assert self.session is not None
+        p, keys = self.params, self.ctx.keys
+        self._ros_subs = [
+            self.session.declare_subscriber(p.ros_key(p.scan_topic), self._on_ros_scan),
+            self.session.declare_subscriber(p.ros_key(p.odom_topic), self._on_ros_odom),
+        ]
+        self._queryables = [
+            self.session.declare_queryable(
+                keys.episode_status, lambda q: q.reply(keys.episode_status, encode(self.episode_status()))
+            ),
+            self.session.declare_queryable(keys.episode_result, self._on_result_query),
+        ]
+        log.info(
+            "bridging ROS keys %s, %s -> %s; %s -> %s",
+            p.ros_key(p.scan_topic),
+            p.ros_key(p.odom_topic),
+            keys.scan,
+            keys.cmd_vel,
+            p.ros_key(p.cmd_vel_topic),
+        )
+
+    def _on_result_query(self, query: zenoh.Query) -> None:
+        if self.episode_state in ("done", "failed"):
+            query.reply(self.ctx.keys.episode_result, encode(self.episode_result()))
+        else:
+            query.reply_err(b"episode not finished")
+
+    def _put_ros(self, topic: str, payload: bytes) -> None:
+        assert self.session is not None
+        key = self.params.ros_key(topic)
+        pub = self._publishers.get(key)
+        if pub is None:
+            pub = self._publishers[key] = self.session.declare_publisher(key)
+        pub.put(payload)
+        self.counters[f"sent:{topic}"] += 1
+
+    def count_reject(self, what: str, why: str) -> None:
+        """A dropped ROS sample: counted per ``<topic>:<reason>`` in the service status, logged."""
+        self.counters[f"dropped:{what}"] += 1
+        self.reject(what, why)
+
+    # --- ROS -> cso -------------------------------------------------------------------------------
+    def _on_ros_odom(self, sample: zenoh.Sample) -> None:
+        raw = sample.payload.to_bytes()
+        with self._bridge_lock:
+            self.counters["received:odom"] += 1
+            try:
+                odom = ros2_cdr.odometry_from_cdr(raw)
+            except ros2_cdr.CdrError as exc:
+                self.count_reject("ros_odom:bad_cdr", str(exc))
+                return
+            if not self.odometry.add(odom):
+                self.count_reject(
+                    "ros_odom:out_of_order", f"odometry at {odom.stamp_s:.3f} s is not newer than {self.odometry.newest_s:.3f} s"
+                )
+                return
+            if self.pending is not None:
+                conv, _ = self.pending
+                match, reason = self.odometry.match(conv.scan.stamp_s)
+                if reason != "waiting":
+                    self.pending = None
+                    self._accept_or_drop(conv, match, reason)
+
+    def _on_ros_scan(self, sample: zenoh.Sample) -> None:
+        raw = sample.payload.to_bytes()
+        with self._bridge_lock:
+            self.counters["received:scan"] += 1
+            try:
+                conv = ros2_cdr.laserscan_from_cdr(raw)
+            except ros2_cdr.CdrError as exc:
+                self.count_reject("ros_scan:bad_cdr", str(exc))
+                return
+            if conv.invalid_beams or conv.too_close_beams:
+                self.counters["scans_with_invalid_beams"] += 1
+                self.counters["invalid_beams"] += conv.invalid_beams + conv.too_close_beams
+            stamp = conv.scan.stamp_s
+            newest = max(self.last_scan_stamp_s, self.pending[0].scan.stamp_s if self.pending else -math.inf)
+            if stamp <= newest:
+                self.count_reject("ros_scan:out_of_order", f"scan at {stamp:.3f} s is not newer than {newest:.3f} s")
+                return
+            match, reason = self.odometry.match(stamp)
+            if reason in ("waiting", "no_odometry"):
+                if self.pending is not None:
+                    self.count_reject("ros_scan:unmatched", "superseded by a newer scan before its odometry arrived")
+                self.pending = (conv, time.monotonic())
+                return
+            self._accept_or_drop(conv, match, reason)
+
+    def _accept_or_drop(self, conv: ros2_cdr.ScanConversion, odom: ros2_cdr.OdometrySample | None, reason: str) -> None:
+        stamp = conv.scan.stamp_s
+        if odom is None:
+            self.count_reject(f"ros_scan:{reason}", f"scan at {stamp:.3f} s, newest odometry at {self.odometry.newest_s}")
+            return
+        scan_msg = ScanMsg(self.step + 1, conv.scan, odom.pose.compose_offset(self.mount_x_m))
+        try:
+            decode(encode(scan_msg), ScanMsg)  # the checks every subscriber applies, before publishing
+        except MessageError as exc:
+            self.count_reject("ros_scan:invalid", str(exc))
+            return
+        self.last_scan_stamp_s = stamp
+        self.step += 1
+        k = self.step
+        if self.arena is None:
+            self.arena = self._arena_around(odom.pose)
+            log.info(
+                "arena %.1f x %.1f m at %.3f m, origin (%.2f, %.2f)",
+                self.arena.width_m,
+                self.arena.height_m,
+                self.arena.resolution_m,
+                self.arena.origin_x_m,
+                self.arena.origin_y_m,
+            )
+        if self.last_pose is not None:
+            self.path_length_m += math.hypot(odom.pose.x_m - self.last_pose.x_m, odom.pose.y_m - self.last_pose.y_m)
+        self.last_pose = odom.pose
+        self.trajectory.append((odom.pose.x_m, odom.pose.y_m))
+        self.stamps[k] = stamp
+        for s in [s for s in self.stamps if s < k - 200]:
+            self.stamps.pop(s)
+        if self.episode_state == "starting":
+            self.episode_state = "exploring"
+        self.publish("clock", ClockMsg(k, stamp, self.arena))
+        self.publish("odom", OdometryMsg(k, stamp, odom.pose, odom.velocity))
+        self.publish("scan", scan_msg)
+        self.processed += 1
+        self.last_step = k
+        self.counters["steps"] += 1
+        if k >= self.max_steps and self.episode_state == "exploring":
+            self.finish(TERMINATED_MAX_STEPS)
+
+    def _arena_around(self, pose: Pose2D) -> GridGeometry:
+        p = self.params
+        shape = (math.ceil(p.arena_height_m / p.resolution_m - 1e-9), math.ceil(p.arena_width_m / p.resolution_m - 1e-9))
+        if p.arena_origin_xy_m is not None:
+            ox, oy = p.arena_origin_xy_m
+        else:
+            ox, oy = pose.x_m - shape[1] * p.resolution_m / 2, pose.y_m - shape[0] * p.resolution_m / 2
+        return GridGeometry(p.resolution_m, shape, float(ox), float(oy))
+
+    # --- cso -> ROS -------------------------------------------------------------------------------
+    def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        with self._bridge_lock:
+            if isinstance(msg, CmdVelMsg):
+                self.forward_command(msg.command, received_s)
+            elif isinstance(msg, MapMsg):
+                self.last_map = msg
+                stamp = self.stamps.get(msg.step, self.last_scan_stamp_s if math.isfinite(self.last_scan_stamp_s) else 0.0)
+                self._put_ros(
+                    self.params.map_topic, ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, stamp, self.params.map_frame_id)
+                )
+                if self.episode_state == "exploring":
+                    self.publish("episode_status", self.episode_status())
+            elif isinstance(msg, GoalMsg):
+                self.take_goal(msg)
+            elif isinstance(msg, FrontiersMsg) and msg.decide and msg.geometry is not None:
+                cells = [np.asarray(c["cells"]).reshape(-1, 2) for c in msg.clusters]
+                points = [np.column_stack(msg.geometry.cell_to_world(c[:, 0], c[:, 1])) for c in cells]
+                goals = [tuple(c["goal_xy_m"]) for c in msg.clusters]
+                stamp = self.stamps.get(msg.step, 0.0)
+                self._put_ros(
+                    self.params.frontiers_topic, ros2_cdr.frontier_markers_to_cdr(points, goals, stamp, self.params.map_frame_id)
+                )
+
+    def forward_command(self, command: VelocityCommand, received_s: float) -> None:
+        """Our command -> Twist on the robot's cmd_vel, within the robot's limits."""
+        r = self.robot_cfg
+        safe = command.clamped(r.max_linear_mps, r.max_angular_radps)
+        if safe != command:
+            self.counters["clamped_commands"] += 1
+        self._put_ros(self.params.cmd_vel_topic, ros2_cdr.twist_to_cdr(safe))
+        self.last_cmd_s = received_s
+        self.zero_sent = safe == VelocityCommand()
+        self.sent_any_command = True
+
+    def take_goal(self, g: GoalMsg) -> None:
+        if g.decided:
+            self.decisions += 1
+            self.decision_ms.append(g.decision_ms)
+            if not g.has_goal and self.episode_state == "exploring":
+                self.finish(TERMINATED_NO_FRONTIER)
+        if g.has_goal and (g.x_m, g.y_m) != self.last_goal_xy:
+            self.last_goal_xy = (float(g.x_m), float(g.y_m))
+            stamp = self.stamps.get(g.step, 0.0)
+            self._put_ros(
+                self.params.goal_topic, ros2_cdr.pose_stamped_to_cdr(g.x_m, g.y_m, 0.0, stamp, self.params.map_frame_id)
+            )
+        elif not g.has_goal:
+            self.last_goal_xy = None
+
+    def on_tick(self, now_s: float) -> None:
+        with self._bridge_lock:
+            if self.last_cmd_s is not None and not self.zero_sent and now_s - self.last_cmd_s > self.params.cmd_timeout_s:
+                self._put_ros(self.params.cmd_vel_topic, ros2_cdr.twist_to_cdr(VelocityCommand()))
+                self.zero_sent = True
+                self.counters["watchdog_stops"] += 1
+                log.warning("no velocity command for %.2f s: sent a zero Twist (watchdog)", now_s - self.last_cmd_s)
+            if self.pending is not None and now_s - self.pending[1] > self.params.pending_timeout_s:
+                conv, _ = self.pending
+                self.pending = None
+                self.count_reject(
+                    "ros_scan:no_odometry",
+                    f"no odometry at or after the scan at {conv.scan.stamp_s:.3f} s within {self.params.pending_timeout_s} s",
+                )
+            if now_s - self.last_log_s >= self.params.log_period_s:
+                self.last_log_s = now_s
+                log.info("counters: %s", dict(sorted(self.counters.items())))
+
+    def extra_status(self) -> dict[str, Any]:
+        with self._bridge_lock:
+            return dict(self.counters)
+
+    # --- episode status (no ground truth on a real robot) ---------------------------------------
+    def explored_area_m2(self) -> float:
+        m = self.last_map
+        return 0.0 if m is None else float((m.grid != -1).sum()) * m.geometry.cell_area_m2
+
+    def episode_status(self) -> EpisodeStatusMsg:
+        with self._bridge_lock:
+            return EpisodeStatusMsg(
+                state=self.episode_state,
+                step=max(self.step, 0),
+                scene=f"ros2:{self.params.namespace or '/'}",
+                method=str(self.ctx.profile.get("method", "")),
+                coverage_pct=0.0,
+                explored_area_m2=self.explored_area_m2(),
+                path_length_m=self.path_length_m,
+                goal_xy_m=list(self.last_goal_xy) if self.last_goal_xy else None,
+                decisions=self.decisions,
+                last_decision_ms=self.decision_ms[-1] if self.decision_ms else 0.0,
+                terminated_by=self.terminated_by,
+            )
+
+    def episode_result(self) -> EpisodeResultMsg:
+        m = self.last_map
+        known_free = (m.grid == 0) if m is not None else np.zeros((1, 1), bool)
+        return EpisodeResultMsg(
+            scene=f"ros2:{self.params.namespace or '/'}",
+            steps=max(self.step, 0),
+            explored_area_m2=self.explored_area_m2(),
+            coverage_pct=0.0,
+            traversable_area_m2=float(known_free.sum()) * (m.geometry.cell_area_m2 if m is not None else 0.0),
+            path_length_m=self.path_length_m,
+            terminated_by=self.terminated_by,
+            decisions=self.decisions,
+            decision_ms=np.array(self.decision_ms, dtype=float),
+            trajectory_xy_m=np.array(self.trajectory, dtype=float).reshape(-1, 2),
+            coverage_curve_pct=np.zeros(0),
+            explored_free=known_free,
+            plan_free=known_free,
+            resolution_m=m.geometry.resolution_m if m is not None else self.params.resolution_m,
+            method=str(self.ctx.profile.get("method", "")),
+            seed=int(self.ctx.profile.get("seed", 0)),
+        )
+
+    def finish(self, terminated_by: str) -> None:
+        self.episode_state, self.terminated_by = "done", terminated_by
+        log.info(
+            "episode done at step %d: %s (explored %.1f m2, path %.1f m)",
+            self.step,
+            terminated_by,
+            self.explored_area_m2(),
+            self.path_length_m,
+        )
+        self.publish("episode_status", self.episode_status())
+        self.publish("episode_result", self.episode_result())
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m services.ros2_bridge --config FILE --robot ID [--namespace NS] --connect EP``."""
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--namespace", default=None, help="ROS namespace of the robot's topics (overrides the profile)")
+    known, rest = pre.parse_known_args(argv)
+    cls: type[Ros2BridgeService] = Ros2BridgeService
+    if known.namespace is not None:
+        cls = type("Ros2BridgeService", (Ros2BridgeService,), {"namespace_override": known.namespace})
+    return service_main(cls, rest)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

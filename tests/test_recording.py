@@ -1,0 +1,238 @@
+"""MCAP recording and replay: exact payloads, schemas the mcap tools list, and a replayed scan stream
+that rebuilds the same map in a fresh mapper.
+
+Loopback only (a router session on a free port, clients connecting to it, multicast scouting off);
+every wait is a condition with a deadline; sessions and threads are closed in ``finally`` blocks.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+
+from cso_runtime.config import ExplorationConfig
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+from cso_runtime.keys import RobotKeys
+from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, encode
+from cso_runtime.recording import (
+    JSON_ENCODING,
+    RAW_ENCODING,
+    RecordStats,
+    parse_speed,
+    payload_from_json,
+    payload_to_json,
+    read_recording,
+    record,
+    replay,
+)
+from cso_runtime.scenes import resolve_scenes
+from cso_runtime.simulator import KinematicSimulator
+from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+
+PROBE = encode(ClockMsg(0, 0.0))
+"""Published until a subscriber sees it: proves the subscription reached the router."""
+
+
+def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = cond()
+        if value:
+            return value
+        time.sleep(0.02)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def sample_payloads(keys: RobotKeys) -> list[tuple[str, bytes]]:
+    """One of each kind of message, plus payloads that have no exact JSON form."""
+    geom = GridGeometry(0.1, (30, 40), -2.0, -1.5)
+    grid = np.full(geom.shape, -1, np.int8)
+    grid[5:20, 5:30] = 0
+    grid[5, 5:30] = 100
+    scan = LaserScan(-np.pi / 2, np.pi / 180, 0.1, 8.0, np.r_[np.full(90, 2.5), np.full(91, np.inf)].astype(np.float32), 12.25)
+    out = [
+        (keys.clock, encode(ClockMsg(3, 0.75, geom))),
+        (keys.odom, encode(OdometryMsg(3, 0.75, Pose2D(1.0, -0.5, 0.3), VelocityCommand(0.2, 0.1)))),
+        (keys.scan, encode(ScanMsg(3, scan, Pose2D(1.1, -0.5, 0.3)))),
+        (keys.map, encode(MapMsg(3, geom, grid))),
+        (keys.frontiers, encode(FrontiersMsg(3, False, "keep"))),
+        (keys.goal, encode(GoalMsg(3, True, 2.0, 1.0, 0, 3.5, 4.2, "greedy-dist"))),
+        (keys.path, encode(PathMsg(3, np.array([[1.0, -0.5], [2.0, 1.0]])))),
+        (keys.cmd_vel, encode(CmdVelMsg(3, VelocityCommand(0.5, -0.2)))),
+        (keys.scan, b"\x00 not msgpack at all"),
+        (keys.goal, msgpack.packb({"schema": "goal", "v": 1, "body": {"x": float("nan")}})),
+        (keys.map, msgpack.packb({"schema": "map", "v": 1, "body": {"f32": 1.5}}, use_single_float=True)),
+    ]
+    return out
+
+
+def test_json_form_is_exact_or_refused():
+    keys = RobotKeys("t1")
+    exact = 0
+    for _key, payload in sample_payloads(keys):
+        converted = payload_to_json(payload)
+        if converted is None:
+            continue
+        exact += 1
+        assert payload_from_json(converted[1]) == payload
+    assert exact == 8, "every well-formed message has an exact JSON form"
+    assert payload_to_json(b"\xc1") is None
+    assert payload_to_json(msgpack.packb({"$base64": "looks tagged"})) is None
+    assert parse_speed("max") == float("inf") and parse_speed("2") == 2.0
+
+
+def test_record_then_replay_gives_identical_payloads_in_order(tmp_path: Path):
+    from mcap.reader import make_reader
+
+    port = free_tcp_port()
+    router = TransportConfig(mode="router", listen=[loopback_endpoint(port)])
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    out = tmp_path / "run.mcap"
+    sent = sample_payloads(keys) * 3
+    with open_session(router) as pub_session, open_session(client) as rec_session:
+        stop, ready, stats = threading.Event(), threading.Event(), RecordStats()
+        thread = threading.Thread(target=record, args=(rec_session, "t1", out, stop, ready, stats), daemon=True)
+        thread.start()
+        try:
+            assert ready.wait(10)
+            # The subscription must have reached the router before publishing: probe until one arrives.
+            probe = RobotKeys("t1").topic("episode_status")
+            wait_for(lambda: pub_session.put(probe, PROBE) or stats.messages > 0, 10, "the recorder's subscription")
+            for key, payload in sent:
+                pub_session.put(key, payload)
+            pub_session.put("cso/other/scan", b"another robot: not recorded")
+            wait_for(lambda: stats.messages - stats.per_key[probe] >= len(sent), 10, "every message recorded")
+        finally:
+            stop.set()
+            thread.join(10)
+    assert not thread.is_alive()
+    assert stats.raw == 3 * 3 and set(stats.per_key) == {k for k, _ in sent} | {probe}
+
+    with out.open("rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        schema_names = {s.name for s in summary.schemas.values()}
+        assert {
+            "cso.scan",
+            "cso.odom",
+            "cso.map",
+            "cso.goal",
+            "cso.cmd_vel",
+            "cso.frontiers",
+            "cso.path",
+            "cso.clock",
+        } <= schema_names
+        assert all(s.encoding == "jsonschema" for s in summary.schemas.values())
+        encodings = {(c.topic, c.message_encoding) for c in summary.channels.values()}
+        assert (keys.scan, JSON_ENCODING) in encodings and (keys.scan, RAW_ENCODING) in encodings
+        assert summary.statistics.message_count == stats.messages
+
+    recorded = [(m.key, m.payload) for m in read_recording(out) if m.key != probe]
+    assert recorded == sent
+
+    # Replay at full speed into a fresh subscriber: byte-identical payloads, in the original order.
+    port2 = free_tcp_port()
+    router2 = TransportConfig(mode="router", listen=[loopback_endpoint(port2)])
+    client2 = TransportConfig(mode="client", connect=[loopback_endpoint(port2)])
+    got: list[tuple[str, bytes]] = []
+    with open_session(router2) as sub_session, open_session(client2) as play_session:
+        sub = sub_session.declare_subscriber("cso/t1/**", lambda s: got.append((str(s.key_expr), s.payload.to_bytes())))
+        try:
+            wait_for(lambda: play_session.put(probe, PROBE) or got, 10, "the replay subscriber")
+            result = replay(play_session, out, "max")
+            wait_for(lambda: len([k for k, _ in got if k != probe]) >= len(sent), 10, "every replayed message")
+        finally:
+            sub.undeclare()
+    assert result.messages == stats.messages
+    assert [(k, p) for k, p in got if k != probe] == sent
+
+
+def test_replay_keeps_the_recorded_timing(tmp_path: Path):
+    from mcap.writer import Writer
+
+    out = tmp_path / "timed.mcap"
+    payload = encode(ClockMsg(0, 0.0))
+    with out.open("wb") as fh:
+        w = Writer(fh)
+        w.start()
+        sid = w.register_schema("cso.clock", "jsonschema", b"{}")
+        cid = w.register_channel("cso/t2/clock", JSON_ENCODING, sid)
+        for i in range(3):
+            w.add_message(cid, log_time=1_000_000_000 + i * 300_000_000, data=payload_to_json(payload)[1], publish_time=0)
+        w.finish()
+    port = free_tcp_port()
+    with open_session(TransportConfig(mode="peer", listen=[loopback_endpoint(port)])) as session:
+        stats = replay(session, out, 2.0)
+    assert stats.messages == 3 and abs(stats.recorded_s - 0.6) < 1e-9
+    assert 0.29 <= stats.duration_s < 1.5, "0.6 s recorded at 2x takes about 0.3 s"
+
+
+def test_a_replayed_run_rebuilds_the_same_map_in_a_fresh_mapper(tmp_path: Path):
+    from services.common import ServiceContext, run_service
+    from services.mapper import MapperService
+
+    plan = resolve_scenes("generated:small:1:0")[0].load()
+    sim = KinematicSimulator(plan, seed=0)
+    sim.reset(0)
+    keys = RobotKeys("t3")
+    port = free_tcp_port()
+    router = TransportConfig(mode="router", listen=[loopback_endpoint(port)])
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    out = tmp_path / "mapper.mcap"
+    n_steps = 30
+
+    def start_mapper() -> tuple[MapperService, threading.Event, threading.Thread]:
+        g = plan.geometry
+        assert (g.origin_x_m, g.origin_y_m) == (0.0, 0.0)
+        params = {"restore_timeout_s": 0.1, "resolution_m": g.resolution_m, "width_m": g.width_m, "height_m": g.height_m}
+        svc = MapperService(ServiceContext("mapper", "t3", {}, ExplorationConfig(), client, params))
+        ev = threading.Event()
+        th = threading.Thread(target=run_service, args=(svc, ev), daemon=True)
+        th.start()
+        return svc, ev, th
+
+    with open_session(router) as session, open_session(client) as rec_session:
+        mapper, mstop, mthread = start_mapper()
+        rstop, ready, stats = threading.Event(), threading.Event(), RecordStats()
+        rthread = threading.Thread(target=record, args=(rec_session, "t3", out, rstop, ready, stats), daemon=True)
+        rthread.start()
+        try:
+            assert ready.wait(10)
+            wait_for(lambda: any(r.ok for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5)), 10, "the mapper")
+            wait_for(lambda: session.put(keys.episode_status, PROBE) or stats.messages, 10, "the recorder")
+            # No clock: the grid is configured. A receiving session runs each subscriber's callbacks on
+            # its own thread, so at full replay speed a clock could overtake scans of later steps and
+            # make the mapper restart its map; scans alone keep their order (one key, one subscriber).
+            for k in range(n_steps):
+                session.put(keys.odom, encode(OdometryMsg(k, sim.time_s, sim.odometry())))
+                session.put(keys.scan, encode(ScanMsg(k, sim.scan(), sim.sensor_pose())))
+                sim.step(VelocityCommand(0.3, 0.5))
+            wait_for(lambda: mapper.map_step == n_steps - 1, 20, "the original mapper's last map")
+            wait_for(lambda: stats.per_key[keys.map] >= 1 and stats.per_key[keys.scan] >= n_steps, 10, "the recording")
+        finally:
+            mstop.set()
+            rstop.set()
+            mthread.join(10)
+            rthread.join(10)
+        original = mapper.map.to_occupancy_grid()
+        assert (original != -1).sum() > 200
+
+        fresh, fstop, fthread = start_mapper()
+        try:
+            wait_for(
+                lambda: any(r.ok for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5)), 10, "the fresh mapper"
+            )
+            with open_session(client) as play_session:
+                replay(play_session, out, "max")
+            wait_for(lambda: fresh.map_step == n_steps - 1, 20, "the fresh mapper's last map")
+        finally:
+            fstop.set()
+            fthread.join(10)
+    np.testing.assert_array_equal(fresh.map.to_occupancy_grid(), original)

@@ -1,0 +1,492 @@
+"""The ROS 2 bridge: a fake LIMO speaking ROS 2 CDR on zenoh-bridge-ros2dds keys, and our runtime.
+
+The fake robot's CDR bytes are made by the rosbags typestore directly (message objects and
+``serialize_cdr``), never by ``cso_runtime.ros2_cdr``'s encoders; what the bridge sends to the robot is
+decoded with rosbags too. Loopback only, free ports, multicast scouting off, waits with deadlines,
+everything stopped in ``finally`` blocks.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+
+from cso_runtime import ros2_cdr
+from cso_runtime.config import ExplorationConfig
+from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand
+from cso_runtime.keys import RobotKeys
+from cso_runtime.messages import (
+    ClockMsg,
+    CmdVelMsg,
+    EpisodeResultMsg,
+    EpisodeStatusMsg,
+    FrontiersMsg,
+    GoalMsg,
+    MapMsg,
+    OdometryMsg,
+    ScanMsg,
+    ServiceStatusMsg,
+    decode,
+    encode,
+)
+from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+from services.ros2_bridge import OdometryBuffer, Ros2BridgeParams
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = cond()
+        if value:
+            return value
+        time.sleep(0.01)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+# --- the fake LIMO's bytes, made by rosbags ----------------------------------------------------------
+
+
+def _t():
+    return ros2_cdr.typestore().types
+
+
+def _header(stamp_s: float, frame: str):
+    t = _t()
+    sec = math.floor(stamp_s)
+    return t["std_msgs/msg/Header"](
+        stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=round((stamp_s - sec) * 1e9)), frame_id=frame
+    )
+
+
+def ros_scan(
+    stamp_s: float,
+    ranges: np.ndarray,
+    angle_min: float = -math.pi / 2,
+    angle_max: float = math.pi / 2,
+    n_angles: int | None = None,
+) -> bytes:
+    """A LaserScan like the LIMO's (front 180 degrees, 0.1-8 m); ``n_angles`` fakes a header/ranges mismatch."""
+    n = len(ranges) if n_angles is None else n_angles
+    msg = _t()["sensor_msgs/msg/LaserScan"](
+        header=_header(stamp_s, "laser_link"),
+        angle_min=angle_min,
+        angle_max=angle_max,
+        angle_increment=(angle_max - angle_min) / (n - 1),
+        time_increment=0.0,
+        scan_time=0.1,
+        range_min=0.1,
+        range_max=8.0,
+        ranges=np.asarray(ranges, dtype=np.float32),
+        intensities=np.zeros(0, dtype=np.float32),
+    )
+    return bytes(ros2_cdr.typestore().serialize_cdr(msg, "sensor_msgs/msg/LaserScan"))
+
+
+def ros_odom(stamp_s: float, x: float, y: float, yaw: float, v: float = 0.0, w: float = 0.0) -> bytes:
+    t = _t()
+    v3 = t["geometry_msgs/msg/Vector3"]
+    pose = t["geometry_msgs/msg/Pose"](
+        position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)),
+    )
+    msg = t["nav_msgs/msg/Odometry"](
+        header=_header(stamp_s, "odom"),
+        child_frame_id="base_link",
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t["geometry_msgs/msg/Twist"](linear=v3(x=v, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=w)),
+            covariance=np.zeros(36),
+        ),
+    )
+    return bytes(ros2_cdr.typestore().serialize_cdr(msg, "nav_msgs/msg/Odometry"))
+
+
+def rosbags_decode(raw: bytes, typename: str):
+    return ros2_cdr.typestore().deserialize_cdr(raw, typename)
+
+
+# --- time matching --------------------------------------------------------------------------------
+
+
+def _sample(t: float, x: float, yaw: float = 0.0) -> ros2_cdr.OdometrySample:
+    return ros2_cdr.OdometrySample(Pose2D(x, 0.0, yaw), VelocityCommand(), t, "odom", "base_link")
+
+
+def test_odometry_buffer_interpolates_and_names_every_miss():
+    buf = OdometryBuffer(history_s=2.0, tolerance_s=0.05, max_gap_s=0.25, max_lag_s=0.5)
+    assert buf.match(10.0) == (None, "no_odometry")
+    assert buf.add(_sample(10.0, 0.0, 3.0)) and buf.add(_sample(10.2, 1.0, -3.0))
+    assert not buf.add(_sample(10.1, 5.0)), "an older sample is refused"
+    pose = buf.match(10.05)[0].pose
+    assert pose.x_m == pytest.approx(0.25)
+    assert abs(abs(pose.yaw_rad) - (3.0 + 0.25 * (2 * math.pi - 6.0))) < 1e-9, "yaw along the shorter arc through pi"
+    assert buf.match(10.2)[0].pose.x_m == 1.0
+    assert buf.match(10.23)[0].pose.x_m == 1.0, "nearest within the tolerance"
+    assert buf.match(10.3) == (None, "waiting")
+    assert buf.add(_sample(11.0, 2.0))
+    assert buf.match(10.6) == (None, "gap"), "0.8 s between samples: no interpolation, nothing near"
+    assert buf.match(10.4) == (None, "stale"), "more than 0.5 s behind the newest odometry"
+    assert buf.add(_sample(13.5, 3.0)) and len(buf.samples) == 1, "history is trimmed"
+
+
+def test_params_validate_names_and_build_keys():
+    from cso_runtime.config import ConfigError, from_dict
+
+    p = from_dict(Ros2BridgeParams, {"namespace": "/limo1/"})
+    assert p.ros_key("scan") == "limo1/scan" and p.ros_key("explore/frontiers") == "limo1/explore/frontiers"
+    assert from_dict(Ros2BridgeParams, {}).ros_key("cmd_vel") == "cmd_vel"
+    with pytest.raises(ConfigError):
+        from_dict(Ros2BridgeParams, {"namespace": "bad ns"})
+    with pytest.raises(ConfigError):
+        from_dict(Ros2BridgeParams, {"cmd_timeout_s": 0})
+
+
+# --- the service in-process, against a fake LIMO -----------------------------------------------------
+
+
+def _frontiers_msg(step: int) -> FrontiersMsg:
+    geom = GridGeometry(0.1, (10, 12), -0.5, -0.5)
+    arrays = {name: np.zeros(geom.shape, dtype=dt) for name, dt in FrontiersMsg.GRIDS.items()}
+    cluster = {
+        "goal_cell": (3, 4),
+        "goal_xy_m": (0.0, -0.1),
+        "distance_m": 1.0,
+        "size_m": 0.3,
+        "entropy": 3.0,
+        "centroid_xy_m": (0.0, 0.0),
+        "cells": np.array([[3, 4], [3, 5], [4, 5]], dtype=np.int32),
+    }
+    return FrontiersMsg(step, True, "no_goal", Pose2D(0, 0, 0), geom, arrays, [cluster], 1.0)
+
+
+@pytest.mark.parametrize("namespace", ["", "limo1"])
+def test_fake_limo_through_the_bridge(namespace: str):
+    from services.common import ServiceContext, run_service
+    from services.ros2_bridge import Ros2BridgeService
+
+    ros = (lambda topic: f"{namespace}/{topic}") if namespace else (lambda topic: topic)
+    port = free_tcp_port()
+    router = TransportConfig(mode="router", listen=[loopback_endpoint(port)])
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    exploration = ExplorationConfig()
+    exploration.sensor.mount_x_m = 0.1
+    params = {"namespace": namespace, "cmd_timeout_s": 0.5, "resolution_m": 0.1, "arena_width_m": 8.0, "arena_height_m": 6.0}
+    ours: dict[str, list[Any]] = {}
+    to_robot: dict[str, list[tuple[float, bytes]]] = {}
+    lock = threading.Lock()
+
+    def on_ours(sample) -> None:
+        topic = str(sample.key_expr).split("/", 2)[2]
+        with lock:
+            ours.setdefault(topic, []).append(decode(sample.payload.to_bytes()))
+
+    def on_robot(sample) -> None:
+        with lock:
+            to_robot.setdefault(str(sample.key_expr), []).append((time.monotonic(), sample.payload.to_bytes()))
+
+    with open_session(router) as session:
+        subs = [session.declare_subscriber("cso/t1/**", on_ours)]
+        subs += [session.declare_subscriber(ros(t), on_robot) for t in ("cmd_vel", "map", "goal_pose", "explore/frontiers")]
+        svc = Ros2BridgeService(ServiceContext("ros2_bridge", "t1", {"method": "greedy-dist"}, exploration, client, params))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(
+                lambda: any(r.ok for r in session.liveliness().get(keys.alive("ros2_bridge"), timeout=0.5)),
+                10,
+                "the bridge's liveliness token",
+            )
+            wait_for(lambda: svc._ros_subs, 5, "the bridge's ROS subscriptions")
+            # Odometry first (the bridge holds a scan that is newer than every odometry sample).
+            session.put(ros("odom"), ros_odom(100.0, 1.0, 2.0, 0.0, 0.2, 0.0))
+            session.put(ros("odom"), ros_odom(100.1, 1.1, 2.0, 0.2, 0.2, 0.1))
+            wait_for(lambda: svc.counters["received:odom"] >= 2, 5, "odometry at the bridge")
+            ranges = np.linspace(0.5, 3.0, 181).astype(np.float32)
+            ranges[10] = np.inf
+            session.put(ros("scan"), ros_scan(100.05, ranges))
+            wait_for(lambda: len(ours.get("scan", [])) >= 1, 5, "the first scan as our message")
+            scan0, odom0, clock0 = ours["scan"][0], ours["odom"][0], ours["clock"][0]
+            assert isinstance(scan0, ScanMsg) and isinstance(odom0, OdometryMsg) and isinstance(clock0, ClockMsg)
+            assert scan0.step == odom0.step == clock0.step == 0
+            assert scan0.scan.stamp_s == pytest.approx(100.05) and odom0.stamp_s == pytest.approx(100.05)
+            assert scan0.scan.angle_min_rad == pytest.approx(-math.pi / 2) and len(scan0.scan.ranges_m) == 181
+            np.testing.assert_allclose(scan0.scan.ranges_m[:10], ranges[:10])
+            assert np.isinf(scan0.scan.ranges_m[10])
+            assert odom0.pose.x_m == pytest.approx(1.05) and odom0.pose.yaw_rad == pytest.approx(0.1), (
+                "interpolated at the scan time"
+            )
+            assert odom0.twist.linear_mps == pytest.approx(0.2)
+            assert scan0.sensor_pose.x_m == pytest.approx(1.05 + 0.1 * math.cos(0.1)), "the sensor mount is applied"
+            assert clock0.arena is not None and clock0.arena.shape == (60, 80)
+            assert (clock0.arena.origin_x_m, clock0.arena.origin_y_m) == pytest.approx((1.05 - 4.0, 2.0 - 3.0))
+
+            # NaN and too-close beams are cleaned and counted; another angle range is honoured.
+            nan_ranges = np.full(361, 2.0, np.float32)
+            nan_ranges[:5] = np.nan
+            nan_ranges[5] = 0.05
+            session.put(ros("scan"), ros_scan(100.08, nan_ranges, -math.pi, math.pi))
+            wait_for(lambda: len(ours.get("scan", [])) >= 2, 5, "the NaN scan")
+            scan1 = ours["scan"][1]
+            assert scan1.step == 1 and scan1.scan.angle_min_rad == pytest.approx(-math.pi) and len(scan1.scan.ranges_m) == 361
+            assert (scan1.scan.ranges_m[:6] == 0).all() and svc.counters["invalid_beams"] == 6
+            # A header that does not fit its ranges, a stale scan, an out-of-order one: dropped and counted.
+            session.put(ros("scan"), ros_scan(100.09, ranges, n_angles=90))
+            session.put(ros("odom"), ros_odom(102.0, 1.2, 2.0, 0.2))
+            wait_for(lambda: svc.counters["received:odom"] >= 3, 5, "the newer odometry")
+            session.put(ros("scan"), ros_scan(101.0, ranges))
+            session.put(ros("scan"), ros_scan(100.07, ranges))
+            session.put(ros("scan"), b"\x00\x01\x00\x00garbage")
+            wait_for(lambda: svc.counters["received:scan"] >= 6, 5, "every scan at the bridge")
+            status = wait_for(
+                lambda: [
+                    decode(r.ok.payload.to_bytes(), ServiceStatusMsg)
+                    for r in session.get(keys.service_status("ros2_bridge"), timeout=1.0)
+                    if r.ok
+                ],
+                5,
+                "the bridge's status",
+            )[0]
+            assert status.rejected == {"ros_scan:bad_cdr": 2, "ros_scan:stale": 1, "ros_scan:out_of_order": 1}, status.rejected
+            assert len(ours["scan"]) == 2 and status.last_step == 1
+
+            # Our velocity command -> a clamped Twist; then the watchdog's zero Twist after 0.5 s.
+            session.put(keys.cmd_vel, encode(CmdVelMsg(1, VelocityCommand(2.0, -1.5))))
+            wait_for(lambda: to_robot.get(ros("cmd_vel")), 5, "a Twist on cmd_vel")
+            t_cmd, raw = to_robot[ros("cmd_vel")][0]
+            twist = rosbags_decode(raw, "geometry_msgs/msg/Twist")
+            assert (twist.linear.x, twist.angular.z) == (1.0, pytest.approx(-0.78))
+            wait_for(lambda: len(to_robot[ros("cmd_vel")]) >= 2, 3, "the watchdog's zero Twist")
+            t_zero, raw = to_robot[ros("cmd_vel")][1]
+            zero = rosbags_decode(raw, "geometry_msgs/msg/Twist")
+            assert (zero.linear.x, zero.angular.z) == (0.0, 0.0)
+            assert t_zero - t_cmd >= 0.45, "not before the 0.5 s timeout"
+            assert svc.counters["watchdog_stops"] == 1 and svc.counters["clamped_commands"] == 1
+
+            # Map, goal and frontiers come out as ROS messages for RViz.
+            geom = GridGeometry(0.1, (6, 8), -1.0, -2.0)
+            grid = np.full(geom.shape, -1, np.int8)
+            grid[1:4, 2:6] = 0
+            grid[0, :] = 100
+            session.put(keys.map, encode(MapMsg(1, geom, grid)))
+            session.put(keys.goal, encode(GoalMsg(1, True, 0.5, -0.3, 0, 1.0, 2.0, "greedy-dist")))
+            session.put(keys.frontiers, encode(_frontiers_msg(1)))
+            wait_for(
+                lambda: all(to_robot.get(ros(t)) for t in ("map", "goal_pose", "explore/frontiers")), 5, "map, goal and frontiers"
+            )
+            og = rosbags_decode(to_robot[ros("map")][0][1], "nav_msgs/msg/OccupancyGrid")
+            assert (og.info.width, og.info.height, og.info.resolution) == (8, 6, pytest.approx(0.1))
+            assert (og.info.origin.position.x, og.info.origin.position.y) == (-1.0, -2.0) and og.header.frame_id == "odom"
+            np.testing.assert_array_equal(np.asarray(og.data).reshape(6, 8), grid)
+            assert og.header.stamp.sec == 100 and abs(og.header.stamp.nanosec - 80_000_000) < 1000, (
+                "stamped with the step's scan time"
+            )
+            ps = rosbags_decode(to_robot[ros("goal_pose")][0][1], "geometry_msgs/msg/PoseStamped")
+            assert (ps.pose.position.x, ps.pose.position.y) == (0.5, -0.3)
+            ma = rosbags_decode(to_robot[ros("explore/frontiers")][0][1], "visualization_msgs/msg/MarkerArray")
+            assert [m.ns for m in ma.markers] == ["frontiers", "frontiers", "frontiers_goals"]
+            assert ma.markers[0].action == 3 and len(ma.markers[1].points) == 3  # DELETEALL, then the cluster's cells
+            assert ma.markers[1].points[0].x == pytest.approx(-0.5 + 4.5 * 0.1) and ma.markers[1].points[0].y == pytest.approx(
+                -0.5 + 3.5 * 0.1
+            )
+
+            # No reachable frontier left: the episode ends, and the result can be fetched.
+            session.put(keys.goal, encode(GoalMsg(2, True, None, None, method="greedy-dist")))
+            wait_for(
+                lambda: any(isinstance(m, EpisodeStatusMsg) and m.state == "done" for m in ours.get("episode/status", [])),
+                5,
+                "the end of the episode",
+            )
+            result = [
+                decode(r.ok.payload.to_bytes(), EpisodeResultMsg) for r in session.get(keys.episode_result, timeout=2.0) if r.ok
+            ]
+            assert result and result[0].terminated_by == "no_frontier" and result[0].decisions == 2
+            assert result[0].explored_area_m2 == pytest.approx((grid != -1).sum() * 0.01)
+        finally:
+            stop.set()
+            thread.join(10)
+            for s in subs:
+                s.undeclare()
+    assert not thread.is_alive()
+
+
+def test_bridge_process_takes_namespace_and_stops_the_robot_on_sigint(tmp_path: Path):
+    """``python -m services.ros2_bridge --namespace NS``: the ROS keys follow NS, and SIGINT sends a
+    last zero Twist (the watchdog is set far away so the zero can only come from the shutdown)."""
+    profile = yaml.safe_load((REPO / "configs" / "profiles" / "limo-ros2.yaml").read_text())
+    profile["services"]["ros2_bridge"]["cmd_timeout_s"] = 60.0
+    cfg = tmp_path / "limo.yaml"
+    cfg.write_text(yaml.safe_dump(profile))
+    port = free_tcp_port()
+    keys = RobotKeys("t2")
+    twists: list[bytes] = []
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        sub = session.declare_subscriber("limo7/cmd_vel", lambda s: twists.append(s.payload.to_bytes()))
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "services.ros2_bridge",
+                "--config",
+                str(cfg),
+                "--robot",
+                "t2",
+                "--namespace",
+                "limo7",
+                "--connect",
+                loopback_endpoint(port),
+            ],
+            cwd=REPO,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
+        try:
+            wait_for(
+                lambda: any(r.ok for r in session.liveliness().get(keys.alive("ros2_bridge"), timeout=0.5)),
+                20,
+                "the bridge process",
+            )
+            wait_for(
+                lambda: session.put(keys.cmd_vel, encode(CmdVelMsg(0, VelocityCommand(0.3, 0.1)))) or twists,
+                10,
+                "a Twist on limo7/cmd_vel",
+            )
+            first = rosbags_decode(twists[0], "geometry_msgs/msg/Twist")
+            assert (first.linear.x, first.angular.z) == (pytest.approx(0.3), pytest.approx(0.1))
+            assert not any(rosbags_decode(t, "geometry_msgs/msg/Twist").linear.x == 0.0 for t in twists)
+            os.killpg(proc.pid, signal.SIGINT)
+            assert proc.wait(15) == 0
+            last = wait_for(lambda: twists and rosbags_decode(twists[-1], "geometry_msgs/msg/Twist"), 5, "a Twist")
+            wait_for(lambda: rosbags_decode(twists[-1], "geometry_msgs/msg/Twist").linear.x == 0.0, 5, "the final zero Twist")
+            last = rosbags_decode(twists[-1], "geometry_msgs/msg/Twist")
+            assert (last.linear.x, last.angular.z) == (0.0, 0.0)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(5)
+            sub.undeclare()
+
+
+# --- end to end: a fake LIMO explored through the bridge by the unchanged services -------------------
+
+
+class FakeLimo:
+    """The kinematic simulator as a ROS 2 robot: Odometry and LaserScan CDR (made by rosbags) on the bare
+    keys ``odom``/``scan`` every control period (sped up by ``speedup``), Twist commands from ``cmd_vel``."""
+
+    def __init__(self, session, plan, speedup: float):
+        from cso_runtime.simulator import KinematicSimulator
+
+        self.session, self.sim, self.period_s = session, KinematicSimulator(plan, seed=0), 0.25 / speedup
+        self.sim.reset(0)
+        self.command = VelocityCommand()
+        self.commands = 0
+        self.sub = session.declare_subscriber("cmd_vel", self._on_twist)
+
+    def _on_twist(self, sample) -> None:
+        msg = rosbags_decode(sample.payload.to_bytes(), "geometry_msgs/msg/Twist")
+        self.command = VelocityCommand(float(msg.linear.x), float(msg.angular.z))
+        self.commands += 1
+
+    def run(self, stop: threading.Event) -> None:
+        base_s = 1000.0
+        while not stop.is_set():
+            t = base_s + self.sim.time_s
+            p = self.sim.odometry()
+            self.session.put("odom", ros_odom(t, p.x_m, p.y_m, p.yaw_rad, self.command.linear_mps, self.command.angular_radps))
+            scan = self.sim.scan()
+            self.session.put(
+                "scan",
+                ros_scan(
+                    t, scan.ranges_m, scan.angle_min_rad, scan.angle_min_rad + scan.angle_increment_rad * (len(scan.ranges_m) - 1)
+                ),
+            )
+            if stop.wait(self.period_s):
+                break
+            self.sim.step(self.command)
+
+
+def test_fake_limo_is_explored_through_the_limo_ros2_profile():
+    from cso_runtime.episode import GroundTruthMetrics
+    from cso_runtime.occupancy import OccupancyMap
+    from cso_runtime.scenes import resolve_scenes
+    from services.common import ServiceContext, load_profile_for_service, run_service
+    from services.frontier import FrontierService
+    from services.mapper import MapperService
+    from services.planner import PlannerService
+    from services.policy import PolicyService
+    from services.ros2_bridge import Ros2BridgeService
+
+    plan = resolve_scenes("generated:small:1:0")[0].load()
+    g = plan.geometry
+    profile_path = REPO / "configs" / "profiles" / "limo-ros2.yaml"
+    port = free_tcp_port()
+    router = TransportConfig(mode="router", listen=[loopback_endpoint(port)])
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("r0")
+    services = []
+    for cls in (Ros2BridgeService, MapperService, FrontierService, PolicyService, PlannerService):
+        profile, exploration, params = load_profile_for_service(profile_path, cls.name)
+        exploration.sensor.mount_x_m = 0.0  # the simulated LIMO's sensor sits at its centre
+        if cls is Ros2BridgeService:  # map exactly the plan's grid, to measure coverage against it
+            params = {
+                **params,
+                "arena_origin_xy_m": [g.origin_x_m, g.origin_y_m],
+                "resolution_m": g.resolution_m,
+                "arena_width_m": g.width_m,
+                "arena_height_m": g.height_m,
+            }
+        services.append(cls(ServiceContext(cls.name, "r0", profile, exploration, client, params)))
+    stop = threading.Event()
+    threads = [threading.Thread(target=run_service, args=(s, stop), daemon=True) for s in services]
+    statuses: list[EpisodeStatusMsg] = []
+    with open_session(router) as session:
+        sub = session.declare_subscriber(
+            keys.episode_status, lambda s: statuses.append(decode(s.payload.to_bytes(), EpisodeStatusMsg))
+        )
+        robot = FakeLimo(session, plan, speedup=4.0)
+        robot_thread = threading.Thread(target=robot.run, args=(stop,), daemon=True)
+        try:
+            for t in threads:
+                t.start()
+            for s in services:
+                wait_for(
+                    lambda s=s: any(r.ok for r in session.liveliness().get(keys.alive(s.name), timeout=0.5)),
+                    15,
+                    f"the {s.name} service",
+                )
+            robot_thread.start()
+            wait_for(lambda: statuses and statuses[-1].state == "done", 35, "the end of the exploration")
+        finally:
+            stop.set()
+            robot_thread.join(5)
+            for t in threads:
+                t.join(10)
+            robot.sub.undeclare()
+            sub.undeclare()
+    mapper = services[1]
+    coverage = GroundTruthMetrics(plan).coverage_pct(
+        OccupancyMap.from_occupancy_grid(mapper.map.to_occupancy_grid(), mapper.map.geometry)
+    )
+    print(
+        f"coverage {coverage:.1f}% after {statuses[-1].step} scans, {robot.commands} commands, {statuses[-1].decisions} decisions"
+    )
+    assert statuses[-1].terminated_by == "no_frontier" and robot.commands > 0
+    assert coverage > 90.0, f"coverage {coverage:.1f}%"
+    assert not any(t.is_alive() for t in threads)
