@@ -1,0 +1,173 @@
+"""Gymnasium environment over the exploration loop: one action = one goal choice, reward Eq. 6.
+
+``reset`` picks a floor plan (seeded), ``step(a)`` sends the robot to frontier cluster ``a`` and runs
+the control loop until the Explorer asks for a new goal or the episode ends. The reward of a
+decision is the sum over the control steps it took of R_step + lambda_c * (new open area, m2).
+The action mask (valid distance + stuck masks, via ``ActionMasker``, as the policy applies them at
+run time) is returned in ``info["action_mask"]``.
+
+Observation: the padded graph of ``graph.py`` as a ``spaces.Dict`` of fixed-shape boxes, so the
+standard vector envs can stack it (``spaces.Graph`` has no fixed shape and cannot be batched).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from cso_runtime.config import ExplorationConfig, MaskConfig
+from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer
+from cso_runtime.learned.graph import EDGE_FEATURES, NODE_FEATURES, GraphConfig, build_graph, empty_graph, frontier_count
+from cso_runtime.observation import Observation
+from cso_runtime.policies import ActionMasker, goal_of
+from cso_runtime.scenes import FloorPlan
+from cso_runtime.simulator import KinematicSimulator
+
+
+@dataclass
+class RewardConfig:
+    """Eq. 6: R_step per control step plus lambda_c per square metre of newly opened area."""
+
+    r_step: float = -0.01
+    """Step penalty R_step (per 0.25 s control step)."""
+    lambda_c: float = 0.02
+    """Weight lambda_c of the coverage reward (per m2 of new open space)."""
+
+
+@dataclass
+class EnvConfig:
+    """What one training environment needs besides its scenes."""
+
+    exploration: ExplorationConfig = field(default_factory=ExplorationConfig)
+    graph: GraphConfig = field(default_factory=GraphConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    max_steps: int = 800
+    """Control steps per training episode (truncation; shorter than eval to see more scenes)."""
+
+
+def graph_space(config: GraphConfig) -> spaces.Dict:
+    n, k = config.max_nodes, config.neighbours
+    return spaces.Dict(
+        {
+            "nodes": spaces.Box(-np.inf, np.inf, (n, len(NODE_FEATURES)), np.float32),
+            "node_valid": spaces.MultiBinary(n),
+            "neighbours": spaces.Box(0, n - 1, (n, k), np.int64),
+            "neighbour_valid": spaces.MultiBinary((n, k)),
+            "edges": spaces.Box(-np.inf, np.inf, (n, k, EDGE_FEATURES), np.float32),
+            "robot": spaces.Box(0, n - 1, (), np.int64),
+        }
+    )
+
+
+class ExplorationEnv(gym.Env):
+    """One goal choice per step over ``KinematicSimulator``; plans drawn from ``plans`` each reset."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, plans: list[FloorPlan] | Callable[[], list[FloorPlan]], config: EnvConfig | None = None):
+        super().__init__()
+        self.config = config or EnvConfig()
+        self._plans_source = plans
+        self._plans: list[FloorPlan] | None = None
+        self.observation_space = graph_space(self.config.graph)
+        self.action_space = spaces.Discrete(self.config.graph.max_frontier_nodes)
+        self.masker = ActionMasker(self.config.exploration.masks)
+        self.explorer: Explorer | None = None
+        self.obs: Observation | None = None
+        self.mask = np.zeros(self.config.graph.max_frontier_nodes, dtype=bool)
+
+    @property
+    def plans(self) -> list[FloorPlan]:
+        if self._plans is None:  # loaded lazily so a subprocess env loads its own copy
+            self._plans = list(self._plans_source() if callable(self._plans_source) else self._plans_source)
+            if not self._plans:
+                raise ValueError("ExplorationEnv needs at least one floor plan")
+        return self._plans
+
+    def _explorer_config(self) -> ExplorationConfig:
+        cfg = self.config.exploration
+        return dataclasses.replace(cfg, episode=dataclasses.replace(cfg.episode, max_steps=self.config.max_steps))
+
+    def _decide(self) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """Advance to the next decision with at least one candidate; observe and mask it."""
+        ex = self.explorer
+        assert ex is not None
+        while not ex.done:
+            reason = ex.decision_reason()
+            if reason is None:
+                ex.advance()
+                continue
+            ex.handle_reason(reason)
+            obs = ex.observe()
+            if not obs.clusters:
+                ex.apply_goal(obs, None)  # no reachable frontier: the episode ends
+                break
+            self.obs = obs
+            self.mask = np.zeros(self.config.graph.max_frontier_nodes, dtype=bool)
+            nf = frontier_count(obs, self.config.graph)
+            self.mask[:nf] = self.masker.mask(obs)[:nf]
+            if not self.mask.any():  # every kept candidate masked: fall back to all reachable ones
+                self.mask[:nf] = np.isfinite(obs.goal_distance_m[:nf])
+            return build_graph(obs, self.config.graph), self._info()
+        self.obs = None
+        self.mask = np.zeros(self.config.graph.max_frontier_nodes, dtype=bool)
+        self.mask[0] = True  # terminal observation: keep the distribution defined
+        return empty_graph(self.config.graph), self._info()
+
+    def _info(self) -> dict[str, Any]:
+        ex = self.explorer
+        assert ex is not None
+        return {
+            "action_mask": self.mask.copy(),
+            "coverage_pct": ex.coverage_pct(),
+            "steps": ex.steps,
+            "explored_area_m2": ex.explored_area_m2(),
+        }
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        plan = self.plans[int(self.np_random.integers(len(self.plans)))]
+        sim_seed = int(self.np_random.integers(2**31))  # sensor noise, when configured
+        sim = KinematicSimulator(plan, self.config.exploration.sensor, self.config.exploration.robot, seed=sim_seed)
+        self.explorer = Explorer(sim, self._explorer_config())
+        self.masker.reset()
+        self.plan_name = plan.name
+        return self._decide()
+
+    def step(self, action: int) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        ex = self.explorer
+        if ex is None or self.obs is None:
+            raise RuntimeError("step() called before reset() or after the episode ended")
+        a = int(action)
+        if not (0 <= a < len(self.mask)) or not self.mask[a]:
+            raise ValueError(f"action {a} is masked or out of range")
+        area0, steps0 = ex.map.open_area_m2(), ex.steps
+        ex.apply_goal(self.obs, goal_of(self.obs, a))
+        if not ex.done:
+            ex.advance()  # the decision costs at least one control step
+        graph, info = self._decide()
+        r = self.config.reward
+        reward = r.r_step * (ex.steps - steps0) + r.lambda_c * (ex.map.open_area_m2() - area0)
+        truncated = ex.done and ex.terminated_by == TERMINATED_MAX_STEPS
+        terminated = ex.done and not truncated
+        info["terminated_by"] = ex.terminated_by
+        return graph, float(reward), terminated, truncated, info
+
+
+def expert_action(obs: Observation, mask: np.ndarray) -> int:
+    """The greedy-dist choice under the mask: the nearest allowed cluster (the warm-start teacher)."""
+    d = np.full(len(mask), np.inf)
+    n = min(len(obs.clusters), len(mask))
+    d[:n] = obs.goal_distance_m[:n]
+    d[~mask] = np.inf
+    return int(np.argmin(d)) if np.isfinite(d).any() else int(np.argmax(mask))
+
+
+def mask_config_for(use_valid_distance: bool, use_stuck: bool, base: MaskConfig | None = None) -> MaskConfig:
+    """A copy of ``base`` with the two masks switched as a variant needs."""
+    return dataclasses.replace(base or MaskConfig(), use_valid_distance=use_valid_distance, use_stuck=use_stuck)

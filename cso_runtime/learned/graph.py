@@ -1,0 +1,148 @@
+"""The graph G(F_t, Omega_t) of section 3.4, built from an Observation as padded numpy arrays.
+
+Nodes are the frontier clusters (the actions, first ``max_frontier_nodes`` in distance order, i.e.
+the nearest ones are kept) followed by the path nodes (the last ``max_path_nodes`` decision
+positions, the newest one being the robot's current position w_t). Arrays are padded to a fixed
+size so one Gymnasium ``Dict`` space describes every scene and rollouts stack without copies.
+
+Node features (``NODE_FEATURES``), all scale-free:
+  dx, dy        position relative to the robot, divided by ``distance_scale_m``;
+  frontier      semantic label, 1 for a frontier node, 0 for a path node;
+  current       history label, 1 for w_t, 0 for earlier decision positions and frontiers;
+  entropy       I at the cluster's goal cell (Eq. 4) times resolution / window: the frontier length
+                in the window per window side (0 when the entropy input is switched off);
+  geodesic      log(1 + l / distance_scale_m) of the geodesic distance from the robot (an addition
+                to the paper's five features: the robot<->node edge repeated on the node, so the
+                actor sees it without a message-passing hop).
+
+Edges (a choice made for speed, stated here as the docstring must): computing geodesic distances
+between all pairs of nodes would need one fast-marching pass per node. Instead, the robot's own
+distance map ``obs.distance_m`` gives the exact geodesic distance l for every robot<->node edge,
+and every other pair uses the Euclidean distance. Each node is connected to its ``knn`` nearest
+nodes (Euclidean, itself included; geodesic for the robot's own list) plus the robot node, so the graph is sparse
+(N x (knn + 1) edges) and the encoder's cost grows linearly with the number of frontiers.
+Edge inputs are (l / scale, log(1 + l / scale)); the network's edge MLP lifts them to 32 dims.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cso_runtime.observation import Observation
+
+NODE_FEATURES = ("dx", "dy", "frontier", "current", "entropy", "geodesic")
+EDGE_FEATURES = 2
+
+
+@dataclass
+class GraphConfig:
+    """Size limits and normalisation of the graph (one network serves every scene scale)."""
+
+    max_frontier_nodes: int = 200
+    """Frontier clusters kept as actions (the nearest ones); the action space size."""
+    max_path_nodes: int = 20
+    """Past decision positions kept as path nodes (the newest ones, w_t included)."""
+    knn: int = 8
+    """Neighbours per node (itself included) besides the robot node."""
+    distance_scale_m: float = 10.0
+    """Coordinates and distances are divided by this."""
+    use_entropy: bool = True
+    """Feed the frontier-based entropy I (False for cso-no-info and gnn-baseline)."""
+    entropy_window_m: float = 2.0
+    """gamma of Eq. 4, used to make I scale-free (match FrontierConfig.entropy_window_m)."""
+
+    @property
+    def max_nodes(self) -> int:
+        return self.max_frontier_nodes + self.max_path_nodes
+
+    @property
+    def neighbours(self) -> int:
+        return self.knn + 1
+
+
+def empty_graph(config: GraphConfig) -> dict[str, np.ndarray]:
+    """All-padding arrays of the fixed shapes (also the Gymnasium observation layout)."""
+    n, k = config.max_nodes, config.neighbours
+    return {
+        "nodes": np.zeros((n, len(NODE_FEATURES)), dtype=np.float32),
+        "node_valid": np.zeros(n, dtype=bool),
+        "neighbours": np.zeros((n, k), dtype=np.int64),
+        "neighbour_valid": np.zeros((n, k), dtype=bool),
+        "edges": np.zeros((n, k, EDGE_FEATURES), dtype=np.float32),
+        "robot": np.zeros((), dtype=np.int64),
+    }
+
+
+def frontier_count(obs: Observation, config: GraphConfig) -> int:
+    """Number of clusters that become action nodes."""
+    return min(len(obs.clusters), config.max_frontier_nodes)
+
+
+def build_graph(obs: Observation, config: GraphConfig) -> dict[str, np.ndarray]:
+    """Observation -> padded graph arrays. Frontier node i is action i (``obs.clusters[i]``)."""
+    g = empty_graph(config)
+    nf = frontier_count(obs, config)
+    path = np.asarray(obs.path_nodes_xy_m, dtype=float).reshape(-1, 2)
+    robot_xy = np.array([obs.pose.x_m, obs.pose.y_m])
+    if len(path) == 0 or not np.allclose(path[-1], robot_xy):
+        path = np.vstack([path, robot_xy[None, :]])  # w_t is always the newest path node
+    path = path[-config.max_path_nodes :]
+    npath = len(path)
+    fxy = obs.goal_xy_m[:nf]
+    xy = np.vstack([fxy, path]) if nf else path
+    n = nf + npath
+    scale = config.distance_scale_m
+
+    # geodesic distance from the robot to each node (path nodes: the distance map at their cell)
+    geo = np.empty(n)
+    geo[:nf] = obs.goal_distance_m[:nf]
+    iy, ix = obs.geometry.world_to_cell(path[:, 0], path[:, 1])
+    iy, ix = np.asarray(iy, dtype=int), np.asarray(ix, dtype=int)
+    inside = obs.geometry.in_bounds(iy, ix)
+    pd = np.full(npath, np.inf)
+    pd[inside] = obs.distance_m[iy[inside], ix[inside]]
+    geo[nf:] = pd
+    euclid_robot = np.hypot(xy[:, 0] - robot_xy[0], xy[:, 1] - robot_xy[1])
+    geo = np.where(np.isfinite(geo), geo, euclid_robot)  # unreachable old positions: straight line
+    robot = n - 1
+    geo[robot] = 0.0
+
+    rel = (xy - robot_xy) / scale
+    feats = g["nodes"]
+    feats[:n, 0:2] = rel
+    feats[:nf, 2] = 1.0
+    feats[robot, 3] = 1.0
+    if config.use_entropy and nf:
+        ent = np.array([c.entropy for c in obs.clusters[:nf]], dtype=float)
+        feats[:nf, 4] = ent * obs.geometry.resolution_m / config.entropy_window_m
+    feats[:n, 5] = np.log1p(geo / scale)
+    g["node_valid"][:n] = True
+
+    # neighbours: the knn nearest non-robot nodes by Euclidean distance (itself included), found with
+    # a k-d tree; the robot's own list uses the geodesic distances. The robot node is appended to
+    # every list with the geodesic distance as the edge.
+    k = min(config.knn, n - 1)
+    nbr = g["neighbours"]
+    valid = g["neighbour_valid"]
+    edge_l = np.zeros((n, config.neighbours))
+    if k > 0:
+        others = xy[:robot]
+        dd, ii = cKDTree(others).query(xy[:robot], k=k)
+        dd, ii = dd.reshape(robot, k), ii.reshape(robot, k)
+        nbr[:robot, :k] = ii
+        edge_l[:robot, :k] = dd
+        near_robot = np.argsort(geo[:robot], kind="stable")[:k]
+        nbr[robot, :k] = near_robot
+        edge_l[robot, :k] = geo[near_robot]
+        valid[:n, :k] = True
+    nbr[:n, config.knn] = robot
+    valid[:n, config.knn] = True
+    edge_l[:, config.knn] = geo
+    l_ij = edge_l / scale
+    g["edges"][:n, :, 0] = l_ij
+    g["edges"][:n, :, 1] = np.log1p(l_ij)
+    g["robot"] = np.array(robot, dtype=np.int64)
+    return g

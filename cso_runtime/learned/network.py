@@ -1,0 +1,157 @@
+"""The GNN actor-critic of section 3.4 and the masked categorical used to sample goals.
+
+Encoder: node features -> ``hidden`` dims; edge inputs l_ij -> 32 dims by an MLP (as in the paper);
+then ``layers`` rounds of graph attention where node i attends over its neighbours j (see
+``graph.py``) with logits q_i.k_j + w_h.e_ij per head h (the 32-dim edge feature enters as a
+learned attention bias, which keeps the cost per edge tiny). Nothing depends on node order,
+so the actor's scores are permutation equivariant over frontier nodes and the critic, which pools
+with a masked mean and reads the robot node, is invariant.
+
+Actor: a score per frontier node from [h_i, h_robot]. Critic: V(s) from [mean_i h_i, h_robot].
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from cso_runtime.learned.graph import EDGE_FEATURES, NODE_FEATURES
+
+MASKED_LOGIT = -1e8
+"""Logit of a masked action: its probability is exactly zero in float32."""
+
+
+@dataclass
+class NetworkConfig:
+    """Sizes of the actor-critic (small on purpose: one decision must cost < 3 ms on one CPU core)."""
+
+    hidden: int = 32
+    """Node embedding width."""
+    edge_dim: int = 32
+    """Edge feature width after the edge MLP (the paper's 32)."""
+    heads: int = 4
+    """Attention heads per layer."""
+    layers: int = 2
+    """Message-passing rounds."""
+
+
+class CategoricalMasked(torch.distributions.Categorical):
+    """Categorical over the valid actions only: masked logits are replaced by a huge negative number,
+    and the entropy sums over valid actions so masked ones add nothing (MicroRTS-Py style)."""
+
+    def __init__(self, logits: torch.Tensor, mask: torch.Tensor):
+        self.action_mask = mask
+        super().__init__(logits=torch.where(mask, logits, torch.full_like(logits, MASKED_LOGIT)))
+
+    def entropy(self) -> torch.Tensor:
+        p_log_p = self.logits * self.probs
+        p_log_p = torch.where(self.action_mask, p_log_p, torch.zeros_like(p_log_p))
+        return -p_log_p.sum(-1)
+
+
+class GraphAttentionLayer(nn.Module):
+    """One round of edge-aware multi-head attention over each node's neighbour list."""
+
+    def __init__(self, hidden: int, edge_dim: int, heads: int):
+        super().__init__()
+        if hidden % heads:
+            raise ValueError("hidden must be a multiple of heads")
+        self.heads, self.head_dim = heads, hidden // heads
+        self.qkv = nn.Linear(hidden, 3 * hidden)
+        self.edge_bias = nn.Linear(edge_dim, heads)
+        self.out = nn.Linear(hidden, hidden)
+        self.norm1 = nn.LayerNorm(hidden)
+        self.norm2 = nn.LayerNorm(hidden)
+        self.ff = nn.Sequential(nn.Linear(hidden, 2 * hidden), nn.ReLU(), nn.Linear(2 * hidden, hidden))
+
+    def forward(self, h: torch.Tensor, nbr: torch.Tensor, nbr_invalid: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
+        """``nbr_invalid`` is (b, n, k, 1), True where a neighbour slot is padding."""
+        b, n, d = h.shape
+        k = nbr.shape[-1]
+        q, kv = self.qkv(h).split([d, 2 * d], dim=-1)
+        flat = (nbr + torch.arange(b, device=h.device).view(b, 1, 1) * n).reshape(-1)
+        kv_j = kv.reshape(b * n, 2 * d).index_select(0, flat).view(b, n, k, 2 * d)
+        key_j = kv_j[..., :d].reshape(b, n, k, self.heads, self.head_dim)
+        v_j = kv_j[..., d:]
+        q = q.view(b, n, 1, self.heads, self.head_dim)
+        logits = (q * key_j).sum(-1) / self.head_dim**0.5 + self.edge_bias(e)  # (b, n, k, heads)
+        logits = logits.masked_fill(nbr_invalid, MASKED_LOGIT)
+        att = torch.softmax(logits, dim=2).unsqueeze(-1)
+        msg = (att * v_j.view(b, n, k, self.heads, self.head_dim)).sum(2).reshape(b, n, d)
+        h = self.norm1(h + self.out(msg))
+        return self.norm2(h + self.ff(h))
+
+
+class GraphActorCritic(nn.Module):
+    """``get_value`` and ``get_action_and_value`` over padded graph batches (CleanRL's Agent API)."""
+
+    def __init__(self, config: NetworkConfig | None = None, max_frontier_nodes: int = 200):
+        super().__init__()
+        self.config = config or NetworkConfig()
+        c = self.config
+        self.max_frontier_nodes = max_frontier_nodes
+        self.node_in = nn.Sequential(nn.Linear(len(NODE_FEATURES), c.hidden), nn.ReLU(), nn.Linear(c.hidden, c.hidden))
+        # l_ij -> 32 dims; a second linear layer here would fold into each layer's edge_bias
+        self.edge_mlp = nn.Sequential(nn.Linear(EDGE_FEATURES, c.edge_dim), nn.ReLU())
+        self.layers = nn.ModuleList(GraphAttentionLayer(c.hidden, c.edge_dim, c.heads) for _ in range(c.layers))
+        self.actor = nn.Sequential(nn.Linear(2 * c.hidden, c.hidden), nn.ReLU(), nn.Linear(c.hidden, 1))
+        self.critic = nn.Sequential(nn.Linear(2 * c.hidden, c.hidden), nn.ReLU(), nn.Linear(c.hidden, 1))
+
+    def encode(self, g: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Node embeddings (b, n, d), the robot node's embedding (b, d) and the masked mean (b, d).
+
+        Valid nodes come first in every graph (``graph.py``), so the batch is cut to its largest
+        graph before any work: padding costs nothing."""
+        valid = g["node_valid"].bool()  # vector envs store MultiBinary as int8
+        n = max(1, int(valid.sum(1).max()))
+        valid = valid[:, :n]
+        nbr_invalid = ~g["neighbour_valid"][:, :n].bool().unsqueeze(-1)
+        keep = valid.unsqueeze(-1).to(g["nodes"].dtype)
+        h = self.node_in(g["nodes"][:, :n]) * keep
+        e = self.edge_mlp(g["edges"][:, :n])
+        for layer in self.layers:
+            h = layer(h, g["neighbours"][:, :n], nbr_invalid, e) * keep
+        robot = g["robot"].reshape(-1, 1, 1).expand(-1, 1, h.shape[-1])
+        h_robot = torch.gather(h, 1, robot).squeeze(1)
+        pooled = h.sum(1) / keep.sum(1).clamp(min=1)
+        return h, h_robot, pooled
+
+    def _heads(self, g: dict[str, torch.Tensor], with_value: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+        h, h_robot, pooled = self.encode(g)
+        hf = h[:, : self.max_frontier_nodes]
+        logits = self.actor(torch.cat([hf, h_robot.unsqueeze(1).expand_as(hf)], dim=-1)).squeeze(-1)
+        if logits.shape[1] < self.max_frontier_nodes:  # back to the fixed action space; the mask hides the rest
+            logits = nn.functional.pad(logits, (0, self.max_frontier_nodes - logits.shape[1]), value=MASKED_LOGIT)
+        if not with_value:
+            return logits, None
+        value = self.critic(torch.cat([pooled, h_robot], dim=-1)).squeeze(-1)
+        return logits, value
+
+    def get_value(self, g: dict[str, torch.Tensor]) -> torch.Tensor:
+        return self._heads(g)[1]
+
+    def get_action_and_value(
+        self, g: dict[str, torch.Tensor], mask: torch.Tensor, action: torch.Tensor | None = None, greedy: bool = False
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Sample (or re-score ``action``): returns action, log-prob, entropy over valid actions, V(s)."""
+        logits, value = self._heads(g)
+        dist = CategoricalMasked(logits, mask)
+        if action is None:
+            action = dist.probs.argmax(-1) if greedy else dist.sample()
+        return action, dist.log_prob(action), dist.entropy(), value
+
+    def masked_logits(self, g: dict[str, torch.Tensor], mask: torch.Tensor) -> torch.Tensor:
+        """Logits with masked actions set to ``MASKED_LOGIT`` (for imitation and inspection)."""
+        logits, _ = self._heads(g, with_value=False)
+        return torch.where(mask, logits, torch.full_like(logits, MASKED_LOGIT))
+
+
+def to_torch(graph: dict, device: str | torch.device = "cpu", batch: bool = False) -> dict[str, torch.Tensor]:
+    """Numpy graph arrays -> tensors; ``batch=True`` adds a leading batch dimension of one."""
+    out = {}
+    for key, value in graph.items():
+        t = torch.as_tensor(value, device=device)
+        out[key] = t.unsqueeze(0) if batch else t
+    return out

@@ -1,0 +1,606 @@
+"""PPO for the CSO goal policy, in one readable file (CleanRL's ``ppo.py`` layout).
+
+One env step is one goal choice (``env.ExplorationEnv``). The pieces, in order:
+``Args`` (the one config, filled by ``configs/train.yaml`` and the CLI), scene loading, ``compute_gae``
+(unit-tested), an optional warm start that imitates the greedy-dist teacher under the same masks
+(behaviour cloning of the actor plus a Monte-Carlo fit of the critic), then the PPO loop with the
+action mask stored in the rollout and reused when log-probs are recomputed. Checkpoints (with the
+optimizer, to resume), a CSV log, a learning-curve PNG and the final weights plus a JSON record of
+the run go to ``out_dir``.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import functools
+import json
+import os
+import platform
+import random
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import gymnasium as gym
+import numpy as np
+import torch
+from gymnasium.vector import AutoresetMode
+from torch import nn, optim
+
+from cso_runtime.config import ExplorationConfig
+from cso_runtime.learned.env import EnvConfig, ExplorationEnv, RewardConfig, expert_action, mask_config_for
+from cso_runtime.learned.graph import GraphConfig, empty_graph
+from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
+from cso_runtime.learned.registry import VARIANTS, save_checkpoint
+from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
+
+
+@dataclass
+class Args:
+    """Training run configuration (defaults are the shipped ``cso`` run unless configs/train.yaml says otherwise)."""
+
+    variant: str = "cso"
+    """Which learned method to train (sets the entropy input and masks): cso, cso-no-info, ..."""
+    seed: int = 1
+    """Seeds python, numpy, torch and the environments."""
+    out_dir: str = "runs/train"
+    """Where checkpoints, the CSV log, the PNG curve and the final weights go."""
+    dungeon_dir: str | None = None
+    """Folder of Dungeon training PNGs (never a validation set); None to train on generated plans only."""
+    dungeon_m_per_px: list[float] = field(default_factory=lambda: [0.1, 0.05])
+    """Each chosen Dungeon plan is loaded at each of these scales (0.1 super large, 0.05 large)."""
+    dungeon_plans: int = 40
+    """How many Dungeon plans to draw (seeded) from ``dungeon_dir``."""
+    generated: list[str] = field(default_factory=lambda: ["generated:small:20:1000", "generated:middle:20:2000"])
+    """Generated-plan specs (scales small and middle)."""
+    total_decisions: int = 4096
+    """PPO budget in env decisions (goal choices), all envs together."""
+    time_limit_s: float = 0.0
+    """Stop after the update that crosses this wall time (0 = no limit)."""
+    num_envs: int = 2
+    """Parallel environments."""
+    async_envs: bool = False
+    """Run the environments in subprocesses (AsyncVectorEnv) instead of in this process."""
+    num_steps: int = 64
+    """Decisions per environment per rollout."""
+    learning_rate: float = 1e-4
+    anneal_lr: bool = True
+    gamma: float = 0.98
+    """Discount per decision."""
+    gae_lambda: float = 0.95
+    num_minibatches: int = 4
+    update_epochs: int = 4
+    norm_adv: bool = True
+    clip_coef: float = 0.1
+    clip_vloss: bool = True
+    ent_coef: float = 0.005
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    target_kl: float = 0.03
+    """Stop the epoch loop early when the approximate KL exceeds this (0 = never)."""
+    warm_start_decisions: int = 0
+    """Teacher (greedy-dist under the masks) decisions to imitate before PPO (0 = no warm start)."""
+    warm_start_epochs: int = 20
+    warm_start_lr: float = 1e-3
+    r_step: float = -0.01
+    """R_step of Eq. 6 per control step."""
+    lambda_c: float = 0.02
+    """lambda_c of Eq. 6 per m2 of new open area."""
+    max_steps: int = 800
+    """Control steps per training episode (truncated after)."""
+    hidden: int = 32
+    heads: int = 4
+    layers: int = 2
+    knn: int = 8
+    max_frontier_nodes: int = 200
+    max_path_nodes: int = 20
+    checkpoint_every: int = 5
+    """Updates between resumable checkpoints."""
+    resume: str | None = None
+    """Path of a checkpoint.pt to continue from."""
+    device: str = "auto"
+    """auto (CUDA when available), cpu or cuda."""
+    torch_threads: int = 1
+    progress: bool = True
+    """Show a progress bar."""
+
+    def validate(self) -> None:
+        if self.variant not in VARIANTS:
+            raise ValueError(f"unknown variant {self.variant!r}; known: {', '.join(VARIANTS)}")
+        if self.num_envs < 1 or self.num_steps < 1 or self.num_minibatches < 1:
+            raise ValueError("num_envs, num_steps and num_minibatches must be positive")
+        if (self.num_envs * self.num_steps) % self.num_minibatches:
+            raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
+
+    @property
+    def batch_size(self) -> int:
+        return self.num_envs * self.num_steps
+
+    @property
+    def num_updates(self) -> int:
+        return max(1, self.total_decisions // self.batch_size)
+
+    def env_config(self) -> EnvConfig:
+        v = VARIANTS[self.variant]
+        exploration = ExplorationConfig()
+        exploration.masks = mask_config_for(v.use_valid_distance, v.use_stuck, exploration.masks)
+        graph = GraphConfig(self.max_frontier_nodes, self.max_path_nodes, self.knn, use_entropy=v.use_entropy, entropy_window_m=exploration.frontier.entropy_window_m)
+        return EnvConfig(exploration, graph, RewardConfig(self.r_step, self.lambda_c), self.max_steps)
+
+
+# --- scenes -----------------------------------------------------------------------------------
+
+
+def training_scene_refs(args: Args) -> list[SceneRef]:
+    """Dungeon training plans (a seeded subset, at each scale) and generated plans."""
+    refs: list[SceneRef] = []
+    if args.dungeon_dir:
+        folder = Path(args.dungeon_dir)
+        lowered = str(folder.resolve()).lower()
+        if any(f"/{bad}" in lowered for bad in ("easy", "medium", "complex")):
+            raise ValueError(f"{folder} looks like a validation set; train only on the training plans")
+        base = resolve_scenes(str(folder))
+        rng = random.Random(args.seed)
+        chosen = rng.sample(base, min(args.dungeon_plans, len(base)))
+        for r in chosen:
+            for m in args.dungeon_m_per_px:
+                refs.append(SceneRef(f"{r.name}@{m}", path=r.path, resolution_m=m))
+    for spec in args.generated:
+        refs.extend(resolve_scenes(spec))
+    if not refs:
+        raise ValueError("no training scenes: set dungeon_dir and/or generated")
+    return refs
+
+
+def load_plans(refs: list[SceneRef]) -> list[FloorPlan]:
+    plans = []
+    for r in refs:
+        p = r.load()
+        p.name = r.name
+        plans.append(p)
+    return plans
+
+
+def make_env(scenes: list[SceneRef] | list[FloorPlan], config: EnvConfig) -> Callable[[], ExplorationEnv]:
+    """A picklable env factory (for AsyncVectorEnv): each process loads its own plans from refs."""
+    if scenes and isinstance(scenes[0], FloorPlan):
+        return functools.partial(ExplorationEnv, list(scenes), config)
+    return functools.partial(ExplorationEnv, functools.partial(load_plans, scenes), config)
+
+
+# --- GAE --------------------------------------------------------------------------------------
+
+
+def compute_gae(
+    rewards: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, next_value: torch.Tensor, next_done: torch.Tensor, gamma: float, gae_lambda: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Generalised advantage estimation over a (T, E) rollout.
+
+    ``dones[t]`` is 1 when the observation at step t starts a new episode (CleanRL's convention), so
+    the bootstrap from t+1 into t is cut by ``dones[t + 1]`` (``next_done`` after the last step).
+    Returns (advantages, returns = advantages + values).
+    """
+    steps = rewards.shape[0]
+    advantages = torch.zeros_like(rewards)
+    last = torch.zeros_like(next_value)
+    for t in reversed(range(steps)):
+        if t == steps - 1:
+            nonterminal, nextv = 1.0 - next_done, next_value
+        else:
+            nonterminal, nextv = 1.0 - dones[t + 1], values[t + 1]
+        delta = rewards[t] + gamma * nextv * nonterminal - values[t]
+        last = delta + gamma * gae_lambda * nonterminal * last
+        advantages[t] = last
+    return advantages, advantages + values
+
+
+# --- helpers ----------------------------------------------------------------------------------
+
+
+def obs_to_torch(obs: dict[str, np.ndarray], device: torch.device) -> dict[str, torch.Tensor]:
+    return {k: torch.as_tensor(np.asarray(v), device=device) for k, v in obs.items()}
+
+
+def stack_obs(items: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    return {k: np.stack([it[k] for it in items]) for k in items[0]}
+
+
+def index_obs(b_obs: dict[str, torch.Tensor], idx: Any) -> dict[str, torch.Tensor]:
+    return {k: v[idx] for k, v in b_obs.items()}
+
+
+def select_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def build_model(args: Args, device: torch.device) -> GraphActorCritic:
+    return GraphActorCritic(NetworkConfig(args.hidden, 32, args.heads, args.layers), args.max_frontier_nodes).to(device)
+
+
+def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.vector.VectorEnv:
+    fns = [make_env(refs, args.env_config()) for _ in range(args.num_envs)]
+    if args.async_envs:
+        return gym.vector.AsyncVectorEnv(fns, autoreset_mode=AutoresetMode.SAME_STEP, context="spawn")
+    return gym.vector.SyncVectorEnv(fns, autoreset_mode=AutoresetMode.SAME_STEP)
+
+
+# --- warm start: imitate the greedy teacher ---------------------------------------------------
+
+
+def collect_teacher(envs: gym.vector.VectorEnv, decisions: int, gamma: float, seed: int) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
+    """Run greedy-dist (under the masks) in ``envs``; returns graphs, masks, teacher actions and
+    discounted returns (Monte Carlo, cut at episode ends) for the critic."""
+    graphs, masks, actions, rewards, ends = [], [], [], [], []
+    obs, info = envs.reset(seed=seed)
+    n = envs.num_envs
+    per_env = max(1, decisions // n)
+    for _ in range(per_env):
+        mask = info["action_mask"]
+        teacher = np.array([_teacher_of(envs, i, mask[i]) for i in range(n)])
+        graphs.append(obs)
+        masks.append(mask)
+        actions.append(teacher)
+        obs, reward, term, trunc, info = envs.step(teacher)
+        rewards.append(reward)
+        ends.append(np.logical_or(term, trunc))
+    rewards_a, ends_a = np.array(rewards), np.array(ends)
+    returns = np.zeros_like(rewards_a)
+    running = np.zeros(n)
+    for t in reversed(range(len(rewards_a))):
+        running = rewards_a[t] + gamma * running * (1.0 - ends_a[t])
+        returns[t] = running
+    flat = {k: np.concatenate([g[k] for g in graphs]) for k in graphs[0]}
+    return flat, np.concatenate(masks), np.concatenate(actions), returns.reshape(-1)
+
+
+def _teacher_of(envs: gym.vector.VectorEnv, i: int, mask: np.ndarray) -> int:
+    env = envs.envs[i] if hasattr(envs, "envs") else None
+    if env is None:
+        raise RuntimeError("the warm start needs in-process environments (async_envs: false)")
+    return expert_action(env.unwrapped.obs, mask)
+
+
+def warm_start(model: GraphActorCritic, data: tuple, args: Args, device: torch.device, log: Callable[[str], None]) -> dict[str, float]:
+    """Behaviour cloning of the actor on the teacher's choices plus a value regression."""
+    graphs, masks, actions, returns = data
+    b_obs = obs_to_torch(graphs, device)
+    b_mask = torch.as_tensor(masks, device=device)
+    b_act = torch.as_tensor(actions, device=device)
+    b_ret = torch.as_tensor(returns, dtype=torch.float32, device=device)
+    opt = optim.Adam(model.parameters(), lr=args.warm_start_lr)
+    n = len(b_act)
+    mb = max(1, n // max(1, args.num_minibatches))
+    stats: dict[str, float] = {}
+    for epoch in range(args.warm_start_epochs):
+        perm = torch.randperm(n, device=device)
+        correct, total_ce = 0.0, 0.0
+        for start in range(0, n, mb):
+            idx = perm[start : start + mb]
+            g = index_obs(b_obs, idx)
+            logits = model.masked_logits(g, b_mask[idx])
+            ce = nn.functional.cross_entropy(logits, b_act[idx])
+            v_loss = ((model.get_value(g) - b_ret[idx]) ** 2).mean()
+            loss = ce + args.vf_coef * v_loss
+            opt.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(model.parameters(), args.max_grad_norm)
+            opt.step()
+            correct += (logits.argmax(-1) == b_act[idx]).float().sum().item()
+            total_ce += ce.item() * len(idx)
+        stats = {"bc_accuracy": correct / n, "bc_ce": total_ce / n, "bc_value_loss": v_loss.item()}
+        log(f"warm start epoch {epoch + 1}/{args.warm_start_epochs}: accuracy {stats['bc_accuracy']:.3f} ce {stats['bc_ce']:.3f}")
+    return stats
+
+
+# --- PPO --------------------------------------------------------------------------------------
+
+
+def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan] | None = None) -> dict[str, Any]:
+    """Train one variant; returns the run record (also written as JSON next to the weights).
+
+    ``plans`` replaces the configured scenes (tests train on a tiny synthetic plan)."""
+    args.validate()
+    t_start = time.time()
+    seed_everything(args.seed)
+    torch.set_num_threads(args.torch_threads)
+    device = select_device(args.device)
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    refs: list[SceneRef] | list[FloorPlan] = plans if plans else training_scene_refs(args)
+    log(f"training {args.variant} on {len(refs)} scenes, device {device}")
+    envs = make_vector_env(args, refs)
+    model = build_model(args, device)
+    optimizer = optim.Adam(model.parameters(), lr=args.learning_rate, eps=1e-5)
+    record: dict[str, Any] = {"variant": args.variant, "args": dataclasses.asdict(args), "warm_start": {}}
+
+    start_update, global_decisions, warm_decisions = 1, 0, 0
+    env_steps = 0
+    if args.resume:
+        ckpt = torch.load(args.resume, map_location=device, weights_only=False)
+        model.load_state_dict(ckpt["state_dict"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+        start_update = ckpt["update"] + 1
+        global_decisions, warm_decisions, env_steps = ckpt["decisions"], ckpt["warm_decisions"], ckpt["env_steps"]
+        record["warm_start"] = ckpt.get("warm_start", {})
+        torch.set_rng_state(ckpt["torch_rng"])
+        log(f"resumed from {args.resume} at update {start_update}")
+    elif args.warm_start_decisions > 0:
+        data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed)
+        warm_decisions = len(data[2])
+        record["warm_start"] = warm_start(model, data, args, device, log)
+        record["warm_start"]["decisions"] = warm_decisions
+        save_checkpoint(out / f"{args.variant}_warm.pt", model, args.env_config().graph, args.variant, {"stage": "warm_start"})
+
+    # preallocated rollout storage (CleanRL layout: [step, env])
+    T, E = args.num_steps, args.num_envs
+    layout = empty_graph(args.env_config().graph)
+    obs_buf = {k: torch.zeros((T, E) + v.shape, dtype=torch.as_tensor(v).dtype, device=device) for k, v in layout.items()}
+    mask_buf = torch.zeros((T, E, args.max_frontier_nodes), dtype=torch.bool, device=device)
+    actions = torch.zeros((T, E), dtype=torch.long, device=device)
+    logprobs = torch.zeros((T, E), device=device)
+    rewards = torch.zeros((T, E), device=device)
+    dones = torch.zeros((T, E), device=device)
+    values = torch.zeros((T, E), device=device)
+
+    next_obs_np, info = envs.reset(seed=args.seed + 10_000 * start_update)
+    next_obs = obs_to_torch(next_obs_np, device)
+    next_mask = torch.as_tensor(info["action_mask"], device=device)
+    next_done = torch.zeros(E, device=device)
+    ep_return = np.zeros(E)
+    finished: list[dict[str, float]] = []
+
+    log_path = out / f"{args.variant}_log.csv"
+    fields = ["update", "decisions", "env_steps", "wall_s", "episodes", "mean_return", "mean_coverage_pct", "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "lr"]
+    new_log = not (args.resume and log_path.exists())
+    log_file = open(log_path, "w" if new_log else "a", newline="")
+    writer = csv.DictWriter(log_file, fieldnames=fields)
+    if new_log:
+        writer.writeheader()
+
+    progress = _progress(args.progress, args.num_updates - start_update + 1)
+    update = start_update - 1
+    try:
+        for update in range(start_update, args.num_updates + 1):
+            if args.anneal_lr:
+                optimizer.param_groups[0]["lr"] = args.learning_rate * (1.0 - (update - 1.0) / args.num_updates)
+            finished = []
+            for step in range(T):
+                for k in obs_buf:
+                    obs_buf[k][step] = next_obs[k]
+                mask_buf[step] = next_mask
+                dones[step] = next_done
+                with torch.no_grad():
+                    action, logprob, _, value = model.get_action_and_value(next_obs, next_mask)
+                values[step] = value
+                actions[step] = action
+                logprobs[step] = logprob
+                next_obs_np, reward, term, trunc, info = envs.step(action.cpu().numpy())
+                global_decisions += E
+                reward = np.asarray(reward, dtype=np.float64)
+                ep_return += reward
+                if trunc.any():  # bootstrap through truncation with V(final observation)
+                    final = [info["final_obs"][i] for i in np.flatnonzero(trunc)]
+                    with torch.no_grad():
+                        fv = model.get_value(obs_to_torch(stack_obs(final), device)).cpu().numpy()
+                    reward[np.flatnonzero(trunc)] += args.gamma * fv
+                rewards[step] = torch.as_tensor(reward, dtype=torch.float32, device=device)
+                done = np.logical_or(term, trunc)
+                for i in np.flatnonzero(done):
+                    fi = info["final_info"]
+                    finished.append({"return": float(ep_return[i]), "coverage_pct": float(fi["coverage_pct"][i]), "steps": int(fi["steps"][i])})
+                    env_steps += int(fi["steps"][i])
+                    ep_return[i] = 0.0
+                next_obs = obs_to_torch(next_obs_np, device)
+                next_mask = torch.as_tensor(info["action_mask"], device=device)
+                next_done = torch.as_tensor(done, dtype=torch.float32, device=device)
+
+            with torch.no_grad():
+                next_value = model.get_value(next_obs)
+            advantages, returns = compute_gae(rewards, values, dones, next_value, next_done, args.gamma, args.gae_lambda)
+
+            b_obs = {k: v.reshape((-1,) + v.shape[2:]) for k, v in obs_buf.items()}
+            b_mask = mask_buf.reshape(-1, args.max_frontier_nodes)
+            b_actions, b_logprobs = actions.reshape(-1), logprobs.reshape(-1)
+            b_advantages, b_returns, b_values = advantages.reshape(-1), returns.reshape(-1), values.reshape(-1)
+            mb_size = args.batch_size // args.num_minibatches
+            clipfracs, approx_kl = [], torch.zeros(())
+            for _epoch in range(args.update_epochs):
+                perm = torch.randperm(args.batch_size, device=device)
+                for start in range(0, args.batch_size, mb_size):
+                    mb = perm[start : start + mb_size]
+                    _, newlogprob, entropy, newvalue = model.get_action_and_value(index_obs(b_obs, mb), b_mask[mb], b_actions[mb])
+                    logratio = newlogprob - b_logprobs[mb]
+                    ratio = logratio.exp()
+                    with torch.no_grad():
+                        approx_kl = ((ratio - 1) - logratio).mean()
+                        clipfracs.append(((ratio - 1.0).abs() > args.clip_coef).float().mean().item())
+                    mb_adv = b_advantages[mb]
+                    if args.norm_adv and len(mb) > 1:
+                        mb_adv = (mb_adv - mb_adv.mean()) / (mb_adv.std() + 1e-8)
+                    pg_loss = torch.max(-mb_adv * ratio, -mb_adv * torch.clamp(ratio, 1 - args.clip_coef, 1 + args.clip_coef)).mean()
+                    if args.clip_vloss:
+                        v_unclipped = (newvalue - b_returns[mb]) ** 2
+                        v_clipped = b_values[mb] + torch.clamp(newvalue - b_values[mb], -args.clip_coef, args.clip_coef)
+                        v_loss = 0.5 * torch.max(v_unclipped, (v_clipped - b_returns[mb]) ** 2).mean()
+                    else:
+                        v_loss = 0.5 * ((newvalue - b_returns[mb]) ** 2).mean()
+                    entropy_loss = entropy.mean()
+                    loss = pg_loss - args.ent_coef * entropy_loss + args.vf_coef * v_loss
+                    optimizer.zero_grad()
+                    loss.backward()
+                    nn.utils.clip_grad_norm_(model.parameters(), args.max_grad_norm)
+                    optimizer.step()
+                if args.target_kl and approx_kl > args.target_kl:
+                    break
+
+            row = {
+                "update": update,
+                "decisions": global_decisions,
+                "env_steps": env_steps,
+                "wall_s": round(time.time() - t_start, 1),
+                "episodes": len(finished),
+                "mean_return": np.mean([f["return"] for f in finished]) if finished else "",
+                "mean_coverage_pct": np.mean([f["coverage_pct"] for f in finished]) if finished else "",
+                "policy_loss": pg_loss.item(),
+                "value_loss": v_loss.item(),
+                "entropy": entropy_loss.item(),
+                "approx_kl": approx_kl.item(),
+                "clipfrac": float(np.mean(clipfracs)) if clipfracs else 0.0,
+                "lr": optimizer.param_groups[0]["lr"],
+            }
+            writer.writerow(row)
+            log_file.flush()
+            if progress is not None:
+                progress.advance()
+            else:
+                log(f"update {update}/{args.num_updates} decisions {global_decisions} return {row['mean_return']} entropy {row['entropy']:.3f}")
+            if update % args.checkpoint_every == 0 or update == args.num_updates:
+                _save_resumable(out / "checkpoint.pt", model, optimizer, update, global_decisions, warm_decisions, env_steps, record["warm_start"])
+            if args.time_limit_s and time.time() - t_start > args.time_limit_s:
+                log(f"time limit reached after update {update}")
+                _save_resumable(out / "checkpoint.pt", model, optimizer, update, global_decisions, warm_decisions, env_steps, record["warm_start"])
+                break
+    finally:
+        log_file.close()
+        if progress is not None:
+            progress.close()
+        envs.close()
+
+    wall = time.time() - t_start
+    record.update(
+        {
+            "ppo_updates": update,
+            "ppo_decisions": global_decisions,
+            "warm_start_decisions": warm_decisions,
+            "ppo_env_steps_in_finished_episodes": env_steps,
+            "wall_time_s": round(wall, 1),
+            "hardware": {"device": str(device), "cpu": _cpu_name(), "cpus": os.cpu_count(), "torch_threads": args.torch_threads},
+            "torch": torch.__version__,
+            "scenes": len(refs),
+        }
+    )
+    save_checkpoint(out / f"{args.variant}.pt", model, args.env_config().graph, args.variant, {"stage": "ppo", "decisions": global_decisions})
+    (out / f"{args.variant}.json").write_text(json.dumps(record, indent=2, default=str))
+    plot_learning_curve(log_path, out / f"{args.variant}_curve.png", args.variant)
+    return record
+
+
+def _cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def _save_resumable(path: Path, model: nn.Module, optimizer: optim.Optimizer, update: int, decisions: int, warm: int, env_steps: int, warm_stats: dict) -> None:
+    tmp = path.with_suffix(".tmp")
+    torch.save(
+        {
+            "state_dict": model.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "update": update,
+            "decisions": decisions,
+            "warm_decisions": warm,
+            "env_steps": env_steps,
+            "warm_start": warm_stats,
+            "torch_rng": torch.get_rng_state(),
+        },
+        tmp,
+    )
+    tmp.replace(path)
+
+
+class _Bar:
+    def __init__(self, total: int):
+        from rich.progress import Progress  # noqa: PLC0415
+
+        self._p = Progress()
+        self._p.start()
+        self._task = self._p.add_task("PPO updates", total=total)
+
+    def advance(self) -> None:
+        self._p.advance(self._task)
+
+    def close(self) -> None:
+        self._p.stop()
+
+
+def _progress(enabled: bool, total: int) -> _Bar | None:
+    return _Bar(total) if enabled else None
+
+
+def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
+    """Mean episode return per update against decisions."""
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    xs, ys = [], []
+    with open(csv_path, newline="") as f:
+        for row in csv.DictReader(f):
+            if row["mean_return"] not in ("", None):
+                xs.append(int(row["decisions"]))
+                ys.append(float(row["mean_return"]))
+    fig, ax = plt.subplots(figsize=(5, 3.2))
+    ax.plot(xs, ys, marker=".", alpha=0.5, label="per update")
+    if len(ys) >= 5:  # the scene mix makes single updates noisy: show a running mean too
+        ax.plot(xs[4:], np.convolve(ys, np.ones(5) / 5, mode="valid"), label="mean of 5 updates")
+    ax.legend(fontsize=8)
+    ax.set_xlabel("PPO decisions")
+    ax.set_ylabel("mean episode return (Eq. 6)")
+    ax.set_title(f"{title} learning curve")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=100)
+    plt.close(fig)
+
+
+# --- evaluation of returns (tests, quick checks) ----------------------------------------------
+
+
+def episode_returns(env: ExplorationEnv, choose: Callable[[dict[str, np.ndarray], np.ndarray, np.random.Generator], int], seeds: list[int], max_decisions: int = 10_000) -> list[float]:
+    """Total Eq. 6 return of one episode per seed with ``choose(graph, mask, rng) -> action``."""
+    out = []
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        obs, info = env.reset(seed=seed)
+        total, done, n = 0.0, False, 0
+        while not done and n < max_decisions:
+            obs, r, term, trunc, info_next = env.step(choose(obs, info["action_mask"], rng))
+            info = info_next
+            total += r
+            done = term or trunc
+            n += 1
+        out.append(total)
+    return out
+
+
+def model_chooser(model: GraphActorCritic, device: str = "cpu") -> Callable[[dict[str, np.ndarray], np.ndarray, np.random.Generator], int]:
+    """Greedy (argmax of masked probabilities) choice of a model, as at run time."""
+
+    def choose(obs: dict[str, np.ndarray], mask: np.ndarray, rng: np.random.Generator) -> int:
+        with torch.no_grad():
+            g = {k: torch.as_tensor(np.asarray(v), device=device).unsqueeze(0) for k, v in obs.items()}
+            a, _, _, _ = model.get_action_and_value(g, torch.as_tensor(mask, device=device).unsqueeze(0), greedy=True)
+        return int(a.item())
+
+    return choose
+
+
+def random_chooser(obs: dict[str, np.ndarray], mask: np.ndarray, rng: np.random.Generator) -> int:
+    """Uniformly random among the allowed actions."""
+    return int(rng.choice(np.flatnonzero(mask)))

@@ -1,0 +1,146 @@
+"""The learned methods by name: which inputs and masks each variant uses, and its shipped weights.
+
+``policies.make_policy`` calls ``has_method`` and ``make_learned_policy``; a variant is available only
+when ``cso_runtime/data/weights/<name>.pt`` exists.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from cso_runtime.config import MaskConfig
+from cso_runtime.learned.graph import GraphConfig, build_graph, frontier_count
+from cso_runtime.learned.network import GraphActorCritic, NetworkConfig, to_torch
+from cso_runtime.observation import Observation
+from cso_runtime.policies import ActionMasker, Goal, goal_of
+
+
+@dataclass(frozen=True)
+class Variant:
+    """Table 2's switches: the entropy input and the two action masks."""
+
+    use_entropy: bool
+    use_valid_distance: bool
+    use_stuck: bool
+
+
+VARIANTS: dict[str, Variant] = {
+    "cso": Variant(True, True, True),
+    "cso-no-info": Variant(False, True, True),
+    "cso-no-mask": Variant(True, False, False),
+    "cso-sm": Variant(True, False, True),
+    "cso-vdm": Variant(True, True, False),
+    "gnn-baseline": Variant(False, False, False),
+}
+
+
+def weights_dir() -> Path:
+    return Path(str(resources.files("cso_runtime") / "data" / "weights"))
+
+
+def weights_path(name: str) -> Path:
+    return weights_dir() / f"{name}.pt"
+
+
+def has_method(name: str) -> bool:
+    """True when ``name`` is a learned variant whose weights are shipped."""
+    return name in VARIANTS and weights_path(name).is_file()
+
+
+def save_checkpoint(path: str | Path, model: GraphActorCritic, graph: GraphConfig, variant: str, extra: dict[str, Any] | None = None) -> None:
+    """Weights plus everything needed to rebuild the network and its graph (plain data only)."""
+    torch.save(
+        {
+            "variant": variant,
+            "network": dataclasses.asdict(model.config),
+            "graph": dataclasses.asdict(graph),
+            "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+            "extra": extra or {},
+        },
+        Path(path),
+    )
+
+
+def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[GraphActorCritic, GraphConfig, dict[str, Any]]:
+    """Rebuild the network from a checkpoint written by ``save_checkpoint``."""
+    ckpt = torch.load(Path(path), map_location=device, weights_only=True)
+    graph = GraphConfig(**ckpt["graph"])
+    model = GraphActorCritic(NetworkConfig(**ckpt["network"]), graph.max_frontier_nodes).to(device)
+    model.load_state_dict(ckpt["state_dict"])
+    model.eval()
+    return model, graph, ckpt
+
+
+class LearnedPolicy:
+    """The GoalSelector of a trained variant: graph -> network -> masks -> argmax (or a sample)."""
+
+    def __init__(
+        self, name: str, model: GraphActorCritic, graph: GraphConfig, mask_config: MaskConfig, seed: int | None = None, device: str = "cpu", greedy: bool = True, torch_threads: int | None = 1
+    ):
+        """``torch_threads`` (process-wide, CPU only): the network is far too small to gain from
+        threads, and on a busy machine torch's thread pool turns a 3 ms decision into 150 ms.
+        None leaves torch's setting alone."""
+        if torch_threads is not None and str(device).startswith("cpu"):
+            torch.set_num_threads(torch_threads)
+        self.name = name
+        self.model = model.to(device).eval()
+        self.graph_config = graph
+        self.masker = ActionMasker(mask_config)
+        self.device = device
+        self.greedy = greedy
+        self.generator = torch.Generator()
+        self.reset(seed)
+
+    def reset(self, seed: int | None = None) -> None:
+        self.masker.reset()
+        if seed is not None:
+            self.generator.manual_seed(int(seed))
+
+    def action_mask(self, obs: Observation) -> np.ndarray:
+        """The masks over the kept frontier nodes (records the decision for Algorithm 1)."""
+        nf = frontier_count(obs, self.graph_config)
+        mask = np.zeros(self.graph_config.max_frontier_nodes, dtype=bool)
+        mask[:nf] = self.masker.mask(obs)[:nf]
+        if not mask.any():
+            mask[:nf] = np.isfinite(obs.goal_distance_m[:nf])
+        return mask
+
+    @torch.inference_mode()
+    def probabilities(self, obs: Observation, mask: np.ndarray) -> np.ndarray:
+        """Masked action probabilities over the frontier nodes (zero exactly where masked)."""
+        g = to_torch(build_graph(obs, self.graph_config), self.device, batch=True)
+        m = torch.as_tensor(mask, device=self.device).unsqueeze(0)
+        logits = self.model.masked_logits(g, m)
+        return torch.softmax(logits, -1).squeeze(0).cpu().numpy()
+
+    def select(self, obs: Observation) -> Goal | None:
+        if not obs.clusters or not np.isfinite(obs.goal_distance_m).any():
+            self.masker.mask(obs)  # still a decision for the stuck history
+            return None
+        mask = self.action_mask(obs)
+        probs = self.probabilities(obs, mask)
+        if self.greedy:
+            a = int(np.argmax(probs))
+        else:
+            a = int(torch.multinomial(torch.as_tensor(probs), 1, generator=self.generator).item())
+        return goal_of(obs, a)
+
+
+def make_learned_policy(name: str, mask_config: MaskConfig, seed: int | None = None, device: str = "cpu") -> LearnedPolicy:
+    """Load the shipped weights of ``name``; the variant's switches override the mask settings."""
+    if name not in VARIANTS:
+        raise ValueError(f"unknown learned method {name!r}; known: {', '.join(VARIANTS)}")
+    if not has_method(name):
+        raise FileNotFoundError(f"no shipped weights for {name!r} (expected {weights_path(name)}); train it with `cso-runtime train`")
+    v = VARIANTS[name]
+    model, graph, _ = load_checkpoint(weights_path(name), device)
+    graph = dataclasses.replace(graph, use_entropy=v.use_entropy)
+    masks = dataclasses.replace(mask_config, use_valid_distance=v.use_valid_distance, use_stuck=v.use_stuck)
+    return LearnedPolicy(name, model, graph, masks, seed=seed, device=device)
