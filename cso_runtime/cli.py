@@ -143,7 +143,7 @@ def replay_command(
 @app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
 def service_command(
     ctx: typer.Context,
-    name: str = typer.Argument(..., help="sim, mapper, frontier, policy or planner"),
+    name: str = typer.Argument(..., help="sim, mapper, frontier, policy, planner or ros2_bridge"),
 ) -> None:
     """Run one service in this process (same as python -m services.NAME; pass --config FILE --robot ID --connect EP)."""
     from services import service_class  # noqa: PLC0415
@@ -159,7 +159,7 @@ def service_command(
 
 @app.command("up")
 def up_command(
-    profile: str = typer.Option("sim", "--profile", help="Profile name in configs/profiles/ or a YAML path"),
+    profile: str = typer.Option("sim", "--profile", help="Profile name (./configs/profiles/, then the packaged cso_runtime/profiles/) or a YAML path"),
     scene: Optional[str] = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, generated:SCALE:N:SEED"),
     method: Optional[str] = typer.Option(None, "--method", help="Goal selector (overrides the profile)"),
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot id (overrides the profile)"),
@@ -168,13 +168,20 @@ def up_command(
     detach: bool = typer.Option(False, "--detach", help="Run in the background until `cso-runtime down`"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where runs/<run-id>/ (logs, results) go"),
     live: bool = typer.Option(True, "--live/--no-live", help="Show the live view (foreground only)"),
+    connect: Optional[list[str]] = typer.Option(
+        None, "--connect", help="Router to join, repeatable (a LIMO's zenoh-bridge-ros2dds: tcp/ROBOT_IP:7447); appended to router.connect"
+    ),
+    namespace: Optional[str] = typer.Option(None, "--namespace", help="ROS namespace of the robot's topics (limo-ros2: services.ros2_bridge.namespace)"),
+    record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
+    record_out: Optional[Path] = typer.Option(None, "--record-out", help="Record the run to this MCAP file (implies --record)"),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.launcher import load_profile, read_current_run, pid_alive, run_foreground, start_detached  # noqa: PLC0415
 
     try:
-        prof, data = load_profile(profile, {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep})
+        overrides = {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep}
+        prof, data = load_profile(profile, overrides, connect=list(connect or []), namespace=namespace)
     except (ConfigError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
@@ -182,14 +189,15 @@ def up_command(
     if current is not None and pid_alive(current.get("launcher_pid")) and current.get("robot") == prof.robot:
         typer.echo(f"error: run {current.get('run_id')} is already running for robot {prof.robot}; `cso-runtime down` first", err=True)
         raise typer.Exit(2)
+    recording: bool | Path = record_out if record_out is not None else record
     if detach:
-        code, message = start_detached(prof, data, runs_dir)
+        code, message = start_detached(prof, data, runs_dir, record=recording)
         typer.echo(message, err=code != 0)
         raise typer.Exit(code)
     import logging  # noqa: PLC0415
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    raise typer.Exit(run_foreground(prof, data, runs_dir, live=live))
+    raise typer.Exit(run_foreground(prof, data, runs_dir, live=live, record=recording))
 
 
 @app.command("status")

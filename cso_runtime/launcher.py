@@ -1,14 +1,16 @@
 """``cso-runtime up``: an embedded Zenoh router, one OS process per service, supervision, results.
 
-A profile (``configs/profiles/<name>.yaml``) lists the services and their parameters, the scene, the
-method and the Zenoh endpoints, like a dora-rs dataflow file; it is validated completely before
-anything starts. The launcher opens a Zenoh session in router mode on loopback (no external router
-to install), spawns ``python -m services.<name>`` per service with its own process group and log
-file in ``runs/<run-id>/logs/``, restarts a crashed service with exponential back-off (and gives up
-after ``max_restarts``, saying so), keeps the latest map and goal for restarted services, shows a live
-view, and writes the same ``summary.json``, trajectory plot and final map as ``eval`` when the episode
-ends. Ctrl-C, SIGTERM and ``cso-runtime down`` stop every process group: SIGINT, then SIGTERM, then
-SIGKILL, each with a deadline.
+A profile (``configs/profiles/<name>.yaml``, shipped in the package through ``cso_runtime/profiles``; a user's ``./configs/profiles/<name>.yaml``
+wins) lists the services and their parameters, the scene, the method and the Zenoh endpoints, like a
+dora-rs dataflow file; it is validated completely before anything starts. The launcher opens a Zenoh
+session in router mode on loopback (no external router to install; ``--connect`` joins other routers,
+e.g. a LIMO's zenoh-bridge-ros2dds), spawns ``python -m services.<name>`` per service with its own
+process group and log file in ``runs/<run-id>/logs/``, restarts a crashed service with exponential
+back-off (and gives up after ``max_restarts``, saying so), keeps the latest map and goal for restarted
+services, shows a live view, optionally records every ``cso/<robot>/**`` message to MCAP on its own
+session (``--record``), and writes the same ``summary.json``, trajectory plot and final map as ``eval``
+when the episode ends. Ctrl-C, SIGTERM and ``cso-runtime down`` stop every process group: SIGINT,
+then SIGTERM, then SIGKILL, each with a deadline.
 """
 
 from __future__ import annotations
@@ -37,6 +39,8 @@ from cso_runtime.transport import TransportConfig, free_tcp_port, open_session
 log = logging.getLogger("cso.launcher")
 
 RUNS_DIR = Path("runs")
+REFEREES = ("sim", "ros2_bridge")
+"""Services that own the episode (its status and end): without them the run cannot finish."""
 CURRENT_RUN = "current.json"
 
 
@@ -103,7 +107,7 @@ class Profile:
     def validate(self) -> None:
         check_robot_id(self.robot)
         from_dict(ExplorationConfig, self.exploration, where="exploration")
-        from services import SERVICE_NAMES, service_class  # noqa: PLC0415 - services import zenoh
+        from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
 
         if not self.services:
             raise ConfigError("a profile must list at least one service")
@@ -112,7 +116,7 @@ class Profile:
                 raise ConfigError(f"services: unknown service {name!r}; known: {', '.join(SERVICE_NAMES)}")
             if params is not None and not isinstance(params, dict):
                 raise ConfigError(f"services.{name}: expected a mapping of parameters")
-            params_cls = getattr(sys.modules[service_class(name).__module__], f"{name.capitalize()}Params", None)
+            params_cls = params_class(name)
             if params_cls is not None:
                 from_dict(params_cls, params or {}, where=f"services.{name}")
             elif params:
@@ -129,10 +133,14 @@ class Profile:
         TransportConfig(mode="router", listen=self.router.listen, connect=self.router.connect).validate()
 
 
+PACKAGED_PROFILES = Path(__file__).resolve().parent / "profiles"
+"""The default profiles ship inside the package (package data), so an installed package finds them."""
+
+
 def profile_search_path() -> list[Path]:
-    """Where ``--profile NAME`` is looked up: ./configs/profiles, then the source checkout's."""
-    here = Path(__file__).resolve().parents[1] / "configs" / "profiles"
-    return [Path("configs") / "profiles", here]
+    """Where ``--profile NAME`` is looked up: the user's ``./configs/profiles`` (overrides), then the
+    profiles shipped with the package."""
+    return [Path("configs") / "profiles", PACKAGED_PROFILES]
 
 
 def find_profile(name_or_path: str) -> Path:
@@ -148,13 +156,32 @@ def find_profile(name_or_path: str) -> Path:
     raise ConfigError(f"unknown profile {name_or_path!r}; known profiles: {', '.join(known) or 'none'} (or give a .yaml path)")
 
 
-def load_profile(name_or_path: str, overrides: dict[str, Any] | None = None) -> tuple[Profile, dict[str, Any]]:
-    """Load, apply CLI overrides (``None`` values ignored) and validate; returns the profile and its data."""
+def load_profile(
+    name_or_path: str,
+    overrides: dict[str, Any] | None = None,
+    connect: list[str] | None = None,
+    namespace: str | None = None,
+) -> tuple[Profile, dict[str, Any]]:
+    """Load, apply CLI overrides (``None`` values ignored) and validate; returns the profile and its data.
+
+    ``connect``: endpoints appended to ``router.connect`` (the embedded router joins them, e.g. the
+    robot's zenoh-bridge-ros2dds on port 7447); ``namespace``: ``services.ros2_bridge.namespace``.
+    """
     path = find_profile(name_or_path)
     data = load_yaml(path)
     for k, v in (overrides or {}).items():
         if v is not None:
             data[k] = v
+    if connect:
+        router = data.get("router") or {}
+        if not isinstance(router, dict):
+            raise ConfigError(f"{path}: router must be a mapping")
+        data["router"] = {**router, "connect": [*(router.get("connect") or []), *connect]}
+    if namespace is not None:
+        services = data.get("services") or {}
+        if not isinstance(services, dict) or "ros2_bridge" not in services:
+            raise ConfigError(f"--namespace needs a profile with the ros2_bridge service (e.g. limo-ros2); {path} has none")
+        services["ros2_bridge"] = {**(services["ros2_bridge"] or {}), "namespace": namespace}
     data.setdefault("name", path.stem)
     profile = from_dict(Profile, data, where=str(path))
     return profile, data
@@ -222,8 +249,10 @@ def stop_children(children: list[Child], stage_timeout_s: float) -> None:
 class Launcher:
     """Runs one profile: router, services, supervision, live state, results."""
 
-    def __init__(self, profile: Profile, profile_data: dict[str, Any], run_dir: Path):
+    def __init__(self, profile: Profile, profile_data: dict[str, Any], run_dir: Path, record_path: Path | None = None):
         self.profile = profile
+        self.record_path = record_path
+        """MCAP file recording every ``cso/<robot>/**`` message of the run (None: no recording)."""
         self.data = profile_data
         self.run_dir = run_dir
         self.run_id = run_dir.name
@@ -390,6 +419,21 @@ class Launcher:
         log.info("episode %s: %.2f%% coverage in %d steps; results in %s", result.terminated_by, result.coverage_pct, result.steps, out)
         return out
 
+    def start_recorder(self, session: Any) -> tuple[threading.Event, threading.Thread] | None:
+        """Record the run on the launcher's own session, from before the first service starts."""
+        if self.record_path is None:
+            return None
+        from cso_runtime.recording import record  # noqa: PLC0415 - mcap only when recording
+
+        stop, ready = threading.Event(), threading.Event()
+        thread = threading.Thread(target=record, args=(session, self.profile.robot, self.record_path, stop, ready), name="recorder", daemon=True)
+        thread.start()
+        if not ready.wait(10.0):
+            stop.set()
+            raise RuntimeError(f"the recorder did not start writing {self.record_path}")
+        log.info("recording cso/%s/** into %s", self.profile.robot, self.record_path)
+        return stop, thread
+
     # --- main loop --------------------------------------------------------------------------------
     def run(self, live: bool = False, stay_after_done: bool = False) -> int:
         """Start everything and supervise until the episode ends (or until stopped when ``stay_after_done``)."""
@@ -407,6 +451,7 @@ class Launcher:
                 session.declare_queryable(self.keys.launcher_status, self._on_status_query),
             ]
             alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._on_alive, history=True)
+            recorder = self.start_recorder(session)
             try:
                 self.spawn_all()
                 self.write_run_file("running")
@@ -426,8 +471,9 @@ class Launcher:
                         self.write_run_file(st.state)
                         if not stay_after_done:
                             break
-                    if self.children and all(c.gave_up for c in self.children if c.name == "sim") and any(c.name == "sim" for c in self.children):
-                        log.error("the sim service is gone for good: stopping")
+                    referee = [c for c in self.children if c.name in REFEREES]
+                    if referee and all(c.gave_up for c in referee):
+                        log.error("the %s service is gone for good: stopping", referee[0].name)
                         self.exit_code = 1
                         break
             finally:
@@ -436,6 +482,9 @@ class Launcher:
                 log.info("stopping services")
                 self.stop_event.set()
                 stop_children(self.children, self.profile.supervision.stop_timeout_s)
+                if recorder is not None:
+                    recorder[0].set()
+                    recorder[1].join()
                 alive_sub.undeclare()
                 for q in qs:
                     q.undeclare()
@@ -615,15 +664,32 @@ def _install_signal_handlers(launcher: Launcher) -> None:
     signal.signal(signal.SIGTERM, handler)
 
 
-def run_foreground(profile: Profile, data: dict[str, Any], runs_dir: Path, live: bool = True, stay_after_done: bool = False) -> int:
-    launcher = Launcher(profile, data, new_run_dir(runs_dir, profile))
+RECORDING_NAME = "recording.mcap"
+"""``up --record`` writes ``runs/<run-id>/recording.mcap`` unless given a file."""
+
+
+def run_foreground(
+    profile: Profile, data: dict[str, Any], runs_dir: Path, live: bool = True, stay_after_done: bool = False, record: bool | Path = False
+) -> int:
+    """Run in this process; ``record``: True for ``runs/<run-id>/recording.mcap``, or a file."""
+    run_dir = new_run_dir(runs_dir, profile)
+    launcher = Launcher(profile, data, run_dir, _record_path(run_dir, record))
     _install_signal_handlers(launcher)
     return launcher.run(live=live, stay_after_done=stay_after_done)
 
 
-def start_detached(profile: Profile, data: dict[str, Any], runs_dir: Path, ready_timeout_s: float = 30.0) -> tuple[int, str]:
+def _record_path(run_dir: Path, record: bool | Path) -> Path | None:
+    if record is False or record is None:
+        return None
+    return run_dir / RECORDING_NAME if record is True else Path(record)
+
+
+def start_detached(
+    profile: Profile, data: dict[str, Any], runs_dir: Path, ready_timeout_s: float = 30.0, record: bool | Path = False
+) -> tuple[int, str]:
     """Start a launcher in the background (own session); returns once its services are spawned."""
     run_dir = new_run_dir(runs_dir, profile)
+    record_path = _record_path(run_dir, record)
     run_dir.mkdir(parents=True, exist_ok=True)
     data_path = run_dir / "profile.requested.yaml"
     data_path.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -631,7 +697,8 @@ def start_detached(profile: Profile, data: dict[str, Any], runs_dir: Path, ready
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with log_path.open("ab") as fh:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "cso_runtime.launcher", "--profile-data", str(data_path), "--run-dir", str(run_dir)],
+            [sys.executable, "-m", "cso_runtime.launcher", "--profile-data", str(data_path), "--run-dir", str(run_dir)]
+            + (["--record", str(record_path.resolve())] if record_path is not None else []),
             stdout=fh,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
@@ -656,11 +723,12 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m cso_runtime.launcher")
     p.add_argument("--profile-data", type=Path, required=True)
     p.add_argument("--run-dir", type=Path, required=True)
+    p.add_argument("--record", type=Path, default=None, help="MCAP file recording the run")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     data = load_yaml(args.profile_data)
     profile = from_dict(Profile, data, where=str(args.profile_data))
-    launcher = Launcher(profile, data, args.run_dir)
+    launcher = Launcher(profile, data, args.run_dir, args.record)
     _install_signal_handlers(launcher)
     return launcher.run(live=False, stay_after_done=True)
 

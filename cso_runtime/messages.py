@@ -10,6 +10,7 @@ table of keys and schemas is in docs/messages.md.
 from __future__ import annotations
 
 import math
+import secrets
 import zlib
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -22,6 +23,8 @@ from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityComman
 from cso_runtime.observation import Observation
 
 SCHEMA_VERSION = 1
+"""Version of the schemas unchanged since the first release; a schema that changes bumps its own
+``VERSION`` (``clock`` and ``episode_status`` are at 2: they carry the episode id)."""
 MAX_GRID_CELLS = 50_000_000
 MAX_BEAMS = 100_000
 COMPRESS_MIN_BYTES = 4096
@@ -173,6 +176,8 @@ class Message:
     """Base of every message: a schema name, a step stamp, and a body codec."""
 
     SCHEMA: ClassVar[str] = ""
+    VERSION: ClassVar[int] = SCHEMA_VERSION
+    """Wire version of this schema; ``decode`` rejects any other."""
 
     def body(self) -> dict[str, Any]:
         raise NotImplementedError
@@ -554,18 +559,28 @@ class PlannerFeedbackMsg(Message):
         )
 
 
+def new_episode_id() -> int:
+    """A fresh episode id (48 random bits): every publisher of ``clock`` draws one per episode, so
+    subscribers detect a new episode by the id, not by the step going back (messages on different keys
+    may be handled out of order)."""
+    return secrets.randbits(48)
+
+
 @dataclass
 class ClockMsg(Message):
-    """Simulated time: the step number and its time in seconds."""
+    """Simulated time: the step number and its time in seconds, in one episode."""
 
     SCHEMA: ClassVar[str] = "clock"
+    VERSION: ClassVar[int] = 2
     step: int
     time_s: float
     arena: GridGeometry | None = None
     """Extent of the area the robot may map (the mapper sizes its grid from it unless configured)."""
+    episode: int = 0
+    """Episode id (``new_episode_id``): a change means a new episode (the mapper starts a new map)."""
 
     def body(self) -> dict[str, Any]:
-        b: dict[str, Any] = {"step": self.step, "time_s": self.time_s}
+        b: dict[str, Any] = {"step": self.step, "time_s": self.time_s, "episode": self.episode}
         if self.arena is not None:
             b["geometry"] = _geometry_out(self.arena)
         return b
@@ -573,7 +588,7 @@ class ClockMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> "ClockMsg":
         arena = _geometry_in(b, "clock") if "geometry" in b else None
-        return cls(_int(b, "step", "clock"), _num(b, "time_s", "clock", 0.0), arena)
+        return cls(_int(b, "step", "clock"), _num(b, "time_s", "clock", 0.0), arena, _int(b, "episode", "clock"))
 
 
 EPISODE_STATES = ("starting", "exploring", "done", "failed")
@@ -584,6 +599,7 @@ class EpisodeStatusMsg(Message):
     """Ground-truth progress of the episode, published by the sim (the only one that knows the truth)."""
 
     SCHEMA: ClassVar[str] = "episode_status"
+    VERSION: ClassVar[int] = 2
     state: str
     step: int
     scene: str = ""
@@ -597,6 +613,8 @@ class EpisodeStatusMsg(Message):
     terminated_by: str = ""
     reason: str = ""
     lockstep_timeouts: int = 0
+    episode: int = 0
+    """Episode id, as on ``clock``."""
 
     def body(self) -> dict[str, Any]:
         return {
@@ -613,6 +631,7 @@ class EpisodeStatusMsg(Message):
             "terminated_by": self.terminated_by,
             "reason": self.reason,
             "lockstep_timeouts": self.lockstep_timeouts,
+            "episode": self.episode,
         }
 
     @classmethod
@@ -637,6 +656,7 @@ class EpisodeStatusMsg(Message):
             _str(b, "terminated_by", w),
             _str(b, "reason", w),
             _int(b, "lockstep_timeouts", w),
+            _int(b, "episode", w),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -807,7 +827,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
 
 def encode(msg: Message) -> bytes:
     """The wire bytes of ``msg``."""
-    return msgpack.packb({"schema": msg.SCHEMA, "v": SCHEMA_VERSION, "body": msg.body()}, use_bin_type=True)
+    return msgpack.packb({"schema": msg.SCHEMA, "v": msg.VERSION, "body": msg.body()}, use_bin_type=True)
 
 
 def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
@@ -823,8 +843,9 @@ def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
     schema, version, body = raw["schema"], raw["v"], raw["body"]
     if not isinstance(schema, str) or schema not in MESSAGE_TYPES:
         raise MessageError(f"unknown schema {schema!r}")
-    if isinstance(version, bool) or not isinstance(version, int) or version != SCHEMA_VERSION:
-        raise MessageError(f"{schema}: unknown version {version!r} (this build speaks v{SCHEMA_VERSION})")
+    known = MESSAGE_TYPES[schema].VERSION
+    if isinstance(version, bool) or not isinstance(version, int) or version != known:
+        raise MessageError(f"{schema}: unknown version {version!r} (this build speaks v{known})")
     if expected is not None and schema != expected.SCHEMA:
         raise MessageError(f"expected schema {expected.SCHEMA!r}, got {schema!r}")
     if not isinstance(body, dict):

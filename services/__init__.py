@@ -5,14 +5,35 @@ from __future__ import annotations
 
 import importlib
 
-SERVICE_NAMES = ("sim", "mapper", "frontier", "policy", "planner")
-"""The five services of a profile."""
+SERVICE_NAMES = ("sim", "mapper", "frontier", "policy", "planner", "ros2_bridge")
+"""The services a profile may list (``ros2_bridge`` replaces ``sim`` on a real robot)."""
 
-_CLASSES = {"sim": "SimService", "mapper": "MapperService", "frontier": "FrontierService", "policy": "PolicyService", "planner": "PlannerService"}
+_CLASSES: dict[str, tuple[str, str | None]] = {
+    "sim": ("SimService", "SimParams"),
+    "mapper": ("MapperService", "MapperParams"),
+    "frontier": ("FrontierService", None),
+    "policy": ("PolicyService", "PolicyParams"),
+    "planner": ("PlannerService", "PlannerParams"),
+    "ros2_bridge": ("Ros2BridgeService", "Ros2BridgeParams"),
+}
+"""Service name -> (its Service subclass, its parameter dataclass or None when it takes none), both in
+``services.<name>``."""
+
+
+def _lookup(name: str, index: int) -> type | None:
+    if name not in _CLASSES:
+        raise ValueError(f"unknown service {name!r}; choose one of {', '.join(SERVICE_NAMES)}")
+    attr = _CLASSES[name][index]
+    return None if attr is None else getattr(importlib.import_module(f"services.{name}"), attr)
 
 
 def service_class(name: str) -> type:
     """The Service subclass of ``name`` (imported lazily: each pulls in its own dependencies)."""
-    if name not in _CLASSES:
-        raise ValueError(f"unknown service {name!r}; choose one of {', '.join(SERVICE_NAMES)}")
-    return getattr(importlib.import_module(f"services.{name}"), _CLASSES[name])
+    cls = _lookup(name, 0)
+    assert cls is not None
+    return cls
+
+
+def params_class(name: str) -> type | None:
+    """The parameter dataclass of service ``name`` (``services.<name>`` in a profile), or None."""
+    return _lookup(name, 1)

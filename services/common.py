@@ -5,7 +5,10 @@ message in ``on_message`` and may act periodically in ``on_tick``. ``run_service
 (the shared transport helper, multicast scouting off), declares the liveliness token
 ``cso/<robot>/alive/<name>`` and the status queryable, and runs a single loop that pops inputs from a
 queue filled by Zenoh callbacks. Payloads that fail validation are logged and counted per key, never
-crash the service. SIGINT/SIGTERM stop the loop; the ``with`` blocks close the session.
+crash the service. SIGINT/SIGTERM stop the loop; ``shutdown`` runs while the session is still open
+(last messages, e.g. the bridge's zero Twist); the ``with`` blocks close the session. A service with
+command-line options of its own declares them in ``add_arguments`` and folds them into its profile
+parameters in ``apply_arguments``.
 """
 
 from __future__ import annotations
@@ -107,6 +110,18 @@ class Service:
     def extra_status(self) -> dict[str, Any]:
         return {}
 
+    def shutdown(self) -> None:
+        """Called once when the loop has stopped, before the session closes: the last chance to publish."""
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        """Declare this service's own command-line options (beyond ``--config``, ``--robot``...)."""
+
+    @classmethod
+    def apply_arguments(cls, args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any]:
+        """This service's profile parameters with its own command-line options applied (they win)."""
+        return params
+
     # --- helpers ---------------------------------------------------------------------------------
     def publish(self, topic: str, msg: Message, robot: str | None = None) -> None:
         key = RobotKeys(robot or self.ctx.robot).topic(topic)
@@ -193,11 +208,14 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
                     service.on_tick(now)
                     next_tick = now + service.tick_period_s
         finally:
-            token.undeclare()
-            status_q.undeclare()
-            for s in subs:
-                s.undeclare()
-            service.session = None
+            try:
+                service.shutdown()
+            finally:
+                token.undeclare()
+                status_q.undeclare()
+                for s in subs:
+                    s.undeclare()
+                service.session = None
     log.info("%s: stopped", service.name)
     return 0
 
@@ -221,24 +239,28 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> 
     service.on_message(robot, topic, msg, received_s)
 
 
-def parse_args(name: str, argv: list[str] | None = None) -> argparse.Namespace:
+def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | None = None) -> argparse.Namespace:
+    """The common service options, plus those ``cls.add_arguments`` declares."""
     p = argparse.ArgumentParser(prog=f"python -m services.{name}", description=f"cso-runtime {name} service")
-    p.add_argument("--config", required=True, type=Path, help="Profile YAML (configs/profiles/*.yaml)")
+    p.add_argument("--config", required=True, type=Path, help="Profile YAML (cso_runtime/profiles/*.yaml or your own)")
     p.add_argument("--robot", default="r0", help="Robot id: namespaces every key (cso/<robot>/...)")
     p.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to (repeatable)")
     p.add_argument("--listen", action="append", default=[], help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--mode", default="client", help="Zenoh mode: client, peer or router")
     p.add_argument("--log-level", default="INFO")
+    if cls is not None:
+        cls.add_arguments(p)
     return p.parse_args(argv)
 
 
 def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
     """``python -m services.<name>`` entry point: parse, load the profile, run; config errors exit 2."""
-    args = parse_args(cls.name, argv)
+    args = parse_args(cls.name, argv, cls)
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     try:
         check_robot_id(args.robot)
         profile, exploration, params = load_profile_for_service(args.config, cls.name)
+        params = cls.apply_arguments(args, dict(params))
         transport = TransportConfig(mode=args.mode, connect=list(args.connect), listen=list(args.listen))
         transport.validate()
         service = cls(ServiceContext(cls.name, args.robot, profile, exploration, transport, params))

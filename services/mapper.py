@@ -1,7 +1,9 @@
 """Mapper service: ``OccupancyMap.integrate_scan`` on every scan, publishes the map M_t.
 
 The grid is sized from the clock's arena (or ``services.mapper`` width/height when set). A scan it
-has already integrated is not integrated twice: the map is re-published (lockstep retries). On start
+has already integrated is not integrated twice: the map is re-published (lockstep retries). A new
+episode is recognised by the clock's episode id, never by the step going back: each subscriber's
+callbacks run on their own thread, so a clock may be handled after scans of later steps. On start
 it restores the latest map from the launcher's cache so a restarted mapper keeps what was explored;
 it answers queries on its map key so late joiners get the latest map at once.
 """
@@ -34,10 +36,15 @@ class MapperParams:
     """Grid height when ``resolution_m`` is set."""
     restore_timeout_s: float = 1.0
     """How long to wait for the cached map at start."""
+    max_pending_scans: int = 200
+    """Scans kept while the grid is unknown (before the first clock); a replay at full speed can
+    deliver many scans before the first clock is handled, each subscriber having its own thread."""
 
     def validate(self) -> None:
         if self.resolution_m < 0 or (self.resolution_m > 0 and not (self.width_m > 0 and self.height_m > 0)):
             raise ConfigError("an explicit grid needs resolution_m, width_m and height_m > 0")
+        if self.max_pending_scans < 1:
+            raise ConfigError("max_pending_scans must be at least 1")
 
 
 class MapperService(Service):
@@ -49,6 +56,8 @@ class MapperService(Service):
         self.params = from_dict(MapperParams, ctx.params, where="services.mapper")
         self.map: OccupancyMap | None = None
         self.map_step = -1
+        self.episode: int | None = None
+        """Episode id of the map (from the clock); None until the first clock."""
         self.pending: list[ScanMsg] = []
         self._queryable = None
         if self.params.resolution_m > 0:
@@ -74,10 +83,12 @@ class MapperService(Service):
             if self.map is None and msg.arena is not None:
                 self.map = OccupancyMap(msg.arena)
                 log.info("map %dx%d cells at %.3f m", msg.arena.shape[1], msg.arena.shape[0], msg.arena.resolution_m)
-            if self.map is not None and self.map_step > msg.step:
-                log.warning("clock went back to step %d (map at %d): new episode, clearing the map", msg.step, self.map_step)
-                self.map = OccupancyMap(self.map.geometry)
+            if self.episode is not None and msg.episode != self.episode:
+                log.warning("new episode %d (map of episode %d at step %d): clearing the map", msg.episode, self.episode, self.map_step)
+                if self.map is not None:
+                    self.map = OccupancyMap(self.map.geometry)
                 self.map_step = -1
+            self.episode = msg.episode
             if self.map is not None and self.pending:
                 pending, self.pending = self.pending, []
                 for scan in pending:
@@ -85,7 +96,10 @@ class MapperService(Service):
             return
         assert isinstance(msg, ScanMsg)
         if self.map is None:
-            self.pending = [*self.pending[-9:], msg]
+            if len(self.pending) >= self.params.max_pending_scans:
+                self.reject("scan", f"no map geometry yet: dropped the scan of step {self.pending[0].step}")
+                self.pending = self.pending[1:]
+            self.pending.append(msg)
             self.set_state("stale", "no map geometry yet (waiting for the clock)")
             return
         self.integrate(msg)

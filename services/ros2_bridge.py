@@ -56,6 +56,7 @@ from cso_runtime.messages import (
     ScanMsg,
     decode,
     encode,
+    new_episode_id,
 )
 from services.common import Service, ServiceContext, service_main
 
@@ -138,10 +139,6 @@ class Ros2BridgeParams:
         return f"{self.namespace}/{topic}" if self.namespace else topic
 
 
-Ros2_bridgeParams = Ros2BridgeParams
-"""The launcher looks a service's parameters up as ``<Name>Params`` with ``name.capitalize()``."""
-
-
 # --- time matching (pure) -------------------------------------------------------------------------
 
 
@@ -210,16 +207,10 @@ class Ros2BridgeService(Service):
     name = "ros2_bridge"
     inputs: ClassVar[dict[str, type[Message]]] = {"cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg}
     tick_period_s = 0.05
-    namespace_override: ClassVar[str | None] = None
-    """Set by ``--namespace`` on the command line (overrides the profile)."""
 
     def __init__(self, ctx: ServiceContext):
-        params = dict(ctx.params)
-        if self.namespace_override is not None:
-            params["namespace"] = self.namespace_override
-        self.params = from_dict(Ros2BridgeParams, params, where="services.ros2_bridge")
-        self._session: zenoh.Session | None = None
         super().__init__(ctx)
+        self.params = from_dict(Ros2BridgeParams, ctx.params, where="services.ros2_bridge")
         p = self.params
         self.odometry = OdometryBuffer(p.odom_history_s, p.match_tolerance_s, p.interpolate_max_gap_s, p.max_scan_lag_s)
         self.robot_cfg = ctx.exploration.robot
@@ -227,6 +218,8 @@ class Ros2BridgeService(Service):
         self.max_steps = ctx.exploration.episode.max_steps
         self.counters: Counter[str] = Counter()
         self.step = -1
+        self.episode = new_episode_id()
+        """One episode per bridge start: a restarted bridge counts steps from 0 again."""
         self.arena: GridGeometry | None = None
         self.last_scan_stamp_s = -math.inf
         self.pending: tuple[ros2_cdr.ScanConversion, float] | None = None
@@ -248,22 +241,28 @@ class Ros2BridgeService(Service):
         self._ros_subs: list[Any] = []
         self._queryables: list[Any] = []
 
-    # The shared loop sets ``session`` to None just before it closes the session: the last chance to
-    # stop the robot.
-    @property
-    def session(self) -> zenoh.Session | None:
-        return self._session
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--namespace", default=None, help="ROS namespace of the robot's topics (overrides the profile)")
 
-    @session.setter
-    def session(self, value: zenoh.Session | None) -> None:
-        old = getattr(self, "_session", None)
-        if value is None and old is not None and getattr(self, "sent_any_command", False):
-            try:
-                old.put(self.params.ros_key(self.params.cmd_vel_topic), ros2_cdr.twist_to_cdr(VelocityCommand()))
-                log.info("stopping: sent a zero Twist on %s", self.params.ros_key(self.params.cmd_vel_topic))
-            except zenoh.ZError as exc:
-                log.error("could not send the final zero Twist: %s", exc)
-        self._session = value
+    @classmethod
+    def apply_arguments(cls, args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any]:
+        return params if args.namespace is None else {**params, "namespace": args.namespace}
+
+    def shutdown(self) -> None:
+        """Stop taking ROS samples, then stop the robot: one last zero Twist if we ever commanded it."""
+        with self._bridge_lock:
+            entities, self._ros_subs, self._queryables = [*self._ros_subs, *self._queryables], [], []
+        for entity in entities:  # outside the lock: a callback in flight may be waiting for it
+            entity.undeclare()
+        if self.session is None or not self.sent_any_command:
+            return
+        key = self.params.ros_key(self.params.cmd_vel_topic)
+        try:
+            self.session.put(key, ros2_cdr.twist_to_cdr(VelocityCommand()))
+            log.info("stopping: sent a zero Twist on %s", key)
+        except zenoh.ZError as exc:
+            log.error("could not send the final zero Twist: %s", exc)
 
     # --- wiring ---------------------------------------------------------------------------------
     def start(self) -> None:
@@ -388,7 +387,7 @@ class Ros2BridgeService(Service):
             self.stamps.pop(s)
         if self.episode_state == "starting":
             self.episode_state = "exploring"
-        self.publish("clock", ClockMsg(k, stamp, self.arena))
+        self.publish("clock", ClockMsg(k, stamp, self.arena, self.episode))
         self.publish("odom", OdometryMsg(k, stamp, odom.pose, odom.velocity))
         self.publish("scan", scan_msg)
         self.processed += 1
@@ -497,6 +496,7 @@ class Ros2BridgeService(Service):
                 decisions=self.decisions,
                 last_decision_ms=self.decision_ms[-1] if self.decision_ms else 0.0,
                 terminated_by=self.terminated_by,
+                episode=self.episode,
             )
 
     def episode_result(self) -> EpisodeResultMsg:
@@ -536,13 +536,7 @@ class Ros2BridgeService(Service):
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m services.ros2_bridge --config FILE --robot ID [--namespace NS] --connect EP``."""
-    pre = argparse.ArgumentParser(add_help=False)
-    pre.add_argument("--namespace", default=None, help="ROS namespace of the robot's topics (overrides the profile)")
-    known, rest = pre.parse_known_args(argv)
-    cls: type[Ros2BridgeService] = Ros2BridgeService
-    if known.namespace is not None:
-        cls = type("Ros2BridgeService", (Ros2BridgeService,), {"namespace_override": known.namespace})
-    return service_main(cls, rest)
+    return service_main(Ros2BridgeService, argv)
 
 
 if __name__ == "__main__":

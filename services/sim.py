@@ -36,6 +36,7 @@ from cso_runtime.messages import (
     OdometryMsg,
     ScanMsg,
     encode,
+    new_episode_id,
 )
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.scenes import resolve_scenes
@@ -98,6 +99,7 @@ class SimService(Service):
         self.sim = build_simulator(ctx.profile, self.params, ctx)
         self.seed = int(ctx.profile.get("seed", 0))
         self.sim.reset(self.seed)
+        self.episode = new_episode_id()
         self.metrics = GroundTruthMetrics(self.sim.plan, ctx.exploration.episode)
         self.max_steps = ctx.exploration.episode.max_steps
         self.period_s = ctx.exploration.robot.control_period_s
@@ -146,7 +148,7 @@ class SimService(Service):
     def publish_step(self) -> None:
         """Clock, odometry and scan of the current step (also used to re-request a lost step)."""
         scan = self.sim.scan()
-        self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry))
+        self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry, self.episode))
         self.publish("odom", OdometryMsg(self.step, self.sim.time_s, self.sim.odometry()))
         self.publish("scan", ScanMsg(self.step, scan, self.sim.sensor_pose()))
         self.last_publish_s = time.monotonic()
@@ -168,6 +170,7 @@ class SimService(Service):
             terminated_by=self.terminated_by,
             reason=self.fail_reason,
             lockstep_timeouts=self.timeouts,
+            episode=self.episode,
         )
 
     def finish(self, state: str, terminated_by: str, reason: str = "") -> None:

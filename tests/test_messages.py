@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import (
+    MESSAGE_TYPES,
     SCHEMA_VERSION,
     ClockMsg,
     CmdVelMsg,
@@ -54,7 +55,10 @@ def _observation():
     return ObservationBuilder().build(m, Pose2D(2.0, 1.5, 0.0), np.array([[2.0, 1.5]]))
 
 
-def _wire(schema: str, body: dict, version: int = SCHEMA_VERSION) -> bytes:
+def _wire(schema: str, body: dict, version: int | None = None) -> bytes:
+    """An envelope by hand; ``version`` defaults to the schema's current one."""
+    if version is None:
+        version = MESSAGE_TYPES[schema].VERSION if schema in MESSAGE_TYPES else SCHEMA_VERSION
     return msgpack.packb({"schema": schema, "v": version, "body": body}, use_bin_type=True)
 
 
@@ -164,6 +168,21 @@ def test_unknown_version_says_so():
     body = _body(_scan())
     with pytest.raises(MessageError, match="unknown version"):
         decode(_wire("scan", body, version=SCHEMA_VERSION + 1))
+
+
+def test_clock_and_episode_status_carry_the_episode_and_reject_version_1():
+    """Both schemas gained the episode id in v2: a v1 payload (no id) is an unknown version."""
+    clock = ClockMsg(3, 0.75, GridGeometry(0.1, (4, 5)), episode=2**47 + 5)
+    assert decode(encode(clock)) == clock
+    status = EpisodeStatusMsg("exploring", 3, episode=7)
+    assert decode(encode(status)).episode == 7
+    for msg in (clock, status):
+        body = _body(msg)
+        del body["episode"]
+        with pytest.raises(MessageError, match="unknown version 1"):
+            decode(_wire(msg.SCHEMA, body, version=1))
+        with pytest.raises(MessageError, match="episode"):
+            decode(_wire(msg.SCHEMA, body))
 
 
 def test_wrong_schema_for_the_key_is_rejected():

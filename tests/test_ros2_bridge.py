@@ -45,6 +45,7 @@ from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpo
 from services.ros2_bridge import OdometryBuffer, Ros2BridgeParams
 
 REPO = Path(__file__).resolve().parents[1]
+PROFILES = REPO / "cso_runtime" / "profiles"
 
 
 def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
@@ -328,7 +329,7 @@ def test_fake_limo_through_the_bridge(namespace: str):
 def test_bridge_process_takes_namespace_and_stops_the_robot_on_sigint(tmp_path: Path):
     """``python -m services.ros2_bridge --namespace NS``: the ROS keys follow NS, and SIGINT sends a
     last zero Twist (the watchdog is set far away so the zero can only come from the shutdown)."""
-    profile = yaml.safe_load((REPO / "configs" / "profiles" / "limo-ros2.yaml").read_text())
+    profile = yaml.safe_load((PROFILES / "limo-ros2.yaml").read_text())
     profile["services"]["ros2_bridge"]["cmd_timeout_s"] = 60.0
     cfg = tmp_path / "limo.yaml"
     cfg.write_text(yaml.safe_dump(profile))
@@ -435,7 +436,7 @@ def test_fake_limo_is_explored_through_the_limo_ros2_profile():
 
     plan = resolve_scenes("generated:small:1:0")[0].load()
     g = plan.geometry
-    profile_path = REPO / "configs" / "profiles" / "limo-ros2.yaml"
+    profile_path = PROFILES / "limo-ros2.yaml"
     port = free_tcp_port()
     router = TransportConfig(mode="router", listen=[loopback_endpoint(port)])
     client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])

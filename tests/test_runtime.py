@@ -33,6 +33,7 @@ from cso_runtime.status import query_status
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 
 REPO = Path(__file__).resolve().parents[1]
+PROFILES = REPO / "cso_runtime" / "profiles"
 SCENE = "generated:small:1:0"
 
 
@@ -51,7 +52,7 @@ def cli(*args: str, cwd: Path, timeout_s: float = 60.0) -> subprocess.CompletedP
 
 
 def write_profile(tmp_path: Path, **sim_params: Any) -> Path:
-    data = yaml.safe_load((REPO / "configs" / "profiles" / "lockstep.yaml").read_text())
+    data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
     data["scene"] = SCENE
     data["services"]["sim"].update(sim_params)
     path = tmp_path / "test_profile.yaml"
@@ -163,7 +164,7 @@ def test_one_policy_server_answers_several_robots():
 def test_bad_profiles_fail_before_anything_starts(tmp_path):
     r = cli("up", "--profile", "no-such-profile", "--no-live", cwd=tmp_path)
     assert r.returncode == 2 and "unknown profile 'no-such-profile'" in r.stderr
-    bad = yaml.safe_load((REPO / "configs" / "profiles" / "lockstep.yaml").read_text())
+    bad = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
     bad["services"]["sim"]["warp_speed"] = 9
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
     r = cli("up", "--profile", str(tmp_path / "bad.yaml"), "--no-live", cwd=tmp_path)

@@ -1,0 +1,186 @@
+"""A fake LIMO for development and tests: the MuJoCo LIMO speaking only ROS 2, as zenoh-bridge-ros2dds
+would expose a real one.
+
+    python -m robot_sim.fake_limo --listen tcp/127.0.0.1:7447 [--namespace limo1] [--scene SPEC] [--speed 4]
+    cso-runtime up --profile limo-ros2 --connect tcp/127.0.0.1:7447 [--namespace limo1]
+
+It opens its own Zenoh router on ``--listen`` (like the bridge on the robot, multicast scouting off),
+runs ``MujocoSimulator`` in real time (``--speed`` x), and publishes on the bare keys ``[NS/]odom``
+(nav_msgs/Odometry) and ``[NS/]scan`` (sensor_msgs/LaserScan, the front 180 degrees) the CDR bytes
+that the rosbags typestore serialises from its own message classes; it drives the robot with the
+geometry_msgs/Twist it receives on ``[NS/]cmd_vel`` (the simulator's watchdog stops it when they stop).
+Nothing of our own message format is used. Each scan goes out with an odometry sample at its exact
+stamp (and odometry is also published at ``--odom-rate-hz``), so the scan/odometry matching is exact.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import signal
+import sys
+import threading
+from typing import Any
+
+import numpy as np
+
+from cso_runtime.config import ExplorationConfig
+from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M
+from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand
+from cso_runtime import ros2_cdr
+from cso_runtime.ros2_cdr import typestore
+from cso_runtime.scenes import resolve_scenes
+from cso_runtime.transport import TransportConfig, open_session
+from robot_sim.sim import MujocoSimulator, RealTimePacer
+
+log = logging.getLogger("cso.fake_limo")
+
+BASE_STAMP_S = 1000.0
+"""Robot clock at the simulation's time 0 (a real robot's stamps are far from zero)."""
+
+
+def _header(stamp_s: float, frame_id: str) -> Any:
+    t = typestore().types
+    sec = math.floor(stamp_s)
+    nanosec = min(round((stamp_s - sec) * 1e9), 999_999_999)
+    return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id)
+
+
+def odometry_cdr(stamp_s: float, pose: Pose2D, linear_mps: float, angular_radps: float) -> bytes:
+    """nav_msgs/Odometry of base_link in odom, serialised by rosbags."""
+    t = typestore().types
+    v3 = t["geometry_msgs/msg/Vector3"]
+    p = t["geometry_msgs/msg/Pose"](
+        position=t["geometry_msgs/msg/Point"](x=pose.x_m, y=pose.y_m, z=0.0),
+        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(pose.yaw_rad / 2), w=math.cos(pose.yaw_rad / 2)),
+    )
+    msg = t["nav_msgs/msg/Odometry"](
+        header=_header(stamp_s, "odom"),
+        child_frame_id="base_link",
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=p, covariance=np.zeros(36)),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](
+            twist=t["geometry_msgs/msg/Twist"](linear=v3(x=linear_mps, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=angular_radps)),
+            covariance=np.zeros(36),
+        ),
+    )
+    return bytes(typestore().serialize_cdr(msg, "nav_msgs/msg/Odometry"))
+
+
+def laserscan_cdr(stamp_s: float, scan: LaserScan) -> bytes:
+    """sensor_msgs/LaserScan in laser_link, serialised by rosbags (angle_max from the beam count)."""
+    n = len(scan.ranges_m)
+    msg = typestore().types["sensor_msgs/msg/LaserScan"](
+        header=_header(stamp_s, "laser_link"),
+        angle_min=scan.angle_min_rad,
+        angle_max=scan.angle_min_rad + scan.angle_increment_rad * (n - 1),
+        angle_increment=scan.angle_increment_rad,
+        time_increment=0.0,
+        scan_time=0.0,
+        range_min=scan.range_min_m,
+        range_max=scan.range_max_m,
+        ranges=np.asarray(scan.ranges_m, dtype=np.float32),
+        intensities=np.zeros(0, dtype=np.float32),
+    )
+    return bytes(typestore().serialize_cdr(msg, "sensor_msgs/msg/LaserScan"))
+
+
+class FakeLimo:
+    """The MuJoCo LIMO on one Zenoh session, in ROS 2 terms only."""
+
+    def __init__(self, session: Any, sim: MujocoSimulator, namespace: str = "", odom_rate_hz: float = 20.0):
+        self.session, self.sim = session, sim
+        self.prefix = f"{namespace.strip('/')}/" if namespace.strip("/") else ""
+        self.odom_period_s = 1.0 / odom_rate_hz
+        self.last_odom_s = -math.inf
+        self.commands = 0
+        self.bad_commands = 0
+        self.scans = 0
+        self._lock = threading.Lock()
+        self.pub_odom = session.declare_publisher(self.prefix + "odom")
+        self.pub_scan = session.declare_publisher(self.prefix + "scan")
+        self.sub = session.declare_subscriber(self.prefix + "cmd_vel", self._on_twist)
+
+    def _on_twist(self, sample: Any) -> None:
+        try:
+            msg = ros2_cdr.decode(sample.payload.to_bytes(), "geometry_msgs/msg/Twist")  # rosbags, wrapped
+        except ros2_cdr.CdrError as exc:
+            self.bad_commands += 1
+            log.warning("undecodable Twist (%d so far): %s", self.bad_commands, exc)
+            return
+        with self._lock:
+            if self.sim.set_command(VelocityCommand(float(msg.linear.x), float(msg.angular.z))):
+                self.commands += 1
+
+    def _put_odom(self, time_s: float, base_pose: Pose2D) -> None:
+        if time_s <= self.last_odom_s:
+            return
+        v, _, w = self.sim.body_velocity()
+        self.pub_odom.put(odometry_cdr(BASE_STAMP_S + time_s, base_pose, v, w))
+        self.last_odom_s = time_s
+
+    def publish_due(self) -> None:
+        """Every scan fired since the last call (each preceded by odometry at its stamp), then odometry."""
+        with self._lock:
+            fired = self.sim.drain_scans()
+            now_s, odom = self.sim.time_s, self.sim.odometry()
+        for sensor_pose, scan in fired:
+            self._put_odom(scan.stamp_s, sensor_pose.compose_offset(-self.sim.lidar_mount_x_m))
+            self.pub_scan.put(laserscan_cdr(BASE_STAMP_S + scan.stamp_s, scan))
+            self.scans += 1
+        if now_s - self.last_odom_s >= self.odom_period_s:
+            self._put_odom(now_s, odom)
+
+    def run(self, stop: threading.Event, speed: float, poll_period_s: float = 0.005) -> None:
+        """Real time at ``speed`` x until ``stop``."""
+        pacer = RealTimePacer(self.sim, speed=speed)
+        pacer.start()
+        while not stop.is_set():
+            with self._lock:
+                pacer.poll()
+            self.publish_due()
+            stop.wait(poll_period_s)
+
+    def close(self) -> None:
+        self.sub.undeclare()
+        self.pub_odom.undeclare()
+        self.pub_scan.undeclare()
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m robot_sim.fake_limo", description="A MuJoCo LIMO speaking ROS 2 CDR over Zenoh")
+    p.add_argument("--listen", action="append", required=True, help="Zenoh endpoint of the robot's router, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--namespace", default="", help="ROS namespace: keys NS/scan, NS/odom, NS/cmd_vel")
+    p.add_argument("--scene", default="generated:small:1:0", help="Scene spec: builtin, DIR, FILE.png, generated:SCALE:N:SEED")
+    p.add_argument("--m-per-px", type=float, default=0.1, help="Metres per pixel of PNG plans")
+    p.add_argument("--speed", type=float, default=1.0, help="Real-time factor")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--odom-rate-hz", type=float, default=20.0, help="Odometry rate besides the samples at each scan")
+    p.add_argument("--log-level", default="INFO")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    if not (args.speed > 0 and args.odom_rate_hz > 0):
+        p.error("--speed and --odom-rate-hz must be positive")
+    refs = resolve_scenes(args.scene, limit=1, resolution_m=args.m_per_px)
+    if not refs:
+        p.error(f"scene {args.scene!r} resolves to no scene")
+    plan = refs[0].load()
+    exploration = ExplorationConfig()
+    exploration.sensor.mount_x_m = LIMO_LIDAR_MOUNT_X_M
+    sim = MujocoSimulator(plan, exploration.sensor, exploration.robot, seed=args.seed)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    with open_session(TransportConfig(mode="router", listen=list(args.listen))) as session:
+        robot = FakeLimo(session, sim, args.namespace, args.odom_rate_hz)
+        log.info("fake LIMO on %s in %s at %.1fx: keys %sscan, %sodom, %scmd_vel", ", ".join(args.listen), plan.name, args.speed, *[robot.prefix] * 3)
+        try:
+            robot.run(stop, args.speed)
+        finally:
+            robot.close()
+    log.info("stopped after %d scans and %d commands", robot.scans, robot.commands)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,199 @@
+"""Issue 6 through the launcher: ``cso-runtime up --profile limo-ros2 --connect ... --namespace ... --record``
+against a fake LIMO process (``python -m robot_sim.fake_limo``: the MuJoCo LIMO speaking only ROS 2 CDR
+made by rosbags, on its own Zenoh router), then the recording replayed into a fresh mapper.
+
+Also the launcher's profile options and the mapper's episode handling. Real processes, loopback, free
+ports, multicast scouting off, waits with deadlines, every process stopped in ``finally``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from cso_runtime.config import ConfigError, ExplorationConfig
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
+from cso_runtime.keys import RobotKeys
+from cso_runtime.launcher import PACKAGED_PROFILES, find_profile, load_profile, pid_alive
+from cso_runtime.messages import ClockMsg, MapMsg, ScanMsg, decode
+from cso_runtime.recording import read_recording, replay
+from cso_runtime.scenes import resolve_scenes
+from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+
+SCENE = "generated:small:1:0"
+
+
+def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = cond()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def _kill_group(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(5)
+
+
+def _run_pids(runs: Path) -> list[int]:
+    pids = []
+    for f in runs.glob("*/run.json"):
+        info = json.loads(f.read_text())
+        pids += [int(info["launcher_pid"])] + [int(s["pid"]) for s in info["services"].values() if s.get("pid")]
+    return pids
+
+
+# --- launcher options and packaged profiles ----------------------------------------------------------
+
+
+def test_packaged_profiles_are_found_from_anywhere_and_take_connect_and_namespace(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # no ./configs/profiles here: the packaged ones are used
+    assert find_profile("limo-ros2") == PACKAGED_PROFILES / "limo-ros2.yaml"
+    profile, data = load_profile("limo-ros2", connect=["tcp/10.0.0.7:7447", "tcp/10.0.0.8:7447"], namespace="limo1")
+    profile.validate()
+    assert profile.router.connect == ["tcp/10.0.0.7:7447", "tcp/10.0.0.8:7447"]
+    assert data["services"]["ros2_bridge"]["namespace"] == "limo1"
+    with pytest.raises(ConfigError, match="ros2_bridge"):
+        load_profile("sim", namespace="limo1")
+    with pytest.raises(ConfigError, match="namespace"):
+        load_profile("limo-ros2", namespace="1-not-a-ros-name")
+    own = tmp_path / "configs" / "profiles"
+    own.mkdir(parents=True)
+    (own / "limo-ros2.yaml").write_text((PACKAGED_PROFILES / "limo-ros2.yaml").read_text().replace("seed: 0", "seed: 5"))
+    assert load_profile("limo-ros2")[0].seed == 5, "a user's ./configs/profiles/ comes first"
+
+
+# --- the mapper: a new episode is an episode id, not a step going back --------------------------------
+
+
+def test_mapper_keeps_its_map_when_a_clock_arrives_late_and_clears_it_on_a_new_episode():
+    from services.common import ServiceContext
+    from services.mapper import MapperService
+
+    svc = MapperService(ServiceContext("mapper", "t9", {}, ExplorationConfig(), TransportConfig(), {}))
+    published: list[MapMsg] = []
+    svc.publish = lambda topic, msg, robot=None: published.append(msg)  # no session needed here
+    geom = GridGeometry(0.1, (40, 40))
+    scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
+    svc.on_message("t9", "clock", ClockMsg(0, 0.0, geom, episode=11), 0.0)
+    for k in range(4):
+        svc.on_message("t9", "scan", ScanMsg(k, scan, Pose2D(1.0 + 0.3 * k, 2.0, 0.0)), 0.0)
+    svc.on_message("t9", "clock", ClockMsg(1, 0.25, geom, episode=11), 0.0)  # handled after the scan of step 3
+    assert svc.map_step == 3 and (svc.map.to_occupancy_grid() != -1).sum() > 100
+    svc.on_message("t9", "clock", ClockMsg(0, 0.0, geom, episode=12), 0.0)
+    assert svc.map_step == -1 and (svc.map.to_occupancy_grid() != -1).sum() == 0
+    svc.on_message("t9", "scan", ScanMsg(0, scan, Pose2D(2.0, 2.0, 0.0)), 0.0)
+    assert svc.map_step == 0 and published[-1].step == 0
+
+
+# --- end to end ---------------------------------------------------------------------------------------
+
+
+def test_up_limo_ros2_explores_a_fake_limo_and_its_recording_rebuilds_the_map(tmp_path: Path):
+    port = free_tcp_port()
+    runs = tmp_path / "runs"
+    limo = subprocess.Popen(
+        [sys.executable, "-m", "robot_sim.fake_limo", "--listen", loopback_endpoint(port), "--namespace", "limo1", "--scene", SCENE, "--speed", "3"],
+        cwd=tmp_path,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
+    up = None
+    try:
+        up = subprocess.Popen(
+            [
+                sys.executable, "-m", "cso_runtime.cli", "up", "--profile", "limo-ros2",
+                "--connect", loopback_endpoint(port), "--namespace", "limo1",
+                "--record", "--no-live", "--runs-dir", str(runs),
+            ],
+            cwd=tmp_path,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+        )  # fmt: skip
+        try:
+            out, _ = up.communicate(timeout=50)
+        except subprocess.TimeoutExpired:
+            os.killpg(up.pid, signal.SIGINT)  # the launcher stops its services
+            out, _ = up.communicate(timeout=30)
+            logs = "".join(f"--- {f.name}\n{f.read_text()[-1500:]}" for f in sorted(runs.glob("*/logs/*.log")))
+            raise AssertionError(f"up did not finish the exploration within 50 s:\n{out[-2000:]}\n{logs}") from None
+        assert up.returncode == 0, out[-3000:]
+    finally:
+        limo.send_signal(signal.SIGINT)
+        try:
+            limo_out, _ = limo.communicate(timeout=10)
+        except subprocess.TimeoutExpired:
+            _kill_group(limo)
+            limo_out = ""
+        if up is not None:
+            _kill_group(up)
+        left = [p for p in _run_pids(runs) if pid_alive(p)]
+        for p in left:
+            os.kill(p, signal.SIGKILL)
+    assert not left, f"processes left: {left}"
+    assert "stopped after" in limo_out and " 0 commands" not in limo_out, limo_out[-2000:]
+
+    (run_dir,) = [p.parent for p in runs.glob("*/summary.json")]
+    row = next(iter(json.loads((run_dir / "summary.json").read_text())["methods"].values()))
+    plan = resolve_scenes(SCENE)[0].load()
+    free_m2 = float(plan.free.sum()) * plan.geometry.cell_area_m2
+    assert row["terminated_by"] == {"no_frontier": 1}, row
+    assert row["explored_area_m2"] > 0.9 * free_m2, f"explored {row['explored_area_m2']} m2 of {free_m2:.1f} m2 free"
+
+    # The recording: every step's clock and scan, and the mapper's maps. Replayed at full speed into a
+    # fresh mapper, it rebuilds the map the run's mapper had at its last published step.
+    recording = run_dir / "recording.mcap"
+    keys = RobotKeys("r0")
+    maps = [decode(m.payload, MapMsg) for m in read_recording(recording, ["map"])]
+    final = max(maps, key=lambda m: m.step)
+    assert final.step > 50 and (final.grid != -1).sum() > 1000
+    scan_steps = sorted({decode(m.payload, ScanMsg).step for m in read_recording(recording, ["scan"])})
+    assert scan_steps[: final.step + 1] == list(range(final.step + 1)), "the recording misses scans"
+
+    from services.common import ServiceContext, run_service
+    from services.mapper import MapperService
+
+    router = TransportConfig(mode="router", listen=[loopback_endpoint(free_tcp_port())])
+    client = TransportConfig(mode="client", connect=router.listen)
+    with open_session(router) as session:
+        fresh_maps: dict[int, MapMsg] = {}
+        sub = session.declare_subscriber(keys.map, lambda s: fresh_maps.setdefault((m := decode(s.payload.to_bytes(), MapMsg)).step, m))
+        fresh = MapperService(ServiceContext("mapper", "r0", {}, ExplorationConfig(), client, {"restore_timeout_s": 0.1}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(fresh, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: any(r.ok for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5)), 15, "the fresh mapper")
+            with open_session(client) as play:
+                stats = replay(play, recording, "max", topics=["clock", "scan"])
+            assert stats.per_key[keys.clock] > final.step and stats.per_key[keys.scan] > final.step
+            wait_for(lambda: final.step in fresh_maps, 20, f"the fresh mapper's map of step {final.step}")
+        finally:
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+    assert fresh_maps[final.step].geometry == final.geometry
+    differ = int((fresh_maps[final.step].grid != final.grid).sum())
+    assert differ == 0, f"{differ} cells differ; fresh mapper status: rejected {fresh.rejected}, maps of steps {sorted(fresh_maps)[:5]}..."
