@@ -313,8 +313,11 @@ class RichProgress:
             TextColumn("{task.description}"),
         )
         self.task = None
+        self.done = 0
+        self.total = 0
 
     def start(self, total: int) -> None:
+        self.total = total
         self.progress.start()
         self.task = self.progress.add_task("", total=total)
 
@@ -325,6 +328,9 @@ class RichProgress:
         else:
             text = f"[red]{outcome.method} {outcome.map}: FAILED"
         self.progress.update(self.task, advance=1, description=text)
+        self.done += 1
+        if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode
+            self.progress.console.print(f"[{self.done}/{self.total}] {text}", highlight=False)
 
     def stop(self) -> None:
         self.progress.stop()
