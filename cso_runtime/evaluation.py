@@ -15,7 +15,7 @@ import multiprocessing
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -114,6 +114,20 @@ class EpisodeOutcome:
     trajectory_xy_m: np.ndarray | None = None
     coverage_curve_pct: np.ndarray | None = None
 
+    @classmethod
+    def finished(cls, method: str, result: EpisodeResult, row: dict[str, Any], free: np.ndarray, resolution_m: float) -> "EpisodeOutcome":
+        """The outcome of an episode that ran to its end (in-process or through the runtime)."""
+        return cls(
+            method,
+            result.scene,
+            row=row,
+            free=free,
+            resolution_m=resolution_m,
+            explored=result.explored_free,
+            trajectory_xy_m=result.trajectory_xy_m,
+            coverage_curve_pct=result.coverage_curve_pct,
+        )
+
 
 def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float) -> dict[str, Any]:
     """One CSV row / JSON record of Table 1 metrics."""
@@ -187,16 +201,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
     except Exception as exc:  # noqa: BLE001 - one bad episode must not stop the run; it is reported
         log.debug("episode failed", exc_info=True)
         return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
-    return EpisodeOutcome(
-        job.method,
-        plan.name,
-        row=row,
-        free=plan.free,
-        resolution_m=plan.resolution_m,
-        explored=result.explored_free,
-        trajectory_xy_m=result.trajectory_xy_m,
-        coverage_curve_pct=result.coverage_curve_pct,
-    )
+    return EpisodeOutcome.finished(job.method, result, row, plan.free, plan.resolution_m)
 
 
 def _mean(rows: list[dict[str, Any]], key: str) -> float | None:

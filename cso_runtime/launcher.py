@@ -520,16 +520,7 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
     row = episode_row(method, result.seed, er, wall_s)
     write_outputs(out_dir, [row], [], [method], meta)
     save_episode_npz(out_dir / "episodes" / method / f"{result.scene}.npz", er, row)
-    outcome = EpisodeOutcome(
-        method,
-        result.scene,
-        row=row,
-        free=result.plan_free,
-        resolution_m=result.resolution_m,
-        explored=result.explored_free,
-        trajectory_xy_m=result.trajectory_xy_m,
-        coverage_curve_pct=result.coverage_curve_pct,
-    )
+    outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m)
     plot_coverage_curves(out_dir / "coverage_curves.png", [outcome])
     plot_trajectories(out_dir / "trajectories" / f"{result.scene}.png", result.scene, [outcome])
     return out_dir

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import time
+from typing import Any, Callable
+
 import numpy as np
 import pytest
 
@@ -39,3 +42,14 @@ def two_rooms(resolution_m: float = 0.1) -> FloorPlan:
 @pytest.fixture
 def room() -> FloorPlan:
     return box_room()
+
+
+def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
+    """Poll ``cond`` until it returns something truthy, or fail with ``what`` after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        value = cond()
+        if value:
+            return value
+        time.sleep(0.02)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")

@@ -14,10 +14,7 @@ import signal
 import subprocess
 import sys
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -30,18 +27,10 @@ from cso_runtime.messages import ClockMsg, MapMsg, ScanMsg, decode
 from cso_runtime.recording import read_recording, replay
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+from tests.conftest import wait_for
 
 SCENE = "generated:small:1:0"
 
-
-def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = cond()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
 def _kill_group(proc: subprocess.Popen) -> None:

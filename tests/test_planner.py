@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cso_runtime.config import RobotConfig, SensorConfig
-from cso_runtime.geodesic import geodesic_distance, traversable_cells
+from cso_runtime.geodesic import traversable_cells
 from cso_runtime.geometry import Pose2D, VelocityCommand
 from cso_runtime.planner import LocalPlanner, NoPath, PlannerStatus, ProgressChecker, plan_path
 from cso_runtime.simulator import KinematicSimulator

@@ -8,10 +8,7 @@ every wait is a condition with a deadline; sessions and threads are closed in ``
 from __future__ import annotations
 
 import threading
-import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import msgpack
 import numpy as np
@@ -34,19 +31,11 @@ from cso_runtime.recording import (
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+from tests.conftest import wait_for
 
 PROBE = encode(ClockMsg(0, 0.0))
 """Published until a subscriber sees it: proves the subscription reached the router."""
 
-
-def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = cond()
-        if value:
-            return value
-        time.sleep(0.02)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
 def sample_payloads(keys: RobotKeys) -> list[tuple[str, bytes]]:

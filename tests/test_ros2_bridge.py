@@ -15,7 +15,6 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -43,19 +42,11 @@ from cso_runtime.messages import (
 )
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 from services.ros2_bridge import OdometryBuffer, Ros2BridgeParams
+from tests.conftest import wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILES = REPO / "cso_runtime" / "profiles"
 
-
-def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        value = cond()
-        if value:
-            return value
-        time.sleep(0.01)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
 # --- the fake LIMO's bytes, made by rosbags ----------------------------------------------------------

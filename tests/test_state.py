@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from cso_runtime.frontiers import cluster_frontiers, frontier_cells, frontier_entropy
+from cso_runtime.frontiers import frontier_cells, frontier_entropy
 from cso_runtime.geodesic import geodesic_distance, inflate, traversable_cells
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import ObservationBuilder
