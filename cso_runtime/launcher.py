@@ -52,6 +52,9 @@ class RouterConfig:
     """Endpoints to listen on; port 0 picks a free port at start."""
     connect: list[str] = field(default_factory=list)
     """Other routers to join (services on other hosts)."""
+    embedded: bool = True
+    """Open our own router. False: open none and join the routers in ``connect`` instead (the robot's
+    zenoh-bridge-ros2dds in the ``limo-ros2`` profile); every process then connects to them directly."""
     service_mode: str = "client"
     """Zenoh mode of the services: ``client`` (every message through the router) or ``peer`` (services
     also listen on a loopback port and talk directly once the router has introduced them)."""
@@ -59,6 +62,8 @@ class RouterConfig:
     def validate(self) -> None:
         if self.service_mode not in ("client", "peer"):
             raise ConfigError(f"router.service_mode must be client or peer, got {self.service_mode!r}")
+        if not self.embedded and not self.connect:
+            raise ConfigError("router.embedded is false: give the router to join with --connect (e.g. tcp/ROBOT_IP:7447)")
 
 
 @dataclass
@@ -439,9 +444,14 @@ class Launcher:
         """Start everything and supervise until the episode ends (or until stopped when ``stay_after_done``)."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.profile_path.write_text(yaml.safe_dump(self.data, sort_keys=False))
-        listen = [ep.replace(":0", f":{free_tcp_port()}") if ep.endswith(":0") else ep for ep in self.profile.router.listen]
-        self.endpoints = listen
-        transport = TransportConfig(mode="router", listen=listen, connect=list(self.profile.router.connect))
+        router = self.profile.router
+        if router.embedded:
+            listen = [ep.replace(":0", f":{free_tcp_port()}") if ep.endswith(":0") else ep for ep in router.listen]
+            self.endpoints = listen
+            transport = TransportConfig(mode="router", listen=listen, connect=list(router.connect))
+        else:  # join the existing router(s) instead of opening one
+            self.endpoints = list(router.connect)
+            transport = TransportConfig(mode="client", connect=list(router.connect))
         view = LiveView(self) if live else None
         with open_session(transport) as session:
             subs = [session.declare_subscriber(self.keys.topic(t), self._on_sample) for t in ("episode_status", "episode_result", "map", "goal", "path")]

@@ -62,12 +62,17 @@ def test_packaged_profiles_are_found_from_anywhere_and_take_connect_and_namespac
     assert data["services"]["ros2_bridge"]["namespace"] == "limo1"
     with pytest.raises(ConfigError, match="ros2_bridge"):
         load_profile("sim", namespace="limo1")
+    robot = ["tcp/10.0.0.7:7447"]
     with pytest.raises(ConfigError, match="namespace"):
-        load_profile("limo-ros2", namespace="1-not-a-ros-name")
+        load_profile("limo-ros2", connect=robot, namespace="1-not-a-ros-name")
+    # The runtime joins the robot's router instead of opening its own, so it needs to be told where.
+    assert profile.router.embedded is False
+    with pytest.raises(ConfigError, match="--connect"):
+        load_profile("limo-ros2")
     own = tmp_path / "configs" / "profiles"
     own.mkdir(parents=True)
     (own / "limo-ros2.yaml").write_text((PACKAGED_PROFILES / "limo-ros2.yaml").read_text().replace("seed: 0", "seed: 5"))
-    assert load_profile("limo-ros2")[0].seed == 5, "a user's ./configs/profiles/ comes first"
+    assert load_profile("limo-ros2", connect=robot)[0].seed == 5, "a user's ./configs/profiles/ comes first"
 
 
 # --- the mapper: a new episode is an episode id, not a step going back --------------------------------
