@@ -23,7 +23,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
-from cso_runtime.policies import BASELINES, LEARNED_METHODS, make_policy
+from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, scale_of
 from cso_runtime.simulator import SIMULATORS, make_simulator
 
@@ -82,6 +82,9 @@ class EvalRequest:
             raise ConfigError("no --method given")
         if unknown:
             raise ConfigError(f"unknown method(s) {', '.join(unknown)}; available: {', '.join(sorted(known))}")
+        untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available_methods()]
+        if untrained:
+            raise ConfigError(f"no shipped weights for {', '.join(untrained)}; train with `cso-runtime train --variant NAME`")
         if self.sim not in SIMULATORS:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
         if self.max_steps <= 0 or self.workers <= 0:
