@@ -42,6 +42,7 @@ from cso_runtime.messages import (
 )
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 from services.ros2_bridge import OdometryBuffer, Ros2BridgeParams
+from robot_sim.fake_limo import odometry_cdr
 from tests.conftest import wait_for
 
 REPO = Path(__file__).resolve().parents[1]
@@ -89,22 +90,8 @@ def ros_scan(
 
 
 def ros_odom(stamp_s: float, x: float, y: float, yaw: float, v: float = 0.0, w: float = 0.0) -> bytes:
-    t = _t()
-    v3 = t["geometry_msgs/msg/Vector3"]
-    pose = t["geometry_msgs/msg/Pose"](
-        position=t["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
-        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)),
-    )
-    msg = t["nav_msgs/msg/Odometry"](
-        header=_header(stamp_s, "odom"),
-        child_frame_id="base_link",
-        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
-        twist=t["geometry_msgs/msg/TwistWithCovariance"](
-            twist=t["geometry_msgs/msg/Twist"](linear=v3(x=v, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=w)),
-            covariance=np.zeros(36),
-        ),
-    )
-    return bytes(ros2_cdr.typestore().serialize_cdr(msg, "nav_msgs/msg/Odometry"))
+    """Odometry CDR built by rosbags (the fake LIMO's own builder, not our encoder)."""
+    return odometry_cdr(stamp_s, Pose2D(x, y, yaw), v, w)
 
 
 def rosbags_decode(raw: bytes, typename: str):
