@@ -2,7 +2,8 @@
 
 Target (issue 5): at most 3 ms per decision for the network. Reports p50/p99 of
   network   the runtime path on a ready graph (200 frontier + 20 path nodes): encoder, actor scores,
-            masked softmax, argmax (what ``LearnedPolicy`` runs per decision);
+            masked softmax, argmax, as the frozen TorchScript trace ``LearnedPolicy`` runs per decision
+            on CPU (and, for comparison, the eager module);
   ppo step  ``get_action_and_value`` (adds the critic and the masked categorical; training only);
   graph     building that graph from an Observation (k-NN, features) — the rest of the policy's work;
   policy    LearnedPolicy.select end to end minus the observation itself (masks + graph + network).
@@ -25,7 +26,7 @@ from cso_runtime.config import MaskConfig
 from cso_runtime.frontiers import FrontierCluster
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.learned.graph import GraphConfig, build_graph
-from cso_runtime.learned.network import GraphActorCritic, to_torch
+from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, to_torch, trace_decision
 from cso_runtime.learned.registry import LearnedPolicy, load_checkpoint
 from cso_runtime.observation import Observation
 
@@ -76,12 +77,20 @@ def main() -> None:
     with torch.inference_mode():
         for _ in range(20):
             torch.softmax(model.masked_logits(g, mask), -1).argmax(-1)
-        net_cpu = []
-        for _ in range(args.repeats):
+        traced = trace_decision(model, g, mask)
+        inputs = [g[k] for k in GRAPH_KEYS]
+        net_cpu, eager, eager_cpu = [], [], []
+        for _ in range(20):
+            torch.softmax(traced(*inputs, mask), -1).argmax(-1)
+        for _ in range(args.repeats):  # alternate, so both see the same machine load
             t0, c0 = time.perf_counter(), time.thread_time()
-            torch.softmax(model.masked_logits(g, mask), -1).argmax(-1)
+            torch.softmax(traced(*inputs, mask), -1).argmax(-1)
             net.append(time.perf_counter() - t0)
             net_cpu.append(time.thread_time() - c0)
+            t0, c0 = time.perf_counter(), time.thread_time()
+            torch.softmax(model.masked_logits(g, mask), -1).argmax(-1)
+            eager.append(time.perf_counter() - t0)
+            eager_cpu.append(time.thread_time() - c0)
         for _ in range(args.repeats):
             t0 = time.perf_counter()
             model.get_action_and_value(g, mask)
@@ -97,8 +106,10 @@ def main() -> None:
         policy_t.append(time.perf_counter() - t0)
 
     print(f"torch {torch.__version__}, threads {torch.get_num_threads()}, frontier nodes {args.frontiers}, path nodes {config.max_path_nodes}")
-    print(f"network (forward + masked argmax): {percentiles(net)}")
+    print(f"network (forward + masked argmax): {percentiles(net)}  (frozen trace: what LearnedPolicy runs on CPU)")
     print(f"  same, thread CPU time:           {percentiles(net_cpu)}  (robust to other processes on a busy machine)")
+    print(f"  eager module:                    {percentiles(eager)}")
+    print(f"  eager module, thread CPU time:   {percentiles(eager_cpu)}")
     print(f"ppo step (actor + critic + sample): {percentiles(ppo_step)}")
     print(f"graph build:                       {percentiles(build)}")
     print(f"policy.select (masks+graph+net):   {percentiles(policy_t)}")

@@ -4,18 +4,22 @@ Runs the ``lockstep`` profile with ``up``'s launcher (five service processes, lo
 this process listens to scan, map, frontiers and goal and stamps each arrival on one clock:
 
 - scan -> map: from the sim's scan of step k to the mapper's map of step k (integrate_scan + 2 hops);
-- map -> goal: from the map of step k to the policy's goal of step k (planner check, decision rule,
-  ObservationBuilder when a decision is due, select; 4 hops), reported for decision steps and all steps;
+- map -> goal: from the map of step k to the policy's goal of step k on decision steps (decision rule,
+  ObservationBuilder, select; 2 hops); on the other steps the policy is not in the loop;
+- a breakdown of the mean step time into scan -> map -> frontiers -> cmd_vel -> next scan;
 - wall-time ratio: step 0 to the episode's end through Zenoh, against ``run_episode`` in one process
   on the same scene and seed (target <= 1.5x). Process start-up is reported separately.
 
-    python benchmarks/bench_runtime.py --scene generated:middle:1:0 [--json out.json]
+    python benchmarks/bench_runtime.py --scene generated:middle:1:0 [--repeats 5] [--json out.json]
+
+The details (latencies, breakdown, CPU) are those of the last pair.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import threading
@@ -29,53 +33,77 @@ from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import run_episode
 from cso_runtime.keys import RobotKeys
 from cso_runtime.launcher import Launcher, find_profile, load_profile
-from cso_runtime.messages import EpisodeStatusMsg, FrontiersMsg, GoalMsg, MapMsg, ScanMsg, decode
+from cso_runtime.messages import CmdVelMsg, EpisodeStatusMsg, FrontiersMsg, GoalMsg, MapMsg, ScanMsg, decode
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 
 
+def process_cpu_s() -> dict[str, float]:
+    """CPU seconds (user + system) of this process and every descendant, by command (Linux /proc)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    stats: dict[int, tuple[int, str, float]] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            raw = Path(f"/proc/{entry}/stat").read_text()
+            cmd = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        fields = raw[raw.rindex(")") + 2 :].split()
+        name = next((c.decode() for c in cmd if c.startswith(b"services.")), "launcher+router+bench")
+        stats[int(entry)] = (int(fields[1]), name, (int(fields[11]) + int(fields[12])) / tick)
+    me, out = os.getpid(), {}
+    for pid, (_, name, cpu) in stats.items():
+        p = pid
+        while p in stats and p != me:
+            p = stats[p][0]
+        if p == me:
+            out[name] = out.get(name, 0.0) + cpu
+    return out
+
+
 def pct(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) if values else float("nan")
 
 
-def in_process(scene: str, method: str, seed: int) -> tuple[float, int, float]:
+def in_process(scene: str, method: str, seed: int) -> tuple[float, int, float, float]:
     plan = resolve_scenes(scene)[0].load()
+    c0 = time.process_time()
     t0 = time.perf_counter()
     r = run_episode(KinematicSimulator(plan, seed=seed), make_policy(method, seed=seed), ExplorationConfig(), seed=seed)
-    return time.perf_counter() - t0, r.steps, r.coverage_pct
+    return time.perf_counter() - t0, r.steps, r.coverage_pct, time.process_time() - c0
 
 
-def through_zenoh(scene: str, method: str, seed: int, service_mode: str = "client") -> dict:
+def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None = None) -> dict:
     port = free_tcp_port()
     overrides = {"scene": scene, "method": method, "seed": seed, "lockstep": True}
     profile, data = load_profile(str(find_profile("lockstep")), overrides)
     profile.router.listen = [loopback_endpoint(port)]
-    profile.router.service_mode = service_mode
-    data["router"] = {"listen": [loopback_endpoint(port)], "service_mode": service_mode}
-    stamps: dict[str, dict[int, float]] = {"scan": {}, "map": {}, "goal": {}, "decide": {}}
+    profile.router.service_mode = service_mode or profile.router.service_mode
+    data["router"] = {"listen": [loopback_endpoint(port)], "service_mode": profile.router.service_mode}
+    stamps: dict[str, dict[int, float]] = {"scan": {}, "map": {}, "frontiers": {}, "goal": {}, "cmd_vel": {}, "decide": {}}
     done = threading.Event()
     end: dict[str, object] = {}
+    cpu: dict[str, dict[str, float]] = {}
+
+    arrivals: list[tuple[float, str, bytes]] = []
+    """(time, topic, payload): decoded after the episode, so this listener adds no work to the chain."""
 
     def on_sample(sample) -> None:
         now = time.perf_counter()
-        key = str(sample.key_expr)
+        topic = str(sample.key_expr).split("/", 2)[2]
         payload = sample.payload.to_bytes()
-        topic = key.split("/", 2)[2]
-        if topic == "scan":
-            stamps["scan"].setdefault(decode(payload, ScanMsg).step, now)
-        elif topic == "map":
-            stamps["map"].setdefault(decode(payload, MapMsg).step, now)
-        elif topic == "goal":
-            stamps["goal"].setdefault(decode(payload, GoalMsg).step, now)
-        elif topic == "frontiers":
-            f = decode(payload, FrontiersMsg)
-            if f.decide:
-                stamps["decide"].setdefault(f.step, now)
+        if topic != "episode/status":
+            arrivals.append((now, topic, payload))
+            if topic == "scan" and "start" not in cpu and decode(payload, ScanMsg).step == 0:
+                cpu["start"] = process_cpu_s()
         elif topic == "episode/status":
             st = decode(payload, EpisodeStatusMsg)
             if st.state in ("done", "failed") and not done.is_set():
+                cpu["end"] = process_cpu_s()
                 end.update(t=now, steps=st.step, coverage=st.coverage_pct, state=st.state)
                 done.set()
 
@@ -87,26 +115,46 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str = "clien
         time.sleep(0.3)
         keys = RobotKeys(profile.robot)
         with open_session(TransportConfig(mode="client", connect=[loopback_endpoint(port)])) as session:
-            subs = [session.declare_subscriber(keys.topic(t), on_sample) for t in ("scan", "map", "goal", "frontiers", "episode_status")]
+            subs = [session.declare_subscriber(keys.topic(t), on_sample) for t in ("scan", "map", "goal", "frontiers", "cmd_vel", "episode_status")]
             if not done.wait(600):
                 raise RuntimeError("episode did not end within 600 s")
             for s in subs:
                 s.undeclare()
         thread.join(60)
+    schemas = {"scan": ScanMsg, "map": MapMsg, "goal": GoalMsg, "cmd_vel": CmdVelMsg, "frontiers": FrontiersMsg}
+    for now, topic, payload in arrivals:
+        msg = decode(payload, schemas[topic])
+        stamps[topic].setdefault(msg.step, now)
+        if isinstance(msg, FrontiersMsg) and msg.decide:
+            stamps["decide"].setdefault(msg.step, now)
     t0 = stamps["scan"].get(0, t_start)
     steps = sorted(set(stamps["scan"]) & set(stamps["map"]))
     scan_map_ms = [1e3 * (stamps["map"][k] - stamps["scan"][k]) for k in steps]
     goal_steps = sorted(set(stamps["map"]) & set(stamps["goal"]))
-    map_goal_ms = [1e3 * (stamps["goal"][k] - stamps["map"][k]) for k in goal_steps]
     decision_ms = [1e3 * (stamps["goal"][k] - stamps["map"][k]) for k in goal_steps if k in stamps["decide"]]
+    cmd_steps = sorted(set(stamps["map"]) & set(stamps["cmd_vel"]))
+    map_cmd_ms = [1e3 * (stamps["cmd_vel"][k] - stamps["map"][k]) for k in cmd_steps]
+    # Where a step's time goes: mean ms of each segment of the chain, keep-goal and decision steps apart.
+    segments = {"scan->map": ("scan", "map"), "map->frontiers": ("map", "frontiers"), "frontiers->cmd_vel": ("frontiers", "cmd_vel")}
+    breakdown: dict[str, dict[str, float]] = {}
+    for kind in ("keep_goal_steps", "decision_steps"):
+        ks = [k for k in steps if (k in stamps["decide"]) == (kind == "decision_steps") and k in stamps["cmd_vel"] and k + 1 in stamps["scan"]]
+        row = {name: float(np.mean([1e3 * (stamps[b][k] - stamps[a][k]) for k in ks])) if ks else float("nan") for name, (a, b) in segments.items()}
+        row["cmd_vel->next scan"] = float(np.mean([1e3 * (stamps["scan"][k + 1] - stamps["cmd_vel"][k]) for k in ks])) if ks else float("nan")
+        row["steps"] = len(ks)
+        breakdown[kind] = row
+    cpu_s = {name: round(cpu["end"][name] - cpu["start"].get(name, 0.0), 3) for name in cpu.get("end", {})}
     return {
+        "service_mode": profile.router.service_mode,
+        "cpu_s_during_episode": dict(sorted(cpu_s.items())) | {"total": round(sum(cpu_s.values()), 3)},
+        "step_breakdown_ms": breakdown,
         "state": end.get("state"),
         "steps": end.get("steps"),
         "coverage_pct": end.get("coverage"),
         "startup_s": t0 - t_start,
         "episode_s": float(end["t"]) - t0,  # type: ignore[arg-type]
         "scan_to_map_ms": {"p50": pct(scan_map_ms, 50), "p99": pct(scan_map_ms, 99), "n": len(scan_map_ms)},
-        "map_to_goal_ms_all_steps": {"p50": pct(map_goal_ms, 50), "p99": pct(map_goal_ms, 99), "n": len(map_goal_ms)},
+        "map_to_cmd_vel_ms_all_steps": {"p50": pct(map_cmd_ms, 50), "p99": pct(map_cmd_ms, 99), "n": len(map_cmd_ms)},
         "map_to_goal_ms_decisions": {"p50": pct(decision_ms, 50), "p99": pct(decision_ms, 99), "n": len(decision_ms)},
     }
 
@@ -116,23 +164,35 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scene", default="generated:middle:1:0")
     p.add_argument("--method", default="greedy-dist")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--service-mode", default="client", choices=("client", "peer"), help="Zenoh mode of the services")
+    p.add_argument("--service-mode", default=None, choices=("client", "peer"), help="Zenoh mode of the services (default: the lockstep profile's, peer)")
+    p.add_argument("--repeats", type=int, default=1, help="Pairs of episodes (in-process, Zenoh), interleaved; the median ratio is reported")
     p.add_argument("--json", type=Path, default=None, help="Also write the figures here")
     args = p.parse_args(argv)
     import logging
 
     logging.basicConfig(level=logging.WARNING)
-    local_s, local_steps, local_cov = in_process(args.scene, args.method, args.seed)
-    z = through_zenoh(args.scene, args.method, args.seed, args.service_mode)
+    pairs = []
+    for _ in range(args.repeats):  # interleaved, so both sides of each ratio see the same machine
+        local = in_process(args.scene, args.method, args.seed)
+        pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode)))
+    (local_s, local_steps, local_cov, local_cpu_s), z = pairs[-1]
+    ratios = [zz["episode_s"] / ll[0] for ll, zz in pairs]
     report = {
         "scene": args.scene,
         "method": args.method,
         "seed": args.seed,
-        "service_mode": args.service_mode,
-        "in_process": {"episode_s": local_s, "steps": local_steps, "coverage_pct": local_cov},
+        "service_mode": z["service_mode"],
+        "in_process": {"episode_s": local_s, "cpu_s": local_cpu_s, "steps": local_steps, "coverage_pct": local_cov},
         "zenoh_lockstep": z,
         "wall_time_ratio": z["episode_s"] / local_s,
         "wall_time_ratio_with_startup": (z["episode_s"] + z["startup_s"]) / local_s,
+        "repeats": {
+            "in_process_episode_s": [ll[0] for ll, _ in pairs],
+            "zenoh_episode_s": [zz["episode_s"] for _, zz in pairs],
+            "wall_time_ratios": ratios,
+            "median_wall_time_ratio": float(np.median(ratios)),
+            "same_result_every_time": all(zz["steps"] == ll[1] and zz["coverage_pct"] == ll[2] for ll, zz in pairs),
+        },
     }
     print(yaml.safe_dump(report, sort_keys=False))
     if args.json:

@@ -261,19 +261,24 @@ class CmdVelMsg(Message):
     """The velocity command for one step (lockstep: the sim advances when it has the command of its step)."""
 
     SCHEMA: ClassVar[str] = "cmd_vel"
+    VERSION: ClassVar[int] = 2
     step: int
     command: VelocityCommand
     reason: str = ""
     """Why the robot is stopped (``stale: ...``, ``reached``...), empty while following a path."""
+    new_goal: bool = False
+    """The command follows a goal decided at this step (a lockstep sim then also waits for that goal,
+    to count the decision); false on the steps that keep the current goal."""
 
     def body(self) -> dict[str, Any]:
-        return {"step": self.step, "linear_mps": self.command.linear_mps, "angular_radps": self.command.angular_radps, "reason": self.reason}
+        c = self.command
+        return {"step": self.step, "linear_mps": c.linear_mps, "angular_radps": c.angular_radps, "reason": self.reason, "new_goal": self.new_goal}
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> "CmdVelMsg":
         w = "cmd_vel"
         cmd = VelocityCommand(_num(b, "linear_mps", w, -100, 100), _num(b, "angular_radps", w, -100, 100))
-        return cls(_int(b, "step", w), cmd, _str(b, "reason", w))
+        return cls(_int(b, "step", w), cmd, _str(b, "reason", w), _bool(b, "new_goal", w))
 
 
 @dataclass
@@ -536,26 +541,42 @@ class PlannerFeedbackMsg(Message):
     """Planner status after this step's map (``check_blocked``) or command (``update``)."""
 
     SCHEMA: ClassVar[str] = "planner_feedback"
+    VERSION: ClassVar[int] = 2
     step: int
     status: str
     phase: str
-    """``map``: after check_blocked on this step's map; ``command``: after this step's command."""
+    """``command``: after this step's command (what the frontier service decides the next step on);
+    ``map``: after ``check_blocked`` on this step's map (informational)."""
     set_goal_blocked: bool = False
     """True when the last new goal had no path (the decider drops it as a frontier)."""
     reason: str = ""
+    path_ahead_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    """The path still ahead of the robot (float64, metres), empty unless following: the frontier
+    service runs the planner's blocked check on the next map with it (``path_blocked_ahead``)."""
 
     def body(self) -> dict[str, Any]:
-        return {"step": self.step, "status": self.status, "phase": self.phase, "set_goal_blocked": self.set_goal_blocked, "reason": self.reason}
+        return {
+            "step": self.step,
+            "status": self.status,
+            "phase": self.phase,
+            "set_goal_blocked": self.set_goal_blocked,
+            "reason": self.reason,
+            "path_ahead_xy_m": pack_array(np.asarray(self.path_ahead_xy_m, dtype=np.float64).reshape(-1, 2)),
+        }
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> "PlannerFeedbackMsg":
         w = "planner_feedback"
+        path = unpack_array(_get(b, "path_ahead_xy_m", w), "planner_feedback.path_ahead_xy_m", ndim=2, finite=True)
+        if path.shape[1:] != (2,) or path.dtype.kind != "f":
+            raise MessageError("planner_feedback.path_ahead_xy_m: expected (n, 2) floats")
         return cls(
             _int(b, "step", w),
             _str(b, "status", w, PLANNER_STATUSES),
             _str(b, "phase", w, ("map", "command")),
             _bool(b, "set_goal_blocked", w),
             _str(b, "reason", w),
+            path.astype(np.float64),
         )
 
 

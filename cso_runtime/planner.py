@@ -97,6 +97,21 @@ def path_is_blocked(path_xy_m: np.ndarray, start_index: int, occupied: np.ndarra
     return bool(occupied[yy[ok], xx[ok]].any())
 
 
+def path_blocked_ahead(path_ahead_xy_m: np.ndarray, pose: Pose2D, occupied: np.ndarray, geometry: GridGeometry, robot_radius_m: float) -> bool:
+    """The blocked check of ``LocalPlanner.check_blocked`` on the path still ahead of the robot.
+
+    Path points within two robot radii of the robot are skipped (the robot is already there). A pure
+    function of its inputs, so the frontier service can apply the very same check to the path the
+    planner reported, without waiting for the planner (one hop less per runtime step).
+    """
+    ahead = np.asarray(path_ahead_xy_m, dtype=float).reshape(-1, 2)
+    if len(ahead) == 0:
+        return False
+    near = np.hypot(ahead[:, 0] - pose.x_m, ahead[:, 1] - pose.y_m) < 2.0 * robot_radius_m
+    skip = int(np.argmin(near)) if not near.all() else len(ahead)
+    return path_is_blocked(ahead, skip, occupied, geometry, robot_radius_m * 0.75)
+
+
 @dataclass(frozen=True)
 class FreeSpace:
     """The traversable (inflated) grid a path was planned on, for line-of-sight checks."""
@@ -300,10 +315,7 @@ class LocalPlanner:
         """
         if self.path is None or self.status != PlannerStatus.FOLLOWING:
             return False
-        ahead = self.path[self.progress_index :]
-        near = np.hypot(ahead[:, 0] - pose.x_m, ahead[:, 1] - pose.y_m) < 2.0 * self.robot.radius_m
-        skip = int(np.argmin(near)) if not near.all() else len(ahead)
-        if path_is_blocked(self.path, self.progress_index + skip, occupied, geometry, self.robot.radius_m * 0.75):
+        if path_blocked_ahead(self.remaining_path(), pose, occupied, geometry, self.robot.radius_m):
             self.status = PlannerStatus.BLOCKED
             return True
         return False

@@ -96,6 +96,7 @@ class Service:
         self.reason = ""
         self._publishers: dict[str, Any] = {}
         self._lock = threading.Lock()
+        self._inbox: queue.Queue | None = None
 
     # --- hooks -----------------------------------------------------------------------------------
     def start(self) -> None:
@@ -130,6 +131,12 @@ class Service:
             assert self.session is not None
             pub = self._publishers[key] = self.session.declare_publisher(key)
         pub.put(encode(msg))
+
+    def backlog(self) -> int:
+        """Inputs received but not handled yet. In real time a service whose work is slower than its
+        input rate skips work while newer inputs wait (it acts on the newest), so it never falls
+        behind without bound."""
+        return self._inbox.qsize() if self._inbox is not None else 0
 
     def reject(self, topic: str, why: str) -> None:
         with self._lock:
@@ -177,6 +184,7 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
     ctx = service.ctx
     stop = stop or threading.Event()
     inbox: queue.Queue[tuple[str, str, bytes, float]] = queue.Queue()
+    service._inbox = inbox
     sub_robot = service.subscribe_robot
     keys = RobotKeys(sub_robot)
 
@@ -270,11 +278,21 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
     stop = threading.Event()
     _install_stop_handlers(stop)
     _die_with_launcher()
+    prof_dir = os.environ.get("CSO_PROFILE_DIR")
+    if prof_dir:
+        import cProfile  # noqa: PLC0415
+
+        prof = cProfile.Profile()
+        prof.enable()
     try:
         return run_service(service, stop)
     except TransportError as exc:
         log.error("%s: %s", cls.name, exc)
         return 3
+    finally:
+        if prof_dir:
+            prof.disable()
+            prof.dump_stats(os.path.join(prof_dir, f"{cls.name}.prof"))
 
 
 def _die_with_launcher() -> None:

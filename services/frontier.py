@@ -2,7 +2,8 @@
 
 The re-decision rule is ``cso_runtime.episode.decision_reason`` (reached, blocked, no_progress, goal
 no longer a frontier, every ``replan_every_steps``), the same function the in-process ``Explorer``
-uses; the Observation is ``ObservationBuilder.build`` (frontiers, one fast-marching pass, entropy,
+uses, on the planner's status after the previous step's command and the planner's own blocked check
+(``path_blocked_ahead``) applied here to this step's map; the Observation is ``ObservationBuilder.build`` (frontiers, one fast-marching pass, entropy,
 clusters). Per step it publishes either ``decide: false`` or the arrays the policy needs.
 """
 
@@ -10,18 +11,33 @@ from __future__ import annotations
 
 import logging
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
+from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import decision_reason, goal_failed_in_place, mark_dead_frontier
 from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PlannerFeedbackMsg, frontiers_from_observation
 from cso_runtime.observation import ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
-from cso_runtime.planner import PlannerStatus
+from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.frontier")
+
+
+@dataclass
+class FrontierParams:
+    """Parameters of the frontier service (``services.frontier`` in a profile)."""
+
+    goal_wait_s: float = 2.0
+    """Real time: after asking for a decision, keep the current goal (``decide: false``) for at most this
+    long while the policy answers, instead of asking again on every map. Lockstep always waits."""
+
+    def validate(self) -> None:
+        if not self.goal_wait_s > 0:
+            raise ConfigError("goal_wait_s must be positive")
 
 
 class FrontierService(Service):
@@ -30,10 +46,12 @@ class FrontierService(Service):
 
     def __init__(self, ctx: ServiceContext):
         super().__init__(ctx)
+        self.params = from_dict(FrontierParams, ctx.params, where="services.frontier")
         cfg = ctx.exploration
         self.builder = ObservationBuilder(cfg.frontier, cfg.robot)
         self.replan_every_steps = cfg.episode.replan_every_steps
         self.goal_tolerance_m = cfg.episode.goal_tolerance_m
+        self.robot_radius_m = cfg.robot.radius_m
         self.reset_episode()
 
     def reset_episode(self) -> None:
@@ -42,7 +60,9 @@ class FrontierService(Service):
         self.odoms: dict[int, OdometryMsg] = {}
         self.feedback: dict[int, PlannerFeedbackMsg] = {}
         self.goal: Goal | None = None
-        self.goal_seen_step = -1
+        self.awaiting_goal_step: int | None = None
+        """The step of a decision whose goal has not arrived yet (lockstep: the next step waits for it)."""
+        self.awaiting_since_s = 0.0
         self.decision_step = 0
         self.dead: np.ndarray | None = None
         self.path_nodes: list[tuple[float, float]] = []
@@ -55,44 +75,67 @@ class FrontierService(Service):
             log.info("odometry restarted at step 0: new episode, forgetting the decision state")
             self.reset_episode()
         if isinstance(msg, GoalMsg):
-            self.goal_seen_step = max(self.goal_seen_step, step)
-            if msg.decided:
+            if msg.decided and step >= self.decision_step:
                 self.goal = Goal(msg.x_m, msg.y_m, msg.cluster_index, msg.distance_m) if msg.has_goal else None
                 self.decision_step = step
+                if self.awaiting_goal_step is not None and step >= self.awaiting_goal_step:
+                    self.awaiting_goal_step = None
             self.try_decide()
             return
+        if isinstance(msg, PlannerFeedbackMsg):
+            if msg.phase == "command" and step >= self.done_step - 1:
+                self.feedback[step] = msg
+                self.try_decide()
+            return
         if step <= self.done_step:
-            if self.last_out is not None and step == self.done_step:
+            if isinstance(msg, MapMsg) and self.last_out is not None and step == self.done_step:
                 self.publish("frontiers", self.last_out)  # a lockstep retry: answer again
             return
         if isinstance(msg, MapMsg):
             self.maps[step] = msg
         elif isinstance(msg, OdometryMsg):
             self.odoms[step] = msg
-        elif isinstance(msg, PlannerFeedbackMsg) and msg.phase == "map":
-            self.feedback[step] = msg
         self.try_decide()
 
+    def planner_state(self, k: int) -> PlannerFeedbackMsg | None:
+        """The planner's report after the command of step k - 1 (lockstep: exactly that one; real time:
+        the newest before k). None: no command yet (step 0, or a planner that has not started)."""
+        if self.ctx.lockstep:
+            return self.feedback.get(k - 1)
+        older = [s for s in self.feedback if s < k]
+        return self.feedback[max(older)] if older else None
+
     def try_decide(self) -> None:
-        ready = sorted(set(self.maps) & set(self.odoms) & set(self.feedback))
+        ready = sorted(set(self.maps) & set(self.odoms))
         if not ready:
             return
         k = ready[0] if self.ctx.lockstep else ready[-1]
-        if self.ctx.lockstep and self.goal_seen_step >= 0 and self.goal_seen_step < k - 1:
-            return  # the goal of the previous step is still on its way (a fresh start does not wait)
-        m, odom, fb = self.maps.pop(k), self.odoms.pop(k), self.feedback.pop(k)
-        for d in (self.maps, self.odoms, self.feedback):
+        fb = self.planner_state(k)
+        if self.ctx.lockstep and (self.awaiting_goal_step is not None or (k > 0 and fb is None)):
+            return  # the last decision's goal, or the planner's report on step k - 1, is on its way
+        if not self.ctx.lockstep and self.backlog() > 0:
+            return  # real time: newer inputs are waiting; decide on the newest
+        waiting = self.awaiting_goal_step is not None and time.monotonic() - self.awaiting_since_s < self.params.goal_wait_s
+        m, odom = self.maps.pop(k), self.odoms.pop(k)
+        for d in (self.maps, self.odoms):
             for s in [s for s in d if s <= k]:
                 d.pop(s)
+        for s in [s for s in self.feedback if s < k - 1]:
+            self.feedback.pop(s)
         self.done_step = self.last_step = k
         occupancy = OccupancyMap.from_occupancy_grid(m.grid, m.geometry)
         if self.dead is None or self.dead.shape != occupancy.geometry.shape:
             self.dead = np.zeros(occupancy.geometry.shape, dtype=bool)
-        if fb.set_goal_blocked and self.goal is not None:
-            mark_dead_frontier(self.dead, occupancy.geometry, (self.goal.x_m, self.goal.y_m), self.goal_tolerance_m)
-        status = PlannerStatus(fb.status) if fb.status != "stale" else PlannerStatus.BLOCKED
+        status = PlannerStatus.IDLE
+        if fb is not None:
+            if fb.set_goal_blocked and self.goal is not None:
+                mark_dead_frontier(self.dead, occupancy.geometry, (self.goal.x_m, self.goal.y_m), self.goal_tolerance_m)
+            status = PlannerStatus(fb.status) if fb.status != "stale" else PlannerStatus.BLOCKED
+            # The planner's check_blocked on this step's map, run here on the path it reported.
+            if status == PlannerStatus.FOLLOWING and path_blocked_ahead(fb.path_ahead_xy_m, odom.pose, occupancy.occupied, occupancy.geometry, self.robot_radius_m):
+                status = PlannerStatus.BLOCKED
         reason = decision_reason(self.goal, status, occupancy, k - self.decision_step, self.replan_every_steps)
-        if reason is None:
+        if reason is None or waiting:
             out = FrontiersMsg(k, False)
         else:
             t0 = time.perf_counter()
@@ -101,6 +144,7 @@ class FrontierService(Service):
             self.path_nodes.append((odom.pose.x_m, odom.pose.y_m))
             obs = self.builder.build(occupancy, odom.pose, np.array(self.path_nodes), exclude_frontier=self.dead)
             out = frontiers_from_observation(k, reason, obs, (time.perf_counter() - t0) * 1e3)
+            self.awaiting_goal_step, self.awaiting_since_s = k, time.monotonic()
         self.last_out = out
         self.publish("frontiers", out)
 

@@ -1,8 +1,11 @@
 """Planner service: ``LocalPlanner`` (path, pure pursuit, progress and blocked checks) -> cmd_vel.
 
-Per step it reports twice on ``planner/feedback``: after the step's map (``check_blocked``) and after
-the step's command (``update``), so the frontier service applies the shared re-decision rule to the
-same status as the in-process loop. It stops the robot, and says why in its status, when odometry or
+Per step it reports on ``planner/feedback`` after the step's command (``update``): the status and the
+path still ahead, with which the frontier service runs the same blocked check on the next map
+(``path_blocked_ahead``) and applies the shared re-decision rule to the same status as the in-process
+loop. In lockstep each step's command acts on the frontier service's ``decide: false`` directly, so
+on most steps the policy is not in the loop; in real time it commands every new odometry + scan
+pair on the current path and plans to each new goal when it arrives. It stops the robot, and says why in its status, when odometry or
 scans are older than ``stale_after_s``.
 """
 
@@ -16,8 +19,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.geometry import VelocityCommand
-from cso_runtime.messages import CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, ScanMsg
-from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.messages import CmdVelMsg, FrontiersMsg, GoalMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, ScanMsg
 from cso_runtime.planner import LocalPlanner, PlannerStatus
 from services.common import Service, ServiceContext, service_main
 
@@ -38,7 +40,7 @@ class PlannerParams:
 
 class PlannerService(Service):
     name = "planner"
-    inputs = {"map": MapMsg, "odom": OdometryMsg, "scan": ScanMsg, "frontiers": FrontiersMsg, "goal": GoalMsg}
+    inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": FrontiersMsg, "goal": GoalMsg}
     tick_period_s = 0.1
 
     def __init__(self, ctx: ServiceContext):
@@ -50,15 +52,19 @@ class PlannerService(Service):
         """A fresh planner and empty buffers (a new episode, or a fresh start)."""
         cfg = self.ctx.exploration
         self.planner = LocalPlanner(cfg.robot, cfg.planner, cfg.episode.goal_tolerance_m, cfg.sensor.mount_x_m)
-        self.maps: dict[int, MapMsg] = {}
         self.odoms: dict[int, tuple[OdometryMsg, float]] = {}
         self.scans: dict[int, tuple[ScanMsg, float]] = {}
         self.frontiers: dict[int, FrontiersMsg] = {}
         self.goals: dict[int, GoalMsg] = {}
-        self.map_step = -1
         self.cmd_step = -1
+        self.goal_step = -1
+        """Real time: the step of the last goal planned to."""
+        self.pending_new_goal = False
+        """A goal was applied since the last command (the command says so: ``new_goal``)."""
+        self.no_frontier = False
+        """The last decision found no reachable frontier: the robot stays stopped."""
         self.set_goal_blocked = False
-        self.last_feedback: dict[str, PlannerFeedbackMsg] = {}
+        self.last_feedback: PlannerFeedbackMsg | None = None
         self.last_cmd: CmdVelMsg | None = None
         self.last_input_s = time.monotonic()
         self.stopped_for_stale = False
@@ -70,94 +76,100 @@ class PlannerService(Service):
             self.reset_episode()
         if isinstance(msg, (OdometryMsg, ScanMsg)):
             self.last_input_s = received_s
-        if self.ctx.lockstep and self.resend_if_retry(topic, step):
+        if self.ctx.lockstep and self.answer_again(msg, step):
             return
-        if isinstance(msg, MapMsg):
-            self.maps[step] = msg
-        elif isinstance(msg, OdometryMsg):
+        if isinstance(msg, OdometryMsg):
             self.odoms[step] = (msg, received_s)
         elif isinstance(msg, ScanMsg):
             self.scans[step] = (msg, received_s)
-        elif isinstance(msg, FrontiersMsg):
-            if msg.decide:
-                self.frontiers[step] = msg
-        elif isinstance(msg, GoalMsg):
+        elif isinstance(msg, FrontiersMsg) and (msg.decide or self.ctx.lockstep):
+            self.frontiers[step] = msg  # real time needs only those that carry a decision's grids
+        elif isinstance(msg, GoalMsg) and msg.decided:
             self.goals[step] = msg
         self.progress()
 
-    def resend_if_retry(self, topic: str, step: int) -> bool:
-        """A lockstep retry re-sends inputs of a step already handled: answer again, do not redo it."""
-        if topic == "map" and step <= self.map_step:
-            if step == self.map_step and "map" in self.last_feedback:
-                self.publish("planner_feedback", self.last_feedback["map"])
-            return True
-        if topic == "goal" and step <= self.cmd_step:
-            if step == self.cmd_step and self.last_cmd is not None:
+    def answer_again(self, msg: Message, step: int) -> bool:
+        """Lockstep: the frontier service decides step k on this planner's report after command k - 1.
+        Send that report again when the sim re-publishes a step (a retry: odometry seen twice), and
+        once when this planner joins mid-episode (it follows nothing). Inputs of a step already
+        commanded are a retry too: the command goes again, the step is not redone."""
+        if isinstance(msg, OdometryMsg) and step > 0 and (step in self.odoms or self.cmd_step < 0):
+            if self.cmd_step == step - 1 and self.last_feedback is not None:
+                self.publish("planner_feedback", self.last_feedback)
+            elif self.cmd_step < 0:
+                self.publish("planner_feedback", PlannerFeedbackMsg(step - 1, self.planner.status.value, "command"))
+        if isinstance(msg, (FrontiersMsg, GoalMsg)) and step <= self.cmd_step:
+            resend = isinstance(msg, FrontiersMsg) or msg.decided
+            if step == self.cmd_step and self.last_cmd is not None and resend:
                 self.publish("cmd_vel", self.last_cmd)
             return True
         return False
 
+    def command_ready(self, k: int) -> bool:
+        """Lockstep step ``k`` can be commanded: its frontiers (and, when they asked for a decision, the
+        new goal), odometry and scan are in."""
+        f = self.frontiers.get(k)
+        return f is not None and k in self.odoms and k in self.scans and (not f.decide or k in self.goals)
+
     def progress(self) -> None:
-        """Lockstep: map phase of step k, then command phase of step k, strictly in order. Real time:
-        the newest step whose inputs are complete (older ones are dropped)."""
-        lock = self.ctx.lockstep
+        """Lockstep: command the steps strictly in order (a fresh planner joins at the first step it
+        has frontiers for), each on the frontier service's verdict: ``decide: false`` (most steps) keeps
+        the current goal without waiting for the policy. The blocked check on the new map is part of
+        that verdict (``path_blocked_ahead``), so this service needs no map.
+
+        Real time (a controller loop, as Nav2's): every new odometry + scan pair is commanded at once on
+        the current path; a new goal is planned as soon as it arrives with its frontiers."""
+        if not self.ctx.lockstep:
+            decided = [s for s in self.goals if s > self.goal_step and s in self.frontiers]
+            if decided:
+                s = max(decided)
+                self.apply_goal(self.frontiers[s], self.goals[s])
+                self.goal_step = s
+            k = max((s for s in self.odoms if s > self.cmd_step and s in self.scans), default=-1)
+            if k >= 0:
+                self.on_command(k, None, None)
+            return
         while True:
-            if lock:
-                # A fresh (or restarted) planner joins at the first step it has both inputs for.
-                k = self.map_step + 1 if self.map_step >= 0 else min((s for s in self.maps if s in self.odoms), default=-1)
-                map_ready = self.map_step == self.cmd_step and k in self.maps and k in self.odoms
-            else:
-                k = max((s for s in self.maps if s in self.odoms and s > self.map_step), default=-1)
-                map_ready = k >= 0
-            if map_ready:
-                self.on_map(k)
-                continue
-            if lock:
-                cands = [self.map_step] if self.cmd_step < self.map_step else []
-            else:
-                cands = sorted(s for s in self.goals if s > self.cmd_step)[-1:]
-            ready = [
-                s
-                for s in cands
-                if s in self.goals and s in self.odoms and s in self.scans and not (self.goals[s].decided and self.goals[s].has_goal and s not in self.frontiers)
-            ]
-            if not ready:
+            k = self.cmd_step + 1 if self.cmd_step >= 0 else min(self.frontiers, default=-1)
+            if k < 0 or not self.command_ready(k):
                 return
-            self.on_goal(ready[0])
+            f = self.frontiers[k]
+            self.on_command(k, f, self.goals.get(k) if f.decide else None)
 
-    def on_map(self, k: int) -> None:
-        m, (odom, _) = self.maps.pop(k), self.odoms[k]
-        for s in [s for s in self.maps if s < k]:
-            self.maps.pop(s)
-        for d in (self.odoms, self.scans, self.goals, self.frontiers):
-            for s in [s for s in d if s < k - 20]:
-                d.pop(s)
-        occupancy = OccupancyMap.from_occupancy_grid(m.grid, m.geometry)
-        self.planner.check_blocked(occupancy.occupied, occupancy.geometry, odom.pose)
-        fb = PlannerFeedbackMsg(k, self.planner.status.value, "map", self.set_goal_blocked)
+    def publish_feedback(self, k: int, reason: str) -> None:
+        p = self.planner
+        ahead = p.remaining_path() if p.status == PlannerStatus.FOLLOWING else np.zeros((0, 2))
+        self.last_feedback = PlannerFeedbackMsg(k, p.status.value, "command", self.set_goal_blocked, reason, ahead)
         self.set_goal_blocked = False
-        self.map_step = self.last_step = k
-        self.last_feedback["map"] = fb
-        self.publish("planner_feedback", fb)
+        self.publish("planner_feedback", self.last_feedback)
 
-    def on_goal(self, k: int) -> None:
-        g = self.goals.pop(k)
-        (odom, odom_s), (scan, scan_s) = self.odoms.pop(k), self.scans.pop(k)
-        frontiers = self.frontiers.pop(k, None)
-        for d in (self.goals, self.odoms, self.scans, self.frontiers):
-            for s in [s for s in d if s < k]:
-                d.pop(s)
-        self.cmd_step = k
-        reason = ""
-        if g.decided and not g.has_goal:
+    def apply_goal(self, f: FrontiersMsg, g: GoalMsg) -> None:
+        """Plan to a newly decided goal on the traversable grid and distance field it was chosen on."""
+        self.pending_new_goal = True
+        if not g.has_goal:
             self.planner.clear()
+            self.no_frontier = True
+            return
+        self.no_frontier = False
+        status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), f.arrays["distance_m"])
+        self.set_goal_blocked = status == PlannerStatus.BLOCKED
+
+    def on_command(self, k: int, f: FrontiersMsg | None, g: GoalMsg | None) -> None:
+        """Command step ``k``: lockstep applies the step's new goal ``g`` first (if any)."""
+        if g is not None and f is not None:
+            self.apply_goal(f, g)
+        (odom, odom_s), (scan, scan_s) = self.odoms.pop(k), self.scans.pop(k)
+        # Lockstep: this step's frontiers and goal are used up. Real time: those of a decision not
+        # planned yet are kept (a goal may arrive after newer odometry).
+        done = k if self.ctx.lockstep else self.goal_step
+        for d, last in ((self.odoms, k), (self.scans, k), (self.goals, done), (self.frontiers, done)):
+            for s in [s for s in d if s <= last]:
+                d.pop(s)
+        self.cmd_step = self.last_step = k
+        reason = ""
+        if self.no_frontier:
             cmd, reason = VelocityCommand(), "no_frontier"
         else:
-            if g.decided and frontiers is not None:
-                status = self.planner.set_goal(
-                    frontiers.arrays["traversable"], frontiers.geometry, frontiers.pose, np.array([g.x_m, g.y_m]), frontiers.arrays["distance_m"]
-                )
-                self.set_goal_blocked = status == PlannerStatus.BLOCKED
             age_s = time.monotonic() - min(odom_s, scan_s)
             if age_s > self.params.stale_after_s:
                 cmd, reason = VelocityCommand(), f"stale: inputs of step {k} are {age_s:.1f} s old"
@@ -169,12 +181,11 @@ class PlannerService(Service):
                     reason = result.status.value
                 self.set_state("running")
         self.stopped_for_stale = False
-        self.publish("path", PathMsg(k, self.planner.remaining_path()))
-        self.last_cmd = CmdVelMsg(k, cmd, reason)
+        self.last_cmd = CmdVelMsg(k, cmd, reason, new_goal=self.pending_new_goal)
+        self.pending_new_goal = False
         self.publish("cmd_vel", self.last_cmd)
-        fb = PlannerFeedbackMsg(k, self.planner.status.value, "command", self.set_goal_blocked, reason)
-        self.last_feedback["command"] = fb
-        self.publish("planner_feedback", fb)
+        self.publish_feedback(k, reason)
+        self.publish("path", PathMsg(k, self.planner.remaining_path()))
 
     def on_tick(self, now_s: float) -> None:
         age_s = now_s - self.last_input_s

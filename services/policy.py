@@ -1,8 +1,9 @@
 """Policy service: ``make_policy(method)`` and ``select`` on each decision's Observation.
 
 With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers`` and
-keeps one selector per robot). It answers every step: ``decided: true`` with the new goal when asked to decide, otherwise
-the current goal. A decision input older than ``stale_after_s`` is not acted on (the status says why).
+keeps one selector per robot). It answers the steps that ask for a decision with ``decided: true`` and
+the new goal (or none: nothing left to explore); on the other steps the planner keeps following the
+current goal without waiting for the policy, and late joiners query the last goal. A decision input older than ``stale_after_s`` is not acted on (the status says why).
 """
 
 from __future__ import annotations
@@ -43,7 +44,6 @@ class PolicyParams:
 @dataclass
 class RobotState:
     selector: GoalSelector
-    current: GoalMsg | None = None
     answered_step: int = -1
     last_answer: GoalMsg | None = None
     last_input_s: float = 0.0
@@ -91,29 +91,25 @@ class PolicyService(Service):
             log.info("robot %s restarted at step 0: new episode, new selector", robot)
             st = self.robots[robot] = RobotState(self.new_selector(), last_input_s=received_s)
         if msg.step <= st.answered_step:
-            if msg.step == st.answered_step and st.last_answer is not None:
-                self.publish("goal", st.last_answer, robot)  # lockstep retry
+            last = st.last_answer
+            if msg.step == st.answered_step and msg.decide and last is not None and last.step == msg.step:
+                self.publish("goal", last, robot)  # lockstep retry
             return
         age_s = time.monotonic() - received_s
         if age_s > self.params.stale_after_s:
             self.set_state("stale", f"robot {robot}: decision input of step {msg.step} is {age_s:.1f} s old; not commanding")
             return
         self.set_state("running")
-        if msg.decide:
-            t0 = time.perf_counter()
-            goal = st.selector.select(observation_from_frontiers(msg))
-            ms = msg.build_ms + (time.perf_counter() - t0) * 1e3
-            if goal is None:
-                out = GoalMsg(msg.step, True, decision_ms=ms, method=self.method, reason=msg.reason)
-            else:
-                out = GoalMsg(msg.step, True, goal.x_m, goal.y_m, goal.cluster_index, goal.distance_m, ms, self.method, msg.reason)
-            st.current = out
-        else:
-            cur = st.current
-            out = GoalMsg(msg.step, False, method=self.method)
-            if cur is not None and cur.has_goal:
-                out = GoalMsg(msg.step, False, cur.x_m, cur.y_m, cur.cluster_index, cur.distance_m, 0.0, self.method)
         st.answered_step = self.last_step = msg.step
+        if not msg.decide:
+            return  # the planner keeps following the current goal without us
+        t0 = time.perf_counter()
+        goal = st.selector.select(observation_from_frontiers(msg))
+        ms = msg.build_ms + (time.perf_counter() - t0) * 1e3
+        if goal is None:
+            out = GoalMsg(msg.step, True, decision_ms=ms, method=self.method, reason=msg.reason)
+        else:
+            out = GoalMsg(msg.step, True, goal.x_m, goal.y_m, goal.cluster_index, goal.distance_m, ms, self.method, msg.reason)
         st.last_answer = out
         self.publish("goal", out, robot)
 

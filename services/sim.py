@@ -257,7 +257,8 @@ class SimService(Service):
                 self.last_cmd = (msg, received_s)  # type: ignore[assignment]
 
     def lockstep_progress(self) -> None:
-        """Consume this step's map, goal and command in that order; step when all three are in."""
+        """Consume this step's map, then its command (and, when the command follows a goal decided at
+        this step, that goal: the decision is counted); step when all are in."""
         k = self.step
         if self.measured_step < k:
             m = self.maps.pop(k, None)
@@ -267,7 +268,10 @@ class SimService(Service):
             self.measure(m)
             if not self.running:
                 return
-        if self.goal_step < k:
+        cmd = self.cmds.get(k)
+        if cmd is None:
+            return
+        if cmd.new_goal and self.goal_step < k:
             g = self.goals.pop(k, None)
             if g is None:
                 return
@@ -275,9 +279,6 @@ class SimService(Service):
             self.take_goal(g)
             if not self.running:
                 return
-        cmd = self.cmds.get(k)
-        if cmd is None:
-            return
         if time.monotonic() - self.step_started_s < self.params.min_step_period_s:
             return  # on_tick comes back
         self.cmds.pop(k)
@@ -320,9 +321,10 @@ class SimService(Service):
         k = self.step
         if self.measured_step < k:
             return "map (mapper)"
-        if self.goal_step < k:
-            return "goal (frontier/policy)"
-        return "cmd_vel (planner)"
+        cmd = self.cmds.get(k)
+        if cmd is None:
+            return "cmd_vel (frontier/planner)"
+        return "goal (policy)"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,7 +15,7 @@ from cso_runtime.episode import Explorer
 from cso_runtime.geometry import Pose2D
 from cso_runtime.learned.env import EnvConfig, ExplorationEnv, expert_action
 from cso_runtime.learned.graph import GraphConfig, build_graph
-from cso_runtime.learned.network import GraphActorCritic, NetworkConfig, to_torch
+from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.ppo import Args, build_model, compute_gae, episode_returns, model_chooser, random_chooser, train
 from cso_runtime.learned.registry import LearnedPolicy, has_method, load_checkpoint, save_checkpoint
 from cso_runtime.masks import valid_distance_mask
@@ -149,6 +149,27 @@ def test_network_is_permutation_equivariant_over_frontier_nodes():
     torch.testing.assert_close(logits_p, logits[torch.as_tensor(perm[:nf])], atol=1e-5, rtol=1e-5)
     torch.testing.assert_close(value_p, value, atol=1e-5, rtol=1e-5)
     assert logits.std() > 0  # not trivially constant
+
+
+@pytest.mark.parametrize("nf", [1, 30, GraphConfig().max_frontier_nodes])
+def test_traced_decision_network_matches_the_eager_one(nf):
+    """Run-time decisions use a frozen trace on the fixed-size graph: same logits as the eager model,
+    which cuts the padding, for any number of frontier nodes."""
+    config = GraphConfig()
+    g = to_torch(_random_graph(np.random.default_rng(nf), nf, 5, config), batch=True)
+    mask = torch.zeros(1, config.max_frontier_nodes, dtype=torch.bool)
+    mask[0, :nf] = True
+    torch.manual_seed(1)
+    model = GraphActorCritic().eval()
+    example = to_torch(_random_graph(np.random.default_rng(99), 7, 3, config), batch=True)
+    traced = trace_decision(model, example, mask)  # traced on another graph: nothing baked in
+    assert traced is not None
+    with torch.inference_mode():
+        eager = model.masked_logits(g, mask)
+        fast = traced(*[g[k] for k in GRAPH_KEYS], mask)
+    torch.testing.assert_close(fast[0, :nf], eager[0, :nf], atol=1e-5, rtol=1e-5)
+    assert (fast[0, nf:] == eager[0, nf:]).all()  # masked actions stay masked
+    assert nf == 1 or eager[0, :nf].std() > 0
 
 
 def test_graph_from_observation_is_scale_free_and_complete(observation):

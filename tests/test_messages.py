@@ -34,6 +34,7 @@ from cso_runtime.messages import (
     encode,
     frontiers_from_observation,
     observation_from_frontiers,
+    pack_array,
 )
 from cso_runtime.observation import ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
@@ -85,7 +86,7 @@ def test_scan_round_trip_keeps_inf_and_values():
         CmdVelMsg(4, VelocityCommand(), "stale: odom 3.0 s old"),
         GoalMsg(5, True, 1.5, 2.5, 2, 3.25, 12.5, "greedy-dist", "reached"),
         GoalMsg(5, True, decision_ms=1.0, method="greedy-dist"),
-        PlannerFeedbackMsg(9, "blocked", "map", True, ""),
+        CmdVelMsg(5, VelocityCommand(0.2, 0.0), "", new_goal=True),
         ClockMsg(2, 0.5, GEOM),
         ClockMsg(2, 0.5),
         EpisodeStatusMsg("exploring", 12, "gen_small_0", "greedy-dist", 45.5, 10.0, 3.2, [1.0, 2.0], 4, 11.0),
@@ -95,6 +96,18 @@ def test_scan_round_trip_keeps_inf_and_values():
 )
 def test_small_messages_round_trip(msg):
     assert decode(encode(msg), type(msg)) == msg
+
+
+def test_planner_feedback_carries_the_exact_path_ahead():
+    """The frontier service re-runs the planner's blocked check on this path: it must arrive bit-exact."""
+    path = np.array([[0.1, 0.2], [1.0 / 3.0, 2.0 / 7.0], [1e-9, 5.123456789012345]])
+    back = decode(encode(PlannerFeedbackMsg(9, "following", "command", True, "", path)), PlannerFeedbackMsg)
+    assert isinstance(back, PlannerFeedbackMsg)
+    assert (back.step, back.status, back.phase, back.set_goal_blocked) == (9, "following", "command", True)
+    assert back.path_ahead_xy_m.dtype == np.float64
+    np.testing.assert_array_equal(back.path_ahead_xy_m, path)
+    empty = decode(encode(PlannerFeedbackMsg(2, "idle", "command")), PlannerFeedbackMsg)
+    assert empty.path_ahead_xy_m.shape == (0, 2)
 
 
 def test_keep_goal_frontiers_round_trip():
@@ -220,6 +233,9 @@ def _mutate(msg, **changes) -> bytes:
         _mutate(OdometryMsg(1, 0.0, Pose2D(0, 0, 0)), pose=[0.0, 0.0, float("nan")]),
         _mutate(GoalMsg(1, True, 1.0, 2.0, 0, 1.0), goal=[1.0, float("nan"), 0, 1.0]),
         _mutate(PlannerFeedbackMsg(1, "following", "map"), status="dancing"),
+        _mutate(PlannerFeedbackMsg(1, "following", "command"), path_ahead_xy_m=pack_array(np.array([[0.0, np.inf]]))),
+        _mutate(PlannerFeedbackMsg(1, "following", "command"), path_ahead_xy_m=pack_array(np.zeros((2, 3)))),
+        _mutate(CmdVelMsg(1, VelocityCommand()), new_goal=1),
         _mutate(EpisodeStatusMsg("exploring", 1), coverage_pct=250.0),
         _mutate(ClockMsg(1, 0.25), time_s=-1.0),
         _mutate(ServiceStatusMsg("mapper", "r0", "running"), rejected={"scan": -1}),

@@ -12,6 +12,8 @@ Actor: a score per frontier node from [h_i, h_robot]. Critic: V(s) from [mean_i 
 
 from __future__ import annotations
 
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -99,13 +101,14 @@ class GraphActorCritic(nn.Module):
         self.actor = nn.Sequential(nn.Linear(2 * c.hidden, c.hidden), nn.ReLU(), nn.Linear(c.hidden, 1))
         self.critic = nn.Sequential(nn.Linear(2 * c.hidden, c.hidden), nn.ReLU(), nn.Linear(c.hidden, 1))
 
-    def encode(self, g: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def encode(self, g: dict[str, torch.Tensor], cut_padding: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Node embeddings (b, n, d), the robot node's embedding (b, d) and the masked mean (b, d).
 
         Valid nodes come first in every graph (``graph.py``), so the batch is cut to its largest
-        graph before any work: padding costs nothing."""
+        graph before any work: padding costs nothing. ``cut_padding=False`` keeps the fixed size
+        (same values for the valid nodes: padding never reaches them), which a traced graph needs."""
         valid = g["node_valid"].bool()  # vector envs store MultiBinary as int8
-        n = max(1, int(valid.sum(1).max()))
+        n = max(1, int(valid.sum(1).max())) if cut_padding else valid.shape[1]
         valid = valid[:, :n]
         nbr_invalid = ~g["neighbour_valid"][:, :n].bool().unsqueeze(-1)
         keep = valid.unsqueeze(-1).to(g["nodes"].dtype)
@@ -118,8 +121,8 @@ class GraphActorCritic(nn.Module):
         pooled = h.sum(1) / keep.sum(1).clamp(min=1)
         return h, h_robot, pooled
 
-    def _heads(self, g: dict[str, torch.Tensor], with_value: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
-        h, h_robot, pooled = self.encode(g)
+    def _heads(self, g: dict[str, torch.Tensor], with_value: bool = True, cut_padding: bool = True) -> tuple[torch.Tensor, torch.Tensor | None]:
+        h, h_robot, pooled = self.encode(g, cut_padding)
         hf = h[:, : self.max_frontier_nodes]
         logits = self.actor(torch.cat([hf, h_robot.unsqueeze(1).expand_as(hf)], dim=-1)).squeeze(-1)
         if logits.shape[1] < self.max_frontier_nodes:  # back to the fixed action space; the mask hides the rest
@@ -142,10 +145,44 @@ class GraphActorCritic(nn.Module):
             action = dist.probs.argmax(-1) if greedy else dist.sample()
         return action, dist.log_prob(action), dist.entropy(), value
 
-    def masked_logits(self, g: dict[str, torch.Tensor], mask: torch.Tensor) -> torch.Tensor:
-        """Logits with masked actions set to ``MASKED_LOGIT`` (for imitation and inspection)."""
-        logits, _ = self._heads(g, with_value=False)
+    def masked_logits(self, g: dict[str, torch.Tensor], mask: torch.Tensor, cut_padding: bool = True) -> torch.Tensor:
+        """Logits with masked actions set to ``MASKED_LOGIT`` (for imitation, inspection and decisions)."""
+        logits, _ = self._heads(g, with_value=False, cut_padding=cut_padding)
         return torch.where(mask, logits, torch.full_like(logits, MASKED_LOGIT))
+
+
+GRAPH_KEYS = ("nodes", "node_valid", "neighbours", "neighbour_valid", "edges", "robot")
+"""The tensors of one graph, in the positional order of ``DecisionLogits``."""
+
+
+class DecisionLogits(nn.Module):
+    """``masked_logits`` on the fixed-size graph with positional inputs: the form ``trace_decision``
+    compiles for run-time decisions (no Python between the ~100 small ops of one forward)."""
+
+    def __init__(self, model: GraphActorCritic):
+        super().__init__()
+        self.model = model
+
+    def forward(self, *tensors: torch.Tensor) -> torch.Tensor:
+        *graph, mask = tensors
+        return self.model.masked_logits(dict(zip(GRAPH_KEYS, graph)), mask, cut_padding=False)
+
+
+def trace_decision(model: GraphActorCritic, g: dict[str, torch.Tensor], mask: torch.Tensor) -> Callable[..., torch.Tensor] | None:
+    """A TorchScript trace of ``DecisionLogits`` for graphs shaped like ``g`` (batch of one), frozen
+    for inference; about a third faster than eager on one CPU thread. None when tracing fails (the
+    caller stays eager). Call it as ``traced(*[g[k] for k in GRAPH_KEYS], mask)``."""
+    example = (*[g[k] for k in GRAPH_KEYS], mask)
+    try:
+        with torch.inference_mode(), warnings.catch_warnings():
+            # torch.jit is deprecated in favour of torch.compile, which needs a C++ toolchain and
+            # seconds of compilation at the first decision; the trace is instant and still works.
+            warnings.simplefilter("ignore", DeprecationWarning)
+            warnings.simplefilter("ignore", torch.jit.TracerWarning)
+            traced = torch.jit.trace(DecisionLogits(model).eval(), example, check_trace=False)
+            return torch.jit.freeze(traced)
+    except (RuntimeError, AttributeError, TypeError):
+        return None
 
 
 def to_torch(graph: dict, device: str | torch.device = "cpu", batch: bool = False) -> dict[str, torch.Tensor]:

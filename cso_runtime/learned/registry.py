@@ -17,7 +17,7 @@ import torch
 
 from cso_runtime.config import MaskConfig
 from cso_runtime.learned.graph import GraphConfig, build_graph, frontier_count
-from cso_runtime.learned.network import GraphActorCritic, NetworkConfig, to_torch
+from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.observation import Observation
 from cso_runtime.policies import ActionMasker, Goal, goal_of
 
@@ -96,6 +96,8 @@ class LearnedPolicy:
         self.device = device
         self.greedy = greedy
         self.generator = torch.Generator()
+        self._traced: Any = None
+        """The traced decision network (None: not built yet; False: tracing failed, stay eager)."""
         self.reset(seed)
 
     def reset(self, seed: int | None = None) -> None:
@@ -114,10 +116,18 @@ class LearnedPolicy:
 
     @torch.inference_mode()
     def probabilities(self, obs: Observation, mask: np.ndarray) -> np.ndarray:
-        """Masked action probabilities over the frontier nodes (zero exactly where masked)."""
+        """Masked action probabilities over the frontier nodes (zero exactly where masked).
+
+        On CPU the network runs as a frozen TorchScript trace of the same module (built at the first
+        decision; every graph has the same padded shape), eager elsewhere or if tracing fails."""
         g = to_torch(build_graph(obs, self.graph_config), self.device, batch=True)
         m = torch.as_tensor(mask, device=self.device).unsqueeze(0)
-        logits = self.model.masked_logits(g, m)
+        if self._traced is None and str(self.device).startswith("cpu"):
+            self._traced = trace_decision(self.model, g, m) or False
+        if self._traced:
+            logits = self._traced(*[g[k] for k in GRAPH_KEYS], m)
+        else:
+            logits = self.model.masked_logits(g, m)
         return torch.softmax(logits, -1).squeeze(0).cpu().numpy()
 
     def select(self, obs: Observation) -> Goal | None:
