@@ -77,7 +77,7 @@ def in_process(scene: str, method: str, seed: int) -> tuple[float, int, float, f
     return time.perf_counter() - t0, r.steps, r.coverage_pct, time.process_time() - c0
 
 
-def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None = None) -> dict:
+def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None = None, wall_time_only: bool = False) -> dict:
     port = free_tcp_port()
     overrides = {"scene": scene, "method": method, "seed": seed, "lockstep": True}
     profile, data = load_profile(str(find_profile("lockstep")), overrides)
@@ -114,8 +114,9 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
         thread.start()
         time.sleep(0.3)
         keys = RobotKeys(profile.robot)
+        topics = ("scan", "episode_status") if wall_time_only else ("scan", "map", "goal", "frontiers", "cmd_vel", "episode_status")
         with open_session(TransportConfig(mode="client", connect=[loopback_endpoint(port)])) as session:
-            subs = [session.declare_subscriber(keys.topic(t), on_sample) for t in ("scan", "map", "goal", "frontiers", "cmd_vel", "episode_status")]
+            subs = [session.declare_subscriber(keys.topic(t), on_sample) for t in topics]
             if not done.wait(600):
                 raise RuntimeError("episode did not end within 600 s")
             for s in subs:
@@ -166,6 +167,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--service-mode", default=None, choices=("client", "peer"), help="Zenoh mode of the services (default: the lockstep profile's, peer)")
     p.add_argument("--repeats", type=int, default=1, help="Pairs of episodes (in-process, Zenoh), interleaved; the median ratio is reported")
+    p.add_argument(
+        "--wall-time-only", action="store_true", help="Listen only to scan and status (the per-hop latencies need every key; listening costs the router process CPU)"
+    )
     p.add_argument("--json", type=Path, default=None, help="Also write the figures here")
     args = p.parse_args(argv)
     import logging
@@ -174,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     pairs = []
     for _ in range(args.repeats):  # interleaved, so both sides of each ratio see the same machine
         local = in_process(args.scene, args.method, args.seed)
-        pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode)))
+        pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode, args.wall_time_only)))
     (local_s, local_steps, local_cov, local_cpu_s), z = pairs[-1]
     ratios = [zz["episode_s"] / ll[0] for ll, zz in pairs]
     report = {

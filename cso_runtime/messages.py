@@ -29,7 +29,7 @@ MAX_GRID_CELLS = 50_000_000
 MAX_BEAMS = 100_000
 COMPRESS_MIN_BYTES = 4096
 """Arrays at least this large are zlib-compressed."""
-_DTYPES = {"bool", "int8", "int16", "int32", "int64", "uint8", "float32", "float64"}
+_DTYPES = {"bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "float32", "float64"}
 
 
 class MessageError(ValueError):
@@ -302,6 +302,42 @@ class MapMsg(Message):
         return cls(_int(b, "step", "map"), geometry, grid)
 
 
+def _finite_window(distance: np.ndarray) -> tuple[slice, slice]:
+    """The smallest (rows, cols) window holding every value of ``distance`` but +inf (empty if none;
+    a NaN stays inside, for the receiver to reject)."""
+    finite = distance != np.inf
+    rows, cols = np.flatnonzero(finite.any(axis=1)), np.flatnonzero(finite.any(axis=0))
+    if rows.size == 0:
+        return slice(0, 0), slice(0, 0)
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
+
+
+def _distance_in(raw: dict, window: Any, geometry: GridGeometry) -> np.ndarray:
+    """The full D grid from its finite window (inf outside)."""
+    where = "frontiers.arrays.distance_m"
+    part = unpack_array(raw["distance_m"], where, ndim=2)
+    if part.dtype != np.float64:
+        raise MessageError(f"{where}: expected float64")
+    ok = isinstance(window, list) and len(window) == 2 and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in window)
+    if not ok:
+        raise MessageError("frontiers.distance_window: expected [row, col] of the window's corner")
+    (y0, x0), (h, w) = window, part.shape
+    if y0 + h > geometry.shape[0] or x0 + w > geometry.shape[1]:
+        raise MessageError("frontiers.distance_window: the window leaves the grid")
+    distance = np.full(geometry.shape, np.inf)
+    distance[y0 : y0 + h, x0 : x0 + w] = part
+    return distance
+
+
+def _narrow_counts(counts: np.ndarray) -> np.ndarray:
+    """Non-negative integer counts in the smallest unsigned dtype that holds them (lossless)."""
+    counts = np.asarray(counts)
+    top = int(counts.max()) if counts.size else 0
+    if counts.size and int(counts.min()) < 0:
+        return counts.astype(np.int32)
+    return counts.astype(np.uint8 if top < 2**8 else np.uint16 if top < 2**16 else np.int32)
+
+
 CLUSTER_FIELDS = ("goal_cell", "goal_xy_m", "distance_m", "size_m", "entropy", "centroid_xy_m", "cells")
 
 
@@ -314,6 +350,8 @@ class FrontiersMsg(Message):
     """
 
     SCHEMA: ClassVar[str] = "frontiers"
+    VERSION: ClassVar[int] = 2
+    """2: D travels as its finite window (``distance_window``), I as the smallest unsigned type."""
     step: int
     decide: bool
     reason: str = ""
@@ -340,12 +378,17 @@ class FrontiersMsg(Message):
         if not self.decide:
             return b
         assert self.pose is not None and self.geometry is not None
+        distance = np.asarray(self.arrays["distance_m"], dtype=np.float64)
+        window = _finite_window(distance)
         b.update(
             pose=_pose_out(self.pose),
             geometry=_geometry_out(self.geometry),
-            # Boolean grids compress 20-50x for almost nothing; D and I are sent raw (zlib would cost more
-            # CPU than loopback bandwidth).
-            arrays={k: pack_array(np.asarray(self.arrays[k], dtype=dt), compress=dt == "bool") for k, dt in self.GRIDS.items()},
+            # Boolean grids compress 20-50x for almost nothing. D and I would cost more CPU to zlib than
+            # to send, so they are made small instead: D only over the window of its finite (reachable)
+            # cells, inf elsewhere; I in the smallest unsigned type that holds it. Both lossless.
+            arrays={k: pack_array(np.asarray(self.arrays[k], dtype=dt), compress=True) for k, dt in self.GRIDS.items() if dt == "bool"}
+            | {"distance_m": pack_array(distance[window], compress=False), "entropy": pack_array(_narrow_counts(self.arrays["entropy"]), compress=False)},
+            distance_window=[window[0].start, window[1].start],
             clusters=[
                 {
                     "goal_cell": [int(c["goal_cell"][0]), int(c["goal_cell"][1])],
@@ -374,7 +417,12 @@ class FrontiersMsg(Message):
         raw = _get(b, "arrays", w)
         if not isinstance(raw, dict) or set(raw) != set(cls.GRIDS):
             raise MessageError(f"frontiers.arrays: expected exactly {', '.join(cls.GRIDS)}")
-        arrays = {k: _grid_in(raw, k, "frontiers.arrays", geometry, dt) for k, dt in cls.GRIDS.items()}
+        arrays = {k: _grid_in(raw, k, "frontiers.arrays", geometry, dt) for k, dt in cls.GRIDS.items() if dt == "bool"}
+        arrays["distance_m"] = _distance_in(raw, _get(b, "distance_window", w), geometry)
+        entropy = unpack_array(raw["entropy"], "frontiers.arrays.entropy", ndim=2)
+        if entropy.dtype.kind not in "iu" or tuple(entropy.shape) != tuple(geometry.shape):
+            raise MessageError("frontiers.arrays.entropy: expected integer counts over the grid")
+        arrays["entropy"] = entropy.astype(np.int32)
         if (arrays["distance_m"] < 0).any():
             raise MessageError("frontiers.arrays.distance_m: negative distances")
         if (arrays["entropy"] < 0).any():

@@ -266,6 +266,20 @@ def test_bad_maps_are_rejected():
             decode(_wire("map", body))
 
 
+def test_frontiers_send_d_as_its_reachable_window_and_restore_it_exactly():
+    obs = _observation()
+    msg = frontiers_from_observation(3, "no_goal", obs, 1.0)
+    back = decode(encode(msg), FrontiersMsg)
+    assert isinstance(back, FrontiersMsg)
+    np.testing.assert_array_equal(back.arrays["distance_m"], obs.distance_m)  # inf outside the window too
+    np.testing.assert_array_equal(back.arrays["entropy"], obs.entropy)
+    assert back.arrays["entropy"].dtype == np.int32
+    sent = _body(msg)["arrays"]["distance_m"]
+    assert math.prod(sent["shape"]) < obs.distance_m.size  # only the window travels
+    unreachable = type(obs)(**{**obs.__dict__, "distance_m": np.full_like(obs.distance_m, np.inf)})
+    assert np.isinf(decode(encode(frontiers_from_observation(4, "no_goal", unreachable, 1.0)), FrontiersMsg).arrays["distance_m"]).all()
+
+
 def test_bad_frontiers_are_rejected():
     obs = _observation()
     good = _body(frontiers_from_observation(3, "no_goal", obs, 1.0))
@@ -278,6 +292,8 @@ def test_bad_frontiers_are_rejected():
         {**good, "clusters": [bad_cluster]},
         {**good, "clusters": [dict(good["clusters"][0], distance_m=float("nan"))]},
         {**good, "arrays": {k: v for k, v in good["arrays"].items() if k != "entropy"}},
+        {**good, "distance_window": [obs.geometry.shape[0], 0]},  # the window leaves the grid
+        {**good, "distance_window": [-1, 0]},
         {**good, "path_nodes_xy_m": _body(PathMsg(0, np.array([[np.inf, 0.0]])))["path_xy_m"]},
     ]
     for body in cases:
