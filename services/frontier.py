@@ -3,8 +3,9 @@
 The re-decision rule is ``cso_runtime.episode.decision_reason`` (reached, blocked, no_progress, goal
 no longer a frontier, every ``replan_every_steps``), the same function the in-process ``Explorer``
 uses, on the planner's status after the previous step's command and the planner's own blocked check
-(``path_blocked_ahead``) applied here to this step's map; the Observation is ``ObservationBuilder.build`` (frontiers, one fast-marching pass, entropy,
-clusters). Per step it publishes either ``decide: false`` or the arrays the policy needs.
+(``path_blocked_ahead``) applied here to this step's map. The Observation is
+``ObservationBuilder.build`` (frontiers, one fast-marching pass, entropy, clusters). Per step it
+publishes either ``decide: false`` (the planner keeps its goal) or the arrays the policy needs.
 """
 
 from __future__ import annotations
