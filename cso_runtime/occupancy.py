@@ -25,8 +25,24 @@ class OccupancyMap:
     def __init__(self, geometry: GridGeometry):
         self.geometry = geometry
         self.explored = np.zeros(geometry.shape, dtype=bool)
-        self.log_odds = np.zeros(geometry.shape, dtype=np.float32)
+        self._log_odds: np.ndarray | None = np.zeros(geometry.shape, dtype=np.float32)
         self.occupied = np.zeros(geometry.shape, dtype=bool)
+
+    @property
+    def log_odds(self) -> np.ndarray:
+        """Clamped log-odds of occupancy per cell. A map rebuilt from an OccupancyGrid starts each cell
+        at one hit or one miss; that array is only made when a scan is integrated into such a map
+        (the runtime's readers of the map never need it)."""
+        if self._log_odds is None:
+            lo = np.zeros(self.geometry.shape, dtype=np.float32)
+            lo[self.explored] = LOG_ODDS_MISS
+            lo[self.occupied] = LOG_ODDS_HIT
+            self._log_odds = lo
+        return self._log_odds
+
+    @log_odds.setter
+    def log_odds(self, value: np.ndarray) -> None:
+        self._log_odds = value
 
     @property
     def open(self) -> np.ndarray:
@@ -92,10 +108,11 @@ class OccupancyMap:
         grid = np.asarray(grid)
         if grid.shape != tuple(geometry.shape):
             raise ValueError(f"grid shape {grid.shape} does not match geometry {geometry.shape}")
-        m = cls(geometry)
+        m = cls.__new__(cls)
+        m.geometry = geometry
         m.explored = grid >= 0
         m.occupied = grid > 50
-        m.log_odds = np.where(m.occupied, LOG_ODDS_HIT, np.where(m.explored, LOG_ODDS_MISS, 0.0)).astype(np.float32)
+        m._log_odds = None
         return m
 
     def copy(self) -> "OccupancyMap":
