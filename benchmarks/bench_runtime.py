@@ -145,18 +145,21 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
         row["steps"] = len(ks)
         breakdown[kind] = row
     cpu_s = {name: round(cpu["end"][name] - cpu["start"].get(name, 0.0), 3) for name in cpu.get("end", {})}
+    latencies = {
+        "step_breakdown_ms": breakdown,
+        "scan_to_map_ms": {"p50": pct(scan_map_ms, 50), "p99": pct(scan_map_ms, 99), "n": len(scan_map_ms)},
+        "map_to_cmd_vel_ms_all_steps": {"p50": pct(map_cmd_ms, 50), "p99": pct(map_cmd_ms, 99), "n": len(map_cmd_ms)},
+        "map_to_goal_ms_decisions": {"p50": pct(decision_ms, 50), "p99": pct(decision_ms, 99), "n": len(decision_ms)},
+    }
     return {
+        **({} if wall_time_only else latencies),
         "service_mode": profile.router.service_mode,
         "cpu_s_during_episode": dict(sorted(cpu_s.items())) | {"total": round(sum(cpu_s.values()), 3)},
-        "step_breakdown_ms": breakdown,
         "state": end.get("state"),
         "steps": end.get("steps"),
         "coverage_pct": end.get("coverage"),
         "startup_s": t0 - t_start,
         "episode_s": float(end["t"]) - t0,  # type: ignore[arg-type]
-        "scan_to_map_ms": {"p50": pct(scan_map_ms, 50), "p99": pct(scan_map_ms, 99), "n": len(scan_map_ms)},
-        "map_to_cmd_vel_ms_all_steps": {"p50": pct(map_cmd_ms, 50), "p99": pct(map_cmd_ms, 99), "n": len(map_cmd_ms)},
-        "map_to_goal_ms_decisions": {"p50": pct(decision_ms, 50), "p99": pct(decision_ms, 99), "n": len(decision_ms)},
     }
 
 
