@@ -100,11 +100,12 @@ class FrontierService(Service):
 
     def planner_state(self, k: int) -> PlannerFeedbackMsg | None:
         """The planner's report after the command of step k - 1 (lockstep: exactly that one; real time:
-        the newest before k). None: no command yet (step 0, or a planner that has not started)."""
+        the newest before k that is not older than the last decision, since an older one speaks of the
+        previous goal). None: no such report yet."""
         if self.ctx.lockstep:
             return self.feedback.get(k - 1)
-        older = [s for s in self.feedback if s < k]
-        return self.feedback[max(older)] if older else None
+        recent = [s for s in self.feedback if self.decision_step <= s < k]
+        return self.feedback[max(recent)] if recent else None
 
     def try_decide(self) -> None:
         ready = sorted(set(self.maps) & set(self.odoms))
@@ -127,7 +128,8 @@ class FrontierService(Service):
         occupancy = OccupancyMap.from_occupancy_grid(m.grid, m.geometry)
         if self.dead is None or self.dead.shape != occupancy.geometry.shape:
             self.dead = np.zeros(occupancy.geometry.shape, dtype=bool)
-        status = PlannerStatus.IDLE
+        # No report yet: idle, or (real time) already on its way to the goal just decided.
+        status = PlannerStatus.FOLLOWING if fb is None and self.goal is not None and not self.ctx.lockstep else PlannerStatus.IDLE
         if fb is not None:
             if fb.set_goal_blocked and self.goal is not None:
                 mark_dead_frontier(self.dead, occupancy.geometry, (self.goal.x_m, self.goal.y_m), self.goal_tolerance_m)

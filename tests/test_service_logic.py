@@ -104,6 +104,18 @@ def test_real_time_frontier_decides_on_the_newest_map_and_waits_for_the_goal():
     _feed(frontier, odom2)
     _feed(frontier, m2)  # the goal of step 1 is not in yet: keep the current goal, do not ask again
     assert [(m.step, m.decide) for _, m in out[1:]] == [(2, False)]
+    obs = ex.observe()
+    _feed(frontier, _far_goal(obs, 1))
+    _feed(frontier, PlannerFeedbackMsg(0, "reached", "command"))  # late, and about the previous goal
+    m3, odom3, _ = _inputs(ex, 3)
+    _feed(frontier, odom3)
+    _feed(frontier, m3)  # the planner is on its way to the new goal: nothing to decide
+    assert [(m.step, m.decide) for _, m in out[2:]] == [(3, False)]
+    _feed(frontier, PlannerFeedbackMsg(3, "reached", "command"))  # the new goal reached: decide again
+    m4, odom4, _ = _inputs(ex, 4)
+    _feed(frontier, odom4)
+    _feed(frontier, m4)
+    assert [(m.step, m.decide, m.reason) for _, m in out[3:]] == [(4, True, "reached")]
 
 
 def test_real_time_planner_plans_a_goal_that_arrives_after_newer_odometry():
