@@ -424,14 +424,22 @@ class Launcher:
         log.info("episode %s: %.2f%% coverage in %d steps; results in %s", result.terminated_by, result.coverage_pct, result.steps, out)
         return out
 
-    def start_recorder(self, session: Any) -> tuple[threading.Event, threading.Thread] | None:
-        """Record the run on the launcher's own session, from before the first service starts."""
+    def start_recorder(self) -> tuple[threading.Event, threading.Thread] | None:
+        """Record the run from before the first service starts, on a session of its own: its link and
+        receive thread are not shared with the launcher's callbacks, so a busy launcher cannot make the
+        router drop messages on their way to the recording."""
         if self.record_path is None:
             return None
         from cso_runtime.recording import record  # noqa: PLC0415 - mcap only when recording
 
         stop, ready = threading.Event(), threading.Event()
-        thread = threading.Thread(target=record, args=(session, self.profile.robot, self.record_path, stop, ready), name="recorder", daemon=True)
+        transport = TransportConfig(mode="client", connect=list(self.endpoints))
+
+        def run() -> None:
+            with open_session(transport) as session:
+                record(session, self.profile.robot, self.record_path, stop, ready)
+
+        thread = threading.Thread(target=run, name="recorder", daemon=True)
         thread.start()
         if not ready.wait(10.0):
             stop.set()
@@ -461,7 +469,7 @@ class Launcher:
                 session.declare_queryable(self.keys.launcher_status, self._on_status_query),
             ]
             alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._on_alive, history=True)
-            recorder = self.start_recorder(session)
+            recorder = self.start_recorder()
             try:
                 self.spawn_all()
                 self.write_run_file("running")

@@ -192,9 +192,13 @@ class ScanMsg(Message):
     """A range scan at one simulation step, with the odometry pose of the sensor when it was taken."""
 
     SCHEMA: ClassVar[str] = "scan"
+    VERSION: ClassVar[int] = 2
     step: int
     scan: LaserScan
     sensor_pose: Pose2D
+    episode: int = 0
+    """Episode id, as on the clock (v2): the mapper can integrate a scan the moment it arrives, before
+    the clock of its step, and still never mix two episodes in one map."""
 
     def body(self) -> dict[str, Any]:
         s = self.scan
@@ -207,6 +211,7 @@ class ScanMsg(Message):
             "range_max_m": float(s.range_max_m),
             "ranges_m": pack_array(np.asarray(s.ranges_m, dtype=np.float32), compress=False),
             "sensor_pose": _pose_out(self.sensor_pose),
+            "episode": self.episode,
         }
 
     @classmethod
@@ -229,7 +234,7 @@ class ScanMsg(Message):
             scan.validate()
         except ValueError as exc:
             raise MessageError(f"scan: {exc}") from None
-        return cls(_int(b, "step", w), scan, _pose_in(b, "sensor_pose", w))
+        return cls(_int(b, "step", w), scan, _pose_in(b, "sensor_pose", w), _int(b, "episode", w))
 
 
 @dataclass
@@ -601,6 +606,10 @@ class PlannerFeedbackMsg(Message):
     path_ahead_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     """The path still ahead of the robot (float64, metres), empty unless following: the frontier
     service runs the planner's blocked check on the next map with it (``path_blocked_ahead``)."""
+    goal_step: int = -1
+    """The decision step of the goal this report is about (-1: none yet). In real time the planner
+    commands newer steps than the last decision before its goal arrives; such a report speaks of the
+    previous goal and must not be read as the new goal's outcome."""
 
     def body(self) -> dict[str, Any]:
         return {
@@ -610,6 +619,7 @@ class PlannerFeedbackMsg(Message):
             "set_goal_blocked": self.set_goal_blocked,
             "reason": self.reason,
             "path_ahead_xy_m": pack_array(np.asarray(self.path_ahead_xy_m, dtype=np.float64).reshape(-1, 2)),
+            "goal_step": self.goal_step,
         }
 
     @classmethod
@@ -625,6 +635,7 @@ class PlannerFeedbackMsg(Message):
             _bool(b, "set_goal_blocked", w),
             _str(b, "reason", w),
             path.astype(np.float64),
+            _int(b, "goal_step", w, lo=-1),
         )
 
 

@@ -49,6 +49,12 @@ def zenoh_config(conf: TransportConfig) -> zenoh.Config:
     cfg.insert_json5("scouting/multicast/enabled", "false")
     cfg.insert_json5("connect/endpoints", json.dumps(list(conf.connect)))
     cfg.insert_json5("listen/endpoints", json.dumps(list(conf.listen)))
+    # Zenoh drops a message when a link's queue stays full for longer than ``wait_before_drop`` (default
+    # 1 ms, 2 batches per priority). On a busy machine (five service processes starting at once on
+    # two cores) a link's sender can be off-CPU for longer than that, and whole steps went missing in a
+    # recording. A deeper queue and a 20 ms grace keep them; a link congested for longer still drops.
+    cfg.insert_json5("transport/link/tx/queue/size/data", "8")
+    cfg.insert_json5("transport/link/tx/queue/congestion_control/drop/wait_before_drop", "20000")
     if conf.mode == "client":
         # Keep retrying the router for a while instead of failing at once: services may start first.
         cfg.insert_json5("connect/timeout_ms", "10000")

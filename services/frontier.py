@@ -100,11 +100,11 @@ class FrontierService(Service):
 
     def planner_state(self, k: int) -> PlannerFeedbackMsg | None:
         """The planner's report after the command of step k - 1 (lockstep: exactly that one; real time:
-        the newest before k that is not older than the last decision, since an older one speaks of the
-        previous goal). None: no such report yet."""
+        the newest before k about the goal decided last, since the planner may report on newer steps
+        before that goal reaches it). None: no such report yet."""
         if self.ctx.lockstep:
             return self.feedback.get(k - 1)
-        recent = [s for s in self.feedback if self.decision_step <= s < k]
+        recent = [s for s, fb in self.feedback.items() if s < k and fb.goal_step == self.decision_step]
         return self.feedback[max(recent)] if recent else None
 
     def try_decide(self) -> None:

@@ -2,10 +2,11 @@
 
 The grid is sized from the clock's arena (or ``services.mapper`` width/height when set). A scan it
 has already integrated is not integrated twice: the map is re-published (lockstep retries). A new
-episode is recognised by the clock's episode id, never by the step going back: each subscriber's
-callbacks run on their own thread, so a clock may be handled after scans of later steps. On start
-it restores the latest map from the launcher's cache so a restarted mapper keeps what was explored;
-it answers queries on its map key so late joiners get the latest map at once.
+episode is recognised by the episode id that clocks and scans carry, never by the step going back:
+each subscriber's callbacks run on their own thread, so a clock may be handled after scans of later
+steps (the sim even sends each step's scan first). On start it restores the latest map from the
+launcher's cache so a restarted mapper keeps what was explored; it answers queries on its map key so
+late joiners get the latest map at once.
 """
 
 from __future__ import annotations
@@ -83,12 +84,7 @@ class MapperService(Service):
             if self.map is None and msg.arena is not None:
                 self.map = OccupancyMap(msg.arena)
                 log.info("map %dx%d cells at %.3f m", msg.arena.shape[1], msg.arena.shape[0], msg.arena.resolution_m)
-            if self.episode is not None and msg.episode != self.episode:
-                log.warning("new episode %d (map of episode %d at step %d): clearing the map", msg.episode, self.episode, self.map_step)
-                if self.map is not None:
-                    self.map = OccupancyMap(self.map.geometry)
-                self.map_step = -1
-            self.episode = msg.episode
+            self.enter_episode(msg.episode)
             if self.map is not None and self.pending:
                 pending, self.pending = self.pending, []
                 for scan in pending:
@@ -104,8 +100,18 @@ class MapperService(Service):
             return
         self.integrate(msg)
 
+    def enter_episode(self, episode: int) -> None:
+        """Clock or scan of ``episode``: a new id (whichever of the two comes first) starts a new map."""
+        if self.episode is not None and episode != self.episode:
+            log.warning("new episode %d (map of episode %d at step %d): clearing the map", episode, self.episode, self.map_step)
+            if self.map is not None:
+                self.map = OccupancyMap(self.map.geometry)
+            self.map_step = -1
+        self.episode = episode
+
     def integrate(self, scan: ScanMsg) -> None:
         assert self.map is not None
+        self.enter_episode(scan.episode)
         if scan.step > self.map_step:
             try:
                 self.map.integrate_scan(scan.sensor_pose, scan.scan)

@@ -58,7 +58,7 @@ class PlannerService(Service):
         self.goals: dict[int, GoalMsg] = {}
         self.cmd_step = -1
         self.goal_step = -1
-        """Real time: the step of the last goal planned to."""
+        """The decision step of the goal being followed (reported with every command)."""
         self.pending_new_goal = False
         """A goal was applied since the last command (the command says so: ``new_goal``)."""
         self.no_frontier = False
@@ -139,7 +139,7 @@ class PlannerService(Service):
     def publish_feedback(self, k: int, reason: str) -> None:
         p = self.planner
         ahead = p.remaining_path() if p.status == PlannerStatus.FOLLOWING else np.zeros((0, 2))
-        self.last_feedback = PlannerFeedbackMsg(k, p.status.value, "command", self.set_goal_blocked, reason, ahead)
+        self.last_feedback = PlannerFeedbackMsg(k, p.status.value, "command", self.set_goal_blocked, reason, ahead, self.goal_step)
         self.set_goal_blocked = False
         self.publish("planner_feedback", self.last_feedback)
 
@@ -158,6 +158,7 @@ class PlannerService(Service):
         """Command step ``k``: lockstep applies the step's new goal ``g`` first (if any)."""
         if g is not None and f is not None:
             self.apply_goal(f, g)
+            self.goal_step = k
         (odom, odom_s), (scan, scan_s) = self.odoms.pop(k), self.scans.pop(k)
         # Lockstep: this step's frontiers and goal are used up. Real time: those of a decision not
         # planned yet are kept (a goal may arrive after newer odometry).

@@ -359,7 +359,7 @@ class Ros2BridgeService(Service):
         if odom is None:
             self.count_reject(f"ros_scan:{reason}", f"scan at {stamp:.3f} s, newest odometry at {self.odometry.newest_s}")
             return
-        scan_msg = ScanMsg(self.step + 1, conv.scan, odom.pose.compose_offset(self.mount_x_m))
+        scan_msg = ScanMsg(self.step + 1, conv.scan, odom.pose.compose_offset(self.mount_x_m), self.episode)
         try:
             decode(encode(scan_msg), ScanMsg)  # the checks every subscriber applies, before publishing
         except MessageError as exc:

@@ -148,9 +148,11 @@ class SimService(Service):
     def publish_step(self) -> None:
         """Clock, odometry and scan of the current step (also used to re-request a lost step)."""
         scan = self.sim.scan()
-        self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry, self.episode))
+        # The scan first: the mapper, at the head of the step's chain, starts at once (it carries the
+        # episode id, so the mapper need not wait for the clock).
+        self.publish("scan", ScanMsg(self.step, scan, self.sim.sensor_pose(), self.episode))
         self.publish("odom", OdometryMsg(self.step, self.sim.time_s, self.sim.odometry()))
-        self.publish("scan", ScanMsg(self.step, scan, self.sim.sensor_pose()))
+        self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry, self.episode))
         self.last_publish_s = time.monotonic()
 
     def episode_status(self) -> EpisodeStatusMsg:

@@ -89,13 +89,21 @@ def test_mapper_keeps_its_map_when_a_clock_arrives_late_and_clears_it_on_a_new_e
     scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
     svc.on_message("t9", "clock", ClockMsg(0, 0.0, geom, episode=11), 0.0)
     for k in range(4):
-        svc.on_message("t9", "scan", ScanMsg(k, scan, Pose2D(1.0 + 0.3 * k, 2.0, 0.0)), 0.0)
+        svc.on_message("t9", "scan", ScanMsg(k, scan, Pose2D(1.0 + 0.3 * k, 2.0, 0.0), episode=11), 0.0)
     svc.on_message("t9", "clock", ClockMsg(1, 0.25, geom, episode=11), 0.0)  # handled after the scan of step 3
     assert svc.map_step == 3 and (svc.map.to_occupancy_grid() != -1).sum() > 100
     svc.on_message("t9", "clock", ClockMsg(0, 0.0, geom, episode=12), 0.0)
     assert svc.map_step == -1 and (svc.map.to_occupancy_grid() != -1).sum() == 0
-    svc.on_message("t9", "scan", ScanMsg(0, scan, Pose2D(2.0, 2.0, 0.0)), 0.0)
+    svc.on_message("t9", "scan", ScanMsg(0, scan, Pose2D(2.0, 2.0, 0.0), episode=12), 0.0)
     assert svc.map_step == 0 and published[-1].step == 0
+    explored_12 = (svc.map.to_occupancy_grid() != -1).sum()
+    # The next episode's first scan before its clock (the sim sends the scan first): a new map at once.
+    svc.on_message("t9", "scan", ScanMsg(0, scan, Pose2D(3.0, 2.0, 0.0), episode=13), 0.0)
+    assert svc.episode == 13 and svc.map_step == 0 and published[-1].step == 0
+    grid = svc.map.to_occupancy_grid()
+    assert 0 < (grid != -1).sum() and (grid[:, :15] != -1).sum() == 0, "nothing of episode 12's map (around x = 2 m) is kept"
+    svc.on_message("t9", "clock", ClockMsg(0, 0.0, geom, episode=13), 0.0)  # its clock, late: nothing more happens
+    assert svc.map_step == 0 and (svc.map.to_occupancy_grid() != -1).sum() == (grid != -1).sum() and explored_12 > 0
 
 
 # --- end to end ---------------------------------------------------------------------------------------

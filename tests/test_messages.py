@@ -180,16 +180,19 @@ def test_malformed_envelopes_are_rejected(payload):
 def test_unknown_version_says_so():
     body = _body(_scan())
     with pytest.raises(MessageError, match="unknown version"):
-        decode(_wire("scan", body, version=SCHEMA_VERSION + 1))
+        decode(_wire("scan", body, version=ScanMsg.VERSION + 1))
 
 
-def test_clock_and_episode_status_carry_the_episode_and_reject_version_1():
-    """Both schemas gained the episode id in v2: a v1 payload (no id) is an unknown version."""
+def test_clock_scan_and_episode_status_carry_the_episode_and_reject_version_1():
+    """The three schemas gained the episode id in v2: a v1 payload (no id) is an unknown version."""
     clock = ClockMsg(3, 0.75, GridGeometry(0.1, (4, 5)), episode=2**47 + 5)
     assert decode(encode(clock)) == clock
     status = EpisodeStatusMsg("exploring", 3, episode=7)
     assert decode(encode(status)).episode == 7
-    for msg in (clock, status):
+    scan = _scan()
+    scan.episode = 9
+    assert decode(encode(scan)).episode == 9
+    for msg in (clock, status, scan):
         body = _body(msg)
         del body["episode"]
         with pytest.raises(MessageError, match="unknown version 1"):

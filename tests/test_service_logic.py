@@ -106,12 +106,15 @@ def test_real_time_frontier_decides_on_the_newest_map_and_waits_for_the_goal():
     assert [(m.step, m.decide) for _, m in out[1:]] == [(2, False)]
     obs = ex.observe()
     _feed(frontier, _far_goal(obs, 1))
-    _feed(frontier, PlannerFeedbackMsg(0, "reached", "command"))  # late, and about the previous goal
+    # Reports about the previous goal (none yet): one late, one on a step after the decision, sent
+    # before the new goal reached the planner. Neither is the new goal's outcome.
+    _feed(frontier, PlannerFeedbackMsg(0, "reached", "command", goal_step=-1))
+    _feed(frontier, PlannerFeedbackMsg(2, "reached", "command", goal_step=-1))
     m3, odom3, _ = _inputs(ex, 3)
     _feed(frontier, odom3)
     _feed(frontier, m3)  # the planner is on its way to the new goal: nothing to decide
     assert [(m.step, m.decide) for _, m in out[2:]] == [(3, False)]
-    _feed(frontier, PlannerFeedbackMsg(3, "reached", "command"))  # the new goal reached: decide again
+    _feed(frontier, PlannerFeedbackMsg(3, "reached", "command", goal_step=1))  # the new goal reached: decide again
     m4, odom4, _ = _inputs(ex, 4)
     _feed(frontier, odom4)
     _feed(frontier, m4)
@@ -141,7 +144,7 @@ def test_real_time_planner_plans_a_goal_that_arrives_after_newer_odometry():
     assert isinstance(last, CmdVelMsg) and last.step == 3 and last.new_goal and last.reason == ""
     assert last.command.linear_mps != 0.0 or last.command.angular_radps != 0.0
     fb = [m for t, m in out if t == "planner_feedback"][-1]
-    assert fb.status == "following" and len(fb.path_ahead_xy_m) > 1
+    assert fb.status == "following" and len(fb.path_ahead_xy_m) > 1 and fb.goal_step == 0
 
 
 def test_lockstep_planner_keeps_the_goal_without_the_policy_and_waits_for_a_decision():
