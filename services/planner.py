@@ -1,12 +1,13 @@
 """Planner service: ``LocalPlanner`` (path, pure pursuit, progress and blocked checks) -> cmd_vel.
 
-Per step it reports on ``planner/feedback`` after the step's command (``update``): the status and the
-path still ahead, with which the frontier service runs the same blocked check on the next map
-(``path_blocked_ahead``) and applies the shared re-decision rule to the same status as the in-process
-loop. In lockstep each step's command acts on the frontier service's ``decide: false`` directly, so
-on most steps the policy is not in the loop; in real time it commands every new odometry + scan
-pair on the current path and plans to each new goal when it arrives. It stops the robot, and says why in its status, when odometry or
-scans are older than ``stale_after_s``.
+Per step it reports on ``planner/feedback`` after the step's command (``update``): the status, the
+path still ahead and the goal they are about. With them the frontier service runs the same blocked
+check on the next map (``path_blocked_ahead``) and applies the shared re-decision rule to the same
+status as the in-process loop. In lockstep each step's command acts on the frontier service's
+``decide: false`` directly, so on most steps the policy is not in the loop; in real time it commands
+every new odometry + scan pair on the current path and plans to each new goal when it arrives. It
+stops the robot, and says why in its status, when odometry or scans are older than
+``stale_after_s``.
 """
 
 from __future__ import annotations
@@ -124,7 +125,6 @@ class PlannerService(Service):
             if decided:
                 s = max(decided)
                 self.apply_goal(self.frontiers[s], self.goals[s])
-                self.goal_step = s
             k = max((s for s in self.odoms if s > self.cmd_step and s in self.scans), default=-1)
             if k >= 0:
                 self.on_command(k, None, None)
@@ -145,7 +145,7 @@ class PlannerService(Service):
 
     def apply_goal(self, f: FrontiersMsg, g: GoalMsg) -> None:
         """Plan to a newly decided goal on the traversable grid and distance field it was chosen on."""
-        self.pending_new_goal = True
+        self.pending_new_goal, self.goal_step = True, g.step
         if not g.has_goal:
             self.planner.clear()
             self.no_frontier = True
@@ -158,7 +158,6 @@ class PlannerService(Service):
         """Command step ``k``: lockstep applies the step's new goal ``g`` first (if any)."""
         if g is not None and f is not None:
             self.apply_goal(f, g)
-            self.goal_step = k
         (odom, odom_s), (scan, scan_s) = self.odoms.pop(k), self.scans.pop(k)
         # Lockstep: this step's frontiers and goal are used up. Real time: those of a decision not
         # planned yet are kept (a goal may arrive after newer odometry).
