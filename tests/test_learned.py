@@ -249,6 +249,15 @@ def test_short_ppo_run_beats_a_random_policy(tmp_path):
     assert trained > before + 0.1, (trained, before)  # learned, not a lucky initialisation
 
 
+def test_policies_of_one_model_share_one_trace(observation):
+    """Eval makes a policy per episode: the model is traced once, not at every episode's first decision."""
+    model = GraphActorCritic().eval()
+    a, b = (LearnedPolicy("cso", model, GraphConfig(), MaskConfig()) for _ in range(2))
+    a.select(observation)
+    b.select(observation)
+    assert a._traced and a._traced is b._traced
+
+
 def test_checkpoint_round_trip_gives_the_same_actions(tmp_path, observation):
     torch.manual_seed(5)
     model = GraphActorCritic(NetworkConfig(hidden=32, heads=2, layers=1)).eval()

@@ -7,6 +7,8 @@ when ``cso_runtime/data/weights/<name>.pt`` exists.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import weakref
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -39,6 +41,17 @@ VARIANTS: dict[str, Variant] = {
     "cso-vdm": Variant(True, True, False),
     "gnn-baseline": Variant(False, False, False),
 }
+
+
+_DECISION_TRACES: weakref.WeakKeyDictionary[GraphActorCritic, dict[tuple, Any]] = weakref.WeakKeyDictionary()
+"""Traced decision networks per model object and input shapes (False: tracing failed); die with the model."""
+
+
+@functools.lru_cache(maxsize=None)
+def _shipped_model(name: str, device: str) -> tuple[GraphActorCritic, GraphConfig]:
+    """The shipped weights of ``name``, loaded once per process (eval builds a policy per episode)."""
+    model, graph, _ = load_checkpoint(weights_path(name), device)
+    return model, graph
 
 
 def weights_dir() -> Path:
@@ -118,12 +131,18 @@ class LearnedPolicy:
     def probabilities(self, obs: Observation, mask: np.ndarray) -> np.ndarray:
         """Masked action probabilities over the frontier nodes (zero exactly where masked).
 
-        On CPU the network runs as a frozen TorchScript trace of the same module (built at the first
-        decision; every graph has the same padded shape), eager elsewhere or if tracing fails."""
+        On CPU the network runs as a TorchScript trace of the same module (built at the first decision
+        of the first policy on this model; every graph has the same padded shape), eager elsewhere or
+        if tracing fails."""
         g = to_torch(build_graph(obs, self.graph_config), self.device, batch=True)
         m = torch.as_tensor(mask, device=self.device).unsqueeze(0)
         if self._traced is None and str(self.device).startswith("cpu"):
-            self._traced = trace_decision(self.model, g, m) or False
+            # One trace per loaded model and graph shape, not per episode (eval makes a policy per episode).
+            traces = _DECISION_TRACES.setdefault(self.model, {})
+            shape = tuple(tuple(t.shape) for t in (*[g[k] for k in GRAPH_KEYS], m))
+            if shape not in traces:
+                traces[shape] = trace_decision(self.model, g, m) or False
+            self._traced = traces[shape]
         if self._traced:
             logits = self._traced(*[g[k] for k in GRAPH_KEYS], m)
         else:
@@ -150,7 +169,7 @@ def make_learned_policy(name: str, mask_config: MaskConfig, seed: int | None = N
     if not has_method(name):
         raise FileNotFoundError(f"no shipped weights for {name!r} (expected {weights_path(name)}); train it with `cso-runtime train`")
     v = VARIANTS[name]
-    model, graph, _ = load_checkpoint(weights_path(name), device)
+    model, graph = _shipped_model(name, str(device))
     graph = dataclasses.replace(graph, use_entropy=v.use_entropy)
     masks = dataclasses.replace(mask_config, use_valid_distance=v.use_valid_distance, use_stuck=v.use_stuck)
     return LearnedPolicy(name, model, graph, masks, seed=seed, device=device)
