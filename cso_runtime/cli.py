@@ -237,6 +237,11 @@ def train_command(
     time_limit: Optional[float] = typer.Option(None, "--time-limit-s", help="Stop after this much wall time (0 = none)"),
     resume: Optional[Path] = typer.Option(None, "--resume", help="checkpoint.pt to continue from"),
     device: Optional[str] = typer.Option(None, "--device", help="auto, cpu or cuda"),
+    init_from: Optional[str] = typer.Option(None, "--init-from", help="Fine-tune: start from these weights (.pt, or 'shipped')"),
+    num_envs: Optional[int] = typer.Option(None, "--num-envs", help="Parallel environments"),
+    async_envs: Optional[bool] = typer.Option(None, "--async-envs/--sync-envs", help="One process per environment, or all in this one"),
+    dungeon_dir: Optional[Path] = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
+    settings: Optional[list[str]] = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
     """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
     from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
@@ -244,9 +249,12 @@ def train_command(
 
     data = load_yaml(config) if config is not None else {}
     overrides = {"variant": variant, "out_dir": str(out) if out else None, "seed": seed, "total_decisions": total_decisions,
-                 "time_limit_s": time_limit, "resume": str(resume) if resume else None, "device": device}
+                 "time_limit_s": time_limit, "resume": str(resume) if resume else None, "device": device,
+                 "init_from": init_from, "num_envs": num_envs, "async_envs": async_envs,
+                 "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
     data.update({k: v for k, v in overrides.items() if v is not None})
     try:
+        data.update(parse_settings(settings or []))
         args = from_dict(Args, data, "train")
         args.validate()
     except (ConfigError, ValueError) as exc:
@@ -254,6 +262,23 @@ def train_command(
         raise typer.Exit(2) from None
     record = train(args, log=typer.echo)
     typer.echo(f"done: {record['ppo_decisions']} PPO decisions, {record['warm_start_decisions']} warm-start decisions, {record['wall_time_s']} s -> {args.out_dir}")
+
+
+def parse_settings(items: list[str]) -> dict[str, object]:
+    """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``)."""
+    import yaml  # noqa: PLC0415
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
+
+    out: dict[str, object] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
+        try:
+            out[key.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"--set {key}: {exc}") from None
+    return out
 
 
 def main() -> None:

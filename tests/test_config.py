@@ -49,3 +49,13 @@ def test_load_yaml_errors(tmp_path: Path):
     listy.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="mapping"):
         load_yaml(listy)
+
+
+def test_train_set_overrides_parse_yaml_values_and_reject_bad_pairs():
+    from cso_runtime.cli import parse_settings  # noqa: PLC0415
+
+    assert parse_settings(["gamma=0.995", "generated=[a, b]", "dungeon_dir=null"]) == {"gamma": 0.995, "generated": ["a", "b"], "dungeon_dir": None}
+    with pytest.raises(ConfigError, match="KEY=VALUE"):
+        parse_settings(["gamma"])
+    with pytest.raises(ConfigError, match="gamma"):
+        parse_settings(["gamma=[1"])

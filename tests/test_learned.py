@@ -282,3 +282,50 @@ def test_make_policy_cso_uses_the_shipped_weights():
     goal = policy.select(explorer.observe())
     assert isinstance(goal, Goal)
     assert not has_method("no-such-variant")
+
+
+def test_fine_tuning_starts_from_the_given_weights_and_checks_the_variant(tmp_path):
+    """``init_from`` loads the weights before PPO (no warm start); a file of another variant is refused."""
+    plan = rooms_plan(2)
+    common = dict(out_dir=str(tmp_path), seed=0, num_envs=1, num_steps=8, num_minibatches=1, max_steps=100, progress=False)
+    torch.manual_seed(3)
+    start = GraphActorCritic(NetworkConfig(hidden=32, heads=4, layers=2)).eval()
+    save_checkpoint(tmp_path / "start.pt", start, Args(**common).env_config().graph, "cso")
+    args = Args(variant="cso", init_from=str(tmp_path / "start.pt"), total_decisions=8, learning_rate=0.0, warm_start_decisions=50, **common)
+    record = train(args, log=lambda _msg: None, plans=[plan])
+    assert record["init_from"] == str(tmp_path / "start.pt") and record["warm_start_decisions"] == 0
+    tuned, _, _ = load_checkpoint(tmp_path / "cso.pt")
+    for name, value in start.state_dict().items():  # learning rate 0: the weights come through unchanged
+        torch.testing.assert_close(tuned.state_dict()[name], value)
+    with pytest.raises(ValueError, match="variant"):
+        train(Args(variant="cso-no-mask", init_from=str(tmp_path / "start.pt"), total_decisions=8, **common), log=lambda _m: None, plans=[plan])
+
+
+def test_warm_start_teacher_runs_through_subprocess_envs(tmp_path):
+    """The greedy teacher is asked through the vector env's ``call``, so async (one process per env) works."""
+    from cso_runtime.learned.ppo import collect_teacher, make_vector_env  # noqa: PLC0415
+
+    args = Args(num_envs=2, async_envs=True, max_steps=100)
+    envs = make_vector_env(args, [rooms_plan(2)])
+    try:
+        graphs, masks, actions, returns = collect_teacher(envs, 6, 0.98, seed=0)
+    finally:
+        envs.close()
+    assert actions.shape == (6,) and masks[np.arange(6), actions].all()  # every teacher choice is allowed
+    env = ExplorationEnv([rooms_plan(2)], args.env_config())
+    _, info = env.reset(seed=0)
+    assert actions[0] == expert_action(env.obs, info["action_mask"])  # the same seed, the same first choice
+
+
+def test_weights_dir_override_serves_other_weights(tmp_path, monkeypatch, observation):
+    """``CSO_WEIGHTS_DIR`` makes eval and the policy service use a training run's weights."""
+    from cso_runtime.learned import registry  # noqa: PLC0415
+
+    torch.manual_seed(11)
+    mine = GraphActorCritic().eval()
+    save_checkpoint(tmp_path / "cso.pt", mine, GraphConfig(), "cso")
+    monkeypatch.setenv(registry.WEIGHTS_DIR_ENV, str(tmp_path))
+    assert registry.weights_path("cso") == tmp_path / "cso.pt" and not has_method("gnn-baseline")
+    policy = make_policy("cso", MaskConfig(), seed=0)
+    for name, value in mine.state_dict().items():
+        torch.testing.assert_close(policy.model.state_dict()[name], value)

@@ -158,6 +158,12 @@ class ExplorationEnv(gym.Env):
         info["terminated_by"] = ex.terminated_by
         return graph, float(reward), terminated, truncated, info
 
+    def teacher_action(self) -> int:
+        """The warm-start teacher's choice for the current observation (callable through any vector env)."""
+        if self.obs is None:
+            return int(np.argmax(self.mask))
+        return expert_action(self.obs, self.mask)
+
 
 def expert_action(obs: Observation, mask: np.ndarray) -> int:
     """The greedy-dist choice under the mask: the nearest allowed cluster (the warm-start teacher)."""

@@ -30,10 +30,10 @@ from gymnasium.vector import AutoresetMode
 from torch import nn, optim
 
 from cso_runtime.config import ExplorationConfig
-from cso_runtime.learned.env import EnvConfig, ExplorationEnv, RewardConfig, expert_action, mask_config_for
+from cso_runtime.learned.env import EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
 from cso_runtime.learned.graph import GraphConfig, empty_graph
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
-from cso_runtime.learned.registry import VARIANTS, save_checkpoint
+from cso_runtime.learned.registry import VARIANTS, load_checkpoint, save_checkpoint, weights_path
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
 
 
@@ -100,6 +100,9 @@ class Args:
     """Updates between resumable checkpoints."""
     resume: str | None = None
     """Path of a checkpoint.pt to continue from."""
+    init_from: str | None = None
+    """Weights file (.pt from an earlier run, or ``shipped`` for the variant's shipped weights) to start PPO
+    from instead of a fresh network: fine-tuning. The warm start is skipped; the optimizer starts fresh."""
     device: str = "auto"
     """auto (CUDA when available), cpu or cuda."""
     torch_threads: int = 1
@@ -223,6 +226,17 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+def initial_weights(args: Args, device: torch.device) -> dict[str, torch.Tensor]:
+    """The state dict named by ``args.init_from``, checked against the variant and graph being trained."""
+    path = weights_path(args.variant) if args.init_from == "shipped" else Path(str(args.init_from))
+    model, graph, ckpt = load_checkpoint(path, str(device))
+    if ckpt.get("variant") != args.variant:
+        raise ValueError(f"{path} holds variant {ckpt.get('variant')!r}, not {args.variant!r}")
+    if graph != args.env_config().graph or model.config != build_model(args, device).config:
+        raise ValueError(f"{path} was trained with another graph or network configuration")
+    return model.state_dict()
+
+
 def build_model(args: Args, device: torch.device) -> GraphActorCritic:
     return GraphActorCritic(NetworkConfig(args.hidden, 32, args.heads, args.layers), args.max_frontier_nodes).to(device)
 
@@ -246,7 +260,7 @@ def collect_teacher(envs: gym.vector.VectorEnv, decisions: int, gamma: float, se
     per_env = max(1, decisions // n)
     for _ in range(per_env):
         mask = info["action_mask"]
-        teacher = np.array([_teacher_of(envs, i, mask[i]) for i in range(n)])
+        teacher = np.asarray(envs.call("teacher_action"), dtype=np.int64)
         graphs.append(obs)
         masks.append(mask)
         actions.append(teacher)
@@ -261,13 +275,6 @@ def collect_teacher(envs: gym.vector.VectorEnv, decisions: int, gamma: float, se
         returns[t] = running
     flat = {k: np.concatenate([g[k] for g in graphs]) for k in graphs[0]}
     return flat, np.concatenate(masks), np.concatenate(actions), returns.reshape(-1)
-
-
-def _teacher_of(envs: gym.vector.VectorEnv, i: int, mask: np.ndarray) -> int:
-    env = envs.envs[i] if hasattr(envs, "envs") else None
-    if env is None:
-        raise RuntimeError("the warm start needs in-process environments (async_envs: false)")
-    return expert_action(env.unwrapped.obs, mask)
 
 
 def warm_start(model: GraphActorCritic, data: tuple, args: Args, device: torch.device, log: Callable[[str], None]) -> dict[str, float]:
@@ -334,6 +341,10 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         record["warm_start"] = ckpt.get("warm_start", {})
         torch.set_rng_state(ckpt["torch_rng"])
         log(f"resumed from {args.resume} at update {start_update}")
+    elif args.init_from:
+        model.load_state_dict(initial_weights(args, device))
+        record["init_from"] = str(args.init_from)
+        log(f"initialised from {args.init_from}")
     elif args.warm_start_decisions > 0:
         data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed)
         warm_decisions = len(data[2])

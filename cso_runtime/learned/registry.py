@@ -1,13 +1,14 @@
 """The learned methods by name: which inputs and masks each variant uses, and its shipped weights.
 
 ``policies.make_policy`` calls ``has_method`` and ``make_learned_policy``; a variant is available only
-when ``cso_runtime/data/weights/<name>.pt`` exists.
+when ``cso_runtime/data/weights/<name>.pt`` exists (or ``$CSO_WEIGHTS_DIR/<name>.pt`` when that is set).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 import weakref
 from dataclasses import dataclass
 from importlib import resources
@@ -48,13 +49,21 @@ _DECISION_TRACES: weakref.WeakKeyDictionary[GraphActorCritic, dict[tuple, Any]] 
 
 
 @functools.lru_cache(maxsize=None)
-def _shipped_model(name: str, device: str) -> tuple[GraphActorCritic, GraphConfig]:
-    """The shipped weights of ``name``, loaded once per process (eval builds a policy per episode)."""
-    model, graph, _ = load_checkpoint(weights_path(name), device)
+def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig]:
+    """The weights at ``path``, loaded once per process (eval builds a policy per episode)."""
+    model, graph, _ = load_checkpoint(path, device)
     return model, graph
 
 
+WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
+"""Environment variable naming a folder of ``<method>.pt`` files to use instead of the shipped ones
+(evaluate your own training runs with ``eval`` or the policy service; child processes inherit it)."""
+
+
 def weights_dir() -> Path:
+    override = os.environ.get(WEIGHTS_DIR_ENV)
+    if override:
+        return Path(override)
     return Path(str(resources.files("cso_runtime") / "data" / "weights"))
 
 
@@ -169,7 +178,7 @@ def make_learned_policy(name: str, mask_config: MaskConfig, seed: int | None = N
     if not has_method(name):
         raise FileNotFoundError(f"no shipped weights for {name!r} (expected {weights_path(name)}); train it with `cso-runtime train`")
     v = VARIANTS[name]
-    model, graph = _shipped_model(name, str(device))
+    model, graph = _cached_model(str(weights_path(name)), str(device))
     graph = dataclasses.replace(graph, use_entropy=v.use_entropy)
     masks = dataclasses.replace(mask_config, use_valid_distance=v.use_valid_distance, use_stuck=v.use_stuck)
     return LearnedPolicy(name, model, graph, masks, seed=seed, device=device)
