@@ -29,7 +29,7 @@ import torch
 from gymnasium.vector import AutoresetMode
 from torch import nn, optim
 
-from cso_runtime.config import ExplorationConfig
+from cso_runtime.config import ExplorationConfig, SensorConfig
 from cso_runtime.learned.env import EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
 from cso_runtime.learned.graph import GraphConfig, empty_graph
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
@@ -84,6 +84,11 @@ class Args:
     """Teacher (greedy-dist under the masks) decisions to imitate before PPO (0 = no warm start)."""
     warm_start_epochs: int = 20
     warm_start_lr: float = 1e-3
+    sensor: str = "lidar"
+    """Sensor preset of the training episodes (as ``eval --sensor``): lidar or depth."""
+    lidar_fov_deg: float | None = None
+    """Field of view override (as ``eval --lidar-fov``); None keeps the preset's (the LIMO LiDAR: 180).
+    Train with the sensor you evaluate with: the tables use 360."""
     r_step: float = -0.01
     """R_step of Eq. 6 per control step."""
     lambda_c: float = 0.02
@@ -128,6 +133,7 @@ class Args:
     def env_config(self) -> EnvConfig:
         v = VARIANTS[self.variant]
         exploration = ExplorationConfig()
+        exploration.sensor = SensorConfig.preset(self.sensor, self.lidar_fov_deg)
         exploration.masks = mask_config_for(v.use_valid_distance, v.use_stuck, exploration.masks)
         graph = GraphConfig(self.max_frontier_nodes, self.max_path_nodes, self.knn, use_entropy=v.use_entropy, entropy_window_m=exploration.frontier.entropy_window_m)
         return EnvConfig(exploration, graph, RewardConfig(self.r_step, self.lambda_c), self.max_steps)
