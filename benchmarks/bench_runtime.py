@@ -179,6 +179,7 @@ def main(argv: list[str] | None = None) -> int:
 
     logging.basicConfig(level=logging.WARNING)
     pairs = []
+    in_process(args.scene, args.method, args.seed)  # warm-up, not counted: the first episode of a process pays imports and caches
     for _ in range(args.repeats):  # interleaved, so both sides of each ratio see the same machine
         local = in_process(args.scene, args.method, args.seed)
         pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode, args.wall_time_only)))

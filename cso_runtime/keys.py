@@ -17,6 +17,7 @@ TOPICS = {
     "scan": "scan",
     "odom": "odom",
     "cmd_vel": "cmd_vel",
+    "cmd_vel_ahead": "cmd_vel/ahead",
     "map": "map",
     "frontiers": "frontiers",
     "goal": "goal",

@@ -303,6 +303,14 @@ class LocalPlanner:
         self.path = None
         self.status = PlannerStatus.IDLE
 
+    def follow_state(self) -> tuple[PlannerStatus, int, tuple[float, float, float] | None]:
+        """What ``update`` changes (status, progress along the path, the progress anchor): a caller
+        may compute a command ahead of time and keep or undo it with ``restore_follow_state``."""
+        return self.status, self.progress_index, self.progress._anchor
+
+    def restore_follow_state(self, state: tuple[PlannerStatus, int, tuple[float, float, float] | None]) -> None:
+        self.status, self.progress_index, self.progress._anchor = state
+
     def remaining_path(self) -> np.ndarray:
         if self.path is None:
             return np.zeros((0, 2))

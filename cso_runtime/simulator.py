@@ -75,6 +75,15 @@ class KinematicSimulator:
     def true_pose(self) -> Pose2D:
         return self._pose
 
+    def save_state(self) -> tuple:
+        """Everything ``step`` and ``scan`` change (pose, time, collision count, noise generator): a
+        lockstep sim steps ahead on a provisional command and keeps or undoes it (``restore_state``)."""
+        return self._pose, self.time_s, self.collisions, self.rng.bit_generator.state
+
+    def restore_state(self, state: tuple) -> None:
+        self._pose, self.time_s, self.collisions, rng_state = state
+        self.rng.bit_generator.state = rng_state
+
     def odometry(self) -> Pose2D:
         return self._pose
 

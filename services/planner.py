@@ -21,7 +21,7 @@ import numpy as np
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.geometry import VelocityCommand
 from cso_runtime.messages import CmdVelMsg, FrontiersMsg, GoalMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, ScanMsg
-from cso_runtime.planner import LocalPlanner, PlannerStatus
+from cso_runtime.planner import FollowResult, LocalPlanner, PlannerStatus
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.planner")
@@ -69,6 +69,10 @@ class PlannerService(Service):
         self.last_cmd: CmdVelMsg | None = None
         self.last_input_s = time.monotonic()
         self.stopped_for_stale = False
+        self.ahead: tuple[int, FollowResult, tuple] | None = None
+        """Lockstep: the command of the next step computed while the map and the frontier service's
+        verdict are still on their way (step, result, planner state after it); used when the verdict
+        keeps the goal, dropped when it brings a new one."""
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         step = getattr(msg, "step", -1)
@@ -132,9 +136,28 @@ class PlannerService(Service):
         while True:
             k = self.cmd_step + 1 if self.cmd_step >= 0 else min(self.frontiers, default=-1)
             if k < 0 or not self.command_ready(k):
+                self.compute_ahead()
                 return
             f = self.frontiers[k]
             self.on_command(k, f, self.goals.get(k) if f.decide else None)
+
+    def compute_ahead(self) -> None:
+        """Lockstep: with the next step's odometry and scan in but not its verdict, compute its command
+        on the current path now (in parallel with the mapper and the frontier service) and undo the
+        planner's state; ``on_command`` keeps it when the verdict keeps the goal. The same ``update``
+        on the same inputs and state: the command is the one computed later would be."""
+        k = self.cmd_step + 1
+        if self.cmd_step < 0 or k in self.frontiers or k not in self.odoms or k not in self.scans or self.no_frontier:
+            return
+        if self.ahead is not None and self.ahead[0] == k:
+            return
+        (odom, _), (scan, _) = self.odoms[k], self.scans[k]
+        before = self.planner.follow_state()
+        result = self.planner.update(odom.pose, odom.stamp_s, scan.scan)
+        self.ahead = (k, result, self.planner.follow_state())
+        self.planner.restore_follow_state(before)
+        # Provisional: the sim may step ahead on it, but moves only on the step's cmd_vel.
+        self.publish("cmd_vel_ahead", CmdVelMsg(k, result.command, "ahead"))
 
     def publish_feedback(self, k: int, reason: str) -> None:
         p = self.planner
@@ -175,7 +198,12 @@ class PlannerService(Service):
                 cmd, reason = VelocityCommand(), f"stale: inputs of step {k} are {age_s:.1f} s old"
                 self.set_state("stale", reason)
             else:
-                result = self.planner.update(odom.pose, odom.stamp_s, scan.scan)
+                ahead, self.ahead = self.ahead, None
+                if ahead is not None and ahead[0] == k and g is None and self.ctx.lockstep:
+                    result = ahead[1]
+                    self.planner.restore_follow_state(ahead[2])
+                else:
+                    result = self.planner.update(odom.pose, odom.stamp_s, scan.scan)
                 cmd = result.command
                 if result.status != PlannerStatus.FOLLOWING:
                     reason = result.status.value

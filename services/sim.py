@@ -24,7 +24,7 @@ import zenoh
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import TERMINATED_COVERAGE, TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER, GroundTruthMetrics
-from cso_runtime.geometry import VelocityCommand
+from cso_runtime.geometry import LaserScan, VelocityCommand
 from cso_runtime.messages import (
     ClockMsg,
     CmdVelMsg,
@@ -90,7 +90,7 @@ def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceCont
 
 class SimService(Service):
     name = "sim"
-    inputs = {"cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
+    inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
     tick_period_s = 0.02
 
     def __init__(self, ctx: ServiceContext):
@@ -111,6 +111,9 @@ class SimService(Service):
         self.maps: dict[int, MapMsg] = {}
         self.goals: dict[int, GoalMsg] = {}
         self.cmds: dict[int, CmdVelMsg] = {}
+        self.ahead: tuple[int, VelocityCommand, tuple, LaserScan] | None = None
+        """Lockstep: the next state and scan stepped ahead on the planner's provisional command (step,
+        command, simulator state, scan); used when the step's cmd_vel is that command."""
         self.measured_step = -1
         self.goal_step = -1
         self.last_map: OccupancyMap | None = None
@@ -145,9 +148,9 @@ class SimService(Service):
             query.reply_err(b"episode not finished")
 
     # --- the step ---------------------------------------------------------------------------------
-    def publish_step(self) -> None:
+    def publish_step(self, scan: LaserScan | None = None) -> None:
         """Clock, odometry and scan of the current step (also used to re-request a lost step)."""
-        scan = self.sim.scan()
+        scan = scan if scan is not None else self.sim.scan()
         # The scan first: the mapper, at the head of the step's chain, starts at once (it carries the
         # episode id, so the mapper need not wait for the clock).
         self.publish("scan", ScanMsg(self.step, scan, self.sim.sensor_pose(), self.episode))
@@ -225,15 +228,35 @@ class SimService(Service):
                 return
         self.goal_xy = [float(g.x_m), float(g.y_m)] if g.has_goal else None
 
+    def step_ahead(self, msg: CmdVelMsg) -> None:
+        """Lockstep: step and scan on the planner's provisional command of this step while the map and
+        the frontier service's verdict are still on their way, then undo; ``advance`` keeps the result
+        when the step's cmd_vel is the same command (the goal was kept), so the next scan goes out at
+        once. Simulators without ``save_state`` (MuJoCo) just wait for the command."""
+        save = getattr(self.sim, "save_state", None)
+        if save is None or msg.step != self.step or (self.ahead is not None and self.ahead[0] == msg.step):
+            return
+        before = save()
+        self.sim.step(msg.command)
+        scan = self.sim.scan()
+        self.ahead = (msg.step, msg.command, save(), scan)
+        self.sim.restore_state(before)
+
     def advance(self, command: VelocityCommand) -> None:
         before = self.sim.true_pose()
-        self.sim.step(command)
+        ahead, self.ahead = self.ahead, None
+        scan = None
+        if ahead is not None and ahead[0] == self.step and ahead[1] == command:
+            self.sim.restore_state(ahead[2])
+            scan = ahead[3]
+        else:
+            self.sim.step(command)
         after = self.sim.true_pose()
         self.path_length_m += math.hypot(after.x_m - before.x_m, after.y_m - before.y_m)
         self.trajectory.append((after.x_m, after.y_m))
         self.step += 1
         self.step_started_s = time.monotonic()
-        self.publish_step()
+        self.publish_step(scan)
 
     # --- inputs ---------------------------------------------------------------------------------
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
@@ -242,6 +265,9 @@ class SimService(Service):
         if self.ctx.lockstep:
             step = getattr(msg, "step", -1)
             if step < self.step:
+                return
+            if topic == "cmd_vel_ahead":
+                self.step_ahead(msg)  # type: ignore[arg-type]
                 return
             if topic == "map":
                 self.maps[step] = msg  # type: ignore[assignment]

@@ -166,3 +166,81 @@ def test_lockstep_planner_keeps_the_goal_without_the_policy_and_waits_for_a_deci
     assert [(c.step, c.new_goal) for c in cmds] == [(0, True), (1, False)]
     _feed(planner, FrontiersMsg(1, False))  # a lockstep retry: the same command again, not a new step
     assert [m.step for t, m in out if t == "cmd_vel"] == [0, 1, 1] and planner.cmd_step == 1
+
+
+def test_lockstep_planner_command_computed_ahead_is_the_one_computed_on_the_verdict():
+    """The planner computes a step's command as soon as its odometry and scan are in (while the map and
+    the verdict travel). Fed the verdict last (computed ahead) or first (computed on the verdict), it
+    sends the same commands and reports, also across a new goal that voids the command computed ahead."""
+    ex = _explorer_at(0)
+    ahead, out_ahead = _service(PlannerService, lockstep=True)
+    on_verdict, out_verdict = _service(PlannerService, lockstep=True)
+    decided_at = {0, 6}
+    computed_ahead = 0
+    for k in range(12):
+        _, odom, scan = _inputs(ex, k)
+        if k in decided_at:
+            obs = ex.observe()
+            verdict, goal = frontiers_from_observation(k, "no_goal", obs, 1.0), _far_goal(obs, k)
+        else:
+            verdict, goal = FrontiersMsg(k, False), None
+        for msg in (odom, scan, verdict, goal):  # verdict last: the command of a keep step is ready before it
+            if msg is not None:
+                _feed(ahead, msg)
+            if msg is scan and ahead.ahead is not None and ahead.ahead[0] == k:
+                computed_ahead += 1
+        for msg in (verdict, goal, odom, scan):
+            if msg is not None:
+                _feed(on_verdict, msg)
+        cmd = [m for t, m in out_ahead if t == "cmd_vel"][-1]
+        assert cmd.step == k
+        ex.sim.step(cmd.command)
+        ex._integrate()
+    assert computed_ahead == 11  # every step but the first (no path yet), the decision at step 6 included (then voided)
+    assert on_verdict.ahead is None
+    for topic in ("cmd_vel", "planner_feedback"):
+        a = [encode(m) for t, m in out_ahead if t == topic]
+        b = [encode(m) for t, m in out_verdict if t == topic]
+        assert len(a) == 12 and a == b, topic
+
+
+def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
+    """The sim steps ahead on the planner's provisional command while the map travels; with the same
+    final command it publishes the stored result, with another it steps afresh. Either way every scan
+    and odometry is the one of a sim that never stepped ahead (LiDAR noise on: the noise generator too)."""
+    from cso_runtime.geometry import VelocityCommand  # noqa: PLC0415
+    from cso_runtime.occupancy import OccupancyMap  # noqa: PLC0415
+    from services.sim import SimService  # noqa: PLC0415
+
+    def sim_service():
+        ctx = ServiceContext("sim", "r0", {"lockstep": True, "scene": "generated:small:1:0", "seed": 3}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
+        ctx.exploration.sensor.range_noise_std_m = 0.02
+        svc = SimService(ctx)
+        svc.sim.sensor.range_noise_std_m = 0.02
+        out: list[tuple[str, Message]] = []
+        svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(msg), type(msg))))  # type: ignore[method-assign]
+        svc.episode = 7  # both runs one episode id
+        svc.on_tick(time.monotonic())  # starting -> exploring: step 0 goes out
+        return svc, out
+
+    ahead, out_ahead = sim_service()
+    plain, out_plain = sim_service()
+    empty_map = OccupancyMap(ahead.sim.plan.geometry)
+    commands = [VelocityCommand(0.3, 0.1), VelocityCommand(0.0, 0.78), VelocityCommand(0.5, -0.2), VelocityCommand(0.2, 0.0)]
+    provisional_differs = {2}  # at step 2 the verdict brings a new goal: another command than the provisional one
+    reused = 0
+    for k, cmd in enumerate(commands):
+        m = MapMsg(k, empty_map.geometry, empty_map.to_occupancy_grid())
+        provisional = VelocityCommand(-0.1, 0.3) if k in provisional_differs else cmd
+        for svc, msgs in ((ahead, (CmdVelMsg(k, provisional, "ahead"), m, CmdVelMsg(k, cmd))), (plain, (m, CmdVelMsg(k, cmd)))):
+            for msg in msgs:
+                topic = "map" if isinstance(msg, MapMsg) else ("cmd_vel_ahead" if msg.reason == "ahead" else "cmd_vel")
+                if topic == "cmd_vel" and svc is ahead and ahead.ahead is not None and ahead.ahead[1] == cmd:
+                    reused += 1
+                svc.on_message("r0", topic, decode(encode(msg), type(msg)), time.monotonic())
+        assert ahead.step == plain.step == k + 1
+    assert reused == len(commands) - len(provisional_differs)
+    for topic in ("scan", "odom"):
+        a = [encode(m) for t, m in out_ahead if t == topic]
+        b = [encode(m) for t, m in out_plain if t == topic]
+        assert len(a) == len(commands) + 1 and a == b, topic
