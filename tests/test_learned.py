@@ -329,3 +329,11 @@ def test_weights_dir_override_serves_other_weights(tmp_path, monkeypatch, observ
     policy = make_policy("cso", MaskConfig(), seed=0)
     for name, value in mine.state_dict().items():
         torch.testing.assert_close(policy.model.state_dict()[name], value)
+
+
+def test_training_sensor_follows_the_config():
+    """Training episodes use the configured sensor (the tables evaluate with a 360-degree LiDAR)."""
+    assert Args().env_config().exploration.sensor.fov_deg == 180.0
+    assert Args(lidar_fov_deg=360).env_config().exploration.sensor.fov_deg == 360.0
+    depth = Args(sensor="depth").env_config().exploration.sensor
+    assert depth.range_max_m == 3.0 and depth.fov_deg == 79.0
