@@ -237,15 +237,16 @@ class ProgressChecker:
         self.reset()
 
     def reset(self) -> None:
-        self._anchor: tuple[float, float, float] | None = None
+        self.anchor: tuple[float, float, float] | None = None
+        """(x_m, y_m, time_s) where progress was last seen; None before the first check."""
 
     def check(self, pose: Pose2D, time_s: float) -> bool:
         """False when the robot failed to make progress in time (then the anchor restarts)."""
-        if self._anchor is None or math.hypot(pose.x_m - self._anchor[0], pose.y_m - self._anchor[1]) >= self.required_m:
-            self._anchor = (pose.x_m, pose.y_m, time_s)
+        if self.anchor is None or math.hypot(pose.x_m - self.anchor[0], pose.y_m - self.anchor[1]) >= self.required_m:
+            self.anchor = (pose.x_m, pose.y_m, time_s)
             return True
-        if time_s - self._anchor[2] > self.window_s:
-            self._anchor = (pose.x_m, pose.y_m, time_s)
+        if time_s - self.anchor[2] > self.window_s:
+            self.anchor = (pose.x_m, pose.y_m, time_s)
             return False
         return True
 
@@ -306,10 +307,10 @@ class LocalPlanner:
     def follow_state(self) -> tuple[PlannerStatus, int, tuple[float, float, float] | None]:
         """What ``update`` changes (status, progress along the path, the progress anchor): a caller
         may compute a command ahead of time and keep or undo it with ``restore_follow_state``."""
-        return self.status, self.progress_index, self.progress._anchor
+        return self.status, self.progress_index, self.progress.anchor
 
     def restore_follow_state(self, state: tuple[PlannerStatus, int, tuple[float, float, float] | None]) -> None:
-        self.status, self.progress_index, self.progress._anchor = state
+        self.status, self.progress_index, self.progress.anchor = state
 
     def remaining_path(self) -> np.ndarray:
         if self.path is None:

@@ -216,7 +216,6 @@ def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
         ctx = ServiceContext("sim", "r0", {"lockstep": True, "scene": "generated:small:1:0", "seed": 3}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
         ctx.exploration.sensor.range_noise_std_m = 0.02
         svc = SimService(ctx)
-        svc.sim.sensor.range_noise_std_m = 0.02
         out: list[tuple[str, Message]] = []
         svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(msg), type(msg))))  # type: ignore[method-assign]
         svc.episode = 7  # both runs one episode id
