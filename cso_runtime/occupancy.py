@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
-from cso_runtime.raycast import beam_samples
+from cso_runtime.raycast import SAMPLES_PER_CHUNK, sample_cells, sample_step_m, samples_to_reach
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100
 """nav_msgs/OccupancyGrid cell values."""
@@ -73,17 +73,23 @@ class OccupancyMap:
         if len(angles) == 0:
             return 0
         origin = np.array([sensor_pose.x_m, sensor_pose.y_m])
-        iy, ix, dist = beam_samples(self.geometry, origin, angles, clear_len)
-        free_sel = (dist < clear_len[:, None] - 1e-9) & self.geometry.in_bounds(iy, ix)
-        fy, fx = iy[free_sel], ix[free_sel]
+        touched_free = np.zeros(self.geometry.shape, dtype=bool)
+        cos, sin = np.cos(angles), np.sin(angles)
+        free_until = clear_len - 1e-9  # samples strictly before a beam's end are pass-throughs
+        n = samples_to_reach(self.geometry, float(np.max(clear_len)))
+        for first in range(0, n, SAMPLES_PER_CHUNK):
+            active = np.flatnonzero(free_until > first * sample_step_m(self.geometry))
+            if not len(active):
+                break
+            iy, ix, dist = sample_cells(self.geometry, origin, cos[active], sin[active], first, min(first + SAMPLES_PER_CHUNK, n))
+            free_sel = (dist[None, :] < free_until[active, None]) & self.geometry.in_bounds(iy, ix)
+            touched_free[iy[free_sel], ix[free_sel]] = True
         hit_xy = origin[None, :] + (clear_len[is_hit] + 1e-6)[:, None] * np.stack(
             [np.cos(angles[is_hit]), np.sin(angles[is_hit])], axis=1
         )
         hy, hx = self.geometry.world_to_cell(hit_xy[:, 0], hit_xy[:, 1])
         keep = self.geometry.in_bounds(hy, hx)
         hy, hx = hy[keep], hx[keep]
-        touched_free = np.zeros(self.geometry.shape, dtype=bool)
-        touched_free[fy, fx] = True
         touched_hit = np.zeros(self.geometry.shape, dtype=bool)
         touched_hit[hy, hx] = True
         touched_free &= ~touched_hit
@@ -116,7 +122,8 @@ class OccupancyMap:
         return m
 
     def copy(self) -> "OccupancyMap":
-        m = OccupancyMap(self.geometry)
+        m = OccupancyMap.__new__(OccupancyMap)
+        m.geometry = self.geometry
         m.explored = self.explored.copy()
         m.log_odds = self.log_odds.copy()
         m.occupied = self.occupied.copy()

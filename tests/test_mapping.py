@@ -32,6 +32,42 @@ def test_cast_rays_no_return_is_inf():
     assert np.all(np.isinf(ranges))
 
 
+@pytest.mark.parametrize("scene", ["generated:small:1:0", "builtin"])
+def test_ray_marching_in_chunks_does_not_change_ranges_or_maps(scene, monkeypatch):
+    """Beams are marched a chunk of samples at a time and leave at their first hit (sensor) or their
+    end (mapper): a speed setting only. One chunk per beam (the whole range at once) and chunks of 5
+    samples give the same ranges and the same maps, bit for bit, from inside, near and outside the walls."""
+    from cso_runtime import raycast  # noqa: PLC0415
+    from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
+
+    plan = resolve_scenes(scene)[0].load()
+    g = plan.geometry
+    rng = np.random.default_rng(5)
+    outputs = []
+    for chunk in (10**6, 5):
+        monkeypatch.setattr(raycast, "SAMPLES_PER_CHUNK", chunk)
+        import cso_runtime.occupancy as occupancy_module  # noqa: PLC0415
+
+        monkeypatch.setattr(occupancy_module, "SAMPLES_PER_CHUNK", chunk)
+        rng = np.random.default_rng(5)
+        occupancy = OccupancyMap(g)
+        ranges_all = []
+        for _ in range(25):
+            origin = np.array([rng.uniform(g.origin_x_m - 0.5, g.origin_x_m + g.width_m + 0.5), rng.uniform(g.origin_y_m - 0.5, g.origin_y_m + g.height_m + 0.5)])
+            angles = rng.uniform(-math.pi, math.pi) + np.linspace(0.0, 2 * math.pi, 90, endpoint=False)
+            angles[:2] = (0.0, math.pi / 2)  # axis-aligned beams: the slab test's division by zero
+            ranges = cast_rays(plan.occupied, g, origin, angles, 3.0)
+            ranges_all.append(ranges)
+            noisy = np.where(rng.random(len(ranges)) < 0.1, np.inf, ranges)
+            scan = LaserScan(float(angles[0]), float(angles[1] - angles[0]), 0.05, 3.0, noisy.astype(np.float32))
+            occupancy.integrate_scan(Pose2D(float(origin[0]), float(origin[1]), 0.0), scan)
+        outputs.append((np.concatenate(ranges_all), occupancy.explored, occupancy.occupied, occupancy.log_odds))
+    (r1, e1, o1, l1), (r2, e2, o2, l2) = outputs
+    assert np.isfinite(r1).sum() > 1000 and np.isinf(r1).any()  # walls hit, and some beams beyond range
+    assert np.array_equal(r1, r2)
+    assert e1.sum() > 2000 and np.array_equal(e1, e2) and np.array_equal(o1, o2) and np.array_equal(l1, l2)
+
+
 def test_sensor_presets():
     lidar = SensorConfig.preset("lidar")
     assert (lidar.fov_deg, lidar.range_min_m, lidar.range_max_m) == (180.0, 0.1, 8.0)
