@@ -24,7 +24,7 @@ from cso_runtime.observation import Observation
 
 SCHEMA_VERSION = 1
 """Version of the schemas unchanged since the first release; a schema that changes bumps its own
-``VERSION`` (``clock`` and ``episode_status`` are at 2: they carry the episode id)."""
+``VERSION`` (``clock``, ``episode_status``, ``scan`` and ``map`` are at 2: they carry the episode id)."""
 MAX_GRID_CELLS = 50_000_000
 MAX_BEAMS = 100_000
 COMPRESS_MIN_BYTES = 4096
@@ -291,12 +291,21 @@ class MapMsg(Message):
     """The occupancy grid M_t (ROS values -1/0/100, row 0 at the origin), compressed."""
 
     SCHEMA: ClassVar[str] = "map"
+    VERSION: ClassVar[int] = 2
     step: int
     geometry: GridGeometry
     grid: np.ndarray
+    episode: int = 0
+    """Episode id of the scans the map was built from (v2), so that a map still in flight from an
+    earlier episode (after a sim restart) is never taken for this one's. 0: not from a sim episode."""
 
     def body(self) -> dict[str, Any]:
-        return {"step": self.step, "geometry": _geometry_out(self.geometry), "grid": pack_array(np.asarray(self.grid, dtype=np.int8), compress=True)}
+        return {
+            "step": self.step,
+            "geometry": _geometry_out(self.geometry),
+            "grid": pack_array(np.asarray(self.grid, dtype=np.int8), compress=True),
+            "episode": self.episode,
+        }
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> "MapMsg":
@@ -304,7 +313,7 @@ class MapMsg(Message):
         grid = _grid_in(b, "grid", "map", geometry, "int8")
         if not ((grid == -1) | (grid == 0) | (grid == 100)).all():
             raise MessageError("map.grid: values must be -1, 0 or 100")
-        return cls(_int(b, "step", "map"), geometry, grid)
+        return cls(_int(b, "step", "map"), geometry, grid, _int(b, "episode", "map"))
 
 
 def _finite_window(distance: np.ndarray) -> tuple[slice, slice]:

@@ -84,6 +84,7 @@ def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) 
         "robot": robot,
         "run_id": (launcher or {}).get("run_id", ""),
         "state": ep.get("state", "starting"),
+        "episode": ep.get("episode", 0),
         "step": ep.get("step", 0),
         "coverage_pct": ep.get("coverage_pct", 0.0),
         "explored_area_m2": ep.get("explored_area_m2", 0.0),

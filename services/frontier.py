@@ -69,11 +69,16 @@ class FrontierService(Service):
         self.path_nodes: list[tuple[float, float]] = []
         self.done_step = -1
         self.last_out: FrontiersMsg | None = None
+        self.map_episode: int | None = None
+        """Episode id of the maps decided on (None: take the first map's)."""
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         step = getattr(msg, "step", -1)
         if isinstance(msg, OdometryMsg) and step == 0 and self.done_step > 0:
             log.info("odometry restarted at step 0: new episode, forgetting the decision state")
+            self.reset_episode()
+        if isinstance(msg, MapMsg) and step == 0 and self.done_step > 0 and self.map_episode not in (None, msg.episode):
+            log.info("map of step 0 of a new episode %d: forgetting the decision state", msg.episode)
             self.reset_episode()
         if isinstance(msg, GoalMsg):
             if msg.decided and step >= self.decision_step:
@@ -93,10 +98,28 @@ class FrontierService(Service):
                 self.publish("frontiers", self.last_out)  # a lockstep retry: answer again
             return
         if isinstance(msg, MapMsg):
+            if not self.accept_map_episode(msg):
+                return
             self.maps[step] = msg
         elif isinstance(msg, OdometryMsg):
             self.odoms[step] = msg
         self.try_decide()
+
+    def accept_map_episode(self, m: MapMsg) -> bool:
+        """Maps of one episode only. A new episode's maps start at step 0 (the mapper starts a new map
+        on the first scan with a new id), so a map of another episode at step 0 starts it here too;
+        any other map of another episode is one still in flight from before (rejected, counted)."""
+        if self.map_episode is None or m.episode == self.map_episode:
+            self.map_episode = m.episode
+            return True
+        if m.step == 0:
+            for s, old in sorted(self.maps.items()):
+                self.reject("map", f"map of episode {old.episode} at step {s}: episode {m.episode} has started")
+            self.maps.clear()
+            self.map_episode = m.episode
+            return True
+        self.reject("map", f"map of episode {m.episode} at step {m.step} while deciding on episode {self.map_episode}")
+        return False
 
     def planner_state(self, k: int) -> PlannerFeedbackMsg | None:
         """The planner's report after the command of step k - 1 (lockstep: exactly that one; real time:

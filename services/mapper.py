@@ -69,15 +69,23 @@ class MapperService(Service):
         assert self.session is not None
         self._queryable = self.session.declare_queryable(self.ctx.keys.map, self._on_query)
         cached = self.query_latest(self.ctx.keys.cache("map"), MapMsg, self.params.restore_timeout_s)
-        if isinstance(cached, MapMsg) and (self.map is None or self.map.geometry == cached.geometry):
-            self.map = OccupancyMap.from_occupancy_grid(cached.grid, cached.geometry)
-            self.map_step = cached.step
-            log.info("restored the map of step %d from the cache", cached.step)
+        if isinstance(cached, MapMsg):
+            self.restore(cached)
+
+    def restore(self, cached: MapMsg) -> None:
+        """Continue from the launcher's latest map (a restarted mapper). It belongs to its episode: the
+        first scan of another episode starts a new map (``enter_episode``)."""
+        if self.map is not None and self.map.geometry != cached.geometry:
+            return
+        self.map = OccupancyMap.from_occupancy_grid(cached.grid, cached.geometry)
+        self.map_step = cached.step
+        self.episode = cached.episode
+        log.info("restored the map of step %d (episode %d) from the cache", cached.step, cached.episode)
 
     def _on_query(self, query: zenoh.Query) -> None:
         m = self.map
         if m is not None and self.map_step >= 0:
-            query.reply(self.ctx.keys.map, encode(MapMsg(self.map_step, m.geometry, m.to_occupancy_grid())))
+            query.reply(self.ctx.keys.map, encode(MapMsg(self.map_step, m.geometry, m.to_occupancy_grid(), self.episode or 0)))
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         if isinstance(msg, ClockMsg):
@@ -121,7 +129,7 @@ class MapperService(Service):
             self.map_step = scan.step
         self.last_step = self.map_step
         self.set_state("running")
-        self.publish("map", MapMsg(self.map_step, self.map.geometry, self.map.to_occupancy_grid()))
+        self.publish("map", MapMsg(self.map_step, self.map.geometry, self.map.to_occupancy_grid(), scan.episode))
 
 
 def main(argv: list[str] | None = None) -> int:

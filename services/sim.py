@@ -262,6 +262,9 @@ class SimService(Service):
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         if not self.running:
             return
+        if isinstance(msg, MapMsg) and msg.episode != self.episode:
+            self.reject("map", f"map of episode {msg.episode}, not of this one ({self.episode}): still in flight from before a restart")
+            return
         if self.ctx.lockstep:
             step = getattr(msg, "step", -1)
             if step < self.step:

@@ -273,6 +273,32 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         assert kill_leftovers(runs) == []
 
 
+def test_a_killed_sim_restarts_the_episode_and_it_ends_as_a_fresh_one(tmp_path):
+    """The sim is the world: a restarted sim starts a new episode (a new id, step 0). Every other
+    service starts over on it (maps of the old episode still in flight are rejected), so in lockstep
+    the new episode ends exactly as a fresh in-process episode does."""
+    profile = write_profile(tmp_path, min_step_period_s=0.05, lockstep_timeout_s=0.5)
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
+
+        def status() -> dict | None:
+            return query_status(endpoints, "r0", timeout_s=0.5)
+
+        first = wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 5 and s, 60, "the episode to run")
+        os.kill(first["services"]["sim"]["pid"], signal.SIGKILL)
+        wait_for(lambda: (s := status()) and s["services"]["sim"].get("restarts", 0) >= 1 and s["episode"] != first["episode"], 30, "a new episode")
+        final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2)
+        expected = in_process_result()
+        assert final["state"] == "done" and final["terminated_by"] == expected.terminated_by, final
+        assert final["step"] == expected.steps and abs(final["coverage_pct"] - expected.coverage_pct) < 1e-3, final
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT])
 def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
     profile = write_profile(tmp_path, min_step_period_s=0.2)

@@ -11,6 +11,7 @@ import numpy as np
 
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import Explorer
+from cso_runtime.geometry import VelocityCommand
 from cso_runtime.messages import (
     CmdVelMsg,
     FrontiersMsg,
@@ -229,7 +230,7 @@ def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
     provisional_differs = {2}  # at step 2 the verdict brings a new goal: another command than the provisional one
     reused = 0
     for k, cmd in enumerate(commands):
-        m = MapMsg(k, empty_map.geometry, empty_map.to_occupancy_grid())
+        m = MapMsg(k, empty_map.geometry, empty_map.to_occupancy_grid(), 7)
         provisional = VelocityCommand(-0.1, 0.3) if k in provisional_differs else cmd
         for svc, msgs in ((ahead, (CmdVelMsg(k, provisional, "ahead"), m, CmdVelMsg(k, cmd))), (plain, (m, CmdVelMsg(k, cmd)))):
             for msg in msgs:
@@ -243,3 +244,105 @@ def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
         a = [encode(m) for t, m in out_ahead if t == topic]
         b = [encode(m) for t, m in out_plain if t == topic]
         assert len(a) == len(commands) + 1 and a == b, topic
+
+
+def _without_timing(msgs: list[Message]) -> list[bytes]:
+    """Encodings with the build time (wall clock) zeroed: what two runs of the same inputs share."""
+    out = []
+    for m in msgs:
+        if isinstance(m, FrontiersMsg):
+            m.build_ms = 0.0
+        out.append(encode(m))
+    return out
+
+
+def test_lockstep_frontier_never_decides_on_a_map_of_the_episode_before():
+    """After a sim restart (a new episode id) maps of the old episode may still be in flight. The
+    frontier service rejects them (counted) and decides the new episode exactly as a fresh service
+    does, whether the new episode shows itself first by its map of step 0 or by its odometry."""
+    ex_a, ex_b = _explorer_at(6), _explorer_at(0)  # episode A is well explored, B has just started
+    a, b = 11, 22
+
+    def map_of(ex: Explorer, step: int, episode: int) -> MapMsg:
+        return MapMsg(step, ex.map.geometry, ex.map.to_occupancy_grid(), episode)
+
+    _, odom_b0, _ = _inputs(ex_b, 0)
+    odom_b1 = OdometryMsg(1, odom_b0.stamp_s + 0.25, odom_b0.pose)
+    goal_b0 = _far_goal(ex_b.observe(), 0)
+    fb_b0 = PlannerFeedbackMsg(0, "following", "command", goal_step=0)
+    episode_b = [map_of(ex_b, 0, b), odom_b0, goal_b0, fb_b0, odom_b1, map_of(ex_b, 1, b)]
+    stale = {1: map_of(ex_a, 7, a), 4: map_of(ex_a, 1, a)}  # in flight from A, among B's first messages
+    for map_first in (True, False):
+        svc, out = _service(FrontierService, lockstep=True)
+        _, odom_a0, _ = _inputs(ex_a, 0)
+        _feed(svc, map_of(ex_a, 0, a))
+        _feed(svc, odom_a0)
+        _feed(svc, _far_goal(ex_a.observe(), 0))
+        for k in (1, 2):
+            _feed(svc, PlannerFeedbackMsg(k - 1, "following", "command", goal_step=0))
+            _feed(svc, OdometryMsg(k, odom_a0.stamp_s + 0.25 * k, odom_a0.pose))
+            _feed(svc, map_of(ex_a, k, a))
+        assert [m.step for t, m in out if t == "frontiers"] == [0, 1, 2] and svc.done_step == 2
+        out.clear()
+        order = episode_b if map_first else [episode_b[1], episode_b[0], *episode_b[2:]]
+        for i, msg in enumerate(order):
+            if i in stale:
+                _feed(svc, stale[i])
+            _feed(svc, msg)
+        fresh, fresh_out = _service(FrontierService, lockstep=True)
+        for msg in order:
+            _feed(fresh, msg)
+        got = [m for t, m in out if t == "frontiers"]
+        assert [(m.step, m.decide) for m in got] == [(0, True), (1, False)]
+        assert _without_timing(got) == _without_timing([m for t, m in fresh_out if t == "frontiers"])
+        assert svc.rejected.get("map") == 2
+
+
+def test_sim_rejects_a_map_of_another_episode():
+    """The sim's referee measures only maps of its own episode: a map in flight from an earlier
+    episode (fully explored, say) neither ends this one nor enters its coverage curve."""
+    from cso_runtime.occupancy import OccupancyMap  # noqa: PLC0415
+    from services.sim import SimService  # noqa: PLC0415
+
+    ctx = ServiceContext("sim", "r0", {"lockstep": True, "scene": "generated:small:1:0", "seed": 3}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
+    svc = SimService(ctx)
+    out: list[tuple[str, Message]] = []
+    svc.publish = lambda topic, msg, robot=None: out.append((topic, msg))  # type: ignore[method-assign]
+    svc.on_tick(time.monotonic())  # step 0 goes out
+    g = svc.sim.plan.geometry
+    everything = np.zeros(g.shape, dtype=np.int8)  # every cell explored and free: coverage 100 %
+    nothing = OccupancyMap(g).to_occupancy_grid()
+    svc.on_message("r0", "map", MapMsg(0, g, everything, svc.episode + 1), time.monotonic())
+    assert svc.running and svc.coverage_curve == [] and svc.rejected == {"map": 1}
+    svc.on_message("r0", "map", MapMsg(0, g, nothing, svc.episode), time.monotonic())
+    assert svc.running and svc.coverage_curve == [0.0]
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(0, VelocityCommand()), time.monotonic())
+    assert svc.step == 1
+    svc.on_message("r0", "map", MapMsg(1, g, everything, svc.episode + 1), time.monotonic())
+    assert svc.running and svc.rejected == {"map": 2}
+    svc.on_message("r0", "map", MapMsg(1, g, everything, svc.episode), time.monotonic())
+    assert not svc.running and svc.coverage_curve[-1] > 99.0  # its own full map does end it
+
+
+def test_restarted_mapper_keeps_the_cached_map_of_its_episode_only():
+    """A restarted mapper continues from the launcher's cached map; the map it publishes carries the
+    episode id; the first scan of another episode starts a new map instead of adding to the old one."""
+    from cso_runtime.occupancy import OccupancyMap  # noqa: PLC0415
+    from services.mapper import MapperService  # noqa: PLC0415
+
+    ex = _explorer_at(4)
+    grid = ex.map.to_occupancy_grid()
+    grid[grid < 0] = 0  # the cached map knows every cell (more than one scan can see)
+    cached = MapMsg(4, ex.map.geometry, grid, 5)
+    ex.advance()
+    _, _, scan = _inputs(ex, 5)
+    for episode in (5, 6):
+        mapper, out = _service(MapperService, lockstep=True)
+        mapper.restore(cached)
+        _feed(mapper, ScanMsg(5, scan.scan, scan.sensor_pose, episode))
+        published = [m for t, m in out if t == "map"]
+        assert [(m.step, m.episode) for m in published] == [(5, episode)]
+        expected = OccupancyMap.from_occupancy_grid(cached.grid, cached.geometry) if episode == 5 else OccupancyMap(cached.geometry)
+        expected.integrate_scan(scan.sensor_pose, scan.scan)
+        assert np.array_equal(published[0].grid, expected.to_occupancy_grid())
+        assert (published[0].grid < 0).any() == (episode == 6)  # episode 6: the old cells are gone
