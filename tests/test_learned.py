@@ -317,6 +317,36 @@ def test_warm_start_teacher_runs_through_subprocess_envs(tmp_path):
     assert actions[0] == expert_action(env.obs, info["action_mask"])  # the same seed, the same first choice
 
 
+def test_warm_start_teacher_is_the_chosen_baseline_under_the_mask():
+    """The warm start imitates the configured baseline (its own score, e.g. explore_lite's utility),
+    restricted to the allowed actions; greedy-dist stays the default; an unknown teacher is refused."""
+    from cso_runtime.policies import Utility  # noqa: PLC0415
+
+    env = ExplorationEnv([rooms_plan(3)], EnvConfig(max_steps=200))
+    _, info = env.reset(seed=0)
+    differ, checked = 0, 0
+    while checked < 12:
+        obs, mask = env.obs, info["action_mask"]
+        n = len(obs.clusters)
+        reachable = np.zeros(len(mask), dtype=bool)
+        reachable[:n] = np.isfinite(obs.goal_distance_m[:n])
+        allowed = np.flatnonzero(mask & reachable)
+        utility = Utility().cost(obs)
+        assert expert_action(obs, mask, "utility") == allowed[np.argmin(utility[allowed])]
+        assert expert_action(obs, mask) == expert_action(obs, mask, "greedy-dist") == allowed[np.argmin(obs.goal_distance_m[allowed])]
+        assert env.teacher_action("utility") == expert_action(obs, mask, "utility")
+        differ += expert_action(obs, mask, "utility") != expert_action(obs, mask)
+        checked += 1
+        _, _, terminated, truncated, info = env.step(expert_action(obs, mask, "utility"))
+        if terminated or truncated:
+            _, info = env.reset(seed=checked)
+    assert differ > 0  # the two teachers do disagree on these rooms
+    with pytest.raises(ValueError, match="teacher"):
+        expert_action(env.obs, info["action_mask"], "random")
+    with pytest.raises(ValueError, match="warm_start_teacher"):
+        Args(warm_start_teacher="random").validate()
+
+
 def test_weights_dir_override_serves_other_weights(tmp_path, monkeypatch, observation):
     """``CSO_WEIGHTS_DIR`` makes eval and the policy service use a training run's weights."""
     from cso_runtime.learned import registry  # noqa: PLC0415

@@ -24,7 +24,7 @@ from cso_runtime.config import ExplorationConfig, MaskConfig
 from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer
 from cso_runtime.learned.graph import EDGE_FEATURES, NODE_FEATURES, GraphConfig, build_graph, empty_graph, frontier_count
 from cso_runtime.observation import Observation
-from cso_runtime.policies import ActionMasker, goal_of
+from cso_runtime.policies import BASELINES, ActionMasker, goal_of
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import KinematicSimulator
 
@@ -158,20 +158,28 @@ class ExplorationEnv(gym.Env):
         info["terminated_by"] = ex.terminated_by
         return graph, float(reward), terminated, truncated, info
 
-    def teacher_action(self) -> int:
+    def teacher_action(self, teacher: str = "greedy-dist") -> int:
         """The warm-start teacher's choice for the current observation (callable through any vector env)."""
         if self.obs is None:
             return int(np.argmax(self.mask))
-        return expert_action(self.obs, self.mask)
+        return expert_action(self.obs, self.mask, teacher)
 
 
-def expert_action(obs: Observation, mask: np.ndarray) -> int:
-    """The greedy-dist choice under the mask: the nearest allowed cluster (the warm-start teacher)."""
-    d = np.full(len(mask), np.inf)
+TEACHERS = ("greedy-dist", "utility", "greedy-info")
+"""Baselines the warm start can imitate: their score, taken under the variant's masks."""
+
+
+def expert_action(obs: Observation, mask: np.ndarray, teacher: str = "greedy-dist") -> int:
+    """The ``teacher`` baseline's choice under the mask: the allowed reachable cluster of lowest cost
+    (greedy-dist: the nearest)."""
+    if teacher not in TEACHERS:
+        raise ValueError(f"unknown warm-start teacher {teacher!r}; choose one of {', '.join(TEACHERS)}")
     n = min(len(obs.clusters), len(mask))
-    d[:n] = obs.goal_distance_m[:n]
-    d[~mask] = np.inf
-    return int(np.argmin(d)) if np.isfinite(d).any() else int(np.argmax(mask))
+    cost = np.full(len(mask), np.inf)
+    if n:
+        cost[:n] = np.where(np.isfinite(obs.goal_distance_m[:n]), BASELINES[teacher]().cost(obs)[:n], np.inf)
+    cost[~mask] = np.inf
+    return int(np.argmin(cost)) if np.isfinite(cost).any() else int(np.argmax(mask))
 
 
 def mask_config_for(use_valid_distance: bool, use_stuck: bool, base: MaskConfig | None = None) -> MaskConfig:

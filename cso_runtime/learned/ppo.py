@@ -2,7 +2,7 @@
 
 One env step is one goal choice (``env.ExplorationEnv``). The pieces, in order:
 ``Args`` (the one config, filled by ``configs/train.yaml`` and the CLI), scene loading, ``compute_gae``
-(unit-tested), an optional warm start that imitates the greedy-dist teacher under the same masks
+(unit-tested), an optional warm start that imitates a greedy baseline (greedy-dist by default) under the same masks
 (behaviour cloning of the actor plus a Monte-Carlo fit of the critic), then the PPO loop with the
 action mask stored in the rollout and reused when log-probs are recomputed. Checkpoints (with the
 optimizer, to resume), a CSV log, a learning-curve PNG and the final weights plus a JSON record of
@@ -30,7 +30,7 @@ from gymnasium.vector import AutoresetMode
 from torch import nn, optim
 
 from cso_runtime.config import ExplorationConfig, SensorConfig
-from cso_runtime.learned.env import EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
+from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
 from cso_runtime.learned.graph import GraphConfig, empty_graph
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
 from cso_runtime.learned.registry import VARIANTS, load_checkpoint, save_checkpoint, weights_path
@@ -81,7 +81,9 @@ class Args:
     target_kl: float = 0.03
     """Stop the epoch loop early when the approximate KL exceeds this (0 = never)."""
     warm_start_decisions: int = 0
-    """Teacher (greedy-dist under the masks) decisions to imitate before PPO (0 = no warm start)."""
+    """Teacher decisions (``warm_start_teacher`` under the masks) to imitate before PPO (0 = no warm start)."""
+    warm_start_teacher: str = "greedy-dist"
+    """The baseline the warm start imitates under the variant's masks: greedy-dist, utility or greedy-info."""
     warm_start_epochs: int = 20
     warm_start_lr: float = 1e-3
     sensor: str = "lidar"
@@ -121,6 +123,8 @@ class Args:
             raise ValueError("num_envs, num_steps and num_minibatches must be positive")
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
+        if self.warm_start_teacher not in TEACHERS:
+            raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
 
     @property
     def batch_size(self) -> int:
@@ -257,20 +261,22 @@ def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.v
 # --- warm start: imitate the greedy teacher ---------------------------------------------------
 
 
-def collect_teacher(envs: gym.vector.VectorEnv, decisions: int, gamma: float, seed: int) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
-    """Run greedy-dist (under the masks) in ``envs``; returns graphs, masks, teacher actions and
-    discounted returns (Monte Carlo, cut at episode ends) for the critic."""
+def collect_teacher(
+    envs: gym.vector.VectorEnv, decisions: int, gamma: float, seed: int, teacher: str = "greedy-dist"
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
+    """Run the ``teacher`` baseline (under the masks) in ``envs``; returns graphs, masks, teacher
+    actions and discounted returns (Monte Carlo, cut at episode ends) for the critic."""
     graphs, masks, actions, rewards, ends = [], [], [], [], []
     obs, info = envs.reset(seed=seed)
     n = envs.num_envs
     per_env = max(1, decisions // n)
     for _ in range(per_env):
         mask = info["action_mask"]
-        teacher = np.asarray(envs.call("teacher_action"), dtype=np.int64)
+        chosen = np.asarray(envs.call("teacher_action", teacher), dtype=np.int64)
         graphs.append(obs)
         masks.append(mask)
-        actions.append(teacher)
-        obs, reward, term, trunc, info = envs.step(teacher)
+        actions.append(chosen)
+        obs, reward, term, trunc, info = envs.step(chosen)
         rewards.append(reward)
         ends.append(np.logical_or(term, trunc))
     rewards_a, ends_a = np.array(rewards), np.array(ends)
@@ -352,7 +358,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         record["init_from"] = str(args.init_from)
         log(f"initialised from {args.init_from}")
     elif args.warm_start_decisions > 0:
-        data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed)
+        data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed, args.warm_start_teacher)
         warm_decisions = len(data[2])
         record["warm_start"] = warm_start(model, data, args, device, log)
         record["warm_start"]["decisions"] = warm_decisions
