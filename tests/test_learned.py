@@ -361,6 +361,30 @@ def test_weights_dir_override_serves_other_weights(tmp_path, monkeypatch, observ
         torch.testing.assert_close(policy.model.state_dict()[name], value)
 
 
+def test_cluster_size_feature_is_optional_and_round_trips(tmp_path, observation):
+    """``cluster_size_feature`` adds one node column (each cluster's length, scale-free); graphs and
+    networks without it keep the six columns of the shipped weights. A checkpoint with it reloads with
+    it and decides as before."""
+    plain, sized = GraphConfig(), GraphConfig(use_cluster_size=True)
+    g0, g1 = build_graph(observation, plain), build_graph(observation, sized)
+    nf = min(len(observation.clusters), plain.max_frontier_nodes)
+    assert g0["nodes"].shape[1] == 6 and g1["nodes"].shape[1] == 7
+    np.testing.assert_array_equal(g1["nodes"][:, :6], g0["nodes"])
+    sizes = np.array([c.size_m for c in observation.clusters[:nf]])
+    np.testing.assert_allclose(g1["nodes"][:nf, 6], np.log1p(sizes / plain.distance_scale_m), rtol=1e-6)
+    assert (g1["nodes"][nf:, 6] == 0).all() and sizes.min() < sizes.max()
+    args = Args(cluster_size_feature=True)
+    assert args.env_config().graph == sized and build_model(args, torch.device("cpu")).config.node_features == 7
+    assert build_model(Args(), torch.device("cpu")).config.node_features == 6
+    torch.manual_seed(2)
+    model = GraphActorCritic(NetworkConfig(node_features=7)).eval()
+    save_checkpoint(tmp_path / "cso.pt", model, sized, "cso")
+    loaded, graph, _ = load_checkpoint(tmp_path / "cso.pt")
+    assert graph == sized and loaded.config.node_features == 7
+    a, b = (LearnedPolicy("cso", m, sized, MaskConfig()) for m in (model, loaded))
+    assert a.select(observation) == b.select(observation)
+
+
 def test_training_sensor_follows_the_config():
     """Training episodes use the configured sensor (the tables evaluate with a 360-degree LiDAR)."""
     assert Args().env_config().exploration.sensor.fov_deg == 180.0

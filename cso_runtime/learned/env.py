@@ -22,7 +22,7 @@ from gymnasium import spaces
 
 from cso_runtime.config import ExplorationConfig, MaskConfig
 from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer
-from cso_runtime.learned.graph import EDGE_FEATURES, NODE_FEATURES, GraphConfig, build_graph, empty_graph, frontier_count
+from cso_runtime.learned.graph import EDGE_FEATURES, GraphConfig, build_graph, empty_graph, frontier_count, node_features
 from cso_runtime.observation import Observation
 from cso_runtime.policies import BASELINES, ActionMasker, goal_of
 from cso_runtime.scenes import FloorPlan
@@ -54,7 +54,7 @@ def graph_space(config: GraphConfig) -> spaces.Dict:
     n, k = config.max_nodes, config.neighbours
     return spaces.Dict(
         {
-            "nodes": spaces.Box(-np.inf, np.inf, (n, len(NODE_FEATURES)), np.float32),
+            "nodes": spaces.Box(-np.inf, np.inf, (n, len(node_features(config))), np.float32),
             "node_valid": spaces.MultiBinary(n),
             "neighbours": spaces.Box(0, n - 1, (n, k), np.int64),
             "neighbour_valid": spaces.MultiBinary((n, k)),

@@ -13,7 +13,10 @@ Node features (``NODE_FEATURES``), all scale-free:
                 in the window per window side (0 when the entropy input is switched off);
   geodesic      log(1 + l / distance_scale_m) of the geodesic distance from the robot (an addition
                 to the paper's five features: the robot<->node edge repeated on the node, so the
-                actor sees it without a message-passing hop).
+                actor sees it without a message-passing hop);
+  size          only with ``GraphConfig.use_cluster_size`` (another addition, off in the shipped
+                weights): log(1 + cluster length / distance_scale_m), the gain that explore_lite's
+                utility weighs against the distance; I alone is local to the goal cell.
 
 Edges (a choice made for speed, stated here as the docstring must): computing geodesic distances
 between all pairs of nodes would need one fast-marching pass per node. Instead, the robot's own
@@ -34,6 +37,7 @@ from scipy.spatial import cKDTree
 from cso_runtime.observation import Observation
 
 NODE_FEATURES = ("dx", "dy", "frontier", "current", "entropy", "geodesic")
+"""The node features every graph has; ``node_features`` adds the optional ones."""
 EDGE_FEATURES = 2
 
 
@@ -53,6 +57,8 @@ class GraphConfig:
     """Feed the frontier-based entropy I (False for cso-no-info and gnn-baseline)."""
     entropy_window_m: float = 2.0
     """gamma of Eq. 4, used to make I scale-free (match FrontierConfig.entropy_window_m)."""
+    use_cluster_size: bool = False
+    """Add the ``size`` node feature (each frontier cluster's length)."""
 
     @property
     def max_nodes(self) -> int:
@@ -63,11 +69,16 @@ class GraphConfig:
         return self.knn + 1
 
 
+def node_features(config: GraphConfig) -> tuple[str, ...]:
+    """The node feature columns of graphs built with ``config``."""
+    return NODE_FEATURES + (("size",) if config.use_cluster_size else ())
+
+
 def empty_graph(config: GraphConfig) -> dict[str, np.ndarray]:
     """All-padding arrays of the fixed shapes (also the Gymnasium observation layout)."""
     n, k = config.max_nodes, config.neighbours
     return {
-        "nodes": np.zeros((n, len(NODE_FEATURES)), dtype=np.float32),
+        "nodes": np.zeros((n, len(node_features(config))), dtype=np.float32),
         "node_valid": np.zeros(n, dtype=bool),
         "neighbours": np.zeros((n, k), dtype=np.int64),
         "neighbour_valid": np.zeros((n, k), dtype=bool),
@@ -119,6 +130,8 @@ def build_graph(obs: Observation, config: GraphConfig) -> dict[str, np.ndarray]:
         ent = np.array([c.entropy for c in obs.clusters[:nf]], dtype=float)
         feats[:nf, 4] = ent * obs.geometry.resolution_m / config.entropy_window_m
     feats[:n, 5] = np.log1p(geo / scale)
+    if config.use_cluster_size and nf:
+        feats[:nf, 6] = np.log1p(np.array([c.size_m for c in obs.clusters[:nf]], dtype=float) / scale)
     g["node_valid"][:n] = True
 
     # neighbours: the knn nearest non-robot nodes by Euclidean distance (itself included), found with

@@ -37,6 +37,8 @@ class NetworkConfig:
     """Attention heads per layer."""
     layers: int = 2
     """Message-passing rounds."""
+    node_features: int = len(NODE_FEATURES)
+    """Input features per node (``graph.node_features`` of the graphs it reads)."""
 
 
 class CategoricalMasked(torch.distributions.Categorical):
@@ -94,7 +96,7 @@ class GraphActorCritic(nn.Module):
         self.config = config or NetworkConfig()
         c = self.config
         self.max_frontier_nodes = max_frontier_nodes
-        self.node_in = nn.Sequential(nn.Linear(len(NODE_FEATURES), c.hidden), nn.ReLU(), nn.Linear(c.hidden, c.hidden))
+        self.node_in = nn.Sequential(nn.Linear(c.node_features, c.hidden), nn.ReLU(), nn.Linear(c.hidden, c.hidden))
         # l_ij -> 32 dims; a second linear layer here would fold into each layer's edge_bias
         self.edge_mlp = nn.Sequential(nn.Linear(EDGE_FEATURES, c.edge_dim), nn.ReLU())
         self.layers = nn.ModuleList(GraphAttentionLayer(c.hidden, c.edge_dim, c.heads) for _ in range(c.layers))

@@ -31,7 +31,7 @@ from torch import nn, optim
 
 from cso_runtime.config import ExplorationConfig, SensorConfig
 from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
-from cso_runtime.learned.graph import GraphConfig, empty_graph
+from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
 from cso_runtime.learned.registry import VARIANTS, load_checkpoint, save_checkpoint, weights_path
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
@@ -103,6 +103,8 @@ class Args:
     knn: int = 8
     max_frontier_nodes: int = 200
     max_path_nodes: int = 20
+    cluster_size_feature: bool = False
+    """Give the network each frontier cluster's length as a node feature (``graph.node_features``)."""
     checkpoint_every: int = 5
     """Updates between resumable checkpoints."""
     resume: str | None = None
@@ -139,7 +141,14 @@ class Args:
         exploration = ExplorationConfig()
         exploration.sensor = SensorConfig.preset(self.sensor, self.lidar_fov_deg)
         exploration.masks = mask_config_for(v.use_valid_distance, v.use_stuck, exploration.masks)
-        graph = GraphConfig(self.max_frontier_nodes, self.max_path_nodes, self.knn, use_entropy=v.use_entropy, entropy_window_m=exploration.frontier.entropy_window_m)
+        graph = GraphConfig(
+            self.max_frontier_nodes,
+            self.max_path_nodes,
+            self.knn,
+            use_entropy=v.use_entropy,
+            entropy_window_m=exploration.frontier.entropy_window_m,
+            use_cluster_size=self.cluster_size_feature,
+        )
         return EnvConfig(exploration, graph, RewardConfig(self.r_step, self.lambda_c), self.max_steps)
 
 
@@ -248,7 +257,8 @@ def initial_weights(args: Args, device: torch.device) -> dict[str, torch.Tensor]
 
 
 def build_model(args: Args, device: torch.device) -> GraphActorCritic:
-    return GraphActorCritic(NetworkConfig(args.hidden, 32, args.heads, args.layers), args.max_frontier_nodes).to(device)
+    features = len(node_features(args.env_config().graph))
+    return GraphActorCritic(NetworkConfig(args.hidden, 32, args.heads, args.layers, features), args.max_frontier_nodes).to(device)
 
 
 def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.vector.VectorEnv:
