@@ -174,6 +174,25 @@ def test_bad_profiles_fail_before_anything_starts(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_status_table_shows_the_episode_and_each_service():
+    from rich.console import Console
+
+    from cso_runtime.status import render_table
+
+    status = {
+        "robot": "r0", "run_id": "run-1", "state": "exploring", "episode": 4242, "step": 17, "coverage_pct": 41.5,
+        "explored_area_m2": 12.25, "path_length_m": 3.5, "goal": [1.0, 2.0], "decisions": 6, "last_decision_ms": 9.5,
+        "terminated_by": "", "reason": "", "scene": "gen_small_0", "method": "greedy-dist", "lockstep_timeouts": 0,
+        "services": {"mapper": {"alive": True, "state": "running", "reason": "", "rejected": {"scan": 2}}, "sim": {"alive": False}},
+        "launcher_rejected": {},
+    }
+    console = Console(record=True, width=120)
+    console.print(render_table(status))
+    text = console.export_text()
+    assert "17 (4242)" in text and "41.50 %" in text and "(1.00, 2.00) m" in text
+    assert "mapper" in text and "sim" in text
+
+
 def test_status_and_down_with_nothing_running(tmp_path):
     r = cli("status", "--json", cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "nothing running" in r.stdout
