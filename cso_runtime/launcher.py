@@ -268,7 +268,8 @@ class Launcher:
         self.status: EpisodeStatusMsg | None = None
         self.alive_services: set[str] = set()
         self.latest: dict[str, bytes] = {}
-        self.latest_step: dict[str, int] = {}
+        self.latest_step: dict[str, tuple[int, int]] = {}
+        """Topic -> (episode id, step) of the cached payload (goals carry no episode: 0)."""
         self.rejected: dict[str, int] = {}
         self.goal: GoalMsg | None = None
         self.outputs_written = False
@@ -327,9 +328,10 @@ class Launcher:
         if isinstance(msg, EpisodeStatusMsg):
             self.status = msg
         elif isinstance(msg, (MapMsg, GoalMsg)):
-            step = msg.step
-            if step >= self.latest_step.get(topic, -1):
-                self.latest[topic], self.latest_step[topic] = payload, step
+            episode, step = getattr(msg, "episode", 0), msg.step
+            cached_episode, cached_step = self.latest_step.get(topic, (episode, -1))
+            if step >= cached_step or episode != cached_episode:  # a new episode's maps replace the old one's
+                self.latest[topic], self.latest_step[topic] = payload, (episode, step)
             if isinstance(msg, GoalMsg):
                 self.goal = msg
 

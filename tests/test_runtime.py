@@ -174,6 +174,37 @@ def test_bad_profiles_fail_before_anything_starts(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_launcher_cache_serves_the_newest_map_of_the_newest_episode(tmp_path):
+    """The map cache (what a restarted mapper restores) follows the steps of an episode and is replaced
+    by a new episode's first map, whose step is lower; malformed maps are counted, never cached."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher, find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+    geom = GridGeometry(0.1, (4, 5))
+
+    def put(payload: bytes) -> None:
+        launcher._on_sample(SimpleNamespace(key_expr=keys.map, payload=SimpleNamespace(to_bytes=lambda: payload)))
+
+    def cached() -> MapMsg:
+        replies: list[bytes] = []
+        launcher._on_cache_query(SimpleNamespace(key_expr=keys.cache("map"), reply=lambda _key, payload: replies.append(payload)))
+        assert len(replies) == 1
+        return decode(replies[0], MapMsg)
+
+    grid = np.full((4, 5), -1, np.int8)
+    for step, episode in ((5, 1), (7, 1), (6, 1)):
+        put(encode(MapMsg(step, geom, grid, episode)))
+    assert (cached().step, cached().episode) == (7, 1)  # a late step 6 does not replace step 7
+    put(encode(MapMsg(0, geom, grid, 2)))
+    assert (cached().step, cached().episode) == (0, 2)  # a restarted sim's first map does
+    put(b"not a map")
+    assert cached().episode == 2 and launcher.rejected == {"map": 1}
+
+
 def test_status_table_shows_the_episode_and_each_service():
     from rich.console import Console
 
