@@ -20,16 +20,17 @@ import numpy as np
 from cso_runtime.config import MaskConfig
 from cso_runtime.episode import run_episode
 from cso_runtime.evaluation import EvalRequest, make_simulator
+from cso_runtime.learned.env import expert_action
 from cso_runtime.observation import Observation
 from cso_runtime.policies import ActionMasker, Goal, goal_of, make_policy
 from cso_runtime.scenes import SceneRef, resolve_scenes, scale_of
 
 
 class MaskedBaseline:
-    """A score baseline restricted to the actions the cso masks allow."""
+    """A score baseline restricted to the actions the cso masks allow: the warm-start teacher itself."""
 
     def __init__(self, base: str):
-        self.base = make_policy(base)
+        self.base = base
         self.name = f"{base}+masks"
         self.masker = ActionMasker(MaskConfig())
 
@@ -40,8 +41,9 @@ class MaskedBaseline:
         if not obs.clusters:
             return None
         allowed = self.masker.mask(obs)
-        cost = np.where(np.isfinite(obs.goal_distance_m) & allowed, self.base.cost(obs), np.inf)
-        return goal_of(obs, int(np.argmin(cost))) if np.isfinite(cost).any() else None
+        if not (allowed & np.isfinite(obs.goal_distance_m)).any():
+            return None
+        return goal_of(obs, expert_action(obs, allowed, self.base))
 
 
 def run_one(job: tuple[SceneRef, str, float]) -> tuple[str, str, float, str]:
