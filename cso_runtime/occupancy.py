@@ -122,8 +122,7 @@ class OccupancyMap:
         return m
 
     def copy(self) -> "OccupancyMap":
-        m = OccupancyMap.__new__(OccupancyMap)
-        m.geometry = self.geometry
+        m = OccupancyMap(self.geometry)
         m.explored = self.explored.copy()
         m.log_odds = self.log_odds.copy()
         m.occupied = self.occupied.copy()
