@@ -77,8 +77,9 @@ class OccupancyMap:
         cos, sin = np.cos(angles), np.sin(angles)
         free_until = clear_len - 1e-9  # samples strictly before a beam's end are pass-throughs
         n = samples_to_reach(self.geometry, float(np.max(clear_len)))
+        step_m = sample_step_m(self.geometry)
         for first in range(0, n, SAMPLES_PER_CHUNK):
-            active = np.flatnonzero(free_until > first * sample_step_m(self.geometry))
+            active = np.flatnonzero(free_until > first * step_m)
             if not len(active):
                 break
             iy, ix, dist = sample_cells(self.geometry, origin, cos[active], sin[active], first, min(first + SAMPLES_PER_CHUNK, n))

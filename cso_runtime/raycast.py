@@ -76,12 +76,11 @@ def cast_rays(
     res = geometry.resolution_m
     x0 = geometry.origin_x_m + hx * res
     y0 = geometry.origin_y_m + hy * res
-    dx, dy = cos, sin
     with np.errstate(divide="ignore", invalid="ignore"):
-        tx0, tx1 = (x0 - origin[0]) / dx, (x0 + res - origin[0]) / dx
-        ty0, ty1 = (y0 - origin[1]) / dy, (y0 + res - origin[1]) / dy
-        tx_enter = np.where(dx == 0, -np.inf, np.minimum(tx0, tx1))
-        ty_enter = np.where(dy == 0, -np.inf, np.minimum(ty0, ty1))
+        tx0, tx1 = (x0 - origin[0]) / cos, (x0 + res - origin[0]) / cos
+        ty0, ty1 = (y0 - origin[1]) / sin, (y0 + res - origin[1]) / sin
+        tx_enter = np.where(cos == 0, -np.inf, np.minimum(tx0, tx1))
+        ty_enter = np.where(sin == 0, -np.inf, np.minimum(ty0, ty1))
         ranges = np.maximum(np.maximum(tx_enter, ty_enter), 0.0)
         ranges = np.where(any_hit & (ranges <= max_range_m), ranges, np.inf)
     return ranges
