@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from cso_runtime.config import ConfigError, ExplorationConfig, from_dict, load_yaml
@@ -272,6 +273,8 @@ class Launcher:
         """Topic -> (episode id, step) of the cached payload (goals carry no episode: 0)."""
         self.rejected: dict[str, int] = {}
         self.goal: GoalMsg | None = None
+        self.path_ahead_m: float | None = None
+        """Length of the planner's latest path, robot to goal (live view)."""
         self.outputs_written = False
         self.exit_code = 0
         self._lock = threading.Lock()
@@ -334,6 +337,9 @@ class Launcher:
                 self.latest[topic], self.latest_step[topic] = payload, (episode, step)
             if isinstance(msg, GoalMsg):
                 self.goal = msg
+        elif isinstance(msg, PathMsg):
+            xy = msg.path_xy_m
+            self.path_ahead_m = float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0
 
     def _on_cache_query(self, query: Any) -> None:
         topic = str(query.key_expr).rsplit("/", 1)[-1]
@@ -573,7 +579,7 @@ class LiveView:
                 ("coverage", f"{st.coverage_pct:.1f} %"),
                 ("explored", f"{st.explored_area_m2:.2f} m2"),
                 ("path length", f"{st.path_length_m:.2f} m"),
-                ("goal", goal),
+                ("goal", goal + ("" if la.path_ahead_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
                 ("decisions", f"{st.decisions} (last {st.last_decision_ms:.1f} ms)"),
             ):
                 t.add_row(k, v)

@@ -39,13 +39,18 @@ class MessageError(ValueError):
 # --- low-level helpers -------------------------------------------------------------------------
 
 
+_WIRE_DTYPES = {np.dtype(name): (name, np.dtype(name).newbyteorder("<")) for name in _DTYPES}
+"""dtype -> (wire name, little-endian dtype); looked up once (``dtype.name`` is slow on a hot path)."""
+
+
 def pack_array(a: np.ndarray, compress: bool | None = None) -> dict[str, Any]:
     a = np.ascontiguousarray(a)
-    if a.dtype.name not in _DTYPES:
+    wire = _WIRE_DTYPES.get(a.dtype) or _WIRE_DTYPES.get(a.dtype.newbyteorder("="))
+    if wire is None:
         raise MessageError(f"cannot send arrays of dtype {a.dtype}")
-    data = a.astype(a.dtype.newbyteorder("<"), copy=False).tobytes()
+    data = (a if a.dtype == wire[1] else a.astype(wire[1])).tobytes()
     z = len(data) >= COMPRESS_MIN_BYTES if compress is None else compress
-    return {"dtype": a.dtype.name, "shape": list(a.shape), "z": bool(z), "data": zlib.compress(data, 1) if z else data}
+    return {"dtype": wire[0], "shape": list(a.shape), "z": bool(z), "data": zlib.compress(data, 1) if z else data}
 
 
 def unpack_array(obj: Any, where: str, ndim: int | None = None, finite: bool = False, no_nan: bool = True) -> np.ndarray:
@@ -71,10 +76,11 @@ def unpack_array(obj: Any, where: str, ndim: int | None = None, finite: bool = F
             raise MessageError(f"{where}: corrupt compressed data ({exc})") from None
     elif obj["z"] is not False:
         raise MessageError(f"{where}: bad compression flag")
-    dt = np.dtype(dtype).newbyteorder("<")
+    native = np.dtype(dtype)
+    dt = _WIRE_DTYPES[native][1]
     if len(data) != n * dt.itemsize:
         raise MessageError(f"{where}: {len(data)} bytes do not fit shape {shape} of {dtype}")
-    a = np.frombuffer(data, dtype=dt).reshape(shape).astype(np.dtype(dtype), copy=True)
+    a = np.frombuffer(data, dtype=dt).reshape(shape).astype(native, copy=True)
     if a.dtype.kind == "f":
         if finite and not np.isfinite(a).all():
             raise MessageError(f"{where}: non-finite values")

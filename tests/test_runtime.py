@@ -25,7 +25,7 @@ from cso_runtime.episode import run_episode
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.keys import TOPICS, RobotKeys
 from cso_runtime.launcher import pid_alive
-from cso_runtime.messages import ClockMsg, MapMsg, ScanMsg, ServiceStatusMsg, decode, encode
+from cso_runtime.messages import ClockMsg, EpisodeStatusMsg, MapMsg, ScanMsg, ServiceStatusMsg, decode, encode
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
@@ -203,6 +203,29 @@ def test_launcher_cache_serves_the_newest_map_of_the_newest_episode(tmp_path):
     assert (cached().step, cached().episode) == (0, 2)  # a restarted sim's first map does
     put(b"not a map")
     assert cached().episode == 2 and launcher.rejected == {"map": 1}
+
+
+def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
+    """The launcher's live view reports the length of the planner's latest path (robot to goal)."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher, LiveView, find_profile, load_profile
+    from cso_runtime.messages import PathMsg
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+    path = np.array([[0.0, 0.0], [3.0, 4.0], [3.0, 5.5]])
+    launcher._on_sample(SimpleNamespace(key_expr=keys.topic("path"), payload=SimpleNamespace(to_bytes=lambda: encode(PathMsg(3, path)))))
+    assert launcher.path_ahead_m == pytest.approx(6.5)
+    launcher._on_sample(SimpleNamespace(key_expr=keys.topic("path"), payload=SimpleNamespace(to_bytes=lambda: b"junk")))
+    assert launcher.path_ahead_m == pytest.approx(6.5) and launcher.rejected == {"path": 1}
+    launcher.status = EpisodeStatusMsg(state="exploring", step=3, scene="s", method="greedy-dist", coverage_pct=10.0, explored_area_m2=1.0, path_length_m=0.5, goal_xy_m=[3.0, 5.5])
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert "6.50 m ahead on the path" in console.export_text()
 
 
 def test_status_table_shows_the_episode_and_each_service():
