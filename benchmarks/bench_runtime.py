@@ -38,6 +38,7 @@ from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+from services.common import TRACE_DIR_ENV
 
 
 def process_cpu_s() -> dict[str, float]:
@@ -69,6 +70,52 @@ def pct(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) if values else float("nan")
 
 
+KEEP_CHAIN = (("sim", "scan"), ("mapper", "map"), ("frontier", "frontiers"), ("planner", "cmd_vel"), ("sim", "scan"))
+DECISION_CHAIN = (("sim", "scan"), ("mapper", "map"), ("frontier", "frontiers"), ("policy", "goal"), ("planner", "cmd_vel"), ("sim", "scan"))
+"""A lockstep step's serial chain: (service, the topic it publishes next); the last scan is the next step's."""
+
+
+def hop_breakdown(trace_dir: Path) -> dict[str, dict[str, float]]:
+    """Mean ms of each hop of the chain from the services' message traces (``CSO_TRACE_DIR``), keep-goal
+    and decision steps apart. Per hop: ``transit`` (the sender's put done -> the receiver's Zenoh
+    callback), ``queue+decode`` (callback -> the handler starts), ``work`` (handler start -> the
+    receiver's next put starts, encoding included)."""
+    events = {f.name.split(".")[0]: json.loads(f.read_text()) for f in trace_dir.glob("*.trace.json")}
+
+    def first(service: str, kind: str, topic: str) -> dict[int, list]:
+        out: dict[int, list] = {}
+        for e in events.get(service, []):
+            if e[0] == kind and e[1] == topic:
+                out.setdefault(e[2], e)
+        return out
+
+    puts = {(svc, topic): first(svc, "put", topic) for svc, topic in set(KEEP_CHAIN + DECISION_CHAIN)}
+    handles = {(svc, topic): first(svc, "handle", topic) for svc, topic in [("mapper", "scan"), ("frontier", "map"), ("planner", "frontiers"), ("policy", "frontiers"), ("planner", "goal"), ("sim", "cmd_vel")]}
+    decisions = set(puts[("policy", "goal")])
+    out: dict[str, dict[str, float]] = {}
+    for kind, chain in (("keep_goal_steps", KEEP_CHAIN), ("decision_steps", DECISION_CHAIN)):
+        rows: dict[str, list[float]] = {}
+        for k in sorted(puts[("sim", "scan")]):
+            if (k in decisions) != (kind == "decision_steps"):
+                continue
+            segments: dict[str, float] = {}
+            for (sender, topic), (receiver, next_topic) in zip(chain, chain[1:]):
+                next_step = k + 1 if receiver == "sim" else k
+                sent, got, nxt = puts[(sender, topic)].get(k), handles[(receiver, topic)].get(k), puts[(receiver, next_topic)].get(next_step)
+                if sent is None or got is None or nxt is None:
+                    break
+                hop = f"{sender}->{receiver}"
+                segments[f"{hop} transit"] = got[3] - sent[4]
+                segments[f"{hop} queue+decode"] = got[4] - got[3]
+                segments[f"{receiver} work"] = nxt[3] - got[4]
+            else:
+                segments["step"] = puts[("sim", "scan")][k + 1][3] - puts[("sim", "scan")][k][3] if k + 1 in puts[("sim", "scan")] else float("nan")
+                for name, v in segments.items():
+                    rows.setdefault(name, []).append(1e3 * v)
+        out[kind] = {name: round(float(np.nanmean(v)), 3) for name, v in rows.items()} | {"steps": len(rows.get("step", []))}
+    return out
+
+
 def in_process(scene: str, method: str, seed: int) -> tuple[float, int, float, float]:
     plan = resolve_scenes(scene)[0].load()
     c0 = time.process_time()
@@ -77,7 +124,7 @@ def in_process(scene: str, method: str, seed: int) -> tuple[float, int, float, f
     return time.perf_counter() - t0, r.steps, r.coverage_pct, time.process_time() - c0
 
 
-def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None = None, wall_time_only: bool = False) -> dict:
+def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None = None, wall_time_only: bool = False, trace: bool = False) -> dict:
     port = free_tcp_port()
     overrides = {"scene": scene, "method": method, "seed": seed, "lockstep": True}
     profile, data = load_profile(str(find_profile("lockstep")), overrides)
@@ -110,6 +157,10 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
                 done.set()
 
     with tempfile.TemporaryDirectory() as tmp:
+        trace_dir = Path(tmp) / "trace"
+        if trace:
+            trace_dir.mkdir()
+            os.environ[TRACE_DIR_ENV] = str(trace_dir)  # the launcher passes its environment to the services
         launcher = Launcher(profile, data, Path(tmp) / "run")
         t_start = time.perf_counter()
         thread = threading.Thread(target=launcher.run, kwargs={"live": False}, daemon=True)
@@ -128,6 +179,8 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
             for s in subs:
                 s.undeclare()
         thread.join(60)
+        os.environ.pop(TRACE_DIR_ENV, None)
+        hops = hop_breakdown(trace_dir) if trace else None
     schemas = {"scan": ScanMsg, "map": MapMsg, "goal": GoalMsg, "cmd_vel": CmdVelMsg, "frontiers": FrontiersMsg}
     for now, topic, payload in arrivals:
         msg = decode(payload, schemas[topic])
@@ -159,6 +212,7 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
     }
     return {
         **({} if wall_time_only else latencies),
+        **({"hop_breakdown_ms": hops} if hops is not None else {}),
         "service_mode": profile.router.service_mode,
         "cpu_s_during_episode": dict(sorted(cpu_s.items())) | {"total": round(sum(cpu_s.values()), 3)},
         "state": end.get("state"),
@@ -179,6 +233,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument(
         "--wall-time-only", action="store_true", help="Listen only to scan and status (the per-hop latencies need every key; listening costs the router process CPU)"
     )
+    p.add_argument("--trace", action="store_true", help="Services trace every message (CSO_TRACE_DIR): adds each hop's transit, queue+decode and work")
     p.add_argument("--json", type=Path, default=None, help="Also write the figures here")
     args = p.parse_args(argv)
     import logging
@@ -188,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
     in_process(args.scene, args.method, args.seed)  # warm-up, not counted: the first episode of a process pays imports and caches
     for _ in range(args.repeats):  # interleaved, so both sides of each ratio see the same machine
         local = in_process(args.scene, args.method, args.seed)
-        pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode, args.wall_time_only)))
+        pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode, args.wall_time_only, args.trace)))
     (local_s, local_steps, local_cov, local_cpu_s), z = pairs[-1]
     ratios = [zz["episode_s"] / ll[0] for ll, zz in pairs]
     report = {

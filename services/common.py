@@ -14,7 +14,9 @@ parameters in ``apply_arguments``.
 from __future__ import annotations
 
 import argparse
+import collections
 import ctypes
+import json
 import logging
 import os
 import queue
@@ -34,6 +36,31 @@ from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode
 from cso_runtime.transport import TransportConfig, TransportError, open_session
 
 log = logging.getLogger("cso.service")
+
+TRACE_DIR_ENV = "CSO_TRACE_DIR"
+"""Environment variable: a folder where each service writes ``<name>.trace.json`` (``MessageTrace``)."""
+
+
+class MessageTrace:
+    """Where a step's time goes, per message: each handled input as ``["handle", topic, step, received_s,
+    started_s, done_s]`` (Zenoh callback, handler start after the queue and ``decode``, handler end) and
+    each publication as ``["put", topic, step, started_s, done_s, bytes]`` (``encode`` is before
+    ``started_s``), on ``time.monotonic`` (one clock for every process of a machine). Events are kept in
+    memory (the newest ``max_events``) and written when the service stops, so tracing adds no file I/O to
+    the chain. ``benchmarks/bench_runtime.py --trace`` turns them into a per-hop breakdown."""
+
+    def __init__(self, path: Path, max_events: int = 500_000):
+        self.path = path
+        self.events: collections.deque[tuple] = collections.deque(maxlen=max_events)
+
+    def handled(self, topic: str, step: int, received_s: float, started_s: float, done_s: float) -> None:
+        self.events.append(("handle", topic, step, received_s, started_s, done_s))
+
+    def put(self, topic: str, step: int, started_s: float, done_s: float, nbytes: int) -> None:
+        self.events.append(("put", topic, step, started_s, done_s, nbytes))
+
+    def write(self) -> None:
+        self.path.write_text(json.dumps(list(self.events)))
 
 
 @dataclass
@@ -97,6 +124,8 @@ class Service:
         self._publishers: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._inbox: queue.Queue | None = None
+        self.trace: MessageTrace | None = None
+        """Per-message timings, when ``CSO_TRACE_DIR`` is set (diagnostics; off by default)."""
 
     # --- hooks -----------------------------------------------------------------------------------
     def start(self) -> None:
@@ -130,7 +159,13 @@ class Service:
         if pub is None:
             assert self.session is not None
             pub = self._publishers[key] = self.session.declare_publisher(key)
-        pub.put(encode(msg))
+        payload = encode(msg)
+        if self.trace is None:
+            pub.put(payload)
+            return
+        t0 = time.monotonic()
+        pub.put(payload)
+        self.trace.put(topic, getattr(msg, "step", -1), t0, time.monotonic(), len(payload))
 
     def backlog(self) -> int:
         """Inputs received but not handled yet. In real time a service whose work is slower than its
@@ -244,7 +279,12 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> 
         service.reject(topic, str(exc))
         return
     service.processed += 1
+    if service.trace is None:
+        service.on_message(robot, topic, msg, received_s)
+        return
+    t0 = time.monotonic()
     service.on_message(robot, topic, msg, received_s)
+    service.trace.handled(topic, getattr(msg, "step", -1), received_s, t0, time.monotonic())
 
 
 def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | None = None) -> argparse.Namespace:
@@ -278,6 +318,9 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
     stop = threading.Event()
     _install_stop_handlers(stop)
     _die_with_launcher()
+    trace_dir = os.environ.get(TRACE_DIR_ENV)
+    if trace_dir:
+        service.trace = MessageTrace(Path(trace_dir) / f"{cls.name}.trace.json")
     prof_dir = os.environ.get("CSO_PROFILE_DIR")
     if prof_dir:
         import cProfile  # noqa: PLC0415
@@ -290,6 +333,8 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
         log.error("%s: %s", cls.name, exc)
         return 3
     finally:
+        if service.trace is not None:
+            service.trace.write()
         if prof_dir:
             prof.disable()
             prof.dump_stats(os.path.join(prof_dir, f"{cls.name}.prof"))

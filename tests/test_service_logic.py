@@ -346,3 +346,46 @@ def test_restarted_mapper_keeps_the_cached_map_of_its_episode_only():
         expected.integrate_scan(scan.sensor_pose, scan.scan)
         assert np.array_equal(published[0].grid, expected.to_occupancy_grid())
         assert (published[0].grid < 0).any() == (episode == 6)  # episode 6: the old cells are gone
+
+
+def test_message_trace_records_each_handled_input_and_feeds_the_hop_breakdown(tmp_path):
+    """``CSO_TRACE_DIR`` tracing: the service loop's dispatch records (callback, handler start, handler
+    end) per input, rejected payloads are not traced, and ``bench_runtime.hop_breakdown`` turns the
+    services' traces into per-hop transit / queue+decode / work."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    from services.common import MessageTrace, _dispatch
+
+    svc, _ = _service(PlannerService, lockstep=True)
+    svc.trace = MessageTrace(tmp_path / "planner.trace.json")
+    ex = _explorer_at(0)
+    _, odom, _ = _inputs(ex, 0)
+    received_s = time.monotonic()
+    _dispatch(svc, "cso/r0/odom", encode(odom), received_s)
+    _dispatch(svc, "cso/r0/odom", b"junk", received_s)
+    svc.trace.write()
+    events = json.loads((tmp_path / "planner.trace.json").read_text())
+    assert len(events) == 1 and svc.rejected == {"odom": 1}
+    kind, topic, step, got_s, start_s, done_s = events[0]
+    assert (kind, topic, step) == ("handle", "odom", 0) and got_s == received_s <= start_s <= done_s
+
+    spec = importlib.util.spec_from_file_location("bench_runtime", Path(__file__).parents[1] / "benchmarks" / "bench_runtime.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    ms = 1e-3
+    traces = {  # one keep-goal step 0: every hop 1 ms transit, 0.5 ms queue+decode, then 2 ms of work
+        "sim": [["put", "scan", 0, 0.0, 0.0, 10], ["handle", "cmd_vel", 0, 11.5 * ms, 12 * ms, 12 * ms], ["put", "scan", 1, 14 * ms, 14 * ms, 10]],
+        "mapper": [["handle", "scan", 0, 1 * ms, 1.5 * ms, 3 * ms], ["put", "map", 0, 3.5 * ms, 3.5 * ms, 10]],
+        "frontier": [["handle", "map", 0, 4.5 * ms, 5 * ms, 6 * ms], ["put", "frontiers", 0, 7 * ms, 7 * ms, 10]],
+        "planner": [["handle", "frontiers", 0, 8 * ms, 8.5 * ms, 9 * ms], ["put", "cmd_vel", 0, 10.5 * ms, 10.5 * ms, 10]],
+    }
+    for name, ev in traces.items():
+        (tmp_path / f"{name}.trace.json").write_text(json.dumps(ev))
+    hops = bench.hop_breakdown(tmp_path)
+    keep = hops["keep_goal_steps"]
+    assert keep["steps"] == 1 and hops["decision_steps"]["steps"] == 0
+    assert keep["sim->mapper transit"] == keep["mapper->frontier transit"] == keep["planner->sim transit"] == 1.0
+    assert keep["frontier->planner queue+decode"] == 0.5 and keep["mapper work"] == keep["planner work"] == 2.0
+    assert keep["sim work"] == 2.0 and keep["step"] == 14.0
