@@ -60,7 +60,12 @@ class MessageTrace:
         self.events.append(("put", topic, step, started_s, done_s, nbytes))
 
     def write(self) -> None:
-        self.path.write_text(json.dumps(list(self.events)))
+        """Write the events (a failure is logged: tracing never stops a service)."""
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self.path.write_text(json.dumps(list(self.events)))
+        except OSError as exc:
+            log.error("cannot write the message trace %s: %s", self.path, exc)
 
 
 @dataclass
