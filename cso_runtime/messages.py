@@ -344,6 +344,8 @@ def _distance_in(raw: dict, window: Any, geometry: GridGeometry) -> np.ndarray:
     (y0, x0), (h, w) = window, part.shape
     if y0 + h > geometry.shape[0] or x0 + w > geometry.shape[1]:
         raise MessageError("frontiers.distance_window: the window leaves the grid")
+    if (part < 0).any():  # the window holds every finite value; inf outside is not negative
+        raise MessageError(f"{where}: negative distances")
     distance = np.full(geometry.shape, np.inf)
     distance[y0 : y0 + h, x0 : x0 + w] = part
     return distance
@@ -359,6 +361,14 @@ def _narrow_counts(counts: np.ndarray) -> np.ndarray:
 
 
 CLUSTER_FIELDS = ("goal_cell", "goal_xy_m", "distance_m", "size_m", "entropy", "centroid_xy_m", "cells")
+_CLUSTER_FIELD_SET = frozenset(CLUSTER_FIELDS)
+
+
+def _xy_in(v: Any, where: str) -> tuple[float, float]:
+    """A finite ``[x_m, y_m]`` pair."""
+    if not (isinstance(v, list) and len(v) == 2 and all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in v)):
+        raise MessageError(f"{where}: expected [x_m, y_m], two finite numbers")
+    return float(v[0]), float(v[1])
 
 
 @dataclass
@@ -442,11 +452,9 @@ class FrontiersMsg(Message):
         entropy = unpack_array(raw["entropy"], "frontiers.arrays.entropy", ndim=2)
         if entropy.dtype.kind not in "iu" or tuple(entropy.shape) != tuple(geometry.shape):
             raise MessageError("frontiers.arrays.entropy: expected integer counts over the grid")
-        arrays["entropy"] = entropy.astype(np.int32)
-        if (arrays["distance_m"] < 0).any():
-            raise MessageError("frontiers.arrays.distance_m: negative distances")
-        if (arrays["entropy"] < 0).any():
+        if entropy.dtype.kind == "i" and (entropy < 0).any():
             raise MessageError("frontiers.arrays.entropy: negative entropy")
+        arrays["entropy"] = entropy.astype(np.int32)
         clusters_raw = _get(b, "clusters", w)
         if not isinstance(clusters_raw, list):
             raise MessageError("frontiers.clusters: expected a list")
@@ -454,7 +462,7 @@ class FrontiersMsg(Message):
         ny, nx = geometry.shape
         for i, c in enumerate(clusters_raw):
             cw = f"frontiers.clusters[{i}]"
-            if not isinstance(c, dict) or set(c) != set(CLUSTER_FIELDS):
+            if not isinstance(c, dict) or c.keys() != _CLUSTER_FIELD_SET:
                 raise MessageError(f"{cw}: expected fields {', '.join(CLUSTER_FIELDS)}")
             gc = c["goal_cell"]
             if not (isinstance(gc, list) and len(gc) == 2 and all(isinstance(v, int) and not isinstance(v, bool) for v in gc)):
@@ -462,20 +470,16 @@ class FrontiersMsg(Message):
             if not (0 <= gc[0] < ny and 0 <= gc[1] < nx):
                 raise MessageError(f"{cw}.goal_cell: outside the grid")
             cells = unpack_array(c["cells"], f"{cw}.cells", ndim=2)
-            if cells.dtype.kind != "i" or cells.shape[1:] != (2,) or (cells < 0).any() or (cells[:, 0] >= ny).any() or (cells[:, 1] >= nx).any():
+            if cells.dtype.kind != "i" or cells.shape[1:] != (2,) or (cells < 0).any() or (cells >= (ny, nx)).any():
                 raise MessageError(f"{cw}.cells: expected (k, 2) cell indices inside the grid")
-            xy = {f"g{j}": v for j, v in enumerate(c["goal_xy_m"])} if isinstance(c["goal_xy_m"], list) and len(c["goal_xy_m"]) == 2 else None
-            cxy = {f"c{j}": v for j, v in enumerate(c["centroid_xy_m"])} if isinstance(c["centroid_xy_m"], list) and len(c["centroid_xy_m"]) == 2 else None
-            if xy is None or cxy is None:
-                raise MessageError(f"{cw}: goal_xy_m and centroid_xy_m must be [x_m, y_m]")
             clusters.append(
                 {
                     "goal_cell": (gc[0], gc[1]),
-                    "goal_xy_m": (_num(xy, "g0", cw), _num(xy, "g1", cw)),
+                    "goal_xy_m": _xy_in(c["goal_xy_m"], f"{cw}.goal_xy_m"),
                     "distance_m": _num(c, "distance_m", cw, 0.0),
                     "size_m": _num(c, "size_m", cw, 0.0),
                     "entropy": _num(c, "entropy", cw, 0.0),
-                    "centroid_xy_m": (_num(cxy, "c0", cw), _num(cxy, "c1", cw)),
+                    "centroid_xy_m": _xy_in(c["centroid_xy_m"], f"{cw}.centroid_xy_m"),
                     "cells": cells,
                 }
             )
