@@ -19,7 +19,8 @@ import numpy as np
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import Explorer, run_episode
 from cso_runtime.messages import FrontiersMsg, MapMsg, decode, encode, frontiers_from_observation
-from cso_runtime.policies import make_policy
+from cso_runtime.observation import Observation
+from cso_runtime.policies import Goal, make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 
@@ -42,23 +43,26 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeats", type=int, default=5)
     args = p.parse_args(argv)
     plan = resolve_scenes(args.scene)[0].load()
-    observations, maps = [], []
+    selector = make_policy(args.method, seed=0)
+    observations: list[Observation] = []
+    maps: list[MapMsg] = []
+
+    class Recording:
+        """The selector, keeping every Observation it decides on."""
+
+        name = selector.name
+
+        def reset(self, seed: int | None = None) -> None:
+            selector.reset(seed)
+
+        def select(self, obs: Observation) -> Goal | None:
+            observations.append(obs)
+            return selector.select(obs)
 
     def keep_map(explorer: Explorer) -> None:
         maps.append(MapMsg(explorer.steps, explorer.map.geometry, explorer.map.to_occupancy_grid()))
 
-    observe = Explorer.observe
-
-    def observe_and_keep(self: Explorer):
-        obs = observe(self)
-        observations.append(obs)
-        return obs
-
-    Explorer.observe = observe_and_keep  # type: ignore[method-assign]
-    try:
-        run_episode(KinematicSimulator(plan, seed=0), make_policy(args.method, seed=0), ExplorationConfig(), seed=0, on_step=keep_map)
-    finally:
-        Explorer.observe = observe  # type: ignore[method-assign]
+    run_episode(KinematicSimulator(plan, seed=0), Recording(), ExplorationConfig(), seed=0, on_step=keep_map)
     decisions = [frontiers_from_observation(k, "timeout", obs, 0.0) for k, obs in enumerate(observations)]
     decision_bytes = [encode(m) for m in decisions]
     map_bytes = [encode(m) for m in maps]
