@@ -231,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--service-mode", default=None, choices=("client", "peer"), help="Zenoh mode of the services (default: the lockstep profile's, peer)")
     p.add_argument("--repeats", type=int, default=1, help="Pairs of episodes (in-process, Zenoh), interleaved; the median ratio is reported")
     p.add_argument(
-        "--wall-time-only", action="store_true", help="Listen only to scan and status (the per-hop latencies need every key; listening costs the router process CPU)"
+        "--wall-time-only", action="store_true", help="Listen only to step 0's scan and to the status (the listener-side latencies need every key; listening costs the router process CPU)"
     )
     p.add_argument("--trace", action="store_true", help="Services trace every message (CSO_TRACE_DIR): adds each hop's transit, queue+decode and work")
     p.add_argument("--json", type=Path, default=None, help="Also write the figures here")

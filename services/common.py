@@ -165,12 +165,10 @@ class Service:
             assert self.session is not None
             pub = self._publishers[key] = self.session.declare_publisher(key)
         payload = encode(msg)
-        if self.trace is None:
-            pub.put(payload)
-            return
         t0 = time.monotonic()
         pub.put(payload)
-        self.trace.put(topic, getattr(msg, "step", -1), t0, time.monotonic(), len(payload))
+        if self.trace is not None:
+            self.trace.put(topic, getattr(msg, "step", -1), t0, time.monotonic(), len(payload))
 
     def backlog(self) -> int:
         """Inputs received but not handled yet. In real time a service whose work is slower than its
@@ -284,12 +282,10 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> 
         service.reject(topic, str(exc))
         return
     service.processed += 1
-    if service.trace is None:
-        service.on_message(robot, topic, msg, received_s)
-        return
     t0 = time.monotonic()
     service.on_message(robot, topic, msg, received_s)
-    service.trace.handled(topic, getattr(msg, "step", -1), received_s, t0, time.monotonic())
+    if service.trace is not None:
+        service.trace.handled(topic, getattr(msg, "step", -1), received_s, t0, time.monotonic())
 
 
 def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | None = None) -> argparse.Namespace:
