@@ -8,6 +8,8 @@ distance mask and the stuck mask, as ``cso-runtime train`` imitates it with ``wa
 the ceiling of imitating that teacher. ``greedy-turn`` is greedy-dist charged for turning: the geodesic distance
 plus ``TURN_COST_M_PER_RAD`` times the heading change towards the path's first 0.8 m (a candidate teacher for a
 network that would see the robot's heading; the shipped graph's coordinates are not rotated into the robot frame).
+``tour`` plans a global tour as FUEL does (the open travelling-salesman path through the nearest clusters on
+geodesic distances) and goes to its first cluster: the candidate for a teacher that avoids long round trips.
 Prints the mean efficiency per scale and the change against the first method, on the 360-degree LiDAR of the
 tables, seed 0, two worker processes.
 """
@@ -80,13 +82,91 @@ class GreedyTurn:
         return goal_of(obs, int(np.argmin(cost)))
 
 
+class Tour:
+    """A global tour (as FUEL's): the open travelling-salesman path from the robot through the goal cells of
+    the ``max_clusters`` nearest clusters, on geodesic distances (one fast-marching pass per cluster), by
+    cheapest insertion and 2-opt; the goal is the tour's first cluster. For consistency (a tour recomputed
+    from a new position may start elsewhere, and the robot would turn back and forth) the tour that starts
+    at the previous goal's cluster is kept while it is at most ``keep_margin_m`` longer."""
+
+    name = "tour"
+
+    def __init__(self, max_clusters: int = 14, keep_margin_m: float = 2.0):
+        self.max_clusters = max_clusters
+        self.keep_margin_m = keep_margin_m
+        self.previous_xy_m: np.ndarray | None = None
+
+    def reset(self, seed: int | None = None) -> None:
+        self.previous_xy_m = None
+
+    def select(self, obs: Observation) -> Goal | None:
+        d0 = obs.goal_distance_m
+        order = [i for i in np.argsort(d0, kind="stable") if np.isfinite(d0[i])][: self.max_clusters]
+        if not order:
+            return None
+        n = len(order)
+        cost = np.zeros((n + 1, n + 1))  # node 0 = the robot
+        cost[0, 1:] = d0[order]
+        for a, i in enumerate(order):
+            cost[a + 1, 1:] = obs.goal_distances_from(tuple(obs.clusters[i].goal_xy_m))[order]
+        # Through the robot's position is always a way (bounds a pass that failed from a goal cell's pocket).
+        via_robot = cost[0, 1:, None] + cost[0, None, 1:]
+        cost[1:, 1:] = np.fmin(np.minimum(cost[1:, 1:], cost[1:, 1:].T), via_robot)
+        cost[1:, 0] = 0.0  # open path: returning costs nothing
+        tour = open_tour(cost)
+        first = tour[0]
+        if self.previous_xy_m is not None:
+            gaps = np.hypot(*(obs.goal_xy_m[order] - self.previous_xy_m).T)
+            k = int(np.argmin(gaps))
+            if gaps[k] < 1.0 and k + 1 != first:
+                kept = open_tour(cost, start=k + 1)
+                if tour_length(cost, kept) <= tour_length(cost, tour) + self.keep_margin_m:
+                    first = k + 1
+        goal = goal_of(obs, int(order[first - 1]))
+        self.previous_xy_m = np.array([goal.x_m, goal.y_m])
+        return goal
+
+
+def tour_length(cost: np.ndarray, tour: list[int]) -> float:
+    return float(cost[0, tour[0]] + sum(cost[a, b] for a, b in zip(tour, tour[1:])))
+
+
+def open_tour(cost: np.ndarray, start: int | None = None) -> list[int]:
+    """Nodes 1..n in visiting order from node 0 (no return), by cheapest insertion then 2-opt;
+    ``start`` fixes the first node."""
+    n = cost.shape[0] - 1
+    tour = [start if start is not None else int(np.argmin(cost[0, 1:])) + 1]
+    rest = set(range(1, n + 1)) - set(tour)
+    lo = 0 if start is None else 1
+    while rest:
+        best = None
+        for v in rest:
+            for pos in range(lo, len(tour) + 1):
+                prev = 0 if pos == 0 else tour[pos - 1]
+                add = cost[prev, v] + (cost[v, tour[pos]] - cost[prev, tour[pos]] if pos < len(tour) else 0.0)
+                if best is None or add < best[0]:
+                    best = (add, v, pos)
+        _, v, pos = best
+        tour.insert(pos, v)
+        rest.discard(v)
+    improved = True
+    while improved:
+        improved = False
+        for i in range(lo, len(tour) - 1):
+            for j in range(i + 1, len(tour)):
+                cand = tour[:i] + tour[i : j + 1][::-1] + tour[j + 1 :]
+                if tour_length(cost, cand) < tour_length(cost, tour) - 1e-9:
+                    tour, improved = cand, True
+    return tour
+
+
 def run_one(job: tuple[SceneRef, str, float]) -> tuple[str, str, float, str]:
     ref, method, m_per_px = job
     cfg = EvalRequest(methods=["greedy-dist"], m_per_px=m_per_px, lidar_fov_deg=360.0).exploration_config()
     plan = ref.load()
     sim = make_simulator("2d", plan, cfg.sensor, cfg.robot, seed=0)
     base, _, masked = method.partition("+")
-    policy = MaskedBaseline(base) if masked == "masks" else GreedyTurn() if base == "greedy-turn" else make_policy(base, seed=0)
+    policy = MaskedBaseline(base) if masked == "masks" else GreedyTurn() if base == "greedy-turn" else Tour() if base == "tour" else make_policy(base, seed=0)
     r = run_episode(sim, policy, cfg, seed=0)
     return ref.name, method, r.efficiency_m2_per_step, scale_of(r.traversable_area_m2)
 
