@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import cProfile
 import ctypes
 import json
 import logging
@@ -324,8 +325,6 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
         service.trace = MessageTrace(Path(trace_dir) / f"{cls.name}.trace.json")
     prof_dir = os.environ.get("CSO_PROFILE_DIR")
     if prof_dir:
-        import cProfile  # noqa: PLC0415
-
         prof = cProfile.Profile()
         prof.enable()
     try:
@@ -338,7 +337,17 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
             service.trace.write()
         if prof_dir:
             prof.disable()
-            prof.dump_stats(os.path.join(prof_dir, f"{cls.name}.prof"))
+            write_profile(prof, Path(prof_dir) / f"{cls.name}.prof")
+
+
+def write_profile(prof: cProfile.Profile, path: Path) -> None:
+    """Dump a service's cProfile (``CSO_PROFILE_DIR``), creating the folder; a failure is logged, since
+    a profile must never turn a clean stop into a crash."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        prof.dump_stats(str(path))
+    except OSError as exc:
+        log.error("cannot write the profile %s: %s", path, exc)
 
 
 def _die_with_launcher() -> None:

@@ -389,3 +389,24 @@ def test_message_trace_records_each_handled_input_and_feeds_the_hop_breakdown(tm
     assert keep["sim->mapper transit"] == keep["mapper->frontier transit"] == keep["planner->sim transit"] == 1.0
     assert keep["frontier->planner queue+decode"] == 0.5 and keep["mapper work"] == keep["planner work"] == 2.0
     assert keep["sim work"] == 2.0 and keep["step"] == 14.0
+
+
+def test_service_profile_is_written_into_a_new_folder_and_a_failure_is_only_logged(tmp_path, caplog):
+    """``CSO_PROFILE_DIR`` may name a folder that does not exist yet; a profile that cannot be written
+    is logged, never raised (it is written while the service stops)."""
+    import cProfile
+    import pstats
+
+    from services.common import write_profile
+
+    prof = cProfile.Profile()
+    prof.enable()
+    sorted(range(100))
+    prof.disable()
+    path = tmp_path / "new" / "folder" / "mapper.prof"
+    write_profile(prof, path)
+    assert pstats.Stats(str(path)).total_calls > 0
+    (tmp_path / "taken").write_text("a file where the folder should be")
+    with caplog.at_level("ERROR"):
+        write_profile(prof, tmp_path / "taken" / "mapper.prof")
+    assert "cannot write the profile" in caplog.text
