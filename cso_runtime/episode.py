@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cso_runtime.config import EpisodeConfig, ExplorationConfig
-from cso_runtime.geodesic import disk
+from cso_runtime.geodesic import disk_offsets
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
@@ -135,7 +135,7 @@ def mark_dead_frontier(dead: np.ndarray, geometry: GridGeometry, xy: tuple[float
     """Mark the frontier cells within the goal tolerance of ``xy`` as dead (not actions any more)."""
     r = max(1, int(math.ceil(goal_tolerance_m / geometry.resolution_m)))
     iy, ix = geometry.world_to_cell(xy[0], xy[1])
-    offs = np.argwhere(disk(r)) - r
+    offs = disk_offsets(r)
     yy, xx = offs[:, 0] + int(iy), offs[:, 1] + int(ix)
     ok = geometry.in_bounds(yy, xx)
     dead[yy[ok], xx[ok]] = True

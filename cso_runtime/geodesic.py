@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import skfmm
 from cso_runtime.geometry import GridGeometry
@@ -12,6 +14,16 @@ def disk(radius_cells: int) -> np.ndarray:
     r = max(0, int(radius_cells))
     yy, xx = np.mgrid[-r : r + 1, -r : r + 1]
     return (xx * xx + yy * yy) <= r * r + 1e-9
+
+
+@functools.lru_cache(maxsize=32)
+def disk_offsets(radius_cells: int) -> np.ndarray:
+    """(n, 2) cell offsets (dy, dx) of ``disk(radius_cells)`` around its centre; cached (read-only),
+    since every scan, decision and blocked check asks for the same few radii."""
+    r = max(0, int(radius_cells))
+    offsets = np.argwhere(disk(r)) - r
+    offsets.setflags(write=False)
+    return offsets
 
 
 def inflate(occupied: np.ndarray, radius_m: float, resolution_m: float) -> np.ndarray:
@@ -25,7 +37,7 @@ def inflate(occupied: np.ndarray, radius_m: float, resolution_m: float) -> np.nd
     if r <= 0 or not occupied.any():
         return out
     ny, nx = occupied.shape
-    for dy, dx in np.argwhere(disk(r)) - r:
+    for dy, dx in disk_offsets(r):
         if dy == 0 and dx == 0:
             continue
         out[max(dy, 0) : ny + min(dy, 0), max(dx, 0) : nx + min(dx, 0)] |= occupied[

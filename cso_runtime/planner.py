@@ -15,7 +15,7 @@ from enum import Enum
 import numpy as np
 
 from cso_runtime.config import PlannerConfig, RobotConfig
-from cso_runtime.geodesic import disk, geodesic_distance
+from cso_runtime.geodesic import disk_offsets, geodesic_distance
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
 
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
@@ -89,7 +89,7 @@ def path_is_blocked(path_xy_m: np.ndarray, start_index: int, occupied: np.ndarra
     if len(pts) == 0:
         return False
     r = int(math.ceil(radius_m / geometry.resolution_m - 1e-9))
-    offsets = np.argwhere(disk(r)) - r
+    offsets = disk_offsets(r)
     iy, ix = geometry.world_to_cell(pts[:, 0], pts[:, 1])
     yy = (iy[:, None] + offsets[None, :, 0]).ravel()
     xx = (ix[:, None] + offsets[None, :, 1]).ravel()
