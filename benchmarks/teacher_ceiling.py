@@ -160,13 +160,20 @@ def open_tour(cost: np.ndarray, start: int | None = None) -> list[int]:
     return tour
 
 
+CANDIDATES = {"greedy-turn": GreedyTurn, "tour": Tour}
+"""Teacher candidates that are not methods of ``cso-runtime eval``."""
+
+
 def run_one(job: tuple[SceneRef, str, float]) -> tuple[str, str, float, str]:
     ref, method, m_per_px = job
     cfg = EvalRequest(methods=["greedy-dist"], m_per_px=m_per_px, lidar_fov_deg=360.0).exploration_config()
     plan = ref.load()
     sim = make_simulator("2d", plan, cfg.sensor, cfg.robot, seed=0)
     base, _, masked = method.partition("+")
-    policy = MaskedBaseline(base) if masked == "masks" else GreedyTurn() if base == "greedy-turn" else Tour() if base == "tour" else make_policy(base, seed=0)
+    if masked == "masks":
+        policy = MaskedBaseline(base)
+    else:
+        policy = CANDIDATES[base]() if base in CANDIDATES else make_policy(base, seed=0)
     r = run_episode(sim, policy, cfg, seed=0)
     return ref.name, method, r.efficiency_m2_per_step, scale_of(r.traversable_area_m2)
 
