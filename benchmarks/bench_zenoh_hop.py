@@ -34,7 +34,7 @@ def peer(router_port: int) -> TransportConfig:
 
 def node(index: int, processes: int, router_port: int, rounds: int, size: int, work_s: float, settle_s: float) -> None:
     """One node of the ring; node 0 prints the round-trip times (s) as JSON."""
-    inbox: queue.Queue[bytes] = queue.Queue()
+    inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
     with open_session(peer(router_port)) as session:
         pub = session.declare_publisher(f"{KEY}/{(index + 1) % processes}")
         sub = session.declare_subscriber(f"{KEY}/{index}", lambda sample: inbox.put(sample.payload.to_bytes()))
@@ -60,7 +60,7 @@ def node(index: int, processes: int, router_port: int, rounds: int, size: int, w
 
 def listener(router_port: int, seconds: float) -> None:
     """Subscribes to every key of the ring and handles each message on its main thread."""
-    inbox: queue.Queue[bytes] = queue.Queue()
+    inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
     with open_session(peer(router_port)) as session:
         sub = session.declare_subscriber(f"{KEY}/**", lambda sample: inbox.put(sample.payload.to_bytes()))
         end = time.monotonic() + seconds

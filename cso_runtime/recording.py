@@ -196,7 +196,7 @@ def record(
     """
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    inbox: queue.Queue[tuple[str, bytes, int]] = queue.Queue()
+    inbox: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
     lock = threading.Lock()
     last_ns = [0]
 

@@ -129,7 +129,7 @@ class Service:
         self.reason = ""
         self._publishers: dict[str, Any] = {}
         self._lock = threading.Lock()
-        self._inbox: queue.Queue | None = None
+        self._inbox: queue.SimpleQueue | None = None
         self.trace: MessageTrace | None = None
         """Per-message timings, when ``CSO_TRACE_DIR`` is set (diagnostics; off by default)."""
 
@@ -222,7 +222,7 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
     """Open the session and run the service's event loop until ``stop`` is set (or a signal)."""
     ctx = service.ctx
     stop = stop or threading.Event()
-    inbox: queue.Queue[tuple[str, str, bytes, float]] = queue.Queue()
+    inbox: queue.SimpleQueue[tuple[str, str, bytes, float]] = queue.SimpleQueue()
     service._inbox = inbox
     sub_robot = service.subscribe_robot
     keys = RobotKeys(sub_robot)

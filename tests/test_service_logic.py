@@ -39,7 +39,7 @@ def _service(cls: type[Service], lockstep: bool, params: dict | None = None) -> 
     svc = cls(ctx)
     out: list[tuple[str, Message]] = []
     svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(msg), type(msg))))  # type: ignore[method-assign]
-    svc._inbox = queue.Queue()
+    svc._inbox = queue.SimpleQueue()
     return svc, out
 
 
