@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
@@ -391,3 +392,22 @@ def test_training_sensor_follows_the_config():
     assert Args(lidar_fov_deg=360).env_config().exploration.sensor.fov_deg == 360.0
     depth = Args(sensor="depth").env_config().exploration.sensor
     assert depth.range_max_m == 3.0 and depth.fov_deg == 79.0
+
+
+def test_egocentric_frame_rotates_node_positions_into_the_robot_frame(observation):
+    """``egocentric_frame``: dx, dy are in the robot's frame (x forward, y left); every other feature and
+    the graph's structure are the same as with the map's axes."""
+    from cso_runtime.geometry import Pose2D
+
+    p = observation.pose
+    turned = dataclasses.replace(observation, pose=Pose2D(p.x_m, p.y_m, math.pi / 2))  # facing +y
+    axes, ego = build_graph(turned, GraphConfig()), build_graph(turned, GraphConfig(egocentric=True))
+    n = int(axes["node_valid"].sum())
+    assert n > 2
+    # facing +y: a node at +y on the map is ahead (+x), a node at +x on the map is to the right (-y)
+    np.testing.assert_allclose(ego["nodes"][:n, 0], axes["nodes"][:n, 1], atol=1e-6)
+    np.testing.assert_allclose(ego["nodes"][:n, 1], -axes["nodes"][:n, 0], atol=1e-6)
+    np.testing.assert_array_equal(ego["nodes"][:, 2:], axes["nodes"][:, 2:])
+    for key in ("neighbours", "neighbour_valid", "edges", "node_valid", "robot"):
+        np.testing.assert_array_equal(ego[key], axes[key])
+    assert Args(egocentric_frame=True).env_config().graph.egocentric and not Args().env_config().graph.egocentric

@@ -6,7 +6,8 @@ positions, the newest one being the robot's current position w_t). Arrays are pa
 size so one Gymnasium ``Dict`` space describes every scene and rollouts stack without copies.
 
 Node features (``NODE_FEATURES``), all scale-free:
-  dx, dy        position relative to the robot, divided by ``distance_scale_m``;
+  dx, dy        position relative to the robot, divided by ``distance_scale_m`` (along the map's axes, or
+                in the robot's frame with ``GraphConfig.egocentric``);
   frontier      semantic label, 1 for a frontier node, 0 for a path node;
   current       history label, 1 for w_t, 0 for earlier decision positions and frontiers;
   entropy       I at the cluster's goal cell (Eq. 4) times resolution / window: the frontier length
@@ -59,6 +60,10 @@ class GraphConfig:
     """gamma of Eq. 4, used to make I scale-free (match FrontierConfig.entropy_window_m)."""
     use_cluster_size: bool = False
     """Add the ``size`` node feature (each frontier cluster's length)."""
+    egocentric: bool = False
+    """Rotate dx, dy into the robot's frame (x forward, y left), so the network sees which frontiers lie
+    behind the robot (turning in place is slow). Off in the shipped weights: there, dx, dy are along the
+    map's axes."""
 
     @property
     def max_nodes(self) -> int:
@@ -122,6 +127,9 @@ def build_graph(obs: Observation, config: GraphConfig) -> dict[str, np.ndarray]:
     geo[robot] = 0.0
 
     rel = (xy - robot_xy) / scale
+    if config.egocentric:
+        c, s = np.cos(obs.pose.yaw_rad), np.sin(obs.pose.yaw_rad)
+        rel = np.stack([c * rel[:, 0] + s * rel[:, 1], -s * rel[:, 0] + c * rel[:, 1]], axis=1)
     feats = g["nodes"]
     feats[:n, 0:2] = rel
     feats[:nf, 2] = 1.0
