@@ -2,7 +2,9 @@
 
 Runs one in-process episode, keeps the Observation of each decision and the map of each step, then times
 ``encode`` and ``decode`` of the ``frontiers`` messages built from them (what the frontier service
-publishes and the policy and the planner decode) and of the ``map`` messages (best of ``--repeats``).
+publishes and the policy and the planner decode) and of the ``map`` messages (best of ``--repeats``);
+then the small messages every lockstep step carries (scan, odometry, velocity command, the planner's
+report and path, a keep-goal verdict), built from the same episode's states.
 
     python benchmarks/bench_messages.py [--scene generated:middle:1:0] [--repeats 5]
 """
@@ -18,7 +20,19 @@ import numpy as np
 
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import Explorer, run_episode
-from cso_runtime.messages import FrontiersMsg, MapMsg, decode, encode, frontiers_from_observation
+from cso_runtime.geometry import VelocityCommand
+from cso_runtime.messages import (
+    CmdVelMsg,
+    FrontiersMsg,
+    MapMsg,
+    OdometryMsg,
+    PathMsg,
+    PlannerFeedbackMsg,
+    ScanMsg,
+    decode,
+    encode,
+    frontiers_from_observation,
+)
 from cso_runtime.observation import Observation
 from cso_runtime.policies import Goal, make_policy
 from cso_runtime.scenes import resolve_scenes
@@ -59,8 +73,18 @@ def main(argv: list[str] | None = None) -> int:
             observations.append(obs)
             return selector.select(obs)
 
+    per_step: dict[str, list] = {name: [] for name in ("scan", "odom", "cmd_vel", "planner_feedback", "path", "frontiers_keep")}
+
     def keep_map(explorer: Explorer) -> None:
-        maps.append(MapMsg(explorer.steps, explorer.map.geometry, explorer.map.to_occupancy_grid()))
+        k = explorer.steps
+        maps.append(MapMsg(k, explorer.map.geometry, explorer.map.to_occupancy_grid()))
+        sim, ahead = explorer.sim, explorer.planner.remaining_path()
+        per_step["scan"].append(ScanMsg(k, explorer.last_scan, sim.sensor_pose(), 1))
+        per_step["odom"].append(OdometryMsg(k, sim.time_s, sim.odometry()))
+        per_step["cmd_vel"].append(CmdVelMsg(k, VelocityCommand(0.3, 0.1)))
+        per_step["planner_feedback"].append(PlannerFeedbackMsg(k, explorer.planner.status.value, "command", False, "", ahead, k))
+        per_step["path"].append(PathMsg(k, ahead))
+        per_step["frontiers_keep"].append(FrontiersMsg(k, False))
 
     run_episode(KinematicSimulator(plan, seed=0), Recording(), ExplorationConfig(), seed=0, on_step=keep_map)
     decisions = [frontiers_from_observation(k, "timeout", obs, 0.0) for k, obs in enumerate(observations)]
@@ -81,6 +105,14 @@ def main(argv: list[str] | None = None) -> int:
             "decode_ms": round(best_ms(lambda b: decode(b, MapMsg), map_bytes, args.repeats), 3),
         },
     }
+    for name, msgs in per_step.items():
+        cls, wire = type(msgs[0]), [encode(m) for m in msgs]
+        report[name] = {
+            "messages": len(msgs),
+            "kb_mean": round(float(np.mean([len(b) for b in wire])) / 1e3, 2),
+            "encode_ms": round(best_ms(encode, msgs, args.repeats), 4),
+            "decode_ms": round(best_ms(lambda b, cls=cls: decode(b, cls), wire, args.repeats), 4),
+        }
     print(json.dumps(report, indent=2))
     return 0
 
