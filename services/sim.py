@@ -154,6 +154,7 @@ class SimService(Service):
         # The scan first: the mapper, at the head of the step's chain, starts at once (it carries the
         # episode id, so the mapper need not wait for the clock).
         self.publish("scan", ScanMsg(self.step, scan, self.sim.sensor_pose(), self.episode))
+        self.last_step = self.step  # what `status` shows for the sim
         self.publish("odom", OdometryMsg(self.step, self.sim.time_s, self.sim.odometry()))
         self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry, self.episode))
         self.last_publish_s = time.monotonic()

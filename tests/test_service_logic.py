@@ -317,7 +317,7 @@ def test_sim_rejects_a_map_of_another_episode():
     svc.on_message("r0", "map", MapMsg(0, g, nothing, svc.episode), time.monotonic())
     assert svc.running and svc.coverage_curve == [0.0]
     svc.on_message("r0", "cmd_vel", CmdVelMsg(0, VelocityCommand()), time.monotonic())
-    assert svc.step == 1
+    assert svc.step == 1 and svc.status_msg().last_step == 1  # `status` shows the step the sim is at
     svc.on_message("r0", "map", MapMsg(1, g, everything, svc.episode + 1), time.monotonic())
     assert svc.running and svc.rejected == {"map": 2}
     svc.on_message("r0", "map", MapMsg(1, g, everything, svc.episode), time.monotonic())
