@@ -310,8 +310,10 @@ class RichProgress:
     """Progress bar on stderr with the last episode's result."""
 
     def __init__(self) -> None:
+        from rich.console import Console  # noqa: PLC0415
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
 
+        console = Console(stderr=True)
         self.progress = Progress(
             TextColumn("[bold]eval"),
             BarColumn(),
@@ -319,6 +321,8 @@ class RichProgress:
             TimeElapsedColumn(),
             TimeRemainingColumn(),
             TextColumn("{task.description}"),
+            console=console,
+            disable=not console.is_terminal,  # logs and CI get one line per episode instead of a bar
         )
         self.task = None
         self.done = 0
@@ -349,7 +353,8 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     from rich.table import Table  # noqa: PLC0415
 
     table = Table(title=f"Table 1 metrics ({out_dir}/summary.json)")
-    for col in ("method", "episodes", "explored m2", "coverage %", "steps", "m2/step", "path m", "decision ms p50/p99"):
+    table.add_column("method", no_wrap=True)  # method names are what a reader looks for: never cut
+    for col in ("episodes", "explored m2", "coverage %", "steps", "m2/step", "path m", "decision ms p50/p99"):
         table.add_column(col, justify="right")
 
     def fmt(v: Any, nd: int) -> str:
@@ -367,6 +372,8 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
             f"{fmt(e['decision_ms_p50'], 1)}/{fmt(e['decision_ms_p99'], 1)}",
         )
     console = Console()
+    if not console.is_terminal:  # logs and CI: wide enough for every column instead of 80 characters
+        console = Console(width=max(console.width, 120))
     console.print(table)
     for f in summary["failures"]:
         console.print(f"[red]failed[/red] {f['method']} {f['map']}: {f['error'].splitlines()[0] if f['error'] else ''}")
