@@ -227,6 +227,48 @@ def down_command(
     raise typer.Exit(0 if ok else 1)
 
 
+@app.command("dataflow")
+def dataflow_command(
+    profile: str = typer.Option("sim", "--profile", help="Profile name (./configs/profiles/, then the packaged ones) or a YAML path"),
+    fmt: str = typer.Option("table", "--format", help="table, mermaid (a flowchart for Markdown viewers) or markdown (as runs/<run-id>/dataflow.md)"),
+) -> None:
+    """Show which service feeds which in a profile: every node's inputs and outputs (dora-rs style), from the code."""
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.keys import TOPICS  # noqa: PLC0415
+    from cso_runtime.launcher import load_profile  # noqa: PLC0415
+    from services.dataflow import nodes_of, to_markdown, to_mermaid, unconnected, wiring_of  # noqa: PLC0415
+
+    if fmt not in ("table", "mermaid", "markdown"):
+        typer.echo(f"error: --format must be table, mermaid or markdown, got {fmt!r}", err=True)
+        raise typer.Exit(2)
+    try:
+        # Nothing is joined here: a profile that needs a router to join (limo-ros2) gets a stand-in.
+        prof, _ = load_profile(profile, {}, connect=["tcp/127.0.0.1:7447"])
+    except (ConfigError, ValueError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    nodes = nodes_of(list(prof.services))
+    if fmt == "mermaid":
+        typer.echo(to_mermaid(nodes), nl=False)
+        return
+    if fmt == "markdown":
+        typer.echo(to_markdown(prof.name, nodes), nl=False)
+        return
+    from rich.console import Console  # noqa: PLC0415
+    from rich.table import Table  # noqa: PLC0415
+
+    table = Table(title=f"profile {prof.name}: keys under cso/{prof.robot}/")
+    for col in ("node", "inputs (from)", "outputs (to)"):
+        table.add_column(col)
+    for w in wiring_of(nodes):
+        ins = "\n".join(f"{key} <- {', '.join(peers) or '(none)'}" for key, peers in w.inputs)
+        outs = "\n".join(f"{key} -> {', '.join(peers) or '(none)'}" for key, peers in w.outputs)
+        table.add_row(w.name, ins or "-", outs or "-")
+    Console().print(table)
+    for name, topics in unconnected(nodes).items():
+        typer.echo(f"note: nothing in this profile publishes {', '.join(TOPICS[t] for t in topics)} for {name}")
+
+
 @app.command("train")
 def train_command(
     config: Optional[Path] = typer.Option(Path("configs/train.yaml"), "--config", help="YAML with the fields of learned.ppo.Args"),

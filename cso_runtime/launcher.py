@@ -33,11 +33,15 @@ import yaml
 
 from cso_runtime.config import ConfigError, ExplorationConfig, from_dict, load_yaml
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
-from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, MapMsg, MessageError, PathMsg, decode, encode
+from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, MapMsg, Message, MessageError, PathMsg, decode, encode
 from cso_runtime.scenes import SceneError, resolve_scenes
 from cso_runtime.transport import TransportConfig, free_tcp_port, open_session
 
 log = logging.getLogger("cso.launcher")
+
+LAUNCHER_INPUTS: dict[str, type[Message]] = {"episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg, "map": MapMsg, "goal": GoalMsg, "path": PathMsg}
+"""What the launcher listens to: the episode for its live view and results, the map and goal for its
+cache (a restarted mapper resumes from it), the path for the live view."""
 
 RUNS_DIR = Path("runs")
 REFEREES = ("sim", "ros2_bridge")
@@ -317,7 +321,7 @@ class Launcher:
         except ValueError:
             return
         payload = sample.payload.to_bytes()
-        expected = {"episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg, "map": MapMsg, "goal": GoalMsg, "path": PathMsg}.get(topic)
+        expected = LAUNCHER_INPUTS.get(topic)
         if expected is None:
             return
         try:
@@ -455,11 +459,18 @@ class Launcher:
         log.info("recording cso/%s/** into %s", self.profile.robot, self.record_path)
         return stop, thread
 
+    def write_dataflow(self) -> None:
+        """``dataflow.md``: who feeds whom in this run (Mermaid graph and table), from the services' declarations."""
+        from services.dataflow import nodes_of, to_markdown  # noqa: PLC0415 - services import zenoh
+
+        (self.run_dir / "dataflow.md").write_text(to_markdown(self.profile.name, nodes_of(list(self.profile.services))))
+
     # --- main loop --------------------------------------------------------------------------------
     def run(self, live: bool = False, stay_after_done: bool = False) -> int:
         """Start everything and supervise until the episode ends (or until stopped when ``stay_after_done``)."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.profile_path.write_text(yaml.safe_dump(self.data, sort_keys=False))
+        self.write_dataflow()
         router = self.profile.router
         if router.embedded:
             listen = [ep.replace(":0", f":{free_tcp_port()}") if ep.endswith(":0") else ep for ep in router.listen]
@@ -470,7 +481,7 @@ class Launcher:
             transport = TransportConfig(mode="client", connect=list(router.connect))
         view = LiveView(self) if live else None
         with open_session(transport) as session:
-            subs = [session.declare_subscriber(self.keys.topic(t), self._on_sample) for t in ("episode_status", "episode_result", "map", "goal", "path")]
+            subs = [session.declare_subscriber(self.keys.topic(t), self._on_sample) for t in LAUNCHER_INPUTS]
             qs = [
                 session.declare_queryable(self.keys.cache("map"), self._on_cache_query),
                 session.declare_queryable(self.keys.cache("goal"), self._on_cache_query),

@@ -115,6 +115,9 @@ class Service:
     name: ClassVar[str] = ""
     inputs: ClassVar[dict[str, type[Message]]] = {}
     """Topic name (see ``cso_runtime.keys.TOPICS``) -> expected message type."""
+    outputs: ClassVar[dict[str, type[Message]]] = {}
+    """Topic name -> the message type this service publishes there. With ``inputs`` it is the service's
+    node in the dataflow (``cso-runtime dataflow``); ``publish`` refuses anything not declared here."""
     tick_period_s: ClassVar[float] = 0.2
 
     def __init__(self, ctx: ServiceContext):
@@ -163,6 +166,7 @@ class Service:
         key = RobotKeys(robot or self.ctx.robot).topic(topic)
         pub = self._publishers.get(key)
         if pub is None:
+            self.check_output(topic, msg)
             assert self.session is not None
             pub = self._publishers[key] = self.session.declare_publisher(key)
         payload = encode(msg)
@@ -170,6 +174,13 @@ class Service:
         pub.put(payload)
         if self.trace is not None:
             self.trace.put(topic, getattr(msg, "step", -1), t0, time.monotonic(), len(payload))
+
+    def check_output(self, topic: str, msg: Message) -> Message:
+        """``msg`` itself when ``outputs`` declares it on ``topic``; a TypeError (a bug, not bad input) otherwise."""
+        declared = self.outputs.get(topic)
+        if declared is None or not isinstance(msg, declared):
+            raise TypeError(f"{self.name} publishes {type(msg).__name__} on {topic!r}, which its outputs do not declare ({', '.join(self.outputs) or 'none'})")
+        return msg
 
     def backlog(self) -> int:
         """Inputs received but not handled yet. In real time a service whose work is slower than its

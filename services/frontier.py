@@ -44,6 +44,7 @@ class FrontierParams:
 class FrontierService(Service):
     name = "frontier"
     inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg}
+    outputs = {"frontiers": FrontiersMsg}
 
     def __init__(self, ctx: ServiceContext):
         super().__init__(ctx)

@@ -51,6 +51,7 @@ class MapperParams:
 class MapperService(Service):
     name = "mapper"
     inputs = {"clock": ClockMsg, "scan": ScanMsg}
+    outputs = {"map": MapMsg}
 
     def __init__(self, ctx: ServiceContext):
         super().__init__(ctx)

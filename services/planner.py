@@ -42,6 +42,7 @@ class PlannerParams:
 class PlannerService(Service):
     name = "planner"
     inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": FrontiersMsg, "goal": GoalMsg}
+    outputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg}
     tick_period_s = 0.1
 
     def __init__(self, ctx: ServiceContext):

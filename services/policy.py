@@ -52,6 +52,7 @@ class RobotState:
 class PolicyService(Service):
     name = "policy"
     inputs = {"frontiers": FrontiersMsg}
+    outputs = {"goal": GoalMsg}
 
     def __init__(self, ctx: ServiceContext):
         super().__init__(ctx)

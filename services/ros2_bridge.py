@@ -206,6 +206,7 @@ def _interpolate(a: ros2_cdr.OdometrySample, b: ros2_cdr.OdometrySample, stamp_s
 class Ros2BridgeService(Service):
     name = "ros2_bridge"
     inputs: ClassVar[dict[str, type[Message]]] = {"cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg}
+    outputs: ClassVar[dict[str, type[Message]]] = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     tick_period_s = 0.05
 
     def __init__(self, ctx: ServiceContext):

@@ -91,6 +91,7 @@ def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceCont
 class SimService(Service):
     name = "sim"
     inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
+    outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     tick_period_s = 0.02
 
     def __init__(self, ctx: ServiceContext):

@@ -84,7 +84,7 @@ def test_mapper_keeps_its_map_when_a_clock_arrives_late_and_clears_it_on_a_new_e
 
     svc = MapperService(ServiceContext("mapper", "t9", {}, ExplorationConfig(), TransportConfig(), {}))
     published: list[MapMsg] = []
-    svc.publish = lambda topic, msg, robot=None: published.append(msg)  # no session needed here
+    svc.publish = lambda topic, msg, robot=None: published.append(svc.check_output(topic, msg))  # no session needed here
     geom = GridGeometry(0.1, (40, 40))
     scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
     svc.on_message("t9", "clock", ClockMsg(0, 0.0, geom, episode=11), 0.0)

@@ -277,6 +277,7 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path):
         assert (out / "episodes" / "greedy-dist" / f"{expected.scene}.npz").is_file()
         for name in ("sim", "mapper", "frontier", "policy", "planner"):
             assert (out / "logs" / f"{name}.log").is_file()
+        assert "  mapper -->|\"map\"| frontier\n" in (out / "dataflow.md").read_text()
         assert not (runs / "current.json").exists()
         assert [p for p in run_pids(runs) if pid_alive(p)] == []
     finally:

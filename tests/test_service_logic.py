@@ -38,7 +38,8 @@ def _service(cls: type[Service], lockstep: bool, params: dict | None = None) -> 
     ctx = ServiceContext(cls.name, "r0", {"lockstep": lockstep}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params or {})
     svc = cls(ctx)
     out: list[tuple[str, Message]] = []
-    svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(msg), type(msg))))  # type: ignore[method-assign]
+    # As ``publish`` does, minus Zenoh: only declared outputs go out, and they go out through the codec.
+    svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(svc.check_output(topic, msg)), type(msg))))  # type: ignore[method-assign]
     svc._inbox = queue.SimpleQueue()
     return svc, out
 
@@ -218,7 +219,7 @@ def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
         ctx.exploration.sensor.range_noise_std_m = 0.02
         svc = SimService(ctx)
         out: list[tuple[str, Message]] = []
-        svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(msg), type(msg))))  # type: ignore[method-assign]
+        svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(svc.check_output(topic, msg)), type(msg))))  # type: ignore[method-assign]
         svc.episode = 7  # both runs one episode id
         svc.on_tick(time.monotonic())  # starting -> exploring: step 0 goes out
         return svc, out
@@ -307,7 +308,7 @@ def test_sim_rejects_a_map_of_another_episode():
     ctx = ServiceContext("sim", "r0", {"lockstep": True, "scene": "generated:small:1:0", "seed": 3}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
     svc = SimService(ctx)
     out: list[tuple[str, Message]] = []
-    svc.publish = lambda topic, msg, robot=None: out.append((topic, msg))  # type: ignore[method-assign]
+    svc.publish = lambda topic, msg, robot=None: out.append((topic, svc.check_output(topic, msg)))  # type: ignore[method-assign]
     svc.on_tick(time.monotonic())  # step 0 goes out
     g = svc.sim.plan.geometry
     everything = np.zeros(g.shape, dtype=np.int8)  # every cell explored and free: coverage 100 %

@@ -1,0 +1,122 @@
+"""The dataflow of a profile, from the services' own declarations (dora-rs style: nodes, inputs, outputs).
+
+Each ``Service`` declares the topics it subscribes to (``inputs``) and publishes (``outputs``); the
+launcher declares what it listens to (``LAUNCHER_INPUTS``). Joining them gives who feeds whom, so the
+graph `cso-runtime dataflow` prints and `up` writes to ``runs/<run-id>/dataflow.md`` cannot drift from
+the code (``publish`` refuses an undeclared output, and a test holds docs/messages.md to the same).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from cso_runtime.keys import TOPICS
+from services import service_class
+
+LAUNCHER = "launcher"
+
+
+@dataclass(frozen=True)
+class Node:
+    """One process of the dataflow: its name, the topics it subscribes to and those it publishes."""
+
+    name: str
+    inputs: tuple[str, ...]
+    outputs: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Edge:
+    """``source`` publishes ``topic`` and ``target`` subscribes to it."""
+
+    source: str
+    topic: str
+    target: str
+
+    @property
+    def key(self) -> str:
+        """The key suffix under ``cso/<robot>/`` (``planner_feedback`` travels on ``planner/feedback``)."""
+        return TOPICS[self.topic]
+
+
+def nodes_of(service_names: list[str], with_launcher: bool = True) -> list[Node]:
+    """The nodes of a profile's services (in profile order), and the launcher that watches them."""
+    out = []
+    for name in service_names:
+        cls = service_class(name)
+        out.append(Node(name, tuple(cls.inputs), tuple(cls.outputs)))
+    if with_launcher:
+        from cso_runtime.launcher import LAUNCHER_INPUTS  # noqa: PLC0415
+
+        out.append(Node(LAUNCHER, tuple(LAUNCHER_INPUTS), ()))
+    return out
+
+
+def edges_of(nodes: list[Node]) -> list[Edge]:
+    """Every (publisher, topic, subscriber) pair among ``nodes``, in node order."""
+    return [Edge(src.name, topic, dst.name) for src in nodes for topic in src.outputs for dst in nodes if dst is not src and topic in dst.inputs]
+
+
+@dataclass(frozen=True)
+class Wiring:
+    """One node's ports with their peers: (key, publishers) per input, (key, subscribers) per output."""
+
+    name: str
+    inputs: list[tuple[str, list[str]]]
+    outputs: list[tuple[str, list[str]]]
+
+
+def wiring_of(nodes: list[Node]) -> list[Wiring]:
+    """Each node's inputs with who publishes them and outputs with who subscribes (for tables)."""
+    edges = edges_of(nodes)
+    return [
+        Wiring(
+            n.name,
+            [(TOPICS[t], [e.source for e in edges if e.target == n.name and e.topic == t]) for t in n.inputs],
+            [(TOPICS[t], [e.target for e in edges if e.source == n.name and e.topic == t]) for t in n.outputs],
+        )
+        for n in nodes
+    ]
+
+
+def unconnected(nodes: list[Node]) -> dict[str, list[str]]:
+    """Inputs nobody in the profile publishes (node -> topics): fine for optional inputs, a hint otherwise."""
+    published = {t for n in nodes for t in n.outputs}
+    return {n.name: [t for t in n.inputs if t not in published] for n in nodes if any(t not in published for t in n.inputs)}
+
+
+def to_mermaid(nodes: list[Node]) -> str:
+    """A Mermaid flowchart (GitHub and most Markdown viewers draw it): one arrow per publisher and
+    subscriber, labelled with the keys it carries."""
+    labels: dict[tuple[str, str], list[str]] = {}
+    for e in edges_of(nodes):
+        labels.setdefault((e.source, e.target), []).append(e.key)
+    lines = ["flowchart LR"]
+    lines += [f"  {n.name}([{n.name}])" if n.name == LAUNCHER else f"  {n.name}[{n.name}]" for n in nodes]
+    lines += [f'  {src} -->|"{", ".join(keys)}"| {dst}' for (src, dst), keys in labels.items()]
+    return "\n".join(lines) + "\n"
+
+
+def to_markdown(profile_name: str, nodes: list[Node]) -> str:
+    """``dataflow.md`` of a run: the Mermaid graph and a table of each node's inputs and outputs."""
+    rows = []
+    for w in wiring_of(nodes):
+        ins = ", ".join(f"`{key}` ({', '.join(peers) or 'none in this profile'})" for key, peers in w.inputs)
+        outs = ", ".join(f"`{key}` ({', '.join(peers) or 'no subscriber in this profile'})" for key, peers in w.outputs)
+        rows.append(f"| {w.name} | {ins or '-'} | {outs or '-'} |")
+    return "\n".join(
+        [
+            f"# Dataflow of profile `{profile_name}`",
+            "",
+            "Keys are under `cso/<robot>/` (docs/messages.md). Made from the services' declared inputs and outputs.",
+            "",
+            "```mermaid",
+            to_mermaid(nodes).rstrip(),
+            "```",
+            "",
+            "| node | inputs (from) | outputs (to) |",
+            "| --- | --- | --- |",
+            *rows,
+            "",
+        ]
+    )

@@ -1,0 +1,99 @@
+"""The dataflow is made from the services' declarations, and docs/messages.md must say the same."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from cso_runtime.config import ExplorationConfig
+from cso_runtime.geometry import GridGeometry
+from cso_runtime.keys import TOPICS
+from cso_runtime.launcher import load_profile
+from cso_runtime.messages import GoalMsg, MapMsg
+from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.transport import TransportConfig
+from services import SERVICE_NAMES
+from services.common import ServiceContext
+from services.dataflow import LAUNCHER, Edge, edges_of, nodes_of, to_markdown, to_mermaid, unconnected
+
+ROOT = Path(__file__).resolve().parents[1]
+NODE_NAMES = (*SERVICE_NAMES, LAUNCHER)
+
+
+def _names_in(cell: str) -> set[str]:
+    return set(re.findall(r"\b(" + "|".join(NODE_NAMES) + r")\b", cell))
+
+
+def _docs_rows() -> dict[str, tuple[str, str]]:
+    """Key suffix -> (Publisher, Subscribers) cells of the key table in docs/messages.md."""
+    rows = {}
+    for line in (ROOT / "docs" / "messages.md").read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) >= 5 and cells[0].startswith("`"):
+            rows[cells[0].strip("`")] = (cells[2], cells[3])
+    return rows
+
+
+def test_docs_key_table_names_exactly_the_publishers_and_subscribers_the_code_declares():
+    nodes = nodes_of(list(SERVICE_NAMES))
+    rows = _docs_rows()
+    for topic, key in TOPICS.items():
+        assert key in rows, f"docs/messages.md has no row for {key}"
+        publishers = {n.name for n in nodes if topic in n.outputs}
+        subscribers = {n.name for n in nodes if topic in n.inputs}
+        doc_pub, doc_sub = rows[key]
+        assert _names_in(doc_pub) == publishers, (key, doc_pub)
+        assert _names_in(doc_sub) == subscribers, (key, doc_sub)
+
+
+@pytest.mark.parametrize("profile", ["sim", "lockstep", "limo-ros2"])
+def test_every_input_of_a_shipped_profile_has_a_publisher(profile):
+    prof, _ = load_profile(profile, {}, connect=["tcp/127.0.0.1:7447"])
+    assert unconnected(nodes_of(list(prof.services))) == {}
+
+
+def test_sim_profile_dataflow_holds_the_lockstep_chain():
+    prof, _ = load_profile("sim", {})
+    nodes = nodes_of(list(prof.services))
+    assert [n.name for n in nodes] == ["sim", "mapper", "frontier", "policy", "planner", LAUNCHER]
+    edges = set(edges_of(nodes))
+    chain = [Edge("sim", "scan", "mapper"), Edge("mapper", "map", "frontier"), Edge("frontier", "frontiers", "planner"), Edge("planner", "cmd_vel", "sim")]
+    decision = [Edge("frontier", "frontiers", "policy"), Edge("policy", "goal", "planner")]
+    assert set(chain + decision) <= edges
+    assert not any(e.source == LAUNCHER for e in edges)  # the launcher only listens
+    assert Edge("policy", "goal", "mapper") not in edges  # only declared inputs are edges
+    mermaid = to_mermaid(nodes)
+    assert mermaid.startswith("flowchart LR\n") and '  planner -->|"cmd_vel, cmd_vel/ahead"| sim\n' in mermaid
+    md = to_markdown("sim", nodes)
+    assert "```mermaid\nflowchart LR" in md and "| policy | `frontiers` (frontier) | `goal` (sim, frontier, planner, launcher) |" in md
+
+
+def test_publish_refuses_what_the_outputs_do_not_declare():
+    from services.mapper import MapperService  # noqa: PLC0415
+
+    class Session:
+        def __init__(self):
+            self.put = []
+
+        def declare_publisher(self, key):
+            session = self
+
+            class Pub:
+                def put(self, payload):
+                    session.put.append((key, payload))
+
+            return Pub()
+
+    ctx = ServiceContext("mapper", "r0", {"lockstep": True}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {})
+    svc = MapperService(ctx)
+    svc.session = Session()  # type: ignore[assignment]
+    g = GridGeometry(0.05, (4, 4))
+    svc.publish("map", MapMsg(0, g, OccupancyMap(g).to_occupancy_grid()))
+    assert [k for k, _ in svc.session.put] == ["cso/r0/map"]
+    with pytest.raises(TypeError, match="mapper publishes GoalMsg on 'goal'"):
+        svc.publish("goal", GoalMsg(0, True))
+    with pytest.raises(TypeError, match="publishes GoalMsg on 'map'"):
+        svc.check_output("map", GoalMsg(0, True))
+    assert len(svc.session.put) == 1
