@@ -97,3 +97,19 @@ def test_publish_refuses_what_the_outputs_do_not_declare():
     with pytest.raises(TypeError, match="publishes GoalMsg on 'map'"):
         svc.check_output("map", GoalMsg(0, True))
     assert len(svc.session.put) == 1
+
+
+def test_dataflow_and_version_commands():
+    from typer.testing import CliRunner  # noqa: PLC0415
+
+    from cso_runtime.cli import app  # noqa: PLC0415
+
+    runner = CliRunner()
+    r = runner.invoke(app, ["dataflow", "--profile", "lockstep", "--format", "mermaid"])
+    assert r.exit_code == 0 and r.output.startswith("flowchart LR\n") and '  sim -->|"scan, clock"| mapper\n' in r.output
+    r = runner.invoke(app, ["dataflow", "--profile", "limo-ros2"])
+    assert r.exit_code == 0 and "ros2_bridge" in r.output and "note:" not in r.output
+    assert runner.invoke(app, ["dataflow", "--format", "dot"]).exit_code == 2
+    assert runner.invoke(app, ["dataflow", "--profile", "no-such-profile"]).exit_code == 2
+    r = runner.invoke(app, ["--version"])
+    assert r.exit_code == 0 and r.output.startswith("cso-runtime ")
