@@ -24,7 +24,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from cso_runtime.config import MaskConfig
-from cso_runtime.episode import run_episode
+from cso_runtime.episode import Explorer, rollout_choice, run_episode
 from cso_runtime.evaluation import EvalRequest, make_simulator
 from cso_runtime.geometry import wrap_angle_rad
 from cso_runtime.learned.env import expert_action
@@ -160,6 +160,41 @@ def open_tour(cost: np.ndarray, start: int | None = None) -> list[int]:
     return tour
 
 
+class Rollout:
+    """``rollout_choice`` over greedy-dist at every decision: the ``k`` nearest reachable clusters are tried, the
+    episode finished from each with greedy-dist on a copy of the explorer, and the one that finished in the
+    fewest steps is taken. Greedy-dist's own choice is among the tries, and the simulator shows it the rest
+    of the scene: the ceiling of what ordering the frontiers can give here, not a method to ship."""
+
+    name = "rollout"
+
+    def __init__(self, k: int = 3):
+        self.k = k
+        self.explorer: Explorer | None = None
+        self.greedy = make_policy("greedy-dist", seed=0)
+
+    def reset(self, seed: int | None = None) -> None:
+        pass
+
+    def select(self, obs: Observation) -> Goal | None:
+        assert self.explorer is not None, "bind the explorer first (run_rollout)"
+        reachable = np.flatnonzero(np.isfinite(obs.goal_distance_m))
+        if len(reachable) == 0:
+            return None
+        tries = reachable[np.argsort(obs.goal_distance_m[reachable], kind="stable")][: self.k]
+        return goal_of(obs, rollout_choice(self.explorer, obs, tries, self.greedy))
+
+
+def run_rollout(sim, cfg, k: int = 3):
+    """An episode with ``Rollout(k)`` deciding (it needs the explorer to copy)."""
+    explorer = Explorer(sim, cfg)
+    sim.reset(0)
+    explorer.reset()
+    policy = Rollout(k)
+    policy.explorer = explorer
+    return explorer.run(policy)
+
+
 CANDIDATES = {"greedy-turn": GreedyTurn, "tour": Tour}
 """Teacher candidates that are not methods of ``cso-runtime eval``."""
 
@@ -170,6 +205,9 @@ def run_one(job: tuple[SceneRef, str, float]) -> tuple[str, str, float, str]:
     plan = ref.load()
     sim = make_simulator("2d", plan, cfg.sensor, cfg.robot, seed=0)
     base, _, masked = method.partition("+")
+    if base.startswith("rollout"):  # rollout or rolloutK: K clusters tried at each decision (default 3)
+        r = run_rollout(sim, cfg, int(base[len("rollout") :] or 3))
+        return ref.name, method, r.efficiency_m2_per_step, scale_of(r.traversable_area_m2)
     if masked == "masks":
         policy = MaskedBaseline(base)
     else:

@@ -7,8 +7,10 @@ end with a goal selector and returns the Table 1 metrics.
 
 from __future__ import annotations
 
+import copy
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -19,7 +21,7 @@ from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import LocalPlanner, PlannerStatus
-from cso_runtime.policies import Goal, GoalSelector
+from cso_runtime.policies import Goal, GoalSelector, goal_of
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import Simulator
 
@@ -251,6 +253,27 @@ class Explorer:
     def done(self) -> bool:
         return self.terminated_by is not None
 
+    def run(self, policy: GoalSelector, on_step=None) -> EpisodeResult:
+        """Explore with ``policy`` from the current state until termination (``on_step(self)`` after
+        each step). A copy of an explorer taken at a decision can be run on with another policy."""
+        if not self.done and self.coverage_done():
+            self.terminated_by = TERMINATED_COVERAGE
+        while not self.done:
+            reason = self.decision_reason()
+            if reason is not None:
+                self.handle_reason(reason)
+                t0 = time.perf_counter()
+                obs = self.observe()
+                goal = policy.select(obs)
+                self.decision_ms.append((time.perf_counter() - t0) * 1e3)
+                self.apply_goal(obs, goal)
+                if self.done:
+                    break
+            self.advance()
+            if on_step is not None:
+                on_step(self)
+        return self.result()
+
     def result(self) -> EpisodeResult:
         return EpisodeResult(
             scene=self.sim.plan.name,
@@ -268,26 +291,29 @@ class Explorer:
         )
 
 
+def rollout_choice(explorer: Explorer, obs: Observation, candidates: Sequence[int], base: GoalSelector) -> int:
+    """Bertsekas' rollout: of the clusters ``candidates``, the one after which ``base`` ends the episode in
+    the fewest steps (ties: more explored area; then the earlier candidate), each tried on a copy of
+    ``explorer`` taken at this decision (observed, goal not applied yet). It looks into the unexplored scene
+    through the simulator, so it is a teacher or a ceiling (``benchmarks/teacher_ceiling.py``), never a
+    run-time policy."""
+    best, best_score = int(candidates[0]), None
+    for action in candidates:
+        trial = copy.deepcopy(explorer)
+        trial.apply_goal(obs, goal_of(obs, int(action)))
+        if not trial.done:
+            trial.advance()  # as the loop does after a decision
+        r = trial.run(base)
+        score = (r.steps, -r.explored_area_m2)
+        if best_score is None or score < best_score:
+            best, best_score = int(action), score
+    return best
+
+
 def run_episode(sim: Simulator, policy: GoalSelector, config: ExplorationConfig | None = None, seed: int | None = None, on_step=None) -> EpisodeResult:
     """Explore one scene with ``policy`` until termination; ``on_step(explorer)`` is called each step."""
     explorer = Explorer(sim, config or ExplorationConfig())
     sim.reset(seed)
     explorer.reset()
     policy.reset(seed)
-    if explorer.coverage_done():
-        explorer.terminated_by = TERMINATED_COVERAGE
-    while not explorer.done:
-        reason = explorer.decision_reason()
-        if reason is not None:
-            explorer.handle_reason(reason)
-            t0 = time.perf_counter()
-            obs = explorer.observe()
-            goal = policy.select(obs)
-            explorer.decision_ms.append((time.perf_counter() - t0) * 1e3)
-            explorer.apply_goal(obs, goal)
-            if explorer.done:
-                break
-        explorer.advance()
-        if on_step is not None:
-            on_step(explorer)
-    return explorer.result()
+    return explorer.run(policy, on_step)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 
@@ -12,7 +13,7 @@ from gymnasium.utils.env_checker import check_reset_options, check_reset_return_
 from gymnasium.utils.passive_env_checker import env_reset_passive_checker, env_step_passive_checker
 
 from cso_runtime.config import MaskConfig
-from cso_runtime.episode import Explorer
+from cso_runtime.episode import Explorer, rollout_choice
 from cso_runtime.geometry import Pose2D
 from cso_runtime.learned.env import EnvConfig, ExplorationEnv, expert_action
 from cso_runtime.learned.graph import GraphConfig, build_graph
@@ -20,7 +21,7 @@ from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkCon
 from cso_runtime.learned.ppo import Args, build_model, compute_gae, episode_returns, model_chooser, random_chooser, train
 from cso_runtime.learned.registry import LearnedPolicy, has_method, load_checkpoint, save_checkpoint
 from cso_runtime.masks import valid_distance_mask
-from cso_runtime.policies import Goal, make_policy
+from cso_runtime.policies import Goal, goal_of, make_policy
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import KinematicSimulator
 
@@ -411,3 +412,40 @@ def test_egocentric_frame_rotates_node_positions_into_the_robot_frame(observatio
     for key in ("neighbours", "neighbour_valid", "edges", "node_valid", "robot"):
         np.testing.assert_array_equal(ego[key], axes[key])
     assert Args(egocentric_frame=True).env_config().graph.egocentric and not Args().env_config().graph.egocentric
+
+
+def test_rollout_teacher_takes_the_try_that_finishes_first_without_touching_the_episode():
+    """``rollout_choice`` finishes the episode from each candidate with the base policy on a copy and keeps
+    the fewest steps; the explorer it copies is left as it was. In the env the teacher stays in the mask."""
+    greedy = make_policy("greedy-dist")
+    explorer = Explorer(KinematicSimulator(rooms_plan(3)))
+    obs = explorer.observe()
+    explorer.apply_goal(obs, greedy.select(obs))
+    while explorer.decision_reason() is None:
+        explorer.advance()
+    explorer.handle_reason(explorer.decision_reason())
+    obs = explorer.observe()
+    reachable = np.flatnonzero(np.isfinite(obs.goal_distance_m))
+    assert len(reachable) >= 2
+    candidates = reachable[np.argsort(obs.goal_distance_m[reachable])][:3]
+    steps_before, goal_before = explorer.steps, explorer.goal
+    finish = []
+    for c in candidates:
+        trial = copy.deepcopy(explorer)
+        trial.apply_goal(obs, goal_of(obs, int(c)))
+        trial.advance()
+        finish.append(trial.run(greedy).steps)
+    chosen = rollout_choice(explorer, obs, candidates, greedy)
+    assert chosen == candidates[int(np.argmin(finish))]
+    assert rollout_choice(explorer, obs, candidates[:1], greedy) == candidates[0]
+    assert (explorer.steps, explorer.goal) == (steps_before, goal_before)
+
+    env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
+    _, info = env.reset(seed=0)
+    for _ in range(3):
+        a = env.teacher_action("rollout")
+        assert info["action_mask"][a]
+        _, _, terminated, truncated, info = env.step(a)
+        if terminated or truncated:
+            break
+    Args(warm_start_teacher="rollout").validate()

@@ -21,13 +21,16 @@ import numpy as np
 from gymnasium import spaces
 
 from cso_runtime.config import ExplorationConfig, MaskConfig
-from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer
+from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer, rollout_choice
 from cso_runtime.learned.graph import EDGE_FEATURES, GraphConfig, build_graph, empty_graph, frontier_count, node_features
 from cso_runtime.observation import Observation
 from cso_runtime.policies import BASELINES, ActionMasker, goal_of
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import KinematicSimulator
 
+
+ROLLOUT_TRIES = 3
+"""Clusters the rollout teacher tries per decision (the nearest allowed ones)."""
 
 @dataclass
 class RewardConfig:
@@ -162,11 +165,27 @@ class ExplorationEnv(gym.Env):
         """The warm-start teacher's choice for the current observation (callable through any vector env)."""
         if self.obs is None:
             return int(np.argmax(self.mask))
+        if teacher == "rollout":
+            return self.rollout_action()
         return expert_action(self.obs, self.mask, teacher)
 
+    def rollout_action(self, tries: int = ROLLOUT_TRIES) -> int:
+        """The rollout teacher: of the ``tries`` nearest allowed clusters, the one after which greedy-dist
+        finishes this episode in the fewest steps (``rollout_choice`` on copies of the explorer)."""
+        assert self.explorer is not None and self.obs is not None
+        n = frontier_count(self.obs, self.config.graph)
+        d = np.where(self.mask[:n] & np.isfinite(self.obs.goal_distance_m[:n]), self.obs.goal_distance_m[:n], np.inf)
+        allowed = np.flatnonzero(np.isfinite(d))
+        if len(allowed) == 0:
+            return int(np.argmax(self.mask))
+        candidates = allowed[np.argsort(d[allowed], kind="stable")][:tries]
+        return rollout_choice(self.explorer, self.obs, candidates, BASELINES["greedy-dist"]())
 
-TEACHERS = ("greedy-dist", "utility", "greedy-info")
-"""Baselines the warm start can imitate: their score, taken under the variant's masks."""
+
+TEACHERS = ("greedy-dist", "utility", "greedy-info", "rollout")
+"""What the warm start can imitate: a baseline's score taken under the variant's masks, or ``rollout``
+(greedy-dist's best continuation found by simulating; slow: about ``ROLLOUT_TRIES`` episodes' worth of
+control steps per decision)."""
 
 
 def expert_action(obs: Observation, mask: np.ndarray, teacher: str = "greedy-dist") -> int:
