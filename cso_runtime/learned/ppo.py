@@ -83,7 +83,9 @@ class Args:
     warm_start_decisions: int = 0
     """Teacher decisions (``warm_start_teacher`` under the masks) to imitate before PPO (0 = no warm start)."""
     warm_start_teacher: str = "greedy-dist"
-    """The baseline the warm start imitates under the variant's masks: greedy-dist, utility or greedy-info."""
+    """What the warm start imitates under the variant's masks: greedy-dist, utility or greedy-info (their
+    scores), or rollout (greedy-dist's best continuation among the nearest allowed clusters, found by
+    simulating each to the end: ``episode.rollout_choice``; tens of times slower to collect)."""
     warm_start_epochs: int = 20
     warm_start_lr: float = 1e-3
     sensor: str = "lidar"
