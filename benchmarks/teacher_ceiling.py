@@ -10,6 +10,10 @@ plus ``TURN_COST_M_PER_RAD`` times the heading change towards the path's first 0
 network that would see the robot's heading; the shipped graph's coordinates are not rotated into the robot frame).
 ``tour`` plans a global tour as FUEL does (the open travelling-salesman path through the nearest clusters on
 geodesic distances) and goes to its first cluster: the candidate for a teacher that avoids long round trips.
+``rolloutK`` (``rolloutK+masks``: among the clusters the cso masks allow) tries the K nearest clusters at every
+decision, finishes the episode from each with greedy-dist on a copy of the simulation, and takes the one that
+finished first (``episode.rollout_choice``): it sees the unexplored scene through the simulator, so it is the
+ceiling of what choosing the order of the frontiers can give, and a teacher (``warm_start_teacher: rollout``).
 Prints the mean efficiency per scale and the change against the first method, on the 360-degree LiDAR of the
 tables, seed 0, two worker processes.
 """
@@ -168,29 +172,34 @@ class Rollout:
 
     name = "rollout"
 
-    def __init__(self, k: int = 3):
+    def __init__(self, k: int = 3, masked: bool = False):
         self.k = k
         self.explorer: Explorer | None = None
         self.greedy = make_policy("greedy-dist", seed=0)
+        self.masker = ActionMasker(MaskConfig()) if masked else None
+        """With the cso masks: only the clusters they allow are tried (what a masked network could imitate)."""
 
     def reset(self, seed: int | None = None) -> None:
         pass
 
     def select(self, obs: Observation) -> Goal | None:
         assert self.explorer is not None, "bind the explorer first (run_rollout)"
-        reachable = np.flatnonzero(np.isfinite(obs.goal_distance_m))
+        ok = np.isfinite(obs.goal_distance_m)
+        if self.masker is not None and (ok & (allowed := self.masker.mask(obs))).any():
+            ok &= allowed
+        reachable = np.flatnonzero(ok)
         if len(reachable) == 0:
             return None
         tries = reachable[np.argsort(obs.goal_distance_m[reachable], kind="stable")][: self.k]
         return goal_of(obs, rollout_choice(self.explorer, obs, tries, self.greedy))
 
 
-def run_rollout(sim, cfg, k: int = 3):
-    """An episode with ``Rollout(k)`` deciding (it needs the explorer to copy)."""
+def run_rollout(sim, cfg, k: int = 3, masked: bool = False):
+    """An episode with ``Rollout(k, masked)`` deciding (it needs the explorer to copy)."""
     explorer = Explorer(sim, cfg)
     sim.reset(0)
     explorer.reset()
-    policy = Rollout(k)
+    policy = Rollout(k, masked)
     policy.explorer = explorer
     return explorer.run(policy)
 
@@ -206,7 +215,7 @@ def run_one(job: tuple[SceneRef, str, float]) -> tuple[str, str, float, str]:
     sim = make_simulator("2d", plan, cfg.sensor, cfg.robot, seed=0)
     base, _, masked = method.partition("+")
     if base.startswith("rollout"):  # rollout or rolloutK: K clusters tried at each decision (default 3)
-        r = run_rollout(sim, cfg, int(base[len("rollout") :] or 3))
+        r = run_rollout(sim, cfg, int(base[len("rollout") :] or 3), masked == "masks")
         return ref.name, method, r.efficiency_m2_per_step, scale_of(r.traversable_area_m2)
     if masked == "masks":
         policy = MaskedBaseline(base)
