@@ -28,7 +28,7 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from cso_runtime.config import MaskConfig
-from cso_runtime.episode import Explorer, rollout_choice, run_episode
+from cso_runtime.episode import Explorer, nearest_clusters, rollout_choice, run_episode
 from cso_runtime.evaluation import EvalRequest, make_simulator
 from cso_runtime.geometry import wrap_angle_rad
 from cso_runtime.learned.env import expert_action
@@ -184,13 +184,12 @@ class Rollout:
 
     def select(self, obs: Observation) -> Goal | None:
         assert self.explorer is not None, "bind the explorer first (run_rollout)"
-        ok = np.isfinite(obs.goal_distance_m)
-        if self.masker is not None and (ok & (allowed := self.masker.mask(obs))).any():
-            ok &= allowed
-        reachable = np.flatnonzero(ok)
-        if len(reachable) == 0:
+        everything = np.ones(len(obs.clusters), dtype=bool)
+        tries = nearest_clusters(obs.goal_distance_m, self.masker.mask(obs) if self.masker is not None else everything, self.k)
+        if len(tries) == 0 and self.masker is not None:  # every reachable cluster masked: as the policy does, ignore the mask
+            tries = nearest_clusters(obs.goal_distance_m, everything, self.k)
+        if len(tries) == 0:
             return None
-        tries = reachable[np.argsort(obs.goal_distance_m[reachable], kind="stable")][: self.k]
         return goal_of(obs, rollout_choice(self.explorer, obs, tries, self.greedy))
 
 

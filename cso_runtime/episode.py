@@ -291,6 +291,12 @@ class Explorer:
         )
 
 
+def nearest_clusters(distance_m: np.ndarray, allowed: np.ndarray, k: int) -> np.ndarray:
+    """Indices of the ``k`` nearest clusters that are ``allowed`` and reachable (finite distance), nearest first."""
+    ok = np.flatnonzero(allowed & np.isfinite(distance_m))
+    return ok[np.argsort(distance_m[ok], kind="stable")][:k]
+
+
 def rollout_choice(explorer: Explorer, obs: Observation, candidates: Sequence[int], base: GoalSelector) -> int:
     """Bertsekas' rollout: of the clusters ``candidates``, the one after which ``base`` ends the episode in
     the fewest steps (ties: more explored area; then the earlier candidate), each tried on a copy of

@@ -21,7 +21,7 @@ import numpy as np
 from gymnasium import spaces
 
 from cso_runtime.config import ExplorationConfig, MaskConfig
-from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer, rollout_choice
+from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer, nearest_clusters, rollout_choice
 from cso_runtime.learned.graph import EDGE_FEATURES, GraphConfig, build_graph, empty_graph, frontier_count, node_features
 from cso_runtime.observation import Observation
 from cso_runtime.policies import BASELINES, ActionMasker, goal_of
@@ -31,6 +31,7 @@ from cso_runtime.simulator import KinematicSimulator
 
 ROLLOUT_TRIES = 3
 """Clusters the rollout teacher tries per decision (the nearest allowed ones)."""
+
 
 @dataclass
 class RewardConfig:
@@ -174,11 +175,9 @@ class ExplorationEnv(gym.Env):
         finishes this episode in the fewest steps (``rollout_choice`` on copies of the explorer)."""
         assert self.explorer is not None and self.obs is not None
         n = frontier_count(self.obs, self.config.graph)
-        d = np.where(self.mask[:n] & np.isfinite(self.obs.goal_distance_m[:n]), self.obs.goal_distance_m[:n], np.inf)
-        allowed = np.flatnonzero(np.isfinite(d))
-        if len(allowed) == 0:
+        candidates = nearest_clusters(self.obs.goal_distance_m[:n], self.mask[:n], tries)
+        if len(candidates) == 0:
             return int(np.argmax(self.mask))
-        candidates = allowed[np.argsort(d[allowed], kind="stable")][:tries]
         return rollout_choice(self.explorer, self.obs, candidates, BASELINES["greedy-dist"]())
 
 
