@@ -309,11 +309,13 @@ def test_warm_start_teacher_runs_through_subprocess_envs(tmp_path):
 
     args = Args(num_envs=2, async_envs=True, max_steps=100)
     envs = make_vector_env(args, [rooms_plan(2)])
+    lines: list[str] = []
     try:
-        graphs, masks, actions, returns = collect_teacher(envs, 6, 0.98, seed=0)
+        graphs, masks, actions, returns = collect_teacher(envs, 6, 0.98, seed=0, log=lines.append)
     finally:
         envs.close()
     assert actions.shape == (6,) and masks[np.arange(6), actions].all()  # every teacher choice is allowed
+    assert [line.split(" decisions")[0] for line in lines] == ["warm start: 2/6 greedy-dist", "warm start: 4/6 greedy-dist"]
     env = ExplorationEnv([rooms_plan(2)], args.env_config())
     _, info = env.reset(seed=0)
     assert actions[0] == expert_action(env.obs, info["action_mask"])  # the same seed, the same first choice

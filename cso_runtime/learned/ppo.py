@@ -277,15 +277,26 @@ def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.v
 
 
 def collect_teacher(
-    envs: gym.vector.VectorEnv, decisions: int, gamma: float, seed: int, teacher: str = "greedy-dist"
+    envs: gym.vector.VectorEnv,
+    decisions: int,
+    gamma: float,
+    seed: int,
+    teacher: str = "greedy-dist",
+    log: Callable[[str], None] | None = None,
+    progress: bool = False,
 ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
     """Run the ``teacher`` baseline (under the masks) in ``envs``; returns graphs, masks, teacher
-    actions and discounted returns (Monte Carlo, cut at episode ends) for the critic."""
+    actions and discounted returns (Monte Carlo, cut at episode ends) for the critic. ``log`` gets a line
+    at every tenth of the way (the rollout teacher can take many minutes), ``progress`` shows a bar."""
     graphs, masks, actions, rewards, ends = [], [], [], [], []
     obs, info = envs.reset(seed=seed)
     n = envs.num_envs
     per_env = max(1, decisions // n)
-    for _ in range(per_env):
+    bar = _Bar(per_env * n, "teacher decisions") if progress else None
+    t0 = time.time()
+    for i in range(per_env):
+        if log is not None and i and i % max(1, per_env // 10) == 0:
+            log(f"warm start: {i * n}/{per_env * n} {teacher} decisions collected ({time.time() - t0:.0f} s)")
         mask = info["action_mask"]
         chosen = np.asarray(envs.call("teacher_action", teacher), dtype=np.int64)
         graphs.append(obs)
@@ -294,6 +305,10 @@ def collect_teacher(
         obs, reward, term, trunc, info = envs.step(chosen)
         rewards.append(reward)
         ends.append(np.logical_or(term, trunc))
+        if bar is not None:
+            bar.advance(n)
+    if bar is not None:
+        bar.close()
     rewards_a, ends_a = np.array(rewards), np.array(ends)
     returns = np.zeros_like(rewards_a)
     running = np.zeros(n)
@@ -373,7 +388,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         record["init_from"] = str(args.init_from)
         log(f"initialised from {args.init_from}")
     elif args.warm_start_decisions > 0:
-        data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed, args.warm_start_teacher)
+        data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed, args.warm_start_teacher, log, args.progress)
         warm_decisions = len(data[2])
         record["warm_start"] = warm_start(model, data, args, device, log)
         record["warm_start"]["decisions"] = warm_decisions
@@ -562,15 +577,15 @@ def _save_resumable(path: Path, model: nn.Module, optimizer: optim.Optimizer, up
 
 
 class _Bar:
-    def __init__(self, total: int):
+    def __init__(self, total: int, what: str = "PPO updates"):
         from rich.progress import Progress  # noqa: PLC0415
 
         self._p = Progress()
         self._p.start()
-        self._task = self._p.add_task("PPO updates", total=total)
+        self._task = self._p.add_task(what, total=total)
 
-    def advance(self) -> None:
-        self._p.advance(self._task)
+    def advance(self, n: int = 1) -> None:
+        self._p.advance(self._task, n)
 
     def close(self) -> None:
         self._p.stop()
