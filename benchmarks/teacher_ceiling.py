@@ -178,6 +178,9 @@ class Rollout:
         self.greedy = make_policy("greedy-dist", seed=0)
         self.masker = ActionMasker(MaskConfig()) if masked else None
         """With the cso masks: only the clusters they allow are tried (what a masked network could imitate)."""
+        self.choices: list[dict[str, float]] = []
+        """Each decision with a choice: the rank of the cluster taken among the tries (0 = greedy-dist's), and the
+        distance, length and entropy of the cluster taken and of the nearest one (what a network would see)."""
 
     def reset(self, seed: int | None = None) -> None:
         pass
@@ -190,38 +193,68 @@ class Rollout:
             tries = nearest_clusters(obs.goal_distance_m, everything, self.k)
         if len(tries) == 0:
             return None
-        return goal_of(obs, rollout_choice(self.explorer, obs, tries, self.greedy))
+        action = rollout_choice(self.explorer, obs, tries, self.greedy)
+        if len(tries) > 1:
+            taken, near = obs.clusters[action], obs.clusters[int(tries[0])]
+            self.choices.append(
+                {
+                    "rank": float(np.flatnonzero(tries == action)[0]),
+                    "distance_m": float(obs.goal_distance_m[action]),
+                    "nearest_distance_m": float(obs.goal_distance_m[tries[0]]),
+                    "size_m": taken.size_m,
+                    "nearest_size_m": near.size_m,
+                    "entropy": taken.entropy,
+                    "nearest_entropy": near.entropy,
+                }
+            )
+        return goal_of(obs, action)
 
 
 def run_rollout(sim, cfg, k: int = 3, masked: bool = False):
-    """An episode with ``Rollout(k, masked)`` deciding (it needs the explorer to copy)."""
+    """An episode with ``Rollout(k, masked)`` deciding (it needs the explorer to copy); its result and choices."""
     explorer = Explorer(sim, cfg)
     sim.reset(0)
     explorer.reset()
     policy = Rollout(k, masked)
     policy.explorer = explorer
-    return explorer.run(policy)
+    return explorer.run(policy), policy.choices
+
+
+def print_departures(method: str, choices: list[dict[str, float]]) -> None:
+    """Where the rollout leaves greedy-dist's choice, and what the cluster it takes looks like instead."""
+    away = [c for c in choices if c["rank"] > 0]
+    print(f"{method}: {len(away)} of {len(choices)} decisions with a choice take another cluster than the nearest")
+    if away:
+        further = np.median([c["distance_m"] - c["nearest_distance_m"] for c in away])
+        ratio = np.median([c["distance_m"] / max(c["nearest_distance_m"], 1e-6) for c in away])
+        smaller = np.mean([c["size_m"] < c["nearest_size_m"] for c in away])
+        size_ratio = np.median([c["size_m"] / max(c["nearest_size_m"], 1e-6) for c in away])
+        lower_info = np.mean([c["entropy"] < c["nearest_entropy"] for c in away])
+        print(
+            f"  then: {further:.2f} m further (median, {ratio:.2f}x the nearest), a shorter cluster in {100 * smaller:.0f} % "
+            f"(median {size_ratio:.2f}x its length), lower entropy in {100 * lower_info:.0f} %"
+        )
 
 
 CANDIDATES = {"greedy-turn": GreedyTurn, "tour": Tour}
 """Teacher candidates that are not methods of ``cso-runtime eval``."""
 
 
-def run_one(job: tuple[SceneRef, str, float]) -> tuple[str, str, float, str]:
+def run_one(job: tuple[SceneRef, str, float]) -> tuple[str, str, float, str, list[dict[str, float]]]:
     ref, method, m_per_px = job
     cfg = EvalRequest(methods=["greedy-dist"], m_per_px=m_per_px, lidar_fov_deg=360.0).exploration_config()
     plan = ref.load()
     sim = make_simulator("2d", plan, cfg.sensor, cfg.robot, seed=0)
     base, _, masked = method.partition("+")
     if base.startswith("rollout"):  # rollout or rolloutK: K clusters tried at each decision (default 3)
-        r = run_rollout(sim, cfg, int(base[len("rollout") :] or 3), masked == "masks")
-        return ref.name, method, r.efficiency_m2_per_step, scale_of(r.traversable_area_m2)
+        r, choices = run_rollout(sim, cfg, int(base[len("rollout") :] or 3), masked == "masks")
+        return ref.name, method, r.efficiency_m2_per_step, scale_of(r.traversable_area_m2), choices
     if masked == "masks":
         policy = MaskedBaseline(base)
     else:
         policy = CANDIDATES[base]() if base in CANDIDATES else make_policy(base, seed=0)
     r = run_episode(sim, policy, cfg, seed=0)
-    return ref.name, method, r.efficiency_m2_per_step, scale_of(r.traversable_area_m2)
+    return ref.name, method, r.efficiency_m2_per_step, scale_of(r.traversable_area_m2), []
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -236,8 +269,10 @@ def main(argv: list[str] | None = None) -> int:
     with ProcessPoolExecutor(2) as pool:
         results = list(pool.map(run_one, [(r, m, args.m_per_px) for r in refs for m in methods]))
     eff: dict[str, dict[str, tuple[float, str]]] = defaultdict(dict)
-    for scene, method, value, scale in results:
+    choices: dict[str, list[dict[str, float]]] = defaultdict(list)
+    for scene, method, value, scale, made in results:
         eff[method][scene] = (value, scale)
+        choices[method] += made
     reference = methods[0]
     for method in methods:
         for scale in sorted({sc for _, sc in eff[method].values()}):
@@ -245,6 +280,9 @@ def main(argv: list[str] | None = None) -> int:
             e = np.mean([eff[method][s][0] for s in scenes])
             b = np.mean([eff[reference][s][0] for s in scenes])
             print(f"{method:24s} {scale:12s} scenes {len(scenes):3d}  m2/step {e:.4f}  vs {reference}: {100 * (e / b - 1):+.1f} %")
+    for method in methods:
+        if method.startswith("rollout"):
+            print_departures(method, choices[method])
     return 0
 
 
