@@ -39,17 +39,12 @@ class Edge:
         return TOPICS[self.topic]
 
 
-def nodes_of(service_names: list[str], with_launcher: bool = True) -> list[Node]:
+def nodes_of(service_names: list[str]) -> list[Node]:
     """The nodes of a profile's services (in profile order), and the launcher that watches them."""
-    out = []
-    for name in service_names:
-        cls = service_class(name)
-        out.append(Node(name, tuple(cls.inputs), tuple(cls.outputs)))
-    if with_launcher:
-        from cso_runtime.launcher import LAUNCHER_INPUTS  # noqa: PLC0415
+    from cso_runtime.launcher import LAUNCHER_INPUTS  # noqa: PLC0415
 
-        out.append(Node(LAUNCHER, tuple(LAUNCHER_INPUTS), ()))
-    return out
+    out = [Node(name, tuple(service_class(name).inputs), tuple(service_class(name).outputs)) for name in service_names]
+    return [*out, Node(LAUNCHER, tuple(LAUNCHER_INPUTS), ())]
 
 
 def edges_of(nodes: list[Node]) -> list[Edge]:
