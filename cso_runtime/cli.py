@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Optional
 
@@ -300,24 +301,58 @@ def train_command(
     settings: Optional[list[str]] = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
     """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
-    from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
-    from cso_runtime.learned.ppo import Args, train  # noqa: PLC0415 - torch only for this command
+    from cso_runtime.learned.ppo import train  # noqa: PLC0415 - torch only for this command
 
-    data = load_yaml(config) if config is not None else {}
     overrides = {"variant": variant, "out_dir": str(out) if out else None, "seed": seed, "total_decisions": total_decisions,
                  "time_limit_s": time_limit, "resume": str(resume) if resume else None, "device": device,
                  "init_from": init_from, "num_envs": num_envs, "async_envs": async_envs,
                  "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
-    data.update({k: v for k, v in overrides.items() if v is not None})
+    args = training_args(config, overrides, settings)
+    record = train(args, log=typer.echo)
+    typer.echo(f"done: {record['ppo_decisions']} PPO decisions, {record['warm_start_decisions']} warm-start decisions, {record['wall_time_s']} s -> {args.out_dir}")
+
+
+@app.command("collect-teacher")
+def collect_teacher_command(
+    out: Path = typer.Option(..., "--out", help="Teacher-data file to write (.npz); train with --set warm_start_data=[FILE]"),
+    config: Optional[Path] = typer.Option(Path("configs/train.yaml"), "--config", help="YAML with the fields of learned.ppo.Args (scenes, variant, masks)"),
+    teacher: str = typer.Option("rollout", "--teacher", help="greedy-dist, utility, greedy-info or rollout"),
+    workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
+    decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
+    time_limit: float = typer.Option(0.0, "--time-limit-s", min=0.0, help="Each worker stops after this wall time (0 = none)"),
+    seed: Optional[int] = typer.Option(None, "--seed", help="Worker i uses seed + i"),
+    dungeon_dir: Optional[Path] = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
+    settings: Optional[list[str]] = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
+) -> None:
+    """Collect a warm-start teacher's decisions once (the rollout teacher costs seconds per decision) for
+    several training runs to imitate."""
+    from cso_runtime.learned.ppo import collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
+
+    overrides = {"seed": seed, "warm_start_teacher": teacher, "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
+    args = training_args(config, overrides, settings)
+    t0 = time.time()
+    collected = collect_teacher_parallel(args, workers, decisions, time_limit, log=typer.echo)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    collected.save(out)
+    typer.echo(f"done: {len(collected)} {teacher} decisions in {time.time() - t0:.0f} s -> {out}")
+
+
+def training_args(config: Path | None, overrides: dict[str, object], settings: list[str] | None):
+    """``learned.ppo.Args`` from the YAML file, then the command's flags, then ``--set`` pairs; a missing file or
+    a bad value exits with a clear error (code 2) before anything starts."""
+    from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
+    from cso_runtime.learned.ppo import Args  # noqa: PLC0415
+
     try:
+        data = load_yaml(config) if config is not None else {}
+        data.update({k: v for k, v in overrides.items() if v is not None})
         data.update(parse_settings(settings or []))
         args = from_dict(Args, data, "train")
         args.validate()
     except (ConfigError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    record = train(args, log=typer.echo)
-    typer.echo(f"done: {record['ppo_decisions']} PPO decisions, {record['warm_start_decisions']} warm-start decisions, {record['wall_time_s']} s -> {args.out_dir}")
+    return args
 
 
 def parse_settings(items: list[str]) -> dict[str, object]:

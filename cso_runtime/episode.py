@@ -297,23 +297,34 @@ def nearest_clusters(distance_m: np.ndarray, allowed: np.ndarray, k: int) -> np.
     return ok[np.argsort(distance_m[ok], kind="stable")][:k]
 
 
-def rollout_choice(explorer: Explorer, obs: Observation, candidates: Sequence[int], base: GoalSelector) -> int:
-    """Bertsekas' rollout: of the clusters ``candidates``, the one after which ``base`` ends the episode in
-    the fewest steps (ties: more explored area; then the earlier candidate), each tried on a copy of
-    ``explorer`` taken at this decision (observed, goal not applied yet). It looks into the unexplored scene
-    through the simulator, so it is a teacher or a ceiling (``benchmarks/teacher_ceiling.py``), never a
-    run-time policy."""
-    best, best_score = int(candidates[0]), None
+def rollout_outcomes(explorer: Explorer, obs: Observation, candidates: Sequence[int], base: GoalSelector) -> list[tuple[int, float]]:
+    """For each cluster of ``candidates``: (steps, explored m2) at the end of the episode when the robot goes
+    there now and ``base`` decides from then on, each tried on a copy of ``explorer`` taken at this decision
+    (observed, goal not applied yet). Bertsekas' rollout compares these; the warm start can learn from all of
+    them (``soft_targets``), not only from the best."""
+    outcomes = []
     for action in candidates:
         trial = copy.deepcopy(explorer)
         trial.apply_goal(obs, goal_of(obs, int(action)))
         if not trial.done:
             trial.advance()  # as the loop does after a decision
         r = trial.run(base)
-        score = (r.steps, -r.explored_area_m2)
-        if best_score is None or score < best_score:
-            best, best_score = int(action), score
-    return best
+        outcomes.append((r.steps, r.explored_area_m2))
+    return outcomes
+
+
+def best_outcome(candidates: Sequence[int], outcomes: Sequence[tuple[int, float]]) -> int:
+    """The candidate whose episode ended in the fewest steps (ties: more explored area; then the earlier one)."""
+    scores = [(steps, -area_m2, i) for i, (steps, area_m2) in enumerate(outcomes)]
+    return int(candidates[min(scores)[2]])
+
+
+def rollout_choice(explorer: Explorer, obs: Observation, candidates: Sequence[int], base: GoalSelector) -> int:
+    """Bertsekas' rollout: of the clusters ``candidates``, the one after which ``base`` ends the episode in
+    the fewest steps (``rollout_outcomes``, ``best_outcome``). It looks into the unexplored scene through
+    the simulator, so it is a teacher or a ceiling (``benchmarks/teacher_ceiling.py``), never a run-time
+    policy."""
+    return best_outcome(candidates, rollout_outcomes(explorer, obs, candidates, base))
 
 
 def run_episode(sim: Simulator, policy: GoalSelector, config: ExplorationConfig | None = None, seed: int | None = None, on_step=None) -> EpisodeResult:

@@ -311,9 +311,11 @@ def test_warm_start_teacher_runs_through_subprocess_envs(tmp_path):
     envs = make_vector_env(args, [rooms_plan(2)])
     lines: list[str] = []
     try:
-        graphs, masks, actions, returns = collect_teacher(envs, 6, 0.98, seed=0, log=lines.append)
+        data = collect_teacher(envs, 6, 0.98, seed=0, log=lines.append)
     finally:
         envs.close()
+    masks, actions = data.masks, data.actions
+    assert not np.isfinite(data.outcome_steps).any()  # a score-based teacher simulates nothing
     assert actions.shape == (6,) and masks[np.arange(6), actions].all()  # every teacher choice is allowed
     assert [line.split(" decisions")[0] for line in lines] == ["warm start: 2/6 greedy-dist", "warm start: 4/6 greedy-dist"]
     env = ExplorationEnv([rooms_plan(2)], args.env_config())
@@ -445,9 +447,82 @@ def test_rollout_teacher_takes_the_try_that_finishes_first_without_touching_the_
     env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
     _, info = env.reset(seed=0)
     for _ in range(3):
-        a = env.teacher_action("rollout")
-        assert info["action_mask"][a]
+        a, outcome_steps = env.teacher_label("rollout")
+        tried = np.flatnonzero(np.isfinite(outcome_steps))
+        assert 1 <= len(tried) <= 3 and info["action_mask"][tried].all() and a in tried
+        assert outcome_steps[a] == outcome_steps[tried].min()  # the choice is the try that finished first
+        assert env.teacher_action("rollout") == a  # deterministic on the same state
         _, _, terminated, truncated, info = env.step(a)
         if terminated or truncated:
             break
     Args(warm_start_teacher="rollout").validate()
+
+
+def test_soft_targets_weigh_each_tried_cluster_by_how_soon_its_episode_ended():
+    """softmax(-(steps - best) / T) over the tried clusters; untried ones get nothing; rows without outcomes
+    (score-based teachers) and T = 0 give the one-hot choice."""
+    from cso_runtime.learned.ppo import soft_targets  # noqa: PLC0415
+
+    inf = math.inf
+    steps = torch.tensor([[100.0, 102.0, inf, 110.0], [inf, inf, inf, inf]])
+    actions = torch.tensor([0, 2])
+    t = soft_targets(steps, actions, 2.0)
+    w = torch.tensor([1.0, math.exp(-1.0), math.exp(-5.0)])
+    torch.testing.assert_close(t[0], torch.tensor([w[0], w[1], 0.0, w[2]]) / w.sum())
+    torch.testing.assert_close(t[1], torch.tensor([0.0, 0.0, 1.0, 0.0]))
+    torch.testing.assert_close(soft_targets(steps, actions, 0.0), torch.nn.functional.one_hot(actions, 4).float())
+
+
+def test_teacher_data_round_trips_through_a_file_and_feeds_the_warm_start(tmp_path):
+    """Collected once, saved, loaded (several files concatenated) and imitated by ``train`` without collecting
+    again; a file that is not teacher data is a clear error."""
+    from cso_runtime.learned.ppo import TeacherData, collect_teacher, make_vector_env  # noqa: PLC0415
+
+    args = Args(num_envs=1, max_steps=100)
+    envs = make_vector_env(args, [rooms_plan(2)])
+    try:
+        data = collect_teacher(envs, 4, 0.98, seed=0, teacher="rollout")
+    finally:
+        envs.close()
+    assert np.isfinite(data.outcome_steps).any(axis=1).all()  # every rollout decision tried something
+    data.save(tmp_path / "a.npz")
+    both = TeacherData.load([tmp_path / "a.npz", tmp_path / "a.npz"])
+    assert len(both) == 2 * len(data)
+    np.testing.assert_array_equal(both.actions[len(data):], data.actions)
+    np.testing.assert_array_equal(both.outcome_steps[: len(data)], data.outcome_steps)
+    for k, v in data.graphs.items():
+        np.testing.assert_array_equal(both.graphs[k][len(data):], v)
+    np.savez(tmp_path / "bad.npz", something=np.zeros(3))
+    with pytest.raises(ValueError, match="not a teacher-data file"):
+        TeacherData.load([tmp_path / "bad.npz"])
+    with pytest.raises(ValueError, match="no such file"):
+        Args(warm_start_data=[str(tmp_path / "missing.npz")]).validate()
+
+    run = Args(num_envs=1, num_steps=4, num_minibatches=1, total_decisions=4, max_steps=100, warm_start_epochs=2,
+               warm_start_soft_steps=2.0, warm_start_data=[str(tmp_path / "a.npz")], out_dir=str(tmp_path / "run"), progress=False)
+    record = train(run, log=lambda _m: None, plans=[rooms_plan(2)])
+    assert record["warm_start_decisions"] == len(data)
+    assert (tmp_path / "run" / "cso_warm.pt").is_file()
+
+
+def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
+    """``cso-runtime collect-teacher`` runs workers in their own processes and writes teacher data that loads;
+    a bad setting is refused before anything starts."""
+    from typer.testing import CliRunner  # noqa: PLC0415
+
+    from cso_runtime.cli import app  # noqa: PLC0415
+    from cso_runtime.learned.ppo import TeacherData  # noqa: PLC0415
+
+    out = tmp_path / "teacher.npz"
+    scenes = ["--set", "dungeon_dir=null", "--set", "generated=[generated:small:2:0]", "--set", "max_steps=60"]
+    result = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "greedy-dist", "--workers", "2",
+                                      "--decisions", "6", "--config", str(tmp_path / "none.yaml"), *scenes])
+    assert result.exit_code == 2 and "config file not found" in result.output
+    result = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "greedy-dist", "--workers", "2",
+                                      "--decisions", "6", "--seed", "3", *scenes])
+    assert result.exit_code == 0, result.output
+    assert "done: 6 greedy-dist decisions" in result.output
+    data = TeacherData.load([out])
+    assert len(data) == 6 and data.masks[np.arange(6), data.actions].all()
+    bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "nobody", *scenes])
+    assert bad.exit_code == 2 and "unknown warm_start_teacher" in bad.output

@@ -21,7 +21,7 @@ import numpy as np
 from gymnasium import spaces
 
 from cso_runtime.config import ExplorationConfig, MaskConfig
-from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer, nearest_clusters, rollout_choice
+from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer, best_outcome, nearest_clusters, rollout_outcomes
 from cso_runtime.learned.graph import EDGE_FEATURES, GraphConfig, build_graph, empty_graph, frontier_count, node_features
 from cso_runtime.observation import Observation
 from cso_runtime.policies import BASELINES, ActionMasker, goal_of
@@ -164,21 +164,23 @@ class ExplorationEnv(gym.Env):
 
     def teacher_action(self, teacher: str = "greedy-dist") -> int:
         """The warm-start teacher's choice for the current observation (callable through any vector env)."""
-        if self.obs is None:
-            return int(np.argmax(self.mask))
-        if teacher == "rollout":
-            return self.rollout_action()
-        return expert_action(self.obs, self.mask, teacher)
+        return self.teacher_label(teacher)[0]
 
-    def rollout_action(self, tries: int = ROLLOUT_TRIES) -> int:
-        """The rollout teacher: of the ``tries`` nearest allowed clusters, the one after which greedy-dist
-        finishes this episode in the fewest steps (``rollout_choice`` on copies of the explorer)."""
-        assert self.explorer is not None and self.obs is not None
+    def teacher_label(self, teacher: str = "greedy-dist") -> tuple[int, np.ndarray]:
+        """The teacher's choice and, for the rollout teacher, each tried cluster's episode length in control
+        steps (``inf`` for clusters not tried; all ``inf`` for the score-based teachers)."""
+        steps = np.full(self.config.graph.max_frontier_nodes, np.inf, dtype=np.float32)
+        if self.obs is None:
+            return int(np.argmax(self.mask)), steps
+        if teacher != "rollout":
+            return expert_action(self.obs, self.mask, teacher), steps
         n = frontier_count(self.obs, self.config.graph)
-        candidates = nearest_clusters(self.obs.goal_distance_m[:n], self.mask[:n], tries)
+        candidates = nearest_clusters(self.obs.goal_distance_m[:n], self.mask[:n], ROLLOUT_TRIES)
         if len(candidates) == 0:
-            return int(np.argmax(self.mask))
-        return rollout_choice(self.explorer, self.obs, candidates, BASELINES["greedy-dist"]())
+            return int(np.argmax(self.mask)), steps
+        outcomes = rollout_outcomes(self.explorer, self.obs, candidates, BASELINES["greedy-dist"]())
+        steps[candidates] = [s for s, _ in outcomes]
+        return best_outcome(candidates, outcomes), steps
 
 
 TEACHERS = ("greedy-dist", "utility", "greedy-info", "rollout")

@@ -86,6 +86,12 @@ class Args:
     """What the warm start imitates under the variant's masks: greedy-dist, utility or greedy-info (their
     scores), or rollout (greedy-dist's best continuation among the nearest allowed clusters, found by
     simulating each to the end: ``episode.rollout_choice``; tens of times slower to collect)."""
+    warm_start_data: list[str] = field(default_factory=list)
+    """Teacher-data files (``.npz`` from ``cso-runtime collect-teacher``, or a run's ``teacher_data.npz``) to
+    imitate instead of collecting ``warm_start_decisions`` anew."""
+    warm_start_soft_steps: float = 0.0
+    """Temperature, in control steps, of the soft imitation targets built from the rollout teacher's outcomes
+    (``soft_targets``); 0 imitates the teacher's choice alone."""
     warm_start_epochs: int = 20
     warm_start_lr: float = 1e-3
     sensor: str = "lidar"
@@ -131,6 +137,11 @@ class Args:
             raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
         if self.warm_start_teacher not in TEACHERS:
             raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
+        if self.warm_start_soft_steps < 0:
+            raise ValueError("warm_start_soft_steps must be >= 0 (0 = imitate the choice alone)")
+        missing = [p for p in self.warm_start_data if not Path(p).is_file()]
+        if missing:
+            raise ValueError(f"warm_start_data: no such file {', '.join(missing)}")
 
     @property
     def batch_size(self) -> int:
@@ -276,6 +287,58 @@ def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.v
 # --- warm start: imitate the greedy teacher ---------------------------------------------------
 
 
+@dataclass
+class TeacherData:
+    """Teacher decisions to imitate, one row each: the graph seen, the action mask, the teacher's choice, the
+    discounted return that followed (for the critic) and, from the rollout teacher, each tried cluster's
+    episode length in control steps (``inf`` where not tried). Saved as one compressed ``.npz``, so an
+    expensive collection (``collect-teacher``) is done once and reused by several training runs."""
+
+    graphs: dict[str, np.ndarray]
+    masks: np.ndarray
+    actions: np.ndarray
+    returns: np.ndarray
+    outcome_steps: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def save(self, path: str | Path) -> None:
+        fields = {"masks": self.masks, "actions": self.actions, "returns": self.returns, "outcome_steps": self.outcome_steps}
+        np.savez_compressed(path, **fields, **{f"graph_{k}": v for k, v in self.graphs.items()})
+
+    @classmethod
+    def load(cls, paths: list[str] | list[Path]) -> "TeacherData":
+        """Concatenate the teacher data of several files; a missing key or mismatched shape is an error."""
+        parts = []
+        for path in paths:
+            with np.load(path) as f:
+                graphs = {k.removeprefix("graph_"): f[k] for k in f.files if k.startswith("graph_")}
+                try:
+                    parts.append(cls(graphs, f["masks"], f["actions"], f["returns"], f["outcome_steps"]))
+                except KeyError as exc:
+                    raise ValueError(f"{path}: not a teacher-data file (missing {exc})") from None
+        if not parts:
+            raise ValueError("no teacher-data files given")
+        return cls.concatenate(parts)
+
+    @classmethod
+    def concatenate(cls, parts: list["TeacherData"]) -> "TeacherData":
+        keys = set(parts[0].graphs)
+        if any(set(p.graphs) != keys for p in parts):
+            raise ValueError("teacher data built with different graph layouts")
+        try:
+            return cls(
+                {k: np.concatenate([p.graphs[k] for p in parts]) for k in sorted(keys)},
+                np.concatenate([p.masks for p in parts]),
+                np.concatenate([p.actions for p in parts]),
+                np.concatenate([p.returns for p in parts]),
+                np.concatenate([p.outcome_steps for p in parts]),
+            )
+        except ValueError as exc:
+            raise ValueError(f"teacher data built with different graph sizes: {exc}") from None
+
+
 def collect_teacher(
     envs: gym.vector.VectorEnv,
     decisions: int,
@@ -284,24 +347,31 @@ def collect_teacher(
     teacher: str = "greedy-dist",
     log: Callable[[str], None] | None = None,
     progress: bool = False,
-) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray]:
-    """Run the ``teacher`` baseline (under the masks) in ``envs``; returns graphs, masks, teacher
-    actions and discounted returns (Monte Carlo, cut at episode ends) for the critic. ``log`` gets a line
-    at every tenth of the way (the rollout teacher can take many minutes), ``progress`` shows a bar."""
-    graphs, masks, actions, rewards, ends = [], [], [], [], []
+    time_limit_s: float = 0.0,
+) -> TeacherData:
+    """Run the ``teacher`` (under the masks) in ``envs`` for ``decisions`` decisions, or until ``time_limit_s``
+    (0 = no limit) has passed; returns what ``TeacherData`` holds, with Monte-Carlo returns cut at episode
+    ends. ``log`` gets a line at every tenth of the way (the rollout teacher can take many minutes),
+    ``progress`` shows a bar."""
+    graphs, masks, actions, steps, rewards, ends = [], [], [], [], [], []
     obs, info = envs.reset(seed=seed)
     n = envs.num_envs
     per_env = max(1, decisions // n)
     bar = _Bar(per_env * n, "teacher decisions") if progress else None
     t0 = time.time()
     for i in range(per_env):
+        if time_limit_s and time.time() - t0 > time_limit_s:
+            if log is not None:
+                log(f"warm start: time limit reached after {i * n} {teacher} decisions")
+            break
         if log is not None and i and i % max(1, per_env // 10) == 0:
             log(f"warm start: {i * n}/{per_env * n} {teacher} decisions collected ({time.time() - t0:.0f} s)")
-        mask = info["action_mask"]
-        chosen = np.asarray(envs.call("teacher_action", teacher), dtype=np.int64)
+        labels = envs.call("teacher_label", teacher)
+        chosen = np.array([a for a, _ in labels], dtype=np.int64)
         graphs.append(obs)
-        masks.append(mask)
+        masks.append(info["action_mask"])
         actions.append(chosen)
+        steps.append(np.stack([s for _, s in labels]))
         obs, reward, term, trunc, info = envs.step(chosen)
         rewards.append(reward)
         ends.append(np.logical_or(term, trunc))
@@ -316,16 +386,57 @@ def collect_teacher(
         running = rewards_a[t] + gamma * running * (1.0 - ends_a[t])
         returns[t] = running
     flat = {k: np.concatenate([g[k] for g in graphs]) for k in graphs[0]}
-    return flat, np.concatenate(masks), np.concatenate(actions), returns.reshape(-1)
+    return TeacherData(flat, np.concatenate(masks), np.concatenate(actions), returns.reshape(-1).astype(np.float32), np.concatenate(steps))
 
 
-def warm_start(model: GraphActorCritic, data: tuple, args: Args, device: torch.device, log: Callable[[str], None]) -> dict[str, float]:
-    """Behaviour cloning of the actor on the teacher's choices plus a value regression."""
-    graphs, masks, actions, returns = data
-    b_obs = obs_to_torch(graphs, device)
-    b_mask = torch.as_tensor(masks, device=device)
-    b_act = torch.as_tensor(actions, device=device)
-    b_ret = torch.as_tensor(returns, dtype=torch.float32, device=device)
+def _collect_worker(job: tuple[Args, list[SceneRef], int, int, float]) -> TeacherData:
+    args, refs, seed, decisions, time_limit_s = job
+    torch.set_num_threads(1)
+    envs = gym.vector.SyncVectorEnv([make_env(refs, args.env_config())], autoreset_mode=AutoresetMode.SAME_STEP)
+    try:
+        return collect_teacher(envs, decisions, args.gamma, seed, args.warm_start_teacher, time_limit_s=time_limit_s)
+    finally:
+        envs.close()
+
+
+def collect_teacher_parallel(args: Args, workers: int, decisions: int, time_limit_s: float = 0.0, log: Callable[[str], None] = print) -> TeacherData:
+    """``collect_teacher`` in ``workers`` processes, one environment each, seeds ``args.seed + i``. Unlike one
+    vector env, no worker waits for the slowest (a rollout decision on a super-large plan takes many times
+    one on a small plan)."""
+    import multiprocessing  # noqa: PLC0415
+
+    refs = training_scene_refs(args)
+    per_worker = max(1, -(-decisions // workers))
+    jobs = [(args, refs, args.seed + i, per_worker, time_limit_s) for i in range(workers)]
+    log(f"collecting {args.warm_start_teacher} decisions in {workers} processes on {len(refs)} scenes")
+    with multiprocessing.get_context("spawn").Pool(workers) as pool:
+        parts = pool.map(_collect_worker, jobs)
+    return TeacherData.concatenate(parts)
+
+
+def soft_targets(outcome_steps: torch.Tensor, actions: torch.Tensor, temperature_steps: float) -> torch.Tensor:
+    """Imitation targets from the rollout's outcomes: softmax(-(steps - best) / temperature) over the tried
+    clusters, so a cluster that finishes one step later than the best keeps most of the weight and one that
+    finishes much later none. Rows without outcomes (score-based teachers) are one-hot on the action.
+    The hard label alone says only which try won, often by a step or two of noise on a hidden scene."""
+    one_hot = nn.functional.one_hot(actions, outcome_steps.shape[-1]).float()
+    if temperature_steps <= 0:
+        return one_hot
+    tried = torch.isfinite(outcome_steps)
+    best = torch.where(tried, outcome_steps, torch.inf).min(-1, keepdim=True).values
+    logits = torch.where(tried, -(outcome_steps - best) / temperature_steps, -torch.inf)
+    soft = torch.softmax(torch.where(tried.any(-1, keepdim=True), logits, 0.0), -1)
+    return torch.where(tried.any(-1, keepdim=True), soft, one_hot)
+
+
+def warm_start(model: GraphActorCritic, data: TeacherData, args: Args, device: torch.device, log: Callable[[str], None]) -> dict[str, float]:
+    """Behaviour cloning of the actor on the teacher's choices (or on ``soft_targets`` of the rollout's
+    outcomes) plus a value regression."""
+    b_obs = obs_to_torch(data.graphs, device)
+    b_mask = torch.as_tensor(data.masks, device=device)
+    b_act = torch.as_tensor(data.actions, device=device)
+    b_ret = torch.as_tensor(data.returns, dtype=torch.float32, device=device)
+    b_target = soft_targets(torch.as_tensor(data.outcome_steps, device=device), b_act, args.warm_start_soft_steps)
     opt = optim.Adam(model.parameters(), lr=args.warm_start_lr)
     n = len(b_act)
     mb = max(1, n // max(1, args.num_minibatches))
@@ -337,7 +448,9 @@ def warm_start(model: GraphActorCritic, data: tuple, args: Args, device: torch.d
             idx = perm[start : start + mb]
             g = index_obs(b_obs, idx)
             logits = model.masked_logits(g, b_mask[idx])
-            ce = nn.functional.cross_entropy(logits, b_act[idx])
+            log_p = torch.log_softmax(logits, -1)
+            target = b_target[idx]
+            ce = -(target * torch.where(target > 0, log_p, 0.0)).sum(-1).mean()
             v_loss = ((model.get_value(g) - b_ret[idx]) ** 2).mean()
             loss = ce + args.vf_coef * v_loss
             opt.zero_grad()
@@ -387,9 +500,17 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         model.load_state_dict(initial_weights(args, device))
         record["init_from"] = str(args.init_from)
         log(f"initialised from {args.init_from}")
+    elif args.warm_start_data:
+        data = TeacherData.load(args.warm_start_data)
+        warm_decisions = len(data)
+        log(f"warm start on {warm_decisions} teacher decisions from {', '.join(args.warm_start_data)}")
+        record["warm_start"] = warm_start(model, data, args, device, log)
+        record["warm_start"]["decisions"] = warm_decisions
+        save_checkpoint(out / f"{args.variant}_warm.pt", model, args.env_config().graph, args.variant, {"stage": "warm_start"})
     elif args.warm_start_decisions > 0:
         data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed, args.warm_start_teacher, log, args.progress)
-        warm_decisions = len(data[2])
+        data.save(out / "teacher_data.npz")
+        warm_decisions = len(data)
         record["warm_start"] = warm_start(model, data, args, device, log)
         record["warm_start"]["decisions"] = warm_decisions
         save_checkpoint(out / f"{args.variant}_warm.pt", model, args.env_config().graph, args.variant, {"stage": "warm_start"})
