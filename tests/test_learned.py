@@ -503,6 +503,9 @@ def test_teacher_data_round_trips_through_a_file_and_feeds_the_warm_start(tmp_pa
     record = train(run, log=lambda _m: None, plans=[rooms_plan(2)])
     assert record["warm_start_decisions"] == len(data)
     assert (tmp_path / "run" / "cso_warm.pt").is_file()
+    collected = dataclasses.replace(run, warm_start_data=[], warm_start_decisions=4, out_dir=str(tmp_path / "run2"))
+    assert train(collected, log=lambda _m: None, plans=[rooms_plan(2)])["warm_start_decisions"] == 4
+    assert len(TeacherData.load([tmp_path / "run2" / "teacher_data.npz"])) == 4  # kept for the next run
 
 
 def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):

@@ -500,16 +500,13 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         model.load_state_dict(initial_weights(args, device))
         record["init_from"] = str(args.init_from)
         log(f"initialised from {args.init_from}")
-    elif args.warm_start_data:
-        data = TeacherData.load(args.warm_start_data)
-        warm_decisions = len(data)
-        log(f"warm start on {warm_decisions} teacher decisions from {', '.join(args.warm_start_data)}")
-        record["warm_start"] = warm_start(model, data, args, device, log)
-        record["warm_start"]["decisions"] = warm_decisions
-        save_checkpoint(out / f"{args.variant}_warm.pt", model, args.env_config().graph, args.variant, {"stage": "warm_start"})
-    elif args.warm_start_decisions > 0:
-        data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed, args.warm_start_teacher, log, args.progress)
-        data.save(out / "teacher_data.npz")
+    elif args.warm_start_data or args.warm_start_decisions > 0:
+        if args.warm_start_data:
+            data = TeacherData.load(args.warm_start_data)
+            log(f"warm start on {len(data)} teacher decisions from {', '.join(args.warm_start_data)}")
+        else:
+            data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed, args.warm_start_teacher, log, args.progress)
+            data.save(out / "teacher_data.npz")
         warm_decisions = len(data)
         record["warm_start"] = warm_start(model, data, args, device, log)
         record["warm_start"]["decisions"] = warm_decisions
