@@ -27,11 +27,12 @@ import time
 import numpy as np
 import torch
 
+from cso_runtime.learned.graph import NODE_FEATURES
 from cso_runtime.learned.ppo import Args, TeacherData, build_model, obs_to_torch, warm_start
 from cso_runtime.learned.registry import load_checkpoint, weights_path
 
-GEODESIC_COLUMN = 5
-"""Column of the node feature ``geodesic`` (``graph.NODE_FEATURES``): orders clusters by distance."""
+GEODESIC_COLUMN = NODE_FEATURES.index("geodesic")
+"""Column of the node feature ``geodesic`` (log of the geodesic distance): orders clusters by distance."""
 
 
 def choices(model: torch.nn.Module, data: TeacherData) -> np.ndarray:
