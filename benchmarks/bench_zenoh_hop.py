@@ -22,6 +22,7 @@ import sys
 import time
 
 import numpy as np
+import zenoh
 
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 
@@ -32,12 +33,18 @@ def peer(router_port: int) -> TransportConfig:
     return TransportConfig(mode="peer", connect=[loopback_endpoint(router_port)], listen=[loopback_endpoint(free_tcp_port())])
 
 
-def node(index: int, processes: int, router_port: int, rounds: int, size: int, work_s: float, settle_s: float) -> None:
+def receiver(inbox: queue.SimpleQueue, direct: bool):
+    """The subscriber's callback: on a Python thread of its own (Zenoh's default) or, ``direct``, on Zenoh's network thread."""
+    put = lambda sample: inbox.put(sample.payload.to_bytes())  # noqa: E731
+    return zenoh.handlers.Callback(put, indirect=not direct)
+
+
+def node(index: int, processes: int, router_port: int, rounds: int, size: int, work_s: float, settle_s: float, direct: bool = False) -> None:
     """One node of the ring; node 0 prints the round-trip times (s) as JSON."""
     inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
     with open_session(peer(router_port)) as session:
         pub = session.declare_publisher(f"{KEY}/{(index + 1) % processes}")
-        sub = session.declare_subscriber(f"{KEY}/{index}", lambda sample: inbox.put(sample.payload.to_bytes()))
+        sub = session.declare_subscriber(f"{KEY}/{index}", receiver(inbox, direct))
         time.sleep(settle_s)  # every node's subscriber is declared and known to its neighbour
         if index == 0:
             payload, times = b"x" * size, []
@@ -58,11 +65,11 @@ def node(index: int, processes: int, router_port: int, rounds: int, size: int, w
         sub.undeclare()
 
 
-def listener(router_port: int, seconds: float) -> None:
+def listener(router_port: int, seconds: float, direct: bool = False) -> None:
     """Subscribes to every key of the ring and handles each message on its main thread."""
     inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
     with open_session(peer(router_port)) as session:
-        sub = session.declare_subscriber(f"{KEY}/**", lambda sample: inbox.put(sample.payload.to_bytes()))
+        sub = session.declare_subscriber(f"{KEY}/**", receiver(inbox, direct))
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             try:
@@ -79,19 +86,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--work-ms", type=float, default=0.0)
     p.add_argument("--rounds", type=int, default=300)
     p.add_argument("--size", type=int, default=1500, help="Payload bytes (a map message of the middle scene is ~1.4 KB)")
+    p.add_argument("--direct", action="store_true", help="Run the callbacks on Zenoh's network thread (indirect=False)")
     p.add_argument("--role", default="main", help=argparse.SUPPRESS)
     p.add_argument("--index", type=int, default=0, help=argparse.SUPPRESS)
     p.add_argument("--router-port", type=int, default=0, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     settle_s = 2.0
     if args.role == "node":
-        node(args.index, args.processes, args.router_port, args.rounds, args.size, args.work_ms / 1e3, settle_s)
+        node(args.index, args.processes, args.router_port, args.rounds, args.size, args.work_ms / 1e3, settle_s, args.direct)
         return 0
     if args.role == "listener":
-        listener(args.router_port, settle_s + args.rounds * 0.05 + 10.0)
+        listener(args.router_port, settle_s + args.rounds * 0.05 + 10.0, args.direct)
         return 0
     port = free_tcp_port()
-    common = [sys.executable, __file__, "--processes", str(args.processes), "--rounds", str(args.rounds), "--size", str(args.size), "--work-ms", str(args.work_ms), "--router-port", str(port)]
+    common = [sys.executable, __file__, "--processes", str(args.processes), "--rounds", str(args.rounds), "--size", str(args.size), "--work-ms", str(args.work_ms), "--router-port", str(port), *(["--direct"] if args.direct else [])]
     with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])):
         extra = [subprocess.Popen([*common, "--role", "listener"]) for _ in range(args.listeners)]
         nodes = [subprocess.Popen([*common, "--role", "node", "--index", str(i)], stdout=subprocess.PIPE if i == 0 else None, text=True) for i in range(args.processes)]
@@ -107,6 +115,7 @@ def main(argv: list[str] | None = None) -> int:
         "listeners": args.listeners,
         "work_ms_per_node": args.work_ms,
         "payload_bytes": args.size,
+        "direct_callbacks": args.direct,
         "round_trip_ms": {"p50": round(float(np.median(times)), 3), "p90": round(float(np.percentile(times, 90)), 3)},
         "per_hop_ms_p50": round(float(np.median(times)) / args.processes, 3),
     }
