@@ -38,7 +38,7 @@ from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
-from services.common import TRACE_DIR_ENV
+from services.common import TRACE_DIR_ENV, keep_freed_memory
 
 
 def process_cpu_s() -> dict[str, float]:
@@ -240,6 +240,7 @@ def main(argv: list[str] | None = None) -> int:
 
     logging.basicConfig(level=logging.WARNING)
     pairs = []
+    keep_freed_memory()  # the allocator settings of the services, for the in-process side too (same rules)
     in_process(args.scene, args.method, args.seed)  # warm-up, not counted: the first episode of a process pays imports and caches
     for _ in range(args.repeats):  # interleaved, so both sides of each ratio see the same machine
         local = in_process(args.scene, args.method, args.seed)

@@ -84,7 +84,7 @@ def unpack_array(obj: Any, where: str, ndim: int | None = None, finite: bool = F
     if a.dtype.kind == "f":
         if finite and not np.isfinite(a).all():
             raise MessageError(f"{where}: non-finite values")
-        if no_nan and np.isnan(a).any():
+        elif no_nan and np.isnan(a).any():
             raise MessageError(f"{where}: NaN values")
     return a
 
@@ -332,22 +332,27 @@ def _finite_window(distance: np.ndarray) -> tuple[slice, slice]:
     return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
-def _distance_in(raw: dict, window: Any, geometry: GridGeometry) -> np.ndarray:
-    """The full D grid from its finite window (inf outside)."""
+def _distance_in(raw: dict, window: Any, finite_mask: Any, geometry: GridGeometry) -> np.ndarray:
+    """The full D grid from its finite values over their window (inf elsewhere)."""
     where = "frontiers.arrays.distance_m"
-    part = unpack_array(raw["distance_m"], where, ndim=2)
-    if part.dtype != np.float64:
+    values = unpack_array(raw["distance_m"], where, ndim=1, finite=True)
+    if values.dtype != np.float64:
         raise MessageError(f"{where}: expected float64")
+    finite = unpack_array(finite_mask, "frontiers.distance_finite", ndim=2)
+    if finite.dtype != np.bool_:
+        raise MessageError("frontiers.distance_finite: expected a boolean mask")
     ok = isinstance(window, list) and len(window) == 2 and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in window)
     if not ok:
         raise MessageError("frontiers.distance_window: expected [row, col] of the window's corner")
-    (y0, x0), (h, w) = window, part.shape
+    (y0, x0), (h, w) = window, finite.shape
     if y0 + h > geometry.shape[0] or x0 + w > geometry.shape[1]:
         raise MessageError("frontiers.distance_window: the window leaves the grid")
-    if (part < 0).any():  # the window holds every finite value; inf outside is not negative
+    if int(np.count_nonzero(finite)) != values.size:
+        raise MessageError(f"{where}: {values.size} values for {int(np.count_nonzero(finite))} finite cells")
+    if (values < 0).any():
         raise MessageError(f"{where}: negative distances")
     distance = np.full(geometry.shape, np.inf)
-    distance[y0 : y0 + h, x0 : x0 + w] = part
+    distance[y0 : y0 + h, x0 : x0 + w][finite] = values
     return distance
 
 
@@ -380,8 +385,9 @@ class FrontiersMsg(Message):
     """
 
     SCHEMA: ClassVar[str] = "frontiers"
-    VERSION: ClassVar[int] = 2
-    """2: D travels as its finite window (``distance_window``), I as the smallest unsigned type."""
+    VERSION: ClassVar[int] = 3
+    """2: D travels as its finite window (``distance_window``), I as the smallest unsigned type.
+    3: within the window, only D's finite values travel, with the window's finite mask (``distance_finite``)."""
     step: int
     decide: bool
     reason: str = ""
@@ -410,15 +416,18 @@ class FrontiersMsg(Message):
         assert self.pose is not None and self.geometry is not None
         distance = np.asarray(self.arrays["distance_m"], dtype=np.float64)
         window = _finite_window(distance)
+        finite = distance[window] != np.inf  # NaN counts as finite here, for the receiver to reject
         b.update(
             pose=_pose_out(self.pose),
             geometry=_geometry_out(self.geometry),
             # Boolean grids compress 20-50x for almost nothing. D and I would cost more CPU to zlib than
-            # to send, so they are made small instead: D only over the window of its finite (reachable)
-            # cells, inf elsewhere; I in the smallest unsigned type that holds it. Both lossless.
+            # to send, so they are made small instead: D as its finite (reachable) values only, listed
+            # row by row over the window that holds them, with that window's finite mask (a boolean grid,
+            # compressed); I in the smallest unsigned type that holds it. Both lossless.
             arrays={k: pack_array(np.asarray(self.arrays[k], dtype=dt), compress=True) for k, dt in self.GRIDS.items() if dt == "bool"}
-            | {"distance_m": pack_array(distance[window], compress=False), "entropy": pack_array(_narrow_counts(self.arrays["entropy"]), compress=False)},
+            | {"distance_m": pack_array(distance[window][finite], compress=False), "entropy": pack_array(_narrow_counts(self.arrays["entropy"]), compress=False)},
             distance_window=[window[0].start, window[1].start],
+            distance_finite=pack_array(finite, compress=True),
             clusters=[
                 {
                     "goal_cell": [int(c["goal_cell"][0]), int(c["goal_cell"][1])],
@@ -448,7 +457,7 @@ class FrontiersMsg(Message):
         if not isinstance(raw, dict) or set(raw) != set(cls.GRIDS):
             raise MessageError(f"frontiers.arrays: expected exactly {', '.join(cls.GRIDS)}")
         arrays = {k: _grid_in(raw, k, "frontiers.arrays", geometry, dt) for k, dt in cls.GRIDS.items() if dt == "bool"}
-        arrays["distance_m"] = _distance_in(raw, _get(b, "distance_window", w), geometry)
+        arrays["distance_m"] = _distance_in(raw, _get(b, "distance_window", w), _get(b, "distance_finite", w), geometry)
         entropy = unpack_array(raw["entropy"], "frontiers.arrays.entropy", ndim=2)
         if entropy.dtype.kind not in "iu" or tuple(entropy.shape) != tuple(geometry.shape):
             raise MessageError("frontiers.arrays.entropy: expected integer counts over the grid")

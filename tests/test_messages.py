@@ -278,7 +278,8 @@ def test_frontiers_send_d_as_its_reachable_window_and_restore_it_exactly():
     np.testing.assert_array_equal(back.arrays["entropy"], obs.entropy)
     assert back.arrays["entropy"].dtype == np.int32
     sent = _body(msg)["arrays"]["distance_m"]
-    assert math.prod(sent["shape"]) < obs.distance_m.size  # only the window travels
+    assert sent["shape"] == [int(np.isfinite(obs.distance_m).sum())]  # only the finite values travel
+    assert math.prod(_body(msg)["distance_finite"]["shape"]) < obs.distance_m.size  # over their window
     unreachable = type(obs)(**{**obs.__dict__, "distance_m": np.full_like(obs.distance_m, np.inf)})
     assert np.isinf(decode(encode(frontiers_from_observation(4, "no_goal", unreachable, 1.0)), FrontiersMsg).arrays["distance_m"]).all()
 
@@ -297,6 +298,9 @@ def test_bad_frontiers_are_rejected():
         {**good, "arrays": {k: v for k, v in good["arrays"].items() if k != "entropy"}},
         {**good, "distance_window": [obs.geometry.shape[0], 0]},  # the window leaves the grid
         {**good, "distance_window": [-1, 0]},
+        {**good, "distance_finite": dict(good["distance_finite"], data=zlib.compress(b"\x01" * math.prod(good["distance_finite"]["shape"])))},  # more finite cells than values
+        {**good, "distance_finite": dict(good["distance_finite"], dtype="uint8")},  # not a boolean mask
+        {**good, "arrays": dict(good["arrays"], distance_m=dict(good["arrays"]["distance_m"], data=good["arrays"]["distance_m"]["data"][:-8], shape=[good["arrays"]["distance_m"]["shape"][0] - 1]))},  # a value short
         {**good, "path_nodes_xy_m": _body(PathMsg(0, np.array([[np.inf, 0.0]])))["path_xy_m"]},
     ]
     for body in cases:
