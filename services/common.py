@@ -3,8 +3,9 @@
 A service subclasses ``Service``: it names its inputs (topic -> message type), handles each decoded
 message in ``on_message`` and may act periodically in ``on_tick``. ``run_service`` opens the session
 (the shared transport helper, multicast scouting off), declares the liveliness token
-``cso/<robot>/alive/<name>`` and the status queryable, and runs a single loop that pops inputs from a
-queue filled by Zenoh callbacks. Payloads that fail validation are logged and counted per key, never
+``cso/<robot>/alive/<name>`` and the status queryable, and handles inputs one at a time
+(``ServiceInputs``): in real time from a queue filled by Zenoh's callback, in lockstep at once on
+Zenoh's network thread. Payloads that fail validation are logged and counted per key, never
 crash the service. SIGINT/SIGTERM stop the loop; ``shutdown`` runs while the session is still open
 (last messages, e.g. the bridge's zero Twist); the ``with`` blocks close the session. A service with
 command-line options of its own declares them in ``add_arguments`` and folds them into its profile
@@ -229,49 +230,100 @@ def _install_stop_handlers(stop: threading.Event) -> None:
     signal.signal(signal.SIGTERM, handler)
 
 
+class ServiceInputs:
+    """Where a service's inputs are handled, one at a time (one lock for handlers, ticks and shutdown).
+
+    Zenoh's callback runs on Zenoh's network thread (``indirect=False``), not on a Python thread of its
+    own, which saves one thread wake-up per delivery. In real time it only queues the payload: the loop's
+    thread handles it and a slow handler can see its ``backlog`` and act on the newest input. In lockstep,
+    once ``start`` has run (``go_direct``), the callback handles the input at once. That saves the wake-up
+    of the loop's thread on every hop of the serial chain. BENCHMARKS.md, issue 4, has both measurements.
+    A handler that raises stops the service, as it would on the loop's thread."""
+
+    def __init__(self, service: Service, stop: threading.Event):
+        self.service, self.stop = service, stop
+        self.queue: queue.SimpleQueue[tuple[str, bytes, float]] = queue.SimpleQueue()
+        self.handling = threading.Lock()
+        self.direct = False
+        self.failure: BaseException | None = None
+        self._switching = threading.Lock()
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        item = (str(sample.key_expr), sample.payload.to_bytes(), time.monotonic())
+        if not self.direct:
+            with self._switching:
+                if not self.direct:
+                    self.queue.put(item)
+                    return
+        with self.handling:
+            if self.stop.is_set():
+                return
+            try:
+                _dispatch(self.service, *item)
+            except BaseException as exc:  # noqa: BLE001 - re-raised on the loop's thread
+                self.failure = exc
+                self.stop.set()
+
+    def go_direct(self) -> None:
+        """Handle what is queued, then every later input on arrival (in order: no input overtakes)."""
+        with self._switching, self.handling:
+            while True:
+                try:
+                    item = self.queue.get_nowait()
+                except queue.Empty:
+                    break
+                _dispatch(self.service, *item)
+            self.direct = True
+
+    def next_queued(self, timeout_s: float) -> tuple[str, bytes, float] | None:
+        try:
+            return self.queue.get(timeout=timeout_s)
+        except queue.Empty:
+            return None
+
+
 def run_service(service: Service, stop: threading.Event | None = None) -> int:
     """Open the session and run the service's event loop until ``stop`` is set (or a signal)."""
     ctx = service.ctx
     stop = stop or threading.Event()
-    inbox: queue.SimpleQueue[tuple[str, str, bytes, float]] = queue.SimpleQueue()
-    service._inbox = inbox
+    inputs = ServiceInputs(service, stop)
+    service._inbox = inputs.queue
     sub_robot = service.subscribe_robot
     keys = RobotKeys(sub_robot)
-
-    def on_sample(sample: zenoh.Sample) -> None:
-        inbox.put((str(sample.key_expr), "", sample.payload.to_bytes(), time.monotonic()))
 
     def on_status_query(query: zenoh.Query) -> None:
         query.reply(ctx.keys.service_status(service.name), encode(service.status_msg()))
 
     with open_session(ctx.transport) as session:
         service.session = session
-        # The callback only queues the payload, so it runs on Zenoh's network thread (``indirect=False``)
-        # rather than on a Python thread of its own: one thread wake-up less per delivery, about 5 % of a
-        # lockstep episode's wall time (BENCHMARKS.md, issue 4).
-        handler = zenoh.handlers.Callback(on_sample, indirect=False)
+        handler = zenoh.handlers.Callback(inputs.on_sample, indirect=False)
         subs = [session.declare_subscriber(keys.topic(t), handler) for t in service.inputs]
         status_q = session.declare_queryable(ctx.keys.service_status(service.name), on_status_query)
         token = session.liveliness().declare_token(ctx.keys.alive(service.name))
         log.info("%s: up for robot %s (inputs: %s)", service.name, sub_robot, ", ".join(service.inputs) or "none")
         try:
             service.start()
+            if ctx.lockstep:
+                inputs.go_direct()
             next_tick = time.monotonic()
             while not stop.is_set():
-                timeout = max(0.0, next_tick - time.monotonic())
-                try:
-                    key, _, payload, received_s = inbox.get(timeout=min(timeout, 0.1))
-                except queue.Empty:
-                    key = ""
-                if key:
-                    _dispatch(service, key, payload, received_s)
+                wait_s = min(max(0.0, next_tick - time.monotonic()), 0.1)
+                if inputs.direct:
+                    stop.wait(wait_s)
+                elif (item := inputs.next_queued(wait_s)) is not None:
+                    with inputs.handling:
+                        _dispatch(service, *item)
                 now = time.monotonic()
-                if now >= next_tick:
-                    service.on_tick(now)
+                if now >= next_tick and not stop.is_set():
+                    with inputs.handling:
+                        service.on_tick(now)
                     next_tick = now + service.tick_period_s
+            if inputs.failure is not None:
+                raise inputs.failure
         finally:
             try:
-                service.shutdown()
+                with inputs.handling:
+                    service.shutdown()
             finally:
                 token.undeclare()
                 status_q.undeclare()

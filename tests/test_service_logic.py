@@ -5,13 +5,14 @@ real-time and lockstep paths that an end-to-end run would only show by chance.""
 from __future__ import annotations
 
 import queue
+import threading
 import time
 
 import numpy as np
 
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import Explorer
-from cso_runtime.geometry import VelocityCommand
+from cso_runtime.geometry import Pose2D, VelocityCommand
 from cso_runtime.messages import (
     CmdVelMsg,
     FrontiersMsg,
@@ -28,7 +29,7 @@ from cso_runtime.messages import (
 from cso_runtime.planner import LocalPlanner, path_blocked_ahead
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.transport import TransportConfig
-from services.common import Service, ServiceContext
+from services.common import Service, ServiceContext, ServiceInputs
 from services.frontier import FrontierService
 from services.planner import PlannerService
 from tests.conftest import two_rooms
@@ -411,3 +412,60 @@ def test_service_profile_is_written_into_a_new_folder_and_a_failure_is_only_logg
     with caplog.at_level("ERROR"):
         write_profile(prof, tmp_path / "taken" / "mapper.prof")
     assert "cannot write the profile" in caplog.text
+
+
+class _Recorder(Service):
+    """Records the steps of the odometry it handles; raises on ``fail_at``."""
+
+    name = "recorder"
+    inputs = {"odom": OdometryMsg}
+
+    def __init__(self, ctx: ServiceContext, fail_at: int = -1):
+        super().__init__(ctx)
+        self.steps: list[int] = []
+        self.fail_at = fail_at
+
+    def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        assert isinstance(msg, OdometryMsg)
+        if msg.step == self.fail_at:
+            raise RuntimeError(f"bug at step {msg.step}")
+        self.steps.append(msg.step)
+
+
+class _Sample:
+    """What Zenoh hands the subscriber callback: a key expression and a payload."""
+
+    def __init__(self, step: int):
+        self.key_expr = "cso/r0/odom"
+        self.payload = self
+        self._bytes = encode(OdometryMsg(step, 0.25 * step, Pose2D(0.0, 0.0, 0.0)))
+
+    def to_bytes(self) -> bytes:
+        return self._bytes
+
+
+def _service_inputs(fail_at: int = -1) -> tuple[_Recorder, ServiceInputs, threading.Event]:
+    ctx = ServiceContext("recorder", "r0", {"lockstep": True}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {})
+    svc, stop = _Recorder(ctx, fail_at), threading.Event()
+    return svc, ServiceInputs(svc, stop), stop
+
+
+def test_inputs_are_queued_until_start_then_handled_on_arrival_in_order():
+    svc, inputs, _ = _service_inputs()
+    inputs.on_sample(_Sample(0))
+    inputs.on_sample(_Sample(1))
+    assert svc.steps == [] and inputs.queue.qsize() == 2  # before start: queued for the loop's thread
+    inputs.go_direct()
+    assert svc.steps == [0, 1] and inputs.queue.qsize() == 0  # what was queued, first and in order
+    inputs.on_sample(_Sample(2))
+    assert svc.steps == [0, 1, 2]  # then each input at once, on the thread that received it
+
+
+def test_a_handler_that_raises_on_the_network_thread_stops_the_service():
+    svc, inputs, stop = _service_inputs(fail_at=1)
+    inputs.go_direct()
+    inputs.on_sample(_Sample(0))
+    inputs.on_sample(_Sample(1))
+    assert stop.is_set() and isinstance(inputs.failure, RuntimeError)  # run_service re-raises it
+    inputs.on_sample(_Sample(2))
+    assert svc.steps == [0]  # nothing is handled once the service is stopping
