@@ -347,8 +347,9 @@ def _distance_in(raw: dict, window: Any, finite_mask: Any, geometry: GridGeometr
     (y0, x0), (h, w) = window, finite.shape
     if y0 + h > geometry.shape[0] or x0 + w > geometry.shape[1]:
         raise MessageError("frontiers.distance_window: the window leaves the grid")
-    if int(np.count_nonzero(finite)) != values.size:
-        raise MessageError(f"{where}: {values.size} values for {int(np.count_nonzero(finite))} finite cells")
+    n_finite = int(np.count_nonzero(finite))
+    if n_finite != values.size:
+        raise MessageError(f"{where}: {values.size} values for {n_finite} finite cells")
     if (values < 0).any():
         raise MessageError(f"{where}: negative distances")
     distance = np.full(geometry.shape, np.inf)
