@@ -8,7 +8,10 @@ this process listens to scan, map, frontiers and goal and stamps each arrival on
   ObservationBuilder, select; 2 hops); on the other steps the policy is not in the loop;
 - a breakdown of the mean step time into scan -> map -> frontiers -> cmd_vel -> next scan;
 - wall-time ratio: step 0 to the episode's end through Zenoh, against ``run_episode`` in one process
-  on the same scene and seed (target <= 1.5x). Process start-up is reported separately.
+  on the same scene and seed (target <= 1.5x). Process start-up is reported separately;
+- CPU floor of that ratio: the CPU every process of the run spent during the Zenoh episode, spread
+  perfectly over this machine's cores, against the in-process episode's wall time. No scheduling of
+  the same work can bring the wall-time ratio below it on this machine.
 
     python benchmarks/bench_runtime.py --scene generated:middle:1:0 [--repeats 5] [--json out.json]
 
@@ -247,6 +250,8 @@ def main(argv: list[str] | None = None) -> int:
         pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode, args.wall_time_only, args.trace)))
     (local_s, local_steps, local_cov, local_cpu_s), z = pairs[-1]
     ratios = [zz["episode_s"] / ll[0] for ll, zz in pairs]
+    cores = len(os.sched_getaffinity(0))
+    cpu_floors = [zz["cpu_s_during_episode"]["total"] / cores / ll[0] for ll, zz in pairs]
     report = {
         "scene": args.scene,
         "method": args.method,
@@ -261,6 +266,11 @@ def main(argv: list[str] | None = None) -> int:
             "zenoh_episode_s": [zz["episode_s"] for _, zz in pairs],
             "wall_time_ratios": ratios,
             "median_wall_time_ratio": float(np.median(ratios)),
+            "zenoh_cpu_s": [zz["cpu_s_during_episode"]["total"] for _, zz in pairs],
+            "in_process_cpu_s": [ll[3] for ll, _ in pairs],
+            "cores": cores,
+            "cpu_floor_ratios": cpu_floors,
+            "median_cpu_floor_ratio": float(np.median(cpu_floors)),
             "same_result_every_time": all(zz["steps"] == ll[1] and zz["coverage_pct"] == ll[2] for ll, zz in pairs),
         },
     }
