@@ -1,10 +1,11 @@
 """Every message the services exchange over Zenoh, and its wire format.
 
 A payload is a msgpack map ``{"schema": NAME, "v": VERSION, "body": {...}}``. Numpy arrays travel as
-``{"dtype", "shape", "data"}`` with raw little-endian bytes; map-sized arrays are zlib-compressed
-(``"z": true``). ``decode`` validates everything (schema, version, types, shapes, ranges, finiteness)
-and raises ``MessageError`` so a service can log and count a rejection instead of crashing. The
-table of keys and schemas is in docs/messages.md.
+``{"dtype", "shape", "z", "data"}`` with raw little-endian bytes; map-sized arrays are zlib-compressed
+(``"z": true``), boolean grids packed 8 cells to a byte first (``"z": "bits"``). ``decode`` validates
+everything (schema, version, types, shapes, ranges, finiteness) and raises ``MessageError`` so a
+service can log and count a rejection instead of crashing. The table of keys and schemas is in
+docs/messages.md.
 """
 
 from __future__ import annotations
@@ -44,12 +45,19 @@ _WIRE_DTYPES = {np.dtype(name): (name, np.dtype(name).newbyteorder("<")) for nam
 
 
 def pack_array(a: np.ndarray, compress: bool | None = None) -> dict[str, Any]:
+    """One array as a wire record; ``compress`` None: zlib when it is at least ``COMPRESS_MIN_BYTES``.
+
+    A compressed boolean array is packed 8 cells to a byte before zlib (``"z": "bits"``): on a
+    640 x 480 grid that is 10 times faster to encode, 3 times faster to decode and 5 times smaller
+    than zlib over one byte per cell (BENCHMARKS.md, issue 4)."""
     a = np.ascontiguousarray(a)
     wire = _WIRE_DTYPES.get(a.dtype) or _WIRE_DTYPES.get(a.dtype.newbyteorder("="))
     if wire is None:
         raise MessageError(f"cannot send arrays of dtype {a.dtype}")
+    z = a.nbytes >= COMPRESS_MIN_BYTES if compress is None else compress
+    if z and a.dtype == np.bool_:
+        return {"dtype": "bool", "shape": list(a.shape), "z": "bits", "data": zlib.compress(np.packbits(a, bitorder="little").tobytes(), 1)}
     data = (a if a.dtype == wire[1] else a.astype(wire[1])).tobytes()
-    z = len(data) >= COMPRESS_MIN_BYTES if compress is None else compress
     return {"dtype": wire[0], "shape": list(a.shape), "z": bool(z), "data": zlib.compress(data, 1) if z else data}
 
 
@@ -69,11 +77,15 @@ def unpack_array(obj: Any, where: str, ndim: int | None = None, finite: bool = F
         raise MessageError(f"{where}: too large ({n} elements)")
     if not isinstance(data, bytes):
         raise MessageError(f"{where}: data is not bytes")
+    if obj["z"] == "bits":
+        if dtype != "bool":
+            raise MessageError(f"{where}: bit-packed data must be bool, not {dtype}")
+        packed = _decompress(data, (n + 7) // 8, where)
+        if len(packed) != (n + 7) // 8:
+            raise MessageError(f"{where}: {len(packed)} packed bytes do not fit shape {shape}")
+        return np.unpackbits(np.frombuffer(packed, dtype=np.uint8), count=n, bitorder="little").view(np.bool_).reshape(shape)
     if obj["z"] is True:
-        try:
-            data = zlib.decompress(data, bufsize=max(n, 1))
-        except zlib.error as exc:
-            raise MessageError(f"{where}: corrupt compressed data ({exc})") from None
+        data = _decompress(data, n, where)
     elif obj["z"] is not False:
         raise MessageError(f"{where}: bad compression flag")
     native = np.dtype(dtype)
@@ -87,6 +99,13 @@ def unpack_array(obj: Any, where: str, ndim: int | None = None, finite: bool = F
         elif no_nan and np.isnan(a).any():
             raise MessageError(f"{where}: NaN values")
     return a
+
+
+def _decompress(data: bytes, size_hint: int, where: str) -> bytes:
+    try:
+        return zlib.decompress(data, bufsize=max(size_hint, 1))
+    except zlib.error as exc:
+        raise MessageError(f"{where}: corrupt compressed data ({exc})") from None
 
 
 def _get(body: dict, key: str, where: str) -> Any:
@@ -386,7 +405,7 @@ class FrontiersMsg(Message):
     """
 
     SCHEMA: ClassVar[str] = "frontiers"
-    VERSION: ClassVar[int] = 3
+    VERSION: ClassVar[int] = 4
     """2: D travels as its finite window (``distance_window``), I as the smallest unsigned type.
     3: within the window, only D's finite values travel, with the window's finite mask (``distance_finite``)."""
     step: int
@@ -777,6 +796,7 @@ class EpisodeResultMsg(Message):
     """The finished episode: what ``eval`` writes (EpisodeResult) plus the plan for the plots."""
 
     SCHEMA: ClassVar[str] = "episode_result"
+    VERSION: ClassVar[int] = 2
     scene: str
     steps: int
     explored_area_m2: float

@@ -35,6 +35,7 @@ from cso_runtime.messages import (
     frontiers_from_observation,
     observation_from_frontiers,
     pack_array,
+    unpack_array,
 )
 from cso_runtime.observation import ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
@@ -125,6 +126,33 @@ def test_map_round_trip_is_compressed():
     back = decode(payload, MapMsg)
     assert isinstance(back, MapMsg) and back.geometry == m.geometry
     np.testing.assert_array_equal(back.grid, grid)
+
+
+@pytest.mark.parametrize("shape", [(30, 40), (7, 13), (1, 1), (0, 5)])
+def test_boolean_grids_travel_bit_packed_and_come_back_exactly(shape):
+    rng = np.random.default_rng(3)
+    grid = rng.random(shape) < 0.3
+    rec = pack_array(grid, compress=True)
+    assert rec["z"] == "bits" and rec["dtype"] == "bool"
+    assert len(zlib.decompress(rec["data"])) == (grid.size + 7) // 8  # 8 cells to a byte
+    back = unpack_array(rec, "grid", ndim=2)
+    assert back.dtype == np.bool_ and back.shape == shape and back.flags.writeable
+    np.testing.assert_array_equal(back, grid)
+
+
+def test_bad_bit_packed_grids_are_rejected():
+    rec = pack_array(np.ones((7, 13), bool), compress=True)
+    packed = zlib.decompress(rec["data"])
+    cases = [
+        dict(rec, dtype="uint8"),  # bit-packed data is boolean only
+        dict(rec, data=zlib.compress(packed[:-1])),  # a byte short
+        dict(rec, data=zlib.compress(packed + b"\x00")),  # a byte too many
+        dict(rec, data=b"not zlib"),
+        dict(rec, z="lz4"),  # an unknown codec
+    ]
+    for bad in cases:
+        with pytest.raises(MessageError):
+            unpack_array(bad, "grid", ndim=2)
 
 
 def test_path_and_result_round_trip():
@@ -298,7 +326,7 @@ def test_bad_frontiers_are_rejected():
         {**good, "arrays": {k: v for k, v in good["arrays"].items() if k != "entropy"}},
         {**good, "distance_window": [obs.geometry.shape[0], 0]},  # the window leaves the grid
         {**good, "distance_window": [-1, 0]},
-        {**good, "distance_finite": dict(good["distance_finite"], data=zlib.compress(b"\x01" * math.prod(good["distance_finite"]["shape"])))},  # more finite cells than values
+        {**good, "distance_finite": dict(good["distance_finite"], data=zlib.compress(np.packbits(np.ones(math.prod(good["distance_finite"]["shape"]), bool), bitorder="little").tobytes()))},  # more finite cells than values
         {**good, "distance_finite": dict(good["distance_finite"], dtype="uint8")},  # not a boolean mask
         {**good, "arrays": dict(good["arrays"], distance_m=dict(good["arrays"]["distance_m"], data=good["arrays"]["distance_m"]["data"][:-8], shape=[good["arrays"]["distance_m"]["shape"][0] - 1]))},  # a value short
         {**good, "path_nodes_xy_m": _body(PathMsg(0, np.array([[np.inf, 0.0]])))["path_xy_m"]},
