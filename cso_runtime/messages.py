@@ -101,9 +101,11 @@ def unpack_array(obj: Any, where: str, ndim: int | None = None, finite: bool = F
     return a
 
 
-def _decompress(data: bytes, size_hint: int, where: str) -> bytes:
+def _decompress(data: bytes, expected_bytes: int, where: str) -> bytes:
+    """Inflate at most one byte more than expected: enough for the caller to reject a wrong size,
+    never the memory a crafted payload could ask for."""
     try:
-        return zlib.decompress(data, bufsize=max(size_hint, 1))
+        return zlib.decompressobj().decompress(data, expected_bytes + 1)
     except zlib.error as exc:
         raise MessageError(f"{where}: corrupt compressed data ({exc})") from None
 
@@ -407,7 +409,8 @@ class FrontiersMsg(Message):
     SCHEMA: ClassVar[str] = "frontiers"
     VERSION: ClassVar[int] = 4
     """2: D travels as its finite window (``distance_window``), I as the smallest unsigned type.
-    3: within the window, only D's finite values travel, with the window's finite mask (``distance_finite``)."""
+    3: within the window, only D's finite values travel, with the window's finite mask (``distance_finite``).
+    4: boolean grids travel bit-packed (``pack_array``)."""
     step: int
     decide: bool
     reason: str = ""
@@ -797,6 +800,7 @@ class EpisodeResultMsg(Message):
 
     SCHEMA: ClassVar[str] = "episode_result"
     VERSION: ClassVar[int] = 2
+    """2: the boolean grids travel bit-packed (``pack_array``)."""
     scene: str
     steps: int
     explored_area_m2: float

@@ -148,6 +148,7 @@ def test_bad_bit_packed_grids_are_rejected():
         dict(rec, data=zlib.compress(packed[:-1])),  # a byte short
         dict(rec, data=zlib.compress(packed + b"\x00")),  # a byte too many
         dict(rec, data=b"not zlib"),
+        dict(rec, data=zlib.compress(b"\x00" * 50_000_000)),  # inflates far beyond the grid: stops one byte past it
         dict(rec, z="lz4"),  # an unknown codec
     ]
     for bad in cases:
