@@ -277,6 +277,8 @@ class Launcher:
         """Topic -> (episode id, step) of the cached payload (goals carry no episode: 0)."""
         self.rejected: dict[str, int] = {}
         self.goal: GoalMsg | None = None
+        self.result: EpisodeResultMsg | None = None
+        """The episode's result as published on ``episode_result`` (else it is asked for, ``wait_for_result``)."""
         self.path_ahead_m: float | None = None
         """Length of the planner's latest path, robot to goal (live view)."""
         self.outputs_written = False
@@ -334,6 +336,8 @@ class Launcher:
             return
         if isinstance(msg, EpisodeStatusMsg):
             self.status = msg
+        elif isinstance(msg, EpisodeResultMsg):
+            self.result = msg
         elif isinstance(msg, (MapMsg, GoalMsg)):
             episode, step = getattr(msg, "episode", 0), msg.step
             cached_episode, cached_step = self.latest_step.get(topic, (episode, -1))
@@ -431,6 +435,21 @@ class Launcher:
             return msg
         return None
 
+    def wait_for_result(self, session: Any, wait_s: float = 15.0) -> EpisodeResultMsg | None:
+        """The finished episode's result: the one published on ``episode_result``, else the answer to a
+        query (the sim and the ros2_bridge answer once finished), asked again until ``wait_s`` has passed
+        or the launcher is stopped. On a loaded machine one query can time out before the answer comes."""
+        deadline = time.monotonic() + wait_s
+        while self.result is None and not self.stop_event.is_set():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return None
+            result = self.fetch_result(session, timeout_s=min(3.0, left))
+            if result is not None:
+                return result
+            self.stop_event.wait(min(0.1, max(left, 0.0)))
+        return self.result
+
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
         out = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, {"command": "cso-runtime up", "profile": self.data})
         log.info("episode %s: %.2f%% coverage in %d steps; results in %s", result.terminated_by, result.coverage_pct, result.steps, out)
@@ -500,11 +519,13 @@ class Launcher:
                         view.update()
                     st = self.status
                     if st is not None and st.state in ("done", "failed") and not self.outputs_written:
-                        result = self.fetch_result(session)
+                        result = self.wait_for_result(session)
                         if result is not None:
                             self.write_outputs(result)
+                        else:
+                            log.error("the episode is %s but its result never arrived: no summary.json was written", st.state)
                         self.outputs_written = True
-                        self.exit_code = 0 if st.state == "done" else 1
+                        self.exit_code = 0 if st.state == "done" and result is not None else 1
                         self.write_run_file(st.state)
                         if not stay_after_done:
                             break

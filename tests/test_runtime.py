@@ -205,6 +205,28 @@ def test_launcher_cache_serves_the_newest_map_of_the_newest_episode(tmp_path):
     assert cached().episode == 2 and launcher.rejected == {"map": 1}
 
 
+def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
+    """The result published on ``episode_result`` is used as is; without one, the launcher keeps asking
+    until its deadline and then reports that none came (no summary is written silently)."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.messages import EpisodeResultMsg
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+    asked: list[str] = []
+    nobody = SimpleNamespace(get=lambda key, timeout: asked.append(key) or [])
+    assert launcher.wait_for_result(nobody, wait_s=0.3) is None and len(asked) >= 2  # asked again, then gave up
+    free = np.ones((3, 4), bool)
+    res = EpisodeResultMsg("s", 10, 1.2, 98.0, 1.3, 4.5, "no_frontier", 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, "greedy-dist", 0)
+    launcher._on_sample(SimpleNamespace(key_expr=keys.episode_result, payload=SimpleNamespace(to_bytes=lambda: encode(res))))
+    asked.clear()
+    got = launcher.wait_for_result(nobody, wait_s=5.0)
+    assert got is not None and got.steps == 10 and got.terminated_by == "no_frontier" and asked == []
+
+
 def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     """The launcher's live view reports the length of the planner's latest path (robot to goal)."""
     from types import SimpleNamespace
