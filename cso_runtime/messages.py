@@ -84,12 +84,12 @@ def unpack_array(obj: Any, where: str, ndim: int | None = None, finite: bool = F
         if len(packed) != (n + 7) // 8:
             raise MessageError(f"{where}: {len(packed)} packed bytes do not fit shape {shape}")
         return np.unpackbits(np.frombuffer(packed, dtype=np.uint8), count=n, bitorder="little").view(np.bool_).reshape(shape)
-    if obj["z"] is True:
-        data = _decompress(data, n, where)
-    elif obj["z"] is not False:
-        raise MessageError(f"{where}: bad compression flag")
     native = np.dtype(dtype)
     dt = _WIRE_DTYPES[native][1]
+    if obj["z"] is True:
+        data = _decompress(data, n * dt.itemsize, where)
+    elif obj["z"] is not False:
+        raise MessageError(f"{where}: bad compression flag")
     if len(data) != n * dt.itemsize:
         raise MessageError(f"{where}: {len(data)} bytes do not fit shape {shape} of {dtype}")
     a = np.frombuffer(data, dtype=dt).reshape(shape).astype(native, copy=True)

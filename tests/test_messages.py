@@ -140,6 +140,17 @@ def test_boolean_grids_travel_bit_packed_and_come_back_exactly(shape):
     np.testing.assert_array_equal(back, grid)
 
 
+@pytest.mark.parametrize("dtype", ["int8", "int32", "float32", "float64"])
+def test_compressed_arrays_of_every_width_round_trip(dtype):
+    """zlib-compressed arrays (at least ``COMPRESS_MIN_BYTES``, e.g. a large cluster's cells) come back whole."""
+    a = np.arange(3001 * 2, dtype=dtype).reshape(3001, 2)
+    rec = pack_array(a)
+    assert rec["z"] is True
+    np.testing.assert_array_equal(unpack_array(rec, "a", ndim=2), a)
+    with pytest.raises(MessageError):  # one element more than the shape says
+        unpack_array(dict(rec, data=zlib.compress(a.tobytes() + a.tobytes()[: a.itemsize])), "a", ndim=2)
+
+
 def test_bad_bit_packed_grids_are_rejected():
     rec = pack_array(np.ones((7, 13), bool), compress=True)
     packed = zlib.decompress(rec["data"])
