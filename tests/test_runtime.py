@@ -51,9 +51,9 @@ def cli(*args: str, cwd: Path, timeout_s: float = 60.0) -> subprocess.CompletedP
     return subprocess.run([sys.executable, "-m", "cso_runtime.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=timeout_s)
 
 
-def write_profile(tmp_path: Path, **sim_params: Any) -> Path:
+def write_profile(tmp_path: Path, scene: str = SCENE, **sim_params: Any) -> Path:
     data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
-    data["scene"] = SCENE
+    data["scene"] = scene
     data["services"]["sim"].update(sim_params)
     path = tmp_path / "test_profile.yaml"
     path.write_text(yaml.safe_dump(data))
@@ -82,8 +82,8 @@ def kill_leftovers(runs: Path, extra: list[int] = ()) -> list[int]:
     return left
 
 
-def in_process_result():
-    plan = resolve_scenes(SCENE)[0].load()
+def in_process_result(scene: str = SCENE):
+    plan = resolve_scenes(scene)[0].load()
     return run_episode(KinematicSimulator(plan, seed=0), make_policy("greedy-dist", seed=0), ExplorationConfig(), seed=0)
 
 
@@ -280,9 +280,11 @@ def test_status_and_down_with_nothing_running(tmp_path):
     assert r.returncode == 1 and "nothing running" in r.stderr
 
 
-def test_up_in_lockstep_matches_the_in_process_episode(tmp_path):
-    """Foreground ``up``: the same steps and coverage as ``run_episode`` on the same scene and seed."""
-    profile = write_profile(tmp_path)
+@pytest.mark.parametrize("scene", [SCENE, "generated:middle:1:0"])
+def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene):
+    """Foreground ``up``: the same steps and coverage as ``run_episode`` on the same scene and seed. The
+    middle scene's decision messages carry arrays large enough to be compressed (clusters' cells too)."""
+    profile = write_profile(tmp_path, scene)
     runs = tmp_path / "runs"
     try:
         r = cli("up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=120)
@@ -290,7 +292,7 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path):
         (run_dir,) = list(runs.glob("*/summary.json"))
         summary = json.loads(run_dir.read_text())
         zenoh_metrics = summary["methods"]["greedy-dist"]
-        expected = in_process_result()
+        expected = in_process_result(scene)
         assert zenoh_metrics["steps"] == expected.steps
         assert abs(zenoh_metrics["coverage_pct"] - expected.coverage_pct) < 1e-3
         assert zenoh_metrics["terminated_by"] == {expected.terminated_by: 1}
