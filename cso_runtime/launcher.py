@@ -447,7 +447,7 @@ class Launcher:
             result = self.fetch_result(session, timeout_s=min(3.0, left))
             if result is not None:
                 return result
-            self.stop_event.wait(min(0.1, max(left, 0.0)))
+            self.stop_event.wait(min(0.1, left))
         return self.result
 
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
