@@ -8,12 +8,25 @@ cross-talk by accident.
 from __future__ import annotations
 
 import json
+import os
 import socket
 from dataclasses import dataclass, field
 
 import zenoh
 
 MODES = ("peer", "client", "router")
+
+ZENOH_RUNTIME_ENV = "ZENOH_RUNTIME"
+"""Zenoh's own variable for its Tokio runtimes (RON); a value set by the user is always kept."""
+TWO_ZENOH_THREADS = "(rx: (worker_threads: 1), tx: (worker_threads: 1), net: (handover: rx), acc: (handover: rx), app: (handover: rx))"
+"""Our default for ``ZENOH_RUNTIME``: Zenoh's runtimes on two worker threads per process, one that
+receives (and runs the rest) and one that sends.
+
+Zenoh's default is six worker threads per process (two that receive); with five services, the
+launcher and its router on a small machine, every message then woke threads that only handed work
+to each other. Sending keeps a thread of its own: a handler that runs on the receiving thread (as
+the services do in lockstep) and publishes a message larger than the link's queue must not wait
+for that same thread to drain it (BENCHMARKS.md, issue 4)."""
 
 
 class TransportError(RuntimeError):
@@ -42,8 +55,12 @@ class TransportConfig:
 
 
 def zenoh_config(conf: TransportConfig) -> zenoh.Config:
-    """A zenoh.Config with the mode and endpoints of ``conf`` and multicast scouting disabled."""
+    """A zenoh.Config with the mode and endpoints of ``conf`` and multicast scouting disabled.
+
+    Zenoh reads ``ZENOH_RUNTIME`` once, when a process first opens a session: unless the user set
+    it, ``TWO_ZENOH_THREADS`` applies from here on (child processes inherit it)."""
     conf.validate()
+    os.environ.setdefault(ZENOH_RUNTIME_ENV, TWO_ZENOH_THREADS)
     cfg = zenoh.Config()
     cfg.insert_json5("mode", json.dumps(conf.mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")

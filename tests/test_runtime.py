@@ -87,6 +87,41 @@ def in_process_result(scene: str = SCENE):
     return run_episode(KinematicSimulator(plan, seed=0), make_policy("greedy-dist", seed=0), ExplorationConfig(), seed=0)
 
 
+THREADS_OF_A_SESSION = """
+import os, sys, time
+from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+a, b = free_tcp_port(), free_tcp_port()
+with open_session(TransportConfig(mode="peer", listen=[loopback_endpoint(a)])) as s1, \
+        open_session(TransportConfig(mode="peer", listen=[loopback_endpoint(b)], connect=[loopback_endpoint(a)])) as s2:
+    got = []
+    sub = s1.declare_subscriber("t/x", lambda sample: got.append(1))
+    deadline = time.monotonic() + 10
+    while not got and time.monotonic() < deadline:
+        s2.put("t/x", b"x")
+        time.sleep(0.02)
+    assert got, "no message crossed the link"
+    print(" ".join(sorted(open(f"/proc/self/task/{t}/comm").read().strip() for t in os.listdir("/proc/self/task"))))
+"""
+
+
+@pytest.mark.parametrize("user_value", [None, "(app: (worker_threads: 2))"])
+def test_zenoh_runs_on_two_threads_per_process_unless_the_user_says_otherwise(user_value):
+    """Zenoh's runtimes share a receiving and a sending worker thread (``TWO_ZENOH_THREADS``); a
+    ``ZENOH_RUNTIME`` set by the user wins. Checked on the threads of a process with a live link,
+    where Zenoh has started them all."""
+    env = {k: v for k, v in os.environ.items() if k != "ZENOH_RUNTIME"}
+    if user_value is not None:
+        env["ZENOH_RUNTIME"] = user_value
+    out = subprocess.run([sys.executable, "-c", THREADS_OF_A_SESSION], env=env, capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    zenoh_threads = {name for name in out.stdout.split() if name.split("-")[0] in ("app", "acc", "tx", "rx", "net")}
+    if user_value is None:  # one worker each (rx-0, tx-0); tokio names its blocking-call threads rx-1, ... too
+        # (Zenoh's own default also starts app-, acc- and net- threads)
+        assert {"rx-0", "tx-0"} <= zenoh_threads and all(name.startswith(("rx-", "tx-")) for name in zenoh_threads)
+    else:
+        assert {"app-0", "app-1", "rx-0", "rx-1"} <= zenoh_threads
+
+
 # --- tier 2: one service in this process, a second session on explicit loopback endpoints --------
 
 
