@@ -87,12 +87,21 @@ class GroundTruthMetrics:
         return float(np.count_nonzero(self.explored_free(occupancy))) * occupancy.geometry.cell_area_m2
 
     def coverage_pct(self, occupancy: OccupancyMap) -> float:
-        return 100.0 * self.explored_area_m2(occupancy) / max(self.region_area_m2, 1e-9)
+        return self.coverage_pct_of(self.explored_area_m2(occupancy))
 
     def coverage_done(self, occupancy: OccupancyMap) -> bool:
+        return self.done_at(self.explored_area_m2(occupancy))
+
+    def coverage_pct_of(self, explored_m2: float) -> float:
+        """Coverage (%) of an explored area already measured (callers that need the area, the coverage
+        and the end test of one map count its cells once)."""
+        return 100.0 * explored_m2 / max(self.region_area_m2, 1e-9)
+
+    def done_at(self, explored_m2: float) -> bool:
+        """Section 4.1's end of an episode: coverage above ``done_coverage_pct`` and less than
+        ``done_unexplored_m2`` left to explore."""
         e = self.config
-        explored = self.explored_area_m2(occupancy)
-        return 100.0 * explored / self.region_area_m2 > e.done_coverage_pct and self.region_area_m2 - explored < e.done_unexplored_m2
+        return self.coverage_pct_of(explored_m2) > e.done_coverage_pct and self.region_area_m2 - explored_m2 < e.done_unexplored_m2
 
 
 def goal_still_frontier(occupancy: OccupancyMap, goal: Goal | None) -> bool:
@@ -243,8 +252,9 @@ class Explorer:
         self.steps_since_decision += 1
         self._integrate()
         self.planner.check_blocked(self.map.occupied, self.map.geometry, self.sim.odometry())
-        self.coverage_curve.append(self.coverage_pct())
-        if self.coverage_done():
+        explored_m2 = self.explored_area_m2()
+        self.coverage_curve.append(self.metrics.coverage_pct_of(explored_m2))
+        if self.metrics.done_at(explored_m2):
             self.terminated_by = TERMINATED_COVERAGE
         elif self.steps >= self.config.episode.max_steps:
             self.terminated_by = TERMINATED_MAX_STEPS

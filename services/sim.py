@@ -118,6 +118,8 @@ class SimService(Service):
         self.measured_step = -1
         self.goal_step = -1
         self.last_map: OccupancyMap | None = None
+        self.explored_m2 = 0.0
+        """Ground-truth explored area of ``last_map`` (counted once per map)."""
         self.coverage_curve: list[float] = []
         self.trajectory: list[tuple[float, float]] = [tuple(self.sim.true_pose().xy)]
         self.path_length_m = 0.0
@@ -161,7 +163,6 @@ class SimService(Service):
         self.last_publish_s = time.monotonic()
 
     def episode_status(self) -> EpisodeStatusMsg:
-        explored = self.metrics.explored_area_m2(self.last_map) if self.last_map is not None else 0.0
         cov = self.coverage_curve[-1] if self.coverage_curve else 0.0
         return EpisodeStatusMsg(
             state=self.episode_state,
@@ -169,7 +170,7 @@ class SimService(Service):
             scene=self.sim.plan.name,
             method=self.method,
             coverage_pct=float(min(cov, 100.0)),
-            explored_area_m2=explored,
+            explored_area_m2=self.explored_m2,
             path_length_m=self.path_length_m,
             goal_xy_m=self.goal_xy,
             decisions=self.decisions,
@@ -186,7 +187,7 @@ class SimService(Service):
         self.result = EpisodeResultMsg(
             scene=self.sim.plan.name,
             steps=self.step,
-            explored_area_m2=self.metrics.explored_area_m2(self.last_map) if self.last_map is not None else 0.0,
+            explored_area_m2=self.explored_m2,
             coverage_pct=self.coverage_curve[-1] if self.coverage_curve else 0.0,
             traversable_area_m2=self.metrics.region_area_m2,
             path_length_m=self.path_length_m,
@@ -212,8 +213,9 @@ class SimService(Service):
     def measure(self, m: MapMsg) -> None:
         """Ground-truth metrics of a map; the termination criteria of section 4.1."""
         self.last_map = OccupancyMap.from_occupancy_grid(m.grid, m.geometry)
-        self.coverage_curve.append(self.metrics.coverage_pct(self.last_map))
-        if self.metrics.coverage_done(self.last_map):
+        self.explored_m2 = self.metrics.explored_area_m2(self.last_map)
+        self.coverage_curve.append(self.metrics.coverage_pct_of(self.explored_m2))
+        if self.metrics.done_at(self.explored_m2):
             self.finish("done", TERMINATED_COVERAGE)
         elif self.step >= self.max_steps:
             self.finish("done", TERMINATED_MAX_STEPS)

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cso_runtime.config import ExplorationConfig, SensorConfig
-from cso_runtime.episode import run_episode
+from cso_runtime.config import EpisodeConfig, ExplorationConfig, SensorConfig
+from cso_runtime.episode import GroundTruthMetrics, run_episode
 from cso_runtime.evaluation import CSV_FIELDS, METRICS, EvalRequest, run_eval
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import builtin_scene_dir, load_floor_plan
@@ -41,6 +41,17 @@ def test_greedy_dist_covers_a_dungeon_plan_with_360_lidar():
     assert result.terminated_by == "coverage"
     assert result.coverage_pct > 99.0
     assert result.traversable_area_m2 - result.explored_area_m2 < 1.0
+
+
+def test_an_episode_ends_when_both_coverage_thresholds_hold():
+    """Section 4.1: coverage above ``done_coverage_pct`` and less than ``done_unexplored_m2`` left."""
+    plan = two_rooms()
+    metrics = GroundTruthMetrics(plan, EpisodeConfig(done_coverage_pct=95.0, done_unexplored_m2=0.5))
+    total = metrics.region_area_m2
+    assert metrics.coverage_pct_of(total / 2) == pytest.approx(50.0)
+    assert not metrics.done_at(0.95 * total)  # 95 % is not above 95 %, and 0.9 m2 are left
+    assert not metrics.done_at(total - 0.6)  # above 96 %, but 0.6 m2 are left
+    assert metrics.done_at(total - 0.4)
 
 
 def test_max_steps_terminates():
