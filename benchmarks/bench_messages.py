@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def keep_map(explorer: Explorer) -> None:
         k = explorer.steps
-        maps.append(MapMsg(k, explorer.map.geometry, explorer.map.to_occupancy_grid()))
+        maps.append(MapMsg.of(k, explorer.map))
         sim, ahead = explorer.sim, explorer.planner.remaining_path()
         per_step["scan"].append(ScanMsg(k, explorer.last_scan, sim.sensor_pose(), 1))
         per_step["odom"].append(OdometryMsg(k, sim.time_s, sim.odometry()))

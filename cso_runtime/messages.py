@@ -22,6 +22,7 @@ import numpy as np
 from cso_runtime.frontiers import FrontierCluster
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.observation import Observation
+from cso_runtime.occupancy import OccupancyMap
 
 SCHEMA_VERSION = 1
 """Version of the schemas unchanged since the first release; a schema that changes bumps its own
@@ -315,32 +316,58 @@ class CmdVelMsg(Message):
 
 @dataclass
 class MapMsg(Message):
-    """The occupancy grid M_t (ROS values -1/0/100, row 0 at the origin), compressed."""
+    """The occupancy map M_t as its two channels (section 3.2), explored and occupied, each a boolean
+    grid bit-packed and compressed on the wire (v3; row 0 at the origin). ``grid`` gives the ROS
+    OccupancyGrid values (-1/0/100) for bridges and files. Two bit-planes rather than one int8 grid:
+    the mapper encodes them about four times faster and the receivers get the masks they work on."""
 
     SCHEMA: ClassVar[str] = "map"
-    VERSION: ClassVar[int] = 2
+    VERSION: ClassVar[int] = 3
     step: int
     geometry: GridGeometry
-    grid: np.ndarray
+    explored: np.ndarray
+    """bool (ny, nx): cells seen at least once."""
+    occupied: np.ndarray
+    """bool (ny, nx): explored cells that are occupied (never an unexplored one)."""
     episode: int = 0
     """Episode id of the scans the map was built from (v2), so that a map still in flight from an
     earlier episode (after a sim restart) is never taken for this one's. 0: not from a sim episode."""
+
+    @classmethod
+    def of(cls, step: int, occupancy: OccupancyMap, episode: int = 0) -> "MapMsg":
+        """The message of a map (its occupied channel restricted to explored cells)."""
+        return cls(step, occupancy.geometry, occupancy.explored.copy(), occupancy.explored & occupancy.occupied, episode)
+
+    @classmethod
+    def from_grid(cls, step: int, geometry: GridGeometry, grid: np.ndarray, episode: int = 0) -> "MapMsg":
+        """The message of an OccupancyGrid (values above 50 are occupied, ROS convention)."""
+        return cls.of(step, OccupancyMap.from_occupancy_grid(grid, geometry), episode)
+
+    def occupancy(self) -> OccupancyMap:
+        return OccupancyMap.from_masks(self.explored, self.occupied, self.geometry)
+
+    @property
+    def grid(self) -> np.ndarray:
+        """int8 OccupancyGrid values: -1 unknown, 0 free, 100 occupied."""
+        return self.occupancy().to_occupancy_grid()
 
     def body(self) -> dict[str, Any]:
         return {
             "step": self.step,
             "geometry": _geometry_out(self.geometry),
-            "grid": pack_array(np.asarray(self.grid, dtype=np.int8), compress=True),
+            "explored": pack_array(np.asarray(self.explored, dtype=bool), compress=True),
+            "occupied": pack_array(np.asarray(self.occupied, dtype=bool), compress=True),
             "episode": self.episode,
         }
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> "MapMsg":
         geometry = _geometry_in(b, "map")
-        grid = _grid_in(b, "grid", "map", geometry, "int8")
-        if not ((grid == -1) | (grid == 0) | (grid == 100)).all():
-            raise MessageError("map.grid: values must be -1, 0 or 100")
-        return cls(_int(b, "step", "map"), geometry, grid, _int(b, "episode", "map"))
+        explored = _grid_in(b, "explored", "map", geometry, "bool")
+        occupied = _grid_in(b, "occupied", "map", geometry, "bool")
+        if (occupied & ~explored).any():
+            raise MessageError("map.occupied: only explored cells can be occupied")
+        return cls(_int(b, "step", "map"), geometry, explored, occupied, _int(b, "episode", "map"))
 
 
 def _finite_window(distance: np.ndarray) -> tuple[slice, slice]:

@@ -115,10 +115,17 @@ class OccupancyMap:
         grid = np.asarray(grid)
         if grid.shape != tuple(geometry.shape):
             raise ValueError(f"grid shape {grid.shape} does not match geometry {geometry.shape}")
+        return cls.from_masks(grid >= 0, grid > 50, geometry)
+
+    @classmethod
+    def from_masks(cls, explored: np.ndarray, occupied: np.ndarray, geometry: GridGeometry) -> "OccupancyMap":
+        """A map with these two channels (as received: the arrays are kept, not copied)."""
+        if explored.shape != tuple(geometry.shape) or occupied.shape != tuple(geometry.shape):
+            raise ValueError(f"channel shapes {explored.shape}, {occupied.shape} do not match geometry {geometry.shape}")
         m = cls.__new__(cls)
         m.geometry = geometry
-        m.explored = grid >= 0
-        m.occupied = grid > 50
+        m.explored = explored
+        m.occupied = occupied
         m._log_odds = None
         return m
 

@@ -20,7 +20,6 @@ from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import decision_reason, goal_failed_in_place, mark_dead_frontier
 from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PlannerFeedbackMsg, frontiers_from_observation
 from cso_runtime.observation import ObservationBuilder
-from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
 from services.common import Service, ServiceContext, service_main
@@ -149,7 +148,7 @@ class FrontierService(Service):
         for s in [s for s in self.feedback if s < k - 1]:
             self.feedback.pop(s)
         self.done_step = self.last_step = k
-        occupancy = OccupancyMap.from_occupancy_grid(m.grid, m.geometry)
+        occupancy = m.occupancy()
         if self.dead is None or self.dead.shape != occupancy.geometry.shape:
             self.dead = np.zeros(occupancy.geometry.shape, dtype=bool)
         # No report yet: idle, or (real time) already on its way to the goal just decided.

@@ -78,7 +78,7 @@ class MapperService(Service):
         first scan of another episode starts a new map (``enter_episode``)."""
         if self.map is not None and self.map.geometry != cached.geometry:
             return
-        self.map = OccupancyMap.from_occupancy_grid(cached.grid, cached.geometry)
+        self.map = cached.occupancy().copy()  # integrated into: its own arrays
         self.map_step = cached.step
         self.episode = cached.episode
         log.info("restored the map of step %d (episode %d) from the cache", cached.step, cached.episode)
@@ -86,7 +86,7 @@ class MapperService(Service):
     def _on_query(self, query: zenoh.Query) -> None:
         m = self.map
         if m is not None and self.map_step >= 0:
-            query.reply(self.ctx.keys.map, encode(MapMsg(self.map_step, m.geometry, m.to_occupancy_grid(), self.episode or 0)))
+            query.reply(self.ctx.keys.map, encode(MapMsg.of(self.map_step, m, self.episode or 0)))
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         if isinstance(msg, ClockMsg):
@@ -130,7 +130,7 @@ class MapperService(Service):
             self.map_step = scan.step
         self.last_step = self.map_step
         self.set_state("running")
-        self.publish("map", MapMsg(self.map_step, self.map.geometry, self.map.to_occupancy_grid(), scan.episode))
+        self.publish("map", MapMsg.of(self.map_step, self.map, scan.episode))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -481,7 +481,7 @@ class Ros2BridgeService(Service):
     # --- episode status (no ground truth on a real robot) ---------------------------------------
     def explored_area_m2(self) -> float:
         m = self.last_map
-        return 0.0 if m is None else float((m.grid != -1).sum()) * m.geometry.cell_area_m2
+        return 0.0 if m is None else float(np.count_nonzero(m.explored)) * m.geometry.cell_area_m2
 
     def episode_status(self) -> EpisodeStatusMsg:
         with self._bridge_lock:
@@ -502,7 +502,7 @@ class Ros2BridgeService(Service):
 
     def episode_result(self) -> EpisodeResultMsg:
         m = self.last_map
-        known_free = (m.grid == 0) if m is not None else np.zeros((1, 1), bool)
+        known_free = (m.explored & ~m.occupied) if m is not None else np.zeros((1, 1), bool)
         return EpisodeResultMsg(
             scene=f"ros2:{self.params.namespace or '/'}",
             steps=max(self.step, 0),

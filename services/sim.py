@@ -212,7 +212,7 @@ class SimService(Service):
 
     def measure(self, m: MapMsg) -> None:
         """Ground-truth metrics of a map; the termination criteria of section 4.1."""
-        self.last_map = OccupancyMap.from_occupancy_grid(m.grid, m.geometry)
+        self.last_map = m.occupancy()
         self.explored_m2 = self.metrics.explored_area_m2(self.last_map)
         self.coverage_curve.append(self.metrics.coverage_pct_of(self.explored_m2))
         if self.metrics.done_at(self.explored_m2):

@@ -90,7 +90,7 @@ def test_publish_refuses_what_the_outputs_do_not_declare():
     svc = MapperService(ctx)
     svc.session = Session()  # type: ignore[assignment]
     g = GridGeometry(0.05, (4, 4))
-    svc.publish("map", MapMsg(0, g, OccupancyMap(g).to_occupancy_grid()))
+    svc.publish("map", MapMsg.of(0, OccupancyMap(g)))
     assert [k for k, _ in svc.session.put] == ["cso/r0/map"]
     with pytest.raises(TypeError, match="mapper publishes GoalMsg on 'goal'"):
         svc.publish("goal", GoalMsg(0, True))

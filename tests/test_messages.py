@@ -121,11 +121,25 @@ def test_map_round_trip_is_compressed():
     grid = m.to_occupancy_grid()
     grid[10:20, 10:50] = 0
     grid[15, 10:50] = 100
-    payload = encode(MapMsg(4, m.geometry, grid))
+    payload = encode(MapMsg.from_grid(4, m.geometry, grid))
     assert len(payload) < grid.size / 20
     back = decode(payload, MapMsg)
     assert isinstance(back, MapMsg) and back.geometry == m.geometry
     np.testing.assert_array_equal(back.grid, grid)
+    np.testing.assert_array_equal(back.explored, grid >= 0)
+    np.testing.assert_array_equal(back.occupied, grid == 100)
+    np.testing.assert_array_equal(back.occupancy().open, grid == 0)
+
+
+def test_a_map_message_is_a_snapshot_of_the_map():
+    """``MapMsg.of`` keeps the channels as they were: the mapper goes on integrating into its map."""
+    m = OccupancyMap(GridGeometry(0.1, (20, 30)))
+    m.explored[2:5, 2:5] = True
+    m.occupied[3, 3] = True
+    m.occupied[10, 10] = True  # not explored: not occupied in the message (as in the OccupancyGrid)
+    msg = MapMsg.of(7, m, 2)
+    m.explored[:] = True
+    assert msg.explored.sum() == 9 and msg.occupied.sum() == 1 and msg.grid[3, 3] == 100 and msg.grid[10, 10] == -1
 
 
 @pytest.mark.parametrize("shape", [(30, 40), (7, 13), (1, 1), (0, 5)])
@@ -291,19 +305,23 @@ def test_out_of_range_and_non_finite_fields_are_rejected(payload):
 
 def test_bad_maps_are_rejected():
     grid = np.zeros(GEOM.shape, np.int8)
-    good = _body(MapMsg(1, GEOM, grid))
-    bad_values = grid.copy()
-    bad_values[0, 0] = 5
+    good = _body(MapMsg.from_grid(1, GEOM, grid))
+    nothing = np.zeros(GEOM.shape, bool)
+    occupied_unexplored = nothing.copy()
+    occupied_unexplored[0, 0] = True
     cases = [
-        {**good, "grid": _body(MapMsg(1, GEOM, bad_values))["grid"]},
-        {**good, "grid": _body(MapMsg(1, GridGeometry(0.1, (3, 4)), np.zeros((3, 4), np.int8)))["grid"]},
-        {**good, "grid": {**good["grid"], "data": b"\x00\x01"}},
-        {**good, "grid": {**good["grid"], "data": zlib.compress(b"\x00" * 7)}},
-        {**good, "grid": {**good["grid"], "dtype": "object"}},
+        {**good, "explored": pack_array(nothing, compress=True), "occupied": pack_array(occupied_unexplored, compress=True)},
+        {**good, "occupied": pack_array(np.zeros((3, 4), bool), compress=True)},
+        {**good, "explored": pack_array(np.zeros(GEOM.shape, np.int8), compress=True)},
+        {k: v for k, v in good.items() if k != "occupied"},
+        {**good, "explored": {**good["explored"], "data": b"\x00\x01"}},
+        {**good, "explored": {**good["explored"], "data": zlib.compress(b"\x00" * 7)}},
+        {**good, "explored": {**good["explored"], "dtype": "object"}},
         {**good, "geometry": {**good["geometry"], "resolution_m": 0.0}},
         {**good, "geometry": {**good["geometry"], "shape": [0, 4]}},
         {**good, "geometry": {**good["geometry"], "origin": [float("nan"), 0.0]}},
     ]
+    decode(_wire("map", good))  # the good body itself passes
     for body in cases:
         with pytest.raises(MessageError):
             decode(_wire("map", body))

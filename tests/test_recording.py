@@ -49,7 +49,7 @@ def sample_payloads(keys: RobotKeys) -> list[tuple[str, bytes]]:
         (keys.clock, encode(ClockMsg(3, 0.75, geom))),
         (keys.odom, encode(OdometryMsg(3, 0.75, Pose2D(1.0, -0.5, 0.3), VelocityCommand(0.2, 0.1)))),
         (keys.scan, encode(ScanMsg(3, scan, Pose2D(1.1, -0.5, 0.3)))),
-        (keys.map, encode(MapMsg(3, geom, grid))),
+        (keys.map, encode(MapMsg.from_grid(3, geom, grid))),
         (keys.frontiers, encode(FrontiersMsg(3, False, "keep"))),
         (keys.goal, encode(GoalMsg(3, True, 2.0, 1.0, 0, 3.5, 4.2, "greedy-dist"))),
         (keys.path, encode(PathMsg(3, np.array([[1.0, -0.5], [2.0, 1.0]])))),

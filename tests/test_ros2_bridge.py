@@ -262,7 +262,7 @@ def test_fake_limo_through_the_bridge(namespace: str):
             grid = np.full(geom.shape, -1, np.int8)
             grid[1:4, 2:6] = 0
             grid[0, :] = 100
-            session.put(keys.map, encode(MapMsg(1, geom, grid)))
+            session.put(keys.map, encode(MapMsg.from_grid(1, geom, grid)))
             session.put(keys.goal, encode(GoalMsg(1, True, 0.5, -0.3, 0, 1.0, 2.0, "greedy-dist")))
             session.put(keys.frontiers, encode(_frontiers_msg(1)))
             wait_for(

@@ -232,9 +232,9 @@ def test_launcher_cache_serves_the_newest_map_of_the_newest_episode(tmp_path):
 
     grid = np.full((4, 5), -1, np.int8)
     for step, episode in ((5, 1), (7, 1), (6, 1)):
-        put(encode(MapMsg(step, geom, grid, episode)))
+        put(encode(MapMsg.from_grid(step, geom, grid, episode)))
     assert (cached().step, cached().episode) == (7, 1)  # a late step 6 does not replace step 7
-    put(encode(MapMsg(0, geom, grid, 2)))
+    put(encode(MapMsg.from_grid(0, geom, grid, 2)))
     assert (cached().step, cached().episode) == (0, 2)  # a restarted sim's first map does
     put(b"not a map")
     assert cached().episode == 2 and launcher.rejected == {"map": 1}

@@ -60,7 +60,7 @@ def _explorer_at(steps: int) -> Explorer:
 
 
 def _inputs(ex: Explorer, step: int) -> tuple[MapMsg, OdometryMsg, ScanMsg]:
-    m = MapMsg(step, ex.map.geometry, ex.map.to_occupancy_grid())
+    m = MapMsg.of(step, ex.map)
     odom = OdometryMsg(step, ex.sim.time_s, ex.sim.odometry())
     return m, odom, ScanMsg(step, ex.last_scan, ex.sim.sensor_pose())
 
@@ -232,7 +232,7 @@ def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
     provisional_differs = {2}  # at step 2 the verdict brings a new goal: another command than the provisional one
     reused = 0
     for k, cmd in enumerate(commands):
-        m = MapMsg(k, empty_map.geometry, empty_map.to_occupancy_grid(), 7)
+        m = MapMsg.of(k, empty_map, 7)
         provisional = VelocityCommand(-0.1, 0.3) if k in provisional_differs else cmd
         for svc, msgs in ((ahead, (CmdVelMsg(k, provisional, "ahead"), m, CmdVelMsg(k, cmd))), (plain, (m, CmdVelMsg(k, cmd)))):
             for msg in msgs:
@@ -266,7 +266,7 @@ def test_lockstep_frontier_never_decides_on_a_map_of_the_episode_before():
     a, b = 11, 22
 
     def map_of(ex: Explorer, step: int, episode: int) -> MapMsg:
-        return MapMsg(step, ex.map.geometry, ex.map.to_occupancy_grid(), episode)
+        return MapMsg.of(step, ex.map, episode)
 
     _, odom_b0, _ = _inputs(ex_b, 0)
     odom_b1 = OdometryMsg(1, odom_b0.stamp_s + 0.25, odom_b0.pose)
@@ -314,15 +314,15 @@ def test_sim_rejects_a_map_of_another_episode():
     g = svc.sim.plan.geometry
     everything = np.zeros(g.shape, dtype=np.int8)  # every cell explored and free: coverage 100 %
     nothing = OccupancyMap(g).to_occupancy_grid()
-    svc.on_message("r0", "map", MapMsg(0, g, everything, svc.episode + 1), time.monotonic())
+    svc.on_message("r0", "map", MapMsg.from_grid(0, g, everything, svc.episode + 1), time.monotonic())
     assert svc.running and svc.coverage_curve == [] and svc.rejected == {"map": 1}
-    svc.on_message("r0", "map", MapMsg(0, g, nothing, svc.episode), time.monotonic())
+    svc.on_message("r0", "map", MapMsg.from_grid(0, g, nothing, svc.episode), time.monotonic())
     assert svc.running and svc.coverage_curve == [0.0]
     svc.on_message("r0", "cmd_vel", CmdVelMsg(0, VelocityCommand()), time.monotonic())
     assert svc.step == 1 and svc.status_msg().last_step == 1  # `status` shows the step the sim is at
-    svc.on_message("r0", "map", MapMsg(1, g, everything, svc.episode + 1), time.monotonic())
+    svc.on_message("r0", "map", MapMsg.from_grid(1, g, everything, svc.episode + 1), time.monotonic())
     assert svc.running and svc.rejected == {"map": 2}
-    svc.on_message("r0", "map", MapMsg(1, g, everything, svc.episode), time.monotonic())
+    svc.on_message("r0", "map", MapMsg.from_grid(1, g, everything, svc.episode), time.monotonic())
     assert not svc.running and svc.coverage_curve[-1] > 99.0  # its own full map does end it
 
 
@@ -335,7 +335,7 @@ def test_restarted_mapper_keeps_the_cached_map_of_its_episode_only():
     ex = _explorer_at(4)
     grid = ex.map.to_occupancy_grid()
     grid[grid < 0] = 0  # the cached map knows every cell (more than one scan can see)
-    cached = MapMsg(4, ex.map.geometry, grid, 5)
+    cached = MapMsg.from_grid(4, ex.map.geometry, grid, 5)
     ex.advance()
     _, _, scan = _inputs(ex, 5)
     for episode in (5, 6):
