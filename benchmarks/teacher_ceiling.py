@@ -10,6 +10,8 @@ plus ``TURN_COST_M_PER_RAD`` times the heading change towards the path's first 0
 network that would see the robot's heading; the shipped graph's coordinates are not rotated into the robot frame).
 ``tour`` plans a global tour as FUEL does (the open travelling-salesman path through the nearest clusters on
 geodesic distances) and goes to its first cluster: the candidate for a teacher that avoids long round trips.
+``greedy-pocket:A:D`` closes a small pocket first: the nearest cluster bordering an unknown region smaller than
+A m2 whose goal is at most D m further than the nearest goal (defaults 4 and 3).
 ``rolloutK`` (``rolloutK+masks``: among the clusters the cso masks allow) tries the K nearest clusters at every
 decision, finishes the episode from each with greedy-dist on a copy of the simulation, and takes the one that
 finished first (``episode.rollout_choice``): it sees the unexplored scene through the simulator, so it is the
@@ -236,7 +238,44 @@ def print_departures(method: str, choices: list[dict[str, float]]) -> None:
         )
 
 
-CANDIDATES = {"greedy-turn": GreedyTurn, "tour": Tour}
+class GreedyPocket:
+    """Greedy-dist that first closes a small pocket nearby: a cluster whose bordering unknown region (a
+    connected component of unknown cells) is smaller than ``max_pocket_m2`` and whose goal is at most
+    ``detour_m`` further than the nearest goal wins over the nearest. A pocket left behind costs a round
+    trip later; the candidate for a teacher that "finishes the room before leaving"."""
+
+    name = "greedy-pocket"
+
+    def __init__(self, max_pocket_m2: float = 4.0, detour_m: float = 3.0):
+        self.max_pocket_m2, self.detour_m = max_pocket_m2, detour_m
+
+    def reset(self, seed: int | None = None) -> None:
+        pass
+
+    def select(self, obs: Observation) -> Goal | None:
+        from scipy import ndimage  # noqa: PLC0415
+
+        d = obs.goal_distance_m
+        if not obs.clusters or not np.isfinite(d).any():
+            return None
+        labels, _ = ndimage.label(~obs.explored)
+        sizes = np.bincount(labels.ravel()) * obs.geometry.cell_area_m2
+        nearest = int(np.nanargmin(np.where(np.isfinite(d), d, np.nan)))
+        best, best_d = nearest, np.inf
+        for i, c in enumerate(obs.clusters):
+            if not np.isfinite(d[i]) or d[i] > d[nearest] + self.detour_m:
+                continue
+            cells = np.asarray(c.cells).reshape(-1, 2)
+            ys = np.clip(cells[:, 0][:, None] + np.array([-1, -1, -1, 0, 0, 1, 1, 1]), 0, labels.shape[0] - 1)
+            xs = np.clip(cells[:, 1][:, None] + np.array([-1, 0, 1, -1, 1, -1, 0, 1]), 0, labels.shape[1] - 1)
+            touched = np.unique(labels[ys, xs])
+            pocket_m2 = sizes[touched[touched > 0]].sum()
+            if pocket_m2 < self.max_pocket_m2 and d[i] < best_d:
+                best, best_d = i, d[i]
+        return goal_of(obs, best)
+
+
+CANDIDATES = {"greedy-turn": GreedyTurn, "tour": Tour, "greedy-pocket": GreedyPocket}
 """Teacher candidates that are not methods of ``cso-runtime eval``."""
 
 
@@ -252,7 +291,8 @@ def run_one(job: tuple[SceneRef, str, float]) -> tuple[str, str, float, str, lis
     if masked == "masks":
         policy = MaskedBaseline(base)
     else:
-        policy = CANDIDATES[base]() if base in CANDIDATES else make_policy(base, seed=0)
+        name, *params = base.split(":")  # NAME:P1:P2 passes numeric parameters to a candidate
+        policy = CANDIDATES[name](*map(float, params)) if name in CANDIDATES else make_policy(base, seed=0)
     r = run_episode(sim, policy, cfg, seed=0)
     return ref.name, method, r.efficiency_m2_per_step, scale_of(r.traversable_area_m2), []
 
