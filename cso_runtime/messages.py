@@ -344,6 +344,7 @@ class MapMsg(Message):
         return cls.of(step, OccupancyMap.from_occupancy_grid(grid, geometry), episode)
 
     def occupancy(self) -> OccupancyMap:
+        """The map to read (it shares this message's arrays: copy it before integrating scans into it)."""
         return OccupancyMap.from_masks(self.explored, self.occupied, self.geometry)
 
     @property
