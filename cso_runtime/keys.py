@@ -15,7 +15,6 @@ _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
 TOPICS = {
     "scan": "scan",
-    "scan_ahead": "scan/ahead",
     "odom": "odom",
     "cmd_vel": "cmd_vel",
     "cmd_vel_ahead": "cmd_vel/ahead",

@@ -130,9 +130,8 @@ class OccupancyMap:
         return m
 
     def copy(self) -> "OccupancyMap":
-        m = OccupancyMap.__new__(OccupancyMap)  # no zero-filled arrays only to be replaced
-        m.geometry = self.geometry
+        m = OccupancyMap(self.geometry)
         m.explored = self.explored.copy()
-        m._log_odds = self.log_odds.copy()
+        m.log_odds = self.log_odds.copy()
         m.occupied = self.occupied.copy()
         return m

@@ -119,8 +119,6 @@ class Service:
     outputs: ClassVar[dict[str, type[Message]]] = {}
     """Topic name -> the message type this service publishes there. With ``inputs`` it is the service's
     node in the dataflow (``cso-runtime dataflow``); ``publish`` refuses anything not declared here."""
-    optional_inputs: ClassVar[frozenset[str]] = frozenset()
-    """Inputs the service works without (a profile need not publish them), e.g. the mapper's ``scan_ahead``."""
     tick_period_s: ClassVar[float] = 0.2
 
     def __init__(self, ctx: ServiceContext):

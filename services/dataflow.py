@@ -23,8 +23,6 @@ class Node:
     name: str
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
-    optional: tuple[str, ...] = ()
-    """Inputs the node does without (hints such as ``scan_ahead``): not reported as unconnected."""
 
 
 @dataclass(frozen=True)
@@ -45,7 +43,7 @@ def nodes_of(service_names: list[str]) -> list[Node]:
     """The nodes of a profile's services (in profile order), and the launcher that watches them."""
     from cso_runtime.launcher import LAUNCHER_INPUTS  # noqa: PLC0415
 
-    out = [Node(name, tuple(cls.inputs), tuple(cls.outputs), tuple(cls.optional_inputs)) for name in service_names for cls in [service_class(name)]]
+    out = [Node(name, tuple(service_class(name).inputs), tuple(service_class(name).outputs)) for name in service_names]
     return [*out, Node(LAUNCHER, tuple(LAUNCHER_INPUTS), ())]
 
 
@@ -79,8 +77,7 @@ def wiring_of(nodes: list[Node]) -> list[Wiring]:
 def unconnected(nodes: list[Node]) -> dict[str, list[str]]:
     """Inputs nobody in the profile publishes (node -> topics): fine for optional inputs, a hint otherwise."""
     published = {t for n in nodes for t in n.outputs}
-    missing = {n.name: [t for t in n.inputs if t not in published and t not in n.optional] for n in nodes}
-    return {name: topics for name, topics in missing.items() if topics}
+    return {n.name: [t for t in n.inputs if t not in published] for n in nodes if any(t not in published for t in n.inputs)}
 
 
 def to_mermaid(nodes: list[Node]) -> str:

@@ -7,12 +7,6 @@ each subscriber's callbacks run on their own thread, so a clock may be handled a
 steps (the sim even sends each step's scan first). On start it restores the latest map from the
 launcher's cache so a restarted mapper keeps what was explored; it answers queries on its map key so
 late joiners get the latest map at once.
-
-Lockstep: while the frontier service and the planner work on step k, the sim steps ahead and
-publishes the scan it would send for step k + 1 (``scan_ahead``). The mapper integrates it into a
-copy of its map; when the real scan of step k + 1 is the same, that copy is the step's map and goes
-out at once, so the integration is off the step's serial chain. The published maps are the ones
-integrating on the real scan gives: the same scan on the same map.
 """
 
 from __future__ import annotations
@@ -20,7 +14,6 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 
-import numpy as np
 import zenoh
 
 from cso_runtime.config import ConfigError, from_dict
@@ -57,8 +50,7 @@ class MapperParams:
 
 class MapperService(Service):
     name = "mapper"
-    inputs = {"clock": ClockMsg, "scan": ScanMsg, "scan_ahead": ScanMsg}
-    optional_inputs = frozenset({"scan_ahead"})
+    inputs = {"clock": ClockMsg, "scan": ScanMsg}
     outputs = {"map": MapMsg}
 
     def __init__(self, ctx: ServiceContext):
@@ -69,8 +61,6 @@ class MapperService(Service):
         self.episode: int | None = None
         """Episode id of the map (from the clock); None until the first clock."""
         self.pending: list[ScanMsg] = []
-        self.ahead: tuple[ScanMsg, OccupancyMap] | None = None
-        """Lockstep: the next step's scan as the sim stepped ahead, and this map with it integrated."""
         self._queryable = None
         if self.params.resolution_m > 0:
             p = self.params
@@ -110,9 +100,6 @@ class MapperService(Service):
                     self.integrate(scan)
             return
         assert isinstance(msg, ScanMsg)
-        if topic == "scan_ahead":
-            self.integrate_ahead(msg)
-            return
         if self.map is None:
             if len(self.pending) >= self.params.max_pending_scans:
                 self.reject("scan", f"no map geometry yet: dropped the scan of step {self.pending[0].step}")
@@ -129,49 +116,21 @@ class MapperService(Service):
             if self.map is not None:
                 self.map = OccupancyMap(self.map.geometry)
             self.map_step = -1
-            self.ahead = None
         self.episode = episode
 
     def integrate(self, scan: ScanMsg) -> None:
         assert self.map is not None
         self.enter_episode(scan.episode)
-        ahead, self.ahead = self.ahead, None
         if scan.step > self.map_step:
-            if ahead is not None and scan.step == self.map_step + 1 and same_scan(ahead[0], scan):
-                self.map = ahead[1]
-            else:
-                try:
-                    self.map.integrate_scan(scan.sensor_pose, scan.scan)
-                except ValueError as exc:
-                    self.reject("scan", str(exc))
-                    return
+            try:
+                self.map.integrate_scan(scan.sensor_pose, scan.scan)
+            except ValueError as exc:
+                self.reject("scan", str(exc))
+                return
             self.map_step = scan.step
         self.last_step = self.map_step
         self.set_state("running")
         self.publish("map", MapMsg.of(self.map_step, self.map, scan.episode))
-
-
-    def integrate_ahead(self, scan: ScanMsg) -> None:
-        """Integrate the next step's scan stepped ahead into a copy of the map (lockstep only)."""
-        if not self.ctx.lockstep or self.map is None or scan.episode != self.episode or scan.step != self.map_step + 1:
-            return
-        ahead = self.map.copy()
-        try:
-            ahead.integrate_scan(scan.sensor_pose, scan.scan)
-        except ValueError:
-            return  # the real scan, if it is the same, is rejected and counted then
-        self.ahead = (scan, ahead)
-
-
-def same_scan(a: ScanMsg, b: ScanMsg) -> bool:
-    """The same scan from the same pose in the same episode (what a map integrated ahead was built on)."""
-    sa, sb = a.scan, b.scan
-    return (
-        a.episode == b.episode
-        and a.sensor_pose == b.sensor_pose
-        and (sa.stamp_s, sa.angle_min_rad, sa.angle_increment_rad, sa.range_min_m, sa.range_max_m) == (sb.stamp_s, sb.angle_min_rad, sb.angle_increment_rad, sb.range_min_m, sb.range_max_m)
-        and np.array_equal(sa.ranges_m, sb.ranges_m)
-    )
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -91,7 +91,7 @@ def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceCont
 class SimService(Service):
     name = "sim"
     inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
-    outputs = {"scan": ScanMsg, "scan_ahead": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
+    outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     tick_period_s = 0.02
 
     def __init__(self, ctx: ServiceContext):
@@ -236,8 +236,7 @@ class SimService(Service):
         """Lockstep: step and scan on the planner's provisional command of this step while the map and
         the frontier service's verdict are still on their way, then undo; ``advance`` keeps the result
         when the step's cmd_vel is the same command (the goal was kept), so the next scan goes out at
-        once. The scan stepped ahead goes out on ``scan_ahead`` for the mapper to integrate ahead too.
-        Simulators without ``save_state`` (MuJoCo) just wait for the command."""
+        once. Simulators without ``save_state`` (MuJoCo) just wait for the command."""
         save = getattr(self.sim, "save_state", None)
         if save is None or msg.step != self.step or (self.ahead is not None and self.ahead[0] == msg.step):
             return
@@ -245,9 +244,7 @@ class SimService(Service):
         self.sim.step(msg.command)
         scan = self.sim.scan()
         self.ahead = (msg.step, msg.command, save(), scan)
-        ahead_scan = ScanMsg(msg.step + 1, scan, self.sim.sensor_pose(), self.episode)
         self.sim.restore_state(before)
-        self.publish("scan_ahead", ahead_scan)
 
     def advance(self, command: VelocityCommand) -> None:
         before = self.sim.true_pose()

@@ -106,7 +106,7 @@ def test_dataflow_and_version_commands():
 
     runner = CliRunner()
     r = runner.invoke(app, ["dataflow", "--profile", "lockstep", "--format", "mermaid"])
-    assert r.exit_code == 0 and r.output.startswith("flowchart LR\n") and '  sim -->|"scan, scan/ahead, clock"| mapper\n' in r.output
+    assert r.exit_code == 0 and r.output.startswith("flowchart LR\n") and '  sim -->|"scan, clock"| mapper\n' in r.output
     r = runner.invoke(app, ["dataflow", "--profile", "limo-ros2"])
     assert r.exit_code == 0 and "ros2_bridge" in r.output and "note:" not in r.output
     assert runner.invoke(app, ["dataflow", "--format", "dot"]).exit_code == 2

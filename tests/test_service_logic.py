@@ -248,42 +248,6 @@ def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
         assert len(a) == len(commands) + 1 and a == b, topic
 
 
-def test_lockstep_mapper_integrating_ahead_publishes_the_maps_of_the_real_scans():
-    """The mapper integrates the sim's scan stepped ahead into a copy of its map and publishes the copy
-    when the real scan is the same; at a step where the sim stepped ahead on another command than the
-    real one, it integrates the real scan. The maps are byte-identical to a mapper that never did."""
-    from cso_runtime.messages import ClockMsg  # noqa: PLC0415
-    from services.mapper import MapperService  # noqa: PLC0415
-
-    ex = Explorer(KinematicSimulator(two_rooms(), seed=0))
-    ex.reset(0)
-    scans = []
-    for k in range(6):
-        scans.append(ScanMsg(k, ex.last_scan, ex.sim.sensor_pose(), 3))
-        ex.advance()
-    mismatched = 3  # the sim stepped ahead on a provisional command that the verdict replaced
-
-    def run(with_ahead: bool) -> tuple[list[bytes], int]:
-        mapper, out = _service(MapperService, lockstep=True)
-        mapper.on_message("r0", "clock", decode(encode(ClockMsg(0, 0.0, ex.map.geometry, 3)), ClockMsg), time.monotonic())
-        used = 0
-        for k, scan in enumerate(scans):
-            if with_ahead and k > 0:
-                ahead = scan if k != mismatched else ScanMsg(k, scans[k - 1].scan, scans[k - 1].sensor_pose, 3)
-                mapper.on_message("r0", "scan_ahead", decode(encode(ahead), ScanMsg), time.monotonic())
-                prepared = mapper.ahead
-                _feed(mapper, scan)
-                used += prepared is not None and mapper.map is prepared[1]
-            else:
-                _feed(mapper, scan)
-        return [encode(m) for t, m in out if t == "map"], used
-
-    plain, _ = run(False)
-    ahead, used = run(True)
-    assert len(plain) == len(scans) and ahead == plain
-    assert used == len(scans) - 2  # every step after the first, but the mismatched one
-
-
 def _without_timing(msgs: list[Message]) -> list[bytes]:
     """Encodings with the build time (wall clock) zeroed: what two runs of the same inputs share."""
     out = []
