@@ -502,7 +502,7 @@ class Ros2BridgeService(Service):
 
     def episode_result(self) -> EpisodeResultMsg:
         m = self.last_map
-        known_free = (m.explored & ~m.occupied) if m is not None else np.zeros((1, 1), bool)
+        known_free = m.occupancy().open if m is not None else np.zeros((1, 1), bool)
         return EpisodeResultMsg(
             scene=f"ros2:{self.params.namespace or '/'}",
             steps=max(self.step, 0),
