@@ -112,7 +112,8 @@ class RobotKeys:
         return f"{ROOT}/{self.robot}/launcher/status"
 
     def cache(self, name: str) -> str:
-        """Launcher-held copy of the latest ``map``/``goal`` for restarted services (queryable)."""
+        """Queryable with the latest ``map`` (held by the referee, sim or ros2_bridge) or ``goal`` (held by
+        the launcher), for restarted services."""
         return f"{ROOT}/{self.robot}/cache/{TOPICS[name]}"
 
 

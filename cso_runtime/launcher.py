@@ -6,9 +6,9 @@ dora-rs dataflow file; it is validated completely before anything starts. The la
 session in router mode on loopback (no external router to install; ``--connect`` joins other routers,
 e.g. a LIMO's zenoh-bridge-ros2dds), spawns ``python -m services.<name>`` per service with its own
 process group and log file in ``runs/<run-id>/logs/``, restarts a crashed service with exponential
-back-off (and gives up after ``max_restarts``, saying so), keeps the latest map and goal for restarted
-services, shows a live view, optionally records every ``cso/<robot>/**`` message to MCAP on its own
-session (``--record``), and writes the same ``summary.json``, trajectory plot and final map as ``eval``
+back-off (and gives up after ``max_restarts``, saying so), keeps the latest goal for restarted
+services (the referee, sim or ros2_bridge, keeps the latest map), shows a live view, optionally
+records every ``cso/<robot>/**`` message to MCAP on its own session (``--record``), and writes the same ``summary.json``, trajectory plot and final map as ``eval``
 when the episode ends. Ctrl-C, SIGTERM and ``cso-runtime down`` stop every process group: SIGINT,
 then SIGTERM, then SIGKILL, each with a deadline.
 """
@@ -33,15 +33,16 @@ import yaml
 
 from cso_runtime.config import ConfigError, ExplorationConfig, from_dict, load_yaml
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
-from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, MapMsg, Message, MessageError, PathMsg, decode, encode
+from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, Message, MessageError, PathMsg, decode, encode
 from cso_runtime.scenes import SceneError, resolve_scenes
 from cso_runtime.transport import TransportConfig, free_tcp_port, open_session
 
 log = logging.getLogger("cso.launcher")
 
-LAUNCHER_INPUTS: dict[str, type[Message]] = {"episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg, "map": MapMsg, "goal": GoalMsg, "path": PathMsg}
-"""What the launcher listens to: the episode for its live view and results, the map and goal for its
-cache (a restarted mapper resumes from it), the path for the live view."""
+LAUNCHER_INPUTS: dict[str, type[Message]] = {"episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg, "goal": GoalMsg, "path": PathMsg}
+"""What the launcher listens to: the episode for its live view and results, the goal for its cache, the
+path (a few times a second) for the live view. Not the map: a restarted mapper resumes from the
+referee's (``Service.serves_latest``), so the launcher is not woken on every step."""
 
 RUNS_DIR = Path("runs")
 REFEREES = ("sim", "ros2_bridge")
@@ -272,11 +273,9 @@ class Launcher:
         self.endpoints: list[str] = []
         self.status: EpisodeStatusMsg | None = None
         self.alive_services: set[str] = set()
-        self.latest: dict[str, bytes] = {}
-        self.latest_step: dict[str, tuple[int, int]] = {}
-        """Topic -> (episode id, step) of the cached payload (goals carry no episode: 0)."""
+        self.latest_goal: bytes | None = None
+        """The payload of the latest goal (``cache/goal``)."""
         self.rejected: dict[str, int] = {}
-        self.goal: GoalMsg | None = None
         self.result: EpisodeResultMsg | None = None
         """The episode's result as published on ``episode_result`` (else it is asked for, ``wait_for_result``)."""
         self.path_ahead_m: float | None = None
@@ -338,22 +337,15 @@ class Launcher:
             self.status = msg
         elif isinstance(msg, EpisodeResultMsg):
             self.result = msg
-        elif isinstance(msg, (MapMsg, GoalMsg)):
-            episode, step = getattr(msg, "episode", 0), msg.step
-            cached_episode, cached_step = self.latest_step.get(topic, (episode, -1))
-            if step >= cached_step or episode != cached_episode:  # a new episode's maps replace the old one's
-                self.latest[topic], self.latest_step[topic] = payload, (episode, step)
-            if isinstance(msg, GoalMsg):
-                self.goal = msg
+        elif isinstance(msg, GoalMsg):
+            self.latest_goal = payload
         elif isinstance(msg, PathMsg):
             xy = msg.path_xy_m
             self.path_ahead_m = float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0
 
     def _on_cache_query(self, query: Any) -> None:
-        topic = str(query.key_expr).rsplit("/", 1)[-1]
-        payload = self.latest.get(topic)
-        if payload is not None and topic in ("map", "goal"):
-            query.reply(self.keys.cache(topic), payload)
+        if self.latest_goal is not None:
+            query.reply(self.keys.cache("goal"), self.latest_goal)
 
     def _on_status_query(self, query: Any) -> None:
         query.reply(self.keys.launcher_status, encode(self.launcher_status()))
@@ -502,7 +494,6 @@ class Launcher:
         with open_session(transport) as session:
             subs = [session.declare_subscriber(self.keys.topic(t), self._on_sample) for t in LAUNCHER_INPUTS]
             qs = [
-                session.declare_queryable(self.keys.cache("map"), self._on_cache_query),
                 session.declare_queryable(self.keys.cache("goal"), self._on_cache_query),
                 session.declare_queryable(self.keys.launcher_status, self._on_status_query),
             ]

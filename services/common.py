@@ -18,6 +18,7 @@ import argparse
 import collections
 import cProfile
 import ctypes
+import functools
 import json
 import logging
 import os
@@ -120,6 +121,10 @@ class Service:
     """Topic name -> the message type this service publishes there. With ``inputs`` it is the service's
     node in the dataflow (``cso-runtime dataflow``); ``publish`` refuses anything not declared here."""
     tick_period_s: ClassVar[float] = 0.2
+    serves_latest: ClassVar[tuple[str, ...]] = ()
+    """Topics whose latest accepted message (``keep_latest``) this service answers on
+    ``cso/<robot>/cache/<topic>``. The referee keeps the map a restarted mapper resumes from: it receives
+    every map anyway, so no other process has to be woken for each one."""
 
     def __init__(self, ctx: ServiceContext):
         self.ctx = ctx
@@ -134,6 +139,8 @@ class Service:
         self._publishers: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._inbox: queue.SimpleQueue | None = None
+        self.latest: dict[str, Message] = {}
+        """Topic -> the message served on its ``cache`` key (``serves_latest``)."""
         self.trace: MessageTrace | None = None
         """Per-message timings, when ``CSO_TRACE_DIR`` is set (diagnostics; off by default)."""
 
@@ -176,6 +183,22 @@ class Service:
         if self.trace is not None:
             self.trace.put(topic, getattr(msg, "step", -1), t0, time.monotonic(), len(payload))
 
+    def keep_latest(self, topic: str, msg: Message) -> None:
+        """Serve ``msg`` on ``cache/<topic>`` from now on, unless a later step of its episode is already
+        kept (a late message never replaces a newer one; a new episode's first message does)."""
+        old = self.latest.get(topic)
+        if old is None or getattr(old, "episode", 0) != getattr(msg, "episode", 0) or getattr(msg, "step", 0) >= getattr(old, "step", 0):
+            self.latest[topic] = msg
+
+    def answer_cache_query(self, topic: str, query: zenoh.Query) -> None:
+        """The kept message, or an error reply when there is none yet (an answer all the same: the
+        asker need not wait for one, ``query_latest``)."""
+        msg = self.latest.get(topic)
+        if msg is not None:
+            query.reply(self.ctx.keys.cache(topic), encode(msg))
+        else:
+            query.reply_err(f"no {topic} yet".encode())
+
     def check_output(self, topic: str, msg: Message) -> Message:
         """``msg`` itself when ``outputs`` declares it on ``topic``; a TypeError (a bug, not bad input) otherwise."""
         declared = self.outputs.get(topic)
@@ -205,21 +228,31 @@ class Service:
             rejected = dict(self.rejected)
         return ServiceStatusMsg(self.name, self.ctx.robot, self.state, self.last_step, self.reason, rejected, self.processed)
 
-    def query_latest(self, key: str, expected: type[Message], timeout_s: float = 1.0) -> Message | None:
-        """The newest valid reply to ``key`` (by ``step``), for late joiners and restarts."""
+    def query_latest(self, key: str, expected: type[Message], timeout_s: float = 1.0, retry_period_s: float = 0.05) -> Message | None:
+        """The newest valid reply to ``key`` (by ``step``), for late joiners and restarts.
+
+        While no queryable has answered at all (not even "nothing yet"), it asks again every
+        ``retry_period_s`` until ``timeout_s``: a peer that has just joined reaches the other peers'
+        queryables only once it has links to them, a moment after its session opens."""
         assert self.session is not None
-        best: Message | None = None
-        for reply in self.session.get(key, target=zenoh.QueryTarget.ALL, timeout=timeout_s):
-            if reply.ok is None:
-                continue
-            try:
-                msg = decode(reply.ok.payload.to_bytes(), expected)
-            except MessageError as exc:
-                self.reject(expected.SCHEMA, f"query reply: {exc}")
-                continue
-            if best is None or getattr(msg, "step", 0) >= getattr(best, "step", 0):
-                best = msg
-        return best
+        deadline = time.monotonic() + timeout_s
+        while True:
+            best: Message | None = None
+            answered = False
+            for reply in self.session.get(key, target=zenoh.QueryTarget.ALL, timeout=max(deadline - time.monotonic(), 0.01)):
+                answered = True
+                if reply.ok is None:
+                    continue
+                try:
+                    msg = decode(reply.ok.payload.to_bytes(), expected)
+                except MessageError as exc:
+                    self.reject(expected.SCHEMA, f"query reply: {exc}")
+                    continue
+                if best is None or getattr(msg, "step", 0) >= getattr(best, "step", 0):
+                    best = msg
+            if answered or time.monotonic() + retry_period_s >= deadline:
+                return best
+            time.sleep(retry_period_s)
 
 
 def _install_stop_handlers(stop: threading.Event) -> None:
@@ -299,6 +332,7 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
         handler = zenoh.handlers.Callback(inputs.on_sample, indirect=False)
         subs = [session.declare_subscriber(keys.topic(t), handler) for t in service.inputs]
         status_q = session.declare_queryable(ctx.keys.service_status(service.name), on_status_query)
+        cache_qs = [session.declare_queryable(ctx.keys.cache(t), functools.partial(service.answer_cache_query, t)) for t in service.serves_latest]
         token = session.liveliness().declare_token(ctx.keys.alive(service.name))
         log.info("%s: up for robot %s (inputs: %s)", service.name, sub_robot, ", ".join(service.inputs) or "none")
         try:
@@ -327,7 +361,7 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
             finally:
                 token.undeclare()
                 status_q.undeclare()
-                for s in subs:
+                for s in [*subs, *cache_qs]:
                     s.undeclare()
                 service.session = None
     log.info("%s: stopped", service.name)

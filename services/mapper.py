@@ -5,7 +5,7 @@ has already integrated is not integrated twice: the map is re-published (lockste
 episode is recognised by the episode id that clocks and scans carry, never by the step going back:
 each subscriber's callbacks run on their own thread, so a clock may be handled after scans of later
 steps (the sim even sends each step's scan first). On start it restores the latest map from the
-launcher's cache so a restarted mapper keeps what was explored; it answers queries on its map key so
+referee's cache (``cache/map``: the sim or ros2_bridge) so a restarted mapper keeps what was explored; it answers queries on its map key so
 late joiners get the latest map at once.
 """
 
@@ -74,7 +74,7 @@ class MapperService(Service):
             self.restore(cached)
 
     def restore(self, cached: MapMsg) -> None:
-        """Continue from the launcher's latest map (a restarted mapper). It belongs to its episode: the
+        """Continue from the referee's latest map (a restarted mapper). It belongs to its episode: the
         first scan of another episode starts a new map (``enter_episode``)."""
         if self.map is not None and self.map.geometry != cached.geometry:
             return

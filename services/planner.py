@@ -33,10 +33,16 @@ class PlannerParams:
 
     stale_after_s: float = 2.0
     """Odometry or scans older than this (wall clock) stop the robot."""
+    path_period_s: float = 0.25
+    """``path`` is a view (the live view's distance ahead, a user's plot), not an input of any service: it
+    goes out with every new plan and otherwise at most this often (wall clock), so that the process showing
+    it is not woken on every step; 0 = with every command."""
 
     def validate(self) -> None:
         if not self.stale_after_s > 0:
             raise ConfigError("stale_after_s must be positive")
+        if not self.path_period_s >= 0:
+            raise ConfigError("path_period_s must be zero or positive")
 
 
 class PlannerService(Service):
@@ -70,6 +76,9 @@ class PlannerService(Service):
         self.last_cmd: CmdVelMsg | None = None
         self.last_input_s = time.monotonic()
         self.stopped_for_stale = False
+        self.published_plan: np.ndarray | None = None
+        """The plan whose ``path`` went out last (a new plan is published at once)."""
+        self.path_published_s = -np.inf
         self.ahead: tuple[int, FollowResult, tuple] | None = None
         """Lockstep: the command of the next step computed while the map and the frontier service's
         verdict are still on their way (step, result, planner state after it); used when the verdict
@@ -214,6 +223,14 @@ class PlannerService(Service):
         self.pending_new_goal = False
         self.publish("cmd_vel", self.last_cmd)
         self.publish_feedback(k, reason)
+        self.publish_path(k)
+
+    def publish_path(self, k: int) -> None:
+        """The path still ahead, with each new plan and otherwise every ``path_period_s``."""
+        now_s = time.monotonic()
+        if self.planner.path is self.published_plan and now_s - self.path_published_s < self.params.path_period_s:
+            return
+        self.published_plan, self.path_published_s = self.planner.path, now_s
         self.publish("path", PathMsg(k, self.planner.remaining_path()))
 
     def on_tick(self, now_s: float) -> None:

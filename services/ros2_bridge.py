@@ -208,6 +208,7 @@ class Ros2BridgeService(Service):
     inputs: ClassVar[dict[str, type[Message]]] = {"cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg}
     outputs: ClassVar[dict[str, type[Message]]] = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     tick_period_s = 0.05
+    serves_latest = ("map",)
 
     def __init__(self, ctx: ServiceContext):
         super().__init__(ctx)
@@ -236,7 +237,6 @@ class Ros2BridgeService(Service):
         self.terminated_by = ""
         self.decisions = 0
         self.decision_ms: list[float] = []
-        self.last_map: MapMsg | None = None
         self.last_log_s = time.monotonic()
         self._bridge_lock = threading.RLock()
         self._ros_subs: list[Any] = []
@@ -412,7 +412,7 @@ class Ros2BridgeService(Service):
             if isinstance(msg, CmdVelMsg):
                 self.forward_command(msg.command, received_s)
             elif isinstance(msg, MapMsg):
-                self.last_map = msg
+                self.keep_latest("map", msg)
                 stamp = self.stamps.get(msg.step, self.last_scan_stamp_s if math.isfinite(self.last_scan_stamp_s) else 0.0)
                 self._put_ros(
                     self.params.map_topic, ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, stamp, self.params.map_frame_id)
@@ -480,7 +480,7 @@ class Ros2BridgeService(Service):
 
     # --- episode status (no ground truth on a real robot) ---------------------------------------
     def explored_area_m2(self) -> float:
-        m = self.last_map
+        m = self.latest.get("map")
         return 0.0 if m is None else float(np.count_nonzero(m.explored)) * m.geometry.cell_area_m2
 
     def episode_status(self) -> EpisodeStatusMsg:
@@ -501,7 +501,7 @@ class Ros2BridgeService(Service):
             )
 
     def episode_result(self) -> EpisodeResultMsg:
-        m = self.last_map
+        m = self.latest.get("map")
         known_free = m.occupancy().open if m is not None else np.zeros((1, 1), bool)
         return EpisodeResultMsg(
             scene=f"ros2:{self.params.namespace or '/'}",

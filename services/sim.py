@@ -92,6 +92,7 @@ class SimService(Service):
     name = "sim"
     inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
+    serves_latest = ("map",)
     tick_period_s = 0.02
 
     def __init__(self, ctx: ServiceContext):
@@ -269,6 +270,8 @@ class SimService(Service):
         if isinstance(msg, MapMsg) and msg.episode != self.episode:
             self.reject("map", f"map of episode {msg.episode}, not of this one ({self.episode}): still in flight from before a restart")
             return
+        if isinstance(msg, MapMsg):
+            self.keep_latest("map", msg)
         if self.ctx.lockstep:
             step = getattr(msg, "step", -1)
             if step < self.step:

@@ -300,6 +300,34 @@ def test_lockstep_frontier_never_decides_on_a_map_of_the_episode_before():
         assert svc.rejected.get("map") == 2
 
 
+def test_planner_publishes_the_path_with_each_new_plan_and_otherwise_at_its_period():
+    """``path`` is a view: with a period longer than the run it goes out only with the two new plans
+    (steps 0 and 6), each the full plan; with period 0 after every command, the path still ahead."""
+    ex = _explorer_at(0)
+    rare, out_rare = _service(PlannerService, lockstep=True, params={"path_period_s": 3600.0})
+    every, out_every = _service(PlannerService, lockstep=True, params={"path_period_s": 0.0})
+    for k in range(12):
+        _, odom, scan = _inputs(ex, k)
+        if k in (0, 6):
+            obs = ex.observe()
+            verdict, goal = frontiers_from_observation(k, "no_goal", obs, 1.0), _far_goal(obs, k)
+        else:
+            verdict, goal = FrontiersMsg(k, False), None
+        for svc in (rare, every):
+            for msg in (odom, scan, verdict, goal):
+                if msg is not None:
+                    _feed(svc, msg)
+        ex.sim.step([m for t, m in out_every if t == "cmd_vel"][-1].command)
+        ex._integrate()
+    rare_paths = [m for t, m in out_rare if t == "path"]
+    every_paths = [m for t, m in out_every if t == "path"]
+    assert [m.step for m in rare_paths] == [0, 6]
+    assert [m.step for m in every_paths] == list(range(12))
+    for p in rare_paths:
+        assert np.array_equal(p.path_xy_m, every_paths[p.step].path_xy_m)
+    assert len(every_paths[5].path_xy_m) < len(every_paths[0].path_xy_m)  # what is still ahead shrinks
+
+
 def test_sim_rejects_a_map_of_another_episode():
     """The sim's referee measures only maps of its own episode: a map in flight from an earlier
     episode (fully explored, say) neither ends this one nor enters its coverage curve."""
@@ -327,7 +355,7 @@ def test_sim_rejects_a_map_of_another_episode():
 
 
 def test_restarted_mapper_keeps_the_cached_map_of_its_episode_only():
-    """A restarted mapper continues from the launcher's cached map; the map it publishes carries the
+    """A restarted mapper continues from the referee's cached map; the map it publishes carries the
     episode id; the first scan of another episode starts a new map instead of adding to the old one."""
     from cso_runtime.occupancy import OccupancyMap  # noqa: PLC0415
     from services.mapper import MapperService  # noqa: PLC0415
@@ -469,3 +497,40 @@ def test_a_handler_that_raises_on_the_network_thread_stops_the_service():
     assert stop.is_set() and isinstance(inputs.failure, RuntimeError)  # run_service re-raises it
     inputs.on_sample(_Sample(2))
     assert svc.steps == [0]  # nothing is handled once the service is stopping
+
+
+def test_the_sim_serves_the_newest_map_of_its_episode_for_a_restarted_mapper():
+    """The map cache (what a restarted mapper restores, ``cache/map``) is the referee's: it follows the
+    steps of the episode, a late map does not replace a newer one, and a map of another episode (still in
+    flight from before a restart) is rejected, counted and never cached. The launcher receives no maps."""
+    from types import SimpleNamespace  # noqa: PLC0415
+
+    from cso_runtime.launcher import LAUNCHER_INPUTS  # noqa: PLC0415
+    from services.sim import SimService  # noqa: PLC0415
+
+    assert "map" not in LAUNCHER_INPUTS and SimService.serves_latest == ("map",)
+    ctx = ServiceContext("sim", "r0", {"scene": "generated:small:1:0"}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {})
+    sim = SimService(ctx)
+    sim.publish = lambda topic, msg, robot=None: None  # type: ignore[method-assign]
+    sim.episode_state, sim.episode = "exploring", 1
+    geom = sim.sim.plan.geometry
+
+    def cached() -> MapMsg | str:
+        replies: list[tuple[str, bytes]] = []
+        query = SimpleNamespace(reply=lambda key, payload: replies.append((key, payload)), reply_err=lambda payload: replies.append(("error", payload)))
+        sim.answer_cache_query("map", query)
+        assert len(replies) == 1
+        key, payload = replies[0]
+        assert key in ("error", "cso/r0/cache/map")
+        return payload.decode() if key == "error" else decode(payload, MapMsg)
+
+    assert cached() == "no map yet"  # an answer all the same: a restarted mapper need not wait for one
+    empty = np.full(geom.shape, -1, np.int8)
+    for step in (5, 7, 6):
+        _feed(sim, MapMsg.from_grid(step, geom, empty, 1))
+    assert (cached().step, cached().episode) == (7, 1)  # a late step 6 does not replace step 7
+    _feed(sim, MapMsg.from_grid(9, geom, empty, 3))
+    assert (cached().step, cached().episode) == (7, 1) and sim.rejected == {"map": 1}
+    sim.episode = 2  # the next episode: its first map replaces the newer step of the old one
+    _feed(sim, MapMsg.from_grid(0, geom, empty, 2))
+    assert (cached().step, cached().episode) == (0, 2)
