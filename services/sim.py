@@ -66,6 +66,10 @@ class SimParams:
     """Lockstep: wall-clock floor per step (0 = as fast as the pipeline; demos and tests slow it)."""
     start_delay_s: float = 0.5
     """Wait this long after start before step 0, so subscribers have joined (then re-publishing covers it)."""
+    status_period_s: float = 0.1
+    """``episode/status`` goes out at the end of the episode and otherwise at most this often (wall
+    clock), so that its listeners (the launcher's live view) are not woken on every step; ``cso-runtime
+    status`` queries the current one at any time. 0 = after every step."""
 
     def validate(self) -> None:
         if self.backend not in BACKENDS:
@@ -73,8 +77,8 @@ class SimParams:
         for name in ("real_time_factor", "cmd_timeout_s", "lockstep_timeout_s", "lockstep_give_up_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
-        if self.min_step_period_s < 0 or self.start_delay_s < 0:
-            raise ConfigError("min_step_period_s and start_delay_s must be >= 0")
+        if self.min_step_period_s < 0 or self.start_delay_s < 0 or self.status_period_s < 0:
+            raise ConfigError("min_step_period_s, start_delay_s and status_period_s must be >= 0")
 
 
 def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceContext) -> Simulator:
@@ -131,6 +135,7 @@ class SimService(Service):
         self.started_s = time.monotonic()
         self.step_started_s = math.inf
         self.last_publish_s = 0.0
+        self.status_published_s = -math.inf
         self.timeouts = 0
         self.result: EpisodeResultMsg | None = None
         self._queryables: list[Any] = []
@@ -220,7 +225,8 @@ class SimService(Service):
             self.finish("done", TERMINATED_COVERAGE)
         elif self.step >= self.max_steps:
             self.finish("done", TERMINATED_MAX_STEPS)
-        else:
+        elif time.monotonic() - self.status_published_s >= self.params.status_period_s:
+            self.status_published_s = time.monotonic()
             self.publish("episode_status", self.episode_status())
 
     def take_goal(self, g: GoalMsg) -> None:

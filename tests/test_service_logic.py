@@ -9,6 +9,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import Explorer
@@ -534,3 +535,24 @@ def test_the_sim_serves_the_newest_map_of_its_episode_for_a_restarted_mapper():
     sim.episode = 2  # the next episode: its first map replaces the newer step of the old one
     _feed(sim, MapMsg.from_grid(0, geom, empty, 2))
     assert (cached().step, cached().episode) == (0, 2)
+
+
+@pytest.mark.parametrize("period_s, expected_steps", [(3600.0, [0, 3]), (0.0, [0, 1, 2, 3])])
+def test_sim_status_goes_out_at_its_period_and_always_at_the_end(period_s, expected_steps):
+    """``episode/status`` is a view: with a period longer than the run it goes out once, then with the
+    end of the episode (the launcher's cue to write the results); with period 0 after every map."""
+    from services.sim import SimService  # noqa: PLC0415
+
+    ctx = ServiceContext("sim", "r0", {"scene": "generated:small:1:0"}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"status_period_s": period_s})
+    sim = SimService(ctx)
+    out: list[tuple[str, Message]] = []
+    sim.publish = lambda topic, msg, robot=None: out.append((topic, msg))  # type: ignore[method-assign]
+    sim.episode_state = "exploring"
+    g = sim.sim.plan.geometry
+    unknown, everything = np.full(g.shape, -1, np.int8), np.zeros(g.shape, np.int8)
+    for step, grid in ((0, unknown), (1, unknown), (2, unknown), (3, everything)):
+        sim.step = step
+        _feed(sim, MapMsg.from_grid(step, g, grid, sim.episode))
+    statuses = [m for t, m in out if t == "episode_status"]
+    assert [m.step for m in statuses] == expected_steps
+    assert statuses[-1].state == "done" and [m.state for m in statuses[:-1]] == ["exploring"] * (len(statuses) - 1)
