@@ -371,39 +371,25 @@ class MapMsg(Message):
         return cls(_int(b, "step", "map"), geometry, explored, occupied, _int(b, "episode", "map"))
 
 
-def _finite_window(distance: np.ndarray) -> tuple[slice, slice]:
-    """The smallest (rows, cols) window holding every value of ``distance`` but +inf (empty if none;
-    a NaN stays inside, for the receiver to reject)."""
-    finite = distance != np.inf
-    rows, cols = np.flatnonzero(finite.any(axis=1)), np.flatnonzero(finite.any(axis=0))
-    if rows.size == 0:
-        return slice(0, 0), slice(0, 0)
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
-
-
-def _distance_in(raw: dict, window: Any, finite_mask: Any, geometry: GridGeometry) -> np.ndarray:
-    """The full D grid from its finite values over their window (inf elsewhere)."""
-    where = "frontiers.arrays.distance_m"
-    values = unpack_array(raw["distance_m"], where, ndim=1, finite=True)
-    if values.dtype != np.float64:
-        raise MessageError(f"{where}: expected float64")
-    finite = unpack_array(finite_mask, "frontiers.distance_finite", ndim=2)
-    if finite.dtype != np.bool_:
-        raise MessageError("frontiers.distance_finite: expected a boolean mask")
-    ok = isinstance(window, list) and len(window) == 2 and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in window)
-    if not ok:
-        raise MessageError("frontiers.distance_window: expected [row, col] of the window's corner")
-    (y0, x0), (h, w) = window, finite.shape
-    if y0 + h > geometry.shape[0] or x0 + w > geometry.shape[1]:
-        raise MessageError("frontiers.distance_window: the window leaves the grid")
-    n_finite = int(np.count_nonzero(finite))
-    if n_finite != values.size:
-        raise MessageError(f"{where}: {values.size} values for {n_finite} finite cells")
+def _masked_grid_in(raw: dict, masks: Any, key: str, geometry: GridGeometry, fill: float, dtype: type) -> np.ndarray:
+    """A grid sent as its values (1-D, row by row) where its boolean mask is set, ``fill`` elsewhere.
+    The values must be non-negative (distances, counts), finite, and one per set cell."""
+    where = f"frontiers.arrays.{key}"
+    if not isinstance(masks, dict) or set(masks) != set(FrontiersMsg.MASKED):
+        raise MessageError(f"frontiers.masks: expected exactly {', '.join(FrontiersMsg.MASKED)}")
+    mask = _grid_in(masks, key, "frontiers.masks", geometry, "bool")
+    values = unpack_array(raw[key], where, ndim=1, finite=True)
+    integer_counts = np.dtype(dtype).kind in "iu"
+    if (values.dtype.kind not in "iu") if integer_counts else (values.dtype != np.float64):
+        raise MessageError(f"{where}: expected {'integer' if integer_counts else 'float64'} values, got {values.dtype}")
+    n_set = int(np.count_nonzero(mask))
+    if n_set != values.size:
+        raise MessageError(f"{where}: {values.size} values for {n_set} cells in its mask")
     if (values < 0).any():
-        raise MessageError(f"{where}: negative distances")
-    distance = np.full(geometry.shape, np.inf)
-    distance[y0 : y0 + h, x0 : x0 + w][finite] = values
-    return distance
+        raise MessageError(f"{where}: negative values")
+    grid = np.full(geometry.shape, fill, dtype=dtype)
+    grid.ravel()[np.flatnonzero(mask)] = values  # 3-4x faster than grid[mask] = values on a 640 x 480 grid
+    return grid
 
 
 def _narrow_counts(counts: np.ndarray) -> np.ndarray:
@@ -435,10 +421,12 @@ class FrontiersMsg(Message):
     """
 
     SCHEMA: ClassVar[str] = "frontiers"
-    VERSION: ClassVar[int] = 4
+    VERSION: ClassVar[int] = 5
     """2: D travels as its finite window (``distance_window``), I as the smallest unsigned type.
     3: within the window, only D's finite values travel, with the window's finite mask (``distance_finite``).
-    4: boolean grids travel bit-packed (``pack_array``)."""
+    4: boolean grids travel bit-packed (``pack_array``).
+    5: D and I travel as their values where their mask (``masks``) is set: D's finite cells, I's non-zero
+    ones (I was sent whole: two thirds of a decision message on a 640 x 480 map)."""
     step: int
     decide: bool
     reason: str = ""
@@ -459,6 +447,8 @@ class FrontiersMsg(Message):
         "distance_m": "float64",
         "entropy": "int32",
     }
+    MASKED: ClassVar[tuple[str, ...]] = ("distance_m", "entropy")
+    """Grids that travel as their values where a mask is set (D: finite; I: non-zero)."""
 
     def body(self) -> dict[str, Any]:
         b: dict[str, Any] = {"step": self.step, "decide": self.decide, "reason": self.reason}
@@ -466,19 +456,18 @@ class FrontiersMsg(Message):
             return b
         assert self.pose is not None and self.geometry is not None
         distance = np.asarray(self.arrays["distance_m"], dtype=np.float64)
-        window = _finite_window(distance)
-        finite = distance[window] != np.inf  # NaN counts as finite here, for the receiver to reject
+        entropy = np.asarray(self.arrays["entropy"])
+        masks = {"distance_m": distance != np.inf, "entropy": entropy != 0}  # a NaN in D is sent, for the receiver to reject
         b.update(
             pose=_pose_out(self.pose),
             geometry=_geometry_out(self.geometry),
             # Boolean grids compress 20-50x for almost nothing. D and I would cost more CPU to zlib than
-            # to send, so they are made small instead: D as its finite (reachable) values only, listed
-            # row by row over the window that holds them, with that window's finite mask (a boolean grid,
-            # compressed); I in the smallest unsigned type that holds it. Both lossless.
+            # to send, so they are made small instead: each as its values where its mask is set (D's
+            # finite cells, about half the map; I's non-zero ones, about 1 %), row by row, with the mask
+            # as a boolean grid; I in the smallest unsigned type that holds it. Both lossless.
             arrays={k: pack_array(np.asarray(self.arrays[k], dtype=dt), compress=True) for k, dt in self.GRIDS.items() if dt == "bool"}
-            | {"distance_m": pack_array(distance[window][finite], compress=False), "entropy": pack_array(_narrow_counts(self.arrays["entropy"]), compress=False)},
-            distance_window=[window[0].start, window[1].start],
-            distance_finite=pack_array(finite, compress=True),
+            | {"distance_m": pack_array(distance[masks["distance_m"]], compress=False), "entropy": pack_array(_narrow_counts(entropy[masks["entropy"]]), compress=False)},
+            masks={k: pack_array(m, compress=True) for k, m in masks.items()},
             clusters=[
                 {
                     "goal_cell": [int(c["goal_cell"][0]), int(c["goal_cell"][1])],
@@ -508,13 +497,9 @@ class FrontiersMsg(Message):
         if not isinstance(raw, dict) or set(raw) != set(cls.GRIDS):
             raise MessageError(f"frontiers.arrays: expected exactly {', '.join(cls.GRIDS)}")
         arrays = {k: _grid_in(raw, k, "frontiers.arrays", geometry, dt) for k, dt in cls.GRIDS.items() if dt == "bool"}
-        arrays["distance_m"] = _distance_in(raw, _get(b, "distance_window", w), _get(b, "distance_finite", w), geometry)
-        entropy = unpack_array(raw["entropy"], "frontiers.arrays.entropy", ndim=2)
-        if entropy.dtype.kind not in "iu" or tuple(entropy.shape) != tuple(geometry.shape):
-            raise MessageError("frontiers.arrays.entropy: expected integer counts over the grid")
-        if entropy.dtype.kind == "i" and (entropy < 0).any():
-            raise MessageError("frontiers.arrays.entropy: negative entropy")
-        arrays["entropy"] = entropy.astype(np.int32)
+        masks = _get(b, "masks", w)
+        arrays["distance_m"] = _masked_grid_in(raw, masks, "distance_m", geometry, np.inf, np.float64)
+        arrays["entropy"] = _masked_grid_in(raw, masks, "entropy", geometry, 0, np.int32)
         clusters_raw = _get(b, "clusters", w)
         if not isinstance(clusters_raw, list):
             raise MessageError("frontiers.clusters: expected a list")

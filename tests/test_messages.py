@@ -327,19 +327,24 @@ def test_bad_maps_are_rejected():
             decode(_wire("map", body))
 
 
-def test_frontiers_send_d_as_its_reachable_window_and_restore_it_exactly():
+def test_frontiers_send_d_and_i_as_their_masked_values_and_restore_them_exactly():
     obs = _observation()
+    entropy = obs.entropy.copy()
+    entropy[:, : entropy.shape[1] // 2] = 0  # far from frontiers, I is 0
+    obs = type(obs)(**{**obs.__dict__, "entropy": entropy})
     msg = frontiers_from_observation(3, "no_goal", obs, 1.0)
     back = decode(encode(msg), FrontiersMsg)
     assert isinstance(back, FrontiersMsg)
-    np.testing.assert_array_equal(back.arrays["distance_m"], obs.distance_m)  # inf outside the window too
-    np.testing.assert_array_equal(back.arrays["entropy"], obs.entropy)
-    assert back.arrays["entropy"].dtype == np.int32
-    sent = _body(msg)["arrays"]["distance_m"]
-    assert sent["shape"] == [int(np.isfinite(obs.distance_m).sum())]  # only the finite values travel
-    assert math.prod(_body(msg)["distance_finite"]["shape"]) < obs.distance_m.size  # over their window
-    unreachable = type(obs)(**{**obs.__dict__, "distance_m": np.full_like(obs.distance_m, np.inf)})
-    assert np.isinf(decode(encode(frontiers_from_observation(4, "no_goal", unreachable, 1.0)), FrontiersMsg).arrays["distance_m"]).all()
+    np.testing.assert_array_equal(back.arrays["distance_m"], obs.distance_m)  # inf where unreachable
+    np.testing.assert_array_equal(back.arrays["entropy"], obs.entropy)  # 0 away from frontiers
+    assert back.arrays["entropy"].dtype == np.int32 and back.arrays["distance_m"].dtype == np.float64
+    sent = _body(msg)["arrays"]
+    assert sent["distance_m"]["shape"] == [int(np.isfinite(obs.distance_m).sum())]  # only the finite values travel
+    assert sent["entropy"]["shape"] == [int(np.count_nonzero(obs.entropy))] == [obs.entropy.size // 2]  # only the non-zero counts
+    assert _body(msg)["masks"]["entropy"]["z"] == "bits"
+    unreachable = type(obs)(**{**obs.__dict__, "distance_m": np.full_like(obs.distance_m, np.inf), "entropy": np.zeros_like(obs.entropy)})
+    back = decode(encode(frontiers_from_observation(4, "no_goal", unreachable, 1.0)), FrontiersMsg)
+    assert np.isinf(back.arrays["distance_m"]).all() and not back.arrays["entropy"].any()
 
 
 def test_bad_frontiers_are_rejected():
@@ -354,10 +359,11 @@ def test_bad_frontiers_are_rejected():
         {**good, "clusters": [bad_cluster]},
         {**good, "clusters": [dict(good["clusters"][0], distance_m=float("nan"))]},
         {**good, "arrays": {k: v for k, v in good["arrays"].items() if k != "entropy"}},
-        {**good, "distance_window": [obs.geometry.shape[0], 0]},  # the window leaves the grid
-        {**good, "distance_window": [-1, 0]},
-        {**good, "distance_finite": dict(good["distance_finite"], data=zlib.compress(np.packbits(np.ones(math.prod(good["distance_finite"]["shape"]), bool), bitorder="little").tobytes()))},  # more finite cells than values
-        {**good, "distance_finite": dict(good["distance_finite"], dtype="uint8")},  # not a boolean mask
+        {**good, "masks": {"distance_m": good["masks"]["distance_m"]}},  # the entropy mask missing
+        {**good, "masks": dict(good["masks"], entropy=good["masks"]["distance_m"])},  # more set cells than values
+        {**good, "masks": dict(good["masks"], distance_m=dict(good["masks"]["distance_m"], shape=[obs.geometry.shape[0] - 1, obs.geometry.shape[1]]))},  # not the grid's shape
+        {**good, "masks": dict(good["masks"], entropy=good["arrays"]["entropy"])},  # not a boolean mask
+        {**good, "arrays": dict(good["arrays"], entropy=pack_array(np.ones(int(np.count_nonzero(obs.entropy)))))},  # floats, not counts
         {**good, "arrays": dict(good["arrays"], distance_m=dict(good["arrays"]["distance_m"], data=good["arrays"]["distance_m"]["data"][:-8], shape=[good["arrays"]["distance_m"]["shape"][0] - 1]))},  # a value short
         {**good, "path_nodes_xy_m": _body(PathMsg(0, np.array([[np.inf, 0.0]])))["path_xy_m"]},
     ]
