@@ -5,8 +5,8 @@ has already integrated is not integrated twice: the map is re-published (lockste
 episode is recognised by the episode id that clocks and scans carry, never by the step going back:
 each subscriber's callbacks run on their own thread, so a clock may be handled after scans of later
 steps (the sim even sends each step's scan first). On start it restores the latest map from the
-referee's cache (``cache/map``: the sim or ros2_bridge) so a restarted mapper keeps what was explored; it answers queries on its map key so
-late joiners get the latest map at once.
+referee's cache (``cache/map``: the sim or ros2_bridge) so a restarted mapper keeps what was
+explored; it answers queries on its map key so late joiners get the latest map at once.
 """
 
 from __future__ import annotations
