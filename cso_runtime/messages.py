@@ -371,12 +371,10 @@ class MapMsg(Message):
         return cls(_int(b, "step", "map"), geometry, explored, occupied, _int(b, "episode", "map"))
 
 
-def _masked_grid_in(raw: dict, masks: Any, key: str, geometry: GridGeometry, fill: float, dtype: type) -> np.ndarray:
+def _masked_grid_in(raw: dict, masks: dict, key: str, geometry: GridGeometry, fill: float, dtype: type) -> np.ndarray:
     """A grid sent as its values (1-D, row by row) where its boolean mask is set, ``fill`` elsewhere.
     The values must be non-negative (distances, counts), finite, and one per set cell."""
     where = f"frontiers.arrays.{key}"
-    if not isinstance(masks, dict) or set(masks) != set(FrontiersMsg.MASKED):
-        raise MessageError(f"frontiers.masks: expected exactly {', '.join(FrontiersMsg.MASKED)}")
     mask = _grid_in(masks, key, "frontiers.masks", geometry, "bool")
     values = unpack_array(raw[key], where, ndim=1, finite=True)
     integer_counts = np.dtype(dtype).kind in "iu"
@@ -498,6 +496,8 @@ class FrontiersMsg(Message):
             raise MessageError(f"frontiers.arrays: expected exactly {', '.join(cls.GRIDS)}")
         arrays = {k: _grid_in(raw, k, "frontiers.arrays", geometry, dt) for k, dt in cls.GRIDS.items() if dt == "bool"}
         masks = _get(b, "masks", w)
+        if not isinstance(masks, dict) or set(masks) != set(cls.MASKED):
+            raise MessageError(f"frontiers.masks: expected exactly {', '.join(cls.MASKED)}")
         arrays["distance_m"] = _masked_grid_in(raw, masks, "distance_m", geometry, np.inf, np.float64)
         arrays["entropy"] = _masked_grid_in(raw, masks, "entropy", geometry, 0, np.int32)
         clusters_raw = _get(b, "clusters", w)
