@@ -6,8 +6,7 @@ this process listens to scan, map, frontiers and goal and stamps each arrival on
 - scan -> map: from the sim's scan of step k to the mapper's map of step k (integrate_scan + 2 hops);
 - map -> goal: from the map of step k to the policy's goal of step k on decision steps (decision rule,
   ObservationBuilder, select; 2 hops); on the other steps the policy is not in the loop;
-- a breakdown of the mean step time into scan -> map -> frontiers (the verdict) -> cmd_vel, and frontiers ->
-  next scan (on keep-goal steps the sim moves on the verdict itself);
+- a breakdown of the mean step time into scan -> map -> frontiers -> cmd_vel -> next scan;
 - wall-time ratio: step 0 to the episode's end through Zenoh, against ``run_episode`` in one process
   on the same scene and seed (target <= 1.5x). Process start-up is reported separately;
 - CPU floor of that ratio: the CPU every process of the run spent during the Zenoh episode, spread
@@ -74,7 +73,7 @@ def pct(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) if values else float("nan")
 
 
-KEEP_CHAIN = (("sim", "scan"), ("mapper", "map"), ("frontier", "frontiers_keep"), ("sim", "scan"))
+KEEP_CHAIN = (("sim", "scan"), ("mapper", "map"), ("frontier", "frontiers"), ("planner", "cmd_vel"), ("sim", "scan"))
 DECISION_CHAIN = (("sim", "scan"), ("mapper", "map"), ("frontier", "frontiers"), ("policy", "goal"), ("planner", "cmd_vel"), ("sim", "scan"))
 """A lockstep step's serial chain: (service, the topic it publishes next); the last scan is the next step's."""
 
@@ -94,7 +93,7 @@ def hop_breakdown(trace_dir: Path) -> dict[str, dict[str, float]]:
         return out
 
     puts = {(svc, topic): first(svc, "put", topic) for svc, topic in set(KEEP_CHAIN + DECISION_CHAIN)}
-    handles = {(svc, topic): first(svc, "handle", topic) for svc, topic in [("mapper", "scan"), ("frontier", "map"), ("sim", "frontiers_keep"), ("policy", "frontiers"), ("planner", "goal"), ("sim", "cmd_vel")]}
+    handles = {(svc, topic): first(svc, "handle", topic) for svc, topic in [("mapper", "scan"), ("frontier", "map"), ("planner", "frontiers"), ("policy", "frontiers"), ("planner", "goal"), ("sim", "cmd_vel")]}
     decisions = set(puts[("policy", "goal")])
     out: dict[str, dict[str, float]] = {}
     for kind, chain in (("keep_goal_steps", KEEP_CHAIN), ("decision_steps", DECISION_CHAIN)):
@@ -147,7 +146,6 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
     def on_sample(sample) -> None:
         now = time.perf_counter()
         topic = str(sample.key_expr).split("/", 2)[2]
-        topic = "frontiers" if topic == "frontiers/keep" else topic  # both are the frontier service's verdict
         payload = sample.payload.to_bytes()
         if topic != "episode/status":
             arrivals.append((now, topic, payload))
@@ -172,7 +170,7 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
         thread.start()
         time.sleep(0.3)
         keys = RobotKeys(profile.robot)
-        topics = ("scan", "episode_status") if wall_time_only else ("scan", "map", "goal", "frontiers", "frontiers_keep", "cmd_vel", "episode_status")
+        topics = ("scan", "episode_status") if wall_time_only else ("scan", "map", "goal", "frontiers", "cmd_vel", "episode_status")
         with open_session(TransportConfig(mode="client", connect=[loopback_endpoint(port)])) as session:
             subs = [session.declare_subscriber(keys.topic(t), on_sample) for t in topics]
             if wall_time_only and started.wait(600):
@@ -200,13 +198,12 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
     cmd_steps = sorted(set(stamps["map"]) & set(stamps["cmd_vel"]))
     map_cmd_ms = [1e3 * (stamps["cmd_vel"][k] - stamps["map"][k]) for k in cmd_steps]
     # Where a step's time goes: mean ms of each segment of the chain, keep-goal and decision steps apart.
-    # On keep-goal steps the sim moves on the verdict itself (frontiers -> next scan); cmd_vel follows.
     segments = {"scan->map": ("scan", "map"), "map->frontiers": ("map", "frontiers"), "frontiers->cmd_vel": ("frontiers", "cmd_vel")}
     breakdown: dict[str, dict[str, float]] = {}
     for kind in ("keep_goal_steps", "decision_steps"):
         ks = [k for k in steps if (k in stamps["decide"]) == (kind == "decision_steps") and k in stamps["cmd_vel"] and k + 1 in stamps["scan"]]
         row = {name: float(np.mean([1e3 * (stamps[b][k] - stamps[a][k]) for k in ks])) if ks else float("nan") for name, (a, b) in segments.items()}
-        row["frontiers->next scan"] = float(np.mean([1e3 * (stamps["scan"][k + 1] - stamps["frontiers"][k]) for k in ks])) if ks else float("nan")
+        row["cmd_vel->next scan"] = float(np.mean([1e3 * (stamps["scan"][k + 1] - stamps["cmd_vel"][k]) for k in ks])) if ks else float("nan")
         row["steps"] = len(ks)
         breakdown[kind] = row
     cpu_s = {name: round(cpu["end"][name] - cpu["start"].get(name, 0.0), 3) for name in cpu.get("end", {})}

@@ -5,8 +5,7 @@ no longer a frontier, every ``replan_every_steps``), the same function the in-pr
 uses, on the planner's status after the previous step's command and the planner's own blocked check
 (``path_blocked_ahead``) applied here to this step's map. The Observation is
 ``ObservationBuilder.build`` (frontiers, one fast-marching pass, entropy, clusters). Per step it
-publishes either ``decide: false`` on ``frontiers/keep`` (the planner keeps its goal) or the arrays the
-policy needs on ``frontiers``.
+publishes either ``decide: false`` (the planner keeps its goal) or the arrays the policy needs.
 """
 
 from __future__ import annotations
@@ -44,7 +43,7 @@ class FrontierParams:
 class FrontierService(Service):
     name = "frontier"
     inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg}
-    outputs = {"frontiers": FrontiersMsg, "frontiers_keep": FrontiersMsg}
+    outputs = {"frontiers": FrontiersMsg}
 
     def __init__(self, ctx: ServiceContext):
         super().__init__(ctx)
@@ -96,7 +95,7 @@ class FrontierService(Service):
             return
         if step <= self.done_step:
             if isinstance(msg, MapMsg) and self.last_out is not None and step == self.done_step:
-                self.publish_verdict(self.last_out)  # a lockstep retry: answer again
+                self.publish("frontiers", self.last_out)  # a lockstep retry: answer again
             return
         if isinstance(msg, MapMsg):
             if not self.accept_map_episode(msg):
@@ -173,13 +172,7 @@ class FrontierService(Service):
             out = frontiers_from_observation(k, reason, obs, (time.perf_counter() - t0) * 1e3)
             self.awaiting_goal_step, self.awaiting_since_s = k, time.monotonic()
         self.last_out = out
-        self.publish_verdict(out)
-
-    def publish_verdict(self, out: FrontiersMsg) -> None:
-        """A decision's Observation on ``frontiers`` (policy, planner); a keep-goal verdict on
-        ``frontiers/keep`` (planner, policy, and in lockstep the sim, which moves on it at once when it
-        has stepped ahead on the planner's provisional command)."""
-        self.publish("frontiers" if out.decide else "frontiers_keep", out)
+        self.publish("frontiers", out)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -47,7 +47,7 @@ class PlannerParams:
 
 class PlannerService(Service):
     name = "planner"
-    inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": FrontiersMsg, "frontiers_keep": FrontiersMsg, "goal": GoalMsg}
+    inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": FrontiersMsg, "goal": GoalMsg}
     outputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg}
     tick_period_s = 0.1
 

@@ -51,7 +51,7 @@ class RobotState:
 
 class PolicyService(Service):
     name = "policy"
-    inputs = {"frontiers": FrontiersMsg, "frontiers_keep": FrontiersMsg}
+    inputs = {"frontiers": FrontiersMsg}
     outputs = {"goal": GoalMsg}
 
     def __init__(self, ctx: ServiceContext):

@@ -30,7 +30,6 @@ from cso_runtime.messages import (
     CmdVelMsg,
     EpisodeResultMsg,
     EpisodeStatusMsg,
-    FrontiersMsg,
     GoalMsg,
     MapMsg,
     Message,
@@ -95,7 +94,7 @@ def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceCont
 
 class SimService(Service):
     name = "sim"
-    inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "frontiers_keep": FrontiersMsg, "map": MapMsg, "goal": GoalMsg}
+    inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     serves_latest = ("map",)
     tick_period_s = 0.02
@@ -120,11 +119,7 @@ class SimService(Service):
         self.cmds: dict[int, CmdVelMsg] = {}
         self.ahead: tuple[int, VelocityCommand, tuple, LaserScan] | None = None
         """Lockstep: the next state and scan stepped ahead on the planner's provisional command (step,
-        command, simulator state, scan); used when the frontier service keeps the goal, or when the
-        step's cmd_vel is that command."""
-        self.moved_on_verdict: dict[int, VelocityCommand] = {}
-        """Lockstep: steps taken on a keep-goal verdict with the provisional command, until the planner's
-        cmd_vel of that step arrives and is checked against it."""
+        command, simulator state, scan); used when the step's cmd_vel is that command."""
         self.measured_step = -1
         self.goal_step = -1
         self.last_map: OccupancyMap | None = None
@@ -258,25 +253,6 @@ class SimService(Service):
         self.ahead = (msg.step, msg.command, save(), scan)
         self.sim.restore_state(before)
 
-    def take_keep_verdict(self, step: int) -> None:
-        """Lockstep: the frontier service keeps the goal at ``step``, so the planner's command of the step
-        is the provisional one it computed before the verdict (``PlannerService.compute_ahead``): when
-        the sim has stepped ahead on it, it moves on at once instead of waiting one more hop for the
-        planner's cmd_vel (which is checked when it comes, ``check_moved_on_verdict``)."""
-        ahead = self.ahead
-        if ahead is None or ahead[0] != step or step in self.cmds:
-            return  # not stepped ahead (MuJoCo, or the provisional command is late): wait for cmd_vel
-        self.cmds[step] = CmdVelMsg(step, ahead[1], "keep")
-        self.moved_on_verdict[step] = ahead[1]
-        self.lockstep_progress()
-
-    def check_moved_on_verdict(self, cmd: CmdVelMsg) -> None:
-        """The planner's cmd_vel of a step the sim took on a keep-goal verdict must be the command it
-        stepped on; a different one (a broken contract, or a stale stop) is counted as rejected."""
-        moved = self.moved_on_verdict.pop(cmd.step)
-        if cmd.command != moved and not cmd.reason.startswith("stale"):
-            self.reject("cmd_vel", f"step {cmd.step}: the sim moved on the keep-goal verdict with {moved}, the planner sent {cmd.command}")
-
     def advance(self, command: VelocityCommand) -> None:
         before = self.sim.true_pose()
         ahead, self.ahead = self.ahead, None
@@ -291,8 +267,6 @@ class SimService(Service):
         self.trajectory.append((after.x_m, after.y_m))
         self.step += 1
         self.step_started_s = time.monotonic()
-        for s in [s for s in self.moved_on_verdict if s < self.step - 100]:
-            self.moved_on_verdict.pop(s)  # no cmd_vel came for it (a restarted planner): stop waiting
         self.publish_step(scan)
 
     # --- inputs ---------------------------------------------------------------------------------
@@ -306,15 +280,10 @@ class SimService(Service):
             self.keep_latest("map", msg)
         if self.ctx.lockstep:
             step = getattr(msg, "step", -1)
-            if topic == "cmd_vel" and step in self.moved_on_verdict:
-                self.check_moved_on_verdict(msg)  # type: ignore[arg-type]
             if step < self.step:
                 return
             if topic == "cmd_vel_ahead":
                 self.step_ahead(msg)  # type: ignore[arg-type]
-                return
-            if topic == "frontiers_keep":
-                self.take_keep_verdict(step)
                 return
             if topic == "map":
                 self.maps[step] = msg  # type: ignore[assignment]

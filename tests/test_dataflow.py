@@ -59,16 +59,15 @@ def test_sim_profile_dataflow_holds_the_lockstep_chain():
     nodes = nodes_of(list(prof.services))
     assert [n.name for n in nodes] == ["sim", "mapper", "frontier", "policy", "planner", LAUNCHER]
     edges = set(edges_of(nodes))
-    # A keep-goal step: the sim moves on the verdict (lockstep); the planner's cmd_vel follows.
-    chain = [Edge("sim", "scan", "mapper"), Edge("mapper", "map", "frontier"), Edge("frontier", "frontiers_keep", "sim"), Edge("frontier", "frontiers_keep", "planner"), Edge("planner", "cmd_vel", "sim")]
-    decision = [Edge("frontier", "frontiers", "policy"), Edge("frontier", "frontiers", "planner"), Edge("policy", "goal", "planner")]
+    chain = [Edge("sim", "scan", "mapper"), Edge("mapper", "map", "frontier"), Edge("frontier", "frontiers", "planner"), Edge("planner", "cmd_vel", "sim")]
+    decision = [Edge("frontier", "frontiers", "policy"), Edge("policy", "goal", "planner")]
     assert set(chain + decision) <= edges
     assert not any(e.source == LAUNCHER for e in edges)  # the launcher only listens
     assert Edge("policy", "goal", "mapper") not in edges  # only declared inputs are edges
     mermaid = to_mermaid(nodes)
     assert mermaid.startswith("flowchart LR\n") and '  planner -->|"cmd_vel, cmd_vel/ahead"| sim\n' in mermaid
     md = to_markdown("sim", nodes)
-    assert "```mermaid\nflowchart LR" in md and "| policy | `frontiers` (frontier), `frontiers/keep` (frontier) | `goal` (sim, frontier, planner, launcher) |" in md
+    assert "```mermaid\nflowchart LR" in md and "| policy | `frontiers` (frontier) | `goal` (sim, frontier, planner, launcher) |" in md
 
 
 def test_publish_refuses_what_the_outputs_do_not_declare():

@@ -49,8 +49,6 @@ def _service(cls: type[Service], lockstep: bool, params: dict | None = None) -> 
 def _feed(svc: Service, msg: Message) -> None:
     """As the service loop does: decoded from the wire, then handled."""
     topic = {MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", GoalMsg: "goal", PlannerFeedbackMsg: "planner_feedback"}[type(msg)]
-    if isinstance(msg, FrontiersMsg) and not msg.decide:
-        topic = "frontiers_keep"
     svc.on_message("r0", topic, decode(encode(msg), type(msg)), time.monotonic())
 
 
@@ -261,62 +259,6 @@ def _without_timing(msgs: list[Message]) -> list[bytes]:
     return out
 
 
-def test_lockstep_sim_moves_on_a_keep_goal_verdict_and_checks_the_planners_command():
-    """On a keep-goal verdict the planner's command is the provisional one, so a sim that has stepped ahead
-    on it moves at once (one hop less), whether the verdict comes before or after the map; the planner's
-    cmd_vel that follows is checked (another command is counted as rejected). Without a step ahead, or on
-    a decision, the sim waits for cmd_vel. Every scan is the one of a sim that only ever moved on cmd_vel."""
-    from cso_runtime.geometry import VelocityCommand  # noqa: PLC0415
-    from cso_runtime.occupancy import OccupancyMap  # noqa: PLC0415
-    from services.sim import SimService  # noqa: PLC0415
-
-    def sim_service():
-        ctx = ServiceContext("sim", "r0", {"lockstep": True, "scene": "generated:small:1:0", "seed": 3}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
-        svc = SimService(ctx)
-        out: list[tuple[str, Message]] = []
-        svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(svc.check_output(topic, msg)), type(msg))))  # type: ignore[method-assign]
-        svc.episode = 7
-        svc.on_tick(time.monotonic())  # step 0 goes out
-        return svc, out
-
-    def feed(svc, topic, msg):
-        svc.on_message("r0", topic, decode(encode(msg), type(msg)), time.monotonic())
-
-    fast, out_fast = sim_service()
-    plain, out_plain = sim_service()
-    empty_map = OccupancyMap(fast.sim.plan.geometry)
-    c = [VelocityCommand(0.3, 0.1), VelocityCommand(0.2, -0.3), VelocityCommand(0.0, 0.78), VelocityCommand(0.4, 0.0), VelocityCommand(0.1, 0.2)]
-    for k, cmd in enumerate(c):
-        m = MapMsg.of(k, empty_map, 7)
-        feed(plain, "map", m)
-        feed(plain, "cmd_vel", CmdVelMsg(k, cmd))
-        ahead = CmdVelMsg(k, cmd, "ahead")
-        if k == 0:  # verdict after the map: moves on it, before the planner's cmd_vel
-            script = [("cmd_vel_ahead", ahead), ("map", m), ("frontiers_keep", FrontiersMsg(k, False))]
-        elif k == 1:  # verdict before the map: moves once the map is in
-            script = [("cmd_vel_ahead", ahead), ("frontiers_keep", FrontiersMsg(k, False)), ("map", m)]
-        elif k == 2:  # no step ahead (the provisional command is late): waits for cmd_vel
-            script = [("map", m), ("frontiers_keep", FrontiersMsg(k, False))]
-        else:  # a decision: no keep verdict, the stored scan is kept when cmd_vel is the same command
-            script = [("cmd_vel_ahead", ahead), ("map", m)]
-        for topic, msg in script:
-            feed(fast, topic, msg)
-        assert fast.step == (k + 1 if k in (0, 1) else k)
-        feed(fast, "cmd_vel", CmdVelMsg(k, cmd))  # the planner's command comes after all
-        assert fast.step == plain.step == k + 1
-    assert fast.rejected == {} and fast.moved_on_verdict == {}
-    for topic in ("scan", "odom"):
-        a = [encode(m) for t, m in out_fast if t == topic]
-        b = [encode(m) for t, m in out_plain if t == topic]
-        assert len(a) == len(c) + 1 and a == b, topic
-    k = len(c)
-    feed(fast, "cmd_vel_ahead", CmdVelMsg(k, VelocityCommand(0.2, 0.0), "ahead"))
-    feed(fast, "map", MapMsg.of(k, empty_map, 7))
-    feed(fast, "frontiers_keep", FrontiersMsg(k, False))
-    feed(fast, "cmd_vel", CmdVelMsg(k, VelocityCommand(0.0, 0.5)))  # not the provisional command: a broken contract
-    assert fast.step == k + 1 and fast.rejected == {"cmd_vel": 1}
-
-
 def test_lockstep_frontier_never_decides_on_a_map_of_the_episode_before():
     """After a sim restart (a new episode id) maps of the old episode may still be in flight. The
     frontier service rejects them (counted) and decides the new episode exactly as a fresh service
@@ -343,7 +285,7 @@ def test_lockstep_frontier_never_decides_on_a_map_of_the_episode_before():
             _feed(svc, PlannerFeedbackMsg(k - 1, "following", "command", goal_step=0))
             _feed(svc, OdometryMsg(k, odom_a0.stamp_s + 0.25 * k, odom_a0.pose))
             _feed(svc, map_of(ex_a, k, a))
-        assert [m.step for t, m in out if t in ("frontiers", "frontiers_keep")] == [0, 1, 2] and svc.done_step == 2
+        assert [m.step for t, m in out if t == "frontiers"] == [0, 1, 2] and svc.done_step == 2
         out.clear()
         order = episode_b if map_first else [episode_b[1], episode_b[0], *episode_b[2:]]
         for i, msg in enumerate(order):
@@ -353,9 +295,9 @@ def test_lockstep_frontier_never_decides_on_a_map_of_the_episode_before():
         fresh, fresh_out = _service(FrontierService, lockstep=True)
         for msg in order:
             _feed(fresh, msg)
-        got = [m for t, m in out if t in ("frontiers", "frontiers_keep")]
+        got = [m for t, m in out if t == "frontiers"]
         assert [(m.step, m.decide) for m in got] == [(0, True), (1, False)]
-        assert _without_timing(got) == _without_timing([m for t, m in fresh_out if t in ("frontiers", "frontiers_keep")])
+        assert _without_timing(got) == _without_timing([m for t, m in fresh_out if t == "frontiers"])
         assert svc.rejected.get("map") == 2
 
 
@@ -464,20 +406,20 @@ def test_message_trace_records_each_handled_input_and_feeds_the_hop_breakdown(tm
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     ms = 1e-3
-    traces = {  # one keep-goal step 0: every hop 1 ms transit, 0.5 ms queue+decode, then 2 ms of work; the sim moves on the verdict
-        "sim": [["put", "scan", 0, 0.0, 0.0, 10], ["handle", "frontiers_keep", 0, 8 * ms, 8.5 * ms, 8.5 * ms], ["put", "scan", 1, 10.5 * ms, 10.5 * ms, 10]],
+    traces = {  # one keep-goal step 0: every hop 1 ms transit, 0.5 ms queue+decode, then 2 ms of work
+        "sim": [["put", "scan", 0, 0.0, 0.0, 10], ["handle", "cmd_vel", 0, 11.5 * ms, 12 * ms, 12 * ms], ["put", "scan", 1, 14 * ms, 14 * ms, 10]],
         "mapper": [["handle", "scan", 0, 1 * ms, 1.5 * ms, 3 * ms], ["put", "map", 0, 3.5 * ms, 3.5 * ms, 10]],
-        "frontier": [["handle", "map", 0, 4.5 * ms, 5 * ms, 6 * ms], ["put", "frontiers_keep", 0, 7 * ms, 7 * ms, 10]],
-        "planner": [["handle", "frontiers_keep", 0, 8 * ms, 8.5 * ms, 9 * ms], ["put", "cmd_vel", 0, 10.5 * ms, 10.5 * ms, 10]],
+        "frontier": [["handle", "map", 0, 4.5 * ms, 5 * ms, 6 * ms], ["put", "frontiers", 0, 7 * ms, 7 * ms, 10]],
+        "planner": [["handle", "frontiers", 0, 8 * ms, 8.5 * ms, 9 * ms], ["put", "cmd_vel", 0, 10.5 * ms, 10.5 * ms, 10]],
     }
     for name, ev in traces.items():
         (tmp_path / f"{name}.trace.json").write_text(json.dumps(ev))
     hops = bench.hop_breakdown(tmp_path)
     keep = hops["keep_goal_steps"]
     assert keep["steps"] == 1 and hops["decision_steps"]["steps"] == 0
-    assert keep["sim->mapper transit"] == keep["mapper->frontier transit"] == keep["frontier->sim transit"] == 1.0
-    assert keep["frontier->sim queue+decode"] == 0.5 and keep["mapper work"] == keep["frontier work"] == 2.0
-    assert keep["sim work"] == 2.0 and keep["step"] == 10.5
+    assert keep["sim->mapper transit"] == keep["mapper->frontier transit"] == keep["planner->sim transit"] == 1.0
+    assert keep["frontier->planner queue+decode"] == 0.5 and keep["mapper work"] == keep["planner work"] == 2.0
+    assert keep["sim work"] == 2.0 and keep["step"] == 14.0
 
 
 def test_service_profile_is_written_into_a_new_folder_and_a_failure_is_only_logged(tmp_path, caplog):
