@@ -377,9 +377,9 @@ def _masked_grid_in(raw: dict, masks: dict, key: str, geometry: GridGeometry, fi
     where = f"frontiers.arrays.{key}"
     mask = _grid_in(masks, key, "frontiers.masks", geometry, "bool")
     values = unpack_array(raw[key], where, ndim=1, finite=True)
-    integer_counts = np.dtype(dtype).kind in "iu"
-    if (values.dtype.kind not in "iu") if integer_counts else (values.dtype != np.float64):
-        raise MessageError(f"{where}: expected {'integer' if integer_counts else 'float64'} values, got {values.dtype}")
+    counts = np.dtype(dtype).kind in "iu"  # I: integer counts of any width; D: float64 metres
+    if not (values.dtype.kind in "iu" if counts else values.dtype == np.float64):
+        raise MessageError(f"{where}: expected {'integer' if counts else 'float64'} values, got {values.dtype}")
     n_set = int(np.count_nonzero(mask))
     if n_set != values.size:
         raise MessageError(f"{where}: {values.size} values for {n_set} cells in its mask")
