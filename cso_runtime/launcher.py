@@ -9,8 +9,9 @@ process group and log file in ``runs/<run-id>/logs/``, restarts a crashed servic
 back-off (and gives up after ``max_restarts``, saying so), keeps the latest goal for restarted
 services (the referee, sim or ros2_bridge, keeps the latest map), shows a live view, optionally
 records every ``cso/<robot>/**`` message to MCAP on its own session (``--record``), and writes the
-same ``summary.json``, trajectory plot and final map as ``eval`` when the episode ends. Ctrl-C, SIGTERM and ``cso-runtime down`` stop every process group: SIGINT,
-then SIGTERM, then SIGKILL, each with a deadline.
+same ``summary.json``, trajectory plot and final map as ``eval`` when the episode ends. Ctrl-C,
+SIGTERM and ``cso-runtime down`` stop every process group: SIGINT, then SIGTERM, then SIGKILL, each
+with a deadline.
 """
 
 from __future__ import annotations
