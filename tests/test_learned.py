@@ -529,3 +529,32 @@ def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
     assert len(data) == 6 and data.masks[np.arange(6), data.actions].all()
     bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "nobody", *scenes])
     assert bad.exit_code == 2 and "unknown warm_start_teacher" in bad.output
+
+
+def test_distance_prior_starts_the_actor_at_greedy_dist_and_round_trips(tmp_path, observation):
+    """With ``distance_prior`` the untrained actor's argmax is greedy-dist's goal under the same masks
+    (its learned part starts at zero), the trace keeps the prior, and a checkpoint restores it."""
+    torch.manual_seed(2)
+    model = GraphActorCritic(NetworkConfig(distance_prior=20.0)).eval()
+    config = GraphConfig()
+    masks = MaskConfig()
+    policy = LearnedPolicy("cso", model, config, masks)
+    mask = policy.action_mask(observation)
+    assert mask.sum() >= 2, "the decision must offer a choice"
+    masked_distance = np.where(mask[: len(observation.clusters)], observation.goal_distance_m, np.inf)
+    probs = policy.probabilities(observation, mask)
+    assert int(np.argmax(probs)) == int(np.argmin(masked_distance))
+    assert probs[~mask].sum() == 0.0 and probs.max() < 1.0  # a sampling policy, not a hard rule
+    eager = model.masked_logits(to_torch(build_graph(observation, config), batch=True), torch.as_tensor(mask).unsqueeze(0))
+    torch.testing.assert_close(torch.softmax(eager, -1)[0], torch.as_tensor(probs), atol=1e-5, rtol=1e-4)
+    # without the prior the same untrained weights score frontiers by noise, not by distance
+    plain = GraphActorCritic(NetworkConfig()).eval()
+    plain.load_state_dict(model.state_dict())
+    plain_probs = LearnedPolicy("cso", plain, config, masks).probabilities(observation, mask)
+    assert np.allclose(plain_probs[mask], 1.0 / mask.sum())
+    save_checkpoint(tmp_path / "prior.pt", model, config, "cso")
+    loaded, _, _ = load_checkpoint(tmp_path / "prior.pt")
+    assert loaded.config.distance_prior == 20.0
+    np.testing.assert_allclose(LearnedPolicy("cso", loaded, config, masks).probabilities(observation, mask), probs, atol=1e-6)
+    with pytest.raises(ValueError, match="distance_prior"):
+        Args(distance_prior=-1.0).validate()

@@ -21,6 +21,8 @@ from torch import nn
 
 from cso_runtime.learned.graph import EDGE_FEATURES, NODE_FEATURES
 
+GEODESIC_FEATURE = NODE_FEATURES.index("geodesic")
+
 MASKED_LOGIT = -1e8
 """Logit of a masked action: its probability is exactly zero in float32."""
 
@@ -39,6 +41,11 @@ class NetworkConfig:
     """Message-passing rounds."""
     node_features: int = len(NODE_FEATURES)
     """Input features per node (``graph.node_features`` of the graphs it reads)."""
+    distance_prior: float = 0.0
+    """0: the paper's actor. > 0: each frontier's score is ``-distance_prior * geodesic`` (the node's
+    ``log(1 + l / scale)`` feature) plus the actor's output, whose last layer starts at zero, so the
+    untrained policy's argmax is greedy-dist's choice (under the same masks) and PPO learns only where
+    to depart from it. Off in the shipped weights."""
 
 
 class CategoricalMasked(torch.distributions.Categorical):
@@ -102,6 +109,9 @@ class GraphActorCritic(nn.Module):
         self.layers = nn.ModuleList(GraphAttentionLayer(c.hidden, c.edge_dim, c.heads) for _ in range(c.layers))
         self.actor = nn.Sequential(nn.Linear(2 * c.hidden, c.hidden), nn.ReLU(), nn.Linear(c.hidden, 1))
         self.critic = nn.Sequential(nn.Linear(2 * c.hidden, c.hidden), nn.ReLU(), nn.Linear(c.hidden, 1))
+        if c.distance_prior > 0:
+            nn.init.zeros_(self.actor[-1].weight)
+            nn.init.zeros_(self.actor[-1].bias)
 
     def encode(self, g: dict[str, torch.Tensor], cut_padding: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Node embeddings (b, n, d), the robot node's embedding (b, d) and the masked mean (b, d).
@@ -127,6 +137,8 @@ class GraphActorCritic(nn.Module):
         h, h_robot, pooled = self.encode(g, cut_padding)
         hf = h[:, : self.max_frontier_nodes]
         logits = self.actor(torch.cat([hf, h_robot.unsqueeze(1).expand_as(hf)], dim=-1)).squeeze(-1)
+        if self.config.distance_prior > 0:
+            logits = logits - self.config.distance_prior * g["nodes"][:, : logits.shape[1], GEODESIC_FEATURE]
         if logits.shape[1] < self.max_frontier_nodes:  # back to the fixed action space; the mask hides the rest
             logits = nn.functional.pad(logits, (0, self.max_frontier_nodes - logits.shape[1]), value=MASKED_LOGIT)
         if not with_value:

@@ -115,6 +115,9 @@ class Args:
     """Give the network each frontier cluster's length as a node feature (``graph.node_features``)."""
     egocentric_frame: bool = False
     """Node positions in the robot's frame instead of the map's axes (``GraphConfig.egocentric``)."""
+    distance_prior: float = 0.0
+    """> 0: the actor scores a residual over greedy-dist's ``-distance_prior * log(1 + l / scale)``
+    (``NetworkConfig.distance_prior``); PPO then starts from greedy-dist's choices, no warm start needed."""
     checkpoint_every: int = 5
     """Updates between resumable checkpoints."""
     resume: str | None = None
@@ -137,6 +140,8 @@ class Args:
             raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
         if self.warm_start_teacher not in TEACHERS:
             raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
+        if self.distance_prior < 0:
+            raise ValueError("distance_prior must be >= 0 (0 = the paper's actor)")
         if self.warm_start_soft_steps < 0:
             raise ValueError("warm_start_soft_steps must be >= 0 (0 = imitate the choice alone)")
         missing = [p for p in self.warm_start_data if not Path(p).is_file()]
@@ -274,7 +279,8 @@ def initial_weights(args: Args, device: torch.device) -> dict[str, torch.Tensor]
 
 def build_model(args: Args, device: torch.device) -> GraphActorCritic:
     features = len(node_features(args.env_config().graph))
-    return GraphActorCritic(NetworkConfig(args.hidden, 32, args.heads, args.layers, features), args.max_frontier_nodes).to(device)
+    config = NetworkConfig(args.hidden, 32, args.heads, args.layers, features, distance_prior=args.distance_prior)
+    return GraphActorCritic(config, args.max_frontier_nodes).to(device)
 
 
 def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.vector.VectorEnv:
