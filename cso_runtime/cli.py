@@ -39,6 +39,17 @@ def _root(
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
 
 
+def _use_weights(folder: Path) -> None:
+    """``--weights``: serve the learned methods from a training run's folder, or exit 2 saying why."""
+    from cso_runtime.learned.registry import use_weights_dir  # noqa: PLC0415 - torch only when asked for
+
+    try:
+        use_weights_dir(folder)
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+
+
 @app.command("eval")
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", help="Comma-separated methods: greedy-dist,greedy-info,utility,random,cso,..."),
@@ -54,9 +65,15 @@ def eval_command(
     sim: str = typer.Option("2d", "--sim", help="Simulator: 2d (fast kinematic) or mujoco (physics)"),
     config: Optional[Path] = typer.Option(None, "--config", help="YAML with exploration parameters (see configs/eval.yaml)"),
     resume: bool = typer.Option(False, "--resume", help="Keep episodes already finished in --out (same method, map, seed)"),
+    weights: Optional[Path] = typer.Option(
+        None, "--weights", help="Folder of <method>.pt (a `train --out` folder) to use instead of the shipped weights (sets CSO_WEIGHTS_DIR)"
+    ),
 ) -> None:
     """Run exploration episodes and write the paper's Table 1 metrics, curves and trajectory plots."""
     from cso_runtime.evaluation import EvalRequest, run_eval_cli  # noqa: PLC0415 - keep CLI start fast
+
+    if weights is not None:
+        _use_weights(weights)
 
     request = EvalRequest(
         methods=[m.strip() for m in method.split(",") if m.strip()],
@@ -189,11 +206,14 @@ def up_command(
     namespace: Optional[str] = typer.Option(None, "--namespace", help="ROS namespace of the robot's topics (limo-ros2: services.ros2_bridge.namespace)"),
     record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
     record_out: Optional[Path] = typer.Option(None, "--record-out", help="Record the run to this MCAP file (implies --record)"),
+    weights: Optional[Path] = typer.Option(None, "--weights", help="Folder of <method>.pt for the policy service instead of the shipped weights"),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.launcher import load_profile, read_current_run, pid_alive, run_foreground, start_detached  # noqa: PLC0415
 
+    if weights is not None:
+        _use_weights(weights)
     try:
         overrides = {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep}
         prof, data = load_profile(profile, overrides, connect=list(connect or []), namespace=namespace)

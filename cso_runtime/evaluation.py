@@ -84,7 +84,10 @@ class EvalRequest:
             raise ConfigError(f"unknown method(s) {', '.join(unknown)}; available: {', '.join(sorted(known))}")
         untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available_methods()]
         if untrained:
-            raise ConfigError(f"no shipped weights for {', '.join(untrained)}; train with `cso-runtime train --variant NAME`")
+            from cso_runtime.learned.registry import weights_dir  # noqa: PLC0415 - torch only for learned methods
+
+            missing = ", ".join(f"{m}.pt" for m in untrained)
+            raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); train with `cso-runtime train --variant NAME`")
         if self.sim not in SIMULATORS:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
         if self.max_steps <= 0 or self.workers <= 0:
@@ -293,6 +296,11 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         "scenes": len(scenes),
         "config": to_dict(config),
     }
+    learned = [m for m in request.methods if m in LEARNED_METHODS]
+    if learned:
+        from cso_runtime.learned.registry import weights_provenance  # noqa: PLC0415
+
+        meta["weights"] = {m: weights_provenance(m) for m in learned}
     summary = write_outputs(out, rows, failures, request.methods, meta)
     from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
 

@@ -133,10 +133,14 @@ class Profile:
                 from_dict(params_cls, params or {}, where=f"services.{name}")
             elif params:
                 raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
-        from cso_runtime.policies import BASELINES, LEARNED_METHODS  # noqa: PLC0415
+        from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods  # noqa: PLC0415
 
         if self.method not in BASELINES and self.method not in LEARNED_METHODS:
             raise ConfigError(f"unknown method {self.method!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")
+        if self.method in LEARNED_METHODS and self.method not in available_methods():
+            from cso_runtime.learned.registry import weights_path  # noqa: PLC0415
+
+            raise ConfigError(f"method {self.method}: no weights at {weights_path(self.method)}; train it with `cso-runtime train --variant {self.method}`")
         try:
             if not resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px):
                 raise ConfigError(f"scene {self.scene!r} resolves to no scene")
@@ -444,7 +448,14 @@ class Launcher:
         return self.result
 
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
-        out = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, {"command": "cso-runtime up", "profile": self.data})
+        meta: dict[str, Any] = {"command": "cso-runtime up", "profile": self.data}
+        from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
+
+        if result.method in LEARNED_METHODS:
+            from cso_runtime.learned.registry import weights_provenance  # noqa: PLC0415 - torch only for learned methods
+
+            meta["weights"] = {result.method: weights_provenance(result.method)}  # what the policy service loaded
+        out = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta)
         log.info("episode %s: %.2f%% coverage in %d steps; results in %s", result.terminated_by, result.coverage_pct, result.steps, out)
         return out
 

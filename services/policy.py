@@ -16,7 +16,7 @@ import zenoh
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.messages import FrontiersMsg, GoalMsg, Message, encode, observation_from_frontiers
-from cso_runtime.policies import GoalSelector, make_policy
+from cso_runtime.policies import LEARNED_METHODS, GoalSelector, make_policy
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.policy")
@@ -63,12 +63,16 @@ class PolicyService(Service):
         self.seed = int(ctx.profile.get("seed", 0))
         self.robots: dict[str, RobotState] = {}
         self.new_selector()  # fail early on an unknown method
+        if self.method in LEARNED_METHODS:
+            from cso_runtime.learned.registry import weights_path  # noqa: PLC0415 - loaded above already
+
+            log.info("%s: weights %s", self.method, weights_path(self.method))
         self._queryables: list = []
 
     def new_selector(self) -> GoalSelector:
         try:
             return make_policy(self.method, self.ctx.exploration.masks, seed=self.seed, device=self.params.device)
-        except ValueError as exc:
+        except (ValueError, FileNotFoundError) as exc:  # an unknown method, or a learned one without weights
             raise ConfigError(str(exc)) from None
 
     def start(self) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
+import os
 
 import numpy as np
 import pytest
@@ -365,6 +366,55 @@ def test_weights_dir_override_serves_other_weights(tmp_path, monkeypatch, observ
     policy = make_policy("cso", MaskConfig(), seed=0)
     for name, value in mine.state_dict().items():
         torch.testing.assert_close(policy.model.state_dict()[name], value)
+
+
+def test_the_environment_is_registered_with_gymnasium():
+    """``gymnasium.make`` builds the training environment by id; a step runs the robot to the chosen
+    frontier and pays Eq. 6's reward, and the mask comes with every observation."""
+    import gymnasium as gym  # noqa: PLC0415
+
+    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", config=EnvConfig(max_steps=120))
+    obs, info = env.reset(seed=3)
+    assert env.observation_space.contains(obs) and info["action_mask"].any()
+    action = int(np.flatnonzero(info["action_mask"])[0])
+    obs, reward, terminated, truncated, info = env.step(action)
+    assert env.observation_space.contains(obs) and np.isfinite(reward) and reward != 0.0
+    assert isinstance(terminated, bool) and isinstance(truncated, bool)
+    env.close()
+    with pytest.raises(Exception, match="generated"):
+        gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:huge:1:0")
+
+
+def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_path):
+    """``eval --weights DIR`` serves the learned methods from DIR, and summary.json says which file (and
+    its SHA-256) produced the results; a folder without the method's file, or no folder, exits 2."""
+    import hashlib  # noqa: PLC0415
+    import json  # noqa: PLC0415
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    from cso_runtime.learned import registry  # noqa: PLC0415
+
+    torch.manual_seed(5)
+    run = tmp_path / "run"
+    run.mkdir()
+    save_checkpoint(run / "cso.pt", GraphActorCritic().eval(), GraphConfig(), "cso")
+    exe = [sys.executable, "-m", "cso_runtime.cli", "eval", "--maps", "generated:small:1:3", "--max-steps", "30"]
+    env = {k: v for k, v in os.environ.items() if k != registry.WEIGHTS_DIR_ENV}
+    ok = subprocess.run(exe + ["--method", "cso", "--weights", str(run), "--out", str(tmp_path / "mine")], capture_output=True, text=True, timeout=180, env=env)
+    assert ok.returncode == 0, ok.stderr
+    weights = json.loads((tmp_path / "mine" / "summary.json").read_text())["meta"]["weights"]["cso"]
+    assert weights["path"] == str((run / "cso.pt").resolve()) and not weights["shipped"]
+    assert weights["sha256"] == hashlib.sha256((run / "cso.pt").read_bytes()).hexdigest()
+    shipped = subprocess.run(exe + ["--method", "cso", "--out", str(tmp_path / "shipped")], capture_output=True, text=True, timeout=180, env=env)
+    assert shipped.returncode == 0, shipped.stderr
+    weights = json.loads((tmp_path / "shipped" / "summary.json").read_text())["meta"]["weights"]["cso"]
+    assert weights["shipped"] and weights["sha256"] != hashlib.sha256((run / "cso.pt").read_bytes()).hexdigest()
+    missing = subprocess.run(exe + ["--method", "gnn-baseline", "--weights", str(run), "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120, env=env)
+    assert missing.returncode == 2 and "gnn-baseline.pt" in missing.stderr and str(run.resolve()) in missing.stderr
+    nowhere = subprocess.run(exe + ["--method", "cso", "--weights", str(tmp_path / "nowhere"), "--out", str(tmp_path / "y")], capture_output=True, text=True, timeout=120, env=env)
+    assert nowhere.returncode == 2 and "not a folder" in nowhere.stderr
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
 
 
 def test_cluster_size_feature_is_optional_and_round_trips(tmp_path, observation):

@@ -7,6 +7,7 @@ and stops whatever it started in ``finally`` blocks (``down``, then SIGKILL of a
 from __future__ import annotations
 
 import json
+import shutil
 import os
 import signal
 import subprocess
@@ -20,6 +21,7 @@ import numpy as np
 import pytest
 import yaml
 
+import cso_runtime
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import run_episode
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
@@ -206,6 +208,10 @@ def test_bad_profiles_fail_before_anything_starts(tmp_path):
     assert r.returncode == 2 and "warp_speed" in r.stderr
     r = cli("up", "--profile", "lockstep", "--scene", "generated:huge:1:0", "--no-live", cwd=tmp_path)
     assert r.returncode == 2 and "scene" in r.stderr
+    (tmp_path / "weights").mkdir()
+    shutil.copy(Path(cso_runtime.__file__).parent / "data" / "weights" / "cso.pt", tmp_path / "weights" / "cso.pt")
+    r = cli("up", "--profile", "lockstep", "--method", "gnn-baseline", "--weights", str(tmp_path / "weights"), "--no-live", cwd=tmp_path)
+    assert r.returncode == 2 and "gnn-baseline.pt" in r.stderr  # a learned method without weights in --weights
     assert not (tmp_path / "runs").exists()
 
 

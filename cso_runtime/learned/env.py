@@ -205,3 +205,20 @@ def expert_action(obs: Observation, mask: np.ndarray, teacher: str = "greedy-dis
 def mask_config_for(use_valid_distance: bool, use_stuck: bool, base: MaskConfig | None = None) -> MaskConfig:
     """A copy of ``base`` with the two masks switched as a variant needs."""
     return dataclasses.replace(base or MaskConfig(), use_valid_distance=use_valid_distance, use_stuck=use_stuck)
+
+
+ENV_ID = "CSOExploration-v0"
+"""Registered with Gymnasium when this module is imported, so the standard entry point works without
+any other import: ``gymnasium.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:middle:8:0")``."""
+
+
+def make_env(scenes: str = "builtin", limit: int | None = None, m_per_px: float = 0.05, config: EnvConfig | None = None) -> ExplorationEnv:
+    """An ``ExplorationEnv`` over a scene spec (as ``eval --maps``: ``builtin``, a folder of PNG plans,
+    ``generated:SCALE:N:SEED``); PNG plans at ``m_per_px``. The plans load at the first reset."""
+    from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
+
+    refs = resolve_scenes(scenes, limit, m_per_px)  # a bad spec fails here, not at the first reset
+    return ExplorationEnv(lambda: [ref.load() for ref in refs], config)
+
+
+gym.register(id=ENV_ID, entry_point=make_env)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import os
 import weakref
 from dataclasses import dataclass
@@ -69,6 +70,27 @@ def weights_dir() -> Path:
 
 def weights_path(name: str) -> Path:
     return weights_dir() / f"{name}.pt"
+
+
+def use_weights_dir(directory: str | Path) -> Path:
+    """Serve the learned methods from ``directory`` (a ``train --out`` folder of ``<method>.pt``) in
+    this process and the ones it starts (``eval --weights``, ``up --weights``). Raises ValueError
+    when it is not a folder holding at least one variant's weights."""
+    path = Path(directory).expanduser().resolve()
+    if not path.is_dir():
+        raise ValueError(f"--weights {directory}: not a folder (give a training run's --out, which holds <method>.pt)")
+    if not any((path / f"{name}.pt").is_file() for name in VARIANTS):
+        raise ValueError(f"--weights {directory}: no weights file in it (expected one of {', '.join(f'{n}.pt' for n in VARIANTS)})")
+    os.environ[WEIGHTS_DIR_ENV] = str(path)
+    return path
+
+
+def weights_provenance(name: str) -> dict[str, Any]:
+    """The weights file ``name`` uses and its SHA-256, for the records of a run: results must say
+    which weights produced them, since ``CSO_WEIGHTS_DIR`` can swap them."""
+    path = weights_path(name)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else ""
+    return {"path": str(path), "sha256": digest, "shipped": WEIGHTS_DIR_ENV not in os.environ or not os.environ[WEIGHTS_DIR_ENV]}
 
 
 def has_method(name: str) -> bool:
@@ -176,7 +198,7 @@ def make_learned_policy(name: str, mask_config: MaskConfig, seed: int | None = N
     if name not in VARIANTS:
         raise ValueError(f"unknown learned method {name!r}; known: {', '.join(VARIANTS)}")
     if not has_method(name):
-        raise FileNotFoundError(f"no shipped weights for {name!r} (expected {weights_path(name)}); train it with `cso-runtime train`")
+        raise FileNotFoundError(f"no weights for {name!r} (expected {weights_path(name)}); train it with `cso-runtime train`")
     v = VARIANTS[name]
     model, graph = _cached_model(str(weights_path(name)), str(device))
     graph = dataclasses.replace(graph, use_entropy=v.use_entropy)
