@@ -64,7 +64,7 @@ def eval_command(
     workers: int = typer.Option(1, "--workers", help="Parallel worker processes"),
     sim: str = typer.Option("2d", "--sim", help="Simulator: 2d (fast kinematic) or mujoco (physics)"),
     config: Optional[Path] = typer.Option(None, "--config", help="YAML with exploration parameters (see configs/eval.yaml)"),
-    resume: bool = typer.Option(False, "--resume", help="Keep episodes already finished in --out (same method, map, seed)"),
+    resume: bool = typer.Option(False, "--resume", help="Keep episodes already finished in --out (same method, map, seed, config, simulator and weights)"),
     weights: Optional[Path] = typer.Option(
         None, "--weights", help="Folder of <method>.pt (a `train --out` folder) to use instead of the shipped weights (sets CSO_WEIGHTS_DIR)"
     ),

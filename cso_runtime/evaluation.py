@@ -8,6 +8,7 @@ Outputs (contract relied on by scripts): ``summary.json``, ``episodes.csv``,
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import logging
 import math
@@ -104,6 +105,15 @@ class EpisodeJob:
     sim: str
     config: ExplorationConfig
     npz_path: Path
+    settings: str = ""
+    """Fingerprint of what else decides the episode (config, simulator, weights file): ``--resume``
+    reuses an episode only when it matches, so a changed flag or new weights never mix into a table."""
+
+
+def settings_fingerprint(config: ExplorationConfig, sim: str, weights_sha256: str = "") -> str:
+    """A short hash of the settings an episode ran with (see ``EpisodeJob.settings``)."""
+    text = json.dumps({"config": to_dict(config), "sim": sim, "weights": weights_sha256}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 @dataclass
@@ -156,9 +166,10 @@ def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float) ->
     }
 
 
-def save_episode_npz(path: Path, result: EpisodeResult, row: dict[str, Any]) -> None:
+def save_episode_npz(path: Path, result: EpisodeResult, row: dict[str, Any], settings: str = "") -> None:
     """``explored`` in the plan's pixel layout (row 0 at the top, like the PNG), trajectory in metres,
-    and the metric row as JSON (``metrics``) so an interrupted eval can resume."""
+    and the metric row as JSON (``metrics``) with the settings' fingerprint so an interrupted eval can
+    resume."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.stem + ".partial.npz")
     np.savez_compressed(
@@ -167,6 +178,7 @@ def save_episode_npz(path: Path, result: EpisodeResult, row: dict[str, Any]) -> 
         trajectory=result.trajectory_xy_m.astype(np.float32),
         coverage_curve=result.coverage_curve_pct.astype(np.float32),
         metrics=np.array(json.dumps(row)),
+        settings=np.array(settings),
     )
     tmp.replace(path)  # atomic: a half-written file never looks finished
 
@@ -181,7 +193,8 @@ def load_finished(job: "EpisodeJob") -> "EpisodeOutcome | None":
             explored = np.flipud(data["explored"]).copy()
             trajectory = data["trajectory"].astype(float)
             curve = data["coverage_curve"].astype(float)
-        if row.get("seed") != job.seed or row.get("method") != job.method:
+            settings = str(data["settings"]) if "settings" in data.files else None
+        if row.get("seed") != job.seed or row.get("method") != job.method or settings != job.settings:
             return None
         plan = job.scene.load()
     except (OSError, KeyError, ValueError, SceneError):
@@ -203,7 +216,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         result = run_episode(sim, policy, job.config, seed=job.seed)
         wall_s = time.perf_counter() - t0
         row = episode_row(job.method, job.seed, result, wall_s)
-        save_episode_npz(job.npz_path, result, row)
+        save_episode_npz(job.npz_path, result, row, job.settings)
     except Exception as exc:  # noqa: BLE001 - one bad episode must not stop the run; it is reported
         log.debug("episode failed", exc_info=True)
         return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
@@ -253,8 +266,14 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
     config = request.exploration_config()
     scenes = resolve_scenes(request.maps, request.limit, request.m_per_px)
     out = Path(request.out_dir)
+    weights: dict[str, dict[str, Any]] = {}
+    if any(m in LEARNED_METHODS for m in request.methods):
+        from cso_runtime.learned.registry import weights_provenance  # noqa: PLC0415 - torch only for learned methods
+
+        weights = {m: weights_provenance(m) for m in request.methods if m in LEARNED_METHODS}
+    settings = {m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "") for m in request.methods}
     jobs = [
-        EpisodeJob(m, s, request.seed, request.sim, config, out / "episodes" / m / f"{s.name}.npz")
+        EpisodeJob(m, s, request.seed, request.sim, config, out / "episodes" / m / f"{s.name}.npz", settings[m])
         for s in scenes
         for m in request.methods
     ]
@@ -296,11 +315,8 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         "scenes": len(scenes),
         "config": to_dict(config),
     }
-    learned = [m for m in request.methods if m in LEARNED_METHODS]
-    if learned:
-        from cso_runtime.learned.registry import weights_provenance  # noqa: PLC0415
-
-        meta["weights"] = {m: weights_provenance(m) for m in learned}
+    if weights:
+        meta["weights"] = weights
     summary = write_outputs(out, rows, failures, request.methods, meta)
     from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
 

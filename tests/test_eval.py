@@ -139,3 +139,7 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     for m in ("greedy-dist", "random"):
         assert second["methods"][m]["coverage_pct"] == first["methods"][m]["coverage_pct"]
         assert second["methods"][m]["steps"] == first["methods"][m]["steps"]
+    req.max_steps = 20  # other settings: nothing is reused, every episode runs again with them
+    third = run_eval(req)
+    assert npz.stat().st_mtime_ns != stamp
+    assert third["methods"]["greedy-dist"]["steps"] <= 20 < first["methods"]["greedy-dist"]["steps"]
