@@ -41,7 +41,7 @@ def _root(
 
 def _use_weights(folder: Path) -> None:
     """``--weights``: serve the learned methods from a training run's folder, or exit 2 saying why."""
-    from cso_runtime.learned.registry import use_weights_dir  # noqa: PLC0415 - torch only when asked for
+    from cso_runtime.learned.weights import use_weights_dir  # noqa: PLC0415
 
     try:
         use_weights_dir(folder)

@@ -85,7 +85,7 @@ class EvalRequest:
             raise ConfigError(f"unknown method(s) {', '.join(unknown)}; available: {', '.join(sorted(known))}")
         untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available_methods()]
         if untrained:
-            from cso_runtime.learned.registry import weights_dir  # noqa: PLC0415 - torch only for learned methods
+            from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415
 
             missing = ", ".join(f"{m}.pt" for m in untrained)
             raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); train with `cso-runtime train --variant NAME`")
@@ -268,7 +268,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
     out = Path(request.out_dir)
     weights: dict[str, dict[str, Any]] = {}
     if any(m in LEARNED_METHODS for m in request.methods):
-        from cso_runtime.learned.registry import weights_provenance  # noqa: PLC0415 - torch only for learned methods
+        from cso_runtime.learned.weights import weights_provenance  # noqa: PLC0415
 
         weights = {m: weights_provenance(m) for m in request.methods if m in LEARNED_METHODS}
     settings = {m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "") for m in request.methods}

@@ -138,7 +138,7 @@ class Profile:
         if self.method not in BASELINES and self.method not in LEARNED_METHODS:
             raise ConfigError(f"unknown method {self.method!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")
         if self.method in LEARNED_METHODS and self.method not in available_methods():
-            from cso_runtime.learned.registry import weights_path  # noqa: PLC0415
+            from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
 
             raise ConfigError(f"method {self.method}: no weights at {weights_path(self.method)}; train it with `cso-runtime train --variant {self.method}`")
         try:
@@ -452,7 +452,7 @@ class Launcher:
         from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
 
         if result.method in LEARNED_METHODS:
-            from cso_runtime.learned.registry import weights_provenance  # noqa: PLC0415 - torch only for learned methods
+            from cso_runtime.learned.weights import weights_provenance  # noqa: PLC0415
 
             meta["weights"] = {result.method: weights_provenance(result.method)}  # what the policy service loaded
         out = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta)

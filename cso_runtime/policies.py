@@ -166,11 +166,9 @@ def available_methods() -> list[str]:
 
 
 def _learned_available(name: str) -> bool:
-    try:
-        from cso_runtime.learned import registry  # noqa: PLC0415 - optional, heavy (torch)
-    except ImportError:
-        return False
-    return registry.has_method(name)
+    from cso_runtime.learned.weights import weights_path  # noqa: PLC0415 - no torch: only where the file is
+
+    return weights_path(name).is_file()
 
 
 def make_policy(name: str, mask_config: MaskConfig | None = None, seed: int | None = None, device: str = "cpu") -> GoalSelector:

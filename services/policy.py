@@ -64,7 +64,7 @@ class PolicyService(Service):
         self.robots: dict[str, RobotState] = {}
         self.new_selector()  # fail early on an unknown method
         if self.method in LEARNED_METHODS:
-            from cso_runtime.learned.registry import weights_path  # noqa: PLC0415 - loaded above already
+            from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
 
             log.info("%s: weights %s", self.method, weights_path(self.method))
         self._queryables: list = []

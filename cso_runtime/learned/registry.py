@@ -1,18 +1,16 @@
 """The learned methods by name: which inputs and masks each variant uses, and its shipped weights.
 
 ``policies.make_policy`` calls ``has_method`` and ``make_learned_policy``; a variant is available only
-when ``cso_runtime/data/weights/<name>.pt`` exists (or ``$CSO_WEIGHTS_DIR/<name>.pt`` when that is set).
+when ``cso_runtime/data/weights/<name>.pt`` exists (or ``$CSO_WEIGHTS_DIR/<name>.pt`` when that is set;
+``weights.py`` says where, without torch).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import hashlib
-import os
 import weakref
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +20,7 @@ import torch
 from cso_runtime.config import MaskConfig
 from cso_runtime.learned.graph import GraphConfig, build_graph, frontier_count
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
+from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
 from cso_runtime.observation import Observation
 from cso_runtime.policies import ActionMasker, Goal, goal_of
 
@@ -54,43 +53,6 @@ def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig
     """The weights at ``path``, loaded once per process (eval builds a policy per episode)."""
     model, graph, _ = load_checkpoint(path, device)
     return model, graph
-
-
-WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
-"""Environment variable naming a folder of ``<method>.pt`` files to use instead of the shipped ones
-(evaluate your own training runs with ``eval`` or the policy service; child processes inherit it)."""
-
-
-def weights_dir() -> Path:
-    override = os.environ.get(WEIGHTS_DIR_ENV)
-    if override:
-        return Path(override)
-    return Path(str(resources.files("cso_runtime") / "data" / "weights"))
-
-
-def weights_path(name: str) -> Path:
-    return weights_dir() / f"{name}.pt"
-
-
-def use_weights_dir(directory: str | Path) -> Path:
-    """Serve the learned methods from ``directory`` (a ``train --out`` folder of ``<method>.pt``) in
-    this process and the ones it starts (``eval --weights``, ``up --weights``). Raises ValueError
-    when it is not a folder holding at least one variant's weights."""
-    path = Path(directory).expanduser().resolve()
-    if not path.is_dir():
-        raise ValueError(f"--weights {directory}: not a folder (give a training run's --out, which holds <method>.pt)")
-    if not any((path / f"{name}.pt").is_file() for name in VARIANTS):
-        raise ValueError(f"--weights {directory}: no weights file in it (expected one of {', '.join(f'{n}.pt' for n in VARIANTS)})")
-    os.environ[WEIGHTS_DIR_ENV] = str(path)
-    return path
-
-
-def weights_provenance(name: str) -> dict[str, Any]:
-    """The weights file ``name`` uses and its SHA-256, for the records of a run: results must say
-    which weights produced them, since ``CSO_WEIGHTS_DIR`` can swap them."""
-    path = weights_path(name)
-    digest = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else ""
-    return {"path": str(path), "sha256": digest, "shipped": WEIGHTS_DIR_ENV not in os.environ or not os.environ[WEIGHTS_DIR_ENV]}
 
 
 def has_method(name: str) -> bool:

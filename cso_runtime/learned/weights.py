@@ -1,0 +1,50 @@
+"""Where the learned methods' weights live, without importing torch (the launcher and the CLI check
+them before anything starts; ``registry`` loads them).
+
+The shipped files are ``cso_runtime/data/weights/<method>.pt``; ``$CSO_WEIGHTS_DIR`` (or ``--weights``
+on ``eval`` and ``up``) points every process of a run at a training run's folder instead.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
+"""Environment variable naming a folder of ``<method>.pt`` files to use instead of the shipped ones
+(evaluate your own training runs with ``eval`` or the policy service; child processes inherit it)."""
+
+
+def weights_dir() -> Path:
+    override = os.environ.get(WEIGHTS_DIR_ENV)
+    if override:
+        return Path(override)
+    return Path(str(resources.files("cso_runtime") / "data" / "weights"))
+
+
+def weights_path(name: str) -> Path:
+    return weights_dir() / f"{name}.pt"
+
+
+def use_weights_dir(directory: str | Path) -> Path:
+    """Serve the learned methods from ``directory`` (a ``train --out`` folder of ``<method>.pt``) in
+    this process and the ones it starts (``eval --weights``, ``up --weights``). Raises ValueError
+    when it is not a folder holding at least one weights file."""
+    path = Path(directory).expanduser().resolve()
+    if not path.is_dir():
+        raise ValueError(f"--weights {directory}: not a folder (give a training run's --out, which holds <method>.pt)")
+    if not any(path.glob("*.pt")):
+        raise ValueError(f"--weights {directory}: no <method>.pt file in it (cso.pt, gnn-baseline.pt, ...)")
+    os.environ[WEIGHTS_DIR_ENV] = str(path)
+    return path
+
+
+def weights_provenance(name: str) -> dict[str, Any]:
+    """The weights file ``name`` uses and its SHA-256, for the records of a run: results must say
+    which weights produced them, since ``CSO_WEIGHTS_DIR`` can swap them."""
+    path = weights_path(name)
+    digest = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else ""
+    return {"path": str(path), "sha256": digest, "shipped": not os.environ.get(WEIGHTS_DIR_ENV)}
