@@ -7,6 +7,12 @@ a markdown row: the change of mean efficiency (m2/step) against the baseline, as
 the mean of the per-scene ratios with a 95 % bootstrap interval (10,000 resamples of the scenes, fixed seed),
 and on how many scenes the method beat the baseline. An interval that contains 0 % says the scenes do
 not tell the two apart.
+
+Plans of different folders can share a name (Dungeon's `easy/img_4` and `medium/img_4` are different plans,
+with the same traversable area too): to pool such sets, label each file, `LABEL=FILE`. Scenes pair only
+within a label, so a label's greedy-dist episodes may still come from another file than its cso ones:
+
+    python benchmarks/paired.py easy=runs/val/easy/episodes.csv medium=runs/val/medium/episodes.csv
 """
 
 from __future__ import annotations
@@ -24,13 +30,20 @@ HEADER = (
 )
 
 
-def load(paths: list[Path]) -> dict[tuple[str, str], dict[tuple, float]]:
-    """(method, scale) -> {scene key: efficiency m2/step}."""
+def labelled(arg: str) -> tuple[str, Path]:
+    """``LABEL=FILE`` -> (LABEL, FILE); a plain FILE has the empty label."""
+    label, sep, rest = arg.partition("=")
+    return (label, Path(rest)) if sep and "/" not in label else ("", Path(arg))
+
+
+def load(paths: list[Path | tuple[str, Path]]) -> dict[tuple[str, str], dict[tuple, float]]:
+    """(method, scale) -> {scene key: efficiency m2/step}; a (label, path) keeps its scenes apart."""
     table: dict[tuple[str, str], dict[tuple, float]] = defaultdict(dict)
-    for path in paths:
+    for item in paths:
+        label, path = item if isinstance(item, tuple) else ("", item)
         with path.open(newline="") as f:
             for row in csv.DictReader(f):
-                scene = (row["map"], row["scale"], row["traversable_area_m2"], row["seed"])
+                scene = (label, row["map"], row["scale"], row["traversable_area_m2"], row["seed"])
                 table[(row["method"], row["scale"])][scene] = float(row["efficiency_m2_per_step"])
     return table
 
@@ -65,7 +78,7 @@ def rows(table: dict[tuple[str, str], dict[tuple, float]], baseline: str) -> lis
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("episodes", nargs="+", type=Path, help="episodes.csv files written by cso-runtime eval")
+    p.add_argument("episodes", nargs="+", type=labelled, help="episodes.csv files written by cso-runtime eval, each optionally LABEL=FILE")
     p.add_argument("--baseline", default="greedy-dist")
     args = p.parse_args(argv)
     print(HEADER)
