@@ -166,9 +166,9 @@ def available_methods() -> list[str]:
 
 
 def _learned_available(name: str) -> bool:
-    from cso_runtime.learned.weights import weights_path  # noqa: PLC0415 - no torch: only where the file is
+    from cso_runtime.learned.weights import has_weights  # noqa: PLC0415 - no torch: only where the file is
 
-    return weights_path(name).is_file()
+    return has_weights(name)
 
 
 def make_policy(name: str, mask_config: MaskConfig | None = None, seed: int | None = None, device: str = "cpu") -> GoalSelector:

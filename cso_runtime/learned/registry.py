@@ -20,7 +20,7 @@ import torch
 from cso_runtime.config import MaskConfig
 from cso_runtime.learned.graph import GraphConfig, build_graph, frontier_count
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
-from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
+from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
 from cso_runtime.observation import Observation
 from cso_runtime.policies import ActionMasker, Goal, goal_of
 
@@ -57,7 +57,7 @@ def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig
 
 def has_method(name: str) -> bool:
     """True when ``name`` is a learned variant whose weights are shipped."""
-    return name in VARIANTS and weights_path(name).is_file()
+    return name in VARIANTS and has_weights(name)
 
 
 def save_checkpoint(path: str | Path, model: GraphActorCritic, graph: GraphConfig, variant: str, extra: dict[str, Any] | None = None) -> None:

@@ -29,6 +29,11 @@ def weights_path(name: str) -> Path:
     return weights_dir() / f"{name}.pt"
 
 
+def has_weights(name: str) -> bool:
+    """True when ``name``'s weights file is where ``weights_path`` says (shipped, or in ``$CSO_WEIGHTS_DIR``)."""
+    return weights_path(name).is_file()
+
+
 def use_weights_dir(directory: str | Path) -> Path:
     """Serve the learned methods from ``directory`` (a ``train --out`` folder of ``<method>.pt``) in
     this process and the ones it starts (``eval --weights``, ``up --weights``). Raises ValueError
