@@ -249,6 +249,24 @@ def status_command(
     raise typer.Exit(status_main(list(connect or []), robot, as_json, watch, runs_dir))
 
 
+@app.command("save-map")
+def save_map_command(
+    out: Path = typer.Option(Path("map"), "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f"),
+    image_format: str = typer.Option("pgm", "--format", help="Image format: pgm or png"),
+    robot: Optional[str] = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
+    connect: Optional[list[str]] = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
+) -> None:
+    """Save the running episode's map as Nav2 map_server files (YAML + image), like map_saver_cli."""
+    from cso_runtime.map_files import IMAGE_FORMATS  # noqa: PLC0415
+    from cso_runtime.status import save_map_main  # noqa: PLC0415
+
+    if image_format not in IMAGE_FORMATS:
+        typer.echo(f"--format {image_format!r}: expected one of {', '.join(IMAGE_FORMATS)}", err=True)
+        raise typer.Exit(2)
+    raise typer.Exit(save_map_main(list(connect or []), robot, out, image_format, runs_dir))
+
+
 @app.command("down")
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),

@@ -47,6 +47,10 @@ class EpisodeResult:
     coverage_curve_pct: np.ndarray
     explored_free: np.ndarray
     """Explored free cells on the plan's grid (row 0 at the bottom)."""
+    map_grid: np.ndarray | None = None
+    """The robot's own map M_t at the end, as OccupancyGrid values (-1/0/100, row 0 at the origin):
+    what the mapping produced, for ``map_files.save_map``. None when the episode's map is not known."""
+    map_geometry: GridGeometry | None = None
 
     @property
     def efficiency_m2_per_step(self) -> float:
@@ -298,6 +302,8 @@ class Explorer:
             trajectory_xy_m=np.array(self.trajectory, dtype=float),
             coverage_curve_pct=np.array(self.coverage_curve, dtype=float),
             explored_free=self.explored_free(),
+            map_grid=self.map.to_occupancy_grid(),
+            map_geometry=self.map.geometry,
         )
 
 

@@ -1,8 +1,8 @@
 """``cso-runtime eval``: run methods over scenes and write Table 1 metrics, curves and trajectory plots.
 
 Outputs (contract relied on by scripts): ``summary.json``, ``episodes.csv``,
-``episodes/<method>/<map>.npz`` (explored, trajectory, coverage_curve), ``coverage_curves.png`` and
-``trajectories/<map>.png``.
+``episodes/<method>/<map>.npz`` (explored, trajectory, coverage_curve), ``maps/<method>/<map>.yaml`` and
+``.png`` (the robot's final map, Nav2 map_server files), ``coverage_curves.png`` and ``trajectories/<map>.png``.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import json
 import logging
 import math
 import multiprocessing
+import re
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -24,6 +25,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
+from cso_runtime.map_files import save_map
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, scale_of
 from cso_runtime.simulator import SIMULATORS, make_simulator
@@ -104,10 +106,29 @@ class EpisodeJob:
     seed: int
     sim: str
     config: ExplorationConfig
-    npz_path: Path
+    out_dir: Path
     settings: str = ""
     """Fingerprint of what else decides the episode (config, simulator, weights file): ``--resume``
     reuses an episode only when it matches, so a changed flag or new weights never mix into a table."""
+
+    @property
+    def npz_path(self) -> Path:
+        return episode_npz_path(self.out_dir, self.method, self.scene.name)
+
+
+def episode_npz_path(out_dir: Path, method: str, scene: str) -> Path:
+    """Where an episode's arrays and metric row go (``save_episode_files``)."""
+    return out_dir / "episodes" / method / f"{file_stem(scene)}.npz"
+
+
+def episode_map_path(out_dir: Path, method: str, scene: str) -> Path:
+    """Where an episode's final map goes: a Nav2 map_server YAML, its PNG beside it (``save_episode_files``)."""
+    return out_dir / "maps" / method / f"{file_stem(scene)}.yaml"
+
+
+def file_stem(scene: str) -> str:
+    """A scene name as one file name (a real robot's scene is ``ros2:<namespace>``)."""
+    return re.sub(r"[^A-Za-z0-9._-]", "_", scene) or "scene"
 
 
 def settings_fingerprint(config: ExplorationConfig, sim: str, weights_sha256: str = "") -> str:
@@ -166,10 +187,15 @@ def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float) ->
     }
 
 
-def save_episode_npz(path: Path, result: EpisodeResult, row: dict[str, Any], settings: str = "") -> None:
-    """``explored`` in the plan's pixel layout (row 0 at the top, like the PNG), trajectory in metres,
-    and the metric row as JSON (``metrics``) with the settings' fingerprint so an interrupted eval can
-    resume."""
+def save_episode_files(out_dir: Path, method: str, scene: str, result: EpisodeResult, row: dict[str, Any], settings: str = "") -> None:
+    """The episode's npz and, when its map is known, the robot's final map as map_server files (PNG:
+    an evaluation writes hundreds). The npz holds ``explored`` in the plan's pixel layout (row 0 at the
+    top, like the PNG), the trajectory in metres, and the metric row as JSON (``metrics``) with the
+    settings' fingerprint so an interrupted eval can resume; it is written last, so an episode whose
+    npz is there has its map too."""
+    if result.map_grid is not None and result.map_geometry is not None:
+        save_map(episode_map_path(out_dir, method, scene), result.map_grid, result.map_geometry, image_format="png")
+    path = episode_npz_path(out_dir, method, scene)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.stem + ".partial.npz")
     np.savez_compressed(
@@ -216,7 +242,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         result = run_episode(sim, policy, job.config, seed=job.seed)
         wall_s = time.perf_counter() - t0
         row = episode_row(job.method, job.seed, result, wall_s)
-        save_episode_npz(job.npz_path, result, row, job.settings)
+        save_episode_files(job.out_dir, job.method, job.scene.name, result, row, job.settings)
     except Exception as exc:  # noqa: BLE001 - one bad episode must not stop the run; it is reported
         log.debug("episode failed", exc_info=True)
         return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
@@ -273,7 +299,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         weights = {m: weights_provenance(m) for m in request.methods if m in LEARNED_METHODS}
     settings = {m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "") for m in request.methods}
     jobs = [
-        EpisodeJob(m, s, request.seed, request.sim, config, out / "episodes" / m / f"{s.name}.npz", settings[m])
+        EpisodeJob(m, s, request.seed, request.sim, config, out, settings[m])
         for s in scenes
         for m in request.methods
     ]
@@ -326,7 +352,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         if o.row is not None:
             by_map.setdefault(o.map, []).append(o)
     for name, group in by_map.items():
-        plot_trajectories(out / "trajectories" / f"{name}.png", name, sorted(group, key=lambda o: request.methods.index(o.method)))
+        plot_trajectories(out / "trajectories" / f"{file_stem(name)}.png", name, sorted(group, key=lambda o: request.methods.index(o.method)))
     return summary
 
 

@@ -557,10 +557,11 @@ class Launcher:
 
 
 def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float, meta: dict[str, Any]) -> Path:
-    """The same files as ``eval`` for one episode: summary.json, episodes.csv, the final map (npz),
+    """The same files as ``eval`` for one episode: summary.json, episodes.csv, the episode's npz, the
+    robot's final map (map_server YAML and PNG),
     the coverage curve and the trajectory plot (reusing ``cso_runtime.evaluation`` writers)."""
     from cso_runtime.episode import EpisodeResult  # noqa: PLC0415
-    from cso_runtime.evaluation import EpisodeOutcome, episode_row, save_episode_npz, write_outputs  # noqa: PLC0415
+    from cso_runtime.evaluation import EpisodeOutcome, episode_row, file_stem, save_episode_files, write_outputs  # noqa: PLC0415
     from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415
 
     er = EpisodeResult(
@@ -576,14 +577,16 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
         trajectory_xy_m=result.trajectory_xy_m,
         coverage_curve_pct=result.coverage_curve_pct,
         explored_free=result.explored_free,
+        map_grid=result.final_map.grid if result.final_map is not None else None,
+        map_geometry=result.final_map.geometry if result.final_map is not None else None,
     )
     method = result.method or "unknown"
     row = episode_row(method, result.seed, er, wall_s)
     write_outputs(out_dir, [row], [], [method], meta)
-    save_episode_npz(out_dir / "episodes" / method / f"{result.scene}.npz", er, row)
+    save_episode_files(out_dir, method, result.scene, er, row)
     outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m)
     plot_coverage_curves(out_dir / "coverage_curves.png", [outcome])
-    plot_trajectories(out_dir / "trajectories" / f"{result.scene}.png", result.scene, [outcome])
+    plot_trajectories(out_dir / "trajectories" / f"{file_stem(result.scene)}.png", result.scene, [outcome])
     return out_dir
 
 

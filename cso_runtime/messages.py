@@ -362,13 +362,13 @@ class MapMsg(Message):
         }
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "MapMsg":
-        geometry = _geometry_in(b, "map")
-        explored = _grid_in(b, "explored", "map", geometry, "bool")
-        occupied = _grid_in(b, "occupied", "map", geometry, "bool")
+    def from_body(cls, b: dict[str, Any], where: str = "map") -> "MapMsg":
+        geometry = _geometry_in(b, where)
+        explored = _grid_in(b, "explored", where, geometry, "bool")
+        occupied = _grid_in(b, "occupied", where, geometry, "bool")
         if (occupied & ~explored).any():
-            raise MessageError("map.occupied: only explored cells can be occupied")
-        return cls(_int(b, "step", "map"), geometry, explored, occupied, _int(b, "episode", "map"))
+            raise MessageError(f"{where}.occupied: only explored cells can be occupied")
+        return cls(_int(b, "step", where), geometry, explored, occupied, _int(b, "episode", where))
 
 
 def _masked_grid_in(raw: dict, masks: dict, key: str, geometry: GridGeometry, fill: float, dtype: type) -> np.ndarray:
@@ -812,8 +812,8 @@ class EpisodeResultMsg(Message):
     """The finished episode: what ``eval`` writes (EpisodeResult) plus the plan for the plots."""
 
     SCHEMA: ClassVar[str] = "episode_result"
-    VERSION: ClassVar[int] = 2
-    """2: the boolean grids travel bit-packed (``pack_array``)."""
+    VERSION: ClassVar[int] = 3
+    """2: the boolean grids travel bit-packed (``pack_array``). 3: the robot's final map (``final_map``)."""
     scene: str
     steps: int
     explored_area_m2: float
@@ -830,6 +830,8 @@ class EpisodeResultMsg(Message):
     resolution_m: float
     method: str = ""
     seed: int = 0
+    final_map: MapMsg | None = None
+    """The last map the referee received from the mapper (None: no map arrived), written as map_server files."""
 
     SCALARS: ClassVar[tuple[str, ...]] = ("explored_area_m2", "coverage_pct", "traversable_area_m2", "path_length_m", "resolution_m")
 
@@ -847,6 +849,7 @@ class EpisodeResultMsg(Message):
             coverage_curve_pct=pack_array(np.asarray(self.coverage_curve_pct, dtype=np.float64)),
             explored_free=pack_array(np.asarray(self.explored_free, dtype=bool), compress=True),
             plan_free=pack_array(np.asarray(self.plan_free, dtype=bool), compress=True),
+            final_map=self.final_map.body() if self.final_map is not None else None,
         )
         return b
 
@@ -861,6 +864,9 @@ class EpisodeResultMsg(Message):
         traj = unpack_array(_get(b, "trajectory_xy_m", w), w + ".trajectory_xy_m", ndim=2, finite=True)
         if traj.shape[1:] != (2,):
             raise MessageError(f"{w}.trajectory_xy_m: expected (n, 2)")
+        final_map = _get(b, "final_map", w)
+        if final_map is not None and not isinstance(final_map, dict):
+            raise MessageError(f"{w}.final_map: expected a map body or nil")
         return cls(
             scene=_str(b, "scene", w),
             steps=_int(b, "steps", w),
@@ -873,6 +879,7 @@ class EpisodeResultMsg(Message):
             plan_free=pf,
             method=_str(b, "method", w),
             seed=_int(b, "seed", w, -(2**62)),
+            final_map=MapMsg.from_body(final_map, where=f"{w}.final_map") if final_map is not None else None,
             **scalars,
         )
 

@@ -1,7 +1,8 @@
-"""``cso-runtime status``: ask a running episode over Zenoh how it is doing.
+"""``cso-runtime status`` and ``save-map``: ask a running episode over Zenoh how it is doing, or for its map.
 
-Queries the sim's episode-status queryable, the launcher's status, each service's status queryable
-and the liveliness tokens, with short timeouts: when nothing answers it says so quickly.
+``status`` queries the sim's episode-status queryable, the launcher's status, each service's status
+queryable and the liveliness tokens; ``save-map`` the latest map the referee keeps (``cache/map``), as
+Nav2's ``map_saver_cli`` does with ``/map``. Short timeouts: when nothing answers they say so quickly.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from typing import Any
 import zenoh
 
 from cso_runtime.keys import RobotKeys
-from cso_runtime.messages import EpisodeStatusMsg, LauncherStatusMsg, MessageError, ServiceStatusMsg, decode
+from cso_runtime.messages import EpisodeStatusMsg, LauncherStatusMsg, MapMsg, MessageError, ServiceStatusMsg, decode
 from cso_runtime.transport import TransportConfig, TransportError, zenoh_config
 
 SERVICES = ("sim", "mapper", "frontier", "policy", "planner")
@@ -24,14 +25,20 @@ def _collect(replies: Any) -> list[bytes]:
     return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
 
 
-def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) -> dict[str, Any] | None:
-    """The episode's status as a plain dict, or None when nothing answers."""
-    conf = TransportConfig(mode="client", connect=list(connect))
-    cfg = zenoh_config(conf)
+def _client_session(connect: list[str]) -> zenoh.Session | None:
+    """A client session to ``connect`` that gives up on a silent endpoint within a second (None then)."""
+    cfg = zenoh_config(TransportConfig(mode="client", connect=list(connect)))
     cfg.insert_json5("connect/timeout_ms", "800")
     try:
-        session = zenoh.open(cfg)
+        return zenoh.open(cfg)
     except zenoh.ZError:
+        return None
+
+
+def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) -> dict[str, Any] | None:
+    """The episode's status as a plain dict, or None when nothing answers."""
+    session = _client_session(connect)
+    if session is None:
         return None
     keys = RobotKeys(robot)
     with session:
@@ -172,3 +179,51 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     except TransportError as exc:
         print(f"nothing running: {exc}")
         return 1
+
+
+def query_map(connect: list[str], robot: str = "r0", timeout_s: float = 1.0) -> tuple[MapMsg | None, str]:
+    """The newest map the running episode keeps, or None and why not (nothing answered, no map yet, or
+    only malformed replies)."""
+    session = _client_session(connect)
+    if session is None:
+        return None, f"cannot reach {', '.join(connect)}"
+    best: MapMsg | None = None
+    why = f"nothing answered on {RobotKeys(robot).cache('map')}"
+    with session:
+        for reply in session.get(RobotKeys(robot).cache("map"), target=zenoh.QueryTarget.ALL, timeout=timeout_s):
+            if reply.ok is None:
+                why = reply.err.payload.to_string() if reply.err is not None else why
+                continue
+            try:
+                msg = decode(reply.ok.payload.to_bytes(), MapMsg)
+            except MessageError as exc:
+                why = f"malformed map reply: {exc}"
+                continue
+            assert isinstance(msg, MapMsg)
+            if best is None or msg.step >= best.step:
+                best = msg
+    return best, "" if best is not None else why
+
+
+def save_map_main(connect: list[str], robot: str | None, out: Path, image_format: str, runs_dir: Path) -> int:
+    """The ``save-map`` command: the running episode's map as map_server files; exit 1 when there is none."""
+    from cso_runtime.map_files import save_map  # noqa: PLC0415
+
+    if not connect:
+        connect, run_robot = endpoints_from_run_file(runs_dir)
+        robot = robot or run_robot
+    robot = robot or "r0"
+    if not connect:
+        print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
+        return 1
+    try:
+        msg, why = query_map(connect, robot)
+    except TransportError as exc:
+        msg, why = None, str(exc)
+    if msg is None:
+        print(f"no map for robot {robot}: {why}")
+        return 1
+    yaml_path = save_map(out.with_suffix(".yaml"), msg.grid, msg.geometry, image_format)
+    g = msg.geometry
+    print(f"map of step {msg.step} ({g.shape[1]} x {g.shape[0]} cells at {g.resolution_m} m): {yaml_path} and {yaml_path.with_suffix('.' + image_format).name}")
+    return 0

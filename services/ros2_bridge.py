@@ -520,6 +520,7 @@ class Ros2BridgeService(Service):
             resolution_m=m.geometry.resolution_m if m is not None else self.params.resolution_m,
             method=str(self.ctx.profile.get("method", "")),
             seed=int(self.ctx.profile.get("seed", 0)),
+            final_map=m,  # type: ignore[arg-type]
         )
 
     def finish(self, terminated_by: str) -> None:

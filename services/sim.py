@@ -207,6 +207,7 @@ class SimService(Service):
             resolution_m=self.sim.plan.resolution_m,
             method=self.method,
             seed=self.seed,
+            final_map=self.latest.get("map"),  # type: ignore[arg-type]
         )
         log.info("episode %s at step %d: %s %s (coverage %.2f%%)", state, self.step, terminated_by, reason, self.result.coverage_pct)
         self.publish("episode_status", self.episode_status())

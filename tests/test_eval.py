@@ -15,6 +15,7 @@ import pytest
 from cso_runtime.config import EpisodeConfig, ExplorationConfig, SensorConfig
 from cso_runtime.episode import GroundTruthMetrics, run_episode
 from cso_runtime.evaluation import CSV_FIELDS, METRICS, EvalRequest, run_eval
+from cso_runtime.map_files import load_map
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import builtin_scene_dir, load_floor_plan
 from cso_runtime.simulator import KinematicSimulator
@@ -99,6 +100,15 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
     assert data["explored"].any() and not (data["explored"] & ~free_px).any()
     assert (out / "coverage_curves.png").stat().st_size > 1000
     assert (out / "trajectories" / "img_1.png").stat().st_size > 1000
+
+    # The robot's own map, as map_server files: free where it saw free space, walls where it saw walls.
+    grid, geometry = load_map(out / "maps" / "greedy-dist" / "img_1.yaml")
+    assert geometry.shape == (480, 640) and geometry.resolution_m == pytest.approx(0.1)
+    assert (out / "maps" / "greedy-dist" / "img_1.png").is_file()
+    seen_free = np.flipud(grid == 0)  # in the PNG's layout
+    assert seen_free.sum() >= data["explored"].sum() and (grid == 100).any() and (grid == -1).any()
+    assert not (seen_free & ~free_px).any()
+    assert {p.name for p in (out / "maps").iterdir()} == set(methods)  # no map for the corrupt plan
 
 
 def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):

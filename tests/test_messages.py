@@ -193,6 +193,25 @@ def test_path_and_result_round_trip():
     assert back.steps == 10 and back.terminated_by == "coverage" and back.method == "greedy-dist"
     np.testing.assert_array_equal(back.explored_free, free)
     np.testing.assert_allclose(back.coverage_curve_pct, res.coverage_curve_pct)
+    assert back.final_map is None  # no map arrived: none is invented
+
+    # With the referee's last map (v3): the same grid comes back, so the launcher can write it.
+    geometry = GridGeometry(0.1, (5, 6), -1.0, 2.0)
+    explored = free.copy()
+    occupied = np.zeros_like(free)
+    occupied[1, 1:5] = True
+    res.final_map = MapMsg(9, geometry, explored, occupied)
+    back = decode(encode(res), EpisodeResultMsg)
+    assert back.final_map is not None and back.final_map.geometry == geometry and back.final_map.step == 9
+    np.testing.assert_array_equal(back.final_map.grid, res.final_map.grid)
+    body = msgpack.unpackb(encode(res))
+    body["body"]["final_map"]["occupied"] = body["body"]["final_map"]["explored"]
+    body["body"]["final_map"]["explored"] = pack_array(np.zeros((5, 6), bool), compress=True)  # occupied but never seen
+    with pytest.raises(MessageError, match="episode_result.final_map.occupied"):
+        decode(msgpack.packb(body), EpisodeResultMsg)
+    body["body"]["final_map"] = [1, 2]
+    with pytest.raises(MessageError, match="final_map"):
+        decode(msgpack.packb(body), EpisodeResultMsg)
 
 
 def test_frontiers_rebuild_the_same_observation_and_decision():

@@ -296,6 +296,8 @@ def test_fake_limo_through_the_bridge(namespace: str):
             ]
             assert result and result[0].terminated_by == "no_frontier" and result[0].decisions == 2
             assert result[0].explored_area_m2 == pytest.approx((grid != -1).sum() * 0.01)
+            assert result[0].final_map is not None  # the robot's map, for the run's map_server files
+            np.testing.assert_array_equal(result[0].final_map.grid, grid)
         finally:
             stop.set()
             thread.join(10)

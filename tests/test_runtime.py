@@ -27,6 +27,7 @@ from cso_runtime.episode import run_episode
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.keys import TOPICS, RobotKeys
 from cso_runtime.launcher import pid_alive
+from cso_runtime.map_files import load_map
 from cso_runtime.messages import ClockMsg, EpisodeStatusMsg, MapMsg, ScanMsg, ServiceStatusMsg, decode, encode
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
@@ -288,6 +289,9 @@ def test_status_and_down_with_nothing_running(tmp_path):
     assert time.monotonic() - t0 < 2.0
     r = cli("down", cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "nothing running" in r.stderr
+    r = cli("save-map", "--connect", loopback_endpoint(port), cwd=tmp_path, timeout_s=10)
+    assert r.returncode == 1 and "no map for robot r0" in r.stdout
+    assert not (tmp_path / "map.yaml").exists()
 
 
 @pytest.mark.parametrize("scene", [SCENE, "generated:middle:1:0"])
@@ -309,6 +313,8 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene):
         out = run_dir.parent
         assert (out / "trajectories" / f"{expected.scene}.png").is_file()
         assert (out / "episodes" / "greedy-dist" / f"{expected.scene}.npz").is_file()
+        grid, geometry = load_map(out / "maps" / "greedy-dist" / f"{expected.scene}.yaml")  # the mapper's final map
+        assert geometry == expected.map_geometry and np.array_equal(grid, expected.map_grid)
         for name in ("sim", "mapper", "frontier", "policy", "planner"):
             assert (out / "logs" / f"{name}.log").is_file()
         assert "  mapper -->|\"map\"| frontier\n" in (out / "dataflow.md").read_text()
@@ -337,6 +343,11 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         assert r.returncode == 0, r.stdout + r.stderr
         during = json.loads(r.stdout)
         assert during["state"] == "exploring" and all(s["alive"] for s in during["services"].values())
+        r = cli("save-map", "-f", str(tmp_path / "live"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0, r.stdout + r.stderr
+        grid, geometry = load_map(tmp_path / "live.yaml")  # map_saver_cli's files, read back
+        assert (tmp_path / "live.pgm").is_file() and geometry.shape == grid.shape
+        assert (grid == 0).any() and (grid == -1).any() and set(np.unique(grid)) <= {-1, 0, 100}
 
         # Malformed payloads on every key of the robot.
         keys = RobotKeys("r0")

@@ -1,0 +1,126 @@
+"""The robot's map as Nav2 ``map_server`` files: an image (PGM or PNG) and its YAML.
+
+Why: the map is what active mapping produces, and ROS users load maps with ``nav2_map_server`` (or view them
+in RViz). The files follow ``map_saver``: ``mode: trinary``, occupied cells black (0), free cells white (254),
+unknown cells grey (205), ``negate: 0``, thresholds 0.65 / 0.196; the image's first row is the top of the map
+(largest y) and ``origin`` is the map-frame pose ``[x_m, y_m, yaw_rad]`` of the lower-left pixel's corner
+(REP-103: x east, y north). ``load_map`` reads what ``map_saver`` and this module write
+(``trinary``, ``scale`` and ``raw`` modes, ``negate`` 0 or 1) back into OccupancyGrid values (-1/0/100).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import yaml
+from PIL import Image, UnidentifiedImageError
+
+from cso_runtime.geometry import GridGeometry
+from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN
+
+PIXEL_OCCUPIED, PIXEL_FREE, PIXEL_UNKNOWN = 0, 254, 205
+"""map_saver's trinary pixel values."""
+OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.196
+"""Occupancy probability above which a pixel is occupied, below which it is free. 0.196 as ROS 1's map_saver
+writes it: the unknown grey 205 is an occupancy of 0.19608, so it loads as unknown, where Nav2's default of 0.25
+would read it as free."""
+IMAGE_FORMATS = ("pgm", "png")
+
+
+class MapFileError(ValueError):
+    """A map YAML or image that cannot be read as a map_server map (the message says which file and why)."""
+
+
+def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_format: str = "pgm") -> Path:
+    """Write ``grid`` (int8 OccupancyGrid values, row 0 at ``geometry``'s origin) as ``yaml_path`` and the
+    image beside it (same stem, ``image_format`` pgm or png). Returns the YAML's path."""
+    if image_format not in IMAGE_FORMATS:
+        raise ValueError(f"image format {image_format!r}: expected one of {', '.join(IMAGE_FORMATS)}")
+    grid = np.asarray(grid)
+    if grid.shape != tuple(geometry.shape):
+        raise ValueError(f"grid shape {grid.shape} does not match the geometry {geometry.shape}")
+    pixels = np.full(grid.shape, PIXEL_UNKNOWN, dtype=np.uint8)
+    pixels[grid == FREE] = PIXEL_FREE
+    pixels[grid >= 50] = PIXEL_OCCUPIED  # as map_saver: values above its occupied threshold
+    yaml_path = Path(yaml_path)
+    image_path = yaml_path.with_suffix(f".{image_format}")
+    yaml_path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.ascontiguousarray(np.flipud(pixels))).save(image_path)
+    meta = {
+        "image": image_path.name,
+        "mode": "trinary",
+        "resolution": float(geometry.resolution_m),
+        "origin": [float(geometry.origin_x_m), float(geometry.origin_y_m), 0.0],
+        "negate": 0,
+        "occupied_thresh": OCCUPIED_THRESH,
+        "free_thresh": FREE_THRESH,
+    }
+    yaml_path.write_text(yaml.safe_dump(meta, sort_keys=False))
+    return yaml_path
+
+
+def load_map(yaml_path: Path) -> tuple[np.ndarray, GridGeometry]:
+    """A map_server map as (int8 OccupancyGrid values with row 0 at the origin, its geometry)."""
+    yaml_path = Path(yaml_path)
+    try:
+        meta = yaml.safe_load(yaml_path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise MapFileError(f"{yaml_path}: cannot read the map YAML ({exc})") from None
+    if not isinstance(meta, dict):
+        raise MapFileError(f"{yaml_path}: expected a mapping with image, resolution and origin")
+    for key in ("image", "resolution", "origin"):
+        if key not in meta:
+            raise MapFileError(f"{yaml_path}: missing {key!r}")
+    resolution = _number(meta["resolution"], yaml_path, "resolution")
+    origin = meta["origin"]
+    if not (isinstance(origin, list) and len(origin) == 3):
+        raise MapFileError(f"{yaml_path}: origin must be [x_m, y_m, yaw_rad]")
+    x0, y0, yaw = (_number(v, yaml_path, "origin") for v in origin)
+    if not resolution > 0:
+        raise MapFileError(f"{yaml_path}: resolution must be positive, got {resolution}")
+    if abs(yaw) > 1e-9:
+        raise MapFileError(f"{yaml_path}: a rotated origin (yaw {yaw} rad) is not supported: grids here are axis-aligned")
+    mode = meta.get("mode", "trinary")
+    if mode not in ("trinary", "scale", "raw"):
+        raise MapFileError(f"{yaml_path}: unknown mode {mode!r} (trinary, scale or raw)")
+    negate = meta.get("negate", 0)
+    if negate not in (0, 1, False, True):
+        raise MapFileError(f"{yaml_path}: negate must be 0 or 1")
+    occ_t = _number(meta.get("occupied_thresh", OCCUPIED_THRESH), yaml_path, "occupied_thresh")
+    free_t = _number(meta.get("free_thresh", FREE_THRESH), yaml_path, "free_thresh")
+    if not 0 <= free_t < occ_t <= 1:
+        raise MapFileError(f"{yaml_path}: expected 0 <= free_thresh < occupied_thresh <= 1")
+    image_path = Path(str(meta["image"]))
+    if not image_path.is_absolute():
+        image_path = yaml_path.parent / image_path
+    try:
+        with Image.open(image_path) as im:
+            im.load()
+            pixels = np.asarray(im.convert("LA" if "A" in im.getbands() else "L"))
+    except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as exc:  # Pillow's decoders raise all of these on corrupt files
+        raise MapFileError(f"{image_path}: cannot read the map image ({exc})") from None
+    alpha = pixels[..., 1] if pixels.ndim == 3 else None
+    value = (pixels[..., 0] if pixels.ndim == 3 else pixels).astype(np.float64)
+    if mode == "raw":
+        grid = np.clip(value, -1, 100).astype(np.int8)
+        grid[value > 100] = UNKNOWN
+    else:
+        occ = value / 255.0 if negate else (255.0 - value) / 255.0
+        grid = np.full(value.shape, UNKNOWN, dtype=np.int8)
+        grid[occ > occ_t] = OCCUPIED
+        grid[occ < free_t] = FREE
+        if mode == "scale":
+            between = (occ >= free_t) & (occ <= occ_t)
+            grid[between] = np.rint(100 * (occ[between] - free_t) / (occ_t - free_t)).astype(np.int8)  # as Nav2
+        if alpha is not None:
+            grid[alpha < 255] = UNKNOWN  # map_server: transparent pixels are unknown
+    geometry = GridGeometry(resolution, (int(grid.shape[0]), int(grid.shape[1])), x0, y0)
+    return np.flipud(grid).copy(), geometry
+
+
+def _number(v: object, path: Path, key: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise MapFileError(f"{path}: {key} must be finite numbers, got {v!r}")
+    return float(v)

@@ -1,0 +1,88 @@
+"""The robot's map as Nav2 map_server files: what map_server would read back, and clear errors on bad files."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+
+from cso_runtime.geometry import GridGeometry
+from cso_runtime.map_files import MapFileError, load_map, save_map
+
+
+def _grid() -> tuple[np.ndarray, GridGeometry]:
+    """A 4 x 5 map, row 0 at the origin: unknown on top, a wall at the bottom row, free in between."""
+    grid = np.full((4, 5), -1, dtype=np.int8)
+    grid[0, :] = 100
+    grid[1:3, :] = 0
+    grid[1, 4] = 100
+    return grid, GridGeometry(0.05, (4, 5), -1.25, 0.5)
+
+
+@pytest.mark.parametrize("image_format", ["pgm", "png"])
+def test_saved_map_reads_back_the_same_grid_and_geometry(tmp_path: Path, image_format: str):
+    grid, geometry = _grid()
+    yaml_path = save_map(tmp_path / "office.yaml", grid, geometry, image_format)
+    meta = yaml.safe_load(yaml_path.read_text())
+    assert meta["image"] == f"office.{image_format}" and meta["mode"] == "trinary" and meta["negate"] == 0
+    assert meta["resolution"] == 0.05 and meta["origin"] == [-1.25, 0.5, 0.0]
+    with Image.open(tmp_path / f"office.{image_format}") as im:
+        pixels = np.asarray(im)
+    # map_saver's convention: the image's first row is the map's top (row 3 here, unknown), the wall last.
+    assert pixels.dtype == np.uint8 and pixels.shape == (4, 5)
+    assert (pixels[0] == 205).all() and (pixels[3] == 0).all() and pixels[2, 4] == 0 and pixels[1, 0] == 254
+    back, back_geometry = load_map(yaml_path)
+    assert back_geometry == geometry
+    np.testing.assert_array_equal(back, grid)
+
+
+def test_maps_written_by_other_tools_load_with_their_thresholds_and_negate(tmp_path: Path):
+    """A map_saver map with Nav2's thresholds, a negated one, and a scale-mode one with a transparent pixel."""
+    pixels = np.array([[0, 100, 205, 254]], dtype=np.uint8)
+    Image.fromarray(pixels).save(tmp_path / "m.png")
+    meta = {"image": "m.png", "resolution": 0.1, "origin": [0.0, 0.0, 0.0], "negate": 0, "occupied_thresh": 0.65, "free_thresh": 0.25}
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump(meta))
+    grid, geometry = load_map(tmp_path / "m.yaml")
+    assert geometry.shape == (1, 4) and geometry.resolution_m == 0.1
+    assert grid.tolist() == [[100, -1, 0, 0]]  # grey 100 is an occupancy of 0.61; with free_thresh 0.25, grey 205 is free
+    (tmp_path / "n.yaml").write_text(yaml.safe_dump({**meta, "negate": 1}))
+    assert load_map(tmp_path / "n.yaml")[0].tolist() == [[0, -1, 100, 100]]
+    rgba = np.zeros((1, 3, 4), dtype=np.uint8)
+    rgba[0, :, :3] = np.array([0, 128, 255], dtype=np.uint8)[:, None]
+    rgba[0, :, 3] = [255, 255, 0]
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "s.png")
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump({**meta, "image": "s.png", "mode": "scale"}))
+    assert load_map(tmp_path / "s.yaml")[0].tolist() == [[100, 62, -1]]  # 128: occupancy 0.498, scaled between
+
+
+def test_bad_map_files_give_clear_errors(tmp_path: Path):
+    grid, geometry = _grid()
+    good = save_map(tmp_path / "map.yaml", grid, geometry)
+    meta = yaml.safe_load(good.read_text())
+    cases = {
+        "missing 'resolution'": {k: v for k, v in meta.items() if k != "resolution"},
+        "resolution must be positive": {**meta, "resolution": 0},
+        "origin must be": {**meta, "origin": [0.0, 0.0]},
+        "rotated origin": {**meta, "origin": [0.0, 0.0, 0.5]},
+        "unknown mode": {**meta, "mode": "fancy"},
+        "free_thresh < occupied_thresh": {**meta, "free_thresh": 0.7},
+        "cannot read the map image": {**meta, "image": "nowhere.pgm"},
+    }
+    for why, bad in cases.items():
+        (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
+        with pytest.raises(MapFileError, match=why):
+            load_map(tmp_path / "bad.yaml")
+    (tmp_path / "bad.yaml").write_text("image: [unclosed")
+    with pytest.raises(MapFileError, match="cannot read the map YAML"):
+        load_map(tmp_path / "bad.yaml")
+    (tmp_path / "corrupt.pgm").write_bytes(b"P5 not really")
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump({**meta, "image": "corrupt.pgm"}))
+    with pytest.raises(MapFileError, match="corrupt.pgm"):
+        load_map(tmp_path / "bad.yaml")
+    with pytest.raises(ValueError, match="does not match the geometry"):
+        save_map(tmp_path / "x.yaml", grid[:2], geometry)
+    with pytest.raises(ValueError, match="image format"):
+        save_map(tmp_path / "x.yaml", grid, geometry, "jpg")
