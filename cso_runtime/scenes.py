@@ -1,9 +1,10 @@
 """Floor plans: ground-truth free space, metric scale, start pose, and the paper's scale classes.
 
-Sources: the Dungeon PNG plans (any folder of them, or the few shipped in the package) and the
-seeded apartment generator (``cso_runtime.scene_generator``). Scene specs used by the CLI:
-``DIR`` (every PNG in it), a single ``FILE.png``, ``builtin`` (plans shipped in the package) or
-``generated:SCALE:N:SEED``.
+Sources: the Dungeon PNG plans (any folder of them, or the few shipped in the package), the
+seeded apartment generator (``cso_runtime.scene_generator``) and Nav2 map_server maps (a map your
+robot built, ``cso_runtime.map_files``). Scene specs used by the CLI: ``DIR`` (every PNG in it, or
+every map YAML when it holds any), a single ``FILE.png`` or ``FILE.yaml``, ``builtin`` (plans shipped
+in the package) or ``generated:SCALE:N:SEED``.
 """
 
 from __future__ import annotations
@@ -115,6 +116,46 @@ def load_floor_plan(path: str | Path, resolution_m: float = 0.1, start_yaw_rad: 
     return floor_plan_from_rgb(p.stem, rgb, resolution_m, start_yaw_rad, source=str(p))
 
 
+MAP_SUFFIXES = (".yaml", ".yml")
+"""A scene file with one of these suffixes is a map_server map (``load_map_scene``)."""
+
+
+def load_map_scene(path: str | Path) -> FloorPlan:
+    """A map_server map (YAML + image) as a floor plan: its free cells (0) are the floor; occupied and
+    unknown cells are walls. The world frame is the map's lower-left corner, at the map's own
+    resolution. The start is the YAML's optional ``start: [x_m, y_m, yaw_rad]`` (map frame; map_server
+    ignores the key), else the free cell farthest from any wall in the largest free region."""
+    import yaml  # noqa: PLC0415
+
+    from cso_runtime.map_files import MapFileError, load_map  # noqa: PLC0415 - PIL only for map input
+
+    p = Path(path)
+    if not p.is_file():
+        raise SceneError(f"{p.name}: file not found ({p})")
+    try:
+        grid, geometry = load_map(p)
+        start = (yaml.safe_load(p.read_text()) or {}).get("start")
+    except MapFileError as exc:
+        raise SceneError(str(exc)) from None
+    free = grid == 0
+    if not free.any():
+        raise SceneError(f"{p.name}: the map has no free cells")
+    res = geometry.resolution_m
+    if start is not None:
+        if not (isinstance(start, list) and len(start) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in start)):
+            raise SceneError(f"{p.name}: start must be [x_m, y_m, yaw_rad], three finite numbers")
+        pose = Pose2D(float(start[0]) - geometry.origin_x_m, float(start[1]) - geometry.origin_y_m, float(start[2]))
+        iy, ix = GridGeometry(res, free.shape).world_to_cell(pose.x_m, pose.y_m)
+        if not (0 <= iy < free.shape[0] and 0 <= ix < free.shape[1] and free[iy, ix]):
+            raise SceneError(f"{p.name}: start ({start[0]}, {start[1]}) m is not on a free cell of the map")
+    else:
+        labels, n = ndimage.label(free)
+        largest = labels == 1 + int(np.argmax(ndimage.sum_labels(free, labels, index=np.arange(1, n + 1))))
+        iy, ix = np.unravel_index(int(np.argmax(ndimage.distance_transform_edt(largest))), free.shape)
+        pose = Pose2D((ix + 0.5) * res, (iy + 0.5) * res, 0.0)
+    return FloorPlan(p.stem, free, res, pose, source=str(p))
+
+
 def _natural_key(p: Path) -> tuple:
     return tuple(int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name))
 
@@ -140,6 +181,8 @@ class SceneRef:
             scale, seed = self.generated
             return generate_floor_plan(scale, seed)
         assert self.path is not None
+        if Path(self.path).suffix.lower() in MAP_SUFFIXES:
+            return load_map_scene(self.path)  # at the map's own resolution
         return load_floor_plan(self.path, self.resolution_m)
 
 
@@ -160,12 +203,14 @@ def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.
     else:
         p = builtin_scene_dir() if spec == "builtin" else Path(spec)
         if p.is_dir():
-            files = sorted(p.glob("*.png"), key=_natural_key)
+            # A folder of map_server maps holds their images too: then the YAMLs are the scenes.
+            files = sorted((f for f in p.iterdir() if f.suffix.lower() in MAP_SUFFIXES), key=_natural_key)
+            files = files or sorted(p.glob("*.png"), key=_natural_key)
             if not files:
-                raise SceneError(f"no PNG floor plans in {p}")
-        elif p.suffix.lower() == ".png":
+                raise SceneError(f"no PNG floor plans or map YAMLs in {p}")
+        elif p.suffix.lower() in (".png", *MAP_SUFFIXES):
             files = [p]  # a missing file is reported per scene, as a failure
         else:
-            raise SceneError(f"scene spec {spec!r} is not a folder, a .png, 'builtin' or generated:SCALE:N:SEED")
+            raise SceneError(f"scene spec {spec!r} is not a folder, a .png, a map .yaml, 'builtin' or generated:SCALE:N:SEED")
         refs = [SceneRef(f.stem, path=str(f), resolution_m=resolution_m) for f in files]
     return refs[:limit] if limit is not None else refs

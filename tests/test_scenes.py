@@ -1,13 +1,19 @@
-"""Floor plans: the seeded apartment generator, PNG loading, scene specs and scale classes."""
+"""Floor plans: the seeded apartment generator, PNG and map_server loading, scene specs and scale classes."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+import yaml
 from PIL import Image
 from scipy import ndimage
 
+from cso_runtime.config import ExplorationConfig
+from cso_runtime.episode import run_episode
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
+from cso_runtime.geometry import GridGeometry
+from cso_runtime.map_files import save_map
+from cso_runtime.policies import make_policy
 from cso_runtime.scene_generator import generate_floor_plan
 from cso_runtime.scenes import (
     FREE_RGB,
@@ -19,6 +25,7 @@ from cso_runtime.scenes import (
     resolve_scenes,
     scale_of,
 )
+from cso_runtime.simulator import KinematicSimulator
 
 SEEDS = range(6)
 ROBOT_RADIUS_M = 0.2
@@ -223,7 +230,7 @@ def test_bad_specs_raise_scene_error(spec):
 
 
 def test_empty_folder_is_an_error(tmp_path):
-    with pytest.raises(SceneError, match="no PNG"):
+    with pytest.raises(SceneError, match="no PNG floor plans or map YAMLs"):
         resolve_scenes(str(tmp_path))
 
 
@@ -241,3 +248,50 @@ def test_empty_folder_is_an_error(tmp_path):
 )
 def test_scale_of_boundaries(area_m2, scale):
     assert scale_of(area_m2) == scale
+
+
+def _plan_as_map(tmp_path, plan, origin=(-3.0, 1.5), **extra):
+    """``plan`` saved as a map_server map (free 0, everything else a wall), origin moved away from 0."""
+    grid = np.where(plan.free, 0, 100).astype(np.int8)
+    geometry = GridGeometry(plan.resolution_m, plan.free.shape, *origin)
+    yaml_path = save_map(tmp_path / f"{plan.name}.yaml", grid, geometry)
+    if extra:
+        meta = yaml.safe_load(yaml_path.read_text())
+        yaml_path.write_text(yaml.safe_dump({**meta, **extra}))
+    return yaml_path
+
+
+def test_a_map_server_map_is_a_scene_and_is_explored_like_its_plan(tmp_path):
+    """A map your robot built (or any Nav2 map) as a scene: free cells are the floor, the start is the
+    free cell farthest from walls in the largest region, and greedy-dist explores it to the end."""
+    plan = generate_floor_plan("small", 3)
+    yaml_path = _plan_as_map(tmp_path, plan)
+    (ref,) = resolve_scenes(str(yaml_path), resolution_m=0.1)  # the map's own resolution wins
+    scene = ref.load()
+    assert scene.name == plan.name and scene.resolution_m == plan.resolution_m
+    np.testing.assert_array_equal(scene.free, plan.free)
+    iy, ix = scene.geometry.world_to_cell(scene.start.x_m, scene.start.y_m)
+    clearance = ndimage.distance_transform_edt(plan.free)
+    assert clearance[iy, ix] == clearance.max() and scene.traversable_area_m2() == pytest.approx(plan.traversable_area_m2())
+    result = run_episode(KinematicSimulator(scene, seed=0), make_policy("greedy-dist"), ExplorationConfig(), seed=0)
+    assert result.terminated_by == "coverage" and result.coverage_pct > 99.0
+
+
+def test_a_map_scene_takes_its_start_from_the_yaml_and_folders_of_maps_list_the_yamls(tmp_path):
+    plan = generate_floor_plan("small", 3)
+    x, y = plan.start.x_m - 3.0, plan.start.y_m + 1.5  # the plan's start, in the map frame of origin (-3, 1.5)
+    yaml_path = _plan_as_map(tmp_path, plan, start=[x, y, 1.0])
+    scene = resolve_scenes(str(yaml_path))[0].load()
+    assert (scene.start.x_m, scene.start.y_m, scene.start.yaw_rad) == pytest.approx((plan.start.x_m, plan.start.y_m, 1.0))
+    assert [r.name for r in resolve_scenes(str(tmp_path))] == [plan.name]  # the YAML, not its image
+    _plan_as_map(tmp_path, plan, start=[-3.0 + 0.01, 1.5 + 0.01, 0.0])  # the corner: a wall
+    with pytest.raises(SceneError, match="not on a free cell"):
+        resolve_scenes(str(yaml_path))[0].load()
+    _plan_as_map(tmp_path, plan, start=[1.0, "two", 0.0])
+    with pytest.raises(SceneError, match=r"start must be \[x_m, y_m, yaw_rad\]"):
+        resolve_scenes(str(yaml_path))[0].load()
+    (tmp_path / "broken.yaml").write_text("image: nowhere.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n")
+    with pytest.raises(SceneError, match="cannot read the map image"):
+        resolve_scenes(str(tmp_path / "broken.yaml"))[0].load()
+    with pytest.raises(SceneError, match="file not found"):
+        resolve_scenes(str(tmp_path / "gone.yaml"))[0].load()
