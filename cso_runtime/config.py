@@ -23,6 +23,11 @@ class ConfigError(ValueError):
     """A configuration file or value is invalid."""
 
 
+EXIT_BAD_CONFIG = 2
+"""Exit code of a command or service that refuses its configuration. A launcher does not restart a
+service that exits with it: the same configuration would fail the same way."""
+
+
 @dataclass
 class SensorConfig:
     """Planar range sensor. Defaults are the LIMO's EAI X2L LiDAR (front 180 degrees, 0.1-8 m)."""

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from cso_runtime.config import ConfigError, ExplorationConfig, from_dict, load_yaml
+from cso_runtime.config import EXIT_BAD_CONFIG, ConfigError, ExplorationConfig, from_dict, load_yaml
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
 from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, Message, MessageError, PathMsg, decode, encode
 from cso_runtime.scenes import SceneError, resolve_scenes
@@ -142,8 +142,11 @@ class Profile:
 
             raise ConfigError(f"method {self.method}: no weights at {weights_path(self.method)}; train it with `cso-runtime train --variant {self.method}`")
         try:
-            if not resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px):
+            refs = resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px)
+            if not refs:
                 raise ConfigError(f"scene {self.scene!r} resolves to no scene")
+            if "sim" in self.services:
+                refs[0].load()  # a missing or unusable plan is a bad configuration: say so before anything starts
         except SceneError as exc:
             raise ConfigError(f"scene: {exc}") from None
         TransportConfig(mode="router", listen=self.router.listen, connect=self.router.connect).validate()
@@ -402,6 +405,11 @@ class Launcher:
             if c.restart_at is None:
                 code = c.proc.returncode if c.proc is not None else -1
                 c.exit_codes.append(code)
+                if code == EXIT_BAD_CONFIG:
+                    c.gave_up = True  # the same configuration would fail the same way: no restart
+                    log.error("%s refused its configuration (exit code %d): not restarting it (see %s)", c.name, code, c.log_path)
+                    changed = True
+                    continue
                 if c.restarts >= sup.max_restarts:
                     c.gave_up = True
                     log.error("%s exited (code %s) and was restarted %d times: giving up on it (see %s)", c.name, code, c.restarts, c.log_path)

@@ -33,7 +33,7 @@ from typing import Any, ClassVar
 
 import zenoh
 
-from cso_runtime.config import ConfigError, ExplorationConfig, from_dict, load_yaml
+from cso_runtime.config import EXIT_BAD_CONFIG, ConfigError, ExplorationConfig, from_dict, load_yaml
 from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
 from cso_runtime.transport import TransportConfig, TransportError, open_session
@@ -417,7 +417,7 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
         service = cls(ServiceContext(cls.name, args.robot, profile, exploration, transport, params))
     except (ConfigError, ValueError) as exc:
         log.error("%s: bad configuration: %s", cls.name, exc)
-        return 2
+        return EXIT_BAD_CONFIG
     stop = threading.Event()
     _install_stop_handlers(stop)
     _die_with_launcher()

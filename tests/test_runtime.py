@@ -20,6 +20,7 @@ from typing import Any, Callable
 import numpy as np
 import pytest
 import yaml
+from PIL import Image
 
 import cso_runtime
 from cso_runtime.config import ExplorationConfig
@@ -209,11 +210,33 @@ def test_bad_profiles_fail_before_anything_starts(tmp_path):
     assert r.returncode == 2 and "warp_speed" in r.stderr
     r = cli("up", "--profile", "lockstep", "--scene", "generated:huge:1:0", "--no-live", cwd=tmp_path)
     assert r.returncode == 2 and "scene" in r.stderr
+    Image.new("RGB", (40, 30), (127, 127, 127)).save(tmp_path / "walls.png")  # resolves, but no floor and no start
+    r = cli("up", "--profile", "lockstep", "--scene", "walls.png", "--no-live", cwd=tmp_path)
+    assert r.returncode == 2 and "walls: no start marker" in r.stderr
     (tmp_path / "weights").mkdir()
     shutil.copy(Path(cso_runtime.__file__).parent / "data" / "weights" / "cso.pt", tmp_path / "weights" / "cso.pt")
     r = cli("up", "--profile", "lockstep", "--method", "gnn-baseline", "--weights", str(tmp_path / "weights"), "--no-live", cwd=tmp_path)
     assert r.returncode == 2 and "gnn-baseline.pt" in r.stderr  # a learned method without weights in --weights
     assert not (tmp_path / "runs").exists()
+
+
+def test_a_service_that_refuses_its_configuration_is_not_restarted(tmp_path):
+    """Exit code 2 (a configuration the service refuses) would repeat on every restart: the launcher
+    gives up on that service at once and says why; any other exit is restarted with back-off."""
+    from cso_runtime.launcher import Child, Launcher, find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    launcher.run_dir.mkdir()
+    refused = Child("sim", [sys.executable, "-c", "raise SystemExit(2)"], tmp_path / "sim.log")
+    crashed = Child("mapper", [sys.executable, "-c", "raise SystemExit(1)"], tmp_path / "mapper.log")
+    launcher.children = [refused, crashed]
+    for c in launcher.children:
+        c.spawn()
+        c.proc.wait(timeout=30)
+    launcher.supervise()
+    assert refused.gave_up and refused.restarts == 0 and refused.exit_codes == [2]
+    assert not crashed.gave_up and crashed.restart_at is not None and crashed.exit_codes == [1]
 
 
 def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
