@@ -118,6 +118,14 @@ def endpoints_from_run_file(runs_dir: Path) -> tuple[list[str], str | None]:
     return list(info.get("endpoints") or []), info.get("robot")
 
 
+def target_of(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[list[str], str]:
+    """Whom to ask: the given endpoints and robot, else the current run's (no endpoints: nothing running)."""
+    if not connect:
+        connect, run_robot = endpoints_from_run_file(runs_dir)
+        robot = robot or run_robot
+    return connect, robot or "r0"
+
+
 def render_table(status: dict[str, Any]):
     from rich.table import Table  # noqa: PLC0415
 
@@ -154,10 +162,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     from rich.console import Console  # noqa: PLC0415
 
     console = Console()
-    if not connect:
-        connect, run_robot = endpoints_from_run_file(runs_dir)
-        robot = robot or run_robot
-    robot = robot or "r0"
+    connect, robot = target_of(connect, robot, runs_dir)
     if not connect:
         print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
         return 1
@@ -209,10 +214,7 @@ def save_map_main(connect: list[str], robot: str | None, out: Path, image_format
     """The ``save-map`` command: the running episode's map as map_server files; exit 1 when there is none."""
     from cso_runtime.map_files import save_map  # noqa: PLC0415
 
-    if not connect:
-        connect, run_robot = endpoints_from_run_file(runs_dir)
-        robot = robot or run_robot
-    robot = robot or "r0"
+    connect, robot = target_of(connect, robot, runs_dir)
     if not connect:
         print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
         return 1
