@@ -14,9 +14,12 @@ import logging
 import math
 import multiprocessing
 import re
+import threading
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -249,6 +252,45 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
     return EpisodeOutcome.finished(job.method, result, row, plan.free, plan.resolution_m)
 
 
+WORKER_DIED = "its worker process died twice (killed, or out of memory?)"
+
+
+def run_in_processes(jobs: list[EpisodeJob], workers: int, done: Callable[[EpisodeOutcome], None], episode: Callable[[EpisodeJob], EpisodeOutcome] = run_job) -> None:
+    """Run ``episode`` on every job in ``workers`` processes, calling ``done`` with each outcome.
+
+    A worker that dies (killed, out of memory) breaks the whole pool, and every episode the pool had not
+    finished with it; those run again, each in a process of its own (still ``workers`` at a time), so
+    that one dead process never takes the run down or costs the other episodes. An episode whose
+    process dies again is reported as a failure (``WORKER_DIED``)."""
+    ctx = multiprocessing.get_context("spawn")
+    lock = threading.Lock()  # the retries report from several threads
+
+    def in_pool(batch: list[EpisodeJob], width: int) -> list[EpisodeJob]:
+        broken = []
+        with ProcessPoolExecutor(max_workers=width, mp_context=ctx) as pool:
+            futures = {pool.submit(episode, job): job for job in batch}
+            for fut in as_completed(futures):
+                try:
+                    outcome = fut.result()
+                except BrokenProcessPool:
+                    broken.append(futures[fut])
+                    continue
+                with lock:
+                    done(outcome)
+        return broken
+
+    retry = in_pool(jobs, workers)
+    if not retry:
+        return
+    log.warning("a worker process died; running the %d unfinished episode(s) again, one process each", len(retry))
+    with ThreadPoolExecutor(max_workers=workers) as threads:
+        for job, broken in zip(retry, threads.map(lambda job: in_pool([job], 1), retry)):
+            if broken:
+                log.error("%s on %s: %s", job.method, job.scene.name, WORKER_DIED)
+                with lock:
+                    done(EpisodeOutcome(job.method, job.scene.name, error=WORKER_DIED))
+
+
 def _mean(rows: list[dict[str, Any]], key: str) -> float | None:
     values = [float(r[key]) for r in rows if r.get(key) is not None and math.isfinite(float(r[key]))]
     return round(float(np.mean(values)), 6) if values else None
@@ -325,11 +367,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         for job in jobs:
             done(run_job(job))
     else:
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=request.workers, mp_context=ctx) as pool:
-            futures = [pool.submit(run_job, job) for job in jobs]
-            for fut in as_completed(futures):
-                done(fut.result())
+        run_in_processes(jobs, request.workers, done)
     rows = [o.row for o in outcomes if o.row is not None]
     failures = [{"method": o.method, "map": o.map, "error": o.error or ""} for o in outcomes if o.row is None]
     meta = {

@@ -14,10 +14,10 @@ import pytest
 
 from cso_runtime.config import EpisodeConfig, ExplorationConfig, SensorConfig
 from cso_runtime.episode import GroundTruthMetrics, run_episode
-from cso_runtime.evaluation import CSV_FIELDS, METRICS, EvalRequest, run_eval
+from cso_runtime.evaluation import CSV_FIELDS, METRICS, WORKER_DIED, EpisodeJob, EvalRequest, run_eval, run_in_processes, run_job
 from cso_runtime.map_files import load_map
 from cso_runtime.policies import make_policy
-from cso_runtime.scenes import builtin_scene_dir, load_floor_plan
+from cso_runtime.scenes import builtin_scene_dir, load_floor_plan, resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from tests.conftest import two_rooms
 
@@ -153,3 +153,28 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     third = run_eval(req)
     assert npz.stat().st_mtime_ns != stamp
     assert third["methods"]["greedy-dist"]["steps"] <= 20 < first["methods"]["greedy-dist"]["steps"]
+
+
+def _episode_whose_process_dies_on_one_scene(job):
+    """A worker that is killed (as by the kernel's OOM killer) whenever it runs gen_small_1."""
+    import os
+
+    if job.scene.name == "gen_small_1":
+        os._exit(9)
+    return run_job(job)
+
+
+def test_a_dead_worker_costs_only_its_own_episode(tmp_path: Path):
+    """A killed worker breaks its process pool: the episodes the pool had not finished run again, and
+    only the one whose process dies every time is reported, as a failure; nothing hangs or is lost."""
+    scenes = resolve_scenes("generated:small:4:0")
+    config = ExplorationConfig()
+    jobs = [EpisodeJob("greedy-dist", s, 0, "2d", config, tmp_path) for s in scenes]
+    outcomes = []
+    run_in_processes(jobs, 2, outcomes.append, episode=_episode_whose_process_dies_on_one_scene)
+    by_scene = {o.map: o for o in outcomes}
+    assert len(outcomes) == 4 and set(by_scene) == {s.name for s in scenes}
+    assert by_scene["gen_small_1"].row is None and by_scene["gen_small_1"].error == WORKER_DIED
+    for name in ("gen_small_0", "gen_small_2", "gen_small_3"):
+        assert by_scene[name].row is not None and by_scene[name].row["terminated_by"] == "coverage"
+        assert (tmp_path / "episodes" / "greedy-dist" / f"{name}.npz").is_file()
