@@ -19,7 +19,17 @@ from cso_runtime.geometry import Pose2D
 from cso_runtime.learned.env import EnvConfig, ExplorationEnv, expert_action
 from cso_runtime.learned.graph import GraphConfig, build_graph
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
-from cso_runtime.learned.ppo import Args, build_model, compute_gae, episode_returns, model_chooser, random_chooser, train
+from cso_runtime.learned.ppo import (
+    Args,
+    EnvWorkerDied,
+    WatchedAsyncVectorEnv,
+    build_model,
+    compute_gae,
+    episode_returns,
+    model_chooser,
+    random_chooser,
+    train,
+)
 from cso_runtime.learned.registry import LearnedPolicy, has_method, load_checkpoint, save_checkpoint
 from cso_runtime.masks import valid_distance_mask
 from cso_runtime.policies import Goal, goal_of, make_policy
@@ -608,3 +618,25 @@ def test_distance_prior_starts_the_actor_at_greedy_dist_and_round_trips(tmp_path
     np.testing.assert_allclose(LearnedPolicy("cso", loaded, config, masks).probabilities(observation, mask), probs, atol=1e-6)
     with pytest.raises(ValueError, match="distance_prior"):
         Args(distance_prior=-1.0).validate()
+
+
+def test_a_dead_environment_process_stops_training_with_a_clear_error_not_a_hang():
+    """An environment process killed mid-training (as by the OOM killer) is noticed while its answer is
+    awaited: ``EnvWorkerDied`` names it, and closing terminates the others."""
+    import functools
+    import signal
+
+    import gymnasium as gym
+
+    envs = WatchedAsyncVectorEnv([functools.partial(gym.make, "CartPole-v1")] * 2, context="spawn")
+    try:
+        envs.reset(seed=0)
+        envs.step(np.zeros(2, dtype=np.int64))
+        victim = envs.processes[1]
+        os.kill(victim.pid, signal.SIGKILL)
+        victim.join(10)
+        with pytest.raises(EnvWorkerDied, match=r"environment process 1 \(pid \d+\) died with exit code -9"):
+            envs.step(np.zeros(2, dtype=np.int64))
+    finally:
+        envs.close()
+    assert envs.closed and not any(p.is_alive() for p in envs.processes)

@@ -11,6 +11,7 @@ the run go to ``out_dir``.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import functools
@@ -21,12 +22,13 @@ import random
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import gymnasium as gym
 import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode
+from gymnasium.vector.async_vector_env import AsyncState
 from torch import nn, optim
 
 from cso_runtime.config import ExplorationConfig, SensorConfig
@@ -286,8 +288,69 @@ def build_model(args: Args, device: torch.device) -> GraphActorCritic:
 def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.vector.VectorEnv:
     fns = [make_env(refs, args.env_config()) for _ in range(args.num_envs)]
     if args.async_envs:
-        return gym.vector.AsyncVectorEnv(fns, autoreset_mode=AutoresetMode.SAME_STEP, context="spawn")
+        return WatchedAsyncVectorEnv(fns, autoreset_mode=AutoresetMode.SAME_STEP, context="spawn")
     return gym.vector.SyncVectorEnv(fns, autoreset_mode=AutoresetMode.SAME_STEP)
+
+
+class EnvWorkerDied(RuntimeError):
+    """An environment process of an ``AsyncVectorEnv`` died (killed, out of memory)."""
+
+
+class WatchedAsyncVectorEnv(gym.vector.AsyncVectorEnv):
+    """``AsyncVectorEnv`` that notices a dead environment process instead of waiting for its answer
+    forever or failing with a bare broken pipe: ``reset``, ``step`` and ``call`` raise ``EnvWorkerDied``
+    naming the process, and closing then terminates the others."""
+
+    poll_period_s = 0.5
+    worker_died = False
+
+    def _raise_if_dead(self) -> None:
+        for i, process in enumerate(self.processes):
+            if not process.is_alive():
+                self.worker_died = True
+                self._state = AsyncState.DEFAULT
+                raise EnvWorkerDied(f"environment process {i} (pid {process.pid}) died with exit code {process.exitcode}")
+
+    @contextlib.contextmanager
+    def _watching(self) -> Iterator[None]:
+        """A dead process breaks its pipe, on sending or on receiving: say which one died (it may take
+        a moment to be reaped) and leave this env ready to close."""
+        try:
+            yield
+        except (BrokenPipeError, ConnectionResetError, EOFError) as exc:
+            self.worker_died = True
+            self._state = AsyncState.DEFAULT
+            for _ in range(20):
+                self._raise_if_dead()
+                time.sleep(0.1)
+            raise EnvWorkerDied(f"lost the pipe to an environment process ({type(exc).__name__}: {exc})") from exc
+
+    def reset(self, *args: Any, **kwargs: Any) -> Any:
+        with self._watching():
+            return super().reset(*args, **kwargs)
+
+    def step(self, actions: Any) -> Any:
+        with self._watching():
+            return super().step(actions)
+
+    def call(self, name: str, *args: Any, **kwargs: Any) -> Any:
+        with self._watching():
+            return super().call(name, *args, **kwargs)
+
+    def _poll_pipe_envs(self, timeout: float | None = None) -> bool:
+        """Without a timeout the base class waits on each pipe for good; a process that died without
+        closing its end would never answer. Wait in short polls and check the processes in between."""
+        if timeout is not None:
+            return super()._poll_pipe_envs(timeout)
+        self._assert_is_running()
+        for pipe, process in zip(self.parent_pipes, self.processes):
+            while not pipe.poll(self.poll_period_s) and process.is_alive():
+                pass
+        self._raise_if_dead()  # also when a pipe turned readable because it hit end-of-file
+        return True
+
+    def close_extras(self, timeout: float | None = None, terminate: bool = False) -> None:
+        super().close_extras(timeout, terminate or self.worker_died)
 
 
 # --- warm start: imitate the greedy teacher ---------------------------------------------------
