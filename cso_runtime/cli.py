@@ -370,12 +370,16 @@ def collect_teacher_command(
 ) -> None:
     """Collect a warm-start teacher's decisions once (the rollout teacher costs seconds per decision) for
     several training runs to imitate."""
-    from cso_runtime.learned.ppo import collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
+    from cso_runtime.learned.ppo import EnvWorkerDied, collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
 
     overrides = {"seed": seed, "warm_start_teacher": teacher, "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
     args = training_args(config, overrides, settings)
     t0 = time.time()
-    collected = collect_teacher_parallel(args, workers, decisions, time_limit, log=typer.echo)
+    try:
+        collected = collect_teacher_parallel(args, workers, decisions, time_limit, log=typer.echo)
+    except EnvWorkerDied as exc:
+        typer.echo(f"error: {exc}; nothing was written", err=True)
+        raise typer.Exit(1) from None
     out.parent.mkdir(parents=True, exist_ok=True)
     collected.save(out)
     typer.echo(f"done: {len(collected)} {teacher} decisions in {time.time() - t0:.0f} s -> {out}")

@@ -14,11 +14,10 @@ import logging
 import math
 import multiprocessing
 import re
-import threading
 import time
 import traceback
 from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +28,7 @@ import numpy as np
 from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
+from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, scale_of
 from cso_runtime.simulator import SIMULATORS, make_simulator
@@ -262,33 +262,25 @@ def run_in_processes(jobs: list[EpisodeJob], workers: int, done: Callable[[Episo
     finished with it; those run again, each in a process of its own (still ``workers`` at a time), so
     that one dead process never takes the run down or costs the other episodes. An episode whose
     process dies again is reported as a failure (``WORKER_DIED``)."""
-    ctx = multiprocessing.get_context("spawn")
-    lock = threading.Lock()  # the retries report from several threads
-
-    def in_pool(batch: list[EpisodeJob], width: int) -> list[EpisodeJob]:
-        broken = []
-        with ProcessPoolExecutor(max_workers=width, mp_context=ctx) as pool:
-            futures = {pool.submit(episode, job): job for job in batch}
-            for fut in as_completed(futures):
-                try:
-                    outcome = fut.result()
-                except BrokenProcessPool:
-                    broken.append(futures[fut])
-                    continue
-                with lock:
-                    done(outcome)
-        return broken
-
-    retry = in_pool(jobs, workers)
+    retry = []
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(episode, job): job for job in jobs}
+        for fut in as_completed(futures):
+            try:
+                done(fut.result())
+            except BrokenProcessPool:
+                retry.append(futures[fut])
     if not retry:
         return
     log.warning("a worker process died; running the %d unfinished episode(s) again, one process each", len(retry))
-    with ThreadPoolExecutor(max_workers=workers) as threads:
-        for job, broken in zip(retry, threads.map(lambda job: in_pool([job], 1), retry)):
-            if broken:
-                log.error("%s on %s: %s", job.method, job.scene.name, WORKER_DIED)
-                with lock:
-                    done(EpisodeOutcome(job.method, job.scene.name, error=WORKER_DIED))
+
+    def again(job: EpisodeJob, outcome: EpisodeOutcome | WorkerDied) -> None:
+        if isinstance(outcome, WorkerDied):
+            log.error("%s on %s: %s", job.method, job.scene.name, WORKER_DIED)
+            outcome = EpisodeOutcome(job.method, job.scene.name, error=WORKER_DIED)
+        done(outcome)
+
+    run_each_in_own_process(episode, retry, workers, again)
 
 
 def _mean(rows: list[dict[str, Any]], key: str) -> float | None:

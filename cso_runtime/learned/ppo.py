@@ -36,6 +36,7 @@ from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardC
 from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
 from cso_runtime.learned.registry import VARIANTS, load_checkpoint, save_checkpoint, weights_path
+from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
 
 
@@ -471,16 +472,24 @@ def _collect_worker(job: tuple[Args, list[SceneRef], int, int, float]) -> Teache
 def collect_teacher_parallel(args: Args, workers: int, decisions: int, time_limit_s: float = 0.0, log: Callable[[str], None] = print) -> TeacherData:
     """``collect_teacher`` in ``workers`` processes, one environment each, seeds ``args.seed + i``. Unlike one
     vector env, no worker waits for the slowest (a rollout decision on a super-large plan takes many times
-    one on a small plan)."""
-    import multiprocessing  # noqa: PLC0415
-
+    one on a small plan). A worker that dies (killed, out of memory) costs only its own decisions: the
+    others' are kept, and it is an error only when every worker died."""
     refs = training_scene_refs(args)
     per_worker = max(1, -(-decisions // workers))
     jobs = [(args, refs, args.seed + i, per_worker, time_limit_s) for i in range(workers)]
     log(f"collecting {args.warm_start_teacher} decisions in {workers} processes on {len(refs)} scenes")
-    with multiprocessing.get_context("spawn").Pool(workers) as pool:
-        parts = pool.map(_collect_worker, jobs)
-    return TeacherData.concatenate(parts)
+    parts: dict[int, TeacherData] = {}
+
+    def collected(job: tuple, part: TeacherData | WorkerDied) -> None:
+        if isinstance(part, WorkerDied):
+            log(f"warning: the teacher process with seed {job[2]} died (killed, or out of memory?); its decisions are lost")
+        else:
+            parts[job[2]] = part
+
+    run_each_in_own_process(_collect_worker, jobs, workers, collected)
+    if not parts:
+        raise EnvWorkerDied(f"every one of the {workers} teacher processes died (killed, or out of memory?)")
+    return TeacherData.concatenate([parts[seed] for seed in sorted(parts)])
 
 
 def soft_targets(outcome_steps: torch.Tensor, actions: torch.Tensor, temperature_steps: float) -> torch.Tensor:
