@@ -28,7 +28,7 @@ import numpy as np
 from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
-from cso_runtime.processes import WorkerDied, run_each_in_own_process
+from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, scale_of
 from cso_runtime.simulator import SIMULATORS, make_simulator
@@ -252,6 +252,8 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
     return EpisodeOutcome.finished(job.method, result, row, plan.free, plan.resolution_m)
 
 
+EXIT_INTERRUPTED = 130
+"""Exit code after Ctrl-C (128 + SIGINT, as a shell reports it)."""
 WORKER_DIED = "its worker process died twice (killed, or out of memory?)"
 
 
@@ -263,13 +265,20 @@ def run_in_processes(jobs: list[EpisodeJob], workers: int, done: Callable[[Episo
     that one dead process never takes the run down or costs the other episodes. An episode whose
     process dies again is reported as a failure (``WORKER_DIED``)."""
     retry = []
-    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"), initializer=ignore_sigint)
+    try:
         futures = {pool.submit(episode, job): job for job in jobs}
         for fut in as_completed(futures):
             try:
                 done(fut.result())
             except BrokenProcessPool:
                 retry.append(futures[fut])
+    except BaseException:  # Ctrl-C: stop the running episodes now; the pending ones are dropped below
+        for process in list((getattr(pool, "_processes", None) or {}).values()):
+            process.terminate()
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
     if not retry:
         return
     log.warning("a worker process died; running the %d unfinished episode(s) again, one process each", len(retry))
@@ -338,8 +347,9 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         for m in request.methods
     ]
     outcomes: list[EpisodeOutcome] = []
+    total = len(jobs)
     if progress is not None:
-        progress.start(len(jobs))
+        progress.start(total)
 
     def done(outcome: EpisodeOutcome) -> None:
         outcomes.append(outcome)
@@ -355,11 +365,16 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
             else:
                 done(finished)
         jobs = todo
-    if request.workers == 1:
-        for job in jobs:
-            done(run_job(job))
-    else:
-        run_in_processes(jobs, request.workers, done)
+    interrupted = False
+    try:
+        if request.workers == 1:
+            for job in jobs:
+                done(run_job(job))
+        else:
+            run_in_processes(jobs, request.workers, done)
+    except KeyboardInterrupt:
+        interrupted = True  # the episodes that finished are written below; --resume runs the rest
+        log.warning("interrupted after %d of %d episodes", len(outcomes), total)
     rows = [o.row for o in outcomes if o.row is not None]
     failures = [{"method": o.method, "map": o.map, "error": o.error or ""} for o in outcomes if o.row is None]
     meta = {
@@ -371,6 +386,8 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         "scenes": len(scenes),
         "config": to_dict(config),
     }
+    if interrupted:
+        meta["interrupted"] = {"episodes_finished": len(outcomes), "episodes_planned": total, "resume": "run the same command with --resume"}
     if weights:
         meta["weights"] = weights
     summary = write_outputs(out, rows, failures, request.methods, meta)
@@ -476,4 +493,8 @@ def run_eval_cli(request: EvalRequest) -> int:
     finally:
         progress.stop()
     print_summary(summary, Path(request.out_dir))
+    stopped = summary["meta"].get("interrupted")
+    if stopped:
+        print(f"interrupted: {stopped['episodes_finished']} of {stopped['episodes_planned']} episodes finished; the same command with --resume runs the rest")
+        return EXIT_INTERRUPTED
     return 1 if summary["failures"] else 0

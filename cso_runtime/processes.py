@@ -8,6 +8,7 @@ runs (an evaluation of hundreds of episodes, hours of teacher rollouts) would lo
 from __future__ import annotations
 
 import multiprocessing
+import signal
 import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
@@ -22,6 +23,12 @@ class WorkerDied(RuntimeError):
     """The process running a job died before it returned."""
 
 
+def ignore_sigint() -> None:
+    """Pool initializer: Ctrl-C in a terminal reaches every process of the group, but only the parent
+    should act on it (and stop the workers), or a worker's death would look like a crash."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def run_each_in_own_process(fn: Callable[[J], R], jobs: Sequence[J], workers: int, on_result: Callable[[J, R | WorkerDied], Any]) -> None:
     """``fn(job)`` for every job, each in a fresh spawned process, ``workers`` at a time. ``on_result(job,
     result)`` gets each result as it comes (one call at a time), or a ``WorkerDied`` for a job whose
@@ -30,7 +37,7 @@ def run_each_in_own_process(fn: Callable[[J], R], jobs: Sequence[J], workers: in
     lock = threading.Lock()
 
     def one(job: J) -> None:
-        with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+        with ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=ignore_sigint) as pool:
             try:
                 result: R | WorkerDied = pool.submit(fn, job).result()
             except BrokenProcessPool as exc:
@@ -38,6 +45,9 @@ def run_each_in_own_process(fn: Callable[[J], R], jobs: Sequence[J], workers: in
         with lock:
             on_result(job, result)
 
-    with ThreadPoolExecutor(max_workers=max(1, workers)) as threads:
+    threads = ThreadPoolExecutor(max_workers=max(1, workers))
+    try:
         for _ in threads.map(one, jobs):
             pass  # re-raises the first exception of a job, after the ones before it
+    finally:
+        threads.shutdown(wait=True, cancel_futures=True)  # on Ctrl-C: no new job; the running ones end

@@ -178,3 +178,40 @@ def test_a_dead_worker_costs_only_its_own_episode(tmp_path: Path):
     for name in ("gen_small_0", "gen_small_2", "gen_small_3"):
         assert by_scene[name].row is not None and by_scene[name].row["terminated_by"] == "coverage"
         assert (tmp_path / "episodes" / "greedy-dist" / f"{name}.npz").is_file()
+
+
+def test_ctrl_c_stops_eval_at_once_keeps_the_finished_episodes_and_resume_runs_the_rest(tmp_path: Path):
+    """Ctrl-C reaches the whole process group, as in a terminal: the workers stop, the finished episodes
+    are written (summary.json says it was interrupted), exit code 130; ``--resume`` then runs the rest."""
+    import os
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--method", "random", "--maps", "generated:middle:8:0",
+           "--workers", "2", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 120
+        while not list((out / "episodes" / "random").glob("*.npz")) and time.monotonic() < deadline and proc.poll() is None:
+            time.sleep(0.05)
+        assert proc.poll() is None, "the evaluation ended before it could be interrupted"
+        os.killpg(proc.pid, signal.SIGINT)
+        stdout, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, stdout[-2000:]
+    summary = json.loads((out / "summary.json").read_text())
+    stopped = summary["meta"]["interrupted"]
+    finished = sorted((out / "episodes" / "random").glob("*.npz"))
+    assert 1 <= stopped["episodes_finished"] < 8 and stopped["episodes_planned"] == 8
+    assert summary["methods"]["random"]["episodes"] == stopped["episodes_finished"] == len(finished)
+    assert "--resume runs the rest" in stdout
+    stamps = {p.name: p.stat().st_mtime_ns for p in finished}
+    again = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr[-2000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert "interrupted" not in summary["meta"] and summary["methods"]["random"]["episodes"] == 8
+    assert all((out / "episodes" / "random" / name).stat().st_mtime_ns == t for name, t in stamps.items())
