@@ -339,6 +339,7 @@ def train_command(
     settings: Optional[list[str]] = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
     """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
+    from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
     from cso_runtime.learned.ppo import EnvWorkerDied, train  # noqa: PLC0415 - torch only for this command
 
     overrides = {"variant": variant, "out_dir": str(out) if out else None, "seed": seed, "total_decisions": total_decisions,
@@ -346,13 +347,14 @@ def train_command(
                  "init_from": init_from, "num_envs": num_envs, "async_envs": async_envs,
                  "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
     args = training_args(config, overrides, settings)
+    checkpoint = Path(args.out_dir) / "checkpoint.pt"
     try:
         record = train(args, log=typer.echo)
-    except EnvWorkerDied as exc:
-        checkpoint = Path(args.out_dir) / "checkpoint.pt"
+    except (EnvWorkerDied, KeyboardInterrupt) as exc:
         hint = f"; continue from the last checkpoint with --resume {checkpoint}" if checkpoint.is_file() else ""
-        typer.echo(f"error: training stopped: {exc}{hint}", err=True)
-        raise typer.Exit(1) from None
+        why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"error: training stopped: {exc}"
+        typer.echo(f"{why}{hint}", err=True)
+        raise typer.Exit(EXIT_INTERRUPTED if isinstance(exc, KeyboardInterrupt) else 1) from None
     typer.echo(f"done: {record['ppo_decisions']} PPO decisions, {record['warm_start_decisions']} warm-start decisions, {record['wall_time_s']} s -> {args.out_dir}")
 
 

@@ -26,6 +26,8 @@ class ConfigError(ValueError):
 EXIT_BAD_CONFIG = 2
 """Exit code of a command or service that refuses its configuration. A launcher does not restart a
 service that exits with it: the same configuration would fail the same way."""
+EXIT_INTERRUPTED = 130
+"""Exit code of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it)."""
 
 
 @dataclass

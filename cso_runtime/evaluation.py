@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
+from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process
@@ -252,8 +252,6 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
     return EpisodeOutcome.finished(job.method, result, row, plan.free, plan.resolution_m)
 
 
-EXIT_INTERRUPTED = 130
-"""Exit code after Ctrl-C (128 + SIGINT, as a shell reports it)."""
 WORKER_DIED = "its worker process died twice (killed, or out of memory?)"
 
 

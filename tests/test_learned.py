@@ -622,7 +622,7 @@ def test_distance_prior_starts_the_actor_at_greedy_dist_and_round_trips(tmp_path
 
 def test_a_dead_environment_process_stops_training_with_a_clear_error_not_a_hang():
     """An environment process killed mid-training (as by the OOM killer) is noticed while its answer is
-    awaited: ``EnvWorkerDied`` names it, and closing terminates the others."""
+    awaited: ``EnvWorkerDied`` names it, and closing terminates the others. Workers ignore Ctrl-C."""
     import functools
     import signal
 
@@ -631,7 +631,9 @@ def test_a_dead_environment_process_stops_training_with_a_clear_error_not_a_hang
     envs = WatchedAsyncVectorEnv([functools.partial(gym.make, "CartPole-v1")] * 2, context="spawn")
     try:
         envs.reset(seed=0)
+        os.kill(envs.processes[0].pid, signal.SIGINT)  # Ctrl-C reaches the workers too: only the parent acts on it
         envs.step(np.zeros(2, dtype=np.int64))
+        assert envs.processes[0].is_alive()
         victim = envs.processes[1]
         os.kill(victim.pid, signal.SIGKILL)
         victim.join(10)

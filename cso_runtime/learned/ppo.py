@@ -22,7 +22,7 @@ import random
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -293,6 +293,17 @@ def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.v
     return gym.vector.SyncVectorEnv(fns, autoreset_mode=AutoresetMode.SAME_STEP)
 
 
+def _worker_env(make: Callable[[], gym.Env]) -> gym.Env:
+    """The env of an ``AsyncVectorEnv`` process. Ctrl-C in a terminal reaches every process of the group;
+    only the parent acts on it (it closes the workers), so a worker does not die mid-step with a traceback."""
+    import multiprocessing  # noqa: PLC0415
+    import signal  # noqa: PLC0415
+
+    if multiprocessing.parent_process() is not None:  # not the parent's own dummy env
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+    return make()
+
+
 class EnvWorkerDied(RuntimeError):
     """An environment process of an ``AsyncVectorEnv`` died (killed, out of memory)."""
 
@@ -304,6 +315,9 @@ class WatchedAsyncVectorEnv(gym.vector.AsyncVectorEnv):
 
     poll_period_s = 0.5
     worker_died = False
+
+    def __init__(self, env_fns: Sequence[Callable[[], gym.Env]], **kwargs: Any):
+        super().__init__([functools.partial(_worker_env, fn) for fn in env_fns], **kwargs)
 
     def _raise_if_dead(self) -> None:
         for i, process in enumerate(self.processes):
@@ -351,7 +365,10 @@ class WatchedAsyncVectorEnv(gym.vector.AsyncVectorEnv):
         return True
 
     def close_extras(self, timeout: float | None = None, terminate: bool = False) -> None:
-        super().close_extras(timeout, terminate or self.worker_died)
+        terminate = terminate or self.worker_died
+        if terminate:
+            self._state = AsyncState.DEFAULT  # terminating: do not wait for a step still under way
+        super().close_extras(timeout, terminate)
 
 
 # --- warm start: imitate the greedy teacher ---------------------------------------------------
@@ -618,6 +635,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 
     progress = _progress(args.progress, args.num_updates - start_update + 1)
     update = start_update - 1
+    finished_loop = False
     try:
         for update in range(start_update, args.num_updates + 1):
             if args.anneal_lr:
@@ -719,11 +737,12 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 log(f"time limit reached after update {update}")
                 _save_resumable(out / "checkpoint.pt", model, optimizer, update, global_decisions, warm_decisions, env_steps, record["warm_start"])
                 break
+        finished_loop = True
     finally:
         log_file.close()
         if progress is not None:
             progress.close()
-        envs.close()
+        envs.close(terminate=not finished_loop)  # after an error or Ctrl-C, do not wait for the workers' step
 
     wall = time.time() - t_start
     record.update(
