@@ -28,7 +28,7 @@ import numpy as np
 from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
-from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process
+from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, scale_of
 from cso_runtime.simulator import SIMULATORS, make_simulator
@@ -272,8 +272,7 @@ def run_in_processes(jobs: list[EpisodeJob], workers: int, done: Callable[[Episo
             except BrokenProcessPool:
                 retry.append(futures[fut])
     except BaseException:  # Ctrl-C: stop the running episodes now; the pending ones are dropped below
-        for process in list((getattr(pool, "_processes", None) or {}).values()):
-            process.terminate()
+        terminate_workers(pool)
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)

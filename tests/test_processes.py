@@ -28,3 +28,23 @@ def test_a_dead_process_costs_only_its_own_job():
 def test_an_exception_of_a_job_is_raised_not_swallowed():
     with pytest.raises(ValueError, match="a bad job"):
         run_each_in_own_process(_square_or_die, [2, -1], 2, lambda job, result: None)
+
+
+def _sleep_then_square(n: int) -> int:
+    import time
+
+    time.sleep(n)
+    return n * n
+
+
+def test_an_error_stops_the_running_processes_at_once():
+    """An exception (or Ctrl-C) while jobs run: the running processes are stopped, not waited for."""
+    import time
+
+    def stop_on_first(job, result):
+        raise RuntimeError(f"stop after job {job}")
+
+    t0 = time.monotonic()
+    with pytest.raises(RuntimeError, match="stop after job 0"):
+        run_each_in_own_process(_sleep_then_square, [0, 60], 2, stop_on_first)
+    assert time.monotonic() - t0 < 20  # the 60 s job was terminated
