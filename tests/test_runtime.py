@@ -442,6 +442,36 @@ def test_a_killed_sim_restarts_the_episode_and_it_ends_as_a_fresh_one(tmp_path):
         assert kill_leftovers(runs) == []
 
 
+def test_the_readme_main_command_explores_with_the_mujoco_limo_and_the_learned_policy(tmp_path):
+    """``cso-runtime up --profile sim`` exactly as README runs it (the shipped profile: the MuJoCo LIMO in real
+    time, the shipped ``cso`` weights, the embedded router on a free loopback port): every service comes up,
+    the policy makes decisions and the map grows; ``save-map`` gets the map; ``down`` leaves no process."""
+    runs = tmp_path / "runs"
+    r = cli("up", "--profile", "sim", "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+    assert r.returncode == 0, r.stderr[-3000:]
+    try:
+        info = json.loads((runs / "current.json").read_text())
+
+        def exploring() -> dict | None:
+            s = query_status(info["endpoints"], info["robot"], timeout_s=0.5)
+            return s if s and s["state"] == "exploring" and s["decisions"] >= 2 and s["coverage_pct"] > 5.0 else None
+
+        s = wait_for(exploring, 120, "decisions and a growing map", period_s=0.2)
+        assert s["method"] == "cso" and s["scene"] == "gen_middle_0" and s["last_decision_ms"] > 0
+        assert all(svc["alive"] for svc in s["services"].values()), s["services"]
+        r = cli("save-map", "-f", str(tmp_path / "live"), "--format", "png", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0, r.stdout + r.stderr
+        grid, _ = load_map(tmp_path / "live.yaml")
+        assert (grid == 0).sum() * 0.05**2 > 1.0  # square metres of free space seen
+        pids = run_pids(runs)
+        r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stderr
+        assert [p for p in pids if pid_alive(p)] == []
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        kill_leftovers(runs)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT])
 def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
     profile = write_profile(tmp_path, min_step_period_s=0.2)
