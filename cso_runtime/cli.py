@@ -340,7 +340,8 @@ def train_command(
 ) -> None:
     """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
     from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
-    from cso_runtime.learned.ppo import EnvWorkerDied, train  # noqa: PLC0415 - torch only for this command
+    from cso_runtime.learned.ppo import train  # noqa: PLC0415 - torch only for this command
+    from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
 
     overrides = {"variant": variant, "out_dir": str(out) if out else None, "seed": seed, "total_decisions": total_decisions,
                  "time_limit_s": time_limit, "resume": str(resume) if resume else None, "device": device,
@@ -372,7 +373,8 @@ def collect_teacher_command(
 ) -> None:
     """Collect a warm-start teacher's decisions once (the rollout teacher costs seconds per decision) for
     several training runs to imitate."""
-    from cso_runtime.learned.ppo import EnvWorkerDied, collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
+    from cso_runtime.learned.ppo import collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
+    from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
 
     overrides = {"seed": seed, "warm_start_teacher": teacher, "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
     args = training_args(config, overrides, settings)

@@ -21,8 +21,6 @@ from cso_runtime.learned.graph import GraphConfig, build_graph
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.ppo import (
     Args,
-    EnvWorkerDied,
-    WatchedAsyncVectorEnv,
     build_model,
     compute_gae,
     episode_returns,
@@ -31,6 +29,7 @@ from cso_runtime.learned.ppo import (
     train,
 )
 from cso_runtime.learned.registry import LearnedPolicy, has_method, load_checkpoint, save_checkpoint
+from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.masks import valid_distance_mask
 from cso_runtime.policies import Goal, goal_of, make_policy
 from cso_runtime.scenes import FloorPlan

@@ -11,7 +11,6 @@ the run go to ``out_dir``.
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
 import functools
@@ -22,13 +21,12 @@ import random
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
 import torch
 from gymnasium.vector import AutoresetMode
-from gymnasium.vector.async_vector_env import AsyncState
 from torch import nn, optim
 
 from cso_runtime.config import ExplorationConfig, SensorConfig
@@ -36,6 +34,7 @@ from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardC
 from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
 from cso_runtime.learned.registry import VARIANTS, load_checkpoint, save_checkpoint, weights_path
+from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
 
@@ -291,84 +290,6 @@ def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.v
     if args.async_envs:
         return WatchedAsyncVectorEnv(fns, autoreset_mode=AutoresetMode.SAME_STEP, context="spawn")
     return gym.vector.SyncVectorEnv(fns, autoreset_mode=AutoresetMode.SAME_STEP)
-
-
-def _worker_env(make: Callable[[], gym.Env]) -> gym.Env:
-    """The env of an ``AsyncVectorEnv`` process. Ctrl-C in a terminal reaches every process of the group;
-    only the parent acts on it (it closes the workers), so a worker does not die mid-step with a traceback."""
-    import multiprocessing  # noqa: PLC0415
-    import signal  # noqa: PLC0415
-
-    if multiprocessing.parent_process() is not None:  # not the parent's own dummy env
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
-    return make()
-
-
-class EnvWorkerDied(RuntimeError):
-    """An environment process of an ``AsyncVectorEnv`` died (killed, out of memory)."""
-
-
-class WatchedAsyncVectorEnv(gym.vector.AsyncVectorEnv):
-    """``AsyncVectorEnv`` that notices a dead environment process instead of waiting for its answer
-    forever or failing with a bare broken pipe: ``reset``, ``step`` and ``call`` raise ``EnvWorkerDied``
-    naming the process, and closing then terminates the others."""
-
-    poll_period_s = 0.5
-    worker_died = False
-
-    def __init__(self, env_fns: Sequence[Callable[[], gym.Env]], **kwargs: Any):
-        super().__init__([functools.partial(_worker_env, fn) for fn in env_fns], **kwargs)
-
-    def _raise_if_dead(self) -> None:
-        for i, process in enumerate(self.processes):
-            if not process.is_alive():
-                self.worker_died = True
-                self._state = AsyncState.DEFAULT
-                raise EnvWorkerDied(f"environment process {i} (pid {process.pid}) died with exit code {process.exitcode}")
-
-    @contextlib.contextmanager
-    def _watching(self) -> Iterator[None]:
-        """A dead process breaks its pipe, on sending or on receiving: say which one died (it may take
-        a moment to be reaped) and leave this env ready to close."""
-        try:
-            yield
-        except (BrokenPipeError, ConnectionResetError, EOFError) as exc:
-            self.worker_died = True
-            self._state = AsyncState.DEFAULT
-            for _ in range(20):
-                self._raise_if_dead()
-                time.sleep(0.1)
-            raise EnvWorkerDied(f"lost the pipe to an environment process ({type(exc).__name__}: {exc})") from exc
-
-    def reset(self, *args: Any, **kwargs: Any) -> Any:
-        with self._watching():
-            return super().reset(*args, **kwargs)
-
-    def step(self, actions: Any) -> Any:
-        with self._watching():
-            return super().step(actions)
-
-    def call(self, name: str, *args: Any, **kwargs: Any) -> Any:
-        with self._watching():
-            return super().call(name, *args, **kwargs)
-
-    def _poll_pipe_envs(self, timeout: float | None = None) -> bool:
-        """Without a timeout the base class waits on each pipe for good; a process that died without
-        closing its end would never answer. Wait in short polls and check the processes in between."""
-        if timeout is not None:
-            return super()._poll_pipe_envs(timeout)
-        self._assert_is_running()
-        for pipe, process in zip(self.parent_pipes, self.processes):
-            while not pipe.poll(self.poll_period_s) and process.is_alive():
-                pass
-        self._raise_if_dead()  # also when a pipe turned readable because it hit end-of-file
-        return True
-
-    def close_extras(self, timeout: float | None = None, terminate: bool = False) -> None:
-        terminate = terminate or self.worker_died
-        if terminate:
-            self._state = AsyncState.DEFAULT  # terminating: do not wait for a step still under way
-        super().close_extras(timeout, terminate)
 
 
 # --- warm start: imitate the greedy teacher ---------------------------------------------------
