@@ -201,6 +201,9 @@ def load_profile(
         if not isinstance(services, dict) or "ros2_bridge" not in services:
             raise ConfigError(f"--namespace needs a profile with the ros2_bridge service (e.g. limo-ros2); {path} has none")
         services["ros2_bridge"] = {**(services["ros2_bridge"] or {}), "namespace": namespace}
+    scene = data.get("scene")
+    if isinstance(scene, str) and scene != "builtin" and not scene.startswith("generated:") and Path(scene).exists():
+        data["scene"] = str(Path(scene).resolve())  # so the run's copy of the profile works from any folder
     data.setdefault("name", path.stem)
     profile = from_dict(Profile, data, where=str(path))
     return profile, data

@@ -220,6 +220,18 @@ def test_bad_profiles_fail_before_anything_starts(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, monkeypatch):
+    """``up --scene office.yaml`` from a folder: the run's profile copy (``runs/<id>/profile.yaml``, which
+    ``cso-runtime service ... --config`` takes) must name the same file from anywhere."""
+    from cso_runtime.launcher import load_profile
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copy(REPO / "cso_runtime" / "data" / "scenes" / "img_1.png", tmp_path / "office.png")
+    profile, data = load_profile("lockstep", {"scene": "office.png"})
+    assert data["scene"] == profile.scene == str(tmp_path / "office.png")
+    assert load_profile("lockstep", {"scene": "generated:small:2:0"})[1]["scene"] == "generated:small:2:0"
+
+
 def test_a_service_that_refuses_its_configuration_is_not_restarted(tmp_path):
     """Exit code 2 (a configuration the service refuses) would repeat on every restart: the launcher
     gives up on that service at once and says why; any other exit is restarted with back-off."""
