@@ -448,15 +448,17 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
 
     table = Table(title=f"Table 1 metrics ({out_dir}/summary.json)")
     table.add_column("method", no_wrap=True)  # method names are what a reader looks for: never cut
+    table.add_column("scale", no_wrap=True)
     for col in ("episodes", "explored m2", "coverage %", "steps", "m2/step", "path m", "decision ms p50/p99"):
         table.add_column(col, justify="right")
 
     def fmt(v: Any, nd: int) -> str:
         return "-" if v is None else f"{v:.{nd}f}"
 
-    for method, e in summary["methods"].items():
+    def row(method: str, scale: str, e: dict[str, Any]) -> None:
         table.add_row(
             method,
+            scale,
             str(e["episodes"]),
             fmt(e["explored_area_m2"], 1),
             fmt(e["coverage_pct"], 2),
@@ -465,6 +467,15 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
             fmt(e["path_length_m"], 1),
             f"{fmt(e['decision_ms_p50'], 1)}/{fmt(e['decision_ms_p99'], 1)}",
         )
+
+    for method, e in summary["methods"].items():
+        scales = e.get("by_scale") or {}
+        if len(scales) == 1:
+            row(method, next(iter(scales)), e)
+            continue
+        for scale, part in scales.items():  # as the paper's Table 1: one block per scale
+            row(method, scale, part)
+        row(method, "all", e)
     console = Console()
     if not console.is_terminal:  # logs and CI: wide enough for every column instead of 80 characters
         console = Console(width=max(console.width, 120))

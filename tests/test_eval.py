@@ -215,3 +215,19 @@ def test_ctrl_c_stops_eval_at_once_keeps_the_finished_episodes_and_resume_runs_t
     summary = json.loads((out / "summary.json").read_text())
     assert "interrupted" not in summary["meta"] and summary["methods"]["random"]["episodes"] == 8
     assert all((out / "episodes" / "random" / name).stat().st_mtime_ns == t for name, t in stamps.items())
+
+
+def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_path: Path, capsys):
+    from cso_runtime.evaluation import print_summary, summarize
+
+    def row(method: str, scale: str, m2: float) -> dict:
+        return {"method": method, "scale": scale, "terminated_by": "coverage", "explored_area_m2": m2, "coverage_pct": 99.5,
+                "steps": 100, "efficiency_m2_per_step": m2 / 100, "path_length_m": 10.0, "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}
+
+    rows = [row("greedy-dist", "small", 20.0), row("greedy-dist", "middle", 60.0), row("random", "small", 20.0)]
+    print_summary(summarize(rows, [], ["greedy-dist", "random"], {}), tmp_path)
+    lines = capsys.readouterr().out.splitlines()
+    cells = [[c.strip() for c in line.split("│")[1:3]] for line in lines if line.startswith("│")]
+    assert cells == [["greedy-dist", "small"], ["greedy-dist", "middle"], ["greedy-dist", "all"], ["random", "small"]]
+    middle = next(line for line in lines if "middle" in line)
+    assert "0.6000" in middle and "60.0" in middle  # that scale's own means, not the method's
