@@ -63,6 +63,12 @@ def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_fo
 
 def load_map(yaml_path: Path) -> tuple[np.ndarray, GridGeometry]:
     """A map_server map as (int8 OccupancyGrid values with row 0 at the origin, its geometry)."""
+    grid, geometry, _ = load_map_and_meta(yaml_path)
+    return grid, geometry
+
+
+def load_map_and_meta(yaml_path: Path) -> tuple[np.ndarray, GridGeometry, dict]:
+    """``load_map`` plus the YAML's whole mapping (keys map_server ignores, such as a scene's ``start``)."""
     yaml_path = Path(yaml_path)
     try:
         meta = yaml.safe_load(yaml_path.read_text())
@@ -117,7 +123,7 @@ def load_map(yaml_path: Path) -> tuple[np.ndarray, GridGeometry]:
         if alpha is not None:
             grid[alpha < 255] = UNKNOWN  # map_server: transparent pixels are unknown
     geometry = GridGeometry(resolution, (int(grid.shape[0]), int(grid.shape[1])), x0, y0)
-    return np.flipud(grid).copy(), geometry
+    return np.flipud(grid).copy(), geometry, meta
 
 
 def _number(v: object, path: Path, key: str) -> float:

@@ -125,16 +125,14 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     unknown cells are walls. The world frame is the map's lower-left corner, at the map's own
     resolution. The start is the YAML's optional ``start: [x_m, y_m, yaw_rad]`` (map frame; map_server
     ignores the key), else the free cell farthest from any wall in the largest free region."""
-    import yaml  # noqa: PLC0415
-
-    from cso_runtime.map_files import MapFileError, load_map  # noqa: PLC0415 - PIL only for map input
+    from cso_runtime.map_files import MapFileError, load_map_and_meta  # noqa: PLC0415 - PIL only for map input
 
     p = Path(path)
     if not p.is_file():
         raise SceneError(f"{p.name}: file not found ({p})")
     try:
-        grid, geometry = load_map(p)
-        start = (yaml.safe_load(p.read_text()) or {}).get("start")
+        grid, geometry, meta = load_map_and_meta(p)
+        start = meta.get("start")
     except MapFileError as exc:
         raise SceneError(str(exc)) from None
     free = grid == 0
