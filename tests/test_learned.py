@@ -296,6 +296,29 @@ def test_make_policy_cso_uses_the_shipped_weights():
     assert not has_method("no-such-variant")
 
 
+@pytest.mark.parametrize("variant", ["cso", "cso-no-info", "cso-no-mask", "cso-sm", "cso-vdm", "gnn-baseline"])
+def test_shipped_weights_match_the_training_config(variant, monkeypatch):
+    """configs/train.yaml says it reproduces the shipped weights: each shipped checkpoint's graph and network
+    settings are the ones ``train --config configs/train.yaml --variant V`` builds, and its JSON record names
+    that command."""
+    import json  # noqa: PLC0415
+    from pathlib import Path  # noqa: PLC0415
+
+    from cso_runtime.cli import training_args  # noqa: PLC0415
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path  # noqa: PLC0415
+
+    monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)
+    config = Path(__file__).resolve().parents[1] / "configs" / "train.yaml"
+    args = training_args(config, {"variant": variant}, [])
+    model, graph, _ = load_checkpoint(weights_path(variant))
+    expected = build_model(args, torch.device("cpu")).config
+    assert graph == args.env_config().graph
+    assert model.config == expected
+    record = json.loads(weights_path(variant).with_suffix(".json").read_text())
+    assert record["command"] == f"cso-runtime train --config configs/train.yaml --variant {variant}"
+    assert record["args"]["cluster_size_feature"] == args.cluster_size_feature
+
+
 def test_fine_tuning_starts_from_the_given_weights_and_checks_the_variant(tmp_path):
     """``init_from`` loads the weights before PPO (no warm start); a file of another variant is refused."""
     plan = rooms_plan(2)
@@ -428,7 +451,7 @@ def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_
 
 def test_cluster_size_feature_is_optional_and_round_trips(tmp_path, observation):
     """``cluster_size_feature`` adds one node column (each cluster's length, scale-free); graphs and
-    networks without it keep the six columns of the shipped weights. A checkpoint with it reloads with
+    networks without it keep six columns. A checkpoint with it reloads with
     it and decides as before."""
     plain, sized = GraphConfig(), GraphConfig(use_cluster_size=True)
     g0, g1 = build_graph(observation, plain), build_graph(observation, sized)

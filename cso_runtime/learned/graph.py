@@ -15,9 +15,11 @@ Node features (``NODE_FEATURES``), all scale-free:
   geodesic      log(1 + l / distance_scale_m) of the geodesic distance from the robot (an addition
                 to the paper's five features: the robot<->node edge repeated on the node, so the
                 actor sees it without a message-passing hop);
-  size          only with ``GraphConfig.use_cluster_size`` (another addition, off in the shipped
+  size          only with ``GraphConfig.use_cluster_size`` (another addition, on in the shipped
                 weights): log(1 + cluster length / distance_scale_m), the gain that explore_lite's
-                utility weighs against the distance; I alone is local to the goal cell.
+                utility weighs against the distance; I alone is local to the goal cell. When the
+                learned policy leaves greedy-dist's order, it is mostly for a shorter cluster a little
+                further away, which the paper's features cannot tell apart (BENCHMARKS.md).
 
 Edges (a choice made for speed, stated here as the docstring must): computing geodesic distances
 between all pairs of nodes would need one fast-marching pass per node. Instead, the robot's own
