@@ -81,6 +81,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("episodes", nargs="+", type=labelled, help="episodes.csv files written by cso-runtime eval, each optionally LABEL=FILE")
     p.add_argument("--baseline", default="greedy-dist")
     args = p.parse_args(argv)
+    missing = [str(path) for _, path in args.episodes if not path.is_file()]
+    if missing:
+        p.error(f"no such file: {', '.join(missing)}")
     print(HEADER)
     for line in rows(load(args.episodes), args.baseline):
         print(line)
