@@ -25,6 +25,7 @@ import zenoh
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import TERMINATED_COVERAGE, TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER, GroundTruthMetrics
 from cso_runtime.geometry import LaserScan, VelocityCommand
+from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import (
     ClockMsg,
     CmdVelMsg,
@@ -64,8 +65,14 @@ class SimParams:
     """Lockstep: the episode fails when one step waits longer than this."""
     min_step_period_s: float = 0.0
     """Lockstep: wall-clock floor per step (0 = as fast as the pipeline; demos and tests slow it)."""
+    wait_for_services_s: float = 30.0
+    """Before step 0, wait (wall clock, at most this long) until every other service of the profile has
+    declared its liveliness token, so that none misses step 0: a policy that loads torch and its weights
+    comes up a second after the others, and its first decision used to wait for a lockstep re-publish.
+    After this long the episode starts anyway, with a warning that names the missing services."""
     start_delay_s: float = 0.5
-    """Wait this long after start before step 0, so subscribers have joined (then re-publishing covers it)."""
+    """Then wait this long before step 0, so the services' subscriptions have reached every peer
+    (re-publishing the step covers a miss)."""
     status_period_s: float = 0.1
     """``episode/status`` goes out at the end of the episode and otherwise at most this often (wall
     clock), so that its listeners (the launcher's live view) are not woken on every step; ``cso-runtime
@@ -77,8 +84,8 @@ class SimParams:
         for name in ("real_time_factor", "cmd_timeout_s", "lockstep_timeout_s", "lockstep_give_up_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
-        if self.min_step_period_s < 0 or self.start_delay_s < 0 or self.status_period_s < 0:
-            raise ConfigError("min_step_period_s, start_delay_s and status_period_s must be >= 0")
+        if min(self.min_step_period_s, self.start_delay_s, self.status_period_s, self.wait_for_services_s) < 0:
+            raise ConfigError("min_step_period_s, start_delay_s, status_period_s and wait_for_services_s must be >= 0")
 
 
 def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceContext) -> Simulator:
@@ -133,19 +140,32 @@ class SimService(Service):
         self.goal_xy: list[float] | None = None
         self.last_cmd: tuple[CmdVelMsg, float] | None = None
         self.started_s = time.monotonic()
+        self.expected_services = {name for name in ctx.profile.get("services") or {} if name != ctx.name}
+        """The profile's other services: step 0 waits for their liveliness tokens (``wait_for_services_s``)."""
+        self.alive_services: set[str] = set()
+        self.services_ready_s: float | None = None if self.expected_services else self.started_s
         self.step_started_s = math.inf
         self.last_publish_s = 0.0
         self.status_published_s = -math.inf
         self.timeouts = 0
         self.result: EpisodeResultMsg | None = None
-        self._queryables: list[Any] = []
+        self._declarations: list[Any] = []
 
     # --- wiring ---------------------------------------------------------------------------------
     def start(self) -> None:
         assert self.session is not None
         keys = self.ctx.keys
-        self._queryables.append(self.session.declare_queryable(keys.episode_status, self._on_status_query))
-        self._queryables.append(self.session.declare_queryable(keys.episode_result, self._on_result_query))
+        self._declarations.append(self.session.declare_queryable(keys.episode_status, self._on_status_query))
+        self._declarations.append(self.session.declare_queryable(keys.episode_result, self._on_result_query))
+        if self.expected_services:  # any robot's: one policy server may serve several robots under its own id
+            self._declarations.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("*"), self.on_alive, history=True))
+
+    def on_alive(self, sample: Any) -> None:
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        if str(sample.kind).endswith("PUT"):
+            self.alive_services.add(name)
+        else:
+            self.alive_services.discard(name)
 
     def _on_status_query(self, query: zenoh.Query) -> None:
         query.reply(self.ctx.keys.episode_status, encode(self.episode_status()))
@@ -334,7 +354,14 @@ class SimService(Service):
 
     def on_tick(self, now_s: float) -> None:
         if self.episode_state == "starting":
-            if now_s - self.started_s >= self.params.start_delay_s:
+            if self.services_ready_s is None:
+                missing = self.expected_services - self.alive_services
+                if missing and now_s - self.started_s < self.params.wait_for_services_s:
+                    return
+                if missing:
+                    log.warning("starting the episode without %s: no liveliness token after %.0f s", ", ".join(sorted(missing)), now_s - self.started_s)
+                self.services_ready_s = now_s
+            if now_s - self.services_ready_s >= self.params.start_delay_s:
                 self.episode_state = "exploring"
                 self.step_started_s = now_s
                 self.publish_step()

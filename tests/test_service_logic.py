@@ -208,6 +208,51 @@ def test_lockstep_planner_command_computed_ahead_is_the_one_computed_on_the_verd
         assert len(a) == 12 and a == b, topic
 
 
+def test_sim_starts_the_episode_when_every_service_of_the_profile_is_alive():
+    """Step 0 waits for the liveliness tokens of the profile's other services (a policy loading torch comes
+    up last; before, its first decision waited a second for a lockstep re-publish), then start_delay_s;
+    after wait_for_services_s it starts without the missing ones."""
+    from types import SimpleNamespace  # noqa: PLC0415
+
+    from services.sim import SimService  # noqa: PLC0415
+
+    profile = {"lockstep": True, "scene": "generated:small:1:0", "seed": 3, "services": {"sim": {}, "mapper": {}, "policy": {}}}
+
+    def sim(params: dict) -> tuple[SimService, list]:
+        svc = SimService(ServiceContext("sim", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params))
+        out: list = []
+        svc.publish = lambda topic, msg, robot=None: out.append(topic)  # type: ignore[method-assign]
+        return svc, out
+
+    def token(name: str, kind: str = "SampleKind.PUT") -> SimpleNamespace:
+        return SimpleNamespace(key_expr=f"cso/r0/alive/{name}", kind=kind)
+
+    svc, out = sim({"start_delay_s": 0.2})
+    assert svc.expected_services == {"mapper", "policy"}
+    t0 = svc.started_s
+    svc.on_alive(token("mapper"))
+    svc.on_tick(t0 + 5.0)
+    assert svc.episode_state == "starting" and "scan" not in out  # the policy is not up yet
+    svc.on_alive(token("policy"))
+    svc.on_alive(token("mapper", "SampleKind.DELETE"))
+    svc.on_tick(t0 + 5.1)
+    assert svc.episode_state == "starting"  # the mapper went away again
+    svc.on_alive(token("mapper"))
+    svc.on_tick(t0 + 5.2)
+    assert svc.episode_state == "starting"  # all up: start_delay_s from now
+    svc.on_tick(t0 + 5.3)
+    assert svc.episode_state == "starting"
+    svc.on_tick(t0 + 5.45)
+    assert svc.episode_state == "exploring" and "scan" in out
+
+    late, out = sim({"start_delay_s": 0.0, "wait_for_services_s": 2.0})
+    late.on_alive(token("mapper"))
+    late.on_tick(late.started_s + 1.9)
+    assert late.episode_state == "starting"
+    late.on_tick(late.started_s + 2.0)  # the policy never came: start anyway (logged), the re-publishing covers it
+    assert late.episode_state == "exploring" and "scan" in out
+
+
 def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
     """The sim steps ahead on the planner's provisional command while the map travels; with the same
     final command it publishes the stored result, with another it steps afresh. Either way every scan
