@@ -36,7 +36,7 @@ from cso_runtime.config import EXIT_BAD_CONFIG, ConfigError, ExplorationConfig, 
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
 from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, Message, MessageError, PathMsg, decode, encode
 from cso_runtime.scenes import SceneError, resolve_scenes
-from cso_runtime.transport import TransportConfig, free_tcp_port, open_session
+from cso_runtime.transport import TransportConfig, free_tcp_port, open_session, track_liveliness
 
 log = logging.getLogger("cso.launcher")
 
@@ -362,11 +362,7 @@ class Launcher:
         query.reply(self.keys.launcher_status, encode(self.launcher_status()))
 
     def _on_alive(self, sample: Any) -> None:
-        name = str(sample.key_expr).rsplit("/", 1)[-1]
-        if str(sample.kind).endswith("PUT"):
-            self.alive_services.add(name)
-        else:
-            self.alive_services.discard(name)
+        track_liveliness(self.alive_services, sample)
 
     def launcher_status(self) -> LauncherStatusMsg:
         services = {

@@ -11,6 +11,7 @@ import json
 import os
 import socket
 from dataclasses import dataclass, field
+from typing import Any
 
 import zenoh
 
@@ -95,3 +96,13 @@ def free_tcp_port(host: str = "127.0.0.1") -> int:
 
 def loopback_endpoint(port: int) -> str:
     return f"tcp/127.0.0.1:{port}"
+
+
+def track_liveliness(alive: set[str], sample: Any) -> None:
+    """Keep ``alive`` (service names) up to date from a liveliness sample on ``cso/<robot>/alive/<service>``:
+    a token declared adds its service, one undeclared (or lost with its process) removes it."""
+    name = str(sample.key_expr).rsplit("/", 1)[-1]
+    if str(sample.kind).endswith("PUT"):
+        alive.add(name)
+    else:
+        alive.discard(name)

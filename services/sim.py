@@ -42,6 +42,7 @@ from cso_runtime.messages import (
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import Simulator, make_simulator
+from cso_runtime.transport import track_liveliness
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.sim")
@@ -161,11 +162,7 @@ class SimService(Service):
             self._declarations.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("*"), self.on_alive, history=True))
 
     def on_alive(self, sample: Any) -> None:
-        name = str(sample.key_expr).rsplit("/", 1)[-1]
-        if str(sample.kind).endswith("PUT"):
-            self.alive_services.add(name)
-        else:
-            self.alive_services.discard(name)
+        track_liveliness(self.alive_services, sample)
 
     def _on_status_query(self, query: zenoh.Query) -> None:
         query.reply(self.ctx.keys.episode_status, encode(self.episode_status()))
