@@ -32,9 +32,11 @@ def rows(summary: dict) -> list[str]:
 
 
 def main(paths: list[str]) -> None:
+    if not paths:
+        raise SystemExit(__doc__)
     missing = [p for p in paths if not Path(p).is_file()]
-    if missing or not paths:
-        raise SystemExit(f"usage: python benchmarks/tables.py SUMMARY.json [...]\nerror: no such file: {', '.join(missing)}" if missing else __doc__)
+    if missing:
+        raise SystemExit(f"error: no such file: {', '.join(missing)}")
     print(HEADER)
     print("| --- " * 9 + "|")
     for p in paths:
