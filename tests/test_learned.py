@@ -17,7 +17,7 @@ from cso_runtime.config import MaskConfig
 from cso_runtime.episode import Explorer, rollout_choice
 from cso_runtime.geometry import Pose2D
 from cso_runtime.learned.env import EnvConfig, ExplorationEnv, expert_action
-from cso_runtime.learned.graph import GraphConfig, build_graph
+from cso_runtime.learned.graph import GraphConfig, build_graph, node_features
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.ppo import (
     Args,
@@ -471,6 +471,27 @@ def test_cluster_size_feature_is_optional_and_round_trips(tmp_path, observation)
     assert graph == sized and loaded.config.node_features == 7
     a, b = (LearnedPolicy("cso", m, sized, MaskConfig()) for m in (model, loaded))
     assert a.select(observation) == b.select(observation)
+
+
+def test_unknown_area_feature_counts_unexplored_cells_around_each_cluster(observation):
+    """``unknown_area_feature`` adds one node column: the unexplored fraction of a square window around each
+    cluster's centroid (a brute-force count here), 0 on path nodes; the other columns are unchanged."""
+    base, extra = GraphConfig(use_cluster_size=True), GraphConfig(use_cluster_size=True, use_unknown_area=True, unknown_window_m=3.0)
+    g0, g1 = build_graph(observation, base), build_graph(observation, extra)
+    assert node_features(extra)[-1] == "unknown" and g1["nodes"].shape[1] == g0["nodes"].shape[1] + 1
+    np.testing.assert_array_equal(g1["nodes"][:, :-1], g0["nodes"])
+    nf = min(len(observation.clusters), extra.max_frontier_nodes)
+    geo, unknown = observation.geometry, ~observation.explored
+    half = int(round(3.0 / geo.resolution_m / 2))
+    expected = []
+    for c in observation.clusters[:nf]:
+        iy, ix = (int(v) for v in geo.world_to_cell(*c.centroid_xy_m))
+        window = unknown[max(iy - half, 0) : iy + half + 1, max(ix - half, 0) : ix + half + 1]
+        expected.append(window.sum() / (2 * half + 1) ** 2)
+    np.testing.assert_allclose(g1["nodes"][:nf, -1], expected, rtol=1e-6)
+    assert 0 < min(expected) < max(expected) <= 1 and (g1["nodes"][nf:, -1] == 0).all()
+    args = Args(cluster_size_feature=True, unknown_area_feature=True)
+    assert args.env_config().graph.use_unknown_area and build_model(args, torch.device("cpu")).config.node_features == 8
 
 
 def test_training_sensor_follows_the_config():

@@ -20,6 +20,10 @@ Node features (``NODE_FEATURES``), all scale-free:
                 utility weighs against the distance; I alone is local to the goal cell. When the
                 learned policy leaves greedy-dist's order, it is mostly for a shorter cluster a little
                 further away, which the paper's features cannot tell apart (BENCHMARKS.md).
+  unknown       only with ``GraphConfig.use_unknown_area``: the fraction of unexplored cells in a square
+                of side ``unknown_window_m`` around the cluster's centroid (cells off the map count as
+                explored). A short frontier with little unknown behind it is a pocket that is cheap to
+                close now and dear to come back to.
 
 Edges (a choice made for speed, stated here as the docstring must): computing geodesic distances
 between all pairs of nodes would need one fast-marching pass per node. Instead, the robot's own
@@ -62,6 +66,10 @@ class GraphConfig:
     """gamma of Eq. 4, used to make I scale-free (match FrontierConfig.entropy_window_m)."""
     use_cluster_size: bool = False
     """Add the ``size`` node feature (each frontier cluster's length)."""
+    use_unknown_area: bool = False
+    """Add the ``unknown`` node feature (unexplored fraction around each cluster)."""
+    unknown_window_m: float = 5.0
+    """Side of the square window of the ``unknown`` feature."""
     egocentric: bool = False
     """Rotate dx, dy into the robot's frame (x forward, y left), so the network sees which frontiers lie
     behind the robot (turning in place is slow). Off in the shipped weights: there, dx, dy are along the
@@ -78,7 +86,7 @@ class GraphConfig:
 
 def node_features(config: GraphConfig) -> tuple[str, ...]:
     """The node feature columns of graphs built with ``config``."""
-    return NODE_FEATURES + (("size",) if config.use_cluster_size else ())
+    return NODE_FEATURES + (("size",) if config.use_cluster_size else ()) + (("unknown",) if config.use_unknown_area else ())
 
 
 def empty_graph(config: GraphConfig) -> dict[str, np.ndarray]:
@@ -142,6 +150,8 @@ def build_graph(obs: Observation, config: GraphConfig) -> dict[str, np.ndarray]:
     feats[:n, 5] = np.log1p(geo / scale)
     if config.use_cluster_size and nf:
         feats[:nf, 6] = np.log1p(np.array([c.size_m for c in obs.clusters[:nf]], dtype=float) / scale)
+    if config.use_unknown_area and nf:
+        feats[:nf, node_features(config).index("unknown")] = unknown_fraction(obs, nf, config.unknown_window_m)
     g["node_valid"][:n] = True
 
     # neighbours: the knn nearest non-robot nodes by Euclidean distance (itself included), found with
@@ -169,3 +179,19 @@ def build_graph(obs: Observation, config: GraphConfig) -> dict[str, np.ndarray]:
     g["edges"][:n, :, 1] = np.log1p(l_ij)
     g["robot"] = np.array(robot, dtype=np.int64)
     return g
+
+
+def unknown_fraction(obs: Observation, nf: int, window_m: float) -> np.ndarray:
+    """Fraction of unexplored cells in a ``window_m`` square around each of the first ``nf`` clusters'
+    centroids, from one summed-area table of the map (cells off the map count as explored)."""
+    unknown = ~np.asarray(obs.explored, dtype=bool)
+    table = np.zeros((unknown.shape[0] + 1, unknown.shape[1] + 1), dtype=np.int64)
+    np.cumsum(np.cumsum(unknown, axis=0, dtype=np.int64), axis=1, out=table[1:, 1:])
+    cxy = np.array([c.centroid_xy_m for c in obs.clusters[:nf]], dtype=float).reshape(-1, 2)
+    iy, ix = obs.geometry.world_to_cell(cxy[:, 0], cxy[:, 1])
+    half = max(1, int(round(window_m / obs.geometry.resolution_m / 2)))
+    h, w = unknown.shape
+    y0, y1 = np.clip(iy - half, 0, h), np.clip(iy + half + 1, 0, h)
+    x0, x1 = np.clip(ix - half, 0, w), np.clip(ix + half + 1, 0, w)
+    count = table[y1, x1] - table[y0, x1] - table[y1, x0] + table[y0, x0]
+    return count / float((2 * half + 1) ** 2)

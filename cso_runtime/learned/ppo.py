@@ -115,6 +115,8 @@ class Args:
     max_path_nodes: int = 20
     cluster_size_feature: bool = False
     """Give the network each frontier cluster's length as a node feature (``graph.node_features``)."""
+    unknown_area_feature: bool = False
+    """Give the network the unexplored fraction around each frontier cluster (``graph.unknown_fraction``)."""
     egocentric_frame: bool = False
     """Node positions in the robot's frame instead of the map's axes (``GraphConfig.egocentric``)."""
     distance_prior: float = 0.0
@@ -170,6 +172,7 @@ class Args:
             use_entropy=v.use_entropy,
             entropy_window_m=exploration.frontier.entropy_window_m,
             use_cluster_size=self.cluster_size_feature,
+            use_unknown_area=self.unknown_area_feature,
             egocentric=self.egocentric_frame,
         )
         return EnvConfig(exploration, graph, RewardConfig(self.r_step, self.lambda_c), self.max_steps)
