@@ -148,10 +148,11 @@ def build_graph(obs: Observation, config: GraphConfig) -> dict[str, np.ndarray]:
         ent = np.array([c.entropy for c in obs.clusters[:nf]], dtype=float)
         feats[:nf, 4] = ent * obs.geometry.resolution_m / config.entropy_window_m
     feats[:n, 5] = np.log1p(geo / scale)
+    columns = node_features(config)
     if config.use_cluster_size and nf:
-        feats[:nf, 6] = np.log1p(np.array([c.size_m for c in obs.clusters[:nf]], dtype=float) / scale)
+        feats[:nf, columns.index("size")] = np.log1p(np.array([c.size_m for c in obs.clusters[:nf]], dtype=float) / scale)
     if config.use_unknown_area and nf:
-        feats[:nf, node_features(config).index("unknown")] = unknown_fraction(obs, nf, config.unknown_window_m)
+        feats[:nf, columns.index("unknown")] = unknown_fraction(obs, nf, config.unknown_window_m)
     g["node_valid"][:n] = True
 
     # neighbours: the knn nearest non-robot nodes by Euclidean distance (itself included), found with
