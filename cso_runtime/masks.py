@@ -70,6 +70,23 @@ class StuckMask:
         c_max = max(abs(h[1].explored_area_m2 - h[0].explored_area_m2), abs(h[2].explored_area_m2 - h[1].explored_area_m2))
         return l_max < self.config.alpha1_m and c_max < self.config.alpha2_m2
 
+    def sources_if_stuck(self, position_xy_m: tuple[float, float], explored_area_m2: float) -> list[tuple[float, float]]:
+        """The sources ``mask`` will measure from at the next decision, taken at ``position_xy_m`` with
+        ``explored_area_m2``, should it find the robot stuck; empty when the history already rules that out.
+
+        The distance moved to ``position_xy_m`` is not known before the decision's distance map, so this
+        may name sources for a decision that turns out not stuck: a prediction, for work done ahead
+        (the policy service computes these distance maps while the Observation is being built)."""
+        if len(self.history) < 2:
+            return []
+        prev, last = self.history[-2], self.history[-1]
+        if not last.moved_m < self.config.alpha1_m:
+            return []
+        c_max = max(abs(last.explored_area_m2 - prev.explored_area_m2), abs(float(explored_area_m2) - last.explored_area_m2))
+        if not c_max < self.config.alpha2_m2:
+            return []
+        return [prev.position_xy_m, last.position_xy_m, (float(position_xy_m[0]), float(position_xy_m[1]))]
+
     def mask(self, n_candidates: int, distance_from: DistanceFrom) -> np.ndarray:
         """True for candidates that may be chosen. When stuck, candidates closer than alpha_3 to any
         of the last three decision positions are masked; ``distance_from`` is only called then."""

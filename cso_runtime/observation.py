@@ -49,10 +49,21 @@ class Observation:
 
     def distance_map_from(self, source_xy_m: tuple[float, float]) -> np.ndarray:
         """Geodesic distance map from another source on the same map (cached per source)."""
-        key = (round(float(source_xy_m[0]), 4), round(float(source_xy_m[1]), 4))
+        key = distance_source_key(source_xy_m)
         if key not in self._extra_distance:
-            self._extra_distance[key] = geodesic_distance(self.traversable, self.geometry, np.asarray(key))
+            self._extra_distance.update(distance_maps_from(self.traversable, self.geometry, [key]))
         return self._extra_distance[key]
+
+    def adopt_distance_maps(self, geometry: GridGeometry, traversable: np.ndarray, maps: dict[tuple[float, float], np.ndarray]) -> bool:
+        """Use distance maps computed ahead by ``distance_maps_from`` on ``traversable`` (the policy
+        service computes them while the Observation is being built). Taken only when the grid and
+        ``traversable`` are this Observation's own, so ``distance_map_from`` returns exactly what it
+        would compute; returns whether they were taken."""
+        if geometry != self.geometry or traversable.shape != self.traversable.shape or not np.array_equal(traversable, self.traversable):
+            return False
+        for key, values in maps.items():
+            self._extra_distance.setdefault(distance_source_key(key), values)
+        return True
 
     def goal_distances_from(self, source_xy_m: tuple[float, float]) -> np.ndarray:
         """Geodesic distances from ``source_xy_m`` to each cluster's goal cell."""
@@ -63,6 +74,22 @@ class Observation:
         return d[cells[:, 0], cells[:, 1]]
 
 
+def distance_source_key(source_xy_m: tuple[float, float]) -> tuple[float, float]:
+    """A source position rounded to 0.1 mm: the cache key of ``Observation.distance_map_from``, and
+    the exact point fast marching starts from (so a map computed ahead equals one computed on demand)."""
+    return (round(float(source_xy_m[0]), 4), round(float(source_xy_m[1]), 4))
+
+
+def distance_maps_from(traversable: np.ndarray, geometry: GridGeometry, sources: list[tuple[float, float]]) -> dict[tuple[float, float], np.ndarray]:
+    """Geodesic distance maps (metres, inf = unreachable) from each source, keyed by ``distance_source_key``."""
+    out: dict[tuple[float, float], np.ndarray] = {}
+    for source in sources:
+        key = distance_source_key(source)
+        if key not in out:
+            out[key] = geodesic_distance(traversable, geometry, np.asarray(key))
+    return out
+
+
 class ObservationBuilder:
     """Turns (M_t, w_t) into an Observation: frontiers, one fast-marching pass, entropy, clusters."""
 
@@ -70,17 +97,24 @@ class ObservationBuilder:
         self.frontier_config = frontier or FrontierConfig()
         self.robot_config = robot or RobotConfig()
 
+    def traversable(self, occupancy: OccupancyMap) -> np.ndarray:
+        """Cells the robot's centre may occupy: open cells away from obstacles by its radius."""
+        return traversable_cells(occupancy.open, occupancy.occupied, self.robot_config.radius_m, occupancy.geometry.resolution_m)
+
     def build(
         self,
         occupancy: OccupancyMap,
         pose: Pose2D,
         path_nodes_xy_m: np.ndarray | None = None,
         exclude_frontier: np.ndarray | None = None,
+        traversable: np.ndarray | None = None,
     ) -> Observation:
-        """``exclude_frontier`` marks frontier cells known to be unclearable (they are not actions)."""
+        """``exclude_frontier`` marks frontier cells known to be unclearable (they are not actions);
+        ``traversable``: ``self.traversable(occupancy)`` when the caller has it already."""
         g = occupancy.geometry
         open_cells = occupancy.open
-        traversable = traversable_cells(open_cells, occupancy.occupied, self.robot_config.radius_m, g.resolution_m)
+        if traversable is None:
+            traversable = self.traversable(occupancy)
         distance = geodesic_distance(traversable, g, pose.xy)
         frontier = frontier_cells(open_cells, occupancy.explored)
         if exclude_frontier is not None:
@@ -98,6 +132,6 @@ class ObservationBuilder:
             frontier=frontier,
             entropy=entropy,
             clusters=clusters,
-            open_area_m2=float(np.count_nonzero(open_cells)) * g.cell_area_m2,
+            open_area_m2=occupancy.open_area_m2(),
             path_nodes_xy_m=nodes,
         )

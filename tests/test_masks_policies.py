@@ -9,7 +9,7 @@ from cso_runtime.config import MaskConfig
 from cso_runtime.frontiers import FrontierCluster
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.masks import StuckMask, valid_distance_mask
-from cso_runtime.observation import Observation
+from cso_runtime.observation import Observation, distance_maps_from, distance_source_key
 from cso_runtime.policies import ActionMasker, GoalSelector, make_policy
 
 INF = np.inf
@@ -65,6 +65,62 @@ def test_not_stuck_when_moving_or_exploring():
     assert not short.is_stuck()
     calls = []
     assert short.mask(2, lambda src: calls.append(src) or np.zeros(2)).all() and calls == []
+
+
+@pytest.mark.parametrize(
+    "history, area_now, moved_now, expect",
+    [
+        # Moved little and explored little so far: the prediction names w_{t-2}, w_{t-1} and w_t.
+        ([((1.0, 1.0), 50.0, np.inf), ((1.3, 1.0), 50.4, 0.3)], 50.9, 0.4, "stuck"),
+        # Same history, but the move to w_t (unknown before the decision) was long: predicted, not stuck.
+        ([((1.0, 1.0), 50.0, np.inf), ((1.3, 1.0), 50.4, 0.3)], 50.9, 1.5, "predicted only"),
+        # The history alone rules it out: no prediction, and no stuck mask.
+        ([((1.0, 1.0), 50.0, np.inf), ((3.0, 1.0), 50.1, 2.0)], 50.2, 0.1, "none"),
+        ([((1.0, 1.0), 50.0, np.inf), ((1.1, 1.0), 50.2, 0.1)], 52.0, 0.1, "none"),
+        ([((1.0, 1.0), 50.0, np.inf)], 50.0, 0.1, "none"),
+    ],
+)
+def test_stuck_sources_predicted_before_the_decision_cover_what_the_mask_asks_for(history, area_now, moved_now, expect):
+    """``sources_if_stuck`` (known before the decision's Observation) names every source ``mask`` then
+    measures from; it may name sources for a decision that is not stuck, never miss one."""
+    s = _stuck_with(history)
+    now = (1.3, 1.4)
+    predicted = s.sources_if_stuck(now, area_now)
+    s.record(now, area_now, moved_now)
+    asked = []
+    s.mask(2, lambda src: asked.append(src) or np.full(2, 5.0))
+    assert set(asked) <= set(predicted)
+    if expect == "stuck":
+        assert asked == predicted == [history[0][0], history[1][0], now]
+    elif expect == "predicted only":
+        assert asked == [] and len(predicted) == 3
+    else:
+        assert asked == predicted == []
+    off = ActionMasker(MaskConfig(use_stuck=False))
+    off.stuck = _stuck_with(history)
+    assert off.distance_sources(now, area_now) == []
+
+
+def test_distance_maps_computed_ahead_are_adopted_only_on_the_same_grid():
+    g = GridGeometry(0.1, (40, 60))
+    traversable = np.zeros(g.shape, dtype=bool)
+    traversable[5:35, 5:55] = True
+    traversable[5:30, 30] = False  # a wall with a gap at the bottom
+    obs = Observation(g, Pose2D(1.0, 1.0, 0.0), traversable, ~traversable, traversable, np.zeros(g.shape), traversable, np.zeros(g.shape), [], 10.0)
+    source = (1.00001, 2.00004)  # rounds to the same key as (1.0, 2.0)
+    ahead = distance_maps_from(traversable, g, [source, (1.0, 2.0)])
+    assert list(ahead) == [distance_source_key(source)] == [(1.0, 2.0)]
+    fresh = Observation(g, obs.pose, traversable, ~traversable, traversable.copy(), obs.distance_m, traversable, obs.entropy, [], 10.0)
+    np.testing.assert_array_equal(ahead[(1.0, 2.0)], fresh.distance_map_from(source))  # same as computed on demand
+    assert np.isfinite(ahead[(1.0, 2.0)][20, 40]) and ahead[(1.0, 2.0)][20, 40] > 2.0  # around the wall, not through it
+    assert obs.adopt_distance_maps(g, traversable.copy(), ahead)
+    assert obs.distance_map_from(source) is ahead[(1.0, 2.0)]
+    other = traversable.copy()
+    other[30:, 30] = False  # the gap closed: another grid, not adopted
+    late = Observation(g, obs.pose, traversable, ~traversable, traversable, obs.distance_m, traversable, obs.entropy, [], 10.0)
+    assert not late.adopt_distance_maps(g, other, distance_maps_from(other, g, [source]))
+    assert not late.adopt_distance_maps(GridGeometry(0.1, (40, 60), 1.0, 0.0), traversable, ahead)  # another origin
+    np.testing.assert_array_equal(late.distance_map_from(source), ahead[(1.0, 2.0)])
 
 
 def make_obs(distances, entropies, sizes, pose=Pose2D(0.0, 0.0, 0.0)) -> Observation:

@@ -7,6 +7,7 @@ and stops whatever it started in ``finally`` blocks (``down``, then SIGKILL of a
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import os
 import signal
@@ -55,9 +56,10 @@ def cli(*args: str, cwd: Path, timeout_s: float = 60.0) -> subprocess.CompletedP
     return subprocess.run([sys.executable, "-m", "cso_runtime.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=timeout_s)
 
 
-def write_profile(tmp_path: Path, scene: str = SCENE, **sim_params: Any) -> Path:
+def write_profile(tmp_path: Path, scene: str = SCENE, method: str = "greedy-dist", **sim_params: Any) -> Path:
     data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
     data["scene"] = scene
+    data["method"] = method
     data["services"]["sim"].update(sim_params)
     path = tmp_path / "test_profile.yaml"
     path.write_text(yaml.safe_dump(data))
@@ -86,9 +88,9 @@ def kill_leftovers(runs: Path, extra: list[int] = ()) -> list[int]:
     return left
 
 
-def in_process_result(scene: str = SCENE):
+def in_process_result(scene: str = SCENE, method: str = "greedy-dist"):
     plan = resolve_scenes(scene)[0].load()
-    return run_episode(KinematicSimulator(plan, seed=0), make_policy("greedy-dist", seed=0), ExplorationConfig(), seed=0)
+    return run_episode(KinematicSimulator(plan, seed=0), make_policy(method, seed=0), ExplorationConfig(), seed=0)
 
 
 THREADS_OF_A_SESSION = """
@@ -329,30 +331,38 @@ def test_status_and_down_with_nothing_running(tmp_path):
     assert not (tmp_path / "map.yaml").exists()
 
 
-@pytest.mark.parametrize("scene", [SCENE, "generated:middle:1:0"])
-def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene):
+@pytest.mark.parametrize("scene, method", [(SCENE, "greedy-dist"), ("generated:middle:1:0", "greedy-dist"), (SCENE, "cso")])
+def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
     """Foreground ``up``: the same steps and coverage as ``run_episode`` on the same scene and seed. The
-    middle scene's decision messages carry arrays large enough to be compressed (clusters' cells too)."""
-    profile = write_profile(tmp_path, scene)
+    middle scene's decision messages carry arrays large enough to be compressed (clusters' cells too).
+    With ``cso`` the stuck mask engages on 3 of the 7 decisions of the small scene; the policy computes
+    its distance maps ahead, on ``frontiers/pending``, and the decisions adopt them."""
+    profile = write_profile(tmp_path, scene, method)
     runs = tmp_path / "runs"
     try:
         r = cli("up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=120)
         assert r.returncode == 0, r.stderr[-3000:]
         (run_dir,) = list(runs.glob("*/summary.json"))
         summary = json.loads(run_dir.read_text())
-        zenoh_metrics = summary["methods"]["greedy-dist"]
-        expected = in_process_result(scene)
+        zenoh_metrics = summary["methods"][method]
+        expected = in_process_result(scene, method)
         assert zenoh_metrics["steps"] == expected.steps
         assert abs(zenoh_metrics["coverage_pct"] - expected.coverage_pct) < 1e-3
         assert zenoh_metrics["terminated_by"] == {expected.terminated_by: 1}
         out = run_dir.parent
         assert (out / "trajectories" / f"{expected.scene}.png").is_file()
-        assert (out / "episodes" / "greedy-dist" / f"{expected.scene}.npz").is_file()
-        grid, geometry = load_map(out / "maps" / "greedy-dist" / f"{expected.scene}.yaml")  # the mapper's final map
+        assert (out / "episodes" / method / f"{expected.scene}.npz").is_file()
+        grid, geometry = load_map(out / "maps" / method / f"{expected.scene}.yaml")  # the mapper's final map
         assert geometry == expected.map_geometry and np.array_equal(grid, expected.map_grid)
         for name in ("sim", "mapper", "frontier", "policy", "planner"):
             assert (out / "logs" / f"{name}.log").is_file()
         assert "  mapper -->|\"map\"| frontier\n" in (out / "dataflow.md").read_text()
+        ahead = re.search(r"distance maps computed ahead: (\d+), adopted by decisions: (\d+)", (out / "logs" / "policy.log").read_text())
+        assert ahead is not None
+        if method == "cso":
+            assert int(ahead[1]) >= int(ahead[2]) > 0
+        else:
+            assert ahead.groups() == ("0", "0")  # greedy-dist has no stuck mask: nothing to compute ahead
         assert not (runs / "current.json").exists()
         assert [p for p in run_pids(runs) if pid_alive(p)] == []
     finally:
