@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import importlib.util
 import math
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -302,7 +304,6 @@ def test_shipped_weights_match_the_training_config(variant, monkeypatch):
     settings are the ones ``train --config configs/train.yaml --variant V`` builds, and its JSON record names
     that command."""
     import json  # noqa: PLC0415
-    from pathlib import Path  # noqa: PLC0415
 
     from cso_runtime.cli import training_args  # noqa: PLC0415
     from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path  # noqa: PLC0415
@@ -685,3 +686,22 @@ def test_a_dead_environment_process_stops_training_with_a_clear_error_not_a_hang
     finally:
         envs.close()
     assert envs.closed and not any(p.is_alive() for p in envs.processes)
+
+
+def test_ensemble_of_benchmarks_averages_the_members_probabilities(tmp_path, observation):
+    """benchmarks/eval_ensemble.py: the mean of the members' masked probabilities (one member: itself)."""
+    spec = importlib.util.spec_from_file_location("eval_ensemble", Path(__file__).parents[1] / "benchmarks" / "eval_ensemble.py")
+    ensemble = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ensemble)
+    torch.manual_seed(7)
+    members = [GraphActorCritic(NetworkConfig(hidden=32, heads=2, layers=1)).eval() for _ in range(2)]
+    mask_cfg = MaskConfig(use_valid_distance=False, use_stuck=False)
+    singles = [LearnedPolicy("cso", m, GraphConfig(), mask_cfg) for m in members]
+    mask = singles[0].action_mask(observation)
+    probs = [p.probabilities(observation, mask) for p in singles]
+    assert not np.allclose(probs[0], probs[1])
+    both = ensemble.EnsemblePolicy(members, singles[0], seed=0)
+    np.testing.assert_allclose(both.probabilities(observation, mask), (probs[0] + probs[1]) / 2, rtol=1e-5, atol=1e-7)
+    alone = ensemble.EnsemblePolicy(members[:1], singles[0], seed=0)
+    np.testing.assert_allclose(alone.probabilities(observation, mask), probs[0], rtol=1e-5, atol=1e-7)
+    assert (both.probabilities(observation, mask)[~mask] == 0).all()

@@ -1,0 +1,65 @@
+"""Evaluate an ensemble of trained ``cso`` weights: each decision takes the mean of the members' masked
+action probabilities (same graph, same masks), then the argmax. Everything else is ``cso-runtime eval``.
+
+Tried on the development set (BENCHMARKS.md, issue 5, "Choosing on a development set"); not shipped.
+
+    python benchmarks/eval_ensemble.py --member cso_runtime/data/weights/cso.pt --member benchmarks/results/cluster_size_prior/train_seed2/cso.pt \
+        --member benchmarks/results/cluster_size_prior/train_seed3/cso.pt -- --method cso --lidar-fov 360 --workers 1 --maps runs/dev/plans \
+        --m-per-px 0.05 --out runs/dev/cso-ens3_0.05
+
+Arguments after ``--`` go to ``cso-runtime eval`` (keep ``--workers 1``: the ensemble is set up in this process).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+import torch
+
+from cso_runtime.learned import registry
+from cso_runtime.learned.graph import build_graph
+from cso_runtime.learned.network import GraphActorCritic, to_torch
+from cso_runtime.observation import Observation
+
+
+class EnsemblePolicy(registry.LearnedPolicy):
+    """``LearnedPolicy`` whose probabilities are the mean of several networks' masked probabilities."""
+
+    def __init__(self, members: list[GraphActorCritic], base: registry.LearnedPolicy, seed: int | None):
+        super().__init__(base.name, base.model, base.graph_config, base.masker.config, seed=seed, device=base.device)
+        self.members = members
+
+    @torch.inference_mode()
+    def probabilities(self, obs: Observation, mask: np.ndarray) -> np.ndarray:
+        g = to_torch(build_graph(obs, self.graph_config), self.device, batch=True)
+        m = torch.as_tensor(mask, device=self.device).unsqueeze(0)
+        p = sum(torch.softmax(member.masked_logits(g, m), -1) for member in self.members) / len(self.members)
+        return p.squeeze(0).cpu().numpy()
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    ours, eval_args = (argv[: argv.index("--")], argv[argv.index("--") + 1 :]) if "--" in argv else (argv, [])
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--member", action="append", required=True, help="a checkpoint (.pt) of the ensemble; repeat")
+    args = ap.parse_args(ours)
+    members = [registry.load_checkpoint(path)[0] for path in args.member]
+    graphs = {str(registry.load_checkpoint(path)[1]) for path in args.member}
+    if len(graphs) != 1:
+        raise SystemExit("the members must share one graph configuration")
+    make = registry.make_learned_policy
+
+    def make_ensemble(name, mask_config, seed=None, device="cpu"):
+        return EnsemblePolicy(members, make(name, mask_config, seed=seed, device=device), seed)
+
+    registry.make_learned_policy = make_ensemble
+    from cso_runtime.cli import app  # noqa: PLC0415
+
+    app(["eval", *eval_args])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
