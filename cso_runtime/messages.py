@@ -545,7 +545,6 @@ class FrontiersMsg(Message):
         )
 
 
-
 @dataclass
 class DecisionPendingMsg(Message):
     """Sent by the frontier service on a decision step before it builds the Observation: where the

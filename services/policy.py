@@ -1,11 +1,12 @@
 """Policy service: ``make_policy(method)`` and ``select`` on each decision's Observation.
 
-With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers`` and
+With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers[/pending]`` and
 keeps one selector per robot). It answers the steps that ask for a decision with ``decided: true`` and
 the new goal (or none: nothing left to explore); on the other steps the planner keeps following the
 current goal without waiting for the policy, and late joiners query the last goal. On the
 ``frontiers/pending`` notice that precedes a decision it computes the distance maps its masks will
-probably need (the stuck mask's sources) while the frontier service builds the Observation. A decision input older than ``stale_after_s`` is not acted on (the status says why).
+probably need (the stuck mask's sources) while the frontier service builds the Observation. A
+decision input older than ``stale_after_s`` is not acted on (the status says why).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+
 import numpy as np
 import zenoh
 
