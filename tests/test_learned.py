@@ -705,3 +705,13 @@ def test_ensemble_of_benchmarks_averages_the_members_probabilities(tmp_path, obs
     alone = ensemble.EnsemblePolicy(members[:1], singles[0], seed=0)
     np.testing.assert_allclose(alone.probabilities(observation, mask), probs[0], rtol=1e-5, atol=1e-7)
     assert (both.probabilities(observation, mask)[~mask] == 0).all()
+
+
+def test_training_episodes_use_the_configured_valid_distance_bound():
+    """``beta_far_m`` reaches the training episodes' masks (only where the variant uses Eq. 5's mask)."""
+    assert Args(variant="cso").env_config().exploration.masks.beta_far_m == 2.0
+    masks = Args(variant="cso", beta_far_m=1.5).env_config().exploration.masks
+    assert masks.beta_far_m == 1.5 and masks.use_valid_distance and masks.use_stuck
+    assert not Args(variant="cso-sm", beta_far_m=1.5).env_config().exploration.masks.use_valid_distance
+    with pytest.raises(ValueError, match="beta_far_m"):
+        Args(variant="cso", beta_far_m=0.0).validate()

@@ -107,6 +107,9 @@ class Args:
     """lambda_c of Eq. 6 per m2 of new open area."""
     max_steps: int = 800
     """Control steps per training episode (truncated after)."""
+    beta_far_m: float = 2.0
+    """Far bound of the valid distance mask (Eq. 5, ``masks.beta_far_m``) in the training episodes; evaluate
+    with the same value (``eval --config`` with ``masks: {beta_far_m: ...}``). 2.0: the paper's, read as metres."""
     hidden: int = 32
     heads: int = 4
     layers: int = 2
@@ -144,6 +147,8 @@ class Args:
             raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
         if self.warm_start_teacher not in TEACHERS:
             raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
+        if not self.beta_far_m > 0:
+            raise ValueError("beta_far_m must be positive")
         if self.distance_prior < 0:
             raise ValueError("distance_prior must be >= 0 (0 = the paper's actor)")
         if self.warm_start_soft_steps < 0:
@@ -164,7 +169,7 @@ class Args:
         v = VARIANTS[self.variant]
         exploration = ExplorationConfig()
         exploration.sensor = SensorConfig.preset(self.sensor, self.lidar_fov_deg)
-        exploration.masks = mask_config_for(v.use_valid_distance, v.use_stuck, exploration.masks)
+        exploration.masks = mask_config_for(v.use_valid_distance, v.use_stuck, dataclasses.replace(exploration.masks, beta_far_m=self.beta_far_m))
         graph = GraphConfig(
             self.max_frontier_nodes,
             self.max_path_nodes,
