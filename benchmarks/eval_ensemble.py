@@ -45,9 +45,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--member", action="append", required=True, help="a checkpoint (.pt) of the ensemble; repeat")
     args = ap.parse_args(ours)
-    members = [registry.load_checkpoint(path)[0] for path in args.member]
-    graphs = {str(registry.load_checkpoint(path)[1]) for path in args.member}
-    if len(graphs) != 1:
+    loaded = [registry.load_checkpoint(path) for path in args.member]
+    members = [model for model, _, _ in loaded]
+    if len({str(graph) for _, graph, _ in loaded}) != 1:
         raise SystemExit("the members must share one graph configuration")
     make = registry.make_learned_policy
 
