@@ -120,6 +120,12 @@ class MaskConfig:
     alpha3_m: float = 1.0
     """When stuck, goals closer than this to any of the last 3 decision positions are masked."""
 
+    def validate(self) -> None:
+        if not 0 <= self.beta_near_m < self.beta_far_m:
+            raise ConfigError("masks need 0 <= beta_near_m < beta_far_m")
+        if min(self.alpha1_m, self.alpha2_m2, self.alpha3_m) < 0:
+            raise ConfigError("masks.alpha1_m, alpha2_m2 and alpha3_m must be >= 0")
+
 
 @dataclass
 class EpisodeConfig:

@@ -28,6 +28,8 @@ def test_eval_yaml_documents_the_defaults():
         ({"masks": {"beta_far_m": "far"}}, "expected a number"),
         ({"episode": {"max_steps": 2.5}}, "expected an integer"),
         ({"masks": {"use_stuck": "yes"}}, "true/false"),
+        ({"masks": {"beta_far_m": 0.1}}, "beta_near_m < beta_far_m"),
+        ({"masks": {"alpha3_m": -1.0}}, "alpha"),
         ({"sensor": {"fov_deg": 400.0}}, "fov_deg"),
         ({"robot": {"radius_m": float("nan")}}, "finite"),
         ({"sensor": 3}, "mapping"),

@@ -29,7 +29,7 @@ import torch
 from gymnasium.vector import AutoresetMode
 from torch import nn, optim
 
-from cso_runtime.config import ExplorationConfig, SensorConfig
+from cso_runtime.config import ExplorationConfig, MaskConfig, SensorConfig
 from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
 from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
@@ -147,8 +147,7 @@ class Args:
             raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
         if self.warm_start_teacher not in TEACHERS:
             raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
-        if not self.beta_far_m > 0:
-            raise ValueError("beta_far_m must be positive")
+        dataclasses.replace(MaskConfig(), beta_far_m=self.beta_far_m).validate()  # the training episodes' masks
         if self.distance_prior < 0:
             raise ValueError("distance_prior must be >= 0 (0 = the paper's actor)")
         if self.warm_start_soft_steps < 0:
