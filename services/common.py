@@ -22,6 +22,7 @@ import functools
 import json
 import logging
 import os
+import pstats
 import queue
 import signal
 import sys
@@ -143,6 +144,9 @@ class Service:
         """Topic -> the message served on its ``cache`` key (``serves_latest``)."""
         self.trace: MessageTrace | None = None
         """Per-message timings, when ``CSO_TRACE_DIR`` is set (diagnostics; off by default)."""
+        self.network_profile: cProfile.Profile | None = None
+        """With ``CSO_PROFILE_DIR``: the profile of the handlers run on Zenoh's network thread (lockstep), which
+        the main thread's profile cannot see (a profiler follows one thread)."""
 
     # --- hooks -----------------------------------------------------------------------------------
     def start(self) -> None:
@@ -291,11 +295,17 @@ class ServiceInputs:
         with self.handling:
             if self.stop.is_set():
                 return
+            prof = self.service.network_profile
+            if prof is not None:
+                prof.enable()  # this thread only, and one handler at a time (the lock): its own profiler
             try:
                 _dispatch(self.service, *item)
             except BaseException as exc:  # noqa: BLE001 - re-raised on the loop's thread
                 self.failure = exc
                 self.stop.set()
+            finally:
+                if prof is not None:
+                    prof.disable()
 
     def go_direct(self) -> None:
         """Handle what is queued, then every later input on arrival (in order: no input overtakes)."""
@@ -428,6 +438,7 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
     prof_dir = os.environ.get("CSO_PROFILE_DIR")
     if prof_dir:
         prof = cProfile.Profile()
+        service.network_profile = cProfile.Profile()
         prof.enable()
     try:
         return run_service(service, stop)
@@ -439,15 +450,18 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
             service.trace.write()
         if prof_dir:
             prof.disable()
-            write_profile(prof, Path(prof_dir) / f"{cls.name}.prof")
+            write_profile([prof, service.network_profile], Path(prof_dir) / f"{cls.name}.prof")
 
 
-def write_profile(prof: cProfile.Profile, path: Path) -> None:
-    """Dump a service's cProfile (``CSO_PROFILE_DIR``), creating the folder; a failure is logged, since
-    a profile must never turn a clean stop into a crash."""
+def write_profile(profiles: list[cProfile.Profile | None], path: Path) -> None:
+    """Dump a service's cProfile (``CSO_PROFILE_DIR``): its main thread's and its network thread's, merged;
+    creating the folder. A failure is logged, since a profile must never turn a clean stop into a crash."""
+    recorded = [p for p in profiles if p is not None and p.getstats()]  # a profiler never enabled has nothing
+    if not recorded:
+        return
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        prof.dump_stats(str(path))
+        pstats.Stats(*recorded).dump_stats(str(path))
     except OSError as exc:
         log.error("cannot write the profile %s: %s", path, exc)
 

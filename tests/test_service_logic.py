@@ -531,12 +531,38 @@ def test_service_profile_is_written_into_a_new_folder_and_a_failure_is_only_logg
     sorted(range(100))
     prof.disable()
     path = tmp_path / "new" / "folder" / "mapper.prof"
-    write_profile(prof, path)
+    write_profile([prof, cProfile.Profile()], path)  # a network thread's profiler that never ran adds nothing
     assert pstats.Stats(str(path)).total_calls > 0
     (tmp_path / "taken").write_text("a file where the folder should be")
     with caplog.at_level("ERROR"):
-        write_profile(prof, tmp_path / "taken" / "mapper.prof")
+        write_profile([prof], tmp_path / "taken" / "mapper.prof")
     assert "cannot write the profile" in caplog.text
+
+
+def test_service_profile_covers_handlers_run_on_the_network_thread(tmp_path):
+    """In lockstep the handlers run on Zenoh's thread, which the main thread's profiler does not follow:
+    ``CSO_PROFILE_DIR`` profiles them with a profiler of their own, merged into the service's file."""
+    import cProfile
+    import pstats
+
+    from services.common import write_profile
+
+    svc, inputs, _ = _service_inputs()
+    svc.network_profile = cProfile.Profile()
+    inputs.go_direct()
+    main = cProfile.Profile()
+    main.enable()
+    network = threading.Thread(target=lambda: [inputs.on_sample(_Sample(k)) for k in range(3)])
+    network.start()
+    network.join()
+    main.disable()
+    assert svc.steps == [0, 1, 2]
+    path = tmp_path / "recorder.prof"
+    write_profile([main, svc.network_profile], path)
+    handled = {(func[2], stat[0]) for func, stat in pstats.Stats(str(path)).stats.items() if func[2] == "on_message"}
+    assert handled == {("on_message", 3)}  # every handler call, each counted once
+    write_profile([main], tmp_path / "main_only.prof")  # what the main thread's profiler alone saw
+    assert "on_message" not in {func[2] for func in pstats.Stats(str(tmp_path / "main_only.prof")).stats}
 
 
 class _Recorder(Service):
