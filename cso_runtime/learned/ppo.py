@@ -148,7 +148,7 @@ class Args:
             raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
         if self.warm_start_teacher not in TEACHERS:
             raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
-        dataclasses.replace(MaskConfig(), beta_far_m=self.beta_far_m).validate()  # the training episodes' masks
+        self.training_masks(MaskConfig()).validate()
         if self.distance_prior < 0:
             raise ValueError("distance_prior must be >= 0 (0 = the paper's actor)")
         if self.warm_start_soft_steps < 0:
@@ -156,6 +156,10 @@ class Args:
         missing = [p for p in self.warm_start_data if not Path(p).is_file()]
         if missing:
             raise ValueError(f"warm_start_data: no such file {', '.join(missing)}")
+
+    def training_masks(self, masks: MaskConfig) -> MaskConfig:
+        """``masks`` with the training episodes' far bound (``beta_far_m``), before the variant switches masks off."""
+        return dataclasses.replace(masks, beta_far_m=self.beta_far_m)
 
     @property
     def batch_size(self) -> int:
@@ -169,7 +173,7 @@ class Args:
         v = VARIANTS[self.variant]
         exploration = ExplorationConfig()
         exploration.sensor = SensorConfig.preset(self.sensor, self.lidar_fov_deg)
-        exploration.masks = mask_config_for(v.use_valid_distance, v.use_stuck, dataclasses.replace(exploration.masks, beta_far_m=self.beta_far_m))
+        exploration.masks = mask_config_for(v.use_valid_distance, v.use_stuck, self.training_masks(exploration.masks))
         graph = GraphConfig(
             self.max_frontier_nodes,
             self.max_path_nodes,
