@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import csv
 import dataclasses
 import importlib.util
 import math
@@ -217,6 +218,37 @@ def test_compute_gae_matches_hand_computation():
     torch.testing.assert_close(ret, adv + values)
 
 
+def test_compute_gae_takes_each_transitions_own_discount():
+    """The semi-MDP discount (``Args.gamma_per_step``): a tensor of discounts, one per transition; a
+    tensor of one value gives exactly the scalar's result."""
+    rewards = torch.tensor([[1.0, 0.5], [0.0, 0.0], [2.0, 1.0]])
+    values = torch.tensor([[0.5, 0.1], [0.2, 0.3], [0.1, 0.2]])
+    dones = torch.zeros((3, 2))
+    next_value, next_done = torch.tensor([0.3, 0.4]), torch.zeros(2)
+    scalar = compute_gae(rewards, values, dones, next_value, next_done, 0.9, 0.8)
+    same = compute_gae(rewards, values, dones, next_value, next_done, torch.full((3, 2), 0.9), 0.8)
+    torch.testing.assert_close(same, scalar)
+    g = torch.tensor([[0.9], [0.5], [0.7]])  # e.g. 0.99 ** k for decisions of different lengths
+    adv, _ = compute_gae(rewards[:, :1], values[:, :1], dones[:, :1], next_value[:1], next_done[:1], g, 0.8)
+    d2 = 2.0 + 0.7 * 0.3 - 0.1
+    d1 = 0.0 + 0.5 * 0.1 - 0.2
+    d0 = 1.0 + 0.9 * 0.2 - 0.5
+    a1 = d1 + 0.5 * 0.8 * d2
+    torch.testing.assert_close(adv[:, 0], torch.tensor([d0 + 0.9 * 0.8 * a1, a1, d2]))
+
+
+def test_env_reports_the_control_steps_each_decision_took():
+    env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
+    _, info = env.reset(seed=0)
+    steps, done = 0, False
+    while not done:
+        _, _, terminated, truncated, info = env.step(expert_action(env.obs, info["action_mask"]))
+        assert info["decision_steps"] >= 1
+        steps += info["decision_steps"]
+        done = terminated or truncated
+    assert steps == info["steps"] > 1
+
+
 def test_env_follows_the_gymnasium_api():
     env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
     check_reset_return_type(env)
@@ -261,6 +293,21 @@ def test_short_ppo_run_beats_a_random_policy(tmp_path):
     random = np.mean(episode_returns(env, random_chooser, seeds))
     assert trained > random + 0.1, (trained, random)
     assert trained > before + 0.1, (trained, before)  # learned, not a lucky initialisation
+
+
+def test_training_with_the_per_step_discount_runs_through_episode_ends(tmp_path):
+    """``gamma_per_step``: every decision discounted by its own length, through finished and truncated
+    episodes (their last decision's length comes from ``final_info``), in both vector envs' shape."""
+    args = Args(
+        variant="cso", out_dir=str(tmp_path), seed=0, total_decisions=64, num_envs=2, num_steps=16, num_minibatches=2,
+        max_steps=40, gamma_per_step=0.99, progress=False,
+    )
+    record = train(args, log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert record["ppo_decisions"] == 64
+    rows = list(csv.DictReader((tmp_path / "cso_log.csv").open()))
+    assert sum(int(r["episodes"]) for r in rows) >= 2 and all(np.isfinite(float(r["value_loss"])) for r in rows)
+    with pytest.raises(ValueError, match="gamma_per_step"):
+        dataclasses.replace(args, gamma_per_step=1.0).validate()
 
 
 def test_policies_of_one_model_share_one_trace(observation):

@@ -160,6 +160,7 @@ class ExplorationEnv(gym.Env):
         truncated = ex.done and ex.terminated_by == TERMINATED_MAX_STEPS
         terminated = ex.done and not truncated
         info["terminated_by"] = ex.terminated_by
+        info["decision_steps"] = ex.steps - steps0
         return graph, float(reward), terminated, truncated, info
 
     def teacher_action(self, teacher: str = "greedy-dist") -> int:

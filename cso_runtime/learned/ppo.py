@@ -70,7 +70,11 @@ class Args:
     learning_rate: float = 1e-4
     anneal_lr: bool = True
     gamma: float = 0.98
-    """Discount per decision."""
+    """Discount per decision (unless ``gamma_per_step`` is set)."""
+    gamma_per_step: float = 0.0
+    """> 0: discount per control step instead, so a decision that took k control steps is discounted
+    ``gamma_per_step ** k`` (the semi-MDP discount: a long trip defers what follows by its length, as the
+    efficiency metric counts steps, not decisions). 0: ``gamma`` per decision."""
     gae_lambda: float = 0.95
     num_minibatches: int = 4
     update_epochs: int = 4
@@ -151,6 +155,8 @@ class Args:
         self.training_masks(MaskConfig()).validate()
         if self.distance_prior < 0:
             raise ValueError("distance_prior must be >= 0 (0 = the paper's actor)")
+        if not 0 <= self.gamma_per_step < 1:
+            raise ValueError("gamma_per_step must be in [0, 1) (0 = gamma per decision)")
         if self.warm_start_soft_steps < 0:
             raise ValueError("warm_start_soft_steps must be >= 0 (0 = imitate the choice alone)")
         missing = [p for p in self.warm_start_data if not Path(p).is_file()]
@@ -231,13 +237,20 @@ def make_env(scenes: list[SceneRef] | list[FloorPlan], config: EnvConfig) -> Cal
 
 
 def compute_gae(
-    rewards: torch.Tensor, values: torch.Tensor, dones: torch.Tensor, next_value: torch.Tensor, next_done: torch.Tensor, gamma: float, gae_lambda: float
+    rewards: torch.Tensor,
+    values: torch.Tensor,
+    dones: torch.Tensor,
+    next_value: torch.Tensor,
+    next_done: torch.Tensor,
+    gamma: float | torch.Tensor,
+    gae_lambda: float,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Generalised advantage estimation over a (T, E) rollout.
 
     ``dones[t]`` is 1 when the observation at step t starts a new episode (CleanRL's convention), so
     the bootstrap from t+1 into t is cut by ``dones[t + 1]`` (``next_done`` after the last step).
-    Returns (advantages, returns = advantages + values).
+    ``gamma``: one discount for every transition, or a (T, E) tensor of each transition's own (the
+    semi-MDP discount of ``Args.gamma_per_step``). Returns (advantages, returns = advantages + values).
     """
     steps = rewards.shape[0]
     advantages = torch.zeros_like(rewards)
@@ -247,8 +260,9 @@ def compute_gae(
             nonterminal, nextv = 1.0 - next_done, next_value
         else:
             nonterminal, nextv = 1.0 - dones[t + 1], values[t + 1]
-        delta = rewards[t] + gamma * nextv * nonterminal - values[t]
-        last = delta + gamma * gae_lambda * nonterminal * last
+        discount = gamma[t] if isinstance(gamma, torch.Tensor) else gamma
+        delta = rewards[t] + discount * nextv * nonterminal - values[t]
+        last = delta + discount * gae_lambda * nonterminal * last
         advantages[t] = last
     return advantages, advantages + values
 
@@ -550,6 +564,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     rewards = torch.zeros((T, E), device=device)
     dones = torch.zeros((T, E), device=device)
     values = torch.zeros((T, E), device=device)
+    discounts = torch.full((T, E), args.gamma, device=device)
 
     next_obs_np, info = envs.reset(seed=args.seed + 10_000 * start_update)
     next_obs = obs_to_torch(next_obs_np, device)
@@ -588,13 +603,20 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 global_decisions += E
                 reward = np.asarray(reward, dtype=np.float64)
                 ep_return += reward
+                done = np.logical_or(term, trunc)
+                discount = np.full(E, args.gamma)
+                if args.gamma_per_step > 0:
+                    taken = np.asarray(info.get("decision_steps", np.zeros(E)), dtype=np.float64)
+                    if done.any():  # a finished env's info is its reset's; the last decision's is in final_info
+                        taken = np.where(done, info["final_info"]["decision_steps"], taken)
+                    discount = args.gamma_per_step**taken
+                discounts[step] = torch.as_tensor(discount, dtype=torch.float32, device=device)
                 if trunc.any():  # bootstrap through truncation with V(final observation)
                     final = [info["final_obs"][i] for i in np.flatnonzero(trunc)]
                     with torch.no_grad():
                         fv = model.get_value(obs_to_torch(stack_obs(final), device)).cpu().numpy()
-                    reward[np.flatnonzero(trunc)] += args.gamma * fv
+                    reward[np.flatnonzero(trunc)] += discount[np.flatnonzero(trunc)] * fv
                 rewards[step] = torch.as_tensor(reward, dtype=torch.float32, device=device)
-                done = np.logical_or(term, trunc)
                 for i in np.flatnonzero(done):
                     fi = info["final_info"]
                     finished.append({"return": float(ep_return[i]), "coverage_pct": float(fi["coverage_pct"][i]), "steps": int(fi["steps"][i])})
@@ -606,7 +628,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 
             with torch.no_grad():
                 next_value = model.get_value(next_obs)
-            advantages, returns = compute_gae(rewards, values, dones, next_value, next_done, args.gamma, args.gae_lambda)
+            advantages, returns = compute_gae(rewards, values, dones, next_value, next_done, discounts, args.gae_lambda)
 
             b_obs = {k: v.reshape((-1,) + v.shape[2:]) for k, v in obs_buf.items()}
             b_mask = mask_buf.reshape(-1, args.max_frontier_nodes)
