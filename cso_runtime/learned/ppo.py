@@ -74,7 +74,8 @@ class Args:
     gamma_per_step: float = 0.0
     """> 0: discount per control step instead, so a decision that took k control steps is discounted
     ``gamma_per_step ** k`` (the semi-MDP discount: a long trip defers what follows by its length, as the
-    efficiency metric counts steps, not decisions). 0: ``gamma`` per decision."""
+    efficiency metric counts steps, not decisions). 0: ``gamma`` per decision. PPO only: the warm start's
+    critic targets (teacher data, also saved to files) keep ``gamma`` per decision."""
     gae_lambda: float = 0.95
     num_minibatches: int = 4
     update_epochs: int = 4
