@@ -565,7 +565,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     rewards = torch.zeros((T, E), device=device)
     dones = torch.zeros((T, E), device=device)
     values = torch.zeros((T, E), device=device)
-    discounts = torch.full((T, E), args.gamma, device=device)
+    discounts = torch.zeros((T, E), device=device)  # each transition's discount, set at every step
 
     next_obs_np, info = envs.reset(seed=args.seed + 10_000 * start_update)
     next_obs = obs_to_torch(next_obs_np, device)
