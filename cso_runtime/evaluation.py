@@ -98,6 +98,10 @@ class EvalRequest:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
         if self.max_steps <= 0 or self.workers <= 0:
             raise ConfigError("--max-steps and --workers must be positive")
+        if not (math.isfinite(self.m_per_px) and self.m_per_px > 0):
+            raise ConfigError(f"--m-per-px must be a positive number of metres per pixel, got {self.m_per_px}")
+        if self.limit is not None and self.limit <= 0:
+            raise ConfigError(f"--limit must be positive, got {self.limit}")
         if self.sensor == "lidar" and self.lidar_fov_deg not in (180.0, 360.0):
             raise ConfigError("--lidar-fov must be 180 or 360")
 

@@ -32,7 +32,8 @@ def plot_coverage_curves(path: Path, outcomes: Sequence[Any]) -> None:
     ax.set_ylabel("coverage (%)")
     ax.set_ylim(0, 101)
     ax.grid(alpha=0.3)
-    ax.legend(loc="lower right")
+    if methods:
+        ax.legend(loc="lower right")
     ax.set_title("Coverage against step")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()

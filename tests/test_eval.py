@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cso_runtime.config import EpisodeConfig, ExplorationConfig, SensorConfig
+from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig
 from cso_runtime.episode import GroundTruthMetrics, run_episode
 from cso_runtime.evaluation import CSV_FIELDS, METRICS, WORKER_DIED, EpisodeJob, EvalRequest, run_eval, run_in_processes, run_job
 from cso_runtime.map_files import load_map
@@ -125,6 +125,14 @@ def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
     assert bad.returncode == 2 and "unknown method" in bad.stderr
     bad_maps = subprocess.run(exe + ["eval", "--maps", str(tmp_path / "nowhere")], capture_output=True, text=True, timeout=60)
     assert bad_maps.returncode == 2 and "nowhere" in bad_maps.stderr
+
+
+@pytest.mark.parametrize(("field", "value"), [("m_per_px", -1.0), ("m_per_px", 0.0), ("m_per_px", float("nan")), ("limit", 0)])
+def test_eval_rejects_a_bad_scale_or_limit_before_any_episode(tmp_path: Path, field: str, value: float):
+    request = EvalRequest(methods=["greedy-dist"], maps="builtin", out_dir=tmp_path / "o", **{field: value})
+    with pytest.raises(ConfigError, match=field.replace("_", "-")):
+        run_eval(request)
+    assert not (tmp_path / "o").exists()  # nothing ran, nothing written
 
 
 @pytest.mark.parametrize("spec", ["generated:small:2:5"])
