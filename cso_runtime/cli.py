@@ -65,6 +65,7 @@ def eval_command(
     sim: str = typer.Option("2d", "--sim", help="Simulator: 2d (fast kinematic) or mujoco (physics)"),
     config: Optional[Path] = typer.Option(None, "--config", help="YAML with exploration parameters (see configs/eval.yaml)"),
     resume: bool = typer.Option(False, "--resume", help="Keep episodes already finished in --out (same method, map, seed, config, simulator and weights)"),
+    baseline: str = typer.Option("greedy-dist", "--baseline", help="Compare every other method with this one, scene by scene (paired.csv), when it runs too"),
     weights: Optional[Path] = typer.Option(
         None, "--weights", help="Folder of <method>.pt (a `train --out` folder) to use instead of the shipped weights (sets CSO_WEIGHTS_DIR)"
     ),
@@ -89,8 +90,42 @@ def eval_command(
         sim=sim,
         config_path=config,
         resume=resume,
+        baseline=baseline,
     )
     raise typer.Exit(run_eval_cli(request))
+
+
+@app.command("compare")
+def compare_command(
+    episodes: list[str] = typer.Argument(..., help="episodes.csv files written by eval, each optionally LABEL=FILE (scenes pair only within a label)"),
+    baseline: str = typer.Option("greedy-dist", "--baseline", help="The method every other one is compared with"),
+    as_json: bool = typer.Option(False, "--json", help="JSON instead of a markdown table"),
+    out: Optional[Path] = typer.Option(None, "--out", help="Also write the comparison as CSV"),
+) -> None:
+    """Each method against a baseline scene by scene: change of mean m2/step, per-scene ratio with a 95 % bootstrap interval, scenes won."""
+    import json  # noqa: PLC0415
+
+    from cso_runtime.comparison import MIN_SCENES, as_dicts, compare_to_baseline, labelled, markdown_table, read_episodes, write_csv  # noqa: PLC0415
+
+    files = [labelled(arg) for arg in episodes]
+    missing = [str(path) for _, path in files if not path.is_file()]
+    if missing:
+        typer.echo(f"error: no such file: {', '.join(missing)}", err=True)
+        raise typer.Exit(2)
+    try:
+        comparisons = compare_to_baseline(read_episodes(files), baseline)
+    except ValueError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    if out is not None:
+        write_csv(out, comparisons)
+    if as_json:
+        typer.echo(json.dumps({"baseline": baseline, "comparisons": as_dicts(comparisons)}, indent=2))
+    else:
+        typer.echo(markdown_table(comparisons))
+    if not comparisons:
+        typer.echo(f"no method shares {MIN_SCENES} or more scenes of one scale with {baseline}", err=True)
+        raise typer.Exit(1)
 
 
 # Further commands (service, up, status, down, train, record, replay) register below.

@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from cso_runtime.comparison import PairedComparison, as_dicts, compare_to_baseline, efficiency_by_scene
+from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
@@ -67,6 +69,8 @@ class EvalRequest:
     config_path: Path | None = None
     resume: bool = False
     """Reuse episodes already finished in ``out_dir`` (same method, map and seed)."""
+    baseline: str = "greedy-dist"
+    """Every other method is compared with this one scene by scene (``paired.csv``) when it ran too."""
 
     def exploration_config(self) -> ExplorationConfig:
         """The config file (if any) with the CLI's sensor and step-limit flags applied on top."""
@@ -88,6 +92,8 @@ class EvalRequest:
             raise ConfigError("no --method given")
         if unknown:
             raise ConfigError(f"unknown method(s) {', '.join(unknown)}; available: {', '.join(sorted(known))}")
+        if self.baseline not in known:
+            raise ConfigError(f"unknown --baseline {self.baseline!r}; available: {', '.join(sorted(known))}")
         untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available_methods()]
         if untrained:
             from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415
@@ -298,8 +304,9 @@ def _mean(rows: list[dict[str, Any]], key: str) -> float | None:
     return round(float(np.mean(values)), 6) if values else None
 
 
-def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any]) -> dict[str, Any]:
-    """Per-method means of the Table 1 metrics, a per-scale breakdown, and the failures."""
+def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist") -> dict[str, Any]:
+    """Per-method means of the Table 1 metrics, a per-scale breakdown, the failures, and each method
+    against ``baseline`` scene by scene (``cso_runtime.comparison``; empty when it did not run)."""
     summary: dict[str, Any] = {"meta": meta, "methods": {}}
     for method in methods:
         mine = [r for r in rows if r["method"] == method]
@@ -314,19 +321,26 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
         entry["failures"] = [f for f in failures if f["method"] == method]
         summary["methods"][method] = entry
     summary["failures"] = failures
+    paired = compare_to_baseline(efficiency_by_scene(rows), baseline) if baseline in methods else []
+    summary["paired"] = {"baseline": baseline, "comparisons": as_dicts(paired)}
     return summary
 
 
-def write_outputs(out_dir: Path, rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any]) -> dict[str, Any]:
-    """summary.json and episodes.csv."""
+def write_outputs(
+    out_dir: Path, rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist"
+) -> dict[str, Any]:
+    """summary.json, episodes.csv, and paired.csv when there is a comparison with the baseline."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    summary = summarize(rows, failures, methods, meta)
+    summary = summarize(rows, failures, methods, meta, baseline)
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False, default=str))
     with (out_dir / "episodes.csv").open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(CSV_FIELDS), extrasaction="ignore")
         writer.writeheader()
         for r in sorted(rows, key=lambda r: (r["method"], r["map"])):
             writer.writerow(r)
+    paired = [PairedComparison(**c) for c in summary["paired"]["comparisons"]]
+    if paired:
+        write_paired_csv(out_dir / "paired.csv", paired)
     return summary
 
 
@@ -391,10 +405,12 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         meta["interrupted"] = {"episodes_finished": len(outcomes), "episodes_planned": total, "resume": "run the same command with --resume"}
     if weights:
         meta["weights"] = weights
-    summary = write_outputs(out, rows, failures, request.methods, meta)
-    from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
+    summary = write_outputs(out, rows, failures, request.methods, meta, request.baseline)
+    from cso_runtime.plots import plot_coverage_curves, plot_paired_efficiency, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
 
     plot_coverage_curves(out / "coverage_curves.png", [o for o in outcomes if o.row is not None])
+    if summary["paired"]["comparisons"]:
+        plot_paired_efficiency(out / "paired_efficiency.png", efficiency_by_scene(rows), request.baseline)
     by_map: dict[str, list[EpisodeOutcome]] = {}
     for o in outcomes:
         if o.row is not None:
@@ -484,6 +500,23 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     if not console.is_terminal:  # logs and CI: wide enough for every column instead of 80 characters
         console = Console(width=max(console.width, 120))
     console.print(table)
+    paired = summary.get("paired") or {}
+    if paired.get("comparisons"):
+        against = Table(title=f"Against {paired['baseline']}, scene by scene ({out_dir}/paired.csv)")
+        for col in ("method", "scale"):
+            against.add_column(col, no_wrap=True)
+        for col in ("scenes", "m2/step vs baseline", "per-scene ratio [95 % CI]", "won / lost"):
+            against.add_column(col, justify="right")
+        for c in paired["comparisons"]:
+            against.add_row(
+                c["method"],
+                c["scale"],
+                str(c["scenes"]),
+                f"{c['change_of_means_pct']:+.1f} %",
+                f"{c['per_scene_pct']:+.1f} % [{c['ci_low_pct']:+.1f}, {c['ci_high_pct']:+.1f}]",
+                f"{c['won']} / {c['lost']}",
+            )
+        console.print(against)
     for f in summary["failures"]:
         console.print(f"[red]failed[/red] {f['method']} {f['map']}: {f['error'].splitlines()[0] if f['error'] else ''}")
 

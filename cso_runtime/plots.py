@@ -69,3 +69,36 @@ def plot_trajectories(path: Path, name: str, outcomes: Sequence[Any]) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, float]], baseline: str) -> None:
+    """One panel per method: each scene's efficiency (m2/step) against the baseline's on the same scene,
+    coloured by scale; points above the diagonal are scenes the method explored more efficiently."""
+    plt = _pyplot()
+    methods = sorted({m for m, _ in table if m != baseline})
+    fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 4.2), squeeze=False)
+    for ax, method in zip(axes[0], methods):
+        top = 0.0
+        for scale in ("small", "middle", "large", "super_large"):
+            mine, base = table.get((method, scale), {}), table.get((baseline, scale), {})
+            scenes = sorted(set(mine) & set(base))
+            if not scenes:
+                continue
+            x, y = np.array([base[s] for s in scenes]), np.array([mine[s] for s in scenes])
+            ax.scatter(x, y, s=14, alpha=0.7, label=f"{scale} ({len(scenes)})")
+            top = max(top, float(x.max()), float(y.max()))
+        top = top or 1.0  # no shared scene: an empty panel
+        ax.plot([0, top * 1.05], [0, top * 1.05], color="grey", lw=1, ls="--")
+        ax.set_xlim(0, top * 1.05)
+        ax.set_ylim(0, top * 1.05)
+        ax.set_aspect("equal")
+        ax.set_xlabel(f"{baseline}, m2/step")
+        ax.set_ylabel(f"{method}, m2/step")
+        ax.set_title(f"{method} against {baseline}")
+        ax.grid(alpha=0.3)
+        if ax.collections:
+            ax.legend(loc="lower right", fontsize=8)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

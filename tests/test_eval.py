@@ -135,6 +135,26 @@ def test_eval_rejects_a_bad_scale_or_limit_before_any_episode(tmp_path: Path, fi
     assert not (tmp_path / "o").exists()  # nothing ran, nothing written
 
 
+def test_eval_compares_each_method_with_the_baseline_scene_by_scene(tmp_path: Path):
+    summary = run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:3:7", out_dir=tmp_path / "o", max_steps=40))
+    (row,) = summary["paired"]["comparisons"]
+    assert summary["paired"]["baseline"] == "greedy-dist" and (row["method"], row["scale"], row["scenes"]) == ("random", "small", 3)
+    with (tmp_path / "o" / "episodes.csv").open() as fh:
+        episodes = {(r["method"], r["map"]): float(r["efficiency_m2_per_step"]) for r in csv.DictReader(fh)}
+    ratios = [episodes["random", m] / episodes["greedy-dist", m] for m in ("gen_small_7", "gen_small_8", "gen_small_9")]
+    assert row["per_scene_pct"] == pytest.approx(100 * (np.mean(ratios) - 1), abs=1e-3)
+    assert row["won"] == sum(r > 1 for r in ratios) and row["lost"] == sum(r < 1 for r in ratios)
+    with (tmp_path / "o" / "paired.csv").open() as fh:
+        assert [r["method"] for r in csv.DictReader(fh)] == ["random"]
+    assert (tmp_path / "o" / "paired_efficiency.png").stat().st_size > 1000
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["paired"] == summary["paired"]
+
+    alone = run_eval(EvalRequest(methods=["random"], maps="generated:small:3:7", out_dir=tmp_path / "r", max_steps=40))
+    assert alone["paired"]["comparisons"] == [] and not (tmp_path / "r" / "paired.csv").exists()
+    with pytest.raises(ConfigError, match="unknown --baseline"):
+        run_eval(EvalRequest(methods=["random"], maps="generated:small:3:7", out_dir=tmp_path / "x", baseline="nearest"))
+
+
 @pytest.mark.parametrize("spec", ["generated:small:2:5"])
 def test_eval_on_generated_scenes_is_deterministic(tmp_path: Path, spec: str):
     a = run_eval(EvalRequest(methods=["greedy-dist"], maps=spec, out_dir=tmp_path / "a", max_steps=80))
@@ -240,7 +260,7 @@ def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_pat
     from cso_runtime.evaluation import print_summary, summarize
 
     def row(method: str, scale: str, m2: float) -> dict:
-        return {"method": method, "scale": scale, "terminated_by": "coverage", "explored_area_m2": m2, "coverage_pct": 99.5,
+        return {"method": method, "map": f"{scale}_plan", "seed": 0, "traversable_area_m2": m2, "scale": scale, "terminated_by": "coverage", "explored_area_m2": m2, "coverage_pct": 99.5,
                 "steps": 100, "efficiency_m2_per_step": m2 / 100, "path_length_m": 10.0, "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}
 
     rows = [row("greedy-dist", "small", 20.0), row("greedy-dist", "middle", 60.0), row("random", "small", 20.0)]

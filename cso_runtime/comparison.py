@@ -1,0 +1,158 @@
+"""Paired comparison of methods run on the same scenes: how far is a method ahead of a baseline?
+
+Table 1 reports each method's mean efficiency; two methods run on the same scenes can also be compared
+scene by scene, which separates them with far fewer scenes (plans differ more from each other than
+methods do). For every method and scale this gives the change of mean efficiency (m2/step) against the
+baseline on the shared scenes, the mean of the per-scene ratios with a 95 % bootstrap interval (the
+scenes resampled with replacement, a fixed seed), and the scenes won and lost. An interval that
+contains 0 % says these scenes do not tell the two methods apart. ``eval`` writes it to ``paired.csv``
+and ``summary.json`` whenever the baseline ran too; ``cso-runtime compare`` pools ``episodes.csv`` files.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SceneKey = tuple[str, str, str, str, str]
+"""(label, map, scale, traversable area, seed): an episode's scene. The label keeps apart plans of
+different folders that share a name (Dungeon's ``easy/img_4`` and ``medium/img_4``)."""
+EfficiencyTable = dict[tuple[str, str], dict[SceneKey, float]]
+"""(method, scale) -> {scene: efficiency m2/step}."""
+
+EPISODE_COLUMNS = ("method", "map", "scale", "traversable_area_m2", "seed", "efficiency_m2_per_step")
+"""What a comparison reads of each ``episodes.csv`` row."""
+MIN_SCENES = 3
+"""Fewer shared scenes than this give no comparison (an interval needs a few)."""
+
+
+@dataclass(frozen=True)
+class PairedComparison:
+    """One method against the baseline at one scale, on the scenes both ran."""
+
+    scale: str
+    method: str
+    baseline: str
+    scenes: int
+    change_of_means_pct: float
+    """Mean m2/step of the method against the baseline's, on the shared scenes, in per cent."""
+    per_scene_pct: float
+    """Mean of the per-scene efficiency ratios, minus 1, in per cent."""
+    ci_low_pct: float
+    ci_high_pct: float
+    """95 % bootstrap interval of ``per_scene_pct``."""
+    won: int
+    lost: int
+    """Scenes where the method was more (less) efficient than the baseline; the rest are level."""
+
+    def markdown_row(self) -> str:
+        return (
+            f"| {self.scale} | {self.method} | {self.scenes} | {self.change_of_means_pct:+.1f} % | "
+            f"{self.per_scene_pct:+.1f} % [{self.ci_low_pct:+.1f}, {self.ci_high_pct:+.1f}] | {self.won} of {self.scenes} |"
+        )
+
+
+MARKDOWN_HEADER = (
+    "| scale | method | scenes | m2/step vs baseline (ratio of means) | per-scene ratio: mean [95 % CI] | scenes won |\n"
+    "| --- | --- | --- | --- | --- | --- |"
+)
+CSV_FIELDS = tuple(f.name for f in fields(PairedComparison))
+
+
+def efficiency_by_scene(episodes: Iterable[Mapping[str, Any]], label: str = "", into: EfficiencyTable | None = None) -> EfficiencyTable:
+    """Efficiency per method, scale and scene from ``episodes.csv`` rows (or ``eval``'s own rows). A later
+    row of the same method and scene replaces an earlier one; rows without a finite efficiency are left out."""
+    table: EfficiencyTable = defaultdict(dict) if into is None else into
+    for row in episodes:
+        value = row.get("efficiency_m2_per_step")
+        try:
+            efficiency = float(value) if value not in (None, "") else math.nan
+        except (TypeError, ValueError):
+            raise ValueError(f"{row.get('method')} on {row.get('map')}: efficiency {value!r} is not a number") from None
+        if not math.isfinite(efficiency):
+            continue
+        scene = (label, str(row["map"]), str(row["scale"]), str(row["traversable_area_m2"]), str(row["seed"]))
+        table.setdefault((str(row["method"]), str(row["scale"])), {})[scene] = efficiency
+    return table
+
+
+def labelled(arg: str) -> tuple[str, Path]:
+    """A command-line ``LABEL=FILE`` -> (LABEL, FILE); a plain FILE has the empty label."""
+    label, sep, rest = arg.partition("=")
+    return (label, Path(rest)) if sep and "/" not in label else ("", Path(arg))
+
+
+def read_episodes(files: Sequence[Path | tuple[str, Path]]) -> EfficiencyTable:
+    """``efficiency_by_scene`` over ``episodes.csv`` files, each optionally ``(label, path)``."""
+    table: EfficiencyTable = defaultdict(dict)
+    for item in files:
+        label, path = item if isinstance(item, tuple) else ("", item)
+        with Path(path).open(newline="") as fh:
+            reader = csv.DictReader(fh)
+            missing = [c for c in EPISODE_COLUMNS if c not in (reader.fieldnames or [])]
+            if missing:
+                raise ValueError(f"{path} is not an episodes.csv written by eval: no column {', '.join(missing)}")
+            efficiency_by_scene(reader, label, table)
+    return table
+
+
+def bootstrap_mean_ci(values: np.ndarray, resamples: int = 10_000, seed: int = 0) -> tuple[float, float]:
+    """95 % percentile interval of the mean, resampling the values with replacement."""
+    rng = np.random.default_rng(seed)
+    means = values[rng.integers(0, len(values), size=(resamples, len(values)))].mean(axis=1)
+    lo, hi = np.percentile(means, [2.5, 97.5])
+    return float(lo), float(hi)
+
+
+def compare_to_baseline(table: EfficiencyTable, baseline: str = "greedy-dist", min_scenes: int = MIN_SCENES) -> list[PairedComparison]:
+    """Every other method against ``baseline`` per scale, on the scenes both ran (ordered by scale, method)."""
+    out = []
+    for (method, scale), eff in sorted(table.items(), key=lambda kv: (kv[0][1], kv[0][0])):
+        base = table.get((baseline, scale))
+        if method == baseline or base is None:
+            continue
+        scenes = sorted(s for s in set(eff) & set(base) if base[s] > 0)
+        if len(scenes) < min_scenes:
+            continue
+        m = np.array([eff[s] for s in scenes])
+        b = np.array([base[s] for s in scenes])
+        ratio = m / b
+        lo, hi = bootstrap_mean_ci(ratio)
+        out.append(
+            PairedComparison(
+                scale=scale,
+                method=method,
+                baseline=baseline,
+                scenes=len(scenes),
+                change_of_means_pct=round(100 * (m.mean() / b.mean() - 1), 3),
+                per_scene_pct=round(100 * (ratio.mean() - 1), 3),
+                ci_low_pct=round(100 * (lo - 1), 3),
+                ci_high_pct=round(100 * (hi - 1), 3),
+                won=int((ratio > 1).sum()),
+                lost=int((ratio < 1).sum()),
+            )
+        )
+    return out
+
+
+def markdown_table(comparisons: Sequence[PairedComparison]) -> str:
+    return "\n".join([MARKDOWN_HEADER, *(c.markdown_row() for c in comparisons)])
+
+
+def write_csv(path: Path, comparisons: Sequence[PairedComparison]) -> None:
+    with Path(path).open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(CSV_FIELDS))
+        writer.writeheader()
+        for c in comparisons:
+            writer.writerow(asdict(c))
+
+
+def as_dicts(comparisons: Sequence[PairedComparison]) -> list[dict[str, Any]]:
+    return [asdict(c) for c in comparisons]

@@ -1,0 +1,75 @@
+"""cso_runtime.comparison: each method against a baseline scene by scene (eval's paired.csv, `cso-runtime compare`)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cso_runtime.comparison import CSV_FIELDS, compare_to_baseline, efficiency_by_scene, read_episodes
+
+FIELDS = ("method", "map", "scale", "seed", "traversable_area_m2", "efficiency_m2_per_step")
+
+
+def rows(method: str, scale: str, efficiencies: dict[str, float]) -> list[dict]:
+    return [dict(zip(FIELDS, (method, name, scale, 0, 100.0, e))) for name, e in efficiencies.items()]
+
+
+def test_each_method_is_compared_per_scale_on_the_scenes_both_ran():
+    episodes = (
+        rows("greedy-dist", "large", {"a": 1.0, "b": 1.0, "c": 2.0, "d": 1.0, "only_base": 5.0})
+        + rows("cso", "large", {"a": 1.5, "b": 0.5, "c": 2.0, "d": 1.1, "only_cso": 9.0})
+        + rows("greedy-dist", "super_large", {"a": 1.0, "b": 1.0})
+        + rows("cso", "super_large", {"a": 2.0, "b": 2.0})  # two shared scenes: too few to compare
+        + rows("random", "large", {"a": 0.5, "b": 0.5, "c": 1.0, "d": float("nan")})  # a NaN row is left out
+    )
+    comparisons = compare_to_baseline(efficiency_by_scene(episodes), "greedy-dist")
+    assert [(c.method, c.scale, c.scenes) for c in comparisons] == [("cso", "large", 4), ("random", "large", 3)]
+    cso, rand = comparisons
+    # Means 5.1 / 5.0: +2 %; per-scene ratios 1.5, 0.5, 1.0, 1.1: mean 1.025, +2.5 %; won 2, lost 1, level 1.
+    assert cso.change_of_means_pct == pytest.approx(2.0) and cso.per_scene_pct == pytest.approx(2.5)
+    assert (cso.won, cso.lost) == (2, 1) and cso.ci_low_pct < 2.5 < cso.ci_high_pct
+    assert rand.per_scene_pct == pytest.approx(-50.0) and rand.ci_low_pct == pytest.approx(-50.0) == rand.ci_high_pct
+    assert (rand.won, rand.lost) == (0, 3)
+    assert compare_to_baseline(efficiency_by_scene(episodes), "utility") == []  # the baseline did not run
+
+
+def test_a_bad_efficiency_or_a_file_that_is_not_episodes_csv_is_a_clear_error(tmp_path: Path):
+    with pytest.raises(ValueError, match="cso on a: efficiency 'fast' is not a number"):
+        efficiency_by_scene([dict(zip(FIELDS, ("cso", "a", "large", 0, 100, "fast")))])
+    other = tmp_path / "other.csv"
+    other.write_text("x,y\n1,2\n")
+    with pytest.raises(ValueError, match="not an episodes.csv written by eval: no column method"):
+        read_episodes([other])
+
+
+def write(path: Path, episodes: list[dict]) -> Path:
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(FIELDS))
+        writer.writeheader()
+        writer.writerows(episodes)
+    return path
+
+
+def test_compare_cli_pools_labelled_files_and_writes_json_and_csv(tmp_path: Path):
+    """Scenes pair within a label only: the same plan name under two labels is two scenes."""
+    easy = write(tmp_path / "easy.csv", rows("greedy-dist", "large", {"a": 1.0, "b": 1.0}) + rows("cso", "large", {"a": 1.2, "b": 1.2}))
+    medium = write(tmp_path / "medium.csv", rows("greedy-dist", "large", {"a": 2.0, "c": 1.0}) + rows("cso", "large", {"a": 2.0, "c": 0.8}))
+    exe = [sys.executable, "-m", "cso_runtime.cli", "compare"]
+    out = subprocess.run(exe + [f"easy={easy}", f"medium={medium}", "--json", "--out", str(tmp_path / "p.csv")], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    (row,) = json.loads(out.stdout)["comparisons"]
+    assert row["scenes"] == 4 and row["per_scene_pct"] == pytest.approx(5.0) and (row["won"], row["lost"]) == (2, 1)
+    with (tmp_path / "p.csv").open() as fh:
+        written = list(csv.DictReader(fh))
+    assert tuple(written[0]) == CSV_FIELDS and float(written[0]["per_scene_pct"]) == pytest.approx(5.0)
+
+    markdown = subprocess.run(exe + [str(easy), str(medium)], capture_output=True, text=True, timeout=60)
+    assert markdown.returncode == 0 and "| large | cso | 3 |" in markdown.stdout  # unlabelled: medium's "a" replaces easy's
+    assert subprocess.run(exe + [str(easy)], capture_output=True, text=True, timeout=60).returncode == 1  # two scenes: nothing to say
+    missing = subprocess.run(exe + [str(tmp_path / "nope.csv")], capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2 and "no such file" in missing.stderr
