@@ -6,7 +6,7 @@ sides swapped every round, so that both see the same periods of a shared host. I
 the median Zenoh episode, CPU of all processes and wall-time ratio, and how many rounds each side won
 (paired by round). This is how the A/B tables of BENCHMARKS.md (issue 4) were measured.
 
-    python benchmarks/ab_runtime.py BASE_REV NEW_REV [--scene builtin] [--rounds 6] [--repeats 1] [--json out.json]
+    python benchmarks/ab_runtime.py BASE_REV NEW_REV [--scene builtin] [--method greedy-dist] [--rounds 6] [--repeats 1] [--json out.json]
 
 A revision may be ``WORKTREE`` for the working tree as it is (uncommitted changes included).
 """
@@ -34,11 +34,11 @@ def checkout(rev: str, into: Path) -> Path:
     return into
 
 
-def bench_once(tree: Path, scene: str, repeats: int, out: Path) -> dict:
+def bench_once(tree: Path, scene: str, repeats: int, out: Path, method: str = "greedy-dist") -> dict:
     """One ``bench_runtime.py`` run of ``tree`` (its own code on ``PYTHONPATH``); its ``repeats`` block."""
     env = {**os.environ, "PYTHONPATH": str(tree)}
     env.pop("ZENOH_RUNTIME", None)  # each side applies its own default
-    cmd = [sys.executable, str(tree / "benchmarks" / "bench_runtime.py"), "--scene", scene, "--repeats", str(repeats), "--wall-time-only", "--json", str(out)]
+    cmd = [sys.executable, str(tree / "benchmarks" / "bench_runtime.py"), "--scene", scene, "--method", method, "--repeats", str(repeats), "--wall-time-only", "--json", str(out)]
     subprocess.run(cmd, cwd=tree, env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     return json.loads(out.read_text())["repeats"]
 
@@ -60,6 +60,7 @@ def main() -> int:
     p.add_argument("base", help="Commit (or WORKTREE) of side A")
     p.add_argument("new", help="Commit (or WORKTREE) of side B")
     p.add_argument("--scene", default="builtin")
+    p.add_argument("--method", default="greedy-dist")
     p.add_argument("--rounds", type=int, default=6)
     p.add_argument("--repeats", type=int, default=1, help="Pairs per side per round")
     p.add_argument("--json", type=Path, help="Also write the figures here")
@@ -73,7 +74,7 @@ def main() -> int:
             for i in range(args.rounds):
                 order = ("A", "B") if i % 2 == 0 else ("B", "A")
                 for side in order:
-                    results[side].append(bench_once(trees[side], args.scene, args.repeats, Path(tmp) / f"{side}{i}.json"))
+                    results[side].append(bench_once(trees[side], args.scene, args.repeats, Path(tmp) / f"{side}{i}.json", args.method))
                 print(f"round {i + 1}/{args.rounds}: " + ", ".join(f"{s} {statistics.median(results[s][-1]['zenoh_episode_s']):.3f} s" for s in ("A", "B")), flush=True)
         finally:
             for tree in trees.values():
@@ -82,6 +83,7 @@ def main() -> int:
     per_round = [(statistics.median(a["zenoh_episode_s"]), statistics.median(b["zenoh_episode_s"])) for a, b in zip(results["A"], results["B"])]
     report = {
         "scene": args.scene,
+        "method": args.method,
         "rounds": args.rounds,
         "repeats": args.repeats,
         "A": {"rev": args.base, **summary(results["A"])},
