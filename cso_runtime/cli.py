@@ -118,7 +118,7 @@ def compare_command(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     if out is not None:
-        write_csv(out, comparisons)
+        write_csv(out, as_dicts(comparisons))
     if as_json:
         typer.echo(json.dumps({"baseline": baseline, "comparisons": as_dicts(comparisons)}, indent=2))
     else:

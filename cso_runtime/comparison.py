@@ -146,12 +146,12 @@ def markdown_table(comparisons: Sequence[PairedComparison]) -> str:
     return "\n".join([MARKDOWN_HEADER, *(c.markdown_row() for c in comparisons)])
 
 
-def write_csv(path: Path, comparisons: Sequence[PairedComparison]) -> None:
+def write_csv(path: Path, comparisons: Sequence[Mapping[str, Any]]) -> None:
+    """``comparisons`` as ``as_dicts`` gives them (the rows of ``summary.json``'s ``paired``)."""
     with Path(path).open("w", newline="") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(CSV_FIELDS))
         writer.writeheader()
-        for c in comparisons:
-            writer.writerow(asdict(c))
+        writer.writerows(comparisons)
 
 
 def as_dicts(comparisons: Sequence[PairedComparison]) -> list[dict[str, Any]]:

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from cso_runtime.comparison import PairedComparison, as_dicts, compare_to_baseline, efficiency_by_scene
+from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
@@ -338,9 +338,8 @@ def write_outputs(
         writer.writeheader()
         for r in sorted(rows, key=lambda r: (r["method"], r["map"])):
             writer.writerow(r)
-    paired = [PairedComparison(**c) for c in summary["paired"]["comparisons"]]
-    if paired:
-        write_paired_csv(out_dir / "paired.csv", paired)
+    if summary["paired"]["comparisons"]:
+        write_paired_csv(out_dir / "paired.csv", summary["paired"]["comparisons"])
     return summary
 
 
