@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 
 import numpy as np
 import skfmm
@@ -54,22 +55,39 @@ def traversable_cells(open_cells: np.ndarray, occupied: np.ndarray, robot_radius
     return open_cells & ~inflate(occupied, robot_radius_m, resolution_m)
 
 
-def _bounding_box(mask: np.ndarray, margin: int) -> tuple[slice, slice] | None:
+_WINDOW_MARGIN_CELLS = 3
+"""How much wider than ``within_m`` the window of a bounded fast-marching pass is, in cells."""
+
+
+def _bounding_box(mask: np.ndarray, margin: int, window: tuple[int, int, int] | None = None) -> tuple[slice, slice] | None:
+    """The bounding box of ``mask``'s set cells grown by ``margin``; with ``window`` (cy, cx, half-width
+    in cells) only the part of ``mask`` inside that square counts."""
+    oy = ox = 0
+    if window is not None:
+        cy, cx, half = window
+        oy, ox = max(cy - half, 0), max(cx - half, 0)
+        mask = mask[oy : cy + half + 1, ox : cx + half + 1]
     rows = np.flatnonzero(mask.any(axis=1))
     if rows.size == 0:
         return None
     cols = np.flatnonzero(mask.any(axis=0))
     r0, r1 = max(rows[0] - margin, 0), min(rows[-1] + margin + 1, mask.shape[0])
     c0, c1 = max(cols[0] - margin, 0), min(cols[-1] + margin + 1, mask.shape[1])
-    return slice(r0, r1), slice(c0, c1)
+    return slice(r0 + oy, r1 + oy), slice(c0 + ox, c1 + ox)
 
 
-def geodesic_distance(traversable: np.ndarray, geometry: GridGeometry, source_xy_m: np.ndarray) -> np.ndarray:
+def geodesic_distance(traversable: np.ndarray, geometry: GridGeometry, source_xy_m: np.ndarray, within_m: float | None = None) -> np.ndarray:
     """Travel distance in metres from ``source_xy_m`` to every cell through ``traversable`` cells.
 
     Unreachable cells are ``inf`` (never a large finite number). The source cell and its immediate
     neighbourhood are treated as traversable, so a robot standing close to a wall still gets a map.
     Fast marching runs only on the bounding box of the traversable cells.
+
+    ``within_m``: only distances below it are wanted (the stuck mask's alpha_3). Fast marching then
+    runs on a window a few cells wider than ``within_m`` around the source and stops soon after
+    ``within_m``: every value below ``within_m`` is exactly the full map's (a cell's value depends
+    only on cells of smaller value, all inside the window), farther cells may read ``inf``. On a
+    640 x 480 map with alpha_3 = 1 m that is tens of times faster than the full map.
     """
     res = geometry.resolution_m
     out = np.full(geometry.shape, np.inf)
@@ -77,7 +95,8 @@ def geodesic_distance(traversable: np.ndarray, geometry: GridGeometry, source_xy
     sy, sx = int(sy), int(sx)
     if not geometry.in_bounds(sy, sx):
         return out
-    box = _bounding_box(traversable, margin=2)
+    window = None if within_m is None else int(math.ceil(within_m / res)) + _WINDOW_MARGIN_CELLS
+    box = _bounding_box(traversable, margin=2, window=None if window is None else (sy, sx, window))
     if box is None:
         box = (slice(max(sy - 2, 0), sy + 3), slice(max(sx - 2, 0), sx + 3))
     by = slice(min(box[0].start, max(sy - 2, 0)), max(box[0].stop, sy + 3))
@@ -95,7 +114,9 @@ def geodesic_distance(traversable: np.ndarray, geometry: GridGeometry, source_xy
     near = np.hypot(cx - source_xy_m[0], cy - source_xy_m[1])
     phi[py, px] = near - r0
     try:
-        dist = skfmm.distance(np.ma.MaskedArray(phi, mask=~sub), dx=res)
+        # narrow: the march stops past within_m (skfmm's band is measured from the zero level, r0 in)
+        narrow = 0.0 if within_m is None else within_m + 2 * res
+        dist = skfmm.distance(np.ma.MaskedArray(phi, mask=~sub), dx=res, narrow=narrow)
     except ValueError:  # no zero contour inside the passable region
         return out
     values = np.ma.filled(dist, np.inf)

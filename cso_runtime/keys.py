@@ -20,7 +20,6 @@ TOPICS = {
     "cmd_vel_ahead": "cmd_vel/ahead",
     "map": "map",
     "frontiers": "frontiers",
-    "frontiers_pending": "frontiers/pending",
     "goal": "goal",
     "path": "path",
     "planner_feedback": "planner/feedback",

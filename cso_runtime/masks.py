@@ -40,8 +40,9 @@ class DecisionRecord:
     """Geodesic distance from the previous decision position (inf when unknown)."""
 
 
-DistanceFrom = Callable[[tuple[float, float]], np.ndarray]
-"""Given a source position, geodesic distances (metres) from it to each candidate goal."""
+DistanceFrom = Callable[[tuple[float, float], float], np.ndarray]
+"""Given a source position and a bound (metres), geodesic distances from the source to each candidate
+goal: exact below the bound; candidates farther away may read inf."""
 
 
 class StuckMask:
@@ -70,29 +71,14 @@ class StuckMask:
         c_max = max(abs(h[1].explored_area_m2 - h[0].explored_area_m2), abs(h[2].explored_area_m2 - h[1].explored_area_m2))
         return l_max < self.config.alpha1_m and c_max < self.config.alpha2_m2
 
-    def sources_if_stuck(self, position_xy_m: tuple[float, float], explored_area_m2: float) -> list[tuple[float, float]]:
-        """The sources ``mask`` will measure from at the next decision, taken at ``position_xy_m`` with
-        ``explored_area_m2``, should it find the robot stuck; empty when the history already rules that out.
-
-        The distance moved to ``position_xy_m`` is not known before the decision's distance map, so this
-        may name sources for a decision that turns out not stuck: a prediction, for work done ahead
-        (the policy service computes these distance maps while the Observation is being built)."""
-        if len(self.history) < 2:
-            return []
-        prev, last = self.history[-2], self.history[-1]
-        if not last.moved_m < self.config.alpha1_m:
-            return []
-        c_max = max(abs(last.explored_area_m2 - prev.explored_area_m2), abs(float(explored_area_m2) - last.explored_area_m2))
-        if not c_max < self.config.alpha2_m2:
-            return []
-        return [prev.position_xy_m, last.position_xy_m, (float(position_xy_m[0]), float(position_xy_m[1]))]
-
     def mask(self, n_candidates: int, distance_from: DistanceFrom) -> np.ndarray:
         """True for candidates that may be chosen. When stuck, candidates closer than alpha_3 to any
-        of the last three decision positions are masked; ``distance_from`` is only called then."""
+        of the last three decision positions are masked; ``distance_from`` is only called then, and
+        only distances below alpha_3 are asked for (a bounded fast-marching pass is enough)."""
         allowed = np.ones(n_candidates, dtype=bool)
         if n_candidates == 0 or not self.is_stuck():
             return allowed
+        alpha3 = self.config.alpha3_m
         for record in self.history:
-            allowed &= ~(np.asarray(distance_from(record.position_xy_m), dtype=float) < self.config.alpha3_m)
+            allowed &= ~(np.asarray(distance_from(record.position_xy_m, alpha3), dtype=float) < alpha3)
         return allowed

@@ -545,37 +545,6 @@ class FrontiersMsg(Message):
         )
 
 
-@dataclass
-class DecisionPendingMsg(Message):
-    """Sent by the frontier service on a decision step before it builds the Observation: where the
-    decision is taken, the open area and the traversable grid it will be built on. The policy computes
-    the extra distance maps its masks will ask for (Algorithm 1's past positions) while the Observation
-    is built, instead of after it arrives; the decision itself comes only with ``frontiers``."""
-
-    SCHEMA: ClassVar[str] = "decision_pending"
-    step: int
-    pose: Pose2D
-    geometry: GridGeometry
-    traversable: np.ndarray
-    """bool (ny, nx): the Observation's traversable cells (bit-packed and compressed on the wire)."""
-    open_area_m2: float
-
-    def body(self) -> dict[str, Any]:
-        return {
-            "step": self.step,
-            "pose": _pose_out(self.pose),
-            "geometry": _geometry_out(self.geometry),
-            "traversable": pack_array(np.asarray(self.traversable, dtype=bool), compress=True),
-            "open_area_m2": float(self.open_area_m2),
-        }
-
-    @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "DecisionPendingMsg":
-        w = "decision_pending"
-        geometry = _geometry_in(b, w)
-        return cls(_int(b, "step", w), _pose_in(b, "pose", w), geometry, _grid_in(b, "traversable", w, geometry, "bool"), _num(b, "open_area_m2", w, 0.0))
-
-
 def frontiers_from_observation(step: int, reason: str, obs: Observation, build_ms: float) -> FrontiersMsg:
     """The decision message for ``obs`` (the frontier service's output)."""
     arrays = {k: getattr(obs, k) for k in FrontiersMsg.GRIDS}
@@ -996,7 +965,6 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         CmdVelMsg,
         MapMsg,
         FrontiersMsg,
-        DecisionPendingMsg,
         GoalMsg,
         PathMsg,
         PlannerFeedbackMsg,

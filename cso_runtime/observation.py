@@ -47,47 +47,27 @@ class Observation:
     def goal_distance_m(self) -> np.ndarray:
         return np.array([c.distance_m for c in self.clusters], dtype=float)
 
-    def distance_map_from(self, source_xy_m: tuple[float, float]) -> np.ndarray:
-        """Geodesic distance map from another source on the same map (cached per source)."""
-        key = distance_source_key(source_xy_m)
+    def distance_map_from(self, source_xy_m: tuple[float, float], within_m: float | None = None) -> np.ndarray:
+        """Geodesic distance map from another source on the same map (cached per source and bound);
+        ``within_m``: only distances below it are exact, farther cells may read inf (much cheaper)."""
+        key = (distance_source_key(source_xy_m), within_m)
         if key not in self._extra_distance:
-            self._extra_distance.update(distance_maps_from(self.traversable, self.geometry, [key]))
+            self._extra_distance[key] = geodesic_distance(self.traversable, self.geometry, np.asarray(key[0]), within_m)
         return self._extra_distance[key]
 
-    def adopt_distance_maps(self, geometry: GridGeometry, traversable: np.ndarray, maps: dict[tuple[float, float], np.ndarray]) -> bool:
-        """Use distance maps computed ahead by ``distance_maps_from`` on ``traversable`` (the policy
-        service computes them while the Observation is being built). Taken only when the grid and
-        ``traversable`` are this Observation's own, so ``distance_map_from`` returns exactly what it
-        would compute; returns whether they were taken."""
-        if geometry != self.geometry or traversable.shape != self.traversable.shape or not np.array_equal(traversable, self.traversable):
-            return False
-        for key, values in maps.items():
-            self._extra_distance.setdefault(distance_source_key(key), values)
-        return True
-
-    def goal_distances_from(self, source_xy_m: tuple[float, float]) -> np.ndarray:
-        """Geodesic distances from ``source_xy_m`` to each cluster's goal cell."""
+    def goal_distances_from(self, source_xy_m: tuple[float, float], within_m: float | None = None) -> np.ndarray:
+        """Geodesic distances from ``source_xy_m`` to each cluster's goal cell (exact below ``within_m``)."""
         if not self.clusters:
             return np.zeros(0)
-        d = self.distance_map_from(source_xy_m)
+        d = self.distance_map_from(source_xy_m, within_m)
         cells = np.array([c.goal_cell for c in self.clusters])
         return d[cells[:, 0], cells[:, 1]]
 
 
 def distance_source_key(source_xy_m: tuple[float, float]) -> tuple[float, float]:
     """A source position rounded to 0.1 mm: the cache key of ``Observation.distance_map_from``, and
-    the exact point fast marching starts from (so a map computed ahead equals one computed on demand)."""
+    the exact point fast marching starts from (so equal keys always give equal maps)."""
     return (round(float(source_xy_m[0]), 4), round(float(source_xy_m[1]), 4))
-
-
-def distance_maps_from(traversable: np.ndarray, geometry: GridGeometry, sources: list[tuple[float, float]]) -> dict[tuple[float, float], np.ndarray]:
-    """Geodesic distance maps (metres, inf = unreachable) from each source, keyed by ``distance_source_key``."""
-    out: dict[tuple[float, float], np.ndarray] = {}
-    for source in sources:
-        key = distance_source_key(source)
-        if key not in out:
-            out[key] = geodesic_distance(traversable, geometry, np.asarray(key))
-    return out
 
 
 class ObservationBuilder:
@@ -107,14 +87,11 @@ class ObservationBuilder:
         pose: Pose2D,
         path_nodes_xy_m: np.ndarray | None = None,
         exclude_frontier: np.ndarray | None = None,
-        traversable: np.ndarray | None = None,
     ) -> Observation:
-        """``exclude_frontier`` marks frontier cells known to be unclearable (they are not actions);
-        ``traversable``: ``self.traversable(occupancy)`` when the caller has it already."""
+        """``exclude_frontier`` marks frontier cells known to be unclearable (they are not actions)."""
         g = occupancy.geometry
         open_cells = occupancy.open
-        if traversable is None:
-            traversable = self.traversable(occupancy)
+        traversable = self.traversable(occupancy)
         distance = geodesic_distance(traversable, g, pose.xy)
         frontier = frontier_cells(open_cells, occupancy.explored)
         if exclude_frontier is not None:

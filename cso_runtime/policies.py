@@ -40,14 +40,6 @@ class GoalSelector(Protocol):
         """The next goal, or None when there is no reachable frontier."""
 
 
-def distance_sources(selector: GoalSelector, position_xy_m: tuple[float, float], open_area_m2: float) -> list[tuple[float, float]]:
-    """Sources of the extra distance maps ``selector.select`` will probably ask the next decision's
-    Observation for (``Observation.distance_map_from``), given where that decision is taken and the
-    open area then. Selectors that never ask (every baseline) have no ``distance_sources`` method."""
-    sources = getattr(selector, "distance_sources", None)
-    return list(sources(position_xy_m, open_area_m2)) if sources is not None else []
-
-
 def goal_of(obs: Observation, index: int) -> Goal:
     c = obs.clusters[index]
     return Goal(c.goal_xy_m[0], c.goal_xy_m[1], index, c.distance_m)
@@ -66,11 +58,6 @@ class ActionMasker:
 
     def reset(self) -> None:
         self.stuck.reset()
-
-    def distance_sources(self, position_xy_m: tuple[float, float], open_area_m2: float) -> list[tuple[float, float]]:
-        """Sources whose distance maps ``mask`` will probably ask the next decision's Observation for
-        (``StuckMask.sources_if_stuck``; none when the stuck mask is off)."""
-        return self.stuck.sources_if_stuck(position_xy_m, open_area_m2) if self.config.use_stuck else []
 
     def mask(self, obs: Observation) -> np.ndarray:
         n = len(obs.clusters)

@@ -5,9 +5,7 @@ no longer a frontier, every ``replan_every_steps``), the same function the in-pr
 uses, on the planner's status after the previous step's command and the planner's own blocked check
 (``path_blocked_ahead``) applied here to this step's map. The Observation is
 ``ObservationBuilder.build`` (frontiers, one fast-marching pass, entropy, clusters). Per step it
-publishes either ``decide: false`` (the planner keeps its goal) or the arrays the policy needs; on a
-decision step it first publishes ``frontiers/pending`` (the pose and traversable grid), so the policy
-can work ahead while the Observation is built.
+publishes either ``decide: false`` (the planner keeps its goal) or the arrays the policy needs.
 """
 
 from __future__ import annotations
@@ -20,7 +18,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import decision_reason, goal_failed_in_place, mark_dead_frontier
-from cso_runtime.messages import DecisionPendingMsg, FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PlannerFeedbackMsg, frontiers_from_observation
+from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PlannerFeedbackMsg, frontiers_from_observation
 from cso_runtime.observation import ObservationBuilder
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
@@ -45,7 +43,7 @@ class FrontierParams:
 class FrontierService(Service):
     name = "frontier"
     inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg}
-    outputs = {"frontiers_pending": DecisionPendingMsg, "frontiers": FrontiersMsg}
+    outputs = {"frontiers": FrontiersMsg}
 
     def __init__(self, ctx: ServiceContext):
         super().__init__(ctx)
@@ -170,10 +168,7 @@ class FrontierService(Service):
             if self.goal is not None and goal_failed_in_place(reason, self.goal, occupancy, odom.pose):
                 mark_dead_frontier(self.dead, occupancy.geometry, (self.goal.x_m, self.goal.y_m), self.goal_tolerance_m)
             self.path_nodes.append((odom.pose.x_m, odom.pose.y_m))
-            traversable = self.builder.traversable(occupancy)
-            # Tell the policy first: it computes the distance maps its masks will need meanwhile.
-            self.publish("frontiers_pending", DecisionPendingMsg(k, odom.pose, occupancy.geometry, traversable, occupancy.open_area_m2()))
-            obs = self.builder.build(occupancy, odom.pose, np.array(self.path_nodes), exclude_frontier=self.dead, traversable=traversable)
+            obs = self.builder.build(occupancy, odom.pose, np.array(self.path_nodes), exclude_frontier=self.dead)
             out = frontiers_from_observation(k, reason, obs, (time.perf_counter() - t0) * 1e3)
             self.awaiting_goal_step, self.awaiting_since_s = k, time.monotonic()
         self.last_out = out

@@ -1,12 +1,9 @@
 """Policy service: ``make_policy(method)`` and ``select`` on each decision's Observation.
 
-With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers[/pending]`` and
+With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers`` and
 keeps one selector per robot). It answers the steps that ask for a decision with ``decided: true`` and
 the new goal (or none: nothing left to explore); on the other steps the planner keeps following the
-current goal without waiting for the policy, and late joiners query the last goal. On the
-``frontiers/pending`` notice that precedes a decision it computes the distance maps its masks will
-probably need (the stuck mask's sources) while the frontier service builds the Observation. A
-decision input older than ``stale_after_s`` is not acted on (the status says why).
+current goal without waiting for the policy, and late joiners query the last goal. A decision input older than ``stale_after_s`` is not acted on (the status says why).
 """
 
 from __future__ import annotations
@@ -15,14 +12,11 @@ import logging
 import time
 from dataclasses import dataclass
 
-import numpy as np
 import zenoh
 
 from cso_runtime.config import ConfigError, from_dict
-from cso_runtime.geometry import GridGeometry
-from cso_runtime.messages import DecisionPendingMsg, FrontiersMsg, GoalMsg, Message, encode, observation_from_frontiers
-from cso_runtime.observation import distance_maps_from
-from cso_runtime.policies import LEARNED_METHODS, GoalSelector, distance_sources, make_policy
+from cso_runtime.messages import FrontiersMsg, GoalMsg, Message, encode, observation_from_frontiers
+from cso_runtime.policies import LEARNED_METHODS, GoalSelector, make_policy
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.policy")
@@ -48,27 +42,16 @@ class PolicyParams:
 
 
 @dataclass
-class DistanceMapsAhead:
-    """Distance maps computed on a ``frontiers/pending`` notice, for the decision of ``step``."""
-
-    step: int
-    geometry: GridGeometry
-    traversable: np.ndarray
-    maps: dict[tuple[float, float], np.ndarray]
-
-
-@dataclass
 class RobotState:
     selector: GoalSelector
     answered_step: int = -1
     last_answer: GoalMsg | None = None
     last_input_s: float = 0.0
-    ahead: DistanceMapsAhead | None = None
 
 
 class PolicyService(Service):
     name = "policy"
-    inputs = {"frontiers_pending": DecisionPendingMsg, "frontiers": FrontiersMsg}
+    inputs = {"frontiers": FrontiersMsg}
     outputs = {"goal": GoalMsg}
 
     def __init__(self, ctx: ServiceContext):
@@ -85,9 +68,6 @@ class PolicyService(Service):
 
             log.info("%s: weights %s", self.method, weights_path(self.method))
         self._queryables: list = []
-        self.maps_ahead = 0
-        """Distance maps computed on ``frontiers/pending`` notices, and those decisions adopted."""
-        self.maps_adopted = 0
 
     def new_selector(self) -> GoalSelector:
         try:
@@ -110,9 +90,6 @@ class PolicyService(Service):
         if st is None:
             st = self.robots[robot] = RobotState(self.new_selector())
             log.info("serving robot %s with %s", robot, self.method)
-        if isinstance(msg, DecisionPendingMsg):
-            self.work_ahead(st, msg)
-            return
         assert isinstance(msg, FrontiersMsg)
         st.last_input_s = received_s
         if msg.step == 0 and st.answered_step > 0:
@@ -133,9 +110,6 @@ class PolicyService(Service):
             return  # the planner keeps following the current goal without us
         t0 = time.perf_counter()
         obs = observation_from_frontiers(msg)
-        if st.ahead is not None and st.ahead.step == msg.step and obs.adopt_distance_maps(st.ahead.geometry, st.ahead.traversable, st.ahead.maps):
-            self.maps_adopted += len(st.ahead.maps)
-        st.ahead = None
         goal = st.selector.select(obs)
         ms = msg.build_ms + (time.perf_counter() - t0) * 1e3
         if goal is None:
@@ -144,21 +118,6 @@ class PolicyService(Service):
             out = GoalMsg(msg.step, True, goal.x_m, goal.y_m, goal.cluster_index, goal.distance_m, ms, self.method, msg.reason)
         st.last_answer = out
         self.publish("goal", out, robot)
-
-    def work_ahead(self, st: RobotState, msg: DecisionPendingMsg) -> None:
-        """A decision is being prepared: compute the distance maps the selector's masks will probably
-        ask for (Algorithm 1's sources when the robot may be stuck) while the frontier service builds the
-        Observation. The decision adopts them only if it is built on the same traversable grid."""
-        st.ahead = None
-        if msg.step <= st.answered_step:
-            return
-        sources = distance_sources(st.selector, (msg.pose.x_m, msg.pose.y_m), msg.open_area_m2)
-        if sources:
-            st.ahead = DistanceMapsAhead(msg.step, msg.geometry, msg.traversable, distance_maps_from(msg.traversable, msg.geometry, sources))
-            self.maps_ahead += len(st.ahead.maps)
-
-    def shutdown(self) -> None:
-        log.info("distance maps computed ahead: %d, adopted by decisions: %d", self.maps_ahead, self.maps_adopted)
 
     def on_tick(self, now_s: float) -> None:
         for robot, st in self.robots.items():

@@ -60,15 +60,15 @@ def test_sim_profile_dataflow_holds_the_lockstep_chain():
     assert [n.name for n in nodes] == ["sim", "mapper", "frontier", "policy", "planner", LAUNCHER]
     edges = set(edges_of(nodes))
     chain = [Edge("sim", "scan", "mapper"), Edge("mapper", "map", "frontier"), Edge("frontier", "frontiers", "planner"), Edge("planner", "cmd_vel", "sim")]
-    decision = [Edge("frontier", "frontiers_pending", "policy"), Edge("frontier", "frontiers", "policy"), Edge("policy", "goal", "planner")]
+    decision = [Edge("frontier", "frontiers", "policy"), Edge("policy", "goal", "planner")]
     assert set(chain + decision) <= edges
     assert not any(e.source == LAUNCHER for e in edges)  # the launcher only listens
     assert Edge("policy", "goal", "mapper") not in edges  # only declared inputs are edges
     mermaid = to_mermaid(nodes)
     assert mermaid.startswith("flowchart LR\n") and '  planner -->|"cmd_vel, cmd_vel/ahead"| sim\n' in mermaid
-    assert '  frontier -->|"frontiers/pending, frontiers"| policy\n' in mermaid
+    assert '  frontier -->|"frontiers"| policy\n' in mermaid
     md = to_markdown("sim", nodes)
-    assert "```mermaid\nflowchart LR" in md and "| policy | `frontiers/pending` (frontier), `frontiers` (frontier) | `goal` (sim, frontier, planner, launcher) |" in md
+    assert "```mermaid\nflowchart LR" in md and "| policy | `frontiers` (frontier) | `goal` (sim, frontier, planner, launcher) |" in md
 
 
 def test_publish_refuses_what_the_outputs_do_not_declare():

@@ -9,7 +9,8 @@ from cso_runtime.config import MaskConfig
 from cso_runtime.frontiers import FrontierCluster
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.masks import StuckMask, valid_distance_mask
-from cso_runtime.observation import Observation, distance_maps_from, distance_source_key
+from cso_runtime.geodesic import geodesic_distance
+from cso_runtime.observation import Observation, distance_source_key
 from cso_runtime.policies import ActionMasker, GoalSelector, make_policy
 
 INF = np.inf
@@ -48,10 +49,14 @@ def test_stuck_mask_scripted_history():
     assert s.is_stuck()
     goals = np.array([[1.5, 1.0], [1.3, 2.2], [5.0, 5.0]])
 
-    def distance_from(src):
+    asked = []
+
+    def distance_from(src, within_m):
+        asked.append(within_m)
         return np.hypot(goals[:, 0] - src[0], goals[:, 1] - src[1])
 
     allowed = s.mask(3, distance_from)
+    assert asked == [MaskConfig().alpha3_m] * 3  # only distances below alpha_3 are asked for
     # goal 0 is 0.2 m from w_{t-1}: masked; goal 1 is 0.8 m from w_t: masked; goal 2 far: kept.
     assert allowed.tolist() == [False, False, True]
 
@@ -64,63 +69,62 @@ def test_not_stuck_when_moving_or_exploring():
     short = _stuck_with([((1.0, 1.0), 50.0, np.inf), ((1.1, 1.0), 50.0, 0.1)])
     assert not short.is_stuck()
     calls = []
-    assert short.mask(2, lambda src: calls.append(src) or np.zeros(2)).all() and calls == []
+    assert short.mask(2, lambda src, within_m: calls.append(src) or np.zeros(2)).all() and calls == []
 
 
-@pytest.mark.parametrize(
-    "history, area_now, moved_now, expect",
-    [
-        # Moved little and explored little so far: the prediction names w_{t-2}, w_{t-1} and w_t.
-        ([((1.0, 1.0), 50.0, np.inf), ((1.3, 1.0), 50.4, 0.3)], 50.9, 0.4, "stuck"),
-        # Same history, but the move to w_t (unknown before the decision) was long: predicted, not stuck.
-        ([((1.0, 1.0), 50.0, np.inf), ((1.3, 1.0), 50.4, 0.3)], 50.9, 1.5, "predicted only"),
-        # The history alone rules it out: no prediction, and no stuck mask.
-        ([((1.0, 1.0), 50.0, np.inf), ((3.0, 1.0), 50.1, 2.0)], 50.2, 0.1, "none"),
-        ([((1.0, 1.0), 50.0, np.inf), ((1.1, 1.0), 50.2, 0.1)], 52.0, 0.1, "none"),
-        ([((1.0, 1.0), 50.0, np.inf)], 50.0, 0.1, "none"),
-    ],
-)
-def test_stuck_sources_predicted_before_the_decision_cover_what_the_mask_asks_for(history, area_now, moved_now, expect):
-    """``sources_if_stuck`` (known before the decision's Observation) names every source ``mask`` then
-    measures from; it may name sources for a decision that is not stuck, never miss one."""
-    s = _stuck_with(history)
-    now = (1.3, 1.4)
-    predicted = s.sources_if_stuck(now, area_now)
-    s.record(now, area_now, moved_now)
-    asked = []
-    s.mask(2, lambda src: asked.append(src) or np.full(2, 5.0))
-    assert set(asked) <= set(predicted)
-    if expect == "stuck":
-        assert asked == predicted == [history[0][0], history[1][0], now]
-    elif expect == "predicted only":
-        assert asked == [] and len(predicted) == 3
-    else:
-        assert asked == predicted == []
-    off = ActionMasker(MaskConfig(use_stuck=False))
-    off.stuck = _stuck_with(history)
-    assert off.distance_sources(now, area_now) == []
+def _walled_grid(rng: np.random.Generator) -> np.ndarray:
+    """A 120 x 160 grid of open space with random wall segments and blobs (some cut off)."""
+    grid = np.ones((120, 160), dtype=bool)
+    grid[[0, -1], :] = grid[:, [0, -1]] = False
+    for _ in range(14):
+        y, x = rng.integers(5, 115), rng.integers(5, 155)
+        if rng.random() < 0.5:
+            grid[y : y + rng.integers(10, 40), x : x + 2] = False
+        else:
+            grid[y : y + 2, x : x + rng.integers(10, 40)] = False
+    grid &= rng.random(grid.shape) > 0.02  # speckle
+    return grid
 
 
-def test_distance_maps_computed_ahead_are_adopted_only_on_the_same_grid():
+@pytest.mark.parametrize("resolution_m", [0.05, 0.1])
+def test_bounded_distance_map_is_exact_below_its_bound(resolution_m):
+    """``geodesic_distance(..., within_m)`` (the stuck mask's cheap pass on a window around the source)
+    gives exactly the full map's value wherever that is below the bound, so the mask is the same."""
+    rng = np.random.default_rng(7)
+    g = GridGeometry(resolution_m, (120, 160))
+    checked = 0
+    for _ in range(12):
+        traversable = _walled_grid(rng)
+        ys, xs = np.nonzero(traversable)
+        i = rng.integers(ys.size)
+        x, y = g.cell_to_world(ys[i], xs[i])
+        source = np.array([x + rng.uniform(-0.4, 0.4) * resolution_m, y + rng.uniform(-0.4, 0.4) * resolution_m])
+        full = geodesic_distance(traversable, g, source)
+        for within_m in (0.3, 1.0, 2.5):
+            bounded = geodesic_distance(traversable, g, source, within_m=within_m)
+            near = full < within_m
+            np.testing.assert_array_equal(bounded < within_m, near)
+            np.testing.assert_array_equal(bounded[near], full[near])
+            checked += int(near.sum())
+    assert checked > 1000
+
+
+def test_observation_caches_distance_maps_per_source_and_bound():
     g = GridGeometry(0.1, (40, 60))
     traversable = np.zeros(g.shape, dtype=bool)
     traversable[5:35, 5:55] = True
     traversable[5:30, 30] = False  # a wall with a gap at the bottom
     obs = Observation(g, Pose2D(1.0, 1.0, 0.0), traversable, ~traversable, traversable, np.zeros(g.shape), traversable, np.zeros(g.shape), [], 10.0)
     source = (1.00001, 2.00004)  # rounds to the same key as (1.0, 2.0)
-    ahead = distance_maps_from(traversable, g, [source, (1.0, 2.0)])
-    assert list(ahead) == [distance_source_key(source)] == [(1.0, 2.0)]
-    fresh = Observation(g, obs.pose, traversable, ~traversable, traversable.copy(), obs.distance_m, traversable, obs.entropy, [], 10.0)
-    np.testing.assert_array_equal(ahead[(1.0, 2.0)], fresh.distance_map_from(source))  # same as computed on demand
-    assert np.isfinite(ahead[(1.0, 2.0)][20, 40]) and ahead[(1.0, 2.0)][20, 40] > 2.0  # around the wall, not through it
-    assert obs.adopt_distance_maps(g, traversable.copy(), ahead)
-    assert obs.distance_map_from(source) is ahead[(1.0, 2.0)]
-    other = traversable.copy()
-    other[30:, 30] = False  # the gap closed: another grid, not adopted
-    late = Observation(g, obs.pose, traversable, ~traversable, traversable, obs.distance_m, traversable, obs.entropy, [], 10.0)
-    assert not late.adopt_distance_maps(g, other, distance_maps_from(other, g, [source]))
-    assert not late.adopt_distance_maps(GridGeometry(0.1, (40, 60), 1.0, 0.0), traversable, ahead)  # another origin
-    np.testing.assert_array_equal(late.distance_map_from(source), ahead[(1.0, 2.0)])
+    assert distance_source_key(source) == (1.0, 2.0)
+    full = obs.distance_map_from(source)
+    assert full is obs.distance_map_from((1.0, 2.0))  # cached under the rounded key
+    np.testing.assert_array_equal(full, geodesic_distance(traversable, g, np.array([1.0, 2.0])))
+    assert np.isfinite(full[20, 40]) and full[20, 40] > 2.0  # around the wall, not through it
+    bounded = obs.distance_map_from(source, within_m=1.0)
+    assert bounded is not full and np.isinf(bounded[20, 40])  # farther than the bound: not computed
+    near = full < 1.0
+    np.testing.assert_array_equal(bounded[near], full[near])
 
 
 def make_obs(distances, entropies, sizes, pose=Pose2D(0.0, 0.0, 0.0)) -> Observation:

@@ -11,12 +11,11 @@ import time
 import numpy as np
 import pytest
 
-from cso_runtime.config import ExplorationConfig
+from cso_runtime.config import ExplorationConfig, MaskConfig
 from cso_runtime.episode import Explorer
 from cso_runtime.geometry import Pose2D, VelocityCommand
 from cso_runtime.messages import (
     CmdVelMsg,
-    DecisionPendingMsg,
     FrontiersMsg,
     GoalMsg,
     MapMsg,
@@ -27,8 +26,10 @@ from cso_runtime.messages import (
     decode,
     encode,
     frontiers_from_observation,
+    observation_from_frontiers,
 )
 from cso_runtime.planner import LocalPlanner, path_blocked_ahead
+from cso_runtime.policies import make_policy
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.transport import TransportConfig
 from services.common import Service, ServiceContext, ServiceInputs
@@ -50,7 +51,7 @@ def _service(cls: type[Service], lockstep: bool, params: dict | None = None) -> 
 
 def _feed(svc: Service, msg: Message) -> None:
     """As the service loop does: decoded from the wire, then handled."""
-    topics = {MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", DecisionPendingMsg: "frontiers_pending", GoalMsg: "goal", PlannerFeedbackMsg: "planner_feedback"}
+    topics = {MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", GoalMsg: "goal", PlannerFeedbackMsg: "planner_feedback"}
     topic = topics[type(msg)]
     svc.on_message("r0", topic, decode(encode(msg), type(msg)), time.monotonic())
 
@@ -106,10 +107,8 @@ def test_real_time_frontier_decides_on_the_newest_map_and_waits_for_the_goal():
     assert out == []
     frontier._inbox.get()
     _feed(frontier, m1)  # the last queued input: decide now, on the newest map
-    assert [(t, m.step) for t, m in out] == [("frontiers_pending", 1), ("frontiers", 1)]  # the notice comes first
-    pending, decision = out.pop(0)[1], out[0][1]
-    assert decision.decide and pending.pose == decision.pose and np.array_equal(pending.traversable, decision.arrays["traversable"])
-    assert pending.open_area_m2 == decision.open_area_m2
+    assert [(t, m.step, m.decide) for t, m in out] == [("frontiers", 1, True)]
+    assert out[0][1].pose == odom1.pose
     m2, odom2, _ = _inputs(ex, 2)
     _feed(frontier, odom2)
     _feed(frontier, m2)  # the goal of step 1 is not in yet: keep the current goal, do not ask again
@@ -128,14 +127,13 @@ def test_real_time_frontier_decides_on_the_newest_map_and_waits_for_the_goal():
     m4, odom4, _ = _inputs(ex, 4)
     _feed(frontier, odom4)
     _feed(frontier, m4)
-    assert [(t, m.step) for t, m in out[3:]] == [("frontiers_pending", 4), ("frontiers", 4)]
-    assert [(m.step, m.decide, m.reason) for _, m in out[4:]] == [(4, True, "reached")]
+    assert [(t, m.step, m.decide, m.reason) for t, m in out[3:]] == [("frontiers", 4, True, "reached")]
 
 
-def test_policy_computes_the_stuck_masks_distance_maps_ahead_and_decides_the_same(monkeypatch):
-    """Three decisions 0.1 m apart on one map: Algorithm 1 finds the robot stuck at the third. A policy
-    that got each ``frontiers/pending`` notice computed the three distance maps before the decision
-    message and computes none after it; its goals are those of a policy without the notices."""
+def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_in_process(monkeypatch):
+    """Three decisions 0.1 m apart on one map: Algorithm 1 finds the robot stuck at the third and
+    measures from the three decision positions, each with a fast-marching pass bounded by alpha_3.
+    The service's goals are those of the same selector run in one process on the same Observations."""
     import cso_runtime.observation as observation  # noqa: PLC0415
 
     ex = _explorer_at(0)
@@ -145,35 +143,17 @@ def test_policy_computes_the_stuck_masks_distance_maps_ahead_and_decides_the_sam
         pose = Pose2D(start.x_m + dx, start.y_m, start.yaw_rad)
         nodes.append((pose.x_m, pose.y_m))
         decisions.append(frontiers_from_observation(step, "reached", ex.builder.build(ex.map, pose, np.array(nodes)), 1.0))
-    ahead, ahead_out = _service(PolicyService, lockstep=True, params={"method": "cso"})
-    plain, plain_out = _service(PolicyService, lockstep=True, params={"method": "cso"})
-    computed = []
+    policy, out = _service(PolicyService, lockstep=True, params={"method": "cso"})
+    bounds = []
     real = observation.geodesic_distance
-    monkeypatch.setattr(observation, "geodesic_distance", lambda *a: computed.append(a[2]) or real(*a))
-    after_decision = {}
+    monkeypatch.setattr(observation, "geodesic_distance", lambda *a: bounds.append(a[3]) or real(*a))
     for f in decisions:
-        _feed(ahead, DecisionPendingMsg(f.step, f.pose, f.geometry, f.arrays["traversable"], f.open_area_m2))
-        computed.clear()
-        _feed(ahead, f)
-        after_decision["ahead", f.step] = len(computed)
-        computed.clear()
-        _feed(plain, f)
-        after_decision["plain", f.step] = len(computed)
-    assert plain.robots["r0"].selector.masker.stuck.is_stuck()
-    assert after_decision == {("ahead", 0): 0, ("plain", 0): 0, ("ahead", 1): 0, ("plain", 1): 0, ("ahead", 2): 0, ("plain", 2): 3}
-    assert ahead.maps_ahead == ahead.maps_adopted == 3
-    goals = [(t, m.step, m.x_m, m.y_m, m.cluster_index) for t, m in ahead_out]
-    assert len(goals) == 3 and goals == [(t, m.step, m.x_m, m.y_m, m.cluster_index) for t, m in plain_out]
-
-    # A notice on another traversable grid: the maps are computed, not adopted, and computed again.
-    other, _ = _service(PolicyService, lockstep=True, params={"method": "cso"})
-    for f in decisions:
-        wrong = f.arrays["traversable"].copy()
-        wrong[np.nonzero(wrong)[0][0], np.nonzero(wrong)[1][0]] = False
-        _feed(other, DecisionPendingMsg(f.step, f.pose, f.geometry, wrong, f.open_area_m2))
-        computed.clear()
-        _feed(other, f)
-    assert other.maps_ahead == 3 and other.maps_adopted == 0 and len(computed) == 3
+        _feed(policy, f)
+    assert policy.robots["r0"].selector.masker.stuck.is_stuck()
+    assert bounds == [MaskConfig().alpha3_m] * 3
+    in_process = make_policy("cso", MaskConfig(), seed=0)
+    expected = [in_process.select(observation_from_frontiers(f)) for f in decisions]
+    assert [(m.step, m.x_m, m.y_m, m.cluster_index) for _, m in out] == [(f.step, g.x_m, g.y_m, g.cluster_index) for f, g in zip(decisions, expected)]
 
 
 def test_real_time_planner_plans_a_goal_that_arrives_after_newer_odometry():

@@ -111,10 +111,6 @@ class LearnedPolicy:
         if seed is not None:
             self.generator.manual_seed(int(seed))
 
-    def distance_sources(self, position_xy_m: tuple[float, float], open_area_m2: float) -> list[tuple[float, float]]:
-        """Sources of the stuck mask's distance maps at the next decision (``ActionMasker.distance_sources``)."""
-        return self.masker.distance_sources(position_xy_m, open_area_m2)
-
     def action_mask(self, obs: Observation) -> np.ndarray:
         """The masks over the kept frontier nodes (records the decision for Algorithm 1)."""
         nf = frontier_count(obs, self.graph_config)
