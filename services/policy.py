@@ -3,7 +3,8 @@
 With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers`` and
 keeps one selector per robot). It answers the steps that ask for a decision with ``decided: true`` and
 the new goal (or none: nothing left to explore); on the other steps the planner keeps following the
-current goal without waiting for the policy, and late joiners query the last goal. A decision input older than ``stale_after_s`` is not acted on (the status says why).
+current goal without waiting for the policy, and late joiners query the last goal. A decision input
+older than ``stale_after_s`` is not acted on (the status says why).
 """
 
 from __future__ import annotations
