@@ -569,6 +569,27 @@ def test_egocentric_frame_rotates_node_positions_into_the_robot_frame(observatio
     assert Args(egocentric_frame=True).env_config().graph.egocentric and not Args().env_config().graph.egocentric
 
 
+def test_geodesic_edge_bound_lengthens_edges_to_the_geodesic_lower_bound(observation):
+    """``geodesic_edge_bound``: an edge between non-robot nodes is max(Euclidean, |l_i - l_j|), never
+    shorter than with Euclidean lengths; robot edges, neighbours and node features are unchanged."""
+    plain, bound = build_graph(observation, GraphConfig()), build_graph(observation, GraphConfig(geodesic_edge_bound=True))
+    n, robot, knn = int(plain["node_valid"].sum()), int(plain["robot"]), GraphConfig().knn
+    assert n > 3
+    for key in ("nodes", "neighbours", "neighbour_valid", "node_valid", "robot"):
+        np.testing.assert_array_equal(bound[key], plain[key])
+    np.testing.assert_array_equal(bound["edges"][:, knn], plain["edges"][:, knn])  # the robot column: geodesic already
+    np.testing.assert_array_equal(bound["edges"][robot], plain["edges"][robot])
+    scale = GraphConfig().distance_scale_m
+    geo = np.expm1(plain["nodes"][:n, 5].astype(float)) * scale  # the node's geodesic feature, back in metres
+    valid = plain["neighbour_valid"][:robot, :knn]
+    nbr = plain["neighbours"][:robot, :knn]
+    expected = np.maximum(plain["edges"][:robot, :knn, 0].astype(float), np.abs(geo[:robot, None] - geo[nbr]) / scale)
+    np.testing.assert_allclose(bound["edges"][:robot, :knn, 0][valid], expected[valid], rtol=1e-5, atol=1e-6)
+    assert (bound["edges"][:robot, :knn, 0] >= plain["edges"][:robot, :knn, 0]).all()
+    assert (bound["edges"][:robot, :knn, 0][valid] > plain["edges"][:robot, :knn, 0][valid] + 1e-6).any()
+    assert Args(geodesic_edge_bound=True).env_config().graph.geodesic_edge_bound and not Args().env_config().graph.geodesic_edge_bound
+
+
 def test_rollout_teacher_takes_the_try_that_finishes_first_without_touching_the_episode():
     """``rollout_choice`` finishes the episode from each candidate with the base policy on a copy and keeps
     the fewest steps; the explorer it copies is left as it was. In the env the teacher stays in the mask."""

@@ -128,6 +128,8 @@ class Args:
     """Give the network the unexplored fraction around each frontier cluster (``graph.unknown_fraction``)."""
     egocentric_frame: bool = False
     """Node positions in the robot's frame instead of the map's axes (``GraphConfig.egocentric``)."""
+    geodesic_edge_bound: bool = False
+    """Edges between non-robot nodes as max(Euclidean, |l_i - l_j|) (``GraphConfig.geodesic_edge_bound``)."""
     distance_prior: float = 0.0
     """> 0: the actor scores a residual over greedy-dist's ``-distance_prior * log(1 + l / scale)``
     (``NetworkConfig.distance_prior``); PPO then starts from greedy-dist's choices, no warm start needed."""
@@ -190,6 +192,7 @@ class Args:
             use_cluster_size=self.cluster_size_feature,
             use_unknown_area=self.unknown_area_feature,
             egocentric=self.egocentric_frame,
+            geodesic_edge_bound=self.geodesic_edge_bound,
         )
         return EnvConfig(exploration, graph, RewardConfig(self.r_step, self.lambda_c), self.max_steps)
 
