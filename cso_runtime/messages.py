@@ -371,21 +371,20 @@ class MapMsg(Message):
         return cls(_int(b, "step", where), geometry, explored, occupied, _int(b, "episode", where))
 
 
-def _masked_grid_in(raw: dict, masks: dict, key: str, geometry: GridGeometry, fill: float, dtype: type) -> np.ndarray:
-    """A grid sent as its values (1-D, row by row) where its boolean mask is set, ``fill`` elsewhere.
-    The values must be non-negative (distances, counts), finite, and one per set cell."""
+def _masked_counts_in(raw: dict, masks: dict, key: str, geometry: GridGeometry) -> np.ndarray:
+    """A grid of counts sent as its values (1-D, row by row, any integer width) where its boolean
+    mask is set, 0 elsewhere. The values must be non-negative and one per set cell."""
     where = f"frontiers.arrays.{key}"
     mask = _grid_in(masks, key, "frontiers.masks", geometry, "bool")
     values = unpack_array(raw[key], where, ndim=1, finite=True)
-    counts = np.dtype(dtype).kind in "iu"  # I: integer counts of any width; D: float64 metres
-    if not (values.dtype.kind in "iu" if counts else values.dtype == np.float64):
-        raise MessageError(f"{where}: expected {'integer' if counts else 'float64'} values, got {values.dtype}")
+    if values.dtype.kind not in "iu":
+        raise MessageError(f"{where}: expected integer values, got {values.dtype}")
     n_set = int(np.count_nonzero(mask))
     if n_set != values.size:
         raise MessageError(f"{where}: {values.size} values for {n_set} cells in its mask")
     if (values < 0).any():
         raise MessageError(f"{where}: negative values")
-    grid = np.full(geometry.shape, fill, dtype=dtype)
+    grid = np.zeros(geometry.shape, dtype=np.int32)
     grid.ravel()[np.flatnonzero(mask)] = values  # 3-4x faster than grid[mask] = values on a 640 x 480 grid
     return grid
 
@@ -415,56 +414,61 @@ class FrontiersMsg(Message):
     """The decision input of one step. ``decide`` false: keep the current goal (no arrays sent).
 
     ``decide`` true: everything a goal selector needs to rebuild the Observation without recomputing the
-    fast-marching distance (explored, occupied, traversable, D, F, I, clusters, path nodes).
+    fast-marching distance: explored, occupied, traversable, F, I, the clusters (each with its goal's
+    geodesic distance) and the path nodes with D at each of them. D itself stays home: goal selectors
+    read it only there, and the planner computes it again from the traversable grid and the pose
+    while the policy decides (the same pass, so the same values; BENCHMARKS.md, issue 4).
     """
 
     SCHEMA: ClassVar[str] = "frontiers"
-    VERSION: ClassVar[int] = 5
+    VERSION: ClassVar[int] = 6
     """2: D travels as its finite window (``distance_window``), I as the smallest unsigned type.
     3: within the window, only D's finite values travel, with the window's finite mask (``distance_finite``).
     4: boolean grids travel bit-packed (``pack_array``).
     5: D and I travel as their values where their mask (``masks``) is set: D's finite cells, I's non-zero
-    ones (I was sent whole: two thirds of a decision message on a 640 x 480 map)."""
+    ones (I was sent whole: two thirds of a decision message on a 640 x 480 map).
+    6: D no longer travels (nine tenths of a decision message on a 640 x 480 map), only its values at the
+    path nodes (``path_nodes_distance_m``)."""
     step: int
     decide: bool
     reason: str = ""
     pose: Pose2D | None = None
     geometry: GridGeometry | None = None
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
-    """explored, occupied, traversable, frontier (bool), distance_m (float64, inf = unreachable), entropy (int32)."""
+    """explored, occupied, traversable, frontier (bool), entropy (int32)."""
     clusters: list[dict[str, Any]] = field(default_factory=list)
     open_area_m2: float = 0.0
     path_nodes_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     build_ms: float = 0.0
+    path_nodes_distance_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """D at each path node's cell (inf: unreachable or off the map)."""
 
     GRIDS: ClassVar[dict[str, str]] = {
         "explored": "bool",
         "occupied": "bool",
         "traversable": "bool",
         "frontier": "bool",
-        "distance_m": "float64",
         "entropy": "int32",
     }
-    MASKED: ClassVar[tuple[str, ...]] = ("distance_m", "entropy")
-    """Grids that travel as their values where a mask is set (D: finite; I: non-zero)."""
+    MASKED: ClassVar[tuple[str, ...]] = ("entropy",)
+    """Grids that travel as their values where a mask is set (I: non-zero)."""
 
     def body(self) -> dict[str, Any]:
         b: dict[str, Any] = {"step": self.step, "decide": self.decide, "reason": self.reason}
         if not self.decide:
             return b
         assert self.pose is not None and self.geometry is not None
-        distance = np.asarray(self.arrays["distance_m"], dtype=np.float64)
         entropy = np.asarray(self.arrays["entropy"])
-        masks = {"distance_m": distance != np.inf, "entropy": entropy != 0}  # a NaN in D is sent, for the receiver to reject
+        masks = {"entropy": entropy != 0}
         b.update(
             pose=_pose_out(self.pose),
             geometry=_geometry_out(self.geometry),
-            # Boolean grids compress 20-50x for almost nothing. D and I would cost more CPU to zlib than
-            # to send, so they are made small instead: each as its values where its mask is set (D's
-            # finite cells, about half the map; I's non-zero ones, about 1 %), row by row, with the mask
-            # as a boolean grid; I in the smallest unsigned type that holds it. Both lossless.
+            # Boolean grids compress 20-50x for almost nothing. I would cost more CPU to zlib than to
+            # send, so it is made small instead: its values where they are non-zero (about 1 % of the
+            # cells), row by row, in the smallest unsigned type that holds them, with that mask as a
+            # boolean grid. Lossless.
             arrays={k: pack_array(np.asarray(self.arrays[k], dtype=dt), compress=True) for k, dt in self.GRIDS.items() if dt == "bool"}
-            | {"distance_m": pack_array(distance[masks["distance_m"]], compress=False), "entropy": pack_array(_narrow_counts(entropy[masks["entropy"]]), compress=False)},
+            | {"entropy": pack_array(_narrow_counts(entropy[masks["entropy"]]), compress=False)},
             masks={k: pack_array(m, compress=True) for k, m in masks.items()},
             clusters=[
                 {
@@ -480,6 +484,7 @@ class FrontiersMsg(Message):
             ],
             open_area_m2=self.open_area_m2,
             path_nodes_xy_m=pack_array(np.asarray(self.path_nodes_xy_m, dtype=np.float64).reshape(-1, 2)),
+            path_nodes_distance_m=pack_array(np.asarray(self.path_nodes_distance_m, dtype=np.float64).reshape(-1)),
             build_ms=self.build_ms,
         )
         return b
@@ -498,8 +503,7 @@ class FrontiersMsg(Message):
         masks = _get(b, "masks", w)
         if not isinstance(masks, dict) or set(masks) != set(cls.MASKED):
             raise MessageError(f"frontiers.masks: expected exactly {', '.join(cls.MASKED)}")
-        arrays["distance_m"] = _masked_grid_in(raw, masks, "distance_m", geometry, np.inf, np.float64)
-        arrays["entropy"] = _masked_grid_in(raw, masks, "entropy", geometry, 0, np.int32)
+        arrays["entropy"] = _masked_counts_in(raw, masks, "entropy", geometry)
         clusters_raw = _get(b, "clusters", w)
         if not isinstance(clusters_raw, list):
             raise MessageError("frontiers.clusters: expected a list")
@@ -531,6 +535,9 @@ class FrontiersMsg(Message):
         nodes = unpack_array(_get(b, "path_nodes_xy_m", w), "frontiers.path_nodes_xy_m", ndim=2, finite=True)
         if nodes.shape[1:] != (2,):
             raise MessageError("frontiers.path_nodes_xy_m: expected (n, 2)")
+        node_d = unpack_array(_get(b, "path_nodes_distance_m", w), "frontiers.path_nodes_distance_m", ndim=1)
+        if node_d.dtype != np.float64 or node_d.shape != (len(nodes),) or (node_d < 0).any():
+            raise MessageError("frontiers.path_nodes_distance_m: expected one non-negative float64 (inf: unreachable) per path node")
         return cls(
             step,
             True,
@@ -542,6 +549,7 @@ class FrontiersMsg(Message):
             _num(b, "open_area_m2", w, 0.0),
             nodes,
             _num(b, "build_ms", w, 0.0),
+            node_d,
         )
 
 
@@ -560,11 +568,13 @@ def frontiers_from_observation(step: int, reason: str, obs: Observation, build_m
         }
         for c in obs.clusters
     ]
-    return FrontiersMsg(step, True, reason, obs.pose, obs.geometry, arrays, clusters, obs.open_area_m2, obs.path_nodes_xy_m, build_ms)
+    nodes = np.asarray(obs.path_nodes_xy_m, dtype=float).reshape(-1, 2)
+    return FrontiersMsg(step, True, reason, obs.pose, obs.geometry, arrays, clusters, obs.open_area_m2, nodes, build_ms, obs.distance_at(nodes))
 
 
 def observation_from_frontiers(msg: FrontiersMsg) -> Observation:
-    """Rebuild the Observation a goal selector needs, without recomputing the fast-marching distance."""
+    """Rebuild the Observation a goal selector needs, without recomputing the fast-marching distance
+    (D is known at the path nodes; ``Observation.distance_map`` computes the rest if ever asked)."""
     if not msg.decide or msg.geometry is None or msg.pose is None:
         raise MessageError("frontiers: no observation in a keep-goal message")
     a = msg.arrays
@@ -578,13 +588,21 @@ def observation_from_frontiers(msg: FrontiersMsg) -> Observation:
         explored=a["explored"],
         occupied=a["occupied"],
         traversable=a["traversable"],
-        distance_m=a["distance_m"],
+        distance_m=None,
         frontier=a["frontier"],
         entropy=a["entropy"],
         clusters=clusters,
         open_area_m2=msg.open_area_m2,
         path_nodes_xy_m=msg.path_nodes_xy_m,
+        known_distance_m=_cell_values(msg.geometry, msg.path_nodes_xy_m, msg.path_nodes_distance_m),
     )
+
+
+def _cell_values(geometry: GridGeometry, xy_m: np.ndarray, values: np.ndarray) -> dict[tuple[int, int], float]:
+    """{(iy, ix): value} for the points on the grid."""
+    iy, ix = geometry.world_to_cell(xy_m[:, 0], xy_m[:, 1])
+    inside = geometry.in_bounds(iy, ix)
+    return {(int(y), int(x)): float(v) for y, x, v in zip(iy[inside], ix[inside], np.asarray(values)[inside])}
 
 @dataclass
 class GoalMsg(Message):

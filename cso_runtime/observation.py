@@ -22,8 +22,10 @@ class Observation:
     explored: np.ndarray
     occupied: np.ndarray
     traversable: np.ndarray
-    distance_m: np.ndarray
-    """D(M_t, w_t): geodesic distance from the robot, inf where unreachable."""
+    distance_m: np.ndarray | None
+    """D(M_t, w_t): geodesic distance from the robot, inf where unreachable. None on an Observation
+    rebuilt from a decision message, which carries D only where goal selectors read it (the path
+    nodes, ``known_distance_m``): ``distance_at`` reads those, ``distance_map`` computes D again."""
     frontier: np.ndarray
     """F_t as a boolean grid."""
     entropy: np.ndarray
@@ -34,6 +36,8 @@ class Observation:
     """||M_t||, the explored open area."""
     path_nodes_xy_m: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     """Omega_t: the robot's past decision positions (oldest first), for the graph policy."""
+    known_distance_m: dict[tuple[int, int], float] = field(default_factory=dict, repr=False)
+    """D at single cells (iy, ix), for an Observation without ``distance_m``."""
     _extra_distance: dict = field(default_factory=dict, repr=False)
 
     @property
@@ -46,6 +50,29 @@ class Observation:
     @property
     def goal_distance_m(self) -> np.ndarray:
         return np.array([c.distance_m for c in self.clusters], dtype=float)
+
+    def distance_map(self) -> np.ndarray:
+        """D over the whole map; computed again (one fast-marching pass, the same as ``build``'s, so
+        the same values) on an Observation that travelled without it."""
+        if self.distance_m is None:
+            self.distance_m = geodesic_distance(self.traversable, self.geometry, self.pose.xy)
+        return self.distance_m
+
+    def distance_at(self, xy_m: np.ndarray) -> np.ndarray:
+        """D at the cells of the points ``xy_m`` (n, 2): inf off the map or where unreachable. Reads
+        ``known_distance_m`` when D did not travel and every cell asked for is known there."""
+        pts = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+        iy, ix = self.geometry.world_to_cell(pts[:, 0], pts[:, 1])
+        iy, ix = np.asarray(iy, dtype=int), np.asarray(ix, dtype=int)
+        inside = self.geometry.in_bounds(iy, ix)
+        out = np.full(len(pts), np.inf)
+        if self.distance_m is None:
+            cells = list(zip(iy[inside].tolist(), ix[inside].tolist()))
+            if all(c in self.known_distance_m for c in cells):
+                out[inside] = [self.known_distance_m[c] for c in cells]
+                return out
+        out[inside] = self.distance_map()[iy[inside], ix[inside]]
+        return out
 
     def distance_map_from(self, source_xy_m: tuple[float, float], within_m: float | None = None) -> np.ndarray:
         """Geodesic distance map from another source on the same map (cached per source and bound);

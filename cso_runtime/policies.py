@@ -68,10 +68,7 @@ class ActionMasker:
             allowed &= vdm
         moved = np.inf
         if self.stuck.history:
-            px, py = self.stuck.history[-1].position_xy_m
-            gy, gx = obs.geometry.world_to_cell(px, py)
-            if obs.geometry.in_bounds(gy, gx):
-                moved = float(obs.distance_m[int(gy), int(gx)])
+            moved = float(obs.distance_at(np.array([self.stuck.history[-1].position_xy_m]))[0])
         self.stuck.record((obs.pose.x_m, obs.pose.y_m), obs.open_area_m2, moved)
         if self.config.use_stuck:
             stuck_allowed = self.stuck.mask(n, obs.goal_distances_from)

@@ -220,12 +220,30 @@ def test_frontiers_rebuild_the_same_observation_and_decision():
     back = decode(encode(frontiers_from_observation(3, "no_goal", obs, 4.5)), FrontiersMsg)
     assert isinstance(back, FrontiersMsg) and back.decide and back.reason == "no_goal"
     rebuilt = observation_from_frontiers(back)
-    for name in ("explored", "occupied", "traversable", "frontier", "entropy", "distance_m"):
+    for name in ("explored", "occupied", "traversable", "frontier", "entropy"):
         np.testing.assert_array_equal(getattr(rebuilt, name), getattr(obs, name))
     assert rebuilt.geometry == obs.geometry and rebuilt.pose == obs.pose
     assert [c.goal_cell for c in rebuilt.clusters] == [c.goal_cell for c in obs.clusters]
-    for name in ("greedy-dist", "greedy-info", "utility"):
+    for name in ("greedy-dist", "greedy-info", "utility", "cso"):
         assert make_policy(name).select(rebuilt) == make_policy(name).select(obs)
+    assert rebuilt.distance_m is None  # the graph policy read D at the path nodes only: no pass was needed
+    np.testing.assert_array_equal(rebuilt.distance_map(), obs.distance_m)  # computed again: the same values
+
+
+def test_observation_reads_d_at_path_nodes_and_computes_it_again_for_other_cells():
+    obs = _observation()
+    nodes = np.array([[2.0, 1.5], [2.5, 1.5], [0.35, 0.35], [-5.0, 1.0]])  # the robot, reachable, unknown, off the map
+    obs = type(obs)(**{**obs.__dict__, "path_nodes_xy_m": nodes})
+    msg = decode(encode(frontiers_from_observation(3, "no_goal", obs, 1.0)), FrontiersMsg)
+    expected = obs.distance_at(nodes)
+    assert np.isfinite(expected[:2]).all() and np.isinf(expected[2:]).all()
+    np.testing.assert_array_equal(msg.path_nodes_distance_m, expected)
+    rebuilt = observation_from_frontiers(msg)
+    np.testing.assert_array_equal(rebuilt.distance_at(nodes[::-1]), expected[::-1])
+    assert rebuilt.distance_m is None
+    other = np.array([[1.6, 1.2]])  # not a path node: D is computed again, once
+    assert rebuilt.distance_at(other)[0] == obs.distance_at(other)[0] and np.isfinite(obs.distance_at(other)[0])
+    np.testing.assert_array_equal(rebuilt.distance_m, obs.distance_m)
 
 
 # --- rejections ----------------------------------------------------------------------------------
@@ -346,7 +364,7 @@ def test_bad_maps_are_rejected():
             decode(_wire("map", body))
 
 
-def test_frontiers_send_d_and_i_as_their_masked_values_and_restore_them_exactly():
+def test_frontiers_send_i_as_its_masked_values_and_restore_it_exactly():
     obs = _observation()
     entropy = obs.entropy.copy()
     entropy[:, : entropy.shape[1] // 2] = 0  # far from frontiers, I is 0
@@ -354,36 +372,37 @@ def test_frontiers_send_d_and_i_as_their_masked_values_and_restore_them_exactly(
     msg = frontiers_from_observation(3, "no_goal", obs, 1.0)
     back = decode(encode(msg), FrontiersMsg)
     assert isinstance(back, FrontiersMsg)
-    np.testing.assert_array_equal(back.arrays["distance_m"], obs.distance_m)  # inf where unreachable
     np.testing.assert_array_equal(back.arrays["entropy"], obs.entropy)  # 0 away from frontiers
-    assert back.arrays["entropy"].dtype == np.int32 and back.arrays["distance_m"].dtype == np.float64
+    assert back.arrays["entropy"].dtype == np.int32
     sent = _body(msg)["arrays"]
-    assert sent["distance_m"]["shape"] == [int(np.isfinite(obs.distance_m).sum())]  # only the finite values travel
+    assert "distance_m" not in sent  # D stays home (path nodes only)
     assert sent["entropy"]["shape"] == [int(np.count_nonzero(obs.entropy))] == [obs.entropy.size // 2]  # only the non-zero counts
     assert _body(msg)["masks"]["entropy"]["z"] == "bits"
-    unreachable = type(obs)(**{**obs.__dict__, "distance_m": np.full_like(obs.distance_m, np.inf), "entropy": np.zeros_like(obs.entropy)})
-    back = decode(encode(frontiers_from_observation(4, "no_goal", unreachable, 1.0)), FrontiersMsg)
-    assert np.isinf(back.arrays["distance_m"]).all() and not back.arrays["entropy"].any()
+    empty = type(obs)(**{**obs.__dict__, "entropy": np.zeros_like(obs.entropy)})
+    back = decode(encode(frontiers_from_observation(4, "no_goal", empty, 1.0)), FrontiersMsg)
+    assert not back.arrays["entropy"].any()
 
 
 def test_bad_frontiers_are_rejected():
     obs = _observation()
     good = _body(frontiers_from_observation(3, "no_goal", obs, 1.0))
-    d = obs.distance_m.copy()
-    d[0, 0] = np.nan
-    nan_dist = _body(frontiers_from_observation(3, "no_goal", type(obs)(**{**obs.__dict__, "distance_m": d}), 1.0))
     bad_cluster = dict(good["clusters"][0], goal_cell=[999, 0])
     cases = [
-        nan_dist,
+        {**good, "path_nodes_distance_m": pack_array(np.array([np.nan]))},
+        {**good, "path_nodes_distance_m": pack_array(np.array([-1.0]))},
+        {**good, "path_nodes_distance_m": pack_array(np.array([0.0, 1.0]))},  # two values for one path node
+        {**good, "path_nodes_distance_m": pack_array(np.array([0], dtype=np.int32))},
+        {k: v for k, v in good.items() if k != "path_nodes_distance_m"},
         {**good, "clusters": [bad_cluster]},
         {**good, "clusters": [dict(good["clusters"][0], distance_m=float("nan"))]},
         {**good, "arrays": {k: v for k, v in good["arrays"].items() if k != "entropy"}},
-        {**good, "masks": {"distance_m": good["masks"]["distance_m"]}},  # the entropy mask missing
-        {**good, "masks": dict(good["masks"], entropy=good["masks"]["distance_m"])},  # more set cells than values
-        {**good, "masks": dict(good["masks"], distance_m=dict(good["masks"]["distance_m"], shape=[obs.geometry.shape[0] - 1, obs.geometry.shape[1]]))},  # not the grid's shape
+        {**good, "masks": {}},  # the entropy mask missing
+        {**good, "masks": dict(good["masks"], entropy=pack_array(np.arange(obs.entropy.size).reshape(obs.geometry.shape) % 2 == 0, compress=True))},  # fewer set cells than values
+        {**good, "masks": dict(good["masks"], entropy=dict(good["masks"]["entropy"], shape=[obs.geometry.shape[0] - 1, obs.geometry.shape[1]]))},  # not the grid's shape
+        {**good, "arrays": dict(good["arrays"], distance_m=good["arrays"]["entropy"])},  # an unknown grid
         {**good, "masks": dict(good["masks"], entropy=good["arrays"]["entropy"])},  # not a boolean mask
         {**good, "arrays": dict(good["arrays"], entropy=pack_array(np.ones(int(np.count_nonzero(obs.entropy)))))},  # floats, not counts
-        {**good, "arrays": dict(good["arrays"], distance_m=dict(good["arrays"]["distance_m"], data=good["arrays"]["distance_m"]["data"][:-8], shape=[good["arrays"]["distance_m"]["shape"][0] - 1]))},  # a value short
+        {**good, "arrays": dict(good["arrays"], entropy=dict(good["arrays"]["entropy"], data=good["arrays"]["entropy"]["data"][:-1], shape=[good["arrays"]["entropy"]["shape"][0] - 1]))},  # a value short
         {**good, "path_nodes_xy_m": _body(PathMsg(0, np.array([[np.inf, 0.0]])))["path_xy_m"]},
     ]
     for body in cases:

@@ -138,11 +138,12 @@ def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_i
 
     ex = _explorer_at(0)
     start = ex.sim.odometry()
-    decisions, nodes = [], []
+    decisions, observations, nodes = [], [], []
     for step, dx in ((0, 0.0), (1, 0.1), (2, 0.2)):
         pose = Pose2D(start.x_m + dx, start.y_m, start.yaw_rad)
         nodes.append((pose.x_m, pose.y_m))
-        decisions.append(frontiers_from_observation(step, "reached", ex.builder.build(ex.map, pose, np.array(nodes)), 1.0))
+        observations.append(ex.builder.build(ex.map, pose, np.array(nodes)))
+        decisions.append(frontiers_from_observation(step, "reached", observations[-1], 1.0))
     policy, out = _service(PolicyService, lockstep=True, params={"method": "cso"})
     bounds = []
     real = observation.geodesic_distance
@@ -150,9 +151,9 @@ def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_i
     for f in decisions:
         _feed(policy, f)
     assert policy.robots["r0"].selector.masker.stuck.is_stuck()
-    assert bounds == [MaskConfig().alpha3_m] * 3
+    assert bounds == [MaskConfig().alpha3_m] * 3  # and no unbounded pass: D at the path nodes travelled
     in_process = make_policy("cso", MaskConfig(), seed=0)
-    expected = [in_process.select(observation_from_frontiers(f)) for f in decisions]
+    expected = [in_process.select(obs) for obs in observations]
     assert [(m.step, m.x_m, m.y_m, m.cluster_index) for _, m in out] == [(f.step, g.x_m, g.y_m, g.cluster_index) for f, g in zip(decisions, expected)]
 
 
@@ -191,9 +192,16 @@ def test_lockstep_planner_keeps_the_goal_without_the_policy_and_waits_for_a_deci
     _feed(planner, scan)
     _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
     assert not [m for t, m in out if t == "cmd_vel"]  # a decision is due: wait for the policy's goal
+    # D does not travel: the planner computed it on the decision message, while the policy decides
+    np.testing.assert_array_equal(planner.distance_maps[0], obs.distance_m)
     _feed(planner, _far_goal(obs, 0))
     cmds = [m for t, m in out if t == "cmd_vel"]
     assert [(c.step, c.new_goal) for c in cmds] == [(0, True)]
+    goal = _far_goal(obs, 0)
+    in_process = LocalPlanner()
+    in_process.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_m)
+    np.testing.assert_array_equal(planner.planner.path, in_process.path)
+    assert not planner.distance_maps  # used up with the step
     _feed(planner, OdometryMsg(1, odom.stamp_s + 0.25, odom.pose))
     _feed(planner, ScanMsg(1, scan.scan, scan.sensor_pose))
     _feed(planner, FrontiersMsg(1, False))  # keep the goal: commanded with no goal message at all

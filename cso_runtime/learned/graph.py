@@ -27,7 +27,7 @@ Node features (``NODE_FEATURES``), all scale-free:
 
 Edges (a choice made for speed, stated here as the docstring must): computing geodesic distances
 between all pairs of nodes would need one fast-marching pass per node. Instead, the robot's own
-distance map ``obs.distance_m`` gives the exact geodesic distance l for every robot<->node edge,
+distance map D (``obs.distance_at``) gives the exact geodesic distance l for every robot<->node edge,
 and every other pair uses the Euclidean distance (or, with ``GraphConfig.geodesic_edge_bound``, the larger of
 it and |l_i - l_j|, also a lower bound of the geodesic l_ij). Each node is connected to its ``knn`` nearest
 nodes (Euclidean, itself included; geodesic for the robot's own list) plus the robot node, so the graph is sparse
@@ -130,12 +130,7 @@ def build_graph(obs: Observation, config: GraphConfig) -> dict[str, np.ndarray]:
     # geodesic distance from the robot to each node (path nodes: the distance map at their cell)
     geo = np.empty(n)
     geo[:nf] = obs.goal_distance_m[:nf]
-    iy, ix = obs.geometry.world_to_cell(path[:, 0], path[:, 1])
-    iy, ix = np.asarray(iy, dtype=int), np.asarray(ix, dtype=int)
-    inside = obs.geometry.in_bounds(iy, ix)
-    pd = np.full(npath, np.inf)
-    pd[inside] = obs.distance_m[iy[inside], ix[inside]]
-    geo[nf:] = pd
+    geo[nf:] = obs.distance_at(path)
     euclid_robot = np.hypot(xy[:, 0] - robot_xy[0], xy[:, 1] - robot_xy[1])
     geo = np.where(np.isfinite(geo), geo, euclid_robot)  # unreachable old positions: straight line
     robot = n - 1
