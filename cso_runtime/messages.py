@@ -416,8 +416,8 @@ class FrontiersMsg(Message):
     ``decide`` true: everything a goal selector needs to rebuild the Observation without recomputing the
     fast-marching distance: explored, occupied, traversable, F, I, the clusters (each with its goal's
     geodesic distance) and the path nodes with D at each of them. D itself stays home: goal selectors
-    read it only there, and the planner computes it again from the traversable grid and the pose
-    while the policy decides (the same pass, so the same values; BENCHMARKS.md, issue 4).
+    read it only there, and the planner needs it only nearer than the goal it gets, so it runs its own
+    fast-marching pass, stopped just past the goal (the same path; BENCHMARKS.md, issue 4).
     """
 
     SCHEMA: ClassVar[str] = "frontiers"

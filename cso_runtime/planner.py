@@ -68,16 +68,28 @@ def plan_path(
     start_xy_m: np.ndarray,
     goal_xy_m: np.ndarray,
     distance_from_start: np.ndarray | None = None,
+    goal_distance_m: float | None = None,
 ) -> np.ndarray:
     """Shortest path from start to goal through ``traversable`` cells, as metric waypoints.
 
     Pass ``distance_from_start`` when a distance map from the start already exists (one fast-marching
-    pass per decision is enough). Raises NoPath when the goal is unreachable or off the map.
+    pass per decision is enough). Otherwise, with ``goal_distance_m`` (the goal's geodesic distance, as
+    a decision message gives it), fast marching stops just past the goal: the descent from the goal
+    reads only cells closer than it, and below its bound a bounded pass is exactly the full map
+    (``geodesic_distance``), so the path is the same; a goal the bounded pass does not reach in time
+    (a wrong hint) gets the whole map. Raises NoPath when the goal is unreachable or off the map.
     """
-    d = distance_from_start if distance_from_start is not None else geodesic_distance(traversable, geometry, start_xy_m)
     gy, gx = geometry.world_to_cell(goal_xy_m[0], goal_xy_m[1])
     if not geometry.in_bounds(gy, gx):
         raise NoPath("goal is outside the map")
+    d = distance_from_start
+    if d is None and goal_distance_m is not None and math.isfinite(goal_distance_m):
+        within_m = float(goal_distance_m) + geometry.resolution_m
+        d = geodesic_distance(traversable, geometry, start_xy_m, within_m)
+        if not d[int(gy), int(gx)] < within_m:
+            d = None
+    if d is None:
+        d = geodesic_distance(traversable, geometry, start_xy_m)
     path = descend_path(d, geometry, (int(gy), int(gx)))
     path[-1] = np.asarray(goal_xy_m, dtype=float)
     return path
@@ -289,10 +301,12 @@ class LocalPlanner:
         pose: Pose2D,
         goal_xy_m: np.ndarray,
         distance_from_robot: np.ndarray | None = None,
+        goal_distance_m: float | None = None,
     ) -> PlannerStatus:
-        """Plan to a new goal; the status is ``blocked`` when there is no path."""
+        """Plan to a new goal; the status is ``blocked`` when there is no path. Without
+        ``distance_from_robot``, ``goal_distance_m`` bounds the fast-marching pass (``plan_path``)."""
         try:
-            path = plan_path(traversable, geometry, pose.xy, np.asarray(goal_xy_m, dtype=float), distance_from_robot)
+            path = plan_path(traversable, geometry, pose.xy, np.asarray(goal_xy_m, dtype=float), distance_from_robot, goal_distance_m)
             self.set_path(path, FreeSpace(traversable, geometry))
         except NoPath:
             self.path = None

@@ -20,7 +20,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.geometry import VelocityCommand
-from cso_runtime.messages import CmdVelMsg, FrontiersMsg, GoalMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, ScanMsg, observation_from_frontiers
+from cso_runtime.messages import CmdVelMsg, FrontiersMsg, GoalMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, ScanMsg
 from cso_runtime.planner import FollowResult, LocalPlanner, PlannerStatus
 from services.common import Service, ServiceContext, service_main
 
@@ -63,9 +63,6 @@ class PlannerService(Service):
         self.odoms: dict[int, tuple[OdometryMsg, float]] = {}
         self.scans: dict[int, tuple[ScanMsg, float]] = {}
         self.frontiers: dict[int, FrontiersMsg] = {}
-        self.distance_maps: dict[int, np.ndarray] = {}
-        """D of each decision message (it does not travel), computed as the message arrives, while the
-        policy decides on it, so that planning to the goal is a descent only."""
         self.goals: dict[int, GoalMsg] = {}
         self.cmd_step = -1
         self.goal_step = -1
@@ -102,8 +99,6 @@ class PlannerService(Service):
             self.scans[step] = (msg, received_s)
         elif isinstance(msg, FrontiersMsg) and (msg.decide or self.ctx.lockstep):
             self.frontiers[step] = msg  # real time needs only those that carry a decision's grids
-            if msg.decide:
-                self.distance_maps[step] = observation_from_frontiers(msg).distance_map()
         elif isinstance(msg, GoalMsg) and msg.decided:
             self.goals[step] = msg
         self.progress()
@@ -182,17 +177,15 @@ class PlannerService(Service):
         self.publish("planner_feedback", self.last_feedback)
 
     def apply_goal(self, f: FrontiersMsg, g: GoalMsg) -> None:
-        """Plan to a newly decided goal on the traversable grid and distance field it was chosen on."""
+        """Plan to a newly decided goal on the traversable grid it was chosen on. D does not travel: the
+        planner's own fast-marching pass stops just past the goal's distance (the same path as on D)."""
         self.pending_new_goal, self.goal_step = True, g.step
         if not g.has_goal:
             self.planner.clear()
             self.no_frontier = True
             return
         self.no_frontier = False
-        distance = self.distance_maps.get(f.step)
-        if distance is None:
-            distance = observation_from_frontiers(f).distance_map()
-        status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), distance)
+        status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), goal_distance_m=g.distance_m)
         self.set_goal_blocked = status == PlannerStatus.BLOCKED
 
     def on_command(self, k: int, f: FrontiersMsg | None, g: GoalMsg | None) -> None:
@@ -203,7 +196,7 @@ class PlannerService(Service):
         # Lockstep: this step's frontiers and goal are used up. Real time: those of a decision not
         # planned yet are kept (a goal may arrive after newer odometry).
         done = k if self.ctx.lockstep else self.goal_step
-        for d, last in ((self.odoms, k), (self.scans, k), (self.goals, done), (self.frontiers, done), (self.distance_maps, done)):
+        for d, last in ((self.odoms, k), (self.scans, k), (self.goals, done), (self.frontiers, done)):
             for s in [s for s in d if s <= last]:
                 d.pop(s)
         self.cmd_step = self.last_step = k

@@ -53,3 +53,17 @@ def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:
             return value
         time.sleep(0.02)
     raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+def walled_grid(rng: np.random.Generator) -> np.ndarray:
+    """A 120 x 160 grid of open space with random wall segments and blobs (some cut off)."""
+    grid = np.ones((120, 160), dtype=bool)
+    grid[[0, -1], :] = grid[:, [0, -1]] = False
+    for _ in range(14):
+        y, x = rng.integers(5, 115), rng.integers(5, 155)
+        if rng.random() < 0.5:
+            grid[y : y + rng.integers(10, 40), x : x + 2] = False
+        else:
+            grid[y : y + 2, x : x + rng.integers(10, 40)] = False
+    grid &= rng.random(grid.shape) > 0.02  # speckle
+    return grid

@@ -12,6 +12,7 @@ from cso_runtime.masks import StuckMask, valid_distance_mask
 from cso_runtime.geodesic import geodesic_distance
 from cso_runtime.observation import Observation, distance_source_key
 from cso_runtime.policies import ActionMasker, GoalSelector, make_policy
+from tests.conftest import walled_grid
 
 INF = np.inf
 
@@ -72,20 +73,6 @@ def test_not_stuck_when_moving_or_exploring():
     assert short.mask(2, lambda src, within_m: calls.append(src) or np.zeros(2)).all() and calls == []
 
 
-def _walled_grid(rng: np.random.Generator) -> np.ndarray:
-    """A 120 x 160 grid of open space with random wall segments and blobs (some cut off)."""
-    grid = np.ones((120, 160), dtype=bool)
-    grid[[0, -1], :] = grid[:, [0, -1]] = False
-    for _ in range(14):
-        y, x = rng.integers(5, 115), rng.integers(5, 155)
-        if rng.random() < 0.5:
-            grid[y : y + rng.integers(10, 40), x : x + 2] = False
-        else:
-            grid[y : y + 2, x : x + rng.integers(10, 40)] = False
-    grid &= rng.random(grid.shape) > 0.02  # speckle
-    return grid
-
-
 @pytest.mark.parametrize("resolution_m", [0.05, 0.1])
 def test_bounded_distance_map_is_exact_below_its_bound(resolution_m):
     """``geodesic_distance(..., within_m)`` (the stuck mask's cheap pass on a window around the source)
@@ -94,7 +81,7 @@ def test_bounded_distance_map_is_exact_below_its_bound(resolution_m):
     g = GridGeometry(resolution_m, (120, 160))
     checked = 0
     for _ in range(12):
-        traversable = _walled_grid(rng)
+        traversable = walled_grid(rng)
         ys, xs = np.nonzero(traversable)
         i = rng.integers(ys.size)
         x, y = g.cell_to_world(ys[i], xs[i])

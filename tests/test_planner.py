@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from cso_runtime.config import RobotConfig, SensorConfig
-from cso_runtime.geodesic import traversable_cells
-from cso_runtime.geometry import Pose2D, VelocityCommand
+from cso_runtime.geodesic import geodesic_distance, traversable_cells
+from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand
 from cso_runtime.planner import LocalPlanner, NoPath, PlannerStatus, ProgressChecker, plan_path
 from cso_runtime.simulator import KinematicSimulator
-from tests.conftest import box_room, l_shaped
+from tests.conftest import box_room, l_shaped, walled_grid
 
 
 def ground_truth_traversable(plan, radius_m=0.2):
@@ -27,6 +27,37 @@ def test_path_in_open_room_is_near_straight():
     assert length == pytest.approx(math.hypot(2.0, 1.0), rel=0.1)
     assert np.allclose(path[-1], [3.0, 2.0])
     assert np.hypot(*(path[0] - [1.0, 1.0])) < 0.1
+
+
+def test_path_from_a_pass_bounded_by_the_goals_distance_is_the_full_maps(monkeypatch):
+    """Without D (it does not travel to the planner service), the goal's distance bounds the planner's
+    fast-marching pass: the descent reads only closer cells, so the path is the one on the full map;
+    a hint too small to reach the goal falls back to the full map."""
+    import cso_runtime.planner as planner_module  # noqa: PLC0415
+
+    rng = np.random.default_rng(11)
+    g = GridGeometry(0.05, (120, 160))
+    bounds = []
+    real = planner_module.geodesic_distance
+    monkeypatch.setattr(planner_module, "geodesic_distance", lambda t, geo, s, within_m=None: bounds.append(within_m) or real(t, geo, s, within_m))
+    compared = 0
+    for _ in range(8):
+        traversable = walled_grid(rng)
+        ys, xs = np.nonzero(traversable)
+        start = np.array(g.cell_to_world(*(v[rng.integers(ys.size)] for v in (ys, xs))))
+        full = geodesic_distance(traversable, g, start)
+        goals = np.argwhere(np.isfinite(full) & (full > 0.2))
+        for gy, gx in goals[rng.choice(len(goals), 6, replace=False)]:
+            goal = np.array(g.cell_to_world(gy, gx))
+            expected = plan_path(traversable, g, start, goal, full)
+            bounds.clear()
+            np.testing.assert_array_equal(plan_path(traversable, g, start, goal, goal_distance_m=float(full[gy, gx])), expected)
+            assert bounds == [float(full[gy, gx]) + g.resolution_m]  # one bounded pass, no full one
+            bounds.clear()
+            np.testing.assert_array_equal(plan_path(traversable, g, start, goal, goal_distance_m=0.5 * float(full[gy, gx])), expected)
+            assert bounds == [0.5 * float(full[gy, gx]) + g.resolution_m, None]  # too small: the full map
+            compared += 1
+    assert compared == 48
 
 
 def test_goal_behind_wall_is_blocked():
