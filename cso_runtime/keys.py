@@ -20,6 +20,7 @@ TOPICS = {
     "cmd_vel_ahead": "cmd_vel/ahead",
     "map": "map",
     "frontiers": "frontiers",
+    "distance_map": "frontiers/distance",
     "goal": "goal",
     "path": "path",
     "planner_feedback": "planner/feedback",

@@ -18,7 +18,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import decision_reason, goal_failed_in_place, mark_dead_frontier
-from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PlannerFeedbackMsg, frontiers_from_observation
+from cso_runtime.messages import DistanceMapMsg, FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PlannerFeedbackMsg, frontiers_from_observation
 from cso_runtime.observation import ObservationBuilder
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
@@ -43,7 +43,7 @@ class FrontierParams:
 class FrontierService(Service):
     name = "frontier"
     inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg}
-    outputs = {"frontiers": FrontiersMsg}
+    outputs = {"frontiers": FrontiersMsg, "distance_map": DistanceMapMsg}
 
     def __init__(self, ctx: ServiceContext):
         super().__init__(ctx)
@@ -173,6 +173,11 @@ class FrontierService(Service):
             self.awaiting_goal_step, self.awaiting_since_s = k, time.monotonic()
         self.last_out = out
         self.publish("frontiers", out)
+        if out.decide:
+            # After the decision message: the policy starts on it while D is encoded and travels to the
+            # planner, which decodes it while the policy decides (a goal selector reads D only at the
+            # path nodes, which the decision message carries).
+            self.publish("distance_map", DistanceMapMsg(k, obs.geometry, obs.pose, obs.distance_m))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -20,7 +20,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.geometry import VelocityCommand
-from cso_runtime.messages import CmdVelMsg, FrontiersMsg, GoalMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, ScanMsg
+from cso_runtime.messages import CmdVelMsg, DistanceMapMsg, FrontiersMsg, GoalMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, ScanMsg
 from cso_runtime.planner import FollowResult, LocalPlanner, PlannerStatus
 from services.common import Service, ServiceContext, service_main
 
@@ -47,7 +47,7 @@ class PlannerParams:
 
 class PlannerService(Service):
     name = "planner"
-    inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": FrontiersMsg, "goal": GoalMsg}
+    inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": FrontiersMsg, "distance_map": DistanceMapMsg, "goal": GoalMsg}
     outputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg}
     tick_period_s = 0.1
 
@@ -63,6 +63,8 @@ class PlannerService(Service):
         self.odoms: dict[int, tuple[OdometryMsg, float]] = {}
         self.scans: dict[int, tuple[ScanMsg, float]] = {}
         self.frontiers: dict[int, FrontiersMsg] = {}
+        self.distance_maps: dict[int, DistanceMapMsg] = {}
+        """D of each decision, decoded while the policy decides (a path to the goal is then a descent)."""
         self.goals: dict[int, GoalMsg] = {}
         self.cmd_step = -1
         self.goal_step = -1
@@ -99,6 +101,9 @@ class PlannerService(Service):
             self.scans[step] = (msg, received_s)
         elif isinstance(msg, FrontiersMsg) and (msg.decide or self.ctx.lockstep):
             self.frontiers[step] = msg  # real time needs only those that carry a decision's grids
+        elif isinstance(msg, DistanceMapMsg):
+            self.distance_maps[step] = msg
+            return  # never needed to command a step (a plan goes without it)
         elif isinstance(msg, GoalMsg) and msg.decided:
             self.goals[step] = msg
         self.progress()
@@ -177,15 +182,18 @@ class PlannerService(Service):
         self.publish("planner_feedback", self.last_feedback)
 
     def apply_goal(self, f: FrontiersMsg, g: GoalMsg) -> None:
-        """Plan to a newly decided goal on the traversable grid it was chosen on. D does not travel: the
-        planner's own fast-marching pass stops just past the goal's distance (the same path as on D)."""
+        """Plan to a newly decided goal on the traversable grid and D it was chosen on. Without that D
+        (lost or late), the planner's own fast-marching pass stops just past the goal's distance: the
+        same path."""
         self.pending_new_goal, self.goal_step = True, g.step
         if not g.has_goal:
             self.planner.clear()
             self.no_frontier = True
             return
         self.no_frontier = False
-        status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), goal_distance_m=g.distance_m)
+        d = self.distance_maps.get(f.step)
+        distance = d.distance_m if d is not None and d.geometry == f.geometry and d.pose == f.pose else None
+        status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), distance, g.distance_m)
         self.set_goal_blocked = status == PlannerStatus.BLOCKED
 
     def on_command(self, k: int, f: FrontiersMsg | None, g: GoalMsg | None) -> None:
@@ -196,7 +204,7 @@ class PlannerService(Service):
         # Lockstep: this step's frontiers and goal are used up. Real time: those of a decision not
         # planned yet are kept (a goal may arrive after newer odometry).
         done = k if self.ctx.lockstep else self.goal_step
-        for d, last in ((self.odoms, k), (self.scans, k), (self.goals, done), (self.frontiers, done)):
+        for d, last in ((self.odoms, k), (self.scans, k), (self.goals, done), (self.frontiers, done), (self.distance_maps, done)):
             for s in [s for s in d if s <= last]:
                 d.pop(s)
         self.cmd_step = self.last_step = k

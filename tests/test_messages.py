@@ -32,6 +32,7 @@ from cso_runtime.messages import (
     ServiceStatusMsg,
     decode,
     encode,
+    DistanceMapMsg,
     frontiers_from_observation,
     observation_from_frontiers,
     pack_array,
@@ -381,6 +382,30 @@ def test_frontiers_send_i_as_its_masked_values_and_restore_it_exactly():
     empty = type(obs)(**{**obs.__dict__, "entropy": np.zeros_like(obs.entropy)})
     back = decode(encode(frontiers_from_observation(4, "no_goal", empty, 1.0)), FrontiersMsg)
     assert not back.arrays["entropy"].any()
+
+
+def test_distance_map_travels_as_its_finite_values_and_comes_back_exactly():
+    obs = _observation()
+    assert np.isinf(obs.distance_m).any() and np.isfinite(obs.distance_m).any()
+    msg = DistanceMapMsg(3, obs.geometry, obs.pose, obs.distance_m)
+    back = decode(encode(msg), DistanceMapMsg)
+    assert isinstance(back, DistanceMapMsg) and back.step == 3 and back.geometry == obs.geometry and back.pose == obs.pose
+    np.testing.assert_array_equal(back.distance_m, obs.distance_m)  # inf where unreachable
+    assert _body(msg)["distance_m"]["shape"] == [int(np.isfinite(obs.distance_m).sum())]
+    good = _body(msg)
+    d = obs.distance_m.copy()
+    d[np.isfinite(d)] *= -1.0
+    cases = [
+        _body(DistanceMapMsg(3, obs.geometry, obs.pose, np.where(np.isfinite(obs.distance_m), np.nan, np.inf))),
+        _body(DistanceMapMsg(3, obs.geometry, obs.pose, d)),  # negative distances
+        {**good, "distance_m": pack_array(np.zeros(3))},  # not one value per finite cell
+        {**good, "distance_m": pack_array(np.zeros(int(np.isfinite(obs.distance_m).sum()), np.float32))},
+        {**good, "finite": pack_array(np.ones((2, 2), bool), compress=True)},  # not the grid's shape
+        {k: v for k, v in good.items() if k != "pose"},
+    ]
+    for body in cases:
+        with pytest.raises(MessageError):
+            decode(_wire("distance_map", body))
 
 
 def test_bad_frontiers_are_rejected():

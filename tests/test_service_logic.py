@@ -15,6 +15,7 @@ from cso_runtime.config import ExplorationConfig, MaskConfig
 from cso_runtime.episode import Explorer
 from cso_runtime.geometry import Pose2D, VelocityCommand
 from cso_runtime.messages import (
+    DistanceMapMsg,
     CmdVelMsg,
     FrontiersMsg,
     GoalMsg,
@@ -51,7 +52,7 @@ def _service(cls: type[Service], lockstep: bool, params: dict | None = None) -> 
 
 def _feed(svc: Service, msg: Message) -> None:
     """As the service loop does: decoded from the wire, then handled."""
-    topics = {MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", GoalMsg: "goal", PlannerFeedbackMsg: "planner_feedback"}
+    topics = {MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", DistanceMapMsg: "distance_map", GoalMsg: "goal", PlannerFeedbackMsg: "planner_feedback"}
     topic = topics[type(msg)]
     svc.on_message("r0", topic, decode(encode(msg), type(msg)), time.monotonic())
 
@@ -107,8 +108,10 @@ def test_real_time_frontier_decides_on_the_newest_map_and_waits_for_the_goal():
     assert out == []
     frontier._inbox.get()
     _feed(frontier, m1)  # the last queued input: decide now, on the newest map
-    assert [(t, m.step, m.decide) for t, m in out] == [("frontiers", 1, True)]
-    assert out[0][1].pose == odom1.pose
+    assert [(t, m.step) for t, m in out] == [("frontiers", 1), ("distance_map", 1)]  # D right after the decision
+    assert out[0][1].decide and out[0][1].pose == odom1.pose == out[1][1].pose
+    np.testing.assert_array_equal(out[1][1].distance_m, ex.builder.build(m1.occupancy(), odom1.pose).distance_m)
+    del out[1]
     m2, odom2, _ = _inputs(ex, 2)
     _feed(frontier, odom2)
     _feed(frontier, m2)  # the goal of step 1 is not in yet: keep the current goal, do not ask again
@@ -127,7 +130,7 @@ def test_real_time_frontier_decides_on_the_newest_map_and_waits_for_the_goal():
     m4, odom4, _ = _inputs(ex, 4)
     _feed(frontier, odom4)
     _feed(frontier, m4)
-    assert [(t, m.step, m.decide, m.reason) for t, m in out[3:]] == [("frontiers", 4, True, "reached")]
+    assert [(t, m.step, getattr(m, "decide", None), getattr(m, "reason", None)) for t, m in out[3:]] == [("frontiers", 4, True, "reached"), ("distance_map", 4, None, None)]
 
 
 def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_in_process(monkeypatch):
@@ -198,7 +201,7 @@ def test_lockstep_planner_keeps_the_goal_without_the_policy_and_waits_for_a_deci
     goal = _far_goal(obs, 0)
     in_process = LocalPlanner()
     in_process.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_m)
-    np.testing.assert_array_equal(planner.planner.path, in_process.path)  # D did not travel: the same path
+    np.testing.assert_array_equal(planner.planner.path, in_process.path)  # D never arrived: its own pass, the same path
     _feed(planner, OdometryMsg(1, odom.stamp_s + 0.25, odom.pose))
     _feed(planner, ScanMsg(1, scan.scan, scan.sensor_pose))
     _feed(planner, FrontiersMsg(1, False))  # keep the goal: commanded with no goal message at all
@@ -206,6 +209,30 @@ def test_lockstep_planner_keeps_the_goal_without_the_policy_and_waits_for_a_deci
     assert [(c.step, c.new_goal) for c in cmds] == [(0, True), (1, False)]
     _feed(planner, FrontiersMsg(1, False))  # a lockstep retry: the same command again, not a new step
     assert [m.step for t, m in out if t == "cmd_vel"] == [0, 1, 1] and planner.cmd_step == 1
+
+
+def test_planner_plans_on_the_distance_map_of_the_decision_when_it_arrives(monkeypatch):
+    """D travels on its own key after the decision message: with it the planner only descends it (no
+    fast-marching pass of its own), and the path is the in-process one; a D of another pose is not used."""
+    import cso_runtime.planner as planner_module  # noqa: PLC0415
+
+    passes = []
+    real = planner_module.geodesic_distance
+    monkeypatch.setattr(planner_module, "geodesic_distance", lambda *a: passes.append(a) or real(*a))
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    goal = _far_goal(obs, 0)
+    in_process = LocalPlanner()
+    in_process.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_m)
+    for distance, expected_passes in ((DistanceMapMsg(0, obs.geometry, obs.pose, obs.distance_m), 0), (DistanceMapMsg(0, obs.geometry, Pose2D(0.0, 0.0, 0.0), obs.distance_m), 1)):
+        planner, out = _service(PlannerService, lockstep=True)
+        _, odom, scan = _inputs(ex, 0)
+        for msg in (odom, scan, frontiers_from_observation(0, "no_goal", obs, 1.0), distance, goal):
+            _feed(planner, msg)
+        assert [(m.step, m.new_goal) for t, m in out if t == "cmd_vel"] == [(0, True)]
+        np.testing.assert_array_equal(planner.planner.path, in_process.path)
+        assert len(passes) == expected_passes and not planner.distance_maps  # used up with its step
+        passes.clear()
 
 
 def test_lockstep_planner_command_computed_ahead_is_the_one_computed_on_the_verdict():
