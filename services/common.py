@@ -469,8 +469,8 @@ def write_profile(profiles: list[cProfile.Profile | None], path: Path) -> None:
 def keep_freed_memory(mmap_threshold_bytes: int = 32 << 20, trim_threshold_bytes: int = 512 << 20) -> bool:
     """Let glibc's malloc keep freed memory for reuse instead of returning it to the OS (``mallopt``).
 
-    A service decodes a few large arrays per message (a decision message on a 640 x 480 map holds about
-    3 MB of grids). By default glibc serves each from fresh ``mmap`` pages, or trims the heap after it is
+    A service decodes a few large arrays per message (a decision on a 640 x 480 map brings about 3 MB of
+    grids). By default glibc serves each from fresh ``mmap`` pages, or trims the heap after it is
     freed, so every message pays page faults for memory it used a step before: on that map a traced
     decision waited 3.5 ms in the policy against 1.7 ms with this, and the lockstep episode took 16 % less
     wall time (BENCHMARKS.md, issue 4). The memory kept is at most a service's own peak. Returns whether
