@@ -371,20 +371,20 @@ class MapMsg(Message):
         return cls(_int(b, "step", where), geometry, explored, occupied, _int(b, "episode", where))
 
 
-def _masked_counts_in(raw: dict, masks: dict, key: str, geometry: GridGeometry) -> np.ndarray:
-    """A grid of counts sent as its values (1-D, row by row, any integer width) where its boolean
-    mask is set, 0 elsewhere. The values must be non-negative and one per set cell."""
-    where = f"frontiers.arrays.{key}"
-    mask = _grid_in(masks, key, "frontiers.masks", geometry, "bool")
-    values = unpack_array(raw[key], where, ndim=1, finite=True)
-    if values.dtype.kind not in "iu":
-        raise MessageError(f"{where}: expected integer values, got {values.dtype}")
+def _masked_grid_in(values_obj: Any, mask: np.ndarray, where: str, fill: float, dtype: type) -> np.ndarray:
+    """A grid sent as its values (1-D, row by row) where its boolean ``mask`` is set, ``fill`` elsewhere.
+    The values must be non-negative (distances, counts), finite, and one per set cell; counts may
+    come in any integer width, distances as float64."""
+    values = unpack_array(values_obj, where, ndim=1, finite=True)
+    counts = np.dtype(dtype).kind in "iu"
+    if not (values.dtype.kind in "iu" if counts else values.dtype == np.float64):
+        raise MessageError(f"{where}: expected {'integer' if counts else 'float64'} values, got {values.dtype}")
     n_set = int(np.count_nonzero(mask))
     if n_set != values.size:
         raise MessageError(f"{where}: {values.size} values for {n_set} cells in its mask")
     if (values < 0).any():
         raise MessageError(f"{where}: negative values")
-    grid = np.zeros(geometry.shape, dtype=np.int32)
+    grid = np.full(mask.shape, fill, dtype=dtype)
     grid.ravel()[np.flatnonzero(mask)] = values  # 3-4x faster than grid[mask] = values on a 640 x 480 grid
     return grid
 
@@ -503,7 +503,7 @@ class FrontiersMsg(Message):
         masks = _get(b, "masks", w)
         if not isinstance(masks, dict) or set(masks) != set(cls.MASKED):
             raise MessageError(f"frontiers.masks: expected exactly {', '.join(cls.MASKED)}")
-        arrays["entropy"] = _masked_counts_in(raw, masks, "entropy", geometry)
+        arrays["entropy"] = _masked_grid_in(raw["entropy"], _grid_in(masks, "entropy", "frontiers.masks", geometry, "bool"), "frontiers.arrays.entropy", 0, np.int32)
         clusters_raw = _get(b, "clusters", w)
         if not isinstance(clusters_raw, list):
             raise MessageError("frontiers.clusters: expected a list")
@@ -604,6 +604,7 @@ def _cell_values(geometry: GridGeometry, xy_m: np.ndarray, values: np.ndarray) -
     inside = geometry.in_bounds(iy, ix)
     return {(int(y), int(x)): float(v) for y, x, v in zip(iy[inside], ix[inside], np.asarray(values)[inside])}
 
+
 @dataclass
 class DistanceMapMsg(Message):
     """D(M_t, w_t) of one decision: the geodesic distance from the robot (``pose``) over the map, inf
@@ -633,12 +634,7 @@ class DistanceMapMsg(Message):
     def from_body(cls, b: dict[str, Any]) -> "DistanceMapMsg":
         w = "distance_map"
         geometry = _geometry_in(b, w)
-        finite = _grid_in(b, "finite", w, geometry, "bool")
-        values = unpack_array(_get(b, "distance_m", w), f"{w}.distance_m", ndim=1, finite=True)
-        if values.dtype != np.float64 or values.size != int(np.count_nonzero(finite)) or (values < 0).any():
-            raise MessageError(f"{w}.distance_m: expected one non-negative float64 per finite cell")
-        d = np.full(geometry.shape, np.inf)
-        d.ravel()[np.flatnonzero(finite)] = values  # 3-4x faster than d[finite] = values on a 640 x 480 grid
+        d = _masked_grid_in(_get(b, "distance_m", w), _grid_in(b, "finite", w, geometry, "bool"), f"{w}.distance_m", np.inf, np.float64)
         return cls(_int(b, "step", w), geometry, _pose_in(b, "pose", w), d)
 
 
