@@ -69,6 +69,30 @@ def process_cpu_s() -> dict[str, float]:
     return out
 
 
+def thread_cpu_s() -> dict[str, float]:
+    """CPU seconds of every thread of the service processes, by ``service:thread name`` (Linux /proc; names
+    with a trailing number, such as Zenoh's runtime workers, summed together)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out: dict[str, float] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            cmd = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
+            service = next((c.decode() for c in cmd if c.startswith(b"services.")), None)
+            if service is None:
+                continue
+            for tid in os.listdir(f"/proc/{entry}/task"):
+                raw = Path(f"/proc/{entry}/task/{tid}/stat").read_text()
+                comm = raw[raw.index("(") + 1 : raw.rindex(")")].rstrip("0123456789-_ ")
+                fields = raw[raw.rindex(")") + 2 :].split()
+                key = f"{service.removeprefix('services.')}:{'main' if tid == entry else comm}"
+                out[key] = out.get(key, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+        except OSError:
+            continue
+    return out
+
+
 def pct(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) if values else float("nan")
 
@@ -151,11 +175,13 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
             arrivals.append((now, topic, payload))
             if topic == "scan" and "start" not in cpu and decode(payload, ScanMsg).step == 0:
                 cpu["start"] = process_cpu_s()
+                cpu["threads_start"] = thread_cpu_s()
                 started.set()
         elif topic == "episode/status":
             st = decode(payload, EpisodeStatusMsg)
             if st.state in ("done", "failed") and not done.is_set():
                 cpu["end"] = process_cpu_s()
+                cpu["threads_end"] = thread_cpu_s()
                 end.update(t=now, steps=st.step, coverage=st.coverage_pct, state=st.state)
                 done.set()
 
@@ -207,6 +233,7 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
         row["steps"] = len(ks)
         breakdown[kind] = row
     cpu_s = {name: round(cpu["end"][name] - cpu["start"].get(name, 0.0), 3) for name in cpu.get("end", {})}
+    thread_s = {name: round(cpu["threads_end"][name] - cpu["threads_start"].get(name, 0.0), 3) for name in cpu.get("threads_end", {})}
     latencies = {
         "step_breakdown_ms": breakdown,
         "scan_to_map_ms": {"p50": pct(scan_map_ms, 50), "p99": pct(scan_map_ms, 99), "n": len(scan_map_ms)},
@@ -218,6 +245,7 @@ def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None =
         **({"hop_breakdown_ms": hops} if hops is not None else {}),
         "service_mode": profile.router.service_mode,
         "cpu_s_during_episode": dict(sorted(cpu_s.items())) | {"total": round(sum(cpu_s.values()), 3)},
+        "cpu_s_by_thread": {k: v for k, v in sorted(thread_s.items()) if v > 0},
         "state": end.get("state"),
         "steps": end.get("steps"),
         "coverage_pct": end.get("coverage"),

@@ -249,6 +249,25 @@ def test_env_reports_the_control_steps_each_decision_took():
     assert steps == info["steps"] > 1
 
 
+def test_scene_scaled_reward_is_eq6_times_the_reference_over_the_scene_area():
+    """``scene_scale_area_m2``: the same episode (same choices), every reward scaled by one factor per scene."""
+    from cso_runtime.learned.env import RewardConfig  # noqa: PLC0415
+
+    rewards = {}
+    for scale_m2 in (0.0, 50.0):
+        env = ExplorationEnv([rooms_plan(2)], EnvConfig(reward=RewardConfig(scene_scale_area_m2=scale_m2), max_steps=200))
+        _, info = env.reset(seed=0)
+        out, done = [], False
+        while not done:
+            _, r, terminated, truncated, info = env.step(expert_action(env.obs, info["action_mask"]))
+            out.append(r)
+            done = terminated or truncated
+        rewards[scale_m2] = np.array(out)
+        area_m2 = env.explorer.region_area_m2
+    assert len(rewards[0.0]) == len(rewards[50.0]) > 2 and area_m2 > 0
+    np.testing.assert_allclose(rewards[50.0], rewards[0.0] * 50.0 / area_m2, rtol=1e-9)
+
+
 def test_env_follows_the_gymnasium_api():
     env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
     check_reset_return_type(env)

@@ -401,7 +401,7 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
             counted = {t for svc in s["services"].values() for t, n in (svc.get("rejected") or {}).items() if n > 0}
             return counted | {t for t, n in s["launcher_rejected"].items() if n > 0}
 
-        wait_for(lambda: rejected_topics() >= set(TOPICS), 20, f"rejections counted on every key ({sorted(TOPICS)})")
+        wait_for(lambda: rejected_topics() >= set(TOPICS), 20, f"rejections counted on every key ({sorted(TOPICS)}); {sorted(set(TOPICS) - rejected_topics())} missing")
 
         # Kill the mapper mid-episode: the launcher restarts it and the episode still completes.
         s = status()

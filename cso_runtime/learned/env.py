@@ -41,6 +41,10 @@ class RewardConfig:
     """Step penalty R_step (per 0.25 s control step)."""
     lambda_c: float = 0.02
     """Weight lambda_c of the coverage reward (per m2 of new open space)."""
+    scene_scale_area_m2: float = 0.0
+    """> 0: every reward of a scene is multiplied by this over the scene's traversable area (ground truth,
+    training only), so that scenes of every size weigh alike in the advantages and the value loss, while
+    Eq. 6's trade-off between steps and area within a scene stays the same. 0: Eq. 6 as it is."""
 
 
 @dataclass
@@ -157,6 +161,8 @@ class ExplorationEnv(gym.Env):
         graph, info = self._decide()
         r = self.config.reward
         reward = r.r_step * (ex.steps - steps0) + r.lambda_c * (ex.map.open_area_m2() - area0)
+        if r.scene_scale_area_m2 > 0:
+            reward *= r.scene_scale_area_m2 / max(ex.region_area_m2, 1e-9)
         truncated = ex.done and ex.terminated_by == TERMINATED_MAX_STEPS
         terminated = ex.done and not truncated
         info["terminated_by"] = ex.terminated_by

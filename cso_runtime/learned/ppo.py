@@ -110,6 +110,8 @@ class Args:
     """R_step of Eq. 6 per control step."""
     lambda_c: float = 0.02
     """lambda_c of Eq. 6 per m2 of new open area."""
+    reward_scene_scale_area_m2: float = 0.0
+    """> 0: each scene's rewards times this over its traversable area (``RewardConfig.scene_scale_area_m2``)."""
     max_steps: int = 800
     """Control steps per training episode (truncated after)."""
     beta_far_m: float = 2.0
@@ -194,7 +196,7 @@ class Args:
             egocentric=self.egocentric_frame,
             geodesic_edge_bound=self.geodesic_edge_bound,
         )
-        return EnvConfig(exploration, graph, RewardConfig(self.r_step, self.lambda_c), self.max_steps)
+        return EnvConfig(exploration, graph, RewardConfig(self.r_step, self.lambda_c, self.reward_scene_scale_area_m2), self.max_steps)
 
 
 # --- scenes -----------------------------------------------------------------------------------
