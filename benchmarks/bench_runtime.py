@@ -44,6 +44,12 @@ from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpo
 from services.common import TRACE_DIR_ENV, keep_freed_memory
 
 
+def stat_cpu_s(raw: str, tick: int) -> float:
+    """User + system CPU seconds of a ``/proc/<pid>/stat`` (or a task's ``stat``) line."""
+    fields = raw[raw.rindex(")") + 2 :].split()
+    return (int(fields[11]) + int(fields[12])) / tick
+
+
 def process_cpu_s() -> dict[str, float]:
     """CPU seconds (user + system) of this process and every descendant, by command (Linux /proc)."""
     tick = os.sysconf("SC_CLK_TCK")
@@ -56,9 +62,8 @@ def process_cpu_s() -> dict[str, float]:
             cmd = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        fields = raw[raw.rindex(")") + 2 :].split()
         name = next((c.decode() for c in cmd if c.startswith(b"services.")), "launcher+router+bench")
-        stats[int(entry)] = (int(fields[1]), name, (int(fields[11]) + int(fields[12])) / tick)
+        stats[int(entry)] = (int(raw[raw.rindex(")") + 2 :].split()[1]), name, stat_cpu_s(raw, tick))
     me, out = os.getpid(), {}
     for pid, (_, name, cpu) in stats.items():
         p = pid
@@ -85,9 +90,8 @@ def thread_cpu_s() -> dict[str, float]:
             for tid in os.listdir(f"/proc/{entry}/task"):
                 raw = Path(f"/proc/{entry}/task/{tid}/stat").read_text()
                 comm = raw[raw.index("(") + 1 : raw.rindex(")")].rstrip("0123456789-_ ")
-                fields = raw[raw.rindex(")") + 2 :].split()
                 key = f"{service.removeprefix('services.')}:{'main' if tid == entry else comm}"
-                out[key] = out.get(key, 0.0) + (int(fields[11]) + int(fields[12])) / tick
+                out[key] = out.get(key, 0.0) + stat_cpu_s(raw, tick)
         except OSError:
             continue
     return out

@@ -266,6 +266,8 @@ def test_scene_scaled_reward_is_eq6_times_the_reference_over_the_scene_area():
         area_m2 = env.explorer.region_area_m2
     assert len(rewards[0.0]) == len(rewards[50.0]) > 2 and area_m2 > 0
     np.testing.assert_allclose(rewards[50.0], rewards[0.0] * 50.0 / area_m2, rtol=1e-9)
+    with pytest.raises(ValueError, match="reward_scene_scale_area_m2"):
+        Args(reward_scene_scale_area_m2=-1.0).validate()
 
 
 def test_env_follows_the_gymnasium_api():

@@ -160,6 +160,8 @@ class Args:
         self.training_masks(MaskConfig()).validate()
         if self.distance_prior < 0:
             raise ValueError("distance_prior must be >= 0 (0 = the paper's actor)")
+        if self.reward_scene_scale_area_m2 < 0:
+            raise ValueError("reward_scene_scale_area_m2 must be >= 0 (0 = Eq. 6 unscaled)")
         if not 0 <= self.gamma_per_step < 1:
             raise ValueError("gamma_per_step must be in [0, 1) (0 = gamma per decision)")
         if self.warm_start_soft_steps < 0:
