@@ -27,6 +27,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -44,16 +45,19 @@ from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpo
 from services.common import TRACE_DIR_ENV, keep_freed_memory
 
 
+def stat_fields(raw: str) -> list[str]:
+    """The fields of a ``/proc/<pid>/stat`` line after the command name (state, ppid, ...)."""
+    return raw[raw.rindex(")") + 2 :].split()
+
+
 def stat_cpu_s(raw: str, tick: int) -> float:
     """User + system CPU seconds of a ``/proc/<pid>/stat`` (or a task's ``stat``) line."""
-    fields = raw[raw.rindex(")") + 2 :].split()
+    fields = stat_fields(raw)
     return (int(fields[11]) + int(fields[12])) / tick
 
 
-def process_cpu_s() -> dict[str, float]:
-    """CPU seconds (user + system) of this process and every descendant, by command (Linux /proc)."""
-    tick = os.sysconf("SC_CLK_TCK")
-    stats: dict[int, tuple[int, str, float]] = {}
+def processes() -> Iterator[tuple[int, str, str | None]]:
+    """(pid, its ``stat`` line, its service module such as ``services.mapper`` or None) of every process."""
     for entry in os.listdir("/proc"):
         if not entry.isdigit():
             continue
@@ -62,8 +66,13 @@ def process_cpu_s() -> dict[str, float]:
             cmd = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
         except OSError:
             continue
-        name = next((c.decode() for c in cmd if c.startswith(b"services.")), "launcher+router+bench")
-        stats[int(entry)] = (int(raw[raw.rindex(")") + 2 :].split()[1]), name, stat_cpu_s(raw, tick))
+        yield int(entry), raw, next((c.decode() for c in cmd if c.startswith(b"services.")), None)
+
+
+def process_cpu_s() -> dict[str, float]:
+    """CPU seconds (user + system) of this process and every descendant, by command (Linux /proc)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    stats = {pid: (int(stat_fields(raw)[1]), service or "launcher+router+bench", stat_cpu_s(raw, tick)) for pid, raw, service in processes()}
     me, out = os.getpid(), {}
     for pid, (_, name, cpu) in stats.items():
         p = pid
@@ -79,18 +88,14 @@ def thread_cpu_s() -> dict[str, float]:
     with a trailing number, such as Zenoh's runtime workers, summed together)."""
     tick = os.sysconf("SC_CLK_TCK")
     out: dict[str, float] = {}
-    for entry in os.listdir("/proc"):
-        if not entry.isdigit():
+    for pid, _, service in processes():
+        if service is None:
             continue
         try:
-            cmd = Path(f"/proc/{entry}/cmdline").read_bytes().split(b"\0")
-            service = next((c.decode() for c in cmd if c.startswith(b"services.")), None)
-            if service is None:
-                continue
-            for tid in os.listdir(f"/proc/{entry}/task"):
-                raw = Path(f"/proc/{entry}/task/{tid}/stat").read_text()
+            for tid in os.listdir(f"/proc/{pid}/task"):
+                raw = Path(f"/proc/{pid}/task/{tid}/stat").read_text()
                 comm = raw[raw.index("(") + 1 : raw.rindex(")")].rstrip("0123456789-_ ")
-                key = f"{service.removeprefix('services.')}:{'main' if tid == entry else comm}"
+                key = f"{service.removeprefix('services.')}:{'main' if int(tid) == pid else comm}"
                 out[key] = out.get(key, 0.0) + stat_cpu_s(raw, tick)
         except OSError:
             continue
