@@ -57,19 +57,27 @@ class FrontierCluster:
     centroid_xy_m: tuple[float, float]
 
 
+def label_frontiers(frontier: np.ndarray) -> tuple[np.ndarray, int]:
+    """F_t's 8-connected components: (int32 labels, 0 off the frontier; their number)."""
+    labels, count = ndimage.label(frontier, structure=_EIGHT)
+    return labels, int(count)
+
+
 def cluster_frontiers(
     frontier: np.ndarray,
     distance_m: np.ndarray,
     entropy: np.ndarray,
     geometry: GridGeometry,
     min_cluster_size_m: float,
+    labelled: tuple[np.ndarray, int] | None = None,
 ) -> list[FrontierCluster]:
     """Group frontier cells into 8-connected clusters and describe the reachable ones.
 
     Clusters shorter than ``min_cluster_size_m`` and clusters with no reachable cell are dropped.
-    The result is sorted by distance, then position, so it is deterministic.
+    The result is sorted by distance, then position, so it is deterministic. ``labelled``: what
+    ``label_frontiers`` gives for ``frontier``, when already known.
     """
-    labels, count = ndimage.label(frontier, structure=_EIGHT)
+    labels, count = labelled if labelled is not None else label_frontiers(frontier)
     if count == 0:
         return []
     iy, ix = np.nonzero(labels)

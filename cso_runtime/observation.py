@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from cso_runtime.config import FrontierConfig, RobotConfig
-from cso_runtime.frontiers import FrontierCluster, cluster_frontiers, frontier_cells, frontier_entropy
+from cso_runtime.frontiers import FrontierCluster, cluster_frontiers, frontier_cells, frontier_entropy, label_frontiers
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.occupancy import OccupancyMap
@@ -97,6 +98,30 @@ def distance_source_key(source_xy_m: tuple[float, float]) -> tuple[float, float]
     return (round(float(source_xy_m[0]), 4), round(float(source_xy_m[1]), 4))
 
 
+@dataclass(frozen=True)
+class FrontierLayer:
+    """The part of an Observation that needs no distance map: F_t (less the frontiers excluded),
+    I(M_t) (Eq. 4) and F_t's 8-connected labels. Independent of D, so it can be computed beside the
+    fast-marching pass (a frontier service's helper process does, on another core)."""
+
+    frontier: np.ndarray
+    entropy: np.ndarray
+    labels: np.ndarray
+    count: int
+
+
+def frontier_layer(
+    open_cells: np.ndarray, explored: np.ndarray, exclude_frontier: np.ndarray | None, entropy_window_m: float, resolution_m: float
+) -> FrontierLayer:
+    """F_t, I and the labels of F_t's clusters for one map (``exclude_frontier``: cells that are no actions)."""
+    frontier = frontier_cells(open_cells, explored)
+    if exclude_frontier is not None:
+        frontier &= ~exclude_frontier
+    entropy = frontier_entropy(frontier, entropy_window_m, resolution_m)
+    labels, count = label_frontiers(frontier)
+    return FrontierLayer(frontier, entropy, labels, count)
+
+
 class ObservationBuilder:
     """Turns (M_t, w_t) into an Observation: frontiers, one fast-marching pass, entropy, clusters."""
 
@@ -108,23 +133,26 @@ class ObservationBuilder:
         """Cells the robot's centre may occupy: open cells away from obstacles by its radius."""
         return traversable_cells(occupancy.open, occupancy.occupied, self.robot_config.radius_m, occupancy.geometry.resolution_m)
 
+    def frontier_layer(self, occupancy: OccupancyMap, exclude_frontier: np.ndarray | None = None) -> FrontierLayer:
+        return frontier_layer(occupancy.open, occupancy.explored, exclude_frontier, self.frontier_config.entropy_window_m, occupancy.geometry.resolution_m)
+
     def build(
         self,
         occupancy: OccupancyMap,
         pose: Pose2D,
         path_nodes_xy_m: np.ndarray | None = None,
         exclude_frontier: np.ndarray | None = None,
+        layer: Callable[[], FrontierLayer] | None = None,
     ) -> Observation:
-        """``exclude_frontier`` marks frontier cells known to be unclearable (they are not actions)."""
+        """``exclude_frontier`` marks frontier cells known to be unclearable (they are not actions).
+        ``layer``: gives ``frontier_layer(occupancy, exclude_frontier)`` computed elsewhere meanwhile
+        (called once D is done); by default it is computed here."""
         g = occupancy.geometry
-        open_cells = occupancy.open
         traversable = self.traversable(occupancy)
         distance = geodesic_distance(traversable, g, pose.xy)
-        frontier = frontier_cells(open_cells, occupancy.explored)
-        if exclude_frontier is not None:
-            frontier &= ~exclude_frontier
-        entropy = frontier_entropy(frontier, self.frontier_config.entropy_window_m, g.resolution_m)
-        clusters = cluster_frontiers(frontier, distance, entropy, g, self.frontier_config.min_cluster_size_m)
+        fl = layer() if layer is not None else self.frontier_layer(occupancy, exclude_frontier)
+        frontier, entropy = fl.frontier, fl.entropy
+        clusters = cluster_frontiers(frontier, distance, entropy, g, self.frontier_config.min_cluster_size_m, (fl.labels, fl.count))
         nodes = np.zeros((0, 2)) if path_nodes_xy_m is None else np.asarray(path_nodes_xy_m, dtype=float).reshape(-1, 2)
         return Observation(
             geometry=g,

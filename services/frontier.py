@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,10 +20,12 @@ import numpy as np
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import decision_reason, goal_failed_in_place, mark_dead_frontier
 from cso_runtime.messages import DistanceMapMsg, FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PlannerFeedbackMsg, frontiers_from_observation
-from cso_runtime.observation import ObservationBuilder
+from cso_runtime.observation import FrontierLayer, ObservationBuilder
+from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
 from services.common import Service, ServiceContext, service_main
+from services.frontier_layer import FrontierLayerWorker
 
 log = logging.getLogger("cso.frontier")
 
@@ -34,6 +37,10 @@ class FrontierParams:
     goal_wait_s: float = 2.0
     """Real time: after asking for a decision, keep the current goal (``decide: false``) for at most this
     long while the policy answers, instead of asking again on every map. Lockstep always waits."""
+    layer_helper: bool = True
+    """Compute a decision's frontier layer (F_t, I, the clusters' labels) in a helper process while this
+    one computes D (``services/frontier_layer.py``): the Observation is the same, sooner on two or more
+    cores. False: one process."""
 
     def validate(self) -> None:
         if not self.goal_wait_s > 0:
@@ -53,7 +60,24 @@ class FrontierService(Service):
         self.replan_every_steps = cfg.episode.replan_every_steps
         self.goal_tolerance_m = cfg.episode.goal_tolerance_m
         self.robot_radius_m = cfg.robot.radius_m
+        self.layer_worker: FrontierLayerWorker | None = None
         self.reset_episode()
+
+    def start(self) -> None:
+        if self.params.layer_helper:
+            self.layer_worker = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m)
+
+    def shutdown(self) -> None:
+        if self.layer_worker is not None:
+            self.layer_worker.close()
+
+    def layer_beside_d(self, occupancy: OccupancyMap) -> Callable[[], FrontierLayer] | None:
+        """The decision's frontier layer, started in the helper process (``build`` waits for it once D
+        is done); None when there is no helper to use (``build`` computes it)."""
+        w = self.layer_worker
+        if w is None or not w.submit(occupancy, self.dead):
+            return None
+        return lambda: w.result() or self.builder.frontier_layer(occupancy, self.dead)
 
     def reset_episode(self) -> None:
         """Forget the decision state (a new episode, or a fresh start)."""
@@ -168,7 +192,7 @@ class FrontierService(Service):
             if self.goal is not None and goal_failed_in_place(reason, self.goal, occupancy, odom.pose):
                 mark_dead_frontier(self.dead, occupancy.geometry, (self.goal.x_m, self.goal.y_m), self.goal_tolerance_m)
             self.path_nodes.append((odom.pose.x_m, odom.pose.y_m))
-            obs = self.builder.build(occupancy, odom.pose, np.array(self.path_nodes), exclude_frontier=self.dead)
+            obs = self.builder.build(occupancy, odom.pose, np.array(self.path_nodes), exclude_frontier=self.dead, layer=self.layer_beside_d(occupancy))
             out = frontiers_from_observation(k, reason, obs, (time.perf_counter() - t0) * 1e3)
             self.awaiting_goal_step, self.awaiting_since_s = k, time.monotonic()
         self.last_out = out

@@ -128,6 +128,8 @@ class SimService(Service):
         self.ahead: tuple[int, VelocityCommand, tuple, LaserScan] | None = None
         """Lockstep: the next state and scan stepped ahead on the planner's provisional command (step,
         command, simulator state, scan); used when the step's cmd_vel is that command."""
+        self.steps_on_stored_scan = 0
+        """Lockstep steps whose next scan was the one stepped ahead to (not computed on the command)."""
         self.measured_step = -1
         self.goal_step = -1
         self.last_map: OccupancyMap | None = None
@@ -278,6 +280,7 @@ class SimService(Service):
         if ahead is not None and ahead[0] == self.step and ahead[1] == command:
             self.sim.restore_state(ahead[2])
             scan = ahead[3]
+            self.steps_on_stored_scan += 1
         else:
             self.sim.step(command)
         after = self.sim.true_pose()

@@ -690,3 +690,40 @@ def test_sim_status_goes_out_at_its_period_and_always_at_the_end(period_s, expec
     statuses = [m for t, m in out if t == "episode_status"]
     assert [m.step for m in statuses] == expected_steps
     assert statuses[-1].state == "done" and [m.state for m in statuses[:-1]] == ["exploring"] * (len(statuses) - 1)
+
+
+def test_frontier_layer_helper_computes_what_the_service_would_and_is_dropped_when_it_dies():
+    """The helper process gives exactly ``frontier_layer`` (with and without excluded cells), so a
+    service's Observation is the one-process Observation; a dead helper is noticed, and the service
+    computes the layer itself from then on."""
+    from cso_runtime.observation import ObservationBuilder  # noqa: PLC0415
+    from services.frontier_layer import FrontierLayerWorker  # noqa: PLC0415
+
+    ex = _explorer_at(6)
+    builder = ObservationBuilder()
+    worker = FrontierLayerWorker(builder.frontier_config.entropy_window_m, timeout_s=20.0)
+    try:
+        deadline = time.monotonic() + 60.0
+        while not worker.submit(ex.map, None):  # False until the helper has started
+            assert not worker.broken and time.monotonic() < deadline
+            time.sleep(0.05)
+        assert worker.result() is not None and worker.layers_computed == 1
+        exclude = np.zeros(ex.map.geometry.shape, dtype=bool)
+        exclude[: exclude.shape[0] // 2] = True
+        for dead in (None, exclude):
+            expected = builder.frontier_layer(ex.map, dead)
+            assert worker.submit(ex.map, dead)
+            got = worker.result()
+            assert got is not None and got.count == expected.count
+            for name in ("frontier", "entropy", "labels"):
+                np.testing.assert_array_equal(getattr(got, name), getattr(expected, name))
+            obs = builder.build(ex.map, ex.sim.odometry(), exclude_frontier=dead, layer=lambda: got)
+            alone = builder.build(ex.map, ex.sim.odometry(), exclude_frontier=dead)
+            assert [(c.goal_cell, c.distance_m, c.size_m, c.entropy) for c in obs.clusters] == [(c.goal_cell, c.distance_m, c.size_m, c.entropy) for c in alone.clusters]
+        assert worker.layers_computed == 3
+        worker.proc.kill()
+        worker.proc.join(timeout=10.0)
+        assert not worker.submit(ex.map, None) and "exited" in worker.broken
+    finally:
+        worker.close()
+    assert not worker.proc.is_alive()

@@ -1,0 +1,182 @@
+"""The frontier service's helper process: the frontier layer (F_t, I, F_t's labels) beside D.
+
+An Observation is one fast-marching pass (D) plus the frontier layer, which does not need D
+(``cso_runtime.observation.frontier_layer``). scikit-fmm holds the GIL for the whole pass, so a thread
+cannot overlap them; a helper process can, on another core: the frontier service hands it the map and
+computes D meanwhile, then clusters with the helper's layer. The same function computes the layer in
+both places, so the Observation is the one ``ObservationBuilder.build`` gives in one process.
+
+The arrays travel through one shared-memory file per map shape (inputs: explored, occupied, excluded
+cells; outputs: F_t, I, labels); a pipe carries the requests and replies. The file is unlinked as soon
+as both processes have mapped it, so nothing is left behind whatever happens to either. The helper
+exits when the pipe closes (its service stopped or died); a service whose helper is gone, late or
+failing computes the layer itself (logged), so a decision never waits more than ``timeout_s``.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import os
+import tempfile
+from multiprocessing.connection import Connection
+from pathlib import Path
+
+import numpy as np
+
+from cso_runtime.observation import FrontierLayer, frontier_layer
+from cso_runtime.occupancy import OccupancyMap
+
+log = logging.getLogger("cso.frontier")
+
+_FIELDS = (("explored", np.bool_), ("occupied", np.bool_), ("exclude", np.bool_), ("frontier", np.bool_), ("entropy", np.int32), ("labels", np.int32))
+
+
+def _views(path: str, shape: tuple[int, int], create: bool) -> tuple[np.memmap, dict[str, np.ndarray]]:
+    """The shared file mapped as one array per field (in ``_FIELDS`` order)."""
+    cells = shape[0] * shape[1]
+    size = sum(cells * np.dtype(dt).itemsize for _, dt in _FIELDS)
+    buf = np.memmap(path, dtype=np.uint8, mode="w+" if create else "r+", shape=(size,))
+    views, offset = {}, 0
+    for name, dt in _FIELDS:
+        n = cells * np.dtype(dt).itemsize
+        views[name] = buf[offset : offset + n].view(dt).reshape(shape)
+        offset += n
+    return buf, views
+
+
+def _shared_dir() -> str:
+    return "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else tempfile.gettempdir()
+
+
+def worker_main(conn: Connection) -> None:
+    """The helper's loop: map a shared file, compute layers into it, until the pipe closes."""
+    views: dict[str, np.ndarray] = {}
+    buf = None
+    conn.send(("ready",))
+    while True:
+        try:
+            request = conn.recv()
+        except (EOFError, OSError):
+            return
+        kind = request[0]
+        try:
+            if kind == "map":
+                _, path, shape = request
+                buf, views = _views(path, tuple(shape), create=False)
+                conn.send(("mapped",))
+            elif kind == "layer":
+                _, seq, window_m, resolution_m, has_exclude = request
+                explored, occupied = views["explored"], views["occupied"]
+                fl = frontier_layer(explored & ~occupied, explored, views["exclude"] if has_exclude else None, window_m, resolution_m)
+                np.copyto(views["frontier"], fl.frontier)
+                np.copyto(views["entropy"], fl.entropy)
+                np.copyto(views["labels"], fl.labels)
+                conn.send(("layer", seq, fl.count))
+        except Exception as exc:  # noqa: BLE001 - reported to the service, which computes the layer itself
+            conn.send(("error", request[1] if kind == "layer" else -1, f"{type(exc).__name__}: {exc}"))
+    del buf
+
+
+class FrontierLayerWorker:
+    """A helper process computing frontier layers for one service (``submit`` then ``result``)."""
+
+    def __init__(self, entropy_window_m: float, timeout_s: float = 2.0):
+        self.entropy_window_m = entropy_window_m
+        self.timeout_s = timeout_s
+        ctx = multiprocessing.get_context("spawn")  # the service runs Zenoh threads: never fork it
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=worker_main, args=(child,), name="cso-frontier-layer", daemon=True)
+        self.proc.start()
+        child.close()
+        self.shape: tuple[int, int] | None = None
+        self.views: dict[str, np.ndarray] = {}
+        self._buf: np.memmap | None = None
+        self.seq = 0
+        self.ready = False
+        """The helper has started (imports done); until then the service computes layers itself."""
+        self.pending: int | None = None
+        self.broken = ""
+        """Why the helper is no longer used (empty while it is)."""
+        self.layers_computed = 0
+        """Layers the helper computed (the rest were computed by the service itself)."""
+
+    def _reply(self) -> tuple | None:
+        if not self.conn.poll(self.timeout_s):
+            return None
+        try:
+            return self.conn.recv()
+        except (EOFError, OSError):
+            return None
+
+    def _give_up(self, why: str) -> None:
+        self.broken = why
+        log.warning("frontier layer helper not used from now on: %s", why)
+        self.close()
+
+    def _map_shape(self, shape: tuple[int, int]) -> bool:
+        path = Path(_shared_dir()) / f"cso-frontier-layer-{os.getpid()}-{self.seq}"
+        try:
+            self._buf, self.views = _views(str(path), shape, create=True)
+            self.conn.send(("map", str(path), shape))
+            reply = self._reply()
+        finally:
+            path.unlink(missing_ok=True)  # both mapped it (or gave up): nothing to leave behind
+        if reply != ("mapped",):
+            self._give_up(f"no answer to mapping the shared arrays ({reply!r})")
+            return False
+        self.shape = shape
+        return True
+
+    def submit(self, occupancy: OccupancyMap, exclude_frontier: np.ndarray | None) -> bool:
+        """Start the layer of this map; False when the helper is not used (compute it yourself)."""
+        if self.broken:
+            return False
+        if not self.proc.is_alive():
+            self._give_up(f"the helper process exited (code {self.proc.exitcode})")
+            return False
+        if not self.ready:
+            if not self.conn.poll(0):
+                return False  # still starting: this layer is computed by the service
+            if self.conn.recv() != ("ready",):
+                self._give_up("unexpected first message from the helper")
+                return False
+            self.ready = True
+        shape = occupancy.geometry.shape
+        if self.shape != shape and not self._map_shape(shape):
+            return False
+        v = self.views
+        np.copyto(v["explored"], occupancy.explored)
+        np.copyto(v["occupied"], occupancy.occupied)
+        if exclude_frontier is not None:
+            np.copyto(v["exclude"], exclude_frontier)
+        self.seq += 1
+        try:
+            self.conn.send(("layer", self.seq, self.entropy_window_m, occupancy.geometry.resolution_m, exclude_frontier is not None))
+        except OSError as exc:
+            self._give_up(f"cannot reach the helper ({exc})")
+            return False
+        self.pending = self.seq
+        return True
+
+    def result(self) -> FrontierLayer | None:
+        """The layer submitted last (views of the shared arrays, valid until the next ``submit``), or
+        None when the helper failed (then it is not used again)."""
+        seq, self.pending = self.pending, None
+        reply = self._reply()
+        if reply is None or reply[0] != "layer" or reply[1] != seq:
+            self._give_up(f"no layer for request {seq} within {self.timeout_s} s (got {reply!r})")
+            return None
+        self.layers_computed += 1
+        v = self.views
+        return FrontierLayer(v["frontier"], v["entropy"], v["labels"], int(reply[2]))
+
+    def close(self) -> None:
+        try:
+            self.conn.close()
+        except OSError:
+            pass
+        self.proc.join(timeout=1.0)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join(timeout=1.0)
