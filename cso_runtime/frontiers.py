@@ -12,22 +12,23 @@ from cso_runtime.geometry import GridGeometry
 _EIGHT = np.ones((3, 3), dtype=bool)
 
 
-def frontier_cells(open_cells: np.ndarray, explored: np.ndarray) -> np.ndarray:
-    """Open cells with at least one 4-connected unknown neighbour (cells outside the map are not unknown)."""
+def frontier_cells(open_cells: np.ndarray, explored: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Open cells with at least one 4-connected unknown neighbour (cells outside the map are not unknown).
+    ``out``: a boolean grid to write them into (returned)."""
     unknown = ~explored
     near_unknown = np.zeros_like(unknown)
     near_unknown[1:, :] |= unknown[:-1, :]
     near_unknown[:-1, :] |= unknown[1:, :]
     near_unknown[:, 1:] |= unknown[:, :-1]
     near_unknown[:, :-1] |= unknown[:, 1:]
-    return open_cells & near_unknown
+    return np.logical_and(open_cells, near_unknown, out=out)
 
 
-def frontier_entropy(frontier: np.ndarray, window_m: float, resolution_m: float) -> np.ndarray:
+def frontier_entropy(frontier: np.ndarray, window_m: float, resolution_m: float, out: np.ndarray | None = None) -> np.ndarray:
     """I_{x,y}: number of frontier cells in the gamma x gamma window centred on each cell (Eq. 4).
 
     Computed for the whole map at once with a summed-area table; gamma is rounded to an odd number
-    of cells so the window is centred.
+    of cells so the window is centred. ``out``: an int32 grid to write I into (returned).
     """
     half = max(0, int(round(window_m / resolution_m / 2.0)))
     k = 2 * half + 1
@@ -35,7 +36,10 @@ def frontier_entropy(frontier: np.ndarray, window_m: float, resolution_m: float)
     sat = np.zeros((ny + k, nx + k), dtype=np.int32)
     padded = np.pad(frontier, half).astype(np.int32)
     np.cumsum(np.cumsum(padded, axis=0, out=padded), axis=1, out=sat[1:, 1:])
-    return sat[k:, k:] - sat[:-k, k:][:ny] - sat[k:, :-k][:, :nx] + sat[:ny, :nx]
+    out = np.subtract(sat[k:, k:], sat[:-k, k:][:ny], out=out)
+    out -= sat[k:, :-k][:, :nx]
+    out += sat[:ny, :nx]
+    return out
 
 
 @dataclass(frozen=True)
@@ -57,8 +61,11 @@ class FrontierCluster:
     centroid_xy_m: tuple[float, float]
 
 
-def label_frontiers(frontier: np.ndarray) -> tuple[np.ndarray, int]:
-    """F_t's 8-connected components: (int32 labels, 0 off the frontier; their number)."""
+def label_frontiers(frontier: np.ndarray, out: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+    """F_t's 8-connected components: (int32 labels, 0 off the frontier; their number). ``out``: an
+    int32 grid to write the labels into."""
+    if out is not None:
+        return out, int(ndimage.label(frontier, structure=_EIGHT, output=out))
     labels, count = ndimage.label(frontier, structure=_EIGHT)
     return labels, int(count)
 

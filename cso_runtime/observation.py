@@ -111,14 +111,21 @@ class FrontierLayer:
 
 
 def frontier_layer(
-    open_cells: np.ndarray, explored: np.ndarray, exclude_frontier: np.ndarray | None, entropy_window_m: float, resolution_m: float
+    open_cells: np.ndarray,
+    explored: np.ndarray,
+    exclude_frontier: np.ndarray | None,
+    entropy_window_m: float,
+    resolution_m: float,
+    out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> FrontierLayer:
-    """F_t, I and the labels of F_t's clusters for one map (``exclude_frontier``: cells that are no actions)."""
-    frontier = frontier_cells(open_cells, explored)
+    """F_t, I and the labels of F_t's clusters for one map (``exclude_frontier``: cells that are no
+    actions). ``out``: (bool, int32, int32) grids to write F_t, I and the labels into."""
+    f_out, i_out, l_out = out if out is not None else (None, None, None)
+    frontier = frontier_cells(open_cells, explored, f_out)
     if exclude_frontier is not None:
         frontier &= ~exclude_frontier
-    entropy = frontier_entropy(frontier, entropy_window_m, resolution_m)
-    labels, count = label_frontiers(frontier)
+    entropy = frontier_entropy(frontier, entropy_window_m, resolution_m, i_out)
+    labels, count = label_frontiers(frontier, l_out)
     return FrontierLayer(frontier, entropy, labels, count)
 
 
