@@ -70,9 +70,17 @@ def processes() -> Iterator[tuple[int, str, str | None]]:
 
 
 def process_cpu_s() -> dict[str, float]:
-    """CPU seconds (user + system) of this process and every descendant, by command (Linux /proc)."""
+    """CPU seconds (user + system) of this process and every descendant, by command (Linux /proc); a
+    service's own child process (the frontier service's helper) as ``services.<name>.helper``."""
     tick = os.sysconf("SC_CLK_TCK")
-    stats = {pid: (int(stat_fields(raw)[1]), service or "launcher+router+bench", stat_cpu_s(raw, tick)) for pid, raw, service in processes()}
+    found = {pid: (int(stat_fields(raw)[1]), service, stat_cpu_s(raw, tick)) for pid, raw, service in processes()}
+
+    def name_of(pid: int) -> str:
+        ppid, service, _ = found[pid]
+        parent = found.get(ppid, (0, None, 0.0))[1]
+        return service or (f"{parent}.helper" if parent else "launcher+router+bench")
+
+    stats = {pid: (ppid, name_of(pid), cpu) for pid, (ppid, _, cpu) in found.items()}
     me, out = os.getpid(), {}
     for pid, (_, name, cpu) in stats.items():
         p = pid
