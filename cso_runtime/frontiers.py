@@ -61,13 +61,22 @@ class FrontierCluster:
     centroid_xy_m: tuple[float, float]
 
 
-def label_frontiers(frontier: np.ndarray, out: np.ndarray | None = None) -> tuple[np.ndarray, int]:
-    """F_t's 8-connected components: (int32 labels, 0 off the frontier; their number). ``out``: an
-    int32 grid to write the labels into."""
-    if out is not None:
-        return out, int(ndimage.label(frontier, structure=_EIGHT, output=out))
+FrontierComponents = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""F_t's 8-connected components as (iy, ix, splits): every frontier cell's indices, grouped by
+component (in label order, cells in row-major order within one), and where each next group starts."""
+
+
+def frontier_components(frontier: np.ndarray) -> FrontierComponents:
+    """F_t's 8-connected components (``FrontierComponents``): what clustering needs before D."""
     labels, count = ndimage.label(frontier, structure=_EIGHT)
-    return labels, int(count)
+    if count == 0:
+        empty = np.zeros(0, dtype=np.intp)
+        return empty, empty, empty
+    iy, ix = np.nonzero(labels)
+    lab = labels[iy, ix]
+    order = np.argsort(lab, kind="stable")
+    iy, ix, lab = iy[order], ix[order], lab[order]
+    return iy, ix, np.flatnonzero(np.diff(lab)) + 1
 
 
 def cluster_frontiers(
@@ -76,22 +85,17 @@ def cluster_frontiers(
     entropy: np.ndarray,
     geometry: GridGeometry,
     min_cluster_size_m: float,
-    labelled: tuple[np.ndarray, int] | None = None,
+    components: FrontierComponents | None = None,
 ) -> list[FrontierCluster]:
     """Group frontier cells into 8-connected clusters and describe the reachable ones.
 
     Clusters shorter than ``min_cluster_size_m`` and clusters with no reachable cell are dropped.
-    The result is sorted by distance, then position, so it is deterministic. ``labelled``: what
-    ``label_frontiers`` gives for ``frontier``, when already known.
+    The result is sorted by distance, then position, so it is deterministic. ``components``: what
+    ``frontier_components`` gives for ``frontier``, when already known.
     """
-    labels, count = labelled if labelled is not None else label_frontiers(frontier)
-    if count == 0:
+    iy, ix, splits = components if components is not None else frontier_components(frontier)
+    if len(iy) == 0:
         return []
-    iy, ix = np.nonzero(labels)
-    lab = labels[iy, ix]
-    order = np.argsort(lab, kind="stable")
-    iy, ix, lab = iy[order], ix[order], lab[order]
-    splits = np.flatnonzero(np.diff(lab)) + 1
     min_cells = max(1, int(np.ceil(min_cluster_size_m / geometry.resolution_m - 1e-9)))
     res = geometry.resolution_m
     clusters: list[FrontierCluster] = []

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cso_runtime.config import FrontierConfig, RobotConfig
-from cso_runtime.frontiers import FrontierCluster, cluster_frontiers, frontier_cells, frontier_entropy, label_frontiers
+from cso_runtime.frontiers import FrontierCluster, FrontierComponents, cluster_frontiers, frontier_cells, frontier_components, frontier_entropy
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.occupancy import OccupancyMap
@@ -101,13 +101,12 @@ def distance_source_key(source_xy_m: tuple[float, float]) -> tuple[float, float]
 @dataclass(frozen=True)
 class FrontierLayer:
     """The part of an Observation that needs no distance map: F_t (less the frontiers excluded),
-    I(M_t) (Eq. 4) and F_t's 8-connected labels. Independent of D, so it can be computed beside the
-    fast-marching pass (a frontier service's helper process does, on another core)."""
+    I(M_t) (Eq. 4) and F_t's 8-connected components. Independent of D, so it can be computed beside
+    the fast-marching pass (a frontier service's helper process does, on another core)."""
 
     frontier: np.ndarray
     entropy: np.ndarray
-    labels: np.ndarray
-    count: int
+    components: FrontierComponents
 
 
 def frontier_layer(
@@ -116,17 +115,16 @@ def frontier_layer(
     exclude_frontier: np.ndarray | None,
     entropy_window_m: float,
     resolution_m: float,
-    out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    out: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> FrontierLayer:
-    """F_t, I and the labels of F_t's clusters for one map (``exclude_frontier``: cells that are no
-    actions). ``out``: (bool, int32, int32) grids to write F_t, I and the labels into."""
-    f_out, i_out, l_out = out if out is not None else (None, None, None)
+    """F_t, I and F_t's components for one map (``exclude_frontier``: cells that are no actions).
+    ``out``: (bool, int32) grids to write F_t and I into."""
+    f_out, i_out = out if out is not None else (None, None)
     frontier = frontier_cells(open_cells, explored, f_out)
     if exclude_frontier is not None:
         frontier &= ~exclude_frontier
     entropy = frontier_entropy(frontier, entropy_window_m, resolution_m, i_out)
-    labels, count = label_frontiers(frontier, l_out)
-    return FrontierLayer(frontier, entropy, labels, count)
+    return FrontierLayer(frontier, entropy, frontier_components(frontier))
 
 
 class ObservationBuilder:
@@ -159,7 +157,7 @@ class ObservationBuilder:
         distance = geodesic_distance(traversable, g, pose.xy)
         fl = layer() if layer is not None else self.frontier_layer(occupancy, exclude_frontier)
         frontier, entropy = fl.frontier, fl.entropy
-        clusters = cluster_frontiers(frontier, distance, entropy, g, self.frontier_config.min_cluster_size_m, (fl.labels, fl.count))
+        clusters = cluster_frontiers(frontier, distance, entropy, g, self.frontier_config.min_cluster_size_m, fl.components)
         nodes = np.zeros((0, 2)) if path_nodes_xy_m is None else np.asarray(path_nodes_xy_m, dtype=float).reshape(-1, 2)
         return Observation(
             geometry=g,

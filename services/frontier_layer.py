@@ -1,4 +1,4 @@
-"""The frontier service's helper process: the frontier layer (F_t, I, F_t's labels) beside D.
+"""The frontier service's helper process: the frontier layer (F_t, I, F_t's components) beside D.
 
 An Observation is one fast-marching pass (D) plus the frontier layer, which does not need D
 (``cso_runtime.observation.frontier_layer``). scikit-fmm holds the GIL for the whole pass, so a thread
@@ -7,7 +7,7 @@ computes D meanwhile, then clusters with the helper's layer. The same function c
 both places, so the Observation is the one ``ObservationBuilder.build`` gives in one process.
 
 The arrays travel through one shared-memory file per map shape (inputs: explored, occupied, excluded
-cells; outputs: F_t, I, labels); a pipe carries the requests and replies. The file is unlinked as soon
+cells; outputs: F_t, I, the components' cells); a pipe carries the requests and replies. The file is unlinked as soon
 as both processes have mapped it, so nothing is left behind whatever happens to either. The helper
 exits when the pipe closes (its service stopped or died); a service whose helper is gone, late or
 failing computes the layer itself (logged), so a decision never waits more than ``timeout_s``.
@@ -30,18 +30,29 @@ from cso_runtime.occupancy import OccupancyMap
 
 log = logging.getLogger("cso.frontier")
 
-_FIELDS = (("explored", np.bool_), ("occupied", np.bool_), ("exclude", np.bool_), ("frontier", np.bool_), ("entropy", np.int32), ("labels", np.int32))
+_FIELDS = (
+    ("explored", np.bool_, True),
+    ("occupied", np.bool_, True),
+    ("exclude", np.bool_, True),
+    ("frontier", np.bool_, True),
+    ("entropy", np.int32, True),
+    ("cells_iy", np.int32, False),
+    ("cells_ix", np.int32, False),
+    ("splits", np.int32, False),
+)
+"""(name, dtype, a grid of the map's shape or else a flat array of as many entries, of which a reply says how many count)."""
 
 
 def _views(path: str, shape: tuple[int, int], create: bool) -> tuple[np.memmap, dict[str, np.ndarray]]:
     """The shared file mapped as one array per field (in ``_FIELDS`` order)."""
     cells = shape[0] * shape[1]
-    size = sum(cells * np.dtype(dt).itemsize for _, dt in _FIELDS)
+    size = sum(cells * np.dtype(dt).itemsize for _, dt, _ in _FIELDS)
     buf = np.memmap(path, dtype=np.uint8, mode="w+" if create else "r+", shape=(size,))
     views, offset = {}, 0
-    for name, dt in _FIELDS:
+    for name, dt, grid in _FIELDS:
         n = cells * np.dtype(dt).itemsize
-        views[name] = buf[offset : offset + n].view(dt).reshape(shape)
+        v = buf[offset : offset + n].view(dt)
+        views[name] = v.reshape(shape) if grid else v
         offset += n
     return buf, views
 
@@ -84,9 +95,13 @@ def worker_main(conn: Connection) -> None:
             elif kind == "layer":
                 _, seq, window_m, resolution_m, has_exclude = request
                 explored, occupied = views["explored"], views["occupied"]
-                out = (views["frontier"], views["entropy"], views["labels"])
+                out = (views["frontier"], views["entropy"])
                 fl = frontier_layer(explored & ~occupied, explored, views["exclude"] if has_exclude else None, window_m, resolution_m, out)
-                conn.send(("layer", seq, fl.count))
+                iy, ix, splits = fl.components
+                views["cells_iy"][: len(iy)] = iy
+                views["cells_ix"][: len(ix)] = ix
+                views["splits"][: len(splits)] = splits
+                conn.send(("layer", seq, len(iy), len(splits)))
         except Exception as exc:  # noqa: BLE001 - reported to the service, which computes the layer itself
             conn.send(("error", request[1] if kind == "layer" else -1, f"{type(exc).__name__}: {exc}"))
     del buf
@@ -182,8 +197,9 @@ class FrontierLayerWorker:
             self._give_up(f"no layer for request {seq} within {self.timeout_s} s (got {reply!r})")
             return None
         self.layers_computed += 1
-        v = self.views
-        return FrontierLayer(v["frontier"], v["entropy"], v["labels"], int(reply[2]))
+        v, n, n_splits = self.views, int(reply[2]), int(reply[3])
+        components = (v["cells_iy"][:n].astype(np.intp), v["cells_ix"][:n].astype(np.intp), v["splits"][:n_splits].astype(np.intp))
+        return FrontierLayer(v["frontier"], v["entropy"], components)
 
     def close(self) -> None:
         try:
