@@ -61,6 +61,8 @@ class FrontierService(Service):
         self.goal_tolerance_m = cfg.episode.goal_tolerance_m
         self.robot_radius_m = cfg.robot.radius_m
         self.layer_worker: FrontierLayerWorker | None = None
+        self.decisions_built = 0
+        """Observations built (the helper computed ``layer_worker.layers_computed`` of their layers)."""
         self.reset_episode()
 
     def start(self) -> None:
@@ -69,7 +71,9 @@ class FrontierService(Service):
 
     def shutdown(self) -> None:
         if self.layer_worker is not None:
-            self.layer_worker.close()
+            w = self.layer_worker
+            log.info("frontier layers: %d by the helper process, %d here%s", w.layers_computed, self.decisions_built - w.layers_computed, f" ({w.broken})" if w.broken else "")
+            w.close()
 
     def layer_beside_d(self, occupancy: OccupancyMap) -> Callable[[], FrontierLayer] | None:
         """The decision's frontier layer, started in the helper process (``build`` waits for it once D
@@ -193,6 +197,7 @@ class FrontierService(Service):
                 mark_dead_frontier(self.dead, occupancy.geometry, (self.goal.x_m, self.goal.y_m), self.goal_tolerance_m)
             self.path_nodes.append((odom.pose.x_m, odom.pose.y_m))
             obs = self.builder.build(occupancy, odom.pose, np.array(self.path_nodes), exclude_frontier=self.dead, layer=self.layer_beside_d(occupancy))
+            self.decisions_built += 1
             out = frontiers_from_observation(k, reason, obs, (time.perf_counter() - t0) * 1e3)
             self.awaiting_goal_step, self.awaiting_since_s = k, time.monotonic()
         self.last_out = out

@@ -171,6 +171,7 @@ class FrontierLayerWorker:
                 self._give_up("unexpected first message from the helper")
                 return False
             self.ready = True
+            log.info("frontier layer helper ready (pid %d)", self.proc.pid)
         shape = occupancy.geometry.shape
         if self.shape != shape and not self._map_shape(shape):
             return False
