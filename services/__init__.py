@@ -11,7 +11,7 @@ SERVICE_NAMES = ("sim", "mapper", "frontier", "policy", "planner", "ros2_bridge"
 _CLASSES: dict[str, tuple[str, str | None]] = {
     "sim": ("SimService", "SimParams"),
     "mapper": ("MapperService", "MapperParams"),
-    "frontier": ("FrontierService", None),
+    "frontier": ("FrontierService", "FrontierParams"),
     "policy": ("PolicyService", "PolicyParams"),
     "planner": ("PlannerService", "PlannerParams"),
     "ros2_bridge": ("Ros2BridgeService", "Ros2BridgeParams"),

@@ -114,3 +114,21 @@ def test_dataflow_and_version_commands():
     assert runner.invoke(app, ["dataflow", "--profile", "no-such-profile"]).exit_code == 2
     r = runner.invoke(app, ["--version"])
     assert r.exit_code == 0 and r.output.startswith("cso-runtime ")
+
+
+def test_the_frontier_service_takes_its_parameters_from_a_profile(tmp_path):
+    """``services.frontier`` in a profile sets ``FrontierParams`` (the layer helper, the real-time goal
+    wait); a key it does not know is an error before anything starts."""
+    import yaml  # noqa: PLC0415
+
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
+
+    data = yaml.safe_load((ROOT / "cso_runtime" / "profiles" / "lockstep.yaml").read_text())
+    data["services"]["frontier"] = {"layer_helper": False, "goal_wait_s": 1.5}
+    (tmp_path / "ok.yaml").write_text(yaml.safe_dump(data))
+    prof, _ = load_profile(str(tmp_path / "ok.yaml"), {})
+    assert prof.services["frontier"] == {"layer_helper": False, "goal_wait_s": 1.5}
+    data["services"]["frontier"] = {"layer_helpr": True}
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match="layer_helpr"):
+        load_profile(str(tmp_path / "bad.yaml"), {})
