@@ -20,7 +20,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.geometry import VelocityCommand
-from cso_runtime.messages import CmdVelMsg, DistanceMapMsg, FrontiersMsg, GoalMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, ScanMsg
+from cso_runtime.messages import CmdVelMsg, DistanceMapMsg, FrontiersMsg, GoalMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, PlannerFrontiersMsg, ScanMsg
 from cso_runtime.planner import FollowResult, LocalPlanner, PlannerStatus
 from services.common import Service, ServiceContext, service_main
 
@@ -47,7 +47,7 @@ class PlannerParams:
 
 class PlannerService(Service):
     name = "planner"
-    inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": FrontiersMsg, "distance_map": DistanceMapMsg, "goal": GoalMsg}
+    inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": PlannerFrontiersMsg, "distance_map": DistanceMapMsg, "goal": GoalMsg}
     outputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg}
     tick_period_s = 0.1
 

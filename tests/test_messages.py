@@ -28,6 +28,7 @@ from cso_runtime.messages import (
     OdometryMsg,
     PathMsg,
     PlannerFeedbackMsg,
+    PlannerFrontiersMsg,
     ScanMsg,
     ServiceStatusMsg,
     decode,
@@ -229,6 +230,27 @@ def test_frontiers_rebuild_the_same_observation_and_decision():
         assert make_policy(name).select(rebuilt) == make_policy(name).select(obs)
     assert rebuilt.distance_m is None  # the graph policy read D at the path nodes only: no pass was needed
     np.testing.assert_array_equal(rebuilt.distance_map(), obs.distance_m)  # computed again: the same values
+
+
+def test_the_planner_reads_the_verdict_and_the_traversable_grid_and_validates_those():
+    """``PlannerFrontiersMsg`` decodes what the planner uses (the grid it plans on, with the pose and
+    geometry); a bad grid it reads is rejected, a bad one it does not read is the policy's to reject."""
+    obs = _observation()
+    msg = frontiers_from_observation(3, "no_goal", obs, 4.5)
+    view = decode(encode(msg), PlannerFrontiersMsg)
+    assert isinstance(view, PlannerFrontiersMsg) and view.decide and (view.step, view.reason) == (3, "no_goal")
+    assert view.pose == obs.pose and view.geometry == obs.geometry and set(view.arrays) == {"traversable"}
+    np.testing.assert_array_equal(view.arrays["traversable"], obs.traversable)
+    keep = decode(encode(FrontiersMsg(4, False)), PlannerFrontiersMsg)
+    assert (keep.step, keep.decide) == (4, False)
+    body = _body(msg)
+    body["arrays"]["entropy"]["data"] = b"junk"
+    assert decode(_wire("frontiers", body), PlannerFrontiersMsg).decide  # not read here
+    with pytest.raises(MessageError):
+        decode(_wire("frontiers", body), FrontiersMsg)
+    body["arrays"]["traversable"]["data"] = b"junk"
+    with pytest.raises(MessageError, match="traversable"):
+        decode(_wire("frontiers", body), PlannerFrontiersMsg)
 
 
 def test_observation_reads_d_at_path_nodes_and_computes_it_again_for_other_cells():
