@@ -10,6 +10,7 @@ docs/messages.md.
 
 from __future__ import annotations
 
+import functools
 import math
 import secrets
 import zlib
@@ -452,6 +453,11 @@ class FrontiersMsg(Message):
     }
     MASKED: ClassVar[tuple[str, ...]] = ("entropy",)
     """Grids that travel as their values where a mask is set (I: non-zero)."""
+    READS_GRIDS: ClassVar[tuple[str, ...] | None] = None
+    """Grids ``from_body`` decodes (None: all). A subscriber that reads fewer decodes them only
+    (``frontiers_reading``); the others stay None, unchecked: their readers check them."""
+    READS_CLUSTERS: ClassVar[bool] = True
+    """``from_body`` decodes the clusters and the path nodes (the planner does not read them)."""
 
     def body(self) -> dict[str, Any]:
         b: dict[str, Any] = {"step": self.step, "decide": self.decide, "reason": self.reason}
@@ -499,11 +505,16 @@ class FrontiersMsg(Message):
         raw = _get(b, "arrays", w)
         if not isinstance(raw, dict) or set(raw) != set(cls.GRIDS):
             raise MessageError(f"frontiers.arrays: expected exactly {', '.join(cls.GRIDS)}")
-        arrays = {k: _grid_in(raw, k, "frontiers.arrays", geometry, dt) for k, dt in cls.GRIDS.items() if dt == "bool"}
+        reads = cls.GRIDS if cls.READS_GRIDS is None else cls.READS_GRIDS
+        arrays = {k: _grid_in(raw, k, "frontiers.arrays", geometry, dt) for k, dt in cls.GRIDS.items() if dt == "bool" and k in reads}
         masks = _get(b, "masks", w)
         if not isinstance(masks, dict) or set(masks) != set(cls.MASKED):
             raise MessageError(f"frontiers.masks: expected exactly {', '.join(cls.MASKED)}")
-        arrays["entropy"] = _masked_grid_in(raw["entropy"], _grid_in(masks, "entropy", "frontiers.masks", geometry, "bool"), "frontiers.arrays.entropy", 0, np.int32)
+        if "entropy" in reads:
+            arrays["entropy"] = _masked_grid_in(raw["entropy"], _grid_in(masks, "entropy", "frontiers.masks", geometry, "bool"), "frontiers.arrays.entropy", 0, np.int32)
+        open_area_m2 = _num(b, "open_area_m2", w, 0.0)
+        if not cls.READS_CLUSTERS:
+            return cls(step, True, reason, _pose_in(b, "pose", w), geometry, arrays, [], open_area_m2)
         clusters_raw = _get(b, "clusters", w)
         if not isinstance(clusters_raw, list):
             raise MessageError("frontiers.clusters: expected a list")
@@ -546,31 +557,31 @@ class FrontiersMsg(Message):
             geometry,
             arrays,
             clusters,
-            _num(b, "open_area_m2", w, 0.0),
+            open_area_m2,
             nodes,
             _num(b, "build_ms", w, 0.0),
             node_d,
         )
 
 
-class PlannerFrontiersMsg(FrontiersMsg):
-    """A ``frontiers`` message as the planner reads it: the verdict and, on a decision, the grid it plans
-    on (``traversable``, with the pose and geometry); the other grids and the clusters are not decoded
-    (the policy, which reads them, validates them). About a third of a full decode on a 640 x 480 map,
-    on the planner's network thread while a fast policy's goal may already be waiting behind it."""
+@functools.cache
+def frontiers_reading(grids: tuple[str, ...] | None, clusters: bool = True) -> type[FrontiersMsg]:
+    """``FrontiersMsg`` as a subscriber that reads only ``grids`` (None: all) and, with ``clusters``,
+    the clusters and path nodes decodes it: a policy service decodes what its goal selector reads
+    (``GoalSelector.grids``; the baselines read no grid), the planner the grid it plans on."""
+    if grids is None and clusters:
+        return FrontiersMsg
+    unknown = set(grids or ()) - set(FrontiersMsg.GRIDS)
+    if unknown:
+        raise ValueError(f"no such decision grids: {', '.join(sorted(unknown))}")
+    name = f"FrontiersReading_{'_'.join(grids) if grids is not None else 'all'}{'' if clusters else '_no_clusters'}"
+    return type(name, (FrontiersMsg,), {"READS_GRIDS": grids, "READS_CLUSTERS": clusters, "__doc__": frontiers_reading.__doc__})
 
-    @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "PlannerFrontiersMsg":
-        w = "frontiers"
-        step, decide, reason = _int(b, "step", w), _bool(b, "decide", w), _str(b, "reason", w)
-        if not decide:
-            return cls(step, False, reason)
-        geometry = _geometry_in(b, w)
-        raw = _get(b, "arrays", w)
-        if not isinstance(raw, dict) or "traversable" not in raw:
-            raise MessageError("frontiers.arrays: no traversable grid")
-        traversable = _grid_in(raw, "traversable", "frontiers.arrays", geometry, "bool")
-        return cls(step, True, reason, _pose_in(b, "pose", w), geometry, {"traversable": traversable}, [], _num(b, "open_area_m2", w, 0.0))
+
+PlannerFrontiersMsg = frontiers_reading(("traversable",), clusters=False)
+"""A ``frontiers`` message as the planner reads it: the verdict and, on a decision, the grid it plans on
+(with the pose and geometry). About a third of a full decode on a 640 x 480 map, on the planner's
+network thread while a fast policy's goal may already be waiting behind it."""
 
 
 def frontiers_from_observation(step: int, reason: str, obs: Observation, build_ms: float) -> FrontiersMsg:
@@ -597,7 +608,7 @@ def observation_from_frontiers(msg: FrontiersMsg) -> Observation:
     (D is known at the path nodes; ``Observation.distance_map`` computes the rest if ever asked)."""
     if not msg.decide or msg.geometry is None or msg.pose is None:
         raise MessageError("frontiers: no observation in a keep-goal message")
-    a = msg.arrays
+    a = msg.arrays  # the grids its subscriber decoded (``frontiers_reading``); the others None
     clusters = [
         FrontierCluster(i, c["cells"], tuple(c["goal_cell"]), tuple(c["goal_xy_m"]), c["distance_m"], c["size_m"], c["entropy"], tuple(c["centroid_xy_m"]))
         for i, c in enumerate(msg.clusters)
@@ -605,12 +616,12 @@ def observation_from_frontiers(msg: FrontiersMsg) -> Observation:
     return Observation(
         geometry=msg.geometry,
         pose=msg.pose,
-        explored=a["explored"],
-        occupied=a["occupied"],
-        traversable=a["traversable"],
+        explored=a.get("explored"),  # type: ignore[arg-type]
+        occupied=a.get("occupied"),  # type: ignore[arg-type]
+        traversable=a.get("traversable"),  # type: ignore[arg-type]
         distance_m=None,
-        frontier=a["frontier"],
-        entropy=a["entropy"],
+        frontier=a.get("frontier"),  # type: ignore[arg-type]
+        entropy=a.get("entropy"),  # type: ignore[arg-type]
         clusters=clusters,
         open_area_m2=msg.open_area_m2,
         path_nodes_xy_m=msg.path_nodes_xy_m,

@@ -29,7 +29,11 @@ class Goal:
 
 @runtime_checkable
 class GoalSelector(Protocol):
-    """Chooses the next long-term goal among the frontier clusters."""
+    """Chooses the next long-term goal among the frontier clusters.
+
+    A selector may say which of the Observation's grids ``select`` reads (``grids``, a tuple of
+    explored, occupied, traversable, frontier, entropy): a policy service then decodes only those from
+    a decision message (the others are None there). Without it, every grid is decoded."""
 
     name: str
 
@@ -81,6 +85,8 @@ class _ScoreSelector:
     """A baseline that picks the reachable cluster with the best score (lowest cost)."""
 
     name = "base"
+    grids: tuple[str, ...] = ()
+    """The scores read the clusters only."""
 
     def reset(self, seed: int | None = None) -> None:
         pass
@@ -133,6 +139,7 @@ class RandomFrontier:
     """Random: a uniformly random reachable cluster (seeded)."""
 
     name = "random"
+    grids: tuple[str, ...] = ()
 
     def __init__(self, seed: int | None = None):
         self.rng = np.random.default_rng(seed)

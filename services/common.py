@@ -117,7 +117,8 @@ class Service:
 
     name: ClassVar[str] = ""
     inputs: ClassVar[dict[str, type[Message]]] = {}
-    """Topic name (see ``cso_runtime.keys.TOPICS``) -> expected message type."""
+    """Topic name (see ``cso_runtime.keys.TOPICS``) -> expected message type. An instance may narrow a
+    type to a view of the same schema that decodes less (the policy service does, for its method)."""
     outputs: ClassVar[dict[str, type[Message]]] = {}
     """Topic name -> the message type this service publishes there. With ``inputs`` it is the service's
     node in the dataflow (``cso-runtime dataflow``); ``publish`` refuses anything not declared here."""

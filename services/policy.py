@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import zenoh
 
 from cso_runtime.config import ConfigError, from_dict
-from cso_runtime.messages import FrontiersMsg, GoalMsg, Message, encode, observation_from_frontiers
+from cso_runtime.messages import FrontiersMsg, GoalMsg, Message, encode, frontiers_reading, observation_from_frontiers
 from cso_runtime.policies import LEARNED_METHODS, GoalSelector, make_policy
 from services.common import Service, ServiceContext, service_main
 
@@ -63,7 +63,10 @@ class PolicyService(Service):
             self.subscribe_robot = "*"
         self.seed = int(ctx.profile.get("seed", 0))
         self.robots: dict[str, RobotState] = {}
-        self.new_selector()  # fail early on an unknown method
+        selector = self.new_selector()  # fail early on an unknown method
+        # Decode of each decision message the grids this method reads (GoalSelector.grids), no more.
+        grids = getattr(selector, "grids", None)
+        self.inputs = {"frontiers": frontiers_reading(None if grids is None else tuple(grids))}
         if self.method in LEARNED_METHODS:
             from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
 

@@ -35,6 +35,7 @@ from cso_runtime.messages import (
     encode,
     DistanceMapMsg,
     frontiers_from_observation,
+    frontiers_reading,
     observation_from_frontiers,
     pack_array,
     unpack_array,
@@ -228,6 +229,12 @@ def test_frontiers_rebuild_the_same_observation_and_decision():
     assert [c.goal_cell for c in rebuilt.clusters] == [c.goal_cell for c in obs.clusters]
     for name in ("greedy-dist", "greedy-info", "utility", "cso"):
         assert make_policy(name).select(rebuilt) == make_policy(name).select(obs)
+        # Decoded as the policy service does: only the grids the selector reads (the baselines: none).
+        grids = make_policy(name).grids
+        assert grids == (() if name != "cso" else ("traversable",))
+        narrow = decode(encode(frontiers_from_observation(3, "no_goal", obs, 4.5)), frontiers_reading(grids))
+        assert set(narrow.arrays) == set(grids)
+        assert make_policy(name).select(observation_from_frontiers(narrow)) == make_policy(name).select(obs)
     assert rebuilt.distance_m is None  # the graph policy read D at the path nodes only: no pass was needed
     np.testing.assert_array_equal(rebuilt.distance_map(), obs.distance_m)  # computed again: the same values
 

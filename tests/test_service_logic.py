@@ -728,3 +728,16 @@ def test_frontier_layer_helper_computes_what_the_service_would_and_is_dropped_wh
     finally:
         worker.close()
     assert not worker.proc.is_alive()
+
+
+@pytest.mark.parametrize("method, grids", [("greedy-dist", ()), ("utility", ()), ("cso", ("traversable",))])
+def test_the_policy_service_decodes_the_grids_its_method_reads(method, grids):
+    """A decision message is decoded for what the goal selector reads (``GoalSelector.grids``): no grid
+    for the baselines, the traversable grid (stuck mask) for the learned policy."""
+    ctx = ServiceContext("policy", "r0", {"lockstep": True, "method": method}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {})
+    policy = PolicyService(ctx)
+    view = policy.inputs["frontiers"]
+    assert view.READS_GRIDS == grids and view.READS_CLUSTERS and PolicyService.inputs["frontiers"] is FrontiersMsg
+    obs = _explorer_at(3).observe()
+    msg = decode(encode(frontiers_from_observation(0, "no_goal", obs, 1.0)), view)
+    assert set(msg.arrays) == set(grids)

@@ -98,6 +98,9 @@ class LearnedPolicy:
         self.name = name
         self.model = model.to(device).eval()
         self.graph_config = graph
+        self.grids: tuple[str, ...] = ("explored", "traversable") if graph.use_unknown_area else ("traversable",)
+        """What ``select`` reads of the Observation's grids (``GoalSelector.grids``): the traversable grid
+        for the stuck mask's distance maps, the explored one for the unknown-area feature."""
         self.masker = ActionMasker(mask_config)
         self.device = device
         self.greedy = greedy
