@@ -19,6 +19,7 @@ import ctypes
 import logging
 import multiprocessing
 import os
+import signal
 import tempfile
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -79,6 +80,9 @@ def worker_main(conn: Connection) -> None:
     """The helper's loop: map a shared file, compute layers into it, until the pipe closes."""
     views: dict[str, np.ndarray] = {}
     buf = None
+    # Ctrl-C (or ``down``) reaches the whole process group: the service stops and closes the pipe,
+    # which ends this loop; the helper itself has nothing to say about it.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     keep_freed_memory()
     conn.send(("ready",))
     while True:
