@@ -38,7 +38,7 @@ class FrontierParams:
     """Real time: after asking for a decision, keep the current goal (``decide: false``) for at most this
     long while the policy answers, instead of asking again on every map. Lockstep always waits."""
     layer_helper: bool = True
-    """Compute a decision's frontier layer (F_t, I, the clusters' labels) in a helper process while this
+    """Compute a decision's frontier layer (F_t, I, the frontier components) in a helper process while this
     one computes D (``services/frontier_layer.py``): the Observation is the same, sooner on two or more
     cores. False: one process."""
 
