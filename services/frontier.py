@@ -67,7 +67,10 @@ class FrontierService(Service):
 
     def start(self) -> None:
         if self.params.layer_helper:
-            self.layer_worker = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m)
+            try:
+                self.layer_worker = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m)
+            except OSError as exc:  # no process to spare: the layers are computed here, as with layer_helper false
+                log.warning("no frontier layer helper (%s): computing the layers in this process", exc)
 
     def shutdown(self) -> None:
         if self.layer_worker is not None:
