@@ -78,8 +78,7 @@ def keep_freed_memory() -> None:
 
 def worker_main(conn: Connection) -> None:
     """The helper's loop: map a shared file, compute layers into it, until the pipe closes."""
-    views: dict[str, np.ndarray] = {}
-    buf = None
+    views: dict[str, np.ndarray] = {}  # views of the shared file (they keep its mapping alive)
     # Ctrl-C (or ``down``) reaches the whole process group: the service stops and closes the pipe,
     # which ends this loop; the helper itself has nothing to say about it.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -94,7 +93,7 @@ def worker_main(conn: Connection) -> None:
         try:
             if kind == "map":
                 _, path, shape = request
-                buf, views = _views(path, tuple(shape), create=False)
+                _, views = _views(path, tuple(shape), create=False)
                 conn.send(("mapped",))
             elif kind == "layer":
                 _, seq, window_m, resolution_m, has_exclude = request
@@ -108,7 +107,6 @@ def worker_main(conn: Connection) -> None:
                 conn.send(("layer", seq, len(iy), len(splits)))
         except Exception as exc:  # noqa: BLE001 - reported to the service, which computes the layer itself
             conn.send(("error", request[1] if kind == "layer" else -1, f"{type(exc).__name__}: {exc}"))
-    del buf
 
 
 class FrontierLayerWorker:
