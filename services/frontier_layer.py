@@ -122,7 +122,6 @@ class FrontierLayerWorker:
         child.close()
         self.shape: tuple[int, int] | None = None
         self.views: dict[str, np.ndarray] = {}
-        self._buf: np.memmap | None = None
         self.seq = 0
         self.ready = False
         """The helper has started (imports done); until then the service computes layers itself."""
@@ -148,7 +147,7 @@ class FrontierLayerWorker:
     def _map_shape(self, shape: tuple[int, int]) -> bool:
         path = Path(_shared_dir()) / f"cso-frontier-layer-{os.getpid()}-{self.seq}"
         try:
-            self._buf, self.views = _views(str(path), shape, create=True)
+            _, self.views = _views(str(path), shape, create=True)  # the views keep the mapping alive
             self.conn.send(("map", str(path), shape))
             reply = self._reply()
         finally:
