@@ -33,7 +33,9 @@ class GoalSelector(Protocol):
 
     A selector may say which of the Observation's grids ``select`` reads (``grids``, a tuple of
     explored, occupied, traversable, frontier, entropy): a policy service then decodes only those from
-    a decision message (the others are None there). Without it, every grid is decoded."""
+    a decision message (the others are None there). Without it, every grid is decoded. A selector may
+    also have ``warm_up()``, which a policy service calls before it says it is up (one-off costs, such
+    as building the learned policy's traced network, then stay off the first decision)."""
 
     name: str
 

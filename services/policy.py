@@ -64,6 +64,11 @@ class PolicyService(Service):
         self.seed = int(ctx.profile.get("seed", 0))
         self.robots: dict[str, RobotState] = {}
         selector = self.new_selector()  # fail early on an unknown method
+        warm_up = getattr(selector, "warm_up", None)
+        if warm_up is not None:  # before the liveliness token: the first decision pays no one-off cost
+            t0 = time.perf_counter()
+            warm_up()
+            log.info("%s: warmed up in %.0f ms", self.method, (time.perf_counter() - t0) * 1e3)
         # Decode of each decision message the grids this method reads (GoalSelector.grids), no more.
         grids = getattr(selector, "grids", None)
         self.inputs = {"frontiers": frontiers_reading(None if grids is None else tuple(grids))}

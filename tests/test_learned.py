@@ -340,6 +340,22 @@ def test_policies_of_one_model_share_one_trace(observation):
     assert a._traced and a._traced is b._traced
 
 
+def test_warm_up_traces_before_the_first_decision_and_changes_no_decision(observation):
+    """A policy server warms its selector up before it says it is up: the trace is built on an
+    all-padding graph (the shapes are fixed), and decisions are those of a policy traced on a real one."""
+    model = GraphActorCritic().eval()
+    warm, cold = (LearnedPolicy("cso", m, GraphConfig(), MaskConfig()) for m in (model, copy.deepcopy(model)))
+    warm.warm_up()
+    assert warm._traced
+    traced = warm._traced
+    mask = warm.action_mask(observation)
+    cold.action_mask(observation)
+    p_warm, p_cold = warm.probabilities(observation, mask), cold.probabilities(observation, mask)
+    assert warm._traced is traced and cold._traced and cold._traced is not traced
+    np.testing.assert_allclose(p_warm, p_cold, rtol=1e-5, atol=1e-7)
+    assert (p_warm[~mask] == 0).all() and p_warm[mask].sum() == pytest.approx(1.0, abs=1e-5)
+
+
 def test_checkpoint_round_trip_gives_the_same_actions(tmp_path, observation):
     torch.manual_seed(5)
     model = GraphActorCritic(NetworkConfig(hidden=32, heads=2, layers=1)).eval()

@@ -7,6 +7,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
+import weakref
 
 import numpy as np
 import pytest
@@ -147,7 +148,11 @@ def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_i
         nodes.append((pose.x_m, pose.y_m))
         observations.append(ex.builder.build(ex.map, pose, np.array(nodes)))
         decisions.append(frontiers_from_observation(step, "reached", observations[-1], 1.0))
+    from cso_runtime.learned import registry  # noqa: PLC0415
+
+    monkeypatch.setattr(registry, "_DECISION_TRACES", weakref.WeakKeyDictionary())
     policy, out = _service(PolicyService, lockstep=True, params={"method": "cso"})
+    assert any(registry._DECISION_TRACES.values())  # warmed up before any input: no trace at the first decision
     bounds = []
     real = observation.geodesic_distance
     monkeypatch.setattr(observation, "geodesic_distance", lambda *a: bounds.append(a[3]) or real(*a))

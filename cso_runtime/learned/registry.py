@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from cso_runtime.config import MaskConfig
-from cso_runtime.learned.graph import GraphConfig, build_graph, frontier_count
+from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph, frontier_count
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
 from cso_runtime.observation import Observation
@@ -125,13 +125,15 @@ class LearnedPolicy:
 
     @torch.inference_mode()
     def probabilities(self, obs: Observation, mask: np.ndarray) -> np.ndarray:
-        """Masked action probabilities over the frontier nodes (zero exactly where masked).
-
-        On CPU the network runs as a TorchScript trace of the same module (built at the first decision
-        of the first policy on this model; every graph has the same padded shape), eager elsewhere or
-        if tracing fails."""
+        """Masked action probabilities over the frontier nodes (zero exactly where masked)."""
         g = to_torch(build_graph(obs, self.graph_config), self.device, batch=True)
         m = torch.as_tensor(mask, device=self.device).unsqueeze(0)
+        return torch.softmax(self._logits(g, m), -1).squeeze(0).cpu().numpy()
+
+    def _logits(self, g: dict[str, torch.Tensor], m: torch.Tensor) -> torch.Tensor:
+        """The network's masked logits. On CPU it runs as a TorchScript trace of the same module (built
+        at the first call of the first policy on this model, or by ``warm_up``; every graph has the same
+        padded shape), eager elsewhere or if tracing fails."""
         if self._traced is None and str(self.device).startswith("cpu"):
             # One trace per loaded model and graph shape, not per episode (eval makes a policy per episode).
             traces = _DECISION_TRACES.setdefault(self.model, {})
@@ -140,10 +142,18 @@ class LearnedPolicy:
                 traces[shape] = trace_decision(self.model, g, m) or False
             self._traced = traces[shape]
         if self._traced:
-            logits = self._traced(*[g[k] for k in GRAPH_KEYS], m)
-        else:
-            logits = self.model.masked_logits(g, m)
-        return torch.softmax(logits, -1).squeeze(0).cpu().numpy()
+            return self._traced(*[g[k] for k in GRAPH_KEYS], m)
+        return self.model.masked_logits(g, m)
+
+    @torch.inference_mode()
+    def warm_up(self) -> None:
+        """Trace and run the network once on an all-padding graph of the fixed shape, so that the first
+        real decision does not pay the trace (about 0.1 s). A policy server calls this before it says it
+        is up; the decisions are unchanged (the trace depends on the shapes only)."""
+        g = to_torch(empty_graph(self.graph_config), self.device, batch=True)
+        m = torch.zeros((1, self.graph_config.max_frontier_nodes), dtype=torch.bool, device=self.device)
+        m[0, 0] = True
+        self._logits(g, m)
 
     def select(self, obs: Observation) -> Goal | None:
         if not obs.clusters or not np.isfinite(obs.goal_distance_m).any():
