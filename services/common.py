@@ -2,8 +2,9 @@
 
 A service subclasses ``Service``: it names its inputs (topic -> message type), handles each decoded
 message in ``on_message`` and may act periodically in ``on_tick``. ``run_service`` opens the session
-(the shared transport helper, multicast scouting off), declares the liveliness token
-``cso/<robot>/alive/<name>`` and the status queryable, and handles inputs one at a time
+(the shared transport helper, multicast scouting off), declares the status queryable and the
+service's publishers, warms the service up (``warm_up``), then declares the liveliness token
+``cso/<robot>/alive/<name>``, and handles inputs one at a time
 (``ServiceInputs``): in real time from a queue filled by Zenoh's callback, in lockstep at once on
 Zenoh's network thread. Payloads that fail validation are logged and counted per key, never
 crash the service. SIGINT/SIGTERM stop the loop; ``shutdown`` runs while the session is still open
@@ -32,11 +33,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+import numpy as np
 import zenoh
 
 from cso_runtime.config import EXIT_BAD_CONFIG, ConfigError, ExplorationConfig, from_dict, load_yaml
+from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
+from cso_runtime.observation import Observation, ObservationBuilder
+from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.transport import TransportConfig, TransportError, open_session
 
 log = logging.getLogger("cso.service")
@@ -150,6 +155,12 @@ class Service:
         the main thread's profile cannot see (a profiler follows one thread)."""
 
     # --- hooks -----------------------------------------------------------------------------------
+    def warm_up(self) -> None:
+        """Called once the session is open, before the liveliness token says the service is up: pay
+        one-off costs here (a helper process's start, a traced network, first calls of the algorithms
+        on ``warm_up_observation``), not at the episode's first step. Default: nothing (the publishers
+        of ``outputs`` are declared for every service)."""
+
     def start(self) -> None:
         """Called once the session is open (late-joiner queries, queryables)."""
 
@@ -180,13 +191,21 @@ class Service:
         pub = self._publishers.get(key)
         if pub is None:
             self.check_output(topic, msg)
-            assert self.session is not None
-            pub = self._publishers[key] = self.session.declare_publisher(key)
+            pub = self.declare_publisher(key)
         payload = encode(msg)
         t0 = time.monotonic()
         pub.put(payload)
         if self.trace is not None:
             self.trace.put(topic, getattr(msg, "step", -1), t0, time.monotonic(), len(payload))
+
+    def declare_publisher(self, key: str) -> Any:
+        """The publisher of ``key`` (declared once; ``run_service`` declares the service's own robot's
+        outputs before the service says it is up)."""
+        pub = self._publishers.get(key)
+        if pub is None:
+            assert self.session is not None
+            pub = self._publishers[key] = self.session.declare_publisher(key)
+        return pub
 
     def keep_latest(self, topic: str, msg: Message) -> None:
         """Serve ``msg`` on ``cache/<topic>`` from now on, unless a later step of its episode is already
@@ -344,6 +363,11 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
         subs = [session.declare_subscriber(keys.topic(t), handler) for t in service.inputs]
         status_q = session.declare_queryable(ctx.keys.service_status(service.name), on_status_query)
         cache_qs = [session.declare_queryable(ctx.keys.cache(t), functools.partial(service.answer_cache_query, t)) for t in service.serves_latest]
+        for t in service.outputs:
+            service.declare_publisher(ctx.keys.topic(t))
+        t0 = time.perf_counter()
+        service.warm_up()
+        log.info("%s: warmed up in %.0f ms", service.name, (time.perf_counter() - t0) * 1e3)
         token = session.liveliness().declare_token(ctx.keys.alive(service.name))
         log.info("%s: up for robot %s (inputs: %s)", service.name, sub_robot, ", ".join(service.inputs) or "none")
         try:
@@ -497,3 +521,26 @@ def _die_with_launcher() -> None:
         return
     if os.getppid() != int(parent):
         os.kill(os.getpid(), signal.SIGTERM)
+
+
+def warm_up_map(resolution_m: float = 0.05) -> tuple[OccupancyMap, Pose2D]:
+    """A small synthetic map for ``warm_up``: a 6 m square room, the robot in its centre, what lies
+    within 2 m of it explored. The algorithms of an episode's first step run once on it, with no scene."""
+    n = int(round(6.0 / resolution_m))
+    geometry = GridGeometry(resolution_m, (n, n))
+    occupancy = OccupancyMap(geometry)
+    iy, ix = np.mgrid[0:n, 0:n]
+    centre = (n - 1) / 2.0
+    occupancy.explored[:] = np.hypot(iy - centre, ix - centre) * resolution_m <= 2.0
+    wall = np.zeros((n, n), dtype=bool)
+    wall[[0, -1], :] = True
+    wall[:, [0, -1]] = True
+    occupancy.occupied[:] = wall & occupancy.explored
+    x_m, y_m = geometry.cell_to_world(int(centre), int(centre))
+    return occupancy, Pose2D(float(x_m), float(y_m), 0.0)
+
+
+def warm_up_observation(config: ExplorationConfig) -> Observation:
+    """A decision's Observation on ``warm_up_map`` (what a policy or planner warms up on)."""
+    occupancy, pose = warm_up_map()
+    return ObservationBuilder(config.frontier, config.robot).build(occupancy, pose, np.array([pose.xy]))

@@ -19,12 +19,12 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import decision_reason, goal_failed_in_place, mark_dead_frontier
-from cso_runtime.messages import DistanceMapMsg, FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PlannerFeedbackMsg, frontiers_from_observation
+from cso_runtime.messages import DistanceMapMsg, FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PlannerFeedbackMsg, encode, frontiers_from_observation
 from cso_runtime.observation import FrontierLayer, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
-from services.common import Service, ServiceContext, service_main
+from services.common import Service, ServiceContext, service_main, warm_up_map
 from services.frontier_layer import FrontierLayerWorker
 
 log = logging.getLogger("cso.frontier")
@@ -41,10 +41,15 @@ class FrontierParams:
     """Compute a decision's frontier layer (F_t, I, the frontier components) in a helper process while this
     one computes D (``services/frontier_layer.py``): the Observation is the same, sooner on two or more
     cores. False: one process."""
+    helper_start_s: float = 10.0
+    """Wall clock: how long the warm-up waits for the layer helper to start (imports) before the
+    service says it is up; a helper still starting after that is used from the first map it is ready for."""
 
     def validate(self) -> None:
         if not self.goal_wait_s > 0:
             raise ConfigError("goal_wait_s must be positive")
+        if not self.helper_start_s >= 0:
+            raise ConfigError("helper_start_s must be zero or positive")
 
 
 class FrontierService(Service):
@@ -65,12 +70,23 @@ class FrontierService(Service):
         """Observations built (the helper computed ``layer_worker.layers_computed`` of their layers)."""
         self.reset_episode()
 
-    def start(self) -> None:
+    def warm_up(self) -> None:
+        """Start the layer helper and wait for it (at most ``helper_start_s``), then build one
+        Observation through it and encode its decision message: the first step's decision then pays
+        neither the helper's start nor first calls."""
         if self.params.layer_helper:
             try:
                 self.layer_worker = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m)
             except OSError as exc:  # no process to spare: the layers are computed here, as with layer_helper false
                 log.warning("no frontier layer helper (%s): computing the layers in this process", exc)
+            else:
+                self.layer_worker.wait_ready(self.params.helper_start_s)
+        occupancy, pose = warm_up_map()
+        obs = self.builder.build(occupancy, pose, np.array([pose.xy]), layer=self.layer_beside_d(occupancy, None))
+        encode(frontiers_from_observation(0, "no_goal", obs, 0.0))
+        encode(DistanceMapMsg(0, obs.geometry, obs.pose, obs.distance_m))
+        if self.layer_worker is not None:
+            self.layer_worker.layers_computed = 0  # the practice layer is not a decision's
 
     def shutdown(self) -> None:
         if self.layer_worker is not None:
@@ -78,13 +94,13 @@ class FrontierService(Service):
             log.info("frontier layers: %d by the helper process, %d here%s", w.layers_computed, self.decisions_built - w.layers_computed, f" ({w.broken})" if w.broken else "")
             w.close()
 
-    def layer_beside_d(self, occupancy: OccupancyMap) -> Callable[[], FrontierLayer] | None:
+    def layer_beside_d(self, occupancy: OccupancyMap, dead: np.ndarray | None) -> Callable[[], FrontierLayer] | None:
         """The decision's frontier layer, started in the helper process (``build`` waits for it once D
         is done); None when there is no helper to use (``build`` computes it)."""
         w = self.layer_worker
-        if w is None or not w.submit(occupancy, self.dead):
+        if w is None or not w.submit(occupancy, dead):
             return None
-        return lambda: w.result() or self.builder.frontier_layer(occupancy, self.dead)
+        return lambda: w.result() or self.builder.frontier_layer(occupancy, dead)
 
     def reset_episode(self) -> None:
         """Forget the decision state (a new episode, or a fresh start)."""
@@ -199,7 +215,7 @@ class FrontierService(Service):
             if self.goal is not None and goal_failed_in_place(reason, self.goal, occupancy, odom.pose):
                 mark_dead_frontier(self.dead, occupancy.geometry, (self.goal.x_m, self.goal.y_m), self.goal_tolerance_m)
             self.path_nodes.append((odom.pose.x_m, odom.pose.y_m))
-            obs = self.builder.build(occupancy, odom.pose, np.array(self.path_nodes), exclude_frontier=self.dead, layer=self.layer_beside_d(occupancy))
+            obs = self.builder.build(occupancy, odom.pose, np.array(self.path_nodes), exclude_frontier=self.dead, layer=self.layer_beside_d(occupancy, self.dead))
             self.decisions_built += 1
             out = frontiers_from_observation(k, reason, obs, (time.perf_counter() - t0) * 1e3)
             self.awaiting_goal_step, self.awaiting_since_s = k, time.monotonic()

@@ -158,6 +158,23 @@ class FrontierLayerWorker:
         self.shape = shape
         return True
 
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Wait at most ``timeout_s`` for the helper to have started (its imports); True when it has."""
+        if self.ready or self.broken:
+            return self.ready and not self.broken
+        try:
+            if not self.conn.poll(timeout_s):
+                return False
+            first = self.conn.recv()
+        except (EOFError, OSError):
+            first = None
+        if first != ("ready",):
+            self._give_up(f"unexpected first message from the helper ({first!r})")
+            return False
+        self.ready = True
+        log.info("frontier layer helper ready (pid %d)", self.proc.pid)
+        return True
+
     def submit(self, occupancy: OccupancyMap, exclude_frontier: np.ndarray | None) -> bool:
         """Start the layer of this map; False when the helper is not used (compute it yourself)."""
         if self.broken:
@@ -165,14 +182,8 @@ class FrontierLayerWorker:
         if not self.proc.is_alive():
             self._give_up(f"the helper process exited (code {self.proc.exitcode})")
             return False
-        if not self.ready:
-            if not self.conn.poll(0):
-                return False  # still starting: this layer is computed by the service
-            if self.conn.recv() != ("ready",):
-                self._give_up("unexpected first message from the helper")
-                return False
-            self.ready = True
-            log.info("frontier layer helper ready (pid %d)", self.proc.pid)
+        if not self.wait_ready(0.0):
+            return False  # still starting (or broken): this layer is computed by the service
         shape = occupancy.geometry.shape
         if self.shape != shape and not self._map_shape(shape):
             return False

@@ -22,7 +22,7 @@ from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.geometry import VelocityCommand
 from cso_runtime.messages import CmdVelMsg, DistanceMapMsg, FrontiersMsg, GoalMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, PlannerFrontiersMsg, ScanMsg
 from cso_runtime.planner import FollowResult, LocalPlanner, PlannerStatus
-from services.common import Service, ServiceContext, service_main
+from services.common import Service, ServiceContext, service_main, warm_up_observation
 
 log = logging.getLogger("cso.planner")
 
@@ -55,6 +55,16 @@ class PlannerService(Service):
         super().__init__(ctx)
         self.params = from_dict(PlannerParams, ctx.params, where="services.planner")
         self.reset_episode()
+
+    def warm_up(self) -> None:
+        """Plan once on a practice Observation (a planner thrown away), so the first goal's plan pays
+        no first calls."""
+        obs = warm_up_observation(self.ctx.exploration)
+        if obs.clusters:
+            goal = obs.clusters[0]
+            cfg = self.ctx.exploration
+            planner = LocalPlanner(cfg.robot, cfg.planner, cfg.episode.goal_tolerance_m, cfg.sensor.mount_x_m)
+            planner.set_goal(obs.traversable, obs.geometry, obs.pose, np.asarray(goal.goal_xy_m), obs.distance_m, goal.distance_m)
 
     def reset_episode(self) -> None:
         """A fresh planner and empty buffers (a new episode, or a fresh start)."""

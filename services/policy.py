@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import zenoh
 
 from cso_runtime.config import ConfigError, from_dict
-from cso_runtime.messages import FrontiersMsg, GoalMsg, Message, encode, frontiers_reading, observation_from_frontiers
+from cso_runtime.messages import FrontiersMsg, GoalMsg, Message, decode, encode, frontiers_from_observation, frontiers_reading, observation_from_frontiers
 from cso_runtime.policies import LEARNED_METHODS, GoalSelector, make_policy
-from services.common import Service, ServiceContext, service_main
+from services.common import Service, ServiceContext, service_main, warm_up_observation
 
 log = logging.getLogger("cso.policy")
 
@@ -64,11 +64,6 @@ class PolicyService(Service):
         self.seed = int(ctx.profile.get("seed", 0))
         self.robots: dict[str, RobotState] = {}
         selector = self.new_selector()  # fail early on an unknown method
-        warm_up = getattr(selector, "warm_up", None)
-        if warm_up is not None:  # before the liveliness token: the first decision pays no one-off cost
-            t0 = time.perf_counter()
-            warm_up()
-            log.info("%s: warmed up in %.0f ms", self.method, (time.perf_counter() - t0) * 1e3)
         # Decode of each decision message the grids this method reads (GoalSelector.grids), no more.
         grids = getattr(selector, "grids", None)
         self.inputs = {"frontiers": frontiers_reading(None if grids is None else tuple(grids))}
@@ -83,6 +78,17 @@ class PolicyService(Service):
             return make_policy(self.method, self.ctx.exploration.masks, seed=self.seed, device=self.params.device)
         except (ValueError, FileNotFoundError) as exc:  # an unknown method, or a learned one without weights
             raise ConfigError(str(exc)) from None
+
+    def warm_up(self) -> None:
+        """The selector's own warm-up (the learned policy's traced network), then one decision on a
+        practice Observation that went through this service's decoding, with a selector thrown away."""
+        selector = self.new_selector()
+        warm_up = getattr(selector, "warm_up", None)
+        if warm_up is not None:
+            warm_up()
+        msg = decode(encode(frontiers_from_observation(0, "no_goal", warm_up_observation(self.ctx.exploration), 0.0)), self.inputs["frontiers"])
+        assert isinstance(msg, FrontiersMsg)
+        selector.select(observation_from_frontiers(msg))
 
     def start(self) -> None:
         assert self.session is not None

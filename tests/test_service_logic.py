@@ -30,7 +30,7 @@ from cso_runtime.messages import (
     frontiers_from_observation,
     observation_from_frontiers,
 )
-from cso_runtime.planner import LocalPlanner, path_blocked_ahead
+from cso_runtime.planner import LocalPlanner, PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import make_policy
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.transport import TransportConfig
@@ -152,7 +152,8 @@ def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_i
 
     monkeypatch.setattr(registry, "_DECISION_TRACES", weakref.WeakKeyDictionary())
     policy, out = _service(PolicyService, lockstep=True, params={"method": "cso"})
-    assert any(registry._DECISION_TRACES.values())  # warmed up before any input: no trace at the first decision
+    policy.warm_up()  # as run_service does before the liveliness token
+    assert any(registry._DECISION_TRACES.values()) and not out  # traced before any input; nothing published
     bounds = []
     real = observation.geodesic_distance
     monkeypatch.setattr(observation, "geodesic_distance", lambda *a: bounds.append(a[3]) or real(*a))
@@ -733,6 +734,33 @@ def test_frontier_layer_helper_computes_what_the_service_would_and_is_dropped_wh
     finally:
         worker.close()
     assert not worker.proc.is_alive()
+
+
+def test_warm_up_starts_the_helper_and_leaves_no_trace_in_the_episode():
+    """``warm_up`` (run before the liveliness token) waits for the frontier service's helper and builds
+    a practice Observation through it, and the planner plans once: nothing is published, no decision
+    state is kept, and the episode's first decision is built by the ready helper, as in one process."""
+    frontier, out = _service(FrontierService, lockstep=True, params={"helper_start_s": 60.0})
+    planner, planner_out = _service(PlannerService, lockstep=True)
+    try:
+        frontier.warm_up()
+        planner.warm_up()
+        w = frontier.layer_worker
+        assert w is not None and w.ready and not w.broken and w.layers_computed == 0 and frontier.decisions_built == 0
+        assert not out and not planner_out and frontier.goal is None and frontier.path_nodes == [] and frontier.dead is None
+        assert planner.planner.status == PlannerStatus.IDLE and planner.cmd_step == -1
+        ex = _explorer_at(0)
+        m, odom, _ = _inputs(ex, 0)
+        _feed(frontier, odom)
+        _feed(frontier, m)
+        assert [(t, msg.step) for t, msg in out] == [("frontiers", 0), ("distance_map", 0)] and out[0][1].decide
+        assert w.layers_computed == 1 and frontier.decisions_built == 1  # the first decision's layer: the helper's
+        got, expected = observation_from_frontiers(out[0][1]), ex.observe()
+        key = [(tuple(int(i) for i in c.goal_cell), c.distance_m, c.size_m) for c in got.clusters]
+        assert key and key == [(tuple(int(i) for i in c.goal_cell), c.distance_m, c.size_m) for c in expected.clusters]
+    finally:
+        frontier.shutdown()
+    assert not w.proc.is_alive()
 
 
 @pytest.mark.parametrize("method, grids", [("greedy-dist", ()), ("utility", ()), ("cso", ("traversable",))])
