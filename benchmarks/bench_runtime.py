@@ -157,6 +157,14 @@ def hop_breakdown(trace_dir: Path) -> dict[str, dict[str, float]]:
                 for name, v in segments.items():
                     rows.setdefault(name, []).append(1e3 * v)
         out[kind] = {name: round(float(np.nanmean(v)), 3) for name, v in rows.items()} | {"steps": len(rows.get("step", []))}
+    # The episode's first steps against the median decision step: what one-off costs (first calls, a
+    # helper still starting) add at the start, which services' ``warm_up`` is there to remove.
+    scans = puts[("sim", "scan")]
+    steps_ms = {k: 1e3 * (scans[k + 1][3] - scans[k][3]) for k in sorted(scans) if k + 1 in scans}
+    decision_ms = [v for k, v in steps_ms.items() if k in decisions and k > 2]
+    out["first_steps"] = {f"step {k} ms": round(steps_ms[k], 2) for k in range(3) if k in steps_ms} | {
+        "median decision step ms": round(float(np.median(decision_ms)), 2) if decision_ms else float("nan")
+    }
     return out
 
 

@@ -534,6 +534,7 @@ def test_message_trace_records_each_handled_input_and_feeds_the_hop_breakdown(tm
     assert keep["sim->mapper transit"] == keep["mapper->frontier transit"] == keep["planner->sim transit"] == 1.0
     assert keep["frontier->planner queue+decode"] == 0.5 and keep["mapper work"] == keep["planner work"] == 2.0
     assert keep["sim work"] == 2.0 and keep["step"] == 14.0
+    assert hops["first_steps"]["step 0 ms"] == 14.0 and "step 1 ms" not in hops["first_steps"]
 
 
 def test_service_profile_is_written_into_a_new_folder_and_a_failure_is_only_logged(tmp_path, caplog):
