@@ -142,6 +142,11 @@ def test_mapper_service_over_loopback_maps_and_counts_rejections():
         maps: list[MapMsg] = []
         sub = session.declare_subscriber(keys.map, lambda s: maps.append(decode(s.payload.to_bytes(), MapMsg)))
         svc = MapperService(ServiceContext("mapper", "t1", {}, ExplorationConfig(), client, {"restore_timeout_s": 0.2}))
+
+        def failing_warm_up() -> None:
+            raise RuntimeError("warm-up failed")
+
+        svc.warm_up = failing_warm_up  # only a speed-up: the service comes up all the same (logged)
         stop = threading.Event()
         thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
         thread.start()
