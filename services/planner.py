@@ -62,14 +62,15 @@ class PlannerService(Service):
         obs = warm_up_observation(self.ctx.exploration)
         if obs.clusters:
             goal = obs.clusters[0]
-            cfg = self.ctx.exploration
-            planner = LocalPlanner(cfg.robot, cfg.planner, cfg.episode.goal_tolerance_m, cfg.sensor.mount_x_m)
-            planner.set_goal(obs.traversable, obs.geometry, obs.pose, np.asarray(goal.goal_xy_m), obs.distance_m, goal.distance_m)
+            self.new_planner().set_goal(obs.traversable, obs.geometry, obs.pose, np.asarray(goal.goal_xy_m), obs.distance_m, goal.distance_m)
+
+    def new_planner(self) -> LocalPlanner:
+        cfg = self.ctx.exploration
+        return LocalPlanner(cfg.robot, cfg.planner, cfg.episode.goal_tolerance_m, cfg.sensor.mount_x_m)
 
     def reset_episode(self) -> None:
         """A fresh planner and empty buffers (a new episode, or a fresh start)."""
-        cfg = self.ctx.exploration
-        self.planner = LocalPlanner(cfg.robot, cfg.planner, cfg.episode.goal_tolerance_m, cfg.sensor.mount_x_m)
+        self.planner = self.new_planner()
         self.odoms: dict[int, tuple[OdometryMsg, float]] = {}
         self.scans: dict[int, tuple[ScanMsg, float]] = {}
         self.frontiers: dict[int, FrontiersMsg] = {}
