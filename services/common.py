@@ -527,18 +527,17 @@ def _die_with_launcher() -> None:
 
 
 def warm_up_map(resolution_m: float = 0.05) -> tuple[OccupancyMap, Pose2D]:
-    """A small synthetic map for ``warm_up``: a 6 m square room, the robot in its centre, what lies
-    within 2 m of it explored. The algorithms of an episode's first step run once on it, with no scene."""
+    """A small synthetic map for ``warm_up``: a 6 m square, the robot in its centre, what lies within
+    2.5 m of it explored, and a 1.5 m wall 1 m ahead of it. The algorithms of an episode's first step
+    run once on it (obstacles inflated, frontiers around the explored disk), with no scene."""
     n = int(round(6.0 / resolution_m))
     geometry = GridGeometry(resolution_m, (n, n))
     occupancy = OccupancyMap(geometry)
     iy, ix = np.mgrid[0:n, 0:n]
     centre = (n - 1) / 2.0
-    occupancy.explored[:] = np.hypot(iy - centre, ix - centre) * resolution_m <= 2.0
-    wall = np.zeros((n, n), dtype=bool)
-    wall[[0, -1], :] = True
-    wall[:, [0, -1]] = True
-    occupancy.occupied[:] = wall & occupancy.explored
+    occupancy.explored[:] = np.hypot(iy - centre, ix - centre) * resolution_m <= 2.5
+    wall_ix, half_len = int(centre + 1.0 / resolution_m), int(0.75 / resolution_m)
+    occupancy.occupied[int(centre) - half_len : int(centre) + half_len, wall_ix] = True
     x_m, y_m = geometry.cell_to_world(int(centre), int(centre))
     return occupancy, Pose2D(float(x_m), float(y_m), 0.0)
 
