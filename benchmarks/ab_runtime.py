@@ -4,7 +4,7 @@ Each side is a ``git worktree`` of its commit in a temporary folder; each round 
 ``bench_runtime.py --wall-time-only`` once per side (``--repeats`` pairs each), the order of the two
 sides swapped every round, so that both see the same periods of a shared host. It prints, per side,
 the median Zenoh episode, CPU of all processes and wall-time ratio, and how many rounds each side won
-(paired by round). This is how the A/B tables of BENCHMARKS.md (issue 4) were measured.
+(paired by round), with the mean per-round change of B against A and its bootstrap 95 % CI. This is how the A/B tables of BENCHMARKS.md (issue 4) were measured.
 
     python benchmarks/ab_runtime.py BASE_REV NEW_REV [--scene builtin] [--method greedy-dist] [--rounds 6] [--repeats 1] [--json out.json]
 
@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import random
 import statistics
 import subprocess
 import sys
@@ -55,6 +56,15 @@ def summary(rounds: list[dict]) -> dict:
     }
 
 
+def paired_change(per_round: list[tuple[float, float]], resamples: int = 4000) -> dict:
+    """B's Zenoh episode against A's of the same round, in per cent: the mean and a bootstrap 95 % CI
+    over rounds. A CI that spans zero means this many rounds cannot tell the two sides apart on this host."""
+    changes = [100.0 * (b / a - 1.0) for a, b in per_round]
+    rng = random.Random(0)
+    means = sorted(statistics.fmean(rng.choices(changes, k=len(changes))) for _ in range(resamples))
+    return {"per_round": [round(c, 2) for c in changes], "mean": statistics.fmean(changes), "ci95": [means[int(0.025 * resamples)], means[int(0.975 * resamples) - 1]]}
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("base", help="Commit (or WORKTREE) of side A")
@@ -89,11 +99,16 @@ def main() -> int:
         "A": {"rev": args.base, **summary(results["A"])},
         "B": {"rev": args.new, **summary(results["B"])},
         "rounds_B_shorter": sum(b < a for a, b in per_round),
+        "paired_change_pct": paired_change(per_round),
     }
     for side in ("A", "B"):
         r = report[side]
         print(f"{side} {r['rev']}: Zenoh episode median {r['zenoh_episode_s_median']:.3f} s, CPU median {r['zenoh_cpu_s_median'] or float('nan'):.2f} s, ratio median {r['ratio_median']:.2f}x, same result every time: {r['same_result_every_time']}")
-    print(f"B shorter in {report['rounds_B_shorter']} of {args.rounds} rounds")
+    change = report["paired_change_pct"]
+    print(
+        f"B shorter in {report['rounds_B_shorter']} of {args.rounds} rounds; Zenoh episode B against A, paired by round: "
+        f"mean {change['mean']:+.1f} % [95 % bootstrap CI {change['ci95'][0]:+.1f}, {change['ci95'][1]:+.1f}]"
+    )
     if args.json:
         args.json.write_text(json.dumps(report, indent=2))
     return 0
