@@ -295,12 +295,7 @@ class Ros2BridgeService(Service):
             query.reply_err(b"episode not finished")
 
     def _put_ros(self, topic: str, payload: bytes) -> None:
-        assert self.session is not None
-        key = self.params.ros_key(topic)
-        pub = self._publishers.get(key)
-        if pub is None:
-            pub = self._publishers[key] = self.session.declare_publisher(key)
-        pub.put(payload)
+        self.declare_publisher(self.params.ros_key(topic)).put(payload)
         self.counters[f"sent:{topic}"] += 1
 
     def count_reject(self, what: str, why: str) -> None:
