@@ -41,8 +41,9 @@ from cso_runtime.messages import CmdVelMsg, EpisodeStatusMsg, FrontiersMsg, Goal
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
+from cso_runtime.processes import keep_freed_memory
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
-from services.common import TRACE_DIR_ENV, keep_freed_memory
+from services.common import TRACE_DIR_ENV
 
 
 def stat_fields(raw: str) -> list[str]:

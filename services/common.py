@@ -42,6 +42,7 @@ from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.processes import keep_freed_memory
 from cso_runtime.transport import TransportConfig, TransportError, open_session
 
 log = logging.getLogger("cso.service")
@@ -492,25 +493,6 @@ def write_profile(profiles: list[cProfile.Profile | None], path: Path) -> None:
         pstats.Stats(*recorded).dump_stats(str(path))
     except OSError as exc:
         log.error("cannot write the profile %s: %s", path, exc)
-
-
-def keep_freed_memory(mmap_threshold_bytes: int = 32 << 20, trim_threshold_bytes: int = 512 << 20) -> bool:
-    """Let glibc's malloc keep freed memory for reuse instead of returning it to the OS (``mallopt``).
-
-    A service decodes a few large arrays per message (a decision on a 640 x 480 map brings about 3 MB of
-    grids). By default glibc serves each from fresh ``mmap`` pages, or trims the heap after it is
-    freed, so every message pays page faults for memory it used a step before: on that map a traced
-    decision waited 3.5 ms in the policy against 1.7 ms with this, and the lockstep episode took 16 % less
-    wall time (BENCHMARKS.md, issue 4). The memory kept is at most a service's own peak. Returns whether
-    the settings took (False off glibc: nothing to tune)."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:
-        return False
-    m_trim_threshold, m_mmap_threshold = -1, -3  # <malloc.h>
-    return bool(libc.mallopt(m_mmap_threshold, mmap_threshold_bytes)) and bool(libc.mallopt(m_trim_threshold, trim_threshold_bytes))
 
 
 def _die_with_launcher() -> None:

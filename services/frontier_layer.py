@@ -15,11 +15,9 @@ failing computes the layer itself (logged), so a decision never waits more than 
 
 from __future__ import annotations
 
-import ctypes
 import logging
 import multiprocessing
 import os
-import signal
 import tempfile
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -28,6 +26,7 @@ import numpy as np
 
 from cso_runtime.observation import FrontierLayer, frontier_layer
 from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.processes import ignore_sigint, keep_freed_memory
 
 log = logging.getLogger("cso.frontier")
 
@@ -62,27 +61,13 @@ def _shared_dir() -> str:
     return "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else tempfile.gettempdir()
 
 
-def keep_freed_memory() -> None:
-    """glibc: keep freed memory for the next request instead of giving it back to the system. A process
-    that sleeps between short bursts of large temporaries otherwise trims its heap after each burst
-    and page-faults the memory in again on the next one: on the 640 x 480 `builtin` map that made a
-    layer 3.7 ms instead of 2.8 ms (BENCHMARKS.md, issue 4). No effect elsewhere."""
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:
-        return
-    m_trim_threshold, m_mmap_threshold = -1, -3
-    libc.mallopt(m_trim_threshold, 512 << 20)
-    libc.mallopt(m_mmap_threshold, 256 << 20)
-
-
 def worker_main(conn: Connection) -> None:
     """The helper's loop: map a shared file, compute layers into it, until the pipe closes."""
     views: dict[str, np.ndarray] = {}  # views of the shared file (they keep its mapping alive)
     # Ctrl-C (or ``down``) reaches the whole process group: the service stops and closes the pipe,
     # which ends this loop; the helper itself has nothing to say about it.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    keep_freed_memory()
+    ignore_sigint()
+    keep_freed_memory(mmap_threshold_bytes=256 << 20)
     conn.send(("ready",))
     while True:
         try:
