@@ -627,6 +627,23 @@ def test_geodesic_edge_bound_lengthens_edges_to_the_geodesic_lower_bound(observa
     assert Args(geodesic_edge_bound=True).env_config().graph.geodesic_edge_bound and not Args().env_config().graph.geodesic_edge_bound
 
 
+def test_distance_scale_divides_positions_and_distances(observation):
+    """``distance_scale_m`` (a training argument): twice the scale halves dx, dy and the edges' l / scale,
+    and the log features become log(1 + l / 20 m); labels, entropy and neighbours are unchanged."""
+    ten, twenty = build_graph(observation, GraphConfig()), build_graph(observation, GraphConfig(distance_scale_m=20.0))
+    n = int(ten["node_valid"].sum())
+    assert n > 2
+    np.testing.assert_allclose(twenty["nodes"][:n, 0:2], ten["nodes"][:n, 0:2] / 2, atol=1e-6)
+    np.testing.assert_array_equal(twenty["nodes"][:, 2:5], ten["nodes"][:, 2:5])
+    geo_m = np.expm1(ten["nodes"][:n, 5].astype(float)) * 10.0
+    np.testing.assert_allclose(twenty["nodes"][:n, 5], np.log1p(geo_m / 20.0), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(twenty["edges"][..., 0], ten["edges"][..., 0] / 2, atol=1e-6)
+    for key in ("neighbours", "neighbour_valid", "node_valid", "robot"):
+        np.testing.assert_array_equal(twenty[key], ten[key])
+    assert Args(distance_scale_m=20.0).env_config().graph.distance_scale_m == 20.0
+    assert Args().env_config().graph.distance_scale_m == GraphConfig().distance_scale_m
+
+
 def test_rollout_teacher_takes_the_try_that_finishes_first_without_touching_the_episode():
     """``rollout_choice`` finishes the episode from each candidate with the base policy on a copy and keeps
     the fewest steps; the explorer it copies is left as it was. In the env the teacher stays in the mask."""

@@ -132,6 +132,8 @@ class Args:
     """Node positions in the robot's frame instead of the map's axes (``GraphConfig.egocentric``)."""
     geodesic_edge_bound: bool = False
     """Edges between non-robot nodes as max(Euclidean, |l_i - l_j|) (``GraphConfig.geodesic_edge_bound``)."""
+    distance_scale_m: float = 10.0
+    """Positions and distances of the graph are divided by this (``GraphConfig.distance_scale_m``)."""
     distance_prior: float = 0.0
     """> 0: the actor scores a residual over greedy-dist's ``-distance_prior * log(1 + l / scale)``
     (``NetworkConfig.distance_prior``); PPO then starts from greedy-dist's choices, no warm start needed."""
@@ -191,6 +193,7 @@ class Args:
             self.max_frontier_nodes,
             self.max_path_nodes,
             self.knn,
+            distance_scale_m=self.distance_scale_m,
             use_entropy=v.use_entropy,
             entropy_window_m=exploration.frontier.entropy_window_m,
             use_cluster_size=self.cluster_size_feature,
