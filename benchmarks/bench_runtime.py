@@ -39,9 +39,9 @@ from cso_runtime.keys import RobotKeys
 from cso_runtime.launcher import Launcher, find_profile, load_profile
 from cso_runtime.messages import CmdVelMsg, EpisodeStatusMsg, FrontiersMsg, GoalMsg, MapMsg, ScanMsg, decode
 from cso_runtime.policies import make_policy
+from cso_runtime.processes import keep_freed_memory
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
-from cso_runtime.processes import keep_freed_memory
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 from services.common import TRACE_DIR_ENV
 
