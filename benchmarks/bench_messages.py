@@ -16,6 +16,7 @@ import json
 import sys
 import time
 
+import msgpack
 import numpy as np
 
 from cso_runtime.config import ExplorationConfig
@@ -48,6 +49,18 @@ def best_ms(fn, items: list, repeats: int) -> float:
             fn(x)
         best = min(best, (time.perf_counter() - t0) / len(items))
     return 1e3 * best
+
+
+def kb_by_part(messages: list[FrontiersMsg]) -> dict[str, float]:
+    """Mean KB of each part of a decision message's body (each grid of ``arrays`` on its own): what
+    its size is made of."""
+    sizes: dict[str, list[int]] = {}
+    for m in messages:
+        body = m.body()
+        parts = {f"arrays.{k}": v for k, v in body.pop("arrays").items()} | body
+        for name, value in parts.items():
+            sizes.setdefault(name, []).append(len(msgpack.packb(value, use_bin_type=True)))
+    return {name: round(float(np.mean(v)) / 1e3, 2) for name, v in sorted(sizes.items(), key=lambda kv: -np.mean(kv[1]))}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -95,8 +108,10 @@ def main(argv: list[str] | None = None) -> int:
         "frontiers_decision": {
             "messages": len(decisions),
             "kb_mean": round(float(np.mean([len(b) for b in decision_bytes])) / 1e3, 1),
+            "kb_max": round(max(len(b) for b in decision_bytes) / 1e3, 1),
             "encode_ms": round(best_ms(encode, decisions, args.repeats), 3),
             "decode_ms": round(best_ms(lambda b: decode(b, FrontiersMsg), decision_bytes, args.repeats), 3),
+            "kb_mean_by_part": kb_by_part(decisions),
         },
         "map": {
             "messages": len(maps),
