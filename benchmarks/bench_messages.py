@@ -2,7 +2,8 @@
 
 Runs one in-process episode, keeps the Observation of each decision and the map of each step, then times
 ``encode`` and ``decode`` of the ``frontiers`` messages built from them (what the frontier service
-publishes and the policy and the planner decode) and of the ``map`` messages (best of ``--repeats``);
+publishes and the policy and the planner decode; with their largest size and each part's mean size) and
+of the ``map`` messages (best of ``--repeats``);
 then the small messages every lockstep step carries (scan, odometry, velocity command, the planner's
 report and path, a keep-goal verdict), built from the same episode's states.
 
