@@ -61,3 +61,15 @@ def test_train_set_overrides_parse_yaml_values_and_reject_bad_pairs():
         parse_settings(["gamma"])
     with pytest.raises(ConfigError, match="gamma"):
         parse_settings(["gamma=[1"])
+
+
+def test_exponent_numbers_without_a_dot_are_numbers(tmp_path: Path):
+    """PyYAML reads ``1e-8`` (no dot, YAML 1.1) as a string: a float field takes it as the number; other
+    strings stay errors."""
+    f = tmp_path / "masks.yaml"
+    f.write_text("masks: {beta_far_m: 2e0, alpha3_m: 15E-1}\n")
+    cfg = from_dict(ExplorationConfig, load_yaml(f))
+    assert cfg.masks.beta_far_m == 2.0 and cfg.masks.alpha3_m == 1.5
+    for bad in ("1e", "e5", "2.0m", "nan"):
+        with pytest.raises(ConfigError, match="expected a number"):
+            from_dict(ExplorationConfig, {"masks": {"beta_far_m": bad}})
