@@ -68,6 +68,10 @@ class Args:
     num_steps: int = 64
     """Decisions per environment per rollout."""
     learning_rate: float = 1e-4
+    adam_eps: float = 1e-5
+    """Adam's epsilon (CleanRL's 1e-5). In the first updates the actor's hidden layer gets gradients of a few
+    1e-6 (its output layer starts at gain 0.01), where 1e-5 shrinks Adam's step; 1e-8 was tried and trained
+    no better (BENCHMARKS.md, "Adam's epsilon")."""
     anneal_lr: bool = True
     gamma: float = 0.98
     """Discount per decision (unless ``gamma_per_step`` is set)."""
@@ -160,6 +164,8 @@ class Args:
         if self.warm_start_teacher not in TEACHERS:
             raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
         self.training_masks(MaskConfig()).validate()
+        if not self.adam_eps > 0:
+            raise ValueError("adam_eps must be positive")
         if self.distance_prior < 0:
             raise ValueError("distance_prior must be >= 0 (0 = the paper's actor)")
         if self.reward_scene_scale_area_m2 < 0:
@@ -535,7 +541,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     log(f"training {args.variant} on {len(refs)} scenes, device {device}")
     envs = make_vector_env(args, refs)
     model = build_model(args, device)
-    optimizer = optim.Adam(model.parameters(), lr=args.learning_rate, eps=1e-5)
+    optimizer = optim.Adam(model.parameters(), lr=args.learning_rate, eps=args.adam_eps)
     record: dict[str, Any] = {"variant": args.variant, "args": dataclasses.asdict(args), "warm_start": {}}
 
     start_update, global_decisions, warm_decisions = 1, 0, 0
