@@ -27,11 +27,13 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("episodes", nargs="+", type=labelled, help="episodes.csv files written by cso-runtime eval, each optionally LABEL=FILE")
     p.add_argument("--baseline", default="greedy-dist")
+    p.add_argument("--exclude", action="append", default=[], help="Leave out these maps (repeatable or comma-separated)")
     args = p.parse_args(argv)
     missing = [str(path) for _, path in args.episodes if not path.is_file()]
     if missing:
         p.error(f"no such file: {', '.join(missing)}")
-    print(markdown_table(compare_to_baseline(read_episodes(args.episodes), args.baseline)))
+    excluded = [m for arg in args.exclude for m in arg.split(",") if m]
+    print(markdown_table(compare_to_baseline(read_episodes(args.episodes, excluded), args.baseline)))
     return 0
 
 

@@ -101,6 +101,7 @@ def compare_command(
     baseline: str = typer.Option("greedy-dist", "--baseline", help="The method every other one is compared with"),
     as_json: bool = typer.Option(False, "--json", help="JSON instead of a markdown table"),
     out: Optional[Path] = typer.Option(None, "--out", help="Also write the comparison as CSV"),
+    exclude: Optional[list[str]] = typer.Option(None, "--exclude", help="Leave out these maps (the `map` column; repeatable or comma-separated), e.g. the plans a training run drew"),
 ) -> None:
     """Each method against a baseline scene by scene: change of mean m2/step, per-scene ratio with a 95 % bootstrap interval, scenes won."""
     import json  # noqa: PLC0415
@@ -113,7 +114,7 @@ def compare_command(
         typer.echo(f"error: no such file: {', '.join(missing)}", err=True)
         raise typer.Exit(2)
     try:
-        comparisons = compare_to_baseline(read_episodes(files), baseline)
+        comparisons = compare_to_baseline(read_episodes(files, [m for arg in exclude or [] for m in arg.split(",") if m]), baseline)
     except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

@@ -89,8 +89,10 @@ def labelled(arg: str) -> tuple[str, Path]:
     return (label, Path(rest)) if sep and "/" not in label else ("", Path(arg))
 
 
-def read_episodes(files: Sequence[Path | tuple[str, Path]]) -> EfficiencyTable:
-    """``efficiency_by_scene`` over ``episodes.csv`` files, each optionally ``(label, path)``."""
+def read_episodes(files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterable[str] = ()) -> EfficiencyTable:
+    """``efficiency_by_scene`` over ``episodes.csv`` files, each optionally ``(label, path)``, without the
+    episodes of the maps named in ``exclude_maps`` (for instance the plans a training run drew)."""
+    excluded = set(exclude_maps)
     table: EfficiencyTable = defaultdict(dict)
     for item in files:
         label, path = item if isinstance(item, tuple) else ("", item)
@@ -99,7 +101,7 @@ def read_episodes(files: Sequence[Path | tuple[str, Path]]) -> EfficiencyTable:
             missing = [c for c in EPISODE_COLUMNS if c not in (reader.fieldnames or [])]
             if missing:
                 raise ValueError(f"{path} is not an episodes.csv written by eval: no column {', '.join(missing)}")
-            efficiency_by_scene(reader, label, table)
+            efficiency_by_scene((row for row in reader if row["map"] not in excluded), label, table)
     return table
 
 

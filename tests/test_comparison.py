@@ -73,3 +73,8 @@ def test_compare_cli_pools_labelled_files_and_writes_json_and_csv(tmp_path: Path
     assert subprocess.run(exe + [str(easy)], capture_output=True, text=True, timeout=60).returncode == 1  # two scenes: nothing to say
     missing = subprocess.run(exe + [str(tmp_path / "nope.csv")], capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "no such file" in missing.stderr
+    # --exclude leaves maps out (the plans a training run drew): medium's "c" (the one cso lost) is gone.
+    kept = subprocess.run(exe + [f"easy={easy}", f"medium={medium}", "--exclude", "c", "--exclude", "zz,", "--json"], capture_output=True, text=True, timeout=60)
+    assert kept.returncode == 0, kept.stderr
+    (row,) = json.loads(kept.stdout)["comparisons"]
+    assert row["scenes"] == 3 and (row["won"], row["lost"]) == (2, 0)
