@@ -70,8 +70,8 @@ class Args:
     learning_rate: float = 1e-4
     adam_eps: float = 1e-5
     """Adam's epsilon (CleanRL's 1e-5). In the first updates the actor's hidden layer gets gradients of a few
-    1e-6 (its output layer starts at gain 0.01), where 1e-5 shrinks Adam's step; 1e-8 was tried and trained
-    no better (BENCHMARKS.md, "Adam's epsilon")."""
+    1e-6 (under the distance prior its output layer starts at zero), where 1e-5 shrinks Adam's step; 1e-8 was
+    tried and trained no better (BENCHMARKS.md, "Adam's epsilon")."""
     anneal_lr: bool = True
     gamma: float = 0.98
     """Discount per decision (unless ``gamma_per_step`` is set)."""
