@@ -137,7 +137,8 @@ def _random_graph(rng: np.random.Generator, n_frontier: int, n_path: int, config
     return g
 
 
-def test_network_is_permutation_equivariant_over_frontier_nodes():
+@pytest.mark.parametrize("edge_messages", [False, True])
+def test_network_is_permutation_equivariant_over_frontier_nodes(edge_messages):
     config = GraphConfig()
     rng = np.random.default_rng(3)
     nf, npath = 30, 5
@@ -153,7 +154,8 @@ def test_network_is_permutation_equivariant_over_frontier_nodes():
     gp["edges"] = g["edges"][perm]
     gp["robot"] = np.array(inv[int(g["robot"])])
     torch.manual_seed(0)
-    model = GraphActorCritic().eval()
+    model = GraphActorCritic(NetworkConfig(edge_messages=edge_messages)).eval()
+    assert (model.layers[0].edge_kv is not None) == edge_messages
     mask = torch.zeros(1, config.max_frontier_nodes, dtype=torch.bool)
     mask[0, :nf] = True
     with torch.no_grad():
@@ -166,8 +168,8 @@ def test_network_is_permutation_equivariant_over_frontier_nodes():
     assert logits.std() > 0  # not trivially constant
 
 
-@pytest.mark.parametrize("nf", [1, 30, GraphConfig().max_frontier_nodes])
-def test_traced_decision_network_matches_the_eager_one(nf):
+@pytest.mark.parametrize("nf, edge_messages", [(1, False), (30, False), (GraphConfig().max_frontier_nodes, False), (30, True)])
+def test_traced_decision_network_matches_the_eager_one(nf, edge_messages):
     """Run-time decisions use a frozen trace on the fixed-size graph: same logits as the eager model,
     which cuts the padding, for any number of frontier nodes."""
     config = GraphConfig()
@@ -175,7 +177,7 @@ def test_traced_decision_network_matches_the_eager_one(nf):
     mask = torch.zeros(1, config.max_frontier_nodes, dtype=torch.bool)
     mask[0, :nf] = True
     torch.manual_seed(1)
-    model = GraphActorCritic().eval()
+    model = GraphActorCritic(NetworkConfig(edge_messages=edge_messages)).eval()
     example = to_torch(_random_graph(np.random.default_rng(99), 7, 3, config), batch=True)
     traced = trace_decision(model, example, mask)  # traced on another graph: nothing baked in
     assert traced is not None

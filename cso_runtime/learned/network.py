@@ -3,7 +3,8 @@
 Encoder: node features -> ``hidden`` dims; edge inputs l_ij -> 32 dims by an MLP (as in the paper);
 then ``layers`` rounds of graph attention where node i attends over its neighbours j (see
 ``graph.py``) with logits q_i.k_j + w_h.e_ij per head h (the 32-dim edge feature enters as a
-learned attention bias, which keeps the cost per edge tiny). Nothing depends on node order,
+learned attention bias, which keeps the cost per edge tiny; with ``edge_messages`` it also enters the
+keys and messages). Nothing depends on node order,
 so the actor's scores are permutation equivariant over frontier nodes and the critic, which pools
 with a masked mean and reads the robot node, is invariant.
 
@@ -46,6 +47,10 @@ class NetworkConfig:
     ``log(1 + l / scale)`` feature) plus the actor's output, whose last layer starts at zero, so the
     untrained policy's argmax is greedy-dist's choice (under the same masks) and PPO learns only where
     to depart from it. Off in the shipped weights."""
+    edge_messages: bool = False
+    """Also add each edge's feature, projected, to the neighbour's key and message (as PyG's TransformerConv
+    with ``edge_dim``), so what a node receives says how far away its sender is; False: edges only bias the
+    attention (the shipped weights)."""
 
 
 class CategoricalMasked(torch.distributions.Categorical):
@@ -65,13 +70,14 @@ class CategoricalMasked(torch.distributions.Categorical):
 class GraphAttentionLayer(nn.Module):
     """One round of edge-aware multi-head attention over each node's neighbour list."""
 
-    def __init__(self, hidden: int, edge_dim: int, heads: int):
+    def __init__(self, hidden: int, edge_dim: int, heads: int, edge_messages: bool = False):
         super().__init__()
         if hidden % heads:
             raise ValueError("hidden must be a multiple of heads")
         self.heads, self.head_dim = heads, hidden // heads
         self.qkv = nn.Linear(hidden, 3 * hidden)
         self.edge_bias = nn.Linear(edge_dim, heads)
+        self.edge_kv = nn.Linear(edge_dim, 2 * hidden, bias=False) if edge_messages else None
         self.out = nn.Linear(hidden, hidden)
         self.norm1 = nn.LayerNorm(hidden)
         self.norm2 = nn.LayerNorm(hidden)
@@ -84,6 +90,8 @@ class GraphAttentionLayer(nn.Module):
         q, kv = self.qkv(h).split([d, 2 * d], dim=-1)
         flat = (nbr + torch.arange(b, device=h.device).view(b, 1, 1) * n).reshape(-1)
         kv_j = kv.reshape(b * n, 2 * d).index_select(0, flat).view(b, n, k, 2 * d)
+        if self.edge_kv is not None:
+            kv_j = kv_j + self.edge_kv(e)
         key_j = kv_j[..., :d].reshape(b, n, k, self.heads, self.head_dim)
         v_j = kv_j[..., d:]
         q = q.view(b, n, 1, self.heads, self.head_dim)
@@ -106,7 +114,7 @@ class GraphActorCritic(nn.Module):
         self.node_in = nn.Sequential(nn.Linear(c.node_features, c.hidden), nn.ReLU(), nn.Linear(c.hidden, c.hidden))
         # l_ij -> 32 dims; a second linear layer here would fold into each layer's edge_bias
         self.edge_mlp = nn.Sequential(nn.Linear(EDGE_FEATURES, c.edge_dim), nn.ReLU())
-        self.layers = nn.ModuleList(GraphAttentionLayer(c.hidden, c.edge_dim, c.heads) for _ in range(c.layers))
+        self.layers = nn.ModuleList(GraphAttentionLayer(c.hidden, c.edge_dim, c.heads, c.edge_messages) for _ in range(c.layers))
         self.actor = nn.Sequential(nn.Linear(2 * c.hidden, c.hidden), nn.ReLU(), nn.Linear(c.hidden, 1))
         self.critic = nn.Sequential(nn.Linear(2 * c.hidden, c.hidden), nn.ReLU(), nn.Linear(c.hidden, 1))
         if c.distance_prior > 0:

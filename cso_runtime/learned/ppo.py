@@ -138,6 +138,8 @@ class Args:
     """Edges between non-robot nodes as max(Euclidean, |l_i - l_j|) (``GraphConfig.geodesic_edge_bound``)."""
     distance_scale_m: float = 10.0
     """Positions and distances of the graph are divided by this (``GraphConfig.distance_scale_m``)."""
+    edge_messages: bool = False
+    """Edge features also enter the attention's keys and messages (``NetworkConfig.edge_messages``)."""
     distance_prior: float = 0.0
     """> 0: the actor scores a residual over greedy-dist's ``-distance_prior * log(1 + l / scale)``
     (``NetworkConfig.distance_prior``); PPO then starts from greedy-dist's choices, no warm start needed."""
@@ -324,7 +326,7 @@ def initial_weights(args: Args, device: torch.device) -> dict[str, torch.Tensor]
 
 def build_model(args: Args, device: torch.device) -> GraphActorCritic:
     features = len(node_features(args.env_config().graph))
-    config = NetworkConfig(args.hidden, 32, args.heads, args.layers, features, distance_prior=args.distance_prior)
+    config = NetworkConfig(args.hidden, 32, args.heads, args.layers, features, distance_prior=args.distance_prior, edge_messages=args.edge_messages)
     return GraphActorCritic(config, args.max_frontier_nodes).to(device)
 
 
