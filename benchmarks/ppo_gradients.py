@@ -1,8 +1,10 @@
 """Where PPO's gradients go in the learned policy: the policy loss's and the value loss's gradient norm per part
 of the network on one minibatch of a first rollout, and (``--adam-updates N``) each parameter's gradient size
-as Adam sees it after N updates of ``train``, against Adam's epsilon.
+as Adam sees it after N updates of ``train``, against Adam's epsilon; ``--moved FILE``: how far each
+parameter of trained weights moved from the initial values ``train`` starts from with the same seed.
 
     python benchmarks/ppo_gradients.py [--set init_from=shipped] [--adam-updates 2] [--set KEY=VALUE ...]
+    python benchmarks/ppo_gradients.py --moved cso_runtime/data/weights/cso.pt [--set edge_messages=true ...]
 
 Settings are those of ``configs/train.yaml`` (``--config``) with ``--set`` overrides, as ``cso-runtime train``.
 """
@@ -94,14 +96,29 @@ def adam_gradient_sizes(args: ppo.Args, updates: int) -> dict[str, float]:
     return sizes
 
 
+def moved_from_init(args: ppo.Args, weights: Path) -> dict[str, tuple[float, float]]:
+    """{parameter: (mean |initial value|, mean |trained - initial|)}; the initial values are those ``train``
+    builds with ``args.seed`` (the file must hold a network of the same configuration)."""
+    ppo.seed_everything(args.seed)
+    model = ppo.build_model(args, torch.device("cpu"))
+    trained = torch.load(weights, map_location="cpu", weights_only=False)["state_dict"]
+    return {n: (float(p.abs().mean()), float((trained[n] - p).abs().mean())) for n, p in model.named_parameters()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", type=Path, default=Path("configs/train.yaml"))
     parser.add_argument("--set", dest="settings", action="append", default=[], help="KEY=VALUE, as cso-runtime train --set")
     parser.add_argument("--adam-updates", type=int, default=0, help="Also train this many updates and print Adam's view of each gradient")
+    parser.add_argument("--moved", type=Path, help="Instead: how far these trained weights moved from their initial values")
     a = parser.parse_args()
     args = training_args(a.config, {"progress": False}, a.settings)
     torch.set_num_threads(args.torch_threads)
+    if a.moved is not None:
+        print(f"{'parameter':40s} {'mean |initial|':>15s} {'mean |moved|':>13s}")
+        for name, (size, moved) in moved_from_init(args, a.moved).items():
+            print(f"{name:40s} {size:15.4f} {moved:13.4f}")
+        return
     print(f"{'part':10s} |grad| policy loss   |grad| vf_coef * value loss")
     for part, (pg, vf) in gradient_split(args).items():
         print(f"{part:10s} {pg:18.2e}   {vf:18.2e}")
