@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import argparse
 
-from cso_runtime.comparison import compare_to_baseline, labelled, markdown_table, read_episodes
+from cso_runtime.comparison import compare_to_baseline, labelled, markdown_table, read_episodes, split_names
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -32,8 +32,7 @@ def main(argv: list[str] | None = None) -> int:
     missing = [str(path) for _, path in args.episodes if not path.is_file()]
     if missing:
         p.error(f"no such file: {', '.join(missing)}")
-    excluded = [m for arg in args.exclude for m in arg.split(",") if m]
-    print(markdown_table(compare_to_baseline(read_episodes(args.episodes, excluded), args.baseline)))
+    print(markdown_table(compare_to_baseline(read_episodes(args.episodes, split_names(args.exclude)), args.baseline)))
     return 0
 
 

@@ -106,7 +106,7 @@ def compare_command(
     """Each method against a baseline scene by scene: change of mean m2/step, per-scene ratio with a 95 % bootstrap interval, scenes won."""
     import json  # noqa: PLC0415
 
-    from cso_runtime.comparison import MIN_SCENES, as_dicts, compare_to_baseline, labelled, markdown_table, read_episodes, write_csv  # noqa: PLC0415
+    from cso_runtime.comparison import MIN_SCENES, as_dicts, compare_to_baseline, labelled, markdown_table, read_episodes, split_names, write_csv  # noqa: PLC0415
 
     files = [labelled(arg) for arg in episodes]
     missing = [str(path) for _, path in files if not path.is_file()]
@@ -114,7 +114,7 @@ def compare_command(
         typer.echo(f"error: no such file: {', '.join(missing)}", err=True)
         raise typer.Exit(2)
     try:
-        comparisons = compare_to_baseline(read_episodes(files, [m for arg in exclude or [] for m in arg.split(",") if m]), baseline)
+        comparisons = compare_to_baseline(read_episodes(files, split_names(exclude or [])), baseline)
     except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

@@ -89,6 +89,11 @@ def labelled(arg: str) -> tuple[str, Path]:
     return (label, Path(rest)) if sep and "/" not in label else ("", Path(arg))
 
 
+def split_names(args: Iterable[str]) -> list[str]:
+    """Command-line names, each argument one name or several separated by commas (``--exclude a,b --exclude c``)."""
+    return [name for arg in args for name in arg.split(",") if name]
+
+
 def read_episodes(files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterable[str] = ()) -> EfficiencyTable:
     """``efficiency_by_scene`` over ``episodes.csv`` files, each optionally ``(label, path)``, without the
     episodes of the maps named in ``exclude_maps`` (for instance the plans a training run drew)."""
