@@ -26,7 +26,7 @@ PARTS = ("node_in", "edge_mlp", "layers.0", "layers.1", "actor", "critic")
 
 
 def gradient_split(args: ppo.Args, minibatch: int = 64) -> dict[str, tuple[float, float]]:
-    """{part: (|grad of the clipped-free policy loss|, |grad of vf_coef * value loss|)} on one minibatch."""
+    """{part: (|grad of the policy loss| (unclipped: ratio 1 at the rollout policy), |grad of vf_coef * value loss|)} on one minibatch."""
     ppo.seed_everything(args.seed)
     device = torch.device("cpu")
     envs = ppo.make_vector_env(args, ppo.training_scene_refs(args))
