@@ -28,6 +28,7 @@ from cso_runtime.learned.ppo import (
     compute_gae,
     episode_returns,
     model_chooser,
+    parameter_groups,
     random_chooser,
     train,
 )
@@ -839,3 +840,26 @@ def test_training_episodes_use_the_configured_valid_distance_bound():
     assert not Args(variant="cso-sm", beta_far_m=1.5).env_config().exploration.masks.use_valid_distance
     with pytest.raises(ValueError, match="beta_far_m"):
         Args(variant="cso", beta_far_m=0.0).validate()
+
+
+def test_encoder_learning_rate_scale_gives_the_encoder_its_own_annealed_rate(tmp_path):
+    """``encoder_lr_scale``: the node and edge layers and the attention rounds learn at that multiple of the
+    heads' rate, both annealed; scale 1 keeps one group, as every earlier checkpoint has."""
+    model = build_model(Args(), torch.device("cpu"))
+    assert len(parameter_groups(model, Args())) == 1
+    heads, encoder = parameter_groups(model, Args(encoder_lr_scale=3.0, learning_rate=1e-4))
+    assert {id(p) for p in heads["params"]}.isdisjoint(id(p) for p in encoder["params"])
+    assert len(heads["params"]) + len(encoder["params"]) == len(list(model.parameters()))
+    assert {id(p) for p in model.layers.parameters()} <= {id(p) for p in encoder["params"]}
+    assert {id(p) for p in model.actor.parameters()} <= {id(p) for p in heads["params"]}
+    assert encoder["lr"] == pytest.approx(3e-4)
+    args = Args(
+        variant="cso", out_dir=str(tmp_path), seed=0, total_decisions=64, num_envs=2, num_steps=16, num_minibatches=2,
+        max_steps=40, encoder_lr_scale=3.0, learning_rate=1e-4, progress=False,
+    )
+    train(args, log=lambda _msg: None, plans=[rooms_plan(2)])
+    saved = torch.load(tmp_path / "checkpoint.pt", weights_only=False)["optimizer"]["param_groups"]
+    assert [g["lr_scale"] for g in saved] == [1.0, 3.0]
+    assert saved[1]["lr"] == pytest.approx(3 * saved[0]["lr"]) and saved[0]["lr"] == pytest.approx(1e-4 / 2)  # annealed at update 2 of 2
+    with pytest.raises(ValueError, match="encoder_lr_scale"):
+        Args(encoder_lr_scale=0.0).validate()

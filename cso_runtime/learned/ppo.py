@@ -72,6 +72,10 @@ class Args:
     """Adam's epsilon (CleanRL's 1e-5). In the first updates the actor's hidden layer gets gradients of a few
     1e-6 (under the distance prior its output layer starts at zero), where 1e-5 shrinks Adam's step; 1e-8 was
     tried and trained no better (BENCHMARKS.md, "Adam's epsilon")."""
+    encoder_lr_scale: float = 1.0
+    """The graph encoder's learning rate (node and edge layers, attention rounds) as a multiple of
+    ``learning_rate``; the actor and critic heads keep ``learning_rate``. Within the recipe's budget the encoder
+    stays near its initial weights (BENCHMARKS.md, "Edges in the messages, no messages at all")."""
     anneal_lr: bool = True
     gamma: float = 0.98
     """Discount per decision (unless ``gamma_per_step`` is set)."""
@@ -166,6 +170,8 @@ class Args:
         if self.warm_start_teacher not in TEACHERS:
             raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
         self.training_masks(MaskConfig()).validate()
+        if not self.encoder_lr_scale > 0:
+            raise ValueError("encoder_lr_scale must be positive")
         if not self.adam_eps > 0:
             raise ValueError("adam_eps must be positive")
         if self.distance_prior < 0:
@@ -322,6 +328,17 @@ def initial_weights(args: Args, device: torch.device) -> dict[str, torch.Tensor]
     if graph != args.env_config().graph or model.config != build_model(args, device).config:
         raise ValueError(f"{path} was trained with another graph or network configuration")
     return model.state_dict()
+
+
+def parameter_groups(model: GraphActorCritic, args: Args) -> list[dict[str, Any]]:
+    """Adam's parameter groups: the heads at ``learning_rate`` first (the CSV log's ``lr``), then the graph
+    encoder at ``encoder_lr_scale`` times it; one group when the scale is 1 (checkpoints of either kind resume)."""
+    if args.encoder_lr_scale == 1.0:
+        return [{"params": list(model.parameters()), "lr_scale": 1.0}]
+    encoder = [p for part in (model.node_in, model.edge_mlp, model.layers) for p in part.parameters()]
+    ids = {id(p) for p in encoder}
+    heads = [p for p in model.parameters() if id(p) not in ids]
+    return [{"params": heads, "lr_scale": 1.0}, {"params": encoder, "lr": args.learning_rate * args.encoder_lr_scale, "lr_scale": args.encoder_lr_scale}]
 
 
 def build_model(args: Args, device: torch.device) -> GraphActorCritic:
@@ -543,7 +560,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     log(f"training {args.variant} on {len(refs)} scenes, device {device}")
     envs = make_vector_env(args, refs)
     model = build_model(args, device)
-    optimizer = optim.Adam(model.parameters(), lr=args.learning_rate, eps=args.adam_eps)
+    optimizer = optim.Adam(parameter_groups(model, args), lr=args.learning_rate, eps=args.adam_eps)
     record: dict[str, Any] = {"variant": args.variant, "args": dataclasses.asdict(args), "warm_start": {}}
 
     start_update, global_decisions, warm_decisions = 1, 0, 0
@@ -606,7 +623,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     try:
         for update in range(start_update, args.num_updates + 1):
             if args.anneal_lr:
-                optimizer.param_groups[0]["lr"] = args.learning_rate * (1.0 - (update - 1.0) / args.num_updates)
+                for group in optimizer.param_groups:
+                    group["lr"] = group.get("lr_scale", 1.0) * args.learning_rate * (1.0 - (update - 1.0) / args.num_updates)
             finished = []
             for step in range(T):
                 for k in obs_buf:
