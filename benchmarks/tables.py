@@ -1,48 +1,147 @@
-"""Print Table 1-style markdown rows (per method and per scale) from eval ``summary.json`` files.
+"""Print Table 1-style markdown rows (per scale and method) from eval ``summary.json`` or ``episodes.csv`` files.
 
     python benchmarks/tables.py results/easy/summary.json [more summary.json ...]
+    python benchmarks/tables.py easy=A/episodes.csv easy=B/episodes.csv medium=C/episodes.csv ... [--baseline greedy-dist]
 
 Used to write BENCHMARKS.md from the committed results without copying numbers by hand.
+
+With ``summary.json`` files each file's ``by_scale`` rows are printed as they are. With ``episodes.csv`` files
+(optionally ``LABEL=FILE``, the label keeping apart plans of different folders that share a name) the
+episodes are pooled first: a later file's row of the same method and scene replaces an earlier one (so a
+rerun of one method with other settings can be laid over a run of several), every method's means per scale
+are ``eval``'s own (``evaluation.summarize``), and each row also gets its paired comparison with the
+baseline on the scenes both ran (``cso_runtime.comparison``: mean per-scene ratio with its 95 % bootstrap
+interval, and the scenes won). ``--table2`` prints the same pooled episodes as the paper's Table 2 instead:
+one row per method, one column per scale, each cell the mean m2/step and the per-scene change against the
+baseline.
 """
 
 from __future__ import annotations
 
+import argparse
+import csv
 import json
-import sys
 from pathlib import Path
+from typing import Any, NamedTuple
 
-COLUMNS = ("explored_area_m2", "coverage_pct", "steps", "efficiency_m2_per_step", "path_length_m", "decision_ms_p50", "decision_ms_p99")
+from cso_runtime.comparison import PairedComparison, compare_to_baseline, efficiency_by_scene, labelled
+from cso_runtime.evaluation import METRICS, summarize
+from cso_runtime.policies import BASELINES, LEARNED_METHODS
+
 HEADER = "| scale | method | episodes | explored m2 | coverage % | steps | m2/step | path m | decision ms p50 / p99 |"
+SCALES = ("small", "middle", "large", "super_large")
 
 
 def fmt(v, nd: int) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
 
 
+def row(scale: str, method: str, e: dict[str, Any], paired: PairedComparison | None = None, with_paired: bool = False) -> str:
+    cells = (
+        f"| {scale} | {method} | {e['episodes']} | {fmt(e['explored_area_m2'], 1)} | {fmt(e['coverage_pct'], 2)} | "
+        f"{fmt(e['steps'], 1)} | {fmt(e['efficiency_m2_per_step'], 4)} | {fmt(e['path_length_m'], 1)} | "
+        f"{fmt(e['decision_ms_p50'], 1)} / {fmt(e['decision_ms_p99'], 1)} |"
+    )
+    if not with_paired:
+        return cells
+    if paired is None:
+        return cells + " |"
+    return cells + f" {paired.per_scene_pct:+.1f} % [{paired.ci_low_pct:+.1f}, {paired.ci_high_pct:+.1f}], {paired.won} won |"
+
+
 def rows(summary: dict) -> list[str]:
-    out = []
-    for method, entry in summary["methods"].items():
-        for scale, e in entry["by_scale"].items():
-            out.append(
-                f"| {scale} | {method} | {e['episodes']} | {fmt(e['explored_area_m2'], 1)} | {fmt(e['coverage_pct'], 2)} | "
-                f"{fmt(e['steps'], 1)} | {fmt(e['efficiency_m2_per_step'], 4)} | {fmt(e['path_length_m'], 1)} | "
-                f"{fmt(e['decision_ms_p50'], 1)} / {fmt(e['decision_ms_p99'], 1)} |"
-            )
+    """The ``by_scale`` rows of one eval ``summary.json``."""
+    return [row(scale, method, e) for method, entry in summary["methods"].items() for scale, e in entry["by_scale"].items()]
+
+
+def pooled_rows(files: list[tuple[str, Path]]) -> list[dict[str, Any]]:
+    """Episodes of ``episodes.csv`` files, a later file's (method, scene) replacing an earlier one's; each row
+    keeps its label in ``map`` (``LABEL/MAP``) so that plans of different folders stay apart."""
+    pooled: dict[tuple, dict[str, Any]] = {}
+    for label, path in files:
+        with path.open(newline="") as fh:
+            for r in csv.DictReader(fh):
+                r = dict(r)
+                r["map"] = f"{label}/{r['map']}" if label else r["map"]
+                for k in METRICS:
+                    r[k] = float(r[k]) if r.get(k) not in (None, "") else None
+                pooled[(r["method"], r["map"], r["scale"], r["seed"])] = r
+    return list(pooled.values())
+
+
+class Pooled(NamedTuple):
+    """Pooled episodes: the methods (the baseline first, then the other baselines, then the learned ones), eval's per-scale means of each, and each method's
+    paired comparison with the baseline per scale."""
+
+    methods: list[str]
+    scales: list[str]
+    by_scale: dict[tuple[str, str], dict[str, Any]]
+    paired: dict[tuple[str, str], PairedComparison]
+
+
+def pool(files: list[tuple[str, Path]], baseline: str) -> Pooled:
+    episodes = pooled_rows(files)
+    known = [baseline, *BASELINES, *LEARNED_METHODS]
+    methods = sorted(dict.fromkeys(r["method"] for r in episodes), key=lambda m: known.index(m) if m in known else len(known))
+    summary = summarize(episodes, [], methods, meta={}, baseline="")
+    by_scale = {(m, s): e for m in methods for s, e in summary["methods"][m]["by_scale"].items()}
+    paired = {(c.method, c.scale): c for c in compare_to_baseline(efficiency_by_scene(episodes), baseline)}
+    return Pooled(methods, [s for s in SCALES if any(s == k[1] for k in by_scale)], by_scale, paired)
+
+
+def table_from_episodes(files: list[tuple[str, Path]], baseline: str) -> list[str]:
+    """Table 1 rows per scale, every method of the pooled episodes, with the paired comparison to ``baseline``."""
+    p = pool(files, baseline)
+    return [row(s, m, p.by_scale[(m, s)], p.paired.get((m, s)), with_paired=True) for s in p.scales for m in p.methods if (m, s) in p.by_scale]
+
+
+def table2_from_episodes(files: list[tuple[str, Path]], baseline: str) -> list[str]:
+    """Table 2 layout: a row per method, a column per scale present, ``m2/step (per-scene change)``."""
+    p = pool(files, baseline)
+    out = ["| method | " + " | ".join(p.scales) + " |", "| --- " * (len(p.scales) + 1) + "|"]
+    for m in p.methods:
+        cells = []
+        for s in p.scales:
+            e, c = p.by_scale.get((m, s)), p.paired.get((m, s))
+            cell = "-" if e is None else fmt(e["efficiency_m2_per_step"], 4)
+            if c is not None:
+                cell += f" ({c.per_scene_pct:+.1f} % [{c.ci_low_pct:+.1f}, {c.ci_high_pct:+.1f}])"
+            cells.append(cell)
+        out.append(f"| {m} | " + " | ".join(cells) + " |")
     return out
 
 
-def main(paths: list[str]) -> None:
-    if not paths:
-        raise SystemExit(__doc__)
-    missing = [p for p in paths if not Path(p).is_file()]
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("files", nargs="+", help="summary.json files, or episodes.csv files (LABEL=FILE)")
+    parser.add_argument("--baseline", default="greedy-dist", help="method the episodes.csv rows are paired with (default greedy-dist)")
+    parser.add_argument("--table2", action="store_true", help="episodes.csv files only: a row per method, a column per scale")
+    args = parser.parse_args(argv)
+    files = [labelled(a) for a in args.files]
+    missing = [str(p) for _, p in files if not p.is_file()]
     if missing:
-        raise SystemExit(f"error: no such file: {', '.join(missing)}")
+        parser.error(f"no such file: {', '.join(missing)}")
+    csvs = [f for f in files if f[1].suffix == ".csv"]
+    if csvs and len(csvs) != len(files):
+        parser.error("give either summary.json files or episodes.csv files, not both")
+    if args.table2 and len(csvs) != len(files):
+        parser.error("--table2 reads episodes.csv files")
+    if args.table2:
+        print("\n".join(table2_from_episodes(csvs, args.baseline)))
+        return 0
+    if csvs:
+        print(HEADER + f" per scene vs {args.baseline} [95 % CI], won |")
+        print("| --- " * 10 + "|")
+        for line in table_from_episodes(csvs, args.baseline):
+            print(line)
+        return 0
     print(HEADER)
     print("| --- " * 9 + "|")
-    for p in paths:
-        for r in rows(json.loads(Path(p).read_text())):
-            print(r)
+    for _, p in files:
+        for line in rows(json.loads(p.read_text())):
+            print(line)
+    return 0
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    raise SystemExit(main())

@@ -1,0 +1,71 @@
+"""benchmarks/tables.py: Table 1 rows pooled from episodes.csv files, as BENCHMARKS.md's Table 1 is written."""
+
+from __future__ import annotations
+
+import csv
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+from cso_runtime.evaluation import CSV_FIELDS
+
+
+def load_tables():
+    spec = importlib.util.spec_from_file_location("tables", Path(__file__).parents[1] / "benchmarks" / "tables.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def episode(method: str, map_: str, scale: str, efficiency: float, steps: int = 100, p50: float = 10.0) -> dict:
+    return {
+        "method": method, "map": map_, "scale": scale, "seed": 0, "explored_area_m2": efficiency * steps,
+        "coverage_pct": 99.5, "steps": steps, "efficiency_m2_per_step": efficiency, "path_length_m": 20.0,
+        "decision_ms_p50": p50, "decision_ms_p99": 2 * p50, "terminated_by": "coverage",
+        "traversable_area_m2": 150.0, "decisions": 30, "wall_s": 1.0,
+    }
+
+
+def write(path: Path, rows: list[dict]) -> Path:
+    with path.open("w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(CSV_FIELDS))
+        w.writeheader()
+        w.writerows(rows)
+    return path
+
+
+def cells(line: str) -> list[str]:
+    return [c.strip() for c in line.strip().strip("|").split("|")]
+
+
+def test_pools_episodes_per_scale_with_later_files_replacing_a_method_and_labels_apart(tmp_path, capsys):
+    """Means per scale and method as eval's summary; the second file's cso replaces the first's on the same
+    scenes of its label; plan "a" of two labels is two scenes; the paired cell compares scene by scene."""
+    first = write(tmp_path / "first.csv", [episode("greedy-dist", m, "large", 1.0) for m in "abc"] + [episode("cso", m, "large", 0.5) for m in "abc"])
+    rerun = write(tmp_path / "rerun.csv", [episode("cso", m, "large", 1.2, p50=20.0) for m in "abc"])
+    other = write(tmp_path / "other.csv", [episode("greedy-dist", "a", "large", 2.0), episode("cso", "a", "large", 2.0), episode("greedy-dist", "s", "small", 3.0)])
+    tables = load_tables()
+    assert tables.main([f"easy={first}", f"easy={rerun}", f"medium={other}"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    rows = {(c[0], c[1]): c for c in map(cells, out[2:])}
+    assert set(rows) == {("small", "greedy-dist"), ("large", "greedy-dist"), ("large", "cso")}
+    cso = rows[("large", "cso")]
+    # four scenes: 1.2 three times (easy) and 2.0 once (medium); per scene +20 % three times and level once
+    assert cso[2] == "4" and cso[6] == f"{(3 * 1.2 + 2.0) / 4:.4f}" and cso[8] == f"{(3 * 20 + 10) / 4:.1f} / {(3 * 40 + 20) / 4:.1f}"
+    mean, rest = cso[9].split(" % [")
+    assert mean == "+15.0" and rest.endswith("], 3 won")
+    assert rows[("large", "greedy-dist")][9] == "" and rows[("small", "greedy-dist")][2] == "1"
+
+
+def test_mixing_summaries_and_episode_files_is_refused(tmp_path, capsys):
+    tables = load_tables()
+    csv_file = write(tmp_path / "e.csv", [episode("greedy-dist", "a", "large", 1.0)])
+    summary = tmp_path / "summary.json"
+    summary.write_text("{}")
+    with pytest.raises(SystemExit) as exc:
+        tables.main([str(csv_file), str(summary)])
+    assert exc.value.code == 2 and "not both" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        tables.main([str(tmp_path / "missing.csv")])
+    assert exc.value.code == 2 and "no such file" in capsys.readouterr().err
