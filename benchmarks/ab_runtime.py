@@ -5,7 +5,7 @@ Each side is a ``git worktree`` of its commit in a temporary folder; each round 
 sides swapped every round, so that both see the same periods of a shared host. It prints, per side,
 the median Zenoh episode, CPU of all processes and wall-time ratio, and how many rounds each side won
 (paired by round), with the mean per-round change of B against A and its bootstrap 95 % CI. This is
-how the A/B tables of BENCHMARKS.md (issue 4) were measured.
+how the A/B tables of docs/experiments/runtime-overhead.md (issue 4) were measured.
 
     python benchmarks/ab_runtime.py BASE_REV NEW_REV [--scene builtin] [--method greedy-dist] [--rounds 6] [--repeats 1] [--json out.json]
 

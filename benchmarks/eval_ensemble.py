@@ -1,7 +1,7 @@
 """Evaluate an ensemble of trained ``cso`` weights: each decision takes the mean of the members' masked
 action probabilities (same graph, same masks), then the argmax. Everything else is ``cso-runtime eval``.
 
-Tried on the development set (BENCHMARKS.md, issue 5, "Choosing on a development set"); not shipped.
+Tried on the development set (docs/experiments/learned-policy.md, "Choosing on a development set"); not shipped.
 
     python benchmarks/eval_ensemble.py --member cso_runtime/data/weights/cso.pt --member benchmarks/results/cluster_size_prior/train_seed2/cso.pt \
         --member benchmarks/results/cluster_size_prior/train_seed3/cso.pt -- --method cso --lidar-fov 360 --workers 1 --maps runs/dev/plans \

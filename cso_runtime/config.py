@@ -105,7 +105,8 @@ class FrontierConfig:
 @dataclass
 class MaskConfig:
     """Action masks of section 3.3. Defaults are the paper's values, read as metres and square metres,
-    except ``beta_far_m`` (chosen on a development set of training plans; BENCHMARKS.md)."""
+    except ``beta_far_m`` (chosen on a development set of training plans; docs/experiments/learned-policy.md,
+    "The valid distance mask's far bound")."""
 
     use_valid_distance: bool = True
     """Apply the valid distance mask (Eq. 5)."""
@@ -116,7 +117,7 @@ class MaskConfig:
     value read as metres is 2.0; 1.5 was chosen on 100 held-out training plans: with the shipped weights
     (trained under 2.0, ``train``'s own ``beta_far_m``) it explores about 5 % more area per step on large
     validation plans, as much as 2.0 on super-large ones, about 3.5 % less on generated middle scenes seen
-    with a 360-degree LiDAR (BENCHMARKS.md)."""
+    with a 360-degree LiDAR (docs/experiments/learned-policy.md, "The valid distance mask's far bound")."""
     use_stuck: bool = True
     """Apply the stuck mask (Algorithm 1)."""
     alpha1_m: float = 1.0

@@ -87,7 +87,7 @@ def geodesic_distance(traversable: np.ndarray, geometry: GridGeometry, source_xy
     runs on a window a few cells wider than ``within_m`` around the source and stops soon after
     ``within_m``: every value below ``within_m`` is exactly the full map's (a cell's value depends
     only on cells of smaller value, all inside the window), farther cells may read ``inf``. On a
-    640 x 480 map with alpha_3 = 1 m that is about 15 times faster than the full map (BENCHMARKS.md).
+    640 x 480 map with alpha_3 = 1 m that is about 15 times faster than the full map (docs/experiments/runtime-overhead.md).
     """
     res = geometry.resolution_m
     out = np.full(geometry.shape, np.inf)

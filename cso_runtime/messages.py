@@ -51,7 +51,7 @@ def pack_array(a: np.ndarray, compress: bool | None = None) -> dict[str, Any]:
 
     A compressed boolean array is packed 8 cells to a byte before zlib (``"z": "bits"``): on a
     640 x 480 grid that is 10 times faster to encode, 3 times faster to decode and 5 times smaller
-    than zlib over one byte per cell (BENCHMARKS.md, issue 4)."""
+    than zlib over one byte per cell (docs/experiments/runtime-overhead.md)."""
     a = np.ascontiguousarray(a)
     wire = _WIRE_DTYPES.get(a.dtype) or _WIRE_DTYPES.get(a.dtype.newbyteorder("="))
     if wire is None:
@@ -418,7 +418,7 @@ class FrontiersMsg(Message):
     fast-marching distance: explored, occupied, traversable, F, I, the clusters (each with its goal's
     geodesic distance) and the path nodes with D at each of them. D itself travels on its own
     (``DistanceMapMsg``, right after): goal selectors read it only at those nodes, so the policy does
-    not wait for it; the planner decodes it while the policy decides (BENCHMARKS.md, issue 4).
+    not wait for it; the planner decodes it while the policy decides (docs/experiments/runtime-overhead.md).
     """
 
     SCHEMA: ClassVar[str] = "frontiers"

@@ -38,7 +38,7 @@ def keep_freed_memory(mmap_threshold_bytes: int = 32 << 20, trim_threshold_bytes
     map, about 3 MB of grids; the frontier layer helper's temporaries) otherwise gets each from fresh
     ``mmap`` pages, or trims its heap once they are freed, and pays page faults for memory it used a
     step before: a traced decision waited 3.5 ms in the policy against 1.7 ms with this, a helper's
-    layer took 3.7 instead of 2.8 ms (BENCHMARKS.md, issue 4). The memory kept is at most the process's
+    layer took 3.7 instead of 2.8 ms (docs/experiments/runtime-overhead.md). The memory kept is at most the process's
     own peak. Returns whether the settings took (False off glibc: nothing to tune)."""
     if not sys.platform.startswith("linux"):
         return False

@@ -27,7 +27,7 @@ Zenoh's default is six worker threads per process (two that receive); with five 
 launcher and its router on a small machine, every message then woke threads that only handed work
 to each other. Sending keeps a thread of its own: a handler that runs on the receiving thread (as
 the services do in lockstep) and publishes a message larger than the link's queue must not wait
-for that same thread to drain it (BENCHMARKS.md, issue 4)."""
+for that same thread to drain it (docs/experiments/runtime-overhead.md)."""
 
 
 class TransportError(RuntimeError):

@@ -295,7 +295,7 @@ class ServiceInputs:
     own, which saves one thread wake-up per delivery. In real time it only queues the payload: the loop's
     thread handles it and a slow handler can see its ``backlog`` and act on the newest input. In lockstep,
     once ``start`` has run (``go_direct``), the callback handles the input at once. That saves the wake-up
-    of the loop's thread on every hop of the serial chain. BENCHMARKS.md, issue 4, has both measurements.
+    of the loop's thread on every hop of the serial chain. docs/experiments/runtime-overhead.md has both measurements.
     A handler that raises stops the service, as it would on the loop's thread."""
 
     def __init__(self, service: Service, stop: threading.Event):

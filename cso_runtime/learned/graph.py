@@ -19,7 +19,7 @@ Node features (``NODE_FEATURES``), all scale-free:
                 weights): log(1 + cluster length / distance_scale_m), the gain that explore_lite's
                 utility weighs against the distance; I alone is local to the goal cell. When the
                 learned policy leaves greedy-dist's order, it is mostly for a shorter cluster a little
-                further away, which the paper's features cannot tell apart (BENCHMARKS.md).
+                further away, which the paper's features cannot tell apart (docs/experiments/learned-policy.md).
   unknown       only with ``GraphConfig.use_unknown_area``: the fraction of unexplored cells in a square
                 of side ``unknown_window_m`` around the cluster's centroid (cells off the map count as
                 explored). A short frontier with little unknown behind it is a pocket that is cheap to

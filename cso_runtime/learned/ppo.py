@@ -71,11 +71,11 @@ class Args:
     adam_eps: float = 1e-5
     """Adam's epsilon (CleanRL's 1e-5). In the first updates the actor's hidden layer gets gradients of a few
     1e-6 (under the distance prior its output layer starts at zero), where 1e-5 shrinks Adam's step; 1e-8 was
-    tried and trained no better (BENCHMARKS.md, "Adam's epsilon")."""
+    tried and trained no better (docs/experiments/learned-policy.md, "Adam's epsilon")."""
     encoder_lr_scale: float = 1.0
     """The graph encoder's learning rate (node and edge layers, attention rounds) as a multiple of
     ``learning_rate``; the actor and critic heads keep ``learning_rate``. Within the recipe's budget the encoder
-    stays near its initial weights (BENCHMARKS.md, "Edges in the messages, no messages at all")."""
+    stays near its initial weights (docs/experiments/learned-policy.md, "Edges in the messages, no messages at all")."""
     anneal_lr: bool = True
     gamma: float = 0.98
     """Discount per decision (unless ``gamma_per_step`` is set)."""
@@ -125,7 +125,8 @@ class Args:
     beta_far_m: float = 2.0
     """Far bound of the valid distance mask (Eq. 5, ``masks.beta_far_m``) in the training episodes. 2.0: the
     paper's, read as metres; the shipped weights were trained with it and run with ``MaskConfig``'s 1.5, which
-    did better on the development set than both 2.0 and training with 1.5 (BENCHMARKS.md)."""
+    did better on the development set than both 2.0 and training with 1.5 (docs/experiments/learned-policy.md,
+    "The valid distance mask's far bound")."""
     hidden: int = 32
     heads: int = 4
     layers: int = 2
