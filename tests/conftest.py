@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import csv
 import time
+from collections.abc import Iterable, Sequence
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -67,3 +70,12 @@ def walled_grid(rng: np.random.Generator) -> np.ndarray:
             grid[y : y + 2, x : x + rng.integers(10, 40)] = False
     grid &= rng.random(grid.shape) > 0.02  # speckle
     return grid
+
+
+def write_episodes_csv(path: Path, episodes: Iterable[dict], fields: Sequence[str]) -> Path:
+    """An ``episodes.csv`` as eval writes it, with the given columns (tests of the tools that read it)."""
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(fields))
+        writer.writeheader()
+        writer.writerows(episodes)
+    return path

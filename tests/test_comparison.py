@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from cso_runtime.comparison import CSV_FIELDS, compare_to_baseline, efficiency_by_scene, read_episodes
+from tests.conftest import write_episodes_csv
 
 FIELDS = ("method", "map", "scale", "seed", "traversable_area_m2", "efficiency_m2_per_step")
 
@@ -48,11 +49,7 @@ def test_a_bad_efficiency_or_a_file_that_is_not_episodes_csv_is_a_clear_error(tm
 
 
 def write(path: Path, episodes: list[dict]) -> Path:
-    with path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(FIELDS))
-        writer.writeheader()
-        writer.writerows(episodes)
-    return path
+    return write_episodes_csv(path, episodes, FIELDS)
 
 
 def test_compare_cli_pools_labelled_files_and_writes_json_and_csv(tmp_path: Path):

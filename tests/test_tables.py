@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import csv
 import importlib.util
 from pathlib import Path
 
 import pytest
 
 from cso_runtime.evaluation import CSV_FIELDS
+from tests.conftest import write_episodes_csv
 
 
 def load_tables():
@@ -28,11 +28,7 @@ def episode(method: str, map_: str, scale: str, efficiency: float, steps: int = 
 
 
 def write(path: Path, rows: list[dict]) -> Path:
-    with path.open("w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(CSV_FIELDS))
-        w.writeheader()
-        w.writerows(rows)
-    return path
+    return write_episodes_csv(path, rows, CSV_FIELDS)
 
 
 def cells(line: str) -> list[str]:
@@ -42,9 +38,13 @@ def cells(line: str) -> list[str]:
 def test_pools_episodes_per_scale_with_later_files_replacing_a_method_and_labels_apart(tmp_path, capsys):
     """Means per scale and method as eval's summary; the second file's cso replaces the first's on the same
     scenes of its label; plan "a" of two labels is two scenes; the paired cell compares scene by scene."""
-    first = write(tmp_path / "first.csv", [episode("greedy-dist", m, "large", 1.0) for m in "abc"] + [episode("cso", m, "large", 0.5) for m in "abc"])
+    greedy = [episode("greedy-dist", m, "large", 1.0) for m in "abc"]
+    first = write(tmp_path / "first.csv", greedy + [episode("cso", m, "large", 0.5) for m in "abc"])
     rerun = write(tmp_path / "rerun.csv", [episode("cso", m, "large", 1.2, p50=20.0) for m in "abc"])
-    other = write(tmp_path / "other.csv", [episode("greedy-dist", "a", "large", 2.0), episode("cso", "a", "large", 2.0), episode("greedy-dist", "s", "small", 3.0)])
+    other = write(
+        tmp_path / "other.csv",
+        [episode("greedy-dist", "a", "large", 2.0), episode("cso", "a", "large", 2.0), episode("greedy-dist", "s", "small", 3.0)],
+    )
     tables = load_tables()
     assert tables.main([f"easy={first}", f"easy={rerun}", f"medium={other}"]) == 0
     out = capsys.readouterr().out.splitlines()
@@ -52,7 +52,8 @@ def test_pools_episodes_per_scale_with_later_files_replacing_a_method_and_labels
     assert set(rows) == {("small", "greedy-dist"), ("large", "greedy-dist"), ("large", "cso")}
     cso = rows[("large", "cso")]
     # four scenes: 1.2 three times (easy) and 2.0 once (medium); per scene +20 % three times and level once
-    assert cso[2] == "4" and cso[6] == f"{(3 * 1.2 + 2.0) / 4:.4f}" and cso[8] == f"{(3 * 20 + 10) / 4:.1f} / {(3 * 40 + 20) / 4:.1f}"
+    assert cso[2] == "4" and cso[6] == f"{(3 * 1.2 + 2.0) / 4:.4f}"
+    assert cso[8] == f"{(3 * 20 + 10) / 4:.1f} / {(3 * 40 + 20) / 4:.1f}"
     mean, rest = cso[9].split(" % [")
     assert mean == "+15.0" and rest.endswith("], 3 won")
     assert rows[("large", "greedy-dist")][9] == "" and rows[("small", "greedy-dist")][2] == "1"
