@@ -70,8 +70,8 @@ def pooled_rows(files: list[tuple[str, Path]]) -> list[dict[str, Any]]:
 
 
 class Pooled(NamedTuple):
-    """Pooled episodes: the methods (the baseline first, then the other baselines, then the learned ones), eval's per-scale means of each, and each method's
-    paired comparison with the baseline per scale."""
+    """Pooled episodes: the methods (the baseline first, then the other baselines, then the learned ones),
+    eval's per-scale means of each, and each method's paired comparison with the baseline per scale."""
 
     methods: list[str]
     scales: list[str]
@@ -92,7 +92,8 @@ def pool(files: list[tuple[str, Path]], baseline: str) -> Pooled:
 def table_from_episodes(files: list[tuple[str, Path]], baseline: str) -> list[str]:
     """Table 1 rows per scale, every method of the pooled episodes, with the paired comparison to ``baseline``."""
     p = pool(files, baseline)
-    return [row(s, m, p.by_scale[(m, s)], p.paired.get((m, s)), with_paired=True) for s in p.scales for m in p.methods if (m, s) in p.by_scale]
+    cells = [(s, m) for s in p.scales for m in p.methods if (m, s) in p.by_scale]
+    return [row(s, m, p.by_scale[(m, s)], p.paired.get((m, s)), with_paired=True) for s, m in cells]
 
 
 def table2_from_episodes(files: list[tuple[str, Path]], baseline: str) -> list[str]:
@@ -114,7 +115,7 @@ def table2_from_episodes(files: list[tuple[str, Path]], baseline: str) -> list[s
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("files", nargs="+", help="summary.json files, or episodes.csv files (LABEL=FILE)")
-    parser.add_argument("--baseline", default="greedy-dist", help="method the episodes.csv rows are paired with (default greedy-dist)")
+    parser.add_argument("--baseline", default="greedy-dist", help="method episodes.csv rows are paired with")
     parser.add_argument("--table2", action="store_true", help="episodes.csv files only: a row per method, a column per scale")
     args = parser.parse_args(argv)
     files = [labelled(a) for a in args.files]
