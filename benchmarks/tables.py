@@ -36,6 +36,11 @@ def fmt(v, nd: int) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
 
 
+def interval(c: PairedComparison) -> str:
+    """A paired comparison's mean per-scene change with its 95 % interval, as the tables print it."""
+    return f"{c.per_scene_pct:+.1f} % [{c.ci_low_pct:+.1f}, {c.ci_high_pct:+.1f}]"
+
+
 def row(scale: str, method: str, e: dict[str, Any], paired: PairedComparison | None = None, with_paired: bool = False) -> str:
     cells = (
         f"| {scale} | {method} | {e['episodes']} | {fmt(e['explored_area_m2'], 1)} | {fmt(e['coverage_pct'], 2)} | "
@@ -46,7 +51,7 @@ def row(scale: str, method: str, e: dict[str, Any], paired: PairedComparison | N
         return cells
     if paired is None:
         return cells + " |"
-    return cells + f" {paired.per_scene_pct:+.1f} % [{paired.ci_low_pct:+.1f}, {paired.ci_high_pct:+.1f}], {paired.won} won |"
+    return cells + f" {interval(paired)}, {paired.won} won |"
 
 
 def rows(summary: dict) -> list[str]:
@@ -106,7 +111,7 @@ def table2_from_episodes(files: list[tuple[str, Path]], baseline: str) -> list[s
             e, c = p.by_scale.get((m, s)), p.paired.get((m, s))
             cell = "-" if e is None else fmt(e["efficiency_m2_per_step"], 4)
             if c is not None:
-                cell += f" ({c.per_scene_pct:+.1f} % [{c.ci_low_pct:+.1f}, {c.ci_high_pct:+.1f}])"
+                cell += f" ({interval(c)})"
             cells.append(cell)
         out.append(f"| {m} | " + " | ".join(cells) + " |")
     return out
