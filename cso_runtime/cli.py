@@ -58,7 +58,9 @@ def eval_command(
     out: Path = typer.Option(Path("results/eval"), "--out", help="Output folder"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans (0.1 super large, 0.05 large)"),
     seed: int = typer.Option(0, "--seed", help="Episode seed (random policy, sensor noise)"),
-    max_steps: int = typer.Option(3000, "--max-steps", help="Step limit per episode (one step = 0.25 s)"),
+    max_steps: Optional[int] = typer.Option(
+        None, "--max-steps", help="Step limit per episode (one step = 0.25 s); default: the --config file's episode.max_steps, 3000"
+    ),
     lidar_fov: float = typer.Option(180.0, "--lidar-fov", help="LiDAR field of view in degrees: 180 (LIMO) or 360"),
     sensor: str = typer.Option("lidar", "--sensor", help="Sensor preset: lidar or depth"),
     workers: int = typer.Option(1, "--workers", help="Parallel worker processes"),
@@ -367,7 +369,7 @@ def train_command(
     total_decisions: Optional[int] = typer.Option(None, "--total-decisions", help="PPO budget in goal choices"),
     time_limit: Optional[float] = typer.Option(None, "--time-limit-s", help="Stop after this much wall time (0 = none)"),
     resume: Optional[Path] = typer.Option(None, "--resume", help="checkpoint.pt to continue from"),
-    device: Optional[str] = typer.Option(None, "--device", help="auto, cpu or cuda"),
+    device: Optional[str] = typer.Option(None, "--device", help="auto, cpu, cuda or cuda:N"),
     init_from: Optional[str] = typer.Option(None, "--init-from", help="Fine-tune: start from these weights (.pt, or 'shipped')"),
     num_envs: Optional[int] = typer.Option(None, "--num-envs", help="Parallel environments"),
     async_envs: Optional[bool] = typer.Option(None, "--async-envs/--sync-envs", help="One process per environment, or all in this one"),

@@ -71,6 +71,10 @@ class SensorConfig:
             raise ConfigError("sensor.resolution_deg must be in (0, fov_deg]")
         if not 0 <= self.range_min_m < self.range_max_m:
             raise ConfigError("sensor needs 0 <= range_min_m < range_max_m")
+        if self.range_noise_std_m < 0:
+            raise ConfigError("sensor.range_noise_std_m must be >= 0")
+        if not self.rate_hz > 0:
+            raise ConfigError("sensor.rate_hz must be positive")
 
 
 @dataclass
@@ -90,6 +94,13 @@ class RobotConfig:
     control_period_s: float = 0.25
     """One step: the period of one velocity command."""
 
+    def validate(self) -> None:
+        if self.radius_m < 0:
+            raise ConfigError("robot.radius_m must be >= 0")
+        for name in ("length_m", "width_m", "max_linear_mps", "max_angular_radps", "control_period_s"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"robot.{name} must be positive")
+
 
 @dataclass
 class FrontierConfig:
@@ -100,6 +111,12 @@ class FrontierConfig:
     entropy_window_m: float = 2.0
     """gamma of Eq. 4: side of the square window in which frontier cells are counted. The paper does
     not publish its value; 2 m is roughly a room's half width for the LIMO."""
+
+    def validate(self) -> None:
+        if self.min_cluster_size_m < 0:
+            raise ConfigError("frontier.min_cluster_size_m must be >= 0")
+        if not self.entropy_window_m > 0:
+            raise ConfigError("frontier.entropy_window_m must be positive")
 
 
 @dataclass
@@ -149,6 +166,16 @@ class EpisodeConfig:
     done_unexplored_m2: float = 1.0
     """... and less than this much traversable area is unexplored."""
 
+    def validate(self) -> None:
+        if self.max_steps < 1 or self.replan_every_steps < 1:
+            raise ConfigError("episode.max_steps and episode.replan_every_steps must be at least 1")
+        if not self.goal_tolerance_m > 0:
+            raise ConfigError("episode.goal_tolerance_m must be positive")
+        if not 0 < self.done_coverage_pct <= 100:
+            raise ConfigError("episode.done_coverage_pct must be in (0, 100]")
+        if self.done_unexplored_m2 < 0:
+            raise ConfigError("episode.done_unexplored_m2 must be >= 0")
+
 
 @dataclass
 class PlannerConfig:
@@ -166,6 +193,16 @@ class PlannerConfig:
     """no_progress is reported when the robot moved less than this ..."""
     progress_window_s: float = 10.0
     """... within this much time."""
+
+    def validate(self) -> None:
+        if not self.lookahead_m > 0:
+            raise ConfigError("planner.lookahead_m must be positive")
+        if not 0 < self.rotate_in_place_rad <= math.pi:
+            raise ConfigError("planner.rotate_in_place_rad must be in (0, pi]")
+        if not 0 <= self.stop_distance_m <= self.slow_down_distance_m:
+            raise ConfigError("planner needs 0 <= stop_distance_m <= slow_down_distance_m")
+        if self.progress_required_m < 0 or not self.progress_window_s > 0:
+            raise ConfigError("planner needs progress_required_m >= 0 and progress_window_s > 0")
 
 
 @dataclass

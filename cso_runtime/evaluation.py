@@ -61,7 +61,8 @@ class EvalRequest:
     out_dir: Path = Path("results/eval")
     m_per_px: float = 0.1
     seed: int = 0
-    max_steps: int = 3000
+    max_steps: int | None = None
+    """``--max-steps``: the step limit per episode; None keeps the config's ``episode.max_steps`` (3000)."""
     lidar_fov_deg: float = 180.0
     sensor: str = "lidar"
     workers: int = 1
@@ -82,7 +83,8 @@ class EvalRequest:
         # The MuJoCo LIMO carries its LiDAR 0.103 m ahead of the centre; the planner must know it.
         preset.mount_x_m = cfg.sensor.mount_x_m if explicit_mount or self.sim != "mujoco" else LIMO_LIDAR_MOUNT_X_M
         cfg.sensor = preset
-        cfg.episode = EpisodeConfig(**{**to_dict(cfg.episode), "max_steps": int(self.max_steps)})
+        if self.max_steps is not None:
+            cfg.episode = EpisodeConfig(**{**to_dict(cfg.episode), "max_steps": int(self.max_steps)})
         return cfg
 
     def validate(self) -> None:
@@ -102,7 +104,7 @@ class EvalRequest:
             raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); train with `cso-runtime train --variant NAME`")
         if self.sim not in SIMULATORS:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
-        if self.max_steps <= 0 or self.workers <= 0:
+        if (self.max_steps is not None and self.max_steps <= 0) or self.workers <= 0:
             raise ConfigError("--max-steps and --workers must be positive")
         if not (math.isfinite(self.m_per_px) and self.m_per_px > 0):
             raise ConfigError(f"--m-per-px must be a positive number of metres per pixel, got {self.m_per_px}")

@@ -33,6 +33,16 @@ def test_eval_yaml_documents_the_defaults():
         ({"sensor": {"fov_deg": 400.0}}, "fov_deg"),
         ({"robot": {"radius_m": float("nan")}}, "finite"),
         ({"sensor": 3}, "mapping"),
+        ({"sensor": {"range_noise_std_m": -0.1}}, "range_noise_std_m"),
+        ({"robot": {"control_period_s": 0.0}}, "control_period_s"),
+        ({"robot": {"radius_m": -0.2}}, "radius_m"),
+        ({"frontier": {"entropy_window_m": 0.0}}, "entropy_window_m"),
+        ({"episode": {"max_steps": -3}}, "max_steps"),
+        ({"episode": {"done_coverage_pct": 120.0}}, "done_coverage_pct"),
+        ({"episode": {"goal_tolerance_m": 0.0}}, "goal_tolerance_m"),
+        ({"planner": {"stop_distance_m": 0.8}}, "stop_distance_m <= slow_down_distance_m"),
+        ({"planner": {"rotate_in_place_rad": 4.0}}, "rotate_in_place_rad"),
+        ({"planner": {"progress_window_s": 0.0}}, "progress_window_s"),
     ],
 )
 def test_bad_values_are_clear_errors(data, message):
@@ -73,3 +83,35 @@ def test_exponent_numbers_without_a_dot_are_numbers(tmp_path: Path):
     for bad in ("1e", "e5", "2.0m", "nan"):
         with pytest.raises(ConfigError, match="expected a number"):
             from_dict(ExplorationConfig, {"masks": {"beta_far_m": bad}})
+
+
+def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path: Path):
+    """``eval --max-steps`` overrides ``episode.max_steps`` only when given: the flag's absence keeps the file's."""
+    from cso_runtime.evaluation import EvalRequest  # noqa: PLC0415
+
+    f = tmp_path / "eval.yaml"
+    f.write_text("episode: {max_steps: 120}\n")
+    assert EvalRequest(methods=["greedy-dist"], config_path=f).exploration_config().episode.max_steps == 120
+    assert EvalRequest(methods=["greedy-dist"], config_path=f, max_steps=40).exploration_config().episode.max_steps == 40
+    assert EvalRequest(methods=["greedy-dist"]).exploration_config().episode.max_steps == 3000
+    with pytest.raises(ConfigError, match="max-steps"):
+        EvalRequest(methods=["greedy-dist"], max_steps=0).validate()
+
+
+def test_training_arguments_out_of_range_are_clear_errors():
+    from cso_runtime.learned.ppo import Args  # noqa: PLC0415
+
+    Args().validate()
+    Args(device="cuda:1", learning_rate=0.0).validate()  # a frozen network is a legitimate check
+    for bad, message in [
+        ({"device": "gpu"}, "device"),
+        ({"total_decisions": 0}, "total_decisions"),
+        ({"gamma": 1.5}, "gamma"),
+        ({"gae_lambda": -0.1}, "gae_lambda"),
+        ({"clip_coef": 0.0}, "clip_coef"),
+        ({"ent_coef": -0.01}, "ent_coef"),
+        ({"learning_rate": -1e-4}, "learning_rate"),
+        ({"dungeon_m_per_px": [0.1, 0.0]}, "dungeon_m_per_px"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            Args(**bad).validate()

@@ -18,6 +18,7 @@ import json
 import os
 import platform
 import random
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -168,6 +169,20 @@ class Args:
             raise ValueError("num_envs, num_steps and num_minibatches must be positive")
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
+        if self.total_decisions < 1 or self.update_epochs < 1 or self.max_steps < 1 or self.checkpoint_every < 1 or self.torch_threads < 1:
+            raise ValueError("total_decisions, update_epochs, max_steps, checkpoint_every and torch_threads must be at least 1")
+        if not (self.clip_coef > 0 and self.max_grad_norm > 0):
+            raise ValueError("clip_coef and max_grad_norm must be positive")
+        if not (0 < self.gamma <= 1 and 0 <= self.gae_lambda <= 1):
+            raise ValueError("gamma must be in (0, 1] and gae_lambda in [0, 1]")
+        numbers = ("learning_rate", "warm_start_lr", "ent_coef", "vf_coef", "target_kl", "time_limit_s", "warm_start_decisions", "warm_start_epochs")
+        negative = [name for name in numbers if getattr(self, name) < 0]
+        if negative:
+            raise ValueError(f"{', '.join(negative)} must be >= 0")
+        if self.dungeon_plans < 0 or not all(m > 0 for m in self.dungeon_m_per_px):
+            raise ValueError("dungeon_plans must be >= 0 and every dungeon_m_per_px positive")
+        if not re.fullmatch(r"auto|cpu|cuda(:\d+)?", self.device):
+            raise ValueError(f"unknown device {self.device!r}; choose auto, cpu, cuda or cuda:N")
         if self.warm_start_teacher not in TEACHERS:
             raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
         self.training_masks(MaskConfig()).validate()
