@@ -19,6 +19,7 @@ import traceback
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -27,7 +28,7 @@ import numpy as np
 
 from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene
 from cso_runtime.comparison import write_csv as write_paired_csv
-from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
+from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
@@ -84,7 +85,7 @@ class EvalRequest:
         preset.mount_x_m = cfg.sensor.mount_x_m if explicit_mount or self.sim != "mujoco" else LIMO_LIDAR_MOUNT_X_M
         cfg.sensor = preset
         if self.max_steps is not None:
-            cfg.episode = EpisodeConfig(**{**to_dict(cfg.episode), "max_steps": int(self.max_steps)})
+            cfg.episode = dataclasses.replace(cfg.episode, max_steps=int(self.max_steps))
         return cfg
 
     def validate(self) -> None:

@@ -144,9 +144,13 @@ def render_table(status: dict[str, Any]):
         ("decisions", f"{status['decisions']} (last {status['last_decision_ms']:.1f} ms)"),
     ):
         t.add_row(k, v)
+    episode_over = status["state"] in ("done", "failed")
     for name, s in status["services"].items():
         bits = ["alive" if s["alive"] else "DOWN"]
-        if s.get("state"):
+        if s.get("state") == "stale" and episode_over:
+            # Inputs stop when the episode ends; "stale" would read like a fault (JSON keeps the raw state).
+            bits.append(f"idle (episode {status['state']}; last step {s.get('last_step', 0)})")
+        elif s.get("state"):
             bits.append(s["state"] + (f" ({s['reason']})" if s.get("reason") else ""))
         if s.get("restarts"):
             bits.append(f"restarts {s['restarts']}" + (" (gave up)" if s.get("gave_up") else ""))

@@ -319,6 +319,16 @@ def test_status_table_shows_the_episode_and_each_service():
     text = console.export_text()
     assert "17 (4242)" in text and "41.50 %" in text and "(1.00, 2.00) m" in text
     assert "mapper" in text and "sim" in text
+    stale = {"alive": True, "state": "stale", "reason": "stale: no odometry/scan for 3.0 s", "last_step": 17, "rejected": {}}
+    status["services"]["planner"] = stale
+    console = Console(record=True, width=160)
+    console.print(render_table(status))
+    assert "stale: no odometry/scan" in console.export_text()
+    status["state"] = "done"
+    console = Console(record=True, width=160)
+    console.print(render_table(status))
+    text = console.export_text()
+    assert "idle (episode done; last step 17)" in text and "stale" not in text
 
 
 def test_status_and_down_with_nothing_running(tmp_path):
