@@ -185,12 +185,12 @@ def replay_command(
     from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
 
+    if not file.is_file():
+        typer.echo(f"error: no such recording {file}", err=True)
+        raise typer.Exit(2)
     endpoints = list(connect) if connect else endpoints_from_run_file(runs_dir)[0]
     if not endpoints:
         typer.echo("error: no current run; give --connect ENDPOINT", err=True)
-        raise typer.Exit(2)
-    if not file.is_file():
-        typer.echo(f"error: no such recording {file}", err=True)
         raise typer.Exit(2)
     try:
         parse_speed(speed)

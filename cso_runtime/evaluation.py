@@ -105,8 +105,10 @@ class EvalRequest:
             raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); train with `cso-runtime train --variant NAME`")
         if self.sim not in SIMULATORS:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
-        if (self.max_steps is not None and self.max_steps <= 0) or self.workers <= 0:
-            raise ConfigError("--max-steps and --workers must be positive")
+        if self.max_steps is not None and self.max_steps <= 0:
+            raise ConfigError(f"--max-steps must be positive, got {self.max_steps}")
+        if self.workers <= 0:
+            raise ConfigError(f"--workers must be positive, got {self.workers}")
         if not (math.isfinite(self.m_per_px) and self.m_per_px > 0):
             raise ConfigError(f"--m-per-px must be a positive number of metres per pixel, got {self.m_per_px}")
         if self.limit is not None and self.limit <= 0:

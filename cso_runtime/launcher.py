@@ -36,7 +36,7 @@ from cso_runtime.config import EXIT_BAD_CONFIG, ConfigError, ExplorationConfig, 
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
 from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, Message, MessageError, PathMsg, decode, encode
 from cso_runtime.scenes import SceneError, resolve_scenes
-from cso_runtime.transport import TransportConfig, free_tcp_port, open_session, track_liveliness
+from cso_runtime.transport import TransportConfig, TransportError, free_tcp_port, open_session, track_liveliness
 
 log = logging.getLogger("cso.launcher")
 
@@ -149,7 +149,10 @@ class Profile:
                 refs[0].load()  # a missing or unusable plan is a bad configuration: say so before anything starts
         except SceneError as exc:
             raise ConfigError(f"scene: {exc}") from None
-        TransportConfig(mode="router", listen=self.router.listen, connect=self.router.connect).validate()
+        try:
+            TransportConfig(mode="router", listen=self.router.listen, connect=self.router.connect).validate()
+        except TransportError as exc:
+            raise ConfigError(f"router: {exc}") from None
 
 
 PACKAGED_PROFILES = Path(__file__).resolve().parent / "profiles"

@@ -8,6 +8,7 @@ Nav2's ``map_saver_cli`` does with ``/map``. Short timeouts: when nothing answer
 from __future__ import annotations
 
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -126,6 +127,16 @@ def target_of(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[li
     return connect, robot or "r0"
 
 
+def endpoint_error(connect: list[str]) -> str | None:
+    """Why ``connect`` cannot name a router (a typo such as ``127.0.0.1:7447``), or None: a usage error, not
+    "nothing running"."""
+    try:
+        TransportConfig(mode="client", connect=connect).validate()
+    except TransportError as exc:
+        return str(exc)
+    return None
+
+
 def render_table(status: dict[str, Any]):
     from rich.table import Table  # noqa: PLC0415
 
@@ -170,6 +181,10 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     if not connect:
         print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
         return 1
+    bad = endpoint_error(connect)
+    if bad is not None:
+        print(f"error: {bad}", file=sys.stderr)
+        return 2
     try:
         while True:
             status = query_status(connect, robot)
@@ -222,6 +237,10 @@ def save_map_main(connect: list[str], robot: str | None, out: Path, image_format
     if not connect:
         print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
         return 1
+    bad = endpoint_error(connect)
+    if bad is not None:
+        print(f"error: {bad}", file=sys.stderr)
+        return 2
     try:
         msg, why = query_map(connect, robot)
     except TransportError as exc:

@@ -454,7 +454,7 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
         transport = TransportConfig(mode=args.mode, connect=list(args.connect), listen=list(args.listen))
         transport.validate()
         service = cls(ServiceContext(cls.name, args.robot, profile, exploration, transport, params))
-    except (ConfigError, ValueError) as exc:
+    except (ConfigError, TransportError, ValueError) as exc:
         log.error("%s: bad configuration: %s", cls.name, exc)
         return EXIT_BAD_CONFIG
     stop = threading.Event()

@@ -94,8 +94,10 @@ def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path
     assert EvalRequest(methods=["greedy-dist"], config_path=f).exploration_config().episode.max_steps == 120
     assert EvalRequest(methods=["greedy-dist"], config_path=f, max_steps=40).exploration_config().episode.max_steps == 40
     assert EvalRequest(methods=["greedy-dist"]).exploration_config().episode.max_steps == 3000
-    with pytest.raises(ConfigError, match="max-steps"):
+    with pytest.raises(ConfigError, match="--max-steps must be positive, got 0"):
         EvalRequest(methods=["greedy-dist"], max_steps=0).validate()
+    with pytest.raises(ConfigError, match="--workers must be positive, got 0"):
+        EvalRequest(methods=["greedy-dist"], workers=0).validate()
 
 
 def test_training_arguments_out_of_range_are_clear_errors():

@@ -225,3 +225,18 @@ def test_a_replayed_run_rebuilds_the_same_map_in_a_fresh_mapper(tmp_path: Path):
             fstop.set()
             fthread.join(10)
     np.testing.assert_array_equal(fresh.map.to_occupancy_grid(), original)
+
+
+def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path: Path):
+    """A wrong path is the first thing to say, even with no run to replay into."""
+    from typer.testing import CliRunner  # noqa: PLC0415
+
+    from cso_runtime.cli import app  # noqa: PLC0415
+
+    missing = tmp_path / "nowhere.mcap"
+    r = CliRunner().invoke(app, ["replay", str(missing), "--runs-dir", str(tmp_path)])
+    assert r.exit_code == 2 and f"no such recording {missing}" in r.output
+    recording = tmp_path / "run.mcap"
+    recording.write_bytes(b"")
+    r = CliRunner().invoke(app, ["replay", str(recording), "--runs-dir", str(tmp_path)])
+    assert r.exit_code == 2 and "no current run" in r.output

@@ -226,6 +226,25 @@ def test_bad_profiles_fail_before_anything_starts(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_running(tmp_path, capsys):
+    from cso_runtime.config import ConfigError
+    from cso_runtime.launcher import load_profile
+    from cso_runtime.status import save_map_main, status_main
+
+    with pytest.raises(ConfigError, match="router: bad zenoh endpoint '127.0.0.1:7447'"):
+        load_profile("lockstep", {}, connect=["127.0.0.1:7447"])
+    assert status_main(["127.0.0.1:7447"], None, as_json=True, watch=False, runs_dir=tmp_path) == 2
+    assert save_map_main(["127.0.0.1:7447"], None, tmp_path / "m", "pgm", tmp_path) == 2
+    err = capsys.readouterr().err
+    assert err.count("error: bad zenoh endpoint '127.0.0.1:7447'") == 2
+    assert not list(tmp_path.iterdir())
+    from services.common import service_main
+    from services.mapper import MapperService
+
+    # A service given a malformed endpoint refuses its configuration (exit 2: the launcher does not restart it).
+    assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447"]) == 2
+
+
 def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, monkeypatch):
     """``up --scene office.yaml`` from a folder: the run's profile copy (``runs/<id>/profile.yaml``, which
     ``cso-runtime service ... --config`` takes) must name the same file from anywhere."""
