@@ -8,6 +8,7 @@ Outputs (contract relied on by scripts): ``summary.json``, ``episodes.csv``,
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import json
 import logging
@@ -19,7 +20,6 @@ import traceback
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
