@@ -127,14 +127,19 @@ def target_of(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[li
     return connect, robot or "r0"
 
 
-def endpoint_error(connect: list[str]) -> str | None:
-    """Why ``connect`` cannot name a router (a typo such as ``127.0.0.1:7447``), or None: a usage error, not
-    "nothing running"."""
+def reachable_target(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[list[str], str] | int:
+    """``target_of``, or the exit code after saying why there is no one to ask: 1 when nothing runs, 2 when
+    ``connect`` cannot name a router (a typo such as ``127.0.0.1:7447``: a usage error, not "nothing running")."""
+    connect, robot = target_of(connect, robot, runs_dir)
+    if not connect:
+        print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
+        return 1
     try:
         TransportConfig(mode="client", connect=connect).validate()
     except TransportError as exc:
-        return str(exc)
-    return None
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    return connect, robot
 
 
 def render_table(status: dict[str, Any]):
@@ -177,14 +182,10 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     from rich.console import Console  # noqa: PLC0415
 
     console = Console()
-    connect, robot = target_of(connect, robot, runs_dir)
-    if not connect:
-        print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
-        return 1
-    bad = endpoint_error(connect)
-    if bad is not None:
-        print(f"error: {bad}", file=sys.stderr)
-        return 2
+    target = reachable_target(connect, robot, runs_dir)
+    if isinstance(target, int):
+        return target
+    connect, robot = target
     try:
         while True:
             status = query_status(connect, robot)
@@ -233,14 +234,10 @@ def save_map_main(connect: list[str], robot: str | None, out: Path, image_format
     """The ``save-map`` command: the running episode's map as map_server files; exit 1 when there is none."""
     from cso_runtime.map_files import save_map  # noqa: PLC0415
 
-    connect, robot = target_of(connect, robot, runs_dir)
-    if not connect:
-        print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
-        return 1
-    bad = endpoint_error(connect)
-    if bad is not None:
-        print(f"error: {bad}", file=sys.stderr)
-        return 2
+    target = reachable_target(connect, robot, runs_dir)
+    if isinstance(target, int):
+        return target
+    connect, robot = target
     try:
         msg, why = query_map(connect, robot)
     except TransportError as exc:
