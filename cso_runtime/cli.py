@@ -53,7 +53,7 @@ def _use_weights(folder: Path) -> None:
 @app.command("eval")
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", help="Comma-separated methods: greedy-dist,greedy-info,utility,random,cso,..."),
-    maps: str = typer.Option("builtin", "--maps", help="Folder of PNG plans, one PNG, 'builtin', or generated:SCALE:N:SEED"),
+    maps: str = typer.Option("builtin", "--maps", "--scene", help="Folder of PNG plans, one PNG, 'builtin', or generated:SCALE:N:SEED (--scene, as in `up`, is the same option)"),
     limit: Optional[int] = typer.Option(None, "--limit", help="Use at most N scenes"),
     out: Path = typer.Option(Path("results/eval"), "--out", help="Output folder"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans (0.1 super large, 0.05 large)"),

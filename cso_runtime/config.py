@@ -301,8 +301,9 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
     if not p.is_file():
         raise ConfigError(f"config file not found: {p}")
     try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as exc:
+        with p.open(encoding="utf-8") as stream:  # a file stream, so YAML's message names the file, not "<unicode string>"
+            data = yaml.safe_load(stream)
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: not valid YAML: {exc}") from None
     if data is None:
         return {}

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rich.markup import escape
 
 from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene
 from cso_runtime.comparison import write_csv as write_paired_csv
@@ -103,6 +104,15 @@ class EvalRequest:
 
             missing = ", ".join(f"{m}.pt" for m in untrained)
             raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); train with `cso-runtime train --variant NAME`")
+        learned = [m for m in self.methods if m in LEARNED_METHODS]
+        if learned:
+            from cso_runtime.learned.registry import CheckpointError, check_weights  # noqa: PLC0415 - torch only for learned methods
+
+            for method in learned:
+                try:
+                    check_weights(method)
+                except CheckpointError as exc:
+                    raise ConfigError(f"method {method}: {exc}") from None
         if self.sim not in SIMULATORS:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
         if self.max_steps is not None and self.max_steps <= 0:
@@ -454,13 +464,13 @@ class RichProgress:
     def advance(self, outcome: EpisodeOutcome) -> None:
         if outcome.row is not None:
             r = outcome.row
-            text = f"{outcome.method} {outcome.map}: {r['coverage_pct']:.1f}% in {r['steps']} steps ({r['terminated_by']})"
+            text = escape(f"{outcome.method} {outcome.map}: {r['coverage_pct']:.1f}% in {r['steps']} steps ({r['terminated_by']})")
         else:
-            text = f"[red]{outcome.method} {outcome.map}: FAILED"
+            text = f"[red]{escape(f'{outcome.method} {outcome.map}')}: FAILED"
         self.progress.update(self.task, advance=1, description=text)
         self.done += 1
         if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode
-            self.progress.console.print(f"[{self.done}/{self.total}] {text}", highlight=False)
+            self.progress.console.print(f"{escape(f'[{self.done}/{self.total}]')} {text}", highlight=False)
 
     def stop(self) -> None:
         self.progress.stop()
@@ -522,7 +532,9 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
             )
         console.print(against)
     for f in summary["failures"]:
-        console.print(f"[red]failed[/red] {f['method']} {f['map']}: {f['error'].splitlines()[0] if f['error'] else ''}")
+        why = f["error"].splitlines()[0] if f["error"] else ""
+        failed = escape(f"{f['method']} {f['map']}: {why}")
+        console.print(f"[red]failed[/red] {failed}", soft_wrap=True)  # a path in it must stay whole
 
 
 def run_eval_cli(request: EvalRequest) -> int:
@@ -534,7 +546,7 @@ def run_eval_cli(request: EvalRequest) -> int:
     except (ConfigError, SceneError, ValueError) as exc:
         from rich.console import Console  # noqa: PLC0415
 
-        Console(stderr=True).print(f"[red]error:[/red] {exc}")
+        Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # brackets are text; paths unbroken
         return 2
     progress = RichProgress()
     try:

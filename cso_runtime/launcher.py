@@ -20,6 +20,7 @@ import argparse
 import json
 import logging
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -35,6 +36,7 @@ import yaml
 from cso_runtime.config import EXIT_BAD_CONFIG, ConfigError, ExplorationConfig, from_dict, load_yaml
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
 from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, Message, MessageError, PathMsg, decode, encode
+from cso_runtime.processes import STACK_DUMP_SIGNAL
 from cso_runtime.scenes import SceneError, resolve_scenes
 from cso_runtime.transport import TransportConfig, TransportError, free_tcp_port, open_session, track_liveliness
 
@@ -85,10 +87,16 @@ class SupervisionConfig:
     """Longest delay between restarts."""
     stop_timeout_s: float = 3.0
     """Deadline of each stop stage (SIGINT, then SIGTERM, then SIGKILL)."""
+    given_up_grace_s: float = 10.0
+    """How long the episode waits for another process (another host, or one started by hand) to serve a
+    service the launcher has given up on, before it stops saying so (exit 1) rather than run on with
+    no one choosing goals or driving."""
 
     def validate(self) -> None:
         if self.max_restarts < 0 or self.backoff_s < 0 or self.backoff_max_s < self.backoff_s or not self.stop_timeout_s > 0:
             raise ConfigError("supervision needs max_restarts >= 0, 0 <= backoff_s <= backoff_max_s, stop_timeout_s > 0")
+        if not self.given_up_grace_s >= 0:
+            raise ConfigError(f"supervision.given_up_grace_s must be >= 0 seconds, got {self.given_up_grace_s}")
 
 
 @dataclass
@@ -141,6 +149,11 @@ class Profile:
             from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
 
             raise ConfigError(f"method {self.method}: no weights at {weights_path(self.method)}; train it with `cso-runtime train --variant {self.method}`")
+        if self.method in LEARNED_METHODS:
+            from cso_runtime.learned.weights import weights_file_problem  # noqa: PLC0415
+
+            if problem := weights_file_problem(self.method):
+                raise ConfigError(f"method {self.method}: {problem}")
         try:
             refs = resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px)
             if not refs:
@@ -225,12 +238,30 @@ class Child:
     proc: subprocess.Popen | None = None
     restarts: int = 0
     gave_up: bool = False
+    gave_up_at: float | None = None
+    """``time.monotonic()`` when the launcher gave up on it."""
     restart_at: float | None = None
     exit_codes: list[int] = field(default_factory=list)
 
     @property
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
+
+    def last_error(self, tail_bytes: int = 16384) -> str:
+        """The last error its log holds (a logged ERROR, or a traceback's exception line), so that the
+        launcher's own message says why a service exited; empty when the log has none."""
+        try:
+            with self.log_path.open("rb") as fh:
+                fh.seek(max(0, self.log_path.stat().st_size - tail_bytes))
+                lines = fh.read().decode("utf-8", "replace").splitlines()
+        except OSError:
+            return ""
+        for line in reversed(lines):
+            if " ERROR " in line:
+                return line.split(" ERROR ", 1)[1].strip()
+            if re.match(r"^[\w.]+(Error|Exception|Interrupt)\b", line):
+                return line.strip()
+        return ""
 
     def spawn(self) -> None:
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -247,12 +278,19 @@ def signal_group(pid: int, sig: int) -> None:
         pass
 
 
+STACK_DUMP_WAIT_S = 0.5
+"""How long a service that ignored SIGINT and SIGTERM gets to write its stacks before SIGKILL."""
+
+
 def stop_children(children: list[Child], stage_timeout_s: float) -> None:
-    """SIGINT every process group, then SIGTERM, then SIGKILL, each stage with a deadline."""
+    """SIGINT every process group, then SIGTERM, then SIGKILL, each stage with a deadline. A service
+    still running at the last stage is asked for its threads' stacks first, so its log says where it hung."""
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
         running = [c for c in children if c.alive]
         if not running:
             break
+        if sig == signal.SIGKILL:
+            dump_stacks(running)
         for c in running:
             assert c.proc is not None
             signal_group(c.proc.pid, sig)
@@ -266,6 +304,19 @@ def stop_children(children: list[Child], stage_timeout_s: float) -> None:
     for c in children:  # the groups may hold grandchildren
         if c.proc is not None:
             signal_group(c.proc.pid, signal.SIGKILL)
+
+
+def dump_stacks(children: list[Child]) -> None:
+    """``STACK_DUMP_SIGNAL`` to each service process (not its group: a helper would die of it), then a
+    moment for faulthandler to write; each log then holds the stacks of that service's threads."""
+    for c in children:
+        assert c.proc is not None
+        try:
+            os.kill(c.proc.pid, STACK_DUMP_SIGNAL)
+        except (ProcessLookupError, PermissionError):
+            continue
+        log.warning("%s (pid %d) did not stop: the stacks of its threads are in %s", c.name, c.proc.pid, c.log_path)
+    time.sleep(STACK_DUMP_WAIT_S)
 
 
 # --- the launcher ----------------------------------------------------------------------------------
@@ -408,13 +459,13 @@ class Launcher:
                 code = c.proc.returncode if c.proc is not None else -1
                 c.exit_codes.append(code)
                 if code == EXIT_BAD_CONFIG:
-                    c.gave_up = True  # the same configuration would fail the same way: no restart
-                    log.error("%s refused its configuration (exit code %d): not restarting it (see %s)", c.name, code, c.log_path)
+                    c.gave_up, c.gave_up_at = True, now  # the same configuration would fail the same way: no restart
+                    log.error("%s refused its configuration (exit code %d): not restarting it: %s (see %s)", c.name, code, c.last_error() or "no error logged", c.log_path)
                     changed = True
                     continue
                 if c.restarts >= sup.max_restarts:
-                    c.gave_up = True
-                    log.error("%s exited (code %s) and was restarted %d times: giving up on it (see %s)", c.name, code, c.restarts, c.log_path)
+                    c.gave_up, c.gave_up_at = True, now
+                    log.error("%s exited (code %s) and was restarted %d times: giving up on it: %s (see %s)", c.name, code, c.restarts, c.last_error() or "no error logged", c.log_path)
                     changed = True
                     continue
                 delay = min(sup.backoff_s * (2**c.restarts), sup.backoff_max_s)
@@ -427,6 +478,14 @@ class Launcher:
                 log.info("restarted %s (pid %d)", c.name, c.proc.pid if c.proc else -1)
         if changed:
             self.write_run_file("running")
+
+    def unserved_services(self, now: float) -> list[str]:
+        """The services the launcher gave up on that no process has served (liveliness token) for
+        ``supervision.given_up_grace_s`` since: without them the episode cannot go on."""
+        grace = self.profile.supervision.given_up_grace_s
+        return [
+            c.name for c in self.children if c.gave_up and c.gave_up_at is not None and now - c.gave_up_at >= grace and c.name not in self.alive_services
+        ]
 
     # --- results ----------------------------------------------------------------------------------
     def fetch_result(self, session: Any, timeout_s: float = 3.0) -> EpisodeResultMsg | None:
@@ -547,6 +606,14 @@ class Launcher:
                         log.error("the %s service is gone for good: stopping", referee[0].name)
                         self.exit_code = 1
                         break
+                    unserved = [] if self.outputs_written else self.unserved_services(time.monotonic())
+                    if unserved:
+                        log.error(
+                            "no process serves %s since the launcher gave up on it (%.0f s): the episode cannot go on, stopping (see %s)",
+                            ", ".join(unserved), self.profile.supervision.given_up_grace_s, self.run_dir / "logs",
+                        )
+                        self.exit_code = 1
+                        break
             finally:
                 if view is not None:
                     view.stop()
@@ -609,6 +676,7 @@ class LiveView:
         self._last = 0.0
 
     def render(self):
+        from rich.markup import escape  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
         la = self.launcher
@@ -630,7 +698,7 @@ class LiveView:
                 ("goal", goal + ("" if la.path_ahead_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
                 ("decisions", f"{st.decisions} (last {st.last_decision_ms:.1f} ms)"),
             ):
-                t.add_row(k, v)
+                t.add_row(k, escape(v))  # text, not markup: a scene file's name may hold brackets
         for c in la.children:
             health = "up" if c.alive and c.name in la.alive_services else ("starting" if c.alive else ("gave up" if c.gave_up else "restarting"))
             t.add_row(f"[bold]{c.name}", f"{health}, pid {c.proc.pid if c.proc else '-'}, restarts {c.restarts}")

@@ -71,8 +71,9 @@ def load_map_and_meta(yaml_path: Path) -> tuple[np.ndarray, GridGeometry, dict]:
     """``load_map`` plus the YAML's whole mapping (keys map_server ignores, such as a scene's ``start``)."""
     yaml_path = Path(yaml_path)
     try:
-        meta = yaml.safe_load(yaml_path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
+        with yaml_path.open(encoding="utf-8") as stream:
+            meta = yaml.safe_load(stream)
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
         raise MapFileError(f"{yaml_path}: cannot read the map YAML ({exc})") from None
     if not isinstance(meta, dict):
         raise MapFileError(f"{yaml_path}: expected a mapping with image, resolution and origin")

@@ -8,6 +8,8 @@ runs (an evaluation of hundreds of episodes, hours of teacher rollouts) would lo
 from __future__ import annotations
 
 import ctypes
+import faulthandler
+import io
 import multiprocessing
 import signal
 import sys
@@ -23,6 +25,23 @@ R = TypeVar("R")
 
 class WorkerDied(RuntimeError):
     """The process running a job died before it returned."""
+
+
+STACK_DUMP_SIGNAL = signal.SIGUSR1
+"""The signal on which a service writes every thread's Python stack to its stderr (its log): the
+launcher sends it to a service that ignored SIGINT and SIGTERM, before it kills the service, so that
+the log says where it hung (``kill -USR1 PID`` does the same by hand)."""
+
+
+def dump_stacks_on_signal() -> bool:
+    """Write all threads' stacks to stderr on ``STACK_DUMP_SIGNAL`` (faulthandler: works even when the
+    main thread is stuck in C code, where a Python signal handler would never run). False when stderr
+    is no file (a service run inside a test that captures it): nothing is registered then."""
+    try:
+        faulthandler.register(STACK_DUMP_SIGNAL, file=sys.stderr, all_threads=True)
+    except (AttributeError, ValueError, io.UnsupportedOperation):
+        return False
+    return True
 
 
 def ignore_sigint() -> None:

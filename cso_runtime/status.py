@@ -143,9 +143,11 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path) -> t
 
 
 def render_table(status: dict[str, Any]):
+    from rich.markup import escape  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
 
-    t = Table(title=f"robot {status['robot']}  run {status['run_id'] or '-'}")
+    # Every cell is text, not markup: a scene file or a service's reason may hold brackets.
+    t = Table(title=escape(f"robot {status['robot']}  run {status['run_id'] or '-'}"))
     t.add_column("field")
     t.add_column("value")
     goal = status["goal"]
@@ -159,7 +161,7 @@ def render_table(status: dict[str, Any]):
         ("goal", "-" if goal is None else f"({goal[0]:.2f}, {goal[1]:.2f}) m"),
         ("decisions", f"{status['decisions']} (last {status['last_decision_ms']:.1f} ms)"),
     ):
-        t.add_row(k, v)
+        t.add_row(k, escape(v))
     episode_over = status["state"] in ("done", "failed")
     for name, s in status["services"].items():
         bits = ["alive" if s["alive"] else "DOWN"]
@@ -173,7 +175,7 @@ def render_table(status: dict[str, Any]):
         rejected = sum((s.get("rejected") or {}).values())
         if rejected:
             bits.append(f"rejected {rejected}")
-        t.add_row(f"service {name}", ", ".join(bits))
+        t.add_row(escape(f"service {name}"), escape(", ".join(bits)))
     return t
 
 

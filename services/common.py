@@ -42,7 +42,7 @@ from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
-from cso_runtime.processes import keep_freed_memory
+from cso_runtime.processes import dump_stacks_on_signal, keep_freed_memory
 from cso_runtime.transport import TransportConfig, TransportError, open_session
 
 log = logging.getLogger("cso.service")
@@ -447,6 +447,7 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
     """``python -m services.<name>`` entry point: parse, load the profile, run; config errors exit 2."""
     args = parse_args(cls.name, argv, cls)
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    dump_stacks_on_signal()  # a hang the launcher has to kill leaves its stacks in this log
     try:
         check_robot_id(args.robot)
         profile, exploration, params = load_profile_for_service(args.config, cls.name)

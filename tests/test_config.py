@@ -55,8 +55,13 @@ def test_load_yaml_errors(tmp_path: Path):
         load_yaml(tmp_path / "missing.yaml")
     bad = tmp_path / "bad.yaml"
     bad.write_text("a: [1, 2\n")
-    with pytest.raises(ConfigError, match="not valid YAML"):
+    with pytest.raises(ConfigError, match="not valid YAML") as unclosed:
         load_yaml(bad)
+    assert str(bad) in str(unclosed.value).split("not valid YAML", 1)[1]  # YAML's own line points at the file
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(b"a: \xa4\xff\x00\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_yaml(binary)
     listy = tmp_path / "list.yaml"
     listy.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="mapping"):

@@ -125,6 +125,16 @@ def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
     assert bad.returncode == 2 and "unknown method" in bad.stderr
     bad_maps = subprocess.run(exe + ["eval", "--maps", str(tmp_path / "nowhere")], capture_output=True, text=True, timeout=60)
     assert bad_maps.returncode == 2 and "nowhere" in bad_maps.stderr
+    # `up` names the option --scene; eval takes the same spelling for the same spec.
+    bad_scene = subprocess.run(exe + ["eval", "--scene", str(tmp_path / "elsewhere")], capture_output=True, text=True, timeout=60)
+    assert bad_scene.returncode == 2 and "elsewhere" in bad_scene.stderr
+    # Messages are text, not rich markup, and never hard-wrapped: a path with brackets comes out whole.
+    odd = tmp_path / "plans[red]" / "a_long_folder_name_that_would_wrap_at_eighty_columns"
+    bad_odd = subprocess.run(exe + ["eval", "--maps", str(odd)], capture_output=True, text=True, timeout=60)
+    assert bad_odd.returncode == 2 and str(odd) in bad_odd.stderr
+    (tmp_path / "m.yaml").write_text("image: m.pgm\nresolution: 0.05\norigin: [0.0, 0.0]\n")
+    failed = subprocess.run(exe + ["eval", "--maps", str(tmp_path / "m.yaml"), "--out", str(tmp_path / "f")], capture_output=True, text=True, timeout=60)
+    assert failed.returncode == 1 and "origin must be [x_m, y_m, yaw_rad]" in failed.stdout
 
 
 @pytest.mark.parametrize(("field", "value"), [("m_per_px", -1.0), ("m_per_px", 0.0), ("m_per_px", float("nan")), ("limit", 0)])

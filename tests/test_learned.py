@@ -537,6 +537,59 @@ def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
 
 
+def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path, monkeypatch):
+    """A truncated, foreign or mismatched weights file: ``load_checkpoint`` names the file and the cause in
+    one line (not torch's traceback, nor its advice to turn weights_only off); ``eval`` exits 2 before any
+    episode; the launcher refuses a file that cannot be a checkpoint before it starts a process."""
+    import subprocess  # noqa: PLC0415
+    import sys  # noqa: PLC0415
+
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.launcher import find_profile, load_profile  # noqa: PLC0415
+    from cso_runtime.learned import registry  # noqa: PLC0415
+    from cso_runtime.learned.weights import weights_file_problem  # noqa: PLC0415
+
+    good = tmp_path / "good.pt"
+    save_checkpoint(good, GraphActorCritic().eval(), GraphConfig(), "cso")
+    ckpt = torch.load(good, weights_only=True)
+    first = next(iter(ckpt["state_dict"]))
+    files = {
+        "empty or truncated": b"",
+        "not a torch file": bytes(range(256)) * 4,
+    }
+    for why, content in files.items():
+        (tmp_path / "bad.pt").write_bytes(content)
+        with pytest.raises(registry.CheckpointError, match=why) as err:
+            load_checkpoint(tmp_path / "bad.pt")
+        assert str(tmp_path / "bad.pt") in str(err.value) and "\n" not in str(err.value)
+    torch.save({"state_dict": ckpt["state_dict"]}, tmp_path / "bad.pt")
+    with pytest.raises(registry.CheckpointError, match="no 'graph' entry"):
+        load_checkpoint(tmp_path / "bad.pt")
+    torch.save({**ckpt, "state_dict": {**ckpt["state_dict"], first: torch.zeros(3)}}, tmp_path / "bad.pt")
+    with pytest.raises(registry.CheckpointError, match="RuntimeError"):
+        load_checkpoint(tmp_path / "bad.pt")
+    with pytest.raises(FileNotFoundError):
+        load_checkpoint(tmp_path / "missing.pt")
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "cso.pt").write_bytes(bytes(range(256)) * 4)
+    monkeypatch.setenv(registry.WEIGHTS_DIR_ENV, str(run))
+    assert "not a torch checkpoint" in weights_file_problem("cso")
+    with pytest.raises(ConfigError, match="not a torch checkpoint"):
+        load_profile(str(find_profile("lockstep")), {"method": "cso"})
+    monkeypatch.setenv(registry.WEIGHTS_DIR_ENV, str(tmp_path))
+    (tmp_path / "cso.pt").write_bytes(good.read_bytes())
+    assert weights_file_problem("cso") == ""
+    monkeypatch.delenv(registry.WEIGHTS_DIR_ENV)
+
+    exe = [sys.executable, "-m", "cso_runtime.cli", "eval", "--maps", "generated:small:2:3", "--max-steps", "30", "--method", "greedy-dist,cso"]
+    bad = subprocess.run(exe + ["--weights", str(run), "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "not a cso-runtime checkpoint" in bad.stderr and "Traceback" not in bad.stderr
+    assert str(run / "cso.pt") in " ".join(bad.stderr.split())  # the message may wrap the path
+    assert not (tmp_path / "out").exists()
+
+
 def test_cluster_size_feature_is_optional_and_round_trips(tmp_path, observation):
     """``cluster_size_feature`` adds one node column (each cluster's length, scale-free); graphs and
     networks without it keep six columns. A checkpoint with it reloads with

@@ -78,6 +78,9 @@ def test_bad_map_files_give_clear_errors(tmp_path: Path):
     (tmp_path / "bad.yaml").write_text("image: [unclosed")
     with pytest.raises(MapFileError, match="cannot read the map YAML"):
         load_map(tmp_path / "bad.yaml")
+    (tmp_path / "bad.yaml").write_bytes(b"image: \xa4\xff map.pgm\n")  # not UTF-8: a clear error, not a traceback
+    with pytest.raises(MapFileError, match="cannot read the map YAML"):
+        load_map(tmp_path / "bad.yaml")
     (tmp_path / "corrupt.pgm").write_bytes(b"P5 not really")
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump({**meta, "image": "corrupt.pgm"}))
     with pytest.raises(MapFileError, match="corrupt.pgm"):

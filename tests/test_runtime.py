@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import textwrap
 import threading
 import time
 from pathlib import Path
@@ -265,8 +266,9 @@ def test_a_service_that_refuses_its_configuration_is_not_restarted(tmp_path):
     profile, data = load_profile(str(find_profile("lockstep")), {})
     launcher = Launcher(profile, data, tmp_path / "run")
     launcher.run_dir.mkdir()
-    refused = Child("sim", [sys.executable, "-c", "raise SystemExit(2)"], tmp_path / "sim.log")
-    crashed = Child("mapper", [sys.executable, "-c", "raise SystemExit(1)"], tmp_path / "mapper.log")
+    refuse = "print('2026-12-01 10:00:00,000 ERROR cso.service: sim: bad configuration: no such scene'); raise SystemExit(2)"
+    refused = Child("sim", [sys.executable, "-c", refuse], tmp_path / "sim.log")
+    crashed = Child("mapper", [sys.executable, "-c", "raise ValueError('map of another shape')"], tmp_path / "mapper.log")
     launcher.children = [refused, crashed]
     for c in launcher.children:
         c.spawn()
@@ -274,6 +276,71 @@ def test_a_service_that_refuses_its_configuration_is_not_restarted(tmp_path):
     launcher.supervise()
     assert refused.gave_up and refused.restarts == 0 and refused.exit_codes == [2]
     assert not crashed.gave_up and crashed.restart_at is not None and crashed.exit_codes == [1]
+    # The launcher's own message says why, from each log: a logged error, or a traceback's last line.
+    assert refused.last_error() == "cso.service: sim: bad configuration: no such scene"
+    assert crashed.last_error() == "ValueError: map of another shape"
+
+
+def test_a_given_up_service_that_no_one_serves_stops_the_episode(tmp_path):
+    """A policy that refused its configuration (say, a corrupt weights file) leaves nobody choosing goals:
+    the episode must stop saying so once the grace for another process to serve it has passed, not run
+    on to its step limit. A token from such a process (another host) keeps the episode going."""
+    from cso_runtime.launcher import Child, Launcher, find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {"supervision": {"given_up_grace_s": 5.0}})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    launcher.run_dir.mkdir()
+    policy = Child("policy", [sys.executable, "-c", "raise SystemExit(2)"], tmp_path / "policy.log")
+    mapper = Child("mapper", [sys.executable, "-c", "import time; time.sleep(60)"], tmp_path / "mapper.log")
+    launcher.children = [policy, mapper]
+    try:
+        for c in launcher.children:
+            c.spawn()
+        policy.proc.wait(timeout=30)
+        launcher.supervise()
+        assert policy.gave_up and policy.gave_up_at is not None and not mapper.gave_up
+        assert launcher.unserved_services(policy.gave_up_at + 4.9) == []  # still within the grace
+        assert launcher.unserved_services(policy.gave_up_at + 5.0) == ["policy"]
+        launcher.alive_services.add("policy")  # another process declared the policy's token
+        assert launcher.unserved_services(policy.gave_up_at + 60.0) == []
+    finally:
+        mapper.proc.kill()
+        mapper.proc.wait(timeout=30)
+
+
+def test_a_service_that_ignores_the_stop_signals_leaves_its_stacks_in_its_log_before_the_kill(tmp_path):
+    """A hung service (it never gets to act on SIGINT or SIGTERM) is killed at the last stage; its log
+    must then say where it hung: every thread's stack, written by faulthandler on STACK_DUMP_SIGNAL."""
+    from cso_runtime.launcher import Child, stop_children
+
+    hung = textwrap.dedent(
+        """
+        import signal, sys, time
+        from cso_runtime.processes import dump_stacks_on_signal
+        dump_stacks_on_signal()
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        def stuck_in_a_handler():
+            print("ready", flush=True)
+            while True:
+                time.sleep(0.05)
+        stuck_in_a_handler()
+        """
+    )
+    child = Child("frontier", [sys.executable, "-c", hung], tmp_path / "frontier.log")
+    child.spawn()
+    try:
+        deadline = time.monotonic() + 30
+        while "ready" not in child.log_path.read_text() and time.monotonic() < deadline:
+            assert child.alive, child.log_path.read_text()
+            time.sleep(0.02)  # polling the child's own output, with a deadline
+        stop_children([child], stage_timeout_s=0.3)
+        assert child.proc.wait(timeout=10) == -signal.SIGKILL
+        logged = child.log_path.read_text()
+        assert "most recent call first" in logged and "stuck_in_a_handler" in logged
+    finally:
+        if child.alive:
+            child.proc.kill()
 
 
 def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
@@ -319,6 +386,10 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
     assert "6.50 m ahead on the path" in console.export_text()
+    launcher.status.scene = "[bold]plan[2]"  # a scene's name is text, not rich markup
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert "[bold]plan[2]" in console.export_text()
 
 
 def test_status_table_shows_the_episode_and_each_service():
@@ -348,6 +419,11 @@ def test_status_table_shows_the_episode_and_each_service():
     console.print(render_table(status))
     text = console.export_text()
     assert "idle (episode done; last step 17)" in text and "stale" not in text
+    # Cells are text, not rich markup: a plan called "[red]plan[1].png" is shown as it is named.
+    status["scene"] = "[red]plan[1]"
+    console = Console(record=True, width=160)
+    console.print(render_table(status))
+    assert "[red]plan[1] / greedy-dist" in console.export_text()
 
 
 def test_status_and_down_with_nothing_running(tmp_path):

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import pickle
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,6 +56,12 @@ def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig
     return model, graph
 
 
+def check_weights(name: str, device: str = "cpu") -> None:
+    """Load ``name``'s weights now (kept for the episodes), so that a corrupt file is one clear error
+    before any episode starts rather than a failure per scene. Raises CheckpointError."""
+    _cached_model(str(weights_path(name)), str(device))
+
+
 def has_method(name: str) -> bool:
     """True when ``name`` is a learned variant whose weights are shipped."""
     return name in VARIANTS and has_weights(name)
@@ -74,12 +81,37 @@ def save_checkpoint(path: str | Path, model: GraphActorCritic, graph: GraphConfi
     )
 
 
+class CheckpointError(ValueError):
+    """A weights file that is not a checkpoint ``save_checkpoint`` wrote (corrupt, truncated, another
+    program's, or a network this version cannot rebuild): one line naming the file, not torch's traceback."""
+
+
+def _why_unloadable(exc: Exception) -> str:
+    """One short line for ``load_checkpoint``'s error (torch's own advice to turn weights_only off is
+    not one to give for a file of unknown origin)."""
+    if isinstance(exc, EOFError):
+        return "empty or truncated file"
+    if isinstance(exc, pickle.UnpicklingError):
+        return "not a torch file of plain tensors and numbers"
+    if isinstance(exc, KeyError):
+        return f"no {exc} entry"
+    first_line = (str(exc).strip().splitlines() or [""])[0]
+    return f"{type(exc).__name__}: {first_line}" if first_line else type(exc).__name__
+
+
 def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[GraphActorCritic, GraphConfig, dict[str, Any]]:
-    """Rebuild the network from a checkpoint written by ``save_checkpoint``."""
-    ckpt = torch.load(Path(path), map_location=device, weights_only=True)
-    graph = GraphConfig(**ckpt["graph"])
-    model = GraphActorCritic(NetworkConfig(**ckpt["network"]), graph.max_frontier_nodes).to(device)
-    model.load_state_dict(ckpt["state_dict"])
+    """Rebuild the network from a checkpoint written by ``save_checkpoint``; raises CheckpointError
+    (FileNotFoundError for a missing file) when the file cannot give the network back."""
+    path = Path(path)
+    try:
+        ckpt = torch.load(path, map_location=device, weights_only=True)
+        graph = GraphConfig(**ckpt["graph"])
+        model = GraphActorCritic(NetworkConfig(**ckpt["network"]), graph.max_frontier_nodes).to(device)
+        model.load_state_dict(ckpt["state_dict"])
+    except FileNotFoundError:
+        raise
+    except Exception as exc:  # torch raises pickle, EOF, zip, key and shape errors alike  # noqa: BLE001
+        raise CheckpointError(f"{path}: not a cso-runtime checkpoint ({_why_unloadable(exc)})") from None
     model.eval()
     return model, graph, ckpt
 

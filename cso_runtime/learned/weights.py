@@ -34,6 +34,23 @@ def has_weights(name: str) -> bool:
     return weights_path(name).is_file()
 
 
+def weights_file_problem(name: str) -> str:
+    """Why ``name``'s weights file cannot be a torch checkpoint, judged from its first bytes without
+    torch (the launcher checks before anything starts); empty when it may be one. ``registry.load_checkpoint``
+    says more about a file that passes this but still does not load."""
+    path = weights_path(name)
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(4)
+    except OSError as exc:
+        return f"{path}: cannot read it ({exc.strerror or exc})"
+    if not head:
+        return f"{path}: empty file"
+    if head.startswith((b"PK\x03\x04", b"\x80")):  # torch.save's zip archive, or its legacy pickle
+        return ""
+    return f"{path}: not a torch checkpoint (neither a zip archive nor a pickle)"
+
+
 def use_weights_dir(directory: str | Path) -> Path:
     """Serve the learned methods from ``directory`` (a ``train --out`` folder of ``<method>.pt``) in
     this process and the ones it starts (``eval --weights``, ``up --weights``). Raises ValueError
