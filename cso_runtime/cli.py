@@ -166,6 +166,9 @@ def record_command(
     except (TransportError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+    except OSError as exc:  # the recording's folder or file cannot be made
+        typer.echo(f"error: cannot record into {path}: {exc.strerror or exc}", err=True)
+        raise typer.Exit(2) from None
     typer.echo(f"{stats.messages} messages on {len(stats.per_key)} keys ({stats.raw} kept verbatim) -> {path}")
 
 
@@ -181,13 +184,18 @@ def replay_command(
     import signal  # noqa: PLC0415
     import threading  # noqa: PLC0415
 
-    from cso_runtime.recording import RecordingError, parse_speed, replay  # noqa: PLC0415
+    from cso_runtime.recording import RecordingError, check_recording, parse_speed, replay  # noqa: PLC0415
     from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
 
     if not file.is_file():
         typer.echo(f"error: no such recording {file}", err=True)
         raise typer.Exit(2)
+    try:
+        check_recording(file)
+    except RecordingError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
     endpoints = list(connect) if connect else endpoints_from_run_file(runs_dir)[0]
     if not endpoints:
         typer.echo("error: no current run; give --connect ENDPOINT", err=True)
@@ -386,6 +394,7 @@ def train_command(
                  "init_from": init_from, "num_envs": num_envs, "async_envs": async_envs,
                  "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
     args = training_args(config, overrides, settings)
+    output_dir_or_exit(args.out_dir, "out_dir")
     checkpoint = Path(args.out_dir) / "checkpoint.pt"
     try:
         record = train(args, log=typer.echo)
@@ -416,6 +425,7 @@ def collect_teacher_command(
 
     overrides = {"seed": seed, "warm_start_teacher": teacher, "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
     args = training_args(config, overrides, settings)
+    output_dir_or_exit(out.parent, f"--out {out}: its folder")  # before hours of rollouts, not after
     t0 = time.time()
     try:
         collected = collect_teacher_parallel(args, workers, decisions, time_limit, log=typer.echo)
@@ -425,6 +435,17 @@ def collect_teacher_command(
     out.parent.mkdir(parents=True, exist_ok=True)
     collected.save(out)
     typer.echo(f"done: {len(collected)} {teacher} decisions in {time.time() - t0:.0f} s -> {out}")
+
+
+def output_dir_or_exit(path: Path | str, label: str) -> None:
+    """Make the folder a long command will write to before it starts, or exit 2 saying why."""
+    from cso_runtime.config import ConfigError, make_output_dir  # noqa: PLC0415
+
+    try:
+        make_output_dir(path, label)
+    except ConfigError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
 
 
 def training_args(config: Path | None, overrides: dict[str, object], settings: list[str] | None):

@@ -295,6 +295,17 @@ def to_dict(obj: Any) -> dict[str, Any]:
     return dataclasses.asdict(obj)
 
 
+def make_output_dir(path: str | Path, flag: str = "--out") -> Path:
+    """Create an output folder before the work that fills it starts (an evaluation, a training run, hours
+    of teacher rollouts), so that a folder that cannot be made is a ConfigError now, not a traceback at the end."""
+    p = Path(path)
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"{flag} {p}: cannot create the folder ({exc.strerror or exc})") from None
+    return p
+
+
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping, with a clear error for a missing or malformed file."""
     p = Path(path)

@@ -29,7 +29,7 @@ from rich.markup import escape
 
 from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene
 from cso_runtime.comparison import write_csv as write_paired_csv
-from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, ExplorationConfig, SensorConfig, from_dict, load_yaml, to_dict
+from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, ExplorationConfig, SensorConfig, from_dict, load_yaml, make_output_dir, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
@@ -543,6 +543,7 @@ def run_eval_cli(request: EvalRequest) -> int:
         request.validate()
         request.exploration_config()
         resolve_scenes(request.maps, request.limit, request.m_per_px)
+        make_output_dir(request.out_dir)
     except (ConfigError, SceneError, ValueError) as exc:
         from rich.console import Console  # noqa: PLC0415
 

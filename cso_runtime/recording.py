@@ -250,6 +250,24 @@ class RecordedMessage:
     payload: bytes
 
 
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The first eight bytes of every MCAP file (the MCAP specification's magic)."""
+
+
+def check_recording(path: Path) -> None:
+    """Raise RecordingError unless ``path`` starts like an MCAP file, so that ``replay`` names a wrong
+    file before it looks for a run to replay into (``read_recording`` finds damage further in)."""
+    try:
+        with Path(path).open("rb") as fh:
+            head = fh.read(len(MCAP_MAGIC))
+    except OSError as exc:
+        raise RecordingError(f"cannot read {path}: {exc.strerror or exc}") from None
+    if not head:
+        raise RecordingError(f"cannot read {path}: empty file")
+    if head != MCAP_MAGIC:
+        raise RecordingError(f"cannot read {path}: not an MCAP file (it does not start with the MCAP magic)")
+
+
 def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[RecordedMessage]:
     """The messages of an MCAP recording in log-time order, payloads restored byte-exactly.
 
@@ -278,7 +296,9 @@ def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[
                     continue
                 yield RecordedMessage(channel.topic, message.log_time, payload)
     except (McapError, OSError, ValueError) as exc:
-        raise RecordingError(f"cannot read {path}: {exc}") from None
+        empty = Path(path).is_file() and Path(path).stat().st_size == 0
+        why = "empty file" if empty else (str(exc) or type(exc).__name__)  # the mcap reader's own message may be blank
+        raise RecordingError(f"cannot read {path}: {why}") from None
 
 
 @dataclass

@@ -247,7 +247,11 @@ def save_map_main(connect: list[str], robot: str | None, out: Path, image_format
     if msg is None:
         print(f"no map for robot {robot}: {why}")
         return 1
-    yaml_path = save_map(out.with_suffix(".yaml"), msg.grid, msg.geometry, image_format)
+    try:
+        yaml_path = save_map(out.with_suffix(".yaml"), msg.grid, msg.geometry, image_format)
+    except OSError as exc:
+        print(f"error: cannot write the map to {out.with_suffix('.yaml')}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
     g = msg.geometry
     print(f"map of step {msg.step} ({g.shape[1]} x {g.shape[0]} cells at {g.resolution_m} m): {yaml_path} and {yaml_path.with_suffix('.' + image_format).name}")
     return 0

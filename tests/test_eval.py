@@ -135,6 +135,9 @@ def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
     (tmp_path / "m.yaml").write_text("image: m.pgm\nresolution: 0.05\norigin: [0.0, 0.0]\n")
     failed = subprocess.run(exe + ["eval", "--maps", str(tmp_path / "m.yaml"), "--out", str(tmp_path / "f")], capture_output=True, text=True, timeout=60)
     assert failed.returncode == 1 and "origin must be [x_m, y_m, yaw_rad]" in failed.stdout
+    below_a_file = tmp_path / "m.yaml" / "out"  # an --out that cannot be made: said before any episode runs
+    unwritable = subprocess.run(exe + ["eval", "--maps", "generated:small:1:3", "--out", str(below_a_file)], capture_output=True, text=True, timeout=60)
+    assert unwritable.returncode == 2 and "cannot create the folder" in unwritable.stderr and "Traceback" not in unwritable.stderr
 
 
 @pytest.mark.parametrize(("field", "value"), [("m_per_px", -1.0), ("m_per_px", 0.0), ("m_per_px", float("nan")), ("limit", 0)])

@@ -811,6 +811,11 @@ def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
     assert len(data) == 6 and data.masks[np.arange(6), data.actions].all()
     bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "nobody", *scenes])
     assert bad.exit_code == 2 and "unknown warm_start_teacher" in bad.output
+    below_a_file = out / "more.npz"  # its folder cannot be made: said before the rollouts, not after them
+    bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(below_a_file), "--teacher", "greedy-dist", *scenes])
+    assert bad.exit_code == 2 and "cannot create the folder" in bad.output and "decisions" not in bad.output
+    bad = CliRunner().invoke(app, ["train", "--out", str(below_a_file), *scenes])
+    assert bad.exit_code == 2 and f"out_dir {below_a_file}: cannot create the folder" in bad.output
 
 
 def test_distance_prior_starts_the_actor_at_greedy_dist_and_round_trips(tmp_path, observation):

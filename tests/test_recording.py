@@ -12,6 +12,7 @@ from pathlib import Path
 
 import msgpack
 import numpy as np
+import pytest
 
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
@@ -19,6 +20,7 @@ from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, encode
 from cso_runtime.recording import (
     JSON_ENCODING,
+    MCAP_MAGIC,
     RAW_ENCODING,
     RecordStats,
     parse_speed,
@@ -227,6 +229,20 @@ def test_a_replayed_run_rebuilds_the_same_map_in_a_fresh_mapper(tmp_path: Path):
     np.testing.assert_array_equal(fresh.map.to_occupancy_grid(), original)
 
 
+def test_a_broken_recording_is_one_clear_error(tmp_path: Path):
+    """An empty or truncated MCAP file: RecordingError naming the file and why, never a blank reason."""
+    from cso_runtime.recording import RecordingError  # noqa: PLC0415
+
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    with pytest.raises(RecordingError, match="empty file"):
+        list(read_recording(empty))
+    truncated = tmp_path / "truncated.mcap"
+    truncated.write_bytes(MCAP_MAGIC + b"\x01\x02")
+    with pytest.raises(RecordingError, match=r"cannot read .*truncated.mcap: \S"):
+        list(read_recording(truncated))
+
+
 def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path: Path):
     """A wrong path is the first thing to say, even with no run to replay into."""
     from typer.testing import CliRunner  # noqa: PLC0415
@@ -238,5 +254,11 @@ def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path:
     assert r.exit_code == 2 and f"no such recording {missing}" in r.output
     recording = tmp_path / "run.mcap"
     recording.write_bytes(b"")
+    r = CliRunner().invoke(app, ["replay", str(recording), "--runs-dir", str(tmp_path)])
+    assert r.exit_code == 2 and f"cannot read {recording}: empty file" in r.output  # a broken file, said first too
+    recording.write_bytes(b"PK\x03\x04 a zip, not a recording")
+    r = CliRunner().invoke(app, ["replay", str(recording), "--runs-dir", str(tmp_path)])
+    assert r.exit_code == 2 and "not an MCAP file" in r.output
+    recording.write_bytes(MCAP_MAGIC)  # starts like one: then the missing run is what stops it
     r = CliRunner().invoke(app, ["replay", str(recording), "--runs-dir", str(tmp_path)])
     assert r.exit_code == 2 and "no current run" in r.output
