@@ -101,12 +101,17 @@ def read_episodes(files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterab
     table: EfficiencyTable = defaultdict(dict)
     for item in files:
         label, path = item if isinstance(item, tuple) else ("", item)
-        with Path(path).open(newline="") as fh:
-            reader = csv.DictReader(fh)
-            missing = [c for c in EPISODE_COLUMNS if c not in (reader.fieldnames or [])]
-            if missing:
-                raise ValueError(f"{path} is not an episodes.csv written by eval: no column {', '.join(missing)}")
-            efficiency_by_scene((row for row in reader if row["map"] not in excluded), label, table)
+        try:
+            with Path(path).open(newline="", encoding="utf-8") as fh:
+                reader = csv.DictReader(fh)
+                missing = [c for c in EPISODE_COLUMNS if c not in (reader.fieldnames or [])]
+                if missing:
+                    raise ValueError(f"not an episodes.csv written by eval: no column {', '.join(missing)}")
+                efficiency_by_scene((row for row in reader if row["map"] not in excluded), label, table)
+        except UnicodeDecodeError:
+            raise ValueError(f"{path}: not an episodes.csv written by eval: not UTF-8 text") from None
+        except (ValueError, csv.Error) as exc:  # every message names the file: several are read at once
+            raise ValueError(f"{path}: {exc}") from None
     return table
 
 

@@ -44,8 +44,18 @@ def test_a_bad_efficiency_or_a_file_that_is_not_episodes_csv_is_a_clear_error(tm
         efficiency_by_scene([dict(zip(FIELDS, ("cso", "a", "large", 0, 100, "fast")))])
     other = tmp_path / "other.csv"
     other.write_text("x,y\n1,2\n")
-    with pytest.raises(ValueError, match="not an episodes.csv written by eval: no column method"):
+    with pytest.raises(ValueError, match="not an episodes.csv written by eval: no column method") as err:
         read_episodes([other])
+    assert str(err.value).startswith(f"{other}: ")
+    binary = tmp_path / "binary.csv"  # say a PNG given by mistake: the file is named, no UnicodeDecodeError
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")
+    with pytest.raises(ValueError, match="not UTF-8 text") as err:
+        read_episodes([binary])
+    assert str(binary) in str(err.value)
+    bad_row = tmp_path / "bad_row.csv"
+    write_episodes_csv(bad_row, [dict(zip(FIELDS, ("cso", "a", "large", 0, 100, "fast")))], FIELDS)
+    with pytest.raises(ValueError, match="bad_row.csv: cso on a: efficiency 'fast' is not a number"):
+        read_episodes([bad_row])
 
 
 def write(path: Path, episodes: list[dict]) -> Path:
