@@ -188,11 +188,8 @@ def replay_command(
     from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
 
-    if not file.is_file():
-        typer.echo(f"error: no such recording {file}", err=True)
-        raise typer.Exit(2)
     try:
-        check_recording(file)
+        check_recording(file)  # a wrong or broken file is the first thing to say
     except RecordingError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

@@ -255,8 +255,10 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def check_recording(path: Path) -> None:
-    """Raise RecordingError unless ``path`` starts like an MCAP file, so that ``replay`` names a wrong
-    file before it looks for a run to replay into (``read_recording`` finds damage further in)."""
+    """Raise RecordingError unless ``path`` is a file that starts like an MCAP file, so that ``replay``
+    names a wrong file before it looks for a run to replay into (``read_recording`` finds damage further in)."""
+    if not Path(path).is_file():
+        raise RecordingError(f"no such recording {path}")
     try:
         with Path(path).open("rb") as fh:
             head = fh.read(len(MCAP_MAGIC))
