@@ -267,6 +267,9 @@ def up_command(
     if current is not None and pid_alive(current.get("launcher_pid")) and current.get("robot") == prof.robot:
         typer.echo(f"error: run {current.get('run_id')} is already running for robot {prof.robot}; `cso-runtime down` first", err=True)
         raise typer.Exit(2)
+    output_dir_or_exit(runs_dir, "--runs-dir")  # before the router and the services start
+    if record_out is not None:
+        output_dir_or_exit(record_out.parent, f"--record-out {record_out}: its folder")
     recording: bool | Path = record_out if record_out is not None else record
     if detach:
         code, message = start_detached(prof, data, runs_dir, record=recording)

@@ -295,6 +295,14 @@ def to_dict(obj: Any) -> dict[str, Any]:
     return dataclasses.asdict(obj)
 
 
+def check_seed(seed: int, name: str = "seed") -> int:
+    """A seed numpy's generators take (a non-negative integer), checked where it is configured rather
+    than deep inside a simulator or a worker process."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError(f"{name} must be a non-negative integer, got {seed!r}")
+    return seed
+
+
 def make_output_dir(path: str | Path, flag: str = "--out") -> Path:
     """Create an output folder before the work that fills it starts (an evaluation, a training run, hours
     of teacher rollouts), so that a folder that cannot be made is a ConfigError now, not a traceback at the end."""

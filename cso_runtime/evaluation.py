@@ -29,7 +29,7 @@ from rich.markup import escape
 
 from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene
 from cso_runtime.comparison import write_csv as write_paired_csv
-from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, ExplorationConfig, SensorConfig, from_dict, load_yaml, make_output_dir, to_dict
+from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, ExplorationConfig, SensorConfig, check_seed, from_dict, load_yaml, make_output_dir, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
@@ -119,6 +119,7 @@ class EvalRequest:
             raise ConfigError(f"--max-steps must be positive, got {self.max_steps}")
         if self.workers <= 0:
             raise ConfigError(f"--workers must be positive, got {self.workers}")
+        check_seed(self.seed, "--seed")
         if not (math.isfinite(self.m_per_px) and self.m_per_px > 0):
             raise ConfigError(f"--m-per-px must be a positive number of metres per pixel, got {self.m_per_px}")
         if self.limit is not None and self.limit <= 0:

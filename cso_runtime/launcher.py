@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from cso_runtime.config import EXIT_BAD_CONFIG, ConfigError, ExplorationConfig, from_dict, load_yaml
+from cso_runtime.config import EXIT_BAD_CONFIG, ConfigError, ExplorationConfig, check_seed, from_dict, load_yaml
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
 from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, Message, MessageError, PathMsg, decode, encode
 from cso_runtime.processes import STACK_DUMP_SIGNAL
@@ -126,6 +126,7 @@ class Profile:
 
     def validate(self) -> None:
         check_robot_id(self.robot)
+        check_seed(self.seed)
         from_dict(ExplorationConfig, self.exploration, where="exploration")
         from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
 
@@ -223,6 +224,10 @@ def load_profile(
     data.setdefault("name", path.stem)
     profile = from_dict(Profile, data, where=str(path))
     return profile, data
+
+
+class RecorderError(RuntimeError):
+    """``up --record`` cannot write its recording: the run stops before any service starts."""
 
 
 # --- process supervision ---------------------------------------------------------------------------
@@ -538,16 +543,25 @@ class Launcher:
 
         stop, ready = threading.Event(), threading.Event()
         transport = TransportConfig(mode="client", connect=list(self.endpoints))
+        failure: list[str] = []
 
         def run() -> None:
-            with open_session(transport) as session:
-                record(session, self.profile.robot, self.record_path, stop, ready)
+            try:
+                with open_session(transport) as session:
+                    record(session, self.profile.robot, self.record_path, stop, ready)
+            except (OSError, TransportError) as exc:  # said by start_recorder (or logged once recording)
+                failure.append(exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc))
+                if ready.is_set():  # before that, start_recorder says why
+                    log.error("recording into %s stopped: %s", self.record_path, failure[-1])
 
         thread = threading.Thread(target=run, name="recorder", daemon=True)
         thread.start()
-        if not ready.wait(10.0):
+        deadline = time.monotonic() + 10.0
+        while not ready.wait(0.05) and thread.is_alive() and time.monotonic() < deadline:
+            pass
+        if not ready.is_set():
             stop.set()
-            raise RuntimeError(f"the recorder did not start writing {self.record_path}")
+            raise RecorderError(f"cannot record into {self.record_path}: {failure[0] if failure else 'the recorder did not start within 10 s'}")
         log.info("recording cso/%s/** into %s", self.profile.robot, self.record_path)
         return stop, thread
 
@@ -579,7 +593,13 @@ class Launcher:
                 session.declare_queryable(self.keys.launcher_status, self._on_status_query),
             ]
             alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._on_alive, history=True)
-            recorder = self.start_recorder()
+            try:
+                recorder = self.start_recorder()
+            except RecorderError as exc:
+                log.error("%s: no service was started", exc)
+                self.write_run_file("failed")
+                self.remove_current_pointer()
+                return EXIT_BAD_CONFIG
             try:
                 self.spawn_all()
                 self.write_run_file("running")

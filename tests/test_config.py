@@ -105,6 +105,26 @@ def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path
         EvalRequest(methods=["greedy-dist"], workers=0).validate()
 
 
+def test_a_negative_seed_is_refused_where_it_is_given_not_inside_a_worker():
+    """numpy's generators take no negative seed: eval, a runtime profile and training each say so first
+    (the sim service used to refuse it after the launcher had started everything)."""
+    from cso_runtime.config import check_seed  # noqa: PLC0415
+    from cso_runtime.evaluation import EvalRequest  # noqa: PLC0415
+    from cso_runtime.launcher import find_profile, load_profile  # noqa: PLC0415
+    from cso_runtime.learned.ppo import Args  # noqa: PLC0415
+
+    assert check_seed(0) == 0 and check_seed(7) == 7
+    for bad in (-1, True, 1.5, "3"):
+        with pytest.raises(ConfigError, match="non-negative integer"):
+            check_seed(bad)
+    with pytest.raises(ConfigError, match="--seed must be a non-negative integer, got -1"):
+        EvalRequest(methods=["greedy-dist"], seed=-1).validate()
+    with pytest.raises(ConfigError, match="seed must be a non-negative integer, got -1"):
+        load_profile(str(find_profile("lockstep")), {"seed": -1})
+    with pytest.raises(ConfigError, match="seed must be a non-negative integer, got -3"):
+        Args(seed=-3).validate()
+
+
 def test_training_arguments_out_of_range_are_clear_errors():
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 

@@ -246,6 +246,27 @@ def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_runnin
     assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447"]) == 2
 
 
+def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path):
+    """``--runs-dir`` or ``--record-out`` below a file: one error line and exit 2, no run folder, no process
+    (the recorder's thread used to die with a traceback after the router had started)."""
+    (tmp_path / "a_file").write_text("")
+    for flags, why in (
+        (["--runs-dir", str(tmp_path / "a_file" / "runs")], "--runs-dir"),
+        (["--record-out", str(tmp_path / "a_file" / "r.mcap"), "--runs-dir", str(tmp_path / "runs")], "--record-out"),
+    ):
+        for detach in ([], ["--detach"]):
+            r = cli("up", "--profile", "lockstep", *flags, *detach, cwd=tmp_path, timeout_s=30)
+            assert r.returncode == 2 and why in r.stderr and "cannot create the folder" in r.stderr, r.stderr
+            assert "Traceback" not in r.stderr
+    assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
+    # A recording path that is a folder passes that check; the launcher's recorder then fails to open it
+    # and the run stops before any service starts, saying why.
+    (tmp_path / "a_folder").mkdir()
+    r = cli("up", "--profile", "lockstep", "--record-out", str(tmp_path / "a_folder"), "--runs-dir", str(tmp_path / "runs"), cwd=tmp_path, timeout_s=30)
+    assert r.returncode == 2 and "cannot record into" in r.stderr and "no service was started" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and not (tmp_path / "runs" / "current.json").exists()
+
+
 def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, monkeypatch):
     """``up --scene office.yaml`` from a folder: the run's profile copy (``runs/<id>/profile.yaml``, which
     ``cso-runtime service ... --config`` takes) must name the same file from anywhere."""

@@ -30,7 +30,7 @@ import torch
 from gymnasium.vector import AutoresetMode
 from torch import nn, optim
 
-from cso_runtime.config import ExplorationConfig, MaskConfig, SensorConfig
+from cso_runtime.config import ExplorationConfig, MaskConfig, SensorConfig, check_seed
 from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
 from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
@@ -163,6 +163,7 @@ class Args:
     """Show a progress bar."""
 
     def validate(self) -> None:
+        check_seed(self.seed)  # worker i uses seed + i
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown variant {self.variant!r}; known: {', '.join(VARIANTS)}")
         if self.num_envs < 1 or self.num_steps < 1 or self.num_minibatches < 1:
