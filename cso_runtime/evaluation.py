@@ -104,15 +104,6 @@ class EvalRequest:
 
             missing = ", ".join(f"{m}.pt" for m in untrained)
             raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); train with `cso-runtime train --variant NAME`")
-        learned = [m for m in self.methods if m in LEARNED_METHODS]
-        if learned:
-            from cso_runtime.learned.registry import CheckpointError, check_weights  # noqa: PLC0415 - torch only for learned methods
-
-            for method in learned:
-                try:
-                    check_weights(method)
-                except CheckpointError as exc:
-                    raise ConfigError(f"method {method}: {exc}") from None
         if self.sim not in SIMULATORS:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
         if self.max_steps is not None and self.max_steps <= 0:
@@ -126,6 +117,16 @@ class EvalRequest:
             raise ConfigError(f"--limit must be positive, got {self.limit}")
         if self.sensor == "lidar" and self.lidar_fov_deg not in (180.0, 360.0):
             raise ConfigError("--lidar-fov must be 180 or 360")
+        # Last: it loads torch and the weights (kept for the episodes), which the checks above need not wait for.
+        learned = [m for m in self.methods if m in LEARNED_METHODS]
+        if learned:
+            from cso_runtime.learned.registry import CheckpointError, check_weights  # noqa: PLC0415 - torch only for learned methods
+
+            for method in learned:
+                try:
+                    check_weights(method)
+                except CheckpointError as exc:
+                    raise ConfigError(f"method {method}: {exc}") from None
 
 
 @dataclass

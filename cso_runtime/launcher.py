@@ -146,13 +146,11 @@ class Profile:
 
         if self.method not in BASELINES and self.method not in LEARNED_METHODS:
             raise ConfigError(f"unknown method {self.method!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")
-        if self.method in LEARNED_METHODS and self.method not in available_methods():
-            from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
-
-            raise ConfigError(f"method {self.method}: no weights at {weights_path(self.method)}; train it with `cso-runtime train --variant {self.method}`")
         if self.method in LEARNED_METHODS:
-            from cso_runtime.learned.weights import weights_file_problem  # noqa: PLC0415
+            from cso_runtime.learned.weights import weights_file_problem, weights_path  # noqa: PLC0415
 
+            if self.method not in available_methods():
+                raise ConfigError(f"method {self.method}: no weights at {weights_path(self.method)}; train it with `cso-runtime train --variant {self.method}`")
             if problem := weights_file_problem(self.method):
                 raise ConfigError(f"method {self.method}: {problem}")
         try:
