@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from cso_runtime.config import EXIT_BAD_CONFIG, ConfigError, ExplorationConfig, check_seed, from_dict, load_yaml
+from cso_runtime.config import EXIT_BAD_CONFIG, EXIT_INTERRUPTED, ConfigError, ExplorationConfig, check_seed, from_dict, load_yaml
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
 from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, Message, MessageError, PathMsg, decode, encode
 from cso_runtime.processes import STACK_DUMP_SIGNAL
@@ -632,6 +632,11 @@ class Launcher:
                         )
                         self.exit_code = 1
                         break
+                else:  # stopped from outside (Ctrl-C, SIGTERM, `down`), not by one of the breaks above
+                    if not self.outputs_written:
+                        step = self.status.step if self.status is not None else 0
+                        log.warning("interrupted at step %d, before the episode ended: no summary.json was written", step)
+                        self.exit_code = EXIT_INTERRUPTED
             finally:
                 if view is not None:
                     view.stop()

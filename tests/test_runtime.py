@@ -639,7 +639,9 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
         info = json.loads((runs / "current.json").read_text())
         wait_for(lambda: (s := query_status(info["endpoints"], "r0", 0.5)) and s["step"] >= 1, 60, "the first steps")
         os.killpg(proc.pid, sig)  # what Ctrl-C in a terminal does: the whole foreground group
-        proc.wait(timeout=30)
+        # 130, as for eval: a script's `up && next-step` must not go on without the episode's summary.json
+        assert proc.wait(timeout=30) == 130
+        assert b"interrupted at step" in proc.stdout.read()
         assert [p for p in run_pids(runs) if pid_alive(p)] == []
     finally:
         if proc.poll() is None:
