@@ -264,8 +264,14 @@ def up_command(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     current = read_current_run(runs_dir)
-    if current is not None and pid_alive(current.get("launcher_pid")) and current.get("robot") == prof.robot:
-        typer.echo(f"error: run {current.get('run_id')} is already running for robot {prof.robot}; `cso-runtime down` first", err=True)
+    if current is not None and pid_alive(current.get("launcher_pid")):
+        # One current run per runs folder: a second one would take over runs/current.json and leave the first
+        # beyond the reach of `status` and `down`, whichever robot it drives.
+        typer.echo(
+            f"error: run {current.get('run_id')} (robot {current.get('robot')}) is already running from {runs_dir}; "
+            "`cso-runtime down` first, or start this one with its own --runs-dir",
+            err=True,
+        )
         raise typer.Exit(2)
     output_dir_or_exit(runs_dir, "--runs-dir")  # before the router and the services start
     if record_out is not None:

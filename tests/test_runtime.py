@@ -267,6 +267,17 @@ def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path):
     assert "Traceback" not in r.stderr and not (tmp_path / "runs" / "current.json").exists()
 
 
+def test_a_second_up_in_the_same_runs_folder_is_refused_whichever_robot(tmp_path):
+    """Another robot's run in the same folder would take over runs/current.json and leave the first run
+    beyond ``status`` and ``down`` (its five services orphaned): refused, with the way out."""
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "current.json").write_text(json.dumps({"run_id": "run-a", "robot": "r0", "launcher_pid": os.getpid(), "endpoints": []}))
+    r = cli("up", "--profile", "lockstep", "--robot", "r1", "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+    assert r.returncode == 2 and "run-a (robot r0) is already running" in r.stderr and "--runs-dir" in r.stderr, r.stderr
+    assert sorted(p.name for p in runs.iterdir()) == ["current.json"]  # nothing started
+
+
 def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, monkeypatch):
     """``up --scene office.yaml`` from a folder: the run's profile copy (``runs/<id>/profile.yaml``, which
     ``cso-runtime service ... --config`` takes) must name the same file from anywhere."""
