@@ -253,7 +253,7 @@ def up_command(
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
-    from cso_runtime.launcher import load_profile, read_current_run, pid_alive, run_foreground, start_detached  # noqa: PLC0415
+    from cso_runtime.launcher import current_launcher_alive, load_profile, read_current_run, run_foreground, start_detached  # noqa: PLC0415
 
     if weights is not None:
         _use_weights(weights)
@@ -264,7 +264,7 @@ def up_command(
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     current = read_current_run(runs_dir)
-    if current is not None and pid_alive(current.get("launcher_pid")):
+    if current is not None and current_launcher_alive(current):
         # One current run per runs folder: a second one would take over runs/current.json and leave the first
         # beyond the reach of `status` and `down`, whichever robot it drives.
         typer.echo(

@@ -365,8 +365,17 @@ class Launcher:
             "robot": self.profile.robot,
             "endpoints": self.endpoints,
             "launcher_pid": os.getpid(),
+            "launcher_start_ticks": process_start_ticks(os.getpid()),
             "state": state,
-            "services": {c.name: {"pid": c.proc.pid if c.proc else None, "restarts": c.restarts, "gave_up": c.gave_up} for c in self.children},
+            "services": {
+                c.name: {
+                    "pid": c.proc.pid if c.proc else None,
+                    "start_ticks": process_start_ticks(c.proc.pid) if c.alive and c.proc else None,
+                    "restarts": c.restarts,
+                    "gave_up": c.gave_up,
+                }
+                for c in self.children
+            },
         }
         text = json.dumps(info, indent=2)
         for path in (self.run_dir / "run.json", self.run_dir.parent / CURRENT_RUN):
@@ -780,13 +789,39 @@ def pid_alive(pid: int | None) -> bool:
         return True
 
 
+def process_start_ticks(pid: int) -> int | None:
+    """When the process started (clock ticks since boot, ``/proc/<pid>/stat`` field 22); None when unknown.
+    With its pid it names one process for good: a pid alone may have been reused since a run file was written."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return int(fh.read().rsplit(")", 1)[-1].split()[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def run_process_alive(pid: int | None, start_ticks: int | None) -> bool:
+    """``pid_alive``, and still the process a run file named (same start time, when the file recorded one):
+    ``down`` must never signal a process that took a dead launcher's pid."""
+    if not pid_alive(pid):
+        return False
+    now = process_start_ticks(int(pid)) if start_ticks is not None else None
+    return now is None or now == start_ticks
+
+
+def current_launcher_alive(info: dict[str, Any]) -> bool:
+    """Whether the launcher of a run file (``read_current_run``) still runs."""
+    return run_process_alive(info.get("launcher_pid"), info.get("launcher_start_ticks"))
+
+
 def down(runs_dir: Path, timeout_s: float = 10.0) -> tuple[bool, str]:
     """Stop the current run: SIGINT to the launcher (it stops its services), then escalate."""
     info = read_current_run(runs_dir)
     if info is None:
         return False, f"nothing running (no {runs_dir / CURRENT_RUN})"
-    pid = int(info.get("launcher_pid") or 0)
-    service_pids = [int(s["pid"]) for s in info.get("services", {}).values() if s.get("pid")]
+    launcher_alive = current_launcher_alive(info)
+    pid = int(info.get("launcher_pid") or 0) if launcher_alive else 0
+    services = [(int(s["pid"]), s.get("start_ticks")) for s in info.get("services", {}).values() if s.get("pid")]
+    service_pids = [spid for spid, ticks in services if run_process_alive(spid, ticks)]  # not a pid reused since
     for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0)):
         if not pid_alive(pid):
             break

@@ -278,6 +278,31 @@ def test_a_second_up_in_the_same_runs_folder_is_refused_whichever_robot(tmp_path
     assert sorted(p.name for p in runs.iterdir()) == ["current.json"]  # nothing started
 
 
+def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
+    """A run file outlives its launcher (SIGKILL, a reboot); its pids may belong to other processes since.
+    The start time the file records tells them apart: ``down`` leaves such a process alone, and ``up`` is
+    not refused because of it."""
+    from cso_runtime.launcher import current_launcher_alive, down, process_start_ticks
+
+    bystander = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
+    try:
+        ticks = process_start_ticks(bystander.pid)
+        assert isinstance(ticks, int)
+        runs = tmp_path / "runs"
+        runs.mkdir()
+        stale = {"run_id": "old", "robot": "r0", "launcher_pid": bystander.pid, "launcher_start_ticks": ticks - 1,
+                 "services": {"mapper": {"pid": bystander.pid, "start_ticks": ticks - 1}}}
+        (runs / "current.json").write_text(json.dumps(stale))
+        assert not current_launcher_alive(stale)
+        assert current_launcher_alive({**stale, "launcher_start_ticks": ticks})  # the very process: alive
+        ok, message = down(runs, timeout_s=1.0)
+        assert ok and "stopped run old" in message and not (runs / "current.json").exists()
+        assert bystander.poll() is None  # not signalled
+    finally:
+        bystander.kill()
+        bystander.wait(timeout=30)
+
+
 def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, monkeypatch):
     """``up --scene office.yaml`` from a folder: the run's profile copy (``runs/<id>/profile.yaml``, which
     ``cso-runtime service ... --config`` takes) must name the same file from anywhere."""
