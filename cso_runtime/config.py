@@ -27,6 +27,9 @@ class ConfigError(ValueError):
 EXIT_BAD_CONFIG = 2
 """Exit code of a command or service that refuses its configuration. A launcher does not restart a
 service that exits with it: the same configuration would fail the same way."""
+EXIT_NO_ZENOH = 3
+"""Exit code of a service or launcher that cannot open its Zenoh session (a router to join is unreachable):
+a launcher restarts a service that exits with it, since the router may come up."""
 EXIT_INTERRUPTED = 130
 """Exit code of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it)."""
 

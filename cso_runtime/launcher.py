@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from cso_runtime.config import EXIT_BAD_CONFIG, EXIT_INTERRUPTED, ConfigError, ExplorationConfig, check_seed, from_dict, load_yaml
+from cso_runtime.config import EXIT_BAD_CONFIG, EXIT_INTERRUPTED, EXIT_NO_ZENOH, ConfigError, ExplorationConfig, check_seed, from_dict, load_yaml
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
 from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, Message, MessageError, PathMsg, decode, encode
 from cso_runtime.processes import STACK_DUMP_SIGNAL
@@ -847,6 +847,16 @@ def down(runs_dir: Path, timeout_s: float = 10.0) -> tuple[bool, str]:
     return True, f"stopped run {info.get('run_id')}"
 
 
+def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> int:
+    """``Launcher.run`` with Ctrl-C and SIGTERM stopping it, in the foreground or detached; its exit code."""
+    _install_signal_handlers(launcher)
+    try:
+        return launcher.run(live=live, stay_after_done=stay_after_done)
+    except TransportError as exc:  # the router to join (a robot's) is down, or a listen port is taken
+        log.error("%s; no service was started (is the router to join running and reachable?)", exc)
+        return EXIT_NO_ZENOH
+
+
 def _install_signal_handlers(launcher: Launcher) -> None:
     def handler(signum: int, _frame: Any) -> None:
         launcher.stop_event.set()
@@ -865,8 +875,7 @@ def run_foreground(
     """Run in this process; ``record``: True for ``runs/<run-id>/recording.mcap``, or a file."""
     run_dir = new_run_dir(runs_dir, profile)
     launcher = Launcher(profile, data, run_dir, _record_path(run_dir, record))
-    _install_signal_handlers(launcher)
-    return launcher.run(live=live, stay_after_done=stay_after_done)
+    return run_until_stopped(launcher, live=live, stay_after_done=stay_after_done)
 
 
 def _record_path(run_dir: Path, record: bool | Path) -> Path | None:
@@ -903,8 +912,8 @@ def start_detached(
                 return 0, f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'}"
         except (OSError, ValueError):
             pass
-        if proc.poll() is not None:
-            return 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_path.read_text()[-2000:]}"
+        if proc.poll() is not None:  # its own code (2: refused, 3: no router), so `up --detach` says the same as `up`
+            return proc.returncode or 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_path.read_text()[-2000:]}"
         time.sleep(0.05)
     return 1, f"the launcher did not start within {ready_timeout_s:.0f} s; see {log_path}"
 
@@ -919,9 +928,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     data = load_yaml(args.profile_data)
     profile = from_dict(Profile, data, where=str(args.profile_data))
-    launcher = Launcher(profile, data, args.run_dir, args.record)
-    _install_signal_handlers(launcher)
-    return launcher.run(live=False, stay_after_done=True)
+    return run_until_stopped(Launcher(profile, data, args.run_dir, args.record), live=False, stay_after_done=True)
 
 
 if __name__ == "__main__":

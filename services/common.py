@@ -36,7 +36,7 @@ from typing import Any, ClassVar
 import numpy as np
 import zenoh
 
-from cso_runtime.config import EXIT_BAD_CONFIG, ConfigError, ExplorationConfig, from_dict, load_yaml
+from cso_runtime.config import EXIT_BAD_CONFIG, EXIT_NO_ZENOH, ConfigError, ExplorationConfig, from_dict, load_yaml
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
@@ -474,7 +474,7 @@ def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
         return run_service(service, stop)
     except TransportError as exc:
         log.error("%s: %s", cls.name, exc)
-        return 3
+        return EXIT_NO_ZENOH
     finally:
         if service.trace is not None:
             service.trace.write()

@@ -267,6 +267,28 @@ def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path):
     assert "Traceback" not in r.stderr and not (tmp_path / "runs" / "current.json").exists()
 
 
+def test_up_without_a_zenoh_session_says_so_and_starts_nothing(tmp_path):
+    """The router cannot open (here: its port is taken; on a robot: the router to join is down): one error
+    line and exit 3, foreground and detached alike, no traceback, no service started."""
+    import socket  # noqa: PLC0415
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
+        data["scene"] = SCENE
+        data["router"]["listen"] = [loopback_endpoint(taken.getsockname()[1])]
+        profile = tmp_path / "taken.yaml"
+        profile.write_text(yaml.safe_dump(data))
+        for detach in ([], ["--detach"]):
+            runs = tmp_path / f"runs{len(detach)}"
+            r = cli("up", "--profile", str(profile), "--no-live", *detach, "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+            said = r.stdout + r.stderr
+            assert r.returncode == 3 and "no service was started" in said and "Traceback" not in said, said
+            assert not (runs / "current.json").exists()
+            assert not any(p.name.endswith(".log") and p.name != "launcher.log" for p in runs.rglob("*.log"))
+
+
 def test_a_second_up_in_the_same_runs_folder_is_refused_whichever_robot(tmp_path):
     """Another robot's run in the same folder would take over runs/current.json and leave the first run
     beyond ``status`` and ``down`` (its five services orphaned): refused, with the way out."""
