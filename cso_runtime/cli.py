@@ -314,7 +314,7 @@ def save_map_command(
     from cso_runtime.status import save_map_main  # noqa: PLC0415
 
     if image_format not in IMAGE_FORMATS:
-        typer.echo(f"--format {image_format!r}: expected one of {', '.join(IMAGE_FORMATS)}", err=True)
+        typer.echo(f"error: --format {image_format!r}: expected one of {', '.join(IMAGE_FORMATS)}", err=True)
         raise typer.Exit(2)
     raise typer.Exit(save_map_main(list(connect or []), robot, out, image_format, runs_dir))
 
