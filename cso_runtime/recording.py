@@ -278,6 +278,7 @@ def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[
     from mcap.exceptions import McapError
     from mcap.reader import make_reader
 
+    check_recording(path)  # a missing, empty or foreign file: said the same way as by ``replay``
     wanted = set(topics) if topics is not None else None
     try:
         with Path(path).open("rb") as fh:
@@ -298,9 +299,7 @@ def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[
                     continue
                 yield RecordedMessage(channel.topic, message.log_time, payload)
     except (McapError, OSError, ValueError) as exc:
-        empty = Path(path).is_file() and Path(path).stat().st_size == 0
-        why = "empty file" if empty else (str(exc) or type(exc).__name__)  # the mcap reader's own message may be blank
-        raise RecordingError(f"cannot read {path}: {why}") from None
+        raise RecordingError(f"cannot read {path}: {str(exc) or type(exc).__name__}") from None  # its message may be blank
 
 
 @dataclass
