@@ -16,6 +16,10 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
 )
 
+DEFAULT_TRAIN_CONFIG = Path("configs/train.yaml")
+PACKAGED_TRAIN_CONFIG = Path(__file__).resolve().parent / "data" / "train.yaml"
+"""The recipe of the shipped weights (a link to configs/train.yaml), so an installed package can train too."""
+
 
 def _print_version(value: bool) -> None:
     if value:
@@ -376,7 +380,7 @@ def dataflow_command(
 
 @app.command("train")
 def train_command(
-    config: Optional[Path] = typer.Option(Path("configs/train.yaml"), "--config", help="YAML with the fields of learned.ppo.Args"),
+    config: Optional[Path] = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args"),
     variant: Optional[str] = typer.Option(None, "--variant", help="cso, cso-no-info, cso-no-mask, cso-sm, cso-vdm or gnn-baseline"),
     out: Optional[Path] = typer.Option(None, "--out", help="Output folder (overrides out_dir)"),
     seed: Optional[int] = typer.Option(None, "--seed", help="Seed (overrides the config)"),
@@ -415,7 +419,7 @@ def train_command(
 @app.command("collect-teacher")
 def collect_teacher_command(
     out: Path = typer.Option(..., "--out", help="Teacher-data file to write (.npz); train with --set warm_start_data=[FILE]"),
-    config: Optional[Path] = typer.Option(Path("configs/train.yaml"), "--config", help="YAML with the fields of learned.ppo.Args (scenes, variant, masks)"),
+    config: Optional[Path] = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args (scenes, variant, masks)"),
     teacher: str = typer.Option("rollout", "--teacher", help="greedy-dist, utility, greedy-info or rollout"),
     workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
     decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
@@ -458,14 +462,18 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
     """``learned.ppo.Args`` from the YAML file, then the command's flags, then ``--set`` pairs; a missing file or
     a bad value exits with a clear error (code 2) before anything starts."""
     from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
-    from cso_runtime.learned.ppo import Args  # noqa: PLC0415
+    from cso_runtime.learned.ppo import Args, training_scene_refs  # noqa: PLC0415
 
+    if config == DEFAULT_TRAIN_CONFIG and not config.is_file():  # run outside the repository: the packaged recipe
+        config = PACKAGED_TRAIN_CONFIG
+        typer.echo(f"note: no {DEFAULT_TRAIN_CONFIG} here; using the packaged recipe {config}", err=True)
     try:
         data = load_yaml(config) if config is not None else {}
         data.update({k: v for k, v in overrides.items() if v is not None})
         data.update(parse_settings(settings or []))
         args = from_dict(Args, data, "train")
         args.validate()
+        training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
     except (ConfigError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

@@ -818,6 +818,32 @@ def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
     assert bad.exit_code == 2 and f"out_dir {below_a_file}: cannot create the folder" in bad.output
 
 
+def test_train_outside_the_repository_uses_the_packaged_recipe_and_refuses_missing_plans(tmp_path, monkeypatch):
+    """Run where there is no ``configs/train.yaml`` (an installed package), ``train`` reads the packaged copy of the
+    recipe; a plan folder that is not there, a validation set or a bad generated spec is one error line and exit 2
+    before anything is set up (they used to be a traceback from inside the trainer)."""
+    from typer.testing import CliRunner  # noqa: PLC0415
+
+    from cso_runtime.cli import PACKAGED_TRAIN_CONFIG, app  # noqa: PLC0415
+
+    repo_recipe = Path(__file__).resolve().parents[1] / "configs" / "train.yaml"
+    assert PACKAGED_TRAIN_CONFIG.read_text() == repo_recipe.read_text()
+    monkeypatch.chdir(tmp_path)
+    out = ["--out", str(tmp_path / "run")]
+    result = CliRunner().invoke(app, ["train", *out])  # the recipe's dungeon_dir exists on the build machine only
+    assert result.exit_code == 2, result.output
+    assert "using the packaged recipe" in result.output
+    assert "dungeon_dir ../shared/maps/dungeon/train: no such folder" in result.output and "--dungeon-dir" in result.output
+    assert "Traceback" not in result.output and not (tmp_path / "run").exists()
+    validation = tmp_path / "maps" / "easy"
+    validation.mkdir(parents=True)
+    result = CliRunner().invoke(app, ["train", "--dungeon-dir", str(validation), *out])
+    assert result.exit_code == 2 and "looks like a validation set" in result.output
+    result = CliRunner().invoke(app, ["collect-teacher", "--out", str(tmp_path / "t.npz"), "--set", "dungeon_dir=null",
+                                      "--set", "generated=[generated:huge:1:0]"])
+    assert result.exit_code == 2 and "generated scale must be small or middle" in result.output
+
+
 def test_distance_prior_starts_the_actor_at_greedy_dist_and_round_trips(tmp_path, observation):
     """With ``distance_prior`` the untrained actor's argmax is greedy-dist's goal under the same masks
     (its learned part starts at zero), the trace keeps the prior, and a checkpoint restores it."""

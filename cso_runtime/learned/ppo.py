@@ -243,6 +243,9 @@ def training_scene_refs(args: Args) -> list[SceneRef]:
     refs: list[SceneRef] = []
     if args.dungeon_dir:
         folder = Path(args.dungeon_dir)
+        if not folder.is_dir():  # the file's default folder exists on the build machine only
+            raise ValueError(f"dungeon_dir {folder}: no such folder of Dungeon training plans; give --dungeon-dir FOLDER, "
+                             "or --set dungeon_dir=null to train on the generated plans alone")
         lowered = str(folder.resolve()).lower()
         if any(f"/{bad}" in lowered for bad in ("easy", "medium", "complex")):
             raise ValueError(f"{folder} looks like a validation set; train only on the training plans")
