@@ -702,8 +702,9 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
 class LiveView:
     """A rich table refreshed a few times a second: episode progress and service health."""
 
-    def __init__(self, launcher: Launcher):
+    def __init__(self, launcher: Launcher, console=None):
         self.launcher = launcher
+        self.console = console  # None: rich's console on stdout
         self._live = None
         self._last = 0.0
 
@@ -739,7 +740,7 @@ class LiveView:
     def start(self) -> None:
         from rich.live import Live  # noqa: PLC0415
 
-        self._live = Live(self.render(), refresh_per_second=4, transient=False)
+        self._live = Live(self.render(), console=self.console, refresh_per_second=4, transient=False)
         self._live.start()
 
     def update(self) -> None:
@@ -751,6 +752,8 @@ class LiveView:
         if self._live is not None:
             self._live.update(self.render())
             self._live.stop()
+            if not self._live.console.is_terminal:  # rich ends the last table with a newline on a terminal only
+                self._live.console.line()
 
 
 # --- entry points -----------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ and stops whatever it started in ``finally`` blocks (``down``, then SIGKILL of a
 
 from __future__ import annotations
 
+import io
 import json
 import shutil
 import os
@@ -469,6 +470,11 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
     assert "[bold]plan[2]" in console.export_text()
+    piped = io.StringIO()  # `up > up.log`: the last table ends its line, so the launcher's next log line starts afresh
+    view = LiveView(launcher, console=Console(file=piped, width=200))
+    view.start()
+    view.stop()
+    assert piped.getvalue().count("6.50 m ahead on the path") == 1 and piped.getvalue().endswith("┘\n")
 
 
 def test_status_table_shows_the_episode_and_each_service():
