@@ -154,7 +154,8 @@ def render_table(status: dict[str, Any]):
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "")),
         ("scene / method", f"{status['scene']} / {status['method']}"),
-        ("step (episode)", f"{status['step']} ({status['episode']})"),
+        ("step", str(status["step"])),
+        ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
         ("coverage", f"{status['coverage_pct']:.2f} %"),
         ("explored", f"{status['explored_area_m2']:.2f} m2"),
         ("path length", f"{status['path_length_m']:.2f} m"),
