@@ -307,7 +307,7 @@ def status_command(
 
 @app.command("save-map")
 def save_map_command(
-    out: Path = typer.Option(Path("map"), "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f"),
+    out: Path = typer.Option(Path("map"), "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f; a folder gets map.yaml"),
     image_format: str = typer.Option("pgm", "--format", help="Image format: pgm or png"),
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: Optional[list[str]] = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),

@@ -29,6 +29,21 @@ would read it as free."""
 IMAGE_FORMATS = ("pgm", "png")
 
 
+MAP_FILE_SUFFIXES = (".yaml", ".yml", ".pgm", ".png")
+
+
+def map_yaml_path(out: Path | str, default_name: str = "map") -> Path:
+    """The YAML that ``map_saver_cli -f OUT`` would write: ``OUT.yaml``. A folder (``-f runs/maps/``, or an
+    empty ``-f ""``, which is the current folder) gets ``map.yaml`` inside it; a map file's suffix is replaced
+    (``office.png`` -> ``office.yaml``), any other is kept (``office.v2`` -> ``office.v2.yaml``)."""
+    out = Path(out)
+    if out.is_dir() or not out.name:
+        return out / f"{default_name}.yaml"
+    if out.suffix.lower() in MAP_FILE_SUFFIXES:
+        return out.with_suffix(".yaml")
+    return out.with_name(f"{out.name}.yaml")
+
+
 class MapFileError(ValueError):
     """A map YAML or image that cannot be read as a map_server map (the message says which file and why)."""
 

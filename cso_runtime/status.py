@@ -235,8 +235,9 @@ def query_map(connect: list[str], robot: str = "r0", timeout_s: float = 1.0) -> 
 
 def save_map_main(connect: list[str], robot: str | None, out: Path, image_format: str, runs_dir: Path) -> int:
     """The ``save-map`` command: the running episode's map as map_server files; exit 1 when there is none."""
-    from cso_runtime.map_files import save_map  # noqa: PLC0415
+    from cso_runtime.map_files import map_yaml_path, save_map  # noqa: PLC0415
 
+    yaml_out = map_yaml_path(out)
     target = reachable_target(connect, robot, runs_dir)
     if isinstance(target, int):
         return target
@@ -249,9 +250,9 @@ def save_map_main(connect: list[str], robot: str | None, out: Path, image_format
         print(f"no map for robot {robot}: {why}")
         return 1
     try:
-        yaml_path = save_map(out.with_suffix(".yaml"), msg.grid, msg.geometry, image_format)
+        yaml_path = save_map(yaml_out, msg.grid, msg.geometry, image_format)
     except OSError as exc:
-        print(f"error: cannot write the map to {out.with_suffix('.yaml')}: {exc.strerror or exc}", file=sys.stderr)
+        print(f"error: cannot write the map to {yaml_out}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     g = msg.geometry
     print(f"map of step {msg.step} ({g.shape[1]} x {g.shape[0]} cells at {g.resolution_m} m): {yaml_path} and {yaml_path.with_suffix('.' + image_format).name}")

@@ -10,7 +10,7 @@ import yaml
 from PIL import Image
 
 from cso_runtime.geometry import GridGeometry
-from cso_runtime.map_files import MapFileError, load_map, save_map
+from cso_runtime.map_files import MapFileError, load_map, map_yaml_path, save_map
 
 
 def _grid() -> tuple[np.ndarray, GridGeometry]:
@@ -89,3 +89,16 @@ def test_bad_map_files_give_clear_errors(tmp_path: Path):
         save_map(tmp_path / "x.yaml", grid[:2], geometry)
     with pytest.raises(ValueError, match="image format"):
         save_map(tmp_path / "x.yaml", grid, geometry, "jpg")
+
+
+def test_map_yaml_path_reads_minus_f_as_map_saver_cli_does(tmp_path, monkeypatch):
+    """``save-map -f OUT`` writes OUT.yaml; a folder (or ``-f ""``, the current folder: it used to end in a
+    traceback) gets map.yaml inside it; only a map file's own suffix is replaced."""
+    monkeypatch.chdir(tmp_path)
+    assert map_yaml_path(tmp_path / "office") == tmp_path / "office.yaml"
+    assert map_yaml_path(tmp_path / "office.yaml") == tmp_path / "office.yaml"
+    assert map_yaml_path(tmp_path / "office.PNG") == tmp_path / "office.yaml"
+    assert map_yaml_path(tmp_path / "office.v2") == tmp_path / "office.v2.yaml"
+    assert map_yaml_path(tmp_path) == tmp_path / "map.yaml"
+    assert map_yaml_path(Path("")) == Path("map.yaml") and map_yaml_path("") == Path("map.yaml")
+    assert map_yaml_path(tmp_path / "new_folder" / "m") == tmp_path / "new_folder" / "m.yaml"

@@ -580,6 +580,9 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         grid, geometry = load_map(tmp_path / "live.yaml")  # map_saver_cli's files, read back
         assert (tmp_path / "live.pgm").is_file() and geometry.shape == grid.shape
         assert (grid == 0).any() and (grid == -1).any() and set(np.unique(grid)) <= {-1, 0, 100}
+        (tmp_path / "maps").mkdir()  # a folder: map.yaml inside it, as map_saver_cli's default name
+        r = cli("save-map", "-f", str(tmp_path / "maps"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0 and (tmp_path / "maps" / "map.yaml").is_file(), r.stdout + r.stderr
         # Somewhere that cannot be written (below a file): one error line, exit 2, for both writers.
         (tmp_path / "a_file").write_text("")
         r = cli("save-map", "-f", str(tmp_path / "a_file" / "m"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
