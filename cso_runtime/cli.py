@@ -103,7 +103,7 @@ def eval_command(
 
 @app.command("compare")
 def compare_command(
-    episodes: list[str] = typer.Argument(..., help="episodes.csv files written by eval, each optionally LABEL=FILE (scenes pair only within a label)"),
+    episodes: list[str] = typer.Argument(..., help="episodes.csv files written by eval (or their folders), each optionally LABEL=FILE (scenes pair only within a label)"),
     baseline: str = typer.Option("greedy-dist", "--baseline", help="The method every other one is compared with"),
     as_json: bool = typer.Option(False, "--json", help="JSON instead of a markdown table"),
     out: Optional[Path] = typer.Option(None, "--out", help="Also write the comparison as CSV"),
@@ -140,7 +140,7 @@ def compare_command(
 
 @app.command("record")
 def record_command(
-    out: Optional[Path] = typer.Option(None, "--out", help="MCAP file (default: recordings/<robot>-<UTC time>.mcap)"),
+    out: Optional[Path] = typer.Option(None, "--out", help="MCAP file, or a folder for <robot>-<UTC time>.mcap in it (default: recordings/)"),
     robot: Optional[str] = typer.Option(None, "--robot", help="Robot id, or '*' for every robot (default: the current run's, else r0)"),
     connect: Optional[list[str]] = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
@@ -150,7 +150,7 @@ def record_command(
     import threading  # noqa: PLC0415
     import time  # noqa: PLC0415
 
-    from cso_runtime.recording import record  # noqa: PLC0415
+    from cso_runtime.recording import record, recording_path  # noqa: PLC0415
     from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
 
@@ -159,7 +159,7 @@ def record_command(
     if not endpoints:
         typer.echo("error: no current run; give --connect ENDPOINT", err=True)
         raise typer.Exit(2)
-    path = out or Path("recordings") / f"{robot.replace('*', 'all')}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}.mcap"
+    path = recording_path(out, Path("recordings"), f"{robot.replace('*', 'all')}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -252,7 +252,7 @@ def up_command(
     ),
     namespace: Optional[str] = typer.Option(None, "--namespace", help="ROS namespace of the robot's topics (limo-ros2: services.ros2_bridge.namespace)"),
     record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
-    record_out: Optional[Path] = typer.Option(None, "--record-out", help="Record the run to this MCAP file (implies --record)"),
+    record_out: Optional[Path] = typer.Option(None, "--record-out", help="Record the run to this MCAP file, or to <run-id>.mcap in this folder (implies --record)"),
     weights: Optional[Path] = typer.Option(None, "--weights", help="Folder of <method>.pt for the policy service instead of the shipped weights"),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""

@@ -84,9 +84,11 @@ def efficiency_by_scene(episodes: Iterable[Mapping[str, Any]], label: str = "", 
 
 
 def labelled(arg: str) -> tuple[str, Path]:
-    """A command-line ``LABEL=FILE`` -> (LABEL, FILE); a plain FILE has the empty label."""
+    """A command-line ``LABEL=FILE`` -> (LABEL, FILE); a plain FILE has the empty label. A folder stands for
+    the ``episodes.csv`` in it (an ``eval --out`` folder, or a run folder of ``up``)."""
     label, sep, rest = arg.partition("=")
-    return (label, Path(rest)) if sep and "/" not in label else ("", Path(arg))
+    label, path = (label, Path(rest)) if sep and "/" not in label else ("", Path(arg))
+    return label, path / "episodes.csv" if path.is_dir() else path
 
 
 def split_names(args: Iterable[str]) -> list[str]:

@@ -884,7 +884,9 @@ def run_foreground(
 def _record_path(run_dir: Path, record: bool | Path) -> Path | None:
     if record is False or record is None:
         return None
-    return run_dir / RECORDING_NAME if record is True else Path(record)
+    from cso_runtime.recording import recording_path  # noqa: PLC0415
+
+    return run_dir / RECORDING_NAME if record is True else recording_path(Path(record), run_dir, run_dir.name)
 
 
 def start_detached(

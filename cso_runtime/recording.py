@@ -254,9 +254,20 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 """The first eight bytes of every MCAP file (the MCAP specification's magic)."""
 
 
+def recording_path(out: Path | None, default_folder: Path, stem: str) -> Path:
+    """The MCAP file to write: ``out``; ``stem.mcap`` inside it when ``out`` is a folder (``--out recordings/``,
+    or an empty ``--out ""``), and inside ``default_folder`` when there is no ``out``."""
+    if out is None:
+        return default_folder / f"{stem}.mcap"
+    out = Path(out)
+    return out / f"{stem}.mcap" if out.is_dir() or not out.name else out
+
+
 def check_recording(path: Path) -> None:
     """Raise RecordingError unless ``path`` is a file that starts like an MCAP file, so that ``replay``
     names a wrong file before it looks for a run to replay into (``read_recording`` finds damage further in)."""
+    if Path(path).is_dir():
+        raise RecordingError(f"{path} is a folder; give the .mcap file in it that `cso-runtime record` wrote")
     if not Path(path).is_file():
         raise RecordingError(f"no such recording {path}")
     try:

@@ -80,6 +80,14 @@ def test_compare_cli_pools_labelled_files_and_writes_json_and_csv(tmp_path: Path
     assert subprocess.run(exe + [str(easy)], capture_output=True, text=True, timeout=60).returncode == 1  # two scenes: nothing to say
     missing = subprocess.run(exe + [str(tmp_path / "nope.csv")], capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "no such file" in missing.stderr
+    # A folder is the episodes.csv in it (eval --out): easy's folder and medium's file give the labelled result.
+    (tmp_path / "eval_easy").mkdir()
+    easy.rename(tmp_path / "eval_easy" / "episodes.csv")
+    folder = subprocess.run(exe + [f"easy={tmp_path / 'eval_easy'}", f"medium={medium}", "--json"], capture_output=True, text=True, timeout=60)
+    assert folder.returncode == 0 and json.loads(folder.stdout)["comparisons"][0]["scenes"] == 4, folder.stderr
+    empty = subprocess.run(exe + [str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert empty.returncode == 2 and f"no such file: {tmp_path / 'episodes.csv'}" in empty.stderr
+    easy = tmp_path / "eval_easy" / "episodes.csv"
     # --exclude leaves maps out (the plans a training run drew): medium's "c" (the one cso lost) is gone.
     kept = subprocess.run(exe + [f"easy={easy}", f"medium={medium}", "--exclude", "c", "--exclude", "zz,", "--json"], capture_output=True, text=True, timeout=60)
     assert kept.returncode == 0, kept.stderr

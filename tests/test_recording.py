@@ -259,6 +259,25 @@ def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path:
     recording.write_bytes(b"PK\x03\x04 a zip, not a recording")
     r = CliRunner().invoke(app, ["replay", str(recording), "--runs-dir", str(tmp_path)])
     assert r.exit_code == 2 and "not an MCAP file" in r.output
+    r = CliRunner().invoke(app, ["replay", str(tmp_path), "--runs-dir", str(tmp_path)])
+    assert r.exit_code == 2 and f"{tmp_path} is a folder" in r.output
     recording.write_bytes(MCAP_MAGIC)  # starts like one: then the missing run is what stops it
     r = CliRunner().invoke(app, ["replay", str(recording), "--runs-dir", str(tmp_path)])
     assert r.exit_code == 2 and "no current run" in r.output
+
+
+def test_a_recording_folder_gets_a_file_named_for_the_run(tmp_path: Path, monkeypatch):
+    """``record --out FOLDER`` and ``up --record-out FOLDER`` write a file inside the folder (they used to try to
+    open the folder itself and fail); a file path is kept as it is."""
+    from cso_runtime.launcher import RECORDING_NAME, _record_path  # noqa: PLC0415
+    from cso_runtime.recording import recording_path  # noqa: PLC0415
+
+    monkeypatch.chdir(tmp_path)
+    assert recording_path(None, Path("recordings"), "r0-T") == Path("recordings/r0-T.mcap")
+    assert recording_path(tmp_path, Path("recordings"), "r0-T") == tmp_path / "r0-T.mcap"
+    assert recording_path(Path(""), Path("recordings"), "r0-T") == Path("r0-T.mcap")
+    assert recording_path(tmp_path / "mine.mcap", Path("recordings"), "r0-T") == tmp_path / "mine.mcap"
+    run_dir = tmp_path / "runs" / "20261201-000000-sim-r0"
+    assert _record_path(run_dir, True) == run_dir / RECORDING_NAME and _record_path(run_dir, False) is None
+    assert _record_path(run_dir, tmp_path) == tmp_path / "20261201-000000-sim-r0.mcap"
+    assert _record_path(run_dir, tmp_path / "x.mcap") == tmp_path / "x.mcap"

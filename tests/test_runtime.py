@@ -260,10 +260,10 @@ def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path):
             assert r.returncode == 2 and why in r.stderr and "cannot create the folder" in r.stderr, r.stderr
             assert "Traceback" not in r.stderr
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
-    # A recording path that is a folder passes that check; the launcher's recorder then fails to open it
-    # and the run stops before any service starts, saying why.
-    (tmp_path / "a_folder").mkdir()
-    r = cli("up", "--profile", "lockstep", "--record-out", str(tmp_path / "a_folder"), "--runs-dir", str(tmp_path / "runs"), cwd=tmp_path, timeout_s=30)
+    # A recording path whose folder exists passes that check; here the recorder then fails to open it (a link
+    # into a folder that is gone) and the run stops before any service starts, saying why.
+    (tmp_path / "dangling.mcap").symlink_to(tmp_path / "gone" / "r.mcap")
+    r = cli("up", "--profile", "lockstep", "--record-out", str(tmp_path / "dangling.mcap"), "--runs-dir", str(tmp_path / "runs"), cwd=tmp_path, timeout_s=30)
     assert r.returncode == 2 and "cannot record into" in r.stderr and "no service was started" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr and not (tmp_path / "runs" / "current.json").exists()
 
