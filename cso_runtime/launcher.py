@@ -203,9 +203,8 @@ def load_profile(
     """
     path = find_profile(name_or_path)
     data = load_yaml(path)
-    for k, v in (overrides or {}).items():
-        if v is not None:
-            data[k] = v
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    data.update(given)
     if connect:
         router = data.get("router") or {}
         if not isinstance(router, dict):
@@ -220,7 +219,9 @@ def load_profile(
     if isinstance(scene, str) and scene != "builtin" and not scene.startswith("generated:") and Path(scene).exists():
         data["scene"] = str(Path(scene).resolve())  # so the run's copy of the profile works from any folder
     data.setdefault("name", path.stem)
-    profile = from_dict(Profile, data, where=str(path))
+    # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
+    flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]
+    profile = from_dict(Profile, data, where=f"{path} with {' '.join(flags)}" if flags else str(path))
     return profile, data
 
 

@@ -221,6 +221,7 @@ def test_bad_profiles_fail_before_anything_starts(tmp_path):
     Image.new("RGB", (40, 30), (127, 127, 127)).save(tmp_path / "walls.png")  # resolves, but no floor and no start
     r = cli("up", "--profile", "lockstep", "--scene", "walls.png", "--no-live", cwd=tmp_path)
     assert r.returncode == 2 and "walls: no start marker" in r.stderr
+    assert "lockstep.yaml with --scene walls.png: scene:" in r.stderr  # the flag that brought the bad scene
     (tmp_path / "weights").mkdir()
     shutil.copy(Path(cso_runtime.__file__).parent / "data" / "weights" / "cso.pt", tmp_path / "weights" / "cso.pt")
     r = cli("up", "--profile", "lockstep", "--method", "gnn-baseline", "--weights", str(tmp_path / "weights"), "--no-live", cwd=tmp_path)
