@@ -219,21 +219,25 @@ def replay_command(
     typer.echo(f"replayed {stats.messages} messages on {len(stats.per_key)} keys in {stats.duration_s:.2f} s (recorded span {stats.recorded_s:.2f} s)")
 
 
-@app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+@app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False)
 def service_command(
     ctx: typer.Context,
-    name: str = typer.Argument(..., help="sim, mapper, frontier, policy, planner or ros2_bridge"),
+    name: Optional[str] = typer.Argument(None, help="sim, mapper, frontier, policy, planner or ros2_bridge"),
 ) -> None:
-    """Run one service in this process (same as python -m services.NAME; pass --config FILE --robot ID --connect EP)."""
+    """Run one service in this process (same as python -m services.NAME; pass --config FILE --robot ID --connect EP;
+    `service NAME --help` lists that service's options)."""
     from services import service_class  # noqa: PLC0415
     from services.common import service_main  # noqa: PLC0415
 
+    if name is None or name in ("-h", "--help"):  # --help goes on to the service: its own options are there
+        typer.echo(ctx.get_help())
+        raise typer.Exit(0 if name else 2)
     try:
         cls = service_class(name)
     except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
-    raise typer.Exit(service_main(cls, list(ctx.args)))
+    raise typer.Exit(service_main(cls, list(ctx.args), prog=f"cso-runtime service {name}"))
 
 
 @app.command("up")

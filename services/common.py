@@ -429,9 +429,10 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> 
         service.trace.handled(topic, getattr(msg, "step", -1), received_s, t0, time.monotonic())
 
 
-def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | None = None) -> argparse.Namespace:
-    """The common service options, plus those ``cls.add_arguments`` declares."""
-    p = argparse.ArgumentParser(prog=f"python -m services.{name}", description=f"cso-runtime {name} service")
+def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | None = None, prog: str | None = None) -> argparse.Namespace:
+    """The common service options, plus those ``cls.add_arguments`` declares; ``prog`` names the command in
+    the usage line (``python -m services.NAME`` unless run as ``cso-runtime service NAME``)."""
+    p = argparse.ArgumentParser(prog=prog or f"python -m services.{name}", description=f"cso-runtime {name} service")
     p.add_argument("--config", required=True, type=Path, help="Profile YAML (cso_runtime/profiles/*.yaml or your own)")
     p.add_argument("--robot", default="r0", help="Robot id: namespaces every key (cso/<robot>/...)")
     p.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to (repeatable)")
@@ -443,9 +444,9 @@ def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | No
     return p.parse_args(argv)
 
 
-def service_main(cls: type[Service], argv: list[str] | None = None) -> int:
+def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | None = None) -> int:
     """``python -m services.<name>`` entry point: parse, load the profile, run; config errors exit 2."""
-    args = parse_args(cls.name, argv, cls)
+    args = parse_args(cls.name, argv, cls, prog)
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     dump_stacks_on_signal()  # a hang the launcher has to kill leaves its stacks in this log
     try:

@@ -715,3 +715,19 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
         if proc.poll() is None:
             proc.kill()
         kill_leftovers(runs)
+
+
+def test_service_command_help_lists_the_services_own_options():
+    """``cso-runtime service NAME --help`` is the service's help (its --config, --listen, ... and extra
+    options), under the name it was run by; without a name it is the command's help, and exit 2."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    r = CliRunner().invoke(app, ["service", "planner", "--help"])
+    assert r.exit_code == 0 and "usage: cso-runtime service planner" in r.output
+    assert "--config CONFIG" in r.output and "--listen LISTEN" in r.output
+    r = CliRunner().invoke(app, ["service"])
+    assert r.exit_code == 2 and "sim, mapper, frontier, policy, planner" in r.output
+    r = CliRunner().invoke(app, ["service", "bogus"])
+    assert r.exit_code == 2 and "unknown service 'bogus'" in r.output
