@@ -266,9 +266,12 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
     except SceneError as exc:
         return EpisodeOutcome(job.method, job.scene.name, error=str(exc))
     try:
+        policy = make_policy(job.method, job.config.masks, seed=job.seed)
+        warm_up = getattr(policy, "warm_up", None)
+        if warm_up is not None:  # the network's one-off trace, outside the decision latencies (as the policy service does)
+            warm_up()
         t0 = time.perf_counter()
         sim = make_simulator(job.sim, plan, job.config.sensor, job.config.robot, seed=job.seed)
-        policy = make_policy(job.method, job.config.masks, seed=job.seed)
         result = run_episode(sim, policy, job.config, seed=job.seed)
         wall_s = time.perf_counter() - t0
         row = episode_row(job.method, job.seed, result, wall_s)

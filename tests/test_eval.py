@@ -283,3 +283,25 @@ def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_pat
     assert cells == [["greedy-dist", "small"], ["greedy-dist", "middle"], ["greedy-dist", "all"], ["random", "small"]]
     middle = next(line for line in lines if "middle" in line)
     assert "0.6000" in middle and "60.0" in middle  # that scale's own means, not the method's
+
+
+def test_eval_warms_a_learned_policy_up_before_its_first_decision(tmp_path: Path, monkeypatch):
+    """The network's one-off trace happens before the episode, so the first decision's latency in the
+    table is a decision, not the trace (the policy service warms up the same way before it says it is up)."""
+    import cso_runtime.evaluation as evaluation
+    from cso_runtime.policies import make_policy
+
+    calls = []
+
+    def recording_policy(method, masks, seed=0):
+        policy = make_policy(method, masks, seed=seed)
+        warm_up, select = policy.warm_up, policy.select
+        policy.warm_up = lambda: (calls.append("warm_up"), warm_up())[1]
+        policy.select = lambda obs: (calls.append("select"), select(obs))[1]
+        return policy
+
+    monkeypatch.setattr(evaluation, "make_policy", recording_policy)
+    (scene,) = resolve_scenes("generated:small:1:0")
+    outcome = run_job(EpisodeJob("cso", scene, 0, "2d", ExplorationConfig(), tmp_path))
+    assert outcome.error is None and outcome.row["decisions"] >= 2
+    assert calls[0] == "warm_up" and calls.count("warm_up") == 1 and "select" in calls
