@@ -577,7 +577,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     refs: list[SceneRef] | list[FloorPlan] = plans if plans else training_scene_refs(args)
-    log(f"training {args.variant} on {len(refs)} scenes, device {device}")
+    log(f"training {args.variant} on {len(refs)} scenes, device {device}: {args.num_updates} PPO update{'s' if args.num_updates != 1 else ''} of {args.batch_size} decisions "
+        f"({args.num_envs} envs x {args.num_steps} steps; total_decisions {args.total_decisions} in whole updates)")
     envs = make_vector_env(args, refs)
     model = build_model(args, device)
     optimizer = optim.Adam(parameter_groups(model, args), lr=args.learning_rate, eps=args.adam_eps)
