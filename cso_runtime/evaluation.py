@@ -180,6 +180,8 @@ class EpisodeOutcome:
     explored: np.ndarray | None = None
     trajectory_xy_m: np.ndarray | None = None
     coverage_curve_pct: np.ndarray | None = None
+    kept: bool = False
+    """Read back from an earlier run's files by ``--resume``, not run now."""
 
     @classmethod
     def finished(cls, method: str, result: EpisodeResult, row: dict[str, Any], free: np.ndarray, resolution_m: float) -> "EpisodeOutcome":
@@ -256,7 +258,7 @@ def load_finished(job: "EpisodeJob") -> "EpisodeOutcome | None":
     except (OSError, KeyError, ValueError, SceneError):
         return None
     return EpisodeOutcome(job.method, plan.name, row=row, free=plan.free, resolution_m=plan.resolution_m,
-                          explored=explored, trajectory_xy_m=trajectory, coverage_curve_pct=curve)
+                          explored=explored, trajectory_xy_m=trajectory, coverage_curve_pct=curve, kept=True)
 
 
 def run_job(job: EpisodeJob) -> EpisodeOutcome:
@@ -420,6 +422,8 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         "scenes": len(scenes),
         "config": to_dict(config),
     }
+    if request.resume:
+        meta["resumed_episodes"] = sum(o.kept for o in outcomes)  # kept from the earlier run; the rest ran now
     if interrupted:
         meta["interrupted"] = {"episodes_finished": len(outcomes), "episodes_planned": total, "resume": "run the same command with --resume"}
     if weights:
@@ -469,7 +473,8 @@ class RichProgress:
     def advance(self, outcome: EpisodeOutcome) -> None:
         if outcome.row is not None:
             r = outcome.row
-            text = escape(f"{outcome.method} {outcome.map}: {r['coverage_pct']:.1f}% in {r['steps']} steps ({r['terminated_by']})")
+            kept = ", kept from the earlier run" if outcome.kept else ""
+            text = escape(f"{outcome.method} {outcome.map}: {r['coverage_pct']:.1f}% in {r['steps']} steps ({r['terminated_by']}{kept})")
         else:
             text = f"[red]{escape(f'{outcome.method} {outcome.map}')}: FAILED"
         self.progress.update(self.task, advance=1, description=text)

@@ -187,6 +187,7 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     second = run_eval(req)
     assert npz.stat().st_mtime_ns == stamp  # not re-run
     assert npz_other.exists()  # the missing one was run again
+    assert second["meta"]["resumed_episodes"] == 1 and "resumed_episodes" not in first["meta"]
     for m in ("greedy-dist", "random"):
         assert second["methods"][m]["coverage_pct"] == first["methods"][m]["coverage_pct"]
         assert second["methods"][m]["steps"] == first["methods"][m]["steps"]
