@@ -480,7 +480,7 @@ class RichProgress:
         self.progress.update(self.task, advance=1, description=text)
         self.done += 1
         if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode
-            self.progress.console.print(f"{escape(f'[{self.done}/{self.total}]')} {text}", highlight=False)
+            self.progress.console.print(f"{escape(f'[{self.done}/{self.total}]')} {text}", highlight=False, soft_wrap=True)  # one line, however long
 
     def stop(self) -> None:
         self.progress.stop()

@@ -306,3 +306,20 @@ def test_eval_warms_a_learned_policy_up_before_its_first_decision(tmp_path: Path
     outcome = run_job(EpisodeJob("cso", scene, 0, "2d", ExplorationConfig(), tmp_path))
     assert outcome.error is None and outcome.row["decisions"] >= 2
     assert calls[0] == "warm_up" and calls.count("warm_up") == 1 and "select" in calls
+
+
+def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
+    """Without a terminal (a log file, CI) each finished episode is one line, however long its map's name,
+    and an episode ``--resume`` read back says so."""
+    from cso_runtime.evaluation import EpisodeOutcome, RichProgress
+
+    progress = RichProgress()
+    progress.start(2)
+    row = {"coverage_pct": 99.1, "steps": 51, "terminated_by": "coverage"}
+    long_name = "a_floor_plan_with_a_name_long_enough_to_pass_the_eighty_columns_of_a_log"
+    progress.advance(EpisodeOutcome("greedy-dist", long_name, row=row, kept=True))
+    progress.advance(EpisodeOutcome("greedy-dist", "gen_small_0", row=row))
+    progress.stop()
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == f"[1/2] greedy-dist {long_name}: 99.1% in 51 steps (coverage, kept from the earlier run)"
+    assert lines[1] == "[2/2] greedy-dist gen_small_0: 99.1% in 51 steps (coverage)"
