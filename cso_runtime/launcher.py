@@ -216,8 +216,12 @@ def load_profile(
             raise ConfigError(f"--namespace needs a profile with the ros2_bridge service (e.g. limo-ros2); {path} has none")
         services["ros2_bridge"] = {**(services["ros2_bridge"] or {}), "namespace": namespace}
     scene = data.get("scene")
-    if isinstance(scene, str) and scene != "builtin" and not scene.startswith("generated:") and Path(scene).exists():
-        data["scene"] = str(Path(scene).resolve())  # so the run's copy of the profile works from any folder
+    if isinstance(scene, str) and scene != "builtin" and not scene.startswith("generated:"):
+        beside = path.parent / scene  # a file's own relative scene may also be beside the file (as in compose files)
+        if "scene" not in given and not Path(scene).exists() and not Path(scene).is_absolute() and beside.exists():
+            scene = str(beside)
+        if Path(scene).exists():
+            data["scene"] = str(Path(scene).resolve())  # so the run's copy of the profile works from any folder
     data.setdefault("name", path.stem)
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
     flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]

@@ -229,6 +229,28 @@ def test_bad_profiles_fail_before_anything_starts(tmp_path):
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_profile_finds_its_scene_beside_it_and_a_flag_is_read_from_the_working_folder(tmp_path, monkeypatch):
+    """A relative ``scene:`` in a profile file that is not in the working folder is looked for beside the file
+    (as compose files do), so a profile with its plan next to it runs from anywhere; a ``--scene`` flag stays
+    relative to the working folder."""
+    from cso_runtime.config import ConfigError
+    from cso_runtime.launcher import load_profile
+
+    own = tmp_path / "configs" / "profiles"
+    own.mkdir(parents=True)
+    shutil.copy(REPO / "cso_runtime" / "data" / "scenes" / "img_1.png", own / "office.png")
+    data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
+    data["scene"] = "office.png"
+    (own / "mine.yaml").write_text(yaml.safe_dump(data))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    profile, written = load_profile(str(own / "mine.yaml"))
+    assert profile.scene == written["scene"] == str(own / "office.png")
+    with pytest.raises(ConfigError, match="with --scene office.png: scene: office.png: file not found"):
+        load_profile(str(own / "mine.yaml"), {"scene": "office.png"})
+
+
 def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_running(tmp_path, capsys):
     from cso_runtime.config import ConfigError
     from cso_runtime.launcher import load_profile
