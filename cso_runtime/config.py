@@ -274,6 +274,13 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
     return value
 
 
+def _key_where(where: str, key: str) -> str:
+    """Where a key sits, for messages: ``configs/eval.yaml: masks`` for a file's own keys (a file path, or a
+    profile named with the flags that changed it), ``masks.beta_far_m`` below them."""
+    is_file = where.endswith((".yaml", ".yml")) or " with --" in where
+    return f"{where}: {key}" if is_file and ": " not in where else f"{where}.{key}"
+
+
 def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:
     """Build dataclass ``cls`` from a (possibly partial) mapping; unknown keys raise ConfigError."""
     data = data or {}
@@ -282,7 +289,7 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
     unknown = sorted(set(data) - names)
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}")
-    kwargs = {k: _convert(v, hints[k], f"{where}.{k}") for k, v in data.items()}
+    kwargs = {k: _convert(v, hints[k], _key_where(where, k)) for k, v in data.items()}
     obj = cls(**kwargs)
     validate = getattr(obj, "validate", None)
     if callable(validate):

@@ -142,3 +142,14 @@ def test_training_arguments_out_of_range_are_clear_errors():
     ]:
         with pytest.raises(ValueError, match=message):
             Args(**bad).validate()
+
+
+def test_an_error_names_the_file_then_the_key_path():
+    """A file's own keys follow the file after a colon, nested keys after dots: ``eval.yaml: episode.max_steps``,
+    not ``eval.yaml.episode.max_steps``; a config without a file keeps its dotted path."""
+    with pytest.raises(ConfigError, match=r"^configs/mine\.yaml: episode\.max_steps: expected an integer"):
+        from_dict(ExplorationConfig, {"episode": {"max_steps": 2.5}}, "configs/mine.yaml")
+    with pytest.raises(ConfigError, match=r"^p\.yaml with --seed 3: masks: unknown key\(s\) far"):
+        from_dict(ExplorationConfig, {"masks": {"far": 1}}, "p.yaml with --seed 3")
+    with pytest.raises(ConfigError, match=r"^exploration\.masks\.beta_far_m: expected a number"):
+        from_dict(ExplorationConfig, {"masks": {"beta_far_m": "far"}}, "exploration")
