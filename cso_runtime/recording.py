@@ -196,7 +196,7 @@ def record(
     """
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
-    inbox: queue.SimpleQueue[tuple[str, bytes, int]] = queue.SimpleQueue()
+    inbox: queue.Queue[tuple[str, bytes, int]] = queue.Queue()  # not SimpleQueue: see services.common.ServiceInputs
     lock = threading.Lock()
     last_ns = [0]
 

@@ -146,7 +146,7 @@ class Service:
         self.reason = ""
         self._publishers: dict[str, Any] = {}
         self._lock = threading.Lock()
-        self._inbox: queue.SimpleQueue | None = None
+        self._inbox: queue.Queue | None = None
         self.latest: dict[str, Message] = {}
         """Topic -> the message served on its ``cache`` key (``serves_latest``)."""
         self.trace: MessageTrace | None = None
@@ -300,7 +300,10 @@ class ServiceInputs:
 
     def __init__(self, service: Service, stop: threading.Event):
         self.service, self.stop = service, stop
-        self.queue: queue.SimpleQueue[tuple[str, bytes, float]] = queue.SimpleQueue()
+        # queue.Queue, not SimpleQueue: Python 3.11's SimpleQueue.get(timeout=...) waits forever once a signal
+        # handler runs past the deadline (its retry's timeout goes negative), so SIGINT and SIGTERM were lost on
+        # the loop's thread now and then (tests/test_processes.py); Queue waits on a lock that checks the deadline.
+        self.queue: queue.Queue[tuple[str, bytes, float]] = queue.Queue()
         self.handling = threading.Lock()
         self.direct = False
         self.failure: BaseException | None = None

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
 
 import pytest
 
@@ -48,3 +52,29 @@ def test_an_error_stops_the_running_processes_at_once():
     with pytest.raises(RuntimeError, match="stop after job 0"):
         run_each_in_own_process(_sleep_then_square, [0, 60], 2, stop_on_first)
     assert time.monotonic() - t0 < 20  # the 60 s job was terminated
+
+
+WAIT_THROUGH_A_SLOW_SIGNAL_HANDLER = textwrap.dedent("""
+    import signal, threading, time
+    from services.common import ServiceInputs
+
+    inputs = ServiceInputs(None, threading.Event())
+    signal.signal(signal.SIGUSR2, lambda *_: time.sleep(0.8))  # runs past the wait's deadline
+    main = threading.main_thread().ident
+    threading.Timer(0.05, lambda: signal.pthread_kill(main, signal.SIGUSR2)).start()
+    t0 = time.monotonic()
+    print(inputs.next_queued(0.5), round(time.monotonic() - t0, 1))
+""")
+
+
+def test_a_service_loop_wait_returns_after_a_signal_handler_that_outlasts_it():
+    """A service's loop waits for inputs with a timeout on its main thread, where signal handlers run. With
+    Python 3.11's queue.SimpleQueue that wait never returned once a handler ran past its deadline, so a
+    service now and then ignored the launcher's SIGINT and SIGTERM until it was killed; the wait must end."""
+    repo = Path(__file__).resolve().parents[1]
+    try:
+        r = subprocess.run([sys.executable, "-c", WAIT_THROUGH_A_SLOW_SIGNAL_HANDLER], capture_output=True, text=True, timeout=10, cwd=repo)
+    except subprocess.TimeoutExpired:
+        pytest.fail("the inbox wait did not return after the signal handler (it waits forever)")
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.split()[0] == "None"
