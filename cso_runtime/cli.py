@@ -150,6 +150,7 @@ def record_command(
     import threading  # noqa: PLC0415
     import time  # noqa: PLC0415
 
+    from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
     from cso_runtime.recording import record, recording_path  # noqa: PLC0415
     from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
@@ -167,7 +168,10 @@ def record_command(
         with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
             typer.echo(f"recording cso/{robot}/** from {', '.join(endpoints)} into {path} (Ctrl-C to stop)")
             stats = record(session, robot, path, stop)
-    except (TransportError, ValueError) as exc:
+    except TransportError as exc:  # no router to record from: the exit code of `up` without a Zenoh session
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(EXIT_NO_ZENOH) from None
+    except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     except OSError as exc:  # the recording's folder or file cannot be made
@@ -188,6 +192,8 @@ def replay_command(
     import signal  # noqa: PLC0415
     import threading  # noqa: PLC0415
 
+    from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
+    from cso_runtime.keys import TOPICS  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, check_recording, parse_speed, replay  # noqa: PLC0415
     from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
@@ -201,19 +207,25 @@ def replay_command(
     if not endpoints:
         typer.echo("error: no current run; give --connect ENDPOINT", err=True)
         raise typer.Exit(2)
+    wanted = [t.strip() for t in topics.split(",") if t.strip()] if topics else None
+    unknown = [t for t in wanted or [] if t not in TOPICS]  # a typo would replay nothing, silently
     try:
         parse_speed(speed)
+        if unknown:
+            raise ValueError(f"--topics: unknown topic(s) {', '.join(unknown)}; known: {', '.join(TOPICS)}")
     except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    wanted = [t.strip() for t in topics.split(",") if t.strip()] if topics else None
     try:
         with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
             stats = replay(session, file, speed, stop, wanted)
-    except (TransportError, RecordingError) as exc:
+    except TransportError as exc:  # no router to replay into: the exit code of `up` without a Zenoh session
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(EXIT_NO_ZENOH) from None
+    except RecordingError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(1) from None
     typer.echo(f"replayed {stats.messages} messages on {len(stats.per_key)} keys in {stats.duration_s:.2f} s (recorded span {stats.recorded_s:.2f} s)")

@@ -261,7 +261,10 @@ def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path:
     assert r.exit_code == 2 and "not an MCAP file" in r.output
     r = CliRunner().invoke(app, ["replay", str(tmp_path), "--runs-dir", str(tmp_path)])
     assert r.exit_code == 2 and f"{tmp_path} is a folder" in r.output
-    recording.write_bytes(MCAP_MAGIC)  # starts like one: then the missing run is what stops it
+    recording.write_bytes(MCAP_MAGIC)  # starts like one: a topic that does not exist is said before connecting
+    r = CliRunner().invoke(app, ["replay", str(recording), "--topics", "scan,scans", "--connect", "tcp/127.0.0.1:1"])
+    assert r.exit_code == 2 and "unknown topic(s) scans; known: scan, odom" in r.output
+    # then the missing run is what stops it
     r = CliRunner().invoke(app, ["replay", str(recording), "--runs-dir", str(tmp_path)])
     assert r.exit_code == 2 and "no current run" in r.output
 
@@ -281,3 +284,29 @@ def test_a_recording_folder_gets_a_file_named_for_the_run(tmp_path: Path, monkey
     assert _record_path(run_dir, True) == run_dir / RECORDING_NAME and _record_path(run_dir, False) is None
     assert _record_path(run_dir, tmp_path) == tmp_path / "20261201-000000-sim-r0.mcap"
     assert _record_path(run_dir, tmp_path / "x.mcap") == tmp_path / "x.mcap"
+
+
+def test_record_and_replay_without_a_zenoh_session_exit_3_as_up_does(tmp_path: Path, monkeypatch):
+    """README's exit codes are the same for every command: no Zenoh session is 3 (it was 2 for record, 1 for replay)."""
+    from typer.testing import CliRunner  # noqa: PLC0415
+
+    import cso_runtime.transport as transport  # noqa: PLC0415
+    from cso_runtime.cli import app  # noqa: PLC0415
+
+    def no_router(config):
+        raise transport.TransportError("cannot open zenoh session (client): Timeout!")
+
+    import signal  # noqa: PLC0415
+
+    monkeypatch.setattr(transport, "open_session", no_router)
+    recording = tmp_path / "run.mcap"
+    recording.write_bytes(MCAP_MAGIC)
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}  # both commands set their own
+    try:
+        r = CliRunner().invoke(app, ["replay", str(recording), "--connect", "tcp/127.0.0.1:7447"])
+        assert r.exit_code == 3 and "cannot open zenoh session" in r.output
+        r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "r.mcap"), "--connect", "tcp/127.0.0.1:7447"])
+        assert r.exit_code == 3 and "cannot open zenoh session" in r.output
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
