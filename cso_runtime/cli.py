@@ -151,12 +151,18 @@ def record_command(
     import time  # noqa: PLC0415
 
     from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
+    from cso_runtime.keys import KeyExprError, check_robot_id  # noqa: PLC0415
     from cso_runtime.recording import record, recording_path  # noqa: PLC0415
     from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
 
     endpoints, run_robot = (list(connect), None) if connect else endpoints_from_run_file(runs_dir)
     robot = robot or run_robot or "r0"
+    try:  # before connecting: a bad id is a usage error whether or not a router answers
+        check_robot_id(robot, allow_wildcard=True)
+    except KeyExprError as exc:
+        typer.echo(f"error: --robot: {exc}", err=True)
+        raise typer.Exit(2) from None
     if not endpoints:
         typer.echo("error: no current run; give --connect ENDPOINT", err=True)
         raise typer.Exit(2)

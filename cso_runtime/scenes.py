@@ -197,6 +197,8 @@ def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.
             n_i, seed_i = int(n), int(seed)
         except ValueError:
             raise SceneError(f"bad generated spec {spec!r}: N and SEED must be integers") from None
+        if n_i < 1 or seed_i < 0:
+            raise SceneError(f"bad generated spec {spec!r}: N must be at least 1 and SEED at least 0")
         refs = [SceneRef(f"gen_{scale}_{seed_i + k}", generated=(scale, seed_i + k)) for k in range(n_i)]
     else:
         p = builtin_scene_dir() if spec == "builtin" else Path(spec)

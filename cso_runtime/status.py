@@ -15,7 +15,7 @@ from typing import Any
 
 import zenoh
 
-from cso_runtime.keys import RobotKeys
+from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id
 from cso_runtime.messages import EpisodeStatusMsg, LauncherStatusMsg, MapMsg, MessageError, ServiceStatusMsg, decode
 from cso_runtime.transport import TransportConfig, TransportError, zenoh_config
 
@@ -129,8 +129,14 @@ def target_of(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[li
 
 def reachable_target(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[list[str], str] | int:
     """``target_of``, or the exit code after saying why there is no one to ask: 1 when nothing runs, 2 when
-    ``connect`` cannot name a router (a typo such as ``127.0.0.1:7447``: a usage error, not "nothing running")."""
+    ``connect`` cannot name a router (a typo such as ``127.0.0.1:7447``: a usage error, not "nothing running") or
+    ``robot`` is not one robot's id."""
     connect, robot = target_of(connect, robot, runs_dir)
+    try:  # one robot's status or map: a wildcard or a key-breaking id is a usage error, not "nothing running"
+        check_robot_id(robot)
+    except KeyExprError as exc:
+        print(f"error: --robot: {exc}", file=sys.stderr)
+        return 2
     if not connect:
         print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
         return 1

@@ -310,3 +310,32 @@ def test_record_and_replay_without_a_zenoh_session_exit_3_as_up_does(tmp_path: P
     finally:
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
+
+
+def test_record_refuses_a_bad_robot_id_before_connecting(tmp_path: Path, monkeypatch):
+    """``record --robot a/b`` is a usage error (exit 2) before any session; '*' (every robot) goes on to connect."""
+    import signal  # noqa: PLC0415
+
+    from typer.testing import CliRunner  # noqa: PLC0415
+
+    import cso_runtime.transport as transport  # noqa: PLC0415
+    from cso_runtime.cli import app  # noqa: PLC0415
+
+    opened: list[object] = []
+
+    def no_router(config):
+        opened.append(config)
+        raise transport.TransportError("cannot open zenoh session (client): Timeout!")
+
+    monkeypatch.setattr(transport, "open_session", no_router)
+    args = ["record", "--out", str(tmp_path / "r.mcap"), "--connect", "tcp/127.0.0.1:7447", "--robot"]
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}  # record sets its own
+    try:
+        r = CliRunner().invoke(app, [*args, "a/b"])
+        assert r.exit_code == 2 and "--robot: robot id 'a/b' must be" in r.output and not opened
+        r = CliRunner().invoke(app, [*args, "*"])
+        assert r.exit_code == 3 and len(opened) == 1
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+    assert not (tmp_path / "r.mcap").exists()

@@ -35,7 +35,7 @@ from cso_runtime.messages import ClockMsg, EpisodeStatusMsg, MapMsg, ScanMsg, Se
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
-from cso_runtime.status import query_status
+from cso_runtime.status import query_status, save_map_main, status_main
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 
 REPO = Path(__file__).resolve().parents[1]
@@ -546,6 +546,18 @@ def test_status_and_down_with_nothing_running(tmp_path):
     r = cli("save-map", "--connect", loopback_endpoint(port), cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "no map for robot r0" in r.stdout
     assert not (tmp_path / "map.yaml").exists()
+
+
+@pytest.mark.parametrize("robot", ["a/b", "*", "r0/**"])
+def test_status_and_save_map_refuse_a_robot_id_that_is_not_one_robot(robot, tmp_path, capsys):
+    """A wildcard or a slash in --robot would ask a key expression of several robots (or none): a usage error
+    before any session opens, not "nothing running" or a traceback from the key's check."""
+    endpoint = [loopback_endpoint(free_tcp_port())]
+    assert status_main(endpoint, robot, as_json=True, watch=False, runs_dir=tmp_path) == 2
+    assert save_map_main(endpoint, robot, tmp_path / "m", "pgm", runs_dir=tmp_path) == 2
+    err = capsys.readouterr().err
+    assert err.count(f"--robot: robot id {robot!r} must be") == 2
+    assert not (tmp_path / "m.yaml").exists()
 
 
 @pytest.mark.parametrize("scene, method", [(SCENE, "greedy-dist"), ("generated:middle:1:0", "greedy-dist"), (SCENE, "cso")])

@@ -222,7 +222,7 @@ def test_resolve_missing_png_fails_when_loaded(tmp_path):
 
 @pytest.mark.parametrize(
     "spec",
-    ["generated:large:1:0", "generated:small:x:0", "generated:small:1", "generated:small:1:0:9", "plans.txt", "nowhere"],
+    ["generated:large:1:0", "generated:small:x:0", "generated:small:1", "generated:small:1:0:9", "generated:small:0:0", "generated:middle:2:-1", "plans.txt", "nowhere"],
 )
 def test_bad_specs_raise_scene_error(spec):
     with pytest.raises(SceneError):
