@@ -120,12 +120,22 @@ def compare_command(
         typer.echo(f"error: no such file: {', '.join(missing)}", err=True)
         raise typer.Exit(2)
     try:
-        comparisons = compare_to_baseline(read_episodes(files, split_names(exclude or [])), baseline)
+        table = read_episodes(files, split_names(exclude or []))
     except ValueError as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None
+    methods = sorted({method for method, _ in table})
+    if methods and baseline not in methods:  # a typo in --baseline, not "too few scenes"
+        typer.echo(f"error: --baseline {baseline!r} has no episodes in these files; their methods: {', '.join(methods)}", err=True)
+        raise typer.Exit(2)
+    comparisons = compare_to_baseline(table, baseline)
     if out is not None:
-        write_csv(out, as_dicts(comparisons))
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            write_csv(out, as_dicts(comparisons))
+        except OSError as exc:
+            typer.echo(f"error: --out {out}: cannot write ({exc.strerror or exc})", err=True)
+            raise typer.Exit(2) from None
     if as_json:
         typer.echo(json.dumps({"baseline": baseline, "comparisons": as_dicts(comparisons)}, indent=2))
     else:

@@ -75,6 +75,11 @@ class EvalRequest:
     baseline: str = "greedy-dist"
     """Every other method is compared with this one scene by scene (``paired.csv``) when it ran too."""
 
+    def __post_init__(self) -> None:
+        # ``--method greedy-dist,greedy-dist`` means the method once: twice would run every scene twice and
+        # count both in its means.
+        self.methods = list(dict.fromkeys(self.methods))
+
     def exploration_config(self) -> ExplorationConfig:
         """The config file (if any) with the CLI's sensor and step-limit flags applied on top."""
         data: dict[str, Any] = load_yaml(self.config_path) if self.config_path else {}

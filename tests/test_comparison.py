@@ -93,3 +93,18 @@ def test_compare_cli_pools_labelled_files_and_writes_json_and_csv(tmp_path: Path
     assert kept.returncode == 0, kept.stderr
     (row,) = json.loads(kept.stdout)["comparisons"]
     assert row["scenes"] == 3 and (row["won"], row["lost"]) == (2, 0)
+
+
+def test_compare_cli_says_when_the_baseline_or_the_csv_path_is_wrong(tmp_path: Path):
+    """A --baseline that no file holds names the methods there; --out makes its folder, and a path it cannot write
+    is exit 2 with the reason (it was a traceback)."""
+    episodes = write(tmp_path / "e.csv", rows("greedy-dist", "large", {"a": 1.0, "b": 1.0, "c": 1.0}) + rows("cso", "large", {"a": 1.1, "b": 1.1, "c": 1.1}))
+    exe = [sys.executable, "-m", "cso_runtime.cli", "compare", str(episodes)]
+    typo = subprocess.run(exe + ["--baseline", "greedy_dist"], capture_output=True, text=True, timeout=60)
+    assert typo.returncode == 2 and "--baseline 'greedy_dist' has no episodes in these files; their methods: cso, greedy-dist" in typo.stderr
+    nested = tmp_path / "new" / "deeper" / "p.csv"
+    made = subprocess.run(exe + ["--out", str(nested)], capture_output=True, text=True, timeout=60)
+    assert made.returncode == 0 and nested.is_file(), made.stderr
+    (tmp_path / "blocker").write_text("a file where a folder should be")
+    blocked = subprocess.run(exe + ["--out", str(tmp_path / "blocker" / "p.csv")], capture_output=True, text=True, timeout=60)
+    assert blocked.returncode == 2 and "--out" in blocked.stderr and "cannot write" in blocked.stderr and "Traceback" not in blocked.stderr

@@ -99,6 +99,8 @@ def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path
     assert EvalRequest(methods=["greedy-dist"], config_path=f).exploration_config().episode.max_steps == 120
     assert EvalRequest(methods=["greedy-dist"], config_path=f, max_steps=40).exploration_config().episode.max_steps == 40
     assert EvalRequest(methods=["greedy-dist"]).exploration_config().episode.max_steps == 3000
+    # A method named twice runs once, in the order first given.
+    assert EvalRequest(methods=["utility", "greedy-dist", "utility"]).methods == ["utility", "greedy-dist"]
     with pytest.raises(ConfigError, match="--max-steps must be positive, got 0"):
         EvalRequest(methods=["greedy-dist"], max_steps=0).validate()
     with pytest.raises(ConfigError, match="--workers must be positive, got 0"):
