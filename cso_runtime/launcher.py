@@ -719,9 +719,11 @@ class LiveView:
 
         la = self.launcher
         st = la.status
-        t = Table(title=f"cso-runtime {la.run_id} (robot {la.profile.robot}, {la.profile.method}, {'lockstep' if la.profile.lockstep else 'real time'})")
-        t.add_column("")
-        t.add_column("")
+        # Short title, no header: on an 80-column terminal a title wider than the table wraps.
+        t = Table(title=f"cso-runtime {la.run_id}", show_header=False)
+        t.add_column("field")
+        t.add_column("value")
+        t.add_row("robot / method", escape(f"{la.profile.robot} / {la.profile.method}, {'lockstep' if la.profile.lockstep else 'real time'}"))
         if st is None:
             t.add_row("state", "starting")
         else:

@@ -489,6 +489,11 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
     assert "6.50 m ahead on the path" in console.export_text()
+    narrow = Console(width=80, record=True)  # a plain terminal: the title is one line, robot and method a row
+    narrow.print(LiveView(launcher).render())
+    lines = narrow.export_text().splitlines()
+    assert lines[0].strip() == f"cso-runtime {launcher.run_id}" and lines[1].lstrip().startswith("┌")
+    assert any("robot / method" in line and "r0 / greedy-dist, lockstep" in line for line in lines)
     launcher.status.scene = "[bold]plan[2]"  # a scene's name is text, not rich markup
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
