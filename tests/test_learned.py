@@ -8,6 +8,7 @@ import dataclasses
 import importlib.util
 import math
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -332,6 +333,36 @@ def test_training_with_the_per_step_discount_runs_through_episode_ends(tmp_path)
     assert sum(int(r["episodes"]) for r in rows) >= 2 and all(np.isfinite(float(r["value_loss"])) for r in rows)
     with pytest.raises(ValueError, match="gamma_per_step"):
         dataclasses.replace(args, gamma_per_step=1.0).validate()
+
+
+def test_the_training_bar_shows_the_latest_return_coverage_and_rate(tmp_path, monkeypatch):
+    """As CleanRL prints its episodic return and SPS: after each update the bar's text is the mean return and
+    coverage of the last finished episodes and the decisions per second."""
+    import io  # noqa: PLC0415
+
+    from rich.console import Console  # noqa: PLC0415
+
+    import cso_runtime.learned.ppo as ppo  # noqa: PLC0415
+
+    shown: list[str | None] = []
+
+    class RecordingBar(ppo._Bar):
+        def advance(self, n: int = 1, stats: str | None = None) -> None:
+            shown.append(stats)
+            super().advance(n, stats)
+
+    out = io.StringIO()
+    monkeypatch.setattr(ppo, "_progress", lambda enabled, total: RecordingBar(total, console=Console(file=out, width=200)) if enabled else None)
+    args = Args(variant="cso", out_dir=str(tmp_path), seed=0, total_decisions=64, num_envs=2, num_steps=16, num_minibatches=2, max_steps=40, progress=True)
+    train(args, log=lambda _msg: None, plans=[rooms_plan(2)])
+    rows = list(csv.DictReader((tmp_path / "cso_log.csv").open()))
+    assert len(shown) == len(rows) == 2
+    finished = [r for r in rows if int(r["episodes"])]
+    assert finished and re.fullmatch(r"return -?\d+\.\d\d  coverage \d+\.\d % \(last \d+ episodes\)  \d+ decisions/s", shown[-1] or "")
+    assert "decisions/s" in out.getvalue()
+    assert ppo.progress_stats([], 100, 4.0) == "25 decisions/s"
+    two = [{"return": 1.0, "coverage_pct": 90.0}, {"return": 2.0, "coverage_pct": 100.0}]
+    assert ppo.progress_stats(two, 100, 0.0) == "return 1.50  coverage 95.0 % (last 2 episodes)  "
 
 
 def test_policies_of_one_model_share_one_trace(observation):

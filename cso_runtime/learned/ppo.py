@@ -11,6 +11,7 @@ the run go to ``out_dir``.
 
 from __future__ import annotations
 
+import collections
 import csv
 import dataclasses
 import functools
@@ -22,6 +23,7 @@ import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from collections.abc import Mapping, Sequence
 from typing import Any, Callable
 
 import gymnasium as gym
@@ -639,6 +641,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         writer.writeheader()
 
     progress = _progress(args.progress, args.num_updates - start_update + 1)
+    recent_episodes: collections.deque[dict[str, float]] = collections.deque(maxlen=20)  # for the bar's figures
     update = start_update - 1
     finished_loop = False
     try:
@@ -740,8 +743,9 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
             }
             writer.writerow(row)
             log_file.flush()
+            recent_episodes.extend(finished)
             if progress is not None:
-                progress.advance()
+                progress.advance(stats=progress_stats(recent_episodes, global_decisions, time.time() - t_start))
             else:
                 log(f"update {update}/{args.num_updates} decisions {global_decisions} return {row['mean_return']} entropy {row['entropy']:.3f}")
             if update % args.checkpoint_every == 0 or update == args.num_updates:
@@ -805,15 +809,18 @@ def _save_resumable(path: Path, model: nn.Module, optimizer: optim.Optimizer, up
 
 
 class _Bar:
-    def __init__(self, total: int, what: str = "PPO updates"):
-        from rich.progress import Progress  # noqa: PLC0415
+    """A rich progress bar with a free text field after it (the latest training figures)."""
 
-        self._p = Progress()
+    def __init__(self, total: int, what: str = "PPO updates", console: Any = None):
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
+
+        columns = (TextColumn("{task.description}"), BarColumn(bar_width=24), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), TextColumn("{task.fields[stats]}"))
+        self._p = Progress(*columns, console=console)
         self._p.start()
-        self._task = self._p.add_task(what, total=total)
+        self._task = self._p.add_task(what, total=total, stats="")
 
-    def advance(self, n: int = 1) -> None:
-        self._p.advance(self._task, n)
+    def advance(self, n: int = 1, stats: str | None = None) -> None:
+        self._p.update(self._task, advance=n, **({} if stats is None else {"stats": stats}))
 
     def close(self) -> None:
         self._p.stop()
@@ -821,6 +828,17 @@ class _Bar:
 
 def _progress(enabled: bool, total: int) -> _Bar | None:
     return _Bar(total) if enabled else None
+
+
+def progress_stats(recent: Sequence[Mapping[str, float]], decisions: int, wall_s: float) -> str:
+    """What the training bar shows after an update, as CleanRL prints: the mean return and coverage of the
+    last finished episodes (``recent``, the rows of ``finished``) and the decisions per second so far."""
+    rate = f"{decisions / wall_s:.0f} decisions/s" if wall_s > 0 else ""
+    if not recent:
+        return rate
+    ret = float(np.mean([e["return"] for e in recent]))
+    cov = float(np.mean([e["coverage_pct"] for e in recent]))
+    return f"return {ret:.2f}  coverage {cov:.1f} % (last {len(recent)} episodes)  {rate}"
 
 
 def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
