@@ -433,6 +433,8 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         meta["interrupted"] = {"episodes_finished": len(outcomes), "episodes_planned": total, "resume": "run the same command with --resume"}
     if weights:
         meta["weights"] = weights
+    if progress is not None:  # hundreds of plans take a while to plot: say so rather than sit at N/N
+        progress.writing(out, len({o.map for o in outcomes if o.row is not None}))
     summary = write_outputs(out, rows, failures, request.methods, meta, request.baseline)
     from cso_runtime.plots import plot_coverage_curves, plot_paired_efficiency, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
 
@@ -486,6 +488,13 @@ class RichProgress:
         self.done += 1
         if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode
             self.progress.console.print(f"{escape(f'[{self.done}/{self.total}]')} {text}", highlight=False, soft_wrap=True)  # one line, however long
+
+    def writing(self, out: Path, trajectory_plots: int) -> None:
+        """After the episodes: the bar says what is being written (and a log gets the same line)."""
+        text = escape(f"writing {out}/: summary.json, episodes.csv, curves and {trajectory_plots} trajectory plots")
+        self.progress.update(self.task, description=text)
+        if not self.progress.console.is_terminal:
+            self.progress.console.print(text, highlight=False, soft_wrap=True)
 
     def stop(self) -> None:
         self.progress.stop()

@@ -319,7 +319,9 @@ def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     long_name = "a_floor_plan_with_a_name_long_enough_to_pass_the_eighty_columns_of_a_log"
     progress.advance(EpisodeOutcome("greedy-dist", long_name, row=row, kept=True))
     progress.advance(EpisodeOutcome("greedy-dist", "gen_small_0", row=row))
+    progress.writing(Path("results/easy"), 2)  # the plots of hundreds of plans take a while: the log says what
     progress.stop()
     lines = capsys.readouterr().err.splitlines()
     assert lines[0] == f"[1/2] greedy-dist {long_name}: 99.1% in 51 steps (coverage, kept from the earlier run)"
     assert lines[1] == "[2/2] greedy-dist gen_small_0: 99.1% in 51 steps (coverage)"
+    assert lines[2] == "writing results/easy/: summary.json, episodes.csv, curves and 2 trajectory plots"
