@@ -23,12 +23,9 @@ PACKAGED_TRAIN_CONFIG = Path(__file__).resolve().parent / "data" / "train.yaml"
 
 def _print_version(value: bool) -> None:
     if value:
-        from importlib.metadata import PackageNotFoundError, version  # noqa: PLC0415
+        from cso_runtime import __version__  # noqa: PLC0415
 
-        try:
-            typer.echo(f"cso-runtime {version('cso-runtime')}")
-        except PackageNotFoundError:  # run from a source tree that was never installed
-            typer.echo("cso-runtime (not installed)")
+        typer.echo(f"cso-runtime {__version__}")
         raise typer.Exit(0)
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from rich.markup import escape
 
+from cso_runtime import __version__
 from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, ExplorationConfig, SensorConfig, check_seed, from_dict, load_yaml, make_output_dir, to_dict
@@ -420,6 +421,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
     failures = [{"method": o.method, "map": o.map, "error": o.error or ""} for o in outcomes if o.row is None]
     meta = {
         "command": "cso-runtime eval",
+        "version": __version__,  # which code made the table
         "maps": request.maps,
         "m_per_px": request.m_per_px,
         "seed": request.seed,

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from cso_runtime import __version__
 from cso_runtime.config import EXIT_BAD_CONFIG, EXIT_INTERRUPTED, EXIT_NO_ZENOH, ConfigError, ExplorationConfig, check_seed, from_dict, load_yaml
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
 from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, Message, MessageError, PathMsg, decode, encode
@@ -534,7 +535,7 @@ class Launcher:
         return self.result
 
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
-        meta: dict[str, Any] = {"command": "cso-runtime up", "profile": self.data}
+        meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "profile": self.data}
         from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
 
         if result.method in LEARNED_METHODS:

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import cso_runtime
 from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig
 from cso_runtime.episode import GroundTruthMetrics, run_episode
 from cso_runtime.evaluation import CSV_FIELDS, METRICS, WORKER_DIED, EpisodeJob, EvalRequest, run_eval, run_in_processes, run_job
@@ -188,6 +189,7 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     assert npz.stat().st_mtime_ns == stamp  # not re-run
     assert npz_other.exists()  # the missing one was run again
     assert second["meta"]["resumed_episodes"] == 1 and "resumed_episodes" not in first["meta"]
+    assert first["meta"]["version"] == cso_runtime.__version__ != "0+unknown"  # which code made the table
     for m in ("greedy-dist", "random"):
         assert second["methods"][m]["coverage_pct"] == first["methods"][m]["coverage_pct"]
         assert second["methods"][m]["steps"] == first["methods"][m]["steps"]

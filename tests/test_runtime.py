@@ -578,6 +578,7 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         (run_dir,) = list(runs.glob("*/summary.json"))
         summary = json.loads(run_dir.read_text())
         zenoh_metrics = summary["methods"][method]
+        assert summary["meta"]["command"] == "cso-runtime up" and summary["meta"]["version"] == cso_runtime.__version__
         expected = in_process_result(scene, method)
         assert zenoh_metrics["steps"] == expected.steps
         assert abs(zenoh_metrics["coverage_pct"] - expected.coverage_pct) < 1e-3
