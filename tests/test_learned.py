@@ -282,8 +282,10 @@ def test_env_follows_the_gymnasium_api():
     obs, info = env_reset_passive_checker(env, seed=0)
     assert env.observation_space.contains(obs)
     assert info["action_mask"].shape == (env.action_space.n,) and info["action_mask"].any()
-    with pytest.raises(ValueError):
-        env.step(int(np.flatnonzero(~info["action_mask"])[0]))  # a masked action is refused
+    _, _, _, _, rejected = env.step(int(np.flatnonzero(~info["action_mask"])[0]))  # a masked action: a counted no-op
+    assert rejected["invalid_actions"] == 1 and rejected["steps"] == info["steps"]
+    with pytest.raises(ValueError, match="outside the action space"):
+        env.step(-1)
     total_steps, done = 0, False
     while not done:
         action = expert_action(env.obs, info["action_mask"])
@@ -535,6 +537,36 @@ def test_the_environment_is_registered_with_gymnasium():
     env.close()
     with pytest.raises(Exception, match="generated"):
         gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:huge:1:0")
+
+
+def test_the_environment_passes_gymnasiums_checker_and_rejects_masked_actions_as_counted_no_ops():
+    """Gymnasium's ``check_env`` steps with ``action_space.sample()``, as a random agent does: a masked
+    action is accepted as Taxi's illegal move is (nothing happens, one step penalty, counted in ``info``), the
+    same decision is asked again, and too many in a row truncate the episode instead of looping forever."""
+    import gymnasium as gym  # noqa: PLC0415
+    from gymnasium.utils.env_checker import check_env  # noqa: PLC0415
+
+    config = EnvConfig(max_steps=120, invalid_action_limit=3)
+    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", config=config).unwrapped
+    check_env(env, skip_render_check=True)
+    obs, info = env.reset(seed=3)
+    masked = int(np.flatnonzero(~info["action_mask"])[0])
+    again, reward, terminated, truncated, info2 = env.step(masked)
+    assert all(np.array_equal(again[k], obs[k]) for k in obs) and np.array_equal(info2["action_mask"], info["action_mask"])
+    assert reward == config.reward.r_step and not terminated and not truncated
+    assert info2["invalid_action"] == masked and info2["invalid_actions"] == 1 and info2["steps"] == info["steps"]
+    valid = int(np.flatnonzero(info["action_mask"])[0])
+    _, reward, _, _, info3 = env.step(valid)  # a valid choice still acts, and resets the run of rejections
+    assert reward != config.reward.r_step and info3["steps"] > info["steps"] and info3["invalid_actions"] == 1
+    masked = int(np.flatnonzero(~info3["action_mask"])[0])
+    ends = [env.step(masked)[3] for _ in range(3)]
+    assert ends == [False, False, True] and env.invalid_actions == 4
+    with pytest.raises(RuntimeError, match="after the episode ended"):
+        env.step(masked)
+    env.reset(seed=4)
+    assert env.invalid_actions == 0
+    with pytest.raises(ValueError, match="outside the action space"):
+        env.step(env.action_space.n)
 
 
 def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_path):

@@ -56,6 +56,9 @@ class EnvConfig:
     reward: RewardConfig = field(default_factory=RewardConfig)
     max_steps: int = 800
     """Control steps per training episode (truncation; shorter than eval to see more scenes)."""
+    invalid_action_limit: int = 100
+    """Masked actions in a row after which the episode is truncated, so that an agent which ignores
+    ``info["action_mask"]`` cannot loop forever (each one is a no-op costing one step penalty)."""
 
 
 def graph_space(config: GraphConfig) -> spaces.Dict:
@@ -88,6 +91,10 @@ class ExplorationEnv(gym.Env):
         self.explorer: Explorer | None = None
         self.obs: Observation | None = None
         self.mask = np.zeros(self.config.graph.max_frontier_nodes, dtype=bool)
+        self._graph: dict[str, np.ndarray] | None = None  # the current decision's observation
+        self.invalid_actions = 0
+        """Masked actions taken this episode (each rejected: ``info["invalid_actions"]``)."""
+        self._invalid_in_a_row = 0
 
     @property
     def plans(self) -> list[FloorPlan]:
@@ -121,7 +128,8 @@ class ExplorationEnv(gym.Env):
             self.mask[:nf] = self.masker.mask(obs)[:nf]
             if not self.mask.any():  # every kept candidate masked: fall back to all reachable ones
                 self.mask[:nf] = np.isfinite(obs.goal_distance_m[:nf])
-            return build_graph(obs, self.config.graph), self._info()
+            self._graph = build_graph(obs, self.config.graph)
+            return self._graph, self._info()
         self.obs = None
         self.mask = np.zeros(self.config.graph.max_frontier_nodes, dtype=bool)
         self.mask[0] = True  # terminal observation: keep the distribution defined
@@ -135,6 +143,7 @@ class ExplorationEnv(gym.Env):
             "coverage_pct": ex.coverage_pct(),
             "steps": ex.steps,
             "explored_area_m2": ex.explored_area_m2(),
+            "invalid_actions": self.invalid_actions,
         }
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -145,6 +154,7 @@ class ExplorationEnv(gym.Env):
         self.explorer = Explorer(sim, self._explorer_config())
         self.masker.reset()
         self.plan_name = plan.name
+        self.invalid_actions = self._invalid_in_a_row = 0
         return self._decide()
 
     def step(self, action: int) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
@@ -152,8 +162,11 @@ class ExplorationEnv(gym.Env):
         if ex is None or self.obs is None:
             raise RuntimeError("step() called before reset() or after the episode ended")
         a = int(action)
-        if not (0 <= a < len(self.mask)) or not self.mask[a]:
-            raise ValueError(f"action {a} is masked or out of range")
+        if not self.action_space.contains(a):
+            raise ValueError(f"action {a} is outside the action space Discrete({self.action_space.n})")
+        if not self.mask[a]:
+            return self._reject(a)
+        self._invalid_in_a_row = 0
         area0, steps0 = ex.map.open_area_m2(), ex.steps
         ex.apply_goal(self.obs, goal_of(self.obs, a))
         if not ex.done:
@@ -168,6 +181,22 @@ class ExplorationEnv(gym.Env):
         info["terminated_by"] = ex.terminated_by
         info["decision_steps"] = ex.steps - steps0
         return graph, float(reward), terminated, truncated, info
+
+    def _reject(self, action: int) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """A masked action, as Gymnasium's Taxi treats an illegal move: nothing happens, the same decision is
+        asked again, and it costs one step penalty; counted in ``info``, truncated after too many in a row."""
+        assert self._graph is not None
+        self.invalid_actions += 1
+        self._invalid_in_a_row += 1
+        truncated = self._invalid_in_a_row >= self.config.invalid_action_limit
+        info = self._info()
+        info["invalid_action"] = action
+        info["terminated_by"] = "invalid_actions" if truncated else ""
+        info["decision_steps"] = 0
+        if truncated:
+            self.obs = None  # the episode is over: step() again needs reset()
+        graph = {k: v.copy() for k, v in self._graph.items()}  # new arrays: the caller keeps the ones it had
+        return graph, float(self.config.reward.r_step), False, truncated, info
 
     def teacher_action(self, teacher: str = "greedy-dist") -> int:
         """The warm-start teacher's choice for the current observation (callable through any vector env)."""
