@@ -196,6 +196,12 @@ class PlannerConfig:
     """no_progress is reported when the robot moved less than this ..."""
     progress_window_s: float = 10.0
     """... within this much time."""
+    face_goal_below_fov_deg: float = 180.0
+    """With a sensor narrower than this (the 79-degree depth camera), turn in place at the goal until the goal
+    is well inside the field of view before reporting ``reached``, so that a frontier goal beside or behind the
+    robot is looked at before it is judged unobservable (without it the depth camera could mark every frontier
+    near the start dead and end an episode at 12 % coverage). 0 turns it off; 360 turns it on for the LIMO's
+    180-degree LiDAR too, where it changed most episodes (BENCHMARKS.md) and is off by default."""
 
     def validate(self) -> None:
         if not self.lookahead_m > 0:
@@ -206,6 +212,8 @@ class PlannerConfig:
             raise ConfigError("planner needs 0 <= stop_distance_m <= slow_down_distance_m")
         if self.progress_required_m < 0 or not self.progress_window_s > 0:
             raise ConfigError("planner needs progress_required_m >= 0 and progress_window_s > 0")
+        if not 0 <= self.face_goal_below_fov_deg <= 360:
+            raise ConfigError("planner.face_goal_below_fov_deg must be in [0, 360]")
 
 
 @dataclass

@@ -174,9 +174,7 @@ class Explorer:
         if seed is not None:
             self.sim.reset(seed)
         self.map = OccupancyMap(self.sim.plan.geometry)
-        self.planner = LocalPlanner(
-            self.config.robot, self.config.planner, self.config.episode.goal_tolerance_m, self.config.sensor.mount_x_m
-        )
+        self.planner = LocalPlanner.for_config(self.config)
         self.steps = 0
         self.goal: Goal | None = None
         self.steps_since_decision = 0

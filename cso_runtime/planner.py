@@ -14,9 +14,14 @@ from enum import Enum
 
 import numpy as np
 
-from cso_runtime.config import PlannerConfig, RobotConfig
+from cso_runtime.config import ExplorationConfig, PlannerConfig, RobotConfig
 from cso_runtime.geodesic import disk_offsets, geodesic_distance
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
+
+FACE_GOAL_MIN_DISTANCE_M = 0.05
+"""A goal closer than this to the robot is under it: no heading looks at it, so it is not turned to."""
+FACE_GOAL_VIEW_FRACTION = 0.75
+"""A goal counts as in view once within this fraction of the half field of view (not at its very edge)."""
 
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 
@@ -272,16 +277,23 @@ class LocalPlanner:
         config: PlannerConfig | None = None,
         goal_tolerance_m: float = 0.3,
         sensor_mount_x_m: float = 0.0,
+        sensor_fov_rad: float = 2 * math.pi,
     ):
         self.robot = robot or RobotConfig()
         self.config = config or PlannerConfig()
         self.goal_tolerance_m = goal_tolerance_m
+        self.sensor_fov_rad = sensor_fov_rad
         self.follower = PathFollower(self.robot, self.config, sensor_mount_x_m)
         self.progress = ProgressChecker(self.config.progress_required_m, self.config.progress_window_s)
         self.path: np.ndarray | None = None
         self.free: FreeSpace | None = None
         self.progress_index = 0
         self.status = PlannerStatus.IDLE
+
+    @classmethod
+    def for_config(cls, config: ExplorationConfig) -> "LocalPlanner":
+        """The planner of an episode with these settings (the in-process Explorer and the planner service)."""
+        return cls(config.robot, config.planner, config.episode.goal_tolerance_m, config.sensor.mount_x_m, math.radians(config.sensor.fov_deg))
 
     def set_path(self, path_xy_m: np.ndarray, free: FreeSpace | None = None) -> None:
         """Follow a new path. Progress is tracked across re-plans to the same goal, so re-sending a
@@ -343,6 +355,19 @@ class LocalPlanner:
             return True
         return False
 
+    def _face_goal(self, pose: Pose2D, goal_xy_m: np.ndarray, to_goal_m: float) -> VelocityCommand | None:
+        """At the goal, with a sensor narrower than ``face_goal_below_fov_deg``: the turn in place that brings the
+        goal within FACE_GOAL_VIEW_FRACTION of the half field of view, or None when it is there already (or
+        the goal is under the robot, where no heading looks at it). Bounded like any goal: the caller's
+        re-decision timeout ends a turn that never gets there."""
+        narrow = self.sensor_fov_rad < math.radians(self.config.face_goal_below_fov_deg) - 1e-9
+        if not narrow or to_goal_m < FACE_GOAL_MIN_DISTANCE_M:
+            return None
+        error = wrap_angle_rad(math.atan2(goal_xy_m[1] - pose.y_m, goal_xy_m[0] - pose.x_m) - pose.yaw_rad)
+        if abs(error) <= FACE_GOAL_VIEW_FRACTION * self.sensor_fov_rad / 2:
+            return None
+        return VelocityCommand(0.0, math.copysign(self.robot.max_angular_radps, error))
+
     def update(self, pose: Pose2D, time_s: float, scan: LaserScan | None = None) -> FollowResult:
         """One control period: the command to send and the resulting status."""
         stop = VelocityCommand(0.0, 0.0)
@@ -351,6 +376,9 @@ class LocalPlanner:
         goal = self.path[-1]
         to_goal = math.hypot(goal[0] - pose.x_m, goal[1] - pose.y_m)
         if to_goal <= self.goal_tolerance_m:
+            turn = self._face_goal(pose, goal, to_goal)
+            if turn is not None:
+                return FollowResult(turn, self.status)  # still following: the goal is not in view yet
             self.status = PlannerStatus.REACHED
             return FollowResult(stop, self.status)
         if not self.progress.check(pose, time_s):

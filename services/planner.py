@@ -65,8 +65,7 @@ class PlannerService(Service):
             self.new_planner().set_goal(obs.traversable, obs.geometry, obs.pose, np.asarray(goal.goal_xy_m), obs.distance_m, goal.distance_m)
 
     def new_planner(self) -> LocalPlanner:
-        cfg = self.ctx.exploration
-        return LocalPlanner(cfg.robot, cfg.planner, cfg.episode.goal_tolerance_m, cfg.sensor.mount_x_m)
+        return LocalPlanner.for_config(self.ctx.exploration)
 
     def reset_episode(self) -> None:
         """A fresh planner and empty buffers (a new episode, or a fresh start)."""
