@@ -191,7 +191,8 @@ class ExplorationEnv(gym.Env):
         truncated = self._invalid_in_a_row >= self.config.invalid_action_limit
         info = self._info()
         info["invalid_action"] = action
-        info["terminated_by"] = "invalid_actions" if truncated else ""
+        assert self.explorer is not None
+        info["terminated_by"] = "invalid_actions" if truncated else self.explorer.terminated_by  # None while going on, as step()'s
         info["decision_steps"] = 0
         if truncated:
             self.obs = None  # the episode is over: step() again needs reset()
