@@ -221,6 +221,9 @@ def test_a_replayed_run_rebuilds_the_same_map_in_a_fresh_mapper(tmp_path: Path):
                 lambda: any(r.ok for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5)), 10, "the fresh mapper"
             )
             with open_session(client) as play_session:
+                # The replay runs at full speed at once: first make sure this new session's puts reach the
+                # mapper (a malformed scan, rejected and counted), or the first scans can go before the route.
+                wait_for(lambda: play_session.put(keys.scan, b"probe") or fresh.rejected.get("scan", 0) > 0, 10, "the fresh mapper's scan route")
                 replay(play_session, out, "max")
             wait_for(lambda: fresh.map_step == n_steps - 1, 20, "the fresh mapper's last map")
         finally:
