@@ -106,6 +106,18 @@ class RobotConfig:
 
 
 @dataclass
+class MappingConfig:
+    """How the occupancy map M_t is built from scans (the same in ``eval``, training and the mapper service)."""
+
+    footprint_clearing: bool = True
+    """Cells under the robot's body (``robot.length_m`` x ``robot.width_m`` around its centre) that no scan has
+    seen are marked free after each scan: the robot stands there, so they are open (Nav2's obstacle layer
+    clears its footprint the same way). Without it a sensor mounted ahead of the centre with a narrow field
+    of view (the depth camera) never sees the cells under and behind the centre, and they stay frontiers at
+    the robot's own position that no turn can observe. Cells already seen are left as they are."""
+
+
+@dataclass
 class FrontierConfig:
     """Frontier extraction and the frontier-based entropy of Eq. 4."""
 
@@ -202,6 +214,15 @@ class PlannerConfig:
     robot is looked at before it is judged unobservable (without it the depth camera could mark every frontier
     near the start dead and end an episode at 12 % coverage). 0 turns it off; 360 turns it on for the LIMO's
     180-degree LiDAR too, where it changed most episodes (BENCHMARKS.md) and is off by default."""
+    stall_steps: int = 4
+    """Nav2's BackUp recovery: when this many control periods in a row each moved the robot less than a
+    quarter of what their commands asked (pinned on a wall's corner, which the MuJoCo LIMO can be after
+    sliding on from full speed), it backs straight up ``backup_distance_m`` before following on. 0 turns it
+    off."""
+    backup_distance_m: float = 0.15
+    """How far the stall recovery backs up (Nav2's default ``backup_dist``)."""
+    backup_speed_mps: float = 0.15
+    """How fast it backs up."""
 
     def validate(self) -> None:
         if not self.lookahead_m > 0:
@@ -214,6 +235,10 @@ class PlannerConfig:
             raise ConfigError("planner needs progress_required_m >= 0 and progress_window_s > 0")
         if not 0 <= self.face_goal_below_fov_deg <= 360:
             raise ConfigError("planner.face_goal_below_fov_deg must be in [0, 360]")
+        if self.stall_steps < 0:
+            raise ConfigError("planner.stall_steps must be >= 0")
+        if not (self.backup_distance_m > 0 and self.backup_speed_mps > 0):
+            raise ConfigError("planner.backup_distance_m and planner.backup_speed_mps must be positive")
 
 
 @dataclass
@@ -222,6 +247,7 @@ class ExplorationConfig:
 
     sensor: SensorConfig = field(default_factory=SensorConfig)
     robot: RobotConfig = field(default_factory=RobotConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
     frontier: FrontierConfig = field(default_factory=FrontierConfig)
     masks: MaskConfig = field(default_factory=MaskConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)

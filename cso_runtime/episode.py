@@ -19,7 +19,7 @@ from cso_runtime.config import EpisodeConfig, ExplorationConfig
 from cso_runtime.geodesic import disk_offsets
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import Observation, ObservationBuilder
-from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.occupancy import OccupancyMap, integrate_observation
 from cso_runtime.planner import LocalPlanner, PlannerStatus
 from cso_runtime.policies import Goal, GoalSelector, goal_of
 from cso_runtime.scenes import FloorPlan
@@ -204,7 +204,7 @@ class Explorer:
     # --- the loop ---
     def _integrate(self) -> None:
         self.last_scan = self.sim.scan()
-        self.map.integrate_scan(self.sim.sensor_pose(), self.last_scan)
+        integrate_observation(self.map, self.sim.sensor_pose(), self.last_scan, self.config)
 
     def _goal_still_frontier(self) -> bool:
         return goal_still_frontier(self.map, self.goal)

@@ -299,7 +299,8 @@ class CmdVelMsg(Message):
     step: int
     command: VelocityCommand
     reason: str = ""
-    """Why the robot is stopped (``stale: ...``, ``reached``...), empty while following a path."""
+    """Why the robot is stopped (``stale: ...``, ``reached``...), empty while following a path
+    (``backup`` while the planner backs a pinned robot up)."""
     new_goal: bool = False
     """The command follows a goal decided at this step (a lockstep sim then also waits for that goal,
     to count the decision); false on the steps that keep the current goal."""

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.raycast import SAMPLES_PER_CHUNK, sample_cells, sample_step_m, samples_to_reach
 
@@ -102,6 +105,30 @@ class OccupancyMap:
         self.explored |= changed
         return int(newly)
 
+    def mark_footprint_free(self, robot_pose: Pose2D, length_m: float, width_m: float) -> int:
+        """Mark the unknown cells whose centres lie under the robot's rectangular body (centred on
+        ``robot_pose``, ``length_m`` along its heading) as free; returns how many. Cells already seen,
+        free or occupied, keep what the scans said of them."""
+        g = self.geometry
+        reach_m = 0.5 * math.hypot(length_m, width_m)
+        iy0, ix0 = g.world_to_cell(robot_pose.x_m - reach_m, robot_pose.y_m - reach_m)
+        iy1, ix1 = g.world_to_cell(robot_pose.x_m + reach_m, robot_pose.y_m + reach_m)
+        iy0, ix0 = max(int(iy0), 0), max(int(ix0), 0)
+        iy1, ix1 = min(int(iy1), g.shape[0] - 1), min(int(ix1), g.shape[1] - 1)
+        if iy1 < iy0 or ix1 < ix0:
+            return 0
+        iy, ix = np.mgrid[iy0 : iy1 + 1, ix0 : ix1 + 1]
+        x_m, y_m = g.cell_to_world(iy, ix)
+        c, s = math.cos(robot_pose.yaw_rad), math.sin(robot_pose.yaw_rad)
+        dx, dy = x_m - robot_pose.x_m, y_m - robot_pose.y_m
+        under = (np.abs(c * dx + s * dy) <= 0.5 * length_m) & (np.abs(-s * dx + c * dy) <= 0.5 * width_m)
+        under &= ~self.explored[iy, ix]
+        cy, cx = iy[under], ix[under]
+        self.log_odds[cy, cx] = LOG_ODDS_MISS
+        self.occupied[cy, cx] = False
+        self.explored[cy, cx] = True
+        return len(cy)
+
     def to_occupancy_grid(self) -> np.ndarray:
         """int8 grid with ROS values: -1 unknown, 0 free, 100 occupied (row 0 at the origin)."""
         grid = np.full(self.geometry.shape, UNKNOWN, dtype=np.int8)
@@ -135,3 +162,15 @@ class OccupancyMap:
         m.log_odds = self.log_odds.copy()
         m.occupied = self.occupied.copy()
         return m
+
+
+def integrate_observation(occupancy: OccupancyMap, sensor_pose: Pose2D, scan: LaserScan, config: ExplorationConfig) -> int:
+    """One scan into the map, then (``mapping.footprint_clearing``) the robot's own footprint: what the
+    in-process Explorer and the mapper service both do with a scan. The robot's centre is the sensor pose
+    less ``sensor.mount_x_m``. Returns newly explored cells; raises ValueError on a malformed scan (and
+    then changes nothing)."""
+    newly = occupancy.integrate_scan(sensor_pose, scan)
+    if config.mapping.footprint_clearing:
+        robot = config.robot
+        newly += occupancy.mark_footprint_free(sensor_pose.compose_offset(-config.sensor.mount_x_m), robot.length_m, robot.width_m)
+    return newly

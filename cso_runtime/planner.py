@@ -2,7 +2,7 @@
 
 Split like Nav2: ``plan_path`` is the planner server (path by descending the fast-marching distance
 field), ``PathFollower`` the controller (pure pursuit with rotate-in-place and an obstacle slow-down),
-``ProgressChecker`` Nav2's progress checker. ``LocalPlanner`` ties them and reports a status the
+``ProgressChecker`` Nav2's progress checker, ``StallRecovery`` its BackUp behaviour. ``LocalPlanner`` ties them and reports a status the
 policy can act on: ``following``, ``reached``, ``blocked`` (no path) or ``no_progress``.
 """
 
@@ -22,6 +22,13 @@ FACE_GOAL_MIN_DISTANCE_M = 0.05
 """A goal closer than this to the robot is under it: no heading looks at it, so it is not turned to."""
 FACE_GOAL_VIEW_FRACTION = 0.75
 """A goal counts as in view once within this fraction of the half field of view (not at its very edge)."""
+
+STALL_ACHIEVED_FRACTION = 0.25
+"""A control period that moved the robot less than this fraction of the translation and of the rotation its
+command asked for counts as stalled."""
+STALL_MIN_ASKED_M = 0.01
+STALL_MIN_ASKED_RAD = 0.05
+"""Commands that ask less than these in a period (a stop, a creep) are never called stalled."""
 
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 
@@ -149,6 +156,8 @@ class FreeSpace:
 class FollowResult:
     command: VelocityCommand
     status: PlannerStatus
+    recovery: str = ""
+    """``"backup"`` when the command is the stall recovery's (``StallRecovery``), else empty."""
 
 
 class PathFollower:
@@ -268,6 +277,67 @@ class ProgressChecker:
         return True
 
 
+class StallRecovery:
+    """Nav2's BackUp recovery for a robot that its commands no longer move: ``stall_steps`` control periods
+    in a row that each achieved less than ``STALL_ACHIEVED_FRACTION`` of what they asked (the robot is
+    pinned on a wall's corner) start a straight back-up of ``backup_distance_m``. The pure-pursuit
+    follower alone keeps pushing a pinned robot into the wall: its sweep sees the wall a few centimetres
+    ahead but not the corner that holds the body."""
+
+    def __init__(self, config: PlannerConfig, control_period_s: float):
+        self.config = config
+        self.backup_periods = math.ceil(config.backup_distance_m / (config.backup_speed_mps * control_period_s) - 1e-9)
+        self.backups = 0
+        """Back-ups started in this planner's life (the planner service logs each)."""
+        self.reset()
+
+    def reset(self) -> None:
+        self.last: tuple[Pose2D, float, VelocityCommand] | None = None
+        """(pose, time_s, command) of the last control period."""
+        self.stalled_periods = 0
+        self.backing_up = 0
+        """Control periods of back-up still to go."""
+
+    def state(self) -> tuple:
+        return self.last, self.stalled_periods, self.backing_up, self.backups
+
+    def restore(self, state: tuple) -> None:
+        self.last, self.stalled_periods, self.backing_up, self.backups = state
+
+    def _stalled(self, pose: Pose2D, time_s: float) -> bool:
+        """Whether the last period's command barely moved the robot."""
+        if self.last is None:
+            return False
+        last_pose, last_time_s, cmd = self.last
+        dt = time_s - last_time_s
+        asked_m, asked_rad = abs(cmd.linear_mps) * dt, cmd.angular_radps * dt
+        if dt <= 0 or (asked_m < STALL_MIN_ASKED_M and abs(asked_rad) < STALL_MIN_ASKED_RAD):
+            return False
+        moved_m = math.hypot(pose.x_m - last_pose.x_m, pose.y_m - last_pose.y_m)
+        turned_rad = math.copysign(1.0, asked_rad) * wrap_angle_rad(pose.yaw_rad - last_pose.yaw_rad)
+        translation_stalled = asked_m < STALL_MIN_ASKED_M or moved_m < STALL_ACHIEVED_FRACTION * asked_m
+        rotation_stalled = abs(asked_rad) < STALL_MIN_ASKED_RAD or turned_rad < STALL_ACHIEVED_FRACTION * abs(asked_rad)
+        return translation_stalled and rotation_stalled
+
+    def command(self, pose: Pose2D, time_s: float) -> VelocityCommand | None:
+        """The back-up command for this period, or None to follow the path as usual."""
+        if self.config.stall_steps <= 0:
+            return None
+        self.stalled_periods = self.stalled_periods + 1 if self._stalled(pose, time_s) else 0
+        if self.backing_up == 0 and self.stalled_periods >= self.config.stall_steps:
+            self.backing_up = self.backup_periods
+            self.backups += 1
+            self.stalled_periods = 0
+        if self.backing_up > 0:
+            self.backing_up -= 1
+            return VelocityCommand(-self.config.backup_speed_mps, 0.0)
+        return None
+
+    def record(self, pose: Pose2D, time_s: float, command: VelocityCommand) -> None:
+        """What was sent this period, to judge by the next pose whether it moved the robot."""
+        self.last = (pose, time_s, command)
+
+
 class LocalPlanner:
     """Follows one goal at a time: path, pure pursuit, goal check, progress check, blocked check."""
 
@@ -285,6 +355,7 @@ class LocalPlanner:
         self.sensor_fov_rad = sensor_fov_rad
         self.follower = PathFollower(self.robot, self.config, sensor_mount_x_m)
         self.progress = ProgressChecker(self.config.progress_required_m, self.config.progress_window_s)
+        self.stall = StallRecovery(self.config, self.robot.control_period_s)
         self.path: np.ndarray | None = None
         self.free: FreeSpace | None = None
         self.progress_index = 0
@@ -330,13 +401,15 @@ class LocalPlanner:
         self.path = None
         self.status = PlannerStatus.IDLE
 
-    def follow_state(self) -> tuple[PlannerStatus, int, tuple[float, float, float] | None]:
-        """What ``update`` changes (status, progress along the path, the progress anchor): a caller
-        may compute a command ahead of time and keep or undo it with ``restore_follow_state``."""
-        return self.status, self.progress_index, self.progress.anchor
+    def follow_state(self) -> tuple:
+        """What ``update`` changes (status, progress along the path, the progress anchor, the stall
+        recovery's state): a caller may compute a command ahead of time and keep or undo it with
+        ``restore_follow_state``."""
+        return self.status, self.progress_index, self.progress.anchor, self.stall.state()
 
-    def restore_follow_state(self, state: tuple[PlannerStatus, int, tuple[float, float, float] | None]) -> None:
-        self.status, self.progress_index, self.progress.anchor = state
+    def restore_follow_state(self, state: tuple) -> None:
+        self.status, self.progress_index, self.progress.anchor, stall = state
+        self.stall.restore(stall)
 
     def remaining_path(self) -> np.ndarray:
         if self.path is None:
@@ -370,6 +443,11 @@ class LocalPlanner:
 
     def update(self, pose: Pose2D, time_s: float, scan: LaserScan | None = None) -> FollowResult:
         """One control period: the command to send and the resulting status."""
+        result = self._update(pose, time_s, scan)
+        self.stall.record(pose, time_s, result.command)
+        return result
+
+    def _update(self, pose: Pose2D, time_s: float, scan: LaserScan | None) -> FollowResult:
         stop = VelocityCommand(0.0, 0.0)
         if self.path is None or self.status != PlannerStatus.FOLLOWING:
             return FollowResult(stop, self.status)  # outcomes stick until the next goal
@@ -384,6 +462,9 @@ class LocalPlanner:
         if not self.progress.check(pose, time_s):
             self.status = PlannerStatus.NO_PROGRESS
             return FollowResult(stop, self.status)
+        backup = self.stall.command(pose, time_s)
+        if backup is not None:
+            return FollowResult(backup, self.status, "backup")
         nearest, look = self.follower.lookahead_index(pose, self.path, self.progress_index, self.free)
         self.progress_index = nearest
         cmd = self.follower.command(pose, self.path, nearest, look, to_goal, scan)

@@ -164,6 +164,16 @@ class MujocoSimulator:
             return _compose(self._odom_pose, *_relative(self._odom_anchor_true, self.true_pose()))
 
     def sensor_pose(self) -> Pose2D:
+        """The odometry pose of the LiDAR when it took the latest scan (``scan()``): where the mapper puts
+        that scan. A sensor whose rate is not a multiple of the control rate (the depth camera's 15 Hz
+        against 4 Hz) fired up to one period before the step ended, and the robot has moved and turned
+        since; the pose of now would smear every wall it sees across free space while the robot turns."""
+        with self._lock:
+            if self._latest is not None:
+                return self._latest[3]
+            return self._odometry_sensor_pose()
+
+    def _odometry_sensor_pose(self) -> Pose2D:
         return self.odometry().compose_offset(self.lidar_mount_x_m)
 
     def body_velocity(self) -> tuple[float, float, float]:
@@ -293,7 +303,7 @@ class MujocoSimulator:
     def _fire_due_scans(self) -> None:
         while self._steps >= self._next_scan_step:
             pose = self.true_pose().compose_offset(self.lidar_mount_x_m)
-            fired = (self._scan_index, self.time_s, pose, self.sensor_pose())
+            fired = (self._scan_index, self.time_s, pose, self._odometry_sensor_pose())
             if len(self._fired) == self._fired.maxlen:
                 self.dropped_scans += 1
             self._fired.append(fired)

@@ -1,4 +1,4 @@
-"""Mapper service: ``OccupancyMap.integrate_scan`` on every scan, publishes the map M_t.
+"""Mapper service: ``integrate_observation`` (the scan, then the robot's footprint) on every scan, publishes the map M_t.
 
 The grid is sized from the clock's arena (or ``services.mapper`` width/height when set). A scan it
 has already integrated is not integrated twice: the map is re-published (lockstep retries). A new
@@ -19,7 +19,7 @@ import zenoh
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.geometry import GridGeometry
 from cso_runtime.messages import ClockMsg, MapMsg, Message, ScanMsg, encode
-from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.occupancy import OccupancyMap, integrate_observation
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.mapper")
@@ -123,7 +123,7 @@ class MapperService(Service):
         self.enter_episode(scan.episode)
         if scan.step > self.map_step:
             try:
-                self.map.integrate_scan(scan.sensor_pose, scan.scan)
+                integrate_observation(self.map, scan.sensor_pose, scan.scan, self.ctx.exploration)
             except ValueError as exc:
                 self.reject("scan", str(exc))
                 return

@@ -70,6 +70,8 @@ class PlannerService(Service):
     def reset_episode(self) -> None:
         """A fresh planner and empty buffers (a new episode, or a fresh start)."""
         self.planner = self.new_planner()
+        self.backups_logged = 0
+        """The planner's stall back-ups logged so far (each is logged once, as it starts)."""
         self.odoms: dict[int, tuple[OdometryMsg, float]] = {}
         self.scans: dict[int, tuple[ScanMsg, float]] = {}
         self.frontiers: dict[int, FrontiersMsg] = {}
@@ -236,6 +238,11 @@ class PlannerService(Service):
                 cmd = result.command
                 if result.status != PlannerStatus.FOLLOWING:
                     reason = result.status.value
+                elif result.recovery:
+                    reason = result.recovery  # following, but backing up: the robot was pinned
+                    if self.planner.stall.backups != self.backups_logged:
+                        self.backups_logged = self.planner.stall.backups
+                        log.info("step %d: the robot has not moved for %d commands: backing up (back-up %d)", k, self.ctx.exploration.planner.stall_steps, self.backups_logged)
                 self.set_state("running")
         self.stopped_for_stale = False
         self.last_cmd = CmdVelMsg(k, cmd, reason, new_goal=self.pending_new_goal)

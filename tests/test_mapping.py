@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -9,9 +10,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cso_runtime.config import SensorConfig
+from cso_runtime.config import ExplorationConfig, MappingConfig, SensorConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
-from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap
+from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN, OccupancyMap, integrate_observation
 from cso_runtime.raycast import cast_rays
 from cso_runtime.simulator import KinematicSimulator
 from tests.conftest import box_room
@@ -150,3 +151,35 @@ def test_scan_integration_invariants(scans):
         assert np.isfinite(m.log_odds).all()
         assert set(np.unique(m.to_occupancy_grid())) <= {UNKNOWN, FREE, OCCUPIED}
         assert not (m.occupied & ~m.explored).any()
+
+
+def test_footprint_clearing_marks_only_unseen_cells_under_the_body_free():
+    g = GridGeometry(0.05, (40, 40))
+    m = OccupancyMap(g)
+    pose = Pose2D(1.0, 1.0, math.pi / 2)  # facing +y: the 0.32 m length runs along y
+    wall_y, wall_x = g.world_to_cell(1.0, 1.12)  # under the body, already seen as a wall
+    m.explored[wall_y, wall_x] = m.occupied[wall_y, wall_x] = True
+    newly = m.mark_footprint_free(pose, length_m=0.32, width_m=0.2)
+    x_m, y_m = g.cell_to_world(*np.mgrid[0:40, 0:40])
+    under = (np.abs(x_m - 1.0) <= 0.1) & (np.abs(y_m - 1.0) <= 0.16)
+    assert newly == under.sum() - 1
+    assert m.explored[under].all() and not m.explored[~under].any()
+    assert m.occupied[wall_y, wall_x] and m.occupied.sum() == 1  # what a scan saw is kept
+    assert (m.to_occupancy_grid()[under] == FREE).sum() == newly
+    assert m.mark_footprint_free(Pose2D(-5.0, -5.0, 0.0), 0.32, 0.2) == 0  # off the grid: nothing
+
+
+def test_integrate_observation_clears_the_footprint_behind_a_forward_narrow_sensor():
+    """The depth camera 0.103 m ahead of the centre sees a 79-degree wedge: the cells under and behind the
+    robot's centre are never in it, and without footprint clearing they stay unknown (frontiers at the
+    robot's own position that no turn can observe)."""
+    plan = box_room()
+    sensor = dataclasses.replace(SensorConfig.preset("depth"), mount_x_m=0.103)
+    sim = KinematicSimulator(plan, sensor)
+    centre = plan.geometry.world_to_cell(*sim.odometry().xy)
+    for clearing in (True, False):
+        cfg = ExplorationConfig(sensor=sensor, mapping=MappingConfig(footprint_clearing=clearing))
+        m = OccupancyMap(plan.geometry)
+        integrate_observation(m, sim.sensor_pose(), sim.scan(), cfg)
+        assert m.explored[centre] == clearing
+        assert m.explored.sum() > 200  # the wedge itself, either way

@@ -121,6 +121,51 @@ def test_planner_reports_no_progress_when_robot_cannot_move():
     assert statuses[0] == PlannerStatus.FOLLOWING and statuses[-1] == PlannerStatus.NO_PROGRESS
 
 
+def test_a_pinned_robot_backs_up_then_follows_on():
+    """Nav2's BackUp recovery: commands that stop moving the robot (pinned on a wall's corner) for
+    ``stall_steps`` periods start a straight back-up of ``backup_distance_m``; a robot that moves as it is
+    told never backs up, and ``stall_steps: 0`` turns the recovery off. The state goes with
+    ``follow_state``, so a command computed ahead and undone leaves no back-up behind."""
+    plan = box_room(4.0, 3.0, 0.05)
+    t = ground_truth_traversable(plan)
+    robot = RobotConfig()
+    dt = robot.control_period_s
+    start, goal = Pose2D(1.0, 1.5, 0.0), np.array([3.5, 1.5])
+
+    def drive(planner: LocalPlanner, pinned_for: int, periods: int) -> list[VelocityCommand]:
+        pose, sent = start, []
+        for k in range(periods):
+            cmd = planner.update(pose, k * dt).command
+            sent.append(cmd)
+            if k >= pinned_for:  # free again: the robot moves as commanded
+                pose = Pose2D(pose.x_m + cmd.linear_mps * dt * math.cos(pose.yaw_rad), pose.y_m + cmd.linear_mps * dt * math.sin(pose.yaw_rad), pose.yaw_rad + cmd.angular_radps * dt)
+        return sent
+
+    pinned = LocalPlanner(robot)
+    pinned.set_goal(t, plan.geometry, start, goal)
+    sent = drive(pinned, pinned_for=5, periods=12)
+    assert all(c.linear_mps > 0.5 for c in sent[:4])  # the commands of periods 0-3 moved nothing ...
+    backup = VelocityCommand(-0.15, 0.0)
+    assert sent[4:8] == [backup] * 4  # ... then 0.15 m back at 0.15 m/s: four periods
+    assert all(c.linear_mps > 0 for c in sent[8:]) and pinned.stall.backups == 1
+
+    free = LocalPlanner(robot)
+    free.set_goal(t, plan.geometry, start, goal)
+    assert all(c.linear_mps > 0 for c in drive(free, pinned_for=0, periods=8)) and free.stall.backups == 0
+    off = LocalPlanner(robot, PlannerConfig(stall_steps=0))
+    off.set_goal(t, plan.geometry, start, goal)
+    assert all(c.linear_mps > 0 for c in drive(off, pinned_for=8, periods=8)) and off.stall.backups == 0
+
+    ahead = LocalPlanner(robot)
+    ahead.set_goal(t, plan.geometry, start, goal)
+    for k in range(4):
+        ahead.update(start, k * dt)
+    before = ahead.follow_state()
+    assert ahead.update(start, 4 * dt).command == backup
+    ahead.restore_follow_state(before)
+    assert ahead.stall.backups == 0 and ahead.update(start, 4 * dt).command == backup
+
+
 def test_kinematic_robot_stops_at_wall():
     plan = box_room(4.0, 3.0, 0.05)  # east wall inner face at x = 4.1
     sim = KinematicSimulator(plan)

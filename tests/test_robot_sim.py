@@ -12,7 +12,8 @@ import pytest
 from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, RobotConfig, SensorConfig, from_dict, load_yaml
 from cso_runtime.episode import run_episode
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
-from cso_runtime.geometry import Pose2D, VelocityCommand
+from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.geometry import Pose2D, VelocityCommand, wrap_angle_rad
 from cso_runtime.planner import LocalPlanner, PlannerStatus
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import FloorPlan
@@ -305,6 +306,28 @@ def test_lockstep_same_seed_same_trajectory() -> None:
     np.testing.assert_array_equal(a[2], b[2])
     assert len(a[0]) > 5 and np.hypot(*(a[0][-1] - a[0][0])) > 0.5  # the robot explored
     assert a[1] != c[1]  # another seed, other odometry drift
+
+
+def test_a_scan_between_control_steps_is_mapped_at_the_pose_it_was_taken() -> None:
+    """The depth camera fires at 15 Hz, the controller at 4 Hz: the latest scan of a step is up to 1/15 s
+    old. ``sensor_pose()`` is its pose, so a robot turning in place maps the walls where they are; at
+    the pose of now every turn smeared walls into the room (0.6 m2 of free space mapped occupied on a
+    small generated scene, which ended the episode at 97 % with no frontier left)."""
+    sim = MujocoSimulator(box_room(start=Pose2D(0.6, 0.6, 0.3)), SensorConfig.preset("depth"), seed=0)  # in a corner
+    occupancy = OccupancyMap(sim.plan.geometry)
+    stale = 0
+    for _ in range(24):
+        sim.step(VelocityCommand(0.0, 0.78))
+        fired = sim.drain_scans()
+        assert sim.sensor_pose() == fired[-1][0]  # the pose of the scan that scan() returns
+        now = sim.odometry().compose_offset(sim.lidar_mount_x_m)
+        stale += abs(wrap_angle_rad(now.yaw_rad - fired[-1][0].yaw_rad)) > math.radians(1.0)
+        occupancy.integrate_scan(sim.sensor_pose(), sim.scan())
+    assert stale >= 12  # most steps' scans were taken before the step ended
+    inside = np.zeros_like(sim.plan.free)
+    inside[2:-2, 2:-2] = True  # a cell or more away from the inner wall faces
+    assert occupancy.explored[inside].sum() > 1000
+    assert not (occupancy.occupied & inside).any()
 
 
 def test_odometry_drift_and_sensor_pose() -> None:

@@ -4,6 +4,7 @@ real-time and lockstep paths that an end-to-end run would only show by chance.""
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import threading
 import time
@@ -16,8 +17,9 @@ from cso_runtime.config import ExplorationConfig, MaskConfig
 from cso_runtime.episode import Explorer
 from cso_runtime.geometry import Pose2D, VelocityCommand
 from cso_runtime.messages import (
-    DistanceMapMsg,
+    ClockMsg,
     CmdVelMsg,
+    DistanceMapMsg,
     FrontiersMsg,
     GoalMsg,
     MapMsg,
@@ -41,8 +43,10 @@ from services.policy import PolicyService
 from tests.conftest import two_rooms
 
 
-def _service(cls: type[Service], lockstep: bool, params: dict | None = None) -> tuple[Service, list[tuple[str, Message]]]:
-    ctx = ServiceContext(cls.name, "r0", {"lockstep": lockstep}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params or {})
+def _service(
+    cls: type[Service], lockstep: bool, params: dict | None = None, exploration: ExplorationConfig | None = None
+) -> tuple[Service, list[tuple[str, Message]]]:
+    ctx = ServiceContext(cls.name, "r0", {"lockstep": lockstep}, exploration or ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params or {})
     svc = cls(ctx)
     out: list[tuple[str, Message]] = []
     # As ``publish`` does, minus Zenoh: only declared outputs go out, and they go out through the codec.
@@ -472,7 +476,7 @@ def test_sim_rejects_a_map_of_another_episode():
 def test_restarted_mapper_keeps_the_cached_map_of_its_episode_only():
     """A restarted mapper continues from the referee's cached map; the map it publishes carries the
     episode id; the first scan of another episode starts a new map instead of adding to the old one."""
-    from cso_runtime.occupancy import OccupancyMap  # noqa: PLC0415
+    from cso_runtime.occupancy import OccupancyMap, integrate_observation  # noqa: PLC0415
     from services.mapper import MapperService  # noqa: PLC0415
 
     ex = _explorer_at(4)
@@ -488,9 +492,35 @@ def test_restarted_mapper_keeps_the_cached_map_of_its_episode_only():
         published = [m for t, m in out if t == "map"]
         assert [(m.step, m.episode) for m in published] == [(5, episode)]
         expected = OccupancyMap.from_occupancy_grid(cached.grid, cached.geometry) if episode == 5 else OccupancyMap(cached.geometry)
-        expected.integrate_scan(scan.sensor_pose, scan.scan)
+        integrate_observation(expected, scan.sensor_pose, scan.scan, ExplorationConfig())
         assert np.array_equal(published[0].grid, expected.to_occupancy_grid())
         assert (published[0].grid < 0).any() == (episode == 6)  # episode 6: the old cells are gone
+
+
+def test_the_mapper_service_builds_the_explorers_map_with_a_forward_narrow_sensor():
+    """The depth camera 0.103 m ahead of the centre: the mapper service clears the robot's footprint (the
+    robot's centre being the scan's sensor pose less the profile's mount) exactly as the in-process
+    Explorer does, so lockstep through Zenoh stays step for step the in-process episode."""
+    from cso_runtime.config import SensorConfig  # noqa: PLC0415
+    from services.mapper import MapperService  # noqa: PLC0415
+
+    sensor = dataclasses.replace(SensorConfig.preset("depth"), mount_x_m=0.103)
+    cfg = ExplorationConfig(sensor=sensor)
+    ex = Explorer(KinematicSimulator(two_rooms(), sensor, seed=0), cfg)
+    ex.reset(0)
+    obs = ex.observe()
+    ex.apply_goal(obs, make_policy("greedy-dist").select(obs))
+    mapper, out = _service(MapperService, lockstep=True, exploration=cfg)
+    mapper.on_message("r0", "clock", ClockMsg(0, 0.0, ex.map.geometry, 1), time.monotonic())
+    _feed(mapper, ScanMsg(0, ex.last_scan, ex.sim.sensor_pose(), 1))
+    start = ex.sim.odometry()
+    for step in range(1, 9):
+        ex.advance()
+        _feed(mapper, ScanMsg(step, ex.last_scan, ex.sim.sensor_pose(), 1))
+    assert ex.sim.odometry() != start
+    centre = ex.map.geometry.world_to_cell(*ex.sim.odometry().xy)
+    assert ex.map.explored[centre]  # the footprint, which the camera never sees
+    assert np.array_equal(out[-1][1].grid, ex.map.to_occupancy_grid())
 
 
 def test_message_trace_records_each_handled_input_and_feeds_the_hop_breakdown(tmp_path):
