@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cso_runtime.config import ConfigError, ExplorationConfig
+from cso_runtime.config import ConfigError, ExplorationConfig, from_dict
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.keys import RobotKeys
 from cso_runtime.launcher import PACKAGED_PROFILES, find_profile, load_profile, pid_alive
@@ -182,7 +182,9 @@ def test_up_limo_ros2_explores_a_fake_limo_and_its_recording_rebuilds_the_map(tm
     with open_session(router) as session:
         fresh_maps: dict[int, MapMsg] = {}
         sub = session.declare_subscriber(keys.map, lambda s: fresh_maps.setdefault((m := decode(s.payload.to_bytes(), MapMsg)).step, m))
-        fresh = MapperService(ServiceContext("mapper", "r0", {}, ExplorationConfig(), client, {"restore_timeout_s": 0.1}))
+        # The run's exploration config (the profile's LiDAR mount offset places the footprint the mapper clears).
+        exploration = from_dict(ExplorationConfig, load_profile("limo-ros2", connect=["tcp/127.0.0.1:7447"])[0].exploration, where="exploration")
+        fresh = MapperService(ServiceContext("mapper", "r0", {}, exploration, client, {"restore_timeout_s": 0.1}))
         stop = threading.Event()
         thread = threading.Thread(target=run_service, args=(fresh, stop), daemon=True)
         thread.start()
