@@ -173,7 +173,8 @@ def in_process(scene: str, method: str, seed: int) -> tuple[float, int, float, f
     plan = resolve_scenes(scene)[0].load()
     c0 = time.process_time()
     t0 = time.perf_counter()
-    r = run_episode(KinematicSimulator(plan, seed=seed), make_policy(method, seed=seed), ExplorationConfig(), seed=seed)
+    config = ExplorationConfig()
+    r = run_episode(KinematicSimulator(plan, seed=seed), make_policy(method, seed=seed, sensor=config.sensor), config, seed=seed)
     return time.perf_counter() - t0, r.steps, r.coverage_pct, time.process_time() - c0
 
 

@@ -130,7 +130,7 @@ class EvalRequest:
 
             for method in learned:
                 try:
-                    check_weights(method)
+                    check_weights(method, sensor=self.exploration_config().sensor)
                 except CheckpointError as exc:
                     raise ConfigError(f"method {method}: {exc}") from None
 
@@ -274,7 +274,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
     except SceneError as exc:
         return EpisodeOutcome(job.method, job.scene.name, error=str(exc))
     try:
-        policy = make_policy(job.method, job.config.masks, seed=job.seed)
+        policy = make_policy(job.method, job.config.masks, seed=job.seed, sensor=job.config.sensor)
         warm_up = getattr(policy, "warm_up", None)
         if warm_up is not None:  # the network's one-off trace, outside the decision latencies (as the policy service does)
             warm_up()
@@ -381,7 +381,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
     if any(m in LEARNED_METHODS for m in request.methods):
         from cso_runtime.learned.weights import weights_provenance  # noqa: PLC0415
 
-        weights = {m: weights_provenance(m) for m in request.methods if m in LEARNED_METHODS}
+        weights = {m: weights_provenance(m, config.sensor) for m in request.methods if m in LEARNED_METHODS}
     settings = {m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "") for m in request.methods}
     jobs = [
         EpisodeJob(m, s, request.seed, request.sim, config, out, settings[m])

@@ -125,10 +125,14 @@ class Profile:
     services: dict[str, Any] = field(default_factory=dict)
     """Service name -> its parameters (a mapping, possibly empty). Only listed services are started."""
 
+    def exploration_config(self) -> ExplorationConfig:
+        """The exploration settings every service of this profile runs with (raises ConfigError)."""
+        return from_dict(ExplorationConfig, self.exploration, where="exploration")
+
     def validate(self) -> None:
         check_robot_id(self.robot)
         check_seed(self.seed)
-        from_dict(ExplorationConfig, self.exploration, where="exploration")
+        self.exploration_config()
         from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
 
         if not self.services:
@@ -150,9 +154,10 @@ class Profile:
         if self.method in LEARNED_METHODS:
             from cso_runtime.learned.weights import weights_file_problem, weights_path  # noqa: PLC0415
 
+            sensor = self.exploration_config().sensor
             if self.method not in available_methods():
-                raise ConfigError(f"method {self.method}: no weights at {weights_path(self.method)}; train it with `cso-runtime train --variant {self.method}`")
-            if problem := weights_file_problem(self.method):
+                raise ConfigError(f"method {self.method}: no weights at {weights_path(self.method, sensor)}; train it with `cso-runtime train --variant {self.method}`")
+            if problem := weights_file_problem(self.method, sensor):
                 raise ConfigError(f"method {self.method}: {problem}")
         try:
             refs = resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px)
@@ -541,7 +546,8 @@ class Launcher:
         if result.method in LEARNED_METHODS:
             from cso_runtime.learned.weights import weights_provenance  # noqa: PLC0415
 
-            meta["weights"] = {result.method: weights_provenance(result.method)}  # what the policy service loaded
+            sensor = self.profile.exploration_config().sensor
+            meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
         out = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta)
         log.info("episode %s: %.2f%% coverage in %d steps; results in %s", result.terminated_by, result.coverage_pct, result.steps, out)
         return out

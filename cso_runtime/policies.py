@@ -11,7 +11,7 @@ from typing import Callable, Protocol, runtime_checkable
 
 import numpy as np
 
-from cso_runtime.config import MaskConfig
+from cso_runtime.config import MaskConfig, SensorConfig
 from cso_runtime.masks import StuckMask, valid_distance_mask
 from cso_runtime.observation import Observation
 
@@ -177,8 +177,11 @@ def _learned_available(name: str) -> bool:
     return has_weights(name)
 
 
-def make_policy(name: str, mask_config: MaskConfig | None = None, seed: int | None = None, device: str = "cpu") -> GoalSelector:
-    """Build a goal selector by name (``greedy-dist``, ``greedy-info``, ``utility``, ``random``, ``cso``...)."""
+def make_policy(
+    name: str, mask_config: MaskConfig | None = None, seed: int | None = None, device: str = "cpu", sensor: SensorConfig | None = None
+) -> GoalSelector:
+    """Build a goal selector by name (``greedy-dist``, ``greedy-info``, ``utility``, ``random``, ``cso``...).
+    A learned method loads the weights trained with ``sensor``'s field of view where they ship."""
     if name in BASELINES:
         policy = BASELINES[name]()
         policy.reset(seed)
@@ -186,5 +189,5 @@ def make_policy(name: str, mask_config: MaskConfig | None = None, seed: int | No
     if name in LEARNED_METHODS:
         from cso_runtime.learned import registry  # noqa: PLC0415 - torch only when needed
 
-        return registry.make_learned_policy(name, mask_config or MaskConfig(), seed=seed, device=device)
+        return registry.make_learned_policy(name, mask_config or MaskConfig(), seed=seed, device=device, sensor=sensor)
     raise ValueError(f"unknown method {name!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")

@@ -70,12 +70,12 @@ class PolicyService(Service):
         if self.method in LEARNED_METHODS:
             from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
 
-            log.info("%s: weights %s", self.method, weights_path(self.method))
+            log.info("%s: weights %s", self.method, weights_path(self.method, ctx.exploration.sensor))
         self._queryables: list = []
 
     def new_selector(self) -> GoalSelector:
         try:
-            return make_policy(self.method, self.ctx.exploration.masks, seed=self.seed, device=self.params.device)
+            return make_policy(self.method, self.ctx.exploration.masks, seed=self.seed, device=self.params.device, sensor=self.ctx.exploration.sensor)
         except (ValueError, FileNotFoundError) as exc:  # an unknown method, or a learned one without weights
             raise ConfigError(str(exc)) from None
 

@@ -296,8 +296,8 @@ def test_eval_warms_a_learned_policy_up_before_its_first_decision(tmp_path: Path
 
     calls = []
 
-    def recording_policy(method, masks, seed=0):
-        policy = make_policy(method, masks, seed=seed)
+    def recording_policy(method, masks, seed=0, sensor=None):
+        policy = make_policy(method, masks, seed=seed, sensor=sensor)
         warm_up, select = policy.warm_up, policy.select
         policy.warm_up = lambda: (calls.append("warm_up"), warm_up())[1]
         policy.select = lambda obs: (calls.append("select"), select(obs))[1]

@@ -522,6 +522,54 @@ def test_weights_dir_override_serves_other_weights(tmp_path, monkeypatch, observ
         torch.testing.assert_close(policy.model.state_dict()[name], value)
 
 
+def test_weights_trained_with_the_sensor_serve_episodes_with_that_field_of_view(tmp_path, monkeypatch):
+    """``<method>@fov<deg>.pt`` serves episodes whose sensor has that field of view (the shipped ``cso`` has
+    one for the LIMO's 180-degree LiDAR); every other sensor gets ``<method>.pt``. eval, the policy service
+    and the run records all take the file from ``weights_path``."""
+    from cso_runtime.config import SensorConfig  # noqa: PLC0415
+    from cso_runtime.learned import registry  # noqa: PLC0415
+    from cso_runtime.learned.weights import weights_provenance  # noqa: PLC0415
+
+    monkeypatch.delenv(registry.WEIGHTS_DIR_ENV, raising=False)
+    lidar180, lidar360, depth = SensorConfig(), SensorConfig.preset("lidar", 360), SensorConfig.preset("depth")
+    assert registry.weights_path("cso", lidar180).name == "cso@fov180.pt"
+    assert registry.weights_path("cso", lidar360).name == registry.weights_path("cso", depth).name == registry.weights_path("cso").name == "cso.pt"
+    assert registry.weights_path("cso-sm", lidar180).name == "cso-sm.pt"  # no 180-degree file for the ablations
+    assert weights_provenance("cso", lidar180)["sha256"] != weights_provenance("cso", lidar360)["sha256"]
+
+    torch.manual_seed(12)
+    wide, narrow = GraphActorCritic().eval(), GraphActorCritic().eval()
+    save_checkpoint(tmp_path / "cso.pt", wide, GraphConfig(), "cso")
+    monkeypatch.setenv(registry.WEIGHTS_DIR_ENV, str(tmp_path))
+    assert registry.weights_path("cso", lidar180) == tmp_path / "cso.pt"  # a training run's folder: its one file
+    save_checkpoint(tmp_path / "cso@fov180.pt", narrow, GraphConfig(), "cso")
+    for sensor, expected in ((lidar180, narrow), (lidar360, wide), (None, wide)):
+        policy = make_policy("cso", MaskConfig(), seed=0, sensor=sensor)
+        for name, value in expected.state_dict().items():
+            torch.testing.assert_close(policy.model.state_dict()[name], value)
+
+
+def test_the_shipped_180_degree_weights_are_the_recorded_training_run(monkeypatch):
+    """``cso@fov180.pt`` is ``train --config configs/train.yaml`` with the 180-degree LiDAR: same graph and
+    network as the recipe builds with that sensor, and its record names the command."""
+    import json  # noqa: PLC0415
+
+    from cso_runtime.cli import training_args  # noqa: PLC0415
+    from cso_runtime.config import SensorConfig  # noqa: PLC0415
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path  # noqa: PLC0415
+
+    monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)
+    config = Path(__file__).resolve().parents[1] / "configs" / "train.yaml"
+    args = training_args(config, {"variant": "cso", "seed": 2}, ["dungeon_dir=null", "lidar_fov_deg=null"])
+    path = weights_path("cso", SensorConfig())
+    model, graph, ckpt = load_checkpoint(path)
+    assert ckpt["variant"] == "cso" and args.env_config().exploration.sensor.fov_deg == 180.0
+    assert graph == args.env_config().graph and model.config == build_model(args, torch.device("cpu")).config
+    record = json.loads(path.with_suffix(".json").read_text())
+    assert record["command"] == "cso-runtime train --config configs/train.yaml --variant cso --seed 2 --set lidar_fov_deg=null"
+    assert record["args"]["lidar_fov_deg"] is None and record["args"]["seed"] == 2
+
+
 def test_the_environment_is_registered_with_gymnasium():
     """``gymnasium.make`` builds the training environment by id; a step runs the robot to the chosen
     frontier and pays Eq. 6's reward, and the mask comes with every observation."""

@@ -92,7 +92,8 @@ def in_process_poses(method: str):
         poses.append(sim.true_pose())
 
     sim.step = recording  # type: ignore[method-assign]
-    return run_episode(sim, make_policy(method, seed=0), ExplorationConfig(), seed=0), poses
+    config = ExplorationConfig()
+    return run_episode(sim, make_policy(method, seed=0, sensor=config.sensor), config, seed=0), poses
 
 
 @pytest.mark.parametrize("method, order_seeds", [("greedy-dist", range(8)), ("cso", range(2))])

@@ -226,5 +226,5 @@ def test_the_depth_camera_explores_a_small_scene_to_the_end():
     for method, scene in (("greedy-dist", "generated:small:1:1"), ("cso", "generated:small:1:0")):
         plan = resolve_scenes(scene)[0].load()
         sim = KinematicSimulator(plan, config.sensor, config.robot, seed=0)
-        result = run_episode(sim, make_policy(method, config.masks, seed=0), config, seed=0)
+        result = run_episode(sim, make_policy(method, config.masks, seed=0, sensor=config.sensor), config, seed=0)
         assert result.terminated_by == "coverage" and result.coverage_pct > 99.0, (method, scene, result.coverage_pct)

@@ -91,7 +91,8 @@ def kill_leftovers(runs: Path, extra: list[int] = ()) -> list[int]:
 
 def in_process_result(scene: str = SCENE, method: str = "greedy-dist"):
     plan = resolve_scenes(scene)[0].load()
-    return run_episode(KinematicSimulator(plan, seed=0), make_policy(method, seed=0), ExplorationConfig(), seed=0)
+    config = ExplorationConfig()
+    return run_episode(KinematicSimulator(plan, seed=0), make_policy(method, seed=0, sensor=config.sensor), config, seed=0)
 
 
 THREADS_OF_A_SESSION = """

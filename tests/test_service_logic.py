@@ -13,7 +13,7 @@ import weakref
 import numpy as np
 import pytest
 
-from cso_runtime.config import ExplorationConfig, MaskConfig
+from cso_runtime.config import ExplorationConfig, MaskConfig, SensorConfig
 from cso_runtime.episode import Explorer
 from cso_runtime.geometry import Pose2D, VelocityCommand
 from cso_runtime.messages import (
@@ -138,6 +138,27 @@ def test_real_time_frontier_decides_on_the_newest_map_and_waits_for_the_goal():
     assert [(t, m.step, getattr(m, "decide", None), getattr(m, "reason", None)) for t, m in out[3:]] == [("frontiers", 4, True, "reached"), ("distance_map", 4, None, None)]
 
 
+def test_policy_service_loads_the_weights_trained_with_its_sensor(tmp_path, monkeypatch):
+    """The policy service of a profile with the LIMO's 180-degree LiDAR serves ``cso@fov180.pt``; with a
+    360-degree LiDAR, ``cso.pt`` (the same rule as eval, ``weights.weights_path``)."""
+    import torch  # noqa: PLC0415
+
+    from cso_runtime.learned.graph import GraphConfig  # noqa: PLC0415
+    from cso_runtime.learned.network import GraphActorCritic  # noqa: PLC0415
+    from cso_runtime.learned.registry import WEIGHTS_DIR_ENV, save_checkpoint  # noqa: PLC0415
+
+    torch.manual_seed(5)
+    wide, narrow = GraphActorCritic().eval(), GraphActorCritic().eval()
+    save_checkpoint(tmp_path / "cso.pt", wide, GraphConfig(), "cso")
+    save_checkpoint(tmp_path / "cso@fov180.pt", narrow, GraphConfig(), "cso")
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(tmp_path))
+    for sensor, expected in ((SensorConfig(), narrow), (SensorConfig.preset("lidar", 360), wide)):
+        policy, _ = _service(PolicyService, lockstep=True, params={"method": "cso"}, exploration=ExplorationConfig(sensor=sensor))
+        served = policy.new_selector().model.state_dict()
+        for name, value in expected.state_dict().items():
+            torch.testing.assert_close(served[name], value)
+
+
 def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_in_process(monkeypatch):
     """Three decisions 0.1 m apart on one map: Algorithm 1 finds the robot stuck at the third and
     measures from the three decision positions, each with a fast-marching pass bounded by alpha_3.
@@ -165,7 +186,7 @@ def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_i
         _feed(policy, f)
     assert policy.robots["r0"].selector.masker.stuck.is_stuck()
     assert bounds == [MaskConfig().alpha3_m] * 3  # and no unbounded pass: D at the path nodes travelled
-    in_process = make_policy("cso", MaskConfig(), seed=0)
+    in_process = make_policy("cso", MaskConfig(), seed=0, sensor=SensorConfig())  # the service's sensor: the default
     expected = [in_process.select(obs) for obs in observations]
     assert [(m.step, m.x_m, m.y_m, m.cluster_index) for _, m in out] == [(f.step, g.x_m, g.y_m, g.cluster_index) for f, g in zip(decisions, expected)]
 

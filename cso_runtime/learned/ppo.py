@@ -343,7 +343,7 @@ def seed_everything(seed: int) -> None:
 
 def initial_weights(args: Args, device: torch.device) -> dict[str, torch.Tensor]:
     """The state dict named by ``args.init_from``, checked against the variant and graph being trained."""
-    path = weights_path(args.variant) if args.init_from == "shipped" else Path(str(args.init_from))
+    path = weights_path(args.variant, args.env_config().exploration.sensor) if args.init_from == "shipped" else Path(str(args.init_from))
     model, graph, ckpt = load_checkpoint(path, str(device))
     if ckpt.get("variant") != args.variant:
         raise ValueError(f"{path} holds variant {ckpt.get('variant')!r}, not {args.variant!r}")

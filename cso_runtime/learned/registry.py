@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from cso_runtime.config import MaskConfig
+from cso_runtime.config import MaskConfig, SensorConfig
 from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph, frontier_count
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
@@ -56,15 +56,15 @@ def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig
     return model, graph
 
 
-def check_weights(name: str, device: str = "cpu") -> None:
-    """Load ``name``'s weights now (kept for the episodes), so that a corrupt file is one clear error
-    before any episode starts rather than a failure per scene. Raises CheckpointError."""
-    _cached_model(str(weights_path(name)), str(device))
+def check_weights(name: str, device: str = "cpu", sensor: SensorConfig | None = None) -> None:
+    """Load ``name``'s weights for ``sensor`` now (kept for the episodes), so that a corrupt file is one
+    clear error before any episode starts rather than a failure per scene. Raises CheckpointError."""
+    _cached_model(str(weights_path(name, sensor)), str(device))
 
 
-def has_method(name: str) -> bool:
-    """True when ``name`` is a learned variant whose weights are shipped."""
-    return name in VARIANTS and has_weights(name)
+def has_method(name: str, sensor: SensorConfig | None = None) -> bool:
+    """True when ``name`` is a learned variant whose weights are shipped (for ``sensor``)."""
+    return name in VARIANTS and has_weights(name, sensor)
 
 
 def save_checkpoint(path: str | Path, model: GraphActorCritic, graph: GraphConfig, variant: str, extra: dict[str, Any] | None = None) -> None:
@@ -200,14 +200,17 @@ class LearnedPolicy:
         return goal_of(obs, a)
 
 
-def make_learned_policy(name: str, mask_config: MaskConfig, seed: int | None = None, device: str = "cpu") -> LearnedPolicy:
-    """Load the shipped weights of ``name``; the variant's switches override the mask settings."""
+def make_learned_policy(
+    name: str, mask_config: MaskConfig, seed: int | None = None, device: str = "cpu", sensor: SensorConfig | None = None
+) -> LearnedPolicy:
+    """Load the shipped weights of ``name`` (those trained with ``sensor``'s field of view where they
+    ship, ``weights.weights_path``); the variant's switches override the mask settings."""
     if name not in VARIANTS:
         raise ValueError(f"unknown learned method {name!r}; known: {', '.join(VARIANTS)}")
-    if not has_method(name):
-        raise FileNotFoundError(f"no weights for {name!r} (expected {weights_path(name)}); train it with `cso-runtime train`")
+    if not has_method(name, sensor):
+        raise FileNotFoundError(f"no weights for {name!r} (expected {weights_path(name, sensor)}); train it with `cso-runtime train`")
     v = VARIANTS[name]
-    model, graph = _cached_model(str(weights_path(name)), str(device))
+    model, graph = _cached_model(str(weights_path(name, sensor)), str(device))
     graph = dataclasses.replace(graph, use_entropy=v.use_entropy)
     masks = dataclasses.replace(mask_config, use_valid_distance=v.use_valid_distance, use_stuck=v.use_stuck)
     return LearnedPolicy(name, model, graph, masks, seed=seed, device=device)

@@ -3,6 +3,10 @@ them before anything starts; ``registry`` loads them).
 
 The shipped files are ``cso_runtime/data/weights/<method>.pt``; ``$CSO_WEIGHTS_DIR`` (or ``--weights``
 on ``eval`` and ``up``) points every process of a run at a training run's folder instead.
+
+A policy is trained for one sensor. Where the folder also holds ``<method>@fov<deg>.pt`` (weights trained
+with a sensor of that field of view, e.g. ``cso@fov180.pt`` for the LIMO's 180-degree LiDAR), an episode with
+that field of view uses it; every other sensor uses ``<method>.pt``.
 """
 
 from __future__ import annotations
@@ -12,6 +16,8 @@ import os
 from importlib import resources
 from pathlib import Path
 from typing import Any
+
+from cso_runtime.config import SensorConfig
 
 WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
 """Environment variable naming a folder of ``<method>.pt`` files to use instead of the shipped ones
@@ -25,20 +31,32 @@ def weights_dir() -> Path:
     return Path(str(resources.files("cso_runtime") / "data" / "weights"))
 
 
-def weights_path(name: str) -> Path:
-    return weights_dir() / f"{name}.pt"
+def sensor_tag(sensor: SensorConfig) -> str:
+    """The file-name tag of weights trained with ``sensor``: its field of view (``fov180``)."""
+    return f"fov{sensor.fov_deg:g}"
 
 
-def has_weights(name: str) -> bool:
+def weights_path(name: str, sensor: SensorConfig | None = None) -> Path:
+    """``name``'s weights file: ``<name>@<sensor_tag>.pt`` when ``sensor`` is given and the folder has one
+    trained with its field of view, else ``<name>.pt``."""
+    folder = weights_dir()
+    if sensor is not None:
+        matched = folder / f"{name}@{sensor_tag(sensor)}.pt"
+        if matched.is_file():
+            return matched
+    return folder / f"{name}.pt"
+
+
+def has_weights(name: str, sensor: SensorConfig | None = None) -> bool:
     """True when ``name``'s weights file is where ``weights_path`` says (shipped, or in ``$CSO_WEIGHTS_DIR``)."""
-    return weights_path(name).is_file()
+    return weights_path(name, sensor).is_file()
 
 
-def weights_file_problem(name: str) -> str:
+def weights_file_problem(name: str, sensor: SensorConfig | None = None) -> str:
     """Why ``name``'s weights file cannot be a torch checkpoint, judged from its first bytes without
     torch (the launcher checks before anything starts); empty when it may be one. ``registry.load_checkpoint``
     says more about a file that passes this but still does not load."""
-    path = weights_path(name)
+    path = weights_path(name, sensor)
     try:
         with path.open("rb") as fh:
             head = fh.read(4)
@@ -64,9 +82,9 @@ def use_weights_dir(directory: str | Path) -> Path:
     return path
 
 
-def weights_provenance(name: str) -> dict[str, Any]:
-    """The weights file ``name`` uses and its SHA-256, for the records of a run: results must say
-    which weights produced them, since ``CSO_WEIGHTS_DIR`` can swap them."""
-    path = weights_path(name)
+def weights_provenance(name: str, sensor: SensorConfig | None = None) -> dict[str, Any]:
+    """The weights file ``name`` uses with ``sensor`` and its SHA-256, for the records of a run: results
+    must say which weights produced them, since ``CSO_WEIGHTS_DIR`` and the sensor can swap them."""
+    path = weights_path(name, sensor)
     digest = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else ""
     return {"path": str(path), "sha256": digest, "shipped": not os.environ.get(WEIGHTS_DIR_ENV)}
