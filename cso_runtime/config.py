@@ -217,8 +217,9 @@ class PlannerConfig:
     stall_steps: int = 4
     """Nav2's BackUp recovery: when this many control periods in a row each moved the robot less than a
     quarter of what their commands asked (pinned on a wall's corner, which the MuJoCo LIMO can be after
-    sliding on from full speed), it backs straight up ``backup_distance_m`` before following on. 0 turns it
-    off."""
+    sliding on from full speed), it backs straight up ``backup_distance_m`` before following on, a period at a
+    time and only while the map the path was planned on shows no obstacle in the strip behind the body
+    (``LocalPlanner`` stops a reverse command otherwise). 0 turns it off."""
     backup_distance_m: float = 0.15
     """How far the stall recovery backs up (Nav2's default ``backup_dist``)."""
     backup_speed_mps: float = 0.15

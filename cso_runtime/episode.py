@@ -238,7 +238,7 @@ class Explorer:
             self.planner.clear()
             self.terminated_by = TERMINATED_NO_FRONTIER
             return
-        status = self.planner.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_map())
+        status = self.planner.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_map(), occupied=obs.occupied)
         if status == PlannerStatus.BLOCKED:
             self._mark_dead((goal.x_m, goal.y_m))
 

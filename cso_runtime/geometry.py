@@ -85,6 +85,23 @@ class GridGeometry:
     def in_bounds(self, iy, ix):
         return (np.asarray(iy) >= 0) & (np.asarray(iy) < self.shape[0]) & (np.asarray(ix) >= 0) & (np.asarray(ix) < self.shape[1])
 
+    def cells_in_rectangle(self, centre: Pose2D, length_m: float, width_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Cells (iy, ix) of the grid whose centres lie in the rectangle ``length_m`` along ``centre``'s
+        heading by ``width_m`` across it, centred on ``centre`` (the robot's body, or a strip of it)."""
+        reach_m = 0.5 * math.hypot(length_m, width_m)
+        iy0, ix0 = self.world_to_cell(centre.x_m - reach_m, centre.y_m - reach_m)
+        iy1, ix1 = self.world_to_cell(centre.x_m + reach_m, centre.y_m + reach_m)
+        iy0, ix0 = max(int(iy0), 0), max(int(ix0), 0)
+        iy1, ix1 = min(int(iy1), self.shape[0] - 1), min(int(ix1), self.shape[1] - 1)
+        if iy1 < iy0 or ix1 < ix0:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        iy, ix = np.mgrid[iy0 : iy1 + 1, ix0 : ix1 + 1]
+        x_m, y_m = self.cell_to_world(iy, ix)
+        c, s = math.cos(centre.yaw_rad), math.sin(centre.yaw_rad)
+        dx, dy = x_m - centre.x_m, y_m - centre.y_m
+        inside = (np.abs(c * dx + s * dy) <= 0.5 * length_m) & (np.abs(-s * dx + c * dy) <= 0.5 * width_m)
+        return iy[inside], ix[inside]
+
 
 @dataclass(frozen=True)
 class LaserScan:

@@ -579,9 +579,9 @@ def frontiers_reading(grids: tuple[str, ...] | None, clusters: bool = True) -> t
     return type(name, (FrontiersMsg,), {"READS_GRIDS": grids, "READS_CLUSTERS": clusters, "__doc__": frontiers_reading.__doc__})
 
 
-PlannerFrontiersMsg = frontiers_reading(("traversable",), clusters=False)
+PlannerFrontiersMsg = frontiers_reading(("traversable", "occupied"), clusters=False)
 """A ``frontiers`` message as the planner reads it: the verdict and, on a decision, the grid it plans on
-(with the pose and geometry). About a third of a full decode on a 640 x 480 map, on the planner's
+and the obstacles it checks before reversing (with the pose and geometry). About a third of a full decode on a 640 x 480 map, on the planner's
 network thread while a fast policy's goal may already be waiting behind it."""
 
 

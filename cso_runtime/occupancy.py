@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from cso_runtime.config import ExplorationConfig
@@ -109,21 +107,9 @@ class OccupancyMap:
         """Mark the unknown cells whose centres lie under the robot's rectangular body (centred on
         ``robot_pose``, ``length_m`` along its heading) as free; returns how many. Cells already seen,
         free or occupied, keep what the scans said of them."""
-        g = self.geometry
-        reach_m = 0.5 * math.hypot(length_m, width_m)
-        iy0, ix0 = g.world_to_cell(robot_pose.x_m - reach_m, robot_pose.y_m - reach_m)
-        iy1, ix1 = g.world_to_cell(robot_pose.x_m + reach_m, robot_pose.y_m + reach_m)
-        iy0, ix0 = max(int(iy0), 0), max(int(ix0), 0)
-        iy1, ix1 = min(int(iy1), g.shape[0] - 1), min(int(ix1), g.shape[1] - 1)
-        if iy1 < iy0 or ix1 < ix0:
-            return 0
-        iy, ix = np.mgrid[iy0 : iy1 + 1, ix0 : ix1 + 1]
-        x_m, y_m = g.cell_to_world(iy, ix)
-        c, s = math.cos(robot_pose.yaw_rad), math.sin(robot_pose.yaw_rad)
-        dx, dy = x_m - robot_pose.x_m, y_m - robot_pose.y_m
-        under = (np.abs(c * dx + s * dy) <= 0.5 * length_m) & (np.abs(-s * dx + c * dy) <= 0.5 * width_m)
-        under &= ~self.explored[iy, ix]
-        cy, cx = iy[under], ix[under]
+        iy, ix = self.geometry.cells_in_rectangle(robot_pose, length_m, width_m)
+        unseen = ~self.explored[iy, ix]
+        cy, cx = iy[unseen], ix[unseen]
         self.log_odds[cy, cx] = LOG_ODDS_MISS
         self.occupied[cy, cx] = False
         self.explored[cy, cx] = True

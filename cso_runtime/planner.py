@@ -33,6 +33,10 @@ STALL_MIN_ASKED_RAD = 0.05
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 
 
+REVERSE_LOOKAHEAD_M = 0.1
+"""The least distance behind the robot checked before a reverse command (a period's travel is 4-5 cm)."""
+
+
 class PlannerStatus(str, Enum):
     IDLE = "idle"
     FOLLOWING = "following"
@@ -138,10 +142,22 @@ def path_blocked_ahead(path_ahead_xy_m: np.ndarray, pose: Pose2D, occupied: np.n
 
 @dataclass(frozen=True)
 class FreeSpace:
-    """The traversable (inflated) grid a path was planned on, for line-of-sight checks."""
+    """The traversable (inflated) grid a path was planned on, for line-of-sight checks, and the occupied
+    cells of that map, for the check behind the robot before it reverses."""
 
     traversable: np.ndarray
     geometry: GridGeometry
+    occupied: np.ndarray | None = None
+    """None: not known, and reversing is not checked."""
+
+    def behind_is_clear(self, pose: Pose2D, length_m: float, width_m: float, distance_m: float) -> bool:
+        """Whether no occupied cell lies in the strip that the robot's body (``length_m`` x ``width_m``,
+        centred on ``pose``) sweeps when it reverses ``distance_m`` straight back."""
+        if self.occupied is None or distance_m <= 0:
+            return True
+        strip = pose.compose_offset(-0.5 * (length_m + distance_m))
+        iy, ix = self.geometry.cells_in_rectangle(strip, distance_m, width_m)
+        return not bool(self.occupied[iy, ix].any())
 
     def line_is_free(self, a_xy_m: np.ndarray, b_xy_m: np.ndarray) -> bool:
         n = max(2, int(np.ceil(np.hypot(*(b_xy_m - a_xy_m)) / (0.5 * self.geometry.resolution_m))) + 1)
@@ -157,7 +173,9 @@ class FollowResult:
     command: VelocityCommand
     status: PlannerStatus
     recovery: str = ""
-    """``"backup"`` when the command is the stall recovery's (``StallRecovery``), else empty."""
+    """``"backup"`` when the command is the stall recovery's (``StallRecovery``); ``"reverse_blocked"``
+    when a reverse command (a back-up, or the blocked-ahead creep back) was replaced by a stop because
+    the map shows an obstacle behind the robot; else empty."""
 
 
 class PathFollower:
@@ -385,12 +403,14 @@ class LocalPlanner:
         goal_xy_m: np.ndarray,
         distance_from_robot: np.ndarray | None = None,
         goal_distance_m: float | None = None,
+        occupied: np.ndarray | None = None,
     ) -> PlannerStatus:
         """Plan to a new goal; the status is ``blocked`` when there is no path. Without
-        ``distance_from_robot``, ``goal_distance_m`` bounds the fast-marching pass (``plan_path``)."""
+        ``distance_from_robot``, ``goal_distance_m`` bounds the fast-marching pass (``plan_path``).
+        ``occupied`` (the same map's obstacles) lets the robot reverse only where the map shows none."""
         try:
             path = plan_path(traversable, geometry, pose.xy, np.asarray(goal_xy_m, dtype=float), distance_from_robot, goal_distance_m)
-            self.set_path(path, FreeSpace(traversable, geometry))
+            self.set_path(path, FreeSpace(traversable, geometry, occupied))
         except NoPath:
             self.path = None
             self.progress.reset()
@@ -443,9 +463,20 @@ class LocalPlanner:
 
     def update(self, pose: Pose2D, time_s: float, scan: LaserScan | None = None) -> FollowResult:
         """One control period: the command to send and the resulting status."""
-        result = self._update(pose, time_s, scan)
+        result = self._guard_reverse(pose, self._update(pose, time_s, scan))
         self.stall.record(pose, time_s, result.command)
         return result
+
+    def _guard_reverse(self, pose: Pose2D, result: FollowResult) -> FollowResult:
+        """A reverse command drives the body into space the LIMO's front LiDAR does not see: send it only
+        when the map the path was planned on shows no obstacle in the strip it sweeps this period (as
+        Nav2's BackUp checks its costmap); otherwise stop, and the progress checker ends the goal."""
+        reverse_m = -result.command.linear_mps * self.robot.control_period_s
+        if reverse_m <= 0 or self.free is None:
+            return result
+        if self.free.behind_is_clear(pose, self.robot.length_m, self.robot.width_m, max(reverse_m, REVERSE_LOOKAHEAD_M)):
+            return result
+        return FollowResult(VelocityCommand(0.0, 0.0), result.status, "reverse_blocked")
 
     def _update(self, pose: Pose2D, time_s: float, scan: LaserScan | None) -> FollowResult:
         stop = VelocityCommand(0.0, 0.0)

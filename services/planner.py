@@ -62,7 +62,7 @@ class PlannerService(Service):
         obs = warm_up_observation(self.ctx.exploration)
         if obs.clusters:
             goal = obs.clusters[0]
-            self.new_planner().set_goal(obs.traversable, obs.geometry, obs.pose, np.asarray(goal.goal_xy_m), obs.distance_m, goal.distance_m)
+            self.new_planner().set_goal(obs.traversable, obs.geometry, obs.pose, np.asarray(goal.goal_xy_m), obs.distance_m, goal.distance_m, obs.occupied)
 
     def new_planner(self) -> LocalPlanner:
         return LocalPlanner.for_config(self.ctx.exploration)
@@ -72,6 +72,8 @@ class PlannerService(Service):
         self.planner = self.new_planner()
         self.backups_logged = 0
         """The planner's stall back-ups logged so far (each is logged once, as it starts)."""
+        self.reverse_blocked_logged = -2
+        """Last step whose reverse command was held (logged once per run of such steps)."""
         self.odoms: dict[int, tuple[OdometryMsg, float]] = {}
         self.scans: dict[int, tuple[ScanMsg, float]] = {}
         self.frontiers: dict[int, FrontiersMsg] = {}
@@ -205,7 +207,7 @@ class PlannerService(Service):
         self.no_frontier = False
         d = self.distance_maps.get(f.step)
         distance = d.distance_m if d is not None and d.geometry == f.geometry and d.pose == f.pose else None
-        status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), distance, g.distance_m)
+        status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), distance, g.distance_m, f.arrays["occupied"])
         self.set_goal_blocked = status == PlannerStatus.BLOCKED
 
     def on_command(self, k: int, f: FrontiersMsg | None, g: GoalMsg | None) -> None:
@@ -239,7 +241,11 @@ class PlannerService(Service):
                 if result.status != PlannerStatus.FOLLOWING:
                     reason = result.status.value
                 elif result.recovery:
-                    reason = result.recovery  # following, but backing up: the robot was pinned
+                    reason = result.recovery  # following, but backing up (the robot was pinned) or held: an obstacle behind
+                    if result.recovery == "reverse_blocked" and self.reverse_blocked_logged != k - 1:
+                        log.info("step %d: an obstacle on the map behind the robot: not reversing", k)
+                    if result.recovery == "reverse_blocked":
+                        self.reverse_blocked_logged = k
                     if self.planner.stall.backups != self.backups_logged:
                         self.backups_logged = self.planner.stall.backups
                         log.info("step %d: the robot has not moved for %d commands: backing up (back-up %d)", k, self.ctx.exploration.planner.stall_steps, self.backups_logged)

@@ -10,7 +10,7 @@ import pytest
 from cso_runtime.config import PlannerConfig, RobotConfig, SensorConfig
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
 from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand
-from cso_runtime.planner import LocalPlanner, NoPath, PlannerStatus, ProgressChecker, plan_path
+from cso_runtime.planner import FreeSpace, LocalPlanner, NoPath, PlannerStatus, ProgressChecker, plan_path
 from cso_runtime.simulator import KinematicSimulator
 from tests.conftest import box_room, l_shaped, walled_grid
 
@@ -164,6 +164,42 @@ def test_a_pinned_robot_backs_up_then_follows_on():
     assert ahead.update(start, 4 * dt).command == backup
     ahead.restore_follow_state(before)
     assert ahead.stall.backups == 0 and ahead.update(start, 4 * dt).command == backup
+
+
+def test_the_robot_reverses_only_where_the_map_shows_no_obstacle_behind_it():
+    """Both reverse moves (the stall back-up, the blocked-ahead creep back) drive the body where the LIMO's
+    front LiDAR does not look: with the planned map's obstacles (``set_goal(occupied=...)``) a reverse
+    command whose strip behind the body holds an occupied cell becomes a stop (``reverse_blocked``), as
+    Nav2's BackUp checks its costmap; a clear strip changes nothing."""
+    plan = box_room(4.0, 3.0, 0.05)
+    t = ground_truth_traversable(plan)
+    walls = ~plan.free
+    robot = RobotConfig()
+    dt = robot.control_period_s
+    start, goal = Pose2D(1.0, 1.5, 0.0), np.array([3.5, 1.5])
+
+    def pinned_commands(occupied: np.ndarray | None) -> list:
+        planner = LocalPlanner(robot)
+        planner.set_goal(t, plan.geometry, start, goal, occupied=occupied)
+        return [planner.update(start, k * dt) for k in range(8)]
+
+    backup = VelocityCommand(-0.15, 0.0)
+    clear = pinned_commands(walls)  # the wall behind is 0.84 m away: the back-up goes ahead
+    assert [r.command for r in clear[4:8]] == [backup] * 4 and {r.recovery for r in clear[4:8]} == {"backup"}
+    box = walls.copy()
+    iy, ix = plan.geometry.world_to_cell(start.x_m - 0.5 * robot.length_m - 0.06, start.y_m)  # 6 cm behind the body
+    box[int(iy) - 1 : int(iy) + 2, int(ix)] = True
+    held = pinned_commands(box)
+    assert [r.command for r in held[4:8]] == [VelocityCommand(0.0, 0.0)] * 4 and {r.recovery for r in held[4:8]} == {"reverse_blocked"}
+    assert [r.command for r in pinned_commands(None)[4:8]] == [backup] * 4  # no map given: not checked
+
+    free = FreeSpace(t, plan.geometry, box)
+    facing_it = Pose2D(0.5, start.y_m, 0.0)  # west of the box, facing it: the box is ahead, the west wall 0.24 m behind
+    assert not free.behind_is_clear(start, robot.length_m, robot.width_m, 0.1)
+    assert free.behind_is_clear(start, robot.length_m, robot.width_m, 0.04)  # shorter than the gap
+    assert free.behind_is_clear(facing_it, robot.length_m, robot.width_m, 0.15)
+    assert not free.behind_is_clear(facing_it, robot.length_m, robot.width_m, 0.3)
+    assert free.behind_is_clear(Pose2D(start.x_m, start.y_m + 0.4, 0.0), robot.length_m, robot.width_m, 0.3)  # beside it
 
 
 def test_kinematic_robot_stops_at_wall():
