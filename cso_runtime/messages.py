@@ -581,8 +581,8 @@ def frontiers_reading(grids: tuple[str, ...] | None, clusters: bool = True) -> t
 
 PlannerFrontiersMsg = frontiers_reading(("traversable", "occupied"), clusters=False)
 """A ``frontiers`` message as the planner reads it: the verdict and, on a decision, the grid it plans on
-and the obstacles it checks before reversing (with the pose and geometry). About a third of a full decode on a 640 x 480 map, on the planner's
-network thread while a fast policy's goal may already be waiting behind it."""
+and the obstacles it checks before reversing (with the pose and geometry). Two of the five grids and no
+clusters, on the planner's network thread while a fast policy's goal may already be waiting behind it."""
 
 
 def frontiers_from_observation(step: int, reason: str, obs: Observation, build_ms: float) -> FrontiersMsg:
