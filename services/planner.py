@@ -242,9 +242,9 @@ class PlannerService(Service):
                     reason = result.status.value
                 elif result.recovery:
                     reason = result.recovery  # following, but backing up (the robot was pinned) or held: an obstacle behind
-                    if result.recovery == "reverse_blocked" and self.reverse_blocked_logged != k - 1:
-                        log.info("step %d: an obstacle on the map behind the robot: not reversing", k)
                     if result.recovery == "reverse_blocked":
+                        if self.reverse_blocked_logged != k - 1:  # once per run of held steps
+                            log.info("step %d: an obstacle on the map behind the robot: not reversing", k)
                         self.reverse_blocked_logged = k
                     if self.planner.stall.backups != self.backups_logged:
                         self.backups_logged = self.planner.stall.backups
