@@ -155,7 +155,7 @@ def test_a_handler_on_the_one_zenoh_thread_publishes_a_message_larger_than_the_l
     session shares the thread too (both in one process), the harder case."""
     env = {k: v for k, v in os.environ.items() if k != "ZENOH_RUNTIME"}
     size = 8_000_000
-    out = subprocess.run([sys.executable, "-c", A_HANDLER_PUBLISHES_A_LARGE_MESSAGE, str(size)], env=env, capture_output=True, text=True, timeout=60, cwd=REPO)
+    out = subprocess.run([sys.executable, "-c", A_HANDLER_PUBLISHES_A_LARGE_MESSAGE, str(size)], env=env, capture_output=True, text=True, timeout=60, cwd=REPO, check=False)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == [str(size)]
 
