@@ -28,7 +28,8 @@ def test_events_are_timed_from_the_scan_of_their_step_with_decision_steps_apart(
     mapper = [["handle", "scan", k, t + 0.001, t + 0.0015, t + 0.004] for k, t in ((0, 10.0), (1, 10.01), (2, 10.03))]
     mapper += [["put", "map", 1, 10.013, 10.0131, 1500], ["put", "map", 0, 10.005, 10.0051, 1500], ["put", "map", 2, 10.034, 10.0341, 1500]]
     policy = [["handle", "frontiers", 2, 10.040, 10.041, 10.050], ["put", "goal", 2, 10.049, 10.0491, 200]]
-    timeline = load_step_timeline().timeline(load_step_timeline().load_traces(write_traces(tmp_path, {"sim": sim, "mapper": mapper, "policy": policy})))
+    step_timeline = load_step_timeline()
+    timeline = step_timeline.timeline(step_timeline.load_traces(write_traces(tmp_path, {"sim": sim, "mapper": mapper, "policy": policy})))
 
     keep, decision = timeline["keep"], timeline["decision"]
     assert (keep["steps"], decision["steps"]) == (2, 1)  # step 3 has no next scan: no duration
@@ -42,5 +43,6 @@ def test_events_are_timed_from_the_scan_of_their_step_with_decision_steps_apart(
 
 
 def test_a_folder_without_the_sims_trace_is_a_clear_error(tmp_path):
+    step_timeline = load_step_timeline()
     with pytest.raises(SystemExit, match="CSO_TRACE_DIR"):
-        load_step_timeline().timeline(load_step_timeline().load_traces(tmp_path))
+        step_timeline.timeline(step_timeline.load_traces(tmp_path))
