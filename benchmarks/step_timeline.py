@@ -14,6 +14,7 @@ median and mean duration (scan to next scan).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import statistics
 from collections import defaultdict
@@ -48,7 +49,7 @@ def timeline(traces: dict[str, list[list]]) -> dict[str, dict]:
                 after[kind_of[step]][name].append((t_s - scan_s[step]) * 1e3)
     steps = sorted(scan_s)
     durations: dict[str, list[float]] = {"keep": [], "decision": []}
-    for step, nxt in zip(steps, steps[1:]):
+    for step, nxt in itertools.pairwise(steps):
         durations[kind_of[step]].append((scan_s[nxt] - scan_s[step]) * 1e3)
     out = {}
     for k in ("keep", "decision"):
