@@ -106,7 +106,7 @@ def compare_command(
     out: Optional[Path] = typer.Option(None, "--out", help="Also write the comparison as CSV"),
     exclude: Optional[list[str]] = typer.Option(None, "--exclude", help="Leave out these maps (the `map` column; repeatable or comma-separated), e.g. the plans a training run drew"),
 ) -> None:
-    """Each method against a baseline scene by scene: change of mean m2/step, per-scene ratio with a 95 % bootstrap interval, scenes won."""
+    """Each method against a baseline scene by scene: change of mean m2/step, per-scene ratio (mean and geometric mean, each with a 95 % bootstrap interval), scenes won."""
     import json  # noqa: PLC0415
 
     from cso_runtime.comparison import MIN_SCENES, as_dicts, compare_to_baseline, labelled, markdown_table, read_episodes, split_names, write_csv  # noqa: PLC0415

@@ -545,9 +545,10 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
         against = Table(title=f"Against {paired['baseline']}, scene by scene ({out_dir}/paired.csv)")
         for col in ("method", "scale"):
             against.add_column(col, no_wrap=True)
-        for col in ("scenes", "m2/step vs baseline", "per-scene ratio [95 % CI]", "won / lost"):
+        for col in ("scenes", "m2/step vs baseline", "per-scene ratio [95 % CI]", "won / lost", "geometric mean [95 % CI]"):
             against.add_column(col, justify="right")
         for c in paired["comparisons"]:
+            geo = c.get("geomean_pct")
             against.add_row(
                 c["method"],
                 c["scale"],
@@ -555,6 +556,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
                 f"{c['change_of_means_pct']:+.1f} %",
                 f"{c['per_scene_pct']:+.1f} % [{c['ci_low_pct']:+.1f}, {c['ci_high_pct']:+.1f}]",
                 f"{c['won']} / {c['lost']}",
+                "n/a" if geo is None else f"{geo:+.1f} % [{c['geomean_ci_low_pct']:+.1f}, {c['geomean_ci_high_pct']:+.1f}]",
             )
         console.print(against)
     for f in summary["failures"]:

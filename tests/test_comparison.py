@@ -39,6 +39,18 @@ def test_each_method_is_compared_per_scale_on_the_scenes_both_ran():
     assert compare_to_baseline(efficiency_by_scene(episodes), "utility") == []  # the baseline did not run
 
 
+def test_the_geometric_mean_of_the_per_scene_ratios_lets_a_doubling_and_a_halving_cancel_out():
+    """Ratios 2, 0.5, 1, 1: arithmetic mean +12.5 %, geometric mean 0 %; its interval comes from the same
+    resamples as the arithmetic mean's. A method that explored nothing on a scene has no geometric mean."""
+    episodes = rows("greedy-dist", "large", {"a": 1.0, "b": 2.0, "c": 1.0, "d": 3.0}) + rows("cso", "large", {"a": 2.0, "b": 1.0, "c": 1.0, "d": 3.0})
+    episodes += rows("random", "large", {"a": 0.0, "b": 1.0, "c": 1.0, "d": 3.0})
+    cso, rand = compare_to_baseline(efficiency_by_scene(episodes), "greedy-dist")
+    assert cso.per_scene_pct == pytest.approx(12.5) and cso.geomean_pct == pytest.approx(0.0, abs=1e-9)
+    assert cso.geomean_ci_low_pct < 0.0 < cso.geomean_ci_high_pct and cso.geomean_ci_high_pct <= cso.ci_high_pct
+    assert rand.geomean_pct is None and rand.geomean_ci_low_pct is None
+    assert "n/a" in rand.markdown_row() and "+0.0 % [" in cso.markdown_row()
+
+
 def test_a_bad_efficiency_or_a_file_that_is_not_episodes_csv_is_a_clear_error(tmp_path: Path):
     with pytest.raises(ValueError, match="cso on a: efficiency 'fast' is not a number"):
         efficiency_by_scene([dict(zip(FIELDS, ("cso", "a", "large", 0, 100, "fast")))])

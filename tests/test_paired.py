@@ -43,6 +43,8 @@ def test_pairs_each_method_with_the_baseline_scene_by_scene(tmp_path, capsys):
     mean, interval = cells[4].split(" % [")
     lo, hi = (float(v) for v in interval.rstrip("]").split(","))
     assert mean == "+2.9" and lo < 2.9 < hi and lo > -20 and hi < 20
+    # The geometric mean of the same ratios, last: exp(mean(log r)) - 1 = (1.2^2 * 0.9^2)^(1/7) - 1 = +2.2 %.
+    assert cells[6].startswith("+2.2 % [")
 
 
 def test_a_missing_file_is_a_clear_error(tmp_path, capsys):
