@@ -24,7 +24,7 @@ import json
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from cso_runtime.comparison import PairedComparison, compare_to_baseline, efficiency_by_scene, labelled
+from cso_runtime.comparison import PairedComparison, compare_to_baseline, efficiency_by_scene, format_interval, labelled
 from cso_runtime.evaluation import METRICS, summarize
 from cso_runtime.policies import BASELINES, LEARNED_METHODS
 
@@ -38,7 +38,7 @@ def fmt(v, nd: int) -> str:
 
 def interval(c: PairedComparison) -> str:
     """A paired comparison's mean per-scene change with its 95 % interval, as the tables print it."""
-    return f"{c.per_scene_pct:+.1f} % [{c.ci_low_pct:+.1f}, {c.ci_high_pct:+.1f}]"
+    return format_interval(c.per_scene_pct, c.ci_low_pct, c.ci_high_pct)
 
 
 def row(scale: str, method: str, e: dict[str, Any], paired: PairedComparison | None = None, with_paired: bool = False) -> str:

@@ -62,14 +62,16 @@ class PairedComparison:
     def markdown_row(self) -> str:
         return (
             f"| {self.scale} | {self.method} | {self.scenes} | {self.change_of_means_pct:+.1f} % | "
-            f"{self.per_scene_pct:+.1f} % [{self.ci_low_pct:+.1f}, {self.ci_high_pct:+.1f}] | {self.won} of {self.scenes} | "
-            f"{self._geomean()} |"
+            f"{format_interval(self.per_scene_pct, self.ci_low_pct, self.ci_high_pct)} | {self.won} of {self.scenes} | "
+            f"{format_interval(self.geomean_pct, self.geomean_ci_low_pct, self.geomean_ci_high_pct)} |"
         )
 
-    def _geomean(self) -> str:
-        if self.geomean_pct is None or self.geomean_ci_low_pct is None or self.geomean_ci_high_pct is None:
-            return "n/a"
-        return f"{self.geomean_pct:+.1f} % [{self.geomean_ci_low_pct:+.1f}, {self.geomean_ci_high_pct:+.1f}]"
+
+def format_interval(pct: float | None, low_pct: float | None, high_pct: float | None) -> str:
+    """``+2.9 % [-1.0, +6.8]``; ``n/a`` when there is no such mean."""
+    if pct is None or low_pct is None or high_pct is None:
+        return "n/a"
+    return f"{pct:+.1f} % [{low_pct:+.1f}, {high_pct:+.1f}]"
 
 
 MARKDOWN_HEADER = (

@@ -28,7 +28,7 @@ import numpy as np
 from rich.markup import escape
 
 from cso_runtime import __version__
-from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene
+from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene, format_interval
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, ExplorationConfig, SensorConfig, check_seed, from_dict, load_yaml, make_output_dir, to_dict
 from cso_runtime.episode import EpisodeResult, run_episode
@@ -548,15 +548,14 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
         for col in ("scenes", "m2/step vs baseline", "per-scene ratio [95 % CI]", "won / lost", "geometric mean [95 % CI]"):
             against.add_column(col, justify="right")
         for c in paired["comparisons"]:
-            geo = c.get("geomean_pct")
             against.add_row(
                 c["method"],
                 c["scale"],
                 str(c["scenes"]),
                 f"{c['change_of_means_pct']:+.1f} %",
-                f"{c['per_scene_pct']:+.1f} % [{c['ci_low_pct']:+.1f}, {c['ci_high_pct']:+.1f}]",
+                format_interval(c["per_scene_pct"], c["ci_low_pct"], c["ci_high_pct"]),
                 f"{c['won']} / {c['lost']}",
-                "n/a" if geo is None else f"{geo:+.1f} % [{c['geomean_ci_low_pct']:+.1f}, {c['geomean_ci_high_pct']:+.1f}]",
+                format_interval(c.get("geomean_pct"), c.get("geomean_ci_low_pct"), c.get("geomean_ci_high_pct")),
             )
         console.print(against)
     for f in summary["failures"]:
