@@ -630,8 +630,8 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
 
 def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_path):
     """``up --detach``; during the episode: malformed payloads on every key, SIGKILL of the mapper;
-    ``status --json`` during and after; ``down`` leaves no process."""
-    profile = write_profile(tmp_path, min_step_period_s=0.1, lockstep_timeout_s=0.5)
+    ``status --json`` during and after; ``save-map`` from the finished run; ``down`` leaves no process."""
+    profile = write_profile(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5)  # 36 steps: at least 9 s to do all this
     runs = tmp_path / "runs"
     try:
         r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
@@ -647,21 +647,6 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         assert r.returncode == 0, r.stdout + r.stderr
         during = json.loads(r.stdout)
         assert during["state"] == "exploring" and all(s["alive"] for s in during["services"].values())
-        r = cli("save-map", "-f", str(tmp_path / "live"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-        assert r.returncode == 0, r.stdout + r.stderr
-        grid, geometry = load_map(tmp_path / "live.yaml")  # map_saver_cli's files, read back
-        assert (tmp_path / "live.pgm").is_file() and geometry.shape == grid.shape
-        assert (grid == 0).any() and (grid == -1).any() and set(np.unique(grid)) <= {-1, 0, 100}
-        (tmp_path / "maps").mkdir()  # a folder: map.yaml inside it, as map_saver_cli's default name
-        r = cli("save-map", "-f", str(tmp_path / "maps"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-        assert r.returncode == 0 and (tmp_path / "maps" / "map.yaml").is_file(), r.stdout + r.stderr
-        # Somewhere that cannot be written (below a file): one error line, exit 2, for both writers.
-        (tmp_path / "a_file").write_text("")
-        r = cli("save-map", "-f", str(tmp_path / "a_file" / "m"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-        assert r.returncode == 2 and "cannot write the map" in r.stderr and "Traceback" not in r.stderr, r.stderr
-        r = cli("record", "--out", str(tmp_path / "a_file" / "r.mcap"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-        assert r.returncode == 2 and "cannot record into" in r.stderr and "Traceback" not in r.stderr, r.stderr
-
         # Malformed payloads on every key of the robot.
         keys = RobotKeys("r0")
         nan_scan = encode(ScanMsg(1, LaserScan(0.0, 0.1, 0.1, 5.0, np.array([1.0, np.nan], np.float32)), Pose2D(0, 0, 0)))
@@ -693,6 +678,22 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
 
         r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 0 and json.loads(r.stdout)["state"] == "done"
+        # The map, saved from the detached run that still answers once its episode is done.
+        r = cli("save-map", "-f", str(tmp_path / "live"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0, r.stdout + r.stderr
+        grid, geometry = load_map(tmp_path / "live.yaml")  # map_saver_cli's files, read back
+        assert (tmp_path / "live.pgm").is_file() and geometry.shape == grid.shape
+        assert (grid == 0).any() and (grid == -1).any() and set(np.unique(grid)) <= {-1, 0, 100}
+        (tmp_path / "maps").mkdir()  # a folder: map.yaml inside it, as map_saver_cli's default name
+        r = cli("save-map", "-f", str(tmp_path / "maps"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0 and (tmp_path / "maps" / "map.yaml").is_file(), r.stdout + r.stderr
+        # Somewhere that cannot be written (below a file): one error line, exit 2, for both writers.
+        (tmp_path / "a_file").write_text("")
+        r = cli("save-map", "-f", str(tmp_path / "a_file" / "m"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 2 and "cannot write the map" in r.stderr and "Traceback" not in r.stderr, r.stderr
+        r = cli("record", "--out", str(tmp_path / "a_file" / "r.mcap"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 2 and "cannot record into" in r.stderr and "Traceback" not in r.stderr, r.stderr
+
         wait_for(lambda: list(runs.glob("*/summary.json")), 20, "summary.json")
         pids = run_pids(runs)
         assert mapper_pid not in pids  # the restarted mapper replaced it in the run file
