@@ -74,18 +74,22 @@ class OccupancyMap:
         if len(angles) == 0:
             return 0
         origin = np.array([sensor_pose.x_m, sensor_pose.y_m])
-        touched_free = np.zeros(self.geometry.shape, dtype=bool)
         cos, sin = np.cos(angles), np.sin(angles)
         free_until = clear_len - 1e-9  # samples strictly before a beam's end are pass-throughs
         n = samples_to_reach(self.geometry, float(np.max(clear_len)))
         step_m = sample_step_m(self.geometry)
+        free_cells = []
         for first in range(0, n, SAMPLES_PER_CHUNK):
             active = np.flatnonzero(free_until > first * step_m)
             if not len(active):
                 break
-            iy, ix, dist = sample_cells(self.geometry, origin, cos[active], sin[active], first, min(first + SAMPLES_PER_CHUNK, n))
-            free_sel = (dist[None, :] < free_until[active, None]) & self.geometry.in_bounds(iy, ix)
-            touched_free[iy[free_sel], ix[free_sel]] = True
+            cell, inside, dist = sample_cells(self.geometry, origin, cos[active], sin[active], first, min(first + SAMPLES_PER_CHUNK, n))
+            inside &= dist[None, :] < free_until[active, None]
+            free_cells.append(cell[inside])
+        touched_free = np.zeros(self.geometry.shape[0] * self.geometry.shape[1], dtype=bool)
+        if free_cells:
+            touched_free[np.concatenate(free_cells).astype(np.intp)] = True
+        touched_free = touched_free.reshape(self.geometry.shape)
         hit_xy = origin[None, :] + (clear_len[is_hit] + 1e-6)[:, None] * np.stack(
             [np.cos(angles[is_hit]), np.sin(angles[is_hit])], axis=1
         )

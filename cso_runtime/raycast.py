@@ -31,13 +31,32 @@ def samples_to_reach(geometry: GridGeometry, length_m: float) -> int:
 def sample_cells(
     geometry: GridGeometry, origin_xy_m: np.ndarray, cos: np.ndarray, sin: np.ndarray, first: int, stop: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cells ``(iy, ix)`` of samples ``first .. stop - 1`` along beams of direction ``(cos, sin)``,
-    shape (beams, samples), and the samples' distances from the origin ``dist_m`` (samples,)."""
+    """Samples ``first .. stop - 1`` along beams of direction ``(cos, sin)``, shape (beams, samples):
+    each sample's flat cell index ``iy * width + ix`` as float64 (exact: cell indices are small
+    integers; meaningful only where inside), whether it lies inside the grid, and the samples'
+    distances from the origin ``dist_m`` (samples,). The cells are ``GridGeometry.world_to_cell`` of
+    the samples to the last bit; worked in place and in floats, since this runs for every beam of
+    every scan, in the simulator and in the mapper."""
     dist = np.arange(first, stop, dtype=np.float64) * sample_step_m(geometry)
-    xs = origin_xy_m[0] + cos[:, None] * dist[None, :]
-    ys = origin_xy_m[1] + sin[:, None] * dist[None, :]
-    iy, ix = geometry.world_to_cell(xs, ys)
-    return iy, ix, dist
+    res = geometry.resolution_m
+    height, width = geometry.shape
+    fx = cos[:, None] * dist[None, :]
+    fx += origin_xy_m[0]
+    fx -= geometry.origin_x_m
+    fx /= res
+    np.floor(fx, out=fx)
+    fy = sin[:, None] * dist[None, :]
+    fy += origin_xy_m[1]
+    fy -= geometry.origin_y_m
+    fy /= res
+    np.floor(fy, out=fy)
+    inside = fx >= 0
+    inside &= fx < width
+    inside &= fy >= 0
+    inside &= fy < height
+    fy *= width
+    fy += fx
+    return fy, inside, dist
 
 
 def cast_rays(
@@ -59,16 +78,18 @@ def cast_rays(
     hy = np.zeros(len(angles), dtype=np.int64)
     hx = np.zeros(len(angles), dtype=np.int64)
     active = np.arange(len(angles))
+    blocked_flat = np.ascontiguousarray(blocked).ravel()
+    width = geometry.shape[1]
     for first in range(0, n, SAMPLES_PER_CHUNK):
-        iy, ix, _ = sample_cells(geometry, origin, cos[active], sin[active], first, min(first + SAMPLES_PER_CHUNK, n))
-        inside = geometry.in_bounds(iy, ix)
+        cell, inside, _ = sample_cells(geometry, origin, cos[active], sin[active], first, min(first + SAMPLES_PER_CHUNK, n))
         hit = ~inside
-        hit[inside] = blocked[iy[inside], ix[inside]]
+        hit[inside] = blocked_flat[cell[inside].astype(np.intp)]
         found = hit.any(axis=1)
         rows = np.flatnonzero(found)
         at = hit[rows].argmax(axis=1)
         beams = active[rows]
-        hy[beams], hx[beams], any_hit[beams] = iy[rows, at], ix[rows, at], True
+        hy[beams], hx[beams] = np.divmod(cell[rows, at].astype(np.int64), width)
+        any_hit[beams] = True
         active = active[~found]
         if not len(active):
             break

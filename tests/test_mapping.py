@@ -69,6 +69,31 @@ def test_ray_marching_in_chunks_does_not_change_ranges_or_maps(scene, monkeypatc
     assert e1.sum() > 2000 and np.array_equal(e1, e2) and np.array_equal(o1, o2) and np.array_equal(l1, l2)
 
 
+@pytest.mark.parametrize("origin_xy_m", [(0.0, 0.0), (-3.217, 1.05)])
+def test_ray_samples_fall_in_the_cells_world_to_cell_gives(origin_xy_m):
+    """The ray marcher works out its samples' cells in place, in floats, as flat indices; each one is
+    the cell ``GridGeometry.world_to_cell`` gives the sample's point, and ``inside`` is ``in_bounds``,
+    for beams that start inside, on an edge or outside the grid, whatever its origin."""
+    from cso_runtime.raycast import sample_cells  # noqa: PLC0415
+
+    g = GridGeometry(0.05, (37, 53), *origin_xy_m)
+    rng = np.random.default_rng(3)
+    width = g.shape[1]
+    inside_seen = 0
+    for _ in range(40):
+        origin = np.array([rng.uniform(g.origin_x_m - 1, g.origin_x_m + g.width_m + 1), rng.uniform(g.origin_y_m - 1, g.origin_y_m + g.height_m + 1)])
+        origin[rng.random(2) < 0.2] = g.origin_x_m  # exactly on a cell edge now and then
+        angles = rng.uniform(-math.pi, math.pi, 30)
+        angles[:4] = (0.0, math.pi / 2, math.pi, -math.pi / 2)
+        cos, sin = np.cos(angles), np.sin(angles)
+        cell, inside, dist = sample_cells(g, origin, cos, sin, 7, 140)
+        iy, ix = g.world_to_cell(origin[0] + cos[:, None] * dist[None, :], origin[1] + sin[:, None] * dist[None, :])
+        assert np.array_equal(inside, g.in_bounds(iy, ix))
+        assert np.array_equal(cell[inside], (iy * width + ix)[inside])
+        inside_seen += int(inside.sum())
+    assert inside_seen > 10_000
+
+
 def test_sensor_presets():
     lidar = SensorConfig.preset("lidar")
     assert (lidar.fov_deg, lidar.range_min_m, lidar.range_max_m) == (180.0, 0.1, 8.0)

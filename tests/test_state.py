@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from cso_runtime.frontiers import frontier_cells, frontier_entropy
+from cso_runtime.frontiers import frontier_cells, frontier_components, frontier_entropy
 from cso_runtime.geodesic import geodesic_distance, inflate, traversable_cells
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import ObservationBuilder
@@ -43,6 +43,22 @@ def test_frontier_clusters_have_goal_size_and_entropy():
     # Goal cell is reachable: the robot (0.2 m radius) fits through the 0.6 m door's centre.
     assert obs.traversable[c.goal_cell]
     assert c.entropy == obs.entropy[c.goal_cell] > 0
+
+
+def test_frontier_components_group_every_frontier_cell_by_its_8_connected_component():
+    """Each component's cells in row-major order, components in label order (scipy's), every cell once."""
+    from scipy import ndimage  # noqa: PLC0415
+
+    frontier = np.random.default_rng(2).random((61, 47)) < 0.08
+    iy, ix, splits = frontier_components(frontier)
+    labels, count = ndimage.label(frontier, structure=np.ones((3, 3), dtype=bool))
+    groups = list(zip(np.split(iy, splits), np.split(ix, splits)))
+    assert count > 50 and len(groups) == count and len(iy) == frontier.sum()
+    for label, (cy, cx) in enumerate(groups, start=1):
+        ey, ex = np.nonzero(labels == label)
+        assert np.array_equal(cy, ey) and np.array_equal(cx, ex)
+    empty = frontier_components(np.zeros((4, 4), dtype=bool))
+    assert all(len(a) == 0 for a in empty)
 
 
 def test_small_clusters_are_dropped():
