@@ -81,13 +81,30 @@ class FloorPlan:
         return np.flipud(grid)
 
 
+COLOUR_TOLERANCE = 10
+"""A pixel has a plan colour when each of its channels is within this of the colour's."""
+
+
+def _colour_within(rgb: np.ndarray, colour: tuple[int, int, int], tolerance: int) -> np.ndarray:
+    """Pixels whose every channel lies within ``tolerance`` of ``colour``'s: two comparisons per channel
+    on the image's own integers (no signed copy of the image, no ``abs``; a plan is loaded per episode)."""
+    out = np.ones(rgb.shape[:2], dtype=bool)
+    for channel, value in enumerate(colour):
+        c = rgb[:, :, channel]
+        out &= c >= value - tolerance
+        out &= c <= value + tolerance
+    return out
+
+
 def floor_plan_from_rgb(name: str, rgb: np.ndarray, resolution_m: float, start_yaw_rad: float = 0.0, source: str = "") -> FloorPlan:
     """Decode a Dungeon-style image: free (195,195,194), wall (127,127,127), start square (255,216,0)."""
     if rgb.ndim != 3 or rgb.shape[2] < 3:
         raise SceneError(f"{name}: expected an RGB(A) image, got shape {rgb.shape}")
-    rgb = rgb[:, :, :3].astype(np.int16)
-    start = np.all(np.abs(rgb - np.array(START_RGB)) <= 10, axis=2)
-    free_px = np.all(np.abs(rgb - np.array(FREE_RGB)) <= 10, axis=2) | start
+    rgb = rgb[:, :, :3]
+    if not np.issubdtype(rgb.dtype, np.integer):
+        rgb = rgb.astype(np.int16)
+    start = _colour_within(rgb, START_RGB, COLOUR_TOLERANCE)
+    free_px = _colour_within(rgb, FREE_RGB, COLOUR_TOLERANCE) | start
     if not start.any():
         raise SceneError(f"{name}: no start marker (colour {START_RGB})")
     if not free_px.any():

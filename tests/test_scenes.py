@@ -21,6 +21,7 @@ from cso_runtime.scenes import (
     WALL_RGB,
     SceneError,
     builtin_scene_dir,
+    floor_plan_from_rgb,
     load_floor_plan,
     resolve_scenes,
     scale_of,
@@ -156,6 +157,22 @@ def test_png_colours_start_and_y_flip(tmp_path):
     assert plan.start.yaw_rad == 0.0
     assert plan.traversable_area_m2() == pytest.approx(47 * 0.01)
     assert np.array_equal(plan.pixels_from_grid(plan.free)[6], plan.free[1])
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.int64, np.float64])
+def test_plan_colours_match_within_ten_per_channel(dtype):
+    """Anti-aliased or re-encoded plans: a pixel is free (or the start) when every channel is within 10
+    of the colour, whatever the image's number type; 11 off in one channel is a wall."""
+    px = _tiny_plan_pixels().astype(np.int64)
+    px[4, 1] += (10, -10, 10)  # free, at the tolerance in every channel
+    px[4, 2] += (0, 11, 0)  # 11 off in green: a wall
+    px[1, 3] = (245, 226, 10)  # start (255, 216, 0) at the tolerance
+    px[2, 4] = (255, 216, 11)  # 11 off in blue: a wall, not the start
+    plan = floor_plan_from_rgb("edges", px.astype(dtype), 0.1)
+    grid = plan.pixels_from_grid(plan.free)
+    assert grid[4, 1] and not grid[4, 2] and grid[1, 3] and not grid[2, 4]
+    assert np.count_nonzero(plan.free) == 47 - 2
+    assert plan.start.x_m == pytest.approx(((3 + 4 + 3) / 3 + 0.5) * 0.1)  # three start pixels left
 
 
 def test_png_with_alpha_channel_loads(tmp_path):
