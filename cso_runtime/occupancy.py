@@ -86,25 +86,37 @@ class OccupancyMap:
             cell, inside, dist = sample_cells(self.geometry, origin, cos[active], sin[active], first, min(first + SAMPLES_PER_CHUNK, n))
             inside &= dist[None, :] < free_until[active, None]
             free_cells.append(cell[inside])
-        touched_free = np.zeros(self.geometry.shape[0] * self.geometry.shape[1], dtype=bool)
-        if free_cells:
-            touched_free[np.concatenate(free_cells).astype(np.intp)] = True
-        touched_free = touched_free.reshape(self.geometry.shape)
         hit_xy = origin[None, :] + (clear_len[is_hit] + 1e-6)[:, None] * np.stack(
             [np.cos(angles[is_hit]), np.sin(angles[is_hit])], axis=1
         )
         hy, hx = self.geometry.world_to_cell(hit_xy[:, 0], hit_xy[:, 1])
         keep = self.geometry.in_bounds(hy, hx)
-        hy, hx = hy[keep], hx[keep]
-        touched_hit = np.zeros(self.geometry.shape, dtype=bool)
-        touched_hit[hy, hx] = True
+        width = self.geometry.shape[1]
+        free = np.concatenate(free_cells).astype(np.intp) if free_cells else np.zeros(0, np.intp)
+        hit = hy[keep] * width + hx[keep]
+        if not len(free) and not len(hit):
+            return 0
+        # Only the rows of the grid the scan touched are read or written (flat, contiguous): a scan
+        # reaches a few metres, a large plan is tens of metres tall.
+        touched = [a for a in (free, hit) if len(a)]
+        first_row = int(min(a.min() for a in touched)) // width
+        last_row = int(max(a.max() for a in touched)) // width
+        rows = slice(first_row, last_row + 1)
+        explored, log_odds, occupied = self.explored[rows], self.log_odds[rows], self.occupied[rows]
+        offset = first_row * width
+        touched_free = np.zeros(explored.size, dtype=bool)
+        touched_free[free - offset] = True
+        touched_hit = np.zeros(explored.size, dtype=bool)
+        touched_hit[hit - offset] = True
+        touched_free = touched_free.reshape(explored.shape)
+        touched_hit = touched_hit.reshape(explored.shape)
         touched_free &= ~touched_hit
-        newly = np.count_nonzero((touched_free | touched_hit) & ~self.explored)
-        self.log_odds[touched_free] = np.maximum(self.log_odds[touched_free] + LOG_ODDS_MISS, LOG_ODDS_MIN)
-        self.log_odds[touched_hit] = np.minimum(self.log_odds[touched_hit] + LOG_ODDS_HIT, LOG_ODDS_MAX)
+        newly = np.count_nonzero((touched_free | touched_hit) & ~explored)
+        log_odds[touched_free] = np.maximum(log_odds[touched_free] + LOG_ODDS_MISS, LOG_ODDS_MIN)
+        log_odds[touched_hit] = np.minimum(log_odds[touched_hit] + LOG_ODDS_HIT, LOG_ODDS_MAX)
         changed = touched_free | touched_hit
-        self.occupied[changed] = self.log_odds[changed] > 0.0
-        self.explored |= changed
+        occupied[changed] = log_odds[changed] > 0.0
+        explored |= changed
         return int(newly)
 
     def mark_footprint_free(self, robot_pose: Pose2D, length_m: float, width_m: float) -> int:
