@@ -55,6 +55,8 @@ class KinematicSimulator:
 
     def __init__(self, plan: FloorPlan, sensor: SensorConfig | None = None, robot: RobotConfig | None = None, seed: int | None = None):
         self.plan = plan
+        self._padded_walls: np.ndarray | None = None
+        """The plan's walls padded by ``clearance_m``'s window half-width (made at its first call)."""
         self.sensor = sensor or SensorConfig()
         self.robot = robot or RobotConfig()
         n = max(1, int(round(self.sensor.fov_deg / self.sensor.resolution_deg)))
@@ -101,20 +103,26 @@ class KinematicSimulator:
         return LaserScan(self._angle_min, self._increment, self.sensor.range_min_m, self.sensor.range_max_m, ranges.astype(np.float32), self.time_s)
 
     def clearance_m(self, x_m: float, y_m: float) -> float:
-        """Exact distance from (x, y) to the nearest wall cell (cells are squares), up to 2 radii."""
+        """Exact distance from (x, y) to the nearest wall cell (cells are squares), up to 2 radii.
+        Cells outside the plan are walls. Called on every substep: the window of cells around (x, y)
+        is a slice of the plan's walls padded by its half-width."""
         g = self.plan.geometry
         r = int(np.ceil(2 * COLLISION_RADIUS_M / g.resolution_m)) + 1
-        cy, cx = g.world_to_cell(x_m, y_m)
-        iy = np.arange(int(cy) - r, int(cy) + r + 1)
-        ix = np.arange(int(cx) - r, int(cx) + r + 1)
-        yy, xx = np.meshgrid(iy, ix, indexing="ij")
-        inside = g.in_bounds(yy, xx)
-        wall = ~inside
-        wall[inside] = ~self.plan.free[yy[inside], xx[inside]]
-        if not wall.any():
+        # GridGeometry.world_to_cell of one point, in plain floats (the same division and floor).
+        cy, cx = math.floor((y_m - g.origin_y_m) / g.resolution_m), math.floor((x_m - g.origin_x_m) / g.resolution_m)
+        if self._padded_walls is None:
+            self._padded_walls = np.pad(~self.plan.free, r, constant_values=True)
+        if 0 <= cy < g.shape[0] and 0 <= cx < g.shape[1]:
+            window = self._padded_walls[cy : cy + 2 * r + 1, cx : cx + 2 * r + 1]  # cells cy - r .. cy + r
+        else:  # the robot's centre off the plan: every cell of the window outside it is a wall
+            iy, ix = np.mgrid[cy - r : cy + r + 1, cx - r : cx + r + 1]
+            window = ~g.in_bounds(iy, ix)
+            window[~window] = ~self.plan.free[iy[~window], ix[~window]]
+        wy, wx = np.divmod(np.flatnonzero(window), 2 * r + 1)
+        if not len(wy):
             return math.inf
-        x0 = g.origin_x_m + xx[wall] * g.resolution_m
-        y0 = g.origin_y_m + yy[wall] * g.resolution_m
+        x0 = g.origin_x_m + (wx + (cx - r)) * g.resolution_m
+        y0 = g.origin_y_m + (wy + (cy - r)) * g.resolution_m
         dx = np.maximum(np.maximum(x0 - x_m, 0.0), x_m - (x0 + g.resolution_m))
         dy = np.maximum(np.maximum(y0 - y_m, 0.0), y_m - (y0 + g.resolution_m))
         return float(np.min(np.hypot(dx, dy)))

@@ -212,6 +212,19 @@ def test_kinematic_robot_stops_at_wall():
     assert sim.collisions > 0
 
 
+def test_kinematic_clearance_is_the_exact_distance_to_the_nearest_wall_cell():
+    """What the 2D robot's collision check measures (up to two footprint radii): the distance to the
+    nearest wall cell's square; cells off the plan are walls."""
+    plan = box_room(4.0, 3.0, 0.05)  # free interior x in [0.1, 4.1], y in [0.1, 3.1]
+    sim = KinematicSimulator(plan)
+    assert sim.clearance_m(2.0, 1.5) == math.inf  # farther than the window
+    assert sim.clearance_m(0.2, 1.6) == pytest.approx(0.1)  # the west wall
+    assert sim.clearance_m(4.0, 3.02) == pytest.approx(0.08)  # the north wall, nearer than the east one
+    assert sim.clearance_m(0.15, 0.13) == pytest.approx(0.03)  # a corner: the south wall
+    assert sim.clearance_m(0.05, 1.6) == 0.0  # in the wall
+    assert sim.clearance_m(-0.5, 1.6) == 0.0 and sim.clearance_m(5.0, -1.0) == 0.0  # off the plan
+
+
 def test_a_narrow_sensor_turns_at_the_goal_until_the_goal_is_in_view():
     """With the depth camera (79 degrees) a frontier goal reached beside the robot would be judged
     unobservable without ever being looked at: the planner turns in place first, then reports reached. A
