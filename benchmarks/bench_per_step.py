@@ -13,8 +13,6 @@ import argparse
 import statistics
 import time
 
-
-
 import cso_runtime.episode as episode_module
 import cso_runtime.simulator as simulator_module
 from cso_runtime.config import ExplorationConfig
