@@ -21,6 +21,7 @@ The details (latencies, breakdown, CPU) are those of the last pair.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import sys
@@ -144,7 +145,7 @@ def hop_breakdown(trace_dir: Path) -> dict[str, dict[str, float]]:
             if (k in decisions) != (kind == "decision_steps"):
                 continue
             segments: dict[str, float] = {}
-            for (sender, topic), (receiver, next_topic) in zip(chain, chain[1:]):
+            for (sender, topic), (receiver, next_topic) in itertools.pairwise(chain):
                 next_step = k + 1 if receiver == "sim" else k
                 sent, got, nxt = puts[(sender, topic)].get(k), handles[(receiver, topic)].get(k), puts[(receiver, next_topic)].get(next_step)
                 if sent is None or got is None or nxt is None:
@@ -294,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--trace", action="store_true", help="Services trace every message (CSO_TRACE_DIR): adds each hop's transit, queue+decode and work")
     p.add_argument("--json", type=Path, default=None, help="Also write the figures here")
     args = p.parse_args(argv)
-    import logging
+    import logging  # noqa: PLC0415  (configured only when run as a script, not when imported)
 
     logging.basicConfig(level=logging.WARNING)
     pairs = []

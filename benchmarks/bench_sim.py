@@ -22,6 +22,7 @@ import argparse
 import math
 import time
 from pathlib import Path
+from typing import final
 
 import numpy as np
 
@@ -50,11 +51,12 @@ def random_free_poses(plan: FloorPlan, n: int, seed: int = 0) -> list[Pose2D]:
     return [Pose2D(float(x), float(y), float(a)) for x, y, a in zip(xs, ys, rng.uniform(-math.pi, math.pi, n))]
 
 
+@final
 class Clock:
     """Wall and CPU seconds of a block. On a shared machine the CPU time of this single-threaded
     process is the better estimate of what one free core would do; both are reported."""
 
-    def __enter__(self) -> "Clock":
+    def __enter__(self) -> Clock:
         self._wall, self._cpu = time.perf_counter(), time.process_time()
         self.wall_s = self.cpu_s = 0.0
         return self

@@ -23,6 +23,7 @@ tables, seed 0, two worker processes.
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 from collections import defaultdict
 from concurrent.futures import ProcessPoolExecutor
@@ -134,7 +135,7 @@ class Tour:
 
 
 def tour_length(cost: np.ndarray, tour: list[int]) -> float:
-    return float(cost[0, tour[0]] + sum(cost[a, b] for a, b in zip(tour, tour[1:])))
+    return float(cost[0, tour[0]] + sum(cost[a, b] for a, b in itertools.pairwise(tour)))
 
 
 def open_tour(cost: np.ndarray, start: int | None = None) -> list[int]:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -55,21 +54,21 @@ def _use_weights(folder: Path) -> None:
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", help="Comma-separated methods: greedy-dist,greedy-info,utility,random,cso,..."),
     maps: str = typer.Option("builtin", "--maps", "--scene", help="Folder of PNG plans, one PNG, 'builtin', or generated:SCALE:N:SEED (--scene, as in `up`, is the same option)"),
-    limit: Optional[int] = typer.Option(None, "--limit", help="Use at most N scenes"),
+    limit: int | None = typer.Option(None, "--limit", help="Use at most N scenes"),
     out: Path = typer.Option(Path("results/eval"), "--out", help="Output folder"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans (0.1 super large, 0.05 large)"),
     seed: int = typer.Option(0, "--seed", help="Episode seed (random policy, sensor noise)"),
-    max_steps: Optional[int] = typer.Option(
+    max_steps: int | None = typer.Option(
         None, "--max-steps", help="Step limit per episode (one step = 0.25 s); default: the --config file's episode.max_steps, 3000"
     ),
     lidar_fov: float = typer.Option(180.0, "--lidar-fov", help="LiDAR field of view in degrees: 180 (LIMO) or 360"),
     sensor: str = typer.Option("lidar", "--sensor", help="Sensor preset: lidar or depth"),
     workers: int = typer.Option(1, "--workers", help="Parallel worker processes"),
     sim: str = typer.Option("2d", "--sim", help="Simulator: 2d (fast kinematic) or mujoco (physics)"),
-    config: Optional[Path] = typer.Option(None, "--config", help="YAML with exploration parameters (see configs/eval.yaml)"),
+    config: Path | None = typer.Option(None, "--config", help="YAML with exploration parameters (see configs/eval.yaml)"),
     resume: bool = typer.Option(False, "--resume", help="Keep episodes already finished in --out (same method, map, seed, config, simulator and weights)"),
     baseline: str = typer.Option("greedy-dist", "--baseline", help="Compare every other method with this one, scene by scene (paired.csv), when it runs too"),
-    weights: Optional[Path] = typer.Option(
+    weights: Path | None = typer.Option(
         None, "--weights", help="Folder of <method>.pt (a `train --out` folder) to use instead of the shipped weights (sets CSO_WEIGHTS_DIR)"
     ),
 ) -> None:
@@ -103,13 +102,22 @@ def compare_command(
     episodes: list[str] = typer.Argument(..., help="episodes.csv files written by eval (or their folders), each optionally LABEL=FILE (scenes pair only within a label)"),
     baseline: str = typer.Option("greedy-dist", "--baseline", help="The method every other one is compared with"),
     as_json: bool = typer.Option(False, "--json", help="JSON instead of a markdown table"),
-    out: Optional[Path] = typer.Option(None, "--out", help="Also write the comparison as CSV"),
-    exclude: Optional[list[str]] = typer.Option(None, "--exclude", help="Leave out these maps (the `map` column; repeatable or comma-separated), e.g. the plans a training run drew"),
+    out: Path | None = typer.Option(None, "--out", help="Also write the comparison as CSV"),
+    exclude: list[str] | None = typer.Option(None, "--exclude", help="Leave out these maps (the `map` column; repeatable or comma-separated), e.g. the plans a training run drew"),
 ) -> None:
     """Each method against a baseline scene by scene: change of mean m2/step, per-scene ratio (mean and geometric mean, each with a 95 % bootstrap interval), scenes won."""
     import json  # noqa: PLC0415
 
-    from cso_runtime.comparison import MIN_SCENES, as_dicts, compare_to_baseline, labelled, markdown_table, read_episodes, split_names, write_csv  # noqa: PLC0415
+    from cso_runtime.comparison import (  # noqa: PLC0415
+        MIN_SCENES,
+        as_dicts,
+        compare_to_baseline,
+        labelled,
+        markdown_table,
+        read_episodes,
+        split_names,
+        write_csv,
+    )
 
     files = [labelled(arg) for arg in episodes]
     missing = [str(path) for _, path in files if not path.is_file()]
@@ -147,9 +155,9 @@ def compare_command(
 
 @app.command("record")
 def record_command(
-    out: Optional[Path] = typer.Option(None, "--out", help="MCAP file, or a folder for <robot>-<UTC time>.mcap in it (default: recordings/)"),
-    robot: Optional[str] = typer.Option(None, "--robot", help="Robot id, or '*' for every robot (default: the current run's, else r0)"),
-    connect: Optional[list[str]] = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
+    out: Path | None = typer.Option(None, "--out", help="MCAP file, or a folder for <robot>-<UTC time>.mcap in it (default: recordings/)"),
+    robot: str | None = typer.Option(None, "--robot", help="Robot id, or '*' for every robot (default: the current run's, else r0)"),
+    connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
 ) -> None:
     """Record every cso/<robot>/** message to MCAP (Foxglove and the mcap tools open it) until Ctrl-C."""
@@ -197,8 +205,8 @@ def record_command(
 def replay_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record`"),
     speed: str = typer.Option("1.0", "--speed", help="Playback speed factor, or 'max' for as fast as possible"),
-    topics: Optional[str] = typer.Option(None, "--topics", help="Comma-separated topic names to replay (e.g. clock,odom,scan); default all"),
-    connect: Optional[list[str]] = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
+    topics: str | None = typer.Option(None, "--topics", help="Comma-separated topic names to replay (e.g. clock,odom,scan); default all"),
+    connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
 ) -> None:
     """Publish a recording back into Zenoh with the exact original payloads, at recorded or faster speed."""
@@ -247,7 +255,7 @@ def replay_command(
 @app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False)
 def service_command(
     ctx: typer.Context,
-    name: Optional[str] = typer.Argument(None, help="sim, mapper, frontier, policy, planner or ros2_bridge"),
+    name: str | None = typer.Argument(None, help="sim, mapper, frontier, policy, planner or ros2_bridge"),
 ) -> None:
     """Run one service in this process (same as python -m services.NAME; pass --config FILE --robot ID --connect EP;
     `service NAME --help` lists that service's options)."""
@@ -268,21 +276,21 @@ def service_command(
 @app.command("up")
 def up_command(
     profile: str = typer.Option("sim", "--profile", help="Profile name (./configs/profiles/, then the packaged cso_runtime/profiles/) or a YAML path"),
-    scene: Optional[str] = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, generated:SCALE:N:SEED"),
-    method: Optional[str] = typer.Option(None, "--method", help="Goal selector (overrides the profile)"),
-    robot: Optional[str] = typer.Option(None, "--robot", help="Robot id (overrides the profile)"),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Episode seed (overrides the profile)"),
-    lockstep: Optional[bool] = typer.Option(None, "--lockstep/--real-time", help="Deterministic lockstep or real time (overrides the profile)"),
+    scene: str | None = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, generated:SCALE:N:SEED"),
+    method: str | None = typer.Option(None, "--method", help="Goal selector (overrides the profile)"),
+    robot: str | None = typer.Option(None, "--robot", help="Robot id (overrides the profile)"),
+    seed: int | None = typer.Option(None, "--seed", help="Episode seed (overrides the profile)"),
+    lockstep: bool | None = typer.Option(None, "--lockstep/--real-time", help="Deterministic lockstep or real time (overrides the profile)"),
     detach: bool = typer.Option(False, "--detach", help="Run in the background until `cso-runtime down`"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where runs/<run-id>/ (logs, results) go"),
     live: bool = typer.Option(True, "--live/--no-live", help="Show the live view (foreground only)"),
-    connect: Optional[list[str]] = typer.Option(
+    connect: list[str] | None = typer.Option(
         None, "--connect", help="Router to join, repeatable (a LIMO's zenoh-bridge-ros2dds: tcp/ROBOT_IP:7447); appended to router.connect"
     ),
-    namespace: Optional[str] = typer.Option(None, "--namespace", help="ROS namespace of the robot's topics (limo-ros2: services.ros2_bridge.namespace)"),
+    namespace: str | None = typer.Option(None, "--namespace", help="ROS namespace of the robot's topics (limo-ros2: services.ros2_bridge.namespace)"),
     record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
-    record_out: Optional[Path] = typer.Option(None, "--record-out", help="Record the run to this MCAP file, or to <run-id>.mcap in this folder (implies --record)"),
-    weights: Optional[Path] = typer.Option(None, "--weights", help="Folder of <method>.pt for the policy service instead of the shipped weights"),
+    record_out: Path | None = typer.Option(None, "--record-out", help="Record the run to this MCAP file, or to <run-id>.mcap in this folder (implies --record)"),
+    weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt for the policy service instead of the shipped weights"),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
@@ -324,8 +332,8 @@ def up_command(
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     watch: bool = typer.Option(False, "--watch", help="Refresh every second until Ctrl-C"),
-    robot: Optional[str] = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
-    connect: Optional[list[str]] = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
+    robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
+    connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
 ) -> None:
     """State, step, coverage, explored area, path length, goal, decisions and service health of the running episode."""
@@ -338,8 +346,8 @@ def status_command(
 def save_map_command(
     out: Path = typer.Option(Path("map"), "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f; a folder gets map.yaml"),
     image_format: str = typer.Option("pgm", "--format", help="Image format: pgm or png"),
-    robot: Optional[str] = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
-    connect: Optional[list[str]] = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
+    robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
+    connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
 ) -> None:
     """Save the running episode's map as Nav2 map_server files (YAML + image), like map_saver_cli."""
@@ -409,19 +417,19 @@ def dataflow_command(
 
 @app.command("train")
 def train_command(
-    config: Optional[Path] = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args"),
-    variant: Optional[str] = typer.Option(None, "--variant", help="cso, cso-no-info, cso-no-mask, cso-sm, cso-vdm or gnn-baseline"),
-    out: Optional[Path] = typer.Option(None, "--out", help="Output folder (overrides out_dir)"),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Seed (overrides the config)"),
-    total_decisions: Optional[int] = typer.Option(None, "--total-decisions", help="PPO budget in goal choices"),
-    time_limit: Optional[float] = typer.Option(None, "--time-limit-s", help="Stop after this much wall time (0 = none)"),
-    resume: Optional[Path] = typer.Option(None, "--resume", help="checkpoint.pt to continue from"),
-    device: Optional[str] = typer.Option(None, "--device", help="auto, cpu, cuda or cuda:N"),
-    init_from: Optional[str] = typer.Option(None, "--init-from", help="Fine-tune: start from these weights (.pt, or 'shipped')"),
-    num_envs: Optional[int] = typer.Option(None, "--num-envs", help="Parallel environments"),
-    async_envs: Optional[bool] = typer.Option(None, "--async-envs/--sync-envs", help="One process per environment, or all in this one"),
-    dungeon_dir: Optional[Path] = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
-    settings: Optional[list[str]] = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
+    config: Path | None = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args"),
+    variant: str | None = typer.Option(None, "--variant", help="cso, cso-no-info, cso-no-mask, cso-sm, cso-vdm or gnn-baseline"),
+    out: Path | None = typer.Option(None, "--out", help="Output folder (overrides out_dir)"),
+    seed: int | None = typer.Option(None, "--seed", help="Seed (overrides the config)"),
+    total_decisions: int | None = typer.Option(None, "--total-decisions", help="PPO budget in goal choices"),
+    time_limit: float | None = typer.Option(None, "--time-limit-s", help="Stop after this much wall time (0 = none)"),
+    resume: Path | None = typer.Option(None, "--resume", help="checkpoint.pt to continue from"),
+    device: str | None = typer.Option(None, "--device", help="auto, cpu, cuda or cuda:N"),
+    init_from: str | None = typer.Option(None, "--init-from", help="Fine-tune: start from these weights (.pt, or 'shipped')"),
+    num_envs: int | None = typer.Option(None, "--num-envs", help="Parallel environments"),
+    async_envs: bool | None = typer.Option(None, "--async-envs/--sync-envs", help="One process per environment, or all in this one"),
+    dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
+    settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
     """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
     from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
@@ -448,14 +456,14 @@ def train_command(
 @app.command("collect-teacher")
 def collect_teacher_command(
     out: Path = typer.Option(..., "--out", help="Teacher-data file to write (.npz); train with --set warm_start_data=[FILE]"),
-    config: Optional[Path] = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args (scenes, variant, masks)"),
+    config: Path | None = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args (scenes, variant, masks)"),
     teacher: str = typer.Option("rollout", "--teacher", help="greedy-dist, utility, greedy-info or rollout"),
     workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
     decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
     time_limit: float = typer.Option(0.0, "--time-limit-s", min=0.0, help="Each worker stops after this wall time (0 = none)"),
-    seed: Optional[int] = typer.Option(None, "--seed", help="Worker i uses seed + i"),
-    dungeon_dir: Optional[Path] = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
-    settings: Optional[list[str]] = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
+    seed: int | None = typer.Option(None, "--seed", help="Worker i uses seed + i"),
+    dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
+    settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
     """Collect a warm-start teacher's decisions once (the rollout teacher costs seconds per decision) for
     several training runs to imitate."""
@@ -512,6 +520,7 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
 def parse_settings(items: list[str]) -> dict[str, object]:
     """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``)."""
     import yaml  # noqa: PLC0415
+
     from cso_runtime.config import ConfigError  # noqa: PLC0415
 
     out: dict[str, object] = {}

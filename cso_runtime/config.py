@@ -54,7 +54,7 @@ class SensorConfig:
     """Sensor position ahead of the robot centre (the LIMO's LiDAR sits at 0.103 m)."""
 
     @staticmethod
-    def preset(name: str, fov_deg: float | None = None) -> "SensorConfig":
+    def preset(name: str, fov_deg: float | None = None) -> SensorConfig:
         """Named presets: ``lidar`` (EAI X2L) and ``depth`` (LIMO depth camera seen as a 2D scan)."""
         if name == "lidar":
             cfg = SensorConfig()

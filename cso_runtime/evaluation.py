@@ -30,11 +30,21 @@ from rich.markup import escape
 from cso_runtime import __version__
 from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene, format_interval
 from cso_runtime.comparison import write_csv as write_paired_csv
-from cso_runtime.config import EXIT_INTERRUPTED, ConfigError, ExplorationConfig, SensorConfig, check_seed, from_dict, load_yaml, make_output_dir, to_dict
+from cso_runtime.config import (
+    EXIT_INTERRUPTED,
+    ConfigError,
+    ExplorationConfig,
+    SensorConfig,
+    check_seed,
+    from_dict,
+    load_yaml,
+    make_output_dir,
+    to_dict,
+)
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
-from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
+from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
 from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, scale_of
 from cso_runtime.simulator import SIMULATORS, make_simulator
 
@@ -190,7 +200,7 @@ class EpisodeOutcome:
     """Read back from an earlier run's files by ``--resume``, not run now."""
 
     @classmethod
-    def finished(cls, method: str, result: EpisodeResult, row: dict[str, Any], free: np.ndarray, resolution_m: float) -> "EpisodeOutcome":
+    def finished(cls, method: str, result: EpisodeResult, row: dict[str, Any], free: np.ndarray, resolution_m: float) -> EpisodeOutcome:
         """The outcome of an episode that ran to its end (in-process or through the runtime)."""
         return cls(
             method,
@@ -247,7 +257,7 @@ def save_episode_files(out_dir: Path, method: str, scene: str, result: EpisodeRe
     tmp.replace(path)  # atomic: a half-written file never looks finished
 
 
-def load_finished(job: "EpisodeJob") -> "EpisodeOutcome | None":
+def load_finished(job: EpisodeJob) -> EpisodeOutcome | None:
     """The outcome of an episode a previous run already finished with the same settings, if any."""
     if not job.npz_path.is_file():
         return None
@@ -284,7 +294,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         wall_s = time.perf_counter() - t0
         row = episode_row(job.method, job.seed, result, wall_s)
         save_episode_files(job.out_dir, job.method, job.scene.name, result, row, job.settings)
-    except Exception as exc:  # noqa: BLE001 - one bad episode must not stop the run; it is reported
+    except Exception as exc:  # one bad episode must not stop the run; it is reported
         log.debug("episode failed", exc_info=True)
         return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
     return EpisodeOutcome.finished(job.method, result, row, plan.free, plan.resolution_m)

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import skfmm
+
 from cso_runtime.geometry import GridGeometry
 
 

@@ -30,7 +30,7 @@ class Pose2D:
     def xy(self) -> np.ndarray:
         return np.array([self.x_m, self.y_m], dtype=float)
 
-    def compose_offset(self, forward_m: float, left_m: float = 0.0) -> "Pose2D":
+    def compose_offset(self, forward_m: float, left_m: float = 0.0) -> Pose2D:
         """Pose of a frame mounted at (forward_m, left_m) in this pose's body frame."""
         c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
         return Pose2D(self.x_m + c * forward_m - s * left_m, self.y_m + s * forward_m + c * left_m, self.yaw_rad)
@@ -43,7 +43,7 @@ class VelocityCommand:
     linear_mps: float = 0.0
     angular_radps: float = 0.0
 
-    def clamped(self, max_linear_mps: float, max_angular_radps: float) -> "VelocityCommand":
+    def clamped(self, max_linear_mps: float, max_angular_radps: float) -> VelocityCommand:
         v = float(np.clip(self.linear_mps, -max_linear_mps, max_linear_mps))
         w = float(np.clip(self.angular_radps, -max_angular_radps, max_angular_radps))
         return VelocityCommand(v, w)

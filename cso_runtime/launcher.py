@@ -34,9 +34,28 @@ import numpy as np
 import yaml
 
 from cso_runtime import __version__
-from cso_runtime.config import EXIT_BAD_CONFIG, EXIT_INTERRUPTED, EXIT_NO_ZENOH, ConfigError, ExplorationConfig, check_seed, from_dict, load_yaml
+from cso_runtime.config import (
+    EXIT_BAD_CONFIG,
+    EXIT_INTERRUPTED,
+    EXIT_NO_ZENOH,
+    ConfigError,
+    ExplorationConfig,
+    check_seed,
+    from_dict,
+    load_yaml,
+)
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
-from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, GoalMsg, LauncherStatusMsg, Message, MessageError, PathMsg, decode, encode
+from cso_runtime.messages import (
+    EpisodeResultMsg,
+    EpisodeStatusMsg,
+    GoalMsg,
+    LauncherStatusMsg,
+    Message,
+    MessageError,
+    PathMsg,
+    decode,
+    encode,
+)
 from cso_runtime.processes import STACK_DUMP_SIGNAL
 from cso_runtime.scenes import SceneError, resolve_scenes
 from cso_runtime.transport import TransportConfig, TransportError, free_tcp_port, open_session, track_liveliness

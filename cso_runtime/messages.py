@@ -212,7 +212,7 @@ class Message:
         raise NotImplementedError
 
     @classmethod
-    def from_body(cls, body: dict[str, Any]) -> "Message":
+    def from_body(cls, body: dict[str, Any]) -> Message:
         raise NotImplementedError
 
 
@@ -244,7 +244,7 @@ class ScanMsg(Message):
         }
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "ScanMsg":
+    def from_body(cls, b: dict[str, Any]) -> ScanMsg:
         w = "scan"
         ranges = unpack_array(_get(b, "ranges_m", w), "scan.ranges_m", ndim=1)
         if ranges.dtype.kind != "f" or not 0 < ranges.size <= MAX_BEAMS:
@@ -280,7 +280,7 @@ class OdometryMsg(Message):
         return {"step": self.step, "stamp_s": self.stamp_s, "pose": _pose_out(self.pose), "twist": [self.twist.linear_mps, self.twist.angular_radps]}
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "OdometryMsg":
+    def from_body(cls, b: dict[str, Any]) -> OdometryMsg:
         w = "odom"
         tw = _get(b, "twist", w)
         if not isinstance(tw, list) or len(tw) != 2:
@@ -310,7 +310,7 @@ class CmdVelMsg(Message):
         return {"step": self.step, "linear_mps": c.linear_mps, "angular_radps": c.angular_radps, "reason": self.reason, "new_goal": self.new_goal}
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "CmdVelMsg":
+    def from_body(cls, b: dict[str, Any]) -> CmdVelMsg:
         w = "cmd_vel"
         cmd = VelocityCommand(_num(b, "linear_mps", w, -100, 100), _num(b, "angular_radps", w, -100, 100))
         return cls(_int(b, "step", w), cmd, _str(b, "reason", w), _bool(b, "new_goal", w))
@@ -336,12 +336,12 @@ class MapMsg(Message):
     earlier episode (after a sim restart) is never taken for this one's. 0: not from a sim episode."""
 
     @classmethod
-    def of(cls, step: int, occupancy: OccupancyMap, episode: int = 0) -> "MapMsg":
+    def of(cls, step: int, occupancy: OccupancyMap, episode: int = 0) -> MapMsg:
         """The message of a map (its occupied channel restricted to explored cells)."""
         return cls(step, occupancy.geometry, occupancy.explored.copy(), occupancy.explored & occupancy.occupied, episode)
 
     @classmethod
-    def from_grid(cls, step: int, geometry: GridGeometry, grid: np.ndarray, episode: int = 0) -> "MapMsg":
+    def from_grid(cls, step: int, geometry: GridGeometry, grid: np.ndarray, episode: int = 0) -> MapMsg:
         """The message of an OccupancyGrid (values above 50 are occupied, ROS convention)."""
         return cls.of(step, OccupancyMap.from_occupancy_grid(grid, geometry), episode)
 
@@ -364,7 +364,7 @@ class MapMsg(Message):
         }
 
     @classmethod
-    def from_body(cls, b: dict[str, Any], where: str = "map") -> "MapMsg":
+    def from_body(cls, b: dict[str, Any], where: str = "map") -> MapMsg:
         geometry = _geometry_in(b, where)
         explored = _grid_in(b, "explored", where, geometry, "bool")
         occupied = _grid_in(b, "occupied", where, geometry, "bool")
@@ -497,7 +497,7 @@ class FrontiersMsg(Message):
         return b
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "FrontiersMsg":
+    def from_body(cls, b: dict[str, Any]) -> FrontiersMsg:
         w = "frontiers"
         step, decide, reason = _int(b, "step", w), _bool(b, "decide", w), _str(b, "reason", w)
         if not decide:
@@ -663,7 +663,7 @@ class DistanceMapMsg(Message):
         }
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "DistanceMapMsg":
+    def from_body(cls, b: dict[str, Any]) -> DistanceMapMsg:
         w = "distance_map"
         geometry = _geometry_in(b, w)
         d = _masked_grid_in(_get(b, "distance_m", w), _grid_in(b, "finite", w, geometry, "bool"), f"{w}.distance_m", np.inf, np.float64)
@@ -701,7 +701,7 @@ class GoalMsg(Message):
         }
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "GoalMsg":
+    def from_body(cls, b: dict[str, Any]) -> GoalMsg:
         w = "goal"
         g = _get(b, "goal", w)
         x = y = None
@@ -726,7 +726,7 @@ class PathMsg(Message):
         return {"step": self.step, "path_xy_m": pack_array(np.asarray(self.path_xy_m, dtype=np.float32).reshape(-1, 2))}
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "PathMsg":
+    def from_body(cls, b: dict[str, Any]) -> PathMsg:
         p = unpack_array(_get(b, "path_xy_m", "path"), "path.path_xy_m", ndim=2, finite=True)
         if p.shape[1:] != (2,):
             raise MessageError("path.path_xy_m: expected (n, 2)")
@@ -770,7 +770,7 @@ class PlannerFeedbackMsg(Message):
         }
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "PlannerFeedbackMsg":
+    def from_body(cls, b: dict[str, Any]) -> PlannerFeedbackMsg:
         w = "planner_feedback"
         path = unpack_array(_get(b, "path_ahead_xy_m", w), "planner_feedback.path_ahead_xy_m", ndim=2, finite=True)
         if path.shape[1:] != (2,) or path.dtype.kind != "f":
@@ -813,7 +813,7 @@ class ClockMsg(Message):
         return b
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "ClockMsg":
+    def from_body(cls, b: dict[str, Any]) -> ClockMsg:
         arena = _geometry_in(b, "clock") if "geometry" in b else None
         return cls(_int(b, "step", "clock"), _num(b, "time_s", "clock", 0.0), arena, _int(b, "episode", "clock"))
 
@@ -862,7 +862,7 @@ class EpisodeStatusMsg(Message):
         }
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "EpisodeStatusMsg":
+    def from_body(cls, b: dict[str, Any]) -> EpisodeStatusMsg:
         w = "episode_status"
         g = _get(b, "goal_xy_m", w)
         if g is not None:
@@ -937,7 +937,7 @@ class EpisodeResultMsg(Message):
         return b
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "EpisodeResultMsg":
+    def from_body(cls, b: dict[str, Any]) -> EpisodeResultMsg:
         w = "episode_result"
         scalars = {k: _num(b, k, w, 0.0) for k in cls.SCALARS}
         ef = unpack_array(_get(b, "explored_free", w), w + ".explored_free", ndim=2)
@@ -994,7 +994,7 @@ class ServiceStatusMsg(Message):
         }
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "ServiceStatusMsg":
+    def from_body(cls, b: dict[str, Any]) -> ServiceStatusMsg:
         w = "service_status"
         rej = _get(b, "rejected", w)
         if not isinstance(rej, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0 for k, v in rej.items()):
@@ -1027,7 +1027,7 @@ class LauncherStatusMsg(Message):
         return {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected}
 
     @classmethod
-    def from_body(cls, b: dict[str, Any]) -> "LauncherStatusMsg":
+    def from_body(cls, b: dict[str, Any]) -> LauncherStatusMsg:
         w = "launcher_status"
         services = _get(b, "services", w)
         if not isinstance(services, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in services.items()):

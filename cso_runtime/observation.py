@@ -8,7 +8,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cso_runtime.config import FrontierConfig, RobotConfig
-from cso_runtime.frontiers import FrontierCluster, FrontierComponents, cluster_frontiers, frontier_cells, frontier_components, frontier_entropy
+from cso_runtime.frontiers import (
+    FrontierCluster,
+    FrontierComponents,
+    cluster_frontiers,
+    frontier_cells,
+    frontier_components,
+    frontier_entropy,
+)
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.occupancy import OccupancyMap

@@ -139,7 +139,7 @@ class OccupancyMap:
         return grid
 
     @classmethod
-    def from_occupancy_grid(cls, grid: np.ndarray, geometry: GridGeometry) -> "OccupancyMap":
+    def from_occupancy_grid(cls, grid: np.ndarray, geometry: GridGeometry) -> OccupancyMap:
         """Inverse of ``to_occupancy_grid`` (values above 50 are occupied, ROS convention)."""
         grid = np.asarray(grid)
         if grid.shape != tuple(geometry.shape):
@@ -147,7 +147,7 @@ class OccupancyMap:
         return cls.from_masks(grid >= 0, grid > 50, geometry)
 
     @classmethod
-    def from_masks(cls, explored: np.ndarray, occupied: np.ndarray, geometry: GridGeometry) -> "OccupancyMap":
+    def from_masks(cls, explored: np.ndarray, occupied: np.ndarray, geometry: GridGeometry) -> OccupancyMap:
         """A map with these two channels (as received: the arrays are kept, not copied)."""
         if explored.shape != tuple(geometry.shape) or occupied.shape != tuple(geometry.shape):
             raise ValueError(f"channel shapes {explored.shape}, {occupied.shape} do not match geometry {geometry.shape}")
@@ -158,7 +158,7 @@ class OccupancyMap:
         m._log_odds = None
         return m
 
-    def copy(self) -> "OccupancyMap":
+    def copy(self) -> OccupancyMap:
         m = OccupancyMap(self.geometry)
         m.explored = self.explored.copy()
         m.log_odds = self.log_odds.copy()

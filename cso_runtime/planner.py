@@ -187,7 +187,7 @@ class PathFollower:
         self.sensor_mount_x_m = sensor_mount_x_m
 
     def lookahead_index(
-        self, pose: Pose2D, path_xy_m: np.ndarray, progress_index: int, free: "FreeSpace | None" = None
+        self, pose: Pose2D, path_xy_m: np.ndarray, progress_index: int, free: FreeSpace | None = None
     ) -> tuple[int, int]:
         """(nearest, lookahead) indices on the path, never moving backwards from ``progress_index``.
 
@@ -380,7 +380,7 @@ class LocalPlanner:
         self.status = PlannerStatus.IDLE
 
     @classmethod
-    def for_config(cls, config: ExplorationConfig) -> "LocalPlanner":
+    def for_config(cls, config: ExplorationConfig) -> LocalPlanner:
         """The planner of an episode with these settings (the in-process Explorer and the planner service)."""
         return cls(config.robot, config.planner, config.episode.goal_tolerance_m, config.sensor.mount_x_m, math.radians(config.sensor.fov_deg))
 

@@ -6,8 +6,9 @@ learned CSO policy implements the same Protocol, so every caller treats them ali
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 

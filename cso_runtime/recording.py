@@ -141,7 +141,7 @@ class _McapSink:
     """An MCAP writer that registers a schema per message type and a channel per (key, type)."""
 
     def __init__(self, fh: Any, robot: str):
-        from mcap.writer import CompressionType, Writer
+        from mcap.writer import CompressionType, Writer  # noqa: PLC0415  (mcap is loaded only by record and replay)
 
         self.writer = Writer(fh, compression=CompressionType.ZSTD)
         self.writer.start(profile=MCAP_PROFILE, library=LIBRARY)
@@ -286,8 +286,8 @@ def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[
 
     ``topics``: only keys whose topic name (``cso_runtime.keys.TOPICS``, e.g. ``scan``) is listed.
     """
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
+    from mcap.exceptions import McapError  # noqa: PLC0415  (mcap is loaded only by record and replay)
+    from mcap.reader import make_reader  # noqa: PLC0415
 
     check_recording(path)  # a missing, empty or foreign file: said the same way as by ``replay``
     wanted = set(topics) if topics is not None else None

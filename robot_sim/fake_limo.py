@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
+from cso_runtime import ros2_cdr
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand
-from cso_runtime import ros2_cdr
 from cso_runtime.ros2_cdr import typestore
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.transport import TransportConfig, open_session

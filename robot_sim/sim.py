@@ -21,7 +21,7 @@ import math
 import threading
 import time
 from collections import deque
-from typing import Callable
+from collections.abc import Callable
 
 import mujoco
 import numpy as np

@@ -373,7 +373,7 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
         try:
             service.warm_up()
             log.info("%s: warmed up in %.0f ms", service.name, (time.perf_counter() - t0) * 1e3)
-        except Exception:  # noqa: BLE001 - only a speed-up: the first step pays the one-off costs instead
+        except Exception:  # only a speed-up: the first step pays the one-off costs instead
             log.exception("%s: warm-up failed after %.0f ms; starting without it", service.name, (time.perf_counter() - t0) * 1e3)
         token = session.liveliness().declare_token(ctx.keys.alive(service.name))
         log.info("%s: up for robot %s (inputs: %s)", service.name, sub_robot, ", ".join(service.inputs) or "none")

@@ -19,7 +19,17 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import decision_reason, goal_failed_in_place, mark_dead_frontier
-from cso_runtime.messages import DistanceMapMsg, FrontiersMsg, GoalMsg, MapMsg, Message, OdometryMsg, PlannerFeedbackMsg, encode, frontiers_from_observation
+from cso_runtime.messages import (
+    DistanceMapMsg,
+    FrontiersMsg,
+    GoalMsg,
+    MapMsg,
+    Message,
+    OdometryMsg,
+    PlannerFeedbackMsg,
+    encode,
+    frontiers_from_observation,
+)
 from cso_runtime.observation import FrontierLayer, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead

@@ -20,7 +20,18 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.geometry import VelocityCommand
-from cso_runtime.messages import CmdVelMsg, DistanceMapMsg, FrontiersMsg, GoalMsg, Message, OdometryMsg, PathMsg, PlannerFeedbackMsg, PlannerFrontiersMsg, ScanMsg
+from cso_runtime.messages import (
+    CmdVelMsg,
+    DistanceMapMsg,
+    FrontiersMsg,
+    GoalMsg,
+    Message,
+    OdometryMsg,
+    PathMsg,
+    PlannerFeedbackMsg,
+    PlannerFrontiersMsg,
+    ScanMsg,
+)
 from cso_runtime.planner import FollowResult, LocalPlanner, PlannerStatus
 from services.common import Service, ServiceContext, service_main, warm_up_observation
 

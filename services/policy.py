@@ -16,7 +16,16 @@ from dataclasses import dataclass
 import zenoh
 
 from cso_runtime.config import ConfigError, from_dict
-from cso_runtime.messages import FrontiersMsg, GoalMsg, Message, decode, encode, frontiers_from_observation, frontiers_reading, observation_from_frontiers
+from cso_runtime.messages import (
+    FrontiersMsg,
+    GoalMsg,
+    Message,
+    decode,
+    encode,
+    frontiers_from_observation,
+    frontiers_reading,
+    observation_from_frontiers,
+)
 from cso_runtime.policies import LEARNED_METHODS, GoalSelector, make_policy
 from services.common import Service, ServiceContext, service_main, warm_up_observation
 

@@ -69,7 +69,7 @@ def test_load_yaml_errors(tmp_path: Path):
 
 
 def test_train_set_overrides_parse_yaml_values_and_reject_bad_pairs():
-    from cso_runtime.cli import parse_settings  # noqa: PLC0415
+    from cso_runtime.cli import parse_settings
 
     assert parse_settings(["gamma=0.995", "generated=[a, b]", "dungeon_dir=null"]) == {"gamma": 0.995, "generated": ["a", "b"], "dungeon_dir": None}
     with pytest.raises(ConfigError, match="KEY=VALUE"):
@@ -92,7 +92,7 @@ def test_exponent_numbers_without_a_dot_are_numbers(tmp_path: Path):
 
 def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path: Path):
     """``eval --max-steps`` overrides ``episode.max_steps`` only when given: the flag's absence keeps the file's."""
-    from cso_runtime.evaluation import EvalRequest  # noqa: PLC0415
+    from cso_runtime.evaluation import EvalRequest
 
     f = tmp_path / "eval.yaml"
     f.write_text("episode: {max_steps: 120}\n")
@@ -110,10 +110,10 @@ def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path
 def test_a_negative_seed_is_refused_where_it_is_given_not_inside_a_worker():
     """numpy's generators take no negative seed: eval, a runtime profile and training each say so first
     (the sim service used to refuse it after the launcher had started everything)."""
-    from cso_runtime.config import check_seed  # noqa: PLC0415
-    from cso_runtime.evaluation import EvalRequest  # noqa: PLC0415
-    from cso_runtime.launcher import find_profile, load_profile  # noqa: PLC0415
-    from cso_runtime.learned.ppo import Args  # noqa: PLC0415
+    from cso_runtime.config import check_seed
+    from cso_runtime.evaluation import EvalRequest
+    from cso_runtime.launcher import find_profile, load_profile
+    from cso_runtime.learned.ppo import Args
 
     assert check_seed(0) == 0 and check_seed(7) == 7
     for bad in (-1, True, 1.5, "3"):
@@ -128,7 +128,7 @@ def test_a_negative_seed_is_refused_where_it_is_given_not_inside_a_worker():
 
 
 def test_training_arguments_out_of_range_are_clear_errors():
-    from cso_runtime.learned.ppo import Args  # noqa: PLC0415
+    from cso_runtime.learned.ppo import Args
 
     Args().validate()
     Args(device="cuda:1", learning_rate=0.0).validate()  # a frozen network is a legitimate check

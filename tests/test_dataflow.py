@@ -72,7 +72,7 @@ def test_sim_profile_dataflow_holds_the_lockstep_chain():
 
 
 def test_publish_refuses_what_the_outputs_do_not_declare():
-    from services.mapper import MapperService  # noqa: PLC0415
+    from services.mapper import MapperService
 
     class Session:
         def __init__(self):
@@ -101,9 +101,9 @@ def test_publish_refuses_what_the_outputs_do_not_declare():
 
 
 def test_dataflow_and_version_commands():
-    from typer.testing import CliRunner  # noqa: PLC0415
+    from typer.testing import CliRunner
 
-    from cso_runtime.cli import app  # noqa: PLC0415
+    from cso_runtime.cli import app
 
     runner = CliRunner()
     r = runner.invoke(app, ["dataflow", "--profile", "lockstep", "--format", "mermaid"])
@@ -119,9 +119,9 @@ def test_dataflow_and_version_commands():
 def test_the_frontier_service_takes_its_parameters_from_a_profile(tmp_path):
     """``services.frontier`` in a profile sets ``FrontierParams`` (the layer helper, the real-time goal
     wait); a key it does not know is an error before anything starts."""
-    import yaml  # noqa: PLC0415
+    import yaml
 
-    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.config import ConfigError
 
     data = yaml.safe_load((ROOT / "cso_runtime" / "profiles" / "lockstep.yaml").read_text())
     data["services"]["frontier"] = {"layer_helper": False, "goal_wait_s": 1.5}

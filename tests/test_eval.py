@@ -235,7 +235,7 @@ def test_ctrl_c_stops_eval_at_once_keeps_the_finished_episodes_and_resume_runs_t
     cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--method", "random", "--maps", "generated:middle:8:0",
            "--workers", "2", "--out", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # noqa: PLW1509  (a child of a background shell starts with SIGINT ignored)
     lines: list[str] = []
     first_done = threading.Event()
 
@@ -291,7 +291,7 @@ def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_pat
 def test_eval_warms_a_learned_policy_up_before_its_first_decision(tmp_path: Path, monkeypatch):
     """The network's one-off trace happens before the episode, so the first decision's latency in the
     table is a decision, not the trace (the policy service warms up the same way before it says it is up)."""
-    import cso_runtime.evaluation as evaluation
+    from cso_runtime import evaluation
     from cso_runtime.policies import make_policy
 
     calls = []

@@ -255,7 +255,7 @@ def test_env_reports_the_control_steps_each_decision_took():
 
 def test_scene_scaled_reward_is_eq6_times_the_reference_over_the_scene_area():
     """``scene_scale_area_m2``: the same episode (same choices), every reward scaled by one factor per scene."""
-    from cso_runtime.learned.env import RewardConfig  # noqa: PLC0415
+    from cso_runtime.learned.env import RewardConfig
 
     rewards = {}
     for scale_m2 in (0.0, 50.0):
@@ -340,11 +340,11 @@ def test_training_with_the_per_step_discount_runs_through_episode_ends(tmp_path)
 def test_the_training_bar_shows_the_latest_return_coverage_and_rate(tmp_path, monkeypatch):
     """As CleanRL prints its episodic return and SPS: after each update the bar's text is the mean return and
     coverage of the last finished episodes and the decisions per second."""
-    import io  # noqa: PLC0415
+    import io
 
-    from rich.console import Console  # noqa: PLC0415
+    from rich.console import Console
 
-    import cso_runtime.learned.ppo as ppo  # noqa: PLC0415
+    from cso_runtime.learned import ppo
 
     shown: list[str | None] = []
 
@@ -423,10 +423,10 @@ def test_shipped_weights_match_the_training_config(variant, monkeypatch):
     """configs/train.yaml says it reproduces the shipped weights: each shipped checkpoint's graph and network
     settings are the ones ``train --config configs/train.yaml --variant V`` builds, and its JSON record names
     that command."""
-    import json  # noqa: PLC0415
+    import json
 
-    from cso_runtime.cli import training_args  # noqa: PLC0415
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path  # noqa: PLC0415
+    from cso_runtime.cli import training_args
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path
 
     monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)
     config = Path(__file__).resolve().parents[1] / "configs" / "train.yaml"
@@ -444,7 +444,7 @@ def test_shipped_weights_match_the_training_config(variant, monkeypatch):
 def test_fine_tuning_starts_from_the_given_weights_and_checks_the_variant(tmp_path):
     """``init_from`` loads the weights before PPO (no warm start); a file of another variant is refused."""
     plan = rooms_plan(2)
-    common = dict(out_dir=str(tmp_path), seed=0, num_envs=1, num_steps=8, num_minibatches=1, max_steps=100, progress=False)
+    common = {"out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 100, "progress": False}
     torch.manual_seed(3)
     start = GraphActorCritic(NetworkConfig(hidden=32, heads=4, layers=2)).eval()
     save_checkpoint(tmp_path / "start.pt", start, Args(**common).env_config().graph, "cso")
@@ -460,7 +460,7 @@ def test_fine_tuning_starts_from_the_given_weights_and_checks_the_variant(tmp_pa
 
 def test_warm_start_teacher_runs_through_subprocess_envs(tmp_path):
     """The greedy teacher is asked through the vector env's ``call``, so async (one process per env) works."""
-    from cso_runtime.learned.ppo import collect_teacher, make_vector_env  # noqa: PLC0415
+    from cso_runtime.learned.ppo import collect_teacher, make_vector_env
 
     args = Args(num_envs=2, async_envs=True, max_steps=100)
     envs = make_vector_env(args, [rooms_plan(2)])
@@ -481,7 +481,7 @@ def test_warm_start_teacher_runs_through_subprocess_envs(tmp_path):
 def test_warm_start_teacher_is_the_chosen_baseline_under_the_mask():
     """The warm start imitates the configured baseline (its own score, e.g. explore_lite's utility),
     restricted to the allowed actions; greedy-dist stays the default; an unknown teacher is refused."""
-    from cso_runtime.policies import Utility  # noqa: PLC0415
+    from cso_runtime.policies import Utility
 
     env = ExplorationEnv([rooms_plan(3)], EnvConfig(max_steps=200))
     _, info = env.reset(seed=0)
@@ -510,7 +510,7 @@ def test_warm_start_teacher_is_the_chosen_baseline_under_the_mask():
 
 def test_weights_dir_override_serves_other_weights(tmp_path, monkeypatch, observation):
     """``CSO_WEIGHTS_DIR`` makes eval and the policy service use a training run's weights."""
-    from cso_runtime.learned import registry  # noqa: PLC0415
+    from cso_runtime.learned import registry
 
     torch.manual_seed(11)
     mine = GraphActorCritic().eval()
@@ -526,9 +526,9 @@ def test_weights_trained_with_the_sensor_serve_episodes_with_that_field_of_view(
     """``<method>@fov<deg>.pt`` serves episodes whose sensor has that field of view (the shipped ``cso`` has
     one for the LIMO's 180-degree LiDAR); every other sensor gets ``<method>.pt``. eval, the policy service
     and the run records all take the file from ``weights_path``."""
-    from cso_runtime.config import SensorConfig  # noqa: PLC0415
-    from cso_runtime.learned import registry  # noqa: PLC0415
-    from cso_runtime.learned.weights import weights_provenance  # noqa: PLC0415
+    from cso_runtime.config import SensorConfig
+    from cso_runtime.learned import registry
+    from cso_runtime.learned.weights import weights_provenance
 
     monkeypatch.delenv(registry.WEIGHTS_DIR_ENV, raising=False)
     lidar180, lidar360, depth = SensorConfig(), SensorConfig.preset("lidar", 360), SensorConfig.preset("depth")
@@ -552,11 +552,11 @@ def test_weights_trained_with_the_sensor_serve_episodes_with_that_field_of_view(
 def test_the_shipped_180_degree_weights_are_the_recorded_training_run(monkeypatch):
     """``cso@fov180.pt`` is ``train --config configs/train.yaml`` with the 180-degree LiDAR: same graph and
     network as the recipe builds with that sensor, and its record names the command."""
-    import json  # noqa: PLC0415
+    import json
 
-    from cso_runtime.cli import training_args  # noqa: PLC0415
-    from cso_runtime.config import SensorConfig  # noqa: PLC0415
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path  # noqa: PLC0415
+    from cso_runtime.cli import training_args
+    from cso_runtime.config import SensorConfig
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path
 
     monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)
     config = Path(__file__).resolve().parents[1] / "configs" / "train.yaml"
@@ -573,7 +573,7 @@ def test_the_shipped_180_degree_weights_are_the_recorded_training_run(monkeypatc
 def test_the_environment_is_registered_with_gymnasium():
     """``gymnasium.make`` builds the training environment by id; a step runs the robot to the chosen
     frontier and pays Eq. 6's reward, and the mask comes with every observation."""
-    import gymnasium as gym  # noqa: PLC0415
+    import gymnasium as gym
 
     env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", config=EnvConfig(max_steps=120))
     obs, info = env.reset(seed=3)
@@ -591,8 +591,8 @@ def test_the_environment_passes_gymnasiums_checker_and_rejects_masked_actions_as
     """Gymnasium's ``check_env`` steps with ``action_space.sample()``, as a random agent does: a masked
     action is accepted as Taxi's illegal move is (nothing happens, one step penalty, counted in ``info``), the
     same decision is asked again, and too many in a row truncate the episode instead of looping forever."""
-    import gymnasium as gym  # noqa: PLC0415
-    from gymnasium.utils.env_checker import check_env  # noqa: PLC0415
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
 
     config = EnvConfig(max_steps=120, invalid_action_limit=3)
     env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", config=config).unwrapped
@@ -620,12 +620,12 @@ def test_the_environment_passes_gymnasiums_checker_and_rejects_masked_actions_as
 def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_path):
     """``eval --weights DIR`` serves the learned methods from DIR, and summary.json says which file (and
     its SHA-256) produced the results; a folder without the method's file, or no folder, exits 2."""
-    import hashlib  # noqa: PLC0415
-    import json  # noqa: PLC0415
-    import subprocess  # noqa: PLC0415
-    import sys  # noqa: PLC0415
+    import hashlib
+    import json
+    import subprocess
+    import sys
 
-    from cso_runtime.learned import registry  # noqa: PLC0415
+    from cso_runtime.learned import registry
 
     torch.manual_seed(5)
     run = tmp_path / "run"
@@ -653,13 +653,13 @@ def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path
     """A truncated, foreign or mismatched weights file: ``load_checkpoint`` names the file and the cause in
     one line (not torch's traceback, nor its advice to turn weights_only off); ``eval`` exits 2 before any
     episode; the launcher refuses a file that cannot be a checkpoint before it starts a process."""
-    import subprocess  # noqa: PLC0415
-    import sys  # noqa: PLC0415
+    import subprocess
+    import sys
 
-    from cso_runtime.config import ConfigError  # noqa: PLC0415
-    from cso_runtime.launcher import find_profile, load_profile  # noqa: PLC0415
-    from cso_runtime.learned import registry  # noqa: PLC0415
-    from cso_runtime.learned.weights import weights_file_problem  # noqa: PLC0415
+    from cso_runtime.config import ConfigError
+    from cso_runtime.launcher import find_profile, load_profile
+    from cso_runtime.learned import registry
+    from cso_runtime.learned.weights import weights_file_problem
 
     good = tmp_path / "good.pt"
     save_checkpoint(good, GraphActorCritic().eval(), GraphConfig(), "cso")
@@ -855,7 +855,7 @@ def test_rollout_teacher_takes_the_try_that_finishes_first_without_touching_the_
 def test_soft_targets_weigh_each_tried_cluster_by_how_soon_its_episode_ended():
     """softmax(-(steps - best) / T) over the tried clusters; untried ones get nothing; rows without outcomes
     (score-based teachers) and T = 0 give the one-hot choice."""
-    from cso_runtime.learned.ppo import soft_targets  # noqa: PLC0415
+    from cso_runtime.learned.ppo import soft_targets
 
     inf = math.inf
     steps = torch.tensor([[100.0, 102.0, inf, 110.0], [inf, inf, inf, inf]])
@@ -870,7 +870,7 @@ def test_soft_targets_weigh_each_tried_cluster_by_how_soon_its_episode_ended():
 def test_teacher_data_round_trips_through_a_file_and_feeds_the_warm_start(tmp_path):
     """Collected once, saved, loaded (several files concatenated) and imitated by ``train`` without collecting
     again; a file that is not teacher data is a clear error."""
-    from cso_runtime.learned.ppo import TeacherData, collect_teacher, make_vector_env  # noqa: PLC0415
+    from cso_runtime.learned.ppo import TeacherData, collect_teacher, make_vector_env
 
     args = Args(num_envs=1, max_steps=100)
     envs = make_vector_env(args, [rooms_plan(2)])
@@ -905,10 +905,10 @@ def test_teacher_data_round_trips_through_a_file_and_feeds_the_warm_start(tmp_pa
 def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
     """``cso-runtime collect-teacher`` runs workers in their own processes and writes teacher data that loads;
     a bad setting is refused before anything starts."""
-    from typer.testing import CliRunner  # noqa: PLC0415
+    from typer.testing import CliRunner
 
-    from cso_runtime.cli import app  # noqa: PLC0415
-    from cso_runtime.learned.ppo import TeacherData  # noqa: PLC0415
+    from cso_runtime.cli import app
+    from cso_runtime.learned.ppo import TeacherData
 
     out = tmp_path / "teacher.npz"
     scenes = ["--set", "dungeon_dir=null", "--set", "generated=[generated:small:2:0]", "--set", "max_steps=60"]
@@ -934,9 +934,9 @@ def test_train_outside_the_repository_uses_the_packaged_recipe_and_refuses_missi
     """Run where there is no ``configs/train.yaml`` (an installed package), ``train`` reads the packaged copy of the
     recipe; a plan folder that is not there, a validation set or a bad generated spec is one error line and exit 2
     before anything is set up (they used to be a traceback from inside the trainer)."""
-    from typer.testing import CliRunner  # noqa: PLC0415
+    from typer.testing import CliRunner
 
-    from cso_runtime.cli import PACKAGED_TRAIN_CONFIG, app  # noqa: PLC0415
+    from cso_runtime.cli import PACKAGED_TRAIN_CONFIG, app
 
     repo_recipe = Path(__file__).resolve().parents[1] / "configs" / "train.yaml"
     assert PACKAGED_TRAIN_CONFIG.read_text() == repo_recipe.read_text()

@@ -38,8 +38,8 @@ def test_ray_marching_in_chunks_does_not_change_ranges_or_maps(scene, monkeypatc
     """Beams are marched a chunk of samples at a time and leave at their first hit (sensor) or their
     end (mapper): a speed setting only. One chunk per beam (the whole range at once) and chunks of 5
     samples give the same ranges and the same maps, bit for bit, from inside, near and outside the walls."""
-    from cso_runtime import raycast  # noqa: PLC0415
-    from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
+    from cso_runtime import raycast
+    from cso_runtime.scenes import resolve_scenes
 
     plan = resolve_scenes(scene)[0].load()
     g = plan.geometry
@@ -47,7 +47,7 @@ def test_ray_marching_in_chunks_does_not_change_ranges_or_maps(scene, monkeypatc
     outputs = []
     for chunk in (10**6, 5):
         monkeypatch.setattr(raycast, "SAMPLES_PER_CHUNK", chunk)
-        import cso_runtime.occupancy as occupancy_module  # noqa: PLC0415
+        import cso_runtime.occupancy as occupancy_module
 
         monkeypatch.setattr(occupancy_module, "SAMPLES_PER_CHUNK", chunk)
         rng = np.random.default_rng(5)
@@ -74,7 +74,7 @@ def test_ray_samples_fall_in_the_cells_world_to_cell_gives(origin_xy_m):
     """The ray marcher works out its samples' cells in place, in floats, as flat indices; each one is
     the cell ``GridGeometry.world_to_cell`` gives the sample's point, and ``inside`` is ``in_bounds``,
     for beams that start inside, on an edge or outside the grid, whatever its origin."""
-    from cso_runtime.raycast import sample_cells  # noqa: PLC0415
+    from cso_runtime.raycast import sample_cells
 
     g = GridGeometry(0.05, (37, 53), *origin_xy_m)
     rng = np.random.default_rng(3)

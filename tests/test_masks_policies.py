@@ -7,9 +7,9 @@ import pytest
 
 from cso_runtime.config import MaskConfig
 from cso_runtime.frontiers import FrontierCluster
+from cso_runtime.geodesic import geodesic_distance
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.masks import StuckMask, valid_distance_mask
-from cso_runtime.geodesic import geodesic_distance
 from cso_runtime.observation import Observation, distance_source_key
 from cso_runtime.policies import ActionMasker, GoalSelector, make_policy
 from tests.conftest import walled_grid

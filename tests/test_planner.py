@@ -33,7 +33,7 @@ def test_path_from_a_pass_bounded_by_the_goals_distance_is_the_full_maps(monkeyp
     """Without D (it does not travel to the planner service), the goal's distance bounds the planner's
     fast-marching pass: the descent reads only closer cells, so the path is the one on the full map;
     a hint too small to reach the goal falls back to the full map."""
-    import cso_runtime.planner as planner_module  # noqa: PLC0415
+    import cso_runtime.planner as planner_module
 
     rng = np.random.default_rng(11)
     g = GridGeometry(0.05, (120, 160))
@@ -266,10 +266,10 @@ def test_the_depth_camera_explores_a_small_scene_to_the_end():
     """The collapse the turn at the goal removed: with the 79-degree depth camera, goals reached beside the
     robot were marked dead unseen; greedy-dist then stopped at 98.6 % (no frontier left) and `cso` at 11.7 %
     after 11 steps on these scenes. Both now reach the coverage criterion."""
-    from cso_runtime.config import ExplorationConfig  # noqa: PLC0415
-    from cso_runtime.episode import run_episode  # noqa: PLC0415
-    from cso_runtime.policies import make_policy  # noqa: PLC0415
-    from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
+    from cso_runtime.config import ExplorationConfig
+    from cso_runtime.episode import run_episode
+    from cso_runtime.policies import make_policy
+    from cso_runtime.scenes import resolve_scenes
 
     config = ExplorationConfig(sensor=SensorConfig.preset("depth"))
     for method, scene in (("greedy-dist", "generated:small:1:1"), ("cso", "generated:small:1:0")):

@@ -234,7 +234,7 @@ def test_a_replayed_run_rebuilds_the_same_map_in_a_fresh_mapper(tmp_path: Path):
 
 def test_a_broken_recording_is_one_clear_error(tmp_path: Path):
     """An empty or truncated MCAP file: RecordingError naming the file and why, never a blank reason."""
-    from cso_runtime.recording import RecordingError  # noqa: PLC0415
+    from cso_runtime.recording import RecordingError
 
     empty = tmp_path / "empty.mcap"
     empty.write_bytes(b"")
@@ -248,9 +248,9 @@ def test_a_broken_recording_is_one_clear_error(tmp_path: Path):
 
 def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path: Path):
     """A wrong path is the first thing to say, even with no run to replay into."""
-    from typer.testing import CliRunner  # noqa: PLC0415
+    from typer.testing import CliRunner
 
-    from cso_runtime.cli import app  # noqa: PLC0415
+    from cso_runtime.cli import app
 
     missing = tmp_path / "nowhere.mcap"
     r = CliRunner().invoke(app, ["replay", str(missing), "--runs-dir", str(tmp_path)])
@@ -275,8 +275,8 @@ def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path:
 def test_a_recording_folder_gets_a_file_named_for_the_run(tmp_path: Path, monkeypatch):
     """``record --out FOLDER`` and ``up --record-out FOLDER`` write a file inside the folder (they used to try to
     open the folder itself and fail); a file path is kept as it is."""
-    from cso_runtime.launcher import RECORDING_NAME, _record_path  # noqa: PLC0415
-    from cso_runtime.recording import recording_path  # noqa: PLC0415
+    from cso_runtime.launcher import RECORDING_NAME, _record_path
+    from cso_runtime.recording import recording_path
 
     monkeypatch.chdir(tmp_path)
     assert recording_path(None, Path("recordings"), "r0-T") == Path("recordings/r0-T.mcap")
@@ -291,15 +291,15 @@ def test_a_recording_folder_gets_a_file_named_for_the_run(tmp_path: Path, monkey
 
 def test_record_and_replay_without_a_zenoh_session_exit_3_as_up_does(tmp_path: Path, monkeypatch):
     """README's exit codes are the same for every command: no Zenoh session is 3 (it was 2 for record, 1 for replay)."""
-    from typer.testing import CliRunner  # noqa: PLC0415
+    from typer.testing import CliRunner
 
-    import cso_runtime.transport as transport  # noqa: PLC0415
-    from cso_runtime.cli import app  # noqa: PLC0415
+    from cso_runtime import transport
+    from cso_runtime.cli import app
 
     def no_router(config):
         raise transport.TransportError("cannot open zenoh session (client): Timeout!")
 
-    import signal  # noqa: PLC0415
+    import signal
 
     monkeypatch.setattr(transport, "open_session", no_router)
     recording = tmp_path / "run.mcap"
@@ -317,12 +317,12 @@ def test_record_and_replay_without_a_zenoh_session_exit_3_as_up_does(tmp_path: P
 
 def test_record_refuses_a_bad_robot_id_before_connecting(tmp_path: Path, monkeypatch):
     """``record --robot a/b`` is a usage error (exit 2) before any session; '*' (every robot) goes on to connect."""
-    import signal  # noqa: PLC0415
+    import signal
 
-    from typer.testing import CliRunner  # noqa: PLC0415
+    from typer.testing import CliRunner
 
-    import cso_runtime.transport as transport  # noqa: PLC0415
-    from cso_runtime.cli import app  # noqa: PLC0415
+    from cso_runtime import transport
+    from cso_runtime.cli import app
 
     opened: list[object] = []
 

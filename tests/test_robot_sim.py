@@ -12,8 +12,8 @@ import pytest
 from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, RobotConfig, SensorConfig, from_dict, load_yaml
 from cso_runtime.episode import run_episode
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
-from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.geometry import Pose2D, VelocityCommand, wrap_angle_rad
+from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import LocalPlanner, PlannerStatus
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import FloorPlan

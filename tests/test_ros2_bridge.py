@@ -41,8 +41,8 @@ from cso_runtime.messages import (
     encode,
 )
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
-from services.ros2_bridge import OdometryBuffer, Ros2BridgeParams
 from robot_sim.fake_limo import odometry_cdr
+from services.ros2_bridge import OdometryBuffer, Ros2BridgeParams
 from tests.conftest import wait_for
 
 REPO = Path(__file__).resolve().parents[1]

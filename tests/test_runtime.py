@@ -8,16 +8,17 @@ from __future__ import annotations
 
 import io
 import json
-import shutil
 import os
+import shutil
 import signal
 import subprocess
 import sys
 import textwrap
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import pytest
@@ -206,10 +207,10 @@ def test_mapper_service_over_loopback_maps_and_counts_rejections():
 
 
 def test_one_policy_server_answers_several_robots():
+    from cso_runtime.messages import GoalMsg, frontiers_from_observation
     from services.common import ServiceContext, run_service
     from services.policy import PolicyService
     from tests.test_messages import _observation
-    from cso_runtime.messages import GoalMsg, frontiers_from_observation
 
     port = free_tcp_port()
     client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
@@ -325,7 +326,7 @@ def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path):
 def test_up_without_a_zenoh_session_says_so_and_starts_nothing(tmp_path):
     """The router cannot open (here: its port is taken; on a robot: the router to join is down): one error
     line and exit 3, foreground and detached alike, no traceback, no service started."""
-    import socket  # noqa: PLC0415
+    import socket
 
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))

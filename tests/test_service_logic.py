@@ -141,11 +141,11 @@ def test_real_time_frontier_decides_on_the_newest_map_and_waits_for_the_goal():
 def test_policy_service_loads_the_weights_trained_with_its_sensor(tmp_path, monkeypatch):
     """The policy service of a profile with the LIMO's 180-degree LiDAR serves ``cso@fov180.pt``; with a
     360-degree LiDAR, ``cso.pt`` (the same rule as eval, ``weights.weights_path``)."""
-    import torch  # noqa: PLC0415
+    import torch
 
-    from cso_runtime.learned.graph import GraphConfig  # noqa: PLC0415
-    from cso_runtime.learned.network import GraphActorCritic  # noqa: PLC0415
-    from cso_runtime.learned.registry import WEIGHTS_DIR_ENV, save_checkpoint  # noqa: PLC0415
+    from cso_runtime.learned.graph import GraphConfig
+    from cso_runtime.learned.network import GraphActorCritic
+    from cso_runtime.learned.registry import WEIGHTS_DIR_ENV, save_checkpoint
 
     torch.manual_seed(5)
     wide, narrow = GraphActorCritic().eval(), GraphActorCritic().eval()
@@ -163,7 +163,7 @@ def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_i
     """Three decisions 0.1 m apart on one map: Algorithm 1 finds the robot stuck at the third and
     measures from the three decision positions, each with a fast-marching pass bounded by alpha_3.
     The service's goals are those of the same selector run in one process on the same Observations."""
-    import cso_runtime.observation as observation  # noqa: PLC0415
+    from cso_runtime import observation
 
     ex = _explorer_at(0)
     start = ex.sim.odometry()
@@ -173,7 +173,7 @@ def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_i
         nodes.append((pose.x_m, pose.y_m))
         observations.append(ex.builder.build(ex.map, pose, np.array(nodes)))
         decisions.append(frontiers_from_observation(step, "reached", observations[-1], 1.0))
-    from cso_runtime.learned import registry  # noqa: PLC0415
+    from cso_runtime.learned import registry
 
     monkeypatch.setattr(registry, "_DECISION_TRACES", weakref.WeakKeyDictionary())
     policy, out = _service(PolicyService, lockstep=True, params={"method": "cso"})
@@ -245,7 +245,7 @@ def test_lockstep_planner_keeps_the_goal_without_the_policy_and_waits_for_a_deci
 def test_planner_plans_on_the_distance_map_of_the_decision_when_it_arrives(monkeypatch):
     """D travels on its own key after the decision message: with it the planner only descends it (no
     fast-marching pass of its own), and the path is the in-process one; a D of another pose is not used."""
-    import cso_runtime.planner as planner_module  # noqa: PLC0415
+    import cso_runtime.planner as planner_module
 
     passes = []
     real = planner_module.geodesic_distance
@@ -306,9 +306,9 @@ def test_sim_starts_the_episode_when_every_service_of_the_profile_is_alive():
     """Step 0 waits for the liveliness tokens of the profile's other services (a policy loading torch comes
     up last; before, its first decision waited a second for a lockstep re-publish), then start_delay_s;
     after wait_for_services_s it starts without the missing ones."""
-    from types import SimpleNamespace  # noqa: PLC0415
+    from types import SimpleNamespace
 
-    from services.sim import SimService  # noqa: PLC0415
+    from services.sim import SimService
 
     profile = {"lockstep": True, "scene": "generated:small:1:0", "seed": 3, "services": {"sim": {}, "mapper": {}, "policy": {}}}
 
@@ -351,9 +351,9 @@ def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
     """The sim steps ahead on the planner's provisional command while the map travels; with the same
     final command it publishes the stored result, with another it steps afresh. Either way every scan
     and odometry is the one of a sim that never stepped ahead (LiDAR noise on: the noise generator too)."""
-    from cso_runtime.geometry import VelocityCommand  # noqa: PLC0415
-    from cso_runtime.occupancy import OccupancyMap  # noqa: PLC0415
-    from services.sim import SimService  # noqa: PLC0415
+    from cso_runtime.geometry import VelocityCommand
+    from cso_runtime.occupancy import OccupancyMap
+    from services.sim import SimService
 
     def sim_service():
         ctx = ServiceContext("sim", "r0", {"lockstep": True, "scene": "generated:small:1:0", "seed": 3}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
@@ -471,8 +471,8 @@ def test_planner_publishes_the_path_with_each_new_plan_and_otherwise_at_its_peri
 def test_sim_rejects_a_map_of_another_episode():
     """The sim's referee measures only maps of its own episode: a map in flight from an earlier
     episode (fully explored, say) neither ends this one nor enters its coverage curve."""
-    from cso_runtime.occupancy import OccupancyMap  # noqa: PLC0415
-    from services.sim import SimService  # noqa: PLC0415
+    from cso_runtime.occupancy import OccupancyMap
+    from services.sim import SimService
 
     ctx = ServiceContext("sim", "r0", {"lockstep": True, "scene": "generated:small:1:0", "seed": 3}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
     svc = SimService(ctx)
@@ -497,8 +497,8 @@ def test_sim_rejects_a_map_of_another_episode():
 def test_restarted_mapper_keeps_the_cached_map_of_its_episode_only():
     """A restarted mapper continues from the referee's cached map; the map it publishes carries the
     episode id; the first scan of another episode starts a new map instead of adding to the old one."""
-    from cso_runtime.occupancy import OccupancyMap, integrate_observation  # noqa: PLC0415
-    from services.mapper import MapperService  # noqa: PLC0415
+    from cso_runtime.occupancy import OccupancyMap, integrate_observation
+    from services.mapper import MapperService
 
     ex = _explorer_at(4)
     grid = ex.map.to_occupancy_grid()
@@ -522,8 +522,8 @@ def test_the_mapper_service_builds_the_explorers_map_with_a_forward_narrow_senso
     """The depth camera 0.103 m ahead of the centre: the mapper service clears the robot's footprint (the
     robot's centre being the scan's sensor pose less the profile's mount) exactly as the in-process
     Explorer does, so lockstep through Zenoh stays step for step the in-process episode."""
-    from cso_runtime.config import SensorConfig  # noqa: PLC0415
-    from services.mapper import MapperService  # noqa: PLC0415
+    from cso_runtime.config import SensorConfig
+    from services.mapper import MapperService
 
     sensor = dataclasses.replace(SensorConfig.preset("depth"), mount_x_m=0.103)
     cfg = ExplorationConfig(sensor=sensor)
@@ -696,10 +696,10 @@ def test_the_sim_serves_the_newest_map_of_its_episode_for_a_restarted_mapper():
     """The map cache (what a restarted mapper restores, ``cache/map``) is the referee's: it follows the
     steps of the episode, a late map does not replace a newer one, and a map of another episode (still in
     flight from before a restart) is rejected, counted and never cached. The launcher receives no maps."""
-    from types import SimpleNamespace  # noqa: PLC0415
+    from types import SimpleNamespace
 
-    from cso_runtime.launcher import LAUNCHER_INPUTS  # noqa: PLC0415
-    from services.sim import SimService  # noqa: PLC0415
+    from cso_runtime.launcher import LAUNCHER_INPUTS
+    from services.sim import SimService
 
     assert "map" not in LAUNCHER_INPUTS and SimService.serves_latest == ("map",)
     ctx = ServiceContext("sim", "r0", {"scene": "generated:small:1:0"}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {})
@@ -733,7 +733,7 @@ def test_the_sim_serves_the_newest_map_of_its_episode_for_a_restarted_mapper():
 def test_sim_status_goes_out_at_its_period_and_always_at_the_end(period_s, expected_steps):
     """``episode/status`` is a view: with a period longer than the run it goes out once, then with the
     end of the episode (the launcher's cue to write the results); with period 0 after every map."""
-    from services.sim import SimService  # noqa: PLC0415
+    from services.sim import SimService
 
     ctx = ServiceContext("sim", "r0", {"scene": "generated:small:1:0"}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"status_period_s": period_s})
     sim = SimService(ctx)
@@ -754,8 +754,8 @@ def test_frontier_layer_helper_computes_what_the_service_would_and_is_dropped_wh
     """The helper process gives exactly ``frontier_layer`` (with and without excluded cells), so a
     service's Observation is the one-process Observation; a dead helper is noticed, and the service
     computes the layer itself from then on."""
-    from cso_runtime.observation import ObservationBuilder  # noqa: PLC0415
-    from services.frontier_layer import FrontierLayerWorker  # noqa: PLC0415
+    from cso_runtime.observation import ObservationBuilder
+    from services.frontier_layer import FrontierLayerWorker
 
     ex = _explorer_at(6)
     builder = ObservationBuilder()
@@ -776,7 +776,7 @@ def test_frontier_layer_helper_computes_what_the_service_would_and_is_dropped_wh
             for a, b in [(got.frontier, expected.frontier), (got.entropy, expected.entropy), *zip(got.components, expected.components)]:
                 assert a.dtype == b.dtype
                 np.testing.assert_array_equal(a, b)
-            obs = builder.build(ex.map, ex.sim.odometry(), exclude_frontier=dead, layer=lambda: got)
+            obs = builder.build(ex.map, ex.sim.odometry(), exclude_frontier=dead, layer=lambda got=got: got)
             alone = builder.build(ex.map, ex.sim.odometry(), exclude_frontier=dead)
             assert [(c.goal_cell, c.distance_m, c.size_m, c.entropy) for c in obs.clusters] == [(c.goal_cell, c.distance_m, c.size_m, c.entropy) for c in alone.clusters]
         assert worker.layers_computed == 3

@@ -47,7 +47,7 @@ def test_frontier_clusters_have_goal_size_and_entropy():
 
 def test_frontier_components_group_every_frontier_cell_by_its_8_connected_component():
     """Each component's cells in row-major order, components in label order (scipy's), every cell once."""
-    from scipy import ndimage  # noqa: PLC0415
+    from scipy import ndimage
 
     frontier = np.random.default_rng(2).random((61, 47)) < 0.08
     iy, ix, splits = frontier_components(frontier)

@@ -13,8 +13,9 @@ standard vector envs can stack it (``spaces.Graph`` has no fixed shape and canno
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -27,7 +28,6 @@ from cso_runtime.observation import Observation
 from cso_runtime.policies import BASELINES, ActionMasker, goal_of
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import KinematicSimulator
-
 
 ROLLOUT_TRIES = 3
 """Clusters the rollout teacher tries per decision (the nearest allowed ones)."""
@@ -78,7 +78,7 @@ def graph_space(config: GraphConfig) -> spaces.Dict:
 class ExplorationEnv(gym.Env):
     """One goal choice per step over ``KinematicSimulator``; plans drawn from ``plans`` each reset."""
 
-    metadata = {"render_modes": []}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
 
     def __init__(self, plans: list[FloorPlan] | Callable[[], list[FloorPlan]], config: EnvConfig | None = None):
         super().__init__()

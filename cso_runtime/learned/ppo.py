@@ -21,10 +21,10 @@ import platform
 import random
 import re
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from collections.abc import Mapping, Sequence
-from typing import Any, Callable
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -400,7 +400,7 @@ class TeacherData:
         np.savez_compressed(path, **fields, **{f"graph_{k}": v for k, v in self.graphs.items()})
 
     @classmethod
-    def load(cls, paths: list[str] | list[Path]) -> "TeacherData":
+    def load(cls, paths: list[str] | list[Path]) -> TeacherData:
         """Concatenate the teacher data of several files; a missing key or mismatched shape is an error."""
         parts = []
         for path in paths:
@@ -415,7 +415,7 @@ class TeacherData:
         return cls.concatenate(parts)
 
     @classmethod
-    def concatenate(cls, parts: list["TeacherData"]) -> "TeacherData":
+    def concatenate(cls, parts: list[TeacherData]) -> TeacherData:
         keys = set(parts[0].graphs)
         if any(set(p.graphs) != keys for p in parts):
             raise ValueError("teacher data built with different graph layouts")
@@ -635,7 +635,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     log_path = out / f"{args.variant}_log.csv"
     fields = ["update", "decisions", "env_steps", "wall_s", "episodes", "mean_return", "mean_coverage_pct", "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "lr"]
     new_log = not (args.resume and log_path.exists())
-    log_file = open(log_path, "w" if new_log else "a", newline="")
+    log_file = open(log_path, "w" if new_log else "a", newline="")  # noqa: SIM115  (open for the whole run; closed in the finally below)
     writer = csv.DictWriter(log_file, fieldnames=fields)
     if new_log:
         writer.writeheader()
@@ -651,8 +651,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                     group["lr"] = group.get("lr_scale", 1.0) * args.learning_rate * (1.0 - (update - 1.0) / args.num_updates)
             finished = []
             for step in range(T):
-                for k in obs_buf:
-                    obs_buf[k][step] = next_obs[k]
+                for k, buf in obs_buf.items():
+                    buf[step] = next_obs[k]
                 mask_buf[step] = next_mask
                 dones[step] = next_done
                 with torch.no_grad():

@@ -49,7 +49,7 @@ _DECISION_TRACES: weakref.WeakKeyDictionary[GraphActorCritic, dict[tuple, Any]] 
 """Traced decision networks per model object and input shapes (False: tracing failed); die with the model."""
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig]:
     """The weights at ``path``, loaded once per process (eval builds a policy per episode)."""
     model, graph, _ = load_checkpoint(path, device)
