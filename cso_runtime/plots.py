@@ -42,19 +42,40 @@ def plot_coverage_curves(path: Path, outcomes: Sequence[Any]) -> None:
     plt.close(fig)
 
 
+WALL_RGB = (0.25, 0.25, 0.25)
+UNEXPLORED_FREE_RGB = (0.75, 0.75, 0.75)
+EXPLORED_FREE_RGB = (0.62, 0.82, 0.98)
+
+
 def plot_trajectories(path: Path, name: str, outcomes: Sequence[Any]) -> None:
-    """One panel per method: ground truth (grey), explored free space (light blue), path (red)."""
+    """``trajectory_figure`` written as a PNG."""
     plt = _pyplot()
+    fig = trajectory_figure(name, outcomes)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
+    """One panel per method, like the paper's Fig. 6: walls (dark), free space not explored (grey), explored
+    free space (light blue), the path (red) from its start (green dot) to its end (red square), with a key.
+    Panels take the plan's aspect ratio, so that tall and wide plans alike keep their axis labels."""
+    plt = _pyplot()
+    from matplotlib.lines import Line2D  # noqa: PLC0415  (matplotlib is slow to import)
+    from matplotlib.patches import Patch  # noqa: PLC0415
+
     n = len(outcomes)
-    fig, axes = plt.subplots(1, n, figsize=(5 * n, 4), squeeze=False)
+    h0, w0 = np.asarray(outcomes[0].free).shape
+    panel_w_in = float(np.clip(4.2 * w0 / max(h0, 1), 3.0, 7.0))
+    fig, axes = plt.subplots(1, n, figsize=(panel_w_in * n + 0.4, 4.8), squeeze=False, layout="constrained")
     for ax, o in zip(axes[0], outcomes):
         free = np.asarray(o.free, dtype=bool)
         h, w = free.shape
         res = o.resolution_m
-        img = np.ones((h, w, 3))
-        img[free] = (0.75, 0.75, 0.75)
-        img[~free] = (0.25, 0.25, 0.25)
-        img[np.asarray(o.explored, dtype=bool)] = (0.62, 0.82, 0.98)
+        img = np.empty((h, w, 3))
+        img[free] = UNEXPLORED_FREE_RGB
+        img[~free] = WALL_RGB
+        img[np.asarray(o.explored, dtype=bool)] = EXPLORED_FREE_RGB
         ax.imshow(img, origin="lower", extent=(0, w * res, 0, h * res), interpolation="nearest")
         traj = np.asarray(o.trajectory_xy_m)
         if len(traj):
@@ -62,14 +83,23 @@ def plot_trajectories(path: Path, name: str, outcomes: Sequence[Any]) -> None:
             ax.plot(traj[0, 0], traj[0, 1], "o", color="green", ms=5)
             ax.plot(traj[-1, 0], traj[-1, 1], "s", color="red", ms=5)
         r = o.row
-        ax.set_title(f"{o.method}: {r['coverage_pct']:.1f}% in {r['steps']} steps", fontsize=9)
+        title = f"{o.method}: {r['coverage_pct']:.1f}% in {r['steps']} steps"
+        if "path_length_m" in r:
+            title += f", {r['path_length_m']:.0f} m"
+        ax.set_title(title, fontsize=9)
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")
+    key = [
+        Patch(color=WALL_RGB, label="wall"),
+        Patch(color=UNEXPLORED_FREE_RGB, label="free, not explored"),
+        Patch(color=EXPLORED_FREE_RGB, label="explored"),
+        Line2D([], [], color="red", lw=1.0, label="path"),
+        Line2D([], [], color="green", marker="o", ls="", ms=5, label="start"),
+        Line2D([], [], color="red", marker="s", ls="", ms=5, label="end"),
+    ]
+    fig.legend(handles=key, loc="outside lower center", ncols=len(key) if n > 1 else 3, fontsize=8, frameon=False)
     fig.suptitle(name)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    return fig
 
 
 def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, float]], baseline: str) -> None:

@@ -327,3 +327,35 @@ def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     assert lines[0] == f"[1/2] greedy-dist {long_name}: 99.1% in 51 steps (coverage, kept from the earlier run)"
     assert lines[1] == "[2/2] greedy-dist gen_small_0: 99.1% in 51 steps (coverage)"
     assert lines[2] == "writing results/easy/: summary.json, episodes.csv, curves and 2 trajectory plots"
+
+
+@pytest.mark.parametrize(("rows", "cols", "methods"), [(400, 60, 1), (60, 400, 1), (200, 300, 3)])
+def test_trajectory_plots_keep_every_label_and_the_key_inside_the_figure(rows: int, cols: int, methods: int):
+    """A tall, a wide and a three-method figure: no title, axis label or key entry is cut off at the edge
+    (the x label of wide plans once was), and each panel shows the whole plan at its own aspect ratio."""
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import trajectory_figure
+
+    free = np.zeros((rows, cols), dtype=bool)
+    free[5:-5, 5:-5] = True
+    explored = free.copy()
+    explored[: rows // 2] = False
+    path = np.array([[1.0, 1.0], [cols * 0.05 - 1.0, rows * 0.05 - 1.0]])
+    outcomes = [
+        EpisodeOutcome(f"m{i}", "plan", {"coverage_pct": 50.0, "steps": 10, "path_length_m": 3.0}, None, free, 0.05, explored, path)
+        for i in range(methods)
+    ]
+    fig = trajectory_figure("plan", outcomes)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    texts = {t.get_text() for t in fig.findobj(lambda a: hasattr(a, "get_text") and a.get_visible())}
+    assert {"x (m)", "y (m)", "plan", "explored", "free, not explored", "path", "start", "end"} <= texts
+    assert {f"m{i}: 50.0% in 10 steps, 3 m" for i in range(methods)} <= texts
+    drawn = fig.get_tightbbox(renderer)  # inches: everything drawn, labels and key included
+    width_in, height_in = fig.get_size_inches()
+    assert drawn.x0 >= -0.01 and drawn.y0 >= -0.01 and drawn.x1 <= width_in + 0.01 and drawn.y1 <= height_in + 0.01, drawn
+    for ax in fig.axes:
+        x0, x1 = ax.get_xlim()
+        y0, y1 = ax.get_ylim()
+        assert (x0, y0) == (0.0, 0.0) and np.isclose(x1, cols * 0.05) and np.isclose(y1, rows * 0.05)
+    fig.clf()
