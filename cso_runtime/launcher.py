@@ -738,6 +738,8 @@ class LiveView:
         self.console = console  # None: rich's console on stdout
         self._live = None
         self._last = 0.0
+        self._rerouted: list[tuple[logging.StreamHandler, Any]] = []
+        """Log handlers on stderr sent through the live display while it runs, with the stream to give back."""
 
     def render(self):
         from rich.markup import escape  # noqa: PLC0415
@@ -773,8 +775,15 @@ class LiveView:
     def start(self) -> None:
         from rich.live import Live  # noqa: PLC0415
 
+        stderr = sys.stderr
         self._live = Live(self.render(), console=self.console, refresh_per_second=4, transient=False)
         self._live.start()
+        if sys.stderr is not stderr:
+            # On a terminal rich replaces sys.stderr with a proxy that prints above the table; a log handler
+            # still holds the old stream, and its lines would land inside the table and shift its redraws.
+            for handler in logging.getLogger().handlers:
+                if isinstance(handler, logging.StreamHandler) and handler.stream is stderr:
+                    self._rerouted.append((handler, handler.setStream(sys.stderr)))
 
     def update(self) -> None:
         if self._live is not None and time.monotonic() - self._last > 0.25:
@@ -784,6 +793,9 @@ class LiveView:
     def stop(self) -> None:
         if self._live is not None:
             self._live.update(self.render())
+            for handler, stream in self._rerouted:
+                handler.setStream(stream)
+            self._rerouted.clear()
             self._live.stop()
             if not self._live.console.is_terminal:  # rich ends the last table with a newline on a terminal only
                 self._live.console.line()

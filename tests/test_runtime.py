@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -535,6 +536,37 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     view.start()
     view.stop()
     assert piped.getvalue().count("6.50 m ahead on the path") == 1 and piped.getvalue().endswith("┘\n")
+
+
+def test_log_lines_during_the_live_view_print_above_the_table_not_inside_it(tmp_path):
+    """On a terminal the launcher's log lines (a restart, the episode's end) go through the live display, which
+    prints them on lines of their own above the table; afterwards the handler writes to stderr again."""
+    import logging
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher, LiveView, find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    terminal = io.StringIO()
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    root.addHandler(handler)
+    try:
+        view = LiveView(launcher, console=Console(file=terminal, width=120, force_terminal=True, color_system=None))
+        before = sys.stderr
+        view.start()
+        assert handler.stream is sys.stderr and sys.stderr is not before  # rich's proxy of the live display
+        logging.getLogger("cso.launcher").warning("mapper exited with code -9; restarting in 0.5 s")
+        view.stop()
+        assert handler.stream is before and sys.stderr is before
+    finally:
+        root.removeHandler(handler)
+    lines = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", terminal.getvalue()).replace("\r", "\n").splitlines()
+    assert "WARNING cso.launcher: mapper exited with code -9; restarting in 0.5 s" in lines
+    assert any(line.lstrip().startswith("└") for line in lines)
 
 
 def test_status_table_shows_the_episode_and_each_service():
