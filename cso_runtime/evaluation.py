@@ -2,7 +2,8 @@
 
 Outputs (contract relied on by scripts): ``summary.json``, ``episodes.csv``,
 ``episodes/<method>/<map>.npz`` (explored, trajectory, coverage_curve), ``maps/<method>/<map>.yaml`` and
-``.png`` (the robot's final map, Nav2 map_server files), ``coverage_curves.png`` and ``trajectories/<map>.png``.
+``.png`` (the robot's final map, Nav2 map_server files), ``coverage_curves.png``, ``efficiency_by_scale.png`` and
+``trajectories/<map>.png``; with the baseline, ``paired.csv`` and ``paired_efficiency.png``.
 """
 
 from __future__ import annotations
@@ -448,9 +449,11 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
     if progress is not None:  # hundreds of plans take a while to plot: say so rather than sit at N/N
         progress.writing(out, len({o.map for o in outcomes if o.row is not None}))
     summary = write_outputs(out, rows, failures, request.methods, meta, request.baseline)
-    from cso_runtime.plots import plot_coverage_curves, plot_paired_efficiency, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
+    from cso_runtime.plots import plot_coverage_curves, plot_efficiency_by_scale, plot_paired_efficiency, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
 
     plot_coverage_curves(out / "coverage_curves.png", [o for o in outcomes if o.row is not None])
+    if rows:
+        plot_efficiency_by_scale(out / "efficiency_by_scale.png", summary)
     if summary["paired"]["comparisons"]:
         plot_paired_efficiency(out / "paired_efficiency.png", efficiency_by_scene(rows), request.baseline)
     by_map: dict[str, list[EpisodeOutcome]] = {}

@@ -133,3 +133,64 @@ def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, 
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def plot_efficiency_by_scale(path: Path, summary: dict[str, Any]) -> None:
+    """``efficiency_figure`` written as a PNG."""
+    plt = _pyplot()
+    fig = efficiency_figure(summary)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def efficiency_figure(summary: dict[str, Any]) -> Any:
+    """Like the paper's Fig. 5, from an ``eval`` summary: each method's mean efficiency (m2/step) per scene
+    scale (top), and below, when the baseline ran, each method's per-scene change against it with its 95 %
+    bootstrap interval (``summary["paired"]``: the same figures as paired.csv)."""
+    from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
+
+    plt = _pyplot()
+    methods = list(summary["methods"])
+    scales = [sc for sc in SCALES if any(sc in summary["methods"][m]["by_scale"] for m in methods)]
+    comparisons = summary["paired"]["comparisons"]
+    baseline = summary["paired"]["baseline"]
+    rows = 2 if comparisons else 1
+    fig, axes = plt.subplots(rows, 1, figsize=(max(5.0, 1.2 + 0.9 * len(scales) * max(len(methods), 1) ** 0.5), 3.2 * rows), squeeze=False, layout="constrained")
+    x = np.arange(len(scales))
+    width = 0.8 / max(len(methods), 1)
+
+    def offset(i: int) -> float:
+        """Method i's place within its scale's group, the same in both panels."""
+        return (i - (len(methods) - 1) / 2) * width
+
+    top = axes[0][0]
+    for i, method in enumerate(methods):
+        by_scale = summary["methods"][method]["by_scale"]
+        at = [j for j, sc in enumerate(scales) if by_scale.get(sc, {}).get("efficiency_m2_per_step") is not None]
+        heights = [by_scale[scales[j]]["efficiency_m2_per_step"] for j in at]
+        top.bar(np.array(at, dtype=float) + offset(i), heights, width, label=method, color=f"C{i}")
+    top.set_xticks(x, [sc.replace("_", " ") for sc in scales])
+    top.set_ylabel("efficiency (m2/step)")
+    top.set_title("Exploration efficiency per scene scale")
+    top.set_xlim(-0.5, len(scales) - 0.5)
+    top.grid(axis="y", alpha=0.3)
+    top.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    if comparisons:
+        bottom = axes[1][0]
+        for i, method in enumerate(methods):
+            found = {c["scale"]: c for c in comparisons if c["method"] == method}
+            at = [j for j, sc in enumerate(scales) if sc in found]
+            mid = np.array([found[scales[j]]["per_scene_pct"] for j in at])
+            low = mid - np.array([found[scales[j]]["ci_low_pct"] for j in at])
+            high = np.array([found[scales[j]]["ci_high_pct"] for j in at]) - mid
+            if at:
+                bottom.errorbar(np.array(at, dtype=float) + offset(i), mid, yerr=[low, high], fmt="o", capsize=3, label=method, color=f"C{i}")
+        bottom.axhline(0.0, color="grey", lw=1)
+        bottom.set_xticks(x, [sc.replace("_", " ") for sc in scales])
+        bottom.set_xlim(-0.5, len(scales) - 0.5)
+        bottom.set_ylabel(f"per-scene change\nagainst {baseline} (%)")
+        bottom.set_title(f"Efficiency against {baseline}, scene by scene (95 % CI)", fontsize=10)
+        bottom.grid(axis="y", alpha=0.3)
+    return fig
+

@@ -100,6 +100,7 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
     free_px = (png[:, :, 0] > 150)
     assert data["explored"].any() and not (data["explored"] & ~free_px).any()
     assert (out / "coverage_curves.png").stat().st_size > 1000
+    assert (out / "efficiency_by_scale.png").stat().st_size > 1000
     assert (out / "trajectories" / "img_1.png").stat().st_size > 1000
 
     # The robot's own map, as map_server files: free where it saw free space, walls where it saw walls.
@@ -359,3 +360,42 @@ def test_trajectory_plots_keep_every_label_and_the_key_inside_the_figure(rows: i
         y0, y1 = ax.get_ylim()
         assert (x0, y0) == (0.0, 0.0) and np.isclose(x1, cols * 0.05) and np.isclose(y1, rows * 0.05)
     fig.clf()
+
+
+def test_the_efficiency_figure_shows_each_methods_mean_per_scale_and_its_change_against_the_baseline():
+    """Fig. 5 of the paper from a summary: one bar per method and scale that ran (none for a scale a method
+    has no episode of), and below, each non-baseline method's per-scene change with its 95 % interval."""
+    from cso_runtime.plots import efficiency_figure
+
+    def entry(values: dict[str, float]) -> dict:
+        return {"by_scale": {sc: {"efficiency_m2_per_step": v} for sc, v in values.items()}}
+
+    summary = {
+        "methods": {"greedy-dist": entry({"middle": 0.4, "large": 0.6}), "cso": entry({"middle": 0.5, "large": 0.66}), "random": entry({"large": 0.2})},
+        "paired": {
+            "baseline": "greedy-dist",
+            "comparisons": [
+                {"method": "cso", "scale": "middle", "per_scene_pct": 20.0, "ci_low_pct": 10.0, "ci_high_pct": 31.0},
+                {"method": "cso", "scale": "large", "per_scene_pct": 9.0, "ci_low_pct": 2.0, "ci_high_pct": 15.0},
+                {"method": "random", "scale": "large", "per_scene_pct": -60.0, "ci_low_pct": -70.0, "ci_high_pct": -50.0},
+            ],
+        },
+    }
+    fig = efficiency_figure(summary)
+    top, bottom = fig.axes[:2]
+    assert [t.get_text() for t in top.get_xticklabels()] == ["middle", "large"]
+    bars = {c.get_label(): sorted((round(p.get_x() + p.get_width() / 2, 3), p.get_height()) for p in c.patches) for c in top.containers}
+    assert [h for _, h in bars["greedy-dist"]] == [0.4, 0.6] and [h for _, h in bars["cso"]] == [0.5, 0.66]
+    assert [h for _, h in bars["random"]] == [0.2] and bars["random"][0][0] > 0.5  # in the large group only
+    marks, spans = {}, {}
+    for container in bottom.containers:  # one errorbar per method: markers, then the interval segments
+        data_line, _, (segments,) = container.lines
+        marks[container.get_label()] = list(zip(np.round(data_line.get_xdata(), 3), data_line.get_ydata()))
+        spans[container.get_label()] = [tuple(np.round(seg[:, 1], 3)) for seg in segments.get_segments()]
+    assert set(marks) == {"cso", "random"}  # nothing for the baseline itself
+    assert [y for _, y in marks["cso"]] == [20.0, 9.0] and [y for _, y in marks["random"]] == [-60.0]
+    assert spans["cso"] == [(10.0, 31.0), (2.0, 15.0)] and spans["random"] == [(-70.0, -50.0)]
+    # each marker sits under its method's bar
+    assert [x for x, _ in marks["cso"]] == [x for x, _ in bars["cso"]] and marks["random"][0][0] == bars["random"][0][0]
+    fig.clf()
+
