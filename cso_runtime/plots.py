@@ -19,27 +19,44 @@ def _pyplot():
 
 
 def plot_coverage_curves(path: Path, outcomes: Sequence[Any]) -> None:
-    """Mean coverage (%) against step per method; each episode's curve is held at its final value."""
+    """``coverage_figure`` written as a PNG."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    methods: dict[str, list[np.ndarray]] = {}
-    for o in outcomes:
-        methods.setdefault(o.method, []).append(np.asarray(o.coverage_curve_pct))
-    for method, curves in methods.items():
-        n = max(len(c) for c in curves)
-        padded = np.stack([np.pad(c, (0, n - len(c)), mode="edge") for c in curves])
-        ax.plot(np.arange(n), padded.mean(axis=0), label=f"{method} ({len(curves)} ep.)")
-    ax.set_xlabel("step (0.25 s)")
-    ax.set_ylabel("coverage (%)")
-    ax.set_ylim(0, 101)
-    ax.grid(alpha=0.3)
-    if methods:
-        ax.legend(loc="lower right")
-    ax.set_title("Coverage against step")
+    fig = coverage_figure(outcomes)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def coverage_figure(outcomes: Sequence[Any]) -> Any:
+    """Mean coverage (%) against step per method, like the paper's Fig. 4; each episode's curve is held at its
+    final value. One panel per scene scale when the episodes span several (a mean over a small and a super-large
+    scene says little about either); each method keeps its colour across panels."""
+    from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
+
+    plt = _pyplot()
+    by_scale: dict[str, dict[str, list[np.ndarray]]] = {}
+    colours: dict[str, str] = {}
+    for o in outcomes:
+        scale = (o.row or {}).get("scale", "")
+        by_scale.setdefault(scale, {}).setdefault(o.method, []).append(np.asarray(o.coverage_curve_pct))
+        colours.setdefault(o.method, f"C{len(colours)}")
+    order = {sc: i for i, sc in enumerate(SCALES)}
+    scales = sorted(by_scale, key=lambda sc: order.get(sc, len(order))) or [""]
+    fig, axes = plt.subplots(1, len(scales), figsize=(7 if len(scales) == 1 else 4.6 * len(scales), 4.5), squeeze=False, layout="constrained")
+    for ax, scale in zip(axes[0], scales):
+        methods = by_scale.get(scale, {})
+        for method, curves in methods.items():
+            n = max(len(c) for c in curves)
+            padded = np.stack([np.pad(c, (0, n - len(c)), mode="edge") for c in curves])
+            ax.plot(np.arange(n), padded.mean(axis=0), label=f"{method} ({len(curves)} ep.)", color=colours[method])
+        ax.set_xlabel("step (0.25 s)")
+        ax.set_ylabel("coverage (%)")
+        ax.set_ylim(0, 101)
+        ax.grid(alpha=0.3)
+        if methods:
+            ax.legend(loc="lower right", fontsize=8 if len(scales) > 1 else 10)
+        ax.set_title("Coverage against step" + (f": {scale.replace('_', ' ')}" if len(scales) > 1 else ""))
+    return fig
 
 
 WALL_RGB = (0.25, 0.25, 0.25)

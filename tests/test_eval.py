@@ -399,3 +399,31 @@ def test_the_efficiency_figure_shows_each_methods_mean_per_scale_and_its_change_
     assert [x for x, _ in marks["cso"]] == [x for x, _ in bars["cso"]] and marks["random"][0][0] == bars["random"][0][0]
     fig.clf()
 
+
+
+def test_coverage_curves_get_one_panel_per_scale_when_the_episodes_span_several():
+    """Fig. 4: each method's mean curve (episodes held at their final value), one panel per scale in the paper's
+    order, one method one colour in every panel; a run of one scale keeps a single panel."""
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import coverage_figure
+
+    def outcome(method: str, scale: str, curve: list[float]) -> EpisodeOutcome:
+        return EpisodeOutcome(method, "plan", {"scale": scale}, coverage_curve_pct=np.array(curve))
+
+    outcomes = [
+        outcome("cso", "super_large", [0.0, 50.0, 100.0]),
+        outcome("greedy-dist", "middle", [0.0, 40.0]),
+        outcome("cso", "middle", [0.0, 60.0, 80.0, 90.0]),
+        outcome("cso", "middle", [0.0, 20.0]),
+    ]
+    fig = coverage_figure(outcomes)
+    assert [ax.get_title() for ax in fig.axes] == ["Coverage against step: middle", "Coverage against step: super large"]
+    middle = {line.get_label(): line for line in fig.axes[0].get_lines()}
+    assert set(middle) == {"greedy-dist (1 ep.)", "cso (2 ep.)"}
+    np.testing.assert_allclose(middle["cso (2 ep.)"].get_ydata(), [0.0, 40.0, 50.0, 55.0])  # the short one held at 20
+    (large,) = fig.axes[1].get_lines()
+    assert large.get_label() == "cso (1 ep.)" and large.get_color() == middle["cso (2 ep.)"].get_color() != middle["greedy-dist (1 ep.)"].get_color()
+    fig.clf()
+    single = coverage_figure(outcomes[1:])
+    assert [ax.get_title() for ax in single.axes] == ["Coverage against step"]
+    single.clf()
