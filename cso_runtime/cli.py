@@ -252,6 +252,36 @@ def replay_command(
     typer.echo(f"replayed {stats.messages} messages on {len(stats.per_key)} keys in {stats.duration_s:.2f} s (recorded span {stats.recorded_s:.2f} s)")
 
 
+@app.command("export-bag")
+def export_bag_command(
+    file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record` (or `up --record`)"),
+    out: Path | None = typer.Option(None, "--out", help="The new bag folder (default: the recording's name without .mcap, beside it)"),
+    robot: str | None = typer.Option(None, "--robot", help="Whose messages (default: the recording's only robot)"),
+    map_period_s: float = typer.Option(1.0, "--map-period-s", help="At most one /map per this many seconds of the run, and the last (0: every map)"),
+    time_base: str = typer.Option("sim", "--time", help="sim: each message at its step's robot time (0.25 s a step, even in lockstep); received: at its reception"),
+) -> None:
+    """Convert a recording into a ROS 2 bag (rosbag2, MCAP storage) of standard types: /scan, /odom, /tf, /map,
+    /plan, /goal_pose, /explore/frontiers, /cmd_vel, for RViz, Foxglove and `ros2 bag play`."""
+    from cso_runtime.bag_export import BagExportError, export_bag  # noqa: PLC0415
+    from cso_runtime.recording import RecordingError, check_recording  # noqa: PLC0415
+
+    try:
+        check_recording(file)
+        target = out if out is not None else file.with_suffix("")
+        if target == file:
+            raise BagExportError(f"--out {out} is the recording itself")
+        stats = export_bag(file, target, robot, map_period_s, time_base)
+    except (RecordingError, BagExportError, ValueError) as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    written = ", ".join(f"{topic} {n}" for topic, n in sorted(stats.written.items()))
+    typer.echo(f"wrote {stats.path} (robot {stats.robot}): {sum(stats.written.values())} messages: {written}")
+    if stats.maps_thinned:
+        typer.echo(f"  {stats.maps_thinned} maps thinned out by --map-period-s {map_period_s:g}")
+    if stats.rejected:
+        typer.echo(f"  left out, did not decode: {', '.join(f'{k} {n}' for k, n in sorted(stats.rejected.items()))}")
+
+
 @app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False)
 def service_command(
     ctx: typer.Context,

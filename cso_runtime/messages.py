@@ -460,6 +460,14 @@ class FrontiersMsg(Message):
     READS_CLUSTERS: ClassVar[bool] = True
     """``from_body`` decodes the clusters and the path nodes (the planner does not read them)."""
 
+    def cluster_points_xy_m(self) -> tuple[list[np.ndarray], list[tuple[float, float]]]:
+        """Each frontier cluster's cell centres (n x 2, metres) and its goal, for visualisation (RViz markers)."""
+        if self.geometry is None:
+            return [], []
+        cells = [np.asarray(c["cells"]).reshape(-1, 2) for c in self.clusters]
+        points = [np.column_stack(self.geometry.cell_to_world(c[:, 0], c[:, 1])) for c in cells]
+        return points, [(float(c["goal_xy_m"][0]), float(c["goal_xy_m"][1])) for c in self.clusters]
+
     def body(self) -> dict[str, Any]:
         b: dict[str, Any] = {"step": self.step, "decide": self.decide, "reason": self.reason}
         if not self.decide:

@@ -233,6 +233,20 @@ def record(
     return stats
 
 
+def write_recording(path: Path, robot: str, messages: Iterable[RecordedMessage]) -> RecordStats:
+    """Write messages as ``record`` does, without Zenoh: a recording made from a filtered or built message
+    list (tools, tests) reads, replays and exports like a recorded one."""
+    stats = RecordStats(Path(path))
+    with Path(path).open("wb") as fh:
+        sink = _McapSink(fh, robot)
+        try:
+            for m in messages:
+                _write(sink, stats, m.key, m.payload, m.log_time_ns)
+        finally:
+            sink.finish()
+    return stats
+
+
 def _write(sink: _McapSink, stats: RecordStats, key: str, payload: bytes, t_ns: int) -> None:
     exact = sink.write(key, payload, t_ns)
     stats.raw += not exact

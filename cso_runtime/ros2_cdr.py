@@ -1,5 +1,5 @@
-"""ROS 2 messages as CDR bytes, for zenoh-bridge-ros2dds: LaserScan, Odometry, Twist, OccupancyGrid,
-PoseStamped and explore_lite-style frontier MarkerArrays.
+"""ROS 2 messages as CDR bytes, for zenoh-bridge-ros2dds and ROS 2 bags: LaserScan, Odometry, Twist,
+OccupancyGrid, PoseStamped, Path, TFMessage and explore_lite-style frontier MarkerArrays.
 
 Encoding and decoding use the rosbags typestore (the CDR payloads carry their 4-byte encapsulation
 header), never a hand-written serializer. Conversions follow REP-103/REP-117: +inf is "no return",
@@ -22,6 +22,8 @@ TWIST = "geometry_msgs/msg/Twist"
 OCCUPANCY_GRID = "nav_msgs/msg/OccupancyGrid"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+PATH = "nav_msgs/msg/Path"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 
 
 class CdrError(ValueError):
@@ -211,6 +213,37 @@ def pose_stamped_to_cdr(x_m: float, y_m: float, yaw_rad: float, stamp_s: float, 
     t = _types()
     pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=x_m, y=y_m, z=0.0), orientation=_quaternion(yaw_rad))
     return encode(t[POSE_STAMPED](header=_header(stamp_s, frame_id), pose=pose), POSE_STAMPED)
+
+
+def path_to_cdr(path_xy_m: np.ndarray, stamp_s: float, frame_id: str = "map") -> bytes:
+    """A planned path (n x 2 metres, robot first) -> nav_msgs/Path CDR, each pose facing the next point."""
+    t = _types()
+    xy = np.asarray(path_xy_m, dtype=float).reshape(-1, 2)
+    headings = np.arctan2(np.diff(xy[:, 1]), np.diff(xy[:, 0])) if len(xy) > 1 else np.zeros(len(xy))
+    yaws = np.append(headings, headings[-1]) if len(xy) > 1 else headings
+    poses = [
+        t[POSE_STAMPED](
+            header=_header(stamp_s, frame_id),
+            pose=t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0), orientation=_quaternion(float(yaw))),
+        )
+        for (x, y), yaw in zip(xy, yaws)
+    ]
+    return encode(t[PATH](header=_header(stamp_s, frame_id), poses=poses), PATH)
+
+
+def transforms_to_cdr(transforms: list[tuple[str, str, Pose2D]], stamp_s: float) -> bytes:
+    """Planar transforms (parent frame, child frame, the child's pose in the parent) -> tf2_msgs/TFMessage CDR."""
+    t = _types()
+    v3 = t["geometry_msgs/msg/Vector3"]
+    stamped = [
+        t["geometry_msgs/msg/TransformStamped"](
+            header=_header(stamp_s, parent),
+            child_frame_id=child,
+            transform=t["geometry_msgs/msg/Transform"](translation=v3(x=float(p.x_m), y=float(p.y_m), z=0.0), rotation=_quaternion(float(p.yaw_rad))),
+        )
+        for parent, child, p in transforms
+    ]
+    return encode(t[TF_MESSAGE](transforms=stamped), TF_MESSAGE)
 
 
 def pose_stamped_from_cdr(raw: bytes) -> tuple[Pose2D, float]:

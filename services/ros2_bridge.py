@@ -417,9 +417,7 @@ class Ros2BridgeService(Service):
             elif isinstance(msg, GoalMsg):
                 self.take_goal(msg)
             elif isinstance(msg, FrontiersMsg) and msg.decide and msg.geometry is not None:
-                cells = [np.asarray(c["cells"]).reshape(-1, 2) for c in msg.clusters]
-                points = [np.column_stack(msg.geometry.cell_to_world(c[:, 0], c[:, 1])) for c in cells]
-                goals = [tuple(c["goal_xy_m"]) for c in msg.clusters]
+                points, goals = msg.cluster_points_xy_m()
                 stamp = self.stamps.get(msg.step, 0.0)
                 self._put_ros(
                     self.params.frontiers_topic, ros2_cdr.frontier_markers_to_cdr(points, goals, stamp, self.params.map_frame_id)

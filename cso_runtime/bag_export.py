@@ -1,0 +1,273 @@
+"""``cso-runtime export-bag``: a recording as a ROS 2 bag that RViz, Foxglove and ``ros2 bag play`` show.
+
+A ``cso-runtime record`` file keeps our own msgpack messages (byte-exact, for ``replay``); Foxglove can open
+it but only as raw fields. This turns one robot's messages into the standard ROS 2 types, in a rosbag2
+folder with MCAP storage (``metadata.yaml`` + ``.mcap``), with the names a Nav2 user expects:
+
+| ROS topic | type | from |
+| --- | --- | --- |
+| ``/scan`` | sensor_msgs/msg/LaserScan (frame ``laser``) | ``scan`` |
+| ``/odom`` | nav_msgs/msg/Odometry (``odom`` -> ``base_link``) | ``odom`` |
+| ``/tf`` | tf2_msgs/msg/TFMessage: ``odom`` -> ``base_link`` (odometry), ``odom`` -> ``laser`` (each scan's sensor pose) | ``odom``, ``scan`` |
+| ``/tf_static`` | tf2_msgs/msg/TFMessage: ``map`` -> ``odom``, identity (the mapper maps in the odometry frame) | |
+| ``/map`` | nav_msgs/msg/OccupancyGrid (-1/0/100), at most one per ``map_period_s`` of the run, and the last | ``map`` |
+| ``/plan`` | nav_msgs/msg/Path | ``path`` |
+| ``/goal_pose`` | geometry_msgs/msg/PoseStamped, each new goal | ``goal`` |
+| ``/explore/frontiers`` | visualization_msgs/msg/MarkerArray (explore_lite's markers), each decision | ``frontiers`` |
+| ``/cmd_vel`` | geometry_msgs/msg/Twist | ``cmd_vel`` |
+
+Time (``time``): ``sim`` (default) puts every message at the robot's own time of its step (the scan's and the
+odometry's stamps: 0.25 s a step in the simulator, however fast a lockstep run went; a later episode of the same
+recording, whose steps start again, follows the one before), ``received`` at its reception time in the recording. Every header is stamped
+with that same time, so that transforms are found at the time of each scan. The conversions are ``cso_runtime.ros2_cdr``'s, the same as
+the ROS 2 bridge's; the other keys (clock, status, feedback, distance maps) are counted and left out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import shutil
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cso_runtime import ros2_cdr
+from cso_runtime.geometry import Pose2D
+from cso_runtime.messages import (
+    CmdVelMsg,
+    FrontiersMsg,
+    GoalMsg,
+    MapMsg,
+    Message,
+    MessageError,
+    OdometryMsg,
+    PathMsg,
+    ScanMsg,
+    decode,
+)
+from cso_runtime.recording import RecordingError, read_recording
+
+log = logging.getLogger("cso.bag_export")
+
+MAP_FRAME, ODOM_FRAME, BASE_FRAME, LASER_FRAME = "map", "odom", "base_link", "laser"
+ROS_TYPES = {
+    "/scan": ros2_cdr.LASER_SCAN,
+    "/odom": ros2_cdr.ODOMETRY,
+    "/tf": ros2_cdr.TF_MESSAGE,
+    "/tf_static": ros2_cdr.TF_MESSAGE,
+    "/map": ros2_cdr.OCCUPANCY_GRID,
+    "/plan": ros2_cdr.PATH,
+    "/goal_pose": ros2_cdr.POSE_STAMPED,
+    "/explore/frontiers": ros2_cdr.MARKER_ARRAY,
+    "/cmd_vel": ros2_cdr.TWIST,
+}
+"""Every topic of an exported bag and its ROS 2 type."""
+LATCHED = ("/map", "/tf_static")
+"""Offered as transient-local (like map_server and tf2's static broadcaster): late subscribers get the last one."""
+
+
+class BagExportError(RuntimeError):
+    """The recording cannot be exported (unreadable, no such robot, several robots and none chosen)."""
+
+
+@dataclass
+class BagExportStats:
+    """What an export read and wrote."""
+
+    path: Path = field(default_factory=Path)
+    robot: str = ""
+    messages_read: int = 0
+    written: Counter = field(default_factory=Counter)
+    """ROS topic -> messages written."""
+    left_out: Counter = field(default_factory=Counter)
+    """Our topic -> messages with no ROS counterpart here (clock, status...)."""
+    rejected: Counter = field(default_factory=Counter)
+    """Our topic -> payloads that did not decode (malformed messages a run received and counted too)."""
+    maps_thinned: int = 0
+    """Maps left out by ``map_period_s``."""
+
+
+TIME_MODES = ("sim", "received")
+
+
+class StepTimeline:
+    """Bag time of each message from the robot's own clock: the stamps of a step's scan and odometry, laid
+    after the first reception time. Step numbers that go back (by more than the one step a message can lag)
+    start a new episode, which then follows the last time of the one before by one ``step_s``."""
+
+    def __init__(self, start_ns: int, step_s: float = 0.25):
+        self.start_ns, self.step_s = start_ns, step_s
+        self.first_stamp_s: float | None = None
+        self.offset_s = 0.0
+        self.last_s = 0.0
+        self.max_step = -1
+        self.by_step: dict[int, float] = {}
+
+    def stamp(self, step: int, stamp_s: float) -> int:
+        """The bag time (ns) of a step whose scan or odometry carries ``stamp_s``."""
+        if self.first_stamp_s is None:
+            self.first_stamp_s = stamp_s
+        if step < self.max_step - 1:  # a new episode: its clock and steps start again
+            self.offset_s = self.last_s + self.step_s - (stamp_s - self.first_stamp_s)
+            self.by_step.clear()
+            self.max_step = -1
+        t = self.by_step.setdefault(step, stamp_s - self.first_stamp_s + self.offset_s)
+        self.max_step = max(self.max_step, step)
+        self.last_s = max(self.last_s, t)
+        return self.start_ns + round(t * 1e9)
+
+    def at(self, step: int) -> int:
+        """The bag time of a message that carries only its step (a map, a goal...): its step's, else the latest."""
+        return self.start_ns + round(self.by_step.get(step, self.last_s) * 1e9)
+
+
+class BagConverter:
+    """One robot's messages, in arrival order -> (ROS topic, CDR bytes, time ns). Pure: no files, no Zenoh."""
+
+    def __init__(self, map_period_s: float = 1.0, time: str = "sim"):
+        if not map_period_s >= 0:
+            raise ValueError("map_period_s must be >= 0")
+        if time not in TIME_MODES:
+            raise ValueError(f"time must be one of {', '.join(TIME_MODES)}, not {time!r}")
+        self.time = time
+        self.timeline: StepTimeline | None = None
+        self.map_period_ns = int(map_period_s * 1e9)
+        self.started = False
+        self.last_map_ns: int | None = None
+        self.pending_map: tuple[bytes, int] | None = None
+        """The newest map not written because of ``map_period_s`` (written at the end if none follows)."""
+        self.last_goal_xy: tuple[float, float] | None = None
+        self.maps_thinned = 0
+
+    def begin(self, received_ns: int) -> None:
+        """The robot's first message of the recording arrived then (of any topic): the bag's time starts there."""
+        if self.timeline is None:
+            self.timeline = StepTimeline(received_ns)
+
+    def bag_time_ns(self, msg: Message, received_ns: int) -> int:
+        if self.time == "received":
+            return received_ns
+        self.begin(received_ns)
+        assert self.timeline is not None
+        if isinstance(msg, ScanMsg):
+            return self.timeline.stamp(msg.step, msg.scan.stamp_s)
+        if isinstance(msg, OdometryMsg):
+            return self.timeline.stamp(msg.step, msg.stamp_s)
+        return self.timeline.at(int(getattr(msg, "step", -1)))
+
+    def convert(self, msg: Message, received_ns: int) -> list[tuple[str, bytes, int]]:
+        """The ROS messages of one of ours, received at ``received_ns`` (empty: nothing to show for it)."""
+        t_ns = self.bag_time_ns(msg, received_ns)
+        stamp_s = t_ns * 1e-9
+        out: list[tuple[str, bytes, int]] = []
+        if not self.started:
+            self.started = True
+            out.append(("/tf_static", ros2_cdr.transforms_to_cdr([(MAP_FRAME, ODOM_FRAME, Pose2D(0.0, 0.0, 0.0))], stamp_s), t_ns))
+        if isinstance(msg, OdometryMsg):
+            out.append(("/odom", ros2_cdr.odometry_to_cdr(msg.pose, msg.twist, stamp_s, ODOM_FRAME, BASE_FRAME), t_ns))
+            out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, BASE_FRAME, msg.pose)], stamp_s), t_ns))
+        elif isinstance(msg, ScanMsg):
+            out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, LASER_FRAME, msg.sensor_pose)], stamp_s), t_ns))
+            out.append(("/scan", ros2_cdr.laserscan_to_cdr(dataclasses.replace(msg.scan, stamp_s=stamp_s), LASER_FRAME), t_ns))
+        elif isinstance(msg, MapMsg):
+            grid = ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, stamp_s, MAP_FRAME)
+            if self.last_map_ns is None or t_ns - self.last_map_ns >= self.map_period_ns:
+                self.maps_thinned += self.pending_map is not None  # the held one is superseded
+                self.last_map_ns, self.pending_map = t_ns, None
+                out.append(("/map", grid, t_ns))
+            else:
+                self.maps_thinned += self.pending_map is not None  # the held one is now superseded
+                self.pending_map = (grid, t_ns)
+        elif isinstance(msg, PathMsg):
+            out.append(("/plan", ros2_cdr.path_to_cdr(msg.path_xy_m, stamp_s, MAP_FRAME), t_ns))
+        elif isinstance(msg, GoalMsg):
+            goal = (float(msg.x_m), float(msg.y_m)) if msg.has_goal else None
+            if goal is not None and goal != self.last_goal_xy:
+                out.append(("/goal_pose", ros2_cdr.pose_stamped_to_cdr(goal[0], goal[1], 0.0, stamp_s, MAP_FRAME), t_ns))
+            self.last_goal_xy = goal
+        elif isinstance(msg, FrontiersMsg) and msg.decide:
+            points, goals = msg.cluster_points_xy_m()
+            out.append(("/explore/frontiers", ros2_cdr.frontier_markers_to_cdr(points, goals, stamp_s, MAP_FRAME), t_ns))
+        elif isinstance(msg, CmdVelMsg):
+            out.append(("/cmd_vel", ros2_cdr.twist_to_cdr(msg.command), t_ns))
+        return out
+
+    def finish(self) -> list[tuple[str, bytes, int]]:
+        """The last map, when ``map_period_s`` held it back: a bag always ends with the final map."""
+        if self.pending_map is None:
+            return []
+        grid, t_ns = self.pending_map
+        self.pending_map = None
+        return [("/map", grid, t_ns)]
+
+
+EXPORTED = frozenset({"scan", "odom", "map", "path", "goal", "frontiers", "cmd_vel"})
+"""Our topics that become ROS messages."""
+
+
+def robots_in(recording: Path) -> list[str]:
+    """The robot ids of a recording's keys (``cso/<robot>/...``), sorted."""
+    return sorted({m.key.split("/")[1] for m in read_recording(recording) if m.key.count("/") >= 2})
+
+
+def export_bag(recording: Path, out_dir: Path, robot: str | None = None, map_period_s: float = 1.0, time: str = "sim") -> BagExportStats:
+    """Write ``recording``'s messages of ``robot`` (default: its only robot) as a rosbag2 folder ``out_dir``."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime  # noqa: PLC0415  (rosbags loads only here)
+    from rosbags.rosbag2 import StoragePlugin, Writer, WriterError  # noqa: PLC0415
+
+    recording, out_dir = Path(recording), Path(out_dir)
+    converter = BagConverter(map_period_s, time)  # checks the settings before any file is touched
+    if out_dir.exists():
+        raise BagExportError(f"{out_dir} exists; a bag is written to a new folder (give another --out or remove it)")
+    try:
+        robots = robots_in(recording)
+    except RecordingError as exc:
+        raise BagExportError(str(exc)) from None
+    if robot is None:
+        if len(robots) != 1:
+            raise BagExportError(f"{recording} holds {'no robot' if not robots else 'robots ' + ', '.join(robots)}: give --robot ID")
+        robot = robots[0]
+    elif robot not in robots:
+        raise BagExportError(f"{recording} holds no messages of robot {robot!r} (it has: {', '.join(robots) or 'none'})")
+    stats = BagExportStats(out_dir, robot)
+    never = QosTime(sec=0, nsec=0)
+    latched = [Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, never, never, QosLiveliness.AUTOMATIC, never, False)]
+    prefix = f"cso/{robot}/"
+    try:
+        with Writer(out_dir, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+            connections: dict[str, object] = {}
+
+            def write(rows: list[tuple[str, bytes, int]]) -> None:
+                for topic, data, t_ns in rows:
+                    conn = connections.get(topic)
+                    if conn is None:
+                        conn = connections[topic] = writer.add_connection(
+                            topic, ROS_TYPES[topic], typestore=ros2_cdr.typestore(), offered_qos_profiles=latched if topic in LATCHED else ()
+                        )
+                    writer.write(conn, t_ns, data)
+                    stats.written[topic] += 1
+
+            for m in read_recording(recording):
+                if not m.key.startswith(prefix):
+                    continue
+                stats.messages_read += 1
+                converter.begin(m.log_time_ns)
+                topic = m.key[len(prefix):]
+                if topic not in EXPORTED:
+                    stats.left_out[topic] += 1
+                    continue
+                try:
+                    msg = decode(m.payload)
+                except MessageError as exc:
+                    if not stats.rejected[topic]:
+                        log.warning("%s: a payload that does not decode is left out (%s); later ones are only counted", m.key, exc)
+                    stats.rejected[topic] += 1
+                    continue
+                write(converter.convert(msg, m.log_time_ns))
+            write(converter.finish())
+    except (WriterError, OSError, RecordingError) as exc:
+        shutil.rmtree(out_dir, ignore_errors=True)  # no half-written bag that looks complete
+        raise BagExportError(f"cannot write {out_dir}: {exc}" if not isinstance(exc, RecordingError) else f"{exc}; no bag written") from None
+    stats.maps_thinned = converter.maps_thinned
+    return stats

@@ -1,0 +1,189 @@
+"""``cso-runtime export-bag``: a recording as a ROS 2 bag of standard types, read back with rosbags' own reader."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rosbags.rosbag2 import Reader
+
+from cso_runtime import ros2_cdr
+from cso_runtime.bag_export import ROS_TYPES, BagConverter, BagExportError, export_bag
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+from cso_runtime.keys import RobotKeys
+from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, encode
+from cso_runtime.recording import RecordedMessage, write_recording
+
+GEOM = GridGeometry(0.1, (20, 30), -1.0, -0.5)
+T0_NS = 1_800_000_000_000_000_000
+"""Reception time of the first message (wall clock, ns)."""
+
+
+def _map(step: int) -> MapMsg:
+    grid = np.full(GEOM.shape, -1, np.int8)
+    grid[2:10, 2 : 5 + step] = 0
+    grid[2, 2 : 5 + step] = 100
+    return MapMsg.from_grid(step, GEOM, grid)
+
+
+def _frontiers(step: int) -> FrontiersMsg:
+    arrays = {name: np.zeros(GEOM.shape, dtype=dt) for name, dt in FrontiersMsg.GRIDS.items()}
+    cluster = {
+        "goal_cell": (3, 4),
+        "goal_xy_m": (-0.55, -0.15),
+        "distance_m": 1.0,
+        "size_m": 0.3,
+        "entropy": 3.0,
+        "centroid_xy_m": (-0.5, -0.1),
+        "cells": np.array([[3, 4], [3, 5], [4, 5]], dtype=np.int32),
+    }
+    return FrontiersMsg(step, True, "no_goal", Pose2D(0, 0, 0), GEOM, arrays, [cluster], 1.0)
+
+
+def _scan(step: int, stamp_s: float) -> LaserScan:
+    return LaserScan(-math.pi / 2, math.pi / 180, 0.1, 8.0, np.r_[np.full(90, 2.0 + step), np.full(91, np.inf)].astype(np.float32), stamp_s)
+
+
+def episode(keys: RobotKeys, steps: int, first_ns: int, every_ns: int, goal_changes_at: int = 2) -> list[RecordedMessage]:
+    """A lockstep-like run: messages of step k arrive ``every_ns`` apart (fast), the robot's clock says 0.25 s a step."""
+    out: list[RecordedMessage] = []
+    for k in range(steps):
+        t = first_ns + k * every_ns
+        stamp = 0.25 * k
+        pose = Pose2D(0.1 * k, 0.0, 0.05 * k)
+        goal = (1.0, 2.0) if k < goal_changes_at else (3.0, -1.0)
+        for i, msg in enumerate(
+            [
+                ClockMsg(k, stamp),
+                OdometryMsg(k, stamp, pose, VelocityCommand(0.4, 0.2)),
+                ScanMsg(k, _scan(k, stamp), Pose2D(pose.x_m + 0.1, pose.y_m, pose.yaw_rad)),
+                _map(k),
+                _frontiers(k) if k % 2 == 0 else FrontiersMsg(k, False, "keep"),
+                GoalMsg(k, k % 2 == 0, *goal, 0, 1.0, 2.0, "greedy-dist"),
+                PathMsg(k, np.array([[pose.x_m, pose.y_m], [goal[0], goal[1]]])),
+                CmdVelMsg(k, VelocityCommand(0.4, 0.2)),
+            ]
+        ):
+            topic = {"ClockMsg": "clock", "OdometryMsg": "odom", "ScanMsg": "scan", "MapMsg": "map", "FrontiersMsg": "frontiers",
+                     "GoalMsg": "goal", "PathMsg": "path", "CmdVelMsg": "cmd_vel"}[type(msg).__name__]
+            out.append(RecordedMessage(keys.topic(topic), t + i * 1000, encode(msg)))
+    return out
+
+
+def read_bag(folder: Path) -> dict[str, list[tuple[int, object]]]:
+    """Topic -> [(bag time ns, deserialized message)], checking each connection's type."""
+    got: dict[str, list[tuple[int, object]]] = {}
+    with Reader(folder) as reader:
+        for conn in reader.connections:
+            assert conn.msgtype == ROS_TYPES[conn.topic]
+        for conn, t_ns, raw in reader.messages():
+            got.setdefault(conn.topic, []).append((t_ns, ros2_cdr.decode(raw, conn.msgtype)))
+    return got
+
+
+def stamp_ns(header) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def test_a_recording_becomes_a_bag_of_standard_types_on_the_robots_own_clock(tmp_path: Path):
+    keys = RobotKeys("r0")
+    messages = episode(keys, 5, T0_NS, 2_000_000)  # 2 ms a step: a fast lockstep run
+    messages.insert(3, RecordedMessage(keys.scan, T0_NS + 1500, b"\x00 not msgpack"))  # malformed: counted, left out
+    recording = tmp_path / "run.mcap"
+    write_recording(recording, "r0", messages)
+    stats = export_bag(recording, tmp_path / "bag", map_period_s=0.6)
+    bag = read_bag(tmp_path / "bag")
+
+    assert stats.rejected == {"scan": 1} and stats.left_out == {"clock": 5}
+    assert {t: len(v) for t, v in bag.items()} == dict(stats.written) == {
+        "/tf_static": 1, "/odom": 5, "/tf": 10, "/scan": 5, "/map": 3, "/plan": 5, "/goal_pose": 2, "/explore/frontiers": 3, "/cmd_vel": 5,
+    }
+    # The robot's clock: step k at T0 + 0.25 s k whatever the reception times; every header says the bag time.
+    for topic in ("/odom", "/scan", "/plan", "/cmd_vel"):
+        times = [t for t, _ in bag[topic]]
+        assert times == [T0_NS + k * 250_000_000 for k in range(5)], topic
+    for topic in ("/odom", "/scan", "/map", "/plan", "/goal_pose"):  # headers hold float seconds: within 1 us
+        assert all(abs(stamp_ns(m.header) - t) <= 1000 for t, m in bag[topic]), topic
+    # Maps at most one per 0.6 s (steps 0, 3) and the last one (step 4), each the map of its step.
+    assert [t for t, _ in bag["/map"]] == [T0_NS, T0_NS + 750_000_000, T0_NS + 1_000_000_000] and stats.maps_thinned == 2
+    last_map = bag["/map"][-1][1]
+    grid = np.asarray(last_map.data, dtype=np.int8).reshape(last_map.info.height, last_map.info.width)
+    np.testing.assert_array_equal(grid, _map(4).grid)
+    assert (last_map.info.origin.position.x, last_map.info.origin.position.y, last_map.info.resolution) == (-1.0, -0.5, pytest.approx(0.1))
+    assert last_map.header.frame_id == "map"
+    # Scans in the laser frame, placed by a transform from odom at the scan's own time; the robot by odometry.
+    scan = bag["/scan"][2][1]
+    assert scan.header.frame_id == "laser" and np.array_equal(scan.ranges, _scan(2, 0.5).ranges_m)
+    assert scan.angle_min == pytest.approx(-math.pi / 2) and scan.angle_max == pytest.approx(-math.pi / 2 + 180 * math.pi / 180)
+    tfs = [(t, tf) for t, m in bag["/tf"] for tf in m.transforms]
+    laser = [(t, tf) for t, tf in tfs if tf.child_frame_id == "laser"]
+    base = [(t, tf) for t, tf in tfs if tf.child_frame_id == "base_link"]
+    assert len(laser) == len(base) == 5 and all(tf.header.frame_id == "odom" and abs(stamp_ns(tf.header) - t) <= 1000 for t, tf in laser + base)
+    assert laser[2][1].transform.translation.x == pytest.approx(0.3) and base[2][1].transform.translation.x == pytest.approx(0.2)
+    assert ros2_cdr.yaw_from_quaternion(**{a: getattr(base[2][1].transform.rotation, a) for a in "xyzw"}) == pytest.approx(0.1)
+    (static,) = bag["/tf_static"][0][1].transforms
+    assert (static.header.frame_id, static.child_frame_id, static.transform.rotation.w) == ("map", "odom", 1.0)
+    odom = bag["/odom"][1][1]
+    assert (odom.header.frame_id, odom.child_frame_id, odom.twist.twist.linear.x) == ("odom", "base_link", pytest.approx(0.4))
+    # A goal pose when the goal changes; the path as poses; the frontiers as explore_lite's markers.
+    assert [(m.pose.position.x, m.pose.position.y) for _, m in bag["/goal_pose"]] == [(1.0, 2.0), (3.0, -1.0)]
+    plan = bag["/plan"][4][1]
+    assert [(p.pose.position.x, p.pose.position.y) for p in plan.poses] == [(pytest.approx(0.4), 0.0), (3.0, -1.0)]
+    markers = bag["/explore/frontiers"][0][1].markers
+    assert [m.ns for m in markers] == ["frontiers", "frontiers", "frontiers_goals"]
+    assert [(p.x, p.y) for p in markers[1].points] == [pytest.approx(GEOM.cell_to_world(3, 4)), pytest.approx(GEOM.cell_to_world(3, 5)), pytest.approx(GEOM.cell_to_world(4, 5))]
+
+
+def test_a_second_episode_follows_the_first_and_received_time_keeps_the_recording_s(tmp_path: Path):
+    keys = RobotKeys("r0")
+    first = episode(keys, 3, T0_NS, 2_000_000)
+    second = episode(keys, 2, T0_NS + 10_000_000, 2_000_000)  # the robot's clock starts again at 0
+    recording = tmp_path / "run.mcap"
+    write_recording(recording, "r0", first + second)
+    export_bag(recording, tmp_path / "sim", map_period_s=0)
+    times = [t for t, _ in read_bag(tmp_path / "sim")["/scan"]]
+    assert times == [T0_NS + k * 250_000_000 for k in range(5)]  # 0, 0.25, 0.5, then 0.75 and 1.0 s
+    export_bag(recording, tmp_path / "received", map_period_s=0, time="received")
+    bag = read_bag(tmp_path / "received")
+    assert [t for t, _ in bag["/scan"]] == [m.log_time_ns for m in first + second if m.key == keys.scan]
+    assert len(bag["/map"]) == 5
+
+
+def test_bad_exports_are_refused_and_leave_nothing_behind(tmp_path: Path):
+    recording = tmp_path / "two.mcap"
+    write_recording(recording, "*", episode(RobotKeys("a"), 1, T0_NS, 1000) + episode(RobotKeys("b"), 1, T0_NS + 10**6, 1000))
+    with pytest.raises(BagExportError, match="robots a, b: give --robot"):
+        export_bag(recording, tmp_path / "bag")
+    with pytest.raises(BagExportError, match="no messages of robot 'c'"):
+        export_bag(recording, tmp_path / "bag", robot="c")
+    assert not (tmp_path / "bag").exists()
+    stats = export_bag(recording, tmp_path / "bag", robot="b")
+    assert stats.robot == "b" and stats.written["/scan"] == 1
+    with pytest.raises(BagExportError, match="exists"):
+        export_bag(recording, tmp_path / "bag", robot="b")
+    with pytest.raises(ValueError, match="time must be one of"):
+        export_bag(recording, tmp_path / "other", robot="b", time="wall")
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(recording.read_bytes()[: len(recording.read_bytes()) // 2])
+    with pytest.raises(BagExportError, match="broken.mcap"):
+        export_bag(broken, tmp_path / "from_broken")
+    assert not (tmp_path / "from_broken").exists() and not (tmp_path / "other").exists()
+    with pytest.raises(ValueError, match="map_period_s"):
+        BagConverter(-1.0)
+
+
+def test_export_bag_command_writes_beside_the_recording_and_says_what(tmp_path: Path):
+    recording = tmp_path / "run.mcap"
+    write_recording(recording, "r0", episode(RobotKeys("r0"), 2, T0_NS, 1000))
+    done = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording)], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert f"wrote {tmp_path / 'run'} (robot r0): " in done.stdout and "/scan 2" in done.stdout
+    assert (tmp_path / "run" / "metadata.yaml").is_file()
+    again = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording)], capture_output=True, text=True, timeout=60)
+    assert again.returncode == 2 and "exists" in again.stderr
+    missing = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "export-bag", str(tmp_path / "nope.mcap")], capture_output=True, text=True, timeout=60)
+    assert missing.returncode == 2 and "no such recording" in missing.stderr
