@@ -135,7 +135,7 @@ class BagConverter:
         self.map_period_ns = int(map_period_s * 1e9)
         self.started = False
         self.last_map_ns: int | None = None
-        self.pending_map: tuple[bytes, int] | None = None
+        self.pending_map: tuple[MapMsg, int] | None = None
         """The newest map not written because of ``map_period_s`` (written at the end if none follows)."""
         self.last_goal_xy: tuple[float, float] | None = None
         self.maps_thinned = 0
@@ -171,14 +171,12 @@ class BagConverter:
             out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, LASER_FRAME, msg.sensor_pose)], stamp_s), t_ns))
             out.append(("/scan", ros2_cdr.laserscan_to_cdr(dataclasses.replace(msg.scan, stamp_s=stamp_s), LASER_FRAME), t_ns))
         elif isinstance(msg, MapMsg):
-            grid = ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, stamp_s, MAP_FRAME)
+            self.maps_thinned += self.pending_map is not None  # a held map is superseded either way
             if self.last_map_ns is None or t_ns - self.last_map_ns >= self.map_period_ns:
-                self.maps_thinned += self.pending_map is not None  # the held one is superseded
                 self.last_map_ns, self.pending_map = t_ns, None
-                out.append(("/map", grid, t_ns))
+                out.append(_map_row(msg, t_ns))
             else:
-                self.maps_thinned += self.pending_map is not None  # the held one is now superseded
-                self.pending_map = (grid, t_ns)
+                self.pending_map = (msg, t_ns)  # converted only if it stays the last
         elif isinstance(msg, PathMsg):
             out.append(("/plan", ros2_cdr.path_to_cdr(msg.path_xy_m, stamp_s, MAP_FRAME), t_ns))
         elif isinstance(msg, GoalMsg):
@@ -197,9 +195,13 @@ class BagConverter:
         """The last map, when ``map_period_s`` held it back: a bag always ends with the final map."""
         if self.pending_map is None:
             return []
-        grid, t_ns = self.pending_map
+        msg, t_ns = self.pending_map
         self.pending_map = None
-        return [("/map", grid, t_ns)]
+        return [_map_row(msg, t_ns)]
+
+
+def _map_row(msg: MapMsg, t_ns: int) -> tuple[str, bytes, int]:
+    return ("/map", ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, t_ns * 1e-9, MAP_FRAME), t_ns)
 
 
 EXPORTED = frozenset({"scan", "odom", "map", "path", "goal", "frontiers", "cmd_vel"})
