@@ -567,9 +567,13 @@ class Launcher:
 
             sensor = self.profile.exploration_config().sensor
             meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
-        out = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta)
-        log.info("episode %s: %.2f%% coverage in %d steps; results in %s", result.terminated_by, result.coverage_pct, result.steps, out)
-        return out
+        row = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta)
+        log.info(
+            "episode %s: %.2f%% coverage in %d steps; %.2f m2 explored, %.4f m2/step, path %.2f m, %d decisions; results in %s",
+            row["terminated_by"], row["coverage_pct"], row["steps"], row["explored_area_m2"],
+            row["efficiency_m2_per_step"], row["path_length_m"], row["decisions"], self.run_dir,
+        )
+        return self.run_dir
 
     def start_recorder(self) -> tuple[threading.Event, threading.Thread] | None:
         """Record the run from before the first service starts, on a session of its own: its link and
@@ -696,10 +700,11 @@ class Launcher:
         return self.exit_code
 
 
-def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float, meta: dict[str, Any]) -> Path:
+def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float, meta: dict[str, Any]) -> dict[str, Any]:
     """The same files as ``eval`` for one episode: summary.json, episodes.csv, the episode's npz, the
     robot's final map (map_server YAML and PNG),
-    the coverage curve and the trajectory plot (reusing ``cso_runtime.evaluation`` writers)."""
+    the coverage curve and the trajectory plot (reusing ``cso_runtime.evaluation`` writers). Returns the
+    episode's row of episodes.csv."""
     from cso_runtime.episode import EpisodeResult  # noqa: PLC0415
     from cso_runtime.evaluation import EpisodeOutcome, episode_row, file_stem, save_episode_files, write_outputs  # noqa: PLC0415
     from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415
@@ -727,7 +732,7 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
     outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m)
     plot_coverage_curves(out_dir / "coverage_curves.png", [outcome])
     plot_trajectories(out_dir / "trajectories" / f"{file_stem(result.scene)}.png", result.scene, [outcome])
-    return out_dir
+    return row
 
 
 class LiveView:

@@ -648,6 +648,10 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         assert abs(zenoh_metrics["coverage_pct"] - expected.coverage_pct) < 1e-3
         assert zenoh_metrics["terminated_by"] == {expected.terminated_by: 1}
         out = run_dir.parent
+        closing = f"episode {expected.terminated_by}: {expected.coverage_pct:.2f}% coverage in {expected.steps} steps; "
+        closing += f"{expected.explored_area_m2:.2f} m2 explored, {expected.efficiency_m2_per_step:.4f} m2/step, "
+        closing += f"path {zenoh_metrics['path_length_m']:.2f} m, {expected.decisions} decisions; results in {out}"
+        assert closing in r.stderr  # the Table 1 row of the run, said when it ends
         assert (out / "trajectories" / f"{expected.scene}.png").is_file()
         assert (out / "episodes" / method / f"{expected.scene}.npz").is_file()
         grid, geometry = load_map(out / "maps" / method / f"{expected.scene}.yaml")  # the mapper's final map
