@@ -18,13 +18,16 @@ def _pyplot():
     return plt
 
 
+def _save(fig: Any, path: Path, dpi: int) -> None:
+    """Write a figure as a PNG (making its folder) and free it: eval writes hundreds."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    _pyplot().close(fig)
+
+
 def plot_coverage_curves(path: Path, outcomes: Sequence[Any]) -> None:
     """``coverage_figure`` written as a PNG."""
-    plt = _pyplot()
-    fig = coverage_figure(outcomes)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(coverage_figure(outcomes), path, 110)
 
 
 def coverage_figure(outcomes: Sequence[Any]) -> Any:
@@ -66,11 +69,7 @@ EXPLORED_FREE_RGB = (0.62, 0.82, 0.98)
 
 def plot_trajectories(path: Path, name: str, outcomes: Sequence[Any]) -> None:
     """``trajectory_figure`` written as a PNG."""
-    plt = _pyplot()
-    fig = trajectory_figure(name, outcomes)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _save(trajectory_figure(name, outcomes), path, 100)
 
 
 def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
@@ -122,12 +121,14 @@ def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
 def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, float]], baseline: str) -> None:
     """One panel per method: each scene's efficiency (m2/step) against the baseline's on the same scene,
     coloured by scale; points above the diagonal are scenes the method explored more efficiently."""
+    from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
+
     plt = _pyplot()
     methods = sorted({m for m, _ in table if m != baseline})
     fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 4.2), squeeze=False)
     for ax, method in zip(axes[0], methods):
         top = 0.0
-        for scale in ("small", "middle", "large", "super_large"):
+        for scale in SCALES:
             mine, base = table.get((method, scale), {}), table.get((baseline, scale), {})
             scenes = sorted(set(mine) & set(base))
             if not scenes:
@@ -146,19 +147,13 @@ def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, 
         ax.grid(alpha=0.3)
         if ax.collections:
             ax.legend(loc="lower right", fontsize=8)
-    path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path, 110)
 
 
 def plot_efficiency_by_scale(path: Path, summary: dict[str, Any]) -> None:
     """``efficiency_figure`` written as a PNG."""
-    plt = _pyplot()
-    fig = efficiency_figure(summary)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(efficiency_figure(summary), path, 110)
 
 
 def efficiency_figure(summary: dict[str, Any]) -> Any:
