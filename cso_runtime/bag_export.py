@@ -46,7 +46,7 @@ from cso_runtime.messages import (
     ScanMsg,
     decode,
 )
-from cso_runtime.recording import RecordingError, read_recording
+from cso_runtime.recording import RecordingError, read_recording, recording_keys
 
 log = logging.getLogger("cso.bag_export")
 
@@ -210,7 +210,7 @@ EXPORTED = frozenset({"scan", "odom", "map", "path", "goal", "frontiers", "cmd_v
 
 def robots_in(recording: Path) -> list[str]:
     """The robot ids of a recording's keys (``cso/<robot>/...``), sorted."""
-    return sorted({m.key.split("/")[1] for m in read_recording(recording) if m.key.count("/") >= 2})
+    return sorted({key.split("/")[1] for key in recording_keys(recording) if key.count("/") >= 2})
 
 
 def export_bag(recording: Path, out_dir: Path, robot: str | None = None, map_period_s: float = 1.0, time: str = "sim") -> BagExportStats:
