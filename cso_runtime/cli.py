@@ -160,7 +160,7 @@ def record_command(
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
 ) -> None:
-    """Record every cso/<robot>/** message to MCAP (Foxglove and the mcap tools open it) until Ctrl-C."""
+    """Record every cso/<robot>/** message to MCAP (Foxglove and the mcap tools open it; `export-bag` turns it into a ROS 2 bag) until Ctrl-C."""
     import signal  # noqa: PLC0415
     import threading  # noqa: PLC0415
     import time  # noqa: PLC0415
