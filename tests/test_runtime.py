@@ -840,3 +840,25 @@ def test_service_command_help_lists_the_services_own_options():
     assert r.exit_code == 2 and "sim, mapper, frontier, policy, planner" in r.output
     r = CliRunner().invoke(app, ["service", "bogus"])
     assert r.exit_code == 2 and "unknown service 'bogus'" in r.output
+
+
+def test_every_command_renders_its_help_with_its_summary():
+    """Each command's ``--help`` works (typer builds it from the signature: a bad annotation fails here, not in a
+    user's terminal) and starts with the command's own summary; the top-level help lists every command."""
+    from typer.main import get_command
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    top = CliRunner().invoke(app, ["--help"], terminal_width=200)
+    assert top.exit_code == 0
+    commands = get_command(app).commands
+    assert {"eval", "up", "status", "down", "record", "replay", "export-bag", "save-map", "train"} <= set(commands)
+    for name, command in commands.items():
+        if name == "service":  # its help is the service's own (the test above)
+            continue
+        r = CliRunner().invoke(app, [name, "--help"], terminal_width=200)
+        summary = " ".join((command.help or "").split())[:40]
+        assert r.exit_code == 0, (name, r.output)
+        assert summary and summary in " ".join(r.output.replace("│", " ").split()), name
+        assert name in top.output
