@@ -29,6 +29,7 @@ import dataclasses
 import logging
 import shutil
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,7 +47,7 @@ from cso_runtime.messages import (
     ScanMsg,
     decode,
 )
-from cso_runtime.recording import RecordingError, read_recording, recording_keys
+from cso_runtime.recording import RecordingError, read_recording, recording_contents
 
 log = logging.getLogger("cso.bag_export")
 
@@ -204,17 +205,28 @@ def _map_row(msg: MapMsg, t_ns: int) -> tuple[str, bytes, int]:
     return ("/map", ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, t_ns * 1e-9, MAP_FRAME), t_ns)
 
 
+PROGRESS_EVERY = 500
+"""Messages read between two ``progress`` calls."""
 EXPORTED = frozenset({"scan", "odom", "map", "path", "goal", "frontiers", "cmd_vel"})
 """Our topics that become ROS messages."""
 
 
-def robots_in(recording: Path) -> list[str]:
-    """The robot ids of a recording's keys (``cso/<robot>/...``), sorted."""
-    return sorted({key.split("/")[1] for key in recording_keys(recording) if key.count("/") >= 2})
+def robots_of(keys: list[str]) -> list[str]:
+    """The robot ids of recorded keys (``cso/<robot>/...``), sorted."""
+    return sorted({key.split("/")[1] for key in keys if key.count("/") >= 2})
 
 
-def export_bag(recording: Path, out_dir: Path, robot: str | None = None, map_period_s: float = 1.0, time: str = "sim") -> BagExportStats:
-    """Write ``recording``'s messages of ``robot`` (default: its only robot) as a rosbag2 folder ``out_dir``."""
+def export_bag(
+    recording: Path,
+    out_dir: Path,
+    robot: str | None = None,
+    map_period_s: float = 1.0,
+    time: str = "sim",
+    progress: Callable[[int, int | None], None] | None = None,
+) -> BagExportStats:
+    """Write ``recording``'s messages of ``robot`` (default: its only robot) as a rosbag2 folder ``out_dir``.
+    ``progress(read, total)`` is called every few hundred messages (total: all robots' messages, None when
+    the recording has no summary), so that a long recording does not convert in silence."""
     from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime  # noqa: PLC0415  (rosbags loads only here)
     from rosbags.rosbag2 import StoragePlugin, Writer, WriterError  # noqa: PLC0415
 
@@ -223,7 +235,8 @@ def export_bag(recording: Path, out_dir: Path, robot: str | None = None, map_per
     if out_dir.exists():
         raise BagExportError(f"{out_dir} exists; a bag is written to a new folder (give another --out or remove it)")
     try:
-        robots = robots_in(recording)
+        keys, total = recording_contents(recording)
+        robots = robots_of(keys)
     except RecordingError as exc:
         raise BagExportError(str(exc)) from None
     if robot is None:
@@ -250,7 +263,9 @@ def export_bag(recording: Path, out_dir: Path, robot: str | None = None, map_per
                     writer.write(conn, t_ns, data)
                     stats.written[topic] += 1
 
-            for m in read_recording(recording):
+            for seen, m in enumerate(read_recording(recording), 1):
+                if progress is not None and seen % PROGRESS_EVERY == 0:
+                    progress(seen, total)
                 if not m.key.startswith(prefix):
                     continue
                 stats.messages_read += 1
@@ -268,6 +283,8 @@ def export_bag(recording: Path, out_dir: Path, robot: str | None = None, map_per
                     continue
                 write(converter.convert(msg, m.log_time_ns))
             write(converter.finish())
+            if progress is not None:
+                progress(total if total is not None else stats.messages_read, total)
     except (WriterError, OSError, RecordingError) as exc:
         shutil.rmtree(out_dir, ignore_errors=True)  # no half-written bag that looks complete
         raise BagExportError(f"cannot write {out_dir}: {exc}" if not isinstance(exc, RecordingError) else f"{exc}; no bag written") from None

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import typer
@@ -252,6 +254,19 @@ def replay_command(
     typer.echo(f"replayed {stats.messages} messages on {len(stats.per_key)} keys in {stats.duration_s:.2f} s (recorded span {stats.recorded_s:.2f} s)")
 
 
+@contextmanager
+def _message_progress(label: str) -> Iterator[Callable[[int, int | None], None]]:
+    """A progress bar on stderr over messages read (a terminal only; logs and scripts get the last line alone)."""
+    from rich.console import Console  # noqa: PLC0415
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
+
+    console = Console(stderr=True)
+    with Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn("messages"), TimeElapsedColumn(),
+                  console=console, disable=not console.is_terminal, transient=True) as bar:
+        task = bar.add_task("", total=None)
+        yield lambda done, total: bar.update(task, completed=done, total=total)
+
+
 @app.command("export-bag")
 def export_bag_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record` (or `up --record`)"),
@@ -270,7 +285,8 @@ def export_bag_command(
         target = out if out is not None else file.with_suffix("")
         if target == file:
             raise BagExportError(f"--out {out} is the recording itself")
-        stats = export_bag(file, target, robot, map_period_s, time_base)
+        with _message_progress("export-bag") as progress:
+            stats = export_bag(file, target, robot, map_period_s, time_base, progress)
     except (RecordingError, BagExportError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

@@ -327,9 +327,10 @@ def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[
         raise RecordingError(f"cannot read {path}: {str(exc) or type(exc).__name__}") from None  # its message may be blank
 
 
-def recording_keys(path: Path) -> list[str]:
-    """The Zenoh keys a recording has messages on, sorted: from its summary's channels when it has one
-    (nothing to decompress), else from reading it through (a file cut short raises ``RecordingError``)."""
+def recording_contents(path: Path) -> tuple[list[str], int | None]:
+    """The Zenoh keys a recording has messages on (sorted) and how many messages it holds: from its summary
+    when it has one (nothing to decompress), else read through (count None; a file cut short raises
+    ``RecordingError``)."""
     from mcap.exceptions import McapError  # noqa: PLC0415  (mcap is loaded only by record and replay)
     from mcap.reader import make_reader  # noqa: PLC0415
 
@@ -341,8 +342,9 @@ def recording_keys(path: Path) -> list[str]:
         summary = None
     if summary is not None and summary.statistics is not None:
         counts = summary.statistics.channel_message_counts
-        return sorted({c.topic for cid, c in summary.channels.items() if counts.get(cid, 0) > 0})
-    return sorted({m.key for m in read_recording(path)})
+        keys = {c.topic for cid, c in summary.channels.items() if counts.get(cid, 0) > 0}
+        return sorted(keys), int(summary.statistics.message_count)
+    return sorted({m.key for m in read_recording(path)}), None
 
 
 @dataclass

@@ -138,13 +138,16 @@ def test_a_recording_becomes_a_bag_of_standard_types_on_the_robots_own_clock(tmp
     assert [(p.x, p.y) for p in markers[1].points] == [pytest.approx(GEOM.cell_to_world(3, 4)), pytest.approx(GEOM.cell_to_world(3, 5)), pytest.approx(GEOM.cell_to_world(4, 5))]
 
 
-def test_a_second_episode_follows_the_first_and_received_time_keeps_the_recording_s(tmp_path: Path):
+def test_a_second_episode_follows_the_first_and_received_time_keeps_the_recording_s(tmp_path: Path, monkeypatch):
     keys = RobotKeys("r0")
     first = episode(keys, 3, T0_NS, 2_000_000)
     second = episode(keys, 2, T0_NS + 10_000_000, 2_000_000)  # the robot's clock starts again at 0
     recording = tmp_path / "run.mcap"
     write_recording(recording, "r0", first + second)
-    export_bag(recording, tmp_path / "sim", map_period_s=0)
+    monkeypatch.setattr("cso_runtime.bag_export.PROGRESS_EVERY", 10)
+    calls: list[tuple[int, int | None]] = []
+    export_bag(recording, tmp_path / "sim", map_period_s=0, progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(10, 40), (20, 40), (30, 40), (40, 40), (40, 40)]  # 5 steps of 8 messages, then the end
     times = [t for t, _ in read_bag(tmp_path / "sim")["/scan"]]
     assert times == [T0_NS + k * 250_000_000 for k in range(5)]  # 0, 0.25, 0.5, then 0.75 and 1.0 s
     export_bag(recording, tmp_path / "received", map_period_s=0, time="received")
