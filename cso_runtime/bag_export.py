@@ -207,8 +207,10 @@ def _map_row(msg: MapMsg, t_ns: int) -> tuple[str, bytes, int]:
 
 PROGRESS_EVERY = 500
 """Messages read between two ``progress`` calls."""
-EXPORTED = frozenset({"scan", "odom", "map", "path", "goal", "frontiers", "cmd_vel"})
-"""Our topics that become ROS messages."""
+EXPORTED: dict[str, type[Message]] = {
+    "scan": ScanMsg, "odom": OdometryMsg, "map": MapMsg, "path": PathMsg, "goal": GoalMsg, "frontiers": FrontiersMsg, "cmd_vel": CmdVelMsg,
+}
+"""Our topics that become ROS messages, and the message each must carry (another one is rejected, as a service would)."""
 
 
 def robots_of(keys: list[str]) -> list[str]:
@@ -275,7 +277,7 @@ def export_bag(
                     stats.left_out[topic] += 1
                     continue
                 try:
-                    msg = decode(m.payload)
+                    msg = decode(m.payload, EXPORTED[topic])
                 except MessageError as exc:
                     if not stats.rejected[topic]:
                         log.warning("%s: a payload that does not decode is left out (%s); later ones are only counted", m.key, exc)

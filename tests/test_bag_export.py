@@ -93,12 +93,13 @@ def test_a_recording_becomes_a_bag_of_standard_types_on_the_robots_own_clock(tmp
     keys = RobotKeys("r0")
     messages = episode(keys, 5, T0_NS, 2_000_000)  # 2 ms a step: a fast lockstep run
     messages.insert(3, RecordedMessage(keys.scan, T0_NS + 1500, b"\x00 not msgpack"))  # malformed: counted, left out
+    messages.insert(4, RecordedMessage(keys.odom, T0_NS + 1600, encode(GoalMsg(0, False))))  # a goal on the odometry key
     recording = tmp_path / "run.mcap"
     write_recording(recording, "r0", messages)
     stats = export_bag(recording, tmp_path / "bag", map_period_s=0.6)
     bag = read_bag(tmp_path / "bag")
 
-    assert stats.rejected == {"scan": 1} and stats.left_out == {"clock": 5}
+    assert stats.rejected == {"scan": 1, "odom": 1} and stats.left_out == {"clock": 5}
     assert {t: len(v) for t, v in bag.items()} == dict(stats.written) == {
         "/tf_static": 1, "/odom": 5, "/tf": 10, "/scan": 5, "/map": 3, "/plan": 5, "/goal_pose": 2, "/explore/frontiers": 3, "/cmd_vel": 5,
     }
