@@ -38,7 +38,9 @@ def _root(
     """Active scene mapping with CSO (ACM MM 2024) on a LIMO robot: eval, train, and the Zenoh runtime."""
     import logging  # noqa: PLC0415
 
-    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    from cso_runtime.config import LOG_FORMAT  # noqa: PLC0415
+
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format=LOG_FORMAT)
 
 
 def _use_weights(folder: Path) -> None:
@@ -339,7 +341,7 @@ def up_command(
     weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt for the policy service instead of the shipped weights"),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
-    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.config import LOG_FORMAT, ConfigError  # noqa: PLC0415
     from cso_runtime.launcher import current_launcher_alive, load_profile, read_current_run, run_foreground, start_detached  # noqa: PLC0415
 
     if weights is not None:
@@ -370,7 +372,7 @@ def up_command(
         raise typer.Exit(code)
     import logging  # noqa: PLC0415
 
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     raise typer.Exit(run_foreground(prof, data, runs_dir, live=live, record=recording))
 
 
@@ -417,6 +419,86 @@ def down_command(
     ok, message = down(runs_dir, timeout)
     typer.echo(message, err=not ok)
     raise typer.Exit(0 if ok else 1)
+
+
+@app.command("runs")
+def runs_command(
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the run folders are"),
+    limit: int = typer.Option(20, "--limit", min=1, help="Show the newest N runs"),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
+) -> None:
+    """List the runs `up` left in --runs-dir: state, scene, method and the episode's Table 1 row."""
+    import json  # noqa: PLC0415
+
+    from cso_runtime.runs import list_runs  # noqa: PLC0415
+
+    rows = [r.as_dict() for r in list_runs(runs_dir, limit)]
+    if as_json:
+        typer.echo(json.dumps(rows, indent=2))
+        return
+    if not rows:
+        typer.echo(f"no runs in {runs_dir}")
+        return
+    from rich import box  # noqa: PLC0415
+    from rich.console import Console  # noqa: PLC0415
+    from rich.markup import escape  # noqa: PLC0415
+    from rich.table import Table  # noqa: PLC0415
+
+    def num(value: object, fmt: str) -> str:
+        return "-" if value is None else format(value, fmt)
+
+    table = Table(title=escape(f"runs in {runs_dir}"), box=box.SIMPLE_HEAD)
+    table.add_column("run: scene, method", overflow="fold", min_width=34)
+    table.add_column("state", overflow="fold", min_width=6)
+    for col in ("steps", "cover %", "m2", "m2/step"):
+        table.add_column(col, justify="right", no_wrap=True)
+    for r in rows:
+        restarts = r["restarts"]
+        state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "")
+        table.add_row(
+            escape(f"{r['run_id']}\n  {r['scene']}, {r['method']}"), state, num(r["steps"], ".0f"),
+            num(r["coverage_pct"], ".1f"), num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
+        )
+    Console().print(table)
+
+
+LOG_COLOURS = ("cyan", "green", "yellow", "magenta", "blue", "bright_red", "bright_cyan", "bright_green")
+
+
+@app.command("logs")
+def logs_command(
+    services: list[str] | None = typer.Argument(None, metavar="SERVICE", help="Services to show (default: all, the launcher's own log included)"),
+    run: str | None = typer.Option(None, "--run", help="Run id under --runs-dir, or a run folder (default: the current run, else the newest)"),
+    follow: bool = typer.Option(False, "--follow", "-f", help="Keep printing new lines until the run ends (or Ctrl-C)"),
+    tail: int | None = typer.Option(None, "--tail", "-n", min=0, help="Only the last N lines of each service"),
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the run folders are"),
+) -> None:
+    """A run's service logs merged in time order, each line after its service's name (like `docker compose logs`)."""
+    from cso_runtime.runs import RunError, follow_logs, log_files, read_logs, resolve_run, run_is_live, select_services  # noqa: PLC0415
+
+    try:
+        run_dir = resolve_run(runs_dir, run)
+        files = select_services(log_files(run_dir), services or [])
+    except RunError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(1) from None
+    live = run_is_live(run_dir)
+    width = max([len(n) for n in log_files(run_dir)] + [8])
+    colours: dict[str, str] = {}
+
+    def emit(line) -> None:
+        colour = colours.setdefault(line.service, LOG_COLOURS[len(colours) % len(LOG_COLOURS)])
+        typer.echo(typer.style(f"{line.service:<{width}} | ", fg=colour) + line.text)
+
+    lines, readers = read_logs(files, tail, finished=not (follow and live))
+    for line in lines:
+        emit(line)
+    if follow and live:
+        try:
+            follow_logs(run_dir, readers, emit, alive=lambda: run_is_live(run_dir), pick_up_new=not services)
+        except KeyboardInterrupt:
+            return
+        typer.echo(f"run {run_dir.name} has ended", err=True)
 
 
 @app.command("dataflow")

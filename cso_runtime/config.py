@@ -32,6 +32,9 @@ EXIT_NO_ZENOH = 3
 a launcher restarts a service that exits with it, since the router may come up."""
 EXIT_INTERRUPTED = 130
 """Exit code of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it)."""
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+"""Every process's log line (services, launcher, commands): ``cso-runtime logs`` merges the services' logs
+by the time stamp in front."""
 
 
 @dataclass

@@ -38,6 +38,7 @@ from cso_runtime.config import (
     EXIT_BAD_CONFIG,
     EXIT_INTERRUPTED,
     EXIT_NO_ZENOH,
+    LOG_FORMAT,
     ConfigError,
     ExplorationConfig,
     check_seed,
@@ -397,6 +398,7 @@ class Launcher:
             "launcher_pid": os.getpid(),
             "launcher_start_ticks": process_start_ticks(os.getpid()),
             "state": state,
+            **({"outcome": self.outcome(), "exit_code": self.exit_code} if state == "stopped" else {}),
             "services": {
                 c.name: {
                     "pid": c.proc.pid if c.proc else None,
@@ -412,6 +414,13 @@ class Launcher:
             tmp = path.with_suffix(".tmp")
             tmp.write_text(text)
             tmp.replace(path)
+
+    def outcome(self) -> str:
+        """How a stopped run ended, for ``cso-runtime runs``: done (results written), interrupted (stopped
+        before the episode ended) or failed."""
+        if self.outputs_written and self.exit_code == 0:
+            return "done"
+        return "interrupted" if self.exit_code == EXIT_INTERRUPTED else "failed"
 
     def remove_current_pointer(self) -> None:
         cur = self.run_dir.parent / CURRENT_RUN
@@ -928,7 +937,17 @@ def run_foreground(
     """Run in this process; ``record``: True for ``runs/<run-id>/recording.mcap``, or a file."""
     run_dir = new_run_dir(runs_dir, profile)
     launcher = Launcher(profile, data, run_dir, _record_path(run_dir, record))
-    return run_until_stopped(launcher, live=live, stay_after_done=stay_after_done)
+    # The launcher's own lines go to logs/launcher.log too, as a detached launcher's do (its stdout).
+    (run_dir / "logs").mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(run_dir / "logs" / "launcher.log", encoding="utf-8")
+    handler.setFormatter(logging.Formatter(LOG_FORMAT))
+    root = logging.getLogger()
+    root.addHandler(handler)
+    try:
+        return run_until_stopped(launcher, live=live, stay_after_done=stay_after_done)
+    finally:
+        root.removeHandler(handler)
+        handler.close()
 
 
 def _record_path(run_dir: Path, record: bool | Path) -> Path | None:
@@ -964,7 +983,7 @@ def start_detached(
         try:
             info = json.loads((run_dir / "run.json").read_text())
             if info.get("services") and info.get("endpoints"):
-                return 0, f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'}"
+                return 0, f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'} (`cso-runtime logs -f` follows them)"
         except (OSError, ValueError):
             pass
         if proc.poll() is not None:  # its own code (2: refused, 3: no router), so `up --detach` says the same as `up`
@@ -980,7 +999,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--run-dir", type=Path, required=True)
     p.add_argument("--record", type=Path, default=None, help="MCAP file recording the run")
     args = p.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     data = load_yaml(args.profile_data)
     profile = from_dict(Profile, data, where=str(args.profile_data))
     return run_until_stopped(Launcher(profile, data, args.run_dir, args.record), live=False, stay_after_done=True)

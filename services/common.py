@@ -36,7 +36,7 @@ from typing import Any, ClassVar
 import numpy as np
 import zenoh
 
-from cso_runtime.config import EXIT_BAD_CONFIG, EXIT_NO_ZENOH, ConfigError, ExplorationConfig, from_dict, load_yaml
+from cso_runtime.config import EXIT_BAD_CONFIG, EXIT_NO_ZENOH, LOG_FORMAT, ConfigError, ExplorationConfig, from_dict, load_yaml
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
@@ -450,7 +450,7 @@ def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | No
 def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | None = None) -> int:
     """``python -m services.<name>`` entry point: parse, load the profile, run; config errors exit 2."""
     args = parse_args(cls.name, argv, cls, prog)
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.basicConfig(level=args.log_level.upper(), format=LOG_FORMAT, stream=sys.stderr)
     dump_stacks_on_signal()  # a hang the launcher has to kill leaves its stacks in this log
     try:
         check_robot_id(args.robot)

@@ -228,7 +228,8 @@ class SimService(Service):
             seed=self.seed,
             final_map=self.latest.get("map"),  # type: ignore[arg-type]
         )
-        log.info("episode %s at step %d: %s %s (coverage %.2f%%)", state, self.step, terminated_by, reason, self.result.coverage_pct)
+        why = f" ({reason})" if reason else ""
+        log.info("episode %s at step %d: %s%s, coverage %.2f%%, %.2f m2 explored", state, self.step, terminated_by, why, self.result.coverage_pct, self.explored_m2)
         self.publish("episode_status", self.episode_status())
         self.publish("episode_result", self.result)
 

@@ -658,6 +658,8 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         assert geometry == expected.map_geometry and np.array_equal(grid, expected.map_grid)
         for name in ("sim", "mapper", "frontier", "policy", "planner"):
             assert (out / "logs" / f"{name}.log").is_file()
+        assert "INFO cso.launcher: started sim (pid" in (out / "logs" / "launcher.log").read_text()  # as a detached run's
+        assert json.loads((out / "run.json").read_text())["outcome"] == "done"
         assert "  mapper -->|\"map\"| frontier\n" in (out / "dataflow.md").read_text()
         assert not (runs / "current.json").exists()
         assert [p for p in run_pids(runs) if pid_alive(p)] == []
@@ -734,8 +736,19 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         wait_for(lambda: list(runs.glob("*/summary.json")), 20, "summary.json")
         pids = run_pids(runs)
         assert mapper_pid not in pids  # the restarted mapper replaced it in the run file
+        r = cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        (listed,) = json.loads(r.stdout)
+        assert listed["state"] == "done" and listed["steps"] == final["step"] and listed["restarts"] >= 1, listed  # waits for `down`
+        # `logs -f` follows the run until `down` ends it, then exits by itself.
+        follower = subprocess.Popen(
+            [sys.executable, "-m", "cso_runtime.cli", "logs", "--follow", "--runs-dir", str(runs)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stderr
+        out, err = follower.communicate(timeout=30)
+        assert follower.returncode == 0 and "has ended" in err, err
+        assert re.search(r"^mapper +\| .* restored the map of step", out, re.MULTILINE) and re.search(r"^launcher +\| .* stopping services$", out, re.MULTILINE), out[-3000:]
+        assert json.loads(cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path).stdout)[0]["state"] == "done"
         assert [p for p in [*pids, mapper_pid] if pid_alive(p)] == []
         r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=10)
         assert r.returncode == 1

@@ -1,0 +1,260 @@
+"""``cso-runtime runs`` and ``logs``: the run folders ``up`` leaves in ``runs/``, listed and read back.
+
+Each ``up`` writes ``runs/<run-id>/`` (``run.json``: processes and state; ``profile.yaml``; ``summary.json`` when
+the episode ended; ``logs/<service>.log`` and ``logs/launcher.log``). ``runs`` lists them with their Table 1 row,
+like ``docker compose ls``; ``logs`` merges a run's service logs in time order with the service in front of
+each line, like ``docker compose logs [-f]``, and follows a running one until its launcher exits. No Zenoh: a
+finished run's folder is all it reads.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import re
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from cso_runtime.launcher import CURRENT_RUN, current_launcher_alive, read_current_run
+
+LOG_DIR = "logs"
+LOG_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
+"""The ``logging`` default time stamp every service's log line starts with (``asctime``)."""
+
+
+class RunError(ValueError):
+    """No such run, or no run at all: the command says why and exits non-zero."""
+
+
+@dataclass
+class RunSummary:
+    """One run folder as ``runs`` lists it."""
+
+    run_id: str
+    run_dir: Path
+    state: str
+    """``running`` (its launcher is alive; ``done``/``failed`` for a detached run that waits for ``down``),
+    else how it ended: ``done``, ``failed``, ``interrupted`` (stopped before the episode ended) or
+    ``stopped`` (a run file from before outcomes were recorded, or a launcher that was killed)."""
+    profile: str = ""
+    robot: str = ""
+    scene: str = ""
+    method: str = ""
+    metrics: dict[str, Any] = field(default_factory=dict)
+    """The method's Table 1 row from ``summary.json`` (empty until the episode ended)."""
+    restarts: int = 0
+    """Service restarts by the launcher, all services together."""
+
+    def as_dict(self) -> dict[str, Any]:
+        keys = ("explored_area_m2", "coverage_pct", "steps", "efficiency_m2_per_step", "path_length_m")
+        return {
+            "run_id": self.run_id,
+            "run_dir": str(self.run_dir),
+            "state": self.state,
+            "profile": self.profile,
+            "robot": self.robot,
+            "scene": self.scene,
+            "method": self.method,
+            **{k: self.metrics.get(k) for k in keys},
+            "terminated_by": next(iter(self.metrics.get("terminated_by") or {}), None),
+            "restarts": self.restarts,
+        }
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def run_dirs(runs_dir: Path) -> list[Path]:
+    """The run folders under ``runs_dir`` (those with a ``run.json``), oldest first: their names start with
+    the UTC time they started."""
+    if not runs_dir.is_dir():
+        return []
+    return sorted((p.parent for p in runs_dir.glob("*/run.json")), key=lambda p: p.name)
+
+
+def summarize_run(run_dir: Path) -> RunSummary:
+    info = _read_json(run_dir / "run.json") or {}
+    try:
+        profile = yaml.safe_load((run_dir / "profile.yaml").read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        profile = {}
+    profile = profile if isinstance(profile, dict) else {}
+    summary = _read_json(run_dir / "summary.json") or {}
+    methods = summary.get("methods") if isinstance(summary.get("methods"), dict) else {}
+    method = str(profile.get("method", "")) or next(iter(methods), "")
+    if info and current_launcher_alive(info):
+        state = str(info.get("state", "running"))
+    else:
+        state = str(info.get("outcome") or ("done" if methods else "stopped"))
+    services = info.get("services") if isinstance(info.get("services"), dict) else {}
+    return RunSummary(
+        run_id=str(info.get("run_id") or run_dir.name),
+        run_dir=run_dir,
+        state=state,
+        profile=str(profile.get("name", "")),
+        robot=str(info.get("robot") or profile.get("robot", "")),
+        scene=str(profile.get("scene", "")),
+        method=method,
+        metrics=dict(methods.get(method) or {}),
+        restarts=sum(int(s.get("restarts") or 0) for s in services.values() if isinstance(s, dict)),
+    )
+
+
+def list_runs(runs_dir: Path, limit: int | None = None) -> list[RunSummary]:
+    """The newest ``limit`` runs (all when None), oldest first."""
+    dirs = run_dirs(runs_dir)
+    return [summarize_run(d) for d in (dirs[-limit:] if limit else dirs)]
+
+
+def resolve_run(runs_dir: Path, run: str | None = None) -> Path:
+    """The run folder ``logs`` reads: ``run`` (a run id under ``runs_dir``, or a folder), else the current
+    run (``runs/current.json``), else the newest one."""
+    if run:
+        for candidate in (Path(run), runs_dir / run):
+            if (candidate / "run.json").is_file() or (candidate / LOG_DIR).is_dir():
+                return candidate
+        known = ", ".join(d.name for d in run_dirs(runs_dir)[-5:]) or "none"
+        raise RunError(f"no run {run!r} in {runs_dir} (newest: {known}; `cso-runtime runs` lists them)")
+    current = read_current_run(runs_dir)
+    if current is not None and Path(str(current.get("run_dir", ""))).is_dir():
+        return Path(current["run_dir"])
+    dirs = run_dirs(runs_dir)
+    if not dirs:
+        raise RunError(f"no runs in {runs_dir} (no {runs_dir / CURRENT_RUN}, no run folder with a run.json)")
+    return dirs[-1]
+
+
+def run_is_live(run_dir: Path) -> bool:
+    """Whether the run's launcher still runs (so its logs may still grow)."""
+    info = _read_json(run_dir / "run.json")
+    return info is not None and current_launcher_alive(info)
+
+
+# --- logs ------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, order=True)
+class LogLine:
+    """One line of a service's log, ordered by its time stamp; a line without one (a traceback, a stack
+    dump) takes the stamp of the line before it in the same file, so it stays with it."""
+
+    stamp: str
+    source: int
+    """Position of the service in the listing (ties of one millisecond: a fixed order)."""
+    index: int
+    """Line number in its file (keeps a file's own order)."""
+    service: str = field(compare=False)
+    text: str = field(compare=False)
+
+
+def log_files(run_dir: Path) -> dict[str, Path]:
+    """``service name -> log file`` of a run, the launcher first."""
+    files = {p.stem: p for p in sorted((run_dir / LOG_DIR).glob("*.log"))}
+    return dict(sorted(files.items(), key=lambda kv: (kv[0] != "launcher", kv[0])))
+
+
+def select_services(files: dict[str, Path], services: Iterable[str]) -> dict[str, Path]:
+    wanted = list(services)
+    unknown = [s for s in wanted if s not in files]
+    if unknown:
+        raise RunError(f"no log for {', '.join(unknown)} in this run (it has: {', '.join(files) or 'none'})")
+    return {s: files[s] for s in wanted} if wanted else files
+
+
+class LogReader:
+    """Reads one log file incrementally: whole lines only (a line still being written waits for the next
+    read), continuation lines stamped like the line before them."""
+
+    def __init__(self, service: str, path: Path, source: int):
+        self.service, self.path, self.source = service, path, source
+        self.offset = 0
+        self.partial = b""
+        self.last_stamp = ""
+        self.count = 0
+
+    def read_new(self) -> list[LogLine]:
+        try:
+            with self.path.open("rb") as fh:
+                if self.path.stat().st_size < self.offset:  # truncated or replaced: start over
+                    self.offset, self.partial = 0, b""
+                fh.seek(self.offset)
+                data = fh.read()
+        except OSError:
+            return []
+        self.offset += len(data)
+        *complete, self.partial = (self.partial + data).split(b"\n")
+        lines = []
+        for raw in complete:
+            text = raw.decode("utf-8", "replace").rstrip("\r")
+            m = LOG_STAMP.match(text)
+            if m:
+                self.last_stamp = m.group(1)
+            lines.append(LogLine(self.last_stamp, self.source, self.count, self.service, text))
+            self.count += 1
+        return lines
+
+    def flush(self) -> list[LogLine]:
+        """The last line when the file ends without a newline (its writer is gone)."""
+        if not self.partial:
+            return []
+        text, self.partial = self.partial.decode("utf-8", "replace").rstrip("\r"), b""
+        m = LOG_STAMP.match(text)
+        if m:
+            self.last_stamp = m.group(1)
+        self.count += 1
+        return [LogLine(self.last_stamp, self.source, self.count - 1, self.service, text)]
+
+
+def merge(batches: Iterable[list[LogLine]]) -> list[LogLine]:
+    """Lines of several files in time order, each file's own order kept."""
+    return list(heapq.merge(*batches))
+
+
+def read_logs(files: dict[str, Path], tail: int | None = None, finished: bool = True) -> tuple[list[LogLine], list[LogReader]]:
+    """Every line so far (the last ``tail`` of each service when given, as ``docker compose logs --tail``),
+    in time order, and the readers to follow on from. ``finished``: the writers are gone, so a last line
+    without its newline (a killed process) is a line too."""
+    readers = [LogReader(name, path, i) for i, (name, path) in enumerate(files.items())]
+    batches = []
+    for r in readers:
+        lines = r.read_new() + (r.flush() if finished else [])
+        batches.append(lines if tail is None else lines[max(len(lines) - tail, 0) :])
+    return merge(batches), readers
+
+
+def follow_logs(
+    run_dir: Path,
+    readers: list[LogReader],
+    emit: Callable[[LogLine], None],
+    alive: Callable[[], bool],
+    wait: Callable[[float], None] = time.sleep,
+    period_s: float = 0.2,
+    pick_up_new: bool = True,
+) -> None:
+    """Emit new lines as they are written until the run's launcher has exited (``alive`` false: one last
+    read, then return; Ctrl-C in ``wait`` ends it too). ``pick_up_new``: a log that appears later (a
+    service started late) is followed as well; false when only some services were asked for."""
+    while True:
+        running = alive()
+        if pick_up_new:
+            known = {r.service for r in readers}
+            for name, path in log_files(run_dir).items():
+                if name not in known:
+                    readers.append(LogReader(name, path, len(readers)))
+        for line in merge(r.read_new() for r in readers):
+            emit(line)
+        if not running:
+            for line in merge(r.flush() for r in readers):
+                emit(line)
+            return
+        wait(period_s)

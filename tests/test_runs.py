@@ -1,0 +1,154 @@
+"""``cso-runtime runs`` and ``logs`` on run folders written here (the end-to-end use is in test_runtime.py)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from cso_runtime.cli import app
+from cso_runtime.launcher import process_start_ticks
+from cso_runtime.runs import RunError, follow_logs, list_runs, log_files, read_logs, resolve_run, select_services
+
+STAMP = "2026-12-03 09:10:{:02d},{:03d}"
+
+
+def line(s: int, ms: int, text: str) -> str:
+    return f"{STAMP.format(s, ms)} INFO {text}\n"
+
+
+def make_run(runs: Path, run_id: str, *, outcome: str | None = None, summary: dict | None = None, alive: bool = False, logs: dict | None = None) -> Path:
+    """A run folder as ``up`` leaves it: run.json (the launcher this test process when ``alive``), profile.yaml,
+    summary.json when given, logs/*.log."""
+    d = runs / run_id
+    (d / "logs").mkdir(parents=True)
+    info = {
+        "run_id": run_id,
+        "run_dir": str(d),
+        "robot": "r0",
+        "launcher_pid": os.getpid() if alive else 2**22 + 12345,
+        "launcher_start_ticks": process_start_ticks(os.getpid()) if alive else None,
+        "state": "running" if alive else "stopped",
+        "services": {"sim": {"pid": 1, "restarts": 0}, "mapper": {"pid": 2, "restarts": 2}},
+    }
+    if outcome is not None:
+        info["outcome"] = outcome
+    (d / "run.json").write_text(json.dumps(info))
+    (d / "profile.yaml").write_text(yaml.safe_dump({"name": "lockstep", "robot": "r0", "scene": "generated:small:1:0", "method": "cso"}))
+    if summary is not None:
+        (d / "summary.json").write_text(json.dumps({"methods": {"cso": summary}}))
+    for name, text in (logs or {}).items():
+        (d / "logs" / f"{name}.log").write_text(text)
+    return d
+
+
+ROW = {"explored_area_m2": 21.85, "coverage_pct": 99.66, "steps": 36.0, "efficiency_m2_per_step": 0.6069, "path_length_m": 1.07, "terminated_by": {"coverage": 1}}
+
+
+def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
+    runs = tmp_path / "runs"
+    make_run(runs, "20261203-091000-lockstep-r0", outcome="interrupted")
+    make_run(runs, "20261203-091100-lockstep-r0", summary=ROW)  # a run file from before outcomes were recorded
+    make_run(runs, "20261203-091200-lockstep-r0", outcome="failed")
+    make_run(runs, "20261203-091300-lockstep-r0", alive=True)
+    (runs / "not-a-run").mkdir()
+    listed = [r.as_dict() for r in list_runs(runs)]
+    assert [r["run_id"][9:15] for r in listed] == ["091000", "091100", "091200", "091300"]  # oldest first
+    assert [r["state"] for r in listed] == ["interrupted", "done", "failed", "running"]
+    done = listed[1]
+    assert done["steps"] == 36.0 and done["coverage_pct"] == 99.66 and done["efficiency_m2_per_step"] == 0.6069
+    assert done["terminated_by"] == "coverage" and done["method"] == "cso" and done["scene"] == "generated:small:1:0"
+    assert done["restarts"] == 2 and listed[0]["steps"] is None
+    assert [r.run_id for r in list_runs(runs, limit=2)] == ["20261203-091200-lockstep-r0", "20261203-091300-lockstep-r0"]
+
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--json", "--limit", "3"])
+    assert r.exit_code == 0 and [x["state"] for x in json.loads(r.output)] == ["done", "failed", "running"]
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "120"})
+    assert r.exit_code == 0
+    row = next(ln for ln in r.output.splitlines() if "091100" in ln)
+    assert "done, 2 restarts" in row and "36" in row and "99.7" in row and "21.9" in row and "0.607" in row
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "none")])
+    assert r.exit_code == 0 and "no runs in" in r.output
+
+
+def test_logs_merge_services_in_time_order_keeping_each_files_own_order(tmp_path):
+    """A traceback's lines (no time stamp) stay after the line they follow; a killed process's last line
+    without its newline is shown; ``--tail`` counts per service, as ``docker compose logs --tail``."""
+    traceback = "Traceback (most recent call last):\n  File \"x.py\", line 1\nValueError: bad\n"
+    d = make_run(
+        tmp_path / "runs",
+        "20261203-091000-lockstep-r0",
+        outcome="failed",
+        logs={
+            "sim": line(1, 0, "sim a") + line(3, 0, "sim b") + traceback + line(5, 0, "sim c"),
+            "mapper": line(2, 0, "mapper a") + line(3, 0, "mapper b") + line(4, 0, "mapper c") + "2026-12-03 09:10:06,000 INFO mapper cut",
+            "launcher": line(0, 500, "launcher a") + line(3, 0, "launcher b"),
+        },
+    )
+    files = log_files(d)
+    assert list(files) == ["launcher", "mapper", "sim"]  # the launcher first, then by name
+    lines, _ = read_logs(files)
+    got = [(ln.service, ln.text.split(" INFO ")[-1]) for ln in lines]
+    assert got == [
+        ("launcher", "launcher a"), ("sim", "sim a"), ("mapper", "mapper a"),
+        ("launcher", "launcher b"), ("mapper", "mapper b"), ("sim", "sim b"),
+        ("sim", "Traceback (most recent call last):"), ("sim", '  File "x.py", line 1'), ("sim", "ValueError: bad"),
+        ("mapper", "mapper c"), ("sim", "sim c"), ("mapper", "mapper cut"),
+    ]  # fmt: skip
+    lines, _ = read_logs(files, tail=1)
+    assert [ln.text.split(" INFO ")[-1] for ln in lines] == ["launcher b", "sim c", "mapper cut"]
+    assert read_logs(files, tail=0)[0] == []
+    assert list(select_services(files, ["sim"])) == ["sim"]
+    with pytest.raises(RunError, match="no log for planner in this run \\(it has: launcher, mapper, sim\\)"):
+        select_services(files, ["sim", "planner"])
+
+    r = CliRunner().invoke(app, ["logs", "sim", "--run", d.name, "--runs-dir", str(tmp_path / "runs"), "--tail", "2"])
+    assert r.exit_code == 0
+    assert r.output.splitlines() == ["sim      | ValueError: bad", f"sim      | {STAMP.format(5, 0)} INFO sim c"]
+
+
+def test_logs_follow_a_running_run_until_its_launcher_exits(tmp_path):
+    """What is written between two reads comes out at the next one, a half-written line only once it is
+    whole, a log that appears later (a late service) is followed too; after the launcher is gone, one last
+    read and the end."""
+    d = make_run(tmp_path / "runs", "20261203-091000-lockstep-r0", alive=True, logs={"sim": line(1, 0, "sim a")})
+    lines, readers = read_logs(log_files(d), finished=False)
+    assert [ln.text for ln in lines] == [line(1, 0, "sim a").rstrip()]
+    writes = [
+        lambda: (d / "logs" / "sim.log").open("a").write(line(2, 0, "sim b") + "2026-12-03 09:10:03,000 INFO sim hal"),
+        lambda: (d / "logs" / "mapper.log").write_text(line(2, 500, "mapper a")),
+        lambda: (d / "logs" / "sim.log").open("a").write("f\n" + line(4, 0, "sim c")),
+    ]
+    emitted: list[tuple[str, str]] = []
+    polls = {"n": 0}
+
+    def alive() -> bool:
+        return polls["n"] < len(writes)
+
+    def wait(period_s: float) -> None:
+        assert period_s == 0.2
+        writes[polls["n"]]()
+        polls["n"] += 1
+
+    follow_logs(d, readers, lambda ln: emitted.append((ln.service, ln.text.split(" INFO ")[-1])), alive, wait)
+    assert emitted == [("sim", "sim b"), ("mapper", "mapper a"), ("sim", "sim half"), ("sim", "sim c")]
+
+
+def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newest(tmp_path):
+    runs = tmp_path / "runs"
+    with pytest.raises(RunError, match="no runs in"):
+        resolve_run(runs)
+    old = make_run(runs, "20261203-091000-lockstep-r0", outcome="done")
+    new = make_run(runs, "20261203-091100-lockstep-r0", outcome="done")
+    assert resolve_run(runs) == new
+    (runs / "current.json").write_text(json.dumps({"run_id": old.name, "run_dir": str(old)}))
+    assert resolve_run(runs) == old
+    assert resolve_run(runs, new.name) == new and resolve_run(runs, str(new)) == new
+    with pytest.raises(RunError, match="no run 'nope' in .*newest: 20261203-091000-lockstep-r0, 20261203-091100-lockstep-r0"):
+        resolve_run(runs, "nope")
+    r = CliRunner().invoke(app, ["logs", "--runs-dir", str(tmp_path / "empty")])
+    assert r.exit_code == 1 and "error: no runs in" in r.output
