@@ -257,13 +257,13 @@ def replay_command(
 
 
 @contextmanager
-def _message_progress(label: str) -> Iterator[Callable[[int, int | None], None]]:
-    """A progress bar on stderr over messages read (a terminal only; logs and scripts get the last line alone)."""
+def _count_progress(label: str, unit: str = "messages") -> Iterator[Callable[[int, int | None], None]]:
+    """A progress bar on stderr over things done (a terminal only; logs and scripts get the last line alone)."""
     from rich.console import Console  # noqa: PLC0415
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
     console = Console(stderr=True)
-    with Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn("messages"), TimeElapsedColumn(),
+    with Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn(unit), TimeElapsedColumn(),
                   console=console, disable=not console.is_terminal, transient=True) as bar:
         task = bar.add_task("", total=None)
         yield lambda done, total: bar.update(task, completed=done, total=total)
@@ -287,7 +287,7 @@ def export_bag_command(
         target = out if out is not None else file.with_suffix("")
         if target == file:
             raise BagExportError(f"--out {out} is the recording itself")
-        with _message_progress("export-bag") as progress:
+        with _count_progress("export-bag") as progress:
             stats = export_bag(file, target, robot, map_period_s, time_base, progress)
     except (RecordingError, BagExportError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
@@ -298,6 +298,74 @@ def export_bag_command(
         typer.echo(f"  {stats.maps_thinned} maps thinned out by --map-period-s {map_period_s:g}")
     if stats.rejected:
         typer.echo(f"  left out, did not decode: {', '.join(f'{k} {n}' for k, n in sorted(stats.rejected.items()))}")
+
+
+@app.command("scenes")
+def scenes_command(
+    spec: str = typer.Argument("builtin", help="Scene spec: builtin, a folder of PNG plans or map YAMLs, FILE.png, FILE.yaml, generated:SCALE:N:SEED"),
+    m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans, as in eval (0.1 super large, 0.05 large)"),
+    limit: int | None = typer.Option(None, "--limit", min=1, help="At most N scenes"),
+    preview: Path | None = typer.Option(None, "--preview", help="Also write a PNG of each plan into this folder: reachable free space, start pose"),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
+) -> None:
+    """Each scene of a spec: size, traversable area, the paper's scale class and start pose; unusable plans with why (exit 1)."""
+    import json  # noqa: PLC0415
+
+    from cso_runtime.plots import plot_scene  # noqa: PLC0415
+    from cso_runtime.scenes import SceneError, describe_scene, resolve_scenes  # noqa: PLC0415
+
+    if not m_per_px > 0:
+        typer.echo(f"error: --m-per-px must be positive, got {m_per_px}", err=True)
+        raise typer.Exit(2)
+    try:
+        refs = resolve_scenes(spec, limit, m_per_px)
+    except SceneError as exc:
+        typer.echo(f"error: {exc}", err=True)
+        raise typer.Exit(2) from None
+    if preview is not None:
+        output_dir_or_exit(preview, "--preview")
+    rows: list[dict] = []
+    with _count_progress("reading", "scenes") as progress:
+        for ref in refs:
+            try:
+                plan = ref.load()
+                rows.append(describe_scene(plan))
+                if preview is not None:
+                    plot_scene(preview / f"{ref.name}.png", plan)
+            except SceneError as exc:
+                rows.append({"scene": ref.name, "error": str(exc)})
+            progress(len(rows), len(refs))
+    bad = [r for r in rows if "error" in r]
+    if as_json:
+        typer.echo(json.dumps(rows, indent=2))
+    else:
+        from rich import box  # noqa: PLC0415
+        from rich.console import Console  # noqa: PLC0415
+        from rich.markup import escape  # noqa: PLC0415
+        from rich.table import Table  # noqa: PLC0415
+
+        table = Table(title=escape(f"scenes of {spec}"), box=box.SIMPLE_HEAD)
+        table.add_column("scene", overflow="fold")
+        for col in ("size m", "m/px", "traversable m2", "scale", "start x, y m, yaw rad"):
+            table.add_column(col, justify="left" if col == "scale" else "right")
+        for r in rows:
+            if "error" in r:
+                table.add_row(escape(r["scene"]), "[red]unusable:[/red] " + escape(r["error"]))
+                continue
+            st = r["start"]
+            table.add_row(
+                escape(r["scene"]), f"{r['width_m']:.1f} x {r['height_m']:.1f}", f"{r['resolution_m']:g}", f"{r['traversable_area_m2']:.1f}",
+                r["scale"].replace("_", " "), f"{st['x_m']:.2f}, {st['y_m']:.2f}, {st['yaw_rad']:.2f}",
+            )
+        Console().print(table)
+        scales: dict[str, int] = {}
+        for r in rows:
+            if "error" not in r:
+                scales[r["scale"]] = scales.get(r["scale"], 0) + 1
+        counts = ", ".join(f"{n} {sc.replace('_', ' ')}" for sc, n in scales.items())
+        typer.echo(f"{len(rows) - len(bad)} usable ({counts or 'none'}), {len(bad)} unusable" + (f"; previews in {preview}" if preview else ""))
+    if bad:
+        raise typer.Exit(1)
 
 
 @app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False)

@@ -118,6 +118,50 @@ def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
     return fig
 
 
+UNREACHABLE_FREE_RGB = (0.93, 0.87, 0.72)
+
+
+def plot_scene(path: Path, plan: Any) -> None:
+    """``scene_figure`` written as a PNG."""
+    _save(scene_figure(plan), path, 100)
+
+
+def scene_figure(plan: Any) -> Any:
+    """A floor plan as the explorer meets it: walls, the free space reachable from the start (what coverage
+    counts), free space it cannot reach (beige), and the start pose as an arrow along its yaw; the title gives
+    the traversable area and the paper's scale class."""
+    plt = _pyplot()
+    from matplotlib.patches import Patch  # noqa: PLC0415  (matplotlib is slow to import)
+
+    free = np.asarray(plan.free, dtype=bool)
+    reachable = plan.traversable_region()
+    h, w = free.shape
+    res = plan.resolution_m
+    img = np.empty((h, w, 3))
+    img[~free] = WALL_RGB
+    img[free] = UNREACHABLE_FREE_RGB
+    img[reachable] = UNEXPLORED_FREE_RGB
+    fig, ax = plt.subplots(figsize=(float(np.clip(4.8 * w / max(h, 1), 3.2, 8.0)) + 0.4, 5.0), layout="constrained")
+    ax.imshow(img, origin="lower", extent=(0, w * res, 0, h * res), interpolation="nearest")
+    arrow_m = 0.04 * max(w, h) * res
+    s = plan.start
+    ax.annotate("", xy=(s.x_m + arrow_m * np.cos(s.yaw_rad), s.y_m + arrow_m * np.sin(s.yaw_rad)), xytext=(s.x_m, s.y_m),
+                arrowprops={"arrowstyle": "-|>", "color": "green", "lw": 1.5})
+    ax.plot(s.x_m, s.y_m, "o", color="green", ms=5, label="start")
+    area_m2 = float(np.count_nonzero(reachable)) * res**2
+    from cso_runtime.scenes import scale_of  # noqa: PLC0415  (keeps this module's import light)
+
+    ax.set_title(f"{plan.name}: {w * res:.1f} x {h * res:.1f} m at {res:g} m/px, {area_m2:.1f} m2 traversable ({scale_of(area_m2).replace('_', ' ')})", fontsize=9)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    key = [Patch(color=WALL_RGB, label="wall"), Patch(color=UNEXPLORED_FREE_RGB, label="free, reachable")]
+    if np.count_nonzero(free) > np.count_nonzero(reachable):
+        key.append(Patch(color=UNREACHABLE_FREE_RGB, label="free, not reachable from the start"))
+    handles, _ = ax.get_legend_handles_labels()
+    fig.legend(handles=key + handles, loc="outside lower center", ncols=4, fontsize=8, frameon=False)
+    return fig
+
+
 def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, float]], baseline: str) -> None:
     """One panel per method: each scene's efficiency (m2/step) against the baseline's on the same scene,
     coloured by scale; points above the diagonal are scenes the method explored more efficiently."""

@@ -81,6 +81,25 @@ class FloorPlan:
         return np.flipud(grid)
 
 
+def describe_scene(plan: FloorPlan) -> dict[str, object]:
+    """What ``cso-runtime scenes`` lists of a plan: its size, scale, traversable area and start pose, so a
+    folder can be checked (and its ``--m-per-px`` chosen) before a long evaluation."""
+    h, w = plan.free.shape
+    area_m2 = plan.traversable_area_m2()
+    return {
+        "scene": plan.name,
+        "width_m": w * plan.resolution_m,
+        "height_m": h * plan.resolution_m,
+        "resolution_m": plan.resolution_m,
+        "cells": [int(h), int(w)],
+        "free_area_m2": float(np.count_nonzero(plan.free)) * plan.resolution_m**2,
+        "traversable_area_m2": area_m2,
+        "scale": scale_of(area_m2),
+        "start": {"x_m": plan.start.x_m, "y_m": plan.start.y_m, "yaw_rad": plan.start.yaw_rad},
+        "source": plan.source,
+    }
+
+
 COLOUR_TOLERANCE = 10
 """A pixel has a plan colour when each of its channels is within this of the colour's."""
 

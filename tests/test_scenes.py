@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import yaml
@@ -312,3 +314,45 @@ def test_a_map_scene_takes_its_start_from_the_yaml_and_folders_of_maps_list_the_
         resolve_scenes(str(tmp_path / "broken.yaml"))[0].load()
     with pytest.raises(SceneError, match="file not found"):
         resolve_scenes(str(tmp_path / "gone.yaml"))[0].load()
+
+
+def test_scenes_describes_each_plan_and_flags_the_unusable_ones(tmp_path):
+    """``cso-runtime scenes``: size, resolution, traversable area, scale class and start of each plan, a preview
+    PNG each, and a plan that cannot be used listed with its reason (exit 1), so a folder is checked before a
+    long ``eval``."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.plots import scene_figure
+    from cso_runtime.scenes import describe_scene
+
+    (tmp_path / "plans").mkdir()
+    _write_png(tmp_path / "plans" / "tiny.png", _tiny_plan_pixels())
+    plan = load_floor_plan(tmp_path / "plans" / "tiny.png", resolution_m=0.1)
+    info = describe_scene(plan)
+    assert info["width_m"] == pytest.approx(1.0) and info["height_m"] == pytest.approx(0.8) and info["cells"] == [8, 10]
+    assert info["traversable_area_m2"] == pytest.approx(0.47) and info["scale"] == "small"
+    assert info["start"] == {"x_m": pytest.approx(0.4), "y_m": pytest.approx(0.6), "yaw_rad": 0.0}
+    fig = scene_figure(plan)
+    assert "1.0 x 0.8 m at 0.1 m/px, 0.5 m2 traversable (small)" in fig.axes[0].get_title()
+    assert [t.get_text() for t in fig.legends[0].get_texts()] == ["wall", "free, reachable", "start"]
+    px = _tiny_plan_pixels()
+    px[1:7, 6] = WALL_RGB  # columns 7-8 cut off from the start
+    walled = floor_plan_from_rgb("walled", px, 0.1)
+    assert describe_scene(walled)["free_area_m2"] > describe_scene(walled)["traversable_area_m2"]
+    assert "free, not reachable from the start" in [t.get_text() for t in scene_figure(walled).legends[0].get_texts()]
+    (tmp_path / "plans" / "broken.png").write_bytes(b"not a png")
+
+    out = tmp_path / "preview"
+    r = CliRunner().invoke(app, ["scenes", str(tmp_path / "plans"), "--json", "--preview", str(out), "--m-per-px", "0.05"])
+    assert r.exit_code == 1, r.output
+    listed = {s["scene"]: s for s in json.loads(r.stdout)}
+    assert listed["tiny"]["resolution_m"] == 0.05 and listed["tiny"]["traversable_area_m2"] == pytest.approx(47 * 0.05**2)
+    assert "broken" in listed["broken"]["error"] and "traversable_area_m2" not in listed["broken"]
+    assert (out / "tiny.png").is_file() and not (out / "broken.png").exists()
+    r = CliRunner().invoke(app, ["scenes", "builtin"], env={"COLUMNS": "120"})
+    assert r.exit_code == 0, r.output
+    row = next(ln for ln in r.output.splitlines() if "img_1" in ln)
+    assert "64.0 x 48.0" in row and "514.6" in row and "super large" in row  # the packaged README's table
+    r = CliRunner().invoke(app, ["scenes", "nowhere/x.txt"])
+    assert r.exit_code == 2 and "error:" in r.output
