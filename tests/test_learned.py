@@ -1062,3 +1062,46 @@ def test_encoder_learning_rate_scale_gives_the_encoder_its_own_annealed_rate(tmp
     assert saved[1]["lr"] == pytest.approx(3 * saved[0]["lr"]) and saved[0]["lr"] == pytest.approx(1e-4 / 2)  # annealed at update 2 of 2
     with pytest.raises(ValueError, match="encoder_lr_scale"):
         Args(encoder_lr_scale=0.0).validate()
+
+
+@pytest.mark.filterwarnings("ignore:.*A Box observation space (minimum|maximum) value is:UserWarning")
+def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot():
+    """``render_mode="rgb_array"`` (Gymnasium's checker runs its render checks): an upright image of M_t, one
+    map cell per ``render_scale`` pixels, with the candidate goals coloured by ``info["action_mask"]`` and the
+    robot at its pose; without a render mode ``render()`` is None, and an unknown mode is refused."""
+    import gymnasium as gym
+    from gymnasium.utils.env_checker import check_env
+
+    from cso_runtime import frames
+    from cso_runtime.geometry import GridGeometry, Pose2D
+
+    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="rgb_array", render_scale=3).unwrapped
+    check_env(env)
+    _, info = env.reset(seed=3)
+    frame = env.render()
+    rows, cols = env.explorer.map.geometry.shape
+    assert frame.shape == (rows * 3, cols * 3, 3) and frame.dtype == np.uint8
+    geometry, o = env.explorer.map.geometry, env.obs
+
+    def pixel(x_m: float, y_m: float) -> tuple[int, ...]:
+        iy, ix = geometry.world_to_cell(x_m, y_m)
+        return tuple(frame[(rows - 1 - int(iy)) * 3 + 1, int(ix) * 3 + 1])  # upright: the map's top row first
+
+    assert pixel(o.pose.x_m, o.pose.y_m) in (frames.ROBOT, frames.HEADING)
+    n = len(o.clusters)
+    for i, (x, y) in enumerate(o.goal_xy_m[:n]):
+        if np.hypot(x - o.pose.x_m, y - o.pose.y_m) > 0.5:  # clear of the robot's disc
+            assert pixel(x, y) == (frames.ALLOWED if info["action_mask"][i] else frames.MASKED)
+    unknown = np.argwhere(~env.explorer.map.explored)[0]
+    assert tuple(frame[(rows - 1 - unknown[0]) * 3, unknown[1] * 3]) == frames.UNKNOWN
+    # A corner: an occupied cell of the top map row is the image's first rows.
+    g = GridGeometry(0.1, (4, 5))
+    occupied = np.zeros((4, 5), bool)
+    occupied[3, 0] = True
+    img = frames.map_frame(np.ones((4, 5), bool), occupied, g, Pose2D(0.45, 0.15, 0.0), robot_radius_m=0.0, scale=1)
+    assert tuple(img[0, 0]) == frames.OCCUPIED and tuple(img[3, 0]) == frames.FREE and tuple(img[2, 4]) == frames.HEADING
+    assert tuple(img[3, 4]) == frames.ROBOT and tuple(img[2, 1]) == frames.FREE  # a disc of 2 pixels at least, heading along +x
+
+    assert gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4").unwrapped.render() is None
+    with pytest.raises(ValueError, match="renders rgb_array"):
+        gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="human")

@@ -78,10 +78,23 @@ def graph_space(config: GraphConfig) -> spaces.Dict:
 class ExplorationEnv(gym.Env):
     """One goal choice per step over ``KinematicSimulator``; plans drawn from ``plans`` each reset."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}
+    """``rgb_array``: ``render()`` is the robot's map at the current decision (``cso_runtime.frames``), one frame
+    per goal choice, so ``gymnasium.wrappers.RecordVideo`` films the exploration."""
 
-    def __init__(self, plans: list[FloorPlan] | Callable[[], list[FloorPlan]], config: EnvConfig | None = None):
+    def __init__(
+        self,
+        plans: list[FloorPlan] | Callable[[], list[FloorPlan]],
+        config: EnvConfig | None = None,
+        render_mode: str | None = None,
+        render_scale: int = 2,
+    ):
         super().__init__()
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode {render_mode!r}: this environment renders {', '.join(self.metadata['render_modes'])} (or None)")
+        self.render_mode = render_mode
+        self.render_scale = render_scale
+        """Image pixels per map cell along each axis."""
         self.config = config or EnvConfig()
         self._plans_source = plans
         self._plans: list[FloorPlan] | None = None
@@ -199,6 +212,31 @@ class ExplorationEnv(gym.Env):
         graph = {k: v.copy() for k, v in self._graph.items()}  # new arrays: the caller keeps the ones it had
         return graph, float(self.config.reward.r_step), False, truncated, info
 
+    def render(self) -> np.ndarray | None:
+        """The map M_t, the path so far, the candidate goals (green allowed, red masked by the action mask) and
+        the robot, as an RGB array (``render_mode="rgb_array"``); None without a render mode, as Gymnasium's."""
+        if self.render_mode is None:
+            return None
+        ex = self.explorer
+        if ex is None:
+            raise RuntimeError("render() called before reset()")
+        from cso_runtime.frames import map_frame  # noqa: PLC0415  (only rendering environments need it)
+
+        obs = self.obs
+        n = frontier_count(obs, self.config.graph) if obs is not None else 0
+        return map_frame(
+            ex.map.explored,
+            ex.map.occupied,
+            ex.map.geometry,
+            obs.pose if obs is not None else ex.sim.true_pose(),
+            robot_radius_m=self.config.exploration.robot.radius_m,
+            frontier=obs.frontier if obs is not None else None,
+            trajectory_xy_m=np.array(ex.trajectory, dtype=float),
+            goals_xy_m=obs.goal_xy_m[:n] if obs is not None else None,
+            allowed=self.mask[:n],
+            scale=self.render_scale,
+        )
+
     def teacher_action(self, teacher: str = "greedy-dist") -> int:
         """The warm-start teacher's choice for the current observation (callable through any vector env)."""
         return self.teacher_label(teacher)[0]
@@ -249,13 +287,20 @@ ENV_ID = "CSOExploration-v0"
 any other import: ``gymnasium.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:middle:8:0")``."""
 
 
-def make_env(scenes: str = "builtin", limit: int | None = None, m_per_px: float = 0.05, config: EnvConfig | None = None) -> ExplorationEnv:
+def make_env(
+    scenes: str = "builtin",
+    limit: int | None = None,
+    m_per_px: float = 0.05,
+    config: EnvConfig | None = None,
+    render_mode: str | None = None,
+    render_scale: int = 2,
+) -> ExplorationEnv:
     """An ``ExplorationEnv`` over a scene spec (as ``eval --maps``: ``builtin``, a folder of PNG plans,
     ``generated:SCALE:N:SEED``); PNG plans at ``m_per_px``. The plans load at the first reset."""
     from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
 
     refs = resolve_scenes(scenes, limit, m_per_px)  # a bad spec fails here, not at the first reset
-    return ExplorationEnv(lambda: [ref.load() for ref in refs], config)
+    return ExplorationEnv(lambda: [ref.load() for ref in refs], config, render_mode=render_mode, render_scale=render_scale)
 
 
 gym.register(id=ENV_ID, entry_point=make_env)
