@@ -193,26 +193,20 @@ class LogReader:
             return []
         self.offset += len(data)
         *complete, self.partial = (self.partial + data).split(b"\n")
-        lines = []
-        for raw in complete:
-            text = raw.decode("utf-8", "replace").rstrip("\r")
-            m = LOG_STAMP.match(text)
-            if m:
-                self.last_stamp = m.group(1)
-            lines.append(LogLine(self.last_stamp, self.source, self.count, self.service, text))
-            self.count += 1
-        return lines
+        return [self._line(raw) for raw in complete]
 
     def flush(self) -> list[LogLine]:
         """The last line when the file ends without a newline (its writer is gone)."""
-        if not self.partial:
-            return []
-        text, self.partial = self.partial.decode("utf-8", "replace").rstrip("\r"), b""
+        raw, self.partial = self.partial, b""
+        return [self._line(raw)] if raw else []
+
+    def _line(self, raw: bytes) -> LogLine:
+        text = raw.decode("utf-8", "replace").rstrip("\r")
         m = LOG_STAMP.match(text)
         if m:
             self.last_stamp = m.group(1)
         self.count += 1
-        return [LogLine(self.last_stamp, self.source, self.count - 1, self.service, text)]
+        return LogLine(self.last_stamp, self.source, self.count - 1, self.service, text)
 
 
 def merge(batches: Iterable[list[LogLine]]) -> list[LogLine]:

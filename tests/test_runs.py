@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -57,6 +58,15 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     make_run(runs, "20261203-091300-lockstep-r0", alive=True)
     (runs / "not-a-run").mkdir()
     listed = [r.as_dict() for r in list_runs(runs)]
+    broken = make_run(runs, "20261203-091400-lockstep-r0", summary=ROW)
+    for name, text in (("run.json", "{not json"), ("profile.yaml", "[: bad"), ("summary.json", '{"methods": 3}')):
+        (broken / name).write_text(text)
+    assert list_runs(runs)[-1].as_dict() | {"run_dir": ""} == {
+        "run_id": broken.name, "run_dir": "", "state": "stopped", "profile": "", "robot": "", "scene": "", "method": "",
+        "explored_area_m2": None, "coverage_pct": None, "steps": None, "efficiency_m2_per_step": None, "path_length_m": None,
+        "terminated_by": None, "restarts": 0,
+    }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback)
+    shutil.rmtree(broken)
     assert [r["run_id"][9:15] for r in listed] == ["091000", "091100", "091200", "091300"]  # oldest first
     assert [r["state"] for r in listed] == ["interrupted", "done", "failed", "running"]
     done = listed[1]
