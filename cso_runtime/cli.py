@@ -407,6 +407,9 @@ def up_command(
     record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
     record_out: Path | None = typer.Option(None, "--record-out", help="Record the run to this MCAP file, or to <run-id>.mcap in this folder (implies --record)"),
     weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt for the policy service instead of the shipped weights"),
+    settings: list[str] | None = typer.Option(
+        None, "--set", help="KEY=VALUE into the profile, dotted, repeatable: services.sim.real_time_factor=4, exploration.episode.max_steps=400"
+    ),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     from cso_runtime.config import LOG_FORMAT, ConfigError  # noqa: PLC0415
@@ -416,7 +419,7 @@ def up_command(
         _use_weights(weights)
     try:
         overrides = {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep}
-        prof, data = load_profile(profile, overrides, connect=list(connect or []), namespace=namespace)
+        prof, data = load_profile(profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []))
     except (ConfigError, ValueError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(2) from None

@@ -362,6 +362,23 @@ def make_output_dir(path: str | Path, flag: str = "--out") -> Path:
     return p
 
 
+def set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
+    """Set ``a.b.c`` in nested mappings (``--set services.sim.real_time_factor=4``), making the mappings on the
+    way (a key written as ``mapper:`` with no value is an empty one); a value in the way is an error."""
+    parts = key.split(".")
+    if not all(p.strip() for p in parts):
+        raise ConfigError(f"--set {key}: empty part in the key")
+    node = data
+    for depth, part in enumerate(parts[:-1]):
+        child = node.get(part)
+        if child is None:
+            child = node[part] = {}
+        if not isinstance(child, dict):
+            raise ConfigError(f"--set {key}: {'.'.join(parts[: depth + 1])} is {child!r}, not a mapping")
+        node = child
+    node[parts[-1]] = value
+
+
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping, with a clear error for a missing or malformed file."""
     p = Path(path)

@@ -44,6 +44,7 @@ from cso_runtime.config import (
     check_seed,
     from_dict,
     load_yaml,
+    set_dotted,
 )
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
 from cso_runtime.messages import (
@@ -221,16 +222,20 @@ def load_profile(
     overrides: dict[str, Any] | None = None,
     connect: list[str] | None = None,
     namespace: str | None = None,
+    settings: dict[str, Any] | None = None,
 ) -> tuple[Profile, dict[str, Any]]:
     """Load, apply CLI overrides (``None`` values ignored) and validate; returns the profile and its data.
 
     ``connect``: endpoints appended to ``router.connect`` (the embedded router joins them, e.g. the
-    robot's zenoh-bridge-ros2dds on port 7447); ``namespace``: ``services.ros2_bridge.namespace``.
+    robot's zenoh-bridge-ros2dds on port 7447); ``namespace``: ``services.ros2_bridge.namespace``;
+    ``settings``: dotted keys set last (``up --set services.sim.real_time_factor=4``), validated like the file.
     """
     path = find_profile(name_or_path)
     data = load_yaml(path)
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
     data.update(given)
+    for key, value in (settings or {}).items():
+        set_dotted(data, key, value)
     if connect:
         router = data.get("router") or {}
         if not isinstance(router, dict):
@@ -251,6 +256,7 @@ def load_profile(
     data.setdefault("name", path.stem)
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
     flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]
+    flags += [f"--set {k}={v}" for k, v in (settings or {}).items()]
     profile = from_dict(Profile, data, where=f"{path} with {' '.join(flags)}" if flags else str(path))
     return profile, data
 

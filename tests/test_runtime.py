@@ -284,6 +284,28 @@ def test_a_profile_finds_its_scene_beside_it_and_a_flag_is_read_from_the_working
         load_profile(str(own / "mine.yaml"), {"scene": "office.png"})
 
 
+def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file(tmp_path):
+    """``up --set KEY=VALUE``: a dotted key into the profile (a service's parameter, an exploration setting), set
+    in the data the run's services read; an unknown parameter or a key through a value is refused before anything
+    starts, naming the flag."""
+    from cso_runtime.config import ConfigError
+    from cso_runtime.launcher import load_profile
+
+    settings = {"services.sim.min_step_period_s": 0.1, "exploration.episode.max_steps": 40, "services.mapper.publish_period_s": None}
+    with pytest.raises(ConfigError, match=r"with --set services.sim.min_step_period_s=0.1 .*services.mapper.*publish_period_s"):
+        load_profile("lockstep", {}, settings=settings)  # the mapper has no such parameter
+    del settings["services.mapper.publish_period_s"]
+    profile, written = load_profile("lockstep", {"seed": 3}, settings=settings)
+    assert profile.services["sim"]["min_step_period_s"] == 0.1 == written["services"]["sim"]["min_step_period_s"]
+    assert profile.exploration_config().episode.max_steps == 40 and profile.seed == 3
+    with pytest.raises(ConfigError, match="--set seed.x: seed is 0, not a mapping"):
+        load_profile("lockstep", {}, settings={"seed.x": 1})
+    r = cli("up", "--profile", "lockstep", "--set", "services.sim", "--no-live", cwd=tmp_path)
+    assert r.returncode == 2 and "--set expects KEY=VALUE, got 'services.sim'" in r.stderr
+    r = cli("up", "--profile", "lockstep", "--set", "services.sim.warp_speed=9", "--no-live", cwd=tmp_path)
+    assert r.returncode == 2 and "warp_speed" in r.stderr and not (tmp_path / "runs").exists()
+
+
 def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_running(tmp_path, capsys):
     from cso_runtime.config import ConfigError
     from cso_runtime.launcher import load_profile
