@@ -75,6 +75,7 @@ def eval_command(
     weights: Path | None = typer.Option(
         None, "--weights", help="Folder of <method>.pt (a `train --out` folder) to use instead of the shipped weights (sets CSO_WEIGHTS_DIR)"
     ),
+    animate: bool = typer.Option(False, "--animate", help="Also write animations/<method>/<map>.gif: the robot's map, path and goal at each decision"),
 ) -> None:
     """Run exploration episodes and write the paper's Table 1 metrics, curves and trajectory plots."""
     from cso_runtime.evaluation import EvalRequest, run_eval_cli  # noqa: PLC0415 - keep CLI start fast
@@ -97,6 +98,7 @@ def eval_command(
         config_path=config,
         resume=resume,
         baseline=baseline,
+        animate=animate,
     )
     raise typer.Exit(run_eval_cli(request))
 

@@ -43,6 +43,7 @@ from cso_runtime.config import (
     to_dict,
 )
 from cso_runtime.episode import EpisodeResult, run_episode
+from cso_runtime.frames import EpisodeAnimation
 from cso_runtime.map_files import save_map
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
@@ -86,6 +87,8 @@ class EvalRequest:
     """Reuse episodes already finished in ``out_dir`` (same method, map and seed)."""
     baseline: str = "greedy-dist"
     """Every other method is compared with this one scene by scene (``paired.csv``) when it ran too."""
+    animate: bool = False
+    """Also write ``animations/<method>/<map>.gif``: the robot's map at each decision (``frames.EpisodeAnimation``)."""
 
     def __post_init__(self) -> None:
         # ``--method greedy-dist,greedy-dist`` means the method once: twice would run every scene twice and
@@ -157,6 +160,8 @@ class EpisodeJob:
     settings: str = ""
     """Fingerprint of what else decides the episode (config, simulator, weights file): ``--resume``
     reuses an episode only when it matches, so a changed flag or new weights never mix into a table."""
+    animate: bool = False
+    """Write the episode's animation (``episode_animation_path``); it changes nothing of the episode."""
 
     @property
     def npz_path(self) -> Path:
@@ -171,6 +176,10 @@ def episode_npz_path(out_dir: Path, method: str, scene: str) -> Path:
 def episode_map_path(out_dir: Path, method: str, scene: str) -> Path:
     """Where an episode's final map goes: a Nav2 map_server YAML, its PNG beside it (``save_episode_files``)."""
     return out_dir / "maps" / method / f"{file_stem(scene)}.yaml"
+
+
+def episode_animation_path(out_dir: Path, method: str, scene: str) -> Path:
+    return out_dir / "animations" / method / f"{file_stem(scene)}.gif"
 
 
 def file_stem(scene: str) -> str:
@@ -291,10 +300,13 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
             warm_up()
         t0 = time.perf_counter()
         sim = make_simulator(job.sim, plan, job.config.sensor, job.config.robot, seed=job.seed)
-        result = run_episode(sim, policy, job.config, seed=job.seed)
-        wall_s = time.perf_counter() - t0
+        animation = EpisodeAnimation() if job.animate else None
+        result = run_episode(sim, policy, job.config, seed=job.seed, on_step=animation.on_step if animation else None)
+        wall_s = time.perf_counter() - t0  # the frames' drawing included, when animated
         row = episode_row(job.method, job.seed, result, wall_s)
         save_episode_files(job.out_dir, job.method, job.scene.name, result, row, job.settings)
+        if animation is not None and animation.finish():
+            animation.save_gif(episode_animation_path(job.out_dir, job.method, job.scene.name))
     except Exception as exc:  # one bad episode must not stop the run; it is reported
         log.debug("episode failed", exc_info=True)
         return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
@@ -395,7 +407,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         weights = {m: weights_provenance(m, config.sensor) for m in request.methods if m in LEARNED_METHODS}
     settings = {m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "") for m in request.methods}
     jobs = [
-        EpisodeJob(m, s, request.seed, request.sim, config, out, settings[m])
+        EpisodeJob(m, s, request.seed, request.sim, config, out, settings[m], animate=request.animate)
         for s in scenes
         for m in request.methods
     ]

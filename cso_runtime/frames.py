@@ -1,13 +1,17 @@
-"""The robot's map M_t as an RGB image, for ``ExplorationEnv.render()`` (Gymnasium's ``rgb_array``) and videos.
+"""The robot's map M_t as an image: ``ExplorationEnv.render()`` (Gymnasium's ``rgb_array``) and ``eval --animate``.
 
-Pure numpy, no matplotlib: a training run's ``RecordVideo`` renders one frame per decision. The image is upright
-(its top row is the map's largest y, REP-103's map frame seen from above), one map cell per ``scale`` x ``scale``
-pixels: unknown grey, explored free space light, occupied cells dark, frontier cells orange, the path so far red,
-the candidate goals as squares (green: allowed by the action mask, red: masked), the robot a blue disc with its
-heading as a dark line.
+Pure numpy, no matplotlib: a training run's ``RecordVideo`` renders one frame per decision, an animated evaluation
+one per decision of every episode. The image is upright (its top row is the map's largest y, REP-103's map frame
+seen from above), one map cell per ``scale`` x ``scale`` pixels: unknown grey, explored free space light, occupied
+cells dark, frontier cells orange, the path so far red, the candidate goals as squares (green: allowed by the action
+mask, red: masked), the robot a blue disc with its heading as a dark line. Frames are drawn as indices into
+``PALETTE`` (one byte a pixel, what a GIF stores) and turned into RGB only for ``map_frame``.
 """
 
 from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,9 +26,12 @@ ALLOWED = (0, 170, 0)
 MASKED = (200, 0, 0)
 ROBOT = (30, 90, 230)
 HEADING = (0, 20, 90)
+PALETTE = np.array([UNKNOWN, FREE, OCCUPIED, FRONTIER, PATH, ALLOWED, MASKED, ROBOT, HEADING], dtype=np.uint8)
+"""Row ``i`` is the colour of index ``i`` in ``map_frame_indexed``'s images."""
+(I_UNKNOWN, I_FREE, I_OCCUPIED, I_FRONTIER, I_PATH, I_ALLOWED, I_MASKED, I_ROBOT, I_HEADING) = range(len(PALETTE))
 
 
-def map_frame(
+def map_frame_indexed(
     explored: np.ndarray,
     occupied: np.ndarray,
     geometry: GridGeometry,
@@ -37,17 +44,17 @@ def map_frame(
     allowed: np.ndarray | None = None,
     scale: int = 2,
 ) -> np.ndarray:
-    """An ``(rows * scale, cols * scale, 3)`` uint8 image of the map (``explored``/``occupied``/``frontier``:
-    boolean ``[iy, ix]`` grids on ``geometry``), the path, the goals (``allowed[i]`` for goal ``i``) and the robot."""
+    """An ``(rows * scale, cols * scale)`` uint8 image of ``PALETTE`` indices: the map (``explored``/``occupied``/
+    ``frontier``: boolean ``[iy, ix]`` grids on ``geometry``), the path, the goals (``allowed[i]`` for goal ``i``;
+    all allowed when None) and the robot."""
     if scale < 1:
         raise ValueError(f"scale must be at least 1, got {scale}")
     rows, cols = geometry.shape
-    img = np.empty((rows, cols, 3), dtype=np.uint8)
-    img[:] = UNKNOWN
-    img[explored & ~occupied] = FREE
-    img[occupied] = OCCUPIED
+    img = np.full((rows, cols), I_UNKNOWN, dtype=np.uint8)
+    img[explored & ~occupied] = I_FREE
+    img[occupied] = I_OCCUPIED
     if frontier is not None:
-        img[frontier] = FRONTIER
+        img[frontier] = I_FRONTIER
     img = np.repeat(np.repeat(img, scale, axis=0), scale, axis=1)
     px_per_m = scale / geometry.resolution_m
 
@@ -56,9 +63,9 @@ def map_frame(
         xy = np.atleast_2d(np.asarray(xy_m, dtype=float))
         return np.floor((xy[:, 1] - geometry.origin_y_m) * px_per_m).astype(int), np.floor((xy[:, 0] - geometry.origin_x_m) * px_per_m).astype(int)
 
-    def put(r: np.ndarray, c: np.ndarray, colour: tuple[int, int, int]) -> None:
+    def put(r: np.ndarray, c: np.ndarray, index: int) -> None:
         ok = (r >= 0) & (r < img.shape[0]) & (c >= 0) & (c < img.shape[1])
-        img[r[ok], c[ok]] = colour
+        img[r[ok], c[ok]] = index
 
     if trajectory_xy_m is not None and len(trajectory_xy_m) > 1:
         traj = np.asarray(trajectory_xy_m, dtype=float)
@@ -66,20 +73,101 @@ def map_frame(
         n = np.maximum(1, np.ceil(seg_m * px_per_m * 2).astype(int))  # two samples a pixel: no gaps
         t = np.concatenate([np.linspace(0.0, 1.0, k, endpoint=False) for k in n])
         i = np.repeat(np.arange(len(n)), n)
-        put(*to_px(traj[i] + t[:, None] * (traj[i + 1] - traj[i])), PATH)
+        put(*to_px(traj[i] + t[:, None] * (traj[i + 1] - traj[i])), I_PATH)
     if goals_xy_m is not None and len(goals_xy_m):
-        half = max(1, scale)
+        half = max(2, scale)
         dr, dc = np.mgrid[-half : half + 1, -half : half + 1]
         r0, c0 = to_px(goals_xy_m)
         ok = np.ones(len(r0), bool) if allowed is None else np.asarray(allowed, bool)[: len(r0)]
         for j in range(len(r0)):
-            put(r0[j] + dr.ravel(), c0[j] + dc.ravel(), ALLOWED if ok[j] else MASKED)
-    radius_px = max(2.0, robot_radius_m * px_per_m)
+            put(r0[j] + dr.ravel(), c0[j] + dc.ravel(), I_ALLOWED if ok[j] else I_MASKED)
+    radius_px = max(3.0, robot_radius_m * px_per_m)  # visible on a large plan at a cell a pixel
     span = int(np.ceil(radius_px))
     dr, dc = np.mgrid[-span : span + 1, -span : span + 1]
     inside = dr**2 + dc**2 <= radius_px**2
     rr, cc = to_px(np.array([pose.x_m, pose.y_m]))
-    put(rr[0] + dr[inside], cc[0] + dc[inside], ROBOT)
+    put(rr[0] + dr[inside], cc[0] + dc[inside], I_ROBOT)
     ahead = np.linspace(0.0, 1.8 * radius_px, int(4 * radius_px) + 2)
-    put(np.floor(rr[0] + ahead * np.sin(pose.yaw_rad)).astype(int), np.floor(cc[0] + ahead * np.cos(pose.yaw_rad)).astype(int), HEADING)
+    put(np.floor(rr[0] + ahead * np.sin(pose.yaw_rad)).astype(int), np.floor(cc[0] + ahead * np.cos(pose.yaw_rad)).astype(int), I_HEADING)
     return np.ascontiguousarray(img[::-1])
+
+
+def map_frame(*args: Any, **kwargs: Any) -> np.ndarray:
+    """``map_frame_indexed`` as an ``(rows * scale, cols * scale, 3)`` uint8 RGB image (the same arguments)."""
+    return PALETTE[map_frame_indexed(*args, **kwargs)]
+
+
+def frame_scale(shape: tuple[int, int], target_px: int = 480) -> int:
+    """Pixels per map cell so that the longer side is about ``target_px`` (a small plan is enlarged, a large
+    one kept at a cell a pixel)."""
+    return max(1, int(round(target_px / max(shape))))
+
+
+class EpisodeAnimation:
+    """Frames of one episode, one at each decision and one at the end (``explorer`` of ``cso_runtime.episode``):
+    at most ``max_frames``, by dropping every other frame and then keeping every other decision once full, so a
+    3000-step episode on a large plan stays a few megabytes in memory and on disk."""
+
+    def __init__(self, max_frames: int = 200):
+        if max_frames < 2:
+            raise ValueError(f"max_frames must be at least 2, got {max_frames}")
+        self.max_frames = max_frames
+        self.frames: list[np.ndarray] = []
+        self.every = 1
+        """Keep one decision in this many (doubles each time the frames are thinned)."""
+        self._decisions_seen = 0
+        self.explorer: Any = None
+        """The episode's explorer, seen at its last step."""
+
+    def on_step(self, explorer: Any) -> None:
+        """``run_episode``'s ``on_step``: a frame after each step in which a goal was chosen."""
+        self.explorer = explorer
+        if explorer.decisions == self._decisions_seen:
+            return
+        self._decisions_seen = explorer.decisions
+        if (self._decisions_seen - 1) % self.every == 0:
+            self._add(explorer)
+
+    def finish(self) -> bool:
+        """The last frame: the map the episode ended with (the explorer of the last step, which no later
+        decision changed). False when the episode took no step: nothing to animate."""
+        if self.explorer is None:
+            return False
+        self._add(self.explorer)
+        return True
+
+    def _add(self, explorer: Any) -> None:
+        m, goal = explorer.map, explorer.goal
+        pose = explorer.sim.true_pose()
+        frame = map_frame_indexed(
+            m.explored,
+            m.occupied,
+            m.geometry,
+            pose,
+            robot_radius_m=explorer.config.robot.radius_m,
+            trajectory_xy_m=np.array(explorer.trajectory, dtype=float),
+            goals_xy_m=np.array([[goal.x_m, goal.y_m]]) if goal is not None else None,
+            scale=frame_scale(m.geometry.shape),
+        )
+        if self.frames and np.array_equal(frame, self.frames[-1]):
+            return  # nothing moved (the episode ended at a decision): a GIF would merge the two anyway
+        self.frames.append(frame)
+        if len(self.frames) >= self.max_frames:
+            self.frames = self.frames[::2]
+            self.every *= 2
+
+    def save_gif(self, path: Path, frame_ms: int = 120, last_frame_ms: int = 2000) -> Path:
+        """Write the frames as an animated GIF (looping; the final map held ``last_frame_ms``)."""
+        from PIL import Image  # noqa: PLC0415  (only animations need it)
+
+        if not self.frames:
+            raise ValueError("no frames to save")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        images = []
+        for f in self.frames:
+            im = Image.frombytes("P", (f.shape[1], f.shape[0]), f.tobytes())
+            im.putpalette(PALETTE.ravel().tolist())
+            images.append(im)
+        durations = [frame_ms] * (len(images) - 1) + [last_frame_ms]
+        images[0].save(path, save_all=True, append_images=images[1:], duration=durations, loop=0, optimize=False)
+        return path

@@ -427,3 +427,45 @@ def test_coverage_curves_get_one_panel_per_scale_when_the_episodes_span_several(
     single = coverage_figure(outcomes[1:])
     assert [ax.get_title() for ax in single.axes] == ["Coverage against step"]
     single.clf()
+
+
+def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bounded(tmp_path: Path):
+    """``eval --animate``: one GIF frame after each decision plus the final map (the path on it, the robot at its
+    last pose); a long episode's frames are thinned to every other decision, and so on, below ``max_frames``.
+    The episode itself is the one without the animation."""
+    from PIL import Image
+
+    from cso_runtime import frames
+    from cso_runtime.frames import EpisodeAnimation
+
+    plan = resolve_scenes("generated:small:1:3")[0].load()
+    cfg = ExplorationConfig()
+    plain = run_episode(KinematicSimulator(plan, seed=0), make_policy("greedy-dist"), cfg, seed=0)
+    full, thinned = EpisodeAnimation(), EpisodeAnimation(max_frames=4)
+
+    def both(explorer) -> None:
+        full.on_step(explorer)
+        thinned.on_step(explorer)
+
+    result = run_episode(KinematicSimulator(plan, seed=0), make_policy("greedy-dist"), cfg, seed=0, on_step=both)
+    assert (result.steps, result.coverage_pct) == (plain.steps, plain.coverage_pct) and result.decisions > 6
+    assert full.finish() and thinned.finish()
+    assert result.decisions <= len(full.frames) <= result.decisions + 1  # the final map, unless it is the last decision's
+    assert len(thinned.frames) <= 4 + 1 and thinned.every >= 2
+    last = frames.PALETTE[full.frames[-1]]
+    rows = last.shape[0]
+    scale = frames.frame_scale(plan.free.shape)
+    x, y = result.trajectory_xy_m[-1]
+    assert tuple(last[rows - 1 - int(y / plan.resolution_m * scale), int(x / plan.resolution_m * scale)]) in (frames.ROBOT, frames.HEADING)
+    assert (full.frames[-1] == frames.I_PATH).any() and not (full.frames[0] == frames.I_PATH).all()
+    gif = full.save_gif(tmp_path / "a" / "ep.gif")
+    with Image.open(gif) as im:
+        assert im.n_frames == len(full.frames) and im.size == (last.shape[1], rows)
+        im.seek(im.n_frames - 1)
+        assert np.array_equal(np.asarray(im.convert("RGB")), last)
+    assert not EpisodeAnimation().finish()  # no step taken: nothing to animate
+
+    summary = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=40, animate=True))
+    assert summary["methods"]["greedy-dist"]["episodes"] == 1
+    with Image.open(tmp_path / "o" / "animations" / "greedy-dist" / "gen_small_3.gif") as im:
+        assert im.n_frames >= 2

@@ -1100,7 +1100,7 @@ def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot
     occupied[3, 0] = True
     img = frames.map_frame(np.ones((4, 5), bool), occupied, g, Pose2D(0.45, 0.15, 0.0), robot_radius_m=0.0, scale=1)
     assert tuple(img[0, 0]) == frames.OCCUPIED and tuple(img[3, 0]) == frames.FREE and tuple(img[2, 4]) == frames.HEADING
-    assert tuple(img[3, 4]) == frames.ROBOT and tuple(img[2, 1]) == frames.FREE  # a disc of 2 pixels at least, heading along +x
+    assert tuple(img[3, 4]) == frames.ROBOT and tuple(img[2, 0]) == frames.FREE  # a disc of 3 pixels at least, heading along +x
 
     assert gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4").unwrapped.render() is None
     with pytest.raises(ValueError, match="renders rgb_array"):
