@@ -13,9 +13,45 @@ app = typer.Typer(
     name="cso-runtime",
     help="Active scene mapping with CSO: evaluate, train, and run the Zenoh services.",
     no_args_is_help=True,
-    add_completion=False,
     pretty_exceptions_enable=False,
 )
+
+# --- shell completion (`cso-runtime --install-completion`): cheap lookups, no torch, no Zenoh session ---------
+
+
+def _complete_profiles(incomplete: str) -> list[str]:
+    from cso_runtime.launcher import profile_names  # noqa: PLC0415
+
+    return [n for n in profile_names() if n.startswith(incomplete)]
+
+
+def _complete_methods(incomplete: str) -> list[str]:
+    """Method names; after a comma (``eval --method a,b``) the last one is completed."""
+    from cso_runtime.policies import BASELINES, LEARNED_METHODS  # noqa: PLC0415
+
+    head, _, last = incomplete.rpartition(",")
+    prefix = f"{head}," if head else ""
+    return [prefix + m for m in [*BASELINES, *LEARNED_METHODS] if m.startswith(last)]
+
+
+def _complete_run_ids(ctx: typer.Context, incomplete: str) -> list[str]:
+    from cso_runtime.runs import run_dirs  # noqa: PLC0415
+
+    runs_dir = Path(ctx.params.get("runs_dir") or "runs")
+    return [d.name for d in reversed(run_dirs(runs_dir)) if d.name.startswith(incomplete)]
+
+
+def _complete_log_services(ctx: typer.Context, incomplete: str) -> list[str]:
+    """The services with a log in the run ``logs`` would read."""
+    from cso_runtime.runs import RunError, log_files, resolve_run  # noqa: PLC0415
+
+    try:
+        names = list(log_files(resolve_run(Path(ctx.params.get("runs_dir") or "runs"), ctx.params.get("run"))))
+    except RunError:
+        return []
+    given = ctx.params.get("services") or []
+    return [n for n in names if n.startswith(incomplete) and n not in given]
+
 
 DEFAULT_TRAIN_CONFIG = Path("configs/train.yaml")
 PACKAGED_TRAIN_CONFIG = Path(__file__).resolve().parent / "data" / "train.yaml"
@@ -56,7 +92,7 @@ def _use_weights(folder: Path) -> None:
 
 @app.command("eval")
 def eval_command(
-    method: str = typer.Option("greedy-dist", "--method", help="Comma-separated methods: greedy-dist,greedy-info,utility,random,cso,..."),
+    method: str = typer.Option("greedy-dist", "--method", autocompletion=_complete_methods, help="Comma-separated methods: greedy-dist,greedy-info,utility,random,cso,..."),
     maps: str = typer.Option("builtin", "--maps", "--scene", help="Folder of PNG plans, one PNG, 'builtin', or generated:SCALE:N:SEED (--scene, as in `up`, is the same option)"),
     limit: int | None = typer.Option(None, "--limit", help="Use at most N scenes"),
     out: Path = typer.Option(Path("results/eval"), "--out", help="Output folder"),
@@ -393,9 +429,9 @@ def service_command(
 
 @app.command("up")
 def up_command(
-    profile: str = typer.Option("sim", "--profile", help="Profile name (./configs/profiles/, then the packaged cso_runtime/profiles/) or a YAML path"),
+    profile: str = typer.Option("sim", "--profile", autocompletion=_complete_profiles, help="Profile name (./configs/profiles/, then the packaged cso_runtime/profiles/) or a YAML path"),
     scene: str | None = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, generated:SCALE:N:SEED"),
-    method: str | None = typer.Option(None, "--method", help="Goal selector (overrides the profile)"),
+    method: str | None = typer.Option(None, "--method", autocompletion=_complete_methods, help="Goal selector (overrides the profile)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (overrides the profile)"),
     seed: int | None = typer.Option(None, "--seed", help="Episode seed (overrides the profile)"),
     lockstep: bool | None = typer.Option(None, "--lockstep/--real-time", help="Deterministic lockstep or real time (overrides the profile)"),
@@ -540,8 +576,8 @@ LOG_COLOURS = ("cyan", "green", "yellow", "magenta", "blue", "bright_red", "brig
 
 @app.command("logs")
 def logs_command(
-    services: list[str] | None = typer.Argument(None, metavar="SERVICE", help="Services to show (default: all, the launcher's own log included)"),
-    run: str | None = typer.Option(None, "--run", help="Run id under --runs-dir, or a run folder (default: the current run, else the newest)"),
+    services: list[str] | None = typer.Argument(None, metavar="SERVICE", autocompletion=_complete_log_services, help="Services to show (default: all, the launcher's own log included)"),
+    run: str | None = typer.Option(None, "--run", autocompletion=_complete_run_ids, help="Run id under --runs-dir, or a run folder (default: the current run, else the newest)"),
     follow: bool = typer.Option(False, "--follow", "-f", help="Keep printing new lines until the run ends (or Ctrl-C)"),
     tail: int | None = typer.Option(None, "--tail", "-n", min=0, help="Only the last N lines of each service"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the run folders are"),
@@ -576,7 +612,7 @@ def logs_command(
 
 @app.command("dataflow")
 def dataflow_command(
-    profile: str = typer.Option("sim", "--profile", help="Profile name (./configs/profiles/, then the packaged ones) or a YAML path"),
+    profile: str = typer.Option("sim", "--profile", autocompletion=_complete_profiles, help="Profile name (./configs/profiles/, then the packaged ones) or a YAML path"),
     fmt: str = typer.Option("table", "--format", help="table, mermaid (a flowchart for Markdown viewers) or markdown (as runs/<run-id>/dataflow.md)"),
 ) -> None:
     """Show which service feeds which in a profile: every node's inputs and outputs (dora-rs style), from the code."""
@@ -737,7 +773,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
 
 
 def main() -> None:
-    app()
+    app(prog_name="cso-runtime")  # one name (and completion variable) for the script and python -m cso_runtime.cli
 
 
 if __name__ == "__main__":

@@ -204,6 +204,11 @@ def profile_search_path() -> list[Path]:
     return [Path("configs") / "profiles", PACKAGED_PROFILES]
 
 
+def profile_names() -> list[str]:
+    """The profiles ``--profile NAME`` finds (``profile_search_path``)."""
+    return sorted({f.stem for folder in profile_search_path() if folder.is_dir() for f in folder.glob("*.y*ml")})
+
+
 def find_profile(name_or_path: str) -> Path:
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") and p.is_file():
@@ -213,8 +218,7 @@ def find_profile(name_or_path: str) -> Path:
             cand = folder / f"{name_or_path}{ext}"
             if cand.is_file():
                 return cand
-    known = sorted({f.stem for folder in profile_search_path() if folder.is_dir() for f in folder.glob("*.y*ml")})
-    raise ConfigError(f"unknown profile {name_or_path!r}; known profiles: {', '.join(known) or 'none'} (or give a .yaml path)")
+    raise ConfigError(f"unknown profile {name_or_path!r}; known profiles: {', '.join(profile_names()) or 'none'} (or give a .yaml path)")
 
 
 def load_profile(

@@ -897,3 +897,27 @@ def test_every_command_renders_its_help_with_its_summary():
         assert r.exit_code == 0, (name, r.output)
         assert summary and summary in " ".join(r.output.replace("│", " ").split()), name
         assert name in top.output
+
+
+def test_shell_completion_offers_profiles_methods_runs_and_service_logs(tmp_path):
+    """``cso-runtime --install-completion`` (typer/click): the values a user types most come from what exists:
+    profile names, methods (the last of a comma list), run ids and the services with a log in the run."""
+    from tests.test_runs import make_run
+
+    runs = tmp_path / "runs"
+    make_run(runs, "20261203-091000-lockstep-r0", outcome="done", logs={"sim": "", "mapper": ""})
+    make_run(runs, "20261203-091100-lockstep-r0", outcome="done", logs={"planner": ""})
+
+    def complete(line: str) -> list[str]:
+        words = line.split(" ")
+        env = {**os.environ, "_CSO_RUNTIME_COMPLETE": "complete_bash", "COMP_WORDS": line, "COMP_CWORD": str(len(words) - 1)}
+        r = subprocess.run([sys.executable, "-m", "cso_runtime.cli"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0, r.stderr
+        return r.stdout.split()
+
+    assert complete("cso-runtime up --profile ") == ["limo-ros2", "lockstep", "sim"]
+    assert complete("cso-runtime eval --method greedy-dist,cso-n") == ["greedy-dist,cso-no-info", "greedy-dist,cso-no-mask"]
+    assert complete(f"cso-runtime logs --runs-dir {runs} --run 2026") == ["20261203-091100-lockstep-r0", "20261203-091000-lockstep-r0"]
+    assert complete(f"cso-runtime logs --runs-dir {runs} --run 20261203-091000-lockstep-r0 sim ") == ["mapper"]
+    assert complete(f"cso-runtime logs --runs-dir {runs} ") == ["planner"]  # the newest run's
+    assert "--install-completion" in cli("--help", cwd=tmp_path).stdout
