@@ -6,6 +6,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import NoReturn
 
 import typer
 
@@ -58,6 +59,12 @@ PACKAGED_TRAIN_CONFIG = Path(__file__).resolve().parent / "data" / "train.yaml"
 """The recipe of the shipped weights (a link to configs/train.yaml), so an installed package can train too."""
 
 
+def _fail(message: str, code: int) -> NoReturn:
+    """Say what is wrong on stderr in one line (``error: ...``) and exit with ``code`` (README's exit codes)."""
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(code) from None
+
+
 def _print_version(value: bool) -> None:
     if value:
         from cso_runtime import __version__  # noqa: PLC0415
@@ -86,8 +93,7 @@ def _use_weights(folder: Path) -> None:
     try:
         use_weights_dir(folder)
     except ValueError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
 
 
 @app.command("eval")
@@ -164,25 +170,21 @@ def compare_command(
     files = [labelled(arg) for arg in episodes]
     missing = [str(path) for _, path in files if not path.is_file()]
     if missing:
-        typer.echo(f"error: no such file: {', '.join(missing)}", err=True)
-        raise typer.Exit(2)
+        _fail(f"no such file: {', '.join(missing)}", 2)
     try:
         table = read_episodes(files, split_names(exclude or []))
     except ValueError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
     methods = sorted({method for method, _ in table})
     if methods and baseline not in methods:  # a typo in --baseline, not "too few scenes"
-        typer.echo(f"error: --baseline {baseline!r} has no episodes in these files; their methods: {', '.join(methods)}", err=True)
-        raise typer.Exit(2)
+        _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(methods)}", 2)
     comparisons = compare_to_baseline(table, baseline)
     if out is not None:
         try:
             out.parent.mkdir(parents=True, exist_ok=True)
             write_csv(out, as_dicts(comparisons))
         except OSError as exc:
-            typer.echo(f"error: --out {out}: cannot write ({exc.strerror or exc})", err=True)
-            raise typer.Exit(2) from None
+            _fail(f"--out {out}: cannot write ({exc.strerror or exc})", 2)
     if as_json:
         typer.echo(json.dumps({"baseline": baseline, "comparisons": as_dicts(comparisons)}, indent=2))
     else:
@@ -218,11 +220,9 @@ def record_command(
     try:  # before connecting: a bad id is a usage error whether or not a router answers
         check_robot_id(robot, allow_wildcard=True)
     except KeyExprError as exc:
-        typer.echo(f"error: --robot: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(f"--robot: {exc}", 2)
     if not endpoints:
-        typer.echo("error: no current run; give --connect ENDPOINT", err=True)
-        raise typer.Exit(2)
+        _fail("no current run; give --connect ENDPOINT", 2)
     path = recording_path(out, Path("recordings"), f"{robot.replace('*', 'all')}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -232,14 +232,11 @@ def record_command(
             typer.echo(f"recording cso/{robot}/** from {', '.join(endpoints)} into {path} (Ctrl-C to stop)")
             stats = record(session, robot, path, stop)
     except TransportError as exc:  # no router to record from: the exit code of `up` without a Zenoh session
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(EXIT_NO_ZENOH) from None
+        _fail(str(exc), EXIT_NO_ZENOH)
     except ValueError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
     except OSError as exc:  # the recording's folder or file cannot be made
-        typer.echo(f"error: cannot record into {path}: {exc.strerror or exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(f"cannot record into {path}: {exc.strerror or exc}", 2)
     typer.echo(f"{stats.messages} messages on {len(stats.per_key)} keys ({stats.raw} kept verbatim) -> {path}")
 
 
@@ -264,12 +261,10 @@ def replay_command(
     try:
         check_recording(file)  # a wrong or broken file is the first thing to say
     except RecordingError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
     endpoints = list(connect) if connect else endpoints_from_run_file(runs_dir)[0]
     if not endpoints:
-        typer.echo("error: no current run; give --connect ENDPOINT", err=True)
-        raise typer.Exit(2)
+        _fail("no current run; give --connect ENDPOINT", 2)
     wanted = [t.strip() for t in topics.split(",") if t.strip()] if topics else None
     unknown = [t for t in wanted or [] if t not in TOPICS]  # a typo would replay nothing, silently
     try:
@@ -277,8 +272,7 @@ def replay_command(
         if unknown:
             raise ValueError(f"--topics: unknown topic(s) {', '.join(unknown)}; known: {', '.join(TOPICS)}")
     except ValueError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
@@ -286,11 +280,9 @@ def replay_command(
         with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
             stats = replay(session, file, speed, stop, wanted)
     except TransportError as exc:  # no router to replay into: the exit code of `up` without a Zenoh session
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(EXIT_NO_ZENOH) from None
+        _fail(str(exc), EXIT_NO_ZENOH)
     except RecordingError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(1) from None
+        _fail(str(exc), 1)
     typer.echo(f"replayed {stats.messages} messages on {len(stats.per_key)} keys in {stats.duration_s:.2f} s (recorded span {stats.recorded_s:.2f} s)")
 
 
@@ -328,8 +320,7 @@ def export_bag_command(
         with _count_progress("export-bag") as progress:
             stats = export_bag(file, target, robot, map_period_s, time_base, progress)
     except (RecordingError, BagExportError, ValueError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
     written = ", ".join(f"{topic} {n}" for topic, n in sorted(stats.written.items()))
     typer.echo(f"wrote {stats.path} (robot {stats.robot}): {sum(stats.written.values())} messages: {written}")
     if stats.maps_thinned:
@@ -353,13 +344,11 @@ def scenes_command(
     from cso_runtime.scenes import SceneError, describe_scene, resolve_scenes  # noqa: PLC0415
 
     if not m_per_px > 0:
-        typer.echo(f"error: --m-per-px must be positive, got {m_per_px}", err=True)
-        raise typer.Exit(2)
+        _fail(f"--m-per-px must be positive, got {m_per_px}", 2)
     try:
         refs = resolve_scenes(spec, limit, m_per_px)
     except SceneError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
     if preview is not None:
         output_dir_or_exit(preview, "--preview")
     rows: list[dict] = []
@@ -422,8 +411,7 @@ def service_command(
     try:
         cls = service_class(name)
     except ValueError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
     raise typer.Exit(service_main(cls, list(ctx.args), prog=f"cso-runtime service {name}"))
 
 
@@ -459,18 +447,16 @@ def up_command(
         overrides = {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep}
         prof, data = load_profile(profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []))
     except (ConfigError, ValueError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
     current = read_current_run(runs_dir)
     if current is not None and current_launcher_alive(current):
         # One current run per runs folder: a second one would take over runs/current.json and leave the first
         # beyond the reach of `status` and `down`, whichever robot it drives.
-        typer.echo(
-            f"error: run {current.get('run_id')} (robot {current.get('robot')}) is already running from {runs_dir}; "
+        _fail(
+            f"run {current.get('run_id')} (robot {current.get('robot')}) is already running from {runs_dir}; "
             "`cso-runtime down` first, or start this one with its own --runs-dir",
-            err=True,
+            2,
         )
-        raise typer.Exit(2)
     output_dir_or_exit(runs_dir, "--runs-dir")  # before the router and the services start
     if record_out is not None:
         output_dir_or_exit(record_out.parent, f"--record-out {record_out}: its folder")
@@ -512,8 +498,7 @@ def save_map_command(
     from cso_runtime.status import save_map_main  # noqa: PLC0415
 
     if image_format not in IMAGE_FORMATS:
-        typer.echo(f"error: --format {image_format!r}: expected one of {', '.join(IMAGE_FORMATS)}", err=True)
-        raise typer.Exit(2)
+        _fail(f"--format {image_format!r}: expected one of {', '.join(IMAGE_FORMATS)}", 2)
     raise typer.Exit(save_map_main(list(connect or []), robot, out, image_format, runs_dir))
 
 
@@ -589,8 +574,7 @@ def logs_command(
         run_dir = resolve_run(runs_dir, run)
         files = select_services(log_files(run_dir), services or [])
     except RunError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(1) from None
+        _fail(str(exc), 1)
     live = run_is_live(run_dir)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
@@ -622,14 +606,12 @@ def dataflow_command(
     from services.dataflow import nodes_of, to_markdown, to_mermaid, unconnected, wiring_of  # noqa: PLC0415
 
     if fmt not in ("table", "mermaid", "markdown"):
-        typer.echo(f"error: --format must be table, mermaid or markdown, got {fmt!r}", err=True)
-        raise typer.Exit(2)
+        _fail(f"--format must be table, mermaid or markdown, got {fmt!r}", 2)
     try:
         # Nothing is joined here: a profile that needs a router to join (limo-ros2) gets a stand-in.
         prof, _ = load_profile(profile, {}, connect=["tcp/127.0.0.1:7447"])
     except (ConfigError, ValueError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
     nodes = nodes_of(list(prof.services))
     if fmt == "mermaid":
         typer.echo(to_mermaid(nodes), nl=False)
@@ -714,8 +696,7 @@ def collect_teacher_command(
     try:
         collected = collect_teacher_parallel(args, workers, decisions, time_limit, log=typer.echo)
     except EnvWorkerDied as exc:
-        typer.echo(f"error: {exc}; nothing was written", err=True)
-        raise typer.Exit(1) from None
+        _fail(f"{exc}; nothing was written", 1)
     out.parent.mkdir(parents=True, exist_ok=True)
     collected.save(out)
     typer.echo(f"done: {len(collected)} {teacher} decisions in {time.time() - t0:.0f} s -> {out}")
@@ -728,8 +709,7 @@ def output_dir_or_exit(path: Path | str, label: str) -> None:
     try:
         make_output_dir(path, label)
     except ConfigError as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
 
 
 def training_args(config: Path | None, overrides: dict[str, object], settings: list[str] | None):
@@ -749,8 +729,7 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
         args.validate()
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
     except (ConfigError, ValueError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(2) from None
+        _fail(str(exc), 2)
     return args
 
 
