@@ -393,6 +393,8 @@ class Launcher:
         self.exit_code = 0
         self._lock = threading.Lock()
         self.started_s = time.monotonic()
+        self.control_period_s = profile.exploration_config().robot.control_period_s
+        """Robot time of one step (the live view's clock)."""
 
     # --- files ------------------------------------------------------------------------------------
     @property
@@ -765,8 +767,12 @@ class LiveView:
         self._rerouted: list[tuple[logging.StreamHandler, Any]] = []
         """Log handlers on stderr sent through the live display while it runs, with the stream to give back."""
 
+    BAR_CELLS = 20
+    """Width of the coverage bar, in characters."""
+
     def render(self):
         from rich.markup import escape  # noqa: PLC0415
+        from rich.progress_bar import ProgressBar  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
         la = self.launcher
@@ -780,12 +786,14 @@ class LiveView:
             t.add_row("state", "starting")
         else:
             goal = "-" if st.goal_xy_m is None else f"({st.goal_xy_m[0]:.2f}, {st.goal_xy_m[1]:.2f}) m"
+            t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "")))
+            t.add_row("scene", escape(st.scene))
+            t.add_row("step", f"{st.step} ({st.step * la.control_period_s:.1f} s robot time, {time.monotonic() - la.started_s:.0f} s since start)")
+            coverage = Table.grid(padding=(0, 1))
+            coverage.add_row(ProgressBar(total=100.0, completed=min(st.coverage_pct, 100.0), width=self.BAR_CELLS), f"{st.coverage_pct:.1f} %")
+            t.add_row("coverage", coverage)
             for k, v in (
-                ("state", st.state + (f" ({st.terminated_by})" if st.terminated_by else "")),
-                ("scene", st.scene),
-                ("step", str(st.step)),
-                ("coverage", f"{st.coverage_pct:.1f} %"),
-                ("explored", f"{st.explored_area_m2:.2f} m2"),
+                ("explored", f"{st.explored_area_m2:.2f} m2" + (f", {st.explored_area_m2 / st.step:.3f} m2/step" if st.step else "")),
                 ("path length", f"{st.path_length_m:.2f} m"),
                 ("goal", goal + ("" if la.path_ahead_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
                 ("decisions", f"{st.decisions} (last {st.last_decision_ms:.1f} ms)"),

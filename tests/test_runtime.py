@@ -543,7 +543,10 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     launcher.status = EpisodeStatusMsg(state="exploring", step=3, scene="s", method="greedy-dist", coverage_pct=10.0, explored_area_m2=1.0, path_length_m=0.5, goal_xy_m=[3.0, 5.5])
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
-    assert "6.50 m ahead on the path" in console.export_text()
+    text = console.export_text()
+    assert "6.50 m ahead on the path" in text
+    assert re.search(r"│ step +│ 3 \(0\.8 s robot time, \d+ s since start\)", text), text
+    assert re.search(r"│ coverage +│ ━{2}╺?━* +10\.0 % ", text) and "1.00 m2, 0.333 m2/step" in text, text  # a bar a tenth full
     narrow = Console(width=80, record=True)  # a plain terminal: the title is one line, robot and method a row
     narrow.print(LiveView(launcher).render())
     lines = narrow.export_text().splitlines()
