@@ -40,7 +40,8 @@ class RunSummary:
     state: str
     """``running`` (its launcher is alive; ``done``/``failed`` for a detached run that waits for ``down``),
     else how it ended: ``done``, ``failed``, ``interrupted`` (stopped before the episode ended) or
-    ``stopped`` (a run file from before outcomes were recorded, or a launcher that was killed)."""
+    ``launcher died`` (killed before it could stop its run) or ``stopped`` (a run file from before outcomes
+    were recorded)."""
     profile: str = ""
     robot: str = ""
     scene: str = ""
@@ -94,8 +95,12 @@ def summarize_run(run_dir: Path) -> RunSummary:
     method = str(profile.get("method", "")) or next(iter(methods), "")
     if info and current_launcher_alive(info):
         state = str(info.get("state", "running"))
+    elif info.get("outcome"):
+        state = str(info["outcome"])
+    elif info.get("state") not in (None, "stopped"):
+        state = "launcher died"  # it never wrote that it stopped: killed (SIGKILL, out of memory) or the host went down
     else:
-        state = str(info.get("outcome") or ("done" if methods else "stopped"))
+        state = "done" if methods else "stopped"
     services = info.get("services") if isinstance(info.get("services"), dict) else {}
     return RunSummary(
         run_id=str(info.get("run_id") or run_dir.name),

@@ -22,7 +22,9 @@ def line(s: int, ms: int, text: str) -> str:
     return f"{STAMP.format(s, ms)} INFO {text}\n"
 
 
-def make_run(runs: Path, run_id: str, *, outcome: str | None = None, summary: dict | None = None, alive: bool = False, logs: dict | None = None) -> Path:
+def make_run(
+    runs: Path, run_id: str, *, outcome: str | None = None, summary: dict | None = None, alive: bool = False, logs: dict | None = None, state: str | None = None
+) -> Path:
     """A run folder as ``up`` leaves it: run.json (the launcher this test process when ``alive``), profile.yaml,
     summary.json when given, logs/*.log."""
     d = runs / run_id
@@ -33,7 +35,7 @@ def make_run(runs: Path, run_id: str, *, outcome: str | None = None, summary: di
         "robot": "r0",
         "launcher_pid": os.getpid() if alive else 2**22 + 12345,
         "launcher_start_ticks": process_start_ticks(os.getpid()) if alive else None,
-        "state": "running" if alive else "stopped",
+        "state": state or ("running" if alive else "stopped"),
         "services": {"sim": {"pid": 1, "restarts": 0}, "mapper": {"pid": 2, "restarts": 2}},
     }
     if outcome is not None:
@@ -67,6 +69,9 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
         "terminated_by": None, "restarts": 0,
     }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback)
     shutil.rmtree(broken)
+    killed = make_run(runs, "20261203-091500-lockstep-r0", state="running")  # its launcher is gone, the file says running
+    assert list_runs(runs)[-1].state == "launcher died"
+    shutil.rmtree(killed)
     assert [r["run_id"][9:15] for r in listed] == ["091000", "091100", "091200", "091300"]  # oldest first
     assert [r["state"] for r in listed] == ["interrupted", "done", "failed", "running"]
     done = listed[1]
