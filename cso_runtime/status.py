@@ -138,7 +138,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path) -> t
         print(f"error: --robot: {exc}", file=sys.stderr)
         return 2
     if not connect:
-        print("nothing running (no current run; give --connect ENDPOINT to ask another host)")
+        print("nothing running (no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs)")
         return 1
     try:
         TransportConfig(mode="client", connect=connect).validate()

@@ -630,7 +630,7 @@ def test_status_table_shows_the_episode_and_each_service():
 
 def test_status_and_down_with_nothing_running(tmp_path):
     r = cli("status", "--json", cwd=tmp_path, timeout_s=10)
-    assert r.returncode == 1 and "nothing running" in r.stdout
+    assert r.returncode == 1 and "nothing running" in r.stdout and "`cso-runtime runs` lists past runs" in r.stdout
     port = free_tcp_port()
     t0 = time.monotonic()
     assert query_status([loopback_endpoint(port)], "r0") is None
