@@ -436,6 +436,7 @@ def up_command(
     settings: list[str] | None = typer.Option(
         None, "--set", help="KEY=VALUE into the profile, dotted, repeatable: services.sim.real_time_factor=4, exploration.episode.max_steps=400"
     ),
+    dry_run: bool = typer.Option(False, "--dry-run", help="Validate, print the profile as the services would read it (YAML), start nothing"),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     from cso_runtime.config import LOG_FORMAT, ConfigError  # noqa: PLC0415
@@ -448,6 +449,12 @@ def up_command(
         prof, data = load_profile(profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []))
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
+    if dry_run:
+        import yaml  # noqa: PLC0415
+
+        typer.echo(f"# profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}")
+        typer.echo(yaml.safe_dump(data, sort_keys=False), nl=False)
+        return
     current = read_current_run(runs_dir)
     if current is not None and current_launcher_alive(current):
         # One current run per runs folder: a second one would take over runs/current.json and leave the first

@@ -300,6 +300,10 @@ def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file
     assert profile.exploration_config().episode.max_steps == 40 and profile.seed == 3
     with pytest.raises(ConfigError, match="--set seed.x: seed is 0, not a mapping"):
         load_profile("lockstep", {}, settings={"seed.x": 1})
+    r = cli("up", "--profile", "lockstep", "--set", "services.sim.min_step_period_s=0.1", "--seed", "3", "--dry-run", cwd=tmp_path)
+    assert r.returncode == 0 and r.stdout.startswith("# profile lockstep, valid: `up` would start sim, mapper, frontier, policy, planner"), r.stderr
+    shown = yaml.safe_load(r.stdout)  # what the services would read, and nothing started
+    assert shown["services"]["sim"]["min_step_period_s"] == 0.1 and shown["seed"] == 3 and not (tmp_path / "runs").exists()
     r = cli("up", "--profile", "lockstep", "--set", "services.sim", "--no-live", cwd=tmp_path)
     assert r.returncode == 2 and "--set expects KEY=VALUE, got 'services.sim'" in r.stderr
     r = cli("up", "--profile", "lockstep", "--set", "services.sim.warp_speed=9", "--no-live", cwd=tmp_path)
