@@ -47,7 +47,7 @@ from cso_runtime.messages import (
     ScanMsg,
     decode,
 )
-from cso_runtime.recording import RecordingError, read_recording, recording_contents
+from cso_runtime.recording import RecordingError, read_recording, recording_contents, robots_of
 
 log = logging.getLogger("cso.bag_export")
 
@@ -211,11 +211,6 @@ EXPORTED: dict[str, type[Message]] = {
     "scan": ScanMsg, "odom": OdometryMsg, "map": MapMsg, "path": PathMsg, "goal": GoalMsg, "frontiers": FrontiersMsg, "cmd_vel": CmdVelMsg,
 }
 """Our topics that become ROS messages, and the message each must carry (another one is rejected, as a service would)."""
-
-
-def robots_of(keys: list[str]) -> list[str]:
-    """The robot ids of recorded keys (``cso/<robot>/...``), sorted."""
-    return sorted({key.split("/")[1] for key in keys if key.count("/") >= 2})
 
 
 def export_bag(

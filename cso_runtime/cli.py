@@ -329,6 +329,33 @@ def export_bag_command(
         typer.echo(f"  left out, did not decode: {', '.join(f'{k} {n}' for k, n in sorted(stats.rejected.items()))}")
 
 
+@app.command("animate")
+def animate_command(
+    file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record` (or `up --record`)"),
+    out: Path | None = typer.Option(None, "--out", help="The GIF to write (default: the recording's name with .gif, beside it)"),
+    robot: str | None = typer.Option(None, "--robot", help="Whose run (default: the recording's only robot)"),
+    max_frames: int = typer.Option(200, "--max-frames", min=2, help="At most this many frames (every other decision, and so on, beyond it)"),
+) -> None:
+    """An animated GIF of a recorded run: the robot's map, path, goal and pose after each decision, then the final map."""
+    from cso_runtime.animation import animate_recording  # noqa: PLC0415
+    from cso_runtime.recording import RecordingError, check_recording  # noqa: PLC0415
+
+    target = out if out is not None else file.with_suffix(".gif")
+    try:
+        check_recording(file)
+        if target.resolve() == file.resolve():
+            raise RecordingError(f"--out {out} is the recording itself")
+        with _count_progress("animate") as progress:
+            stats = animate_recording(file, target, robot, max_frames, progress=progress)
+    except RecordingError as exc:
+        _fail(str(exc), 2)
+    except OSError as exc:
+        _fail(f"cannot write {target}: {exc.strerror or exc}", 2)
+    typer.echo(f"wrote {stats.path} (robot {stats.robot}): {stats.frames} frames from {stats.decisions} decisions and {stats.maps} maps")
+    if stats.rejected:
+        typer.echo(f"  left out, did not decode: {stats.rejected} payloads")
+
+
 @app.command("scenes")
 def scenes_command(
     spec: str = typer.Argument("builtin", help="Scene spec: builtin, a folder of PNG plans or map YAMLs, FILE.png, FILE.yaml, generated:SCALE:N:SEED"),

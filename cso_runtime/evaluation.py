@@ -29,6 +29,7 @@ import numpy as np
 from rich.markup import escape
 
 from cso_runtime import __version__
+from cso_runtime.animation import EpisodeAnimation
 from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene, format_interval
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import (
@@ -43,7 +44,6 @@ from cso_runtime.config import (
     to_dict,
 )
 from cso_runtime.episode import EpisodeResult, run_episode
-from cso_runtime.frames import EpisodeAnimation
 from cso_runtime.map_files import save_map
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers

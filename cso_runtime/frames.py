@@ -1,4 +1,5 @@
-"""The robot's map M_t as an image: ``ExplorationEnv.render()`` (Gymnasium's ``rgb_array``) and ``eval --animate``.
+"""The robot's map M_t as an image: ``ExplorationEnv.render()`` (Gymnasium's ``rgb_array``) and the animations
+(``cso_runtime.animation``: ``eval --animate``, ``cso-runtime animate``).
 
 Pure numpy, no matplotlib: a training run's ``RecordVideo`` renders one frame per decision, an animated evaluation
 one per decision of every episode. The image is upright (its top row is the map's largest y, REP-103's map frame
@@ -10,7 +11,6 @@ mask, red: masked), the robot a blue disc with its heading as a dark line. Frame
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -101,73 +101,3 @@ def frame_scale(shape: tuple[int, int], target_px: int = 480) -> int:
     """Pixels per map cell so that the longer side is about ``target_px`` (a small plan is enlarged, a large
     one kept at a cell a pixel)."""
     return max(1, int(round(target_px / max(shape))))
-
-
-class EpisodeAnimation:
-    """Frames of one episode, one at each decision and one at the end (``explorer`` of ``cso_runtime.episode``):
-    at most ``max_frames``, by dropping every other frame and then keeping every other decision once full, so a
-    3000-step episode on a large plan stays a few megabytes in memory and on disk."""
-
-    def __init__(self, max_frames: int = 200):
-        if max_frames < 2:
-            raise ValueError(f"max_frames must be at least 2, got {max_frames}")
-        self.max_frames = max_frames
-        self.frames: list[np.ndarray] = []
-        self.every = 1
-        """Keep one decision in this many (doubles each time the frames are thinned)."""
-        self._decisions_seen = 0
-        self.explorer: Any = None
-        """The episode's explorer, seen at its last step."""
-
-    def on_step(self, explorer: Any) -> None:
-        """``run_episode``'s ``on_step``: a frame after each step in which a goal was chosen."""
-        self.explorer = explorer
-        if explorer.decisions == self._decisions_seen:
-            return
-        self._decisions_seen = explorer.decisions
-        if (self._decisions_seen - 1) % self.every == 0:
-            self._add(explorer)
-
-    def finish(self) -> bool:
-        """The last frame: the map the episode ended with (the explorer of the last step, which no later
-        decision changed). False when the episode took no step: nothing to animate."""
-        if self.explorer is None:
-            return False
-        self._add(self.explorer)
-        return True
-
-    def _add(self, explorer: Any) -> None:
-        m, goal = explorer.map, explorer.goal
-        pose = explorer.sim.true_pose()
-        frame = map_frame_indexed(
-            m.explored,
-            m.occupied,
-            m.geometry,
-            pose,
-            robot_radius_m=explorer.config.robot.radius_m,
-            trajectory_xy_m=np.array(explorer.trajectory, dtype=float),
-            goals_xy_m=np.array([[goal.x_m, goal.y_m]]) if goal is not None else None,
-            scale=frame_scale(m.geometry.shape),
-        )
-        if self.frames and np.array_equal(frame, self.frames[-1]):
-            return  # nothing moved (the episode ended at a decision): a GIF would merge the two anyway
-        self.frames.append(frame)
-        if len(self.frames) >= self.max_frames:
-            self.frames = self.frames[::2]
-            self.every *= 2
-
-    def save_gif(self, path: Path, frame_ms: int = 120, last_frame_ms: int = 2000) -> Path:
-        """Write the frames as an animated GIF (looping; the final map held ``last_frame_ms``)."""
-        from PIL import Image  # noqa: PLC0415  (only animations need it)
-
-        if not self.frames:
-            raise ValueError("no frames to save")
-        path.parent.mkdir(parents=True, exist_ok=True)
-        images = []
-        for f in self.frames:
-            im = Image.frombytes("P", (f.shape[1], f.shape[0]), f.tobytes())
-            im.putpalette(PALETTE.ravel().tolist())
-            images.append(im)
-        durations = [frame_ms] * (len(images) - 1) + [last_frame_ms]
-        images[0].save(path, save_all=True, append_images=images[1:], duration=durations, loop=0, optimize=False)
-        return path

@@ -327,6 +327,11 @@ def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[
         raise RecordingError(f"cannot read {path}: {str(exc) or type(exc).__name__}") from None  # its message may be blank
 
 
+def robots_of(keys: list[str]) -> list[str]:
+    """The robot ids of recorded keys (``cso/<robot>/...``), sorted."""
+    return sorted({key.split("/")[1] for key in keys if key.count("/") >= 2})
+
+
 def recording_contents(path: Path) -> tuple[list[str], int | None]:
     """The Zenoh keys a recording has messages on (sorted) and how many messages it holds: from its summary
     when it has one (nothing to decompress), else read through (count None; a file cut short raises

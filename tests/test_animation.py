@@ -1,0 +1,61 @@
+"""``cso-runtime animate``: a recorded run as an animated GIF (the in-process ``eval --animate`` is in test_eval.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from cso_runtime import frames
+from cso_runtime.animation import animate_recording
+from cso_runtime.cli import app
+from cso_runtime.geometry import Pose2D
+from cso_runtime.keys import RobotKeys
+from cso_runtime.messages import OdometryMsg, encode
+from cso_runtime.recording import RecordedMessage, RecordingError, write_recording
+from tests.test_bag_export import GEOM, T0_NS, episode
+
+
+def test_a_recording_becomes_a_frame_after_each_decision_and_the_final_map(tmp_path):
+    """Decisions at steps 0, 2 and 4 (the recorded goals): a frame at the next map, with the odometry's pose and
+    path; the final map adds no frame when nothing moved since; a payload that does not decode is counted."""
+    keys = RobotKeys("r0")
+    messages = episode(keys, 6, T0_NS, 1_000_000)
+    messages.insert(10, RecordedMessage(keys.topic("map"), T0_NS + 5, b"\x93garbage"))
+    write_recording(tmp_path / "run.mcap", "r0", messages)
+    stats = animate_recording(tmp_path / "run.mcap", tmp_path / "run.gif")
+    assert (stats.robot, stats.decisions, stats.maps, stats.rejected, stats.frames) == ("r0", 3, 6, 1, 3)
+    scale = frames.frame_scale(GEOM.shape)
+    with Image.open(tmp_path / "run.gif") as im:
+        assert im.n_frames == 3 and im.size == (GEOM.shape[1] * scale, GEOM.shape[0] * scale)
+        im.seek(2)
+        last = np.asarray(im.convert("RGB"))
+    x, y = 0.1 * 5, 0.0  # the odometry of step 5, the last map's
+    row = last.shape[0] - 1 - int((y - GEOM.origin_y_m) / GEOM.resolution_m * scale)
+    assert tuple(last[row, int((x - GEOM.origin_x_m) / GEOM.resolution_m * scale)]) in (frames.ROBOT, frames.HEADING)
+    assert (last == frames.PATH).all(axis=2).any() and (last == frames.FREE).all(axis=2).any()
+
+    r = CliRunner().invoke(app, ["animate", str(tmp_path / "run.mcap"), "--max-frames", "2"])
+    assert r.exit_code == 0 and "run.gif (robot r0): 2 frames from 3 decisions and 6 maps" in r.output, r.output
+    assert "left out, did not decode: 1 payloads" in r.output
+
+
+def test_animate_refuses_what_it_cannot_draw(tmp_path):
+    both = episode(RobotKeys("r0"), 2, T0_NS, 1000) + episode(RobotKeys("r1"), 2, T0_NS, 1000)
+    write_recording(tmp_path / "two.mcap", "*", sorted(both, key=lambda m: m.log_time_ns))
+    with pytest.raises(RecordingError, match="robots r0, r1: give --robot ID"):
+        animate_recording(tmp_path / "two.mcap", tmp_path / "x.gif")
+    with pytest.raises(RecordingError, match="no messages of robot 'r7'"):
+        animate_recording(tmp_path / "two.mcap", tmp_path / "x.gif", robot="r7")
+    assert animate_recording(tmp_path / "two.mcap", tmp_path / "r1.gif", robot="r1").frames >= 1
+    odometry_only = [RecordedMessage(RobotKeys("r0").topic("odom"), T0_NS, encode(OdometryMsg(0, 0.0, Pose2D(0.0, 0.0, 0.0))))]
+    write_recording(tmp_path / "odom.mcap", "r0", odometry_only)
+    with pytest.raises(RecordingError, match="no map and odometry of robot r0: nothing to animate"):
+        animate_recording(tmp_path / "odom.mcap", tmp_path / "x.gif")
+    assert not (tmp_path / "x.gif").exists()
+    r = CliRunner().invoke(app, ["animate", str(tmp_path / "missing.mcap")])
+    assert r.exit_code == 2 and "error: no such recording" in r.output
+    r = CliRunner().invoke(app, ["animate", str(tmp_path / "two.mcap"), "--out", str(tmp_path / "two.mcap")])
+    assert r.exit_code == 2 and "is the recording itself" in r.output
+
