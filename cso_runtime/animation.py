@@ -148,16 +148,9 @@ def animate_recording(
     """A GIF of ``robot``'s run (default: the recording's only robot): a frame at the first map after each decided
     goal, and the last map. The path is the odometry's, started afresh when a new episode's map comes (a restarted
     sim). Raises RecordingError for an unreadable recording, an unknown robot, or one with no map."""
-    from cso_runtime.recording import RecordingError, read_recording, recording_contents, robots_of  # noqa: PLC0415  (Zenoh and mcap: not for eval)
+    from cso_runtime.recording import RecordingError, read_recording, recorded_robot  # noqa: PLC0415  (Zenoh and mcap: not for eval)
 
-    keys, total = recording_contents(recording)
-    robots = robots_of(keys)
-    if robot is None:
-        if len(robots) != 1:
-            raise RecordingError(f"{recording} holds {'no robot' if not robots else 'robots ' + ', '.join(robots)}: give --robot ID")
-        robot = robots[0]
-    elif robot not in robots:
-        raise RecordingError(f"{recording} holds no messages of robot {robot!r} (it has: {', '.join(robots) or 'none'})")
+    robot, total = recorded_robot(recording, robot)
     prefix = f"cso/{robot}/"
     seq = FrameSequence(max_frames)
     latest_map: MapMsg | None = None

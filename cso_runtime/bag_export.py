@@ -47,7 +47,7 @@ from cso_runtime.messages import (
     ScanMsg,
     decode,
 )
-from cso_runtime.recording import RecordingError, read_recording, recording_contents, robots_of
+from cso_runtime.recording import RecordingError, read_recording, recorded_robot
 
 log = logging.getLogger("cso.bag_export")
 
@@ -232,16 +232,9 @@ def export_bag(
     if out_dir.exists():
         raise BagExportError(f"{out_dir} exists; a bag is written to a new folder (give another --out or remove it)")
     try:
-        keys, total = recording_contents(recording)
-        robots = robots_of(keys)
+        robot, total = recorded_robot(recording, robot)
     except RecordingError as exc:
         raise BagExportError(str(exc)) from None
-    if robot is None:
-        if len(robots) != 1:
-            raise BagExportError(f"{recording} holds {'no robot' if not robots else 'robots ' + ', '.join(robots)}: give --robot ID")
-        robot = robots[0]
-    elif robot not in robots:
-        raise BagExportError(f"{recording} holds no messages of robot {robot!r} (it has: {', '.join(robots) or 'none'})")
     stats = BagExportStats(out_dir, robot)
     never = QosTime(sec=0, nsec=0)
     latched = [Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, never, never, QosLiveliness.AUTOMATIC, never, False)]

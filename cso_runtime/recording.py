@@ -332,6 +332,21 @@ def robots_of(keys: list[str]) -> list[str]:
     return sorted({key.split("/")[1] for key in keys if key.count("/") >= 2})
 
 
+def recorded_robot(path: Path, robot: str | None = None) -> tuple[str, int | None]:
+    """The robot whose messages a command reads (``robot``, else the recording's only one) and the recording's
+    message count (None without a summary); RecordingError when it holds no such robot, or several and none was
+    named."""
+    keys, total = recording_contents(path)
+    robots = robots_of(keys)
+    if robot is None:
+        if len(robots) != 1:
+            raise RecordingError(f"{path} holds {'no robot' if not robots else 'robots ' + ', '.join(robots)}: give --robot ID")
+        return robots[0], total
+    if robot not in robots:
+        raise RecordingError(f"{path} holds no messages of robot {robot!r} (it has: {', '.join(robots) or 'none'})")
+    return robot, total
+
+
 def recording_contents(path: Path) -> tuple[list[str], int | None]:
     """The Zenoh keys a recording has messages on (sorted) and how many messages it holds: from its summary
     when it has one (nothing to decompress), else read through (count None; a file cut short raises
