@@ -464,6 +464,9 @@ def up_command(
         None, "--set", help="KEY=VALUE into the profile, dotted, repeatable: services.sim.real_time_factor=4, exploration.episode.max_steps=400"
     ),
     dry_run: bool = typer.Option(False, "--dry-run", help="Validate, print the profile as the services would read it (YAML), start nothing"),
+    animate: bool = typer.Option(
+        False, "--animate", help="At the end, also write animations/<method>/<scene>.gif as eval does (records the run to do so, as --record)"
+    ),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     from cso_runtime.config import LOG_FORMAT, ConfigError  # noqa: PLC0415
@@ -496,13 +499,13 @@ def up_command(
         output_dir_or_exit(record_out.parent, f"--record-out {record_out}: its folder")
     recording: bool | Path = record_out if record_out is not None else record
     if detach:
-        code, message = start_detached(prof, data, runs_dir, record=recording)
+        code, message = start_detached(prof, data, runs_dir, record=recording, animate=animate)
         typer.echo(message, err=code != 0)
         raise typer.Exit(code)
     import logging  # noqa: PLC0415
 
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
-    raise typer.Exit(run_foreground(prof, data, runs_dir, live=live, record=recording))
+    raise typer.Exit(run_foreground(prof, data, runs_dir, live=live, record=recording, animate=animate))
 
 
 @app.command("status")

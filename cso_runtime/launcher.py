@@ -369,10 +369,12 @@ def dump_stacks(children: list[Child]) -> None:
 class Launcher:
     """Runs one profile: router, services, supervision, live state, results."""
 
-    def __init__(self, profile: Profile, profile_data: dict[str, Any], run_dir: Path, record_path: Path | None = None):
+    def __init__(self, profile: Profile, profile_data: dict[str, Any], run_dir: Path, record_path: Path | None = None, animate: bool = False):
         self.profile = profile
         self.record_path = record_path
         """MCAP file recording every ``cso/<robot>/**`` message of the run (None: no recording)."""
+        self.animate = animate and record_path is not None
+        """At the end, draw the recording as ``animations/<method>/<scene>.gif`` (``up --animate``, as ``eval``'s)."""
         self.data = profile_data
         self.run_dir = run_dir
         self.run_id = run_dir.name
@@ -390,6 +392,8 @@ class Launcher:
         self.path_ahead_m: float | None = None
         """Length of the planner's latest path, robot to goal (live view)."""
         self.outputs_written = False
+        self.written_result: EpisodeResultMsg | None = None
+        """The result whose outputs were written (its scene and method name the animation)."""
         self.exit_code = 0
         self._lock = threading.Lock()
         self.started_s = time.monotonic()
@@ -589,6 +593,7 @@ class Launcher:
             sensor = self.profile.exploration_config().sensor
             meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
         row = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta)
+        self.written_result = result
         log.info(
             "episode %s: %.2f%% coverage in %d steps; %.2f m2 explored, %.4f m2/step, path %.2f m, %d decisions; results in %s",
             row["terminated_by"], row["coverage_pct"], row["steps"], row["explored_area_m2"],
@@ -627,6 +632,24 @@ class Launcher:
             raise RecorderError(f"cannot record into {self.record_path}: {failure[0] if failure else 'the recorder did not start within 10 s'}")
         log.info("recording cso/%s/** into %s", self.profile.robot, self.record_path)
         return stop, thread
+
+    def write_animation(self) -> None:
+        """``up --animate``: the finished run's recording as the GIF ``eval --animate`` writes (a run stopped
+        before its episode ended gets none, as it gets no summary.json)."""
+        result = self.written_result
+        if not self.animate or self.record_path is None or result is None:
+            return
+        from cso_runtime.animation import animate_recording  # noqa: PLC0415
+        from cso_runtime.evaluation import episode_animation_path  # noqa: PLC0415
+        from cso_runtime.recording import RecordingError  # noqa: PLC0415
+
+        path = episode_animation_path(self.run_dir, result.method or "unknown", result.scene)
+        try:
+            stats = animate_recording(self.record_path, path, self.profile.robot, robot_radius_m=self.profile.exploration_config().robot.radius_m)
+        except (RecordingError, OSError) as exc:
+            log.error("no animation: %s", exc)
+            return
+        log.info("animation in %d frames: %s", stats.frames, path)
 
     def write_dataflow(self) -> None:
         """``dataflow.md``: who feeds whom in this run (Mermaid graph and table), from the services' declarations."""
@@ -711,6 +734,7 @@ class Launcher:
                 if recorder is not None:
                     recorder[0].set()
                     recorder[1].join()
+                    self.write_animation()
                 alive_sub.undeclare()
                 for q in qs:
                     q.undeclare()
@@ -950,11 +974,18 @@ RECORDING_NAME = "recording.mcap"
 
 
 def run_foreground(
-    profile: Profile, data: dict[str, Any], runs_dir: Path, live: bool = True, stay_after_done: bool = False, record: bool | Path = False
+    profile: Profile,
+    data: dict[str, Any],
+    runs_dir: Path,
+    live: bool = True,
+    stay_after_done: bool = False,
+    record: bool | Path = False,
+    animate: bool = False,
 ) -> int:
-    """Run in this process; ``record``: True for ``runs/<run-id>/recording.mcap``, or a file."""
+    """Run in this process; ``record``: True for ``runs/<run-id>/recording.mcap``, or a file; ``animate``: draw
+    that recording as a GIF at the end (records to the run folder when ``record`` is False)."""
     run_dir = new_run_dir(runs_dir, profile)
-    launcher = Launcher(profile, data, run_dir, _record_path(run_dir, record))
+    launcher = Launcher(profile, data, run_dir, _record_path(run_dir, record or animate), animate)
     # The launcher's own lines go to logs/launcher.log too, as a detached launcher's do (its stdout).
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
     handler = logging.FileHandler(run_dir / "logs" / "launcher.log", encoding="utf-8")
@@ -977,11 +1008,11 @@ def _record_path(run_dir: Path, record: bool | Path) -> Path | None:
 
 
 def start_detached(
-    profile: Profile, data: dict[str, Any], runs_dir: Path, ready_timeout_s: float = 30.0, record: bool | Path = False
+    profile: Profile, data: dict[str, Any], runs_dir: Path, ready_timeout_s: float = 30.0, record: bool | Path = False, animate: bool = False
 ) -> tuple[int, str]:
     """Start a launcher in the background (own session); returns once its services are spawned."""
     run_dir = new_run_dir(runs_dir, profile)
-    record_path = _record_path(run_dir, record)
+    record_path = _record_path(run_dir, record or animate)
     run_dir.mkdir(parents=True, exist_ok=True)
     data_path = run_dir / "profile.requested.yaml"
     data_path.write_text(yaml.safe_dump(data, sort_keys=False))
@@ -990,7 +1021,8 @@ def start_detached(
     with log_path.open("ab") as fh:
         proc = subprocess.Popen(
             [sys.executable, "-m", "cso_runtime.launcher", "--profile-data", str(data_path), "--run-dir", str(run_dir)]
-            + (["--record", str(record_path.resolve())] if record_path is not None else []),
+            + (["--record", str(record_path.resolve())] if record_path is not None else [])
+            + (["--animate"] if animate else []),
             stdout=fh,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
@@ -1016,11 +1048,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--profile-data", type=Path, required=True)
     p.add_argument("--run-dir", type=Path, required=True)
     p.add_argument("--record", type=Path, default=None, help="MCAP file recording the run")
+    p.add_argument("--animate", action="store_true", help="Draw the recording as a GIF when the run stops")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     data = load_yaml(args.profile_data)
     profile = from_dict(Profile, data, where=str(args.profile_data))
-    return run_until_stopped(Launcher(profile, data, args.run_dir, args.record), live=False, stay_after_done=True)
+    return run_until_stopped(Launcher(profile, data, args.run_dir, args.record, args.animate), live=False, stay_after_done=True)
 
 
 if __name__ == "__main__":

@@ -666,7 +666,7 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
     profile = write_profile(tmp_path, scene, method)
     runs = tmp_path / "runs"
     try:
-        r = cli("up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=120)
+        r = cli("up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs), "--animate", cwd=tmp_path, timeout_s=120)
         assert r.returncode == 0, r.stderr[-3000:]
         (run_dir,) = list(runs.glob("*/summary.json"))
         summary = json.loads(run_dir.read_text())
@@ -682,6 +682,8 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         closing += f"path {zenoh_metrics['path_length_m']:.2f} m, {expected.decisions} decisions; results in {out}"
         assert closing in r.stderr  # the Table 1 row of the run, said when it ends
         assert (out / "trajectories" / f"{expected.scene}.png").is_file()
+        with Image.open(out / "animations" / method / f"{expected.scene}.gif") as gif:  # --animate, from the run's recording
+            assert gif.n_frames >= 2 and (out / "recording.mcap").is_file()
         assert (out / "episodes" / method / f"{expected.scene}.npz").is_file()
         grid, geometry = load_map(out / "maps" / method / f"{expected.scene}.yaml")  # the mapper's final map
         assert geometry == expected.map_geometry and np.array_equal(grid, expected.map_grid)
