@@ -74,6 +74,23 @@ def format_interval(pct: float | None, low_pct: float | None, high_pct: float | 
     return f"{pct:+.1f} % [{low_pct:+.1f}, {high_pct:+.1f}]"
 
 
+PAIRED_COLUMNS = ("method", "scale", "scenes", "m2/step vs baseline", "per-scene ratio [95 % CI]", "won / lost", "geometric mean [95 % CI]")
+"""The columns of a comparison (a ``paired`` entry of summary.json) on the console and in report.html."""
+
+
+def paired_cells(c: dict) -> list[str]:
+    """One comparison of summary.json's ``paired`` as the ``PAIRED_COLUMNS`` cells."""
+    return [
+        c["method"],
+        c["scale"],
+        str(c["scenes"]),
+        f"{c['change_of_means_pct']:+.1f} %",
+        format_interval(c["per_scene_pct"], c["ci_low_pct"], c["ci_high_pct"]),
+        f"{c['won']} / {c['lost']}",
+        format_interval(c.get("geomean_pct"), c.get("geomean_ci_low_pct"), c.get("geomean_ci_high_pct")),
+    ]
+
+
 MARKDOWN_HEADER = (
     "| scale | method | scenes | m2/step vs baseline (ratio of means) | per-scene ratio: mean [95 % CI] | scenes won | per-scene ratio: geometric mean [95 % CI] |\n"
     "| --- | --- | --- | --- | --- | --- | --- |"

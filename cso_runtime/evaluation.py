@@ -30,7 +30,7 @@ from rich.markup import escape
 
 from cso_runtime import __version__
 from cso_runtime.animation import EpisodeAnimation
-from cso_runtime.comparison import as_dicts, compare_to_baseline, efficiency_by_scene, format_interval
+from cso_runtime.comparison import PAIRED_COLUMNS, as_dicts, compare_to_baseline, efficiency_by_scene, paired_cells
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import (
     EXIT_INTERRUPTED,
@@ -47,6 +47,7 @@ from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
+from cso_runtime.report import TABLE1_COLUMNS, table1_cells, table1_rows, write_report
 from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, scale_of
 from cso_runtime.simulator import SIMULATORS, make_simulator
 
@@ -474,6 +475,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
             by_map.setdefault(o.map, []).append(o)
     for name, group in by_map.items():
         plot_trajectories(out / "trajectories" / f"{file_stem(name)}.png", name, sorted(group, key=lambda o: request.methods.index(o.method)))
+    write_report(out, summary)
     return summary
 
 
@@ -534,33 +536,10 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     table = Table(title=f"Table 1 metrics ({out_dir}/summary.json)")
     table.add_column("method", no_wrap=True)  # method names are what a reader looks for: never cut
     table.add_column("scale", no_wrap=True)
-    for col in ("episodes", "explored m2", "coverage %", "steps", "m2/step", "path m", "decision ms p50/p99"):
+    for col in TABLE1_COLUMNS[2:]:
         table.add_column(col, justify="right")
-
-    def fmt(v: Any, nd: int) -> str:
-        return "-" if v is None else f"{v:.{nd}f}"
-
-    def row(method: str, scale: str, e: dict[str, Any]) -> None:
-        table.add_row(
-            method,
-            scale,
-            str(e["episodes"]),
-            fmt(e["explored_area_m2"], 1),
-            fmt(e["coverage_pct"], 2),
-            fmt(e["steps"], 1),
-            fmt(e["efficiency_m2_per_step"], 4),
-            fmt(e["path_length_m"], 1),
-            f"{fmt(e['decision_ms_p50'], 1)}/{fmt(e['decision_ms_p99'], 1)}",
-        )
-
-    for method, e in summary["methods"].items():
-        scales = e.get("by_scale") or {}
-        if len(scales) == 1:
-            row(method, next(iter(scales)), e)
-            continue
-        for scale, part in scales.items():  # as the paper's Table 1: one block per scale
-            row(method, scale, part)
-        row(method, "all", e)
+    for method, scale, e in table1_rows(summary):  # as the paper's Table 1: one block per scale
+        table.add_row(method, scale, *table1_cells(e))
     console = Console()
     if not console.is_terminal:  # logs and CI: wide enough for every column instead of 80 characters
         console = Console(width=max(console.width, 120))
@@ -568,20 +547,10 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     paired = summary.get("paired") or {}
     if paired.get("comparisons"):
         against = Table(title=f"Against {paired['baseline']}, scene by scene ({out_dir}/paired.csv)")
-        for col in ("method", "scale"):
-            against.add_column(col, no_wrap=True)
-        for col in ("scenes", "m2/step vs baseline", "per-scene ratio [95 % CI]", "won / lost", "geometric mean [95 % CI]"):
-            against.add_column(col, justify="right")
+        for col in PAIRED_COLUMNS:
+            against.add_column(col, no_wrap=col in ("method", "scale"), justify="left" if col in ("method", "scale") else "right")
         for c in paired["comparisons"]:
-            against.add_row(
-                c["method"],
-                c["scale"],
-                str(c["scenes"]),
-                f"{c['change_of_means_pct']:+.1f} %",
-                format_interval(c["per_scene_pct"], c["ci_low_pct"], c["ci_high_pct"]),
-                f"{c['won']} / {c['lost']}",
-                format_interval(c.get("geomean_pct"), c.get("geomean_ci_low_pct"), c.get("geomean_ci_high_pct")),
-            )
+            against.add_row(*paired_cells(c))
         console.print(against)
     for f in summary["failures"]:
         why = f["error"].splitlines()[0] if f["error"] else ""

@@ -650,6 +650,12 @@ class Launcher:
             log.error("no animation: %s", exc)
             return
         log.info("animation in %d frames: %s", stats.frames, path)
+        try:
+            from cso_runtime.report import write_report  # noqa: PLC0415
+
+            write_report(self.run_dir, json.loads((self.run_dir / "summary.json").read_text()))  # with the animation now
+        except (OSError, ValueError) as exc:
+            log.error("report.html not updated: %s", exc)
 
     def write_dataflow(self) -> None:
         """``dataflow.md``: who feeds whom in this run (Mermaid graph and table), from the services' declarations."""
@@ -753,6 +759,7 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
     from cso_runtime.episode import EpisodeResult  # noqa: PLC0415
     from cso_runtime.evaluation import EpisodeOutcome, episode_row, file_stem, save_episode_files, write_outputs  # noqa: PLC0415
     from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415
+    from cso_runtime.report import write_report  # noqa: PLC0415
 
     er = EpisodeResult(
         scene=result.scene,
@@ -772,11 +779,12 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
     )
     method = result.method or "unknown"
     row = episode_row(method, result.seed, er, wall_s)
-    write_outputs(out_dir, [row], [], [method], meta)
+    summary = write_outputs(out_dir, [row], [], [method], meta)
     save_episode_files(out_dir, method, result.scene, er, row)
     outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m)
     plot_coverage_curves(out_dir / "coverage_curves.png", [outcome])
     plot_trajectories(out_dir / "trajectories" / f"{file_stem(result.scene)}.png", result.scene, [outcome])
+    write_report(out_dir, summary)
     return row
 
 

@@ -112,6 +112,19 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
     assert not (seen_free & ~free_px).any()
     assert {p.name for p in (out / "maps").iterdir()} == set(methods)  # no map for the corrupt plan
 
+    # report.html: the same Table 1 rows, the failure, and every figure it shows is a file of the folder.
+    import re
+
+    page = (out / "report.html").read_text()
+    for m in methods:
+        e = summary["methods"][m]
+        assert f"<td>{m}</td><td>super_large</td><td>1</td><td>{e['explored_area_m2']:.1f}</td>" in page
+        assert f"<td>{e['efficiency_m2_per_step']:.4f}</td>" in page
+    assert "img_0_corrupt" in page and "<h2>Failures</h2>" in page
+    shown = re.findall(r'<img src="([^"]+)"', page)
+    assert {"coverage_curves.png", "efficiency_by_scale.png", "trajectories/img_1.png"} <= set(shown)
+    assert all((out / src).is_file() for src in shown)
+
 
 def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
     exe = [sys.executable, "-m", "cso_runtime.cli"]
@@ -469,3 +482,4 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     assert summary["methods"]["greedy-dist"]["episodes"] == 1
     with Image.open(tmp_path / "o" / "animations" / "greedy-dist" / "gen_small_3.gif") as im:
         assert im.n_frames >= 2
+    assert '<img src="animations/greedy-dist/gen_small_3.gif"' in (tmp_path / "o" / "report.html").read_text()

@@ -684,6 +684,7 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         assert (out / "trajectories" / f"{expected.scene}.png").is_file()
         with Image.open(out / "animations" / method / f"{expected.scene}.gif") as gif:  # --animate, from the run's recording
             assert gif.n_frames >= 2 and (out / "recording.mcap").is_file()
+        assert f'<img src="animations/{method}/{expected.scene}.gif"' in (out / "report.html").read_text()  # updated with it
         assert (out / "episodes" / method / f"{expected.scene}.npz").is_file()
         grid, geometry = load_map(out / "maps" / method / f"{expected.scene}.yaml")  # the mapper's final map
         assert geometry == expected.map_geometry and np.array_equal(grid, expected.map_grid)

@@ -1,0 +1,108 @@
+"""``report.html``: an evaluation's (or a run's) results on one page, for a browser.
+
+The Table 1 rows of ``summary.json`` (one block per scale, as the paper's), the paired comparison with the
+baseline, the failures, and the figures already in the folder (coverage curves, efficiency by scale, the paired
+scatter, each map's trajectories and animations), linked by relative paths so the folder can be moved or served
+as it is. Written by ``eval`` and ``up`` next to ``summary.json``; nothing here computes a metric.
+"""
+
+from __future__ import annotations
+
+import html
+from pathlib import Path
+from typing import Any
+
+from cso_runtime.comparison import PAIRED_COLUMNS, paired_cells
+
+REPORT_NAME = "report.html"
+FIGURES = (
+    ("coverage_curves.png", "Coverage against step (Fig. 4)"),
+    ("efficiency_by_scale.png", "Efficiency by scale, and each method against the baseline (Fig. 5)"),
+    ("paired_efficiency.png", "Each scene's m2/step against the baseline's"),
+)
+TABLE1_COLUMNS = ("method", "scale", "episodes", "explored m2", "coverage %", "steps", "m2/step", "path m", "decision ms p50/p99")
+
+
+def _fmt(v: Any, nd: int) -> str:
+    return "-" if v is None else f"{v:.{nd}f}"
+
+
+def table1_rows(summary: dict[str, Any]) -> list[tuple[str, str, dict[str, Any]]]:
+    """``(method, scale, metrics)`` in the paper's layout: a method's one scale, or each of its scales then ``all``."""
+    rows = []
+    for method, e in summary["methods"].items():
+        scales = e.get("by_scale") or {}
+        if len(scales) == 1:
+            rows.append((method, next(iter(scales)), e))
+            continue
+        rows += [(method, scale, part) for scale, part in scales.items()]
+        rows.append((method, "all", e))
+    return rows
+
+
+def table1_cells(e: dict[str, Any]) -> list[str]:
+    """One Table 1 row's values after its method and scale, as the console and the report print them."""
+    return [
+        str(e["episodes"]),
+        _fmt(e["explored_area_m2"], 1),
+        _fmt(e["coverage_pct"], 2),
+        _fmt(e["steps"], 1),
+        _fmt(e["efficiency_m2_per_step"], 4),
+        _fmt(e["path_length_m"], 1),
+        f"{_fmt(e['decision_ms_p50'], 1)}/{_fmt(e['decision_ms_p99'], 1)}",
+    ]
+
+
+def _table(header: list[str] | tuple[str, ...], rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _img(out_dir: Path, path: Path, alt: str) -> str:
+    rel = path.relative_to(out_dir).as_posix()
+    return f'<a href="{html.escape(rel)}"><img src="{html.escape(rel)}" alt="{html.escape(alt)}" loading="lazy"></a>'
+
+
+def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
+    """Write ``out_dir/report.html`` from ``summary`` and the figures found in ``out_dir``; returns its path."""
+    out_dir = Path(out_dir)
+    meta = summary.get("meta") or {}
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>cso-runtime results</title><style>",
+        "body{font-family:system-ui,sans-serif;margin:1.5em;max-width:1400px}table{border-collapse:collapse;margin:.5em 0 1.5em}",
+        "td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}td:first-child,td:nth-child(2),th{text-align:left}",
+        "img{max-width:100%;height:auto;border:1px solid #eee}.maps{display:flex;flex-wrap:wrap;gap:1em}.maps figure{margin:0;max-width:640px}",
+        "</style></head><body>",
+        f"<h1>Results in {html.escape(str(out_dir))}</h1>",
+        "<p>" + html.escape(", ".join(f"{k}: {meta[k]}" for k in ("command", "version", "maps", "m_per_px", "seed", "sim") if k in meta)) + "</p>",
+        "<h2>Table 1</h2>",
+        _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e)] for m, s, e in table1_rows(summary)]),
+    ]
+    paired = summary.get("paired") or {}
+    if paired.get("comparisons"):
+        parts.append(f"<h2>Against {html.escape(str(paired['baseline']))}, scene by scene</h2>")
+        parts.append(_table(PAIRED_COLUMNS, [paired_cells(c) for c in paired["comparisons"]]))
+    if summary.get("failures"):
+        parts.append("<h2>Failures</h2><ul>")
+        parts += [f"<li>{html.escape(f['method'])} {html.escape(f['map'])}: {html.escape((f['error'] or '').splitlines()[0] if f['error'] else '')}</li>" for f in summary["failures"]]
+        parts.append("</ul>")
+    figures = [(out_dir / name, title) for name, title in FIGURES if (out_dir / name).is_file()]
+    if figures:
+        parts.append("<h2>Figures</h2>")
+        parts += [f"<figure>{_img(out_dir, p, t)}<figcaption>{html.escape(t)}</figcaption></figure>" for p, t in figures]
+    trajectories = sorted((out_dir / "trajectories").glob("*.png"))
+    animations = sorted((out_dir / "animations").glob("*/*.gif"))
+    if trajectories or animations:
+        parts.append("<h2>Maps</h2><div class='maps'>")
+        by_map: dict[str, list[str]] = {}
+        for p in trajectories:
+            by_map.setdefault(p.stem, []).append(_img(out_dir, p, f"{p.stem}: trajectories"))
+        for p in animations:
+            by_map.setdefault(p.stem, []).append(_img(out_dir, p, f"{p.stem}: {p.parent.name}") + f"<figcaption>{html.escape(p.parent.name)}, animated</figcaption>")
+        parts += [f"<figure><figcaption><b>{html.escape(name)}</b></figcaption>{''.join(items)}</figure>" for name, items in by_map.items()]
+        parts.append("</div>")
+    parts.append("</body></html>\n")
+    path = out_dir / REPORT_NAME
+    path.write_text("\n".join(parts), encoding="utf-8")
+    return path
