@@ -671,6 +671,34 @@ def dataflow_command(
         typer.echo(f"note: nothing in this profile publishes {', '.join(TOPICS[t] for t in topics)} for {name}")
 
 
+@app.command("doctor")
+def doctor_command(
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="The runs folder `up` would write to"),
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
+) -> None:
+    """Check that this machine can run everything: libraries, Zenoh on loopback, the MuJoCo LIMO, weights, profiles (exit 1 if not)."""
+    import json  # noqa: PLC0415
+
+    from cso_runtime.doctor import run_checks  # noqa: PLC0415
+
+    results = run_checks(runs_dir)
+    if as_json:
+        typer.echo(json.dumps([r.as_dict() for r in results], indent=2))
+    else:
+        from rich.console import Console  # noqa: PLC0415
+        from rich.markup import escape  # noqa: PLC0415
+        from rich.table import Table  # noqa: PLC0415
+
+        table = Table(title="cso-runtime doctor", show_header=False)
+        for r in results:
+            table.add_row(r.name, "[green]ok[/green]" if r.ok else "[red]FAIL[/red]", escape(r.detail))
+        Console().print(table)
+        failed = [r.name for r in results if not r.ok]
+        typer.echo(f"{len(results) - len(failed)} of {len(results)} checks passed" + (f"; failed: {', '.join(failed)}" if failed else ""))
+    if not all(r.ok for r in results):
+        raise typer.Exit(1)
+
+
 @app.command("train")
 def train_command(
     config: Path | None = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args"),

@@ -1,0 +1,177 @@
+"""``cso-runtime doctor``: is this machine ready to run, as ``ros2 doctor`` asks of a ROS install.
+
+Each check does the real thing on a small scale and says what it found: the libraries import (with their
+versions, and whether torch sees a GPU), two Zenoh sessions exchange a message on loopback with multicast
+scouting off (what ``up`` needs), the MuJoCo LIMO is built in a small scene and driven for a step, every shipped
+weights file loads, every packaged profile validates, and the runs folder can be written. A failed check names
+its error, and the command exits 1, so a fresh machine's problem is found before a long run.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import os
+import platform
+import tempfile
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+
+@dataclass
+class CheckResult:
+    name: str
+    ok: bool
+    detail: str
+    seconds: float
+
+    def as_dict(self) -> dict[str, object]:
+        return {"check": self.name, "ok": self.ok, "detail": self.detail, "seconds": round(self.seconds, 3)}
+
+
+LIBRARIES = (
+    ("eclipse-zenoh", "zenoh"),
+    ("torch", "torch"),
+    ("mujoco", "mujoco"),
+    ("scikit-fmm", "skfmm"),
+    ("numpy", "numpy"),
+    ("msgpack", "msgpack"),
+    ("typer", "typer"),
+    ("mcap", "mcap"),
+    ("rosbags", "rosbags"),
+)
+"""(distribution, module) of the libraries the runtime imports."""
+
+
+def check_python() -> str:
+    from cso_runtime import __version__  # noqa: PLC0415
+
+    return f"cso-runtime {__version__} on Python {platform.python_version()} ({platform.machine()}, {platform.system()})"
+
+
+def check_libraries() -> str:
+    found, missing = [], []
+    for dist, module in LIBRARIES:
+        try:
+            importlib.import_module(module)
+            found.append(f"{dist} {importlib.metadata.version(dist)}")
+        except Exception as exc:  # noqa: BLE001 - an import that fails in any way is the finding
+            missing.append(f"{dist} ({type(exc).__name__}: {exc})")
+    if missing:
+        raise RuntimeError("cannot import " + "; ".join(missing))
+    import torch  # noqa: PLC0415
+
+    gpu = f"CUDA {torch.version.cuda}, {torch.cuda.device_count()} GPU(s)" if torch.cuda.is_available() else "CPU only"
+    return ", ".join(found) + f"; torch: {gpu}"
+
+
+def check_zenoh(timeout_s: float = 5.0) -> str:
+    """A router and a client on loopback (multicast off, as ``up``'s), one message from one to the other."""
+    from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session  # noqa: PLC0415
+
+    endpoint = loopback_endpoint(free_tcp_port())
+    got = threading.Event()
+    t0 = time.monotonic()
+    with open_session(TransportConfig(mode="router", listen=[endpoint])) as router, open_session(TransportConfig(mode="client", connect=[endpoint])) as client:
+        sub = router.declare_subscriber("cso/doctor/ping", lambda _sample: got.set())
+        deadline = time.monotonic() + timeout_s
+        while not got.is_set() and time.monotonic() < deadline:
+            client.put("cso/doctor/ping", b"ping")
+            got.wait(0.05)
+        sub.undeclare()
+    if not got.is_set():
+        raise RuntimeError(f"no message crossed loopback {endpoint} within {timeout_s:.0f} s (a firewall on 127.0.0.1?)")
+    return f"a message from a client to a router on {endpoint} in {1000 * (time.monotonic() - t0):.0f} ms (sessions included)"
+
+
+def check_mujoco() -> str:
+    """The MuJoCo LIMO in a small generated scene: built, scanned, driven one step."""
+    from cso_runtime.config import ExplorationConfig, SensorConfig  # noqa: PLC0415
+    from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M  # noqa: PLC0415
+    from cso_runtime.geometry import VelocityCommand  # noqa: PLC0415
+    from cso_runtime.scene_generator import generate_floor_plan  # noqa: PLC0415
+    from cso_runtime.simulator import make_simulator  # noqa: PLC0415
+
+    sensor = SensorConfig.preset("lidar", fov_deg=180)
+    sensor.mount_x_m = LIMO_LIDAR_MOUNT_X_M  # where the MuJoCo model carries it, as eval --sim mujoco says
+    sim = make_simulator("mujoco", generate_floor_plan("small", 0), sensor, ExplorationConfig().robot, seed=0)
+    sim.reset(0)
+    before = sim.true_pose()
+    sim.step(VelocityCommand(0.3, 0.0))
+    moved_m = float(((sim.true_pose().x_m - before.x_m) ** 2 + (sim.true_pose().y_m - before.y_m) ** 2) ** 0.5)
+    beams = int((sim.scan().ranges_m < float("inf")).sum())
+    if not moved_m > 0:
+        raise RuntimeError("the LIMO did not move on a forward command")
+    return f"LIMO built and driven: {moved_m * 100:.1f} cm in one 0.25 s step, {beams} LiDAR returns"
+
+
+def check_weights() -> str:
+    from cso_runtime.config import SensorConfig  # noqa: PLC0415
+    from cso_runtime.learned.registry import check_weights as load  # noqa: PLC0415
+    from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
+    from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
+
+    loaded: list[str] = []
+    for fov_deg in (360.0, 180.0):  # eval's --lidar-fov 360, and the LIMO's 180 of `up --profile sim`
+        sensor = SensorConfig.preset("lidar", fov_deg=fov_deg)
+        for method in LEARNED_METHODS:
+            path = weights_path(method, sensor)
+            if path.is_file() and path.name not in loaded:
+                load(method, sensor=sensor)
+                loaded.append(path.name)
+    if not weights_path("cso", SensorConfig.preset("lidar", fov_deg=180.0)).is_file():
+        raise RuntimeError("no cso weights (the default method of `up --profile sim`)")
+    return f"{len(loaded)} weights files load ({weights_path('cso').parent}): {', '.join(loaded)}"
+
+
+def check_profiles() -> str:
+    from cso_runtime.launcher import load_profile, profile_names  # noqa: PLC0415
+
+    names = profile_names()
+    for name in names:
+        load_profile(name, {}, connect=["tcp/127.0.0.1:7447"])  # a profile that joins a robot's router gets a stand-in
+    return f"{len(names)} profiles valid: {', '.join(names)}"
+
+
+def check_runs_folder(runs_dir: Path) -> str:
+    """A file can be made in the runs folder, or the folder in its nearest existing parent (made by ``up``, not here)."""
+    runs_dir = runs_dir.resolve()
+    if runs_dir.is_dir():
+        with tempfile.NamedTemporaryFile(dir=runs_dir, prefix=".doctor-"):
+            pass
+        return f"{runs_dir} is writable"
+    parent = next(p for p in runs_dir.parents if p.exists())
+    if not parent.is_dir() or not os.access(parent, os.W_OK | os.X_OK):
+        raise RuntimeError(f"{runs_dir} does not exist and {parent} cannot hold it")
+    return f"{runs_dir} will be made in {parent} (writable)"
+
+
+def checks(runs_dir: Path) -> list[tuple[str, Callable[[], str]]]:
+    return [
+        ("python", check_python),
+        ("libraries", check_libraries),
+        ("zenoh loopback", check_zenoh),
+        ("mujoco LIMO", check_mujoco),
+        ("weights", check_weights),
+        ("profiles", check_profiles),
+        ("runs folder", lambda: check_runs_folder(runs_dir)),
+    ]
+
+
+def run_checks(runs_dir: Path, only: list[tuple[str, Callable[[], str]]] | None = None) -> list[CheckResult]:
+    """Every check, each on its own: one that fails says why and the others still run."""
+    results = []
+    for name, fn in only if only is not None else checks(runs_dir):
+        t0 = time.monotonic()
+        try:
+            detail, ok = fn(), True
+        except Exception as exc:  # noqa: BLE001 - the check's finding, whatever failed
+            last = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+            where = f" ({Path(last.filename).name}:{last.lineno})" if last else ""
+            detail, ok = f"{type(exc).__name__}: {exc}{where}", False
+        results.append(CheckResult(name, ok, detail, time.monotonic() - t0))
+    return results

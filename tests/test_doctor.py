@@ -1,0 +1,43 @@
+"""``cso-runtime doctor``: every check on this machine, and what a failing one says."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+from typer.testing import CliRunner
+
+from cso_runtime import doctor
+from cso_runtime.cli import app
+
+
+def test_doctor_passes_every_check_on_a_working_install(tmp_path):
+    """The real checks, in a process of their own as a user runs them: libraries, a Zenoh message on loopback, the
+    MuJoCo LIMO driven a step, every weights file, every profile, the runs folder (not made by the check)."""
+    r = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "doctor", "--json"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    results = {c["check"]: c for c in json.loads(r.stdout)}
+    assert list(results) == ["python", "libraries", "zenoh loopback", "mujoco LIMO", "weights", "profiles", "runs folder"]
+    assert all(c["ok"] for c in results.values()), results
+    assert "eclipse-zenoh" in results["libraries"]["detail"] and "torch 2." in results["libraries"]["detail"]
+    assert "cso.pt" in results["weights"]["detail"] and "sim" in results["profiles"]["detail"]
+    assert "will be made in" in results["runs folder"]["detail"] and not (tmp_path / "runs").exists()
+
+
+def test_a_failing_check_says_why_and_the_others_still_run(tmp_path, monkeypatch):
+    def broken() -> str:
+        raise ConnectionError("no route to 127.0.0.1")
+
+    results = doctor.run_checks(tmp_path, only=[("broken", broken), ("fine", lambda: "all good")])
+    assert [(r.name, r.ok) for r in results] == [("broken", False), ("fine", True)]
+    assert results[0].detail.startswith("ConnectionError: no route to 127.0.0.1 (test_doctor.py:") and results[1].detail == "all good"
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(RuntimeError, match="cannot hold it"):
+        doctor.check_runs_folder(tmp_path / "a_file" / "runs")
+    assert doctor.check_runs_folder(tmp_path) == f"{tmp_path.resolve()} is writable"
+
+    monkeypatch.setattr(doctor, "checks", lambda runs_dir: [("broken", broken), ("fine", lambda: "all good")])
+    r = CliRunner().invoke(app, ["doctor", "--runs-dir", str(tmp_path)], env={"COLUMNS": "120"})
+    assert r.exit_code == 1 and "FAIL" in r.output and "1 of 2 checks passed; failed: broken" in r.output
