@@ -96,7 +96,7 @@ def _use_weights(folder: Path) -> None:
         _fail(str(exc), 2)
 
 
-@app.command("eval")
+@app.command("eval", rich_help_panel="Evaluation (Table 1)")
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", autocompletion=_complete_methods, help="Comma-separated methods: greedy-dist,greedy-info,utility,random,cso,..."),
     maps: str = typer.Option("builtin", "--maps", "--scene", help="Folder of PNG plans, one PNG, 'builtin', or generated:SCALE:N:SEED (--scene, as in `up`, is the same option)"),
@@ -145,7 +145,7 @@ def eval_command(
     raise typer.Exit(run_eval_cli(request))
 
 
-@app.command("compare")
+@app.command("compare", rich_help_panel="Evaluation (Table 1)")
 def compare_command(
     episodes: list[str] = typer.Argument(..., help="episodes.csv files written by eval (or their folders), each optionally LABEL=FILE (scenes pair only within a label)"),
     baseline: str = typer.Option("greedy-dist", "--baseline", help="The method every other one is compared with"),
@@ -197,7 +197,28 @@ def compare_command(
 # Further commands (service, up, status, down, train, record, replay) register below.
 
 
-@app.command("record")
+@app.command("report", rich_help_panel="Evaluation (Table 1)")
+def report_command(
+    folder: Path = typer.Argument(..., help="An `eval --out` folder or a run folder (runs/<run-id>) with its summary.json"),
+) -> None:
+    """Write FOLDER/report.html again from its summary.json and the figures now in it (an older folder, new animations)."""
+    import json  # noqa: PLC0415
+
+    from cso_runtime.report import write_report  # noqa: PLC0415
+
+    try:
+        summary = json.loads((folder / "summary.json").read_text())
+        if not isinstance(summary, dict) or not isinstance(summary.get("methods"), dict):
+            raise TypeError("not an eval or run summary (no methods)")
+        path = write_report(folder, summary)
+    except OSError as exc:
+        _fail(f"{folder}: {exc.strerror or exc}", 2)
+    except (ValueError, KeyError, TypeError) as exc:
+        _fail(f"{folder / 'summary.json'}: {exc}", 2)
+    typer.echo(f"wrote {path}")
+
+
+@app.command("record", rich_help_panel="Recordings")
 def record_command(
     out: Path | None = typer.Option(None, "--out", help="MCAP file, or a folder for <robot>-<UTC time>.mcap in it (default: recordings/)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id, or '*' for every robot (default: the current run's, else r0)"),
@@ -240,7 +261,7 @@ def record_command(
     typer.echo(f"{stats.messages} messages on {len(stats.per_key)} keys ({stats.raw} kept verbatim) -> {path}")
 
 
-@app.command("replay")
+@app.command("replay", rich_help_panel="Recordings")
 def replay_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record`"),
     speed: str = typer.Option("1.0", "--speed", help="Playback speed factor, or 'max' for as fast as possible"),
@@ -299,7 +320,7 @@ def _count_progress(label: str, unit: str = "messages") -> Iterator[Callable[[in
         yield lambda done, total: bar.update(task, completed=done, total=total)
 
 
-@app.command("export-bag")
+@app.command("export-bag", rich_help_panel="Recordings")
 def export_bag_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record` (or `up --record`)"),
     out: Path | None = typer.Option(None, "--out", help="The new bag folder (default: the recording's name without .mcap, beside it)"),
@@ -307,8 +328,7 @@ def export_bag_command(
     map_period_s: float = typer.Option(1.0, "--map-period-s", help="At most one /map per this many seconds of the run, and the last (0: every map)"),
     time_base: str = typer.Option("sim", "--time", help="sim: each message at its step's robot time (0.25 s a step, even in lockstep); received: at its reception"),
 ) -> None:
-    """Convert a recording into a ROS 2 bag (rosbag2, MCAP storage) of standard types: /scan, /odom, /tf, /map,
-    /plan, /goal_pose, /explore/frontiers, /cmd_vel, for RViz, Foxglove and `ros2 bag play`."""
+    """Convert a recording into a ROS 2 bag (rosbag2, MCAP storage) of standard types: /scan, /odom, /tf, /map, /plan, /goal_pose, /explore/frontiers, /cmd_vel, for RViz, Foxglove and `ros2 bag play`."""
     from cso_runtime.bag_export import BagExportError, export_bag  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, check_recording  # noqa: PLC0415
 
@@ -329,7 +349,7 @@ def export_bag_command(
         typer.echo(f"  left out, did not decode: {', '.join(f'{k} {n}' for k, n in sorted(stats.rejected.items()))}")
 
 
-@app.command("animate")
+@app.command("animate", rich_help_panel="Recordings")
 def animate_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record` (or `up --record`)"),
     out: Path | None = typer.Option(None, "--out", help="The GIF to write (default: the recording's name with .gif, beside it)"),
@@ -356,7 +376,7 @@ def animate_command(
         typer.echo(f"  left out, did not decode: {stats.rejected} payloads")
 
 
-@app.command("scenes")
+@app.command("scenes", rich_help_panel="Evaluation (Table 1)")
 def scenes_command(
     spec: str = typer.Argument("builtin", help="Scene spec: builtin, a folder of PNG plans or map YAMLs, FILE.png, FILE.yaml, generated:SCALE:N:SEED"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans, as in eval (0.1 super large, 0.05 large)"),
@@ -422,13 +442,12 @@ def scenes_command(
         raise typer.Exit(1)
 
 
-@app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False)
+@app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False, rich_help_panel="Runtime (Zenoh services)")
 def service_command(
     ctx: typer.Context,
     name: str | None = typer.Argument(None, help="sim, mapper, frontier, policy, planner or ros2_bridge"),
 ) -> None:
-    """Run one service in this process (same as python -m services.NAME; pass --config FILE --robot ID --connect EP;
-    `service NAME --help` lists that service's options)."""
+    """Run one service in this process (same as python -m services.NAME; pass --config FILE --robot ID --connect EP; `service NAME --help` lists that service's options)."""
     from services import service_class  # noqa: PLC0415
     from services.common import service_main  # noqa: PLC0415
 
@@ -442,7 +461,7 @@ def service_command(
     raise typer.Exit(service_main(cls, list(ctx.args), prog=f"cso-runtime service {name}"))
 
 
-@app.command("up")
+@app.command("up", rich_help_panel="Runtime (Zenoh services)")
 def up_command(
     profile: str = typer.Option("sim", "--profile", autocompletion=_complete_profiles, help="Profile name (./configs/profiles/, then the packaged cso_runtime/profiles/) or a YAML path"),
     scene: str | None = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, generated:SCALE:N:SEED"),
@@ -508,7 +527,7 @@ def up_command(
     raise typer.Exit(run_foreground(prof, data, runs_dir, live=live, record=recording, animate=animate))
 
 
-@app.command("status")
+@app.command("status", rich_help_panel="Runtime (Zenoh services)")
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     watch: bool = typer.Option(False, "--watch", help="Refresh every second until Ctrl-C"),
@@ -522,7 +541,7 @@ def status_command(
     raise typer.Exit(status_main(list(connect or []), robot, as_json, watch, runs_dir))
 
 
-@app.command("save-map")
+@app.command("save-map", rich_help_panel="Runtime (Zenoh services)")
 def save_map_command(
     out: Path = typer.Option(Path("map"), "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f; a folder gets map.yaml"),
     image_format: str = typer.Option("pgm", "--format", help="Image format: pgm or png"),
@@ -539,7 +558,7 @@ def save_map_command(
     raise typer.Exit(save_map_main(list(connect or []), robot, out, image_format, runs_dir))
 
 
-@app.command("down")
+@app.command("down", rich_help_panel="Runtime (Zenoh services)")
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
     timeout: float = typer.Option(10.0, "--timeout-s", help="How long the launcher may take to stop its services before escalating"),
@@ -552,7 +571,7 @@ def down_command(
     raise typer.Exit(0 if ok else 1)
 
 
-@app.command("runs")
+@app.command("runs", rich_help_panel="Runtime (Zenoh services)")
 def runs_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the run folders are"),
     limit: int = typer.Option(20, "--limit", min=1, help="Show the newest N runs"),
@@ -596,7 +615,7 @@ def runs_command(
 LOG_COLOURS = ("cyan", "green", "yellow", "magenta", "blue", "bright_red", "bright_cyan", "bright_green")
 
 
-@app.command("logs")
+@app.command("logs", rich_help_panel="Runtime (Zenoh services)")
 def logs_command(
     services: list[str] | None = typer.Argument(None, metavar="SERVICE", autocompletion=_complete_log_services, help="Services to show (default: all, the launcher's own log included)"),
     run: str | None = typer.Option(None, "--run", autocompletion=_complete_run_ids, help="Run id under --runs-dir, or a run folder (default: the current run, else the newest)"),
@@ -631,7 +650,7 @@ def logs_command(
         typer.echo(f"run {run_dir.name} has ended", err=True)
 
 
-@app.command("dataflow")
+@app.command("dataflow", rich_help_panel="Runtime (Zenoh services)")
 def dataflow_command(
     profile: str = typer.Option("sim", "--profile", autocompletion=_complete_profiles, help="Profile name (./configs/profiles/, then the packaged ones) or a YAML path"),
     fmt: str = typer.Option("table", "--format", help="table, mermaid (a flowchart for Markdown viewers) or markdown (as runs/<run-id>/dataflow.md)"),
@@ -671,7 +690,7 @@ def dataflow_command(
         typer.echo(f"note: nothing in this profile publishes {', '.join(TOPICS[t] for t in topics)} for {name}")
 
 
-@app.command("doctor")
+@app.command("doctor", rich_help_panel="Set-up")
 def doctor_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="The runs folder `up` would write to"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
@@ -699,7 +718,7 @@ def doctor_command(
         raise typer.Exit(1)
 
 
-@app.command("train")
+@app.command("train", rich_help_panel="Learned policy")
 def train_command(
     config: Path | None = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args"),
     variant: str | None = typer.Option(None, "--variant", help="cso, cso-no-info, cso-no-mask, cso-sm, cso-vdm or gnn-baseline"),
@@ -737,7 +756,7 @@ def train_command(
     typer.echo(f"done: {record['ppo_decisions']} PPO decisions, {record['warm_start_decisions']} warm-start decisions, {record['wall_time_s']} s -> {args.out_dir}")
 
 
-@app.command("collect-teacher")
+@app.command("collect-teacher", rich_help_panel="Learned policy")
 def collect_teacher_command(
     out: Path = typer.Option(..., "--out", help="Teacher-data file to write (.npz); train with --set warm_start_data=[FILE]"),
     config: Path | None = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args (scenes, variant, masks)"),
@@ -749,8 +768,7 @@ def collect_teacher_command(
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
-    """Collect a warm-start teacher's decisions once (the rollout teacher costs seconds per decision) for
-    several training runs to imitate."""
+    """Collect a warm-start teacher's decisions once (the rollout teacher costs seconds per decision) for several training runs to imitate."""
     from cso_runtime.learned.ppo import collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
     from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
 

@@ -482,4 +482,14 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     assert summary["methods"]["greedy-dist"]["episodes"] == 1
     with Image.open(tmp_path / "o" / "animations" / "greedy-dist" / "gen_small_3.gif") as im:
         assert im.n_frames >= 2
-    assert '<img src="animations/greedy-dist/gen_small_3.gif"' in (tmp_path / "o" / "report.html").read_text()
+    page = (tmp_path / "o" / "report.html").read_text()
+    assert '<img src="animations/greedy-dist/gen_small_3.gif"' in page
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    (tmp_path / "o" / "report.html").unlink()
+    r = CliRunner().invoke(app, ["report", str(tmp_path / "o")])  # the page again, from the folder alone
+    assert r.exit_code == 0 and (tmp_path / "o" / "report.html").read_text() == page
+    r = CliRunner().invoke(app, ["report", str(tmp_path / "nothing")])
+    assert r.exit_code == 2 and "error:" in r.output
