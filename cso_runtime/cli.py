@@ -642,12 +642,13 @@ def logs_command(
     lines, readers = read_logs(files, tail, finished=not (follow and live))
     for line in lines:
         emit(line)
-    if follow and live:
-        try:
-            follow_logs(run_dir, readers, emit, alive=lambda: run_is_live(run_dir), pick_up_new=not services)
-        except KeyboardInterrupt:
-            return
-        typer.echo(f"run {run_dir.name} has ended", err=True)
+    if follow:
+        if live:
+            try:
+                follow_logs(run_dir, readers, emit, alive=lambda: run_is_live(run_dir), pick_up_new=not services)
+            except KeyboardInterrupt:
+                return
+        typer.echo(f"run {run_dir.name} has ended", err=True)  # also when it had before -f started: nothing to wait for
 
 
 @app.command("dataflow", rich_help_panel="Runtime (Zenoh services)")
