@@ -20,7 +20,6 @@ import argparse
 import json
 import logging
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -47,6 +46,7 @@ from cso_runtime.config import (
     set_dotted,
 )
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
+from cso_runtime.live_view import LiveView
 from cso_runtime.messages import (
     EpisodeResultMsg,
     EpisodeStatusMsg,
@@ -58,8 +58,8 @@ from cso_runtime.messages import (
     decode,
     encode,
 )
-from cso_runtime.processes import STACK_DUMP_SIGNAL
 from cso_runtime.scenes import SceneError, resolve_scenes
+from cso_runtime.supervision import Child, pid_alive, process_start_ticks, run_process_alive, signal_group, stop_children
 from cso_runtime.transport import TransportConfig, TransportError, free_tcp_port, open_session, track_liveliness
 
 log = logging.getLogger("cso.launcher")
@@ -267,100 +267,6 @@ def load_profile(
 
 class RecorderError(RuntimeError):
     """``up --record`` cannot write its recording: the run stops before any service starts."""
-
-
-# --- process supervision ---------------------------------------------------------------------------
-
-
-@dataclass
-class Child:
-    """One supervised service process."""
-
-    name: str
-    argv: list[str]
-    log_path: Path
-    proc: subprocess.Popen | None = None
-    restarts: int = 0
-    gave_up: bool = False
-    gave_up_at: float | None = None
-    """``time.monotonic()`` when the launcher gave up on it."""
-    restart_at: float | None = None
-    exit_codes: list[int] = field(default_factory=list)
-
-    @property
-    def alive(self) -> bool:
-        return self.proc is not None and self.proc.poll() is None
-
-    def last_error(self, tail_bytes: int = 16384) -> str:
-        """The last error its log holds (a logged ERROR, or a traceback's exception line), so that the
-        launcher's own message says why a service exited; empty when the log has none."""
-        try:
-            with self.log_path.open("rb") as fh:
-                fh.seek(max(0, self.log_path.stat().st_size - tail_bytes))
-                lines = fh.read().decode("utf-8", "replace").splitlines()
-        except OSError:
-            return ""
-        for line in reversed(lines):
-            if " ERROR " in line:
-                return line.split(" ERROR ", 1)[1].strip()
-            if re.match(r"^[\w.]+(Error|Exception|Interrupt)\b", line):
-                return line.strip()
-        return ""
-
-    def spawn(self) -> None:
-        self.log_path.parent.mkdir(parents=True, exist_ok=True)
-        with self.log_path.open("ab") as fh:
-            env = {**os.environ, "PYTHONUNBUFFERED": "1", "CSO_PARENT_PID": str(os.getpid())}
-            self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env)
-        self.restart_at = None
-
-
-def signal_group(pid: int, sig: int) -> None:
-    try:
-        os.killpg(pid, sig)
-    except (ProcessLookupError, PermissionError):
-        pass
-
-
-STACK_DUMP_WAIT_S = 0.5
-"""How long a service that ignored SIGINT and SIGTERM gets to write its stacks before SIGKILL."""
-
-
-def stop_children(children: list[Child], stage_timeout_s: float) -> None:
-    """SIGINT every process group, then SIGTERM, then SIGKILL, each stage with a deadline. A service
-    still running at the last stage is asked for its threads' stacks first, so its log says where it hung."""
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
-        running = [c for c in children if c.alive]
-        if not running:
-            break
-        if sig == signal.SIGKILL:
-            dump_stacks(running)
-        for c in running:
-            assert c.proc is not None
-            signal_group(c.proc.pid, sig)
-        deadline = time.monotonic() + stage_timeout_s
-        for c in running:
-            assert c.proc is not None
-            try:
-                c.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                log.warning("%s (pid %d) still running after %s", c.name, c.proc.pid, signal.Signals(sig).name)
-    for c in children:  # the groups may hold grandchildren
-        if c.proc is not None:
-            signal_group(c.proc.pid, signal.SIGKILL)
-
-
-def dump_stacks(children: list[Child]) -> None:
-    """``STACK_DUMP_SIGNAL`` to each service process (not its group: a helper would die of it), then a
-    moment for faulthandler to write; each log then holds the stacks of that service's threads."""
-    for c in children:
-        assert c.proc is not None
-        try:
-            os.kill(c.proc.pid, STACK_DUMP_SIGNAL)
-        except (ProcessLookupError, PermissionError):
-            continue
-        log.warning("%s (pid %d) did not stop: the stacks of its threads are in %s", c.name, c.proc.pid, c.log_path)
-    time.sleep(STACK_DUMP_WAIT_S)
 
 
 # --- the launcher ----------------------------------------------------------------------------------
@@ -788,83 +694,6 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
     return row
 
 
-class LiveView:
-    """A rich table refreshed a few times a second: episode progress and service health."""
-
-    def __init__(self, launcher: Launcher, console=None):
-        self.launcher = launcher
-        self.console = console  # None: rich's console on stdout
-        self._live = None
-        self._last = 0.0
-        self._rerouted: list[tuple[logging.StreamHandler, Any]] = []
-        """Log handlers on stderr sent through the live display while it runs, with the stream to give back."""
-
-    BAR_CELLS = 20
-    """Width of the coverage bar, in characters."""
-
-    def render(self):
-        from rich.markup import escape  # noqa: PLC0415
-        from rich.progress_bar import ProgressBar  # noqa: PLC0415
-        from rich.table import Table  # noqa: PLC0415
-
-        la = self.launcher
-        st = la.status
-        # Short title, no header: on an 80-column terminal a title wider than the table wraps.
-        t = Table(title=f"cso-runtime {la.run_id}", show_header=False)
-        t.add_column("field")
-        t.add_column("value")
-        t.add_row("robot / method", escape(f"{la.profile.robot} / {la.profile.method}, {'lockstep' if la.profile.lockstep else 'real time'}"))
-        if st is None:
-            t.add_row("state", "starting")
-        else:
-            goal = "-" if st.goal_xy_m is None else f"({st.goal_xy_m[0]:.2f}, {st.goal_xy_m[1]:.2f}) m"
-            t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "")))
-            t.add_row("scene", escape(st.scene))
-            t.add_row("step", f"{st.step} ({st.step * la.control_period_s:.1f} s robot time, {time.monotonic() - la.started_s:.0f} s since start)")
-            coverage = Table.grid(padding=(0, 1))
-            coverage.add_row(ProgressBar(total=100.0, completed=min(st.coverage_pct, 100.0), width=self.BAR_CELLS), f"{st.coverage_pct:.1f} %")
-            t.add_row("coverage", coverage)
-            for k, v in (
-                ("explored", f"{st.explored_area_m2:.2f} m2" + (f", {st.explored_area_m2 / st.step:.3f} m2/step" if st.step else "")),
-                ("path length", f"{st.path_length_m:.2f} m"),
-                ("goal", goal + ("" if la.path_ahead_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
-                ("decisions", f"{st.decisions} (last {st.last_decision_ms:.1f} ms)"),
-            ):
-                t.add_row(k, escape(v))  # text, not markup: a scene file's name may hold brackets
-        for c in la.children:
-            health = "up" if c.alive and c.name in la.alive_services else ("starting" if c.alive else ("gave up" if c.gave_up else "restarting"))
-            t.add_row(f"[bold]{c.name}", f"{health}, pid {c.proc.pid if c.proc else '-'}, restarts {c.restarts}")
-        return t
-
-    def start(self) -> None:
-        from rich.live import Live  # noqa: PLC0415
-
-        stderr = sys.stderr
-        self._live = Live(self.render(), console=self.console, refresh_per_second=4, transient=False)
-        self._live.start()
-        if sys.stderr is not stderr:
-            # On a terminal rich replaces sys.stderr with a proxy that prints above the table; a log handler
-            # still holds the old stream, and its lines would land inside the table and shift its redraws.
-            for handler in logging.getLogger().handlers:
-                if isinstance(handler, logging.StreamHandler) and handler.stream is stderr:
-                    self._rerouted.append((handler, handler.setStream(sys.stderr)))
-
-    def update(self) -> None:
-        if self._live is not None and time.monotonic() - self._last > 0.25:
-            self._last = time.monotonic()
-            self._live.update(self.render())
-
-    def stop(self) -> None:
-        if self._live is not None:
-            self._live.update(self.render())
-            for handler, stream in self._rerouted:
-                handler.setStream(stream)
-            self._rerouted.clear()
-            self._live.stop()
-            if not self._live.console.is_terminal:  # rich ends the last table with a newline on a terminal only
-                self._live.console.line()
-
-
 # --- entry points -----------------------------------------------------------------------------------
 
 
@@ -883,41 +712,6 @@ def read_current_run(runs_dir: Path) -> dict[str, Any] | None:
         return json.loads((runs_dir / CURRENT_RUN).read_text())
     except (OSError, ValueError):
         return None
-
-
-def pid_alive(pid: int | None) -> bool:
-    if not pid:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    try:  # a zombie is not running
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().split(")")[-1].split()[0] != "Z"
-    except OSError:
-        return True
-
-
-def process_start_ticks(pid: int) -> int | None:
-    """When the process started (clock ticks since boot, ``/proc/<pid>/stat`` field 22); None when unknown.
-    With its pid it names one process for good: a pid alone may have been reused since a run file was written."""
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return int(fh.read().rsplit(")", 1)[-1].split()[19])
-    except (OSError, ValueError, IndexError):
-        return None
-
-
-def run_process_alive(pid: int | None, start_ticks: int | None) -> bool:
-    """``pid_alive``, and still the process a run file named (same start time, when the file recorded one):
-    ``down`` must never signal a process that took a dead launcher's pid."""
-    if not pid_alive(pid):
-        return False
-    now = process_start_ticks(int(pid)) if start_ticks is not None else None
-    return now is None or now == start_ticks
 
 
 def current_launcher_alive(info: dict[str, Any]) -> bool:

@@ -12,8 +12,8 @@ import yaml
 from typer.testing import CliRunner
 
 from cso_runtime.cli import app
-from cso_runtime.launcher import process_start_ticks
 from cso_runtime.runs import RunError, follow_logs, list_runs, log_files, read_logs, resolve_run, select_services
+from cso_runtime.supervision import process_start_ticks
 
 STAMP = "2026-12-03 09:10:{:02d},{:03d}"
 

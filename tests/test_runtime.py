@@ -31,13 +31,13 @@ from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import run_episode
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.keys import TOPICS, RobotKeys
-from cso_runtime.launcher import pid_alive
 from cso_runtime.map_files import load_map
 from cso_runtime.messages import ClockMsg, EpisodeStatusMsg, MapMsg, ScanMsg, ServiceStatusMsg, decode, encode
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.status import query_status, save_map_main, status_main
+from cso_runtime.supervision import pid_alive
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 
 REPO = Path(__file__).resolve().parents[1]
@@ -387,7 +387,8 @@ def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
     """A run file outlives its launcher (SIGKILL, a reboot); its pids may belong to other processes since.
     The start time the file records tells them apart: ``down`` leaves such a process alone, and ``up`` is
     not refused because of it."""
-    from cso_runtime.launcher import current_launcher_alive, down, process_start_ticks
+    from cso_runtime.launcher import current_launcher_alive, down
+    from cso_runtime.supervision import process_start_ticks
 
     bystander = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
     try:
@@ -423,7 +424,8 @@ def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, m
 def test_a_service_that_refuses_its_configuration_is_not_restarted(tmp_path):
     """Exit code 2 (a configuration the service refuses) would repeat on every restart: the launcher
     gives up on that service at once and says why; any other exit is restarted with back-off."""
-    from cso_runtime.launcher import Child, Launcher, find_profile, load_profile
+    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.supervision import Child
 
     profile, data = load_profile(str(find_profile("lockstep")), {})
     launcher = Launcher(profile, data, tmp_path / "run")
@@ -447,7 +449,8 @@ def test_a_given_up_service_that_no_one_serves_stops_the_episode(tmp_path):
     """A policy that refused its configuration (say, a corrupt weights file) leaves nobody choosing goals:
     the episode must stop saying so once the grace for another process to serve it has passed, not run
     on to its step limit. A token from such a process (another host) keeps the episode going."""
-    from cso_runtime.launcher import Child, Launcher, find_profile, load_profile
+    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.supervision import Child
 
     profile, data = load_profile(str(find_profile("lockstep")), {"supervision": {"given_up_grace_s": 5.0}})
     launcher = Launcher(profile, data, tmp_path / "run")
@@ -473,7 +476,7 @@ def test_a_given_up_service_that_no_one_serves_stops_the_episode(tmp_path):
 def test_a_service_that_ignores_the_stop_signals_leaves_its_stacks_in_its_log_before_the_kill(tmp_path):
     """A hung service (it never gets to act on SIGINT or SIGTERM) is killed at the last stage; its log
     must then say where it hung: every thread's stack, written by faulthandler on STACK_DUMP_SIGNAL."""
-    from cso_runtime.launcher import Child, stop_children
+    from cso_runtime.supervision import Child, stop_children
 
     hung = textwrap.dedent(
         """
@@ -533,7 +536,8 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
 
     from rich.console import Console
 
-    from cso_runtime.launcher import Launcher, LiveView, find_profile, load_profile
+    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.live_view import LiveView
     from cso_runtime.messages import PathMsg
 
     profile, data = load_profile(str(find_profile("lockstep")), {})
@@ -574,7 +578,8 @@ def test_log_lines_during_the_live_view_print_above_the_table_not_inside_it(tmp_
 
     from rich.console import Console
 
-    from cso_runtime.launcher import Launcher, LiveView, find_profile, load_profile
+    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.live_view import LiveView
 
     profile, data = load_profile(str(find_profile("lockstep")), {})
     launcher = Launcher(profile, data, tmp_path / "run")

@@ -1,0 +1,89 @@
+"""``up``'s live view: a rich table of the episode's progress and each service's health, refreshed a few times a
+second, with the launcher's log lines printed above it rather than inside it."""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from cso_runtime.launcher import Launcher
+
+
+class LiveView:
+    """A rich table refreshed a few times a second: episode progress and service health."""
+
+    def __init__(self, launcher: Launcher, console=None):
+        self.launcher = launcher
+        self.console = console  # None: rich's console on stdout
+        self._live = None
+        self._last = 0.0
+        self._rerouted: list[tuple[logging.StreamHandler, Any]] = []
+        """Log handlers on stderr sent through the live display while it runs, with the stream to give back."""
+
+    BAR_CELLS = 20
+    """Width of the coverage bar, in characters."""
+
+    def render(self):
+        from rich.markup import escape  # noqa: PLC0415
+        from rich.progress_bar import ProgressBar  # noqa: PLC0415
+        from rich.table import Table  # noqa: PLC0415
+
+        la = self.launcher
+        st = la.status
+        # Short title, no header: on an 80-column terminal a title wider than the table wraps.
+        t = Table(title=f"cso-runtime {la.run_id}", show_header=False)
+        t.add_column("field")
+        t.add_column("value")
+        t.add_row("robot / method", escape(f"{la.profile.robot} / {la.profile.method}, {'lockstep' if la.profile.lockstep else 'real time'}"))
+        if st is None:
+            t.add_row("state", "starting")
+        else:
+            goal = "-" if st.goal_xy_m is None else f"({st.goal_xy_m[0]:.2f}, {st.goal_xy_m[1]:.2f}) m"
+            t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "")))
+            t.add_row("scene", escape(st.scene))
+            t.add_row("step", f"{st.step} ({st.step * la.control_period_s:.1f} s robot time, {time.monotonic() - la.started_s:.0f} s since start)")
+            coverage = Table.grid(padding=(0, 1))
+            coverage.add_row(ProgressBar(total=100.0, completed=min(st.coverage_pct, 100.0), width=self.BAR_CELLS), f"{st.coverage_pct:.1f} %")
+            t.add_row("coverage", coverage)
+            for k, v in (
+                ("explored", f"{st.explored_area_m2:.2f} m2" + (f", {st.explored_area_m2 / st.step:.3f} m2/step" if st.step else "")),
+                ("path length", f"{st.path_length_m:.2f} m"),
+                ("goal", goal + ("" if la.path_ahead_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
+                ("decisions", f"{st.decisions} (last {st.last_decision_ms:.1f} ms)"),
+            ):
+                t.add_row(k, escape(v))  # text, not markup: a scene file's name may hold brackets
+        for c in la.children:
+            health = "up" if c.alive and c.name in la.alive_services else ("starting" if c.alive else ("gave up" if c.gave_up else "restarting"))
+            t.add_row(f"[bold]{c.name}", f"{health}, pid {c.proc.pid if c.proc else '-'}, restarts {c.restarts}")
+        return t
+
+    def start(self) -> None:
+        from rich.live import Live  # noqa: PLC0415
+
+        stderr = sys.stderr
+        self._live = Live(self.render(), console=self.console, refresh_per_second=4, transient=False)
+        self._live.start()
+        if sys.stderr is not stderr:
+            # On a terminal rich replaces sys.stderr with a proxy that prints above the table; a log handler
+            # still holds the old stream, and its lines would land inside the table and shift its redraws.
+            for handler in logging.getLogger().handlers:
+                if isinstance(handler, logging.StreamHandler) and handler.stream is stderr:
+                    self._rerouted.append((handler, handler.setStream(sys.stderr)))
+
+    def update(self) -> None:
+        if self._live is not None and time.monotonic() - self._last > 0.25:
+            self._last = time.monotonic()
+            self._live.update(self.render())
+
+    def stop(self) -> None:
+        if self._live is not None:
+            self._live.update(self.render())
+            for handler, stream in self._rerouted:
+                handler.setStream(stream)
+            self._rerouted.clear()
+            self._live.stop()
+            if not self._live.console.is_terminal:  # rich ends the last table with a newline on a terminal only
+                self._live.console.line()

@@ -1,0 +1,147 @@
+"""Supervised service processes: spawn with a log file, stop in stages, dump stacks of a hung one, and tell
+whether a recorded process still runs (a pid alone may have been reused since a run file named it).
+
+The launcher (``cso_runtime.launcher``) decides when to restart and when to give up; this module only does
+what the operating system is asked.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import signal
+import subprocess
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cso_runtime.processes import STACK_DUMP_SIGNAL
+
+log = logging.getLogger("cso.launcher")
+
+
+@dataclass
+class Child:
+    """One supervised service process."""
+
+    name: str
+    argv: list[str]
+    log_path: Path
+    proc: subprocess.Popen | None = None
+    restarts: int = 0
+    gave_up: bool = False
+    gave_up_at: float | None = None
+    """``time.monotonic()`` when the launcher gave up on it."""
+    restart_at: float | None = None
+    exit_codes: list[int] = field(default_factory=list)
+
+    @property
+    def alive(self) -> bool:
+        return self.proc is not None and self.proc.poll() is None
+
+    def last_error(self, tail_bytes: int = 16384) -> str:
+        """The last error its log holds (a logged ERROR, or a traceback's exception line), so that the
+        launcher's own message says why a service exited; empty when the log has none."""
+        try:
+            with self.log_path.open("rb") as fh:
+                fh.seek(max(0, self.log_path.stat().st_size - tail_bytes))
+                lines = fh.read().decode("utf-8", "replace").splitlines()
+        except OSError:
+            return ""
+        for line in reversed(lines):
+            if " ERROR " in line:
+                return line.split(" ERROR ", 1)[1].strip()
+            if re.match(r"^[\w.]+(Error|Exception|Interrupt)\b", line):
+                return line.strip()
+        return ""
+
+    def spawn(self) -> None:
+        self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        with self.log_path.open("ab") as fh:
+            env = {**os.environ, "PYTHONUNBUFFERED": "1", "CSO_PARENT_PID": str(os.getpid())}
+            self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env)
+        self.restart_at = None
+
+
+def signal_group(pid: int, sig: int) -> None:
+    try:
+        os.killpg(pid, sig)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+STACK_DUMP_WAIT_S = 0.5
+"""How long a service that ignored SIGINT and SIGTERM gets to write its stacks before SIGKILL."""
+
+
+def stop_children(children: list[Child], stage_timeout_s: float) -> None:
+    """SIGINT every process group, then SIGTERM, then SIGKILL, each stage with a deadline. A service
+    still running at the last stage is asked for its threads' stacks first, so its log says where it hung."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+        running = [c for c in children if c.alive]
+        if not running:
+            break
+        if sig == signal.SIGKILL:
+            dump_stacks(running)
+        for c in running:
+            assert c.proc is not None
+            signal_group(c.proc.pid, sig)
+        deadline = time.monotonic() + stage_timeout_s
+        for c in running:
+            assert c.proc is not None
+            try:
+                c.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                log.warning("%s (pid %d) still running after %s", c.name, c.proc.pid, signal.Signals(sig).name)
+    for c in children:  # the groups may hold grandchildren
+        if c.proc is not None:
+            signal_group(c.proc.pid, signal.SIGKILL)
+
+
+def dump_stacks(children: list[Child]) -> None:
+    """``STACK_DUMP_SIGNAL`` to each service process (not its group: a helper would die of it), then a
+    moment for faulthandler to write; each log then holds the stacks of that service's threads."""
+    for c in children:
+        assert c.proc is not None
+        try:
+            os.kill(c.proc.pid, STACK_DUMP_SIGNAL)
+        except (ProcessLookupError, PermissionError):
+            continue
+        log.warning("%s (pid %d) did not stop: the stacks of its threads are in %s", c.name, c.proc.pid, c.log_path)
+    time.sleep(STACK_DUMP_WAIT_S)
+
+
+def pid_alive(pid: int | None) -> bool:
+    if not pid:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:  # a zombie is not running
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return True
+
+
+def process_start_ticks(pid: int) -> int | None:
+    """When the process started (clock ticks since boot, ``/proc/<pid>/stat`` field 22); None when unknown.
+    With its pid it names one process for good: a pid alone may have been reused since a run file was written."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return int(fh.read().rsplit(")", 1)[-1].split()[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def run_process_alive(pid: int | None, start_ticks: int | None) -> bool:
+    """``pid_alive``, and still the process a run file named (same start time, when the file recorded one):
+    ``down`` must never signal a process that took a dead launcher's pid."""
+    if not pid_alive(pid):
+        return False
+    now = process_start_ticks(int(pid)) if start_ticks is not None else None
+    return now is None or now == start_ticks
