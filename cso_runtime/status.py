@@ -163,7 +163,7 @@ def render_table(status: dict[str, Any]):
         ("step", str(status["step"])),
         ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
         ("coverage", f"{status['coverage_pct']:.2f} %"),
-        ("explored", f"{status['explored_area_m2']:.2f} m2"),
+        ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / status['step']:.3f} m2/step" if status["step"] else "")),
         ("path length", f"{status['path_length_m']:.2f} m"),
         ("goal", "-" if goal is None else f"({goal[0]:.2f}, {goal[1]:.2f}) m"),
         ("decisions", f"{status['decisions']} (last {status['last_decision_ms']:.1f} ms)"),

@@ -619,6 +619,7 @@ def test_status_table_shows_the_episode_and_each_service():
     console.print(render_table(status))
     text = console.export_text()
     assert "│ 17 " in text and "000000001092" in text and "41.50 %" in text and "(1.00, 2.00) m" in text
+    assert "12.25 m2, 0.721 m2/step" in text  # Table 1's efficiency so far, as the live view's
     assert "mapper" in text and "sim" in text
     stale = {"alive": True, "state": "stale", "reason": "stale: no odometry/scan for 3.0 s", "last_step": 17, "rejected": {}}
     status["services"]["planner"] = stale
