@@ -2,7 +2,8 @@
 
 Two sources, one picture (``cso_runtime.frames``): an in-process episode (``EpisodeAnimation``, what ``eval
 --animate`` writes per episode) and a recording of a run (``animate_recording``, ``cso-runtime animate``: a ``up
---record`` run of the simulator or of a real LIMO, from its ``map``, ``odom`` and ``goal`` messages). A frame is a
+--record`` run of the simulator or of a real LIMO, from its ``map``, ``odom``, ``frontiers`` and ``goal`` messages).
+Frames after a decision show its frontiers F_t (orange); the final one shows the map alone. A frame is a
 ``PALETTE``-indexed image, one byte a pixel; at most ``max_frames`` are kept, by dropping every other frame and
 then keeping every other decision each time the limit is reached, so a 3000-step episode on a large plan stays a
 few megabytes in memory and on disk.
@@ -21,7 +22,7 @@ import numpy as np
 from cso_runtime.config import RobotConfig
 from cso_runtime.frames import PALETTE, frame_scale, map_frame_indexed
 from cso_runtime.geometry import Pose2D
-from cso_runtime.messages import GoalMsg, MapMsg, MessageError, OdometryMsg, decode
+from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, MessageError, OdometryMsg, decode, frontiers_reading
 
 log = logging.getLogger("cso.animation")
 
@@ -75,14 +76,24 @@ class FrameSequence:
         return path
 
 
-def draw(explored: np.ndarray, occupied: np.ndarray, geometry: Any, pose: Pose2D, trajectory_xy_m: list, goal_xy_m: tuple | None, robot_radius_m: float) -> np.ndarray:
-    """One animation frame at the scale ``frame_scale`` picks for the map."""
+def draw(
+    explored: np.ndarray,
+    occupied: np.ndarray,
+    geometry: Any,
+    pose: Pose2D,
+    trajectory_xy_m: list,
+    goal_xy_m: tuple | None,
+    robot_radius_m: float,
+    frontier: np.ndarray | None = None,
+) -> np.ndarray:
+    """One animation frame at the scale ``frame_scale`` picks for the map; ``frontier``: the decision's F_t."""
     return map_frame_indexed(
         explored,
         occupied,
         geometry,
         pose,
         robot_radius_m=robot_radius_m,
+        frontier=frontier if frontier is not None and frontier.shape == explored.shape else None,
         trajectory_xy_m=np.array(trajectory_xy_m, dtype=float).reshape(-1, 2),
         goals_xy_m=np.array([goal_xy_m]) if goal_xy_m is not None else None,
         scale=frame_scale(geometry.shape),
@@ -111,13 +122,14 @@ class EpisodeAnimation(FrameSequence):
         decision changed). False when the episode took no step: nothing to animate."""
         if self.explorer is None:
             return False
-        self._draw(self.explorer)
+        self._draw(self.explorer, final=True)
         return True
 
-    def _draw(self, explorer: Any) -> None:
+    def _draw(self, explorer: Any, final: bool = False) -> None:
         m, goal = explorer.map, explorer.goal
         goal_xy = (goal.x_m, goal.y_m) if goal is not None else None
-        self.add(draw(m.explored, m.occupied, m.geometry, explorer.sim.true_pose(), explorer.trajectory, goal_xy, explorer.config.robot.radius_m))
+        frontier = None if final else explorer.decision_frontier  # the final frame: the map alone
+        self.add(draw(m.explored, m.occupied, m.geometry, explorer.sim.true_pose(), explorer.trajectory, goal_xy, explorer.config.robot.radius_m, frontier))
 
 
 @dataclass
@@ -133,7 +145,7 @@ class RecordingAnimationStats:
     """Payloads of the keys read that did not decode (left out, as a service would)."""
 
 
-ANIMATED = {"map": MapMsg, "odom": OdometryMsg, "goal": GoalMsg}
+ANIMATED = {"map": MapMsg, "odom": OdometryMsg, "goal": GoalMsg, "frontiers": frontiers_reading(("frontier",), clusters=False)}
 """The keys a recording's animation reads, with the message type each must carry."""
 
 
@@ -157,6 +169,7 @@ def animate_recording(
     pose: Pose2D | None = None
     trajectory: list[tuple[float, float]] = []
     goal_xy: tuple[float, float] | None = None
+    frontier: np.ndarray | None = None
     decided, decisions, maps, rejected, seen = False, 0, 0, 0, 0
     for seen, m in enumerate(read_recording(recording, topics=ANIMATED), 1):
         if progress is not None and seen % PROGRESS_EVERY == 0:
@@ -169,7 +182,10 @@ def animate_recording(
         except MessageError:
             rejected += 1
             continue
-        if isinstance(msg, OdometryMsg):
+        if isinstance(msg, FrontiersMsg):
+            if msg.decide and msg.arrays is not None and msg.arrays.get("frontier") is not None:
+                frontier = msg.arrays["frontier"]
+        elif isinstance(msg, OdometryMsg):
             pose = msg.pose
             trajectory.append((pose.x_m, pose.y_m))
         elif isinstance(msg, GoalMsg):
@@ -183,7 +199,7 @@ def animate_recording(
             if decided and pose is not None:
                 decided = False
                 if seq.offer():
-                    seq.add(draw(msg.explored, msg.occupied, msg.geometry, pose, trajectory, goal_xy, robot_radius_m))
+                    seq.add(draw(msg.explored, msg.occupied, msg.geometry, pose, trajectory, goal_xy, robot_radius_m, frontier))
     if progress is not None:
         progress(total if total is not None else seen, total)
     if latest_map is None or pose is None:

@@ -182,6 +182,8 @@ class Explorer:
         self.decision_ms: list[float] = []
         self.dead_frontier = np.zeros(self.map.geometry.shape, dtype=bool)
         self.path_nodes: list[tuple[float, float]] = []
+        self.decision_frontier: np.ndarray | None = None
+        """F_t of the latest decision (``observe``), for animations."""
         self.trajectory: list[tuple[float, float]] = [tuple(self.sim.true_pose().xy)]
         self.path_length_m = 0.0
         self.terminated_by: str | None = None
@@ -221,6 +223,7 @@ class Explorer:
         pose = self.sim.odometry()
         self.path_nodes.append((pose.x_m, pose.y_m))
         obs = self.builder.build(self.map, pose, np.array(self.path_nodes), exclude_frontier=self.dead_frontier)
+        self.decision_frontier = obs.frontier  # for pictures of the episode; the loop passes obs on itself
         return obs
 
     def handle_reason(self, reason: str) -> None:

@@ -14,7 +14,7 @@ from cso_runtime.geometry import Pose2D
 from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import OdometryMsg, encode
 from cso_runtime.recording import RecordedMessage, RecordingError, write_recording
-from tests.test_bag_export import GEOM, T0_NS, episode
+from tests.test_bag_export import GEOM, T0_NS, _frontiers, episode
 
 
 def test_a_recording_becomes_a_frame_after_each_decision_and_the_final_map(tmp_path):
@@ -23,6 +23,9 @@ def test_a_recording_becomes_a_frame_after_each_decision_and_the_final_map(tmp_p
     keys = RobotKeys("r0")
     messages = episode(keys, 6, T0_NS, 1_000_000)
     messages.insert(10, RecordedMessage(keys.topic("map"), T0_NS + 5, b"\x93garbage"))
+    f_t = _frontiers(0)
+    f_t.arrays["frontier"][4, 6:9] = True  # a frontier of three cells at (-0.35..-0.15, -0.05) m
+    messages = [RecordedMessage(m.key, m.log_time_ns, encode(f_t)) if m.key.endswith("/frontiers") and m.log_time_ns < T0_NS + 1_000_000 else m for m in messages]
     write_recording(tmp_path / "run.mcap", "r0", messages)
     stats = animate_recording(tmp_path / "run.mcap", tmp_path / "run.gif")
     assert (stats.robot, stats.decisions, stats.maps, stats.rejected, stats.frames) == ("r0", 3, 6, 1, 3)
@@ -35,6 +38,9 @@ def test_a_recording_becomes_a_frame_after_each_decision_and_the_final_map(tmp_p
     row = last.shape[0] - 1 - int((y - GEOM.origin_y_m) / GEOM.resolution_m * scale)
     assert tuple(last[row, int((x - GEOM.origin_x_m) / GEOM.resolution_m * scale)]) in (frames.ROBOT, frames.HEADING)
     assert (last == frames.PATH).all(axis=2).any() and (last == frames.FREE).all(axis=2).any()
+    with Image.open(tmp_path / "run.gif") as im:
+        first = np.asarray(im.convert("RGB"))  # after the decision of step 0: its frontier cells
+    assert (first == frames.FRONTIER).all(axis=2).sum() == 3 * scale * scale and not (last == frames.FRONTIER).all(axis=2).any()
 
     r = CliRunner().invoke(app, ["animate", str(tmp_path / "run.mcap"), "--max-frames", "2"])
     assert r.exit_code == 0 and "run.gif (robot r0): 2 frames from 3 decisions and 6 maps" in r.output, r.output

@@ -471,6 +471,7 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     x, y = result.trajectory_xy_m[-1]
     assert tuple(last[rows - 1 - int(y / plan.resolution_m * scale), int(x / plan.resolution_m * scale)]) in (frames.ROBOT, frames.HEADING)
     assert (full.frames[-1] == frames.I_PATH).any() and not (full.frames[0] == frames.I_PATH).all()
+    assert (full.frames[0] == frames.I_FRONTIER).any() and not (full.frames[-1] == frames.I_FRONTIER).any()  # F_t at decisions
     gif = full.save_gif(tmp_path / "a" / "ep.gif")
     with Image.open(gif) as im:
         assert im.n_frames == len(full.frames) and im.size == (last.shape[1], rows)
