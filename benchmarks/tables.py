@@ -24,9 +24,10 @@ import json
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from cso_runtime.comparison import PairedComparison, compare_to_baseline, efficiency_by_scene, format_interval, labelled
+from cso_runtime.comparison import PairedComparison, as_dicts, compare_to_baseline, efficiency_by_scene, format_interval, labelled
 from cso_runtime.evaluation import METRICS, summarize
 from cso_runtime.policies import BASELINES, LEARNED_METHODS
+from cso_runtime.report import table2
 
 HEADER = "| scale | method | episodes | explored m2 | coverage % | steps | m2/step | path m | decision ms p50 / p99 |"
 SCALES = ("small", "middle", "large", "super_large")
@@ -102,19 +103,15 @@ def table_from_episodes(files: list[tuple[str, Path]], baseline: str) -> list[st
 
 
 def table2_from_episodes(files: list[tuple[str, Path]], baseline: str) -> list[str]:
-    """Table 2 layout: a row per method, a column per scale present, ``m2/step (per-scene change)``."""
+    """Table 2 layout (``report.table2``, as eval's report prints it): a row per method, a column per scale
+    present, ``m2/step (per-scene change)``."""
     p = pool(files, baseline)
-    out = ["| method | " + " | ".join(p.scales) + " |", "| --- " * (len(p.scales) + 1) + "|"]
-    for m in p.methods:
-        cells = []
-        for s in p.scales:
-            e, c = p.by_scale.get((m, s)), p.paired.get((m, s))
-            cell = "-" if e is None else fmt(e["efficiency_m2_per_step"], 4)
-            if c is not None:
-                cell += f" ({interval(c)})"
-            cells.append(cell)
-        out.append(f"| {m} | " + " | ".join(cells) + " |")
-    return out
+    summary = {
+        "methods": {m: {"by_scale": {s: p.by_scale[(m, s)] for s in p.scales if (m, s) in p.by_scale}} for m in p.methods},
+        "paired": {"comparisons": as_dicts(list(p.paired.values()))},
+    }
+    header, rows = table2(summary)
+    return ["| " + " | ".join(header) + " |", "| --- " * len(header) + "|", *("| " + " | ".join(r) + " |" for r in rows)]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -47,7 +47,7 @@ from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
-from cso_runtime.report import TABLE1_COLUMNS, table1_cells, table1_rows, write_report
+from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
 from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, scale_of
 from cso_runtime.simulator import SIMULATORS, make_simulator
 
@@ -544,6 +544,14 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     if not console.is_terminal:  # logs and CI: wide enough for every column instead of 80 characters
         console = Console(width=max(console.width, 120))
     console.print(table)
+    if shows_ablations(summary):
+        header, rows = table2(summary)
+        ablations = Table(title="Table 2: efficiency, m2/step (per-scene change against the baseline [95 % CI])")
+        for col in header:
+            ablations.add_column(col, no_wrap=True, justify="left" if col == "method" else "right")
+        for cells in rows:
+            ablations.add_row(*cells)
+        console.print(ablations)
     paired = summary.get("paired") or {}
     if paired.get("comparisons"):
         against = Table(title=f"Against {paired['baseline']}, scene by scene ({out_dir}/paired.csv)")

@@ -172,6 +172,29 @@ def available_methods() -> list[str]:
     return list(BASELINES) + [m for m in LEARNED_METHODS if _learned_available(m)]
 
 
+METHOD_GROUPS = ("all", "baselines", "learned")
+"""Names that stand for several methods in a ``--method`` list (``parse_methods``)."""
+
+
+def parse_methods(spec: str) -> list[str]:
+    """The methods of a comma-separated ``--method`` list, in order, each once. ``all`` is every baseline and
+    every learned method whose weights are found, ``baselines`` the four frontier rules, ``learned`` the learned
+    methods whose weights are found (Table 1 and Table 2 in one run). Other names are kept as given, so that
+    the caller names an unknown one in its error."""
+    methods: list[str] = []
+    for name in (part.strip() for part in spec.split(",")):
+        if name == "all":
+            expanded = available_methods()
+        elif name == "baselines":
+            expanded = list(BASELINES)
+        elif name == "learned":
+            expanded = [m for m in available_methods() if m in LEARNED_METHODS]
+        else:
+            expanded = [name] if name else []
+        methods.extend(m for m in expanded if m not in methods)
+    return methods
+
+
 def _learned_available(name: str) -> bool:
     from cso_runtime.learned.weights import has_weights  # noqa: PLC0415 - no torch: only where the file is
 

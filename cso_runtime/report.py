@@ -1,7 +1,7 @@
 """``report.html``: an evaluation's (or a run's) results on one page, for a browser.
 
-The Table 1 rows of ``summary.json`` (one block per scale, as the paper's), the paired comparison with the
-baseline, the failures, and the figures already in the folder (coverage curves, efficiency by scale, the paired
+The Table 1 rows of ``summary.json`` (one block per scale, as the paper's), Table 2's layout when the run has
+ablations, the paired comparison with the baseline, the failures, and the figures already in the folder (coverage curves, efficiency by scale, the paired
 scatter, each map's trajectories and animations), linked by relative paths so the folder can be moved or served
 as it is. Written by ``eval`` and ``up`` next to ``summary.json``; nothing here computes a metric.
 """
@@ -12,7 +12,9 @@ import html
 from pathlib import Path
 from typing import Any
 
-from cso_runtime.comparison import PAIRED_COLUMNS, paired_cells
+from cso_runtime.comparison import PAIRED_COLUMNS, format_interval, paired_cells
+from cso_runtime.policies import LEARNED_METHODS
+from cso_runtime.scenes import SCALES
 
 REPORT_NAME = "report.html"
 FIGURES = (
@@ -53,6 +55,30 @@ def table1_cells(e: dict[str, Any]) -> list[str]:
     ]
 
 
+def table2(summary: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
+    """The paper's Table 2 layout: a row per method, a column per scale present, each cell the mean m2/step and,
+    where summary.json has the paired comparison, the per-scene change against the baseline [95 % CI]."""
+    scales = [s for s in SCALES if any(s in (e.get("by_scale") or {}) for e in summary["methods"].values())]
+    paired = {(c["method"], c["scale"]): c for c in (summary.get("paired") or {}).get("comparisons", [])}
+    rows = []
+    for method, e in summary["methods"].items():
+        cells = [method]
+        for scale in scales:
+            part = (e.get("by_scale") or {}).get(scale)
+            cell = "-" if part is None else _fmt(part["efficiency_m2_per_step"], 4)
+            c = paired.get((method, scale))
+            if c is not None:
+                cell += f" ({format_interval(c['per_scene_pct'], c['ci_low_pct'], c['ci_high_pct'])})"
+            cells.append(cell)
+        rows.append(cells)
+    return ["method", *scales], rows
+
+
+def shows_ablations(summary: dict[str, Any]) -> bool:
+    """Two or more learned methods (cso and its ablations): the run reproduces Table 2, so it is laid out too."""
+    return sum(m in LEARNED_METHODS for m in summary["methods"]) >= 2
+
+
 def _table(header: list[str] | tuple[str, ...], rows: list[list[str]]) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
@@ -79,6 +105,9 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
         "<h2>Table 1</h2>",
         _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e)] for m, s, e in table1_rows(summary)]),
     ]
+    if shows_ablations(summary):
+        parts.append("<h2>Table 2: efficiency, m2/step (per-scene change against the baseline)</h2>")
+        parts.append(_table(*table2(summary)))
     paired = summary.get("paired") or {}
     if paired.get("comparisons"):
         parts.append(f"<h2>Against {html.escape(str(paired['baseline']))}, scene by scene</h2>")

@@ -129,13 +129,14 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
 def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
     exe = [sys.executable, "-m", "cso_runtime.cli"]
     ok = subprocess.run(
-        exe + ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:3", "--out", str(tmp_path / "o"), "--max-steps", "40"],
+        exe + ["eval", "--method", "baselines", "--maps", "generated:small:1:3", "--out", str(tmp_path / "o"), "--max-steps", "40"],
         capture_output=True,
         text=True,
         timeout=120,
     )
     assert ok.returncode == 0, ok.stderr
-    assert (tmp_path / "o" / "summary.json").exists()
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert list(summary["methods"]) == ["greedy-dist", "greedy-info", "utility", "random"]  # the group, expanded
     bad = subprocess.run(exe + ["eval", "--method", "greedy-best"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "unknown method" in bad.stderr
     bad_maps = subprocess.run(exe + ["eval", "--maps", str(tmp_path / "nowhere")], capture_output=True, text=True, timeout=60)
@@ -300,6 +301,35 @@ def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_pat
     assert cells == [["greedy-dist", "small"], ["greedy-dist", "middle"], ["greedy-dist", "all"], ["random", "small"]]
     middle = next(line for line in lines if "middle" in line)
     assert "0.6000" in middle and "60.0" in middle  # that scale's own means, not the method's
+
+
+def test_a_run_with_ablations_is_also_laid_out_as_the_papers_table_2(tmp_path: Path, capsys):
+    """A row per method, a column per scale, m2/step with the per-scene change against the baseline; on the
+    console and in report.html, only where two learned methods ran (cso and an ablation)."""
+    from cso_runtime.evaluation import print_summary, summarize
+    from cso_runtime.report import table2, write_report
+
+    def row(method: str, map_: str, scale: str, eff: float) -> dict:
+        return {"method": method, "map": map_, "seed": 0, "traversable_area_m2": 150.0, "scale": scale, "terminated_by": "coverage", "explored_area_m2": 100 * eff,
+                "coverage_pct": 99.5, "steps": 100, "efficiency_m2_per_step": eff, "path_length_m": 10.0, "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}
+
+    rows = [row("greedy-dist", m, "large", 1.0) for m in "abc"] + [row("greedy-dist", "d", "middle", 0.5)]
+    rows += [row("cso", m, "large", 1.2) for m in "abc"] + [row("cso-no-info", m, "large", 0.9) for m in "abc"]
+    summary = summarize(rows, [], ["greedy-dist", "cso", "cso-no-info"], {})
+    header, cells = table2(summary)
+    assert header == ["method", "middle", "large"]
+    assert cells[0] == ["greedy-dist", "0.5000", "1.0000"]
+    assert cells[1][0] == "cso" and cells[1][1] == "-" and cells[1][2].startswith("1.2000 (+20.0 % [")
+    assert cells[2][2].startswith("0.9000 (-10.0 % [")
+    print_summary(summary, tmp_path)
+    out = capsys.readouterr().out
+    assert "Table 2" in out and "cso-no-info" in out
+    page = write_report(tmp_path, summary).read_text()
+    assert "<h2>Table 2" in page and "<td>0.9000 (-10.0 % [" in page
+    # greedy-dist against cso alone is Table 1 and its comparison, not an ablation study
+    plain = summarize(rows[:7], [], ["greedy-dist", "cso"], {})
+    print_summary(plain, tmp_path)
+    assert "Table 2" not in capsys.readouterr().out and "Table 2" not in write_report(tmp_path, plain).read_text()
 
 
 def test_eval_warms_a_learned_policy_up_before_its_first_decision(tmp_path: Path, monkeypatch):

@@ -11,7 +11,15 @@ from cso_runtime.geodesic import geodesic_distance
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.masks import StuckMask, valid_distance_mask
 from cso_runtime.observation import Observation, distance_source_key
-from cso_runtime.policies import ActionMasker, GoalSelector, make_policy
+from cso_runtime.policies import (
+    BASELINES,
+    LEARNED_METHODS,
+    ActionMasker,
+    GoalSelector,
+    available_methods,
+    make_policy,
+    parse_methods,
+)
 from tests.conftest import walled_grid
 
 INF = np.inf
@@ -152,6 +160,27 @@ def test_policies_return_none_without_reachable_frontier():
 def test_unknown_method_is_a_clear_error():
     with pytest.raises(ValueError, match="unknown method"):
         make_policy("greedy-best")
+
+
+def test_method_lists_expand_groups_in_order_each_method_once(monkeypatch, tmp_path):
+    assert parse_methods(" greedy-dist , cso ,,greedy-dist") == ["greedy-dist", "cso"]
+    assert parse_methods("baselines") == list(BASELINES)
+    assert parse_methods("cso,all") == ["cso", *[m for m in available_methods() if m != "cso"]]
+    assert set(LEARNED_METHODS) <= set(parse_methods("all")), "every learned method ships weights"
+    assert parse_methods("learned") == list(LEARNED_METHODS)
+    assert parse_methods("greedy-dist,nope") == ["greedy-dist", "nope"], "the caller names unknown methods"
+    # `all` and `learned` mean the learned methods whose weights are found (a `--weights` folder)
+    (tmp_path / "cso.pt").write_bytes(b"")
+    monkeypatch.setenv("CSO_WEIGHTS_DIR", str(tmp_path))
+    assert parse_methods("learned") == ["cso"]
+    assert parse_methods("all") == [*BASELINES, "cso"]
+
+
+def test_the_help_names_every_method():
+    from cso_runtime.cli import METHODS_HELP
+
+    named = {w.strip(",;") for w in METHODS_HELP.split()}
+    assert {*BASELINES, *LEARNED_METHODS} <= named
 
 
 def test_action_masker_applies_valid_distance_mask():

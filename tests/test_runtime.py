@@ -933,6 +933,9 @@ def test_shell_completion_offers_profiles_methods_runs_and_service_logs(tmp_path
 
     assert complete("cso-runtime up --profile ") == ["limo-ros2", "lockstep", "sim"]
     assert complete("cso-runtime eval --method greedy-dist,cso-n") == ["greedy-dist,cso-no-info", "greedy-dist,cso-no-mask"]
+    assert complete("cso-runtime eval --method cso,a") == ["cso,all"]  # a group, in eval's list only
+    assert complete("cso-runtime up --method a") == []
+    assert complete("cso-runtime up --method greedy-") == ["greedy-dist", "greedy-info"]
     assert complete(f"cso-runtime logs --runs-dir {runs} --run 2026") == ["20261203-091100-lockstep-r0", "20261203-091000-lockstep-r0"]
     assert complete(f"cso-runtime logs --runs-dir {runs} --run 20261203-091000-lockstep-r0 sim ") == ["mapper"]
     assert complete(f"cso-runtime logs --runs-dir {runs} ") == ["planner"]  # the newest run's

@@ -70,3 +70,15 @@ def test_mixing_summaries_and_episode_files_is_refused(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         tables.main([str(tmp_path / "missing.csv")])
     assert exc.value.code == 2 and "no such file" in capsys.readouterr().err
+
+
+def test_table2_has_a_row_per_method_and_a_column_per_scale(tmp_path, capsys):
+    """The paper's Table 2 layout, as eval's report lays it out (``report.table2``)."""
+    rows = [episode("greedy-dist", m, "large", 1.0) for m in "abc"] + [episode("cso", m, "large", 1.1) for m in "abc"]
+    rows.append(episode("greedy-dist", "s", "small", 2.0))
+    tables = load_tables()
+    assert tables.main(["--table2", str(write(tmp_path / "e.csv", rows))]) == 0
+    out = [cells(line) for line in capsys.readouterr().out.splitlines()]
+    assert out[0] == ["method", "small", "large"]
+    assert out[2] == ["greedy-dist", "2.0000", "1.0000"]
+    assert out[3][:2] == ["cso", "-"] and out[3][2].startswith("1.1000 (+10.0 % [")

@@ -46,7 +46,7 @@ class NetworkConfig:
     """0: the paper's actor. > 0: each frontier's score is ``-distance_prior * geodesic`` (the node's
     ``log(1 + l / scale)`` feature) plus the actor's output, whose last layer starts at zero, so the
     untrained policy's argmax is greedy-dist's choice (under the same masks) and PPO learns only where
-    to depart from it. Off in the shipped weights."""
+    to depart from it. The shipped weights use 4 (``configs/train.yaml``); this default is the paper's actor."""
     edge_messages: bool = False
     """Also add each edge's feature, projected, to the neighbour's key and message (as PyG's TransformerConv
     with ``edge_dim``), so what a node receives says how far away its sender is; False: edges only bias the
