@@ -44,7 +44,9 @@ from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
 
 @dataclass
 class Args:
-    """Training run configuration (defaults are the shipped ``cso`` run unless configs/train.yaml says otherwise)."""
+    """Training run configuration. The shipped weights' recipe is ``configs/train.yaml`` (``cso-runtime train``
+    reads it), not these defaults: they are a short run of the plain actor (no distance prior, no cluster-length
+    feature, 4096 decisions, generated plans only) for tests and for ``Args(...)`` in a notebook."""
 
     variant: str = "cso"
     """Which learned method to train (sets the entropy input and masks): cso, cso-no-info, ..."""

@@ -1,4 +1,5 @@
-"""docs/paper-to-code.md stays true: every code reference resolves, every default it quotes is the default."""
+"""The documentation stays true: docs/paper-to-code.md's references and defaults, and every command and flag the
+README, BENCHMARKS.md and docs/ show."""
 
 from __future__ import annotations
 
@@ -7,8 +8,10 @@ import importlib
 import re
 from pathlib import Path
 
+import typer
 import yaml
 
+from cso_runtime.cli import app
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.learned.network import NetworkConfig
 
@@ -60,4 +63,30 @@ def test_every_quoted_default_is_the_default():
             actual = float(actual)  # type: ignore[arg-type]
         if actual != value:
             wrong.append(f"{key}: the doc says {text}, the default is {actual}")
+    assert wrong == []
+
+
+COMMAND_LINE = re.compile(r"cso-runtime ([a-z][^`\n]*)")
+"""``cso-runtime CMD ...`` up to the end of the code span or line."""
+SHORT_COMMAND = re.compile(r"`([a-z][a-z-]* [^`\n]*--[^`\n]*)`")
+"""A code span that starts with a command's name and has a flag: ``up --dry-run``."""
+FLAG = re.compile(r"(?<![\w-])(--[a-z][a-z0-9-]*)")
+
+
+def test_every_command_and_flag_the_docs_show_exists():
+    cli = typer.main.get_command(app)
+    options = {name: {o for p in c.params for o in (*p.opts, *p.secondary_opts)} | {"--help"} for name, c in cli.commands.items()}
+    global_options = {o for p in cli.params for o in p.opts}
+    wrong, seen = [], 0
+    for doc in [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        text = doc.read_text(encoding="utf-8")
+        spans = COMMAND_LINE.findall(text) + [s for s in SHORT_COMMAND.findall(text) if s.split()[0] in options]
+        for span in spans:
+            seen += 1
+            command, line = span.split()[0], span.split("#")[0]
+            if command not in options:
+                wrong.append(f"{doc.name}: no command {command!r} ({span[:60]})")
+            elif command != "service":  # a service's own flags pass through to it
+                wrong += [f"{doc.name}: {command} has no {flag}" for flag in FLAG.findall(line) if flag not in options[command] | global_options]
+    assert seen >= 80, "the docs lost their examples, or the pattern broke"
     assert wrong == []
