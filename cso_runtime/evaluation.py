@@ -15,7 +15,6 @@ import json
 import logging
 import math
 import multiprocessing
-import re
 import time
 import traceback
 from collections.abc import Callable
@@ -45,6 +44,15 @@ from cso_runtime.config import (
 )
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
+from cso_runtime.outputs import (
+    COVERAGE_FIGURE,
+    EFFICIENCY_FIGURE,
+    PAIRED_FIGURE,
+    episode_animation_path,
+    episode_map_path,
+    episode_npz_path,
+    trajectory_plot_path,
+)
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
@@ -167,25 +175,6 @@ class EpisodeJob:
     @property
     def npz_path(self) -> Path:
         return episode_npz_path(self.out_dir, self.method, self.scene.name)
-
-
-def episode_npz_path(out_dir: Path, method: str, scene: str) -> Path:
-    """Where an episode's arrays and metric row go (``save_episode_files``)."""
-    return out_dir / "episodes" / method / f"{file_stem(scene)}.npz"
-
-
-def episode_map_path(out_dir: Path, method: str, scene: str) -> Path:
-    """Where an episode's final map goes: a Nav2 map_server YAML, its PNG beside it (``save_episode_files``)."""
-    return out_dir / "maps" / method / f"{file_stem(scene)}.yaml"
-
-
-def episode_animation_path(out_dir: Path, method: str, scene: str) -> Path:
-    return out_dir / "animations" / method / f"{file_stem(scene)}.gif"
-
-
-def file_stem(scene: str) -> str:
-    """A scene name as one file name (a real robot's scene is ``ros2:<namespace>``)."""
-    return re.sub(r"[^A-Za-z0-9._-]", "_", scene) or "scene"
 
 
 def settings_fingerprint(config: ExplorationConfig, sim: str, weights_sha256: str = "") -> str:
@@ -371,6 +360,7 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
             if part:
                 entry["by_scale"][scale] = {**{k: _mean(part, k) for k in METRICS}, "episodes": len(part)}
         entry["failures"] = [f for f in failures if f["method"] == method]
+        entry["maps"] = sorted({r["map"] for r in mine})  # what the report shows of the folder: not an earlier run's files
         summary["methods"][method] = entry
     summary["failures"] = failures
     paired = compare_to_baseline(efficiency_by_scene(rows), baseline) if baseline in methods else []
@@ -392,6 +382,8 @@ def write_outputs(
             writer.writerow(r)
     if summary["paired"]["comparisons"]:
         write_paired_csv(out_dir / "paired.csv", summary["paired"]["comparisons"])
+    else:
+        (out_dir / "paired.csv").unlink(missing_ok=True)  # an earlier run's, in the same folder
     return summary
 
 
@@ -464,17 +456,21 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
     summary = write_outputs(out, rows, failures, request.methods, meta, request.baseline)
     from cso_runtime.plots import plot_coverage_curves, plot_efficiency_by_scale, plot_paired_efficiency, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
 
-    plot_coverage_curves(out / "coverage_curves.png", [o for o in outcomes if o.row is not None])
+    plot_coverage_curves(out / COVERAGE_FIGURE, [o for o in outcomes if o.row is not None])
     if rows:
-        plot_efficiency_by_scale(out / "efficiency_by_scale.png", summary)
+        plot_efficiency_by_scale(out / EFFICIENCY_FIGURE, summary)
+    else:
+        (out / EFFICIENCY_FIGURE).unlink(missing_ok=True)  # an earlier run's figure in --out would describe that run
     if summary["paired"]["comparisons"]:
-        plot_paired_efficiency(out / "paired_efficiency.png", efficiency_by_scene(rows), request.baseline)
+        plot_paired_efficiency(out / PAIRED_FIGURE, efficiency_by_scene(rows), request.baseline)
+    else:
+        (out / PAIRED_FIGURE).unlink(missing_ok=True)
     by_map: dict[str, list[EpisodeOutcome]] = {}
     for o in outcomes:
         if o.row is not None:
             by_map.setdefault(o.map, []).append(o)
     for name, group in by_map.items():
-        plot_trajectories(out / "trajectories" / f"{file_stem(name)}.png", name, sorted(group, key=lambda o: request.methods.index(o.method)))
+        plot_trajectories(trajectory_plot_path(out, name), name, sorted(group, key=lambda o: request.methods.index(o.method)))
     write_report(out, summary)
     return summary
 

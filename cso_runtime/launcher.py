@@ -546,7 +546,7 @@ class Launcher:
         if not self.animate or self.record_path is None or result is None:
             return
         from cso_runtime.animation import animate_recording  # noqa: PLC0415
-        from cso_runtime.evaluation import episode_animation_path  # noqa: PLC0415
+        from cso_runtime.outputs import episode_animation_path  # noqa: PLC0415
         from cso_runtime.recording import RecordingError  # noqa: PLC0415
 
         path = episode_animation_path(self.run_dir, result.method or "unknown", result.scene)
@@ -663,7 +663,8 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
     the coverage curve and the trajectory plot (reusing ``cso_runtime.evaluation`` writers). Returns the
     episode's row of episodes.csv."""
     from cso_runtime.episode import EpisodeResult  # noqa: PLC0415
-    from cso_runtime.evaluation import EpisodeOutcome, episode_row, file_stem, save_episode_files, write_outputs  # noqa: PLC0415
+    from cso_runtime.evaluation import EpisodeOutcome, episode_row, save_episode_files, write_outputs  # noqa: PLC0415
+    from cso_runtime.outputs import COVERAGE_FIGURE, trajectory_plot_path  # noqa: PLC0415
     from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415
     from cso_runtime.report import write_report  # noqa: PLC0415
 
@@ -688,8 +689,8 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
     summary = write_outputs(out_dir, [row], [], [method], meta)
     save_episode_files(out_dir, method, result.scene, er, row)
     outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m)
-    plot_coverage_curves(out_dir / "coverage_curves.png", [outcome])
-    plot_trajectories(out_dir / "trajectories" / f"{file_stem(result.scene)}.png", result.scene, [outcome])
+    plot_coverage_curves(out_dir / COVERAGE_FIGURE, [outcome])
+    plot_trajectories(trajectory_plot_path(out_dir, result.scene), result.scene, [outcome])
     write_report(out_dir, summary)
     return row
 

@@ -13,14 +13,15 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime.comparison import PAIRED_COLUMNS, format_interval, paired_cells
+from cso_runtime.outputs import COVERAGE_FIGURE, EFFICIENCY_FIGURE, PAIRED_FIGURE, episode_animation_path, trajectory_plot_path
 from cso_runtime.policies import LEARNED_METHODS
 from cso_runtime.scenes import SCALES
 
 REPORT_NAME = "report.html"
 FIGURES = (
-    ("coverage_curves.png", "Coverage against step (Fig. 4)"),
-    ("efficiency_by_scale.png", "Efficiency by scale, and each method against the baseline (Fig. 5)"),
-    ("paired_efficiency.png", "Each scene's m2/step against the baseline's"),
+    (COVERAGE_FIGURE, "Coverage against step (Fig. 4)"),
+    (EFFICIENCY_FIGURE, "Efficiency by scale, and each method against the baseline (Fig. 5)"),
+    (PAIRED_FIGURE, "Each scene's m2/step against the baseline's"),
 )
 TABLE1_COLUMNS = ("method", "scale", "episodes", "explored m2", "coverage %", "steps", "m2/step", "path m", "decision ms p50/p99")
 
@@ -90,6 +91,30 @@ def _img(out_dir: Path, path: Path, alt: str) -> str:
     return f'<a href="{html.escape(rel)}"><img src="{html.escape(rel)}" alt="{html.escape(alt)}" loading="lazy"></a>'
 
 
+def _map_figures(out_dir: Path, summary: dict[str, Any]) -> dict[str, list[str]]:
+    """Each plan's trajectory plot and animations, as ``<img>`` tags by plan name. Only the plans and methods of
+    ``summary`` (its ``maps``), so that an earlier run's files left in an ``eval --out`` folder stay out; a
+    summary.json from before ``maps`` was written shows every file of the folder."""
+    methods = summary["methods"]
+    by_map: dict[str, list[str]] = {}
+    if not all("maps" in e for e in methods.values()):
+        for p in sorted((out_dir / "trajectories").glob("*.png")):
+            by_map.setdefault(p.stem, []).append(_img(out_dir, p, f"{p.stem}: trajectories"))
+        for p in sorted((out_dir / "animations").glob("*/*.gif")):
+            by_map.setdefault(p.stem, []).append(_img(out_dir, p, f"{p.stem}: {p.parent.name}") + f"<figcaption>{html.escape(p.parent.name)}, animated</figcaption>")
+        return by_map
+    for name in sorted({m for e in methods.values() for m in e["maps"]}):
+        path = trajectory_plot_path(out_dir, name)
+        if path.is_file():
+            by_map.setdefault(name, []).append(_img(out_dir, path, f"{name}: trajectories"))
+    for method, e in methods.items():
+        for name in e["maps"]:
+            path = episode_animation_path(out_dir, method, name)
+            if path.is_file():
+                by_map.setdefault(name, []).append(_img(out_dir, path, f"{name}: {method}") + f"<figcaption>{html.escape(method)}, animated</figcaption>")
+    return by_map
+
+
 def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     """Write ``out_dir/report.html`` from ``summary`` and the figures found in ``out_dir``; returns its path."""
     out_dir = Path(out_dir)
@@ -120,15 +145,9 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     if figures:
         parts.append("<h2>Figures</h2>")
         parts += [f"<figure>{_img(out_dir, p, t)}<figcaption>{html.escape(t)}</figcaption></figure>" for p, t in figures]
-    trajectories = sorted((out_dir / "trajectories").glob("*.png"))
-    animations = sorted((out_dir / "animations").glob("*/*.gif"))
-    if trajectories or animations:
+    by_map = _map_figures(out_dir, summary)
+    if by_map:
         parts.append("<h2>Maps</h2><div class='maps'>")
-        by_map: dict[str, list[str]] = {}
-        for p in trajectories:
-            by_map.setdefault(p.stem, []).append(_img(out_dir, p, f"{p.stem}: trajectories"))
-        for p in animations:
-            by_map.setdefault(p.stem, []).append(_img(out_dir, p, f"{p.stem}: {p.parent.name}") + f"<figcaption>{html.escape(p.parent.name)}, animated</figcaption>")
         parts += [f"<figure><figcaption><b>{html.escape(name)}</b></figcaption>{''.join(items)}</figure>" for name, items in by_map.items()]
         parts.append("</div>")
     parts.append("</body></html>\n")

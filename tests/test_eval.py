@@ -180,6 +180,13 @@ def test_eval_compares_each_method_with_the_baseline_scene_by_scene(tmp_path: Pa
 
     alone = run_eval(EvalRequest(methods=["random"], maps="generated:small:3:7", out_dir=tmp_path / "r", max_steps=40))
     assert alone["paired"]["comparisons"] == [] and not (tmp_path / "r" / "paired.csv").exists()
+    # Again into the first folder, without the baseline and on one other plan: nothing of the first run is shown as this one's
+    again = run_eval(EvalRequest(methods=["random"], maps="generated:small:1:8", out_dir=tmp_path / "o", max_steps=40))
+    assert again["methods"]["random"]["maps"] == ["gen_small_8"]
+    assert not (tmp_path / "o" / "paired.csv").exists() and not (tmp_path / "o" / "paired_efficiency.png").exists()
+    page = (tmp_path / "o" / "report.html").read_text()
+    assert "trajectories/gen_small_8.png" in page and "gen_small_7" not in page and "gen_small_9" not in page
+    assert (tmp_path / "o" / "trajectories" / "gen_small_7.png").is_file()  # left where it is, only not shown
     with pytest.raises(ConfigError, match="unknown --baseline"):
         run_eval(EvalRequest(methods=["random"], maps="generated:small:3:7", out_dir=tmp_path / "x", baseline="nearest"))
 

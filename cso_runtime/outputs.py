@@ -1,0 +1,41 @@
+"""Where ``eval`` and ``up`` put each file of a results folder: one layout, read by the report too.
+
+    summary.json, episodes.csv, paired.csv, report.html, the figures below
+    episodes/<method>/<map>.npz         arrays and metric row of one episode
+    maps/<method>/<map>.yaml, .png      the robot's final map (Nav2 map_server files)
+    animations/<method>/<map>.gif       with --animate
+    trajectories/<map>.png              every method's path on one plan
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+COVERAGE_FIGURE = "coverage_curves.png"
+EFFICIENCY_FIGURE = "efficiency_by_scale.png"
+PAIRED_FIGURE = "paired_efficiency.png"
+
+
+def file_stem(scene: str) -> str:
+    """A scene name as one file name (a real robot's scene is ``ros2:<namespace>``)."""
+    return re.sub(r"[^A-Za-z0-9._-]", "_", scene) or "scene"
+
+
+def episode_npz_path(out_dir: Path, method: str, scene: str) -> Path:
+    """Where an episode's arrays and metric row go (``evaluation.save_episode_files``)."""
+    return Path(out_dir) / "episodes" / method / f"{file_stem(scene)}.npz"
+
+
+def episode_map_path(out_dir: Path, method: str, scene: str) -> Path:
+    """Where an episode's final map goes: a Nav2 map_server YAML, its PNG beside it."""
+    return Path(out_dir) / "maps" / method / f"{file_stem(scene)}.yaml"
+
+
+def episode_animation_path(out_dir: Path, method: str, scene: str) -> Path:
+    return Path(out_dir) / "animations" / method / f"{file_stem(scene)}.gif"
+
+
+def trajectory_plot_path(out_dir: Path, scene: str) -> Path:
+    """Every method's path on one plan."""
+    return Path(out_dir) / "trajectories" / f"{file_stem(scene)}.png"
