@@ -295,8 +295,11 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         wall_s = time.perf_counter() - t0  # the frames' drawing included, when animated
         row = episode_row(job.method, job.seed, result, wall_s)
         save_episode_files(job.out_dir, job.method, job.scene.name, result, row, job.settings)
+        gif = episode_animation_path(job.out_dir, job.method, job.scene.name)
         if animation is not None and animation.finish():
-            animation.save_gif(episode_animation_path(job.out_dir, job.method, job.scene.name))
+            animation.save_gif(gif)
+        else:
+            gif.unlink(missing_ok=True)  # an earlier run's animation of this episode would show another episode
     except Exception as exc:  # one bad episode must not stop the run; it is reported
         log.debug("episode failed", exc_info=True)
         return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")

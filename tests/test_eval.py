@@ -531,3 +531,8 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     assert r.exit_code == 0 and (tmp_path / "o" / "report.html").read_text() == page
     r = CliRunner().invoke(app, ["report", str(tmp_path / "nothing")])
     assert r.exit_code == 2 and "error:" in r.output
+    gif = tmp_path / "o" / "animations" / "greedy-dist" / "gen_small_3.gif"
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=40, resume=True))
+    assert gif.is_file(), "an episode --resume keeps keeps its animation"
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=30))
+    assert not gif.exists() and "gen_small_3.gif" not in (tmp_path / "o" / "report.html").read_text(), "a new episode, not animated"
