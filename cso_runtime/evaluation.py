@@ -56,7 +56,7 @@ from cso_runtime.outputs import (
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
-from cso_runtime.scenes import SceneError, SceneRef, resolve_scenes, scale_of
+from cso_runtime.scenes import SCALES, SceneError, SceneRef, resolve_scenes, scale_of
 from cso_runtime.simulator import SIMULATORS, make_simulator
 
 log = logging.getLogger(__name__)
@@ -358,7 +358,7 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
         entry["episodes"] = len(mine)
         entry["terminated_by"] = {t: sum(1 for r in mine if r["terminated_by"] == t) for t in sorted({r["terminated_by"] for r in mine})}
         entry["by_scale"] = {}
-        for scale in ("small", "middle", "large", "super_large"):
+        for scale in SCALES:
             part = [r for r in mine if r["scale"] == scale]
             if part:
                 entry["by_scale"][scale] = {**{k: _mean(part, k) for k in METRICS}, "episodes": len(part)}
@@ -367,6 +367,7 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
         summary["methods"][method] = entry
     summary["failures"] = failures
     paired = compare_to_baseline(efficiency_by_scene(rows), baseline) if baseline in methods else []
+    paired.sort(key=lambda c: (SCALES.index(c.scale) if c.scale in SCALES else len(SCALES), methods.index(c.method)))  # as Table 1
     summary["paired"] = {"baseline": baseline, "comparisons": as_dicts(paired)}
     return summary
 
@@ -545,7 +546,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     console.print(table)
     if shows_ablations(summary):
         header, rows = table2(summary)
-        ablations = Table(title="Table 2: efficiency, m2/step (per-scene change against the baseline [95 % CI])")
+        ablations = Table(title="Table 2: m2/step (per-scene change against the baseline)")
         for col in header:
             ablations.add_column(col, no_wrap=True, justify="left" if col == "method" else "right")
         for cells in rows:

@@ -333,6 +333,9 @@ def test_a_run_with_ablations_is_also_laid_out_as_the_papers_table_2(tmp_path: P
     assert "Table 2" in out and "cso-no-info" in out
     page = write_report(tmp_path, summary).read_text()
     assert "<h2>Table 2" in page and "<td>0.9000 (-10.0 % [" in page
+    # the comparisons come in Table 1's order: by scale, then as the methods were given (not alphabetically)
+    given = summarize(rows, [], ["greedy-dist", "cso-no-info", "cso"], {})
+    assert [c["method"] for c in given["paired"]["comparisons"]] == ["cso-no-info", "cso"]
     # greedy-dist against cso alone is Table 1 and its comparison, not an ablation study
     plain = summarize(rows[:7], [], ["greedy-dist", "cso"], {})
     print_summary(plain, tmp_path)
