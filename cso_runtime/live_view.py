@@ -51,7 +51,7 @@ class LiveView:
             for k, v in (
                 ("explored", f"{st.explored_area_m2:.2f} m2" + (f", {st.explored_area_m2 / st.step:.3f} m2/step" if st.step else "")),
                 ("path length", f"{st.path_length_m:.2f} m"),
-                ("goal", goal + ("" if la.path_ahead_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
+                ("goal", goal + ("" if la.path_ahead_m is None or st.goal_xy_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
                 ("decisions", f"{st.decisions} (last {st.last_decision_ms:.1f} ms)"),
             ):
                 t.add_row(k, escape(v))  # text, not markup: a scene file's name may hold brackets

@@ -560,6 +560,11 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     lines = narrow.export_text().splitlines()
     assert lines[0].strip() == f"cso-runtime {launcher.run_id}" and lines[1].lstrip().startswith("┌")
     assert any("robot / method" in line and "r0 / greedy-dist, lockstep" in line for line in lines)
+    launcher.status.goal_xy_m = None  # no goal in the status yet: no path ahead of it either
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert re.search(r"│ goal +│ - +│", console.export_text()), console.export_text()
+    launcher.status.goal_xy_m = [3.0, 5.5]
     launcher.status.scene = "[bold]plan[2]"  # a scene's name is text, not rich markup
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
