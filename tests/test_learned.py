@@ -367,6 +367,30 @@ def test_the_training_bar_shows_the_latest_return_coverage_and_rate(tmp_path, mo
     assert ppo.progress_stats(two, 100, 0.0) == "return 1.50  coverage 95.0 % (last 2 episodes)  "
 
 
+def test_training_progress_in_a_log_file_is_plain_lines():
+    """No terminal (nohup, CI, a cluster job): lines that say how far the run is, at most every line_every_s and
+    at the end, instead of a bar nobody sees until the run ends."""
+    import io
+
+    from rich.console import Console
+
+    from cso_runtime.learned import ppo
+
+    out = io.StringIO()
+    bar = ppo._Bar(3, console=Console(file=out, width=60), line_every_s=0.0)
+    for i in range(3):
+        bar.advance(stats=f"return {i}.00  a long text that must stay on one line however narrow the console is")
+    bar.close()
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 3 and lines[0].startswith("PPO updates 1/3 (") and " s left): return 0.00  a long" in lines[0]
+    assert lines[2].startswith("PPO updates 3/3 (") and "left" not in lines[2] and lines[2].endswith("however narrow the console is")
+    quiet = io.StringIO()
+    bar = ppo._Bar(3, "teacher decisions", console=Console(file=quiet, width=60), line_every_s=1e9)
+    bar.advance(2)
+    bar.advance(1)
+    assert quiet.getvalue().splitlines() == [quiet.getvalue().splitlines()[0]] and quiet.getvalue().startswith("teacher decisions 3/3 (")
+
+
 def test_policies_of_one_model_share_one_trace(observation):
     """Eval makes a policy per episode: the model is traced once, not at every episode's first decision."""
     model = GraphActorCritic().eval()

@@ -811,18 +811,33 @@ def _save_resumable(path: Path, model: nn.Module, optimizer: optim.Optimizer, up
 
 
 class _Bar:
-    """A rich progress bar with a free text field after it (the latest training figures)."""
+    """A rich progress bar with a free text field after it (the latest training figures). In a log file or CI
+    (no terminal) it prints a plain line instead, at most every ``line_every_s`` and at the end, so that a long
+    run written to a file says how far it is (as CleanRL prints a line per update)."""
 
-    def __init__(self, total: int, what: str = "PPO updates", console: Any = None):
+    def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0):
+        from rich.console import Console  # noqa: PLC0415
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
 
+        console = console if console is not None else Console()
         columns = (TextColumn("{task.description}"), BarColumn(bar_width=24), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), TextColumn("{task.fields[stats]}"))
-        self._p = Progress(*columns, console=console)
+        self._lines = not console.is_terminal
+        self._p = Progress(*columns, console=console, disable=self._lines)
         self._p.start()
         self._task = self._p.add_task(what, total=total, stats="")
+        self._what, self._total, self._done = what, total, 0
+        self._line_every_s = line_every_s
+        self._started = self._last_line = time.monotonic()
 
     def advance(self, n: int = 1, stats: str | None = None) -> None:
         self._p.update(self._task, advance=n, **({} if stats is None else {"stats": stats}))
+        self._done += n
+        now = time.monotonic()
+        if self._lines and (now - self._last_line >= self._line_every_s or self._done >= self._total):
+            self._last_line = now
+            elapsed = now - self._started
+            left = f", about {elapsed / self._done * (self._total - self._done):.0f} s left" if self._done < self._total else ""
+            self._p.console.print(f"{self._what} {self._done}/{self._total} ({elapsed:.0f} s{left}): {stats or ''}".rstrip(": "), highlight=False, markup=False, soft_wrap=True)
 
     def close(self) -> None:
         self._p.stop()
