@@ -46,7 +46,7 @@ from cso_runtime.config import (
     set_dotted,
 )
 from cso_runtime.keys import RobotKeys, check_robot_id, topic_of
-from cso_runtime.live_view import LiveView
+from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EpisodeResultMsg,
     EpisodeStatusMsg,
@@ -145,6 +145,9 @@ class Profile:
     supervision: SupervisionConfig = field(default_factory=SupervisionConfig)
     services: dict[str, Any] = field(default_factory=dict)
     """Service name -> its parameters (a mapping, possibly empty). Only listed services are started."""
+    progress_log_s: float = 10.0
+    """Without the live view on a terminal (``--no-live``, ``--detach``, output into a file) the launcher logs a
+    line of the episode's progress this often, in seconds (0: never), so a log being followed is never silent."""
 
     def exploration_config(self) -> ExplorationConfig:
         """The exploration settings every service of this profile runs with (raises ConfigError)."""
@@ -153,6 +156,8 @@ class Profile:
     def validate(self) -> None:
         check_robot_id(self.robot)
         check_seed(self.seed)
+        if not self.progress_log_s >= 0:
+            raise ConfigError(f"progress_log_s must be >= 0 seconds, got {self.progress_log_s}")
         self.exploration_config()
         from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
 
@@ -603,11 +608,17 @@ class Launcher:
                 self.write_run_file("running")
                 if view is not None:
                     view.start()
+                logged_s = time.monotonic()
                 while not self.stop_event.wait(0.1):
                     self.supervise()
                     if view is not None:
                         view.update()
                     st = self.status
+                    every_s = self.profile.progress_log_s
+                    if every_s > 0 and (view is None or not view.on_terminal) and time.monotonic() - logged_s >= every_s:
+                        logged_s = time.monotonic()
+                        if st is not None and st.state == "exploring":
+                            log.info("%s", progress_line(st, self.control_period_s))
                     if st is not None and st.state in ("done", "failed") and not self.outputs_written:
                         result = self.wait_for_result(session)
                         if result is not None:

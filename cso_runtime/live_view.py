@@ -10,6 +10,17 @@ from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import EpisodeStatusMsg
+
+
+def progress_line(status: EpisodeStatusMsg, control_period_s: float) -> str:
+    """The episode's progress in one log line (the live view's figures, for a log that is followed)."""
+    goal = "none" if status.goal_xy_m is None else f"({status.goal_xy_m[0]:.2f}, {status.goal_xy_m[1]:.2f}) m"
+    rate = f" ({status.explored_area_m2 / status.step:.3f} m2/step)" if status.step else ""
+    return (
+        f"step {status.step} ({status.step * control_period_s:.1f} s robot time): coverage {status.coverage_pct:.1f} %, "
+        f"{status.explored_area_m2:.2f} m2 explored{rate}, path {status.path_length_m:.2f} m, {status.decisions} decisions, goal {goal}"
+    )
 
 
 class LiveView:
@@ -72,6 +83,11 @@ class LiveView:
             for handler in logging.getLogger().handlers:
                 if isinstance(handler, logging.StreamHandler) and handler.stream is stderr:
                     self._rerouted.append((handler, handler.setStream(sys.stderr)))
+
+    @property
+    def on_terminal(self) -> bool:
+        """The table is redrawn in place on a terminal; in a file it is written once, at the end."""
+        return self._live is not None and self._live.console.is_terminal
 
     def update(self) -> None:
         if self._live is not None and time.monotonic() - self._last > 0.25:

@@ -300,6 +300,8 @@ def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file
     assert profile.exploration_config().episode.max_steps == 40 and profile.seed == 3
     with pytest.raises(ConfigError, match="--set seed.x: seed is 0, not a mapping"):
         load_profile("lockstep", {}, settings={"seed.x": 1})
+    with pytest.raises(ConfigError, match="progress_log_s must be >= 0 seconds, got -1"):
+        load_profile("lockstep", {}, settings={"progress_log_s": -1})
     r = cli("up", "--profile", "lockstep", "--set", "services.sim.min_step_period_s=0.1", "--seed", "3", "--dry-run", cwd=tmp_path)
     assert r.returncode == 0 and r.stdout.startswith("# profile lockstep, valid: `up` would start sim, mapper, frontier, policy, planner"), r.stderr
     shown = yaml.safe_load(r.stdout)  # what the services would read, and nothing started
@@ -861,7 +863,7 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
     profile = write_profile(tmp_path, min_step_period_s=0.2)
     runs = tmp_path / "runs"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "cso_runtime.cli", "up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs)],
+        [sys.executable, "-m", "cso_runtime.cli", "up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs), "--set", "progress_log_s=0.2"],
         cwd=tmp_path,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
@@ -870,11 +872,15 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
     try:
         wait_for(lambda: (runs / "current.json").exists() and len(run_pids(runs)) == 6, 30, "the services to start")
         info = json.loads((runs / "current.json").read_text())
-        wait_for(lambda: (s := query_status(info["endpoints"], "r0", 0.5)) and s["step"] >= 1, 60, "the first steps")
+        # 0.2 s a step: a second of exploring, in which the launcher checks five times a progress line is due
+        wait_for(lambda: (s := query_status(info["endpoints"], "r0", 0.5)) and s["step"] >= 6, 60, "the first steps")
         os.killpg(proc.pid, sig)  # what Ctrl-C in a terminal does: the whole foreground group
         # 130, as for eval: a script's `up && next-step` must not go on without the episode's summary.json
         assert proc.wait(timeout=30) == 130
-        assert b"interrupted at step" in proc.stdout.read()
+        out = proc.stdout.read().decode()
+        assert "interrupted at step" in out
+        # without a live view, a followed log is never silent: the episode's progress every progress_log_s
+        assert re.search(r"INFO cso\.launcher: step \d+ \([\d.]+ s robot time\): coverage [\d.]+ %, [\d.]+ m2 explored", out), out
         assert [p for p in run_pids(runs) if pid_alive(p)] == []
     finally:
         if proc.poll() is None:
