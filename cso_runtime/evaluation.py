@@ -367,7 +367,7 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
         summary["methods"][method] = entry
     summary["failures"] = failures
     paired = compare_to_baseline(efficiency_by_scene(rows), baseline) if baseline in methods else []
-    paired.sort(key=lambda c: (SCALES.index(c.scale) if c.scale in SCALES else len(SCALES), methods.index(c.method)))  # as Table 1
+    paired.sort(key=lambda c: (SCALES.index(c.scale) if c.scale in SCALES else len(SCALES), c.scale, methods.index(c.method)))  # as Table 1
     summary["paired"] = {"baseline": baseline, "comparisons": as_dicts(paired)}
     return summary
 
