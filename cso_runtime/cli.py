@@ -226,7 +226,8 @@ def report_command(
             raise TypeError("not an eval or run summary (no methods)")
         path = write_report(folder, summary)
     except OSError as exc:
-        _fail(f"{folder}: {exc.strerror or exc}", 2)
+        where = exc.filename or folder
+        _fail(f"{where}: {exc.strerror or exc}" + (" (not an `eval --out` folder or a run folder?)" if not (folder / "summary.json").exists() else ""), 2)
     except (ValueError, KeyError, TypeError) as exc:
         _fail(f"{folder / 'summary.json'}: {exc}", 2)
     typer.echo(f"wrote {path}")

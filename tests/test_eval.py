@@ -533,7 +533,7 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     r = CliRunner().invoke(app, ["report", str(tmp_path / "o")])  # the page again, from the folder alone
     assert r.exit_code == 0 and (tmp_path / "o" / "report.html").read_text() == page
     r = CliRunner().invoke(app, ["report", str(tmp_path / "nothing")])
-    assert r.exit_code == 2 and "error:" in r.output
+    assert r.exit_code == 2 and f"error: {tmp_path / 'nothing' / 'summary.json'}: No such file" in r.output and "not an `eval --out` folder" in r.output
     gif = tmp_path / "o" / "animations" / "greedy-dist" / "gen_small_3.gif"
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=40, resume=True))
     assert gif.is_file(), "an episode --resume keeps keeps its animation"
