@@ -128,8 +128,8 @@ def resolve_run(runs_dir: Path, run: str | None = None) -> Path:
         for candidate in (Path(run), runs_dir / run):
             if (candidate / "run.json").is_file() or (candidate / LOG_DIR).is_dir():
                 return candidate
-        known = ", ".join(d.name for d in run_dirs(runs_dir)[-5:]) or "none"
-        raise RunError(f"no run {run!r} in {runs_dir} (newest: {known}; `cso-runtime runs` lists them)")
+        known = ", ".join(d.name for d in reversed(run_dirs(runs_dir)[-5:])) or "none"
+        raise RunError(f"no run {run!r} in {runs_dir} (newest first: {known}; `cso-runtime runs` lists them)")
     current = read_current_run(runs_dir)
     if current is not None and Path(str(current.get("run_dir", ""))).is_dir():
         return Path(current["run_dir"])

@@ -163,7 +163,7 @@ def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newes
     (runs / "current.json").write_text(json.dumps({"run_id": old.name, "run_dir": str(old)}))
     assert resolve_run(runs) == old
     assert resolve_run(runs, new.name) == new and resolve_run(runs, str(new)) == new
-    with pytest.raises(RunError, match="no run 'nope' in .*newest: 20261203-091000-lockstep-r0, 20261203-091100-lockstep-r0"):
+    with pytest.raises(RunError, match="no run 'nope' in .*newest first: 20261203-091100-lockstep-r0, 20261203-091000-lockstep-r0"):
         resolve_run(runs, "nope")
     r = CliRunner().invoke(app, ["logs", "--runs-dir", str(tmp_path / "empty")])
     assert r.exit_code == 1 and "error: no runs in" in r.output
