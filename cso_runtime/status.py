@@ -127,7 +127,21 @@ def target_of(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[li
     return connect, robot or "r0"
 
 
-def reachable_target(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[list[str], str] | int:
+NOT_RUNNING = "not running"
+"""``status --json``'s state when nothing answers (beside starting, exploring, done, failed), so a script that
+reads the JSON gets JSON then too."""
+
+
+def say_nothing_running(why: str, as_json: bool) -> int:
+    """``nothing running (why)`` on stdout, or with ``--json`` a status object with the state ``not running``; exit 1."""
+    if as_json:
+        print(json.dumps({"state": NOT_RUNNING, "reason": f"nothing running ({why})"}), flush=True)
+    else:
+        print(f"nothing running ({why})")
+    return 1
+
+
+def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_json: bool = False) -> tuple[list[str], str] | int:
     """``target_of``, or the exit code after saying why there is no one to ask: 1 when nothing runs, 2 when
     ``connect`` cannot name a router (a typo such as ``127.0.0.1:7447``: a usage error, not "nothing running") or
     ``robot`` is not one robot's id."""
@@ -138,8 +152,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path) -> t
         print(f"error: --robot: {exc}", file=sys.stderr)
         return 2
     if not connect:
-        print("nothing running (no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs)")
-        return 1
+        return say_nothing_running("no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
     try:
         TransportConfig(mode="client", connect=connect).validate()
     except TransportError as exc:
@@ -191,7 +204,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     from rich.console import Console  # noqa: PLC0415
 
     console = Console()
-    target = reachable_target(connect, robot, runs_dir)
+    target = reachable_target(connect, robot, runs_dir, as_json)
     if isinstance(target, int):
         return target
     connect, robot = target
@@ -199,8 +212,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
         while True:
             status = query_status(connect, robot)
             if status is None:
-                print(f"nothing running for robot {robot} at {', '.join(connect)}")
-                return 1
+                return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}", as_json)
             if as_json:
                 print(json.dumps(status), flush=True)
             else:
@@ -211,8 +223,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     except KeyboardInterrupt:
         return 0
     except TransportError as exc:
-        print(f"nothing running: {exc}")
-        return 1
+        return say_nothing_running(str(exc), as_json)
 
 
 def query_map(connect: list[str], robot: str = "r0", timeout_s: float = 1.0) -> tuple[MapMsg | None, str]:

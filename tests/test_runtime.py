@@ -646,9 +646,13 @@ def test_status_table_shows_the_episode_and_each_service():
 
 
 def test_status_and_down_with_nothing_running(tmp_path):
-    r = cli("status", "--json", cwd=tmp_path, timeout_s=10)
+    r = cli("status", cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "nothing running" in r.stdout and "`cso-runtime runs` lists past runs" in r.stdout
+    r = cli("status", "--json", cwd=tmp_path, timeout_s=10)  # a script reading the JSON gets JSON then too
+    assert r.returncode == 1 and json.loads(r.stdout)["state"] == "not running" and "nothing running" in json.loads(r.stdout)["reason"]
     port = free_tcp_port()
+    r = cli("status", "--json", "--connect", loopback_endpoint(port), cwd=tmp_path, timeout_s=10)
+    assert r.returncode == 1 and json.loads(r.stdout) == {"state": "not running", "reason": f"nothing running (no answer for robot r0 at {loopback_endpoint(port)})"}
     t0 = time.monotonic()
     assert query_status([loopback_endpoint(port)], "r0") is None
     assert time.monotonic() - t0 < 2.0
