@@ -131,13 +131,21 @@ def eval_command(
         None, "--weights", help="Folder of <method>.pt (a `train --out` folder) to use instead of the shipped weights (sets CSO_WEIGHTS_DIR)"
     ),
     animate: bool = typer.Option(False, "--animate", help="Also write animations/<method>/<map>.gif: the robot's map, path and goal at each decision"),
+    settings: list[str] | None = typer.Option(
+        None, "--set", help="KEY=VALUE over the --config file, dotted, repeatable: masks.beta_far_m=2.0, episode.replan_every_steps=12"
+    ),
 ) -> None:
     """Run exploration episodes and write the paper's Table 1 metrics, curves and trajectory plots."""
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.evaluation import EvalRequest, run_eval_cli  # noqa: PLC0415 - keep CLI start fast
     from cso_runtime.policies import parse_methods  # noqa: PLC0415
 
     if weights is not None:
         _use_weights(weights)
+    try:
+        parameters = parse_settings(settings or [])
+    except ConfigError as exc:
+        _fail(str(exc), 2)
 
     request = EvalRequest(
         methods=parse_methods(method),
@@ -155,6 +163,7 @@ def eval_command(
         resume=resume,
         baseline=baseline,
         animate=animate,
+        settings=parameters,
     )
     raise typer.Exit(run_eval_cli(request))
 

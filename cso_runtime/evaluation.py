@@ -40,6 +40,7 @@ from cso_runtime.config import (
     from_dict,
     load_yaml,
     make_output_dir,
+    set_dotted,
     to_dict,
 )
 from cso_runtime.episode import EpisodeResult, run_episode
@@ -98,6 +99,8 @@ class EvalRequest:
     """Every other method is compared with this one scene by scene (``paired.csv``) when it ran too."""
     animate: bool = False
     """Also write ``animations/<method>/<map>.gif``: the robot's map at each decision (``frames.EpisodeAnimation``)."""
+    settings: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """``--set KEY=VALUE``: dotted exploration parameters set over the config file (``masks.beta_far_m=2.0``)."""
 
     def __post_init__(self) -> None:
         # ``--method greedy-dist,greedy-dist`` means the method once: twice would run every scene twice and
@@ -107,7 +110,12 @@ class EvalRequest:
     def exploration_config(self) -> ExplorationConfig:
         """The config file (if any) with the CLI's sensor and step-limit flags applied on top."""
         data: dict[str, Any] = load_yaml(self.config_path) if self.config_path else {}
-        cfg = from_dict(ExplorationConfig, data, where=str(self.config_path or "config"))
+        for key, value in self.settings.items():
+            set_dotted(data, key, value)
+        where = str(self.config_path or "config")
+        if self.settings:  # an error names the flags that changed the file, as `up --set` does
+            where = f"{self.config_path or 'eval'} with " + " ".join(f"--set {k}={v}" for k, v in self.settings.items())
+        cfg = from_dict(ExplorationConfig, data, where=where)
         preset = SensorConfig.preset(self.sensor, fov_deg=self.lidar_fov_deg if self.sensor == "lidar" else None)
         preset.range_noise_std_m = cfg.sensor.range_noise_std_m
         explicit_mount = "mount_x_m" in (data.get("sensor") or {})

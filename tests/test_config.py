@@ -107,6 +107,20 @@ def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path
         EvalRequest(methods=["greedy-dist"], workers=0).validate()
 
 
+def test_eval_set_overrides_the_config_file_and_names_itself_in_errors(tmp_path: Path):
+    """``eval --set masks.beta_far_m=2.0``, as ``up --set`` and ``train --set``: dotted keys over the file."""
+    from cso_runtime.evaluation import EvalRequest
+
+    f = tmp_path / "eval.yaml"
+    f.write_text("masks: {beta_far_m: 1.8, alpha3_m: 0.5}\n")
+    cfg = EvalRequest(methods=["cso"], config_path=f, settings={"masks.beta_far_m": 2.0, "episode.replan_every_steps": 12}).exploration_config()
+    assert (cfg.masks.beta_far_m, cfg.masks.alpha3_m, cfg.episode.replan_every_steps) == (2.0, 0.5, 12)
+    with pytest.raises(ConfigError, match=r"eval.yaml with --set masks.warp=1: masks: unknown key\(s\) warp"):
+        EvalRequest(methods=["cso"], config_path=f, settings={"masks.warp": 1}).exploration_config()
+    with pytest.raises(ConfigError, match=r"^eval with --set masks.beta_far_m=0.1: masks: masks need"):
+        EvalRequest(methods=["cso"], settings={"masks.beta_far_m": 0.1}).exploration_config()
+
+
 def test_a_negative_seed_is_refused_where_it_is_given_not_inside_a_worker():
     """numpy's generators take no negative seed: eval, a runtime profile and training each say so first
     (the sim service used to refuse it after the launcher had started everything)."""
