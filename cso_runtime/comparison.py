@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from cso_runtime.scenes import SCALES
+from cso_runtime.scenes import scale_rank
 
 SceneKey = tuple[str, str, str, str, str]
 """(label, map, scale, traversable area, seed): an episode's scene. The label keeps apart plans of
@@ -162,11 +162,7 @@ def bootstrap_mean_ci(values: np.ndarray, resamples: int = 10_000, seed: int = 0
 def compare_to_baseline(table: EfficiencyTable, baseline: str = "greedy-dist", min_scenes: int = MIN_SCENES) -> list[PairedComparison]:
     """Every other method against ``baseline`` per scale, on the scenes both ran (small to super large, then by method)."""
     out = []
-    def order(item: tuple[tuple[str, str], Any]) -> tuple[int, str, str]:
-        (method, scale), _ = item
-        return (SCALES.index(scale) if scale in SCALES else len(SCALES), scale, method)
-
-    for (method, scale), eff in sorted(table.items(), key=order):
+    for (method, scale), eff in sorted(table.items(), key=lambda kv: (scale_rank(kv[0][1]), kv[0][1], kv[0][0])):
         base = table.get((baseline, scale))
         if method == baseline or base is None:
             continue

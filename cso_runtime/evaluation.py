@@ -57,7 +57,7 @@ from cso_runtime.outputs import (
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
-from cso_runtime.scenes import SCALES, SceneError, SceneRef, resolve_scenes, scale_of
+from cso_runtime.scenes import SCALES, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
 from cso_runtime.simulator import SIMULATORS, make_simulator
 
 log = logging.getLogger(__name__)
@@ -375,7 +375,7 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
         summary["methods"][method] = entry
     summary["failures"] = failures
     paired = compare_to_baseline(efficiency_by_scene(rows), baseline) if baseline in methods else []
-    paired.sort(key=lambda c: (SCALES.index(c.scale) if c.scale in SCALES else len(SCALES), c.scale, methods.index(c.method)))  # as Table 1
+    paired.sort(key=lambda c: (scale_rank(c.scale), c.scale, methods.index(c.method)))  # as Table 1
     summary["paired"] = {"baseline": baseline, "comparisons": as_dicts(paired)}
     return summary
 

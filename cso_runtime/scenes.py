@@ -31,6 +31,11 @@ class SceneError(ValueError):
     """A floor plan is missing, corrupt or unusable."""
 
 
+def scale_rank(scale: str) -> int:
+    """Where a scale comes in tables: small to super large, any other name after them."""
+    return SCALES.index(scale) if scale in SCALES else len(SCALES)
+
+
 def scale_of(area_m2: float) -> str:
     """The paper's scale class of a scene from its traversable area."""
     if area_m2 < 30.0:
