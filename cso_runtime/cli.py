@@ -624,13 +624,14 @@ def runs_command(
     table = Table(title=escape(f"runs in {runs_dir}"), box=box.SIMPLE_HEAD)
     table.add_column("run: scene, method", overflow="fold", min_width=34)
     table.add_column("state", overflow="fold", min_width=6)
-    for col in ("steps", "cover %", "m2", "m2/step"):
+    for col in ("took", "steps", "cover %", "m2", "m2/step"):
         table.add_column(col, justify="right", no_wrap=True)
     for r in rows:
         restarts = r["restarts"]
         state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "")
+        took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         table.add_row(
-            escape(f"{r['run_id']}\n  {r['scene']}, {r['method']}"), state, num(r["steps"], ".0f"),
+            escape(f"{r['run_id']}\n  {r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
             num(r["coverage_pct"], ".1f"), num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
     Console().print(table)

@@ -308,6 +308,8 @@ class Launcher:
         self.exit_code = 0
         self._lock = threading.Lock()
         self.started_s = time.monotonic()
+        self.started_at = time.time()
+        """When the run started (Unix time, s): ``run.json``'s ``started_at``, with ``ended_at`` once it stopped."""
         self.control_period_s = profile.exploration_config().robot.control_period_s
         """Robot time of one step (the live view's clock)."""
 
@@ -325,7 +327,8 @@ class Launcher:
             "launcher_pid": os.getpid(),
             "launcher_start_ticks": process_start_ticks(os.getpid()),
             "state": state,
-            **({"outcome": self.outcome(), "exit_code": self.exit_code} if state == "stopped" else {}),
+            "started_at": round(self.started_at, 3),
+            **({"outcome": self.outcome(), "exit_code": self.exit_code, "ended_at": round(time.time(), 3)} if state == "stopped" else {}),
             "services": {
                 c.name: {
                     "pid": c.proc.pid if c.proc else None,

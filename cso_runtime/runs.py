@@ -50,6 +50,9 @@ class RunSummary:
     """The method's Table 1 row from ``summary.json`` (empty until the episode ended)."""
     restarts: int = 0
     """Service restarts by the launcher, all services together."""
+    duration_s: float | None = None
+    """How long the run took (``ended_at - started_at`` of run.json), or has been running; None for a run file
+    from before the times were recorded, or a run whose launcher died."""
 
     def as_dict(self) -> dict[str, Any]:
         keys = ("explored_area_m2", "coverage_pct", "steps", "efficiency_m2_per_step", "path_length_m")
@@ -64,6 +67,7 @@ class RunSummary:
             **{k: self.metrics.get(k) for k in keys},
             "terminated_by": next(iter(self.metrics.get("terminated_by") or {}), None),
             "restarts": self.restarts,
+            "duration_s": None if self.duration_s is None else round(self.duration_s, 1),
         }
 
 
@@ -102,6 +106,13 @@ def summarize_run(run_dir: Path) -> RunSummary:
     else:
         state = "done" if methods else "stopped"
     services = info.get("services") if isinstance(info.get("services"), dict) else {}
+    started, ended = info.get("started_at"), info.get("ended_at")
+    duration_s = None
+    if isinstance(started, (int, float)):
+        if isinstance(ended, (int, float)):
+            duration_s = max(0.0, float(ended) - float(started))
+        elif state not in ("launcher died", "stopped") and current_launcher_alive(info):
+            duration_s = max(0.0, time.time() - float(started))
     return RunSummary(
         run_id=str(info.get("run_id") or run_dir.name),
         run_dir=run_dir,
@@ -112,6 +123,7 @@ def summarize_run(run_dir: Path) -> RunSummary:
         method=method,
         metrics=dict(methods.get(method) or {}),
         restarts=sum(int(s.get("restarts") or 0) for s in services.values() if isinstance(s, dict)),
+        duration_s=duration_s,
     )
 
 

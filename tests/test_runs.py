@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import time
 from pathlib import Path
 
 import pytest
@@ -23,7 +24,8 @@ def line(s: int, ms: int, text: str) -> str:
 
 
 def make_run(
-    runs: Path, run_id: str, *, outcome: str | None = None, summary: dict | None = None, alive: bool = False, logs: dict | None = None, state: str | None = None
+    runs: Path, run_id: str, *, outcome: str | None = None, summary: dict | None = None, alive: bool = False, logs: dict | None = None, state: str | None = None,
+    times: tuple[float, float | None] | None = None,
 ) -> Path:
     """A run folder as ``up`` leaves it: run.json (the launcher this test process when ``alive``), profile.yaml,
     summary.json when given, logs/*.log."""
@@ -40,6 +42,10 @@ def make_run(
     }
     if outcome is not None:
         info["outcome"] = outcome
+    if times is not None:  # (started_at, ended_at) as the launcher writes them (Unix time)
+        info["started_at"] = times[0]
+        if times[1] is not None:
+            info["ended_at"] = times[1]
     (d / "run.json").write_text(json.dumps(info))
     (d / "profile.yaml").write_text(yaml.safe_dump({"name": "lockstep", "robot": "r0", "scene": "generated:small:1:0", "method": "cso"}))
     if summary is not None:
@@ -54,10 +60,10 @@ ROW = {"explored_area_m2": 21.85, "coverage_pct": 99.66, "steps": 36.0, "efficie
 
 def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     runs = tmp_path / "runs"
-    make_run(runs, "20261203-091000-lockstep-r0", outcome="interrupted")
+    make_run(runs, "20261203-091000-lockstep-r0", outcome="interrupted", times=(1000.0, 1065.4))
     make_run(runs, "20261203-091100-lockstep-r0", summary=ROW)  # a run file from before outcomes were recorded
-    make_run(runs, "20261203-091200-lockstep-r0", outcome="failed")
-    make_run(runs, "20261203-091300-lockstep-r0", alive=True)
+    make_run(runs, "20261203-091200-lockstep-r0", outcome="failed", times=(2000.0, 2007.0))
+    make_run(runs, "20261203-091300-lockstep-r0", alive=True, times=(time.time() - 30.0, None))
     (runs / "not-a-run").mkdir()
     listed = [r.as_dict() for r in list_runs(runs)]
     broken = make_run(runs, "20261203-091400-lockstep-r0", summary=ROW)
@@ -66,7 +72,7 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert list_runs(runs)[-1].as_dict() | {"run_dir": ""} == {
         "run_id": broken.name, "run_dir": "", "state": "stopped", "profile": "", "robot": "", "scene": "", "method": "",
         "explored_area_m2": None, "coverage_pct": None, "steps": None, "efficiency_m2_per_step": None, "path_length_m": None,
-        "terminated_by": None, "restarts": 0,
+        "terminated_by": None, "restarts": 0, "duration_s": None,
     }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback)
     shutil.rmtree(broken)
     killed = make_run(runs, "20261203-091500-lockstep-r0", state="running")  # its launcher is gone, the file says running
@@ -78,6 +84,8 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert done["steps"] == 36.0 and done["coverage_pct"] == 99.66 and done["efficiency_m2_per_step"] == 0.6069
     assert done["terminated_by"] == "coverage" and done["method"] == "cso" and done["scene"] == "generated:small:1:0"
     assert done["restarts"] == 2 and listed[0]["steps"] is None
+    # how long each took: stopped runs from their two times, a running one so far, an old run file nothing
+    assert [r["duration_s"] for r in listed[:3]] == [65.4, None, 7.0] and 30.0 <= listed[3]["duration_s"] < 60.0
     assert [r.run_id for r in list_runs(runs, limit=2)] == ["20261203-091200-lockstep-r0", "20261203-091300-lockstep-r0"]
 
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--json", "--limit", "3"])
@@ -86,6 +94,8 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert r.exit_code == 0
     row = next(ln for ln in r.output.splitlines() if "091100" in ln)
     assert "done, 2 restarts" in row and "36" in row and "99.7" in row and "21.9" in row and "0.607" in row
+    assert "1 min 5 s" in next(ln for ln in r.output.splitlines() if "091000" in ln)
+    assert " 7 s " in next(ln for ln in r.output.splitlines() if "091200" in ln)
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "none")])
     assert r.exit_code == 0 and "no runs in" in r.output
 

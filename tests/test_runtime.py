@@ -708,7 +708,8 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         for name in ("sim", "mapper", "frontier", "policy", "planner"):
             assert (out / "logs" / f"{name}.log").is_file()
         assert "INFO cso.launcher: started sim (pid" in (out / "logs" / "launcher.log").read_text()  # as a detached run's
-        assert json.loads((out / "run.json").read_text())["outcome"] == "done"
+        info = json.loads((out / "run.json").read_text())
+        assert info["outcome"] == "done" and 0 < info["ended_at"] - info["started_at"] < 120  # `runs`' took column
         assert "  mapper -->|\"map\"| frontier\n" in (out / "dataflow.md").read_text()
         assert not (runs / "current.json").exists()
         assert [p for p in run_pids(runs) if pid_alive(p)] == []
@@ -788,6 +789,7 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         r = cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         (listed,) = json.loads(r.stdout)
         assert listed["state"] == "done" and listed["steps"] == final["step"] and listed["restarts"] >= 1, listed  # waits for `down`
+        assert listed["duration_s"] > 0, listed  # running: so far
         # `logs -f` follows the run until `down` ends it, then exits by itself.
         follower = subprocess.Popen(
             [sys.executable, "-m", "cso_runtime.cli", "logs", "--follow", "--runs-dir", str(runs)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
