@@ -572,6 +572,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
         why = f["error"].splitlines()[0] if f["error"] else ""
         failed = escape(f"{f['method']} {f['map']}: {why}")
         console.print(f"[red]failed[/red] {failed}", soft_wrap=True)  # a path in it must stay whole
+    console.print(escape(f"results in {out_dir}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"), soft_wrap=True, highlight=False)
 
 
 def run_eval_cli(request: EvalRequest) -> int:

@@ -310,6 +310,7 @@ def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_pat
     assert cells == [["greedy-dist", "small"], ["greedy-dist", "middle"], ["greedy-dist", "all"], ["random", "small"]]
     middle = next(line for line in lines if "middle" in line)
     assert "0.6000" in middle and "60.0" in middle  # that scale's own means, not the method's
+    assert lines[-1] == f"results in {tmp_path}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
 
 
 def test_a_run_with_ablations_is_also_laid_out_as_the_papers_table_2(tmp_path: Path, capsys):
