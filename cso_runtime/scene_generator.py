@@ -1,11 +1,14 @@
-"""Seeded apartment-like floor plans for the paper's small and middle scale classes (section 4.1).
+"""Seeded apartment- and office-like floor plans for every scale class of the paper (section 4.1).
 
-The Dungeon plans are all "super large", so the small (< 30 m2) and middle (30-100 m2) classes
-come from this generator. Layout rules (``LayoutRules`` holds the numbers):
+The Dungeon plans are all "large" or "super large", so the small (< 30 m2) and middle (30-100 m2)
+classes come from this generator; its large (100-260 m2) and super-large (> 260 m2) plans let an
+installed package, which ships only five Dungeon plans, evaluate and train at those scales on as
+many seeded scenes as wanted. Layout rules (``LayoutRules`` holds the numbers):
 
 1. The plan is a rectangle with an outer wall all round; its size is drawn so that the free
-   area lands in the requested scale class (small: 10-28 m2, middle: 32-97 m2 targeted), with
-   at least 2 rooms (small) or 4 (middle).
+   area lands in the requested scale class (small: 10-28 m2, middle: 32-97 m2, large: 105-250 m2,
+   super large: 270-600 m2 targeted, the last about the Dungeon plans' range at 0.1 m/px), with at
+   least 2 rooms (small), 4 (middle), 8 (large) or 16 (super large).
 2. The inside is split recursively by straight walls (a guillotine split) into rectangular rooms
    no narrower than ``min_room_m``. The first split of a large enough plan may instead lay a
    corridor (``corridor_m`` wide) along the plan's long side, with rooms on both sides.
@@ -30,9 +33,10 @@ import numpy as np
 from scipy import ndimage
 
 from cso_runtime.geometry import Pose2D
-from cso_runtime.scenes import FloorPlan, SceneError, scale_of
+from cso_runtime.scenes import SCALES, FloorPlan, SceneError, scale_of
 
-GENERATED_SCALES = ("small", "middle")
+GENERATED_SCALES = SCALES
+"""Every scale class of the paper can be generated."""
 
 
 @dataclass(frozen=True)
@@ -60,10 +64,10 @@ class LayoutRules:
     aspect: tuple[float, float] = (1.0, 1.8)
     """Long side over short side of the plan."""
     target_area_m2: dict[str, tuple[float, float]] = field(
-        default_factory=lambda: {"small": (10.0, 28.0), "middle": (32.0, 97.0)}
+        default_factory=lambda: {"small": (10.0, 28.0), "middle": (32.0, 97.0), "large": (105.0, 250.0), "super_large": (270.0, 600.0)}
     )
     """Free area drawn per scale class (kept inside the paper's class bounds)."""
-    min_rooms: dict[str, int] = field(default_factory=lambda: {"small": 2, "middle": 4})
+    min_rooms: dict[str, int] = field(default_factory=lambda: {"small": 2, "middle": 4, "large": 8, "super_large": 16})
     """Fewest rooms (corridor included) per scale class, so no plan is seen whole from the start."""
     wall_fill: float = 0.95
     """Rough share of the inside left free by the walls, to size the plan from the target area."""
@@ -246,7 +250,7 @@ def _draw_plan(rng: np.random.Generator, scale: str, rules: LayoutRules, resolut
 
 
 def generate_floor_plan(scale: str, seed: int, resolution_m: float = 0.05, rules: LayoutRules | None = None) -> FloorPlan:
-    """A seeded apartment-like plan whose traversable area is in ``scale``'s class ("small" or "middle").
+    """A seeded apartment-like plan whose traversable area is in ``scale``'s class (``scenes.SCALES``).
 
     Same ``seed``, same plan. Raises SceneError for an unknown scale, a negative seed or a
     resolution too coarse for the layout rules.

@@ -232,8 +232,8 @@ def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.
         if len(parts) != 4:
             raise SceneError(f"bad generated spec {spec!r}; use generated:SCALE:N:SEED")
         _, scale, n, seed = parts
-        if scale not in ("small", "middle"):
-            raise SceneError(f"generated scale must be small or middle, got {scale!r}")
+        if scale not in SCALES:
+            raise SceneError(f"generated scale must be one of {', '.join(SCALES)}, got {scale!r}")
         try:
             n_i, seed_i = int(n), int(seed)
         except ValueError:

@@ -980,7 +980,7 @@ def test_train_outside_the_repository_uses_the_packaged_recipe_and_refuses_missi
     assert result.exit_code == 2 and "looks like a validation set" in result.output
     result = CliRunner().invoke(app, ["collect-teacher", "--out", str(tmp_path / "t.npz"), "--set", "dungeon_dir=null",
                                       "--set", "generated=[generated:huge:1:0]"])
-    assert result.exit_code == 2 and "generated scale must be small or middle" in result.output
+    assert result.exit_code == 2 and "generated scale must be one of small, middle, large, super_large" in result.output
 
 
 def test_distance_prior_starts_the_actor_at_greedy_dist_and_round_trips(tmp_path, observation):

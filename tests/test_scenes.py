@@ -19,6 +19,7 @@ from cso_runtime.policies import make_policy
 from cso_runtime.scene_generator import generate_floor_plan
 from cso_runtime.scenes import (
     FREE_RGB,
+    SCALES,
     START_RGB,
     WALL_RGB,
     SceneError,
@@ -36,8 +37,8 @@ ROBOT_RADIUS_M = 0.2
 
 @pytest.fixture(scope="module")
 def plans():
-    """A few generated plans of both scales, built once for the whole file."""
-    return [generate_floor_plan(scale, seed) for scale in ("small", "middle") for seed in SEEDS]
+    """A few generated plans of every scale class, built once for the whole file."""
+    return [generate_floor_plan(scale, seed) for scale in SCALES for seed in SEEDS]
 
 
 # --- generator ---------------------------------------------------------------------------------
@@ -60,8 +61,9 @@ def test_generator_leaves_the_global_rng_alone():
 
 
 def test_scale_class_name_and_start(plans):
+    assert {plan.scale for plan in plans} == set(SCALES)
     for plan in plans:
-        scale = plan.name.split("_")[1]
+        scale = plan.name.removeprefix("gen_").rsplit("_", 1)[0]
         assert plan.name.startswith(f"gen_{scale}_")
         assert plan.scale == scale, (plan.name, plan.traversable_area_m2())
         assert plan.start.yaw_rad == 0.0
@@ -107,15 +109,16 @@ def test_a_robot_passes_every_door(plans, radius_m):
 def test_several_rooms_per_plan(plans):
     for plan in plans:
         # Eroding by more than half the widest door (1 m) closes the doors and splits the rooms
-        # (a 1 m corridor vanishes too, so a middle plan keeps at least 3 of its 4 rooms).
+        # (a 1 m corridor vanishes too, so a plan keeps at least all its rooms but one).
         size = int(round(1.0 / plan.resolution_m)) + 1
         _, n = ndimage.label(ndimage.binary_erosion(plan.free, np.ones((size, size), dtype=bool)))
-        assert n >= (2 if plan.name.startswith("gen_small") else 3), (plan.name, n)
+        least_rooms = {"small": 2, "middle": 3, "large": 7, "super_large": 15}[plan.scale]
+        assert n >= least_rooms, (plan.name, n)
 
 
 def test_generator_rejects_bad_arguments():
-    with pytest.raises(SceneError, match="large"):
-        generate_floor_plan("large", 0)
+    with pytest.raises(SceneError, match="huge"):
+        generate_floor_plan("huge", 0)
     with pytest.raises(SceneError, match="seed"):
         generate_floor_plan("small", -1)
     with pytest.raises(SceneError, match="resolution"):
@@ -220,6 +223,8 @@ def test_resolve_generated_spec():
     assert plan.name == "gen_small_7" and plan.scale == "small"
     assert np.array_equal(plan.free, generate_floor_plan("small", 7).free)
     assert len(resolve_scenes("generated:middle:5:0", limit=2)) == 2
+    (big,) = resolve_scenes("generated:super_large:1:3")
+    assert big.name == "gen_super_large_3" and big.load().scale == "super_large"
 
 
 def test_resolve_folder_in_natural_order(tmp_path):
@@ -241,7 +246,7 @@ def test_resolve_missing_png_fails_when_loaded(tmp_path):
 
 @pytest.mark.parametrize(
     "spec",
-    ["generated:large:1:0", "generated:small:x:0", "generated:small:1", "generated:small:1:0:9", "generated:small:0:0", "generated:middle:2:-1", "plans.txt", "nowhere"],
+    ["generated:huge:1:0", "generated:small:x:0", "generated:small:1", "generated:small:1:0:9", "generated:small:0:0", "generated:middle:2:-1", "plans.txt", "nowhere"],
 )
 def test_bad_specs_raise_scene_error(spec):
     with pytest.raises(SceneError):

@@ -61,7 +61,7 @@ class Args:
     dungeon_plans: int = 40
     """How many Dungeon plans to draw (seeded) from ``dungeon_dir``."""
     generated: list[str] = field(default_factory=lambda: ["generated:small:20:1000", "generated:middle:20:2000"])
-    """Generated-plan specs (scales small and middle)."""
+    """Generated-plan specs (``generated:SCALE:N:SEED``, any scale class; keep their seeds apart from evaluation's)."""
     total_decisions: int = 4096
     """PPO budget in env decisions (goal choices), all envs together."""
     time_limit_s: float = 0.0
@@ -249,7 +249,8 @@ def training_scene_refs(args: Args) -> list[SceneRef]:
         folder = Path(args.dungeon_dir)
         if not folder.is_dir():  # the file's default folder exists on the build machine only
             raise ValueError(f"dungeon_dir {folder}: no such folder of Dungeon training plans; give --dungeon-dir FOLDER, "
-                             "or --set dungeon_dir=null to train on the generated plans alone")
+                             "or --set dungeon_dir=null to train on the generated plans alone (any scale: "
+                             "--set 'generated=[generated:large:40:3000,generated:super_large:40:4000]')")
         lowered = str(folder.resolve()).lower()
         if any(f"/{bad}" in lowered for bad in ("easy", "medium", "complex")):
             raise ValueError(f"{folder} looks like a validation set; train only on the training plans")
