@@ -406,6 +406,7 @@ def scenes_command(
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans, as in eval (0.1 super large, 0.05 large)"),
     limit: int | None = typer.Option(None, "--limit", min=1, help="At most N scenes"),
     preview: Path | None = typer.Option(None, "--preview", help="Also write a PNG of each plan into this folder: reachable free space, start pose"),
+    mjcf: Path | None = typer.Option(None, "--mjcf", help="Also write each plan's MuJoCo world (walls, floor, the LIMO; keyframe 'start' at the start pose) into this folder as NAME.xml, for `python -m mujoco.viewer --mjcf FILE`"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
 ) -> None:
     """Each scene of a spec: size, traversable area, the paper's scale class and start pose; unusable plans with why (exit 1)."""
@@ -413,6 +414,7 @@ def scenes_command(
 
     from cso_runtime.plots import plot_scene  # noqa: PLC0415
     from cso_runtime.scenes import SceneError, describe_scene, resolve_scenes  # noqa: PLC0415
+    from robot_sim.scene import write_mujoco_world  # noqa: PLC0415
 
     if not m_per_px > 0:
         _fail(f"--m-per-px must be positive, got {m_per_px}", 2)
@@ -422,6 +424,8 @@ def scenes_command(
         _fail(str(exc), 2)
     if preview is not None:
         output_dir_or_exit(preview, "--preview")
+    if mjcf is not None:
+        output_dir_or_exit(mjcf, "--mjcf")
     rows: list[dict] = []
     with _count_progress("reading", "scenes") as progress:
         for ref in refs:
@@ -430,6 +434,8 @@ def scenes_command(
                 rows.append(describe_scene(plan))
                 if preview is not None:
                     plot_scene(preview / f"{ref.name}.png", plan)
+                if mjcf is not None:
+                    write_mujoco_world(mjcf / f"{ref.name}.xml", plan)
             except SceneError as exc:
                 rows.append({"scene": ref.name, "error": str(exc)})
             progress(len(rows), len(refs))
@@ -461,7 +467,8 @@ def scenes_command(
             if "error" not in r:
                 scales[r["scale"]] = scales.get(r["scale"], 0) + 1
         counts = ", ".join(f"{n} {sc.replace('_', ' ')}" for sc, n in scales.items())
-        typer.echo(f"{len(rows) - len(bad)} usable ({counts or 'none'}), {len(bad)} unusable" + (f"; previews in {preview}" if preview else ""))
+        written = [f"previews in {preview}"] * (preview is not None) + [f"MuJoCo worlds in {mjcf}"] * (mjcf is not None)
+        typer.echo(f"{len(rows) - len(bad)} usable ({counts or 'none'}), {len(bad)} unusable" + "".join(f"; {w}" for w in written))
     if bad:
         raise typer.Exit(1)
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from cso_runtime.config import ConfigError
+from cso_runtime.config import ConfigError, SensorConfig
 
 
 @dataclass
@@ -64,6 +64,10 @@ class MujocoSimConfig:
     """Odometry drift: std of the heading error of each increment, as a fraction of its rotation."""
     odom_rot_per_trans_noise_radpm: float = 0.0
     """Odometry drift: std of the heading error of each increment per metre travelled."""
+
+    def lidar_mount_for(self, sensor: SensorConfig) -> float:
+        """Where the rays are cast from, ahead of the robot centre: ``lidar_mount_x_m``, else the sensor's mount."""
+        return sensor.mount_x_m if self.lidar_mount_x_m is None else float(self.lidar_mount_x_m)
 
     def validate(self) -> None:
         positive = (

@@ -9,10 +9,12 @@ plans solid walls merge into fewer boxes, hence the default).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from scipy import ndimage
 
-from cso_runtime.config import RobotConfig
+from cso_runtime.config import RobotConfig, SensorConfig
 from cso_runtime.scenes import FloorPlan
 from robot_sim.config import MujocoSimConfig
 from robot_sim.limo import GROUP_FLOOR, GROUP_WALLS, limo_mjcf
@@ -59,7 +61,12 @@ def wall_boxes(plan: FloorPlan, boundary_only: bool = False) -> np.ndarray:
 
 
 def world_mjcf(plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float) -> tuple[str, int]:
-    """The MJCF of the whole world (walls, floor, LIMO) and its number of wall boxes."""
+    """The MJCF of the whole world (walls, floor, LIMO) and its number of wall boxes.
+
+    The keyframe ``start`` holds the plan's start pose (``qpos`` is x_m, y_m, yaw_rad), so the file on its
+    own opens with the LIMO where an episode starts (``python -m mujoco.viewer --mjcf FILE``, then "Load key").
+    """
+    start = plan.start
     boxes = wall_boxes(plan, sim.walls_boundary_only)
     h = 0.5 * sim.wall_height_m
     walls = "\n".join(
@@ -86,6 +93,18 @@ def world_mjcf(plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_
   </worldbody>
   <actuator>{limo.actuator_xml}
   </actuator>
+  <keyframe>
+    <key name="start" qpos="{start.x_m:.6g} {start.y_m:.6g} {start.yaw_rad:.6g}"/>
+  </keyframe>
 </mujoco>
 """
     return xml, len(boxes)
+
+
+def write_mujoco_world(path: Path, plan: FloorPlan, robot: RobotConfig | None = None, sim: MujocoSimConfig | None = None,
+                       sensor: SensorConfig | None = None) -> Path:
+    """Write the world ``MujocoSimulator`` builds for ``plan`` (defaults: the LIMO, its LiDAR) as an MJCF file."""
+    sim = sim or MujocoSimConfig()
+    xml, _ = world_mjcf(plan, robot or RobotConfig(), sim, sim.lidar_mount_for(sensor or SensorConfig()))
+    path.write_text(xml, encoding="utf-8")
+    return path

@@ -82,7 +82,7 @@ class MujocoSimulator:
         self.sensor.validate()
         self.config.validate()
         c = self.config
-        self.lidar_mount_x_m = self.sensor.mount_x_m if c.lidar_mount_x_m is None else float(c.lidar_mount_x_m)
+        self.lidar_mount_x_m = c.lidar_mount_for(self.sensor)
         if abs(self.lidar_mount_x_m - self.sensor.mount_x_m) > 1e-9:
             log.info(
                 "LiDAR mounted at x=%.3f m on the LIMO (SensorConfig.mount_x_m=%.3f is used only by the planner's "
@@ -151,6 +151,11 @@ class MujocoSimulator:
             self._latest: tuple[int, float, Pose2D, Pose2D] | None = None
             self._latest_scan: LaserScan | None = None
             self._fire_due_scans()
+
+    @property
+    def state_lock(self) -> threading.RLock:
+        """Held while the physics state changes; a reader of ``data`` from another thread (the viewer) takes it."""
+        return self._lock
 
     # --- poses ---
     def true_pose(self) -> Pose2D:

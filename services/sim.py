@@ -13,11 +13,12 @@ have arrived; a missing answer is re-requested by re-publishing the step after `
 
 from __future__ import annotations
 
+import argparse
 import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zenoh
@@ -44,6 +45,9 @@ from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import Simulator, make_simulator
 from cso_runtime.transport import track_liveliness
 from services.common import Service, ServiceContext, service_main
+
+if TYPE_CHECKING:
+    from robot_sim.viewer import SimViewer
 
 log = logging.getLogger("cso.sim")
 
@@ -78,6 +82,10 @@ class SimParams:
     """``episode/status`` goes out at the end of the episode and otherwise at most this often (wall
     clock), so that its listeners (the launcher's live view) are not woken on every step; ``cso-runtime
     status`` queries the current one at any time. 0 = after every step."""
+    viewer: bool = False
+    """Open a MuJoCo viewer window on the LIMO (``backend: mujoco`` only; needs a display, and mjpython on
+    macOS): refreshed after each control step, the current goal as a red ball. ``service sim --viewer``,
+    or ``up --set services.sim.viewer=true``. Closing the window does not stop the episode."""
 
     def validate(self) -> None:
         if self.backend not in BACKENDS:
@@ -87,6 +95,8 @@ class SimParams:
                 raise ConfigError(f"{name} must be positive")
         if min(self.min_step_period_s, self.start_delay_s, self.status_period_s, self.wait_for_services_s) < 0:
             raise ConfigError("min_step_period_s, start_delay_s, status_period_s and wait_for_services_s must be >= 0")
+        if self.viewer and BACKENDS[self.backend] != "mujoco":
+            raise ConfigError(f"viewer needs backend mujoco (the {self.backend} simulator has no 3D world to show)")
 
 
 def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceContext) -> Simulator:
@@ -98,6 +108,16 @@ def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceCont
     plan = refs[0].load()
     seed = int(profile.get("seed", 0))
     return make_simulator(BACKENDS[params.backend], plan, ctx.exploration.sensor, ctx.exploration.robot, seed=seed)
+
+
+def open_viewer(sim: Simulator) -> SimViewer:
+    """The window of ``viewer: true``; a ConfigError (the service exits 2 and is not restarted) where none can open."""
+    from robot_sim.viewer import SimViewer, display_problem  # noqa: PLC0415  (GUI code only when asked for)
+
+    problem = display_problem()
+    if problem is not None:
+        raise ConfigError(f"services.sim.viewer: {problem}")
+    return SimViewer(sim)  # type: ignore[arg-type]  (validate() allows it only with backend mujoco)
 
 
 class SimService(Service):
@@ -153,6 +173,7 @@ class SimService(Service):
         self.timeouts = 0
         self.result: EpisodeResultMsg | None = None
         self._declarations: list[Any] = []
+        self.viewer = open_viewer(self.sim) if self.params.viewer else None
 
     # --- wiring ---------------------------------------------------------------------------------
     def start(self) -> None:
@@ -186,6 +207,8 @@ class SimService(Service):
         self.publish("odom", OdometryMsg(self.step, self.sim.time_s, self.sim.odometry()))
         self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry, self.episode))
         self.last_publish_s = time.monotonic()
+        if self.viewer is not None:  # after the step is out: the window never delays the pipeline
+            self.viewer.show(self.goal_xy)
 
     def episode_status(self) -> EpisodeStatusMsg:
         cov = self.coverage_curve[-1] if self.coverage_curve else 0.0
@@ -389,6 +412,18 @@ class SimService(Service):
                 self.finish("done", TERMINATED_MAX_STEPS)
                 return
             self.advance(cmd)
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--viewer", action="store_true", help="Open a MuJoCo viewer window on the LIMO (backend mujoco; needs a display)")
+
+    @classmethod
+    def apply_arguments(cls, args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any]:
+        return {**params, "viewer": True} if args.viewer else params
+
+    def shutdown(self) -> None:
+        if self.viewer is not None:
+            self.viewer.close()
 
     def missing(self) -> str:
         k = self.step

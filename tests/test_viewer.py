@@ -1,0 +1,118 @@
+"""The MuJoCo world as a file (keyframe ``start``, ``scenes --mjcf``) and the sim service's viewer window.
+
+No test opens a window (CI has no display): the viewer runs on a stand-in for ``launch_passive``'s
+handle that records what the window would get, and the display check is forced both ways."""
+
+from __future__ import annotations
+
+import contextlib
+
+import mujoco
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from cso_runtime.cli import app
+from cso_runtime.config import ConfigError, ExplorationConfig, SensorConfig
+from cso_runtime.geometry import VelocityCommand
+from cso_runtime.scene_generator import generate_floor_plan
+from cso_runtime.transport import TransportConfig
+from robot_sim import MujocoSimConfig, MujocoSimulator
+from robot_sim import viewer as viewer_module
+from robot_sim.scene import write_mujoco_world
+from robot_sim.viewer import GOAL_HEIGHT_M, SimViewer
+from services.common import ServiceContext
+
+
+class FakeHandle:
+    """What ``mujoco.viewer.launch_passive`` returns, minus the window: counts syncs, keeps the overlay."""
+
+    def __init__(self, model: mujoco.MjModel, data: mujoco.MjData):
+        self.model, self.data = model, data
+        self.user_scn = mujoco.MjvScene(model, 10)
+        self.synced_xy: list[tuple[float, float]] = []
+        self.running = True
+        self.closed = 0
+
+    def is_running(self) -> bool:
+        return self.running
+
+    def lock(self) -> contextlib.AbstractContextManager:
+        return contextlib.nullcontext()
+
+    def sync(self) -> None:
+        self.synced_xy.append((float(self.data.qpos[0]), float(self.data.qpos[1])))
+
+    def close(self) -> None:
+        self.closed += 1
+
+
+def test_the_world_file_opens_with_the_limo_at_the_start_pose(tmp_path):
+    plan = generate_floor_plan("small", 5)
+    path = write_mujoco_world(tmp_path / "w.xml", plan)
+    model = mujoco.MjModel.from_xml_path(str(path))
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.key("start").id)
+    mujoco.mj_forward(model, data)
+    assert np.allclose(data.qpos, [plan.start.x_m, plan.start.y_m, plan.start.yaw_rad])
+    assert data.ncon == 0  # the LIMO stands free of the walls there
+    sim = MujocoSimulator(plan, SensorConfig())  # the simulator's own world is the same file
+    assert model.ngeom == sim.model.ngeom and np.allclose(model.geom_size, sim.model.geom_size)
+    assert np.allclose(sim.data.qpos, data.qpos)
+
+
+def test_scenes_writes_a_mujoco_world_per_plan(tmp_path):
+    out = tmp_path / "worlds"
+    result = CliRunner().invoke(app, ["scenes", "generated:small:2:0", "--mjcf", str(out)])
+    assert result.exit_code == 0, result.output
+    assert sorted(p.name for p in out.iterdir()) == ["gen_small_0.xml", "gen_small_1.xml"]
+    assert f"MuJoCo worlds in {out}" in " ".join(result.output.split())
+    model = mujoco.MjModel.from_xml_path(str(out / "gen_small_1.xml"))
+    start = generate_floor_plan("small", 1).start
+    assert np.allclose(model.key("start").qpos, [start.x_m, start.y_m, start.yaw_rad])
+
+
+def test_the_viewer_gets_every_state_and_the_goal_until_its_window_closes():
+    sim = MujocoSimulator(generate_floor_plan("small", 0), SensorConfig(), config=MujocoSimConfig())
+    view = SimViewer(sim, launch=FakeHandle)
+    handle = view.handle
+    assert view.show() and handle.user_scn.ngeom == 0  # no goal yet: nothing drawn
+    sim.step(VelocityCommand(0.5, 0.0))
+    assert view.show([3.0, 2.5])
+    ball = handle.user_scn.geoms[0]
+    assert handle.user_scn.ngeom == 1 and np.allclose(ball.pos, [3.0, 2.5, GOAL_HEIGHT_M])
+    assert handle.synced_xy[1] == pytest.approx(tuple(sim.true_pose().xy))
+    assert handle.synced_xy[1][0] > handle.synced_xy[0][0]  # the window saw the robot move
+    handle.running = False  # the user closed the window
+    assert not view.show([3.0, 2.5]) and not view.show()
+    assert view.frames == 2 and len(handle.synced_xy) == 2
+    view.close()
+    assert handle.closed == 0  # nothing left to close
+
+
+def _sim_context(params: dict) -> ServiceContext:
+    profile = {"lockstep": True, "scene": "generated:small:1:0", "services": {"sim": params}}
+    return ServiceContext("sim", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params)
+
+
+def test_the_sim_service_shows_each_step_and_refuses_a_viewer_it_cannot_open(monkeypatch):
+    from services.sim import SimService
+
+    with pytest.raises(ConfigError, match="viewer needs backend mujoco"):
+        SimService(_sim_context({"backend": "kinematic", "viewer": True}))
+    monkeypatch.setattr(viewer_module, "display_problem", lambda: "no display to open a window on")
+    with pytest.raises(ConfigError, match="services.sim.viewer: no display"):
+        SimService(_sim_context({"backend": "mujoco", "viewer": True}))
+
+    monkeypatch.setattr(viewer_module, "display_problem", lambda: None)
+    monkeypatch.setattr(viewer_module, "launch_passive", FakeHandle)
+    svc = SimService(_sim_context({"backend": "mujoco", "viewer": True}))
+    svc.publish = lambda topic, msg, robot=None: None  # type: ignore[method-assign]
+    svc.goal_xy = [2.0, 1.5]
+    svc.publish_step()
+    svc.advance(VelocityCommand(0.4, 0.0))
+    handle = svc.viewer.handle
+    assert len(handle.synced_xy) == 2 and handle.user_scn.ngeom == 1
+    svc.shutdown()
+    assert handle.closed == 1
+    assert SimService(_sim_context({"backend": "mujoco"})).viewer is None  # off by default
