@@ -765,6 +765,7 @@ def train_command(
     num_envs: int | None = typer.Option(None, "--num-envs", help="Parallel environments"),
     async_envs: bool | None = typer.Option(None, "--async-envs/--sync-envs", help="One process per environment, or all in this one"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
+    tensorboard: bool | None = typer.Option(None, "--tensorboard/--no-tensorboard", help="Also write TensorBoard events into OUT/tensorboard (needs tensorboardX)"),
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
     """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
@@ -775,7 +776,7 @@ def train_command(
     overrides = {"variant": variant, "out_dir": str(out) if out else None, "seed": seed, "total_decisions": total_decisions,
                  "time_limit_s": time_limit, "resume": str(resume) if resume else None, "device": device,
                  "init_from": init_from, "num_envs": num_envs, "async_envs": async_envs,
-                 "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
+                 "dungeon_dir": str(dungeon_dir) if dungeon_dir else None, "tensorboard": tensorboard}
     args = training_args(config, overrides, settings)
     output_dir_or_exit(args.out_dir, "out_dir")
     checkpoint = Path(args.out_dir) / "checkpoint.pt"

@@ -106,7 +106,11 @@ def check_mujoco() -> str:
     beams = int((sim.scan().ranges_m < float("inf")).sum())
     if not moved_m > 0:
         raise RuntimeError("the LIMO did not move on a forward command")
-    return f"LIMO built and driven: {moved_m * 100:.1f} cm in one 0.25 s step, {beams} LiDAR returns"
+    from robot_sim.viewer import display_problem  # noqa: PLC0415
+
+    problem = display_problem()  # not a failure: the viewer window is optional
+    window = "a viewer window can open here" if problem is None else f"no viewer window here, {problem}"
+    return f"LIMO built and driven: {moved_m * 100:.1f} cm in one 0.25 s step, {beams} LiDAR returns; {window}"
 
 
 def check_weights() -> str:

@@ -44,7 +44,7 @@ def display_problem() -> str | None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         if not glfw.init():
-            return "no display to open a window on (DISPLAY and WAYLAND_DISPLAY are unset, or the display refused)"
+            return "no display to open a window on: DISPLAY and WAYLAND_DISPLAY are unset, or the display refused"
     return None
 
 

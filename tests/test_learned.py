@@ -337,6 +337,52 @@ def test_training_with_the_per_step_discount_runs_through_episode_ends(tmp_path)
         dataclasses.replace(args, gamma_per_step=1.0).validate()
 
 
+def _tensorboard_scalars(folder) -> dict[str, list[tuple[int, float]]]:
+    """Every scalar in the TensorBoard event files of ``folder`` (TFRecord framing: length, CRC, event, CRC)."""
+    import struct
+
+    from tensorboardX.proto.event_pb2 import Event
+
+    scalars: dict[str, list[tuple[int, float]]] = {}
+    for path in sorted(folder.glob("events.out.tfevents.*")):
+        data = path.read_bytes()
+        at = 0
+        while at < len(data):
+            (length,) = struct.unpack("<Q", data[at : at + 8])
+            event = Event.FromString(data[at + 12 : at + 12 + length])
+            at += 12 + length + 4
+            for value in event.summary.value:
+                scalars.setdefault(value.tag, []).append((event.step, value.simple_value))
+    return scalars
+
+
+def test_training_writes_the_csv_figures_as_tensorboard_events(tmp_path, monkeypatch):
+    """``tensorboard: true``: each update's CSV row as CleanRL-style scalars over PPO decisions; without
+    tensorboardX the run stops with the install hint before it trains."""
+    import sys
+
+    from cso_runtime.learned import ppo
+
+    args = Args(variant="cso", out_dir=str(tmp_path), seed=0, total_decisions=64, num_envs=2, num_steps=16, num_minibatches=2,
+                max_steps=40, progress=False, tensorboard=True)
+    train(args, log=lambda _msg: None, plans=[rooms_plan(2)])
+    rows = list(csv.DictReader((tmp_path / "cso_log.csv").open()))
+    scalars = _tensorboard_scalars(tmp_path / "tensorboard")
+    assert [step for step, _ in scalars["losses/value_loss"]] == [int(r["decisions"]) for r in rows] == [32, 64]
+    assert [v for _, v in scalars["losses/value_loss"]] == pytest.approx([float(r["value_loss"]) for r in rows], rel=1e-6)
+    assert [v for _, v in scalars["charts/learning_rate"]] == pytest.approx([float(r["lr"]) for r in rows], rel=1e-6)
+    returns = [(int(r["decisions"]), float(r["mean_return"])) for r in rows if r["mean_return"]]
+    assert [(s, pytest.approx(v, rel=1e-6)) for s, v in scalars.get("charts/episodic_return", [])] == returns
+    every_update = set(ppo.TENSORBOARD_TAGS.values()) - {"charts/episodic_return", "charts/coverage_pct"}  # those two once an episode ended
+    assert set(scalars) >= every_update | {"charts/SPS"}
+
+    monkeypatch.setitem(sys.modules, "tensorboardX", None)  # not installed
+    bare = tmp_path / "bare"
+    with pytest.raises(ValueError, match=r"pip install 'cso-runtime\[tensorboard\]'"):
+        train(dataclasses.replace(args, out_dir=str(bare)), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert not (bare / "cso_log.csv").exists()
+
+
 def test_the_training_bar_shows_the_latest_return_coverage_and_rate(tmp_path, monkeypatch):
     """As CleanRL prints its episodic return and SPS: after each update the bar's text is the mean return and
     coverage of the last finished episodes and the decisions per second."""

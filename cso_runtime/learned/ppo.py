@@ -155,6 +155,10 @@ class Args:
     (``NetworkConfig.distance_prior``); PPO then starts from greedy-dist's choices, no warm start needed."""
     checkpoint_every: int = 5
     """Updates between resumable checkpoints."""
+    tensorboard: bool = False
+    """Also write each update's figures as TensorBoard events into ``out_dir/tensorboard/`` (``tensorboard
+    --logdir OUT``), tagged as CleanRL tags them (``TENSORBOARD_TAGS``) over PPO decisions; needs tensorboardX
+    (``pip install 'cso-runtime[tensorboard]'``). The CSV log is written either way."""
     resume: str | None = None
     """Path of a checkpoint.pt to continue from."""
     init_from: str | None = None
@@ -570,11 +574,46 @@ def warm_start(model: GraphActorCritic, data: TeacherData, args: Args, device: t
 # --- PPO --------------------------------------------------------------------------------------
 
 
+TENSORBOARD_TAGS = {
+    "mean_return": "charts/episodic_return",
+    "mean_coverage_pct": "charts/coverage_pct",
+    "lr": "charts/learning_rate",
+    "policy_loss": "losses/policy_loss",
+    "value_loss": "losses/value_loss",
+    "entropy": "losses/entropy",
+    "approx_kl": "losses/approx_kl",
+    "clipfrac": "losses/clipfrac",
+}
+"""CSV log column -> TensorBoard tag (CleanRL's names where it has one); ``charts/SPS`` is decisions per second."""
+
+
+def open_tensorboard(folder: Path) -> Any:
+    """A TensorBoard event writer on ``folder``; ValueError (before any training) when tensorboardX is missing."""
+    try:
+        from tensorboardX import SummaryWriter  # noqa: PLC0415  (optional: the `tensorboard` extra)
+    except ImportError:
+        raise ValueError("tensorboard: true needs tensorboardX: pip install 'cso-runtime[tensorboard]' (or pip install tensorboardX)") from None
+    return SummaryWriter(logdir=str(folder))
+
+
+def write_tensorboard_row(writer: Any, row: dict[str, Any]) -> None:
+    """One update's CSV row as scalars at step = PPO decisions so far (a figure left empty, such as the mean
+    return of an update in which no episode ended, is left out)."""
+    step = int(row["decisions"])
+    for column, tag in TENSORBOARD_TAGS.items():
+        if row.get(column) not in ("", None):
+            writer.add_scalar(tag, float(row[column]), step)
+    if float(row["wall_s"]) > 0:
+        writer.add_scalar("charts/SPS", step / float(row["wall_s"]), step)
+    writer.flush()
+
+
 def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan] | None = None) -> dict[str, Any]:
     """Train one variant; returns the run record (also written as JSON next to the weights).
 
     ``plans`` replaces the configured scenes (tests train on a tiny synthetic plan)."""
     args.validate()
+    tensorboard = open_tensorboard(Path(args.out_dir) / "tensorboard") if args.tensorboard else None
     t_start = time.time()
     seed_everything(args.seed)
     torch.set_num_threads(args.torch_threads)
@@ -746,6 +785,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
             }
             writer.writerow(row)
             log_file.flush()
+            if tensorboard is not None:
+                write_tensorboard_row(tensorboard, row)
             recent_episodes.extend(finished)
             if progress is not None:
                 progress.advance(stats=progress_stats(recent_episodes, global_decisions, time.time() - t_start))
@@ -760,6 +801,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         finished_loop = True
     finally:
         log_file.close()
+        if tensorboard is not None:
+            tensorboard.close()
         if progress is not None:
             progress.close()
         envs.close(terminate=not finished_loop)  # after an error or Ctrl-C, do not wait for the workers' step
