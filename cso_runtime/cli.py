@@ -476,7 +476,7 @@ def scenes_command(
 @app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False, rich_help_panel="Runtime (Zenoh services)")
 def service_command(
     ctx: typer.Context,
-    name: str | None = typer.Argument(None, help="sim, mapper, frontier, policy, planner or ros2_bridge"),
+    name: str | None = typer.Argument(None, help="sim, mapper, frontier, policy, planner, ros2_bridge or foxglove_bridge"),
 ) -> None:
     """Run one service in this process (same as python -m services.NAME; pass --config FILE --robot ID --connect EP; `service NAME --help` lists that service's options)."""
     from services import service_class  # noqa: PLC0415
@@ -517,6 +517,9 @@ def up_command(
     animate: bool = typer.Option(
         False, "--animate", help="At the end, also write animations/<method>/<scene>.gif as eval does (records the run to do so, as --record)"
     ),
+    foxglove: bool = typer.Option(
+        False, "--foxglove", help="Also serve the episode live to Foxglove on ws://127.0.0.1:8765 (the foxglove_bridge service; needs foxglove-sdk)"
+    ),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     from cso_runtime.config import LOG_FORMAT, ConfigError  # noqa: PLC0415
@@ -526,7 +529,7 @@ def up_command(
         _use_weights(weights)
     try:
         overrides = {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep}
-        prof, data = load_profile(profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []))
+        prof, data = load_profile(profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []), foxglove=foxglove)
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     if dry_run:

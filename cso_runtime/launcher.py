@@ -17,6 +17,7 @@ with a deadline.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import logging
 import os
@@ -173,6 +174,10 @@ class Profile:
                 from_dict(params_cls, params or {}, where=f"services.{name}")
             elif params:
                 raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
+        if "foxglove_bridge" in self.services and importlib.util.find_spec("foxglove") is None:
+            from services.foxglove_bridge import INSTALL_HINT  # noqa: PLC0415
+
+            raise ConfigError(f"services.foxglove_bridge (up --foxglove) needs foxglove-sdk: {INSTALL_HINT}")
         from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods  # noqa: PLC0415
 
         if self.method not in BASELINES and self.method not in LEARNED_METHODS:
@@ -232,12 +237,14 @@ def load_profile(
     connect: list[str] | None = None,
     namespace: str | None = None,
     settings: dict[str, Any] | None = None,
+    foxglove: bool = False,
 ) -> tuple[Profile, dict[str, Any]]:
     """Load, apply CLI overrides (``None`` values ignored) and validate; returns the profile and its data.
 
     ``connect``: endpoints appended to ``router.connect`` (the embedded router joins them, e.g. the
     robot's zenoh-bridge-ros2dds on port 7447); ``namespace``: ``services.ros2_bridge.namespace``;
-    ``settings``: dotted keys set last (``up --set services.sim.real_time_factor=4``), validated like the file.
+    ``settings``: dotted keys set last (``up --set services.sim.real_time_factor=4``), validated like the file;
+    ``foxglove``: add the ``foxglove_bridge`` service (``up --foxglove``) unless the profile has it.
     """
     path = find_profile(name_or_path)
     data = load_yaml(path)
@@ -255,6 +262,11 @@ def load_profile(
         if not isinstance(services, dict) or "ros2_bridge" not in services:
             raise ConfigError(f"--namespace needs a profile with the ros2_bridge service (e.g. limo-ros2); {path} has none")
         services["ros2_bridge"] = {**(services["ros2_bridge"] or {}), "namespace": namespace}
+    if foxglove:
+        services = data.get("services") or {}
+        if not isinstance(services, dict):
+            raise ConfigError(f"{path}: services must be a mapping")
+        data["services"] = {**services, "foxglove_bridge": services.get("foxglove_bridge") or {}}
     scene = data.get("scene")
     if isinstance(scene, str) and scene != "builtin" and not scene.startswith("generated:"):
         beside = path.parent / scene  # a file's own relative scene may also be beside the file (as in compose files)
@@ -265,7 +277,7 @@ def load_profile(
     data.setdefault("name", path.stem)
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
     flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]
-    flags += [f"--set {k}={v}" for k, v in (settings or {}).items()]
+    flags += [f"--set {k}={v}" for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove
     profile = from_dict(Profile, data, where=f"{path} with {' '.join(flags)}" if flags else str(path))
     return profile, data
 
@@ -428,6 +440,12 @@ class Launcher:
             child.spawn()
             self.children.append(child)
             log.info("started %s (pid %d)", name, child.proc.pid if child.proc else -1)
+        if "foxglove_bridge" in self.profile.services:
+            from services.foxglove_bridge import FoxgloveBridgeParams  # noqa: PLC0415
+
+            fox = from_dict(FoxgloveBridgeParams, self.profile.services["foxglove_bridge"] or {}, where="services.foxglove_bridge")
+            where = f"ws://{fox.host}:{fox.port}" if fox.port else f"ws://{fox.host}:<a free port, in logs/foxglove_bridge.log>"
+            log.info("Foxglove: open %s (Open connection -> Foxglove WebSocket)", where)
 
     def supervise(self) -> None:
         sup = self.profile.supervision

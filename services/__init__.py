@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import importlib
 
-SERVICE_NAMES = ("sim", "mapper", "frontier", "policy", "planner", "ros2_bridge")
-"""The services a profile may list (``ros2_bridge`` replaces ``sim`` on a real robot)."""
+SERVICE_NAMES = ("sim", "mapper", "frontier", "policy", "planner", "ros2_bridge", "foxglove_bridge")
+"""The services a profile may list (``ros2_bridge`` replaces ``sim`` on a real robot; ``foxglove_bridge``, a
+viewer's live feed, only listens)."""
 
 _CLASSES: dict[str, tuple[str, str | None]] = {
     "sim": ("SimService", "SimParams"),
@@ -15,6 +16,7 @@ _CLASSES: dict[str, tuple[str, str | None]] = {
     "policy": ("PolicyService", "PolicyParams"),
     "planner": ("PlannerService", "PlannerParams"),
     "ros2_bridge": ("Ros2BridgeService", "Ros2BridgeParams"),
+    "foxglove_bridge": ("FoxgloveBridgeService", "FoxgloveBridgeParams"),
 }
 """Service name -> (its Service subclass, its parameter dataclass or None when it takes none), both in
 ``services.<name>``."""

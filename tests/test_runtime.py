@@ -717,6 +717,33 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         kill_leftovers(runs)
 
 
+def test_up_foxglove_serves_the_episode_and_the_episode_is_the_same(tmp_path):
+    """``up --foxglove`` in lockstep: the bridge, a sixth process, receives over Zenoh and serves every step
+    (read back from its MCAP sink), and the episode does not wait for it: the same steps as in one process."""
+    from mcap.reader import make_reader
+
+    profile = write_profile(tmp_path)
+    runs, mcap = tmp_path / "runs", tmp_path / "served.mcap"
+    try:
+        r = cli("up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs), "--foxglove",
+                "--set", "services.foxglove_bridge.port=0", "--set", f"services.foxglove_bridge.mcap_path={mcap}", cwd=tmp_path, timeout_s=120)
+        assert r.returncode == 0, r.stderr[-3000:]
+        assert "Foxglove: open ws://127.0.0.1:<a free port, in logs/foxglove_bridge.log>" in r.stderr
+        (summary,) = list(runs.glob("*/summary.json"))
+        expected = in_process_result()
+        assert json.loads(summary.read_text())["methods"]["greedy-dist"]["steps"] == expected.steps
+        log_text = (summary.parent / "logs" / "foxglove_bridge.log").read_text()
+        assert re.search(r"Foxglove: open ws://127\.0\.0\.1:\d+ ", log_text), log_text[-2000:]
+        with mcap.open("rb") as f:
+            topics = [channel.topic for _, channel, _ in make_reader(f).iter_messages()]
+        assert topics.count("/scan") == expected.steps + 1  # steps 0..N: every scan the sim sent
+        assert topics.count("/cmd_vel") >= expected.steps  # (and the last step's, sent before the sim ends the episode)
+        assert "/map" in topics and "/goal_pose" in topics and "/explore/frontiers" in topics
+        assert [p for p in run_pids(runs) if pid_alive(p)] == []
+    finally:
+        kill_leftovers(runs)
+
+
 def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_path):
     """``up --detach``; during the episode: malformed payloads on every key, SIGKILL of the mapper;
     ``status --json`` during and after; ``save-map`` from the finished run; ``down`` leaves no process."""

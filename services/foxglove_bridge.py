@@ -1,0 +1,159 @@
+"""Foxglove bridge service: the running episode, live, in Foxglove (as ROS's foxglove_bridge serves a ROS graph).
+
+It listens to one robot's scan, odometry, map, path, goal, frontiers and velocity commands, turns each into the
+standard ROS 2 messages that ``export-bag`` writes (``cso_runtime.bag_export.BagConverter``, the same code: the
+same topics, frames and types, CDR-encoded), and serves them on a Foxglove WebSocket server
+(``ws://HOST:PORT``: in Foxglove, "Open connection" -> "Foxglove WebSocket"). A 3D panel in the ``map`` frame
+shows the map, the scan, the robot, its path, goal and frontiers as the exploration goes. ``/map`` and
+``/tf_static`` are latched: a viewer that subscribes later gets the latest ones again. Optionally the same
+messages are also written to an MCAP file.
+
+It only listens: the episode never waits for it, in lockstep or real time. Start it with ``up --foxglove``,
+``services: {foxglove_bridge: {...}}`` in a profile, or alone beside a running episode with
+``cso-runtime service foxglove_bridge --config PROFILE --connect ENDPOINT``. Needs the foxglove-sdk package
+(``pip install 'cso-runtime[foxglove]'``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cso_runtime import ros2_cdr
+from cso_runtime.bag_export import EXPORTED, LATCHED, ROS_TYPES, BagConverter
+from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.messages import Message
+from services.common import Service, ServiceContext, service_main
+
+log = logging.getLogger("cso.foxglove_bridge")
+
+INSTALL_HINT = "pip install 'cso-runtime[foxglove]' (or pip install foxglove-sdk)"
+
+
+@dataclass
+class FoxgloveBridgeParams:
+    """Parameters of the Foxglove bridge (``services.foxglove_bridge`` in a profile)."""
+
+    host: str = "127.0.0.1"
+    """Address the WebSocket server listens on (``0.0.0.0``: every interface, to view from another machine)."""
+    port: int = 8765
+    """Its port (Foxglove's default; 0: a free one, logged)."""
+    map_period_s: float = 0.5
+    """At most one ``/map`` per this long (wall clock); the newest map always goes out when the episode pauses
+    longer. A map of a large plan is a few hundred kB: a viewer needs no more than a couple a second."""
+    mcap_path: str = ""
+    """Also write every served message to this MCAP file (empty: none), which Foxglove opens afterwards."""
+
+    def validate(self) -> None:
+        if not 0 <= self.port <= 65535:
+            raise ConfigError(f"port must be in 0..65535, got {self.port}")
+        if not self.map_period_s >= 0:
+            raise ConfigError("map_period_s must be >= 0")
+
+
+class _Subscriptions:
+    """The server's listener: a viewer's new subscription asks for the latched topics again."""
+
+    def __init__(self) -> None:
+        self.new = threading.Event()
+
+    def on_subscribe(self, client: Any, channel: Any) -> None:
+        self.new.set()
+
+
+class FoxgloveBridgeService(Service):
+    name = "foxglove_bridge"
+    inputs = dict(EXPORTED)
+    outputs: dict[str, type[Message]] = {}
+    tick_period_s = 0.1
+
+    def __init__(self, ctx: ServiceContext):
+        super().__init__(ctx)
+        self.params = from_dict(FoxgloveBridgeParams, ctx.params, where="services.foxglove_bridge")
+        try:
+            import foxglove  # noqa: PLC0415  (optional: the `foxglove` extra)
+        except ImportError:
+            raise ConfigError(f"the Foxglove bridge needs foxglove-sdk: {INSTALL_HINT}") from None
+        self.foxglove = foxglove
+        self.context = foxglove.Context()
+        self.converter = BagConverter(map_period_s=self.params.map_period_s, time="received")
+        self.channels: dict[str, Any] = {}
+        self.latched: dict[str, tuple[bytes, int]] = {}
+        """Latched topic -> its latest message and time, sent again when a viewer subscribes."""
+        self.served: dict[str, int] = {}
+        """ROS topic -> messages served."""
+        self.subscriptions = _Subscriptions()
+        self.server: Any = None
+        self.mcap: Any = None
+        try:  # here, not in warm_up: a port in use is a bad configuration (exit 2, not restarted), said before the episode
+            self.server = foxglove.start_server(
+                name=f"cso-runtime {ctx.robot}", host=self.params.host, port=self.params.port,
+                server_listener=self.subscriptions, context=self.context,
+            )  # fmt: skip
+        except Exception as exc:  # noqa: BLE001 - a port in use, a bad address: the configuration's fault
+            raise ConfigError(f"services.foxglove_bridge: cannot serve on {self.params.host}:{self.params.port}: {exc}") from None
+        if self.params.mcap_path:
+            Path(self.params.mcap_path).parent.mkdir(parents=True, exist_ok=True)
+            self.mcap = foxglove.open_mcap(self.params.mcap_path, allow_overwrite=True, context=self.context)
+        log.info("Foxglove: open %s (Open connection -> Foxglove WebSocket), robot %s", self.url, ctx.robot)
+
+    @property
+    def url(self) -> str:
+        """Where a viewer connects (the real port when ``port`` was 0)."""
+        return f"ws://{self.params.host}:{self.server.port if self.server is not None else self.params.port}"
+
+    def channel(self, topic: str) -> Any:
+        chan = self.channels.get(topic)
+        if chan is None:
+            ros_type = ROS_TYPES[topic]
+            definition, _ = ros2_cdr.typestore().generate_msgdef(ros_type)
+            schema = self.foxglove.Schema(name=ros_type, encoding="ros2msg", data=definition.encode())
+            chan = self.channels[topic] = self.foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=self.context)
+        return chan
+
+    def serve(self, rows: list[tuple[str, bytes, int]]) -> None:
+        for topic, data, t_ns in rows:
+            self.channel(topic).log(data, log_time=t_ns)
+            self.served[topic] = self.served.get(topic, 0) + 1
+            if topic in LATCHED:
+                self.latched[topic] = (data, t_ns)
+
+    def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        self.last_step = int(getattr(msg, "step", self.last_step))
+        self.serve(self.converter.convert(msg, time.time_ns()))
+
+    def on_tick(self, now_s: float) -> None:
+        if self.subscriptions.new.is_set():
+            self.subscriptions.new.clear()
+            for topic, (data, _) in list(self.latched.items()):
+                self.channel(topic).log(data, log_time=time.time_ns())
+        if self.converter.pending_map is not None and time.time_ns() - (self.converter.last_map_ns or 0) >= self.converter.map_period_ns:
+            self.serve(self.converter.finish())  # the newest map, held back by map_period_s, once nothing newer came
+
+    @classmethod
+    def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--port", type=int, default=None, help="WebSocket port (overrides the profile; 0: a free one)")
+
+    @classmethod
+    def apply_arguments(cls, args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any]:
+        return params if args.port is None else {**params, "port": args.port}
+
+    def shutdown(self) -> None:
+        self.serve(self.converter.finish())
+        if self.mcap is not None:
+            self.mcap.close()
+        if self.server is not None:
+            self.server.stop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    return service_main(FoxgloveBridgeService, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,126 @@
+"""The Foxglove bridge: a WebSocket server a viewer connects to, fed with export-bag's ROS 2 messages.
+
+The service runs in this process on a free port; what it serves is read back from its MCAP sink (the same
+channels and messages as the WebSocket's), and a raw WebSocket handshake checks the server speaks Foxglove's
+protocol."""
+
+from __future__ import annotations
+
+import base64
+import os
+import socket
+import sys
+from collections import Counter
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from cso_runtime import ros2_cdr
+from cso_runtime.bag_export import ROS_TYPES
+from cso_runtime.config import ConfigError, ExplorationConfig
+from cso_runtime.keys import RobotKeys
+from cso_runtime.messages import decode
+from cso_runtime.transport import TransportConfig
+from services.common import ServiceContext
+from services.foxglove_bridge import FoxgloveBridgeService
+from tests.test_bag_export import T0_NS, _map, episode
+
+
+def _bridge(params: dict) -> FoxgloveBridgeService:
+    profile = {"lockstep": True, "services": {"foxglove_bridge": params}}
+    ctx = ServiceContext("foxglove_bridge", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params)
+    return FoxgloveBridgeService(ctx)
+
+
+def _served(path) -> list[tuple[str, str, object]]:
+    """(topic, ROS type, deserialized message) of every message in the MCAP file, in order."""
+    store = ros2_cdr.typestore()
+    out = []
+    with open(path, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
+            assert (schema.encoding, channel.message_encoding) == ("ros2msg", "cdr")
+            out.append((channel.topic, schema.name, store.deserialize_cdr(message.data, schema.name)))
+    return out
+
+
+def _handshake(port: int) -> bytes:
+    key = base64.b64encode(os.urandom(16)).decode()
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+        s.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                   f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n").encode())
+        reply = s.recv(4096)
+        s.sendall(b"\x88\x80\x00\x00\x00\x00")  # a (masked, empty) close frame: a client that says goodbye
+        return reply
+
+
+def test_the_bridge_serves_an_episode_as_export_bags_ros_messages(tmp_path):
+    mcap = tmp_path / "live.mcap"
+    bridge = _bridge({"port": 0, "mcap_path": str(mcap), "map_period_s": 0.0})
+    assert bridge.server.port > 0 and bridge.url == f"ws://127.0.0.1:{bridge.server.port}"
+    reply = _handshake(bridge.server.port)
+    assert reply.startswith(b"HTTP/1.1 101") and b"foxglove.sdk.v1" in reply
+    for m in episode(RobotKeys("r0"), 3, T0_NS, 1_000_000):
+        topic = m.key.rsplit("/", 1)[1]
+        if topic in bridge.inputs:  # the clock is not an input
+            bridge.on_message("r0", topic, decode(m.payload, bridge.inputs[topic]), 0.0)
+    bridge.subscriptions.on_subscribe(None, None)  # a viewer subscribes late: the latched topics again
+    bridge.on_tick(0.0)
+    bridge.shutdown()
+    served = _served(mcap)
+    counts = Counter(topic for topic, _, _ in served)
+    assert counts == {"/tf_static": 2, "/odom": 3, "/tf": 6, "/scan": 3, "/map": 4, "/explore/frontiers": 2,
+                      "/goal_pose": 2, "/plan": 3, "/cmd_vel": 3}, counts
+    assert {topic: ros_type for topic, ros_type, _ in served} == {topic: ROS_TYPES[topic] for topic in counts}
+    last_map = [m for topic, _, m in served if topic == "/map"][-1]
+    expected = _map(2).grid
+    assert (last_map.info.height, last_map.info.width) == expected.shape and last_map.header.frame_id == "map"
+    assert np.array_equal(np.asarray(last_map.data).reshape(expected.shape), expected)  # -1/0/100, row 0 at the bottom
+    assert bridge.served["/map"] == 3  # the fourth is the latched one sent again
+
+
+def test_maps_are_thinned_to_map_period_s_and_the_newest_still_goes_out(tmp_path):
+    mcap = tmp_path / "thin.mcap"
+    bridge = _bridge({"port": 0, "mcap_path": str(mcap), "map_period_s": 3600.0})
+    for step in range(3):
+        bridge.on_message("r0", "map", _map(step), 0.0)
+    assert bridge.served["/map"] == 1 and bridge.converter.pending_map is not None
+    bridge.on_tick(0.0)  # within the period: still held
+    assert bridge.served["/map"] == 1
+    bridge.converter.map_period_ns = 0  # the period has passed and nothing newer came
+    bridge.on_tick(0.0)
+    assert bridge.served["/map"] == 2 and bridge.converter.pending_map is None
+    bridge.shutdown()
+    maps = [m for topic, _, m in _served(mcap) if topic == "/map"]
+    assert np.array_equal(np.asarray(maps[-1].data).reshape(_map(2).grid.shape), _map(2).grid)
+
+
+def test_a_port_in_use_a_bad_port_or_no_foxglove_sdk_is_a_configuration_error(monkeypatch):
+    first = _bridge({"port": 0})
+    try:
+        with pytest.raises(ConfigError, match=f"cannot serve on 127.0.0.1:{first.server.port}"):
+            _bridge({"port": first.server.port})
+    finally:
+        first.shutdown()
+    with pytest.raises(ConfigError, match="port must be in 0..65535"):
+        _bridge({"port": 70000})
+    monkeypatch.setitem(sys.modules, "foxglove", None)
+    with pytest.raises(ConfigError, match=r"pip install 'cso-runtime\[foxglove\]'"):
+        _bridge({"port": 0})
+
+
+def test_up_foxglove_adds_the_bridge_once_and_refuses_it_without_the_sdk(monkeypatch):
+    from cso_runtime.launcher import load_profile
+
+    prof, data = load_profile("sim", {}, foxglove=True)
+    assert list(prof.services) == ["sim", "mapper", "frontier", "policy", "planner", "foxglove_bridge"]
+    assert data["services"]["foxglove_bridge"] == {}
+    prof, _ = load_profile("sim", {}, foxglove=True, settings={"services.foxglove_bridge.port": 9000})
+    assert prof.services["foxglove_bridge"] == {"port": 9000}  # the profile's own parameters are kept
+    assert "foxglove_bridge" not in load_profile("sim", {})[0].services
+    import importlib.util
+
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "foxglove" else real_find_spec(name, *a))
+    with pytest.raises(ConfigError, match=r"up --foxglove\) needs foxglove-sdk: pip install 'cso-runtime\[foxglove\]'"):
+        load_profile("sim", {}, foxglove=True)
