@@ -45,6 +45,11 @@ LIBRARIES = (
     ("rosbags", "rosbags"),
 )
 """(distribution, module) of the libraries the runtime imports."""
+OPTIONAL_LIBRARIES = (
+    ("foxglove-sdk", "up --foxglove"),
+    ("tensorboardX", "train --tensorboard"),
+)
+"""(distribution, what needs it) of the extras: reported, never a failure."""
 
 
 def check_python() -> str:
@@ -66,7 +71,13 @@ def check_libraries() -> str:
     import torch  # noqa: PLC0415
 
     gpu = f"CUDA {torch.version.cuda}, {torch.cuda.device_count()} GPU(s)" if torch.cuda.is_available() else "CPU only"
-    return ", ".join(found) + f"; torch: {gpu}"
+    optional = []
+    for dist, needed_by in OPTIONAL_LIBRARIES:
+        try:
+            optional.append(f"{dist} {importlib.metadata.version(dist)}")
+        except importlib.metadata.PackageNotFoundError:
+            optional.append(f"{dist} not installed ({needed_by} needs it)")
+    return ", ".join(found) + f"; torch: {gpu}; optional: " + ", ".join(optional)
 
 
 def check_zenoh(timeout_s: float = 5.0) -> str:

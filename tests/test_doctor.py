@@ -22,6 +22,8 @@ def test_doctor_passes_every_check_on_a_working_install(tmp_path):
     assert list(results) == ["python", "libraries", "zenoh loopback", "mujoco LIMO", "weights", "profiles", "runs folder"]
     assert all(c["ok"] for c in results.values()), results
     assert "eclipse-zenoh" in results["libraries"]["detail"] and "torch 2." in results["libraries"]["detail"]
+    assert "optional: foxglove-sdk 0." in results["libraries"]["detail"]  # the test extra installs both extras
+    assert "no viewer window here" in results["mujoco LIMO"]["detail"] or "a viewer window can open here" in results["mujoco LIMO"]["detail"]
     assert "cso.pt" in results["weights"]["detail"] and "sim" in results["profiles"]["detail"]
     assert "will be made in" in results["runs folder"]["detail"] and not (tmp_path / "runs").exists()
 
@@ -41,3 +43,15 @@ def test_a_failing_check_says_why_and_the_others_still_run(tmp_path, monkeypatch
     monkeypatch.setattr(doctor, "checks", lambda runs_dir: [("broken", broken), ("fine", lambda: "all good")])
     r = CliRunner().invoke(app, ["doctor", "--runs-dir", str(tmp_path)], env={"COLUMNS": "120"})
     assert r.exit_code == 1 and "FAIL" in r.output and "1 of 2 checks passed; failed: broken" in r.output
+
+
+def test_a_missing_extra_is_reported_not_failed(monkeypatch):
+    real_version = doctor.importlib.metadata.version
+
+    def version(dist: str) -> str:
+        if dist == "tensorboardX":
+            raise doctor.importlib.metadata.PackageNotFoundError(dist)
+        return real_version(dist)
+
+    monkeypatch.setattr(doctor.importlib.metadata, "version", version)
+    assert "tensorboardX not installed (train --tensorboard needs it)" in doctor.check_libraries()
