@@ -179,10 +179,13 @@ def in_process(scene: str, method: str, seed: int) -> tuple[float, int, float, f
     return time.perf_counter() - t0, r.steps, r.coverage_pct, time.process_time() - c0
 
 
-def through_zenoh(scene: str, method: str, seed: int, service_mode: str | None = None, wall_time_only: bool = False, trace: bool = False) -> dict:
+def through_zenoh(
+    scene: str, method: str, seed: int, service_mode: str | None = None, wall_time_only: bool = False, trace: bool = False, foxglove: bool = False
+) -> dict:
     port = free_tcp_port()
     overrides = {"scene": scene, "method": method, "seed": seed, "lockstep": True}
-    profile, data = load_profile(str(find_profile("lockstep")), overrides)
+    bridge = {"services.foxglove_bridge.port": 0} if foxglove else None  # a free port: never one a viewer holds
+    profile, data = load_profile(str(find_profile("lockstep")), overrides, settings=bridge, foxglove=foxglove)
     profile.router.listen = [loopback_endpoint(port)]
     profile.router.service_mode = service_mode or profile.router.service_mode
     data["router"] = {"listen": [loopback_endpoint(port)], "service_mode": profile.router.service_mode}
@@ -293,6 +296,7 @@ def main(argv: list[str] | None = None) -> int:
         "--wall-time-only", action="store_true", help="Listen only to step 0's scan and to the status (the listener-side latencies need every key; listening costs the router process CPU)"
     )
     p.add_argument("--trace", action="store_true", help="Services trace every message (CSO_TRACE_DIR): adds each hop's transit, queue+decode and work")
+    p.add_argument("--foxglove", action="store_true", help="Add the foxglove_bridge service (up --foxglove) to the Zenoh episodes: what watching costs")
     p.add_argument("--json", type=Path, default=None, help="Also write the figures here")
     args = p.parse_args(argv)
     import logging  # noqa: PLC0415  (configured only when run as a script, not when imported)
@@ -303,7 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     in_process(args.scene, args.method, args.seed)  # warm-up, not counted: the first episode of a process pays imports and caches
     for _ in range(args.repeats):  # interleaved, so both sides of each ratio see the same machine
         local = in_process(args.scene, args.method, args.seed)
-        pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode, args.wall_time_only, args.trace)))
+        pairs.append((local, through_zenoh(args.scene, args.method, args.seed, args.service_mode, args.wall_time_only, args.trace, args.foxglove)))
     (local_s, local_steps, local_cov, local_cpu_s), z = pairs[-1]
     ratios = [zz["episode_s"] / ll[0] for ll, zz in pairs]
     cores = len(os.sched_getaffinity(0))
@@ -313,6 +317,7 @@ def main(argv: list[str] | None = None) -> int:
         "method": args.method,
         "seed": args.seed,
         "service_mode": z["service_mode"],
+        "foxglove_bridge": args.foxglove,
         "in_process": {"episode_s": local_s, "cpu_s": local_cpu_s, "steps": local_steps, "coverage_pct": local_cov},
         "zenoh_lockstep": z,
         "wall_time_ratio": z["episode_s"] / local_s,
