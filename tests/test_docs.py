@@ -90,3 +90,16 @@ def test_every_command_and_flag_the_docs_show_exists():
                 wrong += [f"{doc.name}: {command} has no {flag}" for flag in FLAG.findall(line) if flag not in options[command] | global_options]
     assert seen >= 80, "the docs lost their examples, or the pattern broke"
     assert wrong == []
+
+
+def test_the_readmes_python_example_runs_and_prints_an_episode(tmp_path):
+    """The "From Python" block, run as a user would paste it: one episode, its Table 1 figures printed."""
+    import subprocess
+    import sys
+
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(encoding="utf-8"), flags=re.DOTALL)
+    assert len(blocks) == 1, "README's Python example is gone"
+    r = subprocess.run([sys.executable, "-c", blocks[0]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    coverage, steps, efficiency = re.fullmatch(r"(\d+\.\d) % in (\d+) steps, (\d\.\d{3}) m2/step\n", r.stdout).groups()
+    assert float(coverage) > 99.0 and int(steps) > 0 and float(efficiency) > 0
