@@ -78,6 +78,18 @@ def _fail(message: str, code: int) -> NoReturn:
     raise typer.Exit(code) from None
 
 
+def interrupt_on_sigterm() -> None:
+    """SIGTERM (``kill``, a job scheduler's stop) ends a long command as Ctrl-C does: its worker processes stopped,
+    what finished written, exit code 130 and how to resume. Python's default would end it at once, writing
+    nothing and leaving its workers to run their jobs to the end."""
+    import signal  # noqa: PLC0415
+
+    def raise_interrupt(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, raise_interrupt)
+
+
 def _print_version(value: bool) -> None:
     if value:
         from cso_runtime import __version__  # noqa: PLC0415
@@ -165,6 +177,7 @@ def eval_command(
         animate=animate,
         settings=parameters,
     )
+    interrupt_on_sigterm()
     raise typer.Exit(run_eval_cli(request))
 
 
@@ -783,6 +796,7 @@ def train_command(
     args = training_args(config, overrides, settings)
     output_dir_or_exit(args.out_dir, "out_dir")
     checkpoint = Path(args.out_dir) / "checkpoint.pt"
+    interrupt_on_sigterm()
     try:
         record = train(args, log=typer.echo)
     except (EnvWorkerDied, KeyboardInterrupt) as exc:
@@ -812,11 +826,16 @@ def collect_teacher_command(
     overrides = {"seed": seed, "warm_start_teacher": teacher, "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
     args = training_args(config, overrides, settings)
     output_dir_or_exit(out.parent, f"--out {out}: its folder")  # before hours of rollouts, not after
+    from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
+
     t0 = time.time()
+    interrupt_on_sigterm()
     try:
         collected = collect_teacher_parallel(args, workers, decisions, time_limit, log=typer.echo)
     except EnvWorkerDied as exc:
         _fail(f"{exc}; nothing was written", 1)
+    except KeyboardInterrupt:
+        _fail("interrupted; nothing was written (--time-limit-s stops the workers and keeps what they collected)", EXIT_INTERRUPTED)
     out.parent.mkdir(parents=True, exist_ok=True)
     collected.save(out)
     typer.echo(f"done: {len(collected)} {teacher} decisions in {time.time() - t0:.0f} s -> {out}")

@@ -55,7 +55,7 @@ from cso_runtime.outputs import (
     trajectory_plot_path,
 )
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
-from cso_runtime.processes import WorkerDied, ignore_sigint, run_each_in_own_process, terminate_workers
+from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
 from cso_runtime.scenes import SCALES, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
 from cso_runtime.simulator import SIMULATORS, make_simulator
@@ -325,7 +325,7 @@ def run_in_processes(jobs: list[EpisodeJob], workers: int, done: Callable[[Episo
     that one dead process never takes the run down or costs the other episodes. An episode whose
     process dies again is reported as a failure (``WORKER_DIED``)."""
     retry = []
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"), initializer=ignore_sigint)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"), initializer=worker_init)
     try:
         futures = {pool.submit(episode, job): job for job in jobs}
         for fut in as_completed(futures):

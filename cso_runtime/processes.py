@@ -11,9 +11,11 @@ import ctypes
 import faulthandler
 import io
 import multiprocessing
+import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -44,10 +46,28 @@ def dump_stacks_on_signal() -> bool:
     return True
 
 
-def ignore_sigint() -> None:
-    """Pool initializer: Ctrl-C in a terminal reaches every process of the group, but only the parent
-    should act on it (and stop the workers), or a worker's death would look like a crash."""
+PARENT_CHECK_PERIOD_S = 0.5
+"""How often a worker looks whether the process that started it is still there."""
+
+
+def _exit_with_parent(parent_pid: int, period_s: float) -> None:
+    while True:
+        time.sleep(period_s)
+        if os.getppid() != parent_pid:  # re-parented: the parent died (SIGKILL, the OOM killer)
+            os._exit(1)
+
+
+def worker_init() -> None:
+    """Pool initializer of every worker process.
+
+    - Ctrl-C in a terminal reaches every process of the group, but only the parent should act on it (and
+      stop the workers), or a worker's death would look like a crash: workers ignore SIGINT.
+    - A worker exits when its parent is gone. A killed parent cannot stop its workers, and a
+      ``ProcessPoolExecutor`` worker then waits forever for its next job (it holds the job queue's write end
+      itself, so the queue never reports the parent's end closed): every killed evaluation left its workers
+      behind, idle, each holding its memory."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(), PARENT_CHECK_PERIOD_S), daemon=True, name="exit-with-parent").start()
 
 
 def keep_freed_memory(mmap_threshold_bytes: int = 32 << 20, trim_threshold_bytes: int = 512 << 20) -> bool:
@@ -88,7 +108,7 @@ def run_each_in_own_process(fn: Callable[[J], R], jobs: Sequence[J], workers: in
     def one(job: J) -> None:
         if stopping.is_set():
             return
-        pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=ignore_sigint)
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx, initializer=worker_init)
         with lock:
             running.add(pool)
         try:

@@ -26,7 +26,7 @@ import numpy as np
 
 from cso_runtime.observation import FrontierLayer, frontier_layer
 from cso_runtime.occupancy import OccupancyMap
-from cso_runtime.processes import ignore_sigint, keep_freed_memory
+from cso_runtime.processes import keep_freed_memory, worker_init
 
 log = logging.getLogger("cso.frontier")
 
@@ -65,8 +65,8 @@ def worker_main(conn: Connection) -> None:
     """The helper's loop: map a shared file, compute layers into it, until the pipe closes."""
     views: dict[str, np.ndarray] = {}  # views of the shared file (they keep its mapping alive)
     # Ctrl-C (or ``down``) reaches the whole process group: the service stops and closes the pipe,
-    # which ends this loop; the helper itself has nothing to say about it.
-    ignore_sigint()
+    # which ends this loop; the helper itself has nothing to say about it (and it exits with its service).
+    worker_init()
     keep_freed_memory(mmap_threshold_bytes=256 << 20)
     conn.send(("ready",))
     while True:

@@ -296,6 +296,42 @@ def test_ctrl_c_stops_eval_at_once_keeps_the_finished_episodes_and_resume_runs_t
     assert all((out / "episodes" / "random" / name).stat().st_mtime_ns == t for name, t in stamps.items())
 
 
+def test_sigterm_to_eval_alone_stops_its_workers_and_keeps_the_finished_episodes(tmp_path: Path):
+    """``kill PID`` (or a job scheduler's stop) reaches the parent only: it ends as Ctrl-C does, exit code 130
+    with the finished episodes written, and no worker process is left behind (they used to be, idle, forever)."""
+    import os
+    import signal
+
+    from tests.test_runtime import wait_for
+
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--method", "random", "--maps", "generated:middle:8:0",
+           "--workers", "2", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        for line in proc.stdout:
+            if line.startswith("[1/8]"):
+                break
+        assert proc.poll() is None, "the evaluation ended before the signal"
+        proc.send_signal(signal.SIGTERM)
+        stdout = proc.communicate(timeout=30)[0]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+    def group_gone() -> bool:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            return True
+        return False
+
+    wait_for(group_gone, 10, "the evaluation's worker processes to exit")
+    assert proc.returncode == 130, stdout[-2000:]
+    stopped = json.loads((out / "summary.json").read_text())["meta"]["interrupted"]
+    assert 1 <= stopped["episodes_finished"] < 8 and "--resume runs the rest" in stdout
+
+
 def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_path: Path, capsys):
     from cso_runtime.evaluation import print_summary, summarize
 

@@ -12,6 +12,8 @@ import pytest
 
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 
+REPO = Path(__file__).resolve().parents[1]
+
 
 def _square_or_die(n: int) -> int:
     """Killed (as by the OOM killer) on 3; raises on -1; otherwise n squared."""
@@ -52,6 +54,39 @@ def test_an_error_stops_the_running_processes_at_once():
     with pytest.raises(RuntimeError, match="stop after job 0"):
         run_each_in_own_process(_sleep_then_square, [0, 60], 2, stop_on_first)
     assert time.monotonic() - t0 < 20  # the 60 s job was terminated
+
+
+KILLED_PARENT = textwrap.dedent("""
+    import multiprocessing, os, sys, time
+    from concurrent.futures import ProcessPoolExecutor
+    from cso_runtime.processes import worker_init
+
+    if __name__ == "__main__":
+        pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"), initializer=worker_init)
+        print(pool.submit(os.getpid).result(), flush=True)  # the worker now waits for its next job
+        time.sleep(120)
+""")
+
+
+def test_the_workers_of_a_killed_parent_exit(tmp_path):
+    """SIGKILL (the OOM killer) gives a parent no chance to stop its pool: its workers leave on their own."""
+    import signal
+
+    from cso_runtime.supervision import pid_alive
+    from tests.test_runtime import wait_for
+
+    script = tmp_path / "parent.py"
+    script.write_text(KILLED_PARENT)
+    parent = subprocess.Popen([sys.executable, str(script)], cwd=REPO, stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(REPO)})
+    try:
+        worker = int(parent.stdout.readline())
+        assert pid_alive(worker)
+        parent.send_signal(signal.SIGKILL)
+        parent.wait(10)
+        wait_for(lambda: not pid_alive(worker), 10, "the orphaned worker to exit")
+    finally:
+        parent.kill()
 
 
 WAIT_THROUGH_A_SLOW_SIGNAL_HANDLER = textwrap.dedent("""
