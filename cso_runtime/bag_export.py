@@ -278,5 +278,8 @@ def export_bag(
     except (WriterError, OSError, RecordingError) as exc:
         shutil.rmtree(out_dir, ignore_errors=True)  # no half-written bag that looks complete
         raise BagExportError(f"cannot write {out_dir}: {exc}" if not isinstance(exc, RecordingError) else f"{exc}; no bag written") from None
+    except KeyboardInterrupt:  # Ctrl-C (or SIGTERM, in the command): the writer closed a bag that would look whole
+        shutil.rmtree(out_dir, ignore_errors=True)
+        raise
     stats.maps_thinned = converter.maps_thinned
     return stats

@@ -374,10 +374,15 @@ def export_bag_command(
         target = out if out is not None else file.with_suffix("")
         if target == file:
             raise BagExportError(f"--out {out} is the recording itself")
+        interrupt_on_sigterm()
         with _count_progress("export-bag") as progress:
             stats = export_bag(file, target, robot, map_period_s, time_base, progress)
     except (RecordingError, BagExportError, ValueError) as exc:
         _fail(str(exc), 2)
+    except KeyboardInterrupt:
+        from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
+
+        _fail(f"interrupted; no bag written ({target} removed)", EXIT_INTERRUPTED)
     written = ", ".join(f"{topic} {n}" for topic, n in sorted(stats.written.items()))
     typer.echo(f"wrote {stats.path} (robot {stats.robot}): {sum(stats.written.values())} messages: {written}")
     if stats.maps_thinned:

@@ -180,6 +180,22 @@ def test_bad_exports_are_refused_and_leave_nothing_behind(tmp_path: Path):
         BagConverter(-1.0)
 
 
+def test_an_interrupted_export_leaves_no_bag_that_looks_whole(tmp_path: Path, monkeypatch):
+    from cso_runtime import bag_export
+
+    recording = tmp_path / "run.mcap"
+    write_recording(recording, "r0", episode(RobotKeys("r0"), 3, T0_NS, 1000))
+    monkeypatch.setattr(bag_export, "PROGRESS_EVERY", 5)
+
+    def ctrl_c(read: int, total: int | None) -> None:
+        if read >= 10:  # some messages are written by then
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        export_bag(recording, tmp_path / "bag", progress=ctrl_c)
+    assert not (tmp_path / "bag").exists()
+
+
 def test_export_bag_command_writes_beside_the_recording_and_says_what(tmp_path: Path):
     recording = tmp_path / "run.mcap"
     write_recording(recording, "r0", episode(RobotKeys("r0"), 2, T0_NS, 1000))
