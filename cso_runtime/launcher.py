@@ -174,10 +174,14 @@ class Profile:
                 from_dict(params_cls, params or {}, where=f"services.{name}")
             elif params:
                 raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
-        if "foxglove_bridge" in self.services and importlib.util.find_spec("foxglove") is None:
-            from services.foxglove_bridge import INSTALL_HINT  # noqa: PLC0415
+        if "foxglove_bridge" in self.services:
+            from services.foxglove_bridge import INSTALL_HINT, FoxgloveBridgeParams, port_problem  # noqa: PLC0415
 
-            raise ConfigError(f"services.foxglove_bridge (up --foxglove) needs foxglove-sdk: {INSTALL_HINT}")
+            if importlib.util.find_spec("foxglove") is None:
+                raise ConfigError(f"services.foxglove_bridge (up --foxglove) needs foxglove-sdk: {INSTALL_HINT}")
+            problem = port_problem(from_dict(FoxgloveBridgeParams, self.services["foxglove_bridge"] or {}, where="services.foxglove_bridge"))
+            if problem is not None:
+                raise ConfigError(f"services.foxglove_bridge: {problem}")
         from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods  # noqa: PLC0415
 
         if self.method not in BASELINES and self.method not in LEARNED_METHODS:

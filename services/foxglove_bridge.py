@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import socket
 import threading
 import time
 from dataclasses import dataclass
@@ -54,6 +55,18 @@ class FoxgloveBridgeParams:
             raise ConfigError(f"port must be in 0..65535, got {self.port}")
         if not self.map_period_s >= 0:
             raise ConfigError("map_period_s must be >= 0")
+
+
+def port_problem(params: FoxgloveBridgeParams) -> str | None:
+    """Why the bridge could not listen on its address now (the port taken by another viewer's bridge, an address
+    not of this machine), or None. ``up`` asks before it starts anything; the bridge itself may still lose a race."""
+    if params.port == 0:
+        return None
+    try:
+        with socket.create_server((params.host, params.port)):
+            return None
+    except OSError as exc:
+        return f"cannot listen on {params.host}:{params.port}: {exc.strerror or exc}; --set services.foxglove_bridge.port=0 picks a free port"
 
 
 class _Subscriptions:

@@ -109,9 +109,15 @@ def test_a_port_in_use_a_bad_port_or_no_foxglove_sdk_is_a_configuration_error(mo
         _bridge({"port": 0})
 
 
-def test_up_foxglove_adds_the_bridge_once_and_refuses_it_without_the_sdk(monkeypatch):
+def test_up_foxglove_adds_the_bridge_once_and_refuses_it_without_the_sdk_or_its_port(monkeypatch):
+    import services.foxglove_bridge as bridge_module
     from cso_runtime.launcher import load_profile
+    from cso_runtime.transport import free_tcp_port
 
+    port = free_tcp_port()
+    with socket.create_server(("127.0.0.1", port)), pytest.raises(ConfigError, match=f"cannot listen on 127.0.0.1:{port}: .*port=0 picks a free port"):
+        load_profile("sim", {}, foxglove=True, settings={"services.foxglove_bridge.port": port})  # another viewer's bridge holds it
+    monkeypatch.setattr(bridge_module, "port_problem", lambda params: None)  # whether 8765 is free here does not matter
     prof, data = load_profile("sim", {}, foxglove=True)
     assert list(prof.services) == ["sim", "mapper", "frontier", "policy", "planner", "foxglove_bridge"]
     assert data["services"]["foxglove_bridge"] == {}
