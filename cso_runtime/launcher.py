@@ -174,6 +174,12 @@ class Profile:
                 from_dict(params_cls, params or {}, where=f"services.{name}")
             elif params:
                 raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
+        if (self.services.get("sim") or {}).get("viewer"):  # its own process checks too; this says so before anything starts
+            from robot_sim.viewer import display_problem  # noqa: PLC0415
+
+            problem = display_problem()
+            if problem is not None:
+                raise ConfigError(f"services.sim.viewer: {problem}")
         if "foxglove_bridge" in self.services:
             from services.foxglove_bridge import INSTALL_HINT, FoxgloveBridgeParams, port_problem  # noqa: PLC0415
 

@@ -116,3 +116,15 @@ def test_the_sim_service_shows_each_step_and_refuses_a_viewer_it_cannot_open(mon
     svc.shutdown()
     assert handle.closed == 1
     assert SimService(_sim_context({"backend": "mujoco"})).viewer is None  # off by default
+
+
+def test_up_refuses_a_viewer_without_a_display_before_anything_starts(monkeypatch):
+    from cso_runtime.launcher import load_profile
+
+    monkeypatch.setattr(viewer_module, "display_problem", lambda: "no display to open a window on")
+    with pytest.raises(ConfigError, match="services.sim.viewer: no display"):
+        load_profile("sim", {}, settings={"services.sim.viewer": True})
+    load_profile("sim", {})  # no viewer asked for: no display needed
+    monkeypatch.setattr(viewer_module, "display_problem", lambda: None)
+    profile, _ = load_profile("sim", {}, settings={"services.sim.viewer": True})
+    assert profile.services["sim"]["viewer"] is True
