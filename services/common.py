@@ -436,15 +436,33 @@ def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | No
     """The common service options, plus those ``cls.add_arguments`` declares; ``prog`` names the command in
     the usage line (``python -m services.NAME`` unless run as ``cso-runtime service NAME``)."""
     p = argparse.ArgumentParser(prog=prog or f"python -m services.{name}", description=f"cso-runtime {name} service")
-    p.add_argument("--config", required=True, type=Path, help="Profile YAML (cso_runtime/profiles/*.yaml or your own)")
-    p.add_argument("--robot", default="r0", help="Robot id: namespaces every key (cso/<robot>/...)")
+    p.add_argument("--config", type=Path, default=None, help="Profile YAML (cso_runtime/profiles/*.yaml or your own); required unless --attach")
+    p.add_argument("--robot", default=None, help="Robot id: namespaces every key (cso/<robot>/...); default r0, or the run's with --attach")
     p.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to (repeatable)")
     p.add_argument("--listen", action="append", default=[], help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--mode", default="client", help="Zenoh mode: client, peer or router")
     p.add_argument("--log-level", default="INFO")
+    p.add_argument(
+        "--attach", action="store_true",
+        help="Join the current run of --runs-dir: its profile.yaml, router and robot unless given (a viewer's bridge beside a running episode)",
+    )  # fmt: skip
+    p.add_argument("--runs-dir", type=Path, default=Path("runs"), help="Where --attach finds the current run (runs/current.json)")
     if cls is not None:
         cls.add_arguments(p)
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.attach:
+        try:
+            info = json.loads((args.runs_dir / "current.json").read_text())
+            run_dir, endpoints, robot = Path(info["run_dir"]), list(info["endpoints"]), str(info["robot"])
+        except (OSError, ValueError, KeyError, TypeError):
+            p.error(f"--attach: no current run in {args.runs_dir} (start one with `cso-runtime up`, or give --config and --connect)")
+        args.config = args.config or run_dir / "profile.yaml"
+        args.connect = args.connect or endpoints
+        args.robot = args.robot or robot
+    elif args.config is None:
+        p.error("--config is required (or --attach, to join the current run)")
+    args.robot = args.robot or "r0"
+    return args
 
 
 def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | None = None) -> int:

@@ -151,10 +151,12 @@ class FoxgloveBridgeService(Service):
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--port", type=int, default=None, help="WebSocket port (overrides the profile; 0: a free one)")
+        parser.add_argument("--mcap", default=None, help="Also write what is served to this MCAP file (overrides mcap_path)")
 
     @classmethod
     def apply_arguments(cls, args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any]:
-        return params if args.port is None else {**params, "port": args.port}
+        given = {"port": args.port, "mcap_path": args.mcap}
+        return {**params, **{k: v for k, v in given.items() if v is not None}}
 
     def shutdown(self) -> None:
         self.serve(self.converter.finish())

@@ -744,6 +744,40 @@ def test_up_foxglove_serves_the_episode_and_the_episode_is_the_same(tmp_path):
         kill_leftovers(runs)
 
 
+def test_a_service_attaches_to_the_current_run_and_a_bridge_started_late_serves_it(tmp_path):
+    """``service foxglove_bridge --attach``: the run's profile, router and robot from runs/current.json; the bridge,
+    started mid-episode, serves the steps from then on; without a current run, a usage error."""
+    from mcap.reader import make_reader
+
+    profile = write_profile(tmp_path, min_step_period_s=0.2)
+    runs, mcap = tmp_path / "runs", tmp_path / "late.mcap"
+    bridge = None
+    try:
+        r = cli("service", "foxglove_bridge", "--attach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 2 and f"--attach: no current run in {runs}" in r.stderr, r.stderr
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
+        wait_for(lambda: (s := query_status(endpoints, "r0", timeout_s=0.5)) and s["step"] >= 2, 60, "the episode to start")
+        log_path = tmp_path / "bridge.log"
+        with log_path.open("w") as log_file:
+            bridge = subprocess.Popen([sys.executable, "-m", "cso_runtime.cli", "service", "foxglove_bridge", "--attach", "--runs-dir", str(runs),
+                                       "--port", "0", "--mcap", str(mcap)], cwd=tmp_path, stdout=log_file, stderr=subprocess.STDOUT)
+        wait_for(lambda: "foxglove_bridge: up for robot r0" in log_path.read_text(), 60, "the bridge to join")
+        final = wait_for(lambda: (s := query_status(endpoints, "r0", timeout_s=0.5)) and s["state"] in ("done", "failed") and s, 90, "the end of the episode")
+        assert final["state"] == "done", final
+        bridge.send_signal(signal.SIGINT)
+        assert bridge.wait(30) == 0, log_path.read_text()[-2000:]
+        with mcap.open("rb") as f:
+            topics = [channel.topic for _, channel, _ in make_reader(f).iter_messages()]
+        assert 0 < topics.count("/scan") <= final["step"] + 1 and "/map" in topics and "/tf_static" in topics
+        assert cli("down", "--runs-dir", str(runs), cwd=tmp_path).returncode == 0
+    finally:
+        if bridge is not None and bridge.poll() is None:
+            bridge.kill()
+        kill_leftovers(runs)
+
+
 def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_path):
     """``up --detach``; during the episode: malformed payloads on every key, SIGKILL of the mapper;
     ``status --json`` during and after; ``save-map`` from the finished run; ``down`` leaves no process."""
