@@ -451,10 +451,12 @@ def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | No
         cls.add_arguments(p)
     args = p.parse_args(argv)
     if args.attach:
+        from cso_runtime.launcher import read_current_run  # noqa: PLC0415  (only to attach)
+
+        info = read_current_run(args.runs_dir) or {}
         try:
-            info = json.loads((args.runs_dir / "current.json").read_text())
             run_dir, endpoints, robot = Path(info["run_dir"]), list(info["endpoints"]), str(info["robot"])
-        except (OSError, ValueError, KeyError, TypeError):
+        except (KeyError, TypeError):
             p.error(f"--attach: no current run in {args.runs_dir} (start one with `cso-runtime up`, or give --config and --connect)")
         args.config = args.config or run_dir / "profile.yaml"
         args.connect = args.connect or endpoints
