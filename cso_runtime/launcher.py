@@ -332,6 +332,14 @@ class Launcher:
         self.started_s = time.monotonic()
         self.started_at = time.time()
         """When the run started (Unix time, s): ``run.json``'s ``started_at``, with ``ended_at`` once it stopped."""
+        self.service_notes: dict[str, str] = {}
+        """Service -> what the launcher's log and live view say beside its health (where to point a viewer)."""
+        if "foxglove_bridge" in profile.services:
+            from services.foxglove_bridge import FoxgloveBridgeParams  # noqa: PLC0415
+
+            fox = from_dict(FoxgloveBridgeParams, profile.services["foxglove_bridge"] or {}, where="services.foxglove_bridge")
+            where = f"ws://{fox.host}:{fox.port}" if fox.port else f"ws://{fox.host}:<a free port, in logs/foxglove_bridge.log>"
+            self.service_notes["foxglove_bridge"] = f"Foxglove: open {where}"
         self.control_period_s = profile.exploration_config().robot.control_period_s
         """Robot time of one step (the live view's clock)."""
 
@@ -450,12 +458,8 @@ class Launcher:
             child.spawn()
             self.children.append(child)
             log.info("started %s (pid %d)", name, child.proc.pid if child.proc else -1)
-        if "foxglove_bridge" in self.profile.services:
-            from services.foxglove_bridge import FoxgloveBridgeParams  # noqa: PLC0415
-
-            fox = from_dict(FoxgloveBridgeParams, self.profile.services["foxglove_bridge"] or {}, where="services.foxglove_bridge")
-            where = f"ws://{fox.host}:{fox.port}" if fox.port else f"ws://{fox.host}:<a free port, in logs/foxglove_bridge.log>"
-            log.info("Foxglove: open %s (Open connection -> Foxglove WebSocket)", where)
+        if "foxglove_bridge" in self.service_notes:
+            log.info("%s (Open connection -> Foxglove WebSocket)", self.service_notes["foxglove_bridge"])
 
     def supervise(self) -> None:
         sup = self.profile.supervision

@@ -68,7 +68,8 @@ class LiveView:
                 t.add_row(k, escape(v))  # text, not markup: a scene file's name may hold brackets
         for c in la.children:
             health = "up" if c.alive and c.name in la.alive_services else ("starting" if c.alive else ("gave up" if c.gave_up else "restarting"))
-            t.add_row(f"[bold]{c.name}", f"{health}, pid {c.proc.pid if c.proc else '-'}, restarts {c.restarts}")
+            note = la.service_notes.get(c.name)
+            t.add_row(f"[bold]{c.name}", f"{health}, pid {c.proc.pid if c.proc else '-'}, restarts {c.restarts}" + (f"; {escape(note)}" if note else ""))
         return t
 
     def start(self) -> None:

@@ -130,3 +130,21 @@ def test_up_foxglove_adds_the_bridge_once_and_refuses_it_without_the_sdk_or_its_
     monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "foxglove" else real_find_spec(name, *a))
     with pytest.raises(ConfigError, match=r"up --foxglove\) needs foxglove-sdk: pip install 'cso-runtime\[foxglove\]'"):
         load_profile("sim", {}, foxglove=True)
+
+
+def test_the_live_view_says_where_to_point_foxglove(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    import services.foxglove_bridge as bridge_module
+    from cso_runtime.launcher import Launcher, load_profile
+    from cso_runtime.live_view import LiveView
+
+    monkeypatch.setattr(bridge_module, "port_problem", lambda params: None)
+    profile, data = load_profile("lockstep", {}, foxglove=True, settings={"services.foxglove_bridge.port": 9123})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    launcher.children.append(SimpleNamespace(name="foxglove_bridge", alive=True, gave_up=False, proc=None, restarts=0))
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert "foxglove_bridge │ starting, pid -, restarts 0; Foxglove: open ws://127.0.0.1:9123" in console.export_text()
