@@ -2,7 +2,8 @@
 
 Each check does the real thing on a small scale and says what it found: the libraries import (with their
 versions, and whether torch sees a GPU), two Zenoh sessions exchange a message on loopback with multicast
-scouting off (what ``up`` needs), the MuJoCo LIMO is built in a small scene and driven for a step, every shipped
+scouting off (what ``up`` needs), the MuJoCo LIMO is built in a small scene and driven for a step, a Foxglove
+server answers a WebSocket handshake (when that optional extra is installed), every shipped
 weights file loads, every packaged profile validates, and the runs folder can be written. A failed check names
 its error, and the command exits 1, so a fresh machine's problem is found before a long run.
 """
@@ -11,6 +12,8 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import importlib.util
+import logging
 import os
 import platform
 import tempfile
@@ -124,6 +127,32 @@ def check_mujoco() -> str:
     return f"LIMO built and driven: {moved_m * 100:.1f} cm in one 0.25 s step, {beams} LiDAR returns; {window}"
 
 
+def check_foxglove() -> str:
+    """``up --foxglove``'s server on a free loopback port answers a Foxglove WebSocket handshake (an optional extra:
+    not installed is said, not failed)."""
+    if importlib.util.find_spec("foxglove") is None:
+        return "foxglove-sdk not installed (optional: up --foxglove needs it)"
+    import foxglove  # noqa: PLC0415
+
+    from services.foxglove_bridge import websocket_handshake  # noqa: PLC0415
+
+    sdk_log = logging.getLogger("foxglove")
+    level = sdk_log.level
+    sdk_log.setLevel(logging.WARNING)  # its server's start and stop lines would land in the report
+    try:
+        server = foxglove.start_server(name="cso-runtime doctor", host="127.0.0.1", port=0, context=foxglove.Context())
+        port = server.port
+        try:
+            reply = websocket_handshake("127.0.0.1", port)
+        finally:
+            server.stop()
+    finally:
+        sdk_log.setLevel(level)
+    if not reply.startswith(b"HTTP/1.1 101"):
+        raise RuntimeError(f"the Foxglove server on 127.0.0.1:{port} refused the WebSocket upgrade: {reply[:80]!r}")
+    return f"a Foxglove WebSocket server answered on 127.0.0.1:{port}"
+
+
 def check_weights() -> str:
     from cso_runtime.config import SensorConfig  # noqa: PLC0415
     from cso_runtime.learned.registry import check_weights as load  # noqa: PLC0415
@@ -171,6 +200,7 @@ def checks(runs_dir: Path) -> list[tuple[str, Callable[[], str]]]:
         ("libraries", check_libraries),
         ("zenoh loopback", check_zenoh),
         ("mujoco LIMO", check_mujoco),
+        ("foxglove bridge", check_foxglove),
         ("weights", check_weights),
         ("profiles", check_profiles),
         ("runs folder", lambda: check_runs_folder(runs_dir)),

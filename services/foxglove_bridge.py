@@ -17,7 +17,9 @@ It only listens: the episode never waits for it, in lockstep or real time. Start
 from __future__ import annotations
 
 import argparse
+import base64
 import logging
+import os
 import socket
 import threading
 import time
@@ -67,6 +69,19 @@ def port_problem(params: FoxgloveBridgeParams) -> str | None:
             return None
     except OSError as exc:
         return f"cannot listen on {params.host}:{params.port}: {exc.strerror or exc}; --set services.foxglove_bridge.port=0 picks a free port"
+
+
+def websocket_handshake(host: str, port: int, timeout_s: float = 5.0) -> bytes:
+    """Open a Foxglove WebSocket connection by hand and close it again; the server's reply to the upgrade request
+    (``HTTP/1.1 101 Switching Protocols`` naming ``foxglove.sdk.v1``, when a Foxglove server listens there)."""
+    key = base64.b64encode(os.urandom(16)).decode()
+    request = (f"GET / HTTP/1.1\r\nHost: {host}:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+               f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n")
+    with socket.create_connection((host, port), timeout=timeout_s) as conn:
+        conn.sendall(request.encode())
+        reply = conn.recv(4096)
+        conn.sendall(b"\x88\x80\x00\x00\x00\x00")  # a masked, empty close frame: a client that says goodbye
+    return reply
 
 
 class _Subscriptions:

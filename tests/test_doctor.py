@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -19,7 +20,8 @@ def test_doctor_passes_every_check_on_a_working_install(tmp_path):
     r = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "doctor", "--json"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     results = {c["check"]: c for c in json.loads(r.stdout)}
-    assert list(results) == ["python", "libraries", "zenoh loopback", "mujoco LIMO", "weights", "profiles", "runs folder"]
+    assert list(results) == ["python", "libraries", "zenoh loopback", "mujoco LIMO", "foxglove bridge", "weights", "profiles", "runs folder"]
+    assert re.fullmatch(r"a Foxglove WebSocket server answered on 127\.0\.0\.1:[1-9]\d*", results["foxglove bridge"]["detail"])  # the test extra has it
     assert all(c["ok"] for c in results.values()), results
     assert "eclipse-zenoh" in results["libraries"]["detail"] and "torch 2." in results["libraries"]["detail"]
     assert "optional: foxglove-sdk 0." in results["libraries"]["detail"]  # the test extra installs both extras
@@ -55,3 +57,6 @@ def test_a_missing_extra_is_reported_not_failed(monkeypatch):
 
     monkeypatch.setattr(doctor.importlib.metadata, "version", version)
     assert "tensorboardX not installed (train --tensorboard needs it)" in doctor.check_libraries()
+    real_find_spec = doctor.importlib.util.find_spec
+    monkeypatch.setattr(doctor.importlib.util, "find_spec", lambda name, *a: None if name == "foxglove" else real_find_spec(name, *a))
+    assert doctor.check_foxglove() == "foxglove-sdk not installed (optional: up --foxglove needs it)"

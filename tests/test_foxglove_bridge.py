@@ -6,8 +6,6 @@ protocol."""
 
 from __future__ import annotations
 
-import base64
-import os
 import socket
 import sys
 from collections import Counter
@@ -23,7 +21,7 @@ from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import decode
 from cso_runtime.transport import TransportConfig
 from services.common import ServiceContext
-from services.foxglove_bridge import FoxgloveBridgeService
+from services.foxglove_bridge import FoxgloveBridgeService, websocket_handshake
 from tests.test_bag_export import T0_NS, _map, episode
 
 
@@ -44,21 +42,11 @@ def _served(path) -> list[tuple[str, str, object]]:
     return out
 
 
-def _handshake(port: int) -> bytes:
-    key = base64.b64encode(os.urandom(16)).decode()
-    with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
-        s.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
-                   f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n").encode())
-        reply = s.recv(4096)
-        s.sendall(b"\x88\x80\x00\x00\x00\x00")  # a (masked, empty) close frame: a client that says goodbye
-        return reply
-
-
 def test_the_bridge_serves_an_episode_as_export_bags_ros_messages(tmp_path):
     mcap = tmp_path / "live.mcap"
     bridge = _bridge({"port": 0, "mcap_path": str(mcap), "map_period_s": 0.0})
     assert bridge.server.port > 0 and bridge.url == f"ws://127.0.0.1:{bridge.server.port}"
-    reply = _handshake(bridge.server.port)
+    reply = websocket_handshake("127.0.0.1", bridge.server.port)
     assert reply.startswith(b"HTTP/1.1 101") and b"foxglove.sdk.v1" in reply
     for m in episode(RobotKeys("r0"), 3, T0_NS, 1_000_000):
         topic = m.key.rsplit("/", 1)[1]
