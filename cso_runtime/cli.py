@@ -613,7 +613,10 @@ def save_map_command(
 @app.command("down", rich_help_panel="Runtime (Zenoh services)")
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
-    timeout: float = typer.Option(10.0, "--timeout-s", help="How long the launcher may take to stop its services before escalating"),
+    timeout: float | None = typer.Option(
+        None, "--timeout-s", min=0.0,
+        help="How long the launcher may take to stop its services and write its results before escalating [default: three times the run's supervision.stop_timeout_s, plus 10 s]",
+    ),
 ) -> None:
     """Stop the running episode and every service process (SIGINT, then SIGTERM, then SIGKILL)."""
     from cso_runtime.launcher import down  # noqa: PLC0415

@@ -137,6 +137,10 @@ class FrontierConfig:
             raise ConfigError("frontier.entropy_window_m must be positive")
 
 
+STUCK_AVOID = ("positions", "goals")
+"""``MaskConfig.stuck_avoid``'s values."""
+
+
 @dataclass
 class MaskConfig:
     """Action masks of section 3.3. Defaults are the paper's values, read as metres and square metres,
@@ -160,11 +164,18 @@ class MaskConfig:
     alpha2_m2: float = 1.0
     """... and the largest explored-area gain between them is below this."""
     alpha3_m: float = 1.0
-    """When stuck, goals closer than this to any of the last 3 decision positions are masked."""
+    """When stuck, goals closer than this to any of the last 3 reference points (``stuck_avoid``) are masked."""
+    stuck_avoid: str = "positions"
+    """What Algorithm 1 keeps the new goal away from when stuck: ``positions``, where the robot stood at the
+    last 3 decisions (every table of BENCHMARKS.md and every shipped weights file), or ``goals``, the last 3
+    goals chosen, the paper's literal reading ("the distance from the candidate actions to the past 3
+    long-term goals"). The two agree when each goal was reached; a stuck robot has not reached them."""
 
     def validate(self) -> None:
         if not 0 <= self.beta_near_m < self.beta_far_m:
             raise ConfigError("masks need 0 <= beta_near_m < beta_far_m")
+        if self.stuck_avoid not in STUCK_AVOID:
+            raise ConfigError(f"masks.stuck_avoid must be one of {', '.join(STUCK_AVOID)}, not {self.stuck_avoid!r}")
         if min(self.alpha1_m, self.alpha2_m2, self.alpha3_m) < 0:
             raise ConfigError("masks.alpha1_m, alpha2_m2 and alpha3_m must be >= 0")
 

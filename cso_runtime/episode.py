@@ -109,7 +109,9 @@ class GroundTruthMetrics:
 
 
 def goal_still_frontier(occupancy: OccupancyMap, goal: Goal | None) -> bool:
-    """The goal cell is open and still touches unknown space."""
+    """The goal cell is open and still touches unknown space, diagonals included. This is looser than
+    F_t's 4-connected test (``frontiers.frontier_cells``): a goal whose only unknown neighbour is
+    diagonal is kept a little longer. It stays so because every table of BENCHMARKS.md was made with it."""
     if goal is None:
         return False
     g = occupancy.geometry

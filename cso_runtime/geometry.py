@@ -108,8 +108,8 @@ class LaserScan:
     """One planar range scan, as in sensor_msgs/LaserScan.
 
     ``ranges_m[i]`` is the range of the beam at ``angle_min_rad + i * angle_increment_rad`` in the
-    sensor frame; ``inf`` means no return within ``range_max_m``. Readings below ``range_min_m`` are
-    invalid and ignored by the mapper.
+    sensor frame; ``inf`` means no return within ``range_max_m``. Readings below ``range_min_m``, and 0 m
+    readings (how the ROS bridge marks NaN and too-close beams), are invalid and ignored by the mapper.
     """
 
     angle_min_rad: float

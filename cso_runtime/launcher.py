@@ -356,6 +356,7 @@ class Launcher:
             "endpoints": self.endpoints,
             "launcher_pid": os.getpid(),
             "launcher_start_ticks": process_start_ticks(os.getpid()),
+            "stop_timeout_s": self.profile.supervision.stop_timeout_s,
             "state": state,
             "started_at": round(self.started_at, 3),
             **({"outcome": self.outcome(), "exit_code": self.exit_code, "ended_at": round(time.time(), 3)} if state == "stopped" else {}),
@@ -755,10 +756,42 @@ def new_run_dir(runs_dir: Path, profile: Profile) -> Path:
 
 
 def read_current_run(runs_dir: Path) -> dict[str, Any] | None:
+    """The current run's file (``runs/current.json``), or None when there is none or it is not one a
+    launcher wrote (half-written, edited by hand: said in a warning, and then treated as absent)."""
+    path = runs_dir / CURRENT_RUN
     try:
-        return json.loads((runs_dir / CURRENT_RUN).read_text())
-    except (OSError, ValueError):
+        info = json.loads(path.read_text())
+    except FileNotFoundError:
         return None
+    except (OSError, ValueError) as exc:
+        log.warning("ignoring %s: not readable as JSON (%s)", path, exc)
+        return None
+    problem = run_file_problem(info)
+    if problem:
+        log.warning("ignoring %s: %s", path, problem)
+        return None
+    return info
+
+
+def run_file_problem(info: Any) -> str | None:
+    """What makes a parsed run file unusable by ``status``, ``down`` and ``logs``, or None."""
+    if not isinstance(info, dict):
+        return f"a run file is a JSON object, not {type(info).__name__}"
+    if not isinstance(info.get("run_id"), str) or not isinstance(info.get("run_dir", ""), str):
+        return "run_id and run_dir must be strings"
+    for key in ("launcher_pid", "launcher_start_ticks"):
+        if info.get(key) is not None and (not isinstance(info[key], int) or isinstance(info[key], bool)):
+            return f"{key} must be an integer"
+    endpoints = info.get("endpoints", [])
+    if not isinstance(endpoints, list) or not all(isinstance(e, str) for e in endpoints):
+        return "endpoints must be a list of strings"
+    services = info.get("services", {})
+    if not isinstance(services, dict) or not all(
+        isinstance(s, dict) and all(s.get(k) is None or (isinstance(s[k], int) and not isinstance(s[k], bool)) for k in ("pid", "start_ticks"))
+        for s in services.values()
+    ):
+        return "services must map each service to its pid and start_ticks (integers)"
+    return None
 
 
 def current_launcher_alive(info: dict[str, Any]) -> bool:
@@ -766,15 +799,28 @@ def current_launcher_alive(info: dict[str, Any]) -> bool:
     return run_process_alive(info.get("launcher_pid"), info.get("launcher_start_ticks"))
 
 
-def down(runs_dir: Path, timeout_s: float = 10.0) -> tuple[bool, str]:
-    """Stop the current run: SIGINT to the launcher (it stops its services), then escalate."""
+DOWN_MARGIN_S = 10.0
+"""``down`` gives a launcher three stop stages of its ``stop_timeout_s`` and this much more (its results,
+plots and recording to write) before it escalates."""
+
+
+def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
+    """Stop the current run: SIGINT to the launcher (it stops its services and writes its results), then
+    escalate. ``timeout_s``: how long the launcher may take (None: from the run's ``stop_timeout_s``)."""
     info = read_current_run(runs_dir)
     if info is None:
-        return False, f"nothing running (no {runs_dir / CURRENT_RUN})"
+        return False, f"nothing running (no usable {runs_dir / CURRENT_RUN})"
+    if timeout_s is None:
+        timeout_s = 3 * float(info.get("stop_timeout_s") or SupervisionConfig.stop_timeout_s) + DOWN_MARGIN_S
     launcher_alive = current_launcher_alive(info)
     pid = int(info.get("launcher_pid") or 0) if launcher_alive else 0
+    # A service the file names with no start time was not running when it was written (where this system
+    # gives start times at all, as the launcher's own shows): its pid may be anyone's since, so left alone.
+    ticks_known = info.get("launcher_start_ticks") is not None
     services = [(int(s["pid"]), s.get("start_ticks")) for s in info.get("services", {}).values() if s.get("pid")]
-    service_pids = [spid for spid, ticks in services if run_process_alive(spid, ticks)]  # not a pid reused since
+    service_pids = [
+        spid for spid, ticks in services if not (ticks_known and ticks is None) and run_process_alive(spid, ticks)  # not a pid reused since
+    ]
     for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0)):
         if not pid_alive(pid):
             break
@@ -785,9 +831,12 @@ def down(runs_dir: Path, timeout_s: float = 10.0) -> tuple[bool, str]:
         deadline = time.monotonic() + wait_s
         while pid_alive(pid) and time.monotonic() < deadline:
             time.sleep(0.05)
-    for spid in service_pids:  # whatever the launcher could not stop
-        if pid_alive(spid):
-            signal_group(spid, signal.SIGKILL)
+    killed = [spid for spid in service_pids if pid_alive(spid)]  # whatever the launcher could not stop
+    for spid in killed:
+        signal_group(spid, signal.SIGKILL)
+    deadline = time.monotonic() + 2.0  # SIGKILL is not instant: a process goes once the kernel has reaped it
+    while any(pid_alive(p) for p in (pid, *killed)) and time.monotonic() < deadline:
+        time.sleep(0.05)
     try:
         cur = read_current_run(runs_dir)
         if cur is not None and cur.get("run_id") == info.get("run_id"):
@@ -800,14 +849,46 @@ def down(runs_dir: Path, timeout_s: float = 10.0) -> tuple[bool, str]:
     return True, f"stopped run {info.get('run_id')}"
 
 
+RUNS_LOCK = ".up.lock"
+"""A launcher holds an exclusive lock on ``<runs-dir>/.up.lock`` for as long as it runs (released by the
+kernel however it ends): one run per runs folder, even when two ``up`` start at the same moment."""
+
+
+def hold_runs_lock(runs_dir: Path) -> int | None:
+    """Take the runs folder's launcher lock; its file descriptor, or None when another launcher holds it."""
+    import fcntl  # noqa: PLC0415  (POSIX only, like the process groups the launcher uses)
+
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    fd = os.open(runs_dir / RUNS_LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode())
+    return fd
+
+
 def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> int:
-    """``Launcher.run`` with Ctrl-C and SIGTERM stopping it, in the foreground or detached; its exit code."""
+    """``Launcher.run`` with Ctrl-C, SIGTERM and SIGHUP (its terminal closed) stopping it, in the foreground
+    or detached, holding the runs folder's lock; its exit code."""
+    runs_dir = launcher.run_dir.parent
+    lock_fd = hold_runs_lock(runs_dir)
+    if lock_fd is None:
+        log.error(
+            "another `cso-runtime up` is running from %s (it holds %s); `cso-runtime down` first, or give this one its own --runs-dir",
+            runs_dir, runs_dir / RUNS_LOCK,
+        )
+        return EXIT_BAD_CONFIG
     _install_signal_handlers(launcher)
     try:
         return launcher.run(live=live, stay_after_done=stay_after_done)
     except TransportError as exc:  # the router to join (a robot's) is down, or a listen port is taken
         log.error("%s; no service was started (is the router to join running and reachable?)", exc)
         return EXIT_NO_ZENOH
+    finally:
+        os.close(lock_fd)
 
 
 def _install_signal_handlers(launcher: Launcher) -> None:
@@ -816,6 +897,7 @@ def _install_signal_handlers(launcher: Launcher) -> None:
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    signal.signal(signal.SIGHUP, handler)  # the terminal closed: stop as cleanly as on Ctrl-C
 
 
 RECORDING_NAME = "recording.mcap"
@@ -878,17 +960,34 @@ def start_detached(
             start_new_session=True,
         )
     deadline = time.monotonic() + ready_timeout_s
-    while time.monotonic() < deadline:
+    try:
+        while time.monotonic() < deadline:
+            try:
+                info = json.loads((run_dir / "run.json").read_text())
+                if info.get("services") and info.get("endpoints"):
+                    return 0, f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'} (`cso-runtime logs -f` follows them)"
+            except (OSError, ValueError):
+                pass
+            if proc.poll() is not None:  # its own code (2: refused, 3: no router), so `up --detach` says the same as `up`
+                return proc.returncode or 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_path.read_text()[-2000:]}"
+            time.sleep(0.05)
+    except KeyboardInterrupt:  # Ctrl-C while waiting: the user wants no run, not one left in the background
+        _stop_launcher(proc)
+        return EXIT_INTERRUPTED, f"interrupted while the launcher started: stopped it (launcher pid {proc.pid}); see {log_path}"
+    _stop_launcher(proc)
+    return 1, f"the launcher did not start within {ready_timeout_s:.0f} s: stopped it; see {log_path}"
+
+
+def _stop_launcher(proc: subprocess.Popen, timeout_s: float = 3 * SupervisionConfig.stop_timeout_s + DOWN_MARGIN_S) -> None:
+    """Stop a detached launcher that never got going (SIGINT: it stops whatever it spawned), then kill it."""
+    for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGKILL, 2.0)):
+        if proc.poll() is not None:
+            return
+        proc.send_signal(sig)
         try:
-            info = json.loads((run_dir / "run.json").read_text())
-            if info.get("services") and info.get("endpoints"):
-                return 0, f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'} (`cso-runtime logs -f` follows them)"
-        except (OSError, ValueError):
-            pass
-        if proc.poll() is not None:  # its own code (2: refused, 3: no router), so `up --detach` says the same as `up`
-            return proc.returncode or 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_path.read_text()[-2000:]}"
-        time.sleep(0.05)
-    return 1, f"the launcher did not start within {ready_timeout_s:.0f} s; see {log_path}"
+            proc.wait(timeout=wait_s)
+        except subprocess.TimeoutExpired:
+            continue
 
 
 def main(argv: list[str] | None = None) -> int:

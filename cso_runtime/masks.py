@@ -37,7 +37,8 @@ class DecisionRecord:
     position_xy_m: tuple[float, float]
     explored_area_m2: float
     moved_m: float
-    """Geodesic distance from the previous decision position (inf when unknown)."""
+    """Distance from the previous decision position: geodesic, or straight-line where the previous position
+    is off the traversable space (inf for the first decision)."""
 
 
 DistanceFrom = Callable[[tuple[float, float], float], np.ndarray]
@@ -48,19 +49,33 @@ goal: exact below the bound; candidates farther away may read inf."""
 class StuckMask:
     """Algorithm 1: when the last decisions neither moved nor explored, mask goals near them.
 
-    Keeps the positions and explored areas of the last three decisions (w_t, w_{t-1}, w_{t-2}).
+    Keeps the positions and explored areas of the last three decisions (w_t, w_{t-1}, w_{t-2}) and the
+    last three goals chosen; ``config.stuck_avoid`` says which of the two the new goal must keep away from.
     """
 
     def __init__(self, config: MaskConfig):
         self.config = config
         self.history: deque[DecisionRecord] = deque(maxlen=3)
+        self.goals: deque[tuple[float, float]] = deque(maxlen=3)
 
     def reset(self) -> None:
         self.history.clear()
+        self.goals.clear()
 
     def record(self, position_xy_m: tuple[float, float], explored_area_m2: float, moved_m: float) -> None:
         """Add the current decision (w_t, ||M_t||) and the geodesic distance moved since the last one."""
         self.history.append(DecisionRecord((float(position_xy_m[0]), float(position_xy_m[1])), float(explored_area_m2), float(moved_m)))
+
+    def record_goal(self, goal_xy_m: tuple[float, float]) -> None:
+        """Add the goal the current decision chose."""
+        self.goals.append((float(goal_xy_m[0]), float(goal_xy_m[1])))
+
+    def reference_points(self) -> list[tuple[float, float]]:
+        """What a new goal keeps alpha_3 away from when stuck: the last three decision positions, or
+        the last three goals chosen (``config.stuck_avoid``)."""
+        if self.config.stuck_avoid == "goals":
+            return list(self.goals)
+        return [record.position_xy_m for record in self.history]
 
     def is_stuck(self) -> bool:
         """l_max < alpha_1 and c_max < alpha_2 over the last three decisions."""
@@ -73,12 +88,12 @@ class StuckMask:
 
     def mask(self, n_candidates: int, distance_from: DistanceFrom) -> np.ndarray:
         """True for candidates that may be chosen. When stuck, candidates closer than alpha_3 to any
-        of the last three decision positions are masked; ``distance_from`` is only called then, and
-        only distances below alpha_3 are asked for (a bounded fast-marching pass is enough)."""
+        of the reference points (``reference_points``) are masked; ``distance_from`` is only called
+        then, and only distances below alpha_3 are asked for (a bounded fast-marching pass is enough)."""
         allowed = np.ones(n_candidates, dtype=bool)
         if n_candidates == 0 or not self.is_stuck():
             return allowed
         alpha3 = self.config.alpha3_m
-        for record in self.history:
-            allowed &= ~(np.asarray(distance_from(record.position_xy_m, alpha3), dtype=float) < alpha3)
+        for point in self.reference_points():
+            allowed &= ~(np.asarray(distance_from(point, alpha3), dtype=float) < alpha3)
         return allowed

@@ -62,12 +62,14 @@ class OccupancyMap:
         """Ray-cast one scan taken at ``sensor_pose`` into the map; returns newly explored cells.
 
         Beams with no return (``inf`` or beyond ``range_max_m``) clear free space up to the max range;
-        readings below ``range_min_m`` are ignored. Raises ValueError on NaN or malformed scans.
+        readings below ``range_min_m`` are ignored, and so is a range of 0 m even when ``range_min_m`` is 0
+        (the ROS bridge's mark for NaN and too-close readings: never an obstacle at the sensor). Raises
+        ValueError on NaN or malformed scans.
         """
         scan.validate()
         ranges = np.asarray(scan.ranges_m, dtype=float)
         angles = scan.angles_rad + sensor_pose.yaw_rad
-        usable = ranges >= scan.range_min_m
+        usable = (ranges >= scan.range_min_m) & (ranges > 0.0)
         is_hit = usable & (ranges <= scan.range_max_m)
         clear_len = np.where(is_hit, ranges, scan.range_max_m)
         angles, clear_len, is_hit = angles[usable], clear_len[usable], is_hit[usable]

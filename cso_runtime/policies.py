@@ -55,7 +55,8 @@ def goal_of(obs: Observation, index: int) -> Goal:
 class ActionMasker:
     """Both masks of section 3.3 over an observation's clusters, as used by the learned policy.
 
-    ``mask(obs)`` also records the decision for Algorithm 1, so call it exactly once per decision.
+    ``mask(obs)`` also records the decision for Algorithm 1, so call it exactly once per decision, and
+    ``chose(goal)`` with the goal that decision chose.
     """
 
     def __init__(self, config: MaskConfig):
@@ -73,15 +74,29 @@ class ActionMasker:
         if self.config.use_valid_distance:
             vdm, self.last_rule = valid_distance_mask(d, self.config.beta_near_m, self.config.beta_far_m)
             allowed &= vdm
-        moved = np.inf
-        if self.stuck.history:
-            moved = float(obs.distance_at(np.array([self.stuck.history[-1].position_xy_m]))[0])
-        self.stuck.record((obs.pose.x_m, obs.pose.y_m), obs.open_area_m2, moved)
+        self.stuck.record((obs.pose.x_m, obs.pose.y_m), obs.open_area_m2, self.moved_since_last_decision(obs))
         if self.config.use_stuck:
             stuck_allowed = self.stuck.mask(n, obs.goal_distances_from)
             if (allowed & stuck_allowed).any():
                 allowed &= stuck_allowed
         return allowed
+
+    def chose(self, goal: Goal | None) -> None:
+        """The goal the decision just masked chose (Algorithm 1's past goals); None chose nothing."""
+        if goal is not None:
+            self.stuck.record_goal((goal.x_m, goal.y_m))
+
+    def moved_since_last_decision(self, obs: Observation) -> float:
+        """Algorithm 1's moving length since the last decision: geodesic on D where the last position is
+        on the traversable space, straight-line where it is not (a robot pushed into the inflation band
+        by a wall, the very case the mask is for, would otherwise never count as stuck); inf at the first."""
+        if not self.stuck.history:
+            return np.inf
+        last = self.stuck.history[-1].position_xy_m
+        moved = float(obs.distance_at(np.array([last]))[0])
+        if np.isfinite(moved):
+            return moved
+        return float(np.hypot(obs.pose.x_m - last[0], obs.pose.y_m - last[1]))
 
 
 class _ScoreSelector:

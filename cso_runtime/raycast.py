@@ -28,28 +28,37 @@ def samples_to_reach(geometry: GridGeometry, length_m: float) -> int:
     return max(1, int(np.ceil(length_m / sample_step_m(geometry))) + 1)
 
 
+def floor_cells(
+    geometry: GridGeometry, origin_xy_m: np.ndarray, cos: np.ndarray, sin: np.ndarray, dist_m: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Column and row (floats, floored; outside the grid too) of the points ``origin + dist_m * (cos, sin)``,
+    with ``cos``, ``sin`` and ``dist_m`` broadcast together: ``GridGeometry.world_to_cell`` to the last bit,
+    worked in place."""
+    res = geometry.resolution_m
+    fx = cos * dist_m
+    fx += origin_xy_m[0]
+    fx -= geometry.origin_x_m
+    fx /= res
+    np.floor(fx, out=fx)
+    fy = sin * dist_m
+    fy += origin_xy_m[1]
+    fy -= geometry.origin_y_m
+    fy /= res
+    np.floor(fy, out=fy)
+    return fx, fy
+
+
 def sample_cells(
     geometry: GridGeometry, origin_xy_m: np.ndarray, cos: np.ndarray, sin: np.ndarray, first: int, stop: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Samples ``first .. stop - 1`` along beams of direction ``(cos, sin)``, shape (beams, samples):
     each sample's flat cell index ``iy * width + ix`` as float64 (exact: cell indices are small
     integers; meaningful only where inside), whether it lies inside the grid, and the samples'
-    distances from the origin ``dist_m`` (samples,). The cells are ``GridGeometry.world_to_cell`` of
-    the samples to the last bit; worked in place and in floats, since this runs for every beam of
-    every scan, in the simulator and in the mapper."""
+    distances from the origin ``dist_m`` (samples,). Worked in place and in floats, since this runs
+    for every beam of every scan, in the simulator and in the mapper."""
     dist = np.arange(first, stop, dtype=np.float64) * sample_step_m(geometry)
-    res = geometry.resolution_m
     height, width = geometry.shape
-    fx = cos[:, None] * dist[None, :]
-    fx += origin_xy_m[0]
-    fx -= geometry.origin_x_m
-    fx /= res
-    np.floor(fx, out=fx)
-    fy = sin[:, None] * dist[None, :]
-    fy += origin_xy_m[1]
-    fy -= geometry.origin_y_m
-    fy /= res
-    np.floor(fy, out=fy)
+    fx, fy = floor_cells(geometry, origin_xy_m, cos[:, None], sin[:, None], dist[None, :])
     inside = fx >= 0
     inside &= fx < width
     inside &= fy >= 0
@@ -79,16 +88,18 @@ def cast_rays(
     hx = np.zeros(len(angles), dtype=np.int64)
     active = np.arange(len(angles))
     blocked_flat = np.ascontiguousarray(blocked).ravel()
-    width = geometry.shape[1]
     for first in range(0, n, SAMPLES_PER_CHUNK):
-        cell, inside, _ = sample_cells(geometry, origin, cos[active], sin[active], first, min(first + SAMPLES_PER_CHUNK, n))
+        cell, inside, dist = sample_cells(geometry, origin, cos[active], sin[active], first, min(first + SAMPLES_PER_CHUNK, n))
         hit = ~inside
         hit[inside] = blocked_flat[cell[inside].astype(np.intp)]
         found = hit.any(axis=1)
         rows = np.flatnonzero(found)
         at = hit[rows].argmax(axis=1)
         beams = active[rows]
-        hy[beams], hx[beams] = np.divmod(cell[rows, at].astype(np.int64), width)
+        # The hit cell's column and row, recomputed rather than split from the flat index: a sample
+        # just outside the left or right edge (column -1 or width) would wrap into another row.
+        fx, fy = floor_cells(geometry, origin, cos[beams], sin[beams], dist[at])
+        hx[beams], hy[beams] = fx.astype(np.int64), fy.astype(np.int64)
         any_hit[beams] = True
         active = active[~found]
         if not len(active):

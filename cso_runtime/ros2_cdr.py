@@ -53,14 +53,16 @@ def encode(msg, typename: str) -> bytes:
     return bytes(typestore().serialize_cdr(msg, typename))
 
 
-def _stamp(stamp_s: float):
-    t = _types()["builtin_interfaces/msg/Time"]
-    sec = int(math.floor(stamp_s))
-    return t(sec=sec, nanosec=int(round((stamp_s - sec) * 1e9)) % 1_000_000_000)
+def time_msg(stamp_s: float):
+    """builtin_interfaces/Time of a stamp in seconds, to the nearest nanosecond (a stamp that rounds up
+    to the next second carries into ``sec``)."""
+    sec, nanosec = divmod(round(stamp_s * 1e9), 1_000_000_000)
+    return _types()["builtin_interfaces/msg/Time"](sec=int(sec), nanosec=int(nanosec))
 
 
-def _header(stamp_s: float, frame_id: str):
-    return _types()["std_msgs/msg/Header"](stamp=_stamp(stamp_s), frame_id=frame_id)
+def header_msg(stamp_s: float, frame_id: str):
+    """std_msgs/Header of a stamp in seconds and a frame."""
+    return _types()["std_msgs/msg/Header"](stamp=time_msg(stamp_s), frame_id=frame_id)
 
 
 def stamp_seconds(header) -> float:
@@ -89,7 +91,8 @@ class ScanConversion:
 def laserscan_from_cdr(raw: bytes) -> ScanConversion:
     """sensor_msgs/LaserScan CDR -> our LaserScan, honouring the header's angles and limits.
 
-    NaN (invalid) and -inf or below ``range_min`` (too close) become 0 m, which the mapper ignores;
+    NaN (invalid) and -inf or below ``range_min`` (too close) become 0 m, which the mapper ignores
+    (even with ``range_min`` 0);
     +inf and anything beyond ``range_max`` become +inf (no return: free space up to the max range).
     """
     msg = decode(raw, LASER_SCAN)
@@ -118,7 +121,7 @@ def laserscan_to_cdr(scan: LaserScan, frame_id: str = "laser") -> bytes:
     """Our LaserScan -> sensor_msgs/LaserScan CDR (for fake robots and tests)."""
     n = len(scan.ranges_m)
     msg = _types()[LASER_SCAN](
-        header=_header(scan.stamp_s, frame_id),
+        header=header_msg(scan.stamp_s, frame_id),
         angle_min=float(scan.angle_min_rad),
         angle_max=float(scan.angle_min_rad + scan.angle_increment_rad * (n - 1)),
         angle_increment=float(scan.angle_increment_rad),
@@ -157,7 +160,7 @@ def odometry_to_cdr(pose: Pose2D, velocity: VelocityCommand, stamp_s: float, fra
     point = t["geometry_msgs/msg/Point"](x=pose.x_m, y=pose.y_m, z=0.0)
     cov = np.zeros(36, dtype=np.float64)
     msg = t[ODOMETRY](
-        header=_header(stamp_s, frame_id),
+        header=header_msg(stamp_s, frame_id),
         child_frame_id=child_frame_id,
         pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=t["geometry_msgs/msg/Pose"](position=point, orientation=_quaternion(pose.yaw_rad)), covariance=cov),
         twist=t["geometry_msgs/msg/TwistWithCovariance"](twist=_twist(velocity), covariance=cov.copy()),
@@ -193,9 +196,9 @@ def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_s: flo
         position=t["geometry_msgs/msg/Point"](x=geometry.origin_x_m, y=geometry.origin_y_m, z=0.0), orientation=_quaternion(0.0)
     )
     info = t["nav_msgs/msg/MapMetaData"](
-        map_load_time=_stamp(stamp_s), resolution=float(geometry.resolution_m), width=int(geometry.shape[1]), height=int(geometry.shape[0]), origin=origin
+        map_load_time=time_msg(stamp_s), resolution=float(geometry.resolution_m), width=int(geometry.shape[1]), height=int(geometry.shape[0]), origin=origin
     )
-    msg = t[OCCUPANCY_GRID](header=_header(stamp_s, frame_id), info=info, data=grid.ravel())
+    msg = t[OCCUPANCY_GRID](header=header_msg(stamp_s, frame_id), info=info, data=grid.ravel())
     return encode(msg, OCCUPANCY_GRID)
 
 
@@ -212,7 +215,7 @@ def occupancy_grid_from_cdr(raw: bytes) -> tuple[np.ndarray, GridGeometry]:
 def pose_stamped_to_cdr(x_m: float, y_m: float, yaw_rad: float, stamp_s: float, frame_id: str = "map") -> bytes:
     t = _types()
     pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=x_m, y=y_m, z=0.0), orientation=_quaternion(yaw_rad))
-    return encode(t[POSE_STAMPED](header=_header(stamp_s, frame_id), pose=pose), POSE_STAMPED)
+    return encode(t[POSE_STAMPED](header=header_msg(stamp_s, frame_id), pose=pose), POSE_STAMPED)
 
 
 def path_to_cdr(path_xy_m: np.ndarray, stamp_s: float, frame_id: str = "map") -> bytes:
@@ -223,12 +226,12 @@ def path_to_cdr(path_xy_m: np.ndarray, stamp_s: float, frame_id: str = "map") ->
     yaws = np.append(headings, headings[-1]) if len(xy) > 1 else headings
     poses = [
         t[POSE_STAMPED](
-            header=_header(stamp_s, frame_id),
+            header=header_msg(stamp_s, frame_id),
             pose=t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0), orientation=_quaternion(float(yaw))),
         )
         for (x, y), yaw in zip(xy, yaws)
     ]
-    return encode(t[PATH](header=_header(stamp_s, frame_id), poses=poses), PATH)
+    return encode(t[PATH](header=header_msg(stamp_s, frame_id), poses=poses), PATH)
 
 
 def transforms_to_cdr(transforms: list[tuple[str, str, Pose2D]], stamp_s: float) -> bytes:
@@ -237,7 +240,7 @@ def transforms_to_cdr(transforms: list[tuple[str, str, Pose2D]], stamp_s: float)
     v3 = t["geometry_msgs/msg/Vector3"]
     stamped = [
         t["geometry_msgs/msg/TransformStamped"](
-            header=_header(stamp_s, parent),
+            header=header_msg(stamp_s, parent),
             child_frame_id=child,
             transform=t["geometry_msgs/msg/Transform"](translation=v3(x=float(p.x_m), y=float(p.y_m), z=0.0), rotation=_quaternion(float(p.yaw_rad))),
         )
@@ -264,9 +267,9 @@ def frontier_markers_to_cdr(frontier_points_xy_m: list[np.ndarray], goal_xy_m: l
 
     def marker(ns: str, mid: int, mtype: int, action: int, pose, scale, color, points):
         return marker_t(
-            header=_header(stamp_s, frame_id), ns=ns, id=mid, type=mtype, action=action, pose=pose,
+            header=header_msg(stamp_s, frame_id), ns=ns, id=mid, type=mtype, action=action, pose=pose,
             scale=scale, color=color, lifetime=dur, frame_locked=False, points=points, colors=[],
-            texture_resource="", texture=t["sensor_msgs/msg/CompressedImage"](header=_header(stamp_s, frame_id), format="", data=np.zeros(0, dtype=np.uint8)),
+            texture_resource="", texture=t["sensor_msgs/msg/CompressedImage"](header=header_msg(stamp_s, frame_id), format="", data=np.zeros(0, dtype=np.uint8)),
             uv_coordinates=[], text="", mesh_resource="",
             mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, dtype=np.uint8)),
             mesh_use_embedded_materials=False,

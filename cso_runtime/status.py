@@ -112,11 +112,13 @@ def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) 
 
 def endpoints_from_run_file(runs_dir: Path) -> tuple[list[str], str | None]:
     """Router endpoints and robot of the current run (``runs/current.json``), if any."""
-    try:
-        info = json.loads((runs_dir / "current.json").read_text())
-    except (OSError, ValueError):
+    from cso_runtime.launcher import read_current_run  # noqa: PLC0415  (the run file's one reader)
+
+    info = read_current_run(runs_dir)
+    if info is None:
         return [], None
-    return list(info.get("endpoints") or []), info.get("robot")
+    robot = info.get("robot")
+    return list(info.get("endpoints") or []), robot if isinstance(robot, str) else None
 
 
 def target_of(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[list[str], str]:

@@ -40,13 +40,6 @@ BASE_STAMP_S = 1000.0
 """Robot clock at the simulation's time 0 (a real robot's stamps are far from zero)."""
 
 
-def _header(stamp_s: float, frame_id: str) -> Any:
-    t = typestore().types
-    sec = math.floor(stamp_s)
-    nanosec = min(round((stamp_s - sec) * 1e9), 999_999_999)
-    return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id=frame_id)
-
-
 def odometry_cdr(stamp_s: float, pose: Pose2D, linear_mps: float, angular_radps: float) -> bytes:
     """nav_msgs/Odometry of base_link in odom, serialised by rosbags."""
     t = typestore().types
@@ -56,7 +49,7 @@ def odometry_cdr(stamp_s: float, pose: Pose2D, linear_mps: float, angular_radps:
         orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(pose.yaw_rad / 2), w=math.cos(pose.yaw_rad / 2)),
     )
     msg = t["nav_msgs/msg/Odometry"](
-        header=_header(stamp_s, "odom"),
+        header=ros2_cdr.header_msg(stamp_s, "odom"),
         child_frame_id="base_link",
         pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=p, covariance=np.zeros(36)),
         twist=t["geometry_msgs/msg/TwistWithCovariance"](
@@ -71,7 +64,7 @@ def laserscan_cdr(stamp_s: float, scan: LaserScan) -> bytes:
     """sensor_msgs/LaserScan in laser_link, serialised by rosbags (angle_max from the beam count)."""
     n = len(scan.ranges_m)
     msg = typestore().types["sensor_msgs/msg/LaserScan"](
-        header=_header(stamp_s, "laser_link"),
+        header=ros2_cdr.header_msg(stamp_s, "laser_link"),
         angle_min=scan.angle_min_rad,
         angle_max=scan.angle_min_rad + scan.angle_increment_rad * (n - 1),
         angle_increment=scan.angle_increment_rad,

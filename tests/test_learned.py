@@ -97,6 +97,23 @@ def test_valid_distance_mask_zeroes_exactly_the_masked_actions(observation, near
     assert goal is not None and mask[goal.cluster_index]
 
 
+def test_stuck_mask_with_goals_zeroes_the_goals_chosen_before(observation):
+    """``stuck_avoid: goals``: the learned policy records each goal it chooses, and once stuck it never
+    chooses again within alpha_3 of the three it chose."""
+    cfg = MaskConfig(use_valid_distance=False, alpha3_m=1.0, stuck_avoid="goals")
+    policy = untrained_policy(cfg)
+    chosen = [policy.select(observation) for _ in range(2)]
+    assert [(g.x_m, g.y_m) for g in chosen] == list(policy.masker.stuck.goals)
+    mask = policy.action_mask(observation)
+    assert policy.masker.stuck.is_stuck()
+    n = len(observation.clusters)
+    near = np.zeros(n, dtype=bool)
+    for g in chosen:
+        near |= observation.goal_distances_from((g.x_m, g.y_m)) < cfg.alpha3_m
+    assert near[[g.cluster_index for g in chosen]].all() and (~near).any()
+    np.testing.assert_array_equal(mask[:n], ~near)
+
+
 def test_stuck_mask_zeroes_goals_near_recent_positions(observation):
     cfg = MaskConfig(use_valid_distance=False, alpha3_m=1.5)
     policy = untrained_policy(cfg)
@@ -246,7 +263,10 @@ def test_env_reports_the_control_steps_each_decision_took():
     _, info = env.reset(seed=0)
     steps, done = 0, False
     while not done:
-        _, _, terminated, truncated, info = env.step(expert_action(env.obs, info["action_mask"]))
+        action = expert_action(env.obs, info["action_mask"])
+        goal_xy_m = tuple(env.obs.goal_xy_m[action])
+        _, _, terminated, truncated, info = env.step(action)
+        assert env.masker.stuck.goals[-1] == pytest.approx(goal_xy_m)  # the stuck mask's past goals
         assert info["decision_steps"] >= 1
         steps += info["decision_steps"]
         done = terminated or truncated

@@ -33,6 +33,19 @@ def test_cast_rays_no_return_is_inf():
     assert np.all(np.isinf(ranges))
 
 
+def test_cast_rays_stop_at_the_grid_edge_on_every_side():
+    """A map without walls at its border (a map_server scene): beams end where they leave the grid,
+    whichever edge they cross, as the docstring promises (the left and right edges once wrapped into
+    another row and gave 0 m)."""
+    g = GridGeometry(0.05, (40, 60), origin_x_m=-0.4, origin_y_m=0.3)  # 3.0 m wide (x), 2.0 m tall (y)
+    origin = np.array([0.6, 1.3])  # 1.0 m from the left edge, 2.0 m from the right, 1.0 m from top and bottom
+    angles = np.array([0.0, math.pi, math.pi / 2, -math.pi / 2, 0.3, math.pi - 0.3, -2.5])
+    ranges = cast_rays(np.zeros(g.shape, dtype=bool), g, origin, angles, 8.0)
+    expected = [2.0, 1.0, 1.0, 1.0, min(2.0 / math.cos(0.3), 1.0 / math.sin(0.3)), min(1.0 / math.cos(0.3), 1.0 / math.sin(0.3)),
+                min(1.0 / abs(math.cos(-2.5)), 1.0 / abs(math.sin(-2.5)))]
+    np.testing.assert_allclose(ranges, expected, atol=1e-9)
+
+
 @pytest.mark.parametrize("scene", ["generated:small:1:0", "builtin"])
 def test_ray_marching_in_chunks_does_not_change_ranges_or_maps(scene, monkeypatch):
     """Beams are marched a chunk of samples at a time and leave at their first hit (sensor) or their

@@ -5,12 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cso_runtime.config import MaskConfig
+from cso_runtime.config import ConfigError, FrontierConfig, MaskConfig, RobotConfig
 from cso_runtime.frontiers import FrontierCluster
 from cso_runtime.geodesic import geodesic_distance
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.masks import StuckMask, valid_distance_mask
-from cso_runtime.observation import Observation, distance_source_key
+from cso_runtime.observation import Observation, ObservationBuilder, distance_source_key
+from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.policies import (
     BASELINES,
     LEARNED_METHODS,
@@ -68,6 +69,53 @@ def test_stuck_mask_scripted_history():
     assert asked == [MaskConfig().alpha3_m] * 3  # only distances below alpha_3 are asked for
     # goal 0 is 0.2 m from w_{t-1}: masked; goal 1 is 0.8 m from w_t: masked; goal 2 far: kept.
     assert allowed.tolist() == [False, False, True]
+
+
+def test_stuck_mask_keeps_new_goals_from_past_goals_when_asked():
+    """``stuck_avoid: goals`` (Algorithm 1's "past 3 selected exploration goals"): a robot pinned at one
+    place that kept choosing goal G is stuck, and G is masked while a candidate near the robot stays;
+    ``positions`` (the default) masks near the robot instead."""
+    candidates = np.array([[1.5, 0.0], [0.5, 0.0], [3.0, 0.0]])  # G, near the robot, far
+
+    def distance_from(src, within_m):
+        return np.hypot(candidates[:, 0] - src[0], candidates[:, 1] - src[1])
+
+    allowed = {}
+    for avoid in ("positions", "goals"):
+        s = StuckMask(MaskConfig(stuck_avoid=avoid))
+        for k in range(3):
+            s.record((0.0, 0.0), 10.0 + 0.1 * k, 0.0 if k else np.inf)
+            s.record_goal((1.5, 0.0))
+        assert s.is_stuck()
+        allowed[avoid] = s.mask(3, distance_from).tolist()
+    assert allowed == {"goals": [False, True, True], "positions": [True, False, True]}
+    s.reset()
+    assert not s.history and not s.goals
+
+
+def test_stuck_avoid_is_validated():
+    with pytest.raises(ConfigError, match="stuck_avoid"):
+        MaskConfig(stuck_avoid="goal").validate()
+
+
+def test_a_robot_pinned_in_the_inflation_band_counts_as_stuck():
+    """Algorithm 1's moving length is read on D, which is inf where the robot stood inside a wall's
+    inflation band; the straight-line distance stands in there, so a robot pinned by a wall that makes
+    three decisions 0.15 m apart and maps nothing new is stuck (it never was before)."""
+    g = GridGeometry(0.05, (100, 100))
+    explored = np.zeros(g.shape, bool)
+    explored[10:90, 10:90] = True
+    occupied = np.zeros(g.shape, bool)
+    occupied[10:90, 50] = True  # a wall at x = 2.50-2.55 m
+    occupancy = OccupancyMap.from_masks(explored, occupied, g)
+    builder = ObservationBuilder(FrontierConfig(), RobotConfig())
+    masker = ActionMasker(MaskConfig())
+    for y_m in (2.00, 2.15, 2.30):
+        obs = builder.build(occupancy, Pose2D(2.37, y_m, 0.0))  # 0.13 m from the wall, inside the 0.2 m inflation
+        masker.mask(obs)
+    moved = [record.moved_m for record in masker.stuck.history]
+    assert np.isinf(moved[0]) and moved[1:] == pytest.approx([0.15, 0.15])
+    assert masker.stuck.is_stuck()
 
 
 def test_not_stuck_when_moving_or_exploring():

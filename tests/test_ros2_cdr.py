@@ -45,6 +45,23 @@ def test_other_angle_range_nan_and_inf_are_handled():
     conv.scan.validate()  # no NaN reaches the mapper
 
 
+def test_invalid_beams_of_a_scan_with_range_min_zero_mark_nothing_on_the_map():
+    """REP-117 allows range_min 0: the NaN and -inf beams it decodes to 0 m must still be ignored, not
+    become an obstacle in the robot's own cell; the beam with a real return still marks its wall."""
+    from cso_runtime.occupancy import OccupancyMap
+
+    ranges = [np.nan, -np.inf, 2.0, np.inf]
+    conv = cdr.laserscan_from_cdr(limo_scan_bytes(ranges, angle_min=-0.3, angle_max=0.3, range_min=0.0, range_max=8.0))
+    assert conv.scan.range_min_m == 0.0 and conv.invalid_beams == 1 and conv.too_close_beams == 1
+    g = GridGeometry(0.05, (200, 200))
+    occupancy = OccupancyMap(g)
+    occupancy.integrate_scan(Pose2D(5.0, 5.0, 0.0), conv.scan)
+    hits = np.argwhere(occupancy.occupied)
+    assert len(hits) == 1
+    hy, hx = g.world_to_cell(5.0 + 2.0 * math.cos(0.1), 5.0 + 2.0 * math.sin(0.1))
+    assert tuple(hits[0]) == (int(hy), int(hx))
+
+
 def test_clockwise_scan_is_reordered():
     conv = cdr.laserscan_from_cdr(limo_scan_bytes([1.0, 2.0, 3.0], angle_min=0.5, angle_max=-0.5))
     assert conv.scan.angle_increment_rad > 0
@@ -93,3 +110,9 @@ def test_garbage_is_a_clear_error():
         cdr.laserscan_from_cdr(b"\x00\x01\x00\x00garbage")
     with pytest.raises(cdr.CdrError):
         cdr.odometry_from_cdr(b"")
+
+
+@pytest.mark.parametrize(("stamp_s", "sec", "nanosec"), [(12.5, 12, 500_000_000), (1.9999999999, 2, 0), (0.0, 0, 0), (1000.000000001, 1000, 1)])
+def test_stamps_round_to_the_nearest_nanosecond_and_carry_into_seconds(stamp_s, sec, nanosec):
+    stamp = cdr.time_msg(stamp_s)
+    assert (stamp.sec, stamp.nanosec) == (sec, nanosec)

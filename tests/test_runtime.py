@@ -385,6 +385,29 @@ def test_a_second_up_in_the_same_runs_folder_is_refused_whichever_robot(tmp_path
     assert sorted(p.name for p in runs.iterdir()) == ["current.json"]  # nothing started
 
 
+def test_two_up_started_at_once_cannot_both_run(tmp_path):
+    """Two ``up`` started together both pass the current.json check (the first writes it only once its
+    services are spawned); the runs folder's lock lets one launcher run, and the other stops before it
+    starts anything, foreground or detached, saying why."""
+    from cso_runtime.launcher import RUNS_LOCK, hold_runs_lock
+
+    runs = tmp_path / "runs"
+    fd = hold_runs_lock(runs)  # the first launcher, in its first seconds
+    assert fd is not None and hold_runs_lock(runs) is None
+    try:
+        for detach in ([], ["--detach"]):
+            r = cli("up", "--profile", "lockstep", "--scene", SCENE, "--no-live", *detach, "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+            said = r.stdout + r.stderr
+            assert r.returncode == 2 and "another `cso-runtime up` is running" in said and RUNS_LOCK in said, said
+            assert not (runs / "current.json").exists()
+            assert not any(p.name.endswith(".log") and p.name != "launcher.log" for p in runs.rglob("*.log"))  # no service
+    finally:
+        os.close(fd)
+    fd = hold_runs_lock(runs)  # released with its holder
+    assert fd is not None
+    os.close(fd)
+
+
 def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
     """A run file outlives its launcher (SIGKILL, a reboot); its pids may belong to other processes since.
     The start time the file records tells them apart: ``down`` leaves such a process alone, and ``up`` is
@@ -406,6 +429,11 @@ def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
         ok, message = down(runs, timeout_s=1.0)
         assert ok and "stopped run old" in message and not (runs / "current.json").exists()
         assert bystander.poll() is None  # not signalled
+        # A service the launcher found dead when it wrote the file has no start time: its pid is not its own.
+        dead_service = {**stale, "services": {"mapper": {"pid": bystander.pid, "start_ticks": None}}}
+        (runs / "current.json").write_text(json.dumps(dead_service))
+        ok, message = down(runs, timeout_s=1.0)
+        assert ok and bystander.poll() is None
     finally:
         bystander.kill()
         bystander.wait(timeout=30)
@@ -661,6 +689,19 @@ def test_status_and_down_with_nothing_running(tmp_path):
     r = cli("save-map", "--connect", loopback_endpoint(port), cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "no map for robot r0" in r.stdout
     assert not (tmp_path / "map.yaml").exists()
+
+
+@pytest.mark.parametrize("content", ["[]", '{"run_id": "x", "launcher_pid": "abc"}', '{"run_id": "x", "services": {"sim": {"pid": "1"}}}', "{bad"])
+def test_a_run_file_that_is_not_one_is_ignored_with_a_warning_not_a_traceback(tmp_path, content):
+    """A half-written or hand-edited runs/current.json: status, down and logs say they ignore it and why,
+    then answer as with none (exit 1), never a traceback."""
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "current.json").write_text(content)
+    for command in ("status", "down", "logs"):
+        r = cli(command, "--runs-dir", str(runs), cwd=tmp_path, timeout_s=10)
+        said = r.stdout + r.stderr
+        assert r.returncode == 1 and "ignoring" in said and "current.json" in said and "Traceback" not in said, (command, said)
 
 
 @pytest.mark.parametrize("robot", ["a/b", "*", "r0/**"])
@@ -925,7 +966,7 @@ def test_the_readme_main_command_explores_with_the_mujoco_limo_and_the_learned_p
         kill_leftovers(runs)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGINT])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGHUP], ids=["ctrl-c", "terminal-closed"])
 def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
     profile = write_profile(tmp_path, min_step_period_s=0.2)
     runs = tmp_path / "runs"
@@ -949,6 +990,8 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
         # without a live view, a followed log is never silent: the episode's progress every progress_log_s
         assert re.search(r"INFO cso\.launcher: step \d+ \([\d.]+ s robot time\): coverage [\d.]+ %, [\d.]+ m2 explored", out), out
         assert [p for p in run_pids(runs) if pid_alive(p)] == []
+        (run_file,) = runs.glob("*/run.json")
+        assert json.loads(run_file.read_text())["state"] == "stopped" and not (runs / "current.json").exists()
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -181,7 +181,9 @@ class ExplorationEnv(gym.Env):
             return self._reject(a)
         self._invalid_in_a_row = 0
         area0, steps0 = ex.map.open_area_m2(), ex.steps
-        ex.apply_goal(self.obs, goal_of(self.obs, a))
+        goal = goal_of(self.obs, a)
+        self.masker.chose(goal)
+        ex.apply_goal(self.obs, goal)
         if not ex.done:
             ex.advance()  # the decision costs at least one control step
         graph, info = self._decide()

@@ -132,6 +132,10 @@ class Args:
     paper's, read as metres; the shipped weights were trained with it and run with ``MaskConfig``'s 1.5, which
     did better on the development set than both 2.0 and training with 1.5 (docs/experiments/learned-policy.md,
     "The valid distance mask's far bound")."""
+    stuck_avoid: str = "positions"
+    """What the stuck mask keeps a new goal away from in the training episodes (``masks.stuck_avoid``):
+    ``positions`` (the shipped weights) or ``goals`` (Algorithm 1 read literally). Evaluate such weights with
+    ``--set masks.stuck_avoid=goals``."""
     hidden: int = 32
     heads: int = 4
     layers: int = 2
@@ -212,8 +216,9 @@ class Args:
             raise ValueError(f"warm_start_data: no such file {', '.join(missing)}")
 
     def training_masks(self, masks: MaskConfig) -> MaskConfig:
-        """``masks`` with the training episodes' far bound (``beta_far_m``), before the variant switches masks off."""
-        return dataclasses.replace(masks, beta_far_m=self.beta_far_m)
+        """``masks`` with the training episodes' far bound (``beta_far_m``) and stuck reference (``stuck_avoid``),
+        before the variant switches masks off."""
+        return dataclasses.replace(masks, beta_far_m=self.beta_far_m, stuck_avoid=self.stuck_avoid)
 
     @property
     def batch_size(self) -> int:

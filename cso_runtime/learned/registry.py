@@ -197,7 +197,9 @@ class LearnedPolicy:
             a = int(np.argmax(probs))
         else:
             a = int(torch.multinomial(torch.as_tensor(probs), 1, generator=self.generator).item())
-        return goal_of(obs, a)
+        goal = goal_of(obs, a)
+        self.masker.chose(goal)
+        return goal
 
 
 def make_learned_policy(
