@@ -79,7 +79,7 @@ def _fail(message: str, code: int) -> NoReturn:
 
 
 def interrupt_on_sigterm() -> None:
-    """SIGTERM (``kill``, a job scheduler's stop) ends a long command as Ctrl-C does: its worker processes stopped,
+    """SIGTERM (``kill``, a job scheduler's stop) and SIGHUP (its terminal closed) end a long command as Ctrl-C does: its worker processes stopped,
     what finished written, exit code 130 and how to resume. Python's default would end it at once, writing
     nothing and leaving its workers to run their jobs to the end."""
     import signal  # noqa: PLC0415
@@ -88,6 +88,7 @@ def interrupt_on_sigterm() -> None:
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, raise_interrupt)
+    signal.signal(signal.SIGHUP, raise_interrupt)  # its terminal closed: the same clean stop
 
 
 def _print_version(value: bool) -> None:
@@ -250,8 +251,8 @@ def report_command(
     except OSError as exc:
         where = exc.filename or folder
         _fail(f"{where}: {exc.strerror or exc}" + (" (not an `eval --out` folder or a run folder?)" if not (folder / "summary.json").exists() else ""), 2)
-    except (ValueError, KeyError, TypeError) as exc:
-        _fail(f"{folder / 'summary.json'}: {exc}", 2)
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as exc:  # valid JSON of another shape too
+        _fail(f"{folder / 'summary.json'}: not a summary eval or up wrote ({type(exc).__name__}: {exc})", 2)
     typer.echo(f"wrote {path}")
 
 
@@ -283,7 +284,7 @@ def record_command(
         _fail("no current run; give --connect ENDPOINT", 2)
     path = recording_path(out, Path("recordings"), f"{robot.replace('*', 'all')}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
         signal.signal(sig, lambda *_: stop.set())
     try:
         with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
@@ -332,7 +333,7 @@ def replay_command(
     except ValueError as exc:
         _fail(str(exc), 2)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
         signal.signal(sig, lambda *_: stop.set())
     try:
         with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
@@ -407,6 +408,8 @@ def animate_command(
         check_recording(file)
         if target.resolve() == file.resolve():
             raise RecordingError(f"--out {out} is the recording itself")
+        if target.is_dir() or target.suffix.lower() not in (".gif", ".png"):
+            raise RecordingError(f"--out {out} must be a file ending in .gif (or .png, an animated PNG)")
         with _count_progress("animate") as progress:
             stats = animate_recording(file, target, robot, max_frames, progress=progress)
     except RecordingError as exc:
@@ -434,8 +437,6 @@ def scenes_command(
     from cso_runtime.scenes import SceneError, describe_scene, resolve_scenes  # noqa: PLC0415
     from robot_sim.scene import write_mujoco_world  # noqa: PLC0415
 
-    if not m_per_px > 0:
-        _fail(f"--m-per-px must be positive, got {m_per_px}", 2)
     try:
         refs = resolve_scenes(spec, limit, m_per_px)
     except SceneError as exc:
@@ -863,7 +864,7 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
     """``learned.ppo.Args`` from the YAML file, then the command's flags, then ``--set`` pairs; a missing file or
     a bad value exits with a clear error (code 2) before anything starts."""
     from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
-    from cso_runtime.learned.ppo import Args, training_scene_refs  # noqa: PLC0415
+    from cso_runtime.learned.ppo import Args, check_training_inputs, training_scene_refs  # noqa: PLC0415
 
     if config == DEFAULT_TRAIN_CONFIG and not config.is_file():  # run outside the repository: the packaged recipe
         config = PACKAGED_TRAIN_CONFIG
@@ -875,6 +876,7 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
         args = from_dict(Args, data, "train")
         args.validate()
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
+        check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     return args

@@ -354,11 +354,16 @@ def to_dict(obj: Any) -> dict[str, Any]:
     return dataclasses.asdict(obj)
 
 
+MAX_SEED = 2**32 - 1
+"""The largest seed (numpy's legacy and torch's generators, and every message's integer fields, take it)."""
+
+
 def check_seed(seed: int, name: str = "seed") -> int:
-    """A seed numpy's generators take (a non-negative integer), checked where it is configured rather
-    than deep inside a simulator or a worker process."""
-    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise ConfigError(f"{name} must be a non-negative integer, got {seed!r}")
+    """A seed every generator and message takes (an integer in [0, ``MAX_SEED``]), checked where it is
+    configured rather than deep inside a simulator or a worker process, or, worse, once the episode is
+    over and its result cannot be sent."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise ConfigError(f"{name} must be an integer from 0 to {MAX_SEED}, got {seed!r}")
     return seed
 
 

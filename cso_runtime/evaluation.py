@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import hashlib
+import io
 import json
 import logging
 import math
@@ -53,6 +54,7 @@ from cso_runtime.outputs import (
     episode_map_path,
     episode_npz_path,
     trajectory_plot_path,
+    write_text_atomic,
 )
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
@@ -386,12 +388,13 @@ def write_outputs(
     """summary.json, episodes.csv, and paired.csv when there is a comparison with the baseline."""
     out_dir.mkdir(parents=True, exist_ok=True)
     summary = summarize(rows, failures, methods, meta, baseline)
-    (out_dir / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False, default=str))
-    with (out_dir / "episodes.csv").open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(CSV_FIELDS), extrasaction="ignore")
-        writer.writeheader()
-        for r in sorted(rows, key=lambda r: (r["method"], r["map"])):
-            writer.writerow(r)
+    write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2, allow_nan=False, default=str))
+    table = io.StringIO(newline="")
+    writer = csv.DictWriter(table, fieldnames=list(CSV_FIELDS), extrasaction="ignore")
+    writer.writeheader()
+    for r in sorted(rows, key=lambda r: (r["method"], r["map"])):
+        writer.writerow(r)
+    write_text_atomic(out_dir / "episodes.csv", table.getvalue())
     if summary["paired"]["comparisons"]:
         write_paired_csv(out_dir / "paired.csv", summary["paired"]["comparisons"])
     else:

@@ -59,8 +59,17 @@ from cso_runtime.messages import (
     decode,
     encode,
 )
+from cso_runtime.outputs import write_text_atomic
 from cso_runtime.scenes import SceneError, resolve_scenes
-from cso_runtime.supervision import Child, pid_alive, process_start_ticks, run_process_alive, signal_group, stop_children
+from cso_runtime.supervision import (
+    Child,
+    dump_stacks,
+    pid_alive,
+    process_start_ticks,
+    run_process_alive,
+    signal_group,
+    stop_children,
+)
 from cso_runtime.transport import TransportConfig, TransportError, free_tcp_port, open_session, track_liveliness
 
 log = logging.getLogger("cso.launcher")
@@ -114,12 +123,48 @@ class SupervisionConfig:
     """How long the episode waits for another process (another host, or one started by hand) to serve a
     service the launcher has given up on, before it stops saying so (exit 1) rather than run on with
     no one choosing goals or driving."""
+    hang_timeout_s: float = 20.0
+    """A service whose process runs but that has not answered the launcher's status query (asked every
+    ``HANG_CHECK_PERIOD_S``) for this long is hung (a deadlock, a stopped process): the launcher writes its
+    stacks to its log, kills it and restarts it like a crashed one, as Nav2's bond does. 0: never."""
 
     def validate(self) -> None:
         if self.max_restarts < 0 or self.backoff_s < 0 or self.backoff_max_s < self.backoff_s or not self.stop_timeout_s > 0:
             raise ConfigError("supervision needs max_restarts >= 0, 0 <= backoff_s <= backoff_max_s, stop_timeout_s > 0")
         if not self.given_up_grace_s >= 0:
             raise ConfigError(f"supervision.given_up_grace_s must be >= 0 seconds, got {self.given_up_grace_s}")
+        if not (self.hang_timeout_s == 0 or self.hang_timeout_s >= 2 * HANG_CHECK_PERIOD_S):
+            raise ConfigError(f"supervision.hang_timeout_s must be 0 (off) or at least {2 * HANG_CHECK_PERIOD_S:g} s, got {self.hang_timeout_s}")
+
+
+HANG_CHECK_PERIOD_S = 1.0
+"""How often the launcher asks its services for their status (``SupervisionConfig.hang_timeout_s``)."""
+
+
+class StatusWatch:
+    """Asks every service of a robot for its status (its queryable) every ``HANG_CHECK_PERIOD_S``, on a thread
+    of its own, and keeps when each one last answered: a process that runs but does not answer is hung."""
+
+    def __init__(self, session: Any, keys: RobotKeys, stop: threading.Event):
+        self.answered_s: dict[str, float] = {}
+        """Service -> ``time.monotonic()`` of its last answer."""
+        self._session, self._keys, self._stop = session, keys, stop
+        self._thread = threading.Thread(target=self._run, name="status-watch", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _run(self) -> None:
+        key = self._keys.service_status("*")
+        while not self._stop.is_set():
+            try:
+                for reply in self._session.get(key, timeout=HANG_CHECK_PERIOD_S):
+                    if reply.ok is not None:  # cso/<robot>/service/<name>/status
+                        self.answered_s[str(reply.ok.key_expr).rsplit("/", 2)[-2]] = time.monotonic()
+            except Exception:  # the session closing under it at the end of the run
+                if not self._stop.is_set():
+                    log.debug("status query failed", exc_info=True)
+            self._stop.wait(HANG_CHECK_PERIOD_S)
 
 
 @dataclass
@@ -332,6 +377,8 @@ class Launcher:
         self.started_s = time.monotonic()
         self.started_at = time.time()
         """When the run started (Unix time, s): ``run.json``'s ``started_at``, with ``ended_at`` once it stopped."""
+        self.status_watch: StatusWatch | None = None
+        """Which services answer the launcher's status queries (their hang check), once the session is open."""
         self.service_notes: dict[str, str] = {}
         """Service -> what the launcher's log and live view say beside its health (where to point a viewer)."""
         if "foxglove_bridge" in profile.services:
@@ -372,9 +419,7 @@ class Launcher:
         }
         text = json.dumps(info, indent=2)
         for path in (self.run_dir / "run.json", self.run_dir.parent / CURRENT_RUN):
-            tmp = path.with_suffix(".tmp")
-            tmp.write_text(text)
-            tmp.replace(path)
+            write_text_atomic(path, text)
 
     def outcome(self) -> str:
         """How a stopped run ended, for ``cso-runtime runs``: done (results written), interrupted (stopped
@@ -438,6 +483,7 @@ class Launcher:
                 "liveliness": c.name in self.alive_services,
                 "restarts": c.restarts,
                 "gave_up": c.gave_up,
+                "hung_kills": c.hung_kills,
             }
             for c in self.children
         }
@@ -462,9 +508,32 @@ class Launcher:
         if "foxglove_bridge" in self.service_notes:
             log.info("%s (Open connection -> Foxglove WebSocket)", self.service_notes["foxglove_bridge"])
 
+    def kill_hung(self, now: float) -> None:
+        """Kill each service whose process runs but that has not answered a status query for
+        ``supervision.hang_timeout_s`` since it started or last answered (its stacks first, into its log);
+        ``supervise`` then restarts it as a crashed one."""
+        timeout_s = self.profile.supervision.hang_timeout_s
+        if timeout_s <= 0 or self.status_watch is None:
+            return
+        for c in self.children:
+            if c.gave_up or not c.alive or c.proc is None:
+                continue
+            since = max(c.spawned_at, self.status_watch.answered_s.get(c.name, -np.inf))
+            if now - since < timeout_s:
+                continue
+            log.error("%s (pid %d) runs but has not answered for %.0f s (hung? stopped?): killing it to restart it", c.name, c.proc.pid, now - since)
+            dump_stacks([c])
+            signal_group(c.proc.pid, signal.SIGKILL)
+            try:
+                c.proc.wait(timeout=5.0)
+            except subprocess.TimeoutExpired:
+                log.error("%s (pid %d) survived SIGKILL", c.name, c.proc.pid)
+            c.hung_kills += 1
+
     def supervise(self) -> None:
         sup = self.profile.supervision
         now = time.monotonic()
+        self.kill_hung(now)
         changed = False
         for c in self.children:
             if c.gave_up or c.alive:
@@ -632,6 +701,8 @@ class Launcher:
                 session.declare_queryable(self.keys.launcher_status, self._on_status_query),
             ]
             alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._on_alive, history=True)
+            self.status_watch = StatusWatch(session, self.keys, self.stop_event)
+            self.status_watch.start()
             try:
                 recorder = self.start_recorder()
             except RecorderError as exc:

@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
@@ -39,3 +40,14 @@ def episode_animation_path(out_dir: Path, method: str, scene: str) -> Path:
 def trajectory_plot_path(out_dir: Path, scene: str) -> Path:
     """Every method's path on one plan."""
     return Path(out_dir) / "trajectories" / f"{file_stem(scene)}.png"
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write ``path`` whole or not at all (a file of its own beside it, then renamed over it): a crash, a
+    kill or a reader at the wrong moment never sees half a summary or run file."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

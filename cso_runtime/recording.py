@@ -24,6 +24,7 @@ import json
 import logging
 import math
 import queue
+import struct
 import threading
 import time
 from collections import Counter
@@ -143,7 +144,9 @@ class _McapSink:
     def __init__(self, fh: Any, robot: str):
         from mcap.writer import CompressionType, Writer  # noqa: PLC0415  (mcap is loaded only by record and replay)
 
-        self.writer = Writer(fh, compression=CompressionType.ZSTD)
+        # Chunks of 256 KiB rather than the library's 1 MiB: a recorder killed outright (SIGKILL, power) loses
+        # at most the chunk it was filling; ``read_recording`` reads the chunks before it.
+        self.writer = Writer(fh, compression=CompressionType.ZSTD, chunk_size=256 * 1024)
         self.writer.start(profile=MCAP_PROFILE, library=LIBRARY)
         self.writer.add_metadata(
             "cso-runtime", {"robot": robot, "payload": "msgpack envelope as JSON, see cso_runtime/recording.py"}
@@ -305,26 +308,80 @@ def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[
 
     check_recording(path)  # a missing, empty or foreign file: said the same way as by ``replay``
     wanted = set(topics) if topics is not None else None
+    yielded = 0
     try:
         with Path(path).open("rb") as fh:
             reader = make_reader(fh)
             for _schema, channel, message in reader.iter_messages(log_time_order=True):
-                if wanted is not None:
-                    try:
-                        if topic_of(channel.topic) not in wanted:
-                            continue
-                    except ValueError:
-                        continue
-                if channel.message_encoding == JSON_ENCODING:
-                    payload = payload_from_json(message.data)
-                elif channel.message_encoding == RAW_ENCODING:
-                    payload = bytes(message.data)
-                else:
-                    log.warning("skipping channel %s with foreign encoding %r", channel.topic, channel.message_encoding)
-                    continue
-                yield RecordedMessage(channel.topic, message.log_time, payload)
-    except (McapError, OSError, ValueError) as exc:
-        raise RecordingError(f"cannot read {path}: {str(exc) or type(exc).__name__}") from None  # its message may be blank
+                restored = _restored(channel, message, wanted)
+                if restored is not None:
+                    yielded += 1
+                    yield restored
+    except (McapError, OSError, ValueError, struct.error) as exc:
+        if yielded:  # damage further in: what came before was used already
+            raise RecordingError(f"cannot read {path}: {str(exc) or type(exc).__name__}") from None  # its message may be blank
+        # No summary to seek with (a recorder killed before it finished the file): read it from the start.
+        yield from _read_cut_recording(path, wanted, exc)
+
+
+def _restored(channel: Any, message: Any, wanted: set[str] | None) -> RecordedMessage | None:
+    """One MCAP message back as the payload that was published, or None (a topic not wanted, a foreign channel)."""
+    if wanted is not None:
+        try:
+            if topic_of(channel.topic) not in wanted:
+                return None
+        except ValueError:
+            return None
+    if channel.message_encoding == JSON_ENCODING:
+        payload = payload_from_json(message.data)
+    elif channel.message_encoding == RAW_ENCODING:
+        payload = bytes(message.data)
+    else:
+        log.warning("skipping channel %s with foreign encoding %r", channel.topic, channel.message_encoding)
+        return None
+    return RecordedMessage(channel.topic, message.log_time, payload)
+
+
+def _read_cut_recording(path: Path, wanted: set[str] | None, why: Exception) -> Iterable[RecordedMessage]:
+    """The messages of an MCAP file without its summary, read front to back (in the order they were recorded)
+    up to where it was cut; RecordingError when not even one message can be read."""
+    from mcap.exceptions import McapError  # noqa: PLC0415
+    from mcap.records import Channel, Message  # noqa: PLC0415
+    from mcap.stream_reader import StreamReader  # noqa: PLC0415
+
+    channels: dict[int, Any] = {}
+    count, cut = 0, None
+    with Path(path).open("rb") as fh:
+        records = iter(StreamReader(fh).records)
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                break
+            except (McapError, OSError, ValueError, EOFError, struct.error, zlib_error()) as exc:
+                cut = exc
+                break
+            if isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message) and record.channel_id in channels:
+                restored = _restored(channels[record.channel_id], record, wanted)
+                if restored is not None:
+                    count += 1
+                    yield restored
+    if not count and not channels:
+        raise RecordingError(f"cannot read {path}: {str(why) or type(why).__name__}")
+    if cut is not None or not count:
+        log.warning("%s ends early (its recorder was killed before it finished the file?): read %d messages up to there", path, count)
+
+
+def zlib_error() -> type[Exception]:
+    """The decompressors' error types a chunk cut in the middle raises (zstandard's, when installed)."""
+    try:
+        import zstandard  # noqa: PLC0415
+
+        return zstandard.ZstdError
+    except ImportError:
+        return ValueError
 
 
 def robots_of(keys: list[str]) -> list[str]:

@@ -9,6 +9,7 @@ in the package) or ``generated:SCALE:N:SEED``.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from importlib import resources
@@ -225,8 +226,14 @@ class SceneRef:
         return load_floor_plan(self.path, self.resolution_m)
 
 
+MAX_M_PER_PX = 10.0
+"""The coarsest plan scale taken (``--m-per-px``): a pixel of a floor plan is never 10 m of floor."""
+
+
 def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.1) -> list[SceneRef]:
     """Expand a scene spec into scene references (see the module docstring for the forms)."""
+    if not (math.isfinite(resolution_m) and 0 < resolution_m <= MAX_M_PER_PX):
+        raise SceneError(f"metres per pixel must be a number in (0, {MAX_M_PER_PX:g}], got {resolution_m}")
     if spec.startswith("generated:"):
         parts = spec.split(":")
         if len(parts) != 4:

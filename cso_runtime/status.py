@@ -85,7 +85,7 @@ def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) 
             entry.update(state=s["state"], reason=s["reason"], last_step=s["last_step"], rejected=s["rejected"], processed=s["processed"])
         lsv = (launcher or {}).get("services", {}).get(name)
         if lsv is not None:
-            entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"))
+            entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
         table[name] = entry
     ep = episode or {"state": "starting"}
     return {
@@ -193,7 +193,8 @@ def render_table(status: dict[str, Any]):
         elif s.get("state"):
             bits.append(s["state"] + (f" ({s['reason']})" if s.get("reason") else ""))
         if s.get("restarts"):
-            bits.append(f"restarts {s['restarts']}" + (" (gave up)" if s.get("gave_up") else ""))
+            hung = f", {s['hung_kills']} of them hung" if s.get("hung_kills") else ""
+            bits.append(f"restarts {s['restarts']}{hung}" + (" (gave up)" if s.get("gave_up") else ""))
         rejected = sum((s.get("rejected") or {}).values())
         if rejected:
             bits.append(f"rejected {rejected}")

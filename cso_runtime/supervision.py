@@ -35,6 +35,10 @@ class Child:
     """``time.monotonic()`` when the launcher gave up on it."""
     restart_at: float | None = None
     exit_codes: list[int] = field(default_factory=list)
+    spawned_at: float = 0.0
+    """``time.monotonic()`` when its current process started."""
+    hung_kills: int = 0
+    """Times the launcher killed it for not answering while its process ran (``Launcher.kill_hung``)."""
 
     @property
     def alive(self) -> bool:
@@ -62,6 +66,7 @@ class Child:
             env = {**os.environ, "PYTHONUNBUFFERED": "1", "CSO_PARENT_PID": str(os.getpid())}
             self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env)
         self.restart_at = None
+        self.spawned_at = time.monotonic()
 
 
 def signal_group(pid: int, sig: int) -> None:

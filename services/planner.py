@@ -15,6 +15,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -36,6 +37,18 @@ from cso_runtime.planner import FollowResult, LocalPlanner, PlannerStatus
 from services.common import Service, ServiceContext, service_main, warm_up_observation
 
 log = logging.getLogger("cso.planner")
+
+
+PENDING_DECISIONS_KEPT = 16
+"""Real time: decisions (frontiers with their grids, distance maps) kept while their goal has not come. A
+policy that is down or far behind must not grow the planner without bound; a goal for an older decision
+than these finds nothing to plan on and waits for the next one."""
+
+
+def keep_newest(pending: dict[int, Any], n: int) -> None:
+    """Drop all but the ``n`` newest steps of ``pending`` (in place)."""
+    for step in sorted(pending)[:-n]:
+        del pending[step]
 
 
 @dataclass
@@ -126,8 +139,12 @@ class PlannerService(Service):
             self.scans[step] = (msg, received_s)
         elif isinstance(msg, FrontiersMsg) and (msg.decide or self.ctx.lockstep):
             self.frontiers[step] = msg  # real time needs only those that carry a decision's grids
+            if not self.ctx.lockstep:
+                keep_newest(self.frontiers, PENDING_DECISIONS_KEPT)
         elif isinstance(msg, DistanceMapMsg):
             self.distance_maps[step] = msg
+            if not self.ctx.lockstep:
+                keep_newest(self.distance_maps, PENDING_DECISIONS_KEPT)
             return  # never needed to command a step (a plan goes without it)
         elif isinstance(msg, GoalMsg) and msg.decided:
             self.goals[step] = msg

@@ -57,6 +57,8 @@ class RobotState:
     answered_step: int = -1
     last_answer: GoalMsg | None = None
     last_input_s: float = 0.0
+    stale_reason: str = ""
+    """Why this robot is not commanded now (its inputs went stale), or empty."""
 
 
 class PolicyService(Service):
@@ -126,9 +128,11 @@ class PolicyService(Service):
             return
         age_s = time.monotonic() - received_s
         if age_s > self.params.stale_after_s:
-            self.set_state("stale", f"robot {robot}: decision input of step {msg.step} is {age_s:.1f} s old; not commanding")
+            st.stale_reason = f"robot {robot}: decision input of step {msg.step} is {age_s:.1f} s old; not commanding"
+            self.update_state()
             return
-        self.set_state("running")
+        st.stale_reason = ""
+        self.update_state()
         st.answered_step = self.last_step = msg.step
         if not msg.decide:
             return  # the planner keeps following the current goal without us
@@ -145,8 +149,20 @@ class PolicyService(Service):
 
     def on_tick(self, now_s: float) -> None:
         for robot, st in self.robots.items():
-            if now_s - st.last_input_s > self.params.stale_after_s and self.state != "stale":
-                self.set_state("stale", f"robot {robot}: no frontiers for {now_s - st.last_input_s:.1f} s; not commanding")
+            if now_s - st.last_input_s > self.params.stale_after_s and not st.stale_reason:
+                st.stale_reason = f"robot {robot}: no frontiers for {now_s - st.last_input_s:.1f} s; not commanding"
+        self.update_state()
+
+    def update_state(self) -> None:
+        """One state for every robot served: stale when all of them are (each one's reason), running
+        when any is commanded (saying which others are not)."""
+        stale = [st.stale_reason for st in self.robots.values() if st.stale_reason]
+        if not stale:
+            self.set_state("running")
+        elif len(stale) == len(self.robots):
+            self.set_state("stale", "; ".join(stale))
+        else:
+            self.set_state("running", f"serving {len(self.robots) - len(stale)} of {len(self.robots)} robots; " + "; ".join(stale))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -64,4 +64,7 @@ def test_animate_refuses_what_it_cannot_draw(tmp_path):
     assert r.exit_code == 2 and "error: no such recording" in r.output
     r = CliRunner().invoke(app, ["animate", str(tmp_path / "two.mcap"), "--out", str(tmp_path / "two.mcap")])
     assert r.exit_code == 2 and "is the recording itself" in r.output
+    for out in (tmp_path / "frames.txt", tmp_path / "noext", tmp_path):  # not an image file PIL can animate
+        r = CliRunner().invoke(app, ["animate", str(tmp_path / "two.mcap"), "--out", str(out)])
+        assert r.exit_code == 2 and "must be a file ending in .gif" in r.output, r.output
 

@@ -124,20 +124,20 @@ def test_eval_set_overrides_the_config_file_and_names_itself_in_errors(tmp_path:
 def test_a_negative_seed_is_refused_where_it_is_given_not_inside_a_worker():
     """numpy's generators take no negative seed: eval, a runtime profile and training each say so first
     (the sim service used to refuse it after the launcher had started everything)."""
-    from cso_runtime.config import check_seed
+    from cso_runtime.config import MAX_SEED, check_seed
     from cso_runtime.evaluation import EvalRequest
     from cso_runtime.launcher import find_profile, load_profile
     from cso_runtime.learned.ppo import Args
 
-    assert check_seed(0) == 0 and check_seed(7) == 7
-    for bad in (-1, True, 1.5, "3"):
-        with pytest.raises(ConfigError, match="non-negative integer"):
+    assert check_seed(0) == 0 and check_seed(7) == 7 and check_seed(MAX_SEED) == MAX_SEED
+    for bad in (-1, True, 1.5, "3", MAX_SEED + 1, 10**23):  # 10**23: msgpack would fail to send the episode's result
+        with pytest.raises(ConfigError, match=f"an integer from 0 to {MAX_SEED}"):
             check_seed(bad)
-    with pytest.raises(ConfigError, match="--seed must be a non-negative integer, got -1"):
+    with pytest.raises(ConfigError, match="--seed must be an integer from 0 to .*, got -1"):
         EvalRequest(methods=["greedy-dist"], seed=-1).validate()
-    with pytest.raises(ConfigError, match="seed must be a non-negative integer, got -1"):
-        load_profile(str(find_profile("lockstep")), {"seed": -1})
-    with pytest.raises(ConfigError, match="seed must be a non-negative integer, got -3"):
+    with pytest.raises(ConfigError, match="seed must be an integer from 0 to .*, got 100000000000000000000000"):
+        load_profile(str(find_profile("lockstep")), {"seed": 10**23})
+    with pytest.raises(ConfigError, match="seed must be an integer from 0 to .*, got -3"):
         Args(seed=-3).validate()
 
 

@@ -296,9 +296,11 @@ def test_ctrl_c_stops_eval_at_once_keeps_the_finished_episodes_and_resume_runs_t
     assert all((out / "episodes" / "random" / name).stat().st_mtime_ns == t for name, t in stamps.items())
 
 
-def test_sigterm_to_eval_alone_stops_its_workers_and_keeps_the_finished_episodes(tmp_path: Path):
-    """``kill PID`` (or a job scheduler's stop) reaches the parent only: it ends as Ctrl-C does, exit code 130
-    with the finished episodes written, and no worker process is left behind (they used to be, idle, forever)."""
+@pytest.mark.parametrize("signame", ["SIGTERM", "SIGHUP"])
+def test_sigterm_to_eval_alone_stops_its_workers_and_keeps_the_finished_episodes(tmp_path: Path, signame: str):
+    """``kill PID`` (or a job scheduler's stop, or the terminal closing) reaches the parent only: it ends as
+    Ctrl-C does, exit code 130 with the finished episodes written, and no worker process is left behind (they
+    used to be, idle, forever)."""
     import os
     import signal
 
@@ -313,7 +315,7 @@ def test_sigterm_to_eval_alone_stops_its_workers_and_keeps_the_finished_episodes
             if line.startswith("[1/8]"):
                 break
         assert proc.poll() is None, "the evaluation ended before the signal"
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(getattr(signal, signame))
         stdout = proc.communicate(timeout=30)[0]
     finally:
         if proc.poll() is None:
@@ -573,8 +575,35 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     assert r.exit_code == 0 and (tmp_path / "o" / "report.html").read_text() == page
     r = CliRunner().invoke(app, ["report", str(tmp_path / "nothing")])
     assert r.exit_code == 2 and f"error: {tmp_path / 'nothing' / 'summary.json'}: No such file" in r.output and "not an `eval --out` folder" in r.output
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    for broken in ({**summary, "methods": {"greedy-dist": "oops"}}, {**summary, "paired": "x"}):
+        (tmp_path / "odd").mkdir(exist_ok=True)
+        (tmp_path / "odd" / "summary.json").write_text(json.dumps(broken))
+        r = CliRunner().invoke(app, ["report", str(tmp_path / "odd")])
+        assert r.exit_code == 2 and "not a summary eval or up wrote" in r.output, r.output
     gif = tmp_path / "o" / "animations" / "greedy-dist" / "gen_small_3.gif"
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=40, resume=True))
     assert gif.is_file(), "an episode --resume keeps keeps its animation"
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=30))
     assert not gif.exists() and "gen_small_3.gif" not in (tmp_path / "o" / "report.html").read_text(), "a new episode, not animated"
+
+
+def test_summary_and_run_files_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """``write_text_atomic``: a reader sees the old file or the new one, never half of either, and a
+    failed write leaves the old file and no stray temporary beside it."""
+    import os
+
+    from cso_runtime.outputs import write_text_atomic
+
+    path = tmp_path / "summary.json"
+    write_text_atomic(path, '{"old": 1}')
+    write_text_atomic(path, '{"new": 2}')
+    assert path.read_text() == '{"new": 2}' and sorted(p.name for p in tmp_path.iterdir()) == ["summary.json"]
+
+    def crash(*_args):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(os, "replace", crash)
+    with pytest.raises(OSError, match="disk full"):
+        write_text_atomic(path, '{"half": 3}')
+    assert path.read_text() == '{"new": 2}' and sorted(p.name for p in tmp_path.iterdir()) == ["summary.json"]

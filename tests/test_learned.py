@@ -17,7 +17,7 @@ import torch
 from gymnasium.utils.env_checker import check_reset_options, check_reset_return_type, check_reset_seed_determinism
 from gymnasium.utils.passive_env_checker import env_reset_passive_checker, env_step_passive_checker
 
-from cso_runtime.config import MaskConfig
+from cso_runtime.config import MaskConfig, SensorConfig
 from cso_runtime.episode import Explorer, rollout_choice
 from cso_runtime.geometry import Pose2D
 from cso_runtime.learned.env import EnvConfig, ExplorationEnv, expert_action
@@ -1021,6 +1021,38 @@ def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
     assert bad.exit_code == 2 and "cannot create the folder" in bad.output and "decisions" not in bad.output
     bad = CliRunner().invoke(app, ["train", "--out", str(below_a_file), *scenes])
     assert bad.exit_code == 2 and f"out_dir {below_a_file}: cannot create the folder" in bad.output
+
+
+def test_train_refuses_what_it_cannot_use_before_it_starts(tmp_path):
+    """A checkpoint, weights, teacher data, device or network shape that training cannot use is one error
+    line and exit 2 before any environment starts, not a traceback from torch later."""
+    import torch
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.learned.registry import weights_path
+
+    fake = tmp_path / "fake.png"
+    fake.write_bytes(b"\x89PNG\r\n\x1a\n not a checkpoint")
+    shipped = weights_path("cso", SensorConfig.preset("lidar", 360))
+    cases = [
+        (["--resume", str(tmp_path / "nosuch.pt")], "--resume .*nosuch.pt: no such file"),
+        (["--resume", str(fake)], "not a checkpoint torch can read"),
+        (["--resume", str(shipped)], "not a training checkpoint .*--init-from"),
+        (["--init-from", str(tmp_path / "nosuch.pt")], "--init-from .*nosuch.pt: no such file"),
+        (["--init-from", str(fake)], "--init-from .*fake.png: not a cso-runtime checkpoint"),
+        (["--init-from", str(shipped.with_name("gnn-baseline.pt"))], "holds variant 'gnn-baseline', not 'cso'"),
+        (["--set", "sensor=sonar"], "sensor: unknown sensor preset 'sonar'"),
+        (["--set", "hidden=0"], "hidden >= 1 divisible by heads"),
+        (["--set", "heads=3"], "hidden >= 1 divisible by heads"),
+        (["--set", f"warm_start_data=[{fake}]"], "fake.png: not a teacher-data file"),
+    ]
+    if not torch.cuda.is_available():
+        cases.append((["--device", "cuda"], "device cuda: .*; train with --device cpu"))
+    scenes = ["--set", "dungeon_dir=null", "--set", "generated=[generated:small:2:1000]", "--out", str(tmp_path / "run")]
+    for extra, said in cases:
+        r = CliRunner().invoke(app, ["train", *scenes, *extra])
+        assert r.exit_code == 2 and re.search(f"error: .*{said}", r.output) and "training cso on" not in r.output, (extra, r.output[-2000:])
 
 
 def test_train_outside_the_repository_uses_the_packaged_recipe_and_refuses_missing_plans(tmp_path, monkeypatch):

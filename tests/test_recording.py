@@ -22,6 +22,7 @@ from cso_runtime.recording import (
     JSON_ENCODING,
     MCAP_MAGIC,
     RAW_ENCODING,
+    RecordedMessage,
     RecordStats,
     parse_speed,
     payload_from_json,
@@ -244,6 +245,35 @@ def test_a_broken_recording_is_one_clear_error(tmp_path: Path):
     truncated.write_bytes(MCAP_MAGIC + b"\x01\x02")
     with pytest.raises(RecordingError, match=r"cannot read .*truncated.mcap: \S"):
         list(read_recording(truncated))
+
+
+def test_a_recording_whose_recorder_was_killed_is_read_up_to_where_it_stops(tmp_path: Path, caplog):
+    """A recorder killed before it finished the file (SIGKILL, power) leaves its chunks without the summary
+    the seeking reader starts from: every message it holds is read front to back, with a warning, and a
+    file cut inside a chunk gives the messages before the cut."""
+    from cso_runtime.recording import write_recording
+
+    keys = RobotKeys("r0")
+    scans = [
+        RecordedMessage(keys.scan, 10**9 + k * 10**7, encode(ScanMsg(k, LaserScan(-np.pi, np.pi / 180, 0.1, 8.0, np.linspace(0.2, 7.9, 360).astype(np.float32) + k, k * 0.1), Pose2D(k * 0.01, 0.0, 0.0))))
+        for k in range(1500)
+    ]
+    whole = tmp_path / "whole.mcap"
+    write_recording(whole, "r0", scans)
+    data = whole.read_bytes()
+    footer = data[-len(MCAP_MAGIC) - 29 : -len(MCAP_MAGIC)]  # opcode, length, summary_start, summary_offset_start, crc
+    assert footer[0] == 0x02
+    summary_start = int.from_bytes(footer[9:17], "little")
+    killed = tmp_path / "killed.mcap"
+    killed.write_bytes(data[:summary_start])  # the chunks, no summary and no footer
+    with caplog.at_level("WARNING", logger="cso.recording"):
+        back = list(read_recording(killed))
+    assert [(m.key, m.log_time_ns, m.payload) for m in back] == [(m.key, m.log_time_ns, m.payload) for m in scans]
+    assert "ends early" in caplog.text and "read 1500 messages" in caplog.text
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: summary_start * 2 // 3])  # inside a chunk
+    head = list(read_recording(cut))
+    assert 0 < len(head) < len(scans) and [m.payload for m in head] == [m.payload for m in scans[: len(head)]]
 
 
 def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path: Path):

@@ -910,6 +910,40 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         assert kill_leftovers(runs) == []
 
 
+def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_path):
+    """A service whose process lives but does nothing (SIGSTOP stands in for a deadlock) would leave the
+    episode waiting with every process up: the launcher notices it stopped answering its status query,
+    writes why, kills and restarts it, and the episode completes."""
+    profile = write_profile(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5)
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), "--set", "supervision.hang_timeout_s=2", cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
+
+        def status() -> dict | None:
+            return query_status(endpoints, "r0", timeout_s=0.5)
+
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
+        planner_pid = status()["services"]["planner"]["pid"]
+        os.kill(planner_pid, signal.SIGSTOP)
+        def planner() -> dict | None:
+            s = status()
+            return s and s["services"]["planner"]
+
+        wait_for(lambda: (p := planner()) and p.get("hung_kills", 0) >= 1 and p["restarts"] >= 1, 30, "the hung planner to be killed and restarted")
+        assert not pid_alive(planner_pid)
+        final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2)
+        assert final["state"] == "done" and final["terminated_by"] == "coverage", final
+        launcher_log = next(runs.glob("*/logs/launcher.log")).read_text()
+        assert re.search(r"planner \(pid \d+\) runs but has not answered for \d+ s \(hung\? stopped\?\): killing it to restart it", launcher_log), launcher_log[-3000:]
+        r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert "restarts 1, 1 of them hung" in r.stdout, r.stdout
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []
+
+
 def test_a_killed_sim_restarts_the_episode_and_it_ends_as_a_fresh_one(tmp_path):
     """The sim is the world: a restarted sim starts a new episode (a new id, step 0). Every other
     service starts over on it (maps of the old episode still in flight are rejected), so in lockstep

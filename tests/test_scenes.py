@@ -125,6 +125,12 @@ def test_generator_rejects_bad_arguments():
         generate_floor_plan("small", 0, resolution_m=0.5)
 
 
+@pytest.mark.parametrize("m_per_px", [0.0, -0.1, float("inf"), float("nan"), 1e300])
+def test_a_scale_that_is_no_plan_scale_is_refused_for_every_spec(m_per_px):
+    with pytest.raises(SceneError, match="metres per pixel must be a number in"):
+        resolve_scenes("builtin", None, m_per_px)
+
+
 def test_generator_works_at_the_dungeon_resolution():
     plan = generate_floor_plan("middle", 2, resolution_m=0.1)
     assert plan.scale == "middle"

@@ -191,6 +191,26 @@ def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_i
     assert [(m.step, m.x_m, m.y_m, m.cluster_index) for _, m in out] == [(f.step, g.x_m, g.y_m, g.cluster_index) for f, g in zip(decisions, expected)]
 
 
+def test_a_policy_serving_two_robots_says_which_one_is_stale_without_flapping():
+    """One policy server, two robots; robot a's episode ended (no more frontiers), robot b's goes on. The
+    service stays "running" and says robot a is not commanded, however b's decisions and the ticks
+    interleave; "stale" once neither robot sends anything."""
+    policy, out = _service(PolicyService, lockstep=False, params={"method": "greedy-dist", "stale_after_s": 2.0})
+    obs = _explorer_at(0).observe()
+    now = time.monotonic()
+    policy.on_message("a", "frontiers", frontiers_from_observation(0, "no_goal", obs, 1.0), now)
+    states = []
+    for step in range(1, 6):
+        at_s = now + 3.0 + step * 0.1  # robot a: silent for more than stale_after_s by then
+        policy.on_message("b", "frontiers", frontiers_from_observation(step, "timeout", obs, 1.0), at_s)
+        policy.on_tick(at_s)
+        states.append((policy.state, policy.reason.split(";")[0]))
+    assert states[1:] == [("running", "serving 1 of 2 robots")] * 4, states
+    assert "robot a: no frontiers for" in policy.reason and [m.step for t, m in out if t == "goal"][-1] == 5
+    policy.on_tick(now + 60.0)
+    assert policy.state == "stale" and "robot a" in policy.reason and "robot b" in policy.reason
+
+
 def test_real_time_planner_plans_a_goal_that_arrives_after_newer_odometry():
     """In real time the planner is a controller loop: it commands each new odometry + scan pair at once
     and plans to a decided goal whenever it arrives, even when newer steps were commanded meanwhile."""
@@ -215,6 +235,21 @@ def test_real_time_planner_plans_a_goal_that_arrives_after_newer_odometry():
     assert last.command.linear_mps != 0.0 or last.command.angular_radps != 0.0
     fb = [m for t, m in out if t == "planner_feedback"][-1]
     assert fb.status == "following" and len(fb.path_ahead_xy_m) > 1 and fb.goal_step == 0
+
+
+def test_real_time_planner_keeps_a_bounded_number_of_decisions_waiting_for_their_goal():
+    """A policy that is down (or far behind) sends no goal: the decisions waiting for one are kept up to
+    ``PENDING_DECISIONS_KEPT`` (the newest), not one per decision for as long as the episode runs."""
+    from services.planner import PENDING_DECISIONS_KEPT
+
+    planner, _ = _service(PlannerService, lockstep=False)
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    for step in range(3 * PENDING_DECISIONS_KEPT):
+        _feed(planner, frontiers_from_observation(step, "timeout", obs, 1.0))
+    assert sorted(planner.frontiers) == list(range(2 * PENDING_DECISIONS_KEPT, 3 * PENDING_DECISIONS_KEPT))
+    _feed(planner, _far_goal(obs, 3 * PENDING_DECISIONS_KEPT - 1))  # the newest decision's goal is still planned
+    assert planner.planner.status.value == "following"
 
 
 def test_lockstep_planner_keeps_the_goal_without_the_policy_and_waits_for_a_decision():

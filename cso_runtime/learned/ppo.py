@@ -32,11 +32,11 @@ import torch
 from gymnasium.vector import AutoresetMode
 from torch import nn, optim
 
-from cso_runtime.config import ExplorationConfig, MaskConfig, SensorConfig, check_seed
+from cso_runtime.config import ConfigError, ExplorationConfig, MaskConfig, SensorConfig, check_seed
 from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
 from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
-from cso_runtime.learned.registry import VARIANTS, load_checkpoint, save_checkpoint, weights_path
+from cso_runtime.learned.registry import VARIANTS, CheckpointError, load_checkpoint, save_checkpoint, weights_path
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
@@ -214,6 +214,14 @@ class Args:
         missing = [p for p in self.warm_start_data if not Path(p).is_file()]
         if missing:
             raise ValueError(f"warm_start_data: no such file {', '.join(missing)}")
+        if self.hidden < 1 or self.heads < 1 or self.layers < 0 or self.hidden % self.heads:
+            raise ValueError(f"the network needs hidden >= 1 divisible by heads >= 1, and layers >= 0; got hidden {self.hidden}, heads {self.heads}, layers {self.layers}")
+        if self.knn < 1 or self.max_frontier_nodes < 1 or self.max_path_nodes < 0:
+            raise ValueError("knn and max_frontier_nodes must be at least 1, max_path_nodes at least 0")
+        try:
+            SensorConfig.preset(self.sensor, self.lidar_fov_deg)
+        except ConfigError as exc:
+            raise ValueError(f"sensor: {exc}") from None
 
     def training_masks(self, masks: MaskConfig) -> MaskConfig:
         """``masks`` with the training episodes' far bound (``beta_far_m``) and stuck reference (``stuck_avoid``),
@@ -342,9 +350,55 @@ def index_obs(b_obs: dict[str, torch.Tensor], idx: Any) -> dict[str, torch.Tenso
 
 
 def select_device(name: str) -> torch.device:
+    """``auto`` (CUDA when there is one), ``cpu`` or ``cuda[:N]``; a CUDA device this torch cannot use is a
+    ValueError that says so."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
+    device = torch.device(name)
+    if device.type == "cuda":
+        if not torch.cuda.is_available():
+            built = "this torch was built without CUDA" if torch.version.cuda is None else "no CUDA device is visible"
+            raise ValueError(f"device {name}: {built}; train with --device cpu (or auto)")
+        if device.index is not None and device.index >= torch.cuda.device_count():
+            raise ValueError(f"device {name}: only {torch.cuda.device_count()} CUDA device(s) here")
+    return device
+
+
+def load_resume_checkpoint(path: str | Path, model: GraphActorCritic, optimizer: optim.Optimizer, device: torch.device) -> dict[str, Any]:
+    """Load a training checkpoint (``checkpoint.pt`` of an earlier run of the same recipe) into ``model`` and
+    ``optimizer``; a file that is not one, or one of another network, is a ValueError that says which."""
+    try:
+        ckpt = torch.load(path, map_location=device, weights_only=False)
+    except FileNotFoundError:
+        raise ValueError(f"--resume {path}: no such file") from None
+    except Exception as exc:  # torch raises pickle, EOF and zip errors alike  # noqa: BLE001
+        raise ValueError(f"--resume {path}: not a checkpoint torch can read ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
+    missing = [k for k in ("state_dict", "optimizer", "update", "decisions", "warm_decisions", "env_steps", "torch_rng") if not isinstance(ckpt, dict) or k not in ckpt]
+    if missing:
+        raise ValueError(f"--resume {path}: not a training checkpoint (no {', '.join(missing)}; weights to start from are --init-from)")
+    try:
+        model.load_state_dict(ckpt["state_dict"])
+        optimizer.load_state_dict(ckpt["optimizer"])
+    except (RuntimeError, ValueError, KeyError) as exc:
+        raise ValueError(f"--resume {path}: made with another network or optimiser than this configuration ({str(exc).splitlines()[0]})") from None
+    return ckpt
+
+
+def check_training_inputs(args: Args) -> None:
+    """Everything ``train`` reads besides the scenes, checked before any environment starts: the device, the
+    checkpoint to resume, the weights to start from and the teacher data (raises ValueError)."""
+    device = select_device(args.device)
+    if args.resume:
+        model = build_model(args, device)
+        load_resume_checkpoint(args.resume, model, optim.Adam(parameter_groups(model, args), lr=args.learning_rate), device)
+    elif args.init_from:
+        initial_weights(args, device)
+    elif args.warm_start_data:
+        data = TeacherData.load(args.warm_start_data)
+        expected = empty_graph(args.env_config().graph)
+        wrong = sorted(k for k, v in expected.items() if k not in data.graphs or data.graphs[k].shape[1:] != np.shape(v))
+        if wrong or data.masks.shape[1:] != (args.max_frontier_nodes,):
+            raise ValueError(f"warm_start_data: collected with another graph layout than this configuration ({', '.join(wrong) or 'action mask'}); collect it again")
 
 
 def seed_everything(seed: int) -> None:
@@ -356,7 +410,12 @@ def seed_everything(seed: int) -> None:
 def initial_weights(args: Args, device: torch.device) -> dict[str, torch.Tensor]:
     """The state dict named by ``args.init_from``, checked against the variant and graph being trained."""
     path = weights_path(args.variant, args.env_config().exploration.sensor) if args.init_from == "shipped" else Path(str(args.init_from))
-    model, graph, ckpt = load_checkpoint(path, str(device))
+    try:
+        model, graph, ckpt = load_checkpoint(path, str(device))
+    except FileNotFoundError:
+        raise ValueError(f"--init-from {path}: no such file") from None
+    except CheckpointError as exc:
+        raise ValueError(f"--init-from {exc}") from None
     if ckpt.get("variant") != args.variant:
         raise ValueError(f"{path} holds variant {ckpt.get('variant')!r}, not {args.variant!r}")
     if graph != args.env_config().graph or model.config != build_model(args, device).config:
@@ -416,7 +475,11 @@ class TeacherData:
         """Concatenate the teacher data of several files; a missing key or mismatched shape is an error."""
         parts = []
         for path in paths:
-            with np.load(path) as f:
+            try:
+                f = np.load(path)
+            except (OSError, ValueError) as exc:  # not an .npz (pickles are never loaded)
+                raise ValueError(f"{path}: not a teacher-data file ({exc})") from None
+            with f:
                 graphs = {k.removeprefix("graph_"): f[k] for k in f.files if k.startswith("graph_")}
                 try:
                     parts.append(cls(graphs, f["masks"], f["actions"], f["returns"], f["outcome_steps"]))
@@ -636,9 +699,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     start_update, global_decisions, warm_decisions = 1, 0, 0
     env_steps = 0
     if args.resume:
-        ckpt = torch.load(args.resume, map_location=device, weights_only=False)
-        model.load_state_dict(ckpt["state_dict"])
-        optimizer.load_state_dict(ckpt["optimizer"])
+        ckpt = load_resume_checkpoint(args.resume, model, optimizer, device)
         start_update = ckpt["update"] + 1
         global_decisions, warm_decisions, env_steps = ckpt["decisions"], ckpt["warm_decisions"], ckpt["env_steps"]
         record["warm_start"] = ckpt.get("warm_start", {})
