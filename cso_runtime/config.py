@@ -83,6 +83,10 @@ class SensorConfig:
             raise ConfigError("sensor.rate_hz must be positive")
 
 
+MAX_ROBOT_RADIUS_M = 2.0
+"""The largest inflation radius taken: a ground robot for indoor scenes, not a car."""
+
+
 @dataclass
 class RobotConfig:
     """The AgileX LIMO in differential (skid-steer) mode."""
@@ -101,8 +105,8 @@ class RobotConfig:
     """One step: the period of one velocity command."""
 
     def validate(self) -> None:
-        if self.radius_m < 0:
-            raise ConfigError("robot.radius_m must be >= 0")
+        if not 0 <= self.radius_m <= MAX_ROBOT_RADIUS_M:
+            raise ConfigError(f"robot.radius_m must be from 0 to {MAX_ROBOT_RADIUS_M:g} m (the LIMO's is 0.2), got {self.radius_m}")
         for name in ("length_m", "width_m", "max_linear_mps", "max_angular_radps", "control_period_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"robot.{name} must be positive")

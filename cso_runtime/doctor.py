@@ -184,6 +184,8 @@ def check_profiles() -> str:
 def check_runs_folder(runs_dir: Path) -> str:
     """A file can be made in the runs folder, or the folder in its nearest existing parent (made by ``up``, not here)."""
     runs_dir = runs_dir.resolve()
+    if runs_dir.exists() and not runs_dir.is_dir():
+        raise RuntimeError(f"{runs_dir} is a file, not a folder: `up` could not write its runs there")
     if runs_dir.is_dir():
         with tempfile.NamedTemporaryFile(dir=runs_dir, prefix=".doctor-"):
             pass

@@ -48,6 +48,10 @@ def scale_of(area_m2: float) -> str:
     return "super_large"
 
 
+MIN_TRAVERSABLE_M2 = 0.1
+"""The least floor reachable from the start that makes a scene: about twice the LIMO's own footprint."""
+
+
 @dataclass
 class FloorPlan:
     """Ground truth of one scene. ``free[iy, ix]`` is True for floor; row 0 is the bottom (y = 0)."""
@@ -67,13 +71,18 @@ class FloorPlan:
         return ~self.free
 
     def traversable_region(self) -> np.ndarray:
-        """Free cells connected to the start: what a perfect explorer could see and count."""
+        """Free cells connected to the start: what a perfect explorer could see and count. A start walled
+        into less than ``MIN_TRAVERSABLE_M2`` is no scene to explore (it would score 100 % in no step)."""
         labels, _ = ndimage.label(self.free)
         iy, ix = self.geometry.world_to_cell(self.start.x_m, self.start.y_m)
         lab = labels[int(iy), int(ix)]
         if lab == 0:
             raise SceneError(f"{self.name}: start pose is not on free space")
-        return labels == lab
+        region = labels == lab
+        area_m2 = float(np.count_nonzero(region)) * self.resolution_m**2
+        if area_m2 < MIN_TRAVERSABLE_M2:
+            raise SceneError(f"{self.name}: only {area_m2:.2f} m2 of floor is reachable from the start (walled in?); a scene needs at least {MIN_TRAVERSABLE_M2:g} m2")
+        return region
 
     def traversable_area_m2(self) -> float:
         return float(np.count_nonzero(self.traversable_region())) * self.resolution_m**2

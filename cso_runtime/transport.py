@@ -53,6 +53,11 @@ class TransportConfig:
         for ep in [*self.connect, *self.listen]:
             if "/" not in ep:
                 raise TransportError(f"bad zenoh endpoint {ep!r}; expected PROTO/HOST:PORT, e.g. tcp/127.0.0.1:7447")
+            proto, address = ep.split("/", 1)
+            if proto in ("tcp", "udp", "tls", "quic", "ws"):
+                port = address.split("#", 1)[0].rpartition(":")[2]
+                if not (port.isdigit() and 0 <= int(port) <= 65535):
+                    raise TransportError(f"bad zenoh endpoint {ep!r}: the port must be a number from 0 to 65535")
         if self.mode == "client" and not self.connect:
             raise TransportError("client mode needs at least one --connect endpoint")
 

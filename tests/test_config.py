@@ -169,3 +169,12 @@ def test_an_error_names_the_file_then_the_key_path():
         from_dict(ExplorationConfig, {"masks": {"far": 1}}, "p.yaml with --seed 3")
     with pytest.raises(ConfigError, match=r"^exploration\.masks\.beta_far_m: expected a number"):
         from_dict(ExplorationConfig, {"masks": {"beta_far_m": "far"}}, "exploration")
+
+
+def test_a_robot_radius_no_indoor_robot_has_is_refused():
+    """An inflation radius of tens of metres used to pass the checks and crash the frontier service later."""
+    from cso_runtime.config import RobotConfig
+
+    RobotConfig(radius_m=0.2).validate()
+    with pytest.raises(ConfigError, match="robot.radius_m must be from 0 to 2 m"):
+        RobotConfig(radius_m=50.0).validate()

@@ -40,6 +40,8 @@ def test_a_failing_check_says_why_and_the_others_still_run(tmp_path, monkeypatch
     (tmp_path / "a_file").write_text("")
     with pytest.raises(RuntimeError, match="cannot hold it"):
         doctor.check_runs_folder(tmp_path / "a_file" / "runs")
+    with pytest.raises(RuntimeError, match="is a file, not a folder"):
+        doctor.check_runs_folder(tmp_path / "a_file")
     assert doctor.check_runs_folder(tmp_path) == f"{tmp_path.resolve()} is writable"
 
     monkeypatch.setattr(doctor, "checks", lambda runs_dir: [("broken", broken), ("fine", lambda: "all good")])

@@ -793,6 +793,11 @@ def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path
     assert bad.returncode == 2 and "not a cso-runtime checkpoint" in bad.stderr and "Traceback" not in bad.stderr
     assert str(run / "cso.pt") in " ".join(bad.stderr.split())  # the message may wrap the path
     assert not (tmp_path / "out").exists()
+    # Another variant's weights under the method's name: refused, not run and labelled as that method.
+    save_checkpoint(run / "cso.pt", GraphActorCritic().eval(), GraphConfig(), "gnn-baseline")
+    bad = subprocess.run(exe + ["--weights", str(run), "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "holds weights trained as 'gnn-baseline', not 'cso'" in " ".join(bad.stderr.split()), bad.stderr
+    assert not (tmp_path / "out").exists()
 
 
 def test_cluster_size_feature_is_optional_and_round_trips(tmp_path, observation):
@@ -1014,6 +1019,8 @@ def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
     assert "done: 6 greedy-dist decisions" in result.output
     data = TeacherData.load([out])
     assert len(data) == 6 and data.masks[np.arange(6), data.actions].all()
+    data.save(tmp_path / "t5.txt")  # the very name given (numpy alone would write t5.txt.npz)
+    assert (tmp_path / "t5.txt").is_file() and len(TeacherData.load([tmp_path / "t5.txt"])) == 6
     bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "nobody", *scenes])
     assert bad.exit_code == 2 and "unknown warm_start_teacher" in bad.output
     below_a_file = out / "more.npz"  # its folder cannot be made: said before the rollouts, not after them

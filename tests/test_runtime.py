@@ -319,6 +319,8 @@ def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_runnin
 
     with pytest.raises(ConfigError, match="router: bad zenoh endpoint '127.0.0.1:7447'"):
         load_profile("lockstep", {}, connect=["127.0.0.1:7447"])
+    with pytest.raises(ConfigError, match="bad zenoh endpoint 'tcp/1.2.3.4:99999': the port must be a number from 0 to 65535"):
+        load_profile("lockstep", {}, connect=["tcp/1.2.3.4:99999"])
     assert status_main(["127.0.0.1:7447"], None, as_json=True, watch=False, runs_dir=tmp_path) == 2
     assert save_map_main(["127.0.0.1:7447"], None, tmp_path / "m", "pgm", tmp_path) == 2
     err = capsys.readouterr().err

@@ -13,7 +13,7 @@ from scipy import ndimage
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import run_episode
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
-from cso_runtime.geometry import GridGeometry
+from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.map_files import save_map
 from cso_runtime.policies import make_policy
 from cso_runtime.scene_generator import generate_floor_plan
@@ -22,6 +22,7 @@ from cso_runtime.scenes import (
     SCALES,
     START_RGB,
     WALL_RGB,
+    FloorPlan,
     SceneError,
     builtin_scene_dir,
     floor_plan_from_rgb,
@@ -129,6 +130,16 @@ def test_generator_rejects_bad_arguments():
 def test_a_scale_that_is_no_plan_scale_is_refused_for_every_spec(m_per_px):
     with pytest.raises(SceneError, match="metres per pixel must be a number in"):
         resolve_scenes("builtin", None, m_per_px)
+
+
+def test_a_start_walled_into_a_cupboard_is_no_scene():
+    """A plan whose start reaches almost no floor would be scored 100 % coverage in no step: refused."""
+    free = np.zeros((20, 20), dtype=bool)
+    free[9:11, 9:11] = True  # 4 cells of 0.05 m: 0.01 m2
+    free[2:8, 2:18] = True  # floor the start cannot reach
+    plan = FloorPlan("cupboard", free, 0.05, Pose2D(0.5, 0.5, 0.0))
+    with pytest.raises(SceneError, match=r"only 0.01 m2 of floor is reachable from the start"):
+        plan.traversable_region()
 
 
 def test_generator_works_at_the_dungeon_resolution():

@@ -467,8 +467,10 @@ class TeacherData:
         return len(self.actions)
 
     def save(self, path: str | Path) -> None:
+        """Write the file at exactly ``path`` (numpy would add ``.npz`` to a name without it)."""
         fields = {"masks": self.masks, "actions": self.actions, "returns": self.returns, "outcome_steps": self.outcome_steps}
-        np.savez_compressed(path, **fields, **{f"graph_{k}": v for k, v in self.graphs.items()})
+        with Path(path).open("wb") as fh:
+            np.savez_compressed(fh, **fields, **{f"graph_{k}": v for k, v in self.graphs.items()})
 
     @classmethod
     def load(cls, paths: list[str] | list[Path]) -> TeacherData:

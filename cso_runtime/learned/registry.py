@@ -50,16 +50,29 @@ _DECISION_TRACES: weakref.WeakKeyDictionary[GraphActorCritic, dict[tuple, Any]] 
 
 
 @functools.cache
-def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig]:
-    """The weights at ``path``, loaded once per process (eval builds a policy per episode)."""
-    model, graph, _ = load_checkpoint(path, device)
+def _cached_model(path: str, device: str) -> tuple[GraphActorCritic, GraphConfig, str | None]:
+    """The weights at ``path`` and the variant they were trained as, loaded once per process (eval builds
+    a policy per episode)."""
+    model, graph, ckpt = load_checkpoint(path, device)
+    variant = ckpt.get("variant")
+    return model, graph, variant if isinstance(variant, str) else None
+
+
+def _model_for(name: str, device: str, sensor: SensorConfig | None) -> tuple[GraphActorCritic, GraphConfig]:
+    """``name``'s network and graph; CheckpointError when its file holds another variant's weights (a
+    ``--weights`` folder whose ``cso.pt`` came from ``train --variant gnn-baseline``)."""
+    path = weights_path(name, sensor)
+    model, graph, variant = _cached_model(str(path), str(device))
+    if variant is not None and variant != name:
+        raise CheckpointError(f"{path} holds weights trained as {variant!r}, not {name!r}: the file must be named for its variant ({variant}.pt)")
     return model, graph
 
 
 def check_weights(name: str, device: str = "cpu", sensor: SensorConfig | None = None) -> None:
-    """Load ``name``'s weights for ``sensor`` now (kept for the episodes), so that a corrupt file is one
-    clear error before any episode starts rather than a failure per scene. Raises CheckpointError."""
-    _cached_model(str(weights_path(name, sensor)), str(device))
+    """Load ``name``'s weights for ``sensor`` now (kept for the episodes), so that a corrupt file, or one of
+    another variant, is one clear error before any episode starts rather than a failure per scene. Raises
+    CheckpointError."""
+    _model_for(name, str(device), sensor)
 
 
 def has_method(name: str, sensor: SensorConfig | None = None) -> bool:
@@ -212,7 +225,7 @@ def make_learned_policy(
     if not has_method(name, sensor):
         raise FileNotFoundError(f"no weights for {name!r} (expected {weights_path(name, sensor)}); train it with `cso-runtime train`")
     v = VARIANTS[name]
-    model, graph = _cached_model(str(weights_path(name, sensor)), str(device))
+    model, graph = _model_for(name, str(device), sensor)
     graph = dataclasses.replace(graph, use_entropy=v.use_entropy)
     masks = dataclasses.replace(mask_config, use_valid_distance=v.use_valid_distance, use_stuck=v.use_stuck)
     return LearnedPolicy(name, model, graph, masks, seed=seed, device=device)
