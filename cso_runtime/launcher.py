@@ -377,6 +377,8 @@ class Launcher:
         self.started_s = time.monotonic()
         self.started_at = time.time()
         """When the run started (Unix time, s): ``run.json``'s ``started_at``, with ``ended_at`` once it stopped."""
+        self.ended_status: EpisodeStatusMsg | None = None
+        """The status that said the episode ended, while its result is awaited."""
         self.status_watch: StatusWatch | None = None
         """Which services answer the launcher's status queries (their hang check), once the session is open."""
         self.service_notes: dict[str, str] = {}
@@ -591,13 +593,22 @@ class Launcher:
         deadline = time.monotonic() + wait_s
         while self.result is None and not self.stop_event.is_set():
             left = deadline - time.monotonic()
-            if left <= 0:
+            if left <= 0 or self.episode_goes_on():
                 return None
             result = self.fetch_result(session, timeout_s=min(3.0, left))
             if result is not None:
                 return result
             self.stop_event.wait(min(0.1, left))
         return self.result
+
+    def episode_goes_on(self) -> bool:
+        """Whether the sim has reported the episode exploring again since it was said to end (the same
+        episode, no step back): that end was no end (a stray or forged status), and no result will come."""
+        ended, now = self.ended_status, self.status
+        return (
+            ended is not None and now is not None and now is not ended and now.state == "exploring"
+            and now.episode == ended.episode and now.step >= ended.step
+        )
 
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
         meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "profile": self.data}
@@ -727,7 +738,14 @@ class Launcher:
                         if st is not None and st.state == "exploring":
                             log.info("%s", progress_line(st, self.control_period_s))
                     if st is not None and st.state in ("done", "failed") and not self.outputs_written:
+                        self.ended_status = st
                         result = self.wait_for_result(session)
+                        if result is None and self.episode_goes_on():
+                            with self._lock:
+                                self.rejected["episode_status"] = self.rejected.get("episode_status", 0) + 1
+                            log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", st.state, st.step, self.status.step)
+                            self.ended_status = None
+                            continue
                         if result is not None:
                             self.write_outputs(result)
                         else:

@@ -141,6 +141,7 @@ class Service:
         """Robot id whose inputs are subscribed; ``*`` serves every robot on the network."""
         self.rejected: dict[str, int] = {}
         self.processed = 0
+        self.step_guard = StepGuard()
         self.last_step = 0
         self.state = "running"
         self.reason = ""
@@ -410,6 +411,32 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
     return 0
 
 
+STEP_JUMP_LIMIT = 500
+"""Steps one message may leap ahead of the last one on its key (robot, topic) before ``StepGuard`` holds it."""
+
+
+class StepGuard:
+    """Out-of-range steps: inputs on one key move a step (or a decision) at a time, so a message that leaps
+    more than ``limit`` steps ahead of the last one is rejected (a stray or forged message would otherwise
+    become the service's newest step and every real one after it look old). The step after a rejected
+    leap confirms it when it follows on from it: a service cut off for a while picks up the episode again."""
+
+    def __init__(self, limit: int = STEP_JUMP_LIMIT):
+        self.limit = limit
+        self.last: dict[tuple[str, str], int] = {}
+        self.held: dict[tuple[str, str], int] = {}
+        """Key -> the step of a rejected leap, which the next message may confirm."""
+
+    def check(self, key: tuple[str, str], step: int) -> str:
+        """Why a message of ``step`` on ``key`` is rejected, or "" (then it is the key's last step)."""
+        last, held = self.last.get(key), self.held.pop(key, None)
+        if last is not None and step > last + self.limit and not (held is not None and 0 <= step - held <= self.limit):
+            self.held[key] = step
+            return f"step {step} leaps more than {self.limit} steps past the last one ({last})"
+        self.last[key] = step  # a step back is a new episode or a retry: the services judge those
+        return ""
+
+
 def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> None:
     try:
         robot, topic = robot_of(key), topic_of(key)
@@ -424,6 +451,10 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> 
         msg = decode(payload, expected)
     except MessageError as exc:
         service.reject(topic, str(exc))
+        return
+    step = getattr(msg, "step", None)
+    if isinstance(step, int) and (why := service.step_guard.check((robot, topic), step)):
+        service.reject(topic, why)
         return
     service.processed += 1
     t0 = time.monotonic()

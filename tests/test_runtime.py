@@ -946,6 +946,32 @@ def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_pa
         assert kill_leftovers(runs) == []
 
 
+def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
+    """One episode status saying "done" that no result follows, while the sim goes on reporting the
+    episode exploring (a stray or forged message): ignored, counted, and the run ends with the episode."""
+    profile = write_profile(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5)
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
+
+        def status() -> dict | None:
+            return query_status(endpoints, "r0", timeout_s=0.5)
+
+        s = wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2 and s, 60, "the episode to start")
+        with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
+            session.put(RobotKeys("r0").episode_status, encode(EpisodeStatusMsg("done", s["step"], terminated_by="coverage", episode=s["episode"])))
+        wait_for(lambda: (s := status()) and s["launcher_rejected"].get("episode_status", 0) == 1, 30, "the stray end to be ignored")
+        final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2)
+        assert final["state"] == "done" and final["step"] > s["step"] + 2, final
+        wait_for(lambda: list(runs.glob("*/summary.json")), 20, "summary.json")
+        assert "but the episode goes on" in next(runs.glob("*/logs/launcher.log")).read_text()
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []
+
+
 def test_a_killed_sim_restarts_the_episode_and_it_ends_as_a_fresh_one(tmp_path):
     """The sim is the world: a restarted sim starts a new episode (a new id, step 0). Every other
     service starts over on it (maps of the old episode still in flight are rejected), so in lockstep

@@ -16,6 +16,7 @@ import pytest
 from cso_runtime.config import ExplorationConfig, MaskConfig, SensorConfig
 from cso_runtime.episode import Explorer
 from cso_runtime.geometry import Pose2D, VelocityCommand
+from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import (
     ClockMsg,
     CmdVelMsg,
@@ -209,6 +210,26 @@ def test_a_policy_serving_two_robots_says_which_one_is_stale_without_flapping():
     assert "robot a: no frontiers for" in policy.reason and [m.step for t, m in out if t == "goal"][-1] == 5
     policy.on_tick(now + 60.0)
     assert policy.state == "stale" and "robot a" in policy.reason and "robot b" in policy.reason
+
+
+def test_a_step_that_leaps_far_ahead_is_held_back_until_the_next_one_confirms_it():
+    """A stray message many steps ahead would become a service's newest step, after which every real one
+    looks old (the policy stopped answering, the mapper dropped every scan): rejected, counted, and the
+    episode goes on; a real leap (a service cut off for a while) is taken at the message after it."""
+    from services.common import STEP_JUMP_LIMIT, StepGuard, _dispatch
+
+    guard = StepGuard(limit=100)
+    assert [guard.check(("r0", "scan"), s) == "" for s in (0, 1, 2, 1000, 3, 4, 0)] == [True, True, True, False, True, True, True]
+    assert guard.check(("r0", "scan"), 500) and guard.check(("r0", "scan"), 503) == ""  # the leap, confirmed by the next step
+    assert guard.check(("r0", "odom"), 10**6) == ""  # each key its own: a first message is never a leap
+
+    policy, out = _service(PolicyService, lockstep=True, params={"method": "greedy-dist"})
+    obs = _explorer_at(0).observe()
+    keys = RobotKeys("r0")
+    for step in (1, 2, 2 + STEP_JUMP_LIMIT + 1, 3):
+        _dispatch(policy, keys.frontiers, encode(frontiers_from_observation(step, "timeout", obs, 1.0)), time.monotonic())
+    assert [m.step for t, m in out if t == "goal"] == [1, 2, 3]
+    assert policy.rejected == {"frontiers": 1}
 
 
 def test_real_time_planner_plans_a_goal_that_arrives_after_newer_odometry():
