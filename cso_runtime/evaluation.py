@@ -402,12 +402,27 @@ def write_outputs(
     return summary
 
 
+def methods_summarized_elsewhere(out_dir: Path, methods: list[str]) -> list[str]:
+    """The methods an earlier run's summary.json in ``out_dir`` holds that ``methods`` leaves out."""
+    try:
+        earlier = json.loads((out_dir / "summary.json").read_text()).get("methods", {})
+    except (OSError, ValueError, AttributeError):
+        return []
+    return sorted(m for m in earlier if m not in methods) if isinstance(earlier, dict) else []
+
+
 def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
     """Run every (method, scene) episode and write all outputs; returns the summary."""
     request.validate()
     config = request.exploration_config()
     scenes = resolve_scenes(request.maps, request.limit, request.m_per_px)
     out = Path(request.out_dir)
+    others = methods_summarized_elsewhere(out, request.methods)
+    if others:
+        log.warning(
+            "%s holds the results of %s: this run's summary.json and episodes.csv replace them (their episode files stay); "
+            "give another --out, or run every method in one eval", out, ", ".join(others),
+        )
     weights: dict[str, dict[str, Any]] = {}
     if any(m in LEARNED_METHODS for m in request.methods):
         from cso_runtime.learned.weights import weights_provenance  # noqa: PLC0415

@@ -607,3 +607,14 @@ def test_summary_and_run_files_are_written_whole_or_not_at_all(tmp_path, monkeyp
     with pytest.raises(OSError, match="disk full"):
         write_text_atomic(path, '{"half": 3}')
     assert path.read_text() == '{"new": 2}' and sorted(p.name for p in tmp_path.iterdir()) == ["summary.json"]
+
+
+def test_an_eval_into_a_folder_of_other_methods_says_it_replaces_their_summary(tmp_path, caplog):
+    from cso_runtime.evaluation import methods_summarized_elsewhere
+
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path / "o", max_steps=5))
+    assert methods_summarized_elsewhere(tmp_path / "o", ["greedy-dist"]) == []
+    assert methods_summarized_elsewhere(tmp_path / "nothing", ["random"]) == []
+    with caplog.at_level("WARNING"):
+        run_eval(EvalRequest(methods=["random"], maps="generated:small:1:0", out_dir=tmp_path / "o", max_steps=5))
+    assert "holds the results of greedy-dist: this run's summary.json and episodes.csv replace them" in caplog.text
