@@ -113,8 +113,19 @@ def dump_stacks(children: list[Child]) -> None:
             os.kill(c.proc.pid, STACK_DUMP_SIGNAL)
         except (ProcessLookupError, PermissionError):
             continue
-        log.warning("%s (pid %d) did not stop: the stacks of its threads are in %s", c.name, c.proc.pid, c.log_path)
+        stopped = process_state(c.proc.pid) == "T"  # SIGSTOPped or traced: it cannot write them until it runs again
+        where = "it is stopped (SIGSTOP?), so its log cannot hold them" if stopped else f"they are in {c.log_path}"
+        log.warning("%s (pid %d): asked for the stacks of its threads; %s", c.name, c.proc.pid, where)
     time.sleep(STACK_DUMP_WAIT_S)
+
+
+def process_state(pid: int) -> str:
+    """The kernel's one-letter state of a process (R, S, D, T, Z, ...; Linux /proc), or "" where unknown."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return ""
+    return stat.rsplit(")", 1)[-1].split()[0] if ")" in stat else ""
 
 
 def pid_alive(pid: int | None) -> bool:

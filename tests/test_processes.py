@@ -113,3 +113,29 @@ def test_a_service_loop_wait_returns_after_a_signal_handler_that_outlasts_it():
         pytest.fail("the inbox wait did not return after the signal handler (it waits forever)")
     assert r.returncode == 0, r.stderr
     assert r.stdout.split()[0] == "None"
+
+
+def test_process_state_tells_a_stopped_process_from_a_sleeping_one():
+    """The launcher's hang message says whether the stacks it asked for can be in the log: a stopped
+    process writes nothing until it runs again."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from cso_runtime.supervision import process_state
+
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        deadline = time.monotonic() + 10
+        while process_state(proc.pid) != "S" and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert process_state(proc.pid) == "S"
+        proc.send_signal(signal.SIGSTOP)
+        while process_state(proc.pid) != "T" and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert process_state(proc.pid) == "T"
+    finally:
+        proc.kill()
+        proc.wait(timeout=10)
+    assert process_state(proc.pid) == ""  # gone
