@@ -712,8 +712,9 @@ class Launcher:
                 session.declare_queryable(self.keys.launcher_status, self._on_status_query),
             ]
             alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._on_alive, history=True)
-            self.status_watch = StatusWatch(session, self.keys, self.stop_event)
-            self.status_watch.start()
+            if self.profile.supervision.hang_timeout_s > 0:
+                self.status_watch = StatusWatch(session, self.keys, self.stop_event)
+                self.status_watch.start()
             try:
                 recorder = self.start_recorder()
             except RecorderError as exc:
