@@ -6,6 +6,7 @@ and stops whatever it started in ``finally`` blocks (``down``, then SIGKILL of a
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -17,7 +18,7 @@ import sys
 import textwrap
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -912,23 +913,31 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         assert kill_leftovers(runs) == []
 
 
+@contextlib.contextmanager
+def detached_run(tmp_path: Path, *up_args: str, **sim_params: Any) -> Iterator[tuple[Path, Callable[[], dict | None]]]:
+    """``up --detach`` of the test profile (``sim_params`` for its sim); yields the runs folder and a function
+    that asks the episode's status. ``down`` and a kill of anything left afterwards, whatever happened."""
+    profile = write_profile(tmp_path, **sim_params)
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), *up_args, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
+        yield runs, lambda: query_status(endpoints, "r0", timeout_s=0.5)
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []
+
+
 def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_path):
     """A service whose process lives but does nothing (SIGSTOP stands in for a deadlock) would leave the
     episode waiting with every process up: the launcher notices it stopped answering its status query,
     writes why, kills and restarts it, and the episode completes."""
-    profile = write_profile(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5)
-    runs = tmp_path / "runs"
-    try:
-        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), "--set", "supervision.hang_timeout_s=2", cwd=tmp_path)
-        assert r.returncode == 0, r.stderr
-        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
-
-        def status() -> dict | None:
-            return query_status(endpoints, "r0", timeout_s=0.5)
-
+    with detached_run(tmp_path, "--set", "supervision.hang_timeout_s=2", min_step_period_s=0.25, lockstep_timeout_s=0.5) as (runs, status):
         wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
         planner_pid = status()["services"]["planner"]["pid"]
         os.kill(planner_pid, signal.SIGSTOP)
+
         def planner() -> dict | None:
             s = status()
             return s and s["services"]["planner"]
@@ -941,25 +950,14 @@ def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_pa
         assert re.search(r"planner \(pid \d+\) runs but has not answered for \d+ s \(hung\? stopped\?\): killing it to restart it", launcher_log), launcher_log[-3000:]
         r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert "1 of them hung" in " ".join(re.sub(r"[│┃]", " ", r.stdout).split()), r.stdout  # the table may wrap the row
-    finally:
-        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
-        assert kill_leftovers(runs) == []
 
 
 def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
     """One episode status saying "done" that no result follows, while the sim goes on reporting the
     episode exploring (a stray or forged message): ignored, counted, and the run ends with the episode."""
-    profile = write_profile(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5)
-    runs = tmp_path / "runs"
-    try:
-        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
-        assert r.returncode == 0, r.stderr
-        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
-
-        def status() -> dict | None:
-            return query_status(endpoints, "r0", timeout_s=0.5)
-
+    with detached_run(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5) as (runs, status):
         s = wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2 and s, 60, "the episode to start")
+        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
         with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
             session.put(RobotKeys("r0").episode_status, encode(EpisodeStatusMsg("done", s["step"], terminated_by="coverage", episode=s["episode"])))
         wait_for(lambda: (s := status()) and s["launcher_rejected"].get("episode_status", 0) == 1, 30, "the stray end to be ignored")
@@ -967,9 +965,6 @@ def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
         assert final["state"] == "done" and final["step"] > s["step"] + 2, final
         wait_for(lambda: list(runs.glob("*/summary.json")), 20, "summary.json")
         assert "but the episode goes on" in next(runs.glob("*/logs/launcher.log")).read_text()
-    finally:
-        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
-        assert kill_leftovers(runs) == []
 
 
 def test_a_killed_sim_restarts_the_episode_and_it_ends_as_a_fresh_one(tmp_path):
