@@ -511,15 +511,15 @@ class Launcher:
             log.info("%s (Open connection -> Foxglove WebSocket)", self.service_notes["foxglove_bridge"])
 
     def kill_hung(self, now: float) -> None:
-        """Kill each service whose process runs but that has not answered a status query for
-        ``supervision.hang_timeout_s`` since it started or last answered (its stacks first, into its log);
-        ``supervise`` then restarts it as a crashed one."""
+        """Kill each service that is up (its liveliness token) and whose process runs but that has not answered
+        a status query for ``supervision.hang_timeout_s`` since it started or last answered (its stacks first,
+        into its log); ``supervise`` then restarts it as a crashed one."""
         timeout_s = self.profile.supervision.hang_timeout_s
         if timeout_s <= 0 or self.status_watch is None:
             return
         for c in self.children:
-            if c.gave_up or not c.alive or c.proc is None:
-                continue
+            if c.gave_up or not c.alive or c.proc is None or c.name not in self.alive_services:
+                continue  # still starting (importing, warming up): said up by its liveliness token, then watched
             since = max(c.spawned_at, self.status_watch.answered_s.get(c.name, -np.inf))
             if now - since < timeout_s:
                 continue
