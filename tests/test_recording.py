@@ -372,3 +372,40 @@ def test_record_refuses_a_bad_robot_id_before_connecting(tmp_path: Path, monkeyp
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
     assert not (tmp_path / "r.mcap").exists()
+
+
+def test_record_closed_by_its_terminal_finishes_its_file(tmp_path: Path):
+    """SIGHUP (the terminal ``record`` ran in was closed) stops it as Ctrl-C does: the MCAP file is finished,
+    summary and all (it used to die at once and leave 0 bytes)."""
+    import signal
+    import subprocess
+    import sys
+
+    from mcap.reader import make_reader
+
+    port = free_tcp_port()
+    out = tmp_path / "hup.mcap"
+    keys = RobotKeys("r0")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "cso_runtime.cli", "record", "--connect", loopback_endpoint(port), "--robot", "r0", "--out", str(out)],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        )
+        lines: list[str] = []
+        reader = threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True)
+        reader.start()
+        try:
+            wait_for(lambda: any(line.startswith("recording cso/r0/**") for line in lines), 30, "the recorder to connect")
+            for k in range(20):
+                session.put(keys.odom, encode(OdometryMsg(k, 0.25 * k, Pose2D(0.1 * k, 0.0, 0.0))))
+            proc.send_signal(signal.SIGHUP)
+            proc.wait(timeout=30)
+            reader.join(timeout=10)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    output = "".join(lines)
+    assert proc.returncode == 0 and "messages on" in output, output
+    with out.open("rb") as fh:
+        assert make_reader(fh).get_summary() is not None  # finished: the seeking reader's summary is there
+    assert all(m.key == keys.odom for m in read_recording(out))

@@ -411,6 +411,37 @@ def test_two_up_started_at_once_cannot_both_run(tmp_path):
     os.close(fd)
 
 
+def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp_path, monkeypatch):
+    """``up --detach`` waits for its launcher to start; Ctrl-C then, or a start slower than the deadline,
+    stops that launcher instead of leaving a run behind that ``status`` and ``down`` do not know of."""
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.config import EXIT_INTERRUPTED
+    from cso_runtime.launcher import load_profile, start_detached
+
+    started: list[subprocess.Popen] = []
+    real_popen = subprocess.Popen
+
+    def popen(*args, **kwargs):
+        started.append(real_popen(*args, **kwargs))
+        return started[-1]
+
+    monkeypatch.setattr(launcher_module.subprocess, "Popen", popen)
+    profile, data = load_profile(str(write_profile(tmp_path)), {})
+    code, message = start_detached(profile, data, tmp_path / "runs", ready_timeout_s=0.2)  # a launcher takes longer than that
+    assert code == 1 and "did not start within 0 s: stopped it" in message, message
+    assert started[-1].poll() is not None
+
+    ctrl_c = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))  # long before its services are up
+    ctrl_c.start()
+    try:
+        code, message = start_detached(profile, data, tmp_path / "runs2")
+    finally:
+        ctrl_c.cancel()
+    assert code == EXIT_INTERRUPTED and "interrupted while the launcher started: stopped it" in message, message
+    assert started[-1].poll() is not None and len(started) == 2
+    assert not (tmp_path / "runs" / "current.json").exists() and not (tmp_path / "runs2" / "current.json").exists()
+
+
 def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
     """A run file outlives its launcher (SIGKILL, a reboot); its pids may belong to other processes since.
     The start time the file records tells them apart: ``down`` leaves such a process alone, and ``up`` is
@@ -440,6 +471,31 @@ def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
     finally:
         bystander.kill()
         bystander.wait(timeout=30)
+
+
+def test_down_waits_for_the_services_it_kills_to_be_gone(tmp_path):
+    """A launcher killed outright leaves its services to ``down``, which kills them; a stopped process takes a
+    moment to go after SIGKILL, and ``down`` waits for that rather than report it as still running."""
+    from cso_runtime.launcher import down
+    from cso_runtime.supervision import process_start_ticks
+
+    service = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
+    reaper = threading.Thread(target=service.wait, daemon=True)  # its parent reaps it, as init does a dead launcher's
+    reaper.start()
+    try:
+        os.kill(service.pid, signal.SIGSTOP)
+        runs = tmp_path / "runs"
+        runs.mkdir()
+        gone_launcher = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True).stdout.strip()
+        info = {"run_id": "killed", "robot": "r0", "launcher_pid": int(gone_launcher), "launcher_start_ticks": 1,
+                "services": {"mapper": {"pid": service.pid, "start_ticks": process_start_ticks(service.pid)}}}
+        (runs / "current.json").write_text(json.dumps(info))
+        ok, message = down(runs)
+        assert ok and message == "stopped run killed", message
+        assert service.poll() == -signal.SIGKILL
+    finally:
+        if service.poll() is None:
+            service.kill()
 
 
 def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, monkeypatch):
