@@ -715,6 +715,9 @@ class Launcher:
             if self.profile.supervision.hang_timeout_s > 0:
                 self.status_watch = StatusWatch(session, self.keys, self.stop_event)
                 self.status_watch.start()
+            if self.stop_event.is_set():  # Ctrl-C (or a detached start given up on) before anything started
+                log.warning("interrupted before any service was started")
+                return EXIT_INTERRUPTED
             try:
                 recorder = self.start_recorder()
             except RecorderError as exc:

@@ -416,7 +416,7 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
     stops that launcher instead of leaving a run behind that ``status`` and ``down`` do not know of."""
     from cso_runtime import launcher as launcher_module
     from cso_runtime.config import EXIT_INTERRUPTED
-    from cso_runtime.launcher import load_profile, start_detached
+    from cso_runtime.launcher import current_launcher_alive, load_profile, read_current_run, start_detached
 
     started: list[subprocess.Popen] = []
     real_popen = subprocess.Popen
@@ -439,7 +439,9 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
         ctrl_c.cancel()
     assert code == EXIT_INTERRUPTED and "interrupted while the launcher started: stopped it" in message, message
     assert started[-1].poll() is not None and len(started) == 2
-    assert not (tmp_path / "runs" / "current.json").exists() and not (tmp_path / "runs2" / "current.json").exists()
+    for runs in (tmp_path / "runs", tmp_path / "runs2"):  # nothing `status` and `down` would take for a running run
+        info = read_current_run(runs)
+        assert info is None or not current_launcher_alive(info), info
 
 
 def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
@@ -492,7 +494,8 @@ def test_down_waits_for_the_services_it_kills_to_be_gone(tmp_path):
         (runs / "current.json").write_text(json.dumps(info))
         ok, message = down(runs)
         assert ok and message == "stopped run killed", message
-        assert service.poll() == -signal.SIGKILL
+        reaper.join(timeout=10)  # poll() answers None while another thread waits on the process
+        assert service.returncode == -signal.SIGKILL
     finally:
         if service.poll() is None:
             service.kill()
