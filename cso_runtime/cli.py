@@ -270,6 +270,7 @@ def record_command(
 
     from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
     from cso_runtime.keys import KeyExprError, check_robot_id  # noqa: PLC0415
+    from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
     from cso_runtime.recording import record, recording_path  # noqa: PLC0415
     from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
@@ -285,7 +286,7 @@ def record_command(
     path = recording_path(out, Path("recordings"), f"{robot.replace('*', 'all')}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, lambda *_: set_from_signal_handler(stop))
     try:
         with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
             typer.echo(f"recording cso/{robot}/** from {', '.join(endpoints)} into {path} (Ctrl-C to stop)")
@@ -313,6 +314,7 @@ def replay_command(
 
     from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
     from cso_runtime.keys import TOPICS  # noqa: PLC0415
+    from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, check_recording, parse_speed, replay  # noqa: PLC0415
     from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
@@ -334,7 +336,7 @@ def replay_command(
         _fail(str(exc), 2)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, lambda *_: set_from_signal_handler(stop))
     try:
         with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
             stats = replay(session, file, speed, stop, wanted)

@@ -60,6 +60,7 @@ from cso_runtime.messages import (
     encode,
 )
 from cso_runtime.outputs import write_text_atomic
+from cso_runtime.processes import set_from_signal_handler
 from cso_runtime.scenes import SceneError, resolve_scenes
 from cso_runtime.supervision import (
     Child,
@@ -986,7 +987,7 @@ def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> 
 
 def _install_signal_handlers(launcher: Launcher) -> None:
     def handler(signum: int, _frame: Any) -> None:
-        launcher.stop_event.set()
+        set_from_signal_handler(launcher.stop_event)
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)

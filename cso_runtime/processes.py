@@ -7,6 +7,7 @@ runs (an evaluation of hundreds of episodes, hours of teacher rollouts) would lo
 
 from __future__ import annotations
 
+import _thread
 import ctypes
 import faulthandler
 import io
@@ -33,6 +34,14 @@ STACK_DUMP_SIGNAL = signal.SIGUSR1
 """The signal on which a service writes every thread's Python stack to its stderr (its log): the
 launcher sends it to a service that ignored SIGINT and SIGTERM, before it kills the service, so that
 the log says where it hung (``kill -USR1 PID`` does the same by hand)."""
+
+
+def set_from_signal_handler(event: threading.Event) -> None:
+    """Set ``event`` from a signal handler. ``Event.set`` takes the event's lock, which the interrupted main
+    thread may hold (inside ``Event.wait``) or a first handler may hold when a second signal arrives (SIGINT
+    then SIGTERM): the handler then waits for itself for ever. A thread of its own takes the lock once the
+    main thread lets go of it."""
+    _thread.start_new_thread(event.set, ())
 
 
 def dump_stacks_on_signal() -> bool:

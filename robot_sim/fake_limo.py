@@ -29,6 +29,7 @@ from cso_runtime import ros2_cdr
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand
+from cso_runtime.processes import set_from_signal_handler
 from cso_runtime.ros2_cdr import typestore
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.transport import TransportConfig, open_session
@@ -163,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     sim = MujocoSimulator(plan, exploration.sensor, exploration.robot, seed=args.seed)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, lambda *_: set_from_signal_handler(stop))
     with open_session(TransportConfig(mode="router", listen=list(args.listen))) as session:
         robot = FakeLimo(session, sim, args.namespace, args.odom_rate_hz)
         log.info("fake LIMO on %s in %s at %.1fx: keys %sscan, %sodom, %scmd_vel", ", ".join(args.listen), plan.name, args.speed, *[robot.prefix] * 3)

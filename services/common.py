@@ -42,7 +42,7 @@ from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
-from cso_runtime.processes import dump_stacks_on_signal, keep_freed_memory
+from cso_runtime.processes import dump_stacks_on_signal, keep_freed_memory, set_from_signal_handler
 from cso_runtime.transport import TransportConfig, TransportError, open_session
 
 log = logging.getLogger("cso.service")
@@ -283,7 +283,7 @@ class Service:
 
 def _install_stop_handlers(stop: threading.Event) -> None:
     def handler(signum: int, _frame: Any) -> None:
-        stop.set()
+        set_from_signal_handler(stop)
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)

@@ -139,3 +139,35 @@ def test_process_state_tells_a_stopped_process_from_a_sleeping_one():
         proc.kill()
         proc.wait(timeout=10)
     assert process_state(proc.pid) == ""  # gone
+
+
+def test_a_burst_of_stop_signals_never_deadlocks_the_stop_handler():
+    """A handler that called ``Event.set`` itself waited for ever on the event's lock when a second signal
+    came while it held it (SIGINT then SIGTERM; the launcher's stages, or the parent's death): found as a
+    planner left running after its launcher was killed. ``set_from_signal_handler`` under 30 SIGTERMs at once."""
+    import signal
+    import subprocess
+    import sys
+
+    child = (
+        "import signal, threading\n"
+        "from cso_runtime.processes import set_from_signal_handler\n"
+        "stop = threading.Event()\n"
+        "signal.signal(signal.SIGTERM, lambda *_: set_from_signal_handler(stop))\n"
+        "print('ready', flush=True)\n"
+        "while not stop.wait(0.00001):\n"
+        "    pass\n"
+        "print('stopped', flush=True)\n"
+    )
+    for _ in range(5):
+        proc = subprocess.Popen([sys.executable, "-c", child], stdout=subprocess.PIPE, text=True)
+        try:
+            assert proc.stdout.readline() == "ready\n"
+            for _ in range(30):
+                proc.send_signal(signal.SIGTERM)
+            out, _ = proc.communicate(timeout=10)  # a deadlocked handler never lets it get here
+            assert proc.returncode == 0 and out == "stopped\n"
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(timeout=10)
