@@ -364,7 +364,10 @@ def _read_cut_recording(path: Path, wanted: set[str] | None, why: Exception) -> 
             if isinstance(record, Channel):
                 channels[record.id] = record
             elif isinstance(record, Message) and record.channel_id in channels:
-                restored = _restored(channels[record.channel_id], record, wanted)
+                try:
+                    restored = _restored(channels[record.channel_id], record, wanted)
+                except ValueError as exc:  # a payload that does not decode: the file's fault, as in read_recording
+                    raise RecordingError(f"cannot read {path}: {exc}") from None
                 if restored is not None:
                     count += 1
                     yield restored

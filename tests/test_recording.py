@@ -245,6 +245,17 @@ def test_a_broken_recording_is_one_clear_error(tmp_path: Path):
     truncated.write_bytes(MCAP_MAGIC + b"\x01\x02")
     with pytest.raises(RecordingError, match=r"cannot read .*truncated.mcap: \S"):
         list(read_recording(truncated))
+    from mcap.writer import Writer
+
+    corrupt = tmp_path / "corrupt.mcap"  # a whole file whose only payload is not the JSON it says it is
+    with corrupt.open("wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        channel = writer.register_channel(RobotKeys("r0").odom, JSON_ENCODING, writer.register_schema("cso.odom", "jsonschema", b"{}"))
+        writer.add_message(channel, log_time=1, data=b"{not json", publish_time=1)
+        writer.finish()
+    with pytest.raises(RecordingError, match=r"cannot read .*corrupt.mcap: \S"):
+        list(read_recording(corrupt))
 
 
 def test_a_recording_whose_recorder_was_killed_is_read_up_to_where_it_stops(tmp_path: Path, caplog):
