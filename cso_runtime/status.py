@@ -26,10 +26,15 @@ def _collect(replies: Any) -> list[bytes]:
     return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
 
 
+CONNECT_TIMEOUT_MS = 500
+"""How long ``status`` and ``save-map`` wait for a router's handshake: a live one on loopback answers in
+milliseconds and on a LAN in tens of them, and "nothing running" must come within 2 s of the command."""
+
+
 def _client_session(connect: list[str]) -> zenoh.Session | None:
-    """A client session to ``connect`` that gives up on a silent endpoint within a second (None then)."""
+    """A client session to ``connect`` that gives up on a silent endpoint after ``CONNECT_TIMEOUT_MS`` (None then)."""
     cfg = zenoh_config(TransportConfig(mode="client", connect=list(connect)))
-    cfg.insert_json5("connect/timeout_ms", "800")
+    cfg.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
     try:
         return zenoh.open(cfg)
     except zenoh.ZError:
@@ -129,6 +134,18 @@ def target_of(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[li
     return connect, robot or "r0"
 
 
+def dead_launcher_of_current_run(runs_dir: Path) -> str | None:
+    """Why the current run cannot answer when its launcher (which holds the embedded router) has exited
+    without removing ``runs/current.json`` (SIGKILL, a crash), else None. Said at once, not after a
+    connect timeout to a router that is gone."""
+    from cso_runtime.launcher import current_launcher_alive, read_current_run  # noqa: PLC0415
+
+    info = read_current_run(runs_dir)
+    if info is None or not info.get("launcher_pid") or current_launcher_alive(info):
+        return None
+    return f"run {info['run_id']}'s launcher, pid {info['launcher_pid']}, has exited; `cso-runtime down` clears {runs_dir / 'current.json'}"
+
+
 NOT_RUNNING = "not running"
 """``status --json``'s state when nothing answers (beside starting, exploring, done, failed), so a script that
 reads the JSON gets JSON then too."""
@@ -147,6 +164,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     """``target_of``, or the exit code after saying why there is no one to ask: 1 when nothing runs, 2 when
     ``connect`` cannot name a router (a typo such as ``127.0.0.1:7447``: a usage error, not "nothing running") or
     ``robot`` is not one robot's id."""
+    given_connect = bool(connect)
     connect, robot = target_of(connect, robot, runs_dir)
     try:  # one robot's status or map: a wildcard or a key-breaking id is a usage error, not "nothing running"
         check_robot_id(robot)
@@ -155,6 +173,8 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
         return 2
     if not connect:
         return say_nothing_running("no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
+    if not given_connect and (gone := dead_launcher_of_current_run(runs_dir)):
+        return say_nothing_running(gone, as_json)
     try:
         TransportConfig(mode="client", connect=connect).validate()
     except TransportError as exc:

@@ -13,6 +13,7 @@ import os
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import textwrap
@@ -751,6 +752,30 @@ def test_status_and_down_with_nothing_running(tmp_path):
     r = cli("save-map", "--connect", loopback_endpoint(port), cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "no map for robot r0" in r.stdout
     assert not (tmp_path / "map.yaml").exists()
+
+
+def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
+    """A launcher killed by SIGKILL leaves runs/current.json behind: ``status`` says its launcher has exited
+    instead of waiting on the router it held. A router that is stopped (its port accepts TCP, no Zenoh
+    handshake comes) is still "nothing running" within the 2 s the status command promises."""
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(8)  # never accepted: the kernel completes each TCP handshake, nothing more comes
+    endpoint = loopback_endpoint(silent.getsockname()[1])
+    exited = subprocess.Popen([sys.executable, "-c", "pass"])
+    exited.wait(timeout=30)
+    try:
+        runs = tmp_path / "runs"
+        runs.mkdir()
+        (runs / "current.json").write_text(json.dumps({"run_id": "old", "robot": "r0", "launcher_pid": exited.pid, "endpoints": [endpoint]}))
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=10)
+        reason = json.loads(r.stdout)["reason"]
+        assert r.returncode == 1 and f"run old's launcher, pid {exited.pid}, has exited" in reason and "cso-runtime down" in reason
+        t0 = time.monotonic()
+        assert query_status([endpoint], "r0") is None
+        assert time.monotonic() - t0 < 2.0
+    finally:
+        silent.close()
 
 
 @pytest.mark.parametrize("content", ["[]", '{"run_id": "x", "launcher_pid": "abc"}', '{"run_id": "x", "services": {"sim": {"pid": "1"}}}', "{bad"])
