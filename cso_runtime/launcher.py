@@ -26,6 +26,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -366,6 +367,8 @@ class Launcher:
         self.latest_goal: bytes | None = None
         """The payload of the latest goal (``cache/goal``)."""
         self.rejected: dict[str, int] = {}
+        self.handler_errors: dict[str, int] = {}
+        """Zenoh callback -> how many times it raised (a bug: logged with its traceback, counted, the run goes on)."""
         self.result: EpisodeResultMsg | None = None
         """The episode's result as published on ``episode_result`` (else it is asked for, ``wait_for_result``)."""
         self.path_ahead_m: float | None = None
@@ -440,6 +443,22 @@ class Launcher:
             pass
 
     # --- zenoh side -------------------------------------------------------------------------------
+    def _guarded(self, callback: Callable[[Any], None]) -> Callable[[Any], None]:
+        """``callback`` for Zenoh: an exception in it would only reach Zenoh's own stderr print, unseen in
+        the launcher's log and status; here it is logged with its traceback and counted."""
+        name = callback.__name__.lstrip("_")
+
+        def call(arg: Any) -> None:
+            try:
+                callback(arg)
+            except Exception:
+                with self._lock:
+                    n = self.handler_errors[name] = self.handler_errors.get(name, 0) + 1
+                if n <= 5:
+                    log.exception("launcher: %s raised (%d so far); the run goes on", name, n)
+
+        return call
+
     def _on_sample(self, sample: Any) -> None:
         key = str(sample.key_expr)
         try:
@@ -491,9 +510,9 @@ class Launcher:
             for c in self.children
         }
         with self._lock:
-            rejected = dict(self.rejected)
+            rejected, handler_errors = dict(self.rejected), dict(self.handler_errors)
         state = "stopping" if self.stop_event.is_set() else "running"
-        return LauncherStatusMsg(self.run_id, state, services, rejected)
+        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors)
 
     # --- supervision ------------------------------------------------------------------------------
     def spawn_all(self) -> None:
@@ -707,12 +726,12 @@ class Launcher:
             transport = TransportConfig(mode="client", connect=list(router.connect))
         view = LiveView(self) if live else None
         with open_session(transport) as session:
-            subs = [session.declare_subscriber(self.keys.topic(t), self._on_sample) for t in LAUNCHER_INPUTS]
+            subs = [session.declare_subscriber(self.keys.topic(t), self._guarded(self._on_sample)) for t in LAUNCHER_INPUTS]
             qs = [
-                session.declare_queryable(self.keys.cache("goal"), self._on_cache_query),
-                session.declare_queryable(self.keys.launcher_status, self._on_status_query),
+                session.declare_queryable(self.keys.cache("goal"), self._guarded(self._on_cache_query)),
+                session.declare_queryable(self.keys.launcher_status, self._guarded(self._on_status_query)),
             ]
-            alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._on_alive, history=True)
+            alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._guarded(self._on_alive), history=True)
             if self.profile.supervision.hang_timeout_s > 0:
                 self.status_watch = StatusWatch(session, self.keys, self.stop_event)
                 self.status_watch.start()

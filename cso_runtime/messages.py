@@ -1023,16 +1023,18 @@ class ServiceStatusMsg(Message):
 
 @dataclass
 class LauncherStatusMsg(Message):
-    """The launcher's view: run id, each service process (pid, alive, restarts, given up), rejections."""
+    """The launcher's view: run id, each service process (pid, alive, restarts, given up), rejections, and
+    its own callbacks that raised (``handler_errors``: optional on decoding, older launchers do not send it)."""
 
     SCHEMA: ClassVar[str] = "launcher_status"
     run_id: str
     state: str
     services: dict[str, dict[str, Any]] = field(default_factory=dict)
     rejected: dict[str, int] = field(default_factory=dict)
+    handler_errors: dict[str, int] = field(default_factory=dict)
 
     def body(self) -> dict[str, Any]:
-        return {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected}
+        return {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected, "handler_errors": self.handler_errors}
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> LauncherStatusMsg:
@@ -1040,10 +1042,13 @@ class LauncherStatusMsg(Message):
         services = _get(b, "services", w)
         if not isinstance(services, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in services.items()):
             raise MessageError("launcher_status.services: expected a mapping of mappings")
-        rej = _get(b, "rejected", w)
-        if not isinstance(rej, dict) or not all(isinstance(k, str) and isinstance(v, int) for k, v in rej.items()):
-            raise MessageError("launcher_status.rejected: expected a mapping of counts")
-        return cls(_str(b, "run_id", w), _str(b, "state", w), services, rej)
+        counts = {}
+        for name in ("rejected", "handler_errors"):
+            c = _get(b, name, w) if name == "rejected" else b.get(name, {})
+            if not isinstance(c, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0 for k, v in c.items()):
+                raise MessageError(f"launcher_status.{name}: expected a mapping of counts")
+            counts[name] = c
+        return cls(_str(b, "run_id", w), _str(b, "state", w), services, counts["rejected"], counts["handler_errors"])
 
     def to_dict(self) -> dict[str, Any]:
         return self.body()

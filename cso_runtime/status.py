@@ -112,6 +112,7 @@ def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) 
         "lockstep_timeouts": ep.get("lockstep_timeouts", 0),
         "services": table,
         "launcher_rejected": (launcher or {}).get("rejected", {}),
+        "launcher_handler_errors": (launcher or {}).get("handler_errors", {}),
     }
 
 
@@ -219,6 +220,10 @@ def render_table(status: dict[str, Any]):
         if rejected:
             bits.append(f"rejected {rejected}")
         t.add_row(escape(f"service {name}"), escape(", ".join(bits)))
+    launcher_bits = [f"rejected {n}" for n in [sum(status.get("launcher_rejected", {}).values())] if n]
+    launcher_bits += [f"{n} callback errors (see its log)" for n in [sum(status.get("launcher_handler_errors", {}).values())] if n]
+    if launcher_bits:
+        t.add_row("launcher", escape(", ".join(launcher_bits)))
     return t
 
 

@@ -669,6 +669,44 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     assert piped.getvalue().count("6.50 m ahead on the path") == 1 and piped.getvalue().endswith("┘\n")
 
 
+def test_a_launcher_callback_that_raises_is_logged_and_counted_in_the_status(tmp_path, caplog):
+    """An exception inside one of the launcher's Zenoh callbacks (a bug) would reach only Zenoh's stderr
+    print: it is logged with its traceback, counted in the launcher's status, shown by ``status``, and the
+    callback keeps working for the next sample."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.messages import LauncherStatusMsg, PathMsg
+    from cso_runtime.status import render_table
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    on_sample = launcher._guarded(launcher._on_sample)
+    broken = SimpleNamespace(key_expr=launcher.keys.topic("path"), payload=None)  # .to_bytes() raises
+    with caplog.at_level("ERROR", logger="cso.launcher"):
+        on_sample(broken)
+        on_sample(broken)
+    assert [r.message for r in caplog.records] == [f"launcher: on_sample raised ({n} so far); the run goes on" for n in (1, 2)]
+    assert all(r.exc_info is not None for r in caplog.records)
+    path = np.array([[0.0, 0.0], [3.0, 4.0]])
+    on_sample(SimpleNamespace(key_expr=launcher.keys.topic("path"), payload=SimpleNamespace(to_bytes=lambda: encode(PathMsg(3, path)))))
+    assert launcher.path_ahead_m == pytest.approx(5.0)
+    sent = decode(encode(launcher.launcher_status()), LauncherStatusMsg)
+    assert isinstance(sent, LauncherStatusMsg) and sent.handler_errors == {"on_sample": 2}
+    older = encode(LauncherStatusMsg("run1", "running"))  # a launcher without the field still decodes
+    assert decode(older.replace(b"handler_errors", b"handler_errorz"), LauncherStatusMsg).handler_errors == {}
+    status = {
+        "robot": "r0", "run_id": "run1", "state": "exploring", "terminated_by": "", "reason": "", "scene": "s", "method": "m", "step": 3,
+        "episode": 1, "coverage_pct": 1.0, "explored_area_m2": 1.0, "path_length_m": 0.0, "goal": None, "decisions": 1,
+        "last_decision_ms": 1.0, "services": {}, "launcher_rejected": {"path": 1}, "launcher_handler_errors": sent.handler_errors,
+    }  # fmt: skip
+    console = Console(record=True, width=160)
+    console.print(render_table(status))
+    assert re.search(r"│ launcher +│ rejected 1, 2 callback errors \(see its log\) +│", console.export_text()), console.export_text()
+
+
 def test_log_lines_during_the_live_view_print_above_the_table_not_inside_it(tmp_path):
     """On a terminal the launcher's log lines (a restart, the episode's end) go through the live display, which
     prints them on lines of their own above the table; afterwards the handler writes to stderr again."""
