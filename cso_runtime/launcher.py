@@ -129,6 +129,10 @@ class SupervisionConfig:
     """A service whose process runs but that has not answered the launcher's status query (asked every
     ``HANG_CHECK_PERIOD_S``) for this long is hung (a deadlock, a stopped process): the launcher writes its
     stacks to its log, kills it and restarts it like a crashed one, as Nav2's bond does. 0: never."""
+    start_timeout_s: float = 60.0
+    """A service whose process has run this long without coming up (its liveliness token: imports, warm-up
+    and session done; a few seconds normally) is hung before it started: handled as ``hang_timeout_s``'s
+    hung service. 0: never."""
 
     def validate(self) -> None:
         if self.max_restarts < 0 or self.backoff_s < 0 or self.backoff_max_s < self.backoff_s or not self.stop_timeout_s > 0:
@@ -137,6 +141,8 @@ class SupervisionConfig:
             raise ConfigError(f"supervision.given_up_grace_s must be >= 0 seconds, got {self.given_up_grace_s}")
         if not (self.hang_timeout_s == 0 or self.hang_timeout_s >= 2 * HANG_CHECK_PERIOD_S):
             raise ConfigError(f"supervision.hang_timeout_s must be 0 (off) or at least {2 * HANG_CHECK_PERIOD_S:g} s, got {self.hang_timeout_s}")
+        if not (self.start_timeout_s == 0 or self.start_timeout_s >= 5.0):
+            raise ConfigError(f"supervision.start_timeout_s must be 0 (off) or at least 5 s (a service's imports and warm-up), got {self.start_timeout_s}")
 
 
 HANG_CHECK_PERIOD_S = 1.0
@@ -531,19 +537,25 @@ class Launcher:
             log.info("%s (Open connection -> Foxglove WebSocket)", self.service_notes["foxglove_bridge"])
 
     def kill_hung(self, now: float) -> None:
-        """Kill each service that is up (its liveliness token) and whose process runs but that has not answered
-        a status query for ``supervision.hang_timeout_s`` since it started or last answered (its stacks first,
-        into its log); ``supervise`` then restarts it as a crashed one."""
-        timeout_s = self.profile.supervision.hang_timeout_s
-        if timeout_s <= 0 or self.status_watch is None:
-            return
+        """Kill each service whose process runs but that is hung: up (its liveliness token) and silent to the
+        status query for ``supervision.hang_timeout_s`` since it started or last answered, or not up
+        ``supervision.start_timeout_s`` after it started. Its stacks go to its log first; ``supervise`` then
+        restarts it as a crashed one."""
+        sup = self.profile.supervision
         for c in self.children:
-            if c.gave_up or not c.alive or c.proc is None or c.name not in self.alive_services:
-                continue  # still starting (importing, warming up): said up by its liveliness token, then watched
-            since = max(c.spawned_at, self.status_watch.answered_s.get(c.name, -np.inf))
-            if now - since < timeout_s:
+            if c.gave_up or not c.alive or c.proc is None:
                 continue
-            log.error("%s (pid %d) runs but has not answered for %.0f s (hung? stopped?): killing it to restart it", c.name, c.proc.pid, now - since)
+            if c.name not in self.alive_services:  # still starting (importing, warming up), or hung before it came up
+                if sup.start_timeout_s <= 0 or now - c.spawned_at < sup.start_timeout_s:
+                    continue
+                log.error("%s (pid %d) runs but has not come up in %.0f s (hung while starting? see its log): killing it to restart it", c.name, c.proc.pid, now - c.spawned_at)
+            else:
+                if sup.hang_timeout_s <= 0 or self.status_watch is None:
+                    continue
+                since = max(c.spawned_at, self.status_watch.answered_s.get(c.name, -np.inf))
+                if now - since < sup.hang_timeout_s:
+                    continue
+                log.error("%s (pid %d) runs but has not answered for %.0f s (hung? stopped?): killing it to restart it", c.name, c.proc.pid, now - since)
             dump_stacks([c])
             signal_group(c.proc.pid, signal.SIGKILL)
             try:

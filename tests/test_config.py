@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+import cso_runtime
 from cso_runtime.config import ConfigError, ExplorationConfig, from_dict, load_yaml, to_dict
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -66,6 +67,20 @@ def test_load_yaml_errors(tmp_path: Path):
     listy.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="mapping"):
         load_yaml(listy)
+
+
+def test_a_key_given_twice_in_a_config_is_an_error_not_a_silent_override(tmp_path: Path):
+    """YAML's loaders keep the last of two equal keys: an edited profile would lose its first value unseen."""
+    twice = tmp_path / "twice.yaml"
+    twice.write_text("supervision:\n  hang_timeout_s: 5.0\n  max_restarts: 1\n  hang_timeout_s: 20.0\n")
+    with pytest.raises(ConfigError, match=r"found key 'hang_timeout_s' twice \(first at line 2\)") as err:
+        load_yaml(twice)
+    assert str(twice) in str(err.value) and "line 4" in str(err.value)
+    again = tmp_path / "again.yaml"  # the same key in two different mappings is two keys
+    again.write_text("a: {x: 1}\nb: {x: 2}\n")
+    assert load_yaml(again) == {"a": {"x": 1}, "b": {"x": 2}}
+    for shipped in sorted((Path(cso_runtime.__file__).parent / "profiles").glob("*.yaml")):
+        assert isinstance(load_yaml(shipped), dict), shipped  # the shipped profiles name each key once
 
 
 def test_train_set_overrides_parse_yaml_values_and_reject_bad_pairs():

@@ -1089,6 +1089,42 @@ def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
         assert "but the episode goes on" in next(runs.glob("*/logs/launcher.log")).read_text()
 
 
+def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplog):
+    """A service process that hangs before it declares its liveliness token (a deadlock in an import or the
+    warm-up) would show as starting for ever: after ``supervision.start_timeout_s`` it is killed like a hung
+    one (``supervise`` then restarts it); one that is up is left to the status-query watch."""
+    from cso_runtime.config import ConfigError
+    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    with pytest.raises(ConfigError, match="start_timeout_s"):
+        load_profile(str(find_profile("lockstep")), settings={"supervision.start_timeout_s": 1.0})
+    profile, data = load_profile(str(find_profile("lockstep")), settings={"supervision.start_timeout_s": 5.0})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    stuck = Child("mapper", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "mapper.log")
+    up = Child("planner", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "planner.log")
+    launcher.children = [stuck, up]
+    launcher.alive_services = {"planner"}  # its token came: its hangs are the status watch's (none here)
+    try:
+        stuck.spawn()
+        up.spawn()
+        launcher.kill_hung(stuck.spawned_at + 4.9)
+        assert stuck.alive and up.alive and stuck.hung_kills == 0
+        with caplog.at_level("ERROR", logger="cso.launcher"):
+            launcher.kill_hung(max(stuck.spawned_at, up.spawned_at) + 100.0)
+        assert not stuck.alive and stuck.hung_kills == 1 and up.alive and up.hung_kills == 0
+        assert any(r.message.startswith(f"mapper (pid {stuck.proc.pid}) runs but has not come up in 100 s") for r in caplog.records)
+        profile.supervision.start_timeout_s = 0.0  # off: a slow start is never killed
+        stuck.spawn()
+        launcher.kill_hung(stuck.spawned_at + 1000.0)
+        assert stuck.alive and stuck.hung_kills == 1
+    finally:
+        for c in (stuck, up):
+            if c.proc is not None:
+                c.proc.kill()
+                c.proc.wait(timeout=30)
+
+
 def test_a_killed_sim_restarts_the_episode_and_it_ends_as_a_fresh_one(tmp_path):
     """The sim is the world: a restarted sim starts a new episode (a new id, step 0). Every other
     service starts over on it (maps of the old episode still in flight are rejected), so in lockstep
