@@ -502,6 +502,48 @@ def test_down_waits_for_the_services_it_kills_to_be_gone(tmp_path):
             service.kill()
 
 
+SLOW_STOPPING_LAUNCHER = """
+import pathlib, signal, sys, time
+out = pathlib.Path(sys.argv[1])
+def finish(signum, frame):
+    time.sleep(1.5)  # stopping its services and writing its results
+    (out / "finished").write_text("yes")
+    sys.exit(0)
+signal.signal(signal.SIGINT, finish)
+(out / "ready").write_text("yes")
+time.sleep(60)
+"""
+
+
+@pytest.mark.parametrize("timeout_s", [None, 0.3])
+def test_down_gives_the_launcher_the_stop_time_of_its_run(tmp_path, timeout_s):
+    """``down`` lets a launcher that is stopping its services and writing its results finish (three stop
+    stages of the run's ``stop_timeout_s``, plus a margin) before it escalates to SIGTERM; ``--timeout-s``
+    shorter than the stop escalates."""
+    from cso_runtime.launcher import down
+    from cso_runtime.supervision import process_start_ticks
+
+    launcher = subprocess.Popen([sys.executable, "-c", SLOW_STOPPING_LAUNCHER, str(tmp_path)], start_new_session=True)
+    reaper = threading.Thread(target=launcher.wait, daemon=True)
+    reaper.start()
+    try:
+        wait_for(lambda: (tmp_path / "ready").exists(), 30, "the launcher's SIGINT handler")
+        runs = tmp_path / "runs"
+        runs.mkdir()
+        info = {"run_id": "slow", "robot": "r0", "launcher_pid": launcher.pid, "launcher_start_ticks": process_start_ticks(launcher.pid), "stop_timeout_s": 0.2}
+        (runs / "current.json").write_text(json.dumps(info))
+        ok, message = down(runs, timeout_s)
+        reaper.join(timeout=10)
+        assert ok and message == "stopped run slow", message
+        if timeout_s is None:  # 3 * 0.2 s + the margin: it finished on its own
+            assert launcher.returncode == 0 and (tmp_path / "finished").exists()
+        else:
+            assert launcher.returncode == -signal.SIGTERM and not (tmp_path / "finished").exists()
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+
+
 def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, monkeypatch):
     """``up --scene office.yaml`` from a folder: the run's profile copy (``runs/<id>/profile.yaml``, which
     ``cso-runtime service ... --config`` takes) must name the same file from anywhere."""
