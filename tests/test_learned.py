@@ -273,6 +273,33 @@ def test_env_reports_the_control_steps_each_decision_took():
     assert steps == info["steps"] > 1
 
 
+def test_an_episode_cut_by_the_step_limit_ends_on_its_real_state_one_that_finished_on_the_empty_graph():
+    """PPO bootstraps a truncated episode with V(final observation): that must be the graph of the state the
+    cut left (frontiers still open), not the all-padding graph, whose value is one constant for every cut."""
+    from cso_runtime.learned.graph import empty_graph, frontier_count
+
+    def run(max_steps: int) -> tuple[ExplorationEnv, dict[str, np.ndarray], bool, bool, dict]:
+        env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=max_steps))
+        _, info = env.reset(seed=0)
+        terminated = truncated = False
+        while not (terminated or truncated):
+            graph, _, terminated, truncated, info = env.step(expert_action(env.obs, info["action_mask"]))
+        return env, graph, terminated, truncated, info
+
+    env, graph, terminated, truncated, info = run(30)
+    assert truncated and not terminated and info["terminated_by"] == "max_steps"
+    cut = env.explorer.observe()  # the state the cut left (one more path node: the same pose again)
+    nf = frontier_count(cut, env.config.graph)
+    assert nf > 0 and graph["node_valid"][:nf].all()
+    np.testing.assert_array_equal(graph["nodes"][:nf], build_graph(cut, env.config.graph)["nodes"][:nf])
+    with pytest.raises(RuntimeError, match="after the episode ended"):
+        env.step(0)
+    env, graph, terminated, truncated, info = run(5000)  # explored to its end: nothing to bootstrap
+    assert terminated and not truncated
+    for key, value in empty_graph(env.config.graph).items():
+        np.testing.assert_array_equal(graph[key], value)
+
+
 def test_scene_scaled_reward_is_eq6_times_the_reference_over_the_scene_area():
     """``scene_scale_area_m2``: the same episode (same choices), every reward scaled by one factor per scene."""
     from cso_runtime.learned.env import RewardConfig

@@ -145,7 +145,14 @@ class ExplorationEnv(gym.Env):
             return self._graph, self._info()
         self.obs = None
         self.mask = np.zeros(self.config.graph.max_frontier_nodes, dtype=bool)
-        self.mask[0] = True  # terminal observation: keep the distribution defined
+        self.mask[0] = True  # the episode is over: keep the distribution defined
+        if ex.terminated_by == TERMINATED_MAX_STEPS:
+            # Cut by the step limit, not finished: PPO bootstraps through the cut with V of this observation,
+            # so it must be the real state (the empty graph would give every cut episode the same constant).
+            # Not masked: Algorithm 1's history has no decision here.
+            final = ex.observe()
+            if final.clusters:
+                return build_graph(final, self.config.graph), self._info()
         return empty_graph(self.config.graph), self._info()
 
     def _info(self) -> dict[str, Any]:
