@@ -103,9 +103,11 @@ class GroundTruthMetrics:
 
     def done_at(self, explored_m2: float) -> bool:
         """Section 4.1's end of an episode: coverage above ``done_coverage_pct`` and less than
-        ``done_unexplored_m2`` left to explore."""
+        ``done_unexplored_m2`` left to explore. Everything explored is the end too, so that
+        ``done_coverage_pct: 100`` (which no coverage is above) ends by coverage, not by running out of frontiers."""
         e = self.config
-        return self.coverage_pct_of(explored_m2) > e.done_coverage_pct and self.region_area_m2 - explored_m2 < e.done_unexplored_m2
+        coverage = self.coverage_pct_of(explored_m2)
+        return (coverage > e.done_coverage_pct or coverage >= 100.0) and self.region_area_m2 - explored_m2 < e.done_unexplored_m2
 
 
 def goal_still_frontier(occupancy: OccupancyMap, goal: Goal | None) -> bool:

@@ -59,7 +59,7 @@ from cso_runtime.outputs import (
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
-from cso_runtime.scenes import SCALES, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
+from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
 from cso_runtime.simulator import SIMULATORS, make_simulator
 
 log = logging.getLogger(__name__)
@@ -118,11 +118,21 @@ class EvalRequest:
         if self.settings:  # an error names the flags that changed the file, as `up --set` does
             where = f"{self.config_path or 'eval'} with " + " ".join(f"--set {k}={v}" for k, v in self.settings.items())
         cfg = from_dict(ExplorationConfig, data, where=where)
+        # The sensor is the --sensor preset (its field of view from --lidar-fov), with every other sensor key the
+        # config file or --set gives explicitly on top: an ablation of the range or the resolution must not run
+        # silently on the preset's values.
+        explicit = data.get("sensor") or {}
+        if "fov_deg" in explicit:
+            raise ConfigError(f"{where}: sensor.fov_deg is set by eval's --lidar-fov (180 or 360) or the --sensor preset, not by the config")
         preset = SensorConfig.preset(self.sensor, fov_deg=self.lidar_fov_deg if self.sensor == "lidar" else None)
-        preset.range_noise_std_m = cfg.sensor.range_noise_std_m
-        explicit_mount = "mount_x_m" in (data.get("sensor") or {})
-        # The MuJoCo LIMO carries its LiDAR 0.103 m ahead of the centre; the planner must know it.
-        preset.mount_x_m = cfg.sensor.mount_x_m if explicit_mount or self.sim != "mujoco" else LIMO_LIDAR_MOUNT_X_M
+        for key in explicit:
+            setattr(preset, key, getattr(cfg.sensor, key))
+        if "mount_x_m" not in explicit and self.sim == "mujoco":
+            preset.mount_x_m = LIMO_LIDAR_MOUNT_X_M  # the MuJoCo LIMO carries its LiDAR 0.103 m ahead of the centre; the planner must know it
+        try:
+            preset.validate()
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc} (the {self.sensor} preset with the config's sensor keys)") from None
         cfg.sensor = preset
         if self.max_steps is not None:
             cfg.episode = dataclasses.replace(cfg.episode, max_steps=int(self.max_steps))
@@ -187,6 +197,16 @@ class EpisodeJob:
         return episode_npz_path(self.out_dir, self.method, self.scene.name)
 
 
+def scene_fingerprint(plan: FloorPlan) -> str:
+    """A short hash of the ground truth an episode explored (its floor cells, cell size and start pose):
+    ``--resume`` reuses an episode only on the very same scene, not on a plan of the same name at another
+    ``--m-per-px`` or from another folder."""
+    h = hashlib.sha256()
+    h.update(json.dumps({"shape": list(plan.free.shape), "resolution_m": plan.resolution_m, "start": [plan.start.x_m, plan.start.y_m, plan.start.yaw_rad]}).encode())
+    h.update(np.packbits(plan.free).tobytes())
+    return h.hexdigest()[:16]
+
+
 def settings_fingerprint(config: ExplorationConfig, sim: str, weights_sha256: str = "") -> str:
     """A short hash of the settings an episode ran with (see ``EpisodeJob.settings``)."""
     text = json.dumps({"config": to_dict(config), "sim": sim, "weights": weights_sha256}, sort_keys=True, default=str)
@@ -245,11 +265,11 @@ def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float) ->
     }
 
 
-def save_episode_files(out_dir: Path, method: str, scene: str, result: EpisodeResult, row: dict[str, Any], settings: str = "") -> None:
+def save_episode_files(out_dir: Path, method: str, scene: str, result: EpisodeResult, row: dict[str, Any], settings: str = "", scene_hash: str = "") -> None:
     """The episode's npz and, when its map is known, the robot's final map as map_server files (PNG:
     an evaluation writes hundreds). The npz holds ``explored`` in the plan's pixel layout (row 0 at the
     top, like the PNG), the trajectory in metres, and the metric row as JSON (``metrics``) with the
-    settings' fingerprint so an interrupted eval can resume; it is written last, so an episode whose
+    settings' and the scene's fingerprints so an interrupted eval can resume; it is written last, so an episode whose
     npz is there has its map too."""
     if result.map_grid is not None and result.map_geometry is not None:
         save_map(episode_map_path(out_dir, method, scene), result.map_grid, result.map_geometry, image_format="png")
@@ -263,6 +283,7 @@ def save_episode_files(out_dir: Path, method: str, scene: str, result: EpisodeRe
         coverage_curve=result.coverage_curve_pct.astype(np.float32),
         metrics=np.array(json.dumps(row)),
         settings=np.array(settings),
+        scene=np.array(scene_hash),
     )
     tmp.replace(path)  # atomic: a half-written file never looks finished
 
@@ -278,9 +299,12 @@ def load_finished(job: EpisodeJob) -> EpisodeOutcome | None:
             trajectory = data["trajectory"].astype(float)
             curve = data["coverage_curve"].astype(float)
             settings = str(data["settings"]) if "settings" in data.files else None
+            scene_hash = str(data["scene"]) if "scene" in data.files else None
         if row.get("seed") != job.seed or row.get("method") != job.method or settings != job.settings:
             return None
         plan = job.scene.load()
+        if scene_hash != scene_fingerprint(plan):  # another plan under the same name (another scale, another folder)
+            return None
     except (OSError, KeyError, ValueError, SceneError):
         return None
     return EpisodeOutcome(job.method, plan.name, row=row, free=plan.free, resolution_m=plan.resolution_m,
@@ -304,7 +328,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         result = run_episode(sim, policy, job.config, seed=job.seed, on_step=animation.on_step if animation else None)
         wall_s = time.perf_counter() - t0  # the frames' drawing included, when animated
         row = episode_row(job.method, job.seed, result, wall_s)
-        save_episode_files(job.out_dir, job.method, job.scene.name, result, row, job.settings)
+        save_episode_files(job.out_dir, job.method, job.scene.name, result, row, job.settings, scene_fingerprint(plan))
         gif = episode_animation_path(job.out_dir, job.method, job.scene.name)
         if animation is not None and animation.finish():
             animation.save_gif(gif)
@@ -469,7 +493,8 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         "command": "cso-runtime eval",
         "version": __version__,  # which code made the table
         "maps": request.maps,
-        "m_per_px": request.m_per_px,
+        "m_per_px": request.m_per_px,  # the flag, which applies to PNG plans only
+        "cell_sizes_m": sorted({o.resolution_m for o in outcomes if o.row is not None}),  # what the scenes ran at (generated: 0.05, maps: their own)
         "seed": request.seed,
         "sim": request.sim,
         "scenes": len(scenes),

@@ -136,6 +136,25 @@ def test_eval_set_overrides_the_config_file_and_names_itself_in_errors(tmp_path:
         EvalRequest(methods=["cso"], settings={"masks.beta_far_m": 0.1}).exploration_config()
 
 
+def test_eval_takes_every_sensor_key_the_config_gives_over_the_preset(tmp_path: Path):
+    """A sensor ablation through eval (``--set sensor.range_max_m=2.0``) runs with that sensor, as ``up`` does
+    with the same keys; the field of view stays eval's ``--lidar-fov``, and a config that sets it is refused."""
+    from cso_runtime.config import SensorConfig
+    from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M, EvalRequest
+
+    cfg = EvalRequest(methods=["greedy-dist"], lidar_fov_deg=360.0, settings={"sensor.range_max_m": 2.0, "sensor.resolution_deg": 2.0}).exploration_config()
+    assert (cfg.sensor.range_max_m, cfg.sensor.resolution_deg, cfg.sensor.fov_deg) == (2.0, 2.0, 360.0)
+    assert cfg.sensor.range_min_m == SensorConfig().range_min_m  # not given: the preset's
+    depth = EvalRequest(methods=["greedy-dist"], sensor="depth", settings={"sensor.range_max_m": 2.5}).exploration_config().sensor
+    assert (depth.range_max_m, depth.fov_deg, depth.range_min_m) == (2.5, 79.0, 0.3)
+    assert EvalRequest(methods=["greedy-dist"], sim="mujoco").exploration_config().sensor.mount_x_m == LIMO_LIDAR_MOUNT_X_M
+    assert EvalRequest(methods=["greedy-dist"], sim="mujoco", settings={"sensor.mount_x_m": 0.0}).exploration_config().sensor.mount_x_m == 0.0
+    with pytest.raises(ConfigError, match="sensor.fov_deg is set by eval's --lidar-fov"):
+        EvalRequest(methods=["greedy-dist"], settings={"sensor.fov_deg": 90.0}).exploration_config()
+    with pytest.raises(ConfigError, match="range_min_m < range_max_m.*the depth preset"):
+        EvalRequest(methods=["greedy-dist"], sensor="depth", settings={"sensor.range_max_m": 0.2}).exploration_config()
+
+
 def test_a_negative_seed_is_refused_where_it_is_given_not_inside_a_worker():
     """numpy's generators take no negative seed: eval, a runtime profile and training each say so first
     (the sim service used to refuse it after the launcher had started everything)."""

@@ -54,6 +54,8 @@ def test_an_episode_ends_when_both_coverage_thresholds_hold():
     assert not metrics.done_at(0.95 * total)  # 95 % is not above 95 %, and 0.9 m2 are left
     assert not metrics.done_at(total - 0.6)  # above 96 %, but 0.6 m2 are left
     assert metrics.done_at(total - 0.4)
+    every_cell = GroundTruthMetrics(plan, EpisodeConfig(done_coverage_pct=100.0, done_unexplored_m2=0.5))
+    assert every_cell.done_at(total) and not every_cell.done_at(total - 0.01)  # 100 %: only everything, and then it is the end
 
 
 def test_max_steps_terminates():
@@ -221,6 +223,31 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     third = run_eval(req)
     assert npz.stat().st_mtime_ns != stamp
     assert third["methods"]["greedy-dist"]["steps"] <= 20 < first["methods"]["greedy-dist"]["steps"]
+
+
+def test_resume_runs_again_an_episode_of_another_scene_under_the_same_name(tmp_path: Path):
+    """A plan of the same name at another ``--m-per-px`` (or another plan in a folder of the same name) is
+    another scene: ``--resume`` must not keep the episode of the old one."""
+    plans = tmp_path / "plans"
+    plans.mkdir()
+    shutil.copy(Path(cso_runtime.__file__).parent / "data" / "scenes" / "img_1.png", plans / "office.png")
+    req = EvalRequest(methods=["greedy-dist"], maps=str(plans), out_dir=tmp_path / "out", max_steps=10, m_per_px=0.1)
+    csv_path = tmp_path / "out" / "episodes.csv"
+
+    def traversable_m2() -> float:
+        (row,) = csv.DictReader(csv_path.open())
+        return float(row["traversable_area_m2"])
+
+    run_eval(req)
+    npz = tmp_path / "out" / "episodes" / "greedy-dist" / "office.npz"
+    stamp, area_m2 = npz.stat().st_mtime_ns, traversable_m2()
+    req.resume = True
+    assert run_eval(req)["meta"]["resumed_episodes"] == 1 and npz.stat().st_mtime_ns == stamp  # the same scene: kept
+    req.m_per_px = 0.05
+    second = run_eval(req)
+    assert second["meta"]["resumed_episodes"] == 0 and npz.stat().st_mtime_ns != stamp
+    assert traversable_m2() == pytest.approx(area_m2 / 4, rel=1e-3)  # the plan at half the cell size
+    assert second["meta"]["cell_sizes_m"] == [0.05]
 
 
 def _episode_whose_process_dies_on_one_scene(job):
