@@ -1220,6 +1220,32 @@ def test_encoder_learning_rate_scale_gives_the_encoder_its_own_annealed_rate(tmp
         Args(encoder_lr_scale=0.0).validate()
 
 
+def test_a_resumed_training_logs_each_update_once_and_counts_its_time_before_the_resume(tmp_path):
+    """A run that crashed after logging an update its checkpoint does not hold: ``--resume`` runs that update
+    again, so the log keeps each update once (the curve would plot it twice), and ``wall_s`` goes on from the
+    training time the checkpoint holds instead of starting again at 0."""
+    import csv
+
+    common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40,
+              "checkpoint_every": 1, "progress": False}  # fmt: skip
+    train(Args(total_decisions=24, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    log_path = tmp_path / "cso_log.csv"
+    rows = list(csv.DictReader(log_path.open()))
+    assert [r["update"] for r in rows] == ["1", "2", "3"]
+    ckpt = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    assert ckpt["update"] == 3 and ckpt["wall_s"] >= float(rows[-1]["wall_s"]) > 0
+    with log_path.open("a", newline="") as fh:  # the crashed run's update 4, logged after its last checkpoint
+        csv.DictWriter(fh, fieldnames=list(rows[0])).writerow({**rows[-1], "update": "4"})
+    ckpt["wall_s"] = 1000.0  # as if the first run had trained for 1000 s
+    torch.save(ckpt, tmp_path / "checkpoint.pt")
+    record = train(Args(total_decisions=32, resume=str(tmp_path / "checkpoint.pt"), **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    resumed = list(csv.DictReader(log_path.open()))
+    assert [r["update"] for r in resumed] == ["1", "2", "3", "4"] and resumed[:3] == rows
+    assert float(resumed[3]["wall_s"]) >= 1000.0 and record["wall_time_s"] >= 1000.0
+    with pytest.raises(ValueError, match="max_path_nodes must be at least 1"):
+        Args(max_path_nodes=0).validate()
+
+
 @pytest.mark.filterwarnings("ignore:.*A Box observation space (minimum|maximum) value is:UserWarning")
 def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot():
     """``render_mode="rgb_array"`` (Gymnasium's checker runs its render checks): an upright image of M_t, one

@@ -216,8 +216,8 @@ class Args:
             raise ValueError(f"warm_start_data: no such file {', '.join(missing)}")
         if self.hidden < 1 or self.heads < 1 or self.layers < 0 or self.hidden % self.heads:
             raise ValueError(f"the network needs hidden >= 1 divisible by heads >= 1, and layers >= 0; got hidden {self.hidden}, heads {self.heads}, layers {self.layers}")
-        if self.knn < 1 or self.max_frontier_nodes < 1 or self.max_path_nodes < 0:
-            raise ValueError("knn and max_frontier_nodes must be at least 1, max_path_nodes at least 0")
+        if self.knn < 1 or self.max_frontier_nodes < 1 or self.max_path_nodes < 1:
+            raise ValueError("knn, max_frontier_nodes and max_path_nodes must be at least 1 (the path nodes hold the robot's node)")
         try:
             SensorConfig.preset(self.sensor, self.lidar_fov_deg)
         except ConfigError as exc:
@@ -700,12 +700,17 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 
     start_update, global_decisions, warm_decisions = 1, 0, 0
     env_steps = 0
+    wall_before_s = 0.0
+    """Training time of the run before its ``--resume`` (the log's ``wall_s`` and the record count it too)."""
     if args.resume:
         ckpt = load_resume_checkpoint(args.resume, model, optimizer, device)
         start_update = ckpt["update"] + 1
         global_decisions, warm_decisions, env_steps = ckpt["decisions"], ckpt["warm_decisions"], ckpt["env_steps"]
+        wall_before_s = float(ckpt.get("wall_s", 0.0))
         record["warm_start"] = ckpt.get("warm_start", {})
         torch.set_rng_state(ckpt["torch_rng"])
+        if ckpt.get("cuda_rng") is not None and device.type == "cuda":
+            torch.cuda.set_rng_state_all(ckpt["cuda_rng"])
         log(f"resumed from {args.resume} at update {start_update}")
     elif args.init_from:
         model.load_state_dict(initial_weights(args, device))
@@ -745,6 +750,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     log_path = out / f"{args.variant}_log.csv"
     fields = ["update", "decisions", "env_steps", "wall_s", "episodes", "mean_return", "mean_coverage_pct", "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "lr"]
     new_log = not (args.resume and log_path.exists())
+    if not new_log:  # the rows the checkpoint already holds; later ones (logged after it, before a crash) run again
+        keep_log_rows_up_to(log_path, start_update - 1)
     log_file = open(log_path, "w" if new_log else "a", newline="")  # noqa: SIM115  (open for the whole run; closed in the finally below)
     writer = csv.DictWriter(log_file, fieldnames=fields)
     if new_log:
@@ -840,7 +847,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 "update": update,
                 "decisions": global_decisions,
                 "env_steps": env_steps,
-                "wall_s": round(time.time() - t_start, 1),
+                "wall_s": round(wall_before_s + time.time() - t_start, 1),
                 "episodes": len(finished),
                 "mean_return": np.mean([f["return"] for f in finished]) if finished else "",
                 "mean_coverage_pct": np.mean([f["coverage_pct"] for f in finished]) if finished else "",
@@ -861,10 +868,10 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
             else:
                 log(f"update {update}/{args.num_updates} decisions {global_decisions} return {row['mean_return']} entropy {row['entropy']:.3f}")
             if update % args.checkpoint_every == 0 or update == args.num_updates:
-                _save_resumable(out / "checkpoint.pt", model, optimizer, update, global_decisions, warm_decisions, env_steps, record["warm_start"])
+                _save_resumable(out / "checkpoint.pt", model, optimizer, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
             if args.time_limit_s and time.time() - t_start > args.time_limit_s:
                 log(f"time limit reached after update {update}")
-                _save_resumable(out / "checkpoint.pt", model, optimizer, update, global_decisions, warm_decisions, env_steps, record["warm_start"])
+                _save_resumable(out / "checkpoint.pt", model, optimizer, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
                 break
         finished_loop = True
     finally:
@@ -875,7 +882,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
             progress.close()
         envs.close(terminate=not finished_loop)  # after an error or Ctrl-C, do not wait for the workers' step
 
-    wall = time.time() - t_start
+    wall = wall_before_s + time.time() - t_start
     record.update(
         {
             "ppo_updates": update,
@@ -904,7 +911,26 @@ def _cpu_name() -> str:
     return platform.processor() or platform.machine()
 
 
-def _save_resumable(path: Path, model: nn.Module, optimizer: optim.Optimizer, update: int, decisions: int, warm: int, env_steps: int, warm_stats: dict) -> None:
+def keep_log_rows_up_to(log_path: Path, update: int) -> None:
+    """Drop the training log's rows after ``update`` (written after the checkpoint a run resumes from), so
+    that the resumed run's rows follow on without repeating an update."""
+    with log_path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        fields, rows = reader.fieldnames or [], [r for r in reader if r.get("update", "").isdigit() and int(r["update"]) <= update]
+    tmp = log_path.with_suffix(".tmp")
+    with tmp.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(rows)
+    tmp.replace(log_path)
+
+
+def _save_resumable(
+    path: Path, model: nn.Module, optimizer: optim.Optimizer, update: int, decisions: int, warm: int, env_steps: int, warm_stats: dict, wall_s: float
+) -> None:
+    """What ``--resume`` needs: weights, Adam's state, the counters, the training time so far and the torch
+    generators. Not the environments' state: the episodes in progress start over on new scenes, so a resumed
+    run goes on like the one it continues but not bit for bit."""
     tmp = path.with_suffix(".tmp")
     torch.save(
         {
@@ -916,6 +942,8 @@ def _save_resumable(path: Path, model: nn.Module, optimizer: optim.Optimizer, up
             "env_steps": env_steps,
             "warm_start": warm_stats,
             "torch_rng": torch.get_rng_state(),
+            "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() and torch.cuda.is_initialized() else None,
+            "wall_s": round(wall_s, 1),
         },
         tmp,
     )
