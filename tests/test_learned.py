@@ -1242,6 +1242,8 @@ def test_a_resumed_training_logs_each_update_once_and_counts_its_time_before_the
     resumed = list(csv.DictReader(log_path.open()))
     assert [r["update"] for r in resumed] == ["1", "2", "3", "4"] and resumed[:3] == rows
     assert float(resumed[3]["wall_s"]) >= 1000.0 and record["wall_time_s"] >= 1000.0
+    with pytest.raises(ValueError, match="a checkpoint of cso, not of cso-sm"):  # the same shapes, other masks
+        train(Args(**{**common, "variant": "cso-sm"}, total_decisions=40, resume=str(tmp_path / "checkpoint.pt")), log=lambda _msg: None, plans=[rooms_plan(2)])
     with pytest.raises(ValueError, match="max_path_nodes must be at least 1"):
         Args(max_path_nodes=0).validate()
 

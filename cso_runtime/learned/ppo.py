@@ -364,9 +364,10 @@ def select_device(name: str) -> torch.device:
     return device
 
 
-def load_resume_checkpoint(path: str | Path, model: GraphActorCritic, optimizer: optim.Optimizer, device: torch.device) -> dict[str, Any]:
+def load_resume_checkpoint(path: str | Path, model: GraphActorCritic, optimizer: optim.Optimizer, device: torch.device, variant: str | None = None) -> dict[str, Any]:
     """Load a training checkpoint (``checkpoint.pt`` of an earlier run of the same recipe) into ``model`` and
-    ``optimizer``; a file that is not one, or one of another network, is a ValueError that says which."""
+    ``optimizer``; a file that is not one, one of another network, or one of another ``variant`` (the variants'
+    networks have the same shapes, their masks and inputs differ) is a ValueError that says which."""
     try:
         ckpt = torch.load(path, map_location=device, weights_only=False)
     except FileNotFoundError:
@@ -376,6 +377,8 @@ def load_resume_checkpoint(path: str | Path, model: GraphActorCritic, optimizer:
     missing = [k for k in ("state_dict", "optimizer", "update", "decisions", "warm_decisions", "env_steps", "torch_rng") if not isinstance(ckpt, dict) or k not in ckpt]
     if missing:
         raise ValueError(f"--resume {path}: not a training checkpoint (no {', '.join(missing)}; weights to start from are --init-from)")
+    if variant is not None and ckpt.get("variant", variant) != variant:
+        raise ValueError(f"--resume {path}: a checkpoint of {ckpt['variant']}, not of {variant} (give --variant {ckpt['variant']}, or another --out)")
     try:
         model.load_state_dict(ckpt["state_dict"])
         optimizer.load_state_dict(ckpt["optimizer"])
@@ -390,7 +393,7 @@ def check_training_inputs(args: Args) -> None:
     device = select_device(args.device)
     if args.resume:
         model = build_model(args, device)
-        load_resume_checkpoint(args.resume, model, optim.Adam(parameter_groups(model, args), lr=args.learning_rate), device)
+        load_resume_checkpoint(args.resume, model, optim.Adam(parameter_groups(model, args), lr=args.learning_rate), device, args.variant)
     elif args.init_from:
         initial_weights(args, device)
     elif args.warm_start_data:
@@ -703,7 +706,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     wall_before_s = 0.0
     """Training time of the run before its ``--resume`` (the log's ``wall_s`` and the record count it too)."""
     if args.resume:
-        ckpt = load_resume_checkpoint(args.resume, model, optimizer, device)
+        ckpt = load_resume_checkpoint(args.resume, model, optimizer, device, args.variant)
         start_update = ckpt["update"] + 1
         global_decisions, warm_decisions, env_steps = ckpt["decisions"], ckpt["warm_decisions"], ckpt["env_steps"]
         wall_before_s = float(ckpt.get("wall_s", 0.0))
@@ -868,10 +871,10 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
             else:
                 log(f"update {update}/{args.num_updates} decisions {global_decisions} return {row['mean_return']} entropy {row['entropy']:.3f}")
             if update % args.checkpoint_every == 0 or update == args.num_updates:
-                _save_resumable(out / "checkpoint.pt", model, optimizer, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
+                _save_resumable(out / "checkpoint.pt", model, optimizer, args.variant, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
             if args.time_limit_s and time.time() - t_start > args.time_limit_s:
                 log(f"time limit reached after update {update}")
-                _save_resumable(out / "checkpoint.pt", model, optimizer, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
+                _save_resumable(out / "checkpoint.pt", model, optimizer, args.variant, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
                 break
         finished_loop = True
     finally:
@@ -926,7 +929,7 @@ def keep_log_rows_up_to(log_path: Path, update: int) -> None:
 
 
 def _save_resumable(
-    path: Path, model: nn.Module, optimizer: optim.Optimizer, update: int, decisions: int, warm: int, env_steps: int, warm_stats: dict, wall_s: float
+    path: Path, model: nn.Module, optimizer: optim.Optimizer, variant: str, update: int, decisions: int, warm: int, env_steps: int, warm_stats: dict, wall_s: float
 ) -> None:
     """What ``--resume`` needs: weights, Adam's state, the counters, the training time so far and the torch
     generators. Not the environments' state: the episodes in progress start over on new scenes, so a resumed
@@ -936,6 +939,7 @@ def _save_resumable(
         {
             "state_dict": model.state_dict(),
             "optimizer": optimizer.state_dict(),
+            "variant": variant,
             "update": update,
             "decisions": decisions,
             "warm_decisions": warm,
