@@ -142,6 +142,7 @@ class FrontierConfig:
 
 
 STUCK_AVOID = ("positions", "goals")
+MASK_CONFLICT = ("distance", "stuck")
 """``MaskConfig.stuck_avoid``'s values."""
 
 
@@ -174,12 +175,19 @@ class MaskConfig:
     last 3 decisions (every table of BENCHMARKS.md and every shipped weights file), or ``goals``, the last 3
     goals chosen, the paper's literal reading ("the distance from the candidate actions to the past 3
     long-term goals"). The two agree when each goal was reached; a stuck robot has not reached them."""
+    conflict: str = "distance"
+    """When the stuck mask leaves none of the valid distance mask's goals (the paper does not say):
+    ``distance`` drops the stuck mask and keeps Eq. 5's choice (every table of BENCHMARKS.md and every shipped
+    weights file); ``stuck`` keeps the stuck mask and lets Eq. 5's fallbacks widen the range over the goals
+    it leaves (nearer than beta_near, then farther than beta_far), dropping it only when it leaves none at all."""
 
     def validate(self) -> None:
         if not 0 <= self.beta_near_m < self.beta_far_m:
             raise ConfigError("masks need 0 <= beta_near_m < beta_far_m")
         if self.stuck_avoid not in STUCK_AVOID:
             raise ConfigError(f"masks.stuck_avoid must be one of {', '.join(STUCK_AVOID)}, not {self.stuck_avoid!r}")
+        if self.conflict not in MASK_CONFLICT:
+            raise ConfigError(f"masks.conflict must be one of {', '.join(MASK_CONFLICT)}, not {self.conflict!r}")
         if min(self.alpha1_m, self.alpha2_m2, self.alpha3_m) < 0:
             raise ConfigError("masks.alpha1_m, alpha2_m2 and alpha3_m must be >= 0")
 

@@ -79,6 +79,9 @@ class ActionMasker:
             stuck_allowed = self.stuck.mask(n, obs.goal_distances_from)
             if (allowed & stuck_allowed).any():
                 allowed &= stuck_allowed
+            elif self.config.use_valid_distance and self.config.conflict == "stuck" and (stuck_allowed & np.isfinite(d)).any():
+                # Eq. 5's fallbacks over what the stuck mask leaves: the nearest way out of the stuck place
+                allowed, self.last_rule = valid_distance_mask(np.where(stuck_allowed, d, np.inf), self.config.beta_near_m, self.config.beta_far_m)
         return allowed
 
     def chose(self, goal: Goal | None) -> None:

@@ -237,3 +237,23 @@ def test_action_masker_applies_valid_distance_mask():
     assert allowed.tolist() == [False, True, False] and masker.last_rule == "range"
     off = ActionMasker(MaskConfig(use_valid_distance=False, use_stuck=False))
     assert off.mask(make_obs([0.1, 1.5, 5.0], [1, 1, 1], [1, 1, 1])).all()
+
+
+@pytest.mark.parametrize(
+    ("conflict", "stuck_allows", "expected", "rule"),
+    [
+        ("distance", [False, False, True], [True, True, False], "range"),  # the stuck mask is dropped
+        ("stuck", [False, False, True], [False, False, True], "all"),  # Eq. 5's fallbacks over what it leaves
+        ("stuck", [True, False, True], [True, False, False], "range"),  # no conflict: both masks apply
+        ("stuck", [False, False, False], [True, True, False], "range"),  # it leaves nothing: dropped
+    ],
+)
+def test_which_mask_wins_when_the_stuck_mask_leaves_none_of_eq5s_goals(conflict, stuck_allows, expected, rule):
+    """The robot is stuck and every goal Eq. 5 keeps is one Algorithm 1 forbids: ``masks.conflict`` says
+    which mask gives way (the paper does not say); a masker whose masks agree never reaches this choice."""
+    masker = ActionMasker(MaskConfig(conflict=conflict))
+    masker.stuck.mask = lambda n, distance_from: np.array(stuck_allows)  # stuck, with these goals allowed
+    allowed = masker.mask(make_obs([0.5, 0.8, 3.0], [1, 1, 1], [1, 1, 1]))
+    assert allowed.tolist() == expected and masker.last_rule == rule
+    with pytest.raises(ConfigError, match="masks.conflict must be one of distance, stuck"):
+        MaskConfig(conflict="both").validate()

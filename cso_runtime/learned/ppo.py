@@ -136,6 +136,9 @@ class Args:
     """What the stuck mask keeps a new goal away from in the training episodes (``masks.stuck_avoid``):
     ``positions`` (the shipped weights) or ``goals`` (Algorithm 1 read literally). Evaluate such weights with
     ``--set masks.stuck_avoid=goals``."""
+    mask_conflict: str = "distance"
+    """``masks.conflict`` in the training episodes: which mask wins when the stuck mask leaves none of the valid
+    distance mask's goals (``distance``: the shipped weights). Evaluate such weights with ``--set masks.conflict=...``."""
     hidden: int = 32
     heads: int = 4
     layers: int = 2
@@ -226,7 +229,7 @@ class Args:
     def training_masks(self, masks: MaskConfig) -> MaskConfig:
         """``masks`` with the training episodes' far bound (``beta_far_m``) and stuck reference (``stuck_avoid``),
         before the variant switches masks off."""
-        return dataclasses.replace(masks, beta_far_m=self.beta_far_m, stuck_avoid=self.stuck_avoid)
+        return dataclasses.replace(masks, beta_far_m=self.beta_far_m, stuck_avoid=self.stuck_avoid, conflict=self.mask_conflict)
 
     @property
     def batch_size(self) -> int:
