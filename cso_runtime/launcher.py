@@ -537,15 +537,17 @@ class Launcher:
             log.info("%s (Open connection -> Foxglove WebSocket)", self.service_notes["foxglove_bridge"])
 
     def kill_hung(self, now: float) -> None:
-        """Kill each service whose process runs but that is hung: up (its liveliness token) and silent to the
-        status query for ``supervision.hang_timeout_s`` since it started or last answered, or not up
+        """Kill each service whose process runs but that is hung: come up (its liveliness token, which a stopped
+        process loses again when its lease runs out) and silent to the status query for
+        ``supervision.hang_timeout_s`` since it started or last answered, or not come up
         ``supervision.start_timeout_s`` after it started. Its stacks go to its log first; ``supervise`` then
         restarts it as a crashed one."""
         sup = self.profile.supervision
         for c in self.children:
             if c.gave_up or not c.alive or c.proc is None:
                 continue
-            if c.name not in self.alive_services:  # still starting (importing, warming up), or hung before it came up
+            c.came_up = c.came_up or c.name in self.alive_services
+            if not c.came_up:  # still starting (importing, warming up), or hung before it came up
                 if sup.start_timeout_s <= 0 or now - c.spawned_at < sup.start_timeout_s:
                     continue
                 log.error("%s (pid %d) runs but has not come up in %.0f s (hung while starting? see its log): killing it to restart it", c.name, c.proc.pid, now - c.spawned_at)

@@ -39,6 +39,9 @@ class Child:
     """``time.monotonic()`` when its current process started."""
     hung_kills: int = 0
     """Times the launcher killed it for not answering while its process ran (``Launcher.kill_hung``)."""
+    came_up: bool = False
+    """Whether its current process has declared its liveliness token (a stopped one loses it when its Zenoh
+    lease runs out: it is then hung, not still starting)."""
 
     @property
     def alive(self) -> bool:
@@ -67,6 +70,7 @@ class Child:
             self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env)
         self.restart_at = None
         self.spawned_at = time.monotonic()
+        self.came_up = False
 
 
 def signal_group(pid: int, sig: int) -> None:

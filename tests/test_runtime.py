@@ -1135,6 +1135,8 @@ def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplo
     """A service process that hangs before it declares its liveliness token (a deadlock in an import or the
     warm-up) would show as starting for ever: after ``supervision.start_timeout_s`` it is killed like a hung
     one (``supervise`` then restarts it); one that is up is left to the status-query watch."""
+    from types import SimpleNamespace
+
     from cso_runtime.config import ConfigError
     from cso_runtime.launcher import Launcher, find_profile, load_profile
     from cso_runtime.supervision import Child
@@ -1146,7 +1148,7 @@ def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplo
     stuck = Child("mapper", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "mapper.log")
     up = Child("planner", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "planner.log")
     launcher.children = [stuck, up]
-    launcher.alive_services = {"planner"}  # its token came: its hangs are the status watch's (none here)
+    launcher.alive_services = {"planner"}  # its token came: its hangs are the status watch's (none yet)
     try:
         stuck.spawn()
         up.spawn()
@@ -1156,6 +1158,17 @@ def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplo
             launcher.kill_hung(max(stuck.spawned_at, up.spawned_at) + 100.0)
         assert not stuck.alive and stuck.hung_kills == 1 and up.alive and up.hung_kills == 0
         assert any(r.message.startswith(f"mapper (pid {stuck.proc.pid}) runs but has not come up in 100 s") for r in caplog.records)
+        # The planner came up; stopped (SIGSTOP), it loses its token when its lease runs out: hung, not starting.
+        launcher.alive_services = set()
+        launcher.status_watch = SimpleNamespace(answered_s={"planner": up.spawned_at + 200.0})
+        hang_s = profile.supervision.hang_timeout_s
+        launcher.kill_hung(up.spawned_at + 200.0 + hang_s - 0.5)
+        assert up.alive and up.hung_kills == 0
+        with caplog.at_level("ERROR", logger="cso.launcher"):
+            launcher.kill_hung(up.spawned_at + 200.0 + hang_s + 0.5)
+        assert not up.alive and up.hung_kills == 1
+        assert any(r.message.startswith(f"planner (pid {up.proc.pid}) runs but has not answered for {hang_s + 0.5:.0f} s") for r in caplog.records)
+        launcher.status_watch = None
         profile.supervision.start_timeout_s = 0.0  # off: a slow start is never killed
         stuck.spawn()
         launcher.kill_hung(stuck.spawned_at + 1000.0)
