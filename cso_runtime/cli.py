@@ -125,7 +125,7 @@ def _use_weights(folder: Path) -> None:
 @app.command("eval", rich_help_panel="Evaluation (Table 1)")
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", autocompletion=_complete_method_list, help=METHODS_HELP),
-    maps: str = typer.Option("builtin", "--maps", "--scene", help="Folder of PNG plans, one PNG, 'builtin', or generated:SCALE:N:SEED (--scene, as in `up`, is the same option)"),
+    maps: str = typer.Option("builtin", "--maps", "--scene", help="Folder of PNG plans, one PNG, a map_server FILE.yaml, 'builtin', or generated:SCALE:N:SEED (--scene, as in `up`, is the same option)"),
     limit: int | None = typer.Option(None, "--limit", help="Use at most N scenes"),
     out: Path = typer.Option(Path("results/eval"), "--out", help="Output folder"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans (0.1 super large, 0.05 large)"),
@@ -516,7 +516,7 @@ def service_command(
 @app.command("up", rich_help_panel="Runtime (Zenoh services)")
 def up_command(
     profile: str = typer.Option("sim", "--profile", autocompletion=_complete_profiles, help="Profile name (./configs/profiles/, then the packaged cso_runtime/profiles/) or a YAML path"),
-    scene: str | None = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, generated:SCALE:N:SEED"),
+    scene: str | None = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, FILE.yaml (a map_server map), generated:SCALE:N:SEED; one episode, on its first plan"),
     method: str | None = typer.Option(None, "--method", autocompletion=_complete_methods, help="Goal selector (overrides the profile)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (overrides the profile)"),
     seed: int | None = typer.Option(None, "--seed", help="Episode seed (overrides the profile)"),

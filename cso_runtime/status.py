@@ -20,6 +20,8 @@ from cso_runtime.messages import EpisodeStatusMsg, LauncherStatusMsg, MapMsg, Me
 from cso_runtime.transport import TransportConfig, TransportError, zenoh_config
 
 SERVICES = ("sim", "mapper", "frontier", "policy", "planner")
+"""The services a status lists as DOWN when nothing says which the run has (no launcher answered: services
+started by hand); with a launcher, its profile's services (``limo-ros2`` has a ROS 2 bridge and no sim)."""
 
 
 def _collect(replies: Any) -> list[bytes]:
@@ -81,7 +83,16 @@ def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) 
         alive = {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in alive_replies if r.ok is not None}
     if episode is None and launcher is None and not alive:
         return None
-    names = sorted(set(SERVICES) | set(services) | set((launcher or {}).get("services", {})))
+    return status_of(robot, episode, launcher, services, alive)
+
+
+def status_of(
+    robot: str, episode: dict[str, Any] | None, launcher: dict[str, Any] | None, services: dict[str, dict[str, Any]], alive: set[str]
+) -> dict[str, Any]:
+    """``status --json``'s object from what answered: the episode's, the launcher's and each service's status
+    (their ``to_dict()``), and the services whose liveliness tokens are there."""
+    expected = set(launcher["services"]) if launcher is not None and launcher.get("services") else set(SERVICES)
+    names = sorted(expected | set(services))
     table = {}
     for name in names:
         entry: dict[str, Any] = {"alive": name in alive}

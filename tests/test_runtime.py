@@ -816,6 +816,19 @@ def test_status_table_shows_the_episode_and_each_service():
     assert "[red]plan[1] / greedy-dist" in console.export_text()
 
 
+def test_status_lists_the_services_of_the_runs_profile_not_a_fixed_five():
+    """A ``limo-ros2`` run has a ROS 2 bridge and no sim: its status must not show a sim that is DOWN. Without
+    a launcher (services started by hand) the five services of the ``sim`` profile are listed."""
+    from cso_runtime.status import SERVICES, status_of
+
+    launcher = {"run_id": "run-1", "services": {n: {"pid": 1, "restarts": 0, "gave_up": False} for n in ("ros2_bridge", "mapper", "frontier", "policy", "planner")}}
+    status = status_of("r0", None, launcher, {"mapper": {"state": "running", "reason": "", "last_step": 3, "rejected": {}, "processed": 4}}, {"mapper", "ros2_bridge"})
+    assert sorted(status["services"]) == ["frontier", "mapper", "planner", "policy", "ros2_bridge"]
+    assert status["services"]["ros2_bridge"]["alive"] and not status["services"]["planner"]["alive"]
+    alone = status_of("r0", None, None, {}, {"mapper"})
+    assert sorted(alone["services"]) == sorted(SERVICES) and alone["state"] == "starting"
+
+
 def test_status_and_down_with_nothing_running(tmp_path):
     r = cli("status", cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "nothing running" in r.stdout and "`cso-runtime runs` lists past runs" in r.stdout

@@ -82,6 +82,7 @@ class Args:
     ``learning_rate``; the actor and critic heads keep ``learning_rate``. Within the recipe's budget the encoder
     stays near its initial weights (docs/experiments/learned-policy.md, "Edges in the messages, no messages at all")."""
     anneal_lr: bool = True
+    """The learning rate falls linearly to 0 over the PPO updates (CleanRL's)."""
     gamma: float = 0.98
     """Discount per decision (unless ``gamma_per_step`` is set)."""
     gamma_per_step: float = 0.0
@@ -93,11 +94,14 @@ class Args:
     num_minibatches: int = 4
     update_epochs: int = 4
     norm_adv: bool = True
+    """Advantages normalised per minibatch."""
     clip_coef: float = 0.1
     clip_vloss: bool = True
+    """The value loss clipped around the rollout's values, as the policy's ratio is."""
     ent_coef: float = 0.005
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
+    """Gradients clipped to this global norm."""
     target_kl: float = 0.03
     """Stop the epoch loop early when the approximate KL exceeds this (0 = never)."""
     warm_start_decisions: int = 0
