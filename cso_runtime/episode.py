@@ -54,7 +54,9 @@ class EpisodeResult:
 
     @property
     def efficiency_m2_per_step(self) -> float:
-        return self.explored_area_m2 / max(self.steps, 1)
+        """Explored area per control step; NaN for an episode of no step (its first scan saw everything:
+        no rate to speak of, left out of the means and the comparisons rather than counted as area / 1)."""
+        return self.explored_area_m2 / self.steps if self.steps > 0 else float("nan")
 
     @property
     def decision_ms_p50(self) -> float:

@@ -58,6 +58,28 @@ def test_an_episode_ends_when_both_coverage_thresholds_hold():
     assert every_cell.done_at(total) and not every_cell.done_at(total - 0.01)  # 100 %: only everything, and then it is the end
 
 
+def test_an_episode_of_no_step_has_no_efficiency_not_its_area_per_step(tmp_path: Path):
+    """A 1 m2 room that the first 360-degree scan sees whole ends by coverage in 0 steps: m2/step is undefined
+    there (NaN in episodes.csv), and it stays out of the mean instead of counting as its area over one step."""
+    from PIL import Image
+
+    from cso_runtime.scenes import FREE_RGB, START_RGB, WALL_RGB
+
+    px = np.empty((14, 14, 3), dtype=np.uint8)
+    px[:] = WALL_RGB
+    px[2:12, 2:12] = FREE_RGB
+    px[6:8, 6:8] = START_RGB
+    plans = tmp_path / "plans"
+    plans.mkdir()
+    Image.fromarray(px, "RGB").save(plans / "cupboard.png")
+    summary = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(plans), out_dir=tmp_path / "out", lidar_fov_deg=360.0))
+    (row,) = csv.DictReader((tmp_path / "out" / "episodes.csv").open())
+    assert row["steps"] == "0" and row["terminated_by"] == "coverage" and float(row["coverage_pct"]) == 100.0
+    assert np.isnan(float(row["efficiency_m2_per_step"]))
+    assert summary["methods"]["greedy-dist"]["efficiency_m2_per_step"] is None
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["methods"]["greedy-dist"]["explored_area_m2"] == pytest.approx(1.0)
+
+
 def test_max_steps_terminates():
     plan = load_floor_plan(builtin_scene_dir() / "img_1.png", 0.1)
     cfg = ExplorationConfig()
