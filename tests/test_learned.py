@@ -278,8 +278,8 @@ def test_an_episode_cut_by_the_step_limit_ends_on_its_real_state_one_that_finish
     cut left (frontiers still open), not the all-padding graph, whose value is one constant for every cut."""
     from cso_runtime.learned.graph import empty_graph, frontier_count
 
-    def run(max_steps: int) -> tuple[ExplorationEnv, dict[str, np.ndarray], bool, bool, dict]:
-        env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=max_steps))
+    def run(max_steps: int, cut_observation: str = "state") -> tuple[ExplorationEnv, dict[str, np.ndarray], bool, bool, dict]:
+        env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=max_steps, cut_observation=cut_observation))
         _, info = env.reset(seed=0)
         terminated = truncated = False
         while not (terminated or truncated):
@@ -294,10 +294,14 @@ def test_an_episode_cut_by_the_step_limit_ends_on_its_real_state_one_that_finish
     np.testing.assert_array_equal(graph["nodes"][:nf], build_graph(cut, env.config.graph)["nodes"][:nf])
     with pytest.raises(RuntimeError, match="after the episode ended"):
         env.step(0)
-    env, graph, terminated, truncated, info = run(5000)  # explored to its end: nothing to bootstrap
-    assert terminated and not truncated
-    for key, value in empty_graph(env.config.graph).items():
-        np.testing.assert_array_equal(graph[key], value)
+    for max_steps, cut_observation in ((5000, "state"), (30, "empty")):  # explored to its end; or cut, as the shipped weights were trained
+        env, graph, terminated, truncated, info = run(max_steps, cut_observation)
+        assert (terminated, truncated) == ((True, False) if max_steps == 5000 else (False, True))
+        for key, value in empty_graph(env.config.graph).items():
+            np.testing.assert_array_equal(graph[key], value)
+    assert Args().env_config().cut_observation == "state"
+    with pytest.raises(ValueError, match="cut_observation must be state or empty"):
+        Args(cut_observation="zero").validate()
 
 
 def test_scene_scaled_reward_is_eq6_times_the_reference_over_the_scene_area():

@@ -59,6 +59,10 @@ class EnvConfig:
     invalid_action_limit: int = 100
     """Masked actions in a row after which the episode is truncated, so that an agent which ignores
     ``info["action_mask"]`` cannot loop forever (each one is a no-op costing one step penalty)."""
+    cut_observation: str = "state"
+    """The observation an episode cut by ``max_steps`` ends on, which PPO bootstraps through the cut with:
+    ``state``, the graph of the state the cut left (textbook PPO), or ``empty``, the all-padding graph whose
+    value is one constant for every cut (what the shipped weights were trained with; ``Args.cut_observation``)."""
 
 
 def graph_space(config: GraphConfig) -> spaces.Dict:
@@ -146,7 +150,7 @@ class ExplorationEnv(gym.Env):
         self.obs = None
         self.mask = np.zeros(self.config.graph.max_frontier_nodes, dtype=bool)
         self.mask[0] = True  # the episode is over: keep the distribution defined
-        if ex.terminated_by == TERMINATED_MAX_STEPS:
+        if ex.terminated_by == TERMINATED_MAX_STEPS and self.config.cut_observation == "state":
             # Cut by the step limit, not finished: PPO bootstraps through the cut with V of this observation,
             # so it must be the real state (the empty graph would give every cut episode the same constant).
             # Not masked: Algorithm 1's history has no decision here.

@@ -140,6 +140,11 @@ class Args:
     """What the stuck mask keeps a new goal away from in the training episodes (``masks.stuck_avoid``):
     ``positions`` (the shipped weights) or ``goals`` (Algorithm 1 read literally). Evaluate such weights with
     ``--set masks.stuck_avoid=goals``."""
+    cut_observation: str = "state"
+    """What PPO bootstraps a training episode cut by ``max_steps`` with (``EnvConfig.cut_observation``): V of the
+    cut's real state (``state``, CleanRL's), or of the all-padding graph (``empty``), a constant: the shipped
+    weights were trained so, before the review that found it (``configs/train.yaml`` keeps it to reproduce them;
+    docs/experiments/learned-policy.md, "The value at the cut")."""
     mask_conflict: str = "distance"
     """``masks.conflict`` in the training episodes: which mask wins when the stuck mask leaves none of the valid
     distance mask's goals (``distance``: the shipped weights). Evaluate such weights with ``--set masks.conflict=...``."""
@@ -223,6 +228,8 @@ class Args:
             raise ValueError(f"warm_start_data: no such file {', '.join(missing)}")
         if self.hidden < 1 or self.heads < 1 or self.layers < 0 or self.hidden % self.heads:
             raise ValueError(f"the network needs hidden >= 1 divisible by heads >= 1, and layers >= 0; got hidden {self.hidden}, heads {self.heads}, layers {self.layers}")
+        if self.cut_observation not in ("state", "empty"):
+            raise ValueError(f"cut_observation must be state or empty, not {self.cut_observation!r}")
         if self.knn < 1 or self.max_frontier_nodes < 1 or self.max_path_nodes < 1:
             raise ValueError("knn, max_frontier_nodes and max_path_nodes must be at least 1 (the path nodes hold the robot's node)")
         try:
@@ -260,7 +267,7 @@ class Args:
             egocentric=self.egocentric_frame,
             geodesic_edge_bound=self.geodesic_edge_bound,
         )
-        return EnvConfig(exploration, graph, RewardConfig(self.r_step, self.lambda_c, self.reward_scene_scale_area_m2), self.max_steps)
+        return EnvConfig(exploration, graph, RewardConfig(self.r_step, self.lambda_c, self.reward_scene_scale_area_m2), self.max_steps, cut_observation=self.cut_observation)
 
 
 # --- scenes -----------------------------------------------------------------------------------
