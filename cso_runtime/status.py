@@ -231,8 +231,9 @@ def render_table(status: dict[str, Any]):
         if rejected:
             bits.append(f"rejected {rejected}")
         t.add_row(escape(f"service {name}"), escape(", ".join(bits)))
-    launcher_bits = [f"rejected {n}" for n in [sum(status.get("launcher_rejected", {}).values())] if n]
-    launcher_bits += [f"{n} callback errors (see its log)" for n in [sum(status.get("launcher_handler_errors", {}).values())] if n]
+    rejected = sum(status.get("launcher_rejected", {}).values())
+    errors = sum(status.get("launcher_handler_errors", {}).values())
+    launcher_bits = ([f"rejected {rejected}"] if rejected else []) + ([f"{errors} callback errors (see its log)"] if errors else [])
     if launcher_bits:
         t.add_row("launcher", escape(", ".join(launcher_bits)))
     return t
