@@ -4,7 +4,8 @@ Table 1 reports each method's mean efficiency; two methods run on the same scene
 scene by scene, which separates them with far fewer scenes (plans differ more from each other than
 methods do). For every method and scale this gives the change of mean efficiency (m2/step) against the
 baseline on the shared scenes, the arithmetic and the geometric mean of the per-scene ratios, each with a
-95 % bootstrap interval (the scenes resampled with replacement, a fixed seed), and the scenes won and lost. An interval that
+95 % bootstrap interval (the plans resampled with replacement, the episodes of one plan under several seeds kept
+together as the paper's repeated tests of a scene are, a fixed seed), and the scenes won and lost. An interval that
 contains 0 % says these scenes do not tell the two methods apart. ``eval`` writes it to ``paired.csv``
 and ``summary.json`` whenever the baseline ran too; ``cso-runtime compare`` pools ``episodes.csv`` files.
 """
@@ -151,10 +152,20 @@ def read_episodes(files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterab
     return table
 
 
-def bootstrap_mean_ci(values: np.ndarray, resamples: int = 10_000, seed: int = 0) -> tuple[float, float]:
-    """95 % percentile interval of the mean, resampling the values with replacement."""
+def bootstrap_mean_ci(values: np.ndarray, resamples: int = 10_000, seed: int = 0, clusters: Sequence[Any] | None = None) -> tuple[float, float]:
+    """95 % percentile interval of the mean, resampling the values with replacement; with ``clusters`` (one label
+    per value), resampling whole clusters: the episodes of one plan under several seeds are not independent
+    scenes, and resampling them one by one would make the interval too narrow."""
     rng = np.random.default_rng(seed)
-    means = values[rng.integers(0, len(values), size=(resamples, len(values)))].mean(axis=1)
+    labels = list(clusters) if clusters is not None else []
+    if not labels or len(set(labels)) == len(labels):  # one value per cluster: the plain bootstrap
+        means = values[rng.integers(0, len(values), size=(resamples, len(values)))].mean(axis=1)
+    else:
+        ids = {c: i for i, c in enumerate(dict.fromkeys(labels))}
+        index = np.array([ids[c] for c in labels])
+        sums, counts = np.bincount(index, weights=values), np.bincount(index)
+        picks = rng.integers(0, len(ids), size=(resamples, len(ids)))
+        means = sums[picks].sum(axis=1) / counts[picks].sum(axis=1)
     lo, hi = np.percentile(means, [2.5, 97.5])
     return float(lo), float(hi)
 
@@ -172,11 +183,12 @@ def compare_to_baseline(table: EfficiencyTable, baseline: str = "greedy-dist", m
         m = np.array([eff[s] for s in scenes])
         b = np.array([base[s] for s in scenes])
         ratio = m / b
-        lo, hi = bootstrap_mean_ci(ratio)
+        plans = [s[:4] for s in scenes]  # the scene without its seed
+        lo, hi = bootstrap_mean_ci(ratio, clusters=plans)
         geo: tuple[float, float, float] | tuple[None, None, None] = (None, None, None)
         if (ratio > 0).all():  # a scene the method explored nothing of has no log-ratio
             log_ratio = np.log(ratio)
-            geo = tuple(round(100 * math.expm1(v), 3) for v in (log_ratio.mean(), *bootstrap_mean_ci(log_ratio)))  # type: ignore[assignment]
+            geo = tuple(round(100 * math.expm1(v), 3) for v in (log_ratio.mean(), *bootstrap_mean_ci(log_ratio, clusters=plans)))  # type: ignore[assignment]
         out.append(
             PairedComparison(
                 scale=scale,

@@ -8,9 +8,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from cso_runtime.comparison import CSV_FIELDS, compare_to_baseline, efficiency_by_scene, read_episodes
+from cso_runtime.comparison import CSV_FIELDS, bootstrap_mean_ci, compare_to_baseline, efficiency_by_scene, read_episodes
 from tests.conftest import write_episodes_csv
 
 FIELDS = ("method", "map", "scale", "seed", "traversable_area_m2", "efficiency_m2_per_step")
@@ -49,6 +50,21 @@ def test_the_geometric_mean_of_the_per_scene_ratios_lets_a_doubling_and_a_halvin
     assert cso.geomean_ci_low_pct < 0.0 < cso.geomean_ci_high_pct and cso.geomean_ci_high_pct <= cso.ci_high_pct
     assert rand.geomean_pct is None and rand.geomean_ci_low_pct is None
     assert "n/a" in rand.markdown_row() and "+0.0 % [" in cso.markdown_row()
+
+
+def test_the_seeds_of_one_plan_are_resampled_together_not_as_more_scenes():
+    """The paper runs each scene several times: episodes of one plan under two seeds are one scene resampled
+    twice, so two identical seeds give the interval of one seed, where resampling episodes one by one would
+    narrow it by about a factor of 1.4, as if there were twice the plans."""
+    ratios = {"a": 1.5, "b": 0.5, "c": 1.0, "d": 1.1, "e": 1.3, "f": 0.9}
+    one = rows("greedy-dist", "large", dict.fromkeys(ratios, 1.0)) + rows("cso", "large", ratios)
+    two = [dict(r, seed=seed) for r in one for seed in (0, 1)]
+    (c1,), (c2,) = compare_to_baseline(efficiency_by_scene(one)), compare_to_baseline(efficiency_by_scene(two))
+    assert c2.scenes == 12 and c1.scenes == 6 and c2.per_scene_pct == pytest.approx(c1.per_scene_pct)
+    assert (c2.ci_low_pct, c2.ci_high_pct) == pytest.approx((c1.ci_low_pct, c1.ci_high_pct))
+    assert (c2.geomean_ci_low_pct, c2.geomean_ci_high_pct) == pytest.approx((c1.geomean_ci_low_pct, c1.geomean_ci_high_pct))
+    unit = bootstrap_mean_ci(np.array([ratios[n] for n in ratios for _ in (0, 1)]))  # the episodes one by one: narrower
+    assert unit[1] - unit[0] < (c1.ci_high_pct - c1.ci_low_pct) / 100 * 0.85
 
 
 def test_a_bad_efficiency_or_a_file_that_is_not_episodes_csv_is_a_clear_error(tmp_path: Path):
