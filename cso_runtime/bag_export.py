@@ -240,7 +240,8 @@ def export_bag(
     latched = [Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, never, never, QosLiveliness.AUTOMATIC, never, False)]
     prefix = f"cso/{robot}/"
     try:
-        with Writer(out_dir, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        # Version 8: its QoS profiles are a YAML string, which Humble's and Iron's rosbag2 read (version 9's list fails there).
+        with Writer(out_dir, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
             connections: dict[str, object] = {}
 
             def write(rows: list[tuple[str, bytes, int]]) -> None:

@@ -275,7 +275,9 @@ def frontier_markers_to_cdr(frontier_points_xy_m: list[np.ndarray], goal_xy_m: l
             mesh_use_embedded_materials=False,
         )
 
-    markers = [marker("frontiers", 0, marker_t.POINTS, marker_t.DELETEALL, identity, vec_t(x=0.0, y=0.0, z=0.0), color_t(r=0.0, g=0.0, b=0.0, a=0.0), [])]
+    # DELETEALL with no namespace: RViz 2 then clears every namespace (with one, only that one: the goal spheres
+    # of clusters that have gone would stay).
+    markers = [marker("", 0, marker_t.POINTS, marker_t.DELETEALL, identity, vec_t(x=0.0, y=0.0, z=0.0), color_t(r=0.0, g=0.0, b=0.0, a=0.0), [])]
     for i, pts in enumerate(frontier_points_xy_m):
         points = [point_t(x=float(x), y=float(y), z=0.0) for x, y in np.asarray(pts, dtype=float).reshape(-1, 2)]
         markers.append(marker("frontiers", i + 1, marker_t.POINTS, marker_t.ADD, identity, vec_t(x=0.05, y=0.05, z=0.05), color_t(r=0.0, g=0.0, b=1.0, a=1.0), points))

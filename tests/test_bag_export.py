@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from rosbags.rosbag2 import Reader
 
 from cso_runtime import ros2_cdr
@@ -135,7 +136,12 @@ def test_a_recording_becomes_a_bag_of_standard_types_on_the_robots_own_clock(tmp
     plan = bag["/plan"][4][1]
     assert [(p.pose.position.x, p.pose.position.y) for p in plan.poses] == [(pytest.approx(0.4), 0.0), (3.0, -1.0)]
     markers = bag["/explore/frontiers"][0][1].markers
-    assert [m.ns for m in markers] == ["frontiers", "frontiers", "frontiers_goals"]
+    assert [m.ns for m in markers] == ["", "frontiers", "frontiers_goals"]  # DELETEALL of every namespace, as RViz 2 reads an empty ns
+    assert markers[0].action == markers[0].DELETEALL
+    # metadata.yaml of version 8: each topic's QoS profiles a YAML string, which Humble's rosbag2 reads (9's list it cannot).
+    meta = yaml.safe_load((tmp_path / "bag" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert meta["version"] == 8
+    assert all(isinstance(t["topic_metadata"]["offered_qos_profiles"], str) for t in meta["topics_with_message_count"])
     assert [(p.x, p.y) for p in markers[1].points] == [pytest.approx(GEOM.cell_to_world(3, 4)), pytest.approx(GEOM.cell_to_world(3, 5)), pytest.approx(GEOM.cell_to_world(4, 5))]
 
 

@@ -278,7 +278,7 @@ def test_fake_limo_through_the_bridge(namespace: str):
             ps = rosbags_decode(to_robot[ros("goal_pose")][0][1], "geometry_msgs/msg/PoseStamped")
             assert (ps.pose.position.x, ps.pose.position.y) == (0.5, -0.3)
             ma = rosbags_decode(to_robot[ros("explore/frontiers")][0][1], "visualization_msgs/msg/MarkerArray")
-            assert [m.ns for m in ma.markers] == ["frontiers", "frontiers", "frontiers_goals"]
+            assert [m.ns for m in ma.markers] == ["", "frontiers", "frontiers_goals"]
             assert ma.markers[0].action == 3 and len(ma.markers[1].points) == 3  # DELETEALL, then the cluster's cells
             assert ma.markers[1].points[0].x == pytest.approx(-0.5 + 4.5 * 0.1) and ma.markers[1].points[0].y == pytest.approx(
                 -0.5 + 3.5 * 0.1

@@ -101,7 +101,9 @@ def test_pose_and_markers_encode():
     assert pose.yaw_rad == pytest.approx(0.5) and stamp == pytest.approx(4.0)
     raw = cdr.frontier_markers_to_cdr([np.array([[0.0, 0.0], [0.1, 0.0]]), np.array([[3.0, 1.0]])], [(0.05, 0.0), (3.0, 1.0)], 1.0)
     msg = cdr.decode(raw, cdr.MARKER_ARRAY)
-    assert [m.ns for m in msg.markers] == ["frontiers", "frontiers", "frontiers", "frontiers_goals", "frontiers_goals"]
+    # The DELETEALL first, with no namespace: RViz 2 clears every namespace then (with one, only that one, and the
+    # goal spheres of clusters that have gone would stay on screen).
+    assert [m.ns for m in msg.markers] == ["", "frontiers", "frontiers", "frontiers_goals", "frontiers_goals"]
     assert msg.markers[0].action == 3 and len(msg.markers[1].points) == 2
 
 
