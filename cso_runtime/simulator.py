@@ -160,7 +160,9 @@ def make_simulator(name: str, plan: FloorPlan, sensor: SensorConfig, robot: Robo
     if name == "2d":
         return KinematicSimulator(plan, sensor, robot, seed=seed)
     if name == "mujoco":
-        from robot_sim import MujocoSimulator  # noqa: PLC0415 - MuJoCo only when asked for
+        from robot_sim import MujocoSimConfig, MujocoSimulator  # noqa: PLC0415 - MuJoCo only when asked for
 
-        return MujocoSimulator(plan, sensor, robot, seed=seed)
+        # The rays from the sensor's own mount, which the mapper and the planner use too (eval, the services and
+        # doctor give it the LIMO's 0.103 m unless a config sets it): one mount, not two that disagree.
+        return MujocoSimulator(plan, sensor, robot, seed=seed, config=MujocoSimConfig(lidar_mount_x_m=None))
     raise ValueError(f"unknown simulator {name!r}; choose one of {', '.join(SIMULATORS)}")

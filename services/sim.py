@@ -51,6 +51,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("cso.sim")
 
+MAX_STEPS_PER_TICK = 4
+"""Real time: steps one tick may run when more than one is due (a real_time_factor above one step per tick, or a
+late tick); up to 4 x 0.25 s / 0.02 s = 50x real time."""
+
 BACKENDS = {"kinematic": "2d", "2d": "2d", "mujoco": "mujoco"}
 
 
@@ -126,6 +130,7 @@ class SimService(Service):
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     serves_latest = ("map",)
     tick_period_s = 0.02
+    """How often ``on_tick`` runs: real-time steps run on the first tick at or after they are due."""
 
     def __init__(self, ctx: ServiceContext):
         super().__init__(ctx)
@@ -168,6 +173,8 @@ class SimService(Service):
         self.alive_services: set[str] = set()
         self.services_ready_s: float | None = None if self.expected_services else self.started_s
         self.step_started_s = math.inf
+        self.next_step_s = math.inf
+        """Real time: when the next step is due, on a fixed schedule from the episode's start (``real_time_factor``)."""
         self.last_publish_s = 0.0
         self.status_published_s = -math.inf
         self.timeouts = 0
@@ -388,6 +395,7 @@ class SimService(Service):
             if now_s - self.services_ready_s >= self.params.start_delay_s:
                 self.episode_state = "exploring"
                 self.step_started_s = now_s
+                self.next_step_s = now_s + self.period_s / self.params.real_time_factor
                 self.publish_step()
             return
         if not self.running:
@@ -404,7 +412,13 @@ class SimService(Service):
                 log.warning("step %d: no %s after %.1f s; re-publishing the step", self.step, self.missing(), now_s - self.last_publish_s)
                 self.publish_step()
             return
-        if now_s - self.step_started_s >= self.period_s / self.params.real_time_factor:
+        # A fixed schedule, one step every period / real_time_factor from the episode's start: timed from the
+        # end of the last step, each step would also wait for the next tick (every tick_period_s) and the clock
+        # would run slow (0.96x at real_time_factor 1, at most 12.5x however fast it is asked to run).
+        due_s = self.period_s / self.params.real_time_factor
+        for _ in range(MAX_STEPS_PER_TICK):
+            if now_s < self.next_step_s or not self.running:
+                break
             cmd = VelocityCommand()
             if self.last_cmd is not None and now_s - self.last_cmd[1] <= self.params.cmd_timeout_s:
                 cmd = self.last_cmd[0].command
@@ -412,6 +426,9 @@ class SimService(Service):
                 self.finish("done", TERMINATED_MAX_STEPS)
                 return
             self.advance(cmd)
+            self.next_step_s += due_s
+        if now_s - self.next_step_s > self.period_s:  # behind by more than a step (a slow host, a stall): go on from now, not in a rush
+            self.next_step_s = now_s + due_s
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:

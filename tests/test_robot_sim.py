@@ -126,6 +126,21 @@ def test_lidar_matches_analytic_box_room(sensor: SensorConfig) -> None:
         assert beyond.sum() >= 0.4 * len(beyond)
 
 
+@pytest.mark.parametrize("mount_x_m", [0.103, 0.0, 0.2])
+def test_the_runtime_casts_the_rays_from_the_sensors_own_mount(mount_x_m: float) -> None:
+    """``make_simulator("mujoco")`` (eval, the sim service, doctor) puts the LiDAR where ``sensor.mount_x_m``
+    says, the mount the mapper's footprint and the planner's clearance use; a second mount of the model's own
+    would put every wall a few centimetres off for them."""
+    from cso_runtime.simulator import make_simulator
+
+    start = Pose2D(1.0, 2.0, 0.0)  # facing the wall at x = 4 - RES
+    sim = make_simulator("mujoco", box_room(start=start), SensorConfig(mount_x_m=mount_x_m), RobotConfig(), seed=0)
+    assert sim.sensor_pose().x_m == pytest.approx(start.x_m + mount_x_m)
+    scan = sim.scan()
+    ahead = scan.ranges_m[np.argmin(np.abs(scan.angles_rad))]
+    assert ahead == pytest.approx(4.0 - RES - start.x_m - mount_x_m, abs=0.01)
+
+
 def test_lidar_noise_is_seeded_and_fires_at_sensor_rate() -> None:
     noisy = SensorConfig(fov_deg=360.0, range_noise_std_m=0.02)
     a = MujocoSimulator(box_room(), noisy, seed=7)

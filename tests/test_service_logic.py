@@ -403,6 +403,32 @@ def test_sim_starts_the_episode_when_every_service_of_the_profile_is_alive():
     assert late.episode_state == "exploring" and "scan" in out
 
 
+@pytest.mark.parametrize("real_time_factor", [1.0, 4.0, 20.0])
+def test_real_time_sim_keeps_its_real_time_factor_whatever_its_tick(real_time_factor):
+    """One 0.25 s step per 0.25 s / real_time_factor of wall clock, on a fixed schedule: its ticks come every
+    20 ms (each a little late), and a step timed from the end of the last one would also wait for the next tick
+    (0.96x at real_time_factor 1, never above 12.5x). A stall is not made up in a rush afterwards."""
+    from services.sim import SimService
+
+    profile = {"lockstep": False, "scene": "generated:small:1:0", "seed": 3}
+    svc = SimService(ServiceContext("sim", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0, "real_time_factor": real_time_factor}))
+    svc.publish = lambda topic, msg, robot=None: None  # type: ignore[method-assign]
+    t0 = svc.started_s
+    now = t0
+    svc.on_tick(now)
+    assert svc.episode_state == "exploring" and svc.step == 0
+    wall_s = 100.0 / real_time_factor * 0.25  # 100 steps' worth
+    while now < t0 + wall_s:
+        now += svc.tick_period_s + 0.001  # a tick comes a little after its period, as the service loop's do
+        svc.on_tick(now)
+    assert abs(svc.step - (now - t0) * real_time_factor / 0.25) <= 1.0
+    before = svc.step
+    now += 10.0  # the host stalls for 10 s
+    svc.on_tick(now)
+    svc.on_tick(now + 0.021)
+    assert svc.step - before <= 4 + 1  # at most one tick's worth, then on from now
+
+
 def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
     """The sim steps ahead on the planner's provisional command while the map travels; with the same
     final command it publishes the stored result, with another it steps afresh. Either way every scan
