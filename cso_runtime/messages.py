@@ -118,6 +118,14 @@ def _get(body: dict, key: str, where: str) -> Any:
     return body[key]
 
 
+def _counts(body: dict, key: str, where: str, optional: bool = False) -> dict[str, int]:
+    """A mapping of names to counts (>= 0); ``optional``: an absent one is empty (a field added later)."""
+    v = body.get(key, {}) if optional else _get(body, key, where)
+    if not isinstance(v, dict) or not all(isinstance(k, str) and isinstance(n, int) and not isinstance(n, bool) and n >= 0 for k, n in v.items()):
+        raise MessageError(f"{where}.{key}: expected a mapping of counts")
+    return v
+
+
 def _num(body: dict, key: str, where: str, lo: float = -math.inf, hi: float = math.inf, allow_inf: bool = False) -> float:
     v = _get(body, key, where)
     if isinstance(v, bool) or not isinstance(v, (int, float)):
@@ -1004,9 +1012,7 @@ class ServiceStatusMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> ServiceStatusMsg:
         w = "service_status"
-        rej = _get(b, "rejected", w)
-        if not isinstance(rej, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0 for k, v in rej.items()):
-            raise MessageError("service_status.rejected: expected a mapping of counts")
+        rej = _counts(b, "rejected", w)
         return cls(
             _str(b, "service", w),
             _str(b, "robot", w),
@@ -1042,13 +1048,7 @@ class LauncherStatusMsg(Message):
         services = _get(b, "services", w)
         if not isinstance(services, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in services.items()):
             raise MessageError("launcher_status.services: expected a mapping of mappings")
-        counts = {}
-        for name in ("rejected", "handler_errors"):
-            c = _get(b, name, w) if name == "rejected" else b.get(name, {})
-            if not isinstance(c, dict) or not all(isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 0 for k, v in c.items()):
-                raise MessageError(f"launcher_status.{name}: expected a mapping of counts")
-            counts[name] = c
-        return cls(_str(b, "run_id", w), _str(b, "state", w), services, counts["rejected"], counts["handler_errors"])
+        return cls(_str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True))
 
     def to_dict(self) -> dict[str, Any]:
         return self.body()
