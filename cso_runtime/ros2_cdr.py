@@ -70,7 +70,11 @@ def stamp_seconds(header) -> float:
 
 
 def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    """Yaw (rad) of a quaternion of any non-zero norm: the form without the unit-norm shortcut
+    ``1 - 2(y^2 + z^2)``, so a driver's un-normalised orientation still gives its true heading."""
+    if not all(math.isfinite(v) for v in (x, y, z, w)) or x * x + y * y + z * z + w * w < 1e-12:
+        raise CdrError(f"quaternion ({x}, {y}, {z}, {w}) has no orientation (zero norm or non-finite)")
+    return math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
 
 
 def _quaternion(yaw_rad: float):
@@ -252,6 +256,8 @@ def transforms_to_cdr(transforms: list[tuple[str, str, Pose2D]], stamp_s: float)
 def pose_stamped_from_cdr(raw: bytes) -> tuple[Pose2D, float]:
     msg = decode(raw, POSE_STAMPED)
     p, q = msg.pose.position, msg.pose.orientation
+    if not (math.isfinite(p.x) and math.isfinite(p.y)):
+        raise CdrError("PoseStamped has a non-finite position")
     return Pose2D(float(p.x), float(p.y), yaw_from_quaternion(q.x, q.y, q.z, q.w)), stamp_seconds(msg.header)
 
 

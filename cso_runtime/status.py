@@ -131,28 +131,23 @@ def endpoints_from_run_file(runs_dir: Path) -> tuple[list[str], str | None]:
     """Router endpoints and robot of the current run (``runs/current.json``), if any."""
     from cso_runtime.launcher import read_current_run  # noqa: PLC0415  (the run file's one reader)
 
-    info = read_current_run(runs_dir)
+    return endpoints_of_run(read_current_run(runs_dir))
+
+
+def endpoints_of_run(info: dict[str, Any] | None) -> tuple[list[str], str | None]:
+    """Router endpoints and robot of a run file read by ``read_current_run`` (None: no run, no endpoints)."""
     if info is None:
         return [], None
     robot = info.get("robot")
     return list(info.get("endpoints") or []), robot if isinstance(robot, str) else None
 
 
-def target_of(connect: list[str], robot: str | None, runs_dir: Path) -> tuple[list[str], str]:
-    """Whom to ask: the given endpoints and robot, else the current run's (no endpoints: nothing running)."""
-    if not connect:
-        connect, run_robot = endpoints_from_run_file(runs_dir)
-        robot = robot or run_robot
-    return connect, robot or "r0"
-
-
-def dead_launcher_of_current_run(runs_dir: Path) -> str | None:
+def dead_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | None:
     """Why the current run cannot answer when its launcher (which holds the embedded router) has exited
     without removing ``runs/current.json`` (SIGKILL, a crash), else None. Said at once, not after a
     connect timeout to a router that is gone."""
-    from cso_runtime.launcher import current_launcher_alive, read_current_run  # noqa: PLC0415
+    from cso_runtime.launcher import current_launcher_alive  # noqa: PLC0415
 
-    info = read_current_run(runs_dir)
     if info is None or not info.get("launcher_pid") or current_launcher_alive(info):
         return None
     return f"run {info['run_id']}'s launcher, pid {info['launcher_pid']}, has exited; `cso-runtime down` clears {runs_dir / 'current.json'}"
@@ -173,11 +168,19 @@ def say_nothing_running(why: str, as_json: bool) -> int:
 
 
 def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_json: bool = False) -> tuple[list[str], str] | int:
-    """``target_of``, or the exit code after saying why there is no one to ask: 1 when nothing runs, 2 when
+    """Whom to ask (the given endpoints and robot, else the current run's), or the exit code after saying why there is no one to ask: 1 when nothing runs, 2 when
     ``connect`` cannot name a router (a typo such as ``127.0.0.1:7447``: a usage error, not "nothing running") or
     ``robot`` is not one robot's id."""
+    from cso_runtime.launcher import read_current_run  # noqa: PLC0415
+
     given_connect = bool(connect)
-    connect, robot = target_of(connect, robot, runs_dir)
+    # The run file read once: the endpoints and the launcher's liveness are then of one run, even when a new
+    # run replaces the file in between (and a bad file is warned about once).
+    run_info = None if given_connect else read_current_run(runs_dir)
+    if not given_connect:
+        connect, run_robot = endpoints_of_run(run_info)
+        robot = robot or run_robot
+    robot = robot or "r0"
     try:  # one robot's status or map: a wildcard or a key-breaking id is a usage error, not "nothing running"
         check_robot_id(robot)
     except KeyExprError as exc:
@@ -185,7 +188,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
         return 2
     if not connect:
         return say_nothing_running("no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
-    if not given_connect and (gone := dead_launcher_of_current_run(runs_dir)):
+    if not given_connect and (gone := dead_launcher_of_run(run_info, runs_dir)):
         return say_nothing_running(gone, as_json)
     try:
         TransportConfig(mode="client", connect=connect).validate()

@@ -107,6 +107,19 @@ def test_pose_and_markers_encode():
     assert msg.markers[0].action == 3 and len(msg.markers[1].points) == 2
 
 
+def test_yaw_of_an_unnormalised_quaternion_is_its_heading_and_a_zero_one_is_refused():
+    # A driver may publish a quaternion scaled by any factor; the unit-norm shortcut gave 0.5 rad as 1.31 rad at
+    # scale 2 (and the heading of a pure-z quaternion of norm 0.5 as 0).
+    for scale in (0.5, 1.0, 2.0, 10.0):
+        q = [scale * v for v in (0.0, 0.0, math.sin(0.25), math.cos(0.25))]
+        assert cdr.yaw_from_quaternion(*q) == pytest.approx(0.5)
+    assert cdr.yaw_from_quaternion(0.0, 0.0, 0.5, 0.0) == pytest.approx(math.pi)
+    with pytest.raises(cdr.CdrError, match="no orientation"):
+        cdr.yaw_from_quaternion(0.0, 0.0, 0.0, 0.0)
+    with pytest.raises(cdr.CdrError, match="no orientation"):
+        cdr.yaw_from_quaternion(0.0, 0.0, float("nan"), 1.0)
+
+
 def test_garbage_is_a_clear_error():
     with pytest.raises(cdr.CdrError, match="LaserScan"):
         cdr.laserscan_from_cdr(b"\x00\x01\x00\x00garbage")

@@ -871,6 +871,23 @@ def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path)
         silent.close()
 
 
+def test_status_reads_the_run_file_once_so_its_endpoints_and_launcher_are_of_one_run(tmp_path, monkeypatch):
+    """A new run may replace runs/current.json between two reads: status then asked the old run's router
+    and judged the new run's launcher. One read gives both from one run (here: a live launcher's)."""
+    from cso_runtime import launcher, status
+
+    exited = subprocess.Popen([sys.executable, "-c", "pass"])
+    exited.wait(timeout=30)
+    files = iter([
+        {"run_id": "live", "robot": "r3", "launcher_pid": os.getpid(), "endpoints": ["tcp/127.0.0.1:7001"]},
+        {"run_id": "gone", "robot": "r0", "launcher_pid": exited.pid, "endpoints": ["tcp/127.0.0.1:7002"]},
+    ])
+    reads = []
+    monkeypatch.setattr(launcher, "read_current_run", lambda runs_dir: reads.append(runs_dir) or next(files))
+    assert status.reachable_target([], None, tmp_path) == (["tcp/127.0.0.1:7001"], "r3")
+    assert len(reads) == 1
+
+
 @pytest.mark.parametrize("content", ["[]", '{"run_id": "x", "launcher_pid": "abc"}', '{"run_id": "x", "services": {"sim": {"pid": "1"}}}', "{bad"])
 def test_a_run_file_that_is_not_one_is_ignored_with_a_warning_not_a_traceback(tmp_path, content):
     """A half-written or hand-edited runs/current.json: status, down and logs say they ignore it and why,
