@@ -138,6 +138,9 @@ def eval_command(
     workers: int = typer.Option(1, "--workers", help="Parallel worker processes"),
     sim: str = typer.Option("2d", "--sim", help="Simulator: 2d (fast kinematic) or mujoco (physics)"),
     config: Path | None = typer.Option(None, "--config", help="YAML with exploration parameters (see configs/eval.yaml)"),
+    sim_config: Path | None = typer.Option(
+        None, "--sim-config", help="YAML with the MuJoCo LIMO's parameters (see configs/robot_sim.yaml: physics, odometry drift); --sim mujoco only"
+    ),
     resume: bool = typer.Option(False, "--resume", help="Keep episodes already finished in --out (same method, map, seed, config, simulator and weights)"),
     baseline: str = typer.Option("greedy-dist", "--baseline", help="Compare every other method with this one, scene by scene (paired.csv), when it runs too"),
     weights: Path | None = typer.Option(
@@ -173,6 +176,7 @@ def eval_command(
         workers=workers,
         sim=sim,
         config_path=config,
+        sim_config_path=sim_config,
         resume=resume,
         baseline=baseline,
         animate=animate,

@@ -60,7 +60,7 @@ from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, 
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
 from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
-from cso_runtime.simulator import SIMULATORS, make_simulator
+from cso_runtime.simulator import SIMULATORS, make_simulator, mujoco_config
 
 log = logging.getLogger(__name__)
 
@@ -95,6 +95,9 @@ class EvalRequest:
     workers: int = 1
     sim: str = "2d"
     config_path: Path | None = None
+    sim_config_path: Path | None = None
+    """``--sim-config``: the MuJoCo LIMO's parameters (``configs/robot_sim.yaml``'s keys: physics, odometry drift)
+    over its defaults; ``--sim mujoco`` only."""
     resume: bool = False
     """Reuse episodes already finished in ``out_dir`` (same method, map and seed)."""
     baseline: str = "greedy-dist"
@@ -138,6 +141,16 @@ class EvalRequest:
             cfg.episode = dataclasses.replace(cfg.episode, max_steps=int(self.max_steps))
         return cfg
 
+    def mujoco_parameters(self) -> dict[str, Any]:
+        """The ``--sim-config`` file's MuJoCo parameters, checked (``simulator.mujoco_config``); {} without one."""
+        if self.sim_config_path is None:
+            return {}
+        if self.sim != "mujoco":
+            raise ConfigError(f"--sim-config sets the MuJoCo LIMO's parameters: it needs --sim mujoco, not --sim {self.sim}")
+        data = load_yaml(self.sim_config_path)
+        mujoco_config(data, self.exploration_config().sensor, where=str(self.sim_config_path))
+        return data
+
     def validate(self) -> None:
         known = set(BASELINES) | set(LEARNED_METHODS)
         unknown = [m for m in self.methods if m not in known]
@@ -157,6 +170,7 @@ class EvalRequest:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
         if self.max_steps is not None and self.max_steps <= 0:
             raise ConfigError(f"--max-steps must be positive, got {self.max_steps}")
+        self.mujoco_parameters()
         if self.workers <= 0:
             raise ConfigError(f"--workers must be positive, got {self.workers}")
         check_seed(self.seed, "--seed")
@@ -191,6 +205,8 @@ class EpisodeJob:
     reuses an episode only when it matches, so a changed flag or new weights never mix into a table."""
     animate: bool = False
     """Write the episode's animation (``episode_animation_path``); it changes nothing of the episode."""
+    mujoco: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """The MuJoCo LIMO's parameters over its defaults (``EvalRequest.sim_config_path``)."""
 
     @property
     def npz_path(self) -> Path:
@@ -207,9 +223,13 @@ def scene_fingerprint(plan: FloorPlan) -> str:
     return h.hexdigest()[:16]
 
 
-def settings_fingerprint(config: ExplorationConfig, sim: str, weights_sha256: str = "") -> str:
-    """A short hash of the settings an episode ran with (see ``EpisodeJob.settings``)."""
-    text = json.dumps({"config": to_dict(config), "sim": sim, "weights": weights_sha256}, sort_keys=True, default=str)
+def settings_fingerprint(config: ExplorationConfig, sim: str, weights_sha256: str = "", mujoco: dict[str, Any] | None = None) -> str:
+    """A short hash of the settings an episode ran with (see ``EpisodeJob.settings``). MuJoCo parameters count
+    only when given, so the episodes of runs without them keep their fingerprints."""
+    fields: dict[str, Any] = {"config": to_dict(config), "sim": sim, "weights": weights_sha256}
+    if mujoco:
+        fields["mujoco"] = mujoco
+    text = json.dumps(fields, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -323,7 +343,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         if warm_up is not None:  # the network's one-off trace, outside the decision latencies (as the policy service does)
             warm_up()
         t0 = time.perf_counter()
-        sim = make_simulator(job.sim, plan, job.config.sensor, job.config.robot, seed=job.seed)
+        sim = make_simulator(job.sim, plan, job.config.sensor, job.config.robot, seed=job.seed, mujoco=job.mujoco)
         animation = EpisodeAnimation() if job.animate else None
         result = run_episode(sim, policy, job.config, seed=job.seed, on_step=animation.on_step if animation else None)
         wall_s = time.perf_counter() - t0  # the frames' drawing included, when animated
@@ -452,9 +472,10 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         from cso_runtime.learned.weights import weights_provenance  # noqa: PLC0415
 
         weights = {m: weights_provenance(m, config.sensor) for m in request.methods if m in LEARNED_METHODS}
-    settings = {m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "") for m in request.methods}
+    mujoco = request.mujoco_parameters()
+    settings = {m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "", mujoco) for m in request.methods}
     jobs = [
-        EpisodeJob(m, s, request.seed, request.sim, config, out, settings[m], animate=request.animate)
+        EpisodeJob(m, s, request.seed, request.sim, config, out, settings[m], animate=request.animate, mujoco=mujoco)
         for s in scenes
         for m in request.methods
     ]
@@ -506,6 +527,8 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         meta["interrupted"] = {"episodes_finished": len(outcomes), "episodes_planned": total, "resume": "run the same command with --resume"}
     if weights:
         meta["weights"] = weights
+    if mujoco:
+        meta["mujoco"] = {"file": str(request.sim_config_path), "parameters": mujoco}
     if progress is not None:  # hundreds of plans take a while to plot: say so rather than sit at N/N
         progress.writing(out, len({o.map for o in outcomes if o.row is not None}))
     summary = write_outputs(out, rows, failures, request.methods, meta, request.baseline)

@@ -227,6 +227,10 @@ class Profile:
                 from_dict(params_cls, params or {}, where=f"services.{name}")
             elif params:
                 raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
+        if (self.services.get("sim") or {}).get("mujoco"):  # the LiDAR mount against the sensor's, before anything starts
+            from cso_runtime.simulator import mujoco_config  # noqa: PLC0415
+
+            mujoco_config(self.services["sim"]["mujoco"], self.exploration_config().sensor, where="services.sim.mujoco")
         if (self.services.get("sim") or {}).get("viewer"):  # its own process checks too; this says so before anything starts
             from robot_sim.viewer import display_problem  # noqa: PLC0415
 

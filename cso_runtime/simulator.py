@@ -8,14 +8,18 @@ protocol with physics. Mapping, frontiers, policies and the planner never know w
 from __future__ import annotations
 
 import math
-from typing import Protocol, runtime_checkable
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from cso_runtime.config import RobotConfig, SensorConfig
+from cso_runtime.config import ConfigError, RobotConfig, SensorConfig, from_dict
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
 from cso_runtime.raycast import cast_rays
 from cso_runtime.scenes import FloorPlan
+
+if TYPE_CHECKING:
+    from robot_sim import MujocoSimConfig
 
 
 @runtime_checkable
@@ -155,14 +159,35 @@ class KinematicSimulator:
 SIMULATORS = ("2d", "mujoco")
 
 
-def make_simulator(name: str, plan: FloorPlan, sensor: SensorConfig, robot: RobotConfig, seed: int | None = None) -> Simulator:
-    """Simulator by name: ``2d`` (kinematic, fast) or ``mujoco`` (the physics LIMO in ``robot_sim``)."""
+def mujoco_config(overrides: Mapping[str, Any] | None, sensor: SensorConfig, where: str = "mujoco") -> MujocoSimConfig:
+    """The MuJoCo LIMO's parameters: ``robot_sim``'s defaults with ``overrides`` on top (the keys of
+    ``configs/robot_sim.yaml``: physics, odometry drift), its rays cast from the sensor's own mount, which the
+    mapper and the planner use too (eval, the services and doctor give it the LIMO's 0.103 m unless a config
+    sets it): one mount, not two that disagree. Raises ConfigError naming ``where``."""
+    from robot_sim import MujocoSimConfig  # noqa: PLC0415 - MuJoCo only when asked for
+
+    data = dict(overrides or {})
+    mount = data.get("lidar_mount_x_m")
+    if mount is not None and not (isinstance(mount, (int, float)) and math.isclose(float(mount), sensor.mount_x_m, abs_tol=1e-9)):
+        raise ConfigError(
+            f"{where}.lidar_mount_x_m: {mount!r} is not the sensor's mount ({sensor.mount_x_m} m), which the mapper and the "
+            "planner use; set sensor.mount_x_m instead (or leave this key out)"
+        )
+    data["lidar_mount_x_m"] = None
+    return from_dict(MujocoSimConfig, data, where=where)
+
+
+def make_simulator(
+    name: str, plan: FloorPlan, sensor: SensorConfig, robot: RobotConfig, seed: int | None = None, mujoco: Mapping[str, Any] | None = None
+) -> Simulator:
+    """Simulator by name: ``2d`` (kinematic, fast) or ``mujoco`` (the physics LIMO in ``robot_sim``, with the
+    ``mujoco_config`` of ``mujoco``: parameters over its defaults)."""
     if name == "2d":
+        if mujoco:
+            raise ConfigError(f"MuJoCo parameters ({', '.join(mujoco)}) need the mujoco simulator, not the 2d one")
         return KinematicSimulator(plan, sensor, robot, seed=seed)
     if name == "mujoco":
-        from robot_sim import MujocoSimConfig, MujocoSimulator  # noqa: PLC0415 - MuJoCo only when asked for
+        from robot_sim import MujocoSimulator  # noqa: PLC0415 - MuJoCo only when asked for
 
-        # The rays from the sensor's own mount, which the mapper and the planner use too (eval, the services and
-        # doctor give it the LIMO's 0.103 m unless a config sets it): one mount, not two that disagree.
-        return MujocoSimulator(plan, sensor, robot, seed=seed, config=MujocoSimConfig(lidar_mount_x_m=None))
+        return MujocoSimulator(plan, sensor, robot, seed=seed, config=mujoco_config(mujoco, sensor))
     raise ValueError(f"unknown simulator {name!r}; choose one of {', '.join(SIMULATORS)}")

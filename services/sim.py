@@ -17,13 +17,13 @@ import argparse
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import zenoh
 
-from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.config import ConfigError, SensorConfig, from_dict
 from cso_runtime.episode import TERMINATED_COVERAGE, TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER, GroundTruthMetrics
 from cso_runtime.geometry import LaserScan, VelocityCommand
 from cso_runtime.keys import RobotKeys
@@ -42,7 +42,7 @@ from cso_runtime.messages import (
 )
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.scenes import resolve_scenes
-from cso_runtime.simulator import Simulator, make_simulator
+from cso_runtime.simulator import Simulator, make_simulator, mujoco_config
 from cso_runtime.transport import track_liveliness
 from services.common import Service, ServiceContext, service_main
 
@@ -86,6 +86,10 @@ class SimParams:
     """``episode/status`` goes out at the end of the episode and otherwise at most this often (wall
     clock), so that its listeners (the launcher's live view) are not woken on every step; ``cso-runtime
     status`` queries the current one at any time. 0 = after every step."""
+    mujoco: dict[str, Any] = field(default_factory=dict)
+    """``backend: mujoco`` only: the MuJoCo LIMO's parameters over its defaults, keys as in ``configs/robot_sim.yaml``
+    (``{odom_trans_noise_frac: 0.01}`` for odometry drift, ``timestep_s``, the acceleration limits). The LiDAR's
+    mount is ``exploration.sensor.mount_x_m``, which the mapper and the planner use too."""
     viewer: bool = False
     """Open a MuJoCo viewer window on the LIMO (``backend: mujoco`` only; needs a display, and mjpython on
     macOS): refreshed after each control step, the current goal as a red ball. ``service sim --viewer``,
@@ -101,6 +105,10 @@ class SimParams:
             raise ConfigError("min_step_period_s, start_delay_s, status_period_s and wait_for_services_s must be >= 0")
         if self.viewer and BACKENDS[self.backend] != "mujoco":
             raise ConfigError(f"viewer needs backend mujoco (the {self.backend} simulator has no 3D world to show)")
+        if self.mujoco:
+            if BACKENDS[self.backend] != "mujoco":
+                raise ConfigError(f"mujoco parameters ({', '.join(self.mujoco)}) need backend mujoco, not {self.backend}")
+            mujoco_config({k: v for k, v in self.mujoco.items() if k != "lidar_mount_x_m"}, SensorConfig(), where="mujoco")
 
 
 def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceContext) -> Simulator:
@@ -111,7 +119,7 @@ def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceCont
         raise ConfigError(f"scene {spec!r} resolves to no scene")
     plan = refs[0].load()
     seed = int(profile.get("seed", 0))
-    return make_simulator(BACKENDS[params.backend], plan, ctx.exploration.sensor, ctx.exploration.robot, seed=seed)
+    return make_simulator(BACKENDS[params.backend], plan, ctx.exploration.sensor, ctx.exploration.robot, seed=seed, mujoco=params.mujoco)
 
 
 def open_viewer(sim: Simulator) -> SimViewer:

@@ -190,6 +190,25 @@ def test_eval_rejects_a_bad_scale_or_limit_before_any_episode(tmp_path: Path, fi
     assert not (tmp_path / "o").exists()  # nothing ran, nothing written
 
 
+def test_eval_sim_config_sets_the_mujoco_limos_parameters_and_resume_tells_them_apart(tmp_path: Path):
+    """``--sim-config FILE`` (configs/robot_sim.yaml's keys): the MuJoCo LIMO runs with them, the summary says
+    which, ``--resume`` does not reuse an episode run without them, and they are refused with the 2D simulator."""
+    drift = tmp_path / "drift.yaml"
+    drift.write_text("odom_trans_noise_frac: 0.05\nodom_rot_per_trans_noise_radpm: 0.05\n")
+    base = {"methods": ["greedy-dist"], "maps": "generated:small:1:0", "out_dir": tmp_path / "o", "max_steps": 12, "sim": "mujoco", "resume": True}
+    plain = run_eval(EvalRequest(**base))
+    drifted = run_eval(EvalRequest(**base, sim_config_path=drift))
+    assert "mujoco" not in plain["meta"]
+    assert drifted["meta"]["mujoco"] == {"file": str(drift), "parameters": {"odom_trans_noise_frac": 0.05, "odom_rot_per_trans_noise_radpm": 0.05}}
+    assert drifted["meta"]["resumed_episodes"] == 0  # the same method, map and seed, other physics: run again
+    assert run_eval(EvalRequest(**base, sim_config_path=drift))["meta"]["resumed_episodes"] == 1
+    with pytest.raises(ConfigError, match="--sim-config .* needs --sim mujoco, not --sim 2d"):
+        run_eval(EvalRequest(**{**base, "sim": "2d"}, sim_config_path=drift))
+    drift.write_text("odom_noise: 0.05\n")
+    with pytest.raises(ConfigError, match="drift.yaml: unknown key"):
+        run_eval(EvalRequest(**base, sim_config_path=drift))
+
+
 def test_eval_compares_each_method_with_the_baseline_scene_by_scene(tmp_path: Path):
     summary = run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:3:7", out_dir=tmp_path / "o", max_steps=40))
     (row,) = summary["paired"]["comparisons"]

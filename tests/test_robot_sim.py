@@ -141,6 +141,31 @@ def test_the_runtime_casts_the_rays_from_the_sensors_own_mount(mount_x_m: float)
     assert ahead == pytest.approx(4.0 - RES - start.x_m - mount_x_m, abs=0.01)
 
 
+def test_the_runtime_takes_the_mujoco_limos_parameters_and_refuses_a_second_mount() -> None:
+    """eval's ``--sim-config`` and a profile's ``services.sim.mujoco`` reach the model through ``make_simulator``
+    (odometry drift here); a LiDAR mount other than the sensor's is refused, and MuJoCo parameters for the 2D
+    simulator are an error rather than silently ignored."""
+    from cso_runtime.simulator import make_simulator, mujoco_config
+
+    plan = box_room(size_m=8.0, start=Pose2D(1.0, 4.0, 0.0))
+    drift = {"odom_trans_noise_frac": 0.05, "odom_rot_per_trans_noise_radpm": 0.05}
+    sims = [make_simulator("mujoco", plan, SensorConfig(), RobotConfig(), seed=2, mujoco=m) for m in (drift, None)]
+    assert sims[0].config.odom_trans_noise_frac == 0.05 and sims[1].config == MujocoSimConfig(lidar_mount_x_m=None)
+    for sim in sims:
+        for _ in range(20):
+            sim.step(VelocityCommand(1.0, 0.1))
+    errors = [math.dist(s.true_pose().xy, s.odometry().xy) for s in sims]
+    assert errors[0] > 1e-4 and errors[1] < 1e-6
+    yaml_file = load_yaml(Path(__file__).resolve().parents[1] / "configs" / "robot_sim.yaml")  # its 0.103 m is the sensor's
+    assert mujoco_config(yaml_file, SensorConfig(mount_x_m=0.103)).lidar_mount_x_m is None
+    with pytest.raises(ConfigError, match=r"lidar_mount_x_m: 0.103 is not the sensor's mount \(0.0 m\).*set sensor.mount_x_m"):
+        mujoco_config(yaml_file, SensorConfig(mount_x_m=0.0))
+    with pytest.raises(ConfigError, match="unknown key"):
+        mujoco_config({"odom_noise": 0.1}, SensorConfig())
+    with pytest.raises(ConfigError, match="need the mujoco simulator"):
+        make_simulator("2d", plan, SensorConfig(), RobotConfig(), mujoco=drift)
+
+
 def test_lidar_noise_is_seeded_and_fires_at_sensor_rate() -> None:
     noisy = SensorConfig(fov_deg=360.0, range_noise_std_m=0.02)
     a = MujocoSimulator(box_room(), noisy, seed=7)

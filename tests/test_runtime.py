@@ -871,6 +871,27 @@ def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path)
         silent.close()
 
 
+def test_a_profile_sets_the_mujoco_limos_parameters_checked_before_anything_starts():
+    """``services.sim.mujoco``: the MuJoCo LIMO's parameters (``configs/robot_sim.yaml``'s keys) in a profile, each
+    checked before any process starts: a bad value, an unknown key, the kinematic backend, a second LiDAR mount."""
+    from cso_runtime.config import ConfigError, from_dict
+    from cso_runtime.launcher import load_profile
+    from services.sim import SimParams
+
+    profile, written = load_profile("sim", {}, settings={"services.sim.mujoco.odom_trans_noise_frac": 0.02})
+    assert written["services"]["sim"]["mujoco"] == {"odom_trans_noise_frac": 0.02}  # what the sim service reads
+    assert from_dict(SimParams, profile.services["sim"]).mujoco == {"odom_trans_noise_frac": 0.02}
+    for key, value, error in [
+        ("services.sim.mujoco.timestep_s", -1, "timestep_s must be positive"),
+        ("services.sim.mujoco.odom_noise", 0.1, "unknown key"),
+        ("services.sim.mujoco.lidar_mount_x_m", 0.2, "not the sensor's mount"),
+    ]:
+        with pytest.raises(ConfigError, match=error):
+            load_profile("sim", {}, settings={key: value})
+    with pytest.raises(ConfigError, match="need backend mujoco, not kinematic"):
+        load_profile("lockstep", {}, settings={"services.sim.mujoco.odom_trans_noise_frac": 0.02})
+
+
 def test_status_reads_the_run_file_once_so_its_endpoints_and_launcher_are_of_one_run(tmp_path, monkeypatch):
     """A new run may replace runs/current.json between two reads: status then asked the old run's router
     and judged the new run's launcher. One read gives both from one run (here: a live launcher's)."""
