@@ -72,7 +72,7 @@ from cso_runtime.supervision import (
     signal_group,
     stop_children,
 )
-from cso_runtime.transport import TransportConfig, TransportError, free_tcp_port, open_session, track_liveliness
+from cso_runtime.transport import TransportConfig, TransportError, open_router, open_session, track_liveliness
 
 log = logging.getLogger("cso.launcher")
 
@@ -736,14 +736,12 @@ class Launcher:
         self.write_dataflow()
         router = self.profile.router
         if router.embedded:
-            listen = [ep.replace(":0", f":{free_tcp_port()}") if ep.endswith(":0") else ep for ep in router.listen]
-            self.endpoints = listen
-            transport = TransportConfig(mode="router", listen=listen, connect=list(router.connect))
+            session, self.endpoints = open_router(list(router.listen), list(router.connect))
         else:  # join the existing router(s) instead of opening one
             self.endpoints = list(router.connect)
-            transport = TransportConfig(mode="client", connect=list(router.connect))
+            session = open_session(TransportConfig(mode="client", connect=list(router.connect)))
         view = LiveView(self) if live else None
-        with open_session(transport) as session:
+        with session:
             subs = [session.declare_subscriber(self.keys.topic(t), self._guarded(self._on_sample)) for t in LAUNCHER_INPUTS]
             qs = [
                 session.declare_queryable(self.keys.cache("goal"), self._guarded(self._on_cache_query)),

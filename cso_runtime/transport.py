@@ -8,12 +8,15 @@ cross-talk by accident.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import socket
 from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
+
+log = logging.getLogger("cso.transport")
 
 MODES = ("peer", "client", "router")
 
@@ -92,6 +95,25 @@ def open_session(conf: TransportConfig) -> zenoh.Session:
         return zenoh.open(zenoh_config(conf))
     except zenoh.ZError as exc:
         raise TransportError(f"cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {exc}") from None
+
+
+PORT_TRIES = 3
+"""``open_router``: picks of a free port per start (another process may take one between the pick and the bind)."""
+
+
+def open_router(listen: list[str], connect: list[str]) -> tuple[zenoh.Session, list[str]]:
+    """A router session and the endpoints it listens on: each endpoint ending in port ``:0`` gets a port free
+    right now; when another process takes it before Zenoh binds it, another is picked (``PORT_TRIES`` in all)."""
+    picked = any(ep.endswith(":0") for ep in listen)
+    for attempt in range(1, PORT_TRIES + 1):
+        chosen = [f"{ep[:-2]}:{free_tcp_port()}" if ep.endswith(":0") else ep for ep in listen]
+        try:
+            return open_session(TransportConfig(mode="router", listen=chosen, connect=list(connect))), chosen
+        except TransportError:
+            if not picked or attempt == PORT_TRIES:
+                raise
+            log.warning("router port taken before it was bound (%s); picking another", ", ".join(chosen))
+    raise AssertionError("unreachable")
 
 
 def free_tcp_port(host: str = "127.0.0.1") -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import os
 import time
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
@@ -10,6 +11,12 @@ from typing import Any
 
 import numpy as np
 import pytest
+from hypothesis import settings
+
+# Property tests draw the same examples on every run and machine (CI's failure is the one a developer gets), and
+# keep no example database in the checkout: a derandomized profile, the default unless HYPOTHESIS_PROFILE names another.
+settings.register_profile("deterministic", derandomize=True, database=None)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 from cso_runtime.geometry import Pose2D
 from cso_runtime.scenes import FloorPlan

@@ -31,7 +31,7 @@ def test_greedy_dist_explores_two_rooms_completely():
     assert result.coverage_pct > 97.0
     assert result.steps < 400
     assert len(result.coverage_curve_pct) == result.steps + 1
-    assert np.all(np.diff(result.coverage_curve_pct) >= -1e-9) or result.coverage_curve_pct[-1] > 97
+    assert np.all(np.diff(result.coverage_curve_pct) >= -1e-9)  # coverage never goes down
     assert result.trajectory_xy_m.shape == (result.steps + 1, 2)
     assert result.decision_ms and result.efficiency_m2_per_step > 0
 

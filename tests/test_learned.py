@@ -35,6 +35,7 @@ from cso_runtime.learned.ppo import (
 )
 from cso_runtime.learned.registry import LearnedPolicy, has_method, load_checkpoint, save_checkpoint
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
+from cso_runtime.learned.weights import weights_path
 from cso_runtime.masks import valid_distance_mask
 from cso_runtime.policies import Goal, goal_of, make_policy
 from cso_runtime.scenes import FloorPlan
@@ -537,6 +538,17 @@ def test_make_policy_cso_uses_the_shipped_weights():
     goal = policy.select(explorer.observe())
     assert isinstance(goal, Goal)
     assert not has_method("no-such-variant")
+    # The very network of the shipped file for each field of view (the 180-degree LiDAR's own weights where they
+    # ship), not a fresh one of the same shape: every tensor equal to the checkpoint's.
+    files = set()
+    for sensor in (SensorConfig(), SensorConfig(fov_deg=360.0)):
+        served = make_policy("cso", MaskConfig(), seed=0, sensor=sensor).model.state_dict()
+        path = weights_path("cso", sensor)
+        shipped = load_checkpoint(path)[0].state_dict()
+        assert served.keys() == shipped.keys()
+        assert all(torch.equal(served[k], shipped[k]) for k in shipped), path
+        files.add(path.name)
+    assert files == {"cso.pt", "cso@fov180.pt"}
 
 
 @pytest.mark.parametrize("variant", ["cso", "cso-no-info", "cso-no-mask", "cso-sm", "cso-vdm", "gnn-baseline"])

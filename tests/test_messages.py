@@ -474,14 +474,30 @@ def test_random_bytes_only_ever_raise_message_error(data):
         pass
 
 
-@settings(max_examples=100, deadline=None)
-@given(st.dictionaries(st.sampled_from(["step", "stamp_s", "pose", "twist", "x"]), st.one_of(st.none(), st.integers(-(2**63), 2**64 - 1), st.floats(), st.text(max_size=3), st.lists(st.floats(), max_size=4))))
-def test_random_odometry_bodies_decode_or_raise_message_error(body):
+VALID_ODOMETRY_BODY = {"step": 3, "stamp_s": 0.75, "pose": [1.0, 2.0, 0.5], "twist": [0.0, 0.0]}
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.dictionaries(
+    st.sampled_from([*VALID_ODOMETRY_BODY, "x"]),
+    st.one_of(st.none(), st.integers(-(2**63), 2**64 - 1), st.floats(), st.text(max_size=3), st.lists(st.floats(), min_size=2, max_size=4)),
+    max_size=2,
+))
+def test_random_odometry_bodies_decode_or_raise_message_error(changes):
+    """A valid body with up to two fields replaced (or one added): either a message whose every value is a usable
+    one, or a MessageError, never another exception. The empty change (and lists of the right length of finite
+    floats) decode, so the first branch runs too."""
     try:
-        msg = decode(_wire("odom", body), OdometryMsg)
+        msg = decode(_wire("odom", {**VALID_ODOMETRY_BODY, **changes}), OdometryMsg)
     except MessageError:
         return
-    assert isinstance(msg, OdometryMsg) and math.isfinite(msg.pose.x_m) and msg.step >= 0
+    assert isinstance(msg, OdometryMsg) and msg.step >= 0 and math.isfinite(msg.stamp_s)
+    assert all(math.isfinite(v) for v in (msg.pose.x_m, msg.pose.y_m, msg.pose.yaw_rad, msg.twist.linear_mps, msg.twist.angular_radps))
+
+
+def test_the_valid_odometry_body_of_the_property_test_decodes():
+    assert _body(OdometryMsg(3, 0.75, Pose2D(1.0, 2.0, 0.5))) == VALID_ODOMETRY_BODY
+    assert decode(_wire("odom", VALID_ODOMETRY_BODY), OdometryMsg).pose == Pose2D(1.0, 2.0, 0.5)
 
 
 # --- keys ---------------------------------------------------------------------------------------

@@ -17,7 +17,7 @@ import pytest
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.keys import RobotKeys
-from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, encode
+from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, decode, encode
 from cso_runtime.recording import (
     JSON_ENCODING,
     MCAP_MAGIC,
@@ -407,8 +407,10 @@ def test_record_closed_by_its_terminal_finishes_its_file(tmp_path: Path):
         reader.start()
         try:
             wait_for(lambda: any(line.startswith("recording cso/r0/**") for line in lines), 30, "the recorder to connect")
+            publisher = session.declare_publisher(keys.odom)
+            wait_for(lambda: publisher.matching_status.matching, 10, "the recorder's subscription to reach the router")
             for k in range(20):
-                session.put(keys.odom, encode(OdometryMsg(k, 0.25 * k, Pose2D(0.1 * k, 0.0, 0.0))))
+                publisher.put(encode(OdometryMsg(k, 0.25 * k, Pose2D(0.1 * k, 0.0, 0.0))))
             proc.send_signal(signal.SIGHUP)
             proc.wait(timeout=30)
             reader.join(timeout=10)
@@ -419,4 +421,6 @@ def test_record_closed_by_its_terminal_finishes_its_file(tmp_path: Path):
     assert proc.returncode == 0 and "messages on" in output, output
     with out.open("rb") as fh:
         assert make_reader(fh).get_summary() is not None  # finished: the seeking reader's summary is there
-    assert all(m.key == keys.odom for m in read_recording(out))
+    recorded = list(read_recording(out))
+    assert [m.key for m in recorded] == [keys.odom] * 20  # every message sent, none lost to the signal
+    assert [decode(m.payload).step for m in recorded] == list(range(20))

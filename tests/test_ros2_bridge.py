@@ -456,9 +456,9 @@ def test_fake_limo_is_explored_through_the_limo_ros2_profile():
             wait_for(lambda: statuses and statuses[-1].state == "done", 35, "the end of the exploration")
         finally:
             stop.set()
-            robot_thread.join(5)
-            for t in threads:
-                t.join(10)
+            for t in [robot_thread, *threads]:
+                if t.ident is not None:  # a service that never came up: the robot's thread was never started
+                    t.join(10)
             robot.sub.undeclare()
             sub.undeclare()
     mapper = services[1]

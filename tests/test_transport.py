@@ -1,0 +1,74 @@
+"""Every Zenoh session this project opens has multicast scouting off: the integration tests (and users' runs on a
+lab network) must never discover a developer's LAN or a real robot's router."""
+
+from __future__ import annotations
+
+import json
+import re
+import socket
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from cso_runtime import status, transport
+from cso_runtime.transport import TransportConfig, loopback_endpoint, zenoh_config
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.parametrize("conf", [
+    TransportConfig(mode="peer"),
+    TransportConfig(mode="client", connect=[loopback_endpoint(7447)]),
+    TransportConfig(mode="router", listen=[loopback_endpoint(0)]),
+], ids=["peer", "client", "router"])
+def test_every_mode_has_multicast_scouting_off(conf):
+    cfg = zenoh_config(conf)
+    assert cfg.get_json("scouting/multicast/enabled") == "false"
+    assert json.loads(cfg.get_json("mode")) == conf.mode
+
+
+def test_the_sessions_opened_by_services_and_by_status_have_scouting_off(monkeypatch):
+    opened: list[zenoh.Config] = []
+
+    def fake_open(cfg):
+        opened.append(cfg)
+        raise zenoh.ZError("not opened in this test")
+
+    monkeypatch.setattr(zenoh, "open", fake_open)
+    with pytest.raises(transport.TransportError):
+        transport.open_session(TransportConfig(mode="peer"))
+    assert status.query_status([loopback_endpoint(7447)], "r0") is None
+    assert len(opened) == 2
+    assert [cfg.get_json("scouting/multicast/enabled") for cfg in opened] == ["false", "false"]
+
+
+def test_no_other_code_opens_a_zenoh_session():
+    """The two sessions above are the only ones: a new ``zenoh.open`` elsewhere would bypass ``zenoh_config``."""
+    sites = sorted(
+        str(path.relative_to(ROOT))
+        for folder in ("cso_runtime", "services", "robot_sim", "benchmarks")
+        for path in (ROOT / folder).rglob("*.py")
+        if re.search(r"zenoh\.open\(", path.read_text(encoding="utf-8"))
+    )
+    assert sites == ["cso_runtime/status.py", "cso_runtime/transport.py"]
+
+
+def test_the_embedded_router_picks_another_port_when_its_first_is_taken(monkeypatch):
+    """``free_tcp_port`` frees the port it found before Zenoh binds it; another process may take it then (two
+    picks in a row returned the same port 4 times in 20,000). ``up`` then picks again instead of exiting 3."""
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", 0))
+    taken.listen(1)
+    free = transport.free_tcp_port
+    picks = iter([taken.getsockname()[1]])
+    monkeypatch.setattr(transport, "free_tcp_port", lambda host="127.0.0.1": next(picks, None) or free(host))
+    try:
+        session, endpoints = transport.open_router(["tcp/127.0.0.1:0"], [])
+        with session:
+            assert endpoints != [loopback_endpoint(taken.getsockname()[1])]
+            assert endpoints[0].startswith("tcp/127.0.0.1:") and not endpoints[0].endswith(":0")
+        with pytest.raises(transport.TransportError):  # a port the profile names is not changed: a clear error
+            transport.open_router([loopback_endpoint(taken.getsockname()[1])], [])
+    finally:
+        taken.close()
