@@ -218,6 +218,13 @@ class EpisodeConfig:
             raise ConfigError("episode.done_unexplored_m2 must be >= 0")
 
 
+BODIES = ("disc", "box")
+"""``PlannerConfig.body``: the shapes the controller can keep off obstacles."""
+
+LIMO_BODY = "box"
+"""The MuJoCo LIMO's and the real LIMO's body for ``PlannerConfig.body``."""
+
+
 @dataclass
 class PlannerConfig:
     """Local planner: path following with pure pursuit and a Nav2-style progress checker."""
@@ -250,6 +257,11 @@ class PlannerConfig:
     """How far the stall recovery backs up (Nav2's default ``backup_dist``)."""
     backup_speed_mps: float = 0.15
     """How fast it backs up."""
+    body: str = "disc"
+    """The body the controller keeps ``stop_distance_m`` off scanned obstacles: ``disc`` (half the robot's width plus
+    1 cm, the 2D simulator's robot, whose collisions are those of that disc) or ``box`` (``length_m`` x ``width_m``,
+    the LIMO itself: 4 cm longer at the front than the disc). The slow-down is the disc's sweep either way.
+    ``eval --sim mujoco``, a profile whose sim is the MuJoCo LIMO, and the ``limo-ros2`` profile use ``box``."""
 
     def validate(self) -> None:
         if not self.lookahead_m > 0:
@@ -266,6 +278,8 @@ class PlannerConfig:
             raise ConfigError("planner.stall_steps must be >= 0")
         if not (self.backup_distance_m > 0 and self.backup_speed_mps > 0):
             raise ConfigError("planner.backup_distance_m and planner.backup_speed_mps must be positive")
+        if self.body not in BODIES:
+            raise ConfigError(f"planner.body must be one of {', '.join(BODIES)}, got {self.body!r}")
 
 
 @dataclass
@@ -279,6 +293,20 @@ class ExplorationConfig:
     masks: MaskConfig = field(default_factory=MaskConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
+
+    def validate(self) -> None:
+        """What no section can check alone: the planner's moves against the robot's limits."""
+        v_max = self.robot.max_linear_mps
+        if self.planner.backup_speed_mps > v_max:
+            raise ConfigError(
+                f"planner.backup_speed_mps ({self.planner.backup_speed_mps} m/s) must not exceed robot.max_linear_mps ({v_max} m/s): "
+                "the driver would clamp the back-up and it would back up short of backup_distance_m"
+            )
+        if self.planner.progress_required_m > v_max * self.planner.progress_window_s:
+            raise ConfigError(
+                f"planner.progress_required_m ({self.planner.progress_required_m} m) is more than the robot can drive in "
+                f"progress_window_s ({self.planner.progress_window_s} s) at robot.max_linear_mps ({v_max} m/s): every goal would end no_progress"
+            )
 
 
 _YAML11_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")

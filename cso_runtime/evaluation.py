@@ -34,6 +34,7 @@ from cso_runtime.comparison import PAIRED_COLUMNS, as_dicts, compare_to_baseline
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import (
     EXIT_INTERRUPTED,
+    LIMO_BODY,
     ConfigError,
     ExplorationConfig,
     SensorConfig,
@@ -132,6 +133,8 @@ class EvalRequest:
             setattr(preset, key, getattr(cfg.sensor, key))
         if "mount_x_m" not in explicit and self.sim == "mujoco":
             preset.mount_x_m = LIMO_LIDAR_MOUNT_X_M  # the MuJoCo LIMO carries its LiDAR 0.103 m ahead of the centre; the planner must know it
+        if "body" not in (data.get("planner") or {}) and self.sim == "mujoco":
+            cfg.planner = dataclasses.replace(cfg.planner, body=LIMO_BODY)  # the MuJoCo LIMO is a box, not the 2D robot's disc
         try:
             preset.validate()
         except ConfigError as exc:

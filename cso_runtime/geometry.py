@@ -44,8 +44,9 @@ class VelocityCommand:
     angular_radps: float = 0.0
 
     def clamped(self, max_linear_mps: float, max_angular_radps: float) -> VelocityCommand:
-        v = float(np.clip(self.linear_mps, -max_linear_mps, max_linear_mps))
-        w = float(np.clip(self.angular_radps, -max_angular_radps, max_angular_radps))
+        """Within the limits; a NaN component (a command computed from a bad input) becomes 0, a stop."""
+        v = 0.0 if math.isnan(self.linear_mps) else float(np.clip(self.linear_mps, -max_linear_mps, max_linear_mps))
+        w = 0.0 if math.isnan(self.angular_radps) else float(np.clip(self.angular_radps, -max_angular_radps, max_angular_radps))
         return VelocityCommand(v, w)
 
 

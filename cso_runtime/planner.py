@@ -8,6 +8,7 @@ policy can act on: ``following``, ``reached``, ``blocked`` (no path) or ``no_pro
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from enum import Enum
@@ -32,6 +33,11 @@ STALL_MIN_ASKED_RAD = 0.05
 
 _NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
 
+
+MIN_DRIVE_MPS = 0.05
+"""``PathFollower.min_speed_mps`` on a robot whose top speed is at least four times this."""
+CREEP_BACK_MPS = 0.2
+"""The blocked-ahead back-off's speed (at most the robot's top speed)."""
 
 REVERSE_LOOKAHEAD_M = 0.1
 """The least distance behind the robot checked before a reverse command (a period's travel is 4-5 cm)."""
@@ -175,7 +181,7 @@ class FollowResult:
     recovery: str = ""
     """``"backup"`` when the command is the stall recovery's (``StallRecovery``); ``"reverse_blocked"``
     when a reverse command (a back-up, or the blocked-ahead creep back) was replaced by a stop because
-    the map shows an obstacle behind the robot; else empty."""
+    the map shows an obstacle behind the robot; ``"bad_pose"`` when the pose was not finite (a stop); else empty."""
 
 
 class PathFollower:
@@ -205,25 +211,43 @@ class PathFollower:
                 look -= 1
         return nearest, look
 
+    def _scanned_points(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray]:
+        """(forward_m, lateral_m) of the scan's returns in the robot's frame. A beam shorter than ``range_min``
+        is still something there (the mapper leaves it out, the controller must not drive into it); a 0 m
+        beam is no reading at all (how the ROS bridge passes on NaN and too-close beams), nor is NaN or inf."""
+        r = np.asarray(scan.ranges_m, dtype=float)
+        valid = np.isfinite(r) & (r > 0.0)
+        r, ang = r[valid], scan.angles_rad[valid]
+        return r * np.cos(ang) + self.sensor_mount_x_m, r * np.sin(ang)
+
     def clearance_ahead(self, scan: LaserScan | None) -> tuple[float, float]:
         """(travel_m, bearing_rad): how far the robot can drive straight before touching a scanned
-        obstacle, and the bearing of that obstacle. The body is swept forward as a circle of half the
-        robot's width plus 1 cm, so walls beside a narrow door do not count."""
+        obstacle, and the bearing of that obstacle, for the slow-down. The body is swept forward as a
+        circle of half the robot's width plus 1 cm, so walls beside a narrow door do not count;
+        ``front_gap_m`` is the hard limit on the body's real front."""
         if scan is None:
             return math.inf, 0.0
-        r = np.asarray(scan.ranges_m, dtype=float)
-        ang = scan.angles_rad
-        valid = np.isfinite(r) & (r >= scan.range_min_m)
-        r, ang = r[valid], ang[valid]
+        forward, lateral = self._scanned_points(scan)
         radius = 0.5 * self.robot.width_m + 0.01
-        forward = r * np.cos(ang) + self.sensor_mount_x_m
-        lateral = r * np.sin(ang)
         ahead = (forward > 0.0) & (np.abs(lateral) < radius)
         if not ahead.any():
             return math.inf, 0.0
         travel = forward[ahead] - np.sqrt(radius**2 - lateral[ahead] ** 2)
         k = int(np.argmin(travel))
         return float(travel[k]), float(math.atan2(lateral[ahead][k], forward[ahead][k]))
+
+    def front_gap_m(self, scan: LaserScan | None) -> float:
+        """The gap between the body's front and the nearest scanned return in its way (``planner.body``): the disc's
+        sweep (``clearance_ahead``), or for the box the nearest return within its width ahead, less ``length_m`` / 2
+        (the LIMO's front, 4 cm beyond the disc's). Negative when a return lies inside the box (a wall the robot
+        is pressed on)."""
+        if scan is None:
+            return math.inf
+        if self.config.body != "box":
+            return self.clearance_ahead(scan)[0]
+        forward, lateral = self._scanned_points(scan)
+        ahead = (forward > 0.0) & (np.abs(lateral) < 0.5 * self.robot.width_m)
+        return float(forward[ahead].min() - 0.5 * self.robot.length_m) if ahead.any() else math.inf
 
     def obstacle_speed_scale(self, travel_m: float) -> float:
         """1 when the way ahead is clear, falling to 0 at ``stop_distance_m`` before contact."""
@@ -249,15 +273,18 @@ class PathFollower:
             return VelocityCommand(0.0, math.copysign(w_max, heading_error))
         travel, _ = self.clearance_ahead(scan)
         scale = self.obstacle_speed_scale(travel)
-        if scale * v_max < 0.05:
+        # One period's travel never takes the front closer than stop_distance_m to a scanned return.
+        front_limit_mps = (self.front_gap_m(scan) - self.config.stop_distance_m) / self.robot.control_period_s
+        min_v = self.min_speed_mps()
+        if min(scale * v_max, front_limit_mps) < min_v:
             return self._recover(pose, path_xy_m, nearest, travel)
         dist = max(math.hypot(target[0] - pose.x_m, target[1] - pose.y_m), 1e-6)
         curvature = 2.0 * math.sin(heading_error) / dist
-        v = min(v_max * scale, distance_to_goal_m / self.robot.control_period_s)  # never overshoot the goal
+        v = min(v_max * scale, front_limit_mps, distance_to_goal_m / self.robot.control_period_s)  # never overshoot the goal
         if abs(curvature) * v > w_max:
             v = w_max / abs(curvature)
         w = curvature * v
-        if v < 0.05:  # too slow to steer by moving: turn towards the target instead
+        if v < min_v:  # too slow to steer by moving: turn towards the target instead
             return VelocityCommand(0.0, float(np.clip(2.0 * heading_error, -w_max, w_max)))
         return VelocityCommand(v, w).clamped(v_max, w_max)
 
@@ -270,7 +297,12 @@ class PathFollower:
         error = self._heading_error(pose, path_xy_m[k])
         if abs(error) > 0.25:
             return VelocityCommand(0.0, math.copysign(0.5 * w_max, error))
-        return VelocityCommand(-0.2, 0.0)
+        return VelocityCommand(-min(CREEP_BACK_MPS, self.robot.max_linear_mps), 0.0)
+
+    def min_speed_mps(self) -> float:
+        """The slowest forward speed driven (below it the robot turns, or recovers when blocked): 0.05 m/s, or a
+        quarter of the top speed on a robot limited to less than 0.2 m/s (which would otherwise only ever recover)."""
+        return min(MIN_DRIVE_MPS, 0.25 * self.robot.max_linear_mps)
 
 class ProgressChecker:
     """Nav2's simple progress checker: at least ``required_m`` of movement within ``window_s``."""
@@ -462,8 +494,12 @@ class LocalPlanner:
         return VelocityCommand(0.0, math.copysign(self.robot.max_angular_radps, error))
 
     def update(self, pose: Pose2D, time_s: float, scan: LaserScan | None = None) -> FollowResult:
-        """One control period: the command to send and the resulting status."""
+        """One control period: the command to send (within the robot's limits) and the resulting status. A pose
+        or time that is not finite gives a stop and changes nothing (no progress judged, no stall counted)."""
+        if not all(math.isfinite(v) for v in (pose.x_m, pose.y_m, pose.yaw_rad, time_s)):
+            return FollowResult(VelocityCommand(0.0, 0.0), self.status, "bad_pose")
         result = self._guard_reverse(pose, self._update(pose, time_s, scan))
+        result = dataclasses.replace(result, command=result.command.clamped(self.robot.max_linear_mps, self.robot.max_angular_radps))
         self.stall.record(pose, time_s, result.command)
         return result
 

@@ -36,7 +36,16 @@ from typing import Any, ClassVar
 import numpy as np
 import zenoh
 
-from cso_runtime.config import EXIT_BAD_CONFIG, EXIT_NO_ZENOH, LOG_FORMAT, ConfigError, ExplorationConfig, from_dict, load_yaml
+from cso_runtime.config import (
+    EXIT_BAD_CONFIG,
+    EXIT_NO_ZENOH,
+    LIMO_BODY,
+    LOG_FORMAT,
+    ConfigError,
+    ExplorationConfig,
+    from_dict,
+    load_yaml,
+)
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
@@ -112,6 +121,9 @@ def load_profile_for_service(path: Path, name: str) -> tuple[dict[str, Any], Exp
         from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M  # noqa: PLC0415
 
         exploration.sensor.mount_x_m = LIMO_LIDAR_MOUNT_X_M  # as eval --sim mujoco: every service must agree
+    explicit_body = "body" in ((profile.get("exploration") or {}).get("planner") or {})
+    if isinstance(sim_params, dict) and sim_params.get("backend") == "mujoco" and not explicit_body:
+        exploration.planner.body = LIMO_BODY  # the MuJoCo LIMO is a box, not the 2D simulator's disc (as eval --sim mujoco)
     params = services.get(name) or {}
     if not isinstance(params, dict):
         raise ConfigError(f"{path}: services.{name} must be a mapping")
@@ -416,24 +428,29 @@ STEP_JUMP_LIMIT = 500
 
 
 class StepGuard:
-    """Out-of-range steps: inputs on one key move a step (or a decision) at a time, so a message that leaps
-    more than ``limit`` steps ahead of the last one is rejected (a stray or forged message would otherwise
-    become the service's newest step and every real one after it look old). The step after a rejected
-    leap confirms it when it follows on from it: a service cut off for a while picks up the episode again."""
+    """Out-of-range steps: a robot's inputs move a step at a time, so a message that leaps more than ``limit``
+    steps ahead of the robot's last one is rejected (a stray or forged message would otherwise become the
+    service's newest step and every real one after it look old). The reference is the later of the key's own last
+    step and the last step on any key of the robot: a key that only decisions use (``goal``) may be quiet for more
+    than ``limit`` steps while odometry and scans go on. The step after a rejected leap confirms it when it follows
+    on from it: a service cut off for a while picks up the episode again."""
 
     def __init__(self, limit: int = STEP_JUMP_LIMIT):
         self.limit = limit
         self.last: dict[tuple[str, str], int] = {}
+        self.recent: dict[str, int] = {}
+        """Robot -> the step of the last message accepted on any of its keys."""
         self.held: dict[tuple[str, str], int] = {}
         """Key -> the step of a rejected leap, which the next message may confirm."""
 
     def check(self, key: tuple[str, str], step: int) -> str:
-        """Why a message of ``step`` on ``key`` is rejected, or "" (then it is the key's last step)."""
-        last, held = self.last.get(key), self.held.pop(key, None)
+        """Why a message of ``step`` on ``key`` (robot, topic) is rejected, or "" (then it is the key's last step)."""
+        known = [s for s in (self.last.get(key), self.recent.get(key[0])) if s is not None]
+        last, held = (max(known) if known else None), self.held.pop(key, None)
         if last is not None and step > last + self.limit and not (held is not None and 0 <= step - held <= self.limit):
             self.held[key] = step
             return f"step {step} leaps more than {self.limit} steps past the last one ({last})"
-        self.last[key] = step  # a step back is a new episode or a retry: the services judge those
+        self.last[key] = self.recent[key[0]] = step  # a step back is a new episode or a retry: the services judge those
         return ""
 
 

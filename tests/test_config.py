@@ -155,6 +155,23 @@ def test_eval_takes_every_sensor_key_the_config_gives_over_the_preset(tmp_path: 
         EvalRequest(methods=["greedy-dist"], sensor="depth", settings={"sensor.range_max_m": 0.2}).exploration_config()
 
 
+def test_the_mujoco_limo_and_the_real_one_are_driven_as_a_box_the_2d_robot_as_its_disc():
+    """``planner.body``: the 2D simulator's robot is the disc its collisions are computed with; the MuJoCo LIMO
+    (``eval --sim mujoco``, a profile whose sim is MuJoCo) and the real one (``limo-ros2``) are a box, 4 cm longer
+    at the front, unless a config says otherwise."""
+    from cso_runtime.evaluation import EvalRequest
+    from cso_runtime.launcher import find_profile
+    from services.common import load_profile_for_service
+
+    assert EvalRequest(methods=["greedy-dist"]).exploration_config().planner.body == "disc"
+    assert EvalRequest(methods=["greedy-dist"], sim="mujoco").exploration_config().planner.body == "box"
+    assert EvalRequest(methods=["greedy-dist"], sim="mujoco", settings={"planner.body": "disc"}).exploration_config().planner.body == "disc"
+    bodies = {name: load_profile_for_service(find_profile(name), "planner")[1].planner.body for name in ("sim", "lockstep", "limo-ros2")}
+    assert bodies == {"sim": "box", "lockstep": "disc", "limo-ros2": "box"}
+    with pytest.raises(ConfigError, match="planner.body must be one of disc, box"):
+        from_dict(ExplorationConfig, {"planner": {"body": "square"}})
+
+
 def test_a_negative_seed_is_refused_where_it_is_given_not_inside_a_worker():
     """numpy's generators take no negative seed: eval, a runtime profile and training each say so first
     (the sim service used to refuse it after the launcher had started everything)."""

@@ -9,7 +9,7 @@ import pytest
 
 from cso_runtime.config import PlannerConfig, RobotConfig, SensorConfig
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
-from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.planner import FreeSpace, LocalPlanner, NoPath, PlannerStatus, ProgressChecker, plan_path
 from cso_runtime.simulator import KinematicSimulator
 from tests.conftest import box_room, l_shaped, walled_grid
@@ -210,6 +210,91 @@ def test_kinematic_robot_stops_at_wall():
     x = sim.true_pose().x_m
     assert x < 4.1 and x > 3.8
     assert sim.collisions > 0
+
+
+def _drive_at_the_east_wall(sensor: SensorConfig, robot: RobotConfig | None = None, steps: int = 30, body: str = "box"):
+    """The follower driving straight east at the box room's east wall (inner face x = 4.1 m), its path running
+    on through the wall: only the scan can stop it. Returns the simulator, the commands sent and where the
+    body's front was after each (the box's: half its length ahead; the disc's: its radius)."""
+    plan = box_room(4.0, 3.0, 0.05)
+    robot = robot or RobotConfig()
+    sim = KinematicSimulator(plan, sensor, robot, seed=0)
+    sim.reset()
+    sim._pose = Pose2D(3.2, 1.6, 0.0)
+    follower = LocalPlanner(robot, PlannerConfig(body=body), sensor_mount_x_m=sensor.mount_x_m).follower
+    front_m = 0.5 * robot.length_m if body == "box" else 0.5 * robot.width_m + 0.01
+    path = np.array([[3.2, 1.6], [6.0, 1.6]])
+    commands, fronts_x_m = [], []
+    for _ in range(steps):
+        pose = sim.true_pose()
+        cmd = follower.command(pose, path, 0, 1, 6.0 - pose.x_m, sim.scan())
+        commands.append(cmd)
+        sim.step(cmd)
+        fronts_x_m.append(sim.true_pose().x_m + front_m)
+    return sim, commands, fronts_x_m
+
+
+@pytest.mark.parametrize("body", ["box", "disc"])
+@pytest.mark.parametrize("sensor", [SensorConfig(), SensorConfig.preset("depth"), SensorConfig(mount_x_m=0.103)], ids=["lidar", "depth", "lidar-ahead"])
+def test_the_front_stops_short_of_a_wall_even_one_closer_than_the_sensors_range_min(sensor, body):
+    """The depth camera sees nothing nearer than 0.3 m: its beams on a wall that close used to be dropped, the
+    clearance read infinite and the robot drove on at full speed (21 collisions). Beams under range_min count
+    as obstacles, and the body's front stays stop_distance_m off the wall: the LIMO's box (half its 0.322 m length
+    ahead, where the disc's sweep let it touch), or the 2D simulator's disc."""
+    sim, commands, fronts_x_m = _drive_at_the_east_wall(sensor, body=body)
+    assert sim.collisions == 0 and commands[0].linear_mps == pytest.approx(1.0)
+    assert 4.1 - 0.06 < max(fronts_x_m) <= 4.1 - PlannerConfig().stop_distance_m + 1e-6  # close, and never past the stop distance
+
+
+def test_a_zero_metre_beam_is_no_reading_not_an_obstacle_on_the_sensor():
+    """The ROS bridge passes NaN and too-close beams on as 0 m; with a driver's range_min of 0 one such beam
+    made the robot back up in open space."""
+    follower = LocalPlanner().follower
+    ranges = np.full(181, np.inf, dtype=np.float32)
+    ranges[90] = 0.0  # straight ahead
+    scan = LaserScan(-math.pi / 2, math.pi / 180, 0.0, 12.0, ranges)
+    assert follower.clearance_ahead(scan)[0] == math.inf and follower.front_gap_m(scan) == math.inf
+    path = np.array([[0.0, 0.0], [3.0, 0.0]])
+    assert follower.command(Pose2D(0.0, 0.0, 0.0), path, 0, 1, 3.0, scan) == VelocityCommand(1.0, 0.0)
+    ranges[90] = 0.05  # a return under range_min (0.1 m) is something there
+    close = LaserScan(-math.pi / 2, math.pi / 180, 0.1, 12.0, ranges)
+    assert LocalPlanner(config=PlannerConfig(body="box")).follower.front_gap_m(close) == pytest.approx(0.05 - 0.161)
+    assert LocalPlanner().follower.front_gap_m(close) == pytest.approx(0.05 - 0.12)  # the disc's sweep
+
+
+@pytest.mark.parametrize("max_linear_mps", [0.3, 0.1, 0.04])
+def test_every_command_stays_within_a_slow_robots_limits_and_it_still_drives(max_linear_mps):
+    """Lowered limits (a first trial on a real robot): the blocked-ahead back-off went out at -0.2 m/s whatever
+    the limit, and below 0.2 m/s the follower's fixed 0.05 m/s floor left it only ever reversing."""
+    robot = RobotConfig(max_linear_mps=max_linear_mps)
+    sim, commands, fronts_x_m = _drive_at_the_east_wall(SensorConfig(), robot, steps=int(6 / max_linear_mps))
+    assert all(abs(c.linear_mps) <= max_linear_mps + 1e-9 for c in commands)
+    assert sim.collisions == 0 and 4.1 - 0.15 < max(fronts_x_m) <= 4.1 - PlannerConfig().stop_distance_m + 1e-6  # drove on to the wall
+    blocked = LaserScan(-math.pi / 2, math.pi / 180, 0.1, 12.0, np.full(181, 0.15, dtype=np.float32))
+    creep = LocalPlanner(robot).follower.command(Pose2D(0.0, 0.0, 0.0), np.array([[0.0, 0.0], [3.0, 0.0]]), 0, 1, 3.0, blocked)
+    assert creep == VelocityCommand(-min(0.2, max_linear_mps), 0.0)
+
+
+def test_a_pose_that_is_not_finite_gives_a_stop_and_changes_nothing():
+    plan = box_room(4.0, 3.0, 0.05)
+    planner = LocalPlanner()
+    planner.set_goal(ground_truth_traversable(plan), plan.geometry, Pose2D(1.0, 1.0, 0.0), np.array([3.0, 2.0]))
+    before = planner.follow_state()
+    for pose in (Pose2D(float("nan"), 1.0, 0.0), Pose2D(1.0, 1.0, float("nan")), Pose2D(math.inf, 1.0, 0.0)):
+        result = planner.update(pose, 1.0)
+        assert result.command == VelocityCommand(0.0, 0.0) and result.recovery == "bad_pose"
+    assert planner.follow_state() == before and planner.status == PlannerStatus.FOLLOWING
+    assert VelocityCommand(float("nan"), 0.3).clamped(1.0, 0.78) == VelocityCommand(0.0, 0.3)
+
+
+def test_the_planners_moves_are_checked_against_the_robots_limits():
+    from cso_runtime.config import ConfigError, ExplorationConfig, from_dict
+
+    with pytest.raises(ConfigError, match=r"backup_speed_mps \(0.15 m/s\) must not exceed robot.max_linear_mps \(0.1 m/s\)"):
+        from_dict(ExplorationConfig, {"robot": {"max_linear_mps": 0.1}})
+    with pytest.raises(ConfigError, match="every goal would end no_progress"):
+        from_dict(ExplorationConfig, {"robot": {"max_linear_mps": 0.2}, "planner": {"progress_window_s": 2.0, "backup_speed_mps": 0.1}})
+    assert from_dict(ExplorationConfig, {"robot": {"max_linear_mps": 0.1}, "planner": {"backup_speed_mps": 0.1}}).robot.max_linear_mps == 0.1
 
 
 def test_kinematic_clearance_is_the_exact_distance_to_the_nearest_wall_cell():
