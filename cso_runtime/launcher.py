@@ -23,7 +23,6 @@ import logging
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Callable
@@ -68,6 +67,7 @@ from cso_runtime.supervision import (
     dump_stacks,
     pid_alive,
     process_start_ticks,
+    python_module_argv,
     run_process_alive,
     signal_group,
     stop_children,
@@ -227,6 +227,12 @@ class Profile:
                 from_dict(params_cls, params or {}, where=f"services.{name}")
             elif params:
                 raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
+        mapper = self.services.get("mapper") or {}
+        if "sim" in self.services and float(mapper.get("resolution_m") or 0) > 0:
+            raise ConfigError(
+                "services.mapper.resolution_m: an explicit grid is for a real robot's arena (ros2_bridge); with the sim the mapper "
+                "maps the scene's own grid, which the sim measures coverage on"
+            )
         if (self.services.get("sim") or {}).get("mujoco"):  # the LiDAR mount against the sensor's, before anything starts
             from cso_runtime.simulator import mujoco_config  # noqa: PLC0415
 
@@ -528,7 +534,7 @@ class Launcher:
     def spawn_all(self) -> None:
         for name in self.profile.services:
             mode = self.profile.router.service_mode
-            argv = [sys.executable, "-m", f"services.{name}", "--config", str(self.profile_path), "--robot", self.profile.robot, "--mode", mode]
+            argv = [*python_module_argv(f"services.{name}"), "--config", str(self.profile_path), "--robot", self.profile.robot, "--mode", mode]
             for ep in self.endpoints:
                 argv += ["--connect", ep]
             if mode == "peer":
@@ -728,6 +734,19 @@ class Launcher:
 
         (self.run_dir / "dataflow.md").write_text(to_markdown(self.profile.name, nodes_of(list(self.profile.services))))
 
+    def robot_already_served(self, session: Any, timeout_s: float = 1.0) -> str:
+        """Why this run's robot id is taken on the network it joins, or "": another run's launcher answers for
+        it, or one of the services this run would start is alive under it. Two runs of one id would cross-feed
+        every key (maps cleared by each other's episodes, one cmd_vel for two robots)."""
+        for reply in session.get(self.keys.launcher_status, timeout=timeout_s):
+            if reply.ok is not None:
+                return f"robot {self.profile.robot} is already run by another launcher on this network (its {self.keys.launcher_status} answers)"
+        mine = set(self.profile.services)
+        for reply in session.liveliness().get(self.keys.alive("*"), timeout=timeout_s):
+            if reply.ok is not None and (name := str(reply.ok.key_expr).rsplit("/", 1)[-1]) in mine:
+                return f"robot {self.profile.robot} already has a {name} service on this network ({reply.ok.key_expr} is alive)"
+        return ""
+
     # --- main loop --------------------------------------------------------------------------------
     def run(self, live: bool = False, stay_after_done: bool = False) -> int:
         """Start everything and supervise until the episode ends (or until stopped when ``stay_after_done``)."""
@@ -742,6 +761,11 @@ class Launcher:
             session = open_session(TransportConfig(mode="client", connect=list(router.connect)))
         view = LiveView(self) if live else None
         with session:
+            if router.connect and (taken := self.robot_already_served(session)):
+                log.error("%s: no service was started; give this run another --robot", taken)
+                self.write_run_file("failed")
+                self.remove_current_pointer()
+                return EXIT_BAD_CONFIG
             subs = [session.declare_subscriber(self.keys.topic(t), self._guarded(self._on_sample)) for t in LAUNCHER_INPUTS]
             qs = [
                 session.declare_queryable(self.keys.cache("goal"), self._guarded(self._on_cache_query)),
@@ -1080,7 +1104,7 @@ def start_detached(
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with log_path.open("ab") as fh:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "cso_runtime.launcher", "--profile-data", str(data_path), "--run-dir", str(run_dir)]
+            [*python_module_argv("cso_runtime.launcher"), "--profile-data", str(data_path), "--run-dir", str(run_dir)]
             + (["--record", str(record_path.resolve())] if record_path is not None else [])
             + (["--animate"] if animate else []),
             stdout=fh,

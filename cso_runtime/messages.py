@@ -26,8 +26,9 @@ from cso_runtime.observation import Observation
 from cso_runtime.occupancy import OccupancyMap
 
 SCHEMA_VERSION = 1
-"""Version of the schemas unchanged since the first release; a schema that changes bumps its own
-``VERSION`` (``clock``, ``episode_status``, ``scan`` and ``map`` are at 2: they carry the episode id)."""
+"""Version of the schemas unchanged since the first release; a schema that changes bumps its own ``VERSION``
+(each class's, listed in docs/messages.md: ``clock``, ``episode_status`` and ``scan`` carry the episode id from 2,
+``map`` is at 3, ``frontiers`` at 6)."""
 MAX_GRID_CELLS = 50_000_000
 MAX_BEAMS = 100_000
 COMPRESS_MIN_BYTES = 4096
@@ -1027,6 +1028,10 @@ class ServiceStatusMsg(Message):
         return self.body()
 
 
+LAUNCHER_SERVICE_FIELDS: dict[str, type] = {"pid": int, "process_alive": bool, "liveliness": bool, "restarts": int, "gave_up": bool, "hung_kills": int}
+"""The fields of each service in ``launcher_status.services`` and their types (counts: non-negative integers)."""
+
+
 @dataclass
 class LauncherStatusMsg(Message):
     """The launcher's view: run id, each service process (pid, alive, restarts, given up), rejections, and
@@ -1048,6 +1053,18 @@ class LauncherStatusMsg(Message):
         services = _get(b, "services", w)
         if not isinstance(services, dict) or not all(isinstance(k, str) and isinstance(v, dict) for k, v in services.items()):
             raise MessageError("launcher_status.services: expected a mapping of mappings")
+        checked: dict[str, dict[str, Any]] = {}
+        for name, entry in services.items():  # what `status` prints and writes as JSON: known fields of known types
+            checked[name] = {}
+            for key, value in entry.items():
+                kind = LAUNCHER_SERVICE_FIELDS.get(key)
+                if kind is None:
+                    continue  # a newer launcher's field: left out (this side would not know how to show it)
+                ok = isinstance(value, bool) if kind is bool else (isinstance(value, int) and not isinstance(value, bool) and value >= 0)
+                if not ok:
+                    raise MessageError(f"launcher_status.services.{name}.{key}: expected {'true or false' if kind is bool else 'a count'}, got {value!r}")
+                checked[name][key] = value
+        services = checked
         return cls(_str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True))
 
     def to_dict(self) -> dict[str, Any]:

@@ -157,6 +157,13 @@ def run_is_live(run_dir: Path) -> bool:
     return info is not None and current_launcher_alive(info)
 
 
+def run_is_exploring(run_dir: Path) -> bool:
+    """Whether the run's episode goes on: its launcher runs and has not written the episode's end (a detached run
+    stays up after it, for ``status``, until ``down``). What ``logs -f`` follows."""
+    info = _read_json(run_dir / "run.json")
+    return info is not None and info.get("state") in ("starting", "running") and current_launcher_alive(info)
+
+
 # --- logs ------------------------------------------------------------------------------------------
 
 

@@ -12,6 +12,7 @@ import os
 import re
 import signal
 import subprocess
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +20,17 @@ from pathlib import Path
 from cso_runtime.processes import STACK_DUMP_SIGNAL
 
 log = logging.getLogger("cso.launcher")
+
+LOGGED_LINE = re.compile(r"^\d{4}-\d\d-\d\d[ T]\d\d:\d\d:\d\d")
+"""A line of a service's own logging (``LOG_FORMAT`` starts with the time), not one the interpreter wrote."""
+
+
+def python_module_argv(module: str) -> list[str]:
+    """``python -m MODULE`` without the working folder on the module path: a user's own ``services`` package or
+    ``robot_sim.py`` in the folder ``up`` runs from must not replace the installed ones (``-P`` from Python 3.11)."""
+    if sys.version_info >= (3, 11):
+        return [sys.executable, "-P", "-m", module]
+    return [sys.executable, "-c", f"import runpy, sys; del sys.path[0]; runpy.run_module({module!r}, run_name='__main__', alter_sys=True)"]
 
 
 @dataclass
@@ -49,7 +61,9 @@ class Child:
 
     def last_error(self, tail_bytes: int = 16384) -> str:
         """The last error its log holds (a logged ERROR, or a traceback's exception line), so that the
-        launcher's own message says why a service exited; empty when the log has none."""
+        launcher's own message says why a service exited; else the log's last line when the interpreter wrote
+        it, not the service's logging (``No module named services.sim``: it died before logging began); empty
+        when the log has none of these."""
         try:
             with self.log_path.open("rb") as fh:
                 fh.seek(max(0, self.log_path.stat().st_size - tail_bytes))
@@ -61,7 +75,8 @@ class Child:
                 return line.split(" ERROR ", 1)[1].strip()
             if re.match(r"^[\w.]+(Error|Exception|Interrupt)\b", line):
                 return line.strip()
-        return ""
+        last = next((line.strip() for line in reversed(lines) if line.strip()), "")
+        return "" if LOGGED_LINE.match(last) else last
 
     def spawn(self) -> None:
         self.log_path.parent.mkdir(parents=True, exist_ok=True)

@@ -135,3 +135,14 @@ def track_liveliness(alive: set[str], sample: Any) -> None:
         alive.add(name)
     else:
         alive.discard(name)
+
+
+def track_robots_liveliness(alive: set[tuple[str, str]], sample: Any) -> None:
+    """``track_liveliness`` over every robot's tokens (``cso/*/alive/*``): ``alive`` holds (robot, service) pairs,
+    so that one robot's services are never taken for another's."""
+    parts = str(sample.key_expr).split("/")
+    pair = (parts[1], parts[-1]) if len(parts) == 4 else ("", parts[-1])
+    if str(sample.kind).endswith("PUT"):
+        alive.add(pair)
+    else:
+        alive.discard(pair)

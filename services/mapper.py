@@ -90,10 +90,13 @@ class MapperService(Service):
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         if isinstance(msg, ClockMsg):
-            if self.map is None and msg.arena is not None:
+            self.enter_episode(msg.episode)
+            # The clock's arena, unless the profile gives a grid: at the start, and in each new episode (a restarted
+            # ROS bridge announces an arena around where the robot is now, which the first one may not hold).
+            fresh = self.map is None or self.map_step < 0
+            if msg.arena is not None and self.params.resolution_m <= 0 and fresh and (self.map is None or self.map.geometry != msg.arena):
                 self.map = OccupancyMap(msg.arena)
                 log.info("map %dx%d cells at %.3f m", msg.arena.shape[1], msg.arena.shape[0], msg.arena.resolution_m)
-            self.enter_episode(msg.episode)
             if self.map is not None and self.pending:
                 pending, self.pending = self.pending, []
                 for scan in pending:

@@ -7,7 +7,8 @@ status as the in-process loop. In lockstep each step's command acts on the front
 ``decide: false`` directly, so on most steps the policy is not in the loop; in real time it commands
 every new odometry + scan pair on the current path and plans to each new goal when it arrives. It
 stops the robot, and says why in its status, when odometry or scans are older than
-``stale_after_s``.
+``stale_after_s`` (in real time: in lockstep the sim holds the robot until each step's command, so a step
+whose decision was slow is still commanded).
 """
 
 from __future__ import annotations
@@ -56,7 +57,8 @@ class PlannerParams:
     """Parameters of the planner service (``services.planner`` in a profile)."""
 
     stale_after_s: float = 2.0
-    """Odometry or scans older than this (wall clock) stop the robot."""
+    """Odometry or scans older than this (wall clock) stop the robot (real time; in lockstep the sim waits for
+    each step's command, so a slow decision does not make its inputs stale)."""
     path_period_s: float = 0.25
     """``path`` is a view (the live view's distance ahead, a user's plot), not an input of any service: it
     goes out with every new plan and otherwise at most this often (wall clock), so that the process showing
@@ -114,7 +116,8 @@ class PlannerService(Service):
         self.set_goal_blocked = False
         self.last_feedback: PlannerFeedbackMsg | None = None
         self.last_cmd: CmdVelMsg | None = None
-        self.last_input_s = time.monotonic()
+        self.last_input_s = {"odometry": time.monotonic(), "scan": time.monotonic()}
+        """When each input last arrived (wall clock): either one going silent stops the robot."""
         self.stopped_for_stale = False
         self.published_plan: np.ndarray | None = None
         """The plan whose ``path`` went out last (a new plan is published at once)."""
@@ -130,7 +133,7 @@ class PlannerService(Service):
             log.info("odometry restarted at step 0: new episode, clearing the planner")
             self.reset_episode()
         if isinstance(msg, (OdometryMsg, ScanMsg)):
-            self.last_input_s = received_s
+            self.last_input_s["odometry" if isinstance(msg, OdometryMsg) else "scan"] = received_s
         if self.ctx.lockstep and self.answer_again(msg, step):
             return
         if isinstance(msg, OdometryMsg):
@@ -254,11 +257,18 @@ class PlannerService(Service):
         if self.no_frontier:
             cmd, reason = VelocityCommand(), "no_frontier"
         else:
+            # Lockstep: the sim holds the robot until this very command, so inputs that waited on a slow
+            # decision are not stale; a stale stop would only be dropped by the sim, re-sent on each of its
+            # retries, and fail the episode.
             age_s = time.monotonic() - min(odom_s, scan_s)
-            if age_s > self.params.stale_after_s:
+            if age_s > self.params.stale_after_s and not self.ctx.lockstep:
                 cmd, reason = VelocityCommand(), f"stale: inputs of step {k} are {age_s:.1f} s old"
                 self.set_state("stale", reason)
             else:
+                if self.stopped_for_stale:
+                    # The robot stood still because its inputs were stale, not because the goal is out of reach:
+                    # the progress checker starts over instead of ending the goal no_progress.
+                    self.planner.progress.reset()
                 ahead, self.ahead = self.ahead, None
                 if ahead is not None and ahead[0] == k and g is None and self.ctx.lockstep:
                     result = ahead[1]
@@ -294,9 +304,9 @@ class PlannerService(Service):
         self.publish("path", PathMsg(k, self.planner.remaining_path()))
 
     def on_tick(self, now_s: float) -> None:
-        age_s = now_s - self.last_input_s
-        if age_s > self.params.stale_after_s and not self.stopped_for_stale and self.cmd_step >= 0:
-            reason = f"stale: no odometry/scan for {age_s:.1f} s"
+        silent = {name: now_s - at_s for name, at_s in self.last_input_s.items() if now_s - at_s > self.params.stale_after_s}
+        if silent and not self.stopped_for_stale and self.cmd_step >= 0:
+            reason = "stale: " + ", ".join(f"no {name} for {age_s:.1f} s" for name, age_s in sorted(silent.items()))
             self.set_state("stale", reason)
             self.publish("cmd_vel", CmdVelMsg(self.cmd_step, VelocityCommand(), reason))
             self.stopped_for_stale = True

@@ -43,7 +43,7 @@ from cso_runtime.messages import (
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import Simulator, make_simulator, mujoco_config
-from cso_runtime.transport import track_liveliness
+from cso_runtime.transport import track_robots_liveliness
 from services.common import Service, ServiceContext, service_main
 
 if TYPE_CHECKING:
@@ -178,7 +178,8 @@ class SimService(Service):
         self.started_s = time.monotonic()
         self.expected_services = {name for name in ctx.profile.get("services") or {} if name != ctx.name}
         """The profile's other services: step 0 waits for their liveliness tokens (``wait_for_services_s``)."""
-        self.alive_services: set[str] = set()
+        self.alive_services: set[tuple[str, str]] = set()
+        """(robot, service) of every liveliness token seen (``missing_services``)."""
         self.services_ready_s: float | None = None if self.expected_services else self.started_s
         self.step_started_s = math.inf
         self.next_step_s = math.inf
@@ -196,11 +197,19 @@ class SimService(Service):
         keys = self.ctx.keys
         self._declarations.append(self.session.declare_queryable(keys.episode_status, self._on_status_query))
         self._declarations.append(self.session.declare_queryable(keys.episode_result, self._on_result_query))
-        if self.expected_services:  # any robot's: one policy server may serve several robots under its own id
+        if self.expected_services:  # every robot's: one policy server may serve several robots under its own id
             self._declarations.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("*"), self.on_alive, history=True))
 
     def on_alive(self, sample: Any) -> None:
-        track_liveliness(self.alive_services, sample)
+        track_robots_liveliness(self.alive_services, sample)
+
+    def missing_services(self) -> set[str]:
+        """The profile's services with no liveliness token of this robot; a policy under another robot's id
+        counts (one policy server may serve several robots, ``serve_all_robots``), another robot's mapper
+        or planner does not."""
+        own = {name for robot, name in self.alive_services if robot == self.ctx.robot}
+        policy_elsewhere = any(name == "policy" for _, name in self.alive_services)
+        return {name for name in self.expected_services if name not in own and not (name == "policy" and policy_elsewhere)}
 
     def _on_status_query(self, query: zenoh.Query) -> None:
         query.reply(self.ctx.keys.episode_status, encode(self.episode_status()))
@@ -289,6 +298,11 @@ class SimService(Service):
             self.publish("episode_status", self.episode_status())
 
     def take_goal(self, g: GoalMsg) -> None:
+        if g.decided and g.method and g.method != self.method:
+            # The policy that decides names its method: a policy server shared by several robots may run another
+            # than this profile's, and the episode's status and result must say which one explored.
+            log.warning("goals are decided by %s, not this profile's method %s: the episode is reported as %s", g.method, self.method or "(none)", g.method)
+            self.method = g.method
         if g.decided:
             self.decisions += 1
             self.decision_ms.append(g.decision_ms)
@@ -335,6 +349,15 @@ class SimService(Service):
             return
         if isinstance(msg, MapMsg) and msg.episode != self.episode:
             self.reject("map", f"map of episode {msg.episode}, not of this one ({self.episode}): still in flight from before a restart")
+            return
+        if isinstance(msg, MapMsg) and msg.geometry != self.sim.plan.geometry:
+            g, own = msg.geometry, self.sim.plan.geometry
+            self.reject(
+                "map",
+                f"a {g.shape[1]} x {g.shape[0]} grid of {g.resolution_m} m at ({g.origin_x_m}, {g.origin_y_m}), not the scene's "
+                f"{own.shape[1]} x {own.shape[0]} of {own.resolution_m} m at ({own.origin_x_m}, {own.origin_y_m}) that the clock announced: "
+                "coverage is measured cell by cell on the scene's grid (a mapper with its own grid, or another robot's map)",
+            )
             return
         if isinstance(msg, MapMsg):
             self.keep_latest("map", msg)
@@ -394,7 +417,7 @@ class SimService(Service):
     def on_tick(self, now_s: float) -> None:
         if self.episode_state == "starting":
             if self.services_ready_s is None:
-                missing = self.expected_services - self.alive_services
+                missing = self.missing_services()
                 if missing and now_s - self.started_s < self.params.wait_for_services_s:
                     return
                 if missing:

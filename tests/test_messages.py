@@ -364,11 +364,22 @@ def _mutate(msg, **changes) -> bytes:
         _mutate(EpisodeStatusMsg("exploring", 1), coverage_pct=250.0),
         _mutate(ClockMsg(1, 0.25), time_s=-1.0),
         _mutate(ServiceStatusMsg("mapper", "r0", "running"), rejected={"scan": -1}),
+        # What `status --json` writes: bytes used to crash it, NaN to make invalid JSON, a list pass as a count.
+        _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"pid": b"12"}}),
+        _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"restarts": float("nan")}}),
+        _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"hung_kills": [1]}}),
+        _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"gave_up": 1}}),
+        _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"restarts": -1}}),
     ],
 )
 def test_out_of_range_and_non_finite_fields_are_rejected(payload):
     with pytest.raises(MessageError):
         decode(payload)
+
+
+def test_a_launcher_status_field_this_side_does_not_know_is_left_out():
+    msg = decode(_mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"pid": 12, "gave_up": False, "newer": b"\x00"}}))
+    assert msg.services == {"sim": {"pid": 12, "gave_up": False}}
 
 
 def test_bad_maps_are_rejected():

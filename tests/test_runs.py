@@ -13,7 +13,16 @@ import yaml
 from typer.testing import CliRunner
 
 from cso_runtime.cli import app
-from cso_runtime.runs import RunError, follow_logs, list_runs, log_files, read_logs, resolve_run, select_services
+from cso_runtime.runs import (
+    RunError,
+    follow_logs,
+    list_runs,
+    log_files,
+    read_logs,
+    resolve_run,
+    run_is_exploring,
+    select_services,
+)
 from cso_runtime.supervision import process_start_ticks
 
 STAMP = "2026-12-03 09:10:{:02d},{:03d}"
@@ -161,6 +170,16 @@ def test_logs_follow_a_running_run_until_its_launcher_exits(tmp_path):
 
     follow_logs(d, readers, lambda ln: emitted.append((ln.service, ln.text.split(" INFO ")[-1])), alive, wait)
     assert emitted == [("sim", "sim b"), ("mapper", "mapper a"), ("sim", "sim half"), ("sim", "sim c")]
+
+
+def test_logs_follow_of_a_detached_run_ends_with_its_episode(tmp_path):
+    """A detached run stays up after its episode (``status`` answers until ``down``): ``logs -f`` used to follow it
+    forever, so ``up --detach && logs -f`` never returned. It ends once run.json says the episode is over."""
+    d = make_run(tmp_path / "runs", "20261203-091000-lockstep-r0", alive=True, state="done", logs={"sim": line(1, 0, "episode coverage: 99 %")})
+    r = CliRunner().invoke(app, ["logs", "-f", "--run", d.name, "--runs-dir", str(tmp_path / "runs")])
+    assert r.exit_code == 0 and "episode coverage: 99 %" in r.output
+    assert f"run {d.name}'s episode has ended; the run stays up (for status) until `cso-runtime down`" in r.output
+    assert not run_is_exploring(d) and run_is_exploring(make_run(tmp_path / "runs", "20261203-091100-lockstep-r0", alive=True))
 
 
 def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newest(tmp_path):

@@ -39,7 +39,7 @@ from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.status import query_status, save_map_main, status_main
-from cso_runtime.supervision import pid_alive
+from cso_runtime.supervision import pid_alive, python_module_argv
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 
 REPO = Path(__file__).resolve().parents[1]
@@ -58,7 +58,8 @@ def wait_for(cond: Callable[[], Any], timeout_s: float, what: str, period_s: flo
 
 
 def cli(*args: str, cwd: Path, timeout_s: float = 60.0) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "cso_runtime.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=timeout_s)
+    """The command as the installed ``cso-runtime`` script runs it: the working folder is not on its module path."""
+    return subprocess.run([*python_module_argv("cso_runtime.cli"), *args], cwd=cwd, capture_output=True, text=True, timeout=timeout_s)
 
 
 def write_profile(tmp_path: Path, scene: str = SCENE, method: str = "greedy-dist", **sim_params: Any) -> Path:
@@ -389,6 +390,28 @@ def test_a_second_up_in_the_same_runs_folder_is_refused_whichever_robot(tmp_path
     assert sorted(p.name for p in runs.iterdir()) == ["current.json"]  # nothing started
 
 
+@pytest.mark.parametrize("taken_by", ["launcher", "service"])
+def test_up_refuses_a_robot_id_that_another_run_on_the_network_has(tmp_path, taken_by):
+    """Two runs of one robot id on one network cross-fed every key (each cleared the other's map on each new
+    episode, and one cmd_vel would drive both robots): ``up`` joining a router where that id already has a
+    launcher, or one of the services it would start, refuses before starting anything."""
+    port = free_tcp_port()
+    keys = RobotKeys("r0")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        if taken_by == "launcher":
+            held = session.declare_queryable(keys.launcher_status, lambda query: query.reply(keys.launcher_status, b"x"))
+        else:
+            held = session.liveliness().declare_token(keys.alive("mapper"))
+        try:
+            runs = tmp_path / "runs"
+            r = cli("up", "--profile", "lockstep", "--connect", loopback_endpoint(port), "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+            expected = "is already run by another launcher" if taken_by == "launcher" else "already has a mapper service"
+            assert r.returncode == 2 and f"robot r0 {expected}" in r.stderr and "another --robot" in r.stderr, r.stderr[-2000:]
+            assert not list(runs.glob("*/logs/mapper.log"))  # no service was started
+        finally:
+            held.undeclare()
+
+
 def test_two_up_started_at_once_cannot_both_run(tmp_path):
     """Two ``up`` started together both pass the current.json check (the first writes it only once its
     services are spawned); the runs folder's lock lets one launcher run, and the other stops before it
@@ -578,6 +601,12 @@ def test_a_service_that_refuses_its_configuration_is_not_restarted(tmp_path):
     # The launcher's own message says why, from each log: a logged error, or a traceback's last line.
     assert refused.last_error() == "cso.service: sim: bad configuration: no such scene"
     assert crashed.last_error() == "ValueError: map of another shape"
+    # Dead before its logging began (the interpreter's own line): said, not "no error logged"; a log of routine
+    # lines only has no error.
+    (tmp_path / "early.log").write_text("/usr/bin/python3: No module named services.sim\n\n")
+    assert Child("sim", [], tmp_path / "early.log").last_error() == "/usr/bin/python3: No module named services.sim"
+    (tmp_path / "calm.log").write_text("2026-12-01 10:00:00,000 INFO cso.sim: step 3\n")
+    assert Child("sim", [], tmp_path / "calm.log").last_error() == ""
 
 
 def test_a_given_up_service_that_no_one_serves_stops_the_episode(tmp_path):
@@ -799,11 +828,11 @@ def test_status_table_shows_the_episode_and_each_service():
     assert "│ 17 " in text and "000000001092" in text and "41.50 %" in text and "(1.00, 2.00) m" in text
     assert "12.25 m2, 0.721 m2/step" in text  # Table 1's efficiency so far, as the live view's
     assert "mapper" in text and "sim" in text
-    stale = {"alive": True, "state": "stale", "reason": "stale: no odometry/scan for 3.0 s", "last_step": 17, "rejected": {}}
+    stale = {"alive": True, "state": "stale", "reason": "stale: no odometry for 3.0 s, no scan for 3.0 s", "last_step": 17, "rejected": {}}
     status["services"]["planner"] = stale
     console = Console(record=True, width=160)
     console.print(render_table(status))
-    assert "stale: no odometry/scan" in console.export_text()
+    assert "stale: no odometry for 3.0 s" in console.export_text()
     status["state"] = "done"
     console = Console(record=True, width=160)
     console.print(render_table(status))
@@ -892,6 +921,21 @@ def test_a_profile_sets_the_mujoco_limos_parameters_checked_before_anything_star
         load_profile("lockstep", {}, settings={"services.sim.mujoco.odom_trans_noise_frac": 0.02})
 
 
+def test_status_watch_prints_each_status_until_nothing_answers_then_exits_1(monkeypatch, capsys):
+    """``status --watch --json``: one JSON line per period while the episode answers, then the ``not running``
+    line and exit code 1 (a script following a run sees it end)."""
+    from cso_runtime import status
+
+    answers = iter([{"state": "exploring", "step": 3}, {"state": "done", "step": 9}, None])
+    naps: list[float] = []
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6: next(answers))
+    monkeypatch.setattr(status.time, "sleep", naps.append)
+    code = status.status_main([loopback_endpoint(7447)], "r0", as_json=True, watch=True, runs_dir=Path("."), period_s=0.5)
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert code == 1 and naps == [0.5, 0.5]
+    assert [line["state"] for line in lines] == ["exploring", "done", "not running"] and lines[1]["step"] == 9
+
+
 def test_status_reads_the_run_file_once_so_its_endpoints_and_launcher_are_of_one_run(tmp_path, monkeypatch):
     """A new run may replace runs/current.json between two reads: status then asked the old run's router
     and judged the new run's launcher. One read gives both from one run (here: a live launcher's)."""
@@ -941,6 +985,11 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
     With ``cso`` the stuck mask engages on 3 of the 7 decisions of the small scene."""
     profile = write_profile(tmp_path, scene, method)
     runs = tmp_path / "runs"
+    # A user's own ``services`` package and ``robot_sim.py`` in the folder ``up`` runs from: the services are
+    # still the installed ones (they used to import these and die: "No module named services.sim").
+    (tmp_path / "services").mkdir()
+    (tmp_path / "services" / "__init__.py").write_text("")
+    (tmp_path / "robot_sim.py").write_text("raise ImportError('the user\'s own robot_sim.py')\n")
     try:
         r = cli("up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs), "--animate", cwd=tmp_path, timeout_s=120)
         assert r.returncode == 0, r.stderr[-3000:]
@@ -1110,15 +1159,20 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         (listed,) = json.loads(r.stdout)
         assert listed["state"] == "done" and listed["steps"] == final["step"] and listed["restarts"] >= 1, listed  # waits for `down`
         assert listed["duration_s"] > 0, listed  # running: so far
-        # `logs -f` follows the run until `down` ends it, then exits by itself.
+        # `logs -f` of the run whose episode has ended (it stays up for `status`) prints the logs and exits by itself:
+        # `up --detach && logs -f` returns.
         follower = subprocess.Popen(
-            [sys.executable, "-m", "cso_runtime.cli", "logs", "--follow", "--runs-dir", str(runs)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            [*python_module_argv("cso_runtime.cli"), "logs", "--follow", "--runs-dir", str(runs)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
         )
+        try:
+            out, err = follower.communicate(timeout=30)
+        finally:
+            if follower.poll() is None:
+                follower.kill()
+        assert follower.returncode == 0 and "episode has ended; the run stays up (for status) until `cso-runtime down`" in err, err
+        assert re.search(r"^mapper +\| .* restored the map of step", out, re.MULTILINE) and re.search(r"^launcher +\| .* episode ", out, re.MULTILINE), out[-3000:]
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stderr
-        out, err = follower.communicate(timeout=30)
-        assert follower.returncode == 0 and "has ended" in err, err
-        assert re.search(r"^mapper +\| .* restored the map of step", out, re.MULTILINE) and re.search(r"^launcher +\| .* stopping services$", out, re.MULTILINE), out[-3000:]
         assert json.loads(cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path).stdout)[0]["state"] == "done"
         assert [p for p in [*pids, mapper_pid] if pid_alive(p)] == []
         r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=10)

@@ -221,7 +221,12 @@ def test_a_step_that_leaps_far_ahead_is_held_back_until_the_next_one_confirms_it
     guard = StepGuard(limit=100)
     assert [guard.check(("r0", "scan"), s) == "" for s in (0, 1, 2, 1000, 3, 4, 0)] == [True, True, True, False, True, True, True]
     assert guard.check(("r0", "scan"), 500) and guard.check(("r0", "scan"), 503) == ""  # the leap, confirmed by the next step
-    assert guard.check(("r0", "odom"), 10**6) == ""  # each key its own: a first message is never a leap
+    assert guard.check(("r0", "odom"), 10**6) != ""  # a first message on a key leaps from the robot's last step too
+    assert guard.check(("r1", "odom"), 10**6) == ""  # another robot's first message is never a leap
+    # A key only decisions use may be quiet for longer than the limit while the robot's other keys go on.
+    assert guard.check(("r0", "goal"), 503) == ""
+    assert all(guard.check(("r0", "scan"), s) == "" for s in range(504, 800, 50))
+    assert guard.check(("r0", "goal"), 790) == "" and guard.check(("r0", "goal"), 790 + 101) != ""
 
     policy, out = _service(PolicyService, lockstep=True, params={"method": "greedy-dist"})
     obs = _explorer_at(0).observe()
@@ -296,6 +301,54 @@ def test_lockstep_planner_keeps_the_goal_without_the_policy_and_waits_for_a_deci
     assert [(c.step, c.new_goal) for c in cmds] == [(0, True), (1, False)]
     _feed(planner, FrontiersMsg(1, False))  # a lockstep retry: the same command again, not a new step
     assert [m.step for t, m in out if t == "cmd_vel"] == [0, 1, 1] and planner.cmd_step == 1
+
+
+def test_lockstep_planner_commands_a_step_whose_decision_took_longer_than_stale_after_s():
+    """Lockstep: a decision slower than ``stale_after_s`` used to get a stale stop, which the sim drops; each of
+    its retries got the same stop and the episode failed. The sim holds the robot, so the step is commanded."""
+    planner, out = _service(PlannerService, lockstep=True, params={"stale_after_s": 2.0})
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    _, odom, scan = _inputs(ex, 0)
+    long_ago_s = time.monotonic() - 3.0
+    planner.on_message("r0", "odom", odom, long_ago_s)
+    planner.on_message("r0", "scan", scan, long_ago_s)
+    _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
+    _feed(planner, _far_goal(obs, 0))
+    cmds = [m for t, m in out if t == "cmd_vel"]
+    assert [c.step for c in cmds] == [0] and not cmds[0].reason.startswith("stale")
+    assert cmds[0].command != VelocityCommand() and planner.state != "stale"
+    real_time, out_rt = _service(PlannerService, lockstep=False, params={"stale_after_s": 2.0})  # a real robot moves on
+    real_time.on_message("r0", "odom", odom, long_ago_s)
+    real_time.on_message("r0", "scan", scan, long_ago_s)
+    assert [m.reason[:5] for t, m in out_rt if t == "cmd_vel"] == ["stale"]
+
+
+def test_real_time_planner_says_which_input_went_silent_and_does_not_blame_the_goal_for_the_wait():
+    """Odometry alone kept the planner "running" with no scan for as long as it liked (each input refreshed one
+    clock); and a stop for stale inputs longer than the progress window then ended the goal no_progress."""
+    planner, out = _service(PlannerService, lockstep=False, params={"stale_after_s": 2.0})
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    _, odom, scan = _inputs(ex, 0)
+    t0 = time.monotonic()
+    planner.on_message("r0", "odom", odom, t0)
+    planner.on_message("r0", "scan", scan, t0)
+    _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
+    _feed(planner, _far_goal(obs, 0))
+    planner.on_message("r0", "odom", OdometryMsg(1, odom.stamp_s + 0.25, odom.pose), t0)
+    planner.on_message("r0", "scan", ScanMsg(1, scan.scan, scan.sensor_pose), t0)
+    assert planner.planner.status.value == "following"
+    for step in range(2, 14):  # odometry goes on for 3 s, the scans have stopped
+        planner.on_message("r0", "odom", OdometryMsg(step, odom.stamp_s + 0.25 * step, odom.pose), t0 + 0.25 * step)
+    planner.on_tick(t0 + 3.0)
+    assert planner.state == "stale" and planner.reason == "stale: no scan for 3.0 s"
+    assert [m.reason for t, m in out if t == "cmd_vel"][-1] == "stale: no scan for 3.0 s"
+    stalled_s = odom.stamp_s + 20.0  # the scans come back after longer than progress_window_s (10 s), the robot where it was
+    planner.on_message("r0", "odom", OdometryMsg(90, stalled_s, odom.pose), t0 + 20.0)
+    planner.on_message("r0", "scan", ScanMsg(90, scan.scan, scan.sensor_pose), t0 + 20.0)
+    last = [m for t, m in out if t == "cmd_vel"][-1]
+    assert last.step == 90 and last.reason == "" and planner.planner.status.value == "following"
 
 
 def test_planner_plans_on_the_distance_map_of_the_decision_when_it_arrives(monkeypatch):
@@ -470,6 +523,68 @@ def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
         assert len(a) == len(commands) + 1 and a == b, topic
 
 
+def test_the_sim_rejects_and_counts_a_map_of_another_grid_instead_of_crashing():
+    """A mapper with its own grid (or another robot's map on a shared network) used to raise in the coverage
+    measure: the sim exited, was restarted three times and the run stopped. Such a map is a counted rejection,
+    and the episode goes on with the maps of the scene's grid; ``up`` refuses a mapper grid next to a sim."""
+    from cso_runtime.config import ConfigError
+    from cso_runtime.geometry import GridGeometry
+    from cso_runtime.launcher import load_profile
+    from cso_runtime.occupancy import OccupancyMap
+    from services.sim import SimService
+
+    for lockstep in (True, False):
+        ctx = ServiceContext("sim", "r0", {"lockstep": lockstep, "scene": "generated:small:1:0"}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
+        svc = SimService(ctx)
+        svc.publish = lambda topic, msg, robot=None: None  # type: ignore[method-assign]
+        svc.on_tick(time.monotonic())
+        other = OccupancyMap(GridGeometry(0.05, (400, 400), origin_x_m=-10.0, origin_y_m=-10.0))
+        svc.on_message("r0", "map", decode(encode(MapMsg.of(0, other, svc.episode)), MapMsg), time.monotonic())
+        assert svc.rejected == {"map": 1} and svc.running
+        own = OccupancyMap(svc.sim.plan.geometry)
+        svc.on_message("r0", "map", decode(encode(MapMsg.of(0, own, svc.episode)), MapMsg), time.monotonic())
+        assert svc.rejected == {"map": 1}
+    with pytest.raises(ConfigError, match="services.mapper.resolution_m: an explicit grid is for a real robot's arena"):
+        load_profile("lockstep", {}, settings={"services.mapper.resolution_m": 0.05, "services.mapper.width_m": 20, "services.mapper.height_m": 20})
+
+
+def test_the_sims_start_waits_for_its_own_robots_services_not_anothers():
+    """On a network of several robots the sim of r1 took r0's mapper, frontier and planner tokens for its own
+    and started step 0 with none of its services up. Its own tokens count, and a policy of any robot (one policy
+    server may serve several)."""
+    from types import SimpleNamespace
+
+    from services.sim import SimService
+
+    profile = {"lockstep": True, "scene": "generated:small:1:0", "services": {n: {} for n in ("sim", "mapper", "frontier", "policy", "planner")}}
+    svc = SimService(ServiceContext("sim", "r1", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0}))
+
+    def token(robot: str, name: str, kind: str = "PUT") -> None:
+        svc.on_alive(SimpleNamespace(key_expr=f"cso/{robot}/alive/{name}", kind=f"SampleKind.{kind}"))
+
+    for name in ("mapper", "frontier", "policy", "planner"):
+        token("r0", name)
+    assert svc.missing_services() == {"mapper", "frontier", "planner"}  # r0's policy may serve r1 too
+    for name in ("mapper", "frontier", "planner"):
+        token("r1", name)
+    assert svc.missing_services() == set()
+    token("r0", "mapper", "DELETE")  # r0's mapper going away is not r1's
+    token("r0", "policy", "DELETE")
+    assert svc.missing_services() == {"policy"}
+
+
+def test_the_episode_is_reported_under_the_method_that_decided_its_goals():
+    """A policy server shared by several robots may run another method than a robot's profile names: the sim
+    labelled the episode's status and result with its profile's method, whoever decided."""
+    from services.sim import SimService
+
+    ctx = ServiceContext("sim", "r0", {"lockstep": False, "scene": "generated:small:1:0", "method": "cso"}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
+    svc = SimService(ctx)
+    assert svc.episode_status().method == "cso"
+    svc.take_goal(GoalMsg(0, True, 1.0, 1.0, 0, 1.0, 2.0, "greedy-dist"))
+    assert svc.episode_status().method == "greedy-dist" and svc.decisions == 1
+
+
 def _without_timing(msgs: list[Message]) -> list[bytes]:
     """Encodings with the build time (wall clock) zeroed: what two runs of the same inputs share."""
     out = []
@@ -598,6 +713,28 @@ def test_restarted_mapper_keeps_the_cached_map_of_its_episode_only():
         integrate_observation(expected, scan.sensor_pose, scan.scan, ExplorationConfig())
         assert np.array_equal(published[0].grid, expected.to_occupancy_grid())
         assert (published[0].grid < 0).any() == (episode == 6)  # episode 6: the old cells are gone
+
+
+def test_a_new_episode_maps_the_arena_its_clock_announces():
+    """A restarted ROS bridge announces an arena around where the robot is now: the mapper kept the first
+    episode's grid, and a robot 15 m from its old start mapped nothing. A profile's own grid stays."""
+    from cso_runtime.geometry import GridGeometry
+    from services.mapper import MapperService
+
+    first, second = GridGeometry(0.05, (200, 200), -5.0, -5.0), GridGeometry(0.05, (200, 200), 10.0, -5.0)
+    mapper, _ = _service(MapperService, lockstep=False)
+
+    def _feed_clock(step: int, arena: GridGeometry, episode: int) -> None:
+        mapper.on_message("r0", "clock", decode(encode(ClockMsg(step, 0.25 * step, arena, episode)), ClockMsg), time.monotonic())
+
+    _feed_clock(0, first, 1)
+    assert mapper.map.geometry == first
+    _feed_clock(1, first, 1)
+    _feed_clock(0, second, 2)
+    assert mapper.map.geometry == second and mapper.episode == 2
+    fixed, _ = _service(MapperService, lockstep=False, params={"resolution_m": 0.1, "width_m": 10.0, "height_m": 10.0})
+    fixed.on_message("r0", "clock", decode(encode(ClockMsg(0, 0.0, second, 2)), ClockMsg), time.monotonic())
+    assert fixed.map.geometry == GridGeometry(0.1, (100, 100))
 
 
 def test_the_mapper_service_builds_the_explorers_map_with_a_forward_narrow_sensor():
