@@ -68,8 +68,20 @@ METHODS_HELP = (
 """Every method by name (a test checks it against ``policies``), so ``--help`` need not import them."""
 
 DEFAULT_TRAIN_CONFIG = Path("configs/train.yaml")
-PACKAGED_TRAIN_CONFIG = Path(__file__).resolve().parent / "data" / "train.yaml"
-"""The recipe of the shipped weights (a link to configs/train.yaml), so an installed package can train too."""
+PACKAGED_CONFIGS = Path(__file__).resolve().parent / "data"
+"""``configs/train.yaml``, ``eval.yaml`` and ``robot_sim.yaml`` inside the package (links in the repository), so that
+an installed package finds the files the help and the README name: the recipe of the shipped weights, the documented
+defaults of every exploration and MuJoCo parameter."""
+PACKAGED_TRAIN_CONFIG = PACKAGED_CONFIGS / "train.yaml"
+
+
+def _packaged_if_missing(path: Path | None) -> Path | None:
+    """``configs/NAME.yaml`` as the help names it, run outside the repository (where there is no such file): the
+    package's own copy, said on stderr. Any other path is left as given (a missing one is then a clear error)."""
+    if path is None or path.is_file() or path.parent != Path("configs") or not (PACKAGED_CONFIGS / path.name).is_file():
+        return path
+    typer.echo(f"note: no {path} here; using the packaged {PACKAGED_CONFIGS / path.name}", err=True)
+    return PACKAGED_CONFIGS / path.name
 
 
 def _fail(message: str, code: int) -> NoReturn:
@@ -175,8 +187,8 @@ def eval_command(
         sensor=sensor,
         workers=workers,
         sim=sim,
-        config_path=config,
-        sim_config_path=sim_config,
+        config_path=_packaged_if_missing(config),
+        sim_config_path=_packaged_if_missing(sim_config),
         resume=resume,
         baseline=baseline,
         animate=animate,
@@ -228,7 +240,7 @@ def compare_command(
             _fail(f"--out {out}: cannot write ({exc.strerror or exc})", 2)
     if as_json:
         typer.echo(json.dumps({"baseline": baseline, "comparisons": as_dicts(comparisons)}, indent=2))
-    else:
+    elif comparisons:  # no table of headers alone: the line below says why there is none
         typer.echo(markdown_table(comparisons))
     if not comparisons:
         typer.echo(f"no method shares {MIN_SCENES} or more scenes of one scale with {baseline}", err=True)
@@ -687,14 +699,23 @@ def logs_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the run folders are"),
 ) -> None:
     """A run's service logs merged in time order, each line after its service's name (like `docker compose logs`)."""
-    from cso_runtime.runs import RunError, follow_logs, log_files, read_logs, resolve_run, run_is_live, select_services  # noqa: PLC0415
+    from cso_runtime.runs import (  # noqa: PLC0415
+        RunError,
+        follow_logs,
+        log_files,
+        read_logs,
+        resolve_run,
+        run_is_exploring,
+        run_is_live,
+        select_services,
+    )
 
     try:
         run_dir = resolve_run(runs_dir, run)
         files = select_services(log_files(run_dir), services or [])
     except RunError as exc:
         _fail(str(exc), 1)
-    live = run_is_live(run_dir)
+    live = run_is_exploring(run_dir)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
 
@@ -708,10 +729,13 @@ def logs_command(
     if follow:
         if live:
             try:
-                follow_logs(run_dir, readers, emit, alive=lambda: run_is_live(run_dir), pick_up_new=not services)
+                follow_logs(run_dir, readers, emit, alive=lambda: run_is_exploring(run_dir), pick_up_new=not services)
             except KeyboardInterrupt:
                 return
-        typer.echo(f"run {run_dir.name} has ended", err=True)  # also when it had before -f started: nothing to wait for
+        if run_is_live(run_dir):  # a detached run after its episode: up for `status` until `down`, nothing more to follow
+            typer.echo(f"run {run_dir.name}'s episode has ended; the run stays up (for status) until `cso-runtime down`", err=True)
+        else:
+            typer.echo(f"run {run_dir.name} has ended", err=True)  # also when it had before -f started: nothing to wait for
 
 
 @app.command("dataflow", rich_help_panel="Runtime (Zenoh services)")
@@ -872,9 +896,7 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
     from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args, check_training_inputs, training_scene_refs  # noqa: PLC0415
 
-    if config == DEFAULT_TRAIN_CONFIG and not config.is_file():  # run outside the repository: the packaged recipe
-        config = PACKAGED_TRAIN_CONFIG
-        typer.echo(f"note: no {DEFAULT_TRAIN_CONFIG} here; using the packaged recipe {config}", err=True)
+    config = _packaged_if_missing(config)  # run outside the repository: the packaged recipe
     try:
         data = load_yaml(config) if config is not None else {}
         data.update({k: v for k, v in overrides.items() if v is not None})

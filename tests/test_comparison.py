@@ -105,7 +105,8 @@ def test_compare_cli_pools_labelled_files_and_writes_json_and_csv(tmp_path: Path
 
     markdown = subprocess.run(exe + [str(easy), str(medium)], capture_output=True, text=True, timeout=60)
     assert markdown.returncode == 0 and "| large | cso | 3 |" in markdown.stdout  # unlabelled: medium's "a" replaces easy's
-    assert subprocess.run(exe + [str(easy)], capture_output=True, text=True, timeout=60).returncode == 1  # two scenes: nothing to say
+    two = subprocess.run(exe + [str(easy)], capture_output=True, text=True, timeout=60)  # two scenes: nothing to say
+    assert two.returncode == 1 and two.stdout == "" and "no method shares 3 or more scenes" in two.stderr  # no table of headers alone
     missing = subprocess.run(exe + [str(tmp_path / "nope.csv")], capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "no such file" in missing.stderr
     # A folder is the episodes.csv in it (eval --out): easy's folder and medium's file give the labelled result.

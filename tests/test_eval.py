@@ -209,6 +209,26 @@ def test_eval_sim_config_sets_the_mujoco_limos_parameters_and_resume_tells_them_
         run_eval(EvalRequest(**base, sim_config_path=drift))
 
 
+def test_eval_outside_the_repository_reads_the_packaged_configs_the_help_names(tmp_path: Path, monkeypatch):
+    """``--config configs/eval.yaml`` and ``--sim-config configs/robot_sim.yaml`` (what the help and the README
+    name) where there is no ``configs/``: the package's copies, with a note; another missing file stays an error."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import PACKAGED_CONFIGS, app
+
+    repo = Path(__file__).resolve().parents[1] / "configs"
+    for name in ("eval.yaml", "robot_sim.yaml", "train.yaml"):
+        assert (PACKAGED_CONFIGS / name).read_text() == (repo / name).read_text()
+    monkeypatch.chdir(tmp_path)
+    args = ["eval", "--maps", "generated:small:1:0", "--max-steps", "4", "--sim", "mujoco", "--out", str(tmp_path / "o")]
+    result = CliRunner().invoke(app, [*args, "--config", "configs/eval.yaml", "--sim-config", "configs/robot_sim.yaml"])
+    assert result.exit_code == 0, result.output
+    assert "note: no configs/eval.yaml here; using the packaged" in result.output and "no configs/robot_sim.yaml here" in result.output
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["meta"]["mujoco"]["file"] == str(PACKAGED_CONFIGS / "robot_sim.yaml")
+    result = CliRunner().invoke(app, [*args, "--config", "mine/eval.yaml"])
+    assert result.exit_code == 2 and "config file not found: mine/eval.yaml" in result.output
+
+
 def test_eval_compares_each_method_with_the_baseline_scene_by_scene(tmp_path: Path):
     summary = run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:3:7", out_dir=tmp_path / "o", max_steps=40))
     (row,) = summary["paired"]["comparisons"]

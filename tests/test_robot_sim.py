@@ -156,10 +156,11 @@ def test_the_runtime_takes_the_mujoco_limos_parameters_and_refuses_a_second_moun
             sim.step(VelocityCommand(1.0, 0.1))
     errors = [math.dist(s.true_pose().xy, s.odometry().xy) for s in sims]
     assert errors[0] > 1e-4 and errors[1] < 1e-6
-    yaml_file = load_yaml(Path(__file__).resolve().parents[1] / "configs" / "robot_sim.yaml")  # its 0.103 m is the sensor's
-    assert mujoco_config(yaml_file, SensorConfig(mount_x_m=0.103)).lidar_mount_x_m is None
+    yaml_file = load_yaml(Path(__file__).resolve().parents[1] / "configs" / "robot_sim.yaml")  # the defaults, the mount left out
+    assert mujoco_config(yaml_file, SensorConfig(mount_x_m=0.0)).lidar_mount_x_m is None
+    assert mujoco_config({"lidar_mount_x_m": 0.103}, SensorConfig(mount_x_m=0.103)).lidar_mount_x_m is None  # the same mount
     with pytest.raises(ConfigError, match=r"lidar_mount_x_m: 0.103 is not the sensor's mount \(0.0 m\).*set sensor.mount_x_m"):
-        mujoco_config(yaml_file, SensorConfig(mount_x_m=0.0))
+        mujoco_config({"lidar_mount_x_m": 0.103}, SensorConfig(mount_x_m=0.0))
     with pytest.raises(ConfigError, match="unknown key"):
         mujoco_config({"odom_noise": 0.1}, SensorConfig())
     with pytest.raises(ConfigError, match="need the mujoco simulator"):
