@@ -410,6 +410,8 @@ class LocalPlanner:
         self.free: FreeSpace | None = None
         self.progress_index = 0
         self.status = PlannerStatus.IDLE
+        self.blocked_why = ""
+        """Why the last goal could not be planned (``NoPath``'s message: off the map, unreachable); empty otherwise."""
 
     @classmethod
     def for_config(cls, config: ExplorationConfig) -> LocalPlanner:
@@ -440,10 +442,12 @@ class LocalPlanner:
         """Plan to a new goal; the status is ``blocked`` when there is no path. Without
         ``distance_from_robot``, ``goal_distance_m`` bounds the fast-marching pass (``plan_path``).
         ``occupied`` (the same map's obstacles) lets the robot reverse only where the map shows none."""
+        self.blocked_why = ""
         try:
             path = plan_path(traversable, geometry, pose.xy, np.asarray(goal_xy_m, dtype=float), distance_from_robot, goal_distance_m)
             self.set_path(path, FreeSpace(traversable, geometry, occupied))
-        except NoPath:
+        except NoPath as exc:
+            self.blocked_why = str(exc)
             self.path = None
             self.progress.reset()
             self.status = PlannerStatus.BLOCKED

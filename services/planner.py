@@ -240,6 +240,8 @@ class PlannerService(Service):
         distance = d.distance_m if d is not None and d.geometry == f.geometry and d.pose == f.pose else None
         status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), distance, g.distance_m, f.arrays["occupied"])
         self.set_goal_blocked = status == PlannerStatus.BLOCKED
+        if self.set_goal_blocked:
+            log.info("step %d: no path to the goal (%.2f, %.2f): %s", g.step, g.x_m, g.y_m, self.planner.blocked_why)
 
     def on_command(self, k: int, f: FrontiersMsg | None, g: GoalMsg | None) -> None:
         """Command step ``k``: lockstep applies the step's new goal ``g`` first (if any)."""
@@ -276,7 +278,9 @@ class PlannerService(Service):
                 else:
                     result = self.planner.update(odom.pose, odom.stamp_s, scan.scan)
                 cmd = result.command
-                if result.status != PlannerStatus.FOLLOWING:
+                if result.status == PlannerStatus.BLOCKED and self.planner.blocked_why:
+                    reason = f"blocked: {self.planner.blocked_why}"  # no path at all (off the map, unreachable), not a path cut later
+                elif result.status != PlannerStatus.FOLLOWING:
                     reason = result.status.value
                 elif result.recovery:
                     reason = result.recovery  # following, but backing up (the robot was pinned) or held: an obstacle behind

@@ -70,8 +70,11 @@ def test_goal_behind_wall_is_blocked():
         plan_path(t, plan.geometry, np.array([1.0, 1.5]), np.array([3.5, 1.5]))
     planner = LocalPlanner()
     status = planner.set_goal(t, plan.geometry, Pose2D(1.0, 1.5, 0.0), np.array([3.5, 1.5]))
-    assert status == PlannerStatus.BLOCKED
+    assert status == PlannerStatus.BLOCKED and "unreachable" in planner.blocked_why  # why, for the service's feedback
     assert planner.update(Pose2D(1.0, 1.5, 0.0), 0.0).command == VelocityCommand(0.0, 0.0)
+    assert planner.set_goal(t, plan.geometry, Pose2D(1.0, 1.5, 0.0), np.array([30.0, 1.5])) == PlannerStatus.BLOCKED
+    assert planner.blocked_why == "goal is outside the map"
+    assert planner.set_goal(t, plan.geometry, Pose2D(1.0, 1.5, 0.0), np.array([1.5, 1.5])) == PlannerStatus.FOLLOWING and planner.blocked_why == ""
 
 
 def drive(plan, goal_xy, max_steps=200):

@@ -1191,11 +1191,27 @@ def detached_run(tmp_path: Path, *up_args: str, **sim_params: Any) -> Iterator[t
     try:
         r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), *up_args, cwd=tmp_path)
         assert r.returncode == 0, r.stderr
-        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
-        yield runs, lambda: query_status(endpoints, "r0", timeout_s=0.5)
+        current = json.loads((runs / "current.json").read_text())
+        yield runs, lambda: query_status(current["endpoints"], current["robot"], timeout_s=0.5)
     finally:
         cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert kill_leftovers(runs) == []
+
+
+def test_up_under_another_robot_id_namespaces_every_key_and_the_tools_follow_it(tmp_path):
+    """``up --robot r7``: the episode runs under cso/r7/ only (nothing answers for r0), and ``status`` and
+    ``save-map`` find it through the run file without being told the robot."""
+    with detached_run(tmp_path, "--robot", "r7", min_step_period_s=0.05) as (runs, status):
+        current = json.loads((runs / "current.json").read_text())
+        assert current["robot"] == "r7"
+        wait_for(lambda: (s := status()) and s["step"] >= 2, 60, "the episode of r7 to run")
+        assert query_status(current["endpoints"], "r0", timeout_s=0.5) is None
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0 and json.loads(r.stdout)["step"] >= 2, r.stdout + r.stderr
+        r = cli("save-map", "-f", str(tmp_path / "r7map"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0 and (tmp_path / "r7map.yaml").is_file(), r.stdout + r.stderr
+        r = cli("status", "--json", "--robot", "r0", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 1 and json.loads(r.stdout)["state"] == "not running"
 
 
 def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_path):

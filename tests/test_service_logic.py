@@ -263,6 +263,23 @@ def test_real_time_planner_plans_a_goal_that_arrives_after_newer_odometry():
     assert fb.status == "following" and len(fb.path_ahead_xy_m) > 1 and fb.goal_step == 0
 
 
+def test_the_planner_says_why_a_goal_has_no_path():
+    """``blocked`` covered a goal off the map, one with no path, and a path cut later: the command's reason now
+    names the first two (NoPath's message), which the status and the logs show."""
+    planner, out = _service(PlannerService, lockstep=False)
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    _, odom, scan = _inputs(ex, 0)
+    _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
+    _feed(planner, GoalMsg(0, True, 1000.0, 1000.0, 0, 1.0))
+    _feed(planner, odom)
+    _feed(planner, scan)
+    (cmd,) = [m for t, m in out if t == "cmd_vel"]
+    assert cmd.reason == "blocked: goal is outside the map" and cmd.command == VelocityCommand()
+    fb = [m for t, m in out if t == "planner_feedback"][-1]
+    assert fb.status == "blocked" and fb.set_goal_blocked and fb.reason == cmd.reason
+
+
 def test_real_time_planner_keeps_a_bounded_number_of_decisions_waiting_for_their_goal():
     """A policy that is down (or far behind) sends no goal: the decisions waiting for one are kept up to
     ``PENDING_DECISIONS_KEPT`` (the newest), not one per decision for as long as the episode runs."""
