@@ -168,9 +168,9 @@ def say_nothing_running(why: str, as_json: bool) -> int:
 
 
 def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_json: bool = False) -> tuple[list[str], str] | int:
-    """Whom to ask (the given endpoints and robot, else the current run's), or the exit code after saying why there is no one to ask: 1 when nothing runs, 2 when
-    ``connect`` cannot name a router (a typo such as ``127.0.0.1:7447``: a usage error, not "nothing running") or
-    ``robot`` is not one robot's id."""
+    """Whom to ask (the given endpoints and robot, else the current run's), or the exit code after saying why
+    there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
+    ``127.0.0.1:7447``: a usage error, not "nothing running") or ``robot`` is not one robot's id."""
     from cso_runtime.launcher import read_current_run  # noqa: PLC0415
 
     given_connect = bool(connect)
