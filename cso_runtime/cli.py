@@ -664,9 +664,10 @@ def runs_command(
         typer.echo(f"no runs in {runs_dir}")
         return
     from rich import box  # noqa: PLC0415
-    from rich.console import Console  # noqa: PLC0415
     from rich.markup import escape  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
+
+    from cso_runtime.evaluation import table_console  # noqa: PLC0415
 
     def num(value: object, fmt: str) -> str:
         return "-" if value is None else format(value, fmt)
@@ -684,7 +685,7 @@ def runs_command(
             escape(f"{r['run_id']}\n  {r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
             num(r["coverage_pct"], ".1f"), num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
-    Console().print(table)
+    table_console().print(table)
 
 
 LOG_COLOURS = ("cyan", "green", "yellow", "magenta", "blue", "bright_red", "bright_cyan", "bright_green")

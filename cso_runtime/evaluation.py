@@ -400,9 +400,23 @@ def run_in_processes(jobs: list[EpisodeJob], workers: int, done: Callable[[Episo
     run_each_in_own_process(episode, retry, workers, again)
 
 
+def table_console() -> Any:
+    """A rich console for tables of results: off a terminal (a pipe, logs, CI) wide enough for every column
+    instead of 80 characters, which would cut the last columns (m2/step)."""
+    from rich.console import Console  # noqa: PLC0415
+
+    console = Console()
+    return console if console.is_terminal else Console(width=max(console.width, 120))
+
+
 def _mean(rows: list[dict[str, Any]], key: str) -> float | None:
     values = [float(r[key]) for r in rows if r.get(key) is not None and math.isfinite(float(r[key]))]
     return round(float(np.mean(values)), 6) if values else None
+
+
+def _efficiency_episodes(rows: list[dict[str, Any]]) -> int:
+    """Episodes behind the efficiency mean: an episode of no step (its first scan saw everything) has none."""
+    return sum(1 for r in rows if r.get("efficiency_m2_per_step") is not None and math.isfinite(float(r["efficiency_m2_per_step"])))
 
 
 def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist") -> dict[str, Any]:
@@ -413,12 +427,13 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
         mine = [r for r in rows if r["method"] == method]
         entry: dict[str, Any] = {k: _mean(mine, k) for k in METRICS}
         entry["episodes"] = len(mine)
+        entry["efficiency_episodes"] = _efficiency_episodes(mine)
         entry["terminated_by"] = {t: sum(1 for r in mine if r["terminated_by"] == t) for t in sorted({r["terminated_by"] for r in mine})}
         entry["by_scale"] = {}
         for scale in SCALES:
             part = [r for r in mine if r["scale"] == scale]
             if part:
-                entry["by_scale"][scale] = {**{k: _mean(part, k) for k in METRICS}, "episodes": len(part)}
+                entry["by_scale"][scale] = {**{k: _mean(part, k) for k in METRICS}, "episodes": len(part), "efficiency_episodes": _efficiency_episodes(part)}
         entry["failures"] = [f for f in failures if f["method"] == method]
         entry["maps"] = sorted({r["map"] for r in mine})  # what the report shows of the folder: not an earlier run's files
         summary["methods"][method] = entry
@@ -537,11 +552,12 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
     summary = write_outputs(out, rows, failures, request.methods, meta, request.baseline)
     from cso_runtime.plots import plot_coverage_curves, plot_efficiency_by_scale, plot_paired_efficiency, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
 
-    plot_coverage_curves(out / COVERAGE_FIGURE, [o for o in outcomes if o.row is not None])
     if rows:
+        plot_coverage_curves(out / COVERAGE_FIGURE, [o for o in outcomes if o.row is not None], request.methods)
         plot_efficiency_by_scale(out / EFFICIENCY_FIGURE, summary)
-    else:
-        (out / EFFICIENCY_FIGURE).unlink(missing_ok=True)  # an earlier run's figure in --out would describe that run
+    else:  # no episode: no figure (an earlier run's in --out would describe that run), none linked from the report
+        (out / COVERAGE_FIGURE).unlink(missing_ok=True)
+        (out / EFFICIENCY_FIGURE).unlink(missing_ok=True)
     if summary["paired"]["comparisons"]:
         plot_paired_efficiency(out / PAIRED_FIGURE, efficiency_by_scene(rows), request.baseline)
     else:
@@ -607,19 +623,16 @@ class RichProgress:
 
 
 def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
-    from rich.console import Console  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
 
-    table = Table(title=f"Table 1 metrics ({out_dir}/summary.json)")
+    table = Table(title=escape(f"Table 1 metrics ({out_dir}/summary.json)"))  # a [name] in the path is not markup
     table.add_column("method", no_wrap=True)  # method names are what a reader looks for: never cut
     table.add_column("scale", no_wrap=True)
     for col in TABLE1_COLUMNS[2:]:
         table.add_column(col, justify="right")
     for method, scale, e in table1_rows(summary):  # as the paper's Table 1: one block per scale
         table.add_row(method, scale, *table1_cells(e))
-    console = Console()
-    if not console.is_terminal:  # logs and CI: wide enough for every column instead of 80 characters
-        console = Console(width=max(console.width, 120))
+    console = table_console()
     console.print(table)
     if shows_ablations(summary):
         header, rows = table2(summary)
@@ -631,7 +644,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
         console.print(ablations)
     paired = summary.get("paired") or {}
     if paired.get("comparisons"):
-        against = Table(title=f"Against {paired['baseline']}, scene by scene ({out_dir}/paired.csv)")
+        against = Table(title=escape(f"Against {paired['baseline']}, scene by scene ({out_dir}/paired.csv)"))
         for col in PAIRED_COLUMNS:
             against.add_column(col, no_wrap=col in ("method", "scale"), justify="left" if col in ("method", "scale") else "right")
         for c in paired["comparisons"]:

@@ -25,20 +25,22 @@ def _save(fig: Any, path: Path, dpi: int) -> None:
     _pyplot().close(fig)
 
 
-def plot_coverage_curves(path: Path, outcomes: Sequence[Any]) -> None:
+def plot_coverage_curves(path: Path, outcomes: Sequence[Any], methods: Sequence[str] = ()) -> None:
     """``coverage_figure`` written as a PNG."""
-    _save(coverage_figure(outcomes), path, 110)
+    _save(coverage_figure(outcomes, methods), path, 110)
 
 
-def coverage_figure(outcomes: Sequence[Any]) -> Any:
+def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any:
     """Mean coverage (%) against step per method, like the paper's Fig. 4; each episode's curve is held at its
     final value. One panel per scene scale when the episodes span several (a mean over a small and a super-large
-    scene says little about either); each method keeps its colour across panels."""
+    scene says little about either); each method keeps its colour across panels, and with ``methods`` (the run's
+    order, as ``summary.json`` lists them) the colour the efficiency figure gives it, whatever order the episodes
+    finished in."""
     from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
 
     plt = _pyplot()
     by_scale: dict[str, dict[str, list[np.ndarray]]] = {}
-    colours: dict[str, str] = {}
+    colours: dict[str, str] = {m: f"C{i}" for i, m in enumerate(dict.fromkeys(methods))}
     for o in outcomes:
         scale = (o.row or {}).get("scale", "")
         by_scale.setdefault(scale, {}).setdefault(o.method, []).append(np.asarray(o.coverage_curve_pct))
@@ -178,7 +180,7 @@ def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, 
             if not scenes:
                 continue
             x, y = np.array([base[s] for s in scenes]), np.array([mine[s] for s in scenes])
-            ax.scatter(x, y, s=14, alpha=0.7, label=f"{scale} ({len(scenes)})")
+            ax.scatter(x, y, s=14, alpha=0.7, label=f"{scale} ({len(scenes)})", color=f"C{SCALES.index(scale)}")  # one colour per scale in every panel
             top = max(top, float(x.max()), float(y.max()))
         top = top or 1.0  # no shared scene: an empty panel
         ax.plot([0, top * 1.05], [0, top * 1.05], color="grey", lw=1, ls="--")

@@ -77,6 +77,7 @@ def test_an_episode_of_no_step_has_no_efficiency_not_its_area_per_step(tmp_path:
     assert row["steps"] == "0" and row["terminated_by"] == "coverage" and float(row["coverage_pct"]) == 100.0
     assert np.isnan(float(row["efficiency_m2_per_step"]))
     assert summary["methods"]["greedy-dist"]["efficiency_m2_per_step"] is None
+    assert summary["methods"]["greedy-dist"]["episodes"] == 1 and summary["methods"]["greedy-dist"]["efficiency_episodes"] == 0
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["methods"]["greedy-dist"]["explored_area_m2"] == pytest.approx(1.0)
 
 
@@ -148,6 +149,13 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
     shown = re.findall(r'<img src="([^"]+)"', page)
     assert {"coverage_curves.png", "efficiency_by_scale.png", "trajectories/img_1.png"} <= set(shown)
     assert all((out / src).is_file() for src in shown)
+    # The same folder again with the corrupt plan alone: no episode, so no figure of an earlier run, and none
+    # (not even an empty coverage plot) in the report.
+    (maps / "img_1.png").unlink()
+    again = run_eval(EvalRequest(methods=methods, maps=str(maps), out_dir=out, max_steps=60, lidar_fov_deg=360.0))
+    assert not again["methods"][methods[0]]["episodes"]
+    assert not (out / "coverage_curves.png").exists() and not (out / "efficiency_by_scale.png").exists()
+    assert "coverage_curves.png" not in (out / "report.html").read_text()
 
 
 def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
@@ -583,6 +591,27 @@ def test_the_efficiency_figure_shows_each_methods_mean_per_scale_and_its_change_
 
 
 
+def test_the_paired_figure_gives_each_scale_one_colour_in_every_panel(monkeypatch, tmp_path: Path):
+    """Each panel took its own colour cycle: a method without a small scene showed its middle scenes in the small
+    scenes' colour of the panel beside it."""
+    import matplotlib.colors as mcolors
+
+    from cso_runtime import plots
+
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path, dpi: figures.append(fig))
+    table = {
+        ("greedy-dist", "small"): {("a",): 1.0, ("b",): 1.1}, ("greedy-dist", "middle"): {("c",): 0.5, ("d",): 0.6},
+        ("cso", "small"): {("a",): 1.2, ("b",): 1.0}, ("cso", "middle"): {("c",): 0.6, ("d",): 0.5},
+        ("utility", "middle"): {("c",): 0.4, ("d",): 0.7},
+    }
+    plots.plot_paired_efficiency(tmp_path / "p.png", table, "greedy-dist")
+    (fig,) = figures
+    colours = {ax.get_title().split()[0]: {c.get_label().split()[0]: mcolors.to_hex(c.get_facecolor()[0]) for c in ax.collections} for ax in fig.axes}
+    assert colours["cso"]["middle"] == colours["utility"]["middle"] != colours["cso"]["small"]
+    fig.clf()
+
+
 def test_coverage_curves_get_one_panel_per_scale_when_the_episodes_span_several():
     """Fig. 4: each method's mean curve (episodes held at their final value), one panel per scale in the paper's
     order, one method one colour in every panel; a run of one scale keeps a single panel."""
@@ -606,6 +635,12 @@ def test_coverage_curves_get_one_panel_per_scale_when_the_episodes_span_several(
     (large,) = fig.axes[1].get_lines()
     assert large.get_label() == "cso (1 ep.)" and large.get_color() == middle["cso (2 ep.)"].get_color() != middle["greedy-dist (1 ep.)"].get_color()
     fig.clf()
+    # With the run's method order, each method has the efficiency figure's colour (C0, C1, ... in summary.json's
+    # order), whichever finished first (--resume, --workers).
+    ordered = coverage_figure(outcomes, ["greedy-dist", "cso"])
+    colours = {line.get_label(): line.get_color() for line in ordered.axes[0].get_lines()}
+    assert colours == {"greedy-dist (1 ep.)": "C0", "cso (2 ep.)": "C1"}
+    ordered.clf()
     single = coverage_figure(outcomes[1:])
     assert [ax.get_title() for ax in single.axes] == ["Coverage against step"]
     single.clf()

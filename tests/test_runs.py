@@ -105,6 +105,8 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert "done, 2 restarts" in row and "36" in row and "99.7" in row and "21.9" in row and "0.607" in row
     assert "1 min 5 s" in next(ln for ln in r.output.splitlines() if "091000" in ln)
     assert " 7 s " in next(ln for ln in r.output.splitlines() if "091200" in ln)
+    piped = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "80"})  # a pipe, a log, CI
+    assert "m2/step" in piped.output and "0.607" in next(ln for ln in piped.output.splitlines() if "091100" in ln)  # was cut at 80
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "none")])
     assert r.exit_code == 0 and "no runs in" in r.output
 
