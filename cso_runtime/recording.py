@@ -219,12 +219,10 @@ def record(
             ready.set()
         log.info("recording %s into %s", robot_key_expr(robot), out_path)
         try:
-            while True:
+            while not stop_event.is_set():  # checked at every message: a dense stream must not keep Ctrl-C waiting
                 try:
                     key, payload, t_ns = inbox.get(timeout=0.05)
                 except queue.Empty:
-                    if stop_event.is_set():
-                        break
                     continue
                 _write(sink, stats, key, payload, t_ns)
         finally:

@@ -139,7 +139,7 @@ class FoxgloveBridgeService(Service):
         chan = self.channels.get(topic)
         if chan is None:
             ros_type = ROS_TYPES[topic]
-            definition, _ = ros2_cdr.typestore().generate_msgdef(ros_type)
+            definition, _ = ros2_cdr.typestore().generate_msgdef(ros_type, ros_version=2)  # ROS 2's `builtin_interfaces/Time stamp`, as export-bag writes
             schema = self.foxglove.Schema(name=ros_type, encoding="ros2msg", data=definition.encode())
             chan = self.channels[topic] = self.foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=self.context)
         return chan

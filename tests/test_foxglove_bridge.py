@@ -38,6 +38,7 @@ def _served(path) -> list[tuple[str, str, object]]:
     with open(path, "rb") as f:
         for schema, channel, message in make_reader(f).iter_messages(log_time_order=False):
             assert (schema.encoding, channel.message_encoding) == ("ros2msg", "cdr")
+            assert b"\ntime " not in b"\n" + schema.data  # ROS 2 definitions (builtin_interfaces/Time), not ROS 1's `time`
             out.append((channel.topic, schema.name, store.deserialize_cdr(message.data, schema.name)))
     return out
 
