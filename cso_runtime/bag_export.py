@@ -192,12 +192,14 @@ class BagConverter:
             out.append(("/cmd_vel", ros2_cdr.twist_to_cdr(msg.command), t_ns))
         return out
 
-    def finish(self) -> list[tuple[str, bytes, int]]:
-        """The last map, when ``map_period_s`` held it back: a bag always ends with the final map."""
+    def finish(self, sent_ns: int | None = None) -> list[tuple[str, bytes, int]]:
+        """The last map, when ``map_period_s`` held it back: a bag always ends with the final map. ``sent_ns``: a
+        live viewer is sent it then and the conversion goes on, so ``map_period_s`` counts from then."""
         if self.pending_map is None:
             return []
         msg, t_ns = self.pending_map
         self.pending_map = None
+        self.last_map_ns = t_ns if sent_ns is None else sent_ns
         return [_map_row(msg, t_ns)]
 
 

@@ -274,7 +274,7 @@ def report_command(
 
 @app.command("record", rich_help_panel="Recordings")
 def record_command(
-    out: Path | None = typer.Option(None, "--out", help="MCAP file, or a folder for <robot>-<UTC time>.mcap in it (default: recordings/)"),
+    out: str | None = typer.Option(None, "--out", help="A new MCAP file, or a folder (existing, or ending in /) for <robot>-<UTC time>.mcap in it (default: recordings/)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id, or '*' for every robot (default: the current run's, else r0)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
@@ -300,6 +300,8 @@ def record_command(
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
     path = recording_path(out, Path("recordings"), f"{robot.replace('*', 'all')}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
+    if path.exists():  # as `ros2 bag record -o`: an earlier recording is never written over
+        _fail(f"{path} exists; give another --out, or remove it first", 2)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))
@@ -545,7 +547,7 @@ def up_command(
     ),
     namespace: str | None = typer.Option(None, "--namespace", help="ROS namespace of the robot's topics (limo-ros2: services.ros2_bridge.namespace)"),
     record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
-    record_out: Path | None = typer.Option(None, "--record-out", help="Record the run to this MCAP file, or to <run-id>.mcap in this folder (implies --record)"),
+    record_out: str | None = typer.Option(None, "--record-out", help="Record the run to this new MCAP file, or to <run-id>.mcap in this folder (existing, or ending in /; implies --record)"),
     weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt for the policy service instead of the shipped weights"),
     settings: list[str] | None = typer.Option(
         None, "--set", help="KEY=VALUE into the profile, dotted, repeatable: services.sim.real_time_factor=4, exploration.episode.max_steps=400"
@@ -584,10 +586,17 @@ def up_command(
             "`cso-runtime down` first, or start this one with its own --runs-dir",
             2,
         )
-    output_dir_or_exit(runs_dir, "--runs-dir")  # before the router and the services start
+    recording: bool | Path = record if record_out is None else Path(record_out)
     if record_out is not None:
-        output_dir_or_exit(record_out.parent, f"--record-out {record_out}: its folder")
-    recording: bool | Path = record_out if record_out is not None else record
+        from cso_runtime.recording import names_a_folder  # noqa: PLC0415
+
+        if names_a_folder(record_out):  # made now, so that the launcher puts <run-id>.mcap inside it
+            output_dir_or_exit(Path(record_out), f"--record-out {record_out}")
+        elif Path(record_out).exists():  # as `record --out`: an earlier recording is never written over
+            _fail(f"--record-out {record_out}: the file exists; give another, or a folder, or remove it first", 2)
+        else:
+            output_dir_or_exit(Path(record_out).parent, f"--record-out {record_out}: its folder")
+    output_dir_or_exit(runs_dir, "--runs-dir")  # before the router and the services start
     if detach:
         code, message = start_detached(prof, data, runs_dir, record=recording, animate=animate)
         typer.echo(message, err=code != 0)

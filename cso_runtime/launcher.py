@@ -704,6 +704,14 @@ class Launcher:
         log.info("recording cso/%s/** into %s", self.profile.robot, self.record_path)
         return stop, thread
 
+    def finish_recording(self, recorder: tuple[threading.Event, threading.Thread] | None) -> None:
+        """Stop the recorder (it drains what arrived and writes the file's summary), then draw ``--animate``'s
+        GIF (when the episode ended, and again in ``run``'s clean-up when it did not)."""
+        if recorder is not None:
+            recorder[0].set()
+            recorder[1].join()
+            self.write_animation()
+
     def write_animation(self) -> None:
         """``up --animate``: the finished run's recording as the GIF ``eval --animate`` writes (a run stopped
         before its episode ended gets none, as it gets no summary.json)."""
@@ -817,6 +825,10 @@ class Launcher:
                         self.outputs_written = True
                         self.exit_code = 0 if st.state == "done" and result is not None else 1
                         self.write_run_file(st.state)
+                        # The recording ends with the episode: a detached run's file is finished (and its GIF
+                        # drawn) now, not only at `down`.
+                        self.finish_recording(recorder)
+                        recorder = None
                         if not stay_after_done:
                             break
                     referee = [c for c in self.children if c.name in REFEREES]
@@ -843,10 +855,7 @@ class Launcher:
                 log.info("stopping services")
                 self.stop_event.set()
                 stop_children(self.children, self.profile.supervision.stop_timeout_s)
-                if recorder is not None:
-                    recorder[0].set()
-                    recorder[1].join()
-                    self.write_animation()
+                self.finish_recording(recorder)
                 alive_sub.undeclare()
                 for q in qs:
                     q.undeclare()

@@ -23,6 +23,7 @@ import base64
 import json
 import logging
 import math
+import os
 import queue
 import struct
 import threading
@@ -212,7 +213,7 @@ def record(
 
     stats = stats if stats is not None else RecordStats(out_path)
     stats.path = out_path
-    with out_path.open("wb") as fh:
+    with out_path.open("xb") as fh:  # never over an earlier recording (FileExistsError)
         sink = _McapSink(fh, robot)
         sub = session.declare_subscriber(robot_key_expr(robot), on_sample)
         if ready is not None:
@@ -269,13 +270,30 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 """The first eight bytes of every MCAP file (the MCAP specification's magic)."""
 
 
-def recording_path(out: Path | None, default_folder: Path, stem: str) -> Path:
-    """The MCAP file to write: ``out``; ``stem.mcap`` inside it when ``out`` is a folder (``--out recordings/``,
-    or an empty ``--out ""``), and inside ``default_folder`` when there is no ``out``."""
+def recording_path(out: Path | str | None, default_folder: Path, stem: str) -> Path:
+    """The MCAP file to write: ``out``; ``stem.mcap`` inside it when ``out`` is a folder (one that exists, one
+    written with a trailing slash such as ``--out recordings/`` that may not exist yet, or an empty ``--out ""``),
+    and inside ``default_folder`` when there is no ``out``."""
     if out is None:
         return default_folder / f"{stem}.mcap"
-    out = Path(out)
-    return out / f"{stem}.mcap" if out.is_dir() or not out.name else out
+    return Path(out) / f"{stem}.mcap" if names_a_folder(out) else Path(out)
+
+
+def names_a_folder(out: Path | str) -> bool:
+    """True when an output argument means a folder: one that exists, an empty one (the current folder), or one
+    written with a trailing slash (``recordings/``), which may not exist yet (``Path`` drops that slash)."""
+    return (isinstance(out, str) and out.endswith(("/", os.sep))) or Path(out).is_dir() or not Path(out).name
+
+
+def unused_path(path: Path) -> Path:
+    """``path`` when nothing is there, else the first free ``<stem>-<n><suffix>`` beside it: a writer that starts
+    again (a restarted service, the same profile run twice) keeps what the earlier one wrote."""
+    original = candidate = Path(path)
+    n = 0
+    while candidate.exists():
+        n += 1
+        candidate = original.with_name(f"{original.stem}-{n}{original.suffix}")
+    return candidate
 
 
 def check_recording(path: Path) -> None:
@@ -309,15 +327,15 @@ def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[
     yielded = 0
     try:
         with Path(path).open("rb") as fh:
-            reader = make_reader(fh)
+            reader = make_reader(fh, validate_crcs=True)  # a flipped bit is an error, not a wrong message
             for _schema, channel, message in reader.iter_messages(log_time_order=True):
                 restored = _restored(channel, message, wanted)
                 if restored is not None:
                     yielded += 1
                     yield restored
-    except (McapError, OSError, ValueError, struct.error) as exc:
-        if yielded:  # damage further in: what came before was used already
-            raise RecordingError(f"cannot read {path}: {str(exc) or type(exc).__name__}") from None  # its message may be blank
+    except (McapError, OSError, ValueError, struct.error, zlib_error()) as exc:
+        if yielded or is_crc_error(exc) or _ends_with_magic(path):  # damage further in, or in a finished file
+            raise RecordingError(f"cannot read {path}: {damage_reason(exc)}") from None
         # No summary to seek with (a recorder killed before it finished the file): read it from the start.
         yield from _read_cut_recording(path, wanted, exc)
 
@@ -350,13 +368,15 @@ def _read_cut_recording(path: Path, wanted: set[str] | None, why: Exception) -> 
     channels: dict[int, Any] = {}
     count, cut = 0, None
     with Path(path).open("rb") as fh:
-        records = iter(StreamReader(fh).records)
+        records = iter(StreamReader(fh, validate_crcs=True).records)
         while True:
             try:
                 record = next(records)
             except StopIteration:
                 break
             except (McapError, OSError, ValueError, EOFError, struct.error, zlib_error()) as exc:
+                if is_crc_error(exc):  # damage, not a cut: nothing after it can be trusted to be what was recorded
+                    raise RecordingError(f"cannot read {path}: {damage_reason(exc)}") from None
                 cut = exc
                 break
             if isinstance(record, Channel):
@@ -370,9 +390,35 @@ def _read_cut_recording(path: Path, wanted: set[str] | None, why: Exception) -> 
                     count += 1
                     yield restored
     if not count and not channels:
-        raise RecordingError(f"cannot read {path}: {str(why) or type(why).__name__}")
+        if not _ends_with_magic(path):  # no footer and nothing readable: cut before the first chunk was written
+            raise RecordingError(f"cannot read {path}: it ends before its first chunk of messages (its recorder was killed before it wrote one?)")
+        raise RecordingError(f"cannot read {path}: {damage_reason(why)}")
     if cut is not None or not count:
         log.warning("%s ends early (its recorder was killed before it finished the file?): read %d messages up to there", path, count)
+
+
+def _ends_with_magic(path: Path) -> bool:
+    """True when the file ends as a finished MCAP file does (its footer is followed by the magic)."""
+    with Path(path).open("rb") as fh:
+        size = fh.seek(0, 2)
+        if size < 2 * len(MCAP_MAGIC):
+            return False
+        fh.seek(size - len(MCAP_MAGIC))
+        return fh.read() == MCAP_MAGIC
+
+
+def is_crc_error(exc: BaseException) -> bool:
+    """True for the mcap library's CRC mismatch: bytes changed after they were written (disk, copy, edit)."""
+    from mcap.stream_reader import CRCValidationError  # noqa: PLC0415
+
+    return isinstance(exc, CRCValidationError)
+
+
+def damage_reason(exc: BaseException) -> str:
+    """What a reader's exception says about a file, in words (some of the library's messages are blank)."""
+    if is_crc_error(exc):
+        return f"damaged: a {type(getattr(exc, 'record', None)).__name__}'s CRC does not match its bytes (the file changed after it was written)"
+    return str(exc) or type(exc).__name__
 
 
 def zlib_error() -> type[Exception]:
@@ -415,7 +461,7 @@ def recording_contents(path: Path) -> tuple[list[str], int | None]:
     check_recording(path)
     try:
         with Path(path).open("rb") as fh:
-            summary = make_reader(fh).get_summary()
+            summary = make_reader(fh, validate_crcs=True).get_summary()
     except (McapError, OSError, ValueError):
         summary = None
     if summary is not None and summary.statistics is not None:

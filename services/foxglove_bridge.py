@@ -31,6 +31,7 @@ from cso_runtime import ros2_cdr
 from cso_runtime.bag_export import EXPORTED, LATCHED, ROS_TYPES, BagConverter
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.messages import Message
+from cso_runtime.recording import unused_path
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.foxglove_bridge")
@@ -50,7 +51,8 @@ class FoxgloveBridgeParams:
     """At most one ``/map`` per this long (wall clock); the newest map always goes out when the episode pauses
     longer. A map of a large plan is a few hundred kB: a viewer needs no more than a couple a second."""
     mcap_path: str = ""
-    """Also write every served message to this MCAP file (empty: none), which Foxglove opens afterwards."""
+    """Also write every served message to this MCAP file (empty: none), which Foxglove opens afterwards. A file
+    already there is kept: the bridge then writes ``<stem>-1.mcap`` (``-2``, ...) beside it, and logs the name."""
 
     def validate(self) -> None:
         if not 0 <= self.port <= 65535:
@@ -126,8 +128,10 @@ class FoxgloveBridgeService(Service):
         except Exception as exc:  # noqa: BLE001 - a port in use, a bad address: the configuration's fault
             raise ConfigError(f"services.foxglove_bridge: cannot serve on {self.params.host}:{self.params.port}: {exc}") from None
         if self.params.mcap_path:
-            Path(self.params.mcap_path).parent.mkdir(parents=True, exist_ok=True)
-            self.mcap = foxglove.open_mcap(self.params.mcap_path, allow_overwrite=True, context=self.context)
+            path = unused_path(Path(self.params.mcap_path))  # a restarted bridge, a second run: keep the earlier file
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.mcap = foxglove.open_mcap(str(path), allow_overwrite=False, context=self.context)
+            log.info("Foxglove: writing what is served to %s", path)
         log.info("Foxglove: open %s (Open connection -> Foxglove WebSocket), robot %s", self.url, ctx.robot)
 
     @property
@@ -161,7 +165,7 @@ class FoxgloveBridgeService(Service):
             for topic, (data, _) in list(self.latched.items()):
                 self.channel(topic).log(data, log_time=time.time_ns())
         if self.converter.pending_map is not None and time.time_ns() - (self.converter.last_map_ns or 0) >= self.converter.map_period_ns:
-            self.serve(self.converter.finish())  # the newest map, held back by map_period_s, once nothing newer came
+            self.serve(self.converter.finish(sent_ns=time.time_ns()))  # the newest map, held back by map_period_s, once nothing newer came
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:

@@ -15,7 +15,7 @@ import pytest
 from mcap.reader import make_reader
 
 from cso_runtime import ros2_cdr
-from cso_runtime.bag_export import ROS_TYPES
+from cso_runtime.bag_export import ROS_TYPES, BagConverter
 from cso_runtime.config import ConfigError, ExplorationConfig
 from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import decode
@@ -82,6 +82,28 @@ def test_maps_are_thinned_to_map_period_s_and_the_newest_still_goes_out(tmp_path
     bridge.shutdown()
     maps = [m for topic, _, m in _served(mcap) if topic == "/map"]
     assert np.array_equal(np.asarray(maps[-1].data).reshape(_map(2).grid.shape), _map(2).grid)
+    again = _bridge({"port": 0, "mcap_path": str(mcap)})  # a restarted bridge, or the same profile run again
+    again.on_message("r0", "map", _map(0), 0.0)
+    again.shutdown()
+    assert len([m for topic, _, m in _served(mcap) if topic == "/map"]) == 2  # the earlier file is kept whole
+    assert [topic for topic, _, _ in _served(tmp_path / "thin-1.mcap")] == ["/tf_static", "/map"]
+
+
+def test_a_map_sent_when_it_stopped_being_held_starts_the_next_period():
+    """The held map a live viewer is sent late (``finish(sent_ns)``) counts as the last map sent: the next map
+    within ``map_period_s`` of it is held too, instead of going out at once against the one before it."""
+    period_ns = 500_000_000
+    converter = BagConverter(map_period_s=period_ns / 1e9, time="received")
+
+    def topics(rows: list[tuple[str, bytes, int]]) -> list[str]:
+        return [topic for topic, _, _ in rows]
+
+    assert "/map" in topics(converter.convert(_map(0), 0))
+    assert "/map" not in topics(converter.convert(_map(1), 100_000_000))  # held
+    assert topics(converter.finish(sent_ns=600_000_000)) == ["/map"]  # sent on the bridge's tick, later
+    assert "/map" not in topics(converter.convert(_map(2), 700_000_000))  # 0.1 s after that one: held as well
+    assert converter.pending_map is not None and converter.last_map_ns == 600_000_000
+    assert "/map" in topics(converter.convert(_map(3), 1_200_000_000))  # a period after the late one
 
 
 def test_a_port_in_use_a_bad_port_or_no_foxglove_sdk_is_a_configuration_error(monkeypatch):

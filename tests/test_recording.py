@@ -243,7 +243,7 @@ def test_a_broken_recording_is_one_clear_error(tmp_path: Path):
         list(read_recording(empty))
     truncated = tmp_path / "truncated.mcap"
     truncated.write_bytes(MCAP_MAGIC + b"\x01\x02")
-    with pytest.raises(RecordingError, match=r"cannot read .*truncated.mcap: \S"):
+    with pytest.raises(RecordingError, match=r"cannot read .*truncated.mcap: it ends before its first chunk of messages"):
         list(read_recording(truncated))
     from mcap.writer import Writer
 
@@ -258,19 +258,24 @@ def test_a_broken_recording_is_one_clear_error(tmp_path: Path):
         list(read_recording(corrupt))
 
 
+def _written_scans(path: Path, count: int) -> tuple[list[RecordedMessage], Path]:
+    """``count`` distinct scans of robot r0, 10 ms apart, and the finished recording of them at ``path``."""
+    from cso_runtime.recording import write_recording
+
+    scan_key = RobotKeys("r0").scan
+    scans = [
+        RecordedMessage(scan_key, 10**9 + k * 10**7, encode(ScanMsg(k, LaserScan(-np.pi, np.pi / 180, 0.1, 8.0, np.linspace(0.2, 7.9, 360).astype(np.float32) + k, k * 0.1), Pose2D(k * 0.01, 0.0, 0.0))))
+        for k in range(count)
+    ]
+    write_recording(path, "r0", scans)
+    return scans, path
+
+
 def test_a_recording_whose_recorder_was_killed_is_read_up_to_where_it_stops(tmp_path: Path, caplog):
     """A recorder killed before it finished the file (SIGKILL, power) leaves its chunks without the summary
     the seeking reader starts from: every message it holds is read front to back, with a warning, and a
     file cut inside a chunk gives the messages before the cut."""
-    from cso_runtime.recording import write_recording
-
-    keys = RobotKeys("r0")
-    scans = [
-        RecordedMessage(keys.scan, 10**9 + k * 10**7, encode(ScanMsg(k, LaserScan(-np.pi, np.pi / 180, 0.1, 8.0, np.linspace(0.2, 7.9, 360).astype(np.float32) + k, k * 0.1), Pose2D(k * 0.01, 0.0, 0.0))))
-        for k in range(1500)
-    ]
-    whole = tmp_path / "whole.mcap"
-    write_recording(whole, "r0", scans)
+    scans, whole = _written_scans(tmp_path / "whole.mcap", 1500)
     data = whole.read_bytes()
     footer = data[-len(MCAP_MAGIC) - 29 : -len(MCAP_MAGIC)]  # opcode, length, summary_start, summary_offset_start, crc
     assert footer[0] == 0x02
@@ -285,6 +290,75 @@ def test_a_recording_whose_recorder_was_killed_is_read_up_to_where_it_stops(tmp_
     cut.write_bytes(data[: summary_start * 2 // 3])  # inside a chunk
     head = list(read_recording(cut))
     assert 0 < len(head) < len(scans) and [m.payload for m in head] == [m.payload for m in scans[: len(head)]]
+
+
+def test_a_recording_changed_after_it_was_written_is_refused_not_read_wrong(tmp_path: Path):
+    """A flipped byte inside a chunk can decompress into a different payload with no error at all: the chunk CRCs
+    the writer stores are checked, so such a file is refused (by ``read_recording`` and the summary reader) rather
+    than replayed or exported with a wrong message. And a recorder killed before its first chunk says so."""
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    from cso_runtime.recording import RecordingError, _McapSink, recording_contents, zlib_error
+
+    keys = RobotKeys("r0")
+    scans, whole = _written_scans(tmp_path / "whole.mcap", 400)
+    data = whole.read_bytes()
+    with whole.open("rb") as fh:
+        chunk = make_reader(fh).get_summary().chunk_indexes[0]
+    damaged = tmp_path / "damaged.mcap"
+    silent = None  # the first flip inside the chunk's compressed bytes that an unchecked reader reads as another payload
+    for offset in range(chunk.chunk_start_offset + chunk.chunk_length - 1, chunk.chunk_start_offset + chunk.chunk_length - 400, -1):
+        flipped = bytearray(data)
+        flipped[offset] ^= 0x10
+        damaged.write_bytes(bytes(flipped))
+        try:
+            with damaged.open("rb") as fh:
+                unchecked = [bytes(m.data) for _s, _c, m in make_reader(fh).iter_messages(log_time_order=True)]
+        except (McapError, ValueError, zlib_error()):
+            unchecked = []  # this flip broke the decompression: not the silent case looked for
+        if len(unchecked) == len(scans) and unchecked != [payload_to_json(m.payload)[1] for m in scans]:
+            silent = offset
+            break
+    assert silent is not None, "some flip in 400 bytes of compressed data changes a message without an error"
+    with pytest.raises(RecordingError, match=r"cannot read .*damaged.mcap: damaged: a Chunk's CRC does not match"):
+        list(read_recording(damaged))
+    with damaged.open("rb") as fh:  # the index is intact: the summary still counts; reading the messages refuses
+        assert make_reader(fh).get_summary().statistics.message_count == len(scans)
+    assert len(list(read_recording(whole))) == len(scans)
+    assert recording_contents(whole) == ([keys.scan], len(scans))
+
+    killed = tmp_path / "killed.mcap"  # the header and metadata a recorder writes at once, then nothing
+    with killed.open("wb") as fh:
+        _McapSink(fh, "r0")
+    with pytest.raises(RecordingError, match=r"killed.mcap: it ends before its first chunk of messages \(its recorder was killed"):
+        list(read_recording(killed))
+
+
+def test_a_recording_never_replaces_an_earlier_file(tmp_path: Path, monkeypatch):
+    """``record --out FILE`` and ``up --record-out FILE`` refuse a file that exists (exit 2, before connecting or
+    starting anything), ``--out DIR/`` means a folder even before it exists, and the Foxglove bridge's
+    ``mcap_path`` moves to the next free ``-<n>`` name instead of writing over an earlier run's file."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.recording import recording_path, unused_path
+
+    earlier = tmp_path / "run.mcap"
+    earlier.write_bytes(b"an earlier recording")
+    r = CliRunner().invoke(app, ["record", "--out", str(earlier), "--connect", "tcp/127.0.0.1:1"])
+    assert r.exit_code == 2 and f"{earlier} exists" in r.output
+    r = CliRunner().invoke(app, ["up", "--profile", "sim", "--record-out", str(earlier), "--runs-dir", str(tmp_path / "runs"), "--no-live"])
+    assert r.exit_code == 2 and "the file exists" in r.output and not (tmp_path / "runs").exists()
+    assert earlier.read_bytes() == b"an earlier recording"
+    assert recording_path(f"{tmp_path}/new/", Path("recordings"), "r0-T") == tmp_path / "new" / "r0-T.mcap"
+    assert recording_path(str(tmp_path / "new"), Path("recordings"), "r0-T") == tmp_path / "new"  # no slash, not there: a file
+    with pytest.raises(FileExistsError):
+        record(None, "r0", earlier, threading.Event())  # type: ignore[arg-type]  # refused before the session is used
+    assert unused_path(tmp_path / "fresh.mcap") == tmp_path / "fresh.mcap"
+    assert unused_path(earlier) == tmp_path / "run-1.mcap"
+    (tmp_path / "run-1.mcap").write_bytes(b"")
+    assert unused_path(earlier) == tmp_path / "run-2.mcap"
 
 
 def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path: Path):

@@ -1054,8 +1054,19 @@ def test_up_foxglove_serves_the_episode_and_the_episode_is_the_same(tmp_path):
 
 def test_a_service_attaches_to_the_current_run_and_a_bridge_started_late_serves_it(tmp_path):
     """``service foxglove_bridge --attach``: the run's profile, router and robot from runs/current.json; the bridge,
-    started mid-episode, serves the steps from then on; without a current run, a usage error."""
+    started mid-episode, serves the steps from then on; without a current run, a usage error. The run records
+    into a folder given with a trailing slash, and its recording is finished when the episode ends, before `down`."""
     from mcap.reader import make_reader
+
+    from cso_runtime.launcher import current_launcher_alive
+    from cso_runtime.recording import RecordingError, recording_contents
+
+    def finished_messages(path: Path) -> int | None:
+        """How many messages a finished recording holds; None while it has no summary (or not one chunk yet)."""
+        try:
+            return recording_contents(path)[1]
+        except RecordingError:
+            return None
 
     profile = write_profile(tmp_path, min_step_period_s=0.2)
     runs, mcap = tmp_path / "runs", tmp_path / "late.mcap"
@@ -1063,10 +1074,12 @@ def test_a_service_attaches_to_the_current_run_and_a_bridge_started_late_serves_
     try:
         r = cli("service", "foxglove_bridge", "--attach", "--runs-dir", str(runs), cwd=tmp_path)
         assert r.returncode == 2 and f"--attach: no current run in {runs}" in r.stderr, r.stderr
-        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), "--record-out", f"{tmp_path}/recordings/", cwd=tmp_path)
         assert r.returncode == 0, r.stderr
         endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
         wait_for(lambda: (s := query_status(endpoints, "r0", timeout_s=0.5)) and s["step"] >= 2, 60, "the episode to start")
+        (recording,) = (tmp_path / "recordings").glob("*.mcap")
+        assert recording.name == f"{json.loads((runs / 'current.json').read_text())['run_id']}.mcap"
         log_path = tmp_path / "bridge.log"
         with log_path.open("w") as log_file:
             bridge = subprocess.Popen([sys.executable, "-m", "cso_runtime.cli", "service", "foxglove_bridge", "--attach", "--runs-dir", str(runs),
@@ -1079,7 +1092,11 @@ def test_a_service_attaches_to_the_current_run_and_a_bridge_started_late_serves_
         with mcap.open("rb") as f:
             topics = [channel.topic for _, channel, _ in make_reader(f).iter_messages()]
         assert 0 < topics.count("/scan") <= final["step"] + 1 and "/map" in topics and "/tf_static" in topics
+        # the launcher stays for `status` and `down`, but the recording ended with the episode: a finished file
+        recorded = wait_for(lambda: finished_messages(recording), 30, "the recording to be finished")
+        assert recorded > final["step"] and current_launcher_alive(json.loads((runs / "current.json").read_text()))
         assert cli("down", "--runs-dir", str(runs), cwd=tmp_path).returncode == 0
+        assert finished_messages(recording) == recorded  # nothing written after the episode
     finally:
         if bridge is not None and bridge.poll() is None:
             bridge.kill()
