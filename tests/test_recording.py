@@ -8,6 +8,7 @@ every wait is a condition with a deadline; sessions and threads are closed in ``
 from __future__ import annotations
 
 import threading
+import time
 from pathlib import Path
 
 import msgpack
@@ -17,7 +18,7 @@ import pytest
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.keys import RobotKeys
-from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, decode, encode
+from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, encode
 from cso_runtime.recording import (
     JSON_ENCODING,
     MCAP_MAGIC,
@@ -459,9 +460,13 @@ def test_record_refuses_a_bad_robot_id_before_connecting(tmp_path: Path, monkeyp
     assert not (tmp_path / "r.mcap").exists()
 
 
-def test_record_closed_by_its_terminal_finishes_its_file(tmp_path: Path):
-    """SIGHUP (the terminal ``record`` ran in was closed) stops it as Ctrl-C does: the MCAP file is finished,
-    summary and all (it used to die at once and leave 0 bytes)."""
+@pytest.mark.parametrize("stop_signal", ["SIGHUP", "SIGINT"])
+def test_record_stopped_under_a_dense_stream_finishes_its_file(tmp_path: Path, stop_signal: str):
+    """SIGHUP (the terminal ``record`` ran in was closed) stops it as Ctrl-C (SIGINT) does: the MCAP file is
+    finished, summary and all (SIGHUP used to kill it at once and leave 0 bytes). Both while scans keep coming
+    every 2 ms, which never leave the recorder's queue empty for the 50 ms it used to wait for before it looked
+    at the stop (it then recorded on until the stream ended). The signal goes once a first chunk is on disk, so
+    the recorder has provably received messages; what it holds is the stream's start, in order, with no gap."""
     import signal
     import subprocess
     import sys
@@ -469,8 +474,9 @@ def test_record_closed_by_its_terminal_finishes_its_file(tmp_path: Path):
     from mcap.reader import make_reader
 
     port = free_tcp_port()
-    out = tmp_path / "hup.mcap"
+    out = tmp_path / "stopped.mcap"
     keys = RobotKeys("r0")
+    rng = np.random.default_rng(0)
     with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
         proc = subprocess.Popen(
             [sys.executable, "-m", "cso_runtime.cli", "record", "--connect", loopback_endpoint(port), "--robot", "r0", "--out", str(out)],
@@ -481,11 +487,21 @@ def test_record_closed_by_its_terminal_finishes_its_file(tmp_path: Path):
         reader.start()
         try:
             wait_for(lambda: any(line.startswith("recording cso/r0/**") for line in lines), 30, "the recorder to connect")
-            publisher = session.declare_publisher(keys.odom)
+            publisher = session.declare_publisher(keys.scan)
             wait_for(lambda: publisher.matching_status.matching, 10, "the recorder's subscription to reach the router")
-            for k in range(20):
-                publisher.put(encode(OdometryMsg(k, 0.25 * k, Pose2D(0.1 * k, 0.0, 0.0))))
-            proc.send_signal(signal.SIGHUP)
+            scans = [encode(ScanMsg(k, LaserScan(-np.pi, np.pi / 180, 0.1, 8.0, rng.uniform(0.1, 8.0, 360).astype(np.float32), 0.25 * k), Pose2D(0.0, 0.0, 0.0))) for k in range(2000)]
+
+            def keep_publishing() -> None:  # on past the signal, until the recorder has exited (or the scans run out)
+                for payload in scans:
+                    if proc.poll() is not None:
+                        return
+                    publisher.put(payload)
+                    time.sleep(0.002)
+
+            stream = threading.Thread(target=keep_publishing, daemon=True)
+            stream.start()
+            wait_for(lambda: out.stat().st_size > 1024, 30, "the recorder's first chunk on disk")
+            proc.send_signal(getattr(signal, stop_signal))
             proc.wait(timeout=30)
             reader.join(timeout=10)
         finally:
@@ -496,5 +512,5 @@ def test_record_closed_by_its_terminal_finishes_its_file(tmp_path: Path):
     with out.open("rb") as fh:
         assert make_reader(fh).get_summary() is not None  # finished: the seeking reader's summary is there
     recorded = list(read_recording(out))
-    assert [m.key for m in recorded] == [keys.odom] * 20  # every message sent, none lost to the signal
-    assert [decode(m.payload).step for m in recorded] == list(range(20))
+    assert 0 < len(recorded) < len(scans) and {m.key for m in recorded} == {keys.scan}  # stopped mid-stream, not at its end
+    assert [m.payload for m in recorded] == scans[: len(recorded)]  # exact, in order, no gap
