@@ -1,7 +1,9 @@
 """Policy service: ``make_policy(method)`` and ``select`` on each decision's Observation.
 
 With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers`` and
-keeps one selector per robot). It answers the steps that ask for a decision with ``decided: true`` and
+keeps one selector per robot); each robot it serves sees it under its own keys, as if it were its own policy:
+a liveliness token ``cso/<robot>/alive/policy`` from its first decision input, and
+``cso/<robot>/service/policy/status`` with that robot's state, so ``status --robot ID`` shows it. It answers the steps that ask for a decision with ``decided: true`` and
 the new goal (or none: nothing left to explore); on the other steps the planner keeps following the
 current goal without waiting for the policy, and late joiners query the last goal. A decision input
 older than ``stale_after_s`` is not acted on (the status says why).
@@ -16,10 +18,12 @@ from dataclasses import dataclass
 import zenoh
 
 from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import (
     FrontiersMsg,
     GoalMsg,
     Message,
+    ServiceStatusMsg,
     decode,
     encode,
     frontiers_from_observation,
@@ -83,6 +87,8 @@ class PolicyService(Service):
 
             log.info("%s: weights %s", self.method, weights_path(self.method, ctx.exploration.sensor))
         self._queryables: list = []
+        self._tokens: dict[str, zenoh.LivelinessToken] = {}
+        """Robot -> the liveliness token under its keys (the robots served besides ``--robot``)."""
 
     def new_selector(self) -> GoalSelector:
         try:
@@ -104,6 +110,20 @@ class PolicyService(Service):
     def start(self) -> None:
         assert self.session is not None
         self._queryables.append(self.session.declare_queryable(f"cso/{self.subscribe_robot}/goal", self._on_query))
+        if self.params.serve_all_robots:  # --robot's own status is the service's (run_service's queryable)
+            self._queryables.append(self.session.declare_queryable(RobotKeys("*").service_status(self.name), self._on_status_query))
+
+    def _on_status_query(self, query: zenoh.Query) -> None:
+        robot = str(query.key_expr).split("/")[1]
+        for name, st in list(self.robots.items()):
+            if name != self.ctx.robot and robot in (name, "*"):
+                query.reply(RobotKeys(name).service_status(self.name), encode(self.robot_status(name, st)))
+
+    def robot_status(self, robot: str, st: RobotState) -> ServiceStatusMsg:
+        """This service's status as one robot's own policy would give it: that robot's step and staleness."""
+        own = self.status_msg()
+        state = "stale" if st.stale_reason else "running"
+        return ServiceStatusMsg(self.name, robot, state, st.answered_step, st.stale_reason, own.rejected, own.processed)
 
     def _on_query(self, query: zenoh.Query) -> None:
         robot = str(query.key_expr).split("/")[1]
@@ -116,6 +136,8 @@ class PolicyService(Service):
         if st is None:
             st = self.robots[robot] = RobotState(self.new_selector())
             log.info("serving robot %s with %s", robot, self.method)
+            if robot != self.ctx.robot and self.session is not None:  # it sees a policy under its own keys
+                self._tokens[robot] = self.session.liveliness().declare_token(RobotKeys(robot).alive(self.name))
         assert isinstance(msg, FrontiersMsg)
         st.last_input_s = received_s
         if msg.step == 0 and st.answered_step > 0:

@@ -235,6 +235,15 @@ def test_one_policy_server_answers_several_robots():
             wait_for(lambda: set(goals) == {"a", "b"}, 10, "a goal for each robot")
             for g in goals.values():
                 assert g.decided and g.step == 0 and (g.x_m, g.y_m) == (expected.x_m, expected.y_m)
+            # Robot b sees the policy under its own keys, as `status --robot b` asks: alive, with b's own status.
+            assert any(r.ok for r in session.liveliness().get(RobotKeys("b").alive("policy"), timeout=2.0))
+            assert not any(r.ok for r in session.liveliness().get(RobotKeys("c").alive("policy"), timeout=0.5))  # not served
+            for robot in ("a", "b"):
+                replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(RobotKeys(robot).service_status("*"), timeout=2.0) if r.ok]
+                assert [(m.service, m.robot, m.state, m.last_step) for m in replies] == [("policy", robot, "running", 0)], replies
+            assert not [r for r in session.get(RobotKeys("c").service_status("*"), timeout=0.5) if r.ok]
+            status = query_status([loopback_endpoint(port)], "b", timeout_s=1.0)
+            assert status is not None and status["services"]["policy"]["alive"] and status["services"]["policy"]["state"] == "running"
         finally:
             stop.set()
             thread.join(10)
