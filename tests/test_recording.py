@@ -7,6 +7,7 @@ every wait is a condition with a deadline; sessions and threads are closed in ``
 
 from __future__ import annotations
 
+import re
 import threading
 import time
 from pathlib import Path
@@ -18,7 +19,7 @@ import pytest
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.keys import RobotKeys
-from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, encode
+from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, decode, encode
 from cso_runtime.recording import (
     JSON_ENCODING,
     MCAP_MAGIC,
@@ -514,3 +515,38 @@ def test_record_stopped_under_a_dense_stream_finishes_its_file(tmp_path: Path, s
     recorded = list(read_recording(out))
     assert 0 < len(recorded) < len(scans) and {m.key for m in recorded} == {keys.scan}  # stopped mid-stream, not at its end
     assert [m.payload for m in recorded] == scans[: len(recorded)]  # exact, in order, no gap
+
+
+def test_replay_closed_by_its_terminal_stops_at_once_and_says_what_it_sent(tmp_path: Path):
+    """SIGHUP (its terminal closed) stops ``replay`` as Ctrl-C does: it stops publishing mid-recording, exits 0
+    and says how many messages it sent (it used to die on the signal with nothing said)."""
+    import signal
+    import subprocess
+    import sys
+
+    from cso_runtime.recording import write_recording
+
+    keys = RobotKeys("r0")
+    odoms = [RecordedMessage(keys.odom, 10**9 + k * 10**8, encode(OdometryMsg(k, 0.1 * k, Pose2D(0.01 * k, 0.0, 0.0)))) for k in range(100)]
+    recording = tmp_path / "odom.mcap"
+    write_recording(recording, "r0", odoms)  # 9.9 s at the recorded speed
+    port = free_tcp_port()
+    received: list[int] = []
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        sub = session.declare_subscriber(keys.odom, lambda s: received.append(decode(s.payload.to_bytes()).step))
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "cso_runtime.cli", "replay", str(recording), "--connect", loopback_endpoint(port)],
+            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        )
+        try:
+            wait_for(lambda: received, 30, "the first replayed message")
+            proc.send_signal(signal.SIGHUP)
+            output, _ = proc.communicate(timeout=30)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+            sub.undeclare()
+    match = re.search(r"replayed (\d+) messages on 1 keys", output)
+    assert proc.returncode == 0 and match, output
+    assert 1 <= int(match.group(1)) < len(odoms)  # stopped mid-recording, not at its end
+    assert received == list(range(received[0], received[0] + len(received)))  # in order, none after the stop lost mid-way
