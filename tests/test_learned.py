@@ -1305,3 +1305,41 @@ def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot
     assert gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4").unwrapped.render() is None
     with pytest.raises(ValueError, match="renders rgb_array"):
         gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="human")
+
+
+def test_train_closed_by_its_terminal_stops_its_env_workers_and_says_how_to_resume(tmp_path):
+    """SIGHUP (its terminal closed) reaches ``train`` alone and ends it as Ctrl-C does: exit code 130, the
+    environment processes gone with it, the checkpoint kept and the ``--resume`` hint said; a resume from that
+    checkpoint then continues after its update."""
+    import signal
+    import subprocess
+    import sys
+
+    from tests.conftest import wait_for
+
+    out = tmp_path / "run"
+    tiny = ["--set", "dungeon_plans=0", "--set", 'generated=["generated:small:2:0"]', "--set", "num_steps=8", "--set", "checkpoint_every=1", "--set", "max_steps=100"]
+    cmd = [sys.executable, "-m", "cso_runtime.cli", "train", "--config", "configs/train.yaml", "--out", str(out), "--num-envs", "2", "--async-envs", *tiny]
+    proc = subprocess.Popen(cmd, cwd=Path(__file__).parents[1], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        wait_for(lambda: (out / "checkpoint.pt").is_file() or proc.poll() is not None, 120, "the first checkpoint")
+        assert proc.poll() is None, "training ended before the signal"
+        proc.send_signal(signal.SIGHUP)
+        output = proc.communicate(timeout=60)[0]
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+    def group_gone() -> bool:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            return True
+        return False
+
+    wait_for(group_gone, 10, "the environment processes to exit")
+    assert proc.returncode == 130, output[-2000:]
+    assert f"interrupted; continue from the last checkpoint with --resume {out / 'checkpoint.pt'}" in output
+    stopped_at = torch.load(out / "checkpoint.pt", weights_only=False)["update"]
+    resumed = subprocess.run([*cmd, "--resume", str(out / "checkpoint.pt"), "--time-limit-s", "0.1"], cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=120)
+    assert resumed.returncode == 0 and f"resumed from {out / 'checkpoint.pt'} at update {stopped_at + 1}" in resumed.stdout, resumed.stdout[-2000:] + resumed.stderr[-2000:]
