@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import os
+import signal
+import subprocess
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +55,29 @@ def two_rooms(resolution_m: float = 0.1) -> FloorPlan:
 @pytest.fixture
 def room() -> FloorPlan:
     return box_room()
+
+
+def process_group_gone(pgid: int) -> bool:
+    """True once no process of the group ``pgid`` is left (a command started with ``start_new_session``)."""
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return True
+    return False
+
+
+@contextlib.contextmanager
+def process_group(cmd: list[str], **popen: Any) -> Iterator[subprocess.Popen]:
+    """Run ``cmd`` in a process group of its own (its text output piped); on leaving, SIGKILL the group if the
+    command still runs, then wait (at most 10 s) until none of its processes (workers too) is left."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True, **popen)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+        wait_for(lambda: process_group_gone(proc.pid), 10, f"the processes of {' '.join(cmd[:4])} to exit")
 
 
 def wait_for(cond: Callable[[], Any], timeout_s: float, what: str) -> Any:

@@ -397,34 +397,20 @@ def test_sigterm_to_eval_alone_stops_its_workers_and_keeps_the_finished_episodes
     """``kill PID`` (or a job scheduler's stop, or the terminal closing) reaches the parent only: it ends as
     Ctrl-C does, exit code 130 with the finished episodes written, and no worker process is left behind (they
     used to be, idle, forever)."""
-    import os
     import signal
 
-    from tests.test_runtime import wait_for
+    from tests.conftest import process_group
 
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--method", "random", "--maps", "generated:middle:8:0",
            "--workers", "2", "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    try:
+    with process_group(cmd) as proc:  # on leaving: no worker process left
         for line in proc.stdout:
             if line.startswith("[1/8]"):
                 break
         assert proc.poll() is None, "the evaluation ended before the signal"
         proc.send_signal(getattr(signal, signame))
         stdout = proc.communicate(timeout=30)[0]
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-
-    def group_gone() -> bool:
-        try:
-            os.killpg(proc.pid, 0)
-        except ProcessLookupError:
-            return True
-        return False
-
-    wait_for(group_gone, 10, "the evaluation's worker processes to exit")
     assert proc.returncode == 130, stdout[-2000:]
     stopped = json.loads((out / "summary.json").read_text())["meta"]["interrupted"]
     assert 1 <= stopped["episodes_finished"] < 8 and "--resume runs the rest" in stdout

@@ -1315,29 +1315,16 @@ def test_train_closed_by_its_terminal_stops_its_env_workers_and_says_how_to_resu
     import subprocess
     import sys
 
-    from tests.conftest import wait_for
+    from tests.conftest import process_group, wait_for
 
     out = tmp_path / "run"
     tiny = ["--set", "dungeon_plans=0", "--set", 'generated=["generated:small:2:0"]', "--set", "num_steps=8", "--set", "checkpoint_every=1", "--set", "max_steps=100"]
     cmd = [sys.executable, "-m", "cso_runtime.cli", "train", "--config", "configs/train.yaml", "--out", str(out), "--num-envs", "2", "--async-envs", *tiny]
-    proc = subprocess.Popen(cmd, cwd=Path(__file__).parents[1], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    try:
+    with process_group(cmd, cwd=Path(__file__).parents[1]) as proc:  # on leaving: no environment process left
         wait_for(lambda: (out / "checkpoint.pt").is_file() or proc.poll() is not None, 120, "the first checkpoint")
         assert proc.poll() is None, "training ended before the signal"
         proc.send_signal(signal.SIGHUP)
         output = proc.communicate(timeout=60)[0]
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-
-    def group_gone() -> bool:
-        try:
-            os.killpg(proc.pid, 0)
-        except ProcessLookupError:
-            return True
-        return False
-
-    wait_for(group_gone, 10, "the environment processes to exit")
     assert proc.returncode == 130, output[-2000:]
     assert f"interrupted; continue from the last checkpoint with --resume {out / 'checkpoint.pt'}" in output
     stopped_at = torch.load(out / "checkpoint.pt", weights_only=False)["update"]
