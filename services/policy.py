@@ -1,12 +1,14 @@
 """Policy service: ``make_policy(method)`` and ``select`` on each decision's Observation.
 
 With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers`` and
-keeps one selector per robot); each robot it serves sees it under its own keys, as if it were its own policy:
-a liveliness token ``cso/<robot>/alive/policy`` from its first decision input, and
-``cso/<robot>/service/policy/status`` with that robot's state, so ``status --robot ID`` shows it. It answers the steps that ask for a decision with ``decided: true`` and
-the new goal (or none: nothing left to explore); on the other steps the planner keeps following the
-current goal without waiting for the policy, and late joiners query the last goal. A decision input
-older than ``stale_after_s`` is not acted on (the status says why).
+keeps one selector per robot); each robot it serves sees it under its own keys, as if it were its own
+policy: a liveliness token ``cso/<robot>/alive/policy`` from its first decision input, and
+``cso/<robot>/service/policy/status`` with that robot's state, so ``status --robot ID`` shows it.
+
+It answers the steps that ask for a decision with ``decided: true`` and the new goal (or none: nothing
+left to explore); on the other steps the planner keeps following the current goal without waiting for
+the policy, and late joiners query the last goal. A decision input older than ``stale_after_s`` is not
+acted on (the status says why).
 """
 
 from __future__ import annotations
