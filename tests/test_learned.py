@@ -1318,11 +1318,11 @@ def test_train_closed_by_its_terminal_stops_its_env_workers_and_says_how_to_resu
     from tests.conftest import process_group, wait_for
 
     out = tmp_path / "run"
-    tiny = ["--set", "dungeon_plans=0", "--set", 'generated=["generated:small:2:0"]', "--set", "num_steps=8", "--set", "checkpoint_every=1", "--set", "max_steps=100"]
+    tiny = ["--set", "dungeon_dir=null", "--set", 'generated=["generated:small:2:0"]', "--set", "num_steps=8", "--set", "checkpoint_every=1", "--set", "max_steps=100"]
     cmd = [sys.executable, "-m", "cso_runtime.cli", "train", "--config", "configs/train.yaml", "--out", str(out), "--num-envs", "2", "--async-envs", *tiny]
     with process_group(cmd, cwd=Path(__file__).parents[1]) as proc:  # on leaving: no environment process left
         wait_for(lambda: (out / "checkpoint.pt").is_file() or proc.poll() is not None, 120, "the first checkpoint")
-        assert proc.poll() is None, "training ended before the signal"
+        assert proc.poll() is None, "training ended before the signal: " + proc.communicate()[0][-2000:]
         proc.send_signal(signal.SIGHUP)
         output = proc.communicate(timeout=60)[0]
     assert proc.returncode == 130, output[-2000:]
