@@ -28,7 +28,7 @@ from cso_runtime.occupancy import OccupancyMap
 SCHEMA_VERSION = 1
 """Version of the schemas unchanged since the first release; a schema that changes bumps its own ``VERSION``
 (each class's, listed in docs/messages.md: ``clock``, ``episode_status`` and ``scan`` carry the episode id from 2,
-``map`` is at 3, ``frontiers`` at 6)."""
+``odom``, ``distance_map`` and ``goal`` from 2, ``map`` is at 3, ``frontiers`` at 7)."""
 MAX_GRID_CELLS = 50_000_000
 MAX_BEAMS = 100_000
 COMPRESS_MIN_BYTES = 4096
@@ -280,13 +280,23 @@ class OdometryMsg(Message):
     """The robot's own pose estimate (and the last applied twist) at one step."""
 
     SCHEMA: ClassVar[str] = "odom"
+    VERSION: ClassVar[int] = 2
     step: int
     stamp_s: float
     pose: Pose2D
     twist: VelocityCommand = field(default_factory=VelocityCommand)
+    episode: int = 0
+    """Episode id, as on the clock (v2): the planner and the frontier service see a new episode on its
+    first odometry, whatever its step (``EpisodeWatch``)."""
 
     def body(self) -> dict[str, Any]:
-        return {"step": self.step, "stamp_s": self.stamp_s, "pose": _pose_out(self.pose), "twist": [self.twist.linear_mps, self.twist.angular_radps]}
+        return {
+            "step": self.step,
+            "stamp_s": self.stamp_s,
+            "pose": _pose_out(self.pose),
+            "twist": [self.twist.linear_mps, self.twist.angular_radps],
+            "episode": self.episode,
+        }
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> OdometryMsg:
@@ -296,7 +306,7 @@ class OdometryMsg(Message):
             raise MessageError("odom.twist: expected [linear_mps, angular_radps]")
         t = {"v": tw[0], "w": tw[1]}
         twist = VelocityCommand(_num(t, "v", "odom.twist", -100, 100), _num(t, "w", "odom.twist", -100, 100))
-        return cls(_int(b, "step", w), _num(b, "stamp_s", w, 0.0), _pose_in(b, "pose", w), twist)
+        return cls(_int(b, "step", w), _num(b, "stamp_s", w, 0.0), _pose_in(b, "pose", w), twist, _int(b, "episode", w))
 
 
 @dataclass
@@ -439,7 +449,8 @@ class FrontiersMsg(Message):
     5: D and I travel as their values where their mask (``masks``) is set: D's finite cells, I's non-zero
     ones (I was sent whole: two thirds of a decision message on a 640 x 480 map).
     6: D moved to its own message (nine tenths of a decision message on a 640 x 480 map); here only its
-    values at the path nodes (``path_nodes_distance_m``)."""
+    values at the path nodes (``path_nodes_distance_m``).
+    7: the episode id of the map it was decided on (``episode``)."""
     step: int
     decide: bool
     reason: str = ""
@@ -453,6 +464,9 @@ class FrontiersMsg(Message):
     build_ms: float = 0.0
     path_nodes_distance_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     """D at each path node's cell (inf: unreachable or off the map)."""
+    episode: int = 0
+    """Episode id of the map decided on (as on the clock; 0: not from a sim episode): the policy sees a new
+    episode on its first decision input, which in real time is rarely that of step 0."""
 
     GRIDS: ClassVar[dict[str, str]] = {
         "explored": "bool",
@@ -478,7 +492,7 @@ class FrontiersMsg(Message):
         return points, [(float(c["goal_xy_m"][0]), float(c["goal_xy_m"][1])) for c in self.clusters]
 
     def body(self) -> dict[str, Any]:
-        b: dict[str, Any] = {"step": self.step, "decide": self.decide, "reason": self.reason}
+        b: dict[str, Any] = {"step": self.step, "decide": self.decide, "reason": self.reason, "episode": self.episode}
         if not self.decide:
             return b
         assert self.pose is not None and self.geometry is not None
@@ -516,9 +530,9 @@ class FrontiersMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> FrontiersMsg:
         w = "frontiers"
-        step, decide, reason = _int(b, "step", w), _bool(b, "decide", w), _str(b, "reason", w)
+        step, decide, reason, episode = _int(b, "step", w), _bool(b, "decide", w), _str(b, "reason", w), _int(b, "episode", w)
         if not decide:
-            return cls(step, False, reason)
+            return cls(step, False, reason, episode=episode)
         geometry = _geometry_in(b, w)
         raw = _get(b, "arrays", w)
         if not isinstance(raw, dict) or set(raw) != set(cls.GRIDS):
@@ -532,7 +546,7 @@ class FrontiersMsg(Message):
             arrays["entropy"] = _masked_grid_in(raw["entropy"], _grid_in(masks, "entropy", "frontiers.masks", geometry, "bool"), "frontiers.arrays.entropy", 0, np.int32)
         open_area_m2 = _num(b, "open_area_m2", w, 0.0)
         if not cls.READS_CLUSTERS:
-            return cls(step, True, reason, _pose_in(b, "pose", w), geometry, arrays, [], open_area_m2)
+            return cls(step, True, reason, _pose_in(b, "pose", w), geometry, arrays, [], open_area_m2, episode=episode)
         clusters_raw = _get(b, "clusters", w)
         if not isinstance(clusters_raw, list):
             raise MessageError("frontiers.clusters: expected a list")
@@ -579,6 +593,7 @@ class FrontiersMsg(Message):
             nodes,
             _num(b, "build_ms", w, 0.0),
             node_d,
+            episode,
         )
 
 
@@ -602,8 +617,8 @@ and the obstacles it checks before reversing (with the pose and geometry). Two o
 clusters, on the planner's network thread while a fast policy's goal may already be waiting behind it."""
 
 
-def frontiers_from_observation(step: int, reason: str, obs: Observation, build_ms: float) -> FrontiersMsg:
-    """The decision message for ``obs`` (the frontier service's output)."""
+def frontiers_from_observation(step: int, reason: str, obs: Observation, build_ms: float, episode: int = 0) -> FrontiersMsg:
+    """The decision message for ``obs`` (the frontier service's output) in episode ``episode``."""
     arrays = {k: getattr(obs, k) for k in FrontiersMsg.GRIDS}
     clusters = [
         {
@@ -618,7 +633,7 @@ def frontiers_from_observation(step: int, reason: str, obs: Observation, build_m
         for c in obs.clusters
     ]
     nodes = np.asarray(obs.path_nodes_xy_m, dtype=float).reshape(-1, 2)
-    return FrontiersMsg(step, True, reason, obs.pose, obs.geometry, arrays, clusters, obs.open_area_m2, nodes, build_ms, obs.distance_at(nodes))
+    return FrontiersMsg(step, True, reason, obs.pose, obs.geometry, arrays, clusters, obs.open_area_m2, nodes, build_ms, obs.distance_at(nodes), episode)
 
 
 def observation_from_frontiers(msg: FrontiersMsg) -> Observation:
@@ -662,11 +677,13 @@ class DistanceMapMsg(Message):
     Travels as its finite values, row by row, with their mask (lossless)."""
 
     SCHEMA: ClassVar[str] = "distance_map"
-    VERSION: ClassVar[int] = 1
+    VERSION: ClassVar[int] = 2
     step: int
     geometry: GridGeometry
     pose: Pose2D
     distance_m: np.ndarray
+    episode: int = 0
+    """Episode id, as on its decision message (v2)."""
 
     def body(self) -> dict[str, Any]:
         d = np.asarray(self.distance_m, dtype=np.float64)
@@ -677,6 +694,7 @@ class DistanceMapMsg(Message):
             "pose": _pose_out(self.pose),
             "finite": pack_array(finite, compress=True),
             "distance_m": pack_array(d[finite], compress=False),
+            "episode": self.episode,
         }
 
     @classmethod
@@ -684,7 +702,7 @@ class DistanceMapMsg(Message):
         w = "distance_map"
         geometry = _geometry_in(b, w)
         d = _masked_grid_in(_get(b, "distance_m", w), _grid_in(b, "finite", w, geometry, "bool"), f"{w}.distance_m", np.inf, np.float64)
-        return cls(_int(b, "step", w), geometry, _pose_in(b, "pose", w), d)
+        return cls(_int(b, "step", w), geometry, _pose_in(b, "pose", w), d, _int(b, "episode", w))
 
 
 @dataclass
@@ -692,6 +710,7 @@ class GoalMsg(Message):
     """The policy's answer for one step: the current long-term goal (None: no reachable frontier)."""
 
     SCHEMA: ClassVar[str] = "goal"
+    VERSION: ClassVar[int] = 2
     step: int
     decided: bool
     """True when this step's frontiers asked for a decision and this is its result."""
@@ -702,6 +721,9 @@ class GoalMsg(Message):
     decision_ms: float = 0.0
     method: str = ""
     reason: str = ""
+    episode: int = 0
+    """Episode id of the decision input it answers (v2): a goal still in flight from an episode that has
+    ended is never taken for the new one's."""
 
     @property
     def has_goal(self) -> bool:
@@ -715,6 +737,7 @@ class GoalMsg(Message):
             "decision_ms": self.decision_ms,
             "method": self.method,
             "reason": self.reason,
+            "episode": self.episode,
         }
 
     @classmethod
@@ -728,7 +751,9 @@ class GoalMsg(Message):
                 raise MessageError("goal.goal: expected [x_m, y_m, cluster_index, distance_m] or null")
             d = dict(zip(("x", "y", "i", "d"), g))
             x, y, idx, dist = _num(d, "x", w), _num(d, "y", w), _int(d, "i", w, 0, 10**9), _num(d, "d", w, 0.0)
-        return cls(_int(b, "step", w), _bool(b, "decided", w), x, y, idx, dist, _num(b, "decision_ms", w, 0.0), _str(b, "method", w), _str(b, "reason", w))
+        return cls(
+            _int(b, "step", w), _bool(b, "decided", w), x, y, idx, dist, _num(b, "decision_ms", w, 0.0), _str(b, "method", w), _str(b, "reason", w), _int(b, "episode", w)
+        )
 
 
 @dataclass

@@ -454,6 +454,43 @@ class StepGuard:
         return ""
 
 
+EPISODES_REMEMBERED = 16
+"""Ended episode ids an ``EpisodeWatch`` keeps, to tell their late messages from a new episode's."""
+
+
+class EpisodeWatch:
+    """Which episode a robot's messages belong to. Every publisher of steps draws an id per episode
+    (``new_episode_id``) and stamps it on what it sends, and what is computed from it carries it on
+    (scan and odometry -> map -> frontiers and D -> goal). So a service sees a new episode at its first
+    message, whatever its step: a real-time frontier service skips steps, so the policy may never see a
+    new episode's step 0, and a lost step 0 left a service waiting for the old episode's step count
+    with no word. A message of an episode that has ended is still in flight from before a restart:
+    the caller rejects it (counted). Id 0 comes from a publisher without ids (another tool, a map from
+    ROS): it never changes the episode; where no message has had an id, step 0 after later steps
+    starts a new one, as step 0 alone did before ids."""
+
+    def __init__(self) -> None:
+        self.current: int | None = None
+        """The id of the episode being served (None: none seen yet)."""
+        self.ended: collections.deque[int] = collections.deque(maxlen=EPISODES_REMEMBERED)
+
+    def classify(self, episode: int, step: int, progressed: bool) -> str:
+        """``"same"``, ``"new"`` (a new episode has started: the caller starts afresh) or ``"ended"``
+        (a message of an episode before the current one). ``progressed``: the caller has handled
+        steps past 0 of the current episode (only id 0 needs it)."""
+        if episode == 0:
+            return "new" if self.current is None and step == 0 and progressed else "same"
+        if episode == self.current:
+            return "same"
+        if episode in self.ended:
+            return "ended"
+        started = self.current is not None
+        if started:
+            self.ended.append(self.current)  # type: ignore[arg-type]
+        self.current = episode
+        return "new" if started else "same"
+
+
 def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> None:
     try:
         robot, topic = robot_of(key), topic_of(key)

@@ -34,7 +34,7 @@ from cso_runtime.observation import FrontierLayer, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
-from services.common import Service, ServiceContext, service_main, warm_up_map
+from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_map
 from services.frontier_layer import FrontierLayerWorker
 
 log = logging.getLogger("cso.frontier")
@@ -78,6 +78,7 @@ class FrontierService(Service):
         self.layer_worker: FrontierLayerWorker | None = None
         self.decisions_built = 0
         """Observations built (the helper computed ``layer_worker.layers_computed`` of their layers)."""
+        self.episodes = EpisodeWatch()
         self.reset_episode()
 
     def warm_up(self) -> None:
@@ -126,17 +127,19 @@ class FrontierService(Service):
         self.path_nodes: list[tuple[float, float]] = []
         self.done_step = -1
         self.last_out: FrontiersMsg | None = None
-        self.map_episode: int | None = None
-        """Episode id of the maps decided on (None: take the first map's)."""
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         step = getattr(msg, "step", -1)
-        if isinstance(msg, OdometryMsg) and step == 0 and self.done_step > 0:
-            log.info("odometry restarted at step 0: new episode, forgetting the decision state")
-            self.reset_episode()
-        if isinstance(msg, MapMsg) and step == 0 and self.done_step > 0 and self.map_episode not in (None, msg.episode):
-            log.info("map of step 0 of a new episode %d: forgetting the decision state", msg.episode)
-            self.reset_episode()
+        if isinstance(msg, (OdometryMsg, MapMsg, GoalMsg)):
+            # The episode shows itself on whichever of them comes first: maps of the episode before (a sim
+            # restart) may still be in flight among the new one's first messages.
+            seen = self.episodes.classify(msg.episode, step, self.done_step > 0)
+            if seen == "ended":
+                self.reject(topic, f"{topic} of episode {msg.episode} at step {step}: that episode has ended")
+                return
+            if seen == "new":
+                log.info("new episode %d (%s of step %d): forgetting the decision state", self.episodes.current, topic, step)
+                self.reset_episode()
         if isinstance(msg, GoalMsg):
             if msg.decided and step >= self.decision_step:
                 self.goal = Goal(msg.x_m, msg.y_m, msg.cluster_index, msg.distance_m) if msg.has_goal else None
@@ -155,28 +158,10 @@ class FrontierService(Service):
                 self.publish("frontiers", self.last_out)  # a lockstep retry: answer again
             return
         if isinstance(msg, MapMsg):
-            if not self.accept_map_episode(msg):
-                return
             self.maps[step] = msg
         elif isinstance(msg, OdometryMsg):
             self.odoms[step] = msg
         self.try_decide()
-
-    def accept_map_episode(self, m: MapMsg) -> bool:
-        """Maps of one episode only. A new episode's maps start at step 0 (the mapper starts a new map
-        on the first scan with a new id), so a map of another episode at step 0 starts it here too;
-        any other map of another episode is one still in flight from before (rejected, counted)."""
-        if self.map_episode is None or m.episode == self.map_episode:
-            self.map_episode = m.episode
-            return True
-        if m.step == 0:
-            for s, old in sorted(self.maps.items()):
-                self.reject("map", f"map of episode {old.episode} at step {s}: episode {m.episode} has started")
-            self.maps.clear()
-            self.map_episode = m.episode
-            return True
-        self.reject("map", f"map of episode {m.episode} at step {m.step} while deciding on episode {self.map_episode}")
-        return False
 
     def planner_state(self, k: int) -> PlannerFeedbackMsg | None:
         """The planner's report after the command of step k - 1 (lockstep: exactly that one; real time:
@@ -218,8 +203,9 @@ class FrontierService(Service):
             if status == PlannerStatus.FOLLOWING and path_blocked_ahead(fb.path_ahead_xy_m, odom.pose, occupancy.occupied, occupancy.geometry, self.robot_radius_m):
                 status = PlannerStatus.BLOCKED
         reason = decision_reason(self.goal, status, occupancy, k - self.decision_step, self.replan_every_steps)
+        episode = self.episodes.current or 0
         if reason is None or waiting:
-            out = FrontiersMsg(k, False)
+            out = FrontiersMsg(k, False, episode=episode)
         else:
             t0 = time.perf_counter()
             if self.goal is not None and goal_failed_in_place(reason, self.goal, occupancy, odom.pose):
@@ -227,7 +213,7 @@ class FrontierService(Service):
             self.path_nodes.append((odom.pose.x_m, odom.pose.y_m))
             obs = self.builder.build(occupancy, odom.pose, np.array(self.path_nodes), exclude_frontier=self.dead, layer=self.layer_beside_d(occupancy, self.dead))
             self.decisions_built += 1
-            out = frontiers_from_observation(k, reason, obs, (time.perf_counter() - t0) * 1e3)
+            out = frontiers_from_observation(k, reason, obs, (time.perf_counter() - t0) * 1e3, episode)
             self.awaiting_goal_step, self.awaiting_since_s = k, time.monotonic()
         self.last_out = out
         self.publish("frontiers", out)
@@ -235,7 +221,7 @@ class FrontierService(Service):
             # After the decision message: the policy starts on it while D is encoded and travels to the
             # planner, which decodes it while the policy decides (a goal selector reads D only at the
             # path nodes, which the decision message carries).
-            self.publish("distance_map", DistanceMapMsg(k, obs.geometry, obs.pose, obs.distance_m))
+            self.publish("distance_map", DistanceMapMsg(k, obs.geometry, obs.pose, obs.distance_m, episode))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -35,7 +35,7 @@ from cso_runtime.messages import (
     ScanMsg,
 )
 from cso_runtime.planner import FollowResult, LocalPlanner, PlannerStatus
-from services.common import Service, ServiceContext, service_main, warm_up_observation
+from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_observation
 
 log = logging.getLogger("cso.planner")
 
@@ -80,6 +80,7 @@ class PlannerService(Service):
     def __init__(self, ctx: ServiceContext):
         super().__init__(ctx)
         self.params = from_dict(PlannerParams, ctx.params, where="services.planner")
+        self.episodes = EpisodeWatch()
         self.reset_episode()
 
     def warm_up(self) -> None:
@@ -129,8 +130,12 @@ class PlannerService(Service):
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         step = getattr(msg, "step", -1)
-        if isinstance(msg, OdometryMsg) and step == 0 and self.cmd_step > 0:
-            log.info("odometry restarted at step 0: new episode, clearing the planner")
+        seen = self.episodes.classify(getattr(msg, "episode", 0), step, self.cmd_step > 0 and isinstance(msg, OdometryMsg))
+        if seen == "ended":
+            self.reject(topic, f"{topic} of episode {msg.episode} at step {step}: that episode has ended")  # type: ignore[attr-defined]
+            return
+        if seen == "new":
+            log.info("new episode %d (%s of step %d): clearing the planner", self.episodes.current, topic, step)
             self.reset_episode()
         if isinstance(msg, (OdometryMsg, ScanMsg)):
             self.last_input_s["odometry" if isinstance(msg, OdometryMsg) else "scan"] = received_s

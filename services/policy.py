@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import zenoh
 
@@ -33,7 +33,7 @@ from cso_runtime.messages import (
     observation_from_frontiers,
 )
 from cso_runtime.policies import LEARNED_METHODS, GoalSelector, make_policy
-from services.common import Service, ServiceContext, service_main, warm_up_observation
+from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_observation
 
 log = logging.getLogger("cso.policy")
 
@@ -65,6 +65,7 @@ class RobotState:
     last_input_s: float = 0.0
     stale_reason: str = ""
     """Why this robot is not commanded now (its inputs went stale), or empty."""
+    episodes: EpisodeWatch = field(default_factory=EpisodeWatch)
 
 
 class PolicyService(Service):
@@ -142,9 +143,13 @@ class PolicyService(Service):
                 self._tokens[robot] = self.session.liveliness().declare_token(RobotKeys(robot).alive(self.name))
         assert isinstance(msg, FrontiersMsg)
         st.last_input_s = received_s
-        if msg.step == 0 and st.answered_step > 0:
-            log.info("robot %s restarted at step 0: new episode, new selector", robot)
-            st = self.robots[robot] = RobotState(self.new_selector(), last_input_s=received_s)
+        seen = st.episodes.classify(msg.episode, msg.step, st.answered_step > 0)
+        if seen == "ended":
+            self.reject("frontiers", f"robot {robot}: decision input of episode {msg.episode}, which has ended")
+            return
+        if seen == "new":
+            log.info("robot %s: new episode %d at step %d, new selector", robot, msg.episode, msg.step)
+            st = self.robots[robot] = RobotState(self.new_selector(), last_input_s=received_s, episodes=st.episodes)
         if msg.step <= st.answered_step:
             last = st.last_answer
             if msg.step == st.answered_step and msg.decide and last is not None and last.step == msg.step:
@@ -165,9 +170,9 @@ class PolicyService(Service):
         goal = st.selector.select(obs)
         ms = msg.build_ms + (time.perf_counter() - t0) * 1e3
         if goal is None:
-            out = GoalMsg(msg.step, True, decision_ms=ms, method=self.method, reason=msg.reason)
+            out = GoalMsg(msg.step, True, decision_ms=ms, method=self.method, reason=msg.reason, episode=msg.episode)
         else:
-            out = GoalMsg(msg.step, True, goal.x_m, goal.y_m, goal.cluster_index, goal.distance_m, ms, self.method, msg.reason)
+            out = GoalMsg(msg.step, True, goal.x_m, goal.y_m, goal.cluster_index, goal.distance_m, ms, self.method, msg.reason, msg.episode)
         st.last_answer = out
         self.publish("goal", out, robot)
 

@@ -384,7 +384,7 @@ class Ros2BridgeService(Service):
         if self.episode_state == "starting":
             self.episode_state = "exploring"
         self.publish("clock", ClockMsg(k, stamp, self.arena, self.episode))
-        self.publish("odom", OdometryMsg(k, stamp, odom.pose, odom.velocity))
+        self.publish("odom", OdometryMsg(k, stamp, odom.pose, odom.velocity, self.episode))
         self.publish("scan", scan_msg)
         self.processed += 1
         self.last_step = k

@@ -228,7 +228,7 @@ class SimService(Service):
         # episode id, so the mapper need not wait for the clock).
         self.publish("scan", ScanMsg(self.step, scan, self.sim.sensor_pose(), self.episode))
         self.last_step = self.step  # what `status` shows for the sim
-        self.publish("odom", OdometryMsg(self.step, self.sim.time_s, self.sim.odometry()))
+        self.publish("odom", OdometryMsg(self.step, self.sim.time_s, self.sim.odometry(), episode=self.episode))
         self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry, self.episode))
         self.last_publish_s = time.monotonic()
         if self.viewer is not None:  # after the step is out: the window never delays the pipeline
@@ -349,6 +349,9 @@ class SimService(Service):
             return
         if isinstance(msg, MapMsg) and msg.episode != self.episode:
             self.reject("map", f"map of episode {msg.episode}, not of this one ({self.episode}): still in flight from before a restart")
+            return
+        if isinstance(msg, GoalMsg) and msg.episode not in (0, self.episode):  # 0: a policy fed by a tool without ids
+            self.reject("goal", f"goal of episode {msg.episode}, not of this one ({self.episode}): still in flight from before a restart")
             return
         if isinstance(msg, MapMsg) and msg.geometry != self.sim.plan.geometry:
             g, own = msg.geometry, self.sim.plan.geometry

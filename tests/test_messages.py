@@ -485,7 +485,7 @@ def test_random_bytes_only_ever_raise_message_error(data):
         pass
 
 
-VALID_ODOMETRY_BODY = {"step": 3, "stamp_s": 0.75, "pose": [1.0, 2.0, 0.5], "twist": [0.0, 0.0]}
+VALID_ODOMETRY_BODY = {"step": 3, "stamp_s": 0.75, "pose": [1.0, 2.0, 0.5], "twist": [0.0, 0.0], "episode": 0}
 
 
 @settings(max_examples=150, deadline=None)

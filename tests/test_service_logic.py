@@ -615,7 +615,8 @@ def _without_timing(msgs: list[Message]) -> list[bytes]:
 def test_lockstep_frontier_never_decides_on_a_map_of_the_episode_before():
     """After a sim restart (a new episode id) maps of the old episode may still be in flight. The
     frontier service rejects them (counted) and decides the new episode exactly as a fresh service
-    does, whether the new episode shows itself first by its map of step 0 or by its odometry."""
+    does, whether the new episode shows itself first by its map of step 0 or by its odometry (both
+    carry the episode id)."""
     ex_a, ex_b = _explorer_at(6), _explorer_at(0)  # episode A is well explored, B has just started
     a, b = 11, 22
 
@@ -623,7 +624,8 @@ def test_lockstep_frontier_never_decides_on_a_map_of_the_episode_before():
         return MapMsg.of(step, ex.map, episode)
 
     _, odom_b0, _ = _inputs(ex_b, 0)
-    odom_b1 = OdometryMsg(1, odom_b0.stamp_s + 0.25, odom_b0.pose)
+    odom_b0 = dataclasses.replace(odom_b0, episode=b)
+    odom_b1 = OdometryMsg(1, odom_b0.stamp_s + 0.25, odom_b0.pose, episode=b)
     goal_b0 = _far_goal(ex_b.observe(), 0)
     fb_b0 = PlannerFeedbackMsg(0, "following", "command", goal_step=0)
     episode_b = [map_of(ex_b, 0, b), odom_b0, goal_b0, fb_b0, odom_b1, map_of(ex_b, 1, b)]
@@ -631,12 +633,13 @@ def test_lockstep_frontier_never_decides_on_a_map_of_the_episode_before():
     for map_first in (True, False):
         svc, out = _service(FrontierService, lockstep=True)
         _, odom_a0, _ = _inputs(ex_a, 0)
+        odom_a0 = dataclasses.replace(odom_a0, episode=a)
         _feed(svc, map_of(ex_a, 0, a))
         _feed(svc, odom_a0)
         _feed(svc, _far_goal(ex_a.observe(), 0))
         for k in (1, 2):
             _feed(svc, PlannerFeedbackMsg(k - 1, "following", "command", goal_step=0))
-            _feed(svc, OdometryMsg(k, odom_a0.stamp_s + 0.25 * k, odom_a0.pose))
+            _feed(svc, OdometryMsg(k, odom_a0.stamp_s + 0.25 * k, odom_a0.pose, episode=a))
             _feed(svc, map_of(ex_a, k, a))
         assert [m.step for t, m in out if t == "frontiers"] == [0, 1, 2] and svc.done_step == 2
         out.clear()
@@ -1062,3 +1065,102 @@ def test_the_policy_service_decodes_the_grids_its_method_reads(method, grids):
     obs = _explorer_at(3).observe()
     msg = decode(encode(frontiers_from_observation(0, "no_goal", obs, 1.0)), view)
     assert set(msg.arrays) == set(grids)
+
+
+def test_episode_watch_tells_a_new_episode_from_a_late_message_of_an_ended_one():
+    from services.common import EpisodeWatch
+
+    watch = EpisodeWatch()
+    assert watch.classify(11, 0, progressed=False) == "same"  # the first episode seen
+    assert watch.classify(11, 40, progressed=True) == "same"
+    assert watch.classify(22, 3, progressed=True) == "new"  # its step 0 never came: the id says it all
+    assert watch.classify(11, 41, progressed=True) == "ended"  # still in flight from before the restart
+    assert watch.classify(0, 0, progressed=True) == "same"  # no id, while ids are in use: never a new episode
+    assert watch.current == 22
+    legacy = EpisodeWatch()  # publishers without ids: step 0 after later steps is a new episode, as before ids
+    assert [legacy.classify(0, s, progressed=p) for s, p in ((0, False), (5, True), (0, True))] == ["same", "same", "new"]
+
+
+def test_real_time_policy_serves_a_new_episode_whose_step_0_it_never_saw():
+    """A real-time frontier service decides on the newest map, so a new episode's first decision input is rarely
+    that of step 0. The policy used to take a new episode only from step 0: every decision of the new one
+    (steps below the last one it answered) was dropped without a count, and the robot got no goal. It now sees
+    the new episode by its id, and a decision input still in flight from the ended episode is rejected, counted."""
+    policy, out = _service(PolicyService, lockstep=False, params={"method": "greedy-dist"})
+    obs = _explorer_at(0).observe()
+    a, b = 11, 22
+    for step in range(0, 41, 10):
+        _feed(policy, frontiers_from_observation(step, "timeout", obs, 1.0, episode=a))
+    assert [(m.step, m.episode) for t, m in out if t == "goal"] == [(s, a) for s in range(0, 41, 10)]
+    out.clear()
+    _feed(policy, frontiers_from_observation(3, "no_goal", obs, 1.0, episode=b))  # B's step 0 went by unseen
+    _feed(policy, frontiers_from_observation(41, "timeout", obs, 1.0, episode=a))  # late, from A
+    _feed(policy, frontiers_from_observation(9, "timeout", obs, 1.0, episode=b))
+    assert [(m.step, m.episode) for t, m in out if t == "goal"] == [(3, b), (9, b)]
+    assert policy.rejected == {"frontiers": 1}
+
+
+def test_real_time_planner_commands_a_new_episode_whose_first_odometry_was_lost():
+    """The planner took a new episode only from odometry of step 0; with that message lost, every command of the
+    new episode waited for its steps to pass the old episode's last (no command, no word). It now starts afresh
+    at the new episode's first message, and a goal still in flight from the ended episode is not planned."""
+    planner, out = _service(PlannerService, lockstep=False)
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    _, odom, scan = _inputs(ex, 0)
+    a, b = 11, 22
+    _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0, episode=a))
+    _feed(planner, dataclasses.replace(_far_goal(obs, 0), episode=a))
+    for step in range(6):
+        _feed(planner, OdometryMsg(step, odom.stamp_s + 0.25 * step, odom.pose, episode=a))
+        _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose, episode=a))
+    assert planner.planner.status.value == "following" and planner.cmd_step == 5
+    out.clear()
+    for step in (1, 2):  # episode B; its step 0 was lost
+        _feed(planner, OdometryMsg(step, odom.stamp_s + 0.25 * step, odom.pose, episode=b))
+        _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose, episode=b))
+    _feed(planner, frontiers_from_observation(6, "no_goal", obs, 1.0, episode=a))  # late, from A
+    _feed(planner, dataclasses.replace(_far_goal(obs, 6), episode=a))
+    cmds = [m for t, m in out if t == "cmd_vel"]
+    assert [(c.step, c.reason) for c in cmds] == [(1, "idle"), (2, "idle")]  # a fresh planner: no goal in B yet
+    assert planner.planner.status.value == "idle" and planner.rejected == {"frontiers": 1, "goal": 1}
+
+
+def test_real_time_frontier_service_takes_a_new_episode_from_a_map_past_step_0():
+    """A new episode's first map may come at any step in real time (the mapper publishes at its period): it starts
+    the episode (it was rejected as a map of another episode until odometry of step 0 came), and the frontier
+    service stamps the episode's id on what it decides, for the policy and the planner."""
+    frontier, out = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0})
+    ex = _explorer_at(0)
+    _, odom0, _ = _inputs(ex, 0)
+    a, b = 11, 22
+    _feed(frontier, dataclasses.replace(odom0, episode=a))
+    _feed(frontier, MapMsg.of(0, ex.map, a))
+    _feed(frontier, dataclasses.replace(_far_goal(ex.observe(), 0), episode=a))
+    for step in range(1, 5):
+        _feed(frontier, PlannerFeedbackMsg(step - 1, "following", "command", goal_step=0))
+        _feed(frontier, OdometryMsg(step, odom0.stamp_s + 0.25 * step, odom0.pose, episode=a))
+        _feed(frontier, MapMsg.of(step, ex.map, a))
+    assert frontier.done_step == 4 and {m.episode for t, m in out} == {a}
+    out.clear()
+    _feed(frontier, MapMsg.of(3, ex.map, b))
+    _feed(frontier, OdometryMsg(3, odom0.stamp_s, odom0.pose, episode=b))
+    got = [(t, m.step, m.episode) for t, m in out]
+    assert got == [("frontiers", 3, b), ("distance_map", 3, b)] and out[0][1].decide and out[0][1].reason == "no_goal"
+    assert frontier.rejected == {}
+
+
+def test_sim_rejects_a_goal_of_another_episode():
+    """A goal still in flight from before a restart is not this episode's decision (it would be counted, or end
+    the episode as 'no frontier left')."""
+    from services.sim import SimService
+
+    ctx = ServiceContext("sim", "r0", {"lockstep": False, "scene": "generated:small:1:0", "seed": 3}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
+    svc = SimService(ctx)
+    svc.publish = lambda topic, msg, robot=None: svc.check_output(topic, msg)  # type: ignore[method-assign]
+    svc.on_tick(time.monotonic())  # the episode starts
+    assert svc.running
+    svc.on_message("r0", "goal", GoalMsg(4, True, episode=svc.episode + 1), time.monotonic())
+    assert svc.decisions == 0 and svc.episode_state != "done" and svc.rejected == {"goal": 1}
+    svc.on_message("r0", "goal", GoalMsg(4, True, 1.0, 1.0, 0, 1.0, episode=svc.episode), time.monotonic())
+    assert svc.decisions == 1 and svc.goal_xy == [1.0, 1.0]
