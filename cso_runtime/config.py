@@ -384,7 +384,7 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
     if callable(validate):
         try:
             validate()
-        except ConfigError as exc:
+        except ValueError as exc:  # ConfigError, or the ValueError of a validate() outside this module (train's Args)
             raise ConfigError(f"{where}: {exc}") from None
     return obj
 
@@ -392,6 +392,18 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
 def to_dict(obj: Any) -> dict[str, Any]:
     """Plain-data view of a config dataclass (for logs and result files)."""
     return dataclasses.asdict(obj)
+
+
+TORCH_DEVICE = re.compile(r"cpu|cuda(:\d+)?")
+"""A torch device a policy or a training run can be given by name (``auto`` is the trainer's own choice)."""
+
+
+def check_torch_device(name: str, allow_auto: bool = False) -> None:
+    """The device's spelling, checked without torch (the launcher checks before anything starts): a name torch
+    does not know would otherwise surface as a weights file that does not load, after the run started."""
+    if not (TORCH_DEVICE.fullmatch(name) or (allow_auto and name == "auto")):
+        choices = "auto, cpu, cuda or cuda:N" if allow_auto else "cpu, cuda or cuda:N"
+        raise ConfigError(f"unknown device {name!r}; choose {choices}")
 
 
 MAX_SEED = 2**32 - 1

@@ -255,14 +255,22 @@ class Profile:
 
         if self.method not in BASELINES and self.method not in LEARNED_METHODS:
             raise ConfigError(f"unknown method {self.method!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")
-        if self.method in LEARNED_METHODS:
+        policy = self.services.get("policy") or {}
+        method = policy.get("method") or self.method  # what the policy service will run (PolicyParams.method)
+        if method in LEARNED_METHODS:
             from cso_runtime.learned.weights import weights_file_problem, weights_path  # noqa: PLC0415
 
             sensor = self.exploration_config().sensor
-            if self.method not in available_methods():
-                raise ConfigError(f"method {self.method}: no weights at {weights_path(self.method, sensor)}; train it with `cso-runtime train --variant {self.method}`")
-            if problem := weights_file_problem(self.method, sensor):
-                raise ConfigError(f"method {self.method}: {problem}")
+            if method not in available_methods():
+                raise ConfigError(f"method {method}: no weights at {weights_path(method, sensor)}; train it with `cso-runtime train --variant {method}`")
+            if problem := weights_file_problem(method, sensor):
+                raise ConfigError(f"method {method}: {problem}")
+            device = policy.get("device", "cpu")
+            if device != "cpu":  # torch only for a GPU policy
+                from cso_runtime.learned.registry import device_problem  # noqa: PLC0415
+
+                if problem := device_problem(device):
+                    raise ConfigError(f"services.policy.device: {problem}; run the policy on cpu")
         try:
             refs = resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px)
             if not refs:

@@ -229,3 +229,43 @@ def test_a_robot_radius_no_indoor_robot_has_is_refused():
     RobotConfig(radius_m=0.2).validate()
     with pytest.raises(ConfigError, match="robot.radius_m must be from 0 to 2 m"):
         RobotConfig(radius_m=50.0).validate()
+
+
+def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is_refused(tmp_path: Path, capsys):
+    """``distance_scale_m`` divides every position of the graph: 0 used to train on NaNs and end in a traceback;
+    and an out-of-range field said neither the file nor the ``--set`` that brought it, as ``eval`` and ``up`` do."""
+    import typer
+
+    from cso_runtime.cli import training_args
+
+    recipe = tmp_path / "mine.yaml"
+    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
+    for setting, said in [
+        ("distance_scale_m=0", "distance_scale_m must be positive"),
+        ("distance_scale_m=-10", "distance_scale_m must be positive"),
+        ("gamma=2", "gamma must be in"),
+        ("device=gpu", "unknown device 'gpu'"),
+    ]:
+        with pytest.raises(typer.Exit) as exit_info:
+            training_args(recipe, {}, [setting])
+        assert exit_info.value.exit_code == 2
+        assert f"error: {recipe} with --set {setting}: {said}" in capsys.readouterr().err
+
+
+def test_the_policy_services_own_method_and_device_are_checked_before_anything_starts():
+    """``services.policy.method`` and ``device`` used to pass ``up --dry-run`` and fail only in the started policy
+    service, a device torch cannot use as a weights file that "is not a cso-runtime checkpoint"."""
+    import torch
+
+    from cso_runtime.launcher import load_profile
+
+    for key, value, said in [
+        ("services.policy.method", "bogus", "services.policy: method: unknown method 'bogus'"),
+        ("services.policy.device", "banana", "services.policy: device: unknown device 'banana'"),
+    ]:
+        with pytest.raises(ConfigError, match=said):
+            load_profile("lockstep", {}, settings={key: value})
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="services.policy.device: device cuda: .*; run the policy on cpu"):
+            load_profile("lockstep", {}, settings={"services.policy.method": "cso", "services.policy.device": "cuda"})
+    load_profile("lockstep", {}, settings={"services.policy.device": "cuda"})  # a baseline runs no network
