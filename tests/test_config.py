@@ -252,6 +252,21 @@ def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is
         assert f"error: {recipe} with --set {setting}: {said}" in capsys.readouterr().err
 
 
+def test_the_mujoco_limo_control_period_must_be_whole_physics_steps_before_anything_starts():
+    """A control period that is not a whole number of MuJoCo steps used to pass ``eval``'s and ``up``'s checks, then
+    fail every episode (eval, exit 1) or the sim service once started; it is a bad configuration (exit 2) now."""
+    from cso_runtime.evaluation import EvalRequest
+    from cso_runtime.launcher import load_profile
+
+    with pytest.raises(ConfigError, match=r"robot.control_period_s \(0.251 s\) must be a whole number of physics steps"):
+        EvalRequest(methods=["greedy-dist"], sim="mujoco", settings={"robot.control_period_s": 0.251}).validate()
+    EvalRequest(methods=["greedy-dist"], sim="2d", settings={"robot.control_period_s": 0.251}).validate()  # no physics step
+    for settings in ({"exploration.robot.control_period_s": 0.251}, {"services.sim.mujoco.timestep_s": 0.004}):
+        with pytest.raises(ConfigError, match="services.sim.mujoco: robot.control_period_s .* whole number of physics steps"):
+            load_profile("sim", {}, settings=settings)
+    load_profile("lockstep", {}, settings={"exploration.robot.control_period_s": 0.251})  # the kinematic sim takes it
+
+
 def test_the_policy_services_own_method_and_device_are_checked_before_anything_starts():
     """``services.policy.method`` and ``device`` used to pass ``up --dry-run`` and fail only in the started policy
     service, a device torch cannot use as a weights file that "is not a cso-runtime checkpoint"."""
