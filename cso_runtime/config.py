@@ -54,7 +54,8 @@ class SensorConfig:
     rate_hz: float = 8.0
     """Scan rate of the real sensor (used by the real-time simulator)."""
     mount_x_m: float = 0.0
-    """Sensor position ahead of the robot centre (the LIMO's LiDAR sits at 0.103 m)."""
+    """Sensor position ahead of the robot centre (the LIMO's LiDAR sits at 0.103 m); on the robot: at most half of
+    ``robot.length_m`` (or ``robot.radius_m``) either way."""
 
     @staticmethod
     def preset(name: str, fov_deg: float | None = None) -> SensorConfig:
@@ -295,7 +296,13 @@ class ExplorationConfig:
     planner: PlannerConfig = field(default_factory=PlannerConfig)
 
     def validate(self) -> None:
-        """What no section can check alone: the planner's moves against the robot's limits."""
+        """What no section can check alone: the sensor on the robot, the planner's moves against the robot's limits."""
+        on_robot_m = max(self.robot.length_m / 2, self.robot.radius_m)
+        if abs(self.sensor.mount_x_m) > on_robot_m:
+            raise ConfigError(
+                f"sensor.mount_x_m ({self.sensor.mount_x_m} m) puts the sensor off the robot, more than {on_robot_m:g} m from its centre "
+                "(half of robot.length_m, or robot.radius_m): the LIMO's LiDAR sits at 0.103 m"
+            )
         v_max = self.robot.max_linear_mps
         if self.planner.backup_speed_mps > v_max:
             raise ConfigError(
