@@ -52,7 +52,7 @@ class SensorConfig:
     range_noise_std_m: float = 0.0
     """Gaussian range noise of the simulated sensor."""
     rate_hz: float = 8.0
-    """Scan rate of the real sensor (used by the real-time simulator)."""
+    """Scan rate of the real sensor: the MuJoCo LIMO fires its LiDAR at it; the 2D simulator scans once per control step."""
     mount_x_m: float = 0.0
     """Sensor position ahead of the robot centre (the LIMO's LiDAR sits at 0.103 m); on the robot: at most half of
     ``robot.length_m`` (or ``robot.radius_m``) either way."""

@@ -286,3 +286,12 @@ def test_the_policy_services_own_method_and_device_are_checked_before_anything_s
         with pytest.raises(ConfigError, match="services.policy.device: device cuda: .*; run the policy on cpu"):
             load_profile("lockstep", {}, settings={"services.policy.method": "cso", "services.policy.device": "cuda"})
     load_profile("lockstep", {}, settings={"services.policy.device": "cuda"})  # a baseline runs no network
+
+
+def test_the_lockstep_sim_gives_up_only_after_it_has_re_published_a_step():
+    """``lockstep_give_up_s`` at or below ``lockstep_timeout_s`` failed an episode on one lost message, never re-published."""
+    from cso_runtime.launcher import load_profile
+
+    with pytest.raises(ConfigError, match=r"services.sim: lockstep_give_up_s \(0.5 s\) must exceed lockstep_timeout_s \(1.0 s\)"):
+        load_profile("lockstep", {}, settings={"services.sim.lockstep_give_up_s": 0.5})
+    load_profile("lockstep", {}, settings={"services.sim.lockstep_give_up_s": 1.5})
