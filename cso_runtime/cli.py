@@ -910,9 +910,12 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
     try:
         data = load_yaml(config) if config is not None else {}
         data.update({k: v for k, v in overrides.items() if v is not None})
-        data.update(parse_settings(settings or []))
-        args = from_dict(Args, data, "train")
-        args.validate()
+        pairs = parse_settings(settings or [])
+        data.update(pairs)
+        where = str(config or "train")  # an error names the file, and the flags that changed it, as eval's and up's do
+        if pairs:
+            where += " with " + " ".join(f"--set {item}" for item in settings or [])
+        args = from_dict(Args, data, where)
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
         check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
     except (ConfigError, ValueError) as exc:

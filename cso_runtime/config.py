@@ -52,9 +52,10 @@ class SensorConfig:
     range_noise_std_m: float = 0.0
     """Gaussian range noise of the simulated sensor."""
     rate_hz: float = 8.0
-    """Scan rate of the real sensor (used by the real-time simulator)."""
+    """Scan rate of the real sensor: the MuJoCo LIMO fires its LiDAR at it; the 2D simulator scans once per control step."""
     mount_x_m: float = 0.0
-    """Sensor position ahead of the robot centre (the LIMO's LiDAR sits at 0.103 m)."""
+    """Sensor position ahead of the robot centre (the LIMO's LiDAR sits at 0.103 m); on the robot: at most half of
+    ``robot.length_m`` (or ``robot.radius_m``) either way."""
 
     @staticmethod
     def preset(name: str, fov_deg: float | None = None) -> SensorConfig:
@@ -295,7 +296,13 @@ class ExplorationConfig:
     planner: PlannerConfig = field(default_factory=PlannerConfig)
 
     def validate(self) -> None:
-        """What no section can check alone: the planner's moves against the robot's limits."""
+        """What no section can check alone: the sensor on the robot, the planner's moves against the robot's limits."""
+        on_robot_m = max(self.robot.length_m / 2, self.robot.radius_m)
+        if abs(self.sensor.mount_x_m) > on_robot_m:
+            raise ConfigError(
+                f"sensor.mount_x_m ({self.sensor.mount_x_m} m) puts the sensor off the robot, more than {on_robot_m:g} m from its centre "
+                "(half of robot.length_m, or robot.radius_m): the LIMO's LiDAR sits at 0.103 m"
+            )
         v_max = self.robot.max_linear_mps
         if self.planner.backup_speed_mps > v_max:
             raise ConfigError(
@@ -384,7 +391,7 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
     if callable(validate):
         try:
             validate()
-        except ConfigError as exc:
+        except ValueError as exc:  # ConfigError, or the ValueError of a validate() outside this module (train's Args)
             raise ConfigError(f"{where}: {exc}") from None
     return obj
 
@@ -392,6 +399,18 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
 def to_dict(obj: Any) -> dict[str, Any]:
     """Plain-data view of a config dataclass (for logs and result files)."""
     return dataclasses.asdict(obj)
+
+
+TORCH_DEVICE = re.compile(r"cpu|cuda(:\d+)?")
+"""A torch device a policy or a training run can be given by name (``auto`` is the trainer's own choice)."""
+
+
+def check_torch_device(name: str, allow_auto: bool = False) -> None:
+    """The device's spelling, checked without torch (the launcher checks before anything starts): a name torch
+    does not know would otherwise surface as a weights file that does not load, after the run started."""
+    if not (TORCH_DEVICE.fullmatch(name) or (allow_auto and name == "auto")):
+        choices = "auto, cpu, cuda or cuda:N" if allow_auto else "cpu, cuda or cuda:N"
+        raise ConfigError(f"unknown device {name!r}; choose {choices}")
 
 
 MAX_SEED = 2**32 - 1

@@ -145,13 +145,15 @@ class EvalRequest:
         return cfg
 
     def mujoco_parameters(self) -> dict[str, Any]:
-        """The ``--sim-config`` file's MuJoCo parameters, checked (``simulator.mujoco_config``); {} without one."""
-        if self.sim_config_path is None:
-            return {}
-        if self.sim != "mujoco":
+        """The ``--sim-config`` file's MuJoCo parameters, checked with the exploration config's robot and sensor
+        (``simulator.mujoco_config``) whenever the sim is MuJoCo; {} without a file."""
+        if self.sim_config_path is not None and self.sim != "mujoco":
             raise ConfigError(f"--sim-config sets the MuJoCo LIMO's parameters: it needs --sim mujoco, not --sim {self.sim}")
-        data = load_yaml(self.sim_config_path)
-        mujoco_config(data, self.exploration_config().sensor, where=str(self.sim_config_path))
+        if self.sim != "mujoco":
+            return {}
+        data = load_yaml(self.sim_config_path) if self.sim_config_path is not None else {}
+        cfg = self.exploration_config()
+        mujoco_config(data, cfg.sensor, where=str(self.sim_config_path or "--sim mujoco"), robot=cfg.robot)
         return data
 
     def validate(self) -> None:

@@ -214,6 +214,7 @@ class Profile:
             raise ConfigError(f"progress_log_s must be >= 0 seconds, got {self.progress_log_s}")
         self.exploration_config()
         from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
+        from services.sim import BACKENDS, SimParams  # noqa: PLC0415
 
         if not self.services:
             raise ConfigError("a profile must list at least one service")
@@ -233,10 +234,13 @@ class Profile:
                 "services.mapper.resolution_m: an explicit grid is for a real robot's arena (ros2_bridge); with the sim the mapper "
                 "maps the scene's own grid, which the sim measures coverage on"
             )
-        if (self.services.get("sim") or {}).get("mujoco"):  # the LiDAR mount against the sensor's, before anything starts
+        sim = self.services.get("sim") or {}
+        if "sim" in self.services and BACKENDS[sim.get("backend", SimParams.backend)] == "mujoco":
+            # the LiDAR mount against the sensor's, the control period against the physics step, before anything starts
             from cso_runtime.simulator import mujoco_config  # noqa: PLC0415
 
-            mujoco_config(self.services["sim"]["mujoco"], self.exploration_config().sensor, where="services.sim.mujoco")
+            exploration = self.exploration_config()
+            mujoco_config(sim.get("mujoco"), exploration.sensor, where="services.sim.mujoco", robot=exploration.robot)
         if (self.services.get("sim") or {}).get("viewer"):  # its own process checks too; this says so before anything starts
             from robot_sim.viewer import display_problem  # noqa: PLC0415
 
@@ -255,14 +259,22 @@ class Profile:
 
         if self.method not in BASELINES and self.method not in LEARNED_METHODS:
             raise ConfigError(f"unknown method {self.method!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")
-        if self.method in LEARNED_METHODS:
+        policy = self.services.get("policy") or {}
+        method = policy.get("method") or self.method  # what the policy service will run (PolicyParams.method)
+        if method in LEARNED_METHODS:
             from cso_runtime.learned.weights import weights_file_problem, weights_path  # noqa: PLC0415
 
             sensor = self.exploration_config().sensor
-            if self.method not in available_methods():
-                raise ConfigError(f"method {self.method}: no weights at {weights_path(self.method, sensor)}; train it with `cso-runtime train --variant {self.method}`")
-            if problem := weights_file_problem(self.method, sensor):
-                raise ConfigError(f"method {self.method}: {problem}")
+            if method not in available_methods():
+                raise ConfigError(f"method {method}: no weights at {weights_path(method, sensor)}; train it with `cso-runtime train --variant {method}`")
+            if problem := weights_file_problem(method, sensor):
+                raise ConfigError(f"method {method}: {problem}")
+            device = policy.get("device", "cpu")
+            if device != "cpu":  # torch only for a GPU policy
+                from cso_runtime.learned.registry import device_problem  # noqa: PLC0415
+
+                if problem := device_problem(device):
+                    raise ConfigError(f"services.policy.device: {problem}; run the policy on cpu")
         try:
             refs = resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px)
             if not refs:

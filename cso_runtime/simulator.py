@@ -159,12 +159,15 @@ class KinematicSimulator:
 SIMULATORS = ("2d", "mujoco")
 
 
-def mujoco_config(overrides: Mapping[str, Any] | None, sensor: SensorConfig, where: str = "mujoco") -> MujocoSimConfig:
+def mujoco_config(
+    overrides: Mapping[str, Any] | None, sensor: SensorConfig, where: str = "mujoco", robot: RobotConfig | None = None
+) -> MujocoSimConfig:
     """The MuJoCo LIMO's parameters: ``robot_sim``'s defaults with ``overrides`` on top (the keys of
     ``configs/robot_sim.yaml``: physics, odometry drift), its rays cast from the sensor's own mount, which the
     mapper and the planner use too (eval, the services and doctor give it the LIMO's 0.103 m unless a config
-    sets it): one mount, not two that disagree. Raises ConfigError naming ``where``."""
-    from robot_sim import MujocoSimConfig  # noqa: PLC0415 - MuJoCo only when asked for
+    sets it): one mount, not two that disagree. With ``robot``, its control period must be a whole number of
+    physics steps. Raises ConfigError naming ``where``."""
+    from robot_sim.config import MujocoSimConfig, whole_steps  # noqa: PLC0415 - MuJoCo only when asked for
 
     data = dict(overrides or {})
     mount = data.get("lidar_mount_x_m")
@@ -174,7 +177,13 @@ def mujoco_config(overrides: Mapping[str, Any] | None, sensor: SensorConfig, whe
             "planner use; set sensor.mount_x_m instead (or leave this key out)"
         )
     data["lidar_mount_x_m"] = None
-    return from_dict(MujocoSimConfig, data, where=where)
+    config = from_dict(MujocoSimConfig, data, where=where)
+    if robot is not None:
+        try:
+            whole_steps(robot.control_period_s, config.timestep_s, "robot.control_period_s")
+        except ConfigError as exc:
+            raise ConfigError(f"{where}: {exc}") from None
+    return config
 
 
 def make_simulator(
@@ -189,5 +198,5 @@ def make_simulator(
     if name == "mujoco":
         from robot_sim import MujocoSimulator  # noqa: PLC0415 - MuJoCo only when asked for
 
-        return MujocoSimulator(plan, sensor, robot, seed=seed, config=mujoco_config(mujoco, sensor))
+        return MujocoSimulator(plan, sensor, robot, seed=seed, config=mujoco_config(mujoco, sensor, robot=robot))
     raise ValueError(f"unknown simulator {name!r}; choose one of {', '.join(SIMULATORS)}")

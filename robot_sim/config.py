@@ -12,6 +12,15 @@ from dataclasses import dataclass
 from cso_runtime.config import ConfigError, SensorConfig
 
 
+def whole_steps(duration_s: float, timestep_s: float, what: str) -> int:
+    """How many physics steps make ``duration_s``; a ConfigError when it is not a whole number of them (the
+    control period against ``timestep_s``), said where the parameters are read, not when a world is built."""
+    n = duration_s / timestep_s
+    if abs(n - round(n)) > 1e-6 or round(n) < 1:
+        raise ConfigError(f"{what} ({duration_s} s) must be a whole number of physics steps (timestep_s {timestep_s} s)")
+    return int(round(n))
+
+
 @dataclass
 class MujocoSimConfig:
     """Physics, control and odometry parameters of the MuJoCo LIMO."""

@@ -26,10 +26,10 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
-from cso_runtime.config import ConfigError, RobotConfig, SensorConfig
+from cso_runtime.config import RobotConfig, SensorConfig
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
 from cso_runtime.scenes import FloorPlan
-from robot_sim.config import MujocoSimConfig
+from robot_sim.config import MujocoSimConfig, whole_steps
 from robot_sim.limo import ACTUATORS, GROUP_WALLS, JOINTS, LIDAR_SITE, ROBOT_BODY
 from robot_sim.scene import world_mjcf
 
@@ -39,13 +39,6 @@ _COLLISION_GAP_STEPS = 20
 """Physics steps without contact (0.1 s at 5 ms) after which a contact counts as a new collision."""
 _MAX_PENDING_SCANS = 64
 """Fired scans kept for ``drain_scans`` (8 s at 8 Hz); older ones are dropped and counted."""
-
-
-def _steps_for(duration_s: float, timestep_s: float, what: str) -> int:
-    n = duration_s / timestep_s
-    if abs(n - round(n)) > 1e-6 or round(n) < 1:
-        raise ConfigError(f"{what} ({duration_s} s) must be a whole number of physics steps ({timestep_s} s)")
-    return int(round(n))
 
 
 def _relative(a: Pose2D, b: Pose2D) -> tuple[float, float, float]:
@@ -88,7 +81,7 @@ class MujocoSimulator:
                 "LiDAR mounted at x=%.3f m on the LIMO (SensorConfig.mount_x_m=%.3f is used only by the planner's "
                 "clearance check; set it to %.3f to match)", self.lidar_mount_x_m, self.sensor.mount_x_m, self.lidar_mount_x_m,
             )  # fmt: skip
-        self.steps_per_control = _steps_for(self.robot.control_period_s, c.timestep_s, "control period")
+        self.steps_per_control = whole_steps(self.robot.control_period_s, c.timestep_s, "robot.control_period_s")
         self._odom_every = max(1, int(round(1.0 / (c.odometry_rate_hz * c.timestep_s))))
         self._scan_period_steps = 1.0 / (self.sensor.rate_hz * c.timestep_s)
 

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.config import ConfigError, check_torch_device, from_dict
 from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import (
     FrontiersMsg,
@@ -32,7 +32,7 @@ from cso_runtime.messages import (
     frontiers_reading,
     observation_from_frontiers,
 )
-from cso_runtime.policies import LEARNED_METHODS, GoalSelector, make_policy
+from cso_runtime.policies import BASELINES, LEARNED_METHODS, GoalSelector, make_policy
 from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_observation
 
 log = logging.getLogger("cso.policy")
@@ -55,6 +55,12 @@ class PolicyParams:
     def validate(self) -> None:
         if not self.stale_after_s > 0:
             raise ConfigError("stale_after_s must be positive")
+        if self.method and self.method not in BASELINES and self.method not in LEARNED_METHODS:
+            raise ConfigError(f"method: unknown method {self.method!r}; available: {', '.join([*BASELINES, *LEARNED_METHODS])} (or empty: the profile's)")
+        try:
+            check_torch_device(self.device)
+        except ConfigError as exc:
+            raise ConfigError(f"device: {exc}") from None
 
 
 @dataclass

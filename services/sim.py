@@ -101,6 +101,8 @@ class SimParams:
         for name in ("real_time_factor", "cmd_timeout_s", "lockstep_timeout_s", "lockstep_give_up_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
+        if not self.lockstep_give_up_s > self.lockstep_timeout_s:  # else a lost message fails the episode, never re-published
+            raise ConfigError(f"lockstep_give_up_s ({self.lockstep_give_up_s} s) must exceed lockstep_timeout_s ({self.lockstep_timeout_s} s)")
         if min(self.min_step_period_s, self.start_delay_s, self.status_period_s, self.wait_for_services_s) < 0:
             raise ConfigError("min_step_period_s, start_delay_s, status_period_s and wait_for_services_s must be >= 0")
         if self.viewer and BACKENDS[self.backend] != "mujoco":

@@ -44,6 +44,8 @@ def test_eval_yaml_documents_the_defaults():
         ({"planner": {"stop_distance_m": 0.8}}, "stop_distance_m <= slow_down_distance_m"),
         ({"planner": {"rotate_in_place_rad": 4.0}}, "rotate_in_place_rad"),
         ({"planner": {"progress_window_s": 0.0}}, "progress_window_s"),
+        ({"sensor": {"mount_x_m": 50.0}}, "sensor.mount_x_m .* puts the sensor off the robot"),
+        ({"sensor": {"mount_x_m": -0.5}}, "sensor.mount_x_m .* puts the sensor off the robot"),
     ],
 )
 def test_bad_values_are_clear_errors(data, message):
@@ -229,3 +231,67 @@ def test_a_robot_radius_no_indoor_robot_has_is_refused():
     RobotConfig(radius_m=0.2).validate()
     with pytest.raises(ConfigError, match="robot.radius_m must be from 0 to 2 m"):
         RobotConfig(radius_m=50.0).validate()
+
+
+def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is_refused(tmp_path: Path, capsys):
+    """``distance_scale_m`` divides every position of the graph: 0 used to train on NaNs and end in a traceback;
+    and an out-of-range field said neither the file nor the ``--set`` that brought it, as ``eval`` and ``up`` do."""
+    import typer
+
+    from cso_runtime.cli import training_args
+
+    recipe = tmp_path / "mine.yaml"
+    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
+    for setting, said in [
+        ("distance_scale_m=0", "distance_scale_m must be positive"),
+        ("distance_scale_m=-10", "distance_scale_m must be positive"),
+        ("gamma=2", "gamma must be in"),
+        ("device=gpu", "unknown device 'gpu'"),
+    ]:
+        with pytest.raises(typer.Exit) as exit_info:
+            training_args(recipe, {}, [setting])
+        assert exit_info.value.exit_code == 2
+        assert f"error: {recipe} with --set {setting}: {said}" in capsys.readouterr().err
+
+
+def test_the_mujoco_limo_control_period_must_be_whole_physics_steps_before_anything_starts():
+    """A control period that is not a whole number of MuJoCo steps used to pass ``eval``'s and ``up``'s checks, then
+    fail every episode (eval, exit 1) or the sim service once started; it is a bad configuration (exit 2) now."""
+    from cso_runtime.evaluation import EvalRequest
+    from cso_runtime.launcher import load_profile
+
+    with pytest.raises(ConfigError, match=r"robot.control_period_s \(0.251 s\) must be a whole number of physics steps"):
+        EvalRequest(methods=["greedy-dist"], sim="mujoco", settings={"robot.control_period_s": 0.251}).validate()
+    EvalRequest(methods=["greedy-dist"], sim="2d", settings={"robot.control_period_s": 0.251}).validate()  # no physics step
+    for settings in ({"exploration.robot.control_period_s": 0.251}, {"services.sim.mujoco.timestep_s": 0.004}):
+        with pytest.raises(ConfigError, match="services.sim.mujoco: robot.control_period_s .* whole number of physics steps"):
+            load_profile("sim", {}, settings=settings)
+    load_profile("lockstep", {}, settings={"exploration.robot.control_period_s": 0.251})  # the kinematic sim takes it
+
+
+def test_the_policy_services_own_method_and_device_are_checked_before_anything_starts():
+    """``services.policy.method`` and ``device`` used to pass ``up --dry-run`` and fail only in the started policy
+    service, a device torch cannot use as a weights file that "is not a cso-runtime checkpoint"."""
+    import torch
+
+    from cso_runtime.launcher import load_profile
+
+    for key, value, said in [
+        ("services.policy.method", "bogus", "services.policy: method: unknown method 'bogus'"),
+        ("services.policy.device", "banana", "services.policy: device: unknown device 'banana'"),
+    ]:
+        with pytest.raises(ConfigError, match=said):
+            load_profile("lockstep", {}, settings={key: value})
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="services.policy.device: device cuda: .*; run the policy on cpu"):
+            load_profile("lockstep", {}, settings={"services.policy.method": "cso", "services.policy.device": "cuda"})
+    load_profile("lockstep", {}, settings={"services.policy.device": "cuda"})  # a baseline runs no network
+
+
+def test_the_lockstep_sim_gives_up_only_after_it_has_re_published_a_step():
+    """``lockstep_give_up_s`` at or below ``lockstep_timeout_s`` failed an episode on one lost message, never re-published."""
+    from cso_runtime.launcher import load_profile
+
+    with pytest.raises(ConfigError, match=r"services.sim: lockstep_give_up_s \(0.5 s\) must exceed lockstep_timeout_s \(1.0 s\)"):
+        load_profile("lockstep", {}, settings={"services.sim.lockstep_give_up_s": 0.5})
+    load_profile("lockstep", {}, settings={"services.sim.lockstep_give_up_s": 1.5})

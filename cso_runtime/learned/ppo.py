@@ -19,7 +19,6 @@ import json
 import os
 import platform
 import random
-import re
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -32,11 +31,11 @@ import torch
 from gymnasium.vector import AutoresetMode
 from torch import nn, optim
 
-from cso_runtime.config import ConfigError, ExplorationConfig, MaskConfig, SensorConfig, check_seed
+from cso_runtime.config import ConfigError, ExplorationConfig, MaskConfig, SensorConfig, check_seed, check_torch_device
 from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
 from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
-from cso_runtime.learned.registry import VARIANTS, CheckpointError, load_checkpoint, save_checkpoint, weights_path
+from cso_runtime.learned.registry import VARIANTS, CheckpointError, device_problem, load_checkpoint, save_checkpoint, weights_path
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
@@ -206,8 +205,7 @@ class Args:
             raise ValueError(f"{', '.join(negative)} must be >= 0")
         if self.dungeon_plans < 0 or not all(m > 0 for m in self.dungeon_m_per_px):
             raise ValueError("dungeon_plans must be >= 0 and every dungeon_m_per_px positive")
-        if not re.fullmatch(r"auto|cpu|cuda(:\d+)?", self.device):
-            raise ValueError(f"unknown device {self.device!r}; choose auto, cpu, cuda or cuda:N")
+        check_torch_device(self.device, allow_auto=True)
         if self.warm_start_teacher not in TEACHERS:
             raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
         self.training_masks(MaskConfig()).validate()
@@ -215,6 +213,8 @@ class Args:
             raise ValueError("encoder_lr_scale must be positive")
         if not self.adam_eps > 0:
             raise ValueError("adam_eps must be positive")
+        if not self.distance_scale_m > 0:  # every position and distance of the graph is divided by it
+            raise ValueError(f"distance_scale_m must be positive, got {self.distance_scale_m}")
         if self.distance_prior < 0:
             raise ValueError("distance_prior must be >= 0 (0 = the paper's actor)")
         if self.reward_scene_scale_area_m2 < 0:
@@ -368,14 +368,9 @@ def select_device(name: str) -> torch.device:
     ValueError that says so."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    device = torch.device(name)
-    if device.type == "cuda":
-        if not torch.cuda.is_available():
-            built = "this torch was built without CUDA" if torch.version.cuda is None else "no CUDA device is visible"
-            raise ValueError(f"device {name}: {built}; train with --device cpu (or auto)")
-        if device.index is not None and device.index >= torch.cuda.device_count():
-            raise ValueError(f"device {name}: only {torch.cuda.device_count()} CUDA device(s) here")
-    return device
+    if problem := device_problem(name):
+        raise ValueError(f"{problem}; train with --device cpu (or auto)")
+    return torch.device(name)
 
 
 def load_resume_checkpoint(path: str | Path, model: GraphActorCritic, optimizer: optim.Optimizer, device: torch.device, variant: str | None = None) -> dict[str, Any]:

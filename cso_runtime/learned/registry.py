@@ -215,6 +215,19 @@ class LearnedPolicy:
         return goal
 
 
+def device_problem(name: str) -> str:
+    """Why this torch cannot run on device ``name`` (``cpu``, ``cuda``, ``cuda:N``), or empty: said as such, not as a
+    weights file that does not load onto it."""
+    device = torch.device(name)
+    if device.type != "cuda":
+        return ""
+    if not torch.cuda.is_available():
+        return f"device {name}: {'this torch was built without CUDA' if torch.version.cuda is None else 'no CUDA device is visible'}"
+    if device.index is not None and device.index >= torch.cuda.device_count():
+        return f"device {name}: only {torch.cuda.device_count()} CUDA device(s) here"
+    return ""
+
+
 def make_learned_policy(
     name: str, mask_config: MaskConfig, seed: int | None = None, device: str = "cpu", sensor: SensorConfig | None = None
 ) -> LearnedPolicy:
@@ -224,6 +237,8 @@ def make_learned_policy(
         raise ValueError(f"unknown learned method {name!r}; known: {', '.join(VARIANTS)}")
     if not has_method(name, sensor):
         raise FileNotFoundError(f"no weights for {name!r} (expected {weights_path(name, sensor)}); train it with `cso-runtime train`")
+    if problem := device_problem(str(device)):
+        raise ValueError(f"{problem}; run the policy on cpu")
     v = VARIANTS[name]
     model, graph = _model_for(name, str(device), sensor)
     graph = dataclasses.replace(graph, use_entropy=v.use_entropy)
