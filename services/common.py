@@ -153,6 +153,10 @@ class Service:
         """Robot id whose inputs are subscribed; ``*`` serves every robot on the network."""
         self.rejected: dict[str, int] = {}
         self.processed = 0
+        self.rejected_by_robot: dict[str, dict[str, int]] = {}
+        """The rejections of each robot's inputs (``rejected`` counts them all): a service serving several robots
+        answers each one's status with its own counts."""
+        self.processed_by_robot: collections.Counter[str] = collections.Counter()
         self.step_guard = StepGuard()
         self.last_step = 0
         self.state = "running"
@@ -250,9 +254,14 @@ class Service:
         behind without bound."""
         return self._inbox.qsize() if self._inbox is not None else 0
 
-    def reject(self, topic: str, why: str) -> None:
+    def reject(self, topic: str, why: str, robot: str | None = None) -> None:
+        """Count (and log, the first few and every hundredth) a rejected input of ``robot`` (None: of no robot
+        the key names) on ``topic``."""
         with self._lock:
             n = self.rejected[topic] = self.rejected.get(topic, 0) + 1
+            if robot is not None:
+                own = self.rejected_by_robot.setdefault(robot, {})
+                own[topic] = own.get(topic, 0) + 1
         if n <= 5 or n % 100 == 0:
             log.warning("%s: rejected payload on %s (%d so far): %s", self.name, topic, n, why)
 
@@ -499,18 +508,19 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> 
         return
     expected = service.inputs.get(topic)
     if expected is None:
-        service.reject(topic, "unexpected topic")
+        service.reject(topic, "unexpected topic", robot)
         return
     try:
         msg = decode(payload, expected)
     except MessageError as exc:
-        service.reject(topic, str(exc))
+        service.reject(topic, str(exc), robot)
         return
     step = getattr(msg, "step", None)
     if isinstance(step, int) and (why := service.step_guard.check((robot, topic), step)):
-        service.reject(topic, why)
+        service.reject(topic, why, robot)
         return
     service.processed += 1
+    service.processed_by_robot[robot] += 1
     t0 = time.monotonic()
     service.on_message(robot, topic, msg, received_s)
     if service.trace is not None:

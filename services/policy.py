@@ -129,10 +129,12 @@ class PolicyService(Service):
                 query.reply(RobotKeys(name).service_status(self.name), encode(self.robot_status(name, st)))
 
     def robot_status(self, robot: str, st: RobotState) -> ServiceStatusMsg:
-        """This service's status as one robot's own policy would give it: that robot's step and staleness."""
-        own = self.status_msg()
+        """This service's status as one robot's own policy would give it: that robot's step, staleness,
+        rejected inputs and inputs handled."""
         state = "stale" if st.stale_reason else "running"
-        return ServiceStatusMsg(self.name, robot, state, st.answered_step, st.stale_reason, own.rejected, own.processed)
+        with self._lock:
+            rejected = dict(self.rejected_by_robot.get(robot, {}))
+        return ServiceStatusMsg(self.name, robot, state, st.answered_step, st.stale_reason, rejected, self.processed_by_robot[robot])
 
     def _on_query(self, query: zenoh.Query) -> None:
         robot = str(query.key_expr).split("/")[1]
@@ -151,7 +153,7 @@ class PolicyService(Service):
         st.last_input_s = received_s
         seen = st.episodes.classify(msg.episode, msg.step, st.answered_step > 0)
         if seen == "ended":
-            self.reject("frontiers", f"robot {robot}: decision input of episode {msg.episode}, which has ended")
+            self.reject("frontiers", f"robot {robot}: decision input of episode {msg.episode}, which has ended", robot)
             return
         if seen == "new":
             log.info("robot %s: new episode %d at step %d, new selector", robot, msg.episode, msg.step)

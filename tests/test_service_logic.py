@@ -1164,3 +1164,23 @@ def test_sim_rejects_a_goal_of_another_episode():
     assert svc.decisions == 0 and svc.episode_state != "done" and svc.rejected == {"goal": 1}
     svc.on_message("r0", "goal", GoalMsg(4, True, 1.0, 1.0, 0, 1.0, episode=svc.episode), time.monotonic())
     assert svc.decisions == 1 and svc.goal_xy == [1.0, 1.0]
+
+
+def test_a_shared_policy_server_answers_each_robots_status_with_that_robots_own_counts():
+    """One policy server for several robots: each robot's status (``status --robot ID``) counts the inputs of that
+    robot alone, rejected and handled (it counted every robot's together, so one robot's bad link showed on all)."""
+    from services.common import _dispatch
+
+    policy, _ = _service(PolicyService, lockstep=False, params={"method": "greedy-dist", "serve_all_robots": True})
+    obs = _explorer_at(0).observe()
+    for step in range(3):
+        for robot in ("a", "b"):
+            _dispatch(policy, RobotKeys(robot).frontiers, encode(frontiers_from_observation(step, "timeout", obs, 1.0)), time.monotonic())
+    _dispatch(policy, RobotKeys("a").frontiers, b"\x00not msgpack", time.monotonic())
+    _dispatch(policy, RobotKeys("a").frontiers, encode(frontiers_from_observation(3, "timeout", obs, 1.0, episode=5)), time.monotonic())
+    _dispatch(policy, RobotKeys("a").frontiers, encode(frontiers_from_observation(4, "timeout", obs, 1.0, episode=6)), time.monotonic())
+    _dispatch(policy, RobotKeys("a").frontiers, encode(frontiers_from_observation(5, "timeout", obs, 1.0, episode=5)), time.monotonic())  # ended
+    a, b = (policy.robot_status(r, policy.robots[r]) for r in ("a", "b"))
+    assert (a.rejected, a.processed, a.last_step) == ({"frontiers": 2}, 6, 4)
+    assert (b.rejected, b.processed, b.last_step) == ({}, 3, 2)
+    assert policy.status_msg().rejected == {"frontiers": 2} and policy.status_msg().processed == 9  # the process: every robot
