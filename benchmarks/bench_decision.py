@@ -5,20 +5,23 @@ On a 640x480 Dungeon plan explored to about half by greedy-dist, times one full 
 ``skfmm.distance`` on the same grid, interleaved in the same run so machine noise hits both.
 Also times integrating one 180-degree LiDAR scan.
 
-    python benchmarks/bench_decision.py [--plan PNG] [--repeats 30]
+    python benchmarks/bench_decision.py [--plan PNG] [--repeats 30] [--json F]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 import skfmm
 
 from cso_runtime.config import ExplorationConfig, MaskConfig, SensorConfig
+from cso_runtime.doctor import machine_facts
 from cso_runtime.episode import Explorer
 from cso_runtime.observation import ObservationBuilder
 from cso_runtime.policies import ActionMasker, GreedyDist, goal_of
@@ -58,6 +61,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--plan", default=str(builtin_scene_dir() / "img_1.png"))
     ap.add_argument("--repeats", type=int, default=30)
+    ap.add_argument("--json", type=Path, default=None, help="also write the figures here, with the machine they were taken on")
     args = ap.parse_args()
 
     explorer = half_explored(args.plan)
@@ -97,6 +101,22 @@ def main() -> None:
     print(f"bare skfmm.distance (traversable)  : {med(fmm_ms):8.2f} ms   ratio {med(decision_ms) / med(fmm_ms):.2f}x (target <= 2.0x)")
     print(f"bare skfmm.distance (whole grid)   : {med(fmm_unmasked_ms):8.2f} ms   ratio {med(decision_ms) / med(fmm_unmasked_ms):.2f}x")
     print(f"integrate one {len(scan.ranges_m)}-beam scan      : {med(scan_ms):8.2f} ms")
+    if args.json:
+        report = {
+            "command": f"python benchmarks/bench_decision.py --plan {args.plan} --repeats {args.repeats}",
+            "machine": machine_facts(),
+            "grid": [g.shape[1], g.shape[0]],
+            "resolution_m": g.resolution_m,
+            "coverage_pct": round(explorer.coverage_pct(), 2),
+            "frontier_clusters": len(obs.clusters),
+            "full_decision_ms_median": round(med(decision_ms), 3),
+            "bare_fmm_traversable_ms_median": round(med(fmm_ms), 3),
+            "bare_fmm_whole_grid_ms_median": round(med(fmm_unmasked_ms), 3),
+            "decision_over_bare_fmm": round(med(decision_ms) / med(fmm_ms), 3),
+            "integrate_scan_ms_median": round(med(scan_ms), 3),
+            "scan_beams": len(scan.ranges_m),
+        }
+        args.json.write_text(json.dumps(report, indent=2))
 
 
 if __name__ == "__main__":

@@ -18,12 +18,15 @@ not counted here.
 from __future__ import annotations
 
 import argparse
+import json
 import time
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from cso_runtime.config import MaskConfig
+from cso_runtime.doctor import machine_facts
 from cso_runtime.frontiers import FrontierCluster
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.learned.graph import GraphConfig, build_graph
@@ -51,9 +54,14 @@ def synthetic_observation(n_clusters: int, n_path: int, seed: int = 0) -> Observ
     return Observation(geometry, pose, empty, empty, ~empty, distance, empty, np.zeros((400, 400)), clusters, 100.0, path)
 
 
-def percentiles(samples_s: list[float]) -> str:
+def p50_p99_ms(samples_s: list[float]) -> dict[str, float]:
     ms = np.array(samples_s) * 1e3
-    return f"p50 {np.percentile(ms, 50):.3f} ms  p99 {np.percentile(ms, 99):.3f} ms  (n={len(ms)})"
+    return {"p50_ms": round(float(np.percentile(ms, 50)), 4), "p99_ms": round(float(np.percentile(ms, 99)), 4), "n": len(ms)}
+
+
+def percentiles(samples_s: list[float]) -> str:
+    p = p50_p99_ms(samples_s)
+    return f"p50 {p['p50_ms']:.3f} ms  p99 {p['p99_ms']:.3f} ms  (n={p['n']})"
 
 
 def main() -> None:
@@ -61,6 +69,7 @@ def main() -> None:
     parser.add_argument("--weights", default=None, help="checkpoint to time (default: an untrained network of the default size)")
     parser.add_argument("--repeats", type=int, default=500)
     parser.add_argument("--frontiers", type=int, default=200)
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures here, with the machine they were taken on")
     args = parser.parse_args()
     torch.set_num_threads(1)
 
@@ -118,6 +127,21 @@ def main() -> None:
     print(f"ppo step (actor + critic + sample): {percentiles(ppo_step)}")
     print(f"graph build:                       {percentiles(build)}")
     print(f"policy.select (masks+graph+net):   {percentiles(policy_t)}")
+    if args.json:
+        report = {
+            "command": "python benchmarks/bench_inference.py" + (f" --weights {args.weights}" if args.weights else "") + f" --repeats {args.repeats} --frontiers {args.frontiers}",
+            "machine": machine_facts() | {"torch_threads": torch.get_num_threads()},
+            "frontier_nodes": args.frontiers,
+            "path_nodes": config.max_path_nodes,
+            "network_traced": p50_p99_ms(net),
+            "network_traced_thread_cpu": p50_p99_ms(net_cpu),
+            "network_eager": p50_p99_ms(eager),
+            "trace_once_ms": round(trace_once_s * 1e3, 1),
+            "ppo_step": p50_p99_ms(ppo_step),
+            "graph_build": p50_p99_ms(build),
+            "policy_select": p50_p99_ms(policy_t),
+        }
+        args.json.write_text(json.dumps(report, indent=2))
 
 
 if __name__ == "__main__":

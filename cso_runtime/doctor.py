@@ -55,6 +55,28 @@ OPTIONAL_LIBRARIES = (
 """(distribution, what needs it) of the extras: reported, never a failure."""
 
 
+def cpu_name() -> str:
+    """The processor's model name, as ``lscpu`` says it (for the record of a training run or a benchmark)."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def machine_facts() -> dict[str, object]:
+    """What a measurement was taken on: processor, CPUs, Python and the numeric libraries' versions."""
+    facts: dict[str, object] = {"cpu": cpu_name(), "cpus": os.cpu_count(), "python": platform.python_version()}
+    for dist, _ in LIBRARIES:
+        try:
+            facts[dist] = importlib.metadata.version(dist)
+        except importlib.metadata.PackageNotFoundError:
+            continue
+    return facts
+
+
 def check_python() -> str:
     from cso_runtime import __version__  # noqa: PLC0415
 

@@ -17,7 +17,6 @@ import dataclasses
 import functools
 import json
 import os
-import platform
 import random
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -32,6 +31,7 @@ from gymnasium.vector import AutoresetMode
 from torch import nn, optim
 
 from cso_runtime.config import ConfigError, ExplorationConfig, MaskConfig, SensorConfig, check_seed, check_torch_device
+from cso_runtime.doctor import cpu_name
 from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
 from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
@@ -902,7 +902,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
             "warm_start_decisions": warm_decisions,
             "ppo_env_steps_in_finished_episodes": env_steps,
             "wall_time_s": round(wall, 1),
-            "hardware": {"device": str(device), "cpu": _cpu_name(), "cpus": os.cpu_count(), "torch_threads": args.torch_threads},
+            "hardware": {"device": str(device), "cpu": cpu_name(), "cpus": os.cpu_count(), "torch_threads": args.torch_threads},
             "torch": torch.__version__,
             "scenes": len(refs),
         }
@@ -911,16 +911,6 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     (out / f"{args.variant}.json").write_text(json.dumps(record, indent=2, default=str))
     plot_learning_curve(log_path, out / f"{args.variant}_curve.png", args.variant)
     return record
-
-
-def _cpu_name() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
 
 
 def keep_log_rows_up_to(log_path: Path, update: int) -> None:
