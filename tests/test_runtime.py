@@ -714,6 +714,40 @@ def test_a_service_that_ignores_the_stop_signals_leaves_its_stacks_in_its_log_be
             child.proc.kill()
 
 
+def test_a_service_stopped_before_it_came_up_leaves_no_traceback(tmp_path):
+    """``down`` right after ``up`` stops services still importing, before their handlers: SIGINT ended each one
+    with a KeyboardInterrupt traceback in its log, read back by ``logs`` as five crashes. One not come up gets
+    SIGTERM first and ends quietly; one that is up still gets SIGINT first, its clean stop."""
+    from cso_runtime.supervision import Child, stop_children
+
+    importing = "print('ready', flush=True)\nwhile True:\n    sum(range(1000))"  # no handler of its own yet
+    up = textwrap.dedent(
+        """
+        import signal, sys, time
+        signal.signal(signal.SIGINT, lambda signum, frame: (print("stopped on", signal.Signals(signum).name, flush=True), sys.exit(0)))
+        print("ready", flush=True)
+        while True:
+            time.sleep(0.05)
+        """
+    )
+    starting = Child("policy", [sys.executable, "-c", importing], tmp_path / "policy.log")
+    running = Child("mapper", [sys.executable, "-c", up], tmp_path / "mapper.log")
+    try:
+        for c in (starting, running):
+            c.spawn()
+        running.came_up = True
+        for c in (starting, running):
+            wait_for(lambda c=c: "ready" in c.log_path.read_text() or not c.alive, 30, f"{c.name} to start")
+        stop_children([starting, running], stage_timeout_s=10.0)
+        assert starting.proc.wait(timeout=10) == -signal.SIGTERM
+        assert "Traceback" not in starting.log_path.read_text(), starting.log_path.read_text()
+        assert running.proc.wait(timeout=10) == 0 and "stopped on SIGINT" in running.log_path.read_text()
+    finally:
+        for c in (starting, running):
+            if c.alive:
+                c.proc.kill()
+
+
 def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
     """The result published on ``episode_result`` is used as is; without one, the launcher keeps asking
     until its deadline and then reports that none came (no summary is written silently)."""
