@@ -462,6 +462,16 @@ class Launcher:
             return "done"
         return "interrupted" if self.exit_code == EXIT_INTERRUPTED else "failed"
 
+    def stop_before_start(self, exit_code: int) -> int:
+        """End a run that started no service (refused, no router, or interrupted while its router opened) with
+        a run file that says how it ended, so that ``runs`` lists it as failed or interrupted rather than as a
+        launcher that died or not at all; no current run is left behind. Returns ``exit_code``."""
+        self.stop_event.set()  # its status watch, if started, stops asking
+        self.exit_code = exit_code
+        self.write_run_file("stopped")
+        self.remove_current_pointer()
+        return exit_code
+
     def remove_current_pointer(self) -> None:
         cur = self.run_dir.parent / CURRENT_RUN
         try:
@@ -783,9 +793,7 @@ class Launcher:
         with session:
             if router.connect and (taken := self.robot_already_served(session)):
                 log.error("%s: no service was started; give this run another --robot", taken)
-                self.write_run_file("failed")
-                self.remove_current_pointer()
-                return EXIT_BAD_CONFIG
+                return self.stop_before_start(EXIT_BAD_CONFIG)
             subs = [session.declare_subscriber(self.keys.topic(t), self._guarded(self._on_sample)) for t in LAUNCHER_INPUTS]
             qs = [
                 session.declare_queryable(self.keys.cache("goal"), self._guarded(self._on_cache_query)),
@@ -797,14 +805,12 @@ class Launcher:
                 self.status_watch.start()
             if self.stop_event.is_set():  # Ctrl-C (or a detached start given up on) before anything started
                 log.warning("interrupted before any service was started")
-                return EXIT_INTERRUPTED
+                return self.stop_before_start(EXIT_INTERRUPTED)
             try:
                 recorder = self.start_recorder()
             except RecorderError as exc:
                 log.error("%s: no service was started", exc)
-                self.write_run_file("failed")
-                self.remove_current_pointer()
-                return EXIT_BAD_CONFIG
+                return self.stop_before_start(EXIT_BAD_CONFIG)
             try:
                 self.spawn_all()
                 self.write_run_file("running")
@@ -1060,7 +1066,7 @@ def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> 
         return launcher.run(live=live, stay_after_done=stay_after_done)
     except TransportError as exc:  # the router to join (a robot's) is down, or a listen port is taken
         log.error("%s; no service was started (is the router to join running and reachable?)", exc)
-        return EXIT_NO_ZENOH
+        return launcher.stop_before_start(EXIT_NO_ZENOH)
     finally:
         os.close(lock_fd)
 

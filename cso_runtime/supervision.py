@@ -101,7 +101,10 @@ STACK_DUMP_WAIT_S = 0.5
 
 def stop_children(children: list[Child], stage_timeout_s: float) -> None:
     """SIGINT every process group, then SIGTERM, then SIGKILL, each stage with a deadline. A service
-    still running at the last stage is asked for its threads' stacks first, so its log says where it hung."""
+    still running at the last stage is asked for its threads' stacks first, so its log says where it hung.
+    A service that has not come up gets SIGTERM at the first stage: it may still be importing, before its
+    own handlers, where SIGINT would end it with a KeyboardInterrupt traceback in its log (a ``down`` right
+    after ``up`` left one in every service's log); SIGTERM ends it quietly, or reaches its handler."""
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
         running = [c for c in children if c.alive]
         if not running:
@@ -110,7 +113,7 @@ def stop_children(children: list[Child], stage_timeout_s: float) -> None:
             dump_stacks(running)
         for c in running:
             assert c.proc is not None
-            signal_group(c.proc.pid, sig)
+            signal_group(c.proc.pid, signal.SIGTERM if sig == signal.SIGINT and not c.came_up else sig)
         deadline = time.monotonic() + stage_timeout_s
         for c in running:
             assert c.proc is not None

@@ -371,6 +371,8 @@ def test_up_without_a_zenoh_session_says_so_and_starts_nothing(tmp_path):
     line and exit 3, foreground and detached alike, no traceback, no service started."""
     import socket
 
+    from cso_runtime.runs import list_runs
+
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
@@ -385,6 +387,7 @@ def test_up_without_a_zenoh_session_says_so_and_starts_nothing(tmp_path):
             said = r.stdout + r.stderr
             assert r.returncode == 3 and "no service was started" in said and "Traceback" not in said, said
             assert not (runs / "current.json").exists()
+            assert [run.state for run in list_runs(runs)] == ["failed"]  # listed as it ended, not left unlisted
             assert not any(p.name.endswith(".log") and p.name != "launcher.log" for p in runs.rglob("*.log"))
 
 
@@ -419,6 +422,36 @@ def test_up_refuses_a_robot_id_that_another_run_on_the_network_has(tmp_path, tak
             assert not list(runs.glob("*/logs/mapper.log"))  # no service was started
         finally:
             held.undeclare()
+
+
+def test_a_run_that_started_no_service_is_listed_as_it_ended(tmp_path):
+    """Ctrl-C while the router opens (the first second of ``up``) left a run folder with no run.json, which
+    ``runs`` never listed; a run refused before its services (robot id taken, recording that cannot open)
+    was listed as ``launcher died``. Each now says how it ended, and leaves no current run."""
+    from cso_runtime.runs import list_runs
+
+    runs = tmp_path / "runs"
+    (tmp_path / "a_file").write_text("")
+    # Each launcher in a process of its own that has exited when ``runs`` reads its folder, as after ``up``.
+    script = textwrap.dedent(
+        f"""
+        from pathlib import Path
+        from cso_runtime.launcher import Launcher, find_profile, load_profile
+        profile, data = load_profile(str(find_profile("lockstep")), {{"scene": {SCENE!r}}})
+        interrupted = Launcher(profile, data, Path({str(runs / "interrupted")!r}))
+        interrupted.stop_event.set()  # as the signal handler does, before the services are spawned
+        refused = Launcher(profile, data, Path({str(runs / "refused")!r}), record_path=Path({str(tmp_path / "a_file" / "r.mcap")!r}))
+        print(interrupted.run(), refused.run())  # the recorder cannot make its folder: refused (2)
+        """
+    )
+    r = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and r.stdout.split() == ["130", "2"], r.stderr[-2000:]
+    listed = {run.run_id: run for run in list_runs(runs)}
+    assert {k: v.state for k, v in listed.items()} == {"interrupted": "interrupted", "refused": "failed"}
+    assert all(v.duration_s is not None and v.restarts == 0 for v in listed.values())
+    assert json.loads((runs / "refused" / "run.json").read_text())["exit_code"] == 2
+    assert not (runs / "current.json").exists()
+    assert not list(runs.glob("*/logs/*.log"))  # no service was started
 
 
 def test_two_up_started_at_once_cannot_both_run(tmp_path):
@@ -679,6 +712,40 @@ def test_a_service_that_ignores_the_stop_signals_leaves_its_stacks_in_its_log_be
     finally:
         if child.alive:
             child.proc.kill()
+
+
+def test_a_service_stopped_before_it_came_up_leaves_no_traceback(tmp_path):
+    """``down`` right after ``up`` stops services still importing, before their handlers: SIGINT ended each one
+    with a KeyboardInterrupt traceback in its log, read back by ``logs`` as five crashes. One not come up gets
+    SIGTERM first and ends quietly; one that is up still gets SIGINT first, its clean stop."""
+    from cso_runtime.supervision import Child, stop_children
+
+    importing = "print('ready', flush=True)\nwhile True:\n    sum(range(1000))"  # no handler of its own yet
+    up = textwrap.dedent(
+        """
+        import signal, sys, time
+        signal.signal(signal.SIGINT, lambda signum, frame: (print("stopped on", signal.Signals(signum).name, flush=True), sys.exit(0)))
+        print("ready", flush=True)
+        while True:
+            time.sleep(0.05)
+        """
+    )
+    starting = Child("policy", [sys.executable, "-c", importing], tmp_path / "policy.log")
+    running = Child("mapper", [sys.executable, "-c", up], tmp_path / "mapper.log")
+    try:
+        for c in (starting, running):
+            c.spawn()
+        running.came_up = True
+        for c in (starting, running):
+            wait_for(lambda c=c: "ready" in c.log_path.read_text() or not c.alive, 30, f"{c.name} to start")
+        stop_children([starting, running], stage_timeout_s=10.0)
+        assert starting.proc.wait(timeout=10) == -signal.SIGTERM
+        assert "Traceback" not in starting.log_path.read_text(), starting.log_path.read_text()
+        assert running.proc.wait(timeout=10) == 0 and "stopped on SIGINT" in running.log_path.read_text()
+    finally:
+        for c in (starting, running):
+            if c.alive:
+                c.proc.kill()
 
 
 def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
