@@ -135,7 +135,7 @@ class FrontierService(Service):
             # restart) may still be in flight among the new one's first messages.
             seen = self.episodes.classify(msg.episode, step, self.done_step > 0)
             if seen == "ended":
-                self.reject(topic, f"{topic} of episode {msg.episode} at step {step}: that episode has ended")
+                self.reject(topic, f"{topic} of episode {msg.episode} at step {step}: that episode has ended", robot)
                 return
             if seen == "new":
                 log.info("new episode %d (%s of step %d): forgetting the decision state", self.episodes.current, topic, step)

@@ -132,7 +132,7 @@ class PlannerService(Service):
         step = getattr(msg, "step", -1)
         seen = self.episodes.classify(getattr(msg, "episode", 0), step, self.cmd_step > 0 and isinstance(msg, OdometryMsg))
         if seen == "ended":
-            self.reject(topic, f"{topic} of episode {msg.episode} at step {step}: that episode has ended")  # type: ignore[attr-defined]
+            self.reject(topic, f"{topic} of episode {msg.episode} at step {step}: that episode has ended", robot)  # type: ignore[attr-defined]
             return
         if seen == "new":
             log.info("new episode %d (%s of step %d): clearing the planner", self.episodes.current, topic, step)
