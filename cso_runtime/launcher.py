@@ -114,9 +114,13 @@ class SupervisionConfig:
     """How crashed services are restarted and how everything is stopped."""
 
     max_restarts: int = 3
-    """Restarts per service before the launcher gives up on it (and says so)."""
+    """Restarts per service within ``restart_window_s`` before the launcher gives up on it (and says so)."""
+    restart_window_s: float = 600.0
+    """Restarts older than this no longer count towards ``max_restarts`` nor double the back-off (systemd's
+    StartLimitIntervalSec): a robot running for hours keeps a service that crashes now and then, and still gives up
+    on one that crashes again and again. 0: every restart of the run counts."""
     backoff_s: float = 0.5
-    """Delay before the first restart; doubled after each restart."""
+    """Delay before the first restart; doubled after each restart within ``restart_window_s``."""
     backoff_max_s: float = 8.0
     """Longest delay between restarts."""
     stop_timeout_s: float = 3.0
@@ -137,6 +141,8 @@ class SupervisionConfig:
     def validate(self) -> None:
         if self.max_restarts < 0 or self.backoff_s < 0 or self.backoff_max_s < self.backoff_s or not self.stop_timeout_s > 0:
             raise ConfigError("supervision needs max_restarts >= 0, 0 <= backoff_s <= backoff_max_s, stop_timeout_s > 0")
+        if not self.restart_window_s >= 0:
+            raise ConfigError(f"supervision.restart_window_s must be 0 (the whole run) or positive seconds, got {self.restart_window_s}")
         if not self.given_up_grace_s >= 0:
             raise ConfigError(f"supervision.given_up_grace_s must be >= 0 seconds, got {self.given_up_grace_s}")
         if not (self.hang_timeout_s == 0 or self.hang_timeout_s >= 2 * HANG_CHECK_PERIOD_S):
@@ -598,9 +604,11 @@ class Launcher:
                 log.error("%s (pid %d) survived SIGKILL", c.name, c.proc.pid)
             c.hung_kills += 1
 
-    def supervise(self) -> None:
+    def supervise(self, now: float | None = None) -> None:
+        """Restart the services that exited (after their back-off), or give up on them; ``now``: the launcher's
+        ``time.monotonic()`` (given by tests)."""
         sup = self.profile.supervision
-        now = time.monotonic()
+        now = time.monotonic() if now is None else now
         self.kill_hung(now)
         changed = False
         for c in self.children:
@@ -614,16 +622,19 @@ class Launcher:
                     log.error("%s refused its configuration (exit code %d): not restarting it: %s (see %s)", c.name, code, c.last_error() or "no error logged", c.log_path)
                     changed = True
                     continue
-                if c.restarts >= sup.max_restarts:
+                recent = c.recent_restarts(now, sup.restart_window_s)
+                if recent >= sup.max_restarts:
                     c.gave_up, c.gave_up_at = True, now
-                    log.error("%s exited (code %s) and was restarted %d times: giving up on it: %s (see %s)", c.name, code, c.restarts, c.last_error() or "no error logged", c.log_path)
+                    within = f" within {sup.restart_window_s:g} s" if sup.restart_window_s > 0 else ""
+                    log.error("%s exited (code %s) and was restarted %d times%s: giving up on it: %s (see %s)", c.name, code, recent, within, c.last_error() or "no error logged", c.log_path)
                     changed = True
                     continue
-                delay = min(sup.backoff_s * (2**c.restarts), sup.backoff_max_s)
+                delay = min(sup.backoff_s * (2**recent), sup.backoff_max_s)
                 c.restart_at = now + delay
-                log.warning("%s exited (code %s); restart %d/%d in %.1f s", c.name, code, c.restarts + 1, sup.max_restarts, delay)
+                log.warning("%s exited (code %s); restart %d/%d in %.1f s", c.name, code, recent + 1, sup.max_restarts, delay)
             elif now >= c.restart_at:
                 c.restarts += 1
+                c.restarted_at.append(now)
                 c.spawn()
                 changed = True
                 log.info("restarted %s (pid %d)", c.name, c.proc.pid if c.proc else -1)

@@ -42,6 +42,9 @@ class Child:
     log_path: Path
     proc: subprocess.Popen | None = None
     restarts: int = 0
+    """Restarts over the whole run (what ``status`` and ``runs`` show)."""
+    restarted_at: list[float] = field(default_factory=list)
+    """``time.monotonic()`` of each restart (``recent_restarts``)."""
     gave_up: bool = False
     gave_up_at: float | None = None
     """``time.monotonic()`` when the launcher gave up on it."""
@@ -54,6 +57,12 @@ class Child:
     came_up: bool = False
     """Whether its current process has declared its liveliness token (a stopped one loses it when its Zenoh
     lease runs out: it is then hung, not still starting)."""
+
+    def recent_restarts(self, now: float, window_s: float) -> int:
+        """Restarts within the last ``window_s`` seconds (0: over the whole run): what counts towards giving up."""
+        if window_s <= 0:
+            return self.restarts
+        return sum(1 for t in self.restarted_at if now - t < window_s)
 
     @property
     def alive(self) -> bool:

@@ -1545,3 +1545,50 @@ def test_shell_completion_offers_profiles_methods_runs_and_service_logs(tmp_path
     assert complete(f"cso-runtime logs --runs-dir {runs} --run 20261203-091000-lockstep-r0 sim ") == ["mapper"]
     assert complete(f"cso-runtime logs --runs-dir {runs} ") == ["planner"]  # the newest run's
     assert "--install-completion" in cli("--help", cwd=tmp_path).stdout
+
+
+def test_restarts_older_than_the_restart_window_no_longer_count_towards_giving_up(tmp_path):
+    """A robot running for hours keeps a service that crashes now and then (systemd's StartLimitIntervalSec): only
+    the restarts within ``supervision.restart_window_s`` count towards ``max_restarts`` and the back-off, while
+    ``restarts`` (what ``status`` shows) counts them all; with the window at 0 every restart of the run counts."""
+    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    def crashing_launcher(window_s: float, name: str) -> tuple[Launcher, Child]:
+        sup = {"max_restarts": 2, "restart_window_s": window_s, "backoff_s": 1.0, "backoff_max_s": 8.0, "hang_timeout_s": 0, "start_timeout_s": 0}
+        profile, data = load_profile(str(find_profile("lockstep")), {"supervision": sup})
+        launcher = Launcher(profile, data, tmp_path / name)
+        launcher.run_dir.mkdir()
+        child = Child("mapper", [sys.executable, "-c", "raise SystemExit(1)"], tmp_path / f"{name}.log")
+        launcher.children = [child]
+        child.spawn()
+        return launcher, child
+
+    def crash_and_restart(launcher: Launcher, child: Child, at_s: float) -> float:
+        """The child's crash seen at ``at_s``, then its restart once the back-off has passed; when it is restarted."""
+        child.proc.wait(timeout=30)
+        launcher.supervise(at_s)
+        if child.gave_up:
+            return at_s
+        restart_s = child.restart_at
+        launcher.supervise(restart_s)
+        return restart_s
+
+    t0 = time.monotonic()
+    windowed, child = crashing_launcher(100.0, "windowed")
+    t = crash_and_restart(windowed, child, t0)  # back-off 1 s
+    assert child.restarts == 1 and t == t0 + 1.0
+    t = crash_and_restart(windowed, child, t + 1.0)  # back-off 2 s: the first restart is recent
+    assert child.restarts == 2 and t == t0 + 4.0
+    t = crash_and_restart(windowed, child, t + 150.0)  # both restarts are older than the window: back-off 1 s again
+    assert child.restarts == 3 and not child.gave_up and t == t0 + 155.0
+    t = crash_and_restart(windowed, child, t + 1.0)
+    assert child.restarts == 4 and not child.gave_up
+    crash_and_restart(windowed, child, t + 1.0)  # two restarts within 100 s: given up
+    assert child.gave_up and child.restarts == 4
+
+    whole_run, child = crashing_launcher(0.0, "whole_run")
+    t = crash_and_restart(whole_run, child, t0)
+    t = crash_and_restart(whole_run, child, t + 1.0)
+    crash_and_restart(whole_run, child, t + 1000.0)
+    assert child.gave_up and child.restarts == 2
