@@ -8,6 +8,7 @@ Nav2's ``map_saver_cli`` does with ``/map``. Short timeouts: when nothing answer
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -251,6 +252,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     if isinstance(target, int):
         return target
     connect, robot = target
+    next_s = time.monotonic()
     try:
         while True:
             status = query_status(connect, robot)
@@ -262,7 +264,13 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 console.print(render_table(status))
             if not watch:
                 return 0
-            time.sleep(period_s)
+            # A fixed schedule: the lines come every period_s however long a query took (a slow or silent service
+            # made each one up to its 0.6 s timeout later); a period that a query overran is skipped, not made up.
+            next_s += period_s
+            now = time.monotonic()
+            if now > next_s:
+                next_s += math.ceil((now - next_s) / period_s) * period_s
+            time.sleep(next_s - now)
     except KeyboardInterrupt:
         return 0
     except TransportError as exc:

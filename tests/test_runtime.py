@@ -1002,14 +1002,23 @@ def test_status_watch_prints_each_status_until_nothing_answers_then_exits_1(monk
     line and exit code 1 (a script following a run sees it end)."""
     from cso_runtime import status
 
-    answers = iter([{"state": "exploring", "step": 3}, {"state": "done", "step": 9}, None])
+    answers = iter([{"state": "exploring", "step": 3}, {"state": "exploring", "step": 5}, {"state": "done", "step": 9}, None])
+    query_s = iter([0.2, 1.2, 0.2, 0.2])  # the second query overruns its period (a service that does not answer)
+    clock_s = [100.0]
     naps: list[float] = []
-    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6: next(answers))
-    monkeypatch.setattr(status.time, "sleep", naps.append)
+
+    def answer(connect, robot, timeout_s=0.6):
+        clock_s[0] += next(query_s)
+        return next(answers)
+
+    monkeypatch.setattr(status, "query_status", answer)
+    monkeypatch.setattr(status.time, "monotonic", lambda: clock_s[0])
+    monkeypatch.setattr(status.time, "sleep", lambda s: (naps.append(round(s, 6)), clock_s.__setitem__(0, clock_s[0] + s)))
     code = status.status_main([loopback_endpoint(7447)], "r0", as_json=True, watch=True, runs_dir=Path("."), period_s=0.5)
     lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
-    assert code == 1 and naps == [0.5, 0.5]
-    assert [line["state"] for line in lines] == ["exploring", "done", "not running"] and lines[1]["step"] == 9
+    # On the 0.5 s schedule from the first query, not 0.5 s after each; the overrun period is skipped.
+    assert code == 1 and naps == [0.3, 0.3, 0.3] and clock_s[0] == pytest.approx(102.7)
+    assert [line["state"] for line in lines] == ["exploring", "exploring", "done", "not running"] and lines[2]["step"] == 9
 
 
 def test_status_reads_the_run_file_once_so_its_endpoints_and_launcher_are_of_one_run(tmp_path, monkeypatch):
