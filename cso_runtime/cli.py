@@ -610,7 +610,8 @@ def up_command(
 @app.command("status", rich_help_panel="Runtime (Zenoh services)")
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
-    watch: bool = typer.Option(False, "--watch", help="Refresh every second until Ctrl-C"),
+    watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends"),
+    period_s: float = typer.Option(1.0, "--period", min=0.1, help="Seconds between two --watch refreshes"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
@@ -618,7 +619,7 @@ def status_command(
     """State, step, coverage, explored area, path length, goal, decisions and service health of the running episode."""
     from cso_runtime.status import status_main  # noqa: PLC0415
 
-    raise typer.Exit(status_main(list(connect or []), robot, as_json, watch, runs_dir))
+    raise typer.Exit(status_main(list(connect or []), robot, as_json, watch, runs_dir, period_s))
 
 
 @app.command("save-map", rich_help_panel="Runtime (Zenoh services)")
