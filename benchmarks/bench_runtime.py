@@ -37,10 +37,11 @@ import yaml
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import run_episode
 from cso_runtime.keys import RobotKeys
-from cso_runtime.launcher import Launcher, find_profile, load_profile
+from cso_runtime.launcher import Launcher
 from cso_runtime.messages import CmdVelMsg, EpisodeStatusMsg, FrontiersMsg, GoalMsg, MapMsg, ScanMsg, decode
 from cso_runtime.policies import make_policy
 from cso_runtime.processes import keep_freed_memory
+from cso_runtime.run_profile import find_profile, load_profile
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session

@@ -21,7 +21,7 @@ app = typer.Typer(
 
 
 def _complete_profiles(incomplete: str) -> list[str]:
-    from cso_runtime.launcher import profile_names  # noqa: PLC0415
+    from cso_runtime.run_profile import profile_names  # noqa: PLC0415
 
     return [n for n in profile_names() if n.startswith(incomplete)]
 
@@ -562,7 +562,9 @@ def up_command(
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     from cso_runtime.config import LOG_FORMAT, ConfigError  # noqa: PLC0415
-    from cso_runtime.launcher import current_launcher_alive, load_profile, read_current_run, run_foreground, start_detached  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive, read_current_run  # noqa: PLC0415
+    from cso_runtime.launcher import run_foreground, start_detached  # noqa: PLC0415
+    from cso_runtime.run_profile import load_profile  # noqa: PLC0415
 
     if weights is not None:
         _use_weights(weights)
@@ -648,7 +650,7 @@ def down_command(
     ),
 ) -> None:
     """Stop the running episode and every service process (SIGINT, then SIGTERM, then SIGKILL)."""
-    from cso_runtime.launcher import down  # noqa: PLC0415
+    from cso_runtime.current_run import down  # noqa: PLC0415
 
     ok, message = down(runs_dir, timeout)
     typer.echo(message, err=not ok)
@@ -757,7 +759,7 @@ def dataflow_command(
     """Show which service feeds which in a profile: every node's inputs and outputs (dora-rs style), from the code."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.keys import TOPICS  # noqa: PLC0415
-    from cso_runtime.launcher import load_profile  # noqa: PLC0415
+    from cso_runtime.run_profile import load_profile  # noqa: PLC0415
     from services.dataflow import nodes_of, to_markdown, to_mermaid, unconnected, wiring_of  # noqa: PLC0415
 
     if fmt not in ("table", "mermaid", "markdown"):

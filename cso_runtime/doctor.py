@@ -195,7 +195,7 @@ def check_weights() -> str:
 
 
 def check_profiles() -> str:
-    from cso_runtime.launcher import load_profile, profile_names  # noqa: PLC0415
+    from cso_runtime.run_profile import load_profile, profile_names  # noqa: PLC0415
 
     names = profile_names()
     for name in names:

@@ -20,7 +20,7 @@ from typing import Any
 
 import yaml
 
-from cso_runtime.launcher import CURRENT_RUN, current_launcher_alive, read_current_run
+from cso_runtime.current_run import CURRENT_RUN, current_launcher_alive, read_current_run
 
 LOG_DIR = "logs"
 LOG_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")

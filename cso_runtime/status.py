@@ -130,7 +130,7 @@ def status_of(
 
 def endpoints_from_run_file(runs_dir: Path) -> tuple[list[str], str | None]:
     """Router endpoints and robot of the current run (``runs/current.json``), if any."""
-    from cso_runtime.launcher import read_current_run  # noqa: PLC0415  (the run file's one reader)
+    from cso_runtime.current_run import read_current_run  # noqa: PLC0415  (the run file's one reader)
 
     return endpoints_of_run(read_current_run(runs_dir))
 
@@ -147,7 +147,7 @@ def dead_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | N
     """Why the current run cannot answer when its launcher (which holds the embedded router) has exited
     without removing ``runs/current.json`` (SIGKILL, a crash), else None. Said at once, not after a
     connect timeout to a router that is gone."""
-    from cso_runtime.launcher import current_launcher_alive  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive  # noqa: PLC0415
 
     if info is None or not info.get("launcher_pid") or current_launcher_alive(info):
         return None
@@ -172,7 +172,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     """Whom to ask (the given endpoints and robot, else the current run's), or the exit code after saying why
     there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
     ``127.0.0.1:7447``: a usage error, not "nothing running") or ``robot`` is not one robot's id."""
-    from cso_runtime.launcher import read_current_run  # noqa: PLC0415
+    from cso_runtime.current_run import read_current_run  # noqa: PLC0415
 
     given_connect = bool(connect)
     # The run file read once: the endpoints and the launcher's liveness are then of one run, even when a new

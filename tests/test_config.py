@@ -162,7 +162,7 @@ def test_the_mujoco_limo_and_the_real_one_are_driven_as_a_box_the_2d_robot_as_it
     (``eval --sim mujoco``, a profile whose sim is MuJoCo) and the real one (``limo-ros2``) are a box, 4 cm longer
     at the front, unless a config says otherwise."""
     from cso_runtime.evaluation import EvalRequest
-    from cso_runtime.launcher import find_profile
+    from cso_runtime.run_profile import find_profile
     from services.common import load_profile_for_service
 
     assert EvalRequest(methods=["greedy-dist"]).exploration_config().planner.body == "disc"
@@ -179,8 +179,8 @@ def test_a_negative_seed_is_refused_where_it_is_given_not_inside_a_worker():
     (the sim service used to refuse it after the launcher had started everything)."""
     from cso_runtime.config import MAX_SEED, check_seed
     from cso_runtime.evaluation import EvalRequest
-    from cso_runtime.launcher import find_profile, load_profile
     from cso_runtime.learned.ppo import Args
+    from cso_runtime.run_profile import find_profile, load_profile
 
     assert check_seed(0) == 0 and check_seed(7) == 7 and check_seed(MAX_SEED) == MAX_SEED
     for bad in (-1, True, 1.5, "3", MAX_SEED + 1, 10**23):  # 10**23: msgpack would fail to send the episode's result
@@ -258,7 +258,7 @@ def test_the_mujoco_limo_control_period_must_be_whole_physics_steps_before_anyth
     """A control period that is not a whole number of MuJoCo steps used to pass ``eval``'s and ``up``'s checks, then
     fail every episode (eval, exit 1) or the sim service once started; it is a bad configuration (exit 2) now."""
     from cso_runtime.evaluation import EvalRequest
-    from cso_runtime.launcher import load_profile
+    from cso_runtime.run_profile import load_profile
 
     with pytest.raises(ConfigError, match=r"robot.control_period_s \(0.251 s\) must be a whole number of physics steps"):
         EvalRequest(methods=["greedy-dist"], sim="mujoco", settings={"robot.control_period_s": 0.251}).validate()
@@ -274,7 +274,7 @@ def test_the_policy_services_own_method_and_device_are_checked_before_anything_s
     service, a device torch cannot use as a weights file that "is not a cso-runtime checkpoint"."""
     import torch
 
-    from cso_runtime.launcher import load_profile
+    from cso_runtime.run_profile import load_profile
 
     for key, value, said in [
         ("services.policy.method", "bogus", "services.policy: method: unknown method 'bogus'"),
@@ -290,7 +290,7 @@ def test_the_policy_services_own_method_and_device_are_checked_before_anything_s
 
 def test_the_lockstep_sim_gives_up_only_after_it_has_re_published_a_step():
     """``lockstep_give_up_s`` at or below ``lockstep_timeout_s`` failed an episode on one lost message, never re-published."""
-    from cso_runtime.launcher import load_profile
+    from cso_runtime.run_profile import load_profile
 
     with pytest.raises(ConfigError, match=r"services.sim: lockstep_give_up_s \(0.5 s\) must exceed lockstep_timeout_s \(1.0 s\)"):
         load_profile("lockstep", {}, settings={"services.sim.lockstep_give_up_s": 0.5})

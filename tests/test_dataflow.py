@@ -10,9 +10,9 @@ import pytest
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry
 from cso_runtime.keys import TOPICS
-from cso_runtime.launcher import load_profile
 from cso_runtime.messages import GoalMsg, MapMsg
 from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.run_profile import load_profile
 from cso_runtime.transport import TransportConfig
 from services import SERVICE_NAMES
 from services.common import ServiceContext

@@ -122,7 +122,7 @@ def test_a_port_in_use_a_bad_port_or_no_foxglove_sdk_is_a_configuration_error(mo
 
 def test_up_foxglove_adds_the_bridge_once_and_refuses_it_without_the_sdk_or_its_port(monkeypatch):
     import services.foxglove_bridge as bridge_module
-    from cso_runtime.launcher import load_profile
+    from cso_runtime.run_profile import load_profile
     from cso_runtime.transport import free_tcp_port
 
     port = free_tcp_port()
@@ -149,8 +149,9 @@ def test_the_live_view_says_where_to_point_foxglove(tmp_path, monkeypatch):
     from rich.console import Console
 
     import services.foxglove_bridge as bridge_module
-    from cso_runtime.launcher import Launcher, load_profile
+    from cso_runtime.launcher import Launcher
     from cso_runtime.live_view import LiveView
+    from cso_runtime.run_profile import load_profile
 
     monkeypatch.setattr(bridge_module, "port_problem", lambda params: None)
     profile, data = load_profile("lockstep", {}, foxglove=True, settings={"services.foxglove_bridge.port": 9123})

@@ -793,9 +793,9 @@ def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path
     import sys
 
     from cso_runtime.config import ConfigError
-    from cso_runtime.launcher import find_profile, load_profile
     from cso_runtime.learned import registry
     from cso_runtime.learned.weights import weights_file_problem
+    from cso_runtime.run_profile import find_profile, load_profile
 
     good = tmp_path / "good.pt"
     save_checkpoint(good, GraphActorCritic().eval(), GraphConfig(), "cso")

@@ -22,9 +22,9 @@ import pytest
 from cso_runtime.config import ConfigError, ExplorationConfig, from_dict
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.keys import RobotKeys
-from cso_runtime.launcher import PACKAGED_PROFILES, find_profile, load_profile
 from cso_runtime.messages import ClockMsg, MapMsg, ScanMsg, decode
 from cso_runtime.recording import read_recording, replay
+from cso_runtime.run_profile import PACKAGED_PROFILES, find_profile, load_profile
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.supervision import pid_alive
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session

@@ -279,7 +279,7 @@ def test_a_profile_finds_its_scene_beside_it_and_a_flag_is_read_from_the_working
     (as compose files do), so a profile with its plan next to it runs from anywhere; a ``--scene`` flag stays
     relative to the working folder."""
     from cso_runtime.config import ConfigError
-    from cso_runtime.launcher import load_profile
+    from cso_runtime.run_profile import load_profile
 
     own = tmp_path / "configs" / "profiles"
     own.mkdir(parents=True)
@@ -301,7 +301,7 @@ def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file
     in the data the run's services read; an unknown parameter or a key through a value is refused before anything
     starts, naming the flag."""
     from cso_runtime.config import ConfigError
-    from cso_runtime.launcher import load_profile
+    from cso_runtime.run_profile import load_profile
 
     settings = {"services.sim.min_step_period_s": 0.1, "exploration.episode.max_steps": 40, "services.mapper.publish_period_s": None}
     with pytest.raises(ConfigError, match=r"with --set services.sim.min_step_period_s=0.1 .*services.mapper.*publish_period_s"):
@@ -326,7 +326,7 @@ def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file
 
 def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_running(tmp_path, capsys):
     from cso_runtime.config import ConfigError
-    from cso_runtime.launcher import load_profile
+    from cso_runtime.run_profile import load_profile
     from cso_runtime.status import save_map_main, status_main
 
     with pytest.raises(ConfigError, match="router: bad zenoh endpoint '127.0.0.1:7447'"):
@@ -436,7 +436,8 @@ def test_a_run_that_started_no_service_is_listed_as_it_ended(tmp_path):
     script = textwrap.dedent(
         f"""
         from pathlib import Path
-        from cso_runtime.launcher import Launcher, find_profile, load_profile
+        from cso_runtime.launcher import Launcher
+        from cso_runtime.run_profile import find_profile, load_profile
         profile, data = load_profile(str(find_profile("lockstep")), {{"scene": {SCENE!r}}})
         interrupted = Launcher(profile, data, Path({str(runs / "interrupted")!r}))
         interrupted.stop_event.set()  # as the signal handler does, before the services are spawned
@@ -458,7 +459,7 @@ def test_two_up_started_at_once_cannot_both_run(tmp_path):
     """Two ``up`` started together both pass the current.json check (the first writes it only once its
     services are spawned); the runs folder's lock lets one launcher run, and the other stops before it
     starts anything, foreground or detached, saying why."""
-    from cso_runtime.launcher import RUNS_LOCK, hold_runs_lock
+    from cso_runtime.current_run import RUNS_LOCK, hold_runs_lock
 
     runs = tmp_path / "runs"
     fd = hold_runs_lock(runs)  # the first launcher, in its first seconds
@@ -482,7 +483,9 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
     stops that launcher instead of leaving a run behind that ``status`` and ``down`` do not know of."""
     from cso_runtime import launcher as launcher_module
     from cso_runtime.config import EXIT_INTERRUPTED
-    from cso_runtime.launcher import current_launcher_alive, load_profile, read_current_run, start_detached
+    from cso_runtime.current_run import current_launcher_alive, read_current_run
+    from cso_runtime.launcher import start_detached
+    from cso_runtime.run_profile import load_profile
 
     started: list[subprocess.Popen] = []
     real_popen = subprocess.Popen
@@ -514,7 +517,7 @@ def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
     """A run file outlives its launcher (SIGKILL, a reboot); its pids may belong to other processes since.
     The start time the file records tells them apart: ``down`` leaves such a process alone, and ``up`` is
     not refused because of it."""
-    from cso_runtime.launcher import current_launcher_alive, down
+    from cso_runtime.current_run import current_launcher_alive, down
     from cso_runtime.supervision import process_start_ticks
 
     bystander = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
@@ -544,7 +547,7 @@ def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
 def test_down_waits_for_the_services_it_kills_to_be_gone(tmp_path):
     """A launcher killed outright leaves its services to ``down``, which kills them; a stopped process takes a
     moment to go after SIGKILL, and ``down`` waits for that rather than report it as still running."""
-    from cso_runtime.launcher import down
+    from cso_runtime.current_run import down
     from cso_runtime.supervision import process_start_ticks
 
     service = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
@@ -585,7 +588,7 @@ def test_down_gives_the_launcher_the_stop_time_of_its_run(tmp_path, timeout_s):
     """``down`` lets a launcher that is stopping its services and writing its results finish (three stop
     stages of the run's ``stop_timeout_s``, plus a margin) before it escalates to SIGTERM; ``--timeout-s``
     shorter than the stop escalates."""
-    from cso_runtime.launcher import down
+    from cso_runtime.current_run import down
     from cso_runtime.supervision import process_start_ticks
 
     launcher = subprocess.Popen([sys.executable, "-c", SLOW_STOPPING_LAUNCHER, str(tmp_path)], start_new_session=True)
@@ -612,7 +615,7 @@ def test_down_gives_the_launcher_the_stop_time_of_its_run(tmp_path, timeout_s):
 def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, monkeypatch):
     """``up --scene office.yaml`` from a folder: the run's profile copy (``runs/<id>/profile.yaml``, which
     ``cso-runtime service ... --config`` takes) must name the same file from anywhere."""
-    from cso_runtime.launcher import load_profile
+    from cso_runtime.run_profile import load_profile
 
     monkeypatch.chdir(tmp_path)
     shutil.copy(REPO / "cso_runtime" / "data" / "scenes" / "img_1.png", tmp_path / "office.png")
@@ -624,7 +627,8 @@ def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, m
 def test_a_service_that_refuses_its_configuration_is_not_restarted(tmp_path):
     """Exit code 2 (a configuration the service refuses) would repeat on every restart: the launcher
     gives up on that service at once and says why; any other exit is restarted with back-off."""
-    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
     from cso_runtime.supervision import Child
 
     profile, data = load_profile(str(find_profile("lockstep")), {})
@@ -655,7 +659,8 @@ def test_a_given_up_service_that_no_one_serves_stops_the_episode(tmp_path):
     """A policy that refused its configuration (say, a corrupt weights file) leaves nobody choosing goals:
     the episode must stop saying so once the grace for another process to serve it has passed, not run
     on to its step limit. A token from such a process (another host) keeps the episode going."""
-    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
     from cso_runtime.supervision import Child
 
     profile, data = load_profile(str(find_profile("lockstep")), {"supervision": {"given_up_grace_s": 5.0}})
@@ -753,8 +758,9 @@ def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
     until its deadline and then reports that none came (no summary is written silently)."""
     from types import SimpleNamespace
 
-    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.launcher import Launcher
     from cso_runtime.messages import EpisodeResultMsg
+    from cso_runtime.run_profile import find_profile, load_profile
 
     profile, data = load_profile(str(find_profile("lockstep")), {})
     launcher = Launcher(profile, data, tmp_path / "run")
@@ -776,9 +782,10 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
 
     from rich.console import Console
 
-    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.launcher import Launcher
     from cso_runtime.live_view import LiveView
     from cso_runtime.messages import PathMsg
+    from cso_runtime.run_profile import find_profile, load_profile
 
     profile, data = load_profile(str(find_profile("lockstep")), {})
     launcher = Launcher(profile, data, tmp_path / "run")
@@ -824,8 +831,9 @@ def test_a_launcher_callback_that_raises_is_logged_and_counted_in_the_status(tmp
 
     from rich.console import Console
 
-    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.launcher import Launcher
     from cso_runtime.messages import LauncherStatusMsg, PathMsg
+    from cso_runtime.run_profile import find_profile, load_profile
     from cso_runtime.status import render_table
 
     profile, data = load_profile(str(find_profile("lockstep")), {})
@@ -861,8 +869,9 @@ def test_log_lines_during_the_live_view_print_above_the_table_not_inside_it(tmp_
 
     from rich.console import Console
 
-    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.launcher import Launcher
     from cso_runtime.live_view import LiveView
+    from cso_runtime.run_profile import find_profile, load_profile
 
     profile, data = load_profile(str(find_profile("lockstep")), {})
     launcher = Launcher(profile, data, tmp_path / "run")
@@ -980,7 +989,7 @@ def test_a_profile_sets_the_mujoco_limos_parameters_checked_before_anything_star
     """``services.sim.mujoco``: the MuJoCo LIMO's parameters (``configs/robot_sim.yaml``'s keys) in a profile, each
     checked before any process starts: a bad value, an unknown key, the kinematic backend, a second LiDAR mount."""
     from cso_runtime.config import ConfigError, from_dict
-    from cso_runtime.launcher import load_profile
+    from cso_runtime.run_profile import load_profile
     from services.sim import SimParams
 
     profile, written = load_profile("sim", {}, settings={"services.sim.mujoco.odom_trans_noise_frac": 0.02})
@@ -1024,7 +1033,7 @@ def test_status_watch_prints_each_status_until_nothing_answers_then_exits_1(monk
 def test_status_reads_the_run_file_once_so_its_endpoints_and_launcher_are_of_one_run(tmp_path, monkeypatch):
     """A new run may replace runs/current.json between two reads: status then asked the old run's router
     and judged the new run's launcher. One read gives both from one run (here: a live launcher's)."""
-    from cso_runtime import launcher, status
+    from cso_runtime import current_run, status
 
     exited = subprocess.Popen([sys.executable, "-c", "pass"])
     exited.wait(timeout=30)
@@ -1033,7 +1042,7 @@ def test_status_reads_the_run_file_once_so_its_endpoints_and_launcher_are_of_one
         {"run_id": "gone", "robot": "r0", "launcher_pid": exited.pid, "endpoints": ["tcp/127.0.0.1:7002"]},
     ])
     reads = []
-    monkeypatch.setattr(launcher, "read_current_run", lambda runs_dir: reads.append(runs_dir) or next(files))
+    monkeypatch.setattr(current_run, "read_current_run", lambda runs_dir: reads.append(runs_dir) or next(files))
     assert status.reachable_target([], None, tmp_path) == (["tcp/127.0.0.1:7001"], "r3")
     assert len(reads) == 1
 
@@ -1143,7 +1152,7 @@ def test_a_service_attaches_to_the_current_run_and_a_bridge_started_late_serves_
     into a folder given with a trailing slash, and its recording is finished when the episode ends, before `down`."""
     from mcap.reader import make_reader
 
-    from cso_runtime.launcher import current_launcher_alive
+    from cso_runtime.current_run import current_launcher_alive
     from cso_runtime.recording import RecordingError, recording_contents
 
     def finished_messages(path: Path) -> int | None:
@@ -1361,7 +1370,8 @@ def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplo
     from types import SimpleNamespace
 
     from cso_runtime.config import ConfigError
-    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
     from cso_runtime.supervision import Child
 
     with pytest.raises(ConfigError, match="start_timeout_s"):
@@ -1560,7 +1570,8 @@ def test_restarts_older_than_the_restart_window_no_longer_count_towards_giving_u
     """A robot running for hours keeps a service that crashes now and then (systemd's StartLimitIntervalSec): only
     the restarts within ``supervision.restart_window_s`` count towards ``max_restarts`` and the back-off, while
     ``restarts`` (what ``status`` shows) counts them all; with the window at 0 every restart of the run counts."""
-    from cso_runtime.launcher import Launcher, find_profile, load_profile
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
     from cso_runtime.supervision import Child
 
     def crashing_launcher(window_s: float, name: str) -> tuple[Launcher, Child]:

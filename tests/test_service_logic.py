@@ -546,8 +546,8 @@ def test_the_sim_rejects_and_counts_a_map_of_another_grid_instead_of_crashing():
     and the episode goes on with the maps of the scene's grid; ``up`` refuses a mapper grid next to a sim."""
     from cso_runtime.config import ConfigError
     from cso_runtime.geometry import GridGeometry
-    from cso_runtime.launcher import load_profile
     from cso_runtime.occupancy import OccupancyMap
+    from cso_runtime.run_profile import load_profile
     from services.sim import SimService
 
     for lockstep in (True, False):

@@ -119,7 +119,7 @@ def test_the_sim_service_shows_each_step_and_refuses_a_viewer_it_cannot_open(mon
 
 
 def test_up_refuses_a_viewer_without_a_display_before_anything_starts(monkeypatch):
-    from cso_runtime.launcher import load_profile
+    from cso_runtime.run_profile import load_profile
 
     monkeypatch.setattr(viewer_module, "display_problem", lambda: "no display to open a window on")
     with pytest.raises(ConfigError, match="services.sim.viewer: no display"):

@@ -1,0 +1,146 @@
+"""The current run of a runs folder: ``runs/current.json`` (what ``status``, ``down``, ``logs`` and ``save-map``
+read to find the running launcher and its router), the folder's launcher lock (one run per runs folder), new run
+folders, and ``down``, which stops the current run from another process.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+from cso_runtime.run_profile import Profile, SupervisionConfig
+from cso_runtime.supervision import pid_alive, run_process_alive, signal_group
+
+log = logging.getLogger("cso.launcher")
+
+CURRENT_RUN = "current.json"
+
+
+def new_run_dir(runs_dir: Path, profile: Profile) -> Path:
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+    base = runs_dir / f"{stamp}-{profile.name}-{profile.robot}"
+    run_dir, n = base, 1
+    while run_dir.exists():
+        n += 1
+        run_dir = base.with_name(f"{base.name}-{n}")
+    return run_dir
+
+
+def read_current_run(runs_dir: Path) -> dict[str, Any] | None:
+    """The current run's file (``runs/current.json``), or None when there is none or it is not one a
+    launcher wrote (half-written, edited by hand: said in a warning, and then treated as absent)."""
+    path = runs_dir / CURRENT_RUN
+    try:
+        info = json.loads(path.read_text())
+    except FileNotFoundError:
+        return None
+    except (OSError, ValueError) as exc:
+        log.warning("ignoring %s: not readable as JSON (%s)", path, exc)
+        return None
+    problem = run_file_problem(info)
+    if problem:
+        log.warning("ignoring %s: %s", path, problem)
+        return None
+    return info
+
+
+def run_file_problem(info: Any) -> str | None:
+    """What makes a parsed run file unusable by ``status``, ``down`` and ``logs``, or None."""
+    if not isinstance(info, dict):
+        return f"a run file is a JSON object, not {type(info).__name__}"
+    if not isinstance(info.get("run_id"), str) or not isinstance(info.get("run_dir", ""), str):
+        return "run_id and run_dir must be strings"
+    for key in ("launcher_pid", "launcher_start_ticks"):
+        if info.get(key) is not None and (not isinstance(info[key], int) or isinstance(info[key], bool)):
+            return f"{key} must be an integer"
+    endpoints = info.get("endpoints", [])
+    if not isinstance(endpoints, list) or not all(isinstance(e, str) for e in endpoints):
+        return "endpoints must be a list of strings"
+    services = info.get("services", {})
+    if not isinstance(services, dict) or not all(
+        isinstance(s, dict) and all(s.get(k) is None or (isinstance(s[k], int) and not isinstance(s[k], bool)) for k in ("pid", "start_ticks"))
+        for s in services.values()
+    ):
+        return "services must map each service to its pid and start_ticks (integers)"
+    return None
+
+
+def current_launcher_alive(info: dict[str, Any]) -> bool:
+    """Whether the launcher of a run file (``read_current_run``) still runs."""
+    return run_process_alive(info.get("launcher_pid"), info.get("launcher_start_ticks"))
+
+
+DOWN_MARGIN_S = 10.0
+"""``down`` gives a launcher three stop stages of its ``stop_timeout_s`` and this much more (its results,
+plots and recording to write) before it escalates."""
+
+
+def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
+    """Stop the current run: SIGINT to the launcher (it stops its services and writes its results), then
+    escalate. ``timeout_s``: how long the launcher may take (None: from the run's ``stop_timeout_s``)."""
+    info = read_current_run(runs_dir)
+    if info is None:
+        return False, f"nothing running (no usable {runs_dir / CURRENT_RUN})"
+    if timeout_s is None:
+        timeout_s = 3 * float(info.get("stop_timeout_s") or SupervisionConfig.stop_timeout_s) + DOWN_MARGIN_S
+    launcher_alive = current_launcher_alive(info)
+    pid = int(info.get("launcher_pid") or 0) if launcher_alive else 0
+    # A service the file names with no start time was not running when it was written (where this system
+    # gives start times at all, as the launcher's own shows): its pid may be anyone's since, so left alone.
+    ticks_known = info.get("launcher_start_ticks") is not None
+    services = [(int(s["pid"]), s.get("start_ticks")) for s in info.get("services", {}).values() if s.get("pid")]
+    service_pids = [
+        spid for spid, ticks in services if not (ticks_known and ticks is None) and run_process_alive(spid, ticks)  # not a pid reused since
+    ]
+    for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0)):
+        if not pid_alive(pid):
+            break
+        try:
+            os.kill(pid, sig)
+        except ProcessLookupError:
+            break
+        deadline = time.monotonic() + wait_s
+        while pid_alive(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+    killed = [spid for spid in service_pids if pid_alive(spid)]  # whatever the launcher could not stop
+    for spid in killed:
+        signal_group(spid, signal.SIGKILL)
+    deadline = time.monotonic() + 2.0  # SIGKILL is not instant: a process goes once the kernel has reaped it
+    while any(pid_alive(p) for p in (pid, *killed)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    try:
+        cur = read_current_run(runs_dir)
+        if cur is not None and cur.get("run_id") == info.get("run_id"):
+            (runs_dir / CURRENT_RUN).unlink()
+    except OSError:
+        pass
+    left = [p for p in [pid, *service_pids] if pid_alive(p)]
+    if left:
+        return False, f"processes still running: {left}"
+    return True, f"stopped run {info.get('run_id')}"
+
+
+RUNS_LOCK = ".up.lock"
+"""A launcher holds an exclusive lock on ``<runs-dir>/.up.lock`` for as long as it runs (released by the
+kernel however it ends): one run per runs folder, even when two ``up`` start at the same moment."""
+
+
+def hold_runs_lock(runs_dir: Path) -> int | None:
+    """Take the runs folder's launcher lock; its file descriptor, or None when another launcher holds it."""
+    import fcntl  # noqa: PLC0415  (POSIX only, like the process groups the launcher uses)
+
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    fd = os.open(runs_dir / RUNS_LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None
+    os.ftruncate(fd, 0)
+    os.write(fd, f"{os.getpid()}\n".encode())
+    return fd

@@ -1,0 +1,280 @@
+"""A runtime profile: what ``cso-runtime up`` starts, in the spirit of a dora-rs dataflow file.
+
+A profile (``configs/profiles/<name>.yaml``, shipped in the package through ``cso_runtime/profiles``; a user's
+``./configs/profiles/<name>.yaml`` wins) lists the services and their parameters, the scene, the method, the Zenoh
+router and how the services are supervised. ``load_profile`` reads it, applies the command line's flags and
+``--set`` keys, and validates all of it (every service's parameters, the scene, the method's weights, the MuJoCo
+LIMO's physics) before anything starts: a bad profile is a ``ConfigError`` naming the file and the flags.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cso_runtime.config import ConfigError, ExplorationConfig, check_seed, from_dict, load_yaml, set_dotted
+from cso_runtime.keys import check_robot_id
+from cso_runtime.scenes import SceneError, resolve_scenes
+from cso_runtime.transport import TransportConfig, TransportError
+
+
+@dataclass
+class RouterConfig:
+    """The launcher's embedded Zenoh router."""
+
+    listen: list[str] = field(default_factory=lambda: ["tcp/127.0.0.1:0"])
+    """Endpoints to listen on; port 0 picks a free port at start."""
+    connect: list[str] = field(default_factory=list)
+    """Other routers to join (services on other hosts)."""
+    embedded: bool = True
+    """Open our own router. False: open none and join the routers in ``connect`` instead (the robot's
+    zenoh-bridge-ros2dds in the ``limo-ros2`` profile); every process then connects to them directly."""
+    service_mode: str = "client"
+    """Zenoh mode of the services: ``client`` (every message through the router) or ``peer`` (services
+    also listen on a loopback port and talk directly once the router has introduced them)."""
+
+    def validate(self) -> None:
+        if self.service_mode not in ("client", "peer"):
+            raise ConfigError(f"router.service_mode must be client or peer, got {self.service_mode!r}")
+        if not self.embedded and not self.connect:
+            raise ConfigError("router.embedded is false: give the router to join with --connect (e.g. tcp/ROBOT_IP:7447)")
+
+
+@dataclass
+class SupervisionConfig:
+    """How crashed services are restarted and how everything is stopped."""
+
+    max_restarts: int = 3
+    """Restarts per service within ``restart_window_s`` before the launcher gives up on it (and says so)."""
+    restart_window_s: float = 600.0
+    """Restarts older than this no longer count towards ``max_restarts`` nor double the back-off (systemd's
+    StartLimitIntervalSec): a robot running for hours keeps a service that crashes now and then, and still gives up
+    on one that crashes again and again. 0: every restart of the run counts."""
+    backoff_s: float = 0.5
+    """Delay before the first restart; doubled after each restart within ``restart_window_s``."""
+    backoff_max_s: float = 8.0
+    """Longest delay between restarts."""
+    stop_timeout_s: float = 3.0
+    """Deadline of each stop stage (SIGINT, then SIGTERM, then SIGKILL)."""
+    given_up_grace_s: float = 10.0
+    """How long the episode waits for another process (another host, or one started by hand) to serve a
+    service the launcher has given up on, before it stops saying so (exit 1) rather than run on with
+    no one choosing goals or driving."""
+    hang_timeout_s: float = 20.0
+    """A service whose process runs but that has not answered the launcher's status query (asked every
+    ``HANG_CHECK_PERIOD_S``) for this long is hung (a deadlock, a stopped process): the launcher writes its
+    stacks to its log, kills it and restarts it like a crashed one, as Nav2's bond does. 0: never."""
+    start_timeout_s: float = 60.0
+    """A service whose process has run this long without coming up (its liveliness token: imports, warm-up
+    and session done; a few seconds normally) is hung before it started: handled as ``hang_timeout_s``'s
+    hung service. 0: never."""
+
+    def validate(self) -> None:
+        if self.max_restarts < 0 or self.backoff_s < 0 or self.backoff_max_s < self.backoff_s or not self.stop_timeout_s > 0:
+            raise ConfigError("supervision needs max_restarts >= 0, 0 <= backoff_s <= backoff_max_s, stop_timeout_s > 0")
+        if not self.restart_window_s >= 0:
+            raise ConfigError(f"supervision.restart_window_s must be 0 (the whole run) or positive seconds, got {self.restart_window_s}")
+        if not self.given_up_grace_s >= 0:
+            raise ConfigError(f"supervision.given_up_grace_s must be >= 0 seconds, got {self.given_up_grace_s}")
+        if not (self.hang_timeout_s == 0 or self.hang_timeout_s >= 2 * HANG_CHECK_PERIOD_S):
+            raise ConfigError(f"supervision.hang_timeout_s must be 0 (off) or at least {2 * HANG_CHECK_PERIOD_S:g} s, got {self.hang_timeout_s}")
+        if not (self.start_timeout_s == 0 or self.start_timeout_s >= 5.0):
+            raise ConfigError(f"supervision.start_timeout_s must be 0 (off) or at least 5 s (a service's imports and warm-up), got {self.start_timeout_s}")
+
+
+HANG_CHECK_PERIOD_S = 1.0
+"""How often the launcher asks its services for their status (``SupervisionConfig.hang_timeout_s``)."""
+
+
+@dataclass
+class Profile:
+    """One runtime configuration: what to explore, with which services and parameters."""
+
+    name: str = "sim"
+    """Profile name (for logs and run ids)."""
+    robot: str = "r0"
+    """Robot id: namespaces every key (cso/<robot>/...)."""
+    scene: str = "generated:small:1:0"
+    """Scene spec: builtin, a folder or PNG of floor plans, or generated:SCALE:N:SEED (first scene used)."""
+    m_per_px: float = 0.1
+    """Metres per pixel of PNG plans."""
+    method: str = "greedy-dist"
+    """Goal selector of the policy service."""
+    seed: int = 0
+    """Episode seed (simulator noise, random policy)."""
+    lockstep: bool = False
+    """Deterministic lockstep (the sim waits for the pipeline) instead of real time."""
+    exploration: dict[str, Any] = field(default_factory=dict)
+    """ExplorationConfig overrides (sensor, robot, frontier, masks, episode, planner)."""
+    router: RouterConfig = field(default_factory=RouterConfig)
+    supervision: SupervisionConfig = field(default_factory=SupervisionConfig)
+    services: dict[str, Any] = field(default_factory=dict)
+    """Service name -> its parameters (a mapping, possibly empty). Only listed services are started."""
+    progress_log_s: float = 10.0
+    """Without the live view on a terminal (``--no-live``, ``--detach``, output into a file) the launcher logs a
+    line of the episode's progress this often, in seconds (0: never), so a log being followed is never silent."""
+
+    def exploration_config(self) -> ExplorationConfig:
+        """The exploration settings every service of this profile runs with (raises ConfigError)."""
+        return from_dict(ExplorationConfig, self.exploration, where="exploration")
+
+    def validate(self) -> None:
+        check_robot_id(self.robot)
+        check_seed(self.seed)
+        if not self.progress_log_s >= 0:
+            raise ConfigError(f"progress_log_s must be >= 0 seconds, got {self.progress_log_s}")
+        self.exploration_config()
+        from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
+        from services.sim import BACKENDS, SimParams  # noqa: PLC0415
+
+        if not self.services:
+            raise ConfigError("a profile must list at least one service")
+        for name, params in self.services.items():
+            if name not in SERVICE_NAMES:
+                raise ConfigError(f"services: unknown service {name!r}; known: {', '.join(SERVICE_NAMES)}")
+            if params is not None and not isinstance(params, dict):
+                raise ConfigError(f"services.{name}: expected a mapping of parameters")
+            params_cls = params_class(name)
+            if params_cls is not None:
+                from_dict(params_cls, params or {}, where=f"services.{name}")
+            elif params:
+                raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
+        mapper = self.services.get("mapper") or {}
+        if "sim" in self.services and float(mapper.get("resolution_m") or 0) > 0:
+            raise ConfigError(
+                "services.mapper.resolution_m: an explicit grid is for a real robot's arena (ros2_bridge); with the sim the mapper "
+                "maps the scene's own grid, which the sim measures coverage on"
+            )
+        sim = self.services.get("sim") or {}
+        if "sim" in self.services and BACKENDS[sim.get("backend", SimParams.backend)] == "mujoco":
+            # the LiDAR mount against the sensor's, the control period against the physics step, before anything starts
+            from cso_runtime.simulator import mujoco_config  # noqa: PLC0415
+
+            exploration = self.exploration_config()
+            mujoco_config(sim.get("mujoco"), exploration.sensor, where="services.sim.mujoco", robot=exploration.robot)
+        if (self.services.get("sim") or {}).get("viewer"):  # its own process checks too; this says so before anything starts
+            from robot_sim.viewer import display_problem  # noqa: PLC0415
+
+            problem = display_problem()
+            if problem is not None:
+                raise ConfigError(f"services.sim.viewer: {problem}")
+        if "foxglove_bridge" in self.services:
+            from services.foxglove_bridge import INSTALL_HINT, FoxgloveBridgeParams, port_problem  # noqa: PLC0415
+
+            if importlib.util.find_spec("foxglove") is None:
+                raise ConfigError(f"services.foxglove_bridge (up --foxglove) needs foxglove-sdk: {INSTALL_HINT}")
+            problem = port_problem(from_dict(FoxgloveBridgeParams, self.services["foxglove_bridge"] or {}, where="services.foxglove_bridge"))
+            if problem is not None:
+                raise ConfigError(f"services.foxglove_bridge: {problem}")
+        from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods  # noqa: PLC0415
+
+        if self.method not in BASELINES and self.method not in LEARNED_METHODS:
+            raise ConfigError(f"unknown method {self.method!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")
+        policy = self.services.get("policy") or {}
+        method = policy.get("method") or self.method  # what the policy service will run (PolicyParams.method)
+        if method in LEARNED_METHODS:
+            from cso_runtime.learned.weights import weights_file_problem, weights_path  # noqa: PLC0415
+
+            sensor = self.exploration_config().sensor
+            if method not in available_methods():
+                raise ConfigError(f"method {method}: no weights at {weights_path(method, sensor)}; train it with `cso-runtime train --variant {method}`")
+            if problem := weights_file_problem(method, sensor):
+                raise ConfigError(f"method {method}: {problem}")
+            device = policy.get("device", "cpu")
+            if device != "cpu":  # torch only for a GPU policy
+                from cso_runtime.learned.registry import device_problem  # noqa: PLC0415
+
+                if problem := device_problem(device):
+                    raise ConfigError(f"services.policy.device: {problem}; run the policy on cpu")
+        try:
+            refs = resolve_scenes(self.scene, limit=1, resolution_m=self.m_per_px)
+            if not refs:
+                raise ConfigError(f"scene {self.scene!r} resolves to no scene")
+            if "sim" in self.services:
+                refs[0].load()  # a missing or unusable plan is a bad configuration: say so before anything starts
+        except SceneError as exc:
+            raise ConfigError(f"scene: {exc}") from None
+        try:
+            TransportConfig(mode="router", listen=self.router.listen, connect=self.router.connect).validate()
+        except TransportError as exc:
+            raise ConfigError(f"router: {exc}") from None
+
+
+PACKAGED_PROFILES = Path(__file__).resolve().parent / "profiles"
+"""The default profiles ship inside the package (package data), so an installed package finds them."""
+
+
+def profile_search_path() -> list[Path]:
+    """Where ``--profile NAME`` is looked up: the user's ``./configs/profiles`` (overrides), then the
+    profiles shipped with the package."""
+    return [Path("configs") / "profiles", PACKAGED_PROFILES]
+
+
+def profile_names() -> list[str]:
+    """The profiles ``--profile NAME`` finds (``profile_search_path``)."""
+    return sorted({f.stem for folder in profile_search_path() if folder.is_dir() for f in folder.glob("*.y*ml")})
+
+
+def find_profile(name_or_path: str) -> Path:
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") and p.is_file():
+        return p
+    for folder in profile_search_path():
+        for ext in (".yaml", ".yml"):
+            cand = folder / f"{name_or_path}{ext}"
+            if cand.is_file():
+                return cand
+    raise ConfigError(f"unknown profile {name_or_path!r}; known profiles: {', '.join(profile_names()) or 'none'} (or give a .yaml path)")
+
+
+def load_profile(
+    name_or_path: str,
+    overrides: dict[str, Any] | None = None,
+    connect: list[str] | None = None,
+    namespace: str | None = None,
+    settings: dict[str, Any] | None = None,
+    foxglove: bool = False,
+) -> tuple[Profile, dict[str, Any]]:
+    """Load, apply CLI overrides (``None`` values ignored) and validate; returns the profile and its data.
+
+    ``connect``: endpoints appended to ``router.connect`` (the embedded router joins them, e.g. the
+    robot's zenoh-bridge-ros2dds on port 7447); ``namespace``: ``services.ros2_bridge.namespace``;
+    ``settings``: dotted keys set last (``up --set services.sim.real_time_factor=4``), validated like the file;
+    ``foxglove``: add the ``foxglove_bridge`` service (``up --foxglove``) unless the profile has it.
+    """
+    path = find_profile(name_or_path)
+    data = load_yaml(path)
+    given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    data.update(given)
+    for key, value in (settings or {}).items():
+        set_dotted(data, key, value)
+    if connect:
+        router = data.get("router") or {}
+        if not isinstance(router, dict):
+            raise ConfigError(f"{path}: router must be a mapping")
+        data["router"] = {**router, "connect": [*(router.get("connect") or []), *connect]}
+    if namespace is not None:
+        services = data.get("services") or {}
+        if not isinstance(services, dict) or "ros2_bridge" not in services:
+            raise ConfigError(f"--namespace needs a profile with the ros2_bridge service (e.g. limo-ros2); {path} has none")
+        services["ros2_bridge"] = {**(services["ros2_bridge"] or {}), "namespace": namespace}
+    if foxglove:
+        services = data.get("services") or {}
+        if not isinstance(services, dict):
+            raise ConfigError(f"{path}: services must be a mapping")
+        data["services"] = {**services, "foxglove_bridge": services.get("foxglove_bridge") or {}}
+    scene = data.get("scene")
+    if isinstance(scene, str) and scene != "builtin" and not scene.startswith("generated:"):
+        beside = path.parent / scene  # a file's own relative scene may also be beside the file (as in compose files)
+        if "scene" not in given and not Path(scene).exists() and not Path(scene).is_absolute() and beside.exists():
+            scene = str(beside)
+        if Path(scene).exists():
+            data["scene"] = str(Path(scene).resolve())  # so the run's copy of the profile works from any folder
+    data.setdefault("name", path.stem)
+    # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
+    flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]
+    flags += [f"--set {k}={v}" for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove
+    profile = from_dict(Profile, data, where=f"{path} with {' '.join(flags)}" if flags else str(path))
+    return profile, data
