@@ -139,6 +139,8 @@ class Launcher:
         self.path_ahead_m: float | None = None
         """Length of the planner's latest path, robot to goal (live view)."""
         self.outputs_written = False
+        self.episode_ended_at: float | None = None
+        """When the episode ended (Unix time, s): a detached run stays up after it until ``down``."""
         self.written_result: EpisodeResultMsg | None = None
         """The result whose outputs were written (its scene and method name the animation)."""
         self.exit_code = 0
@@ -178,6 +180,7 @@ class Launcher:
             "state": state,
             "started_at": round(self.started_at, 3),
             **({"outcome": self.outcome(), "exit_code": self.exit_code, "ended_at": round(time.time(), 3)} if state == "stopped" else {}),
+            **({"episode_ended_at": round(self.episode_ended_at, 3)} if self.episode_ended_at is not None else {}),
             "services": {
                 c.name: {
                     "pid": c.proc.pid if c.proc else None,
@@ -582,7 +585,7 @@ class Launcher:
                             self.write_outputs(result)
                         else:
                             log.error("the episode is %s but its result never arrived: no summary.json was written", st.state)
-                        self.outputs_written = True
+                        self.outputs_written, self.episode_ended_at = True, time.time()
                         self.exit_code = 0 if st.state == "done" and result is not None else 1
                         self.write_run_file(st.state)
                         # The recording ends with the episode: a detached run's file is finished (and its GIF

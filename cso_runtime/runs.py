@@ -51,8 +51,9 @@ class RunSummary:
     restarts: int = 0
     """Service restarts by the launcher, all services together."""
     duration_s: float | None = None
-    """How long the run took (``ended_at - started_at`` of run.json), or has been running; None for a run file
-    from before the times were recorded, or a run whose launcher died."""
+    """How long the run took to the end of its episode (``episode_ended_at - started_at`` of run.json; a detached
+    run then waits for ``down``), else to its stop (``ended_at``), or has been running; None for a run file from
+    before the times were recorded, or a run whose launcher died."""
 
     def as_dict(self) -> dict[str, Any]:
         keys = ("explored_area_m2", "coverage_pct", "steps", "efficiency_m2_per_step", "path_length_m")
@@ -106,7 +107,8 @@ def summarize_run(run_dir: Path) -> RunSummary:
     else:
         state = "done" if methods else "stopped"
     services = info.get("services") if isinstance(info.get("services"), dict) else {}
-    started, ended = info.get("started_at"), info.get("ended_at")
+    # A run took until its episode ended (a detached run then waits for `down`), else until it stopped.
+    started, ended = info.get("started_at"), info.get("episode_ended_at", info.get("ended_at"))
     duration_s = None
     if isinstance(started, (int, float)):
         if isinstance(ended, (int, float)):

@@ -96,6 +96,12 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     # how long each took: stopped runs from their two times, a running one so far, an old run file nothing
     assert [r["duration_s"] for r in listed[:3]] == [65.4, None, 7.0] and 30.0 <= listed[3]["duration_s"] < 60.0
     assert [r.run_id for r in list_runs(runs, limit=2)] == ["20261203-091200-lockstep-r0", "20261203-091300-lockstep-r0"]
+    # A detached run waits for `down` after its episode: it took until the episode ended, not the 12 idle minutes after.
+    idle = make_run(runs, "20261203-091600-lockstep-r0", outcome="done", times=(3000.0, 3000.0 + 12 * 60 + 19), summary=ROW)
+    info = json.loads((idle / "run.json").read_text())
+    (idle / "run.json").write_text(json.dumps(info | {"episode_ended_at": 3041.5}))
+    assert list_runs(runs)[-1].duration_s == 41.5
+    shutil.rmtree(idle)
 
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--json", "--limit", "3"])
     assert r.exit_code == 0 and [x["state"] for x in json.loads(r.output)] == ["done", "failed", "running"]

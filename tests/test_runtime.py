@@ -1284,7 +1284,10 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         assert re.search(r"^mapper +\| .* restored the map of step", out, re.MULTILINE) and re.search(r"^launcher +\| .* episode ", out, re.MULTILINE), out[-3000:]
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stderr
-        assert json.loads(cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path).stdout)[0]["state"] == "done"
+        (after,) = json.loads(cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path).stdout)
+        (info,) = (json.loads(f.read_text()) for f in runs.glob("*/run.json"))
+        assert after["state"] == "done" and info["started_at"] < info["episode_ended_at"] <= info["ended_at"], info
+        assert after["duration_s"] == round(info["episode_ended_at"] - info["started_at"], 1)  # not the wait for `down`
         assert [p for p in [*pids, mapper_pid] if pid_alive(p)] == []
         r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=10)
         assert r.returncode == 1
