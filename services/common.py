@@ -265,6 +265,15 @@ class Service:
         if n <= 5 or n % 100 == 0:
             log.warning("%s: rejected payload on %s (%d so far): %s", self.name, topic, n, why)
 
+    def of_another_episode(self, topic: str, msg: Message, own_episode: int) -> bool:
+        """Whether ``msg`` belongs to an episode other than ``own_episode`` (a referee's: the sim's, the ROS bridge's)
+        and is rejected, counted: still in flight from before a restart. Id 0, a publisher without ids, is taken."""
+        episode = getattr(msg, "episode", 0)
+        if episode in (0, own_episode):
+            return False
+        self.reject(topic, f"{topic} of episode {episode}, not of this one ({own_episode}): still in flight from before a restart")
+        return True
+
     def set_state(self, state: str, reason: str = "") -> None:
         if (state, reason) != (self.state, self.reason):
             log.info("%s: %s%s", self.name, state, f" ({reason})" if reason else "")

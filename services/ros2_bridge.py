@@ -403,6 +403,8 @@ class Ros2BridgeService(Service):
 
     # --- cso -> ROS -------------------------------------------------------------------------------
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        if self.of_another_episode(topic, msg, self.episode):  # a map, goal or frontiers from before this bridge started
+            return
         with self._bridge_lock:
             if isinstance(msg, CmdVelMsg):
                 self.forward_command(msg.command, received_s)

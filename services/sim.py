@@ -352,8 +352,7 @@ class SimService(Service):
         if isinstance(msg, MapMsg) and msg.episode != self.episode:
             self.reject("map", f"map of episode {msg.episode}, not of this one ({self.episode}): still in flight from before a restart")
             return
-        if isinstance(msg, GoalMsg) and msg.episode not in (0, self.episode):  # 0: a policy fed by a tool without ids
-            self.reject("goal", f"goal of episode {msg.episode}, not of this one ({self.episode}): still in flight from before a restart")
+        if isinstance(msg, GoalMsg) and self.of_another_episode(topic, msg, self.episode):
             return
         if isinstance(msg, MapMsg) and msg.geometry != self.sim.plan.geometry:
             g, own = msg.geometry, self.sim.plan.geometry

@@ -203,6 +203,7 @@ def test_fake_limo_through_the_bridge(namespace: str):
             scan0, odom0, clock0 = ours["scan"][0], ours["odom"][0], ours["clock"][0]
             assert isinstance(scan0, ScanMsg) and isinstance(odom0, OdometryMsg) and isinstance(clock0, ClockMsg)
             assert scan0.step == odom0.step == clock0.step == 0
+            assert scan0.episode == odom0.episode == clock0.episode == svc.episode != 0  # the services tell episodes by it
             assert scan0.scan.stamp_s == pytest.approx(100.05) and odom0.stamp_s == pytest.approx(100.05)
             assert scan0.scan.angle_min_rad == pytest.approx(-math.pi / 2) and len(scan0.scan.ranges_m) == 181
             np.testing.assert_allclose(scan0.scan.ranges_m[:10], ranges[:10])
@@ -284,8 +285,10 @@ def test_fake_limo_through_the_bridge(namespace: str):
                 -0.5 + 3.5 * 0.1
             )
 
+            # A goal still in flight from before this bridge started (another episode id) neither counts nor ends it.
+            session.put(keys.goal, encode(GoalMsg(2, True, None, None, method="greedy-dist", episode=svc.episode + 1)))
             # No reachable frontier left: the episode ends, and the result can be fetched.
-            session.put(keys.goal, encode(GoalMsg(2, True, None, None, method="greedy-dist")))
+            session.put(keys.goal, encode(GoalMsg(2, True, None, None, method="greedy-dist", episode=svc.episode)))
             wait_for(
                 lambda: any(isinstance(m, EpisodeStatusMsg) and m.state == "done" for m in ours.get("episode/status", [])),
                 5,
@@ -295,6 +298,7 @@ def test_fake_limo_through_the_bridge(namespace: str):
                 decode(r.ok.payload.to_bytes(), EpisodeResultMsg) for r in session.get(keys.episode_result, timeout=2.0) if r.ok
             ]
             assert result and result[0].terminated_by == "no_frontier" and result[0].decisions == 2
+            assert svc.rejected.get("goal") == 1
             assert result[0].explored_area_m2 == pytest.approx((grid != -1).sum() * 0.01)
             assert result[0].final_map is not None  # the robot's map, for the run's map_server files
             np.testing.assert_array_equal(result[0].final_map.grid, grid)
