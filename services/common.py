@@ -485,27 +485,36 @@ class EpisodeWatch:
     with no word. A message of an episode that has ended is still in flight from before a restart:
     the caller rejects it (counted). Id 0 comes from a publisher without ids (another tool, a map from
     ROS): it never changes the episode; where no message has had an id, step 0 after later steps
-    starts a new one, as step 0 alone did before ids."""
+    starts a new one, as step 0 alone did before ids, and so does the first id after them (a sim
+    with ids after a tool without: its steps start again below those handled)."""
 
     def __init__(self) -> None:
         self.current: int | None = None
         """The id of the episode being served (None: none seen yet)."""
         self.ended: collections.deque[int] = collections.deque(maxlen=EPISODES_REMEMBERED)
+        self.progressed_without_id = False
+        """The caller has handled steps past 0 of an episode without ids: the first id then starts a new one."""
 
     def classify(self, episode: int, step: int, progressed: bool) -> str:
         """``"same"``, ``"new"`` (a new episode has started: the caller starts afresh) or ``"ended"``
         (a message of an episode before the current one). ``progressed``: the caller has handled
         steps past 0 of the current episode (only id 0 needs it)."""
         if episode == 0:
-            return "new" if self.current is None and step == 0 and progressed else "same"
+            if self.current is not None:
+                return "same"
+            if step == 0 and progressed:
+                self.progressed_without_id = False
+                return "new"
+            self.progressed_without_id |= progressed
+            return "same"
         if episode == self.current:
             return "same"
         if episode in self.ended:
             return "ended"
-        started = self.current is not None
-        if started:
-            self.ended.append(self.current)  # type: ignore[arg-type]
-        self.current = episode
+        started = self.current is not None or self.progressed_without_id
+        if self.current is not None:
+            self.ended.append(self.current)
+        self.current, self.progressed_without_id = episode, False
         return "new" if started else "same"
 
 

@@ -1184,3 +1184,38 @@ def test_a_shared_policy_server_answers_each_robots_status_with_that_robots_own_
     assert (a.rejected, a.processed, a.last_step) == ({"frontiers": 2}, 6, 4)
     assert (b.rejected, b.processed, b.last_step) == ({}, 3, 2)
     assert policy.status_msg().rejected == {"frontiers": 2} and policy.status_msg().processed == 9  # the process: every robot
+
+
+def test_a_first_episode_with_ids_after_steps_without_ids_is_a_new_episode():
+    """Publishers without ids (id 0: an external tool), then a sim with ids from step 0: before ids, step 0 started the
+    new episode; the watch took the first id for the same episode, and the policy dropped every decision of the new
+    one below the last step it had answered (no goal, no count) while the frontier service waited for its old step."""
+    from services.common import EpisodeWatch
+
+    watch = EpisodeWatch()
+    assert [watch.classify(0, s, progressed=s > 0) for s in (0, 5)] == ["same", "same"]
+    assert watch.classify(7, 0, progressed=True) == "new"
+    fresh = EpisodeWatch()  # a fresh service whose first message has an id
+    assert fresh.classify(7, 3, progressed=False) == "same"
+    policy, out = _service(PolicyService, lockstep=False, params={"method": "greedy-dist"})
+    obs = _explorer_at(0).observe()
+    for step in range(0, 41, 10):
+        _feed(policy, frontiers_from_observation(step, "timeout", obs, 1.0))
+    out.clear()
+    _feed(policy, frontiers_from_observation(0, "no_goal", obs, 1.0, episode=7))
+    assert [(m.step, m.episode) for t, m in out if t == "goal"] == [(0, 7)]
+    frontier, fout = _service(FrontierService, lockstep=True)
+    ex = _explorer_at(0)
+    m0, odom0, _ = _inputs(ex, 0)
+    _feed(frontier, m0)
+    _feed(frontier, odom0)
+    _feed(frontier, _far_goal(ex.observe(), 0))
+    for k in (1, 2):
+        _feed(frontier, PlannerFeedbackMsg(k - 1, "following", "command", goal_step=0))
+        _feed(frontier, OdometryMsg(k, odom0.stamp_s + 0.25 * k, odom0.pose))
+        _feed(frontier, MapMsg.of(k, ex.map))
+    fout.clear()
+    _feed(frontier, dataclasses.replace(odom0, episode=7))
+    _feed(frontier, MapMsg.of(0, ex.map, 7))
+    assert [(m.step, m.decide, m.episode) for t, m in fout if t == "frontiers"] == [(0, True, 7)]
+
