@@ -132,8 +132,9 @@ class FrontierService(Service):
         step = getattr(msg, "step", -1)
         if isinstance(msg, (OdometryMsg, MapMsg, GoalMsg)):
             # The episode shows itself on whichever of them comes first: maps of the episode before (a sim
-            # restart) may still be in flight among the new one's first messages.
-            seen = self.episodes.classify(msg.episode, step, self.done_step > 0)
+            # restart) may still be in flight among the new one's first messages. Without ids, only odometry of
+            # step 0 starts one, as before ids: in real time the goal of step 0 comes after later steps.
+            seen = self.episodes.classify(msg.episode, step, self.done_step > 0 and isinstance(msg, OdometryMsg))
             if seen == "ended":
                 self.reject(topic, f"{topic} of episode {msg.episode} at step {step}: that episode has ended", robot)
                 return

@@ -1219,3 +1219,20 @@ def test_a_first_episode_with_ids_after_steps_without_ids_is_a_new_episode():
     _feed(frontier, MapMsg.of(0, ex.map, 7))
     assert [(m.step, m.decide, m.episode) for t, m in fout if t == "frontiers"] == [(0, True, 7)]
 
+
+def test_real_time_frontier_service_keeps_its_decision_state_when_the_goal_of_step_0_comes_late():
+    """Without ids (id 0) step 0 after later steps starts a new episode, as it did before ids, but only on odometry:
+    in real time the policy's goal for the decision of step 0 comes after maps of later steps, and the frontier
+    service took it for a new episode (its path nodes, dead frontiers and pending inputs forgotten)."""
+    frontier, out = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0})
+    ex = _explorer_at(0)
+    m0, odom0, _ = _inputs(ex, 0)
+    _feed(frontier, odom0)
+    _feed(frontier, m0)
+    for step in range(1, 4):
+        _feed(frontier, OdometryMsg(step, odom0.stamp_s + 0.25 * step, odom0.pose))
+        _feed(frontier, MapMsg.of(step, ex.map))
+    assert [(m.step, m.decide) for t, m in out if t == "frontiers"] == [(0, True), (1, False), (2, False), (3, False)]
+    _feed(frontier, _far_goal(ex.observe(), 0))  # the decision of step 0, answered late
+    assert frontier.done_step == 3 and len(frontier.path_nodes) == 1 and frontier.goal is not None
+    assert frontier.awaiting_goal_step is None
