@@ -495,10 +495,13 @@ class EpisodeWatch:
         self.progressed_without_id = False
         """The caller has handled steps past 0 of an episode without ids: the first id then starts a new one."""
 
-    def classify(self, episode: int, step: int, progressed: bool) -> str:
+    def classify(self, episode: int, step: int, progressed: bool, from_referee: bool = False) -> str:
         """``"same"``, ``"new"`` (a new episode has started: the caller starts afresh) or ``"ended"``
         (a message of an episode before the current one). ``progressed``: the caller has handled
-        steps past 0 of the current episode (only id 0 needs it)."""
+        steps past 0 of the current episode (only id 0 needs it). ``from_referee``: the message comes
+        straight from the sim or the ROS bridge (odometry, scans), which runs one episode at a time: its id
+        is the episode being run, even one ended here by a late message of an episode this watch never saw
+        (a service restarted about when the sim was hears the new episode first)."""
         if episode == 0:
             if self.current is not None:
                 return "same"
@@ -510,7 +513,9 @@ class EpisodeWatch:
         if episode == self.current:
             return "same"
         if episode in self.ended:
-            return "ended"
+            if not from_referee:
+                return "ended"
+            self.ended.remove(episode)
         started = self.current is not None or self.progressed_without_id
         if self.current is not None:
             self.ended.append(self.current)

@@ -134,7 +134,8 @@ class FrontierService(Service):
             # The episode shows itself on whichever of them comes first: maps of the episode before (a sim
             # restart) may still be in flight among the new one's first messages. Without ids, only odometry of
             # step 0 starts one, as before ids: in real time the goal of step 0 comes after later steps.
-            seen = self.episodes.classify(msg.episode, step, self.done_step > 0 and isinstance(msg, OdometryMsg))
+            odometry = isinstance(msg, OdometryMsg)
+            seen = self.episodes.classify(msg.episode, step, self.done_step > 0 and odometry, from_referee=odometry)
             if seen == "ended":
                 self.reject(topic, f"{topic} of episode {msg.episode} at step {step}: that episode has ended", robot)
                 return

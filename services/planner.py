@@ -130,7 +130,7 @@ class PlannerService(Service):
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         step = getattr(msg, "step", -1)
-        seen = self.episodes.classify(getattr(msg, "episode", 0), step, self.cmd_step > 0 and isinstance(msg, OdometryMsg))
+        seen = self.episodes.classify(getattr(msg, "episode", 0), step, self.cmd_step > 0 and isinstance(msg, OdometryMsg), from_referee=isinstance(msg, (OdometryMsg, ScanMsg)))
         if seen == "ended":
             self.reject(topic, f"{topic} of episode {msg.episode} at step {step}: that episode has ended", robot)  # type: ignore[attr-defined]
             return

@@ -1236,3 +1236,34 @@ def test_real_time_frontier_service_keeps_its_decision_state_when_the_goal_of_st
     _feed(frontier, _far_goal(ex.observe(), 0))  # the decision of step 0, answered late
     assert frontier.done_step == 3 and len(frontier.path_nodes) == 1 and frontier.goal is not None
     assert frontier.awaiting_goal_step is None
+
+
+def test_a_restarted_service_whose_first_episode_is_the_new_one_survives_a_late_message_of_the_old():
+    """A service restarted about when the sim was (a fresh EpisodeWatch) may hear the new episode B first and then a
+    message of the episode before, A, that it never saw (a map, a goal computed late): A's id was taken for a new
+    episode and B for an ended one, so every message of B was rejected until the next episode (no command, no
+    decision). What comes straight from the referee (odometry, scans) names the episode being run."""
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    _, odom, scan = _inputs(ex, 0)
+    a, b = 11, 22
+    planner, out = _service(PlannerService, lockstep=False)
+    for step in range(3):
+        _feed(planner, OdometryMsg(step, odom.stamp_s + 0.25 * step, odom.pose, episode=b))
+        _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose, episode=b))
+    _feed(planner, frontiers_from_observation(40, "timeout", obs, 1.0, episode=a))  # late, from A
+    _feed(planner, dataclasses.replace(_far_goal(obs, 40), episode=a))
+    out.clear()
+    _feed(planner, OdometryMsg(3, odom.stamp_s + 0.75, odom.pose, episode=b))
+    _feed(planner, ScanMsg(3, scan.scan, scan.sensor_pose, episode=b))
+    assert [(m.step, m.reason) for t, m in out if t == "cmd_vel"] == [(3, "idle")]
+    _feed(planner, dataclasses.replace(_far_goal(obs, 41), episode=a))  # A has ended now
+    assert planner.episodes.current == b and planner.rejected == {"goal": 1}
+    frontier, fout = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0})
+    _, odom0, _ = _inputs(ex, 0)
+    _feed(frontier, dataclasses.replace(odom0, episode=b))
+    _feed(frontier, MapMsg.of(0, ex.map, b))
+    _feed(frontier, MapMsg.of(7, _explorer_at(6).map, a))  # late, from A
+    _feed(frontier, OdometryMsg(1, odom0.stamp_s + 0.25, odom0.pose, episode=b))
+    _feed(frontier, MapMsg.of(1, ex.map, b))
+    assert [(m.step, m.episode) for t, m in fout if t == "frontiers"] == [(0, b), (1, b)]
