@@ -28,7 +28,7 @@ from cso_runtime.occupancy import OccupancyMap
 SCHEMA_VERSION = 1
 """Version of the schemas unchanged since the first release; a schema that changes bumps its own ``VERSION``
 (each class's, listed in docs/messages.md: ``clock``, ``episode_status`` and ``scan`` carry the episode id from 2,
-``odom``, ``distance_map`` and ``goal`` from 2, ``map`` is at 3, ``frontiers`` at 7)."""
+``odom``, ``distance_map`` and ``goal`` from 2, ``planner_feedback`` from 3, ``map`` is at 3, ``frontiers`` at 7)."""
 MAX_GRID_CELLS = 50_000_000
 MAX_BEAMS = 100_000
 COMPRESS_MIN_BYTES = 4096
@@ -783,7 +783,8 @@ class PlannerFeedbackMsg(Message):
     """Planner status after this step's map (``check_blocked``) or command (``update``)."""
 
     SCHEMA: ClassVar[str] = "planner_feedback"
-    VERSION: ClassVar[int] = 2
+    VERSION: ClassVar[int] = 3
+    """2: the path ahead. 3: the episode id."""
     step: int
     status: str
     phase: str
@@ -799,10 +800,14 @@ class PlannerFeedbackMsg(Message):
     """The decision step of the goal this report is about (-1: none yet). In real time the planner
     commands newer steps than the last decision before its goal arrives; such a report speaks of the
     previous goal and must not be read as the new goal's outcome."""
+    episode: int = 0
+    """Episode id of the inputs it reports on (v3): a report in flight from an ended episode is never read as
+    one of the new episode's."""
 
     def body(self) -> dict[str, Any]:
         return {
             "step": self.step,
+            "episode": self.episode,
             "status": self.status,
             "phase": self.phase,
             "set_goal_blocked": self.set_goal_blocked,
@@ -825,6 +830,7 @@ class PlannerFeedbackMsg(Message):
             _str(b, "reason", w),
             path.astype(np.float64),
             _int(b, "goal_step", w, lo=-1),
+            _int(b, "episode", w),
         )
 
 

@@ -130,18 +130,19 @@ class FrontierService(Service):
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         step = getattr(msg, "step", -1)
-        if isinstance(msg, (OdometryMsg, MapMsg, GoalMsg)):
-            # The episode shows itself on whichever of them comes first: maps of the episode before (a sim
-            # restart) may still be in flight among the new one's first messages. Without ids, only odometry of
-            # step 0 starts one, as before ids: in real time the goal of step 0 comes after later steps.
-            odometry = isinstance(msg, OdometryMsg)
-            seen = self.episodes.classify(msg.episode, step, self.done_step > 0 and odometry, from_referee=odometry)
-            if seen == "ended":
-                self.reject(topic, f"{topic} of episode {msg.episode} at step {step}: that episode has ended", robot)
-                return
-            if seen == "new":
-                log.info("new episode %d (%s of step %d): forgetting the decision state", self.episodes.current, topic, step)
-                self.reset_episode()
+        # Every input carries its episode id, and the episode shows itself on whichever comes first: maps (and the
+        # planner's reports) of the episode before a sim restart may still be in flight among the new one's first
+        # messages. Without ids, only odometry of step 0 starts one, as before ids: in real time the goal of step 0
+        # comes after later steps.
+        odometry = isinstance(msg, OdometryMsg)
+        episode = getattr(msg, "episode", 0)
+        seen = self.episodes.classify(episode, step, self.done_step > 0 and odometry, from_referee=odometry)
+        if seen == "ended":
+            self.reject(topic, f"{topic} of episode {episode} at step {step}: that episode has ended", robot)
+            return
+        if seen == "new":
+            log.info("new episode %d (%s of step %d): forgetting the decision state", self.episodes.current, topic, step)
+            self.reset_episode()
         if isinstance(msg, GoalMsg):
             if msg.decided and step >= self.decision_step:
                 self.goal = Goal(msg.x_m, msg.y_m, msg.cluster_index, msg.distance_m) if msg.has_goal else None

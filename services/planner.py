@@ -167,7 +167,7 @@ class PlannerService(Service):
             if self.cmd_step == step - 1 and self.last_feedback is not None:
                 self.publish("planner_feedback", self.last_feedback)
             elif self.cmd_step < 0:
-                self.publish("planner_feedback", PlannerFeedbackMsg(step - 1, self.planner.status.value, "command"))
+                self.publish("planner_feedback", PlannerFeedbackMsg(step - 1, self.planner.status.value, "command", episode=self.episodes.current or 0))
         if isinstance(msg, (FrontiersMsg, GoalMsg)) and step <= self.cmd_step:
             resend = isinstance(msg, FrontiersMsg) or msg.decided
             if step == self.cmd_step and self.last_cmd is not None and resend:
@@ -227,7 +227,7 @@ class PlannerService(Service):
     def publish_feedback(self, k: int, reason: str) -> None:
         p = self.planner
         ahead = p.remaining_path() if p.status == PlannerStatus.FOLLOWING else np.zeros((0, 2))
-        self.last_feedback = PlannerFeedbackMsg(k, p.status.value, "command", self.set_goal_blocked, reason, ahead, self.goal_step)
+        self.last_feedback = PlannerFeedbackMsg(k, p.status.value, "command", self.set_goal_blocked, reason, ahead, self.goal_step, self.episodes.current or 0)
         self.set_goal_blocked = False
         self.publish("planner_feedback", self.last_feedback)
 

@@ -1267,3 +1267,37 @@ def test_a_restarted_service_whose_first_episode_is_the_new_one_survives_a_late_
     _feed(frontier, OdometryMsg(1, odom0.stamp_s + 0.25, odom0.pose, episode=b))
     _feed(frontier, MapMsg.of(1, ex.map, b))
     assert [(m.step, m.episode) for t, m in fout if t == "frontiers"] == [(0, b), (1, b)]
+
+
+def test_lockstep_frontier_never_reads_a_planner_report_of_the_episode_before():
+    """The frontier service decides step k on the planner's report after command k - 1. After a sim restart a report
+    of the old episode for the same step may still be in flight (a blocked goal, say): it is rejected (counted), and
+    the new episode is decided on its own planner's report, as a fresh service decides it."""
+    ex_a, ex_b = _explorer_at(6), _explorer_at(0)
+    a, b = 11, 22
+    _, odom_a0, _ = _inputs(ex_a, 0)
+    _, odom_b0, _ = _inputs(ex_b, 0)
+    goal_b0 = dataclasses.replace(_far_goal(ex_b.observe(), 0), episode=b)
+    episode_b = [
+        MapMsg.of(0, ex_b.map, b),
+        dataclasses.replace(odom_b0, episode=b),
+        goal_b0,
+        PlannerFeedbackMsg(0, "following", "command", goal_step=0, episode=b),
+        OdometryMsg(1, odom_b0.stamp_s + 0.25, odom_b0.pose, episode=b),
+        MapMsg.of(1, ex_b.map, b),
+    ]
+    svc, out = _service(FrontierService, lockstep=True)
+    for msg in (MapMsg.of(0, ex_a.map, a), dataclasses.replace(odom_a0, episode=a), dataclasses.replace(_far_goal(ex_a.observe(), 0), episode=a)):
+        _feed(svc, msg)
+    out.clear()
+    for i, msg in enumerate(episode_b):
+        if i == 4:  # the old episode's report for step 0 (its goal had no path), just after the new one's
+            _feed(svc, PlannerFeedbackMsg(0, "blocked", "command", set_goal_blocked=True, goal_step=0, episode=a))
+        _feed(svc, msg)
+    fresh, fresh_out = _service(FrontierService, lockstep=True)
+    for msg in episode_b:
+        _feed(fresh, msg)
+    got = [m for t, m in out if t == "frontiers"]
+    assert [(m.step, m.decide) for m in got] == [(0, True), (1, False)]  # the goal kept: the blocked report was A's
+    assert _without_timing(got) == _without_timing([m for t, m in fresh_out if t == "frontiers"])
+    assert svc.rejected == {"planner_feedback": 1}
