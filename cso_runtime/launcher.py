@@ -367,7 +367,6 @@ class Launcher:
                 c.restart_at = now + delay
                 log.warning("%s exited (code %s); restart %d/%d in %.1f s", c.name, code, recent + 1, sup.max_restarts, delay)
             elif now >= c.restart_at:
-                c.restarts += 1
                 c.restarted_at.append(now)
                 c.spawn()
                 changed = True

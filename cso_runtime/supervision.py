@@ -41,10 +41,8 @@ class Child:
     argv: list[str]
     log_path: Path
     proc: subprocess.Popen | None = None
-    restarts: int = 0
-    """Restarts over the whole run (what ``status`` and ``runs`` show)."""
     restarted_at: list[float] = field(default_factory=list)
-    """``time.monotonic()`` of each restart (``recent_restarts``)."""
+    """``time.monotonic()`` of each restart of the run (``restarts``, ``recent_restarts``)."""
     gave_up: bool = False
     gave_up_at: float | None = None
     """``time.monotonic()`` when the launcher gave up on it."""
@@ -57,6 +55,11 @@ class Child:
     came_up: bool = False
     """Whether its current process has declared its liveliness token (a stopped one loses it when its Zenoh
     lease runs out: it is then hung, not still starting)."""
+
+    @property
+    def restarts(self) -> int:
+        """Restarts over the whole run (what ``status`` and ``runs`` show)."""
+        return len(self.restarted_at)
 
     def recent_restarts(self, now: float, window_s: float) -> int:
         """Restarts within the last ``window_s`` seconds (0: over the whole run): what counts towards giving up."""
