@@ -178,7 +178,7 @@ def animate_recording(
             continue
         topic = m.key[len(prefix) :]
         try:
-            msg = decode(m.payload, ANIMATED[topic])
+            msg = decode(m.payload, ANIMATED[topic], accept_legacy=True)  # a recording outlives a version
         except MessageError:
             rejected += 1
             continue

@@ -268,7 +268,7 @@ def export_bag(
                     stats.left_out[topic] += 1
                     continue
                 try:
-                    msg = decode(m.payload, EXPORTED[topic])
+                    msg = decode(m.payload, EXPORTED[topic], accept_legacy=True)  # a recording outlives a version
                 except MessageError as exc:
                     if not stats.rejected[topic]:
                         log.warning("%s: a payload that does not decode is left out (%s); later ones are only counted", m.key, exc)

@@ -363,6 +363,10 @@ def replay_command(
     except RecordingError as exc:
         _fail(str(exc), 1)
     typer.echo(f"replayed {stats.messages} messages on {len(stats.per_key)} keys in {stats.duration_s:.2f} s (recorded span {stats.recorded_s:.2f} s)")
+    if stats.upgraded:
+        typer.echo(f"  published as the current version, recorded in an older one: {', '.join(f'{k} {n}' for k, n in sorted(stats.upgraded.items()))}")
+    if stats.unreadable:
+        typer.echo(f"  published as recorded, not readable by this build: {', '.join(f'{k} {n}' for k, n in sorted(stats.unreadable.items()))}")
 
 
 @contextmanager

@@ -14,6 +14,7 @@ import functools
 import math
 import secrets
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -28,7 +29,8 @@ from cso_runtime.occupancy import OccupancyMap
 SCHEMA_VERSION = 1
 """Version of the schemas unchanged since the first release; a schema that changes bumps its own ``VERSION``
 (each class's, listed in docs/messages.md: ``clock``, ``episode_status`` and ``scan`` carry the episode id from 2,
-``odom``, ``distance_map`` and ``goal`` from 2, ``planner_feedback`` from 3, ``map`` is at 3, ``frontiers`` at 7)."""
+``odom``, ``distance_map`` and ``goal`` from 2, ``planner_feedback`` from 3, ``map`` is at 3, ``frontiers`` at 7).
+Recordings of the versions before the last bumps stay readable offline: ``LEGACY_UPGRADES``."""
 MAX_GRID_CELLS = 50_000_000
 MAX_BEAMS = 100_000
 COMPRESS_MIN_BYTES = 4096
@@ -442,7 +444,7 @@ class FrontiersMsg(Message):
     """
 
     SCHEMA: ClassVar[str] = "frontiers"
-    VERSION: ClassVar[int] = 6
+    VERSION: ClassVar[int] = 7
     """2: D travels as its finite window (``distance_window``), I as the smallest unsigned type.
     3: within the window, only D's finite values travel, with the window's finite mask (``distance_finite``).
     4: boolean grids travel bit-packed (``pack_array``).
@@ -1128,8 +1130,8 @@ def encode(msg: Message) -> bytes:
     return msgpack.packb({"schema": msg.SCHEMA, "v": msg.VERSION, "body": msg.body()}, use_bin_type=True)
 
 
-def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
-    """Parse and validate a payload; raises MessageError for anything it cannot trust."""
+def _envelope(payload: bytes) -> tuple[str, Any, Any]:
+    """(schema, version, body) of a payload of a known schema; version and body not checked yet."""
     if not isinstance(payload, (bytes, bytearray, memoryview)):
         raise MessageError("payload is not bytes")
     try:
@@ -1141,17 +1143,91 @@ def decode(payload: bytes, expected: type[Message] | None = None) -> Message:
     schema, version, body = raw["schema"], raw["v"], raw["body"]
     if not isinstance(schema, str) or schema not in MESSAGE_TYPES:
         raise MessageError(f"unknown schema {schema!r}")
-    known = MESSAGE_TYPES[schema].VERSION
-    if isinstance(version, bool) or not isinstance(version, int) or version != known:
-        raise MessageError(f"{schema}: unknown version {version!r} (this build speaks v{known})")
-    if expected is not None and schema != expected.SCHEMA:
-        raise MessageError(f"expected schema {expected.SCHEMA!r}, got {schema!r}")
+    return schema, version, body
+
+
+def _is_current(schema: str, version: Any) -> bool:
+    return not isinstance(version, bool) and isinstance(version, int) and version == MESSAGE_TYPES[schema].VERSION
+
+
+def _from_body(schema: str, cls: type[Message], body: Any) -> Message:
     if not isinstance(body, dict):
         raise MessageError(f"{schema}: body is not a mapping")
     try:
-        # ``expected`` may be a narrower view of the schema (``PlannerFrontiersMsg``): it decodes what it reads.
-        return (expected or MESSAGE_TYPES[schema]).from_body(body)
+        return cls.from_body(body)
     except MessageError:
         raise
     except (TypeError, ValueError, KeyError, IndexError, OverflowError) as exc:
         raise MessageError(f"{schema}: malformed body ({type(exc).__name__}: {exc})") from None
+
+
+def decode(payload: bytes, expected: type[Message] | None = None, accept_legacy: bool = False) -> Message:
+    """Parse and validate a payload; raises MessageError for anything it cannot trust.
+
+    ``accept_legacy``: a payload of an older version listed in ``LEGACY_UPGRADES`` is read as the current
+    one. For offline readers of recordings only; a live service stays strict (the default)."""
+    schema, version, body = _envelope(payload)
+    legacy = not _is_current(schema, version)
+    if legacy and not accept_legacy:
+        raise MessageError(f"{schema}: unknown version {version!r} (this build speaks v{MESSAGE_TYPES[schema].VERSION})")
+    if expected is not None and schema != expected.SCHEMA:
+        raise MessageError(f"expected schema {expected.SCHEMA!r}, got {schema!r}")
+    if legacy:
+        body = _upgraded_body(schema, version, body)
+    # ``expected`` may be a narrower view of the schema (``PlannerFrontiersMsg``): it decodes what it reads.
+    return _from_body(schema, expected or MESSAGE_TYPES[schema], body)
+
+
+# --- older versions, in recordings ------------------------------------------------------------
+
+
+def _episode_id_0(body: dict[str, Any]) -> dict[str, Any]:
+    """A body from before its schema carried the episode id (b3bfa9e, 2aebc8d): id 0, which
+    ``services.common.EpisodeWatch`` reads as "no id", as from any publisher without ids. A ``frontiers``
+    body of v6 written between b3bfa9e and its version's bump to 7 already has its id, and keeps it."""
+    return {"episode": 0, **body}
+
+
+LEGACY_UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]]] = {
+    ("odom", 1): _episode_id_0,
+    ("goal", 1): _episode_id_0,
+    ("frontiers", 6): _episode_id_0,
+    ("distance_map", 1): _episode_id_0,
+    ("planner_feedback", 2): _episode_id_0,
+}
+"""(schema, older version) -> its body as a body of the current version, for the changes that only added
+a field. Recordings outlive a version: the offline tools that read them (replay, export-bag, animate) read
+these versions too (``upgrade_payload``, ``decode(accept_legacy=True)``). A live service does not: a
+message of another version on a running network is a build out of step, to be rejected and counted."""
+
+
+def _readable_versions(schema: str) -> list[int]:
+    """The versions of ``schema`` the offline tools read: the current one, then the older ones, newest first."""
+    older = sorted((v for s, v in LEGACY_UPGRADES if s == schema), reverse=True)
+    return [MESSAGE_TYPES[schema].VERSION, *older]
+
+
+def _upgraded_body(schema: str, version: Any, body: Any) -> dict[str, Any]:
+    """``body`` of an older ``version`` as a body of the current one; MessageError for a version no table lists."""
+    upgrade = None if isinstance(version, bool) or not isinstance(version, int) else LEGACY_UPGRADES.get((schema, version))
+    if upgrade is None:
+        readable = ", ".join(f"v{v}" for v in _readable_versions(schema))
+        raise MessageError(f"{schema}: unknown version {version!r} (this build reads {readable})")
+    if not isinstance(body, dict):
+        raise MessageError(f"{schema}: body is not a mapping")
+    return upgrade(body)
+
+
+def upgrade_payload(payload: bytes) -> bytes:
+    """The wire bytes of ``payload`` in the current version of its schema: ``payload`` itself when it is
+    current (not checked further: the reader's ``decode`` does that), else, for an older version listed in
+    ``LEGACY_UPGRADES``, its upgraded body, checked as ``decode`` checks a body. So a replayed recording
+    drives today's services. MessageError for anything else (not an envelope, an unknown schema or version,
+    a body that does not decode), naming the versions this build reads."""
+    schema, version, body = _envelope(payload)
+    if _is_current(schema, version):
+        return payload
+    cls = MESSAGE_TYPES[schema]
+    body = _upgraded_body(schema, version, body)
+    _from_body(f"{schema} v{version}", cls, body)
+    return msgpack.packb({"schema": schema, "v": cls.VERSION, "body": body}, use_bin_type=True)

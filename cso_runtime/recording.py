@@ -479,6 +479,11 @@ class ReplayStats:
     """Wall time the replay took."""
     recorded_s: float = 0.0
     """Time between the first and the last recorded message."""
+    upgraded: Counter = field(default_factory=Counter)
+    """Per key: messages of an older version published as the current one (``messages.upgrade_payload``)."""
+    unreadable: Counter = field(default_factory=Counter)
+    """Per key: payloads this build cannot read (not an envelope, an unknown schema or version, an older body that
+    does not decode), published as recorded: the services reject and count them, as they would have live."""
 
 
 def parse_speed(speed: float | str) -> float:
@@ -502,8 +507,10 @@ def replay(
     stop_event: threading.Event | None = None,
     topics: Iterable[str] | None = None,
 ) -> ReplayStats:
-    """Publish every recorded payload, unchanged, on its original key at the recorded timing / ``speed``
-    (``'max'``: no waiting). Publishers block instead of dropping so nothing is lost at full speed."""
+    """Publish every recorded payload on its original key at the recorded timing / ``speed`` (``'max'``: no
+    waiting). Publishers block instead of dropping so nothing is lost at full speed. A payload is published
+    unchanged, except one of an older version of its schema (``messages.LEGACY_UPGRADES``), published as the
+    current version, since a service rejects any other: an old recording still drives today's services."""
     rate = parse_speed(speed)
     stop_event = stop_event or threading.Event()
     pubs: dict[str, zenoh.Publisher] = {}
@@ -525,7 +532,7 @@ def replay(
             pub = pubs.get(m.key)
             if pub is None:
                 pub = pubs[m.key] = session.declare_publisher(m.key, congestion_control=zenoh.CongestionControl.BLOCK)
-            pub.put(m.payload)
+            pub.put(_current_payload(m, stats))
             stats.messages += 1
             stats.per_key[m.key] += 1
     finally:
@@ -534,3 +541,20 @@ def replay(
     stats.duration_s = time.monotonic() - t0_wall
     log.info("replayed %d messages in %.2f s (recorded span %.2f s)", stats.messages, stats.duration_s, stats.recorded_s)
     return stats
+
+
+def _current_payload(m: RecordedMessage, stats: ReplayStats) -> bytes:
+    """``m``'s payload as today's services read it (upgraded from an older version), counted in ``stats``;
+    one this build cannot read is left as recorded, and said once per key."""
+    from cso_runtime.messages import MessageError, upgrade_payload  # noqa: PLC0415  (numpy and the codecs: only when replaying)
+
+    try:
+        payload = upgrade_payload(m.payload)
+    except MessageError as exc:
+        if not stats.unreadable[m.key]:
+            log.warning("%s: published as recorded, which this build cannot read (%s); later ones are only counted", m.key, exc)
+        stats.unreadable[m.key] += 1
+        return m.payload
+    if payload is not m.payload:
+        stats.upgraded[m.key] += 1
+    return payload

@@ -14,7 +14,7 @@ from cso_runtime.geometry import Pose2D
 from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import OdometryMsg, encode
 from cso_runtime.recording import RecordedMessage, RecordingError, write_recording
-from tests.test_bag_export import GEOM, T0_NS, _frontiers, episode
+from tests.test_bag_export import GEOM, T0_NS, _frontiers, episode, legacy
 
 
 def test_a_recording_becomes_a_frame_after_each_decision_and_the_final_map(tmp_path):
@@ -68,3 +68,12 @@ def test_animate_refuses_what_it_cannot_draw(tmp_path):
         r = CliRunner().invoke(app, ["animate", str(tmp_path / "two.mcap"), "--out", str(out)])
         assert r.exit_code == 2 and "must be a file ending in .gif" in r.output, r.output
 
+
+
+def test_a_recording_of_the_versions_before_the_episode_id_animates_as_today(tmp_path):
+    """Odometry, goals and frontiers of the versions before the episode id: read, not left out."""
+    keys = RobotKeys("r0")
+    messages = [RecordedMessage(m.key, m.log_time_ns, legacy(m.payload)) for m in episode(keys, 6, T0_NS, 1_000_000)]
+    write_recording(tmp_path / "old.mcap", "r0", messages)
+    stats = animate_recording(tmp_path / "old.mcap", tmp_path / "old.gif")
+    assert (stats.decisions, stats.maps, stats.rejected, stats.frames) == (3, 6, 0, 3)

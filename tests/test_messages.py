@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import (
+    LEGACY_UPGRADES,
     MESSAGE_TYPES,
     SCHEMA_VERSION,
     ClockMsg,
@@ -25,6 +26,7 @@ from cso_runtime.messages import (
     GoalMsg,
     LauncherStatusMsg,
     MapMsg,
+    Message,
     MessageError,
     OdometryMsg,
     PathMsg,
@@ -39,6 +41,7 @@ from cso_runtime.messages import (
     observation_from_frontiers,
     pack_array,
     unpack_array,
+    upgrade_payload,
 )
 from cso_runtime.observation import ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
@@ -321,6 +324,88 @@ def test_clock_scan_and_episode_status_carry_the_episode_and_reject_version_1():
             decode(_wire(msg.SCHEMA, body, version=1))
         with pytest.raises(MessageError, match="episode"):
             decode(_wire(msg.SCHEMA, body))
+
+
+# --- older versions, in recordings ---------------------------------------------------------------
+
+
+def _legacy_cases() -> list[tuple[bytes, Message]]:
+    """(payload of the version before the episode id, written by hand, the message it means today: episode 0)."""
+    obs = _observation()
+    decision = frontiers_from_observation(4, "no_goal", obs, 2.5)
+    path = np.array([[1.0, 2.0], [1.5, 2.5]])
+    return [
+        (
+            _wire("odom", {"step": 3, "stamp_s": 0.75, "pose": [1.0, -0.5, 0.3], "twist": [0.2, 0.1]}, version=1),
+            OdometryMsg(3, 0.75, Pose2D(1.0, -0.5, 0.3), VelocityCommand(0.2, 0.1)),
+        ),
+        (
+            _wire("goal", {"step": 4, "decided": True, "goal": [2.0, 1.0, 0, 3.5], "decision_ms": 4.2, "method": "greedy-dist", "reason": ""}, version=1),
+            GoalMsg(4, True, 2.0, 1.0, 0, 3.5, 4.2, "greedy-dist"),
+        ),
+        (_wire("goal", {"step": 5, "decided": False, "goal": None, "decision_ms": 0.0, "method": "", "reason": ""}, version=1), GoalMsg(5, False)),
+        (_wire("frontiers", {"step": 6, "decide": False, "reason": "keep"}, version=6), FrontiersMsg(6, False, "keep")),
+        (_wire("frontiers", {k: v for k, v in _body(decision).items() if k != "episode"}, version=6), decision),
+        (
+            _wire("distance_map", {k: v for k, v in _body(DistanceMapMsg(4, obs.geometry, obs.pose, obs.distance_m)).items() if k != "episode"}, version=1),
+            DistanceMapMsg(4, obs.geometry, obs.pose, obs.distance_m),
+        ),
+        (
+            _wire(
+                "planner_feedback",
+                {"step": 7, "status": "following", "phase": "command", "set_goal_blocked": False, "reason": "", "path_ahead_xy_m": pack_array(path), "goal_step": 4},
+                version=2,
+            ),
+            PlannerFeedbackMsg(7, "following", "command", False, "", path, 4),
+        ),
+    ]
+
+
+def test_each_older_version_upgrades_to_the_current_one_with_episode_0_offline_only():
+    """The five schemas that gained the episode id (odom, goal, distance_map v2; planner_feedback v3;
+    frontiers v7): a payload of the version before reads as today's message with id 0 ("no id") in the
+    offline tools; a live service's ``decode`` still rejects it as an unknown version."""
+    cases = _legacy_cases()
+    assert {(msgpack.unpackb(p)["schema"], msgpack.unpackb(p)["v"]) for p, _ in cases} == set(LEGACY_UPGRADES)
+    for payload, expected in cases:
+        cls = type(expected)
+        with pytest.raises(MessageError, match=rf"{cls.SCHEMA}: unknown version {cls.VERSION - 1} \(this build speaks v{cls.VERSION}\)"):
+            decode(payload, cls)
+        upgraded = upgrade_payload(payload)
+        assert msgpack.unpackb(upgraded)["v"] == cls.VERSION
+        for msg in (decode(upgraded, cls), decode(payload, cls, accept_legacy=True)):
+            assert type(msg) is cls and msg.episode == 0
+            assert encode(msg) == encode(expected), cls.SCHEMA  # the same message, field for field (arrays included)
+    assert FrontiersMsg.VERSION == 7, "the episode id came with v7 (b3bfa9e wrote it under v6)"
+
+
+def test_a_current_payload_is_not_touched_and_a_v6_frontiers_with_its_id_keeps_it():
+    current = encode(OdometryMsg(3, 0.75, Pose2D(1.0, -0.5, 0.3), episode=11))
+    assert upgrade_payload(current) is current  # replayed byte for byte
+    assert decode(current, OdometryMsg, accept_legacy=True).episode == 11
+    # b3bfa9e sent the id under v6 (its version bump was missed): such a payload keeps its id.
+    interim = _wire("frontiers", {"step": 6, "decide": False, "reason": "keep", "episode": 5}, version=6)
+    assert decode(upgrade_payload(interim), FrontiersMsg).episode == 5
+
+
+@pytest.mark.parametrize(
+    ("payload", "match"),
+    [
+        (_wire("odom", {}, version=99), r"odom: unknown version 99 \(this build reads v2, v1\)"),
+        (_wire("odom", {}, version=True), r"odom: unknown version True \(this build reads v2, v1\)"),
+        (_wire("frontiers", {}, version=5), r"frontiers: unknown version 5 \(this build reads v7, v6\)"),
+        (_wire("scan", {}, version=1), r"scan: unknown version 1 \(this build reads v2\)"),
+        (_wire("goal", {"step": 4, "decided": True}, version=1), r"goal: missing field 'goal'"),  # an older body that is not one
+        (_wire("odom", [], version=1), r"odom: body is not a mapping"),
+        (b"garbage", r"not a msgpack payload"),
+    ],
+    ids=["future", "bool", "older-than-known", "not-upgraded", "bad-old-body", "not-a-body", "not-msgpack"],
+)
+def test_what_no_version_of_this_build_reads_is_still_a_clear_error_offline(payload, match):
+    with pytest.raises(MessageError, match=match):
+        upgrade_payload(payload)
+    with pytest.raises(MessageError, match=match):
+        decode(payload, accept_legacy=True)
 
 
 def test_wrong_schema_for_the_key_is_rejected():

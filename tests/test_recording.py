@@ -19,7 +19,21 @@ import pytest
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.keys import RobotKeys
-from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, decode, encode
+from cso_runtime.messages import (
+    MESSAGE_TYPES,
+    ClockMsg,
+    CmdVelMsg,
+    DistanceMapMsg,
+    FrontiersMsg,
+    GoalMsg,
+    MapMsg,
+    OdometryMsg,
+    PathMsg,
+    PlannerFeedbackMsg,
+    ScanMsg,
+    decode,
+    encode,
+)
 from cso_runtime.recording import (
     JSON_ENCODING,
     MCAP_MAGIC,
@@ -32,11 +46,13 @@ from cso_runtime.recording import (
     read_recording,
     record,
     replay,
+    write_recording,
 )
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 from tests.conftest import wait_for
+from tests.test_bag_export import T0_NS, episode, legacy
 
 PROBE = encode(ClockMsg(0, 0.0))
 """Published until a subscriber sees it: proves the subscription reached the router."""
@@ -233,6 +249,96 @@ def test_a_replayed_run_rebuilds_the_same_map_in_a_fresh_mapper(tmp_path: Path):
             fstop.set()
             fthread.join(10)
     np.testing.assert_array_equal(fresh.map.to_occupancy_grid(), original)
+
+
+def test_replay_publishes_an_old_recording_in_todays_versions(tmp_path: Path):
+    """A recording made before odom, goal, frontiers, frontiers/distance and planner/feedback carried the episode
+    id: replay publishes those as today's versions (id 0), which a live service's strict ``decode`` takes, and
+    counts them; every other payload goes out byte for byte, one of a version no build reads included (the
+    services reject and count it, as before)."""
+    keys = RobotKeys("t4")
+    geom = GridGeometry(0.1, (4, 5), -0.2, -0.2)
+    d = np.full(geom.shape, np.inf)
+    d[1:3, 1:4] = 0.5
+    today = [
+        (keys.odom, encode(OdometryMsg(3, 0.75, Pose2D(1.0, -0.5, 0.3), VelocityCommand(0.2, 0.1)))),
+        (keys.frontiers, encode(FrontiersMsg(3, False, "keep"))),
+        (keys.topic("distance_map"), encode(DistanceMapMsg(3, geom, Pose2D(0.0, 0.0, 0.0), d))),
+        (keys.goal, encode(GoalMsg(3, True, 2.0, 1.0, 0, 3.5, 4.2, "greedy-dist"))),
+        (keys.planner_feedback, encode(PlannerFeedbackMsg(3, "following", "command", False, "", np.array([[1.0, 2.0]]), 3))),
+    ]
+    old = [(key, legacy(payload)) for key, payload in today]
+    assert all(o != t for (_, o), (_, t) in zip(old, today))
+    scan = LaserScan(-np.pi / 2, np.pi / 180, 0.1, 8.0, np.full(181, 2.5, np.float32), 0.75)
+    as_recorded = [
+        (keys.scan, encode(ScanMsg(3, scan, Pose2D(1.1, -0.5, 0.3)))),
+        (keys.odom, msgpack.packb({"schema": "odom", "v": 99, "body": {}}, use_bin_type=True)),  # a version no build reads
+        (keys.scan, b"\x00 not msgpack at all"),
+    ]
+    recorded = old + as_recorded
+    out = tmp_path / "old.mcap"
+    write_recording(out, "t4", [RecordedMessage(key, T0_NS + i * 1000, payload) for i, (key, payload) in enumerate(recorded)])
+
+    port = free_tcp_port()
+    got: list[tuple[str, bytes]] = []
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as sub_session, open_session(
+        TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    ) as play_session:
+        probe = keys.episode_status
+        sub = sub_session.declare_subscriber("cso/t4/**", lambda s: got.append((str(s.key_expr), s.payload.to_bytes())))
+        try:
+            wait_for(lambda: play_session.put(probe, PROBE) or got, 10, "the replay subscriber")
+            stats = replay(play_session, out, "max")
+            wait_for(lambda: len([k for k, _ in got if k != probe]) >= len(recorded), 10, "every replayed message")
+        finally:
+            sub.undeclare()
+    got = [(k, p) for k, p in got if k != probe]
+    assert [k for k, _ in got] == [k for k, _ in recorded]
+    assert stats.messages == len(recorded) and stats.upgraded == {key: 1 for key, _ in old}
+    assert stats.unreadable == {keys.odom: 1, keys.scan: 1}
+    for (key, payload), (_, want) in zip(got, today):
+        schema = msgpack.unpackb(want)["schema"]
+        msg = decode(payload, MESSAGE_TYPES[schema])  # strict, as every live service decodes
+        assert msg.episode == 0 and encode(msg) == want, key
+    assert got[len(old):] == as_recorded
+
+
+def test_a_replayed_old_recording_drives_todays_planner(tmp_path: Path):
+    """Odometry, decisions and goals of the versions before the episode id, replayed into a running planner:
+    taken (not rejected as an unknown version), so the planner follows the recorded goals and commands each step."""
+    from services.common import ServiceContext, run_service
+    from services.planner import PlannerService
+
+    keys = RobotKeys("t5")
+    messages = [RecordedMessage(m.key.replace("/r0/", "/t5/"), m.log_time_ns, legacy(m.payload)) for m in episode(RobotKeys("r0"), 5, T0_NS, 1_000_000)]
+    out = tmp_path / "old.mcap"
+    write_recording(out, "t5", messages)
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        planner = PlannerService(ServiceContext("planner", "t5", {}, ExplorationConfig(), client, {}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(planner, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: any(r.ok for r in session.liveliness().get(keys.alive("planner"), timeout=0.5)), 20, "the planner")
+            probes: list[bytes] = []
+
+            def probe() -> bool:
+                probes.append(b"probe")
+                play_session.put(keys.odom, probes[-1])
+                return planner.rejected.get("odom", 0) > 0
+
+            with open_session(client) as play_session:
+                # Make sure this session's puts reach the planner first (a malformed odometry, rejected and counted).
+                wait_for(probe, 10, "the planner's odometry route")
+                stats = replay(play_session, out, "max", topics=["odom", "scan", "frontiers", "goal"])
+            assert sum(stats.upgraded.values()) == 3 * 5 and not stats.unreadable  # odom, frontiers, goal of 5 steps
+            wait_for(lambda: planner.cmd_step == 4 and planner.goal_step == 4, 20, "the planner's commands on the old recording")
+        finally:
+            stop.set()
+            thread.join(10)
+    assert planner.rejected == {"odom": len(probes)}, "only the probes"
 
 
 def test_a_broken_recording_is_one_clear_error(tmp_path: Path):
