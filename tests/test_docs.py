@@ -14,6 +14,7 @@ import yaml
 from cso_runtime.cli import app
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.learned.network import NetworkConfig
+from cso_runtime.messages import MESSAGE_TYPES
 
 ROOT = Path(__file__).resolve().parents[1]
 DOC = ROOT / "docs" / "paper-to-code.md"
@@ -114,3 +115,19 @@ def test_the_readmes_python_example_runs_and_prints_an_episode(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     coverage, steps, efficiency = re.fullmatch(r"(\d+\.\d) % in (\d+) steps, (\d\.\d{3}) m2/step\n", r.stdout).groups()
     assert float(coverage) > 99.0 and int(steps) > 0 and float(efficiency) > 0
+
+
+def test_messages_md_states_each_schemas_wire_version():
+    """docs/messages.md's version paragraph is the one table users read: a schema whose ``VERSION`` moved without
+    it (``frontiers`` was documented at 7 while the code still sent 6) misleads anyone writing a bridge."""
+    text = (ROOT / "docs" / "messages.md").read_text(encoding="utf-8")
+    paragraph = text[text.index("Each schema has its own version") :].split("\n\n", 1)[0]
+    documented: dict[str, int] = {}
+    # "`a`, `b` and `c` (2: ..." names several schemas at one version; "`frontiers` (7: ..." one.
+    for names, version in re.findall(r"((?:`\w+`(?:, | and )?)+) \((\d+):", paragraph):
+        for name in re.findall(r"`(\w+)`", names):
+            documented[name] = int(version)
+    assert len(documented) >= 8, f"the paragraph lost its versions: {documented}"
+    assert set(documented) <= set(MESSAGE_TYPES), f"documented schemas that do not exist: {set(documented) - set(MESSAGE_TYPES)}"
+    actual = {schema: cls.VERSION for schema, cls in MESSAGE_TYPES.items()}
+    assert {s: documented.get(s, 1) for s in actual} == actual
