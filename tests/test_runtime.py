@@ -886,6 +886,51 @@ def test_a_service_stopped_before_it_came_up_leaves_no_traceback(tmp_path):
                 c.proc.kill()
 
 
+def _children(pid: int) -> list[int]:
+    kids: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            kids += [int(k) for k in (task / "children").read_text().split()]
+    return kids
+
+
+def test_a_frontier_service_stopped_while_it_waits_for_its_helper_logs_a_plain_stop(tmp_path):
+    """The launcher stops a service that has not come up with SIGTERM to its process group, which holds the
+    frontier service's layer helper: stopped while it waited for that helper (still importing), the service
+    logged the helper gone as a warning (and named it again in its last line), as if it had failed. Now: a plain
+    stop, exit 0, no warning; the helper is gone with it."""
+    from cso_runtime.supervision import Child, signal_group
+
+    argv = [*python_module_argv("services.frontier"), "--config", str(write_profile(tmp_path)), "--robot", "r0", "--mode", "peer", "--listen", "tcp/127.0.0.1:0"]
+    frontier = Child("frontier", argv, tmp_path / "frontier.log")
+    helper = 0
+    try:
+        frontier.spawn()
+
+        def the_helper() -> int:
+            for kid in _children(frontier.proc.pid):
+                with contextlib.suppress(OSError):
+                    if b"spawn_main" in Path(f"/proc/{kid}/cmdline").read_bytes():
+                        return kid
+            return 0
+
+        helper = wait_for(the_helper, 30, "the layer helper to start")
+        os.kill(helper, signal.SIGSTOP)  # held while it imports: the service waits for it (helper_start_s)
+        signal_group(frontier.proc.pid, signal.SIGTERM)  # the launcher's stop of a service not come up
+        os.kill(helper, signal.SIGCONT)  # it dies of the group's SIGTERM, as one still importing does
+        assert frontier.proc.wait(timeout=30) == 0
+        text = frontier.log_path.read_text()
+        assert "frontier: stopped" in text and "frontier layer helper ready" not in text, text
+        assert not re.search(r"WARNING|ERROR|Traceback", text), text
+        assert "frontier layers: 0 by the helper process, 0 here\n" in text, text
+        wait_for(lambda: not pid_alive(helper), 10, "the helper to be gone")
+    finally:
+        if frontier.alive:
+            signal_group(frontier.proc.pid, signal.SIGKILL)
+        if helper and pid_alive(helper):
+            os.kill(helper, signal.SIGKILL)
+
+
 def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
     """The result published on ``episode_result`` is used as is; without one, the launcher keeps asking
     until its deadline and then reports that none came (no summary is written silently)."""
