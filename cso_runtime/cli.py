@@ -2,13 +2,27 @@
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
-from pathlib import Path
+import sys
 from typing import NoReturn
 
-import typer
+
+def _interrupted_early() -> NoReturn:
+    """Ctrl-C in a command's first tenth of a second (Python importing this module or typer building the command,
+    before any command handles it): one line and exit code 130 (EXIT_INTERRUPTED: cso_runtime.config imports numpy,
+    not loaded here), not a KeyboardInterrupt traceback."""
+    sys.stderr.write("error: interrupted\n")
+    raise SystemExit(130) from None
+
+
+try:
+    import time
+    from collections.abc import Callable, Iterator
+    from contextlib import contextmanager
+    from pathlib import Path
+
+    import typer
+except KeyboardInterrupt:
+    _interrupted_early()
 
 app = typer.Typer(
     name="cso-runtime",
@@ -565,7 +579,15 @@ def up_command(
     ),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
-    from cso_runtime.config import LOG_FORMAT, ConfigError  # noqa: PLC0415
+    import threading  # noqa: PLC0415
+
+    from cso_runtime.processes import stop_on_signals  # noqa: PLC0415
+
+    # First: Ctrl-C, SIGTERM or SIGHUP from here on is kept, and acted on where `up` can stop cleanly (before it
+    # makes its run folder, or the launcher's own checks), never a traceback or a run left half-started.
+    stop = threading.Event()
+    stop_on_signals(stop)
+    from cso_runtime.config import EXIT_INTERRUPTED, LOG_FORMAT, ConfigError  # noqa: PLC0415
     from cso_runtime.current_run import current_launcher_alive, read_current_run  # noqa: PLC0415
     from cso_runtime.launcher import run_foreground, start_detached  # noqa: PLC0415
     from cso_runtime.run_profile import load_profile  # noqa: PLC0415
@@ -603,14 +625,16 @@ def up_command(
         else:
             output_dir_or_exit(Path(record_out).parent, f"--record-out {record_out}: its folder")
     output_dir_or_exit(runs_dir, "--runs-dir")  # before the router and the services start
+    if stop.is_set():
+        _fail("interrupted; no run was started", EXIT_INTERRUPTED)
     if detach:
-        code, message = start_detached(prof, data, runs_dir, record=recording, animate=animate)
+        code, message = start_detached(prof, data, runs_dir, record=recording, animate=animate, stop_event=stop)
         typer.echo(message, err=code != 0)
         raise typer.Exit(code)
     import logging  # noqa: PLC0415
 
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
-    raise typer.Exit(run_foreground(prof, data, runs_dir, live=live, record=recording, animate=animate))
+    raise typer.Exit(run_foreground(prof, data, runs_dir, live=live, record=recording, animate=animate, stop_event=stop))
 
 
 @app.command("status", rich_help_panel="Runtime (Zenoh services)")
@@ -949,7 +973,10 @@ def parse_settings(items: list[str]) -> dict[str, object]:
 
 
 def main() -> None:
-    app(prog_name="cso-runtime")  # one name (and completion variable) for the script and python -m cso_runtime.cli
+    try:
+        app(prog_name="cso-runtime")  # one name (and completion variable) for the script and python -m cso_runtime.cli
+    except KeyboardInterrupt:  # before typer's own handling (which exits 130) or a command's
+        _interrupted_early()
 
 
 if __name__ == "__main__":

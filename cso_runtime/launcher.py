@@ -39,7 +39,7 @@ from cso_runtime.config import (
     from_dict,
     load_yaml,
 )
-from cso_runtime.current_run import CURRENT_RUN, DOWN_MARGIN_S, RUNS_LOCK, hold_runs_lock, new_run_dir
+from cso_runtime.current_run import CURRENT_RUN, DOWN_MARGIN_S, RUNS_LOCK, down, hold_runs_lock, new_run_dir, read_current_run
 from cso_runtime.keys import RobotKeys, topic_of
 from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
@@ -54,7 +54,7 @@ from cso_runtime.messages import (
     encode,
 )
 from cso_runtime.outputs import write_text_atomic
-from cso_runtime.processes import set_from_signal_handler
+from cso_runtime.processes import stop_on_signals
 from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, Profile, SupervisionConfig
 from cso_runtime.supervision import (
     Child,
@@ -114,7 +114,15 @@ class RecorderError(RuntimeError):
 class Launcher:
     """Runs one profile: router, services, supervision, live state, results."""
 
-    def __init__(self, profile: Profile, profile_data: dict[str, Any], run_dir: Path, record_path: Path | None = None, animate: bool = False):
+    def __init__(
+        self,
+        profile: Profile,
+        profile_data: dict[str, Any],
+        run_dir: Path,
+        record_path: Path | None = None,
+        animate: bool = False,
+        stop_event: threading.Event | None = None,
+    ):
         self.profile = profile
         self.record_path = record_path
         """MCAP file recording every ``cso/<robot>/**`` message of the run (None: no recording)."""
@@ -124,7 +132,10 @@ class Launcher:
         self.run_dir = run_dir
         self.run_id = run_dir.name
         self.keys = RobotKeys(profile.robot)
-        self.stop_event = threading.Event()
+        self.stop_event = stop_event if stop_event is not None else threading.Event()
+        """Set by Ctrl-C, SIGTERM, SIGHUP or ``down`` (``stop_event`` given: the one ``up`` set on a signal since its first line)."""
+        self.launcher_pid = os.getpid()
+        """The launcher's process in ``run.json`` (a detached one that never wrote its run file: its own, not ``up``'s)."""
         self.children: list[Child] = []
         self.endpoints: list[str] = []
         self.status: EpisodeStatusMsg | None = None
@@ -174,8 +185,8 @@ class Launcher:
             "run_dir": str(self.run_dir.resolve()),
             "robot": self.profile.robot,
             "endpoints": self.endpoints,
-            "launcher_pid": os.getpid(),
-            "launcher_start_ticks": process_start_ticks(os.getpid()),
+            "launcher_pid": self.launcher_pid,
+            "launcher_start_ticks": process_start_ticks(self.launcher_pid),
             "stop_timeout_s": self.profile.supervision.stop_timeout_s,
             "state": state,
             "started_at": round(self.started_at, 3),
@@ -295,6 +306,8 @@ class Launcher:
     # --- supervision ------------------------------------------------------------------------------
     def spawn_all(self) -> None:
         for name in self.profile.services:
+            if self.stop_event.is_set():  # stopped while the first ones started: no more of them to start and stop
+                break
             mode = self.profile.router.service_mode
             argv = [*python_module_argv(f"services.{name}"), "--config", str(self.profile_path), "--robot", self.profile.robot, "--mode", mode]
             for ep in self.endpoints:
@@ -527,6 +540,9 @@ class Launcher:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         self.profile_path.write_text(yaml.safe_dump(self.data, sort_keys=False))
         self.write_dataflow()
+        if self.stop_event.is_set():  # Ctrl-C (or SIGTERM) since `up` started: no router is opened
+            log.warning("interrupted before any service was started")
+            return self.stop_before_start(EXIT_INTERRUPTED)
         router = self.profile.router
         if router.embedded:
             session, self.endpoints = open_router(list(router.listen), list(router.connect))
@@ -672,6 +688,7 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
 def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> int:
     """``Launcher.run`` with Ctrl-C, SIGTERM and SIGHUP (its terminal closed) stopping it, in the foreground
     or detached, holding the runs folder's lock; its exit code."""
+    _install_signal_handlers(launcher)  # first: a stop from now on is the run's clean stop, never a traceback
     runs_dir = launcher.run_dir.parent
     lock_fd = hold_runs_lock(runs_dir)
     if lock_fd is None:
@@ -680,7 +697,6 @@ def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> 
             runs_dir, runs_dir / RUNS_LOCK,
         )
         return EXIT_BAD_CONFIG
-    _install_signal_handlers(launcher)
     try:
         return launcher.run(live=live, stay_after_done=stay_after_done)
     except TransportError as exc:  # the router to join (a robot's) is down, or a listen port is taken
@@ -691,12 +707,8 @@ def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> 
 
 
 def _install_signal_handlers(launcher: Launcher) -> None:
-    def handler(signum: int, _frame: Any) -> None:
-        set_from_signal_handler(launcher.stop_event)
-
-    signal.signal(signal.SIGINT, handler)
-    signal.signal(signal.SIGTERM, handler)
-    signal.signal(signal.SIGHUP, handler)  # the terminal closed: stop as cleanly as on Ctrl-C
+    """Ctrl-C, SIGTERM and SIGHUP (the terminal closed) set the launcher's stop event: ``run`` stops cleanly."""
+    stop_on_signals(launcher.stop_event)
 
 
 RECORDING_NAME = "recording.mcap"
@@ -711,11 +723,13 @@ def run_foreground(
     stay_after_done: bool = False,
     record: bool | Path = False,
     animate: bool = False,
+    stop_event: threading.Event | None = None,
 ) -> int:
     """Run in this process; ``record``: True for ``runs/<run-id>/recording.mcap``, or a file; ``animate``: draw
-    that recording as a GIF at the end (records to the run folder when ``record`` is False)."""
+    that recording as a GIF at the end (records to the run folder when ``record`` is False); ``stop_event``: set
+    on a signal since ``up`` started (a stop before the launcher's own handlers ends the run cleanly too)."""
     run_dir = new_run_dir(runs_dir, profile)
-    launcher = Launcher(profile, data, run_dir, _record_path(run_dir, record or animate), animate)
+    launcher = Launcher(profile, data, run_dir, _record_path(run_dir, record or animate), animate, stop_event=stop_event)
     # The launcher's own lines go to logs/launcher.log too, as a detached launcher's do (its stdout).
     (run_dir / "logs").mkdir(parents=True, exist_ok=True)
     handler = logging.FileHandler(run_dir / "logs" / "launcher.log", encoding="utf-8")
@@ -738,9 +752,20 @@ def _record_path(run_dir: Path, record: bool | Path) -> Path | None:
 
 
 def start_detached(
-    profile: Profile, data: dict[str, Any], runs_dir: Path, ready_timeout_s: float = 30.0, record: bool | Path = False, animate: bool = False
+    profile: Profile,
+    data: dict[str, Any],
+    runs_dir: Path,
+    ready_timeout_s: float = 30.0,
+    record: bool | Path = False,
+    animate: bool = False,
+    stop_event: threading.Event | None = None,
 ) -> tuple[int, str]:
-    """Start a launcher in the background (own session); returns once its services are spawned."""
+    """Start a launcher in the background (own session); returns once its services are spawned. ``stop_event``:
+    set by ``up``'s signal handlers (Ctrl-C, SIGTERM, SIGHUP); without it a Ctrl-C (KeyboardInterrupt) stops
+    the start the same way. A start given up on stops its launcher and leaves a run file that says so."""
+    stop = stop_event if stop_event is not None else threading.Event()
+    if stop.is_set():
+        return EXIT_INTERRUPTED, "interrupted before the launcher started: no run was started"
     run_dir = new_run_dir(runs_dir, profile)
     record_path = _record_path(run_dir, record or animate)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -760,7 +785,7 @@ def start_detached(
         )
     deadline = time.monotonic() + ready_timeout_s
     try:
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and not stop.is_set():
             try:
                 info = json.loads((run_dir / "run.json").read_text())
                 if info.get("services") and info.get("endpoints"):
@@ -769,17 +794,39 @@ def start_detached(
                 pass
             if proc.poll() is not None:  # its own code (2: refused, 3: no router), so `up --detach` says the same as `up`
                 return proc.returncode or 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_path.read_text()[-2000:]}"
-            time.sleep(0.05)
-    except KeyboardInterrupt:  # Ctrl-C while waiting: the user wants no run, not one left in the background
-        _stop_launcher(proc)
+            stop.wait(0.05)
+    except KeyboardInterrupt:  # Ctrl-C while waiting, without up's handlers: the same as with them
+        stop.set()
+    if stop.is_set():  # the user wants no run, not one left in the background
+        _stop_unstarted_launcher(proc, Launcher(profile, data, run_dir, record_path, animate), EXIT_INTERRUPTED)
         return EXIT_INTERRUPTED, f"interrupted while the launcher started: stopped it (launcher pid {proc.pid}); see {log_path}"
-    _stop_launcher(proc)
+    _stop_unstarted_launcher(proc, Launcher(profile, data, run_dir, record_path, animate), 1)
     return 1, f"the launcher did not start within {ready_timeout_s:.0f} s: stopped it; see {log_path}"
 
 
+def _stop_unstarted_launcher(proc: subprocess.Popen, run: Launcher, exit_code: int) -> None:
+    """Stop a detached launcher that never got going (``_stop_launcher``) and leave its run as a launcher that
+    stopped before its services would: a run file that says how it ended (the launcher's own, if it wrote one
+    as it stopped; else one written here) and no current run, whatever service it had started stopped."""
+    _stop_launcher(proc)
+    runs_dir = run.run_dir.parent
+    current = read_current_run(runs_dir)
+    if current is not None and current.get("run_id") == run.run_id:  # killed, not stopped, after it spawned services
+        down(runs_dir, timeout_s=0.0)
+    try:
+        if json.loads((run.run_dir / "run.json").read_text()).get("state") == "stopped":
+            return
+    except (OSError, ValueError):
+        pass
+    run.launcher_pid = proc.pid
+    run.stop_before_start(exit_code)
+
+
 def _stop_launcher(proc: subprocess.Popen, timeout_s: float = 3 * SupervisionConfig.stop_timeout_s + DOWN_MARGIN_S) -> None:
-    """Stop a detached launcher that never got going (SIGINT: it stops whatever it spawned), then kill it."""
-    for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGKILL, 2.0)):
+    """Stop a detached launcher that never got going, then kill it. SIGTERM, not SIGINT: once its handlers are
+    installed (the first thing it does) it stops whatever it spawned, as on SIGINT; before that (still importing)
+    it ends quietly, where SIGINT would leave a KeyboardInterrupt traceback in its log."""
+    for sig, wait_s in ((signal.SIGTERM, timeout_s), (signal.SIGKILL, 2.0)):
         if proc.poll() is not None:
             return
         proc.send_signal(sig)
@@ -796,11 +843,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--run-dir", type=Path, required=True)
     p.add_argument("--record", type=Path, default=None, help="MCAP file recording the run")
     p.add_argument("--animate", action="store_true", help="Draw the recording as a GIF when the run stops")
+    stop = threading.Event()
+    stop_on_signals(stop)  # first: `up --detach` given up on (SIGTERM) while this one loads its profile is a clean stop
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     data = load_yaml(args.profile_data)
     profile = from_dict(Profile, data, where=str(args.profile_data))
-    return run_until_stopped(Launcher(profile, data, args.run_dir, args.record, args.animate), live=False, stay_after_done=True)
+    return run_until_stopped(Launcher(profile, data, args.run_dir, args.record, args.animate, stop_event=stop), live=False, stay_after_done=True)
 
 
 if __name__ == "__main__":

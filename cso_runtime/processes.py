@@ -44,6 +44,14 @@ def set_from_signal_handler(event: threading.Event) -> None:
     _thread.start_new_thread(event.set, ())
 
 
+def stop_on_signals(event: threading.Event) -> None:
+    """SIGINT (Ctrl-C), SIGTERM and SIGHUP (its terminal closed) set ``event`` instead of raising or killing: the
+    launcher (and ``up`` from its first line) acts on the stop where it can stop cleanly, never with a
+    KeyboardInterrupt traceback in the middle of opening its router or writing its run file."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, lambda signum, frame: set_from_signal_handler(event))
+
+
 def dump_stacks_on_signal() -> bool:
     """Write all threads' stacks to stderr on ``STACK_DUMP_SIGNAL`` (faulthandler: works even when the
     main thread is stuck in C code, where a Python signal handler would never run). False when stderr

@@ -171,6 +171,17 @@ class Service:
         self.network_profile: cProfile.Profile | None = None
         """With ``CSO_PROFILE_DIR``: the profile of the handlers run on Zenoh's network thread (lockstep), which
         the main thread's profile cannot see (a profiler follows one thread)."""
+        self.stop_event: threading.Event | None = None
+        """The event that stops the service's loop (``run_service``'s), set once it is asked to stop."""
+        self.stop_signal: int | None = None
+        """The signal (SIGINT, SIGTERM) that asked the service to stop, recorded by the handler itself: the event is
+        set by a thread of its own a moment later, and the signal that stops a service's process group may end
+        its helper process first (``stopping``)."""
+
+    def stopping(self) -> bool:
+        """Whether the service has been asked to stop (a signal, or its stop event set): a helper process gone
+        now went with the service's own stop, and a warm-up can be cut short."""
+        return self.stop_signal is not None or (self.stop_event is not None and self.stop_event.is_set())
 
     # --- hooks -----------------------------------------------------------------------------------
     def warm_up(self) -> None:
@@ -311,8 +322,10 @@ class Service:
             time.sleep(retry_period_s)
 
 
-def _install_stop_handlers(stop: threading.Event) -> None:
+def _install_stop_handlers(stop: threading.Event, service: Service | None = None) -> None:
     def handler(signum: int, _frame: Any) -> None:
+        if service is not None:
+            service.stop_signal = signum  # at once, on the main thread: before it can see its helper gone
         set_from_signal_handler(stop)
 
     signal.signal(signal.SIGINT, handler)
@@ -384,6 +397,7 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
     """Open the session and run the service's event loop until ``stop`` is set (or a signal)."""
     ctx = service.ctx
     stop = stop or threading.Event()
+    service.stop_event = stop
     inputs = ServiceInputs(service, stop)
     service._inbox = inputs.queue
     sub_robot = service.subscribe_robot
@@ -601,7 +615,7 @@ def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | 
         log.error("%s: bad configuration: %s", cls.name, exc)
         return EXIT_BAD_CONFIG
     stop = threading.Event()
-    _install_stop_handlers(stop)
+    _install_stop_handlers(stop, service)
     _die_with_launcher()
     keep_freed_memory()
     trace_dir = os.environ.get(TRACE_DIR_ENV)

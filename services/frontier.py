@@ -87,11 +87,13 @@ class FrontierService(Service):
         neither the helper's start nor first calls."""
         if self.params.layer_helper:
             try:
-                self.layer_worker = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m)
+                self.layer_worker = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m, stopping=self.stopping)
             except OSError as exc:  # no process to spare: the layers are computed here, as with layer_helper false
                 log.warning("no frontier layer helper (%s): computing the layers in this process", exc)
             else:
                 self.layer_worker.wait_ready(self.params.helper_start_s)
+        if self.stopping():  # stopped while it waited for its helper: no practice for a service that stops
+            return
         occupancy, pose = warm_up_map()
         obs = self.builder.build(occupancy, pose, np.array([pose.xy]), layer=self.layer_beside_d(occupancy, None))
         encode(frontiers_from_observation(0, "no_goal", obs, 0.0))
@@ -102,7 +104,8 @@ class FrontierService(Service):
     def shutdown(self) -> None:
         if self.layer_worker is not None:
             w = self.layer_worker
-            log.info("frontier layers: %d by the helper process, %d here%s", w.layers_computed, self.decisions_built - w.layers_computed, f" ({w.broken})" if w.broken else "")
+            why = f" ({w.broken})" if w.broken and not w.lost_to_stop else ""
+            log.info("frontier layers: %d by the helper process, %d here%s", w.layers_computed, self.decisions_built - w.layers_computed, why)
             w.close()
 
     def layer_beside_d(self, occupancy: OccupancyMap, dead: np.ndarray | None) -> Callable[[], FrontierLayer] | None:

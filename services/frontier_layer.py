@@ -10,7 +10,9 @@ The arrays travel through one shared-memory file per map shape (inputs: explored
 cells; outputs: F_t, I, the components' cells); a pipe carries the requests and replies. The file is unlinked as soon
 as both processes have mapped it, so nothing is left behind whatever happens to either. The helper
 exits when the pipe closes (its service stopped or died); a service whose helper is gone, late or
-failing computes the layer itself (logged), so a decision never waits more than ``timeout_s``.
+failing computes the layer itself (logged as a warning), so a decision never waits more than ``timeout_s``.
+A helper that ends with its service's stop (the launcher's SIGTERM reaches the whole process group, and a
+helper still importing dies of it) is no failure: that is not a warning.
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ import logging
 import multiprocessing
 import os
 import tempfile
+import time
+from collections.abc import Callable
 from multiprocessing.connection import Connection
 from pathlib import Path
 
@@ -97,9 +101,11 @@ def worker_main(conn: Connection) -> None:
 class FrontierLayerWorker:
     """A helper process computing frontier layers for one service (``submit`` then ``result``)."""
 
-    def __init__(self, entropy_window_m: float, timeout_s: float = 2.0):
+    def __init__(self, entropy_window_m: float, timeout_s: float = 2.0, stopping: Callable[[], bool] = lambda: False):
         self.entropy_window_m = entropy_window_m
         self.timeout_s = timeout_s
+        self.stopping = stopping
+        """Whether the service is stopping (``Service.stopping``): a helper lost then went with the stop."""
         ctx = multiprocessing.get_context("spawn")  # the service runs Zenoh threads: never fork it
         self.conn, child = ctx.Pipe()
         self.proc = ctx.Process(target=worker_main, args=(child,), name="cso-frontier-layer", daemon=True)
@@ -113,6 +119,8 @@ class FrontierLayerWorker:
         self.pending: int | None = None
         self.broken = ""
         """Why the helper is no longer used (empty while it is)."""
+        self.lost_to_stop = False
+        """The helper was lost while the service was stopping: the stop's doing, not a failure."""
         self.layers_computed = 0
         """Layers the helper computed (the rest were computed by the service itself)."""
 
@@ -126,7 +134,11 @@ class FrontierLayerWorker:
 
     def _give_up(self, why: str) -> None:
         self.broken = why
-        log.warning("frontier layer helper not used from now on: %s", why)
+        if self.stopping():  # the stop's signal reached the helper too: a plain stop, said by the service
+            self.lost_to_stop = True
+            log.debug("frontier layer helper gone as the service stops: %s", why)
+        else:
+            log.warning("frontier layer helper not used from now on: %s", why)
         self.close()
 
     def _map_shape(self, shape: tuple[int, int]) -> bool:
@@ -144,12 +156,15 @@ class FrontierLayerWorker:
         return True
 
     def wait_ready(self, timeout_s: float) -> bool:
-        """Wait at most ``timeout_s`` for the helper to have started (its imports); True when it has."""
+        """Wait at most ``timeout_s`` for the helper to have started (its imports), and no longer once the service
+        is stopping; True when it has."""
         if self.ready or self.broken:
             return self.ready and not self.broken
+        deadline = time.monotonic() + timeout_s
         try:
-            if not self.conn.poll(timeout_s):
-                return False
+            while not self.conn.poll(max(0.0, min(0.1, deadline - time.monotonic()))):
+                if self.stopping() or time.monotonic() >= deadline:
+                    return False
             first = self.conn.recv()
         except (EOFError, OSError):
             first = None

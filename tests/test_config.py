@@ -254,6 +254,40 @@ def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is
         assert f"error: {recipe} with --set {setting}: {said}" in capsys.readouterr().err
 
 
+def test_train_refuses_a_reward_of_the_wrong_sign_a_knn_beyond_the_graph_and_a_clip_of_one_or_more(tmp_path: Path, capsys):
+    """``train`` took a positive step "penalty" (r_step), a zero or negative area reward (lambda_c), more neighbours
+    (knn) than the nodes a graph holds besides the robot's (max_frontier_nodes + max_path_nodes - 1: the rest
+    were silently padding) and a PPO clip of 1 or more, and trained on them. They are refused before training
+    starts, naming the file and the flag; the values the experiments tried (r_step 0, knn 16, clip_coef 0.2, the
+    largest knn a graph holds) are still taken."""
+    import typer
+
+    from cso_runtime.cli import training_args
+
+    recipe = tmp_path / "mine.yaml"
+    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
+    for setting, said in [
+        ("r_step=0.01", "r_step must be <= 0"),
+        ("lambda_c=0", "lambda_c must be positive"),
+        ("lambda_c=-0.02", "lambda_c must be positive"),
+        ("knn=220", "knn must be at most max_frontier_nodes + max_path_nodes - 1 = 219"),
+        ("knn=0", "knn, max_frontier_nodes and max_path_nodes must be at least 1"),
+        ("clip_coef=1", "clip_coef must be below 1"),
+        ("gae_lambda=1.5", "gae_lambda must be in [0, 1], got 1.5"),
+        ("warm_start_epochs=-1", "warm_start_epochs must be >= 0"),
+    ]:
+        with pytest.raises(typer.Exit) as exit_info:
+            training_args(recipe, {}, [setting])
+        assert exit_info.value.exit_code == 2
+        assert f"error: {recipe} with --set {setting}: {said}" in capsys.readouterr().err
+    with pytest.raises(typer.Exit):  # the bound follows the graph's size: 9 nodes, 8 besides the robot's
+        training_args(recipe, {}, ["max_frontier_nodes=4", "max_path_nodes=5", "knn=9"])
+    assert "knn must be at most max_frontier_nodes + max_path_nodes - 1 = 8" in capsys.readouterr().err
+    for settings in (["r_step=0"], ["knn=16"], ["clip_coef=0.2"], ["knn=219"], ["max_frontier_nodes=4", "max_path_nodes=5", "knn=8"]):
+        args = training_args(recipe, {}, settings)
+        assert args.env_config().graph.knn == args.knn
+
+
 def test_the_mujoco_limo_control_period_must_be_whole_physics_steps_before_anything_starts():
     """A control period that is not a whole number of MuJoCo steps used to pass ``eval``'s and ``up``'s checks, then
     fail every episode (eval, exit 1) or the sim service once started; it is a bad configuration (exit 2) now."""

@@ -478,6 +478,139 @@ def test_two_up_started_at_once_cannot_both_run(tmp_path):
     os.close(fd)
 
 
+SIGNAL_WHILE = """
+import importlib, os, signal, sys
+from pathlib import Path
+sig, module_name, attr, pid_file = signal.Signals[sys.argv[1]], sys.argv[2], sys.argv[3], Path(sys.argv[4])
+owner = importlib.import_module(module_name)
+for part in attr.split(".")[:-1]:
+    owner = getattr(owner, part)
+name = attr.split(".")[-1]
+real = getattr(owner, name)
+
+def call(*args, **kwargs):  # the signal comes exactly while `up` does this (once), as a Ctrl-C at that moment would
+    setattr(owner, name, real)
+    out = real(*args, **kwargs) if name == "Popen" else None
+    if out is not None:
+        pid_file.write_text(str(out.pid))  # the detached launcher, for the test to clean up
+    os.kill(os.getpid(), sig)
+    return out if out is not None else real(*args, **kwargs)
+
+setattr(owner, name, call)
+from cso_runtime.cli import main
+sys.argv = ["cso-runtime", *sys.argv[5:]]
+main()
+"""
+
+
+@pytest.mark.parametrize(
+    ("sig", "module", "attr"),
+    [
+        ("SIGINT", "typer.main", "get_command"),  # typer building the command line, before any command runs
+        ("SIGINT", "cso_runtime.run_profile", "load_profile"),  # validating the profile
+        ("SIGTERM", "cso_runtime.run_profile", "load_profile"),
+        ("SIGINT", "cso_runtime.launcher", "hold_runs_lock"),  # its run folder made, the launcher's handlers not yet in
+        ("SIGHUP", "cso_runtime.launcher", "hold_runs_lock"),
+        ("SIGINT", "cso_runtime.launcher", "open_router"),
+        ("SIGTERM", "cso_runtime.supervision", "Child.spawn"),  # starting the first service
+    ],
+)
+def test_up_stopped_in_its_first_moments_exits_cleanly(tmp_path, sig, module, attr):
+    """Ctrl-C (or SIGTERM, or the terminal closing) in ``up``'s first moments, before the launcher had installed
+    its handlers, ended it with a KeyboardInterrupt traceback, or silently (typer's 130, no line, or killed by
+    SIGTERM), with a run folder that had no run.json. Wherever it comes now: one ``interrupted`` line, exit 130,
+    no process left, no current run, and a run folder, if one was made, whose run.json says it was interrupted."""
+    runs = tmp_path / "runs"
+    argv = ["up", "--profile", str(write_profile(tmp_path)), "--no-live", "--runs-dir", str(runs)]
+    try:
+        r = subprocess.run(
+            [sys.executable, "-c", SIGNAL_WHILE, sig, module, attr, str(tmp_path / "pid"), *argv],
+            cwd=tmp_path, capture_output=True, text=True, timeout=60,
+        )
+        said = r.stdout + r.stderr
+        assert r.returncode == 130 and "interrupted" in said and "Traceback" not in said, (r.returncode, said[-3000:])
+        assert not (runs / "current.json").exists()
+        assert [p for p in run_pids(runs) if pid_alive(p)] == []
+        run_dirs = [d for d in runs.glob("*") if d.is_dir()] if runs.exists() else []
+        for run_dir in run_dirs:
+            info = json.loads((run_dir / "run.json").read_text())
+            assert (info["state"], info["outcome"], info["exit_code"]) == ("stopped", "interrupted", 130), info
+            assert "Traceback" not in (run_dir / "logs" / "launcher.log").read_text()
+        assert bool(run_dirs) == (attr not in ("get_command", "load_profile"))  # none made after a stop
+    finally:
+        kill_leftovers(runs)
+
+
+def test_up_stopped_while_python_imports_it_exits_cleanly(tmp_path):
+    """Ctrl-C while Python imports the command line (typer, here one that is interrupted as it loads): one line, 130."""
+    (tmp_path / "fake").mkdir()
+    (tmp_path / "fake" / "typer.py").write_text("import os, signal\nos.kill(os.getpid(), signal.SIGINT)\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path / "fake"), str(REPO), os.environ.get("PYTHONPATH", "")])}
+    r = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "up"], cwd=tmp_path, capture_output=True, text=True, timeout=60, env=env)
+    assert (r.returncode, r.stdout, r.stderr) == (130, "", "error: interrupted\n")
+
+
+@pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
+def test_up_detach_stopped_as_its_launcher_starts_leaves_no_run(tmp_path, sig):
+    """``up --detach`` stopped just after it started its launcher: Ctrl-C there (outside its wait) raised in ``up``
+    and left the launcher to run in the background, as SIGTERM anywhere did; the launcher, stopped in its own first
+    moments, wrote a KeyboardInterrupt traceback to its log and no run.json. Now ``up`` stops it (SIGTERM: quiet
+    while it still imports, its clean stop once its handlers are in) and the run says it was interrupted."""
+    runs = tmp_path / "runs"
+    argv = ["up", "--profile", str(write_profile(tmp_path)), "--detach", "--runs-dir", str(runs)]
+    pid_file = tmp_path / "pid"
+    try:
+        r = subprocess.run(
+            [sys.executable, "-c", SIGNAL_WHILE, sig, "subprocess", "Popen", str(pid_file), *argv],
+            cwd=tmp_path, capture_output=True, text=True, timeout=90,
+        )
+        said = r.stdout + r.stderr
+        assert r.returncode == 130 and "interrupted while the launcher started: stopped it" in said and "Traceback" not in said, said[-3000:]
+        launcher_pid = int(pid_file.read_text())
+        assert not pid_alive(launcher_pid)
+        (run_dir,) = [d for d in runs.glob("*") if d.is_dir()]
+        info = json.loads((run_dir / "run.json").read_text())
+        assert (info["state"], info["outcome"], info["launcher_pid"]) == ("stopped", "interrupted", launcher_pid), info
+        assert "Traceback" not in (run_dir / "logs" / "launcher.log").read_text()
+        assert not (runs / "current.json").exists() and [p for p in run_pids(runs) if pid_alive(p)] == []
+    finally:
+        kill_leftovers(runs, [int(pid_file.read_text())] if pid_file.exists() else [])
+
+
+def test_a_detached_launcher_stopped_while_it_loads_its_profile_stops_cleanly(tmp_path):
+    """The detached launcher (``python -m cso_runtime.launcher``) takes a stop as its clean stop from its first line:
+    SIGTERM while it loads its profile (``up --detach`` giving up on it) ended it with no run.json."""
+    from cso_runtime.run_profile import load_profile
+
+    _, data = load_profile(str(write_profile(tmp_path)), {})
+    run_dir = tmp_path / "runs" / "r"
+    (run_dir / "logs").mkdir(parents=True)
+    (run_dir / "profile.requested.yaml").write_text(yaml.safe_dump(data))
+    script = textwrap.dedent(
+        """
+        import os, signal, sys
+        import cso_runtime.launcher as launcher
+        real = launcher.load_yaml
+        def load_yaml(path):
+            os.kill(os.getpid(), signal.SIGTERM)
+            return real(path)
+        launcher.load_yaml = load_yaml
+        raise SystemExit(launcher.main(sys.argv[1:]))
+        """
+    )
+    try:
+        r = subprocess.run(
+            [sys.executable, "-c", script, "--profile-data", str(run_dir / "profile.requested.yaml"), "--run-dir", str(run_dir)],
+            cwd=tmp_path, capture_output=True, text=True, timeout=60,
+        )
+        assert r.returncode == 130 and "interrupted before any service was started" in r.stderr and "Traceback" not in r.stderr, r.stderr[-3000:]
+        info = json.loads((run_dir / "run.json").read_text())
+        assert (info["state"], info["outcome"], info["services"]) == ("stopped", "interrupted", {}), info
+        assert not (tmp_path / "runs" / "current.json").exists()
+    finally:
+        kill_leftovers(tmp_path / "runs")
+
+
 def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp_path, monkeypatch):
     """``up --detach`` waits for its launcher to start; Ctrl-C then, or a start slower than the deadline,
     stops that launcher instead of leaving a run behind that ``status`` and ``down`` do not know of."""
@@ -751,6 +884,51 @@ def test_a_service_stopped_before_it_came_up_leaves_no_traceback(tmp_path):
         for c in (starting, running):
             if c.alive:
                 c.proc.kill()
+
+
+def _children(pid: int) -> list[int]:
+    kids: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        with contextlib.suppress(OSError):
+            kids += [int(k) for k in (task / "children").read_text().split()]
+    return kids
+
+
+def test_a_frontier_service_stopped_while_it_waits_for_its_helper_logs_a_plain_stop(tmp_path):
+    """The launcher stops a service that has not come up with SIGTERM to its process group, which holds the
+    frontier service's layer helper: stopped while it waited for that helper (still importing), the service
+    logged the helper gone as a warning (and named it again in its last line), as if it had failed. Now: a plain
+    stop, exit 0, no warning; the helper is gone with it."""
+    from cso_runtime.supervision import Child, signal_group
+
+    argv = [*python_module_argv("services.frontier"), "--config", str(write_profile(tmp_path)), "--robot", "r0", "--mode", "peer", "--listen", "tcp/127.0.0.1:0"]
+    frontier = Child("frontier", argv, tmp_path / "frontier.log")
+    helper = 0
+    try:
+        frontier.spawn()
+
+        def the_helper() -> int:
+            for kid in _children(frontier.proc.pid):
+                with contextlib.suppress(OSError):
+                    if b"spawn_main" in Path(f"/proc/{kid}/cmdline").read_bytes():
+                        return kid
+            return 0
+
+        helper = wait_for(the_helper, 30, "the layer helper to start")
+        os.kill(helper, signal.SIGSTOP)  # held while it imports: the service waits for it (helper_start_s)
+        signal_group(frontier.proc.pid, signal.SIGTERM)  # the launcher's stop of a service not come up
+        os.kill(helper, signal.SIGCONT)  # it dies of the group's SIGTERM, as one still importing does
+        assert frontier.proc.wait(timeout=30) == 0
+        text = frontier.log_path.read_text()
+        assert "frontier: stopped" in text and "frontier layer helper ready" not in text, text
+        assert not re.search(r"WARNING|ERROR|Traceback", text), text
+        assert "frontier layers: 0 by the helper process, 0 here\n" in text, text
+        wait_for(lambda: not pid_alive(helper), 10, "the helper to be gone")
+    finally:
+        if frontier.alive:
+            signal_group(frontier.proc.pid, signal.SIGKILL)
+        if helper and pid_alive(helper):
+            os.kill(helper, signal.SIGKILL)
 
 
 def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):

@@ -1054,6 +1054,52 @@ def test_warm_up_starts_the_helper_and_leaves_no_trace_in_the_episode():
     assert not w.proc.is_alive()
 
 
+@pytest.mark.parametrize("stopping", [True, False], ids=["service-stopping", "helper-died"])
+def test_a_frontier_helper_lost_to_the_services_stop_is_no_warning(caplog, stopping):
+    """The launcher's SIGTERM reaches a frontier service and its layer helper together (one process group): a
+    service stopped while it waited for its helper logged "frontier layer helper not used from now on" and named
+    the lost helper again in its last line, a failure in a log that only saw a stop. Lost while the service is
+    stopping, the helper is now a plain stop (and the warm-up ends at once); a helper that dies while the service
+    runs is still a warning, named in the last line."""
+    import logging
+    import os
+    import signal
+
+    frontier, out = _service(FrontierService, lockstep=True, params={"helper_start_s": 60.0})
+    frontier.stop_event = threading.Event()
+
+    def stop_while_warming_up() -> None:  # as the signal that stops the group: the service records it, the helper dies
+        deadline = time.monotonic() + 30.0
+        while frontier.layer_worker is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert frontier.layer_worker is not None
+        if stopping:
+            frontier.stop_signal = signal.SIGTERM
+        os.kill(frontier.layer_worker.proc.pid, signal.SIGTERM)
+
+    thread = threading.Thread(target=stop_while_warming_up)
+    caplog.set_level(logging.DEBUG, logger="cso.frontier")
+    t0 = time.monotonic()
+    thread.start()
+    try:
+        frontier.warm_up()
+        thread.join()
+        assert time.monotonic() - t0 < 30.0  # not the 60 s of helper_start_s
+        w = frontier.layer_worker
+        assert w is not None and w.broken and not w.ready and not out
+    finally:
+        thread.join()
+        frontier.shutdown()
+    assert not w.proc.is_alive()
+    warnings = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    (last,) = [r.getMessage() for r in caplog.records if r.getMessage().startswith("frontier layers:")]
+    if stopping:
+        assert warnings == [] and w.lost_to_stop and last == "frontier layers: 0 by the helper process, 0 here", (warnings, last)
+    else:
+        assert len(warnings) == 1 and warnings[0].startswith("frontier layer helper not used from now on"), warnings
+        assert not w.lost_to_stop and last.endswith(f"({w.broken})"), last
+
+
 @pytest.mark.parametrize("method, grids", [("greedy-dist", ()), ("utility", ()), ("cso", ("traversable",))])
 def test_the_policy_service_decodes_the_grids_its_method_reads(method, grids):
     """A decision message is decoded for what the goal selector reads (``GoalSelector.grids``): no grid

@@ -95,6 +95,7 @@ class Args:
     norm_adv: bool = True
     """Advantages normalised per minibatch."""
     clip_coef: float = 0.1
+    """PPO clips the probability ratio to [1 - clip_coef, 1 + clip_coef]: in (0, 1)."""
     clip_vloss: bool = True
     """The value loss clipped around the rollout's values, as the policy's ratio is."""
     ent_coef: float = 0.005
@@ -123,9 +124,9 @@ class Args:
     """Field of view override (as ``eval --lidar-fov``); None keeps the preset's (the LIMO LiDAR: 180).
     Train with the sensor you evaluate with: the tables use 360."""
     r_step: float = -0.01
-    """R_step of Eq. 6 per control step."""
+    """R_step of Eq. 6 per control step: a penalty, <= 0 (0: the new area alone)."""
     lambda_c: float = 0.02
-    """lambda_c of Eq. 6 per m2 of new open area."""
+    """lambda_c of Eq. 6 per m2 of new open area (> 0)."""
     reward_scene_scale_area_m2: float = 0.0
     """> 0: each scene's rewards times this over its traversable area (``RewardConfig.scene_scale_area_m2``)."""
     max_steps: int = 800
@@ -151,6 +152,7 @@ class Args:
     heads: int = 4
     layers: int = 2
     knn: int = 8
+    """Neighbours of each node, itself included (``GraphConfig.knn``): 1 to max_frontier_nodes + max_path_nodes - 1."""
     max_frontier_nodes: int = 200
     max_path_nodes: int = 20
     cluster_size_feature: bool = False
@@ -197,8 +199,12 @@ class Args:
             raise ValueError("total_decisions, update_epochs, max_steps, checkpoint_every and torch_threads must be at least 1")
         if not (self.clip_coef > 0 and self.max_grad_norm > 0):
             raise ValueError("clip_coef and max_grad_norm must be positive")
-        if not (0 < self.gamma <= 1 and 0 <= self.gae_lambda <= 1):
-            raise ValueError("gamma must be in (0, 1] and gae_lambda in [0, 1]")
+        if not self.clip_coef < 1:  # the ratio is clipped to [1 - clip_coef, 1 + clip_coef]
+            raise ValueError(f"clip_coef must be below 1 (PPO clips the ratio to [1 - clip_coef, 1 + clip_coef]), got {self.clip_coef}")
+        if not 0 < self.gamma <= 1:
+            raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
+        if not 0 <= self.gae_lambda <= 1:
+            raise ValueError(f"gae_lambda must be in [0, 1], got {self.gae_lambda}")
         numbers = ("learning_rate", "warm_start_lr", "ent_coef", "vf_coef", "target_kl", "time_limit_s", "warm_start_decisions", "warm_start_epochs")
         negative = [name for name in numbers if getattr(self, name) < 0]
         if negative:
@@ -219,6 +225,10 @@ class Args:
             raise ValueError("distance_prior must be >= 0 (0 = the paper's actor)")
         if self.reward_scene_scale_area_m2 < 0:
             raise ValueError("reward_scene_scale_area_m2 must be >= 0 (0 = Eq. 6 unscaled)")
+        if self.r_step > 0:  # 0 (the area alone) was tried: docs/experiments/learned-policy.md, "The step penalty of the reward"
+            raise ValueError(f"r_step must be <= 0 (Eq. 6's step penalty; 0: the new area alone), got {self.r_step}")
+        if not self.lambda_c > 0:
+            raise ValueError(f"lambda_c must be positive (Eq. 6's reward per m2 of new open area), got {self.lambda_c}")
         if not 0 <= self.gamma_per_step < 1:
             raise ValueError("gamma_per_step must be in [0, 1) (0 = gamma per decision)")
         if self.warm_start_soft_steps < 0:
@@ -232,6 +242,12 @@ class Args:
             raise ValueError(f"cut_observation must be state or empty, not {self.cut_observation!r}")
         if self.knn < 1 or self.max_frontier_nodes < 1 or self.max_path_nodes < 1:
             raise ValueError("knn, max_frontier_nodes and max_path_nodes must be at least 1 (the path nodes hold the robot's node)")
+        others = self.max_frontier_nodes + self.max_path_nodes - 1  # a full graph's nodes besides the robot's (graph.build_graph)
+        if self.knn > others:
+            raise ValueError(
+                f"knn must be at most max_frontier_nodes + max_path_nodes - 1 = {others}, the nodes besides the robot's that a"
+                f" graph holds (each node's neighbours, itself included), got {self.knn}"
+            )
         try:
             SensorConfig.preset(self.sensor, self.lidar_fov_deg)
         except ConfigError as exc:
