@@ -626,7 +626,7 @@ def status_command(
 
 @app.command("save-map", rich_help_panel="Runtime (Zenoh services)")
 def save_map_command(
-    out: Path = typer.Option(Path("map"), "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f; a folder gets map.yaml"),
+    out: str = typer.Option("map", "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f; a folder (existing, or ending in /) gets map.yaml"),
     image_format: str = typer.Option("pgm", "--format", help="Image format: pgm or png"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
