@@ -322,7 +322,9 @@ def record_command(
 def replay_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record`"),
     speed: str = typer.Option("1.0", "--speed", help="Playback speed factor, or 'max' for as fast as possible"),
-    topics: str | None = typer.Option(None, "--topics", help="Comma-separated topic names to replay (e.g. clock,odom,scan); default all"),
+    topics: str | None = typer.Option(
+        None, "--topics", help="Comma-separated topics to replay, by name or key (e.g. clock,odom,scan,planner/feedback); default all"
+    ),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
 ) -> None:
@@ -344,7 +346,8 @@ def replay_command(
     endpoints = list(connect) if connect else endpoints_from_run_file(runs_dir)[0]
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
-    wanted = [t.strip() for t in topics.split(",") if t.strip()] if topics else None
+    by_key = {key: name for name, key in TOPICS.items()}  # planner/feedback, as docs/messages.md and `dataflow` name it
+    wanted = [by_key.get(t.strip(), t.strip()) for t in topics.split(",") if t.strip()] if topics else None
     unknown = [t for t in wanted or [] if t not in TOPICS]  # a typo would replay nothing, silently
     try:
         parse_speed(speed)
