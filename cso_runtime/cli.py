@@ -496,14 +496,17 @@ def scenes_command(
             table.add_column(col, justify="left" if col == "scale" else "right")
         for r in rows:
             if "error" in r:
-                table.add_row(escape(r["scene"]), "[red]unusable:[/red] " + escape(r["error"]))
+                table.add_row(escape(r["scene"]), "[red]unusable[/red]")  # why, whole, below the table
                 continue
             st = r["start"]
             table.add_row(
                 escape(r["scene"]), f"{r['width_m']:.1f} x {r['height_m']:.1f}", f"{r['resolution_m']:g}", f"{r['traversable_area_m2']:.1f}",
                 r["scale"].replace("_", " "), f"{st['x_m']:.2f}, {st['y_m']:.2f}, {st['yaw_rad']:.2f}",
             )
-        Console().print(table)
+        console = Console()
+        console.print(table)
+        for r in bad:  # a reason names a file: a column would fold it and cut it off
+            console.print(f"[red]unusable[/red] {escape(r['scene'])}: {escape(r['error'])}", soft_wrap=True, highlight=False)
         scales: dict[str, int] = {}
         for r in rows:
             if "error" not in r:
