@@ -145,7 +145,7 @@ def eval_command(
     max_steps: int | None = typer.Option(
         None, "--max-steps", help="Step limit per episode (one step = 0.25 s); default: the --config file's episode.max_steps, 3000"
     ),
-    lidar_fov: float = typer.Option(180.0, "--lidar-fov", help="LiDAR field of view in degrees: 180 (LIMO) or 360"),
+    lidar_fov: float | None = typer.Option(None, "--lidar-fov", help="LiDAR field of view in degrees: 180 (LIMO, the default) or 360; --sensor lidar only"),
     sensor: str = typer.Option("lidar", "--sensor", help="Sensor preset: lidar or depth"),
     workers: int = typer.Option(1, "--workers", help="Parallel worker processes"),
     sim: str = typer.Option("2d", "--sim", help="Simulator: 2d (fast kinematic) or mujoco (physics)"),
@@ -168,6 +168,8 @@ def eval_command(
     from cso_runtime.evaluation import EvalRequest, run_eval_cli  # noqa: PLC0415 - keep CLI start fast
     from cso_runtime.policies import parse_methods  # noqa: PLC0415
 
+    if lidar_fov is not None and sensor != "lidar":  # the preset's own field of view would be used, silently
+        _fail(f"--lidar-fov sets the LiDAR's field of view; --sensor {sensor} has its own", 2)
     if weights is not None:
         _use_weights(weights)
     try:
@@ -183,7 +185,7 @@ def eval_command(
         m_per_px=m_per_px,
         seed=seed,
         max_steps=max_steps,
-        lidar_fov_deg=lidar_fov,
+        lidar_fov_deg=180.0 if lidar_fov is None else lidar_fov,
         sensor=sensor,
         workers=workers,
         sim=sim,
