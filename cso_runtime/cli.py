@@ -159,7 +159,7 @@ def eval_command(
     max_steps: int | None = typer.Option(
         None, "--max-steps", help="Step limit per episode (one step = 0.25 s); default: the --config file's episode.max_steps, 3000"
     ),
-    lidar_fov: float = typer.Option(180.0, "--lidar-fov", help="LiDAR field of view in degrees: 180 (LIMO) or 360"),
+    lidar_fov: float | None = typer.Option(None, "--lidar-fov", help="LiDAR field of view in degrees: 180 (LIMO, the default) or 360; --sensor lidar only"),
     sensor: str = typer.Option("lidar", "--sensor", help="Sensor preset: lidar or depth"),
     workers: int = typer.Option(1, "--workers", help="Parallel worker processes"),
     sim: str = typer.Option("2d", "--sim", help="Simulator: 2d (fast kinematic) or mujoco (physics)"),
@@ -182,6 +182,8 @@ def eval_command(
     from cso_runtime.evaluation import EvalRequest, run_eval_cli  # noqa: PLC0415 - keep CLI start fast
     from cso_runtime.policies import parse_methods  # noqa: PLC0415
 
+    if lidar_fov is not None and sensor != "lidar":  # the preset's own field of view would be used, silently
+        _fail(f"--lidar-fov sets the LiDAR's field of view; --sensor {sensor} has its own", 2)
     if weights is not None:
         _use_weights(weights)
     try:
@@ -197,7 +199,7 @@ def eval_command(
         m_per_px=m_per_px,
         seed=seed,
         max_steps=max_steps,
-        lidar_fov_deg=lidar_fov,
+        lidar_fov_deg=180.0 if lidar_fov is None else lidar_fov,
         sensor=sensor,
         workers=workers,
         sim=sim,
@@ -336,7 +338,9 @@ def record_command(
 def replay_command(
     file: Path = typer.Argument(..., help="An MCAP file written by `cso-runtime record`"),
     speed: str = typer.Option("1.0", "--speed", help="Playback speed factor, or 'max' for as fast as possible"),
-    topics: str | None = typer.Option(None, "--topics", help="Comma-separated topic names to replay (e.g. clock,odom,scan); default all"),
+    topics: str | None = typer.Option(
+        None, "--topics", help="Comma-separated topics to replay, by name or key (e.g. clock,odom,scan,planner/feedback); default all"
+    ),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
 ) -> None:
@@ -358,7 +362,8 @@ def replay_command(
     endpoints = list(connect) if connect else endpoints_from_run_file(runs_dir)[0]
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
-    wanted = [t.strip() for t in topics.split(",") if t.strip()] if topics else None
+    by_key = {key: name for name, key in TOPICS.items()}  # planner/feedback, as docs/messages.md and `dataflow` name it
+    wanted = [by_key.get(t.strip(), t.strip()) for t in topics.split(",") if t.strip()] if topics else None
     unknown = [t for t in wanted or [] if t not in TOPICS]  # a typo would replay nothing, silently
     try:
         parse_speed(speed)
@@ -511,14 +516,17 @@ def scenes_command(
             table.add_column(col, justify="left" if col == "scale" else "right")
         for r in rows:
             if "error" in r:
-                table.add_row(escape(r["scene"]), "[red]unusable:[/red] " + escape(r["error"]))
+                table.add_row(escape(r["scene"]), "[red]unusable[/red]")  # why, whole, below the table
                 continue
             st = r["start"]
             table.add_row(
                 escape(r["scene"]), f"{r['width_m']:.1f} x {r['height_m']:.1f}", f"{r['resolution_m']:g}", f"{r['traversable_area_m2']:.1f}",
                 r["scale"].replace("_", " "), f"{st['x_m']:.2f}, {st['y_m']:.2f}, {st['yaw_rad']:.2f}",
             )
-        Console().print(table)
+        console = Console()
+        console.print(table)
+        for r in bad:  # a reason names a file: a column would fold it and cut it off
+            console.print(f"[red]unusable[/red] {escape(r['scene'])}: {escape(r['error'])}", soft_wrap=True, highlight=False)
         scales: dict[str, int] = {}
         for r in rows:
             if "error" not in r:
@@ -654,7 +662,7 @@ def status_command(
 
 @app.command("save-map", rich_help_panel="Runtime (Zenoh services)")
 def save_map_command(
-    out: Path = typer.Option(Path("map"), "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f; a folder gets map.yaml"),
+    out: str = typer.Option("map", "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f; a folder (existing, or ending in /) gets map.yaml"),
     image_format: str = typer.Option("pgm", "--format", help="Image format: pgm or png"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),

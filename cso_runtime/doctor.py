@@ -195,11 +195,20 @@ def check_weights() -> str:
 
 
 def check_profiles() -> str:
+    """Every profile loads (yours in ./configs/profiles/ and the packaged ones); each one that does not is named
+    with its reason."""
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.run_profile import load_profile, profile_names  # noqa: PLC0415
 
     names = profile_names()
+    bad = []
     for name in names:
-        load_profile(name, {}, connect=["tcp/127.0.0.1:7447"])  # a profile that joins a robot's router gets a stand-in
+        try:
+            load_profile(name, {}, connect=["tcp/127.0.0.1:7447"])  # a profile that joins a robot's router gets a stand-in
+        except ConfigError as exc:
+            bad.append(str(exc))
+    if bad:
+        raise ValueError(f"{len(bad)} of {len(names)} profiles do not load: " + "; ".join(bad))
     return f"{len(names)} profiles valid: {', '.join(names)}"
 
 

@@ -11,6 +11,7 @@ unknown cells grey (205), ``negate: 0``, thresholds 0.65 / 0.196; the image's fi
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -35,9 +36,11 @@ MAP_FILE_SUFFIXES = (".yaml", ".yml", ".pgm", ".png")
 def map_yaml_path(out: Path | str, default_name: str = "map") -> Path:
     """The YAML that ``map_saver_cli -f OUT`` would write: ``OUT.yaml``. A folder (``-f runs/maps/``, or an
     empty ``-f ""``, which is the current folder) gets ``map.yaml`` inside it; a map file's suffix is replaced
-    (``office.png`` -> ``office.yaml``), any other is kept (``office.v2`` -> ``office.v2.yaml``)."""
+    (``office.png`` -> ``office.yaml``), any other is kept (``office.v2`` -> ``office.v2.yaml``). A string
+    ending in a slash names a folder even where none is yet (``Path`` would drop the slash)."""
+    names_folder = isinstance(out, str) and out.endswith(("/", os.sep))
     out = Path(out)
-    if out.is_dir() or not out.name:
+    if names_folder or out.is_dir() or not out.name:
         return out / f"{default_name}.yaml"
     if out.suffix.lower() in MAP_FILE_SUFFIXES:
         return out.with_suffix(".yaml")

@@ -301,7 +301,7 @@ def query_map(connect: list[str], robot: str = "r0", timeout_s: float = 1.0) -> 
     return best, "" if best is not None else why
 
 
-def save_map_main(connect: list[str], robot: str | None, out: Path, image_format: str, runs_dir: Path) -> int:
+def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_format: str, runs_dir: Path) -> int:
     """The ``save-map`` command: the running episode's map as map_server files; exit 1 when there is none."""
     from cso_runtime.map_files import map_yaml_path, save_map  # noqa: PLC0415
 

@@ -150,9 +150,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--speed", type=float, default=1.0, help="Real-time factor")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--odom-rate-hz", type=float, default=20.0, help="Odometry rate besides the samples at each scan")
-    p.add_argument("--log-level", default="INFO")
+    p.add_argument("--log-level", type=str.upper, choices=("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"), default="INFO", metavar="LEVEL")
     args = p.parse_args(argv)
-    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     if not (args.speed > 0 and args.odom_rate_hz > 0):
         p.error("--speed and --odom-rate-hz must be positive")
     refs = resolve_scenes(args.scene, limit=1, resolution_m=args.m_per_px)

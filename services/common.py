@@ -564,6 +564,10 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> 
         service.trace.handled(topic, getattr(msg, "step", -1), received_s, t0, time.monotonic())
 
 
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
+"""What a service's ``--log-level`` takes, in any case."""
+
+
 def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | None = None, prog: str | None = None) -> argparse.Namespace:
     """The common service options, plus those ``cls.add_arguments`` declares; ``prog`` names the command in
     the usage line (``python -m services.NAME`` unless run as ``cso-runtime service NAME``)."""
@@ -573,7 +577,10 @@ def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | No
     p.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to (repeatable)")
     p.add_argument("--listen", action="append", default=[], help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--mode", default="client", help="Zenoh mode: client, peer or router")
-    p.add_argument("--log-level", default="INFO")
+    p.add_argument(
+        "--log-level", type=str.upper, choices=LOG_LEVELS, default=None, metavar="LEVEL",
+        help="Logging level: debug, info, warning or error (default info; under `cso-runtime -v service`, debug)",
+    )  # fmt: skip
     p.add_argument(
         "--attach", action="store_true",
         help="Join the current run of --runs-dir: its profile.yaml, router and robot unless given (a viewer's bridge beside a running episode)",
@@ -602,7 +609,11 @@ def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | No
 def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | None = None) -> int:
     """``python -m services.<name>`` entry point: parse, load the profile, run; config errors exit 2."""
     args = parse_args(cls.name, argv, cls, prog)
-    logging.basicConfig(level=args.log_level.upper(), format=LOG_FORMAT, stream=sys.stderr)
+    # Under `cso-runtime service` the command line has set logging up already (-v: debug), and basicConfig then
+    # does nothing: the level given is set on the root logger itself.
+    logging.basicConfig(level=args.log_level or logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
+    if args.log_level:
+        logging.getLogger().setLevel(args.log_level)
     dump_stacks_on_signal()  # a hang the launcher has to kill leaves its stacks in this log
     try:
         check_robot_id(args.robot)

@@ -62,3 +62,21 @@ def test_a_missing_extra_is_reported_not_failed(monkeypatch):
     real_find_spec = doctor.importlib.util.find_spec
     monkeypatch.setattr(doctor.importlib.util, "find_spec", lambda name, *a: None if name == "foxglove" else real_find_spec(name, *a))
     assert doctor.check_foxglove() == "foxglove-sdk not installed (optional: up --foxglove needs it)"
+
+
+def test_the_profiles_check_names_every_bad_profile(tmp_path, monkeypatch):
+    """Your own ``./configs/profiles/`` take precedence over the packaged ones: each that does not load is named
+    with its reason, not only the first (a user fixed one, ran doctor again, and met the next), and the good
+    ones are counted."""
+    own = tmp_path / "configs" / "profiles"
+    own.mkdir(parents=True)
+    (own / "mine.yaml").write_text("name: mine\nscene: generated:small:1:0\n")
+    (own / "sim.yaml").write_text("name: sim\nscene: generated:small:1:0\nfoo: 1\n")
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(ValueError) as exc:
+        doctor.check_profiles()
+    why = str(exc.value)
+    assert why.startswith("2 of 4 profiles do not load:"), why
+    assert "configs/profiles/mine.yaml: a profile must list at least one service" in why
+    assert "configs/profiles/sim.yaml: unknown key(s) foo" in why
+    assert "profiles/lockstep.yaml" not in why

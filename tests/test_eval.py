@@ -190,6 +190,19 @@ def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
     assert unwritable.returncode == 2 and "cannot create the folder" in unwritable.stderr and "Traceback" not in unwritable.stderr
 
 
+def test_eval_refuses_a_lidar_field_of_view_for_the_depth_camera(tmp_path: Path):
+    """``--sensor depth --lidar-fov 360``: the depth camera has its own 79 degrees, so the LiDAR's field of view
+    is a usage error (exit 2) before anything runs; it was ignored and the episodes ran at 79 degrees."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    out = tmp_path / "o"
+    r = CliRunner().invoke(app, ["eval", "--sensor", "depth", "--lidar-fov", "360", "--scene", "generated:small:1:0", "--out", str(out)])
+    assert r.exit_code == 2 and "--lidar-fov" in r.output and "depth" in r.output
+    assert not out.exists()
+
+
 @pytest.mark.parametrize(("field", "value"), [("m_per_px", -1.0), ("m_per_px", 0.0), ("m_per_px", float("nan")), ("limit", 0)])
 def test_eval_rejects_a_bad_scale_or_limit_before_any_episode(tmp_path: Path, field: str, value: float):
     request = EvalRequest(methods=["greedy-dist"], maps="builtin", out_dir=tmp_path / "o", **{field: value})

@@ -1236,11 +1236,14 @@ def test_encoder_learning_rate_scale_gives_the_encoder_its_own_annealed_rate(tmp
         Args(encoder_lr_scale=0.0).validate()
 
 
-def test_a_resumed_training_logs_each_update_once_and_counts_its_time_before_the_resume(tmp_path):
+def test_a_resumed_training_logs_each_update_once_and_counts_its_time_before_the_resume(tmp_path, monkeypatch):
     """A run that crashed after logging an update its checkpoint does not hold: ``--resume`` runs that update
     again, so the log keeps each update once (the curve would plot it twice), and ``wall_s`` goes on from the
-    training time the checkpoint holds instead of starting again at 0."""
+    training time the checkpoint holds instead of starting again at 0; so does the bar's decisions per second,
+    which divided every decision so far by this session's time alone (ten times the real rate on a resume)."""
     import csv
+
+    from cso_runtime.learned import ppo
 
     common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40,
               "checkpoint_every": 1, "progress": False}  # fmt: skip
@@ -1254,7 +1257,11 @@ def test_a_resumed_training_logs_each_update_once_and_counts_its_time_before_the
         csv.DictWriter(fh, fieldnames=list(rows[0])).writerow({**rows[-1], "update": "4"})
     ckpt["wall_s"] = 1000.0  # as if the first run had trained for 1000 s
     torch.save(ckpt, tmp_path / "checkpoint.pt")
-    record = train(Args(total_decisions=32, resume=str(tmp_path / "checkpoint.pt"), **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    rates: list[tuple[int, float]] = []
+    stats = ppo.progress_stats
+    monkeypatch.setattr(ppo, "progress_stats", lambda recent, decisions, wall_s: rates.append((decisions, wall_s)) or stats(recent, decisions, wall_s))
+    record = train(Args(total_decisions=32, resume=str(tmp_path / "checkpoint.pt"), **{**common, "progress": True}), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert [d for d, _ in rates] == [32] and rates[0][1] >= 1000.0  # 32 decisions in 1000 s and more, not in this session's second
     resumed = list(csv.DictReader(log_path.open()))
     assert [r["update"] for r in resumed] == ["1", "2", "3", "4"] and resumed[:3] == rows
     assert float(resumed[3]["wall_s"]) >= 1000.0 and record["wall_time_s"] >= 1000.0

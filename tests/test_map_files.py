@@ -102,3 +102,22 @@ def test_map_yaml_path_reads_minus_f_as_map_saver_cli_does(tmp_path, monkeypatch
     assert map_yaml_path(tmp_path) == tmp_path / "map.yaml"
     assert map_yaml_path(Path("")) == Path("map.yaml") and map_yaml_path("") == Path("map.yaml")
     assert map_yaml_path(tmp_path / "new_folder" / "m") == tmp_path / "new_folder" / "m.yaml"
+
+
+def test_save_map_minus_f_ending_in_a_slash_is_a_folder_even_a_new_one(tmp_path, monkeypatch):
+    """``save-map -f maps/`` names a folder, as record's ``--out DIR/`` does: map.yaml inside it, the folder made
+    if need be. The option was a Path, which drops the slash, so a new folder's name became the map's
+    (``maps.yaml`` beside it)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime import status
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    assert map_yaml_path("new_folder/") == Path("new_folder") / "map.yaml"
+    assert map_yaml_path(str(tmp_path / "a" / "b") + "/") == tmp_path / "a" / "b" / "map.yaml"
+    assert map_yaml_path("office") == Path("office.yaml")
+    given: list[object] = []
+    monkeypatch.setattr(status, "save_map_main", lambda connect, robot, out, image_format, runs_dir: given.append(out) or 0)
+    assert CliRunner().invoke(app, ["save-map", "-f", "maps/"]).exit_code == 0
+    assert map_yaml_path(given[0]) == Path("maps") / "map.yaml"

@@ -495,6 +495,36 @@ def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path:
     assert r.exit_code == 2 and "no current run" in r.output
 
 
+def test_replay_topics_take_the_keys_as_docs_and_dataflow_name_them(tmp_path: Path, monkeypatch):
+    """``replay --topics planner/feedback,frontiers/distance``: the key names of docs/messages.md, `dataflow` and
+    the recording's own channels replay the topics they name (they were refused as unknown; only the
+    ``planner_feedback`` spelling was known)."""
+    import contextlib
+    import signal
+
+    from typer.testing import CliRunner
+
+    from cso_runtime import recording as recording_module
+    from cso_runtime import transport
+    from cso_runtime.cli import app
+
+    wanted: list[object] = []
+    monkeypatch.setattr(transport, "open_session", lambda config: contextlib.nullcontext())
+    monkeypatch.setattr(recording_module, "replay", lambda session, path, speed, stop, topics: wanted.append(topics) or recording_module.ReplayStats())
+    recording = tmp_path / "run.mcap"
+    recording.write_bytes(MCAP_MAGIC)
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        r = CliRunner().invoke(app, ["replay", str(recording), "--topics", "planner/feedback, frontiers/distance,scan", "--connect", "tcp/127.0.0.1:1"])
+        assert r.exit_code == 0, r.output
+        assert wanted == [["planner_feedback", "distance_map", "scan"]]
+        r = CliRunner().invoke(app, ["replay", str(recording), "--topics", "planner/feedbacks", "--connect", "tcp/127.0.0.1:1"])
+        assert r.exit_code == 2 and "unknown topic(s) planner/feedbacks" in r.output
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+
+
 def test_a_recording_folder_gets_a_file_named_for_the_run(tmp_path: Path, monkeypatch):
     """``record --out FOLDER`` and ``up --record-out FOLDER`` write a file inside the folder (they used to try to
     open the folder itself and fail); a file path is kept as it is."""

@@ -345,6 +345,34 @@ def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_runnin
     assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447"]) == 2
 
 
+def test_a_service_log_level_is_checked_and_applied_under_the_cli(capsys):
+    """``--log-level`` of a service: a level logging does not know is a usage error (exit 2; it was a ValueError
+    traceback from logging), and under ``cso-runtime service``, whose command line has set up logging already, the
+    level given still applies (it was ignored: ``logging.basicConfig`` does nothing once the root logger has a handler)."""
+    import logging
+
+    from services.common import parse_args, service_main
+    from services.mapper import MapperService
+
+    with pytest.raises(SystemExit) as exc:
+        parse_args("mapper", ["--config", str(PROFILES / "lockstep.yaml"), "--log-level", "loud"])
+    assert exc.value.code == 2
+    assert "--log-level" in capsys.readouterr().err
+    root = logging.getLogger()
+    handler, level = logging.NullHandler(), root.level
+    root.addHandler(handler)  # as the CLI's own logging set-up leaves it
+    root.setLevel(logging.INFO)
+    try:
+        # A malformed endpoint: refused (exit 2) after logging is set up, without opening Zenoh.
+        assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447", "--log-level", "debug"]) == 2
+        assert root.level == logging.DEBUG
+        assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447"]) == 2
+        assert root.level == logging.DEBUG  # no --log-level: the level the command line chose stays (`cso-runtime -v service`)
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(level)
+
+
 def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path):
     """``--runs-dir`` or ``--record-out`` below a file: one error line and exit 2, no run folder, no process
     (the recorder's thread used to die with a traceback after the router had started)."""

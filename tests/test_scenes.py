@@ -378,3 +378,19 @@ def test_scenes_describes_each_plan_and_flags_the_unusable_ones(tmp_path):
     assert "64.0 x 48.0" in row and "514.6" in row and "super large" in row  # the packaged README's table
     r = CliRunner().invoke(app, ["scenes", "nowhere/x.txt"])
     assert r.exit_code == 2 and "error:" in r.output
+
+
+def test_scenes_table_says_why_a_plan_is_unusable_in_full(tmp_path):
+    """The table's reason for an unusable plan is whole on a terminal of 80 columns: it was folded into the
+    narrow size column and cut off with an ellipsis, the file it names with it."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    plans = tmp_path / "a_folder_of_plans_with_a_long_name"
+    plans.mkdir()
+    (plans / "broken.png").write_bytes(b"not a png")
+    why = json.loads(CliRunner().invoke(app, ["scenes", str(plans), "--json"]).stdout)[0]["error"]
+    r = CliRunner().invoke(app, ["scenes", str(plans)], env={"COLUMNS": "80"})
+    assert r.exit_code == 1
+    assert f"broken: {why}" in r.output and "…" not in r.output

@@ -892,7 +892,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 write_tensorboard_row(tensorboard, row)
             recent_episodes.extend(finished)
             if progress is not None:
-                progress.advance(stats=progress_stats(recent_episodes, global_decisions, time.time() - t_start))
+                progress.advance(stats=progress_stats(recent_episodes, global_decisions, wall_before_s + time.time() - t_start))  # every decision so far, in all the time so far
             else:
                 log(f"update {update}/{args.num_updates} decisions {global_decisions} return {row['mean_return']} entropy {row['entropy']:.3f}")
             if update % args.checkpoint_every == 0 or update == args.num_updates:
