@@ -66,10 +66,16 @@ class RunSummary:
             "scene": self.scene,
             "method": self.method,
             **{k: self.metrics.get(k) for k in keys},
+            "steps": _whole(self.metrics.get("steps")),  # one episode's steps: summary.json's mean over its one episode
             "terminated_by": next(iter(self.metrics.get("terminated_by") or {}), None),
             "restarts": self.restarts,
             "duration_s": None if self.duration_s is None else round(self.duration_s, 1),
         }
+
+
+def _whole(steps: Any) -> Any:
+    """A run is one episode, so its step count is a whole number; ``summary.json`` writes it as a mean (36.0)."""
+    return int(steps) if isinstance(steps, float) and steps.is_integer() else steps
 
 
 def _read_json(path: Path) -> dict[str, Any] | None:

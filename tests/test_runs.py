@@ -90,7 +90,7 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert [r["run_id"][9:15] for r in listed] == ["091000", "091100", "091200", "091300"]  # oldest first
     assert [r["state"] for r in listed] == ["interrupted", "done", "failed", "running"]
     done = listed[1]
-    assert done["steps"] == 36.0 and done["coverage_pct"] == 99.66 and done["efficiency_m2_per_step"] == 0.6069
+    assert done["steps"] == 36 and isinstance(done["steps"], int) and done["coverage_pct"] == 99.66 and done["efficiency_m2_per_step"] == 0.6069
     assert done["terminated_by"] == "coverage" and done["method"] == "cso" and done["scene"] == "generated:small:1:0"
     assert done["restarts"] == 2 and listed[0]["steps"] is None
     # how long each took: stopped runs from their two times, a running one so far, an old run file nothing

@@ -1161,7 +1161,7 @@ def test_status_and_down_with_nothing_running(tmp_path):
     assert query_status([loopback_endpoint(port)], "r0") is None
     assert time.monotonic() - t0 < 2.0
     r = cli("down", cwd=tmp_path, timeout_s=10)
-    assert r.returncode == 1 and "nothing running" in r.stderr
+    assert r.returncode == 1 and "nothing running (no current run in runs;" in r.stderr, r.stderr
     r = cli("save-map", "--connect", loopback_endpoint(port), cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "no map for robot r0" in r.stdout
     assert not (tmp_path / "map.yaml").exists()
