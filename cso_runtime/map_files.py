@@ -92,7 +92,7 @@ def load_map_and_meta(yaml_path: Path) -> tuple[np.ndarray, GridGeometry, dict]:
         with yaml_path.open(encoding="utf-8") as stream:
             meta = yaml.safe_load(stream)
     except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise MapFileError(f"{yaml_path}: cannot read the map YAML ({exc})") from None
+        raise MapFileError(f"{yaml_path}: cannot read the map YAML ({' '.join(str(exc).split())})") from None  # one line: YAML's spans several
     if not isinstance(meta, dict):
         raise MapFileError(f"{yaml_path}: expected a mapping with image, resolution and origin")
     for key in ("image", "resolution", "origin"):
