@@ -952,14 +952,27 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
         pairs = parse_settings(settings or [])
         data.update(pairs)
         where = str(config or "train")  # an error names the file, and the flags that changed it, as eval's and up's do
-        if pairs:
-            where += " with " + " ".join(f"--set {item}" for item in settings or [])
+        flags = [_flag_of(k, v) for k, v in overrides.items() if v is not None] + [f"--set {item}" for item in settings or []]
+        if flags:
+            where += " with " + " ".join(flags)
         args = from_dict(Args, data, where)
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
         check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     return args
+
+
+TRAIN_FLAG_NAMES = {"out_dir": "--out", "resume": "--resume", "init_from": "--init-from"}
+"""``train``'s flags whose name is not the Args field's with dashes."""
+
+
+def _flag_of(field_name: str, value: object) -> str:
+    """The command-line flag that set an ``Args`` field, as the user typed it (``--num-envs 0``, ``--sync-envs``)."""
+    if isinstance(value, bool):
+        on, off = {"async_envs": ("--async-envs", "--sync-envs")}.get(field_name, (f"--{field_name.replace('_', '-')}", f"--no-{field_name.replace('_', '-')}"))
+        return on if value else off
+    return f"{TRAIN_FLAG_NAMES.get(field_name, '--' + field_name.replace('_', '-'))} {value}"
 
 
 def parse_settings(items: list[str]) -> dict[str, object]:

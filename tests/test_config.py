@@ -254,6 +254,21 @@ def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is
         assert f"error: {recipe} with --set {setting}: {said}" in capsys.readouterr().err
 
 
+def test_a_train_error_names_the_command_flags_that_set_the_bad_value(tmp_path: Path, capsys):
+    """``train --num-envs 0`` was refused naming only the file (and any ``--set``), not the flag that brought the 0."""
+    import typer
+
+    from cso_runtime.cli import training_args
+
+    recipe = tmp_path / "mine.yaml"
+    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
+    with pytest.raises(typer.Exit) as exit_info:
+        training_args(recipe, {"num_envs": 0, "async_envs": False, "seed": None}, ["num_steps=8"])
+    assert exit_info.value.exit_code == 2
+    said = capsys.readouterr().err
+    assert f"error: {recipe} with --num-envs 0 --sync-envs --set num_steps=8: num_envs, num_steps and num_minibatches must be positive, got 0, 8 and 4" in said, said
+
+
 def test_train_refuses_a_reward_of_the_wrong_sign_a_knn_beyond_the_graph_and_a_clip_of_one_or_more(tmp_path: Path, capsys):
     """``train`` took a positive step "penalty" (r_step), a zero or negative area reward (lambda_c), more neighbours
     (knn) than the nodes a graph holds besides the robot's (max_frontier_nodes + max_path_nodes - 1: the rest

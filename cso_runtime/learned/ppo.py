@@ -192,7 +192,7 @@ class Args:
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown variant {self.variant!r}; known: {', '.join(VARIANTS)}")
         if self.num_envs < 1 or self.num_steps < 1 or self.num_minibatches < 1:
-            raise ValueError("num_envs, num_steps and num_minibatches must be positive")
+            raise ValueError(f"num_envs, num_steps and num_minibatches must be positive, got {self.num_envs}, {self.num_steps} and {self.num_minibatches}")
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
         if self.total_decisions < 1 or self.update_epochs < 1 or self.max_steps < 1 or self.checkpoint_every < 1 or self.torch_threads < 1:
