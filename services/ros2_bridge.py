@@ -118,6 +118,10 @@ class Ros2BridgeParams:
     """Arena height."""
     arena_origin_xy_m: list[float] | None = None
     """Lower-left corner of the arena in the odometry frame; None: centred on the first pose."""
+    map_period_s: float = 0.5
+    """At most one map on ``map_topic`` per this long (wall clock); the newest map always goes out once nothing newer
+    follows. The mapper makes one map per scan, a few hundred kB at 10 Hz: more than RViz needs, sent over the robot's
+    WiFi (slam_toolbox publishes its map every few seconds). 0: every map."""
     log_period_s: float = 10.0
     """How often the counters are logged."""
 
@@ -148,6 +152,8 @@ class Ros2BridgeParams:
         ):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
+        if not self.map_period_s >= 0:
+            raise ConfigError("map_period_s must be >= 0")
         if self.arena_origin_xy_m is not None and len(self.arena_origin_xy_m) != 2:
             raise ConfigError("arena_origin_xy_m must be [x_m, y_m]")
 
@@ -297,6 +303,9 @@ class Ros2BridgeService(Service):
         self.path_length_m = 0.0
         self.trajectory: list[tuple[float, float]] = []
         self.last_cmd_s: float | None = None
+        self.last_ros_map_s: float | None = None
+        self.held_map: MapMsg | None = None
+        """The newest map not sent to ROS yet because of ``map_period_s``."""
         self.zero_sent = True
         self.sent_any_command = False
         self.last_goal_xy: tuple[float, float] | None = None
@@ -449,6 +458,7 @@ class Ros2BridgeService(Service):
         self.episode_state, self.terminated_by = "starting", ""
         self.decisions, self.decision_ms = 0, []
         self.latest.pop("map", None)
+        self.held_map = None
         self.counters[counter] += 1
         log.warning("%s: episode %d ends, a new one (%d) starts with a new map", why, old, self.episode)
         self.publish("episode_status", self.episode_status())
@@ -538,10 +548,10 @@ class Ros2BridgeService(Service):
                 self.forward_command(msg.command, received_s)
             elif isinstance(msg, MapMsg):
                 self.keep_latest("map", msg)
-                stamp = self.stamps.get(msg.step, self.last_scan_stamp_s if math.isfinite(self.last_scan_stamp_s) else 0.0)
-                self._put_ros(
-                    self.params.map_topic, ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, stamp, self.params.map_frame_id)
-                )
+                if self.last_ros_map_s is None or received_s - self.last_ros_map_s >= self.params.map_period_s:
+                    self._send_map(msg, received_s)
+                else:
+                    self.held_map = msg
                 if self.episode_state == "exploring":
                     self.publish("episode_status", self.episode_status())
             elif isinstance(msg, GoalMsg):
@@ -552,6 +562,12 @@ class Ros2BridgeService(Service):
                 self._put_ros(
                     self.params.frontiers_topic, ros2_cdr.frontier_markers_to_cdr(points, goals, stamp, self.params.map_frame_id)
                 )
+
+    def _send_map(self, msg: MapMsg, now_s: float) -> None:
+        """A map -> nav_msgs/OccupancyGrid on ``map_topic``, stamped with its step's scan time."""
+        self.held_map, self.last_ros_map_s = None, now_s
+        stamp = self.stamps.get(msg.step, self.last_scan_stamp_s if math.isfinite(self.last_scan_stamp_s) else 0.0)
+        self._put_ros(self.params.map_topic, ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, stamp, self.params.map_frame_id))
 
     def forward_command(self, command: VelocityCommand, received_s: float) -> None:
         """Our command -> Twist on the robot's cmd_vel, within the robot's limits."""
@@ -586,6 +602,10 @@ class Ros2BridgeService(Service):
                 self.zero_sent = True
                 self.counters["watchdog_stops"] += 1
                 log.warning("no velocity command for %.2f s: sent a zero Twist (watchdog)", now_s - self.last_cmd_s)
+            if self.held_map is not None and self.last_ros_map_s is not None and now_s - self.last_ros_map_s >= self.params.map_period_s:
+                if self.held_map.episode in (0, self.episode):  # not one of an episode that has ended since
+                    self._send_map(self.held_map, now_s)
+                self.held_map = None
             if self.pending is not None and now_s - self.pending[1] > self.params.pending_timeout_s:
                 conv, _ = self.pending
                 self.pending = None

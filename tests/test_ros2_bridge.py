@@ -202,6 +202,33 @@ def test_odometry_that_jumps_is_dropped_and_a_lasting_jump_starts_a_new_episode(
     assert svc.path_length_m == pytest.approx(0.22 - new[0].pose.x_m)
 
 
+def test_maps_go_to_ros_at_most_every_map_period_s_and_the_newest_always_goes_out():
+    """The mapper makes a map per scan (10 Hz, a few hundred kB each): every one was sent to the robot's
+    router as an OccupancyGrid. Now at most one per ``map_period_s``, and the newest once nothing newer comes."""
+    svc, _, step = _bridge_without_zenoh({"map_period_s": 0.5})
+    sent: list[tuple[str, bytes]] = []
+    svc._put_ros = lambda topic, payload: sent.append((topic, payload))  # type: ignore[method-assign]
+    for i in range(6):
+        step(1000.0 + 0.1 * i, 0.01 * i)
+    geom = GridGeometry(0.1, (6, 8), -1.0, -2.0)
+    t0 = 50.0
+    for k in range(6):  # six maps in 0.25 s
+        grid = np.full(geom.shape, -1, np.int8)
+        grid[0, : k + 1] = 0
+        svc.on_message("r0", "map", MapMsg.from_grid(k, geom, grid, svc.episode), t0 + 0.05 * k)
+    assert [t for t, _ in sent] == ["map"], "only the first of the burst"
+    svc.on_tick(t0 + 0.3)
+    assert len(sent) == 1, "not before map_period_s"
+    svc.on_tick(t0 + 0.55)
+    assert len(sent) == 2
+    og = rosbags_decode(sent[1][1], "nav_msgs/msg/OccupancyGrid")
+    assert (np.asarray(og.data).reshape(geom.shape)[0] == 0).sum() == 6, "the newest map"
+    assert og.header.stamp.sec == 1000 and abs(og.header.stamp.nanosec - 500_000_000) < 1000, "stamped with its step's scan"
+    svc.on_tick(t0 + 2.0)
+    assert len(sent) == 2, "each map once"
+    assert svc.latest["map"].step == 5, "the referee keeps every map all the same (save-map, a restarted mapper)"
+
+
 # --- the service in-process, against a fake LIMO -----------------------------------------------------
 
 
