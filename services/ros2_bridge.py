@@ -93,6 +93,19 @@ class Ros2BridgeParams:
     """Stale: a scan older than the newest odometry by more than this (robot clock) is dropped."""
     odom_history_s: float = 2.0
     """Odometry kept for matching."""
+    clock_jump_back_s: float = 1.0
+    """Odometry stamped this much before the newest sample means the robot's clock started again (its driver
+    restarted, a bag played again): the bridge starts a new episode (a new map) on the new clock, as tf2 clears
+    its buffer on a jump back in time. Less than this is only out of order (dropped, counted)."""
+    odom_jump_m: float = 0.5
+    """Odometry that moved more than this beyond twice the robot's top speed (``exploration.robot``) times the
+    time since the sample before it is a jump (a glitch, or odometry reset to its origin): dropped and counted
+    (``ros_odom:jump``)."""
+    odom_jump_rad: float = 1.0
+    """The same for the heading, beyond twice the robot's top turn rate."""
+    odom_jump_confirm_s: float = 1.0
+    """Odometry that goes on from a jump, consistently, for this long (robot clock) has a new origin (limo_base
+    restarted): the bridge starts a new episode (a new map) from it, since the old map no longer lines up."""
     pending_timeout_s: float = 0.5
     """A scan newer than every odometry sample waits this long (wall clock) for odometry, then is dropped."""
     cmd_timeout_s: float = 0.5
@@ -105,6 +118,10 @@ class Ros2BridgeParams:
     """Arena height."""
     arena_origin_xy_m: list[float] | None = None
     """Lower-left corner of the arena in the odometry frame; None: centred on the first pose."""
+    map_period_s: float = 0.5
+    """At most one map on ``map_topic`` per this long (wall clock); the newest map always goes out once nothing newer
+    follows. The mapper makes one map per scan, a few hundred kB at 10 Hz: more than RViz needs, sent over the robot's
+    WiFi (slam_toolbox publishes its map every few seconds). 0: every map."""
     log_period_s: float = 10.0
     """How often the counters are logged."""
 
@@ -122,6 +139,10 @@ class Ros2BridgeParams:
             "interpolate_max_gap_s",
             "max_scan_lag_s",
             "odom_history_s",
+            "clock_jump_back_s",
+            "odom_jump_m",
+            "odom_jump_rad",
+            "odom_jump_confirm_s",
             "pending_timeout_s",
             "cmd_timeout_s",
             "resolution_m",
@@ -131,6 +152,8 @@ class Ros2BridgeParams:
         ):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
+        if not self.map_period_s >= 0:
+            raise ConfigError("map_period_s must be >= 0")
         if self.arena_origin_xy_m is not None and len(self.arena_origin_xy_m) != 2:
             raise ConfigError("arena_origin_xy_m must be [x_m, y_m]")
 
@@ -152,8 +175,21 @@ class OdometryBuffer:
     sample: odometry may still come), ``gap`` (odometry around the time is missing).
     """
 
-    def __init__(self, history_s: float, tolerance_s: float, max_gap_s: float, max_lag_s: float):
+    def __init__(
+        self,
+        history_s: float,
+        tolerance_s: float,
+        max_gap_s: float,
+        max_lag_s: float,
+        jump_back_s: float = math.inf,
+        max_speed_mps: float = math.inf,
+        max_turn_radps: float = math.inf,
+        jump_m: float = 0.5,
+        jump_rad: float = 1.0,
+    ):
         self.history_s, self.tolerance_s, self.max_gap_s, self.max_lag_s = history_s, tolerance_s, max_gap_s, max_lag_s
+        self.jump_back_s, self.max_speed_mps, self.max_turn_radps = jump_back_s, max_speed_mps, max_turn_radps
+        self.jump_m, self.jump_rad = jump_m, jump_rad
         self.samples: deque[ros2_cdr.OdometrySample] = deque()
 
     @property
@@ -168,6 +204,31 @@ class OdometryBuffer:
         while self.samples and self.samples[0].stamp_s < sample.stamp_s - self.history_s:
             self.samples.popleft()
         return True
+
+    def discontinuity(self, sample: ros2_cdr.OdometrySample, after: ros2_cdr.OdometrySample | None = None) -> str:
+        """Why ``sample`` cannot follow ``after`` (default: the newest sample), or "" when it can: ``out_of_order``
+        (not newer), ``clock_back`` (older by more than ``jump_back_s``: the robot's clock started again) or
+        ``jump`` (moved or turned more than the robot's top speeds, doubled, explain in the time between, plus
+        ``jump_m`` / ``jump_rad``)."""
+        last = after if after is not None else (self.samples[-1] if self.samples else None)
+        if last is None:
+            return ""
+        dt = sample.stamp_s - last.stamp_s
+        if dt < -self.jump_back_s:
+            return "clock_back"
+        if dt <= 0:
+            return "out_of_order"
+        moved = math.hypot(sample.pose.x_m - last.pose.x_m, sample.pose.y_m - last.pose.y_m)
+        turned = abs(wrap_angle_rad(sample.pose.yaw_rad - last.pose.yaw_rad))
+        if moved > self.jump_m + 2 * self.max_speed_mps * dt or turned > self.jump_rad + 2 * self.max_turn_radps * dt:
+            return "jump"
+        return ""
+
+    def reset(self, samples: list[ros2_cdr.OdometrySample]) -> None:
+        """Forget every sample and start again from ``samples`` (in time order)."""
+        self.samples.clear()
+        for sample in samples:
+            self.add(sample)
 
     def match(self, stamp_s: float) -> tuple[ros2_cdr.OdometrySample | None, str]:
         if not self.samples:
@@ -214,8 +275,20 @@ class Ros2BridgeService(Service):
         super().__init__(ctx)
         self.params = from_dict(Ros2BridgeParams, ctx.params, where="services.ros2_bridge")
         p = self.params
-        self.odometry = OdometryBuffer(p.odom_history_s, p.match_tolerance_s, p.interpolate_max_gap_s, p.max_scan_lag_s)
         self.robot_cfg = ctx.exploration.robot
+        self.odometry = OdometryBuffer(
+            p.odom_history_s,
+            p.match_tolerance_s,
+            p.interpolate_max_gap_s,
+            p.max_scan_lag_s,
+            p.clock_jump_back_s,
+            self.robot_cfg.max_linear_mps,
+            self.robot_cfg.max_angular_radps,
+            p.odom_jump_m,
+            p.odom_jump_rad,
+        )
+        self.jumped: list[ros2_cdr.OdometrySample] = []
+        """Odometry dropped as a jump that goes on consistently from it (a new origin, once it lasts)."""
         self.mount_x_m = ctx.exploration.sensor.mount_x_m
         self.max_steps = ctx.exploration.episode.max_steps
         self.counters: Counter[str] = Counter()
@@ -230,6 +303,9 @@ class Ros2BridgeService(Service):
         self.path_length_m = 0.0
         self.trajectory: list[tuple[float, float]] = []
         self.last_cmd_s: float | None = None
+        self.last_ros_map_s: float | None = None
+        self.held_map: MapMsg | None = None
+        """The newest map not sent to ROS yet because of ``map_period_s``."""
         self.zero_sent = True
         self.sent_any_command = False
         self.last_goal_xy: tuple[float, float] | None = None
@@ -313,10 +389,7 @@ class Ros2BridgeService(Service):
             except ros2_cdr.CdrError as exc:
                 self.count_reject("ros_odom:bad_cdr", str(exc))
                 return
-            if not self.odometry.add(odom):
-                self.count_reject(
-                    "ros_odom:out_of_order", f"odometry at {odom.stamp_s:.3f} s is not newer than {self.odometry.newest_s:.3f} s"
-                )
+            if not self._take_odometry(odom):
                 return
             if self.pending is not None:
                 conv, _ = self.pending
@@ -324,6 +397,71 @@ class Ros2BridgeService(Service):
                 if reason != "waiting":
                     self.pending = None
                     self._accept_or_drop(conv, match, reason)
+
+    def _take_odometry(self, odom: ros2_cdr.OdometrySample) -> bool:
+        """Add a decoded odometry sample to the buffer (True), or drop it and count why (False). A jump back of the
+        robot's clock, or odometry that goes on from a jump for ``odom_jump_confirm_s``, starts a new episode."""
+        p = self.params
+        why = self.odometry.discontinuity(odom)
+        if why == "clock_back":
+            self._new_episode(
+                f"the robot's clock went back from {self.odometry.newest_s:.3f} s to {odom.stamp_s:.3f} s (its driver restarted?)",
+                "clock_jumps_back",
+            )
+            self.odometry.reset([odom])
+            return True
+        if why == "out_of_order":
+            self.count_reject("ros_odom:out_of_order", f"odometry at {odom.stamp_s:.3f} s is not newer than {self.odometry.newest_s:.3f} s")
+            return False
+        if why == "jump" or (self.jumped and not self.odometry.discontinuity(odom, self.jumped[-1])):
+            if self.jumped and not self.odometry.discontinuity(odom, self.jumped[-1]):
+                self.jumped.append(odom)  # goes on from the jump
+            else:
+                self.jumped = [odom]
+            if self.jumped[-1].stamp_s - self.jumped[0].stamp_s >= p.odom_jump_confirm_s:
+                last = self.odometry.samples[-1].pose
+                self._new_episode(
+                    f"odometry jumped from ({last.x_m:.2f}, {last.y_m:.2f}, {last.yaw_rad:.2f}) and went on from "
+                    f"({self.jumped[0].pose.x_m:.2f}, {self.jumped[0].pose.y_m:.2f}, {self.jumped[0].pose.yaw_rad:.2f}) "
+                    f"for {p.odom_jump_confirm_s} s (odometry reset?)",
+                    "odometry_resets",
+                )
+                self.odometry.reset(self.jumped)
+                self.jumped = []
+                return True
+            newest = self.odometry.samples[-1]
+            self.count_reject(
+                "ros_odom:jump",
+                f"odometry at {odom.stamp_s:.3f} s is {math.hypot(odom.pose.x_m - newest.pose.x_m, odom.pose.y_m - newest.pose.y_m):.2f} m "
+                f"and {abs(wrap_angle_rad(odom.pose.yaw_rad - newest.pose.yaw_rad)):.2f} rad from the sample "
+                f"{odom.stamp_s - newest.stamp_s:.3f} s before it: faster than the robot drives",
+            )
+            return False
+        self.jumped = []  # a glitch: odometry goes on where it was
+        self.odometry.add(odom)
+        return True
+
+    def _new_episode(self, why: str, counter: str) -> None:
+        """Start a new episode (a new id: every service starts over, the mapper with an empty map), as a restarted
+        sim does: what was mapped in the old odometry frame no longer lines up with the robot's poses."""
+        old = self.episode
+        self.episode = new_episode_id()
+        self.step = -1
+        self.arena = None
+        self.last_scan_stamp_s = -math.inf
+        self.pending = None
+        self.stamps.clear()
+        self.last_pose = None
+        self.path_length_m = 0.0
+        self.trajectory = []
+        self.last_goal_xy = None
+        self.episode_state, self.terminated_by = "starting", ""
+        self.decisions, self.decision_ms = 0, []
+        self.latest.pop("map", None)
+        self.held_map = None
+        self.counters[counter] += 1
+        log.warning("%s: episode %d ends, a new one (%d) starts with a new map", why, old, self.episode)
+        self.publish("episode_status", self.episode_status())
 
     def _on_ros_scan(self, sample: zenoh.Sample) -> None:
         raw = sample.payload.to_bytes()
@@ -410,10 +548,10 @@ class Ros2BridgeService(Service):
                 self.forward_command(msg.command, received_s)
             elif isinstance(msg, MapMsg):
                 self.keep_latest("map", msg)
-                stamp = self.stamps.get(msg.step, self.last_scan_stamp_s if math.isfinite(self.last_scan_stamp_s) else 0.0)
-                self._put_ros(
-                    self.params.map_topic, ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, stamp, self.params.map_frame_id)
-                )
+                if self.last_ros_map_s is None or received_s - self.last_ros_map_s >= self.params.map_period_s:
+                    self._send_map(msg, received_s)
+                else:
+                    self.held_map = msg
                 if self.episode_state == "exploring":
                     self.publish("episode_status", self.episode_status())
             elif isinstance(msg, GoalMsg):
@@ -424,6 +562,12 @@ class Ros2BridgeService(Service):
                 self._put_ros(
                     self.params.frontiers_topic, ros2_cdr.frontier_markers_to_cdr(points, goals, stamp, self.params.map_frame_id)
                 )
+
+    def _send_map(self, msg: MapMsg, now_s: float) -> None:
+        """A map -> nav_msgs/OccupancyGrid on ``map_topic``, stamped with its step's scan time."""
+        self.held_map, self.last_ros_map_s = None, now_s
+        stamp = self.stamps.get(msg.step, self.last_scan_stamp_s if math.isfinite(self.last_scan_stamp_s) else 0.0)
+        self._put_ros(self.params.map_topic, ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, stamp, self.params.map_frame_id))
 
     def forward_command(self, command: VelocityCommand, received_s: float) -> None:
         """Our command -> Twist on the robot's cmd_vel, within the robot's limits."""
@@ -458,6 +602,10 @@ class Ros2BridgeService(Service):
                 self.zero_sent = True
                 self.counters["watchdog_stops"] += 1
                 log.warning("no velocity command for %.2f s: sent a zero Twist (watchdog)", now_s - self.last_cmd_s)
+            if self.held_map is not None and self.last_ros_map_s is not None and now_s - self.last_ros_map_s >= self.params.map_period_s:
+                if self.held_map.episode in (0, self.episode):  # not one of an episode that has ended since
+                    self._send_map(self.held_map, now_s)
+                self.held_map = None
             if self.pending is not None and now_s - self.pending[1] > self.params.pending_timeout_s:
                 conv, _ = self.pending
                 self.pending = None

@@ -134,6 +134,101 @@ def test_params_validate_names_and_build_keys():
         from_dict(Ros2BridgeParams, {"cmd_timeout_s": 0})
 
 
+def _bridge_without_zenoh(params: dict | None = None):
+    """The bridge service with its ROS callbacks fed by hand: what it publishes is collected, no session."""
+    from types import SimpleNamespace
+
+    from cso_runtime.transport import TransportConfig as _TC
+    from services.common import ServiceContext
+    from services.ros2_bridge import Ros2BridgeService
+
+    ctx = ServiceContext("ros2_bridge", "r0", {"method": "greedy-dist"}, ExplorationConfig(), _TC(connect=["tcp/127.0.0.1:1"]), params or {})
+    svc = Ros2BridgeService(ctx)
+    out: list[tuple[str, Any]] = []
+    svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(svc.check_output(topic, msg)), type(msg))))  # type: ignore[method-assign]
+    sample = lambda raw: SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: raw))  # noqa: E731
+
+    def step(t: float, x: float, y: float = 0.0, yaw: float = 0.0) -> None:
+        """The robot's odometry and a scan at the same stamp, as limo_base and the LiDAR send them."""
+        svc._on_ros_odom(sample(ros_odom(t, x, y, yaw)))
+        svc._on_ros_scan(sample(ros_scan(t, np.full(181, 2.0, np.float32))))
+
+    return svc, out, step
+
+
+def test_a_robot_clock_that_starts_again_starts_a_new_episode_instead_of_dropping_everything():
+    """limo_base restarted (or a bag played again with use_sim_time): stamps go back by minutes. Every later
+    sample used to be dropped as out of order until the new clock passed the old one: the robot stood still
+    with nothing in the log but drop counts. Now, as tf2 clears its buffer on a jump back in time, the bridge
+    starts a new episode on the new clock and goes on; a small step back is still only out of order."""
+    svc, out, step = _bridge_without_zenoh()
+    for i in range(5):
+        step(1000.0 + 0.1 * i, 0.01 * i)
+    first = svc.episode
+    assert svc.step == 4
+    step(1000.35, 0.04)  # 50 ms back: out of order, dropped and counted
+    assert svc.rejected == {"ros_odom:out_of_order": 1, "ros_scan:out_of_order": 1} and svc.episode == first
+    for i in range(10):
+        step(100.0 + 0.1 * i, 0.0)
+    assert svc.episode != first, "a new episode on the new clock"
+    assert svc.step == 9 and svc.counters["clock_jumps_back"] == 1
+    assert svc.rejected == {"ros_odom:out_of_order": 1, "ros_scan:out_of_order": 1}, "nothing else dropped"
+    scans = [m for topic, m in out if topic == "scan" and m.episode == svc.episode]
+    clocks = [m for topic, m in out if topic == "clock" and m.episode == svc.episode]
+    assert [m.step for m in scans] == list(range(10)) and clocks[0].step == 0 and clocks[0].arena is not None
+    assert scans[0].scan.stamp_s == pytest.approx(100.0)
+    assert svc.episode_status().state == "exploring" and svc.path_length_m == 0.0
+
+
+def test_odometry_that_jumps_is_dropped_and_a_lasting_jump_starts_a_new_episode():
+    """Odometry that moves faster than the robot can drive is not integrated (it smeared the map and added metres
+    to the path): a one-sample glitch is dropped and counted, and odometry that goes on from a jump for
+    ``odom_jump_confirm_s`` (limo_base restarted: odometry back at its origin) starts a new episode from there."""
+    svc, out, step = _bridge_without_zenoh({"odom_jump_confirm_s": 1.0})
+    for i in range(5):
+        step(1000.0 + 0.1 * i, 5.0 + 0.05 * i)
+    first = svc.episode
+    step(1000.5, 9.0)  # 3.8 m in 0.1 s: a glitch
+    step(1000.6, 5.3)  # back where it was
+    assert svc.rejected.get("ros_odom:jump") == 1 and svc.episode == first
+    assert svc.path_length_m == pytest.approx(0.3) and svc.step == 6, "the glitch's scan is placed between the good samples around it"
+    assert all(m.pose.x_m < 5.5 for topic, m in out if topic == "odom")
+    for i in range(12):  # odometry reset to its origin, and going on from there
+        step(1000.7 + 0.1 * i, 0.02 * i)
+    assert svc.episode != first and svc.counters["odometry_resets"] == 1
+    assert svc.rejected.get("ros_odom:jump") == 1 + 10, "dropped until the jump had lasted 1 s"
+    new = [m for topic, m in out if topic == "odom" and m.episode == svc.episode]
+    assert new and new[0].step == 0 and new[-1].pose.x_m == pytest.approx(0.22)
+    assert svc.path_length_m == pytest.approx(0.22 - new[0].pose.x_m)
+
+
+def test_maps_go_to_ros_at_most_every_map_period_s_and_the_newest_always_goes_out():
+    """The mapper makes a map per scan (10 Hz, a few hundred kB each): every one was sent to the robot's
+    router as an OccupancyGrid. Now at most one per ``map_period_s``, and the newest once nothing newer comes."""
+    svc, _, step = _bridge_without_zenoh({"map_period_s": 0.5})
+    sent: list[tuple[str, bytes]] = []
+    svc._put_ros = lambda topic, payload: sent.append((topic, payload))  # type: ignore[method-assign]
+    for i in range(6):
+        step(1000.0 + 0.1 * i, 0.01 * i)
+    geom = GridGeometry(0.1, (6, 8), -1.0, -2.0)
+    t0 = 50.0
+    for k in range(6):  # six maps in 0.25 s
+        grid = np.full(geom.shape, -1, np.int8)
+        grid[0, : k + 1] = 0
+        svc.on_message("r0", "map", MapMsg.from_grid(k, geom, grid, svc.episode), t0 + 0.05 * k)
+    assert [t for t, _ in sent] == ["map"], "only the first of the burst"
+    svc.on_tick(t0 + 0.3)
+    assert len(sent) == 1, "not before map_period_s"
+    svc.on_tick(t0 + 0.55)
+    assert len(sent) == 2
+    og = rosbags_decode(sent[1][1], "nav_msgs/msg/OccupancyGrid")
+    assert (np.asarray(og.data).reshape(geom.shape)[0] == 0).sum() == 6, "the newest map"
+    assert og.header.stamp.sec == 1000 and abs(og.header.stamp.nanosec - 500_000_000) < 1000, "stamped with its step's scan"
+    svc.on_tick(t0 + 2.0)
+    assert len(sent) == 2, "each map once"
+    assert svc.latest["map"].step == 5, "the referee keeps every map all the same (save-map, a restarted mapper)"
+
+
 # --- the service in-process, against a fake LIMO -----------------------------------------------------
 
 
