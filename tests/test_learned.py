@@ -26,6 +26,7 @@ from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkCon
 from cso_runtime.learned.ppo import (
     Args,
     build_model,
+    check_training_inputs,
     compute_gae,
     episode_returns,
     model_chooser,
@@ -1330,3 +1331,20 @@ def test_train_closed_by_its_terminal_stops_its_env_workers_and_says_how_to_resu
     stopped_at = torch.load(out / "checkpoint.pt", weights_only=False)["update"]
     resumed = subprocess.run([*cmd, "--resume", str(out / "checkpoint.pt"), "--time-limit-s", "0.1"], cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=120)
     assert resumed.returncode == 0 and f"resumed from {out / 'checkpoint.pt'} at update {stopped_at + 1}" in resumed.stdout, resumed.stdout[-2000:] + resumed.stderr[-2000:]
+
+
+def test_a_resume_with_another_recipe_is_refused_with_what_it_changes(tmp_path):
+    """A checkpoint loads into any configuration with the same parameter shapes: a resume with another distance
+    prior, graph, discount or batch would go on as a different run (and save its weights under this configuration)
+    without a word. It is refused, naming each changed field; where and how long it runs may change."""
+    common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40,
+              "distance_prior": 4.0, "progress": False}  # fmt: skip
+    train(Args(total_decisions=8, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    checkpoint = str(tmp_path / "checkpoint.pt")
+    for change, said in [({"distance_prior": 0.0}, "distance_prior 4.0 -> 0.0"), ({"max_frontier_nodes": 100}, "max_frontier_nodes 200 -> 100"),
+                         ({"num_steps": 4, "gamma": 0.5}, "num_steps 8 -> 4, gamma 0.98 -> 0.5")]:  # fmt: skip
+        with pytest.raises(ValueError, match=re.escape(f"changes the recipe of the run it continues ({said})")):
+            check_training_inputs(Args(**{**common, **change, "out_dir": str(tmp_path / "other")}, total_decisions=16, resume=checkpoint))
+    said: list[str] = []
+    record = train(Args(**{**common, "out_dir": str(tmp_path / "longer")}, total_decisions=16, resume=checkpoint, checkpoint_every=3), log=said.append, plans=[rooms_plan(2)])
+    assert record["ppo_decisions"] == 16 and "total_decisions 8 -> 16: 2 updates in all, the learning rate anneals over them from here" in said

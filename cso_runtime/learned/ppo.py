@@ -389,10 +389,31 @@ def select_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def load_resume_checkpoint(path: str | Path, model: GraphActorCritic, optimizer: optim.Optimizer, device: torch.device, variant: str | None = None) -> dict[str, Any]:
+RESUME_MAY_CHANGE = frozenset(
+    {"out_dir", "resume", "init_from", "device", "torch_threads", "progress", "async_envs", "tensorboard", "checkpoint_every", "time_limit_s", "total_decisions", "dungeon_dir"}
+    | {f.name for f in dataclasses.fields(Args) if f.name.startswith("warm_start_")}  # the warm start does not run again
+)
+"""The fields of ``Args`` a ``--resume`` may give other values than the run it continues: where and how it runs,
+how long (a new ``total_decisions`` anneals the learning rate over the new total from there), the warm start (done)
+and where the Dungeon plans are on this machine. Every other field is the recipe, and must be the checkpoint's."""
+
+
+def resume_recipe_changes(saved: Mapping[str, Any], args: Args) -> list[str]:
+    """``"field checkpoint_value -> this_value"`` for each recipe field whose value ``args`` changes from the
+    ``saved`` run's (``dataclasses.asdict`` of its Args; a field it lacks, from an older version, is not compared)."""
+    now = dataclasses.asdict(args)
+    return [f"{k} {saved[k]!r} -> {now[k]!r}" for k in now if k not in RESUME_MAY_CHANGE and k in saved and saved[k] != now[k]]
+
+
+def load_resume_checkpoint(
+    path: str | Path, model: GraphActorCritic, optimizer: optim.Optimizer, device: torch.device, variant: str | None = None, args: Args | None = None
+) -> dict[str, Any]:
     """Load a training checkpoint (``checkpoint.pt`` of an earlier run of the same recipe) into ``model`` and
     ``optimizer``; a file that is not one, one of another network, or one of another ``variant`` (the variants'
-    networks have the same shapes, their masks and inputs differ) is a ValueError that says which."""
+    networks have the same shapes, their masks and inputs differ) is a ValueError that says which. With ``args``,
+    so is a checkpoint whose run had another recipe (``resume_recipe_changes``): a distance prior, graph size,
+    reward, discount or batch of other values loads into the same network shapes, but the run would go on as a
+    different one, and its weights would be saved with this configuration."""
     try:
         ckpt = torch.load(path, map_location=device, weights_only=False)
     except FileNotFoundError:
@@ -404,6 +425,11 @@ def load_resume_checkpoint(path: str | Path, model: GraphActorCritic, optimizer:
         raise ValueError(f"--resume {path}: not a training checkpoint (no {', '.join(missing)}; weights to start from are --init-from)")
     if variant is not None and ckpt.get("variant", variant) != variant:
         raise ValueError(f"--resume {path}: a checkpoint of {ckpt['variant']}, not of {variant} (give --variant {ckpt['variant']}, or another --out)")
+    if args is not None and isinstance(ckpt.get("args"), dict) and (changed := resume_recipe_changes(ckpt["args"], args)):
+        raise ValueError(
+            f"--resume {path}: this configuration changes the recipe of the run it continues ({', '.join(changed)}); resume with"
+            " the checkpoint's values (the same --config and --set), or start a new run in another --out"
+        )
     try:
         model.load_state_dict(ckpt["state_dict"])
         optimizer.load_state_dict(ckpt["optimizer"])
@@ -418,7 +444,7 @@ def check_training_inputs(args: Args) -> None:
     device = select_device(args.device)
     if args.resume:
         model = build_model(args, device)
-        load_resume_checkpoint(args.resume, model, optim.Adam(parameter_groups(model, args), lr=args.learning_rate), device, args.variant)
+        load_resume_checkpoint(args.resume, model, optim.Adam(parameter_groups(model, args), lr=args.learning_rate), device, args.variant, args)
     elif args.init_from:
         initial_weights(args, device)
     elif args.warm_start_data:
@@ -731,7 +757,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     wall_before_s = 0.0
     """Training time of the run before its ``--resume`` (the log's ``wall_s`` and the record count it too)."""
     if args.resume:
-        ckpt = load_resume_checkpoint(args.resume, model, optimizer, device, args.variant)
+        ckpt = load_resume_checkpoint(args.resume, model, optimizer, device, args.variant, args)
         start_update = ckpt["update"] + 1
         global_decisions, warm_decisions, env_steps = ckpt["decisions"], ckpt["warm_decisions"], ckpt["env_steps"]
         wall_before_s = float(ckpt.get("wall_s", 0.0))
@@ -740,6 +766,9 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         if ckpt.get("cuda_rng") is not None and device.type == "cuda":
             torch.cuda.set_rng_state_all(ckpt["cuda_rng"])
         log(f"resumed from {args.resume} at update {start_update}")
+        before = ckpt.get("args", {}).get("total_decisions", args.total_decisions)
+        if before != args.total_decisions:
+            log(f"total_decisions {before} -> {args.total_decisions}: {args.num_updates} updates in all, the learning rate anneals over them from here")
     elif args.init_from:
         model.load_state_dict(initial_weights(args, device))
         record["init_from"] = str(args.init_from)
@@ -896,10 +925,10 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
             else:
                 log(f"update {update}/{args.num_updates} decisions {global_decisions} return {row['mean_return']} entropy {row['entropy']:.3f}")
             if update % args.checkpoint_every == 0 or update == args.num_updates:
-                _save_resumable(out / "checkpoint.pt", model, optimizer, args.variant, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
+                _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
             if args.time_limit_s and time.time() - t_start > args.time_limit_s:
                 log(f"time limit reached after update {update}")
-                _save_resumable(out / "checkpoint.pt", model, optimizer, args.variant, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
+                _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
                 break
         finished_loop = True
     finally:
@@ -944,17 +973,18 @@ def keep_log_rows_up_to(log_path: Path, update: int) -> None:
 
 
 def _save_resumable(
-    path: Path, model: nn.Module, optimizer: optim.Optimizer, variant: str, update: int, decisions: int, warm: int, env_steps: int, warm_stats: dict, wall_s: float
+    path: Path, model: nn.Module, optimizer: optim.Optimizer, args: Args, update: int, decisions: int, warm: int, env_steps: int, warm_stats: dict, wall_s: float
 ) -> None:
-    """What ``--resume`` needs: weights, Adam's state, the counters, the training time so far and the torch
-    generators. Not the environments' state: the episodes in progress start over on new scenes, so a resumed
+    """What ``--resume`` needs: weights, Adam's state, the counters, the training time so far, the torch
+    generators and the run's ``Args`` (a resume with another recipe is refused). Not the environments' state: the episodes in progress start over on new scenes, so a resumed
     run goes on like the one it continues but not bit for bit."""
     tmp = path.with_suffix(".tmp")
     torch.save(
         {
             "state_dict": model.state_dict(),
             "optimizer": optimizer.state_dict(),
-            "variant": variant,
+            "variant": args.variant,
+            "args": dataclasses.asdict(args),
             "update": update,
             "decisions": decisions,
             "warm_decisions": warm,
