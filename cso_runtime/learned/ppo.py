@@ -698,6 +698,25 @@ def warm_start(model: GraphActorCritic, data: TeacherData, args: Args, device: t
 # --- PPO --------------------------------------------------------------------------------------
 
 
+LOG_FIELDS = [
+    "update", "decisions", "env_steps", "wall_s", "episodes", "mean_return", "mean_coverage_pct", "policy_loss", "value_loss", "entropy", "approx_kl",
+    "clipfrac", "lr", "explained_variance", "mean_episode_steps", "sps",
+]  # fmt: skip
+"""The columns of ``<variant>_log.csv``, one row per PPO update (CleanRL's figures): ``decisions`` is CleanRL's
+global step (goal choices, warm start excluded); ``mean_return``, ``mean_coverage_pct`` and ``mean_episode_steps``
+(control steps) over the episodes that ended in the update (empty when none did); the losses, ``approx_kl`` and
+``clipfrac`` of its last minibatch as CleanRL logs them; ``explained_variance`` of the rollout's returns by its
+values (empty when the returns do not vary); ``sps`` the PPO decisions per second of training time so far."""
+
+
+def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float | str:
+    """1 - Var(returns - values) / Var(returns), as CleanRL logs it: how much of the returns the critic explains
+    (1 perfect, 0 no better than their mean, negative worse); empty when the returns do not vary."""
+    y_pred, y_true = values.detach().cpu().double().numpy(), returns.detach().cpu().double().numpy()
+    var_y = float(np.var(y_true))
+    return "" if var_y == 0 else float(1.0 - np.var(y_true - y_pred) / var_y)
+
+
 TENSORBOARD_TAGS = {
     "mean_return": "charts/episodic_return",
     "mean_coverage_pct": "charts/coverage_pct",
@@ -707,6 +726,8 @@ TENSORBOARD_TAGS = {
     "entropy": "losses/entropy",
     "approx_kl": "losses/approx_kl",
     "clipfrac": "losses/clipfrac",
+    "explained_variance": "losses/explained_variance",
+    "mean_episode_steps": "charts/episodic_length",
 }
 """CSV log column -> TensorBoard tag (CleanRL's names where it has one); ``charts/SPS`` is decisions per second."""
 
@@ -805,10 +826,10 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     finished: list[dict[str, float]] = []
 
     log_path = out / f"{args.variant}_log.csv"
-    fields = ["update", "decisions", "env_steps", "wall_s", "episodes", "mean_return", "mean_coverage_pct", "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "lr"]
+    fields = LOG_FIELDS
     new_log = not (args.resume and log_path.exists())
     if not new_log:  # the rows the checkpoint already holds; later ones (logged after it, before a crash) run again
-        keep_log_rows_up_to(log_path, start_update - 1)
+        keep_log_rows_up_to(log_path, start_update - 1, fields)
     log_file = open(log_path, "w" if new_log else "a", newline="")  # noqa: SIM115  (open for the whole run; closed in the finally below)
     writer = csv.DictWriter(log_file, fieldnames=fields)
     if new_log:
@@ -900,11 +921,12 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 if args.target_kl and approx_kl > args.target_kl:
                     break
 
+            elapsed_s = wall_before_s + time.time() - t_start
             row = {
                 "update": update,
                 "decisions": global_decisions,
                 "env_steps": env_steps,
-                "wall_s": round(wall_before_s + time.time() - t_start, 1),
+                "wall_s": round(elapsed_s, 1),
                 "episodes": len(finished),
                 "mean_return": np.mean([f["return"] for f in finished]) if finished else "",
                 "mean_coverage_pct": np.mean([f["coverage_pct"] for f in finished]) if finished else "",
@@ -914,6 +936,9 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 "approx_kl": approx_kl.item(),
                 "clipfrac": float(np.mean(clipfracs)) if clipfracs else 0.0,
                 "lr": optimizer.param_groups[0]["lr"],
+                "explained_variance": explained_variance(b_values, b_returns),
+                "mean_episode_steps": np.mean([f["steps"] for f in finished]) if finished else "",
+                "sps": round(global_decisions / elapsed_s, 1) if elapsed_s > 0 else "",
             }
             writer.writerow(row)
             log_file.flush()
@@ -958,15 +983,18 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     return record
 
 
-def keep_log_rows_up_to(log_path: Path, update: int) -> None:
+def keep_log_rows_up_to(log_path: Path, update: int, fields: Sequence[str] | None = None) -> None:
     """Drop the training log's rows after ``update`` (written after the checkpoint a run resumes from), so
-    that the resumed run's rows follow on without repeating an update."""
+    that the resumed run's rows follow on without repeating an update. With ``fields`` (the columns the resumed
+    run writes), the header becomes them, with any other column of the old log after them; a column the old
+    log lacks (it was written by an older version) is empty in its rows."""
     with log_path.open(newline="") as fh:
         reader = csv.DictReader(fh)
-        fields, rows = reader.fieldnames or [], [r for r in reader if r.get("update", "").isdigit() and int(r["update"]) <= update]
+        old, rows = reader.fieldnames or [], [r for r in reader if r.get("update", "").isdigit() and int(r["update"]) <= update]
+    fields = [*fields, *(f for f in old if f not in fields)] if fields is not None else old
     tmp = log_path.with_suffix(".tmp")
     with tmp.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields)
+        writer = csv.DictWriter(fh, fieldnames=fields, restval="")
         writer.writeheader()
         writer.writerows(rows)
     tmp.replace(log_path)
