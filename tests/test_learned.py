@@ -1384,3 +1384,21 @@ def test_the_training_log_has_cleanrls_figures_and_a_resume_over_an_older_log_ke
     resumed = list(csv.DictReader(log_path.open()))
     assert [r["update"] for r in resumed] == ["1", "2", "3"] and resumed[0]["sps"] == "" and float(resumed[2]["sps"]) > 0
     assert resumed[2]["lr"] == str(float(resumed[2]["lr"])) and float(resumed[2]["wall_s"]) >= float(resumed[1]["wall_s"])
+
+
+def test_a_training_checkpoint_resumes_onto_another_device_with_its_rng_state_on_the_cpu(tmp_path):
+    """``--resume`` with ``--device cuda`` loaded the whole checkpoint onto that device, torch's RNG state too, which
+    ``torch.set_rng_state`` refuses (it takes a CPU byte tensor only): a resume on a GPU failed. The checkpoint now
+    loads on the CPU whatever the device (load_state_dict moves the weights and Adam's state to the model), so it
+    loads for a ``cuda`` run even where this torch has no CUDA, and its RNG state can be set."""
+    from torch import optim
+
+    from cso_runtime.learned.ppo import load_resume_checkpoint
+
+    common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False}
+    train(Args(total_decisions=8, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    args = Args(total_decisions=16, resume=str(tmp_path / "checkpoint.pt"), **common)
+    model = build_model(args, torch.device("cpu"))
+    ckpt = load_resume_checkpoint(args.resume, model, optim.Adam(parameter_groups(model, args)), torch.device("cuda"), "cso", args)
+    assert ckpt["torch_rng"].device.type == "cpu" and ckpt["update"] == 1
+    torch.set_rng_state(ckpt["torch_rng"])

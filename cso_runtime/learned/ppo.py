@@ -415,7 +415,9 @@ def load_resume_checkpoint(
     reward, discount or batch of other values loads into the same network shapes, but the run would go on as a
     different one, and its weights would be saved with this configuration."""
     try:
-        ckpt = torch.load(path, map_location=device, weights_only=False)
+        # On the CPU whatever the device: the RNG states must stay CPU byte tensors (torch.set_rng_state and
+        # torch.cuda.set_rng_state_all refuse any other), and load_state_dict moves weights and Adam's state to the model's device.
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
     except FileNotFoundError:
         raise ValueError(f"--resume {path}: no such file") from None
     except Exception as exc:  # torch raises pickle, EOF and zip errors alike  # noqa: BLE001
