@@ -26,6 +26,7 @@ from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkCon
 from cso_runtime.learned.ppo import (
     Args,
     build_model,
+    check_training_inputs,
     compute_gae,
     episode_returns,
     model_chooser,
@@ -425,7 +426,7 @@ def test_training_writes_the_csv_figures_as_tensorboard_events(tmp_path, monkeyp
     assert [v for _, v in scalars["charts/learning_rate"]] == pytest.approx([float(r["lr"]) for r in rows], rel=1e-6)
     returns = [(int(r["decisions"]), float(r["mean_return"])) for r in rows if r["mean_return"]]
     assert [(s, pytest.approx(v, rel=1e-6)) for s, v in scalars.get("charts/episodic_return", [])] == returns
-    every_update = set(ppo.TENSORBOARD_TAGS.values()) - {"charts/episodic_return", "charts/coverage_pct"}  # those two once an episode ended
+    every_update = set(ppo.TENSORBOARD_TAGS.values()) - {"charts/episodic_return", "charts/coverage_pct", "charts/episodic_length"}  # those once an episode ended
     assert set(scalars) >= every_update | {"charts/SPS"}
 
     monkeypatch.setitem(sys.modules, "tensorboardX", None)  # not installed
@@ -1337,3 +1338,74 @@ def test_train_closed_by_its_terminal_stops_its_env_workers_and_says_how_to_resu
     stopped_at = torch.load(out / "checkpoint.pt", weights_only=False)["update"]
     resumed = subprocess.run([*cmd, "--resume", str(out / "checkpoint.pt"), "--time-limit-s", "0.1"], cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=120)
     assert resumed.returncode == 0 and f"resumed from {out / 'checkpoint.pt'} at update {stopped_at + 1}" in resumed.stdout, resumed.stdout[-2000:] + resumed.stderr[-2000:]
+
+
+def test_a_resume_with_another_recipe_is_refused_with_what_it_changes(tmp_path):
+    """A checkpoint loads into any configuration with the same parameter shapes: a resume with another distance
+    prior, graph, discount or batch would go on as a different run (and save its weights under this configuration)
+    without a word. It is refused, naming each changed field; where and how long it runs may change."""
+    common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40,
+              "distance_prior": 4.0, "progress": False}  # fmt: skip
+    train(Args(total_decisions=8, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    checkpoint = str(tmp_path / "checkpoint.pt")
+    for change, said in [({"distance_prior": 0.0}, "distance_prior 4.0 -> 0.0"), ({"max_frontier_nodes": 100}, "max_frontier_nodes 200 -> 100"),
+                         ({"num_steps": 4, "gamma": 0.5}, "num_steps 8 -> 4, gamma 0.98 -> 0.5")]:  # fmt: skip
+        with pytest.raises(ValueError, match=re.escape(f"changes the recipe of the run it continues ({said})")):
+            check_training_inputs(Args(**{**common, **change, "out_dir": str(tmp_path / "other")}, total_decisions=16, resume=checkpoint))
+    said: list[str] = []
+    record = train(Args(**{**common, "out_dir": str(tmp_path / "longer")}, total_decisions=16, resume=checkpoint, checkpoint_every=3), log=said.append, plans=[rooms_plan(2)])
+    assert record["ppo_decisions"] == 16 and "total_decisions 8 -> 16: 2 updates in all, the learning rate anneals over them from here" in said
+
+
+def test_the_training_log_has_cleanrls_figures_and_a_resume_over_an_older_log_keeps_its_columns_aligned(tmp_path):
+    """Besides the losses, KL and clip fraction, the CSV log has CleanRL's explained variance, episode length and
+    SPS (decisions per second). A resume appending to a log of an older version (fewer columns) rewrites its
+    header, so every row's values stay under their own column."""
+    import csv
+
+    from cso_runtime.learned import ppo
+
+    common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 16, "num_minibatches": 1, "max_steps": 40,
+              "checkpoint_every": 1, "progress": False}  # fmt: skip
+    train(Args(total_decisions=32, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    log_path = tmp_path / "cso_log.csv"
+    rows = list(csv.DictReader(log_path.open()))
+    assert list(rows[0]) == ppo.LOG_FIELDS and {"explained_variance", "mean_episode_steps", "sps"} <= set(ppo.LOG_FIELDS)
+    for r in rows:
+        assert float(r["explained_variance"]) <= 1.0 and abs(int(r["decisions"]) / float(r["sps"]) - float(r["wall_s"])) < 0.06  # wall_s to 0.1 s
+        assert (r["mean_episode_steps"] == "") == (int(r["episodes"]) == 0)
+    ended = [r for r in rows if int(r["episodes"])]
+    assert ended and all(0 < float(r["mean_episode_steps"]) <= 40 for r in ended)
+    assert ppo.explained_variance(torch.tensor([1.0, 2.0]), torch.tensor([1.0, 2.0])) == 1.0
+    assert ppo.explained_variance(torch.tensor([0.0, 0.0]), torch.tensor([1.0, 1.0])) == ""
+
+    older = ppo.LOG_FIELDS[:13]  # the log as the version before these columns wrote it
+    with log_path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=older, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    train(Args(total_decisions=48, resume=str(tmp_path / "checkpoint.pt"), **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    with log_path.open(newline="") as fh:
+        lines = list(csv.reader(fh))
+    assert lines[0] == ppo.LOG_FIELDS and all(len(line) == len(ppo.LOG_FIELDS) for line in lines)
+    resumed = list(csv.DictReader(log_path.open()))
+    assert [r["update"] for r in resumed] == ["1", "2", "3"] and resumed[0]["sps"] == "" and float(resumed[2]["sps"]) > 0
+    assert resumed[2]["lr"] == str(float(resumed[2]["lr"])) and float(resumed[2]["wall_s"]) >= float(resumed[1]["wall_s"])
+
+
+def test_a_training_checkpoint_resumes_onto_another_device_with_its_rng_state_on_the_cpu(tmp_path):
+    """``--resume`` with ``--device cuda`` loaded the whole checkpoint onto that device, torch's RNG state too, which
+    ``torch.set_rng_state`` refuses (it takes a CPU byte tensor only): a resume on a GPU failed. The checkpoint now
+    loads on the CPU whatever the device (load_state_dict moves the weights and Adam's state to the model), so it
+    loads for a ``cuda`` run even where this torch has no CUDA, and its RNG state can be set."""
+    from torch import optim
+
+    from cso_runtime.learned.ppo import load_resume_checkpoint
+
+    common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False}
+    train(Args(total_decisions=8, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    args = Args(total_decisions=16, resume=str(tmp_path / "checkpoint.pt"), **common)
+    model = build_model(args, torch.device("cpu"))
+    ckpt = load_resume_checkpoint(args.resume, model, optim.Adam(parameter_groups(model, args)), torch.device("cuda"), "cso", args)
+    assert ckpt["torch_rng"].device.type == "cpu" and ckpt["update"] == 1
+    torch.set_rng_state(ckpt["torch_rng"])

@@ -389,12 +389,35 @@ def select_device(name: str) -> torch.device:
     return torch.device(name)
 
 
-def load_resume_checkpoint(path: str | Path, model: GraphActorCritic, optimizer: optim.Optimizer, device: torch.device, variant: str | None = None) -> dict[str, Any]:
+RESUME_MAY_CHANGE = frozenset(
+    {"out_dir", "resume", "init_from", "device", "torch_threads", "progress", "async_envs", "tensorboard", "checkpoint_every", "time_limit_s", "total_decisions", "dungeon_dir"}
+    | {f.name for f in dataclasses.fields(Args) if f.name.startswith("warm_start_")}  # the warm start does not run again
+)
+"""The fields of ``Args`` a ``--resume`` may give other values than the run it continues: where and how it runs,
+how long (a new ``total_decisions`` anneals the learning rate over the new total from there), the warm start (done)
+and where the Dungeon plans are on this machine. Every other field is the recipe, and must be the checkpoint's."""
+
+
+def resume_recipe_changes(saved: Mapping[str, Any], args: Args) -> list[str]:
+    """``"field checkpoint_value -> this_value"`` for each recipe field whose value ``args`` changes from the
+    ``saved`` run's (``dataclasses.asdict`` of its Args; a field it lacks, from an older version, is not compared)."""
+    now = dataclasses.asdict(args)
+    return [f"{k} {saved[k]!r} -> {now[k]!r}" for k in now if k not in RESUME_MAY_CHANGE and k in saved and saved[k] != now[k]]
+
+
+def load_resume_checkpoint(
+    path: str | Path, model: GraphActorCritic, optimizer: optim.Optimizer, device: torch.device, variant: str | None = None, args: Args | None = None
+) -> dict[str, Any]:
     """Load a training checkpoint (``checkpoint.pt`` of an earlier run of the same recipe) into ``model`` and
     ``optimizer``; a file that is not one, one of another network, or one of another ``variant`` (the variants'
-    networks have the same shapes, their masks and inputs differ) is a ValueError that says which."""
+    networks have the same shapes, their masks and inputs differ) is a ValueError that says which. With ``args``,
+    so is a checkpoint whose run had another recipe (``resume_recipe_changes``): a distance prior, graph size,
+    reward, discount or batch of other values loads into the same network shapes, but the run would go on as a
+    different one, and its weights would be saved with this configuration."""
     try:
-        ckpt = torch.load(path, map_location=device, weights_only=False)
+        # On the CPU whatever the device: the RNG states must stay CPU byte tensors (torch.set_rng_state and
+        # torch.cuda.set_rng_state_all refuse any other), and load_state_dict moves weights and Adam's state to the model's device.
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
     except FileNotFoundError:
         raise ValueError(f"--resume {path}: no such file") from None
     except Exception as exc:  # torch raises pickle, EOF and zip errors alike  # noqa: BLE001
@@ -404,6 +427,11 @@ def load_resume_checkpoint(path: str | Path, model: GraphActorCritic, optimizer:
         raise ValueError(f"--resume {path}: not a training checkpoint (no {', '.join(missing)}; weights to start from are --init-from)")
     if variant is not None and ckpt.get("variant", variant) != variant:
         raise ValueError(f"--resume {path}: a checkpoint of {ckpt['variant']}, not of {variant} (give --variant {ckpt['variant']}, or another --out)")
+    if args is not None and isinstance(ckpt.get("args"), dict) and (changed := resume_recipe_changes(ckpt["args"], args)):
+        raise ValueError(
+            f"--resume {path}: this configuration changes the recipe of the run it continues ({', '.join(changed)}); resume with"
+            " the checkpoint's values (the same --config and --set), or start a new run in another --out"
+        )
     try:
         model.load_state_dict(ckpt["state_dict"])
         optimizer.load_state_dict(ckpt["optimizer"])
@@ -418,7 +446,7 @@ def check_training_inputs(args: Args) -> None:
     device = select_device(args.device)
     if args.resume:
         model = build_model(args, device)
-        load_resume_checkpoint(args.resume, model, optim.Adam(parameter_groups(model, args), lr=args.learning_rate), device, args.variant)
+        load_resume_checkpoint(args.resume, model, optim.Adam(parameter_groups(model, args), lr=args.learning_rate), device, args.variant, args)
     elif args.init_from:
         initial_weights(args, device)
     elif args.warm_start_data:
@@ -672,6 +700,25 @@ def warm_start(model: GraphActorCritic, data: TeacherData, args: Args, device: t
 # --- PPO --------------------------------------------------------------------------------------
 
 
+LOG_FIELDS = [
+    "update", "decisions", "env_steps", "wall_s", "episodes", "mean_return", "mean_coverage_pct", "policy_loss", "value_loss", "entropy", "approx_kl",
+    "clipfrac", "lr", "explained_variance", "mean_episode_steps", "sps",
+]  # fmt: skip
+"""The columns of ``<variant>_log.csv``, one row per PPO update (CleanRL's figures): ``decisions`` is CleanRL's
+global step (goal choices, warm start excluded); ``mean_return``, ``mean_coverage_pct`` and ``mean_episode_steps``
+(control steps) over the episodes that ended in the update (empty when none did); the losses, ``approx_kl`` and
+``clipfrac`` of its last minibatch as CleanRL logs them; ``explained_variance`` of the rollout's returns by its
+values (empty when the returns do not vary); ``sps`` the PPO decisions per second of training time so far."""
+
+
+def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float | str:
+    """1 - Var(returns - values) / Var(returns), as CleanRL logs it: how much of the returns the critic explains
+    (1 perfect, 0 no better than their mean, negative worse); empty when the returns do not vary."""
+    y_pred, y_true = values.detach().cpu().double().numpy(), returns.detach().cpu().double().numpy()
+    var_y = float(np.var(y_true))
+    return "" if var_y == 0 else float(1.0 - np.var(y_true - y_pred) / var_y)
+
+
 TENSORBOARD_TAGS = {
     "mean_return": "charts/episodic_return",
     "mean_coverage_pct": "charts/coverage_pct",
@@ -681,6 +728,8 @@ TENSORBOARD_TAGS = {
     "entropy": "losses/entropy",
     "approx_kl": "losses/approx_kl",
     "clipfrac": "losses/clipfrac",
+    "explained_variance": "losses/explained_variance",
+    "mean_episode_steps": "charts/episodic_length",
 }
 """CSV log column -> TensorBoard tag (CleanRL's names where it has one); ``charts/SPS`` is decisions per second."""
 
@@ -731,7 +780,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     wall_before_s = 0.0
     """Training time of the run before its ``--resume`` (the log's ``wall_s`` and the record count it too)."""
     if args.resume:
-        ckpt = load_resume_checkpoint(args.resume, model, optimizer, device, args.variant)
+        ckpt = load_resume_checkpoint(args.resume, model, optimizer, device, args.variant, args)
         start_update = ckpt["update"] + 1
         global_decisions, warm_decisions, env_steps = ckpt["decisions"], ckpt["warm_decisions"], ckpt["env_steps"]
         wall_before_s = float(ckpt.get("wall_s", 0.0))
@@ -740,6 +789,9 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         if ckpt.get("cuda_rng") is not None and device.type == "cuda":
             torch.cuda.set_rng_state_all(ckpt["cuda_rng"])
         log(f"resumed from {args.resume} at update {start_update}")
+        before = ckpt.get("args", {}).get("total_decisions", args.total_decisions)
+        if before != args.total_decisions:
+            log(f"total_decisions {before} -> {args.total_decisions}: {args.num_updates} updates in all, the learning rate anneals over them from here")
     elif args.init_from:
         model.load_state_dict(initial_weights(args, device))
         record["init_from"] = str(args.init_from)
@@ -776,10 +828,10 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     finished: list[dict[str, float]] = []
 
     log_path = out / f"{args.variant}_log.csv"
-    fields = ["update", "decisions", "env_steps", "wall_s", "episodes", "mean_return", "mean_coverage_pct", "policy_loss", "value_loss", "entropy", "approx_kl", "clipfrac", "lr"]
+    fields = LOG_FIELDS
     new_log = not (args.resume and log_path.exists())
     if not new_log:  # the rows the checkpoint already holds; later ones (logged after it, before a crash) run again
-        keep_log_rows_up_to(log_path, start_update - 1)
+        keep_log_rows_up_to(log_path, start_update - 1, fields)
     log_file = open(log_path, "w" if new_log else "a", newline="")  # noqa: SIM115  (open for the whole run; closed in the finally below)
     writer = csv.DictWriter(log_file, fieldnames=fields)
     if new_log:
@@ -871,11 +923,12 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 if args.target_kl and approx_kl > args.target_kl:
                     break
 
+            elapsed_s = wall_before_s + time.time() - t_start
             row = {
                 "update": update,
                 "decisions": global_decisions,
                 "env_steps": env_steps,
-                "wall_s": round(wall_before_s + time.time() - t_start, 1),
+                "wall_s": round(elapsed_s, 1),
                 "episodes": len(finished),
                 "mean_return": np.mean([f["return"] for f in finished]) if finished else "",
                 "mean_coverage_pct": np.mean([f["coverage_pct"] for f in finished]) if finished else "",
@@ -885,6 +938,9 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 "approx_kl": approx_kl.item(),
                 "clipfrac": float(np.mean(clipfracs)) if clipfracs else 0.0,
                 "lr": optimizer.param_groups[0]["lr"],
+                "explained_variance": explained_variance(b_values, b_returns),
+                "mean_episode_steps": np.mean([f["steps"] for f in finished]) if finished else "",
+                "sps": round(global_decisions / elapsed_s, 1) if elapsed_s > 0 else "",
             }
             writer.writerow(row)
             log_file.flush()
@@ -896,10 +952,10 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
             else:
                 log(f"update {update}/{args.num_updates} decisions {global_decisions} return {row['mean_return']} entropy {row['entropy']:.3f}")
             if update % args.checkpoint_every == 0 or update == args.num_updates:
-                _save_resumable(out / "checkpoint.pt", model, optimizer, args.variant, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
+                _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
             if args.time_limit_s and time.time() - t_start > args.time_limit_s:
                 log(f"time limit reached after update {update}")
-                _save_resumable(out / "checkpoint.pt", model, optimizer, args.variant, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
+                _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
                 break
         finished_loop = True
     finally:
@@ -929,32 +985,36 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     return record
 
 
-def keep_log_rows_up_to(log_path: Path, update: int) -> None:
+def keep_log_rows_up_to(log_path: Path, update: int, fields: Sequence[str] | None = None) -> None:
     """Drop the training log's rows after ``update`` (written after the checkpoint a run resumes from), so
-    that the resumed run's rows follow on without repeating an update."""
+    that the resumed run's rows follow on without repeating an update. With ``fields`` (the columns the resumed
+    run writes), the header becomes them, with any other column of the old log after them; a column the old
+    log lacks (it was written by an older version) is empty in its rows."""
     with log_path.open(newline="") as fh:
         reader = csv.DictReader(fh)
-        fields, rows = reader.fieldnames or [], [r for r in reader if r.get("update", "").isdigit() and int(r["update"]) <= update]
+        old, rows = reader.fieldnames or [], [r for r in reader if r.get("update", "").isdigit() and int(r["update"]) <= update]
+    fields = [*fields, *(f for f in old if f not in fields)] if fields is not None else old
     tmp = log_path.with_suffix(".tmp")
     with tmp.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields)
+        writer = csv.DictWriter(fh, fieldnames=fields, restval="")
         writer.writeheader()
         writer.writerows(rows)
     tmp.replace(log_path)
 
 
 def _save_resumable(
-    path: Path, model: nn.Module, optimizer: optim.Optimizer, variant: str, update: int, decisions: int, warm: int, env_steps: int, warm_stats: dict, wall_s: float
+    path: Path, model: nn.Module, optimizer: optim.Optimizer, args: Args, update: int, decisions: int, warm: int, env_steps: int, warm_stats: dict, wall_s: float
 ) -> None:
-    """What ``--resume`` needs: weights, Adam's state, the counters, the training time so far and the torch
-    generators. Not the environments' state: the episodes in progress start over on new scenes, so a resumed
+    """What ``--resume`` needs: weights, Adam's state, the counters, the training time so far, the torch
+    generators and the run's ``Args`` (a resume with another recipe is refused). Not the environments' state: the episodes in progress start over on new scenes, so a resumed
     run goes on like the one it continues but not bit for bit."""
     tmp = path.with_suffix(".tmp")
     torch.save(
         {
             "state_dict": model.state_dict(),
             "optimizer": optimizer.state_dict(),
-            "variant": variant,
+            "variant": args.variant,
+            "args": dataclasses.asdict(args),
             "update": update,
             "decisions": decisions,
             "warm_decisions": warm,
