@@ -657,16 +657,27 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
 
     monkeypatch.setattr(launcher_module.subprocess, "Popen", popen)
     profile, data = load_profile(str(write_profile(tmp_path)), {})
-    code, message = start_detached(profile, data, tmp_path / "runs", ready_timeout_s=0.2)  # a launcher takes longer than that
+    code, message = start_detached(profile, data, tmp_path / "runs", ready_timeout_s=0.0)  # no launcher is ready the moment it is spawned
     assert code == 1 and "did not start within 0 s: stopped it" in message, message
     assert started[-1].poll() is not None
 
-    ctrl_c = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))  # long before its services are up
-    ctrl_c.start()
-    try:
-        code, message = start_detached(profile, data, tmp_path / "runs2")
-    finally:
-        ctrl_c.cancel()
+    def popen_then_ctrl_c(*args, **kwargs):
+        """Ctrl-C at the first look at the launcher, microseconds after it was spawned: long before its services are
+        up, whatever the host's speed (a timer of 0.3 s came after a fast launcher's start)."""
+        proc = popen(*args, **kwargs)
+        real_poll = proc.poll
+
+        def poll():
+            if not getattr(proc, "ctrl_c_sent", False):
+                proc.ctrl_c_sent = True
+                os.kill(os.getpid(), signal.SIGINT)
+            return real_poll()
+
+        proc.poll = poll
+        return proc
+
+    monkeypatch.setattr(launcher_module.subprocess, "Popen", popen_then_ctrl_c)
+    code, message = start_detached(profile, data, tmp_path / "runs2")
     assert code == EXIT_INTERRUPTED and "interrupted while the launcher started: stopped it" in message, message
     assert started[-1].poll() is not None and len(started) == 2
     for runs in (tmp_path / "runs", tmp_path / "runs2"):  # nothing `status` and `down` would take for a running run
