@@ -884,11 +884,14 @@ def train_command(
     args = training_args(config, overrides, settings)
     output_dir_or_exit(args.out_dir, "out_dir")
     checkpoint = Path(args.out_dir) / "checkpoint.pt"
+    started = time.time()
     interrupt_on_sigterm()
     try:
         record = train(args, log=typer.echo)
     except (EnvWorkerDied, KeyboardInterrupt) as exc:
-        hint = f"; continue from the last checkpoint with --resume {checkpoint}" if checkpoint.is_file() else ""
+        # This run's checkpoint (or the one it resumed from), not an earlier run's left in the same folder.
+        ours = checkpoint.is_file() and (checkpoint.stat().st_mtime >= started or args.resume and Path(args.resume).resolve() == checkpoint.resolve())
+        hint = f"; continue from the last checkpoint with --resume {checkpoint}" if ours else ""
         why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"error: training stopped: {exc}"
         typer.echo(f"{why}{hint}", err=True)
         raise typer.Exit(EXIT_INTERRUPTED if isinstance(exc, KeyboardInterrupt) else 1) from None

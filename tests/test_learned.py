@@ -1409,3 +1409,80 @@ def test_a_training_checkpoint_resumes_onto_another_device_with_its_rng_state_on
     ckpt = load_resume_checkpoint(args.resume, model, optim.Adam(parameter_groups(model, args)), torch.device("cuda"), "cso", args)
     assert ckpt["torch_rng"].device.type == "cpu" and ckpt["update"] == 1
     torch.set_rng_state(ckpt["torch_rng"])
+
+
+def test_weights_given_as_a_runs_file_or_as_an_unfinished_run_are_said_plainly(tmp_path):
+    """``--weights`` took only a folder; a run's ``cso.pt`` given directly was refused as "not a folder", and a
+    folder holding only ``checkpoint.pt`` (a run stopped before its end) passed, to fail later as "no weights for
+    cso". A method's file now serves from its folder; a training checkpoint is named as one, with how to finish it."""
+    import shutil
+
+    from cso_runtime.learned.registry import weights_path
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights_dir
+
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(weights_path("cso", SensorConfig.preset("lidar", 360)), run / "cso.pt")
+    before = os.environ.get(WEIGHTS_DIR_ENV)
+    try:
+        assert use_weights_dir(run / "cso.pt") == run.resolve()
+    finally:
+        if before is None:
+            os.environ.pop(WEIGHTS_DIR_ENV, None)
+        else:
+            os.environ[WEIGHTS_DIR_ENV] = before
+    unfinished = tmp_path / "unfinished"
+    unfinished.mkdir()
+    (unfinished / "checkpoint.pt").write_bytes(b"PK\x03\x04 a checkpoint")
+    for given in (unfinished, unfinished / "checkpoint.pt"):
+        with pytest.raises(ValueError, match=rf"only a training checkpoint .*train --resume {re.escape(str(unfinished.resolve() / 'checkpoint.pt'))}"):
+            use_weights_dir(given)
+    assert os.environ.get(WEIGHTS_DIR_ENV) == before
+
+
+def test_train_into_an_earlier_runs_folder_says_it_replaces_it(tmp_path):
+    """CleanRL gives every run a folder of its own; ``train --out`` into an earlier run's folder replaced its log at
+    once and its checkpoint at the first save without a word. It now says so, and how that run would be continued."""
+    from cso_runtime.learned.ppo import earlier_run_files
+
+    out = tmp_path / "run"
+    out.mkdir()
+    assert earlier_run_files(out, "cso") == []
+    (out / "cso_log.csv").write_text("update\n")
+    (out / "checkpoint.pt").write_bytes(b"PK\x03\x04")
+    (out / "gnn-baseline.pt").write_bytes(b"PK\x03\x04")  # another variant's weights: not this run's to replace
+    assert earlier_run_files(out, "cso") == ["checkpoint.pt", "cso_log.csv"]
+    said: list[str] = []
+    tiny = Args(dungeon_dir=None, generated=["generated:small:1:0"], num_envs=1, num_steps=4, num_minibatches=1, total_decisions=4, max_steps=20,
+                out_dir=str(out), progress=False)
+    train(tiny, log=said.append)
+    assert f"note: {out} holds an earlier run (checkpoint.pt, cso_log.csv): this run replaces it; --resume {out / 'checkpoint.pt'} would continue it" in said
+
+
+def test_the_resume_hint_names_only_this_runs_checkpoint(tmp_path, monkeypatch):
+    """Ctrl-C before a new run's first checkpoint said "continue ... with --resume OUT/checkpoint.pt" whenever that
+    file existed: an earlier run's, which would continue another run. Only this run's (or the one it resumed) counts."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.learned import ppo
+
+    def stopped(args, log):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ppo, "train", stopped)
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "checkpoint.pt").write_bytes(b"PK\x03\x04")
+    os.utime(out / "checkpoint.pt", (1_000_000_000, 1_000_000_000))  # an earlier run's
+    argv = ["train", "--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--out", str(out)]
+    r = CliRunner().invoke(app, argv)
+    assert r.exit_code == 130 and "interrupted" in r.output and "--resume" not in r.output, r.output
+
+    def saved_then_stopped(args, log):
+        (out / "checkpoint.pt").write_bytes(b"PK\x03\x04 this run's")
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ppo, "train", saved_then_stopped)
+    r = CliRunner().invoke(app, argv)
+    assert r.exit_code == 130 and f"continue from the last checkpoint with --resume {out / 'checkpoint.pt'}" in r.output, r.output

@@ -405,6 +405,12 @@ def resume_recipe_changes(saved: Mapping[str, Any], args: Args) -> list[str]:
     return [f"{k} {saved[k]!r} -> {now[k]!r}" for k in now if k not in RESUME_MAY_CHANGE and k in saved and saved[k] != now[k]]
 
 
+
+def earlier_run_files(out: Path, variant: str) -> list[str]:
+    """The files of an earlier training run of ``variant`` in ``out`` that a new run (not ``--resume``) replaces."""
+    names = ("checkpoint.pt", f"{variant}.pt", f"{variant}_log.csv")
+    return [name for name in names if (out / name).is_file()]
+
 def load_resume_checkpoint(
     path: str | Path, model: GraphActorCritic, optimizer: optim.Optimizer, device: torch.device, variant: str | None = None, args: Args | None = None
 ) -> dict[str, Any]:
@@ -421,7 +427,8 @@ def load_resume_checkpoint(
     except FileNotFoundError:
         raise ValueError(f"--resume {path}: no such file") from None
     except Exception as exc:  # torch raises pickle, EOF and zip errors alike  # noqa: BLE001
-        raise ValueError(f"--resume {path}: not a checkpoint torch can read ({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})") from None
+        why = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        raise ValueError(f"--resume {path}: not a checkpoint torch can read: cut short or corrupt (a run killed while it saved?) ({why})") from None
     missing = [k for k in ("state_dict", "optimizer", "update", "decisions", "warm_decisions", "env_steps", "torch_rng") if not isinstance(ckpt, dict) or k not in ckpt]
     if missing:
         raise ValueError(f"--resume {path}: not a training checkpoint (no {', '.join(missing)}; weights to start from are --init-from)")
@@ -767,6 +774,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     device = select_device(args.device)
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if not args.resume and (earlier := earlier_run_files(out, args.variant)):  # CleanRL never writes into an old run; say it
+        log(f"note: {out} holds an earlier run ({', '.join(earlier)}): this run replaces it; --resume {out / 'checkpoint.pt'} would continue it")
     refs: list[SceneRef] | list[FloorPlan] = plans if plans else training_scene_refs(args)
     log(f"training {args.variant} on {len(refs)} scenes, device {device}: {args.num_updates} PPO update{'s' if args.num_updates != 1 else ''} of {args.batch_size} decisions "
         f"({args.num_envs} envs x {args.num_steps} steps; total_decisions {args.total_decisions} in whole updates)")

@@ -69,11 +69,24 @@ def weights_file_problem(name: str, sensor: SensorConfig | None = None) -> str:
     return f"{path}: not a torch checkpoint (neither a zip archive nor a pickle)"
 
 
+RESUMABLE_CHECKPOINT = "checkpoint.pt"
+"""What ``train`` saves every few updates to ``--resume`` from: weights with the optimiser's and the RNGs' states,
+not a method's weights file."""
+
+
 def use_weights_dir(directory: str | Path) -> Path:
     """Serve the learned methods from ``directory`` (a ``train --out`` folder of ``<method>.pt``) in
     this process and the ones it starts (``eval --weights``, ``up --weights``). Raises ValueError
     when it is not a folder holding at least one weights file."""
     path = Path(directory).expanduser().resolve()
+    if path.is_file() and path.name != RESUMABLE_CHECKPOINT and path.suffix == ".pt":
+        path = path.parent  # a run's <method>.pt: its folder serves it (and the run's other methods)
+    if path.is_file() and path.name == RESUMABLE_CHECKPOINT or path.is_dir() and [p.name for p in path.glob("*.pt")] == [RESUMABLE_CHECKPOINT]:
+        run = path.parent if path.is_file() else path
+        raise ValueError(
+            f"--weights {directory}: only a training checkpoint ({RESUMABLE_CHECKPOINT}: a run that has not finished), no <method>.pt; "
+            f"finish it with `cso-runtime train --resume {run / RESUMABLE_CHECKPOINT}` and the run's own flags"
+        )
     if not path.is_dir():
         raise ValueError(f"--weights {directory}: not a folder (give a training run's --out, which holds <method>.pt)")
     if not any(path.glob("*.pt")):
