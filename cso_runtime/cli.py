@@ -170,7 +170,7 @@ def eval_command(
     resume: bool = typer.Option(False, "--resume", help="Keep episodes already finished in --out (same method, map, seed, config, simulator and weights)"),
     baseline: str = typer.Option("greedy-dist", "--baseline", help="Compare every other method with this one, scene by scene (paired.csv), when it runs too"),
     weights: Path | None = typer.Option(
-        None, "--weights", help="Folder of <method>.pt (a `train --out` folder) to use instead of the shipped weights (sets CSO_WEIGHTS_DIR)"
+        None, "--weights", help="Folder of <method>.pt (a `train --out` folder), or one of its <method>.pt files, to use instead of the shipped weights (sets CSO_WEIGHTS_DIR)"
     ),
     animate: bool = typer.Option(False, "--animate", help="Also write animations/<method>/<map>.gif: the robot's map, path and goal at each decision"),
     settings: list[str] | None = typer.Option(
@@ -574,7 +574,7 @@ def up_command(
     namespace: str | None = typer.Option(None, "--namespace", help="ROS namespace of the robot's topics (limo-ros2: services.ros2_bridge.namespace)"),
     record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
     record_out: str | None = typer.Option(None, "--record-out", help="Record the run to this new MCAP file, or to <run-id>.mcap in this folder (existing, or ending in /; implies --record)"),
-    weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt for the policy service instead of the shipped weights"),
+    weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt (or one of its files) for the policy service instead of the shipped weights"),
     settings: list[str] | None = typer.Option(
         None, "--set", help="KEY=VALUE into the profile, dotted, repeatable: services.sim.real_time_factor=4, exploration.episode.max_steps=400"
     ),
