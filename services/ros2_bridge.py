@@ -617,7 +617,7 @@ class Ros2BridgeService(Service):
                 self.last_log_s = now_s
                 log.info("counters: %s", dict(sorted(self.counters.items())))
 
-    def extra_status(self) -> dict[str, Any]:
+    def extra_status(self) -> dict[str, int]:
         with self._bridge_lock:
             return dict(self.counters)
 
