@@ -1069,8 +1069,18 @@ class ServiceStatusMsg(Message):
         return self.body()
 
 
-LAUNCHER_SERVICE_FIELDS: dict[str, type] = {"pid": int, "process_alive": bool, "liveliness": bool, "restarts": int, "gave_up": bool, "hung_kills": int}
-"""The fields of each service in ``launcher_status.services`` and their types (counts: non-negative integers)."""
+LAUNCHER_SERVICE_FIELDS: dict[str, type] = {
+    "pid": int,
+    "process_alive": bool,
+    "liveliness": bool,
+    "restarts": int,
+    "gave_up": bool,
+    "hung_kills": int,
+    "robot_stops": int,
+}
+"""The fields of each service in ``launcher_status.services`` and their types (counts: non-negative integers).
+Each is optional: an older launcher sends fewer (``robot_stops``, the zero Twists the launcher sent for a ROS 2
+bridge that died, came later), and a newer one's unknown fields are left out."""
 
 
 @dataclass

@@ -104,6 +104,7 @@ def status_of(
         lsv = (launcher or {}).get("services", {}).get(name)
         if lsv is not None:
             entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
+            entry["robot_stops"] = lsv.get("robot_stops", 0)
         table[name] = entry
     ep = episode or {"state": "starting"}
     return {
@@ -232,6 +233,8 @@ def render_table(status: dict[str, Any]):
         if s.get("restarts"):
             hung = f", {s['hung_kills']} of them hung" if s.get("hung_kills") else ""
             bits.append(f"restarts {s['restarts']}{hung}" + (" (gave up)" if s.get("gave_up") else ""))
+        if s.get("robot_stops"):  # it died unasked and the launcher sent the zero Twist it could not
+            bits.append(f"the launcher stopped the robot {s['robot_stops']} times after it died")
         rejected = sum((s.get("rejected") or {}).values())
         if rejected:
             bits.append(f"rejected {rejected}")

@@ -100,6 +100,7 @@ def test_scan_round_trip_keeps_inf_and_values():
         ServiceStatusMsg("mapper", "r0", "running", 12, "", {"scan": 3}, 40),
         ServiceStatusMsg("ros2_bridge", "r0", "running", 12, "", {}, 40, {"received:scan": 41, "sent:cmd_vel": 39, "watchdog_stops": 1}),
         LauncherStatusMsg("run1", "running", {"sim": {"pid": 12, "restarts": 0}}, {"path": 1}),
+        LauncherStatusMsg("run1", "running", {"ros2_bridge": {"pid": 12, "restarts": 1, "robot_stops": 1}}),
     ],
 )
 def test_small_messages_round_trip(msg):
@@ -471,6 +472,7 @@ def _mutate(msg, **changes) -> bytes:
         _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"hung_kills": [1]}}),
         _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"gave_up": 1}}),
         _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"restarts": -1}}),
+        _mutate(LauncherStatusMsg("run1", "running"), services={"ros2_bridge": {"robot_stops": -1}}),
     ],
 )
 def test_out_of_range_and_non_finite_fields_are_rejected(payload):

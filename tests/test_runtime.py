@@ -1148,6 +1148,7 @@ def test_status_lists_the_services_of_the_runs_profile_not_a_fixed_five():
     from cso_runtime.status import SERVICES, status_of
 
     launcher = {"run_id": "run-1", "services": {n: {"pid": 1, "restarts": 0, "gave_up": False} for n in ("ros2_bridge", "mapper", "frontier", "policy", "planner")}}
+    launcher["services"]["ros2_bridge"].update(restarts=1, robot_stops=1)  # it died, the launcher stopped the robot
     bridge = {"state": "running", "reason": "", "last_step": 3, "rejected": {}, "processed": 4, "counters": {"received:scan": 4, "watchdog_stops": 1}}
     mapper = {"state": "running", "reason": "", "last_step": 3, "rejected": {}, "processed": 4}  # a service status without counters
     status = status_of("r0", None, launcher, {"mapper": mapper, "ros2_bridge": bridge}, {"mapper", "ros2_bridge"})
@@ -1155,6 +1156,14 @@ def test_status_lists_the_services_of_the_runs_profile_not_a_fixed_five():
     # The bridge's own counts reach `status --json`, under the service.
     assert status["services"]["ros2_bridge"]["counters"] == {"received:scan": 4, "watchdog_stops": 1}
     assert status["services"]["mapper"]["counters"] == {} and "counters" not in status["services"]["planner"]
+    assert status["services"]["ros2_bridge"]["robot_stops"] == 1 and status["services"]["mapper"]["robot_stops"] == 0
+    from rich.console import Console
+
+    from cso_runtime.status import render_table
+
+    console = Console(record=True, width=200)
+    console.print(render_table(status))
+    assert "restarts 1, the launcher stopped the robot 1 times after it died" in console.export_text(), console.export_text()
     assert status["services"]["ros2_bridge"]["alive"] and not status["services"]["planner"]["alive"]
     alone = status_of("r0", None, None, {}, {"mapper"})
     assert sorted(alone["services"]) == sorted(SERVICES) and alone["state"] == "starting"
