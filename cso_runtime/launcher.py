@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 import yaml
+import zenoh
 
 from cso_runtime import __version__
 from cso_runtime.config import (
@@ -76,6 +77,29 @@ referee's (``Service.serves_latest``), so the launcher is not woken on every ste
 RUNS_DIR = Path("runs")
 REFEREES = ("sim", "ros2_bridge")
 """Services that own the episode (its status and end): without them the run cannot finish."""
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""The signals a stop sends before SIGKILL: a service that exited of one of them was not killed outright."""
+
+
+def robot_stop_commands(profile: Profile) -> dict[str, tuple[str, bytes]]:
+    """Service -> (key, payload) that stops the robot it commands, for the services that command a robot
+    directly: the launcher sends it when that service's process exits without being asked (``stop_robot``).
+
+    Only the ``ros2_bridge``: its last Twist stands on a real robot until the next one, and a bridge killed
+    outright (SIGKILL, the OOM killer, a segfault) sends no zero Twist of its own (its watchdog and its
+    stop went with it); limo_base's own cmd_vel timeout is not to be relied on. The launcher is on the
+    robot's router too, so it sends the zero Twist on the robot's ``cmd_vel`` key (the bridge's own,
+    ``Ros2BridgeParams.stop_command``). A planner that dies needs nothing: on a robot the bridge's watchdog
+    sends a zero Twist after ``cmd_timeout_s``; in the ``sim`` profile the sim stops the robot on a command
+    older than its ``cmd_timeout_s`` (real time), and in lockstep it waits for the next step's command."""
+    if "ros2_bridge" not in profile.services:
+        return {}
+    from services.ros2_bridge import Ros2BridgeParams  # noqa: PLC0415  (a ROS profile's only)
+
+    params = from_dict(Ros2BridgeParams, profile.services["ros2_bridge"] or {}, where="services.ros2_bridge")
+    return {"ros2_bridge": params.stop_command()}
 
 
 class StatusWatch:
@@ -173,6 +197,10 @@ class Launcher:
             self.service_notes["foxglove_bridge"] = f"Foxglove: open {where}"
         self.control_period_s = profile.exploration_config().robot.control_period_s
         """Robot time of one step (the live view's clock)."""
+        self.robot_stop_commands = robot_stop_commands(profile)
+        """Service -> the key and payload that stop the robot it commands, sent when it dies (``stop_robot``)."""
+        self.session: Any = None
+        """The launcher's Zenoh session while it runs (``stop_robot`` sends on it)."""
 
     # --- files ------------------------------------------------------------------------------------
     @property
@@ -295,6 +323,7 @@ class Launcher:
                 "restarts": c.restarts,
                 "gave_up": c.gave_up,
                 "hung_kills": c.hung_kills,
+                "robot_stops": c.robot_stops,
             }
             for c in self.children
         }
@@ -304,6 +333,22 @@ class Launcher:
         return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors)
 
     # --- supervision ------------------------------------------------------------------------------
+    def stop_robot(self, c: Child, code: int | None) -> None:
+        """Stop the robot that ``c`` commands (``robot_stop_commands``), whose process has exited (``code``)
+        without being asked: its last command would otherwise stand. Logged, counted in ``c.robot_stops``
+        (the launcher's status). Nothing for a service that commands no robot, or before the session is open."""
+        stop = self.robot_stop_commands.get(c.name)
+        if stop is None or self.session is None:
+            return
+        key, payload = stop
+        try:
+            self.session.put(key, payload)
+        except zenoh.ZError as exc:  # a closing session: said, the supervision goes on
+            log.error("%s exited (code %s): could not send a zero Twist on %s to stop the robot: %s", c.name, code, key, exc)
+            return
+        c.robot_stops += 1
+        log.warning("%s exited (code %s): sent a zero Twist on %s to stop the robot (%d so far)", c.name, code, key, c.robot_stops)
+
     def spawn_all(self) -> None:
         for name in self.profile.services:
             if self.stop_event.is_set():  # stopped while the first ones started: no more of them to start and stop
@@ -364,6 +409,7 @@ class Launcher:
             if c.restart_at is None:
                 code = c.proc.returncode if c.proc is not None else -1
                 c.exit_codes.append(code)
+                self.stop_robot(c, code)  # first, before a restart or giving up
                 if code == EXIT_BAD_CONFIG:
                     c.gave_up, c.gave_up_at = True, now  # the same configuration would fail the same way: no restart
                     log.error("%s refused its configuration (exit code %d): not restarting it: %s (see %s)", c.name, code, c.last_error() or "no error logged", c.log_path)
@@ -550,6 +596,7 @@ class Launcher:
             self.endpoints = list(router.connect)
             session = open_session(TransportConfig(mode="client", connect=list(router.connect)))
         view = LiveView(self) if live else None
+        self.session = session
         with session:
             if router.connect and (taken := self.robot_already_served(session)):
                 log.error("%s: no service was started; give this run another --robot", taken)
@@ -633,6 +680,10 @@ class Launcher:
                 log.info("stopping services")
                 self.stop_event.set()
                 stop_children(self.children, self.profile.supervision.stop_timeout_s)
+                for c in self.children:  # killed at the last stage (hung), or died of a signal meanwhile: its own last zero Twist never went out
+                    code = c.proc.returncode if c.proc is not None else None
+                    if c.proc is not None and c.restart_at is None and not c.gave_up and (code is None or (code < 0 and -code not in STOP_SIGNALS)):
+                        self.stop_robot(c, code)
                 self.finish_recording(recorder)
                 alive_sub.undeclare()
                 for q in qs:
@@ -641,6 +692,7 @@ class Launcher:
                     s.undeclare()
                 self.write_run_file("stopped")
                 self.remove_current_pointer()
+        self.session = None
         return self.exit_code
 
 

@@ -29,7 +29,8 @@ from cso_runtime.occupancy import OccupancyMap
 SCHEMA_VERSION = 1
 """Version of the schemas unchanged since the first release; a schema that changes bumps its own ``VERSION``
 (each class's, listed in docs/messages.md: ``clock``, ``episode_status`` and ``scan`` carry the episode id from 2,
-``odom``, ``distance_map`` and ``goal`` from 2, ``planner_feedback`` from 3, ``map`` is at 3, ``frontiers`` at 7).
+``odom``, ``distance_map`` and ``goal`` from 2, ``planner_feedback`` from 3, ``map`` is at 3, ``frontiers`` at 7,
+``service_status`` carries the service's own counters from 2).
 Recordings of the versions before the last bumps stay readable offline: ``LEGACY_UPGRADES``."""
 MAX_GRID_CELLS = 50_000_000
 MAX_BEAMS = 100_000
@@ -1019,9 +1020,12 @@ class EpisodeResultMsg(Message):
 
 @dataclass
 class ServiceStatusMsg(Message):
-    """One service's own health: what it last did, why it is not commanding, what it rejected."""
+    """One service's own health: what it last did, why it is not commanding, what it rejected, and its own
+    counts (``counters``, from v2: ``Service.extra_status``, e.g. the ROS 2 bridge's scans received, Twists sent,
+    watchdog stops)."""
 
     SCHEMA: ClassVar[str] = "service_status"
+    VERSION: ClassVar[int] = 2
     service: str
     robot: str
     state: str
@@ -1031,6 +1035,8 @@ class ServiceStatusMsg(Message):
     rejected: dict[str, int] = field(default_factory=dict)
     """Rejected payloads per input key suffix (malformed, out of range, non-finite, unknown version)."""
     processed: int = 0
+    counters: dict[str, int] = field(default_factory=dict)
+    """The service's own counts by name (non-negative integers; empty for a service that keeps none)."""
 
     def body(self) -> dict[str, Any]:
         return {
@@ -1041,6 +1047,7 @@ class ServiceStatusMsg(Message):
             "reason": self.reason,
             "rejected": dict(self.rejected),
             "processed": self.processed,
+            "counters": dict(self.counters),
         }
 
     @classmethod
@@ -1055,14 +1062,25 @@ class ServiceStatusMsg(Message):
             _str(b, "reason", w),
             dict(rej),
             _int(b, "processed", w),
+            dict(_counts(b, "counters", w)),
         )
 
     def to_dict(self) -> dict[str, Any]:
         return self.body()
 
 
-LAUNCHER_SERVICE_FIELDS: dict[str, type] = {"pid": int, "process_alive": bool, "liveliness": bool, "restarts": int, "gave_up": bool, "hung_kills": int}
-"""The fields of each service in ``launcher_status.services`` and their types (counts: non-negative integers)."""
+LAUNCHER_SERVICE_FIELDS: dict[str, type] = {
+    "pid": int,
+    "process_alive": bool,
+    "liveliness": bool,
+    "restarts": int,
+    "gave_up": bool,
+    "hung_kills": int,
+    "robot_stops": int,
+}
+"""The fields of each service in ``launcher_status.services`` and their types (counts: non-negative integers).
+Each is optional: an older launcher sends fewer (``robot_stops``, the zero Twists the launcher sent for a ROS 2
+bridge that died, came later), and a newer one's unknown fields are left out."""
 
 
 @dataclass
@@ -1188,12 +1206,18 @@ def _episode_id_0(body: dict[str, Any]) -> dict[str, Any]:
     return {"episode": 0, **body}
 
 
+def _no_counters(body: dict[str, Any]) -> dict[str, Any]:
+    """A ``service_status`` body from before it carried the service's own counts: none."""
+    return {"counters": {}, **body}
+
+
 LEGACY_UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]]] = {
     ("odom", 1): _episode_id_0,
     ("goal", 1): _episode_id_0,
     ("frontiers", 6): _episode_id_0,
     ("distance_map", 1): _episode_id_0,
     ("planner_feedback", 2): _episode_id_0,
+    ("service_status", 1): _no_counters,
 }
 """(schema, older version) -> its body as a body of the current version, for the changes that only added
 a field. Recordings outlive a version: the offline tools that read them (replay, export-bag, animate) read

@@ -100,9 +100,11 @@ def status_of(
         s = services.get(name)
         if s is not None:
             entry.update(state=s["state"], reason=s["reason"], last_step=s["last_step"], rejected=s["rejected"], processed=s["processed"])
+            entry["counters"] = dict(s.get("counters") or {})
         lsv = (launcher or {}).get("services", {}).get(name)
         if lsv is not None:
             entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
+            entry["robot_stops"] = lsv.get("robot_stops", 0)
         table[name] = entry
     ep = episode or {"state": "starting"}
     return {
@@ -231,10 +233,15 @@ def render_table(status: dict[str, Any]):
         if s.get("restarts"):
             hung = f", {s['hung_kills']} of them hung" if s.get("hung_kills") else ""
             bits.append(f"restarts {s['restarts']}{hung}" + (" (gave up)" if s.get("gave_up") else ""))
+        if s.get("robot_stops"):  # it died unasked and the launcher sent the zero Twist it could not
+            bits.append(f"the launcher stopped the robot {s['robot_stops']} times after it died")
         rejected = sum((s.get("rejected") or {}).values())
         if rejected:
             bits.append(f"rejected {rejected}")
         t.add_row(escape(f"service {name}"), escape(", ".join(bits)))
+        counts = [f"{k} {v}" for k, v in sorted((s.get("counters") or {}).items()) if v]
+        if counts:  # the service's own counts (the ROS 2 bridge's: received, sent, dropped, watchdog stops), non-zero ones
+            t.add_row(escape(f"  {name} counts"), escape(", ".join(counts)))
     rejected = sum(status.get("launcher_rejected", {}).values())
     errors = sum(status.get("launcher_handler_errors", {}).values())
     launcher_bits = ([f"rejected {rejected}"] if rejected else []) + ([f"{errors} callback errors (see its log)"] if errors else [])

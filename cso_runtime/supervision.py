@@ -52,6 +52,8 @@ class Child:
     """``time.monotonic()`` when its current process started."""
     hung_kills: int = 0
     """Times the launcher killed it for not answering while its process ran (``Launcher.kill_hung``)."""
+    robot_stops: int = 0
+    """Times the launcher stopped the robot this service commands after its process exited unasked (``Launcher.stop_robot``)."""
     came_up: bool = False
     """Whether its current process has declared its liveliness token (a stopped one loses it when its Zenoh
     lease runs out: it is then hung, not still starting)."""

@@ -199,7 +199,9 @@ class Service:
     def on_tick(self, now_s: float) -> None:
         """Called at least every ``tick_period_s`` (staleness checks, real-time stepping)."""
 
-    def extra_status(self) -> dict[str, Any]:
+    def extra_status(self) -> dict[str, int]:
+        """The service's own counts by name, sent as ``counters`` in its status (``status`` shows them under
+        the service). Called from the status queryable's thread: take the service's own lock. Default: none."""
         return {}
 
     def shutdown(self) -> None:
@@ -293,7 +295,9 @@ class Service:
     def status_msg(self) -> ServiceStatusMsg:
         with self._lock:
             rejected = dict(self.rejected)
-        return ServiceStatusMsg(self.name, self.ctx.robot, self.state, self.last_step, self.reason, rejected, self.processed)
+        # Counts only (what the schema carries): anything else would make the whole status undecodable.
+        counters = {str(k): v for k, v in self.extra_status().items() if isinstance(v, int) and not isinstance(v, bool) and v >= 0}
+        return ServiceStatusMsg(self.name, self.ctx.robot, self.state, self.last_step, self.reason, rejected, self.processed, counters)
 
     def query_latest(self, key: str, expected: type[Message], timeout_s: float = 1.0, retry_period_s: float = 0.05) -> Message | None:
         """The newest valid reply to ``key`` (by ``step``), for late joiners and restarts.

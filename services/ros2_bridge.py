@@ -161,6 +161,11 @@ class Ros2BridgeParams:
         """The Zenoh key zenoh-bridge-ros2dds uses for a ROS topic of this robot."""
         return f"{self.namespace}/{topic}" if self.namespace else topic
 
+    def stop_command(self) -> tuple[str, bytes]:
+        """The robot's ``cmd_vel`` key and a zero geometry_msgs/Twist in CDR: what the bridge sends last when it
+        stops, and what the launcher sends for it when its process dies (``Launcher.stop_robot``)."""
+        return self.ros_key(self.cmd_vel_topic), ros2_cdr.twist_to_cdr(VelocityCommand())
+
 
 # --- time matching (pure) -------------------------------------------------------------------------
 
@@ -334,9 +339,9 @@ class Ros2BridgeService(Service):
             entity.undeclare()
         if self.session is None or not self.sent_any_command:
             return
-        key = self.params.ros_key(self.params.cmd_vel_topic)
+        key, zero = self.params.stop_command()
         try:
-            self.session.put(key, ros2_cdr.twist_to_cdr(VelocityCommand()))
+            self.session.put(key, zero)
             log.info("stopping: sent a zero Twist on %s", key)
         except zenoh.ZError as exc:
             log.error("could not send the final zero Twist: %s", exc)
@@ -617,7 +622,7 @@ class Ros2BridgeService(Service):
                 self.last_log_s = now_s
                 log.info("counters: %s", dict(sorted(self.counters.items())))
 
-    def extra_status(self) -> dict[str, Any]:
+    def extra_status(self) -> dict[str, int]:
         with self._bridge_lock:
             return dict(self.counters)
 

@@ -202,3 +202,83 @@ def test_up_limo_ros2_explores_a_fake_limo_and_its_recording_rebuilds_the_map(tm
     assert fresh_maps[final.step].geometry == final.geometry
     differ = int((fresh_maps[final.step].grid != final.grid).sum())
     assert differ == 0, f"{differ} cells differ; fresh mapper status: rejected {fresh.rejected}, maps of steps {sorted(fresh_maps)[:5]}..."
+
+
+def test_a_bridge_killed_outright_leaves_the_robot_stopped_by_the_launcher(tmp_path: Path):
+    """SIGKILL (OOM, a segfault) gives the ROS 2 bridge no chance to send its last zero Twist: the robot would go
+    on with its last command until limo_base's own timeout, if it has one. The launcher, on the robot's router
+    too, sends the zero Twist on the robot's ``cmd_vel`` key as soon as it sees the bridge gone, before the
+    restart, and counts it in its status. The robot here is a Zenoh router of the test's own (what
+    zenoh-bridge-ros2dds is on the LIMO) and the run has the bridge alone: no robot data, so no Twist of the
+    bridge's own."""
+    import time
+
+    import yaml
+    import zenoh
+
+    from cso_runtime import ros2_cdr
+    from cso_runtime.messages import LauncherStatusMsg
+
+    profile = yaml.safe_load(find_profile("limo-ros2").read_text())
+    profile["services"] = {"ros2_bridge": profile["services"]["ros2_bridge"]}
+    profile["supervision"]["backoff_s"] = 1.0
+    profile_path = tmp_path / "bridge-only.yaml"
+    profile_path.write_text(yaml.safe_dump(profile))
+    port = free_tcp_port()
+    runs = tmp_path / "runs"
+    keys = RobotKeys("r0")
+    twists: list[tuple[float, bytes]] = []
+    bridge_back: list[float] = []
+    killed_at: list[float] = []
+    up = None
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as robot:
+        sub = robot.declare_subscriber("limo1/cmd_vel", lambda s: twists.append((time.monotonic(), s.payload.to_bytes())))
+
+        def on_alive(sample) -> None:
+            if killed_at and sample.kind == zenoh.SampleKind.PUT:  # the restarted bridge's token
+                bridge_back.append(time.monotonic())
+
+        alive = robot.liveliness().declare_subscriber(keys.alive("ros2_bridge"), on_alive)
+        try:
+            up = subprocess.Popen(
+                [
+                    sys.executable, "-m", "cso_runtime.cli", "up", "--profile", str(profile_path),
+                    "--connect", loopback_endpoint(port), "--namespace", "limo1", "--no-live", "--runs-dir", str(runs),
+                ],
+                cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+            )  # fmt: skip
+            wait_for(lambda: any(r.ok for r in robot.liveliness().get(keys.alive("ros2_bridge"), timeout=0.5)), 60, "the bridge")
+            (run_file,) = runs.glob("*/run.json")
+            pid = int(json.loads(run_file.read_text())["services"]["ros2_bridge"]["pid"])
+            assert not twists, "the bridge had nothing to command: no Twist of its own"
+            killed_at.append(time.monotonic())
+            os.kill(pid, signal.SIGKILL)
+            wait_for(lambda: twists, 10, "a zero Twist on limo1/cmd_vel after the bridge died")
+            t_zero, raw = twists[0]
+            cmd = ros2_cdr.twist_from_cdr(raw)
+            assert (cmd.linear_mps, cmd.angular_radps) == (0.0, 0.0)
+            assert not bridge_back or t_zero < bridge_back[0], "the zero Twist goes out before the bridge is restarted"
+
+            def status():
+                replies = [decode(r.ok.payload.to_bytes(), LauncherStatusMsg) for r in robot.get(keys.launcher_status, timeout=1.0) if r.ok]
+                return replies[0].services["ros2_bridge"] if replies else None
+
+            st = wait_for(lambda: (s := status()) and s.get("restarts") == 1 and s, 30, "the restarted bridge")
+            assert st["robot_stops"] == 1, st
+        finally:
+            if up is not None and up.poll() is None:
+                os.killpg(up.pid, signal.SIGINT)  # the launcher stops its services
+                try:
+                    out, _ = up.communicate(timeout=30)
+                except subprocess.TimeoutExpired:
+                    _kill_group(up)
+                    out = ""
+            else:
+                out = up.communicate()[0] if up is not None else ""
+            alive.undeclare()
+            sub.undeclare()
+            left = [p for p in _run_pids(runs) if pid_alive(p)]
+            for p in left:
+                os.kill(p, signal.SIGKILL)
+    assert not left, f"processes left: {left}"
+    assert "ros2_bridge exited (code -9): sent a zero Twist on limo1/cmd_vel" in out, out[-3000:]

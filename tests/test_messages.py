@@ -98,7 +98,9 @@ def test_scan_round_trip_keeps_inf_and_values():
         ClockMsg(2, 0.5),
         EpisodeStatusMsg("exploring", 12, "gen_small_0", "greedy-dist", 45.5, 10.0, 3.2, [1.0, 2.0], 4, 11.0),
         ServiceStatusMsg("mapper", "r0", "running", 12, "", {"scan": 3}, 40),
+        ServiceStatusMsg("ros2_bridge", "r0", "running", 12, "", {}, 40, {"received:scan": 41, "sent:cmd_vel": 39, "watchdog_stops": 1}),
         LauncherStatusMsg("run1", "running", {"sim": {"pid": 12, "restarts": 0}}, {"path": 1}),
+        LauncherStatusMsg("run1", "running", {"ros2_bridge": {"pid": 12, "restarts": 1, "robot_stops": 1}}),
     ],
 )
 def test_small_messages_round_trip(msg):
@@ -366,7 +368,8 @@ def test_each_older_version_upgrades_to_the_current_one_with_episode_0_offline_o
     frontiers v7): a payload of the version before reads as today's message with id 0 ("no id") in the
     offline tools; a live service's ``decode`` still rejects it as an unknown version."""
     cases = _legacy_cases()
-    assert {(msgpack.unpackb(p)["schema"], msgpack.unpackb(p)["v"]) for p, _ in cases} == set(LEGACY_UPGRADES)
+    # (service_status v1, which lacked the counters and not the episode id: its own test below)
+    assert {(msgpack.unpackb(p)["schema"], msgpack.unpackb(p)["v"]) for p, _ in cases} | {("service_status", 1)} == set(LEGACY_UPGRADES)
     for payload, expected in cases:
         cls = type(expected)
         with pytest.raises(MessageError, match=rf"{cls.SCHEMA}: unknown version {cls.VERSION - 1} \(this build speaks v{cls.VERSION}\)"):
@@ -377,6 +380,17 @@ def test_each_older_version_upgrades_to_the_current_one_with_episode_0_offline_o
             assert type(msg) is cls and msg.episode == 0
             assert encode(msg) == encode(expected), cls.SCHEMA  # the same message, field for field (arrays included)
     assert FrontiersMsg.VERSION == 7, "the episode id came with v7 (b3bfa9e wrote it under v6)"
+
+
+def test_a_service_status_of_v1_reads_offline_with_no_counters_and_live_stays_strict():
+    """v2 added the service's own counts (``counters``, ``Service.extra_status``); a recorded v1 reads with none."""
+    v1 = _wire("service_status", {k: v for k, v in _body(ServiceStatusMsg("mapper", "r0", "running", 3, "", {"scan": 1}, 4)).items() if k != "counters"}, version=1)
+    with pytest.raises(MessageError, match=r"service_status: unknown version 1 \(this build speaks v2\)"):
+        decode(v1, ServiceStatusMsg)
+    for msg in (decode(upgrade_payload(v1), ServiceStatusMsg), decode(v1, ServiceStatusMsg, accept_legacy=True)):
+        assert msg == ServiceStatusMsg("mapper", "r0", "running", 3, "", {"scan": 1}, 4, {})
+    with pytest.raises(MessageError, match="service_status: missing field 'counters'"):  # v2 must carry them
+        decode(_wire("service_status", msgpack.unpackb(v1)["body"]), ServiceStatusMsg)
 
 
 def test_a_current_payload_is_not_touched_and_a_v6_frontiers_with_its_id_keeps_it():
@@ -449,12 +463,16 @@ def _mutate(msg, **changes) -> bytes:
         _mutate(EpisodeStatusMsg("exploring", 1), coverage_pct=250.0),
         _mutate(ClockMsg(1, 0.25), time_s=-1.0),
         _mutate(ServiceStatusMsg("mapper", "r0", "running"), rejected={"scan": -1}),
+        _mutate(ServiceStatusMsg("mapper", "r0", "running"), counters={"received:scan": -1}),
+        _mutate(ServiceStatusMsg("mapper", "r0", "running"), counters={"received:scan": 1.5}),
+        _mutate(ServiceStatusMsg("mapper", "r0", "running"), counters=[1]),
         # What `status --json` writes: bytes used to crash it, NaN to make invalid JSON, a list pass as a count.
         _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"pid": b"12"}}),
         _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"restarts": float("nan")}}),
         _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"hung_kills": [1]}}),
         _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"gave_up": 1}}),
         _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"restarts": -1}}),
+        _mutate(LauncherStatusMsg("run1", "running"), services={"ros2_bridge": {"robot_stops": -1}}),
     ],
 )
 def test_out_of_range_and_non_finite_fields_are_rejected(payload):

@@ -339,6 +339,9 @@ def test_fake_limo_through_the_bridge(namespace: str):
             )[0]
             assert status.rejected == {"ros_scan:bad_cdr": 2, "ros_scan:stale": 1, "ros_scan:out_of_order": 1}, status.rejected
             assert len(ours["scan"]) == 2 and status.last_step == 1
+            # The bridge's own counts travel in its status too (`status` shows them), not only its rejections.
+            assert status.counters["received:scan"] >= 6 and status.counters["received:odom"] >= 3, status.counters
+            assert status.counters["invalid_beams"] == 6 and status.counters["dropped:ros_scan:bad_cdr"] == 2, status.counters
 
             # Our velocity command -> a clamped Twist; then the watchdog's zero Twist after 0.5 s.
             session.put(keys.cmd_vel, encode(CmdVelMsg(1, VelocityCommand(2.0, -1.5))))

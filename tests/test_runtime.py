@@ -1129,7 +1129,13 @@ def test_status_table_shows_the_episode_and_each_service():
     text = console.export_text()
     assert "│ 17 " in text and "000000001092" in text and "41.50 %" in text and "(1.00, 2.00) m" in text
     assert "12.25 m2, 0.721 m2/step" in text  # Table 1's efficiency so far, as the live view's
-    assert "mapper" in text and "sim" in text
+    assert "mapper" in text and "sim" in text and "counts" not in text
+    # A service's own counts: the non-zero ones on a row of their own under it.
+    status["services"]["ros2_bridge"] = {"alive": True, "state": "running", "reason": "", "rejected": {}, "counters": {"sent:cmd_vel": 7, "received:scan": 9, "watchdog_stops": 0}}
+    console = Console(record=True, width=160)
+    console.print(render_table(status))
+    assert re.search(r"│   ros2_bridge counts +│ received:scan 9, sent:cmd_vel 7 +│", console.export_text()), console.export_text()
+    del status["services"]["ros2_bridge"]
     stale = {"alive": True, "state": "stale", "reason": "stale: no odometry for 3.0 s, no scan for 3.0 s", "last_step": 17, "rejected": {}}
     status["services"]["planner"] = stale
     console = Console(record=True, width=160)
@@ -1153,8 +1159,22 @@ def test_status_lists_the_services_of_the_runs_profile_not_a_fixed_five():
     from cso_runtime.status import SERVICES, status_of
 
     launcher = {"run_id": "run-1", "services": {n: {"pid": 1, "restarts": 0, "gave_up": False} for n in ("ros2_bridge", "mapper", "frontier", "policy", "planner")}}
-    status = status_of("r0", None, launcher, {"mapper": {"state": "running", "reason": "", "last_step": 3, "rejected": {}, "processed": 4}}, {"mapper", "ros2_bridge"})
+    launcher["services"]["ros2_bridge"].update(restarts=1, robot_stops=1)  # it died, the launcher stopped the robot
+    bridge = {"state": "running", "reason": "", "last_step": 3, "rejected": {}, "processed": 4, "counters": {"received:scan": 4, "watchdog_stops": 1}}
+    mapper = {"state": "running", "reason": "", "last_step": 3, "rejected": {}, "processed": 4}  # a service status without counters
+    status = status_of("r0", None, launcher, {"mapper": mapper, "ros2_bridge": bridge}, {"mapper", "ros2_bridge"})
     assert sorted(status["services"]) == ["frontier", "mapper", "planner", "policy", "ros2_bridge"]
+    # The bridge's own counts reach `status --json`, under the service.
+    assert status["services"]["ros2_bridge"]["counters"] == {"received:scan": 4, "watchdog_stops": 1}
+    assert status["services"]["mapper"]["counters"] == {} and "counters" not in status["services"]["planner"]
+    assert status["services"]["ros2_bridge"]["robot_stops"] == 1 and status["services"]["mapper"]["robot_stops"] == 0
+    from rich.console import Console
+
+    from cso_runtime.status import render_table
+
+    console = Console(record=True, width=200)
+    console.print(render_table(status))
+    assert "restarts 1, the launcher stopped the robot 1 times after it died" in console.export_text(), console.export_text()
     assert status["services"]["ros2_bridge"]["alive"] and not status["services"]["planner"]["alive"]
     alone = status_of("r0", None, None, {}, {"mapper"})
     assert sorted(alone["services"]) == sorted(SERVICES) and alone["state"] == "starting"
