@@ -655,34 +655,38 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
         started.append(real_popen(*args, **kwargs))
         return started[-1]
 
-    monkeypatch.setattr(launcher_module.subprocess, "Popen", popen)
-    profile, data = load_profile(str(write_profile(tmp_path)), {})
-    code, message = start_detached(profile, data, tmp_path / "runs", ready_timeout_s=0.0)  # no launcher is ready the moment it is spawned
-    assert code == 1 and "did not start within 0 s: stopped it" in message, message
-    assert started[-1].poll() is not None
+    try:
+        monkeypatch.setattr(launcher_module.subprocess, "Popen", popen)
+        profile, data = load_profile(str(write_profile(tmp_path)), {})
+        code, message = start_detached(profile, data, tmp_path / "runs", ready_timeout_s=0.0)  # no launcher is ready the moment it is spawned
+        assert code == 1 and "did not start within 0 s: stopped it" in message, message
+        assert started[-1].poll() is not None
 
-    def popen_then_ctrl_c(*args, **kwargs):
-        """Ctrl-C at the first look at the launcher, microseconds after it was spawned: long before its services are
-        up, whatever the host's speed (a timer of 0.3 s came after a fast launcher's start)."""
-        proc = popen(*args, **kwargs)
-        real_poll = proc.poll
+        def popen_then_ctrl_c(*args, **kwargs):
+            """Ctrl-C at the first look at the launcher, microseconds after it was spawned: long before its services are
+            up, whatever the host's speed (a timer of 0.3 s came after a fast launcher's start)."""
+            proc = popen(*args, **kwargs)
+            real_poll = proc.poll
 
-        def poll():
-            if not getattr(proc, "ctrl_c_sent", False):
-                proc.ctrl_c_sent = True
-                os.kill(os.getpid(), signal.SIGINT)
-            return real_poll()
+            def poll():
+                if not getattr(proc, "ctrl_c_sent", False):
+                    proc.ctrl_c_sent = True
+                    os.kill(os.getpid(), signal.SIGINT)
+                return real_poll()
 
-        proc.poll = poll
-        return proc
+            proc.poll = poll
+            return proc
 
-    monkeypatch.setattr(launcher_module.subprocess, "Popen", popen_then_ctrl_c)
-    code, message = start_detached(profile, data, tmp_path / "runs2")
-    assert code == EXIT_INTERRUPTED and "interrupted while the launcher started: stopped it" in message, message
-    assert started[-1].poll() is not None and len(started) == 2
-    for runs in (tmp_path / "runs", tmp_path / "runs2"):  # nothing `status` and `down` would take for a running run
-        info = read_current_run(runs)
-        assert info is None or not current_launcher_alive(info), info
+        monkeypatch.setattr(launcher_module.subprocess, "Popen", popen_then_ctrl_c)
+        code, message = start_detached(profile, data, tmp_path / "runs2")
+        assert code == EXIT_INTERRUPTED and "interrupted while the launcher started: stopped it" in message, message
+        assert started[-1].poll() is not None and len(started) == 2
+        for runs in (tmp_path / "runs", tmp_path / "runs2"):  # nothing `status` and `down` would take for a running run
+            info = read_current_run(runs)
+            assert info is None or not current_launcher_alive(info), info
+    finally:  # whatever failed: no launcher, and none of its services, left running
+        for runs in (tmp_path / "runs", tmp_path / "runs2"):
+            kill_leftovers(runs, [p.pid for p in started])
 
 
 def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
