@@ -40,6 +40,7 @@ from cso_runtime.recording import (
     RAW_ENCODING,
     RecordedMessage,
     RecordStats,
+    ReplayStats,
     parse_speed,
     payload_from_json,
     payload_to_json,
@@ -80,6 +81,25 @@ def sample_payloads(keys: RobotKeys) -> list[tuple[str, bytes]]:
         (keys.map, msgpack.packb({"schema": "map", "v": 1, "body": {"f32": 1.5}}, use_single_float=True)),
     ]
     return out
+
+
+def replay_to_a_subscriber(out: Path, robot: str, expected: int) -> tuple[ReplayStats, list[tuple[str, bytes]]]:
+    """Replay ``out`` at full speed into a fresh router's subscriber to ``cso/<robot>/**``: the replay's stats and
+    the (key, payload) pairs that arrived, in order, the probe that waited for the subscription left out."""
+    port = free_tcp_port()
+    probe = RobotKeys(robot).episode_status
+    got: list[tuple[str, bytes]] = []
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as sub_session, open_session(
+        TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    ) as play_session:
+        sub = sub_session.declare_subscriber(f"cso/{robot}/**", lambda s: got.append((str(s.key_expr), s.payload.to_bytes())))
+        try:
+            wait_for(lambda: play_session.put(probe, PROBE) or got, 10, "the replay subscriber")
+            stats = replay(play_session, out, "max")
+            wait_for(lambda: len([k for k, _ in got if k != probe]) >= expected, 10, "every replayed message")
+        finally:
+            sub.undeclare()
+    return stats, [(k, p) for k, p in got if k != probe]
 
 
 def test_json_form_is_exact_or_refused():
@@ -148,20 +168,9 @@ def test_record_then_replay_gives_identical_payloads_in_order(tmp_path: Path):
     assert recorded == sent
 
     # Replay at full speed into a fresh subscriber: byte-identical payloads, in the original order.
-    port2 = free_tcp_port()
-    router2 = TransportConfig(mode="router", listen=[loopback_endpoint(port2)])
-    client2 = TransportConfig(mode="client", connect=[loopback_endpoint(port2)])
-    got: list[tuple[str, bytes]] = []
-    with open_session(router2) as sub_session, open_session(client2) as play_session:
-        sub = sub_session.declare_subscriber("cso/t1/**", lambda s: got.append((str(s.key_expr), s.payload.to_bytes())))
-        try:
-            wait_for(lambda: play_session.put(probe, PROBE) or got, 10, "the replay subscriber")
-            result = replay(play_session, out, "max")
-            wait_for(lambda: len([k for k, _ in got if k != probe]) >= len(sent), 10, "every replayed message")
-        finally:
-            sub.undeclare()
+    result, got = replay_to_a_subscriber(out, "t1", len(sent))
     assert result.messages == stats.messages
-    assert [(k, p) for k, p in got if k != probe] == sent
+    assert got == sent
 
 
 def test_replay_keeps_the_recorded_timing(tmp_path: Path):
@@ -279,20 +288,7 @@ def test_replay_publishes_an_old_recording_in_todays_versions(tmp_path: Path):
     out = tmp_path / "old.mcap"
     write_recording(out, "t4", [RecordedMessage(key, T0_NS + i * 1000, payload) for i, (key, payload) in enumerate(recorded)])
 
-    port = free_tcp_port()
-    got: list[tuple[str, bytes]] = []
-    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as sub_session, open_session(
-        TransportConfig(mode="client", connect=[loopback_endpoint(port)])
-    ) as play_session:
-        probe = keys.episode_status
-        sub = sub_session.declare_subscriber("cso/t4/**", lambda s: got.append((str(s.key_expr), s.payload.to_bytes())))
-        try:
-            wait_for(lambda: play_session.put(probe, PROBE) or got, 10, "the replay subscriber")
-            stats = replay(play_session, out, "max")
-            wait_for(lambda: len([k for k, _ in got if k != probe]) >= len(recorded), 10, "every replayed message")
-        finally:
-            sub.undeclare()
-    got = [(k, p) for k, p in got if k != probe]
+    stats, got = replay_to_a_subscriber(out, "t4", len(recorded))
     assert [k for k, _ in got] == [k for k, _ in recorded]
     assert stats.messages == len(recorded) and stats.upgraded == {key: 1 for key, _ in old}
     assert stats.unreadable == {keys.odom: 1, keys.scan: 1}
