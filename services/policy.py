@@ -3,7 +3,9 @@
 With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers`` and
 keeps one selector per robot); each robot it serves sees it under its own keys, as if it were its own
 policy: a liveliness token ``cso/<robot>/alive/policy`` from its first decision input, and
-``cso/<robot>/service/policy/status`` with that robot's state, so ``status --robot ID`` shows it.
+``cso/<robot>/service/policy/status`` with that robot's state, so ``status --robot ID`` shows it. A robot
+whose own policy is alive (another process's ``cso/<robot>/alive/policy``: its run has a policy of its own, or
+another server serves it) is left to that policy: two policies would send it two goals at each decision.
 
 It answers the steps that ask for a decision with ``decided: true`` and the new goal (or none: nothing
 left to explore); on the other steps the planner keeps following the current goal without waiting for
@@ -98,6 +100,12 @@ class PolicyService(Service):
         self._queryables: list = []
         self._tokens: dict[str, zenoh.LivelinessToken] = {}
         """Robot -> the liveliness token under its keys (the robots served besides ``--robot``)."""
+        self._mine: set[str] = {ctx.robot}
+        """Robots whose ``alive/policy`` token is this service's own (``--robot``'s, and each robot served)."""
+        self._other_policies: set[str] = set()
+        """Robots (not ours) whose own policy, another process, is alive: a server leaves them to it."""
+        self._left: set[str] = set()
+        """Robots left to their own policy, said once in the log until that policy goes."""
 
     def new_selector(self) -> GoalSelector:
         try:
@@ -121,6 +129,18 @@ class PolicyService(Service):
         self._queryables.append(self.session.declare_queryable(f"cso/{self.subscribe_robot}/goal", self._on_query))
         if self.params.serve_all_robots:  # --robot's own status is the service's (run_service's queryable)
             self._queryables.append(self.session.declare_queryable(RobotKeys("*").service_status(self.name), self._on_status_query))
+            self._queryables.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive(self.name), self._on_policy_alive, history=True))
+
+    def _on_policy_alive(self, sample: zenoh.Sample) -> None:
+        """Track the robots that have a policy of their own (a token under their keys that is not ours)."""
+        robot = str(sample.key_expr).split("/")[1]
+        if robot in self._mine:
+            return
+        if str(sample.kind).endswith("PUT"):
+            self._other_policies.add(robot)
+        else:
+            self._other_policies.discard(robot)
+            self._left.discard(robot)
 
     def _on_status_query(self, query: zenoh.Query) -> None:
         robot = str(query.key_expr).split("/")[1]
@@ -145,9 +165,15 @@ class PolicyService(Service):
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         st = self.robots.get(robot)
         if st is None:
+            if robot != self.ctx.robot and robot in self._other_policies:
+                if robot not in self._left:
+                    self._left.add(robot)
+                    log.warning("robot %s has a policy of its own (%s is alive): not serving it", robot, RobotKeys(robot).alive(self.name))
+                return
             st = self.robots[robot] = RobotState(self.new_selector())
             log.info("serving robot %s with %s", robot, self.method)
             if robot != self.ctx.robot and self.session is not None:  # it sees a policy under its own keys
+                self._mine.add(robot)
                 self._tokens[robot] = self.session.liveliness().declare_token(RobotKeys(robot).alive(self.name))
         assert isinstance(msg, FrontiersMsg)
         st.last_input_s = received_s

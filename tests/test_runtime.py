@@ -250,6 +250,41 @@ def test_one_policy_server_answers_several_robots():
             sub.undeclare()
 
 
+def test_a_policy_server_leaves_a_robot_with_a_policy_of_its_own_to_it():
+    """A robot whose run has its own policy (its alive/policy token is another process's) gets no goal from a
+    ``serve_all_robots`` server: two policies would send it two different goals at each decision."""
+    from cso_runtime.messages import GoalMsg, frontiers_from_observation
+    from services.common import ServiceContext, run_service
+    from services.policy import PolicyService
+    from tests.test_messages import _observation
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        goals: list[tuple[str, int]] = []
+        sub = session.declare_subscriber("cso/*/goal", lambda s: goals.append((str(s.key_expr).split("/")[1], decode(s.payload.to_bytes(), GoalMsg).step)))
+        own_policy = session.liveliness().declare_token(RobotKeys("b").alive("policy"))  # robot b's run has its own
+        svc = PolicyService(ServiceContext("policy", "a", {"method": "greedy-dist", "seed": 0}, ExplorationConfig(), client, {"serve_all_robots": True}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: any(True for r in session.liveliness().get(RobotKeys("a").alive("policy"), timeout=0.5) if r.ok), 10, "the policy")
+            obs = _observation()
+            for robot in ("a", "b", "c"):  # handled in this order: c's goal comes after b's input was handled
+                session.put(RobotKeys(robot).frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+            wait_for(lambda: ("c", 0) in goals, 10, "robot c's goal")
+            assert sorted(goals) == [("a", 0), ("c", 0)], goals
+            own_policy.undeclare()  # b's own policy is gone: the server serves b from its next decision input
+            wait_for(lambda: "b" not in svc._other_policies, 10, "the server to see b's policy gone")
+            session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(1, "no_goal", obs, 1.0)))
+            wait_for(lambda: ("b", 1) in goals, 10, "robot b's goal once its own policy is gone")
+        finally:
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+
+
 # --- tier 3: real processes ------------------------------------------------------------------------
 
 
