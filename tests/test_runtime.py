@@ -1219,6 +1219,48 @@ def test_status_lists_the_services_of_the_runs_profile_not_a_fixed_five():
     assert sorted(alone["services"]) == sorted(SERVICES) and alone["state"] == "starting"
 
 
+def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(tmp_path, caplog):
+    """A robot whose run leaves its policy to a shared server (``serve_all_robots`` in another run) had no policy
+    row in ``status`` at all: once that server went down the robot waited for goals with every row alive. The
+    launcher lists such a service (``outside``), so ``status`` shows it and says DOWN when it goes."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.status import render_table, status_of
+
+    profile, data = load_profile(str(find_profile("lockstep")), {"robot": "r1"})
+    del profile.services["policy"]  # this run's policy is another run's server
+    launcher = Launcher(profile, data, tmp_path / "run")
+
+    def alive(name: str, kind: str) -> None:
+        launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive(name), kind=f"SampleKind.{kind}"))
+
+    def table(alive_names: set[str]) -> tuple[dict, str]:
+        msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it
+        assert isinstance(msg, LauncherStatusMsg)
+        status = status_of("r1", None, msg.to_dict(), {}, alive_names)
+        console = Console(record=True, width=200)
+        console.print(render_table(status))
+        return status, console.export_text()
+
+    alive("mapper", "PUT")  # one of its own: listed as before, never "not started by this run"
+    alive("policy", "PUT")
+    status, text = table({"mapper", "policy"})
+    assert status["services"]["policy"] == {"alive": True, "outside": True}
+    assert re.search(r"service policy +│ alive, not started by this run", text), text
+    assert launcher.outside_services == {"policy"}
+    with caplog.at_level("WARNING", logger="cso.launcher"):
+        alive("policy", "DELETE")
+    assert "policy, which this run did not start, is gone" in caplog.text
+    status, text = table({"mapper"})
+    assert status["services"]["policy"] == {"alive": False, "outside": True}
+    assert re.search(r"service policy +│ DOWN, not started by this run", text), text
+
+
 def test_status_and_down_with_nothing_running(tmp_path):
     r = cli("status", cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "nothing running" in r.stdout and "`cso-runtime runs` lists past runs" in r.stdout
