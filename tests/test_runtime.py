@@ -285,6 +285,50 @@ def test_a_policy_server_leaves_a_robot_with_a_policy_of_its_own_to_it():
             sub.undeclare()
 
 
+def test_a_policy_server_lets_a_robot_go_when_its_run_stops():
+    """A ``serve_all_robots`` server kept a stopped robot's ``alive/policy`` token: ``status --robot`` showed that
+    robot as starting with a live policy, and a new run of the id was refused. When the robot's frontier service
+    (its decision inputs) goes, the server withdraws the token; a robot that comes back is served again."""
+    from cso_runtime.messages import GoalMsg, frontiers_from_observation
+    from services.common import ServiceContext, run_service
+    from services.policy import PolicyService
+    from tests.test_messages import _observation
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+
+    def policy_alive(robot: str) -> bool:
+        return any(True for r in session.liveliness().get(RobotKeys(robot).alive("policy"), timeout=0.5) if r.ok)
+
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        goals: list[tuple[str, int]] = []
+        sub = session.declare_subscriber("cso/*/goal", lambda s: goals.append((str(s.key_expr).split("/")[1], decode(s.payload.to_bytes(), GoalMsg).step)))
+        svc = PolicyService(ServiceContext("policy", "a", {"method": "greedy-dist", "seed": 0}, ExplorationConfig(), client, {"serve_all_robots": True}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: policy_alive("a"), 10, "the policy")
+            obs = _observation()
+            frontier_b = session.liveliness().declare_token(RobotKeys("b").alive("frontier"))  # robot b's run
+            session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+            wait_for(lambda: ("b", 0) in goals, 10, "robot b's goal")
+            assert policy_alive("b")
+            frontier_b.undeclare()  # b's run stops
+            wait_for(lambda: not policy_alive("b"), 10, "the server to let robot b go")
+            assert not [r for r in session.get(RobotKeys("b").service_status("*"), timeout=0.5) if r.ok]
+            assert policy_alive("a")  # its own robot's token stays
+            frontier_b = session.liveliness().declare_token(RobotKeys("b").alive("frontier"))  # a new run of b
+            session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+            wait_for(lambda: goals.count(("b", 0)) == 2, 10, "robot b served afresh (its step 0 again)")
+            assert policy_alive("b")
+            frontier_b.undeclare()
+        finally:
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+
+
 # --- tier 3: real processes ------------------------------------------------------------------------
 
 
