@@ -164,6 +164,9 @@ class Launcher:
         self.endpoints: list[str] = []
         self.status: EpisodeStatusMsg | None = None
         self.alive_services: set[str] = set()
+        self.outside_services: set[str] = set()
+        """Services this run did not start that came up under its robot's keys (a shared policy server's
+        ``serve_all_robots`` policy, a bridge started by hand): its status lists them, DOWN once they go."""
         self.latest_goal: bytes | None = None
         """The payload of the latest goal (``cache/goal``)."""
         self.rejected: dict[str, int] = {}
@@ -313,6 +316,15 @@ class Launcher:
 
     def _on_alive(self, sample: Any) -> None:
         track_liveliness(self.alive_services, sample)
+        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        if name in self.profile.services:
+            return
+        if name in self.alive_services:
+            if name not in self.outside_services:
+                self.outside_services.add(name)
+                log.info("%s, which this run did not start, serves robot %s (%s)", name, self.profile.robot, sample.key_expr)
+        elif name in self.outside_services:
+            log.warning("%s, which this run did not start, is gone (%s); the episode goes on without it until one comes back", name, sample.key_expr)
 
     def launcher_status(self) -> LauncherStatusMsg:
         services = {
@@ -327,6 +339,8 @@ class Launcher:
             }
             for c in self.children
         }
+        for name in sorted(self.outside_services):  # not ours, but this robot's episode needs it as much
+            services.setdefault(name, {"liveliness": name in self.alive_services, "outside": True})
         with self._lock:
             rejected, handler_errors = dict(self.rejected), dict(self.handler_errors)
         state = "stopping" if self.stop_event.is_set() else "running"

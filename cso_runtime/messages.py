@@ -1077,10 +1077,12 @@ LAUNCHER_SERVICE_FIELDS: dict[str, type] = {
     "gave_up": bool,
     "hung_kills": int,
     "robot_stops": int,
+    "outside": bool,
 }
 """The fields of each service in ``launcher_status.services`` and their types (counts: non-negative integers).
 Each is optional: an older launcher sends fewer (``robot_stops``, the zero Twists the launcher sent for a ROS 2
-bridge that died, came later), and a newer one's unknown fields are left out."""
+bridge that died, came later; ``outside``, a service of the robot that the launcher did not start, such as a shared
+policy server's, later still), and a newer one's unknown fields are left out."""
 
 
 @dataclass

@@ -102,7 +102,9 @@ def status_of(
             entry.update(state=s["state"], reason=s["reason"], last_step=s["last_step"], rejected=s["rejected"], processed=s["processed"])
             entry["counters"] = dict(s.get("counters") or {})
         lsv = (launcher or {}).get("services", {}).get(name)
-        if lsv is not None:
+        if lsv is not None and lsv.get("outside"):  # not started by this run (a shared policy server's): no pid here
+            entry["outside"] = True
+        elif lsv is not None:
             entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
             entry["robot_stops"] = lsv.get("robot_stops", 0)
         table[name] = entry
@@ -225,6 +227,8 @@ def render_table(status: dict[str, Any]):
     episode_over = status["state"] in ("done", "failed")
     for name, s in status["services"].items():
         bits = ["alive" if s["alive"] else "DOWN"]
+        if s.get("outside"):
+            bits.append("not started by this run")
         if s.get("state") == "stale" and episode_over:
             # Inputs stop when the episode ends; "stale" would read like a fault (JSON keeps the raw state).
             bits.append(f"idle (episode {status['state']}; last step {s.get('last_step', 0)})")

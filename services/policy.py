@@ -3,7 +3,11 @@
 With ``serve_all_robots`` one process serves every robot (it subscribes to ``cso/*/frontiers`` and
 keeps one selector per robot); each robot it serves sees it under its own keys, as if it were its own
 policy: a liveliness token ``cso/<robot>/alive/policy`` from its first decision input, and
-``cso/<robot>/service/policy/status`` with that robot's state, so ``status --robot ID`` shows it.
+``cso/<robot>/service/policy/status`` with that robot's state, so ``status --robot ID`` shows it. A robot
+whose own policy is alive (another process's ``cso/<robot>/alive/policy``: its run has a policy of its own, or
+another server serves it) is left to that policy: two policies would send it two goals at each decision. A robot
+whose frontier service goes (its run stopped) is let go: its token is withdrawn, so the robot no longer looks
+running to ``status`` and a new run of that id may start a policy of its own.
 
 It answers the steps that ask for a decision with ``decided: true`` and the new goal (or none: nothing
 left to explore); on the other steps the planner keeps following the current goal without waiting for
@@ -14,6 +18,7 @@ acted on (the status says why).
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from dataclasses import dataclass, field
 
@@ -98,6 +103,15 @@ class PolicyService(Service):
         self._queryables: list = []
         self._tokens: dict[str, zenoh.LivelinessToken] = {}
         """Robot -> the liveliness token under its keys (the robots served besides ``--robot``)."""
+        self._mine: set[str] = {ctx.robot}
+        """Robots whose ``alive/policy`` token is this service's own (``--robot``'s, and each robot served)."""
+        self._other_policies: set[str] = set()
+        """Robots (not ours) whose own policy, another process, is alive: a server leaves them to it."""
+        self._left: set[str] = set()
+        """Robots left to their own policy, said once in the log until that policy goes."""
+        self._inputs_gone: set[str] = set()
+        """Robots whose frontier service (their decision inputs) has gone, to let go at the next tick."""
+        self._gone_lock = threading.Lock()
 
     def new_selector(self) -> GoalSelector:
         try:
@@ -121,6 +135,42 @@ class PolicyService(Service):
         self._queryables.append(self.session.declare_queryable(f"cso/{self.subscribe_robot}/goal", self._on_query))
         if self.params.serve_all_robots:  # --robot's own status is the service's (run_service's queryable)
             self._queryables.append(self.session.declare_queryable(RobotKeys("*").service_status(self.name), self._on_status_query))
+            self._queryables.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive(self.name), self._on_policy_alive, history=True))
+            self._queryables.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("frontier"), self._on_frontier_alive))
+
+    def _on_frontier_alive(self, sample: zenoh.Sample) -> None:
+        """A robot's frontier service gone (its run stopped): that robot is let go at the next tick."""
+        robot = str(sample.key_expr).split("/")[1]
+        with self._gone_lock:
+            if str(sample.kind).endswith("PUT"):
+                self._inputs_gone.discard(robot)  # back (a restart) before the tick: keep serving it
+            elif robot != self.ctx.robot:
+                self._inputs_gone.add(robot)
+
+    def release_gone_robots(self) -> None:
+        """Stop serving the robots whose frontier service went: withdraw the token under their keys and forget
+        their state (a robot that comes back is served afresh from its next decision input)."""
+        with self._gone_lock:
+            gone, self._inputs_gone = self._inputs_gone, set()
+        for robot in gone:
+            if self.robots.pop(robot, None) is None:
+                continue
+            token = self._tokens.pop(robot, None)
+            if token is not None:
+                token.undeclare()
+            self._mine.discard(robot)
+            log.info("robot %s: its frontier service is gone; no longer serving it", robot)
+
+    def _on_policy_alive(self, sample: zenoh.Sample) -> None:
+        """Track the robots that have a policy of their own (a token under their keys that is not ours)."""
+        robot = str(sample.key_expr).split("/")[1]
+        if robot in self._mine:
+            return
+        if str(sample.kind).endswith("PUT"):
+            self._other_policies.add(robot)
+        else:
+            self._other_policies.discard(robot)
+            self._left.discard(robot)
 
     def _on_status_query(self, query: zenoh.Query) -> None:
         robot = str(query.key_expr).split("/")[1]
@@ -145,9 +195,15 @@ class PolicyService(Service):
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         st = self.robots.get(robot)
         if st is None:
+            if robot != self.ctx.robot and robot in self._other_policies:
+                if robot not in self._left:
+                    self._left.add(robot)
+                    log.warning("robot %s has a policy of its own (%s is alive): not serving it", robot, RobotKeys(robot).alive(self.name))
+                return
             st = self.robots[robot] = RobotState(self.new_selector())
             log.info("serving robot %s with %s", robot, self.method)
             if robot != self.ctx.robot and self.session is not None:  # it sees a policy under its own keys
+                self._mine.add(robot)
                 self._tokens[robot] = self.session.liveliness().declare_token(RobotKeys(robot).alive(self.name))
         assert isinstance(msg, FrontiersMsg)
         st.last_input_s = received_s
@@ -185,6 +241,7 @@ class PolicyService(Service):
         self.publish("goal", out, robot)
 
     def on_tick(self, now_s: float) -> None:
+        self.release_gone_robots()
         for robot, st in self.robots.items():
             if now_s - st.last_input_s > self.params.stale_after_s and not st.stale_reason:
                 st.stale_reason = f"robot {robot}: no frontiers for {now_s - st.last_input_s:.1f} s; not commanding"

@@ -250,6 +250,85 @@ def test_one_policy_server_answers_several_robots():
             sub.undeclare()
 
 
+def test_a_policy_server_leaves_a_robot_with_a_policy_of_its_own_to_it():
+    """A robot whose run has its own policy (its alive/policy token is another process's) gets no goal from a
+    ``serve_all_robots`` server: two policies would send it two different goals at each decision."""
+    from cso_runtime.messages import GoalMsg, frontiers_from_observation
+    from services.common import ServiceContext, run_service
+    from services.policy import PolicyService
+    from tests.test_messages import _observation
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        goals: list[tuple[str, int]] = []
+        sub = session.declare_subscriber("cso/*/goal", lambda s: goals.append((str(s.key_expr).split("/")[1], decode(s.payload.to_bytes(), GoalMsg).step)))
+        own_policy = session.liveliness().declare_token(RobotKeys("b").alive("policy"))  # robot b's run has its own
+        svc = PolicyService(ServiceContext("policy", "a", {"method": "greedy-dist", "seed": 0}, ExplorationConfig(), client, {"serve_all_robots": True}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: any(True for r in session.liveliness().get(RobotKeys("a").alive("policy"), timeout=0.5) if r.ok), 10, "the policy")
+            obs = _observation()
+            for robot in ("a", "b", "c"):  # handled in this order: c's goal comes after b's input was handled
+                session.put(RobotKeys(robot).frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+            wait_for(lambda: ("c", 0) in goals, 10, "robot c's goal")
+            assert sorted(goals) == [("a", 0), ("c", 0)], goals
+            own_policy.undeclare()  # b's own policy is gone: the server serves b from its next decision input
+            wait_for(lambda: "b" not in svc._other_policies, 10, "the server to see b's policy gone")
+            session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(1, "no_goal", obs, 1.0)))
+            wait_for(lambda: ("b", 1) in goals, 10, "robot b's goal once its own policy is gone")
+        finally:
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+
+
+def test_a_policy_server_lets_a_robot_go_when_its_run_stops():
+    """A ``serve_all_robots`` server kept a stopped robot's ``alive/policy`` token: ``status --robot`` showed that
+    robot as starting with a live policy, and a new run of the id was refused. When the robot's frontier service
+    (its decision inputs) goes, the server withdraws the token; a robot that comes back is served again."""
+    from cso_runtime.messages import GoalMsg, frontiers_from_observation
+    from services.common import ServiceContext, run_service
+    from services.policy import PolicyService
+    from tests.test_messages import _observation
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+
+    def policy_alive(robot: str) -> bool:
+        return any(True for r in session.liveliness().get(RobotKeys(robot).alive("policy"), timeout=0.5) if r.ok)
+
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        goals: list[tuple[str, int]] = []
+        sub = session.declare_subscriber("cso/*/goal", lambda s: goals.append((str(s.key_expr).split("/")[1], decode(s.payload.to_bytes(), GoalMsg).step)))
+        svc = PolicyService(ServiceContext("policy", "a", {"method": "greedy-dist", "seed": 0}, ExplorationConfig(), client, {"serve_all_robots": True}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+        thread.start()
+        try:
+            wait_for(lambda: policy_alive("a"), 10, "the policy")
+            obs = _observation()
+            frontier_b = session.liveliness().declare_token(RobotKeys("b").alive("frontier"))  # robot b's run
+            session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+            wait_for(lambda: ("b", 0) in goals, 10, "robot b's goal")
+            assert policy_alive("b")
+            frontier_b.undeclare()  # b's run stops
+            wait_for(lambda: not policy_alive("b"), 10, "the server to let robot b go")
+            assert not [r for r in session.get(RobotKeys("b").service_status("*"), timeout=0.5) if r.ok]
+            assert policy_alive("a")  # its own robot's token stays
+            frontier_b = session.liveliness().declare_token(RobotKeys("b").alive("frontier"))  # a new run of b
+            session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+            wait_for(lambda: goals.count(("b", 0)) == 2, 10, "robot b served afresh (its step 0 again)")
+            assert policy_alive("b")
+            frontier_b.undeclare()
+        finally:
+            stop.set()
+            thread.join(10)
+            sub.undeclare()
+
+
 # --- tier 3: real processes ------------------------------------------------------------------------
 
 
@@ -1182,6 +1261,48 @@ def test_status_lists_the_services_of_the_runs_profile_not_a_fixed_five():
     assert status["services"]["ros2_bridge"]["alive"] and not status["services"]["planner"]["alive"]
     alone = status_of("r0", None, None, {}, {"mapper"})
     assert sorted(alone["services"]) == sorted(SERVICES) and alone["state"] == "starting"
+
+
+def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(tmp_path, caplog):
+    """A robot whose run leaves its policy to a shared server (``serve_all_robots`` in another run) had no policy
+    row in ``status`` at all: once that server went down the robot waited for goals with every row alive. The
+    launcher lists such a service (``outside``), so ``status`` shows it and says DOWN when it goes."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.status import render_table, status_of
+
+    profile, data = load_profile(str(find_profile("lockstep")), {"robot": "r1"})
+    del profile.services["policy"]  # this run's policy is another run's server
+    launcher = Launcher(profile, data, tmp_path / "run")
+
+    def alive(name: str, kind: str) -> None:
+        launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive(name), kind=f"SampleKind.{kind}"))
+
+    def table(alive_names: set[str]) -> tuple[dict, str]:
+        msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it
+        assert isinstance(msg, LauncherStatusMsg)
+        status = status_of("r1", None, msg.to_dict(), {}, alive_names)
+        console = Console(record=True, width=200)
+        console.print(render_table(status))
+        return status, console.export_text()
+
+    alive("mapper", "PUT")  # one of its own: listed as before, never "not started by this run"
+    alive("policy", "PUT")
+    status, text = table({"mapper", "policy"})
+    assert status["services"]["policy"] == {"alive": True, "outside": True}
+    assert re.search(r"service policy +│ alive, not started by this run", text), text
+    assert launcher.outside_services == {"policy"}
+    with caplog.at_level("WARNING", logger="cso.launcher"):
+        alive("policy", "DELETE")
+    assert "policy, which this run did not start, is gone" in caplog.text
+    status, text = table({"mapper"})
+    assert status["services"]["policy"] == {"alive": False, "outside": True}
+    assert re.search(r"service policy +│ DOWN, not started by this run", text), text
 
 
 def test_status_and_down_with_nothing_running(tmp_path):
