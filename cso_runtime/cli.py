@@ -559,6 +559,7 @@ def service_command(
 
 @app.command("up", rich_help_panel="Runtime (Zenoh services)")
 def up_command(
+    ctx: typer.Context,
     profile: str = typer.Option("sim", "--profile", autocompletion=_complete_profiles, help="Profile name (./configs/profiles/, then the packaged cso_runtime/profiles/) or a YAML path"),
     scene: str | None = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, FILE.yaml (a map_server map), generated:SCALE:N:SEED; one episode, on its first plan"),
     method: str | None = typer.Option(None, "--method", autocompletion=_complete_methods, help="Goal selector (overrides the profile)"),
@@ -589,12 +590,13 @@ def up_command(
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     import threading  # noqa: PLC0415
 
-    from cso_runtime.processes import stop_on_signals  # noqa: PLC0415
+    from cso_runtime.processes import restore_signal_handlers, stop_on_signals  # noqa: PLC0415
 
     # First: Ctrl-C, SIGTERM or SIGHUP from here on is kept, and acted on where `up` can stop cleanly (before it
     # makes its run folder, or the launcher's own checks), never a traceback or a run left half-started.
     stop = threading.Event()
-    stop_on_signals(stop)
+    previous_handlers = stop_on_signals(stop)
+    ctx.call_on_close(lambda: restore_signal_handlers(previous_handlers))  # however `up` ends (run inside another program)
     from cso_runtime.config import EXIT_INTERRUPTED, LOG_FORMAT, ConfigError  # noqa: PLC0415
     from cso_runtime.current_run import current_launcher_alive, read_current_run  # noqa: PLC0415
     from cso_runtime.launcher import run_foreground, start_detached  # noqa: PLC0415

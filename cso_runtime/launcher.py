@@ -55,7 +55,7 @@ from cso_runtime.messages import (
     encode,
 )
 from cso_runtime.outputs import write_text_atomic
-from cso_runtime.processes import stop_on_signals
+from cso_runtime.processes import restore_signal_handlers, stop_on_signals
 from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, Profile, SupervisionConfig
 from cso_runtime.supervision import (
     Child,
@@ -754,27 +754,25 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
 def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> int:
     """``Launcher.run`` with Ctrl-C, SIGTERM and SIGHUP (its terminal closed) stopping it, in the foreground
     or detached, holding the runs folder's lock; its exit code."""
-    _install_signal_handlers(launcher)  # first: a stop from now on is the run's clean stop, never a traceback
+    # First: a stop from now on is the run's clean stop, never a traceback; the handlers before go back at the end.
+    previous_handlers = stop_on_signals(launcher.stop_event)
     runs_dir = launcher.run_dir.parent
     lock_fd = hold_runs_lock(runs_dir)
-    if lock_fd is None:
-        log.error(
-            "another `cso-runtime up` is running from %s (it holds %s); `cso-runtime down` first, or give this one its own --runs-dir",
-            runs_dir, runs_dir / RUNS_LOCK,
-        )
-        return EXIT_BAD_CONFIG
     try:
+        if lock_fd is None:
+            log.error(
+                "another `cso-runtime up` is running from %s (it holds %s); `cso-runtime down` first, or give this one its own --runs-dir",
+                runs_dir, runs_dir / RUNS_LOCK,
+            )
+            return EXIT_BAD_CONFIG
         return launcher.run(live=live, stay_after_done=stay_after_done)
     except TransportError as exc:  # the router to join (a robot's) is down, or a listen port is taken
         log.error("%s; no service was started (is the router to join running and reachable?)", exc)
         return launcher.stop_before_start(EXIT_NO_ZENOH)
     finally:
-        os.close(lock_fd)
-
-
-def _install_signal_handlers(launcher: Launcher) -> None:
-    """Ctrl-C, SIGTERM and SIGHUP (the terminal closed) set the launcher's stop event: ``run`` stops cleanly."""
-    stop_on_signals(launcher.stop_event)
+        if lock_fd is not None:
+            os.close(lock_fd)
+        restore_signal_handlers(previous_handlers)
 
 
 RECORDING_NAME = "recording.mcap"

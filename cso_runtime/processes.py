@@ -44,12 +44,19 @@ def set_from_signal_handler(event: threading.Event) -> None:
     _thread.start_new_thread(event.set, ())
 
 
-def stop_on_signals(event: threading.Event) -> None:
+def stop_on_signals(event: threading.Event) -> dict[int, Any]:
     """SIGINT (Ctrl-C), SIGTERM and SIGHUP (its terminal closed) set ``event`` instead of raising or killing: the
     launcher (and ``up`` from its first line) acts on the stop where it can stop cleanly, never with a
-    KeyboardInterrupt traceback in the middle of opening its router or writing its run file."""
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, lambda signum, frame: set_from_signal_handler(event))
+    KeyboardInterrupt traceback in the middle of opening its router or writing its run file. Returns the handlers
+    it replaced, for ``restore_signal_handlers`` (a command run inside another program gives them back)."""
+    return {sig: signal.signal(sig, lambda signum, frame: set_from_signal_handler(event)) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+
+
+def restore_signal_handlers(previous: dict[int, Any]) -> None:
+    """Put back the handlers ``stop_on_signals`` replaced: after ``up`` run in-process (a test's CliRunner), Ctrl-C
+    would otherwise go on setting that run's finished stop event instead of interrupting the program."""
+    for sig, handler in previous.items():
+        signal.signal(sig, signal.SIG_DFL if handler is None else handler)  # None: a handler not set from Python
 
 
 def dump_stacks_on_signal() -> bool:

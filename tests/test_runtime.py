@@ -81,8 +81,9 @@ def run_pids(runs: Path) -> list[int]:
     return pids
 
 
-def kill_leftovers(runs: Path, extra: list[int] = ()) -> list[int]:
-    left = [p for p in [*run_pids(runs), *extra] if pid_alive(p)]
+def kill_leftovers(runs: Path, extra: list[int] = (), exclude: int | None = None) -> list[int]:
+    """SIGKILL what a test's runs left alive (each process's group), but ``exclude`` (a launcher run in the test's own process)."""
+    left = [p for p in [*run_pids(runs), *extra] if p != exclude and pid_alive(p)]
     for p in left:
         try:
             os.killpg(p, signal.SIGKILL)
@@ -1303,6 +1304,29 @@ def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(t
     status, text = table({"mapper"})
     assert status["services"]["policy"] == {"alive": False, "outside": True}
     assert re.search(r"service policy +│ DOWN, not started by this run", text), text
+
+
+def test_up_run_in_process_gives_back_the_signal_handlers_it_found(tmp_path):
+    """``up`` sets Ctrl-C, SIGTERM and SIGHUP to stop its run from its first line; run inside another program (a
+    test's CliRunner, a notebook) it left them so, and every later Ctrl-C set a finished run's stop event
+    instead of interrupting the program (a later test's Ctrl-C never came). However it ends, they go back."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    def handlers() -> list:
+        return [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)]
+
+    before = handlers()
+    r = CliRunner().invoke(app, ["up", "--profile", "no-such-profile", "--runs-dir", str(tmp_path / "runs")])
+    assert r.exit_code == 2 and "no-such-profile" in r.output, r.output
+    assert handlers() == before
+    runs = tmp_path / "runs"
+    try:  # a whole run, through the launcher's own handlers
+        r = CliRunner().invoke(app, ["up", "--profile", str(write_profile(tmp_path)), "--runs-dir", str(runs), "--no-live"])
+        assert r.exit_code == 0 and handlers() == before, r.output
+    finally:  # its services, never the launcher: this process
+        kill_leftovers(runs, exclude=os.getpid())
 
 
 def test_status_and_down_with_nothing_running(tmp_path):
