@@ -66,7 +66,8 @@ class MujocoSimConfig:
     lidar_height_m: float = 0.2
     """Height of the scan plane above the floor (below wall_height_m)."""
     odometry_rate_hz: float = 40.0
-    """Rate at which odometry increments are measured (and drift noise is added)."""
+    """Rate at which odometry increments are measured (and drift noise is added): its period must be a whole
+    number of physics steps (40 Hz = 5 steps of 5 ms), since the drift per increment makes the noise depend on it."""
     odom_trans_noise_frac: float = 0.0
     """Odometry drift: std of the position error of each increment, as a fraction of its length."""
     odom_rot_noise_frac: float = 0.0
@@ -93,5 +94,20 @@ class MujocoSimConfig:
         for name in ("actuator_time_constant_s", "contact_time_constant_s"):
             if getattr(self, name) < 2 * self.timestep_s - 1e-12:
                 raise ConfigError(f"robot_sim.{name} must be at least two physics steps")
+        for name in ("wheelbase_m", "track_m"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"robot_sim.{name} must be positive")
+        if not self.wheel_radius_m < self.body_height_m:
+            raise ConfigError(
+                f"robot_sim.wheel_radius_m ({self.wheel_radius_m} m, the body's ground clearance) must be below "
+                f"body_height_m ({self.body_height_m} m)"
+            )
+        steps = 1.0 / (self.odometry_rate_hz * self.timestep_s)
+        if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+            near = 1.0 / (max(1, round(steps)) * self.timestep_s)
+            raise ConfigError(
+                f"robot_sim.odometry_rate_hz ({self.odometry_rate_hz:g} Hz) must be a whole number of physics steps per "
+                f"tick (timestep_s {self.timestep_s:g} s gives {steps:.3g}); nearest such rate: {near:g} Hz"
+            )
         if not self.lidar_height_m < self.wall_height_m:
             raise ConfigError("robot_sim.lidar_height_m must be below wall_height_m or beams pass over the walls")

@@ -312,10 +312,13 @@ def test_the_mujoco_limo_control_period_must_be_whole_physics_steps_before_anyth
     with pytest.raises(ConfigError, match=r"robot.control_period_s \(0.251 s\) must be a whole number of physics steps"):
         EvalRequest(methods=["greedy-dist"], sim="mujoco", settings={"robot.control_period_s": 0.251}).validate()
     EvalRequest(methods=["greedy-dist"], sim="2d", settings={"robot.control_period_s": 0.251}).validate()  # no physics step
-    for settings in ({"exploration.robot.control_period_s": 0.251}, {"services.sim.mujoco.timestep_s": 0.004}):
+    mujoco_4ms = {"services.sim.mujoco.timestep_s": 0.004, "services.sim.mujoco.odometry_rate_hz": 50.0}  # odometry: 5 steps
+    for settings in ({"exploration.robot.control_period_s": 0.251}, mujoco_4ms):
         with pytest.raises(ConfigError, match="services.sim.mujoco: robot.control_period_s .* whole number of physics steps"):
             load_profile("sim", {}, settings=settings)
     load_profile("lockstep", {}, settings={"exploration.robot.control_period_s": 0.251})  # the kinematic sim takes it
+    with pytest.raises(ConfigError, match=r"odometry_rate_hz \(40 Hz\) must be a whole number of physics steps"):
+        load_profile("sim", {}, settings={"services.sim.mujoco.timestep_s": 0.004})
 
 
 def test_the_policy_services_own_method_and_device_are_checked_before_anything_starts():
