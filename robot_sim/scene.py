@@ -10,6 +10,7 @@ plans solid walls merge into fewer boxes, hence the default).
 from __future__ import annotations
 
 from pathlib import Path
+from xml.sax.saxutils import quoteattr
 
 import numpy as np
 from scipy import ndimage
@@ -75,7 +76,8 @@ def world_mjcf(plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_
     )
     limo = limo_mjcf(robot, sim, lidar_mount_x_m)
     g = plan.geometry
-    xml = f"""<mujoco model="limo_{plan.name}">
+    # The plan's name is a file's stem: quoted, so a name with a quote, '&' or '<' still makes well-formed XML.
+    xml = f"""<mujoco model={quoteattr(f"limo_{plan.name}")}>
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{sim.timestep_s:.6g}" integrator="implicitfast" gravity="0 0 -9.81"/>
   <size memory="8M"/>

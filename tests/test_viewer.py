@@ -16,6 +16,7 @@ from cso_runtime.cli import app
 from cso_runtime.config import ConfigError, ExplorationConfig, SensorConfig
 from cso_runtime.geometry import VelocityCommand
 from cso_runtime.scene_generator import generate_floor_plan
+from cso_runtime.scenes import FloorPlan
 from cso_runtime.transport import TransportConfig
 from robot_sim import MujocoSimConfig, MujocoSimulator
 from robot_sim import viewer as viewer_module
@@ -59,6 +60,20 @@ def test_the_world_file_opens_with_the_limo_at_the_start_pose(tmp_path):
     sim = MujocoSimulator(plan, SensorConfig())  # the simulator's own world is the same file
     assert model.ngeom == sim.model.ngeom and np.allclose(model.geom_size, sim.model.geom_size)
     assert np.allclose(sim.data.qpos, data.qpos)
+
+
+@pytest.mark.parametrize("name", ['my "lab"', "lab & office", "a<b"])
+def test_a_plan_name_with_xml_characters_makes_a_well_formed_world(tmp_path, name):
+    """The plan's name (a PNG's or map YAML's file stem) went into the model name unescaped: a quote made
+    ``MujocoSimulator`` fail with MuJoCo's XML parse error, '&' and '<' wrote a file other XML tools reject."""
+    import xml.etree.ElementTree as ET
+
+    plan = generate_floor_plan("small", 0)
+    plan = FloorPlan(name, plan.free, plan.resolution_m, plan.start)
+    sim = MujocoSimulator(plan, SensorConfig())
+    assert sim.model.names.split(b"\0")[0].decode() == f"limo_{name}"
+    path = write_mujoco_world(tmp_path / "w.xml", plan)
+    assert ET.parse(path).getroot().get("model") == f"limo_{name}"
 
 
 def test_scenes_writes_a_mujoco_world_per_plan(tmp_path):
