@@ -471,6 +471,9 @@ def scenes_command(
     limit: int | None = typer.Option(None, "--limit", min=1, help="At most N scenes"),
     preview: Path | None = typer.Option(None, "--preview", help="Also write a PNG of each plan into this folder: reachable free space, start pose"),
     mjcf: Path | None = typer.Option(None, "--mjcf", help="Also write each plan's MuJoCo world (walls, floor, the LIMO; keyframe 'start' at the start pose) into this folder as NAME.xml, for `python -m mujoco.viewer --mjcf FILE`"),
+    sim_config: Path | None = typer.Option(
+        None, "--sim-config", help="With --mjcf: write the worlds with these MuJoCo LIMO parameters (the keys of configs/robot_sim.yaml), as eval --sim mujoco --sim-config FILE builds them"
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
 ) -> None:
     """Each scene of a spec: size, traversable area, the paper's scale class and start pose; unusable plans with why (exit 1)."""
@@ -486,6 +489,18 @@ def scenes_command(
         _fail(str(exc), 2)
     if preview is not None:
         output_dir_or_exit(preview, "--preview")
+    world_config = None
+    if sim_config is not None:
+        from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
+        from robot_sim.config import MujocoSimConfig  # noqa: PLC0415
+
+        if mjcf is None:
+            _fail("--sim-config sets the parameters of the MuJoCo worlds that --mjcf writes: it needs --mjcf", 2)
+        sim_config = _packaged_if_missing(sim_config)
+        try:
+            world_config = from_dict(MujocoSimConfig, load_yaml(sim_config) or {}, where=str(sim_config))
+        except (ConfigError, OSError) as exc:
+            _fail(str(exc), 2)
     if mjcf is not None:
         output_dir_or_exit(mjcf, "--mjcf")
     rows: list[dict] = []
@@ -497,7 +512,7 @@ def scenes_command(
                 if preview is not None:
                     plot_scene(preview / f"{ref.name}.png", plan)
                 if mjcf is not None:
-                    write_mujoco_world(mjcf / f"{ref.name}.xml", plan)
+                    write_mujoco_world(mjcf / f"{ref.name}.xml", plan, sim=world_config)
             except SceneError as exc:
                 rows.append({"scene": ref.name, "error": str(exc)})
             progress(len(rows), len(refs))

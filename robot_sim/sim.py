@@ -86,6 +86,9 @@ class MujocoSimulator:
         self._scan_period_steps = 1.0 / (self.sensor.rate_hz * c.timestep_s)
 
         xml, self.n_wall_boxes = world_mjcf(plan, self.robot, c, self.lidar_mount_x_m)
+        self.mjcf = xml
+        """The MJCF this simulator's ``model`` was built from (walls, floor, the LIMO; keyframe ``start``):
+        ``Path("world.xml").write_text(sim.mjcf)`` saves it for ``python -m mujoco.viewer --mjcf world.xml``."""
         self.model = mujoco.MjModel.from_xml_string(xml)
         self.data = mujoco.MjData(self.model)
         self._qadr = np.array([self.model.joint(j).qposadr[0] for j in JOINTS])

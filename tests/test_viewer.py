@@ -87,6 +87,26 @@ def test_scenes_writes_a_mujoco_world_per_plan(tmp_path):
     assert np.allclose(model.key("start").qpos, [start.x_m, start.y_m, start.yaw_rad])
 
 
+def test_scenes_writes_the_world_of_a_sim_config(tmp_path):
+    """``scenes --mjcf`` wrote every world with the default parameters, so the world an ``eval --sim mujoco
+    --sim-config FILE`` ran in could not be written out; ``--sim-config`` gives it (``sim.mjcf`` from Python)."""
+    params = tmp_path / "limo.yaml"
+    params.write_text("wall_height_m: 0.5\nlidar_height_m: 0.3\nmass_kg: 5.5\n")
+    out = tmp_path / "worlds"
+    result = CliRunner().invoke(app, ["scenes", "generated:small:1:0", "--mjcf", str(out), "--sim-config", str(params)])
+    assert result.exit_code == 0, result.output
+    text = (out / "gen_small_0.xml").read_text()
+    sim = MujocoSimulator(generate_floor_plan("small", 0), SensorConfig(mount_x_m=0.103), config=MujocoSimConfig(wall_height_m=0.5, lidar_height_m=0.3, mass_kg=5.5))
+    assert text == sim.mjcf
+    model = mujoco.MjModel.from_xml_path(str(out / "gen_small_0.xml"))
+    assert model.body("limo").mass[0] == pytest.approx(5.5) and model.geom("wall0").size[2] == pytest.approx(0.25)
+    result = CliRunner().invoke(app, ["scenes", "generated:small:1:0", "--sim-config", str(params)])
+    assert result.exit_code == 2 and "needs --mjcf" in result.output
+    params.write_text("wall_height: 0.5\n")
+    result = CliRunner().invoke(app, ["scenes", "generated:small:1:0", "--mjcf", str(out), "--sim-config", str(params)])
+    assert result.exit_code == 2 and "unknown key" in result.output
+
+
 def test_the_viewer_gets_every_state_and_the_goal_until_its_window_closes():
     sim = MujocoSimulator(generate_floor_plan("small", 0), SensorConfig(), config=MujocoSimConfig())
     view = SimViewer(sim, launch=FakeHandle)
