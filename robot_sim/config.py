@@ -51,7 +51,11 @@ class MujocoSimConfig:
     which rays and the robot cannot tell apart from solid ones). Off by default: solid rectilinear walls
     merge into fewer boxes (Dungeon img_1: 22 solid vs 42 shell boxes); it helps for blobby walls."""
     mass_kg: float = 4.8
-    """LIMO mass."""
+    """LIMO mass: the "dead load" of the AgileX LIMO user manual, section 1.3 Tech specifications
+    (github.com/agilexrobotics/limo-doc), which also gives the 322 x 220 x 251 mm overall size (RobotConfig's
+    length and width, ``body_height_m``), the 200 mm wheelbase, the 175 mm tread and the 1 m/s no-load top speed
+    (RobotConfig.max_linear_mps). Only the mass and the yaw inertia of a solid box of that size act on the planar
+    base (x, y, yaw joints)."""
     body_height_m: float = 0.251
     """LIMO overall height (body length and width come from RobotConfig)."""
     wheelbase_m: float = 0.200
@@ -59,7 +63,8 @@ class MujocoSimConfig:
     track_m: float = 0.175
     """Distance between left and right wheels (visual only)."""
     wheel_radius_m: float = 0.045
-    """Wheel radius (visual only); also the body's ground clearance."""
+    """Wheel radius (visual only, assumed: the manual gives none); also where the body box starts above the floor
+    (the manual's minimum ground clearance is 24 mm; neither acts on the planar base, whose floor does not collide)."""
     lidar_mount_x_m: float | None = 0.103
     """LiDAR position ahead of the robot centre (the LIMO's EAI X2L). None: use SensorConfig.mount_x_m.
     The simulator's ``sensor_pose`` always uses the position the rays are cast from."""
