@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 import shutil
 import subprocess
@@ -740,3 +741,27 @@ def test_an_eval_into_a_folder_of_other_methods_says_it_replaces_their_summary(t
     with caplog.at_level("WARNING"):
         run_eval(EvalRequest(methods=["random"], maps="generated:small:1:0", out_dir=tmp_path / "o", max_steps=5))
     assert "holds the results of greedy-dist: this run's summary.json and episodes.csv replace them" in caplog.text
+
+
+@pytest.mark.parametrize(("rows", "cols", "methods"), [(96, 78, 3), (480, 640, 3), (200, 300, 3), (400, 60, 5)])
+def test_trajectory_plots_keep_the_plans_name_clear_of_the_panel_titles(rows: int, cols: int, methods: int):
+    """The plan's name above the panels never overlaps a panel's title: with an odd number of methods it sits
+    right over the middle panel's, and one layout pass of fixed-aspect panels with the key below once put them
+    on top of each other (a small generated plan with three methods)."""
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import trajectory_figure
+
+    free = np.zeros((rows, cols), dtype=bool)
+    free[5:-5, 5:-5] = True
+    path = np.array([[1.0, 1.0], [cols * 0.05 - 1.0, rows * 0.05 - 1.0]])
+    row = {"coverage_pct": 100.0, "steps": 21, "path_length_m": 2.2}
+    outcomes = [EpisodeOutcome(f"greedy-{i}", "gen_small_2", row, None, free, 0.05, free.copy(), path) for i in range(methods)]
+    fig = trajectory_figure("gen_small_2", outcomes)
+    fig.savefig(io.BytesIO(), format="png", dpi=100)  # as eval writes it: the layout of that one draw
+    renderer = fig.canvas.get_renderer()
+    name = fig.get_suptitle() and fig._suptitle.get_window_extent(renderer)
+    assert name
+    for ax in fig.axes:
+        title = ax.title.get_window_extent(renderer)
+        assert title.y1 <= name.y0 or title.x1 <= name.x0 or title.x0 >= name.x1, (ax.get_title(), title, name)
+    fig.clf()
