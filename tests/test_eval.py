@@ -447,6 +447,27 @@ def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_pat
     assert lines[-1] == f"results in {tmp_path}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
 
 
+def test_the_console_says_why_a_run_with_the_baseline_has_no_comparison(tmp_path: Path, capsys):
+    """`eval --limit 2` with greedy-dist and cso: too few shared scenes for paired.csv (at least 3 per scale). The
+    console says so, instead of leaving out the comparison without a word; with 3 scenes the table is there."""
+    from cso_runtime.evaluation import print_summary, summarize
+
+    def row(method: str, name: str, eff: float) -> dict:
+        return {"method": method, "map": name, "seed": 0, "traversable_area_m2": 150.0, "scale": "large", "terminated_by": "coverage", "explored_area_m2": 150.0,
+                "coverage_pct": 99.5, "steps": 150.0 / eff, "efficiency_m2_per_step": eff, "path_length_m": 10.0, "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}
+
+    two = [row(m, n, e) for m, e in (("greedy-dist", 1.0), ("cso", 1.1)) for n in ("img_1", "img_2")]
+    print_summary(summarize(two, [], ["greedy-dist", "cso"], {}), tmp_path)
+    out = capsys.readouterr().out
+    assert "no comparison with greedy-dist scene by scene (paired.csv): no other method shares 3 scenes of one scale with it" in out
+    three = two + [row("greedy-dist", "img_3", 1.0), row("cso", "img_3", 1.1)]
+    print_summary(summarize(three, [], ["greedy-dist", "cso"], {}), tmp_path)
+    out = capsys.readouterr().out
+    assert "no comparison" not in out and "Against greedy-dist, scene by scene" in out
+    print_summary(summarize(two, [], ["cso"], {}), tmp_path)  # the baseline did not run: nothing to explain
+    assert "no comparison" not in capsys.readouterr().out
+
+
 def test_a_run_with_ablations_is_also_laid_out_as_the_papers_table_2(tmp_path: Path, capsys):
     """A row per method, a column per scale, m2/step with the per-scene change against the baseline; on the
     console and in report.html, only where two learned methods ran (cso and an ablation)."""
