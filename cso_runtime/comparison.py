@@ -65,7 +65,7 @@ class PairedComparison:
     def markdown_row(self) -> str:
         return (
             f"| {self.scale} | {self.method} | {self.scenes} | {self.change_of_means_pct:+.1f} % | "
-            f"{format_interval(self.per_scene_pct, self.ci_low_pct, self.ci_high_pct)} | {self.won} of {self.scenes} | "
+            f"{format_interval(self.per_scene_pct, self.ci_low_pct, self.ci_high_pct)} | {self.won} of {self.scenes} ({self.lost} lost) | "
             f"{format_interval(self.geomean_pct, self.geomean_ci_low_pct, self.geomean_ci_high_pct)} |"
         )
 

@@ -30,7 +30,7 @@ from rich.markup import escape
 
 from cso_runtime import __version__
 from cso_runtime.animation import EpisodeAnimation
-from cso_runtime.comparison import PAIRED_COLUMNS, as_dicts, compare_to_baseline, efficiency_by_scene, paired_cells
+from cso_runtime.comparison import MIN_SCENES, PAIRED_COLUMNS, as_dicts, compare_to_baseline, efficiency_by_scene, paired_cells
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import (
     EXIT_INTERRUPTED,
@@ -652,6 +652,9 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
         for c in paired["comparisons"]:
             against.add_row(*paired_cells(c))
         console.print(against)
+    elif paired.get("baseline") in summary["methods"] and len(summary["methods"]) > 1:  # say why there is no comparison
+        console.print(escape(f"no comparison with {paired['baseline']} scene by scene (paired.csv): no other method shares {MIN_SCENES} "
+                             "scenes of one scale with it"), soft_wrap=True, highlight=False)
     for f in summary["failures"]:
         why = f["error"].splitlines()[0] if f["error"] else ""
         failed = escape(f"{f['method']} {f['map']}: {why}")

@@ -40,6 +40,16 @@ def test_each_method_is_compared_per_scale_on_the_scenes_both_ran():
     assert compare_to_baseline(efficiency_by_scene(episodes), "utility") == []  # the baseline did not run
 
 
+def test_the_markdown_row_tells_lost_scenes_from_level_ones():
+    """Scenes where the method and the baseline are level (common on small scenes, seen whole in a few steps) are
+    neither won nor lost: the markdown of ``compare`` and ``benchmarks/paired.py`` says how many were lost, so that
+    "2 of 4" does not read as two scenes lost when one of them is a tie."""
+    episodes = rows("greedy-dist", "large", {"a": 1.0, "b": 1.0, "c": 2.0, "d": 1.0}) + rows("cso", "large", {"a": 1.5, "b": 0.5, "c": 2.0, "d": 1.1})
+    (cso,) = compare_to_baseline(efficiency_by_scene(episodes), "greedy-dist")
+    assert (cso.won, cso.lost) == (2, 1)
+    assert "| 2 of 4 (1 lost) |" in cso.markdown_row()
+
+
 def test_the_geometric_mean_of_the_per_scene_ratios_lets_a_doubling_and_a_halving_cancel_out():
     """Ratios 2, 0.5, 1, 1: arithmetic mean +12.5 %, geometric mean 0 %; its interval comes from the same
     resamples as the arithmetic mean's. A method that explored nothing on a scene has no geometric mean."""

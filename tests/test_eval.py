@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 import shutil
 import subprocess
@@ -446,6 +447,27 @@ def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_pat
     assert lines[-1] == f"results in {tmp_path}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
 
 
+def test_the_console_says_why_a_run_with_the_baseline_has_no_comparison(tmp_path: Path, capsys):
+    """`eval --limit 2` with greedy-dist and cso: too few shared scenes for paired.csv (at least 3 per scale). The
+    console says so, instead of leaving out the comparison without a word; with 3 scenes the table is there."""
+    from cso_runtime.evaluation import print_summary, summarize
+
+    def row(method: str, name: str, eff: float) -> dict:
+        return {"method": method, "map": name, "seed": 0, "traversable_area_m2": 150.0, "scale": "large", "terminated_by": "coverage", "explored_area_m2": 150.0,
+                "coverage_pct": 99.5, "steps": 150.0 / eff, "efficiency_m2_per_step": eff, "path_length_m": 10.0, "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}
+
+    two = [row(m, n, e) for m, e in (("greedy-dist", 1.0), ("cso", 1.1)) for n in ("img_1", "img_2")]
+    print_summary(summarize(two, [], ["greedy-dist", "cso"], {}), tmp_path)
+    out = capsys.readouterr().out
+    assert "no comparison with greedy-dist scene by scene (paired.csv): no other method shares 3 scenes of one scale with it" in out
+    three = two + [row("greedy-dist", "img_3", 1.0), row("cso", "img_3", 1.1)]
+    print_summary(summarize(three, [], ["greedy-dist", "cso"], {}), tmp_path)
+    out = capsys.readouterr().out
+    assert "no comparison" not in out and "Against greedy-dist, scene by scene" in out
+    print_summary(summarize(two, [], ["cso"], {}), tmp_path)  # the baseline did not run: nothing to explain
+    assert "no comparison" not in capsys.readouterr().out
+
+
 def test_a_run_with_ablations_is_also_laid_out_as_the_papers_table_2(tmp_path: Path, capsys):
     """A row per method, a column per scale, m2/step with the per-scene change against the baseline; on the
     console and in report.html, only where two learned methods ran (cso and an ablation)."""
@@ -740,3 +762,27 @@ def test_an_eval_into_a_folder_of_other_methods_says_it_replaces_their_summary(t
     with caplog.at_level("WARNING"):
         run_eval(EvalRequest(methods=["random"], maps="generated:small:1:0", out_dir=tmp_path / "o", max_steps=5))
     assert "holds the results of greedy-dist: this run's summary.json and episodes.csv replace them" in caplog.text
+
+
+@pytest.mark.parametrize(("rows", "cols", "methods"), [(96, 78, 3), (480, 640, 3), (200, 300, 3), (400, 60, 5)])
+def test_trajectory_plots_keep_the_plans_name_clear_of_the_panel_titles(rows: int, cols: int, methods: int):
+    """The plan's name above the panels never overlaps a panel's title: with an odd number of methods it sits
+    right over the middle panel's, and one layout pass of fixed-aspect panels with the key below once put them
+    on top of each other (a small generated plan with three methods)."""
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import trajectory_figure
+
+    free = np.zeros((rows, cols), dtype=bool)
+    free[5:-5, 5:-5] = True
+    path = np.array([[1.0, 1.0], [cols * 0.05 - 1.0, rows * 0.05 - 1.0]])
+    row = {"coverage_pct": 100.0, "steps": 21, "path_length_m": 2.2}
+    outcomes = [EpisodeOutcome(f"greedy-{i}", "gen_small_2", row, None, free, 0.05, free.copy(), path) for i in range(methods)]
+    fig = trajectory_figure("gen_small_2", outcomes)
+    fig.savefig(io.BytesIO(), format="png", dpi=100)  # as eval writes it: the layout of that one draw
+    renderer = fig.canvas.get_renderer()
+    name = fig.get_suptitle() and fig._suptitle.get_window_extent(renderer)
+    assert name
+    for ax in fig.axes:
+        title = ax.title.get_window_extent(renderer)
+        assert title.y1 <= name.y0 or title.x1 <= name.x0 or title.x0 >= name.x1, (ax.get_title(), title, name)
+    fig.clf()

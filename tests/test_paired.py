@@ -39,7 +39,7 @@ def test_pairs_each_method_with_the_baseline_scene_by_scene(tmp_path, capsys):
     # Means 8.2/7 against 8/7: +2.5 %; per-scene ratios 7.2/7: +2.9 %, with a bootstrap interval around it.
     assert len(row) == 1
     cells = [c.strip() for c in row[0].strip("|").split("|")]
-    assert cells[:4] == ["large", "cso", "7", "+2.5 %"] and cells[5] == "2 of 7"
+    assert cells[:4] == ["large", "cso", "7", "+2.5 %"] and cells[5] == "2 of 7 (2 lost)"  # three level
     mean, interval = cells[4].split(" % [")
     lo, hi = (float(v) for v in interval.rstrip("]").split(","))
     assert mean == "+2.9" and lo < 2.9 < hi and lo > -20 and hi < 20
