@@ -156,6 +156,10 @@ class EvalRequest:
         mujoco_config(data, cfg.sensor, where=str(self.sim_config_path or "--sim mujoco"), robot=cfg.robot)
         return data
 
+    def as_record(self) -> dict[str, Any]:
+        """The request as JSON values (paths as strings), for ``summary.json``'s ``meta.request``."""
+        return {f.name: str(v) if isinstance(v := getattr(self, f.name), Path) else v for f in dataclasses.fields(self)}
+
     def validate(self) -> None:
         known = set(BASELINES) | set(LEARNED_METHODS)
         unknown = [m for m in self.methods if m not in known]
@@ -539,6 +543,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         "seed": request.seed,
         "sim": request.sim,
         "scenes": len(scenes),
+        "request": request.as_record(),  # every flag the run was given (--limit, --method, --workers, ...): enough to run it again
         "config": to_dict(config),
     }
     if request.resume:

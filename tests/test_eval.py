@@ -299,6 +299,10 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     assert npz_other.exists()  # the missing one was run again
     assert second["meta"]["resumed_episodes"] == 1 and "resumed_episodes" not in first["meta"]
     assert first["meta"]["version"] == cso_runtime.__version__ != "0+unknown"  # which code made the table
+    # and every flag it was given (meta.command alone said "cso-runtime eval"), as JSON that reads back
+    request = json.loads((tmp_path / "summary.json").read_text())["meta"]["request"]
+    assert request["methods"] == ["greedy-dist", "random"] and request["max_steps"] == 30 and request["limit"] is None
+    assert request["out_dir"] == str(tmp_path) and second["meta"]["request"]["resume"] is True
     for m in ("greedy-dist", "random"):
         assert second["methods"][m]["coverage_pct"] == first["methods"][m]["coverage_pct"]
         assert second["methods"][m]["steps"] == first["methods"][m]["steps"]
