@@ -27,10 +27,11 @@ def frontier_cells(open_cells: np.ndarray, explored: np.ndarray, out: np.ndarray
 def frontier_entropy(frontier: np.ndarray, window_m: float, resolution_m: float, out: np.ndarray | None = None) -> np.ndarray:
     """I_{x,y}: number of frontier cells in the gamma x gamma window centred on each cell (Eq. 4).
 
-    Computed for the whole map at once with a summed-area table; gamma is rounded to an odd number
-    of cells so the window is centred. ``out``: an int32 grid to write I into (returned).
+    Computed for the whole map at once with a summed-area table. The window is centred, so its side is
+    an odd number of cells: gamma / resolution rounded to whole cells, plus one when that is even (2 m
+    at 0.05 m cells: 41 cells). ``out``: an int32 grid to write I into (returned).
     """
-    half = max(0, int(round(window_m / resolution_m / 2.0)))
+    half = max(1, int(round(window_m / resolution_m))) // 2
     k = 2 * half + 1
     ny, nx = frontier.shape
     sat = np.zeros((ny + k, nx + k), dtype=np.int32)

@@ -121,3 +121,15 @@ def test_entropy_counts_frontier_cells_in_window():
             brute[y, x] = f[max(y - 5, 0) : y + 6, max(x - 5, 0) : x + 6].sum()
     np.testing.assert_array_equal(ent, brute)
     assert ent[10, 10] == 3 and ent[30, 30] == 1 and ent[0, 39] == 0
+
+
+@pytest.mark.parametrize(("window_m", "side_cells"), [(0.3, 3), (0.5, 5), (0.7, 7), (1.1, 11), (1.5, 15), (2.0, 21), (0.72, 7), (0.05, 1)])
+def test_entropy_window_is_gamma_wide_not_two_cells_wider(window_m, side_cells):
+    """Eq. 4's window is a square of side gamma: gamma / resolution cells when that is odd (the window is centred on
+    its cell), the next odd number when it is even. Halving gamma / resolution before rounding once made an odd
+    count two cells too wide whenever the float division landed at or above the half (1.1 m at 0.1 m cells: 13 cells,
+    1.5 m: 17, 0.72 m: 9); even counts, and so the default 2 m at 0.05 or 0.1 m cells, were never affected."""
+    res = 0.1
+    f = np.zeros((41, 41), dtype=bool)
+    f[20, :] = True  # a frontier row: the count at its middle is the window's side in cells
+    assert frontier_entropy(f, window_m, res)[20, 20] == side_cells
