@@ -210,7 +210,7 @@ def render_table(status: dict[str, Any]):
     # Every cell is text, not markup: a scene file or a service's reason may hold brackets.
     t = Table(title=escape(f"robot {status['robot']}  run {status['run_id'] or '-'}"))
     t.add_column("field")
-    t.add_column("value")
+    t.add_column("value", overflow="fold")  # a narrow terminal wraps a long URL or path, never cuts it with an ellipsis
     goal = status["goal"]
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "")),

@@ -160,6 +160,11 @@ def test_the_live_view_says_where_to_point_foxglove(tmp_path, monkeypatch):
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
     assert "foxglove_bridge │ starting, pid -, restarts 0; Foxglove: open ws://127.0.0.1:9123" in console.export_text()
+    narrow = Console(width=40, record=True)  # the URL wraps over two lines, but all of it is there
+    narrow.print(LiveView(launcher).render())
+    text = narrow.export_text()
+    assert "…" not in text
+    assert "ws://127.0.0.1:9123" in "".join(line.split("│")[2].strip() for line in text.splitlines() if line.count("│") == 3)
 
 
 class _Viewer:

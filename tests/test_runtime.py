@@ -1445,6 +1445,19 @@ def test_status_watch_redraws_one_table_on_a_terminal_and_appends_plain_tables_e
         assert "\x1b" not in text and text.count("robot r0  run run1") == 3  # each status once, one under the other
 
 
+def test_status_tables_wrap_on_a_narrow_terminal_rather_than_cut_with_an_ellipsis():
+    from rich.console import Console
+
+    from cso_runtime import status
+
+    st = status.status_of("r0", {"state": "failed", "reason": "the planner gave up: /very/long/path/to/runs/20261206-062256-sim-r0/logs"},
+                          None, {}, set())
+    console = Console(width=40, record=True)
+    console.print(status.render_table(st))
+    text = console.export_text()
+    assert "…" not in text and "20261206-062256-sim-r0" in "".join(line.split("│")[2].strip() for line in text.splitlines() if line.count("│") == 3)
+
+
 def test_status_reads_the_run_file_once_so_its_endpoints_and_launcher_are_of_one_run(tmp_path, monkeypatch):
     """A new run may replace runs/current.json between two reads: status then asked the old run's router
     and judged the new run's launcher. One read gives both from one run (here: a live launcher's)."""
