@@ -47,7 +47,7 @@ class LiveView:
         # Short title, no header: on an 80-column terminal a title wider than the table wraps.
         t = Table(title=f"cso-runtime {la.run_id}", show_header=False)
         t.add_column("field")
-        t.add_column("value")
+        t.add_column("value", overflow="fold")  # a narrow terminal wraps a long URL or path, never cuts it with an ellipsis
         t.add_row("robot / method", escape(f"{la.profile.robot} / {la.profile.method}, {'lockstep' if la.profile.lockstep else 'real time'}"))
         if st is None:
             t.add_row("state", "starting")

@@ -210,7 +210,7 @@ def render_table(status: dict[str, Any]):
     # Every cell is text, not markup: a scene file or a service's reason may hold brackets.
     t = Table(title=escape(f"robot {status['robot']}  run {status['run_id'] or '-'}"))
     t.add_column("field")
-    t.add_column("value")
+    t.add_column("value", overflow="fold")  # a narrow terminal wraps a long URL or path, never cuts it with an ellipsis
     goal = status["goal"]
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "")),
@@ -254,23 +254,36 @@ def render_table(status: dict[str, Any]):
     return t
 
 
-def status_main(connect: list[str], robot: str | None, as_json: bool, watch: bool, runs_dir: Path, period_s: float = 1.0) -> int:
-    """The ``status`` command; exit code 1 when nothing answers."""
+def status_main(connect: list[str], robot: str | None, as_json: bool, watch: bool, runs_dir: Path, period_s: float = 1.0, console=None) -> int:
+    """The ``status`` command; exit code 1 when nothing answers. ``--watch`` on a terminal redraws one table in
+    place (as ``up``'s live view does); in a file or a pipe, and with ``--json``, each status follows the last.
+    ``console``: rich's console on stdout when None."""
     from rich.console import Console  # noqa: PLC0415
+    from rich.live import Live  # noqa: PLC0415
 
-    console = Console()
+    console = console if console is not None else Console()
     target = reachable_target(connect, robot, runs_dir, as_json)
     if isinstance(target, int):
         return target
     connect, robot = target
+    # A new table a period scrolled the terminal: ~20 lines a second, each as wide as its longest cell.
+    in_place = watch and not as_json and console.is_terminal
+    live: Live | None = None
     next_s = time.monotonic()
     try:
         while True:
             status = query_status(connect, robot)
             if status is None:
+                if live is not None:
+                    live.stop()  # the last table stays; the line below goes under it
                 return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}", as_json)
             if as_json:
                 print(json.dumps(status), flush=True)
+            elif in_place and live is None:
+                live = Live(render_table(status), console=console, auto_refresh=False)
+                live.start(refresh=True)
+            elif live is not None:
+                live.update(render_table(status), refresh=True)
             else:
                 console.print(render_table(status))
             if not watch:
@@ -285,7 +298,12 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     except KeyboardInterrupt:
         return 0
     except TransportError as exc:
+        if live is not None:
+            live.stop()
         return say_nothing_running(str(exc), as_json)
+    finally:
+        if live is not None:
+            live.stop()
 
 
 def query_map(connect: list[str], robot: str = "r0", timeout_s: float = 1.0) -> tuple[MapMsg | None, str]:

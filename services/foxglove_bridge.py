@@ -87,13 +87,17 @@ def websocket_handshake(host: str, port: int, timeout_s: float = 5.0) -> bytes:
 
 
 class _Subscriptions:
-    """The server's listener: a viewer's new subscription asks for the latched topics again."""
+    """The server's listener: a viewer's new subscription asks for the latched topics again. The server calls
+    ``on_unsubscribe`` too (a panel closed, a viewer gone): a listener without it has each call logged as an error."""
 
     def __init__(self) -> None:
         self.new = threading.Event()
 
     def on_subscribe(self, client: Any, channel: Any) -> None:
         self.new.set()
+
+    def on_unsubscribe(self, client: Any, channel: Any) -> None:
+        """Nothing to do: the server stops sending that channel to that viewer by itself."""
 
 
 class FoxgloveBridgeService(Service):

@@ -160,3 +160,91 @@ def test_the_live_view_says_where_to_point_foxglove(tmp_path, monkeypatch):
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
     assert "foxglove_bridge │ starting, pid -, restarts 0; Foxglove: open ws://127.0.0.1:9123" in console.export_text()
+    narrow = Console(width=40, record=True)  # the URL wraps over two lines, but all of it is there
+    narrow.print(LiveView(launcher).render())
+    text = narrow.export_text()
+    assert "…" not in text
+    assert "ws://127.0.0.1:9123" in "".join(line.split("│")[2].strip() for line in text.splitlines() if line.count("│") == 3)
+
+
+class _Viewer:
+    """A bare Foxglove WebSocket client on loopback: text frames only, enough to subscribe and unsubscribe."""
+
+    def __init__(self, port: int):
+        import base64
+        import os
+
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=5.0)
+        key = base64.b64encode(os.urandom(16)).decode()
+        self.sock.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                           f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n").encode())
+        self.buf = b""
+        while b"\r\n\r\n" not in self.buf:
+            self.buf += self.sock.recv(4096)
+        assert self.buf.startswith(b"HTTP/1.1 101"), self.buf
+        self.buf = self.buf.split(b"\r\n\r\n", 1)[1]
+
+    def _read(self, n: int) -> bytes:
+        while len(self.buf) < n:
+            chunk = self.sock.recv(65536)
+            assert chunk, "the server closed the connection"
+            self.buf += chunk
+        out, self.buf = self.buf[:n], self.buf[n:]
+        return out
+
+    def json_op(self, op: str) -> dict:
+        """The next text message whose ``op`` is ``op`` (binary message data is skipped)."""
+        import json
+        import struct
+
+        while True:
+            head = self._read(2)
+            n = head[1] & 0x7F
+            n = struct.unpack(">H", self._read(2))[0] if n == 126 else struct.unpack(">Q", self._read(8))[0] if n == 127 else n
+            payload = self._read(n)
+            if head[0] & 0x0F == 1 and (msg := json.loads(payload))["op"] == op:
+                return msg
+
+    def send(self, msg: dict) -> None:
+        import json
+        import struct
+
+        data = json.dumps(msg).encode()  # a zero mask: the payload goes as it is
+        self.sock.sendall(bytes([0x81, 0x80 | 126]) + struct.pack(">H", len(data)) + b"\0\0\0\0" + data)
+
+    def close(self) -> None:
+        self.sock.sendall(b"\x88\x80\x00\x00\x00\x00")
+        self.sock.close()
+
+
+def test_a_viewer_that_subscribes_and_unsubscribes_gets_no_error_logged(caplog):
+    """Foxglove unsubscribes whenever a panel closes or the viewer leaves; the server calls the listener's
+    ``on_unsubscribe`` then, which the bridge once lacked: each call was logged as an ERROR
+    ("Callback failed: AttributeError...")."""
+    import logging
+    import time
+
+    bridge = _bridge({"port": 0, "map_period_s": 0.0})
+    try:
+        bridge.on_message("r0", "map", _map(0), 0.0)
+        viewer = _Viewer(bridge.server.port)
+        channels = {c["topic"]: c["id"] for c in viewer.json_op("advertise")["channels"]}
+        assert {"/map", "/tf_static"} <= set(channels)
+        with caplog.at_level(logging.WARNING):
+
+            def subscribe(sub_id: int) -> None:
+                bridge.subscriptions.new.clear()
+                viewer.send({"op": "subscribe", "subscriptions": [{"id": sub_id, "channelId": channels["/map"]}]})
+                deadline = time.monotonic() + 5.0
+                while not bridge.subscriptions.new.is_set() and time.monotonic() < deadline:
+                    time.sleep(0.01)
+                assert bridge.subscriptions.new.is_set()  # the latched map goes out again on the next tick
+
+            subscribe(1)
+            viewer.send({"op": "unsubscribe", "subscriptionIds": [1]})
+            subscribe(2)  # handled after the unsubscription: its callback has run (and logged whatever it did)
+            viewer.close()
+        errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+        assert errors == []
+    finally:
+        bridge.shutdown()

@@ -1416,6 +1416,48 @@ def test_status_watch_prints_each_status_until_nothing_answers_then_exits_1(monk
     assert [line["state"] for line in lines] == ["exploring", "exploring", "done", "not running"] and lines[2]["step"] == 9
 
 
+@pytest.mark.parametrize("terminal", [True, False])
+def test_status_watch_redraws_one_table_on_a_terminal_and_appends_plain_tables_elsewhere(monkeypatch, capsys, terminal):
+    """On a terminal ``status --watch`` printed a new table under the last every period (the screen scrolled,
+    each table as wide as its cells); it now redraws one in place, as ``up``'s live view does. In a file or a
+    pipe each table still follows the last, with no control codes."""
+    import io
+
+    from rich.console import Console
+
+    from cso_runtime import status
+
+    def at(step: int) -> dict:
+        return status.status_of("r0", {"state": "exploring", "step": step, "coverage_pct": 2.0 * step, "scene": "s", "method": "cso"},
+                                {"run_id": "run1", "services": {"sim": {"pid": 1, "restarts": 0}}}, {}, {"sim"})
+
+    answers = iter([at(3), at(4), at(5), None])
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6: next(answers))
+    monkeypatch.setattr(status.time, "sleep", lambda s: None)
+    out = io.StringIO()
+    console = Console(file=out, force_terminal=terminal, width=80, height=40, color_system=None)
+    code = status.status_main([loopback_endpoint(7447)], "r0", as_json=False, watch=True, runs_dir=Path("."), period_s=0.1, console=console)
+    text = out.getvalue()
+    assert code == 1 and capsys.readouterr().out == "nothing running (no answer for robot r0 at tcp/127.0.0.1:7447)\n"
+    if terminal:  # (stopping draws the last table once more, in place)
+        assert text.count("\x1b[2K") >= 2 * 20  # the second and third tables erase the one before (one line each)
+    else:
+        assert "\x1b" not in text and text.count("robot r0  run run1") == 3  # each status once, one under the other
+
+
+def test_status_tables_wrap_on_a_narrow_terminal_rather_than_cut_with_an_ellipsis():
+    from rich.console import Console
+
+    from cso_runtime import status
+
+    st = status.status_of("r0", {"state": "failed", "reason": "the planner gave up: /very/long/path/to/runs/20261206-062256-sim-r0/logs"},
+                          None, {}, set())
+    console = Console(width=40, record=True)
+    console.print(status.render_table(st))
+    text = console.export_text()
+    assert "…" not in text and "20261206-062256-sim-r0" in "".join(line.split("│")[2].strip() for line in text.splitlines() if line.count("│") == 3)
+
+
 def test_status_reads_the_run_file_once_so_its_endpoints_and_launcher_are_of_one_run(tmp_path, monkeypatch):
     """A new run may replace runs/current.json between two reads: status then asked the old run's router
     and judged the new run's launcher. One read gives both from one run (here: a live launcher's)."""
