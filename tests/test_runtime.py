@@ -1758,6 +1758,30 @@ def test_down_continues_a_stopped_launcher_which_then_ends_its_run_itself(tmp_pa
         assert not any(pid_alive(p) for p in run_pids(runs))
 
 
+def test_a_launcher_stopped_and_continued_does_not_take_its_services_for_hung(tmp_path):
+    """A launcher stopped for longer than ``hang_timeout_s`` (Ctrl-Z on ``up`` and ``fg``, SIGSTOP and SIGCONT)
+    found on its return that no service had answered it meanwhile, and killed them as hung, the sim first: its
+    episode started over. The silence was the launcher's own: the hang check starts over once it asks again, and
+    the episode goes on to its end with no restart."""
+    from cso_runtime.launcher import WATCH_BEHIND_S
+    from cso_runtime.supervision import process_state
+
+    with detached_run(tmp_path, "--set", "supervision.hang_timeout_s=2", min_step_period_s=0.25, lockstep_timeout_s=0.5) as (runs, status):
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
+        launcher_pid = json.loads((runs / "current.json").read_text())["launcher_pid"]
+        os.kill(launcher_pid, signal.SIGSTOP)
+        try:
+            wait_for(lambda: process_state(launcher_pid) == "T", 10, "the launcher to be stopped")
+            time.sleep(WATCH_BEHIND_S + 1.0)  # the fault: stopped longer than hang_timeout_s and than the watch's round
+        finally:
+            os.kill(launcher_pid, signal.SIGCONT)
+        final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2)
+        assert final["state"] == "done" and final["terminated_by"] == "coverage", final
+        assert {name: (svc["restarts"], svc.get("hung_kills", 0)) for name, svc in final["services"].items()} == {name: (0, 0) for name in final["services"]}
+        launcher_log = next(runs.glob("*/logs/launcher.log")).read_text()
+        assert "their silence meanwhile is not taken for a hang" in launcher_log and "killing it" not in launcher_log, launcher_log[-3000:]
+
+
 def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
     """One episode status saying "done" that no result follows, while the sim goes on reporting the
     episode exploring (a stray or forged message): ignored, counted, and the run ends with the episode."""
@@ -1803,7 +1827,9 @@ def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplo
         assert any(r.message.startswith(f"mapper (pid {stuck.proc.pid}) runs but has not come up in 100 s") for r in caplog.records)
         # The planner came up; stopped (SIGSTOP), it loses its token when its lease runs out: hung, not starting.
         launcher.alive_services = set()
-        launcher.status_watch = SimpleNamespace(answered_s={"planner": up.spawned_at + 200.0})
+        launcher.status_watch = SimpleNamespace(
+            answered_s={"planner": up.spawned_at + 200.0}, resumed_s=-np.inf, behind=lambda now: False,  # asking all along
+        )
         hang_s = profile.supervision.hang_timeout_s
         launcher.kill_hung(up.spawned_at + 200.0 + hang_s - 0.5)
         assert up.alive and up.hung_kills == 0
