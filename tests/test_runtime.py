@@ -499,6 +499,23 @@ def test_up_without_a_zenoh_session_says_so_and_starts_nothing(tmp_path):
             assert not any(p.name.endswith(".log") and p.name != "launcher.log" for p in runs.rglob("*.log"))
 
 
+def test_a_zenoh_runtime_setting_zenoh_cannot_read_is_said_not_a_traceback(tmp_path):
+    """A ``ZENOH_RUNTIME`` that Zenoh cannot parse made it panic as the router opened: a Rust traceback, exit code 1
+    and a run folder with no run.json (``runs`` did not list it). Now the no-session error: exit 3, one line that
+    names the variable, the run listed as failed, nothing started."""
+    from cso_runtime.runs import list_runs
+
+    runs = tmp_path / "runs"
+    env = {**os.environ, "ZENOH_RUNTIME": "(bogus"}
+    r = subprocess.run(
+        [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(write_profile(tmp_path)), "--no-live", "--runs-dir", str(runs)],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60,
+    )
+    said = r.stdout + r.stderr
+    assert r.returncode == 3 and "ZENOH_RUNTIME='(bogus'" in said and "no service was started" in said and "Traceback" not in said, said
+    assert [run.state for run in list_runs(runs)] == ["failed"] and not (runs / "current.json").exists()
+
+
 def test_a_second_up_in_the_same_runs_folder_is_refused_whichever_robot(tmp_path):
     """Another robot's run in the same folder would take over runs/current.json and leave the first run
     beyond ``status`` and ``down`` (its five services orphaned): refused, with the way out."""
