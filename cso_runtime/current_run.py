@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime.run_profile import Profile, SupervisionConfig
-from cso_runtime.supervision import pid_alive, run_process_alive, signal_group
+from cso_runtime.supervision import pid_alive, process_state, run_process_alive, signal_group
 
 log = logging.getLogger("cso.launcher")
 
@@ -99,11 +99,21 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
     service_pids = [
         spid for spid, ticks in services if not (ticks_known and ticks is None) and run_process_alive(spid, ticks)  # not a pid reused since
     ]
+    continued, escalated = False, ""
     for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0)):
         if not pid_alive(pid):
             break
+        if sig != signal.SIGINT:
+            escalated = signal.Signals(sig).name
         try:
+            continued = continued or process_state(pid) == "T"
             os.kill(pid, sig)
+            # A stopped launcher (Ctrl-Z on `up`, SIGSTOP) would only get its SIGINT once continued: down waited
+            # out every stage and killed it, and its run was left unfinished (run.json "running", no outcome).
+            # Continued, it handles the SIGINT and stops its services and its run as it always does. SIGCONT does
+            # nothing to a running process, and discards a SIGSTOP sent but not yet taken.
+            if sig != signal.SIGKILL:
+                os.kill(pid, signal.SIGCONT)
         except ProcessLookupError:
             break
         deadline = time.monotonic() + wait_s
@@ -124,7 +134,10 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
     left = [p for p in [pid, *service_pids] if pid_alive(p)]
     if left:
         return False, f"processes still running: {left}"
-    return True, f"stopped run {info.get('run_id')}"
+    notes = ["its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop"] if continued else []
+    if escalated:  # its results (summary.json, run.json's outcome) may be missing: say so rather than a plain "stopped"
+        notes.append(f"its launcher did not stop on SIGINT within {timeout_s:g} s: {escalated}")
+    return True, f"stopped run {info.get('run_id')}" + (f" ({'; '.join(notes)})" if notes else "")
 
 
 RUNS_LOCK = ".up.lock"

@@ -102,6 +102,11 @@ def robot_stop_commands(profile: Profile) -> dict[str, tuple[str, bytes]]:
     return {"ros2_bridge": params.stop_command()}
 
 
+WATCH_BEHIND_S = 2 * HANG_CHECK_PERIOD_S + 2.0
+"""``StatusWatch``: a round of queries takes at most ``HANG_CHECK_PERIOD_S`` and the next one follows
+``HANG_CHECK_PERIOD_S`` later; a round this much later than the last one means the launcher itself did not run."""
+
+
 class StatusWatch:
     """Asks every service of a robot for its status (its queryable) every ``HANG_CHECK_PERIOD_S``, on a thread
     of its own, and keeps when each one last answered: a process that runs but does not answer is hung."""
@@ -109,6 +114,12 @@ class StatusWatch:
     def __init__(self, session: Any, keys: RobotKeys, stop: threading.Event):
         self.answered_s: dict[str, float] = {}
         """Service -> ``time.monotonic()`` of its last answer."""
+        self.asked_s = time.monotonic()
+        """``time.monotonic()`` when its last round of queries ended: a service's silence is a hang only while the
+        watch asks (``behind``)."""
+        self.resumed_s = -np.inf
+        """When it asked again after not running for more than ``WATCH_BEHIND_S`` (the launcher stopped, Ctrl-Z or
+        SIGSTOP, or starved of CPU): no service's silence counts from before."""
         self._session, self._keys, self._stop = session, keys, stop
         self._thread = threading.Thread(target=self._run, name="status-watch", daemon=True)
 
@@ -125,7 +136,20 @@ class StatusWatch:
             except Exception:  # the session closing under it at the end of the run
                 if not self._stop.is_set():
                     log.debug("status query failed", exc_info=True)
+            now = time.monotonic()
+            if now - self.asked_s > WATCH_BEHIND_S:
+                self.resumed_s = now
+                log.warning(
+                    "the launcher did not ask its services for their status for %.0f s (was it stopped, Ctrl-Z or SIGSTOP, or starved "
+                    "of CPU?): their silence meanwhile is not taken for a hang", now - self.asked_s,
+                )
+            self.asked_s = now
             self._stop.wait(HANG_CHECK_PERIOD_S)
+
+    def behind(self, now: float) -> bool:
+        """Whether it has not asked for longer than ``WATCH_BEHIND_S``: what it knows says nothing of the services
+        now (the launcher was stopped and has just been continued, before this watch's thread asked again)."""
+        return now - self.asked_s > WATCH_BEHIND_S
 
 
 class RecorderError(RuntimeError):
@@ -387,18 +411,25 @@ class Launcher:
         ``supervision.start_timeout_s`` after it started. Its stacks go to its log first; ``supervise`` then
         restarts it as a crashed one."""
         sup = self.profile.supervision
+        watch = self.status_watch
+        # The launcher stopped (Ctrl-Z on `up`, SIGSTOP) and continued, or starved of CPU: the services' silence
+        # meanwhile is its own. It killed every service it checked as hung, the sim first (a new episode); now the
+        # check waits for the watch to ask again, and counts from then.
+        if watch is not None and watch.behind(now):
+            return
+        resumed_s = watch.resumed_s if watch is not None else -np.inf
         for c in self.children:
             if c.gave_up or not c.alive or c.proc is None:
                 continue
             c.came_up = c.came_up or c.name in self.alive_services
             if not c.came_up:  # still starting (importing, warming up), or hung before it came up
-                if sup.start_timeout_s <= 0 or now - c.spawned_at < sup.start_timeout_s:
+                if sup.start_timeout_s <= 0 or now - max(c.spawned_at, resumed_s) < sup.start_timeout_s:
                     continue
                 log.error("%s (pid %d) runs but has not come up in %.0f s (hung while starting? see its log): killing it to restart it", c.name, c.proc.pid, now - c.spawned_at)
             else:
-                if sup.hang_timeout_s <= 0 or self.status_watch is None:
+                if sup.hang_timeout_s <= 0 or watch is None:
                     continue
-                since = max(c.spawned_at, self.status_watch.answered_s.get(c.name, -np.inf))
+                since = max(c.spawned_at, watch.answered_s.get(c.name, -np.inf), resumed_s)
                 if now - since < sup.hang_timeout_s:
                     continue
                 log.error("%s (pid %d) runs but has not answered for %.0f s (hung? stopped?): killing it to restart it", c.name, c.proc.pid, now - since)

@@ -95,6 +95,14 @@ def open_session(conf: TransportConfig) -> zenoh.Session:
         return zenoh.open(zenoh_config(conf))
     except zenoh.ZError as exc:
         raise TransportError(f"cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {exc}") from None
+    except BaseException as exc:
+        # Zenoh panics (pyo3's PanicException, a BaseException) on a ZENOH_RUNTIME it cannot parse: `up` ended in a
+        # Rust traceback, exit 1, its run folder without a run.json. Said as the session that could not open.
+        if type(exc).__name__ != "PanicException":
+            raise
+        runtime = os.environ.get(ZENOH_RUNTIME_ENV)
+        hint = f" (is ZENOH_RUNTIME={runtime!r} valid? unset it for the default)" if runtime is not None and runtime != ONE_ZENOH_THREAD else ""
+        raise TransportError(f"cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): Zenoh failed: {exc}{hint}") from None
 
 
 PORT_TRIES = 3
@@ -109,8 +117,8 @@ def open_router(listen: list[str], connect: list[str]) -> tuple[zenoh.Session, l
         chosen = [f"{ep[:-2]}:{free_tcp_port()}" if ep.endswith(":0") else ep for ep in listen]
         try:
             return open_session(TransportConfig(mode="router", listen=chosen, connect=list(connect))), chosen
-        except TransportError:
-            if not picked or attempt == PORT_TRIES:
+        except TransportError as exc:
+            if not picked or attempt == PORT_TRIES or "in use" not in str(exc):  # only a taken port is worth another pick
                 raise
             log.warning("router port taken before it was bound (%s); picking another", ", ".join(chosen))
     raise AssertionError("unreachable")

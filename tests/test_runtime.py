@@ -499,6 +499,23 @@ def test_up_without_a_zenoh_session_says_so_and_starts_nothing(tmp_path):
             assert not any(p.name.endswith(".log") and p.name != "launcher.log" for p in runs.rglob("*.log"))
 
 
+def test_a_zenoh_runtime_setting_zenoh_cannot_read_is_said_not_a_traceback(tmp_path):
+    """A ``ZENOH_RUNTIME`` that Zenoh cannot parse made it panic as the router opened: a Rust traceback, exit code 1
+    and a run folder with no run.json (``runs`` did not list it). Now the no-session error: exit 3, one line that
+    names the variable, the run listed as failed, nothing started."""
+    from cso_runtime.runs import list_runs
+
+    runs = tmp_path / "runs"
+    env = {**os.environ, "ZENOH_RUNTIME": "(bogus"}
+    r = subprocess.run(
+        [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(write_profile(tmp_path)), "--no-live", "--runs-dir", str(runs)],
+        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60,
+    )
+    said = r.stdout + r.stderr
+    assert r.returncode == 3 and "ZENOH_RUNTIME='(bogus'" in said and "no service was started" in said and "Traceback" not in said, said
+    assert [run.state for run in list_runs(runs)] == ["failed"] and not (runs / "current.json").exists()
+
+
 def test_a_second_up_in_the_same_runs_folder_is_refused_whichever_robot(tmp_path):
     """Another robot's run in the same folder would take over runs/current.json and leave the first run
     beyond ``status`` and ``down`` (its five services orphaned): refused, with the way out."""
@@ -858,10 +875,11 @@ def test_down_gives_the_launcher_the_stop_time_of_its_run(tmp_path, timeout_s):
         (runs / "current.json").write_text(json.dumps(info))
         ok, message = down(runs, timeout_s)
         reaper.join(timeout=10)
-        assert ok and message == "stopped run slow", message
         if timeout_s is None:  # 3 * 0.2 s + the margin: it finished on its own
+            assert ok and message == "stopped run slow", message
             assert launcher.returncode == 0 and (tmp_path / "finished").exists()
-        else:
+        else:  # escalated, and said: its results may be missing
+            assert ok and message == "stopped run slow (its launcher did not stop on SIGINT within 0.3 s: SIGTERM)", message
             assert launcher.returncode == -signal.SIGTERM and not (tmp_path / "finished").exists()
     finally:
         if launcher.poll() is None:
@@ -1779,6 +1797,50 @@ def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_pa
         assert "1 of them hung" in " ".join(re.sub(r"[│┃]", " ", r.stdout).split()), r.stdout  # the table may wrap the row
 
 
+def test_down_continues_a_stopped_launcher_which_then_ends_its_run_itself(tmp_path):
+    """``down`` of a run whose launcher is stopped (Ctrl-Z on ``up``, SIGSTOP): its SIGINT stays pending until the
+    launcher runs again, so ``down`` waited out every stage and killed it, and the run was left unfinished
+    (run.json "running", no outcome: ``runs`` said "launcher died"). ``down`` now continues it, and the launcher
+    stops its services and ends its run as on any ``down``."""
+    from cso_runtime.current_run import down
+    from cso_runtime.supervision import process_state
+
+    with detached_run(tmp_path, min_step_period_s=0.25) as (runs, status):
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
+        current = json.loads((runs / "current.json").read_text())
+        os.kill(current["launcher_pid"], signal.SIGSTOP)
+        wait_for(lambda: process_state(current["launcher_pid"]) == "T", 10, "the launcher to be stopped")
+        ok, message = down(runs, timeout_s=60)
+        assert ok and message == f"stopped run {current['run_id']} (its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop)", message
+        run = json.loads((Path(current["run_dir"]) / "run.json").read_text())
+        assert run["state"] == "stopped" and run["outcome"] == "interrupted", run
+        assert not any(pid_alive(p) for p in run_pids(runs))
+
+
+def test_a_launcher_stopped_and_continued_does_not_take_its_services_for_hung(tmp_path):
+    """A launcher stopped for longer than ``hang_timeout_s`` (Ctrl-Z on ``up`` and ``fg``, SIGSTOP and SIGCONT)
+    found on its return that no service had answered it meanwhile, and killed them as hung, the sim first: its
+    episode started over. The silence was the launcher's own: the hang check starts over once it asks again, and
+    the episode goes on to its end with no restart."""
+    from cso_runtime.launcher import WATCH_BEHIND_S
+    from cso_runtime.supervision import process_state
+
+    with detached_run(tmp_path, "--set", "supervision.hang_timeout_s=2", min_step_period_s=0.25, lockstep_timeout_s=0.5) as (runs, status):
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
+        launcher_pid = json.loads((runs / "current.json").read_text())["launcher_pid"]
+        os.kill(launcher_pid, signal.SIGSTOP)
+        try:
+            wait_for(lambda: process_state(launcher_pid) == "T", 10, "the launcher to be stopped")
+            time.sleep(WATCH_BEHIND_S + 1.0)  # the fault: stopped longer than hang_timeout_s and than the watch's round
+        finally:
+            os.kill(launcher_pid, signal.SIGCONT)
+        final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2)
+        assert final["state"] == "done" and final["terminated_by"] == "coverage", final
+        assert {name: (svc["restarts"], svc.get("hung_kills", 0)) for name, svc in final["services"].items()} == {name: (0, 0) for name in final["services"]}
+        launcher_log = next(runs.glob("*/logs/launcher.log")).read_text()
+        assert "their silence meanwhile is not taken for a hang" in launcher_log and "killing it" not in launcher_log, launcher_log[-3000:]
+
+
 def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
     """One episode status saying "done" that no result follows, while the sim goes on reporting the
     episode exploring (a stray or forged message): ignored, counted, and the run ends with the episode."""
@@ -1824,7 +1886,9 @@ def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplo
         assert any(r.message.startswith(f"mapper (pid {stuck.proc.pid}) runs but has not come up in 100 s") for r in caplog.records)
         # The planner came up; stopped (SIGSTOP), it loses its token when its lease runs out: hung, not starting.
         launcher.alive_services = set()
-        launcher.status_watch = SimpleNamespace(answered_s={"planner": up.spawned_at + 200.0})
+        launcher.status_watch = SimpleNamespace(
+            answered_s={"planner": up.spawned_at + 200.0}, resumed_s=-np.inf, behind=lambda now: False,  # asking all along
+        )
         hang_s = profile.supervision.hang_timeout_s
         launcher.kill_hung(up.spawned_at + 200.0 + hang_s - 0.5)
         assert up.alive and up.hung_kills == 0
