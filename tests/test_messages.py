@@ -588,6 +588,81 @@ def test_random_bytes_only_ever_raise_message_error(data):
         pass
 
 
+def _every_kind_of_message() -> list[Message]:
+    """One valid message of each schema a service decodes, the grids and arrays of a real decision included."""
+    obs = _observation()
+    m = OccupancyMap(GEOM)
+    m.integrate_scan(Pose2D(2.0, 1.5, 0.0), LaserScan(-math.pi, 2 * math.pi / 360, 0.1, 1.2, np.full(360, np.inf, np.float32)))
+    d = np.full(GEOM.shape, np.inf)
+    d[5:10, 5:12] = 0.5
+    return [
+        _scan(), MapMsg.of(3, m), frontiers_from_observation(3, "no_goal", obs, 4.5), FrontiersMsg(4, False, "keep"),
+        DistanceMapMsg(3, GEOM, Pose2D(2.0, 1.5, 0.0), d), OdometryMsg(3, 0.75, Pose2D(1.0, -2.0, 3.1), VelocityCommand(0.4, -0.2)),
+        GoalMsg(5, True, 1.5, 2.5, 2, 3.25, 12.5, "greedy-dist", "reached"), PathMsg(3, np.array([[1.0, -0.5], [2.0, 1.0]])),
+        CmdVelMsg(3, VelocityCommand(0.5, 0.1), ""), ClockMsg(2, 0.5, GEOM),
+        PlannerFeedbackMsg(3, "following", "command", False, "", np.array([[1.0, 2.0]]), 3),
+        EpisodeStatusMsg("exploring", 12, "gen_small_0", "greedy-dist", 45.5, 10.0, 3.2, [1.0, 2.0], 4, 11.0),
+        ServiceStatusMsg("ros2_bridge", "r0", "running", 12, "", {"scan": 1}, 40, {"received:scan": 41}),
+    ]
+
+
+def test_mutated_messages_of_every_schema_only_ever_raise_message_error():
+    """Every schema's decoder, fed valid bodies with fields deleted, replaced by values of any type (NaN, huge
+    integers, bytes, nested lists) or mutated inside their arrays (dtype, shape, a flipped bit, cut data): a
+    message or a MessageError, never another exception (a service counts a MessageError; anything else would
+    kill its handler). Seeded, so every run tries the same 3000 mutants."""
+    import random
+
+    rng = random.Random(60)
+    weird = [None, True, -1, 0, 2**63, -(2**63), 1e308, math.nan, math.inf, -0.0, "", "xyz", b"", b"\x00\x01", [], [1, 2], {}, {"a": 1}, [[1.0, 2.0]]]
+
+    def mutate(value):
+        if isinstance(value, dict):
+            value = dict(value)
+            if value and rng.random() < 0.8:
+                key = rng.choice(list(value))
+                roll = rng.random()
+                if roll < 0.2:
+                    del value[key]
+                else:
+                    value[key] = rng.choice(weird) if roll < 0.55 else mutate(value[key])
+            else:
+                value[rng.choice(["dtype", "shape", "data", "z", "step"])] = rng.choice(weird)
+            return value
+        if isinstance(value, list):
+            value = list(value)
+            if value and rng.random() < 0.6:
+                i = rng.randrange(len(value))
+                value[i] = mutate(value[i]) if rng.random() < 0.5 else rng.choice(weird)
+            elif value and rng.random() < 0.5:
+                value.pop()
+            else:
+                value.append(rng.choice(weird))
+            return value
+        if isinstance(value, bytes) and value:
+            cut = bytearray(value)
+            if rng.random() < 0.5:
+                cut[rng.randrange(len(cut))] ^= 1 << rng.randrange(8)
+                return bytes(cut)
+            return bytes(cut[: rng.randrange(len(cut))])
+        return rng.choice(weird)
+
+    bodies = [(msg.SCHEMA, _body(msg)) for msg in _every_kind_of_message()]
+    decoded = 0
+    for _ in range(3000):
+        schema, body = rng.choice(bodies)
+        for _ in range(rng.randint(1, 3)):
+            body = mutate(body)
+        payload = _wire(schema, body)
+        for expected in (None, PlannerFrontiersMsg) if schema == "frontiers" else (None,):
+            try:
+                decode(payload, expected)
+                decoded += 1
+            except MessageError:
+                pass
+    assert 100 < decoded < 3000  # both ways out were taken: harmless changes decode, the rest are refused
+
+
 VALID_ODOMETRY_BODY = {"step": 3, "stamp_s": 0.75, "pose": [1.0, 2.0, 0.5], "twist": [0.0, 0.0], "episode": 0}
 
 
