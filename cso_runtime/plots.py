@@ -103,7 +103,7 @@ def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
         r = o.row
         title = f"{o.method}: {r['coverage_pct']:.1f}% in {r['steps']} steps"
         if "path_length_m" in r:
-            title += f", {r['path_length_m']:.0f} m"
+            title += f", {r['path_length_m']:.1f} m path"  # to 0.1 m: small scenes' paths differ by tenths
         ax.set_title(title, fontsize=9)
         ax.set_xlabel("x (m)")
         ax.set_ylabel("y (m)")

@@ -566,7 +566,7 @@ def test_trajectory_plots_keep_every_label_and_the_key_inside_the_figure(rows: i
     renderer = fig.canvas.get_renderer()
     texts = {t.get_text() for t in fig.findobj(lambda a: hasattr(a, "get_text") and a.get_visible())}
     assert {"x (m)", "y (m)", "plan", "explored", "free, not explored", "path", "start", "end"} <= texts
-    assert {f"m{i}: 50.0% in 10 steps, 3 m" for i in range(methods)} <= texts
+    assert {f"m{i}: 50.0% in 10 steps, 3.0 m path" for i in range(methods)} <= texts
     drawn = fig.get_tightbbox(renderer)  # inches: everything drawn, labels and key included
     width_in, height_in = fig.get_size_inches()
     assert drawn.x0 >= -0.01 and drawn.y0 >= -0.01 and drawn.x1 <= width_in + 0.01 and drawn.y1 <= height_in + 0.01, drawn
