@@ -297,27 +297,13 @@ class Ros2BridgeService(Service):
         self.mount_x_m = ctx.exploration.sensor.mount_x_m
         self.max_steps = ctx.exploration.episode.max_steps
         self.counters: Counter[str] = Counter()
-        self.step = -1
         self.episode = new_episode_id()
         """One episode per bridge start: a restarted bridge counts steps from 0 again."""
-        self.arena: GridGeometry | None = None
-        self.last_scan_stamp_s = -math.inf
-        self.pending: tuple[ros2_cdr.ScanConversion, float] | None = None
-        self.stamps: dict[int, float] = {}
-        self.last_pose: Pose2D | None = None
-        self.path_length_m = 0.0
-        self.trajectory: list[tuple[float, float]] = []
+        self._start_episode_state()
         self.last_cmd_s: float | None = None
         self.last_ros_map_s: float | None = None
-        self.held_map: MapMsg | None = None
-        """The newest map not sent to ROS yet because of ``map_period_s``."""
         self.zero_sent = True
         self.sent_any_command = False
-        self.last_goal_xy: tuple[float, float] | None = None
-        self.episode_state = "starting"
-        self.terminated_by = ""
-        self.decisions = 0
-        self.decision_ms: list[float] = []
         self.last_log_s = time.monotonic()
         self._bridge_lock = threading.RLock()
         self._ros_subs: list[Any] = []
@@ -446,24 +432,30 @@ class Ros2BridgeService(Service):
         self.odometry.add(odom)
         return True
 
+    def _start_episode_state(self) -> None:
+        """What an episode of the bridge knows, as at its start (the bridge's own start, or a new episode)."""
+        self.step = -1
+        self.arena: GridGeometry | None = None
+        self.last_scan_stamp_s = -math.inf
+        self.pending: tuple[ros2_cdr.ScanConversion, float] | None = None
+        self.stamps: dict[int, float] = {}
+        self.last_pose: Pose2D | None = None
+        self.path_length_m = 0.0
+        self.trajectory: list[tuple[float, float]] = []
+        self.held_map: MapMsg | None = None
+        """The newest map not sent to ROS yet because of ``map_period_s``."""
+        self.last_goal_xy: tuple[float, float] | None = None
+        self.episode_state, self.terminated_by = "starting", ""
+        self.decisions = 0
+        self.decision_ms: list[float] = []
+
     def _new_episode(self, why: str, counter: str) -> None:
         """Start a new episode (a new id: every service starts over, the mapper with an empty map), as a restarted
         sim does: what was mapped in the old odometry frame no longer lines up with the robot's poses."""
         old = self.episode
         self.episode = new_episode_id()
-        self.step = -1
-        self.arena = None
-        self.last_scan_stamp_s = -math.inf
-        self.pending = None
-        self.stamps.clear()
-        self.last_pose = None
-        self.path_length_m = 0.0
-        self.trajectory = []
-        self.last_goal_xy = None
-        self.episode_state, self.terminated_by = "starting", ""
-        self.decisions, self.decision_ms = 0, []
+        self._start_episode_state()
         self.latest.pop("map", None)
-        self.held_map = None
         self.counters[counter] += 1
         log.warning("%s: episode %d ends, a new one (%d) starts with a new map", why, old, self.episode)
         self.publish("episode_status", self.episode_status())
