@@ -443,6 +443,8 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
                     with inputs.handling:
                         service.on_tick(now)
                     next_tick = now + service.tick_period_s
+            if (gone := launcher_gone()) is not None:
+                log.warning("%s: stopping: the launcher (pid %d) is gone (killed? crashed?), and no service outlives it", service.name, gone)
             if inputs.failure is not None:
                 raise inputs.failure
         finally:
@@ -665,6 +667,25 @@ def write_profile(profiles: list[cProfile.Profile | None], path: Path) -> None:
         pstats.Stats(*recorded).dump_stats(str(path))
     except OSError as exc:
         log.error("cannot write the profile %s: %s", path, exc)
+
+
+def launcher_gone() -> int | None:
+    """The pid of the launcher that started this service (``CSO_PARENT_PID``) once it is gone (killed, crashed:
+    the kernel's SIGTERM that ``_die_with_launcher`` asked for is then why the service stops); None while it runs,
+    or for a service no launcher started. The kernel sends that SIGTERM as the launcher's first thread exits,
+    before the service is handed to another parent (measured: some 10 ms later, as Zenoh's threads exit): a
+    launcher whose main thread is already a zombie is gone too."""
+    parent = os.environ.get("CSO_PARENT_PID", "")
+    if not parent.isdigit():
+        return None
+    if os.getppid() != int(parent):
+        return int(parent)
+    try:
+        with open(f"/proc/{parent}/stat") as fh:
+            state = fh.read().rsplit(")", 1)[-1].split()[0]
+    except (OSError, IndexError):  # no /proc (not Linux)
+        return None
+    return int(parent) if state in ("Z", "X", "x") else None
 
 
 def _die_with_launcher() -> None:
