@@ -63,6 +63,19 @@ def _complete_run_ids(ctx: typer.Context, incomplete: str) -> list[str]:
     return [d.name for d in reversed(run_dirs(runs_dir)) if d.name.startswith(incomplete)]
 
 
+def _complete_services(ctx: typer.Context, incomplete: str) -> list[str]:
+    """A service of the profile given (``--without``), but the referees, which a run cannot go without."""
+    from cso_runtime.config import ConfigError, load_yaml  # noqa: PLC0415
+    from cso_runtime.run_profile import REFEREES, find_profile  # noqa: PLC0415
+
+    try:
+        services = load_yaml(find_profile(ctx.params.get("profile") or "sim")).get("services") or {}
+    except (ConfigError, OSError, ValueError):
+        return []
+    given = ctx.params.get("without") or []
+    return [n for n in services if n.startswith(incomplete) and n not in REFEREES and n not in given]
+
+
 def _complete_log_services(ctx: typer.Context, incomplete: str) -> list[str]:
     """The services with a log in the run ``logs`` would read."""
     from cso_runtime.runs import RunError, log_files, resolve_run  # noqa: PLC0415
@@ -601,6 +614,12 @@ def up_command(
     foxglove: bool = typer.Option(
         False, "--foxglove", help="Also serve the episode live to Foxglove on ws://127.0.0.1:8765 (the foxglove_bridge service; needs foxglove-sdk)"
     ),
+    without: list[str] | None = typer.Option(
+        None,
+        "--without",
+        autocompletion=_complete_services,
+        help="Leave this service of the profile out of the run, repeatable (--without policy: another run's shared policy serves this robot); not sim nor ros2_bridge",
+    ),
 ) -> None:
     """Start the router and every service of a profile, supervise them, write results when the episode ends."""
     import threading  # noqa: PLC0415
@@ -621,13 +640,16 @@ def up_command(
         _use_weights(weights)
     try:
         overrides = {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep}
-        prof, data = load_profile(profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []), foxglove=foxglove)
+        prof, data = load_profile(
+            profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []), foxglove=foxglove, without=list(without or [])
+        )
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     if dry_run:
         import yaml  # noqa: PLC0415
 
-        typer.echo(f"# profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}")
+        left_out = f" (without {', '.join(prof.without)}: not started by this run)" if prof.without else ""
+        typer.echo(f"# profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}")
         typer.echo(yaml.safe_dump(data, sort_keys=False), nl=False)
         return
     current = read_current_run(runs_dir)
@@ -808,26 +830,29 @@ def logs_command(
 def dataflow_command(
     profile: str = typer.Option("sim", "--profile", autocompletion=_complete_profiles, help="Profile name (./configs/profiles/, then the packaged ones) or a YAML path"),
     fmt: str = typer.Option("table", "--format", help="table, mermaid (a flowchart for Markdown viewers) or markdown (as runs/<run-id>/dataflow.md)"),
+    without: list[str] | None = typer.Option(
+        None, "--without", autocompletion=_complete_services, help="As `up --without`: the profile minus this service, repeatable, shown as not started by the run"
+    ),
 ) -> None:
     """Show which service feeds which in a profile: every node's inputs and outputs (dora-rs style), from the code."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.keys import TOPICS  # noqa: PLC0415
     from cso_runtime.run_profile import load_profile  # noqa: PLC0415
-    from services.dataflow import nodes_of, to_markdown, to_mermaid, unconnected, wiring_of  # noqa: PLC0415
+    from services.dataflow import OUTSIDE_NOTE, nodes_of, to_markdown, to_mermaid, unconnected, wiring_of  # noqa: PLC0415
 
     if fmt not in ("table", "mermaid", "markdown"):
         _fail(f"--format must be table, mermaid or markdown, got {fmt!r}", 2)
     try:
         # Nothing is joined here: a profile that needs a router to join (limo-ros2) gets a stand-in.
-        prof, _ = load_profile(profile, {}, connect=["tcp/127.0.0.1:7447"])
+        prof, _ = load_profile(profile, {}, connect=["tcp/127.0.0.1:7447"], without=list(without or []))
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
-    nodes = nodes_of(list(prof.services))
+    nodes = nodes_of([*prof.services, *prof.without])
     if fmt == "mermaid":
-        typer.echo(to_mermaid(nodes), nl=False)
+        typer.echo(to_mermaid(nodes, prof.without), nl=False)
         return
     if fmt == "markdown":
-        typer.echo(to_markdown(prof.name, nodes), nl=False)
+        typer.echo(to_markdown(prof.name, nodes, prof.without), nl=False)
         return
     from rich.console import Console  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
@@ -838,7 +863,7 @@ def dataflow_command(
     for w in wiring_of(nodes):
         ins = "\n".join(f"{key} <- {', '.join(peers) or '(none)'}" for key, peers in w.inputs)
         outs = "\n".join(f"{key} -> {', '.join(peers) or '(none)'}" for key, peers in w.outputs)
-        table.add_row(w.name, ins or "-", outs or "-")
+        table.add_row(f"{w.name} ({OUTSIDE_NOTE})" if w.name in prof.without else w.name, ins or "-", outs or "-")
     Console().print(table)
     for name, topics in unconnected(nodes).items():
         typer.echo(f"note: nothing in this profile publishes {', '.join(TOPICS[t] for t in topics)} for {name}")

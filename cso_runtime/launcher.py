@@ -56,7 +56,7 @@ from cso_runtime.messages import (
 )
 from cso_runtime.outputs import write_text_atomic
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
-from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, Profile, SupervisionConfig
+from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig
 from cso_runtime.supervision import (
     Child,
     dump_stacks,
@@ -75,8 +75,6 @@ path (a few times a second) for the live view. Not the map: a restarted mapper r
 referee's (``Service.serves_latest``), so the launcher is not woken on every step."""
 
 RUNS_DIR = Path("runs")
-REFEREES = ("sim", "ros2_bridge")
-"""Services that own the episode (its status and end): without them the run cannot finish."""
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -188,9 +186,10 @@ class Launcher:
         self.endpoints: list[str] = []
         self.status: EpisodeStatusMsg | None = None
         self.alive_services: set[str] = set()
-        self.outside_services: set[str] = set()
+        self.outside_services: set[str] = set(profile.without)
         """Services this run did not start that came up under its robot's keys (a shared policy server's
-        ``serve_all_robots`` policy, a bridge started by hand): its status lists them, DOWN once they go."""
+        ``serve_all_robots`` policy, a bridge started by hand), and those it left out (``up --without``, DOWN until
+        one comes up): its status lists them, DOWN once they go."""
         self.latest_goal: bytes | None = None
         """The payload of the latest goal (``cache/goal``)."""
         self.rejected: dict[str, int] = {}
@@ -344,7 +343,7 @@ class Launcher:
         if name in self.profile.services:
             return
         if name in self.alive_services:
-            if name not in self.outside_services:
+            if name not in self.outside_services or name in self.profile.without:
                 self.outside_services.add(name)
                 log.info("%s, which this run did not start, serves robot %s (%s)", name, self.profile.robot, sample.key_expr)
         elif name in self.outside_services:
@@ -403,6 +402,8 @@ class Launcher:
             log.info("started %s (pid %d)", name, child.proc.pid if child.proc else -1)
         if "foxglove_bridge" in self.service_notes:
             log.info("%s (Open connection -> Foxglove WebSocket)", self.service_notes["foxglove_bridge"])
+        for name in self.profile.without:
+            log.info("%s left out of this run (--without): another process is to serve robot %s", name, self.profile.robot)
 
     def kill_hung(self, now: float) -> None:
         """Kill each service whose process runs but that is hung: come up (its liveliness token, which a stopped
@@ -610,7 +611,8 @@ class Launcher:
         """``dataflow.md``: who feeds whom in this run (Mermaid graph and table), from the services' declarations."""
         from services.dataflow import nodes_of, to_markdown  # noqa: PLC0415 - services import zenoh
 
-        (self.run_dir / "dataflow.md").write_text(to_markdown(self.profile.name, nodes_of(list(self.profile.services))))
+        nodes = nodes_of([*self.profile.services, *self.profile.without])
+        (self.run_dir / "dataflow.md").write_text(to_markdown(self.profile.name, nodes, outside=self.profile.without))
 
     def robot_already_served(self, session: Any, timeout_s: float = 1.0) -> str:
         """Why this run's robot id is taken on the network it joins, or "": another run's launcher answers for

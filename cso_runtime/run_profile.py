@@ -87,6 +87,10 @@ class SupervisionConfig:
 HANG_CHECK_PERIOD_S = 1.0
 """How often the launcher asks its services for their status (``SupervisionConfig.hang_timeout_s``)."""
 
+REFEREES = ("sim", "ros2_bridge")
+"""Services that own the episode (its status and end): without them the run cannot finish (nor be left out of it,
+``up --without``)."""
+
 
 @dataclass
 class Profile:
@@ -112,6 +116,10 @@ class Profile:
     supervision: SupervisionConfig = field(default_factory=SupervisionConfig)
     services: dict[str, Any] = field(default_factory=dict)
     """Service name -> its parameters (a mapping, possibly empty). Only listed services are started."""
+    without: list[str] = field(default_factory=list)
+    """Services of this robot that the run leaves to another process (``up --without policy``: a shared policy
+    server's ``serve_all_robots`` policy, a bridge started by hand): not started, not in ``services``; ``status``
+    lists them as not started by this run (DOWN until one comes up) and ``dataflow.md`` draws them as outside."""
     progress_log_s: float = 10.0
     """Without the live view on a terminal (``--no-live``, ``--detach``, output into a file) the launcher logs a
     line of the episode's progress this often, in seconds (0: never), so a log being followed is never silent."""
@@ -141,6 +149,13 @@ class Profile:
                 from_dict(params_cls, params or {}, where=f"services.{name}")
             elif params:
                 raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
+        for name in self.without:
+            if name not in SERVICE_NAMES:
+                raise ConfigError(f"without: unknown service {name!r}; known: {', '.join(SERVICE_NAMES)}")
+            if name in self.services:
+                raise ConfigError(f"without: {name} is also in services; a service is either started by the run or left out of it")
+            if name in REFEREES:
+                raise ConfigError(f"without: {name} owns the episode (its status and end); a run cannot go without it")
         mapper = self.services.get("mapper") or {}
         if "sim" in self.services and float(mapper.get("resolution_m") or 0) > 0:
             raise ConfigError(
@@ -236,13 +251,16 @@ def load_profile(
     namespace: str | None = None,
     settings: dict[str, Any] | None = None,
     foxglove: bool = False,
+    without: list[str] | None = None,
 ) -> tuple[Profile, dict[str, Any]]:
     """Load, apply CLI overrides (``None`` values ignored) and validate; returns the profile and its data.
 
     ``connect``: endpoints appended to ``router.connect`` (the embedded router joins them, e.g. the
     robot's zenoh-bridge-ros2dds on port 7447); ``namespace``: ``services.ros2_bridge.namespace``;
     ``settings``: dotted keys set last (``up --set services.sim.real_time_factor=4``), validated like the file;
-    ``foxglove``: add the ``foxglove_bridge`` service (``up --foxglove``) unless the profile has it.
+    ``foxglove``: add the ``foxglove_bridge`` service (``up --foxglove``) unless the profile has it;
+    ``without``: services of the profile left out of the run (``up --without``), moved from ``services`` to the
+    profile's ``without`` list, so that the run's ``profile.yaml`` says what ran and what it expects from elsewhere.
     """
     path = find_profile(name_or_path)
     data = load_yaml(path)
@@ -265,6 +283,9 @@ def load_profile(
         if not isinstance(services, dict):
             raise ConfigError(f"{path}: services must be a mapping")
         data["services"] = {**services, "foxglove_bridge": services.get("foxglove_bridge") or {}}
+    without = list(dict.fromkeys(without or []))  # repeated names: once
+    if without:
+        leave_out(data, without, path, foxglove)
     scene = data.get("scene")
     if isinstance(scene, str) and scene != "builtin" and not scene.startswith("generated:"):
         beside = path.parent / scene  # a file's own relative scene may also be beside the file (as in compose files)
@@ -275,6 +296,31 @@ def load_profile(
     data.setdefault("name", path.stem)
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
     flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]
-    flags += [f"--set {k}={v}" for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove
+    flags += [f"--set {k}={v}" for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
     profile = from_dict(Profile, data, where=f"{path} with {' '.join(flags)}" if flags else str(path))
     return profile, data
+
+
+def leave_out(data: dict[str, Any], names: list[str], path: Path, foxglove: bool = False) -> None:
+    """Move ``names`` from the profile mapping's ``services`` to its ``without`` list (``up --without``), in the
+    profile's order; a ConfigError (nothing started) for a name that is no service, one the profile does not
+    have, a referee (the episode cannot run without it) or the ``foxglove_bridge`` that ``--foxglove`` asks for."""
+    from services import SERVICE_NAMES  # noqa: PLC0415 - services import zenoh
+
+    services = data.get("services") or {}
+    if not isinstance(services, dict):
+        raise ConfigError(f"{path}: services must be a mapping")
+    for name in names:
+        if name not in SERVICE_NAMES:
+            raise ConfigError(f"--without {name}: no such service; known: {', '.join(SERVICE_NAMES)}")
+        if name in REFEREES:
+            raise ConfigError(f"--without {name}: {name} owns the episode (its status and end); a run cannot go without it")
+        if name == "foxglove_bridge" and foxglove:
+            raise ConfigError("--without foxglove_bridge and --foxglove: give one or the other")
+        if name not in services:
+            raise ConfigError(f"--without {name}: profile {path} has no {name} service (it has {', '.join(services) or 'none'})")
+    earlier = data.get("without") or []
+    if not isinstance(earlier, list):
+        raise ConfigError(f"{path}: without must be a list of service names")
+    data["without"] = [*earlier, *(n for n in services if n in names)]
+    data["services"] = {n: p for n, p in services.items() if n not in names}

@@ -80,31 +80,49 @@ def unconnected(nodes: list[Node]) -> dict[str, list[str]]:
     return {n.name: [t for t in n.inputs if t not in published] for n in nodes if any(t not in published for t in n.inputs)}
 
 
-def to_mermaid(nodes: list[Node]) -> str:
+OUTSIDE_NOTE = "not started by this run"
+"""How a service left out of the run (``up --without``, served by another process) is named in its dataflow."""
+
+
+def to_mermaid(nodes: list[Node], outside: list[str] | tuple[str, ...] = ()) -> str:
     """A Mermaid flowchart (GitHub and most Markdown viewers draw it): one arrow per publisher and
-    subscriber, labelled with the keys it carries."""
+    subscriber, labelled with the keys it carries; the nodes in ``outside`` (left out of the run) dashed."""
     labels: dict[tuple[str, str], list[str]] = {}
     for e in edges_of(nodes):
         labels.setdefault((e.source, e.target), []).append(e.key)
     lines = ["flowchart LR"]
-    lines += [f"  {n.name}([{n.name}])" if n.name == LAUNCHER else f"  {n.name}[{n.name}]" for n in nodes]
+    for n in nodes:
+        if n.name == LAUNCHER:
+            lines.append(f"  {n.name}([{n.name}])")
+        elif n.name in outside:
+            lines.append(f'  {n.name}["{n.name} ({OUTSIDE_NOTE})"]')
+        else:
+            lines.append(f"  {n.name}[{n.name}]")
     lines += [f'  {src} -->|"{", ".join(keys)}"| {dst}' for (src, dst), keys in labels.items()]
+    if outside:
+        lines += ["  classDef outside stroke-dasharray: 5 5", f"  class {','.join(outside)} outside"]
     return "\n".join(lines) + "\n"
 
 
-def to_markdown(profile_name: str, nodes: list[Node]) -> str:
-    """``dataflow.md`` of a run: the Mermaid graph and a table of each node's inputs and outputs."""
+def to_markdown(profile_name: str, nodes: list[Node], outside: list[str] | tuple[str, ...] = ()) -> str:
+    """``dataflow.md`` of a run: the Mermaid graph and a table of each node's inputs and outputs; the nodes in
+    ``outside`` are the services the run left out (``up --without``), which another process is to serve."""
     rows = []
     for w in wiring_of(nodes):
         ins = ", ".join(f"`{key}` ({', '.join(peers) or 'none in this profile'})" for key, peers in w.inputs)
         outs = ", ".join(f"`{key}` ({', '.join(peers) or 'no subscriber in this profile'})" for key, peers in w.outputs)
-        rows.append(f"| {w.name} | {ins or '-'} | {outs or '-'} |")
+        name = f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else w.name
+        rows.append(f"| {name} | {ins or '-'} | {outs or '-'} |")
+    left_out = (
+        [f"Left out of this run (`up --without`), served by another process: {', '.join(f'`{n}`' for n in outside)}.", ""] if outside else []
+    )
     return "\n".join(
         [
             f"# Dataflow of profile `{profile_name}`",
             "",
             "Keys are under `cso/<robot>/` (docs/messages.md). Made from the services' declared inputs and outputs.",
             "",
+            *left_out,
             "```mermaid",
             to_mermaid(nodes).rstrip(),
             "```",

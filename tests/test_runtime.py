@@ -1324,6 +1324,94 @@ def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(t
     assert re.search(r"service policy +│ DOWN, not started by this run", text), text
 
 
+def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts(tmp_path):
+    """``up --without NAME`` leaves a service of the profile out of the run (its robot served by another run's shared
+    policy); a name that is no service, one the profile does not have, or a referee (the episode's owner, without
+    which the run cannot end) is a usage error naming the flag, exit 2 and nothing started; ``dataflow`` too."""
+    from cso_runtime.config import ConfigError
+    from cso_runtime.run_profile import REFEREES, load_profile
+
+    assert REFEREES == ("sim", "ros2_bridge")
+    with pytest.raises(ConfigError, match="--without polcy: no such service; known: sim, "):
+        load_profile("lockstep", {}, without=["polcy"])
+    with pytest.raises(ConfigError, match="--without foxglove_bridge: profile .*lockstep.yaml has no foxglove_bridge service"):
+        load_profile("lockstep", {}, without=["foxglove_bridge"])
+    with pytest.raises(ConfigError, match="--without sim: sim owns the episode"):
+        load_profile("lockstep", {}, without=["policy", "sim"])
+    with pytest.raises(ConfigError, match="--without ros2_bridge: ros2_bridge owns the episode"):
+        load_profile("limo-ros2", {}, connect=["tcp/127.0.0.1:7447"], without=["ros2_bridge"])
+    with pytest.raises(ConfigError, match="--without foxglove_bridge and --foxglove"):
+        load_profile("lockstep", {}, foxglove=True, without=["foxglove_bridge"])
+    profile, data = load_profile("lockstep", {}, without=["policy", "mapper", "policy"])  # repeated: once, in the profile's order
+    assert list(profile.services) == list(data["services"]) == ["sim", "frontier", "planner"] and profile.without == data["without"] == ["mapper", "policy"]
+    data["services"]["policy"] = {}  # a hand-written profile is held to the same: a service either runs or is left out
+    with pytest.raises(ConfigError, match="without: policy is also in services"):
+        from_dict_profile(data)
+    for args, said in (
+        (["--without", "polcy"], "error: --without polcy: no such service"),
+        (["--without", "sim"], "error: --without sim: sim owns the episode (its status and end); a run cannot go without it"),
+        (["--profile", "limo-ros2", "--connect", "tcp/127.0.0.1:7447", "--without", "frontier", "--without", "ros2_bridge"], "error: --without ros2_bridge"),
+    ):
+        r = cli("up", "--profile", "lockstep", "--no-live", *args, cwd=tmp_path)
+        assert r.returncode == 2 and said in r.stderr, r.stderr
+        assert "Traceback" not in r.stderr
+    assert not (tmp_path / "runs").exists()
+    r = cli("dataflow", "--profile", "lockstep", "--without", "planer", cwd=tmp_path)
+    assert r.returncode == 2 and "error: --without planer: no such service" in r.stderr, r.stderr
+    r = cli("up", "--profile", "lockstep", "--without", "policy", "--dry-run", cwd=tmp_path)
+    assert r.returncode == 0 and r.stdout.startswith(
+        "# profile lockstep, valid: `up` would start sim, mapper, frontier, planner for robot r0 (without policy: not started by this run)"
+    ), r.stdout
+    assert "policy" not in yaml.safe_load(r.stdout)["services"]
+    r = cli("dataflow", "--profile", "lockstep", "--without", "policy", "--format", "mermaid", cwd=tmp_path)
+    assert r.returncode == 0 and '  policy["policy (not started by this run)"]\n' in r.stdout and "  class policy outside\n" in r.stdout
+
+
+def from_dict_profile(data: dict) -> None:
+    """Validate a profile mapping as ``load_profile`` does (the run's ``profile.yaml``, a hand-written file)."""
+    from cso_runtime.config import from_dict
+    from cso_runtime.run_profile import Profile
+
+    from_dict(Profile, data, where="profile")
+
+
+def test_a_run_without_its_policy_starts_the_rest_records_it_and_lists_the_policy_as_expected_elsewhere(tmp_path, monkeypatch):
+    """``up --without policy`` (a robot of another run's ``serve_all_robots`` server): the launcher starts every
+    other service of the profile and no policy; the run's ``profile.yaml`` and ``dataflow.md`` say what ran and
+    what is left to another process; ``status`` lists the policy, DOWN and not started by this run, before any
+    server answers, so the user sees it is expected from elsewhere, not forgotten."""
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import load_profile
+    from cso_runtime.status import render_table, status_of
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile("lockstep", {"robot": "r1"}, without=["policy"])
+    stop = threading.Event()
+    stop.set()  # run() writes the run's files, then stops before its router: nothing is started here
+    launcher = Launcher(profile, data, tmp_path / "run", stop_event=stop)
+    launcher.run()
+    written = yaml.safe_load(launcher.profile_path.read_text())
+    assert list(written["services"]) == ["sim", "mapper", "frontier", "planner"] and written["without"] == ["policy"]
+    dataflow = (launcher.run_dir / "dataflow.md").read_text()
+    assert "Left out of this run (`up --without`), served by another process: `policy`." in dataflow
+    assert "| policy (not started by this run) | `frontiers` (frontier) |" in dataflow and "  frontier -->|\"frontiers\"| policy\n" in dataflow
+    spawned: list[str] = []
+    monkeypatch.setattr(Child, "spawn", lambda self: spawned.append(self.name))
+    launcher = Launcher(profile, data, tmp_path / "run2")
+    launcher.spawn_all()
+    assert spawned == ["sim", "mapper", "frontier", "planner"]
+    msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it, no server up yet
+    assert isinstance(msg, LauncherStatusMsg)
+    status = status_of("r1", None, msg.to_dict(), {}, {"sim", "mapper"})
+    assert status["services"]["policy"] == {"alive": False, "outside": True}
+    console = Console(record=True, width=200)
+    console.print(render_table(status))
+    assert re.search(r"service policy +│ DOWN, not started by this run", console.export_text()), console.export_text()
+
+
 def test_up_run_in_process_gives_back_the_signal_handlers_it_found(tmp_path):
     """``up`` sets Ctrl-C, SIGTERM and SIGHUP to stop its run from its first line; run inside another program (a
     test's CliRunner, a notebook) it left them so, and every later Ctrl-C set a finished run's stop event
@@ -2085,6 +2173,8 @@ def test_shell_completion_offers_profiles_methods_runs_and_service_logs(tmp_path
     assert complete("cso-runtime eval --method cso,a") == ["cso,all"]  # a group, in eval's list only
     assert complete("cso-runtime up --method a") == []
     assert complete("cso-runtime up --method greedy-") == ["greedy-dist", "greedy-info"]
+    assert complete("cso-runtime up --profile lockstep --without ") == ["mapper", "frontier", "policy", "planner"]  # never the sim
+    assert complete("cso-runtime up --profile lockstep --without policy --without p") == ["planner"]
     assert complete(f"cso-runtime logs --runs-dir {runs} --run 2026") == ["20261203-091100-lockstep-r0", "20261203-091000-lockstep-r0"]
     assert complete(f"cso-runtime logs --runs-dir {runs} --run 20261203-091000-lockstep-r0 sim ") == ["mapper"]
     assert complete(f"cso-runtime logs --runs-dir {runs} ") == ["planner"]  # the newest run's
