@@ -211,10 +211,28 @@ def test_mapper_service_over_loopback_maps_and_counts_rejections():
     assert not thread.is_alive()
 
 
-def test_one_policy_server_answers_several_robots():
-    from cso_runtime.messages import GoalMsg, frontiers_from_observation
+@contextlib.contextmanager
+def shared_policy_server(session, client: TransportConfig, profile: dict | None = None):
+    """A ``serve_all_robots`` policy service of robot ``a`` (greedy-dist), run on a thread until the block ends;
+    entered once its ``alive/policy`` token answers on ``session``."""
     from services.common import ServiceContext, run_service
     from services.policy import PolicyService
+
+    profile = profile or {"method": "greedy-dist", "seed": 0}
+    svc = PolicyService(ServiceContext("policy", "a", profile, ExplorationConfig(), client, {"serve_all_robots": True}))
+    stop = threading.Event()
+    thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+    thread.start()
+    try:
+        wait_for(lambda: any(True for r in session.liveliness().get(RobotKeys("a").alive("policy"), timeout=0.5) if r.ok), 10, "the policy")
+        yield svc
+    finally:
+        stop.set()
+        thread.join(10)
+
+
+def test_one_policy_server_answers_several_robots():
+    from cso_runtime.messages import GoalMsg, frontiers_from_observation
     from tests.test_messages import _observation
 
     port = free_tcp_port()
@@ -223,40 +241,32 @@ def test_one_policy_server_answers_several_robots():
         goals: dict[str, GoalMsg] = {}
         sub = session.declare_subscriber("cso/*/goal", lambda s: goals.__setitem__(str(s.key_expr).split("/")[1], decode(s.payload.to_bytes(), GoalMsg)))
         profile = {"method": "greedy-dist", "seed": 0}
-        svc = PolicyService(ServiceContext("policy", "a", profile, ExplorationConfig(), client, {"serve_all_robots": True}))
-        stop = threading.Event()
-        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
-        thread.start()
-        try:
-            wait_for(lambda: any(True for r in session.liveliness().get(RobotKeys("a").alive("policy"), timeout=0.5) if r.ok), 10, "the policy")
-            obs = _observation()
-            expected = make_policy("greedy-dist").select(obs)
-            for robot in ("a", "b"):
-                session.put(RobotKeys(robot).frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
-            wait_for(lambda: set(goals) == {"a", "b"}, 10, "a goal for each robot")
-            for g in goals.values():
-                assert g.decided and g.step == 0 and (g.x_m, g.y_m) == (expected.x_m, expected.y_m)
-            # Robot b sees the policy under its own keys, as `status --robot b` asks: alive, with b's own status.
-            assert any(r.ok for r in session.liveliness().get(RobotKeys("b").alive("policy"), timeout=2.0))
-            assert not any(r.ok for r in session.liveliness().get(RobotKeys("c").alive("policy"), timeout=0.5))  # not served
-            for robot in ("a", "b"):
-                replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(RobotKeys(robot).service_status("*"), timeout=2.0) if r.ok]
-                assert [(m.service, m.robot, m.state, m.last_step) for m in replies] == [("policy", robot, "running", 0)], replies
-            assert not [r for r in session.get(RobotKeys("c").service_status("*"), timeout=0.5) if r.ok]
-            status = query_status([loopback_endpoint(port)], "b", timeout_s=1.0)
-            assert status is not None and status["services"]["policy"]["alive"] and status["services"]["policy"]["state"] == "running"
-        finally:
-            stop.set()
-            thread.join(10)
-            sub.undeclare()
+        with shared_policy_server(session, client, profile):
+            try:
+                obs = _observation()
+                expected = make_policy("greedy-dist").select(obs)
+                for robot in ("a", "b"):
+                    session.put(RobotKeys(robot).frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+                wait_for(lambda: set(goals) == {"a", "b"}, 10, "a goal for each robot")
+                for g in goals.values():
+                    assert g.decided and g.step == 0 and (g.x_m, g.y_m) == (expected.x_m, expected.y_m)
+                # Robot b sees the policy under its own keys, as `status --robot b` asks: alive, with b's own status.
+                assert any(r.ok for r in session.liveliness().get(RobotKeys("b").alive("policy"), timeout=2.0))
+                assert not any(r.ok for r in session.liveliness().get(RobotKeys("c").alive("policy"), timeout=0.5))  # not served
+                for robot in ("a", "b"):
+                    replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(RobotKeys(robot).service_status("*"), timeout=2.0) if r.ok]
+                    assert [(m.service, m.robot, m.state, m.last_step) for m in replies] == [("policy", robot, "running", 0)], replies
+                assert not [r for r in session.get(RobotKeys("c").service_status("*"), timeout=0.5) if r.ok]
+                status = query_status([loopback_endpoint(port)], "b", timeout_s=1.0)
+                assert status is not None and status["services"]["policy"]["alive"] and status["services"]["policy"]["state"] == "running"
+            finally:
+                sub.undeclare()
 
 
 def test_a_policy_server_leaves_a_robot_with_a_policy_of_its_own_to_it():
     """A robot whose run has its own policy (its alive/policy token is another process's) gets no goal from a
     ``serve_all_robots`` server: two policies would send it two different goals at each decision."""
     from cso_runtime.messages import GoalMsg, frontiers_from_observation
-    from services.common import ServiceContext, run_service
-    from services.policy import PolicyService
     from tests.test_messages import _observation
 
     port = free_tcp_port()
@@ -265,25 +275,19 @@ def test_a_policy_server_leaves_a_robot_with_a_policy_of_its_own_to_it():
         goals: list[tuple[str, int]] = []
         sub = session.declare_subscriber("cso/*/goal", lambda s: goals.append((str(s.key_expr).split("/")[1], decode(s.payload.to_bytes(), GoalMsg).step)))
         own_policy = session.liveliness().declare_token(RobotKeys("b").alive("policy"))  # robot b's run has its own
-        svc = PolicyService(ServiceContext("policy", "a", {"method": "greedy-dist", "seed": 0}, ExplorationConfig(), client, {"serve_all_robots": True}))
-        stop = threading.Event()
-        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
-        thread.start()
-        try:
-            wait_for(lambda: any(True for r in session.liveliness().get(RobotKeys("a").alive("policy"), timeout=0.5) if r.ok), 10, "the policy")
-            obs = _observation()
-            for robot in ("a", "b", "c"):  # handled in this order: c's goal comes after b's input was handled
-                session.put(RobotKeys(robot).frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
-            wait_for(lambda: ("c", 0) in goals, 10, "robot c's goal")
-            assert sorted(goals) == [("a", 0), ("c", 0)], goals
-            own_policy.undeclare()  # b's own policy is gone: the server serves b from its next decision input
-            wait_for(lambda: "b" not in svc._other_policies, 10, "the server to see b's policy gone")
-            session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(1, "no_goal", obs, 1.0)))
-            wait_for(lambda: ("b", 1) in goals, 10, "robot b's goal once its own policy is gone")
-        finally:
-            stop.set()
-            thread.join(10)
-            sub.undeclare()
+        with shared_policy_server(session, client) as svc:
+            try:
+                obs = _observation()
+                for robot in ("a", "b", "c"):  # handled in this order: c's goal comes after b's input was handled
+                    session.put(RobotKeys(robot).frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+                wait_for(lambda: ("c", 0) in goals, 10, "robot c's goal")
+                assert sorted(goals) == [("a", 0), ("c", 0)], goals
+                own_policy.undeclare()  # b's own policy is gone: the server serves b from its next decision input
+                wait_for(lambda: "b" not in svc._other_policies, 10, "the server to see b's policy gone")
+                session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(1, "no_goal", obs, 1.0)))
+                wait_for(lambda: ("b", 1) in goals, 10, "robot b's goal once its own policy is gone")
+            finally:
+                sub.undeclare()
 
 
 def test_a_policy_server_lets_a_robot_go_when_its_run_stops():
@@ -291,8 +295,6 @@ def test_a_policy_server_lets_a_robot_go_when_its_run_stops():
     robot as starting with a live policy, and a new run of the id was refused. When the robot's frontier service
     (its decision inputs) goes, the server withdraws the token; a robot that comes back is served again."""
     from cso_runtime.messages import GoalMsg, frontiers_from_observation
-    from services.common import ServiceContext, run_service
-    from services.policy import PolicyService
     from tests.test_messages import _observation
 
     port = free_tcp_port()
@@ -304,30 +306,24 @@ def test_a_policy_server_lets_a_robot_go_when_its_run_stops():
     with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
         goals: list[tuple[str, int]] = []
         sub = session.declare_subscriber("cso/*/goal", lambda s: goals.append((str(s.key_expr).split("/")[1], decode(s.payload.to_bytes(), GoalMsg).step)))
-        svc = PolicyService(ServiceContext("policy", "a", {"method": "greedy-dist", "seed": 0}, ExplorationConfig(), client, {"serve_all_robots": True}))
-        stop = threading.Event()
-        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
-        thread.start()
-        try:
-            wait_for(lambda: policy_alive("a"), 10, "the policy")
-            obs = _observation()
-            frontier_b = session.liveliness().declare_token(RobotKeys("b").alive("frontier"))  # robot b's run
-            session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
-            wait_for(lambda: ("b", 0) in goals, 10, "robot b's goal")
-            assert policy_alive("b")
-            frontier_b.undeclare()  # b's run stops
-            wait_for(lambda: not policy_alive("b"), 10, "the server to let robot b go")
-            assert not [r for r in session.get(RobotKeys("b").service_status("*"), timeout=0.5) if r.ok]
-            assert policy_alive("a")  # its own robot's token stays
-            frontier_b = session.liveliness().declare_token(RobotKeys("b").alive("frontier"))  # a new run of b
-            session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
-            wait_for(lambda: goals.count(("b", 0)) == 2, 10, "robot b served afresh (its step 0 again)")
-            assert policy_alive("b")
-            frontier_b.undeclare()
-        finally:
-            stop.set()
-            thread.join(10)
-            sub.undeclare()
+        with shared_policy_server(session, client):
+            try:
+                obs = _observation()
+                frontier_b = session.liveliness().declare_token(RobotKeys("b").alive("frontier"))  # robot b's run
+                session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+                wait_for(lambda: ("b", 0) in goals, 10, "robot b's goal")
+                assert policy_alive("b")
+                frontier_b.undeclare()  # b's run stops
+                wait_for(lambda: not policy_alive("b"), 10, "the server to let robot b go")
+                assert not [r for r in session.get(RobotKeys("b").service_status("*"), timeout=0.5) if r.ok]
+                assert policy_alive("a")  # its own robot's token stays
+                frontier_b = session.liveliness().declare_token(RobotKeys("b").alive("frontier"))  # a new run of b
+                session.put(RobotKeys("b").frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
+                wait_for(lambda: goals.count(("b", 0)) == 2, 10, "robot b served afresh (its step 0 again)")
+                assert policy_alive("b")
+                frontier_b.undeclare()
+            finally:
+                sub.undeclare()
 
 
 # --- tier 3: real processes ------------------------------------------------------------------------
