@@ -875,7 +875,9 @@ def test_down_gives_the_launcher_the_stop_time_of_its_run(tmp_path, timeout_s):
             assert ok and message == "stopped run slow", message
             assert launcher.returncode == 0 and (tmp_path / "finished").exists()
         else:  # escalated, and said: its results may be missing
-            assert ok and message == "stopped run slow (its launcher did not stop on SIGINT within 0.3 s: SIGTERM)", message
+            # (Once in about ten full runs of one session, SIGTERM took over its 3 s stage here; how it ended helps tell why.)
+            ended = (launcher.returncode, (tmp_path / "finished").exists())
+            assert ok and message == "stopped run slow (its launcher did not stop on SIGINT within 0.3 s: SIGTERM)", (message, ended)
             assert launcher.returncode == -signal.SIGTERM and not (tmp_path / "finished").exists()
     finally:
         if launcher.poll() is None:
