@@ -233,39 +233,42 @@ def test_a_robot_radius_no_indoor_robot_has_is_refused():
         RobotConfig(radius_m=50.0).validate()
 
 
-def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is_refused(tmp_path: Path, capsys):
-    """``distance_scale_m`` divides every position of the graph: 0 used to train on NaNs and end in a traceback;
-    and an out-of-range field said neither the file nor the ``--set`` that brought it, as ``eval`` and ``up`` do."""
+def small_train_recipe(tmp_path: Path) -> Path:
+    """A training config of one small generated plan (no Dungeon folder needed)."""
+    recipe = tmp_path / "mine.yaml"
+    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
+    return recipe
+
+
+def train_refusal(recipe: Path, flags: dict, settings: list[str], capsys) -> str:
+    """What ``train`` says when it refuses ``recipe`` with these flags and ``--set`` pairs (it must: exit 2)."""
     import typer
 
     from cso_runtime.cli import training_args
 
-    recipe = tmp_path / "mine.yaml"
-    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
+    with pytest.raises(typer.Exit) as exit_info:
+        training_args(recipe, flags, settings)
+    assert exit_info.value.exit_code == 2
+    return capsys.readouterr().err
+
+
+def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is_refused(tmp_path: Path, capsys):
+    """``distance_scale_m`` divides every position of the graph: 0 used to train on NaNs and end in a traceback;
+    and an out-of-range field said neither the file nor the ``--set`` that brought it, as ``eval`` and ``up`` do."""
+    recipe = small_train_recipe(tmp_path)
     for setting, said in [
         ("distance_scale_m=0", "distance_scale_m must be positive"),
         ("distance_scale_m=-10", "distance_scale_m must be positive"),
         ("gamma=2", "gamma must be in"),
         ("device=gpu", "unknown device 'gpu'"),
     ]:
-        with pytest.raises(typer.Exit) as exit_info:
-            training_args(recipe, {}, [setting])
-        assert exit_info.value.exit_code == 2
-        assert f"error: {recipe} with --set {setting}: {said}" in capsys.readouterr().err
+        assert f"error: {recipe} with --set {setting}: {said}" in train_refusal(recipe, {}, [setting], capsys)
 
 
 def test_a_train_error_names_the_command_flags_that_set_the_bad_value(tmp_path: Path, capsys):
     """``train --num-envs 0`` was refused naming only the file (and any ``--set``), not the flag that brought the 0."""
-    import typer
-
-    from cso_runtime.cli import training_args
-
-    recipe = tmp_path / "mine.yaml"
-    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
-    with pytest.raises(typer.Exit) as exit_info:
-        training_args(recipe, {"num_envs": 0, "async_envs": False, "seed": None}, ["num_steps=8"])
-    assert exit_info.value.exit_code == 2
-    said = capsys.readouterr().err
+    recipe = small_train_recipe(tmp_path)
+    said = train_refusal(recipe, {"num_envs": 0, "async_envs": False, "seed": None}, ["num_steps=8"], capsys)
     assert f"error: {recipe} with --num-envs 0 --sync-envs --set num_steps=8: num_envs, num_steps and num_minibatches must be positive, got 0, 8 and 4" in said, said
 
 
@@ -275,12 +278,7 @@ def test_train_refuses_a_reward_of_the_wrong_sign_a_knn_beyond_the_graph_and_a_c
     were silently padding) and a PPO clip of 1 or more, and trained on them. They are refused before training
     starts, naming the file and the flag; the values the experiments tried (r_step 0, knn 16, clip_coef 0.2, the
     largest knn a graph holds) are still taken."""
-    import typer
-
-    from cso_runtime.cli import training_args
-
-    recipe = tmp_path / "mine.yaml"
-    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
+    recipe = small_train_recipe(tmp_path)
     for setting, said in [
         ("r_step=0.01", "r_step must be <= 0"),
         ("lambda_c=0", "lambda_c must be positive"),
@@ -291,13 +289,11 @@ def test_train_refuses_a_reward_of_the_wrong_sign_a_knn_beyond_the_graph_and_a_c
         ("gae_lambda=1.5", "gae_lambda must be in [0, 1], got 1.5"),
         ("warm_start_epochs=-1", "warm_start_epochs must be >= 0"),
     ]:
-        with pytest.raises(typer.Exit) as exit_info:
-            training_args(recipe, {}, [setting])
-        assert exit_info.value.exit_code == 2
-        assert f"error: {recipe} with --set {setting}: {said}" in capsys.readouterr().err
-    with pytest.raises(typer.Exit):  # the bound follows the graph's size: 9 nodes, 8 besides the robot's
-        training_args(recipe, {}, ["max_frontier_nodes=4", "max_path_nodes=5", "knn=9"])
-    assert "knn must be at most max_frontier_nodes + max_path_nodes - 1 = 8" in capsys.readouterr().err
+        assert f"error: {recipe} with --set {setting}: {said}" in train_refusal(recipe, {}, [setting], capsys)
+    # the bound follows the graph's size: 9 nodes, 8 besides the robot's
+    assert "knn must be at most max_frontier_nodes + max_path_nodes - 1 = 8" in train_refusal(recipe, {}, ["max_frontier_nodes=4", "max_path_nodes=5", "knn=9"], capsys)
+    from cso_runtime.cli import training_args
+
     for settings in (["r_step=0"], ["knn=16"], ["clip_coef=0.2"], ["knn=219"], ["max_frontier_nodes=4", "max_path_nodes=5", "knn=8"]):
         args = training_args(recipe, {}, settings)
         assert args.env_config().graph.knn == args.knn
