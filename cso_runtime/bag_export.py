@@ -123,6 +123,21 @@ class StepTimeline:
         return self.start_ns + round(self.by_step.get(step, self.last_s) * 1e9)
 
 
+def every_topic(ros_topic: str) -> bool:
+    """``BagConverter.convert``'s default: every ROS topic is wanted (a bag, an MCAP file)."""
+    return True
+
+
+def shows_something(msg: Message) -> bool:
+    """Whether ``BagConverter.convert`` can make a ROS message of ``msg`` at all: frontiers that decide nothing and a
+    goal message without a goal cannot (a viewer that subscribes late is sent the last one that could)."""
+    if isinstance(msg, FrontiersMsg):
+        return bool(msg.decide)
+    if isinstance(msg, GoalMsg):
+        return bool(msg.has_goal)
+    return True
+
+
 class BagConverter:
     """One robot's messages, in arrival order -> (ROS topic, CDR bytes, time ns). Pure: no files, no Zenoh."""
 
@@ -157,40 +172,55 @@ class BagConverter:
             return self.timeline.stamp(msg.step, msg.stamp_s)
         return self.timeline.at(int(getattr(msg, "step", -1)))
 
-    def convert(self, msg: Message, received_ns: int) -> list[tuple[str, bytes, int]]:
-        """The ROS messages of one of ours, received at ``received_ns`` (empty: nothing to show for it)."""
+    def convert(
+        self, msg: Message, received_ns: int, wanted: Callable[[str], bool] = every_topic, again: bool = False
+    ) -> list[tuple[str, bytes, int]]:
+        """The ROS messages of one of ours, received at ``received_ns`` (empty: nothing to show for it).
+        ``wanted(ros_topic)``: whether that topic is wanted now (a live viewer's subscriptions); the others are not
+        converted at all, and a map nobody wants is not held back for ``map_period_s`` either. ``again``: the
+        message is sent once more, to a viewer that has just subscribed: a goal already sent and a map within
+        ``map_period_s`` of the last one go out too."""
         t_ns = self.bag_time_ns(msg, received_ns)
         stamp_s = t_ns * 1e-9
         out: list[tuple[str, bytes, int]] = []
-        if not self.started:
-            self.started = True
-            out.append(("/tf_static", ros2_cdr.transforms_to_cdr([(MAP_FRAME, ODOM_FRAME, Pose2D(0.0, 0.0, 0.0))], stamp_s), t_ns))
+        if not self.started and wanted("/tf_static"):
+            out.append(self.static_transforms(t_ns))
         if isinstance(msg, OdometryMsg):
-            out.append(("/odom", ros2_cdr.odometry_to_cdr(msg.pose, msg.twist, stamp_s, ODOM_FRAME, BASE_FRAME), t_ns))
-            out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, BASE_FRAME, msg.pose)], stamp_s), t_ns))
+            if wanted("/odom"):
+                out.append(("/odom", ros2_cdr.odometry_to_cdr(msg.pose, msg.twist, stamp_s, ODOM_FRAME, BASE_FRAME), t_ns))
+            if wanted("/tf"):
+                out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, BASE_FRAME, msg.pose)], stamp_s), t_ns))
         elif isinstance(msg, ScanMsg):
-            out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, LASER_FRAME, msg.sensor_pose)], stamp_s), t_ns))
-            out.append(("/scan", ros2_cdr.laserscan_to_cdr(dataclasses.replace(msg.scan, stamp_s=stamp_s), LASER_FRAME), t_ns))
-        elif isinstance(msg, MapMsg):
-            self.maps_thinned += self.pending_map is not None  # a held map is superseded either way
-            if self.last_map_ns is None or t_ns - self.last_map_ns >= self.map_period_ns:
+            if wanted("/tf"):
+                out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, LASER_FRAME, msg.sensor_pose)], stamp_s), t_ns))
+            if wanted("/scan"):
+                out.append(("/scan", ros2_cdr.laserscan_to_cdr(dataclasses.replace(msg.scan, stamp_s=stamp_s), LASER_FRAME), t_ns))
+        elif isinstance(msg, MapMsg) and wanted("/map"):
+            self.maps_thinned += self.pending_map is not None and self.pending_map[0] is not msg  # a held map is superseded either way
+            if again or self.last_map_ns is None or t_ns - self.last_map_ns >= self.map_period_ns:
                 self.last_map_ns, self.pending_map = t_ns, None
                 out.append(_map_row(msg, t_ns))
             else:
                 self.pending_map = (msg, t_ns)  # converted only if it stays the last
-        elif isinstance(msg, PathMsg):
+        elif isinstance(msg, PathMsg) and wanted("/plan"):
             out.append(("/plan", ros2_cdr.path_to_cdr(msg.path_xy_m, stamp_s, MAP_FRAME), t_ns))
         elif isinstance(msg, GoalMsg):
             goal = (float(msg.x_m), float(msg.y_m)) if msg.has_goal else None
-            if goal is not None and goal != self.last_goal_xy:
+            if goal is not None and (goal != self.last_goal_xy or again) and wanted("/goal_pose"):
                 out.append(("/goal_pose", ros2_cdr.pose_stamped_to_cdr(goal[0], goal[1], 0.0, stamp_s, MAP_FRAME), t_ns))
             self.last_goal_xy = goal
-        elif isinstance(msg, FrontiersMsg) and msg.decide:
+        elif isinstance(msg, FrontiersMsg) and msg.decide and wanted("/explore/frontiers"):
             points, goals = msg.cluster_points_xy_m()
             out.append(("/explore/frontiers", ros2_cdr.frontier_markers_to_cdr(points, goals, stamp_s, MAP_FRAME), t_ns))
-        elif isinstance(msg, CmdVelMsg):
+        elif isinstance(msg, CmdVelMsg) and wanted("/cmd_vel"):
             out.append(("/cmd_vel", ros2_cdr.twist_to_cdr(msg.command), t_ns))
         return out
+
+    def static_transforms(self, t_ns: int) -> tuple[str, bytes, int]:
+        """``/tf_static`` (``map`` -> ``odom``, the identity), sent with the first message (or to a viewer that
+        subscribes to it); ``convert`` does not send it again."""
+        self.started = True
+        return ("/tf_static", ros2_cdr.transforms_to_cdr([(MAP_FRAME, ODOM_FRAME, Pose2D(0.0, 0.0, 0.0))], t_ns * 1e-9), t_ns)
 
     def finish(self, sent_ns: int | None = None) -> list[tuple[str, bytes, int]]:
         """The last map, when ``map_period_s`` held it back: a bag always ends with the final map. ``sent_ns``: a

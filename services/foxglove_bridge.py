@@ -4,9 +4,13 @@ It listens to one robot's scan, odometry, map, path, goal, frontiers and velocit
 standard ROS 2 messages that ``export-bag`` writes (``cso_runtime.bag_export.BagConverter``, the same code: the
 same topics, frames and types, CDR-encoded), and serves them on a Foxglove WebSocket server
 (``ws://HOST:PORT``: in Foxglove, "Open connection" -> "Foxglove WebSocket"). A 3D panel in the ``map`` frame
-shows the map, the scan, the robot, its path, goal and frontiers as the exploration goes. ``/map`` and
-``/tf_static`` are latched: a viewer that subscribes later gets the latest ones again. Optionally the same
+shows the map, the scan, the robot, its path, goal and frontiers as the exploration goes. Optionally the same
 messages are also written to an MCAP file.
+
+Like ROS's foxglove_bridge, it converts only what someone watches: a topic that no viewer subscribes to (and no
+MCAP file takes) is not converted at all, so the bridge costs next to nothing while nobody looks. It keeps the
+latest message of each of its inputs instead, and converts it when a viewer subscribes: a viewer that connects
+late sees the current map, goal, frontiers, path and robot at once (as latched ROS topics would give it).
 
 It only listens: the episode never waits for it, in lockstep or real time. Start it with ``up --foxglove``,
 ``services: {foxglove_bridge: {...}}`` in a profile, or alone beside a running episode with
@@ -28,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime import ros2_cdr
-from cso_runtime.bag_export import EXPORTED, LATCHED, ROS_TYPES, BagConverter
+from cso_runtime.bag_export import EXPORTED, ROS_TYPES, BagConverter, shows_something
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.messages import Message
 from cso_runtime.recording import unused_path
@@ -87,17 +91,29 @@ def websocket_handshake(host: str, port: int, timeout_s: float = 5.0) -> bytes:
 
 
 class _Subscriptions:
-    """The server's listener: a viewer's new subscription asks for the latched topics again. The server calls
-    ``on_unsubscribe`` too (a panel closed, a viewer gone): a listener without it has each call logged as an error."""
+    """The server's listener (on the server's thread): the topics viewers have newly subscribed to, whose latest
+    message the bridge's own thread then converts and sends. The server calls ``on_unsubscribe`` too (a panel
+    closed, a viewer gone): a listener without it has each call logged as an error."""
 
     def __init__(self) -> None:
         self.new = threading.Event()
+        """Set by a subscription, until the bridge takes the topics."""
+        self._lock = threading.Lock()
+        self._topics: set[str] = set()
 
     def on_subscribe(self, client: Any, channel: Any) -> None:
+        with self._lock:
+            self._topics.add(channel.topic)
         self.new.set()
 
     def on_unsubscribe(self, client: Any, channel: Any) -> None:
-        """Nothing to do: the server stops sending that channel to that viewer by itself."""
+        """Nothing to do: the server stops sending that channel to that viewer, and the channel then has no sink."""
+
+    def take(self) -> set[str]:
+        """The topics subscribed to since the last call."""
+        with self._lock:
+            topics, self._topics = self._topics, set()
+        return topics
 
 
 class FoxgloveBridgeService(Service):
@@ -116,11 +132,12 @@ class FoxgloveBridgeService(Service):
         self.foxglove = foxglove
         self.context = foxglove.Context()
         self.converter = BagConverter(map_period_s=self.params.map_period_s, time="received")
-        self.channels: dict[str, Any] = {}
-        self.latched: dict[str, tuple[bytes, int]] = {}
-        """Latched topic -> its latest message and time, sent again when a viewer subscribes."""
+        self.channels = {topic: self._open_channel(topic) for topic in ROS_TYPES}
+        """ROS topic -> its channel, every one advertised from the start: a viewer subscribes before anything came."""
+        self.latest: dict[str, Message] = {}
+        """Our topic -> its latest message that shows something, converted when a viewer subscribes."""
         self.served: dict[str, int] = {}
-        """ROS topic -> messages served."""
+        """ROS topic -> messages served (converted for a viewer or the MCAP file as they came)."""
         self.subscriptions = _Subscriptions()
         self.server: Any = None
         self.mcap: Any = None
@@ -143,32 +160,47 @@ class FoxgloveBridgeService(Service):
         """Where a viewer connects (the real port when ``port`` was 0)."""
         return f"ws://{self.params.host}:{self.server.port if self.server is not None else self.params.port}"
 
-    def channel(self, topic: str) -> Any:
-        chan = self.channels.get(topic)
-        if chan is None:
-            ros_type = ROS_TYPES[topic]
-            definition, _ = ros2_cdr.typestore().generate_msgdef(ros_type, ros_version=2)  # ROS 2's `builtin_interfaces/Time stamp`, as export-bag writes
-            schema = self.foxglove.Schema(name=ros_type, encoding="ros2msg", data=definition.encode())
-            chan = self.channels[topic] = self.foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=self.context)
-        return chan
+    def _open_channel(self, topic: str) -> Any:
+        ros_type = ROS_TYPES[topic]
+        definition, _ = ros2_cdr.typestore().generate_msgdef(ros_type, ros_version=2)  # ROS 2's `builtin_interfaces/Time stamp`, as export-bag writes
+        schema = self.foxglove.Schema(name=ros_type, encoding="ros2msg", data=definition.encode())
+        return self.foxglove.Channel(topic, schema=schema, message_encoding="cdr", context=self.context)
+
+    def watched(self, topic: str) -> bool:
+        """Whether anything takes ``topic`` now: a viewer subscribed to it, or the MCAP file (which takes all)."""
+        return bool(self.channels[topic].has_sinks())
 
     def serve(self, rows: list[tuple[str, bytes, int]]) -> None:
         for topic, data, t_ns in rows:
-            self.channel(topic).log(data, log_time=t_ns)
+            self.channels[topic].log(data, log_time=t_ns)
             self.served[topic] = self.served.get(topic, 0) + 1
-            if topic in LATCHED:
-                self.latched[topic] = (data, t_ns)
+
+    def send_latest(self, topic: str) -> None:
+        """A viewer has just subscribed to ``topic``: the latest of it, converted now, so that nothing it shows
+        stays empty until the next message (a map or a goal may not change for a long while)."""
+        now_ns = time.time_ns()
+        if topic == "/tf_static":
+            rows = [self.converter.static_transforms(now_ns)]
+        else:
+            rows = []
+            for msg in self.latest.values():  # /tf: both the odometry's and the scan's
+                rows += self.converter.convert(msg, now_ns, wanted=lambda ros_topic: ros_topic == topic, again=True)
+        for ros_topic, data, t_ns in rows:
+            self.channels[ros_topic].log(data, log_time=t_ns)
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         self.last_step = int(getattr(msg, "step", self.last_step))
-        self.serve(self.converter.convert(msg, time.time_ns()))
+        if shows_something(msg):
+            self.latest[topic] = msg
+        self.serve(self.converter.convert(msg, time.time_ns(), wanted=self.watched))
 
     def on_tick(self, now_s: float) -> None:
         if self.subscriptions.new.is_set():
             self.subscriptions.new.clear()
-            for topic, (data, _) in list(self.latched.items()):
-                self.channel(topic).log(data, log_time=time.time_ns())
-        if self.converter.pending_map is not None and time.time_ns() - (self.converter.last_map_ns or 0) >= self.converter.map_period_ns:
+            for topic in sorted(self.subscriptions.take()):
+                self.send_latest(topic)
+        held = self.converter.pending_map is not None and self.watched("/map")
+        if held and time.time_ns() - (self.converter.last_map_ns or 0) >= self.converter.map_period_ns:
             self.serve(self.converter.finish(sent_ns=time.time_ns()))  # the newest map, held back by map_period_s, once nothing newer came
 
     @classmethod
@@ -182,7 +214,8 @@ class FoxgloveBridgeService(Service):
         return {**params, **{k: v for k, v in given.items() if v is not None}}
 
     def shutdown(self) -> None:
-        self.serve(self.converter.finish())
+        if self.watched("/map"):
+            self.serve(self.converter.finish())
         if self.mcap is not None:
             self.mcap.close()
         if self.server is not None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import socket
 import sys
 from collections import Counter
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -22,6 +23,7 @@ from cso_runtime.messages import decode
 from cso_runtime.transport import TransportConfig
 from services.common import ServiceContext
 from services.foxglove_bridge import FoxgloveBridgeService, websocket_handshake
+from tests.conftest import wait_for
 from tests.test_bag_export import T0_NS, _map, episode
 
 
@@ -29,6 +31,14 @@ def _bridge(params: dict) -> FoxgloveBridgeService:
     profile = {"lockstep": True, "services": {"foxglove_bridge": params}}
     ctx = ServiceContext("foxglove_bridge", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params)
     return FoxgloveBridgeService(ctx)
+
+
+def _feed(bridge: FoxgloveBridgeService, steps: int) -> None:
+    """Steps of a lockstep-like episode (the goal changes at step 2), each message as the service receives it."""
+    for m in episode(RobotKeys("r0"), steps, T0_NS, 1_000_000):
+        topic = m.key.rsplit("/", 1)[1]
+        if topic in bridge.inputs:  # the clock is not an input
+            bridge.on_message("r0", topic, decode(m.payload, bridge.inputs[topic]), 0.0)
 
 
 def _served(path) -> list[tuple[str, str, object]]:
@@ -49,11 +59,9 @@ def test_the_bridge_serves_an_episode_as_export_bags_ros_messages(tmp_path):
     assert bridge.server.port > 0 and bridge.url == f"ws://127.0.0.1:{bridge.server.port}"
     reply = websocket_handshake("127.0.0.1", bridge.server.port)
     assert reply.startswith(b"HTTP/1.1 101") and b"foxglove.sdk.v1" in reply
-    for m in episode(RobotKeys("r0"), 3, T0_NS, 1_000_000):
-        topic = m.key.rsplit("/", 1)[1]
-        if topic in bridge.inputs:  # the clock is not an input
-            bridge.on_message("r0", topic, decode(m.payload, bridge.inputs[topic]), 0.0)
-    bridge.subscriptions.on_subscribe(None, None)  # a viewer subscribes late: the latched topics again
+    _feed(bridge, 3)
+    for topic in ("/map", "/tf_static"):  # a viewer subscribes late: the latest of each again
+        bridge.subscriptions.on_subscribe(None, SimpleNamespace(topic=topic))
     bridge.on_tick(0.0)
     bridge.shutdown()
     served = _served(mcap)
@@ -65,7 +73,7 @@ def test_the_bridge_serves_an_episode_as_export_bags_ros_messages(tmp_path):
     expected = _map(2).grid
     assert (last_map.info.height, last_map.info.width) == expected.shape and last_map.header.frame_id == "map"
     assert np.array_equal(np.asarray(last_map.data).reshape(expected.shape), expected)  # -1/0/100, row 0 at the bottom
-    assert bridge.served["/map"] == 3  # the fourth is the latched one sent again
+    assert bridge.served["/map"] == 3  # the fourth is the latest one sent again
 
 
 def test_maps_are_thinned_to_map_period_s_and_the_newest_still_goes_out(tmp_path):
@@ -106,6 +114,36 @@ def test_a_map_sent_when_it_stopped_being_held_starts_the_next_period():
     assert "/map" in topics(converter.convert(_map(3), 1_200_000_000))  # a period after the late one
 
 
+def test_the_converter_converts_only_wanted_topics_and_sends_the_latest_again_at_once():
+    """What the bridge builds on: a topic nobody wants is neither converted nor held back (a map held for a viewer
+    that has left never goes out over a newer one), and ``again`` sends a viewer that has just subscribed the
+    latest map or goal even within ``map_period_s`` of the last one, or when the goal has not changed."""
+    from cso_runtime.messages import GoalMsg
+
+    def only(*wanted: str):
+        return lambda topic: topic in wanted
+
+    def topics(rows: list[tuple[str, bytes, int]]) -> list[str]:
+        return [topic for topic, _, _ in rows]
+
+    converter = BagConverter(map_period_s=0.5, time="received")
+    assert converter.convert(_map(0), 0, wanted=only()) == [] and (converter.last_map_ns, converter.pending_map) == (None, None)
+    assert topics(converter.convert(_map(0), 100_000_000, wanted=only("/map"))) == ["/map"]  # no /tf_static: not wanted
+    assert converter.convert(_map(1), 200_000_000, wanted=only("/map")) == [] and converter.pending_map is not None  # held
+    assert converter.convert(_map(2), 300_000_000, wanted=only()) == []  # the viewer has left
+    latest = _map(3)
+    assert converter.convert(latest, 400_000_000, wanted=only()) == []
+    rows = converter.convert(latest, 450_000_000, wanted=only("/map"), again=True)  # a viewer subscribes
+    assert topics(rows) == ["/map"] and converter.pending_map is None and converter.last_map_ns == 450_000_000
+    assert np.array_equal(ros2_cdr.occupancy_grid_from_cdr(rows[0][1])[0], latest.grid)
+    goal = GoalMsg(4, True, 3.0, -1.0, 0, 1.0, 2.0, "greedy-dist")
+    assert converter.convert(goal, 500_000_000, wanted=only()) == []
+    assert converter.convert(goal, 600_000_000, wanted=only("/goal_pose")) == []  # not a new goal
+    assert topics(converter.convert(goal, 700_000_000, wanted=only("/goal_pose"), again=True)) == ["/goal_pose"]
+    assert topics([converter.static_transforms(800_000_000)]) == ["/tf_static"]
+    assert topics(converter.convert(goal, 900_000_000, again=True)) == ["/goal_pose"]  # /tf_static was sent already
+
+
 def test_a_port_in_use_a_bad_port_or_no_foxglove_sdk_is_a_configuration_error(monkeypatch):
     first = _bridge({"port": 0})
     try:
@@ -144,8 +182,6 @@ def test_up_foxglove_adds_the_bridge_once_and_refuses_it_without_the_sdk_or_its_
 
 
 def test_the_live_view_says_where_to_point_foxglove(tmp_path, monkeypatch):
-    from types import SimpleNamespace
-
     from rich.console import Console
 
     import services.foxglove_bridge as bridge_module
@@ -192,18 +228,33 @@ class _Viewer:
         out, self.buf = self.buf[:n], self.buf[n:]
         return out
 
+    def _frame(self) -> tuple[int, bytes]:
+        """The next frame from the server (unmasked, unfragmented): its WebSocket opcode and payload."""
+        import struct
+
+        head = self._read(2)
+        n = head[1] & 0x7F
+        n = struct.unpack(">H", self._read(2))[0] if n == 126 else struct.unpack(">Q", self._read(8))[0] if n == 127 else n
+        return head[0] & 0x0F, self._read(n)
+
     def json_op(self, op: str) -> dict:
         """The next text message whose ``op`` is ``op`` (binary message data is skipped)."""
         import json
+
+        while True:
+            kind, payload = self._frame()
+            if kind == 1 and (msg := json.loads(payload))["op"] == op:
+                return msg
+
+    def message_data(self) -> tuple[int, bytes]:
+        """The next message the server sends on a subscription (text messages are skipped): its subscription id
+        and the message (Foxglove's binary "message data": opcode 1, subscription id, log time, message)."""
         import struct
 
         while True:
-            head = self._read(2)
-            n = head[1] & 0x7F
-            n = struct.unpack(">H", self._read(2))[0] if n == 126 else struct.unpack(">Q", self._read(8))[0] if n == 127 else n
-            payload = self._read(n)
-            if head[0] & 0x0F == 1 and (msg := json.loads(payload))["op"] == op:
-                return msg
+            kind, payload = self._frame()
+            if kind == 2 and payload[0] == 1:
+                return struct.unpack("<I", payload[1:5])[0], payload[13:]
 
     def send(self, msg: dict) -> None:
         import json
@@ -217,12 +268,18 @@ class _Viewer:
         self.sock.close()
 
 
+def _subscribe(bridge: FoxgloveBridgeService, viewer: _Viewer, sub_id: int, channel_id: int) -> None:
+    """Subscribe and wait until the bridge's listener has heard of it (its callback has run)."""
+    bridge.subscriptions.new.clear()
+    viewer.send({"op": "subscribe", "subscriptions": [{"id": sub_id, "channelId": channel_id}]})
+    wait_for(bridge.subscriptions.new.is_set, 5.0, f"the bridge to hear of subscription {sub_id}")
+
+
 def test_a_viewer_that_subscribes_and_unsubscribes_gets_no_error_logged(caplog):
     """Foxglove unsubscribes whenever a panel closes or the viewer leaves; the server calls the listener's
     ``on_unsubscribe`` then, which the bridge once lacked: each call was logged as an ERROR
     ("Callback failed: AttributeError...")."""
     import logging
-    import time
 
     bridge = _bridge({"port": 0, "map_period_s": 0.0})
     try:
@@ -231,20 +288,54 @@ def test_a_viewer_that_subscribes_and_unsubscribes_gets_no_error_logged(caplog):
         channels = {c["topic"]: c["id"] for c in viewer.json_op("advertise")["channels"]}
         assert {"/map", "/tf_static"} <= set(channels)
         with caplog.at_level(logging.WARNING):
-
-            def subscribe(sub_id: int) -> None:
-                bridge.subscriptions.new.clear()
-                viewer.send({"op": "subscribe", "subscriptions": [{"id": sub_id, "channelId": channels["/map"]}]})
-                deadline = time.monotonic() + 5.0
-                while not bridge.subscriptions.new.is_set() and time.monotonic() < deadline:
-                    time.sleep(0.01)
-                assert bridge.subscriptions.new.is_set()  # the latched map goes out again on the next tick
-
-            subscribe(1)
+            _subscribe(bridge, viewer, 1, channels["/map"])  # the latest map goes out again on the next tick
             viewer.send({"op": "unsubscribe", "subscriptionIds": [1]})
-            subscribe(2)  # handled after the unsubscription: its callback has run (and logged whatever it did)
+            _subscribe(bridge, viewer, 2, channels["/map"])  # handled after the unsubscription: its callback has run (and logged whatever it did)
             viewer.close()
         errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
         assert errors == []
+    finally:
+        bridge.shutdown()
+
+
+def test_nothing_is_converted_for_a_topic_nobody_watches_and_a_late_viewer_gets_the_latest(monkeypatch):
+    """Like ROS's foxglove_bridge, the bridge converts only the topics a viewer subscribes to: with no viewer (and
+    no MCAP file) an episode costs it no conversion at all (it once converted every message for nobody). A viewer that subscribes later is sent the latest map and goal at once, converted then;
+    after that, what it subscribes to goes out as it comes, and what it does not stays unconverted."""
+    conversions: Counter = Counter()
+    for name in [n for n in dir(ros2_cdr) if n.endswith("_to_cdr")]:
+
+        def counted(*args, _real=getattr(ros2_cdr, name), _name=name, **kwargs):
+            conversions[_name] += 1
+            return _real(*args, **kwargs)
+
+        monkeypatch.setattr(ros2_cdr, name, counted)
+    bridge = _bridge({"port": 0, "map_period_s": 0.0})
+    try:
+        _feed(bridge, 3)
+        assert conversions == Counter() and bridge.served == {}
+        viewer = _Viewer(bridge.server.port)
+        channels = {c["topic"]: c["id"] for c in viewer.json_op("advertise")["channels"]}
+        assert set(channels) == set(ROS_TYPES)  # every topic is offered, though none has been sent yet
+        _subscribe(bridge, viewer, 1, channels["/map"])
+        _subscribe(bridge, viewer, 2, channels["/goal_pose"])
+        bridge.on_tick(0.0)
+        assert conversions == {"occupancy_grid_to_cdr": 1, "pose_stamped_to_cdr": 1}
+        received = dict(viewer.message_data() for _ in range(2))
+        grid, _ = ros2_cdr.occupancy_grid_from_cdr(received[1])
+        assert np.array_equal(grid, _map(2).grid)  # the latest map, not the first
+        goal, _ = ros2_cdr.pose_stamped_from_cdr(received[2])
+        assert (goal.x_m, goal.y_m) == (3.0, -1.0)  # the goal of step 2, sent at step 2 when nobody watched
+        _feed(bridge, 1)  # another step (a new goal): its map and goal go out, its scan, odometry, path... do not
+        assert conversions == {"occupancy_grid_to_cdr": 2, "pose_stamped_to_cdr": 2}
+        assert bridge.served == {"/map": 1, "/goal_pose": 1}
+        received = dict(viewer.message_data() for _ in range(2))
+        assert np.array_equal(ros2_cdr.occupancy_grid_from_cdr(received[1])[0], _map(0).grid)
+        assert ros2_cdr.pose_stamped_from_cdr(received[2])[0].x_m == 1.0
+        viewer.close()
+        wait_for(lambda: not bridge.watched("/map") and not bridge.watched("/goal_pose"), 5.0, "the viewer's subscriptions to end")
+        _feed(bridge, 3)
+        bridge.shutdown()  # nor at the end
+        assert conversions == {"occupancy_grid_to_cdr": 2, "pose_stamped_to_cdr": 2}
     finally:
         bridge.shutdown()
