@@ -146,7 +146,7 @@ def to_markdown(profile_name: str, nodes: list[Node], outside: list[str] | tuple
             "",
             *left_out,
             "```mermaid",
-            to_mermaid(nodes).rstrip(),
+            to_mermaid(nodes, outside).rstrip(),
             "```",
             "",
             "| node | inputs (from) | outputs (to) |",

@@ -1415,6 +1415,7 @@ def test_a_run_without_its_policy_starts_the_rest_records_it_and_lists_the_polic
     dataflow = (launcher.run_dir / "dataflow.md").read_text()
     assert "Left out of this run (`up --without`, or not in the profile and needed), served by another process: `policy`." in dataflow
     assert "| policy (not started by this run) | `frontiers` (frontier) |" in dataflow and "  frontier -->|\"frontiers\"| policy\n" in dataflow
+    assert '  policy["policy (not started by this run)"]\n' in dataflow and "  class policy outside\n" in dataflow  # drawn dashed, as docs say
     spawned: list[str] = []
     monkeypatch.setattr(Child, "spawn", lambda self: spawned.append(self.name))
     launcher = Launcher(profile, data, tmp_path / "run2")
