@@ -648,7 +648,8 @@ def up_command(
     if dry_run:
         import yaml  # noqa: PLC0415
 
-        left_out = f" (without {', '.join(prof.without)}: not started by this run)" if prof.without else ""
+        outside = prof.left_out_services()
+        left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
         typer.echo(f"# profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}")
         typer.echo(yaml.safe_dump(data, sort_keys=False), nl=False)
         return
@@ -847,12 +848,13 @@ def dataflow_command(
         prof, _ = load_profile(profile, {}, connect=["tcp/127.0.0.1:7447"], without=list(without or []))
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
-    nodes = nodes_of([*prof.services, *prof.without])
+    outside = prof.left_out_services()
+    nodes = nodes_of([*prof.services, *outside])
     if fmt == "mermaid":
-        typer.echo(to_mermaid(nodes, prof.without), nl=False)
+        typer.echo(to_mermaid(nodes, outside), nl=False)
         return
     if fmt == "markdown":
-        typer.echo(to_markdown(prof.name, nodes, prof.without), nl=False)
+        typer.echo(to_markdown(prof.name, nodes, outside), nl=False)
         return
     from rich.console import Console  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
@@ -863,7 +865,7 @@ def dataflow_command(
     for w in wiring_of(nodes):
         ins = "\n".join(f"{key} <- {', '.join(peers) or '(none)'}" for key, peers in w.inputs)
         outs = "\n".join(f"{key} -> {', '.join(peers) or '(none)'}" for key, peers in w.outputs)
-        table.add_row(f"{w.name} ({OUTSIDE_NOTE})" if w.name in prof.without else w.name, ins or "-", outs or "-")
+        table.add_row(f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else w.name, ins or "-", outs or "-")
     Console().print(table)
     for name, topics in unconnected(nodes).items():
         typer.echo(f"note: nothing in this profile publishes {', '.join(TOPICS[t] for t in topics)} for {name}")

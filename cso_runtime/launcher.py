@@ -186,10 +186,14 @@ class Launcher:
         self.endpoints: list[str] = []
         self.status: EpisodeStatusMsg | None = None
         self.alive_services: set[str] = set()
-        self.outside_services: set[str] = set(profile.without)
+        self.left_out = profile.left_out_services()
+        """The services this run leaves to other processes (``up --without``, or needed and not in the profile)."""
+        self.awaited_services = set(profile.awaited_services())
+        """The services the episode waits for that this run does not start: its status says so while none is alive."""
+        self.outside_services: set[str] = set(self.left_out)
         """Services this run did not start that came up under its robot's keys (a shared policy server's
-        ``serve_all_robots`` policy, a bridge started by hand), and those it left out (``up --without``, DOWN until
-        one comes up): its status lists them, DOWN once they go."""
+        ``serve_all_robots`` policy, a bridge started by hand), and those it left out (DOWN until one comes up): its
+        status lists them, DOWN once they go."""
         self.latest_goal: bytes | None = None
         """The payload of the latest goal (``cache/goal``)."""
         self.rejected: dict[str, int] = {}
@@ -343,11 +347,12 @@ class Launcher:
         if name in self.profile.services:
             return
         if name in self.alive_services:
-            if name not in self.outside_services or name in self.profile.without:
+            if name not in self.outside_services or name in self.left_out:
                 self.outside_services.add(name)
                 log.info("%s, which this run did not start, serves robot %s (%s)", name, self.profile.robot, sample.key_expr)
         elif name in self.outside_services:
-            log.warning("%s, which this run did not start, is gone (%s); the episode goes on without it until one comes back", name, sample.key_expr)
+            meanwhile = "waits for it" if name in self.awaited_services else "goes on without it"
+            log.warning("%s, which this run did not start, is gone (%s); the episode %s until one comes back", name, sample.key_expr, meanwhile)
 
     def launcher_status(self) -> LauncherStatusMsg:
         services = {
@@ -363,7 +368,7 @@ class Launcher:
             for c in self.children
         }
         for name in sorted(self.outside_services):  # not ours, but this robot's episode needs it as much
-            services.setdefault(name, {"liveliness": name in self.alive_services, "outside": True})
+            services.setdefault(name, {"liveliness": name in self.alive_services, "outside": True, "awaited": name in self.awaited_services})
         with self._lock:
             rejected, handler_errors = dict(self.rejected), dict(self.handler_errors)
         state = "stopping" if self.stop_event.is_set() else "running"
@@ -402,8 +407,15 @@ class Launcher:
             log.info("started %s (pid %d)", name, child.proc.pid if child.proc else -1)
         if "foxglove_bridge" in self.service_notes:
             log.info("%s (Open connection -> Foxglove WebSocket)", self.service_notes["foxglove_bridge"])
-        for name in self.profile.without:
-            log.info("%s left out of this run (--without): another process is to serve robot %s", name, self.profile.robot)
+        for name in self.left_out:
+            if name in self.profile.without:
+                log.info("%s left out of this run (--without): another process is to serve robot %s", name, self.profile.robot)
+            else:
+                log.warning(
+                    "profile %s has no %s service, and the episode needs one: it waits until another process serves robot %s "
+                    "(a shared policy server, `cso-runtime service %s --attach`; `without: [%s]` in the profile says this is meant)",
+                    self.profile.name, name, self.profile.robot, name, name,
+                )
 
     def kill_hung(self, now: float) -> None:
         """Kill each service whose process runs but that is hung: come up (its liveliness token, which a stopped
@@ -611,8 +623,8 @@ class Launcher:
         """``dataflow.md``: who feeds whom in this run (Mermaid graph and table), from the services' declarations."""
         from services.dataflow import nodes_of, to_markdown  # noqa: PLC0415 - services import zenoh
 
-        nodes = nodes_of([*self.profile.services, *self.profile.without])
-        (self.run_dir / "dataflow.md").write_text(to_markdown(self.profile.name, nodes, outside=self.profile.without))
+        nodes = nodes_of([*self.profile.services, *self.left_out])
+        (self.run_dir / "dataflow.md").write_text(to_markdown(self.profile.name, nodes, outside=self.left_out))
 
     def robot_already_served(self, session: Any, timeout_s: float = 1.0) -> str:
         """Why this run's robot id is taken on the network it joins, or "": another run's launcher answers for

@@ -1078,11 +1078,13 @@ LAUNCHER_SERVICE_FIELDS: dict[str, type] = {
     "hung_kills": int,
     "robot_stops": int,
     "outside": bool,
+    "awaited": bool,
 }
 """The fields of each service in ``launcher_status.services`` and their types (counts: non-negative integers).
 Each is optional: an older launcher sends fewer (``robot_stops``, the zero Twists the launcher sent for a ROS 2
 bridge that died, came later; ``outside``, a service of the robot that the launcher did not start, such as a shared
-policy server's, later still), and a newer one's unknown fields are left out."""
+policy server's, later still; ``awaited``, beside ``outside``: the episode waits for it, a policy and not a viewer's
+bridge, last), and a newer one's unknown fields are left out."""
 
 
 @dataclass

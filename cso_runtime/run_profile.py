@@ -128,6 +128,20 @@ class Profile:
         """The exploration settings every service of this profile runs with (raises ConfigError)."""
         return from_dict(ExplorationConfig, self.exploration, where="exploration")
 
+    def awaited_services(self) -> list[str]:
+        """The services this robot's episode waits for that the run does not start (``services.dataflow.missing_producers``):
+        a policy named under ``without`` or simply not listed (a shared policy server's), a planner left out. ``status``
+        says the episode waits while no process serves one of them."""
+        from services.dataflow import missing_producers  # noqa: PLC0415 - services import zenoh
+
+        return missing_producers(list(self.services))
+
+    def left_out_services(self) -> list[str]:
+        """The services of this robot that the run leaves to another process: ``without`` and the awaited ones.
+        ``status`` lists them from the start (DOWN until one comes up), ``dataflow.md`` draws them as outside; a
+        profile that leaves its policy out reads the same whether it says so in ``without`` or not."""
+        return list(dict.fromkeys([*self.without, *self.awaited_services()]))
+
     def validate(self) -> None:
         check_robot_id(self.robot)
         check_seed(self.seed)

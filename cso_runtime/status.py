@@ -87,11 +87,16 @@ def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) 
     return status_of(robot, episode, launcher, services, alive)
 
 
+EPISODE_OVER = ("done", "failed")
+"""The episode states after which nothing is waited for."""
+
+
 def status_of(
     robot: str, episode: dict[str, Any] | None, launcher: dict[str, Any] | None, services: dict[str, dict[str, Any]], alive: set[str]
 ) -> dict[str, Any]:
     """``status --json``'s object from what answered: the episode's, the launcher's and each service's status
-    (their ``to_dict()``), and the services whose liveliness tokens are there."""
+    (their ``to_dict()``), and the services whose liveliness tokens are there. ``waiting_for``: the services the
+    episode waits for that this run did not start and no process serves (a shared policy server not up, or gone)."""
     expected = set(launcher["services"]) if launcher is not None and launcher.get("services") else set(SERVICES)
     names = sorted(expected | set(services))
     table = {}
@@ -104,11 +109,14 @@ def status_of(
         lsv = (launcher or {}).get("services", {}).get(name)
         if lsv is not None and lsv.get("outside"):  # not started by this run (a shared policy server's): no pid here
             entry["outside"] = True
+            if lsv.get("awaited"):  # and the episode waits for it (the policy; not a viewer's bridge started by hand)
+                entry["awaited"] = True
         elif lsv is not None:
             entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
             entry["robot_stops"] = lsv.get("robot_stops", 0)
         table[name] = entry
     ep = episode or {"state": "starting"}
+    over = ep.get("state") in EPISODE_OVER
     return {
         "robot": robot,
         "run_id": (launcher or {}).get("run_id", ""),
@@ -127,6 +135,7 @@ def status_of(
         "method": ep.get("method", ""),
         "lockstep_timeouts": ep.get("lockstep_timeouts", 0),
         "services": table,
+        "waiting_for": [] if over else [name for name, e in table.items() if e.get("awaited") and not e["alive"]],
         "launcher_rejected": (launcher or {}).get("rejected", {}),
         "launcher_handler_errors": (launcher or {}).get("handler_errors", {}),
     }
@@ -212,8 +221,10 @@ def render_table(status: dict[str, Any]):
     t.add_column("field")
     t.add_column("value", overflow="fold")  # a narrow terminal wraps a long URL or path, never cuts it with an ellipsis
     goal = status["goal"]
+    waiting = status.get("waiting_for") or []
+    waits = f"; waiting for {', '.join(waiting)}, which no process serves" if waiting else ""
     for k, v in (
-        ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "")),
+        ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "") + waits),
         ("scene / method", f"{status['scene']} / {status['method']}"),
         ("step", str(status["step"])),
         ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
@@ -224,11 +235,13 @@ def render_table(status: dict[str, Any]):
         ("decisions", f"{status['decisions']} (last {status['last_decision_ms']:.1f} ms)"),
     ):
         t.add_row(k, escape(v))
-    episode_over = status["state"] in ("done", "failed")
+    episode_over = status["state"] in EPISODE_OVER
     for name, s in status["services"].items():
         bits = ["alive" if s["alive"] else "DOWN"]
         if s.get("outside"):
             bits.append("not started by this run")
+        if name in waiting:
+            bits.append("the episode waits for it")
         if s.get("state") == "stale" and episode_over:
             # Inputs stop when the episode ends; "stale" would read like a fault (JSON keeps the raw state).
             bits.append(f"idle (episode {status['state']}; last step {s.get('last_step', 0)})")

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from cso_runtime.keys import TOPICS
-from services import service_class
+from services import SERVICE_NAMES, service_class
 
 LAUNCHER = "launcher"
 
@@ -80,6 +80,26 @@ def unconnected(nodes: list[Node]) -> dict[str, list[str]]:
     return {n.name: [t for t in n.inputs if t not in published] for n in nodes if any(t not in published for t in n.inputs)}
 
 
+def missing_producers(service_names: list[str]) -> list[str]:
+    """The services an episode of ``service_names`` waits for that none of them is, in ``SERVICE_NAMES`` order: the
+    one service that publishes an input of theirs which none of them publishes (a profile with no policy: the
+    goals of the planner and the frontier service), and so on for that service's own inputs. A listener (no
+    outputs: the foxglove bridge) drives nothing, so its inputs are not waited for; a topic that several services
+    can publish (the referee's scan: the sim's or a ros2_bridge's) names none, as which one is the robot's to say."""
+    every = {n.name: n for n in nodes_of(list(SERVICE_NAMES)) if n.name != LAUNCHER}
+    publishers = {t: [n.name for n in every.values() if t in n.outputs] for t in TOPICS}
+    have, todo, missing = set(service_names), list(service_names), []
+    while todo:
+        node = every[todo.pop()]
+        for topic in node.inputs if node.outputs else ():
+            if not have.intersection(publishers[topic]) and len(publishers[topic]) == 1:
+                name = publishers[topic][0]
+                have.add(name)
+                todo.append(name)
+                missing.append(name)
+    return [n for n in SERVICE_NAMES if n in missing]
+
+
 OUTSIDE_NOTE = "not started by this run"
 """How a service left out of the run (``up --without``, served by another process) is named in its dataflow."""
 
@@ -106,7 +126,7 @@ def to_mermaid(nodes: list[Node], outside: list[str] | tuple[str, ...] = ()) -> 
 
 def to_markdown(profile_name: str, nodes: list[Node], outside: list[str] | tuple[str, ...] = ()) -> str:
     """``dataflow.md`` of a run: the Mermaid graph and a table of each node's inputs and outputs; the nodes in
-    ``outside`` are the services the run left out (``up --without``), which another process is to serve."""
+    ``outside`` are the services the run left out (``Profile.left_out_services``), which another process is to serve."""
     rows = []
     for w in wiring_of(nodes):
         ins = ", ".join(f"`{key}` ({', '.join(peers) or 'none in this profile'})" for key, peers in w.inputs)
@@ -114,7 +134,9 @@ def to_markdown(profile_name: str, nodes: list[Node], outside: list[str] | tuple
         name = f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else w.name
         rows.append(f"| {name} | {ins or '-'} | {outs or '-'} |")
     left_out = (
-        [f"Left out of this run (`up --without`), served by another process: {', '.join(f'`{n}`' for n in outside)}.", ""] if outside else []
+        [f"Left out of this run (`up --without`, or not in the profile and needed), served by another process: {', '.join(f'`{n}`' for n in outside)}.", ""]
+        if outside
+        else []
     )
     return "\n".join(
         [
@@ -124,7 +146,7 @@ def to_markdown(profile_name: str, nodes: list[Node], outside: list[str] | tuple
             "",
             *left_out,
             "```mermaid",
-            to_mermaid(nodes).rstrip(),
+            to_mermaid(nodes, outside).rstrip(),
             "```",
             "",
             "| node | inputs (from) | outputs (to) |",

@@ -6,6 +6,7 @@ import re
 from pathlib import Path
 
 import pytest
+import yaml
 
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry
@@ -16,7 +17,7 @@ from cso_runtime.run_profile import load_profile
 from cso_runtime.transport import TransportConfig
 from services import SERVICE_NAMES
 from services.common import ServiceContext
-from services.dataflow import LAUNCHER, Edge, edges_of, nodes_of, to_markdown, to_mermaid, unconnected
+from services.dataflow import LAUNCHER, Edge, edges_of, missing_producers, nodes_of, to_markdown, to_mermaid, unconnected
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE_NAMES = (*SERVICE_NAMES, LAUNCHER)
@@ -52,6 +53,46 @@ def test_docs_key_table_names_exactly_the_publishers_and_subscribers_the_code_de
 def test_every_input_of_a_shipped_profile_has_a_publisher(profile):
     prof, _ = load_profile(profile, {}, connect=["tcp/127.0.0.1:7447"])
     assert unconnected(nodes_of(list(prof.services))) == {}
+    assert prof.awaited_services() == prof.left_out_services() == []
+
+
+def test_the_services_an_episode_waits_for_are_the_producers_of_its_inputs_that_the_profile_lacks():
+    """A profile that leaves a service out (no ``without:`` needed) waits for it: the one producer of an input no
+    listed service publishes, and then that one's own inputs. A topic two services can publish (the referee's scan)
+    names neither, and a listener's inputs (the foxglove bridge's) are not waited for."""
+    pipeline = ["sim", "mapper", "frontier", "policy", "planner"]
+    assert missing_producers(pipeline) == missing_producers([*pipeline, "foxglove_bridge"]) == []
+    assert missing_producers([n for n in pipeline if n != "policy"]) == ["policy"]
+    assert missing_producers([n for n in pipeline if n != "planner"]) == ["planner"]
+    assert missing_producers(["sim", "mapper", "frontier"]) == ["policy", "planner"]
+    assert missing_producers(["sim"]) == ["mapper", "frontier", "policy", "planner"]  # and the frontier for the planner's frontiers
+    assert missing_producers(["ros2_bridge", "mapper", "frontier", "planner"]) == ["policy"]
+    assert missing_producers(["mapper", "frontier", "policy", "planner"]) == []  # sim or ros2_bridge: the robot's to say
+    assert missing_producers(["foxglove_bridge"]) == []
+    prof, _ = load_profile("lockstep", {}, without=["policy"])
+    assert prof.awaited_services() == prof.left_out_services() == ["policy"]
+
+
+def test_dataflow_draws_a_service_the_profile_leaves_out_as_one_the_run_does_not_start(tmp_path):
+    """A profile with no policy reads as ``--without policy`` does: ``dataflow`` draws the policy as not started by
+    the run (it printed notes that nothing publishes the goal), and ``up --dry-run`` says so."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    data = yaml.safe_load((ROOT / "configs" / "profiles" / "lockstep.yaml").read_text())
+    del data["services"]["policy"]
+    path = tmp_path / "no-policy.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    runner = CliRunner()
+    r = runner.invoke(app, ["dataflow", "--profile", str(path)])
+    assert r.exit_code == 0 and "note:" not in r.output, r.output
+    r = runner.invoke(app, ["dataflow", "--profile", str(path), "--format", "markdown"])
+    assert "\n| policy (not started by this run) | `frontiers` (frontier) |" in r.output, r.output
+    r = runner.invoke(app, ["dataflow", "--profile", str(path), "--format", "mermaid"])
+    assert '  policy["policy (not started by this run)"]\n' in r.output and "  class policy outside\n" in r.output, r.output
+    r = runner.invoke(app, ["up", "--profile", str(path), "--dry-run"])
+    assert r.exit_code == 0 and "would start sim, mapper, frontier, planner for robot r0 (without policy: not started by this run)" in r.output, r.output
 
 
 def test_sim_profile_dataflow_holds_the_lockstep_chain():
@@ -119,8 +160,6 @@ def test_dataflow_and_version_commands():
 def test_the_frontier_service_takes_its_parameters_from_a_profile(tmp_path):
     """``services.frontier`` in a profile sets ``FrontierParams`` (the layer helper, the real-time goal
     wait); a key it does not know is an error before anything starts."""
-    import yaml
-
     from cso_runtime.config import ConfigError
 
     data = yaml.safe_load((ROOT / "cso_runtime" / "profiles" / "lockstep.yaml").read_text())

@@ -62,11 +62,15 @@ def cli(*args: str, cwd: Path, timeout_s: float = 60.0) -> subprocess.CompletedP
     return subprocess.run([*python_module_argv("cso_runtime.cli"), *args], cwd=cwd, capture_output=True, text=True, timeout=timeout_s)
 
 
-def write_profile(tmp_path: Path, scene: str = SCENE, method: str = "greedy-dist", **sim_params: Any) -> Path:
+def write_profile(tmp_path: Path, scene: str = SCENE, method: str = "greedy-dist", leave_out: tuple[str, ...] = (), **sim_params: Any) -> Path:
+    """The lockstep profile on ``scene`` with ``method``, without the services in ``leave_out`` (not listed, no
+    ``without:``: a profile that leaves them to another process)."""
     data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
     data["scene"] = scene
     data["method"] = method
     data["services"]["sim"].update(sim_params)
+    for name in leave_out:
+        del data["services"][name]
     path = tmp_path / "test_profile.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
@@ -1283,7 +1287,10 @@ def test_status_lists_the_services_of_the_runs_profile_not_a_fixed_five():
 def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(tmp_path, caplog):
     """A robot whose run leaves its policy to a shared server (``serve_all_robots`` in another run) had no policy
     row in ``status`` at all: once that server went down the robot waited for goals with every row alive. The
-    launcher lists such a service (``outside``), so ``status`` shows it and says DOWN when it goes."""
+    launcher lists such a service (``outside``), so ``status`` shows it and says DOWN when it goes. A profile that
+    simply has no policy (no ``without:``) listed it only once a server answered: before, the robot waited for a
+    policy that ``status`` did not name. It is listed from the start, and awaited: the episode waits for it, which
+    the state says; a viewer's bridge started by hand and gone is listed DOWN, and nothing waits for it."""
     from types import SimpleNamespace
 
     from rich.console import Console
@@ -1300,26 +1307,38 @@ def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(t
     def alive(name: str, kind: str) -> None:
         launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive(name), kind=f"SampleKind.{kind}"))
 
-    def table(alive_names: set[str]) -> tuple[dict, str]:
+    def table(alive_names: set[str], episode: dict | None = None) -> tuple[dict, str]:
         msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it
         assert isinstance(msg, LauncherStatusMsg)
-        status = status_of("r1", None, msg.to_dict(), {}, alive_names)
+        status = status_of("r1", episode, msg.to_dict(), {}, alive_names)
         console = Console(record=True, width=200)
         console.print(render_table(status))
         return status, console.export_text()
 
+    exploring = {"state": "exploring", "step": 3}
+    status, text = table({"mapper"}, exploring)  # no server has answered yet
+    assert status["services"]["policy"] == {"alive": False, "outside": True, "awaited": True} and status["waiting_for"] == ["policy"]
+    assert re.search(r"state +│ exploring; waiting for policy, which no process serves", text), text
+    assert re.search(r"service policy +│ DOWN, not started by this run, the episode waits for it", text), text
     alive("mapper", "PUT")  # one of its own: listed as before, never "not started by this run"
     alive("policy", "PUT")
-    status, text = table({"mapper", "policy"})
-    assert status["services"]["policy"] == {"alive": True, "outside": True}
-    assert re.search(r"service policy +│ alive, not started by this run", text), text
+    status, text = table({"mapper", "policy"}, exploring)
+    assert status["services"]["policy"] == {"alive": True, "outside": True, "awaited": True} and status["waiting_for"] == []
+    assert re.search(r"service policy +│ alive, not started by this run\s", text) and "waiting" not in text, text
     assert launcher.outside_services == {"policy"}
     with caplog.at_level("WARNING", logger="cso.launcher"):
         alive("policy", "DELETE")
-    assert "policy, which this run did not start, is gone" in caplog.text
-    status, text = table({"mapper"})
-    assert status["services"]["policy"] == {"alive": False, "outside": True}
-    assert re.search(r"service policy +│ DOWN, not started by this run", text), text
+    assert "policy, which this run did not start, is gone (cso/r1/alive/policy); the episode waits for it until one comes back" in caplog.text
+    status, text = table({"mapper"}, exploring)
+    assert status["services"]["policy"] == {"alive": False, "outside": True, "awaited": True} and status["waiting_for"] == ["policy"]
+    assert re.search(r"service policy +│ DOWN, not started by this run, the episode waits for it", text), text
+    status, text = table({"mapper"}, {"state": "done", "step": 40})  # over: nothing is waited for
+    assert status["waiting_for"] == [] and "waits" not in text and "waiting" not in text, text
+    alive("foxglove_bridge", "PUT")  # a viewer's bridge started by hand (`service foxglove_bridge --attach`), then gone
+    alive("foxglove_bridge", "DELETE")
+    status, text = table({"mapper", "policy"}, exploring)
+    assert status["services"]["foxglove_bridge"] == {"alive": False, "outside": True} and status["waiting_for"] == []
+    assert re.search(r"service foxglove_bridge +│ DOWN, not started by this run\s", text) and "waiting" not in text, text
 
 
 def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts(tmp_path):
@@ -1394,8 +1413,9 @@ def test_a_run_without_its_policy_starts_the_rest_records_it_and_lists_the_polic
     written = yaml.safe_load(launcher.profile_path.read_text())
     assert list(written["services"]) == ["sim", "mapper", "frontier", "planner"] and written["without"] == ["policy"]
     dataflow = (launcher.run_dir / "dataflow.md").read_text()
-    assert "Left out of this run (`up --without`), served by another process: `policy`." in dataflow
+    assert "Left out of this run (`up --without`, or not in the profile and needed), served by another process: `policy`." in dataflow
     assert "| policy (not started by this run) | `frontiers` (frontier) |" in dataflow and "  frontier -->|\"frontiers\"| policy\n" in dataflow
+    assert '  policy["policy (not started by this run)"]\n' in dataflow and "  class policy outside\n" in dataflow  # drawn dashed, as docs say
     spawned: list[str] = []
     monkeypatch.setattr(Child, "spawn", lambda self: spawned.append(self.name))
     launcher = Launcher(profile, data, tmp_path / "run2")
@@ -1404,10 +1424,10 @@ def test_a_run_without_its_policy_starts_the_rest_records_it_and_lists_the_polic
     msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it, no server up yet
     assert isinstance(msg, LauncherStatusMsg)
     status = status_of("r1", None, msg.to_dict(), {}, {"sim", "mapper"})
-    assert status["services"]["policy"] == {"alive": False, "outside": True}
+    assert status["services"]["policy"] == {"alive": False, "outside": True, "awaited": True} and status["waiting_for"] == ["policy"]
     console = Console(record=True, width=200)
     console.print(render_table(status))
-    assert re.search(r"service policy +│ DOWN, not started by this run", console.export_text()), console.export_text()
+    assert re.search(r"service policy +│ DOWN, not started by this run, the episode waits for it", console.export_text()), console.export_text()
 
 
 def test_up_run_in_process_gives_back_the_signal_handlers_it_found(tmp_path):
@@ -1829,10 +1849,11 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
 
 
 @contextlib.contextmanager
-def detached_run(tmp_path: Path, *up_args: str, **sim_params: Any) -> Iterator[tuple[Path, Callable[[], dict | None]]]:
-    """``up --detach`` of the test profile (``sim_params`` for its sim); yields the runs folder and a function
-    that asks the episode's status. ``down`` and a kill of anything left afterwards, whatever happened."""
-    profile = write_profile(tmp_path, **sim_params)
+def detached_run(tmp_path: Path, *up_args: str, leave_out: tuple[str, ...] = (), **sim_params: Any) -> Iterator[tuple[Path, Callable[[], dict | None]]]:
+    """``up --detach`` of the test profile (``sim_params`` for its sim, without the services in ``leave_out``); yields
+    the runs folder and a function that asks the episode's status. ``down`` and a kill of anything left afterwards,
+    whatever happened."""
+    profile = write_profile(tmp_path, leave_out=leave_out, **sim_params)
     runs = tmp_path / "runs"
     try:
         r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), *up_args, cwd=tmp_path)
@@ -1858,6 +1879,39 @@ def test_up_under_another_robot_id_namespaces_every_key_and_the_tools_follow_it(
         assert r.returncode == 0 and (tmp_path / "r7map.yaml").is_file(), r.stdout + r.stderr
         r = cli("status", "--json", "--robot", "r0", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 1 and json.loads(r.stdout)["state"] == "not running"
+
+
+def test_status_names_the_policy_a_profile_leaves_out_and_says_the_episode_waits_until_one_serves_it(tmp_path):
+    """A profile with no policy (none listed, no ``without:``; its robot is to be served by a shared server) had no
+    policy row in ``status`` until some policy answered, while the episode stood at step 0: nothing said what it waited
+    for. ``status`` lists it from the start, DOWN, not started by this run, and says the episode waits for it; a
+    policy that attaches makes the robot explore, and once it is gone the episode waits again."""
+    policy = None
+    with detached_run(tmp_path, leave_out=("policy",), min_step_period_s=0.25) as (runs, status):
+        current = json.loads((runs / "current.json").read_text())
+        wait_for(lambda: (s := status()) and s["state"] == "exploring", 60, "the episode to start")
+        s = status()
+        assert s["services"]["policy"] == {"alive": False, "outside": True, "awaited": True} and s["waiting_for"] == ["policy"], s
+        assert s["step"] == 0 and s["decisions"] == 0
+        r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0 and re.search(r"state +│ exploring; waiting for policy, which no process serves", r.stdout), r.stdout
+        assert re.search(r"service policy +│ DOWN, not started by this run, the episode waits for it", r.stdout), r.stdout
+        launcher_log = (Path(current["run_dir"]) / "logs" / "launcher.log").read_text()
+        assert "profile lockstep has no policy service, and the episode needs one: it waits until another process serves robot r0" in launcher_log
+        log_path = tmp_path / "policy.log"
+        try:
+            with log_path.open("w") as log_file:
+                policy = subprocess.Popen([*python_module_argv("cso_runtime.cli"), "service", "policy", "--attach", "--runs-dir", str(runs)],
+                                          cwd=tmp_path, stdout=log_file, stderr=subprocess.STDOUT)
+            s = wait_for(lambda: (s := status()) and s["decisions"] >= 1 and s["step"] >= 1 and s, 60, "the robot to explore with the policy")
+            assert s["services"]["policy"]["alive"] and s["services"]["policy"]["outside"] and s["waiting_for"] == [], s
+            policy.send_signal(signal.SIGINT)
+            assert policy.wait(30) == 0, log_path.read_text()[-2000:]
+            s = wait_for(lambda: (s := status()) and not s["services"]["policy"]["alive"] and s, 30, "status to see the policy gone")
+            assert s["state"] == "exploring" and s["waiting_for"] == ["policy"], s
+        finally:
+            if policy is not None and policy.poll() is None:
+                policy.kill()
 
 
 def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_path):
