@@ -6,6 +6,7 @@ handle that records what the window would get, and the display check is forced b
 from __future__ import annotations
 
 import contextlib
+import re
 
 import mujoco
 import numpy as np
@@ -105,6 +106,30 @@ def test_scenes_writes_the_world_of_a_sim_config(tmp_path):
     params.write_text("wall_height: 0.5\n")
     result = CliRunner().invoke(app, ["scenes", "generated:small:1:0", "--mjcf", str(out), "--sim-config", str(params)])
     assert result.exit_code == 2 and "unknown key" in result.output
+
+
+@pytest.mark.parametrize(
+    ("params", "error"),
+    [
+        ("lidar_mount_x_m: 0.2\n", r"lidar_mount_x_m: 0.2 is not the sensor's mount \(0.103 m\)"),
+        # 50 Hz odometry is one 20 ms step; the 0.25 s control period is 12.5 of them
+        ("timestep_s: 0.02\nodometry_rate_hz: 50\nactuator_time_constant_s: 0.04\ncontact_time_constant_s: 0.04\n", r"control_period_s \(0.25 s\) must be a whole"),
+    ],
+)
+def test_scenes_refuses_a_sim_config_that_eval_refuses(tmp_path, params, error):
+    """``scenes --mjcf --sim-config FILE`` writes "the world eval --sim mujoco --sim-config FILE runs in", but it
+    read FILE with the bare dataclass: it wrote a world with the LiDAR at 0.2 m, or a physics step the control
+    period is no whole number of, that eval refuses to run."""
+    from cso_runtime.evaluation import EvalRequest
+
+    config = tmp_path / "limo.yaml"
+    config.write_text(params)
+    with pytest.raises(ConfigError, match=error):
+        EvalRequest(methods=["greedy-dist"], sim="mujoco", sim_config_path=config).validate()
+    out = tmp_path / "worlds"
+    result = CliRunner().invoke(app, ["scenes", "generated:small:1:0", "--mjcf", str(out), "--sim-config", str(config)])
+    assert result.exit_code == 2, result.output
+    assert re.search(error, " ".join(result.output.split())) and not list(out.glob("*.xml")), result.output
 
 
 def test_the_viewer_gets_every_state_and_the_goal_until_its_window_closes():
