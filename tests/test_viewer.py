@@ -63,6 +63,31 @@ def test_the_world_file_opens_with_the_limo_at_the_start_pose(tmp_path):
     assert np.allclose(sim.data.qpos, data.qpos)
 
 
+def test_the_world_file_says_its_units_frames_controls_and_parameters(tmp_path):
+    """Opened on its own (``python -m mujoco.viewer --mjcf FILE``), the world starts at qpos0: the LIMO at the map
+    origin, inside the boundary wall, which throws it off the map unless the key ``start`` is loaded; nothing in
+    the file said so, nor its units, frames, controls, geom groups or the parameters it was built with."""
+    import dataclasses
+
+    plan = generate_floor_plan("small", 0)
+    config = MujocoSimConfig(mass_kg=5.5, timestep_s=0.0025)
+    path = write_mujoco_world(tmp_path / "w.xml", plan, sim=config, sensor=SensorConfig(mount_x_m=0.103))
+    text = path.read_text()
+    header = re.fullmatch(r"<!--(.*?)-->\n<mujoco .*", text, re.DOTALL)
+    assert header is not None, text[:300]
+    about = " ".join(header.group(1).split())
+    for said in ("metres", "radians", "REP-103", 'key "start"', "Load key", "inside the boundary wall", "drive_forward m/s",
+                 "drive_yaw rad/s", "0 walls", "configs/robot_sim.yaml"):  # fmt: skip
+        assert said in about, (said, about)
+    resolved = {**dataclasses.asdict(config), "lidar_mount_x_m": 0.103}
+    assert re.findall(r"(\w+)=(\S+)", about) == [(k, f"{v:g}" if isinstance(v, float) else str(v).lower()) for k, v in resolved.items()]
+    model = mujoco.MjModel.from_xml_path(str(path))  # the comment keeps the file a valid MJCF
+    assert model.opt.timestep == 0.0025 and model.body("limo").mass[0] == pytest.approx(5.5)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    assert data.ncon > 0  # what the header warns of: qpos0 is inside the boundary wall
+
+
 @pytest.mark.parametrize("name", ['my "lab"', "lab & office", "a<b"])
 def test_a_plan_name_with_xml_characters_makes_a_well_formed_world(tmp_path, name):
     """The plan's name (a PNG's or map YAML's file stem) went into the model name unescaped: a quote made
