@@ -503,15 +503,20 @@ def scenes_command(
     if preview is not None:
         output_dir_or_exit(preview, "--preview")
     world_config = None
+    # eval --sim mujoco's LiDAR (its 0.103 m mount) and robot: the worlds are the ones eval runs in, and a
+    # --sim-config that eval refuses (another mount, a step the control period is no whole number of) is refused here too.
+    from cso_runtime.config import LIMO_LIDAR_MOUNT_X_M, RobotConfig, SensorConfig  # noqa: PLC0415
+
+    world_sensor = SensorConfig(mount_x_m=LIMO_LIDAR_MOUNT_X_M)
     if sim_config is not None:
-        from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
-        from robot_sim.config import MujocoSimConfig  # noqa: PLC0415
+        from cso_runtime.config import ConfigError, load_yaml  # noqa: PLC0415
+        from cso_runtime.simulator import mujoco_config  # noqa: PLC0415
 
         if mjcf is None:
             _fail("--sim-config sets the parameters of the MuJoCo worlds that --mjcf writes: it needs --mjcf", 2)
         sim_config = _packaged_if_missing(sim_config)
         try:
-            world_config = from_dict(MujocoSimConfig, load_yaml(sim_config) or {}, where=str(sim_config))
+            world_config = mujoco_config(load_yaml(sim_config) or {}, world_sensor, where=str(sim_config), robot=RobotConfig())
         except (ConfigError, OSError) as exc:
             _fail(str(exc), 2)
     if mjcf is not None:
@@ -525,7 +530,7 @@ def scenes_command(
                 if preview is not None:
                     plot_scene(preview / f"{ref.name}.png", plan)
                 if mjcf is not None:
-                    write_mujoco_world(mjcf / f"{ref.name}.xml", plan, sim=world_config)
+                    write_mujoco_world(mjcf / f"{ref.name}.xml", plan, sim=world_config, sensor=world_sensor)
             except SceneError as exc:
                 rows.append({"scene": ref.name, "error": str(exc)})
             progress(len(rows), len(refs))

@@ -225,6 +225,9 @@ BODIES = ("disc", "box")
 LIMO_BODY = "box"
 """The MuJoCo LIMO's and the real LIMO's body for ``PlannerConfig.body``."""
 
+LIMO_LIDAR_MOUNT_X_M = 0.103
+"""Where the LIMO's EAI X2L sits ahead of the robot centre (the MuJoCo model mounts it there)."""
+
 
 @dataclass
 class PlannerConfig:

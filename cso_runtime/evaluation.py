@@ -35,6 +35,7 @@ from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import (
     EXIT_INTERRUPTED,
     LIMO_BODY,
+    LIMO_LIDAR_MOUNT_X_M,
     ConfigError,
     ExplorationConfig,
     SensorConfig,
@@ -74,8 +75,6 @@ METRICS = (
     "decision_ms_p50",
     "decision_ms_p99",
 )
-LIMO_LIDAR_MOUNT_X_M = 0.103
-"""Where the LIMO's EAI X2L sits ahead of the robot centre (the MuJoCo model mounts it there)."""
 CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s")
 
 

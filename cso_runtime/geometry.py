@@ -50,6 +50,20 @@ class VelocityCommand:
         return VelocityCommand(v, w)
 
 
+def relative_pose(a: Pose2D, b: Pose2D) -> tuple[float, float, float]:
+    """Pose of b in a's frame: (dx_m forward, dy_m left, dyaw_rad)."""
+    c, s = math.cos(a.yaw_rad), math.sin(a.yaw_rad)
+    dx, dy = b.x_m - a.x_m, b.y_m - a.y_m
+    return c * dx + s * dy, -s * dx + c * dy, wrap_angle_rad(b.yaw_rad - a.yaw_rad)
+
+
+def mean_twist(before: Pose2D, after: Pose2D, dt_s: float) -> VelocityCommand:
+    """The body-frame twist (forward speed, yaw rate) that takes ``before`` to ``after`` in ``dt_s`` on average,
+    as an odometry node that differentiates its poses reports it."""
+    dx_m, _, dyaw_rad = relative_pose(before, after)
+    return VelocityCommand(dx_m / dt_s, dyaw_rad / dt_s)
+
+
 @dataclass(frozen=True)
 class GridGeometry:
     """Where a grid lies in the map frame: cell size and the metric position of cell (0, 0)'s corner."""

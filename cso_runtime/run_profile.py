@@ -14,7 +14,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from cso_runtime.config import ConfigError, ExplorationConfig, check_seed, from_dict, load_yaml, set_dotted
+from cso_runtime.config import (
+    LIMO_BODY,
+    LIMO_LIDAR_MOUNT_X_M,
+    ConfigError,
+    ExplorationConfig,
+    check_seed,
+    from_dict,
+    load_yaml,
+    set_dotted,
+)
 from cso_runtime.keys import check_robot_id
 from cso_runtime.scenes import SceneError, resolve_scenes
 from cso_runtime.transport import TransportConfig, TransportError
@@ -126,7 +135,7 @@ class Profile:
 
     def exploration_config(self) -> ExplorationConfig:
         """The exploration settings every service of this profile runs with (raises ConfigError)."""
-        return from_dict(ExplorationConfig, self.exploration, where="exploration")
+        return profile_exploration_config(self.exploration, self.services)
 
     def awaited_services(self) -> list[str]:
         """The services this robot's episode waits for that the run does not start (``services.dataflow.missing_producers``):
@@ -233,6 +242,22 @@ class Profile:
 
 PACKAGED_PROFILES = Path(__file__).resolve().parent / "profiles"
 """The default profiles ship inside the package (package data), so an installed package finds them."""
+
+
+def profile_exploration_config(exploration: Any, services: Any, where: str = "exploration") -> ExplorationConfig:
+    """A profile's ``exploration`` over the defaults, as every one of its services runs it: where its sim is the
+    MuJoCo LIMO, with that robot's LiDAR mount (0.103 m ahead) and box body unless the profile sets them, as
+    ``eval --sim mujoco`` does. One place for the services and the launcher's checks, which used to check
+    ``services.sim.mujoco`` against a sensor at 0 m while the services ran it at 0.103 m."""
+    config = from_dict(ExplorationConfig, exploration or {}, where=where)
+    sim = services.get("sim") if isinstance(services, dict) else None
+    if isinstance(sim, dict) and sim.get("backend") == "mujoco":
+        given = exploration if isinstance(exploration, dict) else {}
+        if "mount_x_m" not in (given.get("sensor") or {}):
+            config.sensor.mount_x_m = LIMO_LIDAR_MOUNT_X_M
+        if "body" not in (given.get("planner") or {}):
+            config.planner.body = LIMO_BODY
+    return config
 
 
 def profile_search_path() -> list[Path]:

@@ -11,14 +11,24 @@ from dataclasses import dataclass
 
 from cso_runtime.config import ConfigError, SensorConfig
 
+_WHOLE_STEPS_REL_TOL = 1e-5
+"""A duration is a whole number of physics steps to this relative precision: a rate or step written to 6
+significant digits (41.6667 Hz, 0.00333333 s, as the errors print them) counts as the whole number it rounds to."""
+
+
+def _steps_if_whole(steps: float) -> int | None:
+    """``steps`` as a whole number of physics steps (at least one), or None."""
+    n = round(steps)
+    return int(n) if n >= 1 and abs(steps - n) <= _WHOLE_STEPS_REL_TOL * n else None
+
 
 def whole_steps(duration_s: float, timestep_s: float, what: str) -> int:
     """How many physics steps make ``duration_s``; a ConfigError when it is not a whole number of them (the
     control period against ``timestep_s``), said where the parameters are read, not when a world is built."""
-    n = duration_s / timestep_s
-    if abs(n - round(n)) > 1e-6 or round(n) < 1:
+    n = _steps_if_whole(duration_s / timestep_s)
+    if n is None:
         raise ConfigError(f"{what} ({duration_s} s) must be a whole number of physics steps (timestep_s {timestep_s} s)")
-    return int(round(n))
+    return n
 
 
 @dataclass
@@ -108,7 +118,7 @@ class MujocoSimConfig:
                 f"body_height_m ({self.body_height_m} m)"
             )
         steps = 1.0 / (self.odometry_rate_hz * self.timestep_s)
-        if abs(steps - round(steps)) > 1e-6 or round(steps) < 1:
+        if _steps_if_whole(steps) is None:
             near = 1.0 / (max(1, round(steps)) * self.timestep_s)
             raise ConfigError(
                 f"robot_sim.odometry_rate_hz ({self.odometry_rate_hz:g} Hz) must be a whole number of physics steps per "

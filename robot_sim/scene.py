@@ -9,6 +9,7 @@ plans solid walls merge into fewer boxes, hence the default).
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -61,6 +62,22 @@ def wall_boxes(plan: FloorPlan, boundary_only: bool = False) -> np.ndarray:
     return np.stack([0.5 * (x0 + x1) * res, 0.5 * (y0 + y1) * res, 0.5 * (x1 - x0) * res, 0.5 * (y1 - y0) * res], axis=1)
 
 
+def _world_header(sim: MujocoSimConfig, lidar_mount_x_m: float) -> str:
+    """An XML comment for whoever opens the file on its own: units, frames, the key to load (qpos0 is the map
+    origin, inside the boundary wall), controls, geom groups and the parameters the world was built with."""
+    values = {**dataclasses.asdict(sim), "lidar_mount_x_m": lidar_mount_x_m}
+    params = " ".join(f"{k}={str(v).lower() if isinstance(v, bool) else f'{v:g}'}" for k, v in values.items())
+    return f"""<!-- The MuJoCo LIMO in a floor plan, as cso-runtime's simulator builds it (robot_sim/scene.py).
+  Units: metres, kilograms, seconds, radians. Frames follow REP-103: z up; the map frame's origin is the plan's
+  lower-left corner; the LIMO's x forward, y left. qpos = (x_m, y_m, yaw_rad) of the robot centre in the map frame.
+  Load key "start" for the start pose (viewer: Simulation, Load key; code: mj_resetDataKeyframe): qpos0 puts the
+  LIMO at the map origin, inside the boundary wall, whose contact throws it off the map.
+  Controls, velocity servos in the body frame: drive_forward m/s, drive_lateral m/s (held near 0), drive_yaw rad/s.
+  Geom groups: 0 walls (all the LiDAR rays see), 1 chassis, 2 wheels (visual), 3 floor (no contacts); site lidar.
+  Parameters (configs/robot_sim.yaml documents each; the watchdog, acceleration limits and odometry act in the
+  simulator's Python, not in this file): {params} -->"""
+
+
 def world_mjcf(plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float) -> tuple[str, int]:
     """The MJCF of the whole world (walls, floor, LIMO) and its number of wall boxes.
 
@@ -77,7 +94,8 @@ def world_mjcf(plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_
     limo = limo_mjcf(robot, sim, lidar_mount_x_m)
     g = plan.geometry
     # The plan's name is a file's stem: quoted, so a name with a quote, '&' or '<' still makes well-formed XML.
-    xml = f"""<mujoco model={quoteattr(f"limo_{plan.name}")}>
+    xml = f"""{_world_header(sim, lidar_mount_x_m)}
+<mujoco model={quoteattr(f"limo_{plan.name}")}>
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{sim.timestep_s:.6g}" integrator="implicitfast" gravity="0 0 -9.81"/>
   <size memory="8M"/>

@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from cso_runtime.config import RobotConfig, SensorConfig
-from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
+from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, relative_pose, wrap_angle_rad
 from cso_runtime.scenes import FloorPlan
 from robot_sim.config import MujocoSimConfig, whole_steps
 from robot_sim.limo import ACTUATORS, GROUP_WALLS, JOINTS, LIDAR_SITE, ROBOT_BODY
@@ -39,13 +39,6 @@ _COLLISION_GAP_STEPS = 20
 """Physics steps without contact (0.1 s at 5 ms) after which a contact counts as a new collision."""
 _MAX_PENDING_SCANS = 64
 """Fired scans kept for ``drain_scans`` (8 s at 8 Hz); older ones are dropped and counted."""
-
-
-def _relative(a: Pose2D, b: Pose2D) -> tuple[float, float, float]:
-    """Pose of b in a's frame (dx, dy, dyaw)."""
-    c, s = math.cos(a.yaw_rad), math.sin(a.yaw_rad)
-    dx, dy = b.x_m - a.x_m, b.y_m - a.y_m
-    return c * dx + s * dy, -s * dx + c * dy, wrap_angle_rad(b.yaw_rad - a.yaw_rad)
 
 
 def _compose(a: Pose2D, dx: float, dy: float, dyaw: float) -> Pose2D:
@@ -162,7 +155,7 @@ class MujocoSimulator:
     def odometry(self) -> Pose2D:
         """Dead reckoning: the last odometry tick plus the (noise-free) motion since then."""
         with self._lock:
-            return _compose(self._odom_pose, *_relative(self._odom_anchor_true, self.true_pose()))
+            return _compose(self._odom_pose, *relative_pose(self._odom_anchor_true, self.true_pose()))
 
     def sensor_pose(self) -> Pose2D:
         """The odometry pose of the LiDAR when it took the latest scan (``scan()``): where the mapper puts
@@ -290,7 +283,7 @@ class MujocoSimulator:
         """Add the base's motion since the last tick to the estimate, with drift noise."""
         c = self.config
         now = self.true_pose()
-        dx, dy, dyaw = _relative(self._odom_anchor_true, now)
+        dx, dy, dyaw = relative_pose(self._odom_anchor_true, now)
         trans = math.hypot(dx, dy)
         if c.odom_trans_noise_frac > 0 and trans > 0:
             dx, dy = dx + self._odom_rng.normal(0.0, c.odom_trans_noise_frac * trans), dy + self._odom_rng.normal(0.0, c.odom_trans_noise_frac * trans)

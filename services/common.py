@@ -39,11 +39,9 @@ import zenoh
 from cso_runtime.config import (
     EXIT_BAD_CONFIG,
     EXIT_NO_ZENOH,
-    LIMO_BODY,
     LOG_FORMAT,
     ConfigError,
     ExplorationConfig,
-    from_dict,
     load_yaml,
 )
 from cso_runtime.geometry import GridGeometry, Pose2D
@@ -52,6 +50,7 @@ from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.processes import dump_stacks_on_signal, keep_freed_memory, set_from_signal_handler
+from cso_runtime.run_profile import profile_exploration_config
 from cso_runtime.transport import TransportConfig, TransportError, open_session
 
 log = logging.getLogger("cso.service")
@@ -111,19 +110,11 @@ class ServiceContext:
 def load_profile_for_service(path: Path, name: str) -> tuple[dict[str, Any], ExplorationConfig, dict[str, Any]]:
     """The profile mapping, its exploration config and this service's parameter section."""
     profile = load_yaml(path)
-    exploration = from_dict(ExplorationConfig, profile.get("exploration") or {}, where=f"{path}:exploration")
     services = profile.get("services") or {}
     if not isinstance(services, dict):
         raise ConfigError(f"{path}: services must be a mapping")
-    sim_params = services.get("sim") or {}
-    explicit_mount = "mount_x_m" in ((profile.get("exploration") or {}).get("sensor") or {})
-    if isinstance(sim_params, dict) and sim_params.get("backend") == "mujoco" and not explicit_mount:
-        from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M  # noqa: PLC0415
-
-        exploration.sensor.mount_x_m = LIMO_LIDAR_MOUNT_X_M  # as eval --sim mujoco: every service must agree
-    explicit_body = "body" in ((profile.get("exploration") or {}).get("planner") or {})
-    if isinstance(sim_params, dict) and sim_params.get("backend") == "mujoco" and not explicit_body:
-        exploration.planner.body = LIMO_BODY  # the MuJoCo LIMO is a box, not the 2D simulator's disc (as eval --sim mujoco)
+    # With the MuJoCo LIMO: its LiDAR mount and box body, as eval --sim mujoco (every service must agree)
+    exploration = profile_exploration_config(profile.get("exploration"), services, where=f"{path}:exploration")
     params = services.get(name) or {}
     if not isinstance(params, dict):
         raise ConfigError(f"{path}: services.{name} must be a mapping")

@@ -25,7 +25,7 @@ import zenoh
 
 from cso_runtime.config import ConfigError, SensorConfig, from_dict
 from cso_runtime.episode import TERMINATED_COVERAGE, TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER, GroundTruthMetrics
-from cso_runtime.geometry import LaserScan, VelocityCommand
+from cso_runtime.geometry import LaserScan, VelocityCommand, mean_twist
 from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import (
     ClockMsg,
@@ -172,6 +172,8 @@ class SimService(Service):
         """Ground-truth explored area of ``last_map`` (counted once per map)."""
         self.coverage_curve: list[float] = []
         self.trajectory: list[tuple[float, float]] = [tuple(self.sim.true_pose().xy)]
+        self.odom_twist = VelocityCommand()
+        """``odom``'s twist: the mean over the step just run, from odometry (at rest before the first step)."""
         self.path_length_m = 0.0
         self.decisions = 0
         self.decision_ms: list[float] = []
@@ -230,7 +232,7 @@ class SimService(Service):
         # episode id, so the mapper need not wait for the clock).
         self.publish("scan", ScanMsg(self.step, scan, self.sim.sensor_pose(), self.episode))
         self.last_step = self.step  # what `status` shows for the sim
-        self.publish("odom", OdometryMsg(self.step, self.sim.time_s, self.sim.odometry(), episode=self.episode))
+        self.publish("odom", OdometryMsg(self.step, self.sim.time_s, self.sim.odometry(), self.odom_twist, self.episode))
         self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry, self.episode))
         self.last_publish_s = time.monotonic()
         if self.viewer is not None:  # after the step is out: the window never delays the pipeline
@@ -330,6 +332,7 @@ class SimService(Service):
 
     def advance(self, command: VelocityCommand) -> None:
         before = self.sim.true_pose()
+        odom_before = self.sim.odometry()
         ahead, self.ahead = self.ahead, None
         scan = None
         if ahead is not None and ahead[0] == self.step and ahead[1] == command:
@@ -339,6 +342,7 @@ class SimService(Service):
         else:
             self.sim.step(command)
         after = self.sim.true_pose()
+        self.odom_twist = mean_twist(odom_before, self.sim.odometry(), self.period_s)
         self.path_length_m += math.hypot(after.x_m - before.x_m, after.y_m - before.y_m)
         self.trajectory.append((after.x_m, after.y_m))
         self.step += 1

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import threading
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from cso_runtime.policies import make_policy
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import Simulator
 from robot_sim import MujocoSimConfig, MujocoSimulator, RealTimePacer, merge_rectangles, wall_boxes
+from robot_sim.config import whole_steps
 
 RES = 0.05
 
@@ -114,6 +116,19 @@ def test_parameters_the_model_cannot_honour_are_config_errors() -> None:
             MujocoSimConfig(**kwargs).validate()
     MujocoSimConfig(odometry_rate_hz=50.0).validate()  # 4 steps of 5 ms
     MujocoSimConfig(timestep_s=0.0025).validate()  # 40 Hz is 10 steps
+
+
+@pytest.mark.parametrize("timestep_s", [0.002, 0.003, 0.00333333])
+def test_the_odometry_rate_an_error_suggests_is_accepted(timestep_s: float) -> None:
+    """A finer physics step makes the default 40 Hz odometry no whole number of steps; the error names the
+    nearest rate that is, to 6 digits (41.6667 Hz for 2 ms), and that rate was refused in turn (11.99999 steps
+    missed the whole-step check by 1e-5). A rate or step written to 6 digits is whole to that precision."""
+    with pytest.raises(ConfigError, match="nearest such rate") as refused:
+        MujocoSimConfig(timestep_s=timestep_s).validate()
+    suggested = re.search(r"nearest such rate: ([0-9.]+) Hz", str(refused.value))
+    assert suggested is not None, refused.value
+    MujocoSimConfig(timestep_s=timestep_s, odometry_rate_hz=float(suggested.group(1))).validate()
+    assert whole_steps(0.25, 0.00333333, "robot.control_period_s") == 75  # 1/300 s written to 6 digits
 
 
 # --- LiDAR ---

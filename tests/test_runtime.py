@@ -1516,6 +1516,25 @@ def test_a_profile_sets_the_mujoco_limos_parameters_checked_before_anything_star
         load_profile("lockstep", {}, settings={"services.sim.mujoco.odom_trans_noise_frac": 0.02})
 
 
+def test_up_checks_the_mujoco_limos_parameters_against_the_mount_its_services_run_with():
+    """A profile whose sim is the MuJoCo LIMO runs every service with its LiDAR 0.103 m ahead and its box body
+    (``load_profile_for_service``); the launcher's check of ``services.sim.mujoco`` used the bare defaults (a
+    sensor at 0 m), so ``--set services.sim.mujoco.lidar_mount_x_m=0.103``, the value ``configs/robot_sim.yaml``
+    documents, was refused as "not the sensor's mount (0.0 m)"."""
+    from cso_runtime.config import ConfigError
+    from cso_runtime.run_profile import find_profile, load_profile
+    from services.common import load_profile_for_service
+
+    profile, _ = load_profile("sim", {}, settings={"services.sim.mujoco.lidar_mount_x_m": 0.103})
+    ran = load_profile_for_service(find_profile("sim"), "sim")[1]
+    assert profile.exploration_config() == ran and ran.sensor.mount_x_m == 0.103 and ran.planner.body == "box"
+    with pytest.raises(ConfigError, match=r"0.2 is not the sensor's mount \(0.103 m\)"):
+        load_profile("sim", {}, settings={"services.sim.mujoco.lidar_mount_x_m": 0.2})
+    explicit, _ = load_profile("sim", {}, settings={"exploration.sensor.mount_x_m": 0.05, "services.sim.mujoco.lidar_mount_x_m": 0.05})
+    assert explicit.exploration_config().sensor.mount_x_m == 0.05  # a profile's own mount is kept
+    assert load_profile("lockstep", {})[0].exploration_config().sensor.mount_x_m == 0.0  # the 2D sim's robot: no LIMO mount
+
+
 def test_status_watch_prints_each_status_until_nothing_answers_then_exits_1(monkeypatch, capsys):
     """``status --watch --json``: one JSON line per period while the episode answers, then the ``not running``
     line and exit code 1 (a script following a run sees it end)."""

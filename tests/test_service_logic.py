@@ -5,6 +5,7 @@ real-time and lockstep paths that an end-to-end run would only show by chance.""
 from __future__ import annotations
 
 import dataclasses
+import math
 import queue
 import threading
 import time
@@ -497,6 +498,33 @@ def test_real_time_sim_keeps_its_real_time_factor_whatever_its_tick(real_time_fa
     svc.on_tick(now)
     svc.on_tick(now + 0.021)
     assert svc.step - before <= 4 + 1  # at most one tick's worth, then on from now
+
+
+@pytest.mark.parametrize("backend", ["kinematic", "mujoco"])
+def test_the_sims_odometry_carries_the_twist_the_robot_moved_with(backend):
+    """``odom``'s ``twist`` (docs/messages.md; the ros2_bridge sends the robot's own, and ``export-bag`` and Foxglove
+    show it) was always [0, 0] from the sim, the MuJoCo LIMO's included, while the robot drove. It is the mean
+    body-frame twist of the step just run, from odometry, as an odometry node differentiating poses reports it."""
+    from services.sim import SimService
+
+    profile = {"lockstep": True, "scene": "generated:small:1:0", "seed": 0}
+    params = {"start_delay_s": 0.0, "backend": backend}
+    svc = SimService(ServiceContext("sim", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params))
+    out: list[tuple[str, Message]] = []
+    svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(svc.check_output(topic, msg)), type(msg))))  # type: ignore[method-assign]
+    svc.on_tick(time.monotonic())  # step 0 goes out: at rest
+    for _ in range(4):
+        svc.advance(VelocityCommand(0.3, 0.5))
+    odoms = [m for topic, m in out if topic == "odom"]
+    assert [m.step for m in odoms] == [0, 1, 2, 3, 4] and odoms[0].twist == VelocityCommand()
+    before, last = odoms[-2].pose, odoms[-1].pose
+    c, s = math.cos(before.yaw_rad), math.sin(before.yaw_rad)
+    forward_m = c * (last.x_m - before.x_m) + s * (last.y_m - before.y_m)
+    assert last.x_m != before.x_m
+    assert odoms[-1].twist.linear_mps == pytest.approx(forward_m / 0.25) == pytest.approx(0.3, abs=0.01)
+    assert odoms[-1].twist.angular_radps == pytest.approx((last.yaw_rad - before.yaw_rad) / 0.25) == pytest.approx(0.5, abs=0.01)
+    svc.publish_step()  # a lockstep re-publish of the same step carries the same twist
+    assert [m for topic, m in out if topic == "odom"][-1] == odoms[-1]
 
 
 def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():

@@ -6,6 +6,7 @@ handle that records what the window would get, and the display check is forced b
 from __future__ import annotations
 
 import contextlib
+import re
 
 import mujoco
 import numpy as np
@@ -62,6 +63,31 @@ def test_the_world_file_opens_with_the_limo_at_the_start_pose(tmp_path):
     assert np.allclose(sim.data.qpos, data.qpos)
 
 
+def test_the_world_file_says_its_units_frames_controls_and_parameters(tmp_path):
+    """Opened on its own (``python -m mujoco.viewer --mjcf FILE``), the world starts at qpos0: the LIMO at the map
+    origin, inside the boundary wall, which throws it off the map unless the key ``start`` is loaded; nothing in
+    the file said so, nor its units, frames, controls, geom groups or the parameters it was built with."""
+    import dataclasses
+
+    plan = generate_floor_plan("small", 0)
+    config = MujocoSimConfig(mass_kg=5.5, timestep_s=0.0025)
+    path = write_mujoco_world(tmp_path / "w.xml", plan, sim=config, sensor=SensorConfig(mount_x_m=0.103))
+    text = path.read_text()
+    header = re.fullmatch(r"<!--(.*?)-->\n<mujoco .*", text, re.DOTALL)
+    assert header is not None, text[:300]
+    about = " ".join(header.group(1).split())
+    for said in ("metres", "radians", "REP-103", 'key "start"', "Load key", "inside the boundary wall", "drive_forward m/s",
+                 "drive_yaw rad/s", "0 walls", "configs/robot_sim.yaml"):  # fmt: skip
+        assert said in about, (said, about)
+    resolved = {**dataclasses.asdict(config), "lidar_mount_x_m": 0.103}
+    assert re.findall(r"(\w+)=(\S+)", about) == [(k, f"{v:g}" if isinstance(v, float) else str(v).lower()) for k, v in resolved.items()]
+    model = mujoco.MjModel.from_xml_path(str(path))  # the comment keeps the file a valid MJCF
+    assert model.opt.timestep == 0.0025 and model.body("limo").mass[0] == pytest.approx(5.5)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    assert data.ncon > 0  # what the header warns of: qpos0 is inside the boundary wall
+
+
 @pytest.mark.parametrize("name", ['my "lab"', "lab & office", "a<b"])
 def test_a_plan_name_with_xml_characters_makes_a_well_formed_world(tmp_path, name):
     """The plan's name (a PNG's or map YAML's file stem) went into the model name unescaped: a quote made
@@ -105,6 +131,30 @@ def test_scenes_writes_the_world_of_a_sim_config(tmp_path):
     params.write_text("wall_height: 0.5\n")
     result = CliRunner().invoke(app, ["scenes", "generated:small:1:0", "--mjcf", str(out), "--sim-config", str(params)])
     assert result.exit_code == 2 and "unknown key" in result.output
+
+
+@pytest.mark.parametrize(
+    ("params", "error"),
+    [
+        ("lidar_mount_x_m: 0.2\n", r"lidar_mount_x_m: 0.2 is not the sensor's mount \(0.103 m\)"),
+        # 50 Hz odometry is one 20 ms step; the 0.25 s control period is 12.5 of them
+        ("timestep_s: 0.02\nodometry_rate_hz: 50\nactuator_time_constant_s: 0.04\ncontact_time_constant_s: 0.04\n", r"control_period_s \(0.25 s\) must be a whole"),
+    ],
+)
+def test_scenes_refuses_a_sim_config_that_eval_refuses(tmp_path, params, error):
+    """``scenes --mjcf --sim-config FILE`` writes "the world eval --sim mujoco --sim-config FILE runs in", but it
+    read FILE with the bare dataclass: it wrote a world with the LiDAR at 0.2 m, or a physics step the control
+    period is no whole number of, that eval refuses to run."""
+    from cso_runtime.evaluation import EvalRequest
+
+    config = tmp_path / "limo.yaml"
+    config.write_text(params)
+    with pytest.raises(ConfigError, match=error):
+        EvalRequest(methods=["greedy-dist"], sim="mujoco", sim_config_path=config).validate()
+    out = tmp_path / "worlds"
+    result = CliRunner().invoke(app, ["scenes", "generated:small:1:0", "--mjcf", str(out), "--sim-config", str(config)])
+    assert result.exit_code == 2, result.output
+    assert re.search(error, " ".join(result.output.split())) and not list(out.glob("*.xml")), result.output
 
 
 def test_the_viewer_gets_every_state_and_the_goal_until_its_window_closes():
