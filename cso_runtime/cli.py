@@ -229,7 +229,7 @@ def eval_command(
 
 @app.command("compare", rich_help_panel="Evaluation (Table 1)")
 def compare_command(
-    episodes: list[str] = typer.Argument(..., help="episodes.csv files written by eval (or their folders), each optionally LABEL=FILE (scenes pair only within a label)"),
+    episodes: list[str] = typer.Argument(..., help="episodes.csv files written by eval (or their folders), each optionally LABEL=FILE (scenes pair only within a label); a later file's episodes of a method replace an earlier file's on the same scenes (a note says so)"),
     baseline: str = typer.Option("greedy-dist", "--baseline", help="The method every other one is compared with"),
     as_json: bool = typer.Option(False, "--json", help="JSON instead of a markdown table"),
     out: Path | None = typer.Option(None, "--out", help="Also write the comparison as CSV"),
@@ -240,6 +240,7 @@ def compare_command(
 
     from cso_runtime.comparison import (  # noqa: PLC0415
         MIN_SCENES,
+        Replacement,
         as_dicts,
         compare_to_baseline,
         labelled,
@@ -253,10 +254,13 @@ def compare_command(
     missing = [str(path) for _, path in files if not path.is_file()]
     if missing:
         _fail(f"no such file: {', '.join(missing)}", 2)
+    replaced: list[Replacement] = []
     try:
-        table = read_episodes(files, split_names(exclude or []))
+        table = read_episodes(files, split_names(exclude or []), replaced)
     except ValueError as exc:
         _fail(str(exc), 2)
+    for replacement in replaced:
+        typer.echo(f"note: {replacement.note()}", err=True)
     methods = sorted({method for method, _ in table})
     if methods and baseline not in methods:  # a typo in --baseline, not "too few scenes"
         _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(methods)}", 2)
