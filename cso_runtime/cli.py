@@ -161,6 +161,18 @@ def _use_weights(folder: Path) -> None:
         _fail(str(exc), 2)
 
 
+def _warn_of_weights_for_another_sensor(prof) -> None:
+    """``up``: say when the policy service's learned weights were trained with another field of view than the
+    profile's sensor (``--weights`` of a run of ``configs/train.yaml``, 360 degrees, on the LIMO's 180)."""
+    from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
+
+    if "policy" in prof.services and prof.policy_method in LEARNED_METHODS:
+        from cso_runtime.learned.weights import sensor_mismatches  # noqa: PLC0415
+
+        for mismatch in sensor_mismatches([prof.policy_method], prof.exploration_config().sensor, eval_hint=False):
+            typer.echo(f"warning: {mismatch} (a policy does best with the sensor it was trained with)", err=True)
+
+
 @app.command("eval", rich_help_panel="Evaluation (Table 1)")
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", autocompletion=_complete_method_list, help=METHODS_HELP),
@@ -649,6 +661,7 @@ def up_command(
         )
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
+    _warn_of_weights_for_another_sensor(prof)
     if dry_run:
         import yaml  # noqa: PLC0415
 

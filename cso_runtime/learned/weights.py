@@ -114,11 +114,12 @@ def training_fov_deg(path: Path) -> float | None:
         return None
 
 
-def sensor_mismatches(names: list[str], sensor: SensorConfig) -> list[str]:
+def sensor_mismatches(names: list[str], sensor: SensorConfig, eval_hint: bool = True) -> list[str]:
     """One line per field of view that some of ``names``' weights for ``sensor`` were trained with instead of
     ``sensor``'s, as their records say (``configs/train.yaml`` trains with the 360-degree LiDAR, ``eval`` runs the
     LIMO's 180-degree one unless told): a policy does best with the sensor it was trained with. Weights without a
-    record are taken to match."""
+    record are taken to match. ``eval_hint``: name the ``eval --lidar-fov`` that matches them (a robot's own
+    sensor is what it is: ``up`` says no more)."""
     by_fov: dict[float, list[str]] = {}
     for name in names:
         trained = training_fov_deg(weights_path(name, sensor))
@@ -127,7 +128,7 @@ def sensor_mismatches(names: list[str], sensor: SensorConfig) -> list[str]:
     lines = []
     for trained, which in by_fov.items():
         record = weights_path(which[0], sensor).with_suffix(".json")
-        lidar = trained in (180.0, 360.0) and sensor.fov_deg in (180.0, 360.0)  # a LiDAR run: --lidar-fov is the fix
+        lidar = eval_hint and trained in (180.0, 360.0) and sensor.fov_deg in (180.0, 360.0)  # a LiDAR eval: --lidar-fov is the fix
         hint = f"; eval --lidar-fov {trained:g} runs {'it' if len(which) == 1 else 'them'} with that sensor" if lidar else ""
         lines.append(
             f"the weights of {', '.join(which)} were trained with a {trained:g}-degree sensor ({record}{' and the like' if len(which) > 1 else ''}),"
