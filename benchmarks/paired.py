@@ -19,8 +19,9 @@ within a label, so a label's greedy-dist episodes may still come from another fi
 from __future__ import annotations
 
 import argparse
+import sys
 
-from cso_runtime.comparison import compare_to_baseline, labelled, markdown_table, read_episodes, split_names
+from cso_runtime.comparison import Replacement, compare_to_baseline, labelled, markdown_table, read_episodes, split_names
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -32,7 +33,11 @@ def main(argv: list[str] | None = None) -> int:
     missing = [str(path) for _, path in args.episodes if not path.is_file()]
     if missing:
         p.error(f"no such file: {', '.join(missing)}")
-    print(markdown_table(compare_to_baseline(read_episodes(args.episodes, split_names(args.exclude)), args.baseline)))
+    replaced: list[Replacement] = []
+    table = read_episodes(args.episodes, split_names(args.exclude), replaced)
+    for replacement in replaced:
+        print(f"note: {replacement.note()}", file=sys.stderr)
+    print(markdown_table(compare_to_baseline(table, args.baseline)))
     return 0
 
 

@@ -161,6 +161,18 @@ def _use_weights(folder: Path) -> None:
         _fail(str(exc), 2)
 
 
+def _warn_of_weights_for_another_sensor(prof) -> None:
+    """``up``: say when the policy service's learned weights were trained with another field of view than the
+    profile's sensor (``--weights`` of a run of ``configs/train.yaml``, 360 degrees, on the LIMO's 180)."""
+    from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
+
+    if "policy" in prof.services and prof.policy_method in LEARNED_METHODS:
+        from cso_runtime.learned.weights import sensor_mismatches  # noqa: PLC0415
+
+        for mismatch in sensor_mismatches([prof.policy_method], prof.exploration_config().sensor, eval_hint=False):
+            typer.echo(f"warning: {mismatch} (a policy does best with the sensor it was trained with)", err=True)
+
+
 @app.command("eval", rich_help_panel="Evaluation (Table 1)")
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", autocompletion=_complete_method_list, help=METHODS_HELP),
@@ -229,7 +241,7 @@ def eval_command(
 
 @app.command("compare", rich_help_panel="Evaluation (Table 1)")
 def compare_command(
-    episodes: list[str] = typer.Argument(..., help="episodes.csv files written by eval (or their folders), each optionally LABEL=FILE (scenes pair only within a label)"),
+    episodes: list[str] = typer.Argument(..., help="episodes.csv files written by eval (or their folders), each optionally LABEL=FILE (scenes pair only within a label); a later file's episodes of a method replace an earlier file's on the same scenes (a note says so)"),
     baseline: str = typer.Option("greedy-dist", "--baseline", help="The method every other one is compared with"),
     as_json: bool = typer.Option(False, "--json", help="JSON instead of a markdown table"),
     out: Path | None = typer.Option(None, "--out", help="Also write the comparison as CSV"),
@@ -240,6 +252,7 @@ def compare_command(
 
     from cso_runtime.comparison import (  # noqa: PLC0415
         MIN_SCENES,
+        Replacement,
         as_dicts,
         compare_to_baseline,
         labelled,
@@ -253,10 +266,13 @@ def compare_command(
     missing = [str(path) for _, path in files if not path.is_file()]
     if missing:
         _fail(f"no such file: {', '.join(missing)}", 2)
+    replaced: list[Replacement] = []
     try:
-        table = read_episodes(files, split_names(exclude or []))
+        table = read_episodes(files, split_names(exclude or []), replaced)
     except ValueError as exc:
         _fail(str(exc), 2)
+    for replacement in replaced:
+        typer.echo(f"note: {replacement.note()}", err=True)
     methods = sorted({method for method, _ in table})
     if methods and baseline not in methods:  # a typo in --baseline, not "too few scenes"
         _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(methods)}", 2)
@@ -650,6 +666,7 @@ def up_command(
         )
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
+    _warn_of_weights_for_another_sensor(prof)
     if dry_run:
         import yaml  # noqa: PLC0415
 

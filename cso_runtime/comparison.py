@@ -131,11 +131,34 @@ def split_names(args: Iterable[str]) -> list[str]:
     return [name for arg in args for name in arg.split(",") if name]
 
 
-def read_episodes(files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterable[str] = ()) -> EfficiencyTable:
+@dataclass(frozen=True)
+class Replacement:
+    """The episodes of one method that a later ``episodes.csv`` gave other figures for than an earlier one, on the
+    same scenes (``read_episodes``): the later file's take their place, which puts a candidate in the place of the
+    shipped ``cso`` (``compare base/ candidate/``), but also makes the order of the files decide the result."""
+
+    method: str
+    earlier: Path
+    later: Path
+    scenes: int
+
+    def note(self) -> str:
+        """One line for the console."""
+        return (
+            f"{self.later}'s {self.method} replaces {self.earlier}'s on {self.scenes} scene{'s' if self.scenes != 1 else ''} with other"
+            f" figures (a later file's episodes of a method take an earlier file's place; compare each file alone to see both)"
+        )
+
+
+def read_episodes(files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterable[str] = (), replaced: list[Replacement] | None = None) -> EfficiencyTable:
     """``efficiency_by_scene`` over ``episodes.csv`` files, each optionally ``(label, path)``, without the
-    episodes of the maps named in ``exclude_maps`` (for instance the plans a training run drew)."""
+    episodes of the maps named in ``exclude_maps`` (for instance the plans a training run drew). A later file's
+    episode of a method replaces an earlier file's on the same scene; ``replaced`` (when given) receives a
+    ``Replacement`` per method and pair of files where that changed a figure."""
     excluded = set(exclude_maps)
     table: EfficiencyTable = defaultdict(dict)
+    source: dict[tuple[str, SceneKey], Path] = {}
+    """(method, scene) -> the file its episode in ``table`` came from."""
     for item in files:
         label, path = item if isinstance(item, tuple) else ("", item)
         try:
@@ -144,11 +167,21 @@ def read_episodes(files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterab
                 missing = [c for c in EPISODE_COLUMNS if c not in (reader.fieldnames or [])]
                 if missing:
                     raise ValueError(f"not an episodes.csv written by eval: no column {', '.join(missing)}")
-                efficiency_by_scene((row for row in reader if row["map"] not in excluded), label, table)
+                own = efficiency_by_scene((row for row in reader if row["map"] not in excluded), label)
         except UnicodeDecodeError:
             raise ValueError(f"{path}: not an episodes.csv written by eval: not UTF-8 text") from None
         except (ValueError, csv.Error) as exc:  # every message names the file: several are read at once
             raise ValueError(f"{path}: {exc}") from None
+        changed: dict[tuple[str, Path], int] = defaultdict(int)
+        for (method, scale), scenes in own.items():
+            pooled = table[(method, scale)]
+            for scene, efficiency in scenes.items():
+                if scene in pooled and pooled[scene] != efficiency:
+                    changed[(method, source[(method, scene)])] += 1
+                pooled[scene] = efficiency
+                source[(method, scene)] = Path(path)
+        if replaced is not None:
+            replaced.extend(Replacement(method, earlier, Path(path), count) for (method, earlier), count in sorted(changed.items(), key=lambda kv: (kv[0][0], str(kv[0][1]))))
     return table
 
 

@@ -151,6 +151,11 @@ class Profile:
         profile that leaves its policy out reads the same whether it says so in ``without`` or not."""
         return list(dict.fromkeys([*self.without, *self.awaited_services()]))
 
+    @property
+    def policy_method(self) -> str:
+        """The goal selector the policy service runs: its own ``services.policy.method``, else the profile's ``method``."""
+        return (self.services.get("policy") or {}).get("method") or self.method
+
     def validate(self) -> None:
         check_robot_id(self.robot)
         check_seed(self.seed)
@@ -211,7 +216,7 @@ class Profile:
         if self.method not in BASELINES and self.method not in LEARNED_METHODS:
             raise ConfigError(f"unknown method {self.method!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")
         policy = self.services.get("policy") or {}
-        method = policy.get("method") or self.method  # what the policy service will run (PolicyParams.method)
+        method = self.policy_method
         if method in LEARNED_METHODS:
             from cso_runtime.learned.weights import weights_file_problem, weights_path  # noqa: PLC0415
 

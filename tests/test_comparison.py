@@ -147,3 +147,23 @@ def test_compare_cli_says_when_the_baseline_or_the_csv_path_is_wrong(tmp_path: P
     (tmp_path / "blocker").write_text("a file where a folder should be")
     blocked = subprocess.run(exe + ["--out", str(tmp_path / "blocker" / "p.csv")], capture_output=True, text=True, timeout=60)
     assert blocked.returncode == 2 and "--out" in blocked.stderr and "cannot write" in blocked.stderr and "Traceback" not in blocked.stderr
+
+
+def test_compare_says_when_a_later_file_replaces_a_methods_episodes_of_an_earlier_one(tmp_path: Path):
+    """Two evals that both ran cso (the shipped weights, then a training run's with --weights): the later file's cso
+    takes the earlier one's place, so the order of the files decides the result. A note on stderr names both files
+    and the scenes whose figures changed; greedy-dist, the same in both, is no news."""
+    base = rows("greedy-dist", "large", {"a": 1.0, "b": 1.0, "c": 1.0})
+    shipped = write(tmp_path / "shipped.csv", base + rows("cso", "large", {"a": 1.2, "b": 1.2, "c": 1.1}))
+    trained = write(tmp_path / "trained.csv", base + rows("cso", "large", {"a": 0.9, "b": 0.9, "c": 1.1}))
+    replaced: list = []
+    (cso,) = compare_to_baseline(read_episodes([shipped, trained], replaced=replaced))
+    assert cso.per_scene_pct == pytest.approx(-3.333)  # the trained run's cso (rounded to 3 places)
+    assert [(r.method, r.earlier, r.later, r.scenes) for r in replaced] == [("cso", shipped, trained, 2)]
+    exe = [sys.executable, "-m", "cso_runtime.cli", "compare"]
+    out = subprocess.run(exe + [str(shipped), str(trained)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert f"note: {trained}'s cso replaces {shipped}'s on 2 scenes with other figures" in out.stderr
+    assert "greedy-dist" not in out.stderr and "| large | cso | 3 | -3.3 % |" in out.stdout
+    alone = subprocess.run(exe + [str(shipped)], capture_output=True, text=True, timeout=60)
+    assert alone.returncode == 0 and alone.stderr == ""

@@ -336,6 +336,34 @@ def test_the_policy_services_own_method_and_device_are_checked_before_anything_s
     load_profile("lockstep", {}, settings={"services.policy.device": "cuda"})  # a baseline runs no network
 
 
+def test_up_warns_when_the_policys_weights_were_trained_with_another_field_of_view(tmp_path: Path):
+    """`up --profile sim --weights RUN` of a configs/train.yaml run (360 degrees) drove the LIMO's 180-degree LiDAR
+    with no word, as eval did: the run's record beside the weights says its sensor, and up warns (before a dry run's
+    profile too); nothing where they match, or where the policy runs a baseline."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+
+    from cso_runtime.config import SensorConfig
+    from cso_runtime.learned.weights import weights_path
+
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(weights_path("cso", SensorConfig.preset("lidar", 360)), run / "cso.pt")
+    (run / "cso.json").write_text(json.dumps({"variant": "cso", "args": {"sensor": "lidar", "lidar_fov_deg": 360.0}}))
+    up = [sys.executable, "-m", "cso_runtime.cli", "up", "--profile", "sim", "--weights", str(run), "--dry-run"]
+    said = subprocess.run([*up, "--method", "cso"], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert said.returncode == 0, said.stderr
+    assert said.stderr.startswith(
+        f"warning: the weights of cso were trained with a 360-degree sensor ({run / 'cso.json'}), this run's sees 180 degrees"
+        " (a policy does best with the sensor it was trained with)"
+    )
+    for quiet in (["--method", "cso", "--set", "exploration.sensor.fov_deg=360"], ["--method", "greedy-dist"]):
+        out = subprocess.run([*up, *quiet], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+        assert out.returncode == 0 and "warning" not in out.stderr, out.stderr
+
+
 def test_the_lockstep_sim_gives_up_only_after_it_has_re_published_a_step():
     """``lockstep_give_up_s`` at or below ``lockstep_timeout_s`` failed an episode on one lost message, never re-published."""
     from cso_runtime.run_profile import load_profile

@@ -144,3 +144,17 @@ def test_the_readme_names_every_column_of_episodes_csv_and_every_key_of_summary_
     row = {"method": "m", "map": "a", "scale": "small", "seed": 0, "terminated_by": "coverage", **dict.fromkeys(METRICS, 1.0)}
     entry = summarize([row], [], ["m"], meta={})["methods"]["m"]
     assert [k for k in entry if f"`{k}`" not in summary_row] == []
+
+
+def test_the_readme_names_every_array_of_an_episodes_npz(tmp_path):
+    """``episodes/<method>/<map>.npz`` holds more than the three arrays the README's table named (the row, and the
+    fingerprints ``--resume`` matches): a user loading one with numpy finds each of its keys there."""
+    import numpy as np
+
+    from cso_runtime.evaluation import EvalRequest, run_eval
+    from cso_runtime.outputs import episode_npz_path
+
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path, max_steps=5))
+    rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
+    keys = np.load(episode_npz_path(tmp_path, "greedy-dist", "gen_small_0")).files
+    assert len(keys) >= 3 and [k for k in keys if f"`{k}`" not in rows["`episodes/<method>/<map>.npz`"]] == []

@@ -790,3 +790,35 @@ def test_trajectory_plots_keep_the_plans_name_clear_of_the_panel_titles(rows: in
         title = ax.title.get_window_extent(renderer)
         assert title.y1 <= name.y0 or title.x1 <= name.x0 or title.x0 >= name.x1, (ax.get_title(), title, name)
     fig.clf()
+
+
+def test_eval_warns_when_weights_were_trained_with_another_field_of_view(tmp_path, monkeypatch, caplog):
+    """configs/train.yaml trains with the 360-degree LiDAR and eval runs the LIMO's 180-degree one unless told:
+    `train --out RUN` then `eval --method cso --weights RUN` ran the policy with a sensor it never saw, silently.
+    The run's record beside the weights (``cso.json``) says its sensor; eval warns, naming the flag that matches it,
+    and says nothing where the sensors match or no record says."""
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, sensor_mismatches, weights_path
+
+    monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)
+    lidar180, lidar360 = SensorConfig(), SensorConfig.preset("lidar", 360)
+    assert sensor_mismatches(["cso"], lidar180) == sensor_mismatches(["cso"], lidar360) == []  # cso@fov180.pt, cso.pt
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(weights_path("cso", lidar360), run / "cso.pt")
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(run))
+    assert sensor_mismatches(["cso"], lidar180) == []  # no record: nothing to say
+    (run / "cso.json").write_text(json.dumps({"variant": "cso", "args": {"sensor": "lidar", "lidar_fov_deg": 360.0}}))
+    (warning,) = sensor_mismatches(["cso"], lidar180)
+    assert warning == (
+        f"the weights of cso were trained with a 360-degree sensor ({run / 'cso.json'}), this run's sees 180 degrees;"
+        " eval --lidar-fov 360 runs it with that sensor"
+    )
+    assert sensor_mismatches(["cso"], lidar360) == []
+    assert sensor_mismatches(["cso"], SensorConfig.preset("depth"))[0].endswith("this run's sees 79 degrees")  # no --lidar-fov hint
+    with caplog.at_level("WARNING"):
+        run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "o", max_steps=5))
+    assert f"{warning} (a policy does best with the sensor it was trained with)" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "o360", max_steps=5, lidar_fov_deg=360.0))
+    assert "trained with" not in caplog.text

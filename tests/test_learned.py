@@ -453,7 +453,7 @@ def test_the_training_bar_shows_the_latest_return_coverage_and_rate(tmp_path, mo
             super().advance(n, stats)
 
     out = io.StringIO()
-    monkeypatch.setattr(ppo, "_progress", lambda enabled, total: RecordingBar(total, console=Console(file=out, width=200)) if enabled else None)
+    monkeypatch.setattr(ppo, "_progress", lambda enabled, total, completed=0: RecordingBar(total, console=Console(file=out, width=200), completed=completed) if enabled else None)
     args = Args(variant="cso", out_dir=str(tmp_path), seed=0, total_decisions=64, num_envs=2, num_steps=16, num_minibatches=2, max_steps=40, progress=True)
     train(args, log=lambda _msg: None, plans=[rooms_plan(2)])
     rows = list(csv.DictReader((tmp_path / "cso_log.csv").open()))
@@ -488,6 +488,33 @@ def test_training_progress_in_a_log_file_is_plain_lines():
     bar.advance(2)
     bar.advance(1)
     assert quiet.getvalue().splitlines() == [quiet.getvalue().splitlines()[0]] and quiet.getvalue().startswith("teacher decisions 3/3 (")
+
+
+def test_a_resumed_runs_bar_counts_the_updates_of_the_whole_run(tmp_path, monkeypatch):
+    """`train --resume` of a run at update 2 of 4 showed `PPO updates 2/2` (this process's updates alone), so a run
+    that had 2 of 4 updates left read as done from the start and as finished at update 4 of 8 (the same command with
+    a larger total_decisions). The bar counts the run's updates; the time left is this process's pace."""
+    import io
+
+    from rich.console import Console
+
+    from cso_runtime.learned import ppo
+
+    common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 2, "num_steps": 8, "num_minibatches": 2, "max_steps": 40,
+              "checkpoint_every": 1, "progress": True}  # fmt: skip
+    out = io.StringIO()
+    monkeypatch.setattr(ppo, "_progress", lambda enabled, total, completed=0: ppo._Bar(total, console=Console(file=out, width=200), **({"completed": completed} if completed else {})))
+    train(Args(total_decisions=32, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert out.getvalue().startswith("PPO updates 2/2 (")
+    out.truncate(0)
+    out.seek(0)
+    train(Args(total_decisions=64, resume=str(tmp_path / "checkpoint.pt"), **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert out.getvalue().startswith("PPO updates 4/4 (")
+    lines = io.StringIO()
+    bar = ppo._Bar(8, console=Console(file=lines, width=200), line_every_s=0.0, completed=4)
+    bar.advance()
+    bar.close()
+    assert re.fullmatch(r"PPO updates 5/8 \(\d+ s, about \d+ s left\)", lines.getvalue().strip())
 
 
 def test_policies_of_one_model_share_one_trace(observation):

@@ -846,7 +846,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     if new_log:
         writer.writeheader()
 
-    progress = _progress(args.progress, args.num_updates - start_update + 1)
+    progress = _progress(args.progress, args.num_updates, completed=start_update - 1)  # a resumed run's bar goes on from its update
     recent_episodes: collections.deque[dict[str, float]] = collections.deque(maxlen=20)  # for the bar's figures
     update = start_update - 1
     finished_loop = False
@@ -1041,9 +1041,10 @@ def _save_resumable(
 class _Bar:
     """A rich progress bar with a free text field after it (the latest training figures). In a log file or CI
     (no terminal) it prints a plain line instead, at most every ``line_every_s`` and at the end, so that a long
-    run written to a file says how far it is (as CleanRL prints a line per update)."""
+    run written to a file says how far it is (as CleanRL prints a line per update). ``completed``: the part done
+    before this process (a ``--resume``d run's updates), counted in the bar; the time left is this process's pace."""
 
-    def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0):
+    def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0, completed: int = 0):
         from rich.console import Console  # noqa: PLC0415
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
 
@@ -1052,8 +1053,8 @@ class _Bar:
         self._lines = not console.is_terminal
         self._p = Progress(*columns, console=console, disable=self._lines)
         self._p.start()
-        self._task = self._p.add_task(what, total=total, stats="")
-        self._what, self._total, self._done = what, total, 0
+        self._task = self._p.add_task(what, total=total, stats="", completed=completed)
+        self._what, self._total, self._done, self._done_before = what, total, completed, completed
         self._line_every_s = line_every_s
         self._started = self._last_line = time.monotonic()
 
@@ -1064,15 +1065,15 @@ class _Bar:
         if self._lines and (now - self._last_line >= self._line_every_s or self._done >= self._total):
             self._last_line = now
             elapsed = now - self._started
-            left = f", about {elapsed / self._done * (self._total - self._done):.0f} s left" if self._done < self._total else ""
+            left = f", about {elapsed / (self._done - self._done_before) * (self._total - self._done):.0f} s left" if self._done < self._total else ""
             self._p.console.print(f"{self._what} {self._done}/{self._total} ({elapsed:.0f} s{left}): {stats or ''}".rstrip(": "), highlight=False, markup=False, soft_wrap=True)
 
     def close(self) -> None:
         self._p.stop()
 
 
-def _progress(enabled: bool, total: int) -> _Bar | None:
-    return _Bar(total) if enabled else None
+def _progress(enabled: bool, total: int, completed: int = 0) -> _Bar | None:
+    return _Bar(total, completed=completed) if enabled else None
 
 
 def progress_stats(recent: Sequence[Mapping[str, float]], decisions: int, wall_s: float) -> str:

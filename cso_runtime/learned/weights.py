@@ -12,12 +12,13 @@ that field of view uses it; every other sensor uses ``<method>.pt``.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from cso_runtime.config import SensorConfig
+from cso_runtime.config import ConfigError, SensorConfig
 
 WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
 """Environment variable naming a folder of ``<method>.pt`` files to use instead of the shipped ones
@@ -101,3 +102,36 @@ def weights_provenance(name: str, sensor: SensorConfig | None = None) -> dict[st
     path = weights_path(name, sensor)
     digest = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else ""
     return {"path": str(path), "sha256": digest, "shipped": not os.environ.get(WEIGHTS_DIR_ENV)}
+
+
+def training_fov_deg(path: Path) -> float | None:
+    """The field of view of the sensor the weights at ``path`` were trained with, from the record ``train`` writes
+    beside them (``<stem>.json``: ``args.sensor`` and ``args.lidar_fov_deg``); None where no readable record says."""
+    try:
+        args = json.loads(path.with_suffix(".json").read_text())["args"]
+        return SensorConfig.preset(args.get("sensor", "lidar"), args.get("lidar_fov_deg")).fov_deg
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, ConfigError):
+        return None
+
+
+def sensor_mismatches(names: list[str], sensor: SensorConfig, eval_hint: bool = True) -> list[str]:
+    """One line per field of view that some of ``names``' weights for ``sensor`` were trained with instead of
+    ``sensor``'s, as their records say (``configs/train.yaml`` trains with the 360-degree LiDAR, ``eval`` runs the
+    LIMO's 180-degree one unless told): a policy does best with the sensor it was trained with. Weights without a
+    record are taken to match. ``eval_hint``: name the ``eval --lidar-fov`` that matches them (a robot's own
+    sensor is what it is: ``up`` says no more)."""
+    by_fov: dict[float, list[str]] = {}
+    for name in names:
+        trained = training_fov_deg(weights_path(name, sensor))
+        if trained is not None and trained != sensor.fov_deg:
+            by_fov.setdefault(trained, []).append(name)
+    lines = []
+    for trained, which in by_fov.items():
+        record = weights_path(which[0], sensor).with_suffix(".json")
+        lidar = eval_hint and trained in (180.0, 360.0) and sensor.fov_deg in (180.0, 360.0)  # a LiDAR eval: --lidar-fov is the fix
+        hint = f"; eval --lidar-fov {trained:g} runs {'it' if len(which) == 1 else 'them'} with that sensor" if lidar else ""
+        lines.append(
+            f"the weights of {', '.join(which)} were trained with a {trained:g}-degree sensor ({record}{' and the like' if len(which) > 1 else ''}),"
+            f" this run's sees {sensor.fov_deg:g} degrees{hint}"
+        )
+    return lines
