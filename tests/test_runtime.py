@@ -1144,6 +1144,47 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     assert piped.getvalue().count("6.50 m ahead on the path") == 1 and piped.getvalue().endswith("┘\n")
 
 
+def test_live_view_shows_a_service_the_run_leaves_out_and_what_the_episode_waits_for(tmp_path):
+    """``up``'s live view listed only the services the run started: a run whose profile has no policy stood at
+    step 0 with every row up, and nothing in the view said that the episode waited for a policy nobody served
+    (``status`` did). The view lists it as ``status`` does, from the launcher's own status, and its state says
+    what the episode waits for; once a policy answers, or the episode is over, nothing is waited for."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    del profile.services["policy"]  # left to another process (a shared policy server)
+    launcher = Launcher(profile, data, tmp_path / "run")
+
+    def view() -> str:
+        console = Console(width=200, record=True)
+        console.print(LiveView(launcher).render())
+        return console.export_text()
+
+    text = view()  # no episode status yet: the sim waits for the policy before step 0
+    assert re.search(r"│ state +│ starting; waiting for policy, which no process serves +│", text), text
+    assert re.search(r"│ policy +│ DOWN, not started by this run, the episode waits for it +│", text), text
+    launcher.status = EpisodeStatusMsg(state="exploring", step=0, scene="s", method="greedy-dist")
+    text = view()
+    assert re.search(r"│ state +│ exploring; waiting for policy, which no process serves +│", text), text
+    assert [line.split("│")[1].strip() for line in text.splitlines() if "not started by this run" in line] == ["policy"], text
+    launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive("policy"), kind="SampleKind.PUT"))  # a server answers
+    text = view()
+    assert re.search(r"│ state +│ exploring +│", text) and re.search(r"│ policy +│ alive, not started by this run +│", text) and "wait" not in text, text
+    launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive("policy"), kind="SampleKind.DELETE"))  # and goes
+    launcher.status.state = "done"
+    text = view()
+    assert re.search(r"│ policy +│ DOWN, not started by this run +│", text) and "wait" not in text, text
+    full, full_data = load_profile(str(find_profile("lockstep")), {})  # a run that starts every service: no such row
+    launcher = Launcher(full, full_data, tmp_path / "run2")
+    assert "not started by this run" not in view() and "wait" not in view()
+
+
 def test_a_launcher_callback_that_raises_is_logged_and_counted_in_the_status(tmp_path, caplog):
     """An exception inside one of the launcher's Zenoh callbacks (a bug) would reach only Zenoh's stderr
     print: it is logged with its traceback, counted in the launcher's status, shown by ``status``, and the
