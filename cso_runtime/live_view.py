@@ -42,18 +42,24 @@ class LiveView:
         from rich.progress_bar import ProgressBar  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
+        from cso_runtime.status import presence_words, status_of, waiting_note  # noqa: PLC0415
+
         la = self.launcher
         st = la.status
+        # As `status` reads the launcher's status: the services this run left to other processes, and which of them
+        # the episode waits for while none serves it (a profile with no policy: step 0 would wait with every row up).
+        seen = status_of(la.profile.robot, None if st is None else st.to_dict(), la.launcher_status().to_dict(), {}, la.alive_services)
+        waits = waiting_note(seen["waiting_for"])
         # Short title, no header: on an 80-column terminal a title wider than the table wraps.
         t = Table(title=f"cso-runtime {la.run_id}", show_header=False)
         t.add_column("field")
         t.add_column("value", overflow="fold")  # a narrow terminal wraps a long URL or path, never cuts it with an ellipsis
         t.add_row("robot / method", escape(f"{la.profile.robot} / {la.profile.method}, {'lockstep' if la.profile.lockstep else 'real time'}"))
         if st is None:
-            t.add_row("state", "starting")
+            t.add_row("state", escape("starting" + waits))
         else:
             goal = "-" if st.goal_xy_m is None else f"({st.goal_xy_m[0]:.2f}, {st.goal_xy_m[1]:.2f}) m"
-            t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "")))
+            t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "") + waits))
             t.add_row("scene", escape(st.scene))
             t.add_row("step", f"{st.step} ({st.step * la.control_period_s:.1f} s robot time, {time.monotonic() - la.started_s:.0f} s since start)")
             coverage = Table.grid(padding=(0, 1))
@@ -70,6 +76,9 @@ class LiveView:
             health = "up" if c.alive and c.name in la.alive_services else ("starting" if c.alive else ("gave up" if c.gave_up else "restarting"))
             note = la.service_notes.get(c.name)
             t.add_row(f"[bold]{c.name}", f"{health}, pid {c.proc.pid if c.proc else '-'}, restarts {c.restarts}" + (f"; {escape(note)}" if note else ""))
+        for name, service in seen["services"].items():
+            if service.get("outside"):  # not started by this run: no pid, no restarts here
+                t.add_row(f"[bold]{name}", escape(", ".join(presence_words(name, service, seen["waiting_for"]))))
         return t
 
     def start(self) -> None:

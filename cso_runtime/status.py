@@ -212,6 +212,23 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     return connect, robot
 
 
+def waiting_note(waiting: list[str]) -> str:
+    """What the state adds while the episode waits for services that this run did not start and no process serves
+    (``status_of``'s ``waiting_for``; "" when none): ``status`` and ``up``'s live view say it alike."""
+    return f"; waiting for {', '.join(waiting)}, which no process serves" if waiting else ""
+
+
+def presence_words(name: str, service: dict[str, Any], waiting: list[str]) -> list[str]:
+    """How a service's row begins (an entry of ``status_of``'s ``services``): alive or DOWN, not started by this
+    run (another process is to serve it), and whether the episode waits for it; ``status`` and the live view alike."""
+    words = ["alive" if service["alive"] else "DOWN"]
+    if service.get("outside"):
+        words.append("not started by this run")
+    if name in waiting:
+        words.append("the episode waits for it")
+    return words
+
+
 def render_table(status: dict[str, Any]):
     from rich.markup import escape  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
@@ -222,7 +239,7 @@ def render_table(status: dict[str, Any]):
     t.add_column("value", overflow="fold")  # a narrow terminal wraps a long URL or path, never cuts it with an ellipsis
     goal = status["goal"]
     waiting = status.get("waiting_for") or []
-    waits = f"; waiting for {', '.join(waiting)}, which no process serves" if waiting else ""
+    waits = waiting_note(waiting)
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "") + waits),
         ("scene / method", f"{status['scene']} / {status['method']}"),
@@ -237,11 +254,7 @@ def render_table(status: dict[str, Any]):
         t.add_row(k, escape(v))
     episode_over = status["state"] in EPISODE_OVER
     for name, s in status["services"].items():
-        bits = ["alive" if s["alive"] else "DOWN"]
-        if s.get("outside"):
-            bits.append("not started by this run")
-        if name in waiting:
-            bits.append("the episode waits for it")
+        bits = presence_words(name, s, waiting)
         if s.get("state") == "stale" and episode_over:
             # Inputs stop when the episode ends; "stale" would read like a fault (JSON keeps the raw state).
             bits.append(f"idle (episode {status['state']}; last step {s.get('last_step', 0)})")

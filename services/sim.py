@@ -45,6 +45,7 @@ from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import Simulator, make_simulator, mujoco_config
 from cso_runtime.transport import track_robots_liveliness
 from services.common import Service, ServiceContext, service_main
+from services.dataflow import missing_producers
 
 if TYPE_CHECKING:
     from robot_sim.viewer import SimViewer
@@ -75,10 +76,11 @@ class SimParams:
     min_step_period_s: float = 0.0
     """Lockstep: wall-clock floor per step (0 = as fast as the pipeline; demos and tests slow it)."""
     wait_for_services_s: float = 30.0
-    """Before step 0, wait (wall clock, at most this long) until every other service of the profile has
-    declared its liveliness token, so that none misses step 0: a policy that loads torch and its weights
-    comes up a second after the others, and its first decision used to wait for a lockstep re-publish.
-    After this long the episode starts anyway, with a warning that names the missing services."""
+    """Before step 0, wait (wall clock, at most this long) until every other service of the profile, and every
+    service it leaves out that the episode needs (a shared server's policy), has declared its liveliness token, so
+    that none misses step 0: a policy that loads torch and its weights comes up a second after the others, and its
+    first decision used to wait for a lockstep re-publish. After this long the episode starts anyway, with a
+    warning that names the missing services."""
     start_delay_s: float = 0.5
     """Then wait this long before step 0, so the services' subscriptions have reached every peer
     (re-publishing the step covers a miss)."""
@@ -180,8 +182,16 @@ class SimService(Service):
         self.goal_xy: list[float] | None = None
         self.last_cmd: tuple[CmdVelMsg, float] | None = None
         self.started_s = time.monotonic()
-        self.expected_services = {name for name in ctx.profile.get("services") or {} if name != ctx.name}
-        """The profile's other services: step 0 waits for their liveliness tokens (``wait_for_services_s``)."""
+        listed = list(ctx.profile.get("services") or {})
+        self.left_out_needed = set(missing_producers(listed)) if listed else set()
+        """The services the episode needs that the profile leaves to other processes (``up --without policy``, or not
+        listed: a shared policy server's; ``services.dataflow.missing_producers``, as the launcher's ``awaited``).
+        Step 0 waits for them too: started without its policy, a lockstep episode re-published step 0 every
+        ``lockstep_timeout_s`` with its give-up clock running, and a real-time one spent its steps standing still."""
+        self.expected_services = {name for name in listed if name != ctx.name} | self.left_out_needed
+        """The profile's other services and those it leaves out: step 0 waits for their liveliness tokens
+        (``wait_for_services_s``)."""
+        self.said_waiting_for_left_out = False
         self.alive_services: set[tuple[str, str]] = set()
         """(robot, service) of every liveliness token seen (``missing_services``)."""
         self.services_ready_s: float | None = None if self.expected_services else self.started_s
@@ -427,6 +437,12 @@ class SimService(Service):
             if self.services_ready_s is None:
                 missing = self.missing_services()
                 if missing and now_s - self.started_s < self.params.wait_for_services_s:
+                    if missing <= self.left_out_needed and not self.said_waiting_for_left_out:
+                        self.said_waiting_for_left_out = True
+                        log.info(
+                            "the profile's services are up; step 0 waits for %s, which the profile leaves to another process (at most %.0f s more)",
+                            ", ".join(sorted(missing)), self.params.wait_for_services_s - (now_s - self.started_s),
+                        )
                     return
                 if missing:
                     log.warning("starting the episode without %s: no liveliness token after %.0f s", ", ".join(sorted(missing)), now_s - self.started_s)

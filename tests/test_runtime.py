@@ -1144,6 +1144,47 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     assert piped.getvalue().count("6.50 m ahead on the path") == 1 and piped.getvalue().endswith("┘\n")
 
 
+def test_live_view_shows_a_service_the_run_leaves_out_and_what_the_episode_waits_for(tmp_path):
+    """``up``'s live view listed only the services the run started: a run whose profile has no policy stood at
+    step 0 with every row up, and nothing in the view said that the episode waited for a policy nobody served
+    (``status`` did). The view lists it as ``status`` does, from the launcher's own status, and its state says
+    what the episode waits for; once a policy answers, or the episode is over, nothing is waited for."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    del profile.services["policy"]  # left to another process (a shared policy server)
+    launcher = Launcher(profile, data, tmp_path / "run")
+
+    def view() -> str:
+        console = Console(width=200, record=True)
+        console.print(LiveView(launcher).render())
+        return console.export_text()
+
+    text = view()  # no episode status yet: the sim waits for the policy before step 0
+    assert re.search(r"│ state +│ starting; waiting for policy, which no process serves +│", text), text
+    assert re.search(r"│ policy +│ DOWN, not started by this run, the episode waits for it +│", text), text
+    launcher.status = EpisodeStatusMsg(state="exploring", step=0, scene="s", method="greedy-dist")
+    text = view()
+    assert re.search(r"│ state +│ exploring; waiting for policy, which no process serves +│", text), text
+    assert [line.split("│")[1].strip() for line in text.splitlines() if "not started by this run" in line] == ["policy"], text
+    launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive("policy"), kind="SampleKind.PUT"))  # a server answers
+    text = view()
+    assert re.search(r"│ state +│ exploring +│", text) and re.search(r"│ policy +│ alive, not started by this run +│", text) and "wait" not in text, text
+    launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive("policy"), kind="SampleKind.DELETE"))  # and goes
+    launcher.status.state = "done"
+    text = view()
+    assert re.search(r"│ policy +│ DOWN, not started by this run +│", text) and "wait" not in text, text
+    full, full_data = load_profile(str(find_profile("lockstep")), {})  # a run that starts every service: no such row
+    launcher = Launcher(full, full_data, tmp_path / "run2")
+    assert "not started by this run" not in view() and "wait" not in view()
+
+
 def test_a_launcher_callback_that_raises_is_logged_and_counted_in_the_status(tmp_path, caplog):
     """An exception inside one of the launcher's Zenoh callbacks (a bug) would reach only Zenoh's stderr
     print: it is logged with its traceback, counted in the launcher's status, shown by ``status``, and the
@@ -1903,17 +1944,23 @@ def test_up_under_another_robot_id_namespaces_every_key_and_the_tools_follow_it(
 def test_status_names_the_policy_a_profile_leaves_out_and_says_the_episode_waits_until_one_serves_it(tmp_path):
     """A profile with no policy (none listed, no ``without:``; its robot is to be served by a shared server) had no
     policy row in ``status`` until some policy answered, while the episode stood at step 0: nothing said what it waited
-    for. ``status`` lists it from the start, DOWN, not started by this run, and says the episode waits for it; a
-    policy that attaches makes the robot explore, and once it is gone the episode waits again."""
+    for. ``status`` lists it from the start, DOWN, not started by this run, and says the episode waits for it. Step 0
+    waits for it too: the sim started without it, re-published step 0 every second (``lockstep_timeouts`` climbing,
+    "no cmd_vel (frontier/planner)") with its give-up clock running. A policy that attaches starts the episode, and
+    once it is gone the episode waits again."""
     policy = None
-    with detached_run(tmp_path, leave_out=("policy",), min_step_period_s=0.25) as (runs, status):
+    with detached_run(tmp_path, leave_out=("policy",), min_step_period_s=0.25, wait_for_services_s=120) as (runs, status):
         current = json.loads((runs / "current.json").read_text())
-        wait_for(lambda: (s := status()) and s["state"] == "exploring", 60, "the episode to start")
+        sim_log = Path(current["run_dir"]) / "logs" / "sim.log"
+        waits = "the profile's services are up; step 0 waits for policy, which the profile leaves to another process"
+        # Or the episode starts without it, as it did (then the assertion below says so at once).
+        wait_for(lambda: (sim_log.is_file() and waits in sim_log.read_text()) or ((s := status()) and s["state"] != "starting"), 60, "the sim to wait")
         s = status()
+        assert s["state"] == "starting" and s["step"] == 0 and s["lockstep_timeouts"] == 0, s
         assert s["services"]["policy"] == {"alive": False, "outside": True, "awaited": True} and s["waiting_for"] == ["policy"], s
-        assert s["step"] == 0 and s["decisions"] == 0
+        assert all(s["services"][name]["alive"] for name in ("sim", "mapper", "frontier", "planner")), s
         r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-        assert r.returncode == 0 and re.search(r"state +│ exploring; waiting for policy, which no process serves", r.stdout), r.stdout
+        assert r.returncode == 0 and re.search(r"state +│ starting; waiting for policy, which no process serves", r.stdout), r.stdout
         assert re.search(r"service policy +│ DOWN, not started by this run, the episode waits for it", r.stdout), r.stdout
         launcher_log = (Path(current["run_dir"]) / "logs" / "launcher.log").read_text()
         assert "profile lockstep has no policy service, and the episode needs one: it waits until another process serves robot r0" in launcher_log
@@ -1924,6 +1971,7 @@ def test_status_names_the_policy_a_profile_leaves_out_and_says_the_episode_waits
                                           cwd=tmp_path, stdout=log_file, stderr=subprocess.STDOUT)
             s = wait_for(lambda: (s := status()) and s["decisions"] >= 1 and s["step"] >= 1 and s, 60, "the robot to explore with the policy")
             assert s["services"]["policy"]["alive"] and s["services"]["policy"]["outside"] and s["waiting_for"] == [], s
+            assert "starting the episode without" not in sim_log.read_text()  # step 0 came with the policy, not after the wait
             policy.send_signal(signal.SIGINT)
             assert policy.wait(30) == 0, log_path.read_text()[-2000:]
             s = wait_for(lambda: (s := status()) and not s["services"]["policy"]["alive"] and s, 30, "status to see the policy gone")

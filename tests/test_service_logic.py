@@ -437,7 +437,7 @@ def test_sim_starts_the_episode_when_every_service_of_the_profile_is_alive():
 
     from services.sim import SimService
 
-    profile = {"lockstep": True, "scene": "generated:small:1:0", "seed": 3, "services": {"sim": {}, "mapper": {}, "policy": {}}}
+    profile = {"lockstep": True, "scene": "generated:small:1:0", "seed": 3, "services": {n: {} for n in ("sim", "mapper", "frontier", "policy", "planner")}}
 
     def sim(params: dict) -> tuple[SimService, list]:
         svc = SimService(ServiceContext("sim", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params))
@@ -449,9 +449,10 @@ def test_sim_starts_the_episode_when_every_service_of_the_profile_is_alive():
         return SimpleNamespace(key_expr=f"cso/r0/alive/{name}", kind=kind)
 
     svc, out = sim({"start_delay_s": 0.2})
-    assert svc.expected_services == {"mapper", "policy"}
+    assert svc.expected_services == {"mapper", "frontier", "policy", "planner"}
     t0 = svc.started_s
-    svc.on_alive(token("mapper"))
+    for name in ("mapper", "frontier", "planner"):
+        svc.on_alive(token(name))
     svc.on_tick(t0 + 5.0)
     assert svc.episode_state == "starting" and "scan" not in out  # the policy is not up yet
     svc.on_alive(token("policy"))
@@ -467,11 +468,40 @@ def test_sim_starts_the_episode_when_every_service_of_the_profile_is_alive():
     assert svc.episode_state == "exploring" and "scan" in out
 
     late, out = sim({"start_delay_s": 0.0, "wait_for_services_s": 2.0})
-    late.on_alive(token("mapper"))
+    for name in ("mapper", "frontier", "planner"):
+        late.on_alive(token(name))
     late.on_tick(late.started_s + 1.9)
     assert late.episode_state == "starting"
     late.on_tick(late.started_s + 2.0)  # the policy never came: start anyway (logged), the re-publishing covers it
     assert late.episode_state == "exploring" and "scan" in out
+
+
+def test_sim_waits_before_step_0_for_a_service_the_profile_leaves_out_and_the_episode_needs(caplog):
+    """A profile with no policy (its robot served by a shared policy server, or ``up --without policy``): step 0
+    waited only for the services it lists, and started without the policy, to re-publish step 0 in lockstep (its
+    give-up clock running) or to spend its steps standing still in real time. It waits for the policy too (any
+    robot's: a shared server's), at most ``wait_for_services_s``, and says what for; a listener (the foxglove bridge)
+    is never waited for."""
+    from types import SimpleNamespace
+
+    from services.sim import SimService
+
+    listed = {"sim": {}, "mapper": {}, "frontier": {}, "planner": {}}
+    profile = {"lockstep": True, "scene": "generated:small:1:0", "seed": 3, "services": listed, "without": ["foxglove_bridge"]}
+    svc = SimService(ServiceContext("sim", "r1", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0}))
+    svc.publish = lambda topic, msg, robot=None: None  # type: ignore[method-assign]
+    for name in ("mapper", "frontier", "planner"):
+        svc.on_alive(SimpleNamespace(key_expr=f"cso/r1/alive/{name}", kind="SampleKind.PUT"))
+    with caplog.at_level("INFO", logger="cso.sim"):
+        svc.on_tick(svc.started_s + 1.0)
+        svc.on_tick(svc.started_s + 2.0)
+    assert svc.episode_state == "starting"
+    said = [r.message for r in caplog.records if "step 0 waits for" in r.message]
+    assert said == ["the profile's services are up; step 0 waits for policy, which the profile leaves to another process (at most 29 s more)"]
+    svc.on_alive(SimpleNamespace(key_expr="cso/r0/alive/policy", kind="SampleKind.PUT"))  # r0's server serves r1 too
+    svc.on_tick(svc.started_s + 3.0)
+    assert svc.episode_state == "exploring" and svc.step == 0
+    assert svc.left_out_needed == {"policy"} and svc.expected_services == {"mapper", "frontier", "planner", "policy"}
 
 
 @pytest.mark.parametrize("real_time_factor", [1.0, 4.0, 20.0])
