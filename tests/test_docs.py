@@ -144,3 +144,23 @@ def test_the_readme_names_every_column_of_episodes_csv_and_every_key_of_summary_
     row = {"method": "m", "map": "a", "scale": "small", "seed": 0, "terminated_by": "coverage", **dict.fromkeys(METRICS, 1.0)}
     entry = summarize([row], [], ["m"], meta={})["methods"]["m"]
     assert [k for k in entry if f"`{k}`" not in summary_row] == []
+
+
+def test_a_training_commands_refusal_names_only_flags_it_has(tmp_path):
+    """``train`` and ``collect-teacher`` name the flags that changed the recipe in their errors (``configs/train.yaml
+    with --variant x: ...``); ``collect-teacher --teacher x`` was quoted as ``--warm-start-teacher x``, a flag no
+    command has, so the user could not find what to change."""
+    from typer.testing import CliRunner
+
+    cli = typer.main.get_command(app)
+    refused = {
+        "collect-teacher": ["--out", str(tmp_path / "t.npz"), "--teacher", "oracle", "--seed", "3", "--dungeon-dir", str(tmp_path)],
+        "train": ["--variant", "cso-x", "--seed", "3", "--num-envs", "2", "--sync-envs", "--time-limit-s", "5", "--dungeon-dir", str(tmp_path)],
+    }
+    for command, argv in refused.items():
+        r = CliRunner().invoke(app, [command, *argv])
+        assert r.exit_code == 2, r.output
+        error = r.output.split("error:", 1)[1]
+        options = {o for p in cli.commands[command].params for o in (*p.opts, *p.secondary_opts)}
+        named = FLAG.findall(error.split(":")[0])  # "FILE with --flag value ...: why"
+        assert named and set(named) <= options, f"{command}'s error names {set(named) - options}: {error}"
