@@ -104,6 +104,117 @@ def test_every_command_and_flag_the_docs_show_exists():
     assert wrong == []
 
 
+DOCS = [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").glob("*.md"))]
+"""What users read for commands (docs/experiments/ is a record of what was tried, kept as it was)."""
+DOCUMENTED_COMMAND = re.compile(r"cso-runtime ([a-z].*?)(?: && |; |$)")
+PLACEHOLDERS = {"path/to/dungeon": "../shared/maps/dungeon", "METHODS": "all", "SET": "easy", "DEV": "../shared/maps/dungeon/train", "SCENES": "builtin"}
+"""What BENCHMARKS.md's upper-case words stand for in a command (``DEV``: a development set of training plans)."""
+
+
+def _code(doc: Path) -> list[str]:
+    """Every code line (fenced or indented block) and inline code span of a Markdown file, a span wrapped over two
+    lines and a command continued with ``\\`` joined again."""
+    text = doc.read_text(encoding="utf-8").replace("\\\n", " ")
+    lines = re.findall(r"^ *```[^\n]*\n(.*?)^ *```", text, flags=re.DOTALL | re.MULTILINE)
+    text = re.sub(r"^ *```.*?^ *```", "", text, flags=re.DOTALL | re.MULTILINE)
+    indented = [line for line in text.splitlines() if line.startswith("    ") and "`" not in line]
+    lines = [line for block in lines for line in block.splitlines()] + indented
+    text = "\n".join(line for line in text.splitlines() if line not in indented)
+    return lines + [span.replace("\n", " ") for span in re.findall(r"`([^`]+)`", text)]
+
+
+def _documented_commands() -> list[tuple[str, str]]:
+    """``(doc, "CMD ARGS")`` for every ``cso-runtime CMD ARGS`` the docs show."""
+    return [(doc.name, m) for doc in DOCS for line in _code(doc) for m in DOCUMENTED_COMMAND.findall(line)]
+
+
+def _variants(command: str) -> list[list[str]]:
+    """The argument lists a documented command stands for: every ``[--optional part]`` given, its ``a | b``
+    alternatives and every ``a|b`` value in turn (so each alternative is tried), placeholders filled in."""
+    import shlex
+
+    command = command.split(" #")[0].replace("\\", " ").replace("...", " ")
+    for word, value in PLACEHOLDERS.items():
+        command = re.sub(rf"\b{re.escape(word)}\b", value, command)
+    groups = re.findall(r"(?<= )\[(--[^\]]*)\]", command)
+    alternatives = [group.split(" | ") for group in groups]
+    variants = []
+    count = max([len(a) for a in alternatives] + [len(t.split("|")) for t in command.replace(" | ", "|").split()])
+    for i in range(count):
+        text = command
+        for group, alts in zip(groups, alternatives):
+            text = text.replace(f"[{group}]", alts[i % len(alts)], 1)
+        tokens = shlex.split(text.replace(" | ", "|"))
+        variants.append([t.split("|")[i % len(t.split("|"))] for t in tokens])
+    return variants
+
+
+class _Validated(Exception):
+    """Raised in place of the work a command would start, once it has accepted its arguments."""
+
+
+def test_every_run_eval_and_train_command_the_docs_show_is_accepted(tmp_path, monkeypatch):
+    """Each documented ``up``, ``eval``, ``train`` and ``collect-teacher`` command passes the command's own checks
+    (``up --dry-run``; the others up to their first episode): its profile, methods, variant, scenes, config files,
+    ``--set`` keys and flags together. BENCHMARKS.md showed ``eval ... [--sensor depth] [--lidar-fov 360]``, two
+    flags that ``eval`` refuses together. Run as on the build machine: from the repository, the Dungeon sets in
+    ``../shared/maps/dungeon`` (one plan each here); a folder that one documented command writes and another reads
+    (``train --out runs/train/cso``, ``collect-teacher --out``) is made as that command would."""
+    import shutil
+
+    import numpy as np
+    from typer.testing import CliRunner
+
+    import robot_sim.viewer
+    import services.foxglove_bridge
+    from cso_runtime import cli, evaluation
+    from cso_runtime.learned import ppo
+    from cso_runtime.learned.graph import empty_graph
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+    from cso_runtime.scenes import builtin_scene_dir
+
+    def stop(*args, **kwargs):
+        raise _Validated
+
+    def collected(args, *rest, **kwargs):  # one decision of the configuration's layout, as the workers would give
+        graph = {k: np.asarray(v)[None] for k, v in empty_graph(args.env_config().graph).items()}
+        mask = np.ones((1, args.max_frontier_nodes), dtype=bool)
+        return ppo.TeacherData(graph, mask, np.zeros(1, np.int64), np.zeros(1, np.float32), np.full((1, args.max_frontier_nodes), np.inf))
+
+    monkeypatch.setattr(evaluation, "run_eval", stop)
+    monkeypatch.setattr(ppo, "train", stop)
+    monkeypatch.setattr(ppo, "collect_teacher_parallel", collected)
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    monkeypatch.setattr(robot_sim.viewer, "display_problem", lambda *a, **k: None)  # no display here
+    monkeypatch.setattr(services.foxglove_bridge, "port_problem", lambda *a, **k: None)  # nor a free port 8765 in CI
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    for plans in ("train", "easy", "medium", "complex"):
+        (tmp_path / "shared" / "maps" / "dungeon" / plans).mkdir(parents=True)
+        shutil.copy(builtin_scene_dir() / "img_1.png", tmp_path / "shared" / "maps" / "dungeon" / plans)
+    monkeypatch.chdir(repo)
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # restored after the test, whatever `--weights` set in between
+    commands = [(doc, argv) for doc, command in _documented_commands() for argv in _variants(command)]
+    outs = {argv[argv.index("--out") + 1] for _, argv in commands if argv[0] == "train" and "--out" in argv}
+    wrong, checked = [], 0
+    for doc, argv in commands:
+        if argv[0] not in ("up", "eval", "train", "collect-teacher"):
+            continue
+        argv = [str(ROOT / a) if "/" in a and not a.startswith(("/", "..")) and (ROOT / a).exists() else a for a in argv]
+        monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)  # as a new shell: an earlier --weights set it
+        trained = Path(argv[argv.index("--weights") + 1]) if "--weights" in argv else None
+        if trained is not None and not any(trained.glob("*.pt")):  # a training run's folder, as `train` leaves it
+            assert str(trained) in outs, f"{doc}: --weights {trained}: no documented `train --out` writes it"
+            trained.mkdir(parents=True, exist_ok=True)
+            shutil.copy(ROOT / "cso_runtime" / "data" / "weights" / "cso.pt", trained)
+        r = CliRunner().invoke(app, [*argv, "--dry-run"] if argv[0] == "up" and "--dry-run" not in argv else argv)
+        checked += 1
+        if not (r.exit_code == 0 if argv[0] in ("up", "collect-teacher") else isinstance(r.exception, _Validated)):
+            wrong.append(f"{doc}: cso-runtime {' '.join(argv)}: {(r.output or repr(r.exception)).strip()[-300:]}")
+    assert checked >= 50, "the docs lost their commands, or the pattern broke"
+    assert wrong == []
+
+
 def test_the_readmes_python_example_runs_and_prints_an_episode(tmp_path):
     """The "From Python" block, run as a user would paste it: one episode, its Table 1 figures printed."""
     import subprocess
