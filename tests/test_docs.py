@@ -78,29 +78,53 @@ def test_the_training_config_names_every_field_with_its_default():
     assert set(train) <= fields
 
 
-COMMAND_LINE = re.compile(r"cso-runtime ([a-z][^`\n]*)")
-"""``cso-runtime CMD ...`` up to the end of the code span or line."""
-SHORT_COMMAND = re.compile(r"`([a-z][a-z-]* [^`\n]*--[^`\n]*)`")
+SHORT_COMMAND = re.compile(r"^([a-z][a-z-]* [^`\n]*--[^`\n]*)$")
 """A code span that starts with a command's name and has a flag: ``up --dry-run``."""
 FLAG = re.compile(r"(?<![\w-])(--[a-z][a-z0-9-]*)")
+PYTHON_COMMAND = re.compile(r"python3? (?:-m ([\w.]+)|(benchmarks/\w+\.py))(.*?)(?: && |; |$)")
+"""``python -m MODULE ARGS`` or ``python benchmarks/SCRIPT.py ARGS``."""
+DECLARED_FLAG = re.compile(r"add_argument\(\s*\"(--[\w-]+)\"")
+
+
+def _declared_flags(*sources: Path) -> set[str]:
+    """The ``--flags`` that argparse parsers in these files declare."""
+    return {"--help"} | {f for src in sources for f in DECLARED_FLAG.findall(src.read_text(encoding="utf-8"))}
 
 
 def test_every_command_and_flag_the_docs_show_exists():
+    """Every ``cso-runtime`` command and flag; every service's own flag (``service NAME --port``, ``python -m
+    services.NAME``); every ``python benchmarks/SCRIPT.py`` and ``python -m`` module of the project, and their flags."""
     cli = typer.main.get_command(app)
     options = {name: {o for p in c.params for o in (*p.opts, *p.secondary_opts)} | {"--help"} for name, c in cli.commands.items()}
     global_options = {o for p in cli.params for o in p.opts}
+    service_flags = _declared_flags(ROOT / "services" / "common.py")
     wrong, seen = [], 0
-    for doc in [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").glob("*.md"))]:
-        text = doc.read_text(encoding="utf-8")
-        spans = COMMAND_LINE.findall(text) + [s for s in SHORT_COMMAND.findall(text) if s.split()[0] in options]
+    for doc in DOCS:
+        code = _code(doc)
+        spans = [m for line in code for m in DOCUMENTED_COMMAND.findall(line)]
+        spans += [s for line in code for s in SHORT_COMMAND.findall(line) if s.split()[0] in options]
         for span in spans:
             seen += 1
             command, line = span.split()[0], span.split("#")[0]
+            flags = set(FLAG.findall(line))
             if command not in options:
                 wrong.append(f"{doc.name}: no command {command!r} ({span[:60]})")
-            elif command != "service":  # a service's own flags pass through to it
-                wrong += [f"{doc.name}: {command} has no {flag}" for flag in FLAG.findall(line) if flag not in options[command] | global_options]
-    assert seen >= 80, "the docs lost their examples, or the pattern broke"
+            elif command == "service" and (ROOT / "services" / f"{line.split()[1:2] and line.split()[1]}.py").is_file():
+                own = service_flags | _declared_flags(ROOT / "services" / f"{line.split()[1]}.py")
+                wrong += [f"{doc.name}: service {line.split()[1]} has no {flag}" for flag in sorted(flags - own)]
+            elif command != "service":
+                wrong += [f"{doc.name}: {command} has no {flag}" for flag in sorted(flags - options[command] - global_options)]
+        for module, script, args in (m for line in code for m in PYTHON_COMMAND.findall(line)):
+            if module.split(".")[0] not in ("services", "robot_sim", "cso_runtime", "benchmarks") and not script:
+                continue  # another package's (mujoco.viewer, pstats)
+            seen += 1
+            path = ROOT / (script or module.replace(".", "/") + ".py")
+            if not path.is_file():
+                wrong.append(f"{doc.name}: no {path.relative_to(ROOT)} (python {script or '-m ' + module})")
+                continue
+            declared = _declared_flags(path, *([ROOT / "services" / "common.py"] if module.startswith("services.") else []))
+            wrong += [f"{doc.name}: {path.relative_to(ROOT)} has no {flag}" for flag in sorted(set(FLAG.findall(args.split("#")[0])) - declared)]
+    assert seen >= 120, "the docs lost their examples, or the pattern broke"
     assert wrong == []
 
 
@@ -213,6 +237,38 @@ def test_every_run_eval_and_train_command_the_docs_show_is_accepted(tmp_path, mo
             wrong.append(f"{doc}: cso-runtime {' '.join(argv)}: {(r.output or repr(r.exception)).strip()[-300:]}")
     assert checked >= 50, "the docs lost their commands, or the pattern broke"
     assert wrong == []
+
+
+REPO_PATH = re.compile(r"(?<![\w/.$-])((?:benchmarks/)?results/[\w{},.*/@<>-]+|(?:cso_runtime|configs|docs|services|robot_sim|benchmarks|tests)/[\w{},.*/@<>-]+)")
+"""A path in the repository: ``configs/train.yaml``, ``results/footprint_stall/{dev180,l180}_*`` (BENCHMARKS.md's
+``results/`` is ``benchmarks/results/``)."""
+
+
+def _expand_braces(path: str) -> list[str]:
+    """``a/{b,c}_d`` -> ``a/b_d``, ``a/c_d`` (the shell's brace expansion)."""
+    group = re.search(r"\{([^{}]*)\}", path)
+    if group is None:
+        return [path]
+    return [p for alt in group.group(1).split(",") for p in _expand_braces(path[: group.start()] + alt + path[group.end() :])]
+
+
+def test_every_repository_path_the_docs_name_exists():
+    """A results folder, config, module or test a doc points to is there (globs and ``{a,b}`` as the shell reads
+    them); ``<run-id>``-style placeholders are left out."""
+    import glob
+
+    missing, seen = [], 0
+    for doc in DOCS:
+        for ref in REPO_PATH.findall(doc.read_text(encoding="utf-8")):
+            ref = ref.rstrip(".,)/")
+            if "<" in ref or (ref.startswith("results/") and doc.name != "BENCHMARKS.md"):
+                continue  # a placeholder, or an output folder of a command (README's `--out results/easy`)
+            for path in _expand_braces("benchmarks/" + ref if ref.startswith("results/") else ref):
+                seen += 1
+                if not glob.glob(str(ROOT / path)):
+                    missing.append(f"{doc.name}: {path}")
+    assert seen >= 200, "the docs lost their references, or the pattern broke"
+    assert missing == []
 
 
 def test_the_readmes_python_example_runs_and_prints_an_episode(tmp_path):
