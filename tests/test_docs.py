@@ -301,13 +301,16 @@ def test_messages_md_states_each_schemas_wire_version():
 
 
 def test_the_readme_names_every_column_of_episodes_csv_and_every_key_of_summary_json():
-    """A user reading a results folder finds each column of episodes.csv and each per-method key of summary.json
-    in the README's table of outputs (with its unit), not only in the code."""
+    """A user reading a results folder finds each column of episodes.csv and paired.csv and each per-method key of
+    summary.json in the README's table of outputs (with its unit), not only in the code."""
     from cso_runtime.evaluation import CSV_FIELDS, METRICS, summarize
 
     rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
     csv_row, summary_row = rows["`episodes.csv`"], rows["`summary.json`"]
     assert [c for c in CSV_FIELDS if f"`{c}`" not in csv_row] == []
+    from cso_runtime.comparison import CSV_FIELDS as PAIRED_FIELDS
+
+    assert [c for c in PAIRED_FIELDS if f"`{c}`" not in rows["`paired.csv`"]] == []
     row = {"method": "m", "map": "a", "scale": "small", "seed": 0, "terminated_by": "coverage", **dict.fromkeys(METRICS, 1.0)}
     entry = summarize([row], [], ["m"], meta={})["methods"]["m"]
     assert [k for k in entry if f"`{k}`" not in summary_row] == []
