@@ -1032,8 +1032,8 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
     return args
 
 
-TRAIN_FLAG_NAMES = {"out_dir": "--out", "resume": "--resume", "init_from": "--init-from"}
-"""``train``'s flags whose name is not the Args field's with dashes."""
+TRAIN_FLAG_NAMES = {"out_dir": "--out", "resume": "--resume", "init_from": "--init-from", "warm_start_teacher": "--teacher"}
+"""The flags of ``train`` and ``collect-teacher`` whose name is not the Args field's with dashes."""
 
 
 def _flag_of(field_name: str, value: object) -> str:

@@ -78,30 +78,197 @@ def test_the_training_config_names_every_field_with_its_default():
     assert set(train) <= fields
 
 
-COMMAND_LINE = re.compile(r"cso-runtime ([a-z][^`\n]*)")
-"""``cso-runtime CMD ...`` up to the end of the code span or line."""
-SHORT_COMMAND = re.compile(r"`([a-z][a-z-]* [^`\n]*--[^`\n]*)`")
+SHORT_COMMAND = re.compile(r"^([a-z][a-z-]* [^`\n]*--[^`\n]*)$")
 """A code span that starts with a command's name and has a flag: ``up --dry-run``."""
 FLAG = re.compile(r"(?<![\w-])(--[a-z][a-z0-9-]*)")
+PYTHON_COMMAND = re.compile(r"python3? (?:-m ([\w.]+)|(benchmarks/\w+\.py))(.*?)(?: && |; |$)")
+"""``python -m MODULE ARGS`` or ``python benchmarks/SCRIPT.py ARGS``."""
+DECLARED_FLAG = re.compile(r"add_argument\(\s*\"(--[\w-]+)\"")
+
+
+def _declared_flags(*sources: Path) -> set[str]:
+    """The ``--flags`` that argparse parsers in these files declare."""
+    return {"--help"} | {f for src in sources for f in DECLARED_FLAG.findall(src.read_text(encoding="utf-8"))}
 
 
 def test_every_command_and_flag_the_docs_show_exists():
+    """Every ``cso-runtime`` command and flag; every service's own flag (``service NAME --port``, ``python -m
+    services.NAME``); every ``python benchmarks/SCRIPT.py`` and ``python -m`` module of the project, and their flags."""
     cli = typer.main.get_command(app)
     options = {name: {o for p in c.params for o in (*p.opts, *p.secondary_opts)} | {"--help"} for name, c in cli.commands.items()}
     global_options = {o for p in cli.params for o in p.opts}
+    service_flags = _declared_flags(ROOT / "services" / "common.py")
     wrong, seen = [], 0
-    for doc in [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").glob("*.md"))]:
-        text = doc.read_text(encoding="utf-8")
-        spans = COMMAND_LINE.findall(text) + [s for s in SHORT_COMMAND.findall(text) if s.split()[0] in options]
+    for doc in DOCS:
+        code = _code(doc)
+        spans = [m for line in code for m in DOCUMENTED_COMMAND.findall(line)]
+        spans += [s for line in code for s in SHORT_COMMAND.findall(line) if s.split()[0] in options]
         for span in spans:
             seen += 1
             command, line = span.split()[0], span.split("#")[0]
+            flags = set(FLAG.findall(line))
             if command not in options:
                 wrong.append(f"{doc.name}: no command {command!r} ({span[:60]})")
-            elif command != "service":  # a service's own flags pass through to it
-                wrong += [f"{doc.name}: {command} has no {flag}" for flag in FLAG.findall(line) if flag not in options[command] | global_options]
-    assert seen >= 80, "the docs lost their examples, or the pattern broke"
+            elif command == "service" and (ROOT / "services" / f"{line.split()[1:2] and line.split()[1]}.py").is_file():
+                own = service_flags | _declared_flags(ROOT / "services" / f"{line.split()[1]}.py")
+                wrong += [f"{doc.name}: service {line.split()[1]} has no {flag}" for flag in sorted(flags - own)]
+            elif command != "service":
+                wrong += [f"{doc.name}: {command} has no {flag}" for flag in sorted(flags - options[command] - global_options)]
+        for module, script, args in (m for line in code for m in PYTHON_COMMAND.findall(line)):
+            if module.split(".")[0] not in ("services", "robot_sim", "cso_runtime", "benchmarks") and not script:
+                continue  # another package's (mujoco.viewer, pstats)
+            seen += 1
+            path = ROOT / (script or module.replace(".", "/") + ".py")
+            if not path.is_file():
+                wrong.append(f"{doc.name}: no {path.relative_to(ROOT)} (python {script or '-m ' + module})")
+                continue
+            declared = _declared_flags(path, *([ROOT / "services" / "common.py"] if module.startswith("services.") else []))
+            wrong += [f"{doc.name}: {path.relative_to(ROOT)} has no {flag}" for flag in sorted(set(FLAG.findall(args.split("#")[0])) - declared)]
+    assert seen >= 120, "the docs lost their examples, or the pattern broke"
     assert wrong == []
+
+
+DOCS = [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").glob("*.md"))]
+"""What users read for commands (docs/experiments/ is a record of what was tried, kept as it was)."""
+DOCUMENTED_COMMAND = re.compile(r"cso-runtime ([a-z].*?)(?: && |; |$)")
+PLACEHOLDERS = {"path/to/dungeon": "../shared/maps/dungeon", "METHODS": "all", "SET": "easy", "DEV": "../shared/maps/dungeon/train", "SCENES": "builtin"}
+"""What BENCHMARKS.md's upper-case words stand for in a command (``DEV``: a development set of training plans)."""
+
+
+def _code(doc: Path) -> list[str]:
+    """Every code line (fenced or indented block) and inline code span of a Markdown file, a span wrapped over two
+    lines and a command continued with ``\\`` joined again."""
+    text = doc.read_text(encoding="utf-8").replace("\\\n", " ")
+    lines = re.findall(r"^ *```[^\n]*\n(.*?)^ *```", text, flags=re.DOTALL | re.MULTILINE)
+    text = re.sub(r"^ *```.*?^ *```", "", text, flags=re.DOTALL | re.MULTILINE)
+    indented = [line for line in text.splitlines() if line.startswith("    ") and "`" not in line]
+    lines = [line for block in lines for line in block.splitlines()] + indented
+    text = "\n".join(line for line in text.splitlines() if line not in indented)
+    return lines + [span.replace("\n", " ") for span in re.findall(r"`([^`]+)`", text)]
+
+
+def _documented_commands() -> list[tuple[str, str]]:
+    """``(doc, "CMD ARGS")`` for every ``cso-runtime CMD ARGS`` the docs show."""
+    return [(doc.name, m) for doc in DOCS for line in _code(doc) for m in DOCUMENTED_COMMAND.findall(line)]
+
+
+def _variants(command: str) -> list[list[str]]:
+    """The argument lists a documented command stands for: every ``[--optional part]`` given, its ``a | b``
+    alternatives and every ``a|b`` value in turn (so each alternative is tried), placeholders filled in."""
+    import shlex
+
+    command = command.split(" #")[0].replace("\\", " ").replace("...", " ")
+    for word, value in PLACEHOLDERS.items():
+        command = re.sub(rf"\b{re.escape(word)}\b", value, command)
+    groups = re.findall(r"(?<= )\[(--[^\]]*)\]", command)
+    alternatives = [group.split(" | ") for group in groups]
+    variants = []
+    count = max([len(a) for a in alternatives] + [len(t.split("|")) for t in command.replace(" | ", "|").split()])
+    for i in range(count):
+        text = command
+        for group, alts in zip(groups, alternatives):
+            text = text.replace(f"[{group}]", alts[i % len(alts)], 1)
+        tokens = shlex.split(text.replace(" | ", "|"))
+        variants.append([t.split("|")[i % len(t.split("|"))] for t in tokens])
+    return variants
+
+
+class _Validated(Exception):
+    """Raised in place of the work a command would start, once it has accepted its arguments."""
+
+
+def test_every_run_eval_and_train_command_the_docs_show_is_accepted(tmp_path, monkeypatch):
+    """Each documented ``up``, ``eval``, ``train`` and ``collect-teacher`` command passes the command's own checks
+    (``up --dry-run``; the others up to their first episode): its profile, methods, variant, scenes, config files,
+    ``--set`` keys and flags together. BENCHMARKS.md showed ``eval ... [--sensor depth] [--lidar-fov 360]``, two
+    flags that ``eval`` refuses together. Run as on the build machine: from the repository, the Dungeon sets in
+    ``../shared/maps/dungeon`` (one plan each here); a folder that one documented command writes and another reads
+    (``train --out runs/train/cso``, ``collect-teacher --out``) is made as that command would."""
+    import shutil
+
+    import numpy as np
+    from typer.testing import CliRunner
+
+    import robot_sim.viewer
+    import services.foxglove_bridge
+    from cso_runtime import cli, evaluation
+    from cso_runtime.learned import ppo
+    from cso_runtime.learned.graph import empty_graph
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+    from cso_runtime.scenes import builtin_scene_dir
+
+    def stop(*args, **kwargs):
+        raise _Validated
+
+    def collected(args, *rest, **kwargs):  # one decision of the configuration's layout, as the workers would give
+        graph = {k: np.asarray(v)[None] for k, v in empty_graph(args.env_config().graph).items()}
+        mask = np.ones((1, args.max_frontier_nodes), dtype=bool)
+        return ppo.TeacherData(graph, mask, np.zeros(1, np.int64), np.zeros(1, np.float32), np.full((1, args.max_frontier_nodes), np.inf))
+
+    monkeypatch.setattr(evaluation, "run_eval", stop)
+    monkeypatch.setattr(ppo, "train", stop)
+    monkeypatch.setattr(ppo, "collect_teacher_parallel", collected)
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    monkeypatch.setattr(robot_sim.viewer, "display_problem", lambda *a, **k: None)  # no display here
+    monkeypatch.setattr(services.foxglove_bridge, "port_problem", lambda *a, **k: None)  # nor a free port 8765 in CI
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    for plans in ("train", "easy", "medium", "complex"):
+        (tmp_path / "shared" / "maps" / "dungeon" / plans).mkdir(parents=True)
+        shutil.copy(builtin_scene_dir() / "img_1.png", tmp_path / "shared" / "maps" / "dungeon" / plans)
+    monkeypatch.chdir(repo)
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # restored after the test, whatever `--weights` set in between
+    commands = [(doc, argv) for doc, command in _documented_commands() for argv in _variants(command)]
+    outs = {argv[argv.index("--out") + 1] for _, argv in commands if argv[0] == "train" and "--out" in argv}
+    wrong, checked = [], 0
+    for doc, argv in commands:
+        if argv[0] not in ("up", "eval", "train", "collect-teacher"):
+            continue
+        argv = [str(ROOT / a) if "/" in a and not a.startswith(("/", "..")) and (ROOT / a).exists() else a for a in argv]
+        monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)  # as a new shell: an earlier --weights set it
+        trained = Path(argv[argv.index("--weights") + 1]) if "--weights" in argv else None
+        if trained is not None and not any(trained.glob("*.pt")):  # a training run's folder, as `train` leaves it
+            assert str(trained) in outs, f"{doc}: --weights {trained}: no documented `train --out` writes it"
+            trained.mkdir(parents=True, exist_ok=True)
+            shutil.copy(ROOT / "cso_runtime" / "data" / "weights" / "cso.pt", trained)
+        r = CliRunner().invoke(app, [*argv, "--dry-run"] if argv[0] == "up" and "--dry-run" not in argv else argv)
+        checked += 1
+        if not (r.exit_code == 0 if argv[0] in ("up", "collect-teacher") else isinstance(r.exception, _Validated)):
+            wrong.append(f"{doc}: cso-runtime {' '.join(argv)}: {(r.output or repr(r.exception)).strip()[-300:]}")
+    assert checked >= 50, "the docs lost their commands, or the pattern broke"
+    assert wrong == []
+
+
+REPO_PATH = re.compile(r"(?<![\w/.$-])((?:benchmarks/)?results/[\w{},.*/@<>-]+|(?:cso_runtime|configs|docs|services|robot_sim|benchmarks|tests)/[\w{},.*/@<>-]+)")
+"""A path in the repository: ``configs/train.yaml``, ``results/footprint_stall/{dev180,l180}_*`` (BENCHMARKS.md's
+``results/`` is ``benchmarks/results/``)."""
+
+
+def _expand_braces(path: str) -> list[str]:
+    """``a/{b,c}_d`` -> ``a/b_d``, ``a/c_d`` (the shell's brace expansion)."""
+    group = re.search(r"\{([^{}]*)\}", path)
+    if group is None:
+        return [path]
+    return [p for alt in group.group(1).split(",") for p in _expand_braces(path[: group.start()] + alt + path[group.end() :])]
+
+
+def test_every_repository_path_the_docs_name_exists():
+    """A results folder, config, module or test a doc points to is there (globs and ``{a,b}`` as the shell reads
+    them); ``<run-id>``-style placeholders are left out."""
+    import glob
+
+    missing, seen = [], 0
+    for doc in DOCS:
+        for ref in REPO_PATH.findall(doc.read_text(encoding="utf-8")):
+            ref = ref.rstrip(".,)/")
+            if "<" in ref or (ref.startswith("results/") and doc.name != "BENCHMARKS.md"):
+                continue  # a placeholder, or an output folder of a command (README's `--out results/easy`)
+            for path in _expand_braces("benchmarks/" + ref if ref.startswith("results/") else ref):
+                seen += 1
+                if not glob.glob(str(ROOT / path)):
+                    missing.append(f"{doc.name}: {path}")
+    assert seen >= 200, "the docs lost their references, or the pattern broke"
+    assert missing == []
 
 
 def test_the_readmes_python_example_runs_and_prints_an_episode(tmp_path):
@@ -134,13 +301,16 @@ def test_messages_md_states_each_schemas_wire_version():
 
 
 def test_the_readme_names_every_column_of_episodes_csv_and_every_key_of_summary_json():
-    """A user reading a results folder finds each column of episodes.csv and each per-method key of summary.json
-    in the README's table of outputs (with its unit), not only in the code."""
+    """A user reading a results folder finds each column of episodes.csv and paired.csv and each per-method key of
+    summary.json in the README's table of outputs (with its unit), not only in the code."""
     from cso_runtime.evaluation import CSV_FIELDS, METRICS, summarize
 
     rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
     csv_row, summary_row = rows["`episodes.csv`"], rows["`summary.json`"]
     assert [c for c in CSV_FIELDS if f"`{c}`" not in csv_row] == []
+    from cso_runtime.comparison import CSV_FIELDS as PAIRED_FIELDS
+
+    assert [c for c in PAIRED_FIELDS if f"`{c}`" not in rows["`paired.csv`"]] == []
     row = {"method": "m", "map": "a", "scale": "small", "seed": 0, "terminated_by": "coverage", **dict.fromkeys(METRICS, 1.0)}
     entry = summarize([row], [], ["m"], meta={})["methods"]["m"]
     assert [k for k in entry if f"`{k}`" not in summary_row] == []
@@ -158,3 +328,23 @@ def test_the_readme_names_every_array_of_an_episodes_npz(tmp_path):
     rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
     keys = np.load(episode_npz_path(tmp_path, "greedy-dist", "gen_small_0")).files
     assert len(keys) >= 3 and [k for k in keys if f"`{k}`" not in rows["`episodes/<method>/<map>.npz`"]] == []
+
+
+def test_a_training_commands_refusal_names_only_flags_it_has(tmp_path):
+    """``train`` and ``collect-teacher`` name the flags that changed the recipe in their errors (``configs/train.yaml
+    with --variant x: ...``); ``collect-teacher --teacher x`` was quoted as ``--warm-start-teacher x``, a flag no
+    command has, so the user could not find what to change."""
+    from typer.testing import CliRunner
+
+    cli = typer.main.get_command(app)
+    refused = {
+        "collect-teacher": ["--out", str(tmp_path / "t.npz"), "--teacher", "oracle", "--seed", "3", "--dungeon-dir", str(tmp_path)],
+        "train": ["--variant", "cso-x", "--seed", "3", "--num-envs", "2", "--sync-envs", "--time-limit-s", "5", "--dungeon-dir", str(tmp_path)],
+    }
+    for command, argv in refused.items():
+        r = CliRunner().invoke(app, [command, *argv])
+        assert r.exit_code == 2, r.output
+        error = r.output.split("error:", 1)[1]
+        options = {o for p in cli.commands[command].params for o in (*p.opts, *p.secondary_opts)}
+        named = FLAG.findall(error.split(":")[0])  # "FILE with --flag value ...: why"
+        assert named and set(named) <= options, f"{command}'s error names {set(named) - options}: {error}"
