@@ -62,7 +62,7 @@ from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, 
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
 from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
-from cso_runtime.simulator import SIMULATORS, make_simulator, mujoco_config
+from cso_runtime.simulator import SIMULATORS, MountSetting, make_simulator, mujoco_config
 
 log = logging.getLogger(__name__)
 
@@ -152,7 +152,8 @@ class EvalRequest:
             return {}
         data = load_yaml(self.sim_config_path) if self.sim_config_path is not None else {}
         cfg = self.exploration_config()
-        mujoco_config(data, cfg.sensor, where=str(self.sim_config_path or "--sim mujoco"), robot=cfg.robot)
+        mount = MountSetting(file=str(self.config_path or "a --config file"), command="eval")  # eval's config sets the sensor
+        mujoco_config(data, cfg.sensor, where=str(self.sim_config_path or "--sim mujoco"), robot=cfg.robot, mount=mount)
         return data
 
     def as_record(self) -> dict[str, Any]:

@@ -188,10 +188,11 @@ class Profile:
         sim = self.services.get("sim") or {}
         if "sim" in self.services and BACKENDS[sim.get("backend", SimParams.backend)] == "mujoco":
             # the LiDAR mount against the sensor's, the control period against the physics step, before anything starts
-            from cso_runtime.simulator import mujoco_config  # noqa: PLC0415
+            from cso_runtime.simulator import MountSetting, mujoco_config  # noqa: PLC0415
 
             exploration = self.exploration_config()
-            mujoco_config(sim.get("mujoco"), exploration.sensor, where="services.sim.mujoco", robot=exploration.robot)
+            mount = MountSetting(key="exploration.sensor.mount_x_m", file="the profile", command="up")  # a profile's key, not eval's
+            mujoco_config(sim.get("mujoco"), exploration.sensor, where="services.sim.mujoco", robot=exploration.robot, mount=mount)
         if (self.services.get("sim") or {}).get("viewer"):  # its own process checks too; this says so before anything starts
             from robot_sim.viewer import display_problem  # noqa: PLC0415
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -159,22 +160,43 @@ class KinematicSimulator:
 SIMULATORS = ("2d", "mujoco")
 
 
+@dataclass(frozen=True)
+class MountSetting:
+    """Where the user of a command sets the sensor's mount, for the error that asks for it: a profile's key is
+    ``exploration.sensor.mount_x_m``, eval's config's ``sensor.mount_x_m``."""
+
+    key: str = "sensor.mount_x_m"
+    """The dotted key of the sensor's mount in ``file``."""
+    file: str = "the exploration config"
+    command: str = ""
+    """The command whose ``--set`` sets ``key`` too (``up``, ``eval``); empty: none."""
+
+    def advice(self, value: object) -> str:
+        flag = f" or with {self.command} --set {self.key}={value}" if self.command else ""
+        return f"set {self.key}: {value} in {self.file}{flag} instead"
+
+
 def mujoco_config(
-    overrides: Mapping[str, Any] | None, sensor: SensorConfig, where: str = "mujoco", robot: RobotConfig | None = None
+    overrides: Mapping[str, Any] | None,
+    sensor: SensorConfig,
+    where: str = "mujoco",
+    robot: RobotConfig | None = None,
+    mount: MountSetting | None = MountSetting(),
 ) -> MujocoSimConfig:
     """The MuJoCo LIMO's parameters: ``robot_sim``'s defaults with ``overrides`` on top (the keys of
     ``configs/robot_sim.yaml``: physics, odometry drift), its rays cast from the sensor's own mount, which the
     mapper and the planner use too (eval, the services and doctor give it the LIMO's 0.103 m unless a config
     sets it): one mount, not two that disagree. With ``robot``, its control period must be a whole number of
-    physics steps. Raises ConfigError naming ``where``."""
+    physics steps. Raises ConfigError naming ``where`` and, for another mount, how the caller's user sets the
+    sensor's (``mount``; None: the caller fixes it, the key can only be left out)."""
     from robot_sim.config import MujocoSimConfig, whole_steps  # noqa: PLC0415 - MuJoCo only when asked for
 
     data = dict(overrides or {})
-    mount = data.get("lidar_mount_x_m")
-    if mount is not None and not (isinstance(mount, (int, float)) and math.isclose(float(mount), sensor.mount_x_m, abs_tol=1e-9)):
+    given = data.get("lidar_mount_x_m")
+    if given is not None and not (isinstance(given, (int, float)) and math.isclose(float(given), sensor.mount_x_m, abs_tol=1e-9)):
+        instead = f"{mount.advice(given)} (or leave this key out)" if mount is not None else "the sensor's mount is fixed here: leave this key out"
         raise ConfigError(
-            f"{where}.lidar_mount_x_m: {mount!r} is not the sensor's mount ({sensor.mount_x_m} m), which the mapper and the "
-            "planner use; set sensor.mount_x_m instead (or leave this key out)"
+            f"{where}.lidar_mount_x_m: {given!r} is not the sensor's mount ({sensor.mount_x_m} m), which the mapper and the planner use; {instead}"
         )
     data["lidar_mount_x_m"] = None
     config = from_dict(MujocoSimConfig, data, where=where)

@@ -231,6 +231,21 @@ def test_eval_sim_config_sets_the_mujoco_limos_parameters_and_resume_tells_them_
         run_eval(EvalRequest(**base, sim_config_path=drift))
 
 
+def test_a_second_lidar_mount_in_evals_sim_config_names_the_key_eval_sets_the_sensors_mount_with(tmp_path: Path):
+    """``--sim-config``'s ``lidar_mount_x_m`` against the sensor's mount: the error said "set sensor.mount_x_m" in every
+    context; in eval that key lives in the ``--config`` file (or ``eval --set``), in a profile under ``exploration.``."""
+    params = tmp_path / "limo.yaml"
+    params.write_text("lidar_mount_x_m: 0.2\n")
+    config = tmp_path / "eval.yaml"
+    config.write_text("episode:\n  max_steps: 20\n")
+    request = EvalRequest(methods=["greedy-dist"], sim="mujoco", sim_config_path=params, out_dir=tmp_path / "o")
+    with pytest.raises(ConfigError, match=r"set sensor.mount_x_m: 0.2 in a --config file or with eval --set sensor.mount_x_m=0.2 instead"):
+        request.validate()
+    request.config_path = config
+    with pytest.raises(ConfigError, match=rf"set sensor.mount_x_m: 0.2 in {config} or with eval --set sensor.mount_x_m=0.2 instead"):
+        request.validate()
+
+
 def test_eval_outside_the_repository_reads_the_packaged_configs_the_help_names(tmp_path: Path, monkeypatch):
     """``--config configs/eval.yaml`` and ``--sim-config configs/robot_sim.yaml`` (what the help and the README
     name) where there is no ``configs/``: the package's copies, with a note; another missing file stays an error."""

@@ -1528,7 +1528,8 @@ def test_up_checks_the_mujoco_limos_parameters_against_the_mount_its_services_ru
     profile, _ = load_profile("sim", {}, settings={"services.sim.mujoco.lidar_mount_x_m": 0.103})
     ran = load_profile_for_service(find_profile("sim"), "sim")[1]
     assert profile.exploration_config() == ran and ran.sensor.mount_x_m == 0.103 and ran.planner.body == "box"
-    with pytest.raises(ConfigError, match=r"0.2 is not the sensor's mount \(0.103 m\)"):
+    with pytest.raises(ConfigError, match=r"0.2 is not the sensor's mount \(0.103 m\).*set exploration.sensor.mount_x_m: 0.2 in the profile "
+                       r"or with up --set exploration.sensor.mount_x_m=0.2 instead"):  # a profile's key, not eval's sensor.mount_x_m
         load_profile("sim", {}, settings={"services.sim.mujoco.lidar_mount_x_m": 0.2})
     explicit, _ = load_profile("sim", {}, settings={"exploration.sensor.mount_x_m": 0.05, "services.sim.mujoco.lidar_mount_x_m": 0.05})
     assert explicit.exploration_config().sensor.mount_x_m == 0.05  # a profile's own mount is kept
