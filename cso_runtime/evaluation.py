@@ -62,7 +62,7 @@ from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, 
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
 from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
-from cso_runtime.simulator import SIMULATORS, MountSetting, make_simulator, mujoco_config
+from cso_runtime.simulator import SIMULATORS, MountSetting, make_simulator, mujoco_config, simulator_settings
 
 log = logging.getLogger(__name__)
 
@@ -542,6 +542,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         "cell_sizes_m": sorted({o.resolution_m for o in outcomes if o.row is not None}),  # what the scenes ran at (generated: 0.05, maps: their own)
         "seed": request.seed,
         "sim": request.sim,
+        "sim_settings": simulator_settings(request.sim, config.sensor, config.robot, mujoco),  # all of them, defaults too
         "scenes": len(scenes),
         "request": request.as_record(),  # every flag the run was given (--limit, --method, --workers, ...): enough to run it again
         "config": to_dict(config),

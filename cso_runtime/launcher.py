@@ -539,6 +539,9 @@ class Launcher:
 
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
         meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "profile": self.data}
+        sim_settings = self.profile.simulator_settings()
+        if sim_settings is not None:  # every parameter of the sim service's simulator, defaults too (as eval's)
+            meta["sim_settings"] = sim_settings
         from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
 
         if result.method in LEARNED_METHODS:

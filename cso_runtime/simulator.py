@@ -7,6 +7,7 @@ protocol with physics. Mapping, frontiers, policies and the planner never know w
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -206,6 +207,20 @@ def mujoco_config(
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
     return config
+
+
+def simulator_settings(name: str, sensor: SensorConfig, robot: RobotConfig, mujoco: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Every parameter of the simulator that ``make_simulator(name, ..., mujoco=mujoco)`` builds, as it runs them, units
+    in the names: ``summary.json``'s ``meta.sim_settings`` (eval and ``up``), so that a results file says what produced
+    it, defaults included. The MuJoCo LIMO's are every field of ``robot_sim.MujocoSimConfig``, ``lidar_mount_x_m``
+    where its rays are cast from; the 2D simulator's, its fixed footprint and substeps. The robot and the sensor are
+    the exploration config's (``meta.config``)."""
+    if name == "mujoco":
+        config = mujoco_config(mujoco, sensor, robot=robot)
+        return {**dataclasses.asdict(config), "lidar_mount_x_m": config.lidar_mount_for(sensor)}
+    if name == "2d":
+        return {"collision_radius_m": COLLISION_RADIUS_M, "substeps": KinematicSimulator.substeps}
+    raise ValueError(f"unknown simulator {name!r}; choose one of {', '.join(SIMULATORS)}")
 
 
 def make_simulator(

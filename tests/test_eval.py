@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import shutil
@@ -222,6 +223,14 @@ def test_eval_sim_config_sets_the_mujoco_limos_parameters_and_resume_tells_them_
     drifted = run_eval(EvalRequest(**base, sim_config_path=drift))
     assert "mujoco" not in plain["meta"]
     assert drifted["meta"]["mujoco"] == {"file": str(drift), "parameters": {"odom_trans_noise_frac": 0.05, "odom_rot_per_trans_noise_radpm": 0.05}}
+    # Every parameter the LIMO ran with, defaults too (meta.mujoco lists only a file's): a default run's timestep,
+    # contacts and limits were nowhere in its results.
+    from robot_sim.config import MujocoSimConfig
+
+    defaults = {**dataclasses.asdict(MujocoSimConfig()), "lidar_mount_x_m": 0.103}
+    assert plain["meta"]["sim_settings"] == defaults and defaults["timestep_s"] == 0.005
+    assert drifted["meta"]["sim_settings"] == {**defaults, "odom_trans_noise_frac": 0.05, "odom_rot_per_trans_noise_radpm": 0.05}
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["meta"]["sim_settings"] == drifted["meta"]["sim_settings"]
     assert drifted["meta"]["resumed_episodes"] == 0  # the same method, map and seed, other physics: run again
     assert run_eval(EvalRequest(**base, sim_config_path=drift))["meta"]["resumed_episodes"] == 1
     with pytest.raises(ConfigError, match="--sim-config .* needs --sim mujoco, not --sim 2d"):
@@ -314,6 +323,7 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     assert npz_other.exists()  # the missing one was run again
     assert second["meta"]["resumed_episodes"] == 1 and "resumed_episodes" not in first["meta"]
     assert first["meta"]["version"] == cso_runtime.__version__ != "0+unknown"  # which code made the table
+    assert first["meta"]["sim_settings"] == {"collision_radius_m": 0.12, "substeps": 5}  # the 2D simulator's own
     # and every flag it was given (meta.command alone said "cso-runtime eval"), as JSON that reads back
     request = json.loads((tmp_path / "summary.json").read_text())["meta"]["request"]
     assert request["methods"] == ["greedy-dist", "random"] and request["max_steps"] == 30 and request["limit"] is None

@@ -1097,6 +1097,38 @@ def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
     assert got is not None and got.steps == 10 and got.terminated_by == "no_frontier" and asked == []
 
 
+def _fake_result(method: str = "greedy-dist", steps: int = 10):
+    from cso_runtime.messages import EpisodeResultMsg
+
+    free = np.ones((3, 4), bool)
+    return EpisodeResultMsg("s", steps, 1.2, 98.0, 1.3, 4.5, "coverage", 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, method, 0)
+
+
+@pytest.mark.parametrize(("name", "expected"), [("sim", "mujoco"), ("lockstep", "2d"), ("limo-ros2", None)])
+def test_ups_summary_records_every_parameter_of_its_simulator(tmp_path, name, expected):
+    """``summary.json`` of ``up`` held the profile as written (``services.sim.mujoco``: only what it changes), not the
+    timestep, contacts and limits the MuJoCo LIMO ran with: ``meta.sim_settings`` has all of them, as eval's, and is
+    absent on a real robot, which has no simulator."""
+    import dataclasses
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    settings = {"services.sim.mujoco.wall_friction": 0.5} if name == "sim" else {}
+    profile, data = load_profile(str(find_profile(name)), {}, settings=settings, connect=["tcp/127.0.0.1:7447"] if name == "limo-ros2" else None)
+    assert profile.simulator() == expected
+    Launcher(profile, data, tmp_path / "run").write_outputs(_fake_result())
+    meta = json.loads((tmp_path / "run" / "summary.json").read_text())["meta"]
+    if expected == "mujoco":
+        from robot_sim.config import MujocoSimConfig
+
+        assert meta["sim_settings"] == {**dataclasses.asdict(MujocoSimConfig(wall_friction=0.5)), "lidar_mount_x_m": 0.103}
+    elif expected == "2d":
+        assert meta["sim_settings"] == {"collision_radius_m": 0.12, "substeps": 5}
+    else:
+        assert "sim_settings" not in meta
+
+
 def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     """The launcher's live view reports the length of the planner's latest path (robot to goal)."""
     from types import SimpleNamespace
