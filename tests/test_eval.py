@@ -116,6 +116,17 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
         rows = list(csv.DictReader(fh))
     assert len(rows) == 4 and tuple(rows[0].keys()) == CSV_FIELDS
     assert all(int(r["steps"]) <= 60 for r in rows)
+    # The simulator's pace, in two columns after the others (whose names and order are a contract): simulated
+    # seconds from the sim's clock (one 0.25 s control period a step) and those over the episode's wall clock.
+    assert CSV_FIELDS[:15] == ("method", "map", "scale", "seed", *METRICS, "terminated_by", "traversable_area_m2", "decisions", "wall_s")
+    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor")
+    for r in rows:
+        assert float(r["sim_time_s"]) == pytest.approx(int(r["steps"]) * 0.25)
+        assert float(r["real_time_factor"]) == pytest.approx(float(r["sim_time_s"]) / float(r["wall_s"]), rel=0.05, abs=0.5)
+    for m in methods:
+        mine = [r for r in rows if r["method"] == m]
+        assert summary["methods"][m]["sim_time_s"] == pytest.approx(float(mine[0]["sim_time_s"]))
+        assert summary["methods"][m]["real_time_factor"] == pytest.approx(float(mine[0]["real_time_factor"]), abs=1e-3)
 
     data = np.load(out / "episodes" / "greedy-dist" / "img_1.npz")
     assert data["explored"].shape == (480, 640) and data["explored"].dtype == bool
@@ -231,6 +242,10 @@ def test_eval_sim_config_sets_the_mujoco_limos_parameters_and_resume_tells_them_
     assert plain["meta"]["sim_settings"] == defaults and defaults["timestep_s"] == 0.005
     assert drifted["meta"]["sim_settings"] == {**defaults, "odom_trans_noise_frac": 0.05, "odom_rot_per_trans_noise_radpm": 0.05}
     assert json.loads((tmp_path / "o" / "summary.json").read_text())["meta"]["sim_settings"] == drifted["meta"]["sim_settings"]
+    with (tmp_path / "o" / "episodes.csv").open() as fh:
+        (row,) = list(csv.DictReader(fh))
+    assert float(row["sim_time_s"]) == pytest.approx(int(row["steps"]) * 0.25)  # the MuJoCo clock: 50 physics steps of 5 ms a step
+    assert float(row["real_time_factor"]) > 0
     assert drifted["meta"]["resumed_episodes"] == 0  # the same method, map and seed, other physics: run again
     assert run_eval(EvalRequest(**base, sim_config_path=drift))["meta"]["resumed_episodes"] == 1
     with pytest.raises(ConfigError, match="--sim-config .* needs --sim mujoco, not --sim 2d"):
