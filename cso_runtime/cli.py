@@ -532,7 +532,7 @@ def scenes_command(
             _fail("--sim-config sets the parameters of the MuJoCo worlds that --mjcf writes: it needs --mjcf", 2)
         sim_config = _packaged_if_missing(sim_config)
         try:
-            world_config = mujoco_config(load_yaml(sim_config) or {}, world_sensor, where=str(sim_config), robot=RobotConfig())
+            world_config = mujoco_config(load_yaml(sim_config) or {}, world_sensor, where=str(sim_config), robot=RobotConfig(), mount=None)
         except (ConfigError, OSError) as exc:
             _fail(str(exc), 2)
     if mjcf is not None:

@@ -51,6 +51,8 @@ class EpisodeResult:
     """The robot's own map M_t at the end, as OccupancyGrid values (-1/0/100, row 0 at the origin):
     what the mapping produced, for ``map_files.save_map``. None when the episode's map is not known."""
     map_geometry: GridGeometry | None = None
+    sim_time_s: float | None = None
+    """Simulated seconds the episode ran (the simulator's clock at its end); None where no simulator ran (a real robot)."""
 
     @property
     def efficiency_m2_per_step(self) -> float:
@@ -311,6 +313,7 @@ class Explorer:
             explored_free=self.explored_free(),
             map_grid=self.map.to_occupancy_grid(),
             map_geometry=self.map.geometry,
+            sim_time_s=float(self.sim.time_s),
         )
 
 

@@ -58,11 +58,12 @@ from cso_runtime.outputs import (
     trajectory_plot_path,
     write_text_atomic,
 )
+from cso_runtime.pace import real_time_factor
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
 from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
-from cso_runtime.simulator import SIMULATORS, make_simulator, mujoco_config
+from cso_runtime.simulator import SIMULATORS, MountSetting, make_simulator, mujoco_config, simulator_settings
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +76,9 @@ METRICS = (
     "decision_ms_p50",
     "decision_ms_p99",
 )
-CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s")
+PACE = ("sim_time_s", "real_time_factor")
+"""How fast the simulator ran: an episode's simulated seconds and those over its wall-clock seconds (``pace``)."""
+CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s") + PACE
 
 
 @dataclass
@@ -152,7 +155,8 @@ class EvalRequest:
             return {}
         data = load_yaml(self.sim_config_path) if self.sim_config_path is not None else {}
         cfg = self.exploration_config()
-        mujoco_config(data, cfg.sensor, where=str(self.sim_config_path or "--sim mujoco"), robot=cfg.robot)
+        mount = MountSetting(file=str(self.config_path or "a --config file"), command="eval")  # eval's config sets the sensor
+        mujoco_config(data, cfg.sensor, where=str(self.sim_config_path or "--sim mujoco"), robot=cfg.robot, mount=mount)
         return data
 
     def as_record(self) -> dict[str, Any]:
@@ -272,8 +276,13 @@ class EpisodeOutcome:
         )
 
 
-def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float) -> dict[str, Any]:
-    """One CSV row / JSON record of Table 1 metrics."""
+def _rounded(value: float | None, digits: int) -> float | None:
+    return None if value is None else round(value, digits)
+
+
+def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float, real_time_factor: float | None = None) -> dict[str, Any]:
+    """One CSV row / JSON record of Table 1 metrics, then how fast the simulator ran: ``real_time_factor`` as
+    measured by the caller (``pace``: eval's over ``wall_s``, ``up``'s over the episode's statuses)."""
     return {
         "method": method,
         "map": result.scene,
@@ -290,6 +299,8 @@ def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float) ->
         "traversable_area_m2": round(result.traversable_area_m2, 4),
         "decisions": result.decisions,
         "wall_s": round(wall_s, 3),
+        "sim_time_s": _rounded(result.sim_time_s, 3),
+        "real_time_factor": _rounded(real_time_factor, 3),
     }
 
 
@@ -355,7 +366,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         animation = EpisodeAnimation() if job.animate else None
         result = run_episode(sim, policy, job.config, seed=job.seed, on_step=animation.on_step if animation else None)
         wall_s = time.perf_counter() - t0  # the frames' drawing included, when animated
-        row = episode_row(job.method, job.seed, result, wall_s)
+        row = episode_row(job.method, job.seed, result, wall_s, real_time_factor(result.sim_time_s, wall_s))
         save_episode_files(job.out_dir, job.method, job.scene.name, result, row, job.settings, scene_fingerprint(plan))
         gif = episode_animation_path(job.out_dir, job.method, job.scene.name)
         if animation is not None and animation.finish():
@@ -415,7 +426,8 @@ def table_console() -> Any:
 
 
 def _mean(rows: list[dict[str, Any]], key: str) -> float | None:
-    values = [float(r[key]) for r in rows if r.get(key) is not None and math.isfinite(float(r[key]))]
+    # Rows read back from episodes.csv (benchmarks/tables.py) hold text, "" for a cell left empty (sim_time_s on a real robot).
+    values = [float(v) for r in rows if (v := r.get(key)) not in (None, "") and math.isfinite(float(v))]
     return round(float(np.mean(values)), 6) if values else None
 
 
@@ -431,6 +443,7 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
     for method in methods:
         mine = [r for r in rows if r["method"] == method]
         entry: dict[str, Any] = {k: _mean(mine, k) for k in METRICS}
+        entry.update({k: _mean(mine, k) for k in PACE})  # None where no episode has them (a real robot, an older run's)
         entry["episodes"] = len(mine)
         entry["efficiency_episodes"] = _efficiency_episodes(mine)
         entry["terminated_by"] = {t: sum(1 for r in mine if r["terminated_by"] == t) for t in sorted({r["terminated_by"] for r in mine})}
@@ -543,6 +556,7 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         "cell_sizes_m": sorted({o.resolution_m for o in outcomes if o.row is not None}),  # what the scenes ran at (generated: 0.05, maps: their own)
         "seed": request.seed,
         "sim": request.sim,
+        "sim_settings": simulator_settings(request.sim, config.sensor, config.robot, mujoco),  # all of them, defaults too
         "scenes": len(scenes),
         "request": request.as_record(),  # every flag the run was given (--limit, --method, --workers, ...): enough to run it again
         "config": to_dict(config),

@@ -55,6 +55,7 @@ from cso_runtime.messages import (
     encode,
 )
 from cso_runtime.outputs import write_text_atomic
+from cso_runtime.pace import StepPace
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
 from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig
 from cso_runtime.supervision import (
@@ -227,6 +228,10 @@ class Launcher:
             self.service_notes["foxglove_bridge"] = f"Foxglove: open {where}"
         self.control_period_s = profile.exploration_config().robot.control_period_s
         """Robot time of one step (the live view's clock)."""
+        self.simulated = profile.simulator() is not None
+        """A sim service runs the robot: its steps are simulated time (on a real robot, none is)."""
+        self.pace = StepPace(self.control_period_s)
+        """The episode's real-time factor, measured on its statuses as they arrive (``real_time_factor``)."""
         self.robot_stop_commands = robot_stop_commands(profile)
         """Service -> the key and payload that stop the robot it commands, sent when it dies (``stop_robot``)."""
         self.session: Any = None
@@ -326,6 +331,8 @@ class Launcher:
             return
         if isinstance(msg, EpisodeStatusMsg):
             self.status = msg
+            if msg.state != "starting":  # the sim waits for the services before step 0: not its pace
+                self.pace.observe(msg.episode, msg.step, time.monotonic())
         elif isinstance(msg, EpisodeResultMsg):
             self.result = msg
         elif isinstance(msg, GoalMsg):
@@ -537,8 +544,17 @@ class Launcher:
             and now.episode == ended.episode and now.step >= ended.step
         )
 
+    @property
+    def real_time_factor(self) -> float | None:
+        """Simulated seconds per wall-clock second of the episode so far, start-up left out (``pace.StepPace``); None
+        on a real robot or before two statuses some steps apart have arrived."""
+        return self.pace.real_time_factor if self.simulated else None
+
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
         meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "profile": self.data}
+        sim_settings = self.profile.simulator_settings()
+        if sim_settings is not None:  # every parameter of the sim service's simulator, defaults too (as eval's)
+            meta["sim_settings"] = sim_settings
         from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
 
         if result.method in LEARNED_METHODS:
@@ -546,7 +562,8 @@ class Launcher:
 
             sensor = self.profile.exploration_config().sensor
             meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
-        row = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta)
+        sim_time_s = result.steps * self.control_period_s if self.simulated else None  # one control period a step
+        row = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta, sim_time_s, self.real_time_factor)
         self.written_result = result
         log.info(
             "episode %s: %.2f%% coverage in %d steps; %.2f m2 explored, %.4f m2/step, path %.2f m, %d decisions; results in %s",
@@ -692,7 +709,7 @@ class Launcher:
                     if every_s > 0 and (view is None or not view.on_terminal) and time.monotonic() - logged_s >= every_s:
                         logged_s = time.monotonic()
                         if st is not None and st.state == "exploring":
-                            log.info("%s", progress_line(st, self.control_period_s))
+                            log.info("%s", progress_line(st, self.control_period_s, self.real_time_factor))
                     if st is not None and st.state in ("done", "failed") and not self.outputs_written:
                         self.ended_status = st
                         result = self.wait_for_result(session)
@@ -755,11 +772,13 @@ class Launcher:
         return self.exit_code
 
 
-def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float, meta: dict[str, Any]) -> dict[str, Any]:
+def write_episode_outputs(
+    out_dir: Path, result: EpisodeResultMsg, wall_s: float, meta: dict[str, Any], sim_time_s: float | None = None, real_time_factor: float | None = None
+) -> dict[str, Any]:
     """The same files as ``eval`` for one episode: summary.json, episodes.csv, the episode's npz, the
     robot's final map (map_server YAML and PNG),
     the coverage curve and the trajectory plot (reusing ``cso_runtime.evaluation`` writers). Returns the
-    episode's row of episodes.csv."""
+    episode's row of episodes.csv (``sim_time_s`` and ``real_time_factor``: None on a real robot)."""
     from cso_runtime.episode import EpisodeResult  # noqa: PLC0415
     from cso_runtime.evaluation import EpisodeOutcome, episode_row, save_episode_files, write_outputs  # noqa: PLC0415
     from cso_runtime.outputs import COVERAGE_FIGURE, trajectory_plot_path  # noqa: PLC0415
@@ -781,9 +800,10 @@ def write_episode_outputs(out_dir: Path, result: EpisodeResultMsg, wall_s: float
         explored_free=result.explored_free,
         map_grid=result.final_map.grid if result.final_map is not None else None,
         map_geometry=result.final_map.geometry if result.final_map is not None else None,
+        sim_time_s=sim_time_s,
     )
     method = result.method or "unknown"
-    row = episode_row(method, result.seed, er, wall_s)
+    row = episode_row(method, result.seed, er, wall_s, real_time_factor)
     summary = write_outputs(out_dir, [row], [], [method], meta)
     save_episode_files(out_dir, method, result.scene, er, row)
     outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m)

@@ -13,12 +13,17 @@ if TYPE_CHECKING:
     from cso_runtime.messages import EpisodeStatusMsg
 
 
-def progress_line(status: EpisodeStatusMsg, control_period_s: float) -> str:
+def pace_text(real_time_factor: float | None) -> str:
+    """``, 1.00x real time`` (simulated over wall-clock seconds), or nothing when unknown (a real robot, too early)."""
+    return "" if real_time_factor is None else f", {real_time_factor:.2f}x real time"
+
+
+def progress_line(status: EpisodeStatusMsg, control_period_s: float, real_time_factor: float | None = None) -> str:
     """The episode's progress in one log line (the live view's figures, for a log that is followed)."""
     goal = "none" if status.goal_xy_m is None else f"({status.goal_xy_m[0]:.2f}, {status.goal_xy_m[1]:.2f}) m"
     rate = f" ({status.explored_area_m2 / status.step:.3f} m2/step)" if status.step else ""
     return (
-        f"step {status.step} ({status.step * control_period_s:.1f} s robot time): coverage {status.coverage_pct:.1f} %, "
+        f"step {status.step} ({status.step * control_period_s:.1f} s robot time{pace_text(real_time_factor)}): coverage {status.coverage_pct:.1f} %, "
         f"{status.explored_area_m2:.2f} m2 explored{rate}, path {status.path_length_m:.2f} m, {status.decisions} decisions, goal {goal}"
     )
 
@@ -61,7 +66,8 @@ class LiveView:
             goal = "-" if st.goal_xy_m is None else f"({st.goal_xy_m[0]:.2f}, {st.goal_xy_m[1]:.2f}) m"
             t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "") + waits))
             t.add_row("scene", escape(st.scene))
-            t.add_row("step", f"{st.step} ({st.step * la.control_period_s:.1f} s robot time, {time.monotonic() - la.started_s:.0f} s since start)")
+            since = f"{time.monotonic() - la.started_s:.0f} s since start"
+            t.add_row("step", f"{st.step} ({st.step * la.control_period_s:.1f} s robot time, {since}{pace_text(la.real_time_factor)})")
             coverage = Table.grid(padding=(0, 1))
             coverage.add_row(ProgressBar(total=100.0, completed=min(st.coverage_pct, 100.0), width=self.BAR_CELLS), f"{st.coverage_pct:.1f} %")
             t.add_row("coverage", coverage)

@@ -137,6 +137,26 @@ class Profile:
         """The exploration settings every service of this profile runs with (raises ConfigError)."""
         return profile_exploration_config(self.exploration, self.services)
 
+    def simulator(self) -> str | None:
+        """The simulator its sim service runs (``simulator.SIMULATORS``: ``2d`` or ``mujoco``); None without a sim service
+        (a real robot's run)."""
+        if "sim" not in self.services:
+            return None
+        from services.sim import BACKENDS, SimParams  # noqa: PLC0415 - services import zenoh
+
+        return BACKENDS[(self.services.get("sim") or {}).get("backend", SimParams.backend)]
+
+    def simulator_settings(self) -> dict[str, Any] | None:
+        """Every parameter of the simulator its sim service runs (``simulator.simulator_settings``, as eval records
+        them); None without a sim service."""
+        name = self.simulator()
+        if name is None:
+            return None
+        from cso_runtime.simulator import simulator_settings  # noqa: PLC0415 - MuJoCo only when asked for
+
+        config = self.exploration_config()
+        return simulator_settings(name, config.sensor, config.robot, (self.services.get("sim") or {}).get("mujoco"))
+
     def awaited_services(self) -> list[str]:
         """The services this robot's episode waits for that the run does not start (``services.dataflow.missing_producers``):
         a policy named under ``without`` or simply not listed (a shared policy server's), a planner left out. ``status``
@@ -163,8 +183,6 @@ class Profile:
             raise ConfigError(f"progress_log_s must be >= 0 seconds, got {self.progress_log_s}")
         self.exploration_config()
         from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
-        from services.sim import BACKENDS, SimParams  # noqa: PLC0415
-
         if not self.services:
             raise ConfigError("a profile must list at least one service")
         for name, params in self.services.items():
@@ -191,12 +209,13 @@ class Profile:
                 "maps the scene's own grid, which the sim measures coverage on"
             )
         sim = self.services.get("sim") or {}
-        if "sim" in self.services and BACKENDS[sim.get("backend", SimParams.backend)] == "mujoco":
+        if self.simulator() == "mujoco":
             # the LiDAR mount against the sensor's, the control period against the physics step, before anything starts
-            from cso_runtime.simulator import mujoco_config  # noqa: PLC0415
+            from cso_runtime.simulator import MountSetting, mujoco_config  # noqa: PLC0415
 
             exploration = self.exploration_config()
-            mujoco_config(sim.get("mujoco"), exploration.sensor, where="services.sim.mujoco", robot=exploration.robot)
+            mount = MountSetting(key="exploration.sensor.mount_x_m", file="the profile", command="up")  # a profile's key, not eval's
+            mujoco_config(sim.get("mujoco"), exploration.sensor, where="services.sim.mujoco", robot=exploration.robot, mount=mount)
         if (self.services.get("sim") or {}).get("viewer"):  # its own process checks too; this says so before anything starts
             from robot_sim.viewer import display_problem  # noqa: PLC0415
 

@@ -7,8 +7,10 @@ protocol with physics. Mapping, frontiers, policies and the planner never know w
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -159,22 +161,43 @@ class KinematicSimulator:
 SIMULATORS = ("2d", "mujoco")
 
 
+@dataclass(frozen=True)
+class MountSetting:
+    """Where the user of a command sets the sensor's mount, for the error that asks for it: a profile's key is
+    ``exploration.sensor.mount_x_m``, eval's config's ``sensor.mount_x_m``."""
+
+    key: str = "sensor.mount_x_m"
+    """The dotted key of the sensor's mount in ``file``."""
+    file: str = "the exploration config"
+    command: str = ""
+    """The command whose ``--set`` sets ``key`` too (``up``, ``eval``); empty: none."""
+
+    def advice(self, value: object) -> str:
+        flag = f" or with {self.command} --set {self.key}={value}" if self.command else ""
+        return f"set {self.key}: {value} in {self.file}{flag} instead"
+
+
 def mujoco_config(
-    overrides: Mapping[str, Any] | None, sensor: SensorConfig, where: str = "mujoco", robot: RobotConfig | None = None
+    overrides: Mapping[str, Any] | None,
+    sensor: SensorConfig,
+    where: str = "mujoco",
+    robot: RobotConfig | None = None,
+    mount: MountSetting | None = MountSetting(),
 ) -> MujocoSimConfig:
     """The MuJoCo LIMO's parameters: ``robot_sim``'s defaults with ``overrides`` on top (the keys of
     ``configs/robot_sim.yaml``: physics, odometry drift), its rays cast from the sensor's own mount, which the
     mapper and the planner use too (eval, the services and doctor give it the LIMO's 0.103 m unless a config
     sets it): one mount, not two that disagree. With ``robot``, its control period must be a whole number of
-    physics steps. Raises ConfigError naming ``where``."""
+    physics steps. Raises ConfigError naming ``where`` and, for another mount, how the caller's user sets the
+    sensor's (``mount``; None: the caller fixes it, the key can only be left out)."""
     from robot_sim.config import MujocoSimConfig, whole_steps  # noqa: PLC0415 - MuJoCo only when asked for
 
     data = dict(overrides or {})
-    mount = data.get("lidar_mount_x_m")
-    if mount is not None and not (isinstance(mount, (int, float)) and math.isclose(float(mount), sensor.mount_x_m, abs_tol=1e-9)):
+    given = data.get("lidar_mount_x_m")
+    if given is not None and not (isinstance(given, (int, float)) and math.isclose(float(given), sensor.mount_x_m, abs_tol=1e-9)):
+        instead = f"{mount.advice(given)} (or leave this key out)" if mount is not None else "the sensor's mount is fixed here: leave this key out"
         raise ConfigError(
-            f"{where}.lidar_mount_x_m: {mount!r} is not the sensor's mount ({sensor.mount_x_m} m), which the mapper and the "
-            "planner use; set sensor.mount_x_m instead (or leave this key out)"
+            f"{where}.lidar_mount_x_m: {given!r} is not the sensor's mount ({sensor.mount_x_m} m), which the mapper and the planner use; {instead}"
         )
     data["lidar_mount_x_m"] = None
     config = from_dict(MujocoSimConfig, data, where=where)
@@ -184,6 +207,20 @@ def mujoco_config(
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc}") from None
     return config
+
+
+def simulator_settings(name: str, sensor: SensorConfig, robot: RobotConfig, mujoco: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Every parameter of the simulator that ``make_simulator(name, ..., mujoco=mujoco)`` builds, as it runs them, units
+    in the names: ``summary.json``'s ``meta.sim_settings`` (eval and ``up``), so that a results file says what produced
+    it, defaults included. The MuJoCo LIMO's are every field of ``robot_sim.MujocoSimConfig``, ``lidar_mount_x_m``
+    where its rays are cast from; the 2D simulator's, its fixed footprint and substeps. The robot and the sensor are
+    the exploration config's (``meta.config``)."""
+    if name == "mujoco":
+        config = mujoco_config(mujoco, sensor, robot=robot)
+        return {**dataclasses.asdict(config), "lidar_mount_x_m": config.lidar_mount_for(sensor)}
+    if name == "2d":
+        return {"collision_radius_m": COLLISION_RADIUS_M, "substeps": KinematicSimulator.substeps}
+    raise ValueError(f"unknown simulator {name!r}; choose one of {', '.join(SIMULATORS)}")
 
 
 def make_simulator(

@@ -314,6 +314,7 @@ def test_the_readme_names_every_column_of_episodes_csv_and_every_key_of_summary_
     row = {"method": "m", "map": "a", "scale": "small", "seed": 0, "terminated_by": "coverage", **dict.fromkeys(METRICS, 1.0)}
     entry = summarize([row], [], ["m"], meta={})["methods"]["m"]
     assert [k for k in entry if f"`{k}`" not in summary_row] == []
+    assert [k for k in ("request", "version", "config", "sim_settings", "mujoco", "weights") if f"`{k}`" not in summary_row] == []  # meta's
 
 
 def test_the_readme_names_every_array_of_an_episodes_npz(tmp_path):

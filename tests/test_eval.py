@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import shutil
@@ -115,6 +116,17 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
         rows = list(csv.DictReader(fh))
     assert len(rows) == 4 and tuple(rows[0].keys()) == CSV_FIELDS
     assert all(int(r["steps"]) <= 60 for r in rows)
+    # The simulator's pace, in two columns after the others (whose names and order are a contract): simulated
+    # seconds from the sim's clock (one 0.25 s control period a step) and those over the episode's wall clock.
+    assert CSV_FIELDS[:15] == ("method", "map", "scale", "seed", *METRICS, "terminated_by", "traversable_area_m2", "decisions", "wall_s")
+    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor")
+    for r in rows:
+        assert float(r["sim_time_s"]) == pytest.approx(int(r["steps"]) * 0.25)
+        assert float(r["real_time_factor"]) == pytest.approx(float(r["sim_time_s"]) / float(r["wall_s"]), rel=0.05, abs=0.5)
+    for m in methods:
+        mine = [r for r in rows if r["method"] == m]
+        assert summary["methods"][m]["sim_time_s"] == pytest.approx(float(mine[0]["sim_time_s"]))
+        assert summary["methods"][m]["real_time_factor"] == pytest.approx(float(mine[0]["real_time_factor"]), abs=1e-3)
 
     data = np.load(out / "episodes" / "greedy-dist" / "img_1.npz")
     assert data["explored"].shape == (480, 640) and data["explored"].dtype == bool
@@ -222,6 +234,18 @@ def test_eval_sim_config_sets_the_mujoco_limos_parameters_and_resume_tells_them_
     drifted = run_eval(EvalRequest(**base, sim_config_path=drift))
     assert "mujoco" not in plain["meta"]
     assert drifted["meta"]["mujoco"] == {"file": str(drift), "parameters": {"odom_trans_noise_frac": 0.05, "odom_rot_per_trans_noise_radpm": 0.05}}
+    # Every parameter the LIMO ran with, defaults too (meta.mujoco lists only a file's): a default run's timestep,
+    # contacts and limits were nowhere in its results.
+    from robot_sim.config import MujocoSimConfig
+
+    defaults = {**dataclasses.asdict(MujocoSimConfig()), "lidar_mount_x_m": 0.103}
+    assert plain["meta"]["sim_settings"] == defaults and defaults["timestep_s"] == 0.005
+    assert drifted["meta"]["sim_settings"] == {**defaults, "odom_trans_noise_frac": 0.05, "odom_rot_per_trans_noise_radpm": 0.05}
+    assert json.loads((tmp_path / "o" / "summary.json").read_text())["meta"]["sim_settings"] == drifted["meta"]["sim_settings"]
+    with (tmp_path / "o" / "episodes.csv").open() as fh:
+        (row,) = list(csv.DictReader(fh))
+    assert float(row["sim_time_s"]) == pytest.approx(int(row["steps"]) * 0.25)  # the MuJoCo clock: 50 physics steps of 5 ms a step
+    assert float(row["real_time_factor"]) > 0
     assert drifted["meta"]["resumed_episodes"] == 0  # the same method, map and seed, other physics: run again
     assert run_eval(EvalRequest(**base, sim_config_path=drift))["meta"]["resumed_episodes"] == 1
     with pytest.raises(ConfigError, match="--sim-config .* needs --sim mujoco, not --sim 2d"):
@@ -229,6 +253,21 @@ def test_eval_sim_config_sets_the_mujoco_limos_parameters_and_resume_tells_them_
     drift.write_text("odom_noise: 0.05\n")
     with pytest.raises(ConfigError, match="drift.yaml: unknown key"):
         run_eval(EvalRequest(**base, sim_config_path=drift))
+
+
+def test_a_second_lidar_mount_in_evals_sim_config_names_the_key_eval_sets_the_sensors_mount_with(tmp_path: Path):
+    """``--sim-config``'s ``lidar_mount_x_m`` against the sensor's mount: the error said "set sensor.mount_x_m" in every
+    context; in eval that key lives in the ``--config`` file (or ``eval --set``), in a profile under ``exploration.``."""
+    params = tmp_path / "limo.yaml"
+    params.write_text("lidar_mount_x_m: 0.2\n")
+    config = tmp_path / "eval.yaml"
+    config.write_text("episode:\n  max_steps: 20\n")
+    request = EvalRequest(methods=["greedy-dist"], sim="mujoco", sim_config_path=params, out_dir=tmp_path / "o")
+    with pytest.raises(ConfigError, match=r"set sensor.mount_x_m: 0.2 in a --config file or with eval --set sensor.mount_x_m=0.2 instead"):
+        request.validate()
+    request.config_path = config
+    with pytest.raises(ConfigError, match=rf"set sensor.mount_x_m: 0.2 in {config} or with eval --set sensor.mount_x_m=0.2 instead"):
+        request.validate()
 
 
 def test_eval_outside_the_repository_reads_the_packaged_configs_the_help_names(tmp_path: Path, monkeypatch):
@@ -299,6 +338,7 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     assert npz_other.exists()  # the missing one was run again
     assert second["meta"]["resumed_episodes"] == 1 and "resumed_episodes" not in first["meta"]
     assert first["meta"]["version"] == cso_runtime.__version__ != "0+unknown"  # which code made the table
+    assert first["meta"]["sim_settings"] == {"collision_radius_m": 0.12, "substeps": 5}  # the 2D simulator's own
     # and every flag it was given (meta.command alone said "cso-runtime eval"), as JSON that reads back
     request = json.loads((tmp_path / "summary.json").read_text())["meta"]["request"]
     assert request["methods"] == ["greedy-dist", "random"] and request["max_steps"] == 30 and request["limit"] is None

@@ -7,6 +7,7 @@ and stops whatever it started in ``finally`` blocks (``down``, then SIGKILL of a
 from __future__ import annotations
 
 import contextlib
+import csv
 import io
 import json
 import os
@@ -1097,6 +1098,105 @@ def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
     assert got is not None and got.steps == 10 and got.terminated_by == "no_frontier" and asked == []
 
 
+def _fake_result(method: str = "greedy-dist", steps: int = 10):
+    from cso_runtime.messages import EpisodeResultMsg
+
+    free = np.ones((3, 4), bool)
+    return EpisodeResultMsg("s", steps, 1.2, 98.0, 1.3, 4.5, "coverage", 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, method, 0)
+
+
+@pytest.mark.parametrize(("name", "expected"), [("sim", "mujoco"), ("lockstep", "2d"), ("limo-ros2", None)])
+def test_ups_summary_records_every_parameter_of_its_simulator(tmp_path, name, expected):
+    """``summary.json`` of ``up`` held the profile as written (``services.sim.mujoco``: only what it changes), not the
+    timestep, contacts and limits the MuJoCo LIMO ran with: ``meta.sim_settings`` has all of them, as eval's, and is
+    absent on a real robot, which has no simulator."""
+    import dataclasses
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    settings = {"services.sim.mujoco.wall_friction": 0.5} if name == "sim" else {}
+    profile, data = load_profile(str(find_profile(name)), {}, settings=settings, connect=["tcp/127.0.0.1:7447"] if name == "limo-ros2" else None)
+    assert profile.simulator() == expected
+    Launcher(profile, data, tmp_path / "run").write_outputs(_fake_result())
+    meta = json.loads((tmp_path / "run" / "summary.json").read_text())["meta"]
+    if expected == "mujoco":
+        from robot_sim.config import MujocoSimConfig
+
+        assert meta["sim_settings"] == {**dataclasses.asdict(MujocoSimConfig(wall_friction=0.5)), "lidar_mount_x_m": 0.103}
+    elif expected == "2d":
+        assert meta["sim_settings"] == {"collision_radius_m": 0.12, "substeps": 5}
+    else:
+        assert "sim_settings" not in meta
+
+
+def test_step_pace_measures_simulated_seconds_per_wall_second_from_the_episodes_statuses():
+    from cso_runtime.pace import StepPace, real_time_factor
+
+    assert real_time_factor(10.0, 4.0) == 2.5 and real_time_factor(None, 4.0) is None and real_time_factor(1.0, 0.0) is None
+    pace = StepPace(control_period_s=0.25)
+    pace.observe(episode=1, step=3, at_s=100.0)
+    assert pace.real_time_factor is None  # one status: no pace yet
+    pace.observe(1, 3, 100.5)
+    assert pace.real_time_factor is None  # no step since
+    pace.observe(1, 11, 101.0)
+    assert pace.real_time_factor == pytest.approx(8 * 0.25 / 1.0)
+    pace.observe(2, 0, 200.0)  # a restarted sim's new episode: measured afresh
+    pace.observe(2, 40, 202.5)
+    assert pace.real_time_factor == pytest.approx(40 * 0.25 / 2.5)
+
+
+@pytest.mark.parametrize("name", ["lockstep", "limo-ros2"])
+def test_up_shows_and_writes_the_simulators_real_time_factor_measured_on_the_episode(tmp_path, monkeypatch, name):
+    """MuJoCo users read a sim's speed against real time: the live view, the progress line and episodes.csv give it,
+    measured on the statuses of the episode (the sim's wait for the services and every start-up left out, which
+    ``wall_s`` holds), and ``sim_time_s`` (steps of 0.25 s); a real robot's run has neither."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView, progress_line
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    clock = [1000.0]
+    monkeypatch.setattr(launcher_module, "time", SimpleNamespace(monotonic=lambda: clock[0], time=time.time))
+    profile, data = load_profile(str(find_profile(name)), {}, connect=["tcp/127.0.0.1:7447"] if name == "limo-ros2" else None)
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+
+    def status(state: str, step: int, at_s: float) -> EpisodeStatusMsg:
+        clock[0] = at_s
+        msg = EpisodeStatusMsg(state=state, step=step, scene="s", method="greedy-dist", episode=7)
+        launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda: encode(msg))))
+        return msg
+
+    status("starting", 0, 1000.0)  # start-up: the sim waits 30 s for the services, not its pace
+    status("exploring", 2, 1030.0)
+    last = status("exploring", 42, 1035.0)  # 40 steps of 0.25 s in 5 s: twice as fast as real time
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    text = console.export_text()
+    if name == "limo-ros2":
+        assert launcher.real_time_factor is None and "x real time" not in text
+    else:
+        assert launcher.real_time_factor == pytest.approx(2.0)
+        assert re.search(r"│ step +│ 42 \(10\.5 s robot time, \d+ s since start, 2\.00x real time\)", text), text
+        assert "(10.5 s robot time, 2.00x real time)" in progress_line(last, launcher.control_period_s, launcher.real_time_factor)
+    status("done", 50, 1036.0)  # the end: 48 steps in 6 s
+    launcher.write_outputs(_fake_result(steps=50))
+    with (tmp_path / "run" / "episodes.csv").open() as fh:
+        (row,) = list(csv.DictReader(fh))
+    methods = json.loads((tmp_path / "run" / "summary.json").read_text())["methods"]["greedy-dist"]
+    if name == "limo-ros2":
+        assert row["sim_time_s"] == row["real_time_factor"] == "" and methods["sim_time_s"] is methods["real_time_factor"] is None
+    else:
+        assert float(row["sim_time_s"]) == 12.5 and float(row["real_time_factor"]) == pytest.approx(2.0)
+        assert float(row["wall_s"]) == pytest.approx(36.0)  # from the launcher's start: not what the pace is measured on
+        assert methods["sim_time_s"] == 12.5 and methods["real_time_factor"] == pytest.approx(2.0)
+
+
 def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     """The launcher's live view reports the length of the planner's latest path (robot to goal)."""
     from types import SimpleNamespace
@@ -1569,7 +1669,8 @@ def test_up_checks_the_mujoco_limos_parameters_against_the_mount_its_services_ru
     profile, _ = load_profile("sim", {}, settings={"services.sim.mujoco.lidar_mount_x_m": 0.103})
     ran = load_profile_for_service(find_profile("sim"), "sim")[1]
     assert profile.exploration_config() == ran and ran.sensor.mount_x_m == 0.103 and ran.planner.body == "box"
-    with pytest.raises(ConfigError, match=r"0.2 is not the sensor's mount \(0.103 m\)"):
+    with pytest.raises(ConfigError, match=r"0.2 is not the sensor's mount \(0.103 m\).*set exploration.sensor.mount_x_m: 0.2 in the profile "
+                       r"or with up --set exploration.sensor.mount_x_m=0.2 instead"):  # a profile's key, not eval's sensor.mount_x_m
         load_profile("sim", {}, settings={"services.sim.mujoco.lidar_mount_x_m": 0.2})
     explicit, _ = load_profile("sim", {}, settings={"exploration.sensor.mount_x_m": 0.05, "services.sim.mujoco.lidar_mount_x_m": 0.05})
     assert explicit.exploration_config().sensor.mount_x_m == 0.05  # a profile's own mount is kept
@@ -2223,7 +2324,10 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
         out = proc.stdout.read().decode()
         assert "interrupted at step" in out
         # without a live view, a followed log is never silent: the episode's progress every progress_log_s
-        assert re.search(r"INFO cso\.launcher: step \d+ \([\d.]+ s robot time\): coverage [\d.]+ %, [\d.]+ m2 explored", out), out
+        # (with the sim's real-time factor, at most about 1.25x at 0.2 s a step of 0.25 s, once two statuses have come)
+        line = r"INFO cso\.launcher: step \d+ \([\d.]+ s robot time(, [\d.]+x real time)?\): coverage [\d.]+ %, [\d.]+ m2 explored"
+        assert re.search(line, out), out
+        assert re.search(r"s robot time, [01]\.\d\dx real time\)", out), out
         assert [p for p in run_pids(runs) if pid_alive(p)] == []
         (run_file,) = runs.glob("*/run.json")
         assert json.loads(run_file.read_text())["state"] == "stopped" and not (runs / "current.json").exists()

@@ -1,0 +1,44 @@
+"""How fast simulated time runs against the wall clock: the real-time factor that MuJoCo users read off a run
+(``episodes.csv``'s ``real_time_factor``, ``up``'s live view and progress lines)."""
+
+from __future__ import annotations
+
+import math
+
+
+def real_time_factor(sim_s: float | None, wall_s: float | None) -> float | None:
+    """Simulated seconds per wall-clock second (2.0: twice as fast as real time); None when either is unknown
+    (a real robot has no simulated time) or no wall-clock time passed."""
+    if sim_s is None or wall_s is None or not (math.isfinite(sim_s) and math.isfinite(wall_s) and wall_s > 0):
+        return None
+    return sim_s / wall_s
+
+
+class StepPace:
+    """The real-time factor of a running episode, measured on its statuses as they arrive: the steps from the first
+    status past its start to the latest, times the control period, over the wall-clock time between their arrivals.
+    Start-up (services coming up, the sim waiting for them) is left out, which ``up``'s ``wall_s`` includes; a new
+    episode (a restarted sim) starts the measure over."""
+
+    def __init__(self, control_period_s: float):
+        self.control_period_s = control_period_s
+        self._first: tuple[int, int, float] | None = None
+        """(episode, step, arrival time in s) of the first status counted."""
+        self._latest: tuple[int, float] | None = None
+        """(step, arrival time in s) of the latest status beyond the first."""
+
+    def observe(self, episode: int, step: int, at_s: float) -> None:
+        """A status of ``episode`` at ``step`` (past its start) arrived at ``at_s`` (a monotonic clock, s)."""
+        if self._first is None or episode != self._first[0]:
+            self._first, self._latest = (episode, step, at_s), None
+        elif step > self._first[1] and (self._latest is None or step >= self._latest[0]):
+            self._latest = (step, at_s)
+
+    @property
+    def real_time_factor(self) -> float | None:
+        """None until two statuses of one episode, some steps apart, have arrived."""
+        if self._first is None or self._latest is None:
+            return None
+        _, first_step, first_s = self._first
+        step, at_s = self._latest
+        return real_time_factor((step - first_step) * self.control_period_s, at_s - first_s)
