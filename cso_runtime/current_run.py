@@ -79,6 +79,10 @@ DOWN_MARGIN_S = 10.0
 """``down`` gives a launcher three stop stages of its ``stop_timeout_s`` and this much more (its results,
 plots and recording to write) before it escalates."""
 
+DOWN_TERM_WAIT_S = 3.0
+"""How long ``down`` waits after its SIGTERM before SIGKILL. A process dies of a signal only once it gets a CPU: on
+a host that stalls it longer, SIGKILL follows a SIGTERM that had already ended it."""
+
 
 def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
     """Stop the current run: SIGINT to the launcher (it stops its services and writes its results), then
@@ -100,7 +104,7 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
         spid for spid, ticks in services if not (ticks_known and ticks is None) and run_process_alive(spid, ticks)  # not a pid reused since
     ]
     continued, escalated = False, ""
-    for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, 3.0), (signal.SIGKILL, 2.0)):
+    for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, DOWN_TERM_WAIT_S), (signal.SIGKILL, 2.0)):
         if not pid_alive(pid):
             break
         if sig != signal.SIGINT:
