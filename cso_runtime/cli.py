@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import shlex
 import sys
 from typing import NoReturn
 
@@ -667,6 +668,11 @@ def up_command(
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     _warn_of_weights_for_another_sensor(prof)
+    if record_out is not None:
+        from cso_runtime.recording import names_a_folder  # noqa: PLC0415
+
+        if not names_a_folder(record_out) and Path(record_out).exists():  # as `record --out`: an earlier recording is never written over
+            _fail(f"--record-out {record_out}: the file exists; give another, or a folder, or remove it first", 2)
     if dry_run:
         import yaml  # noqa: PLC0415
 
@@ -686,12 +692,8 @@ def up_command(
         )
     recording: bool | Path = record if record_out is None else Path(record_out)
     if record_out is not None:
-        from cso_runtime.recording import names_a_folder  # noqa: PLC0415
-
         if names_a_folder(record_out):  # made now, so that the launcher puts <run-id>.mcap inside it
             output_dir_or_exit(Path(record_out), f"--record-out {record_out}")
-        elif Path(record_out).exists():  # as `record --out`: an earlier recording is never written over
-            _fail(f"--record-out {record_out}: the file exists; give another, or a folder, or remove it first", 2)
         else:
             output_dir_or_exit(Path(record_out).parent, f"--record-out {record_out}: its folder")
     output_dir_or_exit(runs_dir, "--runs-dir")  # before the router and the services start
@@ -952,8 +954,10 @@ def train_command(
     checkpoint = Path(args.out_dir) / "checkpoint.pt"
     started = time.time()
     interrupt_on_sigterm()
+    words = ["cso-runtime", "train", *(["--config", str(config)] if config is not None else [])]
+    command = shlex.join(words + [w for flag in training_flags(overrides, settings) for w in flag])  # recorded in <variant>.json
     try:
-        record = train(args, log=typer.echo)
+        record = train(args, log=typer.echo, command=command)
     except (EnvWorkerDied, KeyboardInterrupt) as exc:
         # This run's checkpoint (or the one it resumed from), not an earlier run's left in the same folder.
         ours = checkpoint.is_file() and (checkpoint.stat().st_mtime >= started or args.resume and Path(args.resume).resolve() == checkpoint.resolve())
@@ -1021,9 +1025,9 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
         pairs = parse_settings(settings or [])
         data.update(pairs)
         where = str(config or "train")  # an error names the file, and the flags that changed it, as eval's and up's do
-        flags = [_flag_of(k, v) for k, v in overrides.items() if v is not None] + [f"--set {item}" for item in settings or []]
+        flags = training_flags(overrides, settings)
         if flags:
-            where += " with " + " ".join(flags)
+            where += " with " + " ".join(" ".join(words) for words in flags)
         args = from_dict(Args, data, where)
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
         check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
@@ -1036,12 +1040,18 @@ TRAIN_FLAG_NAMES = {"out_dir": "--out", "resume": "--resume", "init_from": "--in
 """The flags of ``train`` and ``collect-teacher`` whose name is not the Args field's with dashes."""
 
 
-def _flag_of(field_name: str, value: object) -> str:
-    """The command-line flag that set an ``Args`` field, as the user typed it (``--num-envs 0``, ``--sync-envs``)."""
+def _flag_of(field_name: str, value: object) -> list[str]:
+    """The command-line flag that set an ``Args`` field, as the words the user typed (``--num-envs 0``, ``--sync-envs``)."""
     if isinstance(value, bool):
         on, off = {"async_envs": ("--async-envs", "--sync-envs")}.get(field_name, (f"--{field_name.replace('_', '-')}", f"--no-{field_name.replace('_', '-')}"))
-        return on if value else off
-    return f"{TRAIN_FLAG_NAMES.get(field_name, '--' + field_name.replace('_', '-'))} {value}"
+        return [on if value else off]
+    return [TRAIN_FLAG_NAMES.get(field_name, "--" + field_name.replace("_", "-")), str(value)]
+
+
+def training_flags(overrides: dict[str, object], settings: list[str] | None) -> list[list[str]]:
+    """The flags and ``--set`` pairs a training command was given, each as its words: what its errors name and
+    what ``train`` records as its command."""
+    return [_flag_of(k, v) for k, v in overrides.items() if v is not None] + [["--set", item] for item in settings or []]
 
 
 def parse_settings(items: list[str]) -> dict[str, object]:

@@ -6,9 +6,11 @@ import copy
 import csv
 import dataclasses
 import importlib.util
+import json
 import math
 import os
 import re
+import shlex
 from pathlib import Path
 
 import numpy as np
@@ -1365,6 +1367,10 @@ def test_train_closed_by_its_terminal_stops_its_env_workers_and_says_how_to_resu
     stopped_at = torch.load(out / "checkpoint.pt", weights_only=False)["update"]
     resumed = subprocess.run([*cmd, "--resume", str(out / "checkpoint.pt"), "--time-limit-s", "0.1"], cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=120)
     assert resumed.returncode == 0 and f"resumed from {out / 'checkpoint.pt'} at update {stopped_at + 1}" in resumed.stdout, resumed.stdout[-2000:] + resumed.stderr[-2000:]
+    # The run's record says the command that ran it (its flags as typed, in the order of the recipe's fields).
+    command = shlex.split(json.loads((out / "cso.json").read_text())["command"])
+    flags = [*cmd[4:], "--resume", str(out / "checkpoint.pt"), "--time-limit-s", "0.1"]
+    assert command[:2] == ["cso-runtime", "train"] and sorted(command[2:]) == sorted(flags), command
 
 
 def test_a_resume_with_another_recipe_is_refused_with_what_it_changes(tmp_path):

@@ -441,7 +441,7 @@ def test_a_recording_changed_after_it_was_written_is_refused_not_read_wrong(tmp_
 
 def test_a_recording_never_replaces_an_earlier_file(tmp_path: Path, monkeypatch):
     """``record --out FILE`` and ``up --record-out FILE`` refuse a file that exists (exit 2, before connecting or
-    starting anything), ``--out DIR/`` means a folder even before it exists, and the Foxglove bridge's
+    starting anything; ``up --dry-run`` too), ``--out DIR/`` means a folder even before it exists, and the Foxglove bridge's
     ``mcap_path`` moves to the next free ``-<n>`` name instead of writing over an earlier run's file."""
     from typer.testing import CliRunner
 
@@ -454,6 +454,8 @@ def test_a_recording_never_replaces_an_earlier_file(tmp_path: Path, monkeypatch)
     assert r.exit_code == 2 and f"{earlier} exists" in r.output
     r = CliRunner().invoke(app, ["up", "--profile", "sim", "--record-out", str(earlier), "--runs-dir", str(tmp_path / "runs"), "--no-live"])
     assert r.exit_code == 2 and "the file exists" in r.output and not (tmp_path / "runs").exists()
+    r = CliRunner().invoke(app, ["up", "--profile", "sim", "--record-out", str(earlier), "--dry-run"])  # says now what the run would say
+    assert r.exit_code == 2 and "the file exists" in r.output, r.output
     assert earlier.read_bytes() == b"an earlier recording"
     assert recording_path(f"{tmp_path}/new/", Path("recordings"), "r0-T") == tmp_path / "new" / "r0-T.mcap"
     assert recording_path(str(tmp_path / "new"), Path("recordings"), "r0-T") == tmp_path / "new"  # no slash, not there: a file

@@ -762,7 +762,7 @@ def write_tensorboard_row(writer: Any, row: dict[str, Any]) -> None:
     writer.flush()
 
 
-def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan] | None = None) -> dict[str, Any]:
+def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan] | None = None, command: str | None = None) -> dict[str, Any]:
     """Train one variant; returns the run record (also written as JSON next to the weights).
 
     ``plans`` replaces the configured scenes (tests train on a tiny synthetic plan)."""
@@ -783,6 +783,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     model = build_model(args, device)
     optimizer = optim.Adam(parameter_groups(model, args), lr=args.learning_rate, eps=args.adam_eps)
     record: dict[str, Any] = {"variant": args.variant, "args": dataclasses.asdict(args), "warm_start": {}}
+    if command is not None:  # the command line that ran it (``train`` gives it), to run it again
+        record["command"] = command
 
     start_update, global_decisions, warm_decisions = 1, 0, 0
     env_steps = 0
