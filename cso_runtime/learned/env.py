@@ -4,7 +4,9 @@
 the control loop until the Explorer asks for a new goal or the episode ends. The reward of a
 decision is the sum over the control steps it took of R_step + lambda_c * (new open area, m2).
 The action mask (valid distance + stuck masks, via ``ActionMasker``, as the policy applies them at
-run time) is returned in ``info["action_mask"]``.
+run time) is returned in ``info["action_mask"]`` as Gymnasium's spaces take one: ``np.int8`` of the action
+space's size, 1 where the action is allowed, so ``env.action_space.sample(info["action_mask"])`` samples an
+allowed action.
 
 Observation: the padded graph of ``graph.py`` as a ``spaces.Dict`` of fixed-shape boxes, so the
 standard vector envs can stack it (``spaces.Graph`` has no fixed shape and cannot be batched).
@@ -163,7 +165,7 @@ class ExplorationEnv(gym.Env):
         ex = self.explorer
         assert ex is not None
         return {
-            "action_mask": self.mask.copy(),
+            "action_mask": self.mask.astype(np.int8),  # Gymnasium's mask dtype (Discrete.sample(mask)); self.mask stays bool
             "coverage_pct": ex.coverage_pct(),
             "steps": ex.steps,
             "explored_area_m2": ex.explored_area_m2(),
@@ -278,8 +280,9 @@ control steps per decision)."""
 
 
 def expert_action(obs: Observation, mask: np.ndarray, teacher: str = "greedy-dist") -> int:
-    """The ``teacher`` baseline's choice under the mask: the allowed reachable cluster of lowest cost
-    (greedy-dist: the nearest)."""
+    """The ``teacher`` baseline's choice under the mask (bool, or the env's ``np.int8`` of 0 and 1): the allowed
+    reachable cluster of lowest cost (greedy-dist: the nearest)."""
+    mask = np.asarray(mask, dtype=bool)  # an int8 mask would index by position
     if teacher not in TEACHERS:
         raise ValueError(f"unknown warm-start teacher {teacher!r}; choose one of {', '.join(TEACHERS)}")
     n = min(len(obs.clusters), len(mask))

@@ -371,6 +371,12 @@ def obs_to_torch(obs: dict[str, np.ndarray], device: torch.device) -> dict[str, 
     return {k: torch.as_tensor(np.asarray(v), device=device) for k, v in obs.items()}
 
 
+def mask_to_torch(mask: np.ndarray, device: torch.device | str) -> torch.Tensor:
+    """An action mask as the bool tensor ``CategoricalMasked`` takes: the env's ``info["action_mask"]`` is
+    Gymnasium's ``np.int8`` of 0 and 1 (``torch.where`` needs bool), teacher-data files hold bool."""
+    return torch.as_tensor(np.asarray(mask, dtype=bool), device=device)
+
+
 def stack_obs(items: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     return {k: np.stack([it[k] for it in items]) for k in items[0]}
 
@@ -601,7 +607,7 @@ def collect_teacher(
         labels = envs.call("teacher_label", teacher)
         chosen = np.array([a for a, _ in labels], dtype=np.int64)
         graphs.append(obs)
-        masks.append(info["action_mask"])
+        masks.append(np.asarray(info["action_mask"], dtype=bool))  # the files hold bool masks
         actions.append(chosen)
         steps.append(np.stack([s for _, s in labels]))
         obs, reward, term, trunc, info = envs.step(chosen)
@@ -673,7 +679,7 @@ def warm_start(model: GraphActorCritic, data: TeacherData, args: Args, device: t
     """Behaviour cloning of the actor on the teacher's choices (or on ``soft_targets`` of the rollout's
     outcomes) plus a value regression."""
     b_obs = obs_to_torch(data.graphs, device)
-    b_mask = torch.as_tensor(data.masks, device=device)
+    b_mask = mask_to_torch(data.masks, device)
     b_act = torch.as_tensor(data.actions, device=device)
     b_ret = torch.as_tensor(data.returns, dtype=torch.float32, device=device)
     b_target = soft_targets(torch.as_tensor(data.outcome_steps, device=device), b_act, args.warm_start_soft_steps)
@@ -831,7 +837,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 
     next_obs_np, info = envs.reset(seed=args.seed + 10_000 * start_update)
     next_obs = obs_to_torch(next_obs_np, device)
-    next_mask = torch.as_tensor(info["action_mask"], device=device)
+    next_mask = mask_to_torch(info["action_mask"], device)
     next_done = torch.zeros(E, device=device)
     ep_return = np.zeros(E)
     finished: list[dict[str, float]] = []
@@ -890,7 +896,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                     env_steps += int(fi["steps"][i])
                     ep_return[i] = 0.0
                 next_obs = obs_to_torch(next_obs_np, device)
-                next_mask = torch.as_tensor(info["action_mask"], device=device)
+                next_mask = mask_to_torch(info["action_mask"], device)
                 next_done = torch.as_tensor(done, dtype=torch.float32, device=device)
 
             with torch.no_grad():
@@ -1140,7 +1146,7 @@ def model_chooser(model: GraphActorCritic, device: str = "cpu") -> Callable[[dic
     def choose(obs: dict[str, np.ndarray], mask: np.ndarray, rng: np.random.Generator) -> int:
         with torch.no_grad():
             g = {k: torch.as_tensor(np.asarray(v), device=device).unsqueeze(0) for k, v in obs.items()}
-            a, _, _, _ = model.get_action_and_value(g, torch.as_tensor(mask, device=device).unsqueeze(0), greedy=True)
+            a, _, _, _ = model.get_action_and_value(g, mask_to_torch(mask, device).unsqueeze(0), greedy=True)
         return int(a.item())
 
     return choose
