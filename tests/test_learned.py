@@ -352,6 +352,27 @@ def test_the_action_mask_is_gymnasiums_so_the_action_space_samples_allowed_actio
         envs.close()
 
 
+def test_the_default_env_fits_the_shipped_weights_and_other_graphs_say_what_to_pass():
+    """``gymnasium.make`` without a config gives the graph the shipped weights read (the recipe's, so training
+    is unchanged), and they run in it; weights given graphs of another feature size say which graph to build,
+    not torch's "mat1 and mat2 shapes cannot be multiplied"."""
+    import gymnasium as gym
+
+    from cso_runtime.config import from_dict, load_yaml
+
+    recipe = from_dict(Args, load_yaml(Path(__file__).parents[1] / "configs" / "train.yaml"), "train.yaml")
+    assert recipe.env_config().graph == EnvConfig().graph
+    for sensor in (SensorConfig.preset("lidar", 360.0), SensorConfig.preset("lidar")):  # cso.pt and cso@fov180.pt
+        model, graph, _ = load_checkpoint(weights_path("cso", sensor))
+        assert graph == EnvConfig().graph and model.config.node_features == len(node_features(EnvConfig().graph))
+    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4").unwrapped
+    assert np.isfinite(episode_returns(env, model_chooser(model), [0], max_decisions=3)[0])
+    other = ExplorationEnv([rooms_plan(2)], EnvConfig(graph=GraphConfig()))  # the paper's six features
+    with pytest.raises(ValueError, match=re.escape("have 6 node features, the weights' network reads 7")) as caught:
+        episode_returns(other, model_chooser(model), [0], max_decisions=3)
+    assert "EnvConfig(graph=load_checkpoint(path)[1])" in str(caught.value)
+
+
 def test_env_follows_the_gymnasium_api():
     env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
     check_reset_return_type(env)

@@ -49,12 +49,21 @@ class RewardConfig:
     Eq. 6's trade-off between steps and area within a scene stays the same. 0: Eq. 6 as it is."""
 
 
+def shipped_graph_config() -> GraphConfig:
+    """The graph the shipped weights read (``configs/train.yaml``: the paper's node features plus each cluster's
+    length, ``use_cluster_size``), ``EnvConfig``'s default so that the bare env's observations fit them."""
+    return GraphConfig(use_cluster_size=True)
+
+
 @dataclass
 class EnvConfig:
-    """What one training environment needs besides its scenes."""
+    """What one training environment needs besides its scenes. Training builds its own from the recipe
+    (``ppo.Args.env_config``); these defaults are the bare env's (``gymnasium.make``)."""
 
     exploration: ExplorationConfig = field(default_factory=ExplorationConfig)
-    graph: GraphConfig = field(default_factory=GraphConfig)
+    graph: GraphConfig = field(default_factory=shipped_graph_config)
+    """The graph of the observations: the shipped weights' (``shipped_graph_config``). Other weights need the
+    graph they were trained with: ``EnvConfig(graph=load_checkpoint(path)[1])``."""
     reward: RewardConfig = field(default_factory=RewardConfig)
     max_steps: int = 800
     """Control steps per training episode (truncation; shorter than eval to see more scenes)."""

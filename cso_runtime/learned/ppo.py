@@ -1141,15 +1141,30 @@ def episode_returns(env: ExplorationEnv, choose: Callable[[dict[str, np.ndarray]
 
 
 def model_chooser(model: GraphActorCritic, device: str = "cpu") -> Callable[[dict[str, np.ndarray], np.ndarray, np.random.Generator], int]:
-    """Greedy (argmax of masked probabilities) choice of a model, as at run time."""
+    """Greedy (argmax of masked probabilities) choice of a model, as at run time. Observations of another
+    number of node features than the model reads (an env of another ``GraphConfig`` than the weights were
+    trained with) are a ValueError that says which graph to build, not torch's shape error."""
 
     def choose(obs: dict[str, np.ndarray], mask: np.ndarray, rng: np.random.Generator) -> int:
+        check_node_features(model, np.shape(obs["nodes"])[-1])
         with torch.no_grad():
             g = {k: torch.as_tensor(np.asarray(v), device=device).unsqueeze(0) for k, v in obs.items()}
             a, _, _, _ = model.get_action_and_value(g, mask_to_torch(mask, device).unsqueeze(0), greedy=True)
         return int(a.item())
 
     return choose
+
+
+def check_node_features(model: GraphActorCritic, features: int) -> None:
+    """ValueError unless graphs of ``features`` node features fit ``model`` (its ``NetworkConfig.node_features``)."""
+    wanted = model.config.node_features
+    if features != wanted:
+        raise ValueError(
+            f"the observations have {features} node features, the weights' network reads {wanted}: the env's GraphConfig"
+            f" is not the one the weights were trained with (GraphConfig.use_cluster_size and use_unknown_area add one each;"
+            f" EnvConfig()'s default is the shipped weights'); make the env with the weights' own: "
+            f"EnvConfig(graph=load_checkpoint(path)[1])"
+        )
 
 
 def random_chooser(obs: dict[str, np.ndarray], mask: np.ndarray, rng: np.random.Generator) -> int:
