@@ -194,7 +194,10 @@ class Args:
         if self.num_envs < 1 or self.num_steps < 1 or self.num_minibatches < 1:
             raise ValueError(f"num_envs, num_steps and num_minibatches must be positive, got {self.num_envs}, {self.num_steps} and {self.num_minibatches}")
         if (self.num_envs * self.num_steps) % self.num_minibatches:
-            raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
+            raise ValueError(
+                f"num_envs x num_steps = {self.num_envs} x {self.num_steps} = {self.batch_size} decisions per update does not divide"
+                f" into {self.num_minibatches} minibatches (num_minibatches must divide num_envs x num_steps)"
+            )
         if self.total_decisions < 1 or self.update_epochs < 1 or self.max_steps < 1 or self.checkpoint_every < 1 or self.torch_threads < 1:
             raise ValueError("total_decisions, update_epochs, max_steps, checkpoint_every and torch_threads must be at least 1")
         if not (self.clip_coef > 0 and self.max_grad_norm > 0):
