@@ -14,6 +14,11 @@ with the same traversable area too): to pool such sets, label each file, `LABEL=
 within a label, so a label's greedy-dist episodes may still come from another file than its cso ones:
 
     python benchmarks/paired.py easy=runs/val/easy/episodes.csv medium=runs/val/medium/episodes.csv
+
+Two runs of one method (the shipped ``cso`` and a training run's, both ``cso`` in their files) are set side by side
+with ``--rename FILE:METHOD=NEW`` (FILE as given; repeatable), as in ``cso-runtime compare``:
+
+    python benchmarks/paired.py runs/shipped runs/mine --rename runs/mine:cso=cso-mine
 """
 
 from __future__ import annotations
@@ -21,7 +26,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from cso_runtime.comparison import Replacement, compare_to_baseline, labelled, markdown_table, read_episodes, split_names
+from cso_runtime.comparison import compare_to_baseline, labelled, markdown_table, pooled_episodes
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -29,12 +34,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("episodes", nargs="+", type=labelled, help="episodes.csv files written by cso-runtime eval, each optionally LABEL=FILE")
     p.add_argument("--baseline", default="greedy-dist")
     p.add_argument("--exclude", action="append", default=[], help="Leave out these maps (repeatable or comma-separated)")
+    p.add_argument("--rename", action="append", default=[], help="FILE:METHOD=NEW: compare that file's METHOD as NEW (repeatable)")
     args = p.parse_args(argv)
     missing = [str(path) for _, path in args.episodes if not path.is_file()]
     if missing:
         p.error(f"no such file: {', '.join(missing)}")
-    replaced: list[Replacement] = []
-    table = read_episodes(args.episodes, split_names(args.exclude), replaced)
+    try:
+        table, replaced = pooled_episodes(args.episodes, args.exclude, args.rename)
+    except ValueError as exc:
+        p.error(str(exc))
     for replacement in replaced:
         print(f"note: {replacement.note()}", file=sys.stderr)
     print(markdown_table(compare_to_baseline(table, args.baseline)))

@@ -35,7 +35,7 @@ def gradient_split(args: ppo.Args, minibatch: int = 64) -> dict[str, tuple[float
         model.load_state_dict(ppo.initial_weights(args, device))
     steps, n_env = args.num_steps, args.num_envs
     obs_np, info = envs.reset(seed=args.seed)
-    obs, mask, done = ppo.obs_to_torch(obs_np, device), torch.as_tensor(info["action_mask"]), torch.zeros(n_env)
+    obs, mask, done = ppo.obs_to_torch(obs_np, device), ppo.mask_to_torch(info["action_mask"], device), torch.zeros(n_env)
     rollout: dict[str, list] = {k: [] for k in ("obs", "mask", "action", "value", "reward", "done")}
     for _ in range(steps):
         with torch.no_grad():
@@ -45,7 +45,7 @@ def gradient_split(args: ppo.Args, minibatch: int = 64) -> dict[str, tuple[float
         obs_np, reward, term, trunc, info = envs.step(action.numpy())
         rollout["reward"].append(torch.as_tensor(reward, dtype=torch.float32))
         done = torch.as_tensor(np.logical_or(term, trunc), dtype=torch.float32)
-        obs, mask = ppo.obs_to_torch(obs_np, device), torch.as_tensor(info["action_mask"])
+        obs, mask = ppo.obs_to_torch(obs_np, device), ppo.mask_to_torch(info["action_mask"], device)
     envs.close()
     with torch.no_grad():
         next_value = model.get_value(obs)

@@ -247,19 +247,18 @@ def compare_command(
     as_json: bool = typer.Option(False, "--json", help="JSON instead of a markdown table"),
     out: Path | None = typer.Option(None, "--out", help="Also write the comparison as CSV"),
     exclude: list[str] | None = typer.Option(None, "--exclude", help="Leave out these maps (the `map` column; repeatable or comma-separated), e.g. the plans a training run drew"),
+    rename: list[str] | None = typer.Option(None, "--rename", help="FILE:METHOD=NEW: compare that file's METHOD as NEW (FILE as given above; repeatable), e.g. `compare shipped/ mine/ --rename mine/:cso=cso-mine` sets your cso beside the shipped one instead of in its place"),
 ) -> None:
     """Each method against a baseline scene by scene: change of mean m2/step, per-scene ratio (mean and geometric mean, each with a 95 % bootstrap interval), scenes won."""
     import json  # noqa: PLC0415
 
     from cso_runtime.comparison import (  # noqa: PLC0415
         MIN_SCENES,
-        Replacement,
         as_dicts,
         compare_to_baseline,
         labelled,
         markdown_table,
-        read_episodes,
-        split_names,
+        pooled_episodes,
         write_csv,
     )
 
@@ -267,9 +266,8 @@ def compare_command(
     missing = [str(path) for _, path in files if not path.is_file()]
     if missing:
         _fail(f"no such file: {', '.join(missing)}", 2)
-    replaced: list[Replacement] = []
     try:
-        table = read_episodes(files, split_names(exclude or []), replaced)
+        table, replaced = pooled_episodes(files, exclude or [], rename or [])
     except ValueError as exc:
         _fail(str(exc), 2)
     for replacement in replaced:

@@ -126,6 +126,35 @@ def labelled(arg: str) -> tuple[str, Path]:
     return label, path / "episodes.csv" if path.is_dir() else path
 
 
+@dataclass(frozen=True)
+class Rename:
+    """``--rename FILE:METHOD=NEW``: the episodes of ``method`` in one of the files compared count as ``new``'s, so
+    that two runs of one method (the shipped ``cso`` and a training run's, both called ``cso`` in their
+    ``episodes.csv``) are set side by side instead of one replacing the other."""
+
+    arg: str
+    """As given, for messages."""
+    label: str
+    """The file's label when the argument gives one (``easy=A/:cso=mine``); empty: the file under any label."""
+    path: Path
+    method: str
+    new: str
+
+    def applies_to(self, label: str, path: Path) -> bool:
+        return Path(path).resolve() == self.path.resolve() and self.label in ("", label)
+
+
+def parse_rename(arg: str) -> Rename:
+    """``FILE:METHOD=NEW`` -> Rename. FILE as it is given among the files (a folder for its ``episodes.csv``,
+    optionally ``LABEL=FILE``); METHOD the ``method`` column's value there; NEW the name to compare it under."""
+    head, sep, new = arg.rpartition("=")
+    file, colon, method = head.rpartition(":")
+    if not (sep and colon and file and method.strip() and new.strip()):
+        raise ValueError(f"--rename expects FILE:METHOD=NEW, such as runs/mine:cso=cso-mine, got {arg!r}")
+    label, path = labelled(file)
+    return Rename(arg, label, path, method.strip(), new.strip())
+
+
 def split_names(args: Iterable[str]) -> list[str]:
     """Command-line names, each argument one name or several separated by commas (``--exclude a,b --exclude c``)."""
     return [name for arg in args for name in arg.split(",") if name]
@@ -150,24 +179,32 @@ class Replacement:
         )
 
 
-def read_episodes(files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterable[str] = (), replaced: list[Replacement] | None = None) -> EfficiencyTable:
+def read_episodes(
+    files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterable[str] = (), replaced: list[Replacement] | None = None, renames: Sequence[Rename] = ()
+) -> EfficiencyTable:
     """``efficiency_by_scene`` over ``episodes.csv`` files, each optionally ``(label, path)``, without the
-    episodes of the maps named in ``exclude_maps`` (for instance the plans a training run drew). A later file's
-    episode of a method replaces an earlier file's on the same scene; ``replaced`` (when given) receives a
-    ``Replacement`` per method and pair of files where that changed a figure."""
+    episodes of the maps named in ``exclude_maps`` (for instance the plans a training run drew), with the methods
+    that ``renames`` name under their new names. A later file's episode of a method replaces an earlier file's on
+    the same scene; ``replaced`` (when given) receives a ``Replacement`` per method and pair of files where that
+    changed a figure. A rename of no file given, of a method its file lacks, or to a method it has is a ValueError."""
     excluded = set(exclude_maps)
+    items = [item if isinstance(item, tuple) else ("", Path(item)) for item in files]
+    for rename in renames:
+        if not any(rename.applies_to(label, path) for label, path in items):
+            given = ", ".join(f"{label}={path}" if label else str(path) for label, path in items)
+            raise ValueError(f"--rename {rename.arg}: {rename.path} is not one of the files compared ({given})")
     table: EfficiencyTable = defaultdict(dict)
     source: dict[tuple[str, SceneKey], Path] = {}
     """(method, scene) -> the file its episode in ``table`` came from."""
-    for item in files:
-        label, path = item if isinstance(item, tuple) else ("", item)
+    for label, path in items:
         try:
             with Path(path).open(newline="", encoding="utf-8") as fh:
                 reader = csv.DictReader(fh)
                 missing = [c for c in EPISODE_COLUMNS if c not in (reader.fieldnames or [])]
                 if missing:
                     raise ValueError(f"not an episodes.csv written by eval: no column {', '.join(missing)}")
-                own = efficiency_by_scene((row for row in reader if row["map"] not in excluded), label)
+                rows = [row for row in reader if row["map"] not in excluded]
+            own = efficiency_by_scene(renamed_methods(rows, [r for r in renames if r.applies_to(label, path)]), label)
         except UnicodeDecodeError:
             raise ValueError(f"{path}: not an episodes.csv written by eval: not UTF-8 text") from None
         except (ValueError, csv.Error) as exc:  # every message names the file: several are read at once
@@ -183,6 +220,30 @@ def read_episodes(files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterab
         if replaced is not None:
             replaced.extend(Replacement(method, earlier, Path(path), count) for (method, earlier), count in sorted(changed.items(), key=lambda kv: (kv[0][0], str(kv[0][1]))))
     return table
+
+
+def pooled_episodes(files: Sequence[tuple[str, Path]], exclude: Iterable[str], renames: Iterable[str]) -> tuple[EfficiencyTable, list[Replacement]]:
+    """What ``compare`` and ``benchmarks/paired.py`` read from their arguments: ``read_episodes`` of the files with
+    the maps of ``exclude`` (``split_names``) left out and the ``--rename`` arguments applied, and the replacements
+    to note. A bad argument or file is a ValueError."""
+    replaced: list[Replacement] = []
+    table = read_episodes(files, split_names(exclude), replaced, [parse_rename(arg) for arg in renames])
+    return table, replaced
+
+
+def renamed_methods(rows: list[dict[str, str]], renames: Sequence[Rename]) -> list[dict[str, str]]:
+    """One file's ``episodes.csv`` rows with each renamed method under its new name (ValueError for a method the
+    rows lack, or a new name that is another of their methods: two methods' episodes would mix)."""
+    methods = {row["method"] for row in rows}
+    new_names: dict[str, str] = {}
+    for rename in renames:
+        if rename.method not in methods:
+            raise ValueError(f"--rename {rename.arg}: no episodes of {rename.method} in it; its methods: {', '.join(sorted(methods))}")
+        new_names[rename.method] = rename.new
+    kept, new = methods - set(new_names), list(new_names.values())
+    if clash := sorted({name for name in new if name in kept or new.count(name) > 1}):
+        raise ValueError(f"--rename: {', '.join(clash)} would hold the episodes of two methods of this file; choose another new name")
+    return [{**row, "method": new_names.get(row["method"], row["method"])} for row in rows] if new_names else rows
 
 
 def bootstrap_mean_ci(values: np.ndarray, resamples: int = 10_000, seed: int = 0, clusters: Sequence[Any] | None = None) -> tuple[float, float]:

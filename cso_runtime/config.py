@@ -7,6 +7,7 @@ an error, never silently ignored.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import math
 import re
 import types
@@ -380,6 +381,12 @@ def _key_where(where: str, key: str) -> str:
     return f"{where}: {key}" if is_file and ": " not in where else f"{where}.{key}"
 
 
+def with_nearest(key: str, known: typing.Iterable[str]) -> str:
+    """``key``, followed by the known key it most likely misspells (``gama (did you mean gamma?)``), if any is close."""
+    nearest = difflib.get_close_matches(str(key), sorted(known), n=1)
+    return f"{key} (did you mean {nearest[0]}?)" if nearest else str(key)
+
+
 def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:
     """Build dataclass ``cls`` from a (possibly partial) mapping; unknown keys raise ConfigError."""
     data = data or {}
@@ -387,7 +394,8 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - names)
     if unknown:
-        raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(names))}")
+        said = ", ".join(with_nearest(key, names) for key in unknown)
+        raise ConfigError(f"{where}: unknown key(s) {said}; known: {', '.join(sorted(names))}")
     kwargs = {k: _convert(v, hints[k], _key_where(where, k)) for k, v in data.items()}
     obj = cls(**kwargs)
     validate = getattr(obj, "validate", None)

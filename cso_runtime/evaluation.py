@@ -552,7 +552,8 @@ def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
         "command": "cso-runtime eval",
         "version": __version__,  # which code made the table
         "maps": request.maps,
-        "m_per_px": request.m_per_px,  # the flag, which applies to PNG plans only
+        # The flag's scale of PNG plans; null where none ran (generated plans and map files: their own, in cell_sizes_m).
+        "m_per_px": request.m_per_px if any(ref.scaled_by_m_per_px for ref in scenes) else None,
         "cell_sizes_m": sorted({o.resolution_m for o in outcomes if o.row is not None}),  # what the scenes ran at (generated: 0.05, maps: their own)
         "seed": request.seed,
         "sim": request.sim,

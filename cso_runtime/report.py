@@ -126,7 +126,7 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
         "img{max-width:100%;height:auto;border:1px solid #eee}.maps{display:flex;flex-wrap:wrap;gap:1em}.maps figure{margin:0;max-width:640px}",
         "</style></head><body>",
         f"<h1>Results in {html.escape(str(out_dir))}</h1>",
-        "<p>" + html.escape(", ".join(f"{k}: {meta[k]}" for k in ("command", "version", "maps", "m_per_px", "cell_sizes_m", "seed", "sim") if k in meta)) + "</p>",
+        "<p>" + html.escape(", ".join(f"{k}: {meta[k]}" for k in ("command", "version", "maps", "m_per_px", "cell_sizes_m", "seed", "sim") if meta.get(k) is not None)) + "</p>",
         "<h2>Table 1</h2>",
         _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e)] for m, s, e in table1_rows(summary)]),
     ]

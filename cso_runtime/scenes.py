@@ -223,6 +223,11 @@ class SceneRef:
     generated: tuple[str, int] | None = None  # (scale, seed)
     resolution_m: float = 0.1
 
+    @property
+    def scaled_by_m_per_px(self) -> bool:
+        """A PNG plan, loaded at ``resolution_m`` (``--m-per-px``); generated plans and map files have their own cell size."""
+        return self.generated is None and self.path is not None and Path(self.path).suffix.lower() not in MAP_SUFFIXES
+
     def load(self) -> FloorPlan:
         if self.generated is not None:
             from cso_runtime.scene_generator import generate_floor_plan  # noqa: PLC0415

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -167,3 +168,35 @@ def test_compare_says_when_a_later_file_replaces_a_methods_episodes_of_an_earlie
     assert "greedy-dist" not in out.stderr and "| large | cso | 3 | -3.3 % |" in out.stdout
     alone = subprocess.run(exe + [str(shipped)], capture_output=True, text=True, timeout=60)
     assert alone.returncode == 0 and alone.stderr == ""
+
+
+def test_compare_renames_a_method_of_one_file_to_set_two_runs_of_it_side_by_side(tmp_path: Path):
+    """The shipped cso and a training run's are both ``cso`` in their episodes.csv: ``--rename FILE:METHOD=NEW``
+    compares one file's under another name, beside the other instead of in its place (no note of a replacement).
+    FILE is as given (a folder, a label); a rename of no file given, of a method the file lacks, to a method the
+    file has, or not of the form FILE:METHOD=NEW is exit 2 with the reason."""
+    base = rows("greedy-dist", "large", {"a": 1.0, "b": 1.0, "c": 1.0})
+    shipped = write(tmp_path / "shipped.csv", base + rows("cso", "large", {"a": 1.2, "b": 1.2, "c": 1.1}))
+    (tmp_path / "mine").mkdir()
+    write(tmp_path / "mine" / "episodes.csv", base + rows("cso", "large", {"a": 0.9, "b": 0.9, "c": 1.1}))
+    mine = tmp_path / "mine"
+    exe = [sys.executable, "-m", "cso_runtime.cli", "compare"]
+    out = subprocess.run(exe + [str(shipped), str(mine), "--rename", f"{mine}:cso=cso-mine", "--json"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stderr == "", out.stderr
+    by_method = {c["method"]: c for c in json.loads(out.stdout)["comparisons"]}
+    assert set(by_method) == {"cso", "cso-mine"}
+    assert by_method["cso"]["per_scene_pct"] == pytest.approx(16.667) and by_method["cso-mine"]["per_scene_pct"] == pytest.approx(-3.333)
+    labelled_too = [f"easy={shipped}", f"easy={mine}", "--rename", f"easy={mine}:cso=cso-mine", "--rename", f"{shipped}:cso=shipped", "--json"]
+    out = subprocess.run(exe + labelled_too, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and {c["method"] for c in json.loads(out.stdout)["comparisons"]} == {"shipped", "cso-mine"}, out.stderr
+    for rename, said in (
+        (f"{tmp_path / 'other.csv'}:cso=x", f"--rename {tmp_path / 'other.csv'}:cso=x: {tmp_path / 'other.csv'} is not one of the files compared"),
+        (f"{mine}:cso-sm=x", f"{mine / 'episodes.csv'}: --rename {mine}:cso-sm=x: no episodes of cso-sm in it; its methods: cso, greedy-dist"),
+        (f"{mine}:cso=greedy-dist", "greedy-dist would hold the episodes of two methods of this file"),
+        (f"{mine}=cso-mine", "--rename expects FILE:METHOD=NEW"),
+        (f"medium={mine}:cso=x", "is not one of the files compared"),  # the label must be the file's
+    ):
+        wrong = subprocess.run(exe + [str(shipped), str(mine), "--rename", rename], capture_output=True, text=True, timeout=60)
+        assert wrong.returncode == 2 and said in " ".join(wrong.stderr.split()) and "Traceback" not in wrong.stderr, (rename, wrong.stderr)
+    help_text = subprocess.run(exe + ["--help"], capture_output=True, text=True, timeout=60, env={**os.environ, "COLUMNS": "200"})
+    assert "--rename" in help_text.stdout and "FILE:METHOD=NEW" in help_text.stdout

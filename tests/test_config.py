@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -263,6 +264,25 @@ def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is
         ("device=gpu", "unknown device 'gpu'"),
     ]:
         assert f"error: {recipe} with --set {setting}: {said}" in train_refusal(recipe, {}, [setting], capsys)
+
+
+def test_a_minibatch_count_that_does_not_divide_the_batch_says_the_numbers(tmp_path: Path, capsys):
+    """``num_minibatches`` must divide num_envs x num_steps: the refusal shows the product and the count."""
+    recipe = small_train_recipe(tmp_path)
+    said = " ".join(train_refusal(recipe, {"num_envs": 4}, ["num_steps=64", "num_minibatches=3"], capsys).split())
+    assert "num_envs x num_steps = 4 x 64 = 256 decisions per update does not divide into 3 minibatches" in said, said
+
+
+def test_an_unknown_key_names_the_known_key_it_most_likely_misspells(tmp_path: Path, capsys):
+    """``train --set gama=0.9`` listed all 70 known keys; the nearest one comes first now (``difflib``), for each
+    unknown key that is close to one, in train's, eval's and the files' keys alike."""
+    from cso_runtime.evaluation import EvalRequest
+
+    recipe = small_train_recipe(tmp_path)
+    said = " ".join(train_refusal(recipe, {}, ["gama=0.9", "num_minibatch=3", "zzz=1"], capsys).split())
+    assert "unknown key(s) gama (did you mean gamma?), num_minibatch (did you mean num_minibatches?), zzz; known: adam_eps," in said, said
+    with pytest.raises(ConfigError, match=re.escape("masks: unknown key(s) beta_far (did you mean beta_far_m?); known: alpha1_m")):
+        EvalRequest(methods=["cso"], settings={"masks.beta_far": 1.0}).exploration_config()
 
 
 def test_a_train_error_names_the_command_flags_that_set_the_bad_value(tmp_path: Path, capsys):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import math
 import re
 from pathlib import Path
 
@@ -276,12 +277,28 @@ def test_the_readmes_python_example_runs_and_prints_an_episode(tmp_path):
     import subprocess
     import sys
 
-    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(encoding="utf-8"), flags=re.DOTALL)
-    assert len(blocks) == 1, "README's Python example is gone"
-    r = subprocess.run([sys.executable, "-c", blocks[0]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-c", readme_python_examples()[0]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     coverage, steps, efficiency = re.fullmatch(r"(\d+\.\d) % in (\d+) steps, (\d\.\d{3}) m2/step\n", r.stdout).groups()
     assert float(coverage) > 99.0 and int(steps) > 0 and float(efficiency) > 0
+
+
+def readme_python_examples() -> list[str]:
+    """README's ```python blocks: the "From Python" episode, then the shipped weights in the Gymnasium env."""
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(encoding="utf-8"), flags=re.DOTALL)
+    assert len(blocks) == 2, "README's Python examples are gone"
+    return blocks
+
+
+def test_the_readmes_gymnasium_example_runs_the_shipped_weights_in_the_default_env(tmp_path):
+    """The training environment's block, as pasted: the shipped weights fit ``gymnasium.make``'s default graph."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", readme_python_examples()[1]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    returns = [float(x) for x in re.fullmatch(r"\[(.*)\]\n", r.stdout).group(1).split(",")]
+    assert len(returns) == 2 and all(math.isfinite(x) for x in returns)
 
 
 def test_messages_md_states_each_schemas_wire_version():

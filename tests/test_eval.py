@@ -339,6 +339,7 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     assert second["meta"]["resumed_episodes"] == 1 and "resumed_episodes" not in first["meta"]
     assert first["meta"]["version"] == cso_runtime.__version__ != "0+unknown"  # which code made the table
     assert first["meta"]["sim_settings"] == {"collision_radius_m": 0.12, "substeps": 5}  # the 2D simulator's own
+    assert first["meta"]["m_per_px"] is None and first["meta"]["cell_sizes_m"] == [0.05]  # --m-per-px scales PNG plans only
     # and every flag it was given (meta.command alone said "cso-runtime eval"), as JSON that reads back
     request = json.loads((tmp_path / "summary.json").read_text())["meta"]["request"]
     assert request["methods"] == ["greedy-dist", "random"] and request["max_steps"] == 30 and request["limit"] is None
@@ -374,7 +375,7 @@ def test_resume_runs_again_an_episode_of_another_scene_under_the_same_name(tmp_p
     second = run_eval(req)
     assert second["meta"]["resumed_episodes"] == 0 and npz.stat().st_mtime_ns != stamp
     assert traversable_m2() == pytest.approx(area_m2 / 4, rel=1e-3)  # the plan at half the cell size
-    assert second["meta"]["cell_sizes_m"] == [0.05]
+    assert second["meta"]["cell_sizes_m"] == [0.05] and second["meta"]["m_per_px"] == 0.05  # a PNG plan: the flag counts
 
 
 def _episode_whose_process_dies_on_one_scene(job):

@@ -329,6 +329,52 @@ def test_scene_scaled_reward_is_eq6_times_the_reference_over_the_scene_area():
         Args(reward_scene_scale_area_m2=-1.0).validate()
 
 
+def test_the_action_mask_is_gymnasiums_so_the_action_space_samples_allowed_actions():
+    """Gymnasium's spaces take a mask of ``np.int8`` (``Discrete.sample(mask)``, ``MultiDiscrete`` per env):
+    ``info["action_mask"]`` is one, of the action space's size, so a random agent that respects the mask is
+    ``env.action_space.sample(info["action_mask"])``, in one env and in a vector env."""
+    import gymnasium as gym
+
+    env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
+    _, info = env.reset(seed=0)
+    mask = info["action_mask"]
+    assert mask.dtype == np.int8 and mask.shape == (env.action_space.n,) and set(np.unique(mask)) <= {0, 1} and mask.any()
+    for seed in range(20):
+        env.action_space.seed(seed)
+        assert mask[env.action_space.sample(mask)] == 1
+    _, _, _, _, info = env.step(env.action_space.sample(mask))
+    assert info["action_mask"].dtype == np.int8 and info["invalid_actions"] == 0
+    envs = gym.vector.SyncVectorEnv([lambda: ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))] * 2)
+    try:
+        _, info = envs.reset(seed=0)
+        assert info["action_mask"].dtype == np.int8 and info["action_mask"].shape == (2, env.action_space.n)
+        actions = envs.action_space.sample(tuple(info["action_mask"]))
+        assert all(info["action_mask"][i, a] == 1 for i, a in enumerate(actions))
+    finally:
+        envs.close()
+
+
+def test_the_default_env_fits_the_shipped_weights_and_other_graphs_say_what_to_pass():
+    """``gymnasium.make`` without a config gives the graph the shipped weights read (the recipe's, so training
+    is unchanged), and they run in it; weights given graphs of another feature size say which graph to build,
+    not torch's "mat1 and mat2 shapes cannot be multiplied"."""
+    import gymnasium as gym
+
+    from cso_runtime.config import from_dict, load_yaml
+
+    recipe = from_dict(Args, load_yaml(Path(__file__).parents[1] / "configs" / "train.yaml"), "train.yaml")
+    assert recipe.env_config().graph == EnvConfig().graph
+    for sensor in (SensorConfig.preset("lidar", 360.0), SensorConfig.preset("lidar")):  # cso.pt and cso@fov180.pt
+        model, graph, _ = load_checkpoint(weights_path("cso", sensor))
+        assert graph == EnvConfig().graph and model.config.node_features == len(node_features(EnvConfig().graph))
+    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4").unwrapped
+    assert np.isfinite(episode_returns(env, model_chooser(model), [0], max_decisions=3)[0])
+    other = ExplorationEnv([rooms_plan(2)], EnvConfig(graph=GraphConfig()))  # the paper's six features
+    with pytest.raises(ValueError, match=re.escape("have 6 node features, the weights' network reads 7")) as caught:
+        episode_returns(other, model_chooser(model), [0], max_decisions=3)
+    assert "EnvConfig(graph=load_checkpoint(path)[1])" in str(caught.value)
+
+
 def test_env_follows_the_gymnasium_api():
     env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
     check_reset_return_type(env)
@@ -337,7 +383,7 @@ def test_env_follows_the_gymnasium_api():
     obs, info = env_reset_passive_checker(env, seed=0)
     assert env.observation_space.contains(obs)
     assert info["action_mask"].shape == (env.action_space.n,) and info["action_mask"].any()
-    _, _, _, _, rejected = env.step(int(np.flatnonzero(~info["action_mask"])[0]))  # a masked action: a counted no-op
+    _, _, _, _, rejected = env.step(int(np.flatnonzero(info["action_mask"] == 0)[0]))  # a masked action: a counted no-op
     assert rejected["invalid_actions"] == 1 and rejected["steps"] == info["steps"]
     with pytest.raises(ValueError, match="outside the action space"):
         env.step(-1)
@@ -764,7 +810,7 @@ def test_the_environment_passes_gymnasiums_checker_and_rejects_masked_actions_as
     env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", config=config).unwrapped
     check_env(env, skip_render_check=True)
     obs, info = env.reset(seed=3)
-    masked = int(np.flatnonzero(~info["action_mask"])[0])
+    masked = int(np.flatnonzero(info["action_mask"] == 0)[0])
     again, reward, terminated, truncated, info2 = env.step(masked)
     assert all(np.array_equal(again[k], obs[k]) for k in obs) and np.array_equal(info2["action_mask"], info["action_mask"])
     assert reward == config.reward.r_step and not terminated and not truncated
@@ -772,7 +818,7 @@ def test_the_environment_passes_gymnasiums_checker_and_rejects_masked_actions_as
     valid = int(np.flatnonzero(info["action_mask"])[0])
     _, reward, _, _, info3 = env.step(valid)  # a valid choice still acts, and resets the run of rejections
     assert reward != config.reward.r_step and info3["steps"] > info["steps"] and info3["invalid_actions"] == 1
-    masked = int(np.flatnonzero(~info3["action_mask"])[0])
+    masked = int(np.flatnonzero(info3["action_mask"] == 0)[0])
     ends = [env.step(masked)[3] for _ in range(3)]
     assert ends == [False, False, True] and env.invalid_actions == 4
     with pytest.raises(RuntimeError, match="after the episode ended"):

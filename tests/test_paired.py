@@ -52,3 +52,17 @@ def test_a_missing_file_is_a_clear_error(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         paired.main([f"easy={tmp_path / 'nope.csv'}"])
     assert exc.value.code == 2 and "no such file" in capsys.readouterr().err
+
+
+def test_rename_sets_two_runs_of_one_method_side_by_side(tmp_path, capsys):
+    """``--rename FILE:METHOD=NEW``, as ``cso-runtime compare``: one file's cso compared as another method."""
+    base = [("greedy-dist", m, "large", 0, 100, 1.0) for m in ("a", "b", "c")]
+    shipped = write(tmp_path / "shipped.csv", base + [("cso", m, "large", 0, 100, 1.2) for m in ("a", "b", "c")])
+    mine = write(tmp_path / "mine.csv", base + [("cso", m, "large", 0, 100, 0.9) for m in ("a", "b", "c")])
+    paired = load_paired()
+    assert paired.main([str(shipped), str(mine), "--rename", f"{mine}:cso=cso-mine"]) == 0
+    out = capsys.readouterr()
+    assert "| large | cso | 3 | +20.0 % |" in out.out and "| large | cso-mine | 3 | -10.0 % |" in out.out and out.err == ""
+    with pytest.raises(SystemExit) as exc:
+        paired.main([str(shipped), "--rename", f"{mine}:cso=cso-mine"])
+    assert exc.value.code == 2 and "is not one of the files compared" in capsys.readouterr().err

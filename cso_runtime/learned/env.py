@@ -4,7 +4,9 @@
 the control loop until the Explorer asks for a new goal or the episode ends. The reward of a
 decision is the sum over the control steps it took of R_step + lambda_c * (new open area, m2).
 The action mask (valid distance + stuck masks, via ``ActionMasker``, as the policy applies them at
-run time) is returned in ``info["action_mask"]``.
+run time) is returned in ``info["action_mask"]`` as Gymnasium's spaces take one: ``np.int8`` of the action
+space's size, 1 where the action is allowed, so ``env.action_space.sample(info["action_mask"])`` samples an
+allowed action.
 
 Observation: the padded graph of ``graph.py`` as a ``spaces.Dict`` of fixed-shape boxes, so the
 standard vector envs can stack it (``spaces.Graph`` has no fixed shape and cannot be batched).
@@ -47,12 +49,21 @@ class RewardConfig:
     Eq. 6's trade-off between steps and area within a scene stays the same. 0: Eq. 6 as it is."""
 
 
+def shipped_graph_config() -> GraphConfig:
+    """The graph the shipped weights read (``configs/train.yaml``: the paper's node features plus each cluster's
+    length, ``use_cluster_size``), ``EnvConfig``'s default so that the bare env's observations fit them."""
+    return GraphConfig(use_cluster_size=True)
+
+
 @dataclass
 class EnvConfig:
-    """What one training environment needs besides its scenes."""
+    """What one training environment needs besides its scenes. Training builds its own from the recipe
+    (``ppo.Args.env_config``); these defaults are the bare env's (``gymnasium.make``)."""
 
     exploration: ExplorationConfig = field(default_factory=ExplorationConfig)
-    graph: GraphConfig = field(default_factory=GraphConfig)
+    graph: GraphConfig = field(default_factory=shipped_graph_config)
+    """The graph of the observations: the shipped weights' (``shipped_graph_config``). Other weights need the
+    graph they were trained with: ``EnvConfig(graph=load_checkpoint(path)[1])``."""
     reward: RewardConfig = field(default_factory=RewardConfig)
     max_steps: int = 800
     """Control steps per training episode (truncation; shorter than eval to see more scenes)."""
@@ -163,7 +174,7 @@ class ExplorationEnv(gym.Env):
         ex = self.explorer
         assert ex is not None
         return {
-            "action_mask": self.mask.copy(),
+            "action_mask": self.mask.astype(np.int8),  # Gymnasium's mask dtype (Discrete.sample(mask)); self.mask stays bool
             "coverage_pct": ex.coverage_pct(),
             "steps": ex.steps,
             "explored_area_m2": ex.explored_area_m2(),
@@ -278,8 +289,9 @@ control steps per decision)."""
 
 
 def expert_action(obs: Observation, mask: np.ndarray, teacher: str = "greedy-dist") -> int:
-    """The ``teacher`` baseline's choice under the mask: the allowed reachable cluster of lowest cost
-    (greedy-dist: the nearest)."""
+    """The ``teacher`` baseline's choice under the mask (bool, or the env's ``np.int8`` of 0 and 1): the allowed
+    reachable cluster of lowest cost (greedy-dist: the nearest)."""
+    mask = np.asarray(mask, dtype=bool)  # an int8 mask would index by position
     if teacher not in TEACHERS:
         raise ValueError(f"unknown warm-start teacher {teacher!r}; choose one of {', '.join(TEACHERS)}")
     n = min(len(obs.clusters), len(mask))

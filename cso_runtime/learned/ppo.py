@@ -194,7 +194,10 @@ class Args:
         if self.num_envs < 1 or self.num_steps < 1 or self.num_minibatches < 1:
             raise ValueError(f"num_envs, num_steps and num_minibatches must be positive, got {self.num_envs}, {self.num_steps} and {self.num_minibatches}")
         if (self.num_envs * self.num_steps) % self.num_minibatches:
-            raise ValueError("num_envs * num_steps must be divisible by num_minibatches")
+            raise ValueError(
+                f"num_envs x num_steps = {self.num_envs} x {self.num_steps} = {self.batch_size} decisions per update does not divide"
+                f" into {self.num_minibatches} minibatches (num_minibatches must divide num_envs x num_steps)"
+            )
         if self.total_decisions < 1 or self.update_epochs < 1 or self.max_steps < 1 or self.checkpoint_every < 1 or self.torch_threads < 1:
             raise ValueError("total_decisions, update_epochs, max_steps, checkpoint_every and torch_threads must be at least 1")
         if not (self.clip_coef > 0 and self.max_grad_norm > 0):
@@ -369,6 +372,12 @@ def compute_gae(
 
 def obs_to_torch(obs: dict[str, np.ndarray], device: torch.device) -> dict[str, torch.Tensor]:
     return {k: torch.as_tensor(np.asarray(v), device=device) for k, v in obs.items()}
+
+
+def mask_to_torch(mask: np.ndarray, device: torch.device | str) -> torch.Tensor:
+    """An action mask as the bool tensor ``CategoricalMasked`` takes: the env's ``info["action_mask"]`` is
+    Gymnasium's ``np.int8`` of 0 and 1 (``torch.where`` needs bool), teacher-data files hold bool."""
+    return torch.as_tensor(np.asarray(mask, dtype=bool), device=device)
 
 
 def stack_obs(items: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
@@ -601,7 +610,7 @@ def collect_teacher(
         labels = envs.call("teacher_label", teacher)
         chosen = np.array([a for a, _ in labels], dtype=np.int64)
         graphs.append(obs)
-        masks.append(info["action_mask"])
+        masks.append(np.asarray(info["action_mask"], dtype=bool))  # the files hold bool masks
         actions.append(chosen)
         steps.append(np.stack([s for _, s in labels]))
         obs, reward, term, trunc, info = envs.step(chosen)
@@ -673,7 +682,7 @@ def warm_start(model: GraphActorCritic, data: TeacherData, args: Args, device: t
     """Behaviour cloning of the actor on the teacher's choices (or on ``soft_targets`` of the rollout's
     outcomes) plus a value regression."""
     b_obs = obs_to_torch(data.graphs, device)
-    b_mask = torch.as_tensor(data.masks, device=device)
+    b_mask = mask_to_torch(data.masks, device)
     b_act = torch.as_tensor(data.actions, device=device)
     b_ret = torch.as_tensor(data.returns, dtype=torch.float32, device=device)
     b_target = soft_targets(torch.as_tensor(data.outcome_steps, device=device), b_act, args.warm_start_soft_steps)
@@ -833,7 +842,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 
     next_obs_np, info = envs.reset(seed=args.seed + 10_000 * start_update)
     next_obs = obs_to_torch(next_obs_np, device)
-    next_mask = torch.as_tensor(info["action_mask"], device=device)
+    next_mask = mask_to_torch(info["action_mask"], device)
     next_done = torch.zeros(E, device=device)
     ep_return = np.zeros(E)
     finished: list[dict[str, float]] = []
@@ -892,7 +901,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                     env_steps += int(fi["steps"][i])
                     ep_return[i] = 0.0
                 next_obs = obs_to_torch(next_obs_np, device)
-                next_mask = torch.as_tensor(info["action_mask"], device=device)
+                next_mask = mask_to_torch(info["action_mask"], device)
                 next_done = torch.as_tensor(done, dtype=torch.float32, device=device)
 
             with torch.no_grad():
@@ -1137,15 +1146,30 @@ def episode_returns(env: ExplorationEnv, choose: Callable[[dict[str, np.ndarray]
 
 
 def model_chooser(model: GraphActorCritic, device: str = "cpu") -> Callable[[dict[str, np.ndarray], np.ndarray, np.random.Generator], int]:
-    """Greedy (argmax of masked probabilities) choice of a model, as at run time."""
+    """Greedy (argmax of masked probabilities) choice of a model, as at run time. Observations of another
+    number of node features than the model reads (an env of another ``GraphConfig`` than the weights were
+    trained with) are a ValueError that says which graph to build, not torch's shape error."""
 
     def choose(obs: dict[str, np.ndarray], mask: np.ndarray, rng: np.random.Generator) -> int:
+        check_node_features(model, np.shape(obs["nodes"])[-1])
         with torch.no_grad():
             g = {k: torch.as_tensor(np.asarray(v), device=device).unsqueeze(0) for k, v in obs.items()}
-            a, _, _, _ = model.get_action_and_value(g, torch.as_tensor(mask, device=device).unsqueeze(0), greedy=True)
+            a, _, _, _ = model.get_action_and_value(g, mask_to_torch(mask, device).unsqueeze(0), greedy=True)
         return int(a.item())
 
     return choose
+
+
+def check_node_features(model: GraphActorCritic, features: int) -> None:
+    """ValueError unless graphs of ``features`` node features fit ``model`` (its ``NetworkConfig.node_features``)."""
+    wanted = model.config.node_features
+    if features != wanted:
+        raise ValueError(
+            f"the observations have {features} node features, the weights' network reads {wanted}: the env's GraphConfig"
+            f" is not the one the weights were trained with (GraphConfig.use_cluster_size and use_unknown_area add one each;"
+            f" EnvConfig()'s default is the shipped weights'); make the env with the weights' own: "
+            f"EnvConfig(graph=load_checkpoint(path)[1])"
+        )
 
 
 def random_chooser(obs: dict[str, np.ndarray], mask: np.ndarray, rng: np.random.Generator) -> int:
