@@ -1546,7 +1546,7 @@ def test_the_resume_hint_names_only_this_runs_checkpoint(tmp_path, monkeypatch):
     from cso_runtime.cli import app
     from cso_runtime.learned import ppo
 
-    def stopped(args, log):
+    def stopped(args, log, command=None):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(ppo, "train", stopped)
@@ -1558,7 +1558,7 @@ def test_the_resume_hint_names_only_this_runs_checkpoint(tmp_path, monkeypatch):
     r = CliRunner().invoke(app, argv)
     assert r.exit_code == 130 and "interrupted" in r.output and "--resume" not in r.output, r.output
 
-    def saved_then_stopped(args, log):
+    def saved_then_stopped(args, log, command=None):
         (out / "checkpoint.pt").write_bytes(b"PK\x03\x04 this run's")
         raise KeyboardInterrupt
 
