@@ -650,10 +650,10 @@ class Launcher:
             return self.stop_before_start(EXIT_INTERRUPTED)
         router = self.profile.router
         if router.embedded:
-            session, self.endpoints = open_router(list(router.listen), list(router.connect))
+            session, self.endpoints = open_router(list(router.listen), list(router.connect), router.connect_timeout_s)
         else:  # join the existing router(s) instead of opening one
             self.endpoints = list(router.connect)
-            session = open_session(TransportConfig(mode="client", connect=list(router.connect)))
+            session = open_session(TransportConfig(mode="client", connect=list(router.connect), connect_timeout_s=router.connect_timeout_s))
         view = LiveView(self) if live else None
         self.session = session
         with session:

@@ -499,6 +499,28 @@ def test_up_without_a_zenoh_session_says_so_and_starts_nothing(tmp_path):
             assert not any(p.name.endswith(".log") and p.name != "launcher.log" for p in runs.rglob("*.log"))
 
 
+def test_up_that_cannot_reach_the_router_to_join_says_so_and_starts_nothing(tmp_path):
+    """``up --connect`` to a router that is not there (a robot that is off, another run's router gone): the embedded
+    router retried in the background and the run started alone, exit 0, with no word of it. Now the no-session error
+    (README: exit 3), foreground and detached alike, once ``router.connect_timeout_s`` has passed."""
+    from cso_runtime.runs import list_runs
+
+    nobody = loopback_endpoint(free_tcp_port())
+    for detach in ([], ["--detach"]):
+        runs = tmp_path / f"runs{len(detach)}"
+        try:
+            r = cli(
+                "up", "--profile", str(write_profile(tmp_path)), "--no-live", *detach, "--runs-dir", str(runs),
+                "--connect", nobody, "--set", "router.connect_timeout_s=0.5", cwd=tmp_path, timeout_s=60,
+            )  # fmt: skip
+            said = r.stdout + r.stderr
+            assert r.returncode == 3 and f"cannot reach {nobody}" in said and "no service was started" in said, said
+            assert "Traceback" not in said and not (runs / "current.json").exists()
+            assert [run.state for run in list_runs(runs)] == ["failed"]
+        finally:
+            assert kill_leftovers(runs) == []
+
+
 def test_a_zenoh_runtime_setting_zenoh_cannot_read_is_said_not_a_traceback(tmp_path):
     """A ``ZENOH_RUNTIME`` that Zenoh cannot parse made it panic as the router opened: a Rust traceback, exit code 1
     and a run folder with no run.json (``runs`` did not list it). Now the no-session error: exit 3, one line that
