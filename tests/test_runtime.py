@@ -499,6 +499,29 @@ def test_up_without_a_zenoh_session_says_so_and_starts_nothing(tmp_path):
             assert not any(p.name.endswith(".log") and p.name != "launcher.log" for p in runs.rglob("*.log"))
 
 
+def unwritable_folder(tmp_path: Path) -> Path:
+    """A folder that exists and that this process cannot write in: read-only by its mode, or (root ignores modes)
+    /proc, where no file can be made."""
+    folder = tmp_path / "read_only"
+    folder.mkdir()
+    folder.chmod(0o555)
+    return folder if not os.access(folder, os.W_OK) else Path("/proc")
+
+
+def test_up_and_eval_refuse_an_existing_folder_they_cannot_write_in(tmp_path):
+    """``--runs-dir`` on a read-only file system, or a folder of another user's: the check that the folder can be
+    made passed (it exists) and ``up`` ended in a Python traceback as it made the run's folder (exit 1); ``eval``
+    would run its episodes first. Now one error line and exit 2 before anything starts, as for a folder below a file."""
+    folder = unwritable_folder(tmp_path)
+    try:
+        for args in (["up", "--profile", "lockstep", "--runs-dir"], ["up", "--profile", "lockstep", "--detach", "--runs-dir"], ["eval", "--maps", SCENE, "--out"]):
+            r = cli(*args, str(folder), cwd=tmp_path, timeout_s=60)
+            assert r.returncode == 2 and f"{args[-1]} {folder}: cannot write in the folder" in r.stderr, r.stderr[-3000:]
+            assert "Traceback" not in r.stderr and not list(folder.glob("*lockstep*"))
+    finally:
+        (tmp_path / "read_only").chmod(0o755)
+
+
 def test_up_that_cannot_reach_the_router_to_join_says_so_and_starts_nothing(tmp_path):
     """``up --connect`` to a router that is not there (a robot that is off, another run's router gone): the embedded
     router retried in the background and the run started alone, exit 0, with no word of it. Now the no-session error
