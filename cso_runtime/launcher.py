@@ -231,6 +231,8 @@ class Launcher:
         """Service -> the key and payload that stop the robot it commands, sent when it dies (``stop_robot``)."""
         self.session: Any = None
         """The launcher's Zenoh session while it runs (``stop_robot`` sends on it)."""
+        self.run_file_unwritten = False
+        """The last write of the run file failed (a full disk): said once, until a write works again."""
 
     # --- files ------------------------------------------------------------------------------------
     @property
@@ -262,7 +264,17 @@ class Launcher:
         }
         text = json.dumps(info, indent=2)
         for path in (self.run_dir / "run.json", self.run_dir.parent / CURRENT_RUN):
-            write_text_atomic(path, text)
+            try:
+                write_text_atomic(path, text)
+            except OSError as exc:  # a full disk: the run goes on, `status` and `down` go by the file written before
+                if not self.run_file_unwritten:
+                    log.error(
+                        "cannot write %s (%s): the run goes on, but `status`, `down` and `runs` see it as it was when it was last written",
+                        path, exc.strerror or exc,
+                    )  # fmt: skip
+                self.run_file_unwritten = True
+                return
+        self.run_file_unwritten = False
 
     def outcome(self) -> str:
         """How a stopped run ended, for ``cso-runtime runs``: done (results written), interrupted (stopped

@@ -976,6 +976,35 @@ def test_a_service_that_refuses_its_configuration_is_not_restarted(tmp_path):
     assert Child("sim", [], tmp_path / "calm.log").last_error() == ""
 
 
+def test_a_run_file_that_cannot_be_written_is_said_and_the_supervision_goes_on(tmp_path, caplog):
+    """A runs folder whose disk filled up mid-run (a 200 kB tmpfs): the launcher's next write of run.json, as it
+    restarted a killed service, raised out of its loop; every service was stopped and the run left as 'launcher
+    died', with a traceback in its log. The run file only helps ``status``, ``down`` and ``runs`` find the run: a
+    write that fails is said in the launcher's log (once, until one works again) and the supervision goes on."""
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "runs" / "run")
+    launcher.run_dir.mkdir(parents=True)
+    (launcher.run_dir / "run.json").mkdir()  # cannot be written over, as on a full disk
+    children = [Child(name, [sys.executable, "-c", "raise SystemExit(2)"], tmp_path / f"{name}.log") for name in ("sim", "policy")]
+    for c in children:
+        c.spawn()
+        c.proc.wait(timeout=30)
+    with caplog.at_level("ERROR", logger="cso.launcher"):
+        for c in children:
+            launcher.children.append(c)
+            launcher.supervise()  # gives up on it (exit code 2), and writes the run file
+        assert [c.gave_up for c in children] == [True, True]
+        said = [r.getMessage() for r in caplog.records if "cannot write" in r.getMessage()]
+        assert len(said) == 1 and str(launcher.run_dir / "run.json") in said[0] and "status" in said[0], said
+        (launcher.run_dir / "run.json").rmdir()
+        launcher.write_run_file("stopped")  # written again, and the next failure is said again
+    assert json.loads((launcher.run_dir / "run.json").read_text())["state"] == "stopped"
+
+
 def test_a_given_up_service_that_no_one_serves_stops_the_episode(tmp_path):
     """A policy that refused its configuration (say, a corrupt weights file) leaves nobody choosing goals:
     the episode must stop saying so once the grace for another process to serve it has passed, not run
