@@ -1610,6 +1610,33 @@ def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path)
         silent.close()
 
 
+def test_status_says_that_a_stopped_launchers_run_cannot_answer_until_it_is_continued(tmp_path):
+    """A launcher stopped with Ctrl-Z or SIGSTOP stops its embedded router with it: ``status`` said "nothing running
+    (no answer ...)" of a run whose processes all run, and nothing of why. It now names the stopped launcher and
+    how to go on, still exit 1 and the state ``not running`` (nothing answers)."""
+    from cso_runtime.supervision import process_start_ticks, process_state
+
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(8)  # the stopped router's port: the kernel completes each TCP handshake, nothing more comes
+    launcher = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        os.kill(launcher.pid, signal.SIGSTOP)
+        wait_for(lambda: process_state(launcher.pid) == "T", 10, "the launcher to be stopped")
+        runs = tmp_path / "runs"
+        runs.mkdir()
+        info = {"run_id": "frozen", "robot": "r0", "launcher_pid": launcher.pid, "launcher_start_ticks": process_start_ticks(launcher.pid)}
+        (runs / "current.json").write_text(json.dumps({**info, "endpoints": [loopback_endpoint(silent.getsockname()[1])]}))
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=10)
+        said = json.loads(r.stdout)
+        assert r.returncode == 1 and said["state"] == "not running", r.stdout
+        assert f"run frozen's launcher, pid {launcher.pid}, is stopped" in said["reason"] and f"kill -CONT {launcher.pid}" in said["reason"], said
+    finally:
+        launcher.kill()
+        launcher.wait(timeout=30)
+        silent.close()
+
+
 def test_a_profile_sets_the_mujoco_limos_parameters_checked_before_anything_starts():
     """``services.sim.mujoco``: the MuJoCo LIMO's parameters (``configs/robot_sim.yaml``'s keys) in a profile, each
     checked before any process starts: a bad value, an unknown key, the kinematic backend, a second LiDAR mount."""
