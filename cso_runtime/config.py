@@ -10,6 +10,7 @@ import dataclasses
 import difflib
 import math
 import re
+import tempfile
 import types
 import typing
 from dataclasses import dataclass, field
@@ -439,12 +440,18 @@ def check_seed(seed: int, name: str = "seed") -> int:
 
 def make_output_dir(path: str | Path, flag: str = "--out") -> Path:
     """Create an output folder before the work that fills it starts (an evaluation, a training run, hours
-    of teacher rollouts), so that a folder that cannot be made is a ConfigError now, not a traceback at the end."""
+    of teacher rollouts), so that a folder that cannot be made, or written in (a read-only file system), is a
+    ConfigError now, not a traceback at the end."""
     p = Path(path)
     try:
         p.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"{flag} {p}: cannot create the folder ({exc.strerror or exc})") from None
+    try:  # a folder that exists is not one that can be written: a read-only file system, another user's folder
+        with tempfile.TemporaryFile(dir=p):
+            pass
+    except OSError as exc:
+        raise ConfigError(f"{flag} {p}: cannot write in the folder ({exc.strerror or exc})") from None
     return p
 
 

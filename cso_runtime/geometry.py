@@ -85,6 +85,10 @@ class GridGeometry:
     def height_m(self) -> float:
         return self.shape[0] * self.resolution_m
 
+    def describe(self) -> str:
+        """``nx x ny grid of R m at (x, y)``: what a rejection of a map on another grid says of each grid."""
+        return f"{self.shape[1]} x {self.shape[0]} grid of {self.resolution_m} m at ({self.origin_x_m}, {self.origin_y_m})"
+
     def world_to_cell(self, x_m, y_m):
         """Cell indices (iy, ix) of metric points; may lie outside the grid (see ``in_bounds``)."""
         ix = np.floor((np.asarray(x_m) - self.origin_x_m) / self.resolution_m).astype(np.int64)

@@ -236,6 +236,8 @@ class Launcher:
         """Service -> the key and payload that stop the robot it commands, sent when it dies (``stop_robot``)."""
         self.session: Any = None
         """The launcher's Zenoh session while it runs (``stop_robot`` sends on it)."""
+        self.run_file_unwritten = False
+        """The last write of the run file failed (a full disk): said once, until a write works again."""
 
     # --- files ------------------------------------------------------------------------------------
     @property
@@ -267,7 +269,17 @@ class Launcher:
         }
         text = json.dumps(info, indent=2)
         for path in (self.run_dir / "run.json", self.run_dir.parent / CURRENT_RUN):
-            write_text_atomic(path, text)
+            try:
+                write_text_atomic(path, text)
+            except OSError as exc:  # a full disk: the run goes on, `status` and `down` go by the file written before
+                if not self.run_file_unwritten:
+                    log.error(
+                        "cannot write %s (%s): the run goes on, but `status`, `down` and `runs` see it as it was when it was last written",
+                        path, exc.strerror or exc,
+                    )  # fmt: skip
+                self.run_file_unwritten = True
+                return
+        self.run_file_unwritten = False
 
     def outcome(self) -> str:
         """How a stopped run ended, for ``cso-runtime runs``: done (results written), interrupted (stopped
@@ -667,10 +679,10 @@ class Launcher:
             return self.stop_before_start(EXIT_INTERRUPTED)
         router = self.profile.router
         if router.embedded:
-            session, self.endpoints = open_router(list(router.listen), list(router.connect))
+            session, self.endpoints = open_router(list(router.listen), list(router.connect), router.connect_timeout_s)
         else:  # join the existing router(s) instead of opening one
             self.endpoints = list(router.connect)
-            session = open_session(TransportConfig(mode="client", connect=list(router.connect)))
+            session = open_session(TransportConfig(mode="client", connect=list(router.connect), connect_timeout_s=router.connect_timeout_s))
         view = LiveView(self) if live else None
         self.session = session
         with session:

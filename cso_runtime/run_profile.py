@@ -26,7 +26,7 @@ from cso_runtime.config import (
 )
 from cso_runtime.keys import check_robot_id
 from cso_runtime.scenes import SceneError, resolve_scenes
-from cso_runtime.transport import TransportConfig, TransportError
+from cso_runtime.transport import JOIN_TIMEOUT_S, TransportConfig, TransportError
 
 
 @dataclass
@@ -43,8 +43,13 @@ class RouterConfig:
     service_mode: str = "client"
     """Zenoh mode of the services: ``client`` (every message through the router) or ``peer`` (services
     also listen on a loopback port and talk directly once the router has introduced them)."""
+    connect_timeout_s: float = JOIN_TIMEOUT_S
+    """How long ``up`` waits to reach the routers in ``connect`` (its embedded router joining them, or its own
+    session when ``embedded`` is false) before it stops, exit 3, no service started."""
 
     def validate(self) -> None:
+        if not self.connect_timeout_s > 0:
+            raise ConfigError(f"router.connect_timeout_s must be positive seconds, got {self.connect_timeout_s}")
         if self.service_mode not in ("client", "peer"):
             raise ConfigError(f"router.service_mode must be client or peer, got {self.service_mode!r}")
         if not self.embedded and not self.connect:

@@ -167,6 +167,21 @@ def dead_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | N
     return f"run {info['run_id']}'s launcher, pid {info['launcher_pid']}, has exited; `cso-runtime down` clears {runs_dir / 'current.json'}"
 
 
+def stopped_launcher_of_run(info: dict[str, Any] | None) -> str | None:
+    """Why the current run does not answer when its launcher is stopped (Ctrl-Z on ``up``, SIGSTOP): its embedded
+    router is stopped with it, while every service runs. None when the launcher is not stopped."""
+    from cso_runtime.current_run import current_launcher_alive  # noqa: PLC0415
+    from cso_runtime.supervision import process_state  # noqa: PLC0415
+
+    if info is None or not info.get("launcher_pid") or not current_launcher_alive(info) or process_state(info["launcher_pid"]) != "T":
+        return None
+    pid = info["launcher_pid"]
+    return (
+        f"run {info['run_id']}'s launcher, pid {pid}, is stopped (Ctrl-Z or SIGSTOP), and its router with it: "
+        f"`kill -CONT {pid}` (or `fg` in its terminal) to go on, `cso-runtime down` to stop the run"
+    )
+
+
 NOT_RUNNING = "not running"
 """``status --json``'s state when nothing answers (beside starting, exploring, done, failed), so a script that
 reads the JSON gets JSON then too."""
@@ -288,6 +303,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     from rich.live import Live  # noqa: PLC0415
 
     console = console if console is not None else Console()
+    given_connect = bool(connect)
     target = reachable_target(connect, robot, runs_dir, as_json)
     if isinstance(target, int):
         return target
@@ -302,7 +318,10 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
             if status is None:
                 if live is not None:
                     live.stop()  # the last table stays; the line below goes under it
-                return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}", as_json)
+                from cso_runtime.current_run import read_current_run  # noqa: PLC0415
+
+                stopped = None if given_connect else stopped_launcher_of_run(read_current_run(runs_dir))
+                return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}" + (f"; {stopped}" if stopped else ""), as_json)
             if as_json:
                 print(json.dumps(status), flush=True)
             elif in_place and live is None:

@@ -39,6 +39,12 @@ class TransportError(RuntimeError):
     """A Zenoh session could not be configured or opened."""
 
 
+JOIN_TIMEOUT_S = 10.0
+"""How long opening a client session, or a router's that joins others, waits to reach the routers it connects to
+before it fails: services may start before their router, and a router on another host (a robot's) answers in
+well under this over a LAN."""
+
+
 @dataclass
 class TransportConfig:
     """How a process joins the Zenoh network."""
@@ -49,10 +55,15 @@ class TransportConfig:
     """Endpoints to connect to, e.g. ``tcp/127.0.0.1:7447``."""
     listen: list[str] = field(default_factory=list)
     """Endpoints to listen on (the launcher's embedded router: ``tcp/127.0.0.1:<port>``)."""
+    connect_timeout_s: float = JOIN_TIMEOUT_S
+    """Client, or router with ``connect``: opening fails (``TransportError``) when the endpoints in ``connect`` cannot
+    be reached within this long. A peer starts alone, as Zenoh's default."""
 
     def validate(self) -> None:
         if self.mode not in MODES:
             raise TransportError(f"zenoh mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        if not self.connect_timeout_s > 0:
+            raise TransportError(f"the connect timeout must be positive seconds, got {self.connect_timeout_s}")
         for ep in [*self.connect, *self.listen]:
             if "/" not in ep:
                 raise TransportError(f"bad zenoh endpoint {ep!r}; expected PROTO/HOST:PORT, e.g. tcp/127.0.0.1:7447")
@@ -83,9 +94,12 @@ def zenoh_config(conf: TransportConfig) -> zenoh.Config:
     # recording. A deeper queue and a 20 ms grace keep them; a link congested for longer still drops.
     cfg.insert_json5("transport/link/tx/queue/size/data", "8")
     cfg.insert_json5("transport/link/tx/queue/congestion_control/drop/wait_before_drop", "20000")
-    if conf.mode == "client":
-        # Keep retrying the router for a while instead of failing at once: services may start first.
-        cfg.insert_json5("connect/timeout_ms", "10000")
+    if conf.mode == "client" or (conf.mode == "router" and conf.connect):
+        # Keep retrying the router for a while instead of failing at once: services may start first. A router that
+        # joins others would otherwise open at once and retry them in the background for ever, saying nothing: a
+        # run meant to join another robot's network (or the robot itself) ran alone.
+        cfg.insert_json5("connect/timeout_ms", str(round(conf.connect_timeout_s * 1000)))
+        cfg.insert_json5("connect/exit_on_failure", "true")
     return cfg
 
 
@@ -94,7 +108,8 @@ def open_session(conf: TransportConfig) -> zenoh.Session:
     try:
         return zenoh.open(zenoh_config(conf))
     except zenoh.ZError as exc:
-        raise TransportError(f"cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {exc}") from None
+        unreached = f"cannot reach {', '.join(conf.connect)} within {conf.connect_timeout_s:g} s: " if "Unable to connect" in str(exc) else ""
+        raise TransportError(f"{unreached}cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {exc}") from None
     except BaseException as exc:
         # Zenoh panics (pyo3's PanicException, a BaseException) on a ZENOH_RUNTIME it cannot parse: `up` ended in a
         # Rust traceback, exit 1, its run folder without a run.json. Said as the session that could not open.
@@ -109,14 +124,15 @@ PORT_TRIES = 3
 """``open_router``: picks of a free port per start (another process may take one between the pick and the bind)."""
 
 
-def open_router(listen: list[str], connect: list[str]) -> tuple[zenoh.Session, list[str]]:
+def open_router(listen: list[str], connect: list[str], connect_timeout_s: float = JOIN_TIMEOUT_S) -> tuple[zenoh.Session, list[str]]:
     """A router session and the endpoints it listens on: each endpoint ending in port ``:0`` gets a port free
-    right now; when another process takes it before Zenoh binds it, another is picked (``PORT_TRIES`` in all)."""
+    right now; when another process takes it before Zenoh binds it, another is picked (``PORT_TRIES`` in all).
+    The routers in ``connect`` must be reached within ``connect_timeout_s`` (else ``TransportError``)."""
     picked = any(ep.endswith(":0") for ep in listen)
     for attempt in range(1, PORT_TRIES + 1):
         chosen = [f"{ep[:-2]}:{free_tcp_port()}" if ep.endswith(":0") else ep for ep in listen]
         try:
-            return open_session(TransportConfig(mode="router", listen=chosen, connect=list(connect))), chosen
+            return open_session(TransportConfig(mode="router", listen=chosen, connect=list(connect), connect_timeout_s=connect_timeout_s)), chosen
         except TransportError as exc:
             if not picked or attempt == PORT_TRIES or "in use" not in str(exc):  # only a taken port is worth another pick
                 raise

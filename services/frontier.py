@@ -19,6 +19,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import decision_reason, goal_failed_in_place, mark_dead_frontier
+from cso_runtime.geometry import GridGeometry
 from cso_runtime.messages import (
     DistanceMapMsg,
     FrontiersMsg,
@@ -130,6 +131,8 @@ class FrontierService(Service):
         self.path_nodes: list[tuple[float, float]] = []
         self.done_step = -1
         self.last_out: FrontiersMsg | None = None
+        self.episode_grid: GridGeometry | None = None
+        """The grid of the episode's maps (its first map's): the mapper keeps one grid for an episode."""
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         step = getattr(msg, "step", -1)
@@ -159,6 +162,8 @@ class FrontierService(Service):
                 self.feedback[step] = msg
                 self.try_decide()
             return
+        if isinstance(msg, MapMsg) and self.of_another_grid(msg, robot):
+            return
         if step <= self.done_step:
             if isinstance(msg, MapMsg) and self.last_out is not None and step == self.done_step:
                 self.publish("frontiers", self.last_out)  # a lockstep retry: answer again
@@ -168,6 +173,18 @@ class FrontierService(Service):
         elif isinstance(msg, OdometryMsg):
             self.odoms[step] = msg
         self.try_decide()
+
+    def of_another_grid(self, msg: MapMsg, robot: str) -> bool:
+        """Whether ``msg`` is on another grid than the episode's maps before it, and rejected (counted, logged): another
+        robot's map, a mapper with a grid of its own or a forged map would be decided on as this episode's (all of it
+        explored, no frontier: the episode ended as 'no frontier left'). The sim rejects such a map too."""
+        if self.episode_grid is None:
+            self.episode_grid = msg.geometry
+        if msg.geometry == self.episode_grid:
+            return False
+        why = f"map of step {msg.step} on a {msg.geometry.describe()}, not the episode's {self.episode_grid.describe()}: another robot's or mapper's"
+        self.reject("map", why, robot)
+        return True
 
     def planner_state(self, k: int) -> PlannerFeedbackMsg | None:
         """The planner's report after the command of step k - 1 (lockstep: exactly that one; real time:

@@ -369,11 +369,9 @@ class SimService(Service):
         if isinstance(msg, GoalMsg) and self.of_another_episode(topic, msg, self.episode):
             return
         if isinstance(msg, MapMsg) and msg.geometry != self.sim.plan.geometry:
-            g, own = msg.geometry, self.sim.plan.geometry
             self.reject(
                 "map",
-                f"a {g.shape[1]} x {g.shape[0]} grid of {g.resolution_m} m at ({g.origin_x_m}, {g.origin_y_m}), not the scene's "
-                f"{own.shape[1]} x {own.shape[0]} of {own.resolution_m} m at ({own.origin_x_m}, {own.origin_y_m}) that the clock announced: "
+                f"a {msg.geometry.describe()}, not the scene's {self.sim.plan.geometry.describe()} that the clock announced: "
                 "coverage is measured cell by cell on the scene's grid (a mapper with its own grid, or another robot's map)",
             )
             return

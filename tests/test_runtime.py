@@ -500,6 +500,51 @@ def test_up_without_a_zenoh_session_says_so_and_starts_nothing(tmp_path):
             assert not any(p.name.endswith(".log") and p.name != "launcher.log" for p in runs.rglob("*.log"))
 
 
+def unwritable_folder(tmp_path: Path) -> Path:
+    """A folder that exists and that this process cannot write in: read-only by its mode, or (root ignores modes)
+    /proc, where no file can be made."""
+    folder = tmp_path / "read_only"
+    folder.mkdir()
+    folder.chmod(0o555)
+    return folder if not os.access(folder, os.W_OK) else Path("/proc")
+
+
+def test_up_and_eval_refuse_an_existing_folder_they_cannot_write_in(tmp_path):
+    """``--runs-dir`` on a read-only file system, or a folder of another user's: the check that the folder can be
+    made passed (it exists) and ``up`` ended in a Python traceback as it made the run's folder (exit 1); ``eval``
+    would run its episodes first. Now one error line and exit 2 before anything starts, as for a folder below a file."""
+    folder = unwritable_folder(tmp_path)
+    try:
+        for args in (["up", "--profile", "lockstep", "--runs-dir"], ["up", "--profile", "lockstep", "--detach", "--runs-dir"], ["eval", "--maps", SCENE, "--out"]):
+            r = cli(*args, str(folder), cwd=tmp_path, timeout_s=60)
+            assert r.returncode == 2 and f"{args[-1]} {folder}: cannot write in the folder" in r.stderr, r.stderr[-3000:]
+            assert "Traceback" not in r.stderr and not list(folder.glob("*lockstep*"))
+    finally:
+        (tmp_path / "read_only").chmod(0o755)
+
+
+def test_up_that_cannot_reach_the_router_to_join_says_so_and_starts_nothing(tmp_path):
+    """``up --connect`` to a router that is not there (a robot that is off, another run's router gone): the embedded
+    router retried in the background and the run started alone, exit 0, with no word of it. Now the no-session error
+    (README: exit 3), foreground and detached alike, once ``router.connect_timeout_s`` has passed."""
+    from cso_runtime.runs import list_runs
+
+    nobody = loopback_endpoint(free_tcp_port())
+    for detach in ([], ["--detach"]):
+        runs = tmp_path / f"runs{len(detach)}"
+        try:
+            r = cli(
+                "up", "--profile", str(write_profile(tmp_path)), "--no-live", *detach, "--runs-dir", str(runs),
+                "--connect", nobody, "--set", "router.connect_timeout_s=0.5", cwd=tmp_path, timeout_s=60,
+            )  # fmt: skip
+            said = r.stdout + r.stderr
+            assert r.returncode == 3 and f"cannot reach {nobody}" in said and "no service was started" in said, said
+            assert "Traceback" not in said and not (runs / "current.json").exists()
+            assert [run.state for run in list_runs(runs)] == ["failed"]
+        finally:
+            assert kill_leftovers(runs) == []
+
+
 def test_a_zenoh_runtime_setting_zenoh_cannot_read_is_said_not_a_traceback(tmp_path):
     """A ``ZENOH_RUNTIME`` that Zenoh cannot parse made it panic as the router opened: a Rust traceback, exit code 1
     and a run folder with no run.json (``runs`` did not list it). Now the no-session error: exit 3, one line that
@@ -937,6 +982,35 @@ def test_a_service_that_refuses_its_configuration_is_not_restarted(tmp_path):
     assert Child("sim", [], tmp_path / "early.log").last_error() == "/usr/bin/python3: No module named services.sim"
     (tmp_path / "calm.log").write_text("2026-12-01 10:00:00,000 INFO cso.sim: step 3\n")
     assert Child("sim", [], tmp_path / "calm.log").last_error() == ""
+
+
+def test_a_run_file_that_cannot_be_written_is_said_and_the_supervision_goes_on(tmp_path, caplog):
+    """A runs folder whose disk filled up mid-run (a 200 kB tmpfs): the launcher's next write of run.json, as it
+    restarted a killed service, raised out of its loop; every service was stopped and the run left as 'launcher
+    died', with a traceback in its log. The run file only helps ``status``, ``down`` and ``runs`` find the run: a
+    write that fails is said in the launcher's log (once, until one works again) and the supervision goes on."""
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "runs" / "run")
+    launcher.run_dir.mkdir(parents=True)
+    (launcher.run_dir / "run.json").mkdir()  # cannot be written over, as on a full disk
+    children = [Child(name, [sys.executable, "-c", "raise SystemExit(2)"], tmp_path / f"{name}.log") for name in ("sim", "policy")]
+    for c in children:
+        c.spawn()
+        c.proc.wait(timeout=30)
+    with caplog.at_level("ERROR", logger="cso.launcher"):
+        for c in children:
+            launcher.children.append(c)
+            launcher.supervise()  # gives up on it (exit code 2), and writes the run file
+        assert [c.gave_up for c in children] == [True, True]
+        said = [r.getMessage() for r in caplog.records if "cannot write" in r.getMessage()]
+        assert len(said) == 1 and str(launcher.run_dir / "run.json") in said[0] and "status" in said[0], said
+        (launcher.run_dir / "run.json").rmdir()
+        launcher.write_run_file("stopped")  # written again, and the next failure is said again
+    assert json.loads((launcher.run_dir / "run.json").read_text())["state"] == "stopped"
 
 
 def test_a_given_up_service_that_no_one_serves_stops_the_episode(tmp_path):
@@ -1640,6 +1714,33 @@ def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path)
         assert query_status([endpoint], "r0") is None
         assert time.monotonic() - t0 < 2.0
     finally:
+        silent.close()
+
+
+def test_status_says_that_a_stopped_launchers_run_cannot_answer_until_it_is_continued(tmp_path):
+    """A launcher stopped with Ctrl-Z or SIGSTOP stops its embedded router with it: ``status`` said "nothing running
+    (no answer ...)" of a run whose processes all run, and nothing of why. It now names the stopped launcher and
+    how to go on, still exit 1 and the state ``not running`` (nothing answers)."""
+    from cso_runtime.supervision import process_start_ticks, process_state
+
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(8)  # the stopped router's port: the kernel completes each TCP handshake, nothing more comes
+    launcher = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        os.kill(launcher.pid, signal.SIGSTOP)
+        wait_for(lambda: process_state(launcher.pid) == "T", 10, "the launcher to be stopped")
+        runs = tmp_path / "runs"
+        runs.mkdir()
+        info = {"run_id": "frozen", "robot": "r0", "launcher_pid": launcher.pid, "launcher_start_ticks": process_start_ticks(launcher.pid)}
+        (runs / "current.json").write_text(json.dumps({**info, "endpoints": [loopback_endpoint(silent.getsockname()[1])]}))
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=10)
+        said = json.loads(r.stdout)
+        assert r.returncode == 1 and said["state"] == "not running", r.stdout
+        assert f"run frozen's launcher, pid {launcher.pid}, is stopped" in said["reason"] and f"kill -CONT {launcher.pid}" in said["reason"], said
+    finally:
+        launcher.kill()
+        launcher.wait(timeout=30)
         silent.close()
 
 

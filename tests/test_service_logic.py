@@ -1405,3 +1405,33 @@ def test_lockstep_frontier_never_reads_a_planner_report_of_the_episode_before():
     assert [(m.step, m.decide) for m in got] == [(0, True), (1, False)]  # the goal kept: the blocked report was A's
     assert _without_timing(got) == _without_timing([m for t, m in fresh_out if t == "frontiers"])
     assert svc.rejected == {"planner_feedback": 1}
+
+
+def test_frontier_service_rejects_a_map_of_another_grid_within_an_episode():
+    """A map of the episode on another grid (another robot's map, a mapper with a grid of its own, a forged one)
+    ended a lockstep episode as 'no frontier left' at 28 % coverage: the frontier service decided on it (every
+    cell explored, no frontier) while the sim rejected it. Now it is rejected too, counted and logged, and the
+    episode's own map of that step is decided on as by a service that never saw it, in lockstep and real time."""
+    from cso_runtime.geometry import GridGeometry
+
+    ex = _explorer_at(0)
+    _, odom0, _ = _inputs(ex, 0)
+    e = 7
+    other = GridGeometry(ex.map.geometry.resolution_m, (40, 30))
+    foreign = MapMsg(1, other, np.ones(other.shape, bool), np.zeros(other.shape, bool), e)
+    for lockstep in (True, False):
+        services = [_service(FrontierService, lockstep=lockstep, params={"goal_wait_s": 30.0}) for _ in range(2)]
+        for svc, out in services:
+            _feed(svc, MapMsg.of(0, ex.map, e))
+            _feed(svc, dataclasses.replace(odom0, episode=e))
+            _feed(svc, dataclasses.replace(_far_goal(ex.observe(), 0), episode=e))
+            _feed(svc, PlannerFeedbackMsg(0, "following", "command", goal_step=0, episode=e))
+            _feed(svc, OdometryMsg(1, odom0.stamp_s + 0.25, odom0.pose, episode=e))
+        (svc, out), (_, fresh_out) = services
+        _feed(svc, foreign)
+        assert svc.rejected == {"map": 1} and [m.step for t, m in out if t == "frontiers"] == [0], (lockstep, out)
+        for s, _ in services:
+            _feed(s, MapMsg.of(1, ex.map, e))
+        got = [m for t, m in out if t == "frontiers"]
+        assert [m.step for m in got] == [0, 1] and got[1].reason != "no_goal", got
+        assert _without_timing(got) == _without_timing([m for t, m in fresh_out if t == "frontiers"])
