@@ -491,7 +491,7 @@ def methods_summarized_elsewhere(out_dir: Path, methods: list[str]) -> list[str]
     return sorted(m for m in earlier if m not in methods) if isinstance(earlier, dict) else []
 
 
-def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
+def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict[str, Any]:
     """Run every (method, scene) episode and write all outputs; returns the summary."""
     request.validate()
     config = request.exploration_config()

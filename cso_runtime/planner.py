@@ -187,7 +187,7 @@ class FollowResult:
 class PathFollower:
     """Pure pursuit along a path: rotate in place on sharp turns, slow down near scanned obstacles."""
 
-    def __init__(self, robot: RobotConfig, config: PlannerConfig, sensor_mount_x_m: float = 0.0):
+    def __init__(self, robot: RobotConfig, config: PlannerConfig, sensor_mount_x_m: float = 0.0) -> None:
         self.robot = robot
         self.config = config
         self.sensor_mount_x_m = sensor_mount_x_m
@@ -307,7 +307,7 @@ class PathFollower:
 class ProgressChecker:
     """Nav2's simple progress checker: at least ``required_m`` of movement within ``window_s``."""
 
-    def __init__(self, required_m: float, window_s: float):
+    def __init__(self, required_m: float, window_s: float) -> None:
         self.required_m = required_m
         self.window_s = window_s
         self.reset()
@@ -334,7 +334,7 @@ class StallRecovery:
     follower alone keeps pushing a pinned robot into the wall: its sweep sees the wall a few centimetres
     ahead but not the corner that holds the body."""
 
-    def __init__(self, config: PlannerConfig, control_period_s: float):
+    def __init__(self, config: PlannerConfig, control_period_s: float) -> None:
         self.config = config
         self.backup_periods = math.ceil(config.backup_distance_m / (config.backup_speed_mps * control_period_s) - 1e-9)
         self.backups = 0
@@ -398,7 +398,7 @@ class LocalPlanner:
         goal_tolerance_m: float = 0.3,
         sensor_mount_x_m: float = 0.0,
         sensor_fov_rad: float = 2 * math.pi,
-    ):
+    ) -> None:
         self.robot = robot or RobotConfig()
         self.config = config or PlannerConfig()
         self.goal_tolerance_m = goal_tolerance_m

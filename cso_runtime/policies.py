@@ -59,7 +59,7 @@ class ActionMasker:
     ``chose(goal)`` with the goal that decision chose.
     """
 
-    def __init__(self, config: MaskConfig):
+    def __init__(self, config: MaskConfig) -> None:
         self.config = config
         self.stuck = StuckMask(config)
         self.last_rule = "off"
@@ -147,7 +147,7 @@ class Utility(_ScoreSelector):
 
     name = "utility"
 
-    def __init__(self, potential_scale: float = 3.0, gain_scale: float = 1.0):
+    def __init__(self, potential_scale: float = 3.0, gain_scale: float = 1.0) -> None:
         self.potential_scale = potential_scale
         self.gain_scale = gain_scale
 
@@ -162,7 +162,7 @@ class RandomFrontier:
     name = "random"
     grids: tuple[str, ...] = ()
 
-    def __init__(self, seed: int | None = None):
+    def __init__(self, seed: int | None = None) -> None:
         self.rng = np.random.default_rng(seed)
 
     def reset(self, seed: int | None = None) -> None:

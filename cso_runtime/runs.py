@@ -207,7 +207,7 @@ class LogReader:
     """Reads one log file incrementally: whole lines only (a line still being written waits for the next
     read), continuation lines stamped like the line before them."""
 
-    def __init__(self, service: str, path: Path, source: int):
+    def __init__(self, service: str, path: Path, source: int) -> None:
         self.service, self.path, self.source = service, path, source
         self.offset = 0
         self.partial = b""

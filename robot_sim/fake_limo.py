@@ -82,7 +82,7 @@ def laserscan_cdr(stamp_s: float, scan: LaserScan) -> bytes:
 class FakeLimo:
     """The MuJoCo LIMO on one Zenoh session, in ROS 2 terms only."""
 
-    def __init__(self, session: Any, sim: MujocoSimulator, namespace: str = "", odom_rate_hz: float = 20.0):
+    def __init__(self, session: Any, sim: MujocoSimulator, namespace: str = "", odom_rate_hz: float = 20.0) -> None:
         self.session, self.sim = session, sim
         self.prefix = f"{namespace.strip('/')}/" if namespace.strip("/") else ""
         self.odom_period_s = 1.0 / odom_rate_hz

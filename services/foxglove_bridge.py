@@ -122,7 +122,7 @@ class FoxgloveBridgeService(Service):
     outputs: dict[str, type[Message]] = {}
     tick_period_s = 0.1
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(FoxgloveBridgeParams, ctx.params, where="services.foxglove_bridge")
         try:

@@ -67,7 +67,7 @@ class FrontierService(Service):
     inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg}
     outputs = {"frontiers": FrontiersMsg, "distance_map": DistanceMapMsg}
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(FrontierParams, ctx.params, where="services.frontier")
         cfg = ctx.exploration

@@ -53,7 +53,7 @@ class MapperService(Service):
     inputs = {"clock": ClockMsg, "scan": ScanMsg}
     outputs = {"map": MapMsg}
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(MapperParams, ctx.params, where="services.mapper")
         self.map: OccupancyMap | None = None

@@ -84,7 +84,7 @@ class PolicyService(Service):
     inputs = {"frontiers": FrontiersMsg}
     outputs = {"goal": GoalMsg}
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(PolicyParams, ctx.params, where="services.policy")
         self.method = self.params.method or str(ctx.profile.get("method", "greedy-dist"))

@@ -191,7 +191,7 @@ class OdometryBuffer:
         max_turn_radps: float = math.inf,
         jump_m: float = 0.5,
         jump_rad: float = 1.0,
-    ):
+    ) -> None:
         self.history_s, self.tolerance_s, self.max_gap_s, self.max_lag_s = history_s, tolerance_s, max_gap_s, max_lag_s
         self.jump_back_s, self.max_speed_mps, self.max_turn_radps = jump_back_s, max_speed_mps, max_turn_radps
         self.jump_m, self.jump_rad = jump_m, jump_rad
@@ -276,7 +276,7 @@ class Ros2BridgeService(Service):
     tick_period_s = 0.05
     serves_latest = ("map",)
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(Ros2BridgeParams, ctx.params, where="services.ros2_bridge")
         p = self.params

@@ -144,7 +144,7 @@ class SimService(Service):
     tick_period_s = 0.02
     """How often ``on_tick`` runs: real-time steps run on the first tick at or after they are due."""
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(SimParams, ctx.params, where="services.sim")
         self.sim = build_simulator(ctx.profile, self.params, ctx)

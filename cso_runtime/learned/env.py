@@ -103,7 +103,7 @@ class ExplorationEnv(gym.Env):
         config: EnvConfig | None = None,
         render_mode: str | None = None,
         render_scale: int = 2,
-    ):
+    ) -> None:
         super().__init__()
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r}: this environment renders {', '.join(self.metadata['render_modes'])} (or None)")

@@ -1055,7 +1055,7 @@ class _Bar:
     run written to a file says how far it is (as CleanRL prints a line per update). ``completed``: the part done
     before this process (a ``--resume``d run's updates), counted in the bar; the time left is this process's pace."""
 
-    def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0, completed: int = 0):
+    def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0, completed: int = 0) -> None:
         from rich.console import Console  # noqa: PLC0415
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
 
