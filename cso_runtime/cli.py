@@ -1076,6 +1076,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
 
 
 def main() -> None:
+    """The ``cso-runtime`` script's entry point: a Ctrl-C before any command handles it exits 130 with one line."""
     try:
         app(prog_name="cso-runtime")  # one name (and completion variable) for the script and python -m cso_runtime.cli
     except KeyboardInterrupt:  # before typer's own handling (which exits 130) or a command's

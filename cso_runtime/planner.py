@@ -44,6 +44,9 @@ REVERSE_LOOKAHEAD_M = 0.1
 
 
 class PlannerStatus(str, Enum):
+    """What the path follower is doing, as the planner service's feedback carries it: ``decision_reason`` asks for a
+    new goal on any status but ``following``."""
+
     IDLE = "idle"
     FOLLOWING = "following"
     REACHED = "reached"
@@ -176,6 +179,8 @@ class FreeSpace:
 
 @dataclass
 class FollowResult:
+    """One control period of the path follower: the command to send and the status it leaves the follower in."""
+
     command: VelocityCommand
     status: PlannerStatus
     recovery: str = ""

@@ -48,6 +48,7 @@ class GoalSelector(Protocol):
 
 
 def goal_of(obs: Observation, index: int) -> Goal:
+    """The goal of the observation's cluster ``index`` (its goal point and path distance), as a policy returns it."""
     c = obs.clusters[index]
     return Goal(c.goal_xy_m[0], c.goal_xy_m[1], index, c.distance_m)
 
@@ -187,6 +188,7 @@ LEARNED_METHODS = ("cso", "cso-no-info", "cso-no-mask", "cso-sm", "cso-vdm", "gn
 
 
 def available_methods() -> list[str]:
+    """The methods this install can run: every baseline, and each learned method whose weights file is found."""
     return list(BASELINES) + [m for m in LEARNED_METHODS if _learned_available(m)]
 
 

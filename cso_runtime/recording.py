@@ -473,6 +473,9 @@ def recording_contents(path: Path) -> tuple[list[str], int | None]:
 
 @dataclass
 class ReplayStats:
+    """What a ``replay`` published: messages per key, how long it took against the time the recording spans, and
+    what it had to upgrade or could not read."""
+
     messages: int = 0
     per_key: Counter = field(default_factory=Counter)
     duration_s: float = 0.0

@@ -159,6 +159,8 @@ def laserscan_to_cdr(scan: LaserScan, frame_id: str = "laser") -> bytes:
 
 @dataclass(frozen=True)
 class OdometrySample:
+    """A decoded nav_msgs/Odometry in our units: planar pose, body-frame velocity, stamp (s) and its two frames."""
+
     pose: Pose2D
     velocity: VelocityCommand
     stamp_s: float
@@ -167,6 +169,7 @@ class OdometrySample:
 
 
 def odometry_from_cdr(raw: bytes) -> OdometrySample:
+    """nav_msgs/Odometry CDR -> pose, twist and stamp (a non-finite value is a CdrError, never a pose)."""
     msg = decode(raw, ODOMETRY)
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
     values = (p.x, p.y, q.x, q.y, q.z, q.w, msg.twist.twist.linear.x, msg.twist.twist.angular.z)
@@ -178,6 +181,7 @@ def odometry_from_cdr(raw: bytes) -> OdometrySample:
 
 
 def odometry_to_cdr(pose: Pose2D, velocity: VelocityCommand, stamp_s: float, frame_id: str = "odom", child_frame_id: str = "base_link") -> bytes:
+    """Our pose and velocity -> nav_msgs/Odometry CDR (covariances zero), as a bag's ``/odom`` holds it."""
     t = _types()
     point = t["geometry_msgs/msg/Point"](x=pose.x_m, y=pose.y_m, z=0.0)
     cov = np.zeros(36, dtype=np.float64)
@@ -202,6 +206,7 @@ def twist_to_cdr(cmd: VelocityCommand) -> bytes:
 
 
 def twist_from_cdr(raw: bytes) -> VelocityCommand:
+    """geometry_msgs/Twist CDR -> our velocity command (forward m/s, yaw rad/s); a non-finite value is a CdrError."""
     msg = decode(raw, TWIST)
     if not (math.isfinite(msg.linear.x) and math.isfinite(msg.angular.z)):
         raise CdrError("Twist has non-finite values")
@@ -225,6 +230,7 @@ def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_s: flo
 
 
 def occupancy_grid_from_cdr(raw: bytes) -> tuple[np.ndarray, GridGeometry]:
+    """nav_msgs/OccupancyGrid CDR -> int8 grid (row 0 at the origin) and where it lies: ``occupancy_grid_to_cdr`` read back."""
     msg = decode(raw, OCCUPANCY_GRID)
     h, w = int(msg.info.height), int(msg.info.width)
     data = np.asarray(msg.data, dtype=np.int8)
@@ -235,6 +241,7 @@ def occupancy_grid_from_cdr(raw: bytes) -> tuple[np.ndarray, GridGeometry]:
 
 
 def pose_stamped_to_cdr(x_m: float, y_m: float, yaw_rad: float, stamp_s: float, frame_id: str = "map") -> bytes:
+    """A planar goal pose (m, rad) -> geometry_msgs/PoseStamped CDR, as the ROS 2 bridge and bags publish the goal."""
     t = _types()
     pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=x_m, y=y_m, z=0.0), orientation=_quaternion(yaw_rad))
     return encode(t[POSE_STAMPED](header=header_msg(stamp_s, frame_id), pose=pose), POSE_STAMPED)
@@ -272,6 +279,7 @@ def transforms_to_cdr(transforms: list[tuple[str, str, Pose2D]], stamp_s: float)
 
 
 def pose_stamped_from_cdr(raw: bytes) -> tuple[Pose2D, float]:
+    """geometry_msgs/PoseStamped CDR -> planar pose (m, rad) and stamp (s): ``pose_stamped_to_cdr`` read back."""
     msg = decode(raw, POSE_STAMPED)
     p, q = msg.pose.position, msg.pose.orientation
     if not (math.isfinite(p.x) and math.isfinite(p.y)):

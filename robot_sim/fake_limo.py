@@ -142,6 +142,7 @@ class FakeLimo:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m robot_sim.fake_limo``: run the fake LIMO until SIGINT or SIGTERM; exit code 0, or 2 for bad flags."""
     p = argparse.ArgumentParser(prog="python -m robot_sim.fake_limo", description="A MuJoCo LIMO speaking ROS 2 CDR over Zenoh")
     p.add_argument("--listen", action="append", required=True, help="Zenoh endpoint of the robot's router, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--namespace", default="", help="ROS namespace: keys NS/scan, NS/odom, NS/cmd_vel")

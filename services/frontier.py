@@ -63,6 +63,9 @@ class FrontierParams:
 
 
 class FrontierService(Service):
+    """Decides when a new goal is needed (``decision_reason``, as the in-process loop) and publishes the Observation
+    the policy decides on."""
+
     name = "frontier"
     inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg}
     outputs = {"frontiers": FrontiersMsg, "distance_map": DistanceMapMsg}
@@ -231,6 +234,7 @@ class FrontierService(Service):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m services.frontier``'s entry point; exit code 2 for a bad config."""
     return service_main(FrontierService, argv)
 
 

@@ -270,6 +270,9 @@ def _interpolate(a: ros2_cdr.OdometrySample, b: ros2_cdr.OdometrySample, stamp_s
 
 
 class Ros2BridgeService(Service):
+    """A real LIMO behind zenoh-bridge-ros2dds in place of the sim: its ROS 2 scans and odometry in as our steps, our
+    cmd_vel out as Twist, and the referee's part that needs no ground truth."""
+
     name = "ros2_bridge"
     inputs: ClassVar[dict[str, type[Message]]] = {"cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg}
     outputs: ClassVar[dict[str, type[Message]]] = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}

@@ -137,6 +137,9 @@ def open_viewer(sim: Simulator) -> SimViewer:
 
 
 class SimService(Service):
+    """The simulator on Zenoh and the episode's referee: steps the robot, measures coverage against the ground truth and
+    ends the episode."""
+
     name = "sim"
     inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
@@ -508,6 +511,7 @@ class SimService(Service):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m services.sim``'s entry point; exit code 2 for a bad config."""
     return service_main(SimService, argv)
 
 

@@ -77,6 +77,8 @@ class EnvConfig:
 
 
 def graph_space(config: GraphConfig) -> spaces.Dict:
+    """The observation space of the frontier graph the network reads: fixed ``max_nodes`` x ``neighbours`` arrays,
+    padded, with the ``*_valid`` masks marking the real entries (a Gymnasium space must have one shape)."""
     n, k = config.max_nodes, config.neighbours
     return spaces.Dict(
         {
