@@ -89,6 +89,7 @@ class GroundTruthMetrics:
         self.region_area_m2 = float(np.count_nonzero(self.region)) * self.plan.resolution_m**2
 
     def explored_free(self, occupancy: OccupancyMap) -> np.ndarray:
+        """The cells of the plan's traversable region that the map has seen open: what coverage counts."""
         return occupancy.open & self.region
 
     def explored_area_m2(self, occupancy: OccupancyMap) -> float:

@@ -169,6 +169,8 @@ class FreeSpace:
         return not bool(self.occupied[iy, ix].any())
 
     def line_is_free(self, a_xy_m: np.ndarray, b_xy_m: np.ndarray) -> bool:
+        """Whether the straight segment ``a_xy_m`` -> ``b_xy_m`` stays on traversable cells (sampled every half cell):
+        pure pursuit looks ahead only as far as it can drive straight."""
         n = max(2, int(np.ceil(np.hypot(*(b_xy_m - a_xy_m)) / (0.5 * self.geometry.resolution_m))) + 1)
         t = np.linspace(0.0, 1.0, n)[1:]
         pts = a_xy_m[None, :] + t[:, None] * (b_xy_m - a_xy_m)[None, :]
@@ -354,9 +356,11 @@ class StallRecovery:
         """Control periods of back-up still to go."""
 
     def state(self) -> tuple:
+        """What a control period changes, for ``LocalPlanner.follow_state``."""
         return self.last, self.stalled_periods, self.backing_up, self.backups
 
     def restore(self, state: tuple) -> None:
+        """Put back a ``state()``."""
         self.last, self.stalled_periods, self.backing_up, self.backups = state
 
     def _stalled(self, pose: Pose2D, time_s: float) -> bool:
@@ -469,10 +473,12 @@ class LocalPlanner:
         return self.status, self.progress_index, self.progress.anchor, self.stall.state()
 
     def restore_follow_state(self, state: tuple) -> None:
+        """Put back a ``follow_state()``, as if the commands computed since had not been."""
         self.status, self.progress_index, self.progress.anchor, stall = state
         self.stall.restore(stall)
 
     def remaining_path(self) -> np.ndarray:
+        """The path still ahead (n x 2, metres) from the point the robot last progressed to; empty without a path."""
         if self.path is None:
             return np.zeros((0, 2))
         return self.path[self.progress_index :]

@@ -69,6 +69,8 @@ class ActionMasker:
         self.stuck.reset()
 
     def mask(self, obs: Observation) -> np.ndarray:
+        """Which clusters may be chosen (one bool each): reachable, within the valid-distance mask (Eq. 5) and, unless the
+        masks conflict (``conflict`` decides), the stuck mask (Algorithm 1); records this decision for Algorithm 1."""
         n = len(obs.clusters)
         d = obs.goal_distance_m
         allowed = np.isfinite(d)
