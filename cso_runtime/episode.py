@@ -70,13 +70,6 @@ class EpisodeResult:
 
 
 @dataclass
-class DecisionReason:
-    why: str
-    goal: Goal | None = None
-
-
-
-@dataclass
 class GroundTruthMetrics:
     """Coverage of a map against a plan's traversable region (section 4.1). Ground truth: only the
     evaluator (in-process ``Explorer`` or the runtime's sim service) may use it."""
