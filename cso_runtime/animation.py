@@ -33,7 +33,7 @@ PROGRESS_EVERY = 500
 class FrameSequence:
     """The frames of one animation, thinned to at most ``max_frames``."""
 
-    def __init__(self, max_frames: int = 200):
+    def __init__(self, max_frames: int = 200) -> None:
         if max_frames < 2:
             raise ValueError(f"max_frames must be at least 2, got {max_frames}")
         self.max_frames = max_frames
@@ -103,7 +103,7 @@ def draw(
 class EpisodeAnimation(FrameSequence):
     """An in-process episode's frames (``run_episode(..., on_step=animation.on_step)``, then ``finish()``)."""
 
-    def __init__(self, max_frames: int = 200):
+    def __init__(self, max_frames: int = 200) -> None:
         super().__init__(max_frames)
         self._decisions_seen = 0
         self.explorer: Any = None

@@ -97,7 +97,7 @@ class StepTimeline:
     after the first reception time. Step numbers that go back (by more than the one step a message can lag)
     start a new episode, which then follows the last time of the one before by one ``step_s``."""
 
-    def __init__(self, start_ns: int, step_s: float = 0.25):
+    def __init__(self, start_ns: int, step_s: float = 0.25) -> None:
         self.start_ns, self.step_s = start_ns, step_s
         self.first_stamp_s: float | None = None
         self.offset_s = 0.0
@@ -141,7 +141,7 @@ def shows_something(msg: Message) -> bool:
 class BagConverter:
     """One robot's messages, in arrival order -> (ROS topic, CDR bytes, time ns). Pure: no files, no Zenoh."""
 
-    def __init__(self, map_period_s: float = 1.0, time: str = "sim"):
+    def __init__(self, map_period_s: float = 1.0, time: str = "sim") -> None:
         if not map_period_s >= 0:
             raise ValueError("map_period_s must be >= 0")
         if time not in TIME_MODES:

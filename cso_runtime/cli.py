@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import shlex
 import sys
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 
 def _interrupted_early() -> NoReturn:
@@ -24,6 +24,11 @@ try:
     import typer
 except KeyboardInterrupt:
     _interrupted_early()
+
+if TYPE_CHECKING:
+    from cso_runtime.learned.ppo import Args
+    from cso_runtime.run_profile import Profile
+    from cso_runtime.runs import LogLine
 
 app = typer.Typer(
     name="cso-runtime",
@@ -162,7 +167,7 @@ def _use_weights(folder: Path) -> None:
         _fail(str(exc), 2)
 
 
-def _warn_of_weights_for_another_sensor(prof) -> None:
+def _warn_of_weights_for_another_sensor(prof: Profile) -> None:
     """``up``: say when the policy service's learned weights were trained with another field of view than the
     profile's sensor (``--weights`` of a run of ``configs/train.yaml``, 360 degrees, on the LIMO's 180)."""
     from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
@@ -830,7 +835,7 @@ def logs_command(
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
 
-    def emit(line) -> None:
+    def emit(line: LogLine) -> None:
         colour = colours.setdefault(line.service, LOG_COLOURS[len(colours) % len(LOG_COLOURS)])
         typer.echo(typer.style(f"{line.service:<{width}} | ", fg=colour) + line.text)
 
@@ -1010,7 +1015,7 @@ def output_dir_or_exit(path: Path | str, label: str) -> None:
         _fail(str(exc), 2)
 
 
-def training_args(config: Path | None, overrides: dict[str, object], settings: list[str] | None):
+def training_args(config: Path | None, overrides: dict[str, object], settings: list[str] | None) -> Args:
     """``learned.ppo.Args`` from the YAML file, then the command's flags, then ``--set`` pairs; a missing file or
     a bad value exits with a clear error (code 2) before anything starts."""
     from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
@@ -1071,6 +1076,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
 
 
 def main() -> None:
+    """The ``cso-runtime`` script's entry point: a Ctrl-C before any command handles it exits 130 with one line."""
     try:
         app(prog_name="cso-runtime")  # one name (and completion variable) for the script and python -m cso_runtime.cli
     except KeyboardInterrupt:  # before typer's own handling (which exits 130) or a command's

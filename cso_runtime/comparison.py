@@ -304,6 +304,7 @@ def compare_to_baseline(table: EfficiencyTable, baseline: str = "greedy-dist", m
 
 
 def markdown_table(comparisons: Sequence[PairedComparison]) -> str:
+    """The comparisons as a Markdown table (``compare``'s default output), ready to paste into BENCHMARKS.md."""
     return "\n".join([MARKDOWN_HEADER, *(c.markdown_row() for c in comparisons)])
 
 
@@ -316,4 +317,5 @@ def write_csv(path: Path, comparisons: Sequence[Mapping[str, Any]]) -> None:
 
 
 def as_dicts(comparisons: Sequence[PairedComparison]) -> list[dict[str, Any]]:
+    """The comparisons as plain dicts: the rows of ``summary.json``'s ``paired``, ``compare --json`` and ``write_csv``."""
     return [asdict(c) for c in comparisons]

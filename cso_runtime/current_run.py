@@ -22,6 +22,8 @@ CURRENT_RUN = "current.json"
 
 
 def new_run_dir(runs_dir: Path, profile: Profile) -> Path:
+    """A new run's folder under ``runs_dir`` (not made here): UTC start time, profile and robot, with ``-2``, ``-3``...
+    when a run of the same second has the name."""
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     base = runs_dir / f"{stamp}-{profile.name}-{profile.robot}"
     run_dir, n = base, 1

@@ -27,6 +27,8 @@ from pathlib import Path
 
 @dataclass
 class CheckResult:
+    """One ``doctor`` check's outcome: what it found, or its error, and how long it took (``seconds``)."""
+
     name: str
     ok: bool
     detail: str
@@ -78,12 +80,15 @@ def machine_facts() -> dict[str, object]:
 
 
 def check_python() -> str:
+    """The cso-runtime version and the Python and platform it runs on."""
     from cso_runtime import __version__  # noqa: PLC0415
 
     return f"cso-runtime {__version__} on Python {platform.python_version()} ({platform.machine()}, {platform.system()})"
 
 
 def check_libraries() -> str:
+    """The required libraries import (with their versions), whether torch sees a GPU, and which optional extras are
+    installed; raises naming every required one that does not import."""
     found, missing = [], []
     for dist, module in LIBRARIES:
         try:
@@ -176,6 +181,8 @@ def check_foxglove() -> str:
 
 
 def check_weights() -> str:
+    """Every shipped weights file of the learned methods loads, for eval's 360-degree sensor and the LIMO's 180; raises
+    when the ``cso`` file ``up --profile sim`` needs is missing."""
     from cso_runtime.config import SensorConfig  # noqa: PLC0415
     from cso_runtime.learned.registry import check_weights as load  # noqa: PLC0415
     from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
@@ -228,6 +235,7 @@ def check_runs_folder(runs_dir: Path) -> str:
 
 
 def checks(runs_dir: Path) -> list[tuple[str, Callable[[], str]]]:
+    """``doctor``'s checks in the order it runs them, as (name, check); a check returns what it found or raises."""
     return [
         ("python", check_python),
         ("libraries", check_libraries),

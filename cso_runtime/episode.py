@@ -10,7 +10,7 @@ from __future__ import annotations
 import copy
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -70,13 +70,6 @@ class EpisodeResult:
 
 
 @dataclass
-class DecisionReason:
-    why: str
-    goal: Goal | None = None
-
-
-
-@dataclass
 class GroundTruthMetrics:
     """Coverage of a map against a plan's traversable region (section 4.1). Ground truth: only the
     evaluator (in-process ``Explorer`` or the runtime's sim service) may use it."""
@@ -89,6 +82,7 @@ class GroundTruthMetrics:
         self.region_area_m2 = float(np.count_nonzero(self.region)) * self.plan.resolution_m**2
 
     def explored_free(self, occupancy: OccupancyMap) -> np.ndarray:
+        """The cells of the plan's traversable region that the map has seen open: what coverage counts."""
         return occupancy.open & self.region
 
     def explored_area_m2(self, occupancy: OccupancyMap) -> float:
@@ -276,7 +270,7 @@ class Explorer:
     def done(self) -> bool:
         return self.terminated_by is not None
 
-    def run(self, policy: GoalSelector, on_step=None) -> EpisodeResult:
+    def run(self, policy: GoalSelector, on_step: Callable[[Explorer], None] | None = None) -> EpisodeResult:
         """Explore with ``policy`` from the current state until termination (``on_step(self)`` after
         each step). A copy of an explorer taken at a decision can be run on with another policy."""
         if not self.done and self.coverage_done():
@@ -353,7 +347,7 @@ def rollout_choice(explorer: Explorer, obs: Observation, candidates: Sequence[in
     return best_outcome(candidates, rollout_outcomes(explorer, obs, candidates, base))
 
 
-def run_episode(sim: Simulator, policy: GoalSelector, config: ExplorationConfig | None = None, seed: int | None = None, on_step=None) -> EpisodeResult:
+def run_episode(sim: Simulator, policy: GoalSelector, config: ExplorationConfig | None = None, seed: int | None = None, on_step: Callable[[Explorer], None] | None = None) -> EpisodeResult:
     """Explore one scene with ``policy`` until termination; ``on_step(explorer)`` is called each step."""
     explorer = Explorer(sim, config or ExplorationConfig())
     sim.reset(seed)

@@ -206,6 +206,8 @@ class EvalRequest:
 
 @dataclass
 class EpisodeJob:
+    """One (method, scene) episode of an eval: all a worker process needs to run it and write its files."""
+
     method: str
     scene: SceneRef
     seed: int
@@ -491,7 +493,7 @@ def methods_summarized_elsewhere(out_dir: Path, methods: list[str]) -> list[str]
     return sorted(m for m in earlier if m not in methods) if isinstance(earlier, dict) else []
 
 
-def run_eval(request: EvalRequest, progress=None) -> dict[str, Any]:
+def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict[str, Any]:
     """Run every (method, scene) episode and write all outputs; returns the summary."""
     request.validate()
     config = request.exploration_config()
@@ -646,6 +648,8 @@ class RichProgress:
 
 
 def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
+    """``eval``'s results on the terminal: Table 1, Table 2 when the run has ablations, the paired comparison with the
+    baseline (or why there is none), the failed episodes, and where the files are."""
     from rich.table import Table  # noqa: PLC0415
 
     table = Table(title=escape(f"Table 1 metrics ({out_dir}/summary.json)"))  # a [name] in the path is not markup

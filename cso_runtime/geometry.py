@@ -9,8 +9,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    import numpy.typing as npt
 
 
 def wrap_angle_rad(angle_rad: float) -> float:
@@ -89,19 +93,21 @@ class GridGeometry:
         """``nx x ny grid of R m at (x, y)``: what a rejection of a map on another grid says of each grid."""
         return f"{self.shape[1]} x {self.shape[0]} grid of {self.resolution_m} m at ({self.origin_x_m}, {self.origin_y_m})"
 
-    def world_to_cell(self, x_m, y_m):
-        """Cell indices (iy, ix) of metric points; may lie outside the grid (see ``in_bounds``)."""
+    def world_to_cell(self, x_m: npt.ArrayLike, y_m: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Cell indices (iy, ix) of metric points (arrays, or numpy scalars for scalars); may lie outside the grid
+        (see ``in_bounds``)."""
         ix = np.floor((np.asarray(x_m) - self.origin_x_m) / self.resolution_m).astype(np.int64)
         iy = np.floor((np.asarray(y_m) - self.origin_y_m) / self.resolution_m).astype(np.int64)
         return iy, ix
 
-    def cell_to_world(self, iy, ix):
-        """Metric centres (x_m, y_m) of cells."""
+    def cell_to_world(self, iy: npt.ArrayLike, ix: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+        """Metric centres (x_m, y_m) of cells (arrays, or numpy scalars for scalars)."""
         x = self.origin_x_m + (np.asarray(ix) + 0.5) * self.resolution_m
         y = self.origin_y_m + (np.asarray(iy) + 0.5) * self.resolution_m
         return x, y
 
-    def in_bounds(self, iy, ix):
+    def in_bounds(self, iy: npt.ArrayLike, ix: npt.ArrayLike) -> np.ndarray:
+        """Which cell indices lie on the grid (``world_to_cell`` gives indices off it for points outside)."""
         return (np.asarray(iy) >= 0) & (np.asarray(iy) < self.shape[0]) & (np.asarray(ix) >= 0) & (np.asarray(ix) < self.shape[1])
 
     def cells_in_rectangle(self, centre: Pose2D, length_m: float, width_m: float) -> tuple[np.ndarray, np.ndarray]:

@@ -36,6 +36,8 @@ class KeyExprError(ValueError):
 
 
 def check_robot_id(robot: str, allow_wildcard: bool = False) -> str:
+    """``robot`` when it can stand in a key expression (``cso/<robot>/...``): 1-64 letters, digits, ``_`` or ``-``
+    (or ``*`` with ``allow_wildcard``); a KeyExprError otherwise."""
     if allow_wildcard and robot == WILDCARD:
         return robot
     if not _ROBOT_ID.match(robot):

@@ -110,7 +110,7 @@ class StatusWatch:
     """Asks every service of a robot for its status (its queryable) every ``HANG_CHECK_PERIOD_S``, on a thread
     of its own, and keeps when each one last answered: a process that runs but does not answer is hung."""
 
-    def __init__(self, session: Any, keys: RobotKeys, stop: threading.Event):
+    def __init__(self, session: Any, keys: RobotKeys, stop: threading.Event) -> None:
         self.answered_s: dict[str, float] = {}
         """Service -> ``time.monotonic()`` of its last answer."""
         self.asked_s = time.monotonic()
@@ -169,7 +169,7 @@ class Launcher:
         record_path: Path | None = None,
         animate: bool = False,
         stop_event: threading.Event | None = None,
-    ):
+    ) -> None:
         self.profile = profile
         self.record_path = record_path
         """MCAP file recording every ``cso/<robot>/**`` message of the run (None: no recording)."""

@@ -9,6 +9,9 @@ import time
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.table import Table
+
     from cso_runtime.launcher import Launcher
     from cso_runtime.messages import EpisodeStatusMsg
 
@@ -31,7 +34,7 @@ def progress_line(status: EpisodeStatusMsg, control_period_s: float, real_time_f
 class LiveView:
     """A rich table refreshed a few times a second: episode progress and service health."""
 
-    def __init__(self, launcher: Launcher, console=None):
+    def __init__(self, launcher: Launcher, console: Console | None = None) -> None:
         self.launcher = launcher
         self.console = console  # None: rich's console on stdout
         self._live = None
@@ -42,7 +45,8 @@ class LiveView:
     BAR_CELLS = 20
     """Width of the coverage bar, in characters."""
 
-    def render(self):
+    def render(self) -> Table:
+        """The table as the launcher's state stands now (rebuilt on each refresh, not updated in place)."""
         from rich.markup import escape  # noqa: PLC0415
         from rich.progress_bar import ProgressBar  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415

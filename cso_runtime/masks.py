@@ -53,7 +53,7 @@ class StuckMask:
     last three goals chosen; ``config.stuck_avoid`` says which of the two the new goal must keep away from.
     """
 
-    def __init__(self, config: MaskConfig):
+    def __init__(self, config: MaskConfig) -> None:
         self.config = config
         self.history: deque[DecisionRecord] = deque(maxlen=3)
         self.goals: deque[tuple[float, float]] = deque(maxlen=3)

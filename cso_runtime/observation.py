@@ -137,7 +137,7 @@ def frontier_layer(
 class ObservationBuilder:
     """Turns (M_t, w_t) into an Observation: frontiers, one fast-marching pass, entropy, clusters."""
 
-    def __init__(self, frontier: FrontierConfig | None = None, robot: RobotConfig | None = None):
+    def __init__(self, frontier: FrontierConfig | None = None, robot: RobotConfig | None = None) -> None:
         self.frontier_config = frontier or FrontierConfig()
         self.robot_config = robot or RobotConfig()
 

@@ -23,7 +23,7 @@ class OccupancyMap:
     clamped log-odds of hits and pass-throughs, so a noisy return is corrected by later scans.
     """
 
-    def __init__(self, geometry: GridGeometry):
+    def __init__(self, geometry: GridGeometry) -> None:
         self.geometry = geometry
         self.explored = np.zeros(geometry.shape, dtype=bool)
         self._log_odds: np.ndarray | None = np.zeros(geometry.shape, dtype=np.float32)

@@ -34,6 +34,7 @@ def episode_map_path(out_dir: Path, method: str, scene: str) -> Path:
 
 
 def episode_animation_path(out_dir: Path, method: str, scene: str) -> Path:
+    """Where ``eval --animate`` writes one episode's GIF."""
     return Path(out_dir) / "animations" / method / f"{file_stem(scene)}.gif"
 
 

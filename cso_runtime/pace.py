@@ -20,7 +20,7 @@ class StepPace:
     Start-up (services coming up, the sim waiting for them) is left out, which ``up``'s ``wall_s`` includes; a new
     episode (a restarted sim) starts the measure over."""
 
-    def __init__(self, control_period_s: float):
+    def __init__(self, control_period_s: float) -> None:
         self.control_period_s = control_period_s
         self._first: tuple[int, int, float] | None = None
         """(episode, step, arrival time in s) of the first status counted."""

@@ -44,6 +44,9 @@ REVERSE_LOOKAHEAD_M = 0.1
 
 
 class PlannerStatus(str, Enum):
+    """What the path follower is doing, as the planner service's feedback carries it: ``decision_reason`` asks for a
+    new goal on any status but ``following``."""
+
     IDLE = "idle"
     FOLLOWING = "following"
     REACHED = "reached"
@@ -166,6 +169,8 @@ class FreeSpace:
         return not bool(self.occupied[iy, ix].any())
 
     def line_is_free(self, a_xy_m: np.ndarray, b_xy_m: np.ndarray) -> bool:
+        """Whether the straight segment ``a_xy_m`` -> ``b_xy_m`` stays on traversable cells (sampled every half cell):
+        pure pursuit looks ahead only as far as it can drive straight."""
         n = max(2, int(np.ceil(np.hypot(*(b_xy_m - a_xy_m)) / (0.5 * self.geometry.resolution_m))) + 1)
         t = np.linspace(0.0, 1.0, n)[1:]
         pts = a_xy_m[None, :] + t[:, None] * (b_xy_m - a_xy_m)[None, :]
@@ -176,6 +181,8 @@ class FreeSpace:
 
 @dataclass
 class FollowResult:
+    """One control period of the path follower: the command to send and the status it leaves the follower in."""
+
     command: VelocityCommand
     status: PlannerStatus
     recovery: str = ""
@@ -187,7 +194,7 @@ class FollowResult:
 class PathFollower:
     """Pure pursuit along a path: rotate in place on sharp turns, slow down near scanned obstacles."""
 
-    def __init__(self, robot: RobotConfig, config: PlannerConfig, sensor_mount_x_m: float = 0.0):
+    def __init__(self, robot: RobotConfig, config: PlannerConfig, sensor_mount_x_m: float = 0.0) -> None:
         self.robot = robot
         self.config = config
         self.sensor_mount_x_m = sensor_mount_x_m
@@ -307,7 +314,7 @@ class PathFollower:
 class ProgressChecker:
     """Nav2's simple progress checker: at least ``required_m`` of movement within ``window_s``."""
 
-    def __init__(self, required_m: float, window_s: float):
+    def __init__(self, required_m: float, window_s: float) -> None:
         self.required_m = required_m
         self.window_s = window_s
         self.reset()
@@ -334,7 +341,7 @@ class StallRecovery:
     follower alone keeps pushing a pinned robot into the wall: its sweep sees the wall a few centimetres
     ahead but not the corner that holds the body."""
 
-    def __init__(self, config: PlannerConfig, control_period_s: float):
+    def __init__(self, config: PlannerConfig, control_period_s: float) -> None:
         self.config = config
         self.backup_periods = math.ceil(config.backup_distance_m / (config.backup_speed_mps * control_period_s) - 1e-9)
         self.backups = 0
@@ -349,9 +356,11 @@ class StallRecovery:
         """Control periods of back-up still to go."""
 
     def state(self) -> tuple:
+        """What a control period changes, for ``LocalPlanner.follow_state``."""
         return self.last, self.stalled_periods, self.backing_up, self.backups
 
     def restore(self, state: tuple) -> None:
+        """Put back a ``state()``."""
         self.last, self.stalled_periods, self.backing_up, self.backups = state
 
     def _stalled(self, pose: Pose2D, time_s: float) -> bool:
@@ -398,7 +407,7 @@ class LocalPlanner:
         goal_tolerance_m: float = 0.3,
         sensor_mount_x_m: float = 0.0,
         sensor_fov_rad: float = 2 * math.pi,
-    ):
+    ) -> None:
         self.robot = robot or RobotConfig()
         self.config = config or PlannerConfig()
         self.goal_tolerance_m = goal_tolerance_m
@@ -464,10 +473,12 @@ class LocalPlanner:
         return self.status, self.progress_index, self.progress.anchor, self.stall.state()
 
     def restore_follow_state(self, state: tuple) -> None:
+        """Put back a ``follow_state()``, as if the commands computed since had not been."""
         self.status, self.progress_index, self.progress.anchor, stall = state
         self.stall.restore(stall)
 
     def remaining_path(self) -> np.ndarray:
+        """The path still ahead (n x 2, metres) from the point the robot last progressed to; empty without a path."""
         if self.path is None:
             return np.zeros((0, 2))
         return self.path[self.progress_index :]

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
 
 
-def _pyplot():
+def _pyplot() -> ModuleType:
+    """``matplotlib.pyplot`` on the Agg backend (files only: eval runs headless), imported on first use as it is slow."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")

@@ -48,6 +48,7 @@ class GoalSelector(Protocol):
 
 
 def goal_of(obs: Observation, index: int) -> Goal:
+    """The goal of the observation's cluster ``index`` (its goal point and path distance), as a policy returns it."""
     c = obs.clusters[index]
     return Goal(c.goal_xy_m[0], c.goal_xy_m[1], index, c.distance_m)
 
@@ -59,7 +60,7 @@ class ActionMasker:
     ``chose(goal)`` with the goal that decision chose.
     """
 
-    def __init__(self, config: MaskConfig):
+    def __init__(self, config: MaskConfig) -> None:
         self.config = config
         self.stuck = StuckMask(config)
         self.last_rule = "off"
@@ -68,6 +69,8 @@ class ActionMasker:
         self.stuck.reset()
 
     def mask(self, obs: Observation) -> np.ndarray:
+        """Which clusters may be chosen (one bool each): reachable, within the valid-distance mask (Eq. 5) and, unless the
+        masks conflict (``conflict`` decides), the stuck mask (Algorithm 1); records this decision for Algorithm 1."""
         n = len(obs.clusters)
         d = obs.goal_distance_m
         allowed = np.isfinite(d)
@@ -147,7 +150,7 @@ class Utility(_ScoreSelector):
 
     name = "utility"
 
-    def __init__(self, potential_scale: float = 3.0, gain_scale: float = 1.0):
+    def __init__(self, potential_scale: float = 3.0, gain_scale: float = 1.0) -> None:
         self.potential_scale = potential_scale
         self.gain_scale = gain_scale
 
@@ -162,7 +165,7 @@ class RandomFrontier:
     name = "random"
     grids: tuple[str, ...] = ()
 
-    def __init__(self, seed: int | None = None):
+    def __init__(self, seed: int | None = None) -> None:
         self.rng = np.random.default_rng(seed)
 
     def reset(self, seed: int | None = None) -> None:
@@ -187,6 +190,7 @@ LEARNED_METHODS = ("cso", "cso-no-info", "cso-no-mask", "cso-sm", "cso-vdm", "gn
 
 
 def available_methods() -> list[str]:
+    """The methods this install can run: every baseline, and each learned method whose weights file is found."""
     return list(BASELINES) + [m for m in LEARNED_METHODS if _learned_available(m)]
 
 

@@ -142,7 +142,7 @@ class RecordStats:
 class _McapSink:
     """An MCAP writer that registers a schema per message type and a channel per (key, type)."""
 
-    def __init__(self, fh: Any, robot: str):
+    def __init__(self, fh: Any, robot: str) -> None:
         from mcap.writer import CompressionType, Writer  # noqa: PLC0415  (mcap is loaded only by record and replay)
 
         # Chunks of 256 KiB rather than the library's 1 MiB: a recorder killed outright (SIGKILL, power) loses
@@ -473,6 +473,9 @@ def recording_contents(path: Path) -> tuple[list[str], int | None]:
 
 @dataclass
 class ReplayStats:
+    """What a ``replay`` published: messages per key, how long it took against the time the recording spans, and
+    what it had to upgrade or could not read."""
+
     messages: int = 0
     per_key: Counter = field(default_factory=Counter)
     duration_s: float = 0.0

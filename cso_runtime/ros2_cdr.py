@@ -11,10 +11,25 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+
+if TYPE_CHECKING:
+    from rosbags.typesys.store import Typestore
+    from rosbags.typesys.stores.ros2_humble import (
+        builtin_interfaces__msg__Time,
+        geometry_msgs__msg__Point,
+        geometry_msgs__msg__Pose,
+        geometry_msgs__msg__Quaternion,
+        geometry_msgs__msg__Twist,
+        geometry_msgs__msg__Vector3,
+        std_msgs__msg__ColorRGBA,
+        std_msgs__msg__Header,
+        visualization_msgs__msg__Marker,
+    )
 
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -31,41 +46,44 @@ class CdrError(ValueError):
 
 
 @lru_cache(maxsize=1)
-def typestore():
+def typestore() -> Typestore:
+    """The ROS 2 Humble message definitions, built once, on first use (rosbags is imported only when ROS is used)."""
     from rosbags.typesys import Stores, get_typestore  # noqa: PLC0415 - import cost only when ROS is used
 
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
-def _types():
+def _types() -> dict[str, type]:
     return typestore().types
 
 
-def decode(raw: bytes, typename: str):
-    """Deserialize CDR (with encapsulation header) into a rosbags message object."""
+def decode(raw: bytes, typename: str) -> Any:
+    """Deserialize CDR (with encapsulation header) into a rosbags message object (of ``typename``'s class)."""
     try:
         return typestore().deserialize_cdr(bytes(raw), typename)
     except Exception as exc:  # noqa: BLE001 - rosbags raises several types; all mean "bad payload"
         raise CdrError(f"not a valid {typename} CDR payload: {exc}") from None
 
 
-def encode(msg, typename: str) -> bytes:
+def encode(msg: object, typename: str) -> bytes:
+    """A rosbags message object as CDR bytes with the encapsulation header, as ROS 2 and the bridge send it."""
     return bytes(typestore().serialize_cdr(msg, typename))
 
 
-def time_msg(stamp_s: float):
+def time_msg(stamp_s: float) -> builtin_interfaces__msg__Time:
     """builtin_interfaces/Time of a stamp in seconds, to the nearest nanosecond (a stamp that rounds up
     to the next second carries into ``sec``)."""
     sec, nanosec = divmod(round(stamp_s * 1e9), 1_000_000_000)
     return _types()["builtin_interfaces/msg/Time"](sec=int(sec), nanosec=int(nanosec))
 
 
-def header_msg(stamp_s: float, frame_id: str):
+def header_msg(stamp_s: float, frame_id: str) -> std_msgs__msg__Header:
     """std_msgs/Header of a stamp in seconds and a frame."""
     return _types()["std_msgs/msg/Header"](stamp=time_msg(stamp_s), frame_id=frame_id)
 
 
-def stamp_seconds(header) -> float:
+def stamp_seconds(header: std_msgs__msg__Header) -> float:
+    """A header's ``sec`` + ``nanosec`` stamp as float seconds, the time unit of our own messages."""
     return float(header.stamp.sec) + 1e-9 * float(header.stamp.nanosec)
 
 
@@ -77,7 +95,7 @@ def yaw_from_quaternion(x: float, y: float, z: float, w: float) -> float:
     return math.atan2(2.0 * (w * z + x * y), w * w + x * x - y * y - z * z)
 
 
-def _quaternion(yaw_rad: float):
+def _quaternion(yaw_rad: float) -> geometry_msgs__msg__Quaternion:
     return _types()["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(yaw_rad / 2), w=math.cos(yaw_rad / 2))
 
 
@@ -141,6 +159,8 @@ def laserscan_to_cdr(scan: LaserScan, frame_id: str = "laser") -> bytes:
 
 @dataclass(frozen=True)
 class OdometrySample:
+    """A decoded nav_msgs/Odometry in our units: planar pose, body-frame velocity, stamp (s) and its two frames."""
+
     pose: Pose2D
     velocity: VelocityCommand
     stamp_s: float
@@ -149,6 +169,7 @@ class OdometrySample:
 
 
 def odometry_from_cdr(raw: bytes) -> OdometrySample:
+    """nav_msgs/Odometry CDR -> pose, twist and stamp (a non-finite value is a CdrError, never a pose)."""
     msg = decode(raw, ODOMETRY)
     p, q = msg.pose.pose.position, msg.pose.pose.orientation
     values = (p.x, p.y, q.x, q.y, q.z, q.w, msg.twist.twist.linear.x, msg.twist.twist.angular.z)
@@ -160,6 +181,7 @@ def odometry_from_cdr(raw: bytes) -> OdometrySample:
 
 
 def odometry_to_cdr(pose: Pose2D, velocity: VelocityCommand, stamp_s: float, frame_id: str = "odom", child_frame_id: str = "base_link") -> bytes:
+    """Our pose and velocity -> nav_msgs/Odometry CDR (covariances zero), as a bag's ``/odom`` holds it."""
     t = _types()
     point = t["geometry_msgs/msg/Point"](x=pose.x_m, y=pose.y_m, z=0.0)
     cov = np.zeros(36, dtype=np.float64)
@@ -172,7 +194,7 @@ def odometry_to_cdr(pose: Pose2D, velocity: VelocityCommand, stamp_s: float, fra
     return encode(msg, ODOMETRY)
 
 
-def _twist(cmd: VelocityCommand):
+def _twist(cmd: VelocityCommand) -> geometry_msgs__msg__Twist:
     t = _types()
     v3 = t["geometry_msgs/msg/Vector3"]
     return t[TWIST](linear=v3(x=float(cmd.linear_mps), y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=float(cmd.angular_radps)))
@@ -184,6 +206,7 @@ def twist_to_cdr(cmd: VelocityCommand) -> bytes:
 
 
 def twist_from_cdr(raw: bytes) -> VelocityCommand:
+    """geometry_msgs/Twist CDR -> our velocity command (forward m/s, yaw rad/s); a non-finite value is a CdrError."""
     msg = decode(raw, TWIST)
     if not (math.isfinite(msg.linear.x) and math.isfinite(msg.angular.z)):
         raise CdrError("Twist has non-finite values")
@@ -207,6 +230,7 @@ def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_s: flo
 
 
 def occupancy_grid_from_cdr(raw: bytes) -> tuple[np.ndarray, GridGeometry]:
+    """nav_msgs/OccupancyGrid CDR -> int8 grid (row 0 at the origin) and where it lies: ``occupancy_grid_to_cdr`` read back."""
     msg = decode(raw, OCCUPANCY_GRID)
     h, w = int(msg.info.height), int(msg.info.width)
     data = np.asarray(msg.data, dtype=np.int8)
@@ -217,6 +241,7 @@ def occupancy_grid_from_cdr(raw: bytes) -> tuple[np.ndarray, GridGeometry]:
 
 
 def pose_stamped_to_cdr(x_m: float, y_m: float, yaw_rad: float, stamp_s: float, frame_id: str = "map") -> bytes:
+    """A planar goal pose (m, rad) -> geometry_msgs/PoseStamped CDR, as the ROS 2 bridge and bags publish the goal."""
     t = _types()
     pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=x_m, y=y_m, z=0.0), orientation=_quaternion(yaw_rad))
     return encode(t[POSE_STAMPED](header=header_msg(stamp_s, frame_id), pose=pose), POSE_STAMPED)
@@ -254,6 +279,7 @@ def transforms_to_cdr(transforms: list[tuple[str, str, Pose2D]], stamp_s: float)
 
 
 def pose_stamped_from_cdr(raw: bytes) -> tuple[Pose2D, float]:
+    """geometry_msgs/PoseStamped CDR -> planar pose (m, rad) and stamp (s): ``pose_stamped_to_cdr`` read back."""
     msg = decode(raw, POSE_STAMPED)
     p, q = msg.pose.position, msg.pose.orientation
     if not (math.isfinite(p.x) and math.isfinite(p.y)):
@@ -271,7 +297,10 @@ def frontier_markers_to_cdr(frontier_points_xy_m: list[np.ndarray], goal_xy_m: l
     dur = t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0)
     identity = t["geometry_msgs/msg/Pose"](position=point_t(x=0.0, y=0.0, z=0.0), orientation=_quaternion(0.0))
 
-    def marker(ns: str, mid: int, mtype: int, action: int, pose, scale, color, points):
+    def marker(
+        ns: str, mid: int, mtype: int, action: int, pose: geometry_msgs__msg__Pose, scale: geometry_msgs__msg__Vector3,
+        color: std_msgs__msg__ColorRGBA, points: list[geometry_msgs__msg__Point],
+    ) -> visualization_msgs__msg__Marker:
         return marker_t(
             header=header_msg(stamp_s, frame_id), ns=ns, id=mid, type=mtype, action=action, pose=pose,
             scale=scale, color=color, lifetime=dur, frame_locked=False, points=points, colors=[],

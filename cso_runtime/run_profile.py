@@ -301,6 +301,7 @@ def profile_names() -> list[str]:
 
 
 def find_profile(name_or_path: str) -> Path:
+    """The file of ``--profile``: a .yaml path as given, else ``NAME.yaml`` on ``profile_search_path``."""
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") and p.is_file():
         return p

@@ -95,6 +95,8 @@ def run_dirs(runs_dir: Path) -> list[Path]:
 
 
 def summarize_run(run_dir: Path) -> RunSummary:
+    """A run folder as ``runs`` lists it, read from its run.json, profile.yaml and summary.json; a missing or broken
+    file leaves its fields empty instead of failing the listing."""
     info = _read_json(run_dir / "run.json") or {}
     try:
         profile = yaml.safe_load((run_dir / "profile.yaml").read_text()) or {}
@@ -196,6 +198,7 @@ def log_files(run_dir: Path) -> dict[str, Path]:
 
 
 def select_services(files: dict[str, Path], services: Iterable[str]) -> dict[str, Path]:
+    """``logs``' service names narrowed to their files (all of them when none is named); a name without a log is a RunError."""
     wanted = list(services)
     unknown = [s for s in wanted if s not in files]
     if unknown:
@@ -207,7 +210,7 @@ class LogReader:
     """Reads one log file incrementally: whole lines only (a line still being written waits for the next
     read), continuation lines stamped like the line before them."""
 
-    def __init__(self, service: str, path: Path, source: int):
+    def __init__(self, service: str, path: Path, source: int) -> None:
         self.service, self.path, self.source = service, path, source
         self.offset = 0
         self.partial = b""

@@ -109,7 +109,7 @@ class _Link:
 class _Draft:
     """One attempt at a plan, in whole cells."""
 
-    def __init__(self, rng: np.random.Generator, rules: LayoutRules, resolution_m: float):
+    def __init__(self, rng: np.random.Generator, rules: LayoutRules, resolution_m: float) -> None:
         self.rng = rng
         self.rules = rules
         self.res = resolution_m

@@ -59,7 +59,7 @@ class KinematicSimulator:
 
     substeps = 5
 
-    def __init__(self, plan: FloorPlan, sensor: SensorConfig | None = None, robot: RobotConfig | None = None, seed: int | None = None):
+    def __init__(self, plan: FloorPlan, sensor: SensorConfig | None = None, robot: RobotConfig | None = None, seed: int | None = None) -> None:
         self.plan = plan
         self._padded_walls: np.ndarray | None = None
         """The plan's walls padded by ``clearance_m``'s window half-width (made at its first call)."""

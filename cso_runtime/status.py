@@ -12,13 +12,17 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zenoh
 
 from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id
 from cso_runtime.messages import EpisodeStatusMsg, LauncherStatusMsg, MapMsg, MessageError, ServiceStatusMsg, decode
 from cso_runtime.transport import TransportConfig, TransportError, zenoh_config
+
+if TYPE_CHECKING:
+    from rich.console import Console
+    from rich.table import Table
 
 SERVICES = ("sim", "mapper", "frontier", "policy", "planner")
 """The services a status lists as DOWN when nothing says which the run has (no launcher answered: services
@@ -244,7 +248,8 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str]) -> li
     return words
 
 
-def render_table(status: dict[str, Any]):
+def render_table(status: dict[str, Any]) -> Table:
+    """``status``'s table on a terminal: one row per field of the episode, then one per service and the launcher."""
     from rich.markup import escape  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
 
@@ -295,7 +300,7 @@ def render_table(status: dict[str, Any]):
     return t
 
 
-def status_main(connect: list[str], robot: str | None, as_json: bool, watch: bool, runs_dir: Path, period_s: float = 1.0, console=None) -> int:
+def status_main(connect: list[str], robot: str | None, as_json: bool, watch: bool, runs_dir: Path, period_s: float = 1.0, console: Console | None = None) -> int:
     """The ``status`` command; exit code 1 when nothing answers. ``--watch`` on a terminal redraws one table in
     place (as ``up``'s live view does); in a file or a pipe, and with ``--json``, each status follows the last.
     ``console``: rich's console on stdout when None."""

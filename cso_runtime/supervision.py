@@ -103,6 +103,7 @@ class Child:
 
 
 def signal_group(pid: int, sig: int) -> None:
+    """Send ``sig`` to the process group ``pid`` leads (a service and its children); one gone already is not an error."""
     try:
         os.killpg(pid, sig)
     except (ProcessLookupError, PermissionError):
@@ -165,6 +166,7 @@ def process_state(pid: int) -> str:
 
 
 def pid_alive(pid: int | None) -> bool:
+    """Whether process ``pid`` is still running (a zombie is not; one of another user is)."""
     if not pid:
         return False
     try:

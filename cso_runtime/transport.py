@@ -148,6 +148,7 @@ def free_tcp_port(host: str = "127.0.0.1") -> int:
 
 
 def loopback_endpoint(port: int) -> str:
+    """The Zenoh endpoint of a TCP port on loopback (``tcp/127.0.0.1:PORT``)."""
     return f"tcp/127.0.0.1:{port}"
 
 

@@ -82,7 +82,7 @@ def laserscan_cdr(stamp_s: float, scan: LaserScan) -> bytes:
 class FakeLimo:
     """The MuJoCo LIMO on one Zenoh session, in ROS 2 terms only."""
 
-    def __init__(self, session: Any, sim: MujocoSimulator, namespace: str = "", odom_rate_hz: float = 20.0):
+    def __init__(self, session: Any, sim: MujocoSimulator, namespace: str = "", odom_rate_hz: float = 20.0) -> None:
         self.session, self.sim = session, sim
         self.prefix = f"{namespace.strip('/')}/" if namespace.strip("/") else ""
         self.odom_period_s = 1.0 / odom_rate_hz
@@ -142,6 +142,7 @@ class FakeLimo:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m robot_sim.fake_limo``: run the fake LIMO until SIGINT or SIGTERM; exit code 0, or 2 for bad flags."""
     p = argparse.ArgumentParser(prog="python -m robot_sim.fake_limo", description="A MuJoCo LIMO speaking ROS 2 CDR over Zenoh")
     p.add_argument("--listen", action="append", required=True, help="Zenoh endpoint of the robot's router, e.g. tcp/127.0.0.1:7447")
     p.add_argument("--namespace", default="", help="ROS namespace: keys NS/scan, NS/odom, NS/cmd_vel")

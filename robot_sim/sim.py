@@ -60,7 +60,7 @@ class MujocoSimulator:
         robot: RobotConfig | None = None,
         seed: int | None = None,
         config: MujocoSimConfig | None = None,
-    ):
+    ) -> None:
         self.plan = plan
         self.sensor = sensor or SensorConfig()
         self.robot = robot or RobotConfig()
@@ -360,7 +360,7 @@ class RealTimePacer:
         speed: float = 1.0,
         max_lag_s: float = 0.5,
         clock: Callable[[], float] = time.monotonic,
-    ):
+    ) -> None:
         if not speed > 0:
             raise ValueError("speed must be positive")
         self.sim = sim

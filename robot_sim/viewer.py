@@ -58,7 +58,7 @@ def launch_passive(model: mujoco.MjModel, data: mujoco.MjData) -> Any:
 class SimViewer:
     """A passive MuJoCo viewer on a ``MujocoSimulator``'s model and data."""
 
-    def __init__(self, sim: MujocoSimulator, launch: Callable[[mujoco.MjModel, mujoco.MjData], Any] | None = None):
+    def __init__(self, sim: MujocoSimulator, launch: Callable[[mujoco.MjModel, mujoco.MjData], Any] | None = None) -> None:
         self.sim = sim
         self.handle = (launch or launch_passive)(sim.model, sim.data)
         self.frames = 0

@@ -67,7 +67,7 @@ class MessageTrace:
     memory (the newest ``max_events``) and written when the service stops, so tracing adds no file I/O to
     the chain. ``benchmarks/bench_runtime.py --trace`` turns them into a per-hop breakdown."""
 
-    def __init__(self, path: Path, max_events: int = 500_000):
+    def __init__(self, path: Path, max_events: int = 500_000) -> None:
         self.path = path
         self.events: collections.deque[tuple] = collections.deque(maxlen=max_events)
 
@@ -137,7 +137,7 @@ class Service:
     ``cso/<robot>/cache/<topic>``. The referee keeps the map a restarted mapper resumes from: it receives
     every map anyway, so no other process has to be woken for each one."""
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         self.ctx = ctx
         self.session: zenoh.Session | None = None
         self.subscribe_robot = ctx.robot
@@ -337,7 +337,7 @@ class ServiceInputs:
     of the loop's thread on every hop of the serial chain. docs/experiments/runtime-overhead.md has both measurements.
     A handler that raises stops the service, as it would on the loop's thread."""
 
-    def __init__(self, service: Service, stop: threading.Event):
+    def __init__(self, service: Service, stop: threading.Event) -> None:
         self.service, self.stop = service, stop
         # queue.Queue, not SimpleQueue: Python 3.11's SimpleQueue.get(timeout=...) waits forever once a signal
         # handler runs past the deadline (its retry's timeout goes negative), so SIGINT and SIGTERM were lost on
@@ -464,7 +464,7 @@ class StepGuard:
     than ``limit`` steps while odometry and scans go on. The step after a rejected leap confirms it when it follows
     on from it: a service cut off for a while picks up the episode again."""
 
-    def __init__(self, limit: int = STEP_JUMP_LIMIT):
+    def __init__(self, limit: int = STEP_JUMP_LIMIT) -> None:
         self.limit = limit
         self.last: dict[tuple[str, str], int] = {}
         self.recent: dict[str, int] = {}

@@ -117,12 +117,14 @@ class _Subscriptions:
 
 
 class FoxgloveBridgeService(Service):
+    """Serves one robot's episode to Foxglove viewers as ROS 2 messages; it only listens, so the episode never waits for it."""
+
     name = "foxglove_bridge"
     inputs = dict(EXPORTED)
     outputs: dict[str, type[Message]] = {}
     tick_period_s = 0.1
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(FoxgloveBridgeParams, ctx.params, where="services.foxglove_bridge")
         try:
@@ -223,6 +225,7 @@ class FoxgloveBridgeService(Service):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m services.foxglove_bridge``'s entry point; exit code 2 for a bad config."""
     return service_main(FoxgloveBridgeService, argv)
 
 

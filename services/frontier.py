@@ -64,11 +64,14 @@ class FrontierParams:
 
 
 class FrontierService(Service):
+    """Decides when a new goal is needed (``decision_reason``, as the in-process loop) and publishes the Observation
+    the policy decides on."""
+
     name = "frontier"
     inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg}
     outputs = {"frontiers": FrontiersMsg, "distance_map": DistanceMapMsg}
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(FrontierParams, ctx.params, where="services.frontier")
         cfg = ctx.exploration
@@ -248,6 +251,7 @@ class FrontierService(Service):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m services.frontier``'s entry point; exit code 2 for a bad config."""
     return service_main(FrontierService, argv)
 
 

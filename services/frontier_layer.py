@@ -101,7 +101,7 @@ def worker_main(conn: Connection) -> None:
 class FrontierLayerWorker:
     """A helper process computing frontier layers for one service (``submit`` then ``result``)."""
 
-    def __init__(self, entropy_window_m: float, timeout_s: float = 2.0, stopping: Callable[[], bool] = lambda: False):
+    def __init__(self, entropy_window_m: float, timeout_s: float = 2.0, stopping: Callable[[], bool] = lambda: False) -> None:
         self.entropy_window_m = entropy_window_m
         self.timeout_s = timeout_s
         self.stopping = stopping

@@ -49,11 +49,14 @@ class MapperParams:
 
 
 class MapperService(Service):
+    """Integrates each step's scan into the occupancy grid and publishes the map M_t (restored from the referee's cache
+    when it restarts)."""
+
     name = "mapper"
     inputs = {"clock": ClockMsg, "scan": ScanMsg}
     outputs = {"map": MapMsg}
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(MapperParams, ctx.params, where="services.mapper")
         self.map: OccupancyMap | None = None
@@ -137,6 +140,7 @@ class MapperService(Service):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m services.mapper``'s entry point; exit code 2 for a bad config."""
     return service_main(MapperService, argv)
 
 

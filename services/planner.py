@@ -72,12 +72,15 @@ class PlannerParams:
 
 
 class PlannerService(Service):
+    """Follows the path to the current goal: one cmd_vel per step, and feedback the frontier service's re-decision
+    rule reads."""
+
     name = "planner"
     inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": PlannerFrontiersMsg, "distance_map": DistanceMapMsg, "goal": GoalMsg}
     outputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg}
     tick_period_s = 0.1
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(PlannerParams, ctx.params, where="services.planner")
         self.episodes = EpisodeWatch()
@@ -322,6 +325,7 @@ class PlannerService(Service):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m services.planner``'s entry point; exit code 2 for a bad config."""
     return service_main(PlannerService, argv)
 
 

@@ -70,6 +70,9 @@ class PolicyParams:
 
 @dataclass
 class RobotState:
+    """What the policy service keeps for each robot it serves: its own selector, its last answer, and when its last
+    input came (``last_input_s``, the service's clock) to tell when it went stale."""
+
     selector: GoalSelector
     answered_step: int = -1
     last_answer: GoalMsg | None = None
@@ -80,11 +83,14 @@ class RobotState:
 
 
 class PolicyService(Service):
+    """Chooses the goal on each decision's Observation with ``make_policy(method)``, for one robot or, with
+    ``serve_all_robots``, for every robot without a policy of its own."""
+
     name = "policy"
     inputs = {"frontiers": FrontiersMsg}
     outputs = {"goal": GoalMsg}
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(PolicyParams, ctx.params, where="services.policy")
         self.method = self.params.method or str(ctx.profile.get("method", "greedy-dist"))
@@ -260,6 +266,7 @@ class PolicyService(Service):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m services.policy``'s entry point; exit code 2 for a bad config."""
     return service_main(PolicyService, argv)
 
 

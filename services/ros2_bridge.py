@@ -191,7 +191,7 @@ class OdometryBuffer:
         max_turn_radps: float = math.inf,
         jump_m: float = 0.5,
         jump_rad: float = 1.0,
-    ):
+    ) -> None:
         self.history_s, self.tolerance_s, self.max_gap_s, self.max_lag_s = history_s, tolerance_s, max_gap_s, max_lag_s
         self.jump_back_s, self.max_speed_mps, self.max_turn_radps = jump_back_s, max_speed_mps, max_turn_radps
         self.jump_m, self.jump_rad = jump_m, jump_rad
@@ -270,13 +270,16 @@ def _interpolate(a: ros2_cdr.OdometrySample, b: ros2_cdr.OdometrySample, stamp_s
 
 
 class Ros2BridgeService(Service):
+    """A real LIMO behind zenoh-bridge-ros2dds in place of the sim: its ROS 2 scans and odometry in as our steps, our
+    cmd_vel out as Twist, and the referee's part that needs no ground truth."""
+
     name = "ros2_bridge"
     inputs: ClassVar[dict[str, type[Message]]] = {"cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg}
     outputs: ClassVar[dict[str, type[Message]]] = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     tick_period_s = 0.05
     serves_latest = ("map",)
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(Ros2BridgeParams, ctx.params, where="services.ros2_bridge")
         p = self.params

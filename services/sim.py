@@ -137,6 +137,9 @@ def open_viewer(sim: Simulator) -> SimViewer:
 
 
 class SimService(Service):
+    """The simulator on Zenoh and the episode's referee: steps the robot, measures coverage against the ground truth and
+    ends the episode."""
+
     name = "sim"
     inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
@@ -144,7 +147,7 @@ class SimService(Service):
     tick_period_s = 0.02
     """How often ``on_tick`` runs: real-time steps run on the first tick at or after they are due."""
 
-    def __init__(self, ctx: ServiceContext):
+    def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(SimParams, ctx.params, where="services.sim")
         self.sim = build_simulator(ctx.profile, self.params, ctx)
@@ -506,6 +509,7 @@ class SimService(Service):
 
 
 def main(argv: list[str] | None = None) -> int:
+    """``python -m services.sim``'s entry point; exit code 2 for a bad config."""
     return service_main(SimService, argv)
 
 

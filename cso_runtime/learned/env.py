@@ -77,6 +77,8 @@ class EnvConfig:
 
 
 def graph_space(config: GraphConfig) -> spaces.Dict:
+    """The observation space of the frontier graph the network reads: fixed ``max_nodes`` x ``neighbours`` arrays,
+    padded, with the ``*_valid`` masks marking the real entries (a Gymnasium space must have one shape)."""
     n, k = config.max_nodes, config.neighbours
     return spaces.Dict(
         {
@@ -103,7 +105,7 @@ class ExplorationEnv(gym.Env):
         config: EnvConfig | None = None,
         render_mode: str | None = None,
         render_scale: int = 2,
-    ):
+    ) -> None:
         super().__init__()
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode {render_mode!r}: this environment renders {', '.join(self.metadata['render_modes'])} (or None)")

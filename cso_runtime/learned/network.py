@@ -57,7 +57,7 @@ class CategoricalMasked(torch.distributions.Categorical):
     """Categorical over the valid actions only: masked logits are replaced by a huge negative number,
     and the entropy sums over valid actions so masked ones add nothing (MicroRTS-Py style)."""
 
-    def __init__(self, logits: torch.Tensor, mask: torch.Tensor):
+    def __init__(self, logits: torch.Tensor, mask: torch.Tensor) -> None:
         self.action_mask = mask
         super().__init__(logits=torch.where(mask, logits, torch.full_like(logits, MASKED_LOGIT)))
 
@@ -70,7 +70,7 @@ class CategoricalMasked(torch.distributions.Categorical):
 class GraphAttentionLayer(nn.Module):
     """One round of edge-aware multi-head attention over each node's neighbour list."""
 
-    def __init__(self, hidden: int, edge_dim: int, heads: int, edge_messages: bool = False):
+    def __init__(self, hidden: int, edge_dim: int, heads: int, edge_messages: bool = False) -> None:
         super().__init__()
         if hidden % heads:
             raise ValueError("hidden must be a multiple of heads")
@@ -106,7 +106,7 @@ class GraphAttentionLayer(nn.Module):
 class GraphActorCritic(nn.Module):
     """``get_value`` and ``get_action_and_value`` over padded graph batches (CleanRL's Agent API)."""
 
-    def __init__(self, config: NetworkConfig | None = None, max_frontier_nodes: int = 200):
+    def __init__(self, config: NetworkConfig | None = None, max_frontier_nodes: int = 200) -> None:
         super().__init__()
         self.config = config or NetworkConfig()
         c = self.config
@@ -181,7 +181,7 @@ class DecisionLogits(nn.Module):
     """``masked_logits`` on the fixed-size graph with positional inputs: the form ``trace_decision``
     compiles for run-time decisions (no Python between the ~100 small ops of one forward)."""
 
-    def __init__(self, model: GraphActorCritic):
+    def __init__(self, model: GraphActorCritic) -> None:
         super().__init__()
         self.model = model
 

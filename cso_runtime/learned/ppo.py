@@ -318,6 +318,8 @@ def training_scene_refs(args: Args) -> list[SceneRef]:
 
 
 def load_plans(refs: list[SceneRef]) -> list[FloorPlan]:
+    """The plans of ``refs``, each named as its ref (the name eval and the logs give the scene), loaded where it is called:
+    in each environment process, not pickled to it."""
     plans = []
     for r in refs:
         p = r.load()
@@ -371,6 +373,7 @@ def compute_gae(
 
 
 def obs_to_torch(obs: dict[str, np.ndarray], device: torch.device) -> dict[str, torch.Tensor]:
+    """An observation dict's arrays as tensors on ``device``, for the network."""
     return {k: torch.as_tensor(np.asarray(v), device=device) for k, v in obs.items()}
 
 
@@ -381,10 +384,12 @@ def mask_to_torch(mask: np.ndarray, device: torch.device | str) -> torch.Tensor:
 
 
 def stack_obs(items: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """One batched observation from several observation dicts (one per environment), key by key."""
     return {k: np.stack([it[k] for it in items]) for k in items[0]}
 
 
 def index_obs(b_obs: dict[str, torch.Tensor], idx: Any) -> dict[str, torch.Tensor]:
+    """The rows ``idx`` (a minibatch) of every tensor of a batched observation."""
     return {k: v[idx] for k, v in b_obs.items()}
 
 
@@ -474,6 +479,7 @@ def check_training_inputs(args: Args) -> None:
 
 
 def seed_everything(seed: int) -> None:
+    """Seed Python's, numpy's and torch's global generators, so a training run's random draws follow from ``--seed``."""
     random.seed(seed)
     np.random.seed(seed)
     torch.manual_seed(seed)
@@ -507,12 +513,15 @@ def parameter_groups(model: GraphActorCritic, args: Args) -> list[dict[str, Any]
 
 
 def build_model(args: Args, device: torch.device) -> GraphActorCritic:
+    """A fresh actor-critic for ``args``' variant (input width from its node features), on ``device``."""
     features = len(node_features(args.env_config().graph))
     config = NetworkConfig(args.hidden, 32, args.heads, args.layers, features, distance_prior=args.distance_prior, edge_messages=args.edge_messages)
     return GraphActorCritic(config, args.max_frontier_nodes).to(device)
 
 
 def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.vector.VectorEnv:
+    """``args.num_envs`` training environments stepped together, in processes of their own with ``--async-envs``
+    (watched: a dead one is named, not waited on); an ended episode resets in the step that ends it."""
     fns = [make_env(refs, args.env_config()) for _ in range(args.num_envs)]
     if args.async_envs:
         return WatchedAsyncVectorEnv(fns, autoreset_mode=AutoresetMode.SAME_STEP, context="spawn")
@@ -1055,7 +1064,7 @@ class _Bar:
     run written to a file says how far it is (as CleanRL prints a line per update). ``completed``: the part done
     before this process (a ``--resume``d run's updates), counted in the bar; the time left is this process's pace."""
 
-    def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0, completed: int = 0):
+    def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0, completed: int = 0) -> None:
         from rich.console import Console  # noqa: PLC0415
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
 

@@ -134,7 +134,7 @@ class LearnedPolicy:
 
     def __init__(
         self, name: str, model: GraphActorCritic, graph: GraphConfig, mask_config: MaskConfig, seed: int | None = None, device: str = "cpu", greedy: bool = True, torch_threads: int | None = 1
-    ):
+    ) -> None:
         """``torch_threads`` (process-wide, CPU only): the network is far too small to gain from
         threads, and on a busy machine torch's thread pool turns a 3 ms decision into 150 ms.
         None leaves torch's setting alone."""

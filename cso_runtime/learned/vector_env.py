@@ -38,7 +38,7 @@ class WatchedAsyncVectorEnv(gym.vector.AsyncVectorEnv):
     poll_period_s = 0.5
     worker_died = False
 
-    def __init__(self, env_fns: Sequence[Callable[[], gym.Env]], **kwargs: Any):
+    def __init__(self, env_fns: Sequence[Callable[[], gym.Env]], **kwargs: Any) -> None:
         super().__init__([functools.partial(_worker_env, fn) for fn in env_fns], **kwargs)
 
     def _raise_if_dead(self) -> None:

@@ -26,6 +26,7 @@ WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
 
 
 def weights_dir() -> Path:
+    """The folder of weights files: ``$CSO_WEIGHTS_DIR`` when set (``--weights``, a training run's), else the shipped ones."""
     override = os.environ.get(WEIGHTS_DIR_ENV)
     if override:
         return Path(override)
