@@ -107,11 +107,11 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
     for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, DOWN_TERM_WAIT_S), (signal.SIGKILL, 2.0)):
         if not pid_alive(pid):
             break
-        if sig != signal.SIGINT:
-            escalated = signal.Signals(sig).name
         try:
             continued = continued or process_state(pid) == "T"
             os.kill(pid, sig)
+            if sig != signal.SIGINT:  # once sent: a launcher that ends just before has stopped on its own, if late
+                escalated = signal.Signals(sig).name
             # A stopped launcher (Ctrl-Z on `up`, SIGSTOP) would only get its SIGINT once continued: down waited
             # out every stage and killed it, and its run was left unfinished (run.json "running", no outcome).
             # Continued, it handles the SIGINT and stops its services and its run as it always does. SIGCONT does

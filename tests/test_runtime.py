@@ -896,6 +896,33 @@ def test_down_gives_the_launcher_the_stop_time_of_its_run(tmp_path, timeout_s):
             launcher.kill()
 
 
+def test_down_names_only_a_signal_it_sent(tmp_path, monkeypatch):
+    """``down`` named the signal of its next stage before it sent it: a launcher that ended just then, late but on
+    its own (its results written), was reported as stopped by SIGTERM (or SIGKILL) that no one had sent."""
+    from cso_runtime import current_run
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "current.json").write_text(json.dumps({"run_id": "late", "robot": "r0", "launcher_pid": 4242}))
+    alive, sent = [True], []
+    real_kill = os.kill
+
+    def kill(pid: int, sig: int) -> None:
+        if pid != 4242:
+            return real_kill(pid, sig)
+        if sig == signal.SIGTERM:  # it ended between down's look and its SIGTERM
+            alive[0] = False
+            raise ProcessLookupError
+        sent.append(sig)
+
+    monkeypatch.setattr(current_run, "current_launcher_alive", lambda info: True)
+    monkeypatch.setattr(current_run, "pid_alive", lambda pid: pid == 4242 and alive[0])
+    monkeypatch.setattr(current_run, "process_state", lambda pid: "S")
+    monkeypatch.setattr(current_run.os, "kill", kill)
+    ok, message = current_run.down(runs, timeout_s=0.1)
+    assert ok and message == "stopped run late" and sent == [signal.SIGINT, signal.SIGCONT], (message, sent)
+
+
 def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, monkeypatch):
     """``up --scene office.yaml`` from a folder: the run's profile copy (``runs/<id>/profile.yaml``, which
     ``cso-runtime service ... --config`` takes) must name the same file from anywhere."""
