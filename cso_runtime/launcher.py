@@ -441,7 +441,8 @@ class Launcher:
         for c in self.children:
             if c.gave_up or not c.alive or c.proc is None:
                 continue
-            c.came_up = c.came_up or c.name in self.alive_services
+            if not c.came_up and c.name in self.alive_services:
+                c.came_up, c.came_up_at = True, now
             if not c.came_up:  # still starting (importing, warming up), or hung before it came up
                 if sup.start_timeout_s <= 0 or now - max(c.spawned_at, resumed_s) < sup.start_timeout_s:
                     continue
@@ -449,7 +450,9 @@ class Launcher:
             else:
                 if sup.hang_timeout_s <= 0 or watch is None:
                     continue
-                since = max(c.spawned_at, watch.answered_s.get(c.name, -np.inf), resumed_s)
+                # From when it came up: one that took longer than hang_timeout_s to start (a loaded machine, a slow
+                # import) was killed the moment its token came, before the watch had asked it even once.
+                since = max(c.came_up_at, watch.answered_s.get(c.name, -np.inf), resumed_s)
                 if now - since < sup.hang_timeout_s:
                     continue
                 log.error("%s (pid %d) runs but has not answered for %.0f s (hung? stopped?): killing it to restart it", c.name, c.proc.pid, now - since)

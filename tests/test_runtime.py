@@ -2280,6 +2280,37 @@ def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplo
                 c.proc.wait(timeout=30)
 
 
+def test_a_service_that_comes_up_after_hang_timeout_s_is_not_killed_as_hung(tmp_path):
+    """The hang check counted a service's silence from its start: one whose start took longer than
+    ``hang_timeout_s`` (a loaded machine, a slow import; ``start_timeout_s`` allows 60 s) was killed the moment its
+    liveliness token came, before the launcher's status watch had asked it even once, and counted as hung. The
+    silence counts from when it came up; one that then never answers is still killed."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), settings={"supervision.hang_timeout_s": 2.0})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    slow = Child("planner", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "planner.log")
+    launcher.children = [slow]
+    launcher.status_watch = SimpleNamespace(answered_s={}, resumed_s=-np.inf, behind=lambda now: False)  # asking, not answered yet
+    try:
+        slow.spawn()
+        launcher.kill_hung(slow.spawned_at + 4.0)  # still starting
+        launcher.alive_services = {"planner"}
+        came_up_s = slow.spawned_at + 5.0  # its token came 5 s after its start
+        launcher.kill_hung(came_up_s)
+        launcher.kill_hung(came_up_s + 1.5)
+        assert slow.alive and slow.hung_kills == 0
+        launcher.kill_hung(came_up_s + 2.5)  # up, and silent for longer than hang_timeout_s since
+        assert not slow.alive and slow.hung_kills == 1
+    finally:
+        slow.proc.kill()
+        slow.proc.wait(timeout=30)
+
+
 def test_a_killed_sim_restarts_the_episode_and_it_ends_as_a_fresh_one(tmp_path):
     """The sim is the world: a restarted sim starts a new episode (a new id, step 0). Every other
     service starts over on it (maps of the old episode still in flight are rejected), so in lockstep
