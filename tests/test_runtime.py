@@ -2119,24 +2119,35 @@ def test_status_names_the_policy_a_profile_leaves_out_and_says_the_episode_waits
 def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_path):
     """A service whose process lives but does nothing (SIGSTOP stands in for a deadlock) would leave the
     episode waiting with every process up: the launcher notices it stopped answering its status query,
-    writes why, kills and restarts it, and the episode completes."""
+    writes why, kills and restarts it, and the episode completes.
+
+    What it waits for is this planner's kill and restart: its process replaced by another in the launcher's status.
+    It waited for counts (a hung kill and a restart) that an earlier kill of the planner on a loaded machine had
+    already reached, and found the planner it had just stopped alive."""
+    from cso_runtime.supervision import process_start_ticks, run_process_alive
+
     with detached_run(tmp_path, "--set", "supervision.hang_timeout_s=2", min_step_period_s=0.25, lockstep_timeout_s=0.5) as (runs, status):
         wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
-        planner_pid = status()["services"]["planner"]["pid"]
+        before = status()["services"]["planner"]
+        planner_pid, planner_ticks = before["pid"], process_start_ticks(before["pid"])
         os.kill(planner_pid, signal.SIGSTOP)
 
         def planner() -> dict | None:
             s = status()
             return s and s["services"]["planner"]
 
-        wait_for(lambda: (p := planner()) and p.get("hung_kills", 0) >= 1 and p["restarts"] >= 1, 30, "the hung planner to be killed and restarted")
-        assert not pid_alive(planner_pid)
+        after = wait_for(
+            lambda: (p := planner()) and p["pid"] != planner_pid and p.get("hung_kills", 0) > before.get("hung_kills", 0) and p,
+            30, f"the hung planner (pid {planner_pid}) to be killed and restarted",
+        )
+        assert after["restarts"] > before["restarts"] and not run_process_alive(planner_pid, planner_ticks), after
         final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2)
         assert final["state"] == "done" and final["terminated_by"] == "coverage", final
         launcher_log = next(runs.glob("*/logs/launcher.log")).read_text()
-        assert re.search(r"planner \(pid \d+\) runs but has not answered for \d+ s \(hung\? stopped\?\): killing it to restart it", launcher_log), launcher_log[-3000:]
+        assert re.search(rf"planner \(pid {planner_pid}\) runs but has not answered for \d+ s \(hung\? stopped\?\): killing it to restart it", launcher_log), launcher_log[-3000:]
+        hung = final["services"]["planner"]["hung_kills"]
         r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-        assert "1 of them hung" in " ".join(re.sub(r"[│┃]", " ", r.stdout).split()), r.stdout  # the table may wrap the row
+        assert f"{hung} of them hung" in " ".join(re.sub(r"[│┃]", " ", r.stdout).split()), r.stdout  # the table may wrap the row
 
 
 def test_a_killed_launchers_services_stop_at_once_and_each_log_says_why(tmp_path):
