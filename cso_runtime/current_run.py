@@ -76,8 +76,9 @@ def current_launcher_alive(info: dict[str, Any]) -> bool:
 
 
 DOWN_MARGIN_S = 10.0
-"""``down`` gives a launcher three stop stages of its ``stop_timeout_s`` and this much more (its results,
-plots and recording to write) before it escalates."""
+"""``down`` gives a launcher three stop stages of its ``stop_timeout_s`` and this much more before it escalates: the
+launcher bounds what it does beyond the stages (a hung service's stacks, its recording, its GIF: ``launcher.STOP_EXTRAS_S``)
+to fit in it."""
 
 DOWN_TERM_WAIT_S = 3.0
 """How long ``down`` waits after its SIGTERM before SIGKILL. A process dies of a signal only once it gets a CPU: on

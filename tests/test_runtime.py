@@ -1139,6 +1139,95 @@ def _fake_result(method: str = "greedy-dist", steps: int = 10):
     return EpisodeResultMsg("s", steps, 1.2, 98.0, 1.3, 4.5, "coverage", 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, method, 0)
 
 
+def _recording_launcher(tmp_path: Path):
+    """A launcher of the lockstep profile with ``--record --animate`` whose episode has ended (its GIF is due)."""
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run", record_path=tmp_path / "run" / "recording.mcap", animate=True)
+    launcher.written_result = _fake_result()
+    return launcher
+
+
+def test_a_recorder_that_does_not_finish_cannot_hold_up_the_launchers_stop(tmp_path, monkeypatch, caplog):
+    """The launcher joined its recorder thread with no timeout as it stopped: a recorder that never finished (its
+    session's close hung, a backlog on a busy machine) held the stop for ever, and ``down`` killed the launcher
+    with its run unfinished. It waits ``RECORDING_STOP_S``, then goes on, says what the file holds, and draws no
+    GIF from an unfinished file. Its stop, stacks, recording and GIF together fit in ``down``'s margin."""
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.current_run import DOWN_MARGIN_S
+    from cso_runtime.recording import RecordStats
+
+    assert launcher_module.STOP_EXTRAS_S < DOWN_MARGIN_S
+    launcher = _recording_launcher(tmp_path)
+    drawn: list[Any] = []
+    monkeypatch.setattr("cso_runtime.animation.animate_recording", lambda *args, **kwargs: drawn.append(args))
+    monkeypatch.setattr(launcher_module, "RECORDING_STOP_S", 0.2)
+    release = threading.Event()
+    stuck = threading.Thread(target=release.wait, daemon=True)  # a recorder that does not finish
+    stuck.start()
+    recorder = launcher_module.Recorder(threading.Event(), stuck, RecordStats(launcher.record_path, messages=1234))
+    stopping = threading.Thread(target=launcher.finish_recording, args=(recorder,), daemon=True)
+    try:
+        with caplog.at_level("WARNING", logger="cso.launcher"):
+            stopping.start()
+            stopping.join(timeout=10)
+            assert not stopping.is_alive(), "the launcher's stop waits for its recorder for ever"
+    finally:
+        release.set()
+    assert recorder.stop.is_set() and drawn == []
+    said = f"recording not finished within 0.2 s of its stop (a backlog on a busy machine, or its session's close hung?): the launcher goes on without it; {launcher.record_path} holds at most the first 1234 messages"
+    gif = launcher.animation_path()
+    assert said in caplog.text and caplog.text.rstrip().endswith(f"no animation drawn (`cso-runtime animate {launcher.record_path} --out {gif}` draws one from it)"), caplog.text
+
+
+def test_a_gif_that_takes_too_long_once_the_run_stops_is_left_to_cso_runtime_animate(tmp_path, monkeypatch, caplog):
+    """``up --animate`` drew its GIF for as long as the recording took, also once ``down`` or Ctrl-C had asked the
+    run to stop: a long recording outlasted ``down``'s margin, and the launcher was killed mid-drawing, its services
+    and its run left to ``down``. Once stopping, the GIF gets ``ANIMATION_STOPPING_S`` more; beyond, the launcher
+    gives it up and says how to draw it. Without a stop it is drawn in full."""
+    from types import SimpleNamespace
+
+    from cso_runtime import launcher as launcher_module
+
+    launcher = _recording_launcher(tmp_path)
+    monkeypatch.setattr(launcher_module, "ANIMATION_STOPPING_S", 0.2)
+    gif = tmp_path / "run" / "animations" / "greedy-dist" / "s.gif"
+
+    def slow_gif(recording, out, robot=None, max_frames=200, robot_radius_m=0.1, progress=None):
+        """Reports its progress every 50 ms, for 10 s at most (then: drawn in full), a stop at 0.3 s."""
+        started_s = time.monotonic()
+        while time.monotonic() - started_s < 10.0:
+            if time.monotonic() - started_s > 0.3:
+                launcher.stop_event.set()
+            progress(1, None)
+            time.sleep(0.05)
+        assert out == gif
+        return SimpleNamespace(frames=3)
+
+    monkeypatch.setattr("cso_runtime.animation.animate_recording", slow_gif)
+    started_s = time.monotonic()
+    with caplog.at_level("INFO", logger="cso.launcher"):
+        launcher.write_animation()
+    assert time.monotonic() - started_s < 5.0, "drawn in full after the stop"
+    said = f"animation skipped: the run is stopping, and the GIF was not drawn within 0.2 s of that; `cso-runtime animate {launcher.record_path} --out {gif}` draws it"
+    assert said in caplog.text, caplog.text
+    launcher.stop_event.clear()
+
+    def gif_unstopped(recording, out, robot=None, max_frames=200, robot_radius_m=0.1, progress=None):
+        for _ in range(20):
+            progress(1, None)
+            time.sleep(0.05)  # 1 s, longer than ANIMATION_STOPPING_S: a run not stopping waits for its GIF
+        return SimpleNamespace(frames=3)
+
+    monkeypatch.setattr("cso_runtime.animation.animate_recording", gif_unstopped)
+    caplog.clear()
+    with caplog.at_level("INFO", logger="cso.launcher"):
+        launcher.write_animation()
+    assert f"animation in 3 frames: {gif}" in caplog.text, caplog.text
+
+
 @pytest.mark.parametrize(("name", "expected"), [("sim", "mujoco"), ("lockstep", "2d"), ("limo-ros2", None)])
 def test_ups_summary_records_every_parameter_of_its_simulator(tmp_path, name, expected):
     """``summary.json`` of ``up`` held the profile as written (``services.sim.mujoco``: only what it changes), not the
