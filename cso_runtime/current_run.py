@@ -78,8 +78,9 @@ def current_launcher_alive(info: dict[str, Any]) -> bool:
 
 
 DOWN_MARGIN_S = 10.0
-"""``down`` gives a launcher three stop stages of its ``stop_timeout_s`` and this much more (its results,
-plots and recording to write) before it escalates."""
+"""``down`` gives a launcher three stop stages of its ``stop_timeout_s`` and this much more before it escalates: the
+launcher bounds what it does beyond the stages (a hung service's stacks, its recording, its GIF: ``launcher.STOP_EXTRAS_S``)
+to fit in it."""
 
 DOWN_TERM_WAIT_S = 3.0
 """How long ``down`` waits after its SIGTERM before SIGKILL. A process dies of a signal only once it gets a CPU: on
@@ -109,11 +110,11 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
     for sig, wait_s in ((signal.SIGINT, timeout_s), (signal.SIGTERM, DOWN_TERM_WAIT_S), (signal.SIGKILL, 2.0)):
         if not pid_alive(pid):
             break
-        if sig != signal.SIGINT:
-            escalated = signal.Signals(sig).name
         try:
             continued = continued or process_state(pid) == "T"
             os.kill(pid, sig)
+            if sig != signal.SIGINT:  # once sent: a launcher that ends just before has stopped on its own, if late
+                escalated = signal.Signals(sig).name
             # A stopped launcher (Ctrl-Z on `up`, SIGSTOP) would only get its SIGINT once continued: down waited
             # out every stage and killed it, and its run was left unfinished (run.json "running", no outcome).
             # Continued, it handles the SIGINT and stops its services and its run as it always does. SIGCONT does

@@ -24,8 +24,9 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -59,6 +60,7 @@ from cso_runtime.pace import StepPace
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
 from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig
 from cso_runtime.supervision import (
+    STACK_DUMP_WAIT_S,
     Child,
     dump_stacks,
     process_start_ticks,
@@ -67,6 +69,9 @@ from cso_runtime.supervision import (
     stop_children,
 )
 from cso_runtime.transport import TransportConfig, TransportError, open_router, open_session, track_liveliness
+
+if TYPE_CHECKING:
+    from cso_runtime.recording import RecordStats
 
 log = logging.getLogger("cso.launcher")
 
@@ -153,6 +158,41 @@ class StatusWatch:
 
 class RecorderError(RuntimeError):
     """``up --record`` cannot write its recording: the run stops before any service starts."""
+
+
+@dataclass
+class Recorder:
+    """``up --record``'s recorder: the thread that writes the recording, the event that stops it, and what it has written."""
+
+    stop: threading.Event
+    thread: threading.Thread
+    stats: RecordStats
+
+
+RECORDING_DRAIN_S = 3.0
+"""How long a stopped recorder goes on writing the messages it still holds before it leaves the rest out and finishes
+its file (``recording.record``'s ``drain_s``): normally there is next to nothing left (lockstep runs of 390 to 4,800
+messages, small and large scene, were finished within 40 ms of the stop), but a recorder behind a dense stream on a
+busy machine can hold a long backlog."""
+
+RECORDING_STOP_S = 5.0
+"""How long the launcher waits for its stopped recorder to finish (``finish_recording``): its ``RECORDING_DRAIN_S``,
+the file's summary and its session's close. One still at it then is left to finish on its own, and the launcher's
+log says so and what the file holds so far: the launcher's own stop must fit in ``down``'s margin."""
+
+ANIMATION_STOPPING_S = 3.0
+"""How much longer ``up --animate``'s GIF may take once the run is being stopped (``down``, Ctrl-C, SIGTERM): a
+whole lockstep episode's took 0.1 s (small scene, 25 frames) and 0.6 to 1.4 s (large, 150 frames); it grows with
+the recording. Beyond that it is given up, and the launcher's log gives the ``cso-runtime animate`` command that
+draws it from the recording; without a stop, the GIF takes the time it needs."""
+
+STOP_EXTRAS_S = STACK_DUMP_WAIT_S + RECORDING_STOP_S + ANIMATION_STOPPING_S
+"""What the launcher's stop may take beyond its services' three stop stages: the stacks of a hung service, the
+recording, the GIF. ``down`` waits ``DOWN_MARGIN_S`` beyond the stages, which must hold it (a test holds them to it)."""
+
+
+class _AnimationGivenUp(Exception):
+    """The run is being stopped and its GIF is taking longer than ``ANIMATION_STOPPING_S``."""
 
 
 # --- the launcher ----------------------------------------------------------------------------------
@@ -453,7 +493,8 @@ class Launcher:
         for c in self.children:
             if c.gave_up or not c.alive or c.proc is None:
                 continue
-            c.came_up = c.came_up or c.name in self.alive_services
+            if not c.came_up and c.name in self.alive_services:
+                c.came_up, c.came_up_at = True, now
             if not c.came_up:  # still starting (importing, warming up), or hung before it came up
                 if sup.start_timeout_s <= 0 or now - max(c.spawned_at, resumed_s) < sup.start_timeout_s:
                     continue
@@ -461,7 +502,9 @@ class Launcher:
             else:
                 if sup.hang_timeout_s <= 0 or watch is None:
                     continue
-                since = max(c.spawned_at, watch.answered_s.get(c.name, -np.inf), resumed_s)
+                # From when it came up: one that took longer than hang_timeout_s to start (a loaded machine, a slow
+                # import) was killed the moment its token came, before the watch had asked it even once.
+                since = max(c.came_up_at, watch.answered_s.get(c.name, -np.inf), resumed_s)
                 if now - since < sup.hang_timeout_s:
                     continue
                 log.error("%s (pid %d) runs but has not answered for %.0f s (hung? stopped?): killing it to restart it", c.name, c.proc.pid, now - since)
@@ -584,22 +627,23 @@ class Launcher:
         )
         return self.run_dir
 
-    def start_recorder(self) -> tuple[threading.Event, threading.Thread] | None:
+    def start_recorder(self) -> Recorder | None:
         """Record the run from before the first service starts, on a session of its own: its link and
         receive thread are not shared with the launcher's callbacks, so a busy launcher cannot make the
         router drop messages on their way to the recording."""
         if self.record_path is None:
             return None
-        from cso_runtime.recording import record  # noqa: PLC0415 - mcap only when recording
+        from cso_runtime.recording import RecordStats, record  # noqa: PLC0415 - mcap only when recording
 
         stop, ready = threading.Event(), threading.Event()
         transport = TransportConfig(mode="client", connect=list(self.endpoints))
         failure: list[str] = []
+        stats = RecordStats(self.record_path)
 
         def run() -> None:
             try:
                 with open_session(transport) as session:
-                    record(session, self.profile.robot, self.record_path, stop, ready)
+                    record(session, self.profile.robot, self.record_path, stop, ready, stats, drain_s=RECORDING_DRAIN_S)
             except (OSError, TransportError) as exc:  # said by start_recorder (or logged once recording)
                 failure.append(exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc))
                 if ready.is_set():  # before that, start_recorder says why
@@ -614,31 +658,70 @@ class Launcher:
             stop.set()
             raise RecorderError(f"cannot record into {self.record_path}: {failure[0] if failure else 'the recorder did not start within 10 s'}")
         log.info("recording cso/%s/** into %s", self.profile.robot, self.record_path)
-        return stop, thread
+        return Recorder(stop, thread, stats)
 
-    def finish_recording(self, recorder: tuple[threading.Event, threading.Thread] | None) -> None:
-        """Stop the recorder (it drains what arrived and writes the file's summary), then draw ``--animate``'s
-        GIF (when the episode ended, and again in ``run``'s clean-up when it did not)."""
-        if recorder is not None:
-            recorder[0].set()
-            recorder[1].join()
-            self.write_animation()
+    def finish_recording(self, recorder: Recorder | None) -> None:
+        """Stop the recorder (it writes what arrived and the file's summary), then draw ``--animate``'s GIF (when
+        the episode ended, and again in ``run``'s clean-up when it did not). Neither may hold up the launcher's
+        stop, which ``down`` waits for only so long: a recorder not finished within ``RECORDING_STOP_S`` is left
+        to finish on its own (a thread of the launcher's, ended with it) and no GIF is drawn from its file."""
+        if recorder is None:
+            return
+        recorder.stop.set()
+        recorder.thread.join(RECORDING_STOP_S)
+        if recorder.thread.is_alive():
+            gif = self.animation_path()
+            no_gif = f"; no animation drawn (`cso-runtime animate {self.record_path} --out {gif}` draws one from it)" if gif is not None else ""
+            log.warning(
+                "recording not finished within %g s of its stop (a backlog on a busy machine, or its session's close hung?): "
+                "the launcher goes on without it; %s holds at most the first %d messages and, until it finishes, no summary "
+                "(it reads up to its last complete chunk)%s",
+                RECORDING_STOP_S, self.record_path, recorder.stats.messages, no_gif,
+            )
+            return
+        self.write_animation()
 
-    def write_animation(self) -> None:
-        """``up --animate``: the finished run's recording as the GIF ``eval --animate`` writes (a run stopped
-        before its episode ended gets none, as it gets no summary.json)."""
+    def animation_path(self) -> Path | None:
+        """Where ``up --animate`` draws the run's GIF, as ``eval --animate`` does; None when none is due (no
+        ``--animate``, or a run stopped before its episode ended: it gets none, as it gets no summary.json)."""
         result = self.written_result
         if not self.animate or self.record_path is None or result is None:
+            return None
+        from cso_runtime.outputs import episode_animation_path  # noqa: PLC0415
+
+        return episode_animation_path(self.run_dir, result.method or "unknown", result.scene)
+
+    def write_animation(self) -> None:
+        """``up --animate``: the finished run's recording as a GIF (``animation_path``)."""
+        path = self.animation_path()
+        if path is None or self.record_path is None:
             return
         from cso_runtime.animation import animate_recording  # noqa: PLC0415
-        from cso_runtime.outputs import episode_animation_path  # noqa: PLC0415
         from cso_runtime.recording import RecordingError  # noqa: PLC0415
 
-        path = episode_animation_path(self.run_dir, result.method or "unknown", result.scene)
+        stopping_since_s: float | None = None
+
+        def give_up_once_stopping(seen: int, total: int | None) -> None:
+            nonlocal stopping_since_s
+            if not self.stop_event.is_set():
+                return
+            if stopping_since_s is None:
+                stopping_since_s = time.monotonic()
+            elif time.monotonic() - stopping_since_s > ANIMATION_STOPPING_S:
+                raise _AnimationGivenUp
+
         try:
-            stats = animate_recording(self.record_path, path, self.profile.robot, robot_radius_m=self.profile.exploration_config().robot.radius_m)
+            stats = animate_recording(
+                self.record_path, path, self.profile.robot, robot_radius_m=self.profile.exploration_config().robot.radius_m, progress=give_up_once_stopping,
+            )
         except (RecordingError, OSError) as exc:
             log.error("no animation: %s", exc)
+            return
+        except _AnimationGivenUp:
+            log.warning(
+                "animation skipped: the run is stopping, and the GIF was not drawn within %g s of that; `cso-runtime animate %s --out %s` draws it",
+                ANIMATION_STOPPING_S, self.record_path, path,
+            )
             return
         log.info("animation in %d frames: %s", stats.frames, path)
         try:
@@ -767,7 +850,9 @@ class Launcher:
                     view.stop()
                 log.info("stopping services")
                 self.stop_event.set()
+                stopping_s = time.monotonic()
                 stop_children(self.children, self.profile.supervision.stop_timeout_s)
+                log.info("services stopped in %.1f s", time.monotonic() - stopping_s)
                 for c in self.children:  # killed at the last stage (hung), or died of a signal meanwhile: its own last zero Twist never went out
                     code = c.proc.returncode if c.proc is not None else None
                     if c.proc is not None and c.restart_at is None and not c.gave_up and (code is None or (code < 0 and -code not in STOP_SIGNALS)):

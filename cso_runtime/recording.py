@@ -137,6 +137,9 @@ class RecordStats:
     raw: int = 0
     """Payloads stored verbatim (``cso-raw``) because they have no exact JSON form."""
     bytes_in: int = 0
+    left_out: int = 0
+    """Messages that had arrived but were not written: the recorder was stopped with more to write than its
+    ``drain_s`` allowed."""
 
 
 class _McapSink:
@@ -191,12 +194,16 @@ def record(
     stop_event: threading.Event,
     ready: threading.Event | None = None,
     stats: RecordStats | None = None,
+    drain_s: float | None = None,
 ) -> RecordStats:
     """Record every ``cso/<robot>/**`` sample into ``out_path`` until ``stop_event`` is set.
 
     The Zenoh callback only stamps and queues (stamps strictly increase in arrival order); this thread
     writes, so the MCAP writer is used from one thread. ``ready`` is set once the subscriber is declared;
-    ``stats`` (optional) is updated as messages are written, for callers that watch progress.
+    ``stats`` (optional) is updated as messages are written, for callers that watch progress. ``drain_s``:
+    once stopped, write what had arrived for at most this long, then leave the rest out (``stats.left_out``)
+    and finish the file; None: write it all (a recorder behind a dense stream on a busy machine can hold a
+    long backlog, which a stop with a deadline, the launcher's, cannot wait for).
     """
     out_path = Path(out_path)
     out_path.parent.mkdir(parents=True, exist_ok=True)
@@ -227,11 +234,20 @@ def record(
                     continue
                 _write(sink, stats, key, payload, t_ns)
         finally:
+            drain_until = time.monotonic() + drain_s if drain_s is not None else None
             sub.undeclare()
             while not inbox.empty():  # what arrived before the undeclare
+                if drain_until is not None and time.monotonic() > drain_until:
+                    stats.left_out = inbox.qsize()
+                    break
                 _write(sink, stats, *inbox.get_nowait())
             sink.finish()
     log.info("recorded %d messages (%d verbatim) on %d keys into %s", stats.messages, stats.raw, len(stats.per_key), out_path)
+    if stats.left_out:
+        log.warning(
+            "%d messages that had arrived were left out of %s: writing them would have taken more than %g s after the stop; "
+            "the file holds the run up to then", stats.left_out, out_path, drain_s,
+        )
     return stats
 
 

@@ -57,6 +57,9 @@ class Child:
     came_up: bool = False
     """Whether its current process has declared its liveliness token (a stopped one loses it when its Zenoh
     lease runs out: it is then hung, not still starting)."""
+    came_up_at: float = 0.0
+    """``time.monotonic()`` when the launcher saw its current process come up: its hang check counts from then, not
+    from its start (a start longer than ``hang_timeout_s`` is ``start_timeout_s``'s to judge)."""
 
     @property
     def restarts(self) -> int:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import re
 import threading
 import time
+import types
 from pathlib import Path
 
 import msgpack
@@ -684,3 +685,35 @@ def test_replay_closed_by_its_terminal_stops_at_once_and_says_what_it_sent(tmp_p
     assert proc.returncode == 0 and match, output
     assert 1 <= int(match.group(1)) < len(odoms)  # stopped mid-recording, not at its end
     assert received == list(range(received[0], received[0] + len(received)))  # in order, none after the stop lost mid-way
+
+
+def test_a_recorder_stopped_with_a_backlog_writes_it_for_drain_s_then_finishes_its_file(tmp_path: Path, monkeypatch, caplog):
+    """A recorder behind a dense stream (a busy machine) holds a backlog when it is stopped; it wrote all of it,
+    however long that took, and the launcher's stop waited (``up --record``; ``down`` then killed a launcher still
+    writing). With ``drain_s`` it writes for that long, leaves the rest out and says how many, and the file is
+    finished (its summary written): the run's start, in order, with no gap."""
+    from mcap.reader import make_reader
+
+    from cso_runtime import recording
+
+    keys = RobotKeys("r0")
+    scans = [encode(ScanMsg(k, LaserScan(-np.pi, np.pi / 180, 0.1, 8.0, np.full(360, 1.0 + k % 7, np.float32), 0.25 * k), Pose2D(0.0, 0.0, 0.0))) for k in range(200)]
+    stop = threading.Event()
+
+    class Session:  # delivers the whole stream at once when the recorder subscribes, then the stop comes
+        def declare_subscriber(self, key_expr, on_sample):
+            for payload in scans:
+                on_sample(types.SimpleNamespace(key_expr=keys.scan, payload=types.SimpleNamespace(to_bytes=lambda p=payload: p)))
+            stop.set()
+            return types.SimpleNamespace(undeclare=lambda: None)
+
+    write = recording._write
+    monkeypatch.setattr(recording, "_write", lambda *args: (time.sleep(0.005), write(*args)))  # 1 s for the whole backlog
+    out = tmp_path / "stopped.mcap"
+    with caplog.at_level("WARNING", logger="cso.recording"):
+        stats = recording.record(Session(), "r0", out, stop, drain_s=0.1)
+    assert 0 < stats.messages < len(scans) and stats.left_out == len(scans) - stats.messages, stats
+    assert f"{stats.left_out} messages that had arrived were left out of {out}" in caplog.text
+    with out.open("rb") as fh:
+        assert make_reader(fh).get_summary() is not None
+    assert [m.payload for m in read_recording(out)] == scans[: stats.messages]

@@ -941,6 +941,33 @@ def test_down_gives_the_launcher_the_stop_time_of_its_run(tmp_path, timeout_s):
             launcher.kill()
 
 
+def test_down_names_only_a_signal_it_sent(tmp_path, monkeypatch):
+    """``down`` named the signal of its next stage before it sent it: a launcher that ended just then, late but on
+    its own (its results written), was reported as stopped by SIGTERM (or SIGKILL) that no one had sent."""
+    from cso_runtime import current_run
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "current.json").write_text(json.dumps({"run_id": "late", "robot": "r0", "launcher_pid": 4242}))
+    alive, sent = [True], []
+    real_kill = os.kill
+
+    def kill(pid: int, sig: int) -> None:
+        if pid != 4242:
+            return real_kill(pid, sig)
+        if sig == signal.SIGTERM:  # it ended between down's look and its SIGTERM
+            alive[0] = False
+            raise ProcessLookupError
+        sent.append(sig)
+
+    monkeypatch.setattr(current_run, "current_launcher_alive", lambda info: True)
+    monkeypatch.setattr(current_run, "pid_alive", lambda pid: pid == 4242 and alive[0])
+    monkeypatch.setattr(current_run, "process_state", lambda pid: "S")
+    monkeypatch.setattr(current_run.os, "kill", kill)
+    ok, message = current_run.down(runs, timeout_s=0.1)
+    assert ok and message == "stopped run late" and sent == [signal.SIGINT, signal.SIGCONT], (message, sent)
+
+
 def test_a_scene_file_is_kept_as_an_absolute_path_in_the_run_profile(tmp_path, monkeypatch):
     """``up --scene office.yaml`` from a folder: the run's profile copy (``runs/<id>/profile.yaml``, which
     ``cso-runtime service ... --config`` takes) must name the same file from anywhere."""
@@ -1184,6 +1211,95 @@ def _fake_result(method: str = "greedy-dist", steps: int = 10):
 
     free = np.ones((3, 4), bool)
     return EpisodeResultMsg("s", steps, 1.2, 98.0, 1.3, 4.5, "coverage", 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, method, 0)
+
+
+def _recording_launcher(tmp_path: Path):
+    """A launcher of the lockstep profile with ``--record --animate`` whose episode has ended (its GIF is due)."""
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run", record_path=tmp_path / "run" / "recording.mcap", animate=True)
+    launcher.written_result = _fake_result()
+    return launcher
+
+
+def test_a_recorder_that_does_not_finish_cannot_hold_up_the_launchers_stop(tmp_path, monkeypatch, caplog):
+    """The launcher joined its recorder thread with no timeout as it stopped: a recorder that never finished (its
+    session's close hung, a backlog on a busy machine) held the stop for ever, and ``down`` killed the launcher
+    with its run unfinished. It waits ``RECORDING_STOP_S``, then goes on, says what the file holds, and draws no
+    GIF from an unfinished file. Its stop, stacks, recording and GIF together fit in ``down``'s margin."""
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.current_run import DOWN_MARGIN_S
+    from cso_runtime.recording import RecordStats
+
+    assert launcher_module.STOP_EXTRAS_S < DOWN_MARGIN_S
+    launcher = _recording_launcher(tmp_path)
+    drawn: list[Any] = []
+    monkeypatch.setattr("cso_runtime.animation.animate_recording", lambda *args, **kwargs: drawn.append(args))
+    monkeypatch.setattr(launcher_module, "RECORDING_STOP_S", 0.2)
+    release = threading.Event()
+    stuck = threading.Thread(target=release.wait, daemon=True)  # a recorder that does not finish
+    stuck.start()
+    recorder = launcher_module.Recorder(threading.Event(), stuck, RecordStats(launcher.record_path, messages=1234))
+    stopping = threading.Thread(target=launcher.finish_recording, args=(recorder,), daemon=True)
+    try:
+        with caplog.at_level("WARNING", logger="cso.launcher"):
+            stopping.start()
+            stopping.join(timeout=10)
+            assert not stopping.is_alive(), "the launcher's stop waits for its recorder for ever"
+    finally:
+        release.set()
+    assert recorder.stop.is_set() and drawn == []
+    said = f"recording not finished within 0.2 s of its stop (a backlog on a busy machine, or its session's close hung?): the launcher goes on without it; {launcher.record_path} holds at most the first 1234 messages"
+    gif = launcher.animation_path()
+    assert said in caplog.text and caplog.text.rstrip().endswith(f"no animation drawn (`cso-runtime animate {launcher.record_path} --out {gif}` draws one from it)"), caplog.text
+
+
+def test_a_gif_that_takes_too_long_once_the_run_stops_is_left_to_cso_runtime_animate(tmp_path, monkeypatch, caplog):
+    """``up --animate`` drew its GIF for as long as the recording took, also once ``down`` or Ctrl-C had asked the
+    run to stop: a long recording outlasted ``down``'s margin, and the launcher was killed mid-drawing, its services
+    and its run left to ``down``. Once stopping, the GIF gets ``ANIMATION_STOPPING_S`` more; beyond, the launcher
+    gives it up and says how to draw it. Without a stop it is drawn in full."""
+    from types import SimpleNamespace
+
+    from cso_runtime import launcher as launcher_module
+
+    launcher = _recording_launcher(tmp_path)
+    monkeypatch.setattr(launcher_module, "ANIMATION_STOPPING_S", 0.2)
+    gif = tmp_path / "run" / "animations" / "greedy-dist" / "s.gif"
+
+    def slow_gif(recording, out, robot=None, max_frames=200, robot_radius_m=0.1, progress=None):
+        """Reports its progress every 50 ms, for 10 s at most (then: drawn in full), a stop at 0.3 s."""
+        started_s = time.monotonic()
+        while time.monotonic() - started_s < 10.0:
+            if time.monotonic() - started_s > 0.3:
+                launcher.stop_event.set()
+            progress(1, None)
+            time.sleep(0.05)
+        assert out == gif
+        return SimpleNamespace(frames=3)
+
+    monkeypatch.setattr("cso_runtime.animation.animate_recording", slow_gif)
+    started_s = time.monotonic()
+    with caplog.at_level("INFO", logger="cso.launcher"):
+        launcher.write_animation()
+    assert time.monotonic() - started_s < 5.0, "drawn in full after the stop"
+    said = f"animation skipped: the run is stopping, and the GIF was not drawn within 0.2 s of that; `cso-runtime animate {launcher.record_path} --out {gif}` draws it"
+    assert said in caplog.text, caplog.text
+    launcher.stop_event.clear()
+
+    def gif_unstopped(recording, out, robot=None, max_frames=200, robot_radius_m=0.1, progress=None):
+        for _ in range(20):
+            progress(1, None)
+            time.sleep(0.05)  # 1 s, longer than ANIMATION_STOPPING_S: a run not stopping waits for its GIF
+        return SimpleNamespace(frames=3)
+
+    monkeypatch.setattr("cso_runtime.animation.animate_recording", gif_unstopped)
+    caplog.clear()
+    with caplog.at_level("INFO", logger="cso.launcher"):
+        launcher.write_animation()
+    assert f"animation in 3 frames: {gif}" in caplog.text, caplog.text
 
 
 @pytest.mark.parametrize(("name", "expected"), [("sim", "mujoco"), ("lockstep", "2d"), ("limo-ros2", None)])
@@ -2193,24 +2309,35 @@ def test_status_names_the_policy_a_profile_leaves_out_and_says_the_episode_waits
 def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_path):
     """A service whose process lives but does nothing (SIGSTOP stands in for a deadlock) would leave the
     episode waiting with every process up: the launcher notices it stopped answering its status query,
-    writes why, kills and restarts it, and the episode completes."""
+    writes why, kills and restarts it, and the episode completes.
+
+    What it waits for is this planner's kill and restart: its process replaced by another in the launcher's status.
+    It waited for counts (a hung kill and a restart) that an earlier kill of the planner on a loaded machine had
+    already reached, and found the planner it had just stopped alive."""
+    from cso_runtime.supervision import process_start_ticks, run_process_alive
+
     with detached_run(tmp_path, "--set", "supervision.hang_timeout_s=2", min_step_period_s=0.25, lockstep_timeout_s=0.5) as (runs, status):
         wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
-        planner_pid = status()["services"]["planner"]["pid"]
+        before = status()["services"]["planner"]
+        planner_pid, planner_ticks = before["pid"], process_start_ticks(before["pid"])
         os.kill(planner_pid, signal.SIGSTOP)
 
         def planner() -> dict | None:
             s = status()
             return s and s["services"]["planner"]
 
-        wait_for(lambda: (p := planner()) and p.get("hung_kills", 0) >= 1 and p["restarts"] >= 1, 30, "the hung planner to be killed and restarted")
-        assert not pid_alive(planner_pid)
+        after = wait_for(
+            lambda: (p := planner()) and p["pid"] != planner_pid and p.get("hung_kills", 0) > before.get("hung_kills", 0) and p,
+            30, f"the hung planner (pid {planner_pid}) to be killed and restarted",
+        )
+        assert after["restarts"] > before["restarts"] and not run_process_alive(planner_pid, planner_ticks), after
         final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2)
         assert final["state"] == "done" and final["terminated_by"] == "coverage", final
         launcher_log = next(runs.glob("*/logs/launcher.log")).read_text()
-        assert re.search(r"planner \(pid \d+\) runs but has not answered for \d+ s \(hung\? stopped\?\): killing it to restart it", launcher_log), launcher_log[-3000:]
+        assert re.search(rf"planner \(pid {planner_pid}\) runs but has not answered for \d+ s \(hung\? stopped\?\): killing it to restart it", launcher_log), launcher_log[-3000:]
+        hung = final["services"]["planner"]["hung_kills"]
         r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-        assert "1 of them hung" in " ".join(re.sub(r"[│┃]", " ", r.stdout).split()), r.stdout  # the table may wrap the row
+        assert f"{hung} of them hung" in " ".join(re.sub(r"[│┃]", " ", r.stdout).split()), r.stdout  # the table may wrap the row
 
 
 def test_a_killed_launchers_services_stop_at_once_and_each_log_says_why(tmp_path):
@@ -2352,6 +2479,37 @@ def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplo
             if c.proc is not None:
                 c.proc.kill()
                 c.proc.wait(timeout=30)
+
+
+def test_a_service_that_comes_up_after_hang_timeout_s_is_not_killed_as_hung(tmp_path):
+    """The hang check counted a service's silence from its start: one whose start took longer than
+    ``hang_timeout_s`` (a loaded machine, a slow import; ``start_timeout_s`` allows 60 s) was killed the moment its
+    liveliness token came, before the launcher's status watch had asked it even once, and counted as hung. The
+    silence counts from when it came up; one that then never answers is still killed."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), settings={"supervision.hang_timeout_s": 2.0})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    slow = Child("planner", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "planner.log")
+    launcher.children = [slow]
+    launcher.status_watch = SimpleNamespace(answered_s={}, resumed_s=-np.inf, behind=lambda now: False)  # asking, not answered yet
+    try:
+        slow.spawn()
+        launcher.kill_hung(slow.spawned_at + 4.0)  # still starting
+        launcher.alive_services = {"planner"}
+        came_up_s = slow.spawned_at + 5.0  # its token came 5 s after its start
+        launcher.kill_hung(came_up_s)
+        launcher.kill_hung(came_up_s + 1.5)
+        assert slow.alive and slow.hung_kills == 0
+        launcher.kill_hung(came_up_s + 2.5)  # up, and silent for longer than hang_timeout_s since
+        assert not slow.alive and slow.hung_kills == 1
+    finally:
+        slow.proc.kill()
+        slow.proc.wait(timeout=30)
 
 
 def test_a_killed_sim_restarts_the_episode_and_it_ends_as_a_fresh_one(tmp_path):
