@@ -584,6 +584,20 @@ class Launcher:
         )
         return self.run_dir
 
+    def write_outputs_or_say(self, result: EpisodeResultMsg) -> bool:
+        """``write_outputs``, or False with the file and the reason logged when one cannot be written (a full disk,
+        a run folder made read-only): the launcher then stops its services and ends as failed (exit code 1), never
+        with a traceback that skips their stop."""
+        try:
+            self.write_outputs(result)
+        except OSError as exc:
+            log.error(
+                "cannot write the episode's results: %s: %s; the run stops, its outputs in %s are incomplete",
+                exc.filename or self.run_dir, exc.strerror or exc, self.run_dir,
+            )  # fmt: skip
+            return False
+        return True
+
     def start_recorder(self) -> tuple[threading.Event, threading.Thread] | None:
         """Record the run from before the first service starts, on a session of its own: its link and
         receive thread are not shared with the launcher's callbacks, so a busy launcher cannot make the
@@ -731,18 +745,17 @@ class Launcher:
                             log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", st.state, st.step, self.status.step)
                             self.ended_status = None
                             continue
-                        if result is not None:
-                            self.write_outputs(result)
-                        else:
+                        written = result is not None and self.write_outputs_or_say(result)
+                        if result is None:
                             log.error("the episode is %s but its result never arrived: no summary.json was written", st.state)
                         self.outputs_written, self.episode_ended_at = True, time.time()
-                        self.exit_code = 0 if st.state == "done" and result is not None else 1
+                        self.exit_code = 0 if st.state == "done" and written else 1
                         self.write_run_file(st.state)
                         # The recording ends with the episode: a detached run's file is finished (and its GIF
                         # drawn) now, not only at `down`.
                         self.finish_recording(recorder)
                         recorder = None
-                        if not stay_after_done:
+                        if not stay_after_done or (result is not None and not written):  # nothing to stay for
                             break
                     referee = [c for c in self.children if c.name in REFEREES]
                     if referee and all(c.gave_up for c in referee):

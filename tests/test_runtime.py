@@ -1179,6 +1179,36 @@ def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
     assert got is not None and got.steps == 10 and got.terminated_by == "no_frontier" and asked == []
 
 
+@pytest.mark.parametrize("stay_after_done", [False, True])
+def test_a_full_disk_at_the_episodes_end_is_said_and_the_run_stops_cleanly(tmp_path, monkeypatch, caplog, stay_after_done):
+    """The episode ended, and its summary.json cannot be written (ENOSPC): the launcher raised out of its loop with a
+    traceback. It says which file and why, stops its services, leaves run.json as a failed run and exits 1 (README's
+    exit codes: ran but did not succeed), a detached run (``stay_after_done``) too: it has nothing left to stay for."""
+    import errno
+
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "runs" / "run")
+    summary = launcher.run_dir / "summary.json"
+
+    def full_disk(*args: Any, **kwargs: Any) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(summary))
+
+    monkeypatch.setattr(launcher_module, "write_episode_outputs", full_disk)
+    monkeypatch.setattr(Child, "spawn", lambda self: None)  # no service processes: the episode below has ended
+    launcher.status = EpisodeStatusMsg(state="done", step=10, scene="s", method="greedy-dist", episode=1)
+    launcher.result = _fake_result()
+    with caplog.at_level("ERROR", logger="cso.launcher"):
+        assert launcher.run(stay_after_done=stay_after_done) == 1
+    assert f"cannot write the episode's results: {summary}: No space left on device" in caplog.text, caplog.text
+    info = json.loads((launcher.run_dir / "run.json").read_text())
+    assert info["state"] == "stopped" and info["exit_code"] == 1 and info["outcome"] == "failed"
+
+
 def _fake_result(method: str = "greedy-dist", steps: int = 10):
     from cso_runtime.messages import EpisodeResultMsg
 
