@@ -238,6 +238,11 @@ class Launcher:
         """The launcher's Zenoh session while it runs (``stop_robot`` sends on it)."""
         self.run_file_unwritten = False
         """The last write of the run file failed (a full disk): said once, until a write works again."""
+        self.router_lost_at: float | None = None
+        """``time.monotonic()`` when the launcher's session lost its route to the router it joined (``--connect``,
+        ``router.embedded: false``), while it is lost (``router_is_reachable``)."""
+        self.router_back_s = -np.inf
+        """``time.monotonic()`` when that router came back: no service's silence counts from before."""
 
     # --- files ------------------------------------------------------------------------------------
     @property
@@ -257,6 +262,7 @@ class Launcher:
             "started_at": round(self.started_at, 3),
             **({"outcome": self.outcome(), "exit_code": self.exit_code, "ended_at": round(time.time(), 3)} if state == "stopped" else {}),
             **({"episode_ended_at": round(self.episode_ended_at, 3)} if self.episode_ended_at is not None else {}),
+            **({"lost_router": self.joined_router()} if self.router_lost_at is not None else {}),
             "services": {
                 c.name: {
                     "pid": c.proc.pid if c.proc else None,
@@ -449,7 +455,9 @@ class Launcher:
         # check waits for the watch to ask again, and counts from then.
         if watch is not None and watch.behind(now):
             return
-        resumed_s = watch.resumed_s if watch is not None else -np.inf
+        if not self.router_is_reachable(now):  # every service is silent at once, and none of them is to blame
+            return
+        resumed_s = max(watch.resumed_s if watch is not None else -np.inf, self.router_back_s)
         for c in self.children:
             if c.gave_up or not c.alive or c.proc is None:
                 continue
@@ -472,6 +480,34 @@ class Launcher:
             except subprocess.TimeoutExpired:
                 log.error("%s (pid %d) survived SIGKILL", c.name, c.proc.pid)
             c.hung_kills += 1
+
+    def joined_router(self) -> str:
+        """The router(s) this run joined instead of opening its own (``router.embedded: false``)."""
+        return ", ".join(self.profile.router.connect)
+
+    def router_is_reachable(self, now: float) -> bool:
+        """Whether the launcher's session still has a route to the router it joined (always, with its own router).
+        When that router dies (the robot's bridge), every service goes silent at once: the launcher says it lost
+        the router, in its log and run.json (``lost_router``, which ``status`` quotes), and kills no service as hung
+        until the router is back, then counts their silence from then."""
+        if self.profile.router.embedded or self.session is None:
+            return True
+        try:
+            reachable = bool(list(self.session.info.routers_zid()))
+        except zenoh.ZError:  # the session closing at the end of the run
+            return True
+        if not reachable and self.router_lost_at is None:
+            self.router_lost_at = now
+            log.error(
+                "lost the router at %s (the launcher's Zenoh session has no route to it): its services cannot be reached; "
+                "none is killed as hung until it is back (is the robot or its zenoh bridge down?)", self.joined_router(),
+            )  # fmt: skip
+            self.write_run_file("running")
+        elif reachable and self.router_lost_at is not None:
+            log.warning("the router at %s is back after %.0f s", self.joined_router(), now - self.router_lost_at)
+            self.router_lost_at, self.router_back_s = None, now
+            self.write_run_file("running")
+        return reachable
 
     def supervise(self, now: float | None = None) -> None:
         """Restart the services that exited (after their back-off), or give up on them; ``now``: the launcher's

@@ -2332,6 +2332,53 @@ def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
         assert "but the episode goes on" in next(runs.glob("*/logs/launcher.log")).read_text()
 
 
+def test_a_lost_external_router_is_named_and_no_service_is_killed_as_hung_for_it(tmp_path, caplog, capsys):
+    """A run that joined a router (``--connect``, ``router.embedded: false``) whose router died: every service went
+    silent at once and the launcher killed each one as "hung? stopped?", never naming the cause. Its session has no
+    route to the router: it says it lost the router at ENDPOINT (log, run.json, ``status``), kills none, and once the
+    router is back counts their silence from then."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    endpoint = loopback_endpoint(free_tcp_port())  # nothing listens there: `status` gets no answer
+    profile, data = load_profile(str(find_profile("lockstep")), {}, connect=[endpoint], settings={"router.embedded": False})
+    launcher = Launcher(profile, data, tmp_path / "runs" / "run")
+    launcher.endpoints = [endpoint]
+    launcher.run_dir.mkdir(parents=True)
+    routers: list[str] = []
+    launcher.session = SimpleNamespace(info=SimpleNamespace(routers_zid=lambda: list(routers)))
+    planner = Child("planner", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "planner.log")
+    launcher.children = [planner]
+    launcher.alive_services = {"planner"}
+    hang_s = profile.supervision.hang_timeout_s
+    try:
+        planner.spawn()
+        launcher.status_watch = SimpleNamespace(answered_s={"planner": planner.spawned_at}, resumed_s=-np.inf, behind=lambda now: False)
+        with caplog.at_level("WARNING", logger="cso.launcher"):
+            launcher.kill_hung(planner.spawned_at + hang_s + 10.0)
+            assert planner.alive and planner.hung_kills == 0, caplog.text
+            assert f"lost the router at {endpoint}" in caplog.text and "hung?" not in caplog.text, caplog.text
+            assert json.loads((launcher.run_dir / "run.json").read_text())["lost_router"] == endpoint
+            assert status_main([], None, True, False, tmp_path / "runs") == 1
+            said = json.loads(capsys.readouterr().out)
+            assert f"launcher lost the router at {endpoint}" in said["reason"], said
+            routers.append("zid")  # back: the services' silence counts from now
+            back_s = planner.spawned_at + hang_s + 20.0
+            launcher.kill_hung(back_s)
+            assert f"the router at {endpoint} is back after 10 s" in caplog.text and "lost_router" not in json.loads((launcher.run_dir / "run.json").read_text())
+            launcher.kill_hung(back_s + hang_s - 0.5)
+            assert planner.alive and planner.hung_kills == 0
+            launcher.kill_hung(back_s + hang_s + 0.5)
+            assert not planner.alive and planner.hung_kills == 1  # silent with the router there: hung
+    finally:
+        if planner.proc is not None:
+            planner.proc.kill()
+            planner.proc.wait(timeout=30)
+
+
 def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplog):
     """A service process that hangs before it declares its liveliness token (a deadlock in an import or the
     warm-up) would show as starting for ever: after ``supervision.start_timeout_s`` it is killed like a hung
