@@ -278,6 +278,11 @@ class Launcher:
         """The launcher's Zenoh session while it runs (``stop_robot`` sends on it)."""
         self.run_file_unwritten = False
         """The last write of the run file failed (a full disk): said once, until a write works again."""
+        self.router_lost_at: float | None = None
+        """``time.monotonic()`` when the launcher's session lost its route to the router it joined (``--connect``,
+        ``router.embedded: false``), while it is lost (``router_is_reachable``)."""
+        self.router_back_s = -np.inf
+        """``time.monotonic()`` when that router came back: no service's silence counts from before."""
 
     # --- files ------------------------------------------------------------------------------------
     @property
@@ -297,6 +302,7 @@ class Launcher:
             "started_at": round(self.started_at, 3),
             **({"outcome": self.outcome(), "exit_code": self.exit_code, "ended_at": round(time.time(), 3)} if state == "stopped" else {}),
             **({"episode_ended_at": round(self.episode_ended_at, 3)} if self.episode_ended_at is not None else {}),
+            **({"lost_router": self.joined_router()} if self.router_lost_at is not None else {}),
             "services": {
                 c.name: {
                     "pid": c.proc.pid if c.proc else None,
@@ -489,7 +495,9 @@ class Launcher:
         # check waits for the watch to ask again, and counts from then.
         if watch is not None and watch.behind(now):
             return
-        resumed_s = watch.resumed_s if watch is not None else -np.inf
+        if not self.router_is_reachable(now):  # every service is silent at once, and none of them is to blame
+            return
+        resumed_s = max(watch.resumed_s if watch is not None else -np.inf, self.router_back_s)
         for c in self.children:
             if c.gave_up or not c.alive or c.proc is None:
                 continue
@@ -515,6 +523,34 @@ class Launcher:
             except subprocess.TimeoutExpired:
                 log.error("%s (pid %d) survived SIGKILL", c.name, c.proc.pid)
             c.hung_kills += 1
+
+    def joined_router(self) -> str:
+        """The router(s) this run joined instead of opening its own (``router.embedded: false``)."""
+        return ", ".join(self.profile.router.connect)
+
+    def router_is_reachable(self, now: float) -> bool:
+        """Whether the launcher's session still has a route to the router it joined (always, with its own router).
+        When that router dies (the robot's bridge), every service goes silent at once: the launcher says it lost
+        the router, in its log and run.json (``lost_router``, which ``status`` quotes), and kills no service as hung
+        until the router is back, then counts their silence from then."""
+        if self.profile.router.embedded or self.session is None:
+            return True
+        try:
+            reachable = bool(list(self.session.info.routers_zid()))
+        except zenoh.ZError:  # the session closing at the end of the run
+            return True
+        if not reachable and self.router_lost_at is None:
+            self.router_lost_at = now
+            log.error(
+                "lost the router at %s (the launcher's Zenoh session has no route to it): its services cannot be reached; "
+                "none is killed as hung until it is back (is the robot or its zenoh bridge down?)", self.joined_router(),
+            )  # fmt: skip
+            self.write_run_file("running")
+        elif reachable and self.router_lost_at is not None:
+            log.warning("the router at %s is back after %.0f s", self.joined_router(), now - self.router_lost_at)
+            self.router_lost_at, self.router_back_s = None, now
+            self.write_run_file("running")
+        return reachable
 
     def supervise(self, now: float | None = None) -> None:
         """Restart the services that exited (after their back-off), or give up on them; ``now``: the launcher's
@@ -626,6 +662,20 @@ class Launcher:
             row["efficiency_m2_per_step"], row["path_length_m"], row["decisions"], self.run_dir,
         )
         return self.run_dir
+
+    def write_outputs_or_say(self, result: EpisodeResultMsg) -> bool:
+        """``write_outputs``, or False with the file and the reason logged when one cannot be written (a full disk,
+        a run folder made read-only): the launcher then stops its services and ends as failed (exit code 1), never
+        with a traceback that skips their stop."""
+        try:
+            self.write_outputs(result)
+        except OSError as exc:
+            log.error(
+                "cannot write the episode's results: %s: %s; the run stops, its outputs in %s are incomplete",
+                exc.filename or self.run_dir, exc.strerror or exc, self.run_dir,
+            )  # fmt: skip
+            return False
+        return True
 
     def start_recorder(self) -> Recorder | None:
         """Record the run from before the first service starts, on a session of its own: its link and
@@ -814,18 +864,17 @@ class Launcher:
                             log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", st.state, st.step, self.status.step)
                             self.ended_status = None
                             continue
-                        if result is not None:
-                            self.write_outputs(result)
-                        else:
+                        written = result is not None and self.write_outputs_or_say(result)
+                        if result is None:
                             log.error("the episode is %s but its result never arrived: no summary.json was written", st.state)
                         self.outputs_written, self.episode_ended_at = True, time.time()
-                        self.exit_code = 0 if st.state == "done" and result is not None else 1
+                        self.exit_code = 0 if st.state == "done" and written else 1
                         self.write_run_file(st.state)
                         # The recording ends with the episode: a detached run's file is finished (and its GIF
                         # drawn) now, not only at `down`.
                         self.finish_recording(recorder)
                         recorder = None
-                        if not stay_after_done:
+                        if not stay_after_done or (result is not None and not written):  # nothing to stay for
                             break
                     referee = [c for c in self.children if c.name in REFEREES]
                     if referee and all(c.gave_up for c in referee):

@@ -186,6 +186,14 @@ def stopped_launcher_of_run(info: dict[str, Any] | None) -> str | None:
     )
 
 
+def lost_router_of_run(info: dict[str, Any] | None) -> str | None:
+    """Why the current run does not answer when its launcher lost the router it joined (the robot's bridge down):
+    the launcher's run file says so (``lost_router``); None otherwise."""
+    if info is None or not info.get("lost_router"):
+        return None
+    return f"run {info.get('run_id')}'s launcher lost the router at {info['lost_router']} (is the robot or its zenoh bridge down?)"
+
+
 NOT_RUNNING = "not running"
 """``status --json``'s state when nothing answers (beside starting, exploring, done, failed), so a script that
 reads the JSON gets JSON then too."""
@@ -325,8 +333,9 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                     live.stop()  # the last table stays; the line below goes under it
                 from cso_runtime.current_run import read_current_run  # noqa: PLC0415
 
-                stopped = None if given_connect else stopped_launcher_of_run(read_current_run(runs_dir))
-                return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}" + (f"; {stopped}" if stopped else ""), as_json)
+                info = None if given_connect else read_current_run(runs_dir)
+                why = stopped_launcher_of_run(info) or lost_router_of_run(info)
+                return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}" + (f"; {why}" if why else ""), as_json)
             if as_json:
                 print(json.dumps(status), flush=True)
             elif in_place and live is None:

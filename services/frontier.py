@@ -130,6 +130,8 @@ class FrontierService(Service):
         """The step of a decision whose goal has not arrived yet (lockstep: the next step waits for it)."""
         self.awaiting_since_s = 0.0
         self.decision_step = 0
+        self.asked_step = -1
+        """The newest step this service asked the policy to decide (``decide: true``): a goal is only ever its answer."""
         self.dead: np.ndarray | None = None
         self.path_nodes: list[tuple[float, float]] = []
         self.done_step = -1
@@ -153,6 +155,10 @@ class FrontierService(Service):
             log.info("new episode %d (%s of step %d): forgetting the decision state", self.episodes.current, topic, step)
             self.reset_episode()
         if isinstance(msg, GoalMsg):
+            if msg.decided and step > self.asked_step:  # a goal for a step no decision asked for: forged or malformed
+                why = f"a goal decided for step {step}, but no decision was asked for it (the last was asked at step {self.asked_step})"
+                self.reject(topic, why, robot)
+                return
             if msg.decided and step >= self.decision_step:
                 self.goal = Goal(msg.x_m, msg.y_m, msg.cluster_index, msg.distance_m) if msg.has_goal else None
                 self.decision_step = step
@@ -240,7 +246,7 @@ class FrontierService(Service):
             obs = self.builder.build(occupancy, odom.pose, np.array(self.path_nodes), exclude_frontier=self.dead, layer=self.layer_beside_d(occupancy, self.dead))
             self.decisions_built += 1
             out = frontiers_from_observation(k, reason, obs, (time.perf_counter() - t0) * 1e3, episode)
-            self.awaiting_goal_step, self.awaiting_since_s = k, time.monotonic()
+            self.awaiting_goal_step, self.awaiting_since_s, self.asked_step = k, time.monotonic(), k
         self.last_out = out
         self.publish("frontiers", out)
         if out.decide:

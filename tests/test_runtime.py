@@ -1206,6 +1206,36 @@ def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
     assert got is not None and got.steps == 10 and got.terminated_by == "no_frontier" and asked == []
 
 
+@pytest.mark.parametrize("stay_after_done", [False, True])
+def test_a_full_disk_at_the_episodes_end_is_said_and_the_run_stops_cleanly(tmp_path, monkeypatch, caplog, stay_after_done):
+    """The episode ended, and its summary.json cannot be written (ENOSPC): the launcher raised out of its loop with a
+    traceback. It says which file and why, stops its services, leaves run.json as a failed run and exits 1 (README's
+    exit codes: ran but did not succeed), a detached run (``stay_after_done``) too: it has nothing left to stay for."""
+    import errno
+
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "runs" / "run")
+    summary = launcher.run_dir / "summary.json"
+
+    def full_disk(*args: Any, **kwargs: Any) -> None:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(summary))
+
+    monkeypatch.setattr(launcher_module, "write_episode_outputs", full_disk)
+    monkeypatch.setattr(Child, "spawn", lambda self: None)  # no service processes: the episode below has ended
+    launcher.status = EpisodeStatusMsg(state="done", step=10, scene="s", method="greedy-dist", episode=1)
+    launcher.result = _fake_result()
+    with caplog.at_level("ERROR", logger="cso.launcher"):
+        assert launcher.run(stay_after_done=stay_after_done) == 1
+    assert f"cannot write the episode's results: {summary}: No space left on device" in caplog.text, caplog.text
+    info = json.loads((launcher.run_dir / "run.json").read_text())
+    assert info["state"] == "stopped" and info["exit_code"] == 1 and info["outcome"] == "failed"
+
+
 def _fake_result(method: str = "greedy-dist", steps: int = 10):
     from cso_runtime.messages import EpisodeResultMsg
 
@@ -2427,6 +2457,53 @@ def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
         assert final["state"] == "done" and final["step"] > s["step"] + 2, final
         wait_for(lambda: list(runs.glob("*/summary.json")), 20, "summary.json")
         assert "but the episode goes on" in next(runs.glob("*/logs/launcher.log")).read_text()
+
+
+def test_a_lost_external_router_is_named_and_no_service_is_killed_as_hung_for_it(tmp_path, caplog, capsys):
+    """A run that joined a router (``--connect``, ``router.embedded: false``) whose router died: every service went
+    silent at once and the launcher killed each one as "hung? stopped?", never naming the cause. Its session has no
+    route to the router: it says it lost the router at ENDPOINT (log, run.json, ``status``), kills none, and once the
+    router is back counts their silence from then."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    endpoint = loopback_endpoint(free_tcp_port())  # nothing listens there: `status` gets no answer
+    profile, data = load_profile(str(find_profile("lockstep")), {}, connect=[endpoint], settings={"router.embedded": False})
+    launcher = Launcher(profile, data, tmp_path / "runs" / "run")
+    launcher.endpoints = [endpoint]
+    launcher.run_dir.mkdir(parents=True)
+    routers: list[str] = []
+    launcher.session = SimpleNamespace(info=SimpleNamespace(routers_zid=lambda: list(routers)))
+    planner = Child("planner", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "planner.log")
+    launcher.children = [planner]
+    launcher.alive_services = {"planner"}
+    hang_s = profile.supervision.hang_timeout_s
+    try:
+        planner.spawn()
+        launcher.status_watch = SimpleNamespace(answered_s={"planner": planner.spawned_at}, resumed_s=-np.inf, behind=lambda now: False)
+        with caplog.at_level("WARNING", logger="cso.launcher"):
+            launcher.kill_hung(planner.spawned_at + hang_s + 10.0)
+            assert planner.alive and planner.hung_kills == 0, caplog.text
+            assert f"lost the router at {endpoint}" in caplog.text and "hung?" not in caplog.text, caplog.text
+            assert json.loads((launcher.run_dir / "run.json").read_text())["lost_router"] == endpoint
+            assert status_main([], None, True, False, tmp_path / "runs") == 1
+            said = json.loads(capsys.readouterr().out)
+            assert f"launcher lost the router at {endpoint}" in said["reason"], said
+            routers.append("zid")  # back: the services' silence counts from now
+            back_s = planner.spawned_at + hang_s + 20.0
+            launcher.kill_hung(back_s)
+            assert f"the router at {endpoint} is back after 10 s" in caplog.text and "lost_router" not in json.loads((launcher.run_dir / "run.json").read_text())
+            launcher.kill_hung(back_s + hang_s - 0.5)
+            assert planner.alive and planner.hung_kills == 0
+            launcher.kill_hung(back_s + hang_s + 0.5)
+            assert not planner.alive and planner.hung_kills == 1  # silent with the router there: hung
+    finally:
+        if planner.proc is not None:
+            planner.proc.kill()
+            planner.proc.wait(timeout=30)
 
 
 def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplog):

@@ -1435,3 +1435,25 @@ def test_frontier_service_rejects_a_map_of_another_grid_within_an_episode():
         got = [m for t, m in out if t == "frontiers"]
         assert [m.step for m in got] == [0, 1] and got[1].reason != "no_goal", got
         assert _without_timing(got) == _without_timing([m for t, m in fresh_out if t == "frontiers"])
+
+
+def test_a_goal_for_a_step_no_decision_asked_for_is_rejected_not_followed():
+    """Lockstep: a forged decided goal for a future step became the frontier service's decision; the planner's
+    reports (about the real goal) then never matched it, and the episode stalled until ``lockstep_give_up_s`` with
+    nothing naming the goal. A goal only ever answers a decision this service asked for: any other is rejected,
+    counted, and the episode goes on."""
+    ex = _explorer_at(0)
+    svc, out = _service(FrontierService, lockstep=True)
+    map0, odom0, _ = _inputs(ex, 0)
+    _feed(svc, map0)
+    _feed(svc, odom0)
+    assert [(m.step, m.decide) for t, m in out if t == "frontiers"] == [(0, True)]
+    _feed(svc, _far_goal(ex.observe(), 0))  # the policy's answer
+    _feed(svc, _far_goal(ex.observe(), 2))  # forged: step 2, which no decision asked for
+    ex.advance()
+    map1, odom1, _ = _inputs(ex, 1)
+    _feed(svc, PlannerFeedbackMsg(0, "following", "command", goal_step=0))
+    _feed(svc, odom1)
+    _feed(svc, map1)
+    assert [m.step for t, m in out if t == "frontiers"] == [0, 1] and svc.done_step == 1
+    assert svc.rejected == {"goal": 1}
