@@ -247,12 +247,25 @@ def pose_stamped_to_cdr(x_m: float, y_m: float, yaw_rad: float, stamp_s: float, 
     return encode(t[POSE_STAMPED](header=header_msg(stamp_s, frame_id), pose=pose), POSE_STAMPED)
 
 
+def _segment_headings(xy: np.ndarray) -> np.ndarray:
+    """The heading (rad) of each step of a polyline; a step of no length (a repeated point) keeps the heading of the
+    step before it (the first ones, of the step after), not atan2(0, 0) = 0; all 0 when no step has a length."""
+    d = np.diff(xy, axis=0)
+    moved = np.hypot(d[:, 0], d[:, 1]) > 0
+    if not moved.any():
+        return np.zeros(len(d))
+    last_move = np.maximum.accumulate(np.where(moved, np.arange(len(d)), -1))
+    return np.arctan2(d[:, 1], d[:, 0])[np.where(last_move >= 0, last_move, int(np.argmax(moved)))]
+
+
 def path_to_cdr(path_xy_m: np.ndarray, stamp_s: float, frame_id: str = "map") -> bytes:
-    """A planned path (n x 2 metres, robot first) -> nav_msgs/Path CDR, each pose facing the next point."""
+    """A planned path (n x 2 metres, robot first) -> nav_msgs/Path CDR, each pose facing the next point (the last
+    one as the one before it)."""
     t = _types()
     xy = np.asarray(path_xy_m, dtype=float).reshape(-1, 2)
-    headings = np.arctan2(np.diff(xy[:, 1]), np.diff(xy[:, 0])) if len(xy) > 1 else np.zeros(len(xy))
-    yaws = np.append(headings, headings[-1]) if len(xy) > 1 else headings
+    yaws = np.append(_segment_headings(xy), 0.0)[: len(xy)]
+    if len(xy) > 1:
+        yaws[-1] = yaws[-2]
     poses = [
         t[POSE_STAMPED](
             header=header_msg(stamp_s, frame_id),

@@ -131,3 +131,16 @@ def test_garbage_is_a_clear_error():
 def test_stamps_round_to_the_nearest_nanosecond_and_carry_into_seconds(stamp_s, sec, nanosec):
     stamp = cdr.time_msg(stamp_s)
     assert (stamp.sec, stamp.nanosec) == (sec, nanosec)
+
+
+def test_path_poses_face_along_the_path_even_across_a_repeated_point():
+    """nav_msgs/Path: each pose faces the next point (REP-103 yaw, counter-clockwise from +x). A point repeated (a
+    path of one cell, the goal on the last cell's centre) has no direction of its own: it keeps the heading of the
+    way it is on, never a spurious yaw 0 (RViz's arrows, a controller that reads the poses' yaw)."""
+    path = np.array([[0.0, 0.0], [0.0, 1.0], [0.0, 1.0], [-1.0, 1.0], [-1.0, 1.0]])
+    msg = cdr.decode(cdr.path_to_cdr(path, 1.0, "map"), cdr.PATH)
+    yaws = [cdr.yaw_from_quaternion(p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w) for p in msg.poses]
+    assert np.allclose(yaws, [math.pi / 2, math.pi / 2, math.pi, math.pi, math.pi])
+    assert msg.header.frame_id == "map" and all(p.header.frame_id == "map" for p in msg.poses)
+    still = cdr.decode(cdr.path_to_cdr(np.array([[2.0, 3.0], [2.0, 3.0]]), 1.0), cdr.PATH)
+    assert [p.pose.orientation.w for p in still.poses] == [1.0, 1.0]  # no direction at all: the identity
