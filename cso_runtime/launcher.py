@@ -226,6 +226,8 @@ class Launcher:
         self.children: list[Child] = []
         self.endpoints: list[str] = []
         self.status: EpisodeStatusMsg | None = None
+        self.status_heard_at_s = 0.0
+        """``time.monotonic()`` when ``status`` came: its age in the launcher's status."""
         self.alive_services: set[str] = set()
         self.left_out = profile.left_out_services()
         """The services this run leaves to other processes (``up --without``, or needed and not in the profile)."""
@@ -388,7 +390,7 @@ class Launcher:
                 log.warning("rejected payload on %s: %s", key, exc)
             return
         if isinstance(msg, EpisodeStatusMsg):
-            self.status = msg
+            self.status, self.status_heard_at_s = msg, time.monotonic()
             if msg.state != "starting":  # the sim waits for the services before step 0: not its pace
                 self.pace.observe(msg.episode, msg.step, time.monotonic())
         elif isinstance(msg, EpisodeResultMsg):
@@ -437,7 +439,9 @@ class Launcher:
         with self._lock:
             rejected, handler_errors = dict(self.rejected), dict(self.handler_errors)
         state = "stopping" if self.stop_event.is_set() else "running"
-        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors)
+        heard = self.status
+        last = None if heard is None else {"state": heard.state, "step": heard.step, "episode": heard.episode, "age_s": round(time.monotonic() - self.status_heard_at_s, 3)}
+        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last)
 
     # --- supervision ------------------------------------------------------------------------------
     def stop_robot(self, c: Child, code: int | None) -> None:

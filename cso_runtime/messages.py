@@ -1098,9 +1098,16 @@ class LauncherStatusMsg(Message):
     services: dict[str, dict[str, Any]] = field(default_factory=dict)
     rejected: dict[str, int] = field(default_factory=dict)
     handler_errors: dict[str, int] = field(default_factory=dict)
+    last_episode: dict[str, Any] | None = None
+    """The last episode status the launcher heard (``state``, ``step``, ``episode``) and ``age_s``, the seconds
+    since: what ``status`` says when the sim does not answer (stopped, hung) instead of "starting". Optional on
+    decoding (older launchers do not send it); None before the first."""
 
     def body(self) -> dict[str, Any]:
-        return {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected, "handler_errors": self.handler_errors}
+        body = {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected, "handler_errors": self.handler_errors}
+        if self.last_episode is not None:
+            body["last_episode"] = self.last_episode
+        return body
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> LauncherStatusMsg:
@@ -1120,7 +1127,13 @@ class LauncherStatusMsg(Message):
                     raise MessageError(f"launcher_status.services.{name}.{key}: expected {'true or false' if kind is bool else 'a count'}, got {value!r}")
                 checked[name][key] = value
         services = checked
-        return cls(_str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True))
+        last = b.get("last_episode")
+        if last is not None:
+            if not isinstance(last, dict):
+                raise MessageError("launcher_status.last_episode: expected a mapping")
+            lw = "launcher_status.last_episode"
+            last = {"state": _str(last, "state", lw, max_len=64), "step": _int(last, "step", lw), "episode": _int(last, "episode", lw), "age_s": _num(last, "age_s", lw, lo=0.0)}
+        return cls(_str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last)
 
     def to_dict(self) -> dict[str, Any]:
         return self.body()

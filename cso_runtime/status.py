@@ -119,7 +119,7 @@ def status_of(
             entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
             entry["robot_stops"] = lsv.get("robot_stops", 0)
         table[name] = entry
-    ep = episode or {"state": "starting"}
+    ep, age_s = episode_or_last_heard(episode, launcher)
     over = ep.get("state") in EPISODE_OVER
     return {
         "robot": robot,
@@ -142,7 +142,30 @@ def status_of(
         "waiting_for": [] if over else [name for name, e in table.items() if e.get("awaited") and not e["alive"]],
         "launcher_rejected": (launcher or {}).get("rejected", {}),
         "launcher_handler_errors": (launcher or {}).get("handler_errors", {}),
+        "status_age_s": age_s,
     }
+
+
+STALE = "stale"
+"""``status``'s state when the sim does not answer but the launcher heard an episode status from it before
+(the sim stopped by SIGSTOP, hung, or gone): the episode is not known to go on; the reason gives the age."""
+
+
+def episode_or_last_heard(episode: dict[str, Any] | None, launcher: dict[str, Any] | None) -> tuple[dict[str, Any], float | None]:
+    """The episode's status to show and its age in seconds (None: fresh, the sim answered). Without the sim's
+    answer, the last status the launcher heard (``last_episode``): "starting" only when none was ever heard, else
+    ``stale`` with the last state, step and age in the reason (an episode that was over stays over)."""
+    if episode is not None:
+        return episode, None
+    last = (launcher or {}).get("last_episode")
+    if last is None:
+        return {"state": "starting"}, None
+    age_s = float(last["age_s"])
+    heard = {"step": last["step"], "episode": last["episode"]}
+    if last["state"] in EPISODE_OVER:
+        return {**heard, "state": last["state"]}, age_s
+    why = f"the sim does not answer; its last episode status, {age_s:.1f} s ago, said {last['state']} at step {last['step']}"
+    return {**heard, "state": STALE, "reason": why}, age_s
 
 
 def endpoints_from_run_file(runs_dir: Path) -> tuple[list[str], str | None]:
@@ -195,7 +218,7 @@ def lost_router_of_run(info: dict[str, Any] | None) -> str | None:
 
 
 NOT_RUNNING = "not running"
-"""``status --json``'s state when nothing answers (beside starting, exploring, done, failed), so a script that
+"""``status --json``'s state when nothing answers (beside starting, exploring, done, failed and stale), so a script that
 reads the JSON gets JSON then too."""
 
 

@@ -101,6 +101,7 @@ def test_scan_round_trip_keeps_inf_and_values():
         ServiceStatusMsg("ros2_bridge", "r0", "running", 12, "", {}, 40, {"received:scan": 41, "sent:cmd_vel": 39, "watchdog_stops": 1}),
         LauncherStatusMsg("run1", "running", {"sim": {"pid": 12, "restarts": 0}}, {"path": 1}),
         LauncherStatusMsg("run1", "running", {"ros2_bridge": {"pid": 12, "restarts": 1, "robot_stops": 1}}),
+        LauncherStatusMsg("run1", "running", last_episode={"state": "exploring", "step": 41, "episode": 7, "age_s": 12.5}),
     ],
 )
 def test_small_messages_round_trip(msg):
@@ -473,6 +474,9 @@ def _mutate(msg, **changes) -> bytes:
         _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"gave_up": 1}}),
         _mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"restarts": -1}}),
         _mutate(LauncherStatusMsg("run1", "running"), services={"ros2_bridge": {"robot_stops": -1}}),
+        _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "exploring", "step": 41, "episode": 7, "age_s": -1.0}),
+        _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "exploring", "step": 41}),
+        _mutate(LauncherStatusMsg("run1", "running"), last_episode=[1]),
     ],
 )
 def test_out_of_range_and_non_finite_fields_are_rejected(payload):

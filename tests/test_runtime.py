@@ -1551,6 +1551,49 @@ def test_a_launcher_callback_that_raises_is_logged_and_counted_in_the_status(tmp
     assert re.search(r"│ launcher +│ rejected 1, 2 callback errors \(see its log\) +│", console.export_text()), console.export_text()
 
 
+def test_status_says_the_episode_is_stale_not_starting_when_the_sim_stops_answering(tmp_path, monkeypatch):
+    """A sim stopped (SIGSTOP) or hung mid-episode answers no episode-status query; ``status`` showed "starting,
+    step 0" then. The launcher's status carries the last episode status it heard and its age, and ``status``
+    says the episode is stale: the last state and step, and how many seconds ago. Before any: starting."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.status import render_table, status_of
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    now_s = [100.0]
+    monkeypatch.setattr(launcher_module, "time", SimpleNamespace(monotonic=lambda: now_s[0]))  # the launcher's clock only
+
+    def status_without_the_sim() -> tuple[dict, str]:
+        msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it
+        assert isinstance(msg, LauncherStatusMsg)
+        status = status_of("r0", None, msg.to_dict(), {}, {"mapper", "frontier", "policy", "planner"})
+        console = Console(record=True, width=200)
+        console.print(render_table(status))
+        return status, console.export_text()
+
+    status, text = status_without_the_sim()  # nothing heard yet: the sim is starting
+    assert (status["state"], status["step"], status.get("status_age_s")) == ("starting", 0, None)
+    episode = EpisodeStatusMsg("exploring", 41, scene="s", method="cso", episode=7)
+    launcher._on_sample(SimpleNamespace(key_expr=launcher.keys.topic("episode_status"), payload=SimpleNamespace(to_bytes=lambda: encode(episode))))
+    now_s[0] += 12.5  # then the sim froze
+    status, text = status_without_the_sim()
+    assert (status["state"], status["step"], status["episode"], status["status_age_s"]) == ("stale", 41, 7, 12.5)
+    assert re.search(r"state +│ stale: the sim does not answer; its last episode status, 12\.5 s ago, said exploring at step 41", text), text
+    assert re.search(r"step +│ 41 ", text) and "starting" not in text, text
+    done = EpisodeStatusMsg("done", 90, terminated_by="coverage", episode=7)
+    launcher._on_sample(SimpleNamespace(key_expr=launcher.keys.topic("episode_status"), payload=SimpleNamespace(to_bytes=lambda: encode(done))))
+    now_s[0] += 3.0  # an episode over stays over when the sim has gone
+    status, _ = status_without_the_sim()
+    assert (status["state"], status["step"], status["status_age_s"]) == ("done", 90, 3.0)
+
+
 def test_log_lines_during_the_live_view_print_above_the_table_not_inside_it(tmp_path):
     """On a terminal the launcher's log lines (a restart, the episode's end) go through the live display, which
     prints them on lines of their own above the table; afterwards the handler writes to stderr again."""
