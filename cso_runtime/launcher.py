@@ -68,7 +68,7 @@ from cso_runtime.supervision import (
     signal_group,
     stop_children,
 )
-from cso_runtime.transport import TransportConfig, TransportError, open_router, open_session, track_liveliness
+from cso_runtime.transport import LISTEN_IN_USE, TransportConfig, TransportError, open_router, open_session, track_liveliness
 
 if TYPE_CHECKING:
     from cso_runtime.recording import RecordStats
@@ -982,12 +982,23 @@ def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> 
             return EXIT_BAD_CONFIG
         return launcher.run(live=live, stay_after_done=stay_after_done)
     except TransportError as exc:  # the router to join (a robot's) is down, or a listen port is taken
-        log.error("%s; no service was started (is the router to join running and reachable?)", exc)
+        log.error("%s; no service was started (%s)", exc, transport_error_hint(exc, launcher.profile.router.listen))
         return launcher.stop_before_start(EXIT_NO_ZENOH)
     finally:
         if lock_fd is not None:
             os.close(lock_fd)
         restore_signal_handlers(previous_handlers)
+
+
+def transport_error_hint(exc: TransportError, listen: list[str]) -> str:
+    """What to do about ``up``'s router or session that did not open: a port the embedded router is to listen on
+    (``listen``, the profile's ``router.listen``) is held by another process, or the router to join is not there."""
+    if exc.cause == LISTEN_IN_USE:
+        return (
+            f"another process holds a port the embedded router is to listen on ({', '.join(listen)}): stop it, or pick "
+            "another port with the profile's router.listen or `--set 'router.listen=[tcp/127.0.0.1:0]'` (0: any free port)"
+        )
+    return "is the router to join running and reachable?"
 
 
 RECORDING_NAME = "recording.mcap"

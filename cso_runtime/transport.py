@@ -36,7 +36,17 @@ the thread to return (``tests/test_runtime.py``, with Zenoh 1.10)."""
 
 
 class TransportError(RuntimeError):
-    """A Zenoh session could not be configured or opened."""
+    """A Zenoh session could not be configured or opened. ``cause``: why, when known, so that a caller's hint fits
+    it: ``LISTEN_IN_USE`` (another process holds a port to listen on), ``UNREACHABLE`` (no router to connect to
+    answered), else ""."""
+
+    def __init__(self, message: str, cause: str = "") -> None:
+        super().__init__(message)
+        self.cause = cause
+
+
+LISTEN_IN_USE = "listen_in_use"
+UNREACHABLE = "unreachable"
 
 
 JOIN_TIMEOUT_S = 10.0
@@ -108,8 +118,9 @@ def open_session(conf: TransportConfig) -> zenoh.Session:
     try:
         return zenoh.open(zenoh_config(conf))
     except zenoh.ZError as exc:
-        unreached = f"cannot reach {', '.join(conf.connect)} within {conf.connect_timeout_s:g} s: " if "Unable to connect" in str(exc) else ""
-        raise TransportError(f"{unreached}cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {exc}") from None
+        cause = UNREACHABLE if "Unable to connect" in str(exc) else LISTEN_IN_USE if "in use" in str(exc) else ""
+        unreached = f"cannot reach {', '.join(conf.connect)} within {conf.connect_timeout_s:g} s: " if cause == UNREACHABLE else ""
+        raise TransportError(f"{unreached}cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {exc}", cause) from None
     except BaseException as exc:
         # Zenoh panics (pyo3's PanicException, a BaseException) on a ZENOH_RUNTIME it cannot parse: `up` ended in a
         # Rust traceback, exit 1, its run folder without a run.json. Said as the session that could not open.
@@ -134,7 +145,7 @@ def open_router(listen: list[str], connect: list[str], connect_timeout_s: float 
         try:
             return open_session(TransportConfig(mode="router", listen=chosen, connect=list(connect), connect_timeout_s=connect_timeout_s)), chosen
         except TransportError as exc:
-            if not picked or attempt == PORT_TRIES or "in use" not in str(exc):  # only a taken port is worth another pick
+            if not picked or attempt == PORT_TRIES or exc.cause != LISTEN_IN_USE:  # only a taken port is worth another pick
                 raise
             log.warning("router port taken before it was bound (%s); picking another", ", ".join(chosen))
     raise AssertionError("unreachable")

@@ -495,6 +495,7 @@ def test_up_without_a_zenoh_session_says_so_and_starts_nothing(tmp_path):
             r = cli("up", "--profile", str(profile), "--no-live", *detach, "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
             said = r.stdout + r.stderr
             assert r.returncode == 3 and "no service was started" in said and "Traceback" not in said, said
+            assert "another process holds a port the embedded router is to listen on" in said and "router to join" not in said, said
             assert not (runs / "current.json").exists()
             assert [run.state for run in list_runs(runs)] == ["failed"]  # listed as it ended, not left unlisted
             assert not any(p.name.endswith(".log") and p.name != "launcher.log" for p in runs.rglob("*.log"))

@@ -68,8 +68,9 @@ def test_the_embedded_router_picks_another_port_when_its_first_is_taken(monkeypa
         with session:
             assert endpoints != [loopback_endpoint(taken.getsockname()[1])]
             assert endpoints[0].startswith("tcp/127.0.0.1:") and not endpoints[0].endswith(":0")
-        with pytest.raises(transport.TransportError):  # a port the profile names is not changed: a clear error
+        with pytest.raises(transport.TransportError) as err:  # a port the profile names is not changed: a clear error
             transport.open_router([loopback_endpoint(taken.getsockname()[1])], [])
+        assert err.value.cause == transport.LISTEN_IN_USE
     finally:
         taken.close()
 
@@ -79,10 +80,31 @@ def test_an_embedded_router_that_cannot_reach_a_router_to_join_fails_to_open():
     background with no word: a second robot ran alone, its `--without policy` episode waiting for a server it could
     never reach. The router to join must be reachable within the timeout, as a client's is (README: exit 3)."""
     nobody = loopback_endpoint(transport.free_tcp_port())
-    with pytest.raises(transport.TransportError, match="Unable to connect"):
+    with pytest.raises(transport.TransportError, match="Unable to connect") as err:
         transport.open_router(["tcp/127.0.0.1:0"], [nobody], connect_timeout_s=0.5)
+    assert err.value.cause == transport.UNREACHABLE
     first, (endpoint,) = transport.open_router(["tcp/127.0.0.1:0"], [])
     with first:
         second, _ = transport.open_router(["tcp/127.0.0.1:0"], [endpoint], connect_timeout_s=5.0)  # there: it joins
         with second:
             assert first.zid() in second.info.routers_zid()
+
+
+def test_ups_hint_for_a_router_that_did_not_open_fits_its_cause():
+    """``up``'s error when its router did not open asked "is the router to join running?" even when the embedded
+    router's own listen port was taken (no router to join at all): the hint names the port and how to pick another;
+    "the router to join" only when one to connect to did not answer."""
+    from cso_runtime.launcher import transport_error_hint
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        listen = [loopback_endpoint(taken.getsockname()[1])]
+        with pytest.raises(transport.TransportError) as err:
+            transport.open_router(listen, [])
+    hint = transport_error_hint(err.value, listen)
+    assert f"another process holds a port the embedded router is to listen on ({listen[0]})" in hint, hint
+    assert "router.listen" in hint and "router to join" not in hint, hint
+    with pytest.raises(transport.TransportError) as err:
+        transport.open_router(["tcp/127.0.0.1:0"], [loopback_endpoint(transport.free_tcp_port())], connect_timeout_s=0.5)
+    assert transport_error_hint(err.value, ["tcp/127.0.0.1:0"]) == "is the router to join running and reachable?"
