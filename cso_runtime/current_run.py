@@ -39,7 +39,7 @@ def read_current_run(runs_dir: Path) -> dict[str, Any] | None:
     path = runs_dir / CURRENT_RUN
     try:
         info = json.loads(path.read_text())
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # no run file, or no runs folder (a file there): the command says so
         return None
     except (OSError, ValueError) as exc:
         log.warning("ignoring %s: not readable as JSON (%s)", path, exc)
