@@ -25,7 +25,6 @@ the ROS 2 bridge's; the other keys (clock, status, feedback, distance maps) are 
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import shutil
 from collections import Counter
@@ -181,20 +180,19 @@ class BagConverter:
         message is sent once more, to a viewer that has just subscribed: a goal already sent and a map within
         ``map_period_s`` of the last one go out too."""
         t_ns = self.bag_time_ns(msg, received_ns)
-        stamp_s = t_ns * 1e-9
         out: list[tuple[str, bytes, int]] = []
         if not self.started and wanted("/tf_static"):
             out.append(self.static_transforms(t_ns))
         if isinstance(msg, OdometryMsg):
             if wanted("/odom"):
-                out.append(("/odom", ros2_cdr.odometry_to_cdr(msg.pose, msg.twist, stamp_s, ODOM_FRAME, BASE_FRAME), t_ns))
+                out.append(("/odom", ros2_cdr.odometry_to_cdr(msg.pose, msg.twist, t_ns, ODOM_FRAME, BASE_FRAME), t_ns))
             if wanted("/tf"):
-                out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, BASE_FRAME, msg.pose)], stamp_s), t_ns))
+                out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, BASE_FRAME, msg.pose)], t_ns), t_ns))
         elif isinstance(msg, ScanMsg):
             if wanted("/tf"):
-                out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, LASER_FRAME, msg.sensor_pose)], stamp_s), t_ns))
+                out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, LASER_FRAME, msg.sensor_pose)], t_ns), t_ns))
             if wanted("/scan"):
-                out.append(("/scan", ros2_cdr.laserscan_to_cdr(dataclasses.replace(msg.scan, stamp_s=stamp_s), LASER_FRAME), t_ns))
+                out.append(("/scan", ros2_cdr.laserscan_to_cdr(msg.scan, t_ns, LASER_FRAME), t_ns))
         elif isinstance(msg, MapMsg) and wanted("/map"):
             self.maps_thinned += self.pending_map is not None and self.pending_map[0] is not msg  # a held map is superseded either way
             if again or self.last_map_ns is None or t_ns - self.last_map_ns >= self.map_period_ns:
@@ -203,15 +201,15 @@ class BagConverter:
             else:
                 self.pending_map = (msg, t_ns)  # converted only if it stays the last
         elif isinstance(msg, PathMsg) and wanted("/plan"):
-            out.append(("/plan", ros2_cdr.path_to_cdr(msg.path_xy_m, stamp_s, MAP_FRAME), t_ns))
+            out.append(("/plan", ros2_cdr.path_to_cdr(msg.path_xy_m, t_ns, MAP_FRAME), t_ns))
         elif isinstance(msg, GoalMsg):
             goal = (float(msg.x_m), float(msg.y_m)) if msg.has_goal else None
             if goal is not None and (goal != self.last_goal_xy or again) and wanted("/goal_pose"):
-                out.append(("/goal_pose", ros2_cdr.pose_stamped_to_cdr(goal[0], goal[1], 0.0, stamp_s, MAP_FRAME), t_ns))
+                out.append(("/goal_pose", ros2_cdr.pose_stamped_to_cdr(goal[0], goal[1], 0.0, t_ns, MAP_FRAME), t_ns))
             self.last_goal_xy = goal
         elif isinstance(msg, FrontiersMsg) and msg.decide and wanted("/explore/frontiers"):
             points, goals = msg.cluster_points_xy_m()
-            out.append(("/explore/frontiers", ros2_cdr.frontier_markers_to_cdr(points, goals, stamp_s, MAP_FRAME), t_ns))
+            out.append(("/explore/frontiers", ros2_cdr.frontier_markers_to_cdr(points, goals, t_ns, MAP_FRAME), t_ns))
         elif isinstance(msg, CmdVelMsg) and wanted("/cmd_vel"):
             out.append(("/cmd_vel", ros2_cdr.twist_to_cdr(msg.command), t_ns))
         return out
@@ -220,7 +218,7 @@ class BagConverter:
         """``/tf_static`` (``map`` -> ``odom``, the identity), sent with the first message (or to a viewer that
         subscribes to it); ``convert`` does not send it again."""
         self.started = True
-        return ("/tf_static", ros2_cdr.transforms_to_cdr([(MAP_FRAME, ODOM_FRAME, Pose2D(0.0, 0.0, 0.0))], t_ns * 1e-9), t_ns)
+        return ("/tf_static", ros2_cdr.transforms_to_cdr([(MAP_FRAME, ODOM_FRAME, Pose2D(0.0, 0.0, 0.0))], t_ns), t_ns)
 
     def finish(self, sent_ns: int | None = None) -> list[tuple[str, bytes, int]]:
         """The last map, when ``map_period_s`` held it back: a bag always ends with the final map. ``sent_ns``: a
@@ -234,7 +232,7 @@ class BagConverter:
 
 
 def _map_row(msg: MapMsg, t_ns: int) -> tuple[str, bytes, int]:
-    return ("/map", ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, t_ns * 1e-9, MAP_FRAME), t_ns)
+    return ("/map", ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, t_ns, MAP_FRAME), t_ns)
 
 
 PROGRESS_EVERY = 500

@@ -70,16 +70,33 @@ def encode(msg: object, typename: str) -> bytes:
     return bytes(typestore().serialize_cdr(msg, typename))
 
 
-def time_msg(stamp_s: float) -> builtin_interfaces__msg__Time:
-    """builtin_interfaces/Time of a stamp in seconds, to the nearest nanosecond (a stamp that rounds up
-    to the next second carries into ``sec``)."""
-    sec, nanosec = divmod(round(stamp_s * 1e9), 1_000_000_000)
-    return _types()["builtin_interfaces/msg/Time"](sec=int(sec), nanosec=int(nanosec))
+NS_PER_S = 1_000_000_000
 
 
-def header_msg(stamp_s: float, frame_id: str) -> std_msgs__msg__Header:
-    """std_msgs/Header of a stamp in seconds and a frame."""
-    return _types()["std_msgs/msg/Header"](stamp=time_msg(stamp_s), frame_id=frame_id)
+def stamp_ns_from_seconds(stamp_s: float) -> int:
+    """A stamp in float seconds (our messages' unit) as integer nanoseconds, to the nearest one: the one place a
+    float stamp becomes a ROS time. A stamp already in nanoseconds (a bag's time) goes to ``time_msg`` as it is:
+    float seconds near 1.8e9 s are only good to ~240 ns."""
+    return round(stamp_s * NS_PER_S)
+
+
+def time_msg(stamp_ns: int) -> builtin_interfaces__msg__Time:
+    """builtin_interfaces/Time of a stamp in integer nanoseconds, exactly (``sec`` + ``nanosec``). A float is a
+    TypeError, not a silent misreading of seconds as nanoseconds: ``stamp_ns_from_seconds`` converts one."""
+    if isinstance(stamp_ns, bool) or not isinstance(stamp_ns, (int, np.integer)):
+        raise TypeError(f"a stamp is integer nanoseconds, not {type(stamp_ns).__name__} (stamp_ns_from_seconds converts seconds)")
+    sec, nanosec = divmod(int(stamp_ns), NS_PER_S)
+    return _types()["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)
+
+
+def header_msg(stamp_ns: int, frame_id: str) -> std_msgs__msg__Header:
+    """std_msgs/Header of a stamp in integer nanoseconds and a frame."""
+    return _types()["std_msgs/msg/Header"](stamp=time_msg(stamp_ns), frame_id=frame_id)
+
+
+def header_stamp_ns(header: std_msgs__msg__Header) -> int:
+    """A header's ``sec`` + ``nanosec`` stamp as integer nanoseconds, exactly."""
+    return int(header.stamp.sec) * NS_PER_S + int(header.stamp.nanosec)
 
 
 def stamp_seconds(header: std_msgs__msg__Header) -> float:
@@ -101,13 +118,15 @@ def _quaternion(yaw_rad: float) -> geometry_msgs__msg__Quaternion:
 
 @dataclass(frozen=True)
 class ScanConversion:
-    """A decoded LaserScan and what had to be cleaned: counts of NaN, -inf and out-of-range beams."""
+    """A decoded LaserScan and what had to be cleaned: counts of NaN, -inf and out-of-range beams. ``stamp_ns``: the
+    header's stamp exactly (``scan.stamp_s`` is it in float seconds), for what is stamped with the scan's time."""
 
     scan: LaserScan
     frame_id: str
     invalid_beams: int
     too_close_beams: int
     no_return_beams: int
+    stamp_ns: int
 
 
 def laserscan_from_cdr(raw: bytes) -> ScanConversion:
@@ -136,14 +155,14 @@ def laserscan_from_cdr(raw: bytes) -> ScanConversion:
     else:
         angle_min, increment = msg.angle_min, msg.angle_increment
     scan = LaserScan(float(angle_min), float(increment), float(msg.range_min), float(msg.range_max), clean.astype(np.float32), stamp_seconds(msg.header))
-    return ScanConversion(scan, msg.header.frame_id, int(invalid.sum()), int(too_close.sum()), int(no_return.sum()))
+    return ScanConversion(scan, msg.header.frame_id, int(invalid.sum()), int(too_close.sum()), int(no_return.sum()), header_stamp_ns(msg.header))
 
 
-def laserscan_to_cdr(scan: LaserScan, frame_id: str = "laser") -> bytes:
-    """Our LaserScan -> sensor_msgs/LaserScan CDR (for fake robots and tests)."""
+def laserscan_to_cdr(scan: LaserScan, stamp_ns: int, frame_id: str = "laser") -> bytes:
+    """Our LaserScan, stamped ``stamp_ns`` (not its ``stamp_s``) -> sensor_msgs/LaserScan CDR."""
     n = len(scan.ranges_m)
     msg = _types()[LASER_SCAN](
-        header=header_msg(scan.stamp_s, frame_id),
+        header=header_msg(stamp_ns, frame_id),
         angle_min=float(scan.angle_min_rad),
         angle_max=float(scan.angle_min_rad + scan.angle_increment_rad * (n - 1)),
         angle_increment=float(scan.angle_increment_rad),
@@ -180,13 +199,13 @@ def odometry_from_cdr(raw: bytes) -> OdometrySample:
     return OdometrySample(pose, vel, stamp_seconds(msg.header), msg.header.frame_id, msg.child_frame_id)
 
 
-def odometry_to_cdr(pose: Pose2D, velocity: VelocityCommand, stamp_s: float, frame_id: str = "odom", child_frame_id: str = "base_link") -> bytes:
+def odometry_to_cdr(pose: Pose2D, velocity: VelocityCommand, stamp_ns: int, frame_id: str = "odom", child_frame_id: str = "base_link") -> bytes:
     """Our pose and velocity -> nav_msgs/Odometry CDR (covariances zero), as a bag's ``/odom`` holds it."""
     t = _types()
     point = t["geometry_msgs/msg/Point"](x=pose.x_m, y=pose.y_m, z=0.0)
     cov = np.zeros(36, dtype=np.float64)
     msg = t[ODOMETRY](
-        header=header_msg(stamp_s, frame_id),
+        header=header_msg(stamp_ns, frame_id),
         child_frame_id=child_frame_id,
         pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=t["geometry_msgs/msg/Pose"](position=point, orientation=_quaternion(pose.yaw_rad)), covariance=cov),
         twist=t["geometry_msgs/msg/TwistWithCovariance"](twist=_twist(velocity), covariance=cov.copy()),
@@ -213,7 +232,7 @@ def twist_from_cdr(raw: bytes) -> VelocityCommand:
     return VelocityCommand(float(msg.linear.x), float(msg.angular.z))
 
 
-def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_s: float, frame_id: str = "map") -> bytes:
+def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_ns: int, frame_id: str = "map") -> bytes:
     """int8 grid (-1/0/100, row 0 at the origin) -> nav_msgs/OccupancyGrid CDR."""
     t = _types()
     grid = np.asarray(grid, dtype=np.int8)
@@ -223,9 +242,9 @@ def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_s: flo
         position=t["geometry_msgs/msg/Point"](x=geometry.origin_x_m, y=geometry.origin_y_m, z=0.0), orientation=_quaternion(0.0)
     )
     info = t["nav_msgs/msg/MapMetaData"](
-        map_load_time=time_msg(stamp_s), resolution=float(geometry.resolution_m), width=int(geometry.shape[1]), height=int(geometry.shape[0]), origin=origin
+        map_load_time=time_msg(stamp_ns), resolution=float(geometry.resolution_m), width=int(geometry.shape[1]), height=int(geometry.shape[0]), origin=origin
     )
-    msg = t[OCCUPANCY_GRID](header=header_msg(stamp_s, frame_id), info=info, data=grid.ravel())
+    msg = t[OCCUPANCY_GRID](header=header_msg(stamp_ns, frame_id), info=info, data=grid.ravel())
     return encode(msg, OCCUPANCY_GRID)
 
 
@@ -240,11 +259,11 @@ def occupancy_grid_from_cdr(raw: bytes) -> tuple[np.ndarray, GridGeometry]:
     return data.reshape(h, w), g
 
 
-def pose_stamped_to_cdr(x_m: float, y_m: float, yaw_rad: float, stamp_s: float, frame_id: str = "map") -> bytes:
+def pose_stamped_to_cdr(x_m: float, y_m: float, yaw_rad: float, stamp_ns: int, frame_id: str = "map") -> bytes:
     """A planar goal pose (m, rad) -> geometry_msgs/PoseStamped CDR, as the ROS 2 bridge and bags publish the goal."""
     t = _types()
     pose = t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=x_m, y=y_m, z=0.0), orientation=_quaternion(yaw_rad))
-    return encode(t[POSE_STAMPED](header=header_msg(stamp_s, frame_id), pose=pose), POSE_STAMPED)
+    return encode(t[POSE_STAMPED](header=header_msg(stamp_ns, frame_id), pose=pose), POSE_STAMPED)
 
 
 def _segment_headings(xy: np.ndarray) -> np.ndarray:
@@ -258,7 +277,7 @@ def _segment_headings(xy: np.ndarray) -> np.ndarray:
     return np.arctan2(d[:, 1], d[:, 0])[np.where(last_move >= 0, last_move, int(np.argmax(moved)))]
 
 
-def path_to_cdr(path_xy_m: np.ndarray, stamp_s: float, frame_id: str = "map") -> bytes:
+def path_to_cdr(path_xy_m: np.ndarray, stamp_ns: int, frame_id: str = "map") -> bytes:
     """A planned path (n x 2 metres, robot first) -> nav_msgs/Path CDR, each pose facing the next point (the last
     one as the one before it)."""
     t = _types()
@@ -268,21 +287,21 @@ def path_to_cdr(path_xy_m: np.ndarray, stamp_s: float, frame_id: str = "map") ->
         yaws[-1] = yaws[-2]
     poses = [
         t[POSE_STAMPED](
-            header=header_msg(stamp_s, frame_id),
+            header=header_msg(stamp_ns, frame_id),
             pose=t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=float(x), y=float(y), z=0.0), orientation=_quaternion(float(yaw))),
         )
         for (x, y), yaw in zip(xy, yaws)
     ]
-    return encode(t[PATH](header=header_msg(stamp_s, frame_id), poses=poses), PATH)
+    return encode(t[PATH](header=header_msg(stamp_ns, frame_id), poses=poses), PATH)
 
 
-def transforms_to_cdr(transforms: list[tuple[str, str, Pose2D]], stamp_s: float) -> bytes:
+def transforms_to_cdr(transforms: list[tuple[str, str, Pose2D]], stamp_ns: int) -> bytes:
     """Planar transforms (parent frame, child frame, the child's pose in the parent) -> tf2_msgs/TFMessage CDR."""
     t = _types()
     v3 = t["geometry_msgs/msg/Vector3"]
     stamped = [
         t["geometry_msgs/msg/TransformStamped"](
-            header=header_msg(stamp_s, parent),
+            header=header_msg(stamp_ns, parent),
             child_frame_id=child,
             transform=t["geometry_msgs/msg/Transform"](translation=v3(x=float(p.x_m), y=float(p.y_m), z=0.0), rotation=_quaternion(float(p.yaw_rad))),
         )
@@ -300,7 +319,7 @@ def pose_stamped_from_cdr(raw: bytes) -> tuple[Pose2D, float]:
     return Pose2D(float(p.x), float(p.y), yaw_from_quaternion(q.x, q.y, q.z, q.w)), stamp_seconds(msg.header)
 
 
-def frontier_markers_to_cdr(frontier_points_xy_m: list[np.ndarray], goal_xy_m: list[tuple[float, float]], stamp_s: float, frame_id: str = "map") -> bytes:
+def frontier_markers_to_cdr(frontier_points_xy_m: list[np.ndarray], goal_xy_m: list[tuple[float, float]], stamp_ns: int, frame_id: str = "map") -> bytes:
     """explore_lite's frontier visualisation: one POINTS marker per frontier cluster (namespace
     ``frontiers``) and one SPHERE at each cluster's goal (namespace ``frontiers_goals``); a DELETEALL
     first clears the previous set."""
@@ -315,9 +334,9 @@ def frontier_markers_to_cdr(frontier_points_xy_m: list[np.ndarray], goal_xy_m: l
         color: std_msgs__msg__ColorRGBA, points: list[geometry_msgs__msg__Point],
     ) -> visualization_msgs__msg__Marker:
         return marker_t(
-            header=header_msg(stamp_s, frame_id), ns=ns, id=mid, type=mtype, action=action, pose=pose,
+            header=header_msg(stamp_ns, frame_id), ns=ns, id=mid, type=mtype, action=action, pose=pose,
             scale=scale, color=color, lifetime=dur, frame_locked=False, points=points, colors=[],
-            texture_resource="", texture=t["sensor_msgs/msg/CompressedImage"](header=header_msg(stamp_s, frame_id), format="", data=np.zeros(0, dtype=np.uint8)),
+            texture_resource="", texture=t["sensor_msgs/msg/CompressedImage"](header=header_msg(stamp_ns, frame_id), format="", data=np.zeros(0, dtype=np.uint8)),
             uv_coordinates=[], text="", mesh_resource="",
             mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, dtype=np.uint8)),
             mesh_use_embedded_materials=False,

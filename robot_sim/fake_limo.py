@@ -50,7 +50,7 @@ def odometry_cdr(stamp_s: float, pose: Pose2D, linear_mps: float, angular_radps:
         orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(pose.yaw_rad / 2), w=math.cos(pose.yaw_rad / 2)),
     )
     msg = t["nav_msgs/msg/Odometry"](
-        header=ros2_cdr.header_msg(stamp_s, "odom"),
+        header=ros2_cdr.header_msg(ros2_cdr.stamp_ns_from_seconds(stamp_s), "odom"),
         child_frame_id="base_link",
         pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=p, covariance=np.zeros(36)),
         twist=t["geometry_msgs/msg/TwistWithCovariance"](
@@ -65,7 +65,7 @@ def laserscan_cdr(stamp_s: float, scan: LaserScan) -> bytes:
     """sensor_msgs/LaserScan in laser_link, serialised by rosbags (angle_max from the beam count)."""
     n = len(scan.ranges_m)
     msg = typestore().types["sensor_msgs/msg/LaserScan"](
-        header=ros2_cdr.header_msg(stamp_s, "laser_link"),
+        header=ros2_cdr.header_msg(ros2_cdr.stamp_ns_from_seconds(stamp_s), "laser_link"),
         angle_min=scan.angle_min_rad,
         angle_max=scan.angle_min_rad + scan.angle_increment_rad * (n - 1),
         angle_increment=scan.angle_increment_rad,

@@ -62,6 +62,9 @@ from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.ros2_bridge")
 
+STAMPS_HELD = 200
+"""Steps whose scan time the bridge keeps, to stamp the maps, goals and frontiers computed from them."""
+
 _ROS_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
 
 
@@ -440,8 +443,10 @@ class Ros2BridgeService(Service):
         self.step = -1
         self.arena: GridGeometry | None = None
         self.last_scan_stamp_s = -math.inf
+        self.last_scan_stamp_ns: int | None = None
         self.pending: tuple[ros2_cdr.ScanConversion, float] | None = None
-        self.stamps: dict[int, float] = {}
+        self.stamps_ns: dict[int, int] = {}
+        """Each of the last ``STAMPS_HELD`` steps' scan stamp, exactly as the robot sent it."""
         self.last_pose: Pose2D | None = None
         self.path_length_m = 0.0
         self.trajectory: list[tuple[float, float]] = []
@@ -499,7 +504,7 @@ class Ros2BridgeService(Service):
         except MessageError as exc:
             self.count_reject("ros_scan:invalid", str(exc))
             return
-        self.last_scan_stamp_s = stamp
+        self.last_scan_stamp_s, self.last_scan_stamp_ns = stamp, conv.stamp_ns
         self.step += 1
         k = self.step
         if self.arena is None:
@@ -516,9 +521,9 @@ class Ros2BridgeService(Service):
             self.path_length_m += math.hypot(odom.pose.x_m - self.last_pose.x_m, odom.pose.y_m - self.last_pose.y_m)
         self.last_pose = odom.pose
         self.trajectory.append((odom.pose.x_m, odom.pose.y_m))
-        self.stamps[k] = stamp
-        for s in [s for s in self.stamps if s < k - 200]:
-            self.stamps.pop(s)
+        self.stamps_ns[k] = conv.stamp_ns
+        for s in [s for s in self.stamps_ns if s < k - STAMPS_HELD]:
+            self.stamps_ns.pop(s)
         if self.episode_state == "starting":
             self.episode_state = "exploring"
         self.publish("clock", ClockMsg(k, stamp, self.arena, self.episode))
@@ -558,16 +563,33 @@ class Ros2BridgeService(Service):
                 self.take_goal(msg)
             elif isinstance(msg, FrontiersMsg) and msg.decide and msg.geometry is not None:
                 points, goals = msg.cluster_points_xy_m()
-                stamp = self.stamps.get(msg.step, 0.0)
+                stamp_ns = self.stamp_ns_of(msg.step, "frontiers")
                 self._put_ros(
-                    self.params.frontiers_topic, ros2_cdr.frontier_markers_to_cdr(points, goals, stamp, self.params.map_frame_id)
+                    self.params.frontiers_topic, ros2_cdr.frontier_markers_to_cdr(points, goals, stamp_ns, self.params.map_frame_id)
                 )
+
+    def stamp_ns_of(self, step: int, what: str) -> int:
+        """The robot's time (ns) of a step's scan, which a map, goal or frontiers sent to ROS is stamped with. A step
+        no longer held (only the last ``STAMPS_HELD`` are) takes the newest scan's time, and before any scan the wall
+        clock: never 0, which RViz's and Foxglove's TF lookups and plots cannot place. Such an approximation is
+        counted (``approximate_stamps``) and logged the first time."""
+        stamp_ns = self.stamps_ns.get(step)
+        if stamp_ns is not None:
+            return stamp_ns
+        if self.last_scan_stamp_ns is not None:
+            stamp_ns, whence = self.last_scan_stamp_ns, "the newest scan's time"
+        else:
+            stamp_ns, whence = time.time_ns(), "the wall clock (no scan yet)"
+        self.counters["approximate_stamps"] += 1
+        if self.counters["approximate_stamps"] == 1:
+            log.warning("%s of step %d: its scan time is no longer held (the last %d steps are), stamped with %s; later ones are only counted", what, step, STAMPS_HELD, whence)
+        return stamp_ns
 
     def _send_map(self, msg: MapMsg, now_s: float) -> None:
         """A map -> nav_msgs/OccupancyGrid on ``map_topic``, stamped with its step's scan time."""
         self.held_map, self.last_ros_map_s = None, now_s
-        stamp = self.stamps.get(msg.step, self.last_scan_stamp_s if math.isfinite(self.last_scan_stamp_s) else 0.0)
-        self._put_ros(self.params.map_topic, ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, stamp, self.params.map_frame_id))
+        stamp_ns = self.stamp_ns_of(msg.step, "map")
+        self._put_ros(self.params.map_topic, ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, stamp_ns, self.params.map_frame_id))
 
     def forward_command(self, command: VelocityCommand, received_s: float) -> None:
         """Our command -> Twist on the robot's cmd_vel, within the robot's limits."""
@@ -588,9 +610,9 @@ class Ros2BridgeService(Service):
                 self.finish(TERMINATED_NO_FRONTIER)
         if g.has_goal and (g.x_m, g.y_m) != self.last_goal_xy:
             self.last_goal_xy = (float(g.x_m), float(g.y_m))
-            stamp = self.stamps.get(g.step, 0.0)
+            stamp_ns = self.stamp_ns_of(g.step, "goal")
             self._put_ros(
-                self.params.goal_topic, ros2_cdr.pose_stamped_to_cdr(g.x_m, g.y_m, 0.0, stamp, self.params.map_frame_id)
+                self.params.goal_topic, ros2_cdr.pose_stamped_to_cdr(g.x_m, g.y_m, 0.0, stamp_ns, self.params.map_frame_id)
             )
         elif not g.has_goal:
             self.last_goal_xy = None

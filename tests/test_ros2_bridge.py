@@ -8,6 +8,7 @@ everything stopped in ``finally`` blocks.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import signal
@@ -227,6 +228,39 @@ def test_maps_go_to_ros_at_most_every_map_period_s_and_the_newest_always_goes_ou
     svc.on_tick(t0 + 2.0)
     assert len(sent) == 2, "each map once"
     assert svc.latest["map"].step == 5, "the referee keeps every map all the same (save-map, a restarted mapper)"
+
+
+def test_goals_frontiers_and_maps_carry_their_scans_exact_time_and_never_zero():
+    """What goes back to ROS is stamped with its step's scan time, to the nanosecond (it went through float seconds).
+    A step older than the stamps the bridge holds was stamped 0 (1970: RViz's and Foxglove's TF lookups fail, plots
+    jump); now it takes the newest scan's time, counted as an approximation and logged once."""
+    from services.ros2_bridge import STAMPS_HELD
+
+    svc, _, step = _bridge_without_zenoh()
+    sent: list[tuple[str, bytes]] = []
+    svc._put_ros = lambda topic, payload: sent.append((topic, payload))  # type: ignore[method-assign]
+    base_s = 1_796_546_483.0  # a robot clock of today: float seconds there are only good to ~240 ns
+    times_s = [base_s + 0.1 * i + 0.000_000_123 for i in range(STAMPS_HELD + 5)]
+    for i, t in enumerate(times_s):
+        step(t, 0.001 * i)
+    scan_ns = [int(h.stamp.sec) * 1_000_000_000 + int(h.stamp.nanosec) for h in (_header(t, "laser_link") for t in times_s)]
+
+    def stamps_of(topic: str, typename: str) -> list[int]:
+        msgs = [rosbags_decode(raw, typename) for tp, raw in sent if tp == topic]
+        return [ros2_cdr.header_stamp_ns(m.markers[0].header if hasattr(m, "markers") else m.header) for m in msgs]
+
+    newest = svc.step
+    svc.on_message("r0", "goal", GoalMsg(newest, True, 1.0, 2.0, episode=svc.episode), 0.0)
+    svc.on_message("r0", "frontiers", dataclasses.replace(_frontiers_msg(newest), episode=svc.episode), 0.0)
+    assert stamps_of("goal_pose", "geometry_msgs/msg/PoseStamped") == [scan_ns[newest]], "exactly the scan's stamp"
+    assert stamps_of("explore/frontiers", "visualization_msgs/msg/MarkerArray") == [scan_ns[newest]]
+    assert svc.counters["approximate_stamps"] == 0
+    sent.clear()
+    svc.on_message("r0", "goal", GoalMsg(0, True, 3.0, 4.0, episode=svc.episode), 0.0)  # step 0's time is no longer held
+    svc.on_message("r0", "frontiers", dataclasses.replace(_frontiers_msg(0), episode=svc.episode), 0.0)
+    assert stamps_of("goal_pose", "geometry_msgs/msg/PoseStamped") == [scan_ns[-1]], "the newest scan's time, not 0"
+    assert stamps_of("explore/frontiers", "visualization_msgs/msg/MarkerArray") == [scan_ns[-1]]
+    assert svc.counters["approximate_stamps"] == 2
 
 
 # --- the service in-process, against a fake LIMO -----------------------------------------------------

@@ -70,13 +70,14 @@ def test_clockwise_scan_is_reordered():
 
 def test_laserscan_round_trip():
     scan = LaserScan(-1.0, 0.01, 0.1, 8.0, np.linspace(0.5, 7.5, 201).astype(np.float32), 3.25)
-    back = cdr.laserscan_from_cdr(cdr.laserscan_to_cdr(scan)).scan
+    conv = cdr.laserscan_from_cdr(cdr.laserscan_to_cdr(scan, 3_250_000_000))
+    back = conv.scan
     np.testing.assert_allclose(back.ranges_m, scan.ranges_m)
-    assert back.angle_min_rad == pytest.approx(-1.0) and back.stamp_s == pytest.approx(3.25)
+    assert back.angle_min_rad == pytest.approx(-1.0) and back.stamp_s == pytest.approx(3.25) and conv.stamp_ns == 3_250_000_000
 
 
 def test_odometry_and_twist_round_trip():
-    raw = cdr.odometry_to_cdr(Pose2D(1.5, -2.0, 2.5), VelocityCommand(0.4, -0.3), 7.125)
+    raw = cdr.odometry_to_cdr(Pose2D(1.5, -2.0, 2.5), VelocityCommand(0.4, -0.3), 7_125_000_000)
     odo = cdr.odometry_from_cdr(raw)
     assert odo.pose.x_m == pytest.approx(1.5) and odo.pose.y_m == pytest.approx(-2.0) and odo.pose.yaw_rad == pytest.approx(2.5)
     assert odo.velocity.linear_mps == pytest.approx(0.4) and odo.stamp_s == pytest.approx(7.125)
@@ -90,16 +91,16 @@ def test_occupancy_grid_round_trip():
     grid = np.full(g.shape, -1, dtype=np.int8)
     grid[5:10, 5:20] = 0
     grid[5, 5:20] = 100
-    back, g2 = cdr.occupancy_grid_from_cdr(cdr.occupancy_grid_to_cdr(grid, g, 1.0))
+    back, g2 = cdr.occupancy_grid_from_cdr(cdr.occupancy_grid_to_cdr(grid, g, 1_000_000_000))
     np.testing.assert_array_equal(back, grid)
     assert g2.shape == g.shape and (g2.origin_x_m, g2.origin_y_m) == (-1.0, 2.0)
     assert g2.resolution_m == pytest.approx(0.05)  # float32 on the wire
 
 
 def test_pose_and_markers_encode():
-    pose, stamp = cdr.pose_stamped_from_cdr(cdr.pose_stamped_to_cdr(1.0, 2.0, 0.5, 4.0))
+    pose, stamp = cdr.pose_stamped_from_cdr(cdr.pose_stamped_to_cdr(1.0, 2.0, 0.5, 4_000_000_000))
     assert pose.yaw_rad == pytest.approx(0.5) and stamp == pytest.approx(4.0)
-    raw = cdr.frontier_markers_to_cdr([np.array([[0.0, 0.0], [0.1, 0.0]]), np.array([[3.0, 1.0]])], [(0.05, 0.0), (3.0, 1.0)], 1.0)
+    raw = cdr.frontier_markers_to_cdr([np.array([[0.0, 0.0], [0.1, 0.0]]), np.array([[3.0, 1.0]])], [(0.05, 0.0), (3.0, 1.0)], 1_000_000_000)
     msg = cdr.decode(raw, cdr.MARKER_ARRAY)
     # The DELETEALL first, with no namespace: RViz 2 clears every namespace then (with one, only that one, and the
     # goal spheres of clusters that have gone would stay on screen).
@@ -129,8 +130,20 @@ def test_garbage_is_a_clear_error():
 
 @pytest.mark.parametrize(("stamp_s", "sec", "nanosec"), [(12.5, 12, 500_000_000), (1.9999999999, 2, 0), (0.0, 0, 0), (1000.000000001, 1000, 1)])
 def test_stamps_round_to_the_nearest_nanosecond_and_carry_into_seconds(stamp_s, sec, nanosec):
-    stamp = cdr.time_msg(stamp_s)
+    stamp = cdr.time_msg(cdr.stamp_ns_from_seconds(stamp_s))
     assert (stamp.sec, stamp.nanosec) == (sec, nanosec)
+
+
+def test_stamps_in_nanoseconds_are_exact_and_seconds_are_refused():
+    """A bag time (ns) becomes sec + nanosec exactly; through float seconds, 1796546483.725553157 s read back as
+    ...725553152 (a double near 1.8e9 s is good to ~240 ns), so a header disagreed with the bag's own time."""
+    t_ns = 1_796_546_483_725_553_157
+    msg = cdr.decode(cdr.pose_stamped_to_cdr(1.0, 2.0, 0.0, t_ns), cdr.POSE_STAMPED)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1_796_546_483, 725_553_157)
+    assert cdr.header_stamp_ns(msg.header) == t_ns
+    assert cdr.time_msg(np.int64(t_ns)).nanosec == 725_553_157
+    with pytest.raises(TypeError, match="nanoseconds"):
+        cdr.time_msg(1796546483.725553)  # seconds where nanoseconds are meant: an error, not a time near 1970
 
 
 def test_path_poses_face_along_the_path_even_across_a_repeated_point():
@@ -138,9 +151,9 @@ def test_path_poses_face_along_the_path_even_across_a_repeated_point():
     path of one cell, the goal on the last cell's centre) has no direction of its own: it keeps the heading of the
     way it is on, never a spurious yaw 0 (RViz's arrows, a controller that reads the poses' yaw)."""
     path = np.array([[0.0, 0.0], [0.0, 1.0], [0.0, 1.0], [-1.0, 1.0], [-1.0, 1.0]])
-    msg = cdr.decode(cdr.path_to_cdr(path, 1.0, "map"), cdr.PATH)
+    msg = cdr.decode(cdr.path_to_cdr(path, 1_000_000_000, "map"), cdr.PATH)
     yaws = [cdr.yaw_from_quaternion(p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z, p.pose.orientation.w) for p in msg.poses]
     assert np.allclose(yaws, [math.pi / 2, math.pi / 2, math.pi, math.pi, math.pi])
     assert msg.header.frame_id == "map" and all(p.header.frame_id == "map" for p in msg.poses)
-    still = cdr.decode(cdr.path_to_cdr(np.array([[2.0, 3.0], [2.0, 3.0]]), 1.0), cdr.PATH)
+    still = cdr.decode(cdr.path_to_cdr(np.array([[2.0, 3.0], [2.0, 3.0]]), 1_000_000_000), cdr.PATH)
     assert [p.pose.orientation.w for p in still.poses] == [1.0, 1.0]  # no direction at all: the identity
