@@ -115,11 +115,11 @@ class StepTimeline:
         t = self.by_step.setdefault(step, stamp_s - self.first_stamp_s + self.offset_s)
         self.max_step = max(self.max_step, step)
         self.last_s = max(self.last_s, t)
-        return self.start_ns + round(t * 1e9)
+        return self.start_ns + ros2_cdr.stamp_ns_from_seconds(t)
 
     def at(self, step: int) -> int:
         """The bag time of a message that carries only its step (a map, a goal...): its step's, else the latest."""
-        return self.start_ns + round(self.by_step.get(step, self.last_s) * 1e9)
+        return self.start_ns + ros2_cdr.stamp_ns_from_seconds(self.by_step.get(step, self.last_s))
 
 
 def every_topic(ros_topic: str) -> bool:
