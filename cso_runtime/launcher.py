@@ -191,6 +191,21 @@ STOP_EXTRAS_S = STACK_DUMP_WAIT_S + RECORDING_STOP_S + ANIMATION_STOPPING_S
 recording, the GIF. ``down`` waits ``DOWN_MARGIN_S`` beyond the stages, which must hold it (a test holds them to it)."""
 
 
+@dataclass
+class EpisodeEnd:
+    """The ended episode's results, recording and GIF being written on a thread of their own
+    (``Launcher.start_episode_end``): seconds of plots, report and GIF, while the run loop goes on supervising."""
+
+    status: EpisodeStatusMsg
+    """The status that said the episode ended."""
+    result: EpisodeResultMsg | None
+    """Its result (None: none came, and no summary.json is written)."""
+    thread: threading.Thread
+    outputs_done: threading.Event
+    """Set once its results are written, or failed to be (``written``); the recording and GIF follow."""
+    written: bool = False
+
+
 class _AnimationGivenUp(Exception):
     """The run is being stopped and its GIF is taking longer than ``ANIMATION_STOPPING_S``."""
 
@@ -615,10 +630,13 @@ class Launcher:
             return msg
         return None
 
-    def wait_for_result(self, session: Any, wait_s: float = 15.0) -> EpisodeResultMsg | None:
+    def wait_for_result(self, session: Any, wait_s: float = 15.0, meanwhile: Callable[[], None] | None = None) -> EpisodeResultMsg | None:
         """The finished episode's result: the one published on ``episode_result``, else the answer to a
         query (the sim and the ros2_bridge answer once finished), asked again until ``wait_s`` has passed
-        or the launcher is stopped. On a loaded machine one query can time out before the answer comes."""
+        or the launcher is stopped. On a loaded machine one query can time out before the answer comes.
+        Between its queries (3 s at most each) it calls ``meanwhile`` (the run loop's supervision and live view;
+        ``supervise`` when not given): a service that crashes or hangs while the result is awaited is restarted."""
+        tend = self.supervise if meanwhile is None else meanwhile
         deadline = time.monotonic() + wait_s
         while self.result is None and not self.stop_event.is_set():
             left = deadline - time.monotonic()
@@ -627,7 +645,8 @@ class Launcher:
             result = self.fetch_result(session, timeout_s=min(3.0, left))
             if result is not None:
                 return result
-            self.stop_event.wait(min(0.1, left))
+            if not self.stop_event.wait(min(0.1, left)):  # a stop's services are stopped, never restarted
+                tend()
         return self.result
 
     def episode_goes_on(self) -> bool:
@@ -680,6 +699,37 @@ class Launcher:
             )  # fmt: skip
             return False
         return True
+
+    def start_episode_end(self, status: EpisodeStatusMsg, result: EpisodeResultMsg | None, recorder: Recorder | None) -> EpisodeEnd:
+        """Write the ended episode's results, then finish its recording and draw its GIF (``finish_recording``, with
+        its time bounds), on a thread of their own: the run loop goes on restarting crashed or hung services and
+        updating the live view and the launcher's status meanwhile. ``settle_episode_end`` takes the outcome."""
+
+        def write() -> None:
+            try:
+                end.written = result is not None and self.write_outputs_or_say(result)
+            except Exception:  # a bug: said, and the run ends as failed, its services stopped as usual
+                log.exception("writing the episode's results raised: the run stops, its outputs in %s are incomplete", self.run_dir)
+            finally:
+                end.outputs_done.set()
+            try:
+                self.finish_recording(recorder)
+            except Exception:
+                log.exception("finishing the recording raised")
+
+        end = EpisodeEnd(status, result, threading.Thread(target=write, name="episode-end", daemon=True), threading.Event())
+        end.thread.start()
+        return end
+
+    def settle_episode_end(self, end: EpisodeEnd) -> None:
+        """Once ``end``'s results are written (or failed to be): the run's exit code and its run file say how the
+        episode ended (``episode_ended_at``), while its recording and GIF may still be on their way. Once only."""
+        if self.outputs_written or not end.outputs_done.is_set():
+            return
+        self.outputs_written, self.episode_ended_at = True, time.time()
+        if not (end.status.state == "done" and end.written):
+            self.exit_code = 1
+        self.write_run_file(end.status.state)
 
     def start_recorder(self) -> Recorder | None:
         """Record the run from before the first service starts, on a session of its own: its link and
@@ -843,49 +893,55 @@ class Launcher:
             except RecorderError as exc:
                 log.error("%s: no service was started", exc)
                 return self.stop_before_start(EXIT_BAD_CONFIG)
+            ending: EpisodeEnd | None = None  # the ended episode's results being written (start_episode_end)
             try:
                 self.spawn_all()
                 self.write_run_file("running")
                 if view is not None:
                     view.start()
-                logged_s = time.monotonic()
-                while not self.stop_event.wait(0.1):
+
+                def tend() -> None:
+                    """What the run loop does on every round, and in its waits: supervision and the live view."""
                     self.supervise()
                     if view is not None:
                         view.update()
+
+                logged_s = time.monotonic()
+                while not self.stop_event.wait(0.1):
+                    tend()
                     st = self.status
                     every_s = self.profile.progress_log_s
                     if every_s > 0 and (view is None or not view.on_terminal) and time.monotonic() - logged_s >= every_s:
                         logged_s = time.monotonic()
                         if st is not None and st.state == "exploring":
                             log.info("%s", progress_line(st, self.control_period_s, self.real_time_factor))
-                    if st is not None and st.state in ("done", "failed") and not self.outputs_written:
+                    if ending is None and st is not None and st.state in ("done", "failed") and not self.outputs_written:
                         self.ended_status = st
-                        result = self.wait_for_result(session)
+                        result = self.wait_for_result(session, meanwhile=tend)
                         if result is None and self.episode_goes_on():
                             with self._lock:
                                 self.rejected["episode_status"] = self.rejected.get("episode_status", 0) + 1
                             log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", st.state, st.step, self.status.step)
                             self.ended_status = None
                             continue
-                        written = result is not None and self.write_outputs_or_say(result)
                         if result is None:
                             log.error("the episode is %s but its result never arrived: no summary.json was written", st.state)
-                        self.outputs_written, self.episode_ended_at = True, time.time()
-                        self.exit_code = 0 if st.state == "done" and written else 1
-                        self.write_run_file(st.state)
                         # The recording ends with the episode: a detached run's file is finished (and its GIF
-                        # drawn) now, not only at `down`.
-                        self.finish_recording(recorder)
-                        recorder = None
-                        if not stay_after_done or (result is not None and not written):  # nothing to stay for
-                            break
+                        # drawn) now, not only at `down`; the loop goes on supervising meanwhile.
+                        ending, recorder = self.start_episode_end(st, result, recorder), None
+                    if ending is not None:
+                        finished = not ending.thread.is_alive()  # before settling: its results are written then
+                        self.settle_episode_end(ending)
+                        if finished:
+                            if not stay_after_done or (ending.result is not None and not ending.written):  # nothing to stay for
+                                break
+                            ending = None
                     referee = [c for c in self.children if c.name in REFEREES]
                     if referee and all(c.gave_up for c in referee):
                         log.error("the %s service is gone for good: stopping", referee[0].name)
                         self.exit_code = 1
                         break
-                    unserved = [] if self.outputs_written else self.unserved_services(time.monotonic())
+                    unserved = [] if self.outputs_written or ending is not None else self.unserved_services(time.monotonic())
                     if unserved:
                         log.error(
                             "no process serves %s since the launcher gave up on it (%.0f s): the episode cannot go on, stopping (see %s)",
@@ -894,7 +950,7 @@ class Launcher:
                         self.exit_code = 1
                         break
                 else:  # stopped from outside (Ctrl-C, SIGTERM, `down`), not by one of the breaks above
-                    if not self.outputs_written:
+                    if not self.outputs_written and ending is None:
                         step = self.status.step if self.status is not None else 0
                         log.warning("interrupted at step %d, before the episode ended: no summary.json was written", step)
                         self.exit_code = EXIT_INTERRUPTED
@@ -910,6 +966,9 @@ class Launcher:
                     code = c.proc.returncode if c.proc is not None else None
                     if c.proc is not None and c.restart_at is None and not c.gave_up and (code is None or (code < 0 and -code not in STOP_SIGNALS)):
                         self.stop_robot(c, code)
+                if ending is not None:  # its GIF is given up ANIMATION_STOPPING_S after the stop, its recorder RECORDING_STOP_S after its own
+                    ending.thread.join()
+                    self.settle_episode_end(ending)
                 self.finish_recording(recorder)
                 alive_sub.undeclare()
                 for q in qs:

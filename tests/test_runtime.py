@@ -1239,6 +1239,100 @@ def test_a_full_disk_at_the_episodes_end_is_said_and_the_run_stops_cleanly(tmp_p
     assert info["state"] == "stopped" and info["exit_code"] == 1 and info["outcome"] == "failed"
 
 
+def _sleeping_child(tmp_path: Path, name: str = "planner"):
+    """A service stand-in: a real process that runs until killed."""
+    from cso_runtime.supervision import Child
+
+    return Child(name, [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / f"{name}.log")
+
+
+def test_a_service_that_crashes_while_the_launcher_waits_for_the_result_is_noticed(tmp_path, caplog):
+    """The episode said it ended and the launcher asked for its result for up to 15 s without supervising: a service
+    that crashed meanwhile was neither logged, nor counted, nor restarted until the wait was over. It supervises
+    between its queries."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    launcher.run_dir.mkdir(parents=True)
+    planner = _sleeping_child(tmp_path)
+    launcher.children = [planner]
+
+    def crash_then_no_answer(key: str, timeout: float) -> list[Any]:
+        if not planner.exit_codes and planner.proc is not None and planner.proc.poll() is None:  # crashes once, as the query goes out
+            planner.proc.kill()
+            planner.proc.wait(timeout=30)
+        return []
+
+    try:
+        planner.spawn()
+        with caplog.at_level("WARNING", logger="cso.launcher"):
+            assert launcher.wait_for_result(SimpleNamespace(get=crash_then_no_answer), wait_s=2.0) is None
+        assert planner.exit_codes == [-signal.SIGKILL], caplog.text
+        assert f"planner exited (code -{int(signal.SIGKILL)}); restart 1/{profile.supervision.max_restarts}" in caplog.text, caplog.text
+    finally:
+        if planner.proc is not None and planner.proc.poll() is None:
+            planner.proc.kill()
+            planner.proc.wait(timeout=30)
+
+
+@pytest.mark.parametrize("phase", ["write_outputs", "finish_recording"])
+def test_a_service_that_crashes_while_the_episodes_end_is_written_is_restarted(tmp_path, monkeypatch, caplog, phase):
+    """The launcher wrote the episode's results (summary, plots, report) and finished its recording and GIF with its
+    supervision stopped, for seconds: a service that crashed meanwhile was not restarted, and `up` looked frozen. They
+    are written on a thread of their own while the run loop goes on supervising; the run still ends done."""
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "runs" / "run")
+    planner = _sleeping_child(tmp_path)
+    restarts_seen: list[int] = []
+
+    def crash_and_wait_for_the_restart() -> None:
+        """The phase takes as long as the launcher needs to restart a service that crashes as it starts (5 s at most)."""
+        if restarts_seen:  # `finish_recording` again, in the run's clean-up
+            return
+        assert planner.proc is not None
+        planner.proc.kill()
+        deadline = time.monotonic() + 5.0
+        while planner.restarts == 0 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        restarts_seen.append(planner.restarts)
+
+    def write_outputs(self: Launcher, result: Any) -> Path:
+        crash_and_wait_for_the_restart()
+        self.written_result = result
+        return self.run_dir
+
+    def spawn_all(self: Launcher) -> None:
+        planner.spawn()
+        self.children.append(planner)
+
+    monkeypatch.setattr(Launcher, "spawn_all", spawn_all)
+    if phase == "write_outputs":
+        monkeypatch.setattr(Launcher, "write_outputs", write_outputs)
+    else:
+        monkeypatch.setattr(Launcher, "write_outputs", lambda self, result: self.run_dir)
+        monkeypatch.setattr(Launcher, "finish_recording", lambda self, recorder: crash_and_wait_for_the_restart())
+    launcher.status = EpisodeStatusMsg(state="done", step=10, scene="s", method="greedy-dist", episode=1)
+    launcher.result = _fake_result()
+    try:
+        with caplog.at_level("INFO", logger="cso.launcher"):
+            assert launcher.run() == 0, caplog.text
+        assert restarts_seen == [1], caplog.text
+        assert f"planner exited (code -{int(signal.SIGKILL)}); restart 1/{profile.supervision.max_restarts}" in caplog.text, caplog.text
+        info = json.loads((launcher.run_dir / "run.json").read_text())
+        assert info["outcome"] == "done" and info["services"]["planner"]["restarts"] == 1, info
+    finally:
+        if planner.proc is not None and planner.proc.poll() is None:
+            planner.proc.kill()
+            planner.proc.wait(timeout=30)
+
+
 def _fake_result(method: str = "greedy-dist", steps: int = 10):
     from cso_runtime.messages import EpisodeResultMsg
 
