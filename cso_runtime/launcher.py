@@ -263,6 +263,9 @@ class Launcher:
         """Length of the planner's latest path, robot to goal (live view)."""
         self.outputs_written = False
         self.episode_ended_at: float | None = None
+        self.episode_state: str | None = None
+        """How the episode ended (``done``, ``failed``) once its results are written: what the run file says from
+        then on while the launcher still runs, also when a restart rewrites it."""
         """When the episode ended (Unix time, s): a detached run stays up after it until ``down``."""
         self.written_result: EpisodeResultMsg | None = None
         """The result whose outputs were written (its scene and method name the animation)."""
@@ -307,6 +310,10 @@ class Launcher:
         return self.run_dir / "profile.yaml"
 
     def write_run_file(self, state: str) -> None:
+        """``run.json`` and the runs folder's current-run file: the run's state, endpoints and processes, which
+        ``status``, ``down`` and ``runs`` read. ``running`` after the episode ended is its end state."""
+        if state == "running" and self.episode_state is not None:
+            state = self.episode_state
         info = {
             "run_id": self.run_id,
             "run_dir": str(self.run_dir.resolve()),
@@ -726,7 +733,7 @@ class Launcher:
         episode ended (``episode_ended_at``), while its recording and GIF may still be on their way. Once only."""
         if self.outputs_written or not end.outputs_done.is_set():
             return
-        self.outputs_written, self.episode_ended_at = True, time.time()
+        self.outputs_written, self.episode_ended_at, self.episode_state = True, time.time(), end.status.state
         if not (end.status.state == "done" and end.written):
             self.exit_code = 1
         self.write_run_file(end.status.state)

@@ -1333,6 +1333,25 @@ def test_a_service_that_crashes_while_the_episodes_end_is_written_is_restarted(t
             planner.proc.wait(timeout=30)
 
 
+def test_a_restart_after_the_episode_ended_keeps_its_end_state_in_the_run_file(tmp_path):
+    """A service restarted once the episode's results are written (supervision goes on through the episode's end)
+    rewrote run.json as "running", which `runs` reads as a run still exploring: it keeps the episode's end state."""
+    import threading
+
+    from cso_runtime.launcher import EpisodeEnd, Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "runs" / "run")
+    launcher.run_dir.mkdir(parents=True)
+    launcher.write_run_file("running")
+    end = EpisodeEnd(EpisodeStatusMsg(state="done", step=10, scene="s", method="greedy-dist", episode=1), _fake_result(), threading.Thread(), threading.Event(), True)
+    end.outputs_done.set()
+    launcher.settle_episode_end(end)
+    launcher.write_run_file("running")  # what a restart by `supervise` writes
+    assert json.loads((launcher.run_dir / "run.json").read_text())["state"] == "done"
+
+
 def _fake_result(method: str = "greedy-dist", steps: int = 10):
     from cso_runtime.messages import EpisodeResultMsg
 
