@@ -51,6 +51,32 @@ class MapFileError(ValueError):
     """A map YAML or image that cannot be read as a map_server map (the message says which file and why)."""
 
 
+MAX_MAP_CELLS = 25_000_000
+"""The most pixels a map or floor-plan image may have (5000 x 5000, 250 m square at 0.05 m). An episode holds
+about 100 bytes a cell (1.6 GB measured for a 4000 x 4000 map), so a larger one would take minutes and
+gigabytes before its first step; Pillow's own check only refuses images over 179 M pixels, with a traceback."""
+
+
+def open_image(path: Path) -> Image.Image:
+    """Open an image with its size checked from its header, before any pixel is decoded (close it after).
+    Raises MapFileError naming the file when it is missing, unreadable or over ``MAX_MAP_CELLS``."""
+    try:
+        im = Image.open(path)
+    except Image.DecompressionBombError:
+        raise MapFileError(
+            f"{path}: the image is too large: over {MAX_MAP_CELLS:,} pixels; resample it to a coarser resolution"
+        ) from None
+    except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as exc:
+        raise MapFileError(f"{path}: cannot read the map image ({exc})") from None
+    width, height = im.size
+    if width * height > MAX_MAP_CELLS:
+        im.close()
+        raise MapFileError(
+            f"{path}: the image is too large: {width} x {height} pixels, over {MAX_MAP_CELLS:,}; resample it to a coarser resolution"
+        )
+    return im
+
+
 def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_format: str = "pgm") -> Path:
     """Write ``grid`` (int8 OccupancyGrid values, row 0 at ``geometry``'s origin) as ``yaml_path`` and the
     image beside it (same stem, ``image_format`` pgm or png). Returns the YAML's path."""
@@ -120,12 +146,12 @@ def load_map_and_meta(yaml_path: Path) -> tuple[np.ndarray, GridGeometry, dict]:
     image_path = Path(str(meta["image"]))
     if not image_path.is_absolute():
         image_path = yaml_path.parent / image_path
-    try:
-        with Image.open(image_path) as im:
+    with open_image(image_path) as im:
+        try:
             im.load()
             pixels = np.asarray(im.convert("LA" if "A" in im.getbands() else "L"))
-    except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as exc:  # Pillow's decoders raise all of these on corrupt files
-        raise MapFileError(f"{image_path}: cannot read the map image ({exc})") from None
+        except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as exc:  # Pillow's decoders raise all of these on corrupt files
+            raise MapFileError(f"{image_path}: cannot read the map image ({exc})") from None
     alpha = pixels[..., 1] if pixels.ndim == 3 else None
     value = (pixels[..., 0] if pixels.ndim == 3 else pixels).astype(np.float64)
     if mode == "raw":

@@ -152,7 +152,9 @@ def floor_plan_from_rgb(name: str, rgb: np.ndarray, resolution_m: float, start_y
 
 def load_floor_plan(path: str | Path, resolution_m: float = 0.1, start_yaw_rad: float = 0.0) -> FloorPlan:
     """Load one PNG floor plan at ``resolution_m`` metres per pixel. Raises SceneError if unusable."""
-    from PIL import Image, UnidentifiedImageError  # noqa: PLC0415 - only needed for PNG input
+    from PIL import UnidentifiedImageError  # noqa: PLC0415 - only needed for PNG input
+
+    from cso_runtime.map_files import MapFileError, open_image  # noqa: PLC0415 - PIL only for PNG input
 
     p = Path(path)
     if not p.is_file():
@@ -160,8 +162,10 @@ def load_floor_plan(path: str | Path, resolution_m: float = 0.1, start_yaw_rad: 
     if not resolution_m > 0:
         raise SceneError("metres per pixel must be positive")
     try:
-        with Image.open(p) as im:
+        with open_image(p) as im:
             rgb = np.asarray(im.convert("RGB"))
+    except MapFileError as exc:  # too large, or not an image at all
+        raise SceneError(str(exc)) from None
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
         raise SceneError(f"{p.name}: not a readable image ({exc})") from None
     return floor_plan_from_rgb(p.stem, rgb, resolution_m, start_yaw_rad, source=str(p))

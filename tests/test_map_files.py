@@ -124,3 +124,15 @@ def test_save_map_minus_f_ending_in_a_slash_is_a_folder_even_a_new_one(tmp_path,
     monkeypatch.setattr(status, "save_map_main", lambda connect, robot, out, image_format, runs_dir: given.append(out) or 0)
     assert CliRunner().invoke(app, ["save-map", "-f", "maps/"]).exit_code == 0
     assert map_yaml_path(given[0]) == Path("maps") / "map.yaml"
+
+
+@pytest.mark.parametrize("width_px", [6000, 20000])
+def test_a_map_image_too_large_to_explore_is_refused_from_its_header(tmp_path: Path, width_px: int):
+    """A 6000 x 6000 map would take minutes and gigabytes before its first step, and Pillow's own
+    decompression-bomb check raised a traceback for a 20000 x 20000 one: both are a clear error, read
+    from the header alone (the files here hold almost no pixels)."""
+    (tmp_path / "huge.pgm").write_bytes(f"P5\n{width_px} {width_px}\n255\n".encode() + bytes(100))
+    meta = {"image": "huge.pgm", "resolution": 0.05, "origin": [0.0, 0.0, 0.0], "negate": 0, "occupied_thresh": 0.65, "free_thresh": 0.196}
+    (tmp_path / "huge.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(MapFileError, match="huge.pgm: the image is too large.*coarser resolution"):
+        load_map(tmp_path / "huge.yaml")

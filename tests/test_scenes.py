@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import zlib
 
 import numpy as np
 import pytest
@@ -394,3 +395,22 @@ def test_scenes_table_says_why_a_plan_is_unusable_in_full(tmp_path):
     r = CliRunner().invoke(app, ["scenes", str(plans)], env={"COLUMNS": "80"})
     assert r.exit_code == 1
     assert f"broken: {why}" in r.output and "…" not in r.output
+
+
+
+def _png_header_only(path, width_px: int, height_px: int) -> None:
+    """A PNG's signature, IHDR and IEND chunks, no pixels: all that a size check may read."""
+    ihdr = b"IHDR" + width_px.to_bytes(4, "big") + height_px.to_bytes(4, "big") + b"\x08\x02\x00\x00\x00"
+    iend = bytes(4) + b"IEND" + zlib.crc32(b"IEND").to_bytes(4, "big")
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + (13).to_bytes(4, "big") + ihdr + zlib.crc32(ihdr).to_bytes(4, "big") + iend)
+
+
+def test_a_floor_plan_too_large_to_explore_is_a_scene_error_not_a_traceback(tmp_path):
+    """Pillow's decompression-bomb check raised a traceback over 179 M pixels; a 6000 x 6000 plan loaded
+    and then took minutes and gigabytes. Both are refused from the header, naming the size."""
+    _png_header_only(tmp_path / "huge.png", 20000, 20000)
+    with pytest.raises(SceneError, match="huge.png: the image is too large"):
+        load_floor_plan(tmp_path / "huge.png")
+    _png_header_only(tmp_path / "wide.png", 6000, 6000)
+    with pytest.raises(SceneError, match="6000 x 6000 pixels"):
+        load_floor_plan(tmp_path / "wide.png")
