@@ -130,6 +130,14 @@ def _colour_within(rgb: np.ndarray, colour: tuple[int, int, int], tolerance: int
     return out
 
 
+OTHER_PLANS_HINT = (
+    "a PNG plan is read in the Dungeon colours (floor (195,195,194), wall (127,127,127), start square (255,216,0)); "
+    "a plan of other colours (white floor, dark walls) or without a start square is a map_server map: "
+    "write a YAML beside it with image, resolution, origin and start: [x_m, y_m, yaw_rad], and give the YAML"
+)
+"""What a PNG that is no Dungeon plan takes instead (a floor plan of the user's own building, say)."""
+
+
 def floor_plan_from_rgb(name: str, rgb: np.ndarray, resolution_m: float, start_yaw_rad: float = 0.0, source: str = "") -> FloorPlan:
     """Decode a Dungeon-style image: free (195,195,194), wall (127,127,127), start square (255,216,0)."""
     if rgb.ndim != 3 or rgb.shape[2] < 3:
@@ -138,11 +146,12 @@ def floor_plan_from_rgb(name: str, rgb: np.ndarray, resolution_m: float, start_y
     if not np.issubdtype(rgb.dtype, np.integer):
         rgb = rgb.astype(np.int16)
     start = _colour_within(rgb, START_RGB, COLOUR_TOLERANCE)
-    free_px = _colour_within(rgb, FREE_RGB, COLOUR_TOLERANCE) | start
+    floor = _colour_within(rgb, FREE_RGB, COLOUR_TOLERANCE)
     if not start.any():
-        raise SceneError(f"{name}: no start marker (colour {START_RGB})")
-    if not free_px.any():
-        raise SceneError(f"{name}: no free space (colour {FREE_RGB})")
+        raise SceneError(f"{name}: no start marker (colour {START_RGB}); {OTHER_PLANS_HINT}")
+    if not floor.any():
+        raise SceneError(f"{name}: no floor of the Dungeon free colour {FREE_RGB}; {OTHER_PLANS_HINT}")
+    free_px = floor | start
     free = np.flipud(free_px)
     sy, sx = np.nonzero(np.flipud(start))
     x = (sx.mean() + 0.5) * resolution_m

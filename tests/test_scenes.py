@@ -414,3 +414,18 @@ def test_a_floor_plan_too_large_to_explore_is_a_scene_error_not_a_traceback(tmp_
     _png_header_only(tmp_path / "wide.png", 6000, 6000)
     with pytest.raises(SceneError, match="6000 x 6000 pixels"):
         load_floor_plan(tmp_path / "wide.png")
+
+
+def test_a_png_in_other_colours_than_the_dungeon_set_says_how_to_load_it(tmp_path):
+    """A building's floor plan, white floor and black walls, with a start square: it read as 0.01 m2 of
+    floor 'walled in?' (only the marker had a plan colour). Now it names the colours and the YAML way."""
+    px = np.full((20, 30, 3), 255, dtype=np.uint8)
+    px[0], px[-1], px[:, 0], px[:, -1] = 0, 0, 0, 0
+    px[10, 10] = START_RGB
+    _write_png(tmp_path / "building.png", px)
+    with pytest.raises(SceneError, match=r"no floor of the Dungeon free colour.*map_server map.*YAML"):
+        load_floor_plan(tmp_path / "building.png")
+    px[10, 10] = 255  # no start square either
+    _write_png(tmp_path / "building.png", px)
+    with pytest.raises(SceneError, match=r"no start marker.*other colours.*start: \[x_m, y_m, yaw_rad\]"):
+        load_floor_plan(tmp_path / "building.png")
