@@ -111,8 +111,11 @@ def load_map(yaml_path: Path) -> tuple[np.ndarray, GridGeometry]:
     return grid, geometry
 
 
-def load_map_and_meta(yaml_path: Path) -> tuple[np.ndarray, GridGeometry, dict]:
-    """``load_map`` plus the YAML's whole mapping (keys map_server ignores, such as a scene's ``start``)."""
+def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple[np.ndarray, GridGeometry, dict]:
+    """``load_map`` plus the YAML's whole mapping (keys map_server ignores, such as a scene's ``start``).
+    ``rotated_origin_ok``: take an ``origin`` with a yaw (map_server's counterclockwise rotation of the grid
+    in the map frame); the geometry is then the grid's own frame, axis-aligned at (x, y), and the caller
+    turns map-frame poses by the yaw (a scene does: its plan is in the grid's frame anyway)."""
     yaml_path = Path(yaml_path)
     try:
         with yaml_path.open(encoding="utf-8") as stream:
@@ -131,7 +134,7 @@ def load_map_and_meta(yaml_path: Path) -> tuple[np.ndarray, GridGeometry, dict]:
     x0, y0, yaw = (_number(v, yaml_path, "origin") for v in origin)
     if not resolution > 0:
         raise MapFileError(f"{yaml_path}: resolution must be positive, got {resolution}")
-    if abs(yaw) > 1e-9:
+    if abs(yaw) > 1e-9 and not rotated_origin_ok:
         raise MapFileError(f"{yaml_path}: a rotated origin (yaw {yaw} rad) is not supported: grids here are axis-aligned")
     mode = meta.get("mode", "trinary")
     if mode not in ("trinary", "scale", "raw"):

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from cso_runtime.geometry import GridGeometry, Pose2D
+from cso_runtime.geometry import GridGeometry, Pose2D, relative_pose
 
 FREE_RGB = (195, 195, 194)
 WALL_RGB = (127, 127, 127)
@@ -187,7 +187,8 @@ MAP_SUFFIXES = (".yaml", ".yml")
 def load_map_scene(path: str | Path) -> FloorPlan:
     """A map_server map (YAML + image) as a floor plan: its free cells (0) are the floor; occupied and
     unknown cells are walls. The world frame is the map's lower-left corner, at the map's own
-    resolution. The start is the YAML's optional ``start: [x_m, y_m, yaw_rad]`` (map frame; map_server
+    resolution, along the grid's rows and columns (an ``origin`` with a yaw turns the map frame, not the
+    plan). The start is the YAML's optional ``start: [x_m, y_m, yaw_rad]`` (map frame; map_server
     ignores the key), else the free cell farthest from any wall in the largest free region."""
     from cso_runtime.map_files import MapFileError, load_map_and_meta  # noqa: PLC0415 - PIL only for map input
 
@@ -195,7 +196,7 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     if not p.is_file():
         raise SceneError(f"{p.name}: file not found ({p})")
     try:
-        grid, geometry, meta = load_map_and_meta(p)
+        grid, geometry, meta = load_map_and_meta(p, rotated_origin_ok=True)
         start = meta.get("start")
     except MapFileError as exc:
         raise SceneError(str(exc)) from None
@@ -206,7 +207,8 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     if start is not None:
         if not (isinstance(start, list) and len(start) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in start)):
             raise SceneError(f"{p.name}: start must be [x_m, y_m, yaw_rad], three finite numbers")
-        pose = Pose2D(float(start[0]) - geometry.origin_x_m, float(start[1]) - geometry.origin_y_m, float(start[2]))
+        # The map frame's pose in the grid's frame, whose corner is at `origin`, turned by its yaw (map_server's).
+        pose = Pose2D(*relative_pose(Pose2D(*map(float, meta["origin"])), Pose2D(*map(float, start))))
         iy, ix = GridGeometry(res, free.shape).world_to_cell(pose.x_m, pose.y_m)
         if not (0 <= iy < free.shape[0] and 0 <= ix < free.shape[1] and free[iy, ix]):
             raise SceneError(f"{p.name}: start ({start[0]}, {start[1]}) m is not on a free cell of the map")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import zlib
 
 import numpy as np
@@ -429,3 +430,20 @@ def test_a_png_in_other_colours_than_the_dungeon_set_says_how_to_load_it(tmp_pat
     _write_png(tmp_path / "building.png", px)
     with pytest.raises(SceneError, match=r"no start marker.*other colours.*start: \[x_m, y_m, yaw_rad\]"):
         load_floor_plan(tmp_path / "building.png")
+
+
+def test_a_map_with_a_rotated_origin_is_a_scene_and_its_start_turns_with_it(tmp_path):
+    """map_server's ``origin`` yaw turns the grid in the map frame. It was refused ('not supported'); the plan
+    is the grid itself, so only the YAML's map-frame start turns into the grid's frame."""
+    plan = generate_floor_plan("small", 3)
+    yaw0 = math.pi / 2  # the grid's x axis points along the map's y axis
+    origin = [-3.0, 1.5, yaw0]
+    # The plan's start (grid frame) in the map frame: rotate by yaw0, then add the origin.
+    x = origin[0] + math.cos(yaw0) * plan.start.x_m - math.sin(yaw0) * plan.start.y_m
+    y = origin[1] + math.sin(yaw0) * plan.start.x_m + math.cos(yaw0) * plan.start.y_m
+    yaml_path = _plan_as_map(tmp_path, plan, origin=origin[:2], start=[x, y, yaw0 + 0.5])
+    meta = yaml.safe_load(yaml_path.read_text())
+    yaml_path.write_text(yaml.safe_dump({**meta, "origin": origin}))
+    scene = resolve_scenes(str(yaml_path))[0].load()
+    np.testing.assert_array_equal(scene.free, plan.free)
+    assert (scene.start.x_m, scene.start.y_m, scene.start.yaw_rad) == pytest.approx((plan.start.x_m, plan.start.y_m, 0.5))
