@@ -5,7 +5,8 @@ in RViz). The files follow ``map_saver``: ``mode: trinary``, occupied cells blac
 unknown cells grey (205), ``negate: 0``, thresholds 0.65 / 0.196; the image's first row is the top of the map
 (largest y) and ``origin`` is the map-frame pose ``[x_m, y_m, yaw_rad]`` of the lower-left pixel's corner
 (REP-103: x east, y north). ``load_map`` reads what ``map_saver`` and this module write
-(``trinary``, ``scale`` and ``raw`` modes, ``negate`` 0 or 1) back into OccupancyGrid values (-1/0/100).
+(``trinary``, ``scale`` and ``raw`` modes, ``negate`` 0 or 1; 8- or 16-bit grey, colour as its luma) back into
+OccupancyGrid values (-1/0/100).
 """
 
 from __future__ import annotations
@@ -152,12 +153,16 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
     with open_image(image_path) as im:
         try:
             im.load()
-            pixels = np.asarray(im.convert("LA" if "A" in im.getbands() else "L"))
+            if im.mode.startswith("I"):  # 16-bit grey (PGM of maxval 65535, 16-bit PNG): "L" would clip it at 255
+                pixels = np.asarray(im, dtype=np.float64) * (255.0 / 65535.0)
+            else:
+                pixels = np.asarray(im.convert("LA" if "A" in im.getbands() else "L"))
         except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as exc:  # Pillow's decoders raise all of these on corrupt files
             raise MapFileError(f"{image_path}: cannot read the map image ({exc})") from None
     alpha = pixels[..., 1] if pixels.ndim == 3 else None
     value = (pixels[..., 0] if pixels.ndim == 3 else pixels).astype(np.float64)
     if mode == "raw":
+        value = np.rint(value)  # as Nav2: the grey on 0-255, rounded
         grid = np.clip(value, -1, 100).astype(np.int8)
         grid[value > 100] = UNKNOWN
     else:

@@ -136,3 +136,19 @@ def test_a_map_image_too_large_to_explore_is_refused_from_its_header(tmp_path: P
     (tmp_path / "huge.yaml").write_text(yaml.safe_dump(meta))
     with pytest.raises(MapFileError, match="huge.pgm: the image is too large.*coarser resolution"):
         load_map(tmp_path / "huge.yaml")
+
+
+@pytest.mark.parametrize("suffix", ["pgm", "png"])
+def test_a_16_bit_grey_map_reads_on_its_full_range(tmp_path: Path, suffix: str):
+    """A 16-bit PGM (maxval 65535) or PNG: Pillow's 8-bit conversion clipped every value over 255 to white,
+    so unknown grey and mid greys read as free. map_server reads the shade on the image's own range."""
+    grey16 = np.array([[0, 65535, 52685, 32768]], dtype=np.uint16)  # black, white, map_saver's unknown 205, mid grey
+    if suffix == "pgm":
+        (tmp_path / "m.pgm").write_bytes(b"P5\n4 1\n65535\n" + grey16.astype(">u2").tobytes())
+    else:
+        Image.fromarray(grey16).save(tmp_path / "m.png")
+    meta = {"image": f"m.{suffix}", "resolution": 0.05, "origin": [0.0, 0.0, 0.0], "negate": 0}
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump({**meta, "occupied_thresh": 0.65, "free_thresh": 0.196}))
+    assert load_map(tmp_path / "m.yaml")[0].tolist() == [[100, 0, -1, -1]]
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump({**meta, "mode": "raw"}))
+    assert load_map(tmp_path / "m.yaml")[0].tolist() == [[0, -1, -1, -1]]  # 255, 205 and 128 are no raw values
