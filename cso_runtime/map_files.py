@@ -6,11 +6,14 @@ unknown cells grey (205), ``negate: 0``, thresholds 0.65 / 0.196; the image's fi
 (largest y) and ``origin`` is the map-frame pose ``[x_m, y_m, yaw_rad]`` of the lower-left pixel's corner
 (REP-103: x east, y north). ``load_map`` reads what ``map_saver`` and this module write
 (``trinary``, ``scale`` and ``raw`` modes, ``negate`` 0 or 1; 8- or 16-bit grey, colour as its luma) back into
-OccupancyGrid values (-1/0/100).
+OccupancyGrid values (-1/0/100). Alpha is read as Nav2's ``map_io`` reads it: in ``trinary`` mode it is averaged
+in with the three colour channels (so an opaque grey 205 reads as free there, as in Nav2 and ROS 1's map_server),
+in ``scale`` mode a pixel not fully opaque is unknown, and ``raw`` mode ignores it.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from pathlib import Path
@@ -29,6 +32,10 @@ OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.196
 writes it: the unknown grey 205 is an occupancy of 0.19608, so it loads as unknown, where Nav2's default of 0.25
 would read it as free."""
 IMAGE_FORMATS = ("pgm", "png")
+
+log = logging.getLogger("cso.map_files")
+_warned_default_thresholds: set[Path] = set()
+"""The YAMLs already warned about for missing thresholds (the warning is once per file per process)."""
 
 
 MAP_FILE_SUFFIXES = (".yaml", ".yml", ".pgm", ".png")
@@ -143,6 +150,7 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
     negate = meta.get("negate", 0)
     if negate not in (0, 1, False, True):
         raise MapFileError(f"{yaml_path}: negate must be 0 or 1")
+    _warn_default_thresholds(yaml_path, meta)
     occ_t = _number(meta.get("occupied_thresh", OCCUPIED_THRESH), yaml_path, "occupied_thresh")
     free_t = _number(meta.get("free_thresh", FREE_THRESH), yaml_path, "free_thresh")
     if not 0 <= free_t < occ_t <= 1:
@@ -166,6 +174,8 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
         grid = np.clip(value, -1, 100).astype(np.int8)
         grid[value > 100] = UNKNOWN
     else:
+        if alpha is not None and mode == "trinary":
+            value = (3.0 * value + alpha) / 4.0  # as Nav2's map_io (and ROS 1): alpha averaged in with R, G, B
         occ = value / 255.0 if negate else (255.0 - value) / 255.0
         grid = np.full(value.shape, UNKNOWN, dtype=np.int8)
         grid[occ > occ_t] = OCCUPIED
@@ -173,10 +183,28 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
         if mode == "scale":
             between = (occ >= free_t) & (occ <= occ_t)
             grid[between] = np.rint(100 * (occ[between] - free_t) / (occ_t - free_t)).astype(np.int8)  # as Nav2
-        if alpha is not None:
-            grid[alpha < 255] = UNKNOWN  # map_server: transparent pixels are unknown
+        if alpha is not None and mode == "scale":
+            grid[alpha < 255] = UNKNOWN  # as Nav2: in scale mode a pixel not fully opaque is unknown
     geometry = GridGeometry(resolution, (int(grid.shape[0]), int(grid.shape[1])), x0, y0)
     return np.flipud(grid).copy(), geometry, meta
+
+
+def _warn_default_thresholds(yaml_path: Path, meta: dict) -> None:
+    """Say once per file which thresholds were defaulted: both map_server versions refuse a YAML without them,
+    so the file would not load in ROS as it does here."""
+    defaults = {"occupied_thresh": OCCUPIED_THRESH, "free_thresh": FREE_THRESH}
+    missing = {key: value for key, value in defaults.items() if key not in meta}
+    key = yaml_path.resolve()
+    if not missing or key in _warned_default_thresholds:
+        return
+    _warned_default_thresholds.add(key)
+    used = ", ".join(f"{name} {value}" for name, value in missing.items())
+    log.warning(
+        "%s: no %s in the YAML; using %s (map_server and Nav2's map_server require them: add them to load it in ROS)",
+        yaml_path,
+        " or ".join(missing),
+        used,
+    )
 
 
 def _number(v: object, path: Path, key: str) -> float:

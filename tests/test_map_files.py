@@ -152,3 +152,40 @@ def test_a_16_bit_grey_map_reads_on_its_full_range(tmp_path: Path, suffix: str):
     assert load_map(tmp_path / "m.yaml")[0].tolist() == [[100, 0, -1, -1]]
     (tmp_path / "m.yaml").write_text(yaml.safe_dump({**meta, "mode": "raw"}))
     assert load_map(tmp_path / "m.yaml")[0].tolist() == [[0, -1, -1, -1]]  # 255, 205 and 128 are no raw values
+
+
+def test_a_yaml_without_thresholds_loads_with_the_defaults_and_says_so_once(tmp_path: Path, caplog: pytest.LogCaptureFixture):
+    """Both ROS map_servers refuse a YAML without occupied_thresh / free_thresh; here it loads, with a warning."""
+    Image.fromarray(np.array([[0, 205, 254]], dtype=np.uint8)).save(tmp_path / "m.png")
+    meta = {"image": "m.png", "resolution": 0.1, "origin": [0.0, 0.0, 0.0]}
+    (tmp_path / "bare.yaml").write_text(yaml.safe_dump(meta))
+    (tmp_path / "full.yaml").write_text(yaml.safe_dump({**meta, "occupied_thresh": 0.65, "free_thresh": 0.196}))
+    with caplog.at_level("WARNING", logger="cso.map_files"):
+        assert load_map(tmp_path / "full.yaml")[0].tolist() == [[100, -1, 0]]
+        assert caplog.records == []
+        assert load_map(tmp_path / "bare.yaml")[0].tolist() == [[100, -1, 0]]
+        load_map(tmp_path / "bare.yaml")
+    assert len(caplog.records) == 1
+    message = caplog.records[0].getMessage()
+    assert str(tmp_path / "bare.yaml") in message
+    assert "occupied_thresh 0.65" in message and "free_thresh 0.196" in message
+
+
+@pytest.mark.parametrize(
+    ("mode", "expected"),
+    [
+        # Nav2 averages alpha in with R, G, B: (3 grey + alpha) / 4; an opaque 205 is then an occupancy of 0.147: free.
+        ("trinary", [-1, 0, 0, -1, 100, 100, 100]),
+        ("scale", [-1, 0, 0, 67, -1, 100, -1]),  # not fully opaque: unknown; 128 is between the thresholds
+        ("raw", [-1, -1, -1, -1, 0, 0, 50]),  # alpha ignored: the grey itself, over 100 unknown
+    ],
+)
+def test_alpha_is_read_per_mode_as_nav2_map_server_reads_it(tmp_path: Path, mode: str, expected: list[int]):
+    grey = np.array([254, 254, 205, 128, 0, 0, 50], dtype=np.uint8)
+    alpha = np.array([0, 255, 255, 255, 0, 255, 0], dtype=np.uint8)
+    rgba = np.stack([grey, grey, grey, alpha], axis=-1)[None]
+    Image.fromarray(rgba, "RGBA").save(tmp_path / "a.png")
+    meta = {"image": "a.png", "mode": mode, "resolution": 0.1, "origin": [0.0, 0.0, 0.0]}
+    meta.update(negate=0, occupied_thresh=0.65, free_thresh=0.196)
+    (tmp_path / "a.yaml").write_text(yaml.safe_dump(meta))
+    assert load_map(tmp_path / "a.yaml")[0].tolist() == [expected]
