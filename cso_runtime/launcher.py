@@ -463,7 +463,8 @@ class Launcher:
         state = "stopping" if self.stop_event.is_set() else "running"
         heard = self.status
         last = None if heard is None else {"state": heard.state, "step": heard.step, "episode": heard.episode, "age_s": round(time.monotonic() - self.status_heard_at_s, 3)}
-        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last)
+        pace = None if self.real_time_factor is None else round(self.real_time_factor, 3)
+        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace)
 
     # --- supervision ------------------------------------------------------------------------------
     def stop_robot(self, c: Child, code: int | None) -> None:

@@ -8,6 +8,8 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any
 
+from cso_runtime.pace import real_time_words
+
 if TYPE_CHECKING:
     from rich.console import Console
     from rich.table import Table
@@ -18,7 +20,7 @@ if TYPE_CHECKING:
 
 def pace_text(real_time_factor: float | None) -> str:
     """``, 1.00x real time`` (simulated over wall-clock seconds), or nothing when unknown (a real robot, too early)."""
-    return "" if real_time_factor is None else f", {real_time_factor:.2f}x real time"
+    return "" if real_time_factor is None else f", {real_time_words(real_time_factor)}"
 
 
 def progress_line(status: EpisodeStatusMsg, control_period_s: float, real_time_factor: float | None = None) -> str:

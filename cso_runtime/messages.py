@@ -1102,11 +1102,17 @@ class LauncherStatusMsg(Message):
     """The last episode status the launcher heard (``state``, ``step``, ``episode``) and ``age_s``, the seconds
     since: what ``status`` says when the sim does not answer (stopped, hung) instead of "starting". Optional on
     decoding (older launchers do not send it); None before the first."""
+    real_time_factor: float | None = None
+    """The simulator's simulated seconds per wall-clock second in the episode so far, as ``up``'s live view shows it
+    (``pace.StepPace``). Optional on decoding (older launchers do not send it); None on a real robot and before two
+    statuses of the episode."""
 
     def body(self) -> dict[str, Any]:
         body = {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected, "handler_errors": self.handler_errors}
         if self.last_episode is not None:
             body["last_episode"] = self.last_episode
+        if self.real_time_factor is not None:
+            body["real_time_factor"] = self.real_time_factor
         return body
 
     @classmethod
@@ -1133,7 +1139,8 @@ class LauncherStatusMsg(Message):
                 raise MessageError("launcher_status.last_episode: expected a mapping")
             lw = "launcher_status.last_episode"
             last = {"state": _str(last, "state", lw, max_len=64), "step": _int(last, "step", lw), "episode": _int(last, "episode", lw), "age_s": _num(last, "age_s", lw, lo=0.0)}
-        return cls(_str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last)
+        pace = None if b.get("real_time_factor") is None else _num(b, "real_time_factor", w, lo=0.0)
+        return cls(_str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace)
 
     def to_dict(self) -> dict[str, Any]:
         return self.body()

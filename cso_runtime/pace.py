@@ -14,6 +14,11 @@ def real_time_factor(sim_s: float | None, wall_s: float | None) -> float | None:
     return sim_s / wall_s
 
 
+def real_time_words(real_time_factor: float) -> str:
+    """``1.00x real time``: how ``up``'s live view and progress lines and ``status`` word the factor."""
+    return f"{real_time_factor:.2f}x real time"
+
+
 class StepPace:
     """The real-time factor of a running episode, measured on its statuses as they arrive: the steps from the first
     status past its start to the latest, times the control period, over the wall-clock time between their arrivals.

@@ -18,6 +18,7 @@ import zenoh
 
 from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id
 from cso_runtime.messages import EpisodeStatusMsg, LauncherStatusMsg, MapMsg, MessageError, ServiceStatusMsg, decode
+from cso_runtime.pace import real_time_words
 from cso_runtime.transport import TransportConfig, TransportError, zenoh_config
 
 if TYPE_CHECKING:
@@ -143,6 +144,7 @@ def status_of(
         "launcher_rejected": (launcher or {}).get("rejected", {}),
         "launcher_handler_errors": (launcher or {}).get("handler_errors", {}),
         "status_age_s": age_s,
+        "real_time_factor": (launcher or {}).get("real_time_factor"),
     }
 
 
@@ -291,10 +293,11 @@ def render_table(status: dict[str, Any]) -> Table:
     goal = status["goal"]
     waiting = status.get("waiting_for") or []
     waits = waiting_note(waiting)
+    pace = "" if status.get("real_time_factor") is None else f" ({real_time_words(status['real_time_factor'])})"
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "") + waits),
         ("scene / method", f"{status['scene']} / {status['method']}"),
-        ("step", str(status["step"])),
+        ("step", f"{status['step']}{pace}"),  # as up's live view says the sim's pace
         ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
         ("coverage", f"{status['coverage_pct']:.2f} %"),
         ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / status['step']:.3f} m2/step" if status["step"] else "")),

@@ -102,6 +102,7 @@ def test_scan_round_trip_keeps_inf_and_values():
         LauncherStatusMsg("run1", "running", {"sim": {"pid": 12, "restarts": 0}}, {"path": 1}),
         LauncherStatusMsg("run1", "running", {"ros2_bridge": {"pid": 12, "restarts": 1, "robot_stops": 1}}),
         LauncherStatusMsg("run1", "running", last_episode={"state": "exploring", "step": 41, "episode": 7, "age_s": 12.5}),
+        LauncherStatusMsg("run1", "running", real_time_factor=2.125),
     ],
 )
 def test_small_messages_round_trip(msg):
@@ -477,6 +478,11 @@ def _mutate(msg, **changes) -> bytes:
         _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "exploring", "step": 41, "episode": 7, "age_s": -1.0}),
         _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "exploring", "step": 41}),
         _mutate(LauncherStatusMsg("run1", "running"), last_episode=[1]),
+        _mutate(LauncherStatusMsg("run1", "running"), real_time_factor=-1.0),
+        _mutate(LauncherStatusMsg("run1", "running"), real_time_factor=float("nan")),
+        _mutate(LauncherStatusMsg("run1", "running"), real_time_factor=float("inf")),
+        _mutate(LauncherStatusMsg("run1", "running"), real_time_factor="2.0x"),
+        _mutate(LauncherStatusMsg("run1", "running"), real_time_factor=True),
     ],
 )
 def test_out_of_range_and_non_finite_fields_are_rejected(payload):

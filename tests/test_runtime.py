@@ -1540,6 +1540,52 @@ def test_up_shows_and_writes_the_simulators_real_time_factor_measured_on_the_epi
         assert methods["sim_time_s"] == 12.5 and methods["real_time_factor"] == pytest.approx(2.0)
 
 
+@pytest.mark.parametrize("name", ["lockstep", "limo-ros2"])
+def test_status_shows_the_simulators_real_time_factor_the_launcher_measures(tmp_path, monkeypatch, name):
+    """``up``'s live view gave the sim's real-time factor and ``status`` did not: the launcher's status carries it
+    (``real_time_factor``), ``status`` shows it on the step row in the live view's words and ``--json`` has it;
+    null before two statuses of the episode, and on a real robot, which has no simulated time."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.status import render_table, status_of
+
+    clock = [1000.0]
+    monkeypatch.setattr(launcher_module, "time", SimpleNamespace(monotonic=lambda: clock[0], time=time.time))
+    profile, data = load_profile(str(find_profile(name)), {}, connect=["tcp/127.0.0.1:7447"] if name == "limo-ros2" else None)
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+
+    def heard(step: int, at_s: float) -> dict:
+        clock[0] = at_s
+        msg = EpisodeStatusMsg(state="exploring", step=step, scene="s", method="greedy-dist", episode=7)
+        launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda: encode(msg))))
+        return msg.to_dict()
+
+    def status_now(episode: dict) -> tuple[dict, str]:
+        msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it
+        assert isinstance(msg, LauncherStatusMsg)
+        status = status_of(profile.robot, episode, msg.to_dict(), {}, set())
+        console = Console(record=True, width=200)
+        console.print(render_table(status))
+        return json.loads(json.dumps(status)), console.export_text()
+
+    status, text = status_now(heard(2, 1030.0))  # one status: no pace yet
+    assert status["real_time_factor"] is None and "x real time" not in text, text
+    status, text = status_now(heard(42, 1035.0))  # 40 steps of 0.25 s in 5 s: twice as fast as real time
+    if name == "limo-ros2":
+        assert status["real_time_factor"] is None and "x real time" not in text, text
+        assert re.search(r"│ step +│ 42 +│", text), text
+    else:
+        assert status["real_time_factor"] == pytest.approx(2.0)
+        assert re.search(r"│ step +│ 42 \(2\.00x real time\) +│", text), text
+
+
 def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     """The launcher's live view reports the length of the planner's latest path (robot to goal)."""
     from types import SimpleNamespace
