@@ -45,6 +45,7 @@ from cso_runtime.current_run import CURRENT_RUN, DOWN_MARGIN_S, RUNS_LOCK, down,
 from cso_runtime.keys import RobotKeys, topic_of
 from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
+    EPISODE_OVER,
     EpisodeResultMsg,
     EpisodeStatusMsg,
     GoalMsg,
@@ -923,7 +924,7 @@ class Launcher:
                         logged_s = time.monotonic()
                         if st is not None and st.state == "exploring":
                             log.info("%s", progress_line(st, self.control_period_s, self.real_time_factor))
-                    if ending is None and st is not None and st.state in ("done", "failed") and not self.outputs_written:
+                    if ending is None and st is not None and st.state in EPISODE_OVER and not self.outputs_written:
                         self.ended_status = st
                         result = self.wait_for_result(session, meanwhile=tend)
                         if result is None and self.episode_goes_on():

@@ -870,6 +870,8 @@ class ClockMsg(Message):
 
 
 EPISODE_STATES = ("starting", "exploring", "done", "failed")
+EPISODE_OVER = ("done", "failed")
+"""The states of an episode that has ended: nothing is waited for after them."""
 
 
 @dataclass

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import zenoh
 
 from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id
-from cso_runtime.messages import EpisodeStatusMsg, LauncherStatusMsg, MapMsg, MessageError, ServiceStatusMsg, decode
+from cso_runtime.messages import EPISODE_OVER, EpisodeStatusMsg, LauncherStatusMsg, MapMsg, MessageError, ServiceStatusMsg, decode
 from cso_runtime.pace import real_time_words
 from cso_runtime.transport import TransportConfig, TransportError, zenoh_config
 
@@ -90,10 +90,6 @@ def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) 
     if episode is None and launcher is None and not alive:
         return None
     return status_of(robot, episode, launcher, services, alive)
-
-
-EPISODE_OVER = ("done", "failed")
-"""The episode states after which nothing is waited for."""
 
 
 def status_of(

@@ -43,6 +43,7 @@ from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
 from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand, wrap_angle_rad
 from cso_runtime.messages import (
+    EPISODE_OVER,
     ClockMsg,
     CmdVelMsg,
     EpisodeResultMsg,
@@ -362,7 +363,7 @@ class Ros2BridgeService(Service):
         )
 
     def _on_result_query(self, query: zenoh.Query) -> None:
-        if self.episode_state in ("done", "failed"):
+        if self.episode_state in EPISODE_OVER:
             query.reply(self.ctx.keys.episode_result, encode(self.episode_result()))
         else:
             query.reply_err(b"episode not finished")
