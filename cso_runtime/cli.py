@@ -503,7 +503,7 @@ def scenes_command(
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans, as in eval (0.1 super large, 0.05 large)"),
     limit: int | None = typer.Option(None, "--limit", min=1, help="At most N scenes"),
     preview: Path | None = typer.Option(None, "--preview", help="Also write a PNG of each plan into this folder: reachable free space, start pose"),
-    mjcf: Path | None = typer.Option(None, "--mjcf", help="Also write each plan's MuJoCo world (walls, floor, the LIMO; keyframe 'start' at the start pose) into this folder as NAME.xml, for `python -m mujoco.viewer --mjcf FILE`"),
+    mjcf: Path | None = typer.Option(None, "--mjcf", help="Also write each plan's MuJoCo world (walls, floor, the LIMO, whose default pose qpos0 is the start pose, as is keyframe 'start') into this folder as NAME.xml, for `python -m mujoco.viewer --mjcf FILE`"),
     sim_config: Path | None = typer.Option(
         None, "--sim-config", help="With --mjcf: write the worlds with these MuJoCo LIMO parameters (the keys of configs/robot_sim.yaml), as eval --sim mujoco --sim-config FILE builds them"
     ),

@@ -23,9 +23,11 @@ Frames follow REP-103: the base body's origin is the robot centre at floor heigh
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from cso_runtime.config import RobotConfig
+from cso_runtime.geometry import Pose2D
 from robot_sim.config import MujocoSimConfig
 
 ROBOT_BODY = "limo"
@@ -53,11 +55,41 @@ def _f(x: float) -> str:
     return f"{x:.6g}"
 
 
-def limo_mjcf(robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float) -> LimoMjcf:
+def exact(x: float) -> str:
+    """``x`` written so that MuJoCo reads back the same double (a pose the simulator compares bit for bit)."""
+    return repr(float(x) + 0.0)  # + 0.0: no "-0.0"
+
+
+def _base_joints_xml(default_pose: Pose2D | None) -> tuple[str, str]:
+    """The base body's placement attributes and its three joints, with qpos0 at ``default_pose``.
+
+    MuJoCo's qpos0 (``mj_resetData``, a viewer opening the file or pressing Reset) is each joint's ``ref``, the joint
+    value at which the body sits where the file places it. The slides act in the body's frame, so a body turned by
+    the start's yaw gets slide axes turned back by it: they stay the map's x and y, and qpos stays the map pose.
+    """
+    axes, refs, placement = ("1 0 0", "0 1 0", "0 0 1"), ("", "", ""), 'pos="0 0 0"'
+    if default_pose is not None:
+        x, y, yaw = default_pose.x_m, default_pose.y_m, default_pose.yaw_rad
+        refs = tuple(f' ref="{exact(v)}"' for v in (x, y, yaw))
+        placement = f'pos="{exact(x)} {exact(y)} 0"'
+        if yaw != 0.0:
+            c, s = math.cos(yaw), math.sin(yaw)
+            axes = (f"{exact(c)} {exact(-s)} 0", f"{exact(s)} {exact(c)} 0", "0 0 1")
+            placement += f' euler="0 0 {exact(yaw)}"'
+    joints = "\n      ".join(
+        f'<joint name="{name}" type="{kind}" axis="{axis}"{ref}/>'
+        for name, kind, axis, ref in zip(JOINTS, ("slide", "slide", "hinge"), axes, refs)
+    )
+    return placement, joints
+
+
+def limo_mjcf(robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float, default_pose: Pose2D | None = None) -> LimoMjcf:
     """The LIMO: box body, four visual wheels, LiDAR site, planar servos.
 
-    The base body sits at the world origin and its joints are world-aligned (slides before the yaw
-    hinge), so ``qpos[:3]`` is the robot's pose (x_m, y_m, yaw_rad) in the map frame.
+    Its joints are world-aligned (slides before the yaw hinge), so ``qpos[:3]`` is the robot's pose
+    (x_m, y_m, yaw_rad) in the map frame. ``default_pose`` is the model's qpos0, where the body is placed;
+    None: the map origin (the body at the world origin, no ``ref``), the model the simulator steps: MuJoCo
+    places the body at body_pos + (qpos - qpos0), whose last bits differ from qpos itself when qpos0 is not 0.
     """
     length, width, height = robot.length_m, robot.width_m, sim.body_height_m
     clearance = sim.wheel_radius_m
@@ -78,11 +110,10 @@ def limo_mjcf(robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float) 
         )
     kv_lin = m / sim.actuator_time_constant_s
     kv_yaw = izz / sim.actuator_time_constant_s
+    placement, joints = _base_joints_xml(default_pose)
     body = f"""
-    <body name="{ROBOT_BODY}" pos="0 0 0">
-      <joint name="base_x" type="slide" axis="1 0 0"/>
-      <joint name="base_y" type="slide" axis="0 1 0"/>
-      <joint name="base_yaw" type="hinge" axis="0 0 1"/>
+    <body name="{ROBOT_BODY}" {placement}>
+      {joints}
       <inertial pos="0 0 {_f(box_z)}" mass="{_f(m)}" diaginertia="{_f(ixx)} {_f(iyy)} {_f(izz)}"/>
       <geom name="chassis" type="box" size="{_f(0.5 * length)} {_f(0.5 * width)} {_f(box_half_z)}" pos="0 0 {_f(box_z)}"
             group="{GROUP_ROBOT}" contype="1" conaffinity="1" condim="3" friction="{_f(sim.wall_friction)} 0.005 0.0001"

@@ -19,7 +19,7 @@ from scipy import ndimage
 from cso_runtime.config import RobotConfig, SensorConfig
 from cso_runtime.scenes import FloorPlan
 from robot_sim.config import MujocoSimConfig
-from robot_sim.limo import GROUP_FLOOR, GROUP_WALLS, limo_mjcf
+from robot_sim.limo import GROUP_FLOOR, GROUP_WALLS, exact, limo_mjcf
 
 
 def merge_rectangles(mask: np.ndarray) -> list[tuple[int, int, int, int]]:
@@ -62,27 +62,36 @@ def wall_boxes(plan: FloorPlan, boundary_only: bool = False) -> np.ndarray:
     return np.stack([0.5 * (x0 + x1) * res, 0.5 * (y0 + y1) * res, 0.5 * (x1 - x0) * res, 0.5 * (y1 - y0) * res], axis=1)
 
 
-def _world_header(sim: MujocoSimConfig, lidar_mount_x_m: float) -> str:
-    """An XML comment for whoever opens the file on its own: units, frames, the key to load (qpos0 is the map
-    origin, inside the boundary wall), controls, geom groups and the parameters the world was built with."""
+def _world_header(sim: MujocoSimConfig, lidar_mount_x_m: float, robot_at_start: bool) -> str:
+    """An XML comment for whoever opens the file on its own: units, frames, the default pose and the key, controls,
+    geom groups and the parameters the world was built with."""
     values = {**dataclasses.asdict(sim), "lidar_mount_x_m": lidar_mount_x_m}
     params = " ".join(f"{k}={str(v).lower() if isinstance(v, bool) else f'{v:g}'}" for k, v in values.items())
+    default_pose = (
+        """The default pose qpos0 (what the viewer shows on opening the file and after Reset, and mj_resetData gives) is
+  the plan's start pose, where an episode starts; key "start" holds the same pose (for code that loads it)."""
+        if robot_at_start
+        else """qpos0 is the map origin, inside the boundary wall: this is the model the simulator steps, which sets the start
+  pose itself (robot_sim/limo.py says why); the files it writes for users have qpos0 at the start (key "start")."""
+    )
     return f"""<!-- The MuJoCo LIMO in a floor plan, as cso-runtime's simulator builds it (robot_sim/scene.py).
   Units: metres, kilograms, seconds, radians. Frames follow REP-103: z up; the map frame's origin is the plan's
   lower-left corner; the LIMO's x forward, y left. qpos = (x_m, y_m, yaw_rad) of the robot centre in the map frame.
-  Load key "start" for the start pose (viewer: Simulation, Load key; code: mj_resetDataKeyframe): qpos0 puts the
-  LIMO at the map origin, inside the boundary wall, whose contact throws it off the map.
+  {default_pose}
   Controls, velocity servos in the body frame: drive_forward m/s, drive_lateral m/s (held near 0), drive_yaw rad/s.
   Geom groups: 0 walls (all the LiDAR rays see), 1 chassis, 2 wheels (visual), 3 floor (no contacts); site lidar.
   Parameters (configs/robot_sim.yaml documents each; the watchdog, acceleration limits and odometry act in the
   simulator's Python, not in this file): {params} -->"""
 
 
-def world_mjcf(plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float) -> tuple[str, int]:
+def world_mjcf(
+    plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float, robot_at_start: bool = True
+) -> tuple[str, int]:
     """The MJCF of the whole world (walls, floor, LIMO) and its number of wall boxes.
 
-    The keyframe ``start`` holds the plan's start pose (``qpos`` is x_m, y_m, yaw_rad), so the file on its
-    own opens with the LIMO where an episode starts (``python -m mujoco.viewer --mjcf FILE``, then "Load key").
+    The model's default pose (qpos0; ``qpos`` is x_m, y_m, yaw_rad) is the plan's start pose, so the file on its own
+    opens with the LIMO where an episode starts (``python -m mujoco.viewer --mjcf FILE``); the keyframe ``start``
+    holds it too. ``robot_at_start=False``: qpos0 at the map origin, the model the simulator steps (``limo_mjcf``).
     """
     start = plan.start
     boxes = wall_boxes(plan, sim.walls_boundary_only)
@@ -91,10 +100,10 @@ def world_mjcf(plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_
         f'    <geom name="wall{i}" type="box" pos="{cx:.6g} {cy:.6g} {h:.6g}" size="{hx:.6g} {hy:.6g} {h:.6g}"/>'
         for i, (cx, cy, hx, hy) in enumerate(boxes)
     )
-    limo = limo_mjcf(robot, sim, lidar_mount_x_m)
+    limo = limo_mjcf(robot, sim, lidar_mount_x_m, start if robot_at_start else None)
     g = plan.geometry
     # The plan's name is a file's stem: quoted, so a name with a quote, '&' or '<' still makes well-formed XML.
-    xml = f"""{_world_header(sim, lidar_mount_x_m)}
+    xml = f"""{_world_header(sim, lidar_mount_x_m, robot_at_start)}
 <mujoco model={quoteattr(f"limo_{plan.name}")}>
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{sim.timestep_s:.6g}" integrator="implicitfast" gravity="0 0 -9.81"/>
@@ -114,7 +123,7 @@ def world_mjcf(plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_
   <actuator>{limo.actuator_xml}
   </actuator>
   <keyframe>
-    <key name="start" qpos="{start.x_m:.6g} {start.y_m:.6g} {start.yaw_rad:.6g}"/>
+    <key name="start" qpos="{exact(start.x_m)} {exact(start.y_m)} {exact(start.yaw_rad)}"/>
   </keyframe>
 </mujoco>
 """

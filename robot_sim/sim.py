@@ -78,11 +78,14 @@ class MujocoSimulator:
         self._odom_every = max(1, int(round(1.0 / (c.odometry_rate_hz * c.timestep_s))))
         self._scan_period_steps = 1.0 / (self.sensor.rate_hz * c.timestep_s)
 
-        xml, self.n_wall_boxes = world_mjcf(plan, self.robot, c, self.lidar_mount_x_m)
-        self.mjcf = xml
-        """The MJCF this simulator's ``model`` was built from (walls, floor, the LIMO; keyframe ``start``):
+        self.mjcf, self.n_wall_boxes = world_mjcf(plan, self.robot, c, self.lidar_mount_x_m)
+        """This simulator's world as a file (walls, floor, the LIMO; qpos0 and keyframe ``start`` at the start pose):
         ``Path("world.xml").write_text(sim.mjcf)`` saves it for ``python -m mujoco.viewer --mjcf world.xml``."""
-        self.model = mujoco.MjModel.from_xml_string(xml)
+        # The model stepped here is the same world with qpos0 at the map origin: MuJoCo places the base at
+        # body_pos + (qpos - qpos0), which with the start as qpos0 differs from qpos in the last bits, and every
+        # episode would drift from the ones run before. reset() puts the LIMO at the start.
+        stepped_xml, _ = world_mjcf(plan, self.robot, c, self.lidar_mount_x_m, robot_at_start=False)
+        self.model = mujoco.MjModel.from_xml_string(stepped_xml)
         self.data = mujoco.MjData(self.model)
         self._qadr = np.array([self.model.joint(j).qposadr[0] for j in JOINTS])
         self._vadr = np.array([self.model.joint(j).dofadr[0] for j in JOINTS])

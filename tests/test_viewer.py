@@ -15,7 +15,7 @@ from typer.testing import CliRunner
 
 from cso_runtime.cli import app
 from cso_runtime.config import ConfigError, ExplorationConfig, SensorConfig
-from cso_runtime.geometry import VelocityCommand
+from cso_runtime.geometry import Pose2D, VelocityCommand
 from cso_runtime.scene_generator import generate_floor_plan
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.transport import TransportConfig
@@ -63,10 +63,65 @@ def test_the_world_file_opens_with_the_limo_at_the_start_pose(tmp_path):
     assert np.allclose(sim.data.qpos, data.qpos)
 
 
+def _heading_rad(data: mujoco.MjData, body: str) -> float:
+    xmat = data.body(body).xmat
+    return float(np.arctan2(xmat[3], xmat[0]))
+
+
+@pytest.mark.parametrize("yaw_rad", [None, 2.5, -1.0])  # the plan's own start, and turned ones (a map YAML's start: [x, y, yaw])
+def test_the_world_file_opened_as_it_is_has_the_limo_at_the_start_pose(tmp_path, yaw_rad):
+    """``python -m mujoco.viewer --mjcf FILE`` (or ``MjData(model)``, ``mj_resetData``, the viewer's Reset) starts at
+    qpos0, which was the map origin: the LIMO inside the boundary wall, whose contact threw it off the map unless the
+    user knew to load the key ``start``. qpos0 is the start pose now (exactly: where eval's episodes start), the
+    joints still world-aligned (qpos is the map pose anywhere), and the key kept for code that loads it."""
+    plan = generate_floor_plan("small", 5)
+    if yaw_rad is not None:
+        plan = FloorPlan(plan.name, plan.free, plan.resolution_m, Pose2D(plan.start.x_m, plan.start.y_m, yaw_rad))
+    start = plan.start
+    model = mujoco.MjModel.from_xml_path(str(write_mujoco_world(tmp_path / "w.xml", plan)))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    assert data.qpos.tolist() == [start.x_m, start.y_m, start.yaw_rad]
+    assert np.array_equal(model.key("start").qpos, model.qpos0)
+    assert np.allclose(data.body("limo").xpos, [start.x_m, start.y_m, 0.0], atol=1e-12)
+    assert _heading_rad(data, "limo") == pytest.approx(start.yaw_rad, abs=1e-12)
+    assert data.ncon == 0  # free of the walls
+    mujoco.mj_step(model, data, 400)  # 2 s with nothing pressed: it stays there
+    assert np.allclose(data.qpos, model.qpos0, atol=1e-9) and data.ncon == 0
+    data.qpos[:] = [start.x_m + 0.3, start.y_m - 0.2, start.yaw_rad + 0.5]  # away from the start, qpos is the map pose
+    mujoco.mj_forward(model, data)
+    assert np.allclose(data.body("limo").xpos, [start.x_m + 0.3, start.y_m - 0.2, 0.0], atol=1e-12)
+    turned_rad = np.arctan2(np.sin(start.yaw_rad + 0.5), np.cos(start.yaw_rad + 0.5))
+    assert _heading_rad(data, "limo") == pytest.approx(turned_rad, abs=1e-12)
+
+
+def test_the_simulator_steps_the_world_of_its_file():
+    """``sim.mjcf`` (the file ``scenes --mjcf`` writes) has qpos0 at the start; the model the simulator steps keeps it at
+    the map origin, since MuJoCo places the base at body_pos + (qpos - qpos0) and a start there would change the last
+    bits of every episode. Both are one world: driven alike into a wall, they stay together to far below a millimetre."""
+    plan = generate_floor_plan("small", 0)
+    sim = MujocoSimulator(plan, SensorConfig())
+    assert sim.model.qpos0.tolist() == [0.0, 0.0, 0.0] and sim.model.body("limo").pos.tolist() == [0.0, 0.0, 0.0]
+    model = mujoco.MjModel.from_xml_string(sim.mjcf)
+    assert model.qpos0.tolist() == [plan.start.x_m, plan.start.y_m, plan.start.yaw_rad]
+    data = mujoco.MjData(model)
+    for m, d in ((model, data), (sim.model, sim.data)):
+        mujoco.mj_resetData(m, d)
+        d.qpos[:] = [plan.start.x_m, plan.start.y_m, plan.start.yaw_rad]
+        d.ctrl[:] = [0.8, 0.0, 0.3]
+    contacts = 0
+    for _ in range(800):  # 4 s: it reaches a wall and scrapes along it
+        mujoco.mj_step(model, data)
+        mujoco.mj_step(sim.model, sim.data)
+        contacts += data.ncon > 0
+        assert data.ncon == sim.data.ncon
+    assert contacts > 100
+    assert np.allclose(data.qpos, sim.data.qpos, atol=1e-9) and np.allclose(data.qvel, sim.data.qvel, atol=1e-9)
+
+
 def test_the_world_file_says_its_units_frames_controls_and_parameters(tmp_path):
-    """Opened on its own (``python -m mujoco.viewer --mjcf FILE``), the world starts at qpos0: the LIMO at the map
-    origin, inside the boundary wall, which throws it off the map unless the key ``start`` is loaded; nothing in
-    the file said so, nor its units, frames, controls, geom groups or the parameters it was built with."""
+    """Opened on its own (``python -m mujoco.viewer --mjcf FILE``), the file said nothing of its units, frames,
+    default pose (qpos0) and key, controls, geom groups or the parameters it was built with."""
     import dataclasses
 
     plan = generate_floor_plan("small", 0)
@@ -76,7 +131,7 @@ def test_the_world_file_says_its_units_frames_controls_and_parameters(tmp_path):
     header = re.fullmatch(r"<!--(.*?)-->\n<mujoco .*", text, re.DOTALL)
     assert header is not None, text[:300]
     about = " ".join(header.group(1).split())
-    for said in ("metres", "radians", "REP-103", 'key "start"', "Load key", "inside the boundary wall", "drive_forward m/s",
+    for said in ("metres", "radians", "REP-103", 'key "start"', "default pose qpos0", "is the plan's start pose", "drive_forward m/s",
                  "drive_yaw rad/s", "0 walls", "configs/robot_sim.yaml"):  # fmt: skip
         assert said in about, (said, about)
     resolved = {**dataclasses.asdict(config), "lidar_mount_x_m": 0.103}
@@ -85,7 +140,7 @@ def test_the_world_file_says_its_units_frames_controls_and_parameters(tmp_path):
     assert model.opt.timestep == 0.0025 and model.body("limo").mass[0] == pytest.approx(5.5)
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
-    assert data.ncon > 0  # what the header warns of: qpos0 is inside the boundary wall
+    assert data.qpos.tolist() == [plan.start.x_m, plan.start.y_m, plan.start.yaw_rad] and data.ncon == 0  # as it says
 
 
 @pytest.mark.parametrize("name", ['my "lab"', "lab & office", "a<b"])
