@@ -3,6 +3,8 @@
 The passive viewer (``mujoco.viewer.launch_passive``) renders in its own thread; the simulation keeps its
 own clock and calls ``SimViewer.show`` after each control step, which copies the state into the window
 and marks the current long-term goal. Closing the window only stops the picture: the episode goes on.
+The window has its own copies of the model and data: the passive viewer applies what its user does (Reset,
+Load key, the Physics panel, a dragged perturbation) to the model and data it shows, never to the episode's.
 """
 
 from __future__ import annotations
@@ -60,7 +62,12 @@ class SimViewer:
 
     def __init__(self, sim: MujocoSimulator, launch: Callable[[mujoco.MjModel, mujoco.MjData], Any] | None = None) -> None:
         self.sim = sim
-        self.handle = (launch or launch_passive)(sim.model, sim.data)
+        # The world as a file (qpos0 at the start, where the window's Reset goes), the same sizes as the stepped model.
+        self._model = mujoco.MjModel.from_xml_string(sim.mjcf)
+        self._data = mujoco.MjData(self._model)
+        with sim.state_lock:
+            mujoco.mj_copyData(self._data, self._model, sim.data)
+        self.handle = (launch or launch_passive)(self._model, self._data)
         self.frames = 0
         """State copies sent to the window (one per ``show`` while it is open)."""
         self.closed_by_user = False
@@ -83,8 +90,9 @@ class SimViewer:
                         np.array([float(goal_xy_m[0]), float(goal_xy_m[1]), GOAL_HEIGHT_M]), np.eye(3).ravel(), GOAL_RGBA,
                     )  # fmt: skip
                     scene.ngeom = 1
-        with self.sim.state_lock:
-            self.handle.sync()
+            with self.sim.state_lock:
+                mujoco.mj_copyData(self._data, self._model, self.sim.data)
+        self.handle.sync()
         self.frames += 1
         return True
 

@@ -232,6 +232,34 @@ def test_the_viewer_gets_every_state_and_the_goal_until_its_window_closes():
     assert handle.closed == 0  # nothing left to close
 
 
+class MeddlingHandle(FakeHandle):
+    """A window whose user presses Reset and sets the Physics panel's timestep: the passive viewer's sync applies both
+    to the model and data it was given (simulate's Sync: ``mj_resetData``, ``m->opt`` from the panel)."""
+
+    def sync(self) -> None:
+        super().sync()
+        mujoco.mj_resetData(self.model, self.data)
+        mujoco.mj_forward(self.model, self.data)
+        self.model.opt.timestep = 0.02
+
+
+def test_what_the_user_does_in_the_window_stays_in_the_window():
+    """The window was given the simulator's own model and data: Reset (Backspace) in it put the LIMO at the stepped
+    model's qpos0, the map origin inside the boundary wall, in the middle of the episode, and a timestep set in the
+    Physics panel changed the physics the episode runs. The window shows copies; a reset one shows the start pose."""
+    plan = generate_floor_plan("small", 0)
+    sim = MujocoSimulator(plan, SensorConfig(), config=MujocoSimConfig())
+    view = SimViewer(sim, launch=MeddlingHandle)
+    sim.step(VelocityCommand(0.5, 0.0))
+    pose = sim.true_pose()
+    assert view.show()
+    assert sim.true_pose() == pose and sim.model.opt.timestep == 0.005 and sim.data.ncon == 0
+    assert view.handle.data.qpos.tolist() == [plan.start.x_m, plan.start.y_m, plan.start.yaw_rad]  # its Reset: the start
+    sim.step(VelocityCommand(0.5, 0.0))
+    assert view.show()
+    assert view.handle.synced_xy == [pytest.approx(pose.xy), pytest.approx(sim.true_pose().xy)]  # the window follows the sim
+
+
 def _sim_context(params: dict) -> ServiceContext:
     profile = {"lockstep": True, "scene": "generated:small:1:0", "services": {"sim": params}}
     return ServiceContext("sim", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params)
