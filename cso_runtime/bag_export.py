@@ -36,6 +36,7 @@ from cso_runtime import ros2_cdr
 from cso_runtime.geometry import Pose2D
 from cso_runtime.messages import (
     CmdVelMsg,
+    DeferredMsg,
     FrontiersMsg,
     GoalMsg,
     MapMsg,
@@ -129,7 +130,15 @@ def every_topic(ros_topic: str) -> bool:
 
 def shows_something(msg: Message) -> bool:
     """Whether ``BagConverter.convert`` can make a ROS message of ``msg`` at all: frontiers that decide nothing and a
-    goal message without a goal cannot (a viewer that subscribes late is sent the last one that could)."""
+    goal message without a goal cannot (a viewer that subscribes late is sent the last one that could). A message
+    not decoded yet (``DeferredMsg``) is judged by the same field of its body, read as it came: one that would not
+    decode is rejected when it is."""
+    if isinstance(msg, DeferredMsg):
+        if msg.SCHEMA == FrontiersMsg.SCHEMA:
+            return msg.kept_body.get("decide") is True
+        if msg.SCHEMA == GoalMsg.SCHEMA:
+            return msg.kept_body.get("goal") is not None
+        return True
     if isinstance(msg, FrontiersMsg):
         return bool(msg.decide)
     if isinstance(msg, GoalMsg):
@@ -214,6 +223,12 @@ class BagConverter:
             out.append(("/cmd_vel", ros2_cdr.twist_to_cdr(msg.command), t_ns))
         return out
 
+    def converts(self, topic: str, wanted: Callable[[str], bool]) -> bool:
+        """Whether ``convert`` may make anything ``wanted`` of a message on our ``topic`` (one of ``EXPORTED``): one of
+        its ROS topics (``ROS_TOPICS``) is wanted, or ``/tf_static`` that goes out with the first message. A message
+        for which it may not need not even be decoded."""
+        return (not self.started and wanted("/tf_static")) or any(wanted(ros_topic) for ros_topic in ROS_TOPICS[topic])
+
     def static_transforms(self, t_ns: int) -> tuple[str, bytes, int]:
         """``/tf_static`` (``map`` -> ``odom``, the identity), sent with the first message (or to a viewer that
         subscribes to it); ``convert`` does not send it again."""
@@ -241,6 +256,11 @@ EXPORTED: dict[str, type[Message]] = {
     "scan": ScanMsg, "odom": OdometryMsg, "map": MapMsg, "path": PathMsg, "goal": GoalMsg, "frontiers": FrontiersMsg, "cmd_vel": CmdVelMsg,
 }
 """Our topics that become ROS messages, and the message each must carry (another one is rejected, as a service would)."""
+ROS_TOPICS: dict[str, tuple[str, ...]] = {
+    "scan": ("/tf", "/scan"), "odom": ("/odom", "/tf"), "map": ("/map",), "path": ("/plan",), "goal": ("/goal_pose",),
+    "frontiers": ("/explore/frontiers",), "cmd_vel": ("/cmd_vel",),
+}
+"""Our topic -> the ROS topics ``BagConverter.convert`` makes of it (besides ``/tf_static``, with the first message)."""
 
 
 def export_bag(

@@ -620,6 +620,38 @@ and the obstacles it checks before reversing (with the pose and geometry). Two o
 clusters, on the planner's network thread while a fast policy's goal may already be waiting behind it."""
 
 
+class DeferredMsg(Message):
+    """A message whose body is kept as it came, its arrays still packed and compressed, until ``decoded``: a
+    subscriber that may never read it (a viewer's bridge with no viewer) does not pay to decode it. Its envelope
+    (schema, version) and its ``step`` are checked on arrival; the rest of the body when it is decoded, which then
+    raises ``MessageError`` as ``decode`` would have. A subclass per schema: ``deferred``."""
+
+    DECODES: ClassVar[type[Message]] = Message
+
+    def __init__(self, step: int, kept_body: dict[str, Any]) -> None:
+        self.step = step
+        self.kept_body = kept_body
+        """The body as it came (unchecked but for ``step``)."""
+
+    def body(self) -> dict[str, Any]:
+        return self.kept_body
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> DeferredMsg:
+        return cls(_int(b, "step", cls.SCHEMA), b)
+
+    def decoded(self) -> Message:
+        """The message, decoded and checked now; MessageError for a body that does not decode."""
+        return _from_body(self.SCHEMA, self.DECODES, self.kept_body)
+
+
+@functools.cache
+def deferred(cls: type[Message]) -> type[DeferredMsg]:
+    """``cls`` (a schema with a ``step``) as a subscriber that decodes it later, if at all, reads it (``DeferredMsg``)."""
+    fields = {"SCHEMA": cls.SCHEMA, "VERSION": cls.VERSION, "DECODES": cls, "__doc__": DeferredMsg.__doc__}
+    return type(f"Deferred{cls.__name__}", (DeferredMsg,), fields)
+
+
 def frontiers_from_observation(step: int, reason: str, obs: Observation, build_ms: float, episode: int = 0) -> FrontiersMsg:
     """The decision message for ``obs`` (the frontier service's output) in episode ``episode``."""
     arrays = {k: getattr(obs, k) for k in FrontiersMsg.GRIDS}

@@ -10,7 +10,12 @@ messages are also written to an MCAP file.
 Like ROS's foxglove_bridge, it converts only what someone watches: a topic that no viewer subscribes to (and no
 MCAP file takes) is not converted at all, so the bridge costs next to nothing while nobody looks. It keeps the
 latest message of each of its inputs instead, and converts it when a viewer subscribes: a viewer that connects
-late sees the current map, goal, frontiers, path and robot at once (as latched ROS topics would give it).
+late sees the current map, goal, frontiers, path and robot at once (as latched ROS topics would give it). Nor does it
+decode what nobody watches: it keeps each input as it came (``DeferredMsg``: the envelope and step checked, the
+arrays still packed and compressed) and decodes it when a viewer watches its topic, as it comes or on subscription.
+So a payload whose body is malformed is rejected (logged, counted) when it is decoded, if ever, not when it came;
+counted as processed when it came, and if it was the latest of its topic a viewer that subscribes then gets nothing
+on that topic until the next message.
 
 It only listens: the episode never waits for it, in lockstep or real time. Start it with ``up --foxglove``,
 ``services: {foxglove_bridge: {...}}`` in a profile, or alone beside a running episode with
@@ -32,9 +37,9 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime import ros2_cdr
-from cso_runtime.bag_export import EXPORTED, ROS_TYPES, BagConverter, shows_something
+from cso_runtime.bag_export import EXPORTED, ROS_TOPICS, ROS_TYPES, BagConverter, shows_something
 from cso_runtime.config import ConfigError, from_dict
-from cso_runtime.messages import Message
+from cso_runtime.messages import DeferredMsg, Message, MessageError, deferred
 from cso_runtime.recording import unused_path
 from services.common import Service, ServiceContext, service_main
 
@@ -120,7 +125,8 @@ class FoxgloveBridgeService(Service):
     """Serves one robot's episode to Foxglove viewers as ROS 2 messages; it only listens, so the episode never waits for it."""
 
     name = "foxglove_bridge"
-    inputs = dict(EXPORTED)
+    inputs = {topic: deferred(cls) for topic, cls in EXPORTED.items()}
+    """Each input kept as it came and decoded only when watched (``decoded``)."""
     outputs: dict[str, type[Message]] = {}
     tick_period_s = 0.1
 
@@ -136,8 +142,8 @@ class FoxgloveBridgeService(Service):
         self.converter = BagConverter(map_period_s=self.params.map_period_s, time="received")
         self.channels = {topic: self._open_channel(topic) for topic in ROS_TYPES}
         """ROS topic -> its channel, every one advertised from the start: a viewer subscribes before anything came."""
-        self.latest: dict[str, Message] = {}
-        """Our topic -> its latest message that shows something, converted when a viewer subscribes."""
+        self.latest: dict[str, DeferredMsg] = {}
+        """Our topic -> its latest message that shows something, decoded and converted when a viewer subscribes."""
         self.served: dict[str, int] = {}
         """ROS topic -> messages served (converted for a viewer or the MCAP file as they came)."""
         self.subscriptions = _Subscriptions()
@@ -177,24 +183,38 @@ class FoxgloveBridgeService(Service):
             self.channels[topic].log(data, log_time=t_ns)
             self.served[topic] = self.served.get(topic, 0) + 1
 
+    def decoded(self, topic: str, msg: DeferredMsg) -> Message | None:
+        """``msg`` on our ``topic`` decoded, or None: rejected (counted, logged) as a malformed payload, and no longer
+        the latest of its topic (so rejected once)."""
+        try:
+            return msg.decoded()
+        except MessageError as exc:
+            self.reject(topic, str(exc), self.ctx.robot)
+            if self.latest.get(topic) is msg:
+                del self.latest[topic]
+            return None
+
     def send_latest(self, topic: str) -> None:
-        """A viewer has just subscribed to ``topic``: the latest of it, converted now, so that nothing it shows
-        stays empty until the next message (a map or a goal may not change for a long while)."""
+        """A viewer has just subscribed to ``topic``: the latest of it, decoded and converted now, so that nothing it
+        shows stays empty until the next message (a map or a goal may not change for a long while)."""
         now_ns = time.time_ns()
         if topic == "/tf_static":
             rows = [self.converter.static_transforms(now_ns)]
         else:
             rows = []
-            for msg in self.latest.values():  # /tf: both the odometry's and the scan's
-                rows += self.converter.convert(msg, now_ns, wanted=lambda ros_topic: ros_topic == topic, again=True)
+            for ours, kept in list(self.latest.items()):  # /tf: both the odometry's and the scan's
+                if topic in ROS_TOPICS[ours] and (msg := self.decoded(ours, kept)) is not None:
+                    rows += self.converter.convert(msg, now_ns, wanted=lambda ros_topic: ros_topic == topic, again=True)
         for ros_topic, data, t_ns in rows:
             self.channels[ros_topic].log(data, log_time=t_ns)
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
-        self.last_step = int(getattr(msg, "step", self.last_step))
+        assert isinstance(msg, DeferredMsg)  # ``inputs``
+        self.last_step = msg.step
         if shows_something(msg):
             self.latest[topic] = msg
-        self.serve(self.converter.convert(msg, time.time_ns(), wanted=self.watched))
+        if self.converter.converts(topic, self.watched) and (decoded := self.decoded(topic, msg)) is not None:
+            self.serve(self.converter.convert(decoded, time.time_ns(), wanted=self.watched))
 
     def on_tick(self, now_s: float) -> None:
         if self.subscriptions.new.is_set():

@@ -16,12 +16,12 @@ import pytest
 from mcap.reader import make_reader
 
 from cso_runtime import ros2_cdr
-from cso_runtime.bag_export import ROS_TYPES, BagConverter
+from cso_runtime.bag_export import EXPORTED, ROS_TOPICS, ROS_TYPES, BagConverter, shows_something
 from cso_runtime.config import ConfigError, ExplorationConfig
 from cso_runtime.keys import RobotKeys
-from cso_runtime.messages import decode
+from cso_runtime.messages import GoalMsg, Message, decode, deferred, encode
 from cso_runtime.transport import TransportConfig
-from services.common import ServiceContext
+from services.common import ServiceContext, _dispatch
 from services.foxglove_bridge import FoxgloveBridgeService, websocket_handshake
 from tests.conftest import wait_for
 from tests.test_bag_export import T0_NS, _map, episode
@@ -34,11 +34,15 @@ def _bridge(params: dict) -> FoxgloveBridgeService:
 
 
 def _feed(bridge: FoxgloveBridgeService, steps: int) -> None:
-    """Steps of a lockstep-like episode (the goal changes at step 2), each message as the service receives it."""
+    """Steps of a lockstep-like episode (the goal changes at step 2), each payload as the service receives it."""
     for m in episode(RobotKeys("r0"), steps, T0_NS, 1_000_000):
-        topic = m.key.rsplit("/", 1)[1]
-        if topic in bridge.inputs:  # the clock is not an input
-            bridge.on_message("r0", topic, decode(m.payload, bridge.inputs[topic]), 0.0)
+        if m.key.rsplit("/", 1)[1] in bridge.inputs:  # the clock is not an input
+            _dispatch(bridge, m.key, m.payload, 0.0)
+
+
+def _receive(bridge: FoxgloveBridgeService, topic: str, msg: Message | bytes) -> None:
+    """One message (or payload) on ``topic`` of robot r0, as the service receives it."""
+    _dispatch(bridge, RobotKeys("r0").topic(topic), msg if isinstance(msg, bytes) else encode(msg), 0.0)
 
 
 def _served(path) -> list[tuple[str, str, object]]:
@@ -80,7 +84,7 @@ def test_maps_are_thinned_to_map_period_s_and_the_newest_still_goes_out(tmp_path
     mcap = tmp_path / "thin.mcap"
     bridge = _bridge({"port": 0, "mcap_path": str(mcap), "map_period_s": 3600.0})
     for step in range(3):
-        bridge.on_message("r0", "map", _map(step), 0.0)
+        _receive(bridge, "map", _map(step))
     assert bridge.served["/map"] == 1 and bridge.converter.pending_map is not None
     bridge.on_tick(0.0)  # within the period: still held
     assert bridge.served["/map"] == 1
@@ -91,7 +95,7 @@ def test_maps_are_thinned_to_map_period_s_and_the_newest_still_goes_out(tmp_path
     maps = [m for topic, _, m in _served(mcap) if topic == "/map"]
     assert np.array_equal(np.asarray(maps[-1].data).reshape(_map(2).grid.shape), _map(2).grid)
     again = _bridge({"port": 0, "mcap_path": str(mcap)})  # a restarted bridge, or the same profile run again
-    again.on_message("r0", "map", _map(0), 0.0)
+    _receive(again, "map", _map(0))
     again.shutdown()
     assert len([m for topic, _, m in _served(mcap) if topic == "/map"]) == 2  # the earlier file is kept whole
     assert [topic for topic, _, _ in _served(tmp_path / "thin-1.mcap")] == ["/tf_static", "/map"]
@@ -284,7 +288,7 @@ def test_a_viewer_that_subscribes_and_unsubscribes_gets_no_error_logged(caplog):
 
     bridge = _bridge({"port": 0, "map_period_s": 0.0})
     try:
-        bridge.on_message("r0", "map", _map(0), 0.0)
+        _receive(bridge, "map", _map(0))
         viewer = _Viewer(bridge.server.port)
         channels = {c["topic"]: c["id"] for c in viewer.json_op("advertise")["channels"]}
         assert {"/map", "/tf_static"} <= set(channels)
@@ -340,3 +344,109 @@ def test_nothing_is_converted_for_a_topic_nobody_watches_and_a_late_viewer_gets_
         assert conversions == {"occupancy_grid_to_cdr": 2, "pose_stamped_to_cdr": 2}
     finally:
         bridge.shutdown()
+
+
+def _count_decodes(monkeypatch: pytest.MonkeyPatch) -> Counter:
+    """Schema -> bodies decoded (checked, arrays unpacked and inflated) from now on, of every input of the bridge."""
+    decodes: Counter = Counter()
+    for cls in set(EXPORTED.values()):
+
+        def counted(klass, body, *args, _real=cls.from_body.__func__, **kwargs):
+            decodes[klass.SCHEMA] += 1
+            return _real(klass, body, *args, **kwargs)
+
+        monkeypatch.setattr(cls, "from_body", classmethod(counted))
+    return decodes
+
+
+def test_with_no_viewer_nothing_is_decoded_and_a_late_viewer_gets_the_latest_decoded_then(monkeypatch):
+    """With no viewer the bridge keeps each input as it came and decodes none (it once decoded every message, its
+    arrays unpacked and its maps inflated, to convert none of them): only its envelope and step are read, for the
+    service's step and the latest that shows something. A viewer that subscribes later gets the latest map at once,
+    decoded then; after that the watched topics are decoded as they come, the others still not."""
+    decodes = _count_decodes(monkeypatch)
+    bridge = _bridge({"port": 0, "map_period_s": 0.0})
+    try:
+        _feed(bridge, 3)
+        assert decodes == Counter() and bridge.rejected == {}
+        assert bridge.last_step == 2 and bridge.processed == 3 * len(EXPORTED)
+        viewer = _Viewer(bridge.server.port)
+        channels = {c["topic"]: c["id"] for c in viewer.json_op("advertise")["channels"]}
+        _subscribe(bridge, viewer, 1, channels["/map"])
+        _subscribe(bridge, viewer, 2, channels["/explore/frontiers"])
+        bridge.on_tick(0.0)
+        assert decodes == {"map": 1, "frontiers": 1}  # the latest map, and the latest frontiers that decided
+        received = dict(viewer.message_data() for _ in range(2))
+        assert np.array_equal(ros2_cdr.occupancy_grid_from_cdr(received[1])[0], _map(2).grid)
+        _feed(bridge, 1)
+        assert decodes == {"map": 2, "frontiers": 2}
+        assert np.array_equal(ros2_cdr.occupancy_grid_from_cdr(dict([viewer.message_data()])[1])[0], _map(0).grid)
+        viewer.close()
+    finally:
+        bridge.shutdown()
+
+
+def _corrupt_map() -> bytes:
+    """A map payload whose envelope is fine and whose explored grid does not inflate."""
+    import msgpack
+
+    raw = msgpack.unpackb(encode(_map(1)))
+    raw["body"]["explored"]["data"] = b"not zlib"
+    return msgpack.packb(raw, use_bin_type=True)
+
+
+def test_a_malformed_payload_is_rejected_when_it_is_decoded(monkeypatch, caplog):
+    """Decoding is deferred until someone watches: a payload whose body is malformed is rejected (counted, logged)
+    when a viewer subscribes to its topic, once; one whose envelope is not even a message's, at once. The malformed
+    one was the latest, so a viewer that subscribes then gets no map until the next good one (before, the bad map was
+    rejected on arrival and the viewer got the map before it). While watched, a bad map is rejected as it comes."""
+    import logging
+
+    bridge = _bridge({"port": 0, "map_period_s": 0.0})
+    try:
+        _receive(bridge, "map", _map(0))
+        _receive(bridge, "map", _corrupt_map())
+        _receive(bridge, "map", b"not a message")
+        assert bridge.rejected == {"map": 1}
+        viewer = _Viewer(bridge.server.port)
+        channels = {c["topic"]: c["id"] for c in viewer.json_op("advertise")["channels"]}
+        with caplog.at_level(logging.WARNING):
+            _subscribe(bridge, viewer, 1, channels["/map"])
+            bridge.on_tick(0.0)
+        assert bridge.rejected == {"map": 2}
+        assert any("rejected payload on map" in r.getMessage() and "explored" in r.getMessage() for r in caplog.records)
+        viewer.send({"op": "unsubscribe", "subscriptionIds": [1]})
+        _subscribe(bridge, viewer, 2, channels["/map"])  # the viewer subscribes again
+        bridge.on_tick(0.0)
+        assert bridge.rejected == {"map": 2}  # counted once: it is no longer the latest
+        _receive(bridge, "map", _corrupt_map())
+        assert bridge.rejected == {"map": 3}  # watched: decoded, and rejected, as it comes
+        _receive(bridge, "map", _map(2))
+        sub_id, data = viewer.message_data()  # the good map, and nothing before it
+        assert sub_id == 2 and np.array_equal(ros2_cdr.occupancy_grid_from_cdr(data)[0], _map(2).grid)
+        viewer.close()
+    finally:
+        bridge.shutdown()
+
+
+def test_a_message_kept_undecoded_is_judged_as_it_decodes_and_converts_to_its_ros_topics_only():
+    """What the bridge decides before decoding holds to what decoding gives: the step, whether it shows something
+    (a deciding frontiers message, a goal with a goal), and which ROS topics it converts to (``ROS_TOPICS``: a message
+    none of whose topics is watched is never decoded)."""
+    converter = BagConverter(map_period_s=0.0, time="received")
+    messages = episode(RobotKeys("r0"), 3, T0_NS, 1_000_000)
+    converted: set[str] = set()
+    for topic, payload in [(m.key.rsplit("/", 1)[1], m.payload) for m in messages] + [("goal", encode(GoalMsg(3, True)))]:
+        if topic not in EXPORTED:
+            continue
+        kept = decode(payload, deferred(EXPORTED[topic]))
+        msg = kept.decoded()
+        assert type(msg) is EXPORTED[topic] and kept.step == msg.step and encode(kept) == payload
+        assert shows_something(kept) == shows_something(msg)
+        own, others = set(ROS_TOPICS[topic]), set(ROS_TYPES) - set(ROS_TOPICS[topic]) - {"/tf_static"}
+        assert converter.converts(topic, own.__contains__) and not converter.converts(topic, others.__contains__)
+        rows = {ros_topic for ros_topic, _, _ in converter.convert(msg, T0_NS, again=True)} - {"/tf_static"}
+        assert rows <= own, (topic, rows)
+        converted |= rows
+    assert converted == set(ROS_TYPES) - {"/tf_static"}
+    assert {shows_something(decode(encode(m), deferred(type(m)))) for m in (GoalMsg(3, True), _map(0))} == {False, True}

@@ -2541,6 +2541,32 @@ def test_status_names_the_policy_a_profile_leaves_out_and_says_the_episode_waits
                 policy.kill()
 
 
+def test_a_goal_forged_for_a_later_step_is_rejected_and_the_lockstep_episode_goes_on(tmp_path):
+    """Lockstep, over Zenoh: as soon as a step k asks for a decision, a decided goal for step k + 100 is published (of
+    this episode, long before any decision asks for that step). The frontier service took it as its decision, newer
+    than any real one: the policy's answer to the next decision it asked for was older, so ignored, and the frontier
+    service waited for an answer until the sim gave up after ``lockstep_give_up_s`` ("failed", lockstep_timeout, a few
+    steps in; a stall that no test had reproduced, 5e968a7). A goal only answers a decision asked for: this one is
+    rejected, counted in the frontier service's status, and the episode ends as it does in one process."""
+    from cso_runtime.messages import FrontiersMsg, GoalMsg
+
+    expected = in_process_result()
+    with detached_run(tmp_path, min_step_period_s=0.05, lockstep_give_up_s=4.0) as (runs, status):
+        current = json.loads((runs / "current.json").read_text())
+        keys = RobotKeys(current["robot"])
+        decisions: list[FrontiersMsg] = []
+        with open_session(TransportConfig(mode="client", connect=current["endpoints"])) as session:
+            sub = session.declare_subscriber(keys.frontiers, lambda sample: decisions.append(decode(sample.payload.to_bytes(), FrontiersMsg)))
+            asked = wait_for(lambda: next((m for m in decisions if m.decide), None), 60, "a step that asks for a decision")
+            session.put(keys.goal, encode(GoalMsg(asked.step + 100, True, 0.0, 0.0, 0, 1.0, 0.0, "greedy-dist", episode=asked.episode)))
+            final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2)
+            sub.undeclare()
+        assert asked.step < final["step"]  # forged during the episode
+        assert (final["state"], final["terminated_by"], final["step"]) == ("done", expected.terminated_by, expected.steps), final
+        assert abs(final["coverage_pct"] - expected.coverage_pct) < 1e-3
+        assert final["services"]["frontier"]["rejected"] == {"goal": 1}, final["services"]["frontier"]
+
+
 def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_path):
     """A service whose process lives but does nothing (SIGSTOP stands in for a deadlock) would leave the
     episode waiting with every process up: the launcher notices it stopped answering its status query,
