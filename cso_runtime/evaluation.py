@@ -597,10 +597,22 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict
     return summary
 
 
+def clock_text(seconds: float) -> str:
+    """``H:MM:SS``, as rich's elapsed and remaining columns show time."""
+    whole = max(0, round(seconds))
+    return f"{whole // 3600}:{whole // 60 % 60:02d}:{whole % 60:02d}"
+
+
+def time_left_s(elapsed_s: float, ran: int, remaining: int) -> float | None:
+    """Seconds the ``remaining`` episodes should take at the pace of the ``ran`` episodes run in ``elapsed_s`` (the
+    workers together); None before the first. Episodes ``--resume`` kept took no time and do not count."""
+    return elapsed_s / ran * remaining if ran > 0 else None
+
+
 class RichProgress:
     """Progress bar on stderr with the last episode's result."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         from rich.console import Console  # noqa: PLC0415
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
 
@@ -618,9 +630,14 @@ class RichProgress:
         self.task = None
         self.done = 0
         self.total = 0
+        self.ran = 0
+        """Episodes run by this command (not kept by ``--resume``): the pace of the time left."""
+        self.clock = clock
+        self.started_s = 0.0
 
     def start(self, total: int) -> None:
         self.total = total
+        self.started_s = self.clock()
         self.progress.start()
         self.task = self.progress.add_task("", total=total)
 
@@ -633,8 +650,20 @@ class RichProgress:
             text = f"[red]{escape(f'{outcome.method} {outcome.map}')}: FAILED"
         self.progress.update(self.task, advance=1, description=text)
         self.done += 1
-        if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode
-            self.progress.console.print(f"{escape(f'[{self.done}/{self.total}]')} {text}", highlight=False, soft_wrap=True)  # one line, however long
+        if not outcome.kept:
+            self.ran += 1
+        if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode, with the bar's times
+            self.progress.console.print(f"{escape(f'[{self.done}/{self.total}]')} {text}{self.times_text(outcome)}", highlight=False, soft_wrap=True)  # one line, however long
+
+    def times_text(self, outcome: EpisodeOutcome) -> str:
+        """`` [0:01:05 elapsed, about 0:20:10 left]`` after an episode run now: what the bar's time columns show a
+        terminal, for a long eval followed in its log. Nothing after an episode ``--resume`` kept."""
+        if outcome.kept:
+            return ""
+        elapsed_s = self.clock() - self.started_s
+        left_s = time_left_s(elapsed_s, self.ran, self.total - self.done)
+        left = f", about {clock_text(left_s)} left" if left_s else ""
+        return escape(f" [{clock_text(elapsed_s)} elapsed{left}]")
 
     def writing(self, out: Path, trajectory_plots: int) -> None:
         """After the episodes: the bar says what is being written (and a log gets the same line)."""

@@ -572,7 +572,7 @@ def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     and an episode ``--resume`` read back says so."""
     from cso_runtime.evaluation import EpisodeOutcome, RichProgress
 
-    progress = RichProgress()
+    progress = RichProgress(clock=lambda: 0.0)
     progress.start(2)
     row = {"coverage_pct": 99.1, "steps": 51, "terminated_by": "coverage"}
     long_name = "a_floor_plan_with_a_name_long_enough_to_pass_the_eighty_columns_of_a_log"
@@ -582,8 +582,34 @@ def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     progress.stop()
     lines = capsys.readouterr().err.splitlines()
     assert lines[0] == f"[1/2] greedy-dist {long_name}: 99.1% in 51 steps (coverage, kept from the earlier run)"
-    assert lines[1] == "[2/2] greedy-dist gen_small_0: 99.1% in 51 steps (coverage)"
+    assert lines[1] == "[2/2] greedy-dist gen_small_0: 99.1% in 51 steps (coverage) [0:00:00 elapsed]"
     assert lines[2] == "writing results/easy/: summary.json, episodes.csv, curves and 2 trajectory plots"
+
+
+def test_progress_lines_in_a_log_say_the_time_elapsed_and_left(capsys):
+    """A long eval followed in its log (nohup, CI) gets what the bar shows a terminal: the time so far and about how
+    long the rest takes, at the pace of the episodes run now (those ``--resume`` kept took no time)."""
+    from cso_runtime.evaluation import EpisodeOutcome, RichProgress
+
+    now_s = [100.0]
+    progress = RichProgress(clock=lambda: now_s[0])
+    progress.start(5)
+    row = {"coverage_pct": 99.1, "steps": 51, "terminated_by": "coverage"}
+    progress.advance(EpisodeOutcome("greedy-dist", "img_1", row=row, kept=True))
+    now_s[0] = 160.0
+    progress.advance(EpisodeOutcome("greedy-dist", "img_2", row=row))
+    now_s[0] = 220.0
+    progress.advance(EpisodeOutcome("greedy-dist", "img_3"))  # failed: it took its time too
+    now_s[0] = 4000.0
+    progress.advance(EpisodeOutcome("greedy-dist", "img_4", row=row))
+    progress.advance(EpisodeOutcome("greedy-dist", "img_5", row=row))
+    progress.stop()
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == "[1/5] greedy-dist img_1: 99.1% in 51 steps (coverage, kept from the earlier run)"
+    assert lines[1] == "[2/5] greedy-dist img_2: 99.1% in 51 steps (coverage) [0:01:00 elapsed, about 0:03:00 left]"
+    assert lines[2] == "[3/5] greedy-dist img_3: FAILED [0:02:00 elapsed, about 0:02:00 left]"
+    assert lines[3] == "[4/5] greedy-dist img_4: 99.1% in 51 steps (coverage) [1:05:00 elapsed, about 0:21:40 left]"
+    assert lines[4] == "[5/5] greedy-dist img_5: 99.1% in 51 steps (coverage) [1:05:00 elapsed]"
 
 
 @pytest.mark.parametrize(("rows", "cols", "methods"), [(400, 60, 1), (60, 400, 1), (200, 300, 3)])
