@@ -24,6 +24,15 @@ FIGURES = (
     (PAIRED_FIGURE, "Each scene's m2/step against the baseline's"),
 )
 TABLE1_COLUMNS = ("method", "scale", "episodes", "explored m2", "coverage %", "steps", "m2/step", "path m", "decision ms p50/p99")
+TABLE1_DEFINITIONS = (
+    ("explored m2", "the traversable floor (free space 4-connected to the start) that the robot's map holds as free at the end"),
+    ("coverage %", "explored m2 over the traversable floor's m2"),
+    ("steps", "control periods (robot.control_period_s, 0.25 s) until the episode ended: by coverage, no reachable frontier or the step limit"),
+    ("m2/step", "the mean of each episode's explored m2 / steps (not the mean area over the mean steps; an episode of no step is left out)"),
+    ("path m", "metres the robot drove, from its true pose"),
+    ("decision ms p50/p99", "median and 99th percentile of each episode's decision times (frontiers, fast marching, entropy, masks, goal choice)"),
+)
+"""How each Table 1 column is computed (README.md, the outputs of eval); every figure is a mean over the row's episodes."""
 
 
 def _fmt(v: Any, nd: int) -> str:
@@ -115,6 +124,20 @@ def _map_figures(out_dir: Path, summary: dict[str, Any]) -> dict[str, list[str]]
     return by_map
 
 
+def run_settings_text(meta: dict[str, Any]) -> str:
+    """The run's header line: what made the table, with the sensor's field of view and the step limit, which decide
+    whether it compares with the paper's (360 degrees, 3000 steps); ``meta.config`` is absent from older summaries."""
+    parts = [f"{k}: {meta[k]}" for k in ("command", "version", "maps", "m_per_px", "cell_sizes_m", "seed", "sim") if meta.get(k) is not None]
+    config = meta.get("config") or {}
+    fov_deg = (config.get("sensor") or {}).get("fov_deg")
+    max_steps = (config.get("episode") or {}).get("max_steps")
+    if fov_deg is not None:
+        parts.append(f"sensor field of view: {fov_deg:g} degrees")
+    if max_steps is not None:
+        parts.append(f"step limit: {max_steps}")
+    return ", ".join(parts)
+
+
 def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     """Write ``out_dir/report.html`` from ``summary`` and the figures found in ``out_dir``; returns its path."""
     out_dir = Path(out_dir)
@@ -126,9 +149,18 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
         "img{max-width:100%;height:auto;border:1px solid #eee}.maps{display:flex;flex-wrap:wrap;gap:1em}.maps figure{margin:0;max-width:640px}",
         "</style></head><body>",
         f"<h1>Results in {html.escape(str(out_dir))}</h1>",
-        "<p>" + html.escape(", ".join(f"{k}: {meta[k]}" for k in ("command", "version", "maps", "m_per_px", "cell_sizes_m", "seed", "sim") if meta.get(k) is not None)) + "</p>",
+        "<p>" + html.escape(run_settings_text(meta)) + "</p>",
+    ]
+    stopped = meta.get("interrupted")
+    if stopped:  # a table of the episodes that finished: it must not pass for the whole run's
+        parts.append(
+            f"<p style='color:#b00'><b>Interrupted: {stopped.get('episodes_finished')} of {stopped.get('episodes_planned')} episodes finished</b>; "
+            "the tables and figures cover those only. The same command with --resume runs the rest.</p>"
+        )
+    parts += [
         "<h2>Table 1</h2>",
         _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e)] for m, s, e in table1_rows(summary)]),
+        "<dl>" + "".join(f"<dt>{html.escape(c)}</dt><dd>{html.escape(d)}</dd>" for c, d in TABLE1_DEFINITIONS) + "</dl>",
     ]
     if shows_ablations(summary):
         parts.append("<h2>Table 2: efficiency, m2/step (per-scene change against the baseline)</h2>")

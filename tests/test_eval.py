@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import cso_runtime
-from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig
+from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, to_dict
 from cso_runtime.episode import GroundTruthMetrics, run_episode
 from cso_runtime.evaluation import CSV_FIELDS, METRICS, WORKER_DIED, EpisodeJob, EvalRequest, run_eval, run_in_processes, run_job
 from cso_runtime.map_files import load_map
@@ -889,3 +889,24 @@ def test_eval_warns_when_weights_were_trained_with_another_field_of_view(tmp_pat
     with caplog.at_level("WARNING"):
         run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "o360", max_steps=5, lidar_fov_deg=360.0))
     assert "trained with" not in caplog.text
+
+
+def test_the_report_says_a_run_was_interrupted_what_it_ran_with_and_how_each_metric_is_computed(tmp_path: Path):
+    """report.html is read on its own (sent to a colleague): a Table 1 of an interrupted eval says it covers only
+    the episodes that finished; the header gives the sensor's field of view and the step limit, the two settings
+    that decide whether a table compares with the paper's (360 degrees, 3000 steps); each column is defined."""
+    from cso_runtime.evaluation import summarize
+    from cso_runtime.report import write_report
+
+    row = {"method": "greedy-dist", "map": "img_1", "seed": 0, "traversable_area_m2": 150.0, "scale": "large", "terminated_by": "coverage",
+           "explored_area_m2": 150.0, "coverage_pct": 99.5, "steps": 1500, "efficiency_m2_per_step": 0.1, "path_length_m": 10.0,
+           "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}
+    meta = {"command": "cso-runtime eval", "config": to_dict(ExplorationConfig()), "interrupted": {"episodes_finished": 1, "episodes_planned": 4}}
+    meta["config"]["sensor"]["fov_deg"] = 360.0
+    page = write_report(tmp_path, summarize([row], [], ["greedy-dist"], meta)).read_text()
+    assert "Interrupted: 1 of 4 episodes finished" in page and "--resume" in page
+    assert "sensor field of view: 360 degrees" in page and f"step limit: {ExplorationConfig().episode.max_steps}" in page
+    for column in ("explored m2", "coverage %", "steps", "m2/step", "path m", "decision ms p50/p99"):
+        assert f"<dt>{column}</dt>" in page
+    del meta["interrupted"]
+    assert "Interrupted" not in write_report(tmp_path, summarize([row], [], ["greedy-dist"], meta)).read_text()
