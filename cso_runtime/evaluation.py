@@ -484,6 +484,16 @@ def write_outputs(
     return summary
 
 
+SEEDED_METHODS = ("random",)
+"""The methods whose choices the episode seed draws; every other one decides the same on the same map."""
+
+
+def seed_changes_nothing(methods: list[str], config: ExplorationConfig, sim: str) -> bool:
+    """Whether every episode of ``methods`` is the same under any seed: the seed draws the ``random`` method's choices
+    and the sensor's range noise, and the start pose is the plan's. (MuJoCo's odometry drift is seeded too: not claimed.)"""
+    return sim == "2d" and config.sensor.range_noise_std_m == 0 and not any(m in SEEDED_METHODS for m in methods)
+
+
 def methods_summarized_elsewhere(out_dir: Path, methods: list[str]) -> list[str]:
     """The methods an earlier run's summary.json in ``out_dir`` holds that ``methods`` leaves out."""
     try:
@@ -504,6 +514,13 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict
         log.warning(
             "%s holds the results of %s: this run's summary.json and episodes.csv replace them (their episode files stay); "
             "give another --out, or run every method in one eval", out, ", ".join(others),
+        )
+    if request.seed != 0 and seed_changes_nothing(request.methods, config, request.sim):
+        log.warning(
+            "--seed %d changes no episode here: it draws the random method's choices and the sensor's range noise, which is 0 "
+            "(sensor.range_noise_std_m), and every episode starts at the plan's start pose, so these episodes are those of any "
+            "seed; give --set sensor.range_noise_std_m=0.01 (metres) for repeated tests that differ",
+            request.seed,
         )
     weights: dict[str, dict[str, Any]] = {}
     if any(m in LEARNED_METHODS for m in request.methods):

@@ -910,3 +910,24 @@ def test_the_report_says_a_run_was_interrupted_what_it_ran_with_and_how_each_met
         assert f"<dt>{column}</dt>" in page
     del meta["interrupted"]
     assert "Interrupted" not in write_report(tmp_path, summarize([row], [], ["greedy-dist"], meta)).read_text()
+
+
+def test_eval_warns_when_its_seed_changes_no_episode(tmp_path: Path, caplog):
+    """The paper runs each scene 5 times; `eval --seed 1` on the defaults (2D simulator, no range noise) repeats seed 0's
+    episodes of every method but `random` exactly, and pooled by `compare` the copies pass for more scenes. Say so."""
+    from cso_runtime.evaluation import seed_changes_nothing
+
+    quiet = ExplorationConfig()
+    noisy = ExplorationConfig()
+    noisy.sensor.range_noise_std_m = 0.01
+    assert seed_changes_nothing(["greedy-dist", "cso"], quiet, "2d")
+    assert not seed_changes_nothing(["greedy-dist", "random"], quiet, "2d")
+    assert not seed_changes_nothing(["greedy-dist"], noisy, "2d")
+    assert not seed_changes_nothing(["greedy-dist"], quiet, "mujoco")  # its odometry drift is seeded
+    with caplog.at_level("WARNING"):
+        run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path / "s1", max_steps=5, seed=1))
+    assert "--seed 1 changes no episode here" in caplog.text and "sensor.range_noise_std_m" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path / "s0", max_steps=5))
+    assert "changes no episode" not in caplog.text  # the default seed was not a choice
