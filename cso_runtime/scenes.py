@@ -176,7 +176,7 @@ def load_floor_plan(path: str | Path, resolution_m: float = 0.1, start_yaw_rad: 
     except MapFileError as exc:  # too large, or not an image at all
         raise SceneError(str(exc)) from None
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
-        raise SceneError(f"{p.name}: not a readable image ({exc})") from None
+        raise SceneError(f"{p}: not a readable image ({exc})") from None
     return floor_plan_from_rgb(p.stem, rgb, resolution_m, start_yaw_rad, source=str(p))
 
 

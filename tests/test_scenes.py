@@ -218,6 +218,19 @@ def test_corrupt_missing_and_markerless_pngs_raise_scene_error(tmp_path):
         load_floor_plan(tmp_path / "nostart.png")
 
 
+def test_a_truncated_png_is_named_by_its_path_as_an_unreadable_one_is(tmp_path):
+    """A folder of plans with a cut-off download among them: eval's failure list must say which file, by the path a
+    user can open (plans of the easy and complex sets share names), as it does for a file that is no image at all."""
+    whole = tmp_path / "whole.png"
+    Image.fromarray(np.random.default_rng(0).integers(0, 255, (200, 200, 3), dtype=np.uint8)).save(whole)
+    (tmp_path / "cut.png").write_bytes(whole.read_bytes()[:400])
+    (tmp_path / "text.png").write_text("not an image")
+    for name in ("cut.png", "text.png"):
+        with pytest.raises(SceneError) as err:
+            load_floor_plan(tmp_path / name)
+        assert str(err.value).startswith(f"{tmp_path / name}: ")
+
+
 def test_builtin_scenes_load_with_licence():
     folder = builtin_scene_dir()
     assert "MIT" in (folder / "LICENSE").read_text()
