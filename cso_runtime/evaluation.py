@@ -494,13 +494,26 @@ def seed_changes_nothing(methods: list[str], config: ExplorationConfig, sim: str
     return sim == "2d" and config.sensor.range_noise_std_m == 0 and not any(m in SEEDED_METHODS for m in methods)
 
 
-def methods_summarized_elsewhere(out_dir: Path, methods: list[str]) -> list[str]:
-    """The methods an earlier run's summary.json in ``out_dir`` holds that ``methods`` leaves out."""
+def _earlier_methods(out_dir: Path) -> dict[str, Any]:
+    """The ``methods`` of an earlier run's summary.json in ``out_dir``; {} when there is none (or it is unreadable)."""
     try:
         earlier = json.loads((out_dir / "summary.json").read_text()).get("methods", {})
     except (OSError, ValueError, AttributeError):
-        return []
-    return sorted(m for m in earlier if m not in methods) if isinstance(earlier, dict) else []
+        return {}
+    return earlier if isinstance(earlier, dict) else {}
+
+
+def methods_summarized_elsewhere(out_dir: Path, methods: list[str]) -> list[str]:
+    """The methods an earlier run's summary.json in ``out_dir`` holds that ``methods`` leaves out."""
+    return sorted(m for m in _earlier_methods(out_dir) if m not in methods)
+
+
+def maps_summarized_elsewhere(out_dir: Path, methods: list[str], maps: list[str]) -> list[str]:
+    """The plans whose episodes of ``methods`` an earlier run's summary.json in ``out_dir`` holds and ``maps`` leaves
+    out: an eval of one plan into a folder, to run it again, would drop the others from its tables."""
+    earlier = _earlier_methods(out_dir)
+    held = {name for m in methods if isinstance(earlier.get(m), dict) for name in earlier[m].get("maps") or []}
+    return sorted(held - set(maps))
 
 
 def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict[str, Any]:
@@ -514,6 +527,14 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict
         log.warning(
             "%s holds the results of %s: this run's summary.json and episodes.csv replace them (their episode files stay); "
             "give another --out, or run every method in one eval", out, ", ".join(others),
+        )
+    dropped = maps_summarized_elsewhere(out, request.methods, [s.name for s in scenes])
+    if dropped:
+        log.warning(
+            "%s holds episodes of %d plan(s) this run leaves out (%s%s): its summary.json and episodes.csv will not count them "
+            "(their episode files stay); to run some episodes again in that folder, delete their episodes/<method>/<map>.npz "
+            "and give the earlier command (its meta.request in summary.json) with --resume",
+            out, len(dropped), ", ".join(dropped[:5]), ", ..." if len(dropped) > 5 else "",
         )
     if request.seed != 0 and seed_changes_nothing(request.methods, config, request.sim):
         log.warning(

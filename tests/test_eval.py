@@ -835,6 +835,19 @@ def test_an_eval_into_a_folder_of_other_methods_says_it_replaces_their_summary(t
     assert "holds the results of greedy-dist: this run's summary.json and episodes.csv replace them" in caplog.text
 
 
+def test_an_eval_of_fewer_plans_into_a_folder_says_its_tables_leave_the_others_out(tmp_path, caplog):
+    """Running one plan again into an eval's folder (a failed one, or to check it) rewrites summary.json and
+    episodes.csv with that plan alone: say so, and how to run episodes again in place (--resume)."""
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:2:0", out_dir=tmp_path / "o", max_steps=5))
+    with caplog.at_level("WARNING"):
+        run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:1", out_dir=tmp_path / "o", max_steps=5))
+    assert "holds episodes of 1 plan(s) this run leaves out (gen_small_0)" in caplog.text and "--resume" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING"):  # the same plans again, or more: nothing is left out
+        run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:2:0", out_dir=tmp_path / "o", max_steps=5, resume=True))
+    assert "leaves out" not in caplog.text
+
+
 @pytest.mark.parametrize(("rows", "cols", "methods"), [(96, 78, 3), (480, 640, 3), (200, 300, 3), (400, 60, 5)])
 def test_trajectory_plots_keep_the_plans_name_clear_of_the_panel_titles(rows: int, cols: int, methods: int):
     """The plan's name above the panels never overlaps a panel's title: with an odd number of methods it sits
