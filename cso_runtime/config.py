@@ -382,10 +382,12 @@ def _key_where(where: str, key: str) -> str:
     return f"{where}: {key}" if is_file and ": " not in where else f"{where}.{key}"
 
 
-def with_nearest(key: str, known: typing.Iterable[str]) -> str:
-    """``key``, followed by the known key it most likely misspells (``gama (did you mean gamma?)``), if any is close."""
+def with_nearest(key: str, known: typing.Iterable[str], shown: str | None = None) -> str:
+    """``key`` (or ``shown``, how the message writes it), followed by the known key it most likely misspells
+    (``gama (did you mean gamma?)``), if any is close."""
     nearest = difflib.get_close_matches(str(key), sorted(known), n=1)
-    return f"{key} (did you mean {nearest[0]}?)" if nearest else str(key)
+    shown = str(key) if shown is None else shown
+    return f"{shown} (did you mean {nearest[0]}?)" if nearest else shown
 
 
 def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:

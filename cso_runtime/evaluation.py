@@ -45,6 +45,7 @@ from cso_runtime.config import (
     make_output_dir,
     set_dotted,
     to_dict,
+    with_nearest,
 )
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.map_files import save_map
@@ -59,7 +60,7 @@ from cso_runtime.outputs import (
     write_text_atomic,
 )
 from cso_runtime.pace import real_time_factor
-from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy
+from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy, unknown_methods_said
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
 from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
@@ -169,9 +170,9 @@ class EvalRequest:
         if not self.methods:
             raise ConfigError("no --method given")
         if unknown:
-            raise ConfigError(f"unknown method(s) {', '.join(unknown)}; available: {', '.join(sorted(known))}")
+            raise ConfigError(unknown_methods_said(unknown, groups=True))
         if self.baseline not in known:
-            raise ConfigError(f"unknown --baseline {self.baseline!r}; available: {', '.join(sorted(known))}")
+            raise ConfigError(f"unknown --baseline {with_nearest(self.baseline, known, shown=repr(self.baseline))}; available: {', '.join(sorted(known))}")
         untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available_methods()]
         if untrained:
             from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415

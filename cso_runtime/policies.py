@@ -12,7 +12,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from cso_runtime.config import MaskConfig, SensorConfig
+from cso_runtime.config import MaskConfig, SensorConfig, with_nearest
 from cso_runtime.masks import StuckMask, valid_distance_mask
 from cso_runtime.observation import Observation
 
@@ -194,6 +194,15 @@ def available_methods() -> list[str]:
     return list(BASELINES) + [m for m in LEARNED_METHODS if _learned_available(m)]
 
 
+def unknown_methods_said(names: list[str], groups: bool = False) -> str:
+    """``unknown method 'greedy-dsit' (did you mean greedy-dist?); available: ...``: the one wording of unknown
+    method names, each with the known name it most likely misspells; ``groups``: the list (``--method``) also takes
+    ``METHOD_GROUPS``."""
+    known = [*BASELINES, *LEARNED_METHODS, *(METHOD_GROUPS if groups else ())]
+    said = ", ".join(with_nearest(name, known, shown=repr(name)) for name in names)
+    return f"unknown method{'s' if len(names) > 1 else ''} {said}; available: {', '.join(known)}"
+
+
 METHOD_GROUPS = ("all", "baselines", "learned")
 """Names that stand for several methods in a ``--method`` list (``parse_methods``)."""
 
@@ -236,4 +245,4 @@ def make_policy(
         from cso_runtime.learned import registry  # noqa: PLC0415 - torch only when needed
 
         return registry.make_learned_policy(name, mask_config or MaskConfig(), seed=seed, device=device, sensor=sensor)
-    raise ValueError(f"unknown method {name!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")
+    raise ValueError(unknown_methods_said([name]))

@@ -235,10 +235,10 @@ class Profile:
             problem = port_problem(from_dict(FoxgloveBridgeParams, self.services["foxglove_bridge"] or {}, where="services.foxglove_bridge"))
             if problem is not None:
                 raise ConfigError(f"services.foxglove_bridge: {problem}")
-        from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods  # noqa: PLC0415
+        from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, unknown_methods_said  # noqa: PLC0415
 
         if self.method not in BASELINES and self.method not in LEARNED_METHODS:
-            raise ConfigError(f"unknown method {self.method!r}; available: {', '.join(list(BASELINES) + list(LEARNED_METHODS))}")
+            raise ConfigError(unknown_methods_said([self.method]))
         policy = self.services.get("policy") or {}
         method = self.policy_method
         if method in LEARNED_METHODS:

@@ -37,7 +37,7 @@ from cso_runtime.messages import (
     frontiers_reading,
     observation_from_frontiers,
 )
-from cso_runtime.policies import BASELINES, LEARNED_METHODS, GoalSelector, make_policy
+from cso_runtime.policies import BASELINES, LEARNED_METHODS, GoalSelector, make_policy, unknown_methods_said
 from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_observation
 
 log = logging.getLogger("cso.policy")
@@ -61,7 +61,7 @@ class PolicyParams:
         if not self.stale_after_s > 0:
             raise ConfigError("stale_after_s must be positive")
         if self.method and self.method not in BASELINES and self.method not in LEARNED_METHODS:
-            raise ConfigError(f"method: unknown method {self.method!r}; available: {', '.join([*BASELINES, *LEARNED_METHODS])} (or empty: the profile's)")
+            raise ConfigError(f"method: {unknown_methods_said([self.method])} (or empty: the profile's)")
         try:
             check_torch_device(self.device)
         except ConfigError as exc:

@@ -182,8 +182,8 @@ def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
     assert ok.returncode == 0, ok.stderr
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert list(summary["methods"]) == ["greedy-dist", "greedy-info", "utility", "random"]  # the group, expanded
-    bad = subprocess.run(exe + ["eval", "--method", "greedy-best"], capture_output=True, text=True, timeout=60)
-    assert bad.returncode == 2 and "unknown method" in bad.stderr
+    bad = subprocess.run(exe + ["eval", "--method", "greedy-dsit"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "unknown method 'greedy-dsit' (did you mean greedy-dist?)" in bad.stderr
     bad_set = subprocess.run(exe + ["eval", "--set", "masks"], capture_output=True, text=True, timeout=60)
     assert bad_set.returncode == 2 and "--set expects KEY=VALUE, got 'masks'" in bad_set.stderr
     bad_maps = subprocess.run(exe + ["eval", "--maps", str(tmp_path / "nowhere")], capture_output=True, text=True, timeout=60)

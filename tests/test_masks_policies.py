@@ -20,6 +20,7 @@ from cso_runtime.policies import (
     available_methods,
     make_policy,
     parse_methods,
+    unknown_methods_said,
 )
 from tests.conftest import walled_grid
 
@@ -208,6 +209,15 @@ def test_policies_return_none_without_reachable_frontier():
 def test_unknown_method_is_a_clear_error():
     with pytest.raises(ValueError, match="unknown method"):
         make_policy("greedy-best")
+
+
+def test_an_unknown_method_is_said_with_the_name_it_most_likely_misspells():
+    """A typo in --method (eval, up, the policy service) names the method meant, as config keys do."""
+    with pytest.raises(ValueError, match=r"unknown method 'greedy-dsit' \(did you mean greedy-dist\?\); available: greedy-dist,"):
+        make_policy("greedy-dsit")
+    said = unknown_methods_said(["cs0", "xyzzy"], groups=True)
+    assert said.startswith("unknown methods 'cs0' (did you mean cso?), 'xyzzy'; available: ")
+    assert said.endswith("gnn-baseline, all, baselines, learned")
 
 
 def test_method_lists_expand_groups_in_order_each_method_once(monkeypatch, tmp_path):
