@@ -5,8 +5,9 @@ in RViz). The files follow ``map_saver``: ``mode: trinary``, occupied cells blac
 unknown cells grey (205), ``negate: 0``, thresholds 0.65 / 0.196; the image's first row is the top of the map
 (largest y) and ``origin`` is the map-frame pose ``[x_m, y_m, yaw_rad]`` of the lower-left pixel's corner
 (REP-103: x east, y north). ``load_map`` reads what ``map_saver`` and this module write
-(``trinary``, ``scale`` and ``raw`` modes, ``negate`` 0 or 1; 8- or 16-bit grey, colour as its luma) back into
-OccupancyGrid values (-1/0/100). Alpha is read as Nav2's ``map_io`` reads it: in ``trinary`` mode it is averaged
+(``trinary``, ``scale`` and ``raw`` modes, ``negate`` 0 or 1; 8- or 16-bit grey; colour as Nav2 reads it, the
+plain average of R, G and B, not the luma) back into OccupancyGrid values (-1/0/100). Alpha (an alpha channel,
+or a palette's transparent entry) is read as Nav2's ``map_io`` reads it: in ``trinary`` mode it is averaged
 in with the three colour channels (so an opaque grey 205 reads as free there, as in Nav2 and ROS 1's map_server),
 in ``scale`` mode a pixel not fully opaque is unknown, and ``raw`` mode ignores it.
 """
@@ -161,14 +162,9 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
     with open_image(image_path) as im:
         try:
             im.load()
-            if im.mode.startswith("I"):  # 16-bit grey (PGM of maxval 65535, 16-bit PNG): "L" would clip it at 255
-                pixels = np.asarray(im, dtype=np.float64) * (255.0 / 65535.0)
-            else:
-                pixels = np.asarray(im.convert("LA" if "A" in im.getbands() else "L"))
+            value, alpha = shade_and_alpha(im)
         except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as exc:  # Pillow's decoders raise all of these on corrupt files
             raise MapFileError(f"{image_path}: cannot read the map image ({exc})") from None
-    alpha = pixels[..., 1] if pixels.ndim == 3 else None
-    value = (pixels[..., 0] if pixels.ndim == 3 else pixels).astype(np.float64)
     if mode == "raw":
         value = np.rint(value)  # as Nav2: the grey on 0-255, rounded
         grid = np.clip(value, -1, 100).astype(np.int8)
@@ -187,6 +183,27 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
             grid[alpha < 255] = UNKNOWN  # as Nav2: in scale mode a pixel not fully opaque is unknown
     geometry = GridGeometry(resolution, (int(grid.shape[0]), int(grid.shape[1])), x0, y0)
     return np.flipud(grid).copy(), geometry, meta
+
+
+GREY_MODES = ("1", "L", "LA")
+"""Pillow modes read as one grey channel (with alpha for ``LA``); any other 8-bit mode is read as R, G, B (A)."""
+
+
+def shade_and_alpha(im: Image.Image) -> tuple[np.ndarray, np.ndarray | None]:
+    """Each pixel's shade on 0-255 as Nav2's ``map_io`` computes it, the plain average of R, G and B (not the
+    luma), and its alpha (None when the image has none). Transparency is kept wherever the file has it: an
+    alpha channel, or a ``tRNS`` entry of a palette, grey or RGB PNG (GraphicsMagick, Nav2's reader, applies it)."""
+    if im.mode.startswith("I"):  # 16-bit grey (PGM of maxval 65535, 16-bit PNG): "L" would clip it at 255
+        return np.asarray(im, dtype=np.float64) * (255.0 / 65535.0), None
+    has_alpha = "A" in im.getbands() or "transparency" in im.info
+    if im.mode in GREY_MODES:
+        pixels = np.asarray(im.convert("LA" if has_alpha else "L"))
+        channels = pixels[..., :1] if has_alpha else pixels[..., None]
+    else:
+        pixels = np.asarray(im.convert("RGBA" if has_alpha else "RGB"))
+        channels = pixels[..., :3]
+    value = channels.astype(np.float64).mean(axis=-1)
+    return value, (pixels[..., -1].astype(np.float64) if has_alpha else None)
 
 
 def _warn_default_thresholds(yaml_path: Path, meta: dict) -> None:

@@ -189,3 +189,31 @@ def test_alpha_is_read_per_mode_as_nav2_map_server_reads_it(tmp_path: Path, mode
     meta.update(negate=0, occupied_thresh=0.65, free_thresh=0.196)
     (tmp_path / "a.yaml").write_text(yaml.safe_dump(meta))
     assert load_map(tmp_path / "a.yaml")[0].tolist() == [expected]
+
+
+def _write_map_yaml(folder: Path, image: str, mode: str = "trinary") -> Path:
+    meta = {"image": image, "mode": mode, "resolution": 0.1, "origin": [0.0, 0.0, 0.0], "negate": 0, "occupied_thresh": 0.65, "free_thresh": 0.196}
+    (folder / "m.yaml").write_text(yaml.safe_dump(meta))
+    return folder / "m.yaml"
+
+
+def test_a_colour_pixel_reads_as_the_average_of_its_channels_as_nav2_reads_it(tmp_path: Path):
+    # Nav2's map_io: shade = (R + G + B) / 3, not the luma. Pure green (0, 255, 0): luma 150 (occupancy 0.41,
+    # unknown), average 85 (occupancy 0.67, occupied). (255, 255, 0): luma 226 (0.11, free), average 170 (0.33, unknown).
+    rgb = np.array([[[0, 255, 0], [255, 255, 0], [254, 254, 254]]], dtype=np.uint8)
+    Image.fromarray(rgb, "RGB").save(tmp_path / "c.png")
+    assert load_map(_write_map_yaml(tmp_path, "c.png"))[0].tolist() == [[100, -1, 0]]
+    Image.fromarray(np.concatenate([rgb, np.full((1, 3, 1), 255, np.uint8)], axis=-1), "RGBA").save(tmp_path / "c.png")
+    # Opaque: trinary averages alpha 255 in, (R + G + B + 255) / 4: 127.5 (0.5, unknown), 191.25 (0.25, unknown), 254.25 (free).
+    assert load_map(_write_map_yaml(tmp_path, "c.png"))[0].tolist() == [[-1, -1, 0]]
+    assert load_map(_write_map_yaml(tmp_path, "c.png", "scale"))[0].tolist() == [[100, 30, 0]]  # alpha left out: the average
+
+
+@pytest.mark.parametrize(("mode", "expected"), [("trinary", [-1, 0, 100]), ("scale", [-1, 0, 100]), ("raw", [-1, -1, 0])])
+def test_a_palette_png_with_a_transparent_entry_keeps_its_transparency(tmp_path: Path, mode: str, expected: list[int]):
+    # Nav2 (GraphicsMagick) reads a palette PNG's tRNS entry as alpha; Pillow's "L" conversion dropped it.
+    im = Image.fromarray(np.array([[0, 1, 2]], dtype=np.uint8), "P")
+    im.putpalette([254, 254, 254, 254, 254, 254, 0, 0, 0] + [0] * (256 - 3) * 3)
+    im.save(tmp_path / "p.png", transparency=0)  # entry 0: white, fully transparent
+    # trinary: (3 * 254 + 0) / 4 = 190.5, occupancy 0.25: unknown; scale: not opaque, unknown; raw: alpha ignored, 254 > 100 unknown.
+    assert load_map(_write_map_yaml(tmp_path, "p.png", mode))[0].tolist() == [expected]
