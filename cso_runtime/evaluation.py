@@ -48,6 +48,7 @@ from cso_runtime.config import (
     with_nearest,
 )
 from cso_runtime.episode import EpisodeResult, run_episode
+from cso_runtime.geometry import Pose2D
 from cso_runtime.map_files import save_map
 from cso_runtime.outputs import (
     COVERAGE_FIGURE,
@@ -63,7 +64,7 @@ from cso_runtime.pace import real_time_factor
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy, unknown_methods_said
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
-from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
+from cso_runtime.scenes import MAP_FRAME_ORIGIN, SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
 from cso_runtime.simulator import SIMULATORS, MountSetting, make_simulator, mujoco_config, simulator_settings
 
 log = logging.getLogger(__name__)
@@ -307,14 +308,17 @@ def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float, re
     }
 
 
-def save_episode_files(out_dir: Path, method: str, scene: str, result: EpisodeResult, row: dict[str, Any], settings: str = "", scene_hash: str = "") -> None:
+def save_episode_files(
+    out_dir: Path, method: str, scene: str, result: EpisodeResult, row: dict[str, Any], settings: str = "", scene_hash: str = "", map_origin: Pose2D = MAP_FRAME_ORIGIN
+) -> None:
     """The episode's npz and, when its map is known, the robot's final map as map_server files (PNG:
     an evaluation writes hundreds). The npz holds ``explored`` in the plan's pixel layout (row 0 at the
-    top, like the PNG), the trajectory in metres, and the metric row as JSON (``metrics``) with the
+    top, like the PNG), the trajectory in metres in the plan's frame with ``map_origin`` (the plan's pose in the
+    user's map frame, ``FloorPlan.map_origin``) beside it, and the metric row as JSON (``metrics``) with the
     settings' and the scene's fingerprints so an interrupted eval can resume; it is written last, so an episode whose
-    npz is there has its map too."""
+    npz is there has its map too. The map files are in the map frame: their ``origin`` overlays the user's own map."""
     if result.map_grid is not None and result.map_geometry is not None:
-        save_map(episode_map_path(out_dir, method, scene), result.map_grid, result.map_geometry, image_format="png")
+        save_map(episode_map_path(out_dir, method, scene), result.map_grid, result.map_geometry, image_format="png", map_origin=map_origin)
     path = episode_npz_path(out_dir, method, scene)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.stem + ".partial.npz")
@@ -322,6 +326,7 @@ def save_episode_files(out_dir: Path, method: str, scene: str, result: EpisodeRe
         tmp,
         explored=np.flipud(result.explored_free),
         trajectory=result.trajectory_xy_m.astype(np.float32),
+        map_origin=np.array([map_origin.x_m, map_origin.y_m, map_origin.yaw_rad], dtype=np.float64),
         coverage_curve=result.coverage_curve_pct.astype(np.float32),
         metrics=np.array(json.dumps(row)),
         settings=np.array(settings),
@@ -370,7 +375,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         result = run_episode(sim, policy, job.config, seed=job.seed, on_step=animation.on_step if animation else None)
         wall_s = time.perf_counter() - t0  # the frames' drawing included, when animated
         row = episode_row(job.method, job.seed, result, wall_s, real_time_factor(result.sim_time_s, wall_s))
-        save_episode_files(job.out_dir, job.method, job.scene.name, result, row, job.settings, scene_fingerprint(plan))
+        save_episode_files(job.out_dir, job.method, job.scene.name, result, row, job.settings, scene_fingerprint(plan), plan.map_origin)
         gif = episode_animation_path(job.out_dir, job.method, job.scene.name)
         if animation is not None and animation.finish():
             animation.save_gif(gif)

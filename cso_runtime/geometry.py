@@ -61,6 +61,13 @@ def relative_pose(a: Pose2D, b: Pose2D) -> tuple[float, float, float]:
     return c * dx + s * dy, -s * dx + c * dy, wrap_angle_rad(b.yaw_rad - a.yaw_rad)
 
 
+def compose_pose(frame: Pose2D, pose: Pose2D) -> Pose2D:
+    """``pose``, given in ``frame``'s own axes, in the frame ``frame`` is given in (the inverse of
+    ``relative_pose``): a pose in a map's grid frame placed in its map frame by the grid's origin."""
+    c, s = math.cos(frame.yaw_rad), math.sin(frame.yaw_rad)
+    return Pose2D(frame.x_m + c * pose.x_m - s * pose.y_m, frame.y_m + s * pose.x_m + c * pose.y_m, wrap_angle_rad(frame.yaw_rad + pose.yaw_rad))
+
+
 def mean_twist(before: Pose2D, after: Pose2D, dt_s: float) -> VelocityCommand:
     """The body-frame twist (forward speed, yaw rate) that takes ``before`` to ``after`` in ``dt_s`` on average,
     as an odometry node that differentiates its poses reports it."""

@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
-from cso_runtime.geometry import GridGeometry
+from cso_runtime.geometry import GridGeometry, Pose2D, compose_pose
 from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN
 
 PIXEL_OCCUPIED, PIXEL_FREE, PIXEL_UNKNOWN = 0, 254, 205
@@ -86,9 +86,11 @@ def open_image(path: Path) -> Image.Image:
     return im
 
 
-def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_format: str = "pgm") -> Path:
+def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_format: str = "pgm", map_origin: Pose2D | None = None) -> Path:
     """Write ``grid`` (int8 OccupancyGrid values, row 0 at ``geometry``'s origin) as ``yaml_path`` and the
-    image beside it (same stem, ``image_format`` pgm or png). Returns the YAML's path."""
+    image beside it (same stem, ``image_format`` pgm or png). Returns the YAML's path. ``map_origin``: the pose
+    in the map frame of the frame ``geometry`` is in (a scene's ``FloorPlan.map_origin``, the origin of the user's
+    own map_server YAML), so that the file overlays that map; None: ``geometry``'s frame is the map frame."""
     if image_format not in IMAGE_FORMATS:
         raise ValueError(f"image format {image_format!r}: expected one of {', '.join(IMAGE_FORMATS)}")
     grid = np.asarray(grid)
@@ -105,13 +107,21 @@ def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_fo
         "image": image_path.name,
         "mode": "trinary",
         "resolution": float(geometry.resolution_m),
-        "origin": [float(geometry.origin_x_m), float(geometry.origin_y_m), 0.0],
+        "origin": map_origin_of(geometry, map_origin),
         "negate": 0,
         "occupied_thresh": OCCUPIED_THRESH,
         "free_thresh": FREE_THRESH,
     }
     yaml_path.write_text(yaml.safe_dump(meta, sort_keys=False))
     return yaml_path
+
+
+def map_origin_of(geometry: GridGeometry, map_origin: Pose2D | None = None) -> list[float]:
+    """A map_server ``origin`` ``[x_m, y_m, yaw_rad]``: the map-frame pose of ``geometry``'s lower-left corner,
+    ``geometry`` being in the frame whose map-frame pose is ``map_origin`` (None: the map frame itself)."""
+    corner = Pose2D(float(geometry.origin_x_m), float(geometry.origin_y_m), 0.0)
+    pose = corner if map_origin is None else compose_pose(map_origin, corner)
+    return [float(pose.x_m), float(pose.y_m), float(pose.yaw_rad)]
 
 
 def load_map(yaml_path: Path) -> tuple[np.ndarray, GridGeometry]:

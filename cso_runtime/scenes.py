@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from cso_runtime.geometry import GridGeometry, Pose2D, relative_pose
+from cso_runtime.geometry import GridGeometry, Pose2D, compose_pose, relative_pose
 
 FREE_RGB = (195, 195, 194)
 WALL_RGB = (127, 127, 127)
@@ -52,15 +52,27 @@ MIN_TRAVERSABLE_M2 = 0.1
 """The least floor reachable from the start that makes a scene: about twice the LIMO's own footprint."""
 
 
+MAP_FRAME_ORIGIN = Pose2D(0.0, 0.0, 0.0)
+"""A plan's frame that is its map frame too: Dungeon, generated and builtin plans."""
+
+
 @dataclass
 class FloorPlan:
-    """Ground truth of one scene. ``free[iy, ix]`` is True for floor; row 0 is the bottom (y = 0)."""
+    """Ground truth of one scene. ``free[iy, ix]`` is True for floor; row 0 is the bottom (y = 0). The plan's
+    frame (``start``, ``geometry``: what every algorithm works in) has its origin at the grid's lower-left corner;
+    ``map_origin`` is that corner's pose in the user's map frame (a map_server YAML's ``origin``), which what users
+    read is shown in (``to_map_frame``)."""
 
     name: str
     free: np.ndarray
     resolution_m: float
     start: Pose2D
     source: str = ""
+    map_origin: Pose2D = MAP_FRAME_ORIGIN
+
+    def to_map_frame(self, pose: Pose2D) -> Pose2D:
+        """A pose in the plan's frame as the user's map frame has it."""
+        return compose_pose(self.map_origin, pose)
 
     @property
     def geometry(self) -> GridGeometry:
@@ -97,7 +109,8 @@ class FloorPlan:
 
 
 def describe_scene(plan: FloorPlan) -> dict[str, object]:
-    """What ``cso-runtime scenes`` lists of a plan: its size, scale, traversable area and start pose, so a
+    """What ``cso-runtime scenes`` lists of a plan: its size, scale, traversable area and start pose (in the map
+    frame, as a map_server YAML's ``start`` is written, with the ``map_origin`` that places the plan there), so a
     folder can be checked (and its ``--m-per-px`` chosen) before a long evaluation."""
     h, w = plan.free.shape
     area_m2 = plan.traversable_area_m2()
@@ -110,9 +123,14 @@ def describe_scene(plan: FloorPlan) -> dict[str, object]:
         "free_area_m2": float(np.count_nonzero(plan.free)) * plan.resolution_m**2,
         "traversable_area_m2": area_m2,
         "scale": scale_of(area_m2),
-        "start": {"x_m": plan.start.x_m, "y_m": plan.start.y_m, "yaw_rad": plan.start.yaw_rad},
+        "start": _pose_dict(plan.to_map_frame(plan.start)),  # as the user wrote it: in the map frame
+        "map_origin": _pose_dict(plan.map_origin),
         "source": plan.source,
     }
+
+
+def _pose_dict(pose: Pose2D) -> dict[str, float]:
+    return {"x_m": pose.x_m, "y_m": pose.y_m, "yaw_rad": pose.yaw_rad}
 
 
 COLOUR_TOLERANCE = 10
@@ -186,9 +204,9 @@ MAP_SUFFIXES = (".yaml", ".yml")
 
 def load_map_scene(path: str | Path) -> FloorPlan:
     """A map_server map (YAML + image) as a floor plan: its free cells (0) are the floor; occupied and
-    unknown cells are walls. The world frame is the map's lower-left corner, at the map's own
-    resolution, along the grid's rows and columns (an ``origin`` with a yaw turns the map frame, not the
-    plan). The start is the YAML's optional ``start: [x_m, y_m, yaw_rad]`` (map frame; map_server
+    unknown cells are walls. The plan's frame is the map's lower-left corner, at the map's own
+    resolution, along the grid's rows and columns; the YAML's ``origin`` (with its yaw) is kept as the plan's
+    ``map_origin``, which places it in the map frame. The start is the YAML's optional ``start: [x_m, y_m, yaw_rad]`` (map frame; map_server
     ignores the key), else the free cell farthest from any wall in the largest free region."""
     from cso_runtime.map_files import MapFileError, load_map_and_meta  # noqa: PLC0415 - PIL only for map input
 
@@ -203,12 +221,13 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     free = grid == 0
     if not free.any():
         raise SceneError(f"{p.name}: the map has no free cells")
+    map_origin = Pose2D(*map(float, meta["origin"]))
     res = geometry.resolution_m
     if start is not None:
         if not (isinstance(start, list) and len(start) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in start)):
             raise SceneError(f"{p.name}: start must be [x_m, y_m, yaw_rad], three finite numbers")
         # The map frame's pose in the grid's frame, whose corner is at `origin`, turned by its yaw (map_server's).
-        pose = Pose2D(*relative_pose(Pose2D(*map(float, meta["origin"])), Pose2D(*map(float, start))))
+        pose = Pose2D(*relative_pose(map_origin, Pose2D(*map(float, start))))
         iy, ix = GridGeometry(res, free.shape).world_to_cell(pose.x_m, pose.y_m)
         if not (0 <= iy < free.shape[0] and 0 <= ix < free.shape[1] and free[iy, ix]):
             raise SceneError(f"{p.name}: start ({start[0]}, {start[1]}) m is not on a free cell of the map")
@@ -217,7 +236,7 @@ def load_map_scene(path: str | Path) -> FloorPlan:
         largest = labels == 1 + int(np.argmax(ndimage.sum_labels(free, labels, index=np.arange(1, n + 1))))
         iy, ix = np.unravel_index(int(np.argmax(ndimage.distance_transform_edt(largest))), free.shape)
         pose = Pose2D((ix + 0.5) * res, (iy + 0.5) * res, 0.0)
-    return FloorPlan(p.stem, free, res, pose, source=str(p))
+    return FloorPlan(p.stem, free, res, pose, source=str(p), map_origin=map_origin)
 
 
 def _natural_key(p: Path) -> tuple:

@@ -460,3 +460,59 @@ def test_a_map_with_a_rotated_origin_is_a_scene_and_its_start_turns_with_it(tmp_
     scene = resolve_scenes(str(yaml_path))[0].load()
     np.testing.assert_array_equal(scene.free, plan.free)
     assert (scene.start.x_m, scene.start.y_m, scene.start.yaw_rad) == pytest.approx((plan.start.x_m, plan.start.y_m, 0.5))
+
+
+def test_a_map_scene_keeps_its_map_frame_in_the_listing_and_the_maps_it_writes(tmp_path):
+    """The YAML's ``origin`` was dropped: ``scenes`` listed the start in the grid's frame (not the ``start:`` the
+    user wrote) and the robot's maps were written at ``origin: [0, 0, 0]``, off the user's map in RViz. Now the
+    listing shows the start as written and the written map overlays the source map cell for cell."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.map_files import load_map
+
+    plan = generate_floor_plan("small", 3)
+    origin = (-3.5, 2.0)
+    start = [plan.start.x_m + origin[0], plan.start.y_m + origin[1], 0.25]  # the plan's start, in the map frame
+    yaml_path = _plan_as_map(tmp_path, plan, origin=origin, start=start)
+    yaml_path.write_text(yaml_path.read_text().replace("origin:\n- -3.5\n- 2.0\n- 0.0", "origin: [-3.5, 2.0, 0]"))
+    assert yaml.safe_load(yaml_path.read_text())["origin"] == [-3.5, 2.0, 0]
+    r = CliRunner().invoke(app, ["scenes", str(yaml_path), "--json"])
+    assert r.exit_code == 0, r.output
+    (listed,) = json.loads(r.stdout)
+    assert listed["start"] == {"x_m": pytest.approx(start[0]), "y_m": pytest.approx(start[1]), "yaw_rad": pytest.approx(0.25)}
+    assert listed["map_origin"] == {"x_m": -3.5, "y_m": 2.0, "yaw_rad": 0.0}
+    r = CliRunner().invoke(app, ["scenes", str(yaml_path)], env={"COLUMNS": "160"})
+    assert f"{start[0]:.2f}, {start[1]:.2f}, 0.25" in r.output
+
+    out = tmp_path / "out"
+    r = CliRunner().invoke(app, ["eval", "--method", "greedy-dist", "--maps", str(yaml_path), "--max-steps", "30", "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    written = out / "maps" / "greedy-dist" / f"{plan.name}.yaml"
+    assert yaml.safe_load(written.read_text())["origin"] == [-3.5, 2.0, 0.0]
+    source_grid, source_geometry = load_map(yaml_path)
+    grid, geometry = load_map(written)
+    assert geometry == source_geometry  # the same cells at the same places in the map frame
+    seen_free = grid == 0
+    assert seen_free.any() and not (seen_free & (source_grid != 0)).any()
+    npz = np.load(out / "episodes" / "greedy-dist" / f"{plan.name}.npz")
+    np.testing.assert_array_equal(npz["map_origin"], [-3.5, 2.0, 0.0])  # what places the plan-frame trajectory
+    assert npz["trajectory"][0] == pytest.approx([plan.start.x_m, plan.start.y_m], abs=1e-5)  # unchanged: the plan's frame
+
+
+def test_a_rotated_map_origin_is_kept_in_the_maps_written(tmp_path):
+    """An ``origin`` with a yaw: the written map carries the same rotated origin, so RViz turns it as it turns the
+    user's own map, and a plan-frame pose lands where the user's map has it."""
+    from cso_runtime.map_files import map_origin_of
+
+    plan = generate_floor_plan("small", 3)
+    yaml_path = _plan_as_map(tmp_path, plan, origin=(-3.0, 1.5))
+    meta = yaml.safe_load(yaml_path.read_text())
+    yaml_path.write_text(yaml.safe_dump({**meta, "origin": [-3.0, 1.5, math.pi / 2]}))
+    scene = resolve_scenes(str(yaml_path))[0].load()
+    assert scene.map_origin == Pose2D(-3.0, 1.5, math.pi / 2)
+    assert map_origin_of(scene.geometry, scene.map_origin) == pytest.approx([-3.0, 1.5, math.pi / 2])
+    moved = GridGeometry(scene.resolution_m, scene.free.shape, 1.0, 0.0)  # a grid one metre along the plan's x
+    assert map_origin_of(moved, scene.map_origin) == pytest.approx([-3.0, 2.5, math.pi / 2])  # the map's y
+    p = scene.to_map_frame(Pose2D(1.0, 2.0, 0.1))
+    assert (p.x_m, p.y_m, p.yaw_rad) == pytest.approx((-5.0, 2.5, math.pi / 2 + 0.1))
