@@ -48,7 +48,7 @@ from cso_runtime.config import (
     with_nearest,
 )
 from cso_runtime.episode import EpisodeResult, run_episode
-from cso_runtime.geometry import Pose2D
+from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D
 from cso_runtime.map_files import save_map
 from cso_runtime.outputs import (
     COVERAGE_FIGURE,
@@ -64,7 +64,7 @@ from cso_runtime.pace import real_time_factor
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy, unknown_methods_said
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
-from cso_runtime.scenes import MAP_FRAME_ORIGIN, SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
+from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
 from cso_runtime.simulator import SIMULATORS, MountSetting, make_simulator, mujoco_config, simulator_settings
 
 log = logging.getLogger(__name__)

@@ -8,6 +8,7 @@ exactly like ``nav_msgs/OccupancyGrid`` data.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -54,6 +55,11 @@ class VelocityCommand:
         return VelocityCommand(v, w)
 
 
+MAP_FRAME_ORIGIN = Pose2D(0.0, 0.0, 0.0)
+"""The map-frame pose of a plan's frame that is the map frame itself: Dungeon, generated and builtin plans, and a
+real robot's map (``FloorPlan.map_origin``; a map_server scene's is its YAML's ``origin``)."""
+
+
 def relative_pose(a: Pose2D, b: Pose2D) -> tuple[float, float, float]:
     """Pose of b in a's frame: (dx_m forward, dy_m left, dyaw_rad)."""
     c, s = math.cos(a.yaw_rad), math.sin(a.yaw_rad)
@@ -66,6 +72,13 @@ def compose_pose(frame: Pose2D, pose: Pose2D) -> Pose2D:
     ``relative_pose``): a pose in a map's grid frame placed in its map frame by the grid's origin."""
     c, s = math.cos(frame.yaw_rad), math.sin(frame.yaw_rad)
     return Pose2D(frame.x_m + c * pose.x_m - s * pose.y_m, frame.y_m + s * pose.x_m + c * pose.y_m, wrap_angle_rad(frame.yaw_rad + pose.yaw_rad))
+
+
+def map_frame_xy(map_origin: Pose2D, xy_m: Sequence[float]) -> list[float]:
+    """A point ``[x_m, y_m]`` of a scene's own frame in the user's map frame (``map_origin``: the scene's pose there,
+    ``FloorPlan.map_origin``): what ``status`` and ``up``'s live view show of a goal."""
+    p = compose_pose(map_origin, Pose2D(float(xy_m[0]), float(xy_m[1]), 0.0))
+    return [p.x_m, p.y_m]
 
 
 def mean_twist(before: Pose2D, after: Pose2D, dt_s: float) -> VelocityCommand:

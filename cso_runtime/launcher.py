@@ -1023,7 +1023,7 @@ def write_episode_outputs(
     method = result.method or "unknown"
     row = episode_row(method, result.seed, er, wall_s, real_time_factor)
     summary = write_outputs(out_dir, [row], [], [method], meta)
-    save_episode_files(out_dir, method, result.scene, er, row)
+    save_episode_files(out_dir, method, result.scene, er, row, map_origin=result.map_origin)
     outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m)
     plot_coverage_curves(out_dir / COVERAGE_FIGURE, [outcome])
     plot_trajectories(trajectory_plot_path(out_dir, result.scene), result.scene, [outcome])

@@ -25,7 +25,8 @@ def pace_text(real_time_factor: float | None) -> str:
 
 def progress_line(status: EpisodeStatusMsg, control_period_s: float, real_time_factor: float | None = None) -> str:
     """The episode's progress in one log line (the live view's figures, for a log that is followed)."""
-    goal = "none" if status.goal_xy_m is None else f"({status.goal_xy_m[0]:.2f}, {status.goal_xy_m[1]:.2f}) m"
+    goal_m = status.goal_in_map_frame
+    goal = "none" if goal_m is None else f"({goal_m[0]:.2f}, {goal_m[1]:.2f}) m"
     rate = f" ({status.explored_area_m2 / status.step:.3f} m2/step)" if status.step else ""
     return (
         f"step {status.step} ({status.step * control_period_s:.1f} s robot time{pace_text(real_time_factor)}): coverage {status.coverage_pct:.1f} %, "
@@ -69,7 +70,8 @@ class LiveView:
         if st is None:
             t.add_row("state", escape("starting" + waits))
         else:
-            goal = "-" if st.goal_xy_m is None else f"({st.goal_xy_m[0]:.2f}, {st.goal_xy_m[1]:.2f}) m"
+            goal_m = st.goal_in_map_frame
+            goal = "-" if goal_m is None else f"({goal_m[0]:.2f}, {goal_m[1]:.2f}) m"
             t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "") + waits))
             t.add_row("scene", escape(st.scene))
             since = f"{time.monotonic() - la.started_s:.0f} s since start"

@@ -22,7 +22,7 @@ import msgpack
 import numpy as np
 
 from cso_runtime.frontiers import FrontierCluster
-from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+from cso_runtime.geometry import MAP_FRAME_ORIGIN, GridGeometry, LaserScan, Pose2D, VelocityCommand, map_frame_xy
 from cso_runtime.observation import Observation
 from cso_runtime.occupancy import OccupancyMap
 
@@ -911,7 +911,8 @@ class EpisodeStatusMsg(Message):
     """Ground-truth progress of the episode, published by the sim (the only one that knows the truth)."""
 
     SCHEMA: ClassVar[str] = "episode_status"
-    VERSION: ClassVar[int] = 2
+    VERSION: ClassVar[int] = 3
+    """2: the episode id. 3: the scene's ``map_origin``."""
     state: str
     step: int
     scene: str = ""
@@ -927,6 +928,9 @@ class EpisodeStatusMsg(Message):
     lockstep_timeouts: int = 0
     episode: int = 0
     """Episode id, as on ``clock``."""
+    map_origin: Pose2D = MAP_FRAME_ORIGIN
+    """The scene's pose in the user's map frame (``FloorPlan.map_origin``): ``goal_xy_m``, like every pose on the
+    network, is in the scene's own frame; ``status`` shows it in the map frame."""
 
     def body(self) -> dict[str, Any]:
         return {
@@ -944,7 +948,13 @@ class EpisodeStatusMsg(Message):
             "reason": self.reason,
             "lockstep_timeouts": self.lockstep_timeouts,
             "episode": self.episode,
+            "map_origin": _pose_out(self.map_origin),
         }
+
+    @property
+    def goal_in_map_frame(self) -> list[float] | None:
+        """``goal_xy_m`` in the user's map frame (``map_origin``), as ``status`` and the live view show it."""
+        return None if self.goal_xy_m is None else map_frame_xy(self.map_origin, self.goal_xy_m)
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> EpisodeStatusMsg:
@@ -969,6 +979,7 @@ class EpisodeStatusMsg(Message):
             _str(b, "reason", w),
             _int(b, "lockstep_timeouts", w),
             _int(b, "episode", w),
+            _pose_in(b, "map_origin", w),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -980,8 +991,9 @@ class EpisodeResultMsg(Message):
     """The finished episode: what ``eval`` writes (EpisodeResult) plus the plan for the plots."""
 
     SCHEMA: ClassVar[str] = "episode_result"
-    VERSION: ClassVar[int] = 3
-    """2: the boolean grids travel bit-packed (``pack_array``). 3: the robot's final map (``final_map``)."""
+    VERSION: ClassVar[int] = 4
+    """2: the boolean grids travel bit-packed (``pack_array``). 3: the robot's final map (``final_map``).
+    4: the scene's ``map_origin``."""
     scene: str
     steps: int
     explored_area_m2: float
@@ -1000,6 +1012,8 @@ class EpisodeResultMsg(Message):
     seed: int = 0
     final_map: MapMsg | None = None
     """The last map the referee received from the mapper (None: no map arrived), written as map_server files."""
+    map_origin: Pose2D = MAP_FRAME_ORIGIN
+    """The scene's pose in the user's map frame (``FloorPlan.map_origin``): where the final map's files are placed."""
 
     SCALARS: ClassVar[tuple[str, ...]] = ("explored_area_m2", "coverage_pct", "traversable_area_m2", "path_length_m", "resolution_m")
 
@@ -1018,6 +1032,7 @@ class EpisodeResultMsg(Message):
             explored_free=pack_array(np.asarray(self.explored_free, dtype=bool), compress=True),
             plan_free=pack_array(np.asarray(self.plan_free, dtype=bool), compress=True),
             final_map=self.final_map.body() if self.final_map is not None else None,
+            map_origin=_pose_out(self.map_origin),
         )
         return b
 
@@ -1048,6 +1063,7 @@ class EpisodeResultMsg(Message):
             method=_str(b, "method", w),
             seed=_int(b, "seed", w, -(2**62)),
             final_map=MapMsg.from_body(final_map, where=f"{w}.final_map") if final_map is not None else None,
+            map_origin=_pose_in(b, "map_origin", w),
             **scalars,
         )
 
@@ -1269,6 +1285,12 @@ def _no_counters(body: dict[str, Any]) -> dict[str, Any]:
     return {"counters": {}, **body}
 
 
+def _map_frame_origin(body: dict[str, Any]) -> dict[str, Any]:
+    """An ``episode_status`` or ``episode_result`` body from before it carried the scene's ``map_origin``: the
+    scene's frame was taken as the map frame then."""
+    return {"map_origin": _pose_out(MAP_FRAME_ORIGIN), **body}
+
+
 LEGACY_UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]]] = {
     ("odom", 1): _episode_id_0,
     ("goal", 1): _episode_id_0,
@@ -1276,6 +1298,8 @@ LEGACY_UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]
     ("distance_map", 1): _episode_id_0,
     ("planner_feedback", 2): _episode_id_0,
     ("service_status", 1): _no_counters,
+    ("episode_status", 2): _map_frame_origin,
+    ("episode_result", 3): _map_frame_origin,
 }
 """(schema, older version) -> its body as a body of the current version, for the changes that only added
 a field. Recordings outlive a version: the offline tools that read them (replay, export-bag, animate) read

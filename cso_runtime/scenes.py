@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from cso_runtime.geometry import GridGeometry, Pose2D, compose_pose, relative_pose
+from cso_runtime.geometry import MAP_FRAME_ORIGIN, GridGeometry, Pose2D, compose_pose, relative_pose, wrap_angle_rad
 
 FREE_RGB = (195, 195, 194)
 WALL_RGB = (127, 127, 127)
@@ -50,10 +50,6 @@ def scale_of(area_m2: float) -> str:
 
 MIN_TRAVERSABLE_M2 = 0.1
 """The least floor reachable from the start that makes a scene: about twice the LIMO's own footprint."""
-
-
-MAP_FRAME_ORIGIN = Pose2D(0.0, 0.0, 0.0)
-"""A plan's frame that is its map frame too: Dungeon, generated and builtin plans."""
 
 
 @dataclass
@@ -221,7 +217,8 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     free = grid == 0
     if not free.any():
         raise SceneError(f"{p.name}: the map has no free cells")
-    map_origin = Pose2D(*map(float, meta["origin"]))
+    x0_m, y0_m, yaw_rad = map(float, meta["origin"])
+    map_origin = Pose2D(x0_m, y0_m, yaw_rad if -math.pi <= yaw_rad < math.pi else wrap_angle_rad(yaw_rad))  # messages carry yaws in [-10, 10]
     res = geometry.resolution_m
     if start is not None:
         if not (isinstance(start, list) and len(start) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in start)):

@@ -12,12 +12,22 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import zenoh
 
+from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, map_frame_xy
 from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id
-from cso_runtime.messages import EPISODE_OVER, EpisodeStatusMsg, LauncherStatusMsg, MapMsg, MessageError, ServiceStatusMsg, decode
+from cso_runtime.messages import (
+    EPISODE_OVER,
+    EpisodeStatusMsg,
+    LauncherStatusMsg,
+    MapMsg,
+    Message,
+    MessageError,
+    ServiceStatusMsg,
+    decode,
+)
 from cso_runtime.pace import real_time_words
 from cso_runtime.transport import TransportConfig, TransportError, zenoh_config
 
@@ -32,6 +42,22 @@ started by hand); with a launcher, its profile's services (``limo-ros2`` has a R
 
 def _collect(replies: Any) -> list[bytes]:
     return [r.ok.payload.to_bytes() for r in replies if r.ok is not None]
+
+
+M = TypeVar("M", bound=Message)
+
+
+def _decoded(replies: Any, cls: type[M]) -> list[M]:
+    """The replies that decode as ``cls``, in the order they came; malformed ones are left out."""
+    out: list[M] = []
+    for payload in _collect(replies):
+        try:
+            msg = decode(payload, cls)
+        except MessageError:
+            continue
+        assert isinstance(msg, cls)
+        out.append(msg)
+    return out
 
 
 CONNECT_TIMEOUT_MS = 500
@@ -62,30 +88,11 @@ def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) 
         la_replies = session.get(keys.launcher_status, **opts)
         sv_replies = session.get(keys.service_status("*"), **opts)
         alive_replies = session.liveliness().get(keys.alive("*"), timeout=timeout_s)
-        episode: dict[str, Any] | None = None
-        for payload in _collect(ep_replies):
-            try:
-                msg = decode(payload, EpisodeStatusMsg)
-            except MessageError:
-                continue
-            assert isinstance(msg, EpisodeStatusMsg)
-            episode = msg.to_dict()
-        launcher: dict[str, Any] | None = None
-        for payload in _collect(la_replies):
-            try:
-                lmsg = decode(payload, LauncherStatusMsg)
-            except MessageError:
-                continue
-            assert isinstance(lmsg, LauncherStatusMsg)
-            launcher = lmsg.to_dict()
-        services: dict[str, dict[str, Any]] = {}
-        for payload in _collect(sv_replies):
-            try:
-                smsg = decode(payload, ServiceStatusMsg)
-            except MessageError:
-                continue
-            assert isinstance(smsg, ServiceStatusMsg)
-            services[smsg.service] = smsg.to_dict()
+        episodes = _decoded(ep_replies, EpisodeStatusMsg)
+        episode = episodes[-1].to_dict() if episodes else None
+        launchers = _decoded(la_replies, LauncherStatusMsg)
+        launcher = launchers[-1].to_dict() if launchers else None
+        services = {smsg.service: smsg.to_dict() for smsg in _decoded(sv_replies, ServiceStatusMsg)}
         alive = {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in alive_replies if r.ok is not None}
     if episode is None and launcher is None and not alive:
         return None
@@ -118,6 +125,8 @@ def status_of(
         table[name] = entry
     ep, age_s = episode_or_last_heard(episode, launcher)
     over = ep.get("state") in EPISODE_OVER
+    map_origin = ep.get("map_origin", [0.0, 0.0, 0.0])  # none in the launcher's last-heard status (nor a goal)
+    goal = ep.get("goal_xy_m")
     return {
         "robot": robot,
         "run_id": (launcher or {}).get("run_id", ""),
@@ -127,7 +136,8 @@ def status_of(
         "coverage_pct": ep.get("coverage_pct", 0.0),
         "explored_area_m2": ep.get("explored_area_m2", 0.0),
         "path_length_m": ep.get("path_length_m", 0.0),
-        "goal": ep.get("goal_xy_m"),
+        "goal": None if goal is None else map_frame_xy(Pose2D(*map_origin), goal),  # in the user's map frame, as the scene's start
+        "map_origin": map_origin,
         "decisions": ep.get("decisions", 0),
         "last_decision_ms": ep.get("last_decision_ms", 0.0),
         "terminated_by": ep.get("terminated_by", ""),
@@ -387,15 +397,18 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
             live.stop()
 
 
-def query_map(connect: list[str], robot: str = "r0", timeout_s: float = 1.0) -> tuple[MapMsg | None, str]:
+def query_map(connect: list[str], robot: str = "r0", timeout_s: float = 1.0) -> tuple[MapMsg | None, str, Pose2D]:
     """The newest map the running episode keeps, or None and why not (nothing answered, no map yet, or
-    only malformed replies)."""
+    only malformed replies), and the scene's pose in the user's map frame (the episode status's ``map_origin``;
+    the scene's frame itself when no status answers), which the map's files are placed by."""
     session = _client_session(connect)
     if session is None:
-        return None, f"cannot reach {', '.join(connect)}"
+        return None, f"cannot reach {', '.join(connect)}", MAP_FRAME_ORIGIN
     best: MapMsg | None = None
+    map_origin = MAP_FRAME_ORIGIN
     why = f"nothing answered on {RobotKeys(robot).cache('map')}"
     with session:
+        statuses = session.get(RobotKeys(robot).episode_status, target=zenoh.QueryTarget.ALL, timeout=timeout_s)  # asked at once: both wait together
         for reply in session.get(RobotKeys(robot).cache("map"), target=zenoh.QueryTarget.ALL, timeout=timeout_s):
             if reply.ok is None:
                 why = reply.err.payload.to_string() if reply.err is not None else why
@@ -408,11 +421,14 @@ def query_map(connect: list[str], robot: str = "r0", timeout_s: float = 1.0) -> 
             assert isinstance(msg, MapMsg)
             if best is None or msg.step >= best.step:
                 best = msg
-    return best, "" if best is not None else why
+        for status in _decoded(statuses, EpisodeStatusMsg):
+            map_origin = status.map_origin
+    return best, "" if best is not None else why, map_origin
 
 
 def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_format: str, runs_dir: Path) -> int:
-    """The ``save-map`` command: the running episode's map as map_server files; exit 1 when there is none."""
+    """The ``save-map`` command: the running episode's map as map_server files, in the user's map frame (a
+    map_server scene's ``origin``: the files overlay its map); exit 1 when there is none."""
     from cso_runtime.map_files import map_yaml_path, save_map  # noqa: PLC0415
 
     yaml_out = map_yaml_path(out)
@@ -421,14 +437,14 @@ def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_
         return target
     connect, robot = target
     try:
-        msg, why = query_map(connect, robot)
+        msg, why, map_origin = query_map(connect, robot)
     except TransportError as exc:
-        msg, why = None, str(exc)
+        msg, why, map_origin = None, str(exc), MAP_FRAME_ORIGIN
     if msg is None:
         print(f"no map for robot {robot}: {why}")
         return 1
     try:
-        yaml_path = save_map(yaml_out, msg.grid, msg.geometry, image_format)
+        yaml_path = save_map(yaml_out, msg.grid, msg.geometry, image_format, map_origin=map_origin)
     except OSError as exc:
         print(f"error: cannot write the map to {yaml_out}: {exc.strerror or exc}", file=sys.stderr)
         return 2

@@ -268,6 +268,7 @@ class SimService(Service):
             reason=self.fail_reason,
             lockstep_timeouts=self.timeouts,
             episode=self.episode,
+            map_origin=self.sim.plan.map_origin,
         )
 
     def finish(self, state: str, terminated_by: str, reason: str = "") -> None:
@@ -291,6 +292,7 @@ class SimService(Service):
             method=self.method,
             seed=self.seed,
             final_map=self.latest.get("map"),  # type: ignore[arg-type]
+            map_origin=self.sim.plan.map_origin,
         )
         why = f" ({reason})" if reason else ""
         log.info("episode %s at step %d: %s%s, coverage %.2f%%, %.2f m2 explored", state, self.step, terminated_by, why, self.result.coverage_pct, self.explored_m2)

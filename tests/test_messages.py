@@ -370,8 +370,10 @@ def test_each_older_version_upgrades_to_the_current_one_with_episode_0_offline_o
     frontiers v7): a payload of the version before reads as today's message with id 0 ("no id") in the
     offline tools; a live service's ``decode`` still rejects it as an unknown version."""
     cases = _legacy_cases()
-    # (service_status v1, which lacked the counters and not the episode id: its own test below)
-    assert {(msgpack.unpackb(p)["schema"], msgpack.unpackb(p)["v"]) for p, _ in cases} | {("service_status", 1)} == set(LEGACY_UPGRADES)
+    # (service_status v1, which lacked the counters, and episode_status v2 / episode_result v3, the map origin, not
+    # the episode id: their own tests below)
+    others = {("service_status", 1), ("episode_status", 2), ("episode_result", 3)}
+    assert {(msgpack.unpackb(p)["schema"], msgpack.unpackb(p)["v"]) for p, _ in cases} | others == set(LEGACY_UPGRADES)
     for payload, expected in cases:
         cls = type(expected)
         with pytest.raises(MessageError, match=rf"{cls.SCHEMA}: unknown version {cls.VERSION - 1} \(this build speaks v{cls.VERSION}\)"):
@@ -393,6 +395,26 @@ def test_a_service_status_of_v1_reads_offline_with_no_counters_and_live_stays_st
         assert msg == ServiceStatusMsg("mapper", "r0", "running", 3, "", {"scan": 1}, 4, {})
     with pytest.raises(MessageError, match="service_status: missing field 'counters'"):  # v2 must carry them
         decode(_wire("service_status", msgpack.unpackb(v1)["body"]), ServiceStatusMsg)
+
+
+def test_episode_status_and_result_carry_the_scenes_map_origin_and_older_ones_read_with_none():
+    """v3 / v4 carry the scene's pose in the user's map frame (a map_server scene's ``origin``), which ``status``,
+    ``save-map`` and ``up``'s map files use; a recorded episode_status v2 or episode_result v3 reads as the scene's
+    frame being the map frame, as it was taken then."""
+    status = EpisodeStatusMsg("exploring", 5, scene="office", goal_xy_m=[1.0, 1.5], episode=3, map_origin=Pose2D(-3.5, 2.0, 0.5))
+    assert decode(encode(status), EpisodeStatusMsg) == status
+    free = np.ones((3, 4), dtype=bool)
+    result = EpisodeResultMsg("office", 9, 1.0, 50.0, 2.0, 3.0, "coverage", 2, np.ones(2), np.zeros((3, 2)), np.ones(3), free, free, 0.5, map_origin=Pose2D(-3.5, 2.0, 0.0))
+    assert decode(encode(result), EpisodeResultMsg).map_origin == Pose2D(-3.5, 2.0, 0.0)
+    for msg, older in ((status, 2), (result, 3)):
+        body = {k: v for k, v in _body(msg).items() if k != "map_origin"}
+        payload = _wire(msg.SCHEMA, body, version=older)
+        with pytest.raises(MessageError, match=rf"{msg.SCHEMA}: unknown version {older}"):
+            decode(payload, type(msg))
+        for read in (decode(upgrade_payload(payload), type(msg)), decode(payload, type(msg), accept_legacy=True)):
+            assert read.map_origin == Pose2D(0.0, 0.0, 0.0)
+    with pytest.raises(MessageError, match="episode_status: missing field 'map_origin'"):  # v3 must carry it
+        decode(_wire("episode_status", {k: v for k, v in _body(status).items() if k != "map_origin"}), EpisodeStatusMsg)
 
 
 def test_a_current_payload_is_not_touched_and_a_v6_frontiers_with_its_id_keeps_it():

@@ -3024,3 +3024,59 @@ def test_restarts_older_than_the_restart_window_no_longer_count_towards_giving_u
     t = crash_and_restart(whole_run, child, t + 1.0)
     crash_and_restart(whole_run, child, t + 1000.0)
     assert child.gave_up and child.restarts == 2
+
+
+def test_status_and_save_map_show_a_map_scenes_goal_and_map_in_its_map_frame(tmp_path):
+    """A map_server scene's ``origin`` was lost on the network: ``status`` showed the goal in the scene's own frame
+    and ``save-map`` wrote ``origin: [0, 0, 0]``, off the user's map in RViz. The sim's episode status carries the
+    scene's ``map_origin``; both now show the map frame."""
+    from rich.console import Console
+
+    from cso_runtime.live_view import progress_line
+    from cso_runtime.status import render_table
+
+    port = free_tcp_port()
+    keys = RobotKeys("r0")
+    origin = Pose2D(-3.5, 2.0, 0.0)
+    episode = encode(EpisodeStatusMsg("exploring", 5, scene="office", method="greedy-dist", goal_xy_m=[1.0, 1.5], episode=3, map_origin=origin))
+    explored = np.zeros((4, 6), dtype=bool)
+    explored[1:3, 1:5] = True
+    grid_map = encode(MapMsg(5, GridGeometry(0.5, (4, 6)), explored, np.zeros_like(explored), 3))
+    assert progress_line(decode(episode, EpisodeStatusMsg), 0.25).endswith("goal (-2.50, 3.50) m")  # up's log and live view
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        held = [
+            session.declare_queryable(keys.episode_status, lambda query: query.reply(keys.episode_status, episode)),
+            session.declare_queryable(keys.cache("map"), lambda query: query.reply(keys.cache("map"), grid_map)),
+        ]
+        try:
+            status = query_status([loopback_endpoint(port)], "r0")
+            assert status is not None and status["goal"] == pytest.approx([-2.5, 3.5]) and status["map_origin"] == [-3.5, 2.0, 0.0]
+            console = Console(width=120, record=True)
+            console.print(render_table(status))
+            assert "(-2.50, 3.50) m" in console.export_text()
+            assert save_map_main([loopback_endpoint(port)], "r0", tmp_path / "m", "pgm", tmp_path) == 0
+        finally:
+            for h in held:
+                h.undeclare()
+    assert yaml.safe_load((tmp_path / "m.yaml").read_text())["origin"] == [-3.5, 2.0, 0.0]
+    grid, geometry = load_map(tmp_path / "m.yaml")
+    assert geometry == GridGeometry(0.5, (4, 6), -3.5, 2.0) and (grid == 0).sum() == explored.sum()
+
+
+def test_up_writes_a_map_scenes_final_map_at_the_scenes_map_origin(tmp_path):
+    """``up``'s ``maps/<method>/<map>.yaml`` of a map_server scene: at the scene's ``origin`` (the episode result's
+    ``map_origin``), not [0, 0, 0], so it overlays the user's map; the npz keeps the plan-frame trajectory beside it."""
+    from cso_runtime.launcher import write_episode_outputs
+    from cso_runtime.messages import EpisodeResultMsg
+
+    free = np.ones((4, 6), bool)
+    final = MapMsg(9, GridGeometry(0.5, (4, 6)), free, np.zeros_like(free), 1)
+    res = EpisodeResultMsg(
+        "office", 9, 6.0, 100.0, 6.0, 2.5, "coverage", 2, np.ones(2), np.array([[1.0, 1.0], [2.0, 1.0]]), np.array([50.0, 100.0]), free, free, 0.5,
+        "greedy-dist", 0, final, Pose2D(-3.5, 2.0, 0.0),
+    )
+    write_episode_outputs(tmp_path, res, wall_s=1.0, meta={})
+    assert yaml.safe_load((tmp_path / "maps" / "greedy-dist" / "office.yaml").read_text())["origin"] == [-3.5, 2.0, 0.0]
+    npz = np.load(tmp_path / "episodes" / "greedy-dist" / "office.npz")
+    np.testing.assert_array_equal(npz["map_origin"], [-3.5, 2.0, 0.0])
+    np.testing.assert_array_equal(npz["trajectory"], [[1.0, 1.0], [2.0, 1.0]])
