@@ -232,9 +232,13 @@ class EpisodeJob:
 def scene_fingerprint(plan: FloorPlan) -> str:
     """A short hash of the ground truth an episode explored (its floor cells, cell size and start pose):
     ``--resume`` reuses an episode only on the very same scene, not on a plan of the same name at another
-    ``--m-per-px`` or from another folder."""
+    ``--m-per-px`` or from another folder. A map scene's origin counts when it is not the map frame's own (the
+    robot's map files are written at it), so plans without one keep their fingerprints."""
     h = hashlib.sha256()
-    h.update(json.dumps({"shape": list(plan.free.shape), "resolution_m": plan.resolution_m, "start": [plan.start.x_m, plan.start.y_m, plan.start.yaw_rad]}).encode())
+    fields: dict[str, Any] = {"shape": list(plan.free.shape), "resolution_m": plan.resolution_m, "start": [plan.start.x_m, plan.start.y_m, plan.start.yaw_rad]}
+    if plan.map_origin != MAP_FRAME_ORIGIN:
+        fields["map_origin"] = [plan.map_origin.x_m, plan.map_origin.y_m, plan.map_origin.yaw_rad]
+    h.update(json.dumps(fields).encode())
     h.update(np.packbits(plan.free).tobytes())
     return h.hexdigest()[:16]
 
