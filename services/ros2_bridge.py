@@ -42,6 +42,7 @@ from cso_runtime import ros2_cdr
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
 from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand, wrap_angle_rad
+from cso_runtime.keys import WILDCARD, robot_driver_token
 from cso_runtime.messages import (
     EPISODE_OVER,
     ClockMsg,
@@ -315,6 +316,8 @@ class Ros2BridgeService(Service):
         self._bridge_lock = threading.RLock()
         self._ros_subs: list[Any] = []
         self._queryables: list[Any] = []
+        self._driver_token: Any = None
+        """Says on the network that this run drives the robot's ``cmd_vel`` (``keys.robot_driver_token``)."""
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -328,6 +331,9 @@ class Ros2BridgeService(Service):
         """Stop taking ROS samples, then stop the robot: one last zero Twist if we ever commanded it."""
         with self._bridge_lock:
             entities, self._ros_subs, self._queryables = [*self._ros_subs, *self._queryables], [], []
+            if self._driver_token is not None:
+                entities.append(self._driver_token)
+                self._driver_token = None
         for entity in entities:  # outside the lock: a callback in flight may be waiting for it
             entity.undeclare()
         if self.session is None or not self.sent_any_command:
@@ -343,6 +349,11 @@ class Ros2BridgeService(Service):
     def start(self) -> None:
         assert self.session is not None
         p, keys = self.params, self.ctx.keys
+        cmd_key = p.ros_key(p.cmd_vel_topic)
+        for reply in self.session.liveliness().get(robot_driver_token(cmd_key, WILDCARD), timeout=1.0):
+            if reply.ok is not None and (other := str(reply.ok.key_expr).rsplit("/", 1)[-1]) != self.ctx.robot:
+                log.error("robot %s's run already drives %s on this network: the robot gets the commands of both runs (stop one)", other, cmd_key)
+        self._driver_token = self.session.liveliness().declare_token(robot_driver_token(cmd_key, self.ctx.robot))
         self._ros_subs = [
             self.session.declare_subscriber(p.ros_key(p.scan_topic), self._on_ros_scan),
             self.session.declare_subscriber(p.ros_key(p.odom_topic), self._on_ros_odom),

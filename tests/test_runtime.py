@@ -598,6 +598,31 @@ def test_up_refuses_a_robot_id_that_another_run_on_the_network_has(tmp_path, tak
             held.undeclare()
 
 
+def test_up_refuses_to_drive_a_robot_that_another_runs_ros2_bridge_drives(tmp_path):
+    """Two ``limo-ros2`` runs of different robot ids on one robot's router and namespace both started: each run's
+    bridge sent the LIMO a Twist on ``limo1/cmd_vel`` every scan, each toward its own goal. The bridge says which
+    robot it drives (a liveliness token, ``keys.robot_driver_token``), and ``up`` refuses a run whose bridge would
+    drive the same one, before starting anything; another namespace is another robot and is let through."""
+    from cso_runtime.keys import robot_driver_token
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import load_profile
+
+    port = free_tcp_port()
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        held = session.liveliness().declare_token(robot_driver_token("limo1/cmd_vel", "r7"))
+        try:
+            runs = tmp_path / "runs"
+            args = ("up", "--profile", "limo-ros2", "--connect", loopback_endpoint(port), "--robot", "r1", "--no-live")
+            r = cli(*args, "--namespace", "limo1", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+            assert r.returncode == 2, r.stderr[-2000:]
+            assert "limo1/cmd_vel is already driven by robot r7's run" in r.stderr and "--namespace" in r.stderr, r.stderr[-2000:]
+            assert "no service was started" in r.stderr and not list(runs.glob("*/logs/ros2_bridge.log")), r.stderr[-2000:]
+            other, data = load_profile("limo-ros2", connect=[loopback_endpoint(port)], namespace="limo2")
+            assert Launcher(other, data, tmp_path / "other").robot_already_served(session) == ""
+        finally:
+            held.undeclare()
+
+
 def test_a_run_that_started_no_service_is_listed_as_it_ended(tmp_path):
     """Ctrl-C while the router opens (the first second of ``up``) left a run folder with no run.json, which
     ``runs`` never listed; a run refused before its services (robot id taken, recording that cannot open)
