@@ -288,9 +288,11 @@ class Launcher:
             where = f"ws://{fox.host}:{fox.port}" if fox.port else f"ws://{fox.host}:<a free port, in logs/foxglove_bridge.log>"
             self.service_notes["foxglove_bridge"] = f"Foxglove: open {where}"
         self.control_period_s = profile.exploration_config().robot.control_period_s
-        """Robot time of one step (the live view's clock)."""
+        """The period each command is assumed to last (``exploration.robot``); a simulated step lasts one."""
         self.simulated = profile.simulator() is not None
         """A sim service runs the robot: its steps are simulated time (on a real robot, none is)."""
+        self.sim_step_s = self.control_period_s if self.simulated else None
+        """The simulated time of a step (one control period), None on a real robot, whose steps are its scans."""
         self.pace = StepPace(self.control_period_s)
         """The episode's real-time factor, measured on its statuses as they arrive (``real_time_factor``)."""
         self.robot_stop_commands = robot_stop_commands(profile)
@@ -685,7 +687,7 @@ class Launcher:
 
             sensor = self.profile.exploration_config().sensor
             meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
-        sim_time_s = result.steps * self.control_period_s if self.simulated else None  # one control period a step
+        sim_time_s = None if self.sim_step_s is None else result.steps * self.sim_step_s  # one control period a step
         row = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta, sim_time_s, self.real_time_factor)
         self.written_result = result
         log.info(
@@ -934,7 +936,7 @@ class Launcher:
                     if every_s > 0 and (view is None or not view.on_terminal) and time.monotonic() - logged_s >= every_s:
                         logged_s = time.monotonic()
                         if st is not None and st.state == "exploring":
-                            log.info("%s", progress_line(st, self.control_period_s, self.real_time_factor))
+                            log.info("%s", progress_line(st, self.sim_step_s, self.real_time_factor))
                     if ending is None and st is not None and st.state in EPISODE_OVER and not self.outputs_written:
                         self.ended_status = st
                         result = self.wait_for_result(session, meanwhile=tend)

@@ -1546,12 +1546,17 @@ def test_up_shows_and_writes_the_simulators_real_time_factor_measured_on_the_epi
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
     text = console.export_text()
+    line = progress_line(last, launcher.sim_step_s, launcher.real_time_factor)
     if name == "limo-ros2":
         assert launcher.real_time_factor is None and "x real time" not in text
+        # A real robot's steps are its scans (about 10 Hz on the LIMO), not 0.25 s control periods: 42 steps are
+        # no "10.5 s robot time" there, so neither the live view nor the log line says so.
+        assert "robot time" not in text and re.search(r"│ step +│ 42 \(\d+ s since start\)", text), text
+        assert line.startswith("step 42: coverage 0.0 %") and "robot time" not in line, line
     else:
         assert launcher.real_time_factor == pytest.approx(2.0)
         assert re.search(r"│ step +│ 42 \(10\.5 s robot time, \d+ s since start, 2\.00x real time\)", text), text
-        assert "(10.5 s robot time, 2.00x real time)" in progress_line(last, launcher.control_period_s, launcher.real_time_factor)
+        assert "step 42 (10.5 s robot time, 2.00x real time): coverage" in line, line
     status("done", 50, 1036.0)  # the end: 48 steps in 6 s
     launcher.write_outputs(_fake_result(steps=50))
     with (tmp_path / "run" / "episodes.csv").open() as fh:
