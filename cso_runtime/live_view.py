@@ -81,7 +81,7 @@ class LiveView:
         else:
             goal_m = st.goal_in_map_frame
             goal = "-" if goal_m is None else f"({goal_m[0]:.2f}, {goal_m[1]:.2f}) m"
-            t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "") + waits))
+            t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "") + (f": {st.reason}" if st.reason else "") + waits))
             t.add_row("scene", escape(st.scene))
             since = f"{time.monotonic() - la.started_s:.0f} s since start"
             when = ", ".join([*robot_time_words(st.step, la.sim_step_s), since])

@@ -60,6 +60,7 @@ from cso_runtime.messages import (
     encode,
     new_episode_id,
 )
+from cso_runtime.occupancy import open_on_border
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.ros2_bridge")
@@ -466,6 +467,9 @@ class Ros2BridgeService(Service):
         """The newest map not sent to ROS yet because of ``map_period_s``."""
         self.last_goal_xy: tuple[float, float] | None = None
         self.episode_state, self.terminated_by = "starting", ""
+        self.arena_edge_step: int | None = None
+        """The first step whose map has open cells on the arena's edge (``open_on_border``): what lies beyond is
+        not mapped, and the episode may end with no frontier left inside the arena."""
         self.decisions = 0
         self.decision_ms: list[float] = []
 
@@ -565,6 +569,10 @@ class Ros2BridgeService(Service):
                 self.forward_command(msg.command, received_s)
             elif isinstance(msg, MapMsg):
                 self.keep_latest("map", msg)
+                if self.arena_edge_step is None and open_on_border(msg.explored, msg.occupied):
+                    self.arena_edge_step = msg.step
+                    self.counters["arena_edge_reached"] += 1
+                    log.warning("%s", self.arena_edge_note())
                 if self.last_ros_map_s is None or received_s - self.last_ros_map_s >= self.params.map_period_s:
                     self._send_map(msg, received_s)
                 else:
@@ -660,6 +668,17 @@ class Ros2BridgeService(Service):
         m = self.latest.get("map")
         return 0.0 if m is None else float(np.count_nonzero(m.explored)) * m.geometry.cell_area_m2
 
+    def arena_edge_note(self) -> str:
+        """What ``status`` and the log say once the map has reached its arena's edge, or ""."""
+        if self.arena_edge_step is None:
+            return ""
+        a = self.arena
+        size = f"{a.width_m:.1f} x {a.height_m:.1f} m " if a is not None else ""
+        return (
+            f"the map reached the edge of its {size}arena at step {self.arena_edge_step}: nothing beyond it is mapped or "
+            "explored (services.ros2_bridge.arena_width_m, arena_height_m)"
+        )
+
     def episode_status(self) -> EpisodeStatusMsg:
         with self._bridge_lock:
             return EpisodeStatusMsg(
@@ -674,6 +693,7 @@ class Ros2BridgeService(Service):
                 decisions=self.decisions,
                 last_decision_ms=self.decision_ms[-1] if self.decision_ms else 0.0,
                 terminated_by=self.terminated_by,
+                reason=self.arena_edge_note(),
                 episode=self.episode,
             )
 
@@ -702,6 +722,8 @@ class Ros2BridgeService(Service):
 
     def finish(self, terminated_by: str) -> None:
         self.episode_state, self.terminated_by = "done", terminated_by
+        if self.arena_edge_step is not None:
+            log.warning("the episode ends (%s), but %s", terminated_by, self.arena_edge_note())
         log.info(
             "episode done at step %d: %s (explored %.1f m2, path %.1f m)",
             self.step,

@@ -230,6 +230,40 @@ def test_maps_go_to_ros_at_most_every_map_period_s_and_the_newest_always_goes_ou
     assert svc.latest["map"].step == 5, "the referee keeps every map all the same (save-map, a restarted mapper)"
 
 
+def test_a_map_that_reaches_the_arenas_edge_is_said_in_status_and_the_log(caplog):
+    """The bridge maps a fixed arena (20 x 20 m around the first pose). On the fake LIMO in a scene larger than the
+    arena, the episode ended ``done (no_frontier)`` with the rooms beyond the arena's edge unexplored and nothing in
+    ``status`` or the logs to say why. A map with open cells on the arena's edge (beams went on past it) is now
+    warned of once, counted (``arena_edge_reached``) and named in the episode status's ``reason``, also at its end."""
+    svc, out, step = _bridge_without_zenoh({"resolution_m": 0.1, "arena_width_m": 2.0, "arena_height_m": 2.0})
+    svc._put_ros = lambda topic, payload: None  # type: ignore[method-assign]  # what goes to ROS is not looked at here
+    step(1000.0, 0.0)
+    geom = svc.arena
+    assert geom is not None and geom.shape == (20, 20)
+    inside = np.full(geom.shape, -1, np.int8)
+    inside[5:15, 5:15] = 0
+    inside[4, 4:16] = 100  # a room inside the arena, walled or not: nothing on the edge
+    svc.on_message("r0", "map", MapMsg.from_grid(0, geom, inside, svc.episode), 50.0)
+    assert svc.episode_status().reason == "" and svc.counters["arena_edge_reached"] == 0
+    walls = inside.copy()
+    walls[0, :] = 100  # a wall on the edge is no open space beyond it
+    svc.on_message("r0", "map", MapMsg.from_grid(0, geom, walls, svc.episode), 50.1)
+    assert svc.episode_status().reason == ""
+    step(1000.1, 0.0)
+    reaching = inside.copy()
+    reaching[10, 5:] = 0  # free up to the last column: the beam went on past it
+    with caplog.at_level("WARNING", logger="cso.ros2_bridge"):
+        svc.on_message("r0", "map", MapMsg.from_grid(1, geom, reaching, svc.episode), 50.2)
+        svc.on_message("r0", "map", MapMsg.from_grid(1, geom, reaching, svc.episode), 50.3)
+    reason = svc.episode_status().reason
+    assert "the map reached the edge of its 2.0 x 2.0 m arena at step 1" in reason and "arena_width_m" in reason, reason
+    assert svc.counters["arena_edge_reached"] == 1 and caplog.text.count("reached the edge") == 1, caplog.text
+    svc.take_goal(GoalMsg(2, True, None, None, method="greedy-dist", episode=svc.episode))  # no frontier left: the end
+    final = [m for topic, m in out if topic == "episode_status"][-1]
+    assert final.state == "done" and final.terminated_by == "no_frontier" and final.reason == reason
+    assert "the episode ends (no_frontier), but the map reached the edge" in caplog.text
+
+
 def test_goals_frontiers_and_maps_carry_their_scans_exact_time_and_never_zero():
     """What goes back to ROS is stamped with its step's scan time, to the nanosecond (it went through float seconds).
     A step older than the stamps the bridge holds was stamped 0 (1970: RViz's and Foxglove's TF lookups fail, plots

@@ -1642,6 +1642,11 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     assert "6.50 m ahead on the path" in text
     assert re.search(r"│ step +│ 3 \(0\.8 s robot time, \d+ s since start\)", text), text
     assert re.search(r"│ coverage +│ ━{2}╺?━* +10\.0 % ", text) and "1.00 m2, 0.333 m2/step" in text, text  # a bar a tenth full
+    launcher.status.reason = "the map reached the edge of its arena"  # the referee's note, as `status` shows it
+    noted = Console(width=200, record=True)
+    noted.print(LiveView(launcher).render())
+    assert re.search(r"│ state +│ exploring: the map reached the edge of its arena +│", noted.export_text()), noted.export_text()
+    launcher.status.reason = ""
     narrow = Console(width=80, record=True)  # a plain terminal: the title is one line, robot and method a row
     narrow.print(LiveView(launcher).render())
     lines = narrow.export_text().splitlines()
