@@ -130,6 +130,9 @@ class Ros2BridgeParams:
     WiFi (slam_toolbox publishes its map every few seconds). 0: every map."""
     log_period_s: float = 10.0
     """How often the counters are logged."""
+    no_scan_warn_s: float = 5.0
+    """No LaserScan on the scan key this long (wall clock; from the bridge's start, or since the last one): said in
+    the episode status and the log, with what to check (the robot's zenoh-bridge-ros2dds, its namespace)."""
 
     def validate(self) -> None:
         self.namespace = self.namespace.strip("/")
@@ -155,6 +158,7 @@ class Ros2BridgeParams:
             "arena_width_m",
             "arena_height_m",
             "log_period_s",
+            "no_scan_warn_s",
         ):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
@@ -314,6 +318,10 @@ class Ros2BridgeService(Service):
         self.zero_sent = True
         self.sent_any_command = False
         self.last_log_s = time.monotonic()
+        self.last_scan_wall_s = time.monotonic()
+        """When the last LaserScan arrived (wall clock, monotonic), any scan, even one dropped; the bridge's start before."""
+        self.no_scan_note = ""
+        """What the episode status says while no scan arrives for ``no_scan_warn_s`` (``scan_silence``)."""
         self._bridge_lock = threading.RLock()
         self._ros_subs: list[Any] = []
         self._queryables: list[Any] = []
@@ -488,6 +496,10 @@ class Ros2BridgeService(Service):
         raw = sample.payload.to_bytes()
         with self._bridge_lock:
             self.counters["received:scan"] += 1
+            self.last_scan_wall_s = time.monotonic()
+            if self.no_scan_note:
+                self.no_scan_note = ""
+                log.info("scans arrive on %s", self.params.ros_key(self.params.scan_topic))
             try:
                 conv = ros2_cdr.laserscan_from_cdr(raw)
             except ros2_cdr.CdrError as exc:
@@ -655,9 +667,26 @@ class Ros2BridgeService(Service):
                     "ros_scan:no_odometry",
                     f"no odometry at or after the scan at {conv.scan.stamp_s:.3f} s within {self.params.pending_timeout_s} s",
                 )
+            self.scan_silence(now_s)
             if now_s - self.last_log_s >= self.params.log_period_s:
                 self.last_log_s = now_s
                 log.info("counters: %s", dict(sorted(self.counters.items())))
+
+    def scan_silence(self, now_s: float) -> None:
+        """Once no scan has come for ``no_scan_warn_s``, say so in the episode status (published at once, as the live
+        view shows it) and the log: with no scan the episode neither starts nor goes on, and every service looks
+        fine. A wrong ``--namespace`` or a robot bridge that is not running look just like this."""
+        silent_s = now_s - self.last_scan_wall_s
+        if self.no_scan_note or silent_s < self.params.no_scan_warn_s:
+            return
+        key = self.params.ros_key(self.params.scan_topic)
+        since = "since the bridge started" if self.counters["received:scan"] == 0 else "since the last one"
+        self.no_scan_note = (
+            f"no LaserScan on {key} for {silent_s:.0f} s ({since}): is the robot's zenoh-bridge-ros2dds running, its LiDAR "
+            "publishing, and --namespace its -n? (docs/hardware.md, Troubleshooting)"
+        )
+        log.warning("%s", self.no_scan_note)
+        self.publish("episode_status", self.episode_status())
 
     def extra_status(self) -> dict[str, int]:
         with self._bridge_lock:
@@ -693,7 +722,7 @@ class Ros2BridgeService(Service):
                 decisions=self.decisions,
                 last_decision_ms=self.decision_ms[-1] if self.decision_ms else 0.0,
                 terminated_by=self.terminated_by,
-                reason=self.arena_edge_note(),
+                reason="; ".join(note for note in (self.no_scan_note, self.arena_edge_note()) if note),
                 episode=self.episode,
             )
 

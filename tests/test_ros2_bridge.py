@@ -264,6 +264,28 @@ def test_a_map_that_reaches_the_arenas_edge_is_said_in_status_and_the_log(caplog
     assert "the episode ends (no_frontier), but the map reached the edge" in caplog.text
 
 
+def test_no_scan_on_the_robots_key_is_said_in_status_and_the_log(caplog):
+    """With ``--namespace limo9`` where the robot's bridge runs ``-n /limo1`` (or with no bridge running), ``status``
+    stayed ``starting`` with every service alive and the bridge's log showed ``counters: {}``: nothing said that no
+    scan came, nor what to check. After ``no_scan_warn_s`` without a LaserScan the episode status says so (published
+    at once, for the live view) and the log warns once; the note goes when scans come, and comes back on a silence."""
+    svc, out, step = _bridge_without_zenoh({"namespace": "limo9", "no_scan_warn_s": 5.0})
+    start = svc.last_scan_wall_s
+    with caplog.at_level("WARNING", logger="cso.ros2_bridge"):
+        svc.on_tick(start + 4.0)
+        assert svc.episode_status().reason == "" and not out
+        svc.on_tick(start + 5.5)
+        svc.on_tick(start + 6.0)
+    reason = svc.episode_status().reason
+    assert reason.startswith("no LaserScan on limo9/scan for 6 s (since the bridge started)") and "--namespace" in reason, reason
+    assert [m.reason for topic, m in out if topic == "episode_status"] == [reason], "published once, at once"
+    assert caplog.text.count("no LaserScan on limo9/scan") == 1
+    step(1000.0, 0.0)  # scans come: the note goes
+    assert svc.episode_status().reason == "" and svc.episode_status().state == "exploring"
+    svc.on_tick(svc.last_scan_wall_s + 5.5)  # the LiDAR stops
+    assert "(since the last one)" in svc.episode_status().reason
+
+
 def test_goals_frontiers_and_maps_carry_their_scans_exact_time_and_never_zero():
     """What goes back to ROS is stamped with its step's scan time, to the nanosecond (it went through float seconds).
     A step older than the stamps the bridge holds was stamped 0 (1970: RViz's and Foxglove's TF lookups fail, plots
