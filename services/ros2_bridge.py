@@ -361,7 +361,9 @@ class Ros2BridgeService(Service):
         cmd_key = p.ros_key(p.cmd_vel_topic)
         for reply in self.session.liveliness().get(robot_driver_token(cmd_key, WILDCARD), timeout=1.0):
             if reply.ok is not None and (other := str(reply.ok.key_expr).rsplit("/", 1)[-1]) != self.ctx.robot:
-                log.error("robot %s's run already drives %s on this network: the robot gets the commands of both runs (stop one)", other, cmd_key)
+                # `up` refuses such a run before it starts; this holds a bridge started by hand, or one of two runs started
+                # at once. Exit 2: the launcher does not restart it, and the robot is left to the run that drives it.
+                raise ConfigError(f"robot {other}'s run already drives {cmd_key} on this network ({reply.ok.key_expr} is alive): stop it, or give another --namespace")
         self._driver_token = self.session.liveliness().declare_token(robot_driver_token(cmd_key, self.ctx.robot))
         self._ros_subs = [
             self.session.declare_subscriber(p.ros_key(p.scan_topic), self._on_ros_scan),

@@ -501,6 +501,55 @@ def test_fake_limo_through_the_bridge(namespace: str):
     assert not thread.is_alive()
 
 
+def test_a_bridge_refuses_a_robot_that_another_runs_bridge_drives():
+    """``up`` refuses a run whose bridge would drive a robot another run's bridge drives; a bridge started by hand (or
+    one of two runs started at once) got past that and sent its Twists beside the other's. It now refuses on start
+    (ConfigError: exit 2, which the launcher does not restart), before any command; its own robot's token (a
+    restarted bridge's, still held for a moment) does not count."""
+    from cso_runtime.config import ConfigError
+    from services.common import ServiceContext, run_service
+    from services.ros2_bridge import Ros2BridgeService
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        twists: list[bytes] = []
+        sub = session.declare_subscriber("limo1/cmd_vel", lambda sample: twists.append(sample.payload.to_bytes()))
+        held = session.liveliness().declare_token(robot_driver_token("limo1/cmd_vel", "r7"))
+        try:
+            svc = Ros2BridgeService(ServiceContext("ros2_bridge", "t1", {"method": "greedy-dist"}, ExplorationConfig(), client, {"namespace": "limo1"}))
+            refused: list[Exception] = []
+            stop = threading.Event()
+
+            def run() -> None:
+                try:
+                    run_service(svc, stop)
+                except ConfigError as exc:
+                    refused.append(exc)
+
+            thread = threading.Thread(target=run, daemon=True)
+            thread.start()
+            thread.join(15)  # it stops by itself
+            stop.set()
+            thread.join(10)
+            assert refused and "robot r7's run already drives limo1/cmd_vel" in str(refused[0]), refused
+            held.undeclare()
+            held = session.liveliness().declare_token(robot_driver_token("limo1/cmd_vel", "t1"))  # its own, from before a restart
+            stop = threading.Event()
+            svc = Ros2BridgeService(ServiceContext("ros2_bridge", "t1", {"method": "greedy-dist"}, ExplorationConfig(), client, {"namespace": "limo1"}))
+            thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+            thread.start()
+            try:
+                wait_for(lambda: svc._ros_subs, 10, "the bridge's ROS subscriptions")
+            finally:
+                stop.set()
+                thread.join(10)
+        finally:
+            held.undeclare()
+            sub.undeclare()
+    assert twists == [] and not thread.is_alive()
+
+
 def test_bridge_process_takes_namespace_and_stops_the_robot_on_sigint(tmp_path: Path):
     """``python -m services.ros2_bridge --namespace NS``: the ROS keys follow NS, and SIGINT sends a
     last zero Twist (the watchdog is set far away so the zero can only come from the shutdown)."""
