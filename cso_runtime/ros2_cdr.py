@@ -9,6 +9,7 @@ header), never a hand-written serializer. Conversions follow REP-103/REP-117: +i
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
@@ -39,6 +40,15 @@ POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 PATH = "nav_msgs/msg/Path"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+
+
+ROS_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
+"""A relative ROS name (a namespace or topic, no leading slash), as zenoh-bridge-ros2dds turns it into a Zenoh key."""
+
+
+def is_ros_name(name: str) -> bool:
+    """Whether ``name`` (its leading and trailing slashes taken off) is a ROS name that can stand in a Zenoh key."""
+    return bool(ROS_NAME.match(name.strip("/")))
 
 
 class CdrError(ValueError):

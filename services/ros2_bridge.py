@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import re
 import threading
 import time
 from bisect import bisect_right
@@ -67,9 +66,6 @@ log = logging.getLogger("cso.ros2_bridge")
 
 STAMPS_HELD = 200
 """Steps whose scan time the bridge keeps, to stamp the maps, goals and frontiers computed from them."""
-
-_ROS_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
-
 
 @dataclass
 class Ros2BridgeParams:
@@ -136,11 +132,11 @@ class Ros2BridgeParams:
 
     def validate(self) -> None:
         self.namespace = self.namespace.strip("/")
-        if self.namespace and not _ROS_NAME.match(self.namespace):
+        if self.namespace and not ros2_cdr.is_ros_name(self.namespace):
             raise ConfigError(f"namespace {self.namespace!r} is not a ROS name (letters, digits, '_', '/')")
         for name in ("scan_topic", "odom_topic", "cmd_vel_topic", "map_topic", "goal_topic", "frontiers_topic"):
             value = getattr(self, name).strip("/")
-            if not _ROS_NAME.match(value):
+            if not ros2_cdr.is_ros_name(value):
                 raise ConfigError(f"{name} {value!r} is not a ROS topic name")
             setattr(self, name, value)
         for name in (

@@ -135,6 +135,16 @@ def test_params_validate_names_and_build_keys():
         from_dict(Ros2BridgeParams, {"cmd_timeout_s": 0})
 
 
+def test_fake_limo_refuses_a_namespace_that_is_no_ros_name(capsys):
+    """``python -m robot_sim.fake_limo --namespace 'a*b'`` loaded its scene, then died with a Zenoh traceback
+    (``Invalid Key Expr a*b/odom``); it is now a usage error (exit 2) naming the flag, as the bridge's own check."""
+    from robot_sim import fake_limo
+
+    with pytest.raises(SystemExit) as exit_info:
+        fake_limo.main(["--listen", "tcp/127.0.0.1:1", "--namespace", "a*b"])
+    assert exit_info.value.code == 2 and "--namespace 'a*b' is not a ROS name" in capsys.readouterr().err
+
+
 def _bridge_without_zenoh(params: dict | None = None):
     """The bridge service with its ROS callbacks fed by hand: what it publishes is collected, no session."""
     from types import SimpleNamespace
