@@ -169,8 +169,12 @@ def laserscan_from_cdr(raw: bytes) -> ScanConversion:
 
 
 def laserscan_to_cdr(scan: LaserScan, stamp_ns: int, frame_id: str = "laser") -> bytes:
-    """Our LaserScan, stamped ``stamp_ns`` (not its ``stamp_s``) -> sensor_msgs/LaserScan CDR."""
+    """Our LaserScan, stamped ``stamp_ns`` (not its ``stamp_s``) -> sensor_msgs/LaserScan CDR. A 0 m beam, our "no
+    reading" (how ``laserscan_from_cdr`` keeps the robot's NaN and too-close beams), goes out as NaN, REP-117's
+    invalid measurement, not as a range; ``inf`` stays "no return"."""
     n = len(scan.ranges_m)
+    ranges = np.asarray(scan.ranges_m, dtype=np.float32)
+    ranges = np.where(ranges == 0.0, np.float32(np.nan), ranges)
     msg = _types()[LASER_SCAN](
         header=header_msg(stamp_ns, frame_id),
         angle_min=float(scan.angle_min_rad),
@@ -180,7 +184,7 @@ def laserscan_to_cdr(scan: LaserScan, stamp_ns: int, frame_id: str = "laser") ->
         scan_time=0.0,
         range_min=float(scan.range_min_m),
         range_max=float(scan.range_max_m),
-        ranges=np.asarray(scan.ranges_m, dtype=np.float32),
+        ranges=ranges,
         intensities=np.zeros(0, dtype=np.float32),
     )
     return encode(msg, LASER_SCAN)
