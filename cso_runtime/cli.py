@@ -384,7 +384,7 @@ def replay_command(
     from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
     from cso_runtime.keys import TOPICS  # noqa: PLC0415
     from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
-    from cso_runtime.recording import RecordingError, check_recording, parse_speed, replay  # noqa: PLC0415
+    from cso_runtime.recording import RecordingError, ReplayRefused, check_recording, parse_speed, replay  # noqa: PLC0415
     from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
 
@@ -412,6 +412,8 @@ def replay_command(
             stats = replay(session, file, speed, stop, wanted)
     except TransportError as exc:  # no router to replay into: the exit code of `up` without a Zenoh session
         _fail(str(exc), EXIT_NO_ZENOH)
+    except ReplayRefused as exc:  # nothing published
+        _fail(str(exc), 2)
     except RecordingError as exc:
         _fail(str(exc), 1)
     typer.echo(f"replayed {stats.messages} messages on {len(stats.per_key)} keys in {stats.duration_s:.2f} s (recorded span {stats.recorded_s:.2f} s)")

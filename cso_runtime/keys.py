@@ -135,3 +135,16 @@ def topic_of(key_expr: str) -> str:
         if s == suffix:
             return name
     raise KeyExprError(f"{key_expr!r} is not a known topic")
+
+
+ROBOT_DRIVERS = f"{ROOT}/@ros2"
+"""Where the runs that command a ROS robot say so: a verbatim chunk (``@``), which no ``cso/*/...`` or ``cso/**``
+expression matches, so these tokens never look like a robot's keys."""
+
+
+def robot_driver_token(cmd_vel_key: str, robot: str) -> str:
+    """Liveliness token of the run (robot id ``robot``; ``*`` for any) whose ROS 2 bridge sends Twists on
+    ``cmd_vel_key``, a zenoh-bridge-ros2dds key outside ``cso/`` (``limo1/cmd_vel``): two runs of different ids on
+    one robot's namespace would both drive it, each step's two commands fighting."""
+    check_robot_id(robot, allow_wildcard=True)
+    return f"{ROBOT_DRIVERS}/{cmd_vel_key}/{robot}"

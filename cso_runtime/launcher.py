@@ -42,7 +42,7 @@ from cso_runtime.config import (
     load_yaml,
 )
 from cso_runtime.current_run import CURRENT_RUN, DOWN_MARGIN_S, RUNS_LOCK, down, hold_runs_lock, new_run_dir, read_current_run
-from cso_runtime.keys import RobotKeys, topic_of
+from cso_runtime.keys import WILDCARD, RobotKeys, robot_driver_token, topic_of
 from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EPISODE_OVER,
@@ -288,9 +288,11 @@ class Launcher:
             where = f"ws://{fox.host}:{fox.port}" if fox.port else f"ws://{fox.host}:<a free port, in logs/foxglove_bridge.log>"
             self.service_notes["foxglove_bridge"] = f"Foxglove: open {where}"
         self.control_period_s = profile.exploration_config().robot.control_period_s
-        """Robot time of one step (the live view's clock)."""
+        """The period each command is assumed to last (``exploration.robot``); a simulated step lasts one."""
         self.simulated = profile.simulator() is not None
         """A sim service runs the robot: its steps are simulated time (on a real robot, none is)."""
+        self.sim_step_s = self.control_period_s if self.simulated else None
+        """The simulated time of a step (one control period), None on a real robot, whose steps are its scans."""
         self.pace = StepPace(self.control_period_s)
         """The episode's real-time factor, measured on its statuses as they arrive (``real_time_factor``)."""
         self.robot_stop_commands = robot_stop_commands(profile)
@@ -685,7 +687,7 @@ class Launcher:
 
             sensor = self.profile.exploration_config().sensor
             meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
-        sim_time_s = result.steps * self.control_period_s if self.simulated else None  # one control period a step
+        sim_time_s = None if self.sim_step_s is None else result.steps * self.sim_step_s  # one control period a step
         row = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta, sim_time_s, self.real_time_factor)
         self.written_result = result
         log.info(
@@ -852,16 +854,27 @@ class Launcher:
         (self.run_dir / "dataflow.md").write_text(to_markdown(self.profile.name, nodes, outside=self.left_out))
 
     def robot_already_served(self, session: Any, timeout_s: float = 1.0) -> str:
-        """Why this run's robot id is taken on the network it joins, or "": another run's launcher answers for
-        it, or one of the services this run would start is alive under it. Two runs of one id would cross-feed
-        every key (maps cleared by each other's episodes, one cmd_vel for two robots)."""
+        """Why this run cannot join the network, with what to change, or "": another run's launcher answers for its
+        robot id, one of the services this run would start is alive under it, or another run's ROS 2 bridge
+        already drives the robot this run's would (``keys.robot_driver_token``). Two runs of one id would cross-feed
+        every key (maps cleared by each other's episodes, one cmd_vel for two robots); two runs on one robot's
+        namespace would each send it a command every step."""
+        another_id = "give this run another --robot"
         for reply in session.get(self.keys.launcher_status, timeout=timeout_s):
             if reply.ok is not None:
-                return f"robot {self.profile.robot} is already run by another launcher on this network (its {self.keys.launcher_status} answers)"
+                return f"robot {self.profile.robot} is already run by another launcher on this network (its {self.keys.launcher_status} answers); {another_id}"
         mine = set(self.profile.services)
         for reply in session.liveliness().get(self.keys.alive("*"), timeout=timeout_s):
             if reply.ok is not None and (name := str(reply.ok.key_expr).rsplit("/", 1)[-1]) in mine:
-                return f"robot {self.profile.robot} already has a {name} service on this network ({reply.ok.key_expr} is alive)"
+                return f"robot {self.profile.robot} already has a {name} service on this network ({reply.ok.key_expr} is alive); {another_id}"
+        for name, (cmd_key, _) in self.robot_stop_commands.items():
+            for reply in session.liveliness().get(robot_driver_token(cmd_key, WILDCARD), timeout=timeout_s):
+                if reply.ok is not None:
+                    other = str(reply.ok.key_expr).rsplit("/", 1)[-1]
+                    return (
+                        f"the robot behind {cmd_key} is already driven by robot {other}'s run on this network ({reply.ok.key_expr} is alive): "
+                        f"this run's {name} would send it commands too; give this run the --namespace of another robot, or stop that run first"
+                    )
         return ""
 
     # --- main loop --------------------------------------------------------------------------------
@@ -883,7 +896,7 @@ class Launcher:
         self.session = session
         with session:
             if router.connect and (taken := self.robot_already_served(session)):
-                log.error("%s: no service was started; give this run another --robot", taken)
+                log.error("%s; no service was started", taken)
                 return self.stop_before_start(EXIT_BAD_CONFIG)
             subs = [session.declare_subscriber(self.keys.topic(t), self._guarded(self._on_sample)) for t in LAUNCHER_INPUTS]
             qs = [
@@ -923,7 +936,7 @@ class Launcher:
                     if every_s > 0 and (view is None or not view.on_terminal) and time.monotonic() - logged_s >= every_s:
                         logged_s = time.monotonic()
                         if st is not None and st.state == "exploring":
-                            log.info("%s", progress_line(st, self.control_period_s, self.real_time_factor))
+                            log.info("%s", progress_line(st, self.sim_step_s, self.real_time_factor))
                     if ending is None and st is not None and st.state in EPISODE_OVER and not self.outputs_written:
                         self.ended_status = st
                         result = self.wait_for_result(session, meanwhile=tend)

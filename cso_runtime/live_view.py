@@ -23,13 +23,22 @@ def pace_text(real_time_factor: float | None) -> str:
     return "" if real_time_factor is None else f", {real_time_words(real_time_factor)}"
 
 
-def progress_line(status: EpisodeStatusMsg, control_period_s: float, real_time_factor: float | None = None) -> str:
-    """The episode's progress in one log line (the live view's figures, for a log that is followed)."""
+def robot_time_words(step: int, sim_step_s: float | None) -> list[str]:
+    """``["10.5 s robot time"]`` for a simulated episode (``sim_step_s`` a step), ``[]`` on a real robot: its steps are
+    its scans (about 10 Hz on the LIMO), not control periods, so a step count says nothing of its time."""
+    return [] if sim_step_s is None else [f"{step * sim_step_s:.1f} s robot time"]
+
+
+def progress_line(status: EpisodeStatusMsg, sim_step_s: float | None, real_time_factor: float | None = None) -> str:
+    """The episode's progress in one log line (the live view's figures, for a log that is followed). ``sim_step_s``:
+    the simulated time of a step, None on a real robot."""
     goal_m = status.goal_in_map_frame
     goal = "none" if goal_m is None else f"({goal_m[0]:.2f}, {goal_m[1]:.2f}) m"
     rate = f" ({status.explored_area_m2 / status.step:.3f} m2/step)" if status.step else ""
+    time_words = ", ".join(robot_time_words(status.step, sim_step_s))
+    when = f" ({time_words}{pace_text(real_time_factor)})" if time_words else ""
     return (
-        f"step {status.step} ({status.step * control_period_s:.1f} s robot time{pace_text(real_time_factor)}): coverage {status.coverage_pct:.1f} %, "
+        f"step {status.step}{when}: coverage {status.coverage_pct:.1f} %, "
         f"{status.explored_area_m2:.2f} m2 explored{rate}, path {status.path_length_m:.2f} m, {status.decisions} decisions, goal {goal}"
     )
 
@@ -72,10 +81,11 @@ class LiveView:
         else:
             goal_m = st.goal_in_map_frame
             goal = "-" if goal_m is None else f"({goal_m[0]:.2f}, {goal_m[1]:.2f}) m"
-            t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "") + waits))
+            t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "") + (f": {st.reason}" if st.reason else "") + waits))
             t.add_row("scene", escape(st.scene))
             since = f"{time.monotonic() - la.started_s:.0f} s since start"
-            t.add_row("step", f"{st.step} ({st.step * la.control_period_s:.1f} s robot time, {since}{pace_text(la.real_time_factor)})")
+            when = ", ".join([*robot_time_words(st.step, la.sim_step_s), since])
+            t.add_row("step", f"{st.step} ({when}{pace_text(la.real_time_factor)})")
             coverage = Table.grid(padding=(0, 1))
             coverage.add_row(ProgressBar(total=100.0, completed=min(st.coverage_pct, 100.0), width=self.BAR_CELLS), f"{st.coverage_pct:.1f} %")
             t.add_row("coverage", coverage)

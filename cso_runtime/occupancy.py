@@ -168,6 +168,14 @@ class OccupancyMap:
         return m
 
 
+def open_on_border(explored: np.ndarray, occupied: np.ndarray) -> bool:
+    """Whether an open cell (explored, not occupied) lies on the grid's outermost rows or columns: a beam went on
+    past it, so the space beyond, which the grid cannot hold, is open and unexplored. A map bounded by walls (a
+    simulated plan, a room inside the arena) has none."""
+    edges = [(explored[i], occupied[i]) for i in (0, -1)] + [(explored[:, j], occupied[:, j]) for j in (0, -1)]
+    return any(bool(np.any(e & ~o)) for e, o in edges)
+
+
 def integrate_observation(occupancy: OccupancyMap, sensor_pose: Pose2D, scan: LaserScan, config: ExplorationConfig) -> int:
     """One scan into the map, then (``mapping.footprint_clearing``) the robot's own footprint: what the
     in-process Explorer and the mapper service both do with a scan. The robot's centre is the sensor pose

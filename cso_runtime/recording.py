@@ -37,7 +37,7 @@ from typing import Any
 import msgpack
 import zenoh
 
-from cso_runtime.keys import ROOT, check_robot_id, topic_of
+from cso_runtime.keys import ROOT, RobotKeys, check_robot_id, topic_of
 
 log = logging.getLogger("cso.recording")
 
@@ -52,6 +52,10 @@ LIBRARY = "cso-runtime recording"
 
 class RecordingError(RuntimeError):
     """A recording cannot be read or written."""
+
+
+class ReplayRefused(RecordingError):
+    """A replay would publish into a network where a robot of the recording runs (``running_robot``)."""
 
 
 class _NotExactJson(ValueError):
@@ -519,6 +523,22 @@ def parse_speed(speed: float | str) -> float:
     return float(speed)
 
 
+def running_robot(session: zenoh.Session, robots: Iterable[str], timeout_s: float = 1.0) -> str:
+    """Which of ``robots`` runs on ``session``'s network, and how it shows, or "": its launcher answers there, or its
+    referee (sim or ROS 2 bridge) is alive. A pipeline of services started by hand to be fed a recording has
+    neither: the recording's clock, scans and odometry stand in for the referee."""
+    from cso_runtime.run_profile import REFEREES  # noqa: PLC0415  (the profile's imports: only when replaying)
+
+    for robot in robots:
+        keys = RobotKeys(robot)
+        if any(reply.ok is not None for reply in session.get(keys.launcher_status, timeout=timeout_s)):
+            return f"robot {robot} runs on this network (its launcher answers at {keys.launcher_status})"
+        for reply in session.liveliness().get(keys.alive("*"), timeout=timeout_s):
+            if reply.ok is not None and (name := str(reply.ok.key_expr).rsplit("/", 1)[-1]) in REFEREES:
+                return f"robot {robot} runs on this network (its {name} is alive)"
+    return ""
+
+
 def replay(
     session: zenoh.Session,
     path: Path,
@@ -529,8 +549,18 @@ def replay(
     """Publish every recorded payload on its original key at the recorded timing / ``speed`` (``'max'``: no
     waiting). Publishers block instead of dropping so nothing is lost at full speed. A payload is published
     unchanged, except one of an older version of its schema (``messages.LEGACY_UPGRADES``), published as the
-    current version, since a service rejects any other: an old recording still drives today's services."""
+    current version, since a service rejects any other: an old recording still drives today's services.
+
+    ReplayRefused, before anything is published, when a robot of the recording runs on the network
+    (``running_robot``): its old scans, odometry, maps and commands would mix with the live run's, and that run's
+    ROS 2 bridge would send the recorded commands to its robot as Twists."""
     rate = parse_speed(speed)
+    if live := running_robot(session, robots_of(recording_contents(path)[0])):
+        raise ReplayRefused(
+            f"{live}: replaying {path} there would feed its recorded messages into the live run (and a ROS 2 bridge would "
+            "drive its robot with the recorded commands); replay into a router where that robot does not run (--connect), "
+            "or stop the run first"
+        )
     stop_event = stop_event or threading.Event()
     pubs: dict[str, zenoh.Publisher] = {}
     stats = ReplayStats()

@@ -9,6 +9,7 @@ header), never a hand-written serializer. Conversions follow REP-103/REP-117: +i
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
@@ -39,6 +40,15 @@ POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 PATH = "nav_msgs/msg/Path"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+
+
+ROS_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
+"""A relative ROS name (a namespace or topic, no leading slash), as zenoh-bridge-ros2dds turns it into a Zenoh key."""
+
+
+def is_ros_name(name: str) -> bool:
+    """Whether ``name`` (its leading and trailing slashes taken off) is a ROS name that can stand in a Zenoh key."""
+    return bool(ROS_NAME.match(name.strip("/")))
 
 
 class CdrError(ValueError):
@@ -159,8 +169,12 @@ def laserscan_from_cdr(raw: bytes) -> ScanConversion:
 
 
 def laserscan_to_cdr(scan: LaserScan, stamp_ns: int, frame_id: str = "laser") -> bytes:
-    """Our LaserScan, stamped ``stamp_ns`` (not its ``stamp_s``) -> sensor_msgs/LaserScan CDR."""
+    """Our LaserScan, stamped ``stamp_ns`` (not its ``stamp_s``) -> sensor_msgs/LaserScan CDR. A 0 m beam, our "no
+    reading" (how ``laserscan_from_cdr`` keeps the robot's NaN and too-close beams), goes out as NaN, REP-117's
+    invalid measurement, not as a range; ``inf`` stays "no return"."""
     n = len(scan.ranges_m)
+    ranges = np.asarray(scan.ranges_m, dtype=np.float32)
+    ranges = np.where(ranges == 0.0, np.float32(np.nan), ranges)
     msg = _types()[LASER_SCAN](
         header=header_msg(stamp_ns, frame_id),
         angle_min=float(scan.angle_min_rad),
@@ -170,7 +184,7 @@ def laserscan_to_cdr(scan: LaserScan, stamp_ns: int, frame_id: str = "laser") ->
         scan_time=0.0,
         range_min=float(scan.range_min_m),
         range_max=float(scan.range_max_m),
-        ranges=np.asarray(scan.ranges_m, dtype=np.float32),
+        ranges=ranges,
         intensities=np.zeros(0, dtype=np.float32),
     )
     return encode(msg, LASER_SCAN)

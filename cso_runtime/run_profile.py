@@ -200,6 +200,15 @@ class Profile:
                 from_dict(params_cls, params or {}, where=f"services.{name}")
             elif params:
                 raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
+        referees = [name for name in REFEREES if name in self.services]
+        if len(referees) > 1:  # a `--set services.sim.PARAM=...` on a robot's profile adds a sim beside its bridge
+            raise ConfigError(
+                f"services: {' and '.join(referees)} each run the episode (each publishes the robot's scans, odometry and clock, "
+                "and the maps would be cleared at every step): a profile has one, the sim in a simulation or the ros2_bridge on a "
+                "real robot"
+            )
+        if self.lockstep and "ros2_bridge" in self.services:
+            raise ConfigError("lockstep: a real robot (ros2_bridge) does not wait for the pipeline; its profile runs in real time")
         for name in self.without:
             if name not in SERVICE_NAMES:
                 raise ConfigError(f"without: unknown service {name!r}; known: {', '.join(SERVICE_NAMES)}")

@@ -156,6 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     if not (args.speed > 0 and args.odom_rate_hz > 0):
         p.error("--speed and --odom-rate-hz must be positive")
+    if args.namespace.strip("/") and not ros2_cdr.is_ros_name(args.namespace):
+        p.error(f"--namespace {args.namespace!r} is not a ROS name (letters, digits, '_', '/')")
     refs = resolve_scenes(args.scene, limit=1, resolution_m=args.m_per_px)
     if not refs:
         p.error(f"scene {args.scene!r} resolves to no scene")

@@ -636,6 +636,9 @@ def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | 
         prof.enable()
     try:
         return run_service(service, stop)
+    except ConfigError as exc:  # refused once on the network (a ROS robot another run's bridge drives): not restarted
+        log.error("%s: bad configuration: %s", cls.name, exc)
+        return EXIT_BAD_CONFIG
     except TransportError as exc:
         log.error("%s: %s", cls.name, exc)
         return EXIT_NO_ZENOH

@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import re
 import threading
 import time
 from bisect import bisect_right
@@ -42,6 +41,7 @@ from cso_runtime import ros2_cdr
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
 from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand, wrap_angle_rad
+from cso_runtime.keys import WILDCARD, robot_driver_token
 from cso_runtime.messages import (
     EPISODE_OVER,
     ClockMsg,
@@ -59,15 +59,13 @@ from cso_runtime.messages import (
     encode,
     new_episode_id,
 )
+from cso_runtime.occupancy import open_on_border
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.ros2_bridge")
 
 STAMPS_HELD = 200
 """Steps whose scan time the bridge keeps, to stamp the maps, goals and frontiers computed from them."""
-
-_ROS_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
-
 
 @dataclass
 class Ros2BridgeParams:
@@ -128,14 +126,17 @@ class Ros2BridgeParams:
     WiFi (slam_toolbox publishes its map every few seconds). 0: every map."""
     log_period_s: float = 10.0
     """How often the counters are logged."""
+    no_scan_warn_s: float = 5.0
+    """No LaserScan on the scan key this long (wall clock; from the bridge's start, or since the last one): said in
+    the episode status and the log, with what to check (the robot's zenoh-bridge-ros2dds, its namespace)."""
 
     def validate(self) -> None:
         self.namespace = self.namespace.strip("/")
-        if self.namespace and not _ROS_NAME.match(self.namespace):
+        if self.namespace and not ros2_cdr.is_ros_name(self.namespace):
             raise ConfigError(f"namespace {self.namespace!r} is not a ROS name (letters, digits, '_', '/')")
         for name in ("scan_topic", "odom_topic", "cmd_vel_topic", "map_topic", "goal_topic", "frontiers_topic"):
             value = getattr(self, name).strip("/")
-            if not _ROS_NAME.match(value):
+            if not ros2_cdr.is_ros_name(value):
                 raise ConfigError(f"{name} {value!r} is not a ROS topic name")
             setattr(self, name, value)
         for name in (
@@ -153,6 +154,7 @@ class Ros2BridgeParams:
             "arena_width_m",
             "arena_height_m",
             "log_period_s",
+            "no_scan_warn_s",
         ):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
@@ -312,9 +314,15 @@ class Ros2BridgeService(Service):
         self.zero_sent = True
         self.sent_any_command = False
         self.last_log_s = time.monotonic()
+        self.last_scan_wall_s = time.monotonic()
+        """When the last LaserScan arrived (wall clock, monotonic), any scan, even one dropped; the bridge's start before."""
+        self.no_scan_note = ""
+        """What the episode status says while no scan arrives for ``no_scan_warn_s`` (``scan_silence``)."""
         self._bridge_lock = threading.RLock()
         self._ros_subs: list[Any] = []
         self._queryables: list[Any] = []
+        self._driver_token: Any = None
+        """Says on the network that this run drives the robot's ``cmd_vel`` (``keys.robot_driver_token``)."""
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -328,6 +336,9 @@ class Ros2BridgeService(Service):
         """Stop taking ROS samples, then stop the robot: one last zero Twist if we ever commanded it."""
         with self._bridge_lock:
             entities, self._ros_subs, self._queryables = [*self._ros_subs, *self._queryables], [], []
+            if self._driver_token is not None:
+                entities.append(self._driver_token)
+                self._driver_token = None
         for entity in entities:  # outside the lock: a callback in flight may be waiting for it
             entity.undeclare()
         if self.session is None or not self.sent_any_command:
@@ -343,6 +354,13 @@ class Ros2BridgeService(Service):
     def start(self) -> None:
         assert self.session is not None
         p, keys = self.params, self.ctx.keys
+        cmd_key = p.ros_key(p.cmd_vel_topic)
+        for reply in self.session.liveliness().get(robot_driver_token(cmd_key, WILDCARD), timeout=1.0):
+            if reply.ok is not None and (other := str(reply.ok.key_expr).rsplit("/", 1)[-1]) != self.ctx.robot:
+                # `up` refuses such a run before it starts; this holds a bridge started by hand, or one of two runs started
+                # at once. Exit 2: the launcher does not restart it, and the robot is left to the run that drives it.
+                raise ConfigError(f"robot {other}'s run already drives {cmd_key} on this network ({reply.ok.key_expr} is alive): stop it, or give another --namespace")
+        self._driver_token = self.session.liveliness().declare_token(robot_driver_token(cmd_key, self.ctx.robot))
         self._ros_subs = [
             self.session.declare_subscriber(p.ros_key(p.scan_topic), self._on_ros_scan),
             self.session.declare_subscriber(p.ros_key(p.odom_topic), self._on_ros_odom),
@@ -455,6 +473,9 @@ class Ros2BridgeService(Service):
         """The newest map not sent to ROS yet because of ``map_period_s``."""
         self.last_goal_xy: tuple[float, float] | None = None
         self.episode_state, self.terminated_by = "starting", ""
+        self.arena_edge_step: int | None = None
+        """The first step whose map has open cells on the arena's edge (``open_on_border``): what lies beyond is
+        not mapped, and the episode may end with no frontier left inside the arena."""
         self.decisions = 0
         self.decision_ms: list[float] = []
 
@@ -473,6 +494,10 @@ class Ros2BridgeService(Service):
         raw = sample.payload.to_bytes()
         with self._bridge_lock:
             self.counters["received:scan"] += 1
+            self.last_scan_wall_s = time.monotonic()
+            if self.no_scan_note:
+                self.no_scan_note = ""
+                log.info("scans arrive on %s", self.params.ros_key(self.params.scan_topic))
             try:
                 conv = ros2_cdr.laserscan_from_cdr(raw)
             except ros2_cdr.CdrError as exc:
@@ -554,6 +579,10 @@ class Ros2BridgeService(Service):
                 self.forward_command(msg.command, received_s)
             elif isinstance(msg, MapMsg):
                 self.keep_latest("map", msg)
+                if self.arena_edge_step is None and open_on_border(msg.explored, msg.occupied):
+                    self.arena_edge_step = msg.step
+                    self.counters["arena_edge_reached"] += 1
+                    log.warning("%s", self.arena_edge_note())
                 if self.last_ros_map_s is None or received_s - self.last_ros_map_s >= self.params.map_period_s:
                     self._send_map(msg, received_s)
                 else:
@@ -636,9 +665,26 @@ class Ros2BridgeService(Service):
                     "ros_scan:no_odometry",
                     f"no odometry at or after the scan at {conv.scan.stamp_s:.3f} s within {self.params.pending_timeout_s} s",
                 )
+            self.scan_silence(now_s)
             if now_s - self.last_log_s >= self.params.log_period_s:
                 self.last_log_s = now_s
                 log.info("counters: %s", dict(sorted(self.counters.items())))
+
+    def scan_silence(self, now_s: float) -> None:
+        """Once no scan has come for ``no_scan_warn_s``, say so in the episode status (published at once, as the live
+        view shows it) and the log: with no scan the episode neither starts nor goes on, and every service looks
+        fine. A wrong ``--namespace`` or a robot bridge that is not running look just like this."""
+        silent_s = now_s - self.last_scan_wall_s
+        if self.no_scan_note or silent_s < self.params.no_scan_warn_s:
+            return
+        key = self.params.ros_key(self.params.scan_topic)
+        since = "since the bridge started" if self.counters["received:scan"] == 0 else "since the last one"
+        self.no_scan_note = (
+            f"no LaserScan on {key} for {silent_s:.0f} s ({since}): is the robot's zenoh-bridge-ros2dds running, its LiDAR "
+            "publishing, and --namespace its -n? (docs/hardware.md, Troubleshooting)"
+        )
+        log.warning("%s", self.no_scan_note)
+        self.publish("episode_status", self.episode_status())
 
     def extra_status(self) -> dict[str, int]:
         with self._bridge_lock:
@@ -648,6 +694,17 @@ class Ros2BridgeService(Service):
     def explored_area_m2(self) -> float:
         m = self.latest.get("map")
         return 0.0 if m is None else float(np.count_nonzero(m.explored)) * m.geometry.cell_area_m2
+
+    def arena_edge_note(self) -> str:
+        """What ``status`` and the log say once the map has reached its arena's edge, or ""."""
+        if self.arena_edge_step is None:
+            return ""
+        a = self.arena
+        size = f"{a.width_m:.1f} x {a.height_m:.1f} m " if a is not None else ""
+        return (
+            f"the map reached the edge of its {size}arena at step {self.arena_edge_step}: nothing beyond it is mapped or "
+            "explored (services.ros2_bridge.arena_width_m, arena_height_m)"
+        )
 
     def episode_status(self) -> EpisodeStatusMsg:
         with self._bridge_lock:
@@ -663,6 +720,7 @@ class Ros2BridgeService(Service):
                 decisions=self.decisions,
                 last_decision_ms=self.decision_ms[-1] if self.decision_ms else 0.0,
                 terminated_by=self.terminated_by,
+                reason="; ".join(note for note in (self.no_scan_note, self.arena_edge_note()) if note),
                 episode=self.episode,
             )
 
@@ -691,6 +749,8 @@ class Ros2BridgeService(Service):
 
     def finish(self, terminated_by: str) -> None:
         self.episode_state, self.terminated_by = "done", terminated_by
+        if self.arena_edge_step is not None:
+            log.warning("the episode ends (%s), but %s", terminated_by, self.arena_edge_note())
         log.info(
             "episode done at step %d: %s (explored %.1f m2, path %.1f m)",
             self.step,

@@ -70,6 +70,13 @@ def test_packaged_profiles_are_found_from_anywhere_and_take_connect_and_namespac
     assert profile.router.embedded is False
     with pytest.raises(ConfigError, match="--connect"):
         load_profile("limo-ros2")
+    # One referee, in real time: `--set services.sim.real_time_factor=2` on this profile added a MuJoCo sim beside the
+    # bridge (both published scan, odometry and clock: the mapper cleared its map at every step while the real robot
+    # was driven), and `--lockstep` was taken for a robot that does not wait for the pipeline.
+    with pytest.raises(ConfigError, match="services: sim and ros2_bridge each run the episode"):
+        load_profile("limo-ros2", connect=robot, settings={"services.sim.real_time_factor": 2})
+    with pytest.raises(ConfigError, match="lockstep: a real robot"):
+        load_profile("limo-ros2", {"lockstep": True}, connect=robot)
     own = tmp_path / "configs" / "profiles"
     own.mkdir(parents=True)
     (own / "limo-ros2.yaml").write_text((PACKAGED_PROFILES / "limo-ros2.yaml").read_text().replace("seed: 0", "seed: 5"))

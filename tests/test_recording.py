@@ -717,3 +717,50 @@ def test_a_recorder_stopped_with_a_backlog_writes_it_for_drain_s_then_finishes_i
     with out.open("rb") as fh:
         assert make_reader(fh).get_summary() is not None
     assert [m.payload for m in read_recording(out)] == scans[: stats.messages]
+
+
+def test_replay_refuses_a_network_where_a_robot_of_the_recording_runs(tmp_path: Path):
+    """``replay`` publishes into the current run's router by default. Into a live ``limo-ros2`` run it fed the old
+    scans, maps and frontiers to the run's services and the recorded ``cmd_vel`` to its ROS 2 bridge, which sent
+    them to the robot as Twists. A robot of the recording whose launcher answers, or whose referee (sim, ROS 2
+    bridge) is alive, is now refused (exit 2) before anything is published; a pipeline started by hand to be fed
+    the recording (a mapper alone) still gets it."""
+    import signal
+
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    keys = RobotKeys("r0")
+    recording = tmp_path / "run.mcap"
+    commands = [encode(CmdVelMsg(step, VelocityCommand(0.5, 0.1))) for step in range(3)]
+    write_recording(recording, "r0", [RecordedMessage(keys.cmd_vel, T0_NS + i * 1000, payload) for i, payload in enumerate(commands)])
+    endpoint = loopback_endpoint(free_tcp_port())
+    heard: list[bytes] = []
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        with open_session(TransportConfig(mode="router", listen=[endpoint])) as session:
+            sub = session.declare_subscriber(keys.cmd_vel, lambda sample: heard.append(sample.payload.to_bytes()))
+            for how in ("ros2_bridge", "launcher"):
+                if how == "launcher":
+                    held = session.declare_queryable(keys.launcher_status, lambda query: query.reply(keys.launcher_status, b"x"))
+                else:
+                    held = session.liveliness().declare_token(keys.alive(how))
+                try:
+                    r = CliRunner().invoke(app, ["replay", str(recording), "--speed", "max", "--connect", endpoint])
+                finally:
+                    held.undeclare()
+                assert r.exit_code == 2 and "robot r0 runs on this network" in r.output, r.output
+                assert ("its ros2_bridge is alive" if how == "ros2_bridge" else "its launcher answers") in r.output, r.output
+            assert heard == []  # nothing published
+            pipeline = session.liveliness().declare_token(keys.alive("mapper"))
+            try:
+                r = CliRunner().invoke(app, ["replay", str(recording), "--speed", "max", "--connect", endpoint])
+                assert r.exit_code == 0 and "replayed 3 messages" in r.output, r.output
+                wait_for(lambda: len(heard) == 3, 5, "the replayed commands")
+            finally:
+                pipeline.undeclare()
+                sub.undeclare()
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)

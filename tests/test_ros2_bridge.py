@@ -26,7 +26,7 @@ import yaml
 from cso_runtime import ros2_cdr
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand
-from cso_runtime.keys import RobotKeys
+from cso_runtime.keys import RobotKeys, robot_driver_token
 from cso_runtime.messages import (
     ClockMsg,
     CmdVelMsg,
@@ -135,6 +135,16 @@ def test_params_validate_names_and_build_keys():
         from_dict(Ros2BridgeParams, {"cmd_timeout_s": 0})
 
 
+def test_fake_limo_refuses_a_namespace_that_is_no_ros_name(capsys):
+    """``python -m robot_sim.fake_limo --namespace 'a*b'`` loaded its scene, then died with a Zenoh traceback
+    (``Invalid Key Expr a*b/odom``); it is now a usage error (exit 2) naming the flag, as the bridge's own check."""
+    from robot_sim import fake_limo
+
+    with pytest.raises(SystemExit) as exit_info:
+        fake_limo.main(["--listen", "tcp/127.0.0.1:1", "--namespace", "a*b"])
+    assert exit_info.value.code == 2 and "--namespace 'a*b' is not a ROS name" in capsys.readouterr().err
+
+
 def _bridge_without_zenoh(params: dict | None = None):
     """The bridge service with its ROS callbacks fed by hand: what it publishes is collected, no session."""
     from types import SimpleNamespace
@@ -230,6 +240,62 @@ def test_maps_go_to_ros_at_most_every_map_period_s_and_the_newest_always_goes_ou
     assert svc.latest["map"].step == 5, "the referee keeps every map all the same (save-map, a restarted mapper)"
 
 
+def test_a_map_that_reaches_the_arenas_edge_is_said_in_status_and_the_log(caplog):
+    """The bridge maps a fixed arena (20 x 20 m around the first pose). On the fake LIMO in a scene larger than the
+    arena, the episode ended ``done (no_frontier)`` with the rooms beyond the arena's edge unexplored and nothing in
+    ``status`` or the logs to say why. A map with open cells on the arena's edge (beams went on past it) is now
+    warned of once, counted (``arena_edge_reached``) and named in the episode status's ``reason``, also at its end."""
+    svc, out, step = _bridge_without_zenoh({"resolution_m": 0.1, "arena_width_m": 2.0, "arena_height_m": 2.0})
+    svc._put_ros = lambda topic, payload: None  # type: ignore[method-assign]  # what goes to ROS is not looked at here
+    step(1000.0, 0.0)
+    geom = svc.arena
+    assert geom is not None and geom.shape == (20, 20)
+    inside = np.full(geom.shape, -1, np.int8)
+    inside[5:15, 5:15] = 0
+    inside[4, 4:16] = 100  # a room inside the arena, walled or not: nothing on the edge
+    svc.on_message("r0", "map", MapMsg.from_grid(0, geom, inside, svc.episode), 50.0)
+    assert svc.episode_status().reason == "" and svc.counters["arena_edge_reached"] == 0
+    walls = inside.copy()
+    walls[0, :] = 100  # a wall on the edge is no open space beyond it
+    svc.on_message("r0", "map", MapMsg.from_grid(0, geom, walls, svc.episode), 50.1)
+    assert svc.episode_status().reason == ""
+    step(1000.1, 0.0)
+    reaching = inside.copy()
+    reaching[10, 5:] = 0  # free up to the last column: the beam went on past it
+    with caplog.at_level("WARNING", logger="cso.ros2_bridge"):
+        svc.on_message("r0", "map", MapMsg.from_grid(1, geom, reaching, svc.episode), 50.2)
+        svc.on_message("r0", "map", MapMsg.from_grid(1, geom, reaching, svc.episode), 50.3)
+    reason = svc.episode_status().reason
+    assert "the map reached the edge of its 2.0 x 2.0 m arena at step 1" in reason and "arena_width_m" in reason, reason
+    assert svc.counters["arena_edge_reached"] == 1 and caplog.text.count("reached the edge") == 1, caplog.text
+    svc.take_goal(GoalMsg(2, True, None, None, method="greedy-dist", episode=svc.episode))  # no frontier left: the end
+    final = [m for topic, m in out if topic == "episode_status"][-1]
+    assert final.state == "done" and final.terminated_by == "no_frontier" and final.reason == reason
+    assert "the episode ends (no_frontier), but the map reached the edge" in caplog.text
+
+
+def test_no_scan_on_the_robots_key_is_said_in_status_and_the_log(caplog):
+    """With ``--namespace limo9`` where the robot's bridge runs ``-n /limo1`` (or with no bridge running), ``status``
+    stayed ``starting`` with every service alive and the bridge's log showed ``counters: {}``: nothing said that no
+    scan came, nor what to check. After ``no_scan_warn_s`` without a LaserScan the episode status says so (published
+    at once, for the live view) and the log warns once; the note goes when scans come, and comes back on a silence."""
+    svc, out, step = _bridge_without_zenoh({"namespace": "limo9", "no_scan_warn_s": 5.0})
+    start = svc.last_scan_wall_s
+    with caplog.at_level("WARNING", logger="cso.ros2_bridge"):
+        svc.on_tick(start + 4.0)
+        assert svc.episode_status().reason == "" and not out
+        svc.on_tick(start + 5.5)
+        svc.on_tick(start + 6.0)
+    reason = svc.episode_status().reason
+    assert reason.startswith("no LaserScan on limo9/scan for 6 s (since the bridge started)") and "--namespace" in reason, reason
+    assert [m.reason for topic, m in out if topic == "episode_status"] == [reason], "published once, at once"
+    assert caplog.text.count("no LaserScan on limo9/scan") == 1
+    step(1000.0, 0.0)  # scans come: the note goes
+    assert svc.episode_status().reason == "" and svc.episode_status().state == "exploring"
+    svc.on_tick(svc.last_scan_wall_s + 5.5)  # the LiDAR stops
+    assert "(since the last one)" in svc.episode_status().reason
+
+
 def test_goals_frontiers_and_maps_carry_their_scans_exact_time_and_never_zero():
     """What goes back to ROS is stamped with its step's scan time, to the nanosecond (it went through float seconds).
     A step older than the stamps the bridge holds was stamped 0 (1970: RViz's and Foxglove's TF lookups fail, plots
@@ -321,6 +387,9 @@ def test_fake_limo_through_the_bridge(namespace: str):
                 "the bridge's liveliness token",
             )
             wait_for(lambda: svc._ros_subs, 5, "the bridge's ROS subscriptions")
+            # It says which robot it drives, so that a second run on this robot is refused (keys.robot_driver_token).
+            drivers = [str(r.ok.key_expr) for r in session.liveliness().get(robot_driver_token(ros("cmd_vel"), "*"), timeout=1.0) if r.ok]
+            assert drivers == [robot_driver_token(ros("cmd_vel"), "t1")], drivers
             # Odometry first (the bridge holds a scan that is newer than every odometry sample).
             session.put(ros("odom"), ros_odom(100.0, 1.0, 2.0, 0.0, 0.2, 0.0))
             session.put(ros("odom"), ros_odom(100.1, 1.1, 2.0, 0.2, 0.2, 0.1))
@@ -440,6 +509,55 @@ def test_fake_limo_through_the_bridge(namespace: str):
             for s in subs:
                 s.undeclare()
     assert not thread.is_alive()
+
+
+def test_a_bridge_refuses_a_robot_that_another_runs_bridge_drives():
+    """``up`` refuses a run whose bridge would drive a robot another run's bridge drives; a bridge started by hand (or
+    one of two runs started at once) got past that and sent its Twists beside the other's. It now refuses on start
+    (ConfigError: exit 2, which the launcher does not restart), before any command; its own robot's token (a
+    restarted bridge's, still held for a moment) does not count."""
+    from cso_runtime.config import ConfigError
+    from services.common import ServiceContext, run_service
+    from services.ros2_bridge import Ros2BridgeService
+
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        twists: list[bytes] = []
+        sub = session.declare_subscriber("limo1/cmd_vel", lambda sample: twists.append(sample.payload.to_bytes()))
+        held = session.liveliness().declare_token(robot_driver_token("limo1/cmd_vel", "r7"))
+        try:
+            svc = Ros2BridgeService(ServiceContext("ros2_bridge", "t1", {"method": "greedy-dist"}, ExplorationConfig(), client, {"namespace": "limo1"}))
+            refused: list[Exception] = []
+            stop = threading.Event()
+
+            def run() -> None:
+                try:
+                    run_service(svc, stop)
+                except ConfigError as exc:
+                    refused.append(exc)
+
+            thread = threading.Thread(target=run, daemon=True)
+            thread.start()
+            thread.join(15)  # it stops by itself
+            stop.set()
+            thread.join(10)
+            assert refused and "robot r7's run already drives limo1/cmd_vel" in str(refused[0]), refused
+            held.undeclare()
+            held = session.liveliness().declare_token(robot_driver_token("limo1/cmd_vel", "t1"))  # its own, from before a restart
+            stop = threading.Event()
+            svc = Ros2BridgeService(ServiceContext("ros2_bridge", "t1", {"method": "greedy-dist"}, ExplorationConfig(), client, {"namespace": "limo1"}))
+            thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+            thread.start()
+            try:
+                wait_for(lambda: svc._ros_subs, 10, "the bridge's ROS subscriptions")
+            finally:
+                stop.set()
+                thread.join(10)
+        finally:
+            held.undeclare()
+            sub.undeclare()
+    assert twists == [] and not thread.is_alive()
 
 
 def test_bridge_process_takes_namespace_and_stops_the_robot_on_sigint(tmp_path: Path):

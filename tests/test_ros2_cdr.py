@@ -76,6 +76,17 @@ def test_laserscan_round_trip():
     assert back.angle_min_rad == pytest.approx(-1.0) and back.stamp_s == pytest.approx(3.25) and conv.stamp_ns == 3_250_000_000
 
 
+def test_beams_with_no_reading_go_to_ros_as_nan_and_no_return_as_inf():
+    """The robot's NaN and too-close beams reach our scans as 0 m ("no reading"); an exported bag and the Foxglove
+    bridge wrote them back as ranges of 0.0 m. REP-117 has NaN for an invalid measurement (+inf stays no return), so
+    a ROS tool that does not check range_min takes no 0 m obstacle at the sensor."""
+    conv = cdr.laserscan_from_cdr(limo_scan_bytes([np.nan, -np.inf, 0.05, 2.0, np.inf], angle_min=-0.4, angle_max=0.4))
+    out = cdr.decode(cdr.laserscan_to_cdr(conv.scan, 1_000_000_000), cdr.LASER_SCAN)
+    r = np.asarray(out.ranges)
+    assert np.isnan(r[:3]).all() and r[3] == pytest.approx(2.0) and np.isposinf(r[4]), r
+    assert cdr.laserscan_from_cdr(cdr.laserscan_to_cdr(conv.scan, 1_000_000_000)).scan.ranges_m.tolist() == conv.scan.ranges_m.tolist()
+
+
 def test_odometry_and_twist_round_trip():
     raw = cdr.odometry_to_cdr(Pose2D(1.5, -2.0, 2.5), VelocityCommand(0.4, -0.3), 7_125_000_000)
     odo = cdr.odometry_from_cdr(raw)

@@ -598,6 +598,31 @@ def test_up_refuses_a_robot_id_that_another_run_on_the_network_has(tmp_path, tak
             held.undeclare()
 
 
+def test_up_refuses_to_drive_a_robot_that_another_runs_ros2_bridge_drives(tmp_path):
+    """Two ``limo-ros2`` runs of different robot ids on one robot's router and namespace both started: each run's
+    bridge sent the LIMO a Twist on ``limo1/cmd_vel`` every scan, each toward its own goal. The bridge says which
+    robot it drives (a liveliness token, ``keys.robot_driver_token``), and ``up`` refuses a run whose bridge would
+    drive the same one, before starting anything; another namespace is another robot and is let through."""
+    from cso_runtime.keys import robot_driver_token
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import load_profile
+
+    port = free_tcp_port()
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        held = session.liveliness().declare_token(robot_driver_token("limo1/cmd_vel", "r7"))
+        try:
+            runs = tmp_path / "runs"
+            args = ("up", "--profile", "limo-ros2", "--connect", loopback_endpoint(port), "--robot", "r1", "--no-live")
+            r = cli(*args, "--namespace", "limo1", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+            assert r.returncode == 2, r.stderr[-2000:]
+            assert "limo1/cmd_vel is already driven by robot r7's run" in r.stderr and "--namespace" in r.stderr, r.stderr[-2000:]
+            assert "no service was started" in r.stderr and not list(runs.glob("*/logs/ros2_bridge.log")), r.stderr[-2000:]
+            other, data = load_profile("limo-ros2", connect=[loopback_endpoint(port)], namespace="limo2")
+            assert Launcher(other, data, tmp_path / "other").robot_already_served(session) == ""
+        finally:
+            held.undeclare()
+
+
 def test_a_run_that_started_no_service_is_listed_as_it_ended(tmp_path):
     """Ctrl-C while the router opens (the first second of ``up``) left a run folder with no run.json, which
     ``runs`` never listed; a run refused before its services (robot id taken, recording that cannot open)
@@ -1521,12 +1546,17 @@ def test_up_shows_and_writes_the_simulators_real_time_factor_measured_on_the_epi
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
     text = console.export_text()
+    line = progress_line(last, launcher.sim_step_s, launcher.real_time_factor)
     if name == "limo-ros2":
         assert launcher.real_time_factor is None and "x real time" not in text
+        # A real robot's steps are its scans (about 10 Hz on the LIMO), not 0.25 s control periods: 42 steps are
+        # no "10.5 s robot time" there, so neither the live view nor the log line says so.
+        assert "robot time" not in text and re.search(r"│ step +│ 42 \(\d+ s since start\)", text), text
+        assert line.startswith("step 42: coverage 0.0 %") and "robot time" not in line, line
     else:
         assert launcher.real_time_factor == pytest.approx(2.0)
         assert re.search(r"│ step +│ 42 \(10\.5 s robot time, \d+ s since start, 2\.00x real time\)", text), text
-        assert "(10.5 s robot time, 2.00x real time)" in progress_line(last, launcher.control_period_s, launcher.real_time_factor)
+        assert "step 42 (10.5 s robot time, 2.00x real time): coverage" in line, line
     status("done", 50, 1036.0)  # the end: 48 steps in 6 s
     launcher.write_outputs(_fake_result(steps=50))
     with (tmp_path / "run" / "episodes.csv").open() as fh:
@@ -1612,6 +1642,11 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     assert "6.50 m ahead on the path" in text
     assert re.search(r"│ step +│ 3 \(0\.8 s robot time, \d+ s since start\)", text), text
     assert re.search(r"│ coverage +│ ━{2}╺?━* +10\.0 % ", text) and "1.00 m2, 0.333 m2/step" in text, text  # a bar a tenth full
+    launcher.status.reason = "the map reached the edge of its arena"  # the referee's note, as `status` shows it
+    noted = Console(width=200, record=True)
+    noted.print(LiveView(launcher).render())
+    assert re.search(r"│ state +│ exploring: the map reached the edge of its arena +│", noted.export_text()), noted.export_text()
+    launcher.status.reason = ""
     narrow = Console(width=80, record=True)  # a plain terminal: the title is one line, robot and method a row
     narrow.print(LiveView(launcher).render())
     lines = narrow.export_text().splitlines()
