@@ -142,8 +142,10 @@ class ScanConversion:
 def laserscan_from_cdr(raw: bytes) -> ScanConversion:
     """sensor_msgs/LaserScan CDR -> our LaserScan, honouring the header's angles and limits.
 
-    NaN (invalid) and -inf or below ``range_min`` (too close) become 0 m, which the mapper ignores
-    (even with ``range_min`` 0);
+    NaN (invalid) and 0 m (what some drivers send for no reading) become 0 m, which the mapper and the planner
+    ignore (even with ``range_min`` 0). Too close (REP-117: -inf, or a reading below ``range_min``) is something
+    there: a reading below ``range_min`` is kept, and -inf becomes the float just below ``range_min``; the mapper
+    ignores both, and the planner's stop check counts them (with ``range_min`` 0 there is no such float: 0 m).
     +inf and anything beyond ``range_max`` become +inf (no return: free space up to the max range).
     """
     msg = decode(raw, LASER_SCAN)
@@ -158,7 +160,8 @@ def laserscan_from_cdr(raw: bytes) -> ScanConversion:
     invalid = np.isnan(ranges)
     too_close = ~invalid & (ranges < msg.range_min)
     no_return = ~invalid & (ranges > msg.range_max)
-    clean = np.where(invalid | too_close, 0.0, np.where(no_return, np.inf, ranges))
+    nearer_than_range_min_m = float(np.nextafter(np.float32(msg.range_min), np.float32(0.0)))  # 0 when range_min is 0
+    clean = np.where(invalid, 0.0, np.where(no_return, np.inf, np.where(np.isneginf(ranges), nearer_than_range_min_m, ranges)))
     if msg.angle_increment < 0:  # beams listed clockwise: reverse so angles increase
         clean = clean[::-1]
         angle_min, increment = msg.angle_min + msg.angle_increment * (ranges.size - 1), -msg.angle_increment
@@ -170,8 +173,8 @@ def laserscan_from_cdr(raw: bytes) -> ScanConversion:
 
 def laserscan_to_cdr(scan: LaserScan, stamp_ns: int, frame_id: str = "laser") -> bytes:
     """Our LaserScan, stamped ``stamp_ns`` (not its ``stamp_s``) -> sensor_msgs/LaserScan CDR. A 0 m beam, our "no
-    reading" (how ``laserscan_from_cdr`` keeps the robot's NaN and too-close beams), goes out as NaN, REP-117's
-    invalid measurement, not as a range; ``inf`` stays "no return"."""
+    reading" (how ``laserscan_from_cdr`` keeps the robot's NaN beams), goes out as NaN, REP-117's invalid
+    measurement, not as a range; ``inf`` stays "no return", and a too-close beam stays below ``range_min``."""
     n = len(scan.ranges_m)
     ranges = np.asarray(scan.ranges_m, dtype=np.float32)
     ranges = np.where(ranges == 0.0, np.float32(np.nan), ranges)

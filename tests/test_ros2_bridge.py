@@ -414,7 +414,7 @@ def test_fake_limo_through_the_bridge(namespace: str):
             assert clock0.arena is not None and clock0.arena.shape == (60, 80)
             assert (clock0.arena.origin_x_m, clock0.arena.origin_y_m) == pytest.approx((1.05 - 4.0, 2.0 - 3.0))
 
-            # NaN and too-close beams are cleaned and counted; another angle range is honoured.
+            # NaN and too-close beams are counted (NaN cleaned); another angle range is honoured.
             nan_ranges = np.full(361, 2.0, np.float32)
             nan_ranges[:5] = np.nan
             nan_ranges[5] = 0.05
@@ -422,7 +422,8 @@ def test_fake_limo_through_the_bridge(namespace: str):
             wait_for(lambda: len(ours.get("scan", [])) >= 2, 5, "the NaN scan")
             scan1 = ours["scan"][1]
             assert scan1.step == 1 and scan1.scan.angle_min_rad == pytest.approx(-math.pi) and len(scan1.scan.ranges_m) == 361
-            assert (scan1.scan.ranges_m[:6] == 0).all() and svc.counters["invalid_beams"] == 6
+            assert (scan1.scan.ranges_m[:5] == 0).all() and svc.counters["invalid_beams"] == 6
+            assert scan1.scan.ranges_m[5] == pytest.approx(0.05), "too close: something there, for the planner's stop check"
             # A header that does not fit its ranges, a stale scan, an out-of-order one: dropped and counted.
             session.put(ros("scan"), ros_scan(100.09, ranges, n_angles=90))
             session.put(ros("odom"), ros_odom(102.0, 1.2, 2.0, 0.2))

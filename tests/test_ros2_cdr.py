@@ -39,10 +39,31 @@ def test_other_angle_range_nan_and_inf_are_handled():
     conv = cdr.laserscan_from_cdr(limo_scan_bytes(ranges, angle_min=-0.5, angle_max=0.5, range_min=0.1, range_max=10.0))
     assert conv.scan.angle_min_rad == pytest.approx(-0.5)
     r = conv.scan.ranges_m
-    assert r[0] == 0.0 and r[1] == 0.0 and r[2] == 0.0  # invalid / too close: ignored by the mapper
+    assert r[0] == 0.0  # invalid: no reading
+    assert 0.0 < r[1] < 0.1 and r[1] == pytest.approx(0.1) and r[2] == pytest.approx(0.05)  # too close: something there
     assert r[3] == pytest.approx(2.0) and np.isinf(r[4]) and np.isinf(r[5])  # beyond range_max: no return
     assert (conv.invalid_beams, conv.too_close_beams, conv.no_return_beams) == (1, 2, 2)
     conv.scan.validate()  # no NaN reaches the mapper
+
+
+def test_too_close_beams_stop_the_robot_but_mark_nothing_on_the_map():
+    """REP-117's -inf (and a reading below range_min) is an object too close to measure: the bridge passed it on
+    as 0 m, no reading, so the planner's stop check drove into what the LiDAR said was right in front."""
+    from cso_runtime.config import PlannerConfig, RobotConfig
+    from cso_runtime.occupancy import OccupancyMap
+    from cso_runtime.planner import PathFollower
+
+    follower = PathFollower(RobotConfig(), PlannerConfig(), sensor_mount_x_m=0.103)
+    for too_close in (-np.inf, 0.08):
+        ranges = [np.inf, too_close, np.inf]  # straight ahead, nothing else in view
+        conv = cdr.laserscan_from_cdr(limo_scan_bytes(ranges, angle_min=-0.1, angle_max=0.1, range_min=0.1, range_max=8.0))
+        travel_m, _ = follower.clearance_ahead(conv.scan)
+        assert travel_m < 0.1, f"{too_close}: the obstacle right in front is not seen ({travel_m} m to drive)"
+        occupancy = OccupancyMap(GridGeometry(0.05, (100, 100)))
+        occupancy.integrate_scan(Pose2D(2.5, 2.5, 0.0), conv.scan)
+        assert not occupancy.occupied.any()
+    clear = cdr.laserscan_from_cdr(limo_scan_bytes([np.inf, np.nan, 0.0], angle_min=-0.1, angle_max=0.1, range_min=0.1, range_max=8.0))
+    assert follower.clearance_ahead(clear.scan)[0] == math.inf  # NaN and 0 m are no reading
 
 
 def test_invalid_beams_of_a_scan_with_range_min_zero_mark_nothing_on_the_map():
@@ -77,13 +98,14 @@ def test_laserscan_round_trip():
 
 
 def test_beams_with_no_reading_go_to_ros_as_nan_and_no_return_as_inf():
-    """The robot's NaN and too-close beams reach our scans as 0 m ("no reading"); an exported bag and the Foxglove
-    bridge wrote them back as ranges of 0.0 m. REP-117 has NaN for an invalid measurement (+inf stays no return), so
-    a ROS tool that does not check range_min takes no 0 m obstacle at the sensor."""
+    """The robot's NaN beams reach our scans as 0 m ("no reading"); an exported bag and the Foxglove bridge wrote
+    them back as ranges of 0.0 m. REP-117 has NaN for an invalid measurement (+inf stays no return), so a ROS tool
+    that does not check range_min takes no 0 m obstacle at the sensor. Too-close beams go out below range_min."""
     conv = cdr.laserscan_from_cdr(limo_scan_bytes([np.nan, -np.inf, 0.05, 2.0, np.inf], angle_min=-0.4, angle_max=0.4))
     out = cdr.decode(cdr.laserscan_to_cdr(conv.scan, 1_000_000_000), cdr.LASER_SCAN)
     r = np.asarray(out.ranges)
-    assert np.isnan(r[:3]).all() and r[3] == pytest.approx(2.0) and np.isposinf(r[4]), r
+    assert np.isnan(r[0]) and 0.0 < r[1] < 0.1 and r[2] == pytest.approx(0.05), r  # range_min 0.1: ROS drops r[1:3]
+    assert r[3] == pytest.approx(2.0) and np.isposinf(r[4]), r
     assert cdr.laserscan_from_cdr(cdr.laserscan_to_cdr(conv.scan, 1_000_000_000)).scan.ranges_m.tolist() == conv.scan.ranges_m.tolist()
 
 
