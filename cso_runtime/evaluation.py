@@ -63,7 +63,17 @@ from cso_runtime.outputs import (
 from cso_runtime.pace import real_time_factor
 from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy, unknown_methods_said
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
-from cso_runtime.report import TABLE1_COLUMNS, shows_ablations, table1_cells, table1_rows, table2, write_report
+from cso_runtime.report import (
+    MEANS_NOTE,
+    SPREAD_NOTE,
+    STD_SUFFIX,
+    TABLE1_COLUMNS,
+    shows_ablations,
+    table1_cells,
+    table1_rows,
+    table2,
+    write_report,
+)
 from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
 from cso_runtime.simulator import SIMULATORS, MountSetting, make_simulator, mujoco_config, simulator_settings
 
@@ -437,10 +447,26 @@ def table_console() -> Any:
     return console if console.is_terminal else Console(width=max(console.width, 120))
 
 
-def _mean(rows: list[dict[str, Any]], key: str) -> float | None:
+def _values(rows: list[dict[str, Any]], key: str) -> list[float]:
     # Rows read back from episodes.csv (benchmarks/tables.py) hold text, "" for a cell left empty (sim_time_s on a real robot).
-    values = [float(v) for r in rows if (v := r.get(key)) not in (None, "") and math.isfinite(float(v))]
+    return [float(v) for r in rows if (v := r.get(key)) not in (None, "") and math.isfinite(float(v))]
+
+
+def _mean(rows: list[dict[str, Any]], key: str) -> float | None:
+    values = _values(rows, key)
     return round(float(np.mean(values)), 6) if values else None
+
+
+def _std(rows: list[dict[str, Any]], key: str) -> float | None:
+    """The sample standard deviation (ddof=1) of ``key`` over the episodes that have it; None under two episodes:
+    one episode's spread is unknown, not 0."""
+    values = _values(rows, key)
+    return round(float(np.std(values, ddof=1)), 6) if len(values) >= 2 else None
+
+
+def table1_stats(rows: list[dict[str, Any]]) -> dict[str, float | None]:
+    """Each Table 1 metric's mean over ``rows``, with its sample standard deviation beside it (``<metric>_std``)."""
+    return {key: value for k in METRICS for key, value in ((k, _mean(rows, k)), (f"{k}{STD_SUFFIX}", _std(rows, k)))}
 
 
 def _efficiency_episodes(rows: list[dict[str, Any]]) -> int:
@@ -449,12 +475,12 @@ def _efficiency_episodes(rows: list[dict[str, Any]]) -> int:
 
 
 def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist") -> dict[str, Any]:
-    """Per-method means of the Table 1 metrics, a per-scale breakdown, the failures, and each method
+    """Per-method means of the Table 1 metrics with their sample standard deviations, a per-scale breakdown, the failures, and each method
     against ``baseline`` scene by scene (``cso_runtime.comparison``; empty when it did not run)."""
     summary: dict[str, Any] = {"meta": meta, "methods": {}}
     for method in methods:
         mine = [r for r in rows if r["method"] == method]
-        entry: dict[str, Any] = {k: _mean(mine, k) for k in METRICS}
+        entry: dict[str, Any] = table1_stats(mine)
         entry.update({k: _mean(mine, k) for k in PACE})  # None where no episode has them (a real robot, an older run's)
         entry["episodes"] = len(mine)
         entry["efficiency_episodes"] = _efficiency_episodes(mine)
@@ -463,7 +489,7 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
         for scale in SCALES:
             part = [r for r in mine if r["scale"] == scale]
             if part:
-                entry["by_scale"][scale] = {**{k: _mean(part, k) for k in METRICS}, "episodes": len(part), "efficiency_episodes": _efficiency_episodes(part)}
+                entry["by_scale"][scale] = {**table1_stats(part), "episodes": len(part), "efficiency_episodes": _efficiency_episodes(part)}
         entry["failures"] = [f for f in failures if f["method"] == method]
         entry["maps"] = sorted({r["map"] for r in mine})  # what the report shows of the folder: not an earlier run's files
         summary["methods"][method] = entry
@@ -727,16 +753,23 @@ class RichProgress:
 def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     """``eval``'s results on the terminal: Table 1, Table 2 when the run has ablations, the paired comparison with the
     baseline (or why there is none), the failed episodes, and where the files are."""
+    from rich.measure import Measurement  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
 
-    table = Table(title=escape(f"Table 1 metrics ({out_dir}/summary.json)"))  # a [name] in the path is not markup
-    table.add_column("method", no_wrap=True)  # method names are what a reader looks for: never cut
-    table.add_column("scale", no_wrap=True)
-    for col in TABLE1_COLUMNS[2:]:
-        table.add_column(col, justify="right")
-    for method, scale, e in table1_rows(summary):  # as the paper's Table 1: one block per scale
-        table.add_row(method, scale, *table1_cells(e))
+    def table1(spread: bool) -> Table:
+        table = Table(title=escape(f"Table 1 metrics ({out_dir}/summary.json)"), caption=SPREAD_NOTE if spread else MEANS_NOTE)  # a [name] in the path is not markup
+        table.add_column("method", no_wrap=True)  # method names are what a reader looks for: never cut
+        table.add_column("scale", no_wrap=True)
+        for col in TABLE1_COLUMNS[2:]:
+            table.add_column(col, justify="right")
+        for method, scale, e in table1_rows(summary):  # as the paper's Table 1: one block per scale
+            table.add_row(method, scale, *table1_cells(e, spread))
+        return table
+
     console = table_console()
+    table = table1(spread=True)
+    if Measurement.get(console, console.options.update_width(10**6), table).maximum > console.width:  # "0.5768 ±" over "0.0425" is unreadable: means alone
+        table = table1(spread=False)
     console.print(table)
     if shows_ablations(summary):
         header, rows = table2(summary)

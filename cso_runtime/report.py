@@ -33,10 +33,24 @@ TABLE1_DEFINITIONS = (
     ("decision ms p50/p99", "median and 99th percentile of each episode's decision times (frontiers, fast marching, entropy, masks, goal choice)"),
 )
 """How each Table 1 column is computed (README.md, the outputs of eval); every figure is a mean over the row's episodes."""
+STD_SUFFIX = "_std"
+"""``summary.json``'s key of a metric's sample standard deviation (ddof=1) over the episodes, beside its mean:
+``coverage_pct_std``."""
+SPREAD_NOTE = "mean ± sample standard deviation (ddof=1) over the row's episodes; the mean alone for a row of one episode"
+"""What a Table 1 cell shows, said under the table on the console and in the report."""
+MEANS_NOTE = "means over the row's episodes; each with its standard deviation in report.html and summary.json (<metric>_std)"
+"""Under the console's Table 1 when the spread would not fit the terminal's width."""
 
 
 def _fmt(v: Any, nd: int) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
+
+
+def _fmt_spread(e: dict[str, Any], metric: str, nd: int) -> str:
+    """``12.3 ± 1.2``: the metric's mean and its sample standard deviation; the mean alone where there is none
+    (one episode, or a summary.json from before the spread was written)."""
+    std = e.get(metric + STD_SUFFIX)
+    return _fmt(e[metric], nd) if std is None or e[metric] is None else f"{e[metric]:.{nd}f} ± {std:.{nd}f}"
 
 
 def table1_rows(summary: dict[str, Any]) -> list[tuple[str, str, dict[str, Any]]]:
@@ -52,16 +66,21 @@ def table1_rows(summary: dict[str, Any]) -> list[tuple[str, str, dict[str, Any]]
     return rows
 
 
-def table1_cells(e: dict[str, Any]) -> list[str]:
-    """One Table 1 row's values after its method and scale, as the console and the report print them."""
+def table1_cells(e: dict[str, Any], spread: bool = True) -> list[str]:
+    """One Table 1 row's values after its method and scale, as the console and the report print them: each mean
+    ± its sample standard deviation (``SPREAD_NOTE``), or the means alone without ``spread``."""
+
+    def cell(metric: str, nd: int) -> str:
+        return _fmt_spread(e, metric, nd) if spread else _fmt(e[metric], nd)
+
     return [
         str(e["episodes"]),
-        _fmt(e["explored_area_m2"], 1),
-        _fmt(e["coverage_pct"], 2),
-        _fmt(e["steps"], 1),
-        _fmt(e["efficiency_m2_per_step"], 4),
-        _fmt(e["path_length_m"], 1),
-        f"{_fmt(e['decision_ms_p50'], 1)}/{_fmt(e['decision_ms_p99'], 1)}",
+        cell("explored_area_m2", 1),
+        cell("coverage_pct", 2),
+        cell("steps", 1),
+        cell("efficiency_m2_per_step", 4),
+        cell("path_length_m", 1),
+        f"{cell('decision_ms_p50', 1)}/{cell('decision_ms_p99', 1)}",
     ]
 
 
@@ -160,6 +179,7 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     parts += [
         "<h2>Table 1</h2>",
         _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e)] for m, s, e in table1_rows(summary)]),
+        f"<p>Each cell: {html.escape(SPREAD_NOTE)}.</p>",
         "<dl>" + "".join(f"<dt>{html.escape(c)}</dt><dd>{html.escape(d)}</dd>" for c, d in TABLE1_DEFINITIONS) + "</dl>",
     ]
     if shows_ablations(summary):

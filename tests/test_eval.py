@@ -944,3 +944,61 @@ def test_eval_warns_when_its_seed_changes_no_episode(tmp_path: Path, caplog):
     with caplog.at_level("WARNING"):
         run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path / "s0", max_steps=5))
     assert "changes no episode" not in caplog.text  # the default seed was not a choice
+
+
+def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(tmp_path: Path, capsys):
+    """Table 1 as researchers report it: mean ± the sample standard deviation (ddof=1) over the episodes, per method
+    and per scale, in summary.json beside each mean (``<metric>_std``) and in report.html; one episode has no spread
+    (null, not 0)."""
+    from cso_runtime.evaluation import print_summary
+
+    out = tmp_path / "out"
+    summary = run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:2:0", out_dir=out, max_steps=40))
+    with (out / "episodes.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    page = (out / "report.html").read_text()
+    for method in ("greedy-dist", "random"):
+        mine = [r for r in rows if r["method"] == method]
+        assert len(mine) == 2 and mine[0]["explored_area_m2"] != mine[1]["explored_area_m2"]  # episodes that differ
+        entry = summary["methods"][method]
+        for part in (entry, entry["by_scale"]["small"]):
+            assert part["episodes"] == 2
+            for k in METRICS:
+                assert part[f"{k}_std"] == pytest.approx(np.std([float(r[k]) for r in mine], ddof=1), abs=1e-6)
+        assert entry["explored_area_m2_std"] > 0
+        e = entry
+        assert f"<td>{e['explored_area_m2']:.1f} ± {e['explored_area_m2_std']:.1f}</td>" in page
+        assert f"<td>{e['efficiency_m2_per_step']:.4f} ± {e['efficiency_m2_per_step_std']:.4f}</td>" in page
+    assert "mean ± sample standard deviation (ddof=1)" in page
+    # The console: mean ± std where the table fits the width, the means alone (saying where the spread is) where not.
+    print_summary(summary, out)
+    text = capsys.readouterr().out
+    e = summary["methods"]["greedy-dist"]
+    assert f"{e['coverage_pct']:.2f}" in text and (f"± {e['coverage_pct_std']:.2f}" in text or "standard deviation in report.html" in text)
+
+    one = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path / "one", max_steps=40))
+    saved = json.loads((tmp_path / "one" / "summary.json").read_text())["methods"]["greedy-dist"]
+    assert one["methods"]["greedy-dist"]["episodes"] == 1
+    for part in (saved, saved["by_scale"]["small"]):
+        assert all(part[f"{k}_std"] is None for k in METRICS)
+    assert "±" not in (tmp_path / "one" / "report.html").read_text().split("<h2>Table 1</h2>")[1].split("</table>")[0]
+
+
+def test_the_console_table_shows_the_spread_when_it_fits_and_the_means_alone_when_not(tmp_path: Path, capsys, monkeypatch):
+    from cso_runtime.evaluation import print_summary, summarize
+
+    def row(m2: float) -> dict:
+        return {"method": "greedy-dist", "map": f"plan_{m2}", "seed": 0, "scale": "small", "traversable_area_m2": m2, "terminated_by": "coverage", "explored_area_m2": m2, "coverage_pct": m2,
+                "steps": 100, "efficiency_m2_per_step": m2 / 100, "path_length_m": 10.0, "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}
+
+    summary = summarize([row(20.0), row(30.0)], [], ["greedy-dist"], {})
+    monkeypatch.setenv("COLUMNS", "200")
+    print_summary(summary, tmp_path)
+    wide = capsys.readouterr().out
+    assert "│ greedy-dist │ small │        2 │  25.0 ± 7.1 │ 25.00 ± 7.07 │ 100.0 ± 0.0 │ 0.2500 ± 0.0707 │ 10.0 ± 0.0 │ 2.0 ± 0.0/3.0 ± 0.0 │" in wide
+    monkeypatch.setenv("COLUMNS", "100")
+    print_summary(summary, tmp_path)
+    narrow = capsys.readouterr().out
+    assert "±" not in narrow.split("means over")[0]  # no cell cut in two lines
+    assert "│ greedy-dist │ small │        2 │        25.0 │      25.00 │ 100.0 │  0.2500 │" in narrow
+    assert "each with its standard deviation in report.html and summary.json" in narrow
