@@ -32,9 +32,18 @@ def plot_coverage_curves(path: Path, outcomes: Sequence[Any], methods: Sequence[
     _save(coverage_figure(outcomes, methods), path, 110)
 
 
+def held_mean_curves(curves_by_method: dict[str, list[np.ndarray]]) -> dict[str, np.ndarray]:
+    """Each method's mean coverage curve over its episodes, every episode held at its final coverage to the end of
+    the longest episode of any method (a finished episode keeps what it explored: dropping it, or ending a method's
+    line at its own longest episode, would compare methods over different steps)."""
+    n = max((len(c) for curves in curves_by_method.values() for c in curves), default=0)
+    return {m: np.stack([np.pad(c, (0, n - len(c)), mode="edge") for c in curves]).mean(axis=0) for m, curves in curves_by_method.items()}
+
+
 def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any:
     """Mean coverage (%) against step per method, like the paper's Fig. 4; each episode's curve is held at its
-    final value. One panel per scene scale when the episodes span several (a mean over a small and a super-large
+    final value to the end of the panel's longest episode (``held_mean_curves``), so every method's line spans the
+    same steps. One panel per scene scale when the episodes span several (a mean over a small and a super-large
     scene says little about either); each method keeps its colour across panels, and with ``methods`` (the run's
     order, as ``summary.json`` lists them) the colour the efficiency figure gives it, whatever order the episodes
     finished in."""
@@ -52,16 +61,16 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
     fig, axes = plt.subplots(1, len(scales), figsize=(7 if len(scales) == 1 else 4.6 * len(scales), 4.5), squeeze=False, layout="constrained")
     for ax, scale in zip(axes[0], scales):
         methods = by_scale.get(scale, {})
-        for method, curves in methods.items():
-            n = max(len(c) for c in curves)
-            padded = np.stack([np.pad(c, (0, n - len(c)), mode="edge") for c in curves])
-            ax.plot(np.arange(n), padded.mean(axis=0), label=f"{method} ({len(curves)} ep.)", color=colours[method])
-        ax.set_xlabel("step (0.25 s)")
-        ax.set_ylabel("coverage (%)")
+        for method, mean in held_mean_curves(methods).items():
+            ax.plot(np.arange(len(mean)), mean, label=f"{method} ({len(methods[method])} ep.)", color=colours[method])
+        ax.set_xlabel("step (0.25 s); an episode that ended holds its final coverage")
+        ax.set_ylabel("mean coverage (%)")
         ax.set_ylim(0, 101)
         ax.grid(alpha=0.3)
         if methods:
-            ax.legend(loc="lower right", fontsize=8 if len(scales) > 1 else 10)
+            ax.set_xlim(0, max(len(ax.lines[0].get_xdata()) - 1, 1))
+            small = len(scales) > 1
+            ax.legend(loc="lower right", fontsize=8 if small else 10, title="mean over episodes,\nended ones held", title_fontsize=7 if small else 9)
         ax.set_title("Coverage against step" + (f": {scale.replace('_', ' ')}" if len(scales) > 1 else ""))
     return fig
 

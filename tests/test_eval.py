@@ -1002,3 +1002,24 @@ def test_the_console_table_shows_the_spread_when_it_fits_and_the_means_alone_whe
     assert "±" not in narrow.split("means over")[0]  # no cell cut in two lines
     assert "│ greedy-dist │ small │        2 │        25.0 │      25.00 │ 100.0 │  0.2500 │" in narrow
     assert "each with its standard deviation in report.html and summary.json" in narrow
+
+
+def test_every_methods_mean_coverage_curve_spans_the_longest_episode_of_its_scale():
+    """Fig. 4: a method whose episodes all ended early holds its final coverage to the end of the scale's longest
+    episode (any method's), so that the lines compare the methods over the same steps; the axis and legend say so."""
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import coverage_figure
+
+    def outcome(method: str, curve: list[float]) -> EpisodeOutcome:
+        return EpisodeOutcome(method, "plan", {"scale": "small"}, coverage_curve_pct=np.array(curve))
+
+    fig = coverage_figure([outcome("greedy-dist", [0.0, 90.0]), outcome("greedy-dist", [0.0, 50.0, 70.0]), outcome("cso", [0.0, 10.0, 20.0, 30.0, 40.0])])
+    (ax,) = fig.axes
+    lines = {line.get_label(): line for line in ax.get_lines()}
+    np.testing.assert_allclose(lines["greedy-dist (2 ep.)"].get_xdata(), [0, 1, 2, 3, 4])
+    np.testing.assert_allclose(lines["greedy-dist (2 ep.)"].get_ydata(), [0.0, 70.0, 80.0, 80.0, 80.0])  # both held at their final coverage
+    np.testing.assert_allclose(lines["cso (1 ep.)"].get_xdata(), [0, 1, 2, 3, 4])
+    assert ax.get_xlim() == (0.0, 4.0)
+    assert "holds its final coverage" in ax.get_xlabel()
+    assert "held" in ax.get_legend().get_title().get_text()
+    fig.clf()
