@@ -686,9 +686,13 @@ def time_left_s(elapsed_s: float, ran: int, remaining: int) -> float | None:
 class RichProgress:
     """Progress bar on stderr with the last episode's result."""
 
+    TIME_LEFT_FIELD = "time_left"
+    UNKNOWN_TIME = "-:--:--"
+    """The bar's time left before the first episode run now (rich's own placeholder)."""
+
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         from rich.console import Console  # noqa: PLC0415
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
         console = Console(stderr=True)
         self.progress = Progress(
@@ -696,9 +700,12 @@ class RichProgress:
             BarColumn(),
             MofNCompleteColumn(),
             TimeElapsedColumn(),
-            TimeRemainingColumn(),
+            # The time left of ``time_left_s``, as the log lines say it: rich's own estimate would count the episodes
+            # ``--resume`` kept, read back in a burst, as run at once (about 0 left).
+            TextColumn(f"{{task.fields[{self.TIME_LEFT_FIELD}]}}", style="progress.remaining"),
             TextColumn("{task.description}"),
             console=console,
+            get_time=clock,
             disable=not console.is_terminal,  # logs and CI get one line per episode instead of a bar
         )
         self.task = None
@@ -713,7 +720,7 @@ class RichProgress:
         self.total = total
         self.started_s = self.clock()
         self.progress.start()
-        self.task = self.progress.add_task("", total=total)
+        self.task = self.progress.add_task("", total=total, **{self.TIME_LEFT_FIELD: self.UNKNOWN_TIME})
 
     def advance(self, outcome: EpisodeOutcome) -> None:
         if outcome.row is not None:
@@ -722,10 +729,12 @@ class RichProgress:
             text = escape(f"{outcome.method} {outcome.map}: {r['coverage_pct']:.1f}% in {r['steps']} steps ({r['terminated_by']}{kept})")
         else:
             text = f"[red]{escape(f'{outcome.method} {outcome.map}')}: FAILED"
-        self.progress.update(self.task, advance=1, description=text)
         self.done += 1
         if not outcome.kept:
             self.ran += 1
+        left_s = self.time_left_s()
+        left = self.UNKNOWN_TIME if left_s is None else clock_text(left_s)
+        self.progress.update(self.task, advance=1, description=text, **{self.TIME_LEFT_FIELD: left})
         if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode, with the bar's times
             self.progress.console.print(f"{escape(f'[{self.done}/{self.total}]')} {text}{self.times_text(outcome)}", highlight=False, soft_wrap=True)  # one line, however long
 
@@ -734,10 +743,13 @@ class RichProgress:
         terminal, for a long eval followed in its log. Nothing after an episode ``--resume`` kept."""
         if outcome.kept:
             return ""
-        elapsed_s = self.clock() - self.started_s
-        left_s = time_left_s(elapsed_s, self.ran, self.total - self.done)
+        left_s = self.time_left_s()
         left = f", about {clock_text(left_s)} left" if left_s else ""
-        return escape(f" [{clock_text(elapsed_s)} elapsed{left}]")
+        return escape(f" [{clock_text(self.clock() - self.started_s)} elapsed{left}]")
+
+    def time_left_s(self) -> float | None:
+        """``time_left_s`` now: the bar's and the log lines' time left, at the pace of the episodes run now."""
+        return time_left_s(self.clock() - self.started_s, self.ran, self.total - self.done)
 
     def writing(self, out: Path, trajectory_plots: int) -> None:
         """After the episodes: the bar says what is being written (and a log gets the same line)."""

@@ -1023,3 +1023,31 @@ def test_every_methods_mean_coverage_curve_spans_the_longest_episode_of_its_scal
     assert "holds its final coverage" in ax.get_xlabel()
     assert "held" in ax.get_legend().get_title().get_text()
     fig.clf()
+
+
+def test_the_progress_bars_time_left_counts_only_the_episodes_run_now():
+    """``--resume`` reads the kept episodes back in a burst: the bar's time left (as the log lines' does) takes the
+    pace of the episodes run by this command only, not about 0 left."""
+    import io
+
+    from rich.console import Console
+
+    from cso_runtime.evaluation import EpisodeOutcome, RichProgress
+
+    now_s = [100.0]
+    progress = RichProgress(clock=lambda: now_s[0])
+    progress.start(5)
+    row = {"coverage_pct": 99.1, "steps": 51, "terminated_by": "coverage"}
+
+    def bar() -> str:
+        console = Console(file=io.StringIO(), width=200, record=True)
+        console.print(progress.progress.make_tasks_table(progress.progress.tasks))
+        return console.export_text()
+
+    progress.advance(EpisodeOutcome("greedy-dist", "img_1", row=row, kept=True))
+    progress.advance(EpisodeOutcome("greedy-dist", "img_2", row=row, kept=True))
+    assert "2/5 0:00:00 -:--:--" in bar()  # nothing run yet: no pace
+    now_s[0] = 130.0
+    progress.advance(EpisodeOutcome("greedy-dist", "img_3", row=row))
+    assert "3/5 0:00:30 0:01:00" in bar()  # 2 left at 30 s each
+    progress.stop()
