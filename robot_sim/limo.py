@@ -105,7 +105,7 @@ def limo_mjcf(robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float, 
         wx, wy = 0.5 * sx * sim.wheelbase_m, 0.5 * sy * sim.track_m
         wheels.append(
             f'<geom name="wheel_{name}" type="cylinder" size="{_f(sim.wheel_radius_m)} 0.0225" '
-            f'pos="{_f(wx)} {_f(wy)} {_f(sim.wheel_radius_m)}" euler="1.5708 0 0" '
+            f'pos="{_f(wx)} {_f(wy)} {_f(sim.wheel_radius_m)}" euler="{exact(0.5 * math.pi)} 0 0" '
             f'contype="0" conaffinity="0" group="{GROUP_WHEELS}" rgba="0.1 0.1 0.1 1" mass="0"/>'
         )
     kv_lin = m / sim.actuator_time_constant_s

@@ -143,6 +143,17 @@ def test_the_world_file_says_its_units_frames_controls_and_parameters(tmp_path):
     assert data.qpos.tolist() == [plan.start.x_m, plan.start.y_m, plan.start.yaw_rad] and data.ncon == 0  # as it says
 
 
+def test_the_wheels_are_turned_exactly_upright(tmp_path):
+    """The visual wheels were turned by euler="1.5708", 3.7e-6 rad short of a right angle; they carry no mass, so the
+    exact angle changes no dynamics."""
+    model = mujoco.MjModel.from_xml_path(str(write_mujoco_world(tmp_path / "w.xml", generate_floor_plan("small", 0))))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    for wheel in ("wheel_fl", "wheel_fr", "wheel_rl", "wheel_rr"):
+        assert abs(data.geom(wheel).xmat[8]) < 1e-15  # the cylinder's axis is level
+        assert model.geom(wheel).contype == 0 and model.geom(wheel).conaffinity == 0
+
+
 @pytest.mark.parametrize("name", ['my "lab"', "lab & office", "a<b"])
 def test_a_plan_name_with_xml_characters_makes_a_well_formed_world(tmp_path, name):
     """The plan's name (a PNG's or map YAML's file stem) went into the model name unescaped: a quote made
