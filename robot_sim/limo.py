@@ -43,12 +43,24 @@ GROUP_WHEELS = 2
 GROUP_FLOOR = 3
 
 
+SENSORS = ("base_pos", "base_quat", "base_vel", "base_gyro", "lidar_pos")
+"""The base's map pose, its body-frame linear and angular velocity, the LiDAR's position: a few numbers per step, which
+the simulator does not read (its LiDAR casts rays itself) but a MuJoCo user of the world file does."""
+
+
 @dataclass(frozen=True)
 class LimoMjcf:
-    """MJCF fragments of the robot: its body (goes into <worldbody>) and its actuators."""
+    """MJCF fragments of the robot: its body (goes into <worldbody>), its actuators and its sensors."""
 
     body_xml: str
     actuator_xml: str
+    sensor_xml: str
+
+
+def lateral_feedforward_mps(linear_mps: float, angular_radps: float, time_constant_s: float) -> float:
+    """drive_lateral's command while driving at (v, w): the centripetal feed-forward v * w * tau, without which a servo
+    holding zero lateral speed lags by that much. The simulator sends nothing else on this control."""
+    return linear_mps * angular_radps * time_constant_s
 
 
 def _f(x: float) -> str:
@@ -105,7 +117,7 @@ def limo_mjcf(robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float, 
         wx, wy = 0.5 * sx * sim.wheelbase_m, 0.5 * sy * sim.track_m
         wheels.append(
             f'<geom name="wheel_{name}" type="cylinder" size="{_f(sim.wheel_radius_m)} 0.0225" '
-            f'pos="{_f(wx)} {_f(wy)} {_f(sim.wheel_radius_m)}" euler="1.5708 0 0" '
+            f'pos="{_f(wx)} {_f(wy)} {_f(sim.wheel_radius_m)}" euler="{exact(0.5 * math.pi)} 0 0" '
             f'contype="0" conaffinity="0" group="{GROUP_WHEELS}" rgba="0.1 0.1 0.1 1" mass="0"/>'
         )
     kv_lin = m / sim.actuator_time_constant_s
@@ -124,9 +136,25 @@ def limo_mjcf(robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float, 
       <site name="{LIDAR_SITE}" pos="{_f(lidar_mount_x_m)} 0 {_f(sim.lidar_height_m)}" size="0.03"/>
     </body>"""
     grip = f'forcelimited="true" forcerange="{_f(-sim.traction_force_n)} {_f(sim.traction_force_n)}"'
+    v_max, w_max = robot.max_linear_mps, robot.max_angular_radps
+    lateral_max_mps = lateral_feedforward_mps(v_max, w_max, sim.actuator_time_constant_s)
+    forward, lateral, yaw = _ctrl_range(v_max), _ctrl_range(lateral_max_mps), _ctrl_range(w_max)
     actuators = f"""
-    <velocity name="drive_forward" site="{BASE_SITE}" gear="1 0 0 0 0 0" kv="{_f(kv_lin)}" {grip}/>
-    <velocity name="drive_lateral" site="{BASE_SITE}" gear="0 1 0 0 0 0" kv="{_f(kv_lin)}" {grip}/>
+    <velocity name="drive_forward" site="{BASE_SITE}" gear="1 0 0 0 0 0" kv="{_f(kv_lin)}" {grip} {forward}/>
+    <velocity name="drive_lateral" site="{BASE_SITE}" gear="0 1 0 0 0 0" kv="{_f(kv_lin)}" {grip} {lateral}/>
     <velocity name="drive_yaw" site="{BASE_SITE}" gear="0 0 0 0 0 1" kv="{_f(kv_yaw)}" forcelimited="true"
-              forcerange="{_f(-sim.yaw_torque_nm)} {_f(sim.yaw_torque_nm)}"/>"""
-    return LimoMjcf(body, actuators)
+              forcerange="{_f(-sim.yaw_torque_nm)} {_f(sim.yaw_torque_nm)}" {yaw}/>"""
+    base_pos, base_quat, base_vel, base_gyro, lidar_pos = SENSORS
+    sensors = f"""
+    <framepos name="{base_pos}" objtype="site" objname="{BASE_SITE}"/>
+    <framequat name="{base_quat}" objtype="site" objname="{BASE_SITE}"/>
+    <velocimeter name="{base_vel}" site="{BASE_SITE}"/>
+    <gyro name="{base_gyro}" site="{BASE_SITE}"/>
+    <framepos name="{lidar_pos}" objtype="site" objname="{LIDAR_SITE}"/>"""
+    return LimoMjcf(body, actuators, sensors)
+
+
+def _ctrl_range(limit: float) -> str:
+    """A control limited to +-``limit``, the most the simulator ever sends on it, written exactly: the simulator's
+    commands stay inside, so MuJoCo's clamping never changes one (a slider in the viewer covers what the LIMO does)."""
+    return f'ctrllimited="true" ctrlrange="{exact(-limit)} {exact(limit)}"'

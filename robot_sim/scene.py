@@ -62,9 +62,10 @@ def wall_boxes(plan: FloorPlan, boundary_only: bool = False) -> np.ndarray:
     return np.stack([0.5 * (x0 + x1) * res, 0.5 * (y0 + y1) * res, 0.5 * (x1 - x0) * res, 0.5 * (y1 - y0) * res], axis=1)
 
 
-def _world_header(sim: MujocoSimConfig, lidar_mount_x_m: float, robot_at_start: bool) -> str:
-    """An XML comment for whoever opens the file on its own: units, frames, the default pose and the key, controls,
-    geom groups and the parameters the world was built with."""
+def _world_header(robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float, robot_at_start: bool) -> str:
+    """An XML comment for whoever opens the file on its own: units, frames, the default pose and the key, controls and
+    what the simulator's Python does with them, sensors and the LiDAR, geom groups and the parameters the world was
+    built with."""
     values = {**dataclasses.asdict(sim), "lidar_mount_x_m": lidar_mount_x_m}
     params = " ".join(f"{k}={str(v).lower() if isinstance(v, bool) else f'{v:g}'}" for k, v in values.items())
     default_pose = (
@@ -79,6 +80,14 @@ def _world_header(sim: MujocoSimConfig, lidar_mount_x_m: float, robot_at_start: 
   lower-left corner; the LIMO's x forward, y left. qpos = (x_m, y_m, yaw_rad) of the robot centre in the map frame.
   {default_pose}
   Controls, velocity servos in the body frame: drive_forward m/s, drive_lateral m/s (held near 0), drive_yaw rad/s.
+  The simulator's Python, not this file, drives them: a command (v, w) every {robot.control_period_s:g} s (the control period),
+  clamped to {robot.max_linear_mps:g} m/s and {robot.max_angular_radps:g} rad/s, ramped to each physics step through acceleration limits of
+  {sim.max_linear_accel_mps2:g} m/s^2 and {sim.max_angular_accel_radps2:g} rad/s^2; drive_lateral gets only the centripetal feed-forward
+  v * w * actuator_time_constant_s. Each control's ctrlrange is the most the simulator ever sends on it.
+  Sensors: base_pos, base_quat (the base's map pose), base_vel, base_gyro (its body-frame velocity), lidar_pos.
+  The LiDAR is no rangefinder array (one per beam would cast all its rays on every physics step): the simulator
+  casts the beams with mj_multiRay from site lidar, level in the scan plane, seeing geom group 0 only, the LIMO's
+  body excluded, when a scan fires.
   Geom groups: 0 walls (all the LiDAR rays see), 1 chassis, 2 wheels (visual), 3 floor (no contacts); site lidar.
   Parameters (configs/robot_sim.yaml documents each; the watchdog, acceleration limits and odometry act in the
   simulator's Python, not in this file): {params} -->"""
@@ -103,7 +112,7 @@ def world_mjcf(
     limo = limo_mjcf(robot, sim, lidar_mount_x_m, start if robot_at_start else None)
     g = plan.geometry
     # The plan's name is a file's stem: quoted, so a name with a quote, '&' or '<' still makes well-formed XML.
-    xml = f"""{_world_header(sim, lidar_mount_x_m, robot_at_start)}
+    xml = f"""{_world_header(robot, sim, lidar_mount_x_m, robot_at_start)}
 <mujoco model={quoteattr(f"limo_{plan.name}")}>
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{sim.timestep_s:.6g}" integrator="implicitfast" gravity="0 0 -9.81"/>
@@ -122,6 +131,8 @@ def world_mjcf(
   </worldbody>
   <actuator>{limo.actuator_xml}
   </actuator>
+  <sensor>{limo.sensor_xml}
+  </sensor>
   <keyframe>
     <key name="start" qpos="{exact(start.x_m)} {exact(start.y_m)} {exact(start.yaw_rad)}"/>
   </keyframe>

@@ -30,7 +30,7 @@ from cso_runtime.config import RobotConfig, SensorConfig
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, relative_pose, wrap_angle_rad
 from cso_runtime.scenes import FloorPlan
 from robot_sim.config import MujocoSimConfig, whole_steps
-from robot_sim.limo import ACTUATORS, GROUP_WALLS, JOINTS, LIDAR_SITE, ROBOT_BODY
+from robot_sim.limo import ACTUATORS, GROUP_WALLS, JOINTS, LIDAR_SITE, ROBOT_BODY, lateral_feedforward_mps
 from robot_sim.scene import world_mjcf
 
 log = logging.getLogger(__name__)
@@ -86,6 +86,9 @@ class MujocoSimulator:
         # episode would drift from the ones run before. reset() puts the LIMO at the start.
         stepped_xml, _ = world_mjcf(plan, self.robot, c, self.lidar_mount_x_m, robot_at_start=False)
         self.model = mujoco.MjModel.from_xml_string(stepped_xml)
+        # Its sensors (limo.SENSORS) are for the file's users: the simulator reads qpos and qvel, so it skips computing
+        # them (1-2 % of a physics step) but keeps them, as the viewer copies this data into a model of the file's sizes.
+        self.model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
         self.data = mujoco.MjData(self.model)
         self._qadr = np.array([self.model.joint(j).qposadr[0] for j in JOINTS])
         self._vadr = np.array([self.model.joint(j).dofadr[0] for j in JOINTS])
@@ -259,8 +262,8 @@ class MujocoSimulator:
                         k = min(k, last_live_step - self._steps + 1)
                 ctrl[i_fwd] = self._applied_v
                 # Centripetal feed-forward: a P servo holding zero lateral speed while turning would
-                # otherwise lag by v * w * tau (1.6 cm/s at full speed).
-                ctrl[i_lat] = self._applied_v * self._applied_w * tau
+                # otherwise lag by v * w * tau (1.6 cm/s at full speed; drive_lateral's ctrlrange).
+                ctrl[i_lat] = lateral_feedforward_mps(self._applied_v, self._applied_w, tau)
                 ctrl[i_yaw] = self._applied_w
                 mujoco.mj_step(m, d, k)
                 self._steps += k

@@ -92,6 +92,7 @@ class SimViewer:
                     scene.ngeom = 1
             with self.sim.state_lock:
                 mujoco.mj_copyData(self._data, self._model, self.sim.data)
+            mujoco.mj_forward(self._model, self._data)  # the sensor readings, which the stepped model skips
         self.handle.sync()
         self.frames += 1
         return True

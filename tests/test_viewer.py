@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from cso_runtime.cli import app
-from cso_runtime.config import ConfigError, ExplorationConfig, SensorConfig
+from cso_runtime.config import ConfigError, ExplorationConfig, RobotConfig, SensorConfig
 from cso_runtime.geometry import Pose2D, VelocityCommand
 from cso_runtime.scene_generator import generate_floor_plan
 from cso_runtime.scenes import FloorPlan
@@ -132,7 +132,8 @@ def test_the_world_file_says_its_units_frames_controls_and_parameters(tmp_path):
     assert header is not None, text[:300]
     about = " ".join(header.group(1).split())
     for said in ("metres", "radians", "REP-103", 'key "start"', "default pose qpos0", "is the plan's start pose", "drive_forward m/s",
-                 "drive_yaw rad/s", "0 walls", "configs/robot_sim.yaml"):  # fmt: skip
+                 "drive_yaw rad/s", "0 walls", "configs/robot_sim.yaml", "every 0.25 s", "2 m/s^2", "3 rad/s^2", "1 m/s",
+                 "0.78 rad/s", "mj_multiRay", "geom group 0", "no rangefinder", "base_vel"):  # fmt: skip
         assert said in about, (said, about)
     resolved = {**dataclasses.asdict(config), "lidar_mount_x_m": 0.103}
     assert re.findall(r"(\w+)=(\S+)", about) == [(k, f"{v:g}" if isinstance(v, float) else str(v).lower()) for k, v in resolved.items()]
@@ -141,6 +142,84 @@ def test_the_world_file_says_its_units_frames_controls_and_parameters(tmp_path):
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     assert data.qpos.tolist() == [plan.start.x_m, plan.start.y_m, plan.start.yaw_rad] and data.ncon == 0  # as it says
+
+
+def _limits(robot: RobotConfig, sim: MujocoSimConfig) -> list[list[float]]:
+    lateral_mps = robot.max_linear_mps * robot.max_angular_radps * sim.actuator_time_constant_s
+    v_mps, w_radps = robot.max_linear_mps, robot.max_angular_radps
+    return [[-v_mps, v_mps], [-lateral_mps, lateral_mps], [-w_radps, w_radps]]
+
+
+@pytest.mark.parametrize("robot", [RobotConfig(), RobotConfig(max_linear_mps=0.6, max_angular_radps=1.3)])
+def test_the_controls_are_limited_to_what_the_simulator_sends(tmp_path, robot):
+    """The actuators had no ctrlrange: the viewer's sliders went from -1 to 1 whatever the robot's limits, and
+    drive_lateral (the centripetal feed-forward, a few cm/s at most) invited driving a skid-steer robot sideways. Each
+    control is now limited to the most the simulator ever sends, in the file and in the model it steps, so the limit
+    never acts in an episode: commands at and over the robot's limits stay inside it, step after step."""
+    plan = generate_floor_plan("small", 0)
+    config = MujocoSimConfig()
+    sim = MujocoSimulator(plan, SensorConfig(), robot, config=config)
+    file_model = mujoco.MjModel.from_xml_path(str(write_mujoco_world(tmp_path / "w.xml", plan, robot, config)))
+    for model in (file_model, sim.model):
+        assert model.actuator_ctrllimited.tolist() == [1, 1, 1]
+        assert model.actuator_ctrlrange.tolist() == _limits(robot, config)
+    low, high = sim.model.actuator_ctrlrange.T
+    most = np.zeros(3)
+    rng = np.random.default_rng(0)
+    for i in range(60):  # at, just over and far over the limits, both signs, each for 1 s: the ramps reach them
+        over = [1.0, 1.0 + 1e-12, 5.0][i % 3]
+        v, w = (over * limit * rng.choice([-1.0, 1.0]) for limit in (robot.max_linear_mps, robot.max_angular_radps))
+        sim.set_command(VelocityCommand(v, w))
+        for _ in range(200):
+            sim.advance(config.timestep_s)
+            assert np.all(low <= sim.data.ctrl) and np.all(sim.data.ctrl <= high), sim.data.ctrl
+            most = np.maximum(most, np.abs(sim.data.ctrl))
+    assert most.tolist() == high.tolist()  # each range is the most the simulator sends, no more
+
+
+def test_the_world_file_has_pose_and_velocity_sensors(tmp_path):
+    """The file had no sensors: a MuJoCo user got no pose or velocity readings of the LIMO. It has the base's map pose
+    (framepos, framequat), its body-frame velocity (velocimeter, gyro: what drive_forward and drive_yaw command) and the
+    LiDAR's position; the model the simulator steps has the same ones (the viewer copies its data into the file's)."""
+    plan = generate_floor_plan("small", 0)
+    start = plan.start
+    model = mujoco.MjModel.from_xml_path(str(write_mujoco_world(tmp_path / "w.xml", plan)))
+    names = [model.sensor(i).name for i in range(model.nsensor)]
+    assert names == ["base_pos", "base_quat", "base_vel", "base_gyro", "lidar_pos"]
+    data = mujoco.MjData(model)
+    data.ctrl[:] = [0.4, 0.4 * 0.3 * 0.02, 0.3]  # v, the centripetal feed-forward v * w * tau, w (as the header says)
+    mujoco.mj_step(model, data, 200)  # 1 s: the servos have reached the command (time constant 20 ms)
+    mujoco.mj_forward(model, data)  # the readings of the state after the last step
+    x, y, yaw = data.qpos
+    assert np.allclose(data.sensor("base_pos").data, [x, y, 0.0], atol=1e-12)
+    assert np.allclose(data.sensor("base_quat").data, [np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)], atol=1e-12)
+    vx, vy, _ = data.qvel
+    body_vel = [np.cos(yaw) * vx + np.sin(yaw) * vy, -np.sin(yaw) * vx + np.cos(yaw) * vy, 0.0]
+    assert np.allclose(data.sensor("base_vel").data, body_vel, atol=1e-12)
+    assert np.allclose(data.sensor("base_vel").data, [0.4, 0.0, 0.0], atol=1e-3)
+    assert np.allclose(data.sensor("base_gyro").data, [0.0, 0.0, 0.3], atol=1e-3)
+    assert np.allclose(data.sensor("lidar_pos").data, [x + 0.103 * np.cos(yaw), y + 0.103 * np.sin(yaw), 0.2], atol=1e-12)
+    assert (x, y) != (start.x_m, start.y_m)
+    sim = MujocoSimulator(plan, SensorConfig())  # its model has them too (the same sizes), not computed while it steps
+    assert [sim.model.sensor(i).name for i in range(sim.model.nsensor)] == names and sim.model.nsensordata == model.nsensordata
+    assert sim.model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_SENSOR
+    view = SimViewer(sim, launch=FakeHandle)  # the window shows the readings of the state it shows
+    sim.step(VelocityCommand(0.5, 0.2))
+    assert view.show()
+    x, y, yaw = sim.data.qpos
+    assert np.allclose(view.handle.data.sensor("base_pos").data, [x, y, 0.0], atol=1e-12)
+    assert np.allclose(view.handle.data.sensor("base_gyro").data, [0.0, 0.0, sim.data.qvel[2]], atol=1e-12)
+
+
+def test_the_wheels_are_turned_exactly_upright(tmp_path):
+    """The visual wheels were turned by euler="1.5708", 3.7e-6 rad short of a right angle; they carry no mass, so the
+    exact angle changes no dynamics."""
+    model = mujoco.MjModel.from_xml_path(str(write_mujoco_world(tmp_path / "w.xml", generate_floor_plan("small", 0))))
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    for wheel in ("wheel_fl", "wheel_fr", "wheel_rl", "wheel_rr"):
+        assert abs(data.geom(wheel).xmat[8]) < 1e-15  # the cylinder's axis is level
+        assert model.geom(wheel).contype == 0 and model.geom(wheel).conaffinity == 0
 
 
 @pytest.mark.parametrize("name", ['my "lab"', "lab & office", "a<b"])
