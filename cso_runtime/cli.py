@@ -96,7 +96,8 @@ def _complete_log_services(ctx: typer.Context, incomplete: str) -> list[str]:
 
 METHODS_HELP = (
     "Comma-separated methods: the baselines greedy-dist, greedy-info, utility, random; the learned cso and its Table 2"
-    " ablations cso-no-info, cso-no-mask, cso-sm, cso-vdm, gnn-baseline; or the groups all, baselines, learned"
+    " ablations cso-no-info, cso-no-mask, cso-sm, cso-vdm, gnn-baseline; or the groups all, baselines, learned;"
+    " or a goal selector of your own as module.path:Attribute (importable: on PYTHONPATH or installed; docs/own-method.md)"
 )
 """Every method by name (a test checks it against ``policies``), so ``--help`` need not import them."""
 
@@ -617,7 +618,7 @@ def up_command(
     ctx: typer.Context,
     profile: str = typer.Option("sim", "--profile", autocompletion=_complete_profiles, help="Profile name (./configs/profiles/, then the packaged cso_runtime/profiles/) or a YAML path"),
     scene: str | None = typer.Option(None, "--scene", help="Scene spec (overrides the profile): builtin, DIR, FILE.png, FILE.yaml (a map_server map), generated:SCALE:N:SEED; one episode, on its first plan"),
-    method: str | None = typer.Option(None, "--method", autocompletion=_complete_methods, help="Goal selector (overrides the profile)"),
+    method: str | None = typer.Option(None, "--method", autocompletion=_complete_methods, help="Goal selector (overrides the profile): a method's name or your own as module.path:Attribute (docs/own-method.md)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (overrides the profile)"),
     seed: int | None = typer.Option(None, "--seed", help="Episode seed (overrides the profile)"),
     lockstep: bool | None = typer.Option(None, "--lockstep/--real-time", help="Deterministic lockstep or real time (overrides the profile)"),

@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import hashlib
+import importlib.util
 import io
 import json
 import logging
@@ -57,11 +58,20 @@ from cso_runtime.outputs import (
     episode_animation_path,
     episode_map_path,
     episode_npz_path,
+    file_stem,
     trajectory_plot_path,
     write_text_atomic,
 )
 from cso_runtime.pace import real_time_factor
-from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, make_policy, unknown_methods_said
+from cso_runtime.policies import (
+    BASELINES,
+    LEARNED_METHODS,
+    available_methods,
+    check_method,
+    make_policy,
+    own_method_spec,
+    unknown_methods_said,
+)
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import (
     MEANS_NOTE,
@@ -177,12 +187,18 @@ class EvalRequest:
 
     def validate(self) -> None:
         known = set(BASELINES) | set(LEARNED_METHODS)
-        unknown = [m for m in self.methods if m not in known]
+        unknown = [m for m in self.methods if m not in known and own_method_spec(m) is None]
         if not self.methods:
             raise ConfigError("no --method given")
         if unknown:
             raise ConfigError(unknown_methods_said(unknown, groups=True))
-        if self.baseline not in known:
+        for method in self.methods:
+            check_method(method)  # a method of the user's own: imported and built once, before any episode
+        folders: dict[str, str] = {}
+        for method in self.methods:
+            if (other := folders.setdefault(file_stem(method), method)) != method:
+                raise ConfigError(f"methods {other!r} and {method!r} would share the results folder episodes/{file_stem(method)}/: run them in two evals")
+        if self.baseline not in known and self.baseline not in self.methods:
             raise ConfigError(f"unknown --baseline {with_nearest(self.baseline, known, shown=repr(self.baseline))}; available: {', '.join(sorted(known))}")
         untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available_methods()]
         if untrained:
@@ -253,14 +269,34 @@ def scene_fingerprint(plan: FloorPlan) -> str:
     return h.hexdigest()[:16]
 
 
-def settings_fingerprint(config: ExplorationConfig, sim: str, weights_sha256: str = "", mujoco: dict[str, Any] | None = None) -> str:
-    """A short hash of the settings an episode ran with (see ``EpisodeJob.settings``). MuJoCo parameters count
-    only when given, so the episodes of runs without them keep their fingerprints."""
+def settings_fingerprint(
+    config: ExplorationConfig, sim: str, weights_sha256: str = "", mujoco: dict[str, Any] | None = None, code_sha256: str = ""
+) -> str:
+    """A short hash of the settings an episode ran with (see ``EpisodeJob.settings``). MuJoCo parameters and the code
+    of a method of the user's own (``own_method_code_sha256``) count only when given, so the episodes of runs without
+    them keep their fingerprints."""
     fields: dict[str, Any] = {"config": to_dict(config), "sim": sim, "weights": weights_sha256}
     if mujoco:
         fields["mujoco"] = mujoco
+    if code_sha256:
+        fields["code"] = code_sha256
     text = json.dumps(fields, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def own_method_code_sha256(method: str) -> str:
+    """The sha256 of the source file of the module a method of the user's own names (``module.path:Attribute``), so
+    that ``--resume`` runs its episodes again once that file changed; "" for a built-in method. Code that module
+    imports from other files does not count."""
+    spec = own_method_spec(method)
+    if spec is None:
+        return ""
+    found = importlib.util.find_spec(spec.partition(":")[0])
+    origin = found.origin if found is not None else None
+    try:
+        return hashlib.sha256(Path(origin).read_bytes()).hexdigest() if origin else ""
+    except OSError:
+        return ""
 
 
 @dataclass
@@ -526,8 +562,9 @@ SEEDED_METHODS = ("random",)
 
 def seed_changes_nothing(methods: list[str], config: ExplorationConfig, sim: str) -> bool:
     """Whether every episode of ``methods`` is the same under any seed: the seed draws the ``random`` method's choices
-    and the sensor's range noise, and the start pose is the plan's. (MuJoCo's odometry drift is seeded too: not claimed.)"""
-    return sim == "2d" and config.sensor.range_noise_std_m == 0 and not any(m in SEEDED_METHODS for m in methods)
+    and the sensor's range noise, and the start pose is the plan's. (MuJoCo's odometry drift is seeded too: not claimed.)
+    A method of the user's own may draw on its seed (``reset(seed)``): not claimed either."""
+    return sim == "2d" and config.sensor.range_noise_std_m == 0 and not any(m in SEEDED_METHODS or own_method_spec(m) for m in methods)
 
 
 def _earlier_methods(out_dir: Path) -> dict[str, Any]:
@@ -587,7 +624,10 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict
         for mismatch in sensor_mismatches(list(weights), config.sensor):
             log.warning("%s (a policy does best with the sensor it was trained with)", mismatch)
     mujoco = request.mujoco_parameters()
-    settings = {m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "", mujoco) for m in request.methods}
+    settings = {
+        m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "", mujoco, own_method_code_sha256(m))
+        for m in request.methods
+    }
     jobs = [
         EpisodeJob(m, s, request.seed, request.sim, config, out, settings[m], animate=request.animate, mujoco=mujoco)
         for s in scenes

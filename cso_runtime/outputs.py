@@ -1,7 +1,8 @@
 """Where ``eval`` and ``up`` put each file of a results folder: one layout, read by the report too.
 
     summary.json, episodes.csv, paired.csv, report.html, the figures below
-    episodes/<method>/<map>.npz         arrays and metric row of one episode
+    episodes/<method>/<map>.npz         arrays and metric row of one episode (<method> as ``file_stem`` writes it:
+                                        a method of one's own ``pkg.mod:Sel`` in ``episodes/pkg.mod_Sel/``)
     maps/<method>/<map>.yaml, .png      the robot's final map (Nav2 map_server files)
     animations/<method>/<map>.gif       with --animate
     trajectories/<map>.png              every method's path on one plan
@@ -19,23 +20,24 @@ PAIRED_FIGURE = "paired_efficiency.png"
 
 
 def file_stem(scene: str) -> str:
-    """A scene name as one file name (a real robot's scene is ``ros2:<namespace>``)."""
+    """A scene or method name as one file or folder name (a real robot's scene is ``ros2:<namespace>``, a method of
+    the user's own ``module.path:Attribute``): each character but letters, digits, ``.``, ``_`` and ``-`` becomes ``_``."""
     return re.sub(r"[^A-Za-z0-9._-]", "_", scene) or "scene"
 
 
 def episode_npz_path(out_dir: Path, method: str, scene: str) -> Path:
     """Where an episode's arrays and metric row go (``evaluation.save_episode_files``)."""
-    return Path(out_dir) / "episodes" / method / f"{file_stem(scene)}.npz"
+    return Path(out_dir) / "episodes" / file_stem(method) / f"{file_stem(scene)}.npz"
 
 
 def episode_map_path(out_dir: Path, method: str, scene: str) -> Path:
     """Where an episode's final map goes: a Nav2 map_server YAML, its PNG beside it."""
-    return Path(out_dir) / "maps" / method / f"{file_stem(scene)}.yaml"
+    return Path(out_dir) / "maps" / file_stem(method) / f"{file_stem(scene)}.yaml"
 
 
 def episode_animation_path(out_dir: Path, method: str, scene: str) -> Path:
     """Where ``eval --animate`` writes one episode's GIF."""
-    return Path(out_dir) / "animations" / method / f"{file_stem(scene)}.gif"
+    return Path(out_dir) / "animations" / file_stem(method) / f"{file_stem(scene)}.gif"
 
 
 def trajectory_plot_path(out_dir: Path, scene: str) -> Path:

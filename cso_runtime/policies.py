@@ -6,13 +6,14 @@ learned CSO policy implements the same Protocol, so every caller treats them ali
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from cso_runtime.config import MaskConfig, SensorConfig, with_nearest
+from cso_runtime.config import ConfigError, MaskConfig, SensorConfig, with_nearest
 from cso_runtime.masks import StuckMask, valid_distance_mask
 from cso_runtime.observation import Observation
 
@@ -198,9 +199,9 @@ def unknown_methods_said(names: list[str], groups: bool = False) -> str:
     """``unknown method 'greedy-dsit' (did you mean greedy-dist?); available: ...``: the one wording of unknown
     method names, each with the known name it most likely misspells; ``groups``: the list (``--method``) also takes
     ``METHOD_GROUPS``."""
-    known = [*BASELINES, *LEARNED_METHODS, *(METHOD_GROUPS if groups else ())]
+    known = [*BASELINES, *LEARNED_METHODS, *registered_methods(), *(METHOD_GROUPS if groups else ())]
     said = ", ".join(with_nearest(name, known, shown=repr(name)) for name in names)
-    return f"unknown method{'s' if len(names) > 1 else ''} {said}; available: {', '.join(known)}"
+    return f"unknown method{'s' if len(names) > 1 else ''} {said}; available: {', '.join(known)}, or a method of your own as module.path:Attribute"
 
 
 METHOD_GROUPS = ("all", "baselines", "learned")
@@ -235,10 +236,10 @@ def _learned_available(name: str) -> bool:
 def make_policy(
     name: str, mask_config: MaskConfig | None = None, seed: int | None = None, device: str = "cpu", sensor: SensorConfig | None = None
 ) -> GoalSelector:
-    """Build a goal selector by name (``greedy-dist``, ``greedy-info``, ``utility``, ``random``, ``cso``...).
-    A learned method loads the weights trained with ``sensor``'s field of view where they ship."""
-    if name in BASELINES:
-        policy = BASELINES[name]()
+    """Build a goal selector by name (``greedy-dist``, ``greedy-info``, ``utility``, ``random``, ``cso``...), or a
+    method of the user's own (``module.path:Attribute`` or a registered name: ``own_selector``). A learned method loads the weights trained with ``sensor``'s field of view where they ship."""
+    if name in BASELINES or own_method_spec(name):
+        policy = BASELINES[name]() if name in BASELINES else own_selector(name)
         policy.reset(seed)
         return policy
     if name in LEARNED_METHODS:
@@ -246,3 +247,86 @@ def make_policy(
 
         return registry.make_learned_policy(name, mask_config or MaskConfig(), seed=seed, device=device, sensor=sensor)
     raise ValueError(unknown_methods_said([name]))
+
+
+METHOD_ENTRY_POINTS = "cso_runtime.methods"
+"""Entry-point group under which an installed package registers its goal selectors by a short name
+(``name = "module.path:Attribute"``, as ``--method`` takes it)."""
+
+SELECTOR_MEMBERS = ("name", "reset", "select")
+"""What a goal selector must have (the ``GoalSelector`` Protocol)."""
+
+
+def registered_methods() -> dict[str, str]:
+    """Short name -> ``module.path:Attribute`` of the methods installed packages register (``METHOD_ENTRY_POINTS``);
+    a built-in name wins over a registered one."""
+    from importlib.metadata import entry_points  # noqa: PLC0415 - scans the installed packages: only for a name not built in
+
+    return {ep.name: ep.value for ep in entry_points(group=METHOD_ENTRY_POINTS) if ep.name not in BASELINES and ep.name not in LEARNED_METHODS}
+
+
+def own_method_spec(name: str) -> str | None:
+    """The ``module.path:Attribute`` that ``name`` stands for when it is a method of the user's own: itself when it
+    has a colon, a registered method's spec for its short name; None for a built-in or unknown name."""
+    if ":" in name:
+        return name
+    if name in BASELINES or name in LEARNED_METHODS or name in METHOD_GROUPS:
+        return None
+    return registered_methods().get(name)
+
+
+def own_selector_factory(spec: str) -> Callable[[], object]:
+    """The object ``module.path:Attribute`` names (a GoalSelector class or a zero-argument function returning one),
+    imported as uvicorn or an entry point would; ConfigError saying which part is wrong."""
+    module_name, _, attribute = spec.partition(":")
+    if not module_name or not attribute:
+        raise ConfigError(f"method {spec!r}: a method of your own is written module.path:Attribute (e.g. my_package.selectors:Nearest)")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(
+            f"method {spec!r}: cannot import module {module_name!r} ({type(exc).__name__}: {exc}); the module must be importable "
+            "by the Python that runs cso-runtime: on PYTHONPATH (e.g. PYTHONPATH=/path/to/the/folder/above/it) or installed"
+        ) from None
+    except Exception as exc:  # the user's module fails as it runs: say where, not only a traceback
+        raise ConfigError(f"method {spec!r}: importing module {module_name!r} failed: {type(exc).__name__}: {exc}") from exc
+    found: object = module
+    where = module_name
+    for part in attribute.split("."):
+        if not hasattr(found, part):
+            names = [n for n in dir(found) if not n.startswith("_")]
+            raise ConfigError(f"method {spec!r}: {where} has no attribute {with_nearest(part, names, shown=repr(part))}")
+        found = getattr(found, part)
+        where = f"{where}.{part}"
+    if not callable(found):
+        raise ConfigError(f"method {spec!r}: {where} is a {type(found).__name__}, not a GoalSelector class or a function that returns one")
+    return found
+
+
+def own_selector(name: str) -> GoalSelector:
+    """A new selector of the user's own method ``name`` (``own_method_spec``): its class or factory called with no
+    arguments (``make_policy`` then calls ``reset(seed)``, as ``run_episode`` does before each episode); ConfigError
+    when it cannot be built or is no GoalSelector (no ``name``, ``reset`` or ``select``)."""
+    spec = own_method_spec(name)
+    if spec is None:
+        raise ConfigError(unknown_methods_said([name]))
+    factory = own_selector_factory(spec)
+    try:
+        selector = factory()
+    except Exception as exc:  # a constructor that wants arguments, or fails: the user's code, said as such
+        raise ConfigError(f"method {name!r}: calling {spec} with no arguments failed: {type(exc).__name__}: {exc}") from exc
+    missing = [m for m in SELECTOR_MEMBERS if not hasattr(selector, m) or (m != "name" and not callable(getattr(selector, m)))]
+    if missing:
+        raise ConfigError(
+            f"method {name!r}: {spec}() gave a {type(selector).__name__}, not a GoalSelector: it has no {', '.join(missing)} "
+            "(a goal selector has a name, reset(seed) and select(obs) -> Goal | None)"
+        )
+    return selector  # type: ignore[return-value]  # checked member by member above
+
+
+def check_method(name: str) -> None:
+    """ConfigError unless ``name`` is a built-in method or a method of the user's own that builds a GoalSelector
+    (imported and built once here, so a bad one is said before anything starts). Learned weights are checked elsewhere."""
+    if name in BASELINES or name in LEARNED_METHODS:
+        return
+    own_selector(name)

@@ -244,12 +244,16 @@ class Profile:
             problem = port_problem(from_dict(FoxgloveBridgeParams, self.services["foxglove_bridge"] or {}, where="services.foxglove_bridge"))
             if problem is not None:
                 raise ConfigError(f"services.foxglove_bridge: {problem}")
-        from cso_runtime.policies import BASELINES, LEARNED_METHODS, available_methods, unknown_methods_said  # noqa: PLC0415
+        from cso_runtime.policies import LEARNED_METHODS, available_methods, check_method  # noqa: PLC0415
 
-        if self.method not in BASELINES and self.method not in LEARNED_METHODS:
-            raise ConfigError(unknown_methods_said([self.method]))
+        check_method(self.method)  # a method of the user's own is imported and built here, as the policy service will
         policy = self.services.get("policy") or {}
         method = self.policy_method
+        if method != self.method:
+            try:
+                check_method(method)
+            except ConfigError as exc:
+                raise ConfigError(f"services.policy.method: {exc}") from None
         if method in LEARNED_METHODS:
             from cso_runtime.learned.weights import weights_file_problem, weights_path  # noqa: PLC0415
 

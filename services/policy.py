@@ -37,7 +37,7 @@ from cso_runtime.messages import (
     frontiers_reading,
     observation_from_frontiers,
 )
-from cso_runtime.policies import BASELINES, LEARNED_METHODS, GoalSelector, make_policy, unknown_methods_said
+from cso_runtime.policies import LEARNED_METHODS, GoalSelector, check_method, make_policy
 from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_observation
 
 log = logging.getLogger("cso.policy")
@@ -48,7 +48,8 @@ class PolicyParams:
     """Parameters of the policy service (``services.policy`` in a profile)."""
 
     method: str = ""
-    """Goal selector by name (greedy-dist, greedy-info, utility, random, cso...); empty = the profile's method."""
+    """Goal selector by name (greedy-dist, greedy-info, utility, random, cso...) or a method of one's own,
+    ``module.path:Attribute`` (importable by this process: on PYTHONPATH or installed); empty = the profile's method."""
     stale_after_s: float = 5.0
     """Decision inputs older than this (wall clock) are not acted on; no input for this long = stale."""
     device: str = "cpu"
@@ -60,8 +61,11 @@ class PolicyParams:
     def validate(self) -> None:
         if not self.stale_after_s > 0:
             raise ConfigError("stale_after_s must be positive")
-        if self.method and self.method not in BASELINES and self.method not in LEARNED_METHODS:
-            raise ConfigError(f"method: {unknown_methods_said([self.method])} (or empty: the profile's)")
+        if self.method:
+            try:
+                check_method(self.method)
+            except ConfigError as exc:
+                raise ConfigError(f"method: {exc} (or empty: the profile's)") from None
         try:
             check_torch_device(self.device)
         except ConfigError as exc:

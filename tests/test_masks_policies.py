@@ -217,7 +217,7 @@ def test_an_unknown_method_is_said_with_the_name_it_most_likely_misspells():
         make_policy("greedy-dsit")
     said = unknown_methods_said(["cs0", "xyzzy"], groups=True)
     assert said.startswith("unknown methods 'cs0' (did you mean cso?), 'xyzzy'; available: ")
-    assert said.endswith("gnn-baseline, all, baselines, learned")
+    assert said.endswith("gnn-baseline, all, baselines, learned, or a method of your own as module.path:Attribute")
 
 
 def test_method_lists_expand_groups_in_order_each_method_once(monkeypatch, tmp_path):
