@@ -371,6 +371,12 @@ def load_profile(
             scene = str(beside)
         if Path(scene).exists():
             data["scene"] = str(Path(scene).resolve())  # so the run's copy of the profile works from any folder
+    services = data.get("services")
+    if "scene" in given and isinstance(services, dict) and "ros2_bridge" in services and "sim" not in services:
+        raise ConfigError(
+            f"--scene {given['scene']}: profile {path} runs a real robot (ros2_bridge) and no simulator, so there is no scene to "
+            "load; the robot explores the room it is in"
+        )
     data.setdefault("name", path.stem)
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
     flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]

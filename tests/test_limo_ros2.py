@@ -77,6 +77,9 @@ def test_packaged_profiles_are_found_from_anywhere_and_take_connect_and_namespac
         load_profile("limo-ros2", connect=robot, settings={"services.sim.real_time_factor": 2})
     with pytest.raises(ConfigError, match="lockstep: a real robot"):
         load_profile("limo-ros2", {"lockstep": True}, connect=robot)
+    # No simulator, no scene: `--scene` was taken and silently ignored (the robot explores the room it is in).
+    with pytest.raises(ConfigError, match="--scene generated:small:1:0: .* no simulator"):
+        load_profile("limo-ros2", {"scene": SCENE}, connect=robot)
     own = tmp_path / "configs" / "profiles"
     own.mkdir(parents=True)
     (own / "limo-ros2.yaml").write_text((PACKAGED_PROFILES / "limo-ros2.yaml").read_text().replace("seed: 0", "seed: 5"))
