@@ -2772,6 +2772,51 @@ def test_a_lost_external_router_is_named_and_no_service_is_killed_as_hung_for_it
             planner.proc.wait(timeout=30)
 
 
+def test_a_lost_router_joined_by_the_runs_own_router_is_named_and_services_are_still_supervised(tmp_path, caplog):
+    """With its own router (``router.embedded: true``, the ``limo-ros2`` default) joining the robot's (``--connect``), a
+    lost robot router silenced no service (they talk on loopback) and was named nowhere: the launcher says it lost the
+    router at ENDPOINT (log, run.json) and that it is back, and a silent service is still a hung one."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    endpoint = loopback_endpoint(free_tcp_port())
+    profile, data = load_profile(str(find_profile("lockstep")), {}, connect=[endpoint])
+    assert profile.router.embedded
+    launcher = Launcher(profile, data, tmp_path / "runs" / "run")
+    launcher.run_dir.mkdir(parents=True)
+    routers = ["robot's zid"]
+    launcher.session = SimpleNamespace(info=SimpleNamespace(routers_zid=lambda: list(routers)))
+    launcher.routers_joined = launcher.count_joined_routers()
+    planner = Child("planner", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "planner.log")
+    launcher.children = [planner]
+    launcher.alive_services = {"planner"}
+    hang_s = profile.supervision.hang_timeout_s
+    try:
+        planner.spawn()
+        launcher.status_watch = SimpleNamespace(answered_s={"planner": planner.spawned_at}, resumed_s=-np.inf, behind=lambda now: False)
+        with caplog.at_level("WARNING", logger="cso.launcher"):
+            launcher.kill_hung(planner.spawned_at + 1.0)
+            assert "lost the router" not in caplog.text
+            routers.clear()  # the robot's bridge died
+            launcher.kill_hung(planner.spawned_at + 2.0)
+            assert f"lost the router at {endpoint}" in caplog.text and "scans and odometry stop" in caplog.text, caplog.text
+            assert json.loads((launcher.run_dir / "run.json").read_text())["lost_router"] == endpoint
+            routers.append("the restarted robot's zid")
+            launcher.kill_hung(planner.spawned_at + 5.0)
+            assert f"the router at {endpoint} is back after 3 s" in caplog.text
+            assert "lost_router" not in json.loads((launcher.run_dir / "run.json").read_text())
+            routers.clear()
+            launcher.kill_hung(planner.spawned_at + hang_s + 10.0)  # reachable on loopback: silent is hung
+            assert not planner.alive and planner.hung_kills == 1, caplog.text
+    finally:
+        if planner.proc is not None:
+            planner.proc.kill()
+            planner.proc.wait(timeout=30)
+
+
 def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplog):
     """A service process that hangs before it declares its liveliness token (a deadlock in an import or the
     warm-up) would show as starting for ever: after ``supervision.start_timeout_s`` it is killed like a hung
