@@ -578,6 +578,7 @@ class Launcher:
             routes = self.count_joined_routers()
         except zenoh.ZError:  # the session closing at the end of the run
             return True
+        self.routers_joined = max(self.routers_joined, routes)  # a router joined after the session opened counts too
         reachable = routes >= self.routers_joined if router.embedded else routes > 0
         if not reachable and self.router_lost_at is None:
             self.router_lost_at = now
