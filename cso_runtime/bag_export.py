@@ -66,6 +66,19 @@ ROS_TYPES = {
 """Every topic of an exported bag and its ROS 2 type."""
 LATCHED = ("/map", "/tf_static")
 """Offered as transient-local (like map_server and tf2's static broadcaster): late subscribers get the last one."""
+GLOBAL_TOPICS = ("/tf", "/tf_static")
+"""Not namespaced (``namespace``): one /tf carries every robot's frames, told apart by their prefix, so that merged
+bags play into one TF tree (tf2 listens on /tf) with each robot's subtree under its own ``NS/map``."""
+
+
+def namespaced(name: str, namespace: str) -> str:
+    """``name`` (a topic ``/scan`` or a frame ``base_link``) under ``namespace`` as multi-robot ROS 2 setups name it:
+    ``/NS/scan``, frame ``NS/base_link`` (tf2 has no tf_prefix; frames carry the prefix themselves). ``/tf`` and
+    ``/tf_static`` stay global (``GLOBAL_TOPICS``). No namespace: ``name`` itself."""
+    ns = namespace.strip("/")
+    if not ns or name in GLOBAL_TOPICS:
+        return name
+    return f"/{ns}{name}" if name.startswith("/") else f"{ns}/{name}"
 
 
 class BagExportError(RuntimeError):
@@ -149,7 +162,13 @@ def shows_something(msg: Message) -> bool:
 class BagConverter:
     """One robot's messages, in arrival order -> (ROS topic, CDR bytes, time ns). Pure: no files, no Zenoh."""
 
-    def __init__(self, map_period_s: float = 1.0, time: str = "sim") -> None:
+    def __init__(self, map_period_s: float = 1.0, time: str = "sim", namespace: str = "") -> None:
+        if namespace and not ros2_cdr.is_ros_name(namespace):
+            raise ValueError(f"namespace {namespace!r} is no ROS name (letters, digits and _, parts joined by /, e.g. robot1)")
+        self.map_frame, self.odom_frame, self.base_frame, self.laser_frame = (
+            namespaced(f, namespace) for f in (MAP_FRAME, ODOM_FRAME, BASE_FRAME, LASER_FRAME)
+        )
+        """The frame ids (``NS/map``... under a ``namespace``); the topics are namespaced by the bag's writer."""
         if not map_period_s >= 0:
             raise ValueError("map_period_s must be >= 0")
         if time not in TIME_MODES:
@@ -194,31 +213,31 @@ class BagConverter:
             out.append(self.static_transforms(t_ns))
         if isinstance(msg, OdometryMsg):
             if wanted("/odom"):
-                out.append(("/odom", ros2_cdr.odometry_to_cdr(msg.pose, msg.twist, t_ns, ODOM_FRAME, BASE_FRAME), t_ns))
+                out.append(("/odom", ros2_cdr.odometry_to_cdr(msg.pose, msg.twist, t_ns, self.odom_frame, self.base_frame), t_ns))
             if wanted("/tf"):
-                out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, BASE_FRAME, msg.pose)], t_ns), t_ns))
+                out.append(("/tf", ros2_cdr.transforms_to_cdr([(self.odom_frame, self.base_frame, msg.pose)], t_ns), t_ns))
         elif isinstance(msg, ScanMsg):
             if wanted("/tf"):
-                out.append(("/tf", ros2_cdr.transforms_to_cdr([(ODOM_FRAME, LASER_FRAME, msg.sensor_pose)], t_ns), t_ns))
+                out.append(("/tf", ros2_cdr.transforms_to_cdr([(self.odom_frame, self.laser_frame, msg.sensor_pose)], t_ns), t_ns))
             if wanted("/scan"):
-                out.append(("/scan", ros2_cdr.laserscan_to_cdr(msg.scan, t_ns, LASER_FRAME), t_ns))
+                out.append(("/scan", ros2_cdr.laserscan_to_cdr(msg.scan, t_ns, self.laser_frame), t_ns))
         elif isinstance(msg, MapMsg) and wanted("/map"):
             self.maps_thinned += self.pending_map is not None and self.pending_map[0] is not msg  # a held map is superseded either way
             if again or self.last_map_ns is None or t_ns - self.last_map_ns >= self.map_period_ns:
                 self.last_map_ns, self.pending_map = t_ns, None
-                out.append(_map_row(msg, t_ns))
+                out.append(_map_row(msg, t_ns, self.map_frame))
             else:
                 self.pending_map = (msg, t_ns)  # converted only if it stays the last
         elif isinstance(msg, PathMsg) and wanted("/plan"):
-            out.append(("/plan", ros2_cdr.path_to_cdr(msg.path_xy_m, t_ns, MAP_FRAME), t_ns))
+            out.append(("/plan", ros2_cdr.path_to_cdr(msg.path_xy_m, t_ns, self.map_frame), t_ns))
         elif isinstance(msg, GoalMsg):
             goal = (float(msg.x_m), float(msg.y_m)) if msg.has_goal else None
             if goal is not None and (goal != self.last_goal_xy or again) and wanted("/goal_pose"):
-                out.append(("/goal_pose", ros2_cdr.pose_stamped_to_cdr(goal[0], goal[1], 0.0, t_ns, MAP_FRAME), t_ns))
+                out.append(("/goal_pose", ros2_cdr.pose_stamped_to_cdr(goal[0], goal[1], 0.0, t_ns, self.map_frame), t_ns))
             self.last_goal_xy = goal
         elif isinstance(msg, FrontiersMsg) and msg.decide and wanted("/explore/frontiers"):
             points, goals = msg.cluster_points_xy_m()
-            out.append(("/explore/frontiers", ros2_cdr.frontier_markers_to_cdr(points, goals, t_ns, MAP_FRAME), t_ns))
+            out.append(("/explore/frontiers", ros2_cdr.frontier_markers_to_cdr(points, goals, t_ns, self.map_frame), t_ns))
         elif isinstance(msg, CmdVelMsg) and wanted("/cmd_vel"):
             out.append(("/cmd_vel", ros2_cdr.twist_to_cdr(msg.command), t_ns))
         return out
@@ -233,7 +252,7 @@ class BagConverter:
         """``/tf_static`` (``map`` -> ``odom``, the identity), sent with the first message (or to a viewer that
         subscribes to it); ``convert`` does not send it again."""
         self.started = True
-        return ("/tf_static", ros2_cdr.transforms_to_cdr([(MAP_FRAME, ODOM_FRAME, Pose2D(0.0, 0.0, 0.0))], t_ns), t_ns)
+        return ("/tf_static", ros2_cdr.transforms_to_cdr([(self.map_frame, self.odom_frame, Pose2D(0.0, 0.0, 0.0))], t_ns), t_ns)
 
     def finish(self, sent_ns: int | None = None) -> list[tuple[str, bytes, int]]:
         """The last map, when ``map_period_s`` held it back: a bag always ends with the final map. ``sent_ns``: a
@@ -243,11 +262,11 @@ class BagConverter:
         msg, t_ns = self.pending_map
         self.pending_map = None
         self.last_map_ns = t_ns if sent_ns is None else sent_ns
-        return [_map_row(msg, t_ns)]
+        return [_map_row(msg, t_ns, self.map_frame)]
 
 
-def _map_row(msg: MapMsg, t_ns: int) -> tuple[str, bytes, int]:
-    return ("/map", ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, t_ns, MAP_FRAME), t_ns)
+def _map_row(msg: MapMsg, t_ns: int, frame_id: str) -> tuple[str, bytes, int]:
+    return ("/map", ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, t_ns, frame_id), t_ns)
 
 
 PROGRESS_EVERY = 500
@@ -270,15 +289,18 @@ def export_bag(
     map_period_s: float = 1.0,
     time: str = "sim",
     progress: Callable[[int, int | None], None] | None = None,
+    namespace: str = "",
 ) -> BagExportStats:
     """Write ``recording``'s messages of ``robot`` (default: its only robot) as a rosbag2 folder ``out_dir``.
+    ``namespace``: every topic but /tf and /tf_static, and every frame id, under it (``namespaced``), so that the bags
+    of several robots can be merged.
     ``progress(read, total)`` is called every few hundred messages (total: all robots' messages, None when
     the recording has no summary), so that a long recording does not convert in silence."""
     from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime  # noqa: PLC0415  (rosbags loads only here)
     from rosbags.rosbag2 import StoragePlugin, Writer, WriterError  # noqa: PLC0415
 
     recording, out_dir = Path(recording), Path(out_dir)
-    converter = BagConverter(map_period_s, time)  # checks the settings before any file is touched
+    converter = BagConverter(map_period_s, time, namespace)  # checks the settings before any file is touched
     if out_dir.exists():
         raise BagExportError(f"{out_dir} exists; a bag is written to a new folder (give another --out or remove it)")
     try:
@@ -295,11 +317,12 @@ def export_bag(
             connections: dict[str, object] = {}
 
             def write(rows: list[tuple[str, bytes, int]]) -> None:
-                for topic, data, t_ns in rows:
+                for ros_topic, data, t_ns in rows:
+                    topic = namespaced(ros_topic, namespace)
                     conn = connections.get(topic)
                     if conn is None:
                         conn = connections[topic] = writer.add_connection(
-                            topic, ROS_TYPES[topic], typestore=ros2_cdr.typestore(), offered_qos_profiles=latched if topic in LATCHED else ()
+                            topic, ROS_TYPES[ros_topic], typestore=ros2_cdr.typestore(), offered_qos_profiles=latched if ros_topic in LATCHED else ()
                         )
                     writer.write(conn, t_ns, data)
                     stats.written[topic] += 1

@@ -444,6 +444,7 @@ def export_bag_command(
     robot: str | None = typer.Option(None, "--robot", help="Whose messages (default: the recording's only robot)"),
     map_period_s: float = typer.Option(1.0, "--map-period-s", help="At most one /map per this many seconds of the run, and the last (0: every map)"),
     time_base: str = typer.Option("sim", "--time", help="sim: each message at its step's robot time (0.25 s a step, even in lockstep); received: at its reception"),
+    namespace: str = typer.Option("", "--namespace", help="Put every topic but /tf and /tf_static under /NS/ and every frame id under NS/ (robot1/base_link), so that several robots' bags can be merged"),
 ) -> None:
     """Convert a recording into a ROS 2 bag (rosbag2, MCAP storage) of standard types: /scan, /odom, /tf, /map, /plan, /goal_pose, /explore/frontiers, /cmd_vel, for RViz, Foxglove and `ros2 bag play`."""
     from cso_runtime.bag_export import BagExportError, export_bag  # noqa: PLC0415
@@ -456,7 +457,7 @@ def export_bag_command(
             raise BagExportError(f"--out {out} is the recording itself")
         interrupt_on_sigterm()
         with _count_progress("export-bag") as progress:
-            stats = export_bag(file, target, robot, map_period_s, time_base, progress)
+            stats = export_bag(file, target, robot, map_period_s, time_base, progress, namespace)
     except (RecordingError, BagExportError, ValueError) as exc:
         _fail(str(exc), 2)
     except KeyboardInterrupt:

@@ -302,8 +302,10 @@ class Launcher:
         self.run_file_unwritten = False
         """The last write of the run file failed (a full disk): said once, until a write works again."""
         self.router_lost_at: float | None = None
-        """``time.monotonic()`` when the launcher's session lost its route to the router it joined (``--connect``,
-        ``router.embedded: false``), while it is lost (``router_is_reachable``)."""
+        """``time.monotonic()`` when the launcher's session lost its route to a router it joined (``--connect``: the
+        robot's), while it is lost (``router_is_reachable``)."""
+        self.routers_joined = 0
+        """How many routers the launcher's session had routes to once it opened (those in ``--connect``)."""
         self.router_back_s = -np.inf
         """``time.monotonic()`` when that router came back: no service's silence counts from before."""
 
@@ -555,32 +557,46 @@ class Launcher:
             c.hung_kills += 1
 
     def joined_router(self) -> str:
-        """The router(s) this run joined instead of opening its own (``router.embedded: false``)."""
+        """The router(s) this run joined (``--connect``: the robot's zenoh bridge), with or without its own."""
         return ", ".join(self.profile.router.connect)
 
+    def count_joined_routers(self) -> int:
+        """How many routers the launcher's session has a route to now (the embedded router's: those it joined)."""
+        return len(list(self.session.info.routers_zid()))
+
     def router_is_reachable(self, now: float) -> bool:
-        """Whether the launcher's session still has a route to the router it joined (always, with its own router).
-        When that router dies (the robot's bridge), every service goes silent at once: the launcher says it lost
-        the router, in its log and run.json (``lost_router``, which ``status`` quotes), and kills no service as hung
-        until the router is back, then counts their silence from then."""
-        if self.profile.router.embedded or self.session is None:
+        """Whether the services can still be reached: false while the router the run joined instead of opening its own
+        (``router.embedded: false``) is lost. When that router dies (the robot's bridge), every service goes silent at
+        once: the launcher says it lost the router, in its log and run.json (``lost_router``, which ``status`` quotes),
+        and kills no service as hung until the router is back, then counts their silence from then. With its own router
+        (the services on loopback) a lost router it joined (``--connect``: the robot's) is said the same way, and the
+        services, still reachable, are supervised as usual."""
+        router = self.profile.router
+        if not router.connect or self.session is None:
             return True
         try:
-            reachable = bool(list(self.session.info.routers_zid()))
+            routes = self.count_joined_routers()
         except zenoh.ZError:  # the session closing at the end of the run
             return True
+        self.routers_joined = max(self.routers_joined, routes)  # a router joined after the session opened counts too
+        reachable = routes >= self.routers_joined if router.embedded else routes > 0
         if not reachable and self.router_lost_at is None:
             self.router_lost_at = now
+            consequence = (
+                "the robot's scans and odometry stop, its commands are not delivered"
+                if router.embedded
+                else "its services cannot be reached; none is killed as hung until it is back"
+            )
             log.error(
-                "lost the router at %s (the launcher's Zenoh session has no route to it): its services cannot be reached; "
-                "none is killed as hung until it is back (is the robot or its zenoh bridge down?)", self.joined_router(),
+                "lost the router at %s (the launcher's Zenoh session has no route to it): %s (is the robot or its zenoh bridge down?)",
+                self.joined_router(), consequence,
             )  # fmt: skip
             self.write_run_file("running")
         elif reachable and self.router_lost_at is not None:
             log.warning("the router at %s is back after %.0f s", self.joined_router(), now - self.router_lost_at)
             self.router_lost_at, self.router_back_s = None, now
             self.write_run_file("running")
-        return reachable
+        return reachable or router.embedded
 
     def supervise(self, now: float | None = None) -> None:
         """Restart the services that exited (after their back-off), or give up on them; ``now``: the launcher's
@@ -894,6 +910,8 @@ class Launcher:
             session = open_session(TransportConfig(mode="client", connect=list(router.connect), connect_timeout_s=router.connect_timeout_s))
         view = LiveView(self) if live else None
         self.session = session
+        if router.connect:
+            self.routers_joined = self.count_joined_routers()
         with session:
             if router.connect and (taken := self.robot_already_served(session)):
                 log.error("%s; no service was started", taken)

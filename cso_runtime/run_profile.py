@@ -38,8 +38,10 @@ class RouterConfig:
     connect: list[str] = field(default_factory=list)
     """Other routers to join (services on other hosts)."""
     embedded: bool = True
-    """Open our own router. False: open none and join the routers in ``connect`` instead (the robot's
-    zenoh-bridge-ros2dds in the ``limo-ros2`` profile); every process then connects to them directly."""
+    """Open our own router (on loopback; it joins the routers in ``connect``, the robot's zenoh-bridge-ros2dds in the
+    ``limo-ros2`` profile), so the services' messages to one another stay on this host. False: open none and join
+    the routers in ``connect`` instead; every process then connects to them directly, and every message between two
+    services crosses the link to that router twice."""
     service_mode: str = "client"
     """Zenoh mode of the services: ``client`` (every message through the router) or ``peer`` (services
     also listen on a loopback port and talk directly once the router has introduced them)."""
@@ -207,6 +209,8 @@ class Profile:
                 "and the maps would be cleared at every step): a profile has one, the sim in a simulation or the ros2_bridge on a "
                 "real robot"
             )
+        if "ros2_bridge" in self.services and not self.router.connect:  # its robot would never be heard from
+            raise ConfigError("ros2_bridge: give the robot's router (its zenoh-bridge-ros2dds) with --connect, e.g. tcp/ROBOT_IP:7447")
         if self.lockstep and "ros2_bridge" in self.services:
             raise ConfigError("lockstep: a real robot (ros2_bridge) does not wait for the pipeline; its profile runs in real time")
         for name in self.without:
@@ -375,6 +379,12 @@ def load_profile(
             scene = str(beside)
         if Path(scene).exists():
             data["scene"] = str(Path(scene).resolve())  # so the run's copy of the profile works from any folder
+    services = data.get("services")
+    if "scene" in given and isinstance(services, dict) and "ros2_bridge" in services and "sim" not in services:
+        raise ConfigError(
+            f"--scene {given['scene']}: profile {path} runs a real robot (ros2_bridge) and no simulator, so there is no scene to "
+            "load; the robot explores the room it is in"
+        )
     data.setdefault("name", path.stem)
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
     flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]

@@ -251,3 +251,43 @@ def test_export_bag_command_writes_beside_the_recording_and_says_what(tmp_path: 
     assert again.returncode == 2 and "exists" in again.stderr
     missing = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "export-bag", str(tmp_path / "nope.mcap")], capture_output=True, text=True, timeout=60)
     assert missing.returncode == 2 and "no such recording" in missing.stderr
+
+
+def test_export_bag_namespace_puts_topics_and_frames_under_the_robots_name(tmp_path: Path):
+    """Two robots' bags, merged, collided: both had /scan, /odom... and frames odom, base_link, laser on one /tf.
+    ``--namespace limo1`` names them as multi-robot ROS 2 setups do (tf2 has no tf_prefix): /limo1/scan, frames
+    limo1/odom, limo1/base_link...; /tf and /tf_static stay global, the frames' prefix keeping each robot's tree apart."""
+    recording = tmp_path / "run.mcap"
+    write_recording(recording, "r0", episode(RobotKeys("r0"), 3, T0_NS, 1000))
+    done = subprocess.run(
+        [sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording), "--out", str(tmp_path / "ns"), "--namespace", "limo1"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    plain = read_bag(export_bag(recording, tmp_path / "plain").path)
+    got: dict[str, list[object]] = {}
+    with Reader(tmp_path / "ns") as reader:
+        for conn in reader.connections:
+            plain_topic = conn.topic if conn.topic in ("/tf", "/tf_static") else conn.topic.removeprefix("/limo1")
+            assert conn.msgtype == ROS_TYPES[plain_topic], conn.topic
+        for conn, _, raw in reader.messages():
+            got.setdefault(conn.topic, []).append(ros2_cdr.decode(raw, conn.msgtype))
+    assert sorted(got) == sorted(t if t in ("/tf", "/tf_static") else f"/limo1{t}" for t in plain)
+    assert {t: len(v) for t, v in got.items()} == {(t if t in ("/tf", "/tf_static") else f"/limo1{t}"): len(v) for t, v in plain.items()}
+    frames = set()
+    for topic, msgs in got.items():
+        for m in msgs:
+            if topic in ("/tf", "/tf_static"):
+                frames |= {f for tf in m.transforms for f in (tf.header.frame_id, tf.child_frame_id)}
+            elif topic == "/explore/frontiers":
+                frames |= {marker.header.frame_id for marker in m.markers if marker.action != 3}  # DELETEALL carries one too
+            elif topic == "/odom":
+                frames |= {m.header.frame_id, m.child_frame_id}
+            elif hasattr(m, "header"):
+                frames.add(m.header.frame_id)
+    assert frames == {"limo1/map", "limo1/odom", "limo1/base_link", "limo1/laser"}, frames
+    bad = subprocess.run(
+        [sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording), "--out", str(tmp_path / "bad"), "--namespace", "1-robot"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert bad.returncode == 2 and "no ROS name" in bad.stderr and not (tmp_path / "bad").exists(), bad.stderr

@@ -43,6 +43,12 @@ def _kill_group(proc: subprocess.Popen) -> None:
         proc.wait(5)
 
 
+def _connections_to_port(port: int) -> int:
+    """Established TCP connections (IPv4, this host) to ``port``: the sessions that a router on it serves."""
+    lines = Path("/proc/net/tcp").read_text().splitlines()[1:]
+    return sum(1 for line in lines if (f := line.split())[2].endswith(f":{port:04X}") and f[3] == "01")
+
+
 def _run_pids(runs: Path) -> list[int]:
     pids = []
     for f in runs.glob("*/run.json"):
@@ -66,10 +72,12 @@ def test_packaged_profiles_are_found_from_anywhere_and_take_connect_and_namespac
     robot = ["tcp/10.0.0.7:7447"]
     with pytest.raises(ConfigError, match="namespace"):
         load_profile("limo-ros2", connect=robot, namespace="1-not-a-ros-name")
-    # The runtime joins the robot's router instead of opening its own, so it needs to be told where.
-    assert profile.router.embedded is False
+    # The runtime's own router (the services' traffic stays on this host) joins the robot's: it needs to be told where.
+    assert profile.router.embedded is True
     with pytest.raises(ConfigError, match="--connect"):
         load_profile("limo-ros2")
+    with pytest.raises(ConfigError, match="--connect"):
+        load_profile("limo-ros2", settings={"router.embedded": False})
     # One referee, in real time: `--set services.sim.real_time_factor=2` on this profile added a MuJoCo sim beside the
     # bridge (both published scan, odometry and clock: the mapper cleared its map at every step while the real robot
     # was driven), and `--lockstep` was taken for a robot that does not wait for the pipeline.
@@ -77,6 +85,9 @@ def test_packaged_profiles_are_found_from_anywhere_and_take_connect_and_namespac
         load_profile("limo-ros2", connect=robot, settings={"services.sim.real_time_factor": 2})
     with pytest.raises(ConfigError, match="lockstep: a real robot"):
         load_profile("limo-ros2", {"lockstep": True}, connect=robot)
+    # No simulator, no scene: `--scene` was taken and silently ignored (the robot explores the room it is in).
+    with pytest.raises(ConfigError, match="--scene generated:small:1:0: .* no simulator"):
+        load_profile("limo-ros2", {"scene": SCENE}, connect=robot)
     own = tmp_path / "configs" / "profiles"
     own.mkdir(parents=True)
     (own / "limo-ros2.yaml").write_text((PACKAGED_PROFILES / "limo-ros2.yaml").read_text().replace("seed: 0", "seed: 5"))
@@ -142,6 +153,23 @@ def test_up_limo_ros2_explores_a_fake_limo_and_its_recording_rebuilds_the_map(tm
             text=True,
             start_new_session=True,
         )  # fmt: skip
+        # The services talk to one another through the run's own router on loopback, and only that router joins the
+        # robot's: with `router.embedded: false` every service (and the recorder) held a session to the robot's router,
+        # and each message between two services crossed the robot's link twice.
+        keys = RobotKeys("r0")
+        wait_for(lambda: list(runs.glob("*/run.json")), 30, "the run file")
+        (run_file,) = runs.glob("*/run.json")
+        own = json.loads(run_file.read_text())["endpoints"]
+        assert own and loopback_endpoint(port) not in own, own
+        services = {"ros2_bridge", "mapper", "frontier", "policy", "planner"}
+        with open_session(TransportConfig(mode="client", connect=own)) as watch:
+
+            def all_up() -> bool:
+                replies = watch.liveliness().get(keys.alive("*"), timeout=0.5)
+                return services <= {str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok}
+
+            wait_for(all_up, 40, "every service")
+        assert _connections_to_port(port) == 1, "one session on the robot's router: the run's own router's"
         try:
             out, _ = up.communicate(timeout=50)
         except subprocess.TimeoutExpired:

@@ -2725,31 +2725,39 @@ def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
         assert "but the episode goes on" in next(runs.glob("*/logs/launcher.log")).read_text()
 
 
-def test_a_lost_external_router_is_named_and_no_service_is_killed_as_hung_for_it(tmp_path, caplog, capsys):
-    """A run that joined a router (``--connect``, ``router.embedded: false``) whose router died: every service went
-    silent at once and the launcher killed each one as "hung? stopped?", never naming the cause. Its session has no
-    route to the router: it says it lost the router at ENDPOINT (log, run.json, ``status``), kills none, and once the
-    router is back counts their silence from then."""
+def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
+    """A launcher of the lockstep profile joining ``endpoint`` (its own router or none), whose session's routes are
+    ``routers`` (the test changes it), supervising a planner that never answers; the caller kills the planner."""
     from types import SimpleNamespace
 
     from cso_runtime.launcher import Launcher
     from cso_runtime.run_profile import find_profile, load_profile
     from cso_runtime.supervision import Child
 
-    endpoint = loopback_endpoint(free_tcp_port())  # nothing listens there: `status` gets no answer
-    profile, data = load_profile(str(find_profile("lockstep")), {}, connect=[endpoint], settings={"router.embedded": False})
+    profile, data = load_profile(str(find_profile("lockstep")), {}, connect=[endpoint], settings={"router.embedded": embedded})
     launcher = Launcher(profile, data, tmp_path / "runs" / "run")
-    launcher.endpoints = [endpoint]
     launcher.run_dir.mkdir(parents=True)
-    routers: list[str] = []
     launcher.session = SimpleNamespace(info=SimpleNamespace(routers_zid=lambda: list(routers)))
+    launcher.routers_joined = launcher.count_joined_routers()
     planner = Child("planner", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "planner.log")
     launcher.children = [planner]
     launcher.alive_services = {"planner"}
-    hang_s = profile.supervision.hang_timeout_s
+    planner.spawn()
+    launcher.status_watch = SimpleNamespace(answered_s={"planner": planner.spawned_at}, resumed_s=-np.inf, behind=lambda now: False)
+    return launcher, planner
+
+
+def test_a_lost_external_router_is_named_and_no_service_is_killed_as_hung_for_it(tmp_path, caplog, capsys):
+    """A run that joined a router (``--connect``, ``router.embedded: false``) whose router died: every service went
+    silent at once and the launcher killed each one as "hung? stopped?", never naming the cause. Its session has no
+    route to the router: it says it lost the router at ENDPOINT (log, run.json, ``status``), kills none, and once the
+    router is back counts their silence from then."""
+    endpoint = loopback_endpoint(free_tcp_port())  # nothing listens there: `status` gets no answer
+    routers: list[str] = []
+    launcher, planner = _launcher_with_a_silent_planner(tmp_path, endpoint, False, routers)
+    launcher.endpoints = [endpoint]
+    hang_s = launcher.profile.supervision.hang_timeout_s
     try:
-        planner.spawn()
-        launcher.status_watch = SimpleNamespace(answered_s={"planner": planner.spawned_at}, resumed_s=-np.inf, behind=lambda now: False)
         with caplog.at_level("WARNING", logger="cso.launcher"):
             launcher.kill_hung(planner.spawned_at + hang_s + 10.0)
             assert planner.alive and planner.hung_kills == 0, caplog.text
@@ -2766,6 +2774,35 @@ def test_a_lost_external_router_is_named_and_no_service_is_killed_as_hung_for_it
             assert planner.alive and planner.hung_kills == 0
             launcher.kill_hung(back_s + hang_s + 0.5)
             assert not planner.alive and planner.hung_kills == 1  # silent with the router there: hung
+    finally:
+        if planner.proc is not None:
+            planner.proc.kill()
+            planner.proc.wait(timeout=30)
+
+
+def test_a_lost_router_joined_by_the_runs_own_router_is_named_and_services_are_still_supervised(tmp_path, caplog):
+    """With its own router (``router.embedded: true``, the ``limo-ros2`` default) joining the robot's (``--connect``), a
+    lost robot router silenced no service (they talk on loopback) and was named nowhere: the launcher says it lost the
+    router at ENDPOINT (log, run.json) and that it is back, and a silent service is still a hung one."""
+    endpoint = loopback_endpoint(free_tcp_port())
+    routers = ["robot's zid"]
+    launcher, planner = _launcher_with_a_silent_planner(tmp_path, endpoint, True, routers)
+    hang_s = launcher.profile.supervision.hang_timeout_s
+    try:
+        with caplog.at_level("WARNING", logger="cso.launcher"):
+            launcher.kill_hung(planner.spawned_at + 1.0)
+            assert "lost the router" not in caplog.text
+            routers.clear()  # the robot's bridge died
+            launcher.kill_hung(planner.spawned_at + 2.0)
+            assert f"lost the router at {endpoint}" in caplog.text and "scans and odometry stop" in caplog.text, caplog.text
+            assert json.loads((launcher.run_dir / "run.json").read_text())["lost_router"] == endpoint
+            routers.append("the restarted robot's zid")
+            launcher.kill_hung(planner.spawned_at + 5.0)
+            assert f"the router at {endpoint} is back after 3 s" in caplog.text
+            assert "lost_router" not in json.loads((launcher.run_dir / "run.json").read_text())
+            routers.clear()
+            launcher.kill_hung(planner.spawned_at + hang_s + 10.0)  # reachable on loopback: silent is hung
+            assert not planner.alive and planner.hung_kills == 1, caplog.text
     finally:
         if planner.proc is not None:
             planner.proc.kill()
