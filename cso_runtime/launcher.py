@@ -469,7 +469,8 @@ class Launcher:
         heard = self.status
         last = None if heard is None else {"state": heard.state, "step": heard.step, "episode": heard.episode, "age_s": round(time.monotonic() - self.status_heard_at_s, 3)}
         pace = None if self.real_time_factor is None else round(self.real_time_factor, 3)
-        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace)
+        lost = self.joined_router() if self.router_lost_at is not None else None
+        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost)
 
     # --- supervision ------------------------------------------------------------------------------
     def stop_robot(self, c: Child, code: int | None) -> None:

@@ -1156,6 +1156,10 @@ class LauncherStatusMsg(Message):
     """The simulator's simulated seconds per wall-clock second in the episode so far, as ``up``'s live view shows it
     (``pace.StepPace``). Optional on decoding (older launchers do not send it); None on a real robot and before two
     statuses of the episode."""
+    lost_router: str | None = None
+    """The router(s) the run joined (``--connect``: the robot's zenoh bridge) while the launcher has lost its route to
+    them; None while they are reached, or when the run joined none. Optional on decoding (older launchers do not send
+    it): with the run's own router the services still answer, so ``status`` learns it only here."""
 
     def body(self) -> dict[str, Any]:
         body = {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected, "handler_errors": self.handler_errors}
@@ -1163,6 +1167,8 @@ class LauncherStatusMsg(Message):
             body["last_episode"] = self.last_episode
         if self.real_time_factor is not None:
             body["real_time_factor"] = self.real_time_factor
+        if self.lost_router is not None:
+            body["lost_router"] = self.lost_router
         return body
 
     @classmethod
@@ -1190,7 +1196,8 @@ class LauncherStatusMsg(Message):
             lw = "launcher_status.last_episode"
             last = {"state": _str(last, "state", lw, max_len=64), "step": _int(last, "step", lw), "episode": _int(last, "episode", lw), "age_s": _num(last, "age_s", lw, lo=0.0)}
         pace = None if b.get("real_time_factor") is None else _num(b, "real_time_factor", w, lo=0.0)
-        return cls(_str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace)
+        lost = None if b.get("lost_router") is None else _str(b, "lost_router", w, max_len=1024)
+        return cls(_str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace, lost)
 
     def to_dict(self) -> dict[str, Any]:
         return self.body()

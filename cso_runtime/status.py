@@ -151,6 +151,7 @@ def status_of(
         "launcher_handler_errors": (launcher or {}).get("handler_errors", {}),
         "status_age_s": age_s,
         "real_time_factor": (launcher or {}).get("real_time_factor"),
+        "lost_router": (launcher or {}).get("lost_router"),
     }
 
 
@@ -335,6 +336,8 @@ def render_table(status: dict[str, Any]) -> Table:
     rejected = sum(status.get("launcher_rejected", {}).values())
     errors = sum(status.get("launcher_handler_errors", {}).values())
     launcher_bits = ([f"rejected {rejected}"] if rejected else []) + ([f"{errors} callback errors (see its log)"] if errors else [])
+    if status.get("lost_router"):  # the run's own router answers; the robot's, which it joined, does not
+        launcher_bits.insert(0, f"LOST the router at {status['lost_router']} (is the robot or its zenoh bridge down?)")
     if launcher_bits:
         t.add_row("launcher", escape(", ".join(launcher_bits)))
     return t

@@ -39,7 +39,7 @@ from cso_runtime.messages import ClockMsg, EpisodeStatusMsg, MapMsg, ScanMsg, Se
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
-from cso_runtime.status import query_status, save_map_main, status_main
+from cso_runtime.status import query_status, render_table, save_map_main, status_main, status_of
 from cso_runtime.supervision import pid_alive, python_module_argv
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 
@@ -2783,7 +2783,10 @@ def test_a_lost_external_router_is_named_and_no_service_is_killed_as_hung_for_it
 def test_a_lost_router_joined_by_the_runs_own_router_is_named_and_services_are_still_supervised(tmp_path, caplog):
     """With its own router (``router.embedded: true``, the ``limo-ros2`` default) joining the robot's (``--connect``), a
     lost robot router silenced no service (they talk on loopback) and was named nowhere: the launcher says it lost the
-    router at ENDPOINT (log, run.json) and that it is back, and a silent service is still a hung one."""
+    router at ENDPOINT (log, run.json, its status: ``status``'s table and JSON) and that it is back, and a silent
+    service is still a hung one."""
+    from rich.console import Console
+
     endpoint = loopback_endpoint(free_tcp_port())
     routers = ["robot's zid"]
     launcher, planner = _launcher_with_a_silent_planner(tmp_path, endpoint, True, routers)
@@ -2796,10 +2799,19 @@ def test_a_lost_router_joined_by_the_runs_own_router_is_named_and_services_are_s
             launcher.kill_hung(planner.spawned_at + 2.0)
             assert f"lost the router at {endpoint}" in caplog.text and "scans and odometry stop" in caplog.text, caplog.text
             assert json.loads((launcher.run_dir / "run.json").read_text())["lost_router"] == endpoint
+            # `status` gets its answers from the run's own router, so it learns of the loss from the launcher's status.
+            said = launcher.launcher_status()
+            assert decode(encode(said)).lost_router == endpoint
+            shown = status_of("r0", None, said.to_dict(), {}, set())
+            assert shown["lost_router"] == endpoint
+            table = Console(width=200, record=True)
+            table.print(render_table(shown))
+            assert f"LOST the router at {endpoint}" in table.export_text()
             routers.append("the restarted robot's zid")
             launcher.kill_hung(planner.spawned_at + 5.0)
             assert f"the router at {endpoint} is back after 3 s" in caplog.text
             assert "lost_router" not in json.loads((launcher.run_dir / "run.json").read_text())
+            assert launcher.launcher_status().lost_router is None and "lost_router" not in launcher.launcher_status().to_dict()
             routers.clear()
             launcher.kill_hung(planner.spawned_at + hang_s + 10.0)  # reachable on loopback: silent is hung
             assert not planner.alive and planner.hung_kills == 1, caplog.text
