@@ -149,6 +149,12 @@ def _print_version(value: bool) -> None:
 def _root(
     verbose: bool = typer.Option(False, "--verbose", "-v", help="Debug logging"),
     show_version: bool = typer.Option(False, "--version", callback=_print_version, is_eager=True, help="Print the version and exit"),
+    zenoh_config: Path | None = typer.Option(
+        None,
+        "--zenoh-config",
+        envvar="CSO_ZENOH_CONFIG",
+        help="Zenoh config file (JSON5) every session of this command starts from (credentials, TLS): status, record, replay, save-map, service, up",
+    ),
 ) -> None:
     """Active scene mapping with CSO (ACM MM 2024) on a LIMO robot: eval, train, and the Zenoh runtime."""
     import logging  # noqa: PLC0415
@@ -156,6 +162,22 @@ def _root(
     from cso_runtime.config import LOG_FORMAT  # noqa: PLC0415
 
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format=LOG_FORMAT)
+    if zenoh_config is not None:
+        _use_zenoh_config(zenoh_config)
+
+
+def _use_zenoh_config(path: Path) -> None:
+    """Check ``path`` (exit 2 when Zenoh would refuse it) and make it the base of every Zenoh session of this
+    process and of those it starts (``$CSO_ZENOH_CONFIG``, absolute: the services may start in another folder)."""
+    import os  # noqa: PLC0415
+
+    from cso_runtime.transport import ZENOH_CONFIG_ENV, TransportError, load_zenoh_config_file  # noqa: PLC0415
+
+    try:
+        load_zenoh_config_file(path)
+    except TransportError as exc:
+        _fail(f"--zenoh-config: {exc}", 2)
+    os.environ[ZENOH_CONFIG_ENV] = str(path.absolute())
 
 
 def _use_weights(folder: Path) -> None:
@@ -630,6 +652,9 @@ def up_command(
         None, "--connect", help="Router to join, repeatable (a LIMO's zenoh-bridge-ros2dds: tcp/ROBOT_IP:7447); appended to router.connect"
     ),
     namespace: str | None = typer.Option(None, "--namespace", help="ROS namespace of the robot's topics (limo-ros2: services.ros2_bridge.namespace)"),
+    zenoh_config: Path | None = typer.Option(
+        None, "--zenoh-config", help="Zenoh config file (JSON5) the router and every service start from: user/password, TLS (router.zenoh_config)"
+    ),
     record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
     record_out: str | None = typer.Option(None, "--record-out", help="Record the run to this new MCAP file, or to <run-id>.mcap in this folder (existing, or ending in /; implies --record)"),
     weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt (or one of its files) for the policy service instead of the shipped weights"),
@@ -670,7 +695,8 @@ def up_command(
     try:
         overrides = {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep}
         prof, data = load_profile(
-            profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []), foxglove=foxglove, without=list(without or [])
+            profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []), foxglove=foxglove, without=list(without or []),
+            zenoh_config=None if zenoh_config is None else str(zenoh_config),
         )
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)

@@ -324,6 +324,7 @@ class Launcher:
             "run_dir": str(self.run_dir.resolve()),
             "robot": self.profile.robot,
             "endpoints": self.endpoints,
+            **({"zenoh_config": self.profile.router.zenoh_config} if self.profile.router.zenoh_config else {}),
             "launcher_pid": self.launcher_pid,
             "launcher_start_ticks": process_start_ticks(self.launcher_pid),
             "stop_timeout_s": self.profile.supervision.stop_timeout_s,
@@ -499,6 +500,8 @@ class Launcher:
                 argv += ["--connect", ep]
             if mode == "peer":
                 argv += ["--listen", "tcp/127.0.0.1:0"]
+            if self.profile.router.zenoh_config:  # said on the command line, as --connect (the profile has it too)
+                argv += ["--zenoh-config", self.profile.router.zenoh_config]
             child = Child(name, argv, self.run_dir / "logs" / f"{name}.log")
             child.spawn()
             self.children.append(child)
@@ -768,7 +771,7 @@ class Launcher:
         from cso_runtime.recording import RecordStats, record  # noqa: PLC0415 - mcap only when recording
 
         stop, ready = threading.Event(), threading.Event()
-        transport = TransportConfig(mode="client", connect=list(self.endpoints))
+        transport = TransportConfig(mode="client", connect=list(self.endpoints), zenoh_config_file=self.profile.router.zenoh_config)
         failure: list[str] = []
         stats = RecordStats(self.record_path)
 
@@ -905,10 +908,12 @@ class Launcher:
             return self.stop_before_start(EXIT_INTERRUPTED)
         router = self.profile.router
         if router.embedded:
-            session, self.endpoints = open_router(list(router.listen), list(router.connect), router.connect_timeout_s)
+            session, self.endpoints = open_router(list(router.listen), list(router.connect), router.connect_timeout_s, router.zenoh_config)
         else:  # join the existing router(s) instead of opening one
             self.endpoints = list(router.connect)
-            session = open_session(TransportConfig(mode="client", connect=list(router.connect), connect_timeout_s=router.connect_timeout_s))
+            session = open_session(
+                TransportConfig(mode="client", connect=list(router.connect), connect_timeout_s=router.connect_timeout_s, zenoh_config_file=router.zenoh_config)
+            )
         view = LiveView(self) if live else None
         self.session = session
         if router.connect:

@@ -10,6 +10,7 @@ LIMO's physics) before anything starts: a bad profile is a ``ConfigError`` namin
 from __future__ import annotations
 
 import importlib.util
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -26,7 +27,7 @@ from cso_runtime.config import (
 )
 from cso_runtime.keys import check_robot_id
 from cso_runtime.scenes import SceneError, resolve_scenes
-from cso_runtime.transport import JOIN_TIMEOUT_S, TransportConfig, TransportError
+from cso_runtime.transport import JOIN_TIMEOUT_S, ZENOH_CONFIG_ENV, TransportConfig, TransportError
 
 
 @dataclass
@@ -46,8 +47,12 @@ class RouterConfig:
     """Zenoh mode of the services: ``client`` (every message through the router) or ``peer`` (services
     also listen on a loopback port and talk directly once the router has introduced them)."""
     connect_timeout_s: float = JOIN_TIMEOUT_S
+    """A Zenoh config file (JSON5, Zenoh's own format) that the launcher's router and every service start from:
+    user/password authentication, TLS, access control (docs/hardware.md, Securing the network). ``up --zenoh-config``
+    sets it; "" takes ``$CSO_ZENOH_CONFIG`` (``cso-runtime --zenoh-config FILE``), else Zenoh's defaults."""
     """How long ``up`` waits to reach the routers in ``connect`` (its embedded router joining them, or its own
     session when ``embedded`` is false) before it stops, exit 3, no service started."""
+    zenoh_config: str = ""
 
     def validate(self) -> None:
         if not self.connect_timeout_s > 0:
@@ -281,7 +286,7 @@ class Profile:
         except SceneError as exc:
             raise ConfigError(f"scene: {exc}") from None
         try:
-            TransportConfig(mode="router", listen=self.router.listen, connect=self.router.connect).validate()
+            TransportConfig(mode="router", listen=self.router.listen, connect=self.router.connect, zenoh_config_file=self.router.zenoh_config).validate()
         except TransportError as exc:
             raise ConfigError(f"router: {exc}") from None
 
@@ -338,6 +343,7 @@ def load_profile(
     settings: dict[str, Any] | None = None,
     foxglove: bool = False,
     without: list[str] | None = None,
+    zenoh_config: str | None = None,
 ) -> tuple[Profile, dict[str, Any]]:
     """Load, apply CLI overrides (``None`` values ignored) and validate; returns the profile and its data.
 
@@ -346,7 +352,9 @@ def load_profile(
     ``settings``: dotted keys set last (``up --set services.sim.real_time_factor=4``), validated like the file;
     ``foxglove``: add the ``foxglove_bridge`` service (``up --foxglove``) unless the profile has it;
     ``without``: services of the profile left out of the run (``up --without``), moved from ``services`` to the
-    profile's ``without`` list, so that the run's ``profile.yaml`` says what ran and what it expects from elsewhere.
+    profile's ``without`` list, so that the run's ``profile.yaml`` says what ran and what it expects from elsewhere;
+    ``zenoh_config``: ``router.zenoh_config`` (``up --zenoh-config``); without either, ``$CSO_ZENOH_CONFIG``, so that
+    the run's ``profile.yaml`` names the file every one of its processes used (an absolute path).
     """
     path = find_profile(name_or_path)
     data = load_yaml(path)
@@ -372,6 +380,7 @@ def load_profile(
     without = list(dict.fromkeys(without or []))  # repeated names: once
     if without:
         leave_out(data, without, path, foxglove)
+    set_zenoh_config(data, path, zenoh_config)
     scene = data.get("scene")
     if isinstance(scene, str) and scene != "builtin" and not scene.startswith("generated:"):
         beside = path.parent / scene  # a file's own relative scene may also be beside the file (as in compose files)
@@ -391,6 +400,24 @@ def load_profile(
     flags += [f"--set {k}={v}" for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
     profile = from_dict(Profile, data, where=f"{path} with {' '.join(flags)}" if flags else str(path))
     return profile, data
+
+
+def set_zenoh_config(data: dict[str, Any], path: Path, zenoh_config: str | None) -> None:
+    """``router.zenoh_config`` of the profile mapping from ``zenoh_config`` (a flag), else the file's own (found
+    beside the file, as a scene), else ``$CSO_ZENOH_CONFIG``; made absolute, so that the run's copy of the
+    profile, and the services started from another folder, find it."""
+    router = data.get("router") or {}
+    if not isinstance(router, dict):
+        raise ConfigError(f"{path}: router must be a mapping")
+    given = zenoh_config or router.get("zenoh_config") or os.environ.get(ZENOH_CONFIG_ENV, "")
+    if not given:
+        return
+    if not isinstance(given, str):
+        raise ConfigError(f"{path}: router.zenoh_config must be a file path")
+    beside = path.parent / given
+    if zenoh_config is None and router.get("zenoh_config") and not Path(given).exists() and beside.exists():
+        given = str(beside)
+    data["router"] = {**router, "zenoh_config": str(Path(given).absolute())}
 
 
 def leave_out(data: dict[str, Any], names: list[str], path: Path, foxglove: bool = False) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -29,7 +30,7 @@ from cso_runtime.messages import (
     decode,
 )
 from cso_runtime.pace import real_time_words
-from cso_runtime.transport import TransportConfig, TransportError, zenoh_config
+from cso_runtime.transport import ZENOH_CONFIG_ENV, TransportConfig, TransportError, zenoh_config
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -185,9 +186,15 @@ def endpoints_from_run_file(runs_dir: Path) -> tuple[list[str], str | None]:
 
 
 def endpoints_of_run(info: dict[str, Any] | None) -> tuple[list[str], str | None]:
-    """Router endpoints and robot of a run file read by ``read_current_run`` (None: no run, no endpoints)."""
+    """Router endpoints and robot of a run file read by ``read_current_run`` (None: no run, no endpoints).
+
+    A run whose router asks for credentials (``up --zenoh-config``) names its Zenoh config file there: this
+    process's sessions then use it too, unless one was given (``--zenoh-config``, ``$CSO_ZENOH_CONFIG``), so that
+    ``status``, ``save-map``, ``record`` and ``replay`` of the current run need no flag more than ``up`` had."""
     if info is None:
         return [], None
+    if isinstance(run_config := info.get("zenoh_config"), str) and run_config:
+        os.environ.setdefault(ZENOH_CONFIG_ENV, run_config)
     robot = info.get("robot")
     return list(info.get("endpoints") or []), robot if isinstance(robot, str) else None
 

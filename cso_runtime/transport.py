@@ -49,6 +49,59 @@ LISTEN_IN_USE = "listen_in_use"
 UNREACHABLE = "unreachable"
 
 
+ZENOH_CONFIG_ENV = "CSO_ZENOH_CONFIG"
+"""A Zenoh config file (JSON5, Zenoh's own format) every session of this process, and of the processes it starts,
+takes as its base: ``--zenoh-config FILE`` sets it (``router.zenoh_config`` in a profile, for a run)."""
+
+OWNED_KEYS = {
+    "mode": "--mode (the launcher's router, its services' router.service_mode)",
+    "connect/endpoints": "--connect / router.connect",
+    "listen/endpoints": "router.listen",
+    "scouting/multicast/enabled": "multicast scouting, always off",
+    "connect/timeout_ms": "router.connect_timeout_s",
+    "connect/exit_on_failure": "router.connect_timeout_s",
+}
+"""Keys of a Zenoh config file that the runtime sets itself, and what sets them: a file that gives one a value
+other than Zenoh's default is refused (it would be overwritten without a word)."""
+
+TUNED_KEYS = {
+    "transport/link/tx/queue/size/data": "8",
+    "transport/link/tx/queue/congestion_control/drop/wait_before_drop": "20000",
+}
+"""Our values for Zenoh settings (JSON5) where Zenoh's default loses messages on a busy machine (``zenoh_config``):
+a file that sets one to something else keeps its own."""
+
+FILE_KEYS = (
+    "transport/auth/usrpwd/dictionary_file",
+    "transport/link/tls/root_ca_certificate",
+    "transport/link/tls/listen_private_key",
+    "transport/link/tls/listen_certificate",
+    "transport/link/tls/connect_private_key",
+    "transport/link/tls/connect_certificate",
+)
+"""Keys naming a file that Zenoh reads only when a session opens: checked when the config file is read, so that a
+missing one stops a run before anything starts rather than one service later."""
+
+
+def load_zenoh_config_file(path: str | os.PathLike[str]) -> zenoh.Config:
+    """The Zenoh config in ``path`` (JSON5, Zenoh's own format), checked: a file missing, not JSON5, with a key or
+    value Zenoh rejects, setting a key in ``OWNED_KEYS``, or naming a file (``FILE_KEYS``) that is not there raises
+    ``TransportError``."""
+    try:
+        cfg = zenoh.Config.from_file(str(path))
+    except zenoh.ZError as exc:
+        raise TransportError(f"zenoh config {path}: {str(exc).split(' at /', 1)[0].strip()}") from None
+    default = zenoh.Config()
+    for key, setter in OWNED_KEYS.items():
+        if json.loads(cfg.get_json(key)) != json.loads(default.get_json(key)):
+            raise TransportError(f"zenoh config {path}: {key} is set by cso-runtime ({setter}); remove it from the file")
+    for key in FILE_KEYS:
+        named = json.loads(cfg.get_json(key))
+        if named and not os.path.isfile(named):
+            raise TransportError(f"zenoh config {path}: {key} names {named!r}, which is not a file (relative paths are from the working folder)")
+    return cfg
+
+
 JOIN_TIMEOUT_S = 10.0
 """How long opening a client session, or a router's that joins others, waits to reach the routers it connects to
 before it fails: services may start before their router, and a router on another host (a robot's) answers in
@@ -68,6 +121,9 @@ class TransportConfig:
     connect_timeout_s: float = JOIN_TIMEOUT_S
     """Client, or router with ``connect``: opening fails (``TransportError``) when the endpoints in ``connect`` cannot
     be reached within this long. A peer starts alone, as Zenoh's default."""
+    zenoh_config_file: str = field(default_factory=lambda: os.environ.get(ZENOH_CONFIG_ENV, ""))
+    """A Zenoh config file to start from (``load_zenoh_config_file``; default: ``$CSO_ZENOH_CONFIG``): its
+    authentication, TLS and access control apply, with the settings above on top. "": Zenoh's defaults."""
 
     def validate(self) -> None:
         if self.mode not in MODES:
@@ -84,16 +140,20 @@ class TransportConfig:
                     raise TransportError(f"bad zenoh endpoint {ep!r}: the port must be a number from 0 to 65535")
         if self.mode == "client" and not self.connect:
             raise TransportError("client mode needs at least one --connect endpoint")
+        if self.zenoh_config_file:
+            load_zenoh_config_file(self.zenoh_config_file)
 
 
 def zenoh_config(conf: TransportConfig) -> zenoh.Config:
-    """A zenoh.Config with the mode and endpoints of ``conf`` and multicast scouting disabled.
+    """A zenoh.Config with the mode and endpoints of ``conf`` and multicast scouting disabled, on top of the
+    settings of ``conf.zenoh_config_file`` when one is given.
 
     Zenoh reads ``ZENOH_RUNTIME`` once, when a process first opens a session: unless the user set
     it, ``ONE_ZENOH_THREAD`` applies from here on (child processes inherit it)."""
     conf.validate()
     os.environ.setdefault(ZENOH_RUNTIME_ENV, ONE_ZENOH_THREAD)
-    cfg = zenoh.Config()
+    cfg = load_zenoh_config_file(conf.zenoh_config_file) if conf.zenoh_config_file else zenoh.Config()
+    zenoh_default = zenoh.Config()
     cfg.insert_json5("mode", json.dumps(conf.mode))
     cfg.insert_json5("scouting/multicast/enabled", "false")
     cfg.insert_json5("connect/endpoints", json.dumps(list(conf.connect)))
@@ -102,8 +162,9 @@ def zenoh_config(conf: TransportConfig) -> zenoh.Config:
     # 1 ms, 2 batches per priority). On a busy machine (five service processes starting at once on
     # two cores) a link's sender can be off-CPU for longer than that, and whole steps went missing in a
     # recording. A deeper queue and a 20 ms grace keep them; a link congested for longer still drops.
-    cfg.insert_json5("transport/link/tx/queue/size/data", "8")
-    cfg.insert_json5("transport/link/tx/queue/congestion_control/drop/wait_before_drop", "20000")
+    for key, value in TUNED_KEYS.items():
+        if cfg.get_json(key) == zenoh_default.get_json(key):  # a file's own value is kept
+            cfg.insert_json5(key, value)
     if conf.mode == "client" or (conf.mode == "router" and conf.connect):
         # Keep retrying the router for a while instead of failing at once: services may start first. A router that
         # joins others would otherwise open at once and retry them in the background for ever, saying nothing: a
@@ -135,15 +196,19 @@ PORT_TRIES = 3
 """``open_router``: picks of a free port per start (another process may take one between the pick and the bind)."""
 
 
-def open_router(listen: list[str], connect: list[str], connect_timeout_s: float = JOIN_TIMEOUT_S) -> tuple[zenoh.Session, list[str]]:
+def open_router(
+    listen: list[str], connect: list[str], connect_timeout_s: float = JOIN_TIMEOUT_S, zenoh_config_file: str | None = None
+) -> tuple[zenoh.Session, list[str]]:
     """A router session and the endpoints it listens on: each endpoint ending in port ``:0`` gets a port free
     right now; when another process takes it before Zenoh binds it, another is picked (``PORT_TRIES`` in all).
-    The routers in ``connect`` must be reached within ``connect_timeout_s`` (else ``TransportError``)."""
+    The routers in ``connect`` must be reached within ``connect_timeout_s`` (else ``TransportError``).
+    ``zenoh_config_file``: the base config (``TransportConfig.zenoh_config_file``; None: its default)."""
+    base = {} if zenoh_config_file is None else {"zenoh_config_file": zenoh_config_file}
     picked = any(ep.endswith(":0") for ep in listen)
     for attempt in range(1, PORT_TRIES + 1):
         chosen = [f"{ep[:-2]}:{free_tcp_port()}" if ep.endswith(":0") else ep for ep in listen]
         try:
-            return open_session(TransportConfig(mode="router", listen=chosen, connect=list(connect), connect_timeout_s=connect_timeout_s)), chosen
+            return open_session(TransportConfig(mode="router", listen=chosen, connect=list(connect), connect_timeout_s=connect_timeout_s, **base)), chosen
         except TransportError as exc:
             if not picked or attempt == PORT_TRIES or exc.cause != LISTEN_IN_USE:  # only a taken port is worth another pick
                 raise

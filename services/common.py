@@ -575,6 +575,9 @@ def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | No
     p.add_argument("--listen", action="append", default=[], help="Zenoh endpoint to listen on (repeatable)")
     p.add_argument("--mode", default="client", help="Zenoh mode: client, peer or router")
     p.add_argument(
+        "--zenoh-config", default=None, help="Zenoh config file (JSON5) to start from: credentials, TLS; default: the profile's router.zenoh_config, else $CSO_ZENOH_CONFIG"
+    )
+    p.add_argument(
         "--log-level", type=str.upper, choices=LOG_LEVELS, default=None, metavar="LEVEL",
         help="Logging level: debug, info, warning or error (default info; under `cso-runtime -v service`, debug)",
     )  # fmt: skip
@@ -617,6 +620,8 @@ def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | 
         profile, exploration, params = load_profile_for_service(args.config, cls.name)
         params = cls.apply_arguments(args, dict(params))
         transport = TransportConfig(mode=args.mode, connect=list(args.connect), listen=list(args.listen))
+        router = profile.get("router") if isinstance(profile.get("router"), dict) else {}
+        transport.zenoh_config_file = args.zenoh_config or str(router.get("zenoh_config") or "") or transport.zenoh_config_file
         transport.validate()
         service = cls(ServiceContext(cls.name, args.robot, profile, exploration, transport, params))
     except (ConfigError, TransportError, ValueError) as exc:

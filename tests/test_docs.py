@@ -366,3 +366,23 @@ def test_a_training_commands_refusal_names_only_flags_it_has(tmp_path):
         options = {o for p in cli.commands[command].params for o in (*p.opts, *p.secondary_opts)}
         named = FLAG.findall(error.split(":")[0])  # "FILE with --flag value ...: why"
         assert named and set(named) <= options, f"{command}'s error names {set(named) - options}: {error}"
+
+
+def test_the_zenoh_config_examples_of_hardware_md_are_files_zenoh_and_the_runtime_accept(tmp_path):
+    """Every JSON5 block of "Securing the network" reads as a Zenoh config the runtime takes as a base; the files
+    it names are made empty here (certificates are not checked by reading the config)."""
+    from cso_runtime.transport import FILE_KEYS, load_zenoh_config_file
+
+    section = (ROOT / "docs" / "hardware.md").read_text(encoding="utf-8").split("## 9. Securing the network", 1)[1]
+    blocks = re.findall(r"```json5\n(.*?)```", section, re.DOTALL)
+    assert len(blocks) >= 4  # user/password (laptop, robot), TLS, access control
+    for i, block in enumerate(blocks):
+        for named in re.findall(r'"(/[^"]+)"', block):  # the example's absolute paths, moved under tmp_path
+            moved = tmp_path / named.lstrip("/")
+            moved.parent.mkdir(parents=True, exist_ok=True)
+            moved.touch()
+            block = block.replace(f'"{named}"', f'"{moved}"')
+        path = tmp_path / f"example{i}.json5"
+        path.write_text(block)
+        load_zenoh_config_file(path)
+    assert any(key.rsplit("/", 1)[1] in section for key in FILE_KEYS)

@@ -41,7 +41,15 @@ from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.status import query_status, render_table, save_map_main, status_main, status_of
 from cso_runtime.supervision import pid_alive, python_module_argv
-from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
+from cso_runtime.transport import (
+    UNREACHABLE,
+    ZENOH_CONFIG_ENV,
+    TransportConfig,
+    TransportError,
+    free_tcp_port,
+    loopback_endpoint,
+    open_session,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILES = REPO / "cso_runtime" / "profiles"
@@ -2401,6 +2409,54 @@ def test_a_service_attaches_to_the_current_run_and_a_bridge_started_late_serves_
     finally:
         if bridge is not None and bridge.poll() is None:
             bridge.kill()
+        kill_leftovers(runs)
+
+
+def test_up_with_a_zenoh_config_file_zenoh_refuses_says_so_and_starts_nothing(tmp_path):
+    """A missing file, one not JSON5 and one with a key Zenoh does not know: one error line, exit 2, no run."""
+    (tmp_path / "bad.json5").write_text("{ transport: ")
+    (tmp_path / "typo.json5").write_text("{ transport: { auth: { usrpwd: { usr: 'cso' } } } }")
+    runs = tmp_path / "runs"
+    for name, said in (("missing.json5", "No such file"), ("bad.json5", "expected"), ("typo.json5", "unknown field `usr`")):
+        for flags in (["up", "--profile", "lockstep", "--zenoh-config", name], ["--zenoh-config", name, "up", "--profile", "lockstep"]):
+            r = cli(*flags, "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+            assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, r.stderr
+            assert not runs.exists()
+
+
+def test_a_run_behind_a_user_password_router_completes_and_a_session_without_them_cannot_join(tmp_path, monkeypatch):
+    """``up --zenoh-config FILE`` with Zenoh's user/password authentication: the embedded router asks every
+    session for a user in its dictionary, the services (given the same file) answer and the lockstep episode ends;
+    a session without the credentials, or with a wrong password, cannot join to publish a forged command or goal."""
+    users = tmp_path / "users.txt"
+    users.write_text("cso:s3cret\n")
+    auth = tmp_path / "zenoh.json5"
+    auth.write_text(f'{{ transport: {{ auth: {{ usrpwd: {{ user: "cso", password: "s3cret", dictionary_file: "{users}" }} }} }} }}')
+    wrong = tmp_path / "wrong.json5"
+    wrong.write_text('{ transport: { auth: { usrpwd: { user: "cso", password: "guess" } } } }')
+    profile = write_profile(tmp_path, min_step_period_s=0.1)
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--zenoh-config", str(auth), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
+        for credentials in ("", str(wrong)):
+            with pytest.raises(TransportError) as err:
+                open_session(TransportConfig(mode="client", connect=endpoints, connect_timeout_s=1.0, zenoh_config_file=credentials))
+            assert err.value.cause == UNREACHABLE, err.value
+        r = cli("status", "--json", "--connect", endpoints[0], cwd=tmp_path, timeout_s=30)  # another run's router: no credentials
+        assert r.returncode == 1 and "no answer for robot r0" in r.stdout, r.stdout + r.stderr
+        monkeypatch.setenv(ZENOH_CONFIG_ENV, str(auth))  # this test's own status queries, as `--zenoh-config` does
+        final = wait_for(
+            lambda: (s := query_status(endpoints, "r0", timeout_s=0.5)) and s["state"] in ("done", "failed") and s, 120, "the end of the episode", period_s=0.2
+        )
+        assert final["state"] == "done" and all(s["alive"] for s in final["services"].values()), final
+        monkeypatch.delenv(ZENOH_CONFIG_ENV)
+        for flags in (["--zenoh-config", str(auth)], []):  # given, or the current run's own (its run file names it)
+            r = cli(*flags, "status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+            assert r.returncode == 0 and json.loads(r.stdout)["state"] == "done", r.stdout + r.stderr
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         kill_leftovers(runs)
 
 

@@ -108,3 +108,48 @@ def test_ups_hint_for_a_router_that_did_not_open_fits_its_cause():
     with pytest.raises(transport.TransportError) as err:
         transport.open_router(["tcp/127.0.0.1:0"], [loopback_endpoint(transport.free_tcp_port())], connect_timeout_s=0.5)
     assert transport_error_hint(err.value, ["tcp/127.0.0.1:0"]) == "is the router to join running and reachable?"
+
+
+def write_zenoh_config(folder: Path, text: str, name: str = "zenoh.json5") -> Path:
+    path = folder / name
+    path.write_text(text)
+    return path
+
+
+def test_a_zenoh_config_files_settings_reach_the_session_config_with_ours_on_top(tmp_path, monkeypatch):
+    """A user's Zenoh config (credentials, its own queue size) is the base; mode, endpoints and scouting are ours."""
+    users = write_zenoh_config(tmp_path, "cso:s3cret\n", "users.txt")
+    path = write_zenoh_config(tmp_path, f"""{{
+      // Zenoh's own JSON5
+      transport: {{ auth: {{ usrpwd: {{ user: "cso", password: "s3cret", dictionary_file: "{users}" }} }},
+                   link: {{ tx: {{ queue: {{ size: {{ data: 4 }} }} }} }} }},
+      scouting: {{ gossip: {{ enabled: false }} }},
+    }}""")
+    endpoint = loopback_endpoint(7447)
+    cfg = zenoh_config(TransportConfig(mode="client", connect=[endpoint], zenoh_config_file=str(path)))
+    assert json.loads(cfg.get_json("transport/auth/usrpwd/user")) == "cso"
+    assert json.loads(cfg.get_json("transport/auth/usrpwd/dictionary_file")) == str(users)
+    assert cfg.get_json("scouting/gossip/enabled") == "false"
+    assert cfg.get_json("transport/link/tx/queue/size/data") == "4"  # the file's own tuning is kept
+    assert cfg.get_json("transport/link/tx/queue/congestion_control/drop/wait_before_drop") == "20000"  # ours where it says nothing
+    assert json.loads(cfg.get_json("mode")) == "client" and json.loads(cfg.get_json("connect/endpoints")) == [endpoint]
+    assert cfg.get_json("scouting/multicast/enabled") == "false" and cfg.get_json("connect/exit_on_failure") == "true"
+    monkeypatch.setenv(transport.ZENOH_CONFIG_ENV, str(path))  # what `cso-runtime --zenoh-config` and `up` pass on
+    assert TransportConfig(mode="client", connect=[endpoint]).zenoh_config_file == str(path)
+    assert json.loads(status.zenoh_config(TransportConfig(mode="client", connect=[endpoint])).get_json("transport/auth/usrpwd/user")) == "cso"
+
+
+@pytest.mark.parametrize(("text", "said"), [
+    (None, "No such file"),
+    ("{ transport: ", "expected"),
+    ("{ tranport: {} }", "unknown field `tranport`"),
+    ('{ mode: "peer" }', "mode is set by cso-runtime"),
+    ('{ connect: { endpoints: ["tcp/10.0.0.1:7447"] } }', "connect/endpoints is set by cso-runtime"),
+    ("{ scouting: { multicast: { enabled: true } } }", "scouting/multicast/enabled is set by cso-runtime"),
+    ('{ transport: { auth: { usrpwd: { dictionary_file: "no-such-users.txt" } } } }', "dictionary_file names 'no-such-users.txt', which is not a file"),
+], ids=["missing", "not-json5", "unknown-key", "mode", "endpoints", "multicast", "missing-dictionary"])
+def test_a_zenoh_config_file_zenoh_or_the_runtime_would_refuse_is_a_configuration_error(tmp_path, monkeypatch, text, said):
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "zenoh.json5" if text is None else write_zenoh_config(tmp_path, text)
+    with pytest.raises(transport.TransportError, match=re.escape(said)):
+        TransportConfig(mode="client", connect=[loopback_endpoint(7447)], zenoh_config_file=str(path)).validate()
