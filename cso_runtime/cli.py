@@ -152,8 +152,8 @@ def _root(
     zenoh_config: Path | None = typer.Option(
         None,
         "--zenoh-config",
-        envvar="CSO_ZENOH_CONFIG",
-        help="Zenoh config file (JSON5) every session of this command starts from (credentials, TLS): status, record, replay, save-map, service, up",
+        help="Zenoh config file (JSON5) every session of this command starts from (credentials, TLS): status, record, replay, save-map, service, up "
+        "(sets $CSO_ZENOH_CONFIG)",
     ),
 ) -> None:
     """Active scene mapping with CSO (ACM MM 2024) on a LIMO robot: eval, train, and the Zenoh runtime."""
