@@ -56,7 +56,7 @@ from cso_runtime.messages import (
     decode,
     encode,
 )
-from cso_runtime.outputs import write_text_atomic
+from cso_runtime.outputs import results_said, write_text_atomic
 from cso_runtime.pace import StepPace
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
 from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig
@@ -1018,8 +1018,16 @@ class Launcher:
                     s.undeclare()
                 self.write_run_file("stopped")
                 self.remove_current_pointer()
+                log.info("%s", self.closing_line())
         self.session = None
         return self.exit_code
+
+    def closing_line(self) -> str:
+        """The run's last line, under the services' stop: where its results are and what to open first, or, for a
+        run stopped before its episode's results were written, what it kept and how to read it."""
+        if self.outputs_written:
+            return results_said(self.run_dir)
+        return f"no results: the run's profile and logs are in {self.run_dir}/ (`cso-runtime logs --run {self.run_dir}`)"
 
 
 def write_episode_outputs(

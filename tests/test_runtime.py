@@ -2307,6 +2307,8 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         closing += f"{expected.explored_area_m2:.2f} m2 explored, {expected.efficiency_m2_per_step:.4f} m2/step, "
         closing += f"path {zenoh_metrics['path_length_m']:.2f} m, {expected.decisions} decisions; results in {out}"
         assert closing in r.stderr  # the Table 1 row of the run, said when it ends
+        # its last line, under the services' stop: where the results are and what to open first, as eval's
+        assert r.stderr.rstrip().splitlines()[-1].endswith(f"results in {out}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures")
         assert (out / "trajectories" / f"{expected.scene}.png").is_file()
         with Image.open(out / "animations" / method / f"{expected.scene}.gif") as gif:  # --animate, from the run's recording
             assert gif.n_frames >= 2 and (out / "recording.mcap").is_file()
@@ -2981,6 +2983,9 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
         assert proc.wait(timeout=30) == 130
         out = proc.stdout.read().decode()
         assert "interrupted at step" in out
+        (run_dir,) = [d for d in runs.iterdir() if d.is_dir()]
+        # its last line says what the interrupted run kept, and where
+        assert out.rstrip().splitlines()[-1].endswith(f"no results: the run's profile and logs are in {run_dir}/ (`cso-runtime logs --run {run_dir}`)"), out
         # without a live view, a followed log is never silent: the episode's progress every progress_log_s
         # (with the sim's real-time factor, at most about 1.25x at 0.2 s a step of 0.25 s, once two statuses have come)
         line = r"INFO cso\.launcher: step \d+ \([\d.]+ s robot time(, [\d.]+x real time)?\): coverage [\d.]+ %, [\d.]+ m2 explored"
