@@ -1668,6 +1668,32 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     assert piped.getvalue().count("6.50 m ahead on the path") == 1 and piped.getvalue().endswith("┘\n")
 
 
+def test_the_live_views_last_table_after_ctrl_c_says_the_run_was_interrupted(tmp_path):
+    """Ctrl-C (or ``down``) on a foreground ``up``: the table left on the terminal said ``exploring`` above "services
+    stopped", as if the episode went on; it says the run was interrupted at its step, with no results."""
+    from rich.console import Console
+
+    from cso_runtime.config import EXIT_INTERRUPTED
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    launcher.status = EpisodeStatusMsg(state="exploring", step=39, scene="s", method="greedy-dist", coverage_pct=48.0, explored_area_m2=35.0)
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert re.search(r"│ state +│ exploring +│", console.export_text()), console.export_text()
+    launcher.exit_code = EXIT_INTERRUPTED  # what the run loop sets on Ctrl-C, SIGTERM or `down`, before the last table
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert re.search(r"│ state +│ interrupted at step 39, before the episode ended: no results +│", console.export_text()), console.export_text()
+    launcher.status.state, launcher.status.terminated_by = "done", "coverage"  # an ended episode stays as it ended
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert re.search(r"│ state +│ done \(coverage\) +│", console.export_text()), console.export_text()
+
+
 def test_live_view_shows_a_service_the_run_leaves_out_and_what_the_episode_waits_for(tmp_path):
     """``up``'s live view listed only the services the run started: a run whose profile has no policy stood at
     step 0 with every row up, and nothing in the view said that the episode waited for a policy nobody served
