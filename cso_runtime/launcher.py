@@ -936,6 +936,11 @@ class Launcher:
                 return self.stop_before_start(EXIT_BAD_CONFIG)
             ending: EpisodeEnd | None = None  # the ended episode's results being written (start_episode_end)
             try:
+                pr = self.profile  # which run this is, and where to look, before the services' lines
+                log.info(
+                    "run %s: profile %s, scene %s, method %s, robot %s; logs, then results, in %s/",
+                    self.run_id, pr.name, pr.scene, pr.method, pr.robot, self.run_dir,
+                )  # fmt: skip
                 self.spawn_all()
                 self.write_run_file("running")
                 if view is not None:

@@ -3010,6 +3010,9 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
         out = proc.stdout.read().decode()
         assert "interrupted at step" in out
         (run_dir,) = [d for d in runs.iterdir() if d.is_dir()]
+        # its first line says which run this is and where its logs and results go, before any service starts
+        first = out.splitlines()[0]
+        assert first.endswith(f"INFO cso.launcher: run {run_dir.name}: profile lockstep, scene {SCENE}, method greedy-dist, robot r0; logs, then results, in {run_dir}/"), out
         # its last line says what the interrupted run kept, and where
         assert out.rstrip().splitlines()[-1].endswith(f"no results: the run's profile and logs are in {run_dir}/ (`cso-runtime logs --run {run_dir}`)"), out
         # without a live view, a followed log is never silent: the episode's progress every progress_log_s
