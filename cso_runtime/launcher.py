@@ -40,6 +40,7 @@ from cso_runtime.config import (
     LOG_FORMAT,
     from_dict,
     load_yaml,
+    to_dict,
 )
 from cso_runtime.current_run import CURRENT_RUN, DOWN_MARGIN_S, RUNS_LOCK, down, hold_runs_lock, new_run_dir, read_current_run
 from cso_runtime.keys import WILDCARD, RobotKeys, robot_driver_token, topic_of
@@ -694,6 +695,7 @@ class Launcher:
 
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
         meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "profile": self.data}
+        meta["config"] = to_dict(self.profile.exploration_config())  # every exploration parameter, as eval's summary
         sim_settings = self.profile.simulator_settings()
         if sim_settings is not None:  # every parameter of the sim service's simulator, defaults too (as eval's)
             meta["sim_settings"] = sim_settings

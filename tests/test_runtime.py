@@ -2324,6 +2324,15 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         summary = json.loads(run_dir.read_text())
         zenoh_metrics = summary["methods"][method]
         assert summary["meta"]["command"] == "cso-runtime up" and summary["meta"]["version"] == cso_runtime.__version__
+        from cso_runtime.config import to_dict
+        from cso_runtime.run_profile import load_profile
+
+        ran = load_profile(str(profile), {})[0].exploration_config()
+        assert summary["meta"]["config"] == to_dict(ran)  # every exploration parameter, as eval's summary holds them
+        # report.html says what made its table, as eval's does: the profile, scene, seed, sensor and step limit
+        settings = f"command: cso-runtime up, version: {cso_runtime.__version__}, profile: lockstep, scene: {scene}, seed: 0, lockstep, "
+        settings += f"sensor field of view: {ran.sensor.fov_deg:g} degrees, step limit: {ran.episode.max_steps}"
+        assert f"<p>{settings}</p>" in (run_dir.parent / "report.html").read_text()
         expected = in_process_result(scene, method)
         assert zenoh_metrics["steps"] == expected.steps
         assert abs(zenoh_metrics["coverage_pct"] - expected.coverage_pct) < 1e-3
