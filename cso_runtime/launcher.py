@@ -47,6 +47,7 @@ from cso_runtime.keys import WILDCARD, RobotKeys, robot_driver_token, topic_of
 from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EPISODE_OVER,
+    LAST_EPISODE_FIGURES,
     EpisodeResultMsg,
     EpisodeStatusMsg,
     GoalMsg,
@@ -468,7 +469,10 @@ class Launcher:
             rejected, handler_errors = dict(self.rejected), dict(self.handler_errors)
         state = "stopping" if self.stop_event.is_set() else "running"
         heard = self.status
-        last = None if heard is None else {"state": heard.state, "step": heard.step, "episode": heard.episode, "age_s": round(time.monotonic() - self.status_heard_at_s, 3)}
+        last = None
+        if heard is not None:
+            last = {"state": heard.state, "step": heard.step, "episode": heard.episode, "age_s": round(time.monotonic() - self.status_heard_at_s, 3)}
+            last.update({key: getattr(heard, key) for key in LAST_EPISODE_FIGURES})
         pace = None if self.real_time_factor is None else round(self.real_time_factor, 3)
         lost = self.joined_router() if self.router_lost_at is not None else None
         return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost)

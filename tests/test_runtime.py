@@ -1810,11 +1810,17 @@ def test_status_says_the_episode_is_stale_not_starting_when_the_sim_stops_answer
     assert (status["state"], status["step"], status["episode"], status["status_age_s"]) == ("stale", 41, 7, 12.5)
     assert re.search(r"state +│ stale: the sim does not answer; its last episode status, 12\.5 s ago, said exploring at step 41", text), text
     assert re.search(r"step +│ 41 ", text) and "starting" not in text, text
-    done = EpisodeStatusMsg("done", 90, terminated_by="coverage", episode=7)
+    done = EpisodeStatusMsg(
+        "done", 90, terminated_by="coverage", episode=7, scene="s", method="cso", coverage_pct=99.5, explored_area_m2=40.0, path_length_m=12.25, decisions=9
+    )
     launcher._on_sample(SimpleNamespace(key_expr=launcher.keys.topic("episode_status"), payload=SimpleNamespace(to_bytes=lambda: encode(done))))
     now_s[0] += 3.0  # an episode over stays over when the sim has gone
-    status, _ = status_without_the_sim()
+    status, text = status_without_the_sim()
     assert (status["state"], status["step"], status["status_age_s"]) == ("done", 90, 3.0)
+    # with its figures: `status --watch` on a run whose services stop after its episode showed "0.00 %", no scene
+    shown = {k: status[k] for k in ("terminated_by", "scene", "method", "coverage_pct", "explored_area_m2", "path_length_m", "decisions")}
+    assert shown == {"terminated_by": "coverage", "scene": "s", "method": "cso", "coverage_pct": 99.5, "explored_area_m2": 40.0, "path_length_m": 12.25, "decisions": 9}
+    assert re.search(r"scene / method +│ s / cso ", text) and re.search(r"coverage +│ 99\.50 % ", text), text
 
 
 def test_log_lines_during_the_live_view_print_above_the_table_not_inside_it(tmp_path):
