@@ -84,7 +84,7 @@ class LiveView:
             goal_m = st.goal_in_map_frame
             goal = "-" if goal_m is None else f"({goal_m[0]:.2f}, {goal_m[1]:.2f}) m"
             if la.exit_code == EXIT_INTERRUPTED and st.state not in EPISODE_OVER:  # the last table after Ctrl-C or `down`
-                state = f"interrupted at step {st.step}, before the episode ended: no results"
+                state = "interrupted: no results"  # the step row says where; the log above it, more
             else:
                 state = st.state + (f" ({st.terminated_by})" if st.terminated_by else "") + (f": {st.reason}" if st.reason else "") + waits
             t.add_row("state", escape(state))
