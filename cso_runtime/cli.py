@@ -634,7 +634,7 @@ def up_command(
     record_out: str | None = typer.Option(None, "--record-out", help="Record the run to this new MCAP file, or to <run-id>.mcap in this folder (existing, or ending in /; implies --record)"),
     weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt (or one of its files) for the policy service instead of the shipped weights"),
     settings: list[str] | None = typer.Option(
-        None, "--set", help="KEY=VALUE into the profile, dotted, repeatable: services.sim.real_time_factor=4, exploration.episode.max_steps=400"
+        None, "--set", help="KEY=VALUE into the profile, dotted, repeatable: services.sim.real_time_factor=4 (--dry-run prints the profile)"
     ),
     dry_run: bool = typer.Option(False, "--dry-run", help="Validate, print the profile as the services would read it (YAML), start nothing"),
     animate: bool = typer.Option(

@@ -366,3 +366,14 @@ def test_a_training_commands_refusal_names_only_flags_it_has(tmp_path):
         options = {o for p in cli.commands[command].params for o in (*p.opts, *p.secondary_opts)}
         named = FLAG.findall(error.split(":")[0])  # "FILE with --flag value ...: why"
         assert named and set(named) <= options, f"{command}'s error names {set(named) - options}: {error}"
+
+
+def test_every_commands_help_reads_whole_on_an_80_column_terminal():
+    """``up --help`` on a plain terminal cut the second ``--set`` example to ``exploration.episode.max_steps=4…``:
+    rich ellipsizes a word longer than its column, so every command's help is written in words that wrap."""
+    from typer.testing import CliRunner
+
+    cli = typer.main.get_command(app)
+    for name in cli.commands:
+        r = CliRunner().invoke(app, [name, "--help"], terminal_width=80, env={"COLUMNS": "80"})
+        assert r.exit_code == 0 and "…" not in r.output, f"{name} --help:\n{r.output}"
