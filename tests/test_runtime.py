@@ -1670,7 +1670,7 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
 
 def test_the_live_views_last_table_after_ctrl_c_says_the_run_was_interrupted(tmp_path):
     """Ctrl-C (or ``down``) on a foreground ``up``: the table left on the terminal said ``exploring`` above "services
-    stopped", as if the episode went on; it says the run was interrupted at its step, with no results."""
+    stopped", as if the episode went on; it says the run was interrupted, with no results (the step row says where)."""
     from rich.console import Console
 
     from cso_runtime.config import EXIT_INTERRUPTED
