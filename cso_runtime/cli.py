@@ -651,7 +651,7 @@ def up_command(
     connect: list[str] | None = typer.Option(
         None, "--connect", help="Router to join, repeatable (a LIMO's zenoh-bridge-ros2dds: tcp/ROBOT_IP:7447); appended to router.connect"
     ),
-    namespace: str | None = typer.Option(None, "--namespace", help="ROS namespace of the robot's topics (limo-ros2: services.ros2_bridge.namespace)"),
+    namespace: str | None = typer.Option(None, "--namespace", help="ROS namespace of the robot's topics (limo-ros2: the ROS 2 bridge's namespace)"),
     zenoh_config: Path | None = typer.Option(
         None, "--zenoh-config", help="Zenoh config file (JSON5) the router and every service start from: user/password, TLS (router.zenoh_config)"
     ),
@@ -659,11 +659,11 @@ def up_command(
     record_out: str | None = typer.Option(None, "--record-out", help="Record the run to this new MCAP file, or to <run-id>.mcap in this folder (existing, or ending in /; implies --record)"),
     weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt (or one of its files) for the policy service instead of the shipped weights"),
     settings: list[str] | None = typer.Option(
-        None, "--set", help="KEY=VALUE into the profile, dotted, repeatable: services.sim.real_time_factor=4, exploration.episode.max_steps=400"
+        None, "--set", help="KEY=VALUE into the profile, repeatable, a dotted KEY for a nested one (seed=3, services.sim.viewer=true; --dry-run prints the profile)"
     ),
     dry_run: bool = typer.Option(False, "--dry-run", help="Validate, print the profile as the services would read it (YAML), start nothing"),
     animate: bool = typer.Option(
-        False, "--animate", help="At the end, also write animations/<method>/<scene>.gif as eval does (records the run to do so, as --record)"
+        False, "--animate", help="At the end, also write the episode as a GIF under animations/, as eval does (records the run to do so, as --record)"
     ),
     foxglove: bool = typer.Option(
         False, "--foxglove", help="Also serve the episode live to Foxglove on ws://127.0.0.1:8765 (the foxglove_bridge service; needs foxglove-sdk)"

@@ -59,6 +59,7 @@ from cso_runtime.outputs import (
     episode_map_path,
     episode_npz_path,
     file_stem,
+    results_said,
     trajectory_plot_path,
     write_text_atomic,
 )
@@ -846,7 +847,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
         why = f["error"].splitlines()[0] if f["error"] else ""
         failed = escape(f"{f['method']} {f['map']}: {why}")
         console.print(f"[red]failed[/red] {failed}", soft_wrap=True)  # a path in it must stay whole
-    console.print(escape(f"results in {out_dir}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"), soft_wrap=True, highlight=False)
+    console.print(escape(results_said(out_dir)), soft_wrap=True, highlight=False)
 
 
 def run_eval_cli(request: EvalRequest) -> int:

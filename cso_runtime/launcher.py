@@ -40,12 +40,14 @@ from cso_runtime.config import (
     LOG_FORMAT,
     from_dict,
     load_yaml,
+    to_dict,
 )
 from cso_runtime.current_run import CURRENT_RUN, DOWN_MARGIN_S, RUNS_LOCK, down, hold_runs_lock, new_run_dir, read_current_run
 from cso_runtime.keys import WILDCARD, RobotKeys, robot_driver_token, topic_of
 from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EPISODE_OVER,
+    LAST_EPISODE_FIGURES,
     EpisodeResultMsg,
     EpisodeStatusMsg,
     GoalMsg,
@@ -56,7 +58,7 @@ from cso_runtime.messages import (
     decode,
     encode,
 )
-from cso_runtime.outputs import write_text_atomic
+from cso_runtime.outputs import results_said, write_text_atomic
 from cso_runtime.pace import StepPace
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
 from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig
@@ -468,7 +470,10 @@ class Launcher:
             rejected, handler_errors = dict(self.rejected), dict(self.handler_errors)
         state = "stopping" if self.stop_event.is_set() else "running"
         heard = self.status
-        last = None if heard is None else {"state": heard.state, "step": heard.step, "episode": heard.episode, "age_s": round(time.monotonic() - self.status_heard_at_s, 3)}
+        last = None
+        if heard is not None:
+            last = {"state": heard.state, "step": heard.step, "episode": heard.episode, "age_s": round(time.monotonic() - self.status_heard_at_s, 3)}
+            last.update({key: getattr(heard, key) for key in LAST_EPISODE_FIGURES})
         pace = None if self.real_time_factor is None else round(self.real_time_factor, 3)
         lost = self.joined_router() if self.router_lost_at is not None else None
         return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost)
@@ -697,6 +702,7 @@ class Launcher:
 
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
         meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "profile": self.data}
+        meta["config"] = to_dict(self.profile.exploration_config())  # every exploration parameter, as eval's summary
         sim_settings = self.profile.simulator_settings()
         if sim_settings is not None:  # every parameter of the sim service's simulator, defaults too (as eval's)
             meta["sim_settings"] = sim_settings
@@ -941,6 +947,11 @@ class Launcher:
                 return self.stop_before_start(EXIT_BAD_CONFIG)
             ending: EpisodeEnd | None = None  # the ended episode's results being written (start_episode_end)
             try:
+                pr = self.profile  # which run this is, and where to look, before the services' lines
+                log.info(
+                    "run %s: profile %s, scene %s, method %s, robot %s; logs, then results, in %s/",
+                    self.run_id, pr.name, pr.scene, pr.method, pr.robot, self.run_dir,
+                )  # fmt: skip
                 self.spawn_all()
                 self.write_run_file("running")
                 if view is not None:
@@ -1023,8 +1034,16 @@ class Launcher:
                     s.undeclare()
                 self.write_run_file("stopped")
                 self.remove_current_pointer()
+                log.info("%s", self.closing_line())
         self.session = None
         return self.exit_code
+
+    def closing_line(self) -> str:
+        """The run's last line, under the services' stop: where its results are and what to open first, or, for a
+        run stopped before its episode's results were written, what it kept and how to read it."""
+        if self.outputs_written:
+            return results_said(self.run_dir)
+        return f"no results: the run's profile and logs are in {self.run_dir}/ (`cso-runtime logs --run {self.run_dir}`)"
 
 
 def write_episode_outputs(

@@ -8,6 +8,8 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any
 
+from cso_runtime.config import EXIT_INTERRUPTED
+from cso_runtime.messages import EPISODE_OVER
 from cso_runtime.pace import real_time_words
 
 if TYPE_CHECKING:
@@ -81,7 +83,11 @@ class LiveView:
         else:
             goal_m = st.goal_in_map_frame
             goal = "-" if goal_m is None else f"({goal_m[0]:.2f}, {goal_m[1]:.2f}) m"
-            t.add_row("state", escape(st.state + (f" ({st.terminated_by})" if st.terminated_by else "") + (f": {st.reason}" if st.reason else "") + waits))
+            if la.exit_code == EXIT_INTERRUPTED and st.state not in EPISODE_OVER:  # the last table after Ctrl-C or `down`
+                state = "interrupted: no results"  # the step row says where; the log above it, more
+            else:
+                state = st.state + (f" ({st.terminated_by})" if st.terminated_by else "") + (f": {st.reason}" if st.reason else "") + waits
+            t.add_row("state", escape(state))
             t.add_row("scene", escape(st.scene))
             since = f"{time.monotonic() - la.started_s:.0f} s since start"
             when = ", ".join([*robot_time_words(st.step, la.sim_step_s), since])

@@ -1137,6 +1137,19 @@ policy server's, later still; ``awaited``, beside ``outside``: the episode waits
 bridge, last), and a newer one's unknown fields are left out."""
 
 
+LAST_EPISODE_FIGURES: dict[str, Callable[[dict, str, str], Any]] = {
+    "terminated_by": lambda b, k, w: _str(b, k, w, max_len=64),
+    "scene": lambda b, k, w: _str(b, k, w),
+    "method": lambda b, k, w: _str(b, k, w, max_len=64),
+    "coverage_pct": lambda b, k, w: _num(b, k, w, lo=0.0),
+    "explored_area_m2": lambda b, k, w: _num(b, k, w, lo=0.0),
+    "path_length_m": lambda b, k, w: _num(b, k, w, lo=0.0),
+    "decisions": _int,
+}
+"""The figures of the last episode status that the launcher's ``last_episode`` also carries, with their readers: what
+``status`` shows of an episode whose sim no longer answers (an ended run stopping its services)."""
+
+
 @dataclass
 class LauncherStatusMsg(Message):
     """The launcher's view: run id, each service process (pid, alive, restarts, given up), rejections, and
@@ -1149,9 +1162,10 @@ class LauncherStatusMsg(Message):
     rejected: dict[str, int] = field(default_factory=dict)
     handler_errors: dict[str, int] = field(default_factory=dict)
     last_episode: dict[str, Any] | None = None
-    """The last episode status the launcher heard (``state``, ``step``, ``episode``) and ``age_s``, the seconds
-    since: what ``status`` says when the sim does not answer (stopped, hung) instead of "starting". Optional on
-    decoding (older launchers do not send it); None before the first."""
+    """The last episode status the launcher heard (``state``, ``step``, ``episode`` and its ``LAST_EPISODE_FIGURES``,
+    each optional on decoding) and ``age_s``, the seconds since: what ``status`` says when the sim does not answer
+    (stopped, hung, or stopped after the episode) instead of "starting". Optional on decoding (older launchers do not
+    send it); None before the first."""
     real_time_factor: float | None = None
     """The simulator's simulated seconds per wall-clock second in the episode so far, as ``up``'s live view shows it
     (``pace.StepPace``). Optional on decoding (older launchers do not send it); None on a real robot and before two
@@ -1194,7 +1208,11 @@ class LauncherStatusMsg(Message):
             if not isinstance(last, dict):
                 raise MessageError("launcher_status.last_episode: expected a mapping")
             lw = "launcher_status.last_episode"
-            last = {"state": _str(last, "state", lw, max_len=64), "step": _int(last, "step", lw), "episode": _int(last, "episode", lw), "age_s": _num(last, "age_s", lw, lo=0.0)}
+            heard = last
+            last = {"state": _str(heard, "state", lw, max_len=64), "step": _int(heard, "step", lw), "episode": _int(heard, "episode", lw), "age_s": _num(heard, "age_s", lw, lo=0.0)}
+            for key, read in LAST_EPISODE_FIGURES.items():  # optional: older launchers send none of them
+                if key in heard:
+                    last[key] = read(heard, key, lw)
         pace = None if b.get("real_time_factor") is None else _num(b, "real_time_factor", w, lo=0.0)
         lost = None if b.get("lost_router") is None else _str(b, "lost_router", w, max_len=1024)
         return cls(_str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace, lost)

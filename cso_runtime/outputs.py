@@ -45,6 +45,11 @@ def trajectory_plot_path(out_dir: Path, scene: str) -> Path:
     return Path(out_dir) / "trajectories" / f"{file_stem(scene)}.png"
 
 
+def results_said(out_dir: Path) -> str:
+    """The closing line of ``eval`` and of a finished ``up``: where the results are, and the file to open first."""
+    return f"results in {out_dir}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
+
+
 def write_text_atomic(path: Path, text: str) -> None:
     """Write ``path`` whole or not at all (a file of its own beside it, then renamed over it): a crash, a
     kill or a reader at the wrong moment never sees half a summary or run file."""

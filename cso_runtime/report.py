@@ -147,6 +147,11 @@ def run_settings_text(meta: dict[str, Any]) -> str:
     """The run's header line: what made the table, with the sensor's field of view and the step limit, which decide
     whether it compares with the paper's (360 degrees, 3000 steps); ``meta.config`` is absent from older summaries."""
     parts = [f"{k}: {meta[k]}" for k in ("command", "version", "maps", "m_per_px", "cell_sizes_m", "seed", "sim") if meta.get(k) is not None]
+    profile = meta.get("profile")
+    if isinstance(profile, dict):  # a run of `up`: its profile, as run, stands for eval's flags
+        shown = {"profile": profile.get("name"), "scene": profile.get("scene"), "seed": profile.get("seed")}
+        parts += [f"{k}: {v}" for k, v in shown.items() if v is not None]
+        parts.append("lockstep" if profile.get("lockstep") else "real time")
     config = meta.get("config") or {}
     fov_deg = (config.get("sensor") or {}).get("fov_deg")
     max_steps = (config.get("episode") or {}).get("max_steps")

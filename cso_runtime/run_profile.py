@@ -24,6 +24,7 @@ from cso_runtime.config import (
     from_dict,
     load_yaml,
     set_dotted,
+    with_nearest,
 )
 from cso_runtime.keys import check_robot_id
 from cso_runtime.scenes import SceneError, resolve_scenes
@@ -325,14 +326,18 @@ def profile_names() -> list[str]:
 def find_profile(name_or_path: str) -> Path:
     """The file of ``--profile``: a .yaml path as given, else ``NAME.yaml`` on ``profile_search_path``."""
     p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") and p.is_file():
-        return p
+    known = ", ".join(profile_names()) or "none"
+    if p.suffix in (".yaml", ".yml"):  # a path, never a name: a missing one is a missing file
+        if p.is_file():
+            return p
+        raise ConfigError(f"profile file not found: {name_or_path} (a .yaml path; known profiles by name: {known})")
     for folder in profile_search_path():
         for ext in (".yaml", ".yml"):
             cand = folder / f"{name_or_path}{ext}"
             if cand.is_file():
                 return cand
-    raise ConfigError(f"unknown profile {name_or_path!r}; known profiles: {', '.join(profile_names()) or 'none'} (or give a .yaml path)")
+    said = with_nearest(name_or_path, profile_names(), shown=repr(name_or_path))
+    raise ConfigError(f"unknown profile {said}; known profiles: {known} (or give a .yaml path)")
 
 
 def load_profile(

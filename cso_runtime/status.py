@@ -21,6 +21,7 @@ from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, map_frame_xy
 from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id
 from cso_runtime.messages import (
     EPISODE_OVER,
+    LAST_EPISODE_FIGURES,
     EpisodeStatusMsg,
     LauncherStatusMsg,
     MapMsg,
@@ -171,7 +172,7 @@ def episode_or_last_heard(episode: dict[str, Any] | None, launcher: dict[str, An
     if last is None:
         return {"state": "starting"}, None
     age_s = float(last["age_s"])
-    heard = {"step": last["step"], "episode": last["episode"]}
+    heard = {"step": last["step"], "episode": last["episode"], **{k: last[k] for k in LAST_EPISODE_FIGURES if k in last}}
     if last["state"] in EPISODE_OVER:
         return {**heard, "state": last["state"]}, age_s
     why = f"the sim does not answer; its last episode status, {age_s:.1f} s ago, said {last['state']} at step {last['step']}"

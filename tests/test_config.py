@@ -391,3 +391,18 @@ def test_the_lockstep_sim_gives_up_only_after_it_has_re_published_a_step():
     with pytest.raises(ConfigError, match=r"services.sim: lockstep_give_up_s \(0.5 s\) must exceed lockstep_timeout_s \(1.0 s\)"):
         load_profile("lockstep", {}, settings={"services.sim.lockstep_give_up_s": 0.5})
     load_profile("lockstep", {}, settings={"services.sim.lockstep_give_up_s": 1.5})
+
+
+def test_a_mistyped_profile_name_or_a_missing_profile_file_says_what_is_wrong(tmp_path, monkeypatch):
+    """``up --profile smi`` names the profile it most likely misspells, as an unknown method does; a .yaml path
+    that is not there is said to be a missing file, not an unknown profile name (a path is never a name)."""
+    from cso_runtime.run_profile import find_profile
+
+    monkeypatch.chdir(tmp_path)  # no ./configs/profiles here: the packaged profiles alone
+    with pytest.raises(ConfigError, match=r"unknown profile 'smi' \(did you mean sim\?\); known profiles: limo-ros2, lockstep, sim"):
+        find_profile("smi")
+    with pytest.raises(ConfigError, match=r"profile file not found: nope\.yaml \(a \.yaml path; known profiles by name: limo-ros2"):
+        find_profile("nope.yaml")
+    with pytest.raises(ConfigError, match=r"profile file not found: .*sim\.yml"):
+        find_profile(str(tmp_path / "sim.yml"))  # a path, even where its stem is a known name
+    assert find_profile("sim").name == "sim.yaml"

@@ -388,3 +388,14 @@ def test_the_zenoh_config_examples_of_hardware_md_are_files_zenoh_and_the_runtim
         path.write_text(block)
         load_zenoh_config_file(path)
     assert any(key.rsplit("/", 1)[1] in section for key in FILE_KEYS)
+
+
+def test_every_commands_help_reads_whole_on_an_80_column_terminal():
+    """``up --help`` on a plain terminal cut the second ``--set`` example to ``exploration.episode.max_steps=4…``:
+    rich ellipsizes a word longer than its column, so every command's help is written in words that wrap."""
+    from typer.testing import CliRunner
+
+    cli = typer.main.get_command(app)
+    for name in cli.commands:
+        r = CliRunner().invoke(app, [name, "--help"], terminal_width=80, env={"COLUMNS": "80"})
+        assert r.exit_code == 0 and "…" not in r.output, f"{name} --help:\n{r.output}"

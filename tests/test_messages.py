@@ -102,6 +102,8 @@ def test_scan_round_trip_keeps_inf_and_values():
         LauncherStatusMsg("run1", "running", {"sim": {"pid": 12, "restarts": 0}}, {"path": 1}),
         LauncherStatusMsg("run1", "running", {"ros2_bridge": {"pid": 12, "restarts": 1, "robot_stops": 1}}),
         LauncherStatusMsg("run1", "running", last_episode={"state": "exploring", "step": 41, "episode": 7, "age_s": 12.5}),
+        LauncherStatusMsg("run1", "stopping", last_episode={"state": "done", "step": 90, "episode": 7, "age_s": 0.5, "terminated_by": "coverage", "scene": "s",
+                                                            "method": "cso", "coverage_pct": 99.5, "explored_area_m2": 40.0, "path_length_m": 12.25, "decisions": 9}),
         LauncherStatusMsg("run1", "running", real_time_factor=2.125),
     ],
 )
@@ -499,6 +501,8 @@ def _mutate(msg, **changes) -> bytes:
         _mutate(LauncherStatusMsg("run1", "running"), services={"ros2_bridge": {"robot_stops": -1}}),
         _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "exploring", "step": 41, "episode": 7, "age_s": -1.0}),
         _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "exploring", "step": 41}),
+        _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "done", "step": 41, "episode": 7, "age_s": 1.0, "coverage_pct": -1.0}),
+        _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "done", "step": 41, "episode": 7, "age_s": 1.0, "scene": 3}),
         _mutate(LauncherStatusMsg("run1", "running"), last_episode=[1]),
         _mutate(LauncherStatusMsg("run1", "running"), real_time_factor=-1.0),
         _mutate(LauncherStatusMsg("run1", "running"), real_time_factor=float("nan")),

@@ -1676,6 +1676,32 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     assert piped.getvalue().count("6.50 m ahead on the path") == 1 and piped.getvalue().endswith("┘\n")
 
 
+def test_the_live_views_last_table_after_ctrl_c_says_the_run_was_interrupted(tmp_path):
+    """Ctrl-C (or ``down``) on a foreground ``up``: the table left on the terminal said ``exploring`` above "services
+    stopped", as if the episode went on; it says the run was interrupted, with no results (the step row says where)."""
+    from rich.console import Console
+
+    from cso_runtime.config import EXIT_INTERRUPTED
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    launcher.status = EpisodeStatusMsg(state="exploring", step=39, scene="s", method="greedy-dist", coverage_pct=48.0, explored_area_m2=35.0)
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert re.search(r"│ state +│ exploring +│", console.export_text()), console.export_text()
+    launcher.exit_code = EXIT_INTERRUPTED  # what the run loop sets on Ctrl-C, SIGTERM or `down`, before the last table
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert re.search(r"│ state +│ interrupted: no results +│", console.export_text()), console.export_text()
+    launcher.status.state, launcher.status.terminated_by = "done", "coverage"  # an ended episode stays as it ended
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert re.search(r"│ state +│ done \(coverage\) +│", console.export_text()), console.export_text()
+
+
 def test_live_view_shows_a_service_the_run_leaves_out_and_what_the_episode_waits_for(tmp_path):
     """``up``'s live view listed only the services the run started: a run whose profile has no policy stood at
     step 0 with every row up, and nothing in the view said that the episode waited for a policy nobody served
@@ -1792,11 +1818,17 @@ def test_status_says_the_episode_is_stale_not_starting_when_the_sim_stops_answer
     assert (status["state"], status["step"], status["episode"], status["status_age_s"]) == ("stale", 41, 7, 12.5)
     assert re.search(r"state +│ stale: the sim does not answer; its last episode status, 12\.5 s ago, said exploring at step 41", text), text
     assert re.search(r"step +│ 41 ", text) and "starting" not in text, text
-    done = EpisodeStatusMsg("done", 90, terminated_by="coverage", episode=7)
+    done = EpisodeStatusMsg(
+        "done", 90, terminated_by="coverage", episode=7, scene="s", method="cso", coverage_pct=99.5, explored_area_m2=40.0, path_length_m=12.25, decisions=9
+    )
     launcher._on_sample(SimpleNamespace(key_expr=launcher.keys.topic("episode_status"), payload=SimpleNamespace(to_bytes=lambda: encode(done))))
     now_s[0] += 3.0  # an episode over stays over when the sim has gone
-    status, _ = status_without_the_sim()
+    status, text = status_without_the_sim()
     assert (status["state"], status["step"], status["status_age_s"]) == ("done", 90, 3.0)
+    # with its figures: `status --watch` on a run whose services stop after its episode showed "0.00 %", no scene
+    shown = {k: status[k] for k in ("terminated_by", "scene", "method", "coverage_pct", "explored_area_m2", "path_length_m", "decisions")}
+    assert shown == {"terminated_by": "coverage", "scene": "s", "method": "cso", "coverage_pct": 99.5, "explored_area_m2": 40.0, "path_length_m": 12.25, "decisions": 9}
+    assert re.search(r"scene / method +│ s / cso ", text) and re.search(r"coverage +│ 99\.50 % ", text), text
 
 
 def test_log_lines_during_the_live_view_print_above_the_table_not_inside_it(tmp_path):
@@ -2306,6 +2338,15 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         summary = json.loads(run_dir.read_text())
         zenoh_metrics = summary["methods"][method]
         assert summary["meta"]["command"] == "cso-runtime up" and summary["meta"]["version"] == cso_runtime.__version__
+        from cso_runtime.config import to_dict
+        from cso_runtime.run_profile import load_profile
+
+        ran = load_profile(str(profile), {})[0].exploration_config()
+        assert summary["meta"]["config"] == to_dict(ran)  # every exploration parameter, as eval's summary holds them
+        # report.html says what made its table, as eval's does: the profile, scene, seed, sensor and step limit
+        settings = f"command: cso-runtime up, version: {cso_runtime.__version__}, profile: lockstep, scene: {scene}, seed: 0, lockstep, "
+        settings += f"sensor field of view: {ran.sensor.fov_deg:g} degrees, step limit: {ran.episode.max_steps}"
+        assert f"<p>{settings}</p>" in (run_dir.parent / "report.html").read_text()
         expected = in_process_result(scene, method)
         assert zenoh_metrics["steps"] == expected.steps
         assert abs(zenoh_metrics["coverage_pct"] - expected.coverage_pct) < 1e-3
@@ -2315,6 +2356,8 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         closing += f"{expected.explored_area_m2:.2f} m2 explored, {expected.efficiency_m2_per_step:.4f} m2/step, "
         closing += f"path {zenoh_metrics['path_length_m']:.2f} m, {expected.decisions} decisions; results in {out}"
         assert closing in r.stderr  # the Table 1 row of the run, said when it ends
+        # its last line, under the services' stop: where the results are and what to open first, as eval's
+        assert r.stderr.rstrip().splitlines()[-1].endswith(f"results in {out}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures")
         assert (out / "trajectories" / f"{expected.scene}.png").is_file()
         with Image.open(out / "animations" / method / f"{expected.scene}.gif") as gif:  # --animate, from the run's recording
             assert gif.n_frames >= 2 and (out / "recording.mcap").is_file()
@@ -3037,6 +3080,12 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
         assert proc.wait(timeout=30) == 130
         out = proc.stdout.read().decode()
         assert "interrupted at step" in out
+        (run_dir,) = [d for d in runs.iterdir() if d.is_dir()]
+        # its first line says which run this is and where its logs and results go, before any service starts
+        first = out.splitlines()[0]
+        assert first.endswith(f"INFO cso.launcher: run {run_dir.name}: profile lockstep, scene {SCENE}, method greedy-dist, robot r0; logs, then results, in {run_dir}/"), out
+        # its last line says what the interrupted run kept, and where
+        assert out.rstrip().splitlines()[-1].endswith(f"no results: the run's profile and logs are in {run_dir}/ (`cso-runtime logs --run {run_dir}`)"), out
         # without a live view, a followed log is never silent: the episode's progress every progress_log_s
         # (with the sim's real-time factor, at most about 1.25x at 0.2 s a step of 0.25 s, once two statuses have come)
         line = r"INFO cso\.launcher: step \d+ \([\d.]+ s robot time(, [\d.]+x real time)?\): coverage [\d.]+ %, [\d.]+ m2 explored"
