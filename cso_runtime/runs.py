@@ -78,7 +78,8 @@ def _whole(steps: Any) -> Any:
     return int(steps) if isinstance(steps, float) and steps.is_integer() else steps
 
 
-def _read_json(path: Path) -> dict[str, Any] | None:
+def read_json_object(path: Path) -> dict[str, Any] | None:
+    """A JSON object file (``run.json``, ``summary.json``), or None when it is missing, unreadable or not an object."""
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
@@ -97,13 +98,13 @@ def run_dirs(runs_dir: Path) -> list[Path]:
 def summarize_run(run_dir: Path) -> RunSummary:
     """A run folder as ``runs`` lists it, read from its run.json, profile.yaml and summary.json; a missing or broken
     file leaves its fields empty instead of failing the listing."""
-    info = _read_json(run_dir / "run.json") or {}
+    info = read_json_object(run_dir / "run.json") or {}
     try:
         profile = yaml.safe_load((run_dir / "profile.yaml").read_text()) or {}
     except (OSError, yaml.YAMLError):
         profile = {}
     profile = profile if isinstance(profile, dict) else {}
-    summary = _read_json(run_dir / "summary.json") or {}
+    summary = read_json_object(run_dir / "summary.json") or {}
     methods = summary.get("methods") if isinstance(summary.get("methods"), dict) else {}
     method = str(profile.get("method", "")) or next(iter(methods), "")
     if info and current_launcher_alive(info):
@@ -163,14 +164,14 @@ def resolve_run(runs_dir: Path, run: str | None = None) -> Path:
 
 def run_is_live(run_dir: Path) -> bool:
     """Whether the run's launcher still runs (so its logs may still grow)."""
-    info = _read_json(run_dir / "run.json")
+    info = read_json_object(run_dir / "run.json")
     return info is not None and current_launcher_alive(info)
 
 
 def run_is_exploring(run_dir: Path) -> bool:
     """Whether the run's episode goes on: its launcher runs and has not written the episode's end (a detached run
     stays up after it, for ``status``, until ``down``). What ``logs -f`` follows."""
-    info = _read_json(run_dir / "run.json")
+    info = read_json_object(run_dir / "run.json")
     return info is not None and info.get("state") in ("starting", "running") and current_launcher_alive(info)
 
 

@@ -154,6 +154,7 @@ def status_of(
         "status_age_s": age_s,
         "real_time_factor": (launcher or {}).get("real_time_factor"),
         "lost_router": (launcher or {}).get("lost_router"),
+        "launcher_state": (launcher or {}).get("state"),
     }
 
 
@@ -285,10 +286,11 @@ def waiting_note(waiting: list[str]) -> str:
     return f"; waiting for {', '.join(waiting)}, which no process serves" if waiting else ""
 
 
-def presence_words(name: str, service: dict[str, Any], waiting: list[str]) -> list[str]:
+def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False) -> list[str]:
     """How a service's row begins (an entry of ``status_of``'s ``services``): alive or DOWN, not started by this
-    run (another process is to serve it), and whether the episode waits for it; ``status`` and the live view alike."""
-    words = ["alive" if service["alive"] else "DOWN"]
+    run (another process is to serve it), and whether the episode waits for it; ``status`` and the live view alike.
+    ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN)."""
+    words = ["alive" if service["alive"] else "stopping" if stopping else "DOWN"]
     if service.get("outside"):
         words.append("not started by this run")
     if name in waiting:
@@ -322,8 +324,9 @@ def render_table(status: dict[str, Any]) -> Table:
     ):
         t.add_row(k, escape(v))
     episode_over = status["state"] in EPISODE_OVER
+    stopping = status.get("launcher_state") == "stopping"
     for name, s in status["services"].items():
-        bits = presence_words(name, s, waiting)
+        bits = presence_words(name, s, waiting, stopping)
         if s.get("state") == "stale" and episode_over:
             # Inputs stop when the episode ends; "stale" would read like a fault (JSON keeps the raw state).
             bits.append(f"idle (episode {status['state']}; last step {s.get('last_step', 0)})")
@@ -346,9 +349,75 @@ def render_table(status: dict[str, Any]) -> Table:
     launcher_bits = ([f"rejected {rejected}"] if rejected else []) + ([f"{errors} callback errors (see its log)"] if errors else [])
     if status.get("lost_router"):  # the run's own router answers; the robot's, which it joined, does not
         launcher_bits.insert(0, f"LOST the router at {status['lost_router']} (is the robot or its zenoh bridge down?)")
+    if stopping:
+        launcher_bits.insert(0, "stopping the run's services")
     if launcher_bits:
         t.add_row("launcher", escape(", ".join(launcher_bits)))
     return t
+
+
+RUN_END_WAIT_S = 5.0
+"""How long ``status --watch`` waits, once the run it watched stops answering while its launcher lives, for the
+launcher to write that the run stopped: it stops answering just before it writes ``run.json`` a last time."""
+
+
+def watched_run_dir(status: dict[str, Any], runs_dir: Path) -> Path | None:
+    """The folder of the run that answered ``status``: the current run file's, when that file names the same run."""
+    from cso_runtime.current_run import read_current_run  # noqa: PLC0415
+
+    info = read_current_run(runs_dir)
+    if info is None or not status.get("run_id") or info.get("run_id") != status["run_id"] or not info.get("run_dir"):
+        return None
+    return Path(info["run_dir"])
+
+
+def stopped_run(run_dir: Path, wait_s: float = RUN_END_WAIT_S) -> dict[str, Any] | None:
+    """The ``run.json`` of a watched run that no longer answers, once it says the run stopped (with its ``outcome``
+    and ``exit_code``); None when it does not, at once when its launcher is gone, else after ``wait_s``."""
+    from cso_runtime.current_run import current_launcher_alive  # noqa: PLC0415
+    from cso_runtime.runs import read_json_object  # noqa: PLC0415
+
+    deadline_s = time.monotonic() + wait_s
+    while True:
+        info = read_json_object(run_dir / "run.json")
+        if info is None:
+            return None
+        if info.get("state") == "stopped":
+            return info
+        if not current_launcher_alive(info) or time.monotonic() >= deadline_s:
+            return None
+        time.sleep(0.05)
+
+
+def run_end_exit_code(run: dict[str, Any]) -> int:
+    """``status --watch``'s exit code for a run it watched end: 0 when it ended done, else ``up``'s own exit code
+    (130 interrupted, 1 or more failed; 1 for a failed run that recorded none)."""
+    if run.get("outcome") == "done":
+        return 0
+    code = run.get("exit_code")
+    return code if isinstance(code, int) and not isinstance(code, bool) and code > 0 else 1
+
+
+def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_json: bool) -> int:
+    """The line ``status --watch`` ends with when the run it watched stopped: how it ended (its ``outcome``, the
+    episode's end and ``terminated_by`` as last seen) and where its results are; ``run_end_exit_code``."""
+    from cso_runtime.outputs import results_said  # noqa: PLC0415
+    from cso_runtime.runs import LOG_DIR  # noqa: PLC0415
+
+    outcome = str(run.get("outcome") or "failed")
+    code = run_end_exit_code(run)
+    over = last.get("state") in EPISODE_OVER
+    ended_by = last.get("terminated_by") or ""
+    episode = f"its episode {last.get('state')}" + (f" ({ended_by})" if ended_by else "") + f" at step {last.get('step', 0)}"
+    where = results_said(run_dir) if outcome == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
+    line = f"run {run.get('run_id')} ended: {outcome}" + (f", {episode}" if over else "") + (f", exit code {code}" if code else "") + f"; {where}"
+    if as_json:
+        ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "outcome": outcome, "exit_code": code}
+        episode_end = {"episode_state": last.get("state"), "terminated_by": ended_by, "step": last.get("step", 0)} if over else {}
+        print(json.dumps({"state": NOT_RUNNING, "reason": f"nothing running ({line})", **ended, **episode_end}), flush=True)
+    else:
+        print(line)
+    return code
 
 
 def status_main(connect: list[str], robot: str | None, as_json: bool, watch: bool, runs_dir: Path, period_s: float = 1.0, console: Console | None = None) -> int:
@@ -368,26 +437,40 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     in_place = watch and not as_json and console.is_terminal
     live: Live | None = None
     next_s = time.monotonic()
+    watched: tuple[Path, dict[str, Any]] | None = None  # the run that answered (its folder) and its last fresh status
+    last: dict[str, Any] = {}
     try:
         while True:
             status = query_status(connect, robot)
             if status is None:
                 if live is not None:
                     live.stop()  # the last table stays; the line below goes under it
+                # A run seen answering that stopped since: how it ended and where its results are, not "nothing running".
+                if watched is not None and (run := stopped_run(watched[0])) is not None:
+                    return say_run_ended(run, watched[0], last, as_json)
                 from cso_runtime.current_run import read_current_run  # noqa: PLC0415
 
                 info = None if given_connect else read_current_run(runs_dir)
                 why = stopped_launcher_of_run(info) or lost_router_of_run(info)
                 return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}" + (f"; {why}" if why else ""), as_json)
+            shown, last = status, status
+            if watch:
+                if watched is None and (run_dir := watched_run_dir(status, runs_dir)) is not None:
+                    watched = (run_dir, status)
+                if watched is not None and status.get("status_age_s") is None:
+                    watched = (watched[0], status)
+                elif watched is not None and watched[1].get("episode") == status.get("episode"):
+                    # The sim has stopped (the run stopping): the goal and the last decision's time as last answered.
+                    shown = {**status, "goal": watched[1].get("goal"), "last_decision_ms": watched[1].get("last_decision_ms", 0.0)}
             if as_json:
                 print(json.dumps(status), flush=True)
             elif in_place and live is None:
-                live = Live(render_table(status), console=console, auto_refresh=False)
+                live = Live(render_table(shown), console=console, auto_refresh=False)
                 live.start(refresh=True)
             elif live is not None:
-                live.update(render_table(status), refresh=True)
+                live.update(render_table(shown), refresh=True)
             else:
-                console.print(render_table(status))
+                console.print(render_table(shown))
             if not watch:
                 return 0
             # A fixed schedule: the lines come every period_s however long a query took (a slow or silent service

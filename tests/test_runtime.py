@@ -2264,6 +2264,54 @@ def test_status_watch_redraws_one_table_on_a_terminal_and_appends_plain_tables_e
         assert "\x1b" not in text and text.count("robot r0  run run1") == 3  # each status once, one under the other
 
 
+@pytest.mark.parametrize(("outcome", "exit_code", "as_json"), [("done", 0, False), ("done", 0, True), ("interrupted", 130, False), ("failed", 1, True)])
+def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_results_are(tmp_path, monkeypatch, capsys, outcome, exit_code, as_json):
+    """``status --watch`` on a run of ``up`` that ended normally said "nothing running (no answer ...)" and exited 1,
+    its last table showing the services DOWN, goal "-" and "last 0.0 ms" as the launcher stopped them. A run it saw
+    answering whose run.json then says it stopped: how it ended, where its results are, exit 0 when done (else
+    ``up``'s exit code); the frame while the launcher stops the services says "stopping" and keeps the goal."""
+    import io
+
+    from rich.console import Console
+
+    from cso_runtime import status
+
+    runs = tmp_path / "runs"
+    run_dir = runs / "20261206-120000-lockstep-r0"
+    run_dir.mkdir(parents=True)
+    running = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(), "state": "running"}
+    for path in (run_dir / "run.json", runs / "current.json"):
+        path.write_text(json.dumps(running))
+    services = {"sim": {"pid": 1, "restarts": 0}, "planner": {"pid": 2, "restarts": 0}}
+    episode = {"state": "exploring", "step": 5, "episode": 7, "scene": "s", "method": "cso", "goal_xy_m": [1.5, 2.5], "last_decision_ms": 12.5, "decisions": 3}
+    exploring = status.status_of("r0", episode, {"run_id": "run1", "state": "running", "services": services}, {}, {"sim", "planner"})
+    heard = {"state": "done", "step": 9, "episode": 7, "age_s": 0.4, "terminated_by": "coverage", "decisions": 4}
+    stopping = status.status_of("r0", None, {"run_id": "run1", "state": "stopping", "services": services, "last_episode": heard}, {}, set())
+
+    def launcher_ends() -> None:  # as the launcher does once its services stopped: run.json says how, current.json goes
+        (run_dir / "run.json").write_text(json.dumps({**running, "state": "stopped", "outcome": outcome, "exit_code": exit_code}))
+        (runs / "current.json").unlink()
+
+    answers = iter([lambda: exploring, lambda: stopping, lambda: launcher_ends()])
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6: next(answers)())
+    monkeypatch.setattr(status.time, "sleep", lambda s: None)
+    out = io.StringIO()
+    console = Console(file=out, force_terminal=False, width=100, height=60, color_system=None)
+    code = status.status_main([], None, as_json=as_json, watch=True, runs_dir=runs, period_s=0.1, console=console)
+    said = capsys.readouterr().out
+    assert code == exit_code
+    if as_json:
+        last = json.loads(said.splitlines()[-1])
+        assert (last["state"], last["outcome"], last["exit_code"], last["run_dir"]) == ("not running", outcome, exit_code, str(run_dir))
+        assert (last["episode_state"], last["terminated_by"], last["step"]) == ("done", "coverage", 9)
+        return
+    assert said.startswith(f"run run1 ended: {outcome}, its episode done (coverage) at step 9") and "no answer" not in said, said
+    assert (f"results in {run_dir}/: report.html" in said) == (outcome == "done") and (f", exit code {exit_code}" in said) == (exit_code != 0), said
+    last_table = out.getvalue().split("robot r0  run run1")[-1]
+    assert "DOWN" not in last_table and re.search(r"service sim +│ stopping", last_table), last_table
+    assert re.search(r"goal +│ \(1\.50, 2\.50\) m", last_table) and "last 12.5 ms" in last_table, last_table
+
+
 def test_status_tables_wrap_on_a_narrow_terminal_rather_than_cut_with_an_ellipsis():
     from rich.console import Console
 
