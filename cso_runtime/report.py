@@ -46,6 +46,11 @@ def _fmt(v: Any, nd: int) -> str:
     return "-" if v is None else f"{v:.{nd}f}"
 
 
+def whole_count(count: Any) -> Any:
+    """One episode's count (its steps) as the whole number it is: ``summary.json`` writes it as a mean (36.0)."""
+    return int(count) if isinstance(count, float) and count.is_integer() else count
+
+
 def _fmt_spread(e: dict[str, Any], metric: str, nd: int) -> str:
     """``12.3 ± 1.2``: the metric's mean and its sample standard deviation; the mean alone where there is none
     (one episode, or a summary.json from before the spread was written)."""
@@ -73,11 +78,13 @@ def table1_cells(e: dict[str, Any], spread: bool = True) -> list[str]:
     def cell(metric: str, nd: int) -> str:
         return _fmt_spread(e, metric, nd) if spread else _fmt(e[metric], nd)
 
+    # A row of one episode: its steps as counted (261), as the episode's own line and `runs` say them, not "261.0".
+    one_count = whole_count(e["steps"]) if e["episodes"] == 1 else None
     return [
         str(e["episodes"]),
         cell("explored_area_m2", 1),
         cell("coverage_pct", 2),
-        cell("steps", 1),
+        str(one_count) if isinstance(one_count, int) else cell("steps", 1),
         cell("efficiency_m2_per_step", 4),
         cell("path_length_m", 1),
         f"{cell('decision_ms_p50', 1)}/{cell('decision_ms_p99', 1)}",

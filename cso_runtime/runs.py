@@ -21,6 +21,7 @@ from typing import Any
 import yaml
 
 from cso_runtime.current_run import CURRENT_RUN, current_launcher_alive, read_current_run
+from cso_runtime.report import whole_count
 
 LOG_DIR = "logs"
 LOG_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
@@ -66,16 +67,11 @@ class RunSummary:
             "scene": self.scene,
             "method": self.method,
             **{k: self.metrics.get(k) for k in keys},
-            "steps": _whole(self.metrics.get("steps")),  # one episode's steps: summary.json's mean over its one episode
+            "steps": whole_count(self.metrics.get("steps")),  # a run is one episode: summary.json's mean over its one episode
             "terminated_by": next(iter(self.metrics.get("terminated_by") or {}), None),
             "restarts": self.restarts,
             "duration_s": None if self.duration_s is None else round(self.duration_s, 1),
         }
-
-
-def _whole(steps: Any) -> Any:
-    """A run is one episode, so its step count is a whole number; ``summary.json`` writes it as a mean (36.0)."""
-    return int(steps) if isinstance(steps, float) and steps.is_integer() else steps
 
 
 def read_json_object(path: Path) -> dict[str, Any] | None:

@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import io
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -982,6 +983,28 @@ def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(
     for part in (saved, saved["by_scale"]["small"]):
         assert all(part[f"{k}_std"] is None for k in METRICS)
     assert "±" not in (tmp_path / "one" / "report.html").read_text().split("<h2>Table 1</h2>")[1].split("</table>")[0]
+
+
+def test_a_row_of_one_episode_shows_its_steps_as_the_whole_count_in_the_report_and_on_the_console(tmp_path: Path, capsys, monkeypatch):
+    """report.html (and eval's console Table 1) showed one episode's steps as "261.0", a mean of one count, while the
+    episode's own line and ``runs`` say 261; a row of two or more episodes keeps its mean with one decimal."""
+    from cso_runtime.evaluation import print_summary, summarize
+    from cso_runtime.report import write_report
+
+    def row(scene: str, steps: int) -> dict:
+        return {"method": "greedy-dist", "map": scene, "seed": 0, "scale": "small", "traversable_area_m2": 30.0, "terminated_by": "coverage",
+                "explored_area_m2": 29.9, "coverage_pct": 99.5, "steps": steps, "efficiency_m2_per_step": 29.9 / steps, "path_length_m": 10.0,
+                "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}
+
+    monkeypatch.setenv("COLUMNS", "200")
+    one = summarize([row("a", 261)], [], ["greedy-dist"], {})
+    table = write_report(tmp_path, one).read_text().split("<h2>Table 1</h2>")[1].split("</table>")[0]
+    assert "<td>261</td>" in table and "261.0" not in table, table
+    print_summary(one, tmp_path)
+    assert re.search(r"│ +261 +│", capsys.readouterr().out)
+    two = summarize([row("a", 261), row("b", 262)], [], ["greedy-dist"], {})
+    table = write_report(tmp_path, two).read_text().split("<h2>Table 1</h2>")[1].split("</table>")[0]
+    assert "<td>261.5 ± 0.7</td>" in table, table
 
 
 def test_the_console_table_shows_the_spread_when_it_fits_and_the_means_alone_when_not(tmp_path: Path, capsys, monkeypatch):
