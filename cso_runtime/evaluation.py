@@ -31,7 +31,15 @@ from rich.markup import escape
 
 from cso_runtime import __version__
 from cso_runtime.animation import EpisodeAnimation
-from cso_runtime.comparison import MIN_SCENES, PAIRED_COLUMNS, as_dicts, compare_to_baseline, efficiency_by_scene, paired_cells
+from cso_runtime.comparison import (
+    MIN_SCENES,
+    PAIRED_COLUMNS,
+    as_dicts,
+    bootstrap_mean_ci,
+    compare_to_baseline,
+    efficiency_by_scene,
+    paired_cells,
+)
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import (
     EXIT_INTERRUPTED,
@@ -75,6 +83,7 @@ from cso_runtime.policies import (
 )
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import (
+    CI95_SUFFIX,
     MEANS_NOTE,
     SPREAD_NOTE,
     STD_SUFFIX,
@@ -484,9 +493,14 @@ def table_console() -> Any:
     return console if console.is_terminal else Console(width=max(console.width, 120))
 
 
-def _values(rows: list[dict[str, Any]], key: str) -> list[float]:
+def _rows_with(rows: list[dict[str, Any]], key: str) -> list[tuple[float, dict[str, Any]]]:
+    """``(value, row)`` of each row that has a finite ``key``."""
     # Rows read back from episodes.csv (benchmarks/tables.py) hold text, "" for a cell left empty (sim_time_s on a real robot).
-    return [float(v) for r in rows if (v := r.get(key)) not in (None, "") and math.isfinite(float(v))]
+    return [(float(v), r) for r in rows if (v := r.get(key)) not in (None, "") and math.isfinite(float(v))]
+
+
+def _values(rows: list[dict[str, Any]], key: str) -> list[float]:
+    return [v for v, _ in _rows_with(rows, key)]
 
 
 def _mean(rows: list[dict[str, Any]], key: str) -> float | None:
@@ -501,9 +515,26 @@ def _std(rows: list[dict[str, Any]], key: str) -> float | None:
     return round(float(np.std(values, ddof=1)), 6) if len(values) >= 2 else None
 
 
-def table1_stats(rows: list[dict[str, Any]]) -> dict[str, float | None]:
-    """Each Table 1 metric's mean over ``rows``, with its sample standard deviation beside it (``<metric>_std``)."""
-    return {key: value for k in METRICS for key, value in ((k, _mean(rows, k)), (f"{k}{STD_SUFFIX}", _std(rows, k)))}
+def _ci95(rows: list[dict[str, Any]], key: str) -> list[float] | None:
+    """95 % interval of ``key``'s mean by the bootstrap of ``compare`` (``bootstrap_mean_ci``: the plans resampled,
+    a plan's episodes kept together, a fixed seed, so the same episodes give the same interval); None under two
+    plans: one plan gives nothing to resample."""
+    kept = _rows_with(rows, key)
+    plans = [r["map"] for _, r in kept]
+    if len(set(plans)) < 2:
+        return None
+    low, high = bootstrap_mean_ci(np.array([v for v, _ in kept]), clusters=plans)
+    return [round(low, 6), round(high, 6)]
+
+
+def table1_stats(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Each Table 1 metric's mean over ``rows``, with its sample standard deviation (``<metric>_std``) and the 95 %
+    bootstrap interval of the mean over plans (``<metric>_ci95``, [low, high]) beside it."""
+    return {
+        key: value
+        for k in METRICS
+        for key, value in ((k, _mean(rows, k)), (f"{k}{STD_SUFFIX}", _std(rows, k)), (f"{k}{CI95_SUFFIX}", _ci95(rows, k)))
+    }
 
 
 def _efficiency_episodes(rows: list[dict[str, Any]]) -> int:

@@ -36,6 +36,9 @@ TABLE1_DEFINITIONS = (
 STD_SUFFIX = "_std"
 """``summary.json``'s key of a metric's sample standard deviation (ddof=1) over the episodes, beside its mean:
 ``coverage_pct_std``."""
+CI95_SUFFIX = "_ci95"
+"""``summary.json``'s key of a metric's 95 % bootstrap interval of the mean over plans, [low, high]:
+``coverage_pct_ci95``."""
 SPREAD_NOTE = "mean ± sample standard deviation (ddof=1) over the row's episodes; the mean alone for a row of one episode"
 """What a Table 1 cell shows, said under the table on the console and in the report."""
 MEANS_NOTE = "means over the row's episodes; each with its standard deviation in report.html and summary.json (<metric>_std)"

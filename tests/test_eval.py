@@ -1074,3 +1074,31 @@ def test_the_progress_bars_time_left_counts_only_the_episodes_run_now():
     progress.advance(EpisodeOutcome("greedy-dist", "img_3", row=row))
     assert "3/5 0:00:30 0:01:00" in bar()  # 2 left at 30 s each
     progress.stop()
+
+
+def test_summary_gives_each_table_1_mean_its_95_percent_bootstrap_interval_over_plans(tmp_path: Path):
+    """Researchers asked for a 95 % interval of each Table 1 mean, per method and per scale: ``<metric>_ci95`` in
+    summary.json, [low, high] from the same bootstrap as ``compare`` (``bootstrap_mean_ci``, plans resampled, fixed
+    seed), so it can be recomputed from episodes.csv; null with fewer than two plans (no spread to resample)."""
+    from cso_runtime.comparison import bootstrap_mean_ci
+
+    out = tmp_path / "out"
+    summary = run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:3:0", out_dir=out, max_steps=40))
+    with (out / "episodes.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    for method in ("greedy-dist", "random"):
+        mine = [r for r in rows if r["method"] == method]
+        assert len({r["map"] for r in mine}) == 3
+        entry = summary["methods"][method]
+        for part in (entry, entry["by_scale"]["small"]):
+            for k in METRICS:
+                expected = bootstrap_mean_ci(np.array([float(r[k]) for r in mine]), clusters=[r["map"] for r in mine])
+                assert part[f"{k}_ci95"] == pytest.approx(list(expected), abs=1e-6), (method, k)
+                assert part[f"{k}_ci95"][0] <= part[k] <= part[f"{k}_ci95"][1]
+    assert json.loads((out / "summary.json").read_text())["methods"]["random"]["coverage_pct_ci95"] == summary["methods"]["random"]["coverage_pct_ci95"]
+
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path / "one", max_steps=40))
+    saved = json.loads((tmp_path / "one" / "summary.json").read_text())["methods"]["greedy-dist"]
+    for part in (saved, saved["by_scale"]["small"]):
+        assert all(f"{k}_ci95" in part and part[f"{k}_ci95"] is None for k in METRICS)
+
