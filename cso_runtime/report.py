@@ -1,13 +1,14 @@
 """``report.html``: an evaluation's (or a run's) results on one page, for a browser.
 
 The Table 1 rows of ``summary.json`` (one block per scale, as the paper's), Table 2's layout when the run has
-ablations, the paired comparison with the baseline, the failures, and the figures already in the folder (coverage curves, efficiency by scale, the paired
+ablations, the paired comparison with the baseline, every episode of ``episodes.csv`` (collapsed), the failures, and the figures already in the folder (coverage curves, efficiency by scale, the paired
 scatter, each map's trajectories and animations), linked by relative paths so the folder can be moved or served
 as it is. Written by ``eval`` and ``up`` next to ``summary.json``; nothing here computes a metric.
 """
 
 from __future__ import annotations
 
+import csv
 import html
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,7 @@ from typing import Any
 from cso_runtime.comparison import PAIRED_COLUMNS, format_interval, paired_cells
 from cso_runtime.outputs import COVERAGE_FIGURE, EFFICIENCY_FIGURE, PAIRED_FIGURE, episode_animation_path, trajectory_plot_path
 from cso_runtime.policies import LEARNED_METHODS
-from cso_runtime.scenes import SCALES
+from cso_runtime.scenes import SCALES, scale_rank
 
 REPORT_NAME = "report.html"
 FIGURES = (
@@ -124,6 +125,43 @@ def _table(header: list[str] | tuple[str, ...], rows: list[list[str]]) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
+SCENE_COLUMNS = ("plan", "method", "scale", "seed", "coverage %", "steps", "m2/step", "terminated by")
+"""The per-scene table: one row per episode of ``episodes.csv``."""
+
+
+def scene_rows(out_dir: Path, summary: dict[str, Any]) -> list[list[str]]:
+    """Each episode of ``out_dir/episodes.csv`` as a ``SCENE_COLUMNS`` row, by scale, plan, then method as in Table 1,
+    so the methods on one plan stand together; only ``summary``'s methods and plans (its ``maps``, where written).
+    [] without the file (a folder of an older version, or one that lost it)."""
+    try:
+        with (out_dir / "episodes.csv").open(newline="", encoding="utf-8") as fh:
+            episodes = list(csv.DictReader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return []
+    methods = summary["methods"]
+    order = list(methods)
+
+    def shown(r: dict[str, str]) -> bool:
+        e = methods.get(r.get("method"))
+        return e is not None and ("maps" not in e or r.get("map") in e["maps"])
+
+    def number(r: dict[str, str], key: str, nd: int) -> str:
+        try:
+            return _fmt(float(r[key]), nd)
+        except (KeyError, TypeError, ValueError):
+            return "-"
+
+    def seed(r: dict[str, str]) -> tuple[int, str]:
+        text = r.get("seed") or ""
+        return (int(text), text) if text.lstrip("-").isdigit() else (0, text)
+
+    kept = sorted(filter(shown, episodes), key=lambda r: (scale_rank(r.get("scale") or ""), r.get("scale") or "", r.get("map") or "", order.index(r["method"]), seed(r)))
+    return [
+        [r.get("map") or "", r["method"], r.get("scale") or "", r.get("seed") or "", number(r, "coverage_pct", 2), r.get("steps") or "-", number(r, "efficiency_m2_per_step", 4), r.get("terminated_by") or ""]
+        for r in kept
+    ]
+
+
 def _img(out_dir: Path, path: Path, alt: str) -> str:
     rel = path.relative_to(out_dir).as_posix()
     return f'<a href="{html.escape(rel)}"><img src="{html.escape(rel)}" alt="{html.escape(alt)}" loading="lazy"></a>'
@@ -204,6 +242,10 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     if paired.get("comparisons"):
         parts.append(f"<h2>Against {html.escape(str(paired['baseline']))}, scene by scene</h2>")
         parts.append(_table(PAIRED_COLUMNS, [paired_cells(c) for c in paired["comparisons"]]))
+    scenes = scene_rows(out_dir, summary)
+    if scenes:
+        parts.append(f"<details><summary><b>Every episode, scene by scene</b> ({len(scenes)}, by scale then plan)</summary>")
+        parts += [_table(SCENE_COLUMNS, scenes), "</details>"]
     if summary.get("failures"):
         parts.append("<h2>Failures</h2><ul>")
         parts += [f"<li>{html.escape(f['method'])} {html.escape(f['map'])}: {html.escape((f['error'] or '').splitlines()[0] if f['error'] else '')}</li>" for f in summary["failures"]]

@@ -1102,3 +1102,45 @@ def test_summary_gives_each_table_1_mean_its_95_percent_bootstrap_interval_over_
     for part in (saved, saved["by_scale"]["small"]):
         assert all(f"{k}_ci95" in part and part[f"{k}_ci95"] is None for k in METRICS)
 
+
+def test_the_report_lists_every_episode_in_a_collapsed_per_scene_table(tmp_path: Path):
+    """report.html's per-scene table: a row per episode (plan, method, coverage %, steps, m2/step, how it ended),
+    sorted by scale then plan, inside a <details> closed by default, so a reader finds the scenes a method lost;
+    the sections before it stay as they were."""
+    out = tmp_path / "out"
+    run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:2:0", out_dir=out, max_steps=40))
+    with (out / "episodes.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    page = (out / "report.html").read_text()
+    assert "<h2>Table 1</h2>" in page and page.count("<details") == 1 and "<details open" not in page
+    section = page.split("<details", 1)[1].split("</details>", 1)[0]
+    body = section.split("<tbody>", 1)[1].split("</tbody>", 1)[0]
+    cells = [re.findall(r"<td>(.*?)</td>", tr) for tr in re.findall(r"<tr>(.*?)</tr>", body)]
+    assert len(cells) == len(rows) == 4
+    plans = [c[0] for c in cells]
+    assert plans == sorted(plans)
+    for r in rows:
+        row = next(c for c in cells if c[:2] == [r["map"], r["method"]])
+        assert row[4:] == [f"{float(r['coverage_pct']):.2f}", r["steps"], f"{float(r['efficiency_m2_per_step']):.4f}", r["terminated_by"]]
+
+
+def test_the_per_scene_table_goes_by_scale_then_plan_and_shows_only_the_summarys_episodes(tmp_path: Path):
+    """Scales small to super large (not alphabetical), plans by name within a scale, Table 1's method order on a
+    plan; an earlier run's episodes.csv rows of other methods or plans (not in summary.json) stay out."""
+    from cso_runtime.report import scene_rows
+
+    fields = ["method", "map", "scale", "seed", "coverage_pct", "steps", "efficiency_m2_per_step", "terminated_by"]
+    episodes = [
+        ("random", "b", "small"), ("greedy-dist", "a", "large"), ("random", "a", "large"), ("greedy-dist", "b", "small"),
+        ("greedy-dist", "a2", "small"), ("cso", "a", "large"), ("greedy-dist", "gone", "small"),
+    ]  # fmt: skip
+    with (tmp_path / "episodes.csv").open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(fields)
+        writer.writerows([m, p, s, 0, 90.0, 10, 0.5, "coverage"] for m, p, s in episodes)
+    summary = {"methods": {"greedy-dist": {"maps": ["a", "a2", "b"]}, "random": {"maps": ["a", "b"]}}}
+    assert [r[:3] for r in scene_rows(tmp_path, summary)] == [
+        ["a2", "greedy-dist", "small"], ["b", "greedy-dist", "small"], ["b", "random", "small"],
+        ["a", "greedy-dist", "large"], ["a", "random", "large"],
+    ]  # fmt: skip
+    assert scene_rows(tmp_path / "elsewhere", summary) == []
