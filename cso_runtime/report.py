@@ -40,6 +40,7 @@ STD_SUFFIX = "_std"
 CI95_SUFFIX = "_ci95"
 """``summary.json``'s key of a metric's 95 % bootstrap interval of the mean over plans, [low, high]:
 ``coverage_pct_ci95``."""
+CI95_NOTE = "A row's tooltip: the 95 % interval of each mean, the bootstrap over plans of compare (summary.json's <metric>_ci95); none under two plans."
 SPREAD_NOTE = "mean ± sample standard deviation (ddof=1) over the row's episodes; the mean alone for a row of one episode"
 """What a Table 1 cell shows, said under the table on the console and in the report."""
 MEANS_NOTE = "means over the row's episodes; each with its standard deviation in report.html and summary.json (<metric>_std)"
@@ -119,9 +120,33 @@ def shows_ablations(summary: dict[str, Any]) -> bool:
     return sum(m in LEARNED_METHODS for m in summary["methods"]) >= 2
 
 
-def _table(header: list[str] | tuple[str, ...], rows: list[list[str]]) -> str:
+CI95_METRICS = (
+    ("explored m2", "explored_area_m2", 1),
+    ("coverage %", "coverage_pct", 2),
+    ("steps", "steps", 1),
+    ("m2/step", "efficiency_m2_per_step", 4),
+    ("path m", "path_length_m", 1),
+    ("decision ms p50", "decision_ms_p50", 1),
+    ("decision ms p99", "decision_ms_p99", 1),
+)
+"""Table 1's columns with their ``summary.json`` metric and decimals, for the intervals of a row's tooltip."""
+
+
+def ci95_text(e: dict[str, Any]) -> str:
+    """A Table 1 row's tooltip: each mean's 95 % bootstrap interval over plans (``<metric>_ci95``); "" where there
+    is none (one plan, or a summary.json from before the intervals were written)."""
+    shown = [f"{col} [{ci[0]:.{nd}f}, {ci[1]:.{nd}f}]" for col, metric, nd in CI95_METRICS if (ci := e.get(metric + CI95_SUFFIX))]
+    return "95 % interval of the mean (bootstrap over plans): " + "; ".join(shown) if shown else ""
+
+
+def _table(header: list[str] | tuple[str, ...], rows: list[list[str]], titles: list[str] | None = None) -> str:
+    """An HTML table; ``titles``, one per row, are the rows' tooltips ("" for none)."""
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
+    tips = titles or [""] * len(rows)
+    body = "".join(
+        (f'<tr title="{html.escape(t)}">' if t else "<tr>") + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>"
+        for r, t in zip(rows, tips, strict=True)
+    )
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
@@ -231,8 +256,9 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
         )
     parts += [
         "<h2>Table 1</h2>",
-        _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e)] for m, s, e in table1_rows(summary)]),
+        _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e)] for m, s, e in table1_rows(summary)], [ci95_text(e) for _, _, e in table1_rows(summary)]),
         f"<p>Each cell: {html.escape(SPREAD_NOTE)}.</p>",
+        f"<p>{html.escape(CI95_NOTE)}</p>",
         "<dl>" + "".join(f"<dt>{html.escape(c)}</dt><dd>{html.escape(d)}</dd>" for c, d in TABLE1_DEFINITIONS) + "</dl>",
     ]
     if shows_ablations(summary):

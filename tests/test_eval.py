@@ -1144,3 +1144,19 @@ def test_the_per_scene_table_goes_by_scale_then_plan_and_shows_only_the_summarys
         ["a", "greedy-dist", "large"], ["a", "random", "large"],
     ]  # fmt: skip
     assert scene_rows(tmp_path / "elsewhere", summary) == []
+
+
+def test_report_table_1_rows_give_each_means_interval_in_their_tooltip(tmp_path: Path):
+    """report.html shows summary.json's ``<metric>_ci95`` in a Table 1 row's tooltip (title), its cells as they were;
+    a row of one plan has no interval and no tooltip."""
+    import html as html_lib
+
+    summary = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:2:0", out_dir=tmp_path / "o", max_steps=40))
+    e = summary["methods"]["greedy-dist"]
+    table1 = (tmp_path / "o" / "report.html").read_text().split("<h2>Table 1</h2>")[1].split("</table>")[0]
+    (title,) = re.findall(r'<tr title="([^"]*)">', table1)
+    low, high = e["coverage_pct_ci95"]
+    assert f"coverage % [{low:.2f}, {high:.2f}]" in html_lib.unescape(title) and "bootstrap over plans" in title
+    assert f"<td>{e['coverage_pct']:.2f} ± {e['coverage_pct_std']:.2f}</td>" in table1
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path / "one", max_steps=40))
+    assert "<tr title" not in (tmp_path / "one" / "report.html").read_text()
