@@ -71,7 +71,15 @@ from cso_runtime.supervision import (
     signal_group,
     stop_children,
 )
-from cso_runtime.transport import LISTEN_IN_USE, TransportConfig, TransportError, open_router, open_session, track_liveliness
+from cso_runtime.transport import (
+    LISTEN_IN_USE,
+    TransportConfig,
+    TransportError,
+    any_loopback_port,
+    open_router,
+    open_session,
+    track_liveliness,
+)
 
 if TYPE_CHECKING:
     from cso_runtime.recording import RecordStats
@@ -504,7 +512,7 @@ class Launcher:
             for ep in self.endpoints:
                 argv += ["--connect", ep]
             if mode == "peer":
-                argv += ["--listen", "tcp/127.0.0.1:0"]
+                argv += ["--listen", any_loopback_port(self.endpoints if self.profile.router.embedded else [])]
             if self.profile.router.zenoh_config:  # said on the command line, as --connect (the profile has it too)
                 argv += ["--zenoh-config", self.profile.router.zenoh_config]
             child = Child(name, argv, self.run_dir / "logs" / f"{name}.log")
@@ -1120,7 +1128,7 @@ def transport_error_hint(exc: TransportError, listen: list[str]) -> str:
     if exc.cause == LISTEN_IN_USE:
         return (
             f"another process holds a port the embedded router is to listen on ({', '.join(listen)}): stop it, or pick "
-            "another port with the profile's router.listen or `--set 'router.listen=[tcp/127.0.0.1:0]'` (0: any free port)"
+            f"another port with the profile's router.listen or `--set 'router.listen=[{any_loopback_port(listen)}]'` (0: any free port)"
         )
     return "is the router to join running and reachable?"
 

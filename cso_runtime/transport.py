@@ -228,6 +228,19 @@ def loopback_endpoint(port: int) -> str:
     return f"tcp/127.0.0.1:{port}"
 
 
+LOOPBACK_PROTOCOLS = ("tcp", "tls")
+"""Protocols ``any_loopback_port`` keeps (others, e.g. udp or quic, need what a service does not set up)."""
+
+
+def any_loopback_port(like: list[str]) -> str:
+    """``PROTO/127.0.0.1:0`` (loopback, any free port) over the protocol of the first endpoint in ``like`` (tcp when
+    none or another): a peer-mode service listens like its embedded router, as services of a run behind a TLS router
+    listened on plain TCP, where a session without the CA (or, with ``enable_mtls``, without a certificate) joined
+    them and read or published all that the router refused it."""
+    protocol = like[0].split("/", 1)[0] if like else "tcp"
+    return f"{protocol if protocol in LOOPBACK_PROTOCOLS else 'tcp'}/127.0.0.1:0"
+
+
 def track_liveliness(alive: set[str], sample: Any) -> None:
     """Keep ``alive`` (service names) up to date from a liveliness sample on ``cso/<robot>/alive/<service>``:
     a token declared adds its service, one undeclared (or lost with its process) removes it."""

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import json
 import os
+import shutil
 import signal
 import subprocess
 import time
@@ -111,4 +113,25 @@ def write_episodes_csv(path: Path, episodes: Iterable[dict], fields: Sequence[st
         writer = csv.DictWriter(fh, fieldnames=list(fields))
         writer.writeheader()
         writer.writerows(episodes)
+    return path
+
+
+@pytest.fixture
+def tls_config(tmp_path: Path) -> Path:
+    """A Zenoh config file (JSON5) for TLS on loopback: a throwaway certificate authority (its certificate as
+    ``root_ca_certificate``) and a server certificate it signs for 127.0.0.1 and localhost, made with openssl in
+    ``tmp_path``; the test is skipped without the openssl command."""
+    if shutil.which("openssl") is None:
+        pytest.skip("needs the openssl command to make certificates")
+    ca_key, ca, key, request, cert = (tmp_path / n for n in ("ca-key.pem", "ca.pem", "server-key.pem", "server.csr", "server.pem"))
+    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+    for argv in (
+        ["req", "-x509", *ec, "-keyout", ca_key, "-out", ca, "-days", "1", "-subj", "/CN=cso-test-ca"],
+        ["req", *ec, "-keyout", key, "-out", request, "-subj", "/CN=localhost"],
+        ["x509", "-req", "-in", request, "-CA", ca, "-CAkey", ca_key, "-CAcreateserial", "-out", cert, "-days", "1", "-extfile", "/dev/stdin"],
+    ):
+        subprocess.run(["openssl", *map(str, argv)], input="subjectAltName=IP:127.0.0.1,DNS:localhost\n", text=True, check=True, capture_output=True)
+    tls = {"root_ca_certificate": str(ca), "listen_certificate": str(cert), "listen_private_key": str(key)}
+    path = tmp_path / "zenoh-tls.json5"
+    path.write_text(json.dumps({"transport": {"link": {"tls": tls}}}))
     return path

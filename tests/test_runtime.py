@@ -2551,6 +2551,62 @@ def test_a_run_behind_a_user_password_router_completes_and_a_session_without_the
         kill_leftovers(runs)
 
 
+def listening_tcp_ports(pid: int) -> list[int]:
+    """The TCP ports (IPv4) process ``pid`` listens on, from /proc (Linux)."""
+    inodes = set()
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        with contextlib.suppress(OSError):
+            if (target := os.readlink(fd)).startswith("socket:["):
+                inodes.add(target[8:-1])
+    rows = [line.split() for line in Path("/proc/net/tcp").read_text().splitlines()[1:]]
+    return sorted(int(row[1].rsplit(":", 1)[1], 16) for row in rows if row[3] == "0A" and row[9] in inodes)  # 0A: LISTEN
+
+
+def test_a_run_behind_a_mutual_tls_router_completes_and_a_session_without_a_certificate_cannot_join(tmp_path, monkeypatch, tls_config):
+    """``up --zenoh-config FILE`` with mutual TLS, one file for every role: the embedded router listens on
+    ``tls/127.0.0.1:PORT`` with a certificate signed by a throwaway CA and asks each session for one too; the services
+    (given the same file: the CA's certificate, and the certificate as theirs) join it, and each other, over TLS and
+    the lockstep episode ends; ``status`` reaches it with the file. A session without the CA, or with the CA but no
+    certificate, or over plain TCP, joins neither the router nor any service."""
+    settings = json.loads(tls_config.read_text())
+    tls = settings["transport"]["link"]["tls"]
+    tls.update(enable_mtls=True, connect_certificate=tls["listen_certificate"], connect_private_key=tls["listen_private_key"])
+    mtls = tmp_path / "zenoh-mtls.json5"
+    mtls.write_text(json.dumps(settings))
+    profile = write_profile(tmp_path, min_step_period_s=0.1)
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--zenoh-config", str(mtls), "--set", "router.listen=[tls/127.0.0.1:0]", "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
+        assert len(endpoints) == 1 and re.fullmatch(r"tls/127\.0\.0\.1:\d+", endpoints[0]), endpoints
+        monkeypatch.setenv(ZENOH_CONFIG_ENV, str(mtls))  # this test's own status queries, as `--zenoh-config` does
+        final = wait_for(
+            lambda: (s := query_status(endpoints, "r0", timeout_s=0.5)) and s["state"] in ("done", "failed") and s, 120, "the end of the episode", period_s=0.2
+        )
+        assert final["state"] == "done" and all(s["alive"] for s in final["services"].values()), final
+        monkeypatch.delenv(ZENOH_CONFIG_ENV)
+        # the services (peers) listen too, over TLS as their router: with the file a session joins one
+        service_pids = [s["pid"] for s in final["services"].values()]
+        ports = [port for pid in service_pids for port in listening_tcp_ports(pid)]
+        assert len(ports) == len(service_pids), (service_pids, ports)
+        with open_session(TransportConfig(mode="client", connect=[f"tls/127.0.0.1:{ports[0]}"], connect_timeout_s=5.0, zenoh_config_file=str(mtls))):
+            pass
+        router_port = int(endpoints[0].rsplit(":", 1)[1])
+        unsafe = [f"{protocol}/127.0.0.1:{port}" for port in [router_port, *ports] for protocol in ("tcp", "tls")]
+        for credentials in ("", str(tls_config)):  # no CA to trust the router's certificate; the CA, but no certificate
+            with pytest.raises(TransportError) as err:
+                open_session(TransportConfig(mode="client", connect=unsafe, connect_timeout_s=1.0, zenoh_config_file=credentials))
+            assert err.value.cause == UNREACHABLE, err.value
+        r = cli("--zenoh-config", str(mtls), "status", "--json", "--connect", endpoints[0], cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 0 and json.loads(r.stdout)["state"] == "done", r.stdout + r.stderr
+        r = cli("status", "--json", "--connect", endpoints[0], cwd=tmp_path, timeout_s=30)  # without the file: no CA
+        assert r.returncode == 1 and "no answer for robot r0" in r.stdout, r.stdout + r.stderr
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        kill_leftovers(runs)
+
+
 def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_path):
     """``up --detach``; during the episode: malformed payloads on every key, SIGKILL of the mapper;
     ``status --json`` during and after; ``save-map`` from the finished run; ``down`` leaves no process."""

@@ -90,6 +90,33 @@ def test_an_embedded_router_that_cannot_reach_a_router_to_join_fails_to_open():
             assert first.zid() in second.info.routers_zid()
 
 
+def test_a_tls_router_picks_a_free_port_and_lets_in_only_sessions_that_trust_its_ca(tls_config):
+    """``open_router`` with ``tls/127.0.0.1:0``: a free port, as for tcp; a client with the CA joins; one without it,
+    or over plain TCP, cannot; a TLS port taken by another process gets ``up``'s hint in TLS, not tcp."""
+    from cso_runtime.launcher import transport_error_hint
+
+    session, (endpoint,) = transport.open_router(["tls/127.0.0.1:0"], [], zenoh_config_file=str(tls_config))
+    with session:
+        assert re.fullmatch(r"tls/127\.0\.0\.1:\d+", endpoint) and not endpoint.endswith(":0"), endpoint
+        with transport.open_session(TransportConfig(connect=[endpoint], connect_timeout_s=5.0, zenoh_config_file=str(tls_config))):
+            pass
+        with pytest.raises(transport.TransportError) as err:  # no CA: the router's certificate is not trusted; no TLS at all
+            transport.open_session(TransportConfig(connect=[endpoint, endpoint.replace("tls/", "tcp/", 1)], connect_timeout_s=0.5, zenoh_config_file=""))
+        assert err.value.cause == transport.UNREACHABLE, err.value
+        with pytest.raises(transport.TransportError) as err:
+            transport.open_router([endpoint], [], zenoh_config_file=str(tls_config))
+    assert err.value.cause == transport.LISTEN_IN_USE, err.value
+    assert "`--set 'router.listen=[tls/127.0.0.1:0]'`" in transport_error_hint(err.value, [endpoint])
+
+
+def test_a_peer_service_listens_on_loopback_like_its_router():
+    """Peer-mode services of a run behind a TLS router listened on plain TCP, where a session without the CA joined
+    them (tests/test_runtime.py, the TLS run): a service listens over its router's protocol, tcp for any other."""
+    assert transport.any_loopback_port(["tls/127.0.0.1:40001"]) == "tls/127.0.0.1:0"
+    assert transport.any_loopback_port(["tcp/127.0.0.1:40001", "tls/127.0.0.1:40002"]) == "tcp/127.0.0.1:0"
+    assert transport.any_loopback_port([]) == transport.any_loopback_port(["udp/127.0.0.1:40001"]) == "tcp/127.0.0.1:0"
+
+
 def test_ups_hint_for_a_router_that_did_not_open_fits_its_cause():
     """``up``'s error when its router did not open asked "is the router to join running?" even when the embedded
     router's own listen port was taken (no router to join at all): the hint names the port and how to pick another;
