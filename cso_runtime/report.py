@@ -76,6 +76,19 @@ def table1_rows(summary: dict[str, Any]) -> list[tuple[str, str, dict[str, Any]]
     return rows
 
 
+TABLE1_METRICS = (
+    ("explored m2", "explored_area_m2", 1),
+    ("coverage %", "coverage_pct", 2),
+    ("steps", "steps", 1),
+    ("m2/step", "efficiency_m2_per_step", 4),
+    ("path m", "path_length_m", 1),
+    ("decision ms p50", "decision_ms_p50", 1),
+    ("decision ms p99", "decision_ms_p99", 1),
+)
+"""Table 1's figures after its episode count: the column, its ``summary.json`` metric and the decimals it is shown
+with (the cells, their spread and their intervals); the two decision times share one column."""
+
+
 def table1_cells(e: dict[str, Any], spread: bool = True) -> list[str]:
     """One Table 1 row's values after its method and scale, as the console and the report print them: each mean
     ± its sample standard deviation (``SPREAD_NOTE``), or the means alone without ``spread``."""
@@ -85,15 +98,9 @@ def table1_cells(e: dict[str, Any], spread: bool = True) -> list[str]:
 
     # A row of one episode: its steps as counted (261), as the episode's own line and `runs` say them, not "261.0".
     one_count = whole_count(e["steps"]) if e["episodes"] == 1 else None
-    return [
-        str(e["episodes"]),
-        cell("explored_area_m2", 1),
-        cell("coverage_pct", 2),
-        str(one_count) if isinstance(one_count, int) else cell("steps", 1),
-        cell("efficiency_m2_per_step", 4),
-        cell("path_length_m", 1),
-        f"{cell('decision_ms_p50', 1)}/{cell('decision_ms_p99', 1)}",
-    ]
+    cells = {metric: str(one_count) if metric == "steps" and isinstance(one_count, int) else cell(metric, nd) for _, metric, nd in TABLE1_METRICS}
+    decisions = f"{cells.pop('decision_ms_p50')}/{cells.pop('decision_ms_p99')}"
+    return [str(e["episodes"]), *cells.values(), decisions]
 
 
 def table2(summary: dict[str, Any]) -> tuple[list[str], list[list[str]]]:
@@ -120,22 +127,12 @@ def shows_ablations(summary: dict[str, Any]) -> bool:
     return sum(m in LEARNED_METHODS for m in summary["methods"]) >= 2
 
 
-CI95_METRICS = (
-    ("explored m2", "explored_area_m2", 1),
-    ("coverage %", "coverage_pct", 2),
-    ("steps", "steps", 1),
-    ("m2/step", "efficiency_m2_per_step", 4),
-    ("path m", "path_length_m", 1),
-    ("decision ms p50", "decision_ms_p50", 1),
-    ("decision ms p99", "decision_ms_p99", 1),
-)
-"""Table 1's columns with their ``summary.json`` metric and decimals, for the intervals of a row's tooltip."""
 
 
 def ci95_text(e: dict[str, Any]) -> str:
     """A Table 1 row's tooltip: each mean's 95 % bootstrap interval over plans (``<metric>_ci95``); "" where there
     is none (one plan, or a summary.json from before the intervals were written)."""
-    shown = [f"{col} [{ci[0]:.{nd}f}, {ci[1]:.{nd}f}]" for col, metric, nd in CI95_METRICS if (ci := e.get(metric + CI95_SUFFIX))]
+    shown = [f"{col} [{ci[0]:.{nd}f}, {ci[1]:.{nd}f}]" for col, metric, nd in TABLE1_METRICS if (ci := e.get(metric + CI95_SUFFIX))]
     return "95 % interval of the mean (bootstrap over plans): " + "; ".join(shown) if shown else ""
 
 
