@@ -1057,6 +1057,8 @@ def training_args(config: Path | None, overrides: dict[str, object], settings: l
         data.update({k: v for k, v in overrides.items() if v is not None})
         pairs = parse_settings(settings or [])
         data.update(pairs)
+        if data.get("resume") and overrides.get("out_dir") is None and "out_dir" not in pairs:
+            data["out_dir"] = str(Path(str(data["resume"])).parent)  # a resume goes on in its run's folder, not the config's out_dir
         where = str(config or "train")  # an error names the file, and the flags that changed it, as eval's and up's do
         flags = training_flags(overrides, settings)
         if flags:

@@ -1436,6 +1436,30 @@ def test_a_resume_with_another_recipe_is_refused_with_what_it_changes(tmp_path):
     assert record["ppo_decisions"] == 16 and "total_decisions 8 -> 16: 2 updates in all, the learning rate anneals over them from here" in said
 
 
+def test_a_resume_writes_beside_its_checkpoint_and_continues_that_runs_log(tmp_path, monkeypatch):
+    """``train --resume RUN/checkpoint.pt`` without ``--out`` wrote into the config's ``out_dir`` (``runs/train/cso``),
+    not the run it continues: its weights, curve and log went to another folder, the log there began at the resumed
+    update, and an earlier run's log in that folder had the resumed rows appended to its own. A resume now writes
+    beside its checkpoint unless ``--out`` says otherwise, and its log goes on from the rows of the run it continues."""
+    import csv
+
+    from cso_runtime.cli import training_args
+
+    recipe = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False}
+    run, other = tmp_path / "run", tmp_path / "other"
+    train(Args(**recipe, out_dir=str(run), total_decisions=24), log=lambda _msg: None, plans=[rooms_plan(2)])
+    train(Args(**{**recipe, "seed": 5}, out_dir=str(other), total_decisions=16), log=lambda _msg: None, plans=[rooms_plan(2)])
+    checkpoint = run / "checkpoint.pt"
+    monkeypatch.chdir(tmp_path)  # the default out_dir, were it used, is runs/train in here
+    settings = [f"{k}={v}" for k, v in recipe.items()]
+    assert Path(training_args(None, {"resume": str(checkpoint)}, settings).out_dir) == run
+    assert Path(training_args(None, {"resume": str(checkpoint), "out_dir": str(other)}, settings).out_dir) == other
+    before = list(csv.DictReader((run / "cso_log.csv").open()))
+    train(Args(**recipe, out_dir=str(other), total_decisions=32, resume=str(checkpoint)), log=lambda _msg: None, plans=[rooms_plan(2)])
+    continued = list(csv.DictReader((other / "cso_log.csv").open()))
+    assert [r["update"] for r in continued] == ["1", "2", "3", "4"] and continued[:3] == before
+
+
 def test_the_training_log_has_cleanrls_figures_and_a_resume_over_an_older_log_keeps_its_columns_aligned(tmp_path):
     """Besides the losses, KL and clip fraction, the CSV log has CleanRL's explained variance, episode length and
     SPS (decisions per second). A resume appending to a log of an older version (fewer columns) rewrites its

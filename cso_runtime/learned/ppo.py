@@ -18,6 +18,7 @@ import functools
 import json
 import os
 import random
+import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -792,7 +793,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     device = select_device(args.device)
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    if not args.resume and (earlier := earlier_run_files(out, args.variant)):  # CleanRL never writes into an old run; say it
+    elsewhere = not args.resume or Path(args.resume).resolve().parent != out.resolve()  # not the folder of the run it continues
+    if elsewhere and (earlier := earlier_run_files(out, args.variant)):  # CleanRL never writes into an old run; say it
         log(f"note: {out} holds an earlier run ({', '.join(earlier)}): this run replaces it; --resume {out / 'checkpoint.pt'} would continue it")
     refs: list[SceneRef] | list[FloorPlan] = plans if plans else training_scene_refs(args)
     log(f"training {args.variant} on {len(refs)} scenes, device {device}: {args.num_updates} PPO update{'s' if args.num_updates != 1 else ''} of {args.batch_size} decisions "
@@ -858,6 +860,9 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 
     log_path = out / f"{args.variant}_log.csv"
     fields = LOG_FIELDS
+    continued_log = Path(args.resume).parent / log_path.name if args.resume else None
+    if continued_log is not None and continued_log.is_file() and continued_log.resolve() != log_path.resolve():
+        shutil.copyfile(continued_log, log_path)  # resumed into another --out: go on from the log of the run it continues
     new_log = not (args.resume and log_path.exists())
     if not new_log:  # the rows the checkpoint already holds; later ones (logged after it, before a crash) run again
         keep_log_rows_up_to(log_path, start_update - 1, fields)
