@@ -1543,6 +1543,36 @@ def test_weights_given_as_a_runs_file_or_as_an_unfinished_run_are_said_plainly(t
     assert os.environ.get(WEIGHTS_DIR_ENV) == before
 
 
+def test_weights_given_as_a_file_not_named_for_its_method_is_refused_not_swapped_for_the_folders(tmp_path):
+    """``--weights RUN/mybest.pt`` (or a run's warm start, ``cso_warm.pt``) served the folder's ``cso.pt`` instead,
+    another file than the one named, without a word (or failed with "no weights for cso in RUN"). Weights are found
+    by their method's name, so such a file is refused, saying how to use it."""
+    import shutil
+
+    from cso_runtime.learned.registry import weights_path
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights_dir
+
+    run = tmp_path / "run"
+    run.mkdir()
+    shipped = weights_path("cso", SensorConfig.preset("lidar", 360))
+    for name in ("cso.pt", "mybest.pt", "cso_warm.pt"):
+        shutil.copy(shipped, run / name)
+    before = os.environ.get(WEIGHTS_DIR_ENV)
+    for name in ("mybest.pt", "cso_warm.pt"):
+        with pytest.raises(ValueError, match=rf"--weights {re.escape(str(run / name))}: .*named for its method .*cso\.pt"):
+            use_weights_dir(run / name)
+    assert os.environ.get(WEIGHTS_DIR_ENV) == before
+    try:
+        assert use_weights_dir(run / "cso.pt") == use_weights_dir(run / "cso.pt") == run.resolve()
+        shutil.copy(shipped, run / "cso@fov180.pt")
+        assert use_weights_dir(run / "cso@fov180.pt") == run.resolve()  # one sensor's weights of a method
+    finally:
+        if before is None:
+            os.environ.pop(WEIGHTS_DIR_ENV, None)
+        else:
+            os.environ[WEIGHTS_DIR_ENV] = before
+
+
 def test_train_into_an_earlier_runs_folder_says_it_replaces_it(tmp_path):
     """CleanRL gives every run a folder of its own; ``train --out`` into an earlier run's folder replaced its log at
     once and its checkpoint at the first save without a word. It now says so, and how that run would be continued."""

@@ -82,6 +82,14 @@ def use_weights_dir(directory: str | Path) -> Path:
     when it is not a folder holding at least one weights file."""
     path = Path(directory).expanduser().resolve()
     if path.is_file() and path.name != RESUMABLE_CHECKPOINT and path.suffix == ".pt":
+        from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415 - no torch; policies imports this module
+
+        if path.stem.split("@fov")[0] not in LEARNED_METHODS:  # the folder would serve its <method>.pt, not this file
+            raise ValueError(
+                f"--weights {directory}: a learned method's weights are found by their file name, and this one is not named for its method"
+                f" ({', '.join(f'{m}.pt' for m in LEARNED_METHODS)}); copy it into a folder of its own as the method it was trained as"
+                f" (cso.pt for train --variant cso) and give that folder"
+            )
         path = path.parent  # a run's <method>.pt: its folder serves it (and the run's other methods)
     if path.is_file() and path.name == RESUMABLE_CHECKPOINT or path.is_dir() and [p.name for p in path.glob("*.pt")] == [RESUMABLE_CHECKPOINT]:
         run = path.parent if path.is_file() else path
