@@ -376,14 +376,22 @@ def test_the_default_env_fits_the_shipped_weights_and_other_graphs_say_what_to_p
 
 
 def test_env_follows_the_gymnasium_api():
+    """Besides Gymnasium's checks (which pass arrays of any dtype), every observation's arrays have the dtypes its
+    space declares: ``node_valid`` and ``neighbour_valid`` came as bool from the env but as the ``MultiBinary``'s int8
+    from a vector env, so the same agent code saw other arrays (``~valid`` of int8 is -1 and -2: every entry true)."""
     env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
     check_reset_return_type(env)
     check_reset_seed_determinism(env)
     check_reset_options(env)
+
+    def in_its_space(obs: dict[str, np.ndarray]) -> bool:
+        return env.observation_space.contains(obs) and all(obs[k].dtype == space.dtype for k, space in env.observation_space.items())
+
     obs, info = env_reset_passive_checker(env, seed=0)
-    assert env.observation_space.contains(obs)
+    assert in_its_space(obs)
     assert info["action_mask"].shape == (env.action_space.n,) and info["action_mask"].any()
-    _, _, _, _, rejected = env.step(int(np.flatnonzero(info["action_mask"] == 0)[0]))  # a masked action: a counted no-op
+    obs, _, _, _, rejected = env.step(int(np.flatnonzero(info["action_mask"] == 0)[0]))  # a masked action: a counted no-op
+    assert in_its_space(obs)
     assert rejected["invalid_actions"] == 1 and rejected["steps"] == info["steps"]
     with pytest.raises(ValueError, match="outside the action space"):
         env.step(-1)
@@ -392,7 +400,7 @@ def test_env_follows_the_gymnasium_api():
         action = expert_action(env.obs, info["action_mask"])
         obs, reward, terminated, truncated, info = env_step_passive_checker(env, action)
         assert isinstance(reward, float) and reward >= -0.01 * 200
-        assert env.observation_space.contains(obs)
+        assert in_its_space(obs)
         done = terminated or truncated
         total_steps += 1
     assert info["terminated_by"] in ("coverage", "no_frontier", "max_steps")

@@ -158,7 +158,7 @@ class ExplorationEnv(gym.Env):
             self.mask[:nf] = self.masker.mask(obs)[:nf]
             if not self.mask.any():  # every kept candidate masked: fall back to all reachable ones
                 self.mask[:nf] = np.isfinite(obs.goal_distance_m[:nf])
-            self._graph = build_graph(obs, self.config.graph)
+            self._graph = self._observation(build_graph(obs, self.config.graph))
             return self._graph, self._info()
         self.obs = None
         self.mask = np.zeros(self.config.graph.max_frontier_nodes, dtype=bool)
@@ -169,8 +169,13 @@ class ExplorationEnv(gym.Env):
             # Not masked: Algorithm 1's history has no decision here.
             final = ex.observe()
             if final.clusters:
-                return build_graph(final, self.config.graph), self._info()
-        return empty_graph(self.config.graph), self._info()
+                return self._observation(build_graph(final, self.config.graph)), self._info()
+        return self._observation(empty_graph(self.config.graph)), self._info()
+
+    def _observation(self, graph: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``graph`` in the dtypes of ``observation_space`` (the valid flags as ``MultiBinary``'s int8, not bool), as
+        a vector env stacks them: an agent sees the same arrays from one env and from many."""
+        return {k: np.asarray(v, dtype=self.observation_space[k].dtype) for k, v in graph.items()}
 
     def _info(self) -> dict[str, Any]:
         ex = self.explorer
