@@ -460,6 +460,8 @@ def _tensorboard_scalars(folder) -> dict[str, list[tuple[int, float]]]:
             (length,) = struct.unpack("<Q", data[at : at + 8])
             event = Event.FromString(data[at + 12 : at + 12 + length])
             at += 12 + length + 4
+            if event.session_log.status == event.session_log.START:  # as TensorBoard reads it: a restart drops the points from its step on
+                scalars = {tag: [(step, v) for step, v in points if step < event.step] for tag, points in scalars.items()}
             for value in event.summary.value:
                 scalars.setdefault(value.tag, []).append((event.step, value.simple_value))
     return scalars
@@ -490,6 +492,25 @@ def test_training_writes_the_csv_figures_as_tensorboard_events(tmp_path, monkeyp
     with pytest.raises(ValueError, match=r"pip install 'cso-runtime\[tensorboard\]'"):
         train(dataclasses.replace(args, out_dir=str(bare)), log=lambda _msg: None, plans=[rooms_plan(2)])
     assert not (bare / "cso_log.csv").exists()
+
+
+def test_a_resumed_runs_tensorboard_curves_hold_each_update_once(tmp_path):
+    """A run stopped after logging updates its checkpoint does not hold runs them again on ``--resume``: the CSV log
+    drops their rows, but their TensorBoard points stayed, so the curves had two values at those steps. The resumed
+    run's events now start with TensorBoard's restart marker at the checkpoint's step, which drops the orphans."""
+    import shutil
+
+    common = {"variant": "cso", "out_dir": str(tmp_path), "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40,
+              "progress": False, "tensorboard": True}  # fmt: skip
+    train(Args(total_decisions=16, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    shutil.copy(tmp_path / "checkpoint.pt", tmp_path / "at_update_2.pt")
+    train(Args(total_decisions=24, resume=str(tmp_path / "checkpoint.pt"), **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    # As if that run had stopped after logging update 3 but before its checkpoint: resume from update 2's.
+    train(Args(total_decisions=32, resume=str(tmp_path / "at_update_2.pt"), **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    rows = list(csv.DictReader((tmp_path / "cso_log.csv").open()))
+    scalars = _tensorboard_scalars(tmp_path / "tensorboard")
+    assert [step for step, _ in scalars["losses/value_loss"]] == [int(r["decisions"]) for r in rows] == [8, 16, 24, 32]
+    assert [v for _, v in scalars["losses/value_loss"]] == pytest.approx([float(r["value_loss"]) for r in rows], rel=1e-6)
 
 
 def test_the_training_bar_shows_the_latest_return_coverage_and_rate(tmp_path, monkeypatch):

@@ -760,13 +760,22 @@ TENSORBOARD_TAGS = {
 """CSV log column -> TensorBoard tag (CleanRL's names where it has one); ``charts/SPS`` is decisions per second."""
 
 
-def open_tensorboard(folder: Path) -> Any:
-    """A TensorBoard event writer on ``folder``; ValueError (before any training) when tensorboardX is missing."""
+def summary_writer_class() -> Any:
+    """tensorboardX's ``SummaryWriter``; ValueError (said before any training) when tensorboardX is missing."""
     try:
         from tensorboardX import SummaryWriter  # noqa: PLC0415  (optional: the `tensorboard` extra)
     except ImportError:
         raise ValueError("tensorboard: true needs tensorboardX: pip install 'cso-runtime[tensorboard]' (or pip install tensorboardX)") from None
-    return SummaryWriter(logdir=str(folder))
+    return SummaryWriter
+
+
+def open_tensorboard(folder: Path, resumed_at_decisions: int | None = None) -> Any:
+    """A TensorBoard event writer on ``folder``. A ``--resume``d run's starts with TensorBoard's restart marker just
+    after the checkpoint's step (``purge_step``): the points an earlier process logged after its checkpoint, which this
+    run logs again, are dropped from the curves as the CSV log drops their rows. Each writer has a file of its own
+    (tensorboardX names it by the second and would write over one opened in the same second)."""
+    purge_step = None if resumed_at_decisions is None else resumed_at_decisions + 1
+    return summary_writer_class()(logdir=str(folder), purge_step=purge_step, filename_suffix=f".{time.time_ns()}")
 
 
 def write_tensorboard_row(writer: Any, row: dict[str, Any]) -> None:
@@ -786,7 +795,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 
     ``plans`` replaces the configured scenes (tests train on a tiny synthetic plan)."""
     args.validate()
-    tensorboard = open_tensorboard(Path(args.out_dir) / "tensorboard") if args.tensorboard else None
+    if args.tensorboard:
+        summary_writer_class()  # tensorboardX missing: said now, not after a warm start
     t_start = time.time()
     seed_everything(args.seed)
     torch.set_num_threads(args.torch_threads)
@@ -838,6 +848,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         record["warm_start"] = warm_start(model, data, args, device, log)
         record["warm_start"]["decisions"] = warm_decisions
         save_checkpoint(out / f"{args.variant}_warm.pt", model, args.env_config().graph, args.variant, {"stage": "warm_start"})
+
+    tensorboard = open_tensorboard(out / "tensorboard", global_decisions if args.resume else None) if args.tensorboard else None
 
     # preallocated rollout storage (CleanRL layout: [step, env])
     T, E = args.num_steps, args.num_envs
