@@ -1590,6 +1590,21 @@ def test_weights_given_as_a_file_not_named_for_its_method_is_refused_not_swapped
     for name in ("mybest.pt", "cso_warm.pt"):
         with pytest.raises(ValueError, match=rf"--weights {re.escape(str(run / name))}: .*named for its method .*cso\.pt"):
             use_weights_dir(run / name)
+    # A folder of no method's file: said so, up front, not "no weights for cso" once eval starts; a run stopped after its
+    # warm start (checkpoint.pt beside cso_warm.pt) is an unfinished run, as one with checkpoint.pt alone.
+    unnamed, warm_only = tmp_path / "unnamed", tmp_path / "warm_only"
+    for folder, names in ((unnamed, ["mybest.pt"]), (warm_only, ["checkpoint.pt", "cso_warm.pt"])):
+        folder.mkdir()
+        for name in names:
+            shutil.copy(shipped, folder / name)
+    with pytest.raises(ValueError, match=r"no file named for a learned method's weights in it \(cso\.pt, .*\); it holds mybest\.pt"):
+        use_weights_dir(unnamed)
+    with pytest.raises(ValueError, match=rf"only a training checkpoint .*train --resume {re.escape(str(warm_only.resolve() / 'checkpoint.pt'))}"):
+        use_weights_dir(warm_only)
+    # A finished run's checkpoint.pt: its folder serves the run's weights.
+    shutil.copy(shipped, run / "checkpoint.pt")
+    with pytest.raises(ValueError, match=rf"a training checkpoint \(what train --resume goes on from\), not a method's weights; give its folder {re.escape(str(run.resolve()))}"):
+        use_weights_dir(run / "checkpoint.pt")
     assert os.environ.get(WEIGHTS_DIR_ENV) == before
     try:
         assert use_weights_dir(run / "cso.pt") == use_weights_dir(run / "cso.pt") == run.resolve()

@@ -76,31 +76,44 @@ RESUMABLE_CHECKPOINT = "checkpoint.pt"
 not a method's weights file."""
 
 
+def named_for_a_method(path: Path) -> bool:
+    """True for ``<method>.pt`` or ``<method>@fov<deg>.pt`` of a learned method: the files ``weights_path`` finds."""
+    from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415 - no torch; policies imports this module
+
+    return path.suffix == ".pt" and path.stem.split("@fov")[0] in LEARNED_METHODS
+
+
 def use_weights_dir(directory: str | Path) -> Path:
-    """Serve the learned methods from ``directory`` (a ``train --out`` folder of ``<method>.pt``) in
-    this process and the ones it starts (``eval --weights``, ``up --weights``). Raises ValueError
-    when it is not a folder holding at least one weights file."""
+    """Serve the learned methods from ``directory`` (a ``train --out`` folder of ``<method>.pt``, or one of those
+    files) in this process and the ones it starts (``eval --weights``, ``up --weights``). Raises ValueError, saying
+    what to give instead, for anything else: a file the folder would not serve (another name, the checkpoint), a
+    folder of no method's file (an unfinished run's: how to finish it)."""
+    from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415 - no torch; policies imports this module
+
     path = Path(directory).expanduser().resolve()
     if path.is_file() and path.name != RESUMABLE_CHECKPOINT and path.suffix == ".pt":
-        from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415 - no torch; policies imports this module
-
-        if path.stem.split("@fov")[0] not in LEARNED_METHODS:  # the folder would serve its <method>.pt, not this file
+        if not named_for_a_method(path):  # the folder would serve its <method>.pt, not this file
             raise ValueError(
                 f"--weights {directory}: a learned method's weights are found by their file name, and this one is not named for its method"
                 f" ({', '.join(f'{m}.pt' for m in LEARNED_METHODS)}); copy it into a folder of its own as the method it was trained as"
                 f" (cso.pt for train --variant cso) and give that folder"
             )
         path = path.parent  # a run's <method>.pt: its folder serves it (and the run's other methods)
-    if path.is_file() and path.name == RESUMABLE_CHECKPOINT or path.is_dir() and [p.name for p in path.glob("*.pt")] == [RESUMABLE_CHECKPOINT]:
-        run = path.parent if path.is_file() else path
+    run = path.parent if path.is_file() and path.name == RESUMABLE_CHECKPOINT else path
+    if not run.is_dir():
+        raise ValueError(f"--weights {directory}: not a folder (give a training run's --out, which holds <method>.pt)")
+    served = sorted(p.name for p in run.glob("*.pt") if named_for_a_method(p))
+    if served and run != path:
+        raise ValueError(f"--weights {directory}: a training checkpoint (what train --resume goes on from), not a method's weights; give its folder {run}, which holds {', '.join(served)}")
+    if not served and (run / RESUMABLE_CHECKPOINT).is_file():
         raise ValueError(
             f"--weights {directory}: only a training checkpoint ({RESUMABLE_CHECKPOINT}: a run that has not finished), no <method>.pt; "
             f"finish it with `cso-runtime train --resume {run / RESUMABLE_CHECKPOINT}` and the run's own flags"
         )
-    if not path.is_dir():
-        raise ValueError(f"--weights {directory}: not a folder (give a training run's --out, which holds <method>.pt)")
-    if not any(path.glob("*.pt")):
-        raise ValueError(f"--weights {directory}: no <method>.pt file in it (cso.pt, gnn-baseline.pt, ...)")
+    if not served:
+        others = sorted(p.name for p in run.glob("*.pt"))
+        held = f"; it holds {', '.join(others)}: copy the one to use as its method's name" if others else ""
+        raise ValueError(f"--weights {directory}: no file named for a learned method's weights in it ({', '.join(f'{m}.pt' for m in LEARNED_METHODS)}){held}")
     os.environ[WEIGHTS_DIR_ENV] = str(path)
     return path
 
