@@ -1479,6 +1479,8 @@ def test_a_resume_writes_beside_its_checkpoint_and_continues_that_runs_log(tmp_p
     train(Args(**recipe, out_dir=str(run), total_decisions=24), log=lambda _msg: None, plans=[rooms_plan(2)])
     train(Args(**{**recipe, "seed": 5}, out_dir=str(other), total_decisions=16), log=lambda _msg: None, plans=[rooms_plan(2)])
     checkpoint = run / "checkpoint.pt"
+    # README: the run's record gives back the env it stepped.
+    assert Args(**json.loads((run / "cso.json").read_text())["args"]).env_config() == Args(**recipe).env_config()
     monkeypatch.chdir(tmp_path)  # the default out_dir, were it used, is runs/train in here
     settings = [f"{k}={v}" for k, v in recipe.items()]
     assert Path(training_args(None, {"resume": str(checkpoint)}, settings).out_dir) == run
