@@ -210,12 +210,15 @@ class EvalRequest:
                 raise ConfigError(f"methods {other!r} and {method!r} would share the results folder episodes/{file_stem(method)}/: run them in two evals")
         if self.baseline not in known and self.baseline not in self.methods:
             raise ConfigError(f"unknown --baseline {with_nearest(self.baseline, known, shown=repr(self.baseline))}; available: {', '.join(sorted(known))}")
-        untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available_methods()]
+        available = available_methods()
+        untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available]
         if untrained:
             from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415
 
             missing = ", ".join(f"{m}.pt" for m in untrained)
-            raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); train with `cso-runtime train --variant NAME`")
+            held = [m for m in LEARNED_METHODS if m in available]  # a run trained as another variant: name it
+            fix = f"it holds those of {', '.join(held)} (--method {','.join(held)})" if held else "train with `cso-runtime train --variant NAME`"
+            raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); {fix}")
         if self.sim not in SIMULATORS:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
         if self.max_steps is not None and self.max_steps <= 0:

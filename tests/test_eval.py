@@ -873,6 +873,22 @@ def test_trajectory_plots_keep_the_plans_name_clear_of_the_panel_titles(rows: in
     fig.clf()
 
 
+def test_eval_of_a_learned_method_the_weights_folder_lacks_names_those_it_holds(tmp_path, monkeypatch):
+    """``train --variant cso-sm --out RUN`` then ``eval --method cso --weights RUN``: the error said only that RUN has
+    no cso.pt and to train one, not that RUN's weights are cso-sm's, to run with ``--method cso-sm``."""
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(Path(cso_runtime.__file__).parent / "data" / "weights" / "cso-sm.pt", run / "cso-sm.pt")
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(run))
+    with pytest.raises(ConfigError, match=r"no weights for cso in .*\(cso\.pt\); it holds those of cso-sm \(--method cso-sm\)"):
+        EvalRequest(methods=["cso"], maps="builtin", out_dir=tmp_path / "o").validate()
+    (run / "cso-sm.pt").unlink()
+    with pytest.raises(ConfigError, match=r"\(cso\.pt\); train with `cso-runtime train --variant NAME`"):
+        EvalRequest(methods=["cso"], maps="builtin", out_dir=tmp_path / "o").validate()
+
+
 def test_eval_warns_when_weights_were_trained_with_another_field_of_view(tmp_path, monkeypatch, caplog):
     """configs/train.yaml trains with the 360-degree LiDAR and eval runs the LIMO's 180-degree one unless told:
     `train --out RUN` then `eval --method cso --weights RUN` ran the policy with a sensor it never saw, silently.
