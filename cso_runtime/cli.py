@@ -975,7 +975,7 @@ def train_command(
 ) -> None:
     """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
     from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
-    from cso_runtime.learned.ppo import train  # noqa: PLC0415 - torch only for this command
+    from cso_runtime.learned.ppo import matching_eval_command, train  # noqa: PLC0415 - torch only for this command
     from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
 
     overrides = {"variant": variant, "out_dir": str(out) if out else None, "seed": seed, "total_decisions": total_decisions,
@@ -998,7 +998,10 @@ def train_command(
         why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"error: training stopped: {exc}"
         typer.echo(f"{why}{hint}", err=True)
         raise typer.Exit(EXIT_INTERRUPTED if isinstance(exc, KeyboardInterrupt) else 1) from None
-    typer.echo(f"done: {record['ppo_decisions']} PPO decisions, {record['warm_start_decisions']} warm-start decisions, {record['wall_time_s']} s -> {args.out_dir}")
+    out = Path(args.out_dir)
+    files = ", ".join(name for name in (f"{args.variant}.pt", f"{args.variant}_log.csv", f"{args.variant}_curve.png", f"{args.variant}.json", "checkpoint.pt") if (out / name).is_file())
+    typer.echo(f"done: {record['ppo_decisions']} PPO decisions, {record['warm_start_decisions']} warm-start decisions, {record['wall_time_s']} s -> {out}: {files}")
+    typer.echo(f"evaluate it as it was trained: {matching_eval_command(args)} (and your --maps, --out)")
 
 
 @app.command("collect-teacher", rich_help_panel="Learned policy")

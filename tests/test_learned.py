@@ -494,6 +494,38 @@ def test_training_writes_the_csv_figures_as_tensorboard_events(tmp_path, monkeyp
     assert not (bare / "cso_log.csv").exists()
 
 
+def test_train_ends_saying_its_files_and_the_eval_that_runs_its_weights_as_trained(tmp_path, monkeypatch):
+    """A run of configs/train.yaml trains with the 360-degree LiDAR and eval runs the LIMO's 180 degrees unless told,
+    and a run trained with other stuck-mask settings is evaluated with eval's own: train's last lines named the folder
+    alone. They now list its files and the eval command that runs the weights with the run's sensor and masks, which
+    eval takes as it is."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.learned.ppo import matching_eval_command
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+
+    assert matching_eval_command(Args(out_dir="runs/x")) == "cso-runtime eval --method cso --weights runs/x"
+    assert matching_eval_command(Args(out_dir="runs/x", sensor="depth")) == "cso-runtime eval --method cso --weights runs/x --sensor depth"
+    out = tmp_path / "my run"
+    tiny = ["--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--set", "num_steps=4", "--set", "num_minibatches=1",
+            "--set", "max_steps=40", "--num-envs", "1", "--total-decisions", "4", "--variant", "cso-sm", "--out", str(out),
+            "--set", "stuck_avoid=goals", "--set", "mask_conflict=stuck"]  # fmt: skip
+    r = CliRunner().invoke(app, ["train", *tiny])
+    assert r.exit_code == 0, r.output
+    assert f"-> {out}: cso-sm.pt, cso-sm_log.csv, cso-sm_curve.png, cso-sm.json, checkpoint.pt" in r.output
+    said = re.search(r"evaluate it as it was trained: (.*) \(and your --maps, --out\)", r.output)
+    assert said and shlex.split(said.group(1)) == [
+        "cso-runtime", "eval", "--method", "cso-sm", "--weights", str(out), "--lidar-fov", "360",
+        "--set", "masks.stuck_avoid=goals", "--set", "masks.conflict=stuck",
+    ]  # fmt: skip
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # eval's --weights sets it in this process: put back as it was after the test
+    r = CliRunner().invoke(app, [*shlex.split(said.group(1))[1:], "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / "eval")])
+    assert r.exit_code == 0 and "trained with" not in r.output, r.output
+    meta = json.loads((tmp_path / "eval" / "summary.json").read_text())["meta"]
+    assert meta["config"]["sensor"]["fov_deg"] == 360 and meta["config"]["masks"]["stuck_avoid"] == "goals" and meta["config"]["masks"]["conflict"] == "stuck"
+
+
 def test_a_resumed_runs_tensorboard_curves_hold_each_update_once(tmp_path):
     """A run stopped after logging updates its checkpoint does not hold runs them again on ``--resume``: the CSV log
     drops their rows, but their TensorBoard points stayed, so the curves had two values at those steps. The resumed

@@ -18,6 +18,7 @@ import functools
 import json
 import os
 import random
+import shlex
 import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -1029,6 +1030,24 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     (out / f"{args.variant}.json").write_text(json.dumps(record, indent=2, default=str))
     plot_learning_curve(log_path, out / f"{args.variant}_curve.png", args.variant)
     return record
+
+
+def matching_eval_command(args: Args) -> str:
+    """The ``eval`` that runs a finished run's weights as they were trained: its variant, its sensor (``eval`` runs the
+    LIMO's 180-degree LiDAR unless told; ``configs/train.yaml`` trains with 360 degrees) and its stuck mask's settings
+    where they are not ``eval``'s. The valid distance mask's far bound stays ``eval``'s 1.5 m, as for the shipped
+    weights (trained under 2 m)."""
+    words = ["cso-runtime", "eval", "--method", args.variant, "--weights", args.out_dir]
+    if args.sensor != "lidar":
+        words += ["--sensor", args.sensor]
+    elif SensorConfig.preset(args.sensor, args.lidar_fov_deg).fov_deg == 360:  # eval's other LiDAR (another angle: eval warns)
+        words += ["--lidar-fov", "360"]
+    masks = MaskConfig()
+    if args.stuck_avoid != masks.stuck_avoid:
+        words += ["--set", f"masks.stuck_avoid={args.stuck_avoid}"]
+    if args.mask_conflict != masks.conflict:
+        words += ["--set", f"masks.conflict={args.mask_conflict}"]
+    return shlex.join(words)
 
 
 def keep_log_rows_up_to(log_path: Path, update: int, fields: Sequence[str] | None = None) -> None:
