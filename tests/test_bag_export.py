@@ -431,3 +431,21 @@ def test_a_map_server_scenes_bag_is_in_its_map_frame_as_amcl_places_odom(tmp_pat
     export_bag(tmp_path / "zero.mcap", tmp_path / "zero", map_period_s=0)
     with Reader(tmp_path / "plain") as want, Reader(tmp_path / "zero") as got:
         assert [(c.topic, t, raw) for c, t, raw in got.messages()] == [(c.topic, t, raw) for c, t, raw in want.messages()]
+
+
+def test_a_second_episode_in_another_scene_moves_map_to_odom_from_its_first_message(tmp_path: Path):
+    """A recording of two episodes in two map_server scenes: each episode's map -> odom is its own scene's map origin,
+    sent again on /tf_static with the second episode's first message (tf2 then replaces it), and each map is placed by
+    its own episode's origin, the second's first map included (its status comes after it)."""
+    keys, other = RobotKeys("r0"), Pose2D(-3.0, 4.0, -1.0)
+    first = with_status(episode(keys, 3, T0_NS, 2_000_000, episode_id=7), keys, 7, SCENE_ORIGIN)
+    second = with_status(episode(keys, 2, T0_NS + 10_000_000, 2_000_000, episode_id=8), keys, 8, other)
+    write_recording(tmp_path / "two.mcap", "r0", first + second)
+    export_bag(tmp_path / "two.mcap", tmp_path / "bag", map_period_s=0)
+    bag = read_bag(tmp_path / "bag")
+    statics = [(t, {(tf.header.frame_id, tf.child_frame_id): tf_pose(tf) for tf in m.transforms}) for t, m in bag["/tf_static"]]
+    assert [as_tuple(s[("map", "odom")]) for _, s in statics] == [approx_pose(SCENE_ORIGIN), approx_pose(other)]
+    assert statics[1][0] == T0_NS + 3 * 250_000_000  # the second episode's first step, a step after the first's last
+    corners = [msg_pose(m.info.origin) for _, m in bag["/map"]]
+    expected = [compose_pose(o, Pose2D(GEOM.origin_x_m, GEOM.origin_y_m, 0.0)) for o in [SCENE_ORIGIN] * 3 + [other] * 2]
+    assert [as_tuple(c) for c in corners] == [approx_pose(e) for e in expected]
