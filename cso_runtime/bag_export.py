@@ -6,19 +6,37 @@ folder with MCAP storage (``metadata.yaml`` + ``.mcap``), with the names a Nav2 
 
 | ROS topic | type | from |
 | --- | --- | --- |
-| ``/scan`` | sensor_msgs/msg/LaserScan (frame ``laser``) | ``scan`` |
-| ``/odom`` | nav_msgs/msg/Odometry (``odom`` -> ``base_link``) | ``odom`` |
-| ``/tf`` | tf2_msgs/msg/TFMessage: ``odom`` -> ``base_link`` (odometry), ``odom`` -> ``laser`` (each scan's sensor pose) | ``odom``, ``scan`` |
-| ``/tf_static`` | tf2_msgs/msg/TFMessage: ``map`` -> ``odom``, identity (the mapper maps in the odometry frame) | |
-| ``/map`` | nav_msgs/msg/OccupancyGrid (-1/0/100), at most one per ``map_period_s`` of the run, and the last | ``map`` |
-| ``/plan`` | nav_msgs/msg/Path | ``path`` |
-| ``/goal_pose`` | geometry_msgs/msg/PoseStamped, each new goal | ``goal`` |
-| ``/explore/frontiers`` | visualization_msgs/msg/MarkerArray (explore_lite's markers), each decision | ``frontiers`` |
+| ``/scan`` | sensor_msgs/msg/LaserScan (frame ``laser``), at the scan's own stamp | ``scan`` |
+| ``/odom`` | nav_msgs/msg/Odometry (``odom`` -> ``base_link``; covariances diagonal, ``ros2_cdr.ODOMETRY_COVARIANCE_DIAGONAL``) | ``odom`` |
+| ``/tf`` | tf2_msgs/msg/TFMessage: ``odom`` -> ``base_link`` at each odometry's time, and at each scan's (its sensor pose less the LiDAR's mount) | ``odom``, ``scan`` |
+| ``/tf_static`` | tf2_msgs/msg/TFMessage: ``map`` -> ``odom`` (the scene's map origin) and ``base_link`` -> ``laser`` (the LiDAR's mount) | ``episode/status`` |
+| ``/map`` | nav_msgs/msg/OccupancyGrid (-1/0/100, frame ``map``), at most one per ``map_period_s`` of the run, and the last | ``map`` |
+| ``/plan`` | nav_msgs/msg/Path (frame ``map``) | ``path`` |
+| ``/goal_pose`` | geometry_msgs/msg/PoseStamped (frame ``map``), each new goal | ``goal`` |
+| ``/explore/frontiers`` | visualization_msgs/msg/MarkerArray (explore_lite's markers, frame ``map``), each decision | ``frontiers`` |
 | ``/cmd_vel`` | geometry_msgs/msg/Twist | ``cmd_vel`` |
 
-Time (``time``): ``sim`` (default) puts every message at the robot's own time of its step (the scan's and the
-odometry's stamps: 0.25 s a step in the simulator, however fast a lockstep run went; a later episode of the same
-recording, whose steps start again, follows the one before), ``received`` at its reception time in the recording. Every header is stamped
+Frames, as AMCL and Nav2 lay them out (REP-105): every pose on our network is in the scene's own frame, the robot's
+odometry frame, in which the mapper maps too: it is ``odom`` here, and ``map`` -> ``odom`` (AMCL's correction of the
+odometry's drift) is a constant, the scene's ``map_origin`` (its pose in the user's map frame: a map_server scene's
+YAML ``origin``, else zeros), on ``/tf_static``. It is read from the recording's ``episode/status`` messages before the
+export (each episode's, by its id: the first status comes after the first map); a later episode with another
+origin sends ``/tf_static`` again, and an episode with no status keeps the origin before it (zeros). The map, path,
+goal and frontiers are turned into ``map`` with it, as Nav2's planner and explore_lite publish them in the global
+frame: the grid's ``info.origin`` is the plan's corner placed there (its yaw turns the grid, as map_server's does), so
+it overlays the user's own map cell for cell; a goal's orientation is the origin's yaw (a goal has no heading of its
+own: the identity of the scene's frame). With ``map_origin`` zero (Dungeon, generated and builtin plans, a real
+robot) nothing is turned and the messages are as they were. ``base_link`` -> ``laser`` is the LiDAR's mount as the
+recording shows it (``recorded_lidar_mount``: the MuJoCo LIMO's 0.103 m ahead, the identity for a LiDAR at the
+centre). Each scan stays exactly where it was taken: ``odom`` -> ``base_link`` at the scan's own time is its sensor
+pose less the mount, so tf2 puts ``laser`` there whether or not an odometry message shares that time (a real-time
+MuJoCo LIMO's LiDAR fires before its step's odometry); where one does (lockstep, the ROS 2 bridge), both say the
+same pose and only the first is sent (tf2 keeps the first transform of a time).
+
+Time (``time``): ``sim`` (default) puts every message at the robot's own time (each scan and odometry at its stamp,
+another message at its step's first: 0.25 s a step in the simulator, however fast a lockstep run went; a later
+episode of the same recording, whose steps start again, follows the one before), ``received`` at its reception time
+in the recording. Every header is stamped
 with that same time, so that transforms are found at the time of each scan. The conversions are ``cso_runtime.ros2_cdr``'s, the same as
 the ROS 2 bridge's; the other keys (clock, status, feedback, distance maps) are counted and left out.
 """
@@ -27,16 +45,19 @@ from __future__ import annotations
 
 import logging
 import shutil
-from collections import Counter
-from collections.abc import Callable
+from collections import Counter, deque
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from cso_runtime import ros2_cdr
-from cso_runtime.geometry import Pose2D
+from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, compose_pose, compose_xy, relative_pose
 from cso_runtime.messages import (
     CmdVelMsg,
     DeferredMsg,
+    EpisodeStatusMsg,
     FrontiersMsg,
     GoalMsg,
     MapMsg,
@@ -66,6 +87,8 @@ ROS_TYPES = {
 """Every topic of an exported bag and its ROS 2 type."""
 LATCHED = ("/map", "/tf_static")
 """Offered as transient-local (like map_server and tf2's static broadcaster): late subscribers get the last one."""
+SENSOR_AT_BASE = Pose2D(0.0, 0.0, 0.0)
+"""A LiDAR mounted at the robot's centre: ``base_link`` -> ``laser`` is the identity (it is sent all the same)."""
 GLOBAL_TOPICS = ("/tf", "/tf_static")
 """Not namespaced (``namespace``): one /tf carries every robot's frames, told apart by their prefix, so that merged
 bags play into one TF tree (tf2 listens on /tf) with each robot's subtree under its own ``NS/map``."""
@@ -100,15 +123,20 @@ class BagExportStats:
     """Our topic -> payloads that did not decode (malformed messages a run received and counted too)."""
     maps_thinned: int = 0
     """Maps left out by ``map_period_s``."""
+    lidar_mount: Pose2D = SENSOR_AT_BASE
+    """``base_link`` -> ``laser``, as exported."""
+    map_origins: dict[int, Pose2D] = field(default_factory=dict)
+    """Episode id -> its ``map`` -> ``odom`` (the episodes whose status the recording has)."""
 
 
 TIME_MODES = ("sim", "received")
 
 
 class StepTimeline:
-    """Bag time of each message from the robot's own clock: the stamps of a step's scan and odometry, laid
-    after the first reception time. Step numbers that go back (by more than the one step a message can lag)
-    start a new episode, which then follows the last time of the one before by one ``step_s``."""
+    """Bag time of each message from the robot's own clock: the stamps of the scans and odometry, each its own, laid
+    after the first reception time; a step's other messages at the time of its first scan or odometry. Step numbers
+    that go back (by more than the one step a message can lag) start a new episode, which then follows the last time
+    of the one before by one ``step_s``."""
 
     def __init__(self, start_ns: int, step_s: float = 0.25) -> None:
         self.start_ns, self.step_s = start_ns, step_s
@@ -126,7 +154,8 @@ class StepTimeline:
             self.offset_s = self.last_s + self.step_s - (stamp_s - self.first_stamp_s)
             self.by_step.clear()
             self.max_step = -1
-        t = self.by_step.setdefault(step, stamp_s - self.first_stamp_s + self.offset_s)
+        t = stamp_s - self.first_stamp_s + self.offset_s  # its own: a real-time sim's scan fired before its step's odometry
+        self.by_step.setdefault(step, t)
         self.max_step = max(self.max_step, step)
         self.last_s = max(self.last_s, t)
         return self.start_ns + ros2_cdr.stamp_ns_from_seconds(t)
@@ -159,10 +188,28 @@ def shows_something(msg: Message) -> bool:
     return True
 
 
-class BagConverter:
-    """One robot's messages, in arrival order -> (ROS topic, CDR bytes, time ns). Pure: no files, no Zenoh."""
+Rows = list[tuple[str, bytes, int]]
+"""What a conversion gives: (ROS topic, CDR bytes, time ns) of each ROS message."""
+BASE_TF_TIMES_KEPT = 8
+"""How many times of ``odom`` -> ``base_link`` transforms a converter remembers, to send none twice at one time (a
+step's scan and odometry arrive together)."""
+MAP_FRAME_TOPICS = ("map", "path", "goal", "frontiers")
+"""Our topics whose ROS messages are in the ``map`` frame, so need their episode's map origin."""
 
-    def __init__(self, map_period_s: float = 1.0, time: str = "sim", namespace: str = "") -> None:
+
+class BagConverter:
+    """One robot's messages, in arrival order -> (ROS topic, CDR bytes, time ns). Pure: no files, no Zenoh.
+
+    Frames (the module's docstring): our messages' poses are in the scene's own frame, ``odom`` here; ``map`` ->
+    ``odom`` on ``/tf_static`` is the scene's ``map_origin`` (``episode_status.map_origin``), and the map, goal, path and
+    frontiers are turned into ``map`` with it. ``map_origins`` gives each episode's (by its id); ``learn_map_origin``
+    adds one. An episode whose map origin is not known keeps the one before (zeros before any), as does a message of
+    no episode (a path). ``lidar_mount``: the LiDAR's pose on the robot, ``base_link`` -> ``laser`` on ``/tf_static``."""
+
+    def __init__(
+        self, map_period_s: float = 1.0, time: str = "sim", namespace: str = "",
+        lidar_mount: Pose2D = SENSOR_AT_BASE, map_origins: Mapping[int, Pose2D] | None = None,
+    ) -> None:  # fmt: skip
         if namespace and not ros2_cdr.is_ros_name(namespace):
             raise ValueError(f"namespace {namespace!r} is no ROS name (letters, digits and _, parts joined by /, e.g. robot1)")
         self.map_frame, self.odom_frame, self.base_frame, self.laser_frame = (
@@ -176,12 +223,23 @@ class BagConverter:
         self.time = time
         self.timeline: StepTimeline | None = None
         self.map_period_ns = int(map_period_s * 1e9)
-        self.started = False
         self.last_map_ns: int | None = None
-        self.pending_map: tuple[MapMsg, int] | None = None
-        """The newest map not written because of ``map_period_s`` (written at the end if none follows)."""
+        self.pending_map: tuple[MapMsg, int, Pose2D] | None = None
+        """The newest map not written because of ``map_period_s`` (written at the end if none follows), with the map
+        origin it is in."""
         self.last_goal_xy: tuple[float, float] | None = None
         self.maps_thinned = 0
+        self.lidar_mount = lidar_mount
+        self.map_origins: dict[int, Pose2D] = dict(map_origins or {})
+        """Episode id -> its map origin."""
+        self.episode: int | None = None
+        """The episode of the latest message that carries one."""
+        self.map_origin = MAP_FRAME_ORIGIN
+        """The map origin converted with now: the current episode's, or the last one known."""
+        self.static_sent: Pose2D | None = None
+        """The map origin ``/tf_static`` last said (None: not sent yet)."""
+        self.base_tf_times_ns: deque[int] = deque(maxlen=BASE_TF_TIMES_KEPT)
+        """The times of the last ``odom`` -> ``base_link`` transforms sent."""
 
     def begin(self, received_ns: int) -> None:
         """The robot's first message of the recording arrived then (of any topic): the bag's time starts there."""
@@ -199,44 +257,95 @@ class BagConverter:
             return self.timeline.stamp(msg.step, msg.stamp_s)
         return self.timeline.at(int(getattr(msg, "step", -1)))
 
-    def convert(
-        self, msg: Message, received_ns: int, wanted: Callable[[str], bool] = every_topic, again: bool = False
-    ) -> list[tuple[str, bytes, int]]:
+    def knows_map_origin(self, episode: int | None = None) -> bool:
+        """Whether the map origin of ``episode`` (None: the current one) is known: its status said it, or it has no id
+        (0: a publisher without ids, whose messages take the last one known)."""
+        episode = self.episode if episode is None else episode
+        return not episode or episode in self.map_origins
+
+    def observe_episode(self, episode: int, t_ns: int, wanted: Callable[[str], bool] = every_topic) -> Rows:
+        """A message of ``episode`` (its id) came at ``t_ns``: that episode's map origin, if known, applies from now on;
+        ``/tf_static`` again when that moves ``map`` -> ``odom``."""
+        self.episode = episode
+        return self._apply_map_origin(self.map_origins.get(episode), t_ns, wanted)
+
+    def learn_map_origin(self, episode: int, map_origin: Pose2D, t_ns: int, wanted: Callable[[str], bool] = every_topic) -> Rows:
+        """``episode``'s map origin (its ``episode_status``'s), heard at ``t_ns``: applied at once if it is the current
+        episode's (or no episode has been seen), with ``/tf_static`` again when ``map`` -> ``odom`` moves."""
+        self.map_origins[episode] = map_origin
+        if self.episode not in (None, episode):
+            return []
+        self.episode = episode
+        return self._apply_map_origin(map_origin, t_ns, wanted)
+
+    def _apply_map_origin(self, map_origin: Pose2D | None, t_ns: int, wanted: Callable[[str], bool]) -> Rows:
+        if map_origin is None or map_origin == self.map_origin:
+            return []
+        self.map_origin = map_origin
+        return [self.static_transforms(t_ns)] if self.static_sent is not None and wanted("/tf_static") else []
+
+    def to_map_frame(self, xy_m: np.ndarray) -> np.ndarray:
+        """Points (n x 2 metres) of the scene's frame in the map frame (unchanged, to the bit, when the map origin is zero)."""
+        return xy_m if self.map_origin == MAP_FRAME_ORIGIN else compose_xy(self.map_origin, xy_m)
+
+    def base_pose_of_scan(self, sensor_pose: Pose2D) -> Pose2D:
+        """Where ``base_link`` was when the LiDAR at ``sensor_pose`` took its scan (the sensor pose less the mount, as
+        the mapper puts the robot's footprint), so that ``odom`` -> ``base_link`` -> ``laser`` is the scan's exact pose."""
+        if self.lidar_mount == SENSOR_AT_BASE:
+            return sensor_pose
+        return compose_pose(sensor_pose, Pose2D(*relative_pose(self.lidar_mount, SENSOR_AT_BASE)))
+
+    def base_transform(self, pose: Pose2D, t_ns: int) -> Rows:
+        """``/tf`` ``odom`` -> ``base_link`` at ``t_ns``, unless one of that time went out already: tf2 keeps the first
+        transform of a time (and warns of a repeat); a step's scan and odometry of one time agree (the LiDAR at the
+        odometry pose plus the mount), so the second adds nothing."""
+        if t_ns in self.base_tf_times_ns:
+            return []
+        self.base_tf_times_ns.append(t_ns)
+        return [("/tf", ros2_cdr.transforms_to_cdr([(self.odom_frame, self.base_frame, pose)], t_ns), t_ns)]
+
+    def convert(self, msg: Message, received_ns: int, wanted: Callable[[str], bool] = every_topic, again: bool = False) -> Rows:
         """The ROS messages of one of ours, received at ``received_ns`` (empty: nothing to show for it).
         ``wanted(ros_topic)``: whether that topic is wanted now (a live viewer's subscriptions); the others are not
         converted at all, and a map nobody wants is not held back for ``map_period_s`` either. ``again``: the
         message is sent once more, to a viewer that has just subscribed: a goal already sent and a map within
         ``map_period_s`` of the last one go out too."""
         t_ns = self.bag_time_ns(msg, received_ns)
-        out: list[tuple[str, bytes, int]] = []
-        if not self.started and wanted("/tf_static"):
+        out: Rows = []
+        episode = getattr(msg, "episode", None)
+        if isinstance(episode, int):
+            out += self.observe_episode(episode, t_ns, wanted)
+        if self.static_sent is None and wanted("/tf_static"):
             out.append(self.static_transforms(t_ns))
         if isinstance(msg, OdometryMsg):
             if wanted("/odom"):
                 out.append(("/odom", ros2_cdr.odometry_to_cdr(msg.pose, msg.twist, t_ns, self.odom_frame, self.base_frame), t_ns))
             if wanted("/tf"):
-                out.append(("/tf", ros2_cdr.transforms_to_cdr([(self.odom_frame, self.base_frame, msg.pose)], t_ns), t_ns))
+                out += self.base_transform(msg.pose, t_ns)
         elif isinstance(msg, ScanMsg):
             if wanted("/tf"):
-                out.append(("/tf", ros2_cdr.transforms_to_cdr([(self.odom_frame, self.laser_frame, msg.sensor_pose)], t_ns), t_ns))
+                out += self.base_transform(self.base_pose_of_scan(msg.sensor_pose), t_ns)
             if wanted("/scan"):
                 out.append(("/scan", ros2_cdr.laserscan_to_cdr(msg.scan, t_ns, self.laser_frame), t_ns))
         elif isinstance(msg, MapMsg) and wanted("/map"):
             self.maps_thinned += self.pending_map is not None and self.pending_map[0] is not msg  # a held map is superseded either way
             if again or self.last_map_ns is None or t_ns - self.last_map_ns >= self.map_period_ns:
                 self.last_map_ns, self.pending_map = t_ns, None
-                out.append(_map_row(msg, t_ns, self.map_frame))
+                out.append(self._map_row(msg, t_ns, self.map_origin))
             else:
-                self.pending_map = (msg, t_ns)  # converted only if it stays the last
+                self.pending_map = (msg, t_ns, self.map_origin)  # converted only if it stays the last
         elif isinstance(msg, PathMsg) and wanted("/plan"):
-            out.append(("/plan", ros2_cdr.path_to_cdr(msg.path_xy_m, t_ns, self.map_frame), t_ns))
+            out.append(("/plan", ros2_cdr.path_to_cdr(self.to_map_frame(msg.path_xy_m), t_ns, self.map_frame), t_ns))
         elif isinstance(msg, GoalMsg):
             goal = (float(msg.x_m), float(msg.y_m)) if msg.has_goal else None
             if goal is not None and (goal != self.last_goal_xy or again) and wanted("/goal_pose"):
-                out.append(("/goal_pose", ros2_cdr.pose_stamped_to_cdr(goal[0], goal[1], 0.0, t_ns, self.map_frame), t_ns))
+                pose = Pose2D(*goal, 0.0) if self.map_origin == MAP_FRAME_ORIGIN else compose_pose(self.map_origin, Pose2D(*goal, 0.0))
+                out.append(("/goal_pose", ros2_cdr.pose_stamped_to_cdr(pose.x_m, pose.y_m, pose.yaw_rad, t_ns, self.map_frame), t_ns))
             self.last_goal_xy = goal
         elif isinstance(msg, FrontiersMsg) and msg.decide and wanted("/explore/frontiers"):
             points, goals = msg.cluster_points_xy_m()
+            points = [self.to_map_frame(p) for p in points]
+            goals = goals if not goals else [(float(x), float(y)) for x, y in self.to_map_frame(np.asarray(goals, dtype=float))]
             out.append(("/explore/frontiers", ros2_cdr.frontier_markers_to_cdr(points, goals, t_ns, self.map_frame), t_ns))
         elif isinstance(msg, CmdVelMsg) and wanted("/cmd_vel"):
             out.append(("/cmd_vel", ros2_cdr.twist_to_cdr(msg.command), t_ns))
@@ -246,27 +355,30 @@ class BagConverter:
         """Whether ``convert`` may make anything ``wanted`` of a message on our ``topic`` (one of ``EXPORTED``): one of
         its ROS topics (``ROS_TOPICS``) is wanted, or ``/tf_static`` that goes out with the first message. A message
         for which it may not need not even be decoded."""
-        return (not self.started and wanted("/tf_static")) or any(wanted(ros_topic) for ros_topic in ROS_TOPICS[topic])
+        return (self.static_sent is None and wanted("/tf_static")) or any(wanted(ros_topic) for ros_topic in ROS_TOPICS[topic])
 
     def static_transforms(self, t_ns: int) -> tuple[str, bytes, int]:
-        """``/tf_static`` (``map`` -> ``odom``, the identity), sent with the first message (or to a viewer that
-        subscribes to it); ``convert`` does not send it again."""
-        self.started = True
-        return ("/tf_static", ros2_cdr.transforms_to_cdr([(self.map_frame, self.odom_frame, Pose2D(0.0, 0.0, 0.0))], t_ns), t_ns)
+        """``/tf_static``: ``map`` -> ``odom`` (the map origin) and ``base_link`` -> ``laser`` (the LiDAR's mount), sent with
+        the first message, again when the map origin changes, or to a viewer that subscribes to it."""
+        self.static_sent = self.map_origin
+        transforms = [(self.map_frame, self.odom_frame, self.map_origin), (self.base_frame, self.laser_frame, self.lidar_mount)]
+        return ("/tf_static", ros2_cdr.transforms_to_cdr(transforms, t_ns), t_ns)
 
-    def finish(self, sent_ns: int | None = None) -> list[tuple[str, bytes, int]]:
+    def finish(self, sent_ns: int | None = None) -> Rows:
         """The last map, when ``map_period_s`` held it back: a bag always ends with the final map. ``sent_ns``: a
         live viewer is sent it then and the conversion goes on, so ``map_period_s`` counts from then."""
         if self.pending_map is None:
             return []
-        msg, t_ns = self.pending_map
+        msg, t_ns, map_origin = self.pending_map
         self.pending_map = None
         self.last_map_ns = t_ns if sent_ns is None else sent_ns
-        return [_map_row(msg, t_ns, self.map_frame)]
+        return [self._map_row(msg, t_ns, map_origin)]
 
-
-def _map_row(msg: MapMsg, t_ns: int, frame_id: str) -> tuple[str, bytes, int]:
-    return ("/map", ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, t_ns, frame_id), t_ns)
+    def _map_row(self, msg: MapMsg, t_ns: int, map_origin: Pose2D) -> tuple[str, bytes, int]:
+        """``/map`` in the map frame: the grid's corner placed by ``map_origin`` (as map_server places a map by its
+        ``origin``), so that it overlays the user's map cell for cell."""
+        corner = None if map_origin == MAP_FRAME_ORIGIN else msg.geometry.corner_pose(map_origin)
+        return ("/map", ros2_cdr.occupancy_grid_to_cdr(msg.grid, msg.geometry, t_ns, self.map_frame, origin=corner), t_ns)
 
 
 PROGRESS_EVERY = 500
@@ -282,6 +394,63 @@ ROS_TOPICS: dict[str, tuple[str, ...]] = {
 """Our topic -> the ROS topics ``BagConverter.convert`` makes of it (besides ``/tf_static``, with the first message)."""
 
 
+MOUNT_DECIMALS = 9
+"""A LiDAR mount read from a recording is rounded to the nanometre and nanoradian: what is left of it after the
+float arithmetic of the poses it is read from."""
+MOUNT_SEARCH_MESSAGES = 200
+"""How many of a robot's first scans and odometry messages ``recorded_lidar_mount`` looks at for a pair of one time."""
+
+
+def recorded_map_origins(recording: Path, robot: str) -> dict[int, Pose2D]:
+    """Episode id -> the scene's map origin, from ``robot``'s ``episode_status`` messages in ``recording`` (the sim
+    publishes one only after the first map, so it is read before the export: the first map is in the map frame too).
+    ``episode_result`` carries the same origin but no episode id, and comes after a status of its episode."""
+    prefix = f"cso/{robot}/"
+    origins: dict[int, Pose2D] = {}
+    for m in read_recording(recording, topics=("episode_status",)):
+        if m.key.startswith(prefix):
+            try:
+                status = decode(m.payload, EpisodeStatusMsg, accept_legacy=True)
+            except MessageError:
+                continue  # counted when the export reads it
+            origins.setdefault(status.episode, status.map_origin)
+    return origins
+
+
+def recorded_lidar_mount(recording: Path, robot: str) -> Pose2D:
+    """The LiDAR's pose on ``robot`` (``base_link`` -> ``laser``), as its messages in ``recording`` show it: a scan's
+    sensor pose relative to the odometry pose of its step, for the first scan and odometry of one episode, step and
+    stamp (the sim's in lockstep and at the start, the ROS 2 bridge's always: both put the LiDAR at odometry pose plus
+    ``exploration.sensor.mount_x_m``, the MuJoCo LIMO's 0.103 m). None such among the first
+    ``MOUNT_SEARCH_MESSAGES``: ``SENSOR_AT_BASE``."""
+    prefix = f"cso/{robot}/"
+    seen: dict[tuple[str, int, int, float], Pose2D] = {}
+    messages = read_recording(recording, topics=("scan", "odom"))
+    try:
+        for m in messages:
+            if not m.key.startswith(prefix):
+                continue
+            try:
+                msg = decode(m.payload, EXPORTED[m.key[len(prefix):]], accept_legacy=True)
+            except MessageError:
+                continue
+            if isinstance(msg, ScanMsg):
+                kind, stamp_s, pose, other = "scan", msg.scan.stamp_s, msg.sensor_pose, "odom"
+            else:
+                assert isinstance(msg, OdometryMsg)
+                kind, stamp_s, pose, other = "odom", msg.stamp_s, msg.pose, "scan"
+            match = seen.get((other, msg.episode, msg.step, stamp_s))
+            if match is not None:
+                base, sensor = (match, pose) if kind == "scan" else (pose, match)
+                return Pose2D(*(round(v, MOUNT_DECIMALS) + 0.0 for v in relative_pose(base, sensor)))  # + 0.0: no -0.0
+            seen[(kind, msg.episode, msg.step, stamp_s)] = pose
+            if len(seen) >= MOUNT_SEARCH_MESSAGES:
+                break
+    finally:
+        messages.close()  # the reader's file, at once
+    return SENSOR_AT_BASE
+
+
 def export_bag(
     recording: Path,
     out_dir: Path,
@@ -290,10 +459,12 @@ def export_bag(
     time: str = "sim",
     progress: Callable[[int, int | None], None] | None = None,
     namespace: str = "",
+    lidar_mount: Pose2D | None = None,
 ) -> BagExportStats:
     """Write ``recording``'s messages of ``robot`` (default: its only robot) as a rosbag2 folder ``out_dir``.
     ``namespace``: every topic but /tf and /tf_static, and every frame id, under it (``namespaced``), so that the bags
-    of several robots can be merged.
+    of several robots can be merged. ``lidar_mount``: ``base_link`` -> ``laser`` (None: as the recording shows it,
+    ``recorded_lidar_mount``). ``map`` -> ``odom`` is each episode's map origin (``recorded_map_origins``).
     ``progress(read, total)`` is called every few hundred messages (total: all robots' messages, None when
     the recording has no summary), so that a long recording does not convert in silence."""
     from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime  # noqa: PLC0415  (rosbags loads only here)
@@ -307,7 +478,12 @@ def export_bag(
         robot, total = recorded_robot(recording, robot)
     except RecordingError as exc:
         raise BagExportError(str(exc)) from None
-    stats = BagExportStats(out_dir, robot)
+    try:
+        converter.lidar_mount = recorded_lidar_mount(recording, robot) if lidar_mount is None else lidar_mount
+        converter.map_origins.update(recorded_map_origins(recording, robot))
+    except RecordingError as exc:
+        raise BagExportError(str(exc)) from None
+    stats = BagExportStats(out_dir, robot, lidar_mount=converter.lidar_mount, map_origins=dict(converter.map_origins))
     never = QosTime(sec=0, nsec=0)
     latched = [Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, never, never, QosLiveliness.AUTOMATIC, never, False)]
     prefix = f"cso/{robot}/"

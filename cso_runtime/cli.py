@@ -490,6 +490,10 @@ def export_bag_command(
     typer.echo(f"wrote {stats.path} (robot {stats.robot}): {sum(stats.written.values())} messages: {written}")
     if stats.maps_thinned:
         typer.echo(f"  {stats.maps_thinned} maps thinned out by --map-period-s {map_period_s:g}")
+    placed = sorted({(p.x_m, p.y_m, p.yaw_rad) for p in stats.map_origins.values()} - {(0.0, 0.0, 0.0)})
+    if placed:
+        typer.echo(f"  map -> odom: the scene's map origin {', '.join(f'({x:g} m, {y:g} m, {yaw:g} rad)' for x, y, yaw in placed)}")
+    typer.echo(f"  base_link -> laser: ({stats.lidar_mount.x_m:g} m, {stats.lidar_mount.y_m:g} m, {stats.lidar_mount.yaw_rad:g} rad), the LiDAR's mount as the recording shows it")
     if stats.rejected:
         typer.echo(f"  left out, did not decode: {', '.join(f'{k} {n}' for k, n in sorted(stats.rejected.items()))}")
 

@@ -74,6 +74,14 @@ def compose_pose(frame: Pose2D, pose: Pose2D) -> Pose2D:
     return Pose2D(frame.x_m + c * pose.x_m - s * pose.y_m, frame.y_m + s * pose.x_m + c * pose.y_m, wrap_angle_rad(frame.yaw_rad + pose.yaw_rad))
 
 
+def compose_xy(frame: Pose2D, xy_m: npt.ArrayLike) -> np.ndarray:
+    """Points (n x 2 metres) given in ``frame``'s own axes, in the frame ``frame`` is given in: ``compose_pose`` of
+    each point (a path or frontier cells of a scene's own frame in the user's map frame)."""
+    xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    c, s = math.cos(frame.yaw_rad), math.sin(frame.yaw_rad)
+    return np.column_stack([frame.x_m + c * xy[:, 0] - s * xy[:, 1], frame.y_m + s * xy[:, 0] + c * xy[:, 1]])
+
+
 def map_frame_xy(map_origin: Pose2D, xy_m: Sequence[float]) -> list[float]:
     """A point ``[x_m, y_m]`` of a scene's own frame in the user's map frame (``map_origin``: the scene's pose there,
     ``FloorPlan.map_origin``): what ``status`` and ``up``'s live view show of a goal."""
@@ -112,6 +120,13 @@ class GridGeometry:
     def describe(self) -> str:
         """``nx x ny grid of R m at (x, y)``: what a rejection of a map on another grid says of each grid."""
         return f"{self.shape[1]} x {self.shape[0]} grid of {self.resolution_m} m at ({self.origin_x_m}, {self.origin_y_m})"
+
+    def corner_pose(self, frame: Pose2D | None = None) -> Pose2D:
+        """The pose of cell (0, 0)'s corner, rows along x, in the frame that ``frame`` is given in, this grid lying in
+        ``frame`` (a scene's own frame, placed in the user's map frame by its ``map_origin``; None: the grid's own
+        frame): a map_server YAML's ``origin`` and an OccupancyGrid's ``info.origin``, a yaw turning the grid."""
+        corner = Pose2D(float(self.origin_x_m), float(self.origin_y_m), 0.0)
+        return corner if frame is None else compose_pose(frame, corner)
 
     def world_to_cell(self, x_m: npt.ArrayLike, y_m: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """Cell indices (iy, ix) of metric points (arrays, or numpy scalars for scalars); may lie outside the grid

@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
-from cso_runtime.geometry import GridGeometry, Pose2D, compose_pose
+from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN
 
 PIXEL_OCCUPIED, PIXEL_FREE, PIXEL_UNKNOWN = 0, 254, 205
@@ -119,8 +119,7 @@ def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_fo
 def map_origin_of(geometry: GridGeometry, map_origin: Pose2D | None = None) -> list[float]:
     """A map_server ``origin`` ``[x_m, y_m, yaw_rad]``: the map-frame pose of ``geometry``'s lower-left corner,
     ``geometry`` being in the frame whose map-frame pose is ``map_origin`` (None: the map frame itself)."""
-    corner = Pose2D(float(geometry.origin_x_m), float(geometry.origin_y_m), 0.0)
-    pose = corner if map_origin is None else compose_pose(map_origin, corner)
+    pose = geometry.corner_pose(map_origin)
     return [float(pose.x_m), float(pose.y_m), float(pose.yaw_rad)]
 
 

@@ -29,7 +29,7 @@ import struct
 import threading
 import time
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Generator, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -334,7 +334,7 @@ def check_recording(path: Path) -> None:
         raise RecordingError(f"cannot read {path}: not an MCAP file (it does not start with the MCAP magic)")
 
 
-def read_recording(path: Path, topics: Iterable[str] | None = None) -> Iterable[RecordedMessage]:
+def read_recording(path: Path, topics: Iterable[str] | None = None) -> Generator[RecordedMessage, None, None]:
     """The messages of an MCAP recording in log-time order, payloads restored byte-exactly.
 
     ``topics``: only keys whose topic name (``cso_runtime.keys.TOPICS``, e.g. ``scan``) is listed.

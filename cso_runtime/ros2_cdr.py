@@ -216,11 +216,25 @@ def odometry_from_cdr(raw: bytes) -> OdometrySample:
     return OdometrySample(pose, vel, stamp_seconds(msg.header), msg.header.frame_id, msg.child_frame_id)
 
 
-def odometry_to_cdr(pose: Pose2D, velocity: VelocityCommand, stamp_ns: int, frame_id: str = "odom", child_frame_id: str = "base_link") -> bytes:
-    """Our pose and velocity -> nav_msgs/Odometry CDR (covariances zero), as a bag's ``/odom`` holds it."""
+ODOMETRY_COVARIANCE_DIAGONAL = (0.1, 0.1, 0.1, 1.0, 1.0, 1.0)
+"""The diagonal of an Odometry's pose and twist covariances that ``odometry_to_cdr`` writes, off-diagonal zero: x, y,
+z (m^2; the twist's (m/s)^2) and roll, pitch, yaw (rad^2; (rad/s)^2). The pose's is the one AgileX's LIMO ROS 2 driver
+publishes (limo_base ``LimoDriver::publishOdometry``); that driver leaves the twist's all zero, which filters such as
+robot_localization refuse as no uncertainty at all, so the twist gets the same diagonal. Nominal values, not measured
+on our robot or simulator."""
+
+
+def odometry_to_cdr(
+    pose: Pose2D, velocity: VelocityCommand, stamp_ns: int, frame_id: str = "odom", child_frame_id: str = "base_link",
+    covariance_diagonal: tuple[float, ...] = ODOMETRY_COVARIANCE_DIAGONAL,
+) -> bytes:  # fmt: skip
+    """Our pose and velocity -> nav_msgs/Odometry CDR, as a bag's ``/odom`` holds it: pose and twist covariances both
+    diagonal, ``covariance_diagonal`` (x, y, z, roll, pitch, yaw)."""
+    if len(covariance_diagonal) != 6:
+        raise ValueError(f"covariance_diagonal: expected 6 variances (x, y, z, roll, pitch, yaw), got {len(covariance_diagonal)}")
     t = _types()
     point = t["geometry_msgs/msg/Point"](x=pose.x_m, y=pose.y_m, z=0.0)
-    cov = np.zeros(36, dtype=np.float64)
+    cov = np.diag(np.asarray(covariance_diagonal, dtype=np.float64)).ravel()
     msg = t[ODOMETRY](
         header=header_msg(stamp_ns, frame_id),
         child_frame_id=child_frame_id,
@@ -249,17 +263,20 @@ def twist_from_cdr(raw: bytes) -> VelocityCommand:
     return VelocityCommand(float(msg.linear.x), float(msg.angular.z))
 
 
-def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_ns: int, frame_id: str = "map") -> bytes:
-    """int8 grid (-1/0/100, row 0 at the origin) -> nav_msgs/OccupancyGrid CDR."""
+def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_ns: int, frame_id: str = "map", origin: Pose2D | None = None) -> bytes:
+    """int8 grid (-1/0/100, row 0 at the origin) -> nav_msgs/OccupancyGrid CDR. ``origin``: the pose of cell (0, 0)'s
+    corner in ``frame_id`` (``GridGeometry.corner_pose``: a yaw turns the grid, as map_server turns a map by its
+    ``origin``'s); None: ``geometry``'s corner, unturned (``geometry`` is in ``frame_id``)."""
     t = _types()
     grid = np.asarray(grid, dtype=np.int8)
     if grid.shape != tuple(geometry.shape):
         raise ValueError("grid and geometry shapes differ")
-    origin = t["geometry_msgs/msg/Pose"](
-        position=t["geometry_msgs/msg/Point"](x=geometry.origin_x_m, y=geometry.origin_y_m, z=0.0), orientation=_quaternion(0.0)
+    corner = geometry.corner_pose() if origin is None else origin
+    origin_msg = t["geometry_msgs/msg/Pose"](
+        position=t["geometry_msgs/msg/Point"](x=corner.x_m, y=corner.y_m, z=0.0), orientation=_quaternion(corner.yaw_rad)
     )
     info = t["nav_msgs/msg/MapMetaData"](
-        map_load_time=time_msg(stamp_ns), resolution=float(geometry.resolution_m), width=int(geometry.shape[1]), height=int(geometry.shape[0]), origin=origin
+        map_load_time=time_msg(stamp_ns), resolution=float(geometry.resolution_m), width=int(geometry.shape[1]), height=int(geometry.shape[0]), origin=origin_msg
     )
     msg = t[OCCUPANCY_GRID](header=header_msg(stamp_ns, frame_id), info=info, data=grid.ravel())
     return encode(msg, OCCUPANCY_GRID)

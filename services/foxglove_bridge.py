@@ -1,11 +1,19 @@
 """Foxglove bridge service: the running episode, live, in Foxglove (as ROS's foxglove_bridge serves a ROS graph).
 
-It listens to one robot's scan, odometry, map, path, goal, frontiers and velocity commands, turns each into the
+It listens to one robot's scan, odometry, map, path, goal, frontiers, velocity commands and episode status, turns each into the
 standard ROS 2 messages that ``export-bag`` writes (``cso_runtime.bag_export.BagConverter``, the same code: the
 same topics, frames and types, CDR-encoded), and serves them on a Foxglove WebSocket server
 (``ws://HOST:PORT``: in Foxglove, "Open connection" -> "Foxglove WebSocket"). A 3D panel in the ``map`` frame
 shows the map, the scan, the robot, its path, goal and frontiers as the exploration goes. Optionally the same
 messages are also written to an MCAP file.
+
+Frames are export-bag's (``cso_runtime.bag_export``): the robot in ``odom`` (the scene's own frame), ``map`` ->
+``odom`` the scene's map origin and ``base_link`` -> ``laser`` the profile's ``exploration.sensor.mount_x_m`` (where
+the sim and the ROS 2 bridge put the LiDAR) on ``/tf_static``; the map, path, goal and frontiers in ``map``, so that a
+map_server scene's grid overlays its own map. The map origin comes with the episode's ``episode/status`` (one more
+input), which the sim first publishes after the episode's first map: the map, path, goal and frontiers of an episode
+whose status has not come yet wait for it (the latest of each, as for a late viewer), at most ``MAP_ORIGIN_WAIT_S``,
+and messages of no episode id (0) take the origin last known.
 
 Like ROS's foxglove_bridge, it converts only what someone watches: a topic that no viewer subscribes to (and no
 MCAP file takes) is not converted at all, so the bridge costs next to nothing while nobody looks. It keeps the
@@ -37,15 +45,19 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime import ros2_cdr
-from cso_runtime.bag_export import EXPORTED, ROS_TOPICS, ROS_TYPES, BagConverter, shows_something
+from cso_runtime.bag_export import EXPORTED, MAP_FRAME_TOPICS, ROS_TOPICS, ROS_TYPES, BagConverter, shows_something
 from cso_runtime.config import ConfigError, from_dict
-from cso_runtime.messages import DeferredMsg, Message, MessageError, deferred
+from cso_runtime.geometry import Pose2D
+from cso_runtime.messages import DeferredMsg, EpisodeStatusMsg, Message, MessageError, deferred
 from cso_runtime.recording import unused_path
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.foxglove_bridge")
 
 INSTALL_HINT = "pip install 'cso-runtime[foxglove]' (or pip install foxglove-sdk)"
+MAP_ORIGIN_WAIT_S = 2.0
+"""How long the map, path, goal and frontiers of an episode wait for its status's map origin (the sim publishes its
+status with the first map, the ROS 2 bridge with every map) before they go out in the origin last known."""
 
 
 @dataclass
@@ -125,8 +137,9 @@ class FoxgloveBridgeService(Service):
     """Serves one robot's episode to Foxglove viewers as ROS 2 messages; it only listens, so the episode never waits for it."""
 
     name = "foxglove_bridge"
-    inputs = {topic: deferred(cls) for topic, cls in EXPORTED.items()}
-    """Each input kept as it came and decoded only when watched (``decoded``)."""
+    inputs = {**{topic: deferred(cls) for topic, cls in EXPORTED.items()}, "episode_status": EpisodeStatusMsg}
+    """Each input kept as it came and decoded only when watched (``decoded``); the episode's status, for the scene's
+    map origin (``map`` -> ``odom``)."""
     outputs: dict[str, type[Message]] = {}
     tick_period_s = 0.1
 
@@ -139,7 +152,11 @@ class FoxgloveBridgeService(Service):
             raise ConfigError(f"the Foxglove bridge needs foxglove-sdk: {INSTALL_HINT}") from None
         self.foxglove = foxglove
         self.context = foxglove.Context()
-        self.converter = BagConverter(map_period_s=self.params.map_period_s, time="received")
+        mount = Pose2D(ctx.exploration.sensor.mount_x_m, 0.0, 0.0)  # where the sim and the ROS 2 bridge put the LiDAR
+        self.converter = BagConverter(map_period_s=self.params.map_period_s, time="received", lidar_mount=mount)
+        self.awaiting_map_origin: set[str] = set()
+        """Our topics (``MAP_FRAME_TOPICS``) whose latest came before its episode's map origin: sent when it comes."""
+        self.awaiting_since_s: float | None = None
         self.channels = {topic: self._open_channel(topic) for topic in ROS_TYPES}
         """ROS topic -> its channel, every one advertised from the start: a viewer subscribes before anything came."""
         self.latest: dict[str, DeferredMsg] = {}
@@ -203,20 +220,50 @@ class FoxgloveBridgeService(Service):
         else:
             rows = []
             for ours, kept in list(self.latest.items()):  # /tf: both the odometry's and the scan's
+                if ours in self.awaiting_map_origin:
+                    continue  # it goes out with its map origin
                 if topic in ROS_TOPICS[ours] and (msg := self.decoded(ours, kept)) is not None:
                     rows += self.converter.convert(msg, now_ns, wanted=lambda ros_topic: ros_topic == topic, again=True)
         for ros_topic, data, t_ns in rows:
             self.channels[ros_topic].log(data, log_time=t_ns)
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        if isinstance(msg, EpisodeStatusMsg):
+            self.serve(self.converter.learn_map_origin(msg.episode, msg.map_origin, time.time_ns(), self.watched))
+            self.send_awaiting()
+            return
         assert isinstance(msg, DeferredMsg)  # ``inputs``
         self.last_step = msg.step
+        episode = msg.kept_body.get("episode")
+        if isinstance(episode, int) and not isinstance(episode, bool):  # read before decoding: a bad one fails it later
+            self.serve(self.converter.observe_episode(episode, time.time_ns(), self.watched))
         if shows_something(msg):
             self.latest[topic] = msg
+        if topic in MAP_FRAME_TOPICS and not self.converter.knows_map_origin():
+            self.awaiting_map_origin.add(topic)  # its episode's status comes after the first map
+            self.awaiting_since_s = self.awaiting_since_s if self.awaiting_since_s is not None else time.monotonic()
+            return
+        self.awaiting_map_origin.discard(topic)
         if self.converter.converts(topic, self.watched) and (decoded := self.decoded(topic, msg)) is not None:
             self.serve(self.converter.convert(decoded, time.time_ns(), wanted=self.watched))
 
+    def send_awaiting(self) -> None:
+        """The latest of each topic that waited for its episode's map origin, now that it is known."""
+        if not self.awaiting_map_origin or not self.converter.knows_map_origin():
+            return
+        topics, self.awaiting_map_origin, self.awaiting_since_s = sorted(self.awaiting_map_origin), set(), None
+        for topic in topics:
+            kept = self.latest.get(topic)
+            if kept is not None and self.converter.converts(topic, self.watched) and (decoded := self.decoded(topic, kept)) is not None:
+                self.serve(self.converter.convert(decoded, time.time_ns(), wanted=self.watched))
+
     def on_tick(self, now_s: float) -> None:
+        if self.awaiting_since_s is not None and time.monotonic() - self.awaiting_since_s >= MAP_ORIGIN_WAIT_S:
+            episode = self.converter.episode
+            log.warning("Foxglove: no status of episode %s in %g s: its map, path, goal and frontiers go out in the last map origin known", episode, MAP_ORIGIN_WAIT_S)
+            if episode is not None:
+                self.converter.learn_map_origin(episode, self.converter.map_origin, time.time_ns(), self.watched)
+            self.send_awaiting()
         if self.subscriptions.new.is_set():
             self.subscriptions.new.clear()
             for topic in sorted(self.subscriptions.take()):

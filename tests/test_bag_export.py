@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import subprocess
 import sys
@@ -15,9 +16,21 @@ from rosbags.rosbag2 import Reader
 
 from cso_runtime import ros2_cdr
 from cso_runtime.bag_export import ROS_TYPES, BagConverter, BagExportError, export_bag
-from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, compose_pose
 from cso_runtime.keys import RobotKeys
-from cso_runtime.messages import ClockMsg, CmdVelMsg, FrontiersMsg, GoalMsg, MapMsg, OdometryMsg, PathMsg, ScanMsg, encode
+from cso_runtime.messages import (
+    ClockMsg,
+    CmdVelMsg,
+    EpisodeStatusMsg,
+    FrontiersMsg,
+    GoalMsg,
+    MapMsg,
+    OdometryMsg,
+    PathMsg,
+    ScanMsg,
+    decode,
+    encode,
+)
 from cso_runtime.recording import RecordedMessage, write_recording
 
 GEOM = GridGeometry(0.1, (20, 30), -1.0, -0.5)
@@ -25,14 +38,14 @@ T0_NS = 1_800_000_000_000_000_000
 """Reception time of the first message (wall clock, ns)."""
 
 
-def _map(step: int) -> MapMsg:
+def _map(step: int, episode_id: int = 0) -> MapMsg:
     grid = np.full(GEOM.shape, -1, np.int8)
     grid[2:10, 2 : 5 + step] = 0
     grid[2, 2 : 5 + step] = 100
-    return MapMsg.from_grid(step, GEOM, grid)
+    return MapMsg.from_grid(step, GEOM, grid, episode_id)
 
 
-def _frontiers(step: int) -> FrontiersMsg:
+def _frontiers(step: int, episode_id: int = 0) -> FrontiersMsg:
     arrays = {name: np.zeros(GEOM.shape, dtype=dt) for name, dt in FrontiersMsg.GRIDS.items()}
     cluster = {
         "goal_cell": (3, 4),
@@ -43,15 +56,16 @@ def _frontiers(step: int) -> FrontiersMsg:
         "centroid_xy_m": (-0.5, -0.1),
         "cells": np.array([[3, 4], [3, 5], [4, 5]], dtype=np.int32),
     }
-    return FrontiersMsg(step, True, "no_goal", Pose2D(0, 0, 0), GEOM, arrays, [cluster], 1.0)
+    return FrontiersMsg(step, True, "no_goal", Pose2D(0, 0, 0), GEOM, arrays, [cluster], 1.0, episode=episode_id)
 
 
 def _scan(step: int, stamp_s: float) -> LaserScan:
     return LaserScan(-math.pi / 2, math.pi / 180, 0.1, 8.0, np.r_[np.full(90, 2.0 + step), np.full(91, np.inf)].astype(np.float32), stamp_s)
 
 
-def episode(keys: RobotKeys, steps: int, first_ns: int, every_ns: int, goal_changes_at: int = 2) -> list[RecordedMessage]:
-    """A lockstep-like run: messages of step k arrive ``every_ns`` apart (fast), the robot's clock says 0.25 s a step."""
+def episode(keys: RobotKeys, steps: int, first_ns: int, every_ns: int, goal_changes_at: int = 2, episode_id: int = 0) -> list[RecordedMessage]:
+    """A lockstep-like run: messages of step k arrive ``every_ns`` apart (fast), the robot's clock says 0.25 s a step.
+    ``episode_id``: the id its messages carry (0: a publisher without ids)."""
     out: list[RecordedMessage] = []
     for k in range(steps):
         t = first_ns + k * every_ns
@@ -60,12 +74,12 @@ def episode(keys: RobotKeys, steps: int, first_ns: int, every_ns: int, goal_chan
         goal = (1.0, 2.0) if k < goal_changes_at else (3.0, -1.0)
         for i, msg in enumerate(
             [
-                ClockMsg(k, stamp),
-                OdometryMsg(k, stamp, pose, VelocityCommand(0.4, 0.2)),
-                ScanMsg(k, _scan(k, stamp), Pose2D(pose.x_m + 0.1, pose.y_m, pose.yaw_rad)),
-                _map(k),
-                _frontiers(k) if k % 2 == 0 else FrontiersMsg(k, False, "keep"),
-                GoalMsg(k, k % 2 == 0, *goal, 0, 1.0, 2.0, "greedy-dist"),
+                ClockMsg(k, stamp, episode=episode_id),
+                OdometryMsg(k, stamp, pose, VelocityCommand(0.4, 0.2), episode_id),
+                ScanMsg(k, _scan(k, stamp), Pose2D(pose.x_m + 0.1, pose.y_m, pose.yaw_rad), episode_id),
+                _map(k, episode_id),
+                _frontiers(k, episode_id) if k % 2 == 0 else FrontiersMsg(k, False, "keep", episode=episode_id),
+                GoalMsg(k, k % 2 == 0, *goal, 0, 1.0, 2.0, "greedy-dist", episode=episode_id),
                 PathMsg(k, np.array([[pose.x_m, pose.y_m], [goal[0], goal[1]]])),
                 CmdVelMsg(k, VelocityCommand(0.4, 0.2)),
             ]
@@ -116,7 +130,7 @@ def test_a_recording_becomes_a_bag_of_standard_types_on_the_robots_own_clock(tmp
 
     assert stats.rejected == {"scan": 1, "odom": 1} and stats.left_out == {"clock": 5}
     assert {t: len(v) for t, v in bag.items()} == dict(stats.written) == {
-        "/tf_static": 1, "/odom": 5, "/tf": 10, "/scan": 5, "/map": 3, "/plan": 5, "/goal_pose": 2, "/explore/frontiers": 3, "/cmd_vel": 5,
+        "/tf_static": 1, "/odom": 5, "/tf": 5, "/scan": 5, "/map": 3, "/plan": 5, "/goal_pose": 2, "/explore/frontiers": 3, "/cmd_vel": 5,
     }
     # The robot's clock: step k at T0 + 0.25 s k whatever the reception times; every header says the bag time.
     for topic in ("/odom", "/scan", "/plan", "/cmd_vel"):
@@ -136,18 +150,18 @@ def test_a_recording_becomes_a_bag_of_standard_types_on_the_robots_own_clock(tmp
     np.testing.assert_array_equal(grid, _map(4).grid)
     assert (last_map.info.origin.position.x, last_map.info.origin.position.y, last_map.info.resolution) == (-1.0, -0.5, pytest.approx(0.1))
     assert last_map.header.frame_id == "map"
-    # Scans in the laser frame, placed by a transform from odom at the scan's own time; the robot by odometry.
+    # Scans in the laser frame, which hangs from base_link by the LiDAR's mount (step 0's scan 0.1 m ahead of its
+    # odometry); the robot placed by its odometry, once a time (each scan shares its step's).
     scan = bag["/scan"][2][1]
     assert scan.header.frame_id == "laser" and np.array_equal(scan.ranges, _scan(2, 0.5).ranges_m)
     assert scan.angle_min == pytest.approx(-math.pi / 2) and scan.angle_max == pytest.approx(-math.pi / 2 + 180 * math.pi / 180)
     tfs = [(t, tf) for t, m in bag["/tf"] for tf in m.transforms]
-    laser = [(t, tf) for t, tf in tfs if tf.child_frame_id == "laser"]
-    base = [(t, tf) for t, tf in tfs if tf.child_frame_id == "base_link"]
-    assert len(laser) == len(base) == 5 and all(tf.header.frame_id == "odom" for t, tf in laser + base)
-    assert laser[2][1].transform.translation.x == pytest.approx(0.3) and base[2][1].transform.translation.x == pytest.approx(0.2)
-    assert ros2_cdr.yaw_from_quaternion(**{a: getattr(base[2][1].transform.rotation, a) for a in "xyzw"}) == pytest.approx(0.1)
-    (static,) = bag["/tf_static"][0][1].transforms
-    assert (static.header.frame_id, static.child_frame_id, static.transform.rotation.w) == ("map", "odom", 1.0)
+    assert [(tf.header.frame_id, tf.child_frame_id) for _, tf in tfs] == [("odom", "base_link")] * 5
+    assert tfs[2][1].transform.translation.x == pytest.approx(0.2)
+    assert ros2_cdr.yaw_from_quaternion(**{a: getattr(tfs[2][1].transform.rotation, a) for a in "xyzw"}) == pytest.approx(0.1)
+    map_odom, base_laser = bag["/tf_static"][0][1].transforms
+    assert (map_odom.header.frame_id, map_odom.child_frame_id, map_odom.transform.translation.x, map_odom.transform.rotation.w) == ("map", "odom", 0.0, 1.0)
+    assert (base_laser.header.frame_id, base_laser.child_frame_id, base_laser.transform.translation.x, base_laser.transform.rotation.w) == ("base_link", "laser", 0.1, 1.0)
     odom = bag["/odom"][1][1]
     assert (odom.header.frame_id, odom.child_frame_id, odom.twist.twist.linear.x) == ("odom", "base_link", pytest.approx(0.4))
     # A goal pose when the goal changes; the path as poses; the frontiers as explore_lite's markers.
@@ -196,7 +210,7 @@ def test_a_recording_of_the_versions_before_the_episode_id_exports_the_same_bag(
     export_bag(tmp_path / "current.mcap", tmp_path / "current", map_period_s=0)
     stats = export_bag(tmp_path / "old.mcap", tmp_path / "old", map_period_s=0)
     assert stats.rejected == {"odom": 1}
-    assert dict(stats.written) == {"/tf_static": 1, "/odom": 5, "/tf": 10, "/scan": 5, "/map": 5, "/plan": 5, "/goal_pose": 2, "/explore/frontiers": 3, "/cmd_vel": 5}
+    assert dict(stats.written) == {"/tf_static": 1, "/odom": 5, "/tf": 5, "/scan": 5, "/map": 5, "/plan": 5, "/goal_pose": 2, "/explore/frontiers": 3, "/cmd_vel": 5}
     with Reader(tmp_path / "current") as want, Reader(tmp_path / "old") as got:
         assert [(c.topic, t, raw) for c, t, raw in got.messages()] == [(c.topic, t, raw) for c, t, raw in want.messages()]
 
@@ -246,6 +260,7 @@ def test_export_bag_command_writes_beside_the_recording_and_says_what(tmp_path: 
     done = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording)], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr
     assert f"wrote {tmp_path / 'run'} (robot r0): " in done.stdout and "/scan 2" in done.stdout
+    assert "base_link -> laser: (0.1 m, 0 m, 0 rad)" in done.stdout and "map -> odom" not in done.stdout  # a plan that is its own map frame
     assert (tmp_path / "run" / "metadata.yaml").is_file()
     again = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording)], capture_output=True, text=True, timeout=60)
     assert again.returncode == 2 and "exists" in again.stderr
@@ -291,3 +306,146 @@ def test_export_bag_namespace_puts_topics_and_frames_under_the_robots_name(tmp_p
         capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert bad.returncode == 2 and "no ROS name" in bad.stderr and not (tmp_path / "bad").exists(), bad.stderr
+
+
+SCENE_ORIGIN = Pose2D(2.0, -1.0, 0.5)
+"""A map_server scene's ``origin`` (x, y and yaw): the plan's pose in the user's map frame."""
+
+
+def with_status(messages: list[RecordedMessage], keys: RobotKeys, episode_id: int, map_origin: Pose2D) -> list[RecordedMessage]:
+    """``messages`` with the episode's status right after its first map, where the sim first publishes it."""
+    first_map = next(i for i, m in enumerate(messages) if m.key == keys.map)
+    status = EpisodeStatusMsg("exploring", 0, "plan", "greedy-dist", episode=episode_id, map_origin=map_origin)
+    at_ns = messages[first_map].log_time_ns + 1
+    return [*messages[: first_map + 1], RecordedMessage(keys.episode_status, at_ns, encode(status)), *messages[first_map + 1 :]]
+
+
+def scans_fired_early(messages: list[RecordedMessage], keys: RobotKeys, early_s: float) -> list[RecordedMessage]:
+    """``messages`` with each scan after step 0 fired ``early_s`` before its step's odometry, at the sensor pose it has
+    (a real-time MuJoCo LIMO's: its LiDAR fires at 8 Hz, the step's odometry is of the step's end)."""
+    out = []
+    for m in messages:
+        if m.key == keys.scan and (scan := decode(m.payload, ScanMsg)).step > 0:
+            fired = dataclasses.replace(scan.scan, stamp_s=scan.scan.stamp_s - early_s)
+            m = RecordedMessage(m.key, m.log_time_ns, encode(ScanMsg(scan.step, fired, scan.sensor_pose, scan.episode)))
+        out.append(m)
+    return out
+
+
+def tf_pose(tf) -> Pose2D:
+    """A planar TransformStamped as the child's pose in its parent."""
+    q = tf.transform.rotation
+    return Pose2D(tf.transform.translation.x, tf.transform.translation.y, ros2_cdr.yaw_from_quaternion(q.x, q.y, q.z, q.w))
+
+
+def msg_pose(pose) -> Pose2D:
+    """A geometry_msgs/Pose as a planar pose."""
+    q = pose.orientation
+    return Pose2D(pose.position.x, pose.position.y, ros2_cdr.yaw_from_quaternion(q.x, q.y, q.z, q.w))
+
+
+def approx_pose(p: Pose2D, abs_tol: float = 1e-9):
+    return pytest.approx((p.x_m, p.y_m, p.yaw_rad), abs=abs_tol)
+
+
+def as_tuple(p: Pose2D) -> tuple[float, float, float]:
+    return (p.x_m, p.y_m, p.yaw_rad)
+
+
+def test_a_map_server_scenes_bag_is_in_its_map_frame_as_amcl_places_odom(tmp_path: Path):
+    """A map_server scene whose ``origin`` is not zero: the robot explores in the plan's frame, which the bag makes
+    ``odom`` (drift-free) under a ``map`` -> ``odom`` equal to the scene's ``map_origin`` (from the recording's
+    episode/status, which comes only after the first map), as AMCL places odom; the map, goals, paths and frontiers are
+    in ``map``, so the grid overlays the user's own map cell for cell. The LiDAR hangs from ``base_link`` by a static
+    transform (its mount, as the recording shows it), each scan still exactly at its sensor pose, and the odometry has
+    a covariance robot_localization accepts. Before, map -> odom was the identity, the grid at the plan's corner, the
+    laser under odom and the covariance all zero. A scene whose origin is zero exports as before, to the byte."""
+    keys = RobotKeys("r0")
+    recording = tmp_path / "run.mcap"
+    messages = scans_fired_early(episode(keys, 4, T0_NS, 2_000_000, episode_id=7), keys, 0.1)
+    write_recording(recording, "r0", with_status(messages, keys, 7, SCENE_ORIGIN))
+    stats = export_bag(recording, tmp_path / "bag", map_period_s=0)
+    bag = read_bag(tmp_path / "bag")
+    assert stats.left_out == {"clock": 4, "episode/status": 1}
+    assert (stats.map_origins, stats.lidar_mount) == ({7: SCENE_ORIGIN}, Pose2D(0.1, 0.0, 0.0))
+
+    (static,) = bag["/tf_static"]
+    frames = {(tf.header.frame_id, tf.child_frame_id): tf_pose(tf) for tf in static[1].transforms}
+    assert set(frames) == {("map", "odom"), ("base_link", "laser")}
+    assert as_tuple(frames[("map", "odom")]) == approx_pose(SCENE_ORIGIN)
+    assert as_tuple(frames[("base_link", "laser")]) == approx_pose(Pose2D(0.1, 0.0, 0.0))  # step 0's scan, 0.1 m ahead of its odometry
+
+    # The grid in the map frame, the first one too (its status came after it): its corner is the plan's corner placed
+    # by the origin, turned as map_server turns a map by its origin's yaw; a cell's centre lands where map -> odom puts it.
+    for _, grid in bag["/map"]:
+        assert grid.header.frame_id == "map"
+        corner = msg_pose(grid.info.origin)
+        assert as_tuple(corner) == approx_pose(compose_pose(SCENE_ORIGIN, Pose2D(GEOM.origin_x_m, GEOM.origin_y_m, 0.0)))
+        iy, ix = 7, 12
+        via_grid = compose_pose(corner, Pose2D((ix + 0.5) * grid.info.resolution, (iy + 0.5) * grid.info.resolution, 0.0))
+        via_tf = compose_pose(frames[("map", "odom")], Pose2D(*GEOM.cell_to_world(iy, ix), 0.0))
+        assert (via_grid.x_m, via_grid.y_m) == pytest.approx((via_tf.x_m, via_tf.y_m), abs=1e-6)
+    assert len(bag["/map"]) == 4
+
+    # Goals, paths and frontiers: in the map frame, each point the plan frame's placed by the origin.
+    def in_map(x_m: float, y_m: float) -> tuple[float, float]:
+        p = compose_pose(SCENE_ORIGIN, Pose2D(x_m, y_m, 0.0))
+        return pytest.approx((p.x_m, p.y_m), abs=1e-6)  # a path travels as float32
+
+    assert [m.header.frame_id for _, m in bag["/goal_pose"]] == ["map", "map"]
+    assert [(m.pose.position.x, m.pose.position.y) for _, m in bag["/goal_pose"]] == [in_map(1.0, 2.0), in_map(3.0, -1.0)]
+    plan = bag["/plan"][3][1]
+    assert plan.header.frame_id == "map" and [(p.pose.position.x, p.pose.position.y) for p in plan.poses] == [in_map(0.3, 0.0), in_map(3.0, -1.0)]
+    markers = bag["/explore/frontiers"][0][1].markers
+    assert [(p.x, p.y) for p in markers[1].points] == [in_map(*GEOM.cell_to_world(iy, ix)) for iy, ix in [(3, 4), (3, 5), (4, 5)]]
+    assert (markers[2].pose.position.x, markers[2].pose.position.y) == in_map(-0.55, -0.15)
+
+    # The odometry in odom (the plan's frame), as recorded, with the LIMO driver's diagonal covariance.
+    diagonal = [0.1, 0.1, 0.1, 1.0, 1.0, 1.0]
+    for _, odom in bag["/odom"]:
+        for cov in (odom.pose.covariance, odom.twist.covariance):
+            assert list(np.asarray(cov).reshape(6, 6).diagonal()) == diagonal and np.count_nonzero(cov) == 6
+    assert (bag["/odom"][2][1].pose.pose.position.x, bag["/odom"][2][1].header.frame_id) == (pytest.approx(0.2), "odom")
+
+    # Each scan, in `laser` at its own stamp (fired 0.1 s before its step's odometry), exactly at its sensor pose, which
+    # is not the odometry's pose plus the mount: odom -> base_link at the scan's time is its sensor pose less the mount.
+    tfs = [(t, tf) for t, m in bag["/tf"] for tf in m.transforms]
+    assert {(tf.header.frame_id, tf.child_frame_id) for _, tf in tfs} == {("odom", "base_link")}
+    base_at = {t: tf_pose(tf) for t, tf in tfs}
+    assert len(base_at) == len(tfs) == 1 + 2 * 3  # step 0's odometry and scan share a time; one transform a time (tf2 keeps the first)
+    assert [t for t, _ in bag["/scan"]] == [T0_NS] + [T0_NS + k * 250_000_000 - 100_000_000 for k in (1, 2, 3)]
+    assert [t for t, _ in bag["/odom"]] == [T0_NS + k * 250_000_000 for k in range(4)]
+    for k, (t, scan) in enumerate(bag["/scan"]):
+        assert scan.header.frame_id == "laser" and stamp_ns(scan.header) == t
+        laser = compose_pose(base_at[t], frames[("base_link", "laser")])
+        assert as_tuple(laser) == approx_pose(Pose2D(0.1 * k + 0.1, 0.0, 0.05 * k), 1e-12)
+    for t, odom in bag["/odom"]:
+        assert as_tuple(base_at[t]) == approx_pose(msg_pose(odom.pose.pose), 0.0)  # the robot by its odometry at the odometry's time
+
+
+    # Dungeon, generated and builtin plans are their own map frame (map_origin zeros): their status changes nothing, to the byte.
+    plain = episode(keys, 3, T0_NS, 2_000_000, episode_id=7)
+    write_recording(tmp_path / "plain.mcap", "r0", plain)
+    write_recording(tmp_path / "zero.mcap", "r0", with_status(plain, keys, 7, Pose2D(0.0, 0.0, 0.0)))
+    export_bag(tmp_path / "plain.mcap", tmp_path / "plain", map_period_s=0)
+    export_bag(tmp_path / "zero.mcap", tmp_path / "zero", map_period_s=0)
+    with Reader(tmp_path / "plain") as want, Reader(tmp_path / "zero") as got:
+        assert [(c.topic, t, raw) for c, t, raw in got.messages()] == [(c.topic, t, raw) for c, t, raw in want.messages()]
+
+
+def test_a_second_episode_in_another_scene_moves_map_to_odom_from_its_first_message(tmp_path: Path):
+    """A recording of two episodes in two map_server scenes: each episode's map -> odom is its own scene's map origin,
+    sent again on /tf_static with the second episode's first message (tf2 then replaces it), and each map is placed by
+    its own episode's origin, the second's first map included (its status comes after it)."""
+    keys, other = RobotKeys("r0"), Pose2D(-3.0, 4.0, -1.0)
+    first = with_status(episode(keys, 3, T0_NS, 2_000_000, episode_id=7), keys, 7, SCENE_ORIGIN)
+    second = with_status(episode(keys, 2, T0_NS + 10_000_000, 2_000_000, episode_id=8), keys, 8, other)
+    write_recording(tmp_path / "two.mcap", "r0", first + second)
+    export_bag(tmp_path / "two.mcap", tmp_path / "bag", map_period_s=0)
+    bag = read_bag(tmp_path / "bag")
+    statics = [(t, {(tf.header.frame_id, tf.child_frame_id): tf_pose(tf) for tf in m.transforms}) for t, m in bag["/tf_static"]]
+    assert [as_tuple(s[("map", "odom")]) for _, s in statics] == [approx_pose(SCENE_ORIGIN), approx_pose(other)]
+    assert statics[1][0] == T0_NS + 3 * 250_000_000  # the second episode's first step, a step after the first's last
+    corners = [msg_pose(m.info.origin) for _, m in bag["/map"]]
+    expected = [compose_pose(o, Pose2D(GEOM.origin_x_m, GEOM.origin_y_m, 0.0)) for o in [SCENE_ORIGIN] * 3 + [other] * 2]
+    assert [as_tuple(c) for c in corners] == [approx_pose(e) for e in expected]

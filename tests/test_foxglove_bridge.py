@@ -18,18 +18,21 @@ from mcap.reader import make_reader
 from cso_runtime import ros2_cdr
 from cso_runtime.bag_export import EXPORTED, ROS_TOPICS, ROS_TYPES, BagConverter, shows_something
 from cso_runtime.config import ConfigError, ExplorationConfig
+from cso_runtime.geometry import Pose2D, compose_pose
 from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import GoalMsg, Message, decode, deferred, encode
 from cso_runtime.transport import TransportConfig
 from services.common import ServiceContext, _dispatch
 from services.foxglove_bridge import FoxgloveBridgeService, websocket_handshake
 from tests.conftest import wait_for
-from tests.test_bag_export import T0_NS, _map, episode
+from tests.test_bag_export import GEOM, SCENE_ORIGIN, T0_NS, _map, approx_pose, as_tuple, episode, msg_pose, tf_pose, with_status
 
 
-def _bridge(params: dict) -> FoxgloveBridgeService:
+def _bridge(params: dict, lidar_mount_x_m: float = 0.0) -> FoxgloveBridgeService:
     profile = {"lockstep": True, "services": {"foxglove_bridge": params}}
-    ctx = ServiceContext("foxglove_bridge", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), params)
+    exploration = ExplorationConfig()
+    exploration.sensor.mount_x_m = lidar_mount_x_m
+    ctx = ServiceContext("foxglove_bridge", "r0", profile, exploration, TransportConfig(connect=["tcp/127.0.0.1:1"]), params)
     return FoxgloveBridgeService(ctx)
 
 
@@ -450,3 +453,66 @@ def test_a_message_kept_undecoded_is_judged_as_it_decodes_and_converts_to_its_ro
         converted |= rows
     assert converted == set(ROS_TYPES) - {"/tf_static"}
     assert {shows_something(decode(encode(m), deferred(type(m)))) for m in (GoalMsg(3, True), _map(0))} == {False, True}
+
+
+def _header_ns(msg) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+
+
+def test_the_bridge_places_a_map_server_scene_in_its_map_frame_as_export_bag_does(tmp_path):
+    """A map_server scene whose ``origin`` is not zero, live: ``map`` -> ``odom`` is the scene's map origin (from the
+    episode's status, an input of the bridge now), the map, goal, path and frontiers are in the map frame, the laser
+    hangs from ``base_link`` by the profile's LiDAR mount, each scan exactly at its sensor pose, and the odometry has a
+    covariance. The status comes after the first map: that map waits for it, and goes out in the map frame too.
+    Before, everything was in the plan's frame with map -> odom the identity, the laser under odom, no covariance."""
+    mcap = tmp_path / "scene.mcap"
+    bridge = _bridge({"port": 0, "mcap_path": str(mcap), "map_period_s": 0.0}, lidar_mount_x_m=0.103)
+    keys = RobotKeys("r0")
+    messages = with_status(episode(keys, 3, T0_NS, 1_000_000, episode_id=7), keys, 7, SCENE_ORIGIN)
+    for m in messages:
+        if m.key == keys.episode_status:
+            assert bridge.served.get("/map", 0) == 0  # step 0's map waits for its episode's map origin
+        if m.key.rsplit("/", 1)[1] in bridge.inputs or m.key == keys.episode_status:
+            _dispatch(bridge, m.key, m.payload, 0.0)
+    bridge.shutdown()
+    served = [(topic, m) for topic, _, m in _served(mcap)]
+
+    statics = [(i, m) for i, (topic, m) in enumerate(served) if topic == "/tf_static"]
+    last = {(tf.header.frame_id, tf.child_frame_id): tf_pose(tf) for tf in statics[-1][1].transforms}
+    assert as_tuple(last[("map", "odom")]) == approx_pose(SCENE_ORIGIN)
+    assert as_tuple(last[("base_link", "laser")]) == approx_pose(Pose2D(0.103, 0.0, 0.0))
+    maps = [(i, m) for i, (topic, m) in enumerate(served) if topic == "/map"]
+    assert len(maps) == 3 and maps[0][0] > statics[-1][0]  # the first map after map -> odom is known
+    corner = compose_pose(SCENE_ORIGIN, Pose2D(GEOM.origin_x_m, GEOM.origin_y_m, 0.0))
+    assert all(m.header.frame_id == "map" and as_tuple(msg_pose(m.info.origin)) == approx_pose(corner) for _, m in maps)
+    goals = [m for topic, m in served if topic == "/goal_pose"]
+    first_goal = compose_pose(SCENE_ORIGIN, Pose2D(1.0, 2.0, 0.0))
+    assert (goals[0].header.frame_id, goals[0].pose.position.x, goals[0].pose.position.y) == ("map", pytest.approx(first_goal.x_m), pytest.approx(first_goal.y_m))
+    for odom in [m for topic, m in served if topic == "/odom"]:
+        assert list(np.asarray(odom.pose.covariance).reshape(6, 6).diagonal()) == [0.1, 0.1, 0.1, 1.0, 1.0, 1.0]
+    base_at = {_header_ns(tf): tf_pose(tf) for topic, m in served if topic == "/tf" for tf in m.transforms if tf.child_frame_id == "base_link"}
+    scans = [m for topic, m in served if topic == "/scan"]
+    assert len(scans) == 3
+    for k, scan in enumerate(scans):  # the recorded sensor pose, which is not the odometry pose plus 0.103 m
+        laser = compose_pose(base_at[_header_ns(scan)], last[("base_link", "laser")])
+        assert as_tuple(laser) == approx_pose(Pose2D(0.1 * k + 0.1, 0.0, 0.05 * k), 1e-12)
+
+
+def test_a_map_that_no_status_places_waits_only_so_long(tmp_path, monkeypatch):
+    """An episode whose status never comes (lost, or a publisher that sends none): its map goes out in the map origin
+    last known once ``MAP_ORIGIN_WAIT_S`` has passed."""
+    import services.foxglove_bridge as bridge_module
+
+    mcap = tmp_path / "nostatus.mcap"
+    bridge = _bridge({"port": 0, "mcap_path": str(mcap), "map_period_s": 0.0})
+    try:
+        _receive(bridge, "map", _map(0, episode_id=9))
+        bridge.on_tick(0.0)
+        assert bridge.served.get("/map", 0) == 0
+        monkeypatch.setattr(bridge_module, "MAP_ORIGIN_WAIT_S", 0.0)
+        bridge.on_tick(0.0)
+        assert bridge.served["/map"] == 1
+        _receive(bridge, "map", _map(1, episode_id=9))
+        assert bridge.served["/map"] == 2
+    finally:
+        bridge.shutdown()
