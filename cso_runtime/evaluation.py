@@ -80,6 +80,7 @@ from cso_runtime.policies import (
     make_policy,
     own_method_spec,
     unknown_methods_said,
+    weights_held_said,
 )
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import (
@@ -210,14 +211,12 @@ class EvalRequest:
                 raise ConfigError(f"methods {other!r} and {method!r} would share the results folder episodes/{file_stem(method)}/: run them in two evals")
         if self.baseline not in known and self.baseline not in self.methods:
             raise ConfigError(f"unknown --baseline {with_nearest(self.baseline, known, shown=repr(self.baseline))}; available: {', '.join(sorted(known))}")
-        available = available_methods()
-        untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available]
+        untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available_methods()]
         if untrained:
             from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415
 
             missing = ", ".join(f"{m}.pt" for m in untrained)
-            held = [m for m in LEARNED_METHODS if m in available]  # a run trained as another variant: name it
-            fix = f"it holds those of {', '.join(held)} (--method {','.join(held)})" if held else "train with `cso-runtime train --variant NAME`"
+            fix = weights_held_said() or "train with `cso-runtime train --variant NAME`"
             raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); {fix}")
         if self.sim not in SIMULATORS:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")

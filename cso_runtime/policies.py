@@ -195,6 +195,15 @@ def available_methods() -> list[str]:
     return list(BASELINES) + [m for m in LEARNED_METHODS if _learned_available(m)]
 
 
+def weights_held_said() -> str:
+    """The learned methods whose weights the weights folder holds, for the error of a method it has none for: a
+    training run's folder holds the variant it was trained as (``train --variant cso-sm``), to run as ``--method
+    cso-sm``, not as ``cso``. "" when it holds none. ``eval`` and ``up`` say it alike."""
+    available = available_methods()
+    held = [m for m in LEARNED_METHODS if m in available]
+    return f"it holds those of {', '.join(held)} (--method {','.join(held)})" if held else ""
+
+
 def unknown_methods_said(names: list[str], groups: bool = False) -> str:
     """``unknown method 'greedy-dsit' (did you mean greedy-dist?); available: ...``: the one wording of unknown
     method names, each with the known name it most likely misspells; ``groups``: the list (``--method``) also takes

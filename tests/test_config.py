@@ -384,6 +384,27 @@ def test_up_warns_when_the_policys_weights_were_trained_with_another_field_of_vi
         assert out.returncode == 0 and "warning" not in out.stderr, out.stderr
 
 
+def test_up_of_a_learned_method_the_weights_folder_lacks_names_those_it_holds(tmp_path: Path, monkeypatch):
+    """``train --variant cso-sm --out RUN`` then ``up --method cso --weights RUN``: up said only "no weights at
+    RUN/cso.pt; train it", not that RUN's weights are cso-sm's, to run with ``--method cso-sm`` (eval said so)."""
+    import shutil
+
+    import cso_runtime
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+    from cso_runtime.run_profile import load_profile
+
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(Path(cso_runtime.__file__).parent / "data" / "weights" / "cso-sm.pt", run / "cso-sm.pt")
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(run))
+    with pytest.raises(ConfigError, match=r"method cso: no weights at .*cso\.pt; it holds those of cso-sm \(--method cso-sm\)"):
+        load_profile("sim", {"method": "cso"})
+    load_profile("sim", {"method": "cso-sm"})
+    (run / "cso-sm.pt").unlink()
+    with pytest.raises(ConfigError, match=r"cso\.pt; train it with `cso-runtime train --variant cso`"):
+        load_profile("sim", {"method": "cso"})
+
+
 def test_the_lockstep_sim_gives_up_only_after_it_has_re_published_a_step():
     """``lockstep_give_up_s`` at or below ``lockstep_timeout_s`` failed an episode on one lost message, never re-published."""
     from cso_runtime.run_profile import load_profile
