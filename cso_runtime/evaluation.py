@@ -43,6 +43,8 @@ from cso_runtime.comparison import (
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import (
     EXIT_INTERRUPTED,
+    LIDAR_FOVS_DEG,
+    LIDAR_FOVS_SAID,
     LIMO_BODY,
     LIMO_LIDAR_MOUNT_X_M,
     ConfigError,
@@ -162,7 +164,7 @@ class EvalRequest:
         # silently on the preset's values.
         explicit = data.get("sensor") or {}
         if "fov_deg" in explicit:
-            raise ConfigError(f"{where}: sensor.fov_deg is set by eval's --lidar-fov (180 or 360) or the --sensor preset, not by the config")
+            raise ConfigError(f"{where}: sensor.fov_deg is set by eval's --lidar-fov ({LIDAR_FOVS_SAID}) or the --sensor preset, not by the config")
         preset = SensorConfig.preset(self.sensor, fov_deg=self.lidar_fov_deg if self.sensor == "lidar" else None)
         for key in explicit:
             setattr(preset, key, getattr(cfg.sensor, key))
@@ -230,8 +232,8 @@ class EvalRequest:
             raise ConfigError(f"--m-per-px must be a positive number of metres per pixel, got {self.m_per_px}")
         if self.limit is not None and self.limit <= 0:
             raise ConfigError(f"--limit must be positive, got {self.limit}")
-        if self.sensor == "lidar" and self.lidar_fov_deg not in (180.0, 360.0):
-            raise ConfigError("--lidar-fov must be 180 or 360")
+        if self.sensor == "lidar" and self.lidar_fov_deg not in LIDAR_FOVS_DEG:
+            raise ConfigError(f"--lidar-fov must be {LIDAR_FOVS_SAID}")
         # Last: it loads torch and the weights (kept for the episodes), which the checks above need not wait for.
         learned = [m for m in self.methods if m in LEARNED_METHODS]
         if learned:

@@ -266,6 +266,22 @@ def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is
         assert f"error: {recipe} with --set {setting}: {said}" in train_refusal(recipe, {}, [setting], capsys)
 
 
+def test_train_refuses_a_field_of_view_eval_cannot_run_before_it_starts(tmp_path: Path, capsys):
+    """``train --set lidar_fov_deg=270`` trained for minutes, then its weights could not be evaluated as trained:
+    ``eval --lidar-fov`` runs 180 or 360 alone (and ran them at 180, warning). The depth preset has its own field of
+    view, which eval's ``--lidar-fov`` does not change either. The fields of view eval runs are still taken."""
+    from cso_runtime.cli import training_args
+
+    recipe = small_train_recipe(tmp_path)
+    for settings, said in [
+        (["lidar_fov_deg=270"], "lidar_fov_deg must be 180 or 360 (the LiDARs eval --lidar-fov runs), or null for the preset's 180, got 270"),
+        (["sensor=depth", "lidar_fov_deg=90"], "lidar_fov_deg sets the LiDAR's field of view; sensor depth has its own"),
+    ]:
+        assert said in " ".join(train_refusal(recipe, {}, settings, capsys).split())
+    for settings, fov_deg in [(["lidar_fov_deg=360"], 360.0), (["lidar_fov_deg=180"], 180.0), (["lidar_fov_deg=null"], 180.0), (["sensor=depth", "lidar_fov_deg=null"], 79.0)]:
+        assert training_args(recipe, {}, settings).env_config().exploration.sensor.fov_deg == fov_deg
+
+
 def test_a_minibatch_count_that_does_not_divide_the_batch_says_the_numbers(tmp_path: Path, capsys):
     """``num_minibatches`` must divide num_envs x num_steps: the refusal shows the product and the count."""
     recipe = small_train_recipe(tmp_path)

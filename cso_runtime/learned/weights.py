@@ -18,7 +18,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from cso_runtime.config import ConfigError, SensorConfig
+from cso_runtime.config import LIDAR_FOVS_DEG, ConfigError, SensorConfig
 
 WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
 """Environment variable naming a folder of ``<method>.pt`` files to use instead of the shipped ones
@@ -150,7 +150,7 @@ def sensor_mismatches(names: list[str], sensor: SensorConfig, eval_hint: bool = 
     lines = []
     for trained, which in by_fov.items():
         record = weights_path(which[0], sensor).with_suffix(".json")
-        lidar = eval_hint and trained in (180.0, 360.0) and sensor.fov_deg in (180.0, 360.0)  # a LiDAR eval: --lidar-fov is the fix
+        lidar = eval_hint and trained in LIDAR_FOVS_DEG and sensor.fov_deg in LIDAR_FOVS_DEG  # a LiDAR eval: --lidar-fov is the fix
         hint = f"; eval --lidar-fov {trained:g} runs {'it' if len(which) == 1 else 'them'} with that sensor" if lidar else ""
         lines.append(
             f"the weights of {', '.join(which)} were trained with a {trained:g}-degree sensor ({record}{' and the like' if len(which) > 1 else ''}),"
