@@ -654,11 +654,13 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict
         )
     weights: dict[str, dict[str, Any]] = {}
     if any(m in LEARNED_METHODS for m in request.methods):
-        from cso_runtime.learned.weights import sensor_mismatches, weights_provenance  # noqa: PLC0415
+        from cso_runtime.learned.weights import mask_mismatches, sensor_mismatches, weights_provenance  # noqa: PLC0415
 
         weights = {m: weights_provenance(m, config.sensor) for m in request.methods if m in LEARNED_METHODS}
         for mismatch in sensor_mismatches(list(weights), config.sensor):
             log.warning("%s (a policy does best with the sensor it was trained with)", mismatch)
+        for mismatch in mask_mismatches(list(weights), config.masks, config.sensor):
+            log.warning("%s (a policy does best with the masks it was trained under)", mismatch)
     mujoco = request.mujoco_parameters()
     settings = {
         m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "", mujoco, own_method_code_sha256(m))

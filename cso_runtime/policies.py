@@ -187,7 +187,27 @@ BASELINES: dict[str, Callable[[], GoalSelector]] = {
     "random": RandomFrontier,
 }
 
-LEARNED_METHODS = ("cso", "cso-no-info", "cso-no-mask", "cso-sm", "cso-vdm", "gnn-baseline")
+@dataclass(frozen=True)
+class Variant:
+    """Table 2's switches: the entropy input and the two action masks."""
+
+    use_entropy: bool
+    use_valid_distance: bool
+    use_stuck: bool
+
+
+VARIANTS: dict[str, Variant] = {
+    "cso": Variant(True, True, True),
+    "cso-no-info": Variant(False, True, True),
+    "cso-no-mask": Variant(True, False, False),
+    "cso-sm": Variant(True, False, True),
+    "cso-vdm": Variant(True, True, False),
+    "gnn-baseline": Variant(False, False, False),
+}
+"""The learned methods and their switches (``learned.registry`` loads their networks); here, without torch, so that
+the launcher and the CLI know them before anything starts."""
+
+LEARNED_METHODS = tuple(VARIANTS)
 
 
 def available_methods() -> list[str]:

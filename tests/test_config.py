@@ -400,6 +400,32 @@ def test_up_warns_when_the_policys_weights_were_trained_with_another_field_of_vi
         assert out.returncode == 0 and "warning" not in out.stderr, out.stderr
 
 
+def test_up_warns_when_the_policys_weights_were_trained_under_other_stuck_mask_settings(tmp_path: Path):
+    """`up --weights RUN` of a run trained with ``stuck_avoid=goals`` ran the policy under the profile's stuck mask
+    (positions) with no word, as eval did: the run's record says its masks, and up warns, naming the ``--set`` of up
+    that runs them as trained; nothing once given."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+
+    from cso_runtime.learned.weights import weights_path
+
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(weights_path("cso"), run / "cso.pt")
+    (run / "cso.json").write_text(json.dumps({"variant": "cso", "args": {"variant": "cso", "sensor": "lidar", "lidar_fov_deg": None, "stuck_avoid": "goals"}}))
+    up = [sys.executable, "-m", "cso_runtime.cli", "up", "--profile", "sim", "--weights", str(run), "--dry-run", "--method", "cso"]
+    said = subprocess.run(up, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert said.returncode == 0, said.stderr
+    assert said.stderr.startswith(
+        f"warning: the weights of cso were trained with masks.stuck_avoid=goals ({run / 'cso.json'}), this run's are positions;"
+        " --set exploration.masks.stuck_avoid=goals runs them as trained (a policy does best with the masks it was trained under)"
+    ), said.stderr
+    quiet = subprocess.run([*up, "--set", "exploration.masks.stuck_avoid=goals"], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert quiet.returncode == 0 and "warning" not in quiet.stderr, quiet.stderr
+
+
 def test_up_of_a_learned_method_the_weights_folder_lacks_names_those_it_holds(tmp_path: Path, monkeypatch):
     """``train --variant cso-sm --out RUN`` then ``up --method cso --weights RUN``: up said only "no weights at
     RUN/cso.pt; train it", not that RUN's weights are cso-sm's, to run with ``--method cso-sm`` (eval said so)."""

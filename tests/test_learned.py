@@ -507,16 +507,19 @@ def test_train_ends_saying_its_files_and_the_eval_that_runs_its_weights_as_train
 
     assert matching_eval_command(Args(out_dir="runs/x")) == "cso-runtime eval --method cso --weights runs/x"
     assert matching_eval_command(Args(out_dir="runs/x", sensor="depth")) == "cso-runtime eval --method cso --weights runs/x --sensor depth"
+    # a setting the variant's masks do not use is not given: cso-sm has no valid distance mask to conflict with
+    cso_sm = Args(out_dir="runs/x", variant="cso-sm", stuck_avoid="goals", mask_conflict="stuck")
+    assert matching_eval_command(cso_sm) == "cso-runtime eval --method cso-sm --weights runs/x --set masks.stuck_avoid=goals"
     out = tmp_path / "my run"
     tiny = ["--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--set", "num_steps=4", "--set", "num_minibatches=1",
-            "--set", "max_steps=40", "--num-envs", "1", "--total-decisions", "4", "--variant", "cso-sm", "--out", str(out),
+            "--set", "max_steps=40", "--num-envs", "1", "--total-decisions", "4", "--variant", "cso", "--out", str(out),
             "--set", "stuck_avoid=goals", "--set", "mask_conflict=stuck"]  # fmt: skip
     r = CliRunner().invoke(app, ["train", *tiny])
     assert r.exit_code == 0, r.output
-    assert f"-> {out}: cso-sm.pt, cso-sm_log.csv, cso-sm_curve.png, cso-sm.json, checkpoint.pt" in r.output
+    assert f"-> {out}: cso.pt, cso_log.csv, cso_curve.png, cso.json, checkpoint.pt" in r.output
     said = re.search(r"evaluate it as it was trained: (.*) \(and your --maps, --out\)", r.output)
     assert said and shlex.split(said.group(1)) == [
-        "cso-runtime", "eval", "--method", "cso-sm", "--weights", str(out), "--lidar-fov", "360",
+        "cso-runtime", "eval", "--method", "cso", "--weights", str(out), "--lidar-fov", "360",
         "--set", "masks.stuck_avoid=goals", "--set", "masks.conflict=stuck",
     ]  # fmt: skip
     monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # eval's --weights sets it in this process: put back as it was after the test

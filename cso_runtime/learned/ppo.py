@@ -48,6 +48,7 @@ from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
 from cso_runtime.learned.registry import VARIANTS, CheckpointError, device_problem, load_checkpoint, save_checkpoint, weights_path
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
+from cso_runtime.learned.weights import mask_set_flags, mask_settings_changed, trained_mask_settings
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
 
@@ -1051,18 +1052,14 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 def matching_eval_command(args: Args) -> str:
     """The ``eval`` that runs a finished run's weights as they were trained: its variant, its sensor (``eval`` runs the
     LIMO's 180-degree LiDAR unless told; ``configs/train.yaml`` trains with 360 degrees) and its stuck mask's settings
-    where they are not ``eval``'s. The valid distance mask's far bound stays ``eval``'s 1.5 m, as for the shipped
-    weights (trained under 2 m)."""
+    where they are not ``eval``'s and its variant's masks use them (``weights.trained_mask_settings``, which ``eval``
+    warns of). The valid distance mask's far bound stays ``eval``'s 1.5 m, as for the shipped weights (trained under 2 m)."""
     words = ["cso-runtime", "eval", "--method", args.variant, "--weights", args.out_dir]
     if args.sensor != "lidar":
         words += ["--sensor", args.sensor]
     elif SensorConfig.preset(args.sensor, args.lidar_fov_deg).fov_deg == 360:  # eval's other LiDAR (Args takes no other angle)
         words += ["--lidar-fov", "360"]
-    masks = MaskConfig()
-    if args.stuck_avoid != masks.stuck_avoid:
-        words += ["--set", f"masks.stuck_avoid={args.stuck_avoid}"]
-    if args.mask_conflict != masks.conflict:
-        words += ["--set", f"masks.conflict={args.mask_conflict}"]
+    words += mask_set_flags(mask_settings_changed(trained_mask_settings(dataclasses.asdict(args)), MaskConfig()))
     return shlex.join(words)
 
 
