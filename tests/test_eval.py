@@ -912,6 +912,14 @@ def test_eval_warns_when_weights_were_trained_with_another_field_of_view(tmp_pat
     )
     assert sensor_mismatches(["cso"], lidar360) == []
     assert sensor_mismatches(["cso"], SensorConfig.preset("depth"))[0].endswith("this run's sees 79 degrees")  # no --lidar-fov hint
+    (run / "cso.json").write_text(json.dumps({"variant": "cso", "args": {"sensor": "depth", "lidar_fov_deg": None}}))  # train --set sensor=depth
+    (depth,) = sensor_mismatches(["cso"], lidar180)
+    assert depth == (
+        f"the weights of cso were trained with a 79-degree sensor ({run / 'cso.json'}), this run's sees 180 degrees;"
+        " eval --sensor depth runs it with that sensor"
+    )
+    assert sensor_mismatches(["cso"], SensorConfig.preset("depth")) == []
+    (run / "cso.json").write_text(json.dumps({"variant": "cso", "args": {"sensor": "lidar", "lidar_fov_deg": 360.0}}))
     with caplog.at_level("WARNING"):
         run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "o", max_steps=5))
     assert f"{warning} (a policy does best with the sensor it was trained with)" in caplog.text

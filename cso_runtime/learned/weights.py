@@ -136,12 +136,13 @@ def training_args(path: Path) -> dict[str, Any] | None:
     return args if isinstance(args, dict) else None
 
 
-def training_fov_deg(path: Path) -> float | None:
-    """The field of view of the sensor the weights at ``path`` were trained with, from the record ``train`` writes
+def training_sensor(path: Path) -> tuple[str, float] | None:
+    """The sensor preset and field of view the weights at ``path`` were trained with, from the record ``train`` writes
     beside them (``<stem>.json``: ``args.sensor`` and ``args.lidar_fov_deg``); None where no readable record says."""
     args = training_args(path)
     try:
-        return None if args is None else SensorConfig.preset(args.get("sensor", "lidar"), args.get("lidar_fov_deg")).fov_deg
+        preset = str(args.get("sensor", "lidar")) if args is not None else ""
+        return None if args is None else (preset, SensorConfig.preset(preset, args.get("lidar_fov_deg")).fov_deg)
     except (ValueError, TypeError, ConfigError):
         return None
 
@@ -198,18 +199,19 @@ def sensor_mismatches(names: list[str], sensor: SensorConfig, eval_hint: bool = 
     """One line per field of view that some of ``names``' weights for ``sensor`` were trained with instead of
     ``sensor``'s, as their records say (``configs/train.yaml`` trains with the 360-degree LiDAR, ``eval`` runs the
     LIMO's 180-degree one unless told): a policy does best with the sensor it was trained with. Weights without a
-    record are taken to match. ``eval_hint``: name the ``eval --lidar-fov`` that matches them (a robot's own
-    sensor is what it is: ``up`` says no more)."""
-    by_fov: dict[float, list[str]] = {}
+    record are taken to match. ``eval_hint``: name the ``eval --lidar-fov`` (or ``--sensor``) that matches them (a
+    robot's own sensor is what it is: ``up`` says no more)."""
+    by_sensor: dict[tuple[str, float], list[str]] = {}
     for name in names:
-        trained = training_fov_deg(weights_path(name, sensor))
-        if trained is not None and trained != sensor.fov_deg:
-            by_fov.setdefault(trained, []).append(name)
+        trained_sensor = training_sensor(weights_path(name, sensor))
+        if trained_sensor is not None and trained_sensor[1] != sensor.fov_deg:
+            by_sensor.setdefault(trained_sensor, []).append(name)
     lines = []
-    for trained, which in by_fov.items():
+    for (preset, trained), which in by_sensor.items():
         record = weights_path(which[0], sensor).with_suffix(".json")
-        lidar = eval_hint and trained in LIDAR_FOVS_DEG and sensor.fov_deg in LIDAR_FOVS_DEG  # a LiDAR eval: --lidar-fov is the fix
-        hint = f"; eval --lidar-fov {trained:g} runs {'it' if len(which) == 1 else 'them'} with that sensor" if lidar else ""
+        lidar = trained in LIDAR_FOVS_DEG and sensor.fov_deg in LIDAR_FOVS_DEG  # a LiDAR eval: --lidar-fov is the fix
+        flag = f"--lidar-fov {trained:g}" if preset == "lidar" and lidar else f"--sensor {preset}" if preset != "lidar" else ""
+        hint = f"; eval {flag} runs {'it' if len(which) == 1 else 'them'} with that sensor" if eval_hint and flag else ""
         lines.append(
             f"the weights of {', '.join(which)} were trained with a {trained:g}-degree sensor ({record}{' and the like' if len(which) > 1 else ''}),"
             f" this run's sees {sensor.fov_deg:g} degrees{hint}"
