@@ -407,6 +407,50 @@ def test_env_follows_the_gymnasium_api():
     assert truncated == (info["terminated_by"] == "max_steps")
 
 
+def test_reset_options_choose_the_episodes_plan_and_info_names_it():
+    """Gymnasium's ``reset(seed=..., options=...)``: the options were silently ignored (a mistyped key too), and nothing
+    said which plan an episode ran on. ``options={"plan": NAME_OR_INDEX}`` chooses it, every other draw staying as
+    without it; other keys and plans the env does not have are refused; ``info["plan"]`` names it at every decision."""
+    import gymnasium as gym
+
+    env = ExplorationEnv([rooms_plan(2), rooms_plan(3)], EnvConfig(max_steps=200))
+    drawn = {seed: env.reset(seed=seed)[1]["plan"] for seed in range(6)}
+    assert set(drawn.values()) == {"rooms2", "rooms3"}  # both plans are drawn: the options below choose against the draw
+    for seed, plan in drawn.items():
+        obs, info = env.reset(seed=seed, options={"plan": plan})  # the plan the seed draws: the very same episode
+        plain_obs, plain_info = env.reset(seed=seed, options={})
+        assert info["plan"] == plain_info["plan"] == plan and all(np.array_equal(obs[k], plain_obs[k]) for k in obs)
+        for chosen in ("rooms2", "rooms3", 0, 1, np.int64(1)):
+            _, info = env.reset(seed=seed, options={"plan": chosen})
+            assert info["plan"] == env.plan_name == ("rooms2" if chosen in ("rooms2", 0) else "rooms3")
+            assert env.reset()[1]["plan"] == drawn_after(env, seed)  # the next reset draws as after reset(seed=seed)
+    _, info = env.reset(seed=0, options={"plan": "rooms3"})
+    _, _, _, _, info = env.step(int(np.flatnonzero(info["action_mask"])[0]))
+    assert info["plan"] == "rooms3"
+    for options, said in [
+        ({"plna": 0}, "reset options: unknown key(s) 'plna' (did you mean plan?); this env takes plan"),
+        ({"plan": "rooms4"}, "reset options: no plan 'rooms4' (did you mean rooms3?) in this env; its plans: rooms2, rooms3"),
+        ({"plan": 2}, "plan index 2 out of range: this env has 2 plans (0 to 1)"),
+        ({"plan": True}, "plan must be a plan's name (str) or its index (int), got bool"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(said)):
+            env.reset(seed=0, options=options)
+    with pytest.raises(TypeError, match="reset options must be a dict"):
+        env.reset(options=["plan"])
+    envs = gym.vector.SyncVectorEnv([lambda: ExplorationEnv([rooms_plan(2), rooms_plan(3)], EnvConfig(max_steps=200))] * 2)
+    try:
+        _, info = envs.reset(seed=0, options={"plan": "rooms3"})
+        assert list(info["plan"]) == ["rooms3", "rooms3"]
+    finally:
+        envs.close()
+
+
+def drawn_after(env: ExplorationEnv, seed: int) -> str:
+    """The plan of the reset that follows ``reset(seed=seed)`` (no options) in ``env``."""
+    env.reset(seed=seed)
+    return env.reset()[1]["plan"]
+
+
 def test_short_ppo_run_beats_a_random_policy(tmp_path):
     """Pure PPO (no warm start) on three rooms, masks off so that choices matter. The greedy trained
     policy must beat uniformly random valid choices and its own initial network on the same seeds
