@@ -407,6 +407,31 @@ def test_env_follows_the_gymnasium_api():
     assert truncated == (info["terminated_by"] == "max_steps")
 
 
+def test_the_observation_space_bounds_each_feature_that_has_a_bound_and_holds_every_observation():
+    """The graph's boxes were -inf to inf throughout (``check_env`` warns of it): the 0/1 labels, the unexplored
+    fraction and the non-negative distances have their bounds now; the positions relative to the robot, the lengths
+    and the entropy have none above (scenes have no size limit), and stay so. Every observation of episodes with each
+    optional feature lies in its space."""
+    config = GraphConfig(use_cluster_size=True, use_unknown_area=True)
+    space = ExplorationEnv([rooms_plan(2)], EnvConfig(graph=config)).observation_space
+    ranges = dict(zip(node_features(config), zip(space["nodes"].low[0], space["nodes"].high[0], strict=True), strict=True))
+    assert ranges == {
+        "dx": (-np.inf, np.inf), "dy": (-np.inf, np.inf), "frontier": (0, 1), "current": (0, 1), "entropy": (0, np.inf),
+        "geodesic": (0, np.inf), "size": (0, np.inf), "unknown": (0, 1),
+    }  # fmt: skip
+    assert (space["nodes"].low == space["nodes"].low[0]).all() and (space["nodes"].high == space["nodes"].high[0]).all()
+    assert (space["edges"].low == 0).all() and (space["edges"].high == np.inf).all()
+    for graph in (config, GraphConfig(egocentric=True, geodesic_edge_bound=True)):
+        env = ExplorationEnv([rooms_plan(3)], EnvConfig(graph=graph, max_steps=200))
+        obs, info = env.reset(seed=0)
+        done = False
+        while not done:
+            assert env.observation_space.contains(obs)
+            obs, _, terminated, truncated, info = env.step(expert_action(env.obs, info["action_mask"]))
+            done = terminated or truncated
+        assert env.observation_space.contains(obs)
+
+
 def test_reset_options_choose_the_episodes_plan_and_info_names_it():
     """Gymnasium's ``reset(seed=..., options=...)``: the options were silently ignored (a mistyped key too), and nothing
     said which plan an episode ran on. ``options={"plan": NAME_OR_INDEX}`` chooses it, every other draw staying as
@@ -904,8 +929,8 @@ def test_the_environment_is_registered_with_gymnasium():
         gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:huge:1:0")
 
 
-# The node and edge features are coordinates and distances relative to the robot, unbounded by design
-# (scenes have no size limit); the checker's advice about infinite Box bounds does not apply to them.
+# The positions relative to the robot and the distances have no bound (scenes have no size limit; every feature that
+# has one is bounded: graph.FEATURE_RANGES); the checker's advice about infinite Box bounds does not apply to them.
 @pytest.mark.filterwarnings("ignore:.*A Box observation space (minimum|maximum) value is:UserWarning")
 def test_the_environment_passes_gymnasiums_checker_and_rejects_masked_actions_as_counted_no_ops():
     """Gymnasium's ``check_env`` steps with ``action_space.sample()``, as a random agent does: a masked

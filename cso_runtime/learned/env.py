@@ -25,7 +25,15 @@ from gymnasium import spaces
 
 from cso_runtime.config import ExplorationConfig, MaskConfig, with_nearest
 from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer, best_outcome, nearest_clusters, rollout_outcomes
-from cso_runtime.learned.graph import EDGE_FEATURES, GraphConfig, build_graph, empty_graph, frontier_count, node_features
+from cso_runtime.learned.graph import (
+    EDGE_FEATURE_NAMES,
+    FEATURE_RANGES,
+    GraphConfig,
+    build_graph,
+    empty_graph,
+    frontier_count,
+    node_features,
+)
 from cso_runtime.observation import Observation
 from cso_runtime.policies import BASELINES, ActionMasker, goal_of
 from cso_runtime.scenes import FloorPlan
@@ -80,17 +88,25 @@ class EnvConfig:
     value is one constant for every cut (what the shipped weights were trained with; ``Args.cut_observation``)."""
 
 
+def feature_box(features: tuple[str, ...], shape: tuple[int, ...]) -> spaces.Box:
+    """A float32 Box of ``shape`` + one column per feature, each column bounded by its ``FEATURE_RANGES``."""
+    low, high = (np.tile(np.array([FEATURE_RANGES[f][i] for f in features], np.float32), (*shape, 1)) for i in (0, 1))
+    return spaces.Box(low, high, dtype=np.float32)
+
+
 def graph_space(config: GraphConfig) -> spaces.Dict:
     """The observation space of the frontier graph the network reads: fixed ``max_nodes`` x ``neighbours`` arrays,
-    padded, with the ``*_valid`` masks marking the real entries (a Gymnasium space must have one shape)."""
+    padded, with the ``*_valid`` masks marking the real entries (a Gymnasium space must have one shape). Each feature
+    has its range (``graph.FEATURE_RANGES``); positions and distances have no upper bound, so ``check_env`` still
+    warns of infinite bounds."""
     n, k = config.max_nodes, config.neighbours
     return spaces.Dict(
         {
-            "nodes": spaces.Box(-np.inf, np.inf, (n, len(node_features(config))), np.float32),
+            "nodes": feature_box(node_features(config), (n,)),
             "node_valid": spaces.MultiBinary(n),
             "neighbours": spaces.Box(0, n - 1, (n, k), np.int64),
             "neighbour_valid": spaces.MultiBinary((n, k)),
-            "edges": spaces.Box(-np.inf, np.inf, (n, k, EDGE_FEATURES), np.float32),
+            "edges": feature_box(EDGE_FEATURE_NAMES, (n, k)),
             "robot": spaces.Box(0, n - 1, (), np.int64),
         }
     )
