@@ -190,16 +190,20 @@ def _use_weights(folder: Path) -> None:
         _fail(str(exc), 2)
 
 
-def _warn_of_weights_for_another_sensor(prof: Profile) -> None:
+def _warn_of_weights_trained_otherwise(prof: Profile) -> None:
     """``up``: say when the policy service's learned weights were trained with another field of view than the
-    profile's sensor (``--weights`` of a run of ``configs/train.yaml``, 360 degrees, on the LIMO's 180)."""
+    profile's sensor (``--weights`` of a run of ``configs/train.yaml``, 360 degrees, on the LIMO's 180), or under other
+    stuck-mask settings than the profile's (``--set exploration.masks.KEY=VALUE`` runs them as trained), as eval does."""
     from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
 
     if "policy" in prof.services and prof.policy_method in LEARNED_METHODS:
-        from cso_runtime.learned.weights import sensor_mismatches  # noqa: PLC0415
+        from cso_runtime.learned.weights import mask_mismatches, sensor_mismatches  # noqa: PLC0415
 
-        for mismatch in sensor_mismatches([prof.policy_method], prof.exploration_config().sensor, eval_hint=False):
+        exploration = prof.exploration_config()
+        for mismatch in sensor_mismatches([prof.policy_method], exploration.sensor, eval_hint=False):
             typer.echo(f"warning: {mismatch} (a policy does best with the sensor it was trained with)", err=True)
+        for mismatch in mask_mismatches([prof.policy_method], exploration.masks, exploration.sensor, prefix="exploration."):
+            typer.echo(f"warning: {mismatch} (a policy does best with the masks it was trained under)", err=True)
 
 
 @app.command("eval", rich_help_panel="Evaluation (Table 1)")
@@ -704,7 +708,7 @@ def up_command(
         )
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
-    _warn_of_weights_for_another_sensor(prof)
+    _warn_of_weights_trained_otherwise(prof)
     if record_out is not None:
         from cso_runtime.recording import names_a_folder  # noqa: PLC0415
 

@@ -39,6 +39,13 @@ LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 by the time stamp in front."""
 
 
+LIDAR_FOVS_DEG = (180.0, 360.0)
+"""The LiDAR fields of view ``eval --lidar-fov`` runs, in degrees: the LIMO's EAI X2L and a full ring (the tables'),
+the sensors weights ship for; ``train``'s ``lidar_fov_deg`` takes these alone, so that its weights can be evaluated."""
+LIDAR_FOVS_SAID = " or ".join(f"{fov:g}" for fov in LIDAR_FOVS_DEG)
+"""``LIDAR_FOVS_DEG`` as the errors say them: ``180 or 360``."""
+
+
 @dataclass
 class SensorConfig:
     """Planar range sensor. Defaults are the LIMO's EAI X2L LiDAR (front 180 degrees, 0.1-8 m)."""

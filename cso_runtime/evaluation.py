@@ -43,6 +43,8 @@ from cso_runtime.comparison import (
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import (
     EXIT_INTERRUPTED,
+    LIDAR_FOVS_DEG,
+    LIDAR_FOVS_SAID,
     LIMO_BODY,
     LIMO_LIDAR_MOUNT_X_M,
     ConfigError,
@@ -80,6 +82,7 @@ from cso_runtime.policies import (
     make_policy,
     own_method_spec,
     unknown_methods_said,
+    weights_held_said,
 )
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
 from cso_runtime.report import (
@@ -161,7 +164,7 @@ class EvalRequest:
         # silently on the preset's values.
         explicit = data.get("sensor") or {}
         if "fov_deg" in explicit:
-            raise ConfigError(f"{where}: sensor.fov_deg is set by eval's --lidar-fov (180 or 360) or the --sensor preset, not by the config")
+            raise ConfigError(f"{where}: sensor.fov_deg is set by eval's --lidar-fov ({LIDAR_FOVS_SAID}) or the --sensor preset, not by the config")
         preset = SensorConfig.preset(self.sensor, fov_deg=self.lidar_fov_deg if self.sensor == "lidar" else None)
         for key in explicit:
             setattr(preset, key, getattr(cfg.sensor, key))
@@ -210,14 +213,12 @@ class EvalRequest:
                 raise ConfigError(f"methods {other!r} and {method!r} would share the results folder episodes/{file_stem(method)}/: run them in two evals")
         if self.baseline not in known and self.baseline not in self.methods:
             raise ConfigError(f"unknown --baseline {with_nearest(self.baseline, known, shown=repr(self.baseline))}; available: {', '.join(sorted(known))}")
-        available = available_methods()
-        untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available]
+        untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available_methods()]
         if untrained:
             from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415
 
             missing = ", ".join(f"{m}.pt" for m in untrained)
-            held = [m for m in LEARNED_METHODS if m in available]  # a run trained as another variant: name it
-            fix = f"it holds those of {', '.join(held)} (--method {','.join(held)})" if held else "train with `cso-runtime train --variant NAME`"
+            fix = weights_held_said() or "train with `cso-runtime train --variant NAME`"
             raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); {fix}")
         if self.sim not in SIMULATORS:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
@@ -231,8 +232,8 @@ class EvalRequest:
             raise ConfigError(f"--m-per-px must be a positive number of metres per pixel, got {self.m_per_px}")
         if self.limit is not None and self.limit <= 0:
             raise ConfigError(f"--limit must be positive, got {self.limit}")
-        if self.sensor == "lidar" and self.lidar_fov_deg not in (180.0, 360.0):
-            raise ConfigError("--lidar-fov must be 180 or 360")
+        if self.sensor == "lidar" and self.lidar_fov_deg not in LIDAR_FOVS_DEG:
+            raise ConfigError(f"--lidar-fov must be {LIDAR_FOVS_SAID}")
         # Last: it loads torch and the weights (kept for the episodes), which the checks above need not wait for.
         learned = [m for m in self.methods if m in LEARNED_METHODS]
         if learned:
@@ -653,11 +654,13 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict
         )
     weights: dict[str, dict[str, Any]] = {}
     if any(m in LEARNED_METHODS for m in request.methods):
-        from cso_runtime.learned.weights import sensor_mismatches, weights_provenance  # noqa: PLC0415
+        from cso_runtime.learned.weights import mask_mismatches, sensor_mismatches, weights_provenance  # noqa: PLC0415
 
         weights = {m: weights_provenance(m, config.sensor) for m in request.methods if m in LEARNED_METHODS}
         for mismatch in sensor_mismatches(list(weights), config.sensor):
             log.warning("%s (a policy does best with the sensor it was trained with)", mismatch)
+        for mismatch in mask_mismatches(list(weights), config.masks, config.sensor):
+            log.warning("%s (a policy does best with the masks it was trained under)", mismatch)
     mujoco = request.mujoco_parameters()
     settings = {
         m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "", mujoco, own_method_code_sha256(m))

@@ -187,12 +187,41 @@ BASELINES: dict[str, Callable[[], GoalSelector]] = {
     "random": RandomFrontier,
 }
 
-LEARNED_METHODS = ("cso", "cso-no-info", "cso-no-mask", "cso-sm", "cso-vdm", "gnn-baseline")
+@dataclass(frozen=True)
+class Variant:
+    """Table 2's switches: the entropy input and the two action masks."""
+
+    use_entropy: bool
+    use_valid_distance: bool
+    use_stuck: bool
+
+
+VARIANTS: dict[str, Variant] = {
+    "cso": Variant(True, True, True),
+    "cso-no-info": Variant(False, True, True),
+    "cso-no-mask": Variant(True, False, False),
+    "cso-sm": Variant(True, False, True),
+    "cso-vdm": Variant(True, True, False),
+    "gnn-baseline": Variant(False, False, False),
+}
+"""The learned methods and their switches (``learned.registry`` loads their networks); here, without torch, so that
+the launcher and the CLI know them before anything starts."""
+
+LEARNED_METHODS = tuple(VARIANTS)
 
 
 def available_methods() -> list[str]:
     """The methods this install can run: every baseline, and each learned method whose weights file is found."""
     return list(BASELINES) + [m for m in LEARNED_METHODS if _learned_available(m)]
+
+
+def weights_held_said() -> str:
+    """The learned methods whose weights the weights folder holds, for the error of a method it has none for: a
+    training run's folder holds the variant it was trained as (``train --variant cso-sm``), to run as ``--method
+    cso-sm``, not as ``cso``. "" when it holds none. ``eval`` and ``up`` say it alike."""
+    available = available_methods()
+    held = [m for m in LEARNED_METHODS if m in available]
+    return f"it holds those of {', '.join(held)} (--method {','.join(held)})" if held else ""
 
 
 def unknown_methods_said(names: list[str], groups: bool = False) -> str:

@@ -254,7 +254,7 @@ class Profile:
             problem = port_problem(from_dict(FoxgloveBridgeParams, self.services["foxglove_bridge"] or {}, where="services.foxglove_bridge"))
             if problem is not None:
                 raise ConfigError(f"services.foxglove_bridge: {problem}")
-        from cso_runtime.policies import LEARNED_METHODS, available_methods, check_method  # noqa: PLC0415
+        from cso_runtime.policies import LEARNED_METHODS, available_methods, check_method, weights_held_said  # noqa: PLC0415
 
         check_method(self.method)  # a method of the user's own is imported and built here, as the policy service will
         policy = self.services.get("policy") or {}
@@ -269,7 +269,8 @@ class Profile:
 
             sensor = self.exploration_config().sensor
             if method not in available_methods():
-                raise ConfigError(f"method {method}: no weights at {weights_path(method, sensor)}; train it with `cso-runtime train --variant {method}`")
+                fix = weights_held_said() or f"train it with `cso-runtime train --variant {method}`"
+                raise ConfigError(f"method {method}: no weights at {weights_path(method, sensor)}; {fix}")
             if problem := weights_file_problem(method, sensor):
                 raise ConfigError(f"method {method}: {problem}")
             device = policy.get("device", "cpu")

@@ -266,6 +266,22 @@ def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is
         assert f"error: {recipe} with --set {setting}: {said}" in train_refusal(recipe, {}, [setting], capsys)
 
 
+def test_train_refuses_a_field_of_view_eval_cannot_run_before_it_starts(tmp_path: Path, capsys):
+    """``train --set lidar_fov_deg=270`` trained for minutes, then its weights could not be evaluated as trained:
+    ``eval --lidar-fov`` runs 180 or 360 alone (and ran them at 180, warning). The depth preset has its own field of
+    view, which eval's ``--lidar-fov`` does not change either. The fields of view eval runs are still taken."""
+    from cso_runtime.cli import training_args
+
+    recipe = small_train_recipe(tmp_path)
+    for settings, said in [
+        (["lidar_fov_deg=270"], "lidar_fov_deg must be 180 or 360 (the LiDARs eval --lidar-fov runs), or null for the preset's 180, got 270"),
+        (["sensor=depth", "lidar_fov_deg=90"], "lidar_fov_deg sets the LiDAR's field of view; sensor depth has its own"),
+    ]:
+        assert said in " ".join(train_refusal(recipe, {}, settings, capsys).split())
+    for settings, fov_deg in [(["lidar_fov_deg=360"], 360.0), (["lidar_fov_deg=180"], 180.0), (["lidar_fov_deg=null"], 180.0), (["sensor=depth", "lidar_fov_deg=null"], 79.0)]:
+        assert training_args(recipe, {}, settings).env_config().exploration.sensor.fov_deg == fov_deg
+
+
 def test_a_minibatch_count_that_does_not_divide_the_batch_says_the_numbers(tmp_path: Path, capsys):
     """``num_minibatches`` must divide num_envs x num_steps: the refusal shows the product and the count."""
     recipe = small_train_recipe(tmp_path)
@@ -382,6 +398,53 @@ def test_up_warns_when_the_policys_weights_were_trained_with_another_field_of_vi
     for quiet in (["--method", "cso", "--set", "exploration.sensor.fov_deg=360"], ["--method", "greedy-dist"]):
         out = subprocess.run([*up, *quiet], capture_output=True, text=True, timeout=60, cwd=tmp_path)
         assert out.returncode == 0 and "warning" not in out.stderr, out.stderr
+
+
+def test_up_warns_when_the_policys_weights_were_trained_under_other_stuck_mask_settings(tmp_path: Path):
+    """`up --weights RUN` of a run trained with ``stuck_avoid=goals`` ran the policy under the profile's stuck mask
+    (positions) with no word, as eval did: the run's record says its masks, and up warns, naming the ``--set`` of up
+    that runs them as trained; nothing once given."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+
+    from cso_runtime.learned.weights import weights_path
+
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(weights_path("cso"), run / "cso.pt")
+    (run / "cso.json").write_text(json.dumps({"variant": "cso", "args": {"variant": "cso", "sensor": "lidar", "lidar_fov_deg": None, "stuck_avoid": "goals"}}))
+    up = [sys.executable, "-m", "cso_runtime.cli", "up", "--profile", "sim", "--weights", str(run), "--dry-run", "--method", "cso"]
+    said = subprocess.run(up, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert said.returncode == 0, said.stderr
+    assert said.stderr.startswith(
+        f"warning: the weights of cso were trained with masks.stuck_avoid=goals ({run / 'cso.json'}), this run's are positions;"
+        " --set exploration.masks.stuck_avoid=goals runs them as trained (a policy does best with the masks it was trained under)"
+    ), said.stderr
+    quiet = subprocess.run([*up, "--set", "exploration.masks.stuck_avoid=goals"], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert quiet.returncode == 0 and "warning" not in quiet.stderr, quiet.stderr
+
+
+def test_up_of_a_learned_method_the_weights_folder_lacks_names_those_it_holds(tmp_path: Path, monkeypatch):
+    """``train --variant cso-sm --out RUN`` then ``up --method cso --weights RUN``: up said only "no weights at
+    RUN/cso.pt; train it", not that RUN's weights are cso-sm's, to run with ``--method cso-sm`` (eval said so)."""
+    import shutil
+
+    import cso_runtime
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
+    from cso_runtime.run_profile import load_profile
+
+    run = tmp_path / "run"
+    run.mkdir()
+    shutil.copy(Path(cso_runtime.__file__).parent / "data" / "weights" / "cso-sm.pt", run / "cso-sm.pt")
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(run))
+    with pytest.raises(ConfigError, match=r"method cso: no weights at .*cso\.pt; it holds those of cso-sm \(--method cso-sm\)"):
+        load_profile("sim", {"method": "cso"})
+    load_profile("sim", {"method": "cso-sm"})
+    (run / "cso-sm.pt").unlink()
+    with pytest.raises(ConfigError, match=r"cso\.pt; train it with `cso-runtime train --variant cso`"):
+        load_profile("sim", {"method": "cso"})
 
 
 def test_the_lockstep_sim_gives_up_only_after_it_has_re_published_a_step():

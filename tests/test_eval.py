@@ -912,6 +912,14 @@ def test_eval_warns_when_weights_were_trained_with_another_field_of_view(tmp_pat
     )
     assert sensor_mismatches(["cso"], lidar360) == []
     assert sensor_mismatches(["cso"], SensorConfig.preset("depth"))[0].endswith("this run's sees 79 degrees")  # no --lidar-fov hint
+    (run / "cso.json").write_text(json.dumps({"variant": "cso", "args": {"sensor": "depth", "lidar_fov_deg": None}}))  # train --set sensor=depth
+    (depth,) = sensor_mismatches(["cso"], lidar180)
+    assert depth == (
+        f"the weights of cso were trained with a 79-degree sensor ({run / 'cso.json'}), this run's sees 180 degrees;"
+        " eval --sensor depth runs it with that sensor"
+    )
+    assert sensor_mismatches(["cso"], SensorConfig.preset("depth")) == []
+    (run / "cso.json").write_text(json.dumps({"variant": "cso", "args": {"sensor": "lidar", "lidar_fov_deg": 360.0}}))
     with caplog.at_level("WARNING"):
         run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "o", max_steps=5))
     assert f"{warning} (a policy does best with the sensor it was trained with)" in caplog.text
@@ -919,6 +927,45 @@ def test_eval_warns_when_weights_were_trained_with_another_field_of_view(tmp_pat
     with caplog.at_level("WARNING"):
         run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "o360", max_steps=5, lidar_fov_deg=360.0))
     assert "trained with" not in caplog.text
+
+
+def test_eval_warns_when_weights_were_trained_under_other_stuck_mask_settings(tmp_path, monkeypatch, caplog):
+    """``train --set stuck_avoid=goals --set mask_conflict=stuck --out RUN`` then ``eval --method cso --weights RUN``
+    ran the policy under eval's own stuck mask (positions, distance) with no word, though the run's record says how it
+    was trained. eval warns, naming the ``--set`` that runs it as trained; nothing once given, nothing for a setting
+    the variant's masks do not use (cso-vdm has no stuck mask), nothing without a record or from a record that
+    predates the settings (the shipped weights')."""
+    from cso_runtime.config import MaskConfig
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, mask_mismatches, weights_path
+
+    monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)
+    lidar360 = SensorConfig.preset("lidar", 360)
+    assert mask_mismatches(["cso", "cso-vdm"], MaskConfig(stuck_avoid="goals", conflict="stuck"), lidar360) == []  # shipped
+    run = tmp_path / "run"
+    run.mkdir()
+    for name in ("cso", "cso-vdm"):
+        shutil.copy(weights_path(name, lidar360), run / f"{name}.pt")
+        trained = {"sensor": "lidar", "lidar_fov_deg": 360.0, "stuck_avoid": "goals", "mask_conflict": "stuck", "beta_far_m": 2.0}
+        (run / f"{name}.json").write_text(json.dumps({"variant": name, "args": {"variant": name, **trained}}))
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, str(run))
+    (warning,) = mask_mismatches(["cso", "cso-vdm"], MaskConfig(), lidar360)
+    assert warning == (
+        f"the weights of cso were trained with masks.stuck_avoid=goals, masks.conflict=stuck ({run / 'cso.json'}), this run's are"
+        " positions, distance; --set masks.stuck_avoid=goals --set masks.conflict=stuck runs them as trained"
+    )
+    assert mask_mismatches(["cso"], MaskConfig(stuck_avoid="goals", conflict="stuck"), lidar360) == []
+    (up,) = mask_mismatches(["cso"], MaskConfig(stuck_avoid="goals"), lidar360, prefix="exploration.")  # up's --set keys
+    assert up.endswith("this run's are distance; --set exploration.masks.conflict=stuck runs them as trained")
+    eval_360 = {"maps": "generated:small:1:0", "max_steps": 5, "lidar_fov_deg": 360.0}
+    with caplog.at_level("WARNING"):
+        run_eval(EvalRequest(methods=["cso", "cso-vdm"], out_dir=tmp_path / "o", **eval_360))
+    assert f"{warning} (a policy does best with the masks it was trained under)" in caplog.text
+    assert "cso-vdm were trained" not in caplog.text
+    caplog.clear()
+    as_trained = {"masks.stuck_avoid": "goals", "masks.conflict": "stuck"}
+    with caplog.at_level("WARNING"):
+        run_eval(EvalRequest(methods=["cso"], out_dir=tmp_path / "o2", settings=as_trained, **eval_360))
+    assert "trained" not in caplog.text
 
 
 def test_the_report_says_a_run_was_interrupted_what_it_ran_with_and_how_each_metric_is_computed(tmp_path: Path):

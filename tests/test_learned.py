@@ -407,6 +407,75 @@ def test_env_follows_the_gymnasium_api():
     assert truncated == (info["terminated_by"] == "max_steps")
 
 
+def test_the_observation_space_bounds_each_feature_that_has_a_bound_and_holds_every_observation():
+    """The graph's boxes were -inf to inf throughout (``check_env`` warns of it): the 0/1 labels, the unexplored
+    fraction and the non-negative distances have their bounds now; the positions relative to the robot, the lengths
+    and the entropy have none above (scenes have no size limit), and stay so. Every observation of episodes with each
+    optional feature lies in its space."""
+    config = GraphConfig(use_cluster_size=True, use_unknown_area=True)
+    space = ExplorationEnv([rooms_plan(2)], EnvConfig(graph=config)).observation_space
+    ranges = dict(zip(node_features(config), zip(space["nodes"].low[0], space["nodes"].high[0], strict=True), strict=True))
+    assert ranges == {
+        "dx": (-np.inf, np.inf), "dy": (-np.inf, np.inf), "frontier": (0, 1), "current": (0, 1), "entropy": (0, np.inf),
+        "geodesic": (0, np.inf), "size": (0, np.inf), "unknown": (0, 1),
+    }  # fmt: skip
+    assert (space["nodes"].low == space["nodes"].low[0]).all() and (space["nodes"].high == space["nodes"].high[0]).all()
+    assert (space["edges"].low == 0).all() and (space["edges"].high == np.inf).all()
+    for graph in (config, GraphConfig(egocentric=True, geodesic_edge_bound=True)):
+        env = ExplorationEnv([rooms_plan(3)], EnvConfig(graph=graph, max_steps=200))
+        obs, info = env.reset(seed=0)
+        done = False
+        while not done:
+            assert env.observation_space.contains(obs)
+            obs, _, terminated, truncated, info = env.step(expert_action(env.obs, info["action_mask"]))
+            done = terminated or truncated
+        assert env.observation_space.contains(obs)
+
+
+def test_reset_options_choose_the_episodes_plan_and_info_names_it():
+    """Gymnasium's ``reset(seed=..., options=...)``: the options were silently ignored (a mistyped key too), and nothing
+    said which plan an episode ran on. ``options={"plan": NAME_OR_INDEX}`` chooses it, every other draw staying as
+    without it; other keys and plans the env does not have are refused; ``info["plan"]`` names it at every decision."""
+    import gymnasium as gym
+
+    env = ExplorationEnv([rooms_plan(2), rooms_plan(3)], EnvConfig(max_steps=200))
+    drawn = {seed: env.reset(seed=seed)[1]["plan"] for seed in range(6)}
+    assert set(drawn.values()) == {"rooms2", "rooms3"}  # both plans are drawn: the options below choose against the draw
+    for seed, plan in drawn.items():
+        obs, info = env.reset(seed=seed, options={"plan": plan})  # the plan the seed draws: the very same episode
+        plain_obs, plain_info = env.reset(seed=seed, options={})
+        assert info["plan"] == plain_info["plan"] == plan and all(np.array_equal(obs[k], plain_obs[k]) for k in obs)
+        for chosen in ("rooms2", "rooms3", 0, 1, np.int64(1)):
+            _, info = env.reset(seed=seed, options={"plan": chosen})
+            assert info["plan"] == env.plan_name == ("rooms2" if chosen in ("rooms2", 0) else "rooms3")
+            assert env.reset()[1]["plan"] == drawn_after(env, seed)  # the next reset draws as after reset(seed=seed)
+    _, info = env.reset(seed=0, options={"plan": "rooms3"})
+    _, _, _, _, info = env.step(int(np.flatnonzero(info["action_mask"])[0]))
+    assert info["plan"] == "rooms3"
+    for options, said in [
+        ({"plna": 0}, "reset options: unknown key(s) 'plna' (did you mean plan?); this env takes plan"),
+        ({"plan": "rooms4"}, "reset options: no plan 'rooms4' (did you mean rooms3?) in this env; its plans: rooms2, rooms3"),
+        ({"plan": 2}, "plan index 2 out of range: this env has 2 plans (0 to 1)"),
+        ({"plan": True}, "plan must be a plan's name (str) or its index (int), got bool"),
+    ]:
+        with pytest.raises(ValueError, match=re.escape(said)):
+            env.reset(seed=0, options=options)
+    with pytest.raises(TypeError, match="reset options must be a dict"):
+        env.reset(options=["plan"])
+    envs = gym.vector.SyncVectorEnv([lambda: ExplorationEnv([rooms_plan(2), rooms_plan(3)], EnvConfig(max_steps=200))] * 2)
+    try:
+        _, info = envs.reset(seed=0, options={"plan": "rooms3"})
+        assert list(info["plan"]) == ["rooms3", "rooms3"]
+    finally:
+        envs.close()
+
+
+def drawn_after(env: ExplorationEnv, seed: int) -> str:
+    """The plan of the reset that follows ``reset(seed=seed)`` (no options) in ``env``."""
+    env.reset(seed=seed)
+    return env.reset()[1]["plan"]
+
+
 def test_short_ppo_run_beats_a_random_policy(tmp_path):
     """Pure PPO (no warm start) on three rooms, masks off so that choices matter. The greedy trained
     policy must beat uniformly random valid choices and its own initial network on the same seeds
@@ -507,16 +576,19 @@ def test_train_ends_saying_its_files_and_the_eval_that_runs_its_weights_as_train
 
     assert matching_eval_command(Args(out_dir="runs/x")) == "cso-runtime eval --method cso --weights runs/x"
     assert matching_eval_command(Args(out_dir="runs/x", sensor="depth")) == "cso-runtime eval --method cso --weights runs/x --sensor depth"
+    # a setting the variant's masks do not use is not given: cso-sm has no valid distance mask to conflict with
+    cso_sm = Args(out_dir="runs/x", variant="cso-sm", stuck_avoid="goals", mask_conflict="stuck")
+    assert matching_eval_command(cso_sm) == "cso-runtime eval --method cso-sm --weights runs/x --set masks.stuck_avoid=goals"
     out = tmp_path / "my run"
     tiny = ["--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--set", "num_steps=4", "--set", "num_minibatches=1",
-            "--set", "max_steps=40", "--num-envs", "1", "--total-decisions", "4", "--variant", "cso-sm", "--out", str(out),
+            "--set", "max_steps=40", "--num-envs", "1", "--total-decisions", "4", "--variant", "cso", "--out", str(out),
             "--set", "stuck_avoid=goals", "--set", "mask_conflict=stuck"]  # fmt: skip
     r = CliRunner().invoke(app, ["train", *tiny])
     assert r.exit_code == 0, r.output
-    assert f"-> {out}: cso-sm.pt, cso-sm_log.csv, cso-sm_curve.png, cso-sm.json, checkpoint.pt" in r.output
+    assert f"-> {out}: cso.pt, cso_log.csv, cso_curve.png, cso.json, checkpoint.pt" in r.output
     said = re.search(r"evaluate it as it was trained: (.*) \(and your --maps, --out\)", r.output)
     assert said and shlex.split(said.group(1)) == [
-        "cso-runtime", "eval", "--method", "cso-sm", "--weights", str(out), "--lidar-fov", "360",
+        "cso-runtime", "eval", "--method", "cso", "--weights", str(out), "--lidar-fov", "360",
         "--set", "masks.stuck_avoid=goals", "--set", "masks.conflict=stuck",
     ]  # fmt: skip
     monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # eval's --weights sets it in this process: put back as it was after the test
@@ -857,8 +929,8 @@ def test_the_environment_is_registered_with_gymnasium():
         gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:huge:1:0")
 
 
-# The node and edge features are coordinates and distances relative to the robot, unbounded by design
-# (scenes have no size limit); the checker's advice about infinite Box bounds does not apply to them.
+# The positions relative to the robot and the distances have no bound (scenes have no size limit; every feature that
+# has one is bounded: graph.FEATURE_RANGES); the checker's advice about infinite Box bounds does not apply to them.
 @pytest.mark.filterwarnings("ignore:.*A Box observation space (minimum|maximum) value is:UserWarning")
 def test_the_environment_passes_gymnasiums_checker_and_rejects_masked_actions_as_counted_no_ops():
     """Gymnasium's ``check_env`` steps with ``action_space.sample()``, as a random agent does: a masked

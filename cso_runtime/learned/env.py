@@ -1,12 +1,12 @@
 """Gymnasium environment over the exploration loop: one action = one goal choice, reward Eq. 6.
 
-``reset`` picks a floor plan (seeded), ``step(a)`` sends the robot to frontier cluster ``a`` and runs
+``reset`` picks a floor plan (seeded; ``options={"plan": NAME_OR_INDEX}`` chooses it), ``step(a)`` sends the robot to frontier cluster ``a`` and runs
 the control loop until the Explorer asks for a new goal or the episode ends. The reward of a
 decision is the sum over the control steps it took of R_step + lambda_c * (new open area, m2).
 The action mask (valid distance + stuck masks, via ``ActionMasker``, as the policy applies them at
 run time) is returned in ``info["action_mask"]`` as Gymnasium's spaces take one: ``np.int8`` of the action
 space's size, 1 where the action is allowed, so ``env.action_space.sample(info["action_mask"])`` samples an
-allowed action.
+allowed action. ``info["plan"]`` is the name of the episode's floor plan.
 
 Observation: the padded graph of ``graph.py`` as a ``spaces.Dict`` of fixed-shape boxes, so the
 standard vector envs can stack it (``spaces.Graph`` has no fixed shape and cannot be batched).
@@ -15,7 +15,7 @@ standard vector envs can stack it (``spaces.Graph`` has no fixed shape and canno
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -23,13 +23,25 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from cso_runtime.config import ExplorationConfig, MaskConfig
+from cso_runtime.config import ExplorationConfig, MaskConfig, with_nearest
 from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer, best_outcome, nearest_clusters, rollout_outcomes
-from cso_runtime.learned.graph import EDGE_FEATURES, GraphConfig, build_graph, empty_graph, frontier_count, node_features
+from cso_runtime.learned.graph import (
+    EDGE_FEATURE_NAMES,
+    FEATURE_RANGES,
+    GraphConfig,
+    build_graph,
+    empty_graph,
+    frontier_count,
+    node_features,
+)
 from cso_runtime.observation import Observation
 from cso_runtime.policies import BASELINES, ActionMasker, goal_of
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import KinematicSimulator
+
+RESET_OPTIONS = ("plan",)
+"""The keys ``ExplorationEnv.reset(options=...)`` takes: ``plan``, the floor plan of the episode, by its name
+(``info["plan"]``) or its index in the env's plans, instead of the seeded draw."""
 
 ROLLOUT_TRIES = 3
 """Clusters the rollout teacher tries per decision (the nearest allowed ones)."""
@@ -76,17 +88,25 @@ class EnvConfig:
     value is one constant for every cut (what the shipped weights were trained with; ``Args.cut_observation``)."""
 
 
+def feature_box(features: tuple[str, ...], shape: tuple[int, ...]) -> spaces.Box:
+    """A float32 Box of ``shape`` + one column per feature, each column bounded by its ``FEATURE_RANGES``."""
+    low, high = (np.tile(np.array([FEATURE_RANGES[f][i] for f in features], np.float32), (*shape, 1)) for i in (0, 1))
+    return spaces.Box(low, high, dtype=np.float32)
+
+
 def graph_space(config: GraphConfig) -> spaces.Dict:
     """The observation space of the frontier graph the network reads: fixed ``max_nodes`` x ``neighbours`` arrays,
-    padded, with the ``*_valid`` masks marking the real entries (a Gymnasium space must have one shape)."""
+    padded, with the ``*_valid`` masks marking the real entries (a Gymnasium space must have one shape). Each feature
+    has its range (``graph.FEATURE_RANGES``); positions and distances have no upper bound, so ``check_env`` still
+    warns of infinite bounds."""
     n, k = config.max_nodes, config.neighbours
     return spaces.Dict(
         {
-            "nodes": spaces.Box(-np.inf, np.inf, (n, len(node_features(config))), np.float32),
+            "nodes": feature_box(node_features(config), (n,)),
             "node_valid": spaces.MultiBinary(n),
             "neighbours": spaces.Box(0, n - 1, (n, k), np.int64),
             "neighbour_valid": spaces.MultiBinary((n, k)),
-            "edges": spaces.Box(-np.inf, np.inf, (n, k, EDGE_FEATURES), np.float32),
+            "edges": feature_box(EDGE_FEATURE_NAMES, (n, k)),
             "robot": spaces.Box(0, n - 1, (), np.int64),
         }
     )
@@ -122,6 +142,8 @@ class ExplorationEnv(gym.Env):
         self.obs: Observation | None = None
         self.mask = np.zeros(self.config.graph.max_frontier_nodes, dtype=bool)
         self._graph: dict[str, np.ndarray] | None = None  # the current decision's observation
+        self.plan_name = ""
+        """The name of the episode's floor plan (``info["plan"]``)."""
         self.invalid_actions = 0
         """Masked actions taken this episode (each rejected: ``info["invalid_actions"]``)."""
         self._invalid_in_a_row = 0
@@ -186,11 +208,17 @@ class ExplorationEnv(gym.Env):
             "steps": ex.steps,
             "explored_area_m2": ex.explored_area_m2(),
             "invalid_actions": self.invalid_actions,
+            "plan": self.plan_name,
         }
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        """A new episode on a plan drawn from the env's plans (seeded), or on ``options["plan"]`` (``RESET_OPTIONS``):
+        a plan's name or index. The draw happens either way, so that a chosen plan changes no other draw (the sensor
+        noise's seed, the next resets' plans). Other option keys are refused (ValueError)."""
         super().reset(seed=seed)
-        plan = self.plans[int(self.np_random.integers(len(self.plans)))]
+        drawn = int(self.np_random.integers(len(self.plans)))
+        chosen = self._chosen_plan(options)
+        plan = self.plans[drawn if chosen is None else chosen]
         sim_seed = int(self.np_random.integers(2**31))  # sensor noise, when configured
         sim = KinematicSimulator(plan, self.config.exploration.sensor, self.config.exploration.robot, seed=sim_seed)
         self.explorer = Explorer(sim, self._explorer_config())
@@ -198,6 +226,31 @@ class ExplorationEnv(gym.Env):
         self.plan_name = plan.name
         self.invalid_actions = self._invalid_in_a_row = 0
         return self._decide()
+
+    def _chosen_plan(self, options: dict[str, Any] | None) -> int | None:
+        """The index of the plan ``options`` choose (``RESET_OPTIONS``), None where they choose none; a ValueError
+        (TypeError for options that are no mapping) that says what it takes otherwise."""
+        if options is None:
+            return None
+        if not isinstance(options, Mapping):
+            raise TypeError(f"reset options must be a dict (keys: {', '.join(RESET_OPTIONS)}), got {type(options).__name__}")
+        unknown = [str(key) for key in options if key not in RESET_OPTIONS]
+        if unknown:
+            said = ", ".join(with_nearest(key, RESET_OPTIONS, shown=repr(key)) for key in unknown)
+            raise ValueError(f"reset options: unknown key(s) {said}; this env takes {', '.join(RESET_OPTIONS)} (a plan's name or index)")
+        if "plan" not in options:
+            return None
+        plan, names = options["plan"], [p.name for p in self.plans]
+        if isinstance(plan, str):
+            if plan not in names:
+                shown = ", ".join(names[:10]) + (f", ... ({len(names)} in all)" if len(names) > 10 else "")
+                raise ValueError(f"reset options: no plan {with_nearest(plan, names, shown=repr(plan))} in this env; its plans: {shown}")
+            return names.index(plan)
+        if isinstance(plan, (int, np.integer)) and not isinstance(plan, bool):
+            if not 0 <= plan < len(names):
+                raise ValueError(f"reset options: plan index {plan} out of range: this env has {len(names)} plans (0 to {len(names) - 1})")
+            return int(plan)
+        raise ValueError(f"reset options: plan must be a plan's name (str) or its index (int), got {type(plan).__name__}")
 
     def step(self, action: int) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         ex = self.explorer

@@ -46,7 +46,25 @@ from cso_runtime.observation import Observation
 
 NODE_FEATURES = ("dx", "dy", "frontier", "current", "entropy", "geodesic")
 """The node features every graph has; ``node_features`` adds the optional ones."""
-EDGE_FEATURES = 2
+EDGE_FEATURE_NAMES = ("edge_length", "edge_log_length")
+"""The edge features: l / distance_scale_m and log(1 + l / distance_scale_m)."""
+EDGE_FEATURES = len(EDGE_FEATURE_NAMES)
+
+FEATURE_RANGES: dict[str, tuple[float, float]] = {
+    "dx": (-np.inf, np.inf),
+    "dy": (-np.inf, np.inf),
+    "frontier": (0.0, 1.0),
+    "current": (0.0, 1.0),
+    "entropy": (0.0, np.inf),
+    "geodesic": (0.0, np.inf),
+    "size": (0.0, np.inf),
+    "unknown": (0.0, 1.0),
+    "edge_length": (0.0, np.inf),
+    "edge_log_length": (0.0, np.inf),
+}
+"""Each node feature's range, and the edges' two (``EDGE_FEATURE_NAMES``), as the observation space gives
+them (padding is 0, in every range). Positions relative to the robot have no bound (a scene has no size limit), nor
+do lengths and distances, nor the entropy (a frontier-cell count: its largest value follows the map's cell size)."""
 
 
 @dataclass

@@ -32,13 +32,23 @@ import torch
 from gymnasium.vector import AutoresetMode
 from torch import nn, optim
 
-from cso_runtime.config import ConfigError, ExplorationConfig, MaskConfig, SensorConfig, check_seed, check_torch_device
+from cso_runtime.config import (
+    LIDAR_FOVS_DEG,
+    LIDAR_FOVS_SAID,
+    ConfigError,
+    ExplorationConfig,
+    MaskConfig,
+    SensorConfig,
+    check_seed,
+    check_torch_device,
+)
 from cso_runtime.doctor import cpu_name
 from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
 from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
 from cso_runtime.learned.registry import VARIANTS, CheckpointError, device_problem, load_checkpoint, save_checkpoint, weights_path
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
+from cso_runtime.learned.weights import mask_set_flags, mask_settings_changed, trained_mask_settings
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
 
@@ -123,8 +133,9 @@ class Args:
     sensor: str = "lidar"
     """Sensor preset of the training episodes (as ``eval --sensor``): lidar or depth."""
     lidar_fov_deg: float | None = None
-    """Field of view override (as ``eval --lidar-fov``); None keeps the preset's (the LIMO LiDAR: 180).
-    Train with the sensor you evaluate with: the tables use 360."""
+    """The LiDAR's field of view (as ``eval --lidar-fov``): 180 or 360 (``LIDAR_FOVS_DEG``, what eval runs); None
+    keeps the preset's (the LIMO LiDAR: 180; the depth preset takes none). Train with the sensor you evaluate with:
+    the tables use 360."""
     r_step: float = -0.01
     """R_step of Eq. 6 per control step: a penalty, <= 0 (0: the new area alone)."""
     lambda_c: float = 0.02
@@ -257,6 +268,12 @@ class Args:
             SensorConfig.preset(self.sensor, self.lidar_fov_deg)
         except ConfigError as exc:
             raise ValueError(f"sensor: {exc}") from None
+        # Weights are for evaluating: train only with a sensor eval runs (eval --sensor, --lidar-fov), not one found
+        # out at eval's refusal, or at its warning that the weights are run with another, after the training.
+        if self.lidar_fov_deg is not None and self.sensor != "lidar":
+            raise ValueError(f"lidar_fov_deg sets the LiDAR's field of view; sensor {self.sensor} has its own, as eval --sensor {self.sensor} runs it: give lidar_fov_deg null")
+        if self.lidar_fov_deg is not None and float(self.lidar_fov_deg) not in LIDAR_FOVS_DEG:
+            raise ValueError(f"lidar_fov_deg must be {LIDAR_FOVS_SAID} (the LiDARs eval --lidar-fov runs), or null for the preset's 180, got {self.lidar_fov_deg:g}")
 
     def training_masks(self, masks: MaskConfig) -> MaskConfig:
         """``masks`` with the training episodes' far bound (``beta_far_m``) and stuck reference (``stuck_avoid``),
@@ -1035,18 +1052,14 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 def matching_eval_command(args: Args) -> str:
     """The ``eval`` that runs a finished run's weights as they were trained: its variant, its sensor (``eval`` runs the
     LIMO's 180-degree LiDAR unless told; ``configs/train.yaml`` trains with 360 degrees) and its stuck mask's settings
-    where they are not ``eval``'s. The valid distance mask's far bound stays ``eval``'s 1.5 m, as for the shipped
-    weights (trained under 2 m)."""
+    where they are not ``eval``'s and its variant's masks use them (``weights.trained_mask_settings``, which ``eval``
+    warns of). The valid distance mask's far bound stays ``eval``'s 1.5 m, as for the shipped weights (trained under 2 m)."""
     words = ["cso-runtime", "eval", "--method", args.variant, "--weights", args.out_dir]
     if args.sensor != "lidar":
         words += ["--sensor", args.sensor]
-    elif SensorConfig.preset(args.sensor, args.lidar_fov_deg).fov_deg == 360:  # eval's other LiDAR (another angle: eval warns)
+    elif SensorConfig.preset(args.sensor, args.lidar_fov_deg).fov_deg == 360:  # eval's other LiDAR (Args takes no other angle)
         words += ["--lidar-fov", "360"]
-    masks = MaskConfig()
-    if args.stuck_avoid != masks.stuck_avoid:
-        words += ["--set", f"masks.stuck_avoid={args.stuck_avoid}"]
-    if args.mask_conflict != masks.conflict:
-        words += ["--set", f"masks.conflict={args.mask_conflict}"]
+    words += mask_set_flags(mask_settings_changed(trained_mask_settings(dataclasses.asdict(args)), MaskConfig()))
     return shlex.join(words)
 
 

@@ -1,4 +1,4 @@
-"""The learned methods by name: which inputs and masks each variant uses, and its shipped weights.
+"""The learned methods by name: their networks, with the inputs and masks each variant uses (``policies.VARIANTS``), and their weights.
 
 ``policies.make_policy`` calls ``has_method`` and ``make_learned_policy``; a variant is available only
 when ``cso_runtime/data/weights/<name>.pt`` exists (or ``$CSO_WEIGHTS_DIR/<name>.pt`` when that is set;
@@ -11,7 +11,6 @@ import dataclasses
 import functools
 import pickle
 import weakref
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,27 +22,7 @@ from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph, fro
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
 from cso_runtime.observation import Observation
-from cso_runtime.policies import ActionMasker, Goal, goal_of
-
-
-@dataclass(frozen=True)
-class Variant:
-    """Table 2's switches: the entropy input and the two action masks."""
-
-    use_entropy: bool
-    use_valid_distance: bool
-    use_stuck: bool
-
-
-VARIANTS: dict[str, Variant] = {
-    "cso": Variant(True, True, True),
-    "cso-no-info": Variant(False, True, True),
-    "cso-no-mask": Variant(True, False, False),
-    "cso-sm": Variant(True, False, True),
-    "cso-vdm": Variant(True, True, False),
-    "gnn-baseline": Variant(False, False, False),
-}
-
+from cso_runtime.policies import VARIANTS, ActionMasker, Goal, goal_of
 
 _DECISION_TRACES: weakref.WeakKeyDictionary[GraphActorCritic, dict[tuple, Any]] = weakref.WeakKeyDictionary()
 """Traced decision networks per model object and input shapes (False: tracing failed); die with the model."""

@@ -18,7 +18,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from cso_runtime.config import ConfigError, SensorConfig
+from cso_runtime.config import LIDAR_FOVS_DEG, ConfigError, MaskConfig, SensorConfig
 
 WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
 """Environment variable naming a folder of ``<method>.pt`` files to use instead of the shipped ones
@@ -126,32 +126,92 @@ def weights_provenance(name: str, sensor: SensorConfig | None = None) -> dict[st
     return {"path": str(path), "sha256": digest, "shipped": not os.environ.get(WEIGHTS_DIR_ENV)}
 
 
-def training_fov_deg(path: Path) -> float | None:
-    """The field of view of the sensor the weights at ``path`` were trained with, from the record ``train`` writes
-    beside them (``<stem>.json``: ``args.sensor`` and ``args.lidar_fov_deg``); None where no readable record says."""
+def training_args(path: Path) -> dict[str, Any] | None:
+    """The configuration (``ppo.Args`` as a mapping) the weights at ``path`` were trained with, from the record ``train``
+    writes beside them (``<stem>.json``'s ``args``); None where no readable record says."""
     try:
         args = json.loads(path.with_suffix(".json").read_text())["args"]
-        return SensorConfig.preset(args.get("sensor", "lidar"), args.get("lidar_fov_deg")).fov_deg
-    except (OSError, ValueError, KeyError, TypeError, AttributeError, ConfigError):
+    except (OSError, ValueError, KeyError, TypeError):
         return None
+    return args if isinstance(args, dict) else None
+
+
+def training_sensor(path: Path) -> tuple[str, float] | None:
+    """The sensor preset and field of view the weights at ``path`` were trained with, from the record ``train`` writes
+    beside them (``<stem>.json``: ``args.sensor`` and ``args.lidar_fov_deg``); None where no readable record says."""
+    args = training_args(path)
+    try:
+        preset = str(args.get("sensor", "lidar")) if args is not None else ""
+        return None if args is None else (preset, SensorConfig.preset(preset, args.get("lidar_fov_deg")).fov_deg)
+    except (ValueError, TypeError, ConfigError):
+        return None
+
+
+TRAINED_MASK_KEYS = {"stuck_avoid": "stuck_avoid", "mask_conflict": "conflict"}
+"""``train``'s fields (``ppo.Args``) that set a key of the training episodes' ``masks``, by that key: ``eval`` and
+``up`` run their own config's, and a policy does best with the masks it was trained under. The valid distance mask's
+far bound (``beta_far_m``) is not among them: the recipe trains under the paper's 2 m and runs under 1.5 m on purpose
+(``MaskConfig.beta_far_m``)."""
+
+
+def trained_mask_settings(args: dict[str, Any]) -> dict[str, Any]:
+    """The ``masks`` keys and values a training run's episodes ran with (``args``: its ``ppo.Args`` as a mapping, with
+    its ``variant``), those of ``TRAINED_MASK_KEYS`` that its variant's masks use: the stuck mask's reference where it
+    has the stuck mask, what wins a conflict where it has both. A field an older record lacks is not said."""
+    from cso_runtime.policies import VARIANTS  # noqa: PLC0415 - no torch; policies imports this module
+
+    variant = VARIANTS.get(str(args.get("variant")))
+    if variant is None:
+        return {}
+    used = {"stuck_avoid": variant.use_stuck, "conflict": variant.use_stuck and variant.use_valid_distance}
+    return {key: args[name] for name, key in TRAINED_MASK_KEYS.items() if name in args and used[key]}
+
+
+def mask_settings_changed(trained: dict[str, Any], masks: MaskConfig) -> dict[str, Any]:
+    """The ones of ``trained`` (``trained_mask_settings``) that ``masks`` runs otherwise, with the trained values."""
+    return {key: value for key, value in trained.items() if getattr(masks, key) != value}
+
+
+def mask_set_flags(changed: dict[str, Any], prefix: str = "") -> list[str]:
+    """The ``--set`` words that run ``changed`` masks settings (``mask_settings_changed``); ``prefix``: where the
+    command's keys hold the masks (``exploration.`` for ``up``, none for ``eval``)."""
+    return [word for key, value in changed.items() for word in ("--set", f"{prefix}masks.{key}={value}")]
+
+
+def mask_mismatches(names: list[str], masks: MaskConfig, sensor: SensorConfig | None = None, prefix: str = "") -> list[str]:
+    """One line per method of ``names`` whose weights (for ``sensor``) were trained under other masks settings than
+    ``masks``, as their record says, naming the ``--set`` that runs them as trained (``prefix``: as ``mask_set_flags``).
+    Weights without a record, or a record from before these settings, are taken to match."""
+    lines = []
+    for name in names:
+        path = weights_path(name, sensor)
+        args = training_args(path)
+        changed = mask_settings_changed(trained_mask_settings({**args, "variant": name}), masks) if args is not None else {}
+        if changed:
+            trained = ", ".join(f"masks.{k}={v}" for k, v in changed.items())
+            ours = ", ".join(f"{getattr(masks, k)}" for k in changed)
+            flags = " ".join(mask_set_flags(changed, prefix))
+            lines.append(f"the weights of {name} were trained with {trained} ({path.with_suffix('.json')}), this run's are {ours}; {flags} runs them as trained")
+    return lines
 
 
 def sensor_mismatches(names: list[str], sensor: SensorConfig, eval_hint: bool = True) -> list[str]:
     """One line per field of view that some of ``names``' weights for ``sensor`` were trained with instead of
     ``sensor``'s, as their records say (``configs/train.yaml`` trains with the 360-degree LiDAR, ``eval`` runs the
     LIMO's 180-degree one unless told): a policy does best with the sensor it was trained with. Weights without a
-    record are taken to match. ``eval_hint``: name the ``eval --lidar-fov`` that matches them (a robot's own
-    sensor is what it is: ``up`` says no more)."""
-    by_fov: dict[float, list[str]] = {}
+    record are taken to match. ``eval_hint``: name the ``eval --lidar-fov`` (or ``--sensor``) that matches them (a
+    robot's own sensor is what it is: ``up`` says no more)."""
+    by_sensor: dict[tuple[str, float], list[str]] = {}
     for name in names:
-        trained = training_fov_deg(weights_path(name, sensor))
-        if trained is not None and trained != sensor.fov_deg:
-            by_fov.setdefault(trained, []).append(name)
+        trained_sensor = training_sensor(weights_path(name, sensor))
+        if trained_sensor is not None and trained_sensor[1] != sensor.fov_deg:
+            by_sensor.setdefault(trained_sensor, []).append(name)
     lines = []
-    for trained, which in by_fov.items():
+    for (preset, trained), which in by_sensor.items():
         record = weights_path(which[0], sensor).with_suffix(".json")
-        lidar = eval_hint and trained in (180.0, 360.0) and sensor.fov_deg in (180.0, 360.0)  # a LiDAR eval: --lidar-fov is the fix
-        hint = f"; eval --lidar-fov {trained:g} runs {'it' if len(which) == 1 else 'them'} with that sensor" if lidar else ""
+        lidar = trained in LIDAR_FOVS_DEG and sensor.fov_deg in LIDAR_FOVS_DEG  # a LiDAR eval: --lidar-fov is the fix
+        flag = f"--lidar-fov {trained:g}" if preset == "lidar" and lidar else f"--sensor {preset}" if preset != "lidar" else ""
+        hint = f"; eval {flag} runs {'it' if len(which) == 1 else 'them'} with that sensor" if eval_hint and flag else ""
         lines.append(
             f"the weights of {', '.join(which)} were trained with a {trained:g}-degree sensor ({record}{' and the like' if len(which) > 1 else ''}),"
             f" this run's sees {sensor.fov_deg:g} degrees{hint}"
