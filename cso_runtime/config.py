@@ -391,10 +391,17 @@ def _key_where(where: str, key: str) -> str:
 
 def with_nearest(key: str, known: typing.Iterable[str], shown: str | None = None) -> str:
     """``key`` (or ``shown``, how the message writes it), followed by the known key it most likely misspells
-    (``gama (did you mean gamma?)``), if any is close."""
-    nearest = difflib.get_close_matches(str(key), sorted(known), n=1)
+    (``gama (did you mean gamma?)``), if any is close. A dotted key is also matched by its last part, so that
+    ``sensor.fov_deg`` among flat keys suggests ``lidar_fov_deg`` rather than the ``sensor`` it merely starts with."""
+    known = sorted(known)
+    tries = [str(key)] + ([str(key).rsplit(".", 1)[1]] if "." in str(key) else [])
+    scored = [
+        (difflib.SequenceMatcher(None, tried, match).ratio(), match)
+        for tried in tries
+        for match in difflib.get_close_matches(tried, known, n=1)
+    ]
     shown = str(key) if shown is None else shown
-    return f"{shown} (did you mean {nearest[0]}?)" if nearest else shown
+    return f"{shown} (did you mean {max(scored)[1]}?)" if scored else shown
 
 
 def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:

@@ -299,6 +299,9 @@ def test_an_unknown_key_names_the_known_key_it_most_likely_misspells(tmp_path: P
     assert "unknown key(s) gama (did you mean gamma?), num_minibatch (did you mean num_minibatches?), zzz; known: adam_eps," in said, said
     with pytest.raises(ConfigError, match=re.escape("masks: unknown key(s) beta_far (did you mean beta_far_m?); known: alpha1_m")):
         EvalRequest(methods=["cso"], settings={"masks.beta_far": 1.0}).exploration_config()
+    # A dotted key among train's flat ones is matched by its last part too: it said "did you mean sensor?".
+    said = " ".join(train_refusal(recipe, {}, ["sensor.fov_deg=270"], capsys).split())
+    assert "unknown key(s) sensor.fov_deg (did you mean lidar_fov_deg?)" in said, said
 
 
 def test_a_train_error_names_the_command_flags_that_set_the_bad_value(tmp_path: Path, capsys):
