@@ -148,13 +148,32 @@ class GridGeometry:
         return iy[inside], ix[inside]
 
 
+def no_return_mask(ranges_m: npt.ArrayLike, range_max_m: float) -> np.ndarray:
+    """Beams that saw nothing (REP-117): ``inf``, or a reading of ``range_max_m`` or more, since drivers such as the
+    LIMO's report "nothing" as ``range_max`` itself. Not an obstacle: free space up to ``range_max_m``. NaN is not
+    one (it is no reading at all). Compared in float64, as the mapper compares."""
+    return np.asarray(ranges_m, dtype=np.float64) >= range_max_m
+
+
+def returns_as_float32(ranges_m: np.ndarray, range_max_m: float) -> np.ndarray:
+    """A simulated scan's ranges as a ``LaserScan`` carries them (float32), every return still a return: a range
+    within ``range_max_m`` that float32 rounds up to ``range_max_m`` itself would read as no return
+    (``no_return_mask``), so it becomes the float32 just below. ``inf`` stays ``inf``. Up to a 16 m ``range_max_m`` the
+    float32 below lies within the mapper's 1e-6 m step into the hit cell, so the map marks the same wall cell."""
+    ranges32 = np.asarray(ranges_m).astype(np.float32)
+    rounded_to_max = np.isfinite(ranges_m) & (ranges32.astype(np.float64) == range_max_m)
+    ranges32[rounded_to_max] = np.nextafter(np.float32(range_max_m), np.float32(0.0))
+    return ranges32
+
+
 @dataclass(frozen=True)
 class LaserScan:
     """One planar range scan, as in sensor_msgs/LaserScan.
 
     ``ranges_m[i]`` is the range of the beam at ``angle_min_rad + i * angle_increment_rad`` in the
-    sensor frame; ``inf`` means no return within ``range_max_m``. Readings below ``range_min_m``, and 0 m
-    readings (how the ROS bridge marks NaN and too-close beams), are invalid and ignored by the mapper.
+    sensor frame; ``inf``, ``range_max_m`` or more mean no return (``no_return_mask``). Readings below
+    ``range_min_m``, and 0 m readings (how the ROS bridge marks NaN and too-close beams), are invalid and
+    ignored by the mapper.
     """
 
     angle_min_rad: float

@@ -155,6 +155,43 @@ def test_no_return_beams_clear_up_to_max_range():
     assert not m.occupied.any()
 
 
+@pytest.mark.parametrize("reading_m", [3.0, 3.5])
+def test_a_reading_at_or_beyond_range_max_is_no_return(reading_m):
+    """REP-117: a range of ``range_max`` or more is not an obstacle (drivers such as the LIMO's clamp "nothing" to
+    ``range_max``): the beam clears free space up to ``range_max`` and marks no occupied cell, as ``inf`` does."""
+    g = GridGeometry(0.1, (100, 100))
+    pose = Pose2D(1.0, 5.05, 0.0)
+    m, no_return = OccupancyMap(g), OccupancyMap(g)
+    m.integrate_scan(pose, LaserScan(0.0, 0.0, 0.1, 3.0, np.array([reading_m], dtype=np.float32)))
+    no_return.integrate_scan(pose, LaserScan(0.0, 0.0, 0.1, 3.0, np.array([np.inf], dtype=np.float32)))
+    assert not m.occupied.any()
+    assert m.open[50, 10:39].all()
+    np.testing.assert_array_equal(m.to_occupancy_grid(), no_return.to_occupancy_grid())
+
+
+def test_a_reading_just_below_range_max_is_a_hit():
+    g = GridGeometry(0.1, (100, 100))
+    m = OccupancyMap(g)
+    just_below_m = np.nextafter(np.float32(3.0), np.float32(0.0))
+    m.integrate_scan(Pose2D(1.0, 5.05, 0.0), LaserScan(0.0, 0.0, 0.1, 3.0, np.array([just_below_m], dtype=np.float32)))
+    assert m.occupied[50, 40] and np.count_nonzero(m.occupied) == 1
+
+
+def test_a_simulated_wall_float32_rounds_to_range_max_stays_a_hit():
+    """A wall 5e-8 m inside the simulated LiDAR's range is a return, though float32 rounds its range to
+    ``range_max`` (no return): the scan reports it just below, so the mapper marks it, as before REP-117's rule."""
+    plan = box_room(4.0, 3.0, 0.05)  # the wall ahead of the start (2.1, 1.6) begins at x = 4.1
+    plan = dataclasses.replace(plan, start=Pose2D(2.1 + 5e-8, 1.6, 0.0))
+    sensor = SensorConfig.preset("lidar")
+    sensor.range_max_m = 2.0
+    sim = KinematicSimulator(plan, sensor)
+    ahead_m = sim.scan().ranges_m[90]
+    assert np.isfinite(ahead_m) and ahead_m < 2.0
+    m = OccupancyMap(plan.geometry)
+    m.integrate_scan(sim.sensor_pose(), sim.scan())
+    assert m.occupied[plan.geometry.world_to_cell(4.1 + 1e-3, 1.6)]
+
+
 def test_nan_scan_is_rejected_and_map_unchanged():
     g = GridGeometry(0.1, (20, 20))
     m = OccupancyMap(g)

@@ -46,6 +46,22 @@ def test_other_angle_range_nan_and_inf_are_handled():
     conv.scan.validate()  # no NaN reaches the mapper
 
 
+def test_a_beam_at_range_max_is_no_return_and_draws_no_wall():
+    """The LIMO's driver reports "nothing" as range_max itself: taken as a return, every scan drew a ring of wall
+    at 8 m. It is decoded as +inf (no return), counted, and clears free space up to range_max."""
+    from cso_runtime.occupancy import OccupancyMap
+
+    conv = cdr.laserscan_from_cdr(limo_scan_bytes([8.0, 8.0, 7.5], angle_min=-0.1, angle_max=0.1, range_min=0.1, range_max=8.0))
+    assert np.isinf(conv.scan.ranges_m[:2]).all() and conv.scan.ranges_m[2] == pytest.approx(7.5)
+    assert conv.no_return_beams == 2
+    g = GridGeometry(0.05, (400, 400))
+    occupancy = OccupancyMap(g)
+    occupancy.integrate_scan(Pose2D(1.0, 10.0, 0.0), conv.scan)
+    hits = np.argwhere(occupancy.occupied)
+    assert len(hits) == 1  # the 7.5 m return only
+    assert occupancy.open[g.world_to_cell(1.0 + 7.9 * math.cos(-0.1), 10.0 + 7.9 * math.sin(-0.1))]
+
+
 def test_too_close_beams_stop_the_robot_but_mark_nothing_on_the_map():
     """REP-117's -inf (and a reading below range_min) is an object too close to measure: the bridge passed it on
     as 0 m, no reading, so the planner's stop check drove into what the LiDAR said was right in front."""
