@@ -35,6 +35,10 @@ class Pose2D:
     def xy(self) -> np.ndarray:
         return np.array([self.x_m, self.y_m], dtype=float)
 
+    def as_list(self) -> list[float]:
+        """``[x_m, y_m, yaw_rad]``: how messages and JSON files carry a pose."""
+        return [float(self.x_m), float(self.y_m), float(self.yaw_rad)]
+
     def compose_offset(self, forward_m: float, left_m: float = 0.0) -> Pose2D:
         """Pose of a frame mounted at (forward_m, left_m) in this pose's body frame."""
         c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)

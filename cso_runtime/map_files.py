@@ -121,7 +121,7 @@ def map_origin_of(geometry: GridGeometry, map_origin: Pose2D | None = None) -> l
     ``geometry`` being in the frame whose map-frame pose is ``map_origin`` (None: the map frame itself)."""
     corner = Pose2D(float(geometry.origin_x_m), float(geometry.origin_y_m), 0.0)
     pose = corner if map_origin is None else compose_pose(map_origin, corner)
-    return [float(pose.x_m), float(pose.y_m), float(pose.yaw_rad)]
+    return pose.as_list()
 
 
 def load_map(yaml_path: Path) -> tuple[np.ndarray, GridGeometry]:

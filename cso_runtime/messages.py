@@ -168,7 +168,7 @@ def _bool(body: dict, key: str, where: str) -> bool:
 
 
 def _pose_out(p: Pose2D) -> list[float]:
-    return [float(p.x_m), float(p.y_m), float(p.yaw_rad)]
+    return p.as_list()
 
 
 def _pose_in(body: dict, key: str, where: str) -> Pose2D:

@@ -127,7 +127,7 @@ def status_of(
         table[name] = entry
     ep, age_s = episode_or_last_heard(episode, launcher)
     over = ep.get("state") in EPISODE_OVER
-    map_origin = ep.get("map_origin", [0.0, 0.0, 0.0])  # none in the launcher's last-heard status (nor a goal)
+    map_origin = ep.get("map_origin", MAP_FRAME_ORIGIN.as_list())  # none in the launcher's last-heard status (nor a goal)
     goal = ep.get("goal_xy_m")
     return {
         "robot": robot,

@@ -2342,6 +2342,14 @@ def test_status_reads_the_run_file_once_so_its_endpoints_and_launcher_are_of_one
     assert len(reads) == 1
 
 
+def test_a_status_with_no_episode_heard_places_the_scene_at_the_map_frames_origin():
+    """No episode status (the launcher's last-heard one carries no ``map_origin``): the map frame's own origin, as an
+    episode status of a Dungeon or generated plan says it."""
+    none_heard = status_of("r0", None, None, {}, set())
+    assert none_heard["map_origin"] == EpisodeStatusMsg("exploring", 1).to_dict()["map_origin"] == [0.0, 0.0, 0.0]
+    assert none_heard["goal"] is None
+
+
 @pytest.mark.parametrize("content", ["[]", '{"run_id": "x", "launcher_pid": "abc"}', '{"run_id": "x", "services": {"sim": {"pid": "1"}}}', "{bad"])
 def test_a_run_file_that_is_not_one_is_ignored_with_a_warning_not_a_traceback(tmp_path, content):
     """A half-written or hand-edited runs/current.json: status, down and logs say they ignore it and why,
