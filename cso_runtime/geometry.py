@@ -152,6 +152,11 @@ class GridGeometry:
         return iy[inside], ix[inside]
 
 
+MAX_RANGE_M = 1000.0
+"""The longest ``range_max_m`` a scan may have: the mapper marches every no-return beam out to it, so a range_max of
+1e12 m (finite, so not refused as inf) held the mapper for hours. A planar LiDAR reaches tens of metres."""
+
+
 def no_return_mask(ranges_m: npt.ArrayLike, range_max_m: float) -> np.ndarray:
     """Beams that saw nothing (REP-117): ``inf``, or a reading of ``range_max_m`` or more, since drivers such as the
     LIMO's report "nothing" as ``range_max`` itself. Not an obstacle: free space up to ``range_max_m``. NaN is not
@@ -192,16 +197,25 @@ class LaserScan:
         return self.angle_min_rad + self.angle_increment_rad * np.arange(len(self.ranges_m))
 
     def validate(self) -> None:
-        """Raise ValueError for a scan that cannot be integrated (NaN, bad limits)."""
+        """Raise ValueError for a scan that cannot be integrated (NaN, bad limits, beams whose angles do not
+        increase), never another exception: the mapper service counts a ValueError as a rejected scan."""
         r = np.asarray(self.ranges_m)
         if r.ndim != 1 or r.size == 0:
             raise ValueError("scan ranges must be a non-empty 1-D array")
+        if r.dtype.kind not in "fiu":
+            raise ValueError(f"scan ranges must be numbers, not {r.dtype}")
         if np.isnan(r).any():
             raise ValueError(f"scan has {int(np.isnan(r).sum())} NaN ranges")
         if (r < 0).any():
             raise ValueError("scan has negative ranges")
         for name in ("angle_min_rad", "angle_increment_rad", "range_min_m", "range_max_m"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"scan {name} is not finite")
+            value = getattr(self, name)
+            if not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
+                raise ValueError(f"scan {name} is not finite: {value!r}")
+        if r.size > 1 and not self.angle_increment_rad > 0.0:
+            # All beams along one line (0), or listed clockwise (< 0: the ROS bridge reverses such a scan).
+            raise ValueError(f"scan angle_increment_rad must be positive for {r.size} beams, got {self.angle_increment_rad}")
         if not 0.0 <= self.range_min_m < self.range_max_m:
             raise ValueError("scan needs 0 <= range_min_m < range_max_m")
+        if self.range_max_m > MAX_RANGE_M:
+            raise ValueError(f"scan range_max_m {self.range_max_m} is above {MAX_RANGE_M:g} m")

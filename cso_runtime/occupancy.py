@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from cso_runtime.config import ExplorationConfig
@@ -65,9 +67,11 @@ class OccupancyMap:
         max range and mark no obstacle;
         readings below ``range_min_m`` are ignored, and so is a range of 0 m even when ``range_min_m`` is 0
         (the ROS bridge's mark for NaN and too-close readings: never an obstacle at the sensor). Raises
-        ValueError on NaN or malformed scans.
+        ValueError on NaN or malformed scans and on a sensor pose that is not finite (then changes nothing).
         """
         scan.validate()
+        if not all(math.isfinite(v) for v in (sensor_pose.x_m, sensor_pose.y_m, sensor_pose.yaw_rad)):
+            raise ValueError(f"scan's sensor pose is not finite: {sensor_pose}")
         ranges = np.asarray(scan.ranges_m, dtype=float)
         angles = scan.angles_rad + sensor_pose.yaw_rad
         usable = (ranges >= scan.range_min_m) & (ranges > 0.0)

@@ -201,6 +201,37 @@ def test_nan_scan_is_rejected_and_map_unchanged():
     assert not m.explored.any()
 
 
+@pytest.mark.parametrize("pose", [Pose2D(math.nan, 1.0, 0.0), Pose2D(1.0, math.inf, 0.0), Pose2D(1.0, 1.0, math.nan)], ids=["nan-x", "inf-y", "nan-yaw"])
+def test_a_sensor_pose_that_is_not_finite_is_rejected_and_changes_nothing(pose):
+    """A NaN or infinite pose was integrated as a scan that saw nothing (numpy's cast warnings, no error): now a
+    ValueError, which the mapper service counts as a rejected scan, before the footprint is cleared."""
+    m = OccupancyMap(GridGeometry(0.1, (20, 20)))
+    scan = LaserScan(-0.5, 0.1, 0.1, 3.0, np.full(11, 1.0, dtype=np.float32))
+    with pytest.raises(ValueError, match="sensor pose is not finite"):
+        integrate_observation(m, pose, scan, ExplorationConfig())
+    assert not m.explored.any() and not m.occupied.any()
+
+
+@pytest.mark.parametrize(
+    ("scan", "why"),
+    [
+        (LaserScan(-0.5, 0.0, 0.1, 3.0, np.full(11, 1.0, dtype=np.float32)), "angle_increment_rad must be positive"),
+        (LaserScan(0.5, -0.1, 0.1, 3.0, np.full(11, 1.0, dtype=np.float32)), "angle_increment_rad must be positive"),
+        (LaserScan(-0.5, 0.1, 0.1, 3.0, np.array(["1.0", "2.0"])), "ranges must be numbers"),
+        (LaserScan(-0.5, 0.1, 0.1, 1e12, np.full(11, np.inf, dtype=np.float32)), "range_max_m .* is above"),
+    ],
+    ids=["zero-increment", "negative-increment", "text-ranges", "huge-range-max"],
+)
+def test_a_scan_the_mapper_cannot_integrate_is_a_value_error_and_changes_nothing(scan, why):
+    """Zero increment put every beam on one line, a negative one was taken as it came (ScanMsg refuses both), text
+    ranges raised a TypeError the mapper service does not catch, and a finite 1e12 m range_max marched each
+    no-return beam out to it for hours. Each is a ValueError now (a counted rejection in the mapper service)."""
+    m = OccupancyMap(GridGeometry(0.1, (20, 20)))
+    with pytest.raises(ValueError, match=why):
+        m.integrate_scan(Pose2D(1.0, 1.0, 0.0), scan)
+    assert not m.explored.any()
+
+
 scan_strategy = st.lists(
     st.one_of(st.floats(0.0, 6.0), st.just(float("inf"))), min_size=1, max_size=60
 )
