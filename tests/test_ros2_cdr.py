@@ -99,6 +99,24 @@ def test_invalid_beams_of_a_scan_with_range_min_zero_mark_nothing_on_the_map():
     assert tuple(hits[0]) == (int(hy), int(hx))
 
 
+@pytest.mark.parametrize(
+    ("angle_min", "angle_max", "why"),
+    [(-0.5, 0.5, "7 ranges but its angles imply 3"), (0.5, 0.5, "a zero increment")],
+    ids=["more-beams-than-angles", "zero-increment"],
+)
+def test_a_scan_whose_header_does_not_fit_its_ranges_is_refused(angle_min, angle_max, why):
+    """The bridge drops and counts (``ros_scan:bad_cdr``) a scan whose angles imply another number of beams, or that
+    has a zero increment, rather than spread its ranges over the wrong angles."""
+    raw = limo_scan_bytes([1.0] * 3, angle_min=angle_min, angle_max=angle_max)
+    if angle_min != angle_max:  # the header of 3 beams over [-0.5, 0.5], sent with 7 ranges
+        ts = cdr.typestore()
+        msg = cdr.decode(raw, cdr.LASER_SCAN)
+        msg.ranges = np.ones(7, dtype=np.float32)
+        raw = bytes(ts.serialize_cdr(msg, cdr.LASER_SCAN))
+    with pytest.raises(cdr.CdrError, match=why):
+        cdr.laserscan_from_cdr(raw)
+
+
 def test_clockwise_scan_is_reordered():
     conv = cdr.laserscan_from_cdr(limo_scan_bytes([1.0, 2.0, 3.0], angle_min=0.5, angle_max=-0.5))
     assert conv.scan.angle_increment_rad > 0
