@@ -364,10 +364,10 @@ def record_command(
     from cso_runtime.keys import KeyExprError, check_robot_id  # noqa: PLC0415
     from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
     from cso_runtime.recording import record, recording_path  # noqa: PLC0415
-    from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
-    from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
+    from cso_runtime.status import RunTarget, client_transport, endpoints_from_run_file  # noqa: PLC0415
+    from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
 
-    endpoints, run_robot = (list(connect), None) if connect else endpoints_from_run_file(runs_dir)
+    endpoints, run_robot, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
     robot = robot or run_robot or "r0"
     try:  # before connecting: a bad id is a usage error whether or not a router answers
         check_robot_id(robot, allow_wildcard=True)
@@ -382,7 +382,7 @@ def record_command(
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))
     try:
-        with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
+        with open_session(client_transport(endpoints, zenoh_config_file)) as session:
             typer.echo(f"recording cso/{robot}/** from {', '.join(endpoints)} into {path} (Ctrl-C to stop)")
             stats = record(session, robot, path, stop)
     except TransportError as exc:  # no router to record from: the exit code of `up` without a Zenoh session
@@ -412,14 +412,14 @@ def replay_command(
     from cso_runtime.keys import TOPICS  # noqa: PLC0415
     from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, ReplayRefused, check_recording, parse_speed, replay  # noqa: PLC0415
-    from cso_runtime.status import endpoints_from_run_file  # noqa: PLC0415
-    from cso_runtime.transport import TransportConfig, TransportError, open_session  # noqa: PLC0415
+    from cso_runtime.status import RunTarget, client_transport, endpoints_from_run_file  # noqa: PLC0415
+    from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
 
     try:
         check_recording(file)  # a wrong or broken file is the first thing to say
     except RecordingError as exc:
         _fail(str(exc), 2)
-    endpoints = list(connect) if connect else endpoints_from_run_file(runs_dir)[0]
+    endpoints, _, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
     by_key = {key: name for name, key in TOPICS.items()}  # planner/feedback, as docs/messages.md and `dataflow` name it
@@ -435,7 +435,7 @@ def replay_command(
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))
     try:
-        with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
+        with open_session(client_transport(endpoints, zenoh_config_file)) as session:
             stats = replay(session, file, speed, stop, wanted)
     except TransportError as exc:  # no router to replay into: the exit code of `up` without a Zenoh session
         _fail(str(exc), EXIT_NO_ZENOH)

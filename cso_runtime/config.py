@@ -19,6 +19,8 @@ from typing import Any, TypeVar
 
 import yaml
 
+from cso_runtime.geometry import MAX_RANGE_M
+
 T = TypeVar("T")
 
 
@@ -57,7 +59,7 @@ class SensorConfig:
     range_min_m: float = 0.1
     """Closer returns are invalid."""
     range_max_m: float = 8.0
-    """Beams with no return within this range report inf and clear free space up to it."""
+    """Beams with no return within this range report inf and clear free space up to it (at most ``MAX_RANGE_M``, 1 km)."""
     range_noise_std_m: float = 0.0
     """Gaussian range noise of the simulated sensor."""
     rate_hz: float = 8.0
@@ -87,6 +89,8 @@ class SensorConfig:
             raise ConfigError("sensor.resolution_deg must be in (0, fov_deg]")
         if not 0 <= self.range_min_m < self.range_max_m:
             raise ConfigError("sensor needs 0 <= range_min_m < range_max_m")
+        if self.range_max_m > MAX_RANGE_M:
+            raise ConfigError(f"sensor.range_max_m must be at most {MAX_RANGE_M:g} m (a scan's longest; see geometry.MAX_RANGE_M)")
         if self.range_noise_std_m < 0:
             raise ConfigError("sensor.range_noise_std_m must be >= 0")
         if not self.rate_hz > 0:

@@ -35,6 +35,10 @@ class Pose2D:
     def xy(self) -> np.ndarray:
         return np.array([self.x_m, self.y_m], dtype=float)
 
+    def as_list(self) -> list[float]:
+        """``[x_m, y_m, yaw_rad]``: how messages and JSON files carry a pose."""
+        return [float(self.x_m), float(self.y_m), float(self.yaw_rad)]
+
     def compose_offset(self, forward_m: float, left_m: float = 0.0) -> Pose2D:
         """Pose of a frame mounted at (forward_m, left_m) in this pose's body frame."""
         c, s = math.cos(self.yaw_rad), math.sin(self.yaw_rad)
@@ -163,13 +167,37 @@ class GridGeometry:
         return iy[inside], ix[inside]
 
 
+MAX_RANGE_M = 1000.0
+"""The longest ``range_max_m`` a scan may have: the mapper marches every no-return beam out to it, so a range_max of
+1e12 m (finite, so not refused as inf) held the mapper for hours. A planar LiDAR reaches tens of metres."""
+
+
+def no_return_mask(ranges_m: npt.ArrayLike, range_max_m: float) -> np.ndarray:
+    """Beams that saw nothing (REP-117): ``inf``, or a reading of ``range_max_m`` or more, since drivers such as the
+    LIMO's report "nothing" as ``range_max`` itself. Not an obstacle: free space up to ``range_max_m``. NaN is not
+    one (it is no reading at all). Compared in float64, as the mapper compares."""
+    return np.asarray(ranges_m, dtype=np.float64) >= range_max_m
+
+
+def returns_as_float32(ranges_m: np.ndarray, range_max_m: float) -> np.ndarray:
+    """A simulated scan's ranges as a ``LaserScan`` carries them (float32), every return still a return: a range
+    within ``range_max_m`` that float32 rounds up to ``range_max_m`` itself would read as no return
+    (``no_return_mask``), so it becomes the float32 just below. ``inf`` stays ``inf``. Up to a 16 m ``range_max_m`` the
+    float32 below lies within the mapper's 1e-6 m step into the hit cell, so the map marks the same wall cell."""
+    ranges32 = np.asarray(ranges_m).astype(np.float32)
+    rounded_to_max = np.isfinite(ranges_m) & (ranges32.astype(np.float64) == range_max_m)
+    ranges32[rounded_to_max] = np.nextafter(np.float32(range_max_m), np.float32(0.0))
+    return ranges32
+
+
 @dataclass(frozen=True)
 class LaserScan:
     """One planar range scan, as in sensor_msgs/LaserScan.
 
     ``ranges_m[i]`` is the range of the beam at ``angle_min_rad + i * angle_increment_rad`` in the
-    sensor frame; ``inf`` means no return within ``range_max_m``. Readings below ``range_min_m``, and 0 m
-    readings (how the ROS bridge marks NaN and too-close beams), are invalid and ignored by the mapper.
+    sensor frame; ``inf``, ``range_max_m`` or more mean no return (``no_return_mask``). Readings below
+    ``range_min_m``, and 0 m readings (how the ROS bridge marks NaN and too-close beams), are invalid and
+    ignored by the mapper.
     """
 
     angle_min_rad: float
@@ -184,16 +212,25 @@ class LaserScan:
         return self.angle_min_rad + self.angle_increment_rad * np.arange(len(self.ranges_m))
 
     def validate(self) -> None:
-        """Raise ValueError for a scan that cannot be integrated (NaN, bad limits)."""
+        """Raise ValueError for a scan that cannot be integrated (NaN, bad limits, beams whose angles do not
+        increase), never another exception: the mapper service counts a ValueError as a rejected scan."""
         r = np.asarray(self.ranges_m)
         if r.ndim != 1 or r.size == 0:
             raise ValueError("scan ranges must be a non-empty 1-D array")
+        if r.dtype.kind not in "fiu":
+            raise ValueError(f"scan ranges must be numbers, not {r.dtype}")
         if np.isnan(r).any():
             raise ValueError(f"scan has {int(np.isnan(r).sum())} NaN ranges")
         if (r < 0).any():
             raise ValueError("scan has negative ranges")
         for name in ("angle_min_rad", "angle_increment_rad", "range_min_m", "range_max_m"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"scan {name} is not finite")
+            value = getattr(self, name)
+            if not isinstance(value, (int, float, np.integer, np.floating)) or not math.isfinite(value):
+                raise ValueError(f"scan {name} is not finite: {value!r}")
+        if r.size > 1 and not self.angle_increment_rad > 0.0:
+            # All beams along one line (0), or listed clockwise (< 0: the ROS bridge reverses such a scan).
+            raise ValueError(f"scan angle_increment_rad must be positive for {r.size} beams, got {self.angle_increment_rad}")
         if not 0.0 <= self.range_min_m < self.range_max_m:
             raise ValueError("scan needs 0 <= range_min_m < range_max_m")
+        if self.range_max_m > MAX_RANGE_M:
+            raise ValueError(f"scan range_max_m {self.range_max_m} is above {MAX_RANGE_M:g} m")

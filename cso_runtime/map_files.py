@@ -119,8 +119,7 @@ def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_fo
 def map_origin_of(geometry: GridGeometry, map_origin: Pose2D | None = None) -> list[float]:
     """A map_server ``origin`` ``[x_m, y_m, yaw_rad]``: the map-frame pose of ``geometry``'s lower-left corner,
     ``geometry`` being in the frame whose map-frame pose is ``map_origin`` (None: the map frame itself)."""
-    pose = geometry.corner_pose(map_origin)
-    return [float(pose.x_m), float(pose.y_m), float(pose.yaw_rad)]
+    return geometry.corner_pose(map_origin).as_list()
 
 
 def load_map(yaml_path: Path) -> tuple[np.ndarray, GridGeometry]:

@@ -22,7 +22,7 @@ import msgpack
 import numpy as np
 
 from cso_runtime.frontiers import FrontierCluster
-from cso_runtime.geometry import MAP_FRAME_ORIGIN, GridGeometry, LaserScan, Pose2D, VelocityCommand, map_frame_xy
+from cso_runtime.geometry import MAP_FRAME_ORIGIN, MAX_RANGE_M, GridGeometry, LaserScan, Pose2D, VelocityCommand, map_frame_xy
 from cso_runtime.observation import Observation
 from cso_runtime.occupancy import OccupancyMap
 
@@ -168,7 +168,7 @@ def _bool(body: dict, key: str, where: str) -> bool:
 
 
 def _pose_out(p: Pose2D) -> list[float]:
-    return [float(p.x_m), float(p.y_m), float(p.yaw_rad)]
+    return p.as_list()
 
 
 def _pose_in(body: dict, key: str, where: str) -> Pose2D:
@@ -266,8 +266,8 @@ class ScanMsg(Message):
         scan = LaserScan(
             _num(b, "angle_min_rad", w, -2 * math.pi, 2 * math.pi),
             _num(b, "angle_increment_rad", w, 1e-6, 2 * math.pi),
-            _num(b, "range_min_m", w, 0.0, 1e3),
-            _num(b, "range_max_m", w, 0.0, 1e3),
+            _num(b, "range_min_m", w, 0.0, MAX_RANGE_M),
+            _num(b, "range_max_m", w, 0.0, MAX_RANGE_M),
             ranges,
             _num(b, "stamp_s", w, 0.0),
         )

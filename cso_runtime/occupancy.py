@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from cso_runtime.config import ExplorationConfig
-from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, no_return_mask
 from cso_runtime.raycast import SAMPLES_PER_CHUNK, sample_cells, sample_step_m, samples_to_reach
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100
@@ -61,16 +63,19 @@ class OccupancyMap:
     def integrate_scan(self, sensor_pose: Pose2D, scan: LaserScan) -> int:
         """Ray-cast one scan taken at ``sensor_pose`` into the map; returns newly explored cells.
 
-        Beams with no return (``inf`` or beyond ``range_max_m``) clear free space up to the max range;
+        Beams with no return (``inf``, ``range_max_m`` or beyond: ``no_return_mask``) clear free space up to the
+        max range and mark no obstacle;
         readings below ``range_min_m`` are ignored, and so is a range of 0 m even when ``range_min_m`` is 0
         (the ROS bridge's mark for NaN and too-close readings: never an obstacle at the sensor). Raises
-        ValueError on NaN or malformed scans.
+        ValueError on NaN or malformed scans and on a sensor pose that is not finite (then changes nothing).
         """
         scan.validate()
+        if not all(math.isfinite(v) for v in (sensor_pose.x_m, sensor_pose.y_m, sensor_pose.yaw_rad)):
+            raise ValueError(f"scan's sensor pose is not finite: {sensor_pose}")
         ranges = np.asarray(scan.ranges_m, dtype=float)
         angles = scan.angles_rad + sensor_pose.yaw_rad
         usable = (ranges >= scan.range_min_m) & (ranges > 0.0)
-        is_hit = usable & (ranges <= scan.range_max_m)
+        is_hit = usable & ~no_return_mask(ranges, scan.range_max_m)
         clear_len = np.where(is_hit, ranges, scan.range_max_m)
         angles, clear_len, is_hit = angles[usable], clear_len[usable], is_hit[usable]
         if len(angles) == 0:

@@ -17,7 +17,7 @@ import numpy as np
 
 from cso_runtime.config import ExplorationConfig, PlannerConfig, RobotConfig
 from cso_runtime.geodesic import disk_offsets, geodesic_distance
-from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, no_return_mask, wrap_angle_rad
 
 FACE_GOAL_MIN_DISTANCE_M = 0.05
 """A goal closer than this to the robot is under it: no heading looks at it, so it is not turned to."""
@@ -221,9 +221,10 @@ class PathFollower:
     def _scanned_points(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray]:
         """(forward_m, lateral_m) of the scan's returns in the robot's frame. A beam shorter than ``range_min``
         is still something there (the mapper leaves it out, the controller must not drive into it); a 0 m
-        beam is no reading at all (how the ROS bridge passes on NaN and too-close beams), nor is NaN or inf."""
+        beam is no reading at all (how the ROS bridge passes on NaN and too-close beams), nor is NaN, and inf
+        or ``range_max`` is no return (``no_return_mask``)."""
         r = np.asarray(scan.ranges_m, dtype=float)
-        valid = np.isfinite(r) & (r > 0.0)
+        valid = np.isfinite(r) & (r > 0.0) & ~no_return_mask(r, scan.range_max_m)
         r, ang = r[valid], scan.angles_rad[valid]
         return r * np.cos(ang) + self.sensor_mount_x_m, r * np.sin(ang)
 

@@ -2,7 +2,7 @@
 OccupancyGrid, PoseStamped, Path, TFMessage and explore_lite-style frontier MarkerArrays.
 
 Encoding and decoding use the rosbags typestore (the CDR payloads carry their 4-byte encapsulation
-header), never a hand-written serializer. Conversions follow REP-103/REP-117: +inf is "no return",
+header), never a hand-written serializer. Conversions follow REP-103/REP-117: +inf (or range_max) is "no return",
 -inf "too close" and NaN "invalid"; everything the LaserScan header says is honoured.
 """
 
@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, no_return_mask
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
@@ -146,7 +146,8 @@ def laserscan_from_cdr(raw: bytes) -> ScanConversion:
     ignore (even with ``range_min`` 0). Too close (REP-117: -inf, or a reading below ``range_min``) is something
     there: a reading below ``range_min`` is kept, and -inf becomes the float just below ``range_min``; the mapper
     ignores both, and the planner's stop check counts them (with ``range_min`` 0 there is no such float: 0 m).
-    +inf and anything beyond ``range_max`` become +inf (no return: free space up to the max range).
+    +inf, ``range_max`` itself (how many drivers, the LIMO's among them, report "nothing") and anything beyond become
+    +inf (no return: free space up to the max range; ``no_return_mask``).
     """
     msg = decode(raw, LASER_SCAN)
     ranges = np.asarray(msg.ranges, dtype=np.float64)
@@ -159,7 +160,7 @@ def laserscan_from_cdr(raw: bytes) -> ScanConversion:
         raise CdrError(f"LaserScan has {ranges.size} ranges but its angles imply {expected}")
     invalid = np.isnan(ranges)
     too_close = ~invalid & (ranges < msg.range_min)
-    no_return = ~invalid & (ranges > msg.range_max)
+    no_return = no_return_mask(ranges, msg.range_max)
     nearer_than_range_min_m = float(np.nextafter(np.float32(msg.range_min), np.float32(0.0)))  # 0 when range_min is 0
     clean = np.where(invalid, 0.0, np.where(no_return, np.inf, np.where(np.isneginf(ranges), nearer_than_range_min_m, ranges)))
     if msg.angle_increment < 0:  # beams listed clockwise: reverse so angles increase

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from cso_runtime.config import ConfigError, RobotConfig, SensorConfig, from_dict
-from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
+from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, returns_as_float32, wrap_angle_rad
 from cso_runtime.raycast import cast_rays
 from cso_runtime.scenes import FloorPlan
 
@@ -106,7 +106,8 @@ class KinematicSimulator:
             finite = np.isfinite(ranges)
             ranges[finite] += self.rng.normal(0.0, self.sensor.range_noise_std_m, int(finite.sum()))
             ranges[finite] = np.maximum(ranges[finite], 0.0)
-        return LaserScan(self._angle_min, self._increment, self.sensor.range_min_m, self.sensor.range_max_m, ranges.astype(np.float32), self.time_s)
+        ranges32 = returns_as_float32(ranges, self.sensor.range_max_m)
+        return LaserScan(self._angle_min, self._increment, self.sensor.range_min_m, self.sensor.range_max_m, ranges32, self.time_s)
 
     def clearance_m(self, x_m: float, y_m: float) -> float:
         """Exact distance from (x, y) to the nearest wall cell (cells are squares), up to 2 radii.

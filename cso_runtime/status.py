@@ -13,7 +13,7 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
 import zenoh
 
@@ -67,9 +67,10 @@ CONNECT_TIMEOUT_MS = 500
 milliseconds and on a LAN in tens of them, and "nothing running" must come within 2 s of the command."""
 
 
-def _client_session(connect: list[str]) -> zenoh.Session | None:
-    """A client session to ``connect`` that gives up on a silent endpoint after ``CONNECT_TIMEOUT_MS`` (None then)."""
-    cfg = zenoh_config(TransportConfig(mode="client", connect=list(connect)))
+def _client_session(connect: list[str], zenoh_config_file: str | None = None) -> zenoh.Session | None:
+    """A client session to ``connect`` that gives up on a silent endpoint after ``CONNECT_TIMEOUT_MS`` (None then),
+    started from ``zenoh_config_file`` (None: this process's, ``$CSO_ZENOH_CONFIG``)."""
+    cfg = zenoh_config(client_transport(connect, zenoh_config_file))
     cfg.insert_json5("connect/timeout_ms", str(CONNECT_TIMEOUT_MS))
     try:
         return zenoh.open(cfg)
@@ -77,9 +78,10 @@ def _client_session(connect: list[str]) -> zenoh.Session | None:
         return None
 
 
-def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6) -> dict[str, Any] | None:
-    """The episode's status as a plain dict, or None when nothing answers."""
-    session = _client_session(connect)
+def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6, zenoh_config_file: str | None = None) -> dict[str, Any] | None:
+    """The episode's status as a plain dict, or None when nothing answers. ``zenoh_config_file``: as ``RunTarget``'s
+    (None: this process's)."""
+    session = _client_session(connect, zenoh_config_file)
     if session is None:
         return None
     keys = RobotKeys(robot)
@@ -127,7 +129,7 @@ def status_of(
         table[name] = entry
     ep, age_s = episode_or_last_heard(episode, launcher)
     over = ep.get("state") in EPISODE_OVER
-    map_origin = ep.get("map_origin", [0.0, 0.0, 0.0])  # none in the launcher's last-heard status (nor a goal)
+    map_origin = ep.get("map_origin", MAP_FRAME_ORIGIN.as_list())  # none in the launcher's last-heard status (nor a goal)
     goal = ep.get("goal_xy_m")
     return {
         "robot": robot,
@@ -180,25 +182,45 @@ def episode_or_last_heard(episode: dict[str, Any] | None, launcher: dict[str, An
     return {**heard, "state": STALE, "reason": why}, age_s
 
 
-def endpoints_from_run_file(runs_dir: Path) -> tuple[list[str], str | None]:
-    """Router endpoints and robot of the current run (``runs/current.json``), if any."""
+class RunTarget(NamedTuple):
+    """Whom ``status``, ``save-map``, ``record`` and ``replay`` ask, and how their sessions join."""
+
+    connect: list[str]
+    """Router endpoints (none: no run to ask)."""
+    robot: str | None
+    """The robot's id (None: not named; the commands take ``r0``)."""
+    zenoh_config_file: str | None
+    """The Zenoh config file the sessions start from; None: this process's (``$CSO_ZENOH_CONFIG``, or Zenoh's defaults)."""
+
+
+def client_transport(connect: list[str], zenoh_config_file: str | None = None) -> TransportConfig:
+    """A client's transport to ``connect``, from ``zenoh_config_file`` (None: the default, ``$CSO_ZENOH_CONFIG``)."""
+    if zenoh_config_file is None:
+        return TransportConfig(mode="client", connect=list(connect))
+    return TransportConfig(mode="client", connect=list(connect), zenoh_config_file=zenoh_config_file)
+
+
+def endpoints_from_run_file(runs_dir: Path) -> RunTarget:
+    """Router endpoints, robot and Zenoh config of the current run (``runs/current.json``), if any."""
     from cso_runtime.current_run import read_current_run  # noqa: PLC0415  (the run file's one reader)
 
     return endpoints_of_run(read_current_run(runs_dir))
 
 
-def endpoints_of_run(info: dict[str, Any] | None) -> tuple[list[str], str | None]:
-    """Router endpoints and robot of a run file read by ``read_current_run`` (None: no run, no endpoints).
+def endpoints_of_run(info: dict[str, Any] | None) -> RunTarget:
+    """Router endpoints, robot and Zenoh config of a run file read by ``read_current_run`` (None: no run, no endpoints).
 
-    A run whose router asks for credentials (``up --zenoh-config``) names its Zenoh config file there: this
-    process's sessions then use it too, unless one was given (``--zenoh-config``, ``$CSO_ZENOH_CONFIG``), so that
-    ``status``, ``save-map``, ``record`` and ``replay`` of the current run need no flag more than ``up`` had."""
+    A run whose router asks for credentials (``up --zenoh-config``) names its Zenoh config file there: the sessions to
+    it start from that file, unless this process was given one (``--zenoh-config``, ``$CSO_ZENOH_CONFIG``), so that
+    ``status``, ``save-map``, ``record`` and ``replay`` of the current run need no flag more than ``up`` had. Reading
+    the run file changes nothing in this process (its environment included): the file goes to the sessions asked."""
     if info is None:
-        return [], None
-    if isinstance(run_config := info.get("zenoh_config"), str) and run_config:
-        os.environ.setdefault(ZENOH_CONFIG_ENV, run_config)
+        return RunTarget([], None, None)
+    run_config = info.get("zenoh_config")
+    given = ZENOH_CONFIG_ENV in os.environ
+    zenoh_config_file = run_config if isinstance(run_config, str) and run_config and not given else None
     robot = info.get("robot")
-    return list(info.get("endpoints") or []), robot if isinstance(robot, str) else None
+    return RunTarget(list(info.get("endpoints") or []), robot if isinstance(robot, str) else None, zenoh_config_file)
 
 
 def dead_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | None:
@@ -249,8 +271,8 @@ def say_nothing_running(why: str, as_json: bool) -> int:
     return 1
 
 
-def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_json: bool = False) -> tuple[list[str], str] | int:
-    """Whom to ask (the given endpoints and robot, else the current run's), or the exit code after saying why
+def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_json: bool = False) -> RunTarget | int:
+    """Whom to ask (the given endpoints and robot, else the current run's; its robot always named), or the exit code after saying why
     there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
     ``127.0.0.1:7447``: a usage error, not "nothing running") or ``robot`` is not one robot's id."""
     from cso_runtime.current_run import read_current_run  # noqa: PLC0415
@@ -259,8 +281,9 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     # The run file read once: the endpoints and the launcher's liveness are then of one run, even when a new
     # run replaces the file in between (and a bad file is warned about once).
     run_info = None if given_connect else read_current_run(runs_dir)
+    zenoh_config_file = None
     if not given_connect:
-        connect, run_robot = endpoints_of_run(run_info)
+        connect, run_robot, zenoh_config_file = endpoints_of_run(run_info)
         robot = robot or run_robot
     robot = robot or "r0"
     try:  # one robot's status or map: a wildcard or a key-breaking id is a usage error, not "nothing running"
@@ -273,11 +296,11 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     if not given_connect and (gone := dead_launcher_of_run(run_info, runs_dir)):
         return say_nothing_running(gone, as_json)
     try:
-        TransportConfig(mode="client", connect=connect).validate()
+        client_transport(connect, zenoh_config_file).validate()
     except TransportError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    return connect, robot
+    return RunTarget(connect, robot, zenoh_config_file)
 
 
 def waiting_note(waiting: list[str]) -> str:
@@ -432,7 +455,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     target = reachable_target(connect, robot, runs_dir, as_json)
     if isinstance(target, int):
         return target
-    connect, robot = target
+    connect, robot, zenoh_config_file = target
     # A new table a period scrolled the terminal: ~20 lines a second, each as wide as its longest cell.
     in_place = watch and not as_json and console.is_terminal
     live: Live | None = None
@@ -441,7 +464,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     last: dict[str, Any] = {}
     try:
         while True:
-            status = query_status(connect, robot)
+            status = query_status(connect, robot, zenoh_config_file=zenoh_config_file)
             if status is None:
                 if live is not None:
                     live.stop()  # the last table stays; the line below goes under it
@@ -491,11 +514,14 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
             live.stop()
 
 
-def query_map(connect: list[str], robot: str = "r0", timeout_s: float = 1.0) -> tuple[MapMsg | None, str, Pose2D]:
+def query_map(
+    connect: list[str], robot: str = "r0", timeout_s: float = 1.0, zenoh_config_file: str | None = None
+) -> tuple[MapMsg | None, str, Pose2D]:
     """The newest map the running episode keeps, or None and why not (nothing answered, no map yet, or
     only malformed replies), and the scene's pose in the user's map frame (the episode status's ``map_origin``;
-    the scene's frame itself when no status answers), which the map's files are placed by."""
-    session = _client_session(connect)
+    the scene's frame itself when no status answers), which the map's files are placed by. ``zenoh_config_file``:
+    as ``RunTarget``'s (None: this process's)."""
+    session = _client_session(connect, zenoh_config_file)
     if session is None:
         return None, f"cannot reach {', '.join(connect)}", MAP_FRAME_ORIGIN
     best: MapMsg | None = None
@@ -529,9 +555,9 @@ def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_
     target = reachable_target(connect, robot, runs_dir)
     if isinstance(target, int):
         return target
-    connect, robot = target
+    connect, robot, zenoh_config_file = target
     try:
-        msg, why, map_origin = query_map(connect, robot)
+        msg, why, map_origin = query_map(connect, robot, zenoh_config_file=zenoh_config_file)
     except TransportError as exc:
         msg, why, map_origin = None, str(exc), MAP_FRAME_ORIGIN
     if msg is None:

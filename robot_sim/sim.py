@@ -27,7 +27,7 @@ import mujoco
 import numpy as np
 
 from cso_runtime.config import RobotConfig, SensorConfig
-from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, relative_pose, wrap_angle_rad
+from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, relative_pose, returns_as_float32, wrap_angle_rad
 from cso_runtime.scenes import FloorPlan
 from robot_sim.config import MujocoSimConfig, whole_steps
 from robot_sim.limo import ACTUATORS, GROUP_WALLS, JOINTS, LIDAR_SITE, ROBOT_BODY, lateral_feedforward_mps
@@ -328,7 +328,8 @@ class MujocoSimulator:
             rng = np.random.default_rng([self._scan_entropy, 0 if noise_key is None else noise_key])
             finite = np.isfinite(ranges)
             ranges[finite] = np.maximum(ranges[finite] + rng.normal(0.0, self.sensor.range_noise_std_m, int(finite.sum())), 0.0)
-        return LaserScan(self._angle_min, self._increment, self.sensor.range_min_m, self.sensor.range_max_m, ranges.astype(np.float32), stamp_s)
+        ranges32 = returns_as_float32(ranges, self.sensor.range_max_m)
+        return LaserScan(self._angle_min, self._increment, self.sensor.range_min_m, self.sensor.range_max_m, ranges32, stamp_s)
 
     def scan(self) -> LaserScan:
         """The latest scan the LiDAR fired (at ``rate_hz`` in simulated time), in the sensor frame."""

@@ -156,6 +156,8 @@ def test_eval_takes_every_sensor_key_the_config_gives_over_the_preset(tmp_path: 
         EvalRequest(methods=["greedy-dist"], settings={"sensor.fov_deg": 90.0}).exploration_config()
     with pytest.raises(ConfigError, match="range_min_m < range_max_m.*the depth preset"):
         EvalRequest(methods=["greedy-dist"], sensor="depth", settings={"sensor.range_max_m": 0.2}).exploration_config()
+    with pytest.raises(ConfigError, match="range_max_m must be at most 1000 m"):  # the mapper marches no-return beams to it
+        EvalRequest(methods=["greedy-dist"], settings={"sensor.range_max_m": 1e12}).exploration_config()
 
 
 def test_the_mujoco_limo_and_the_real_one_are_driven_as_a_box_the_2d_robot_as_its_disc():

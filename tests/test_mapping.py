@@ -155,12 +155,80 @@ def test_no_return_beams_clear_up_to_max_range():
     assert not m.occupied.any()
 
 
+@pytest.mark.parametrize("reading_m", [3.0, 3.5])
+def test_a_reading_at_or_beyond_range_max_is_no_return(reading_m):
+    """REP-117: a range of ``range_max`` or more is not an obstacle (drivers such as the LIMO's clamp "nothing" to
+    ``range_max``): the beam clears free space up to ``range_max`` and marks no occupied cell, as ``inf`` does."""
+    g = GridGeometry(0.1, (100, 100))
+    pose = Pose2D(1.0, 5.05, 0.0)
+    m, no_return = OccupancyMap(g), OccupancyMap(g)
+    m.integrate_scan(pose, LaserScan(0.0, 0.0, 0.1, 3.0, np.array([reading_m], dtype=np.float32)))
+    no_return.integrate_scan(pose, LaserScan(0.0, 0.0, 0.1, 3.0, np.array([np.inf], dtype=np.float32)))
+    assert not m.occupied.any()
+    assert m.open[50, 10:39].all()
+    np.testing.assert_array_equal(m.to_occupancy_grid(), no_return.to_occupancy_grid())
+
+
+def test_a_reading_just_below_range_max_is_a_hit():
+    g = GridGeometry(0.1, (100, 100))
+    m = OccupancyMap(g)
+    just_below_m = np.nextafter(np.float32(3.0), np.float32(0.0))
+    m.integrate_scan(Pose2D(1.0, 5.05, 0.0), LaserScan(0.0, 0.0, 0.1, 3.0, np.array([just_below_m], dtype=np.float32)))
+    assert m.occupied[50, 40] and np.count_nonzero(m.occupied) == 1
+
+
+def test_a_simulated_wall_float32_rounds_to_range_max_stays_a_hit():
+    """A wall 5e-8 m inside the simulated LiDAR's range is a return, though float32 rounds its range to
+    ``range_max`` (no return): the scan reports it just below, so the mapper marks it, as before REP-117's rule."""
+    plan = box_room(4.0, 3.0, 0.05)  # the wall ahead of the start (2.1, 1.6) begins at x = 4.1
+    plan = dataclasses.replace(plan, start=Pose2D(2.1 + 5e-8, 1.6, 0.0))
+    sensor = SensorConfig.preset("lidar")
+    sensor.range_max_m = 2.0
+    sim = KinematicSimulator(plan, sensor)
+    ahead_m = sim.scan().ranges_m[90]
+    assert np.isfinite(ahead_m) and ahead_m < 2.0
+    m = OccupancyMap(plan.geometry)
+    m.integrate_scan(sim.sensor_pose(), sim.scan())
+    assert m.occupied[plan.geometry.world_to_cell(4.1 + 1e-3, 1.6)]
+
+
 def test_nan_scan_is_rejected_and_map_unchanged():
     g = GridGeometry(0.1, (20, 20))
     m = OccupancyMap(g)
     bad = LaserScan(0.0, 0.1, 0.1, 3.0, np.array([1.0, np.nan], dtype=np.float32))
     with pytest.raises(ValueError, match="NaN"):
         m.integrate_scan(Pose2D(1.0, 1.0, 0.0), bad)
+    assert not m.explored.any()
+
+
+@pytest.mark.parametrize("pose", [Pose2D(math.nan, 1.0, 0.0), Pose2D(1.0, math.inf, 0.0), Pose2D(1.0, 1.0, math.nan)], ids=["nan-x", "inf-y", "nan-yaw"])
+def test_a_sensor_pose_that_is_not_finite_is_rejected_and_changes_nothing(pose):
+    """A NaN or infinite pose was integrated as a scan that saw nothing (numpy's cast warnings, no error): now a
+    ValueError, which the mapper service counts as a rejected scan, before the footprint is cleared."""
+    m = OccupancyMap(GridGeometry(0.1, (20, 20)))
+    scan = LaserScan(-0.5, 0.1, 0.1, 3.0, np.full(11, 1.0, dtype=np.float32))
+    with pytest.raises(ValueError, match="sensor pose is not finite"):
+        integrate_observation(m, pose, scan, ExplorationConfig())
+    assert not m.explored.any() and not m.occupied.any()
+
+
+@pytest.mark.parametrize(
+    ("scan", "why"),
+    [
+        (LaserScan(-0.5, 0.0, 0.1, 3.0, np.full(11, 1.0, dtype=np.float32)), "angle_increment_rad must be positive"),
+        (LaserScan(0.5, -0.1, 0.1, 3.0, np.full(11, 1.0, dtype=np.float32)), "angle_increment_rad must be positive"),
+        (LaserScan(-0.5, 0.1, 0.1, 3.0, np.array(["1.0", "2.0"])), "ranges must be numbers"),
+        (LaserScan(-0.5, 0.1, 0.1, 1e12, np.full(11, np.inf, dtype=np.float32)), "range_max_m .* is above"),
+    ],
+    ids=["zero-increment", "negative-increment", "text-ranges", "huge-range-max"],
+)
+def test_a_scan_the_mapper_cannot_integrate_is_a_value_error_and_changes_nothing(scan, why):
+    """Zero increment put every beam on one line, a negative one was taken as it came (ScanMsg refuses both), text
+    ranges raised a TypeError the mapper service does not catch, and a finite 1e12 m range_max marched each
+    no-return beam out to it for hours. Each is a ValueError now (a counted rejection in the mapper service)."""
+    m = OccupancyMap(GridGeometry(0.1, (20, 20)))
+    with pytest.raises(ValueError, match=why):
+        m.integrate_scan(Pose2D(1.0, 1.0, 0.0), scan)
     assert not m.explored.any()
 
 

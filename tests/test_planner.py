@@ -265,6 +265,18 @@ def test_a_zero_metre_beam_is_no_reading_not_an_obstacle_on_the_sensor():
     assert LocalPlanner().follower.front_gap_m(close) == pytest.approx(0.05 - 0.12)  # the disc's sweep
 
 
+def test_a_beam_at_range_max_is_no_obstacle_ahead():
+    """A driver that reports "nothing" as range_max (REP-117: no return) slowed the robot for a wall that is not
+    there when range_max was short; a return just inside range_max still counts."""
+    follower = LocalPlanner().follower
+    ranges = np.full(181, np.inf, dtype=np.float32)
+    ranges[90] = 0.4  # straight ahead, at range_max
+    scan = LaserScan(-math.pi / 2, math.pi / 180, 0.05, 0.4, ranges)
+    assert follower.clearance_ahead(scan)[0] == math.inf and follower.front_gap_m(scan) == math.inf
+    ranges[90] = 0.39
+    assert follower.clearance_ahead(LaserScan(-math.pi / 2, math.pi / 180, 0.05, 0.4, ranges))[0] == pytest.approx(0.39 - 0.12)
+
+
 @pytest.mark.parametrize("max_linear_mps", [0.3, 0.1, 0.04])
 def test_every_command_stays_within_a_slow_robots_limits_and_it_still_drives(max_linear_mps):
     """Lowered limits (a first trial on a real robot): the blocked-ahead back-off went out at -0.2 m/s whatever

@@ -46,6 +46,22 @@ def test_other_angle_range_nan_and_inf_are_handled():
     conv.scan.validate()  # no NaN reaches the mapper
 
 
+def test_a_beam_at_range_max_is_no_return_and_draws_no_wall():
+    """The LIMO's driver reports "nothing" as range_max itself: taken as a return, every scan drew a ring of wall
+    at 8 m. It is decoded as +inf (no return), counted, and clears free space up to range_max."""
+    from cso_runtime.occupancy import OccupancyMap
+
+    conv = cdr.laserscan_from_cdr(limo_scan_bytes([8.0, 8.0, 7.5], angle_min=-0.1, angle_max=0.1, range_min=0.1, range_max=8.0))
+    assert np.isinf(conv.scan.ranges_m[:2]).all() and conv.scan.ranges_m[2] == pytest.approx(7.5)
+    assert conv.no_return_beams == 2
+    g = GridGeometry(0.05, (400, 400))
+    occupancy = OccupancyMap(g)
+    occupancy.integrate_scan(Pose2D(1.0, 10.0, 0.0), conv.scan)
+    hits = np.argwhere(occupancy.occupied)
+    assert len(hits) == 1  # the 7.5 m return only
+    assert occupancy.open[g.world_to_cell(1.0 + 7.9 * math.cos(-0.1), 10.0 + 7.9 * math.sin(-0.1))]
+
+
 def test_too_close_beams_stop_the_robot_but_mark_nothing_on_the_map():
     """REP-117's -inf (and a reading below range_min) is an object too close to measure: the bridge passed it on
     as 0 m, no reading, so the planner's stop check drove into what the LiDAR said was right in front."""
@@ -81,6 +97,24 @@ def test_invalid_beams_of_a_scan_with_range_min_zero_mark_nothing_on_the_map():
     assert len(hits) == 1
     hy, hx = g.world_to_cell(5.0 + 2.0 * math.cos(0.1), 5.0 + 2.0 * math.sin(0.1))
     assert tuple(hits[0]) == (int(hy), int(hx))
+
+
+@pytest.mark.parametrize(
+    ("angle_min", "angle_max", "why"),
+    [(-0.5, 0.5, "7 ranges but its angles imply 3"), (0.5, 0.5, "a zero increment")],
+    ids=["more-beams-than-angles", "zero-increment"],
+)
+def test_a_scan_whose_header_does_not_fit_its_ranges_is_refused(angle_min, angle_max, why):
+    """The bridge drops and counts (``ros_scan:bad_cdr``) a scan whose angles imply another number of beams, or that
+    has a zero increment, rather than spread its ranges over the wrong angles."""
+    raw = limo_scan_bytes([1.0] * 3, angle_min=angle_min, angle_max=angle_max)
+    if angle_min != angle_max:  # the header of 3 beams over [-0.5, 0.5], sent with 7 ranges
+        ts = cdr.typestore()
+        msg = cdr.decode(raw, cdr.LASER_SCAN)
+        msg.ranges = np.ones(7, dtype=np.float32)
+        raw = bytes(ts.serialize_cdr(msg, cdr.LASER_SCAN))
+    with pytest.raises(cdr.CdrError, match=why):
+        cdr.laserscan_from_cdr(raw)
 
 
 def test_clockwise_scan_is_reordered():

@@ -2221,7 +2221,7 @@ def test_status_watch_prints_each_status_until_nothing_answers_then_exits_1(monk
     clock_s = [100.0]
     naps: list[float] = []
 
-    def answer(connect, robot, timeout_s=0.6):
+    def answer(connect, robot, timeout_s=0.6, zenoh_config_file=None):
         clock_s[0] += next(query_s)
         return next(answers)
 
@@ -2251,7 +2251,7 @@ def test_status_watch_redraws_one_table_on_a_terminal_and_appends_plain_tables_e
                                 {"run_id": "run1", "services": {"sim": {"pid": 1, "restarts": 0}}}, {}, {"sim"})
 
     answers = iter([at(3), at(4), at(5), None])
-    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6: next(answers))
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: next(answers))
     monkeypatch.setattr(status.time, "sleep", lambda s: None)
     out = io.StringIO()
     console = Console(file=out, force_terminal=terminal, width=80, height=40, color_system=None)
@@ -2293,7 +2293,7 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
         (runs / "current.json").unlink()
 
     answers = iter([lambda: exploring, lambda: stopping, lambda: launcher_ends()])
-    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6: next(answers)())
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: next(answers)())
     monkeypatch.setattr(status.time, "sleep", lambda s: None)
     out = io.StringIO()
     console = Console(file=out, force_terminal=False, width=100, height=60, color_system=None)
@@ -2338,8 +2338,52 @@ def test_status_reads_the_run_file_once_so_its_endpoints_and_launcher_are_of_one
     ])
     reads = []
     monkeypatch.setattr(current_run, "read_current_run", lambda runs_dir: reads.append(runs_dir) or next(files))
-    assert status.reachable_target([], None, tmp_path) == (["tcp/127.0.0.1:7001"], "r3")
+    assert status.reachable_target([], None, tmp_path) == (["tcp/127.0.0.1:7001"], "r3", None)
     assert len(reads) == 1
+
+
+def test_a_status_with_no_episode_heard_places_the_scene_at_the_map_frames_origin():
+    """No episode status (the launcher's last-heard one carries no ``map_origin``): the map frame's own origin, as an
+    episode status of a Dungeon or generated plan says it."""
+    none_heard = status_of("r0", None, None, {}, set())
+    assert none_heard["map_origin"] == EpisodeStatusMsg("exploring", 1).to_dict()["map_origin"] == [0.0, 0.0, 0.0]
+    assert none_heard["goal"] is None
+
+
+def test_reading_the_run_file_passes_its_zenoh_config_on_and_leaves_the_environment_alone(tmp_path, monkeypatch, capsys):
+    """A run of ``up --zenoh-config`` names its config file in runs/current.json; reading that file set
+    $CSO_ZENOH_CONFIG in the reading process, for every later session of it. The file now goes, explicitly, to the
+    sessions of the run's status and map (a config given to this process still comes first), and the environment
+    stays as it was."""
+    from cso_runtime import status
+
+    monkeypatch.setenv(ZENOH_CONFIG_ENV, "")  # recorded, so that the teardown removes what a read may have set
+    monkeypatch.delenv(ZENOH_CONFIG_ENV)
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    missing = str(tmp_path / "gone.json5")  # a config Zenoh cannot load: status says so and asks no one
+    run = {"run_id": "tls", "robot": "r2", "launcher_pid": os.getpid(), "endpoints": ["tls/127.0.0.1:7001"], "zenoh_config": missing}
+    (runs / "current.json").write_text(json.dumps(run))
+    assert status.endpoints_from_run_file(runs) == (["tls/127.0.0.1:7001"], "r2", missing)
+    assert status.reachable_target([], None, runs) == 2 and "gone.json5" in capsys.readouterr().err
+    assert ZENOH_CONFIG_ENV not in os.environ
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.config import EXIT_NO_ZENOH
+
+    r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "r.mcap"), "--runs-dir", str(runs)])  # the session refuses the run's file
+    assert r.exit_code == EXIT_NO_ZENOH and "gone.json5" in r.output and ZENOH_CONFIG_ENV not in os.environ, r.output
+    config = tmp_path / "run.json5"
+    config.write_text("{}")
+    (runs / "current.json").write_text(json.dumps({**run, "zenoh_config": str(config)}))
+    asked = []
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: asked.append(zenoh_config_file))
+    assert status.status_main([], None, as_json=True, watch=False, runs_dir=runs) == 1  # no answer (from this stand-in)
+    assert asked == [str(config)] and ZENOH_CONFIG_ENV not in os.environ
+    given = str(tmp_path / "given.json5")
+    monkeypatch.setenv(ZENOH_CONFIG_ENV, given)  # --zenoh-config or $CSO_ZENOH_CONFIG: this process's sessions use it
+    assert status.endpoints_from_run_file(runs).zenoh_config_file is None and os.environ[ZENOH_CONFIG_ENV] == given
 
 
 @pytest.mark.parametrize("content", ["[]", '{"run_id": "x", "launcher_pid": "abc"}', '{"run_id": "x", "services": {"sim": {"pid": "1"}}}', "{bad"])

@@ -793,6 +793,21 @@ def test_restarted_mapper_keeps_the_cached_map_of_its_episode_only():
         assert (published[0].grid < 0).any() == (episode == 6)  # episode 6: the old cells are gone
 
 
+def test_the_mapper_service_counts_a_scan_it_cannot_integrate_and_publishes_no_map():
+    """A scan that reaches the mapper with a pose that is not finite, or beams that do not fan out (a message from
+    another tool, a service fed in-process): a counted rejection, no map, no exception out of the handler."""
+    from cso_runtime.geometry import GridGeometry, LaserScan
+    from services.mapper import MapperService
+
+    mapper, out = _service(MapperService, lockstep=False, params={"resolution_m": 0.1, "width_m": 5.0, "height_m": 5.0})
+    ranges = np.full(11, 1.0, dtype=np.float32)
+    mapper.on_message("r0", "scan", ScanMsg(1, LaserScan(-0.5, 0.1, 0.1, 3.0, ranges), Pose2D(float("nan"), 2.0, 0.0), 1), time.monotonic())
+    mapper.on_message("r0", "scan", ScanMsg(2, LaserScan(-0.5, 0.0, 0.1, 3.0, ranges), Pose2D(2.0, 2.0, 0.0), 1), time.monotonic())
+    assert mapper.rejected == {"scan": 2} and out == [] and not mapper.map.explored.any()
+    mapper.on_message("r0", "scan", ScanMsg(3, LaserScan(-0.5, 0.1, 0.1, 3.0, ranges), Pose2D(2.0, 2.0, 0.0), 1), time.monotonic())
+    assert [(t, m.step) for t, m in out] == [("map", 3)] and mapper.map.geometry == GridGeometry(0.1, (50, 50))
+
+
 def test_a_new_episode_maps_the_arena_its_clock_announces():
     """A restarted ROS bridge announces an arena around where the robot is now: the mapper kept the first
     episode's grid, and a robot 15 m from its old start mapped nothing. A profile's own grid stays."""
