@@ -42,6 +42,7 @@ from cso_runtime.config import (
     LOG_FORMAT,
     ConfigError,
     ExplorationConfig,
+    from_dict,
     load_yaml,
 )
 from cso_runtime.geometry import GridGeometry, Pose2D
@@ -107,8 +108,12 @@ class ServiceContext:
         return bool(self.profile.get("lockstep", False))
 
 
-def load_profile_for_service(path: Path, name: str) -> tuple[dict[str, Any], ExplorationConfig, dict[str, Any]]:
-    """The profile mapping, its exploration config and this service's parameter section."""
+def load_profile_for_service(path: Path, name: str, cls: type[Service] | None = None) -> tuple[dict[str, Any], ExplorationConfig, dict[str, Any]]:
+    """The profile mapping, its exploration config and this service's parameter section (without the ``class`` that
+    picks a service of one's own). ``cls``: the class about to run as ``name``; a ConfigError when it is the built-in
+    one and the profile runs a class of its own in its place (it would serve the robot beside the profile's)."""
+    from services import SERVICE_NAMES, own_class_spec, service_params  # noqa: PLC0415
+
     profile = load_yaml(path)
     services = profile.get("services") or {}
     if not isinstance(services, dict):
@@ -118,7 +123,10 @@ def load_profile_for_service(path: Path, name: str) -> tuple[dict[str, Any], Exp
     params = services.get(name) or {}
     if not isinstance(params, dict):
         raise ConfigError(f"{path}: services.{name} must be a mapping")
-    return profile, exploration, params
+    spec = own_class_spec(params)
+    if spec is not None and cls is not None and name in SERVICE_NAMES and module_of(cls) == f"services.{name}":
+        raise ConfigError(f"{path}: the profile runs {spec} as its {name}, not the built-in one: start it with `cso-runtime service {spec}`")
+    return profile, exploration, service_params(params)
 
 
 class Service:
@@ -131,6 +139,11 @@ class Service:
     outputs: ClassVar[dict[str, type[Message]]] = {}
     """Topic name -> the message type this service publishes there. With ``inputs`` it is the service's
     node in the dataflow (``cso-runtime dataflow``); ``publish`` refuses anything not declared here."""
+    params_class: ClassVar[type | None] = None
+    """A service of one's own: the dataclass of its parameters (its profile section, ``services.<name>``, less
+    ``class``). ``up`` checks the section against it before anything starts, as it does the built-in services'
+    (``config.from_dict``: an unknown key or a bad value is refused), and the service gets it as ``self.params``.
+    None: ``ctx.params``, the section as a mapping, unchecked."""
     tick_period_s: ClassVar[float] = 0.2
     serves_latest: ClassVar[tuple[str, ...]] = ()
     """Topics whose latest accepted message (``keep_latest``) this service answers on
@@ -139,6 +152,8 @@ class Service:
 
     def __init__(self, ctx: ServiceContext) -> None:
         self.ctx = ctx
+        if self.params_class is not None:
+            self.params = from_dict(self.params_class, ctx.params, where=f"services.{ctx.name}")
         self.session: zenoh.Session | None = None
         self.subscribe_robot = ctx.robot
         """Robot id whose inputs are subscribed; ``*`` serves every robot on the network."""
@@ -565,10 +580,28 @@ LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 """What a service's ``--log-level`` takes, in any case."""
 
 
+def module_of(cls: type) -> str | None:
+    """The module ``cls`` is defined in, by the name it is imported as: ``services.mapper`` also when it runs as
+    ``python -m services.mapper`` (where it is ``__main__``); None for a class of a script run as a file."""
+    module = cls.__module__
+    if module != "__main__":
+        return module
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    return spec.name if spec is not None else None
+
+
+def default_prog(name: str, cls: type[Service] | None) -> str | None:
+    """How a service's usage line names its command when not run as ``cso-runtime service``: ``python -m services.NAME``
+    for a built-in one, ``python -m MODULE`` for a class of one's own in a module, the script's own name (argparse's
+    default, None) for one run as a script."""
+    module = module_of(cls) if cls is not None else f"services.{name}"
+    return f"python -m {module}" if module else None
+
+
 def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | None = None, prog: str | None = None) -> argparse.Namespace:
     """The common service options, plus those ``cls.add_arguments`` declares; ``prog`` names the command in
     the usage line (``python -m services.NAME`` unless run as ``cso-runtime service NAME``)."""
-    p = argparse.ArgumentParser(prog=prog or f"python -m services.{name}", description=f"cso-runtime {name} service")
+    p = argparse.ArgumentParser(prog=prog or default_prog(name, cls), description=f"cso-runtime {name} service")
     p.add_argument("--config", type=Path, default=None, help="Profile YAML (cso_runtime/profiles/*.yaml or your own); required unless --attach")
     p.add_argument("--robot", default=None, help="Robot id: namespaces every key (cso/<robot>/...); default r0, or the run's with --attach")
     p.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to (repeatable)")
@@ -617,7 +650,7 @@ def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | 
     dump_stacks_on_signal()  # a hang the launcher has to kill leaves its stacks in this log
     try:
         check_robot_id(args.robot)
-        profile, exploration, params = load_profile_for_service(args.config, cls.name)
+        profile, exploration, params = load_profile_for_service(args.config, cls.name, cls)
         params = cls.apply_arguments(args, dict(params))
         transport = TransportConfig(mode=args.mode, connect=list(args.connect), listen=list(args.listen))
         router = profile.get("router") if isinstance(profile.get("router"), dict) else {}

@@ -186,7 +186,7 @@ class SimService(Service):
         self.last_cmd: tuple[CmdVelMsg, float] | None = None
         self.started_s = time.monotonic()
         listed = list(ctx.profile.get("services") or {})
-        self.left_out_needed = set(missing_producers(listed)) if listed else set()
+        self.left_out_needed = set(missing_producers(listed, ctx.profile.get("services"))) if listed else set()
         """The services the episode needs that the profile leaves to other processes (``up --without policy``, or not
         listed: a shared policy server's; ``services.dataflow.missing_producers``, as the launcher's ``awaited``).
         Step 0 waits for them too: started without its policy, a lockstep episode re-published step 0 every
