@@ -190,6 +190,24 @@ def _use_weights(folder: Path) -> None:
         _fail(str(exc), 2)
 
 
+def _warn_of_unfed_inputs(prof: Profile) -> None:
+    """``up``: say which service reads a key that no service of the run publishes, nor one it leaves to another process:
+    a service of the user's own in place of a built-in one that does not publish all the built-in one did (a planner
+    without ``planner/feedback``) would leave the others waiting for it, a lockstep episode until it fails."""
+    from cso_runtime.keys import TOPICS  # noqa: PLC0415
+    from services.dataflow import nodes_of, unfed_inputs  # noqa: PLC0415
+
+    own = prof.own_services()
+    for name, topics in unfed_inputs(nodes_of([*prof.services, *prof.left_out_services()], prof.services)).items():
+        keys = ", ".join(TOPICS[t] for t in topics)
+        typer.echo(
+            f"warning: {name} reads {keys}, which no service of this run publishes"
+            + "".join(f"; services.{n} runs {spec}" for n, spec in own.items() if n != name)
+            + " (`cso-runtime dataflow` shows who publishes what)",
+            err=True,
+        )
+
+
 def _warn_of_weights_trained_otherwise(prof: Profile) -> None:
     """``up``: say when the policy service's learned weights were trained with another field of view than the
     profile's sensor (``--weights`` of a run of ``configs/train.yaml``, 360 degrees, on the LIMO's 180), or under other
@@ -711,6 +729,7 @@ def up_command(
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     _warn_of_weights_trained_otherwise(prof)
+    _warn_of_unfed_inputs(prof)
     if record_out is not None:
         from cso_runtime.recording import names_a_folder  # noqa: PLC0415
 

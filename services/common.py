@@ -10,7 +10,8 @@ Zenoh's network thread. Payloads that fail validation are logged and counted per
 crash the service. SIGINT/SIGTERM stop the loop; ``shutdown`` runs while the session is still open
 (last messages, e.g. the bridge's zero Twist); the ``with`` blocks close the session. A service with
 command-line options of its own declares them in ``add_arguments`` and folds them into its profile
-parameters in ``apply_arguments``.
+parameters in ``apply_arguments``. A service of the user's own is a subclass too, which a profile names in
+``services.<name>.class`` (docs/own-service.md).
 """
 
 from __future__ import annotations
@@ -130,7 +131,7 @@ def load_profile_for_service(path: Path, name: str, cls: type[Service] | None = 
 
 
 class Service:
-    """Base of the five services: inputs, handlers, publishing, health."""
+    """Base of every service, built in or of one's own (docs/own-service.md): inputs, handlers, publishing, health."""
 
     name: ClassVar[str] = ""
     inputs: ClassVar[dict[str, type[Message]]] = {}
@@ -144,6 +145,9 @@ class Service:
     ``class``). ``up`` checks the section against it before anything starts, as it does the built-in services'
     (``config.from_dict``: an unknown key or a bad value is refused), and the service gets it as ``self.params``.
     None: ``ctx.params``, the section as a mapping, unchecked."""
+    optional_inputs: ClassVar[tuple[str, ...]] = ()
+    """Inputs the service works without (the sim's ``cmd_vel_ahead``, a speed-up): ``up`` warns of any other input that no
+    service of the run publishes (``services.dataflow.unfed_inputs``)."""
     tick_period_s: ClassVar[float] = 0.2
     serves_latest: ClassVar[tuple[str, ...]] = ()
     """Topics whose latest accepted message (``keep_latest``) this service answers on
@@ -200,6 +204,10 @@ class Service:
         """Called once the session is open (late-joiner queries, queryables)."""
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        """Handle one input: ``msg``, of the type ``inputs`` gives for ``topic``, decoded and validated (a payload that
+        is not never comes here: it is logged and counted in ``rejected``), from robot ``robot`` (the service's own
+        unless it subscribes to every robot), received at ``received_s`` (``time.monotonic()``). One at a time; an
+        exception stops the service."""
         raise NotImplementedError
 
     def on_tick(self, now_s: float) -> None:

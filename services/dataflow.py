@@ -26,6 +26,8 @@ class Node:
     outputs: tuple[str, ...]
     spec: str = ""
     """The ``module.path:Attribute`` of a service of one's own (``services.<name>.class``); "" for a built-in one."""
+    optional: tuple[str, ...] = ()
+    """The inputs it works without (``Service.optional_inputs``)."""
 
     @property
     def label(self) -> str:
@@ -50,7 +52,7 @@ class Edge:
 def service_node(name: str, section: Any = None) -> Node:
     """The node of the service a profile runs as ``name`` with its section ``section`` (``class``: one of one's own)."""
     cls = profile_service_class(name, section)
-    return Node(name, tuple(cls.inputs), tuple(cls.outputs), own_class_spec(section) or "")
+    return Node(name, tuple(cls.inputs), tuple(cls.outputs), own_class_spec(section) or "", tuple(cls.optional_inputs))
 
 
 def nodes_of(service_names: list[str], sections: dict[str, Any] | None = None) -> list[Node]:
@@ -93,6 +95,17 @@ def unconnected(nodes: list[Node]) -> dict[str, list[str]]:
     """Inputs nobody in the profile publishes (node -> topics): fine for optional inputs, a hint otherwise."""
     published = {t for n in nodes for t in n.outputs}
     return {n.name: [t for t in n.inputs if t not in published] for n in nodes if any(t not in published for t in n.inputs)}
+
+
+def unfed_inputs(nodes: list[Node]) -> dict[str, list[str]]:
+    """The inputs that a service driving the episode needs and no node publishes (node -> topics): what a service of
+    one's own in place of a built-in one forgot to publish (a planner without ``planner_feedback``), which the others
+    would wait for. A listener's (no outputs) and the launcher's inputs only show things, and optional ones
+    (``Node.optional``) are not needed."""
+    published = {t for n in nodes for t in n.outputs}
+    drivers = [n for n in nodes if n.outputs and n.name != LAUNCHER]
+    unfed = {n.name: [t for t in n.inputs if t not in published and t not in n.optional] for n in drivers}
+    return {name: topics for name, topics in unfed.items() if topics}
 
 
 def missing_producers(service_names: list[str], sections: dict[str, Any] | None = None) -> list[str]:

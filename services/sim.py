@@ -142,6 +142,7 @@ class SimService(Service):
 
     name = "sim"
     inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
+    optional_inputs = ("cmd_vel_ahead",)  # a step ahead is a speed-up: without it the sim steps on cmd_vel
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     serves_latest = ("map",)
     tick_period_s = 0.02

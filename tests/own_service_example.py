@@ -6,7 +6,6 @@ from __future__ import annotations
 import csv
 import logging
 from dataclasses import dataclass
-from typing import Any, TextIO
 
 from cso_runtime.config import ConfigError
 from cso_runtime.geometry import Pose2D
@@ -43,13 +42,10 @@ class CoverageLogger(Service):
         super().__init__(ctx)  # sets self.params, a CoverageLogParams
         self.pose: Pose2D | None = None
         self.rows = 0
-        self.file: TextIO | None = None
-        self.writer: Any = None
 
     def start(self) -> None:
-        self.file = open(self.params.csv_path, "w", newline="")  # closed in shutdown
-        self.writer = csv.writer(self.file)
-        self.writer.writerow(["episode", "step", "explored_m2", "x_m", "y_m"])
+        with open(self.params.csv_path, "w", newline="") as fh:
+            csv.writer(fh).writerow(["episode", "step", "explored_m2", "x_m", "y_m"])
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         if isinstance(msg, OdometryMsg):
@@ -57,8 +53,8 @@ class CoverageLogger(Service):
         elif isinstance(msg, MapMsg) and msg.step % self.params.every_steps == 0:
             explored_m2 = float(msg.explored.sum()) * msg.geometry.resolution_m**2
             x_m, y_m = (self.pose.x_m, self.pose.y_m) if self.pose is not None else ("", "")
-            self.writer.writerow([msg.episode, msg.step, f"{explored_m2:.3f}", x_m, y_m])
-            self.file.flush()
+            with open(self.params.csv_path, "a", newline="") as fh:  # each row on disk at once
+                csv.writer(fh).writerow([msg.episode, msg.step, f"{explored_m2:.3f}", x_m, y_m])
             self.rows += 1
             self.last_step = msg.step  # `status` shows it
 
@@ -66,9 +62,7 @@ class CoverageLogger(Service):
         return {"rows": self.rows}  # `status` shows the service's own counts under it
 
     def shutdown(self) -> None:
-        if self.file is not None:
-            self.file.close()
-            log.info("wrote %d rows to %s", self.rows, self.params.csv_path)
+        log.info("wrote %d rows to %s", self.rows, self.params.csv_path)
 
 
 class OwnMapper(Service):

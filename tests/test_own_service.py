@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from cso_runtime.config import ConfigError
-from cso_runtime.messages import FrontiersMsg, GoalMsg
+from cso_runtime.messages import CmdVelMsg, FrontiersMsg, GoalMsg, OdometryMsg
 from cso_runtime.run_profile import load_profile
 from cso_runtime.supervision import pid_alive, python_module_argv
 from services.common import Service, _dispatch
@@ -35,6 +35,14 @@ class GoalNode(Service):
     name = "my_policy"
     inputs = {"frontiers": FrontiersMsg}
     outputs = {"goal": GoalMsg}
+
+
+class NoFeedbackPlanner(Service):
+    """A planner of one's own that forgets the frontier service's report (and the optional step ahead)."""
+
+    name = "planner"
+    inputs = {"odom": OdometryMsg, "goal": GoalMsg}
+    outputs = {"cmd_vel": CmdVelMsg}
 
 
 class Unnamed(Service):
@@ -121,6 +129,23 @@ def test_a_service_of_ones_own_that_cannot_run_is_refused_before_anything_starts
     with pytest.raises(ConfigError) as exc:
         load_profile(str(own_profile(tmp_path, section)))
     assert said in str(exc.value)
+
+
+def test_up_warns_of_an_input_that_a_service_in_place_of_a_builtin_one_no_longer_publishes():
+    """The frontier service reads ``planner/feedback``: a planner of one's own without it left a lockstep episode
+    waiting until it failed, with no word before. Optional inputs (the sim's step ahead) and what only the launcher
+    reads (the path) are not said; a shipped profile gets no warning."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    r = CliRunner().invoke(app, ["up", "--profile", "lockstep", "--set", "services.planner.class=tests.test_own_service:NoFeedbackPlanner", "--dry-run"])
+    assert r.exit_code == 0, r.output
+    warnings = [line for line in r.output.splitlines() if line.startswith("warning:")]
+    said = "warning: frontier reads planner/feedback, which no service of this run publishes; services.planner runs "
+    assert warnings == [f"{said}tests.test_own_service:NoFeedbackPlanner (`cso-runtime dataflow` shows who publishes what)"]
+    shipped = CliRunner().invoke(app, ["up", "--profile", "lockstep", "--dry-run", "--without", "planner"])
+    assert shipped.exit_code == 0 and "warning:" not in shipped.output, shipped.output
 
 
 def test_the_services_an_episode_waits_for_count_those_of_ones_own():
