@@ -109,9 +109,11 @@ def own_service_class(spec: str, name: str | None = None) -> type:
             raise ConfigError(f"{where} {spec!r}: {kind} must be a mapping of topic -> message type")
         for topic, msg_type in ports.items():
             if topic not in TOPICS:
+                by_key = {key: name for name, key in TOPICS.items()}
+                hint = f": key {topic} is topic {by_key[topic]!r}" if topic in by_key else ""
                 raise ConfigError(
-                    f"{where} {spec!r}: {kind} names topic {topic!r}, which is none of the runtime's topics "
-                    f"({', '.join(TOPICS)}; docs/messages.md)"
+                    f"{where} {spec!r}: {kind} names topic {topic!r}, which is none of the runtime's topics{hint} "
+                    f"({', '.join(TOPICS)}; docs/own-service.md)"
                 )
             if not (isinstance(msg_type, type) and issubclass(msg_type, Message)):
                 raise ConfigError(f"{where} {spec!r}: {kind}[{topic!r}] must be a message class of cso_runtime.messages, got {msg_type!r}")

@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from cso_runtime.config import ConfigError
-from cso_runtime.messages import CmdVelMsg, FrontiersMsg, GoalMsg, OdometryMsg
+from cso_runtime.messages import CmdVelMsg, FrontiersMsg, GoalMsg, OdometryMsg, PlannerFeedbackMsg
 from cso_runtime.run_profile import load_profile
 from cso_runtime.supervision import pid_alive, python_module_argv
 from services.common import Service, _dispatch
@@ -54,6 +54,13 @@ class OffTopic(Service):
 
     name = "off_topic"
     inputs = {"coverage": GoalMsg}
+
+
+class KeyNotTopic(Service):
+    """A service that names a key where a topic's name goes."""
+
+    name = "key_not_topic"
+    inputs = {"planner/feedback": PlannerFeedbackMsg}
 
 
 def own_profile(tmp_path: Path, services: dict) -> Path:
@@ -120,6 +127,7 @@ def test_up_runs_services_of_ones_own_beside_and_in_place_of_the_builtin_ones(tm
         ({"mapper": {"class": LOGGER}}, "to stand in for the built-in mapper, set its name to 'mapper'"),
         ({"x": {"class": "tests.test_own_service:Unnamed"}}, "its name: a service's name must be 1-64 letters"),
         ({"off_topic": {"class": "tests.test_own_service:OffTopic"}}, "inputs names topic 'coverage', which is none of the runtime's topics"),
+        ({"key_not_topic": {"class": "tests.test_own_service:KeyNotTopic"}}, "key planner/feedback is topic 'planner_feedback'"),
         ({"coverage_logger": {"class": LOGGER, "every_steps": 0}}, "services.coverage_logger: every_steps must be at least 1"),
         ({"coverage_logger": {"class": LOGGER, "csv": "x.csv"}}, "csv"),
         ({"sim": {"class": MAPPER}}, "the built-in sim cannot be replaced"),
@@ -203,3 +211,13 @@ def test_the_docs_example_is_the_code_the_tests_run():
     source = (REPO / "tests" / "own_service_example.py").read_text(encoding="utf-8")
     for example in examples:
         assert example in source, example[:200]
+
+
+def test_the_docs_table_of_topics_keys_and_message_classes_is_the_runtimes():
+    from cso_runtime.keys import TOPICS
+    from services import SERVICE_NAMES, service_class
+
+    published = {topic: cls.__name__ for name in SERVICE_NAMES for topic, cls in service_class(name).outputs.items()}
+    text = (REPO / "docs" / "own-service.md").read_text(encoding="utf-8")
+    rows = re.findall(r"^  \| `(\w+)` \| `([\w/]+)` \| `(\w+)` \|$", text, flags=re.MULTILINE)
+    assert {topic: (key, cls) for topic, key, cls in rows} == {topic: (key, published[topic]) for topic, key in TOPICS.items()}
