@@ -3,8 +3,8 @@
 A profile (``cso_runtime.run_profile``) lists the services and their parameters, the scene, the method and the
 Zenoh endpoints, like a dora-rs dataflow file; it is validated completely before anything starts. The launcher opens a Zenoh
 session in router mode on loopback (no external router to install; ``--connect`` joins other routers,
-e.g. a LIMO's zenoh-bridge-ros2dds), spawns ``python -m services.<name>`` per service with its own
-process group and log file in ``runs/<run-id>/logs/``, restarts a crashed service with exponential
+e.g. a LIMO's zenoh-bridge-ros2dds), spawns ``python -m services.<name>`` per service (``python -m services
+module.path:Attribute`` for a service of one's own, docs/own-service.md) with its own process group and log file in ``runs/<run-id>/logs/``, restarts a crashed service with exponential
 back-off (and gives up after ``max_restarts``, saying so), keeps the latest goal for restarted
 services (the referee, sim or ros2_bridge, keeps the latest map), shows a live view, optionally
 records every ``cso/<robot>/**`` message to MCAP on its own session (``--record``), and writes the
