@@ -190,6 +190,24 @@ def _use_weights(folder: Path) -> None:
         _fail(str(exc), 2)
 
 
+def _warn_of_unfed_inputs(prof: Profile) -> None:
+    """``up``: say which service reads a key that no service of the run publishes, nor one it leaves to another process:
+    a service of the user's own in place of a built-in one that does not publish all the built-in one did (a planner
+    without ``planner/feedback``) would leave the others waiting for it, a lockstep episode until it fails."""
+    from cso_runtime.keys import TOPICS  # noqa: PLC0415
+    from services.dataflow import nodes_of, unfed_inputs  # noqa: PLC0415
+
+    own = prof.own_services()
+    for name, topics in unfed_inputs(nodes_of([*prof.services, *prof.left_out_services()], prof.services)).items():
+        keys = ", ".join(TOPICS[t] for t in topics)
+        typer.echo(
+            f"warning: {name} reads {keys}, which no service of this run publishes"
+            + "".join(f"; services.{n} runs {spec}" for n, spec in own.items() if n != name)
+            + " (`cso-runtime dataflow` shows who publishes what)",
+            err=True,
+        )
+
+
 def _warn_of_weights_trained_otherwise(prof: Profile) -> None:
     """``up``: say when the policy service's learned weights were trained with another field of view than the
     profile's sensor (``--weights`` of a run of ``configs/train.yaml``, 360 degrees, on the LIMO's 180), or under other
@@ -628,17 +646,19 @@ def scenes_command(
 @app.command("service", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, add_help_option=False, rich_help_panel="Runtime (Zenoh services)")
 def service_command(
     ctx: typer.Context,
-    name: str | None = typer.Argument(None, help="sim, mapper, frontier, policy, planner, ros2_bridge or foxglove_bridge"),
+    name: str | None = typer.Argument(
+        None, help="sim, mapper, frontier, policy, planner, ros2_bridge or foxglove_bridge, or a service of your own as module.path:Attribute (docs/own-service.md)"
+    ),
 ) -> None:
-    """Run one service in this process (same as python -m services.NAME; pass --config FILE --robot ID --connect EP; `service NAME --help` lists that service's options)."""
-    from services import service_class  # noqa: PLC0415
+    """Run one service in this process (same as python -m services.NAME; pass --config FILE --robot ID --connect EP, or --attach; `service NAME --help` lists that service's options)."""
+    from services import command_service_class  # noqa: PLC0415
     from services.common import service_main  # noqa: PLC0415
 
     if name is None or name in ("-h", "--help"):  # --help goes on to the service: its own options are there
         typer.echo(ctx.get_help())
         raise typer.Exit(0 if name else 2)
     try:
-        cls = service_class(name)
+        cls = command_service_class(name)
     except ValueError as exc:
         _fail(str(exc), 2)
     raise typer.Exit(service_main(cls, list(ctx.args), prog=f"cso-runtime service {name}"))
@@ -709,6 +729,7 @@ def up_command(
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     _warn_of_weights_trained_otherwise(prof)
+    _warn_of_unfed_inputs(prof)
     if record_out is not None:
         from cso_runtime.recording import names_a_folder  # noqa: PLC0415
 
@@ -914,7 +935,7 @@ def dataflow_command(
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     outside = prof.left_out_services()
-    nodes = nodes_of([*prof.services, *outside])
+    nodes = nodes_of([*prof.services, *outside], prof.services)
     if fmt == "mermaid":
         typer.echo(to_mermaid(nodes, outside), nl=False)
         return
@@ -927,10 +948,11 @@ def dataflow_command(
     table = Table(title=f"profile {prof.name}: keys under cso/{prof.robot}/")
     for col in ("node", "inputs (from)", "outputs (to)"):
         table.add_column(col)
+    labels = {n.name: n.label for n in nodes}
     for w in wiring_of(nodes):
         ins = "\n".join(f"{key} <- {', '.join(peers) or '(none)'}" for key, peers in w.inputs)
         outs = "\n".join(f"{key} -> {', '.join(peers) or '(none)'}" for key, peers in w.outputs)
-        table.add_row(f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else w.name, ins or "-", outs or "-")
+        table.add_row(f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else labels[w.name], ins or "-", outs or "-")
     Console().print(table)
     for name, topics in unconnected(nodes).items():
         typer.echo(f"note: nothing in this profile publishes {', '.join(TOPICS[t] for t in topics)} for {name}")

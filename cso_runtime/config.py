@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import importlib
 import math
 import re
 import tempfile
@@ -391,6 +392,33 @@ def _key_where(where: str, key: str) -> str:
     profile named with the flags that changed it), ``masks.beta_far_m`` below them."""
     is_file = where.endswith((".yaml", ".yml")) or " with --" in where
     return f"{where}: {key}" if is_file and ": " not in where else f"{where}.{key}"
+
+
+def import_attribute(spec: str, what: str, example: str) -> object:
+    """The object ``module.path:Attribute`` names, imported as uvicorn or an entry point would (a goal selector of
+    one's own, a service of one's own); ConfigError naming ``what`` (``method 'x:Y'``) and which part is wrong, with
+    ``example`` as the spelling to follow."""
+    module_name, _, attribute = spec.partition(":")
+    if not module_name or not attribute:
+        raise ConfigError(f"{what}: {example}")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(
+            f"{what}: cannot import module {module_name!r} ({type(exc).__name__}: {exc}); the module must be importable "
+            "by the Python that runs cso-runtime: on PYTHONPATH (e.g. PYTHONPATH=/path/to/the/folder/above/it) or installed"
+        ) from None
+    except Exception as exc:  # the user's module fails as it runs: say where, not only a traceback
+        raise ConfigError(f"{what}: importing module {module_name!r} failed: {type(exc).__name__}: {exc}") from exc
+    found: object = module
+    where = module_name
+    for part in attribute.split("."):
+        if not hasattr(found, part):
+            names = [n for n in dir(found) if not n.startswith("_")]
+            raise ConfigError(f"{what}: {where} has no attribute {with_nearest(part, names, shown=repr(part))}")
+        found = getattr(found, part)
+        where = f"{where}.{part}"
+    return found
 
 
 def with_nearest(key: str, known: typing.Iterable[str], shown: str | None = None) -> str:

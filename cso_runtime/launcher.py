@@ -3,8 +3,8 @@
 A profile (``cso_runtime.run_profile``) lists the services and their parameters, the scene, the method and the
 Zenoh endpoints, like a dora-rs dataflow file; it is validated completely before anything starts. The launcher opens a Zenoh
 session in router mode on loopback (no external router to install; ``--connect`` joins other routers,
-e.g. a LIMO's zenoh-bridge-ros2dds), spawns ``python -m services.<name>`` per service with its own
-process group and log file in ``runs/<run-id>/logs/``, restarts a crashed service with exponential
+e.g. a LIMO's zenoh-bridge-ros2dds), spawns ``python -m services.<name>`` per service (``python -m services
+module.path:Attribute`` for a service of one's own, docs/own-service.md) with its own process group and log file in ``runs/<run-id>/logs/``, restarts a crashed service with exponential
 back-off (and gives up after ``max_restarts``, saying so), keeps the latest goal for restarted
 services (the referee, sim or ros2_bridge, keeps the latest map), shows a live view, optionally
 records every ``cso/<robot>/**`` message to MCAP on its own session (``--record``), and writes the
@@ -508,7 +508,9 @@ class Launcher:
             if self.stop_event.is_set():  # stopped while the first ones started: no more of them to start and stop
                 break
             mode = self.profile.router.service_mode
-            argv = [*python_module_argv(f"services.{name}"), "--config", str(self.profile_path), "--robot", self.profile.robot, "--mode", mode]
+            own = self.profile.own_services().get(name)  # a class of the user's own: `python -m services module.path:Attribute`
+            command = [*python_module_argv("services"), own] if own else python_module_argv(f"services.{name}")
+            argv = [*command, "--config", str(self.profile_path), "--robot", self.profile.robot, "--mode", mode]
             for ep in self.endpoints:
                 argv += ["--connect", ep]
             if mode == "peer":
@@ -518,7 +520,7 @@ class Launcher:
             child = Child(name, argv, self.run_dir / "logs" / f"{name}.log")
             child.spawn()
             self.children.append(child)
-            log.info("started %s (pid %d)", name, child.proc.pid if child.proc else -1)
+            log.info("started %s (%spid %d)", name, f"{own}, " if own else "", child.proc.pid if child.proc else -1)
         if "foxglove_bridge" in self.service_notes:
             log.info("%s (Open connection -> Foxglove WebSocket)", self.service_notes["foxglove_bridge"])
         for name in self.left_out:
@@ -884,7 +886,7 @@ class Launcher:
         """``dataflow.md``: who feeds whom in this run (Mermaid graph and table), from the services' declarations."""
         from services.dataflow import nodes_of, to_markdown  # noqa: PLC0415 - services import zenoh
 
-        nodes = nodes_of([*self.profile.services, *self.left_out])
+        nodes = nodes_of([*self.profile.services, *self.left_out], self.profile.services)
         (self.run_dir / "dataflow.md").write_text(to_markdown(self.profile.name, nodes, outside=self.left_out))
 
     def robot_already_served(self, session: Any, timeout_s: float = 1.0) -> str:

@@ -6,14 +6,13 @@ learned CSO policy implements the same Protocol, so every caller treats them ali
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from cso_runtime.config import ConfigError, MaskConfig, SensorConfig, with_nearest
+from cso_runtime.config import ConfigError, MaskConfig, SensorConfig, import_attribute, with_nearest
 from cso_runtime.masks import StuckMask, valid_distance_mask
 from cso_runtime.observation import Observation
 
@@ -307,27 +306,9 @@ def own_method_spec(name: str) -> str | None:
 def own_selector_factory(spec: str) -> Callable[[], object]:
     """The object ``module.path:Attribute`` names (a GoalSelector class or a zero-argument function returning one),
     imported as uvicorn or an entry point would; ConfigError saying which part is wrong."""
-    module_name, _, attribute = spec.partition(":")
-    if not module_name or not attribute:
-        raise ConfigError(f"method {spec!r}: a method of your own is written module.path:Attribute (e.g. my_package.selectors:Nearest)")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise ConfigError(
-            f"method {spec!r}: cannot import module {module_name!r} ({type(exc).__name__}: {exc}); the module must be importable "
-            "by the Python that runs cso-runtime: on PYTHONPATH (e.g. PYTHONPATH=/path/to/the/folder/above/it) or installed"
-        ) from None
-    except Exception as exc:  # the user's module fails as it runs: say where, not only a traceback
-        raise ConfigError(f"method {spec!r}: importing module {module_name!r} failed: {type(exc).__name__}: {exc}") from exc
-    found: object = module
-    where = module_name
-    for part in attribute.split("."):
-        if not hasattr(found, part):
-            names = [n for n in dir(found) if not n.startswith("_")]
-            raise ConfigError(f"method {spec!r}: {where} has no attribute {with_nearest(part, names, shown=repr(part))}")
-        found = getattr(found, part)
-        where = f"{where}.{part}"
+    found = import_attribute(spec, f"method {spec!r}", "a method of your own is written module.path:Attribute (e.g. my_package.selectors:Nearest)")
     if not callable(found):
+        where = spec.replace(":", ".")
         raise ConfigError(f"method {spec!r}: {where} is a {type(found).__name__}, not a GoalSelector class or a function that returns one")
     return found
 

@@ -176,7 +176,7 @@ class Profile:
         says the episode waits while no process serves one of them."""
         from services.dataflow import missing_producers  # noqa: PLC0415 - services import zenoh
 
-        return missing_producers(list(self.services))
+        return missing_producers(list(self.services), self.services)
 
     def left_out_services(self) -> list[str]:
         """The services of this robot that the run leaves to another process: ``without`` and the awaited ones.
@@ -184,10 +184,23 @@ class Profile:
         profile that leaves its policy out reads the same whether it says so in ``without`` or not."""
         return list(dict.fromkeys([*self.without, *self.awaited_services()]))
 
+    def own_services(self) -> dict[str, str]:
+        """Service name -> the ``module.path:Attribute`` of the class of one's own the run starts under it
+        (``services.<name>.class``: beside the built-in services, or in place of one; docs/own-service.md)."""
+        from services import own_class_spec  # noqa: PLC0415 - services import zenoh
+
+        return {name: spec for name, section in self.services.items() if (spec := own_class_spec(section)) is not None}
+
+    def builtin_params(self, name: str) -> dict[str, Any]:
+        """The parameters of the built-in service ``name`` as the profile gives them; empty when the profile does not
+        run it, or runs a class of its own in its place (whose parameters mean what that class says)."""
+        section = self.services.get(name)
+        return section if isinstance(section, dict) and name not in self.own_services() else {}
+
     @property
     def policy_method(self) -> str:
         """The goal selector the policy service runs: its own ``services.policy.method``, else the profile's ``method``."""
-        return (self.services.get("policy") or {}).get("method") or self.method
+        return self.builtin_params("policy").get("method") or self.method
 
     def validate(self) -> None:
         check_robot_id(self.robot)
@@ -195,19 +208,11 @@ class Profile:
         if not self.progress_log_s >= 0:
             raise ConfigError(f"progress_log_s must be >= 0 seconds, got {self.progress_log_s}")
         self.exploration_config()
-        from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
+        from services import SERVICE_NAMES, check_profile_service  # noqa: PLC0415 - services import zenoh
         if not self.services:
             raise ConfigError("a profile must list at least one service")
         for name, params in self.services.items():
-            if name not in SERVICE_NAMES:
-                raise ConfigError(f"services: unknown service {name!r}; known: {', '.join(SERVICE_NAMES)}")
-            if params is not None and not isinstance(params, dict):
-                raise ConfigError(f"services.{name}: expected a mapping of parameters")
-            params_cls = params_class(name)
-            if params_cls is not None:
-                from_dict(params_cls, params or {}, where=f"services.{name}")
-            elif params:
-                raise ConfigError(f"services.{name}: takes no parameters, got {', '.join(params)}")
+            check_profile_service(name, params)
         referees = [name for name in REFEREES if name in self.services]
         if len(referees) > 1:  # a `--set services.sim.PARAM=...` on a robot's profile adds a sim beside its bridge
             raise ConfigError(
@@ -226,7 +231,7 @@ class Profile:
                 raise ConfigError(f"without: {name} is also in services; a service is either started by the run or left out of it")
             if name in REFEREES:
                 raise ConfigError(f"without: {name} owns the episode (its status and end); a run cannot go without it")
-        mapper = self.services.get("mapper") or {}
+        mapper = self.builtin_params("mapper")
         if "sim" in self.services and float(mapper.get("resolution_m") or 0) > 0:
             raise ConfigError(
                 "services.mapper.resolution_m: an explicit grid is for a real robot's arena (ros2_bridge); with the sim the mapper "
@@ -257,14 +262,15 @@ class Profile:
         from cso_runtime.policies import LEARNED_METHODS, available_methods, check_method, weights_held_said  # noqa: PLC0415
 
         check_method(self.method)  # a method of the user's own is imported and built here, as the policy service will
-        policy = self.services.get("policy") or {}
+        policy = self.builtin_params("policy")
         method = self.policy_method
-        if method != self.method:
+        own_policy = "policy" in self.own_services()  # a policy of the user's own decides as it will: no method of ours runs
+        if method != self.method and not own_policy:
             try:
                 check_method(method)
             except ConfigError as exc:
                 raise ConfigError(f"services.policy.method: {exc}") from None
-        if method in LEARNED_METHODS:
+        if method in LEARNED_METHODS and not own_policy:
             from cso_runtime.learned.weights import weights_file_problem, weights_path  # noqa: PLC0415
 
             sensor = self.exploration_config().sensor
@@ -428,7 +434,7 @@ def set_zenoh_config(data: dict[str, Any], path: Path, zenoh_config: str | None)
 
 def leave_out(data: dict[str, Any], names: list[str], path: Path, foxglove: bool = False) -> None:
     """Move ``names`` from the profile mapping's ``services`` to its ``without`` list (``up --without``), in the
-    profile's order; a ConfigError (nothing started) for a name that is no service, one the profile does not
+    profile's order (a service of the profile's own that stands for no built-in one is only dropped); a ConfigError (nothing started) for a name that is no service, one the profile does not
     have, a referee (the episode cannot run without it) or the ``foxglove_bridge`` that ``--foxglove`` asks for."""
     from services import SERVICE_NAMES  # noqa: PLC0415 - services import zenoh
 
@@ -436,8 +442,8 @@ def leave_out(data: dict[str, Any], names: list[str], path: Path, foxglove: bool
     if not isinstance(services, dict):
         raise ConfigError(f"{path}: services must be a mapping")
     for name in names:
-        if name not in SERVICE_NAMES:
-            raise ConfigError(f"--without {name}: no such service; known: {', '.join(SERVICE_NAMES)}")
+        if name not in SERVICE_NAMES and name not in services:
+            raise ConfigError(f"--without {name}: no such service; known: {', '.join(SERVICE_NAMES)}, and the profile's own: {', '.join(n for n in services if n not in SERVICE_NAMES) or 'none'}")
         if name in REFEREES:
             raise ConfigError(f"--without {name}: {name} owns the episode (its status and end); a run cannot go without it")
         if name == "foxglove_bridge" and foxglove:
@@ -447,5 +453,7 @@ def leave_out(data: dict[str, Any], names: list[str], path: Path, foxglove: bool
     earlier = data.get("without") or []
     if not isinstance(earlier, list):
         raise ConfigError(f"{path}: without must be a list of service names")
-    data["without"] = [*earlier, *(n for n in services if n in names)]
+    # A service of the profile's own that no built-in one stands for is simply not run: nothing else waits for it, and
+    # the run's profile.yaml has no class left to draw it by; a built-in one is left to another process (``without``).
+    data["without"] = [*earlier, *(n for n in services if n in names and n in SERVICE_NAMES)]
     data["services"] = {n: p for n, p in services.items() if n not in names}

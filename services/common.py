@@ -10,7 +10,8 @@ Zenoh's network thread. Payloads that fail validation are logged and counted per
 crash the service. SIGINT/SIGTERM stop the loop; ``shutdown`` runs while the session is still open
 (last messages, e.g. the bridge's zero Twist); the ``with`` blocks close the session. A service with
 command-line options of its own declares them in ``add_arguments`` and folds them into its profile
-parameters in ``apply_arguments``.
+parameters in ``apply_arguments``. A service of the user's own is a subclass too, which a profile names in
+``services.<name>.class`` (docs/own-service.md).
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ from cso_runtime.config import (
     LOG_FORMAT,
     ConfigError,
     ExplorationConfig,
+    from_dict,
     load_yaml,
 )
 from cso_runtime.geometry import GridGeometry, Pose2D
@@ -107,8 +109,12 @@ class ServiceContext:
         return bool(self.profile.get("lockstep", False))
 
 
-def load_profile_for_service(path: Path, name: str) -> tuple[dict[str, Any], ExplorationConfig, dict[str, Any]]:
-    """The profile mapping, its exploration config and this service's parameter section."""
+def load_profile_for_service(path: Path, name: str, cls: type[Service] | None = None) -> tuple[dict[str, Any], ExplorationConfig, dict[str, Any]]:
+    """The profile mapping, its exploration config and this service's parameter section (without the ``class`` that
+    picks a service of one's own). ``cls``: the class about to run as ``name``; a ConfigError when it is the built-in
+    one and the profile runs a class of its own in its place (it would serve the robot beside the profile's)."""
+    from services import SERVICE_NAMES, own_class_spec, service_params  # noqa: PLC0415
+
     profile = load_yaml(path)
     services = profile.get("services") or {}
     if not isinstance(services, dict):
@@ -118,11 +124,14 @@ def load_profile_for_service(path: Path, name: str) -> tuple[dict[str, Any], Exp
     params = services.get(name) or {}
     if not isinstance(params, dict):
         raise ConfigError(f"{path}: services.{name} must be a mapping")
-    return profile, exploration, params
+    spec = own_class_spec(params)
+    if spec is not None and cls is not None and name in SERVICE_NAMES and module_of(cls) == f"services.{name}":
+        raise ConfigError(f"{path}: the profile runs {spec} as its {name}, not the built-in one: start it with `cso-runtime service {spec}`")
+    return profile, exploration, service_params(params)
 
 
 class Service:
-    """Base of the five services: inputs, handlers, publishing, health."""
+    """Base of every service, built in or of one's own (docs/own-service.md): inputs, handlers, publishing, health."""
 
     name: ClassVar[str] = ""
     inputs: ClassVar[dict[str, type[Message]]] = {}
@@ -131,6 +140,14 @@ class Service:
     outputs: ClassVar[dict[str, type[Message]]] = {}
     """Topic name -> the message type this service publishes there. With ``inputs`` it is the service's
     node in the dataflow (``cso-runtime dataflow``); ``publish`` refuses anything not declared here."""
+    params_class: ClassVar[type | None] = None
+    """A service of one's own: the dataclass of its parameters (its profile section, ``services.<name>``, less
+    ``class``). ``up`` checks the section against it before anything starts, as it does the built-in services'
+    (``config.from_dict``: an unknown key or a bad value is refused), and the service gets it as ``self.params``.
+    None: ``ctx.params``, the section as a mapping, unchecked."""
+    optional_inputs: ClassVar[tuple[str, ...]] = ()
+    """Inputs the service works without (the sim's ``cmd_vel_ahead``, a speed-up): ``up`` warns of any other input that no
+    service of the run publishes (``services.dataflow.unfed_inputs``)."""
     tick_period_s: ClassVar[float] = 0.2
     serves_latest: ClassVar[tuple[str, ...]] = ()
     """Topics whose latest accepted message (``keep_latest``) this service answers on
@@ -139,6 +156,8 @@ class Service:
 
     def __init__(self, ctx: ServiceContext) -> None:
         self.ctx = ctx
+        if self.params_class is not None:
+            self.params = from_dict(self.params_class, ctx.params, where=f"services.{ctx.name}")
         self.session: zenoh.Session | None = None
         self.subscribe_robot = ctx.robot
         """Robot id whose inputs are subscribed; ``*`` serves every robot on the network."""
@@ -185,6 +204,10 @@ class Service:
         """Called once the session is open (late-joiner queries, queryables)."""
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        """Handle one input: ``msg``, of the type ``inputs`` gives for ``topic``, decoded and validated (a payload that
+        is not never comes here: it is logged and counted in ``rejected``), from robot ``robot`` (the service's own
+        unless it subscribes to every robot), received at ``received_s`` (``time.monotonic()``). One at a time; an
+        exception stops the service."""
         raise NotImplementedError
 
     def on_tick(self, now_s: float) -> None:
@@ -565,10 +588,28 @@ LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL")
 """What a service's ``--log-level`` takes, in any case."""
 
 
+def module_of(cls: type) -> str | None:
+    """The module ``cls`` is defined in, by the name it is imported as: ``services.mapper`` also when it runs as
+    ``python -m services.mapper`` (where it is ``__main__``); None for a class of a script run as a file."""
+    module = cls.__module__
+    if module != "__main__":
+        return module
+    spec = getattr(sys.modules.get("__main__"), "__spec__", None)
+    return spec.name if spec is not None else None
+
+
+def default_prog(name: str, cls: type[Service] | None) -> str | None:
+    """How a service's usage line names its command when not run as ``cso-runtime service``: ``python -m services.NAME``
+    for a built-in one, ``python -m MODULE`` for a class of one's own in a module, the script's own name (argparse's
+    default, None) for one run as a script."""
+    module = module_of(cls) if cls is not None else f"services.{name}"
+    return f"python -m {module}" if module else None
+
+
 def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | None = None, prog: str | None = None) -> argparse.Namespace:
     """The common service options, plus those ``cls.add_arguments`` declares; ``prog`` names the command in
     the usage line (``python -m services.NAME`` unless run as ``cso-runtime service NAME``)."""
-    p = argparse.ArgumentParser(prog=prog or f"python -m services.{name}", description=f"cso-runtime {name} service")
+    p = argparse.ArgumentParser(prog=prog or default_prog(name, cls), description=f"cso-runtime {name} service")
     p.add_argument("--config", type=Path, default=None, help="Profile YAML (cso_runtime/profiles/*.yaml or your own); required unless --attach")
     p.add_argument("--robot", default=None, help="Robot id: namespaces every key (cso/<robot>/...); default r0, or the run's with --attach")
     p.add_argument("--connect", action="append", default=[], help="Zenoh endpoint to connect to (repeatable)")
@@ -617,7 +658,7 @@ def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | 
     dump_stacks_on_signal()  # a hang the launcher has to kill leaves its stacks in this log
     try:
         check_robot_id(args.robot)
-        profile, exploration, params = load_profile_for_service(args.config, cls.name)
+        profile, exploration, params = load_profile_for_service(args.config, cls.name, cls)
         params = cls.apply_arguments(args, dict(params))
         transport = TransportConfig(mode=args.mode, connect=list(args.connect), listen=list(args.listen))
         router = profile.get("router") if isinstance(profile.get("router"), dict) else {}

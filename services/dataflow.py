@@ -9,9 +9,10 @@ the code (``publish`` refuses an undeclared output, and a test holds docs/messag
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from cso_runtime.keys import TOPICS
-from services import SERVICE_NAMES, service_class
+from services import SERVICE_NAMES, own_class_spec, profile_service_class
 
 LAUNCHER = "launcher"
 
@@ -23,6 +24,15 @@ class Node:
     name: str
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
+    spec: str = ""
+    """The ``module.path:Attribute`` of a service of one's own (``services.<name>.class``); "" for a built-in one."""
+    optional: tuple[str, ...] = ()
+    """The inputs it works without (``Service.optional_inputs``)."""
+
+    @property
+    def label(self) -> str:
+        """The node's name, with the class of one's own it runs (``mapper (my_nodes:MyMapper)``)."""
+        return f"{self.name} ({self.spec})" if self.spec else self.name
 
 
 @dataclass(frozen=True)
@@ -39,11 +49,18 @@ class Edge:
         return TOPICS[self.topic]
 
 
-def nodes_of(service_names: list[str]) -> list[Node]:
-    """The nodes of a profile's services (in profile order), and the launcher that watches them."""
+def service_node(name: str, section: Any = None) -> Node:
+    """The node of the service a profile runs as ``name`` with its section ``section`` (``class``: one of one's own)."""
+    cls = profile_service_class(name, section)
+    return Node(name, tuple(cls.inputs), tuple(cls.outputs), own_class_spec(section) or "", tuple(cls.optional_inputs))
+
+
+def nodes_of(service_names: list[str], sections: dict[str, Any] | None = None) -> list[Node]:
+    """The nodes of a profile's services (in profile order), and the launcher that watches them; ``sections``: the
+    profile's ``services`` mapping, where a service of one's own names its class (the others are the built-in ones)."""
     from cso_runtime.launcher import LAUNCHER_INPUTS  # noqa: PLC0415
 
-    out = [Node(name, tuple(service_class(name).inputs), tuple(service_class(name).outputs)) for name in service_names]
+    out = [service_node(name, (sections or {}).get(name)) for name in service_names]
     return [*out, Node(LAUNCHER, tuple(LAUNCHER_INPUTS), ())]
 
 
@@ -80,20 +97,35 @@ def unconnected(nodes: list[Node]) -> dict[str, list[str]]:
     return {n.name: [t for t in n.inputs if t not in published] for n in nodes if any(t not in published for t in n.inputs)}
 
 
-def missing_producers(service_names: list[str]) -> list[str]:
+def unfed_inputs(nodes: list[Node]) -> dict[str, list[str]]:
+    """The inputs that a service driving the episode needs and no node publishes (node -> topics): what a service of
+    one's own in place of a built-in one forgot to publish (a planner without ``planner_feedback``), which the others
+    would wait for. A listener's (no outputs) and the launcher's inputs only show things, and optional ones
+    (``Node.optional``) are not needed."""
+    published = {t for n in nodes for t in n.outputs}
+    drivers = [n for n in nodes if n.outputs and n.name != LAUNCHER]
+    unfed = {n.name: [t for t in n.inputs if t not in published and t not in n.optional] for n in drivers}
+    return {name: topics for name, topics in unfed.items() if topics}
+
+
+def missing_producers(service_names: list[str], sections: dict[str, Any] | None = None) -> list[str]:
     """The services an episode of ``service_names`` waits for that none of them is, in ``SERVICE_NAMES`` order: the
     one service that publishes an input of theirs which none of them publishes (a profile with no policy: the
     goals of the planner and the frontier service), and so on for that service's own inputs. A listener (no
     outputs: the foxglove bridge) drives nothing, so its inputs are not waited for; a topic that several services
-    can publish (the referee's scan: the sim's or a ros2_bridge's) names none, as which one is the robot's to say."""
+    can publish (the referee's scan: the sim's or a ros2_bridge's) names none, as which one is the robot's to say.
+    ``sections``: the profile's ``services`` mapping, whose services of one's own (``class``) are taken with the
+    inputs and outputs they declare (a goal selector of one's own under its own name publishes the goals)."""
     every = {n.name: n for n in nodes_of(list(SERVICE_NAMES)) if n.name != LAUNCHER}
+    every.update((name, service_node(name, section)) for name, section in (sections or {}).items() if name in service_names and own_class_spec(section))
+    builtin_publishers = {t: [n for n in SERVICE_NAMES if t in every[n].outputs] for t in TOPICS}
     publishers = {t: [n.name for n in every.values() if t in n.outputs] for t in TOPICS}
     have, todo, missing = set(service_names), list(service_names), []
     while todo:
         node = every[todo.pop()]
         for topic in node.inputs if node.outputs else ():
-            if not have.intersection(publishers[topic]) and len(publishers[topic]) == 1:
-                name = publishers[topic][0]
+            if not have.intersection(publishers[topic]) and len(builtin_publishers[topic]) == 1:
+                name = builtin_publishers[topic][0]
                 have.add(name)
                 todo.append(name)
                 missing.append(name)
@@ -116,6 +148,8 @@ def to_mermaid(nodes: list[Node], outside: list[str] | tuple[str, ...] = ()) -> 
             lines.append(f"  {n.name}([{n.name}])")
         elif n.name in outside:
             lines.append(f'  {n.name}["{n.name} ({OUTSIDE_NOTE})"]')
+        elif n.spec:
+            lines.append(f'  {n.name}["{n.label}"]')
         else:
             lines.append(f"  {n.name}[{n.name}]")
     lines += [f'  {src} -->|"{", ".join(keys)}"| {dst}' for (src, dst), keys in labels.items()]
@@ -128,10 +162,11 @@ def to_markdown(profile_name: str, nodes: list[Node], outside: list[str] | tuple
     """``dataflow.md`` of a run: the Mermaid graph and a table of each node's inputs and outputs; the nodes in
     ``outside`` are the services the run left out (``Profile.left_out_services``), which another process is to serve."""
     rows = []
+    labels = {n.name: n.label for n in nodes}
     for w in wiring_of(nodes):
         ins = ", ".join(f"`{key}` ({', '.join(peers) or 'none in this profile'})" for key, peers in w.inputs)
         outs = ", ".join(f"`{key}` ({', '.join(peers) or 'no subscriber in this profile'})" for key, peers in w.outputs)
-        name = f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else w.name
+        name = f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else labels[w.name]
         rows.append(f"| {name} | {ins or '-'} | {outs or '-'} |")
     left_out = (
         [f"Left out of this run (`up --without`, or not in the profile and needed), served by another process: {', '.join(f'`{n}`' for n in outside)}.", ""]

@@ -78,6 +78,7 @@ class PlannerService(Service):
     name = "planner"
     inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": PlannerFrontiersMsg, "distance_map": DistanceMapMsg, "goal": GoalMsg}
     outputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg}
+    optional_inputs = ("distance_map",)  # without D the planner runs its own fast-marching pass (the same path)
     tick_period_s = 0.1
 
     def __init__(self, ctx: ServiceContext) -> None:

@@ -142,6 +142,7 @@ class SimService(Service):
 
     name = "sim"
     inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
+    optional_inputs = ("cmd_vel_ahead",)  # a step ahead is a speed-up: without it the sim steps on cmd_vel
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     serves_latest = ("map",)
     tick_period_s = 0.02
@@ -186,7 +187,7 @@ class SimService(Service):
         self.last_cmd: tuple[CmdVelMsg, float] | None = None
         self.started_s = time.monotonic()
         listed = list(ctx.profile.get("services") or {})
-        self.left_out_needed = set(missing_producers(listed)) if listed else set()
+        self.left_out_needed = set(missing_producers(listed, ctx.profile.get("services"))) if listed else set()
         """The services the episode needs that the profile leaves to other processes (``up --without policy``, or not
         listed: a shared policy server's; ``services.dataflow.missing_producers``, as the launcher's ``awaited``).
         Step 0 waits for them too: started without its policy, a lockstep episode re-published step 0 every

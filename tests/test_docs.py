@@ -113,6 +113,8 @@ def test_every_command_and_flag_the_docs_show_exists():
             elif command == "service" and (ROOT / "services" / f"{line.split()[1:2] and line.split()[1]}.py").is_file():
                 own = service_flags | _declared_flags(ROOT / "services" / f"{line.split()[1]}.py")
                 wrong += [f"{doc.name}: service {line.split()[1]} has no {flag}" for flag in sorted(flags - own)]
+            elif command == "service" and ":" in line.split()[1:2][0]:  # a service of one's own: the common flags
+                wrong += [f"{doc.name}: service {line.split()[1]} has no {flag}" for flag in sorted(flags - service_flags)]
             elif command != "service":
                 wrong += [f"{doc.name}: {command} has no {flag}" for flag in sorted(flags - options[command] - global_options)]
         for module, script, args in (m for line in code for m in PYTHON_COMMAND.findall(line)):
@@ -120,10 +122,12 @@ def test_every_command_and_flag_the_docs_show_exists():
                 continue  # another package's (mujoco.viewer, pstats)
             seen += 1
             path = ROOT / (script or module.replace(".", "/") + ".py")
+            if module and not path.is_file():  # a package run as a module: its __main__.py (python -m services NAME)
+                path = ROOT / module.replace(".", "/") / "__main__.py"
             if not path.is_file():
                 wrong.append(f"{doc.name}: no {path.relative_to(ROOT)} (python {script or '-m ' + module})")
                 continue
-            declared = _declared_flags(path, *([ROOT / "services" / "common.py"] if module.startswith("services.") else []))
+            declared = _declared_flags(path, *([ROOT / "services" / "common.py"] if module.split(".")[0] == "services" else []))
             wrong += [f"{doc.name}: {path.relative_to(ROOT)} has no {flag}" for flag in sorted(set(FLAG.findall(args.split("#")[0])) - declared)]
     assert seen >= 120, "the docs lost their examples, or the pattern broke"
     assert wrong == []
@@ -134,6 +138,13 @@ DOCS = [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").glob
 DOCUMENTED_COMMAND = re.compile(r"cso-runtime ([a-z].*?)(?: && |; |$)")
 PLACEHOLDERS = {"path/to/dungeon": "../shared/maps/dungeon", "METHODS": "all", "SET": "easy", "DEV": "../shared/maps/dungeon/train", "SCENES": "builtin"}
 """What BENCHMARKS.md's upper-case words stand for in a command (``DEV``: a development set of training plans)."""
+
+
+def _shown_files(doc: Path) -> dict[str, str]:
+    """File name -> text of each code block of ``doc`` that starts with a comment naming it (``# own.yaml: ...``): a
+    file the page shows whole and its commands then use (``up --profile own.yaml``)."""
+    blocks = re.findall(r"^ *```[^\n]*\n(.*?)^ *```", doc.read_text(encoding="utf-8"), flags=re.DOTALL | re.MULTILINE)
+    return {m.group(1): block for block in blocks if (m := re.match(r"# ([\w.-]+\.\w+):", block))}
 
 
 def _code(doc: Path) -> list[str]:
@@ -232,6 +243,10 @@ def test_every_run_eval_and_train_command_the_docs_show_is_accepted(tmp_path, mo
             assert str(trained) in outs, f"{doc}: --weights {trained}: no documented `train --out` writes it"
             trained.mkdir(parents=True, exist_ok=True)
             shutil.copy(ROOT / "cso_runtime" / "data" / "weights" / "cso.pt", trained)
+        if "--profile" in argv and not (profile := Path(argv[argv.index("--profile") + 1])).exists():
+            shown = _shown_files(ROOT / doc if doc in ("README.md", "BENCHMARKS.md") else ROOT / "docs" / doc)
+            if profile.name in shown:  # a profile the page shows whole (docs/own-service.md's own.yaml)
+                profile.write_text(shown[profile.name])
         if "--zenoh-config" in argv and not (zenoh_config := Path(argv[argv.index("--zenoh-config") + 1])).exists():
             zenoh_config.write_text("{}")  # the user's own Zenoh config file (its examples: test_the_zenoh_config_examples...)
         r = CliRunner().invoke(app, [*argv, "--dry-run"] if argv[0] == "up" and "--dry-run" not in argv else argv)
