@@ -355,6 +355,8 @@ def render_table(status: dict[str, Any]) -> Table:
             bits.append(f"idle (episode {status['state']}; last step {s.get('last_step', 0)})")
         elif s.get("state"):
             bits.append(s["state"] + (f" ({s['reason']})" if s.get("reason") else ""))
+        elif s["alive"] and not stopping and not s.get("outside"):  # its token, no answer: stopped, or its loop stuck in a handler
+            bits.append("not answering its status query (hung?)")
         if s.get("restarts"):
             hung = f", {s['hung_kills']} of them hung" if s.get("hung_kills") else ""
             bits.append(f"restarts {s['restarts']}{hung}" + (" (gave up)" if s.get("gave_up") else ""))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import contextlib
 import cProfile
 import ctypes
 import functools
@@ -30,6 +31,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
@@ -350,6 +352,18 @@ def _install_stop_handlers(stop: threading.Event, service: Service | None = None
     signal.signal(signal.SIGTERM, handler)
 
 
+LOOP_STUCK_S = 5.0
+"""How long one input's handler (or one tick) may run before the service stops answering its status query
+(``ServiceInputs.stuck_for_s``): a loop stuck in it (a deadlock) is then hung to the launcher, which kills and
+restarts it after ``supervision.hang_timeout_s`` more, while Zenoh's thread would have answered for it for good.
+The slowest handlers take well under a second (a decision on a large map)."""
+
+
+def topic_name(key: str) -> str:
+    """The last part of a key (its topic, for a robot's): what a handler stuck on it is said to handle."""
+    return key.rsplit("/", 1)[-1]
+
+
 class ServiceInputs:
     """Where a service's inputs are handled, one at a time (one lock for handlers, ticks and shutdown).
 
@@ -370,6 +384,32 @@ class ServiceInputs:
         self.direct = False
         self.failure: BaseException | None = None
         self._switching = threading.Lock()
+        self.busy_since_s: float | None = None
+        """``time.monotonic()`` when the handler or tick now running started (None between them)."""
+        self.busy_with = ""
+        """What it handles (``scan, step 12``, ``a tick``): the log's words when it is stuck."""
+        self.stuck_said_for: float | None = None
+        """The ``busy_since_s`` whose stuck handler the log has named (once per stuck handler)."""
+
+    @contextlib.contextmanager
+    def working(self, what: str) -> Iterator[None]:
+        """Hold the handling lock while one input's handler or a tick runs, noting since when (``stuck_for_s``)."""
+        with self.handling:
+            self.busy_since_s, self.busy_with = time.monotonic(), what
+            try:
+                yield
+            finally:
+                self.busy_since_s = None
+
+    def handle(self, key: str, payload: bytes, received_s: float) -> None:
+        """``_dispatch`` one input under ``working``: its topic, then its step once decoded, name it."""
+        with self.working(topic_name(key)):
+            _dispatch(self.service, key, payload, received_s, self)
+
+    def stuck_for_s(self, now_s: float) -> float:
+        """How long the handler or tick now running has run (0 between them)."""
+        since = self.busy_since_s
+        return 0.0 if since is None else now_s - since
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         item = (str(sample.key_expr), sample.payload.to_bytes(), time.monotonic())
@@ -378,14 +418,14 @@ class ServiceInputs:
                 if not self.direct:
                     self.queue.put(item)
                     return
-        with self.handling:
+        with self.working(topic_name(item[0])):
             if self.stop.is_set():
                 return
             prof = self.service.network_profile
             if prof is not None:
                 prof.enable()  # this thread only, and one handler at a time (the lock): its own profiler
             try:
-                _dispatch(self.service, *item)
+                _dispatch(self.service, *item, self)
             except BaseException as exc:  # noqa: BLE001 - re-raised on the loop's thread
                 self.failure = exc
                 self.stop.set()
@@ -395,13 +435,13 @@ class ServiceInputs:
 
     def go_direct(self) -> None:
         """Handle what is queued, then every later input on arrival (in order: no input overtakes)."""
-        with self._switching, self.handling:
+        with self._switching:
             while True:
                 try:
                     item = self.queue.get_nowait()
                 except queue.Empty:
                     break
-                _dispatch(self.service, *item)
+                self.handle(*item)
             self.direct = True
 
     def next_queued(self, timeout_s: float) -> tuple[str, bytes, float] | None:
@@ -422,6 +462,15 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
     keys = RobotKeys(sub_robot)
 
     def on_status_query(query: zenoh.Query) -> None:
+        stuck_s = inputs.stuck_for_s(time.monotonic())
+        if stuck_s > LOOP_STUCK_S:  # no answer: hung to the launcher, which kills and restarts the service
+            if inputs.stuck_said_for != inputs.busy_since_s:
+                inputs.stuck_said_for = inputs.busy_since_s
+                log.error(
+                    "%s: its loop has been in one handler (%s) for %.1f s (a deadlock?): no status answer until it returns, "
+                    "so that the launcher restarts this service as hung", service.name, inputs.busy_with, stuck_s,
+                )  # fmt: skip
+            return
         query.reply(ctx.keys.service_status(service.name), encode(service.status_msg()))
 
     with open_session(ctx.transport) as session:
@@ -450,11 +499,10 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
                 if inputs.direct:
                     stop.wait(wait_s)
                 elif (item := inputs.next_queued(wait_s)) is not None:
-                    with inputs.handling:
-                        _dispatch(service, *item)
+                    inputs.handle(*item)
                 now = time.monotonic()
                 if now >= next_tick and not stop.is_set():
-                    with inputs.handling:
+                    with inputs.working("a tick"):
                         service.on_tick(now)
                     next_tick = now + service.tick_period_s
             if (gone := launcher_gone()) is not None:
@@ -557,7 +605,7 @@ class EpisodeWatch:
         return "new" if started else "same"
 
 
-def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> None:
+def _dispatch(service: Service, key: str, payload: bytes, received_s: float, inputs: ServiceInputs | None = None) -> None:
     try:
         robot, topic = robot_of(key), topic_of(key)
     except ValueError as exc:
@@ -578,6 +626,8 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float) -> 
         return
     service.processed += 1
     service.processed_by_robot[robot] += 1
+    if inputs is not None and isinstance(step, int):
+        inputs.busy_with = f"{topic}, step {step}"
     t0 = time.monotonic()
     service.on_message(robot, topic, msg, received_s)
     if service.trace is not None:

@@ -224,6 +224,61 @@ def test_mapper_service_over_loopback_maps_and_counts_rejections():
     assert not thread.is_alive()
 
 
+def test_a_service_whose_loop_is_stuck_in_a_handler_stops_answering_its_status(monkeypatch, caplog):
+    """In real time a service handles its inputs on its loop's thread, while Zenoh's thread answers its status query.
+    A handler stuck there (a deadlock: an injected wait stands in for it) left the service answering "running" for
+    good: the launcher's hang check never fired, and the episode went on to its step limit with the robot standing
+    (the planner's loop stuck at step 10 of a ``sim`` run: 51 % coverage at step 536, every service "alive, running").
+    Once one handler has run for ``LOOP_STUCK_S`` the service stops answering (its log says so), so that the
+    launcher kills and restarts it as hung; it answers again if the handler returns."""
+    from services import common
+    from services.common import ServiceContext, run_service
+    from services.mapper import MapperService
+
+    monkeypatch.setattr(common, "LOOP_STUCK_S", 0.5)
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        svc = MapperService(ServiceContext("mapper", "t1", {}, ExplorationConfig(), client, {"restore_timeout_s": 0.2}))
+        assert not svc.ctx.lockstep  # real time: inputs are handled on the loop's thread
+        entered, release = threading.Event(), threading.Event()
+        handle = svc.on_message
+
+        def stuck_on_scans(robot: str, topic: str, msg: Any, received_s: float) -> None:
+            if topic == "scan":
+                entered.set()
+                release.wait(30)
+            handle(robot, topic, msg, received_s)
+
+        svc.on_message = stuck_on_scans
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+
+        def answers() -> bool:
+            return any(r.ok is not None for r in session.get(keys.service_status("mapper"), timeout=0.5))
+
+        thread.start()
+        try:
+            wait_for(lambda: any(True for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5) if r.ok), 10, "the mapper's liveliness token")
+            wait_for(answers, 10, "the mapper's status")
+            geom = GridGeometry(0.1, (40, 40))
+            session.put(keys.clock, encode(ClockMsg(0, 0.0, geom)))
+            scan = LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.inf, np.float32))
+            session.put(keys.scan, encode(ScanMsg(0, scan, Pose2D(2.0, 2.0, 0.0))))
+            assert entered.wait(10), "the scan's handler never ran"
+            with caplog.at_level("ERROR", logger="cso.service"):
+                wait_for(lambda: not answers(), 10, "the stuck mapper to stop answering its status")
+            assert re.search(r"mapper: its loop has been in one handler \(scan, step 0\) for \d+\.\d s", caplog.text), caplog.text
+            release.set()
+            wait_for(answers, 10, "the mapper to answer again once its handler returned")
+        finally:
+            release.set()
+            stop.set()
+            thread.join(10)
+    assert not thread.is_alive()
+
+
 @contextlib.contextmanager
 def shared_policy_server(session, client: TransportConfig, profile: dict | None = None):
     """A ``serve_all_robots`` policy service of robot ``a`` (greedy-dist), run on a thread until the block ends;
@@ -1893,6 +1948,12 @@ def test_status_table_shows_the_episode_and_each_service():
     console = Console(record=True, width=160)
     console.print(render_table(status))
     assert "stale: no odometry for 3.0 s" in console.export_text()
+    # Alive (its token) and no answer to the status query: hung, or stuck in a handler (it said "alive" only).
+    status["services"]["policy"] = {"alive": True}
+    console = Console(record=True, width=160)
+    console.print(render_table(status))
+    assert re.search(r"│ service policy +│ alive, not answering its status query \(hung\?\) +│", console.export_text()), console.export_text()
+    del status["services"]["policy"]
     status["state"] = "done"
     console = Console(record=True, width=160)
     console.print(render_table(status))
