@@ -1051,9 +1051,11 @@ class Launcher:
     def closing_line(self) -> str:
         """The run's last line, under the services' stop: where its results are and what to open first, or, for a
         run stopped before its episode's results were written, what it kept and how to read it."""
-        if self.outputs_written:
+        if self.written_result is not None:
             return results_said(self.run_dir)
-        return f"no results: the run's profile and logs are in {self.run_dir}/ (`cso-runtime logs --run {self.run_dir}`)"
+        # The episode ended and its results were not written (a full disk, no result came: said above), or it never ended.
+        why = "the episode's results could not be written (see above); " if self.outputs_written else ""
+        return f"no results: {why}the run's profile and logs are in {self.run_dir}/ (`cso-runtime logs --run {self.run_dir}`)"
 
 
 def write_episode_outputs(

@@ -1320,11 +1320,15 @@ def test_a_full_disk_at_the_episodes_end_is_said_and_the_run_stops_cleanly(tmp_p
     monkeypatch.setattr(Child, "spawn", lambda self: None)  # no service processes: the episode below has ended
     launcher.status = EpisodeStatusMsg(state="done", step=10, scene="s", method="greedy-dist", episode=1)
     launcher.result = _fake_result()
-    with caplog.at_level("ERROR", logger="cso.launcher"):
+    with caplog.at_level("INFO", logger="cso.launcher"):
         assert launcher.run(stay_after_done=stay_after_done) == 1
     assert f"cannot write the episode's results: {summary}: No space left on device" in caplog.text, caplog.text
     info = json.loads((launcher.run_dir / "run.json").read_text())
     assert info["state"] == "stopped" and info["exit_code"] == 1 and info["outcome"] == "failed"
+    # Its last line said "results in RUN/: report.html (all of it, for a browser), summary.json, ..." of files never written.
+    last = caplog.records[-1].getMessage()
+    assert "results in" not in caplog.text.split("cannot write the episode's results", 1)[1], caplog.text
+    assert last == f"no results: the episode's results could not be written (see above); the run's profile and logs are in {launcher.run_dir}/ (`cso-runtime logs --run {launcher.run_dir}`)", last
 
 
 def _sleeping_child(tmp_path: Path, name: str = "planner"):
