@@ -21,6 +21,7 @@ import collections
 import contextlib
 import cProfile
 import ctypes
+import faulthandler
 import functools
 import json
 import logging
@@ -53,7 +54,7 @@ from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
-from cso_runtime.processes import dump_stacks_on_signal, keep_freed_memory, set_from_signal_handler
+from cso_runtime.processes import PARENT_CHECK_PERIOD_S, dump_stacks_on_signal, keep_freed_memory, set_from_signal_handler
 from cso_runtime.run_profile import profile_exploration_config
 from cso_runtime.transport import TransportConfig, TransportError, open_session
 
@@ -720,7 +721,7 @@ def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | 
         return EXIT_BAD_CONFIG
     stop = threading.Event()
     _install_stop_handlers(stop, service)
-    _die_with_launcher()
+    _die_with_launcher(cls.name, stop)
     keep_freed_memory()
     trace_dir = os.environ.get(TRACE_DIR_ENV)
     if trace_dir:
@@ -778,10 +779,33 @@ def launcher_gone() -> int | None:
     return int(parent) if state in ("Z", "X", "x") else None
 
 
-def _die_with_launcher() -> None:
-    """When started by a launcher, get SIGTERM if it dies (Linux), so no service outlives it."""
+ORPHAN_STOP_S = 10.0
+"""How long a service whose launcher is gone has to stop cleanly before it exits outright (``_exit_once_orphaned``):
+a clean stop then takes 0.3 to 0.5 s, but the kernel's SIGTERM only sets the stop event, which a loop stuck in a
+handler never looks at."""
+
+
+def _exit_once_orphaned(name: str, stop: threading.Event) -> None:
+    """Exit ``ORPHAN_STOP_S`` after the launcher has gone (``launcher_gone``) if the service has not stopped by then
+    (its loop stuck in a handler): its threads' stacks to its log first, as for a hang the launcher kills."""
+    while (gone := launcher_gone()) is None:
+        time.sleep(PARENT_CHECK_PERIOD_S)
+    stop.set()  # as the kernel's SIGTERM does, in case its handler never ran
+    time.sleep(ORPHAN_STOP_S)
+    log.error("%s: still running %g s after its launcher (pid %d) went (stuck?): its threads' stacks, then exit", name, ORPHAN_STOP_S, gone)
+    with contextlib.suppress(ValueError, OSError):  # stderr is the service's log; none to write to: exit all the same
+        faulthandler.dump_traceback(file=sys.stderr, all_threads=True)
+    os._exit(1)
+
+
+def _die_with_launcher(name: str, stop: threading.Event) -> None:
+    """When started by a launcher, get SIGTERM if it dies (Linux), and exit ``ORPHAN_STOP_S`` later if that did not
+    stop the service, so no service outlives it."""
     parent = os.environ.get("CSO_PARENT_PID")
-    if not parent or not sys.platform.startswith("linux"):
+    if not parent or not parent.isdigit():
+        return
+    threading.Thread(target=_exit_once_orphaned, args=(name, stop), daemon=True, name="exit-once-orphaned").start()
+    if not sys.platform.startswith("linux"):
         return
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG

@@ -2948,6 +2948,59 @@ def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_pa
         assert f"{hung} of them hung" in " ".join(re.sub(r"[│┃]", " ", r.stdout).split()), r.stdout  # the table may wrap the row
 
 
+STAND_IN_LAUNCHER = """
+import os, subprocess, sys, time
+env = {**os.environ, "CSO_PARENT_PID": str(os.getpid())}  # as the launcher starts a service (supervision.Child)
+with open(sys.argv[1], "w") as log:
+    proc = subprocess.Popen([sys.executable, "-c", *sys.argv[2:]], env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+print(proc.pid, flush=True)
+time.sleep(600)
+"""
+
+MAPPER_STUCK_IN_ITS_FIRST_HANDLER = """
+import sys, threading
+from pathlib import Path
+from services import common
+from services.mapper import MapperService
+common.ORPHAN_STOP_S = 1.0
+def stuck(self, robot, topic, msg, received_s):
+    Path(sys.argv[1]).touch()
+    threading.Event().wait()
+MapperService.on_message = stuck
+sys.exit(common.service_main(MapperService, sys.argv[2:]))
+"""
+
+
+def test_a_service_stuck_in_a_handler_does_not_outlive_its_killed_launcher(tmp_path):
+    """The launcher SIGKILLed while a service's loop is stuck in a handler (a deadlock): the kernel's SIGTERM only sets
+    the service's stop event, which its stuck loop never looks at, so the service lived on for good, an orphan holding
+    its memory and its place on the network (seen with a planner stuck in a ``sim`` run and ``up`` killed). Once its
+    launcher is gone it has ``ORPHAN_STOP_S`` to stop; then it writes its threads' stacks to its log and exits."""
+    port = free_tcp_port()
+    keys = RobotKeys("t1")
+    marker, log_path = tmp_path / "stuck", tmp_path / "mapper.log"
+    service = [MAPPER_STUCK_IN_ITS_FIRST_HANDLER, str(marker), "--config", str(PROFILES / "sim.yaml"), "--robot", "t1", "--connect", loopback_endpoint(port)]
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        launcher = subprocess.Popen([sys.executable, "-c", STAND_IN_LAUNCHER, str(log_path), *service], cwd=REPO, stdout=subprocess.PIPE, text=True)
+        mapper_pid = int(launcher.stdout.readline())
+        try:
+            wait_for(lambda: any(True for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5) if r.ok), 60, "the mapper's liveliness token")
+            session.put(keys.clock, encode(ClockMsg(0, 0.0, GridGeometry(0.1, (40, 40)))))
+            wait_for(marker.exists, 10, "the mapper to be stuck in its handler")
+            launcher.kill()
+            launcher.wait(10)
+            wait_for(lambda: not pid_alive(mapper_pid), 30, f"the stuck mapper (pid {mapper_pid}) to exit once its launcher is gone")
+        finally:
+            launcher.kill()
+            launcher.wait(10)
+            launcher.stdout.close()
+            if pid_alive(mapper_pid):
+                os.kill(mapper_pid, signal.SIGKILL)
+    text = log_path.read_text()
+    assert f"mapper: still running 1 s after its launcher (pid {launcher.pid}) went (stuck?)" in text, text[-3000:]
+    assert re.search(r'File "<string>", line \d+ in stuck', text), text[-3000:]  # the stuck handler, in the stacks
+
+
 def test_a_killed_launchers_services_stop_at_once_and_each_log_says_why(tmp_path):
     """The launcher SIGKILLed mid-episode (its router dies with it): the kernel's SIGTERM (PR_SET_PDEATHSIG) stops
     every service and the frontier's layer helper within a second, no orphan left. Each service's log said only
