@@ -197,6 +197,10 @@ whole lockstep episode's took 0.1 s (small scene, 25 frames) and 0.6 to 1.4 s (l
 the recording. Beyond that it is given up, and the launcher's log gives the ``cso-runtime animate`` command that
 draws it from the recording; without a stop, the GIF takes the time it needs."""
 
+STALLED_STEP_S = 5.0
+"""How long an exploring episode may make no new step before its progress line says so: a step takes 0.25 s in real
+time, less in lockstep (where the sim re-publishes a step after ``lockstep_timeout_s``, 1 s), about 0.1 s on a robot."""
+
 STOP_EXTRAS_S = STACK_DUMP_WAIT_S + RECORDING_STOP_S + ANIMATION_STOPPING_S
 """What the launcher's stop may take beyond its services' three stop stages: the stacks of a hung service, the
 recording, the GIF. ``down`` waits ``DOWN_MARGIN_S`` beyond the stages, which must hold it (a test holds them to it)."""
@@ -254,6 +258,9 @@ class Launcher:
         self.status: EpisodeStatusMsg | None = None
         self.status_heard_at_s = 0.0
         """``time.monotonic()`` when ``status`` came: its age in the launcher's status."""
+        self.step_changed_s = 0.0
+        """``time.monotonic()`` when the episode's step (or state: step 0 starts) last changed; a status of the same step
+        again does not count."""
         self.alive_services: set[str] = set()
         self.left_out = profile.left_out_services()
         """The services this run leaves to other processes (``up --without``, or needed and not in the profile)."""
@@ -428,7 +435,10 @@ class Launcher:
                 log.warning("rejected payload on %s: %s", key, exc)
             return
         if isinstance(msg, EpisodeStatusMsg):
-            self.status, self.status_heard_at_s = msg, time.monotonic()
+            before, now = self.status, time.monotonic()
+            if before is None or (before.episode, before.step, before.state) != (msg.episode, msg.step, msg.state):
+                self.step_changed_s = now
+            self.status, self.status_heard_at_s = msg, now
             if msg.state != "starting":  # the sim waits for the services before step 0: not its pace
                 self.pace.observe(msg.episode, msg.step, time.monotonic())
         elif isinstance(msg, EpisodeResultMsg):
@@ -703,6 +713,13 @@ class Launcher:
             ended is not None and now is not None and now is not ended and now.state == "exploring"
             and now.episode == ended.episode and now.step >= ended.step
         )
+
+    def progress_log_line(self, now: float) -> str:
+        """The episode's progress line (``progress_log_s``), with how long it has made no new step once that is
+        ``STALLED_STEP_S`` or more (a stopped sim, a stalled lockstep pipeline): the figures alone read as all well."""
+        assert self.status is not None
+        stalled_s = now - self.step_changed_s
+        return progress_line(self.status, self.sim_step_s, self.real_time_factor) + (f"; no new step for {stalled_s:.0f} s" if stalled_s >= STALLED_STEP_S else "")
 
     @property
     def real_time_factor(self) -> float | None:
@@ -981,7 +998,7 @@ class Launcher:
                     if every_s > 0 and (view is None or not view.on_terminal) and time.monotonic() - logged_s >= every_s:
                         logged_s = time.monotonic()
                         if st is not None and st.state == "exploring":
-                            log.info("%s", progress_line(st, self.sim_step_s, self.real_time_factor))
+                            log.info("%s", self.progress_log_line(time.monotonic()))
                     if ending is None and st is not None and st.state in EPISODE_OVER and not self.outputs_written:
                         self.ended_status = st
                         result = self.wait_for_result(session, meanwhile=tend)

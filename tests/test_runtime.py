@@ -1581,6 +1581,40 @@ def test_step_pace_measures_simulated_seconds_per_wall_second_from_the_episodes_
     assert pace.real_time_factor == pytest.approx(40 * 0.25 / 2.5)
 
 
+def test_the_progress_line_says_when_the_episode_has_made_no_step_for_a_while(tmp_path, monkeypatch):
+    """A sim stopped (SIGSTOP) or a lockstep pipeline stalled on a stopped policy: ``up --no-live``'s progress line
+    went on saying "step 105 (26.2 s robot time, 20.47x real time): ..." every 10 s, as if all were well, until the
+    hang check killed the culprit 20 s later. It now says how long the episode has made no new step."""
+    from types import SimpleNamespace
+
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    clock = [1000.0]
+    monkeypatch.setattr(launcher_module, "time", SimpleNamespace(monotonic=lambda: clock[0], time=time.time))
+    profile, data = load_profile(str(find_profile("sim")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+
+    def status(step: int, at_s: float, state: str = "exploring") -> None:
+        clock[0] = at_s
+        msg = EpisodeStatusMsg(state=state, step=step, scene="s", method="greedy-dist", episode=7)
+        launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda: encode(msg))))
+
+    status(0, 960.0, "starting")  # the sim waits for the services: step 0 comes 30 s later, and is a new step
+    status(0, 990.0)
+    assert launcher.progress_log_line(991.0).endswith("goal none"), launcher.progress_log_line(991.0)
+    status(14, 1000.0)
+    status(15, 1000.25)
+    assert launcher.progress_log_line(1002.0).endswith("goal none"), launcher.progress_log_line(1002.0)  # a step 1.75 s ago
+    status(15, 1005.0)  # the same step again (a lockstep re-publish): no new step
+    line = launcher.progress_log_line(1010.25)
+    assert line.startswith("step 15 (3.8 s robot time") and line.endswith("goal none; no new step for 10 s"), line
+    status(16, 1011.0)
+    assert launcher.progress_log_line(1011.5).endswith("goal none")
+
+
 @pytest.mark.parametrize("name", ["lockstep", "limo-ros2"])
 def test_up_shows_and_writes_the_simulators_real_time_factor_measured_on_the_episode(tmp_path, monkeypatch, name):
     """MuJoCo users read a sim's speed against real time: the live view, the progress line and episodes.csv give it,
