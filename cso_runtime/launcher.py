@@ -740,15 +740,18 @@ class Launcher:
 
             sensor = self.profile.exploration_config().sensor
             meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
-        sim_time_s = None if self.sim_step_s is None else result.steps * self.sim_step_s  # one control period a step
-        row = write_episode_outputs(self.run_dir, result, time.monotonic() - self.started_s, meta, sim_time_s, self.real_time_factor)
+        row = write_episode_outputs(self.run_dir, result, self.wall_s(), meta, self.sim_time_s(result), self.real_time_factor)
         self.written_result = result
-        log.info(
-            "episode %s: %.2f%% coverage in %d steps; %.2f m2 explored, %.4f m2/step, path %.2f m, %d decisions; results in %s",
-            row["terminated_by"], row["coverage_pct"], row["steps"], row["explored_area_m2"],
-            row["efficiency_m2_per_step"], row["path_length_m"], row["decisions"], self.run_dir,
-        )
+        log.info("%s; results in %s", episode_figures(row), self.run_dir)
         return self.run_dir
+
+    def wall_s(self) -> float:
+        """Wall-clock seconds since the launcher started (episodes.csv's ``wall_s``)."""
+        return time.monotonic() - self.started_s
+
+    def sim_time_s(self, result: EpisodeResultMsg) -> float | None:
+        """The episode's simulated time: one control period a step (None on a real robot)."""
+        return None if self.sim_step_s is None else result.steps * self.sim_step_s
 
     def write_outputs_or_say(self, result: EpisodeResultMsg) -> bool:
         """``write_outputs``, or False with the file and the reason logged when one cannot be written (a full disk,
@@ -761,6 +764,8 @@ class Launcher:
                 "cannot write the episode's results: %s: %s; the run stops, its outputs in %s are incomplete",
                 exc.filename or self.run_dir, exc.strerror or exc, self.run_dir,
             )  # fmt: skip
+            _, row = episode_record(result, self.wall_s(), self.sim_time_s(result), self.real_time_factor)
+            log.warning("%s; not written to %s", episode_figures(row), self.run_dir)  # the terminal keeps them
             return False
         return True
 
@@ -1075,18 +1080,10 @@ class Launcher:
         return f"no results: {why}the run's profile and logs are in {self.run_dir}/ (`cso-runtime logs --run {self.run_dir}`)"
 
 
-def write_episode_outputs(
-    out_dir: Path, result: EpisodeResultMsg, wall_s: float, meta: dict[str, Any], sim_time_s: float | None = None, real_time_factor: float | None = None
-) -> dict[str, Any]:
-    """The same files as ``eval`` for one episode: summary.json, episodes.csv, the episode's npz, the
-    robot's final map (map_server YAML and PNG),
-    the coverage curve and the trajectory plot (reusing ``cso_runtime.evaluation`` writers). Returns the
-    episode's row of episodes.csv (``sim_time_s`` and ``real_time_factor``: None on a real robot)."""
+def episode_record(result: EpisodeResultMsg, wall_s: float, sim_time_s: float | None = None, real_time_factor: float | None = None) -> tuple[Any, dict[str, Any]]:
+    """The episode's ``EpisodeResult`` and its row of episodes.csv (Table 1's metrics), from its result message."""
     from cso_runtime.episode import EpisodeResult  # noqa: PLC0415
-    from cso_runtime.evaluation import EpisodeOutcome, episode_row, save_episode_files, write_outputs  # noqa: PLC0415
-    from cso_runtime.outputs import COVERAGE_FIGURE, trajectory_plot_path  # noqa: PLC0415
-    from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415
-    from cso_runtime.report import write_report  # noqa: PLC0415
+    from cso_runtime.evaluation import episode_row  # noqa: PLC0415
 
     er = EpisodeResult(
         scene=result.scene,
@@ -1105,8 +1102,31 @@ def write_episode_outputs(
         map_geometry=result.final_map.geometry if result.final_map is not None else None,
         sim_time_s=sim_time_s,
     )
-    method = result.method or "unknown"
-    row = episode_row(method, result.seed, er, wall_s, real_time_factor)
+    return er, episode_row(result.method or "unknown", result.seed, er, wall_s, real_time_factor)
+
+
+def episode_figures(row: dict[str, Any]) -> str:
+    """The episode's Table 1 figures in words, from its row: the launcher's line once its results are written (or not)."""
+    return (
+        f"episode {row['terminated_by']}: {row['coverage_pct']:.2f}% coverage in {row['steps']} steps; {row['explored_area_m2']:.2f} m2 explored, "
+        f"{row['efficiency_m2_per_step']:.4f} m2/step, path {row['path_length_m']:.2f} m, {row['decisions']} decisions"
+    )
+
+
+def write_episode_outputs(
+    out_dir: Path, result: EpisodeResultMsg, wall_s: float, meta: dict[str, Any], sim_time_s: float | None = None, real_time_factor: float | None = None
+) -> dict[str, Any]:
+    """The same files as ``eval`` for one episode: summary.json, episodes.csv, the episode's npz, the
+    robot's final map (map_server YAML and PNG),
+    the coverage curve and the trajectory plot (reusing ``cso_runtime.evaluation`` writers). Returns the
+    episode's row of episodes.csv (``sim_time_s`` and ``real_time_factor``: None on a real robot)."""
+    from cso_runtime.evaluation import EpisodeOutcome, save_episode_files, write_outputs  # noqa: PLC0415
+    from cso_runtime.outputs import COVERAGE_FIGURE, trajectory_plot_path  # noqa: PLC0415
+    from cso_runtime.plots import plot_coverage_curves, plot_trajectories  # noqa: PLC0415
+    from cso_runtime.report import write_report  # noqa: PLC0415
+
+    er, row = episode_record(result, wall_s, sim_time_s, real_time_factor)
+    method = row["method"]
     summary = write_outputs(out_dir, [row], [], [method], meta)
     save_episode_files(out_dir, method, result.scene, er, row, map_origin=result.map_origin)
     outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m)

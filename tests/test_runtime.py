@@ -1323,6 +1323,9 @@ def test_a_full_disk_at_the_episodes_end_is_said_and_the_run_stops_cleanly(tmp_p
     with caplog.at_level("INFO", logger="cso.launcher"):
         assert launcher.run(stay_after_done=stay_after_done) == 1
     assert f"cannot write the episode's results: {summary}: No space left on device" in caplog.text, caplog.text
+    # Its figures were in no file and no line: they are logged (the terminal keeps them when the disk cannot).
+    figures = "episode coverage: 98.00% coverage in 10 steps; 1.20 m2 explored, 0.1200 m2/step, path 4.50 m, 3 decisions"
+    assert f"{figures}; not written to {launcher.run_dir}" in caplog.text, caplog.text
     info = json.loads((launcher.run_dir / "run.json").read_text())
     assert info["state"] == "stopped" and info["exit_code"] == 1 and info["outcome"] == "failed"
     # Its last line said "results in RUN/: report.html (all of it, for a browser), summary.json, ..." of files never written.
