@@ -476,7 +476,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 from cso_runtime.current_run import read_current_run  # noqa: PLC0415
 
                 info = None if given_connect else read_current_run(runs_dir)
-                why = stopped_launcher_of_run(info) or lost_router_of_run(info)
+                why = dead_launcher_of_run(info, runs_dir) or stopped_launcher_of_run(info) or lost_router_of_run(info)
                 return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}" + (f"; {why}" if why else ""), as_json)
             shown, last = status, status
             if watch:

@@ -2414,6 +2414,34 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
     assert re.search(r"goal +│ \(1\.50, 2\.50\) m", last_table) and "last 12.5 ms" in last_table, last_table
 
 
+def test_status_watch_ends_by_saying_that_the_watched_runs_launcher_was_killed(tmp_path, monkeypatch, capsys):
+    """``status --watch`` of a run whose launcher was then SIGKILLed ended with "nothing running (no answer for robot r0
+    at tcp/...)", where ``status`` says at once that the launcher has exited and how to clear the run: it says so too."""
+    from cso_runtime import status
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    launcher = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        (runs / "current.json").write_text(json.dumps({"run_id": "run1", "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": launcher.pid}))
+        exploring = status.status_of("r0", {"state": "exploring", "step": 5, "episode": 7}, {"run_id": "run1", "services": {}}, {}, set())
+
+        def killed() -> None:
+            launcher.kill()
+            launcher.wait(10)
+
+        answers = iter([lambda: exploring, killed])
+        monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: next(answers)())
+        monkeypatch.setattr(status.time, "sleep", lambda s: None)
+        code = status.status_main([], None, as_json=True, watch=True, runs_dir=runs, period_s=0.1)
+    finally:
+        launcher.kill()
+        launcher.wait(10)
+    last = json.loads(capsys.readouterr().out.splitlines()[-1])
+    assert code == 1 and last["state"] == "not running", last
+    assert last["reason"].endswith(f"; run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down` clears {runs / 'current.json'})"), last
+
+
 def test_status_tables_wrap_on_a_narrow_terminal_rather_than_cut_with_an_ellipsis():
     from rich.console import Console
 
