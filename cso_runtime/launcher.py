@@ -1045,7 +1045,10 @@ class Launcher:
                         self.exit_code = EXIT_INTERRUPTED
             finally:
                 if view is not None:
-                    view.stop()
+                    try:
+                        view.stop()
+                    except Exception:  # a bug in drawing it: said, and the services are stopped all the same
+                        log.exception("the live view's last redraw raised")
                 log.info("stopping services")
                 self.stop_event.set()
                 stopping_s = time.monotonic()

@@ -3,6 +3,7 @@ second, with the launcher's log lines printed above it rather than inside it."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import sys
 import time
@@ -11,6 +12,8 @@ from typing import TYPE_CHECKING, Any
 from cso_runtime.config import EXIT_INTERRUPTED
 from cso_runtime.messages import EPISODE_OVER
 from cso_runtime.pace import real_time_words
+
+log = logging.getLogger("cso.launcher")
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -132,14 +135,36 @@ class LiveView:
     def update(self) -> None:
         if self._live is not None and time.monotonic() - self._last > 0.25:
             self._last = time.monotonic()
-            self._live.update(self.render())
+            try:
+                self._live.update(self.render())
+            except OSError as exc:
+                self.terminal_gone(exc)
 
     def stop(self) -> None:
         if self._live is not None:
-            self._live.update(self.render())
-            for handler, stream in self._rerouted:
-                handler.setStream(stream)
-            self._rerouted.clear()
-            self._live.stop()
-            if not self._live.console.is_terminal:  # rich ends the last table with a newline on a terminal only
-                self._live.console.line()
+            live = self._live
+            try:
+                live.update(self.render())
+                self.give_back_log_streams()
+                live.stop()
+                if not live.console.is_terminal:  # rich ends the last table with a newline on a terminal only
+                    live.console.line()
+            except OSError as exc:
+                self.terminal_gone(exc)
+
+    def give_back_log_streams(self) -> None:
+        """Give the log handlers ``start`` sent through the live display their own streams back."""
+        for handler, stream in self._rerouted:
+            handler.setStream(stream)
+        self._rerouted.clear()
+
+    def terminal_gone(self, exc: OSError) -> None:
+        """The terminal it draws on is gone (closed: EIO; a pipe's reader gone: EPIPE): no more drawing, said once in
+        the launcher's log (its file keeps it). The run goes on, or stops as the terminal's SIGHUP asked, never with
+        this error: it would skip the services' stop and the run file's end."""
+        live, self._live = self._live, None
+        self.give_back_log_streams()
+        if live is not None:
+            with contextlib.suppress(Exception):  # its refresh thread, which would meet the same error
+                live.stop()
+        log.warning("the live view stops: its terminal is gone (%s)", exc.strerror or exc)

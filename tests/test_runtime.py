@@ -3431,6 +3431,54 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
         kill_leftovers(runs)
 
 
+def test_a_closed_terminal_stops_a_foreground_run_with_its_live_view_cleanly(tmp_path):
+    """``up`` in a terminal (its live view on) whose terminal then closes (a window closed, an ssh link lost): the
+    kernel's SIGHUP stopped the run, and the live view's last redraw then met the gone terminal (EIO) in the launcher's
+    clean-up, before it stopped anything: the launcher died with a traceback nobody saw, its services went only by
+    their PR_SET_PDEATHSIG, and run.json said "running" for good (``runs``: launcher died). A real pseudo-terminal
+    here, closed as a terminal emulator closes it; the run stops as on Ctrl-C."""
+    import pty
+
+    profile = write_profile(tmp_path, min_step_period_s=0.2)
+    runs = tmp_path / "runs"
+    master, slave = pty.openpty()
+    # A session of its own whose controlling terminal is the pty, as a terminal emulator starts its shell; then `up`.
+    in_a_terminal = "import fcntl, os, sys, termios; os.setsid(); fcntl.ioctl(0, termios.TIOCSCTTY, 0); os.execv(sys.argv[1], sys.argv[1:])"
+    up = [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(profile), "--runs-dir", str(runs)]
+    proc = subprocess.Popen([sys.executable, "-c", in_a_terminal, *up], cwd=tmp_path, stdin=slave, stdout=slave, stderr=slave)
+    os.close(slave)
+    shown = bytearray()
+
+    def drain() -> None:  # as a terminal does: the live view's redraws must not fill the pty's buffer
+        with contextlib.suppress(OSError):
+            while chunk := os.read(master, 65536):
+                shown.extend(chunk)
+
+    reader = threading.Thread(target=drain, daemon=True)
+    reader.start()
+    try:
+        wait_for(lambda: (runs / "current.json").exists() and len(run_pids(runs)) == 6, 30, "the services to start")
+        info = json.loads((runs / "current.json").read_text())
+        wait_for(lambda: (s := query_status(info["endpoints"], "r0", 0.5)) and s["step"] >= 3, 60, "the first steps")
+        assert b"coverage" in shown  # the live view was drawing on the terminal
+        os.close(master)  # the terminal closes: SIGHUP to its session's leader, and every later write to it fails
+        master = -1
+        proc.wait(timeout=30)
+        (run_file,) = runs.glob("*/run.json")
+        run = json.loads(run_file.read_text())
+        assert (run["state"], run.get("outcome")) == ("stopped", "interrupted"), run
+        launcher_log = (run_file.parent / "logs" / "launcher.log").read_text()
+        assert "services stopped in" in launcher_log and "stopping: the launcher" not in (run_file.parent / "logs" / "sim.log").read_text(), launcher_log
+        assert [p for p in run_pids(runs) if pid_alive(p)] == [] and not (runs / "current.json").exists()
+    finally:
+        if master >= 0:
+            os.close(master)
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        kill_leftovers(runs)
+
+
 def test_service_command_help_lists_the_services_own_options():
     """``cso-runtime service NAME --help`` is the service's help (its --config, --listen, ... and extra
     options), under the name it was run by; without a name it is the command's help, and exit 2."""
