@@ -4,7 +4,9 @@ second, with the launcher's log lines printed above it rather than inside it."""
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
+import os
 import sys
 import time
 from typing import TYPE_CHECKING, Any
@@ -46,6 +48,20 @@ def progress_line(status: EpisodeStatusMsg, sim_step_s: float | None, real_time_
         f"step {status.step}{when}: coverage {status.coverage_pct:.1f} %, "
         f"{status.explored_area_m2:.2f} m2 explored{rate}, path {status.path_length_m:.2f} m, {status.decisions} decisions, goal {goal}"
     )
+
+
+def _console_that_survives_its_reader() -> Console:
+    """Rich's console on stdout, but one whose broken pipe (``up | head``: the reader gone) is an ``OSError`` the live
+    view handles (``LiveView.terminal_gone``), not rich's ``SystemExit(1)``, which flew through the launcher's clean-up
+    and left the services unstopped and the run unfinished. Quiet from then on: nothing more is written."""
+    from rich.console import Console  # noqa: PLC0415
+
+    class QuietOnBrokenPipe(Console):
+        def on_broken_pipe(self) -> None:
+            self.quiet = True
+            raise BrokenPipeError(errno.EPIPE, os.strerror(errno.EPIPE))
+
+    return QuietOnBrokenPipe()
 
 
 class LiveView:
@@ -118,7 +134,8 @@ class LiveView:
         from rich.live import Live  # noqa: PLC0415
 
         stderr = sys.stderr
-        self._live = Live(self.render(), console=self.console, refresh_per_second=4, transient=False)
+        console = self.console if self.console is not None else _console_that_survives_its_reader()
+        self._live = Live(self.render(), console=console, refresh_per_second=4, transient=False)
         self._live.start()
         if sys.stderr is not stderr:
             # On a terminal rich replaces sys.stderr with a proxy that prints above the table; a log handler

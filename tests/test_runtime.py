@@ -3479,6 +3479,33 @@ def test_a_closed_terminal_stops_a_foreground_run_with_its_live_view_cleanly(tmp
         kill_leftovers(runs)
 
 
+def test_a_run_whose_output_pipe_is_closed_ends_cleanly(tmp_path):
+    """``cso-runtime up | head -5``: the reader gone, the live view's table at the end met a broken pipe, on which
+    rich raises SystemExit(1) (``Console.on_broken_pipe``): it flew through the launcher's clean-up, the services were
+    never stopped (their PR_SET_PDEATHSIG did it), run.json kept the episode's end ("done", not stopped) and ``up``
+    exited 1 with nothing said. The view stops drawing and the run ends as it would have."""
+    profile = write_profile(tmp_path)
+    runs = tmp_path / "runs"
+    proc = subprocess.Popen(
+        [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(profile), "--runs-dir", str(runs)],
+        cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    proc.stdout.close()  # the reader is gone before anything is written
+    try:
+        assert proc.wait(timeout=120) == 0
+        (run_file,) = runs.glob("*/run.json")
+        run = json.loads(run_file.read_text())
+        assert (run["state"], run.get("outcome")) == ("stopped", "done"), run
+        launcher_log = (run_file.parent / "logs" / "launcher.log").read_text()
+        assert "the live view stops: its terminal is gone (Broken pipe)" in launcher_log and "services stopped in" in launcher_log, launcher_log
+        assert (run_file.parent / "summary.json").exists()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+        kill_leftovers(runs)
+
+
 def test_service_command_help_lists_the_services_own_options():
     """``cso-runtime service NAME --help`` is the service's help (its --config, --listen, ... and extra
     options), under the name it was run by; without a name it is the command's help, and exit 2."""
