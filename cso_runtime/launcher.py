@@ -197,6 +197,10 @@ whole lockstep episode's took 0.1 s (small scene, 25 frames) and 0.6 to 1.4 s (l
 the recording. Beyond that it is given up, and the launcher's log gives the ``cso-runtime animate`` command that
 draws it from the recording; without a stop, the GIF takes the time it needs."""
 
+LAST_MAP = "last_map.yaml"
+"""Where in its run folder an episode stopped before its end keeps its map so far (``Launcher.keep_last_map``; the PNG
+beside it): it has no results, and ``save-map`` can no longer ask once the run is stopped."""
+
 STALLED_STEP_S = 5.0
 """How long an exploring episode may make no new step before its progress line says so: a step takes 0.25 s in real
 time, less in lockstep (where the sim re-publishes a step after ``lockstep_timeout_s``, 1 s), about 0.1 s on a robot."""
@@ -287,6 +291,8 @@ class Launcher:
         """When the episode ended (Unix time, s): a detached run stays up after it until ``down``."""
         self.written_result: EpisodeResultMsg | None = None
         """The result whose outputs were written (its scene and method name the animation)."""
+        self.last_map_step: int | None = None
+        """The step of the map an episode stopped before its end kept (``keep_last_map``), None when none was."""
         self.exit_code = 0
         self._lock = threading.Lock()
         self.started_s = time.monotonic()
@@ -1049,6 +1055,8 @@ class Launcher:
                         view.stop()
                     except Exception:  # a bug in drawing it: said, and the services are stopped all the same
                         log.exception("the live view's last redraw raised")
+                if ending is None and not self.outputs_written:  # no results: the map so far, while the services still run
+                    self.keep_last_map(session)
                 log.info("stopping services")
                 self.stop_event.set()
                 stopping_s = time.monotonic()
@@ -1073,6 +1081,30 @@ class Launcher:
         self.session = None
         return self.exit_code
 
+    def keep_last_map(self, session: Any) -> None:
+        """An episode stopped before its end (Ctrl-C, ``down``, a service given up on) keeps no results, but its map so far
+        is worth keeping (minutes of a robot's mapping): the newest one the run answers for (``save-map``'s) goes to
+        ``LAST_MAP`` in the run folder, as map_server files in the user's map frame. At most ``timeout_s`` of the stop."""
+        from cso_runtime.map_files import save_map  # noqa: PLC0415
+        from cso_runtime.status import newest_map  # noqa: PLC0415
+
+        if self.status is None or self.status.state == "starting":
+            return
+        try:
+            msg, why, map_origin = newest_map(session, self.profile.robot, timeout_s=1.0)
+        except zenoh.ZError as exc:  # the session closing under it: no map, said
+            msg, why, map_origin = None, str(exc), None
+        if msg is None:
+            log.warning("the episode's map is not kept: %s", why)
+            return
+        try:
+            save_map(self.run_dir / LAST_MAP, msg.grid, msg.geometry, image_format="png", map_origin=map_origin)
+        except (OSError, ValueError) as exc:
+            log.error("the episode's map at step %d is not kept: %s", msg.step, getattr(exc, "strerror", None) or exc)
+            return
+        self.last_map_step = msg.step
+        log.info("the episode's map at step %d kept: %s", msg.step, self.run_dir / LAST_MAP)
+
     def closing_line(self) -> str:
         """The run's last line, under the services' stop: where its results are and what to open first, or, for a
         run stopped before its episode's results were written, what it kept and how to read it."""
@@ -1080,6 +1112,8 @@ class Launcher:
             return results_said(self.run_dir)
         # The episode ended and its results were not written (a full disk, no result came: said above), or it never ended.
         why = "the episode's results could not be written (see above); " if self.outputs_written else ""
+        if self.last_map_step is not None:
+            why += f"the episode's map at step {self.last_map_step} is in {self.run_dir / LAST_MAP}; "
         return f"no results: {why}the run's profile and logs are in {self.run_dir}/ (`cso-runtime logs --run {self.run_dir}`)"
 
 

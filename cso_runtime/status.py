@@ -526,25 +526,30 @@ def query_map(
     session = _client_session(connect, zenoh_config_file)
     if session is None:
         return None, f"cannot reach {', '.join(connect)}", MAP_FRAME_ORIGIN
+    with session:
+        return newest_map(session, robot, timeout_s)
+
+
+def newest_map(session: zenoh.Session, robot: str, timeout_s: float = 1.0) -> tuple[MapMsg | None, str, Pose2D]:
+    """``query_map`` on a session already open (the launcher's own, keeping an interrupted episode's map)."""
     best: MapMsg | None = None
     map_origin = MAP_FRAME_ORIGIN
     why = f"nothing answered on {RobotKeys(robot).cache('map')}"
-    with session:
-        statuses = session.get(RobotKeys(robot).episode_status, target=zenoh.QueryTarget.ALL, timeout=timeout_s)  # asked at once: both wait together
-        for reply in session.get(RobotKeys(robot).cache("map"), target=zenoh.QueryTarget.ALL, timeout=timeout_s):
-            if reply.ok is None:
-                why = reply.err.payload.to_string() if reply.err is not None else why
-                continue
-            try:
-                msg = decode(reply.ok.payload.to_bytes(), MapMsg)
-            except MessageError as exc:
-                why = f"malformed map reply: {exc}"
-                continue
-            assert isinstance(msg, MapMsg)
-            if best is None or msg.step >= best.step:
-                best = msg
-        for status in _decoded(statuses, EpisodeStatusMsg):
-            map_origin = status.map_origin
+    statuses = session.get(RobotKeys(robot).episode_status, target=zenoh.QueryTarget.ALL, timeout=timeout_s)  # asked at once: both wait together
+    for reply in session.get(RobotKeys(robot).cache("map"), target=zenoh.QueryTarget.ALL, timeout=timeout_s):
+        if reply.ok is None:
+            why = reply.err.payload.to_string() if reply.err is not None else why
+            continue
+        try:
+            msg = decode(reply.ok.payload.to_bytes(), MapMsg)
+        except MessageError as exc:
+            why = f"malformed map reply: {exc}"
+            continue
+        assert isinstance(msg, MapMsg)
+        if best is None or msg.step >= best.step:
+            best = msg
+    for status in _decoded(statuses, EpisodeStatusMsg):
+        map_origin = status.map_origin
     return best, "" if best is not None else why, map_origin
 
 

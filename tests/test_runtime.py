@@ -3415,8 +3415,13 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
         # its first line says which run this is and where its logs and results go, before any service starts
         first = out.splitlines()[0]
         assert first.endswith(f"INFO cso.launcher: run {run_dir.name}: profile lockstep, scene {SCENE}, method greedy-dist, robot r0; logs, then results, in {run_dir}/"), out
-        # its last line says what the interrupted run kept, and where
-        assert out.rstrip().splitlines()[-1].endswith(f"no results: the run's profile and logs are in {run_dir}/ (`cso-runtime logs --run {run_dir}`)"), out
+        # its last line says what the interrupted run kept, and where: the episode's map so far too (it kept only its
+        # profile and logs: minutes of mapping were lost to a Ctrl-C unless `save-map` had been run just before)
+        last = out.rstrip().splitlines()[-1]
+        kept = re.search(rf"no results: the episode's map at step (\d+) is in {re.escape(str(run_dir))}/last_map\.yaml; the run's profile and logs are in ", last)
+        assert kept and last.endswith(f"{run_dir}/ (`cso-runtime logs --run {run_dir}`)"), out
+        grid, _ = load_map(run_dir / "last_map.yaml")
+        assert int(kept.group(1)) >= 6 and (grid == 0).sum() > 100 and (run_dir / "last_map.png").exists()
         # without a live view, a followed log is never silent: the episode's progress every progress_log_s
         # (with the sim's real-time factor, at most about 1.25x at 0.2 s a step of 0.25 s, once two statuses have come)
         line = r"INFO cso\.launcher: step \d+ \([\d.]+ s robot time(, [\d.]+x real time)?\): coverage [\d.]+ %, [\d.]+ m2 explored"
