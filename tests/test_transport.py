@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import re
 import socket
+import time
 from pathlib import Path
 
 import pytest
@@ -180,3 +181,80 @@ def test_a_zenoh_config_file_zenoh_or_the_runtime_would_refuse_is_a_configuratio
     path = tmp_path / "zenoh.json5" if text is None else write_zenoh_config(tmp_path, text)
     with pytest.raises(transport.TransportError, match=re.escape(said)):
         TransportConfig(mode="client", connect=[loopback_endpoint(7447)], zenoh_config_file=str(path)).validate()
+
+
+def hardware_md_json5(containing: str) -> str:
+    """The JSON5 block of docs/hardware.md's "Securing the network" that holds ``containing``."""
+    section = (ROOT / "docs" / "hardware.md").read_text(encoding="utf-8").split("## 9. Securing the network", 1)[1]
+    (block,) = [b for b in re.findall(r"```json5\n(.*?)```", section, re.DOTALL) if containing in b]
+    return block
+
+
+def test_the_access_control_example_of_hardware_md_does_what_it_says(tmp_path):
+    """docs/hardware.md's access control, as written there, on a robot's router with its users' dictionary: the
+    laptop's user ``cso`` (the doc's laptop file) may do everything the runtime does, and ``viewer`` may only
+    subscribe: its commands and queries reach no one. The doc's ``**`` matched no verbatim chunk, so the runtime's own
+    tokens (the robot a bridge drives, a starting run's claims) were denied and ``up`` could not see them: a second
+    run drove the robot beside the first."""
+    from cso_runtime.claims import RunClaim
+    from cso_runtime.keys import RobotKeys, robot_claim_subject, robot_driver_token, run_claim_token
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import load_profile
+
+    users = write_zenoh_config(tmp_path, "cso:change-me\nviewer:just-looking\n", "robot-users.txt")
+    acl = hardware_md_json5("access_control").strip()
+    assert acl.endswith("}")
+    robot = write_zenoh_config(tmp_path, acl[:-1].rstrip().rstrip(",") + f',\n  transport: {{ auth: {{ usrpwd: {{ dictionary_file: "{users}" }} }} }},\n}}\n', "robot.json5")
+    laptop_text = hardware_md_json5('user: "cso"')
+    (named,) = re.findall(r'dictionary_file: "(/[^"]+)"', laptop_text)  # the laptop's own router's users: not used here
+    laptop = write_zenoh_config(tmp_path, laptop_text.replace(named, str(users)), "laptop.json5")
+    viewer = write_zenoh_config(tmp_path, '{ transport: { auth: { usrpwd: { user: "viewer", password: "just-looking" } } } }', "viewer.json5")
+    endpoint = loopback_endpoint(transport.free_tcp_port())
+
+    def client(config: Path) -> zenoh.Session:
+        return transport.open_session(TransportConfig(mode="client", connect=[endpoint], zenoh_config_file=str(config)))
+
+    keys = RobotKeys("r0")
+    with (
+        transport.open_session(TransportConfig(mode="router", listen=[endpoint], zenoh_config_file=str(robot))),
+        client(laptop) as run, client(laptop) as other_run, client(viewer) as dashboard,
+    ):
+        heard: dict[str, list[str]] = {"run": [], "dashboard": []}
+        subs = [
+            run.declare_subscriber("**", lambda s: heard["run"].append(s.payload.to_string())),
+            dashboard.declare_subscriber("**", lambda s: heard["dashboard"].append(s.payload.to_string())),
+        ]
+        status = other_run.declare_queryable(keys.launcher_status, lambda q: q.reply(keys.launcher_status, b"status"))
+        # The dashboard sends a command on the robot's cmd_vel and on the run's, each round, between the other run's
+        # messages; once the run has heard the other run's last, it would have heard the dashboard's.
+        rounds = 20
+        for i in range(rounds):
+            dashboard.put("limo1/cmd_vel", f"dashboard {i}")
+            dashboard.put(keys.cmd_vel, f"dashboard {i}")
+            other_run.put(keys.map, f"other {i}")
+        deadline_s = time.monotonic() + 30.0
+        while f"other {rounds - 1}" not in heard["run"] or f"other {rounds - 1}" not in heard["dashboard"]:
+            assert time.monotonic() < deadline_s, heard
+            time.sleep(0.02)
+        assert [m for m in heard["run"] if m.startswith("dashboard")] == [], heard["run"]  # what it published reached no one
+        assert [r.ok.payload.to_string() for r in run.get(keys.launcher_status, timeout=5.0) if r.ok] == ["status"]
+        assert [r for r in dashboard.get(keys.launcher_status, timeout=5.0) if r.ok] == []  # nor may it ask
+        status.undeclare()
+        # The runtime's own liveliness tokens pass between the laptop's sessions: up's checks see them.
+        held = [
+            other_run.liveliness().declare_token(robot_driver_token("limo1/cmd_vel", "r7")),
+            other_run.liveliness().declare_token(run_claim_token(robot_claim_subject("r0"), RunClaim.new("other-run").chunk)),
+            other_run.liveliness().declare_token(RobotKeys("r7").alive("mapper")),  # declared last: once seen, so are the others
+        ]
+        deadline_s = time.monotonic() + 30.0
+        while not [r for r in run.liveliness().get(RobotKeys("r7").alive("mapper"), timeout=5.0) if r.ok]:
+            assert time.monotonic() < deadline_s, "the other run's tokens never reached the run"
+            time.sleep(0.02)
+        on_robot, _ = load_profile("limo-ros2", {"robot": "r1"}, connect=[endpoint], namespace="limo1")
+        said = Launcher(on_robot, {}, tmp_path / "on-robot").robot_already_served(run)
+        assert "limo1/cmd_vel is already driven by robot r7's run" in said, said
+        same_id, _ = load_profile("lockstep", connect=[endpoint])
+        said = Launcher(same_id, {}, tmp_path / "same-id").robot_already_served(run)
+        assert "robot r0 is being started by another run on this network at the same moment (run other-run goes on)" in said, said
+        for entity in [*held, *subs]:
+            entity.undeclare()
