@@ -2635,6 +2635,11 @@ def test_up_with_a_zenoh_config_file_zenoh_refuses_says_so_and_starts_nothing(tm
             assert not runs.exists()
 
 
+def log_tails(runs: Path, chars: int = 1500) -> str:
+    """The end of each log of the runs in ``runs``: what a failed run test shows (a run's folder goes with its tmp_path)."""
+    return "".join(f"\n--- {f.parent.parent.name}/{f.name}\n{f.read_text(errors='replace')[-chars:]}" for f in sorted(runs.glob("*/logs/*.log")))
+
+
 def test_a_run_behind_a_user_password_router_completes_and_a_session_without_them_cannot_join(tmp_path, monkeypatch):
     """``up --zenoh-config FILE`` with Zenoh's user/password authentication: the embedded router asks every
     session for a user in its dictionary, the services (given the same file) answer and the lockstep episode ends;
@@ -2661,7 +2666,7 @@ def test_a_run_behind_a_user_password_router_completes_and_a_session_without_the
         final = wait_for(
             lambda: (s := query_status(endpoints, "r0", timeout_s=0.5)) and s["state"] in ("done", "failed") and s, 120, "the end of the episode", period_s=0.2
         )
-        assert final["state"] == "done" and all(s["alive"] for s in final["services"].values()), final
+        assert final["state"] == "done" and all(s["alive"] for s in final["services"].values()), (final, log_tails(runs))
         monkeypatch.delenv(ZENOH_CONFIG_ENV)
         for flags in (["--zenoh-config", str(auth)], []):  # given, or the current run's own (its run file names it)
             r = cli(*flags, "status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
@@ -2704,7 +2709,7 @@ def test_a_run_behind_a_mutual_tls_router_completes_and_a_session_without_a_cert
         final = wait_for(
             lambda: (s := query_status(endpoints, "r0", timeout_s=0.5)) and s["state"] in ("done", "failed") and s, 120, "the end of the episode", period_s=0.2
         )
-        assert final["state"] == "done" and all(s["alive"] for s in final["services"].values()), final
+        assert final["state"] == "done" and all(s["alive"] for s in final["services"].values()), (final, log_tails(runs))
         monkeypatch.delenv(ZENOH_CONFIG_ENV)
         # the services (peers) listen too, over TLS as their router: with the file a session joins one
         service_pids = [s["pid"] for s in final["services"].values()]
