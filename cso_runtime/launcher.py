@@ -953,7 +953,7 @@ class Launcher:
                     )
         return ""
 
-    def seen_at_router(self, session: Any, timeout_s: float = 5.0) -> bool:
+    def seen_at_router(self, session: Any, timeout_s: float = 10.0) -> bool:
         """Whether ``session`` (a client of the router this run joined) sees this run as ``robot_taken`` asks: its
         launcher answers for the robot id, and it holds the token of each robot its bridge will drive; false after
         ``timeout_s`` (a run then keeps its claims while it runs) or once the run is stopped."""
