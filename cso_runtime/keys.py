@@ -148,3 +148,30 @@ def robot_driver_token(cmd_vel_key: str, robot: str) -> str:
     one robot's namespace would both drive it, each step's two commands fighting."""
     check_robot_id(robot, allow_wildcard=True)
     return f"{ROBOT_DRIVERS}/{cmd_vel_key}/{robot}"
+
+
+RUN_CLAIMS = f"{ROOT}/@claim"
+"""Where a starting run claims what it is to run (``cso_runtime.claims``): a verbatim chunk, as ``ROBOT_DRIVERS``."""
+
+
+def robot_claim_subject(robot: str) -> str:
+    """What a run of robot id ``robot`` claims before it starts: the id's keys (``cso/<robot>/**``)."""
+    return f"robot/{check_robot_id(robot)}"
+
+
+def driver_claim_subject(cmd_vel_key: str) -> str:
+    """What a run whose ROS 2 bridge would send Twists on ``cmd_vel_key`` claims before it starts: that robot."""
+    return f"drives/{cmd_vel_key}"
+
+
+def run_claim_token(subject: str, claim: str = WILDCARD) -> str:
+    """Liveliness token of a run's claim (``claims.RunClaim.chunk``; ``*`` for any) on ``subject``: the claim first,
+    so that ``*`` stands for it whatever the subject's length (``drives/ns/cmd_vel``), and one access-control rule on
+    ``cso/@claim/**`` covers them all."""
+    return f"{RUN_CLAIMS}/{claim}/{subject}"
+
+
+def run_goes_on_token(subject: str, claim: str = WILDCARD) -> str:
+    """Liveliness token of a claimant that has won ``subject`` and goes on (``*`` for any); no subject starts with
+    ``go/``, so a claim's token never matches another's go-on token."""
+    return f"{RUN_CLAIMS}/{claim}/go/{subject}"

@@ -16,6 +16,7 @@ with a deadline.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
@@ -33,6 +34,7 @@ import yaml
 import zenoh
 
 from cso_runtime import __version__
+from cso_runtime.claims import DECIDE_WITHIN_S, LostClaim, RunClaim, declare_claims, settle_claims
 from cso_runtime.config import (
     EXIT_BAD_CONFIG,
     EXIT_INTERRUPTED,
@@ -43,7 +45,7 @@ from cso_runtime.config import (
     to_dict,
 )
 from cso_runtime.current_run import CURRENT_RUN, DOWN_MARGIN_S, RUNS_LOCK, down, hold_runs_lock, new_run_dir, read_current_run
-from cso_runtime.keys import WILDCARD, RobotKeys, robot_driver_token, topic_of
+from cso_runtime.keys import WILDCARD, RobotKeys, driver_claim_subject, robot_claim_subject, robot_driver_token, topic_of
 from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EPISODE_OVER,
@@ -322,6 +324,9 @@ class Launcher:
         """Service -> the key and payload that stop the robot it commands, sent when it dies (``stop_robot``)."""
         self.session: Any = None
         """The launcher's Zenoh session while it runs (``stop_robot`` sends on it)."""
+        self.claim_tokens: list[Any] = []
+        """This run's claims on its robot (``cso_runtime.claims``), held until the router it joined answers for the run
+        (``seen_at_router``; while it runs when it joined as a client), so that a run starting meanwhile is refused."""
         self.run_file_unwritten = False
         """The last write of the run file failed (a full disk): said once, until a write works again."""
         self.router_lost_at: float | None = None
@@ -919,10 +924,47 @@ class Launcher:
 
     def robot_already_served(self, session: Any, timeout_s: float = 1.0) -> str:
         """Why this run cannot join the network, with what to change, or "": another run's launcher answers for its
-        robot id, one of the services this run would start is alive under it, or another run's ROS 2 bridge
-        already drives the robot this run's would (``keys.robot_driver_token``). Two runs of one id would cross-feed
-        every key (maps cleared by each other's episodes, one cmd_vel for two robots); two runs on one robot's
-        namespace would each send it a command every step."""
+        robot id, one of the services this run would start is alive under it, another run's ROS 2 bridge already
+        drives the robot this run's would (``keys.robot_driver_token``), or another run started at the same moment
+        takes the robot id or that robot (``cso_runtime.claims``: this run claims both before it asks, on
+        ``session``, a client of the router it joins, and holds its claims in ``claim_tokens``). Two runs of one id
+        would cross-feed every key (maps cleared by each other's episodes, one cmd_vel for two robots); two runs on
+        one robot's namespace would each send it a command every step."""
+        subjects = {robot_claim_subject(self.profile.robot): ""}
+        subjects.update({driver_claim_subject(cmd_key): name for name, (cmd_key, _) in self.robot_stop_commands.items()})
+        claim = RunClaim.new(self.run_id)
+        self.claim_tokens = declare_claims(session, list(subjects), claim)
+        went_on, lost = settle_claims(session, list(subjects), claim, timeout_s, stop=self.stop_event)
+        self.claim_tokens += went_on
+        # Asked after the claims are settled: a run that won, then withdrew its claims once the router answered for it
+        # (``seen_at_router``), is seen here by a run that waited for it and saw its claim go.
+        taken = self.robot_taken(session, timeout_s) or ("" if lost is None else self.claim_lost_said(lost, subjects[lost.subject]))
+        if taken:  # withdrawn at once: a run that waits for this one's decision goes on
+            self.withdraw_claims()
+        return taken
+
+    def withdraw_claims(self) -> None:
+        """Undeclare this run's claims (``robot_already_served``)."""
+        for token in self.claim_tokens:
+            token.undeclare()
+        self.claim_tokens = []
+
+    def claim_lost_said(self, lost: LostClaim, driver: str) -> str:
+        """Why this run does not start when another run started at the same moment has its robot id (``driver``: ""), or
+        the robot its ``driver`` service would command, with what to change."""
+        if lost.stopped:
+            return "stopped while another run started at the same moment was deciding whether it goes on"
+        other = f"run {lost.winner.run_id}" + (f" has not said within {DECIDE_WITHIN_S:g} s whether it goes on; try again" if lost.undecided else " goes on")
+        if not driver:
+            return f"robot {self.profile.robot} is being started by another run on this network at the same moment ({other}); give this run another --robot, or stop that run first"
+        cmd_key = lost.subject.removeprefix(driver_claim_subject(""))
+        return (
+            f"the robot behind {cmd_key} is being claimed by another run starting on this network at the same moment ({other}): "
+            f"this run's {driver} would send it commands too; give this run the --namespace of another robot, or stop that run first"
+        )
+
+    def robot_taken(self, session: Any, timeout_s: float) -> str:
+        """Why this run cannot join the network as it is now (``robot_already_served`` without the claims), or ""."""
         another_id = "give this run another --robot"
         for reply in session.get(self.keys.launcher_status, timeout=timeout_s):
             if reply.ok is not None:
@@ -941,6 +983,25 @@ class Launcher:
                     )
         return ""
 
+    def seen_at_router(self, session: Any, timeout_s: float = 10.0) -> bool:
+        """Whether ``session`` (a client of the router this run joined) sees this run as ``robot_taken`` asks: its
+        launcher answers for the robot id, and it holds the token of each robot its bridge will drive; false after
+        ``timeout_s`` (a run then keeps its claims while it runs) or once the run is stopped."""
+        deadline_s = time.monotonic() + timeout_s
+        while not self.stop_event.is_set() and time.monotonic() < deadline_s:
+            if any(r.ok is not None for r in session.get(self.keys.launcher_status, timeout=1.0)) and all(
+                any(r.ok is not None for r in session.liveliness().get(robot_driver_token(cmd_key, self.profile.robot), timeout=1.0))
+                for cmd_key, _ in self.robot_stop_commands.values()
+            ):
+                return True
+            self.stop_event.wait(0.05)
+        return False
+
+    def client_config(self) -> TransportConfig:
+        """A session that joins the routers of ``router.connect`` as a client."""
+        router = self.profile.router
+        return TransportConfig(mode="client", connect=list(router.connect), connect_timeout_s=router.connect_timeout_s, zenoh_config_file=router.zenoh_config)
+
     # --- main loop --------------------------------------------------------------------------------
     def run(self, live: bool = False, stay_after_done: bool = False) -> int:
         """Start everything and supervise until the episode ends (or until stopped when ``stay_after_done``)."""
@@ -955,22 +1016,32 @@ class Launcher:
             session, self.endpoints = open_router(list(router.listen), list(router.connect), router.connect_timeout_s, router.zenoh_config)
         else:  # join the existing router(s) instead of opening one
             self.endpoints = list(router.connect)
-            session = open_session(
-                TransportConfig(mode="client", connect=list(router.connect), connect_timeout_s=router.connect_timeout_s, zenoh_config_file=router.zenoh_config)
-            )
+            session = open_session(self.client_config())
         view = LiveView(self) if live else None
         self.session = session
         if router.connect:
             self.routers_joined = self.count_joined_routers()
-        with session:
-            if router.connect and (taken := self.robot_already_served(session)):
-                log.error("%s; no service was started", taken)
-                return self.stop_before_start(EXIT_BAD_CONFIG)
+        with session, contextlib.ExitStack() as claiming:
+            if router.connect:
+                # Asked on a client of the router joined, which orders this run's claims before its questions (an
+                # embedded router answers from what has reached it so far), and holds the claims until the run is seen.
+                claims_session = session if not router.embedded else claiming.enter_context(open_session(self.client_config()))
+                if taken := self.robot_already_served(claims_session):
+                    if self.stop_event.is_set():
+                        log.warning("interrupted before any service was started")
+                        return self.stop_before_start(EXIT_INTERRUPTED)
+                    log.error("%s; no service was started", taken)
+                    return self.stop_before_start(EXIT_BAD_CONFIG)
             subs = [session.declare_subscriber(self.keys.topic(t), self._guarded(self._on_sample)) for t in LAUNCHER_INPUTS]
             qs = [
                 session.declare_queryable(self.keys.cache("goal"), self._guarded(self._on_cache_query)),
                 session.declare_queryable(self.keys.launcher_status, self._guarded(self._on_status_query)),
             ]
+            # The robot this run's bridge will drive is this run's from now on, through a bridge's start or restart.
+            drivers = [session.liveliness().declare_token(robot_driver_token(cmd_key, self.profile.robot)) for cmd_key, _ in self.robot_stop_commands.values()]
+            if router.connect and self.seen_at_router(claims_session):
+                self.withdraw_claims()  # a run started from now on is refused by what it sees of this one
+                claiming.close()
             alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._guarded(self._on_alive), history=True)
             if self.profile.supervision.hang_timeout_s > 0:
                 self.status_watch = StatusWatch(session, self.keys, self.stop_event)
@@ -1071,7 +1142,7 @@ class Launcher:
                     self.settle_episode_end(ending)
                 self.finish_recording(recorder)
                 alive_sub.undeclare()
-                for q in qs:
+                for q in [*qs, *drivers]:
                     q.undeclare()
                 for s in subs:
                     s.undeclare()

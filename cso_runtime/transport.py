@@ -67,9 +67,17 @@ other than Zenoh's default is refused (it would be overwritten without a word)."
 TUNED_KEYS = {
     "transport/link/tx/queue/size/data": "8",
     "transport/link/tx/queue/congestion_control/drop/wait_before_drop": "20000",
+    "scouting/gossip/autoconnect_strategy": '{ peer: { to_router: "always", to_peer: "greater-zid" } }',
 }
 """Our values for Zenoh settings (JSON5) where Zenoh's default loses messages on a busy machine (``zenoh_config``):
-a file that sets one to something else keeps its own."""
+a file that sets one to something else keeps its own.
+
+``autoconnect_strategy``: of two peers that hear of each other (peer-mode services, introduced by their router), only
+the one with the greater Zenoh id connects. By default both do, and with user/password authentication two such
+connections at once could leave the pair without a link for good (Zenoh 1.10; its issue 2577 reports duplicate
+connections refused with usrpwd): of five peers opened at once behind a password router, some pair stayed unlinked in
+3 of 17 tries, none with this strategy or without a password. A lockstep run's sim then never heard one service and
+failed its episode after ``lockstep_give_up_s``, as on a loaded host while sessions without the password were refused."""
 
 FILE_KEYS = (
     "transport/auth/usrpwd/dictionary_file",

@@ -639,22 +639,32 @@ def test_a_second_up_in_the_same_runs_folder_is_refused_whichever_robot(tmp_path
     assert sorted(p.name for p in runs.iterdir()) == ["current.json"]  # nothing started
 
 
-@pytest.mark.parametrize("taken_by", ["launcher", "service"])
+@pytest.mark.parametrize("taken_by", ["launcher", "service", "claim"])
 def test_up_refuses_a_robot_id_that_another_run_on_the_network_has(tmp_path, taken_by):
     """Two runs of one robot id on one network cross-fed every key (each cleared the other's map on each new
     episode, and one cmd_vel would drive both robots): ``up`` joining a router where that id already has a
-    launcher, or one of the services it would start, refuses before starting anything."""
+    launcher, or one of the services it would start, or the claim of a run starting at that moment, refuses before
+    starting anything."""
+    from cso_runtime.claims import RunClaim
+    from cso_runtime.keys import robot_claim_subject, run_claim_token
+
     port = free_tcp_port()
     keys = RobotKeys("r0")
     with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
         if taken_by == "launcher":
             held = session.declare_queryable(keys.launcher_status, lambda query: query.reply(keys.launcher_status, b"x"))
-        else:
+        elif taken_by == "service":
             held = session.liveliness().declare_token(keys.alive("mapper"))
+        else:
+            held = session.liveliness().declare_token(run_claim_token(robot_claim_subject("r0"), RunClaim.new("other-run").chunk))
         try:
             runs = tmp_path / "runs"
             r = cli("up", "--profile", "lockstep", "--connect", loopback_endpoint(port), "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
-            expected = "is already run by another launcher" if taken_by == "launcher" else "already has a mapper service"
+            expected = {
+                "launcher": "is already run by another launcher",
+                "service": "already has a mapper service",
+                "claim": "is being started by another run on this network at the same moment (run other-run goes on)",
+            }[taken_by]
             assert r.returncode == 2 and f"robot r0 {expected}" in r.stderr and "another --robot" in r.stderr, r.stderr[-2000:]
             assert not list(runs.glob("*/logs/mapper.log"))  # no service was started
         finally:
@@ -684,6 +694,116 @@ def test_up_refuses_to_drive_a_robot_that_another_runs_ros2_bridge_drives(tmp_pa
             assert Launcher(other, data, tmp_path / "other").robot_already_served(session) == ""
         finally:
             held.undeclare()
+
+
+PRE_START_CHECK_AT_ONCE = """
+import sys
+from pathlib import Path
+from cso_runtime.launcher import Launcher
+from cso_runtime.run_profile import load_profile
+from cso_runtime.transport import TransportConfig, open_session
+profile_name, endpoint, run_dir, robot, namespace = sys.argv[1:6]
+profile, data = load_profile(profile_name, {"robot": robot}, connect=[endpoint], namespace=namespace or None)
+launcher = Launcher(profile, data, Path(run_dir))
+with open_session(TransportConfig(mode="client", connect=[endpoint])) as session:
+    print("ready", flush=True)
+    sys.stdin.readline()  # the barrier: the test lets every launcher go at once
+    verdict = launcher.robot_already_served(session)
+    print("verdict " + verdict, flush=True)
+    sys.stdin.readline()  # a launcher that goes on holds what it declared while the others decide, as its run would
+"""
+
+
+def pre_start_checks_at_once(tmp_path: Path, endpoint: str, runs: list[tuple[str, str, str]]) -> list[str]:
+    """Each run's pre-start check (``Launcher.robot_already_served``; a run: profile, robot id, ROS namespace or "")
+    in a process of its own, all let go at one instant (a barrier on their stdin once every session is open); what
+    each said, in the order of ``runs`` ("": it goes on)."""
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", PRE_START_CHECK_AT_ONCE, name, endpoint, str(tmp_path / f"run{i}"), robot, namespace],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        )
+        for i, (name, robot, namespace) in enumerate(runs)
+    ]
+    try:
+        for p in procs:
+            assert p.stdout.readline() == "ready\n", p.communicate(timeout=30)[1][-2000:]
+        for p in procs:  # go: each line is sent at once, before any launcher could have answered
+            p.stdin.write("\n")
+            p.stdin.flush()
+        said = [p.stdout.readline() for p in procs]
+        for p in procs:
+            p.stdin.write("\n")
+            p.stdin.flush()
+            assert p.wait(30) == 0, p.stderr.read()[-2000:]
+        assert all(s.startswith("verdict ") for s in said), said
+        return [s.removeprefix("verdict ").strip() for s in said]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+
+
+def test_of_two_runs_of_one_robot_started_at_once_exactly_one_goes_on(tmp_path):
+    """Two ``up`` of one robot id on one network, started at the same instant, both passed the pre-start check (each
+    asked before the other had declared anything) and both ran: two sims fed one robot's keys. Each run now claims
+    its robot before it asks (``cso_runtime.claims``); of claims made at once exactly one goes on, and the other is
+    refused as ``up`` refuses a robot already run (exit 2, nothing started). Another robot's run goes on beside them."""
+    port = free_tcp_port()
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])):
+        said = pre_start_checks_at_once(tmp_path, loopback_endpoint(port), [("lockstep", "r0", ""), ("lockstep", "r0", ""), ("lockstep", "r1", "")])
+    assert min(said[:2]) == "" and said[2] == "", said
+    refused = max(said[:2])
+    assert "robot r0 is being started by another run" in refused and "another --robot" in refused, refused
+
+
+def test_of_two_runs_started_at_once_to_drive_one_ros_robot_exactly_one_goes_on(tmp_path):
+    """Two ``limo-ros2`` runs of different robot ids on one robot's namespace, started at the same instant, both
+    passed the check of the robot's driver (no bridge drove it yet), and both bridges would send it Twists. Each run
+    claims the ``cmd_vel`` it would drive too: exactly one goes on; a run on another namespace goes on beside it."""
+    port = free_tcp_port()
+    runs = [("limo-ros2", "r1", "limo1"), ("limo-ros2", "r2", "limo1"), ("limo-ros2", "r3", "limo2")]
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])):
+        said = pre_start_checks_at_once(tmp_path, loopback_endpoint(port), runs)
+    assert min(said[:2]) == "" and said[2] == "", said
+    refused = max(said[:2])
+    assert "limo1/cmd_vel is being claimed by another run" in refused and "--namespace" in refused, refused
+
+
+
+def test_of_two_up_of_one_robot_started_together_one_runs_and_a_later_one_is_refused(tmp_path):
+    """Two ``up --detach`` of robot r0 started together, each from its own runs folder, joining one router: one
+    runs, the other stops before it starts anything (exit 2), whichever got there first. The run that goes on then
+    withdraws its claims (one session on the router: its own router's) once the router answers for it, and a run
+    started later is refused by that answer."""
+    from tests.test_limo_ros2 import _connections_to_port
+
+    port = free_tcp_port()
+    profile = write_profile(tmp_path, min_step_period_s=0.25)
+    all_runs = [tmp_path / f"runs{i}" for i in range(3)]
+
+    def up(runs: Path) -> subprocess.Popen:
+        argv = ["up", "--profile", str(profile), "--connect", loopback_endpoint(port), "--detach", "--runs-dir", str(runs)]
+        return subprocess.Popen([*python_module_argv("cso_runtime.cli"), *argv], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    try:
+        with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])):
+            together = [up(runs) for runs in all_runs[:2]]
+            said = [p.communicate(timeout=60) for p in together]
+            codes = [p.returncode for p in together]
+            assert sorted(codes) == [0, 2], said
+            refused = said[codes.index(2)][1]
+            assert "robot r0 is" in refused and "another --robot" in refused and "no service was started" in refused, refused
+            assert _connections_to_port(port) == 1, "the run's own router only: its claims are withdrawn"
+            later = up(all_runs[2])
+            _, err = later.communicate(timeout=60)
+            assert later.returncode == 2 and "robot r0 is already run by another launcher" in err, err
+    finally:
+        for runs in all_runs:
+            if (runs / "current.json").exists():
+                cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+            kill_leftovers(runs)
 
 
 def test_a_run_that_started_no_service_is_listed_as_it_ended(tmp_path):
@@ -2689,6 +2809,11 @@ def test_up_with_a_zenoh_config_file_zenoh_refuses_says_so_and_starts_nothing(tm
             assert not runs.exists()
 
 
+def log_tails(runs: Path, chars: int = 1500) -> str:
+    """The end of each log of the runs in ``runs``: what a failed run test shows (a run's folder goes with its tmp_path)."""
+    return "".join(f"\n--- {f.parent.parent.name}/{f.name}\n{f.read_text(errors='replace')[-chars:]}" for f in sorted(runs.glob("*/logs/*.log")))
+
+
 def test_a_run_behind_a_user_password_router_completes_and_a_session_without_them_cannot_join(tmp_path, monkeypatch):
     """``up --zenoh-config FILE`` with Zenoh's user/password authentication: the embedded router asks every
     session for a user in its dictionary, the services (given the same file) answer and the lockstep episode ends;
@@ -2715,7 +2840,7 @@ def test_a_run_behind_a_user_password_router_completes_and_a_session_without_the
         final = wait_for(
             lambda: (s := query_status(endpoints, "r0", timeout_s=0.5)) and s["state"] in ("done", "failed") and s, 120, "the end of the episode", period_s=0.2
         )
-        assert final["state"] == "done" and all(s["alive"] for s in final["services"].values()), final
+        assert final["state"] == "done" and all(s["alive"] for s in final["services"].values()), (final, log_tails(runs))
         monkeypatch.delenv(ZENOH_CONFIG_ENV)
         for flags in (["--zenoh-config", str(auth)], []):  # given, or the current run's own (its run file names it)
             r = cli(*flags, "status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
@@ -2758,7 +2883,7 @@ def test_a_run_behind_a_mutual_tls_router_completes_and_a_session_without_a_cert
         final = wait_for(
             lambda: (s := query_status(endpoints, "r0", timeout_s=0.5)) and s["state"] in ("done", "failed") and s, 120, "the end of the episode", period_s=0.2
         )
-        assert final["state"] == "done" and all(s["alive"] for s in final["services"].values()), final
+        assert final["state"] == "done" and all(s["alive"] for s in final["services"].values()), (final, log_tails(runs))
         monkeypatch.delenv(ZENOH_CONFIG_ENV)
         # the services (peers) listen too, over TLS as their router: with the file a session joins one
         service_pids = [s["pid"] for s in final["services"].values()]

@@ -6,6 +6,9 @@ from __future__ import annotations
 import json
 import re
 import socket
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -159,6 +162,7 @@ def test_a_zenoh_config_files_settings_reach_the_session_config_with_ours_on_top
     assert cfg.get_json("scouting/gossip/enabled") == "false"
     assert cfg.get_json("transport/link/tx/queue/size/data") == "4"  # the file's own tuning is kept
     assert cfg.get_json("transport/link/tx/queue/congestion_control/drop/wait_before_drop") == "20000"  # ours where it says nothing
+    assert json.loads(cfg.get_json("scouting/gossip/autoconnect_strategy"))["peer"]["to_peer"] == "greater-zid"
     assert json.loads(cfg.get_json("mode")) == "client" and json.loads(cfg.get_json("connect/endpoints")) == [endpoint]
     assert cfg.get_json("scouting/multicast/enabled") == "false" and cfg.get_json("connect/exit_on_failure") == "true"
     monkeypatch.setenv(transport.ZENOH_CONFIG_ENV, str(path))  # what `cso-runtime --zenoh-config` and `up` pass on
@@ -180,3 +184,128 @@ def test_a_zenoh_config_file_zenoh_or_the_runtime_would_refuse_is_a_configuratio
     path = tmp_path / "zenoh.json5" if text is None else write_zenoh_config(tmp_path, text)
     with pytest.raises(transport.TransportError, match=re.escape(said)):
         TransportConfig(mode="client", connect=[loopback_endpoint(7447)], zenoh_config_file=str(path)).validate()
+
+
+def hardware_md_json5(containing: str) -> str:
+    """The JSON5 block of docs/hardware.md's "Securing the network" that holds ``containing``."""
+    section = (ROOT / "docs" / "hardware.md").read_text(encoding="utf-8").split("## 9. Securing the network", 1)[1]
+    (block,) = [b for b in re.findall(r"```json5\n(.*?)```", section, re.DOTALL) if containing in b]
+    return block
+
+
+def test_the_access_control_example_of_hardware_md_does_what_it_says(tmp_path):
+    """docs/hardware.md's access control, as written there, on a robot's router with its users' dictionary: the
+    laptop's user ``cso`` (the doc's laptop file) may do everything the runtime does, and ``viewer`` may only
+    subscribe: its commands and queries reach no one. The doc's ``**`` matched no verbatim chunk, so the runtime's own
+    tokens (the robot a bridge drives, a starting run's claims) were denied and ``up`` could not see them: a second
+    run drove the robot beside the first."""
+    from cso_runtime.claims import RunClaim
+    from cso_runtime.keys import RobotKeys, robot_claim_subject, robot_driver_token, run_claim_token
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import load_profile
+
+    users = write_zenoh_config(tmp_path, "cso:change-me\nviewer:just-looking\n", "robot-users.txt")
+    acl = hardware_md_json5("access_control").strip()
+    assert acl.endswith("}")
+    robot = write_zenoh_config(tmp_path, acl[:-1].rstrip().rstrip(",") + f',\n  transport: {{ auth: {{ usrpwd: {{ dictionary_file: "{users}" }} }} }},\n}}\n', "robot.json5")
+    laptop_text = hardware_md_json5('user: "cso"')
+    (named,) = re.findall(r'dictionary_file: "(/[^"]+)"', laptop_text)  # the laptop's own router's users: not used here
+    laptop = write_zenoh_config(tmp_path, laptop_text.replace(named, str(users)), "laptop.json5")
+    viewer = write_zenoh_config(tmp_path, '{ transport: { auth: { usrpwd: { user: "viewer", password: "just-looking" } } } }', "viewer.json5")
+    endpoint = loopback_endpoint(transport.free_tcp_port())
+
+    def client(config: Path) -> zenoh.Session:
+        return transport.open_session(TransportConfig(mode="client", connect=[endpoint], zenoh_config_file=str(config)))
+
+    keys = RobotKeys("r0")
+    with (
+        transport.open_session(TransportConfig(mode="router", listen=[endpoint], zenoh_config_file=str(robot))),
+        client(laptop) as run, client(laptop) as other_run, client(viewer) as dashboard,
+    ):
+        heard: dict[str, list[str]] = {"run": [], "dashboard": []}
+        subs = [
+            run.declare_subscriber("**", lambda s: heard["run"].append(s.payload.to_string())),
+            dashboard.declare_subscriber("**", lambda s: heard["dashboard"].append(s.payload.to_string())),
+        ]
+        status = other_run.declare_queryable(keys.launcher_status, lambda q: q.reply(keys.launcher_status, b"status"))
+        # The dashboard sends a command on the robot's cmd_vel and on the run's, each round, between the other run's
+        # messages; once the run has heard the other run's last, it would have heard the dashboard's.
+        rounds = 20
+        for i in range(rounds):
+            dashboard.put("limo1/cmd_vel", f"dashboard {i}")
+            dashboard.put(keys.cmd_vel, f"dashboard {i}")
+            other_run.put(keys.map, f"other {i}")
+        deadline_s = time.monotonic() + 30.0
+        while f"other {rounds - 1}" not in heard["run"] or f"other {rounds - 1}" not in heard["dashboard"]:
+            assert time.monotonic() < deadline_s, heard
+            time.sleep(0.02)
+        assert [m for m in heard["run"] if m.startswith("dashboard")] == [], heard["run"]  # what it published reached no one
+        assert [r.ok.payload.to_string() for r in run.get(keys.launcher_status, timeout=5.0) if r.ok] == ["status"]
+        assert [r for r in dashboard.get(keys.launcher_status, timeout=5.0) if r.ok] == []  # nor may it ask
+        status.undeclare()
+        # The runtime's own liveliness tokens pass between the laptop's sessions: up's checks see them.
+        held = [
+            other_run.liveliness().declare_token(robot_driver_token("limo1/cmd_vel", "r7")),
+            other_run.liveliness().declare_token(run_claim_token(robot_claim_subject("r0"), RunClaim.new("other-run").chunk)),
+            other_run.liveliness().declare_token(RobotKeys("r7").alive("mapper")),  # declared last: once seen, so are the others
+        ]
+        deadline_s = time.monotonic() + 30.0
+        while not [r for r in run.liveliness().get(RobotKeys("r7").alive("mapper"), timeout=5.0) if r.ok]:
+            assert time.monotonic() < deadline_s, "the other run's tokens never reached the run"
+            time.sleep(0.02)
+        on_robot, _ = load_profile("limo-ros2", {"robot": "r1"}, connect=[endpoint], namespace="limo1")
+        said = Launcher(on_robot, {}, tmp_path / "on-robot").robot_already_served(run)
+        assert "limo1/cmd_vel is already driven by robot r7's run" in said, said
+        same_id, _ = load_profile("lockstep", connect=[endpoint])
+        said = Launcher(same_id, {}, tmp_path / "same-id").robot_already_served(run)
+        assert "robot r0 is being started by another run on this network at the same moment (run other-run goes on)" in said, said
+        for entity in [*held, *subs]:
+            entity.undeclare()
+
+
+PEER_ROUNDS = """
+import sys, time
+from cso_runtime.transport import TransportConfig, any_loopback_port, open_session
+peers = int(sys.argv[1])
+for line in sys.stdin:  # a round: the router to join, with its file; every peer is let go at once
+    endpoint, config = line.split()
+    conf = TransportConfig(mode="peer", connect=[endpoint], listen=[any_loopback_port([endpoint])], zenoh_config_file=config)
+    with open_session(conf) as session:
+        deadline_s = time.monotonic() + 10.0
+        while len(list(session.info.peers_zid())) < peers - 1 and time.monotonic() < deadline_s:
+            time.sleep(0.05)
+        print(len(list(session.info.peers_zid())), flush=True)
+        sys.stdin.readline()  # open until every peer has counted its links
+"""
+
+
+def test_peers_opened_at_once_behind_a_password_router_all_link_to_each_other(tmp_path):
+    """Peer-mode services (``router.service_mode: peer``) start at once and link to each other once their router has
+    introduced them. Behind a user/password router two of them at times stayed without a link for good (both
+    connected to each other at once, Zenoh's default), and a lockstep run's sim never heard one: its episode failed
+    (the user/password run test, on a loaded host). Only the peer with the greater id connects now (``TUNED_KEYS``)."""
+    users = write_zenoh_config(tmp_path, "cso:s3cret\n", "users.txt")
+    auth = write_zenoh_config(tmp_path, f'{{ transport: {{ auth: {{ usrpwd: {{ user: "cso", password: "s3cret", dictionary_file: "{users}" }} }} }} }}')
+    peers, rounds = 8, 10
+    procs = [
+        subprocess.Popen([sys.executable, "-c", PEER_ROUNDS, str(peers)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, cwd=tmp_path)
+        for _ in range(peers)
+    ]
+    try:
+        links = []
+        for _ in range(rounds):
+            endpoint = loopback_endpoint(transport.free_tcp_port())
+            with transport.open_session(TransportConfig(mode="router", listen=[endpoint], zenoh_config_file=str(auth))):
+                for p in procs:
+                    p.stdin.write(f"{endpoint} {auth}\n")
+                    p.stdin.flush()
+                links.append([int(p.stdout.readline()) for p in procs])
+                for p in procs:
+                    p.stdin.write("\n")
+                    p.stdin.flush()
+        assert links == [[peers - 1] * peers] * rounds, links
+    finally:
+        for p in procs:
+            p.stdin.close()
+        for p in procs:
+            p.wait(30)
