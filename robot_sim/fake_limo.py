@@ -42,7 +42,8 @@ BASE_STAMP_S = 1000.0
 
 
 def odometry_cdr(stamp_s: float, pose: Pose2D, linear_mps: float, angular_radps: float) -> bytes:
-    """nav_msgs/Odometry of base_link in odom, serialised by rosbags."""
+    """nav_msgs/Odometry of base_link in odom, serialised by rosbags, with the covariances AgileX's LIMO driver
+    publishes: the pose's diagonal ``ODOMETRY_COVARIANCE_DIAGONAL``, the twist's all zero."""
     t = typestore().types
     v3 = t["geometry_msgs/msg/Vector3"]
     p = t["geometry_msgs/msg/Pose"](
@@ -52,7 +53,7 @@ def odometry_cdr(stamp_s: float, pose: Pose2D, linear_mps: float, angular_radps:
     msg = t["nav_msgs/msg/Odometry"](
         header=ros2_cdr.header_msg(ros2_cdr.stamp_ns_from_seconds(stamp_s), "odom"),
         child_frame_id="base_link",
-        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=p, covariance=np.zeros(36)),
+        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=p, covariance=np.diag(ros2_cdr.ODOMETRY_COVARIANCE_DIAGONAL).ravel()),
         twist=t["geometry_msgs/msg/TwistWithCovariance"](
             twist=t["geometry_msgs/msg/Twist"](linear=v3(x=linear_mps, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=angular_radps)),
             covariance=np.zeros(36),

@@ -99,6 +99,15 @@ def rosbags_decode(raw: bytes, typename: str):
     return ros2_cdr.typestore().deserialize_cdr(raw, typename)
 
 
+def test_fake_limo_odometry_has_the_limo_drivers_covariance():
+    """The fake LIMO's odometry carries the pose covariance AgileX's driver publishes (diagonal
+    ``ODOMETRY_COVARIANCE_DIAGONAL``, off-diagonal zero) and, like that driver, an all-zero twist covariance.
+    Before, its pose covariance was all zero too, which no real LIMO sends."""
+    odom = rosbags_decode(ros_odom(1000.5, 1.0, 2.0, 0.3, v=0.2, w=0.1), "nav_msgs/msg/Odometry")
+    np.testing.assert_array_equal(np.asarray(odom.pose.covariance).reshape(6, 6), np.diag(ros2_cdr.ODOMETRY_COVARIANCE_DIAGONAL))
+    np.testing.assert_array_equal(odom.twist.covariance, np.zeros(36))
+
+
 # --- time matching --------------------------------------------------------------------------------
 
 
