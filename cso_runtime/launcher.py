@@ -477,6 +477,9 @@ class Launcher:
                 self.outside_services.add(name)
                 log.info("%s, which this run did not start, serves robot %s (%s)", name, self.profile.robot, sample.key_expr)
         elif name in self.outside_services:
+            if self.status is not None and self.status.state in EPISODE_OVER:  # nothing waits for it any more
+                log.info("%s, which this run did not start, is gone (%s); the episode has ended", name, sample.key_expr)
+                return
             meanwhile = "waits for it" if name in self.awaited_services else "goes on without it"
             log.warning("%s, which this run did not start, is gone (%s); the episode %s until one comes back", name, sample.key_expr, meanwhile)
 

@@ -2211,6 +2211,29 @@ def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(t
     assert re.search(r"service foxglove_bridge +│ DOWN, not started by this run\s", text) and "waiting" not in text, text
 
 
+def test_a_service_started_by_hand_that_leaves_after_the_episode_ended_is_not_said_to_be_awaited(tmp_path, caplog):
+    """A viewer's bridge started by hand (``--attach``) that leaves once the episode is over: the launcher said "the
+    episode goes on without it until one comes back", of an episode that had ended. It says the episode has ended."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import EpisodeStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {"robot": "r1"})
+    launcher = Launcher(profile, data, tmp_path / "run")
+
+    def alive(name: str, kind: str) -> None:
+        launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive(name), kind=f"SampleKind.{kind}"))
+
+    alive("foxglove_bridge", "PUT")
+    launcher.status = EpisodeStatusMsg(state="done", step=40)
+    with caplog.at_level("INFO", logger="cso.launcher"):
+        alive("foxglove_bridge", "DELETE")
+    said = "foxglove_bridge, which this run did not start, is gone (cso/r1/alive/foxglove_bridge); the episode has ended"
+    assert said in caplog.text and "goes on" not in caplog.text and "comes back" not in caplog.text, caplog.text
+
+
 def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts(tmp_path):
     """``up --without NAME`` leaves a service of the profile out of the run (its robot served by another run's shared
     policy); a name that is no service, one the profile does not have, or a referee (the episode's owner, without
