@@ -77,6 +77,15 @@ def current_launcher_alive(info: dict[str, Any]) -> bool:
     return run_process_alive(info.get("launcher_pid"), info.get("launcher_start_ticks"))
 
 
+def starting_run(info: dict[str, Any] | None) -> str | None:
+    """What to say of a current run whose launcher has not opened its router yet (state ``starting``, no endpoints:
+    the launcher writes its run file first): nothing can be asked or joined yet, but it runs. None otherwise (its
+    launcher gone included)."""
+    if info is None or info.get("state") != "starting" or info.get("endpoints") or not current_launcher_alive(info):
+        return None
+    return f"run {info['run_id']} (robot {info.get('robot')}) is starting: its router is not open yet; ask again in a moment"
+
+
 DOWN_MARGIN_S = 10.0
 """``down`` gives a launcher three stop stages of its ``stop_timeout_s`` and this much more before it escalates: the
 launcher bounds what it does beyond the stages (a hung service's stacks, its recording, its GIF: ``launcher.STOP_EXTRAS_S``)

@@ -344,7 +344,8 @@ class Launcher:
 
     def write_run_file(self, state: str) -> None:
         """``run.json`` and the runs folder's current-run file: the run's state, endpoints and processes, which
-        ``status``, ``down`` and ``runs`` read. ``running`` after the episode ended is its end state."""
+        ``status``, ``down`` and ``runs`` read. ``starting`` until its services are spawned (no endpoints before its
+        router opens); ``running`` after the episode ended is its end state."""
         if state == "running" and self.episode_state is not None:
             state = self.episode_state
         info = {
@@ -1009,6 +1010,8 @@ class Launcher:
     def run(self, live: bool = False, stay_after_done: bool = False) -> int:
         """Start everything and supervise until the episode ends (or until stopped when ``stay_after_done``)."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
+        # First: `status` and `down` find the run while its router opens and its services spawn (seconds), not "no current run".
+        self.write_run_file("starting")
         self.profile_path.write_text(yaml.safe_dump(self.data, sort_keys=False))
         self.write_dataflow()
         if self.stop_event.is_set():  # Ctrl-C (or SIGTERM) since `up` started: no router is opened

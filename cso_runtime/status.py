@@ -275,7 +275,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     """Whom to ask (the given endpoints and robot, else the current run's; its robot always named), or the exit code after saying why
     there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
     ``127.0.0.1:7447``: a usage error, not "nothing running") or ``robot`` is not one robot's id."""
-    from cso_runtime.current_run import read_current_run  # noqa: PLC0415
+    from cso_runtime.current_run import read_current_run, starting_run  # noqa: PLC0415
 
     given_connect = bool(connect)
     # The run file read once: the endpoints and the launcher's liveness are then of one run, even when a new
@@ -291,6 +291,12 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     except KeyExprError as exc:
         print(f"error: --robot: {exc}", file=sys.stderr)
         return 2
+    if not connect and (starting := starting_run(run_info)):  # its run file is written before its router opens
+        if as_json:
+            print(json.dumps({"state": "starting", "run_id": run_info["run_id"], "reason": starting}), flush=True)
+        else:
+            print(starting)
+        return 1
     if not connect:
         return say_nothing_running("no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
     if not given_connect and (gone := dead_launcher_of_run(run_info, runs_dir)):

@@ -682,9 +682,11 @@ def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | No
         cls.add_arguments(p)
     args = p.parse_args(argv)
     if args.attach:
-        from cso_runtime.current_run import read_current_run  # noqa: PLC0415  (only to attach)
+        from cso_runtime.current_run import read_current_run, starting_run  # noqa: PLC0415  (only to attach)
 
         info = read_current_run(args.runs_dir) or {}
+        if starting := starting_run(info):
+            p.error(f"--attach: {starting}")
         try:
             run_dir, endpoints, robot = Path(info["run_dir"]), list(info["endpoints"]), str(info["robot"])
         except (KeyError, TypeError):

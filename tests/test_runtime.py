@@ -838,8 +838,8 @@ def test_a_run_that_started_no_service_is_listed_as_it_ended(tmp_path):
 
 
 def test_two_up_started_at_once_cannot_both_run(tmp_path):
-    """Two ``up`` started together both pass the current.json check (the first writes it only once its
-    services are spawned); the runs folder's lock lets one launcher run, and the other stops before it
+    """Two ``up`` started together both pass the current.json check (the first writes it only once it holds the
+    runs folder's lock); the runs folder's lock lets one launcher run, and the other stops before it
     starts anything, foreground or detached, saying why."""
     from cso_runtime.current_run import RUNS_LOCK, hold_runs_lock
 
@@ -2362,6 +2362,47 @@ def test_status_and_down_with_nothing_running(tmp_path):
     r = cli("save-map", "--connect", loopback_endpoint(port), cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "no map for robot r0" in r.stdout
     assert not (tmp_path / "map.yaml").exists()
+
+
+def test_status_says_a_run_is_starting_before_its_router_is_open(tmp_path, monkeypatch, capsys):
+    """For its first seconds (its router opening, its services spawning) a foreground ``up`` had written no run file,
+    and ``status`` said "no current run". The launcher writes one, state ``starting``, before its router opens, and
+    ``status`` (and ``save-map``, and a service's ``--attach``) say the run is starting; a start that fails leaves no
+    current run, as before."""
+    import cso_runtime.launcher as launcher_module
+    from cso_runtime.launcher import Launcher, run_until_stopped
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.status import save_map_main, status_main
+    from cso_runtime.transport import TransportError
+    from services.common import parse_args
+
+    runs = tmp_path / "runs"
+    profile, data = load_profile(str(find_profile("lockstep")), {"robot": "r1"})
+    launcher = Launcher(profile, data, runs / "run1")
+    said: dict[str, object] = {}
+
+    def router_opening(*_args: object, **_kwargs: object) -> None:  # what `status` sees while the router opens
+        said["file"] = json.loads((runs / "current.json").read_text())
+        capsys.readouterr()
+        said["status"] = status_main([], None, False, False, runs, 1.0), capsys.readouterr().out
+        said["json"] = status_main([], None, True, False, runs, 1.0), json.loads(capsys.readouterr().out)
+        said["save-map"] = save_map_main([], None, tmp_path / "map", "pgm", runs), capsys.readouterr().out
+        with pytest.raises(SystemExit) as exited:  # `cso-runtime service NAME --attach`: nothing to join yet
+            parse_args("foxglove_bridge", ["--attach", "--runs-dir", str(runs)])
+        said["attach"] = exited.value.code, capsys.readouterr().err
+        raise TransportError("no router for this test")
+
+    monkeypatch.setattr(launcher_module, "open_router", router_opening)
+    assert run_until_stopped(launcher, live=False, stay_after_done=False) == launcher_module.EXIT_NO_ZENOH
+    info = said["file"]
+    assert isinstance(info, dict) and info["state"] == "starting" and info["run_id"] == "run1" and info["robot"] == "r1", info
+    assert info["launcher_pid"] == os.getpid() and info["endpoints"] == [] and info["services"] == {}, info
+    assert said["status"] == (1, "run run1 (robot r1) is starting: its router is not open yet; ask again in a moment\n"), said["status"]
+    code, answer = said["json"]
+    assert code == 1 and answer == {"state": "starting", "run_id": "run1", "reason": "run run1 (robot r1) is starting: its router is not open yet; ask again in a moment"}, answer
+    assert said["save-map"][0] == 1 and "is starting" in str(said["save-map"][1]) and not (tmp_path / "map.yaml").exists(), said["save-map"]
+    assert said["attach"][0] == 2 and "--attach: run run1 (robot r1) is starting" in str(said["attach"][1]), said["attach"]
+    assert not (runs / "current.json").exists() and json.loads((runs / "run1" / "run.json").read_text())["state"] == "stopped"
 
 
 def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
