@@ -157,9 +157,8 @@ def test_up_limo_ros2_explores_a_fake_limo_and_its_recording_rebuilds_the_map(tm
         # robot's: with `router.embedded: false` every service (and the recorder) held a session to the robot's router,
         # and each message between two services crossed the robot's link twice.
         keys = RobotKeys("r0")
-        wait_for(lambda: list(runs.glob("*/run.json")), 30, "the run file")
-        (run_file,) = runs.glob("*/run.json")
-        own = json.loads(run_file.read_text())["endpoints"]
+        # The run file is written first in state "starting", with no endpoints until the run's router is open.
+        own = wait_for(lambda: [e for f in runs.glob("*/run.json") for e in json.loads(f.read_text())["endpoints"]], 30, "the run's endpoints")
         assert own and loopback_endpoint(port) not in own, own
         services = {"ros2_bridge", "mapper", "frontier", "policy", "planner"}
         with open_session(TransportConfig(mode="client", connect=own)) as watch:
