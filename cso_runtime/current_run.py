@@ -83,7 +83,11 @@ def starting_run(info: dict[str, Any] | None) -> str | None:
     launcher gone included)."""
     if info is None or info.get("state") != "starting" or info.get("endpoints") or not current_launcher_alive(info):
         return None
-    return f"run {info['run_id']} (robot {info.get('robot')}) is starting: its router is not open yet; ask again in a moment"
+    return f"run {info['run_id']} (robot {info.get('robot')}) is starting: its router is not open yet{ASK_AGAIN}"
+
+
+ASK_AGAIN = "; ask again in a moment"
+"""How ``starting_run``'s line ends (``status --watch`` waits instead)."""
 
 
 DOWN_MARGIN_S = 10.0

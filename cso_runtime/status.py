@@ -297,10 +297,11 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
         else:
             print(starting)
         return 1
-    if not connect:
-        return say_nothing_running("no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
+    # Before "no current run": a launcher killed while starting left a run file with no endpoints.
     if not given_connect and (gone := dead_launcher_of_run(run_info, runs_dir)):
         return say_nothing_running(gone, as_json)
+    if not connect:
+        return say_nothing_running("no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
     try:
         client_transport(connect, zenoh_config_file).validate()
     except TransportError as exc:
@@ -451,6 +452,37 @@ def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_j
     return code
 
 
+def await_started_run(runs_dir: Path, as_json: bool, period_s: float) -> int | None:
+    """``status --watch`` on a run that is starting (``up`` writes its run file before its router opens): wait for it
+    to come up, saying so (once on a terminal or in a file; ``--json``: a ``starting`` line each period). None once
+    there is no starting run (its router open: watch it), else the exit code after saying how the wait ended: its
+    launcher died (exit 1, as ``status`` says it), or its start failed (how it ended, ``run_end_exit_code``)."""
+    from cso_runtime.current_run import ASK_AGAIN, read_current_run, starting_run  # noqa: PLC0415
+
+    said = ""
+    seen: dict[str, Any] | None = None  # the starting run's file, as last read
+    while True:
+        info = read_current_run(runs_dir)
+        starting = starting_run(info)
+        if starting is None:
+            if info is not None or seen is None or not seen.get("run_dir"):
+                return None  # up (or never starting, or another run): status says what there is
+            # Its run file went: a start that failed (refused, no router) or was interrupted says so in run.json.
+            run_dir = Path(seen["run_dir"])
+            run = stopped_run(run_dir, wait_s=0.0)
+            return None if run is None else say_run_ended(run, run_dir, {}, as_json)
+        seen = info
+        assert info is not None
+        why = stopped_launcher_of_run(info)  # Ctrl-Z on a starting `up`: it waits, and says why
+        line = f"{starting.removesuffix(ASK_AGAIN)}; waiting for it" + (f" ({why})" if why else "") + "..."
+        if as_json:
+            print(json.dumps({"state": "starting", "run_id": info["run_id"], "reason": line}), flush=True)
+        elif line != said:
+            print(line, flush=True)
+        said = line
+        time.sleep(period_s)
+
+
 def status_main(connect: list[str], robot: str | None, as_json: bool, watch: bool, runs_dir: Path, period_s: float = 1.0, console: Console | None = None) -> int:
     """The ``status`` command; exit code 1 when nothing answers. ``--watch`` on a terminal redraws one table in
     place (as ``up``'s live view does); in a file or a pipe, and with ``--json``, each status follows the last.
@@ -460,6 +492,13 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
 
     console = console if console is not None else Console()
     given_connect = bool(connect)
+    if watch and not given_connect:
+        try:
+            ended = await_started_run(runs_dir, as_json, period_s)
+        except KeyboardInterrupt:
+            return 0
+        if ended is not None:
+            return ended
     target = reachable_target(connect, robot, runs_dir, as_json)
     if isinstance(target, int):
         return target

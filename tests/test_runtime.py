@@ -2626,6 +2626,87 @@ def test_status_watch_ends_by_saying_that_the_watched_runs_launcher_was_killed(t
     assert last["reason"].endswith(f"; run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down` clears {runs / 'current.json'})"), last
 
 
+def starting_run_files(runs: Path, launcher_pid: int) -> tuple[Path, dict]:
+    """A run folder and the run file ``up`` writes first (state ``starting``, no endpoints), as current run of ``runs``."""
+    run_dir = runs / "20261206-120000-lockstep-r0"
+    run_dir.mkdir(parents=True)
+    starting = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [], "launcher_pid": launcher_pid, "state": "starting", "services": {}}
+    for path in (run_dir / "run.json", runs / "current.json"):
+        path.write_text(json.dumps(starting))
+    return run_dir, starting
+
+
+def test_status_watch_waits_for_a_starting_run_to_come_up_and_then_follows_it(tmp_path, monkeypatch, capsys):
+    """``up --detach`` then ``status --watch``: the run file said ``starting`` (no endpoints yet) and ``status --watch``
+    exited 1 at once ("ask again in a moment"). It waits, saying so once, and follows the run once its router is open."""
+    from cso_runtime import status
+
+    runs = tmp_path / "runs"
+    run_dir, starting = starting_run_files(runs, os.getpid())
+    running = {**starting, "endpoints": [loopback_endpoint(7447)], "state": "running"}
+    periods = iter([lambda: None, lambda: (runs / "current.json").write_text(json.dumps(running))])
+    monkeypatch.setattr(status.time, "sleep", lambda s: next(periods)() if s == 0.1 else None)
+    exploring = status.status_of("r0", {"state": "exploring", "step": 5, "episode": 7}, {"run_id": "run1", "services": {}}, {}, set())
+
+    def launcher_ends() -> None:
+        (run_dir / "run.json").write_text(json.dumps({**running, "state": "stopped", "outcome": "interrupted", "exit_code": 130}))
+        (runs / "current.json").unlink()
+
+    answers = iter([lambda: exploring, launcher_ends])
+    asked: list[list[str]] = []
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: (asked.append(connect), next(answers)())[1])
+    monkeypatch.setattr(status, "watched_run_dir", lambda st, runs_dir: run_dir)
+    code = status.status_main([], None, as_json=True, watch=True, runs_dir=runs, period_s=0.1)
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert code == 130 and asked == [[loopback_endpoint(7447)]] * 2, (code, asked)
+    waiting = "run run1 (robot r0) is starting: its router is not open yet; waiting for it..."
+    assert lines[:2] == [{"state": "starting", "run_id": "run1", "reason": waiting}] * 2, lines  # --json: one line a period
+    assert [line["state"] for line in lines[2:]] == ["exploring", "not running"] and lines[-1]["outcome"] == "interrupted", lines
+
+
+@pytest.mark.parametrize("as_json", [False, True])
+def test_status_watch_of_a_starting_run_ends_when_its_launcher_dies_or_its_start_fails(tmp_path, monkeypatch, capsys, as_json):
+    """``status --watch`` waiting for a starting run never waits silently for ever: a launcher killed while starting
+    (its run file left, no endpoints) ends it as ``status`` says it (``status`` itself said "no current run"), and a
+    start that failed (the run file gone, run.json stopped) with how the run ended and its exit code."""
+    from cso_runtime import status
+
+    runs = tmp_path / "runs"
+    launcher = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        starting_run_files(runs, launcher.pid)
+
+        def killed() -> None:
+            launcher.kill()
+            launcher.wait(10)
+
+        monkeypatch.setattr(status.time, "sleep", lambda s: killed() if s == 0.1 else None)
+        code = status.status_main([], None, as_json=as_json, watch=True, runs_dir=runs, period_s=0.1)
+    finally:
+        launcher.kill()
+        launcher.wait(10)
+    said = capsys.readouterr().out.splitlines()
+    gone = f"run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down` clears {runs / 'current.json'}"
+    assert code == 1 and len(said) == 2 and (json.loads(said[-1])["reason"] if as_json else said[-1]) == f"nothing running ({gone})", said
+    assert status.status_main([], None, as_json=False, watch=False, runs_dir=runs) == 1 and capsys.readouterr().out == f"nothing running ({gone})\n"
+
+    runs = tmp_path / "runs2"
+    run_dir, starting = starting_run_files(runs, os.getpid())
+
+    def start_failed() -> None:  # as Launcher.stop_before_start does
+        (run_dir / "run.json").write_text(json.dumps({**starting, "state": "stopped", "outcome": "failed", "exit_code": 3}))
+        (runs / "current.json").unlink()
+
+    monkeypatch.setattr(status.time, "sleep", lambda s: start_failed() if s == 0.1 else None)
+    code = status.status_main([], None, as_json=as_json, watch=True, runs_dir=runs, period_s=0.1)
+    said = capsys.readouterr().out.splitlines()
+    assert code == 3 and len(said) == 2, said
+    if as_json:
+        assert (json.loads(said[-1])["outcome"], json.loads(said[-1])["exit_code"]) == ("failed", 3), said
+    else:
+        assert said[-1] == f"run run1 ended: failed, exit code 3; its folder: {run_dir}/ (the logs in {run_dir / 'logs'}/)", said
+
+
 def test_status_tables_wrap_on_a_narrow_terminal_rather_than_cut_with_an_ellipsis():
     from rich.console import Console
 
