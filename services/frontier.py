@@ -55,12 +55,18 @@ class FrontierParams:
     helper_start_s: float = 10.0
     """Wall clock: how long the warm-up waits for the layer helper to start (imports) before the
     service says it is up; a helper still starting after that is used from the first map it is ready for."""
+    helper_max_restarts: int = 3
+    """How many times a layer helper lost while the service runs (killed, crashed, hung) is replaced by a new one;
+    after that the service computes every layer itself (the same Observation, slower). Bounded: a helper that dies
+    as soon as it starts does not loop."""
 
     def validate(self) -> None:
         if not self.goal_wait_s > 0:
             raise ConfigError("goal_wait_s must be positive")
         if not self.helper_start_s >= 0:
             raise ConfigError("helper_start_s must be zero or positive")
+        if not self.helper_max_restarts >= 0:
+            raise ConfigError("helper_max_restarts must be zero or positive")
 
 
 class FrontierService(Service):
@@ -81,7 +87,15 @@ class FrontierService(Service):
         self.robot_radius_m = cfg.robot.radius_m
         self.layer_worker: FrontierLayerWorker | None = None
         self.decisions_built = 0
-        """Observations built (the helper computed ``layer_worker.layers_computed`` of their layers)."""
+        """Observations built (the helpers computed ``layers_by_helpers()`` of their layers)."""
+        self.layers_by_lost_helpers = 0
+        """Layers computed by helpers lost since (``tend_layer_helper``)."""
+        self.helper_deaths = 0
+        """Layer helpers lost while the service ran (the status's ``layer_helper_deaths``)."""
+        self.helper_restarts = 0
+        """New helpers started in their place (the status's ``layer_helper_restarts``; at most ``helper_max_restarts``)."""
+        self.helper_given_up = False
+        """No new helper is started any more: the layers are computed here."""
         self.episodes = EpisodeWatch()
         self.reset_episode()
 
@@ -105,11 +119,56 @@ class FrontierService(Service):
         if self.layer_worker is not None:
             self.layer_worker.layers_computed = 0  # the practice layer is not a decision's
 
+    def on_tick(self, now_s: float) -> None:
+        self.tend_layer_helper()
+
+    def tend_layer_helper(self) -> None:
+        """Notice a layer helper lost while the service runs (its process killed or crashed, or hung), say so, count it
+        and start a new one, at most ``helper_max_restarts`` times; meanwhile (and after) the layers are computed here,
+        with the same results. A helper lost to the service's own stop is no loss."""
+        w = self.layer_worker
+        if w is None or self.helper_given_up or self.stopping() or w.usable() or w.lost_to_stop:
+            return
+        with self._lock:
+            self.helper_deaths += 1
+        if self.helper_restarts >= self.params.helper_max_restarts:
+            self.helper_given_up = True
+            log.error(
+                "frontier layer helper lost (%s) after %d restarts: no new one, the layers are computed in this process from now on",
+                w.broken, self.helper_restarts,
+            )  # fmt: skip
+            return
+        self.layers_by_lost_helpers += w.layers_computed
+        w.close()
+        try:
+            new = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m, stopping=self.stopping)
+        except OSError as exc:  # no process to spare
+            self.helper_given_up = True
+            log.error("frontier layer helper lost (%s), and no new one starts (%s): the layers are computed in this process from now on", w.broken, exc)
+            return
+        with self._lock:
+            self.helper_restarts += 1
+        self.layer_worker = new
+        log.warning(
+            "frontier layer helper lost (%s): started a new one (pid %d, restart %d of at most %d); the layers are computed here until it is ready",
+            w.broken, new.proc.pid, self.helper_restarts, self.params.helper_max_restarts,
+        )  # fmt: skip
+
+    def extra_status(self) -> dict[str, int]:
+        with self._lock:
+            return {"layer_helper_deaths": self.helper_deaths, "layer_helper_restarts": self.helper_restarts}
+
+    def layers_by_helpers(self) -> int:
+        """The decisions' layers computed by helper processes, lost ones included (the rest were computed here)."""
+        return self.layers_by_lost_helpers + (self.layer_worker.layers_computed if self.layer_worker is not None else 0)
+
     def shutdown(self) -> None:
         if self.layer_worker is not None:
             w = self.layer_worker
             why = f" ({w.broken})" if w.broken and not w.lost_to_stop else ""
-            log.info("frontier layers: %d by the helper process, %d here%s", w.layers_computed, self.decisions_built - w.layers_computed, why)
+            by_helpers = self.layers_by_helpers()
+            lost = f", {self.helper_deaths} helpers lost, {self.helper_restarts} restarted" if self.helper_deaths else ""
+            log.info("frontier layers: %d by the helper process, %d here%s%s", by_helpers, self.decisions_built - by_helpers, lost, why)
             w.close()
 
     def layer_beside_d(self, occupancy: OccupancyMap, dead: np.ndarray | None) -> Callable[[], FrontierLayer] | None:

@@ -10,7 +10,8 @@ The arrays travel through one shared-memory file per map shape (inputs: explored
 cells; outputs: F_t, I, the components' cells); a pipe carries the requests and replies. The file is unlinked as soon
 as both processes have mapped it, so nothing is left behind whatever happens to either. The helper
 exits when the pipe closes (its service stopped or died); a service whose helper is gone, late or
-failing computes the layer itself (logged as a warning), so a decision never waits more than ``timeout_s``.
+failing computes the layer itself (logged as a warning), so a decision never waits more than ``timeout_s``, and
+starts a new helper (``FrontierService.tend_layer_helper``, a bounded number of times).
 A helper that ends with its service's stop (the launcher's SIGTERM reaches the whole process group, and a
 helper still importing dies of it) is no failure: that is not a warning.
 """
@@ -175,12 +176,19 @@ class FrontierLayerWorker:
         log.info("frontier layer helper ready (pid %d)", self.proc.pid)
         return True
 
-    def submit(self, occupancy: OccupancyMap, exclude_frontier: np.ndarray | None) -> bool:
-        """Start the layer of this map; False when the helper is not used (compute it yourself)."""
+    def usable(self) -> bool:
+        """Whether the helper can still be used: False once it failed, or once its process has exited (killed, crashed:
+        given up then, and logged)."""
         if self.broken:
             return False
         if not self.proc.is_alive():
             self._give_up(f"the helper process exited (code {self.proc.exitcode})")
+            return False
+        return True
+
+    def submit(self, occupancy: OccupancyMap, exclude_frontier: np.ndarray | None) -> bool:
+        """Start the layer of this map; False when the helper is not used (compute it yourself)."""
+        if not self.usable():
             return False
         if not self.wait_ready(0.0):
             return False  # still starting (or broken): this layer is computed by the service

@@ -1127,6 +1127,60 @@ def test_warm_up_starts_the_helper_and_leaves_no_trace_in_the_episode():
     assert not w.proc.is_alive()
 
 
+def test_a_frontier_layer_helper_that_dies_is_replaced_a_bounded_number_of_times_and_the_decisions_stay_the_same(caplog):
+    """A killed layer helper was not replaced: the frontier service computed every layer itself from then on (slower),
+    with one warning and nothing in its status. Its next tick now notices, says so, counts it in its status
+    (``layer_helper_deaths``, ``layer_helper_restarts``) and starts a new helper, whose decisions are the one-process
+    ones; a helper that dies as soon as it starts is replaced at most ``helper_max_restarts`` times."""
+    import logging
+
+    caplog.set_level(logging.INFO, logger="cso.frontier")
+    frontier, out = _service(FrontierService, lockstep=True, params={"helper_start_s": 60.0, "helper_max_restarts": 2})
+    alone, alone_out = _service(FrontierService, lockstep=True, params={"layer_helper": False})
+    first = second = None
+    try:
+        frontier.warm_up()
+        first = frontier.layer_worker
+        assert first is not None and first.ready
+        first.proc.kill()
+        first.proc.join(timeout=10.0)
+        frontier.on_tick(time.monotonic())
+        second = frontier.layer_worker
+        assert second is not None and second is not first and not first.proc.is_alive()
+        assert frontier.status_msg().counters == {"layer_helper_deaths": 1, "layer_helper_restarts": 1}
+        assert any(r.levelno == logging.WARNING and r.getMessage().startswith("frontier layer helper lost (the helper process exited (code -9)): started a new one") for r in caplog.records)
+        assert second.wait_ready(60.0)
+        ex = _explorer_at(0)
+        m, odom, _ = _inputs(ex, 0)
+        for svc in (frontier, alone):
+            _feed(svc, odom)
+            _feed(svc, m)
+        assert second.layers_computed == 1 and frontier.layers_by_helpers() == 1  # the new helper's layer
+        (got, _), (expected, _) = out, alone_out
+        assert got[1].decide and expected[1].decide
+        for name, array in expected[1].arrays.items():
+            np.testing.assert_array_equal(got[1].arrays[name], array)
+        assert len(got[1].clusters) == len(expected[1].clusters) > 0
+        for a, b in zip(got[1].clusters, expected[1].clusters):
+            assert a.keys() == b.keys()
+            for key in a:
+                np.testing.assert_array_equal(a[key], b[key])
+        for _ in range(3):  # a helper that dies at once, again and again: two restarts, then the layers are computed here
+            w = frontier.layer_worker
+            w.proc.kill()
+            w.proc.join(timeout=10.0)
+            frontier.on_tick(time.monotonic())
+        assert frontier.helper_given_up and frontier.status_msg().counters == {"layer_helper_deaths": 3, "layer_helper_restarts": 2}
+        errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+        assert len(errors) == 1 and "after 2 restarts: no new one" in errors[0], errors
+        frontier.on_tick(time.monotonic())
+        assert frontier.status_msg().counters["layer_helper_deaths"] == 3  # counted once
+    finally:
+        frontier.shutdown()
+        alone.shutdown()
+    assert not first.proc.is_alive() and not second.proc.is_alive() and not frontier.layer_worker.proc.is_alive()
+
+
 @pytest.mark.parametrize("stopping", [True, False], ids=["service-stopping", "helper-died"])
 def test_a_frontier_helper_lost_to_the_services_stop_is_no_warning(caplog, stopping):
     """The launcher's SIGTERM reaches a frontier service and its layer helper together (one process group): a
