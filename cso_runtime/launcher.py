@@ -63,7 +63,9 @@ from cso_runtime.messages import (
 from cso_runtime.outputs import results_said, write_text_atomic
 from cso_runtime.pace import StepPace
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
+from cso_runtime.run_folder import RunFolderWatch
 from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig
+from cso_runtime.runs import LOG_DIR
 from cso_runtime.supervision import (
     STACK_DUMP_WAIT_S,
     Child,
@@ -336,6 +338,8 @@ class Launcher:
         """How many routers the launcher's session had routes to once it opened (those in ``--connect``)."""
         self.router_back_s = -np.inf
         """``time.monotonic()`` when that router came back: no service's silence counts from before."""
+        self.run_folder = RunFolderWatch(run_dir)
+        """Notices the run folder deleted mid-run, and copies back the logs its processes still write (``tend_run_folder``)."""
 
     # --- files ------------------------------------------------------------------------------------
     @property
@@ -362,6 +366,7 @@ class Launcher:
             **({"outcome": self.outcome(), "exit_code": self.exit_code, "ended_at": round(time.time(), 3)} if state == "stopped" else {}),
             **({"episode_ended_at": round(self.episode_ended_at, 3)} if self.episode_ended_at is not None else {}),
             **({"lost_router": self.joined_router()} if self.router_lost_at is not None else {}),
+            **({"run_dir_lost": self.run_folder.losses} if self.run_folder.losses else {}),
             "services": {
                 c.name: {
                     "pid": c.proc.pid if c.proc else None,
@@ -509,7 +514,7 @@ class Launcher:
             last.update({key: getattr(heard, key) for key in LAST_EPISODE_FIGURES})
         pace = None if self.real_time_factor is None else round(self.real_time_factor, 3)
         lost = self.joined_router() if self.router_lost_at is not None else None
-        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost)
+        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost, self.run_folder.losses)
 
     # --- supervision ------------------------------------------------------------------------------
     def stop_robot(self, c: Child, code: int | None) -> None:
@@ -678,6 +683,34 @@ class Launcher:
                 log.info("restarted %s (pid %d)", c.name, c.proc.pid if c.proc else -1)
         if changed:
             self.write_run_file("running")
+
+    def tend_run_folder(self) -> None:
+        """On each round of the run loop: when the run folder (or its ``logs/``) was deleted, make it again with
+        ``run.json``, ``profile.yaml``, ``dataflow.md`` and ``logs/``, copy back every file the launcher and its services
+        still write there (their logs, a recording: ``RunFolderWatch``, kept up to date until the run ends), and say so
+        on stderr, in ``launcher.log`` and in the launcher's status (``run_dir_lost``). The run goes on: a robot is not
+        stopped for a folder; what the run had written and closed before (results, a kept map) is lost, and said."""
+        watch = self.run_folder
+        if not watch.lost():
+            watch.sync()
+            return
+        try:
+            (self.run_dir / LOG_DIR).mkdir(parents=True, exist_ok=True)
+            self.profile_path.write_text(yaml.safe_dump(self.data, sort_keys=False))
+            self.write_dataflow()
+        except OSError as exc:  # the disk, or a folder above it, gone too: the run goes on, said once a round
+            log.error("the run folder %s was deleted and cannot be made again (%s): the logs written from now on are lost", self.run_dir, exc.strerror or exc)
+            return
+        pids = [os.getpid(), *(c.proc.pid for c in self.children if c.alive and c.proc is not None)]
+        rescued = watch.rescue(pids)
+        self.write_run_file("running")
+        closed = "its results and " if self.written_result is not None else ""
+        log.error(
+            "the run folder %s (or its %s/) was deleted while the run ran: made it again, with run.json, profile.yaml and "
+            "dataflow.md; copied back the %d files the run still writes (%s), kept up to date until the run ends; %s"
+            "whatever else it held is lost",
+            self.run_dir, LOG_DIR, len(rescued), ", ".join(str(p.relative_to(watch.run_dir)) for p in rescued) or "none found", closed,
+        )  # fmt: skip
 
     def unserved_services(self, now: float) -> list[str]:
         """The services the launcher gave up on that no process has served (liveliness token) for
@@ -1073,7 +1106,8 @@ class Launcher:
                     view.start()
 
                 def tend() -> None:
-                    """What the run loop does on every round, and in its waits: supervision and the live view."""
+                    """What the run loop does on every round, and in its waits: the run folder, supervision and the live view."""
+                    self.tend_run_folder()
                     self.supervise()
                     if view is not None:
                         view.update()
@@ -1147,6 +1181,8 @@ class Launcher:
                     ending.thread.join()
                     self.settle_episode_end(ending)
                 self.finish_recording(recorder)
+                if self.run_folder.lost():  # deleted since the last round: the stop's lines and the run's end are kept too
+                    self.tend_run_folder()
                 alive_sub.undeclare()
                 for q in [*qs, *drivers]:
                     q.undeclare()
@@ -1155,6 +1191,7 @@ class Launcher:
                 self.write_run_file("stopped")
                 self.remove_current_pointer()
                 log.info("%s", self.closing_line())
+                self.run_folder.close()  # after the last line: the launcher's log copied back whole
         self.session = None
         return self.exit_code
 

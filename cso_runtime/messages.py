@@ -1174,9 +1174,14 @@ class LauncherStatusMsg(Message):
     """The router(s) the run joined (``--connect``: the robot's zenoh bridge) while the launcher has lost its route to
     them; None while they are reached, or when the run joined none. Optional on decoding (older launchers do not send
     it): with the run's own router the services still answer, so ``status`` learns it only here."""
+    run_dir_lost: int = 0
+    """How many times the launcher found its run folder (or its ``logs/``) deleted while the run ran, and made it again
+    (``Launcher.tend_run_folder``). Optional on decoding (older launchers do not send it); absent while 0."""
 
     def body(self) -> dict[str, Any]:
         body = {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected, "handler_errors": self.handler_errors}
+        if self.run_dir_lost:
+            body["run_dir_lost"] = self.run_dir_lost
         if self.last_episode is not None:
             body["last_episode"] = self.last_episode
         if self.real_time_factor is not None:
@@ -1215,7 +1220,10 @@ class LauncherStatusMsg(Message):
                     last[key] = read(heard, key, lw)
         pace = None if b.get("real_time_factor") is None else _num(b, "real_time_factor", w, lo=0.0)
         lost = None if b.get("lost_router") is None else _str(b, "lost_router", w, max_len=1024)
-        return cls(_str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace, lost)
+        run_dir_lost = _int(b, "run_dir_lost", w, lo=0) if "run_dir_lost" in b else 0
+        return cls(
+            _str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace, lost, run_dir_lost
+        )
 
     def to_dict(self) -> dict[str, Any]:
         return self.body()

@@ -156,6 +156,7 @@ def status_of(
         "status_age_s": age_s,
         "real_time_factor": (launcher or {}).get("real_time_factor"),
         "lost_router": (launcher or {}).get("lost_router"),
+        "run_dir_lost": (launcher or {}).get("run_dir_lost", 0),
         "launcher_state": (launcher or {}).get("state"),
     }
 
@@ -381,6 +382,8 @@ def render_table(status: dict[str, Any]) -> Table:
     launcher_bits = ([f"rejected {rejected}"] if rejected else []) + ([f"{errors} callback errors (see its log)"] if errors else [])
     if status.get("lost_router"):  # the run's own router answers; the robot's, which it joined, does not
         launcher_bits.insert(0, f"LOST the router at {status['lost_router']} (is the robot or its zenoh bridge down?)")
+    if status.get("run_dir_lost"):  # its folder deleted mid-run: made again, the logs still written copied back
+        launcher_bits.append(f"its run folder was deleted {status['run_dir_lost']} time(s) while it ran: made again (see launcher.log)")
     if stopping:
         launcher_bits.insert(0, "stopping the run's services")
     if launcher_bits:

@@ -2626,6 +2626,70 @@ def test_status_watch_ends_by_saying_that_the_watched_runs_launcher_was_killed(t
     assert last["reason"].endswith(f"; run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down` clears {runs / 'current.json'})"), last
 
 
+def test_a_run_folder_deleted_mid_run_is_made_again_with_the_logs_still_written_copied_back(tmp_path, caplog):
+    """``rm -rf runs/RUN`` while the run ran: the launcher and its services went on writing their logs into files with
+    no name, lost at their close, and nothing said so (run.json, ``status``, ``logs`` all silent). The launcher's next
+    round now makes the folder again (run.json, profile.yaml, logs/), copies back every log its processes still write
+    (lines from before the deletion too) and keeps the copies up to date; it says so in its log (stderr) and status."""
+    import logging
+    import shutil
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.status import render_table, status_of
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    run_dir = tmp_path / "runs" / "run1"
+    launcher = Launcher(profile, data, run_dir)
+    go = tmp_path / "go"  # outside the run folder
+    writes = f"import os, time\nprint('before', flush=True)\nwhile not os.path.exists({str(go)!r}):\n    time.sleep(0.01)\nprint('after', flush=True)\ntime.sleep(60)"
+    child = Child("mapper", [sys.executable, "-c", writes], run_dir / "logs" / "mapper.log")
+    launcher.children = [child]
+    (run_dir / "logs").mkdir(parents=True)
+    own_log = logging.FileHandler(run_dir / "logs" / "launcher.log")  # as run_foreground's
+    launcher_log = logging.getLogger("cso.launcher")
+    launcher_log.addHandler(own_log)
+    caplog.set_level(logging.INFO, logger="cso.launcher")
+    try:
+        launcher.write_run_file("running")
+        child.spawn()
+        wait_for(lambda: "before" in child.log_path.read_text(), 30, "the service's first line")
+        launcher_log.info("a line before the deletion")
+        launcher.tend_run_folder()  # nothing gone: nothing said
+        assert not [r for r in caplog.records if r.levelno >= logging.ERROR] and launcher.run_folder.losses == 0
+        shutil.rmtree(run_dir)
+        launcher.tend_run_folder()
+        assert json.loads((run_dir / "run.json").read_text())["run_dir_lost"] == 1 and (run_dir / "profile.yaml").is_file()
+        assert child.log_path.read_text() == "before\n"  # copied back from the nameless file the service writes
+        (error,) = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+        assert error.startswith(f"the run folder {run_dir} (or its logs/) was deleted while the run ran: made it again") and "2 files" in error, error
+        assert "logs/launcher.log, logs/mapper.log" in error, error
+        go.touch()
+        launcher_log.info("a line after it")
+        wait_for(lambda: (launcher.tend_run_folder(), child.log_path.read_text())[1] == "before\nafter\n", 30, "the service's later line copied")
+        launcher.tend_run_folder()
+        assert "a line before the deletion\n" in (kept := (run_dir / "logs" / "launcher.log").read_text()) and kept.endswith("a line after it\n"), kept
+        status = launcher.launcher_status()
+        assert LauncherStatusMsg.from_body(status.body()).run_dir_lost == 1
+        shown = status_of("r0", None, status.to_dict(), {}, set())
+        assert shown["run_dir_lost"] == 1
+        console = Console(width=200, record=True)
+        console.print(render_table(shown))
+        assert "its run folder was deleted 1 time(s) while it ran: made again (see launcher.log)" in console.export_text()
+        assert len([r for r in caplog.records if r.levelno >= logging.ERROR]) == 1  # said once
+    finally:
+        launcher_log.removeHandler(own_log)
+        own_log.close()
+        if child.alive:
+            child.proc.kill()
+            child.proc.wait(10)
+        launcher.run_folder.close()
+
+
 def starting_run_files(runs: Path, launcher_pid: int) -> tuple[Path, dict]:
     """A run folder and the run file ``up`` writes first (state ``starting``, no endpoints), as current run of ``runs``."""
     run_dir = runs / "20261206-120000-lockstep-r0"
