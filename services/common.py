@@ -762,23 +762,30 @@ def write_profile(profiles: list[cProfile.Profile | None], path: Path) -> None:
         log.error("cannot write the profile %s: %s", path, exc)
 
 
+def starting_launcher_pid() -> int | None:
+    """The pid of the launcher that started this service (``CSO_PARENT_PID``, which ``supervision.Child`` sets); None
+    for a service started by hand (``cso-runtime service``, ``python -m services.NAME``)."""
+    parent = os.environ.get("CSO_PARENT_PID", "")
+    return int(parent) if parent.isdigit() else None
+
+
 def launcher_gone() -> int | None:
     """The pid of the launcher that started this service (``CSO_PARENT_PID``) once it is gone (killed, crashed:
     the kernel's SIGTERM that ``_die_with_launcher`` asked for is then why the service stops); None while it runs,
     or for a service no launcher started. The kernel sends that SIGTERM as the launcher's first thread exits,
     before the service is handed to another parent (measured: some 10 ms later, as Zenoh's threads exit): a
     launcher whose main thread is already a zombie is gone too."""
-    parent = os.environ.get("CSO_PARENT_PID", "")
-    if not parent.isdigit():
+    parent = starting_launcher_pid()
+    if parent is None:
         return None
-    if os.getppid() != int(parent):
-        return int(parent)
+    if os.getppid() != parent:
+        return parent
     try:
         with open(f"/proc/{parent}/stat") as fh:
             state = fh.read().rsplit(")", 1)[-1].split()[0]
     except (OSError, IndexError):  # no /proc (not Linux)
         return None
-    return int(parent) if state in ("Z", "X", "x") else None
+    return parent if state in ("Z", "X", "x") else None
 
 
 ORPHAN_STOP_S = 10.0

@@ -27,6 +27,7 @@ from __future__ import annotations
 import argparse
 import logging
 import math
+import os
 import threading
 import time
 from bisect import bisect_right
@@ -38,10 +39,11 @@ import numpy as np
 import zenoh
 
 from cso_runtime import ros2_cdr
+from cso_runtime.claims import DECIDE_WITHIN_S, RunClaim, declare_claims, settle_claims
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
 from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand, wrap_angle_rad
-from cso_runtime.keys import WILDCARD, robot_driver_token
+from cso_runtime.keys import WILDCARD, driver_claim_subject, robot_driver_token
 from cso_runtime.messages import (
     EPISODE_OVER,
     ClockMsg,
@@ -60,7 +62,7 @@ from cso_runtime.messages import (
     new_episode_id,
 )
 from cso_runtime.occupancy import open_on_border
-from services.common import Service, ServiceContext, service_main
+from services.common import Service, ServiceContext, service_main, starting_launcher_pid
 
 log = logging.getLogger("cso.ros2_bridge")
 
@@ -323,6 +325,8 @@ class Ros2BridgeService(Service):
         self._queryables: list[Any] = []
         self._driver_token: Any = None
         """Says on the network that this run drives the robot's ``cmd_vel`` (``keys.robot_driver_token``)."""
+        self._claim_tokens: list[Any] = []
+        """A bridge started by hand: its claim on the robot it drives, held while it runs (``claim_robot``)."""
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -339,6 +343,8 @@ class Ros2BridgeService(Service):
             if self._driver_token is not None:
                 entities.append(self._driver_token)
                 self._driver_token = None
+            entities += self._claim_tokens
+            self._claim_tokens = []
         for entity in entities:  # outside the lock: a callback in flight may be waiting for it
             entity.undeclare()
         if self.session is None or not self.sent_any_command:
@@ -355,8 +361,13 @@ class Ros2BridgeService(Service):
         assert self.session is not None
         p, keys = self.params, self.ctx.keys
         cmd_key = p.ros_key(p.cmd_vel_topic)
+        by_hand = starting_launcher_pid() is None
+        if by_hand and not self.claim_robot(cmd_key):
+            return  # stopped while it waited for another bridge's decision: the loop ends, nothing was driven
         for reply in self.session.liveliness().get(robot_driver_token(cmd_key, WILDCARD), timeout=1.0):
-            if reply.ok is not None and (other := str(reply.ok.key_expr).rsplit("/", 1)[-1]) != self.ctx.robot:
+            # A token of this robot id is its own run's (up's bridge restarted: its old token still held for a moment),
+            # unless this bridge was started by hand: then another run's or bridge's of the same id.
+            if reply.ok is not None and ((other := str(reply.ok.key_expr).rsplit("/", 1)[-1]) != self.ctx.robot or by_hand):
                 # `up` refuses such a run before it starts; this holds a bridge started by hand, or one of two runs started
                 # at once. Exit 2: the launcher does not restart it, and the robot is left to the run that drives it.
                 raise ConfigError(f"robot {other}'s run already drives {cmd_key} on this network ({reply.ok.key_expr} is alive): stop it, or give another --namespace")
@@ -378,6 +389,30 @@ class Ros2BridgeService(Service):
             keys.scan,
             keys.cmd_vel,
             p.ros_key(p.cmd_vel_topic),
+        )
+
+    def claim_robot(self, cmd_key: str) -> bool:
+        """A bridge started by hand claims the robot behind ``cmd_key`` as ``up`` does for its bridge
+        (``cso_runtime.claims``, the same subject): of bridges and runs started at the same moment exactly one drives
+        it. The claim is held while the bridge runs, so that a run or bridge started later is refused by it. A
+        ConfigError (exit 2) when another has it; False when the service was stopped while it waited."""
+        assert self.session is not None
+        subject = driver_claim_subject(cmd_key)
+        claim = RunClaim.new(f"ros2_bridge-{self.ctx.robot}-pid{os.getpid()}")
+        self._claim_tokens = declare_claims(self.session, [subject], claim)
+        went_on, lost = settle_claims(self.session, [subject], claim, stop=self.stop_event)
+        self._claim_tokens += went_on
+        if lost is None:
+            return True
+        for token in self._claim_tokens:  # withdrawn at once: one that waits for this bridge's decision goes on
+            token.undeclare()
+        self._claim_tokens = []
+        if lost.stopped:
+            return False
+        other = f"{lost.winner.run_id} has not said within {DECIDE_WITHIN_S:g} s whether it goes on; try again" if lost.undecided else f"{lost.winner.run_id} has it"
+        raise ConfigError(
+            f"the robot behind {cmd_key} is claimed by another run or bridge on this network ({other}): this bridge would send it "
+            f"commands too; stop that one first, or give another --namespace"
         )
 
     def _on_result_query(self, query: zenoh.Query) -> None:

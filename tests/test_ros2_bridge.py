@@ -521,7 +521,7 @@ def test_fake_limo_through_the_bridge(namespace: str):
     assert not thread.is_alive()
 
 
-def test_a_bridge_refuses_a_robot_that_another_runs_bridge_drives():
+def test_a_bridge_refuses_a_robot_that_another_runs_bridge_drives(monkeypatch):
     """``up`` refuses a run whose bridge would drive a robot another run's bridge drives; a bridge started by hand (or
     one of two runs started at once) got past that and sent its Twists beside the other's. It now refuses on start
     (ConfigError: exit 2, which the launcher does not restart), before any command; its own robot's token (a
@@ -530,6 +530,7 @@ def test_a_bridge_refuses_a_robot_that_another_runs_bridge_drives():
     from services.common import ServiceContext, run_service
     from services.ros2_bridge import Ros2BridgeService
 
+    monkeypatch.delenv("CSO_PARENT_PID", raising=False)  # started by hand
     port = free_tcp_port()
     client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
     with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
@@ -555,6 +556,7 @@ def test_a_bridge_refuses_a_robot_that_another_runs_bridge_drives():
             assert refused and "robot r7's run already drives limo1/cmd_vel" in str(refused[0]), refused
             held.undeclare()
             held = session.liveliness().declare_token(robot_driver_token("limo1/cmd_vel", "t1"))  # its own, from before a restart
+            monkeypatch.setenv("CSO_PARENT_PID", str(os.getppid()))  # as its launcher restarts it (by hand: another's, refused)
             stop = threading.Event()
             svc = Ros2BridgeService(ServiceContext("ros2_bridge", "t1", {"method": "greedy-dist"}, ExplorationConfig(), client, {"namespace": "limo1"}))
             thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
@@ -568,6 +570,79 @@ def test_a_bridge_refuses_a_robot_that_another_runs_bridge_drives():
             held.undeclare()
             sub.undeclare()
     assert twists == [] and not thread.is_alive()
+
+
+BRIDGE_AT_ONCE = """
+import sys
+from services.ros2_bridge import main
+print("ready", flush=True)
+sys.stdin.readline()  # the barrier: the test lets every bridge go at once
+raise SystemExit(main(sys.argv[1:]))
+"""
+
+
+def test_of_bridges_started_by_hand_at_once_on_one_robot_exactly_one_drives_it(tmp_path: Path):
+    """A bridge started by hand (``python -m services.ros2_bridge``, as docs/hardware.md says) took no claim on the
+    robot it drives, as ``up`` does for its bridge: two started at the same moment both went on (and one of the robot
+    id of a run or bridge already driving it never looked), each sending the robot its Twists. It now claims the
+    robot behind its ``cmd_vel`` (``cso_runtime.claims``): of bridges started at once on one namespace exactly one goes
+    on, the others exit 2 saying who has it; one on another namespace goes on beside it, and a later one (of the same
+    robot id too) is refused by the one that drives, as is ``up``'s check of a run that would drive it."""
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import load_profile
+
+    cfg = tmp_path / "limo.yaml"
+    cfg.write_text((PROFILES / "limo-ros2.yaml").read_text())
+    port = free_tcp_port()
+    env = {k: v for k, v in os.environ.items() if k != "CSO_PARENT_PID"}  # started by hand, not by a launcher
+
+    def bridge(i: int, robot: str, namespace: str) -> subprocess.Popen:
+        argv = ["--config", str(cfg), "--robot", robot, "--namespace", namespace, "--connect", loopback_endpoint(port)]
+        log = (tmp_path / f"bridge{i}.log").open("w")
+        return subprocess.Popen(
+            [sys.executable, "-c", BRIDGE_AT_ONCE, *argv], cwd=REPO, env=env, stdin=subprocess.PIPE, stdout=log, stderr=subprocess.STDOUT, text=True, start_new_session=True
+        )
+
+    def said(i: int) -> str:
+        return (tmp_path / f"bridge{i}.log").read_text()
+
+    runs = [("r1", "limo1"), ("r1", "limo1"), ("r2", "limo1"), ("r3", "limo2")]
+    procs = [bridge(i, robot, namespace) for i, (robot, namespace) in enumerate(runs)]
+    try:
+        with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+            wait_for(lambda: all(said(i).startswith("ready") for i in range(len(procs))), 60, "every bridge to have imported")
+            for p in procs:  # go: each line is sent at once, before any bridge could have claimed
+                p.stdin.write("\n")
+                p.stdin.flush()
+            driving = lambda i: "bridging ROS keys" in said(i)  # noqa: E731
+            wait_for(lambda: all(driving(i) or procs[i].poll() is not None for i in range(len(procs))), 90, "every bridge to decide")
+            same = [i for i in range(3) if driving(i)]
+            assert len(same) == 1 and driving(3) and procs[3].poll() is None, [said(i)[-1500:] for i in range(len(procs))]
+            for i in set(range(3)) - set(same):
+                assert procs[i].wait(10) == 2, said(i)[-2000:]
+                assert "the robot behind limo1/cmd_vel is claimed by another run or bridge on this network" in said(i) or (
+                    "already drives limo1/cmd_vel" in said(i)
+                ), said(i)[-2000:]
+                assert "--namespace" in said(i) and "bridging ROS keys" not in said(i), said(i)[-2000:]
+            winner_robot = runs[same[0]][0]
+            later = bridge(9, winner_robot, "limo1")  # of the same robot id as the one that drives: refused all the same
+            procs.append(later)
+            later.stdin.write("\n")
+            later.stdin.flush()
+            assert later.wait(60) == 2 and "limo1/cmd_vel" in said(9) and "bridging ROS keys" not in said(9), said(9)[-2000:]
+            other, data = load_profile("limo-ros2", {"robot": "r5"}, connect=[loopback_endpoint(port)], namespace="limo1")
+            taken = Launcher(other, data, tmp_path / "run").robot_already_served(session)
+            assert "limo1/cmd_vel is already driven by" in taken or "limo1/cmd_vel is being claimed by another run" in taken, taken
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGINT)
+        for p in procs:
+            try:
+                p.wait(15)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait(5)
 
 
 def test_bridge_process_takes_namespace_and_stops_the_robot_on_sigint(tmp_path: Path):
