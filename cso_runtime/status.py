@@ -468,11 +468,11 @@ def await_started_run(runs_dir: Path, as_json: bool, period_s: float) -> int | N
         info = read_current_run(runs_dir)
         starting = starting_run(info)
         if starting is None:
-            if info is not None or seen is None or not seen.get("run_dir"):
-                return None  # up (or never starting, or another run): status says what there is
-            # Its run file went: a start that failed (refused, no router) or was interrupted says so in run.json.
+            if seen is None or not seen.get("run_dir") or (info is not None and (info.get("run_id") != seen["run_id"] or info.get("state") != "stopped")):
+                return None  # up (or never starting, or another run, or its launcher gone): status says what there is
+            # A start that failed (refused, no router) or was interrupted: its run.json says so, then its run file goes.
             run_dir = Path(seen["run_dir"])
-            run = stopped_run(run_dir, wait_s=0.0)
+            run = info if info is not None else stopped_run(run_dir, wait_s=0.0)
             return None if run is None else say_run_ended(run, run_dir, {}, as_json)
         seen = info
         assert info is not None

@@ -2754,21 +2754,25 @@ def test_status_watch_of_a_starting_run_ends_when_its_launcher_dies_or_its_start
     assert code == 1 and len(said) == 2 and (json.loads(said[-1])["reason"] if as_json else said[-1]) == f"nothing running ({gone})", said
     assert status.status_main([], None, as_json=False, watch=False, runs_dir=runs) == 1 and capsys.readouterr().out == f"nothing running ({gone})\n"
 
-    runs = tmp_path / "runs2"
-    run_dir, starting = starting_run_files(runs, os.getpid())
+    for pointer_left in (False, True):  # as Launcher.stop_before_start does: both files say it stopped, then current.json goes
+        runs = tmp_path / f"runs-{pointer_left}"
+        run_dir, starting = starting_run_files(runs, os.getpid())
 
-    def start_failed() -> None:  # as Launcher.stop_before_start does
-        (run_dir / "run.json").write_text(json.dumps({**starting, "state": "stopped", "outcome": "failed", "exit_code": 3}))
-        (runs / "current.json").unlink()
+        def start_failed(runs: Path = runs, run_dir: Path = run_dir, starting: dict = starting, pointer_left: bool = pointer_left) -> None:
+            stopped = json.dumps({**starting, "state": "stopped", "outcome": "failed", "exit_code": 3})
+            for path in (run_dir / "run.json", runs / "current.json"):
+                path.write_text(stopped)
+            if not pointer_left:
+                (runs / "current.json").unlink()
 
-    monkeypatch.setattr(status.time, "sleep", lambda s: start_failed() if s == 0.1 else None)
-    code = status.status_main([], None, as_json=as_json, watch=True, runs_dir=runs, period_s=0.1)
-    said = capsys.readouterr().out.splitlines()
-    assert code == 3 and len(said) == 2, said
-    if as_json:
-        assert (json.loads(said[-1])["outcome"], json.loads(said[-1])["exit_code"]) == ("failed", 3), said
-    else:
-        assert said[-1] == f"run run1 ended: failed, exit code 3; its folder: {run_dir}/ (the logs in {run_dir / 'logs'}/)", said
+        monkeypatch.setattr(status.time, "sleep", lambda s, start_failed=start_failed: start_failed() if s == 0.1 else None)
+        code = status.status_main([], None, as_json=as_json, watch=True, runs_dir=runs, period_s=0.1)
+        said = capsys.readouterr().out.splitlines()
+        assert code == 3 and len(said) == 2, said
+        if as_json:
+            assert (json.loads(said[-1])["outcome"], json.loads(said[-1])["exit_code"]) == ("failed", 3), said
+        else:
+            assert said[-1] == f"run run1 ended: failed, exit code 3; its folder: {run_dir}/ (the logs in {run_dir / 'logs'}/)", said
 
 
 def test_status_tables_wrap_on_a_narrow_terminal_rather_than_cut_with_an_ellipsis():
