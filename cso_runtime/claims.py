@@ -13,6 +13,8 @@ other's claim; which one goes on must then not depend on who saw whom:
 - a run that wins says so for each subject, and holds its claims and those tokens until a run started later can
   see it otherwise (``Launcher.seen_at_router``: its launcher answers for the robot id).
 
+A ROS 2 bridge started by hand claims the robot it drives the same way (``Ros2BridgeService.claim_robot``).
+
 Of two runs that claim at once, the later one goes on only when it has not seen the earlier one, which has then seen
 it and waits for its decision; every run orders the claims the same way, whatever the hosts' clocks say. This holds
 for sessions that are clients of one router (``up`` claims on such a session): a router answers a liveliness query
