@@ -328,9 +328,13 @@ class EpisodeOutcome:
     coverage_curve_pct: np.ndarray | None = None
     kept: bool = False
     """Read back from an earlier run's files by ``--resume``, not run now."""
+    map_origin: Pose2D = MAP_FRAME_ORIGIN
+    """The plan's pose in the user's map frame (``FloorPlan.map_origin``): the trajectory plots are drawn there."""
 
     @classmethod
-    def finished(cls, method: str, result: EpisodeResult, row: dict[str, Any], free: np.ndarray, resolution_m: float) -> EpisodeOutcome:
+    def finished(
+        cls, method: str, result: EpisodeResult, row: dict[str, Any], free: np.ndarray, resolution_m: float, map_origin: Pose2D = MAP_FRAME_ORIGIN
+    ) -> EpisodeOutcome:
         """The outcome of an episode that ran to its end (in-process or through the runtime)."""
         return cls(
             method,
@@ -341,6 +345,7 @@ class EpisodeOutcome:
             explored=result.explored_free,
             trajectory_xy_m=result.trajectory_xy_m,
             coverage_curve_pct=result.coverage_curve_pct,
+            map_origin=map_origin,
         )
 
 
@@ -419,7 +424,7 @@ def load_finished(job: EpisodeJob) -> EpisodeOutcome | None:
     except (OSError, KeyError, ValueError, SceneError):
         return None
     return EpisodeOutcome(job.method, plan.name, row=row, free=plan.free, resolution_m=plan.resolution_m,
-                          explored=explored, trajectory_xy_m=trajectory, coverage_curve_pct=curve, kept=True)
+                          explored=explored, trajectory_xy_m=trajectory, coverage_curve_pct=curve, kept=True, map_origin=plan.map_origin)
 
 
 def run_job(job: EpisodeJob) -> EpisodeOutcome:
@@ -448,7 +453,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
     except Exception as exc:  # one bad episode must not stop the run; it is reported
         log.debug("episode failed", exc_info=True)
         return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
-    return EpisodeOutcome.finished(job.method, result, row, plan.free, plan.resolution_m)
+    return EpisodeOutcome.finished(job.method, result, row, plan.free, plan.resolution_m, plan.map_origin)
 
 
 WORKER_DIED = "its worker process died twice (killed, or out of memory?)"

@@ -75,6 +75,32 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
     return fig
 
 
+def draw_plan_image(ax: Any, img: np.ndarray, resolution_m: float, map_origin: Any = None) -> None:
+    """Draw a plan-shaped RGB image (row 0 at the plan's bottom edge) where the plan lies in the user's map frame:
+    moved and turned by ``map_origin`` (a ``Pose2D``, ``FloorPlan.map_origin``; None: the plan's frame is the map
+    frame), so that axes read as the map frame that ``scenes``, ``status`` and a map_server YAML's ``start`` use.
+    The axes take the turned plan's bounds and an equal aspect."""
+    from matplotlib.transforms import Affine2D  # noqa: PLC0415  (matplotlib is slow to import)
+
+    h, w = img.shape[:2]
+    x0, y0, yaw = (0.0, 0.0, 0.0) if map_origin is None else (map_origin.x_m, map_origin.y_m, map_origin.yaw_rad)
+    to_map = Affine2D().rotate(yaw).translate(x0, y0)
+    image = ax.imshow(img, origin="lower", extent=(0, w * resolution_m, 0, h * resolution_m), interpolation="nearest")
+    image.set_transform(to_map + ax.transData)
+    corners = to_map.transform([(0, 0), (w * resolution_m, 0), (0, h * resolution_m), (w * resolution_m, h * resolution_m)])
+    ax.set_xlim(corners[:, 0].min(), corners[:, 0].max())
+    ax.set_ylim(corners[:, 1].min(), corners[:, 1].max())
+    ax.set_aspect("equal")
+
+
+def map_frame_points(xy_m: np.ndarray, map_origin: Any = None) -> np.ndarray:
+    """Points (n x 2 metres) of the plan's frame in the user's map frame (``draw_plan_image``'s frame)."""
+    from cso_runtime.geometry import compose_xy  # noqa: PLC0415  (keeps this module's import light)
+
+    xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    return xy if map_origin is None else compose_xy(map_origin, xy)
+
+
 WALL_RGB = (0.25, 0.25, 0.25)
 UNEXPLORED_FREE_RGB = (0.75, 0.75, 0.75)
 EXPLORED_FREE_RGB = (0.62, 0.82, 0.98)
@@ -87,8 +113,9 @@ def plot_trajectories(path: Path, name: str, outcomes: Sequence[Any]) -> None:
 
 def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
     """One panel per method, like the paper's Fig. 6: walls (dark), free space not explored (grey), explored
-    free space (light blue), the path (red) from its start (green dot) to its end (red square), with a key.
-    Panels take the plan's aspect ratio, so that tall and wide plans alike keep their axis labels."""
+    free space (light blue), the path (red) from its start (green dot) to its end (red square), with a key, in the
+    user's map frame (each outcome's ``map_origin``: a map_server scene's ``origin``). Panels take the plan's aspect
+    ratio, so that tall and wide plans alike keep their axis labels."""
     plt = _pyplot()
     from matplotlib.lines import Line2D  # noqa: PLC0415  (matplotlib is slow to import)
     from matplotlib.patches import Patch  # noqa: PLC0415
@@ -105,8 +132,9 @@ def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
         img[free] = UNEXPLORED_FREE_RGB
         img[~free] = WALL_RGB
         img[np.asarray(o.explored, dtype=bool)] = EXPLORED_FREE_RGB
-        ax.imshow(img, origin="lower", extent=(0, w * res, 0, h * res), interpolation="nearest")
-        traj = np.asarray(o.trajectory_xy_m)
+        map_origin = getattr(o, "map_origin", None)
+        draw_plan_image(ax, img, res, map_origin)
+        traj = map_frame_points(o.trajectory_xy_m, map_origin)
         if len(traj):
             ax.plot(traj[:, 0], traj[:, 1], color="red", lw=1.0)
             ax.plot(traj[0, 0], traj[0, 1], "o", color="green", ms=5)
@@ -145,8 +173,9 @@ def plot_scene(path: Path, plan: Any) -> None:
 
 def scene_figure(plan: Any) -> Any:
     """A floor plan as the explorer meets it: walls, the free space reachable from the start (what coverage
-    counts), free space it cannot reach (beige), and the start pose as an arrow along its yaw; the title gives
-    the traversable area and the paper's scale class."""
+    counts), free space it cannot reach (beige), and the start pose as an arrow along its yaw, in the user's map
+    frame (``plan.map_origin``: the start where ``scenes`` lists it); the title gives the traversable area and the
+    paper's scale class."""
     plt = _pyplot()
     from matplotlib.patches import Patch  # noqa: PLC0415  (matplotlib is slow to import)
 
@@ -159,9 +188,9 @@ def scene_figure(plan: Any) -> Any:
     img[free] = UNREACHABLE_FREE_RGB
     img[reachable] = UNEXPLORED_FREE_RGB
     fig, ax = plt.subplots(figsize=(float(np.clip(4.8 * w / max(h, 1), 3.2, 8.0)) + 0.4, 5.0), layout="constrained")
-    ax.imshow(img, origin="lower", extent=(0, w * res, 0, h * res), interpolation="nearest")
+    draw_plan_image(ax, img, res, plan.map_origin)
     arrow_m = 0.04 * max(w, h) * res
-    s = plan.start
+    s = plan.to_map_frame(plan.start)
     ax.annotate("", xy=(s.x_m + arrow_m * np.cos(s.yaw_rad), s.y_m + arrow_m * np.sin(s.yaw_rad)), xytext=(s.x_m, s.y_m),
                 arrowprops={"arrowstyle": "-|>", "color": "green", "lw": 1.5})
     ax.plot(s.x_m, s.y_m, "o", color="green", ms=5, label="start")

@@ -645,6 +645,49 @@ def test_trajectory_plots_keep_every_label_and_the_key_inside_the_figure(rows: i
     fig.clf()
 
 
+@pytest.mark.parametrize("yaw_rad", [0.0, np.pi / 2])
+def test_trajectory_plots_and_scene_previews_are_drawn_in_the_users_map_frame(yaw_rad: float):
+    """A map_server scene's origin places its plan in the user's map frame: the trajectory plot and the `scenes`
+    preview read there (the start where `scenes` and the YAML's `start:` put it, the map where RViz shows it), not
+    in the plan's own frame from (0, 0). An asymmetric plan: a free cell at the plan's lower-left corner only."""
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.geometry import Pose2D
+    from cso_runtime.plots import scene_figure, trajectory_figure
+    from cso_runtime.scenes import FloorPlan
+
+    res_m, rows, cols = 0.1, 20, 40  # 4 x 2 m
+    free = np.zeros((rows, cols), dtype=bool)
+    free[1:5, 1:30] = True  # a corridor along the plan's bottom edge
+    origin = Pose2D(-1.0, 2.0, yaw_rad)
+    plan = FloorPlan("asym", free, res_m, Pose2D(0.25, 0.25, 0.0), map_origin=origin)
+    start_map = plan.to_map_frame(plan.start)
+    corners_map = [plan.to_map_frame(Pose2D(x, y, 0.0)) for x, y in ((0, 0), (cols * res_m, 0), (0, rows * res_m), (cols * res_m, rows * res_m))]
+    bounds = (min(c.x_m for c in corners_map), max(c.x_m for c in corners_map), min(c.y_m for c in corners_map), max(c.y_m for c in corners_map))
+
+    def image_corner_in_data(ax) -> np.ndarray:
+        """Where the image's pixel of the plan's lower-left corner lands in the axes' data coordinates."""
+        image = ax.get_images()[0]
+        return (image.get_transform() - ax.transData).transform([(0.0, 0.0)])[0]
+
+    path = np.array([[0.25, 0.25], [2.5, 0.3]])
+    outcome = EpisodeOutcome("greedy-dist", "asym", {"coverage_pct": 90.0, "steps": 10, "path_length_m": 2.3}, None, free, res_m, free, path, map_origin=origin)
+    for fig in (trajectory_figure("asym", [outcome]), scene_figure(plan)):
+        ax = fig.axes[0]
+        assert np.allclose(sorted(ax.get_xlim()) + sorted(ax.get_ylim()), bounds)
+        assert np.allclose(image_corner_in_data(ax), [origin.x_m, origin.y_m])
+        starts = [line for line in ax.lines if isinstance(line, Line2D) and line.get_marker() == "o"]
+        assert np.allclose(starts[0].get_xydata()[0], [start_map.x_m, start_map.y_m])
+        plt.close(fig)
+    traj_fig = trajectory_figure("asym", [outcome])
+    drawn_path = traj_fig.axes[0].lines[0].get_xydata()
+    end_map = plan.to_map_frame(Pose2D(2.5, 0.3, 0.0))
+    assert np.allclose(drawn_path[-1], [end_map.x_m, end_map.y_m])
+    plt.close(traj_fig)
+
+
 def test_the_efficiency_figure_shows_each_methods_mean_per_scale_and_its_change_against_the_baseline():
     """Fig. 5 of the paper from a summary: one bar per method and scale that ran (none for a scale a method
     has no episode of), and below, each non-baseline method's per-scene change with its 95 % interval."""
