@@ -551,10 +551,24 @@ def _efficiency_episodes(rows: list[dict[str, Any]]) -> int:
     return sum(1 for r in rows if r.get("efficiency_m2_per_step") is not None and math.isfinite(float(r["efficiency_m2_per_step"])))
 
 
+AGGREGATION = {
+    "rows": "one row of episodes.csv per episode; every figure of methods (and of methods.<method>.by_scale) aggregates "
+    "the method's episodes (of that scale) alone, each episode counted once",
+    "<metric>": "the mean over those episodes; efficiency_m2_per_step: the mean of each episode's m2/step (not the mean area "
+    "over the mean steps), episodes of no step left out (efficiency_episodes counts the others)",
+    "<metric>_std": "the sample standard deviation (ddof=1) over the same episodes, in the metric's unit; null for one episode",
+    "<metric>_ci95": "[low, high]: the 95 % percentile bootstrap interval of the mean, 10,000 resamples of the plans with "
+    "replacement (the episodes of one plan kept together), seed 0; null under two plans",
+    "paired": "paired.csv's rows: each method against the baseline on the scenes both ran, per scale",
+}
+"""``summary.json``'s ``aggregation``: how each figure of it is computed from ``episodes.csv``, said in the file, so that
+a reader of the JSON alone (pandas, a notebook) need not look it up."""
+
+
 def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist") -> dict[str, Any]:
     """Per-method means of the Table 1 metrics with their sample standard deviations, a per-scale breakdown, the failures, and each method
     against ``baseline`` scene by scene (``cso_runtime.comparison``; empty when it did not run)."""
-    summary: dict[str, Any] = {"meta": meta, "methods": {}}
+    summary: dict[str, Any] = {"meta": meta, "aggregation": AGGREGATION, "methods": {}}
     for method in methods:
         mine = [r for r in rows if r["method"] == method]
         entry: dict[str, Any] = table1_stats(mine)

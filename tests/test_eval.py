@@ -1091,6 +1091,24 @@ def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(
     assert "±" not in (tmp_path / "one" / "report.html").read_text().split("<h2>Table 1</h2>")[1].split("</table>")[0]
 
 
+def test_summary_json_says_how_each_of_its_figures_aggregates_the_episodes():
+    """A reader of summary.json alone (pandas, a notebook) finds in it what each figure is: a mean over the episodes,
+    the sample standard deviation beside it, the bootstrap interval with its resamples and seed (those
+    ``bootstrap_mean_ci`` runs with), without the README."""
+    import inspect
+
+    from cso_runtime.comparison import bootstrap_mean_ci
+    from cso_runtime.evaluation import summarize
+
+    row = {"method": "m", "map": "a", "scale": "small", "seed": 0, "terminated_by": "coverage", **dict.fromkeys(METRICS, 1.0)}
+    aggregation = json.loads(json.dumps(summarize([row], [], ["m"], meta={})))["aggregation"]
+    assert set(aggregation) >= {"rows", "<metric>", "<metric>_std", "<metric>_ci95", "paired"}
+    assert "mean" in aggregation["<metric>"] and "ddof=1" in aggregation["<metric>_std"]
+    defaults = inspect.signature(bootstrap_mean_ci).parameters
+    assert f"{defaults['resamples'].default:,} resamples" in aggregation["<metric>_ci95"]
+    assert f"seed {defaults['seed'].default}" in aggregation["<metric>_ci95"]
+
+
 def test_a_row_of_one_episode_shows_its_steps_as_the_whole_count_in_the_report_and_on_the_console(tmp_path: Path, capsys, monkeypatch):
     """report.html (and eval's console Table 1) showed one episode's steps as "261.0", a mean of one count, while the
     episode's own line and ``runs`` say 261; a row of two or more episodes keeps its mean with one decimal."""
