@@ -847,6 +847,46 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     assert not gif.exists() and "gen_small_3.gif" not in (tmp_path / "o" / "report.html").read_text(), "a new episode, not animated"
 
 
+def test_the_report_shows_each_methods_final_map_and_gives_each_picture_one_caption(tmp_path: Path):
+    """The Maps section shows, beside the trajectories and animations, the robot's final map of each method as
+    map_server serves it, linked to its YAML; every picture has its own caption (a ``<figure>`` holds one
+    ``<figcaption>``: the animations' captions were all in the plan's figure), and every file the page shows or
+    links is in the folder, by a relative path."""
+    from html.parser import HTMLParser
+
+    out = tmp_path / "o"
+    run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:1:0", out_dir=out, max_steps=8, animate=True))
+    page = (out / "report.html").read_text()
+
+    class Figures(HTMLParser):
+        def __init__(self) -> None:
+            super().__init__()
+            self.open: list[int] = []  # captions seen so far in each figure open now
+            self.captions: list[int] = []
+            self.refs: list[str] = []
+
+        def handle_starttag(self, tag: str, attrs: list) -> None:
+            self.refs += [v for k, v in attrs if k in ("src", "href")]
+            if tag == "figure":
+                self.open.append(0)
+            elif tag == "figcaption":
+                self.open[-1] += 1
+
+        def handle_endtag(self, tag: str) -> None:
+            if tag == "figure":
+                self.captions.append(self.open.pop())
+
+    parser = Figures()
+    parser.feed(page)
+    assert parser.captions and max(parser.captions) == 1, parser.captions
+    assert not parser.open
+    for method in ("greedy-dist", "random"):
+        assert f'<img src="maps/{method}/gen_small_0.png"' in page
+        assert f'<a href="maps/{method}/gen_small_0.yaml">' in page
+        assert f"{method}, animated</figcaption>" in page
+    assert all((out / ref).is_file() for ref in parser.refs), parser.refs
+
+
 def test_summary_and_run_files_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
     """``write_text_atomic``: a reader sees the old file or the new one, never half of either, and a
     failed write leaves the old file and no stray temporary beside it."""
