@@ -44,7 +44,8 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
     """Mean coverage (%) against step per method, like the paper's Fig. 4; each episode's curve is held at its
     final value to the end of the panel's longest episode (``held_mean_curves``), so every method's line spans the
     same steps. One panel per scene scale when the episodes span several (a mean over a small and a super-large
-    scene says little about either); each method keeps its colour across panels, and with ``methods`` (the run's
+    scene says little about either), titled with the plan's name when every episode ran on one (a run of ``up``);
+    each method keeps its colour across panels, and with ``methods`` (the run's
     order, as ``summary.json`` lists them) the colour the efficiency figure gives it, whatever order the episodes
     finished in."""
     from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
@@ -58,6 +59,8 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
         colours.setdefault(o.method, f"C{len(colours)}")
     order = {sc: i for i, sc in enumerate(SCALES)}
     scales = sorted(by_scale, key=lambda sc: order.get(sc, len(order))) or [""]
+    plans = {o.map for o in outcomes}
+    on_plan = f" on {next(iter(plans))}" if len(plans) == 1 and len(scales) == 1 else ""  # a run of up, an eval of one plan
     fig, axes = plt.subplots(1, len(scales), figsize=(7 if len(scales) == 1 else 4.6 * len(scales), 4.5), squeeze=False, layout="constrained")
     for ax, scale in zip(axes[0], scales):
         methods = by_scale.get(scale, {})
@@ -71,7 +74,7 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
             ax.set_xlim(0, max(len(ax.lines[0].get_xdata()) - 1, 1))
             small = len(scales) > 1
             ax.legend(loc="lower right", fontsize=8 if small else 10, title="mean over episodes,\nended ones held", title_fontsize=7 if small else 9)
-        ax.set_title("Coverage against step" + (f": {scale.replace('_', ' ')}" if len(scales) > 1 else ""))
+        ax.set_title("Coverage against step" + (f": {scale.replace('_', ' ')}" if len(scales) > 1 else "") + on_plan)
     return fig
 
 

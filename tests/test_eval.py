@@ -778,7 +778,7 @@ def test_coverage_curves_get_one_panel_per_scale_when_the_episodes_span_several(
     assert colours == {"greedy-dist (1 ep.)": "C0", "cso (2 ep.)": "C1"}
     ordered.clf()
     single = coverage_figure(outcomes[1:])
-    assert [ax.get_title() for ax in single.axes] == ["Coverage against step"]
+    assert [ax.get_title() for ax in single.axes] == ["Coverage against step on plan"]  # one plan: named (a run of up)
     single.clf()
 
 
