@@ -27,6 +27,23 @@ def _save(fig: Any, path: Path, dpi: int) -> None:
     _pyplot().close(fig)
 
 
+LINE_STYLES = ("-", "--", "-.", ":")
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "<", ">")
+HATCHES = ("", "//", "..", "xx", "\\\\", "oo", "--", "++", "||", "**")
+
+
+def method_style(index: int) -> dict[str, str]:
+    """Method ``index``'s look in every figure: its colour (``C<index>``, matplotlib's default cycle) and, because
+    that cycle's green and red (methods 3 and 4) look alike to red-green colour-blind readers, a line style, a
+    marker and a bar hatch that differ from its neighbours' too."""
+    return {
+        "color": f"C{index % 10}",
+        "linestyle": LINE_STYLES[index % len(LINE_STYLES)],
+        "marker": MARKERS[index % len(MARKERS)],
+        "hatch": HATCHES[index % len(HATCHES)],
+    }
+
+
 def plot_coverage_curves(path: Path, outcomes: Sequence[Any], methods: Sequence[str] = ()) -> None:
     """``coverage_figure`` written as a PNG."""
     _save(coverage_figure(outcomes, methods), path, 110)
@@ -52,11 +69,11 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
 
     plt = _pyplot()
     by_scale: dict[str, dict[str, list[np.ndarray]]] = {}
-    colours: dict[str, str] = {m: f"C{i}" for i, m in enumerate(dict.fromkeys(methods))}
+    styles: dict[str, dict[str, str]] = {m: method_style(i) for i, m in enumerate(dict.fromkeys(methods))}
     for o in outcomes:
         scale = (o.row or {}).get("scale", "")
         by_scale.setdefault(scale, {}).setdefault(o.method, []).append(np.asarray(o.coverage_curve_pct))
-        colours.setdefault(o.method, f"C{len(colours)}")
+        styles.setdefault(o.method, method_style(len(styles)))
     order = {sc: i for i, sc in enumerate(SCALES)}
     scales = sorted(by_scale, key=lambda sc: order.get(sc, len(order))) or [""]
     plans = {o.map for o in outcomes}
@@ -65,7 +82,8 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
     for ax, scale in zip(axes[0], scales):
         methods = by_scale.get(scale, {})
         for method, mean in held_mean_curves(methods).items():
-            ax.plot(np.arange(len(mean)), mean, label=f"{method} ({len(methods[method])} ep.)", color=colours[method])
+            style = styles[method]
+            ax.plot(np.arange(len(mean)), mean, label=f"{method} ({len(methods[method])} ep.)", color=style["color"], linestyle=style["linestyle"])
         ax.set_xlabel("step (0.25 s); an episode that ended holds its final coverage")
         ax.set_ylabel("mean coverage (%)")
         ax.set_ylim(0, 101)
@@ -274,7 +292,8 @@ def efficiency_figure(summary: dict[str, Any]) -> Any:
         by_scale = summary["methods"][method]["by_scale"]
         at = [j for j, sc in enumerate(scales) if by_scale.get(sc, {}).get("efficiency_m2_per_step") is not None]
         heights = [by_scale[scales[j]]["efficiency_m2_per_step"] for j in at]
-        top.bar(np.array(at, dtype=float) + offset(i), heights, width, label=method, color=f"C{i}")
+        style = method_style(i)
+        top.bar(np.array(at, dtype=float) + offset(i), heights, width, label=method, color=style["color"], hatch=style["hatch"], edgecolor="white")
     top.set_xticks(x, [sc.replace("_", " ") for sc in scales])
     top.set_ylabel("efficiency (m2/step)")
     top.set_title("Exploration efficiency per scene scale")
@@ -290,12 +309,15 @@ def efficiency_figure(summary: dict[str, Any]) -> Any:
             low = mid - np.array([found[scales[j]]["ci_low_pct"] for j in at])
             high = np.array([found[scales[j]]["ci_high_pct"] for j in at]) - mid
             if at:
-                bottom.errorbar(np.array(at, dtype=float) + offset(i), mid, yerr=[low, high], fmt="o", capsize=3, label=method, color=f"C{i}")
+                style = method_style(i)
+                bottom.errorbar(np.array(at, dtype=float) + offset(i), mid, yerr=[low, high], fmt=style["marker"], capsize=3, label=method, color=style["color"])
         bottom.axhline(0.0, color="grey", lw=1)
         bottom.set_xticks(x, [sc.replace("_", " ") for sc in scales])
         bottom.set_xlim(-0.5, len(scales) - 0.5)
         bottom.set_ylabel(f"per-scene change\nagainst {baseline} (%)")
         bottom.set_title(f"Efficiency against {baseline}, scene by scene (95 % CI)", fontsize=10)
         bottom.grid(axis="y", alpha=0.3)
+        if bottom.containers:  # each method's marker, as the bars' key above gives its hatch
+            bottom.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     return fig
 

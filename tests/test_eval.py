@@ -727,6 +727,33 @@ def test_the_efficiency_figure_shows_each_methods_mean_per_scale_and_its_change_
 
 
 
+def test_figures_tell_methods_apart_by_more_than_colour():
+    """The default colour cycle's green and red (the third and fourth method: utility and random in ``--method
+    baselines``) look alike to red-green colour-blind readers: each method's line style (coverage), hatch (efficiency
+    bars) and marker (change against the baseline) differ from the others' as well."""
+    import matplotlib.pyplot as plt
+
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import coverage_figure, efficiency_figure
+
+    methods = ["greedy-dist", "greedy-info", "utility", "random"]
+    fig = coverage_figure([EpisodeOutcome(m, "plan", {"scale": "small"}, coverage_curve_pct=np.array([0.0, 50.0])) for m in methods], methods)
+    looks = [(line.get_color(), line.get_linestyle()) for line in fig.axes[0].get_lines()]
+    assert len({style for _, style in looks[2:4]}) == 2 and len(set(looks)) == len(methods)
+    plt.close(fig)
+    entry = {"by_scale": {"small": {"efficiency_m2_per_step": 0.3}}}
+    comparisons = [
+        {"scale": "small", "method": m, "per_scene_pct": 5.0, "ci_low_pct": -1.0, "ci_high_pct": 9.0} for m in methods[1:]
+    ]
+    fig = efficiency_figure({"methods": dict.fromkeys(methods, entry), "paired": {"baseline": "greedy-dist", "comparisons": comparisons}})
+    top, bottom = fig.axes[:2]
+    assert len({bars.patches[0].get_hatch() for bars in top.containers}) == len(methods)
+    markers = [c.lines[0].get_marker() for c in bottom.containers]
+    assert len(set(markers)) == len(methods) - 1
+    assert [t.get_text() for t in bottom.get_legend().get_texts()] == methods[1:]
+    plt.close(fig)
+
+
 def test_the_paired_figure_gives_each_scale_one_colour_in_every_panel(monkeypatch, tmp_path: Path):
     """Each panel took its own colour cycle: a method without a small scene showed its middle scenes in the small
     scenes' colour of the panel beside it."""
