@@ -132,11 +132,16 @@ def plot_trajectories(path: Path, name: str, outcomes: Sequence[Any]) -> None:
     _save(trajectory_figure(name, outcomes), path, 100)
 
 
+TRAJECTORY_COLUMNS = 3
+"""Panels in a row of the trajectory figure: five methods in one row made a strip 35 inches wide whose titles and
+axes were unreadable at the report's width; more methods go on further rows."""
+
+
 def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
     """One panel per method, like the paper's Fig. 6: walls (dark), free space not explored (grey), explored
     free space (light blue), the path (red) from its start (green dot) to its end (red square), with a key, in the
     user's map frame (each outcome's ``map_origin``: a map_server scene's ``origin``). Panels take the plan's aspect
-    ratio, so that tall and wide plans alike keep their axis labels."""
+    ratio, so that tall and wide plans alike keep their axis labels, at most ``TRAJECTORY_COLUMNS`` to a row."""
     plt = _pyplot()
     from matplotlib.lines import Line2D  # noqa: PLC0415  (matplotlib is slow to import)
     from matplotlib.patches import Patch  # noqa: PLC0415
@@ -144,8 +149,12 @@ def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
     n = len(outcomes)
     h0, w0 = np.asarray(outcomes[0].free).shape
     panel_w_in = float(np.clip(4.2 * w0 / max(h0, 1), 3.0, 7.0))
-    fig, axes = plt.subplots(1, n, figsize=(panel_w_in * n + 0.4, 4.8), squeeze=False, layout="constrained")
-    for ax, o in zip(axes[0], outcomes):
+    cols = min(n, TRAJECTORY_COLUMNS)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(panel_w_in * cols + 0.4, 4.8 + 4.2 * (rows - 1)), squeeze=False, layout="constrained")
+    for ax in axes.flat[n:]:  # the last row's empty places
+        ax.remove()
+    for ax, o in zip(axes.flat, outcomes):
         free = np.asarray(o.free, dtype=bool)
         h, w = free.shape
         res = o.resolution_m

@@ -613,7 +613,7 @@ def test_progress_lines_in_a_log_say_the_time_elapsed_and_left(capsys):
     assert lines[4] == "[5/5] greedy-dist img_5: 99.1% in 51 steps (coverage) [1:05:00 elapsed]"
 
 
-@pytest.mark.parametrize(("rows", "cols", "methods"), [(400, 60, 1), (60, 400, 1), (200, 300, 3)])
+@pytest.mark.parametrize(("rows", "cols", "methods"), [(400, 60, 1), (60, 400, 1), (200, 300, 3), (200, 300, 5)])
 def test_trajectory_plots_keep_every_label_and_the_key_inside_the_figure(rows: int, cols: int, methods: int):
     """A tall, a wide and a three-method figure: no title, axis label or key entry is cut off at the edge
     (the x label of wide plans once was), and each panel shows the whole plan at its own aspect ratio."""
@@ -638,10 +638,14 @@ def test_trajectory_plots_keep_every_label_and_the_key_inside_the_figure(rows: i
     drawn = fig.get_tightbbox(renderer)  # inches: everything drawn, labels and key included
     width_in, height_in = fig.get_size_inches()
     assert drawn.x0 >= -0.01 and drawn.y0 >= -0.01 and drawn.x1 <= width_in + 0.01 and drawn.y1 <= height_in + 0.01, drawn
+    assert len(fig.axes) == methods
     for ax in fig.axes:
         x0, x1 = ax.get_xlim()
         y0, y1 = ax.get_ylim()
         assert (x0, y0) == (0.0, 0.0) and np.isclose(x1, cols * 0.05) and np.isclose(y1, rows * 0.05)
+    # Five methods in one row were a strip too wide to read in the report: at most three panels a row.
+    assert len({round(ax.get_position().x0, 3) for ax in fig.axes}) == min(methods, 3)
+    assert width_in <= 3 * 7.0 + 0.4
     fig.clf()
 
 
