@@ -65,6 +65,8 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
     each method keeps its colour across panels, and with ``methods`` (the run's
     order, as ``summary.json`` lists them) the colour the efficiency figure gives it, whatever order the episodes
     finished in."""
+    from matplotlib.ticker import MaxNLocator  # noqa: PLC0415  (matplotlib is slow to import)
+
     from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
 
     plt = _pyplot()
@@ -83,10 +85,12 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
         methods = by_scale.get(scale, {})
         for method, mean in held_mean_curves(methods).items():
             style = styles[method]
-            ax.plot(np.arange(len(mean)), mean, label=f"{method} ({len(methods[method])} ep.)", color=style["color"], linestyle=style["linestyle"])
+            one_point = style["marker"] if len(mean) == 1 else ""  # episodes of no step: a line of one point draws nothing
+            ax.plot(np.arange(len(mean)), mean, label=f"{method} ({len(methods[method])} ep.)", color=style["color"], linestyle=style["linestyle"], marker=one_point)
         ax.set_xlabel("step (0.25 s); an episode that ended holds its final coverage")
         ax.set_ylabel("mean coverage (%)")
         ax.set_ylim(0, 101)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # steps are counted: no 0.2 step
         ax.grid(alpha=0.3)
         if methods:
             ax.set_xlim(0, max(len(ax.lines[0].get_xdata()) - 1, 1))
@@ -303,8 +307,12 @@ def efficiency_figure(summary: dict[str, Any]) -> Any:
         heights = [by_scale[scales[j]]["efficiency_m2_per_step"] for j in at]
         style = method_style(i)
         top.bar(np.array(at, dtype=float) + offset(i), heights, width, label=method, color=style["color"], hatch=style["hatch"], edgecolor="white")
+        for j, sc in enumerate(scales):  # episodes, but none with a step (the first scan saw everything): no m2/step to draw
+            if j not in at and sc in by_scale:
+                top.text(j + offset(i), 0.0, "no step", rotation=90, ha="center", va="bottom", fontsize=8, color=style["color"])
     top.set_xticks(x, [sc.replace("_", " ") for sc in scales])
     top.set_ylabel("efficiency (m2/step)")
+    top.set_ylim(bottom=0.0)
     top.set_title("Exploration efficiency per scene scale")
     top.set_xlim(-0.5, len(scales) - 0.5)
     top.grid(axis="y", alpha=0.3)

@@ -758,6 +758,26 @@ def test_figures_tell_methods_apart_by_more_than_colour():
     plt.close(fig)
 
 
+def test_an_episode_of_no_step_is_drawn_not_left_an_empty_plot():
+    """A plan whose first scan saw everything ends in 0 steps: its coverage curve is one point, which a line without
+    a marker left invisible, and it has no m2/step, which left the efficiency figure an empty frame running to
+    negative m2/step. The point is marked and the bar's place says why it is empty."""
+    import matplotlib.pyplot as plt
+
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import coverage_figure, efficiency_figure
+
+    fig = coverage_figure([EpisodeOutcome("greedy-dist", "tiny", {"scale": "small"}, coverage_curve_pct=np.array([100.0]))])
+    (line,) = fig.axes[0].get_lines()
+    assert line.get_marker() not in ("", "None", None)
+    plt.close(fig)
+    summary = {"methods": {"greedy-dist": {"by_scale": {"small": {"efficiency_m2_per_step": None}}}}, "paired": {"baseline": "greedy-dist", "comparisons": []}}
+    fig = efficiency_figure(summary)
+    (top,) = fig.axes
+    assert top.get_ylim()[0] == 0.0 and "no step" in [t.get_text() for t in top.texts]
+    plt.close(fig)
+
+
 def test_the_paired_figure_gives_each_scale_one_colour_in_every_panel(monkeypatch, tmp_path: Path):
     """Each panel took its own colour cycle: a method without a small scene showed its middle scenes in the small
     scenes' colour of the panel beside it."""
