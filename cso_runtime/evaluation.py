@@ -755,7 +755,7 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict
         (out / COVERAGE_FIGURE).unlink(missing_ok=True)
         (out / EFFICIENCY_FIGURE).unlink(missing_ok=True)
     if summary["paired"]["comparisons"]:
-        plot_paired_efficiency(out / PAIRED_FIGURE, efficiency_by_scene(rows), request.baseline)
+        plot_paired_efficiency(out / PAIRED_FIGURE, efficiency_by_scene(rows), request.baseline, request.methods)
     else:
         (out / PAIRED_FIGURE).unlink(missing_ok=True)
     by_map: dict[str, list[EpisodeOutcome]] = {}

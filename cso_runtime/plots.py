@@ -242,13 +242,17 @@ def scene_figure(plan: Any) -> Any:
     return fig
 
 
-def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, float]], baseline: str) -> None:
-    """One panel per method: each scene's efficiency (m2/step) against the baseline's on the same scene,
-    coloured by scale; points above the diagonal are scenes the method explored more efficiently."""
+def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, float]], baseline: str, order: Sequence[str] = ()) -> None:
+    """One panel per method (in ``order``, the run's, where given), each scene's efficiency (m2/step) against the
+    baseline's on the same scene, coloured and marked by scale (an ordered scale of its own, viridis, not the
+    methods' colours of the other figures); points above the diagonal are scenes the method explored more
+    efficiently."""
     from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
 
     plt = _pyplot()
-    methods = sorted({m for m, _ in table if m != baseline})
+    scale_colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, len(SCALES)))  # 0.85: no pale yellow on white
+    shown = {m for m, _ in table if m != baseline}
+    methods = [m for m in dict.fromkeys(order) if m in shown] + sorted(shown - set(order))
     fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 4.2), squeeze=False)
     for ax, method in zip(axes[0], methods):
         top = 0.0
@@ -258,7 +262,8 @@ def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, 
             if not scenes:
                 continue
             x, y = np.array([base[s] for s in scenes]), np.array([mine[s] for s in scenes])
-            ax.scatter(x, y, s=14, alpha=0.7, label=f"{scale} ({len(scenes)})", color=f"C{SCALES.index(scale)}")  # one colour per scale in every panel
+            k = SCALES.index(scale)  # one colour and marker per scale in every panel
+            ax.scatter(x, y, s=16, alpha=0.8, label=f"{scale} ({len(scenes)})", color=scale_colours[k], marker=MARKERS[k])
             top = max(top, float(x.max()), float(y.max()))
         top = top or 1.0  # no shared scene: an empty panel
         ax.plot([0, top * 1.05], [0, top * 1.05], color="grey", lw=1, ls="--")
