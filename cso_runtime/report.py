@@ -266,7 +266,8 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     out_dir = Path(out_dir)
     meta = summary.get("meta") or {}
     parts = [
-        "<!doctype html><html><head><meta charset='utf-8'><title>cso-runtime results</title><style>",
+        # The folder's name in the tab: several reports open side by side are told apart.
+        f"<!doctype html><html><head><meta charset='utf-8'><title>cso-runtime results: {html.escape(out_dir.resolve().name)}</title><style>",
         "body{font-family:system-ui,sans-serif;margin:1.5em;max-width:1400px}table{border-collapse:collapse;margin:.5em 0 1.5em}",
         "td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}td:first-child,td:nth-child(2),th{text-align:left}",
         "img{max-width:100%;height:auto;border:1px solid #eee}.maps{display:flex;flex-wrap:wrap;gap:1em}.maps>figure{margin:0;max-width:100%}",
