@@ -57,6 +57,22 @@ def held_mean_curves(curves_by_method: dict[str, list[np.ndarray]]) -> dict[str,
     return {m: np.stack([np.pad(c, (0, n - len(c)), mode="edge") for c in curves]).mean(axis=0) for m, curves in curves_by_method.items()}
 
 
+DEFAULT_STEP_S = 0.25
+"""``robot.control_period_s``'s default: the step of an episode whose row does not say (an older run's)."""
+
+
+def step_words(outcomes: Sequence[Any]) -> str:
+    """What a step on the coverage figure's axis is: the control period the episodes ran with (``sim_time_s`` over
+    ``steps`` of their rows: ``--set robot.control_period_s`` changes it), or, on a real robot (no simulated time),
+    its scans, which come as they come (about 10 Hz on the LIMO)."""
+    rows = [o.row for o in outcomes if o.row]
+    if rows and all("sim_time_s" in r and r["sim_time_s"] is None for r in rows):
+        return "step (a scan of the real robot)"
+    periods = {round(r["sim_time_s"] / r["steps"], 6) for r in rows if r.get("sim_time_s") and r.get("steps")}
+    period_s = next(iter(periods)) if len(periods) == 1 else DEFAULT_STEP_S if not periods else None
+    return "step" if period_s is None else f"step ({period_s:g} s)"
+
+
 def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any:
     """Mean coverage (%) against step per method, like the paper's Fig. 4; each episode's curve is held at its
     final value to the end of the panel's longest episode (``held_mean_curves``), so every method's line spans the
@@ -87,7 +103,7 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
             style = styles[method]
             one_point = style["marker"] if len(mean) == 1 else ""  # episodes of no step: a line of one point draws nothing
             ax.plot(np.arange(len(mean)), mean, label=f"{method} ({len(methods[method])} ep.)", color=style["color"], linestyle=style["linestyle"], marker=one_point)
-        ax.set_xlabel("step (0.25 s); an episode that ended holds its final coverage")
+        ax.set_xlabel(f"{step_words(outcomes)}; an episode that ended holds its final coverage")
         ax.set_ylabel("mean coverage (%)")
         ax.set_ylim(0, 101)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # steps are counted: no 0.2 step

@@ -778,6 +778,26 @@ def test_an_episode_of_no_step_is_drawn_not_left_an_empty_plot():
     plt.close(fig)
 
 
+def test_the_coverage_figures_step_is_the_period_the_episodes_ran_with_or_a_real_robots_scan():
+    """The x axis said "step (0.25 s)" whatever the step was: a run with another ``robot.control_period_s``, or a
+    run of ``up`` on a real LIMO, whose steps are its scans (about 10 Hz, no simulated time: ``sim_time_s`` null)."""
+    import matplotlib.pyplot as plt
+
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import coverage_figure
+
+    def xlabel(row: dict) -> str:
+        fig = coverage_figure([EpisodeOutcome("greedy-dist", "plan", {"scale": "small", **row}, coverage_curve_pct=np.array([0.0, 50.0]))])
+        label = fig.axes[0].get_xlabel()
+        plt.close(fig)
+        return label.split(";")[0]
+
+    assert xlabel({"steps": 40, "sim_time_s": 10.0}) == "step (0.25 s)"
+    assert xlabel({"steps": 40, "sim_time_s": 4.0}) == "step (0.1 s)"
+    assert xlabel({"steps": 40, "sim_time_s": None}) == "step (a scan of the real robot)"
+    assert xlabel({"steps": 40}) == "step (0.25 s)"  # a row of an older run: the default period
+
+
 def test_the_paired_figure_gives_each_scale_one_colour_in_every_panel(monkeypatch, tmp_path: Path):
     """Each panel took its own colour cycle: a method without a small scene showed its middle scenes in the small
     scenes' colour of the panel beside it."""
