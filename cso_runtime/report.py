@@ -40,7 +40,23 @@ TABLE1_DEFINITIONS = (
     ("path m", "metres the robot drove, from its true pose"),
     ("decision ms p50/p99", "median and 99th percentile of each episode's decision times (frontiers, fast marching, entropy, masks, goal choice)"),
 )
-"""How each Table 1 column is computed (README.md, the outputs of eval); every figure is a mean over the row's episodes."""
+"""How each Table 1 column is computed (README.md, the outputs of eval); every figure is a mean over the row's episodes.
+The steps' period is the run's own: ``table1_definitions``."""
+
+
+def table1_definitions(summary: dict[str, Any]) -> list[tuple[str, str]]:
+    """``TABLE1_DEFINITIONS`` with the steps said as the run counted them: its control period (``meta.config``'s
+    ``robot.control_period_s``, which ``--set`` changes), or, for a run of ``up`` on a real robot (a profile, no
+    simulator: no ``sim_settings`` and no simulated time), its scans."""
+    meta = summary.get("meta") or {}
+    robot = (meta.get("config") or {}).get("robot") or {}
+    period_s = robot.get("control_period_s", 0.25)
+    no_sim_time = all(isinstance(e, dict) and e.get("sim_time_s") is None for e in summary["methods"].values())
+    if isinstance(meta.get("profile"), dict) and "sim_settings" not in meta and no_sim_time:
+        steps = "scans of the real robot (about 10 Hz on the LIMO) until the episode ended: by coverage, no reachable frontier or the step limit"
+    else:
+        steps = f"control periods (robot.control_period_s, {period_s:g} s) until the episode ended: by coverage, no reachable frontier or the step limit"
+    return [(column, steps if column == "steps" else words) for column, words in TABLE1_DEFINITIONS]
 STD_SUFFIX = "_std"
 """``summary.json``'s key of a metric's sample standard deviation (ddof=1) over the episodes, beside its mean:
 ``coverage_pct_std``."""
@@ -287,7 +303,7 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
         _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e)] for m, s, e in table1_rows(summary)], [ci95_text(e) for _, _, e in table1_rows(summary)]),
         f"<p>Each cell: {html.escape(SPREAD_NOTE)}.</p>",
         f"<p>{html.escape(CI95_NOTE)}</p>",
-        "<dl>" + "".join(f"<dt>{html.escape(c)}</dt><dd>{html.escape(d)}</dd>" for c, d in TABLE1_DEFINITIONS) + "</dl>",
+        "<dl>" + "".join(f"<dt>{html.escape(c)}</dt><dd>{html.escape(d)}</dd>" for c, d in table1_definitions(summary)) + "</dl>",
     ]
     if shows_ablations(summary):
         parts.append("<h2>Table 2: efficiency, m2/step (per-scene change against the baseline)</h2>")

@@ -1143,6 +1143,28 @@ def test_the_report_says_a_run_was_interrupted_what_it_ran_with_and_how_each_met
     assert "Interrupted" not in write_report(tmp_path, summarize([row], [], ["greedy-dist"], meta)).read_text()
 
 
+def test_the_reports_steps_are_defined_as_the_run_counted_them(tmp_path: Path):
+    """The definition under Table 1 said "control periods (robot.control_period_s, 0.25 s)" whatever the run: an eval
+    with ``--set robot.control_period_s=0.5`` steps every 0.5 s, and a run of ``up`` on a real LIMO counts its scans."""
+    from cso_runtime.evaluation import summarize
+    from cso_runtime.report import write_report
+
+    row = {"method": "greedy-dist", "map": "img_1", "seed": 0, "traversable_area_m2": 150.0, "scale": "large", "terminated_by": "coverage",
+           "explored_area_m2": 150.0, "coverage_pct": 99.5, "steps": 1500, "efficiency_m2_per_step": 0.1, "path_length_m": 10.0,
+           "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}  # fmt: skip
+
+    def steps_said(meta: dict, sim_time_s: float | None) -> str:
+        page = write_report(tmp_path, summarize([{**row, "sim_time_s": sim_time_s}], [], ["greedy-dist"], meta)).read_text()
+        return page.split("<dt>steps</dt><dd>")[1].split("</dd>")[0]
+
+    config = to_dict(ExplorationConfig())
+    assert steps_said({"config": config, "sim_settings": {}}, 375.0).startswith("control periods (robot.control_period_s, 0.25 s)")
+    config["robot"]["control_period_s"] = 0.5
+    assert steps_said({"config": config, "sim_settings": {}}, 750.0).startswith("control periods (robot.control_period_s, 0.5 s)")
+    real_robot = {"command": "cso-runtime up", "profile": {"name": "limo-ros2"}, "config": config}  # no simulator: no sim_settings
+    assert steps_said(real_robot, None).startswith("scans of the real robot")
+
+
 def test_eval_warns_when_its_seed_changes_no_episode(tmp_path: Path, caplog):
     """The paper runs each scene 5 times; `eval --seed 1` on the defaults (2D simulator, no range noise) repeats seed 0's
     episodes of every method but `random` exactly, and pooled by `compare` the copies pass for more scenes. Say so."""
