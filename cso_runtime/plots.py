@@ -169,8 +169,8 @@ def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
     n = len(outcomes)
     h0, w0 = np.asarray(outcomes[0].free).shape
     panel_w_in = float(np.clip(4.2 * w0 / max(h0, 1), 3.0, 7.0))
-    cols = min(n, TRAJECTORY_COLUMNS)
-    rows = -(-n // cols)
+    rows = -(-n // TRAJECTORY_COLUMNS)
+    cols = -(-n // rows)  # the rows as full as each other: four methods in two rows of two, not three and one
     fig, axes = plt.subplots(rows, cols, figsize=(panel_w_in * cols + 0.4, 4.8 + 4.2 * (rows - 1)), squeeze=False, layout="constrained")
     for ax in axes.flat[n:]:  # the last row's empty places
         ax.remove()
