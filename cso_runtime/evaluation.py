@@ -328,9 +328,13 @@ class EpisodeOutcome:
     coverage_curve_pct: np.ndarray | None = None
     kept: bool = False
     """Read back from an earlier run's files by ``--resume``, not run now."""
+    map_origin: Pose2D = MAP_FRAME_ORIGIN
+    """The plan's pose in the user's map frame (``FloorPlan.map_origin``): the trajectory plots are drawn there."""
 
     @classmethod
-    def finished(cls, method: str, result: EpisodeResult, row: dict[str, Any], free: np.ndarray, resolution_m: float) -> EpisodeOutcome:
+    def finished(
+        cls, method: str, result: EpisodeResult, row: dict[str, Any], free: np.ndarray, resolution_m: float, map_origin: Pose2D = MAP_FRAME_ORIGIN
+    ) -> EpisodeOutcome:
         """The outcome of an episode that ran to its end (in-process or through the runtime)."""
         return cls(
             method,
@@ -341,6 +345,7 @@ class EpisodeOutcome:
             explored=result.explored_free,
             trajectory_xy_m=result.trajectory_xy_m,
             coverage_curve_pct=result.coverage_curve_pct,
+            map_origin=map_origin,
         )
 
 
@@ -419,7 +424,7 @@ def load_finished(job: EpisodeJob) -> EpisodeOutcome | None:
     except (OSError, KeyError, ValueError, SceneError):
         return None
     return EpisodeOutcome(job.method, plan.name, row=row, free=plan.free, resolution_m=plan.resolution_m,
-                          explored=explored, trajectory_xy_m=trajectory, coverage_curve_pct=curve, kept=True)
+                          explored=explored, trajectory_xy_m=trajectory, coverage_curve_pct=curve, kept=True, map_origin=plan.map_origin)
 
 
 def run_job(job: EpisodeJob) -> EpisodeOutcome:
@@ -448,7 +453,7 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
     except Exception as exc:  # one bad episode must not stop the run; it is reported
         log.debug("episode failed", exc_info=True)
         return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
-    return EpisodeOutcome.finished(job.method, result, row, plan.free, plan.resolution_m)
+    return EpisodeOutcome.finished(job.method, result, row, plan.free, plan.resolution_m, plan.map_origin)
 
 
 WORKER_DIED = "its worker process died twice (killed, or out of memory?)"
@@ -546,10 +551,24 @@ def _efficiency_episodes(rows: list[dict[str, Any]]) -> int:
     return sum(1 for r in rows if r.get("efficiency_m2_per_step") is not None and math.isfinite(float(r["efficiency_m2_per_step"])))
 
 
+AGGREGATION = {
+    "rows": "one row of episodes.csv per episode; every figure of methods (and of methods.<method>.by_scale) aggregates "
+    "the method's episodes (of that scale) alone, each episode counted once",
+    "<metric>": "the mean over those episodes; efficiency_m2_per_step: the mean of each episode's m2/step (not the mean area "
+    "over the mean steps), episodes of no step left out (efficiency_episodes counts the others)",
+    "<metric>_std": "the sample standard deviation (ddof=1) over the same episodes, in the metric's unit; null for one episode",
+    "<metric>_ci95": "[low, high]: the 95 % percentile bootstrap interval of the mean, 10,000 resamples of the plans with "
+    "replacement (the episodes of one plan kept together), seed 0; null under two plans",
+    "paired": "paired.csv's rows: each method against the baseline on the scenes both ran, per scale",
+}
+"""``summary.json``'s ``aggregation``: how each figure of it is computed from ``episodes.csv``, said in the file, so that
+a reader of the JSON alone (pandas, a notebook) need not look it up."""
+
+
 def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist") -> dict[str, Any]:
     """Per-method means of the Table 1 metrics with their sample standard deviations, a per-scale breakdown, the failures, and each method
     against ``baseline`` scene by scene (``cso_runtime.comparison``; empty when it did not run)."""
-    summary: dict[str, Any] = {"meta": meta, "methods": {}}
+    summary: dict[str, Any] = {"meta": meta, "aggregation": AGGREGATION, "methods": {}}
     for method in methods:
         mine = [r for r in rows if r["method"] == method]
         entry: dict[str, Any] = table1_stats(mine)
@@ -736,7 +755,7 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict
         (out / COVERAGE_FIGURE).unlink(missing_ok=True)
         (out / EFFICIENCY_FIGURE).unlink(missing_ok=True)
     if summary["paired"]["comparisons"]:
-        plot_paired_efficiency(out / PAIRED_FIGURE, efficiency_by_scene(rows), request.baseline)
+        plot_paired_efficiency(out / PAIRED_FIGURE, efficiency_by_scene(rows), request.baseline, request.methods)
     else:
         (out / PAIRED_FIGURE).unlink(missing_ok=True)
     by_map: dict[str, list[EpisodeOutcome]] = {}

@@ -1280,7 +1280,7 @@ def write_episode_outputs(
     method = row["method"]
     summary = write_outputs(out_dir, [row], [], [method], meta)
     save_episode_files(out_dir, method, result.scene, er, row, map_origin=result.map_origin)
-    outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m)
+    outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m, result.map_origin)
     plot_coverage_curves(out_dir / COVERAGE_FIGURE, [outcome])
     plot_trajectories(trajectory_plot_path(out_dir, result.scene), result.scene, [outcome])
     write_report(out_dir, summary)

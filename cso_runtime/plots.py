@@ -27,6 +27,23 @@ def _save(fig: Any, path: Path, dpi: int) -> None:
     _pyplot().close(fig)
 
 
+LINE_STYLES = ("-", "--", "-.", ":")
+MARKERS = ("o", "s", "^", "D", "v", "P", "X", "*", "<", ">")
+HATCHES = ("", "//", "..", "xx", "\\\\", "oo", "--", "++", "||", "**")
+
+
+def method_style(index: int) -> dict[str, str]:
+    """Method ``index``'s look in every figure: its colour (``C<index>``, matplotlib's default cycle) and, because
+    that cycle's green and red (methods 3 and 4) look alike to red-green colour-blind readers, a line style, a
+    marker and a bar hatch that differ from its neighbours' too."""
+    return {
+        "color": f"C{index % 10}",
+        "linestyle": LINE_STYLES[index % len(LINE_STYLES)],
+        "marker": MARKERS[index % len(MARKERS)],
+        "hatch": HATCHES[index % len(HATCHES)],
+    }
+
+
 def plot_coverage_curves(path: Path, outcomes: Sequence[Any], methods: Sequence[str] = ()) -> None:
     """``coverage_figure`` written as a PNG."""
     _save(coverage_figure(outcomes, methods), path, 110)
@@ -40,39 +57,89 @@ def held_mean_curves(curves_by_method: dict[str, list[np.ndarray]]) -> dict[str,
     return {m: np.stack([np.pad(c, (0, n - len(c)), mode="edge") for c in curves]).mean(axis=0) for m, curves in curves_by_method.items()}
 
 
+DEFAULT_STEP_S = 0.25
+"""``robot.control_period_s``'s default: the step of an episode whose row does not say (an older run's)."""
+
+
+def step_words(outcomes: Sequence[Any]) -> str:
+    """What a step on the coverage figure's axis is: the control period the episodes ran with (``sim_time_s`` over
+    ``steps`` of their rows: ``--set robot.control_period_s`` changes it), or, on a real robot (no simulated time),
+    its scans, which come as they come (about 10 Hz on the LIMO)."""
+    rows = [o.row for o in outcomes if o.row]
+    if rows and all("sim_time_s" in r and r["sim_time_s"] is None for r in rows):
+        return "step (a scan of the real robot)"
+    periods = {round(r["sim_time_s"] / r["steps"], 6) for r in rows if r.get("sim_time_s") and r.get("steps")}
+    period_s = next(iter(periods)) if len(periods) == 1 else DEFAULT_STEP_S if not periods else None
+    return "step" if period_s is None else f"step ({period_s:g} s)"
+
+
 def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any:
     """Mean coverage (%) against step per method, like the paper's Fig. 4; each episode's curve is held at its
     final value to the end of the panel's longest episode (``held_mean_curves``), so every method's line spans the
     same steps. One panel per scene scale when the episodes span several (a mean over a small and a super-large
-    scene says little about either); each method keeps its colour across panels, and with ``methods`` (the run's
+    scene says little about either), titled with the plan's name when every episode ran on one (a run of ``up``);
+    each method keeps its colour across panels, and with ``methods`` (the run's
     order, as ``summary.json`` lists them) the colour the efficiency figure gives it, whatever order the episodes
     finished in."""
+    from matplotlib.ticker import MaxNLocator  # noqa: PLC0415  (matplotlib is slow to import)
+
     from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
 
     plt = _pyplot()
     by_scale: dict[str, dict[str, list[np.ndarray]]] = {}
-    colours: dict[str, str] = {m: f"C{i}" for i, m in enumerate(dict.fromkeys(methods))}
+    styles: dict[str, dict[str, str]] = {m: method_style(i) for i, m in enumerate(dict.fromkeys(methods))}
     for o in outcomes:
         scale = (o.row or {}).get("scale", "")
         by_scale.setdefault(scale, {}).setdefault(o.method, []).append(np.asarray(o.coverage_curve_pct))
-        colours.setdefault(o.method, f"C{len(colours)}")
+        styles.setdefault(o.method, method_style(len(styles)))
     order = {sc: i for i, sc in enumerate(SCALES)}
     scales = sorted(by_scale, key=lambda sc: order.get(sc, len(order))) or [""]
+    plans = {o.map for o in outcomes}
+    on_plan = f" on {next(iter(plans))}" if len(plans) == 1 and len(scales) == 1 else ""  # a run of up, an eval of one plan
     fig, axes = plt.subplots(1, len(scales), figsize=(7 if len(scales) == 1 else 4.6 * len(scales), 4.5), squeeze=False, layout="constrained")
     for ax, scale in zip(axes[0], scales):
         methods = by_scale.get(scale, {})
         for method, mean in held_mean_curves(methods).items():
-            ax.plot(np.arange(len(mean)), mean, label=f"{method} ({len(methods[method])} ep.)", color=colours[method])
-        ax.set_xlabel("step (0.25 s); an episode that ended holds its final coverage")
+            style = styles[method]
+            one_point = style["marker"] if len(mean) == 1 else ""  # episodes of no step: a line of one point draws nothing
+            ax.plot(np.arange(len(mean)), mean, label=f"{method} ({len(methods[method])} ep.)", color=style["color"], linestyle=style["linestyle"], marker=one_point)
+        ax.set_xlabel(f"{step_words(outcomes)}; an episode that ended holds its final coverage")
         ax.set_ylabel("mean coverage (%)")
         ax.set_ylim(0, 101)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # steps are counted: no 0.2 step
         ax.grid(alpha=0.3)
         if methods:
             ax.set_xlim(0, max(len(ax.lines[0].get_xdata()) - 1, 1))
             small = len(scales) > 1
             ax.legend(loc="lower right", fontsize=8 if small else 10, title="mean over episodes,\nended ones held", title_fontsize=7 if small else 9)
-        ax.set_title("Coverage against step" + (f": {scale.replace('_', ' ')}" if len(scales) > 1 else ""))
+        ax.set_title("Coverage against step" + (f": {scale.replace('_', ' ')}" if len(scales) > 1 else "") + on_plan)
     return fig
+
+
+def draw_plan_image(ax: Any, img: np.ndarray, resolution_m: float, map_origin: Any = None) -> None:
+    """Draw a plan-shaped RGB image (row 0 at the plan's bottom edge) where the plan lies in the user's map frame:
+    moved and turned by ``map_origin`` (a ``Pose2D``, ``FloorPlan.map_origin``; None: the plan's frame is the map
+    frame), so that axes read as the map frame that ``scenes``, ``status`` and a map_server YAML's ``start`` use.
+    The axes take the turned plan's bounds and an equal aspect."""
+    from matplotlib.transforms import Affine2D  # noqa: PLC0415  (matplotlib is slow to import)
+
+    h, w = img.shape[:2]
+    x0, y0, yaw = (0.0, 0.0, 0.0) if map_origin is None else (map_origin.x_m, map_origin.y_m, map_origin.yaw_rad)
+    to_map = Affine2D().rotate(yaw).translate(x0, y0)
+    image = ax.imshow(img, origin="lower", extent=(0, w * resolution_m, 0, h * resolution_m), interpolation="nearest")
+    image.set_transform(to_map + ax.transData)
+    corners = to_map.transform([(0, 0), (w * resolution_m, 0), (0, h * resolution_m), (w * resolution_m, h * resolution_m)])
+    ax.set_xlim(corners[:, 0].min(), corners[:, 0].max())
+    ax.set_ylim(corners[:, 1].min(), corners[:, 1].max())
+    ax.set_aspect("equal")
+
+
+def map_frame_points(xy_m: np.ndarray, map_origin: Any = None) -> np.ndarray:
+    """Points (n x 2 metres) of the plan's frame in the user's map frame (``draw_plan_image``'s frame)."""
+    from cso_runtime.geometry import compose_xy  # noqa: PLC0415  (keeps this module's import light)
+
+    xy = np.asarray(xy_m, dtype=float).reshape(-1, 2)
+    return xy if map_origin is None else compose_xy(map_origin, xy)
 
 
 WALL_RGB = (0.25, 0.25, 0.25)
@@ -85,10 +152,16 @@ def plot_trajectories(path: Path, name: str, outcomes: Sequence[Any]) -> None:
     _save(trajectory_figure(name, outcomes), path, 100)
 
 
+TRAJECTORY_COLUMNS = 3
+"""Panels in a row of the trajectory figure: five methods in one row made a strip 35 inches wide whose titles and
+axes were unreadable at the report's width; more methods go on further rows."""
+
+
 def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
     """One panel per method, like the paper's Fig. 6: walls (dark), free space not explored (grey), explored
-    free space (light blue), the path (red) from its start (green dot) to its end (red square), with a key.
-    Panels take the plan's aspect ratio, so that tall and wide plans alike keep their axis labels."""
+    free space (light blue), the path (red) from its start (green dot) to its end (red square), with a key, in the
+    user's map frame (each outcome's ``map_origin``: a map_server scene's ``origin``). Panels take the plan's aspect
+    ratio, so that tall and wide plans alike keep their axis labels, at most ``TRAJECTORY_COLUMNS`` to a row."""
     plt = _pyplot()
     from matplotlib.lines import Line2D  # noqa: PLC0415  (matplotlib is slow to import)
     from matplotlib.patches import Patch  # noqa: PLC0415
@@ -96,8 +169,12 @@ def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
     n = len(outcomes)
     h0, w0 = np.asarray(outcomes[0].free).shape
     panel_w_in = float(np.clip(4.2 * w0 / max(h0, 1), 3.0, 7.0))
-    fig, axes = plt.subplots(1, n, figsize=(panel_w_in * n + 0.4, 4.8), squeeze=False, layout="constrained")
-    for ax, o in zip(axes[0], outcomes):
+    rows = -(-n // TRAJECTORY_COLUMNS)
+    cols = -(-n // rows)  # the rows as full as each other: four methods in two rows of two, not three and one
+    fig, axes = plt.subplots(rows, cols, figsize=(panel_w_in * cols + 0.4, 4.8 + 4.2 * (rows - 1)), squeeze=False, layout="constrained")
+    for ax in axes.flat[n:]:  # the last row's empty places
+        ax.remove()
+    for ax, o in zip(axes.flat, outcomes):
         free = np.asarray(o.free, dtype=bool)
         h, w = free.shape
         res = o.resolution_m
@@ -105,8 +182,9 @@ def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
         img[free] = UNEXPLORED_FREE_RGB
         img[~free] = WALL_RGB
         img[np.asarray(o.explored, dtype=bool)] = EXPLORED_FREE_RGB
-        ax.imshow(img, origin="lower", extent=(0, w * res, 0, h * res), interpolation="nearest")
-        traj = np.asarray(o.trajectory_xy_m)
+        map_origin = getattr(o, "map_origin", None)
+        draw_plan_image(ax, img, res, map_origin)
+        traj = map_frame_points(o.trajectory_xy_m, map_origin)
         if len(traj):
             ax.plot(traj[:, 0], traj[:, 1], color="red", lw=1.0)
             ax.plot(traj[0, 0], traj[0, 1], "o", color="green", ms=5)
@@ -145,8 +223,9 @@ def plot_scene(path: Path, plan: Any) -> None:
 
 def scene_figure(plan: Any) -> Any:
     """A floor plan as the explorer meets it: walls, the free space reachable from the start (what coverage
-    counts), free space it cannot reach (beige), and the start pose as an arrow along its yaw; the title gives
-    the traversable area and the paper's scale class."""
+    counts), free space it cannot reach (beige), and the start pose as an arrow along its yaw, in the user's map
+    frame (``plan.map_origin``: the start where ``scenes`` lists it); the title gives the traversable area and the
+    paper's scale class."""
     plt = _pyplot()
     from matplotlib.patches import Patch  # noqa: PLC0415  (matplotlib is slow to import)
 
@@ -159,9 +238,9 @@ def scene_figure(plan: Any) -> Any:
     img[free] = UNREACHABLE_FREE_RGB
     img[reachable] = UNEXPLORED_FREE_RGB
     fig, ax = plt.subplots(figsize=(float(np.clip(4.8 * w / max(h, 1), 3.2, 8.0)) + 0.4, 5.0), layout="constrained")
-    ax.imshow(img, origin="lower", extent=(0, w * res, 0, h * res), interpolation="nearest")
+    draw_plan_image(ax, img, res, plan.map_origin)
     arrow_m = 0.04 * max(w, h) * res
-    s = plan.start
+    s = plan.to_map_frame(plan.start)
     ax.annotate("", xy=(s.x_m + arrow_m * np.cos(s.yaw_rad), s.y_m + arrow_m * np.sin(s.yaw_rad)), xytext=(s.x_m, s.y_m),
                 arrowprops={"arrowstyle": "-|>", "color": "green", "lw": 1.5})
     ax.plot(s.x_m, s.y_m, "o", color="green", ms=5, label="start")
@@ -179,13 +258,17 @@ def scene_figure(plan: Any) -> Any:
     return fig
 
 
-def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, float]], baseline: str) -> None:
-    """One panel per method: each scene's efficiency (m2/step) against the baseline's on the same scene,
-    coloured by scale; points above the diagonal are scenes the method explored more efficiently."""
+def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, float]], baseline: str, order: Sequence[str] = ()) -> None:
+    """One panel per method (in ``order``, the run's, where given), each scene's efficiency (m2/step) against the
+    baseline's on the same scene, coloured and marked by scale (an ordered scale of its own, viridis, not the
+    methods' colours of the other figures); points above the diagonal are scenes the method explored more
+    efficiently."""
     from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
 
     plt = _pyplot()
-    methods = sorted({m for m, _ in table if m != baseline})
+    scale_colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, len(SCALES)))  # 0.85: no pale yellow on white
+    shown = {m for m, _ in table if m != baseline}
+    methods = [m for m in dict.fromkeys(order) if m in shown] + sorted(shown - set(order))
     fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 4.2), squeeze=False)
     for ax, method in zip(axes[0], methods):
         top = 0.0
@@ -195,7 +278,8 @@ def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, 
             if not scenes:
                 continue
             x, y = np.array([base[s] for s in scenes]), np.array([mine[s] for s in scenes])
-            ax.scatter(x, y, s=14, alpha=0.7, label=f"{scale} ({len(scenes)})", color=f"C{SCALES.index(scale)}")  # one colour per scale in every panel
+            k = SCALES.index(scale)  # one colour and marker per scale in every panel
+            ax.scatter(x, y, s=16, alpha=0.8, label=f"{scale} ({len(scenes)})", color=scale_colours[k], marker=MARKERS[k])
             top = max(top, float(x.max()), float(y.max()))
         top = top or 1.0  # no shared scene: an empty panel
         ax.plot([0, top * 1.05], [0, top * 1.05], color="grey", lw=1, ls="--")
@@ -242,9 +326,14 @@ def efficiency_figure(summary: dict[str, Any]) -> Any:
         by_scale = summary["methods"][method]["by_scale"]
         at = [j for j, sc in enumerate(scales) if by_scale.get(sc, {}).get("efficiency_m2_per_step") is not None]
         heights = [by_scale[scales[j]]["efficiency_m2_per_step"] for j in at]
-        top.bar(np.array(at, dtype=float) + offset(i), heights, width, label=method, color=f"C{i}")
+        style = method_style(i)
+        top.bar(np.array(at, dtype=float) + offset(i), heights, width, label=method, color=style["color"], hatch=style["hatch"], edgecolor="white")
+        for j, sc in enumerate(scales):  # episodes, but none with a step (the first scan saw everything): no m2/step to draw
+            if j not in at and sc in by_scale:
+                top.text(j + offset(i), 0.0, "no step", rotation=90, ha="center", va="bottom", fontsize=8, color=style["color"])
     top.set_xticks(x, [sc.replace("_", " ") for sc in scales])
     top.set_ylabel("efficiency (m2/step)")
+    top.set_ylim(bottom=0.0)
     top.set_title("Exploration efficiency per scene scale")
     top.set_xlim(-0.5, len(scales) - 0.5)
     top.grid(axis="y", alpha=0.3)
@@ -258,12 +347,15 @@ def efficiency_figure(summary: dict[str, Any]) -> Any:
             low = mid - np.array([found[scales[j]]["ci_low_pct"] for j in at])
             high = np.array([found[scales[j]]["ci_high_pct"] for j in at]) - mid
             if at:
-                bottom.errorbar(np.array(at, dtype=float) + offset(i), mid, yerr=[low, high], fmt="o", capsize=3, label=method, color=f"C{i}")
+                style = method_style(i)
+                bottom.errorbar(np.array(at, dtype=float) + offset(i), mid, yerr=[low, high], fmt=style["marker"], capsize=3, label=method, color=style["color"])
         bottom.axhline(0.0, color="grey", lw=1)
         bottom.set_xticks(x, [sc.replace("_", " ") for sc in scales])
         bottom.set_xlim(-0.5, len(scales) - 0.5)
         bottom.set_ylabel(f"per-scene change\nagainst {baseline} (%)")
         bottom.set_title(f"Efficiency against {baseline}, scene by scene (95 % CI)", fontsize=10)
         bottom.grid(axis="y", alpha=0.3)
+        if bottom.containers:  # each method's marker, as the bars' key above gives its hatch
+            bottom.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     return fig
 

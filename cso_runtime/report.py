@@ -2,7 +2,7 @@
 
 The Table 1 rows of ``summary.json`` (one block per scale, as the paper's), Table 2's layout when the run has
 ablations, the paired comparison with the baseline, every episode of ``episodes.csv`` (collapsed), the failures, and the figures already in the folder (coverage curves, efficiency by scale, the paired
-scatter, each map's trajectories and animations), linked by relative paths so the folder can be moved or served
+scatter, each map's trajectories, animations and final maps), linked by relative paths so the folder can be moved or served
 as it is. Written by ``eval`` and ``up`` next to ``summary.json``; nothing here computes a metric.
 """
 
@@ -14,7 +14,14 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime.comparison import PAIRED_COLUMNS, format_interval, paired_cells
-from cso_runtime.outputs import COVERAGE_FIGURE, EFFICIENCY_FIGURE, PAIRED_FIGURE, episode_animation_path, trajectory_plot_path
+from cso_runtime.outputs import (
+    COVERAGE_FIGURE,
+    EFFICIENCY_FIGURE,
+    PAIRED_FIGURE,
+    episode_animation_path,
+    episode_map_path,
+    trajectory_plot_path,
+)
 from cso_runtime.policies import LEARNED_METHODS
 from cso_runtime.scenes import SCALES, scale_rank
 
@@ -33,7 +40,23 @@ TABLE1_DEFINITIONS = (
     ("path m", "metres the robot drove, from its true pose"),
     ("decision ms p50/p99", "median and 99th percentile of each episode's decision times (frontiers, fast marching, entropy, masks, goal choice)"),
 )
-"""How each Table 1 column is computed (README.md, the outputs of eval); every figure is a mean over the row's episodes."""
+"""How each Table 1 column is computed (README.md, the outputs of eval); every figure is a mean over the row's episodes.
+The steps' period is the run's own: ``table1_definitions``."""
+
+
+def table1_definitions(summary: dict[str, Any]) -> list[tuple[str, str]]:
+    """``TABLE1_DEFINITIONS`` with the steps said as the run counted them: its control period (``meta.config``'s
+    ``robot.control_period_s``, which ``--set`` changes), or, for a run of ``up`` on a real robot (a profile, no
+    simulator: no ``sim_settings`` and no simulated time), its scans."""
+    meta = summary.get("meta") or {}
+    robot = (meta.get("config") or {}).get("robot") or {}
+    period_s = robot.get("control_period_s", 0.25)
+    no_sim_time = all(isinstance(e, dict) and e.get("sim_time_s") is None for e in summary["methods"].values())
+    if isinstance(meta.get("profile"), dict) and "sim_settings" not in meta and no_sim_time:
+        steps = "scans of the real robot (about 10 Hz on the LIMO) until the episode ended: by coverage, no reachable frontier or the step limit"
+    else:
+        steps = f"control periods (robot.control_period_s, {period_s:g} s) until the episode ended: by coverage, no reachable frontier or the step limit"
+    return [(column, steps if column == "steps" else words) for column, words in TABLE1_DEFINITIONS]
 STD_SUFFIX = "_std"
 """``summary.json``'s key of a metric's sample standard deviation (ddof=1) over the episodes, beside its mean:
 ``coverage_pct_std``."""
@@ -184,13 +207,32 @@ def scene_rows(out_dir: Path, summary: dict[str, Any]) -> list[list[str]]:
     ]
 
 
-def _img(out_dir: Path, path: Path, alt: str) -> str:
+def _img(out_dir: Path, path: Path, alt: str, css_class: str = "") -> str:
     rel = path.relative_to(out_dir).as_posix()
-    return f'<a href="{html.escape(rel)}"><img src="{html.escape(rel)}" alt="{html.escape(alt)}" loading="lazy"></a>'
+    cls = f' class="{css_class}"' if css_class else ""
+    return f'<a href="{html.escape(rel)}"><img src="{html.escape(rel)}" alt="{html.escape(alt)}"{cls} loading="lazy"></a>'
+
+
+def _captioned(img: str, caption: str) -> str:
+    """One picture with its own caption: a ``<figure>`` holds one ``<figcaption>`` (HTML), so each method's animation
+    and map is a figure of its own inside the plan's."""
+    return f"<figure>{img}<figcaption>{caption}</figcaption></figure>"
+
+
+def _final_map(out_dir: Path, method: str, name: str) -> str:
+    """The robot's final map of one episode as map_server serves it (its PNG, cells drawn as squares), captioned
+    with a link to its YAML; "" where the episode wrote none (an older folder, a run without its map)."""
+    yaml_path = episode_map_path(out_dir, method, name)
+    image = yaml_path.with_suffix(".png")
+    if not (yaml_path.is_file() and image.is_file()):
+        return ""
+    yaml_rel = html.escape(yaml_path.relative_to(out_dir).as_posix())
+    caption = f'{html.escape(method)}, final map (Nav2 map_server: <a href="{yaml_rel}">{html.escape(yaml_path.name)}</a>)'
+    return _captioned(_img(out_dir, image, f"{name}: {method}, final map", "grid"), caption)
 
 
 def _map_figures(out_dir: Path, summary: dict[str, Any]) -> dict[str, list[str]]:
-    """Each plan's trajectory plot and animations, as ``<img>`` tags by plan name. Only the plans and methods of
+    """Each plan's trajectory plot, animations and each method's final map, as HTML by plan name. Only the plans and methods of
     ``summary`` (its ``maps``), so that an earlier run's files left in an ``eval --out`` folder stay out; a
     summary.json from before ``maps`` was written shows every file of the folder."""
     methods = summary["methods"]
@@ -199,7 +241,7 @@ def _map_figures(out_dir: Path, summary: dict[str, Any]) -> dict[str, list[str]]
         for p in sorted((out_dir / "trajectories").glob("*.png")):
             by_map.setdefault(p.stem, []).append(_img(out_dir, p, f"{p.stem}: trajectories"))
         for p in sorted((out_dir / "animations").glob("*/*.gif")):
-            by_map.setdefault(p.stem, []).append(_img(out_dir, p, f"{p.stem}: {p.parent.name}") + f"<figcaption>{html.escape(p.parent.name)}, animated</figcaption>")
+            by_map.setdefault(p.stem, []).append(_captioned(_img(out_dir, p, f"{p.stem}: {p.parent.name}"), f"{html.escape(p.parent.name)}, animated"))
         return by_map
     for name in sorted({m for e in methods.values() for m in e["maps"]}):
         path = trajectory_plot_path(out_dir, name)
@@ -209,7 +251,10 @@ def _map_figures(out_dir: Path, summary: dict[str, Any]) -> dict[str, list[str]]
         for name in e["maps"]:
             path = episode_animation_path(out_dir, method, name)
             if path.is_file():
-                by_map.setdefault(name, []).append(_img(out_dir, path, f"{name}: {method}") + f"<figcaption>{html.escape(method)}, animated</figcaption>")
+                by_map.setdefault(name, []).append(_captioned(_img(out_dir, path, f"{name}: {method}"), f"{html.escape(method)}, animated"))
+            final_map = _final_map(out_dir, method, name)
+            if final_map:
+                by_map.setdefault(name, []).append(final_map)
     return by_map
 
 
@@ -237,10 +282,12 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     out_dir = Path(out_dir)
     meta = summary.get("meta") or {}
     parts = [
-        "<!doctype html><html><head><meta charset='utf-8'><title>cso-runtime results</title><style>",
+        # The folder's name in the tab: several reports open side by side are told apart.
+        f"<!doctype html><html><head><meta charset='utf-8'><title>cso-runtime results: {html.escape(out_dir.resolve().name)}</title><style>",
         "body{font-family:system-ui,sans-serif;margin:1.5em;max-width:1400px}table{border-collapse:collapse;margin:.5em 0 1.5em}",
         "td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}td:first-child,td:nth-child(2),th{text-align:left}",
-        "img{max-width:100%;height:auto;border:1px solid #eee}.maps{display:flex;flex-wrap:wrap;gap:1em}.maps figure{margin:0;max-width:640px}",
+        "img{max-width:100%;height:auto;border:1px solid #eee}.maps{display:flex;flex-wrap:wrap;gap:1em}.maps>figure{margin:0;max-width:100%}",
+        ".maps figure figure{display:inline-block;vertical-align:top;margin:.5em 1em .5em 0;max-width:480px}img.grid{image-rendering:pixelated;min-width:320px}",
         "</style></head><body>",
         f"<h1>Results in {html.escape(str(out_dir))}</h1>",
         "<p>" + html.escape(run_settings_text(meta)) + "</p>",
@@ -256,7 +303,7 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
         _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e)] for m, s, e in table1_rows(summary)], [ci95_text(e) for _, _, e in table1_rows(summary)]),
         f"<p>Each cell: {html.escape(SPREAD_NOTE)}.</p>",
         f"<p>{html.escape(CI95_NOTE)}</p>",
-        "<dl>" + "".join(f"<dt>{html.escape(c)}</dt><dd>{html.escape(d)}</dd>" for c, d in TABLE1_DEFINITIONS) + "</dl>",
+        "<dl>" + "".join(f"<dt>{html.escape(c)}</dt><dd>{html.escape(d)}</dd>" for c, d in table1_definitions(summary)) + "</dl>",
     ]
     if shows_ablations(summary):
         parts.append("<h2>Table 2: efficiency, m2/step (per-scene change against the baseline)</h2>")

@@ -349,6 +349,7 @@ def test_the_readme_names_every_column_of_episodes_csv_and_every_key_of_summary_
     entry = summarize([row], [], ["m"], meta={})["methods"]["m"]
     assert [k for k in entry if f"`{k}`" not in summary_row] == []
     assert [k for k in ("request", "version", "config", "sim_settings", "mujoco", "weights") if f"`{k}`" not in summary_row] == []  # meta's
+    assert [k for k in summarize([row], [], ["m"], meta={}) if f"`{k}`" not in summary_row] == []  # its top-level keys
 
 
 def test_the_readme_names_every_array_of_an_episodes_npz(tmp_path):

@@ -613,7 +613,7 @@ def test_progress_lines_in_a_log_say_the_time_elapsed_and_left(capsys):
     assert lines[4] == "[5/5] greedy-dist img_5: 99.1% in 51 steps (coverage) [1:05:00 elapsed]"
 
 
-@pytest.mark.parametrize(("rows", "cols", "methods"), [(400, 60, 1), (60, 400, 1), (200, 300, 3)])
+@pytest.mark.parametrize(("rows", "cols", "methods"), [(400, 60, 1), (60, 400, 1), (200, 300, 3), (200, 300, 5)])
 def test_trajectory_plots_keep_every_label_and_the_key_inside_the_figure(rows: int, cols: int, methods: int):
     """A tall, a wide and a three-method figure: no title, axis label or key entry is cut off at the edge
     (the x label of wide plans once was), and each panel shows the whole plan at its own aspect ratio."""
@@ -638,11 +638,58 @@ def test_trajectory_plots_keep_every_label_and_the_key_inside_the_figure(rows: i
     drawn = fig.get_tightbbox(renderer)  # inches: everything drawn, labels and key included
     width_in, height_in = fig.get_size_inches()
     assert drawn.x0 >= -0.01 and drawn.y0 >= -0.01 and drawn.x1 <= width_in + 0.01 and drawn.y1 <= height_in + 0.01, drawn
+    assert len(fig.axes) == methods
     for ax in fig.axes:
         x0, x1 = ax.get_xlim()
         y0, y1 = ax.get_ylim()
         assert (x0, y0) == (0.0, 0.0) and np.isclose(x1, cols * 0.05) and np.isclose(y1, rows * 0.05)
+    # Five methods in one row were a strip too wide to read in the report: at most three panels a row.
+    assert len({round(ax.get_position().x0, 3) for ax in fig.axes}) == min(methods, 3)
+    assert width_in <= 3 * 7.0 + 0.4
     fig.clf()
+
+
+@pytest.mark.parametrize("yaw_rad", [0.0, np.pi / 2])
+def test_trajectory_plots_and_scene_previews_are_drawn_in_the_users_map_frame(yaw_rad: float):
+    """A map_server scene's origin places its plan in the user's map frame: the trajectory plot and the `scenes`
+    preview read there (the start where `scenes` and the YAML's `start:` put it, the map where RViz shows it), not
+    in the plan's own frame from (0, 0). An asymmetric plan: a free cell at the plan's lower-left corner only."""
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.geometry import Pose2D
+    from cso_runtime.plots import scene_figure, trajectory_figure
+    from cso_runtime.scenes import FloorPlan
+
+    res_m, rows, cols = 0.1, 20, 40  # 4 x 2 m
+    free = np.zeros((rows, cols), dtype=bool)
+    free[1:5, 1:30] = True  # a corridor along the plan's bottom edge
+    origin = Pose2D(-1.0, 2.0, yaw_rad)
+    plan = FloorPlan("asym", free, res_m, Pose2D(0.25, 0.25, 0.0), map_origin=origin)
+    start_map = plan.to_map_frame(plan.start)
+    corners_map = [plan.to_map_frame(Pose2D(x, y, 0.0)) for x, y in ((0, 0), (cols * res_m, 0), (0, rows * res_m), (cols * res_m, rows * res_m))]
+    bounds = (min(c.x_m for c in corners_map), max(c.x_m for c in corners_map), min(c.y_m for c in corners_map), max(c.y_m for c in corners_map))
+
+    def image_corner_in_data(ax) -> np.ndarray:
+        """Where the image's pixel of the plan's lower-left corner lands in the axes' data coordinates."""
+        image = ax.get_images()[0]
+        return (image.get_transform() - ax.transData).transform([(0.0, 0.0)])[0]
+
+    path = np.array([[0.25, 0.25], [2.5, 0.3]])
+    outcome = EpisodeOutcome("greedy-dist", "asym", {"coverage_pct": 90.0, "steps": 10, "path_length_m": 2.3}, None, free, res_m, free, path, map_origin=origin)
+    for fig in (trajectory_figure("asym", [outcome]), scene_figure(plan)):
+        ax = fig.axes[0]
+        assert np.allclose(sorted(ax.get_xlim()) + sorted(ax.get_ylim()), bounds)
+        assert np.allclose(image_corner_in_data(ax), [origin.x_m, origin.y_m])
+        starts = [line for line in ax.lines if isinstance(line, Line2D) and line.get_marker() == "o"]
+        assert np.allclose(starts[0].get_xydata()[0], [start_map.x_m, start_map.y_m])
+        plt.close(fig)
+    traj_fig = trajectory_figure("asym", [outcome])
+    drawn_path = traj_fig.axes[0].lines[0].get_xydata()
+    end_map = plan.to_map_frame(Pose2D(2.5, 0.3, 0.0))
+    assert np.allclose(drawn_path[-1], [end_map.x_m, end_map.y_m])
+    plt.close(traj_fig)
 
 
 def test_the_efficiency_figure_shows_each_methods_mean_per_scale_and_its_change_against_the_baseline():
@@ -682,6 +729,73 @@ def test_the_efficiency_figure_shows_each_methods_mean_per_scale_and_its_change_
     assert [x for x, _ in marks["cso"]] == [x for x, _ in bars["cso"]] and marks["random"][0][0] == bars["random"][0][0]
     fig.clf()
 
+
+
+def test_figures_tell_methods_apart_by_more_than_colour():
+    """The default colour cycle's green and red (the third and fourth method: utility and random in ``--method
+    baselines``) look alike to red-green colour-blind readers: each method's line style (coverage), hatch (efficiency
+    bars) and marker (change against the baseline) differ from the others' as well."""
+    import matplotlib.pyplot as plt
+
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import coverage_figure, efficiency_figure
+
+    methods = ["greedy-dist", "greedy-info", "utility", "random"]
+    fig = coverage_figure([EpisodeOutcome(m, "plan", {"scale": "small"}, coverage_curve_pct=np.array([0.0, 50.0])) for m in methods], methods)
+    looks = [(line.get_color(), line.get_linestyle()) for line in fig.axes[0].get_lines()]
+    assert len({style for _, style in looks[2:4]}) == 2 and len(set(looks)) == len(methods)
+    plt.close(fig)
+    entry = {"by_scale": {"small": {"efficiency_m2_per_step": 0.3}}}
+    comparisons = [
+        {"scale": "small", "method": m, "per_scene_pct": 5.0, "ci_low_pct": -1.0, "ci_high_pct": 9.0} for m in methods[1:]
+    ]
+    fig = efficiency_figure({"methods": dict.fromkeys(methods, entry), "paired": {"baseline": "greedy-dist", "comparisons": comparisons}})
+    top, bottom = fig.axes[:2]
+    assert len({bars.patches[0].get_hatch() for bars in top.containers}) == len(methods)
+    markers = [c.lines[0].get_marker() for c in bottom.containers]
+    assert len(set(markers)) == len(methods) - 1
+    assert [t.get_text() for t in bottom.get_legend().get_texts()] == methods[1:]
+    plt.close(fig)
+
+
+def test_an_episode_of_no_step_is_drawn_not_left_an_empty_plot():
+    """A plan whose first scan saw everything ends in 0 steps: its coverage curve is one point, which a line without
+    a marker left invisible, and it has no m2/step, which left the efficiency figure an empty frame running to
+    negative m2/step. The point is marked and the bar's place says why it is empty."""
+    import matplotlib.pyplot as plt
+
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import coverage_figure, efficiency_figure
+
+    fig = coverage_figure([EpisodeOutcome("greedy-dist", "tiny", {"scale": "small"}, coverage_curve_pct=np.array([100.0]))])
+    (line,) = fig.axes[0].get_lines()
+    assert line.get_marker() not in ("", "None", None)
+    plt.close(fig)
+    summary = {"methods": {"greedy-dist": {"by_scale": {"small": {"efficiency_m2_per_step": None}}}}, "paired": {"baseline": "greedy-dist", "comparisons": []}}
+    fig = efficiency_figure(summary)
+    (top,) = fig.axes
+    assert top.get_ylim()[0] == 0.0 and "no step" in [t.get_text() for t in top.texts]
+    plt.close(fig)
+
+
+def test_the_coverage_figures_step_is_the_period_the_episodes_ran_with_or_a_real_robots_scan():
+    """The x axis said "step (0.25 s)" whatever the step was: a run with another ``robot.control_period_s``, or a
+    run of ``up`` on a real LIMO, whose steps are its scans (about 10 Hz, no simulated time: ``sim_time_s`` null)."""
+    import matplotlib.pyplot as plt
+
+    from cso_runtime.evaluation import EpisodeOutcome
+    from cso_runtime.plots import coverage_figure
+
+    def xlabel(row: dict) -> str:
+        fig = coverage_figure([EpisodeOutcome("greedy-dist", "plan", {"scale": "small", **row}, coverage_curve_pct=np.array([0.0, 50.0]))])
+        label = fig.axes[0].get_xlabel()
+        plt.close(fig)
+        return label.split(";")[0]
+
+    assert xlabel({"steps": 40, "sim_time_s": 10.0}) == "step (0.25 s)"
+    assert xlabel({"steps": 40, "sim_time_s": 4.0}) == "step (0.1 s)"
+    assert xlabel({"steps": 40, "sim_time_s": None}) == "step (a scan of the real robot)"
+    assert xlabel({"steps": 40}) == "step (0.25 s)"  # a row of an older run: the default period
 
 
 def test_the_paired_figure_gives_each_scale_one_colour_in_every_panel(monkeypatch, tmp_path: Path):
@@ -735,7 +849,7 @@ def test_coverage_curves_get_one_panel_per_scale_when_the_episodes_span_several(
     assert colours == {"greedy-dist (1 ep.)": "C0", "cso (2 ep.)": "C1"}
     ordered.clf()
     single = coverage_figure(outcomes[1:])
-    assert [ax.get_title() for ax in single.axes] == ["Coverage against step"]
+    assert [ax.get_title() for ax in single.axes] == ["Coverage against step on plan"]  # one plan: named (a run of up)
     single.clf()
 
 
@@ -802,6 +916,46 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     assert gif.is_file(), "an episode --resume keeps keeps its animation"
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=30))
     assert not gif.exists() and "gen_small_3.gif" not in (tmp_path / "o" / "report.html").read_text(), "a new episode, not animated"
+
+
+def test_the_report_shows_each_methods_final_map_and_gives_each_picture_one_caption(tmp_path: Path):
+    """The Maps section shows, beside the trajectories and animations, the robot's final map of each method as
+    map_server serves it, linked to its YAML; every picture has its own caption (a ``<figure>`` holds one
+    ``<figcaption>``: the animations' captions were all in the plan's figure), and every file the page shows or
+    links is in the folder, by a relative path."""
+    from html.parser import HTMLParser
+
+    out = tmp_path / "o"
+    run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:1:0", out_dir=out, max_steps=8, animate=True))
+    page = (out / "report.html").read_text()
+
+    class Figures(HTMLParser):
+        def __init__(self) -> None:
+            super().__init__()
+            self.open: list[int] = []  # captions seen so far in each figure open now
+            self.captions: list[int] = []
+            self.refs: list[str] = []
+
+        def handle_starttag(self, tag: str, attrs: list) -> None:
+            self.refs += [v for k, v in attrs if k in ("src", "href")]
+            if tag == "figure":
+                self.open.append(0)
+            elif tag == "figcaption":
+                self.open[-1] += 1
+
+        def handle_endtag(self, tag: str) -> None:
+            if tag == "figure":
+                self.captions.append(self.open.pop())
+
+    parser = Figures()
+    parser.feed(page)
+    assert parser.captions and max(parser.captions) == 1, parser.captions
+    assert not parser.open
+    for method in ("greedy-dist", "random"):
+        assert f'<img src="maps/{method}/gen_small_0.png"' in page
+        assert f'<a href="maps/{method}/gen_small_0.yaml">' in page
+        assert f"{method}, animated</figcaption>" in page
+    assert all((out / ref).is_file() for ref in parser.refs), parser.refs
 
 
 def test_summary_and_run_files_are_written_whole_or_not_at_all(tmp_path, monkeypatch):
@@ -989,6 +1143,28 @@ def test_the_report_says_a_run_was_interrupted_what_it_ran_with_and_how_each_met
     assert "Interrupted" not in write_report(tmp_path, summarize([row], [], ["greedy-dist"], meta)).read_text()
 
 
+def test_the_reports_steps_are_defined_as_the_run_counted_them(tmp_path: Path):
+    """The definition under Table 1 said "control periods (robot.control_period_s, 0.25 s)" whatever the run: an eval
+    with ``--set robot.control_period_s=0.5`` steps every 0.5 s, and a run of ``up`` on a real LIMO counts its scans."""
+    from cso_runtime.evaluation import summarize
+    from cso_runtime.report import write_report
+
+    row = {"method": "greedy-dist", "map": "img_1", "seed": 0, "traversable_area_m2": 150.0, "scale": "large", "terminated_by": "coverage",
+           "explored_area_m2": 150.0, "coverage_pct": 99.5, "steps": 1500, "efficiency_m2_per_step": 0.1, "path_length_m": 10.0,
+           "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}  # fmt: skip
+
+    def steps_said(meta: dict, sim_time_s: float | None) -> str:
+        page = write_report(tmp_path, summarize([{**row, "sim_time_s": sim_time_s}], [], ["greedy-dist"], meta)).read_text()
+        return page.split("<dt>steps</dt><dd>")[1].split("</dd>")[0]
+
+    config = to_dict(ExplorationConfig())
+    assert steps_said({"config": config, "sim_settings": {}}, 375.0).startswith("control periods (robot.control_period_s, 0.25 s)")
+    config["robot"]["control_period_s"] = 0.5
+    assert steps_said({"config": config, "sim_settings": {}}, 750.0).startswith("control periods (robot.control_period_s, 0.5 s)")
+    real_robot = {"command": "cso-runtime up", "profile": {"name": "limo-ros2"}, "config": config}  # no simulator: no sim_settings
+    assert steps_said(real_robot, None).startswith("scans of the real robot")
+
+
 def test_eval_warns_when_its_seed_changes_no_episode(tmp_path: Path, caplog):
     """The paper runs each scene 5 times; `eval --seed 1` on the defaults (2D simulator, no range noise) repeats seed 0's
     episodes of every method but `random` exactly, and pooled by `compare` the copies pass for more scenes. Say so."""
@@ -1046,6 +1222,24 @@ def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(
     for part in (saved, saved["by_scale"]["small"]):
         assert all(part[f"{k}_std"] is None for k in METRICS)
     assert "±" not in (tmp_path / "one" / "report.html").read_text().split("<h2>Table 1</h2>")[1].split("</table>")[0]
+
+
+def test_summary_json_says_how_each_of_its_figures_aggregates_the_episodes():
+    """A reader of summary.json alone (pandas, a notebook) finds in it what each figure is: a mean over the episodes,
+    the sample standard deviation beside it, the bootstrap interval with its resamples and seed (those
+    ``bootstrap_mean_ci`` runs with), without the README."""
+    import inspect
+
+    from cso_runtime.comparison import bootstrap_mean_ci
+    from cso_runtime.evaluation import summarize
+
+    row = {"method": "m", "map": "a", "scale": "small", "seed": 0, "terminated_by": "coverage", **dict.fromkeys(METRICS, 1.0)}
+    aggregation = json.loads(json.dumps(summarize([row], [], ["m"], meta={})))["aggregation"]
+    assert set(aggregation) >= {"rows", "<metric>", "<metric>_std", "<metric>_ci95", "paired"}
+    assert "mean" in aggregation["<metric>"] and "ddof=1" in aggregation["<metric>_std"]
+    defaults = inspect.signature(bootstrap_mean_ci).parameters
+    assert f"{defaults['resamples'].default:,} resamples" in aggregation["<metric>_ci95"]
+    assert f"seed {defaults['seed'].default}" in aggregation["<metric>_ci95"]
 
 
 def test_a_row_of_one_episode_shows_its_steps_as_the_whole_count_in_the_report_and_on_the_console(tmp_path: Path, capsys, monkeypatch):
