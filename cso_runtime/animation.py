@@ -191,7 +191,7 @@ def animate_recording(
         elif isinstance(msg, GoalMsg):
             if msg.decided:
                 decided, decisions = True, decisions + 1
-                goal_xy = (msg.x_m, msg.y_m) if msg.has_goal else None
+                goal_xy = msg.goal_xy_m
         elif isinstance(msg, MapMsg):
             if latest_map is not None and msg.episode != latest_map.episode:
                 trajectory = trajectory[-1:]  # a new episode: its path starts where its robot is

@@ -337,7 +337,7 @@ class BagConverter:
         elif isinstance(msg, PathMsg) and wanted("/plan"):
             out.append(("/plan", ros2_cdr.path_to_cdr(self.to_map_frame(msg.path_xy_m), t_ns, self.map_frame), t_ns))
         elif isinstance(msg, GoalMsg):
-            goal = (float(msg.x_m), float(msg.y_m)) if msg.has_goal else None
+            goal = None if (xy := msg.goal_xy_m) is None else (float(xy[0]), float(xy[1]))
             if goal is not None and (goal != self.last_goal_xy or again) and wanted("/goal_pose"):
                 pose = Pose2D(*goal, 0.0) if self.map_origin == MAP_FRAME_ORIGIN else compose_pose(self.map_origin, Pose2D(*goal, 0.0))
                 out.append(("/goal_pose", ros2_cdr.pose_stamped_to_cdr(pose.x_m, pose.y_m, pose.yaw_rad, t_ns, self.map_frame), t_ns))

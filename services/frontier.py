@@ -160,7 +160,7 @@ class FrontierService(Service):
                 self.reject(topic, why, robot)
                 return
             if msg.decided and step >= self.decision_step:
-                self.goal = Goal(msg.x_m, msg.y_m, msg.cluster_index, msg.distance_m) if msg.has_goal else None
+                self.goal = None if (xy := msg.goal_xy_m) is None else Goal(xy[0], xy[1], msg.cluster_index, msg.distance_m)
                 self.decision_step = step
                 if self.awaiting_goal_step is not None and step >= self.awaiting_goal_step:
                     self.awaiting_goal_step = None

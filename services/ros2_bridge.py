@@ -638,13 +638,14 @@ class Ros2BridgeService(Service):
             self.decision_ms.append(g.decision_ms)
             if not g.has_goal and self.episode_state == "exploring":
                 self.finish(TERMINATED_NO_FRONTIER)
-        if g.has_goal and (g.x_m, g.y_m) != self.last_goal_xy:
-            self.last_goal_xy = (float(g.x_m), float(g.y_m))
+        xy = g.goal_xy_m
+        if xy is not None and xy != self.last_goal_xy:
+            self.last_goal_xy = (float(xy[0]), float(xy[1]))
             stamp_ns = self.stamp_ns_of(g.step, "goal")
             self._put_ros(
-                self.params.goal_topic, ros2_cdr.pose_stamped_to_cdr(g.x_m, g.y_m, 0.0, stamp_ns, self.params.map_frame_id)
+                self.params.goal_topic, ros2_cdr.pose_stamped_to_cdr(xy[0], xy[1], 0.0, stamp_ns, self.params.map_frame_id)
             )
-        elif not g.has_goal:
+        elif xy is None:
             self.last_goal_xy = None
 
     def on_tick(self, now_s: float) -> None:

@@ -330,7 +330,7 @@ class SimService(Service):
                 self.goal_xy = None
                 self.finish("done", TERMINATED_NO_FRONTIER)
                 return
-        self.goal_xy = [float(g.x_m), float(g.y_m)] if g.has_goal else None
+        self.goal_xy = None if (xy := g.goal_xy_m) is None else [float(xy[0]), float(xy[1])]
 
     def step_ahead(self, msg: CmdVelMsg) -> None:
         """Lockstep: step and scan on the planner's provisional command of this step while the map and
