@@ -22,7 +22,7 @@ import numpy as np
 from cso_runtime.config import RobotConfig
 from cso_runtime.frames import PALETTE, frame_scale, map_frame_indexed
 from cso_runtime.geometry import Pose2D
-from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, MessageError, OdometryMsg, decode, frontiers_reading
+from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, Message, MessageError, OdometryMsg, decode, frontiers_reading
 
 log = logging.getLogger("cso.animation")
 
@@ -145,7 +145,12 @@ class RecordingAnimationStats:
     """Payloads of the keys read that did not decode (left out, as a service would)."""
 
 
-ANIMATED = {"map": MapMsg, "odom": OdometryMsg, "goal": GoalMsg, "frontiers": frontiers_reading(("frontier",), clusters=False)}
+ANIMATED: dict[str, type[Message]] = {
+    "map": MapMsg,
+    "odom": OdometryMsg,
+    "goal": GoalMsg,
+    "frontiers": frontiers_reading(("frontier",), clusters=False),
+}
 """The keys a recording's animation reads, with the message type each must carry."""
 
 

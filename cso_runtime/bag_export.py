@@ -49,6 +49,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -69,6 +70,9 @@ from cso_runtime.messages import (
     decode,
 )
 from cso_runtime.recording import RecordingError, read_recording, recorded_robot
+
+if TYPE_CHECKING:
+    from rosbags.interfaces import Connection
 
 log = logging.getLogger("cso.bag_export")
 
@@ -490,7 +494,7 @@ def export_bag(
     try:
         # Version 8: its QoS profiles are a YAML string, which Humble's and Iron's rosbag2 read (version 9's list fails there).
         with Writer(out_dir, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
-            connections: dict[str, object] = {}
+            connections: dict[str, Connection] = {}
 
             def write(rows: list[tuple[str, bytes, int]]) -> None:
                 for ros_topic, data, t_ns in rows:

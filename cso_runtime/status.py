@@ -87,7 +87,11 @@ def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6, 
     keys = RobotKeys(robot)
     with session:
         # All four questions at once: each handler fills while the others wait.
-        opts: dict[str, Any] = {"target": zenoh.QueryTarget.ALL, "consolidation": zenoh.ConsolidationMode.NONE, "timeout": timeout_s}
+        opts: dict[str, Any] = {
+            "target": zenoh.QueryTarget.ALL,
+            "consolidation": zenoh.ConsolidationMode.NONE,
+            "timeout": timeout_s,
+        }
         ep_replies = session.get(keys.episode_status, **opts)
         la_replies = session.get(keys.launcher_status, **opts)
         sv_replies = session.get(keys.service_status("*"), **opts)
@@ -291,7 +295,8 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     except KeyExprError as exc:
         print(f"error: --robot: {exc}", file=sys.stderr)
         return 2
-    if not connect and run_info is not None and (starting := starting_run(run_info)):  # its run file is written before its router opens
+    # Its run file is written before its router opens.
+    if not connect and run_info is not None and (starting := starting_run(run_info)):
         if as_json:
             print(json.dumps({"state": "starting", "run_id": run_info["run_id"], "reason": starting}), flush=True)
         else:

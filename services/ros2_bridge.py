@@ -284,6 +284,8 @@ class Ros2BridgeService(Service):
     outputs: ClassVar[dict[str, type[Message]]] = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     tick_period_s = 0.05
     serves_latest = ("map",)
+    pending: tuple[ros2_cdr.ScanConversion, float] | None
+    """A scan waiting for the odometry of its stamp, and when it came (monotonic s); set in ``_start_episode_state``."""
 
     def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
@@ -463,7 +465,7 @@ class Ros2BridgeService(Service):
         self.arena: GridGeometry | None = None
         self.last_scan_stamp_s = -math.inf
         self.last_scan_stamp_ns: int | None = None
-        self.pending: tuple[ros2_cdr.ScanConversion, float] | None = None
+        self.pending = None
         self.stamps_ns: dict[int, int] = {}
         """Each of the last ``STAMPS_HELD`` steps' scan stamp, exactly as the robot sent it."""
         self.last_pose: Pose2D | None = None
@@ -693,7 +695,7 @@ class Ros2BridgeService(Service):
 
     # --- episode status (no ground truth on a real robot) ---------------------------------------
     def explored_area_m2(self) -> float:
-        m = self.latest.get("map")
+        m = self.kept("map", MapMsg)
         return 0.0 if m is None else float(np.count_nonzero(m.explored)) * m.geometry.cell_area_m2
 
     def arena_edge_note(self) -> str:
@@ -726,7 +728,7 @@ class Ros2BridgeService(Service):
             )
 
     def episode_result(self) -> EpisodeResultMsg:
-        m = self.latest.get("map")
+        m = self.kept("map", MapMsg)
         known_free = m.occupancy().open if m is not None else np.zeros((1, 1), bool)
         return EpisodeResultMsg(
             scene=f"ros2:{self.params.namespace or '/'}",
@@ -745,7 +747,7 @@ class Ros2BridgeService(Service):
             resolution_m=m.geometry.resolution_m if m is not None else self.params.resolution_m,
             method=str(self.ctx.profile.get("method", "")),
             seed=int(self.ctx.profile.get("seed", 0)),
-            final_map=m,  # type: ignore[arg-type]
+            final_map=m,
         )
 
     def finish(self, terminated_by: str) -> None:

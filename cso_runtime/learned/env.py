@@ -115,7 +115,7 @@ def graph_space(config: GraphConfig) -> spaces.Dict:
 class ExplorationEnv(gym.Env):
     """One goal choice per step over ``KinematicSimulator``; plans drawn from ``plans`` each reset."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}  # type: ignore[misc]  # gymnasium's Env does not say ClassVar; ruff's RUF012 asks for one
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}  # type: ignore[misc]  # RUF012 vs gym.Env
     """``rgb_array``: ``render()`` is the robot's map at the current decision (``cso_runtime.frames``), one frame
     per goal choice, so ``gymnasium.wrappers.RecordVideo`` films the exploration."""
 
@@ -355,7 +355,8 @@ def expert_action(obs: Observation, mask: np.ndarray, teacher: str = "greedy-dis
     if teacher not in TEACHERS:
         raise ValueError(f"unknown warm-start teacher {teacher!r}; choose one of {', '.join(TEACHERS)}")
     if teacher not in SCORE_BASELINES:
-        raise ValueError(f"the {teacher} teacher has no score to take under a mask: ExplorationEnv.teacher_label gives its choice")
+        why = "ExplorationEnv.teacher_label gives its choice"
+        raise ValueError(f"the {teacher} teacher has no score to take under a mask: {why}")
     n = min(len(obs.clusters), len(mask))
     cost = np.full(len(mask), np.inf)
     if n:

@@ -539,7 +539,7 @@ def build_model(args: Args, device: torch.device) -> GraphActorCritic:
     return GraphActorCritic(config, args.max_frontier_nodes).to(device)
 
 
-def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.vector.VectorEnv:
+def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.vector.SyncVectorEnv | gym.vector.AsyncVectorEnv:
     """``args.num_envs`` training environments stepped together, in processes of their own with ``--async-envs``
     (watched: a dead one is named, not waited on); an ended episode resets in the step that ends it."""
     fns = [make_env(refs, args.env_config()) for _ in range(args.num_envs)]
@@ -569,8 +569,8 @@ class TeacherData:
 
     def save(self, path: str | Path) -> None:
         """Write the file at exactly ``path`` (numpy would add ``.npz`` to a name without it)."""
-        arrays: dict[str, Any] = {"masks": self.masks, "actions": self.actions, "returns": self.returns, "outcome_steps": self.outcome_steps}
-        arrays |= {f"graph_{k}": v for k, v in self.graphs.items()}
+        arrays: dict[str, Any] = {"masks": self.masks, "actions": self.actions, "returns": self.returns}
+        arrays |= {"outcome_steps": self.outcome_steps} | {f"graph_{k}": v for k, v in self.graphs.items()}
         with Path(path).open("wb") as fh:
             np.savez_compressed(fh, **arrays)
 
