@@ -22,7 +22,7 @@ import numpy as np
 from cso_runtime.config import RobotConfig
 from cso_runtime.frames import PALETTE, frame_scale, map_frame_indexed
 from cso_runtime.geometry import Pose2D
-from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, MessageError, OdometryMsg, decode, frontiers_reading
+from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, Message, MessageError, OdometryMsg, decode, frontiers_reading
 
 log = logging.getLogger("cso.animation")
 
@@ -145,7 +145,12 @@ class RecordingAnimationStats:
     """Payloads of the keys read that did not decode (left out, as a service would)."""
 
 
-ANIMATED = {"map": MapMsg, "odom": OdometryMsg, "goal": GoalMsg, "frontiers": frontiers_reading(("frontier",), clusters=False)}
+ANIMATED: dict[str, type[Message]] = {
+    "map": MapMsg,
+    "odom": OdometryMsg,
+    "goal": GoalMsg,
+    "frontiers": frontiers_reading(("frontier",), clusters=False),
+}
 """The keys a recording's animation reads, with the message type each must carry."""
 
 
@@ -191,7 +196,7 @@ def animate_recording(
         elif isinstance(msg, GoalMsg):
             if msg.decided:
                 decided, decisions = True, decisions + 1
-                goal_xy = (msg.x_m, msg.y_m) if msg.has_goal else None
+                goal_xy = msg.goal_xy_m
         elif isinstance(msg, MapMsg):
             if latest_map is not None and msg.episode != latest_map.episode:
                 trajectory = trajectory[-1:]  # a new episode: its path starts where its robot is

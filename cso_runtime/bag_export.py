@@ -49,6 +49,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -69,6 +70,9 @@ from cso_runtime.messages import (
     decode,
 )
 from cso_runtime.recording import RecordingError, read_recording, recorded_robot
+
+if TYPE_CHECKING:
+    from rosbags.interfaces import Connection
 
 log = logging.getLogger("cso.bag_export")
 
@@ -337,7 +341,7 @@ class BagConverter:
         elif isinstance(msg, PathMsg) and wanted("/plan"):
             out.append(("/plan", ros2_cdr.path_to_cdr(self.to_map_frame(msg.path_xy_m), t_ns, self.map_frame), t_ns))
         elif isinstance(msg, GoalMsg):
-            goal = (float(msg.x_m), float(msg.y_m)) if msg.has_goal else None
+            goal = None if (xy := msg.goal_xy_m) is None else (float(xy[0]), float(xy[1]))
             if goal is not None and (goal != self.last_goal_xy or again) and wanted("/goal_pose"):
                 pose = Pose2D(*goal, 0.0) if self.map_origin == MAP_FRAME_ORIGIN else compose_pose(self.map_origin, Pose2D(*goal, 0.0))
                 out.append(("/goal_pose", ros2_cdr.pose_stamped_to_cdr(pose.x_m, pose.y_m, pose.yaw_rad, t_ns, self.map_frame), t_ns))
@@ -490,7 +494,7 @@ def export_bag(
     try:
         # Version 8: its QoS profiles are a YAML string, which Humble's and Iron's rosbag2 read (version 9's list fails there).
         with Writer(out_dir, version=8, storage_plugin=StoragePlugin.MCAP) as writer:
-            connections: dict[str, object] = {}
+            connections: dict[str, Connection] = {}
 
             def write(rows: list[tuple[str, bytes, int]]) -> None:
                 for ros_topic, data, t_ns in rows:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import shlex
 import sys
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, NoReturn, overload
 
 
 def _interrupted_early() -> NoReturn:
@@ -17,7 +17,7 @@ def _interrupted_early() -> NoReturn:
 
 try:
     import time
-    from collections.abc import Callable, Iterator
+    from collections.abc import Callable, Iterator, Mapping
     from contextlib import contextmanager
     from pathlib import Path
 
@@ -109,6 +109,10 @@ defaults of every exploration and MuJoCo parameter."""
 PACKAGED_TRAIN_CONFIG = PACKAGED_CONFIGS / "train.yaml"
 
 
+@overload
+def _packaged_if_missing(path: Path) -> Path: ...
+@overload
+def _packaged_if_missing(path: None) -> None: ...
 def _packaged_if_missing(path: Path | None) -> Path | None:
     """``configs/NAME.yaml`` as the help names it, run outside the repository (where there is no such file): the
     package's own copy, said on stderr. Any other path is left as given (a missing one is then a clear error)."""
@@ -1078,7 +1082,7 @@ def output_dir_or_exit(path: Path | str, label: str) -> None:
         _fail(str(exc), 2)
 
 
-def training_args(config: Path | None, overrides: dict[str, object], settings: list[str] | None) -> Args:
+def training_args(config: Path | None, overrides: Mapping[str, object], settings: list[str] | None) -> Args:
     """``learned.ppo.Args`` from the YAML file, then the command's flags, then ``--set`` pairs; a missing file or
     a bad value exits with a clear error (code 2) before anything starts."""
     from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
@@ -1116,7 +1120,7 @@ def _flag_of(field_name: str, value: object) -> list[str]:
     return [TRAIN_FLAG_NAMES.get(field_name, "--" + field_name.replace("_", "-")), str(value)]
 
 
-def training_flags(overrides: dict[str, object], settings: list[str] | None) -> list[list[str]]:
+def training_flags(overrides: Mapping[str, object], settings: list[str] | None) -> list[list[str]]:
     """The flags and ``--set`` pairs a training command was given, each as its words: what its errors name and
     what ``train`` records as its command."""
     return [_flag_of(k, v) for k, v in overrides.items() if v is not None] + [["--set", item] for item in settings or []]

@@ -115,8 +115,7 @@ def goal_still_frontier(occupancy: OccupancyMap, goal: Goal | None) -> bool:
     if goal is None:
         return False
     g = occupancy.geometry
-    iy, ix = g.world_to_cell(goal.x_m, goal.y_m)
-    iy, ix = int(iy), int(ix)
+    iy, ix = map(int, g.world_to_cell(goal.x_m, goal.y_m))
     if not g.in_bounds(iy, ix) or not occupancy.open[iy, ix]:
         return False
     win = occupancy.explored[max(iy - 1, 0) : iy + 2, max(ix - 1, 0) : ix + 2]
@@ -317,7 +316,7 @@ def nearest_clusters(distance_m: np.ndarray, allowed: np.ndarray, k: int) -> np.
     return ok[np.argsort(distance_m[ok], kind="stable")][:k]
 
 
-def rollout_outcomes(explorer: Explorer, obs: Observation, candidates: Sequence[int], base: GoalSelector) -> list[tuple[int, float]]:
+def rollout_outcomes(explorer: Explorer, obs: Observation, candidates: Sequence[int] | np.ndarray, base: GoalSelector) -> list[tuple[int, float]]:
     """For each cluster of ``candidates``: (steps, explored m2) at the end of the episode when the robot goes
     there now and ``base`` decides from then on, each tried on a copy of ``explorer`` taken at this decision
     (observed, goal not applied yet). Bertsekas' rollout compares these; the warm start can learn from all of
@@ -333,13 +332,13 @@ def rollout_outcomes(explorer: Explorer, obs: Observation, candidates: Sequence[
     return outcomes
 
 
-def best_outcome(candidates: Sequence[int], outcomes: Sequence[tuple[int, float]]) -> int:
+def best_outcome(candidates: Sequence[int] | np.ndarray, outcomes: Sequence[tuple[int, float]]) -> int:
     """The candidate whose episode ended in the fewest steps (ties: more explored area; then the earlier one)."""
     scores = [(steps, -area_m2, i) for i, (steps, area_m2) in enumerate(outcomes)]
     return int(candidates[min(scores)[2]])
 
 
-def rollout_choice(explorer: Explorer, obs: Observation, candidates: Sequence[int], base: GoalSelector) -> int:
+def rollout_choice(explorer: Explorer, obs: Observation, candidates: Sequence[int] | np.ndarray, base: GoalSelector) -> int:
     """Bertsekas' rollout: of the clusters ``candidates``, the one after which ``base`` ends the episode in
     the fewest steps (``rollout_outcomes``, ``best_outcome``). It looks into the unexplored scene through
     the simulator, so it is a teacher or a ceiling (``benchmarks/teacher_ceiling.py``), never a run-time

@@ -24,10 +24,13 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rich.markup import escape
+
+if TYPE_CHECKING:
+    from rich.progress import TaskID
 
 from cso_runtime import __version__
 from cso_runtime.animation import EpisodeAnimation
@@ -805,7 +808,8 @@ class RichProgress:
             get_time=clock,
             disable=not console.is_terminal,  # logs and CI get one line per episode instead of a bar
         )
-        self.task = None
+        self.task: TaskID | None = None
+        """The bar's task, from ``start`` on."""
         self.done = 0
         self.total = 0
         self.ran = 0
@@ -817,7 +821,8 @@ class RichProgress:
         self.total = total
         self.started_s = self.clock()
         self.progress.start()
-        self.task = self.progress.add_task("", total=total, **{self.TIME_LEFT_FIELD: self.UNKNOWN_TIME})
+        fields: dict[str, Any] = {self.TIME_LEFT_FIELD: self.UNKNOWN_TIME}
+        self.task = self.progress.add_task("", total=total, **fields)
 
     def advance(self, outcome: EpisodeOutcome) -> None:
         if outcome.row is not None:
@@ -831,7 +836,9 @@ class RichProgress:
             self.ran += 1
         left_s = self.time_left_s()
         left = self.UNKNOWN_TIME if left_s is None else clock_text(left_s)
-        self.progress.update(self.task, advance=1, description=text, **{self.TIME_LEFT_FIELD: left})
+        assert self.task is not None  # start() came first
+        fields: dict[str, Any] = {self.TIME_LEFT_FIELD: left}
+        self.progress.update(self.task, advance=1, description=text, **fields)
         if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode, with the bar's times
             self.progress.console.print(f"{escape(f'[{self.done}/{self.total}]')} {text}{self.times_text(outcome)}", highlight=False, soft_wrap=True)  # one line, however long
 
@@ -851,6 +858,7 @@ class RichProgress:
     def writing(self, out: Path, trajectory_plots: int) -> None:
         """After the episodes: the bar says what is being written (and a log gets the same line)."""
         text = escape(f"writing {out}/: summary.json, episodes.csv, curves and {trajectory_plots} trajectory plots")
+        assert self.task is not None  # start() came first
         self.progress.update(self.task, description=text)
         if not self.progress.console.is_terminal:
             self.progress.console.print(text, highlight=False, soft_wrap=True)

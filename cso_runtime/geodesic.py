@@ -92,8 +92,7 @@ def geodesic_distance(traversable: np.ndarray, geometry: GridGeometry, source_xy
     """
     res = geometry.resolution_m
     out = np.full(geometry.shape, np.inf)
-    sy, sx = geometry.world_to_cell(source_xy_m[0], source_xy_m[1])
-    sy, sx = int(sy), int(sx)
+    sy, sx = map(int, geometry.world_to_cell(source_xy_m[0], source_xy_m[1]))
     if not geometry.in_bounds(sy, sx):
         return out
     window = None if within_m is None else int(math.ceil(within_m / res)) + _WINDOW_MARGIN_CELLS

@@ -153,10 +153,10 @@ class GridGeometry:
         """Cells (iy, ix) of the grid whose centres lie in the rectangle ``length_m`` along ``centre``'s
         heading by ``width_m`` across it, centred on ``centre`` (the robot's body, or a strip of it)."""
         reach_m = 0.5 * math.hypot(length_m, width_m)
-        iy0, ix0 = self.world_to_cell(centre.x_m - reach_m, centre.y_m - reach_m)
-        iy1, ix1 = self.world_to_cell(centre.x_m + reach_m, centre.y_m + reach_m)
-        iy0, ix0 = max(int(iy0), 0), max(int(ix0), 0)
-        iy1, ix1 = min(int(iy1), self.shape[0] - 1), min(int(ix1), self.shape[1] - 1)
+        low_iy, low_ix = map(int, self.world_to_cell(centre.x_m - reach_m, centre.y_m - reach_m))
+        high_iy, high_ix = map(int, self.world_to_cell(centre.x_m + reach_m, centre.y_m + reach_m))
+        iy0, ix0 = max(low_iy, 0), max(low_ix, 0)
+        iy1, ix1 = min(high_iy, self.shape[0] - 1), min(high_ix, self.shape[1] - 1)
         if iy1 < iy0 or ix1 < ix0:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         iy, ix = np.mgrid[iy0 : iy1 + 1, ix0 : ix1 + 1]

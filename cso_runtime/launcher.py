@@ -852,19 +852,20 @@ class Launcher:
         """Record the run from before the first service starts, on a session of its own: its link and
         receive thread are not shared with the launcher's callbacks, so a busy launcher cannot make the
         router drop messages on their way to the recording."""
-        if self.record_path is None:
+        path = self.record_path
+        if path is None:
             return None
         from cso_runtime.recording import RecordStats, record  # noqa: PLC0415 - mcap only when recording
 
         stop, ready = threading.Event(), threading.Event()
         transport = TransportConfig(mode="client", connect=list(self.endpoints), zenoh_config_file=self.profile.router.zenoh_config)
         failure: list[str] = []
-        stats = RecordStats(self.record_path)
+        stats = RecordStats(path)
 
         def run() -> None:
             try:
                 with open_session(transport) as session:
-                    record(session, self.profile.robot, self.record_path, stop, ready, stats, drain_s=RECORDING_DRAIN_S)
+                    record(session, self.profile.robot, path, stop, ready, stats, drain_s=RECORDING_DRAIN_S)
             except (OSError, TransportError) as exc:  # said by start_recorder (or logged once recording)
                 failure.append(exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc))
                 if ready.is_set():  # before that, start_recorder says why
@@ -1124,10 +1125,10 @@ class Launcher:
                     if ending is None and st is not None and st.state in EPISODE_OVER and not self.outputs_written:
                         self.ended_status = st
                         result = self.wait_for_result(session, meanwhile=tend)
-                        if result is None and self.episode_goes_on():
+                        if result is None and self.episode_goes_on() and (now := self.status) is not None:
                             with self._lock:
                                 self.rejected["episode_status"] = self.rejected.get("episode_status", 0) + 1
-                            log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", st.state, st.step, self.status.step)
+                            log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", st.state, st.step, now.step)
                             self.ended_status = None
                             continue
                         if result is None:
@@ -1184,8 +1185,10 @@ class Launcher:
                 if self.run_folder.lost():  # deleted since the last round: the stop's lines and the run's end are kept too
                     self.tend_run_folder()
                 alive_sub.undeclare()
-                for q in [*qs, *drivers]:
+                for q in qs:
                     q.undeclare()
+                for d in drivers:
+                    d.undeclare()
                 for s in subs:
                     s.undeclare()
                 self.write_run_file("stopped")

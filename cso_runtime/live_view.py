@@ -19,6 +19,7 @@ log = logging.getLogger("cso.launcher")
 
 if TYPE_CHECKING:
     from rich.console import Console
+    from rich.live import Live
     from rich.table import Table
 
     from cso_runtime.launcher import Launcher
@@ -70,7 +71,7 @@ class LiveView:
     def __init__(self, launcher: Launcher, console: Console | None = None) -> None:
         self.launcher = launcher
         self.console = console  # None: rich's console on stdout
-        self._live = None
+        self._live: Live | None = None
         self._last = 0.0
         self._rerouted: list[tuple[logging.StreamHandler, Any]] = []
         """Log handlers on stderr sent through the live display while it runs, with the stream to give back."""

@@ -111,9 +111,9 @@ class OccupancyMap:
         rows = slice(first_row, last_row + 1)
         explored, log_odds, occupied = self.explored[rows], self.log_odds[rows], self.occupied[rows]
         offset = first_row * width
-        touched_free = np.zeros(explored.size, dtype=bool)
+        touched_free: np.ndarray = np.zeros(explored.size, dtype=bool)
         touched_free[free - offset] = True
-        touched_hit = np.zeros(explored.size, dtype=bool)
+        touched_hit: np.ndarray = np.zeros(explored.size, dtype=bool)
         touched_hit[hit - offset] = True
         touched_free = touched_free.reshape(explored.shape)
         touched_hit = touched_hit.reshape(explored.shape)

@@ -98,17 +98,17 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
     on_plan = f" on {next(iter(plans))}" if len(plans) == 1 and len(scales) == 1 else ""  # a run of up, an eval of one plan
     fig, axes = plt.subplots(1, len(scales), figsize=(7 if len(scales) == 1 else 4.6 * len(scales), 4.5), squeeze=False, layout="constrained")
     for ax, scale in zip(axes[0], scales):
-        methods = by_scale.get(scale, {})
-        for method, mean in held_mean_curves(methods).items():
+        curves_by_method = by_scale.get(scale, {})
+        for method, mean in held_mean_curves(curves_by_method).items():
             style = styles[method]
             one_point = style["marker"] if len(mean) == 1 else ""  # episodes of no step: a line of one point draws nothing
-            ax.plot(np.arange(len(mean)), mean, label=f"{method} ({len(methods[method])} ep.)", color=style["color"], linestyle=style["linestyle"], marker=one_point)
+            ax.plot(np.arange(len(mean)), mean, label=f"{method} ({len(curves_by_method[method])} ep.)", color=style["color"], linestyle=style["linestyle"], marker=one_point)
         ax.set_xlabel(f"{step_words(outcomes)}; an episode that ended holds its final coverage")
         ax.set_ylabel("mean coverage (%)")
         ax.set_ylim(0, 101)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # steps are counted: no 0.2 step
         ax.grid(alpha=0.3)
-        if methods:
+        if curves_by_method:
             ax.set_xlim(0, max(len(ax.lines[0].get_xdata()) - 1, 1))
             small = len(scales) > 1
             ax.legend(loc="lower right", fontsize=8 if small else 10, title="mean over episodes,\nended ones held", title_fontsize=7 if small else 9)

@@ -179,12 +179,14 @@ class RandomFrontier:
         return goal_of(obs, int(self.rng.choice(reachable)))
 
 
-BASELINES: dict[str, Callable[[], GoalSelector]] = {
+SCORE_BASELINES: dict[str, Callable[[], _ScoreSelector]] = {
     "greedy-dist": GreedyDist,
     "greedy-info": GreedyInfo,
     "utility": Utility,
-    "random": RandomFrontier,
 }
+"""The baselines that rank the clusters by a score (``cost``): what the warm start can imitate under any mask."""
+
+BASELINES: dict[str, Callable[[], GoalSelector]] = {**SCORE_BASELINES, "random": RandomFrontier}
 
 @dataclass(frozen=True)
 class Variant:

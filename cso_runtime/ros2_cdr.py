@@ -63,7 +63,7 @@ def typestore() -> Typestore:
     return get_typestore(Stores.ROS2_HUMBLE)
 
 
-def _types() -> dict[str, type]:
+def _types() -> dict[str, Any]:
     return typestore().types
 
 

@@ -101,7 +101,7 @@ def summarize_run(run_dir: Path) -> RunSummary:
         profile = {}
     profile = profile if isinstance(profile, dict) else {}
     summary = read_json_object(run_dir / "summary.json") or {}
-    methods = summary.get("methods") if isinstance(summary.get("methods"), dict) else {}
+    methods = m if isinstance(m := summary.get("methods"), dict) else {}
     method = str(profile.get("method", "")) or next(iter(methods), "")
     if info and current_launcher_alive(info):
         state = str(info.get("state", "running"))
@@ -111,7 +111,7 @@ def summarize_run(run_dir: Path) -> RunSummary:
         state = "launcher died"  # it never wrote that it stopped: killed (SIGKILL, out of memory) or the host went down
     else:
         state = "done" if methods else "stopped"
-    services = info.get("services") if isinstance(info.get("services"), dict) else {}
+    services = s if isinstance(s := info.get("services"), dict) else {}
     # A run took until its episode ended (a detached run then waits for `down`), else until it stopped.
     started, ended = info.get("started_at"), info.get("episode_ended_at", info.get("ended_at"))
     duration_s = None

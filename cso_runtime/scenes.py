@@ -231,8 +231,8 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     else:
         labels, n = ndimage.label(free)
         largest = labels == 1 + int(np.argmax(ndimage.sum_labels(free, labels, index=np.arange(1, n + 1))))
-        iy, ix = np.unravel_index(int(np.argmax(ndimage.distance_transform_edt(largest))), free.shape)
-        pose = Pose2D((ix + 0.5) * res, (iy + 0.5) * res, 0.0)
+        centre_iy, centre_ix = map(int, np.unravel_index(int(np.argmax(ndimage.distance_transform_edt(largest))), free.shape))
+        pose = Pose2D((centre_ix + 0.5) * res, (centre_iy + 0.5) * res, 0.0)
     return FloorPlan(p.stem, free, res, pose, source=str(p), map_origin=map_origin)
 
 

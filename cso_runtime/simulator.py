@@ -50,6 +50,17 @@ class Simulator(Protocol):
         """Apply ``command`` for one control period (0.25 s by default) and advance time."""
 
 
+@runtime_checkable
+class StateSaving(Protocol):
+    """A simulator that can step ahead and undo it (``KinematicSimulator``; MuJoCo's cannot)."""
+
+    def save_state(self) -> tuple:
+        """Everything ``step`` and ``scan`` change."""
+
+    def restore_state(self, state: tuple) -> None:
+        """Back to what ``save_state`` returned."""
+
+
 COLLISION_RADIUS_M = 0.12
 """Footprint of the kinematic robot: half the LIMO's 0.22 m width plus 1 cm; planning inflates by more."""
 

@@ -87,7 +87,11 @@ def query_status(connect: list[str], robot: str = "r0", timeout_s: float = 0.6, 
     keys = RobotKeys(robot)
     with session:
         # All four questions at once: each handler fills while the others wait.
-        opts = {"target": zenoh.QueryTarget.ALL, "consolidation": zenoh.ConsolidationMode.NONE, "timeout": timeout_s}
+        opts: dict[str, Any] = {
+            "target": zenoh.QueryTarget.ALL,
+            "consolidation": zenoh.ConsolidationMode.NONE,
+            "timeout": timeout_s,
+        }
         ep_replies = session.get(keys.episode_status, **opts)
         la_replies = session.get(keys.launcher_status, **opts)
         sv_replies = session.get(keys.service_status("*"), **opts)
@@ -292,7 +296,8 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     except KeyExprError as exc:
         print(f"error: --robot: {exc}", file=sys.stderr)
         return 2
-    if not connect and (starting := starting_run(run_info)):  # its run file is written before its router opens
+    # Its run file is written before its router opens.
+    if not connect and run_info is not None and (starting := starting_run(run_info)):
         if as_json:
             print(json.dumps({"state": "starting", "run_id": run_info["run_id"], "reason": starting}), flush=True)
         else:
@@ -506,6 +511,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     if isinstance(target, int):
         return target
     connect, robot, zenoh_config_file = target
+    assert robot is not None  # reachable_target always names the robot
     # A new table a period scrolled the terminal: ~20 lines a second, each as wide as its longest cell.
     in_place = watch and not as_json and console.is_terminal
     live: Live | None = None
@@ -611,6 +617,7 @@ def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_
     if isinstance(target, int):
         return target
     connect, robot, zenoh_config_file = target
+    assert robot is not None  # reachable_target always names the robot
     try:
         msg, why, map_origin = query_map(connect, robot, zenoh_config_file=zenoh_config_file)
     except TransportError as exc:

@@ -198,7 +198,7 @@ def process_start_ticks(pid: int) -> int | None:
 def run_process_alive(pid: int | None, start_ticks: int | None) -> bool:
     """``pid_alive``, and still the process a run file named (same start time, when the file recorded one):
     ``down`` must never signal a process that took a dead launcher's pid."""
-    if not pid_alive(pid):
+    if pid is None or not pid_alive(pid):
         return False
-    now = process_start_ticks(int(pid)) if start_ticks is not None else None
+    now = process_start_ticks(pid) if start_ticks is not None else None
     return now is None or now == start_ticks

@@ -79,6 +79,7 @@ def _base_joints_xml(default_pose: Pose2D | None) -> tuple[str, str]:
     value at which the body sits where the file places it. The slides act in the body's frame, so a body turned by
     the start's yaw gets slide axes turned back by it: they stay the map's x and y, and qpos stays the map pose.
     """
+    refs: tuple[str, ...]
     axes, refs, placement = ("1 0 0", "0 1 0", "0 0 1"), ("", "", ""), 'pos="0 0 0"'
     if default_pose is not None:
         x, y, yaw = default_pose.x_m, default_pose.y_m, default_pose.yaw_rad

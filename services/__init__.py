@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import importlib
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from services.common import Service
 
 SERVICE_NAMES = ("sim", "mapper", "frontier", "policy", "planner", "ros2_bridge", "foxglove_bridge")
 """The services a profile may list (``ros2_bridge`` replaces ``sim`` on a real robot; ``foxglove_bridge``, a
@@ -41,14 +44,14 @@ RESERVED_NAMES = ("launcher",)
 OWN_SERVICE_SPELLING = "a service of your own is written module.path:Attribute, a Service subclass (e.g. my_nodes:CoverageLogger)"
 
 
-def _lookup(name: str, index: int) -> type | None:
+def _lookup(name: str, index: int) -> Any:
     if name not in _CLASSES:
         raise ValueError(f"unknown service {name!r}; choose one of {', '.join(SERVICE_NAMES)}, or a service of your own as module.path:Attribute")
     attr = _CLASSES[name][index]
     return None if attr is None else getattr(importlib.import_module(f"services.{name}"), attr)
 
 
-def service_class(name: str) -> type:
+def service_class(name: str) -> type[Service]:
     """The Service subclass of ``name`` (imported lazily: each pulls in its own dependencies)."""
     cls = _lookup(name, 0)
     assert cls is not None
@@ -83,7 +86,7 @@ def check_service_name(name: str, where: str) -> str:
     return name
 
 
-def own_service_class(spec: str, name: str | None = None) -> type:
+def own_service_class(spec: str, name: str | None = None) -> type[Service]:
     """The Service subclass ``spec`` (``module.path:Attribute``) names, checked: a ``name`` fit for keys (``name`` given:
     that one, the profile's key it is listed under), inputs and outputs on known topics with message types. A
     ConfigError says what is wrong, so that ``up`` refuses it before anything starts."""
@@ -120,7 +123,7 @@ def own_service_class(spec: str, name: str | None = None) -> type:
     return cls
 
 
-def profile_service_class(name: str, section: Any = None) -> type:
+def profile_service_class(name: str, section: Any = None) -> type[Service]:
     """The Service subclass a profile runs as ``name``: the class its section names (``class``), else the built-in one."""
     spec = own_class_spec(section)
     if spec is None:
@@ -157,7 +160,7 @@ def check_profile_service(name: str, section: Any) -> None:
         from_dict(cls.params_class, service_params(section), where=f"services.{name}")
 
 
-def command_service_class(name_or_spec: str) -> type:
+def command_service_class(name_or_spec: str) -> type[Service]:
     """The class ``cso-runtime service NAME`` (or ``python -m services NAME``) runs: a built-in service by its name, or a
     service of one's own as ``module.path:Attribute``; ValueError (ConfigError) saying why not."""
     if ":" in name_or_spec:

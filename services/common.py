@@ -35,7 +35,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import zenoh
@@ -52,6 +52,8 @@ from cso_runtime.config import (
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
+
+M = TypeVar("M", bound=Message)
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.processes import PARENT_CHECK_PERIOD_S, dump_stacks_on_signal, keep_freed_memory, set_from_signal_handler
@@ -157,6 +159,9 @@ class Service:
     ``cso/<robot>/cache/<topic>``. The referee keeps the map a restarted mapper resumes from: it receives
     every map anyway, so no other process has to be woken for each one."""
 
+    params: Any
+    """The service's parameters: a ``params_class`` instance when it declares one (the built-in services set their own)."""
+
     def __init__(self, ctx: ServiceContext) -> None:
         self.ctx = ctx
         if self.params_class is not None:
@@ -261,6 +266,11 @@ class Service:
         old = self.latest.get(topic)
         if old is None or getattr(old, "episode", 0) != getattr(msg, "episode", 0) or getattr(msg, "step", 0) >= getattr(old, "step", 0):
             self.latest[topic] = msg
+
+    def kept(self, topic: str, cls: type[M]) -> M | None:
+        """The message kept for ``topic`` (``keep_latest``) when it is a ``cls``; None otherwise: typed for its reader."""
+        msg = self.latest.get(topic)
+        return msg if isinstance(msg, cls) else None
 
     def answer_cache_query(self, topic: str, query: zenoh.Query) -> None:
         """The kept message, or an error reply when there is none yet (an answer all the same: the
@@ -517,8 +527,10 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
             finally:
                 token.undeclare()
                 status_q.undeclare()
-                for s in [*subs, *cache_qs]:
+                for s in subs:
                     s.undeclare()
+                for q in cache_qs:
+                    q.undeclare()
                 service.session = None
     log.info("%s: stopped", service.name)
     return 0
@@ -714,7 +726,7 @@ def service_main(cls: type[Service], argv: list[str] | None = None, prog: str | 
         profile, exploration, params = load_profile_for_service(args.config, cls.name, cls)
         params = cls.apply_arguments(args, dict(params))
         transport = TransportConfig(mode=args.mode, connect=list(args.connect), listen=list(args.listen))
-        router = profile.get("router") if isinstance(profile.get("router"), dict) else {}
+        router = r if isinstance(r := profile.get("router"), dict) else {}
         transport.zenoh_config_file = args.zenoh_config or str(router.get("zenoh_config") or "") or transport.zenoh_config_file
         transport.validate()
         service = cls(ServiceContext(cls.name, args.robot, profile, exploration, transport, params))

@@ -42,7 +42,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from cso_runtime import ros2_cdr
 from cso_runtime.bag_export import EXPORTED, MAP_FRAME_TOPICS, ROS_TOPICS, ROS_TYPES, BagConverter, shows_something
@@ -137,10 +137,10 @@ class FoxgloveBridgeService(Service):
     """Serves one robot's episode to Foxglove viewers as ROS 2 messages; it only listens, so the episode never waits for it."""
 
     name = "foxglove_bridge"
-    inputs = {**{topic: deferred(cls) for topic, cls in EXPORTED.items()}, "episode_status": EpisodeStatusMsg}
+    inputs = {**{topic: deferred(cls) for topic, cls in EXPORTED.items()}, "episode_status": EpisodeStatusMsg}  # type: ignore[arg-type]  # a class hashes
     """Each input kept as it came and decoded only when watched (``decoded``); the episode's status, for the scene's
     map origin (``map`` -> ``odom``)."""
-    outputs: dict[str, type[Message]] = {}
+    outputs: ClassVar[dict[str, type[Message]]] = {}
     tick_period_s = 0.1
 
     def __init__(self, ctx: ServiceContext) -> None:
@@ -159,8 +159,9 @@ class FoxgloveBridgeService(Service):
         self.awaiting_since_s: float | None = None
         self.channels = {topic: self._open_channel(topic) for topic in ROS_TYPES}
         """ROS topic -> its channel, every one advertised from the start: a viewer subscribes before anything came."""
-        self.latest: dict[str, DeferredMsg] = {}
-        """Our topic -> its latest message that shows something, decoded and converted when a viewer subscribes."""
+        self.latest_shown: dict[str, DeferredMsg] = {}
+        """Our topic -> its latest message that shows something, decoded and converted when a viewer subscribes (not
+        ``Service.latest``, the messages a service serves on its cache keys: this bridge serves none)."""
         self.served: dict[str, int] = {}
         """ROS topic -> messages served (converted for a viewer or the MCAP file as they came)."""
         self.subscriptions = _Subscriptions()
@@ -169,7 +170,7 @@ class FoxgloveBridgeService(Service):
         try:  # here, not in warm_up: a port in use is a bad configuration (exit 2, not restarted), said before the episode
             self.server = foxglove.start_server(
                 name=f"cso-runtime {ctx.robot}", host=self.params.host, port=self.params.port,
-                server_listener=self.subscriptions, context=self.context,
+                server_listener=self.subscriptions, context=self.context,  # type: ignore[arg-type]  # duck-typed
             )  # fmt: skip
         except Exception as exc:  # noqa: BLE001 - a port in use, a bad address: the configuration's fault
             raise ConfigError(f"services.foxglove_bridge: cannot serve on {self.params.host}:{self.params.port}: {exc}") from None
@@ -207,8 +208,8 @@ class FoxgloveBridgeService(Service):
             return msg.decoded()
         except MessageError as exc:
             self.reject(topic, str(exc), self.ctx.robot)
-            if self.latest.get(topic) is msg:
-                del self.latest[topic]
+            if self.latest_shown.get(topic) is msg:
+                del self.latest_shown[topic]
             return None
 
     def send_latest(self, topic: str) -> None:
@@ -219,7 +220,7 @@ class FoxgloveBridgeService(Service):
             rows = [self.converter.static_transforms(now_ns)]
         else:
             rows = []
-            for ours, kept in list(self.latest.items()):  # /tf: both the odometry's and the scan's
+            for ours, kept in list(self.latest_shown.items()):  # /tf: both the odometry's and the scan's
                 if ours in self.awaiting_map_origin:
                     continue  # it goes out with its map origin
                 if topic in ROS_TOPICS[ours] and (msg := self.decoded(ours, kept)) is not None:
@@ -238,7 +239,7 @@ class FoxgloveBridgeService(Service):
         if isinstance(episode, int) and not isinstance(episode, bool):  # read before decoding: a bad one fails it later
             self.serve(self.converter.observe_episode(episode, time.time_ns(), self.watched))
         if shows_something(msg):
-            self.latest[topic] = msg
+            self.latest_shown[topic] = msg
         if topic in MAP_FRAME_TOPICS and not self.converter.knows_map_origin():
             self.awaiting_map_origin.add(topic)  # its episode's status comes after the first map
             self.awaiting_since_s = self.awaiting_since_s if self.awaiting_since_s is not None else time.monotonic()
@@ -253,7 +254,7 @@ class FoxgloveBridgeService(Service):
             return
         topics, self.awaiting_map_origin, self.awaiting_since_s = sorted(self.awaiting_map_origin), set(), None
         for topic in topics:
-            kept = self.latest.get(topic)
+            kept = self.latest_shown.get(topic)
             if kept is not None and self.converter.converts(topic, self.watched) and (decoded := self.decoded(topic, kept)) is not None:
                 self.serve(self.converter.convert(decoded, time.time_ns(), wanted=self.watched))
 

@@ -115,7 +115,7 @@ class FrontierService(Service):
         occupancy, pose = warm_up_map()
         obs = self.builder.build(occupancy, pose, np.array([pose.xy]), layer=self.layer_beside_d(occupancy, None))
         encode(frontiers_from_observation(0, "no_goal", obs, 0.0))
-        encode(DistanceMapMsg(0, obs.geometry, obs.pose, obs.distance_m))
+        encode(DistanceMapMsg(0, obs.geometry, obs.pose, obs.distance_map()))
         if self.layer_worker is not None:
             self.layer_worker.layers_computed = 0  # the practice layer is not a decision's
 
@@ -219,7 +219,7 @@ class FrontierService(Service):
                 self.reject(topic, why, robot)
                 return
             if msg.decided and step >= self.decision_step:
-                self.goal = Goal(msg.x_m, msg.y_m, msg.cluster_index, msg.distance_m) if msg.has_goal else None
+                self.goal = None if (xy := msg.goal_xy_m) is None else Goal(xy[0], xy[1], msg.cluster_index, msg.distance_m)
                 self.decision_step = step
                 if self.awaiting_goal_step is not None and step >= self.awaiting_goal_step:
                     self.awaiting_goal_step = None
@@ -312,7 +312,7 @@ class FrontierService(Service):
             # After the decision message: the policy starts on it while D is encoded and travels to the
             # planner, which decodes it while the policy decides (a goal selector reads D only at the
             # path nodes, which the decision message carries).
-            self.publish("distance_map", DistanceMapMsg(k, obs.geometry, obs.pose, obs.distance_m, episode))
+            self.publish("distance_map", DistanceMapMsg(k, obs.geometry, obs.pose, obs.distance_map(), episode))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -64,7 +64,7 @@ class MapperService(Service):
         self.episode: int | None = None
         """Episode id of the map (from the clock); None until the first clock."""
         self.pending: list[ScanMsg] = []
-        self._queryable = None
+        self._queryable: zenoh.Queryable | None = None
         if self.params.resolution_m > 0:
             p = self.params
             self.map = OccupancyMap(GridGeometry(p.resolution_m, (round(p.height_m / p.resolution_m), round(p.width_m / p.resolution_m))))

@@ -247,6 +247,7 @@ class PlannerService(Service):
         self.no_frontier = False
         d = self.distance_maps.get(f.step)
         distance = d.distance_m if d is not None and d.geometry == f.geometry and d.pose == f.pose else None
+        assert f.geometry is not None and f.pose is not None  # frontiers that asked for this decision carry them
         status = self.planner.set_goal(f.arrays["traversable"], f.geometry, f.pose, np.array([g.x_m, g.y_m]), distance, g.distance_m, f.arrays["occupied"])
         self.set_goal_blocked = status == PlannerStatus.BLOCKED
         if self.set_goal_blocked:

@@ -105,7 +105,7 @@ class PolicyService(Service):
         selector = self.new_selector()  # fail early on an unknown method
         # Decode of each decision message the grids this method reads (GoalSelector.grids), no more.
         grids = getattr(selector, "grids", None)
-        self.inputs = {"frontiers": frontiers_reading(None if grids is None else tuple(grids))}
+        self.inputs = {"frontiers": frontiers_reading(None if grids is None else tuple(grids))}  # type: ignore[misc]  # may narrow
         if self.method in LEARNED_METHODS:
             from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
 

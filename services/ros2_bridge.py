@@ -286,6 +286,8 @@ class Ros2BridgeService(Service):
     outputs: ClassVar[dict[str, type[Message]]] = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     tick_period_s = 0.05
     serves_latest = ("map",)
+    pending: tuple[ros2_cdr.ScanConversion, float] | None
+    """A scan waiting for the odometry of its stamp, and when it came (monotonic s); set in ``_start_episode_state``."""
 
     def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
@@ -498,7 +500,7 @@ class Ros2BridgeService(Service):
         self.arena: GridGeometry | None = None
         self.last_scan_stamp_s = -math.inf
         self.last_scan_stamp_ns: int | None = None
-        self.pending: tuple[ros2_cdr.ScanConversion, float] | None = None
+        self.pending = None
         self.stamps_ns: dict[int, int] = {}
         """Each of the last ``STAMPS_HELD`` steps' scan stamp, exactly as the robot sent it."""
         self.last_pose: Pose2D | None = None
@@ -673,13 +675,14 @@ class Ros2BridgeService(Service):
             self.decision_ms.append(g.decision_ms)
             if not g.has_goal and self.episode_state == "exploring":
                 self.finish(TERMINATED_NO_FRONTIER)
-        if g.has_goal and (g.x_m, g.y_m) != self.last_goal_xy:
-            self.last_goal_xy = (float(g.x_m), float(g.y_m))
+        xy = g.goal_xy_m
+        if xy is not None and xy != self.last_goal_xy:
+            self.last_goal_xy = (float(xy[0]), float(xy[1]))
             stamp_ns = self.stamp_ns_of(g.step, "goal")
             self._put_ros(
-                self.params.goal_topic, ros2_cdr.pose_stamped_to_cdr(g.x_m, g.y_m, 0.0, stamp_ns, self.params.map_frame_id)
+                self.params.goal_topic, ros2_cdr.pose_stamped_to_cdr(xy[0], xy[1], 0.0, stamp_ns, self.params.map_frame_id)
             )
-        elif not g.has_goal:
+        elif xy is None:
             self.last_goal_xy = None
 
     def on_tick(self, now_s: float) -> None:
@@ -727,7 +730,7 @@ class Ros2BridgeService(Service):
 
     # --- episode status (no ground truth on a real robot) ---------------------------------------
     def explored_area_m2(self) -> float:
-        m = self.latest.get("map")
+        m = self.kept("map", MapMsg)
         return 0.0 if m is None else float(np.count_nonzero(m.explored)) * m.geometry.cell_area_m2
 
     def arena_edge_note(self) -> str:
@@ -760,7 +763,7 @@ class Ros2BridgeService(Service):
             )
 
     def episode_result(self) -> EpisodeResultMsg:
-        m = self.latest.get("map")
+        m = self.kept("map", MapMsg)
         known_free = m.occupancy().open if m is not None else np.zeros((1, 1), bool)
         return EpisodeResultMsg(
             scene=f"ros2:{self.params.namespace or '/'}",
@@ -779,7 +782,7 @@ class Ros2BridgeService(Service):
             resolution_m=m.geometry.resolution_m if m is not None else self.params.resolution_m,
             method=str(self.ctx.profile.get("method", "")),
             seed=int(self.ctx.profile.get("seed", 0)),
-            final_map=m,  # type: ignore[arg-type]
+            final_map=m,
         )
 
     def finish(self, terminated_by: str) -> None:

@@ -42,7 +42,7 @@ from cso_runtime.messages import (
 )
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.scenes import resolve_scenes
-from cso_runtime.simulator import Simulator, make_simulator, mujoco_config
+from cso_runtime.simulator import Simulator, StateSaving, make_simulator, mujoco_config
 from cso_runtime.transport import track_robots_liveliness
 from services.common import Service, ServiceContext, service_main
 from services.dataflow import missing_producers
@@ -133,7 +133,7 @@ def open_viewer(sim: Simulator) -> SimViewer:
     problem = display_problem()
     if problem is not None:
         raise ConfigError(f"services.sim.viewer: {problem}")
-    return SimViewer(sim)  # type: ignore[arg-type]  (validate() allows it only with backend mujoco)
+    return SimViewer(sim)  # type: ignore[arg-type]  # validate() allows it only with backend mujoco
 
 
 class SimService(Service):
@@ -292,7 +292,7 @@ class SimService(Service):
             resolution_m=self.sim.plan.resolution_m,
             method=self.method,
             seed=self.seed,
-            final_map=self.latest.get("map"),  # type: ignore[arg-type]
+            final_map=self.kept("map", MapMsg),
             map_origin=self.sim.plan.map_origin,
         )
         why = f" ({reason})" if reason else ""
@@ -330,28 +330,28 @@ class SimService(Service):
                 self.goal_xy = None
                 self.finish("done", TERMINATED_NO_FRONTIER)
                 return
-        self.goal_xy = [float(g.x_m), float(g.y_m)] if g.has_goal else None
+        self.goal_xy = None if (xy := g.goal_xy_m) is None else [float(xy[0]), float(xy[1])]
 
     def step_ahead(self, msg: CmdVelMsg) -> None:
         """Lockstep: step and scan on the planner's provisional command of this step while the map and
         the frontier service's verdict are still on their way, then undo; ``advance`` keeps the result
         when the step's cmd_vel is the same command (the goal was kept), so the next scan goes out at
         once. Simulators without ``save_state`` (MuJoCo) just wait for the command."""
-        save = getattr(self.sim, "save_state", None)
-        if save is None or msg.step != self.step or (self.ahead is not None and self.ahead[0] == msg.step):
+        sim = self.sim
+        if not isinstance(sim, StateSaving) or msg.step != self.step or (self.ahead is not None and self.ahead[0] == msg.step):
             return
-        before = save()
+        before = sim.save_state()
         self.sim.step(msg.command)
         scan = self.sim.scan()
-        self.ahead = (msg.step, msg.command, save(), scan)
-        self.sim.restore_state(before)
+        self.ahead = (msg.step, msg.command, sim.save_state(), scan)
+        sim.restore_state(before)
 
     def advance(self, command: VelocityCommand) -> None:
         before = self.sim.true_pose()
         odom_before = self.sim.odometry()
         ahead, self.ahead = self.ahead, None
         scan = None
-        if ahead is not None and ahead[0] == self.step and ahead[1] == command:
+        if ahead is not None and ahead[0] == self.step and ahead[1] == command and isinstance(self.sim, StateSaving):
             self.sim.restore_state(ahead[2])
             scan = ahead[3]
             self.steps_on_stored_scan += 1

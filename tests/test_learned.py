@@ -1769,3 +1769,12 @@ def test_the_resume_hint_names_only_this_runs_checkpoint(tmp_path, monkeypatch):
     monkeypatch.setattr(ppo, "train", saved_then_stopped)
     r = CliRunner().invoke(app, argv)
     assert r.exit_code == 130 and f"continue from the last checkpoint with --resume {out / 'checkpoint.pt'}" in r.output, r.output
+
+
+def test_expert_action_refuses_the_rollout_teacher_it_cannot_score():
+    # `rollout` is a teacher (TEACHERS) but no baseline: expert_action used to fail with a bare KeyError from
+    # BASELINES; it says that teacher_label is the way to ask it.
+    env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
+    _, info = env.reset(seed=0)
+    with pytest.raises(ValueError, match="teacher_label"):
+        expert_action(env.obs, info["action_mask"], "rollout")

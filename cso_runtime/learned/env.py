@@ -35,7 +35,7 @@ from cso_runtime.learned.graph import (
     node_features,
 )
 from cso_runtime.observation import Observation
-from cso_runtime.policies import BASELINES, ActionMasker, goal_of
+from cso_runtime.policies import BASELINES, SCORE_BASELINES, ActionMasker, goal_of
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import KinematicSimulator
 
@@ -115,7 +115,7 @@ def graph_space(config: GraphConfig) -> spaces.Dict:
 class ExplorationEnv(gym.Env):
     """One goal choice per step over ``KinematicSimulator``; plans drawn from ``plans`` each reset."""
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 4}  # type: ignore[misc]  # RUF012 vs gym.Env
     """``rgb_array``: ``render()`` is the robot's map at the current decision (``cso_runtime.frames``), one frame
     per goal choice, so ``gymnasium.wrappers.RecordVideo`` films the exploration."""
 
@@ -135,8 +135,8 @@ class ExplorationEnv(gym.Env):
         self.config = config or EnvConfig()
         self._plans_source = plans
         self._plans: list[FloorPlan] | None = None
-        self.observation_space = graph_space(self.config.graph)
-        self.action_space = spaces.Discrete(self.config.graph.max_frontier_nodes)
+        self.observation_space: spaces.Dict = graph_space(self.config.graph)
+        self.action_space: spaces.Discrete = spaces.Discrete(self.config.graph.max_frontier_nodes)
         self.masker = ActionMasker(self.config.exploration.masks)
         self.explorer: Explorer | None = None
         self.obs: Observation | None = None
@@ -329,7 +329,7 @@ class ExplorationEnv(gym.Env):
         """The teacher's choice and, for the rollout teacher, each tried cluster's episode length in control
         steps (``inf`` for clusters not tried; all ``inf`` for the score-based teachers)."""
         steps = np.full(self.config.graph.max_frontier_nodes, np.inf, dtype=np.float32)
-        if self.obs is None:
+        if self.obs is None or self.explorer is None:
             return int(np.argmax(self.mask)), steps
         if teacher != "rollout":
             return expert_action(self.obs, self.mask, teacher), steps
@@ -354,10 +354,13 @@ def expert_action(obs: Observation, mask: np.ndarray, teacher: str = "greedy-dis
     mask = np.asarray(mask, dtype=bool)  # an int8 mask would index by position
     if teacher not in TEACHERS:
         raise ValueError(f"unknown warm-start teacher {teacher!r}; choose one of {', '.join(TEACHERS)}")
+    if teacher not in SCORE_BASELINES:
+        why = "ExplorationEnv.teacher_label gives its choice"
+        raise ValueError(f"the {teacher} teacher has no score to take under a mask: {why}")
     n = min(len(obs.clusters), len(mask))
     cost = np.full(len(mask), np.inf)
     if n:
-        cost[:n] = np.where(np.isfinite(obs.goal_distance_m[:n]), BASELINES[teacher]().cost(obs)[:n], np.inf)
+        cost[:n] = np.where(np.isfinite(obs.goal_distance_m[:n]), SCORE_BASELINES[teacher]().cost(obs)[:n], np.inf)
     cost[~mask] = np.inf
     return int(np.argmin(cost)) if np.isfinite(cost).any() else int(np.argmax(mask))
 
@@ -388,4 +391,4 @@ def make_env(
     return ExplorationEnv(lambda: [ref.load() for ref in refs], config, render_mode=render_mode, render_scale=render_scale)
 
 
-gym.register(id=ENV_ID, entry_point=make_env)
+gym.register(id=ENV_ID, entry_point=make_env)  # type: ignore[arg-type]  # gymnasium's EnvCreator protocol takes **kwargs only

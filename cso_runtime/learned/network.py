@@ -13,6 +13,7 @@ Actor: a score per frontier node from [h_i, h_robot]. Critic: V(s) from [mean_i 
 
 from __future__ import annotations
 
+import typing
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -118,8 +119,9 @@ class GraphActorCritic(nn.Module):
         self.actor = nn.Sequential(nn.Linear(2 * c.hidden, c.hidden), nn.ReLU(), nn.Linear(c.hidden, 1))
         self.critic = nn.Sequential(nn.Linear(2 * c.hidden, c.hidden), nn.ReLU(), nn.Linear(c.hidden, 1))
         if c.distance_prior > 0:
-            nn.init.zeros_(self.actor[-1].weight)
-            nn.init.zeros_(self.actor[-1].bias)
+            actor_out = typing.cast(nn.Linear, self.actor[-1])
+            nn.init.zeros_(actor_out.weight)
+            nn.init.zeros_(actor_out.bias)
 
     def encode(self, g: dict[str, torch.Tensor], cut_padding: bool = True) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Node embeddings (b, n, d), the robot node's embedding (b, d) and the masked mean (b, d).
@@ -155,13 +157,16 @@ class GraphActorCritic(nn.Module):
         return logits, value
 
     def get_value(self, g: dict[str, torch.Tensor]) -> torch.Tensor:
-        return self._heads(g)[1]
+        value = self._heads(g)[1]
+        assert value is not None  # asked for (with_value)
+        return value
 
     def get_action_and_value(
         self, g: dict[str, torch.Tensor], mask: torch.Tensor, action: torch.Tensor | None = None, greedy: bool = False
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """Sample (or re-score ``action``): returns action, log-prob, entropy over valid actions, V(s)."""
         logits, value = self._heads(g)
+        assert value is not None  # asked for (with_value)
         dist = CategoricalMasked(logits, mask)
         if action is None:
             action = dist.probs.argmax(-1) if greedy else dist.sample()

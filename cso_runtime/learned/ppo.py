@@ -21,6 +21,7 @@ import random
 import shlex
 import shutil
 import time
+import typing
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -351,7 +352,7 @@ def make_env(scenes: list[SceneRef] | list[FloorPlan], config: EnvConfig) -> Cal
     """A picklable env factory (for AsyncVectorEnv): each process loads its own plans from refs."""
     if scenes and isinstance(scenes[0], FloorPlan):
         return functools.partial(ExplorationEnv, list(scenes), config)
-    return functools.partial(ExplorationEnv, functools.partial(load_plans, scenes), config)
+    return functools.partial(ExplorationEnv, functools.partial(load_plans, typing.cast(list[SceneRef], scenes)), config)
 
 
 # --- GAE --------------------------------------------------------------------------------------
@@ -538,7 +539,7 @@ def build_model(args: Args, device: torch.device) -> GraphActorCritic:
     return GraphActorCritic(config, args.max_frontier_nodes).to(device)
 
 
-def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.vector.VectorEnv:
+def make_vector_env(args: Args, refs: list[SceneRef] | list[FloorPlan]) -> gym.vector.SyncVectorEnv | gym.vector.AsyncVectorEnv:
     """``args.num_envs`` training environments stepped together, in processes of their own with ``--async-envs``
     (watched: a dead one is named, not waited on); an ended episode resets in the step that ends it."""
     fns = [make_env(refs, args.env_config()) for _ in range(args.num_envs)]
@@ -568,9 +569,10 @@ class TeacherData:
 
     def save(self, path: str | Path) -> None:
         """Write the file at exactly ``path`` (numpy would add ``.npz`` to a name without it)."""
-        fields = {"masks": self.masks, "actions": self.actions, "returns": self.returns, "outcome_steps": self.outcome_steps}
+        arrays: dict[str, Any] = {"masks": self.masks, "actions": self.actions, "returns": self.returns}
+        arrays |= {"outcome_steps": self.outcome_steps} | {f"graph_{k}": v for k, v in self.graphs.items()}
         with Path(path).open("wb") as fh:
-            np.savez_compressed(fh, **fields, **{f"graph_{k}": v for k, v in self.graphs.items()})
+            np.savez_compressed(fh, **arrays)
 
     @classmethod
     def load(cls, paths: list[str] | list[Path]) -> TeacherData:
@@ -609,7 +611,7 @@ class TeacherData:
 
 
 def collect_teacher(
-    envs: gym.vector.VectorEnv,
+    envs: gym.vector.SyncVectorEnv | gym.vector.AsyncVectorEnv,
     decisions: int,
     gamma: float,
     seed: int,
@@ -1128,7 +1130,8 @@ class _Bar:
         self._started = self._last_line = time.monotonic()
 
     def advance(self, n: int = 1, stats: str | None = None) -> None:
-        self._p.update(self._task, advance=n, **({} if stats is None else {"stats": stats}))
+        fields: dict[str, Any] = {} if stats is None else {"stats": stats}
+        self._p.update(self._task, advance=n, **fields)
         self._done += n
         now = time.monotonic()
         if self._lines and (now - self._last_line >= self._line_every_s or self._done >= self._total):
