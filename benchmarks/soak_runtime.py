@@ -20,6 +20,10 @@ process that levels off has a last-half slope near 0) and of the episodes' real-
 
     python benchmarks/soak_runtime.py --minutes 10 --scene generated:small:1:0 --csv soak.csv --json soak.json
 
+``--idle``: one episode, then the run left idle for the rest of the minutes (the sim sampled too). ``--profile sim
+--record``: a real-time run, recorded. ``--status-queries N`` (instead): N ``status`` queries in a row at a run idle
+after its episode, each its own client session; the launcher's and this process's RSS, fds and threads.
+
 Linux only (/proc). BENCHMARKS.md, "Soak", has the figures.
 """
 
@@ -122,12 +126,12 @@ def soak_episodes(runs: Path, scene: str, method: str, episodes: int) -> list[di
     return rows
 
 
-def sample_run(runs: Path, t_s: float) -> dict[str, float]:
+def sample_run(runs: Path, t_s: float, with_sim: bool = False) -> dict[str, float]:
     """One row of the long run's CSV: each process's RSS (MiB), fds and threads, the run folder's size and its logs'."""
     info = json.loads((runs / "current.json").read_text())
     row: dict[str, float] = {"t_s": round(t_s, 1)}
-    # The sim is restarted after each episode: its figures go with each episode's row instead (at its end).
-    pids = {"launcher": int(info["launcher_pid"])} | {name: int(svc["pid"]) for name, svc in info["services"].items() if svc.get("pid") and name != "sim"}
+    # A sim restarted after each episode: its figures go with each episode's row instead (at its end).
+    pids = {"launcher": int(info["launcher_pid"])} | {name: int(svc["pid"]) for name, svc in info["services"].items() if svc.get("pid") and (with_sim or name != "sim")}
     for name, pid in pids.items():
         try:
             row[f"{name}_rss_mb"], row[f"{name}_fds"], row[f"{name}_threads"] = one_proc_stats(pid)
@@ -165,8 +169,9 @@ def one_proc_stats(pid: int) -> tuple[float, int, int]:
     return round(int(fields["VmRSS"].split()[0]) / 1024, 1), len(os.listdir(f"/proc/{pid}/fd")), int(fields["Threads"])
 
 
-def soak_minutes(runs: Path, scene: str, method: str, minutes: float, period_s: float, profile: str = "lockstep", record: bool = False) -> tuple[list[dict], list[dict]]:
-    """The long run: episodes one after another for ``minutes``; (samples, episodes)."""
+def soak_minutes(runs: Path, scene: str, method: str, minutes: float, period_s: float, profile: str = "lockstep", record: bool = False, idle: bool = False) -> tuple[list[dict], list[dict]]:
+    """The long run: episodes one after another for ``minutes`` (``idle``: one, then the run left as it is, as a
+    detached run waits for ``down``); (samples, episodes)."""
     extra = ["--record"] if record else []
     r = cli("up", "--profile", profile, "--scene", scene, "--method", method, "--detach", "--no-live", *extra, "--set", "supervision.max_restarts=100000", runs=runs)
     if r.returncode != 0:
@@ -181,7 +186,7 @@ def soak_minutes(runs: Path, scene: str, method: str, minutes: float, period_s: 
             info = json.loads((runs / "current.json").read_text())
             s = query_status(info["endpoints"], info["robot"])
             if now >= next_sample_s:
-                samples.append(sample_run(runs, now) | status_columns(s))
+                samples.append(sample_run(runs, now, with_sim=idle) | status_columns(s))
                 next_sample_s += period_s
             if s and s.get("episode") not in seen and s["state"] in ("done", "failed"):
                 seen.add(s["episode"])
@@ -189,11 +194,37 @@ def soak_minutes(runs: Path, scene: str, method: str, minutes: float, period_s: 
                 episodes.append({"episode": len(episodes) + 1, "t_s": round(now, 1), "state": s["state"], "steps": s["step"], "coverage_pct": round(s["coverage_pct"], 4), "real_time_factor": rtf})
                 episodes[-1]["sim_rss_mb"], episodes[-1]["sim_fds"], episodes[-1]["sim_threads"] = one_proc_stats(int(info["services"]["sim"]["pid"]))
                 print(json.dumps(episodes[-1] | {k: v for k, v in samples[-1].items() if k.endswith("_rss_mb")}), flush=True)
-                os.kill(int(info["services"]["sim"]["pid"]), signal.SIGKILL)  # the restarted sim starts a new episode
+                if not idle:
+                    os.kill(int(info["services"]["sim"]["pid"]), signal.SIGKILL)  # the restarted sim starts a new episode
             time.sleep(0.3)
     finally:
         cli("down", runs=runs)
     return samples, episodes
+
+
+def soak_status_queries(runs: Path, scene: str, method: str, queries: int) -> list[dict]:
+    """``queries`` status queries in a row (each its own client session, as ``status`` and each ``--watch`` line
+    open) at a detached run idle after its episode: the launcher (whose router takes each session) and this process,
+    sampled 15 times."""
+    r = cli("up", "--profile", "lockstep", "--scene", scene, "--method", method, "--detach", runs=runs)
+    if r.returncode != 0:
+        raise RuntimeError(f"up failed: {r.stdout}{r.stderr}")
+    rows = []
+    try:
+        info = json.loads((runs / "current.json").read_text())
+        wait_for(lambda: (s := query_status(info["endpoints"], info["robot"])) and s["state"] in ("done", "failed"), 300, "the episode to end")
+        every = max(1, queries // 15)
+        t0 = time.monotonic()
+        for n in range(queries + 1):
+            if n % every == 0 or n == queries:
+                launcher, client = one_proc_stats(int(info["launcher_pid"])), one_proc_stats(os.getpid())
+                rows.append({"queries": n, "t_s": round(time.monotonic() - t0, 1), "launcher": launcher, "client": client})
+                print(json.dumps(rows[-1]), flush=True)
+            if n < queries:
+                query_status(info["endpoints"], info["robot"])
+    finally:
+        cli("down", runs=runs)
+    return rows
 
 
 def slope(xs: list[float], ys: list[float]) -> float | None:
@@ -270,11 +301,19 @@ def main() -> int:
     p.add_argument("--warmup-min", type=float, default=1.0, help="Long run: minutes left out of the slopes")
     p.add_argument("--csv", type=Path, default=None, help="Long run: the samples")
     p.add_argument("--profile", default="lockstep", help="Long run: the profile (sim: real time)")
+    p.add_argument("--status-queries", type=int, default=0, help="Instead: this many status queries at an idle run (launcher and client RSS)")
+    p.add_argument("--idle", action="store_true", help="Long run: one episode, then the run left idle (detached, before down)")
     p.add_argument("--record", action="store_true", help="Long run: record it (up --record), to see what a recording adds per minute")
     args = p.parse_args()
+    if args.status_queries:
+        with tempfile.TemporaryDirectory(prefix="cso-soak-") as tmp:
+            rows = soak_status_queries(Path(tmp), args.scene, args.method, args.status_queries)
+        if args.json:
+            args.json.write_text(json.dumps({"args": {k: str(v) for k, v in vars(args).items()}, "status_queries": rows}, indent=1))
+        return 0
     if args.minutes:
         with tempfile.TemporaryDirectory(prefix="cso-soak-") as tmp:
-            samples, episodes = soak_minutes(Path(tmp), args.scene, args.method, args.minutes, args.period_s, args.profile, args.record)
+            samples, episodes = soak_minutes(Path(tmp), args.scene, args.method, args.minutes, args.period_s, args.profile, args.record, args.idle)
         if args.csv:
             columns = list(dict.fromkeys(k for s in samples for k in s))
             with args.csv.open("w", newline="") as f:
