@@ -201,7 +201,7 @@ def _warn_of_unfed_inputs(prof: Profile) -> None:
     from cso_runtime.keys import TOPICS  # noqa: PLC0415
     from services.dataflow import nodes_of, unfed_inputs  # noqa: PLC0415
 
-    own = prof.own_services()
+    own = {**prof.own_services(), **{name: f"the command {shlex.join(argv)}" for name, argv in prof.command_nodes().items()}}
     for name, topics in unfed_inputs(nodes_of([*prof.services, *prof.left_out_services()], prof.services)).items():
         keys = ", ".join(TOPICS[t] for t in topics)
         typer.echo(

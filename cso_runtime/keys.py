@@ -54,6 +54,11 @@ class RobotKeys:
     def __post_init__(self) -> None:
         check_robot_id(self.robot, allow_wildcard=True)
 
+    @property
+    def prefix(self) -> str:
+        """``cso/<robot>``: every key of the robot is under it."""
+        return f"{ROOT}/{self.robot}"
+
     def topic(self, name: str) -> str:
         return f"{ROOT}/{self.robot}/{TOPICS[name]}"
 

@@ -8,11 +8,12 @@ the code (``publish`` refuses an undeclared output, and a test holds docs/messag
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Any
 
 from cso_runtime.keys import TOPICS
-from services import SERVICE_NAMES, own_class_spec, profile_service_class
+from services import SERVICE_NAMES, command_argv, command_topics, is_own_node, own_class_spec, profile_service_class
 
 LAUNCHER = "launcher"
 
@@ -25,7 +26,8 @@ class Node:
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
     spec: str = ""
-    """The ``module.path:Attribute`` of a service of one's own (``services.<name>.class``); "" for a built-in one."""
+    """The ``module.path:Attribute`` of a service of one's own (``services.<name>.class``), ``command NAME`` of a command
+    node (``services.<name>.command``, its executable's file name); "" for a built-in one."""
     optional: tuple[str, ...] = ()
     """The inputs it works without (``Service.optional_inputs``)."""
 
@@ -50,7 +52,12 @@ class Edge:
 
 
 def service_node(name: str, section: Any = None) -> Node:
-    """The node of the service a profile runs as ``name`` with its section ``section`` (``class``: one of one's own)."""
+    """The node of the service a profile runs as ``name`` with its section ``section`` (``class``: one of one's own;
+    ``command``: an executable, with the ``inputs`` and ``outputs`` its section declares)."""
+    argv = command_argv(section)
+    if argv is not None:
+        exe = os.path.basename(argv[0]).replace('"', "'")
+        return Node(name, command_topics(section, "inputs"), command_topics(section, "outputs"), f"command {exe}")
     cls = profile_service_class(name, section)
     return Node(name, tuple(cls.inputs), tuple(cls.outputs), own_class_spec(section) or "", tuple(cls.optional_inputs))
 
@@ -115,9 +122,10 @@ def missing_producers(service_names: list[str], sections: dict[str, Any] | None 
     outputs: the foxglove bridge) drives nothing, so its inputs are not waited for; a topic that several services
     can publish (the referee's scan: the sim's or a ros2_bridge's) names none, as which one is the robot's to say.
     ``sections``: the profile's ``services`` mapping, whose services of one's own (``class``) are taken with the
-    inputs and outputs they declare (a goal selector of one's own under its own name publishes the goals)."""
+    inputs and outputs they declare (a goal selector of one's own under its own name publishes the goals), and its
+    command nodes (``command``) with those their sections declare."""
     every = {n.name: n for n in nodes_of(list(SERVICE_NAMES)) if n.name != LAUNCHER}
-    every.update((name, service_node(name, section)) for name, section in (sections or {}).items() if name in service_names and own_class_spec(section))
+    every.update((name, service_node(name, section)) for name, section in (sections or {}).items() if name in service_names and is_own_node(section))
     builtin_publishers = {t: [n for n in SERVICE_NAMES if t in every[n].outputs] for t in TOPICS}
     publishers = {t: [n.name for n in every.values() if t in n.outputs] for t in TOPICS}
     have, todo, missing = set(service_names), list(service_names), []
