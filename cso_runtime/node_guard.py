@@ -37,7 +37,11 @@ def stop_group(stop_timeout_s: float, node: subprocess.Popen) -> None:
     try:
         node.wait(timeout=stop_timeout_s)
     except subprocess.TimeoutExpired:
-        print(f"node_guard: the node (pid {node.pid}) still runs {stop_timeout_s:g} s after SIGTERM: SIGKILL to its group", file=sys.stderr, flush=True)
+        print(
+            f"node_guard: the node (pid {node.pid}) still runs {stop_timeout_s:g} s after SIGTERM: SIGKILL to its group",
+            file=sys.stderr,
+            flush=True,
+        )
     os.killpg(os.getpgrp(), signal.SIGKILL)
 
 

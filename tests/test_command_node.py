@@ -10,9 +10,10 @@ import os
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import pytest
 import yaml
@@ -78,10 +79,17 @@ def test_up_runs_a_command_node_that_joins_the_run_from_its_environment_alone(tm
         r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 0, r.stdout + r.stderr
         node = json.loads(r.stdout)["services"]["map_listener"]
-        assert node["command"] and node["process_alive"] and node["alive"] and node["pid"] == current["services"]["map_listener"]["pid"], node
+        assert (
+            node["command"]
+            and node["process_alive"]
+            and node["alive"]
+            and node["pid"] == current["services"]["map_listener"]["pid"]
+        ), node
         r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert f"alive, pid {node['pid']}, no status: a command node" in " ".join(r.stdout.split()), r.stdout
-        final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2)
+        final = wait_for(
+            lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2
+        )
         assert final["state"] == "done", final
         pids = node_pids(run_dir)
         assert len(pids) == 1 and all(pid_alive(p) for p in pids)
@@ -102,16 +110,24 @@ def test_a_command_node_that_ignores_sigterm_does_not_outlive_its_killed_launche
     """The launcher SIGKILLed mid-episode: a Python service stops by itself (PR_SET_PDEATHSIG, then ``ORPHAN_STOP_S``);
     an executable of one's own cannot be asked to, so its guard stops its whole process group, SIGTERM and, for a
     node that ignores it, SIGKILL ``stop_timeout_s`` (1 s here) later; the ``sleep`` it started goes with it."""
-    with detached_node_run(tmp_path, listener("--stubborn")) as (runs, current):
+    with detached_node_run(tmp_path, listener("--stubborn")) as (_, current):
         run_dir = Path(current["run_dir"])
         guard = current["services"]["map_listener"]["pid"]
         wait_for(lambda: len(node_pids(run_dir)) == 2 and (tmp_path / "maps.txt").exists(), 60, "the node to listen")
         pids = [guard, *node_pids(run_dir)]
         assert all(pid_alive(p) for p in pids)
         os.kill(current["launcher_pid"], signal.SIGKILL)
-        wait_for(lambda: not any(pid_alive(p) for p in pids), 15, f"the guard, the node and its sleep ({pids}) to be gone", period_s=0.05)
+        wait_for(
+            lambda: not any(pid_alive(p) for p in pids),
+            15,
+            f"the guard, the node and its sleep ({pids}) to be gone",
+            period_s=0.05,
+        )
     log = (run_dir / "logs" / "map_listener.log").read_text()
-    assert "node_guard: the launcher is gone: stopping the node's process group" in log and "still runs 1 s after SIGTERM: SIGKILL" in log, log
+    assert (
+        "node_guard: the launcher is gone: stopping the node's process group" in log
+        and "still runs 1 s after SIGTERM: SIGKILL" in log
+    ), log
 
 
 def test_down_stops_a_command_node_that_ignores_sigterm_and_its_children(tmp_path: Path):
@@ -130,7 +146,10 @@ def test_down_stops_a_command_node_that_ignores_sigterm_and_its_children(tmp_pat
 @pytest.mark.parametrize(
     ("section", "said"),
     [
-        ({"command": ["./no_such_node"]}, "executable './no_such_node' not found (a relative path is from the folder `up` runs from"),
+        (
+            {"command": ["./no_such_node"]},
+            "executable './no_such_node' not found (a relative path is from the folder `up` runs from",
+        ),
         ({"command": "no_such_node_on_path --x"}, "executable 'no_such_node_on_path' not found on PATH"),
         ({"command": [str(REPO / "README.md")]}, "is not executable (chmod +x it"),
         ({"command": [], "inputs": ["map"]}, "services.map_listener.command: empty"),
@@ -138,7 +157,10 @@ def test_down_stops_a_command_node_that_ignores_sigterm_and_its_children(tmp_pat
         ({"command": "python3 'unclosed"}, "cannot split"),
         ({"command": ["true"], "class": "tests.own_service_example:CoverageLogger"}, "both class and command"),
         ({"command": ["true"], "csv_path": "x.csv"}, "a command node takes no 'csv_path'"),
-        ({"command": ["true"], "inputs": ["coverage"]}, "services.map_listener.inputs: 'coverage' is none of the runtime's topics"),
+        (
+            {"command": ["true"], "inputs": ["coverage"]},
+            "services.map_listener.inputs: 'coverage' is none of the runtime's topics",
+        ),
         ({"command": ["true"], "outputs": "map"}, "services.map_listener.outputs: expected a list of topic names"),
         ({"command": ["true"], "alive_token": "yes"}, "alive_token: expected true or false"),
     ],
@@ -164,17 +186,27 @@ def test_a_command_node_is_in_the_dataflow_with_the_topics_it_declares_and_step_
     is awaited from elsewhere); without ``alive_token`` the sim's step 0 does not wait for it (it would wait
     ``wait_for_services_s`` for a token that never comes)."""
     profile = node_profile(tmp_path, {"command": "true --rate 10", "inputs": ["map", "odom"], "outputs": []})
-    prof, _ = load_profile(str(profile), settings={"services.policy": {"command": ["true"], "inputs": ["frontiers"], "outputs": ["goal"]}})
-    assert prof.command_nodes() == {"map_listener": ["true", "--rate", "10"], "policy": ["true"]} and prof.awaited_services() == []
+    prof, _ = load_profile(
+        str(profile), settings={"services.policy": {"command": ["true"], "inputs": ["frontiers"], "outputs": ["goal"]}}
+    )
+    assert (
+        prof.command_nodes() == {"map_listener": ["true", "--rate", "10"], "policy": ["true"]} and prof.awaited_services() == []
+    )
     nodes = {n.name: n for n in nodes_of(list(prof.services), prof.services)}
     assert nodes["map_listener"].inputs == ("map", "odom") and nodes["map_listener"].label == "map_listener (command true)"
     assert nodes["policy"].outputs == ("goal",)
-    assert not waited_for_at_start(prof.services["map_listener"]) and waited_for_at_start({"command": ["true"], "alive_token": True})
+    assert not waited_for_at_start(prof.services["map_listener"]) and waited_for_at_start(
+        {"command": ["true"], "alive_token": True}
+    )
     assert waited_for_at_start({}) and waited_for_at_start({"class": "tests.own_service_example:CoverageLogger"})
 
 
 def test_status_says_a_command_node_runs_and_has_no_status_of_its_own():
-    launcher = {"run_id": "x", "state": "running", "services": {"map_listener": {"pid": 41, "process_alive": True, "liveliness": False, "restarts": 0, "command": True}}}
+    launcher = {
+        "run_id": "x",
+        "state": "running",
+        "services": {"map_listener": {"pid": 41, "process_alive": True, "liveliness": False, "restarts": 0, "command": True}},
+    }
     seen = status_of("r0", None, launcher, {}, set())
     assert seen["services"]["map_listener"]["command"] and seen["services"]["map_listener"]["process_alive"]
     from rich.console import Console
@@ -188,9 +220,13 @@ def test_status_says_a_command_node_runs_and_has_no_status_of_its_own():
     assert "service map_listener │ DOWN, pid 41, no status: a command node" in console.export_text()
 
 
-@pytest.mark.parametrize(("command", "code"), [(["sh", "-c", "exit 7"], 7), (["sh", "-c", "kill -USR2 $$"], -signal.SIGUSR2), (["./no_such_node"], 2)])
+@pytest.mark.parametrize(
+    ("command", "code"), [(["sh", "-c", "exit 7"], 7), (["sh", "-c", "kill -USR2 $$"], -signal.SIGUSR2), (["./no_such_node"], 2)]
+)
 def test_the_guard_exits_as_its_node_did(tmp_path: Path, command: list[str], code: int):
     """The launcher restarts or gives up on a command node by its guard's exit: the node's code, or the signal it died of
     (2, a configuration not restarted: an executable gone since ``up`` checked it)."""
-    r = subprocess.run([*python_module_argv("cso_runtime.node_guard"), "--", *command], cwd=tmp_path, capture_output=True, text=True, timeout=30)
+    r = subprocess.run(
+        [*python_module_argv("cso_runtime.node_guard"), "--", *command], cwd=tmp_path, capture_output=True, text=True, timeout=30
+    )
     assert r.returncode == code, r.stderr
