@@ -17,31 +17,37 @@ import msgpack
 import zenoh
 
 
+def listen(out_path: str, stop: threading.Event) -> None:
+    """Append ``<schema> <step>`` to ``out_path`` for each map of the robot, until ``stop`` is set."""
+    with zenoh.open(zenoh.Config.from_env()) as session, open(out_path, "a") as out:  # $ZENOH_CONFIG: the run's router
+
+        def on_map(sample: zenoh.Sample) -> None:
+            msg = msgpack.unpackb(sample.payload.to_bytes(), raw=False)  # {"schema": "map", "v": 3, "body": {...}}
+            out.write(f"{msg['schema']} {msg['body']['step']}\n")
+            out.flush()
+
+        subscriber = session.declare_subscriber(f"{os.environ['CSO_KEY_PREFIX']}/map", on_map)
+        token = session.liveliness().declare_token(os.environ["CSO_ALIVE_KEY"])  # `alive_token: true`: step 0 waits for it
+        print(f"{os.environ['CSO_NODE_NAME']}: listening on {os.environ['CSO_KEY_PREFIX']}/map", flush=True)
+        stop.wait()
+        token.undeclare()
+        subscriber.undeclare()
+
+
 def main() -> int:
     out_path, stubborn = sys.argv[1], "--stubborn" in sys.argv[2:]
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
     signal.signal(signal.SIGTERM, signal.SIG_IGN if stubborn else lambda *_: stop.set())
     run_dir, name = os.environ["CSO_RUN_DIR"], os.environ["CSO_NODE_NAME"]
-    with zenoh.open(zenoh.Config.from_env()) as session, open(out_path, "a") as out:
-
-        def on_map(sample: zenoh.Sample) -> None:
-            msg = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
-            out.write(f"{msg['schema']} {msg['body']['step']}\n")
-            out.flush()
-
-        subscriber = session.declare_subscriber(f"{os.environ['CSO_KEY_PREFIX']}/map", on_map)  # kept: dropped, it would go
-        token = session.liveliness().declare_token(os.environ["CSO_ALIVE_KEY"])
-        if stubborn:
-            child = subprocess.Popen(["sleep", "600"])
-            with open(os.path.join(run_dir, f"{name}.child.pid"), "w") as fh:
-                fh.write(str(child.pid))
-        with open(os.path.join(run_dir, f"{name}.pid"), "w") as fh:
-            fh.write(str(os.getpid()))
-        print(f"{name}: listening on {os.environ['CSO_KEY_PREFIX']}/map via {os.environ['CSO_ZENOH_ENDPOINTS']}", flush=True)
-        stop.wait()
-        token.undeclare()
-        subscriber.undeclare()
+    if stubborn:
+        child = subprocess.Popen(["sleep", "600"])
+        with open(os.path.join(run_dir, f"{name}.child.pid"), "w") as fh:
+            fh.write(str(child.pid))
+    with open(os.path.join(run_dir, f"{name}.pid"), "w") as fh:
+        fh.write(str(os.getpid()))
+    print(f"{name}: joins {os.environ['CSO_ZENOH_ENDPOINTS']} as robot {os.environ['CSO_ROBOT']}", flush=True)
+    listen(out_path, stop)
     print(f"{name}: stopped", flush=True)
     return 0
 

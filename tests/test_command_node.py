@@ -97,7 +97,11 @@ def test_up_runs_a_command_node_that_joins_the_run_from_its_environment_alone(tm
     lines = (tmp_path / "maps.txt").read_text().splitlines()
     assert lines[0] == "map 0" and {int(line.split()[1]) for line in lines} == set(range(expected.steps + 1)), lines
     log = (run_dir / "logs" / "map_listener.log").read_text()
-    assert "map_listener: listening on cso/r0/map via tcp/127.0.0.1:" in log and "map_listener: stopped" in log, log
+    assert (
+        "map_listener: joins tcp/127.0.0.1:" in log
+        and "map_listener: listening on cso/r0/map" in log
+        and "map_listener: stopped" in log
+    ), log
     launcher_log = (run_dir / "logs" / "launcher.log").read_text()
     assert f"started map_listener (command {sys.executable} {NODE} maps.txt, pid" in launcher_log, launcher_log
     dataflow = (run_dir / "dataflow.md").read_text()
@@ -113,9 +117,9 @@ def test_a_command_node_that_ignores_sigterm_does_not_outlive_its_killed_launche
     with detached_node_run(tmp_path, listener("--stubborn")) as (_, current):
         run_dir = Path(current["run_dir"])
         guard = current["services"]["map_listener"]["pid"]
-        wait_for(lambda: len(node_pids(run_dir)) == 2 and (tmp_path / "maps.txt").exists(), 60, "the node to listen")
+        wait_for(lambda: "listening" in (run_dir / "logs" / "map_listener.log").read_text(), 60, "the node to listen")
         pids = [guard, *node_pids(run_dir)]
-        assert all(pid_alive(p) for p in pids)
+        assert len(pids) == 3 and all(pid_alive(p) for p in pids), pids
         os.kill(current["launcher_pid"], signal.SIGKILL)
         wait_for(
             lambda: not any(pid_alive(p) for p in pids),
@@ -135,8 +139,9 @@ def test_down_stops_a_command_node_that_ignores_sigterm_and_its_children(tmp_pat
     first; a run that ends leaves no pid of it."""
     with detached_node_run(tmp_path, listener("--stubborn")) as (runs, current):
         run_dir = Path(current["run_dir"])
-        wait_for(lambda: len(node_pids(run_dir)) == 2, 60, "the node to listen")
+        wait_for(lambda: "listening" in (run_dir / "logs" / "map_listener.log").read_text(), 60, "the node to listen")
         pids = [current["services"]["map_listener"]["pid"], *node_pids(run_dir)]
+        assert len(pids) == 3 and all(pid_alive(p) for p in pids), pids
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stdout + r.stderr
         assert not any(pid_alive(p) for p in pids)
@@ -230,3 +235,15 @@ def test_the_guard_exits_as_its_node_did(tmp_path: Path, command: list[str], cod
         [*python_module_argv("cso_runtime.node_guard"), "--", *command], cwd=tmp_path, capture_output=True, text=True, timeout=30
     )
     assert r.returncode == code, r.stderr
+
+
+def test_the_docs_command_node_section_is_what_up_takes(tmp_path: Path):
+    """docs/own-service.md's command node section, its executable the example's: a profile ``up`` takes, with the
+    node's inputs in the dataflow."""
+    from tests.test_own_service import docs_block
+
+    section = yaml.safe_load(docs_block("yaml")[1])["services"]["map_listener"]
+    section["command"] = [sys.executable, str(NODE), "maps.txt"]
+    prof, _ = load_profile(str(node_profile(tmp_path, section)))
+    nodes = {n.name: n for n in nodes_of(list(prof.services), prof.services)}
+    assert nodes["map_listener"].inputs == ("map",) and prof.services["map_listener"]["alive_token"] is True

@@ -82,7 +82,7 @@ def test_up_runs_services_of_ones_own_beside_and_in_place_of_the_builtin_ones(tm
     """Real processes in lockstep, the profile of docs/own-service.md: the built-in mapper replaced by ``OwnMapper``
     and ``CoverageLogger`` added. The episode is the in-process one step for step (the same maps), the logger saw every
     map from step 0 (step 0 waited for it), and the run's files name both."""
-    (own_yaml,) = docs_block("yaml")
+    own_yaml = docs_block("yaml")[0]  # the second is a command node's (tests/test_command_node.py)
     profile = tmp_path / "own.yaml"
     profile.write_text(own_yaml)
     coverage = tmp_path / yaml.safe_load(own_yaml)["services"]["coverage_logger"]["csv_path"]
@@ -119,7 +119,7 @@ def test_up_runs_services_of_ones_own_beside_and_in_place_of_the_builtin_ones(tm
     ("section", "said"),
     [
         ({"coverage_logger": {}}, "unknown service 'coverage_logger'; known: sim, mapper"),
-        ({"coverage_logger": {}}, "`coverage_logger: {class: module.path:Attribute}` (docs/own-service.md)"),
+        ({"coverage_logger": {}}, "`coverage_logger: {class: module.path:Attribute}`, or an executable: `coverage_logger: {command: [./my_node]}` (docs"),
         ({"coverage_logger": {"class": "no_such_module_here:Logger"}}, "cannot import module 'no_such_module_here'"),
         ({"coverage_logger": {"class": "tests.own_service_example:CoverageLoger"}}, "has no attribute 'CoverageLoger' (did you mean CoverageLogger?)"),
         ({"coverage_logger": {"class": "tests.own_service_example:CoverageLogParams"}}, "not a subclass of services.common.Service"),
@@ -207,10 +207,11 @@ def test_the_coverage_logger_logs_and_counts_a_malformed_map_and_writes_no_row_f
 
 def test_the_docs_example_is_the_code_the_tests_run():
     examples = docs_block("python")
-    assert len(examples) == 2
+    assert len(examples) == 3
     source = (REPO / "tests" / "own_service_example.py").read_text(encoding="utf-8")
-    for example in examples:
+    for example in examples[:2]:
         assert example in source, example[:200]
+    assert examples[2] in (REPO / "tests" / "command_node_example.py").read_text(encoding="utf-8"), examples[2][:200]
 
 
 def test_the_docs_table_of_topics_keys_and_message_classes_is_the_runtimes():
