@@ -119,7 +119,7 @@ def check_command_node(name: str, section: dict[str, Any]) -> list[str]:
     from the folder ``up`` runs from, as the node runs there; a bare name: on ``PATH``), a ``class`` beside it, a key
     it does not take, topics the runtime does not have, an ``alive_token`` that is no boolean."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
-    from cso_runtime.keys import TOPICS  # noqa: PLC0415
+    from cso_runtime.keys import TOPICS, is_ext_topic  # noqa: PLC0415
 
     where = f"services.{name}"
     if own_class_spec(section) is not None:
@@ -156,8 +156,10 @@ def check_command_node(name: str, section: dict[str, Any]) -> list[str]:
         if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
             raise ConfigError(f"{where}.{kind}: expected a list of topic names, got {topics!r}")
         for topic in topics:
-            if topic not in TOPICS:
-                raise ConfigError(f"{where}.{kind}: {topic!r} is none of the runtime's topics ({', '.join(TOPICS)}; docs/own-service.md)")
+            if topic not in TOPICS and not is_ext_topic(topic):
+                raise ConfigError(
+                    f"{where}.{kind}: {topic!r} is none of the runtime's topics ({', '.join(TOPICS)}) nor one of your own, ext/<name> (docs/own-service.md)"
+                )
     if not isinstance(section.get("alive_token", False), bool):
         raise ConfigError(f"{where}.alive_token: expected true or false, got {section['alive_token']!r}")
     return argv
@@ -183,7 +185,7 @@ def own_service_class(spec: str, name: str | None = None) -> type[Service]:
     that one, the profile's key it is listed under), inputs and outputs on known topics with message types. A
     ConfigError says what is wrong, so that ``up`` refuses it before anything starts."""
     from cso_runtime.config import ConfigError, import_attribute  # noqa: PLC0415
-    from cso_runtime.keys import TOPICS  # noqa: PLC0415
+    from cso_runtime.keys import TOPICS, is_ext_topic  # noqa: PLC0415
     from cso_runtime.messages import Message  # noqa: PLC0415
     from services.common import Service  # noqa: PLC0415 - imports zenoh
 
@@ -203,12 +205,16 @@ def own_service_class(spec: str, name: str | None = None) -> type[Service]:
         if not isinstance(ports, dict):
             raise ConfigError(f"{where} {spec!r}: {kind} must be a mapping of topic -> message type")
         for topic, msg_type in ports.items():
+            if is_ext_topic(topic):  # a topic of one's own: raw bytes, no schema of the runtime's
+                if msg_type is not bytes:
+                    raise ConfigError(f"{where} {spec!r}: {kind}[{topic!r}] is a topic of your own, which carries bytes: declare it as `bytes`, got {msg_type!r}")
+                continue
             if topic not in TOPICS:
                 by_key = {key: name for name, key in TOPICS.items()}
                 hint = f": key {topic} is topic {by_key[topic]!r}" if topic in by_key else ""
                 raise ConfigError(
                     f"{where} {spec!r}: {kind} names topic {topic!r}, which is none of the runtime's topics{hint} "
-                    f"({', '.join(TOPICS)}; docs/own-service.md)"
+                    f"({', '.join(TOPICS)}; a topic of your own is ext/<name>, of bytes: docs/own-service.md)"
                 )
             if not (isinstance(msg_type, type) and issubclass(msg_type, Message)):
                 raise ConfigError(f"{where} {spec!r}: {kind}[{topic!r}] must be a message class of cso_runtime.messages, got {msg_type!r}")

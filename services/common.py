@@ -249,13 +249,15 @@ class Service:
         return params
 
     # --- helpers ---------------------------------------------------------------------------------
-    def publish(self, topic: str, msg: Message, robot: str | None = None) -> None:
+    def publish(self, topic: str, msg: Message | bytes, robot: str | None = None) -> None:
+        """Send ``msg`` on ``topic``, one of ``outputs``: a message of the runtime's, encoded; bytes as they are, on a
+        topic of one's own (``ext/<name>``, declared as ``bytes``)."""
         key = RobotKeys(robot or self.ctx.robot).topic(topic)
         pub = self._publishers.get(key)
         if pub is None:
             self.check_output(topic, msg)
             pub = self.declare_publisher(key)
-        payload = encode(msg)
+        payload = msg if isinstance(msg, bytes) else encode(msg)
         t0 = time.monotonic()
         pub.put(payload)
         if self.trace is not None:
@@ -291,7 +293,7 @@ class Service:
         else:
             query.reply_err(f"no {topic} yet".encode())
 
-    def check_output(self, topic: str, msg: Message) -> Message:
+    def check_output(self, topic: str, msg: Message | bytes) -> Message | bytes:
         """``msg`` itself when ``outputs`` declares it on ``topic``; a TypeError (a bug, not bad input) otherwise."""
         declared = self.outputs.get(topic)
         if declared is None or not isinstance(msg, declared):
@@ -639,7 +641,7 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float, inp
         service.reject(topic, "unexpected topic", robot)
         return
     try:
-        msg = decode(payload, expected)
+        msg = payload if expected is bytes else decode(payload, expected)  # a topic of one's own: its bytes, unchecked
     except MessageError as exc:
         service.reject(topic, str(exc), robot)
         return

@@ -12,7 +12,7 @@ import os
 from dataclasses import dataclass
 from typing import Any
 
-from cso_runtime.keys import TOPICS
+from cso_runtime.keys import TOPICS, is_ext_topic, topic_key
 from services import SERVICE_NAMES, command_argv, command_topics, is_own_node, own_class_spec, profile_service_class
 
 LAUNCHER = "launcher"
@@ -48,7 +48,7 @@ class Edge:
     @property
     def key(self) -> str:
         """The key suffix under ``cso/<robot>/`` (``planner_feedback`` travels on ``planner/feedback``)."""
-        return TOPICS[self.topic]
+        return topic_key(self.topic)
 
 
 def service_node(name: str, section: Any = None) -> Node:
@@ -91,8 +91,8 @@ def wiring_of(nodes: list[Node]) -> list[Wiring]:
     return [
         Wiring(
             n.name,
-            [(TOPICS[t], [e.source for e in edges if e.target == n.name and e.topic == t]) for t in n.inputs],
-            [(TOPICS[t], [e.target for e in edges if e.source == n.name and e.topic == t]) for t in n.outputs],
+            [(topic_key(t), [e.source for e in edges if e.target == n.name and e.topic == t]) for t in n.inputs],
+            [(topic_key(t), [e.target for e in edges if e.source == n.name and e.topic == t]) for t in n.outputs],
         )
         for n in nodes
     ]
@@ -108,10 +108,10 @@ def unfed_inputs(nodes: list[Node]) -> dict[str, list[str]]:
     """The inputs that a service driving the episode needs and no node publishes (node -> topics): what a service of
     one's own in place of a built-in one forgot to publish (a planner without ``planner_feedback``), which the others
     would wait for. A listener's (no outputs) and the launcher's inputs only show things, and optional ones
-    (``Node.optional``) are not needed."""
+    (``Node.optional``) are not needed, nor topics of one's own (``ext/<name>``), which nothing of the runtime waits for."""
     published = {t for n in nodes for t in n.outputs}
     drivers = [n for n in nodes if n.outputs and n.name != LAUNCHER]
-    unfed = {n.name: [t for t in n.inputs if t not in published and t not in n.optional] for n in drivers}
+    unfed = {n.name: [t for t in n.inputs if t not in published and t not in n.optional and not is_ext_topic(t)] for n in drivers}
     return {name: topics for name, topics in unfed.items() if topics}
 
 
@@ -132,7 +132,7 @@ def missing_producers(service_names: list[str], sections: dict[str, Any] | None 
     while todo:
         node = every[todo.pop()]
         for topic in node.inputs if node.outputs else ():
-            if not have.intersection(publishers[topic]) and len(builtin_publishers[topic]) == 1:
+            if not have.intersection(publishers.get(topic, [])) and len(builtin_publishers.get(topic, [])) == 1:
                 name = builtin_publishers[topic][0]
                 have.add(name)
                 todo.append(name)

@@ -27,14 +27,17 @@ from services.dataflow import nodes_of
 from tests.test_runtime import PROFILES, REPO, SCENE, cli, in_process_result, kill_leftovers, run_pids, wait_for
 
 NODE = REPO / "tests" / "command_node_example.py"
+STEPS_HEARD = "tests.own_service_example:StepsHeard"
 
 
-def node_profile(tmp_path: Path, node: dict[str, Any], **sim_params: Any) -> Path:
-    """The lockstep profile on the small scene with the command node ``map_listener`` (``node``: its section)."""
+def node_profile(tmp_path: Path, node: dict[str, Any], others: dict[str, Any] | None = None, **sim_params: Any) -> Path:
+    """The lockstep profile on the small scene with the command node ``map_listener`` (``node``: its section), and the
+    services ``others``."""
     data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
     data["scene"] = SCENE
     data["services"]["sim"].update(sim_params)
     data["services"]["map_listener"] = node
+    data["services"].update(others or {})
     data["supervision"] = {**(data.get("supervision") or {}), "stop_timeout_s": 1.0}
     path = tmp_path / "node.yaml"
     path.write_text(yaml.safe_dump(data))
@@ -43,17 +46,28 @@ def node_profile(tmp_path: Path, node: dict[str, Any], **sim_params: Any) -> Pat
 
 def listener(*args: str) -> dict[str, Any]:
     """The section of the test's command node: the example script with ``args``, reading the map, with its token."""
-    return {"command": [sys.executable, str(NODE), "maps.txt", *args], "inputs": ["map"], "alive_token": True}
+    return {
+        "command": [sys.executable, str(NODE), "maps.txt", *args],
+        "inputs": ["map"],
+        "outputs": ["ext/map_listener/steps"],
+        "alive_token": True,
+    }
 
 
 @contextmanager
-def detached_node_run(tmp_path: Path, node: dict[str, Any]) -> Iterator[tuple[Path, dict[str, Any]]]:
-    """``up --detach`` of ``node_profile``; yields the runs folder and ``current.json``; ``down`` and a kill of whatever
-    is left afterwards (the node's own pids too)."""
+def detached_node_run(
+    tmp_path: Path, node: dict[str, Any], others: dict[str, Any] | None = None
+) -> Iterator[tuple[Path, dict[str, Any]]]:
+    """``up --detach`` of ``node_profile`` (the services of one's own in ``others`` imported from this checkout); yields
+    the runs folder and ``current.json``; ``down`` and a kill of whatever is left afterwards (the node's own pids too)."""
     runs = tmp_path / "runs"
-    profile = node_profile(tmp_path, node, min_step_period_s=0.25)  # 36 steps: some 9 s to look at the run meanwhile
+    profile = node_profile(tmp_path, node, others, min_step_period_s=0.25)  # 36 steps: some 9 s to look at the run meanwhile
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
     try:
-        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        r = subprocess.run(
+            [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(profile), "--detach", "--runs-dir", str(runs)],
+            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
         assert r.returncode == 0, r.stderr
         yield runs, json.loads((runs / "current.json").read_text())
     finally:
@@ -70,8 +84,9 @@ def node_pids(run_dir: Path) -> list[int]:
 def test_up_runs_a_command_node_that_joins_the_run_from_its_environment_alone(tmp_path: Path):
     """A real lockstep episode with the example node (its own Zenoh session, no cso-runtime code): step 0 waits for its
     token, so it gets every map from step 0's; ``status`` shows it running with its pid and no status of its own;
-    run.json names its command, dataflow.md draws it; after ``down`` none of its processes is left."""
-    with detached_node_run(tmp_path, listener()) as (runs, current):
+    run.json names its command, dataflow.md draws it; after ``down`` none of its processes is left. It publishes the
+    steps it heard on a topic of its own (``ext/map_listener/steps``), which a Python service of one's own counts."""
+    with detached_node_run(tmp_path, listener(), {"steps_heard": {"class": STEPS_HEARD}}) as (runs, current):
         run_dir = Path(current["run_dir"])
         assert current["services"]["map_listener"]["command"] == listener()["command"]
         status = lambda: query_status(current["endpoints"], current["robot"], timeout_s=0.5)  # noqa: E731
@@ -91,10 +106,15 @@ def test_up_runs_a_command_node_that_joins_the_run_from_its_environment_alone(tm
             lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2
         )
         assert final["state"] == "done", final
+        heard = lambda: (status() or {}).get("services", {}).get("steps_heard", {}).get("counters", {}).get("heard", 0)  # noqa: E731
+        lines = wait_for(
+            lambda: (maps := (tmp_path / "maps.txt").read_text().splitlines()) and heard() == len(maps) and maps,
+            10,
+            "every step heard",
+        )
         pids = node_pids(run_dir)
         assert len(pids) == 1 and all(pid_alive(p) for p in pids)
     expected = in_process_result(SCENE)
-    lines = (tmp_path / "maps.txt").read_text().splitlines()
     assert lines[0] == "map 0" and {int(line.split()[1]) for line in lines} == set(range(expected.steps + 1)), lines
     log = (run_dir / "logs" / "map_listener.log").read_text()
     assert (
@@ -107,6 +127,8 @@ def test_up_runs_a_command_node_that_joins_the_run_from_its_environment_alone(tm
     dataflow = (run_dir / "dataflow.md").read_text()
     exe = Path(sys.executable).name
     assert f'map_listener["map_listener (command {exe})"]' in dataflow and 'mapper -->|"map"| map_listener' in dataflow, dataflow
+    assert 'map_listener -->|"ext/map_listener/steps"| steps_heard' in dataflow, dataflow
+    assert f"heard {len(lines)} steps on ext/map_listener/steps" in (run_dir / "logs" / "steps_heard.log").read_text()
     assert not any(pid_alive(p) for p in [*run_pids(runs), *pids])
 
 
