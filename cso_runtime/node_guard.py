@@ -13,10 +13,12 @@ MB and milliseconds per node."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import subprocess
 import sys
+import time
 
 from cso_runtime.processes import PARENT_CHECK_PERIOD_S, STACK_DUMP_SIGNAL, launcher_gone, signal_on_parent_death
 
@@ -45,12 +47,52 @@ def stop_group(stop_timeout_s: float, node: subprocess.Popen) -> None:
     os.killpg(os.getpgrp(), signal.SIGKILL)
 
 
+def group_leftovers() -> list[int]:
+    """The other live processes of the guard's process group (Linux ``/proc``; none elsewhere): what the node started
+    and left behind when it exited."""
+    me, group, found = os.getpid(), os.getpgrp(), []
+    for entry in os.listdir("/proc") if os.path.isdir("/proc") else []:
+        if not entry.isdigit() or int(entry) == me:
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as fh:
+                state, _ppid, pgrp = fh.read().rsplit(")", 1)[-1].split()[:3]
+        except (OSError, ValueError):
+            continue
+        if int(pgrp) == group and state not in ("Z", "X"):
+            found.append(int(entry))
+    return found
+
+
+def stop_leftovers(stop_timeout_s: float) -> None:
+    """The node has exited: SIGTERM to what it left in its group, SIGKILL to what is left of that ``stop_timeout_s``
+    later, so that a restarted node (a new group) never finds its predecessor's children still running."""
+    left = group_leftovers()
+    if not left:
+        return
+    print(
+        f"node_guard: the node exited and left {len(left)} process(es) of its group ({left}): stopping them",
+        file=sys.stderr,
+        flush=True,
+    )
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        for pid in left:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, sig)
+        deadline_s = time.monotonic() + stop_timeout_s
+        while (left := group_leftovers()) and time.monotonic() < deadline_s:
+            time.sleep(0.05)
+        if not left:
+            return
+
+
 def exit_as(node: subprocess.Popen) -> int:
     """The guard's exit as the node's: its code, or death by the same signal (default action restored first)."""
     code = node.returncode
     if code is not None and code < 0:
         sig = -code
-        signal.signal(sig, signal.SIG_DFL)
+        if sig != signal.SIGKILL:  # SIGKILL's action is the default already, and cannot be set
+            signal.signal(sig, signal.SIG_DFL)
         os.kill(os.getpid(), sig)
         return 128 + sig  # a signal whose default is not to end the process
     return code or 0
@@ -70,6 +112,8 @@ def main(argv: list[str] | None = None) -> int:
     command = args.command[1:] if args.command[:1] == ["--"] else args.command
     if not command:
         p.error("give the node's command after --")
+    if os.getpgrp() != os.getpid():  # started by hand, not by the launcher (a session of its own): a group of its own,
+        os.setpgid(0, 0)  # as the group it stops is the node's, never its starter's
     signal_on_parent_death(signal.SIGTERM)
     try:
         node = subprocess.Popen(command, stdin=subprocess.DEVNULL, preexec_fn=_node_death_signal)  # noqa: PLW1509 - the guard has one thread
@@ -84,6 +128,7 @@ def main(argv: list[str] | None = None) -> int:
             node.wait(timeout=PARENT_CHECK_PERIOD_S)
         except subprocess.TimeoutExpired:
             continue
+    stop_leftovers(args.stop_timeout)
     return exit_as(node)
 
 

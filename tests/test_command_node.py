@@ -24,6 +24,7 @@ from cso_runtime.status import query_status, render_table, status_of
 from cso_runtime.supervision import pid_alive, python_module_argv
 from services import waited_for_at_start
 from services.dataflow import nodes_of
+from tests.test_own_service import docs_block, up_from_this_checkout
 from tests.test_runtime import PROFILES, REPO, SCENE, cli, in_process_result, kill_leftovers, run_pids, wait_for
 
 NODE = REPO / "tests" / "command_node_example.py"
@@ -62,12 +63,8 @@ def detached_node_run(
     the runs folder and ``current.json``; ``down`` and a kill of whatever is left afterwards (the node's own pids too)."""
     runs = tmp_path / "runs"
     profile = node_profile(tmp_path, node, others, min_step_period_s=0.25)  # 36 steps: some 9 s to look at the run meanwhile
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
     try:
-        r = subprocess.run(
-            [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(profile), "--detach", "--runs-dir", str(runs)],
-            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60,
-        )  # fmt: skip
+        r = up_from_this_checkout("--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stderr
         yield runs, json.loads((runs / "current.json").read_text())
     finally:
@@ -156,18 +153,30 @@ def test_a_command_node_that_ignores_sigterm_does_not_outlive_its_killed_launche
     ), log
 
 
-def test_down_stops_a_command_node_that_ignores_sigterm_and_its_children(tmp_path: Path):
-    """``down``: the launcher's stop reaches the node's whole group, SIGINT (which the example node takes as its stop)
-    first; a run that ends leaves no pid of it."""
+def test_a_command_node_that_dies_is_restarted_without_its_leftovers_and_down_stops_it_with_its_children(tmp_path: Path):
+    """The node SIGKILLed: its guard stops the ``sleep`` it left in its group and exits as the node did, and the launcher
+    restarts it as a crashed service. ``down``: the launcher's stop reaches the new node's whole group, SIGINT (which
+    the example node takes as its stop) first; a run that ends leaves no pid of it."""
     with detached_node_run(tmp_path, listener("--stubborn")) as (runs, current):
         run_dir = Path(current["run_dir"])
-        wait_for(lambda: "listening" in (run_dir / "logs" / "map_listener.log").read_text(), 60, "the node to listen")
-        pids = [current["services"]["map_listener"]["pid"], *node_pids(run_dir)]
-        assert len(pids) == 3 and all(pid_alive(p) for p in pids), pids
+        listening = lambda n: (run_dir / "logs" / "map_listener.log").read_text().count("listening") >= n  # noqa: E731
+        wait_for(lambda: listening(1), 60, "the node to listen")
+        sleep, node = node_pids(run_dir)  # map_listener.child.pid, map_listener.pid
+        os.kill(node, signal.SIGKILL)
+        wait_for(lambda: listening(2), 60, "the node to be restarted and listen again")
+        assert not pid_alive(sleep) and not pid_alive(node)
+        info = json.loads((run_dir / "run.json").read_text())["services"]["map_listener"]
+        assert info["restarts"] == 1 and info["pid"] != current["services"]["map_listener"]["pid"], info
+        pids = [info["pid"], *node_pids(run_dir)]
+        assert len(pids) == 3 and all(pid_alive(p) for p in pids) and node not in pids, pids
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stdout + r.stderr
         assert not any(pid_alive(p) for p in pids)
-    assert "map_listener: stopped" in (run_dir / "logs" / "map_listener.log").read_text()
+    text = (run_dir / "logs" / "map_listener.log").read_text()
+    assert f"node_guard: the node exited and left 1 process(es) of its group ([{sleep}]): stopping them" in text, text
+    assert "map_listener: stopped" in text
+    launcher_log = (run_dir / "logs" / "launcher.log").read_text()
+    assert f"map_listener exited (code -{int(signal.SIGKILL)}); restart 1/" in launcher_log, launcher_log
 
 
 @pytest.mark.parametrize(
@@ -248,7 +257,13 @@ def test_status_says_a_command_node_runs_and_has_no_status_of_its_own():
 
 
 @pytest.mark.parametrize(
-    ("command", "code"), [(["sh", "-c", "exit 7"], 7), (["sh", "-c", "kill -USR2 $$"], -signal.SIGUSR2), (["./no_such_node"], 2)]
+    ("command", "code"),
+    [
+        (["sh", "-c", "exit 7"], 7),
+        (["sh", "-c", "kill -USR2 $$"], -signal.SIGUSR2),
+        (["sh", "-c", "kill -KILL $$"], -signal.SIGKILL),
+        (["./no_such_node"], 2),
+    ],
 )
 def test_the_guard_exits_as_its_node_did(tmp_path: Path, command: list[str], code: int):
     """The launcher restarts or gives up on a command node by its guard's exit: the node's code, or the signal it died of
@@ -262,8 +277,6 @@ def test_the_guard_exits_as_its_node_did(tmp_path: Path, command: list[str], cod
 def test_the_docs_command_node_section_is_what_up_takes(tmp_path: Path):
     """docs/own-service.md's command node section, its executable the example's: a profile ``up`` takes, with the
     node's inputs in the dataflow."""
-    from tests.test_own_service import docs_block
-
     section = yaml.safe_load(docs_block("yaml")[1])["services"]["map_listener"]
     section["command"] = [sys.executable, str(NODE), "maps.txt"]
     prof, _ = load_profile(str(node_profile(tmp_path, section)))

@@ -21,25 +21,17 @@ from tests.test_command_node import node_profile
 from tests.test_service_logic import _service
 
 
-class ExtMapNotBytes(Service):
-    """Declares a topic of its own with a message class of the runtime's."""
-
-    name = "ext_map"
-    outputs = {"ext/my_map": MapMsg}
+def service_class(name: str, **ports: dict) -> type[Service]:
+    """A ``Service`` subclass named ``name`` with ``ports`` (its ``inputs``, its ``outputs``), as a profile imports one."""
+    return type(name, (Service,), {"name": name, **ports})
 
 
-class BytesOnMap(Service):
-    """Declares bytes on one of the runtime's topics, whose schema stays strict."""
-
-    name = "bytes_on_map"
-    inputs = {"map": bytes}
-
-
-class ExtTalker(Service):
-    """Publishes on a topic of its own."""
-
-    name = "ext_talker"
-    outputs = {"ext/talker/hello": bytes}
+ExtMapNotBytes = service_class("ext_map", outputs={"ext/my_map": MapMsg})
+"""Declares a topic of its own with a message class of the runtime's."""
+BytesOnMap = service_class("bytes_on_map", inputs={"map": bytes})
+"""Declares bytes on one of the runtime's topics, whose schema stays strict."""
+ExtTalker = service_class("ext_talker", outputs={"ext/talker/hello": bytes})
+"""Publishes on a topic of its own."""
 
 
 def test_an_ext_topic_is_its_own_key_under_the_robot_and_nothing_else_is():

@@ -73,6 +73,12 @@ def own_profile(tmp_path: Path, services: dict) -> Path:
     return path
 
 
+def up_from_this_checkout(*args: str, cwd: Path, timeout_s: float) -> subprocess.CompletedProcess:
+    """``cso-runtime up ARGS`` whose services import the services of one's own of this checkout (``tests.*``)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([*python_module_argv("cso_runtime.cli"), "up", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout_s)
+
+
 def docs_block(language: str) -> list[str]:
     """The ``language`` code blocks of docs/own-service.md."""
     return re.findall(rf"```{language}\n(.*?)```", (REPO / "docs" / "own-service.md").read_text(encoding="utf-8"), flags=re.DOTALL)
@@ -87,12 +93,8 @@ def test_up_runs_services_of_ones_own_beside_and_in_place_of_the_builtin_ones(tm
     profile.write_text(own_yaml)
     coverage = tmp_path / yaml.safe_load(own_yaml)["services"]["coverage_logger"]["csv_path"]
     runs = tmp_path / "runs"
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
     try:
-        r = subprocess.run(
-            [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs)],
-            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
-        )  # fmt: skip
+        r = up_from_this_checkout("--profile", str(profile), "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=120)
         assert r.returncode == 0, r.stderr[-3000:]
         (run_dir,) = [p.parent for p in runs.glob("*/summary.json")]
         expected = in_process_result(SCENE)
