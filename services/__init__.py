@@ -43,8 +43,8 @@ of arguments or one string split as a shell would (``shlex``): ``up`` starts it 
 
 COMMAND_NODE_KEYS = {
     COMMAND_KEY: "the executable and its arguments",
-    "inputs": "the runtime's topics it subscribes to, for `dataflow` and up's checks",
-    "outputs": "the runtime's topics it publishes, for `dataflow` and up's checks",
+    "inputs": "the topics it subscribes to (the runtime's, or its own: ext/<name>), for `dataflow` and up's checks",
+    "outputs": "the topics it publishes (the runtime's, or its own: ext/<name>), for `dataflow` and up's checks",
     "alive_token": "true: it declares the liveliness token $CSO_ALIVE_KEY once ready, and step 0 waits for it",
 }
 """What a command node's section may hold: the launcher cannot ask an executable what it reads and writes, so the
@@ -117,7 +117,8 @@ def check_command_node(name: str, section: dict[str, Any]) -> list[str]:
     """The argv of the command node a profile's ``services.<name>`` section names, checked: a ConfigError for a
     command that is no list of strings nor a string, an executable not found or not executable (a relative path:
     from the folder ``up`` runs from, as the node runs there; a bare name: on ``PATH``), a ``class`` beside it, a key
-    it does not take, topics the runtime does not have, an ``alive_token`` that is no boolean."""
+    it does not take, topics neither the runtime's nor of one's own (``ext/<name>``), an ``alive_token`` that is no
+    boolean."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.keys import TOPICS, is_ext_topic  # noqa: PLC0415
 
