@@ -640,8 +640,11 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float, inp
     if expected is None:
         service.reject(topic, "unexpected topic", robot)
         return
+    # A topic of one's own is declared as bytes (``own_service_class``; the ClassVar's type leaves it out, so that the
+    # services' handlers keep taking a Message): its payload is handed over as it came, unchecked.
+    declared: type = expected
     try:
-        msg = payload if expected is bytes else decode(payload, expected)  # a topic of one's own: its bytes, unchecked
+        msg: Any = payload if declared is bytes else decode(payload, expected)
     except MessageError as exc:
         service.reject(topic, str(exc), robot)
         return
