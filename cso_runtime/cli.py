@@ -198,12 +198,12 @@ def _warn_of_unfed_inputs(prof: Profile) -> None:
     """``up``: say which service reads a key that no service of the run publishes, nor one it leaves to another process:
     a service of the user's own in place of a built-in one that does not publish all the built-in one did (a planner
     without ``planner/feedback``) would leave the others waiting for it, a lockstep episode until it fails."""
-    from cso_runtime.keys import TOPICS  # noqa: PLC0415
+    from cso_runtime.keys import topic_key  # noqa: PLC0415
     from services.dataflow import nodes_of, unfed_inputs  # noqa: PLC0415
 
-    own = prof.own_services()
+    own = {**prof.own_services(), **{name: f"the command {shlex.join(argv)}" for name, argv in prof.command_nodes().items()}}
     for name, topics in unfed_inputs(nodes_of([*prof.services, *prof.left_out_services()], prof.services)).items():
-        keys = ", ".join(TOPICS[t] for t in topics)
+        keys = ", ".join(topic_key(t) for t in topics)
         typer.echo(
             f"warning: {name} reads {keys}, which no service of this run publishes"
             + "".join(f"; services.{n} runs {spec}" for n, spec in own.items() if n != name)
@@ -927,7 +927,7 @@ def dataflow_command(
 ) -> None:
     """Show which service feeds which in a profile: every node's inputs and outputs (dora-rs style), from the code."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
-    from cso_runtime.keys import TOPICS  # noqa: PLC0415
+    from cso_runtime.keys import topic_key  # noqa: PLC0415
     from cso_runtime.run_profile import load_profile  # noqa: PLC0415
     from services.dataflow import OUTSIDE_NOTE, nodes_of, to_markdown, to_mermaid, unconnected, wiring_of  # noqa: PLC0415
 
@@ -959,7 +959,7 @@ def dataflow_command(
         table.add_row(f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else labels[w.name], ins or "-", outs or "-")
     Console().print(table)
     for name, topics in unconnected(nodes).items():
-        typer.echo(f"note: nothing in this profile publishes {', '.join(TOPICS[t] for t in topics)} for {name}")
+        typer.echo(f"note: nothing in this profile publishes {', '.join(topic_key(t) for t in topics)} for {name}")
 
 
 @app.command("doctor", rich_help_panel="Set-up")

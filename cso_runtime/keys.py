@@ -13,6 +13,10 @@ ROOT = "cso"
 WILDCARD = "*"
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
 
+class KeyExprError(ValueError):
+    """A robot id or key expression is not valid."""
+
+
 TOPICS = {
     "scan": "scan",
     "odom": "odom",
@@ -30,9 +34,26 @@ TOPICS = {
 }
 """Topic name -> key suffix under ``cso/<robot>/``."""
 
+EXT = "ext"
+EXT_TOPIC = re.compile(r"^ext(/[A-Za-z0-9_-]{1,64}){1,8}$")
+"""A topic of one's own, ``ext/<name>[/<more>]`` (1 to 8 names of letters, digits, ``_`` or ``-``): its key is
+``cso/<robot>/ext/<name>/...``, its payload any bytes, which the runtime neither decodes nor checks
+(docs/own-service.md, Topics of your own)."""
 
-class KeyExprError(ValueError):
-    """A robot id or key expression is not valid."""
+
+def is_ext_topic(topic: object) -> bool:
+    """Whether ``topic`` names a topic of one's own (``EXT_TOPIC``)."""
+    return isinstance(topic, str) and EXT_TOPIC.match(topic) is not None
+
+
+def topic_key(topic: str) -> str:
+    """The key suffix under ``cso/<robot>/`` of ``topic``: the runtime's (``TOPICS``), or a topic of one's own, whose
+    name is its key suffix; a KeyExprError for any other."""
+    if topic in TOPICS:
+        return TOPICS[topic]
+    if is_ext_topic(topic):
+        return topic
+    raise KeyExprError(f"unknown topic {topic!r}: one of the runtime's ({', '.join(TOPICS)}) or one of your own, ext/<name>")
 
 
 def check_robot_id(robot: str, allow_wildcard: bool = False) -> str:
@@ -54,8 +75,13 @@ class RobotKeys:
     def __post_init__(self) -> None:
         check_robot_id(self.robot, allow_wildcard=True)
 
+    @property
+    def prefix(self) -> str:
+        """``cso/<robot>``: every key of the robot is under it."""
+        return f"{ROOT}/{self.robot}"
+
     def topic(self, name: str) -> str:
-        return f"{ROOT}/{self.robot}/{TOPICS[name]}"
+        return f"{ROOT}/{self.robot}/{topic_key(name)}"
 
     @property
     def scan(self) -> str:
@@ -134,6 +160,8 @@ def topic_of(key_expr: str) -> str:
     for name, s in TOPICS.items():
         if s == suffix:
             return name
+    if is_ext_topic(suffix):
+        return suffix
     raise KeyExprError(f"{key_expr!r} is not a known topic")
 
 

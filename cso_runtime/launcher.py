@@ -20,6 +20,7 @@ import contextlib
 import json
 import logging
 import os
+import shlex
 import signal
 import subprocess
 import threading
@@ -84,6 +85,7 @@ from cso_runtime.transport import (
     open_session,
     track_liveliness,
 )
+from services import waited_for_at_start
 
 if TYPE_CHECKING:
     from cso_runtime.recording import RecordStats
@@ -96,6 +98,9 @@ path (a few times a second) for the live view. Not the map: a restarted mapper r
 referee's (``Service.serves_latest``), so the launcher is not woken on every step."""
 
 RUNS_DIR = Path("runs")
+
+NODE_ZENOH_CONFIG = "zenoh-node.json5"
+"""The Zenoh config file in the run folder that command nodes open their sessions with (``Launcher.node_zenoh_config``)."""
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -373,6 +378,7 @@ class Launcher:
                     "start_ticks": process_start_ticks(c.proc.pid) if c.alive and c.proc else None,
                     "restarts": c.restarts,
                     "gave_up": c.gave_up,
+                    **({"command": c.command} if c.command is not None else {}),
                 }
                 for c in self.children
             },
@@ -499,6 +505,7 @@ class Launcher:
                 "gave_up": c.gave_up,
                 "hung_kills": c.hung_kills,
                 "robot_stops": c.robot_stops,
+                **({"command": True} if c.command is not None else {}),
             }
             for c in self.children
         }
@@ -537,6 +544,10 @@ class Launcher:
         for name in self.profile.services:
             if self.stop_event.is_set():  # stopped while the first ones started: no more of them to start and stop
                 break
+            node = self.profile.command_nodes().get(name)
+            if node is not None:  # an executable of the user's own, under its guard
+                self.spawn_command_node(name, node)
+                continue
             mode = self.profile.router.service_mode
             own = self.profile.own_services().get(name)  # a class of the user's own: `python -m services module.path:Attribute`
             command = [*python_module_argv("services"), own] if own else python_module_argv(f"services.{name}")
@@ -563,6 +574,43 @@ class Launcher:
                     self.profile.name, name, self.profile.robot, name, name,
                 )
 
+    def node_zenoh_config(self) -> Path:
+        """The Zenoh config file (JSON5) a command node opens its session with, written once: a client of the run's
+        router, multicast scouting off, on top of the profile's ``router.zenoh_config`` (its authentication and TLS,
+        so the file is the user's alone to read). ``$ZENOH_CONFIG`` names it: ``zenoh.Config.from_env()``."""
+        from cso_runtime.transport import zenoh_config  # noqa: PLC0415
+
+        path = self.run_dir / NODE_ZENOH_CONFIG
+        if not path.exists():
+            config = zenoh_config(TransportConfig(mode="client", connect=list(self.endpoints), zenoh_config_file=self.profile.router.zenoh_config))
+            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+            with os.fdopen(fd, "w") as fh:
+                fh.write(str(config))
+        return path
+
+    def node_env(self, name: str) -> dict[str, str]:
+        """The environment a command node gets beside the launcher's (docs/own-service.md, A node in any language)."""
+        return {
+            "ZENOH_CONFIG": str(self.node_zenoh_config().resolve()),
+            "CSO_ZENOH_ENDPOINTS": ",".join(self.endpoints),
+            "CSO_ROBOT": self.profile.robot,
+            "CSO_NODE_NAME": name,
+            "CSO_KEY_PREFIX": self.keys.prefix,
+            "CSO_ALIVE_KEY": self.keys.alive(name),
+            "CSO_RUN_DIR": str(self.run_dir.resolve()),
+            "CSO_PROFILE": str(self.profile_path.resolve()),
+        }
+
+    def spawn_command_node(self, name: str, command: list[str]) -> None:
+        """Start the command node ``name`` (``services.<name>.command``) under its guard (``cso_runtime.node_guard``),
+        its output in ``logs/<name>.log``, supervised as the services are."""
+        guard = [*python_module_argv("cso_runtime.node_guard"), "--stop-timeout", f"{self.profile.supervision.stop_timeout_s:g}", "--"]
+        awaits = waited_for_at_start(self.profile.services[name])
+        child = Child(name, [*guard, *command], self.run_dir / "logs" / f"{name}.log", command=command, awaits_token=awaits, env=self.node_env(name))
+        child.spawn()
+        self.children.append(child)
+        log.info("started %s (command %s, pid %d)", name, shlex.join(command), child.proc.pid if child.proc else -1)
+
     def kill_hung(self, now: float) -> None:
         """Kill each service whose process runs but that is hung: come up (its liveliness token, which a stopped
         process loses again when its lease runs out) and silent to the status query for
@@ -581,6 +629,9 @@ class Launcher:
         resumed_s = max(watch.resumed_s if watch is not None else -np.inf, self.router_back_s)
         for c in self.children:
             if c.gave_up or not c.alive or c.proc is None:
+                continue
+            if c.command is not None and (c.came_up or not c.awaits_token):  # answers no status query: only its start is judged
+                c.came_up = c.came_up or c.name in self.alive_services
                 continue
             if not c.came_up and c.name in self.alive_services:
                 c.came_up, c.came_up_at = True, now

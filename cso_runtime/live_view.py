@@ -85,7 +85,7 @@ class LiveView:
         from rich.progress_bar import ProgressBar  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
-        from cso_runtime.status import presence_words, status_of, waiting_note  # noqa: PLC0415
+        from cso_runtime.status import COMMAND_NODE_NOTE, presence_words, status_of, waiting_note  # noqa: PLC0415
 
         la = self.launcher
         st = la.status
@@ -124,7 +124,9 @@ class LiveView:
                 t.add_row(k, escape(v))  # text, not markup: a scene file's name may hold brackets
         for c in la.children:
             health = "up" if c.alive and c.name in la.alive_services else ("starting" if c.alive else ("gave up" if c.gave_up else "restarting"))
-            note = la.service_notes.get(c.name)
+            if c.command is not None and c.alive and not (c.awaits_token and c.name not in la.alive_services):
+                health = "running"
+            note = la.service_notes.get(c.name) or (COMMAND_NODE_NOTE if c.command is not None else None)
             t.add_row(f"[bold]{c.name}", f"{health}, pid {c.proc.pid if c.proc else '-'}, restarts {c.restarts}" + (f"; {escape(note)}" if note else ""))
         for name, service in seen["services"].items():
             if service.get("outside"):  # not started by this run: no pid, no restarts here

@@ -1134,6 +1134,7 @@ LAUNCHER_SERVICE_FIELDS: dict[str, type] = {
     "robot_stops": int,
     "outside": bool,
     "awaited": bool,
+    "command": bool,
 }
 """The fields of each service in ``launcher_status.services`` and their types (counts: non-negative integers).
 Each is optional: an older launcher sends fewer (``robot_stops``, the zero Twists the launcher sent for a ROS 2

@@ -74,6 +74,48 @@ PARENT_CHECK_PERIOD_S = 0.5
 """How often a worker looks whether the process that started it is still there."""
 
 
+PARENT_PID_ENV = "CSO_PARENT_PID"
+"""The environment variable in which the launcher gives each service it starts its own pid (``launcher_gone``)."""
+
+
+def starting_launcher_pid() -> int | None:
+    """The pid of the launcher that started this service (``CSO_PARENT_PID``, which ``supervision.Child`` sets); None
+    for a service started by hand (``cso-runtime service``, ``python -m services.NAME``)."""
+    parent = os.environ.get(PARENT_PID_ENV, "")
+    return int(parent) if parent.isdigit() else None
+
+
+def launcher_gone() -> int | None:
+    """The pid of the launcher that started this service (``CSO_PARENT_PID``) once it is gone (killed, crashed:
+    the kernel's SIGTERM that ``_die_with_launcher`` asked for is then why the service stops); None while it runs,
+    or for a service no launcher started. The kernel sends that SIGTERM as the launcher's first thread exits,
+    before the service is handed to another parent (measured: some 10 ms later, as Zenoh's threads exit): a
+    launcher whose main thread is already a zombie is gone too."""
+    parent = starting_launcher_pid()
+    if parent is None:
+        return None
+    if os.getppid() != parent:
+        return parent
+    try:
+        with open(f"/proc/{parent}/stat") as fh:
+            state = fh.read().rsplit(")", 1)[-1].split()[0]
+    except (OSError, IndexError):  # no /proc (not Linux)
+        return None
+    return parent if state in ("Z", "X", "x") else None
+
+
+def signal_on_parent_death(sig: int) -> bool:
+    """Ask the kernel to send this process ``sig`` when its parent dies (Linux ``PR_SET_PDEATHSIG``); False where it
+    cannot (another system). Kept across ``exec`` (an executable a child of this process becomes gets it too)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, sig)  # PR_SET_PDEATHSIG
+    except OSError:
+        return False
+    return True
+
+
 def _exit_with_parent(parent_pid: int, period_s: float) -> None:
     while True:
         time.sleep(period_s)

@@ -191,11 +191,20 @@ class Profile:
 
         return {name: spec for name, section in self.services.items() if (spec := own_class_spec(section)) is not None}
 
+    def command_nodes(self) -> dict[str, list[str]]:
+        """Service name -> the argv of the executable the run starts under it (``services.<name>.command``: a node in any
+        language, beside the built-in services or in place of one; docs/own-service.md)."""
+        from services import command_argv  # noqa: PLC0415 - services import zenoh
+
+        return {name: argv for name, section in self.services.items() if (argv := command_argv(section)) is not None}
+
     def builtin_params(self, name: str) -> dict[str, Any]:
         """The parameters of the built-in service ``name`` as the profile gives them; empty when the profile does not
-        run it, or runs a class of its own in its place (whose parameters mean what that class says)."""
+        run it, or runs a class or command of its own in its place (whose parameters mean what that one says)."""
+        from services import is_own_node  # noqa: PLC0415 - services import zenoh
+
         section = self.services.get(name)
-        return section if isinstance(section, dict) and name not in self.own_services() else {}
+        return section if isinstance(section, dict) and not is_own_node(section) else {}
 
     @property
     def policy_method(self) -> str:
@@ -264,7 +273,7 @@ class Profile:
         check_method(self.method)  # a method of the user's own is imported and built here, as the policy service will
         policy = self.builtin_params("policy")
         method = self.policy_method
-        own_policy = "policy" in self.own_services()  # a policy of the user's own decides as it will: no method of ours runs
+        own_policy = "policy" in {*self.own_services(), *self.command_nodes()}  # a policy of the user's own decides as it will: no method of ours runs
         if method != self.method and not own_policy:
             try:
                 check_method(method)

@@ -130,6 +130,8 @@ def status_of(
         elif lsv is not None:
             entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
             entry["robot_stops"] = lsv.get("robot_stops", 0)
+            if lsv.get("command"):  # an executable of one's own: its process is all the launcher knows of it
+                entry.update(command=True, process_alive=bool(lsv.get("process_alive")))
         table[name] = entry
     ep, age_s = episode_or_last_heard(episode, launcher)
     over = ep.get("state") in EPISODE_OVER
@@ -164,6 +166,9 @@ def status_of(
         "launcher_state": (launcher or {}).get("state"),
     }
 
+
+COMMAND_NODE_NOTE = "no status: a command node"
+"""What ``status`` and the live view say of a command node (``services.<name>.command``) in place of its state."""
 
 STALE = "stale"
 """``status``'s state when the sim does not answer but the launcher heard an episode status from it before
@@ -326,7 +331,8 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopp
     """How a service's row begins (an entry of ``status_of``'s ``services``): alive or DOWN, not started by this
     run (another process is to serve it), and whether the episode waits for it; ``status`` and the live view alike.
     ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN)."""
-    words = ["alive" if service["alive"] else "stopping" if stopping else "DOWN"]
+    running = service.get("command") and service.get("process_alive")  # a command node needs no liveliness token
+    words = ["alive" if service["alive"] else "running" if running else "stopping" if stopping else "DOWN"]
     if service.get("outside"):
         words.append("not started by this run")
     if name in waiting:
@@ -368,6 +374,8 @@ def render_table(status: dict[str, Any]) -> Table:
             bits.append(f"idle (episode {status['state']}; last step {s.get('last_step', 0)})")
         elif s.get("state"):
             bits.append(s["state"] + (f" ({s['reason']})" if s.get("reason") else ""))
+        elif s.get("command"):  # an executable of one's own speaks no status protocol
+            bits.append(f"pid {s.get('pid')}, {COMMAND_NODE_NOTE}")
         elif s["alive"] and not stopping and not s.get("outside"):  # its token, no answer: stopped, or its loop stuck in a handler
             bits.append("not answering its status query (hung?)")
         if s.get("restarts"):

@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cso_runtime.processes import STACK_DUMP_SIGNAL
+from cso_runtime.processes import PARENT_PID_ENV, STACK_DUMP_SIGNAL
 
 log = logging.getLogger("cso.launcher")
 
@@ -57,6 +57,15 @@ class Child:
     came_up: bool = False
     """Whether its current process has declared its liveliness token (a stopped one loses it when its Zenoh
     lease runs out: it is then hung, not still starting)."""
+    command: list[str] | None = None
+    """A command node's own argv (``services.<name>.command``; ``argv`` runs it under ``cso_runtime.node_guard``): it
+    speaks no status protocol, so it is never killed as hung but for ``start_timeout_s`` when it declares its
+    liveliness token (``awaits_token``); None for a Python service."""
+    awaits_token: bool = True
+    """Whether it declares its liveliness token (a command node only with ``alive_token``), so that coming up means
+    something."""
+    env: dict[str, str] = field(default_factory=dict)
+    """Environment variables it gets beside the launcher's own (a command node's: ``Launcher.node_env``)."""
     came_up_at: float = 0.0
     """``time.monotonic()`` when the launcher saw its current process come up: its hang check counts from then, not
     from its start (a start longer than ``hang_timeout_s`` is ``start_timeout_s``'s to judge)."""
@@ -98,7 +107,7 @@ class Child:
     def spawn(self) -> None:
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         with self.log_path.open("ab") as fh:
-            env = {**os.environ, "PYTHONUNBUFFERED": "1", "CSO_PARENT_PID": str(os.getpid())}
+            env = {**os.environ, "PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid()), **self.env}
             self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env)
         self.restart_at = None
         self.spawned_at = time.monotonic()
@@ -122,16 +131,18 @@ def stop_children(children: list[Child], stage_timeout_s: float) -> None:
     still running at the last stage is asked for its threads' stacks first, so its log says where it hung.
     A service that has not come up gets SIGTERM at the first stage: it may still be importing, before its
     own handlers, where SIGINT would end it with a KeyboardInterrupt traceback in its log (a ``down`` right
-    after ``up`` left one in every service's log); SIGTERM ends it quietly, or reaches its handler."""
+    after ``up`` left one in every service's log); SIGTERM ends it quietly, or reaches its handler. A command node
+    (``Child.command``), which may never say it came up, gets SIGINT first as any program stopped by Ctrl-C would, and is
+    not asked for stacks (its guard has none)."""
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
         running = [c for c in children if c.alive]
         if not running:
             break
         if sig == signal.SIGKILL:
-            dump_stacks(running)
+            dump_stacks([c for c in running if c.command is None])
         for c in running:
             assert c.proc is not None
-            signal_group(c.proc.pid, signal.SIGTERM if sig == signal.SIGINT and not c.came_up else sig)
+            signal_group(c.proc.pid, signal.SIGTERM if sig == signal.SIGINT and not c.came_up and c.command is None else sig)
         deadline = time.monotonic() + stage_timeout_s
         for c in running:
             assert c.proc is not None

@@ -2,12 +2,16 @@
 ``cso-runtime service NAME``. Each is a thin shell around core objects (see services/common.py).
 
 A profile may also run a service of one's own, a ``Service`` subclass named ``module.path:Attribute`` in its
-section's ``class`` key, beside the built-in ones or in place of one of them (docs/own-service.md)."""
+section's ``class`` key, beside the built-in ones or in place of one of them, or any executable named in its
+``command`` key (a node in any language: docs/own-service.md)."""
 
 from __future__ import annotations
 
 import importlib
+import os
 import re
+import shlex
+import shutil
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
@@ -32,6 +36,19 @@ _CLASSES: dict[str, tuple[str, str | None]] = {
 OWN_CLASS_KEY = "class"
 """The key of a profile's service section (``services.<name>.class``) that names a service of one's own,
 ``module.path:Attribute``: ``up`` starts that class under ``<name>`` instead of a built-in one."""
+
+COMMAND_KEY = "command"
+"""The key of a profile's service section (``services.<name>.command``) that names an executable of one's own, a list
+of arguments or one string split as a shell would (``shlex``): ``up`` starts it under ``<name>`` (a command node)."""
+
+COMMAND_NODE_KEYS = {
+    COMMAND_KEY: "the executable and its arguments",
+    "inputs": "the topics it subscribes to (the runtime's, or its own: ext/<name>), for `dataflow` and up's checks",
+    "outputs": "the topics it publishes (the runtime's, or its own: ext/<name>), for `dataflow` and up's checks",
+    "alive_token": "true: it declares the liveliness token $CSO_ALIVE_KEY once ready, and step 0 waits for it",
+}
+"""What a command node's section may hold: the launcher cannot ask an executable what it reads and writes, so the
+profile says it (docs/own-service.md, A node in any language)."""
 
 NOT_REPLACEABLE = ("sim", "ros2_bridge", "foxglove_bridge")
 """Built-in services a class of one's own cannot stand in for: the referees own the episode (the launcher and the
@@ -71,6 +88,84 @@ def own_class_spec(section: Any) -> str | None:
     return None
 
 
+def command_argv(section: Any) -> list[str] | None:
+    """The argv a profile's service section names under ``command`` (a node in any language), or None: unchecked
+    (``check_command_node`` checks it)."""
+    if not isinstance(section, dict) or section.get(COMMAND_KEY) is None:
+        return None
+    command = section[COMMAND_KEY]
+    return shlex.split(command) if isinstance(command, str) else [str(arg) for arg in command]
+
+
+def is_own_node(section: Any) -> bool:
+    """Whether a profile's service section runs something of the user's own (``class`` or ``command``)."""
+    return own_class_spec(section) is not None or command_argv(section) is not None
+
+
+def waited_for_at_start(section: Any) -> bool:
+    """Whether the sim's step 0 waits for the liveliness token of the service a profile's section runs: every one
+    but a command node that does not declare one (``alive_token``), which could never be seen to come up."""
+    return command_argv(section) is None or section.get("alive_token") is True
+
+
+def command_topics(section: Any, kind: str) -> tuple[str, ...]:
+    """The topics a command node's section declares under ``kind`` (``inputs`` or ``outputs``)."""
+    return tuple((section or {}).get(kind) or ())
+
+
+def check_command_node(name: str, section: dict[str, Any]) -> list[str]:
+    """The argv of the command node a profile's ``services.<name>`` section names, checked: a ConfigError for a
+    command that is no list of strings nor a string, an executable not found or not executable (a relative path:
+    from the folder ``up`` runs from, as the node runs there; a bare name: on ``PATH``), a ``class`` beside it, a key
+    it does not take, topics neither the runtime's nor of one's own (``ext/<name>``), an ``alive_token`` that is no
+    boolean."""
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.keys import TOPICS, is_ext_topic  # noqa: PLC0415
+
+    where = f"services.{name}"
+    if own_class_spec(section) is not None:
+        raise ConfigError(f"{where}: both {OWN_CLASS_KEY} and {COMMAND_KEY}; a service is a Python class of your own or an executable, not both")
+    if name in NOT_REPLACEABLE:
+        raise ConfigError(f"{where}.{COMMAND_KEY}: the built-in {name} cannot be replaced by a node of your own (it owns the episode, or the launcher reads its parameters)")
+    check_service_name(name, where)
+    unknown = [key for key in section if key not in COMMAND_NODE_KEYS]
+    if unknown:
+        said = "; ".join(f"{key}: {why}" for key, why in COMMAND_NODE_KEYS.items())
+        raise ConfigError(f"{where}: a command node takes no {', '.join(map(repr, unknown))} (its keys: {said})")
+    command = section[COMMAND_KEY]
+    if isinstance(command, str):
+        try:
+            argv = shlex.split(command)
+        except ValueError as exc:
+            raise ConfigError(f"{where}.{COMMAND_KEY}: cannot split {command!r} as a shell would: {exc}") from None
+    elif isinstance(command, list) and all(isinstance(arg, str | int | float) and not isinstance(arg, bool) for arg in command):
+        argv = [str(arg) for arg in command]
+    else:
+        raise ConfigError(f"{where}.{COMMAND_KEY}: expected a list of arguments or one string, got {command!r}")
+    if not argv or not argv[0]:
+        raise ConfigError(f"{where}.{COMMAND_KEY}: empty; give the executable and its arguments, e.g. [./my_node, --rate, '10']")
+    exe = argv[0]
+    if os.sep in exe:
+        if not os.path.isfile(exe):
+            raise ConfigError(f"{where}.{COMMAND_KEY}: executable {exe!r} not found (a relative path is from the folder `up` runs from, {os.getcwd()})")
+        if not os.access(exe, os.X_OK):
+            raise ConfigError(f"{where}.{COMMAND_KEY}: {exe!r} is not executable (chmod +x it, or start it with its interpreter: [python3, {exe}])")
+    elif shutil.which(exe) is None:
+        raise ConfigError(f"{where}.{COMMAND_KEY}: executable {exe!r} not found on PATH (give a path, ./{exe}, for one in this folder)")
+    for kind in ("inputs", "outputs"):
+        topics = section.get(kind) or []
+        if not isinstance(topics, list) or not all(isinstance(t, str) for t in topics):
+            raise ConfigError(f"{where}.{kind}: expected a list of topic names, got {topics!r}")
+        for topic in topics:
+            if topic not in TOPICS and not is_ext_topic(topic):
+                raise ConfigError(
+                    f"{where}.{kind}: {topic!r} is none of the runtime's topics ({', '.join(TOPICS)}) nor one of your own, ext/<name> (docs/own-service.md)"
+                )
+    if not isinstance(section.get("alive_token", False), bool):
+        raise ConfigError(f"{where}.alive_token: expected true or false, got {section['alive_token']!r}")
+    return argv
+
+
 def service_params(section: Any) -> dict[str, Any]:
     """A profile's service section as the service gets its parameters: without the ``class`` that picks it."""
     return {k: v for k, v in (section or {}).items() if k != OWN_CLASS_KEY}
@@ -91,7 +186,7 @@ def own_service_class(spec: str, name: str | None = None) -> type[Service]:
     that one, the profile's key it is listed under), inputs and outputs on known topics with message types. A
     ConfigError says what is wrong, so that ``up`` refuses it before anything starts."""
     from cso_runtime.config import ConfigError, import_attribute  # noqa: PLC0415
-    from cso_runtime.keys import TOPICS  # noqa: PLC0415
+    from cso_runtime.keys import TOPICS, is_ext_topic  # noqa: PLC0415
     from cso_runtime.messages import Message  # noqa: PLC0415
     from services.common import Service  # noqa: PLC0415 - imports zenoh
 
@@ -111,12 +206,16 @@ def own_service_class(spec: str, name: str | None = None) -> type[Service]:
         if not isinstance(ports, dict):
             raise ConfigError(f"{where} {spec!r}: {kind} must be a mapping of topic -> message type")
         for topic, msg_type in ports.items():
+            if is_ext_topic(topic):  # a topic of one's own: raw bytes, no schema of the runtime's
+                if msg_type is not bytes:
+                    raise ConfigError(f"{where} {spec!r}: {kind}[{topic!r}] is a topic of your own, which carries bytes: declare it as `bytes`, got {msg_type!r}")
+                continue
             if topic not in TOPICS:
                 by_key = {key: name for name, key in TOPICS.items()}
                 hint = f": key {topic} is topic {by_key[topic]!r}" if topic in by_key else ""
                 raise ConfigError(
                     f"{where} {spec!r}: {kind} names topic {topic!r}, which is none of the runtime's topics{hint} "
-                    f"({', '.join(TOPICS)}; docs/own-service.md)"
+                    f"({', '.join(TOPICS)}; a topic of your own is ext/<name>, of bytes: docs/own-service.md)"
                 )
             if not (isinstance(msg_type, type) and issubclass(msg_type, Message)):
                 raise ConfigError(f"{where} {spec!r}: {kind}[{topic!r}] must be a message class of cso_runtime.messages, got {msg_type!r}")
@@ -139,12 +238,15 @@ def check_profile_service(name: str, section: Any) -> None:
 
     if section is not None and not isinstance(section, dict):
         raise ConfigError(f"services.{name}: expected a mapping of parameters")
+    if isinstance(section, dict) and section.get(COMMAND_KEY) is not None:
+        check_command_node(name, section)
+        return
     spec = own_class_spec(section)
     if spec is None:
         if name not in SERVICE_NAMES:
             raise ConfigError(
                 f"services: unknown service {name!r}; known: {', '.join(SERVICE_NAMES)}; a service of your own names its class: "
-                f"`{name}: {{{OWN_CLASS_KEY}: module.path:Attribute}}` (docs/own-service.md)"
+                f"`{name}: {{{OWN_CLASS_KEY}: module.path:Attribute}}`, or an executable: `{name}: {{{COMMAND_KEY}: [./my_node]}}` (docs/own-service.md)"
             )
         params_cls = params_class(name)
         if params_cls is not None:

@@ -20,7 +20,6 @@ import argparse
 import collections
 import contextlib
 import cProfile
-import ctypes
 import faulthandler
 import functools
 import json
@@ -56,7 +55,15 @@ from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode
 M = TypeVar("M", bound=Message)
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
-from cso_runtime.processes import PARENT_CHECK_PERIOD_S, dump_stacks_on_signal, keep_freed_memory, set_from_signal_handler
+from cso_runtime.processes import (
+    PARENT_CHECK_PERIOD_S,
+    PARENT_PID_ENV,
+    dump_stacks_on_signal,
+    keep_freed_memory,
+    launcher_gone,
+    set_from_signal_handler,
+    signal_on_parent_death,
+)
 from cso_runtime.run_profile import profile_exploration_config
 from cso_runtime.transport import TransportConfig, TransportError, open_session
 
@@ -118,7 +125,7 @@ def load_profile_for_service(path: Path, name: str, cls: type[Service] | None = 
     """The profile mapping, its exploration config and this service's parameter section (without the ``class`` that
     picks a service of one's own). ``cls``: the class about to run as ``name``; a ConfigError when it is the built-in
     one and the profile runs a class of its own in its place (it would serve the robot beside the profile's)."""
-    from services import SERVICE_NAMES, own_class_spec, service_params  # noqa: PLC0415
+    from services import SERVICE_NAMES, command_argv, own_class_spec, service_params  # noqa: PLC0415
 
     profile = load_yaml(path)
     services = profile.get("services") or {}
@@ -132,6 +139,9 @@ def load_profile_for_service(path: Path, name: str, cls: type[Service] | None = 
     spec = own_class_spec(params)
     if spec is not None and cls is not None and name in SERVICE_NAMES and module_of(cls) == f"services.{name}":
         raise ConfigError(f"{path}: the profile runs {spec} as its {name}, not the built-in one: start it with `cso-runtime service {spec}`")
+    argv = command_argv(params)
+    if argv is not None and cls is not None and name in SERVICE_NAMES and module_of(cls) == f"services.{name}":
+        raise ConfigError(f"{path}: the profile runs the command {' '.join(argv)} as its {name}, not the built-in one")
     return profile, exploration, service_params(params)
 
 
@@ -239,13 +249,15 @@ class Service:
         return params
 
     # --- helpers ---------------------------------------------------------------------------------
-    def publish(self, topic: str, msg: Message, robot: str | None = None) -> None:
+    def publish(self, topic: str, msg: Message | bytes, robot: str | None = None) -> None:
+        """Send ``msg`` on ``topic``, one of ``outputs``: a message of the runtime's, encoded; bytes as they are, on a
+        topic of one's own (``ext/<name>``, declared as ``bytes``)."""
         key = RobotKeys(robot or self.ctx.robot).topic(topic)
         pub = self._publishers.get(key)
         if pub is None:
             self.check_output(topic, msg)
             pub = self.declare_publisher(key)
-        payload = encode(msg)
+        payload = msg if isinstance(msg, bytes) else encode(msg)
         t0 = time.monotonic()
         pub.put(payload)
         if self.trace is not None:
@@ -281,7 +293,7 @@ class Service:
         else:
             query.reply_err(f"no {topic} yet".encode())
 
-    def check_output(self, topic: str, msg: Message) -> Message:
+    def check_output(self, topic: str, msg: Message | bytes) -> Message | bytes:
         """``msg`` itself when ``outputs`` declares it on ``topic``; a TypeError (a bug, not bad input) otherwise."""
         declared = self.outputs.get(topic)
         if declared is None or not isinstance(msg, declared):
@@ -628,8 +640,11 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float, inp
     if expected is None:
         service.reject(topic, "unexpected topic", robot)
         return
+    # A topic of one's own is declared as bytes (``own_service_class``; the ClassVar's type leaves it out, so that the
+    # services' handlers keep taking a Message): its payload is handed over as it came, unchecked.
+    declared: type = expected
     try:
-        msg = decode(payload, expected)
+        msg: Any = payload if declared is bytes else decode(payload, expected)
     except MessageError as exc:
         service.reject(topic, str(exc), robot)
         return
@@ -774,32 +789,6 @@ def write_profile(profiles: list[cProfile.Profile | None], path: Path) -> None:
         log.error("cannot write the profile %s: %s", path, exc)
 
 
-def starting_launcher_pid() -> int | None:
-    """The pid of the launcher that started this service (``CSO_PARENT_PID``, which ``supervision.Child`` sets); None
-    for a service started by hand (``cso-runtime service``, ``python -m services.NAME``)."""
-    parent = os.environ.get("CSO_PARENT_PID", "")
-    return int(parent) if parent.isdigit() else None
-
-
-def launcher_gone() -> int | None:
-    """The pid of the launcher that started this service (``CSO_PARENT_PID``) once it is gone (killed, crashed:
-    the kernel's SIGTERM that ``_die_with_launcher`` asked for is then why the service stops); None while it runs,
-    or for a service no launcher started. The kernel sends that SIGTERM as the launcher's first thread exits,
-    before the service is handed to another parent (measured: some 10 ms later, as Zenoh's threads exit): a
-    launcher whose main thread is already a zombie is gone too."""
-    parent = starting_launcher_pid()
-    if parent is None:
-        return None
-    if os.getppid() != parent:
-        return parent
-    try:
-        with open(f"/proc/{parent}/stat") as fh:
-            state = fh.read().rsplit(")", 1)[-1].split()[0]
-    except (OSError, IndexError):  # no /proc (not Linux)
-        return None
-    return parent if state in ("Z", "X", "x") else None
-
-
 ORPHAN_STOP_S = 10.0
 """How long a service whose launcher is gone has to stop cleanly before it exits outright (``_exit_once_orphaned``):
 a clean stop then takes 0.3 to 0.5 s, but the kernel's SIGTERM only sets the stop event, which a loop stuck in a
@@ -822,15 +811,11 @@ def _exit_once_orphaned(name: str, stop: threading.Event) -> None:
 def _die_with_launcher(name: str, stop: threading.Event) -> None:
     """When started by a launcher, get SIGTERM if it dies (Linux), and exit ``ORPHAN_STOP_S`` later if that did not
     stop the service, so no service outlives it."""
-    parent = os.environ.get("CSO_PARENT_PID")
+    parent = os.environ.get(PARENT_PID_ENV)
     if not parent or not parent.isdigit():
         return
     threading.Thread(target=_exit_once_orphaned, args=(name, stop), daemon=True, name="exit-once-orphaned").start()
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
-    except OSError:
+    if not signal_on_parent_death(signal.SIGTERM):
         return
     if os.getppid() != int(parent):
         os.kill(os.getpid(), signal.SIGTERM)

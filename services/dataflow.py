@@ -8,11 +8,12 @@ the code (``publish`` refuses an undeclared output, and a test holds docs/messag
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from typing import Any
 
-from cso_runtime.keys import TOPICS
-from services import SERVICE_NAMES, own_class_spec, profile_service_class
+from cso_runtime.keys import TOPICS, is_ext_topic, topic_key
+from services import SERVICE_NAMES, command_argv, command_topics, is_own_node, own_class_spec, profile_service_class
 
 LAUNCHER = "launcher"
 
@@ -25,7 +26,8 @@ class Node:
     inputs: tuple[str, ...]
     outputs: tuple[str, ...]
     spec: str = ""
-    """The ``module.path:Attribute`` of a service of one's own (``services.<name>.class``); "" for a built-in one."""
+    """The ``module.path:Attribute`` of a service of one's own (``services.<name>.class``), ``command NAME`` of a command
+    node (``services.<name>.command``, its executable's file name); "" for a built-in one."""
     optional: tuple[str, ...] = ()
     """The inputs it works without (``Service.optional_inputs``)."""
 
@@ -46,11 +48,16 @@ class Edge:
     @property
     def key(self) -> str:
         """The key suffix under ``cso/<robot>/`` (``planner_feedback`` travels on ``planner/feedback``)."""
-        return TOPICS[self.topic]
+        return topic_key(self.topic)
 
 
 def service_node(name: str, section: Any = None) -> Node:
-    """The node of the service a profile runs as ``name`` with its section ``section`` (``class``: one of one's own)."""
+    """The node of the service a profile runs as ``name`` with its section ``section`` (``class``: one of one's own;
+    ``command``: an executable, with the ``inputs`` and ``outputs`` its section declares)."""
+    argv = command_argv(section)
+    if argv is not None:
+        exe = os.path.basename(argv[0]).replace('"', "'")
+        return Node(name, command_topics(section, "inputs"), command_topics(section, "outputs"), f"command {exe}")
     cls = profile_service_class(name, section)
     return Node(name, tuple(cls.inputs), tuple(cls.outputs), own_class_spec(section) or "", tuple(cls.optional_inputs))
 
@@ -84,8 +91,8 @@ def wiring_of(nodes: list[Node]) -> list[Wiring]:
     return [
         Wiring(
             n.name,
-            [(TOPICS[t], [e.source for e in edges if e.target == n.name and e.topic == t]) for t in n.inputs],
-            [(TOPICS[t], [e.target for e in edges if e.source == n.name and e.topic == t]) for t in n.outputs],
+            [(topic_key(t), [e.source for e in edges if e.target == n.name and e.topic == t]) for t in n.inputs],
+            [(topic_key(t), [e.target for e in edges if e.source == n.name and e.topic == t]) for t in n.outputs],
         )
         for n in nodes
     ]
@@ -101,10 +108,10 @@ def unfed_inputs(nodes: list[Node]) -> dict[str, list[str]]:
     """The inputs that a service driving the episode needs and no node publishes (node -> topics): what a service of
     one's own in place of a built-in one forgot to publish (a planner without ``planner_feedback``), which the others
     would wait for. A listener's (no outputs) and the launcher's inputs only show things, and optional ones
-    (``Node.optional``) are not needed."""
+    (``Node.optional``) are not needed, nor topics of one's own (``ext/<name>``), which nothing of the runtime waits for."""
     published = {t for n in nodes for t in n.outputs}
     drivers = [n for n in nodes if n.outputs and n.name != LAUNCHER]
-    unfed = {n.name: [t for t in n.inputs if t not in published and t not in n.optional] for n in drivers}
+    unfed = {n.name: [t for t in n.inputs if t not in published and t not in n.optional and not is_ext_topic(t)] for n in drivers}
     return {name: topics for name, topics in unfed.items() if topics}
 
 
@@ -115,16 +122,17 @@ def missing_producers(service_names: list[str], sections: dict[str, Any] | None 
     outputs: the foxglove bridge) drives nothing, so its inputs are not waited for; a topic that several services
     can publish (the referee's scan: the sim's or a ros2_bridge's) names none, as which one is the robot's to say.
     ``sections``: the profile's ``services`` mapping, whose services of one's own (``class``) are taken with the
-    inputs and outputs they declare (a goal selector of one's own under its own name publishes the goals)."""
+    inputs and outputs they declare (a goal selector of one's own under its own name publishes the goals), and its
+    command nodes (``command``) with those their sections declare."""
     every = {n.name: n for n in nodes_of(list(SERVICE_NAMES)) if n.name != LAUNCHER}
-    every.update((name, service_node(name, section)) for name, section in (sections or {}).items() if name in service_names and own_class_spec(section))
+    every.update((name, service_node(name, section)) for name, section in (sections or {}).items() if name in service_names and is_own_node(section))
     builtin_publishers = {t: [n for n in SERVICE_NAMES if t in every[n].outputs] for t in TOPICS}
     publishers = {t: [n.name for n in every.values() if t in n.outputs] for t in TOPICS}
     have, todo, missing = set(service_names), list(service_names), []
     while todo:
         node = every[todo.pop()]
         for topic in node.inputs if node.outputs else ():
-            if not have.intersection(publishers[topic]) and len(builtin_publishers[topic]) == 1:
+            if not have.intersection(publishers.get(topic, [])) and len(builtin_publishers.get(topic, [])) == 1:
                 name = builtin_publishers[topic][0]
                 have.add(name)
                 todo.append(name)

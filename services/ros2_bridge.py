@@ -62,7 +62,8 @@ from cso_runtime.messages import (
     new_episode_id,
 )
 from cso_runtime.occupancy import open_on_border
-from services.common import Service, ServiceContext, service_main, starting_launcher_pid
+from cso_runtime.processes import starting_launcher_pid
+from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.ros2_bridge")
 

@@ -44,6 +44,7 @@ from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import Simulator, StateSaving, make_simulator, mujoco_config
 from cso_runtime.transport import track_robots_liveliness
+from services import waited_for_at_start
 from services.common import Service, ServiceContext, service_main
 from services.dataflow import missing_producers
 
@@ -192,9 +193,10 @@ class SimService(Service):
         listed: a shared policy server's; ``services.dataflow.missing_producers``, as the launcher's ``awaited``).
         Step 0 waits for them too: started without its policy, a lockstep episode re-published step 0 every
         ``lockstep_timeout_s`` with its give-up clock running, and a real-time one spent its steps standing still."""
-        self.expected_services = {name for name in listed if name != ctx.name} | self.left_out_needed
+        sections = ctx.profile.get("services") or {}
+        self.expected_services = {name for name in listed if name != ctx.name and waited_for_at_start(sections[name])} | self.left_out_needed
         """The profile's other services and those it leaves out: step 0 waits for their liveliness tokens
-        (``wait_for_services_s``)."""
+        (``wait_for_services_s``); not for a command node that declares none (``services.waited_for_at_start``)."""
         self.said_waiting_for_left_out = False
         self.alive_services: set[tuple[str, str]] = set()
         """(robot, service) of every liveliness token seen (``missing_services``)."""

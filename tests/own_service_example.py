@@ -1,5 +1,6 @@
-"""Two services of one's own, the examples of docs/own-service.md (the tests run this file, the page quotes it): a
-listener that logs the explored area of each map, and a mapper that can stand in for the built-in one."""
+"""Services of one's own, the examples of docs/own-service.md (the tests run this file, the page quotes it): a
+listener that logs the explored area of each map, a mapper that can stand in for the built-in one, and a listener of
+a topic of one's own (``ext/<name>``) that a command node publishes."""
 
 from __future__ import annotations
 
@@ -100,6 +101,28 @@ class OwnMapper(Service):
                 self.map_step = msg.step
             self.last_step = self.map_step
             self.publish("map", MapMsg.of(self.map_step, self.map, msg.episode))
+
+
+class StepsHeard(Service):
+    """Counts the steps that the command node of tests/command_node_example.py says it heard, on a topic of its own."""
+
+    name = "steps_heard"
+    inputs = {"ext/map_listener/steps": bytes}  # a topic of one's own (cso/<robot>/ext/...): its bytes, as published
+    outputs = {}
+
+    def __init__(self, ctx: ServiceContext) -> None:
+        super().__init__(ctx)
+        self.heard = 0
+
+    def on_message(self, robot: str, topic: str, msg: bytes, received_s: float) -> None:
+        self.heard += 1
+        self.last_step = int(msg.decode())  # the node's own payload: the step as text
+
+    def extra_status(self) -> dict[str, int]:
+        return {"heard": self.heard}
+
+    def shutdown(self) -> None:
+        log.info("heard %d steps on ext/map_listener/steps", self.heard)
 
 
 if __name__ == "__main__":  # `python tests/own_service_example.py --attach` runs the logger beside a run

@@ -73,6 +73,12 @@ def own_profile(tmp_path: Path, services: dict) -> Path:
     return path
 
 
+def up_from_this_checkout(*args: str, cwd: Path, timeout_s: float) -> subprocess.CompletedProcess:
+    """``cso-runtime up ARGS`` whose services import the services of one's own of this checkout (``tests.*``)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([*python_module_argv("cso_runtime.cli"), "up", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout_s)
+
+
 def docs_block(language: str) -> list[str]:
     """The ``language`` code blocks of docs/own-service.md."""
     return re.findall(rf"```{language}\n(.*?)```", (REPO / "docs" / "own-service.md").read_text(encoding="utf-8"), flags=re.DOTALL)
@@ -82,17 +88,13 @@ def test_up_runs_services_of_ones_own_beside_and_in_place_of_the_builtin_ones(tm
     """Real processes in lockstep, the profile of docs/own-service.md: the built-in mapper replaced by ``OwnMapper``
     and ``CoverageLogger`` added. The episode is the in-process one step for step (the same maps), the logger saw every
     map from step 0 (step 0 waited for it), and the run's files name both."""
-    (own_yaml,) = docs_block("yaml")
+    own_yaml = docs_block("yaml")[0]  # the second is a command node's (tests/test_command_node.py)
     profile = tmp_path / "own.yaml"
     profile.write_text(own_yaml)
     coverage = tmp_path / yaml.safe_load(own_yaml)["services"]["coverage_logger"]["csv_path"]
     runs = tmp_path / "runs"
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
     try:
-        r = subprocess.run(
-            [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(profile), "--no-live", "--runs-dir", str(runs)],
-            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
-        )  # fmt: skip
+        r = up_from_this_checkout("--profile", str(profile), "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=120)
         assert r.returncode == 0, r.stderr[-3000:]
         (run_dir,) = [p.parent for p in runs.glob("*/summary.json")]
         expected = in_process_result(SCENE)
@@ -119,7 +121,7 @@ def test_up_runs_services_of_ones_own_beside_and_in_place_of_the_builtin_ones(tm
     ("section", "said"),
     [
         ({"coverage_logger": {}}, "unknown service 'coverage_logger'; known: sim, mapper"),
-        ({"coverage_logger": {}}, "`coverage_logger: {class: module.path:Attribute}` (docs/own-service.md)"),
+        ({"coverage_logger": {}}, "`coverage_logger: {class: module.path:Attribute}`, or an executable: `coverage_logger: {command: [./my_node]}` (docs"),
         ({"coverage_logger": {"class": "no_such_module_here:Logger"}}, "cannot import module 'no_such_module_here'"),
         ({"coverage_logger": {"class": "tests.own_service_example:CoverageLoger"}}, "has no attribute 'CoverageLoger' (did you mean CoverageLogger?)"),
         ({"coverage_logger": {"class": "tests.own_service_example:CoverageLogParams"}}, "not a subclass of services.common.Service"),
@@ -207,10 +209,10 @@ def test_the_coverage_logger_logs_and_counts_a_malformed_map_and_writes_no_row_f
 
 def test_the_docs_example_is_the_code_the_tests_run():
     examples = docs_block("python")
-    assert len(examples) == 2
-    source = (REPO / "tests" / "own_service_example.py").read_text(encoding="utf-8")
+    assert len(examples) == 4
+    sources = [(REPO / "tests" / name).read_text(encoding="utf-8") for name in ("own_service_example.py", "command_node_example.py")]
     for example in examples:
-        assert example in source, example[:200]
+        assert any(example in source for source in sources), example[:200]
 
 
 def test_the_docs_table_of_topics_keys_and_message_classes_is_the_runtimes():

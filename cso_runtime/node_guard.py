@@ -1,0 +1,136 @@
+"""``python -m cso_runtime.node_guard --stop-timeout S -- EXECUTABLE [ARG...]``: how ``up`` starts a command node (a
+profile's ``services.<name>.command``, an executable in any language; docs/own-service.md, A node in any language).
+
+The guard leads the node's process group, which the launcher signals as it does a Python service's (SIGINT, then
+SIGTERM, then SIGKILL; ``down`` through the guard's pid in ``run.json``), and gives the node the guarantee a Python
+service keeps itself: it never outlives its launcher. An executable of one's own cannot be asked to watch for that, so
+the guard does: when the launcher is gone (SIGKILL, a crash; the kernel's SIGTERM, ``PR_SET_PDEATHSIG``) it sends the
+node's whole group SIGTERM, then SIGKILL after ``--stop-timeout``. The node itself gets SIGTERM should the guard die
+first (the OOM killer). The guard exits as the node did (its exit code, or the signal it died of), so the launcher
+restarts it, or gives up on it, as it would a service. It imports nothing beyond the standard library: it costs a few
+MB and milliseconds per node."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+import time
+
+from cso_runtime.processes import PARENT_CHECK_PERIOD_S, STACK_DUMP_SIGNAL, launcher_gone, signal_on_parent_death
+
+EXIT_NOT_STARTED = 2
+"""The node's executable could not be started (gone or made not executable since ``up`` checked it): a configuration
+the launcher does not restart (``EXIT_BAD_CONFIG``)."""
+
+
+def _node_death_signal() -> None:
+    """In the node's process, before its executable runs: SIGTERM when the guard dies."""
+    signal_on_parent_death(signal.SIGTERM)
+
+
+def stop_group(stop_timeout_s: float, node: subprocess.Popen) -> None:
+    """The launcher is gone: SIGTERM to the guard's process group (the node and whatever it started), then SIGKILL to
+    what is left of it ``stop_timeout_s`` later (the guard with it)."""
+    os.killpg(os.getpgrp(), signal.SIGTERM)  # the guard's own handler ignores it
+    try:
+        node.wait(timeout=stop_timeout_s)
+    except subprocess.TimeoutExpired:
+        print(
+            f"node_guard: the node (pid {node.pid}) still runs {stop_timeout_s:g} s after SIGTERM: SIGKILL to its group",
+            file=sys.stderr,
+            flush=True,
+        )
+    os.killpg(os.getpgrp(), signal.SIGKILL)
+
+
+def group_leftovers() -> list[int]:
+    """The other live processes of the guard's process group (Linux ``/proc``; none elsewhere): what the node started
+    and left behind when it exited."""
+    me, group, found = os.getpid(), os.getpgrp(), []
+    for entry in os.listdir("/proc") if os.path.isdir("/proc") else []:
+        if not entry.isdigit() or int(entry) == me:
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as fh:
+                state, _ppid, pgrp = fh.read().rsplit(")", 1)[-1].split()[:3]
+        except (OSError, ValueError):
+            continue
+        if int(pgrp) == group and state not in ("Z", "X"):
+            found.append(int(entry))
+    return found
+
+
+def stop_leftovers(stop_timeout_s: float) -> None:
+    """The node has exited: SIGTERM to what it left in its group, SIGKILL to what is left of that ``stop_timeout_s``
+    later, so that a restarted node (a new group) never finds its predecessor's children still running."""
+    left = group_leftovers()
+    if not left:
+        return
+    print(
+        f"node_guard: the node exited and left {len(left)} process(es) of its group ({left}): stopping them",
+        file=sys.stderr,
+        flush=True,
+    )
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        for pid in left:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(pid, sig)
+        deadline_s = time.monotonic() + stop_timeout_s
+        while (left := group_leftovers()) and time.monotonic() < deadline_s:
+            time.sleep(0.05)
+        if not left:
+            return
+
+
+def exit_as(node: subprocess.Popen) -> int:
+    """The guard's exit as the node's: its code, or death by the same signal (default action restored first)."""
+    code = node.returncode
+    if code is not None and code < 0:
+        sig = -code
+        if sig != signal.SIGKILL:  # SIGKILL's action is the default already, and cannot be set
+            signal.signal(sig, signal.SIG_DFL)
+        os.kill(os.getpid(), sig)
+        return 128 + sig  # a signal whose default is not to end the process
+    return code or 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the node until it exits; the guard's exit is the node's (``exit_as``), 2 when it could not start."""
+    # First: the launcher's stop signals reach the whole group, the node included; the guard waits for the node.
+    # A hung node's stack dump is asked of the guard, which has none. Handled, not ignored: an ignored signal would stay
+    # ignored in the node's executable, a handled one is back to its default there.
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, STACK_DUMP_SIGNAL):
+        signal.signal(sig, lambda *_: None)
+    p = argparse.ArgumentParser(prog="python -m cso_runtime.node_guard")
+    p.add_argument("--stop-timeout", type=float, default=3.0, help="Seconds from SIGTERM to SIGKILL once the launcher is gone")
+    p.add_argument("command", nargs=argparse.REMAINDER, help="-- EXECUTABLE [ARG...]")
+    args = p.parse_args(argv)
+    command = args.command[1:] if args.command[:1] == ["--"] else args.command
+    if not command:
+        p.error("give the node's command after --")
+    if os.getpgrp() != os.getpid():  # started by hand, not by the launcher (a session of its own): a group of its own,
+        os.setpgid(0, 0)  # as the group it stops is the node's, never its starter's
+    signal_on_parent_death(signal.SIGTERM)
+    try:
+        node = subprocess.Popen(command, stdin=subprocess.DEVNULL, preexec_fn=_node_death_signal)  # noqa: PLW1509 - the guard has one thread
+    except OSError as exc:
+        print(f"node_guard: cannot start {command[0]!r}: {exc.strerror or exc}", file=sys.stderr, flush=True)
+        return EXIT_NOT_STARTED
+    while node.poll() is None:
+        if launcher_gone() is not None:
+            print("node_guard: the launcher is gone: stopping the node's process group", file=sys.stderr, flush=True)
+            stop_group(args.stop_timeout, node)
+        try:
+            node.wait(timeout=PARENT_CHECK_PERIOD_S)
+        except subprocess.TimeoutExpired:
+            continue
+    stop_leftovers(args.stop_timeout)
+    return exit_as(node)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

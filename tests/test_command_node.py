@@ -1,0 +1,284 @@
+"""A node in any language: a profile's ``services.<name>.command`` names an executable that ``up`` starts as one of the
+run's services, under a guard that leads its process group (``cso_runtime.node_guard``), with the run's Zenoh config
+and keys in its environment; ``status``, ``run.json`` and ``dataflow`` show it, and no process of it outlives the run,
+nor a launcher killed outright (docs/own-service.md, A node in any language)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import pytest
+import yaml
+
+from cso_runtime.config import ConfigError
+from cso_runtime.run_profile import load_profile
+from cso_runtime.status import query_status, render_table, status_of
+from cso_runtime.supervision import pid_alive, python_module_argv
+from services import waited_for_at_start
+from services.dataflow import nodes_of
+from tests.test_own_service import docs_block, up_from_this_checkout
+from tests.test_runtime import PROFILES, REPO, SCENE, cli, in_process_result, kill_leftovers, run_pids, wait_for
+
+NODE = REPO / "tests" / "command_node_example.py"
+STEPS_HEARD = "tests.own_service_example:StepsHeard"
+
+
+def node_profile(tmp_path: Path, node: dict[str, Any], others: dict[str, Any] | None = None, **sim_params: Any) -> Path:
+    """The lockstep profile on the small scene with the command node ``map_listener`` (``node``: its section), and the
+    services ``others``."""
+    data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
+    data["scene"] = SCENE
+    data["services"]["sim"].update(sim_params)
+    data["services"]["map_listener"] = node
+    data["services"].update(others or {})
+    data["supervision"] = {**(data.get("supervision") or {}), "stop_timeout_s": 1.0}
+    path = tmp_path / "node.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def listener(*args: str) -> dict[str, Any]:
+    """The section of the test's command node: the example script with ``args``, reading the map, with its token."""
+    return {
+        "command": [sys.executable, str(NODE), "maps.txt", *args],
+        "inputs": ["map"],
+        "outputs": ["ext/map_listener/steps"],
+        "alive_token": True,
+    }
+
+
+@contextmanager
+def detached_node_run(
+    tmp_path: Path, node: dict[str, Any], others: dict[str, Any] | None = None
+) -> Iterator[tuple[Path, dict[str, Any]]]:
+    """``up --detach`` of ``node_profile`` (the services of one's own in ``others`` imported from this checkout); yields
+    the runs folder and ``current.json``; ``down`` and a kill of whatever is left afterwards (the node's own pids too)."""
+    runs = tmp_path / "runs"
+    profile = node_profile(tmp_path, node, others, min_step_period_s=0.25)  # 36 steps: some 9 s to look at the run meanwhile
+    try:
+        r = up_from_this_checkout("--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stderr
+        yield runs, json.loads((runs / "current.json").read_text())
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        own = [int(p.read_text()) for p in runs.glob("*/map_listener*.pid")]
+        assert kill_leftovers(runs, extra=own) == []
+
+
+def node_pids(run_dir: Path) -> list[int]:
+    """The pids the example node wrote: its own, and its ``sleep``'s with ``--stubborn``."""
+    return [int(p.read_text()) for p in sorted(run_dir.glob("map_listener*.pid"))]
+
+
+def test_up_runs_a_command_node_that_joins_the_run_from_its_environment_alone(tmp_path: Path):
+    """A real lockstep episode with the example node (its own Zenoh session, no cso-runtime code): step 0 waits for its
+    token, so it gets every map from step 0's; ``status`` shows it running with its pid and no status of its own;
+    run.json names its command, dataflow.md draws it; after ``down`` none of its processes is left. It publishes the
+    steps it heard on a topic of its own (``ext/map_listener/steps``), which a Python service of one's own counts."""
+    with detached_node_run(tmp_path, listener(), {"steps_heard": {"class": STEPS_HEARD}}) as (runs, current):
+        run_dir = Path(current["run_dir"])
+        assert current["services"]["map_listener"]["command"] == listener()["command"]
+        status = lambda: query_status(current["endpoints"], current["robot"], timeout_s=0.5)  # noqa: E731
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0, r.stdout + r.stderr
+        node = json.loads(r.stdout)["services"]["map_listener"]
+        assert (
+            node["command"]
+            and node["process_alive"]
+            and node["alive"]
+            and node["pid"] == current["services"]["map_listener"]["pid"]
+        ), node
+        r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert f"alive, pid {node['pid']}, no status: a command node" in " ".join(r.stdout.split()), r.stdout
+        final = wait_for(
+            lambda: (s := status()) and s["state"] in ("done", "failed") and s, 90, "the end of the episode", period_s=0.2
+        )
+        assert final["state"] == "done", final
+        heard = lambda: (status() or {}).get("services", {}).get("steps_heard", {}).get("counters", {}).get("heard", 0)  # noqa: E731
+        lines = wait_for(
+            lambda: (maps := (tmp_path / "maps.txt").read_text().splitlines()) and heard() == len(maps) and maps,
+            10,
+            "every step heard",
+        )
+        pids = node_pids(run_dir)
+        assert len(pids) == 1 and all(pid_alive(p) for p in pids)
+    expected = in_process_result(SCENE)
+    assert lines[0] == "map 0" and {int(line.split()[1]) for line in lines} == set(range(expected.steps + 1)), lines
+    log = (run_dir / "logs" / "map_listener.log").read_text()
+    assert (
+        "map_listener: joins tcp/127.0.0.1:" in log
+        and "map_listener: listening on cso/r0/map" in log
+        and "map_listener: stopped" in log
+    ), log
+    launcher_log = (run_dir / "logs" / "launcher.log").read_text()
+    assert f"started map_listener (command {sys.executable} {NODE} maps.txt, pid" in launcher_log, launcher_log
+    dataflow = (run_dir / "dataflow.md").read_text()
+    exe = Path(sys.executable).name
+    assert f'map_listener["map_listener (command {exe})"]' in dataflow and 'mapper -->|"map"| map_listener' in dataflow, dataflow
+    assert 'map_listener -->|"ext/map_listener/steps"| steps_heard' in dataflow, dataflow
+    assert f"heard {len(lines)} steps on ext/map_listener/steps" in (run_dir / "logs" / "steps_heard.log").read_text()
+    assert not any(pid_alive(p) for p in [*run_pids(runs), *pids])
+
+
+def test_a_command_node_that_ignores_sigterm_does_not_outlive_its_killed_launcher(tmp_path: Path):
+    """The launcher SIGKILLed mid-episode: a Python service stops by itself (PR_SET_PDEATHSIG, then ``ORPHAN_STOP_S``);
+    an executable of one's own cannot be asked to, so its guard stops its whole process group, SIGTERM and, for a
+    node that ignores it, SIGKILL ``stop_timeout_s`` (1 s here) later; the ``sleep`` it started goes with it."""
+    with detached_node_run(tmp_path, listener("--stubborn")) as (_, current):
+        run_dir = Path(current["run_dir"])
+        guard = current["services"]["map_listener"]["pid"]
+        wait_for(lambda: "listening" in (run_dir / "logs" / "map_listener.log").read_text(), 60, "the node to listen")
+        pids = [guard, *node_pids(run_dir)]
+        assert len(pids) == 3 and all(pid_alive(p) for p in pids), pids
+        os.kill(current["launcher_pid"], signal.SIGKILL)
+        wait_for(
+            lambda: not any(pid_alive(p) for p in pids),
+            15,
+            f"the guard, the node and its sleep ({pids}) to be gone",
+            period_s=0.05,
+        )
+    log = (run_dir / "logs" / "map_listener.log").read_text()
+    assert (
+        "node_guard: the launcher is gone: stopping the node's process group" in log
+        and "still runs 1 s after SIGTERM: SIGKILL" in log
+    ), log
+
+
+def test_a_command_node_that_dies_is_restarted_without_its_leftovers_and_down_stops_it_with_its_children(tmp_path: Path):
+    """The node SIGKILLed: its guard stops the ``sleep`` it left in its group and exits as the node did, and the launcher
+    restarts it as a crashed service. ``down``: the launcher's stop reaches the new node's whole group, SIGINT (which
+    the example node takes as its stop) first; a run that ends leaves no pid of it."""
+    with detached_node_run(tmp_path, listener("--stubborn")) as (runs, current):
+        run_dir = Path(current["run_dir"])
+        listening = lambda n: (run_dir / "logs" / "map_listener.log").read_text().count("listening") >= n  # noqa: E731
+        wait_for(lambda: listening(1), 60, "the node to listen")
+        sleep, node = node_pids(run_dir)  # map_listener.child.pid, map_listener.pid
+        os.kill(node, signal.SIGKILL)
+        wait_for(lambda: listening(2), 60, "the node to be restarted and listen again")
+        assert not pid_alive(sleep) and not pid_alive(node)
+        info = json.loads((run_dir / "run.json").read_text())["services"]["map_listener"]
+        assert info["restarts"] == 1 and info["pid"] != current["services"]["map_listener"]["pid"], info
+        pids = [info["pid"], *node_pids(run_dir)]
+        assert len(pids) == 3 and all(pid_alive(p) for p in pids) and node not in pids, pids
+        r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stdout + r.stderr
+        assert not any(pid_alive(p) for p in pids)
+    text = (run_dir / "logs" / "map_listener.log").read_text()
+    assert f"node_guard: the node exited and left 1 process(es) of its group ([{sleep}]): stopping them" in text, text
+    assert "map_listener: stopped" in text
+    launcher_log = (run_dir / "logs" / "launcher.log").read_text()
+    assert f"map_listener exited (code -{int(signal.SIGKILL)}); restart 1/" in launcher_log, launcher_log
+
+
+@pytest.mark.parametrize(
+    ("section", "said"),
+    [
+        (
+            {"command": ["./no_such_node"]},
+            "executable './no_such_node' not found (a relative path is from the folder `up` runs from",
+        ),
+        ({"command": "no_such_node_on_path --x"}, "executable 'no_such_node_on_path' not found on PATH"),
+        ({"command": [str(REPO / "README.md")]}, "is not executable (chmod +x it"),
+        ({"command": [], "inputs": ["map"]}, "services.map_listener.command: empty"),
+        ({"command": {"exe": "x"}}, "expected a list of arguments or one string"),
+        ({"command": "python3 'unclosed"}, "cannot split"),
+        ({"command": ["true"], "class": "tests.own_service_example:CoverageLogger"}, "both class and command"),
+        ({"command": ["true"], "csv_path": "x.csv"}, "a command node takes no 'csv_path'"),
+        (
+            {"command": ["true"], "inputs": ["coverage"]},
+            "services.map_listener.inputs: 'coverage' is none of the runtime's topics",
+        ),
+        ({"command": ["true"], "outputs": "map"}, "services.map_listener.outputs: expected a list of topic names"),
+        ({"command": ["true"], "alive_token": "yes"}, "alive_token: expected true or false"),
+    ],
+)
+def test_a_command_node_that_cannot_run_is_refused_before_anything_starts(tmp_path: Path, section: dict, said: str):
+    with pytest.raises(ConfigError) as exc:
+        load_profile(str(node_profile(tmp_path, section)))
+    assert said in str(exc.value)
+
+
+def test_a_command_node_cannot_stand_in_for_a_referee_and_up_refuses_it_with_exit_2(tmp_path: Path):
+    data = yaml.safe_load(node_profile(tmp_path, {"command": ["true"]}).read_text())
+    data["services"]["sim"] = {"command": ["true"]}
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    r = cli("up", "--profile", str(path), "--runs-dir", str(tmp_path / "runs"), "--no-live", cwd=tmp_path)
+    assert r.returncode == 2 and "the built-in sim cannot be replaced by a node of your own" in r.stderr, r.stderr
+    assert not (tmp_path / "runs").exists() or not list((tmp_path / "runs").glob("*/run.json"))
+
+
+def test_a_command_node_is_in_the_dataflow_with_the_topics_it_declares_and_step_0_waits_only_for_its_token(tmp_path: Path):
+    """A command string split as a shell would; the node in place of the built-in policy publishes the goals (nothing
+    is awaited from elsewhere); without ``alive_token`` the sim's step 0 does not wait for it (it would wait
+    ``wait_for_services_s`` for a token that never comes)."""
+    profile = node_profile(tmp_path, {"command": "true --rate 10", "inputs": ["map", "odom"], "outputs": []})
+    prof, _ = load_profile(
+        str(profile), settings={"services.policy": {"command": ["true"], "inputs": ["frontiers"], "outputs": ["goal"]}}
+    )
+    assert (
+        prof.command_nodes() == {"map_listener": ["true", "--rate", "10"], "policy": ["true"]} and prof.awaited_services() == []
+    )
+    nodes = {n.name: n for n in nodes_of(list(prof.services), prof.services)}
+    assert nodes["map_listener"].inputs == ("map", "odom") and nodes["map_listener"].label == "map_listener (command true)"
+    assert nodes["policy"].outputs == ("goal",)
+    assert not waited_for_at_start(prof.services["map_listener"]) and waited_for_at_start(
+        {"command": ["true"], "alive_token": True}
+    )
+    assert waited_for_at_start({}) and waited_for_at_start({"class": "tests.own_service_example:CoverageLogger"})
+
+
+def test_status_says_a_command_node_runs_and_has_no_status_of_its_own():
+    launcher = {
+        "run_id": "x",
+        "state": "running",
+        "services": {"map_listener": {"pid": 41, "process_alive": True, "liveliness": False, "restarts": 0, "command": True}},
+    }
+    seen = status_of("r0", None, launcher, {}, set())
+    assert seen["services"]["map_listener"]["command"] and seen["services"]["map_listener"]["process_alive"]
+    from rich.console import Console
+
+    console = Console(width=200, record=True)
+    console.print(render_table(seen))
+    assert "service map_listener │ running, pid 41, no status: a command node" in console.export_text()
+    launcher["services"]["map_listener"]["process_alive"] = False
+    console = Console(width=200, record=True)
+    console.print(render_table(status_of("r0", None, launcher, {}, set())))
+    assert "service map_listener │ DOWN, pid 41, no status: a command node" in console.export_text()
+
+
+@pytest.mark.parametrize(
+    ("command", "code"),
+    [
+        (["sh", "-c", "exit 7"], 7),
+        (["sh", "-c", "kill -USR2 $$"], -signal.SIGUSR2),
+        (["sh", "-c", "kill -KILL $$"], -signal.SIGKILL),
+        (["./no_such_node"], 2),
+    ],
+)
+def test_the_guard_exits_as_its_node_did(tmp_path: Path, command: list[str], code: int):
+    """The launcher restarts or gives up on a command node by its guard's exit: the node's code, or the signal it died of
+    (2, a configuration not restarted: an executable gone since ``up`` checked it)."""
+    r = subprocess.run(
+        [*python_module_argv("cso_runtime.node_guard"), "--", *command], cwd=tmp_path, capture_output=True, text=True, timeout=30
+    )
+    assert r.returncode == code, r.stderr
+
+
+def test_the_docs_command_node_section_is_what_up_takes(tmp_path: Path):
+    """docs/own-service.md's command node section, its executable the example's: a profile ``up`` takes, with the
+    node's inputs in the dataflow."""
+    section = yaml.safe_load(docs_block("yaml")[1])["services"]["map_listener"]
+    section["command"] = [sys.executable, str(NODE), "maps.txt"]
+    prof, _ = load_profile(str(node_profile(tmp_path, section)))
+    nodes = {n.name: n for n in nodes_of(list(prof.services), prof.services)}
+    assert nodes["map_listener"].inputs == ("map",) and prof.services["map_listener"]["alive_token"] is True
