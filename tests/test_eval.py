@@ -81,6 +81,8 @@ def test_an_episode_of_no_step_has_no_efficiency_not_its_area_per_step(tmp_path:
     assert row["steps"] == "0" and row["terminated_by"] == "coverage" and float(row["coverage_pct"]) == 100.0
     assert row["efficiency_m2_per_step"] == "" and row["decision_ms_p50"] == row["decision_ms_p99"] == ""  # no decision either
     assert "nan" not in (tmp_path / "out" / "episodes.csv").read_text().lower()
+    # No simulated time passed: its pace is missing, not 0.0 (which reads as infinitely slow).
+    assert row["sim_time_s"] == "0.0" and row["real_time_factor"] == "" and summary["methods"]["greedy-dist"]["real_time_factor"] is None
     assert summary["methods"]["greedy-dist"]["efficiency_m2_per_step"] is None
     assert summary["methods"]["greedy-dist"]["episodes"] == 1 and summary["methods"]["greedy-dist"]["efficiency_episodes"] == 0
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["methods"]["greedy-dist"]["explored_area_m2"] == pytest.approx(1.0)

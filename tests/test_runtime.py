@@ -1692,6 +1692,7 @@ def test_step_pace_measures_simulated_seconds_per_wall_second_from_the_episodes_
     from cso_runtime.pace import StepPace, real_time_factor
 
     assert real_time_factor(10.0, 4.0) == 2.5 and real_time_factor(None, 4.0) is None and real_time_factor(1.0, 0.0) is None
+    assert real_time_factor(0.0, 4.0) is None  # no simulated time passed (an episode of no step): no pace, not 0x
     pace = StepPace(control_period_s=0.25)
     pace.observe(episode=1, step=3, at_s=100.0)
     assert pace.real_time_factor is None  # one status: no pace yet
