@@ -1893,6 +1893,31 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     assert piped.getvalue().count("6.50 m ahead on the path") == 1 and piped.getvalue().endswith("┘\n")
 
 
+def test_the_live_view_shows_no_stale_goal_once_the_episode_has_ended(tmp_path):
+    """An ended episode's status keeps its last goal: the view went on showing "(3.00, 5.50) m, 6.50 m ahead on the
+    path" under ``done (coverage)``, as if the robot still drove there. The goal row (and the progress line of a
+    followed log) says that the episode ended and why instead."""
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView, progress_line
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    launcher.path_ahead_m = 6.5
+    launcher.status = EpisodeStatusMsg(state="done", step=80, scene="s", method="greedy-dist", coverage_pct=96.0, goal_xy_m=[3.0, 5.5], terminated_by="coverage")
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    text = console.export_text()
+    assert re.search(r"│ goal +│ none: the episode ended \(coverage\) +│", text) and "ahead on the path" not in text, text
+    assert progress_line(launcher.status, 0.25).endswith("goal none: the episode ended (coverage)")
+    launcher.status.state, launcher.status.terminated_by, launcher.status.reason = "failed", "", "the robot left the map"
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert re.search(r"│ goal +│ none: the episode failed \(the robot left the map\) +│", console.export_text()), console.export_text()
+
+
 def test_the_live_views_last_table_after_ctrl_c_says_the_run_was_interrupted(tmp_path):
     """Ctrl-C (or ``down``) on a foreground ``up``: the table left on the terminal said ``exploring`` above "services
     stopped", as if the episode went on; it says the run was interrupted, with no results (the step row says where)."""
