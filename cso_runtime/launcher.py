@@ -204,6 +204,9 @@ draws it from the recording; without a stop, the GIF takes the time it needs."""
 LAST_MAP = "last_map.yaml"
 """Where in its run folder an episode stopped before its end keeps its map so far (``Launcher.keep_last_map``; the PNG
 beside it): it has no results, and ``save-map`` can no longer ask once the run is stopped."""
+LAST_MAP_IMAGE_FORMAT = "png"
+"""``LAST_MAP``'s image (``last_map.png``): as ``save-map --format png`` writes it, and as eval and ``up`` write every
+robot's map of a results folder (``save-map``'s default, like map_saver_cli's, is PGM; map_server reads both)."""
 
 STALLED_STEP_S = 5.0
 """How long an exploring episode may make no new step before its progress line says so: a step takes 0.25 s in real
@@ -1215,7 +1218,7 @@ class Launcher:
             log.warning("the episode's map is not kept: %s", why)
             return
         try:
-            save_map(self.run_dir / LAST_MAP, msg.grid, msg.geometry, image_format="png", map_origin=map_origin)
+            save_map(self.run_dir / LAST_MAP, msg.grid, msg.geometry, image_format=LAST_MAP_IMAGE_FORMAT, map_origin=map_origin)
         except (OSError, ValueError) as exc:
             log.error("the episode's map at step %d is not kept: %s", msg.step, getattr(exc, "strerror", None) or exc)
             return
