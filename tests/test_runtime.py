@@ -860,6 +860,50 @@ def test_two_up_started_at_once_cannot_both_run(tmp_path):
     os.close(fd)
 
 
+
+def test_a_deleted_runs_lock_is_taken_again_unless_another_launcher_took_it_first(tmp_path):
+    from cso_runtime.current_run import RUNS_LOCK, hold_runs_lock, keep_runs_lock
+
+    runs = tmp_path / "runs"
+    fd = hold_runs_lock(runs)
+    assert fd is not None and keep_runs_lock(runs, fd) == fd  # its file still there: nothing to do
+    (runs / RUNS_LOCK).unlink()
+    other = hold_runs_lock(runs)  # a second launcher, in the moment before the first's round
+    assert other is not None and keep_runs_lock(runs, fd) is None
+    os.close(other)
+    kept = keep_runs_lock(runs, fd)  # the other gone: the lock file is free, and taken
+    assert kept is not None and hold_runs_lock(runs) is None
+    os.close(kept)
+
+
+def test_a_runs_folder_deleted_mid_run_keeps_its_lock_and_a_second_up_is_refused(tmp_path):
+    """The whole runs folder deleted while ``up`` ran took its lock file with it: the launcher's lock stayed on a file
+    with no name, and a second ``up`` in that folder (with no current.json to stop it: deleted too, or not yet written
+    again) made a new lock file, locked it and started beside the first. The launcher takes the lock again on a new
+    file on its next round, and a second ``up`` is refused by it."""
+    from cso_runtime.current_run import CURRENT_RUN, RUNS_LOCK, hold_runs_lock
+
+    profile = write_profile(tmp_path, min_step_period_s=0.3)  # an episode of minutes: it runs through the test
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        first = run_pids(runs)
+        shutil.rmtree(runs)
+        wait_for(lambda: (runs / RUNS_LOCK).exists() and (runs / CURRENT_RUN).exists(), 10, "the launcher to take its lock again")
+        fd = hold_runs_lock(runs)
+        if fd is not None:
+            os.close(fd)
+        assert fd is None, "the lock file is there, but nobody holds it"
+        (runs / CURRENT_RUN).unlink()  # as a second `up` finds the folder before the launcher's round writes it again
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        said = r.stdout + r.stderr
+        assert r.returncode == 2 and "another `cso-runtime up` is running" in said and RUNS_LOCK in said, said
+        assert sorted(run_pids(runs)) == sorted(first) and all(pid_alive(p) for p in first)  # the first run goes on, alone
+    finally:
+        kill_leftovers(runs)
+
+
 SIGNAL_WHILE = """
 import importlib, os, signal, sys
 from pathlib import Path
