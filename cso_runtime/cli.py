@@ -828,12 +828,19 @@ def runs_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the run folders are"),
     limit: int = typer.Option(20, "--limit", min=1, help="Show the newest N runs"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
+    keep: int | None = typer.Option(None, "--keep", min=0, help="Prune: the runs beyond the newest N (listed; --yes deletes them)"),
+    older_than: float | None = typer.Option(None, "--older-than", min=0, help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
+    yes: bool = typer.Option(False, "--yes", help="Delete the runs --keep/--older-than select (never the current or a running one)"),
 ) -> None:
-    """List the runs `up` left in --runs-dir: state, scene, method and the episode's Table 1 row."""
+    """List the runs `up` left in --runs-dir: state, scene, method and the episode's Table 1 row; or prune old ones."""
     import json  # noqa: PLC0415
 
     from cso_runtime.runs import list_runs  # noqa: PLC0415
 
+    if keep is not None or older_than is not None:
+        raise typer.Exit(_prune_runs(runs_dir, keep, older_than, yes, as_json))
+    if yes:
+        _fail("--yes deletes the runs that --keep N or --older-than DAYS select: give one of them", 2)
     rows = [r.as_dict() for r in list_runs(runs_dir, limit)]
     if as_json:
         typer.echo(json.dumps(rows, indent=2))
@@ -867,6 +874,34 @@ def runs_command(
 
 
 LOG_COLOURS = ("cyan", "green", "yellow", "magenta", "blue", "bright_red", "bright_cyan", "bright_green")
+
+
+def _prune_runs(runs_dir: Path, keep: int | None, older_than_days: float | None, delete: bool, as_json: bool) -> int:
+    """``runs --keep/--older-than``: list the run folders selected, and delete them with ``--yes``; the exit code."""
+    import json  # noqa: PLC0415
+
+    from cso_runtime.runs import delete_runs, folder_bytes, plan_prune, summarize_run  # noqa: PLC0415
+
+    plan = plan_prune(runs_dir, keep, older_than_days)
+    sizes = {d: folder_bytes(d) for d in plan.prune}
+    rows = [{**summarize_run(d).as_dict(), "bytes": sizes[d]} for d in plan.prune]
+    errors = delete_runs(plan.prune) if delete else []
+    if as_json:
+        spared = [str(d) for d in plan.spared]
+        typer.echo(json.dumps({"runs_dir": str(runs_dir), "deleted": delete and not errors, "runs": rows, "spared": spared, "errors": errors}, indent=2))
+    else:
+        mb = sum(sizes.values()) / 1e6
+        said = "deleted" if delete else "would delete"
+        typer.echo(f"{said} {len(rows)} run(s) in {runs_dir} ({mb:.1f} MB)" + (":" if rows else ""))
+        for r in rows:
+            typer.echo(f"  {r['run_id']}  {r['state']}, {r['bytes'] / 1e6:.1f} MB")
+        for d in plan.spared:
+            typer.echo(f"  kept: {d.name} (the current run, or its launcher runs)")
+        if rows and not delete:
+            typer.echo("nothing deleted: add --yes to delete them")
+    for error in errors:
+        typer.echo(f"error: cannot delete {error}", err=True)
+    return 1 if errors else 0
 
 
 @app.command("logs", rich_help_panel="Runtime (Zenoh services)")

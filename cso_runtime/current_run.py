@@ -162,7 +162,8 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
 
 RUNS_LOCK = ".up.lock"
 """A launcher holds an exclusive lock on ``<runs-dir>/.up.lock`` for as long as it runs (released by the
-kernel however it ends): one run per runs folder, even when two ``up`` start at the same moment."""
+kernel however it ends): one run per runs folder, even when two ``up`` start at the same moment. A lock file deleted
+while it runs (the whole runs folder removed) is taken again on the launcher's next round (``keep_runs_lock``)."""
 
 
 def hold_runs_lock(runs_dir: Path) -> int | None:
@@ -179,3 +180,25 @@ def hold_runs_lock(runs_dir: Path) -> int | None:
     os.ftruncate(fd, 0)
     os.write(fd, f"{os.getpid()}\n".encode())
     return fd
+
+
+def runs_lock_file_is(runs_dir: Path, fd: int) -> bool:
+    """Whether ``<runs-dir>/.up.lock`` is the very file ``fd`` is open on: not deleted, nor replaced by another."""
+    try:
+        named, held = os.stat(runs_dir / RUNS_LOCK), os.fstat(fd)
+    except OSError:
+        return False
+    return (named.st_dev, named.st_ino) == (held.st_dev, held.st_ino)
+
+
+def keep_runs_lock(runs_dir: Path, fd: int) -> int | None:
+    """The lock a running launcher holds on ``fd``, kept: ``fd`` while the lock file is still its file; else (the file,
+    or the whole runs folder, was deleted: a lock on a file with no name stops no one, and a second ``up`` would start
+    beside this one) the lock taken again on a new lock file, its descriptor returned and ``fd`` closed. None when
+    another launcher took the new file first (``fd`` stays open)."""
+    if runs_lock_file_is(runs_dir, fd):
+        return fd
+    new_fd = hold_runs_lock(runs_dir)
+    if new_fd is not None:
+        os.close(fd)
+    return new_fd

@@ -594,6 +594,13 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
     return summary
 
 
+def csv_cell(value: Any) -> Any:
+    """``value`` as an ``episodes.csv`` cell: a missing value (None, or a float with none to give: NaN, the efficiency
+    of an episode of no step) is one empty cell, which csv readers and pandas read as missing (``nan`` would read as a
+    number, and two spellings of one thing make every reader handle both); summary.json's null for the same values."""
+    return "" if value is None or (isinstance(value, float) and not math.isfinite(value)) else value
+
+
 def write_outputs(
     out_dir: Path, rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist"
 ) -> dict[str, Any]:
@@ -605,7 +612,7 @@ def write_outputs(
     writer = csv.DictWriter(table, fieldnames=list(CSV_FIELDS), extrasaction="ignore")
     writer.writeheader()
     for r in sorted(rows, key=lambda r: (r["method"], r["map"])):
-        writer.writerow(r)
+        writer.writerow({k: csv_cell(v) for k, v in r.items()})
     write_text_atomic(out_dir / "episodes.csv", table.getvalue())
     if summary["paired"]["comparisons"]:
         write_paired_csv(out_dir / "paired.csv", summary["paired"]["comparisons"])

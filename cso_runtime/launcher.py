@@ -45,7 +45,16 @@ from cso_runtime.config import (
     load_yaml,
     to_dict,
 )
-from cso_runtime.current_run import CURRENT_RUN, DOWN_MARGIN_S, RUNS_LOCK, down, hold_runs_lock, new_run_dir, read_current_run
+from cso_runtime.current_run import (
+    CURRENT_RUN,
+    DOWN_MARGIN_S,
+    RUNS_LOCK,
+    down,
+    hold_runs_lock,
+    keep_runs_lock,
+    new_run_dir,
+    read_current_run,
+)
 from cso_runtime.keys import WILDCARD, RobotKeys, driver_claim_subject, robot_claim_subject, robot_driver_token, topic_of
 from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
@@ -209,6 +218,9 @@ draws it from the recording; without a stop, the GIF takes the time it needs."""
 LAST_MAP = "last_map.yaml"
 """Where in its run folder an episode stopped before its end keeps its map so far (``Launcher.keep_last_map``; the PNG
 beside it): it has no results, and ``save-map`` can no longer ask once the run is stopped."""
+LAST_MAP_IMAGE_FORMAT = "png"
+"""``LAST_MAP``'s image (``last_map.png``): as ``save-map --format png`` writes it, and as eval and ``up`` write every
+robot's map of a results folder (``save-map``'s default, like map_saver_cli's, is PGM; map_server reads both)."""
 
 STALLED_STEP_S = 5.0
 """How long an exploring episode may make no new step before its progress line says so: a step takes 0.25 s in real
@@ -343,6 +355,10 @@ class Launcher:
         """How many routers the launcher's session had routes to once it opened (those in ``--connect``)."""
         self.router_back_s = -np.inf
         """``time.monotonic()`` when that router came back: no service's silence counts from before."""
+        self.runs_lock_fd: int | None = None
+        """The runs folder's lock this launcher holds (``run_until_stopped``), kept on each round (``tend_runs_lock``)."""
+        self.runs_lock_lost = False
+        """Whether another launcher took the runs folder's lock after its file was deleted (said once)."""
         self.run_folder = RunFolderWatch(run_dir)
         """Notices the run folder deleted mid-run, and copies back the logs its processes still write (``tend_run_folder``)."""
 
@@ -734,6 +750,25 @@ class Launcher:
                 log.info("restarted %s (pid %d)", c.name, c.proc.pid if c.proc else -1)
         if changed:
             self.write_run_file("running")
+
+    def tend_runs_lock(self) -> None:
+        """On each round of the run loop: the runs folder's lock file deleted (the whole runs folder removed) leaves the
+        lock on a file with no name, which stops no second ``up``: take it again on a new file, or say that another
+        launcher has it (it started in this folder meanwhile)."""
+        if self.runs_lock_fd is None:
+            return
+        runs_dir = self.run_dir.parent
+        kept = keep_runs_lock(runs_dir, self.runs_lock_fd)
+        if kept is not None:
+            if kept != self.runs_lock_fd:
+                log.warning("the runs folder's lock %s was deleted while the run ran: taken again", runs_dir / RUNS_LOCK)
+            self.runs_lock_fd, self.runs_lock_lost = kept, False
+        elif not self.runs_lock_lost:
+            self.runs_lock_lost = True
+            log.error(
+                "the runs folder's lock %s was deleted while the run ran and another `cso-runtime up` took it: two runs share %s",
+                runs_dir / RUNS_LOCK, runs_dir,
+            )  # fmt: skip
 
     def tend_run_folder(self) -> None:
         """On each round of the run loop: when the run folder (or its ``logs/``) was deleted, make it again with
@@ -1158,7 +1193,9 @@ class Launcher:
                     view.start()
 
                 def tend() -> None:
-                    """What the run loop does on every round, and in its waits: the run folder, supervision and the live view."""
+                    """What the run loop does on every round, and in its waits: the runs folder's lock, the run folder,
+                    supervision and the live view."""
+                    self.tend_runs_lock()
                     self.tend_run_folder()
                     self.supervise()
                     if view is not None:
@@ -1266,7 +1303,7 @@ class Launcher:
             log.warning("the episode's map is not kept: %s", why)
             return
         try:
-            save_map(self.run_dir / LAST_MAP, msg.grid, msg.geometry, image_format="png", map_origin=map_origin)
+            save_map(self.run_dir / LAST_MAP, msg.grid, msg.geometry, image_format=LAST_MAP_IMAGE_FORMAT, map_origin=map_origin)
         except (OSError, ValueError) as exc:
             log.error("the episode's map at step %d is not kept: %s", msg.step, getattr(exc, "strerror", None) or exc)
             return
@@ -1350,9 +1387,9 @@ def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> 
     # First: a stop from now on is the run's clean stop, never a traceback; the handlers before go back at the end.
     previous_handlers = stop_on_signals(launcher.stop_event)
     runs_dir = launcher.run_dir.parent
-    lock_fd = hold_runs_lock(runs_dir)
+    launcher.runs_lock_fd = hold_runs_lock(runs_dir)  # taken again if its file is deleted as it runs (keep_runs_lock)
     try:
-        if lock_fd is None:
+        if launcher.runs_lock_fd is None:
             log.error(
                 "another `cso-runtime up` is running from %s (it holds %s); `cso-runtime down` first, or give this one its own --runs-dir",
                 runs_dir, runs_dir / RUNS_LOCK,
@@ -1363,8 +1400,8 @@ def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> 
         log.error("%s; no service was started (%s)", exc, transport_error_hint(exc, launcher.profile.router.listen))
         return launcher.stop_before_start(EXIT_NO_ZENOH)
     finally:
-        if lock_fd is not None:
-            os.close(lock_fd)
+        if launcher.runs_lock_fd is not None:
+            os.close(launcher.runs_lock_fd)
         restore_signal_handlers(previous_handlers)
 
 

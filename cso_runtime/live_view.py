@@ -37,11 +37,21 @@ def robot_time_words(step: int, sim_step_s: float | None) -> list[str]:
     return [] if sim_step_s is None else [f"{step * sim_step_s:.1f} s robot time"]
 
 
+def ended_goal_words(status: EpisodeStatusMsg) -> str | None:
+    """``none: the episode ended (coverage)`` once the episode is over (its last status keeps its last goal, which no one
+    drives to any more), else None: the goal to show."""
+    if status.state not in EPISODE_OVER:
+        return None
+    verb = "ended" if status.state == "done" else status.state
+    why = status.terminated_by or status.reason
+    return f"none: the episode {verb}" + (f" ({why})" if why else "")
+
+
 def progress_line(status: EpisodeStatusMsg, sim_step_s: float | None, real_time_factor: float | None = None) -> str:
     """The episode's progress in one log line (the live view's figures, for a log that is followed). ``sim_step_s``:
     the simulated time of a step, None on a real robot."""
     goal_m = status.goal_in_map_frame
-    goal = "none" if goal_m is None else f"({goal_m[0]:.2f}, {goal_m[1]:.2f}) m"
+    goal = ended_goal_words(status) or ("none" if goal_m is None else f"({goal_m[0]:.2f}, {goal_m[1]:.2f}) m")
     rate = f" ({status.explored_area_m2 / status.step:.3f} m2/step)" if status.step else ""
     time_words = ", ".join(robot_time_words(status.step, sim_step_s))
     when = f" ({time_words}{pace_text(real_time_factor)})" if time_words else ""
@@ -118,7 +128,7 @@ class LiveView:
             for k, v in (
                 ("explored", f"{st.explored_area_m2:.2f} m2" + (f", {st.explored_area_m2 / st.step:.3f} m2/step" if st.step else "")),
                 ("path length", f"{st.path_length_m:.2f} m"),
-                ("goal", goal + ("" if la.path_ahead_m is None or st.goal_xy_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
+                ("goal", ended_goal_words(st) or goal + ("" if la.path_ahead_m is None or st.goal_xy_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
                 ("decisions", f"{st.decisions} (last {st.last_decision_ms:.1f} ms)"),
             ):
                 t.add_row(k, escape(v))  # text, not markup: a scene file's name may hold brackets

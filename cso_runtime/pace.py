@@ -8,8 +8,9 @@ import math
 
 def real_time_factor(sim_s: float | None, wall_s: float | None) -> float | None:
     """Simulated seconds per wall-clock second (2.0: twice as fast as real time); None when either is unknown
-    (a real robot has no simulated time) or no wall-clock time passed."""
-    if sim_s is None or wall_s is None or not (math.isfinite(sim_s) and math.isfinite(wall_s) and wall_s > 0):
+    (a real robot has no simulated time) or either clock did not move: an episode of no step ran no simulated time,
+    which gives no pace to speak of (0.0 would read as infinitely slow)."""
+    if sim_s is None or wall_s is None or not (math.isfinite(sim_s) and math.isfinite(wall_s) and sim_s > 0 and wall_s > 0):
         return None
     return sim_s / wall_s
 

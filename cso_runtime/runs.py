@@ -9,9 +9,11 @@ finished run's folder is all it reads.
 
 from __future__ import annotations
 
+import calendar
 import heapq
 import json
 import re
+import shutil
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -138,6 +140,73 @@ def list_runs(runs_dir: Path, limit: int | None = None) -> list[RunSummary]:
     """The newest ``limit`` runs (all when None), oldest first."""
     dirs = run_dirs(runs_dir)
     return [summarize_run(d) for d in (dirs[-limit:] if limit else dirs)]
+
+
+# --- prune -----------------------------------------------------------------------------------------
+
+DAY_S = 86400.0
+
+
+def run_started_s(run_dir: Path) -> float | None:
+    """When a run started (Unix time, s): run.json's ``started_at``, else the UTC time its folder's name starts with
+    (``new_run_dir``), else None."""
+    started = (read_json_object(run_dir / "run.json") or {}).get("started_at")
+    if isinstance(started, (int, float)) and not isinstance(started, bool):
+        return float(started)
+    try:
+        return float(calendar.timegm(time.strptime(run_dir.name[:15], "%Y%m%d-%H%M%S")))
+    except ValueError:
+        return None
+
+
+def folder_bytes(folder: Path) -> int:
+    """The size of the files under ``folder`` (what deleting it frees, links aside)."""
+    total = 0
+    for path in folder.rglob("*"):
+        try:
+            if path.is_file() and not path.is_symlink():
+                total += path.stat().st_size
+        except OSError:
+            continue
+    return total
+
+
+@dataclass
+class PrunePlan:
+    """The run folders ``runs --keep/--older-than`` selects: those it deletes, and those it never touches though
+    selected (the current run, or one whose launcher still runs)."""
+
+    prune: list[Path]
+    spared: list[Path]
+
+
+def plan_prune(runs_dir: Path, keep: int | None = None, older_than_days: float | None = None, now_s: float | None = None) -> PrunePlan:
+    """The runs of ``runs_dir`` (folders with a run.json) beyond the newest ``keep`` and (when given) started more
+    than ``older_than_days`` ago, oldest first; both given: only those both select. A run whose start is unknown is
+    never older than anything. The current run (``runs/current.json``) and every run whose launcher is alive are spared."""
+    dirs = run_dirs(runs_dir)
+    selected = dirs if keep is None else dirs[: max(len(dirs) - keep, 0)]
+    if older_than_days is not None:
+        now = time.time() if now_s is None else now_s
+        selected = [d for d in selected if (started := run_started_s(d)) is not None and now - started > older_than_days * DAY_S]
+    current = read_current_run(runs_dir) or {}
+    current_dir = Path(str(current["run_dir"])).resolve() if current.get("run_dir") else None
+
+    def spared(d: Path) -> bool:
+        return d.resolve() == current_dir or d.name == current.get("run_id") or run_is_live(d)
+
+    return PrunePlan([d for d in selected if not spared(d)], [d for d in selected if spared(d)])
+
+
+def delete_runs(dirs: Iterable[Path]) -> list[str]:
+    """Delete each run folder; what could not be deleted, one line each (the rest are deleted regardless)."""
+    errors = []
+    for d in dirs:
+        try:
+            shutil.rmtree(d)
+        except OSError as exc:
+            errors.append(f"{d}: {exc.strerror or exc}")
+    return errors
 
 
 def resolve_run(runs_dir: Path, run: str | None = None) -> Path:

@@ -352,6 +352,17 @@ def test_the_readme_names_every_column_of_episodes_csv_and_every_key_of_summary_
     assert [k for k in summarize([row], [], ["m"], meta={}) if f"`{k}`" not in summary_row] == []  # its top-level keys
 
 
+def test_the_readme_says_which_image_an_interrupted_runs_last_map_has():
+    """The README said an interrupted run keeps ``last_map.yaml`` and ``.png`` "as ``save-map`` writes it", but
+    ``save-map`` writes PGM by default: it names the image the launcher writes and the ``save-map`` command that
+    writes the same."""
+    from cso_runtime.launcher import LAST_MAP, LAST_MAP_IMAGE_FORMAT
+
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())  # a sentence may wrap
+    image = Path(LAST_MAP).with_suffix(f".{LAST_MAP_IMAGE_FORMAT}").name
+    assert f"`{LAST_MAP}` and `{image}`" in readme and f"`save-map --format {LAST_MAP_IMAGE_FORMAT}`" in readme
+
+
 def test_the_readme_names_every_array_of_an_episodes_npz(tmp_path):
     """``episodes/<method>/<map>.npz`` holds more than the three arrays the README's table named (the row, and the
     fingerprints ``--resume`` matches): a user loading one with numpy finds each of its keys there."""

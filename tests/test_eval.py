@@ -63,7 +63,8 @@ def test_an_episode_ends_when_both_coverage_thresholds_hold():
 
 def test_an_episode_of_no_step_has_no_efficiency_not_its_area_per_step(tmp_path: Path):
     """A 1 m2 room that the first 360-degree scan sees whole ends by coverage in 0 steps: m2/step is undefined
-    there (NaN in episodes.csv), and it stays out of the mean instead of counting as its area over one step."""
+    there (an empty cell of episodes.csv, as every missing value there: not ``nan``, which csv readers take for a
+    number), and it stays out of the mean instead of counting as its area over one step."""
     from PIL import Image
 
     from cso_runtime.scenes import FREE_RGB, START_RGB, WALL_RGB
@@ -78,7 +79,10 @@ def test_an_episode_of_no_step_has_no_efficiency_not_its_area_per_step(tmp_path:
     summary = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(plans), out_dir=tmp_path / "out", lidar_fov_deg=360.0))
     (row,) = csv.DictReader((tmp_path / "out" / "episodes.csv").open())
     assert row["steps"] == "0" and row["terminated_by"] == "coverage" and float(row["coverage_pct"]) == 100.0
-    assert np.isnan(float(row["efficiency_m2_per_step"]))
+    assert row["efficiency_m2_per_step"] == "" and row["decision_ms_p50"] == row["decision_ms_p99"] == ""  # no decision either
+    assert "nan" not in (tmp_path / "out" / "episodes.csv").read_text().lower()
+    # No simulated time passed: its pace is missing, not 0.0 (which reads as infinitely slow).
+    assert row["sim_time_s"] == "0.0" and row["real_time_factor"] == "" and summary["methods"]["greedy-dist"]["real_time_factor"] is None
     assert summary["methods"]["greedy-dist"]["efficiency_m2_per_step"] is None
     assert summary["methods"]["greedy-dist"]["episodes"] == 1 and summary["methods"]["greedy-dist"]["efficiency_episodes"] == 0
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["methods"]["greedy-dist"]["explored_area_m2"] == pytest.approx(1.0)

@@ -204,3 +204,39 @@ def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newes
         resolve_run(runs, "nope")
     r = CliRunner().invoke(app, ["logs", "--runs-dir", str(tmp_path / "empty")])
     assert r.exit_code == 1 and "error: no runs in" in r.output
+
+
+def test_runs_keep_and_older_than_list_old_runs_and_delete_them_only_with_yes_never_the_current_one(tmp_path):
+    """``runs/`` kept one folder per ``up`` for ever: ``runs --keep N`` / ``--older-than DAYS`` list the runs beyond the
+    newest N / started before, and delete them with ``--yes``; the current run and a running one are never touched."""
+    from cso_runtime.runs import DAY_S, plan_prune
+
+    runs = tmp_path / "runs"
+    now = time.time()
+    old = [make_run(runs, f"2026120{i}-090000-lockstep-r0", outcome="done", times=(now - (9 - i) * DAY_S, None)) for i in range(1, 5)]
+    live = make_run(runs, "20261205-090000-lockstep-r0", alive=True, times=(now - 10 * DAY_S, None))  # running for 10 days
+    newest = make_run(runs, "20261206-090000-lockstep-r0", outcome="done", times=(now - 60.0, None))
+    (runs / "current.json").write_text(json.dumps({"run_id": old[0].name, "run_dir": str(old[0])}))  # the current run, however old
+    (old[1] / "logs" / "sim.log").write_text("x" * 2_000_000)
+
+    plan = plan_prune(runs, keep=2)
+    assert plan.prune == old[1:] and plan.spared == [old[0]]
+    plan = plan_prune(runs, older_than_days=5.5)
+    assert plan.prune == old[1:3] and plan.spared == [old[0], live]  # started 6 and 7 days ago (8: the current run; 10: a running one)
+    assert plan_prune(runs, keep=4, older_than_days=6.5).prune == [old[1]]  # both: beyond the newest 4 and that old
+    assert plan_prune(runs, keep=0).prune == [*old[1:], newest]
+
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--keep", "2"])
+    assert r.exit_code == 0, r.output
+    assert r.output.startswith(f"would delete 3 run(s) in {runs} (2.0 MB):") and "nothing deleted: add --yes" in r.output, r.output
+    assert f"kept: {old[0].name}" in r.output and live.name not in r.output
+    assert all(d.is_dir() for d in [*old, live, newest])  # listed, not deleted
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--older-than", "5.5", "--yes", "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.output)
+    assert out["deleted"] is True and [x["run_id"] for x in out["runs"]] == [d.name for d in old[1:3]] and out["runs"][0]["bytes"] > 2_000_000
+    assert out["spared"] == [str(old[0]), str(live)] and out["errors"] == []
+    assert [d.name for d in sorted(p for p in runs.iterdir() if p.is_dir())] == [old[0].name, old[3].name, live.name, newest.name]
+    assert (runs / "current.json").is_file()
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--yes"])
+    assert r.exit_code == 2 and "--keep N or --older-than DAYS" in r.output

@@ -860,6 +860,50 @@ def test_two_up_started_at_once_cannot_both_run(tmp_path):
     os.close(fd)
 
 
+
+def test_a_deleted_runs_lock_is_taken_again_unless_another_launcher_took_it_first(tmp_path):
+    from cso_runtime.current_run import RUNS_LOCK, hold_runs_lock, keep_runs_lock
+
+    runs = tmp_path / "runs"
+    fd = hold_runs_lock(runs)
+    assert fd is not None and keep_runs_lock(runs, fd) == fd  # its file still there: nothing to do
+    (runs / RUNS_LOCK).unlink()
+    other = hold_runs_lock(runs)  # a second launcher, in the moment before the first's round
+    assert other is not None and keep_runs_lock(runs, fd) is None
+    os.close(other)
+    kept = keep_runs_lock(runs, fd)  # the other gone: the lock file is free, and taken
+    assert kept is not None and hold_runs_lock(runs) is None
+    os.close(kept)
+
+
+def test_a_runs_folder_deleted_mid_run_keeps_its_lock_and_a_second_up_is_refused(tmp_path):
+    """The whole runs folder deleted while ``up`` ran took its lock file with it: the launcher's lock stayed on a file
+    with no name, and a second ``up`` in that folder (with no current.json to stop it: deleted too, or not yet written
+    again) made a new lock file, locked it and started beside the first. The launcher takes the lock again on a new
+    file on its next round, and a second ``up`` is refused by it."""
+    from cso_runtime.current_run import CURRENT_RUN, RUNS_LOCK, hold_runs_lock
+
+    profile = write_profile(tmp_path, min_step_period_s=0.3)  # an episode of minutes: it runs through the test
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        first = run_pids(runs)
+        shutil.rmtree(runs)
+        wait_for(lambda: (runs / RUNS_LOCK).exists() and (runs / CURRENT_RUN).exists(), 10, "the launcher to take its lock again")
+        fd = hold_runs_lock(runs)
+        if fd is not None:
+            os.close(fd)
+        assert fd is None, "the lock file is there, but nobody holds it"
+        (runs / CURRENT_RUN).unlink()  # as a second `up` finds the folder before the launcher's round writes it again
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        said = r.stdout + r.stderr
+        assert r.returncode == 2 and "another `cso-runtime up` is running" in said and RUNS_LOCK in said, said
+        assert sorted(run_pids(runs)) == sorted(first) and all(pid_alive(p) for p in first)  # the first run goes on, alone
+    finally:
+        kill_leftovers(runs)
+
+
 SIGNAL_WHILE = """
 import importlib, os, signal, sys
 from pathlib import Path
@@ -1692,6 +1736,7 @@ def test_step_pace_measures_simulated_seconds_per_wall_second_from_the_episodes_
     from cso_runtime.pace import StepPace, real_time_factor
 
     assert real_time_factor(10.0, 4.0) == 2.5 and real_time_factor(None, 4.0) is None and real_time_factor(1.0, 0.0) is None
+    assert real_time_factor(0.0, 4.0) is None  # no simulated time passed (an episode of no step): no pace, not 0x
     pace = StepPace(control_period_s=0.25)
     pace.observe(episode=1, step=3, at_s=100.0)
     assert pace.real_time_factor is None  # one status: no pace yet
@@ -1890,6 +1935,31 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     view.start()
     view.stop()
     assert piped.getvalue().count("6.50 m ahead on the path") == 1 and piped.getvalue().endswith("┘\n")
+
+
+def test_the_live_view_shows_no_stale_goal_once_the_episode_has_ended(tmp_path):
+    """An ended episode's status keeps its last goal: the view went on showing "(3.00, 5.50) m, 6.50 m ahead on the
+    path" under ``done (coverage)``, as if the robot still drove there. The goal row (and the progress line of a
+    followed log) says that the episode ended and why instead."""
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView, progress_line
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    launcher.path_ahead_m = 6.5
+    launcher.status = EpisodeStatusMsg(state="done", step=80, scene="s", method="greedy-dist", coverage_pct=96.0, goal_xy_m=[3.0, 5.5], terminated_by="coverage")
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    text = console.export_text()
+    assert re.search(r"│ goal +│ none: the episode ended \(coverage\) +│", text) and "ahead on the path" not in text, text
+    assert progress_line(launcher.status, 0.25).endswith("goal none: the episode ended (coverage)")
+    launcher.status.state, launcher.status.terminated_by, launcher.status.reason = "failed", "", "the robot left the map"
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert re.search(r"│ goal +│ none: the episode failed \(the robot left the map\) +│", console.export_text()), console.export_text()
 
 
 def test_the_live_views_last_table_after_ctrl_c_says_the_run_was_interrupted(tmp_path):
