@@ -56,6 +56,20 @@ def traversable_cells(open_cells: np.ndarray, occupied: np.ndarray, robot_radius
     return open_cells & ~inflate(occupied, robot_radius_m, resolution_m)
 
 
+def escape_cells(open_cells: np.ndarray, geometry: GridGeometry, source_xy_m: np.ndarray, robot_radius_m: float) -> np.ndarray:
+    """Open cells within the robot's radius (and one cell) of ``source_xy_m``: the way out for a robot
+    that stands inside the inflated obstacles (a start placed 0.1 m from a wall, a corner cut too close).
+    The robot's body is already there, so it may move through them to the traversable cells around it,
+    as Nav2's planners let a robot leave the inscribed zone it starts in."""
+    out = np.zeros(geometry.shape, dtype=bool)
+    sy, sx = geometry.world_to_cell(source_xy_m[0], source_xy_m[1])
+    offs = disk_offsets(int(np.ceil(robot_radius_m / geometry.resolution_m - 1e-9)) + 1)
+    yy, xx = offs[:, 0] + int(sy), offs[:, 1] + int(sx)
+    ok = geometry.in_bounds(yy, xx)
+    out[yy[ok], xx[ok]] = True
+    return out & open_cells
+
+
 _WINDOW_MARGIN_CELLS = 3
 """How much wider than ``within_m`` the window of a bounded fast-marching pass is, in cells."""
 

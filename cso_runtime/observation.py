@@ -16,7 +16,7 @@ from cso_runtime.frontiers import (
     frontier_components,
     frontier_entropy,
 )
-from cso_runtime.geodesic import geodesic_distance, traversable_cells
+from cso_runtime.geodesic import escape_cells, geodesic_distance, traversable_cells
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.occupancy import OccupancyMap
 
@@ -134,6 +134,12 @@ def frontier_layer(
     return FrontierLayer(frontier, entropy, frontier_components(frontier))
 
 
+def _on_cell(grid: np.ndarray, geometry: GridGeometry, pose: Pose2D) -> bool:
+    """``grid`` is set at the robot's cell (False off the map)."""
+    iy, ix = geometry.world_to_cell(pose.x_m, pose.y_m)
+    return bool(geometry.in_bounds(iy, ix) and grid[int(iy), int(ix)])
+
+
 class ObservationBuilder:
     """Turns (M_t, w_t) into an Observation: frontiers, one fast-marching pass, entropy, clusters."""
 
@@ -164,7 +170,15 @@ class ObservationBuilder:
         distance = geodesic_distance(traversable, g, pose.xy)
         fl = layer() if layer is not None else self.frontier_layer(occupancy, exclude_frontier)
         frontier, entropy = fl.frontier, fl.entropy
-        clusters = cluster_frontiers(frontier, distance, entropy, g, self.frontier_config.min_cluster_size_m, fl.components)
+        min_size_m = self.frontier_config.min_cluster_size_m
+        clusters = cluster_frontiers(frontier, distance, entropy, g, min_size_m, fl.components)
+        if not clusters and frontier.any() and not _on_cell(traversable, g, pose):
+            # Inside the inflated obstacles, nothing may be reachable but the robot's own few cells: let it
+            # move out through the open cells its body covers. Only then, so that a robot which reaches a
+            # frontier anyway decides on the same D as before.
+            traversable = traversable | escape_cells(occupancy.open, g, pose.xy, self.robot_config.radius_m)
+            distance = geodesic_distance(traversable, g, pose.xy)
+            clusters = cluster_frontiers(frontier, distance, entropy, g, min_size_m, fl.components)
         nodes = np.zeros((0, 2)) if path_nodes_xy_m is None else np.asarray(path_nodes_xy_m, dtype=float).reshape(-1, 2)
         return Observation(
             geometry=g,

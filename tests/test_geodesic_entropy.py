@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cso_runtime.geodesic import geodesic_distance
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
@@ -51,3 +52,29 @@ def test_the_cli_wrapper_puts_the_literal_count_into_every_observation(monkeypat
     occupancy = two_rooms()
     obs = ObservationBuilder().build(occupancy, Pose2D(0.5, 24 * 0.05 + 0.025, 0.0))
     assert obs.clusters[0].entropy == script.geodesic_counts(obs, occupancy.open, 2.0)[0] < 40
+
+
+def corridor_map(explored_to_x_m: float) -> OccupancyMap:
+    """A corridor 3.0 x 0.9 m (x 0.1-3.1, y 0.1-1.0) walled all round at 0.05 m cells, known up to ``explored_to_x_m``:
+    the frontier is the column of open cells there."""
+    g = GridGeometry(0.05, (22, 64))
+    occupied = np.ones(g.shape, dtype=bool)
+    occupied[2:20, 2:62] = False
+    explored = np.zeros(g.shape, dtype=bool)
+    explored[:, : int(round(explored_to_x_m / 0.05))] = True
+    return OccupancyMap.from_masks(explored, occupied & explored, g)
+
+
+def test_a_robot_inside_the_inflated_obstacles_may_move_out_of_them():
+    """A robot 0.08 m from a wall (a start placed there, lrot.yaml's) stands inside the obstacles inflated by its
+    0.2 m radius: the traversable cells began beyond its own few passable cells, so no frontier was reachable
+    and the episode ended at once (no_frontier). It may now move out through the open cells its body covers;
+    a robot on traversable cells decides on the same D as before."""
+    builder = ObservationBuilder()
+    occupancy = corridor_map(2.0)
+    near_wall = builder.build(occupancy, Pose2D(1.0, 0.18, 0.0))
+    assert [c.goal_cell[1] for c in near_wall.clusters] == [39]  # the frontier column at x 1.95-2.0 m
+    assert 1.0 < near_wall.clusters[0].distance_m < 1.2
+    free = builder.build(occupancy, Pose2D(1.0, 0.55, 0.0))
+    assert np.array_equal(free.traversable, builder.traversable(occupancy))
+    assert np.array_equal(free.distance_m, geodesic_distance(free.traversable, occupancy.geometry, np.array([1.0, 0.55])))
