@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cso_runtime.config import EpisodeConfig, ExplorationConfig
+from cso_runtime.frontiers import frontier_cells, frontier_components
 from cso_runtime.geodesic import disk_offsets
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import Observation, ObservationBuilder
@@ -53,6 +54,9 @@ class EpisodeResult:
     map_geometry: GridGeometry | None = None
     sim_time_s: float | None = None
     """Simulated seconds the episode ran (the simulator's clock at its end); None where no simulator ran (a real robot)."""
+    ended_why: str = ""
+    """Why it ended, where ``terminated_by`` alone does not say (``no_frontier``: the frontier cells left and what kept
+    each from being a goal, ``no_frontier_why``); empty otherwise."""
 
     @property
     def efficiency_m2_per_step(self) -> float:
@@ -157,6 +161,44 @@ def mark_dead_frontier(dead: np.ndarray, geometry: GridGeometry, xy: tuple[float
     dead[yy[ok], xx[ok]] = True
 
 
+def no_frontier_why(obs: Observation, dead: np.ndarray, min_cluster_size_m: float, robot_radius_m: float) -> str:
+    """Why a decision found no goal (the episode ends ``no_frontier``), in a user's terms: how many frontier cells
+    the robot's map still holds and what kept each from being a goal. ``dead``: the cells blacklisted around goals
+    that failed (``mark_dead_frontier``)."""
+    explored = obs.explored
+    left = frontier_cells(explored & ~obs.occupied, explored)
+    if not left.any():
+        return "no frontier left: the map has no open cell next to unknown space"
+    res = obs.geometry.resolution_m
+    min_cells = max(1, int(np.ceil(min_cluster_size_m / res - 1e-9)))
+    blacklisted = int(np.count_nonzero(left & dead))
+    small = out_of_reach = out_of_reach_clusters = reachable = 0
+    iy, ix, splits = frontier_components(left & ~dead)
+    distance = obs.distance_map()
+    for cy, cx in zip(np.split(iy, splits), np.split(ix, splits)) if len(iy) else ():
+        if len(cy) < min_cells:
+            small += len(cy)
+        elif not np.isfinite(distance[cy, cx]).any():
+            out_of_reach += len(cy)
+            out_of_reach_clusters += 1
+        else:
+            reachable += len(cy)
+    parts = []
+    if out_of_reach:
+        parts.append(
+            f"{out_of_reach} in {out_of_reach_clusters} cluster(s) the robot cannot reach through known free space "
+            f"(obstacles inflated by robot.radius_m, {robot_radius_m:g} m)"
+        )
+    if small:
+        parts.append(f"{small} in clusters shorter than frontier.min_cluster_size_m ({min_cluster_size_m:g} m)")
+    if blacklisted:
+        parts.append(f"{blacklisted} given up around goals reached, or failed, while still frontiers (unobservable)")
+    if reachable:
+        parts.append(f"{reachable} reachable, which the policy chose none of")
+    total = int(np.count_nonzero(left))
+    return f"no frontier left that the robot can reach: {total} frontier cells ({total * res:.2f} m) remain: " + "; ".join(parts)
+
+
 @dataclass
 class Explorer:
     """The exploration loop around a simulator. Ground truth is used only for metrics and stopping."""
@@ -188,6 +230,7 @@ class Explorer:
         self.trajectory: list[tuple[float, float]] = [tuple(self.sim.true_pose().xy)]
         self.path_length_m = 0.0
         self.terminated_by: str | None = None
+        self.ended_why = ""
         self._integrate()
         self.coverage_curve: list[float] = [self.coverage_pct()]
 
@@ -241,6 +284,7 @@ class Explorer:
         if goal is None:
             self.planner.clear()
             self.terminated_by = TERMINATED_NO_FRONTIER
+            self.ended_why = no_frontier_why(obs, self.dead_frontier, self.config.frontier.min_cluster_size_m, self.config.robot.radius_m)
             return
         status = self.planner.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_map(), occupied=obs.occupied)
         if status == PlannerStatus.BLOCKED:
@@ -307,6 +351,7 @@ class Explorer:
             map_grid=self.map.to_occupancy_grid(),
             map_geometry=self.map.geometry,
             sim_time_s=float(self.sim.time_s),
+            ended_why=self.ended_why,
         )
 
 

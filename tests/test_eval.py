@@ -591,6 +591,19 @@ def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     assert lines[2] == "writing results/easy/: summary.json, episodes.csv, curves and 2 trajectory plots"
 
 
+def test_a_progress_line_says_why_an_episode_found_no_frontier(capsys):
+    """``no_frontier`` alone read as a bug at 93 % coverage: the line goes on with the frontier left and why."""
+    from cso_runtime.evaluation import EpisodeOutcome, RichProgress
+
+    progress = RichProgress(clock=lambda: 0.0)
+    progress.start(1)
+    row = {"coverage_pct": 98.3, "steps": 54, "terminated_by": "no_frontier"}
+    why = "no frontier left that the robot can reach: 21 frontier cells (1.05 m) remain: 21 in 2 cluster(s) ..."
+    progress.advance(EpisodeOutcome("greedy-dist", "lshape", row=row, ended_why=why))
+    progress.stop()
+    assert capsys.readouterr().err.splitlines()[0] == f"[1/1] greedy-dist lshape: 98.3% in 54 steps (no_frontier): {why} [0:00:00 elapsed]"
+
+
 def test_progress_lines_in_a_log_say_the_time_elapsed_and_left(capsys):
     """A long eval followed in its log (nohup, CI) gets what the bar shows a terminal: the time so far and about how
     long the rest takes, at the pace of the episodes run now (those ``--resume`` kept took no time)."""

@@ -78,3 +78,34 @@ def test_a_robot_inside_the_inflated_obstacles_may_move_out_of_them():
     free = builder.build(occupancy, Pose2D(1.0, 0.55, 0.0))
     assert np.array_equal(free.traversable, builder.traversable(occupancy))
     assert np.array_equal(free.distance_m, geodesic_distance(free.traversable, occupancy.geometry, np.array([1.0, 0.55])))
+
+
+def test_an_episode_that_ends_with_no_frontier_says_what_is_left_and_why():
+    """The reviewer read "no_frontier" at 93 % as a bug: the run now says which frontier cells are left and what
+    kept each from being a goal (out of reach through the inflated obstacles, too short a cluster, given up)."""
+    from cso_runtime.episode import mark_dead_frontier, no_frontier_why
+
+    g = GridGeometry(0.05, (22, 64))
+    occupied = np.ones(g.shape, dtype=bool)
+    occupied[2:20, 2:62] = False
+    occupied[2:20, 40] = True
+    occupied[10:13, 40] = False  # a 0.15 m gap: too narrow for a robot of radius 0.2 m
+    explored = np.zeros(g.shape, dtype=bool)
+    explored[:, :44] = True  # the frontier is column 43, behind the gap: 18 cells, out of reach
+    explored[5, 10] = False  # one unknown cell: a cluster of its 4 neighbours, shorter than 0.3 m
+    explored[15, 20] = False  # another, given up around a goal reached there
+    occupancy = OccupancyMap.from_masks(explored, occupied & explored, g)
+    dead = np.zeros(g.shape, dtype=bool)
+    mark_dead_frontier(dead, g, g.cell_to_world(15, 20), 0.1)
+    obs = ObservationBuilder().build(occupancy, Pose2D(0.5, 0.5, 0.0), exclude_frontier=dead)
+    assert obs.clusters == []
+    why = no_frontier_why(obs, dead, 0.3, 0.2)
+    assert why == (
+        "no frontier left that the robot can reach: 26 frontier cells (1.30 m) remain: 18 in 1 cluster(s) the robot cannot "
+        "reach through known free space (obstacles inflated by robot.radius_m, 0.2 m); 4 in clusters shorter than "
+        "frontier.min_cluster_size_m (0.3 m); 4 given up around goals reached, or failed, while still frontiers (unobservable)"
+    )
+    closed = OccupancyMap.from_masks(np.ones(g.shape, dtype=bool), occupied, g)
+    assert no_frontier_why(ObservationBuilder().build(closed, Pose2D(0.5, 0.5, 0.0)), dead, 0.3, 0.2) == (
+        "no frontier left: the map has no open cell next to unknown space"
+    )
