@@ -17,7 +17,7 @@ import numpy as np
 
 from cso_runtime.config import EpisodeConfig, ExplorationConfig
 from cso_runtime.frontiers import frontier_cells, frontier_components
-from cso_runtime.geodesic import disk_offsets
+from cso_runtime.geodesic import disk_cells
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap, integrate_observation
@@ -153,12 +153,7 @@ def goal_failed_in_place(reason: str, goal: Goal, occupancy: OccupancyMap, pose:
 
 def mark_dead_frontier(dead: np.ndarray, geometry: GridGeometry, xy: tuple[float, float], goal_tolerance_m: float) -> None:
     """Mark the frontier cells within the goal tolerance of ``xy`` as dead (not actions any more)."""
-    r = max(1, int(math.ceil(goal_tolerance_m / geometry.resolution_m)))
-    iy, ix = geometry.world_to_cell(xy[0], xy[1])
-    offs = disk_offsets(r)
-    yy, xx = offs[:, 0] + int(iy), offs[:, 1] + int(ix)
-    ok = geometry.in_bounds(yy, xx)
-    dead[yy[ok], xx[ok]] = True
+    dead[disk_cells(geometry, xy, max(1, int(math.ceil(goal_tolerance_m / geometry.resolution_m))))] = True
 
 
 def no_frontier_why(obs: Observation, dead: np.ndarray, min_cluster_size_m: float, robot_radius_m: float) -> str:

@@ -28,6 +28,15 @@ def disk_offsets(radius_cells: int) -> np.ndarray:
     return offsets
 
 
+def disk_cells(geometry: GridGeometry, xy_m: tuple[float, float] | np.ndarray, radius_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, columns) of the cells of ``disk(radius_cells)`` around the cell of ``xy_m`` that lie on the map."""
+    iy, ix = geometry.world_to_cell(xy_m[0], xy_m[1])
+    offs = disk_offsets(radius_cells)
+    yy, xx = offs[:, 0] + int(iy), offs[:, 1] + int(ix)
+    ok = geometry.in_bounds(yy, xx)
+    return yy[ok], xx[ok]
+
+
 def inflate(occupied: np.ndarray, radius_m: float, resolution_m: float) -> np.ndarray:
     """Occupied cells grown by ``radius_m``: the cells where the robot centre would collide.
 
@@ -62,11 +71,7 @@ def escape_cells(open_cells: np.ndarray, geometry: GridGeometry, source_xy_m: np
     The robot's body is already there, so it may move through them to the traversable cells around it,
     as Nav2's planners let a robot leave the inscribed zone it starts in."""
     out = np.zeros(geometry.shape, dtype=bool)
-    sy, sx = geometry.world_to_cell(source_xy_m[0], source_xy_m[1])
-    offs = disk_offsets(int(np.ceil(robot_radius_m / geometry.resolution_m - 1e-9)) + 1)
-    yy, xx = offs[:, 0] + int(sy), offs[:, 1] + int(sx)
-    ok = geometry.in_bounds(yy, xx)
-    out[yy[ok], xx[ok]] = True
+    out[disk_cells(geometry, source_xy_m, int(np.ceil(robot_radius_m / geometry.resolution_m - 1e-9)) + 1)] = True
     return out & open_cells
 
 
