@@ -280,6 +280,10 @@ class Explorer:
             self.planner.clear()
             self.terminated_by = TERMINATED_NO_FRONTIER
             self.ended_why = no_frontier_why(obs, self.dead_frontier, self.config.frontier.min_cluster_size_m, self.config.robot.radius_m)
+            fov_deg = self.config.sensor.fov_deg
+            if self.dead_frontier.any() and fov_deg < 360 and fov_deg >= self.config.planner.face_goal_below_fov_deg:
+                # the 180-degree LiDAR by default: a goal reached behind it was given up without being looked at
+                self.ended_why += f" (the {fov_deg:g}-degree sensor does not turn to a goal behind it: planner.face_goal_below_fov_deg=360 makes it)"
             return
         status = self.planner.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_map(), occupied=obs.occupied)
         if status == PlannerStatus.BLOCKED:
