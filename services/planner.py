@@ -158,7 +158,7 @@ class PlannerService(Service):
             if self.paused is None:
                 log.info("paused%s%s: commanding a stop until resumed", f" by {msg.by}" if msg.by else "", f" ({msg.reason})" if msg.reason else "")
             self.paused = msg
-            self.set_state("paused", f"by {msg.by}" if msg.by else "")
+            self.set_state("running", self.pause_reason())  # a state of its own would be a new service_status version
             if self.cmd_step >= 0:  # at once, not at the next scan
                 self.publish("cmd_vel", CmdVelMsg(self.cmd_step, VelocityCommand(), self.pause_reason()))
             return

