@@ -152,7 +152,7 @@ class PlannerService(Service):
         """Pause (``resume`` false) or resume exploration. Paused, every command is a stop and no goal is planned
         (decisions made meanwhile wait; the newest is planned on resume, else the goal is kept). Lockstep refuses."""
         if self.ctx.lockstep:
-            log.warning("%s %s ignored: %s", "resume" if msg.resume else "pause", f"by {msg.by}" if msg.by else "", LOCKSTEP_REFUSAL)
+            log.warning("%s%s ignored: %s", "resume" if msg.resume else "pause", f" by {msg.by}" if msg.by else "", LOCKSTEP_REFUSAL)
             return
         if not msg.resume:
             if self.paused is None:
@@ -315,6 +315,7 @@ class PlannerService(Service):
         reason = ""
         if self.paused is not None:
             cmd, reason = VelocityCommand(), self.pause_reason()
+            self.set_state("running", reason)  # after a stale spell too
         elif self.no_frontier:
             cmd, reason = VelocityCommand(), "no_frontier"
         else:
