@@ -807,6 +807,31 @@ def save_map_command(
     raise typer.Exit(save_map_main(list(connect or []), robot, out, image_format, runs_dir))
 
 
+@app.command("pause", rich_help_panel="Runtime (Zenoh services)")
+def pause_command(
+    reason: str = typer.Option("", "--reason", help="Why (shown by `status`)"),
+    robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
+    connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
+) -> None:
+    """Pause exploration: the robot holds still (zero velocity), the run goes on, until `resume` (explore_lite's explore/resume false)."""
+    from cso_runtime.status import explore_resume_main  # noqa: PLC0415
+
+    raise typer.Exit(explore_resume_main(list(connect or []), robot, runs_dir, resume=False, reason=reason))
+
+
+@app.command("resume", rich_help_panel="Runtime (Zenoh services)")
+def resume_command(
+    robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
+    connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
+    runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
+) -> None:
+    """Resume exploration after `pause`: the robot moves on toward its goal (explore_lite's explore/resume true)."""
+    from cso_runtime.status import explore_resume_main  # noqa: PLC0415
+
+    raise typer.Exit(explore_resume_main(list(connect or []), robot, runs_dir, resume=True))
+
+
 @app.command("down", rich_help_panel="Runtime (Zenoh services)")
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),

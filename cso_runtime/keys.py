@@ -31,6 +31,7 @@ TOPICS = {
     "clock": "clock",
     "episode_status": "episode/status",
     "episode_result": "episode/result",
+    "explore_resume": "explore/resume",
 }
 """Topic name -> key suffix under ``cso/<robot>/``."""
 
@@ -126,6 +127,11 @@ class RobotKeys:
     @property
     def episode_result(self) -> str:
         return self.topic("episode_result")
+
+    @property
+    def explore_resume(self) -> str:
+        """The operator's pause/resume of exploration (``ExploreResumeMsg``; explore_lite's ``explore/resume``)."""
+        return self.topic("explore_resume")
 
     def alive(self, service: str) -> str:
         """Liveliness token of one service (``*`` for all)."""

@@ -62,6 +62,7 @@ from cso_runtime.messages import (
     LAST_EPISODE_FIGURES,
     EpisodeResultMsg,
     EpisodeStatusMsg,
+    ExploreResumeMsg,
     GoalMsg,
     LauncherStatusMsg,
     Message,
@@ -72,6 +73,7 @@ from cso_runtime.messages import (
 )
 from cso_runtime.outputs import results_said, write_text_atomic
 from cso_runtime.pace import StepPace
+from cso_runtime.pause import LOCKSTEP_REFUSAL, PauseClock
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
 from cso_runtime.run_folder import RunFolderWatch
 from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig
@@ -101,10 +103,16 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("cso.launcher")
 
-LAUNCHER_INPUTS: dict[str, type[Message]] = {"episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg, "goal": GoalMsg, "path": PathMsg}
+LAUNCHER_INPUTS: dict[str, type[Message]] = {
+    "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg, "goal": GoalMsg, "path": PathMsg, "explore_resume": ExploreResumeMsg,
+}  # fmt: skip
 """What the launcher listens to: the episode for its live view and results, the goal for its cache, the
-path (a few times a second) for the live view. Not the map: a restarted mapper resumes from the
+path (a few times a second) for the live view, an operator's pause (``cso-runtime pause``, ROS's
+``explore/resume``), which it keeps for restarted services and reports. Not the map: a restarted mapper resumes from the
 referee's (``Service.serves_latest``), so the launcher is not woken on every step."""
+
+LAUNCHER_OPTIONAL_INPUTS = ("explore_resume",)
+"""Of ``LAUNCHER_INPUTS``, those no service of a profile need publish (``cso-runtime pause`` sends the pause)."""
 
 RUNS_DIR = Path("runs")
 
@@ -297,6 +305,9 @@ class Launcher:
         status lists them, DOWN once they go."""
         self.latest_goal: bytes | None = None
         """The payload of the latest goal (``cache/goal``)."""
+        self.pause = PauseClock()
+        """Whether the operator paused exploration (``explore/resume``), served on ``cache/explore/resume`` to a
+        planner that restarts while paused, and how long the robot stood (its status, summary.json's ``paused_s``)."""
         self.rejected: dict[str, int] = {}
         self.handler_errors: dict[str, int] = {}
         """Zenoh callback -> how many times it raised (a bug: logged with its traceback, counted, the run goes on)."""
@@ -487,10 +498,40 @@ class Launcher:
         elif isinstance(msg, PathMsg):
             xy = msg.path_xy_m
             self.path_ahead_m = float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0
+        elif isinstance(msg, ExploreResumeMsg):
+            self.on_pause(msg)
+
+    def on_pause(self, msg: ExploreResumeMsg) -> None:
+        """An operator's pause or resume: kept and logged; a lockstep run refuses it (``LOCKSTEP_REFUSAL``)."""
+        what = "resume" if msg.resume else "pause"
+        by = f" by {msg.by}" if msg.by else ""
+        if self.profile.lockstep:
+            log.warning("%s%s refused: %s", what, by, LOCKSTEP_REFUSAL)
+            return
+        with self._lock:
+            changed = self.pause.heard(msg, time.monotonic())
+        if changed and msg.resume:
+            log.info("exploration resumed%s (paused %.1f s in all)", by, self.pause.total_s(time.monotonic()))
+        elif changed:
+            log.info("exploration paused%s%s: the robot holds still until `cso-runtime resume`", by, f" ({msg.reason})" if msg.reason else "")
 
     def _on_cache_query(self, query: Any) -> None:
         if self.latest_goal is not None:
             query.reply(self.keys.cache("goal"), self.latest_goal)
+
+    def _on_pause_query(self, query: Any) -> None:
+        """``cache/explore/resume``: the last pause or resume heard (none yet: exploring)."""
+        with self._lock:
+            latest = self.pause.latest
+        if latest is not None:
+            query.reply(self.keys.cache("explore_resume"), encode(latest))
+        else:
+            query.reply_err(b"never paused")
+
+    def pause_status(self) -> dict[str, Any]:
+        """``launcher_status``'s ``pause``."""
+        with self._lock:
+            return self.pause.status(time.monotonic(), LOCKSTEP_REFUSAL if self.profile.lockstep else "")
 
     def _on_status_query(self, query: Any) -> None:
         query.reply(self.keys.launcher_status, encode(self.launcher_status()))
@@ -537,7 +578,7 @@ class Launcher:
             last.update({key: getattr(heard, key) for key in LAST_EPISODE_FIGURES})
         pace = None if self.real_time_factor is None else round(self.real_time_factor, 3)
         lost = self.joined_router() if self.router_lost_at is not None else None
-        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost, self.run_folder.losses)
+        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost, self.run_folder.losses, self.pause_status())
 
     # --- supervision ------------------------------------------------------------------------------
     def stop_robot(self, c: Child, code: int | None) -> None:
@@ -863,6 +904,7 @@ class Launcher:
 
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
         meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "profile": self.data}
+        meta["paused_s"] = self.pause_status()["total_s"]  # the robot held still (real time went on, and its steps)
         meta["config"] = to_dict(self.profile.exploration_config())  # every exploration parameter, as eval's summary
         sim_settings = self.profile.simulator_settings()
         if sim_settings is not None:  # every parameter of the sim service's simulator, defaults too (as eval's)
@@ -1161,6 +1203,7 @@ class Launcher:
             subs = [session.declare_subscriber(self.keys.topic(t), self._guarded(self._on_sample)) for t in LAUNCHER_INPUTS]
             qs = [
                 session.declare_queryable(self.keys.cache("goal"), self._guarded(self._on_cache_query)),
+                session.declare_queryable(self.keys.cache("explore_resume"), self._guarded(self._on_pause_query)),
                 session.declare_queryable(self.keys.launcher_status, self._guarded(self._on_status_query)),
             ]
             # The robot this run's bridge will drive is this run's from now on, through a bridge's start or restart.

@@ -102,7 +102,7 @@ class LiveView:
         # As `status` reads the launcher's status: the services this run left to other processes, and which of them
         # the episode waits for while none serves it (a profile with no policy: step 0 would wait with every row up).
         seen = status_of(la.profile.robot, None if st is None else st.to_dict(), la.launcher_status().to_dict(), {}, la.alive_services)
-        waits = waiting_note(seen["waiting_for"])
+        waits = waiting_note(seen["waiting_for"], None if st is not None and st.state in EPISODE_OVER else seen["pause"])
         # Short title, no header: on an 80-column terminal a title wider than the table wraps.
         t = Table(title=f"cso-runtime {la.run_id}", show_header=False)
         t.add_column("field")

@@ -906,6 +906,29 @@ class ClockMsg(Message):
         return cls(_int(b, "step", "clock"), _num(b, "time_s", "clock", 0.0), arena, _int(b, "episode", "clock"))
 
 
+@dataclass
+class ExploreResumeMsg(Message):
+    """An operator's pause or resume of exploration, as m-explore's ``explore/resume`` (std_msgs/Bool): ``resume``
+    false pauses (the planner commands zero velocity, no goal is applied), true resumes. No step: a control, not
+    data of a step; the launcher keeps the latest and serves it on ``cache/explore/resume`` for restarted services."""
+
+    SCHEMA: ClassVar[str] = "explore_resume"
+    resume: bool
+    by: str = ""
+    """Who sent it (``cso-runtime pause``: user@host; the ROS 2 bridge: ``ros2 NS/explore/resume``)."""
+    reason: str = ""
+    stamp_s: float = 0.0
+    """When it was sent (Unix time, s; 0: unknown)."""
+
+    def body(self) -> dict[str, Any]:
+        return {"resume": self.resume, "by": self.by, "reason": self.reason, "stamp_s": self.stamp_s}
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> ExploreResumeMsg:
+        w = "explore_resume"
+        return cls(_bool(b, "resume", w), _str(b, "by", w, max_len=256), _str(b, "reason", w, max_len=1024), _num(b, "stamp_s", w, 0.0))
+
+
 EPISODE_STATES = ("starting", "exploring", "done", "failed")
 EPISODE_OVER = ("done", "failed")
 """The states of an episode that has ended: nothing is waited for after them."""
@@ -1183,9 +1206,15 @@ class LauncherStatusMsg(Message):
     run_dir_lost: int = 0
     """How many times the launcher found its run folder (or its ``logs/``) deleted while the run ran, and made it again
     (``Launcher.tend_run_folder``). Optional on decoding (older launchers do not send it); absent while 0."""
+    pause: dict[str, Any] | None = None
+    """Whether exploration is paused (``explore/resume``): ``paused``, ``by``, ``reason``, ``for_s`` (this pause),
+    ``total_s`` (every pause of the run) and ``refused`` (why this run cannot pause, a lockstep one; "" when it can)
+    (``pause.PauseClock.status``). Optional on decoding (older launchers do not send it)."""
 
     def body(self) -> dict[str, Any]:
         body: dict[str, Any] = {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected, "handler_errors": self.handler_errors}
+        if self.pause is not None:
+            body["pause"] = self.pause
         if self.run_dir_lost:
             body["run_dir_lost"] = self.run_dir_lost
         if self.last_episode is not None:
@@ -1227,8 +1256,16 @@ class LauncherStatusMsg(Message):
         pace = None if b.get("real_time_factor") is None else _num(b, "real_time_factor", w, lo=0.0)
         lost = None if b.get("lost_router") is None else _str(b, "lost_router", w, max_len=1024)
         run_dir_lost = _int(b, "run_dir_lost", w, lo=0) if "run_dir_lost" in b else 0
+        pause = None
+        if b.get("pause") is not None:
+            heard, pw = b["pause"], "launcher_status.pause"
+            if not isinstance(heard, dict):
+                raise MessageError(f"{pw}: expected a mapping")
+            pause = {"paused": _bool(heard, "paused", pw), "by": _str(heard, "by", pw, max_len=256), "reason": _str(heard, "reason", pw, max_len=1024)}
+            pause.update(for_s=_num(heard, "for_s", pw, lo=0.0), total_s=_num(heard, "total_s", pw, lo=0.0), refused=_str(heard, "refused", pw, max_len=1024))
         return cls(
-            _str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace, lost, run_dir_lost
+            _str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace, lost, run_dir_lost,
+            pause,
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -1252,6 +1289,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         EpisodeResultMsg,
         ServiceStatusMsg,
         LauncherStatusMsg,
+        ExploreResumeMsg,
     )
 }
 

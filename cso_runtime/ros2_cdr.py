@@ -40,6 +40,7 @@ POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 PATH = "nav_msgs/msg/Path"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+BOOL = "std_msgs/msg/Bool"
 
 
 ROS_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
@@ -262,6 +263,16 @@ def twist_from_cdr(raw: bytes) -> VelocityCommand:
     if not (math.isfinite(msg.linear.x) and math.isfinite(msg.angular.z)):
         raise CdrError("Twist has non-finite values")
     return VelocityCommand(float(msg.linear.x), float(msg.angular.z))
+
+
+def bool_to_cdr(value: bool) -> bytes:
+    """std_msgs/Bool CDR (explore_lite's ``explore/resume``: false pauses, true resumes)."""
+    return encode(_types()[BOOL](data=bool(value)), BOOL)
+
+
+def bool_from_cdr(raw: bytes) -> bool:
+    """std_msgs/Bool CDR -> its ``data``; a CdrError for anything else."""
+    return bool(decode(raw, BOOL).data)
 
 
 def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_ns: int, frame_id: str = "map", origin: Pose2D | None = None) -> bytes:

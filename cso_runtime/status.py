@@ -23,14 +23,17 @@ from cso_runtime.messages import (
     EPISODE_OVER,
     LAST_EPISODE_FIGURES,
     EpisodeStatusMsg,
+    ExploreResumeMsg,
     LauncherStatusMsg,
     MapMsg,
     Message,
     MessageError,
     ServiceStatusMsg,
     decode,
+    encode,
 )
 from cso_runtime.pace import real_time_words
+from cso_runtime.pause import pause_note
 from cso_runtime.transport import ZENOH_CONFIG_ENV, TransportConfig, TransportError, zenoh_config
 
 if TYPE_CHECKING:
@@ -164,6 +167,7 @@ def status_of(
         "lost_router": (launcher or {}).get("lost_router"),
         "run_dir_lost": (launcher or {}).get("run_dir_lost", 0),
         "launcher_state": (launcher or {}).get("state"),
+        "pause": (launcher or {}).get("pause"),
     }
 
 
@@ -321,10 +325,11 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     return RunTarget(connect, robot, zenoh_config_file)
 
 
-def waiting_note(waiting: list[str]) -> str:
+def waiting_note(waiting: list[str], pause: dict[str, Any] | None = None) -> str:
     """What the state adds while the episode waits for services that this run did not start and no process serves
-    (``status_of``'s ``waiting_for``; "" when none): ``status`` and ``up``'s live view say it alike."""
-    return f"; waiting for {', '.join(waiting)}, which no process serves" if waiting else ""
+    (``status_of``'s ``waiting_for``; "" when none), or for the operator (``status_of``'s ``pause``: ``; paused (by X,
+    for N s)``): ``status`` and ``up``'s live view say it alike."""
+    return (f"; waiting for {', '.join(waiting)}, which no process serves" if waiting else "") + pause_note(pause)
 
 
 def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False) -> list[str]:
@@ -351,7 +356,7 @@ def render_table(status: dict[str, Any]) -> Table:
     t.add_column("value", overflow="fold")  # a narrow terminal wraps a long URL or path, never cuts it with an ellipsis
     goal = status["goal"]
     waiting = status.get("waiting_for") or []
-    waits = waiting_note(waiting)
+    waits = waiting_note(waiting, None if status["state"] in EPISODE_OVER else status.get("pause"))
     pace = "" if status.get("real_time_factor") is None else f" ({real_time_words(status['real_time_factor'])})"
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "") + waits),
@@ -641,3 +646,70 @@ def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_
     g = msg.geometry
     print(f"map of step {msg.step} ({g.shape[1]} x {g.shape[0]} cells at {g.resolution_m} m): {yaml_path} and {yaml_path.with_suffix('.' + image_format).name}")
     return 0
+
+
+PAUSE_CONFIRM_S = 3.0
+"""How long ``pause`` and ``resume`` wait for the launcher to say the robot is paused (resumed): on loopback a few ms."""
+
+
+def operator_name() -> str:
+    """Who pauses (``ExploreResumeMsg.by``): user@host, as ``status`` then says."""
+    import getpass  # noqa: PLC0415
+    import socket  # noqa: PLC0415
+
+    try:
+        user = getpass.getuser()
+    except (KeyError, OSError):  # no user name for this uid (a container)
+        user = str(os.getuid())
+    return f"{user}@{socket.gethostname()}"
+
+
+def launcher_pause(session: zenoh.Session, robot: str, timeout_s: float = 1.0) -> LauncherStatusMsg | None:
+    """The launcher's status of ``robot`` (its ``pause``), or None when no launcher answers."""
+    launchers = _decoded(session.get(RobotKeys(robot).launcher_status, target=zenoh.QueryTarget.ALL, timeout=timeout_s), LauncherStatusMsg)
+    return launchers[-1] if launchers else None
+
+
+def explore_resume_main(connect: list[str], robot: str | None, runs_dir: Path, resume: bool, reason: str = "") -> int:
+    """The ``pause`` (``resume`` false) and ``resume`` commands: send ``explore/resume`` to the running run and wait for
+    its launcher to say so. Exit 0 once it does (or was so already), 1 when nothing runs or it does not confirm, 2 when
+    the run cannot pause (lockstep) or the arguments are bad (as ``status``)."""
+    what = "resume" if resume else "pause"
+    target = reachable_target(connect, robot, runs_dir)
+    if isinstance(target, int):
+        return target
+    connect, robot, zenoh_config_file = target
+    assert robot is not None  # reachable_target always names the robot
+    session = _client_session(connect, zenoh_config_file)
+    if session is None:
+        return say_nothing_running(f"cannot reach {', '.join(connect)}", False)
+    with session:
+        launcher = launcher_pause(session, robot)
+        if launcher is None:
+            return say_nothing_running(f"no launcher of robot {robot} answers at {', '.join(connect)}", False)
+        pause = launcher.pause
+        if pause is None:
+            print(f"error: run {launcher.run_id}'s launcher is older than `{what}` (its status says nothing of a pause)", file=sys.stderr)
+            return 2
+        if pause["refused"]:
+            print(f"error: cannot {what} robot {robot} (run {launcher.run_id}): {pause['refused']}", file=sys.stderr)
+            return 2
+        if pause["paused"] != resume:
+            state = "exploring" if resume else pause_note(pause).lstrip("; ")
+            print(f"robot {robot} (run {launcher.run_id}) is already {state}")
+            return 0
+        session.put(RobotKeys(robot).explore_resume, encode(ExploreResumeMsg(resume, operator_name(), reason, time.time())))
+        deadline = time.monotonic() + PAUSE_CONFIRM_S
+        while time.monotonic() < deadline:
+            now = launcher_pause(session, robot, timeout_s=0.5)
+            if now is not None and now.pause is not None and now.pause["paused"] != resume:
+                step = (now.last_episode or {}).get("step")
+                at = f" at step {step}" if step is not None else ""
+                if resume:
+                    print(f"resumed robot {robot} (run {now.run_id}){at}, after {pause['for_s']:.0f} s paused")
+                else:
+                    print(f"paused robot {robot} (run {now.run_id}){at}: it holds still until `cso-runtime resume`")
+                return 0
+            time.sleep(0.1)
+    print(f"sent {what} to robot {robot}, but its launcher has not said so within {PAUSE_CONFIRM_S:g} s; see `cso-runtime status`", file=sys.stderr)
+    return 1

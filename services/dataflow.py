@@ -65,10 +65,10 @@ def service_node(name: str, section: Any = None) -> Node:
 def nodes_of(service_names: list[str], sections: dict[str, Any] | None = None) -> list[Node]:
     """The nodes of a profile's services (in profile order), and the launcher that watches them; ``sections``: the
     profile's ``services`` mapping, where a service of one's own names its class (the others are the built-in ones)."""
-    from cso_runtime.launcher import LAUNCHER_INPUTS  # noqa: PLC0415
+    from cso_runtime.launcher import LAUNCHER_INPUTS, LAUNCHER_OPTIONAL_INPUTS  # noqa: PLC0415
 
     out = [service_node(name, (sections or {}).get(name)) for name in service_names]
-    return [*out, Node(LAUNCHER, tuple(LAUNCHER_INPUTS), ())]
+    return [*out, Node(LAUNCHER, tuple(LAUNCHER_INPUTS), (), "", LAUNCHER_OPTIONAL_INPUTS)]
 
 
 def edges_of(nodes: list[Node]) -> list[Edge]:
@@ -99,9 +99,11 @@ def wiring_of(nodes: list[Node]) -> list[Wiring]:
 
 
 def unconnected(nodes: list[Node]) -> dict[str, list[str]]:
-    """Inputs nobody in the profile publishes (node -> topics): fine for optional inputs, a hint otherwise."""
+    """Inputs nobody in the profile publishes (node -> topics), optional ones left out (an operator's pause, which
+    ``cso-runtime pause`` sends): a hint."""
     published = {t for n in nodes for t in n.outputs}
-    return {n.name: [t for t in n.inputs if t not in published] for n in nodes if any(t not in published for t in n.inputs)}
+    missing = {n.name: [t for t in n.inputs if t not in published and t not in n.optional] for n in nodes}
+    return {name: topics for name, topics in missing.items() if topics}
 
 
 def unfed_inputs(nodes: list[Node]) -> dict[str, list[str]]:
@@ -132,6 +134,8 @@ def missing_producers(service_names: list[str], sections: dict[str, Any] | None 
     while todo:
         node = every[todo.pop()]
         for topic in node.inputs if node.outputs else ():
+            if topic in node.optional:  # worked without (an operator's pause: the ros2_bridge's, or `cso-runtime pause`)
+                continue
             if not have.intersection(publishers.get(topic, [])) and len(builtin_publishers.get(topic, [])) == 1:
                 name = builtin_publishers[topic][0]
                 have.add(name)

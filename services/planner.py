@@ -25,6 +25,7 @@ from cso_runtime.geometry import VelocityCommand
 from cso_runtime.messages import (
     CmdVelMsg,
     DistanceMapMsg,
+    ExploreResumeMsg,
     FrontiersMsg,
     GoalMsg,
     Message,
@@ -34,6 +35,7 @@ from cso_runtime.messages import (
     PlannerFrontiersMsg,
     ScanMsg,
 )
+from cso_runtime.pause import LOCKSTEP_REFUSAL
 from cso_runtime.planner import FollowResult, LocalPlanner, PlannerStatus
 from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_observation
 
@@ -76,16 +78,30 @@ class PlannerService(Service):
     rule reads."""
 
     name = "planner"
-    inputs = {"odom": OdometryMsg, "scan": ScanMsg, "frontiers": PlannerFrontiersMsg, "distance_map": DistanceMapMsg, "goal": GoalMsg}
+    inputs = {
+        "odom": OdometryMsg, "scan": ScanMsg, "frontiers": PlannerFrontiersMsg, "distance_map": DistanceMapMsg, "goal": GoalMsg,
+        "explore_resume": ExploreResumeMsg,
+    }  # fmt: skip
     outputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg}
-    optional_inputs = ("distance_map",)  # without D the planner runs its own fast-marching pass (the same path)
+    optional_inputs = ("distance_map", "explore_resume")  # without D the planner runs its own fast-marching pass (the same path); a pause is an operator's
     tick_period_s = 0.1
 
     def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
         self.params = from_dict(PlannerParams, ctx.params, where="services.planner")
         self.episodes = EpisodeWatch()
+        self.paused: ExploreResumeMsg | None = None
+        """The operator's pause being obeyed (real time; None: exploring). It outlives an episode: a robot paused
+        stays still until it is resumed."""
         self.reset_episode()
+
+    def start(self) -> None:
+        """A planner (re)started while the robot is paused learns it from the launcher's ``cache/explore/resume``."""
+        if self.ctx.lockstep:
+            return
+        latest = self.query_latest(self.ctx.keys.cache("explore_resume"), ExploreResumeMsg)
+        if isinstance(latest, ExploreResumeMsg) and not latest.resume:
+            self.on_pause(latest)
 
     def warm_up(self) -> None:
         """Plan once on a practice Observation (a planner thrown away), so the first goal's plan pays
@@ -132,7 +148,36 @@ class PlannerService(Service):
         verdict are still on their way (step, result, planner state after it); used when the verdict
         keeps the goal, dropped when it brings a new one."""
 
+    def on_pause(self, msg: ExploreResumeMsg) -> None:
+        """Pause (``resume`` false) or resume exploration. Paused, every command is a stop and no goal is planned
+        (decisions made meanwhile wait; the newest is planned on resume, else the goal is kept). Lockstep refuses."""
+        if self.ctx.lockstep:
+            log.warning("%s%s ignored: %s", "resume" if msg.resume else "pause", f" by {msg.by}" if msg.by else "", LOCKSTEP_REFUSAL)
+            return
+        if not msg.resume:
+            if self.paused is None:
+                log.info("paused%s%s: commanding a stop until resumed", f" by {msg.by}" if msg.by else "", f" ({msg.reason})" if msg.reason else "")
+            self.paused = msg
+            self.set_state("running", self.pause_reason())  # a state of its own would be a new service_status version
+            if self.cmd_step >= 0:  # at once, not at the next scan
+                self.publish("cmd_vel", CmdVelMsg(self.cmd_step, VelocityCommand(), self.pause_reason()))
+            return
+        if self.paused is not None:
+            log.info("resumed%s", f" by {msg.by}" if msg.by else "")
+            self.paused = None
+            self.planner.progress.reset()  # the robot stood because it was told to, not because its goal is out of reach
+            self.set_state("running")
+            self.progress()
+
+    def pause_reason(self) -> str:
+        """A paused command's ``reason``."""
+        by = self.paused.by if self.paused is not None else ""
+        return f"paused: by {by}" if by else "paused"
+
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        if isinstance(msg, ExploreResumeMsg):  # a control, of no episode or step
+            self.on_pause(msg)
+            return
         step = getattr(msg, "step", -1)
         seen = self.episodes.classify(getattr(msg, "episode", 0), step, self.cmd_step > 0 and isinstance(msg, OdometryMsg), from_referee=isinstance(msg, (OdometryMsg, ScanMsg)))
         if seen == "ended":
@@ -160,6 +205,8 @@ class PlannerService(Service):
             return  # never needed to command a step (a plan goes without it)
         elif isinstance(msg, GoalMsg) and msg.decided:
             self.goals[step] = msg
+            if not self.ctx.lockstep:  # a long pause must not grow them either
+                keep_newest(self.goals, PENDING_DECISIONS_KEPT)
         self.progress()
 
     def answer_again(self, msg: Message, step: int) -> bool:
@@ -195,7 +242,7 @@ class PlannerService(Service):
         the current path; a new goal is planned as soon as it arrives with its frontiers."""
         if not self.ctx.lockstep:
             decided = [s for s in self.goals if s > self.goal_step and s in self.frontiers]
-            if decided:
+            if decided and self.paused is None:
                 s = max(decided)
                 self.apply_goal(self.frontiers[s], self.goals[s])
             k = max((s for s in self.odoms if s > self.cmd_step and s in self.scans), default=-1)
@@ -266,7 +313,10 @@ class PlannerService(Service):
                 d.pop(s)
         self.cmd_step = self.last_step = k
         reason = ""
-        if self.no_frontier:
+        if self.paused is not None:
+            cmd, reason = VelocityCommand(), self.pause_reason()
+            self.set_state("running", reason)  # after a stale spell too
+        elif self.no_frontier:
             cmd, reason = VelocityCommand(), "no_frontier"
         else:
             # Lockstep: the sim holds the robot until this very command, so inputs that waited on a slow

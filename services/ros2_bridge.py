@@ -50,6 +50,7 @@ from cso_runtime.messages import (
     CmdVelMsg,
     EpisodeResultMsg,
     EpisodeStatusMsg,
+    ExploreResumeMsg,
     FrontiersMsg,
     GoalMsg,
     MapMsg,
@@ -88,6 +89,8 @@ class Ros2BridgeParams:
     """geometry_msgs/PoseStamped out (the current long-term goal)."""
     frontiers_topic: str = "explore/frontiers"
     """visualization_msgs/MarkerArray out (explore_lite's frontier markers)."""
+    resume_topic: str = "explore/resume"
+    """std_msgs/Bool in (explore_lite's): false pauses exploration, true resumes it (``cso/<robot>/explore/resume``)."""
     map_frame_id: str = "odom"
     """frame_id of the map, goal and frontiers: the map is built in the odometry frame."""
     match_tolerance_s: float = 0.05
@@ -137,7 +140,7 @@ class Ros2BridgeParams:
         self.namespace = self.namespace.strip("/")
         if self.namespace and not ros2_cdr.is_ros_name(self.namespace):
             raise ConfigError(f"namespace {self.namespace!r} is not a ROS name (letters, digits, '_', '/')")
-        for name in ("scan_topic", "odom_topic", "cmd_vel_topic", "map_topic", "goal_topic", "frontiers_topic"):
+        for name in ("scan_topic", "odom_topic", "cmd_vel_topic", "map_topic", "goal_topic", "frontiers_topic", "resume_topic"):
             value = getattr(self, name).strip("/")
             if not ros2_cdr.is_ros_name(value):
                 raise ConfigError(f"{name} {value!r} is not a ROS topic name")
@@ -284,7 +287,10 @@ class Ros2BridgeService(Service):
 
     name = "ros2_bridge"
     inputs: ClassVar[dict[str, type[Message]]] = {"cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg}
-    outputs: ClassVar[dict[str, type[Message]]] = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
+    outputs: ClassVar[dict[str, type[Message]]] = {
+        "scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg,
+        "explore_resume": ExploreResumeMsg,
+    }  # fmt: skip
     tick_period_s = 0.05
     serves_latest = ("map",)
     pending: tuple[ros2_cdr.ScanConversion, float] | None
@@ -378,6 +384,7 @@ class Ros2BridgeService(Service):
         self._ros_subs = [
             self.session.declare_subscriber(p.ros_key(p.scan_topic), self._on_ros_scan),
             self.session.declare_subscriber(p.ros_key(p.odom_topic), self._on_ros_odom),
+            self.session.declare_subscriber(p.ros_key(p.resume_topic), self._on_ros_resume),
         ]
         self._queryables = [
             self.session.declare_queryable(
@@ -434,6 +441,19 @@ class Ros2BridgeService(Service):
         self.reject(what, why)
 
     # --- ROS -> cso -------------------------------------------------------------------------------
+    def _on_ros_resume(self, sample: zenoh.Sample) -> None:
+        """explore_lite's ``explore/resume`` (std_msgs/Bool) -> ``cso/<robot>/explore/resume``: false pauses."""
+        key = self.params.ros_key(self.params.resume_topic)
+        with self._bridge_lock:
+            self.counters["received:resume"] += 1
+            try:
+                resume = ros2_cdr.bool_from_cdr(sample.payload.to_bytes())
+            except ros2_cdr.CdrError as exc:
+                self.count_reject("ros_resume:bad_cdr", str(exc))
+                return
+        log.info("%s on %s", "resume" if resume else "pause", key)
+        self.publish("explore_resume", ExploreResumeMsg(resume, f"ros2 {key}", stamp_s=time.time()))
+
     def _on_ros_odom(self, sample: zenoh.Sample) -> None:
         raw = sample.payload.to_bytes()
         with self._bridge_lock:

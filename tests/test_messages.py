@@ -745,3 +745,41 @@ def test_keys_are_namespaced_by_robot():
 def test_bad_robot_ids_are_rejected(bad):
     with pytest.raises(KeyExprError):
         check_robot_id(bad)
+
+
+def test_a_pause_is_kept_timed_and_said_and_the_launchers_status_carries_it():
+    """``PauseClock``: a second pause is no new one, the seconds paused add up over pauses; ``launcher_status``'s
+    ``pause`` round-trips (and is optional: an older launcher's status has none); ``pause_note`` is what ``status`` adds."""
+    from cso_runtime.messages import ExploreResumeMsg, LauncherStatusMsg
+    from cso_runtime.pause import LOCKSTEP_REFUSAL, PauseClock, pause_note
+
+    clock = PauseClock()
+    assert clock.heard(ExploreResumeMsg(False, "ann@lab", "look"), 10.0) and not clock.heard(ExploreResumeMsg(False, "bob"), 12.0)
+    assert clock.paused and clock.paused_for_s(14.0) == 4.0
+    assert clock.heard(ExploreResumeMsg(True, "ann@lab"), 15.0) and not clock.heard(ExploreResumeMsg(True), 16.0)
+    clock.heard(ExploreResumeMsg(False, "ann@lab"), 20.0)
+    pause = clock.status(22.5)
+    assert pause == {"paused": True, "by": "ann@lab", "reason": "", "for_s": 2.5, "total_s": 7.5, "refused": ""}
+    assert pause_note(pause) == "; paused (by ann@lab, for 2 s)" and pause_note(None) == "" and pause_note({**pause, "paused": False}) == ""
+    msg = LauncherStatusMsg("run", "running", pause=PauseClock().status(0.0, LOCKSTEP_REFUSAL))
+    back = decode(encode(msg), LauncherStatusMsg)
+    assert back.pause == {"paused": False, "by": "", "reason": "", "for_s": 0.0, "total_s": 0.0, "refused": LOCKSTEP_REFUSAL}
+    assert decode(encode(LauncherStatusMsg("run", "running")), LauncherStatusMsg).pause is None
+    assert decode(encode(ExploreResumeMsg(False, "ros2 explore/resume", "why", 1.7e9)), ExploreResumeMsg) == ExploreResumeMsg(False, "ros2 explore/resume", "why", 1.7e9)
+
+
+def test_pause_refuses_a_lockstep_run_and_says_why(monkeypatch, capsys, tmp_path):
+    """``cso-runtime pause`` on a lockstep run: exit 2 with the reason, nothing sent."""
+    import contextlib
+
+    from cso_runtime import status as status_module
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.pause import LOCKSTEP_REFUSAL, PauseClock
+
+    sent: list = []
+    session = type("S", (contextlib.nullcontext,), {"put": lambda self, *a: sent.append(a)})()
+    monkeypatch.setattr(status_module, "reachable_target", lambda *a: status_module.RunTarget(["tcp/127.0.0.1:1"], "r0", None))
+    monkeypatch.setattr(status_module, "_client_session", lambda *a: session)
+    monkeypatch.setattr(status_module, "launcher_pause", lambda *a, **k: LauncherStatusMsg("run-1", "running", pause=PauseClock().status(0.0, LOCKSTEP_REFUSAL)))
+    assert status_module.explore_resume_main([], None, tmp_path, resume=False) == 2
+    assert f"cannot pause robot r0 (run run-1): {LOCKSTEP_REFUSAL}" in capsys.readouterr().err and sent == []

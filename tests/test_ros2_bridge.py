@@ -222,6 +222,22 @@ def test_odometry_that_jumps_is_dropped_and_a_lasting_jump_starts_a_new_episode(
     assert svc.path_length_m == pytest.approx(0.22 - new[0].pose.x_m)
 
 
+def test_explore_resume_from_ros_pauses_and_resumes_exploration():
+    """``ros2 topic pub --once /limo1/explore/resume std_msgs/msg/Bool "{data: false}"`` (explore_lite's): the bridge
+    sends it on ``cso/<robot>/explore/resume``, saying where it came from; a payload that is no Bool is counted."""
+    from types import SimpleNamespace
+
+    svc, out, _ = _bridge_without_zenoh({"namespace": "limo1"})
+    sample = lambda raw: SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: raw))  # noqa: E731
+    svc._on_ros_resume(sample(ros2_cdr.bool_to_cdr(False)))
+    svc._on_ros_resume(sample(ros2_cdr.bool_to_cdr(True)))
+    svc._on_ros_resume(sample(b"\x00\x01"))
+    msgs = [m for t, m in out if t == "explore_resume"]
+    assert [(m.resume, m.by) for m in msgs] == [(False, "ros2 limo1/explore/resume"), (True, "ros2 limo1/explore/resume")]
+    assert msgs[0].stamp_s > 0
+    assert svc.counters["received:resume"] == 3 and svc.counters["dropped:ros_resume:bad_cdr"] == 1
+
+
 def test_maps_go_to_ros_at_most_every_map_period_s_and_the_newest_always_goes_out():
     """The mapper makes a map per scan (10 Hz, a few hundred kB each): every one was sent to the robot's
     router as an OccupancyGrid. Now at most one per ``map_period_s``, and the newest once nothing newer comes."""

@@ -153,6 +153,15 @@ def test_odometry_and_twist_round_trip():
     assert cmd == VelocityCommand(0.8, 0.5)
 
 
+def test_bool_round_trip_is_ros_std_msgs_bool():
+    """explore_lite's ``explore/resume``: std_msgs/Bool, a 4-byte CDR header and one byte of data."""
+    assert cdr.bool_from_cdr(cdr.bool_to_cdr(True)) is True
+    assert cdr.bool_from_cdr(cdr.bool_to_cdr(False)) is False
+    assert cdr.bool_to_cdr(True) == b"\x00\x01\x00\x00\x01"  # little-endian CDR, as `ros2 topic pub` sends it
+    with pytest.raises(cdr.CdrError):
+        cdr.bool_from_cdr(b"\x00")
+
+
 def test_occupancy_grid_round_trip():
     g = GridGeometry(0.05, (30, 40), origin_x_m=-1.0, origin_y_m=2.0)
     grid = np.full(g.shape, -1, dtype=np.int8)

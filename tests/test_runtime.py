@@ -35,7 +35,7 @@ from cso_runtime.episode import run_episode
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.keys import TOPICS, RobotKeys
 from cso_runtime.map_files import load_map
-from cso_runtime.messages import ClockMsg, EpisodeStatusMsg, MapMsg, ScanMsg, ServiceStatusMsg, decode, encode
+from cso_runtime.messages import ClockMsg, EpisodeStatusMsg, MapMsg, OdometryMsg, ScanMsg, ServiceStatusMsg, decode, encode
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
@@ -4088,3 +4088,71 @@ def test_up_writes_a_map_scenes_final_map_at_the_scenes_map_origin(tmp_path):
     npz = np.load(tmp_path / "episodes" / "greedy-dist" / "office.npz")
     np.testing.assert_array_equal(npz["map_origin"], [-3.5, 2.0, 0.0])
     np.testing.assert_array_equal(npz["trajectory"], [[1.0, 1.0], [2.0, 1.0]])
+
+
+def test_pause_holds_a_real_time_robot_still_and_resume_lets_the_episode_finish(tmp_path):
+    """``cso-runtime pause`` on a real-time run: the robot holds still (odometry's pose the same, its twist zero, over
+    several steps) while the sim's time goes on, ``status`` says who paused it and for how long, a planner restarted
+    meanwhile stays paused (the launcher's ``cache/explore/resume``), and ``resume`` lets the episode finish, its
+    summary saying how long the robot stood (``paused_s``). With nothing running both commands say so (exit 1)."""
+    runs = tmp_path / "runs"
+    for command in ("pause", "resume"):
+        r = cli(command, "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 1 and "nothing running" in r.stdout, (r.stdout, r.stderr)
+    settings = ["scene=generated:small:1:0", "method=greedy-dist", "services.sim.backend=kinematic", "services.frontier.layer_helper=false", "progress_log_s=0"]
+    try:
+        r = cli("up", "--profile", "sim", "--detach", "--runs-dir", str(runs), *[a for s in settings for a in ("--set", s)], cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stderr[-3000:]
+        info = json.loads((runs / "current.json").read_text())
+
+        def status() -> dict | None:
+            return query_status(info["endpoints"], "r0", timeout_s=0.5)
+
+        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 4 and s["path_length_m"] > 0.1, 60, "the robot moving", period_s=0.1)
+        odoms: list[tuple[int, Pose2D, tuple[float, float]]] = []  # step, pose, twist
+        with open_session(TransportConfig(mode="client", connect=info["endpoints"])) as session:
+
+            def on_odom(sample: Any) -> None:
+                m = decode(sample.payload.to_bytes(), OdometryMsg)
+                odoms.append((m.step, m.pose, (m.twist.linear_mps, m.twist.angular_radps)))
+
+            sub = session.declare_subscriber(RobotKeys("r0").odom, on_odom)
+            r = cli("pause", "--reason", "inspecting", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+            assert r.returncode == 0 and "paused robot r0" in r.stdout, (r.stdout, r.stderr)
+            paused_at = len(odoms)
+
+            def still_for(n: int) -> list | None:
+                """The last ``n`` odometry steps since the pause, when the robot stood through all of them."""
+                after = odoms[paused_at:]
+                stood = [o for o in after if abs(o[2][0]) < 1e-6 and abs(o[2][1]) < 1e-6]
+                if len(stood) < n or stood[-n:] != after[-n:]:
+                    return None
+                last = after[-n:]
+                return last if all(np.allclose(o[1].as_list(), last[0][1].as_list(), atol=1e-6) for o in last) else None
+
+            held = wait_for(lambda: still_for(8), 30, "eight steps standing still", period_s=0.1)
+            assert held[-1][0] - held[0][0] == 7  # consecutive steps: the sim's time goes on
+            s = wait_for(lambda: (t := status()) and t["services"]["planner"].get("state") and t, 10, "the planner's status")
+            assert s["state"] == "exploring" and s["pause"]["paused"] and s["pause"]["reason"] == "inspecting", s
+            assert s["services"]["planner"]["reason"].startswith("paused: by "), s["services"]["planner"]
+            r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+            assert r.returncode == 0 and re.search(r"exploring; paused \(by \S+@\S+, for \d+ s\): inspecting", r.stdout), r.stdout
+            r = cli("pause", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+            assert r.returncode == 0 and "already paused" in r.stdout, r.stdout
+
+            os.kill(s["services"]["planner"]["pid"], signal.SIGKILL)  # a planner restarted while paused stays paused
+            wait_for(lambda: (t := status()) and t["services"]["planner"].get("restarts", 0) >= 1 and t["services"]["planner"].get("reason", "").startswith("paused"), 60, "the planner back, paused")
+            restarted_at = len(odoms)
+            wait_for(lambda: len(odoms) >= restarted_at + 8, 30, "more steps")
+            assert all(abs(o[2][0]) < 1e-6 and abs(o[2][1]) < 1e-6 for o in odoms[restarted_at:]), odoms[restarted_at:]
+            sub.undeclare()
+
+        r = cli("resume", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 0 and "resumed robot r0" in r.stdout, (r.stdout, r.stderr)
+        final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 120, "the end of the episode", period_s=0.2)
+        assert final["state"] == "done" and not final["pause"]["paused"] and final["pause"]["total_s"] > 1.0, final
+        summary = wait_for(lambda: next(iter(runs.glob("*/summary.json")), None), 30, "summary.json")
+        assert json.loads(summary.read_text())["meta"]["paused_s"] > 1.0
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []

@@ -22,6 +22,7 @@ from cso_runtime.messages import (
     ClockMsg,
     CmdVelMsg,
     DistanceMapMsg,
+    ExploreResumeMsg,
     FrontiersMsg,
     GoalMsg,
     MapMsg,
@@ -59,7 +60,10 @@ def _service(
 
 def _feed(svc: Service, msg: Message) -> None:
     """As the service loop does: decoded from the wire, then handled."""
-    topics = {MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", DistanceMapMsg: "distance_map", GoalMsg: "goal", PlannerFeedbackMsg: "planner_feedback"}
+    topics = {
+        MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", DistanceMapMsg: "distance_map", GoalMsg: "goal",
+        PlannerFeedbackMsg: "planner_feedback", ExploreResumeMsg: "explore_resume",
+    }  # fmt: skip
     topic = topics[type(msg)]
     svc.on_message("r0", topic, decode(encode(msg), type(msg)), time.monotonic())
 
@@ -262,6 +266,71 @@ def test_real_time_planner_plans_a_goal_that_arrives_after_newer_odometry():
     assert last.command.linear_mps != 0.0 or last.command.angular_radps != 0.0
     fb = [m for t, m in out if t == "planner_feedback"][-1]
     assert fb.status == "following" and len(fb.path_ahead_xy_m) > 1 and fb.goal_step == 0
+
+
+def test_a_paused_planner_commands_a_stop_plans_no_new_goal_and_resumes_on_its_goal():
+    """``explore/resume`` false (an operator's pause): every command is a stop at once and on each new scan, a goal
+    decided meanwhile is not planned; true: the robot moves on toward the goal it had (the same path). Lockstep
+    refuses a pause (its sim waits for each command)."""
+    planner, out = _service(PlannerService, lockstep=False)
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    _, odom, scan = _inputs(ex, 0)
+
+    def command(step: int) -> CmdVelMsg:
+        _feed(planner, OdometryMsg(step, odom.stamp_s + 0.25 * step, odom.pose))
+        _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose))
+        cmd = [m for t, m in out if t == "cmd_vel"][-1]
+        assert isinstance(cmd, CmdVelMsg) and cmd.step == step
+        return cmd
+
+    _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
+    goal = _far_goal(obs, 0)
+    _feed(planner, goal)
+    moving = command(0)
+    assert moving.command != VelocityCommand()
+    path = planner.planner.path  # to the goal, its last point
+    _feed(planner, ExploreResumeMsg(False, "alice@lab", "inspecting"))
+    assert out[-1] == ("cmd_vel", CmdVelMsg(0, VelocityCommand(), "paused: by alice@lab"))  # at once, not at the next scan
+    assert planner.state == "running" and planner.reason == "paused: by alice@lab"
+    _feed(planner, frontiers_from_observation(1, "timeout", obs, 1.0))  # a decision made while paused
+    other = sorted((c for c in obs.clusters if np.isfinite(c.distance_m)), key=lambda c: c.distance_m)[-2]
+    _feed(planner, GoalMsg(1, True, other.goal_xy_m[0], other.goal_xy_m[1], other.cluster_id, other.distance_m, 1.0, "greedy-dist"))
+    for step in (1, 2, 3):
+        cmd = command(step)
+        assert cmd.command == VelocityCommand() and cmd.reason == "paused: by alice@lab"
+    assert planner.planner.path is path and planner.goal_step == 0
+    fb = [m for t, m in out if t == "planner_feedback"][-1]
+    assert fb.status == "following" and fb.goal_step == 0  # the frontier service keeps the goal
+    _feed(planner, ExploreResumeMsg(False, "alice@lab"))  # a second pause changes nothing
+    _feed(planner, ExploreResumeMsg(True, "alice@lab"))
+    assert planner.state == "running" and planner.reason == "" and planner.goal_step == 1  # the decision made while paused is the newest
+    resumed = command(4)
+    assert resumed.command != VelocityCommand() and resumed.reason == "" and resumed.new_goal
+
+    lockstep, lockstep_out = _service(PlannerService, lockstep=True)
+    _feed(lockstep, ExploreResumeMsg(False, "bob"))
+    assert lockstep.paused is None and lockstep_out == []
+
+
+def test_a_paused_planner_without_a_newer_decision_resumes_on_the_goal_it_had():
+    planner, out = _service(PlannerService, lockstep=False)
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    _, odom, scan = _inputs(ex, 0)
+    _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
+    _feed(planner, _far_goal(obs, 0))
+    _feed(planner, ExploreResumeMsg(False))
+    _feed(planner, odom)
+    _feed(planner, scan)
+    assert [m for t, m in out if t == "cmd_vel"][-1].reason == "paused"
+    path = planner.planner.path  # to the goal, its last point
+    _feed(planner, ExploreResumeMsg(True))
+    _feed(planner, OdometryMsg(1, odom.stamp_s + 0.25, odom.pose))
+    _feed(planner, ScanMsg(1, scan.scan, scan.sensor_pose))
+    cmd = [m for t, m in out if t == "cmd_vel"][-1]
+    assert cmd.step == 1 and cmd.command != VelocityCommand() and not cmd.new_goal
+    assert planner.planner.path is path and planner.goal_step == 0
 
 
 def test_the_planner_says_why_a_goal_has_no_path():
