@@ -86,6 +86,14 @@ def test_an_episode_of_no_step_has_no_efficiency_not_its_area_per_step(tmp_path:
     assert summary["methods"]["greedy-dist"]["efficiency_m2_per_step"] is None
     assert summary["methods"]["greedy-dist"]["episodes"] == 1 and summary["methods"]["greedy-dist"]["efficiency_episodes"] == 0
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["methods"]["greedy-dist"]["explored_area_m2"] == pytest.approx(1.0)
+    # The npz's metric row is strict JSON (null, not NaN), and --resume reads it back to the same tables.
+    with np.load(tmp_path / "out" / "episodes" / "greedy-dist" / "cupboard.npz") as data:
+        stored = json.loads(str(data["metrics"]), parse_constant=lambda name: pytest.fail(f"{name} in the npz's metrics"))
+    assert stored["efficiency_m2_per_step"] is None and stored["decision_ms_p50"] is None and stored["steps"] == 0
+    csv_before = (tmp_path / "out" / "episodes.csv").read_text()
+    resumed = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(plans), out_dir=tmp_path / "out", lidar_fov_deg=360.0, resume=True))
+    assert resumed["meta"]["resumed_episodes"] == 1 and resumed["methods"] == summary["methods"]
+    assert (tmp_path / "out" / "episodes.csv").read_text() == csv_before
 
 
 def test_max_steps_terminates():
