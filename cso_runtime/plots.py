@@ -98,7 +98,8 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
     on_plan = f" on {next(iter(plans))}" if len(plans) == 1 and len(scales) == 1 else ""  # a run of up, an eval of one plan
     fig, axes = plt.subplots(1, len(scales), figsize=(7 if len(scales) == 1 else 4.6 * len(scales), 4.5), squeeze=False, layout="constrained")
     for ax, scale in zip(axes[0], scales):
-        curves_by_method = by_scale.get(scale, {})
+        by_method = by_scale.get(scale, {})
+        curves_by_method = {m: by_method[m] for m in styles if m in by_method}  # the run's order, as the other figures' keys
         for method, mean in held_mean_curves(curves_by_method).items():
             style = styles[method]
             one_point = style["marker"] if len(mean) == 1 else ""  # episodes of no step: a line of one point draws nothing

@@ -859,7 +859,12 @@ def test_coverage_curves_get_one_panel_per_scale_when_the_episodes_span_several(
     ordered = coverage_figure(outcomes, ["greedy-dist", "cso"])
     colours = {line.get_label(): line.get_color() for line in ordered.axes[0].get_lines()}
     assert colours == {"greedy-dist (1 ep.)": "C0", "cso (2 ep.)": "C1"}
+    # and its key lists them in that order too, as the efficiency figure's (it listed them as their episodes finished)
+    assert [t.get_text() for t in ordered.axes[0].get_legend().get_texts()] == ["greedy-dist (1 ep.)", "cso (2 ep.)"]
     ordered.clf()
+    reordered = coverage_figure(outcomes, ["cso", "greedy-dist"])
+    assert [t.get_text() for t in reordered.axes[0].get_legend().get_texts()] == ["cso (2 ep.)", "greedy-dist (1 ep.)"]
+    reordered.clf()
     single = coverage_figure(outcomes[1:])
     assert [ax.get_title() for ax in single.axes] == ["Coverage against step on plan"]  # one plan: named (a run of up)
     single.clf()
