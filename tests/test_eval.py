@@ -831,6 +831,22 @@ def test_the_paired_figure_gives_each_scale_one_colour_in_every_panel(monkeypatc
     fig.clf()
 
 
+def test_the_paired_figures_titles_are_inside_the_picture(tmp_path: Path):
+    """In a figure 4.2 in high, three square panels or more were limited by its height, and the paired figure's titles were cut at the
+    top edge of the PNG ("greedy-info against greedy-dist" of an eval of the four baselines): the top rows of the
+    picture are the background, not a title's letters."""
+    from PIL import Image
+
+    from cso_runtime import plots
+
+    methods = ["greedy-dist", "greedy-info", "utility", "random"]
+    efficiency = {"greedy-dist": (1.82, 4.95, 0.72), "greedy-info": (1.67, 4.92, 0.73), "utility": (1.56, 3.31, 0.72), "random": (1.82, 4.95, 1.02)}
+    table = {(m, "small"): {(scene,): e for scene, e in zip("abc", values)} for m, values in efficiency.items()}
+    plots.plot_paired_efficiency(tmp_path / "paired.png", table, "greedy-dist", methods)
+    grey = np.asarray(Image.open(tmp_path / "paired.png").convert("L"))
+    assert (grey[:3] > 200).all(), [int((row <= 200).sum()) for row in grey[:3]]
+
+
 def test_coverage_curves_get_one_panel_per_scale_when_the_episodes_span_several():
     """Fig. 4: each method's mean curve (episodes held at their final value), one panel per scale in the paper's
     order, one method one colour in every panel; a run of one scale keeps a single panel."""
