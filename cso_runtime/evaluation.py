@@ -403,7 +403,7 @@ def save_episode_files(
         trajectory=result.trajectory_xy_m.astype(np.float32),
         map_origin=np.array([map_origin.x_m, map_origin.y_m, map_origin.yaw_rad], dtype=np.float64),
         coverage_curve=result.coverage_curve_pct.astype(np.float32),
-        metrics=np.array(json.dumps(row)),
+        metrics=np.array(json.dumps(json_row(row), allow_nan=False)),
         settings=np.array(settings),
         scene=np.array(scene_hash),
     )
@@ -597,11 +597,22 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
     return summary
 
 
+def missing(value: Any) -> bool:
+    """A value the row has none to give: None, or a float with none (NaN, the efficiency of an episode of no step)."""
+    return value is None or (isinstance(value, float) and not math.isfinite(value))
+
+
+def json_row(row: dict[str, Any]) -> dict[str, Any]:
+    """``row`` as strict JSON takes it: a missing value is null (``NaN`` is no JSON, and strict readers refuse it);
+    the readers of the row (the tables, ``csv_cell``) take None as they take NaN."""
+    return {k: None if missing(v) else v for k, v in row.items()}
+
+
 def csv_cell(value: Any) -> Any:
     """``value`` as an ``episodes.csv`` cell: a missing value (None, or a float with none to give: NaN, the efficiency
     of an episode of no step) is one empty cell, which csv readers and pandas read as missing (``nan`` would read as a
     number, and two spellings of one thing make every reader handle both); summary.json's null for the same values."""
-    return "" if value is None or (isinstance(value, float) and not math.isfinite(value)) else value
+    return "" if missing(value) else value
 
 
 def write_outputs(

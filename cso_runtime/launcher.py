@@ -1391,10 +1391,15 @@ def episode_record(result: EpisodeResultMsg, wall_s: float, sim_time_s: float | 
 
 
 def episode_figures(row: dict[str, Any]) -> str:
-    """The episode's Table 1 figures in words, from its row: the launcher's line once its results are written (or not)."""
+    """The episode's Table 1 figures in words, from its row: the launcher's line once its results are written (or not).
+    An episode of no step has no m2/step (episodes.csv's empty cell): the line says so rather than ``nan``."""
+    from cso_runtime.evaluation import missing  # noqa: PLC0415
+
+    efficiency = row["efficiency_m2_per_step"]
+    per_step = "no m2/step (no step)" if missing(efficiency) else f"{efficiency:.4f} m2/step"
     return (
         f"episode {row['terminated_by']}: {row['coverage_pct']:.2f}% coverage in {row['steps']} steps; {row['explored_area_m2']:.2f} m2 explored, "
-        f"{row['efficiency_m2_per_step']:.4f} m2/step, path {row['path_length_m']:.2f} m, {row['decisions']} decisions"
+        f"{per_step}, path {row['path_length_m']:.2f} m, {row['decisions']} decisions"
     )
 
 

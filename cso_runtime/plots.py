@@ -98,7 +98,8 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
     on_plan = f" on {next(iter(plans))}" if len(plans) == 1 and len(scales) == 1 else ""  # a run of up, an eval of one plan
     fig, axes = plt.subplots(1, len(scales), figsize=(7 if len(scales) == 1 else 4.6 * len(scales), 4.5), squeeze=False, layout="constrained")
     for ax, scale in zip(axes[0], scales):
-        curves_by_method = by_scale.get(scale, {})
+        by_method = by_scale.get(scale, {})
+        curves_by_method = {m: by_method[m] for m in styles if m in by_method}  # the run's order, as the other figures' keys
         for method, mean in held_mean_curves(curves_by_method).items():
             style = styles[method]
             one_point = style["marker"] if len(mean) == 1 else ""  # episodes of no step: a line of one point draws nothing
@@ -269,7 +270,9 @@ def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, 
     scale_colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, len(SCALES)))  # 0.85: no pale yellow on white
     shown = {m for m, _ in table if m != baseline}
     methods = [m for m in dict.fromkeys(order) if m in shown] + sorted(shown - set(order))
-    fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 4.2), squeeze=False)
+    # Square panels, laid out with their titles: at 4.2 in high, a row of square panels was limited by the height and
+    # the layout pushed the titles off the top edge (tight_layout then set_aspect cut them too); 4.6 in leaves the room.
+    fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 4.6), squeeze=False, layout="constrained")
     for ax, method in zip(axes[0], methods):
         top = 0.0
         for scale in SCALES:
@@ -285,14 +288,13 @@ def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, 
         ax.plot([0, top * 1.05], [0, top * 1.05], color="grey", lw=1, ls="--")
         ax.set_xlim(0, top * 1.05)
         ax.set_ylim(0, top * 1.05)
-        ax.set_aspect("equal")
+        ax.set_box_aspect(1)  # a square panel, as its x and y limits are the same: one unit as long on either axis
         ax.set_xlabel(f"{baseline}, m2/step")
         ax.set_ylabel(f"{method}, m2/step")
         ax.set_title(f"{method} against {baseline}")
         ax.grid(alpha=0.3)
         if ax.collections:
             ax.legend(loc="lower right", fontsize=8)
-    fig.tight_layout()
     _save(fig, path, 110)
 
 

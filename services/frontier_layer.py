@@ -119,7 +119,7 @@ class FrontierLayerWorker:
         """The helper has started (imports done); until then the service computes layers itself."""
         self.pending: int | None = None
         self.broken = ""
-        """Why the helper is no longer used (empty while it is)."""
+        """Why this helper is no longer used (empty while it is); the service may start a new one in its place."""
         self.lost_to_stop = False
         """The helper was lost while the service was stopping: the stop's doing, not a failure."""
         self.layers_computed = 0
@@ -139,7 +139,7 @@ class FrontierLayerWorker:
             self.lost_to_stop = True
             log.debug("frontier layer helper gone as the service stops: %s", why)
         else:
-            log.warning("frontier layer helper not used from now on: %s", why)
+            log.warning("frontier layer helper (pid %s) lost: %s", self.proc.pid, why)  # the service says what follows: a new helper, or none
         self.close()
 
     def _map_shape(self, shape: tuple[int, int]) -> bool:

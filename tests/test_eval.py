@@ -86,6 +86,14 @@ def test_an_episode_of_no_step_has_no_efficiency_not_its_area_per_step(tmp_path:
     assert summary["methods"]["greedy-dist"]["efficiency_m2_per_step"] is None
     assert summary["methods"]["greedy-dist"]["episodes"] == 1 and summary["methods"]["greedy-dist"]["efficiency_episodes"] == 0
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["methods"]["greedy-dist"]["explored_area_m2"] == pytest.approx(1.0)
+    # The npz's metric row is strict JSON (null, not NaN), and --resume reads it back to the same tables.
+    with np.load(tmp_path / "out" / "episodes" / "greedy-dist" / "cupboard.npz") as data:
+        stored = json.loads(str(data["metrics"]), parse_constant=lambda name: pytest.fail(f"{name} in the npz's metrics"))
+    assert stored["efficiency_m2_per_step"] is None and stored["decision_ms_p50"] is None and stored["steps"] == 0
+    csv_before = (tmp_path / "out" / "episodes.csv").read_text()
+    resumed = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(plans), out_dir=tmp_path / "out", lidar_fov_deg=360.0, resume=True))
+    assert resumed["meta"]["resumed_episodes"] == 1 and resumed["methods"] == summary["methods"]
+    assert (tmp_path / "out" / "episodes.csv").read_text() == csv_before
 
 
 def test_max_steps_terminates():
@@ -836,6 +844,22 @@ def test_the_paired_figure_gives_each_scale_one_colour_in_every_panel(monkeypatc
     fig.clf()
 
 
+def test_the_paired_figures_titles_are_inside_the_picture(tmp_path: Path):
+    """In a figure 4.2 in high, three square panels or more were limited by its height, and the paired figure's titles were cut at the
+    top edge of the PNG ("greedy-info against greedy-dist" of an eval of the four baselines): the top rows of the
+    picture are the background, not a title's letters."""
+    from PIL import Image
+
+    from cso_runtime import plots
+
+    methods = ["greedy-dist", "greedy-info", "utility", "random"]
+    efficiency = {"greedy-dist": (1.82, 4.95, 0.72), "greedy-info": (1.67, 4.92, 0.73), "utility": (1.56, 3.31, 0.72), "random": (1.82, 4.95, 1.02)}
+    table = {(m, "small"): {(scene,): e for scene, e in zip("abc", values)} for m, values in efficiency.items()}
+    plots.plot_paired_efficiency(tmp_path / "paired.png", table, "greedy-dist", methods)
+    grey = np.asarray(Image.open(tmp_path / "paired.png").convert("L"))
+    assert (grey[:3] > 200).all(), [int((row <= 200).sum()) for row in grey[:3]]
+
+
 def test_coverage_curves_get_one_panel_per_scale_when_the_episodes_span_several():
     """Fig. 4: each method's mean curve (episodes held at their final value), one panel per scale in the paper's
     order, one method one colour in every panel; a run of one scale keeps a single panel."""
@@ -864,7 +888,12 @@ def test_coverage_curves_get_one_panel_per_scale_when_the_episodes_span_several(
     ordered = coverage_figure(outcomes, ["greedy-dist", "cso"])
     colours = {line.get_label(): line.get_color() for line in ordered.axes[0].get_lines()}
     assert colours == {"greedy-dist (1 ep.)": "C0", "cso (2 ep.)": "C1"}
+    # and its key lists them in that order too, as the efficiency figure's (it listed them as their episodes finished)
+    assert [t.get_text() for t in ordered.axes[0].get_legend().get_texts()] == ["greedy-dist (1 ep.)", "cso (2 ep.)"]
     ordered.clf()
+    reordered = coverage_figure(outcomes, ["cso", "greedy-dist"])
+    assert [t.get_text() for t in reordered.axes[0].get_legend().get_texts()] == ["cso (2 ep.)", "greedy-dist (1 ep.)"]
+    reordered.clf()
     single = coverage_figure(outcomes[1:])
     assert [ax.get_title() for ax in single.axes] == ["Coverage against step on plan"]  # one plan: named (a run of up)
     single.clf()

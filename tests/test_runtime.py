@@ -1618,6 +1618,19 @@ def _fake_result(method: str = "greedy-dist", steps: int = 10):
     return EpisodeResultMsg("s", steps, 1.2, 98.0, 1.3, 4.5, "coverage", 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, method, 0)
 
 
+def test_the_launchers_line_of_an_episode_of_no_step_says_it_has_no_m2_per_step():
+    """An episode that ended in 0 steps (its first scan saw everything) has no m2/step: episodes.csv leaves the cell
+    empty, and the launcher's closing line said "nan m2/step"."""
+    from cso_runtime.launcher import episode_figures, episode_record
+
+    _, row = episode_record(_fake_result(steps=0), wall_s=1.0)
+    line = episode_figures(row)
+    assert "nan" not in line.lower(), line
+    assert line == "episode coverage: 98.00% coverage in 0 steps; 1.20 m2 explored, no m2/step (no step), path 4.50 m, 3 decisions"
+    _, row = episode_record(_fake_result(steps=10), wall_s=1.0)
+    assert "0.1200 m2/step" in episode_figures(row)
+
+
 def _recording_launcher(tmp_path: Path):
     """A launcher of the lockstep profile with ``--record --animate`` whose episode has ended (its GIF is due)."""
     from cso_runtime.launcher import Launcher

@@ -1218,6 +1218,10 @@ def test_a_frontier_layer_helper_that_dies_is_replaced_a_bounded_number_of_times
         assert second is not None and second is not first and not first.proc.is_alive()
         assert frontier.status_msg().counters == {"layer_helper_deaths": 1, "layer_helper_restarts": 1}
         assert any(r.levelno == logging.WARNING and r.getMessage().startswith("frontier layer helper lost (the helper process exited (code -9)): started a new one") for r in caplog.records)
+        # The lost helper's own line said "not used from now on" just before the new one was started: it says it was lost.
+        said = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+        assert f"frontier layer helper (pid {first.proc.pid}) lost: the helper process exited (code -9)" in said, said
+        assert not any("from now on" in line for line in said), said
         assert second.wait_ready(60.0)
         ex = _explorer_at(0)
         m, odom, _ = _inputs(ex, 0)
@@ -1292,7 +1296,7 @@ def test_a_frontier_helper_lost_to_the_services_stop_is_no_warning(caplog, stopp
     if stopping:
         assert warnings == [] and w.lost_to_stop and last == "frontier layers: 0 by the helper process, 0 here", (warnings, last)
     else:
-        assert len(warnings) == 1 and warnings[0].startswith("frontier layer helper not used from now on"), warnings
+        assert len(warnings) == 1 and warnings[0].startswith(f"frontier layer helper (pid {w.proc.pid}) lost: "), warnings
         assert not w.lost_to_stop and last.endswith(f"({w.broken})"), last
 
 
