@@ -343,7 +343,7 @@ def test_a_paused_frontier_service_asks_for_no_decision_and_counts_no_paused_ste
     cfg = dataclasses.replace(base, episode=dataclasses.replace(base.episode, replan_every_steps=every))
     frontier, out = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0}, exploration=cfg)
     ex = _explorer_at(0)
-    m, odom, _ = _inputs(ex, 0)
+    _, odom, _ = _inputs(ex, 0)
 
     def scan(step: int) -> FrontiersMsg:
         _feed(frontier, dataclasses.replace(odom, step=step))
