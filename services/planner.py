@@ -147,7 +147,8 @@ class PlannerService(Service):
 
     def on_pause(self, msg: ExploreResumeMsg) -> None:
         """Pause (``resume`` false) or resume exploration. Paused, every command is a stop and no goal is planned
-        (decisions made meanwhile wait; the newest is planned on resume, else the goal is kept). Lockstep refuses."""
+        (the frontier service asks for none meanwhile; a goal asked for just before and answered meanwhile waits and is
+        planned on resume, else the goal is kept). Lockstep refuses."""
         if self.ctx.lockstep:
             log.warning("%s%s ignored: %s", "resume" if msg.resume else "pause", f" by {msg.by}" if msg.by else "", LOCKSTEP_REFUSAL)
             return
