@@ -50,7 +50,7 @@ from cso_runtime.config import (
 )
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
-from cso_runtime.messages import Message, MessageError, ServiceStatusMsg, decode, encode
+from cso_runtime.messages import ExploreResumeMsg, Message, MessageError, ServiceStatusMsg, decode, encode
 
 M = TypeVar("M", bound=Message)
 from cso_runtime.observation import Observation, ObservationBuilder
@@ -363,6 +363,15 @@ class Service:
             if answered or time.monotonic() + retry_period_s >= deadline:
                 return best
             time.sleep(retry_period_s)
+
+    def pause_in_force(self) -> ExploreResumeMsg | None:
+        """The operator's pause in force as this service starts (the launcher's ``cache/explore/resume``): a service
+        (re)started while the robot is paused obeys it as if it had heard it. None: exploring, or lockstep (which
+        ignores a pause)."""
+        if self.ctx.lockstep:
+            return None
+        latest = self.query_latest(self.ctx.keys.cache("explore_resume"), ExploreResumeMsg)
+        return latest if isinstance(latest, ExploreResumeMsg) and not latest.resume else None
 
 
 def _install_stop_handlers(stop: threading.Event, service: Service | None = None) -> None:

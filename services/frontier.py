@@ -22,6 +22,7 @@ from cso_runtime.episode import decision_reason, goal_failed_in_place, mark_dead
 from cso_runtime.geometry import GridGeometry
 from cso_runtime.messages import (
     DistanceMapMsg,
+    ExploreResumeMsg,
     FrontiersMsg,
     GoalMsg,
     MapMsg,
@@ -74,7 +75,8 @@ class FrontierService(Service):
     the policy decides on."""
 
     name = "frontier"
-    inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg}
+    inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg, "explore_resume": ExploreResumeMsg}
+    optional_inputs = ("explore_resume",)  # a pause is an operator's
     outputs = {"frontiers": FrontiersMsg, "distance_map": DistanceMapMsg}
 
     def __init__(self, ctx: ServiceContext) -> None:
@@ -97,7 +99,24 @@ class FrontierService(Service):
         self.helper_given_up = False
         """No new helper is started any more: the layers are computed here."""
         self.episodes = EpisodeWatch()
+        self.paused = False
+        """The operator's pause (real time): no decision is asked and the paused steps do not count towards the
+        periodic re-decision. It outlives an episode, as the planner's."""
         self.reset_episode()
+
+    def start(self) -> None:
+        """A frontier service (re)started while the robot is paused learns it from the launcher (``pause_in_force``)."""
+        if (pause := self.pause_in_force()) is not None:
+            self.on_pause(pause)
+
+    def on_pause(self, msg: ExploreResumeMsg) -> None:
+        """Pause or resume asking for decisions; lockstep ignores it (the planner says so)."""
+        paused = not msg.resume
+        if self.ctx.lockstep or paused == self.paused:  # a second pause is no new one
+            return
+        self.paused = paused
+        by = f": by {msg.by}" if msg.by else ""
+        self.set_state("running", f"paused{by}" if self.paused else "")
 
     def warm_up(self) -> None:
         """Start the layer helper and wait for it (at most ``helper_start_s``), then build one
@@ -197,8 +216,13 @@ class FrontierService(Service):
         self.last_out: FrontiersMsg | None = None
         self.episode_grid: GridGeometry | None = None
         """The grid of the episode's maps (its first map's): the mapper keeps one grid for an episode."""
+        self.paused_spans: list[tuple[int, int]] = []
+        """Steps decided on while paused, as spans (after, last]: left out of the count towards ``replan_every_steps``."""
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        if isinstance(msg, ExploreResumeMsg):  # a control, of no episode or step
+            self.on_pause(msg)
+            return
         step = getattr(msg, "step", -1)
         # Every input carries its episode id, and the episode shows itself on whichever comes first: maps (and the
         # planner's reports) of the episode before a sim restart may still be in flight among the new one's first
@@ -263,6 +287,18 @@ class FrontierService(Service):
         recent = [s for s, fb in self.feedback.items() if s < k and fb.goal_step == self.decision_step]
         return self.feedback[max(recent)] if recent else None
 
+    def steps_explored_since_decision(self, k: int) -> int:
+        """Steps from the goal's decision to ``k``, less those paused: the robot stood still, told to."""
+        d = self.decision_step
+        return k - d - sum(max(0, last - max(after, d)) for after, last in self.paused_spans)
+
+    def note_paused_step(self, k: int) -> None:
+        """Steps after the last one decided on, up to ``k``, were paused: extend the last span or start one (spans
+        before the goal's decision count no more)."""
+        spans = [span for span in self.paused_spans if span[1] > self.decision_step]
+        after = spans.pop()[0] if spans and spans[-1][1] == self.done_step else self.done_step
+        self.paused_spans = [*spans, (after, k)]
+
     def try_decide(self) -> None:
         ready = sorted(set(self.maps) & set(self.odoms))
         if not ready:
@@ -280,6 +316,8 @@ class FrontierService(Service):
                 d.pop(s)
         for s in [s for s in self.feedback if s < k - 1]:
             self.feedback.pop(s)
+        if self.paused:
+            self.note_paused_step(k)
         self.done_step = self.last_step = k
         occupancy = m.occupancy()
         if self.dead is None or self.dead.shape != occupancy.geometry.shape:
@@ -293,7 +331,7 @@ class FrontierService(Service):
             # The planner's check_blocked on this step's map, run here on the path it reported.
             if status == PlannerStatus.FOLLOWING and path_blocked_ahead(fb.path_ahead_xy_m, odom.pose, occupancy.occupied, occupancy.geometry, self.robot_radius_m):
                 status = PlannerStatus.BLOCKED
-        reason = decision_reason(self.goal, status, occupancy, k - self.decision_step, self.replan_every_steps)
+        reason = None if self.paused else decision_reason(self.goal, status, occupancy, self.steps_explored_since_decision(k), self.replan_every_steps)
         episode = self.episodes.current or 0
         if reason is None or waiting:
             out = FrontiersMsg(k, False, episode=episode)

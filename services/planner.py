@@ -96,12 +96,9 @@ class PlannerService(Service):
         self.reset_episode()
 
     def start(self) -> None:
-        """A planner (re)started while the robot is paused learns it from the launcher's ``cache/explore/resume``."""
-        if self.ctx.lockstep:
-            return
-        latest = self.query_latest(self.ctx.keys.cache("explore_resume"), ExploreResumeMsg)
-        if isinstance(latest, ExploreResumeMsg) and not latest.resume:
-            self.on_pause(latest)
+        """A planner (re)started while the robot is paused learns it from the launcher (``pause_in_force``)."""
+        if (pause := self.pause_in_force()) is not None:
+            self.on_pause(pause)
 
     def warm_up(self) -> None:
         """Plan once on a practice Observation (a planner thrown away), so the first goal's plan pays
@@ -150,7 +147,8 @@ class PlannerService(Service):
 
     def on_pause(self, msg: ExploreResumeMsg) -> None:
         """Pause (``resume`` false) or resume exploration. Paused, every command is a stop and no goal is planned
-        (decisions made meanwhile wait; the newest is planned on resume, else the goal is kept). Lockstep refuses."""
+        (the frontier service asks for none meanwhile; a goal asked for just before and answered meanwhile waits and is
+        planned on resume, else the goal is kept). Lockstep refuses."""
         if self.ctx.lockstep:
             log.warning("%s%s ignored: %s", "resume" if msg.resume else "pause", f" by {msg.by}" if msg.by else "", LOCKSTEP_REFUSAL)
             return

@@ -4106,8 +4106,11 @@ def test_up_writes_a_map_scenes_final_map_at_the_scenes_map_origin(tmp_path):
 def test_pause_holds_a_real_time_robot_still_and_resume_lets_the_episode_finish(tmp_path):
     """``cso-runtime pause`` on a real-time run: the robot holds still (odometry's pose the same, its twist zero, over
     several steps) while the sim's time goes on, ``status`` says who paused it and for how long, a planner restarted
-    meanwhile stays paused (the launcher's ``cache/explore/resume``), and ``resume`` lets the episode finish, its
-    summary saying how long the robot stood (``paused_s``). With nothing running both commands say so (exit 1)."""
+    meanwhile stays paused (the launcher's ``cache/explore/resume``), the frontier service asks the policy for no
+    decision over more than ``replan_every_steps`` paused steps, and ``resume`` lets the episode finish, its summary
+    saying how long the robot stood (``paused_s``). With nothing running both commands say so (exit 1)."""
+    from cso_runtime.messages import FrontiersMsg
+
     runs = tmp_path / "runs"
     for command in ("pause", "resume"):
         r = cli(command, "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
@@ -4130,6 +4133,8 @@ def test_pause_holds_a_real_time_robot_still_and_resume_lets_the_episode_finish(
                 odoms.append((m.step, m.pose, (m.twist.linear_mps, m.twist.angular_radps)))
 
             sub = session.declare_subscriber(RobotKeys("r0").odom, on_odom)
+            decided: list[int] = []  # the steps the frontier service asked the policy to decide
+            asks = session.declare_subscriber(RobotKeys("r0").frontiers, lambda sample: (f := decode(sample.payload.to_bytes(), FrontiersMsg)).decide and decided.append(f.step))
             r = cli("pause", "--reason", "inspecting", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
             assert r.returncode == 0 and "paused robot r0" in r.stdout, (r.stdout, r.stderr)
             paused_at = len(odoms)
@@ -4148,6 +4153,7 @@ def test_pause_holds_a_real_time_robot_still_and_resume_lets_the_episode_finish(
             s = wait_for(lambda: (t := status()) and t["services"]["planner"].get("state") and t, 10, "the planner's status")
             assert s["state"] == "exploring" and s["pause"]["paused"] and s["pause"]["reason"] == "inspecting", s
             assert s["services"]["planner"]["reason"].startswith("paused: by "), s["services"]["planner"]
+            assert s["services"]["frontier"]["reason"].startswith("paused: by "), s["services"]["frontier"]
             r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
             assert r.returncode == 0 and re.search(r"exploring; paused \(by \S+@\S+, for \d+ s\): inspecting", r.stdout), r.stdout
             r = cli("pause", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
@@ -4156,9 +4162,12 @@ def test_pause_holds_a_real_time_robot_still_and_resume_lets_the_episode_finish(
             os.kill(s["services"]["planner"]["pid"], signal.SIGKILL)  # a planner restarted while paused stays paused
             wait_for(lambda: (t := status()) and t["services"]["planner"].get("restarts", 0) >= 1 and t["services"]["planner"].get("reason", "").startswith("paused"), 60, "the planner back, paused")
             restarted_at = len(odoms)
-            wait_for(lambda: len(odoms) >= restarted_at + 8, 30, "more steps")
+            replan_every_steps = ExplorationConfig().episode.replan_every_steps
+            wait_for(lambda: len(odoms) >= restarted_at + 8 and odoms[-1][0] > held[0][0] + replan_every_steps + 4, 60, "more steps")
             assert all(abs(o[2][0]) < 1e-6 and abs(o[2][1]) < 1e-6 for o in odoms[restarted_at:]), odoms[restarted_at:]
+            assert [k for k in decided if k >= held[0][0]] == [], decided  # no goal chosen while paused
             sub.undeclare()
+            asks.undeclare()
 
         r = cli("resume", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
         assert r.returncode == 0 and "resumed robot r0" in r.stdout, (r.stdout, r.stderr)

@@ -333,6 +333,49 @@ def test_a_paused_planner_without_a_newer_decision_resumes_on_the_goal_it_had():
     assert planner.planner.path is path and planner.goal_step == 0
 
 
+def test_a_paused_frontier_service_asks_for_no_decision_and_counts_no_paused_step():
+    """Paused (``explore/resume`` false), the frontier service asks the policy for no decision however many scans come,
+    and the paused steps do not count towards the periodic re-decision (``replan_every_steps``): resumed, it asks once
+    the steps explored since the goal's decision reach it. A service started while paused learns it from the launcher
+    (``pause_in_force``); lockstep ignores a pause (as the planner does)."""
+    every = 4
+    base = ExplorationConfig()
+    cfg = dataclasses.replace(base, episode=dataclasses.replace(base.episode, replan_every_steps=every))
+    frontier, out = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0}, exploration=cfg)
+    ex = _explorer_at(0)
+    _, odom, _ = _inputs(ex, 0)
+
+    def scan(step: int) -> FrontiersMsg:
+        _feed(frontier, dataclasses.replace(odom, step=step))
+        _feed(frontier, MapMsg.of(step, ex.map))  # the same map: the goal stays a frontier, only the count can end it
+        f = [msg for t, msg in out if t == "frontiers"][-1]
+        assert isinstance(f, FrontiersMsg) and f.step == step
+        return f
+
+    assert scan(0).decide
+    _feed(frontier, _far_goal(ex.observe(), 0))
+    assert not scan(1).decide
+    _feed(frontier, ExploreResumeMsg(False, "alice@lab", "inspecting"))
+    assert frontier.reason == "paused: by alice@lab"
+    assert not any(scan(step).decide for step in range(2, 3 + 2 * every))  # more than replan_every_steps scans
+    _feed(frontier, ExploreResumeMsg(True, "alice@lab"))
+    assert frontier.reason == ""
+    resumed = [scan(step) for step in range(3 + 2 * every, 3 + 2 * every + every - 1)]
+    assert [f.decide for f in resumed] == [False, False, True]  # steps 1 and these three: the fourth explored since
+    assert resumed[-1].reason == "timeout"
+
+    started, _ = _service(FrontierService, lockstep=False)
+    asked: list[str] = []
+    started.query_latest = lambda key, expected: asked.append(key) or ExploreResumeMsg(False, "bob")  # type: ignore[method-assign]
+    started.start()
+    assert started.paused and asked == [RobotKeys("r0").cache("explore_resume")]
+    lockstep, lockstep_out = _service(FrontierService, lockstep=True)
+    lockstep.query_latest = lambda key, expected: ExploreResumeMsg(False, "bob")  # type: ignore[method-assign]
+    lockstep.start()
+    _feed(lockstep, ExploreResumeMsg(False, "bob"))
+    assert not lockstep.paused and lockstep_out == []
+
+
 def test_the_planner_says_why_a_goal_has_no_path():
     """``blocked`` covered a goal off the map, one with no path, and a path cut later: the command's reason now
     names the first two (NoPath's message), which the status and the logs show."""
