@@ -334,12 +334,15 @@ class SimService(Service):
         step, since_s = self.no_goal
         if self.ended_why is not None and self.ended_why[0] == step:
             self.finish("done", TERMINATED_NO_FRONTIER, ended_why=self.ended_why[1])
-        elif now_s - since_s >= self.params.ended_why_wait_s or not self.frontier_service_runs():
+        elif not self.frontier_service_runs():
+            self.finish("done", TERMINATED_NO_FRONTIER)
+        elif now_s - since_s >= self.params.ended_why_wait_s:
             log.warning("no reason from the frontier service why the goal of step %d is empty: the episode ends no_frontier without one", step)
             self.finish("done", TERMINATED_NO_FRONTIER)
 
     def frontier_service_runs(self) -> bool:
-        """Whether this robot's frontier service may say why a goal is empty: one is in the profile or alive."""
+        """Whether this robot's frontier service may say why a goal is empty: the profile has one, or leaves it to
+        another process (``expected_services``), or one is alive."""
         return "frontier" in self.expected_services or (self.ctx.robot, "frontier") in self.alive_services
 
     def measure(self, m: MapMsg) -> None:
