@@ -194,6 +194,18 @@ def no_frontier_why(obs: Observation, dead: np.ndarray, min_cluster_size_m: floa
     return f"no frontier left that the robot can reach: {total} frontier cells ({total * res:.2f} m) remain: " + "; ".join(parts)
 
 
+def ended_no_frontier_why(obs: Observation, dead: np.ndarray, config: ExplorationConfig) -> str:
+    """``no_frontier_why`` with ``config``'s settings, and, where frontiers were given up and the sensor sees less than
+    all around without turning to a goal behind it, that setting named: the reason an episode ended ``no_frontier``,
+    the same in-process (``Explorer``) and on the runtime (the frontier service)."""
+    why = no_frontier_why(obs, dead, config.frontier.min_cluster_size_m, config.robot.radius_m)
+    fov_deg = config.sensor.fov_deg
+    if dead.any() and fov_deg < 360 and fov_deg >= config.planner.face_goal_below_fov_deg:
+        # the 180-degree LiDAR by default: a goal reached behind it was given up without being looked at
+        why += f" (the {fov_deg:g}-degree sensor does not turn to a goal behind it: planner.face_goal_below_fov_deg=360 makes it)"
+    return why
+
+
 @dataclass
 class Explorer:
     """The exploration loop around a simulator. Ground truth is used only for metrics and stopping."""
@@ -279,11 +291,7 @@ class Explorer:
         if goal is None:
             self.planner.clear()
             self.terminated_by = TERMINATED_NO_FRONTIER
-            self.ended_why = no_frontier_why(obs, self.dead_frontier, self.config.frontier.min_cluster_size_m, self.config.robot.radius_m)
-            fov_deg = self.config.sensor.fov_deg
-            if self.dead_frontier.any() and fov_deg < 360 and fov_deg >= self.config.planner.face_goal_below_fov_deg:
-                # the 180-degree LiDAR by default: a goal reached behind it was given up without being looked at
-                self.ended_why += f" (the {fov_deg:g}-degree sensor does not turn to a goal behind it: planner.face_goal_below_fov_deg=360 makes it)"
+            self.ended_why = ended_no_frontier_why(obs, self.dead_frontier, self.config)
             return
         status = self.planner.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_map(), occupied=obs.occupied)
         if status == PlannerStatus.BLOCKED:

@@ -25,6 +25,7 @@ TOPICS = {
     "map": "map",
     "frontiers": "frontiers",
     "distance_map": "frontiers/distance",
+    "ended_why": "frontiers/ended_why",
     "goal": "goal",
     "path": "path",
     "planner_feedback": "planner/feedback",

@@ -918,7 +918,7 @@ class Launcher:
             meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
         row = write_episode_outputs(self.run_dir, result, self.wall_s(), meta, self.sim_time_s(result), self.real_time_factor)
         self.written_result = result
-        log.info("%s; results in %s", episode_figures(row), self.run_dir)
+        log.info("%s%s; results in %s", episode_figures(row), ended_why_said(result), self.run_dir)
         return self.run_dir
 
     def wall_s(self) -> float:
@@ -941,7 +941,7 @@ class Launcher:
                 exc.filename or self.run_dir, exc.strerror or exc, self.run_dir,
             )  # fmt: skip
             _, row = episode_record(result, self.wall_s(), self.sim_time_s(result), self.real_time_factor)
-            log.warning("%s; not written to %s", episode_figures(row), self.run_dir)  # the terminal keeps them
+            log.warning("%s%s; not written to %s", episode_figures(row), ended_why_said(result), self.run_dir)  # the terminal keeps them
             return False
         return True
 
@@ -1386,6 +1386,7 @@ def episode_record(result: EpisodeResultMsg, wall_s: float, sim_time_s: float | 
         map_grid=result.final_map.grid if result.final_map is not None else None,
         map_geometry=result.final_map.geometry if result.final_map is not None else None,
         sim_time_s=sim_time_s,
+        ended_why=result.ended_why,
     )
     return er, episode_row(result.method or "unknown", result.seed, er, wall_s, real_time_factor)
 
@@ -1401,6 +1402,12 @@ def episode_figures(row: dict[str, Any]) -> str:
         f"episode {row['terminated_by']}: {row['coverage_pct']:.2f}% coverage in {row['steps']} steps; {row['explored_area_m2']:.2f} m2 explored, "
         f"{per_step}, path {row['path_length_m']:.2f} m, {row['decisions']} decisions"
     )
+
+
+def ended_why_said(result: EpisodeResultMsg) -> str:
+    """Why the episode ended, after its figures on the launcher's line (as after eval's progress line), where its end
+    alone does not say (``no_frontier``: the frontier cells left and what kept each from being a goal); empty otherwise."""
+    return f"; {result.ended_why}" if result.ended_why else ""
 
 
 def write_episode_outputs(

@@ -874,6 +874,27 @@ class PlannerFeedbackMsg(Message):
         )
 
 
+@dataclass
+class EndedWhyMsg(Message):
+    """Why the decision of ``step`` found no goal (the episode ends ``no_frontier``): the frontier service's
+    ``episode.ended_no_frontier_why`` on that decision's Observation and given-up frontiers, sent once the policy's
+    empty goal has come back, for the referee's result (``EpisodeResultMsg.ended_why``)."""
+
+    SCHEMA: ClassVar[str] = "ended_why"
+    step: int
+    why: str
+    episode: int = 0
+    """Episode id of the decision, as on its ``frontiers``."""
+
+    def body(self) -> dict[str, Any]:
+        return {"step": self.step, "why": self.why, "episode": self.episode}
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> EndedWhyMsg:
+        w = "ended_why"
+        return cls(_int(b, "step", w), _str(b, "why", w), _int(b, "episode", w))
+
+
 def new_episode_id() -> int:
     """A fresh episode id (48 random bits): every publisher of ``clock`` draws one per episode, so
     subscribers detect a new episode by the id, not by the step going back (messages on different keys
@@ -1042,6 +1063,10 @@ class EpisodeResultMsg(Message):
     """The last map the referee received from the mapper (None: no map arrived), written as map_server files."""
     map_origin: Pose2D = MAP_FRAME_ORIGIN
     """The scene's pose in the user's map frame (``FloorPlan.map_origin``): where the final map's files are placed."""
+    ended_why: str = ""
+    """Why it ended, where ``terminated_by`` alone does not say (``EpisodeResult.ended_why``: the frontier service's
+    ``ended_why`` for ``no_frontier``); empty otherwise. Optional on decoding (older referees do not send it); absent
+    while empty."""
 
     SCALARS: ClassVar[tuple[str, ...]] = ("explored_area_m2", "coverage_pct", "traversable_area_m2", "path_length_m", "resolution_m")
 
@@ -1062,6 +1087,8 @@ class EpisodeResultMsg(Message):
             final_map=self.final_map.body() if self.final_map is not None else None,
             map_origin=_pose_out(self.map_origin),
         )
+        if self.ended_why:
+            b["ended_why"] = self.ended_why
         return b
 
     @classmethod
@@ -1092,6 +1119,7 @@ class EpisodeResultMsg(Message):
             seed=_int(b, "seed", w, -(2**62)),
             final_map=MapMsg.from_body(final_map, where=f"{w}.final_map") if final_map is not None else None,
             map_origin=_pose_in(b, "map_origin", w),
+            ended_why=_str(b, "ended_why", w) if "ended_why" in b else "",
             **scalars,
         )
 
@@ -1174,9 +1202,11 @@ LAST_EPISODE_FIGURES: dict[str, Callable[[dict, str, str], Any]] = {
     "explored_area_m2": lambda b, k, w: _num(b, k, w, lo=0.0),
     "path_length_m": lambda b, k, w: _num(b, k, w, lo=0.0),
     "decisions": _int,
+    "reason": lambda b, k, w: _str(b, k, w),
 }
 """The figures of the last episode status that the launcher's ``last_episode`` also carries, with their readers: what
-``status`` shows of an episode whose sim no longer answers (an ended run stopping its services)."""
+``status`` shows of an episode whose sim no longer answers (an ended run stopping its services; ``reason``: why it
+ended, as ``no_frontier_why`` says it, or failed)."""
 
 
 @dataclass
@@ -1284,6 +1314,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         GoalMsg,
         PathMsg,
         PlannerFeedbackMsg,
+        EndedWhyMsg,
         ClockMsg,
         EpisodeStatusMsg,
         EpisodeResultMsg,

@@ -18,10 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from cso_runtime.config import ConfigError, from_dict
-from cso_runtime.episode import decision_reason, goal_failed_in_place, mark_dead_frontier
+from cso_runtime.episode import decision_reason, ended_no_frontier_why, goal_failed_in_place, mark_dead_frontier
 from cso_runtime.geometry import GridGeometry
 from cso_runtime.messages import (
     DistanceMapMsg,
+    EndedWhyMsg,
     ExploreResumeMsg,
     FrontiersMsg,
     GoalMsg,
@@ -32,7 +33,7 @@ from cso_runtime.messages import (
     encode,
     frontiers_from_observation,
 )
-from cso_runtime.observation import FrontierLayer, ObservationBuilder
+from cso_runtime.observation import FrontierLayer, Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import PlannerStatus, path_blocked_ahead
 from cso_runtime.policies import Goal
@@ -77,7 +78,7 @@ class FrontierService(Service):
     name = "frontier"
     inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg, "explore_resume": ExploreResumeMsg}
     optional_inputs = ("explore_resume",)  # a pause is an operator's
-    outputs = {"frontiers": FrontiersMsg, "distance_map": DistanceMapMsg}
+    outputs = {"frontiers": FrontiersMsg, "distance_map": DistanceMapMsg, "ended_why": EndedWhyMsg}
 
     def __init__(self, ctx: ServiceContext) -> None:
         super().__init__(ctx)
@@ -211,6 +212,9 @@ class FrontierService(Service):
         self.asked_step = -1
         """The newest step this service asked the policy to decide (``decide: true``): a goal is only ever its answer."""
         self.dead: np.ndarray | None = None
+        self.asked: tuple[Observation, np.ndarray] | None = None
+        """The Observation of the decision asked at ``asked_step`` and the frontiers given up then: why it found no
+        goal, should its goal come back empty (``say_why_no_goal``)."""
         self.path_nodes: list[tuple[float, float]] = []
         self.done_step = -1
         self.last_out: FrontiersMsg | None = None
@@ -244,6 +248,8 @@ class FrontierService(Service):
                 return
             if msg.decided and step >= self.decision_step:
                 self.goal = None if (xy := msg.goal_xy_m) is None else Goal(xy[0], xy[1], msg.cluster_index, msg.distance_m)
+                if self.goal is None and step == self.asked_step:
+                    self.say_why_no_goal(step)
                 self.decision_step = step
                 if self.awaiting_goal_step is not None and step >= self.awaiting_goal_step:
                     self.awaiting_goal_step = None
@@ -265,6 +271,16 @@ class FrontierService(Service):
         elif isinstance(msg, OdometryMsg):
             self.odoms[step] = msg
         self.try_decide()
+
+    def say_why_no_goal(self, step: int) -> None:
+        """The decision of ``step`` found no goal, and the episode ends ``no_frontier``: publish why (the frontier cells
+        left and what kept each from being a goal, as the in-process ``Explorer`` says it) for the referee's result."""
+        if self.asked is None:
+            return
+        obs, dead = self.asked
+        why = ended_no_frontier_why(obs, dead, self.ctx.exploration)
+        log.info("no goal at step %d: %s", step, why)
+        self.publish("ended_why", EndedWhyMsg(step, why, self.episodes.current or 0))
 
     def of_another_grid(self, msg: MapMsg, robot: str) -> bool:
         """Whether ``msg`` is on another grid than the episode's maps before it, and rejected (counted, logged): another
@@ -344,6 +360,7 @@ class FrontierService(Service):
             self.decisions_built += 1
             out = frontiers_from_observation(k, reason, obs, (time.perf_counter() - t0) * 1e3, episode)
             self.awaiting_goal_step, self.awaiting_since_s, self.asked_step = k, time.monotonic(), k
+            self.asked = (obs, self.dead.copy())
         self.last_out = out
         self.publish("frontiers", out)
         if out.decide:

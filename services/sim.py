@@ -30,6 +30,7 @@ from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import (
     ClockMsg,
     CmdVelMsg,
+    EndedWhyMsg,
     EpisodeResultMsg,
     EpisodeStatusMsg,
     GoalMsg,
@@ -93,6 +94,10 @@ class SimParams:
     """``backend: mujoco`` only: the MuJoCo LIMO's parameters over its defaults, keys as in ``configs/robot_sim.yaml``
     (``{odom_trans_noise_frac: 0.01}`` for odometry drift, ``timestep_s``, the acceleration limits). The LiDAR's
     mount is ``exploration.sensor.mount_x_m``, which the mapper and the planner use too."""
+    ended_why_wait_s: float = 2.0
+    """When the policy's goal comes back empty (the episode ends ``no_frontier``), wait (wall clock, at most this long)
+    for the frontier service to say why (``frontiers/ended_why``: the result's ``ended_why``, ``status``'s reason); the
+    episode ends at the step of that goal either way, and with no frontier service, without the wait."""
     viewer: bool = False
     """Open a MuJoCo viewer window on the LIMO (``backend: mujoco`` only; needs a display, and mjpython on
     macOS): refreshed after each control step, the current goal as a red ball. ``service sim --viewer``,
@@ -106,8 +111,8 @@ class SimParams:
                 raise ConfigError(f"{name} must be positive")
         if not self.lockstep_give_up_s > self.lockstep_timeout_s:  # else a lost message fails the episode, never re-published
             raise ConfigError(f"lockstep_give_up_s ({self.lockstep_give_up_s} s) must exceed lockstep_timeout_s ({self.lockstep_timeout_s} s)")
-        if min(self.min_step_period_s, self.start_delay_s, self.status_period_s, self.wait_for_services_s) < 0:
-            raise ConfigError("min_step_period_s, start_delay_s, status_period_s and wait_for_services_s must be >= 0")
+        if min(self.min_step_period_s, self.start_delay_s, self.status_period_s, self.wait_for_services_s, self.ended_why_wait_s) < 0:
+            raise ConfigError("min_step_period_s, start_delay_s, status_period_s, wait_for_services_s and ended_why_wait_s must be >= 0")
         if self.viewer and BACKENDS[self.backend] != "mujoco":
             raise ConfigError(f"viewer needs backend mujoco (the {self.backend} simulator has no 3D world to show)")
         if self.mujoco:
@@ -142,8 +147,8 @@ class SimService(Service):
     ends the episode."""
 
     name = "sim"
-    inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg}
-    optional_inputs = ("cmd_vel_ahead",)  # a step ahead is a speed-up: without it the sim steps on cmd_vel
+    inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "ended_why": EndedWhyMsg}
+    optional_inputs = ("cmd_vel_ahead", "ended_why")  # a step ahead is a speed-up: without it the sim steps on cmd_vel; the reason is words
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     serves_latest = ("map",)
     tick_period_s = 0.02
@@ -208,6 +213,11 @@ class SimService(Service):
         self.status_published_s = -math.inf
         self.timeouts = 0
         self.result: EpisodeResultMsg | None = None
+        self.ended_why: tuple[int, str] | None = None
+        """The frontier service's reason why the decision of a step found no goal (step, words), once heard."""
+        self.no_goal: tuple[int, float] | None = None
+        """The step of an empty goal and when it came (``time.monotonic()``), while the episode's end waits for
+        ``ended_why`` (``ended_why_wait_s``): the episode has ended at that step, nothing more is measured or stepped."""
         self._declarations: list[Any] = []
         self.viewer = open_viewer(self.sim) if self.params.viewer else None
 
@@ -274,8 +284,10 @@ class SimService(Service):
             map_origin=self.sim.plan.map_origin,
         )
 
-    def finish(self, state: str, terminated_by: str, reason: str = "") -> None:
-        self.episode_state, self.terminated_by, self.fail_reason = state, terminated_by, reason
+    def finish(self, state: str, terminated_by: str, reason: str = "", ended_why: str = "") -> None:
+        """End the episode: its status (``reason``: why it failed, or ``ended_why``) and its result go out."""
+        self.no_goal = None
+        self.episode_state, self.terminated_by, self.fail_reason = state, terminated_by, reason or ended_why
         explored_free = self.metrics.explored_free(self.last_map) if self.last_map is not None else np.zeros(self.sim.plan.free.shape, bool)
         self.result = EpisodeResultMsg(
             scene=self.sim.plan.name,
@@ -296,15 +308,42 @@ class SimService(Service):
             seed=self.seed,
             final_map=self.kept("map", MapMsg),
             map_origin=self.sim.plan.map_origin,
+            ended_why=ended_why,
         )
-        why = f" ({reason})" if reason else ""
+        why = f" ({self.fail_reason})" if self.fail_reason else ""
         log.info("episode %s at step %d: %s%s, coverage %.2f%%, %.2f m2 explored", state, self.step, terminated_by, why, self.result.coverage_pct, self.explored_m2)
         self.publish("episode_status", self.episode_status())
         self.publish("episode_result", self.result)
 
     @property
     def running(self) -> bool:
-        return self.episode_state in ("starting", "exploring")
+        """Whether the episode goes on: not ended, nor ending on an empty goal (``no_goal``)."""
+        return self.episode_state in ("starting", "exploring") and self.no_goal is None
+
+    def end_on_empty_goal(self, step: int) -> None:
+        """The goal decided at ``step`` is empty: the episode ends ``no_frontier`` there, with the frontier service's
+        reason once it is heard (at once if it already was; without it after ``ended_why_wait_s``, or at once where
+        no frontier service runs)."""
+        self.no_goal = (step, time.monotonic())
+        self.end_if_why_heard(time.monotonic())
+
+    def end_if_why_heard(self, now_s: float) -> None:
+        """While an empty goal's end waits: end with the reason of its step once heard, or without after the wait."""
+        if self.no_goal is None:
+            return
+        step, since_s = self.no_goal
+        if self.ended_why is not None and self.ended_why[0] == step:
+            self.finish("done", TERMINATED_NO_FRONTIER, ended_why=self.ended_why[1])
+        elif not self.frontier_service_runs():
+            self.finish("done", TERMINATED_NO_FRONTIER)
+        elif now_s - since_s >= self.params.ended_why_wait_s:
+            log.warning("no reason from the frontier service why the goal of step %d is empty: the episode ends no_frontier without one", step)
+            self.finish("done", TERMINATED_NO_FRONTIER)
+
+    def frontier_service_runs(self) -> bool:
+        """Whether this robot's frontier service may say why a goal is empty: the profile has one, or leaves it to
+        another process (``expected_services``), or one is alive."""
+        return "frontier" in self.expected_services or (self.ctx.robot, "frontier") in self.alive_services
 
     def measure(self, m: MapMsg) -> None:
         """Ground-truth metrics of a map; the termination criteria of section 4.1."""
@@ -330,7 +369,7 @@ class SimService(Service):
             self.decision_ms.append(g.decision_ms)
             if not g.has_goal:
                 self.goal_xy = None
-                self.finish("done", TERMINATED_NO_FRONTIER)
+                self.end_on_empty_goal(g.step)
                 return
         self.goal_xy = None if (xy := g.goal_xy_m) is None else [float(xy[0]), float(xy[1])]
 
@@ -369,6 +408,11 @@ class SimService(Service):
 
     # --- inputs ---------------------------------------------------------------------------------
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
+        if isinstance(msg, EndedWhyMsg):
+            if msg.episode == self.episode and self.result is None:
+                self.ended_why = (msg.step, msg.why)
+                self.end_if_why_heard(time.monotonic())
+            return
         if not self.running:
             return
         if isinstance(msg, MapMsg) and msg.episode != self.episode:
@@ -439,6 +483,7 @@ class SimService(Service):
         self.advance(cmd.command)
 
     def on_tick(self, now_s: float) -> None:
+        self.end_if_why_heard(now_s)
         if self.episode_state == "starting":
             if self.services_ready_s is None:
                 missing = self.missing_services()

@@ -34,8 +34,19 @@ from cso_runtime.config import ExplorationConfig
 from cso_runtime.episode import run_episode
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.keys import TOPICS, RobotKeys
-from cso_runtime.map_files import load_map
-from cso_runtime.messages import ClockMsg, EpisodeStatusMsg, MapMsg, OdometryMsg, ScanMsg, ServiceStatusMsg, decode, encode
+from cso_runtime.map_files import load_map, save_map
+from cso_runtime.messages import (
+    EPISODE_OVER,
+    ClockMsg,
+    EpisodeStatusMsg,
+    LauncherStatusMsg,
+    MapMsg,
+    OdometryMsg,
+    ScanMsg,
+    ServiceStatusMsg,
+    decode,
+    encode,
+)
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
@@ -4175,6 +4186,46 @@ def test_pause_holds_a_real_time_robot_still_and_resume_lets_the_episode_finish(
         assert final["state"] == "done" and not final["pause"]["paused"] and final["pause"]["total_s"] > 1.0, final
         summary = wait_for(lambda: next(iter(runs.glob("*/summary.json")), None), 30, "summary.json")
         assert json.loads(summary.read_text())["meta"]["paused_s"] > 1.0
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []
+
+
+def test_up_says_why_an_episode_ended_no_frontier_as_the_in_process_episode_does(tmp_path):
+    """A corridor (a map_server scene) whose start faces away from 0.4 m of dead end behind the 180-degree LiDAR
+    (tests/test_planner.py's): the episode ends no_frontier at 88 % after 2 steps. ``up`` said only "no_frontier",
+    read as a bug; the frontier service now says why, with the in-process episode's words (``ended_no_frontier_why``),
+    and the launcher's line and ``status`` (the sim's, and the launcher's last-heard once the sim is gone) show it."""
+    free = np.zeros((22, 64), dtype=bool)
+    free[2:20, 2:62] = True  # the corridor of tests/test_planner.py: 3.0 x 0.9 m at 0.05 m cells
+    scene = save_map(tmp_path / "corridor.yaml", np.where(free, 0, 100).astype(np.int8), GridGeometry(0.05, free.shape))
+    scene.write_text(scene.read_text() + "start: [0.5, 0.5, 0.0]\n")
+    expected = in_process_result(str(scene))
+    assert expected.terminated_by == "no_frontier" and "given up around goals reached" in expected.ended_why
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(write_profile(tmp_path, str(scene))), "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stderr[-3000:]
+        current = json.loads((runs / "current.json").read_text())
+        status = lambda: query_status(current["endpoints"], current["robot"], timeout_s=0.5)  # noqa: E731
+        final = wait_for(lambda: (s := status()) and s["state"] in EPISODE_OVER and s, 60, "the end of the episode", period_s=0.2)
+        assert (final["state"], final["terminated_by"], final["step"], final["reason"]) == ("done", "no_frontier", expected.steps, expected.ended_why)
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert json.loads(r.stdout)["reason"] == expected.ended_why, r.stdout
+        from rich.console import Console
+
+        console = Console(width=400, record=True)
+        console.print(render_table(final))
+        assert f"done (no_frontier): {expected.ended_why}" in console.export_text()
+        run_dir = Path(current["run_dir"])
+        said = f"episode no_frontier: {expected.coverage_pct:.2f}% coverage in {expected.steps} steps; "
+        wait_for(lambda: said in (run_dir / "logs" / "launcher.log").read_text(), 30, "the launcher's line")
+        line = next(ln for ln in (run_dir / "logs" / "launcher.log").read_text().splitlines() if said in ln)
+        assert line.endswith(f"{expected.decisions} decisions; {expected.ended_why}; results in {run_dir}"), line
+        with open_session(TransportConfig(mode="client", connect=current["endpoints"])) as session:
+            replies = [decode(rep.ok.payload.to_bytes(), LauncherStatusMsg) for rep in session.get(RobotKeys("r0").launcher_status, timeout=5.0) if rep.ok]
+        last = replies[0].last_episode  # type: ignore[attr-defined]
+        assert (last["terminated_by"], last["reason"]) == ("no_frontier", expected.ended_why)  # what `status` shows once the sim is gone
     finally:
         cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert kill_leftovers(runs) == []

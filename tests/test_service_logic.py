@@ -1642,3 +1642,49 @@ def test_a_goal_for_a_step_no_decision_asked_for_is_rejected_not_followed():
     _feed(svc, map1)
     assert [m.step for t, m in out if t == "frontiers"] == [0, 1] and svc.done_step == 1
     assert svc.rejected == {"goal": 1}
+
+
+def test_sim_ends_on_an_empty_goal_with_the_frontier_services_reason_or_without_it_after_its_wait():
+    """An empty goal ends the episode no_frontier at its step; the result and status carry the frontier service's reason
+    (``frontiers/ended_why``), heard before or after the goal. None heard: the episode ends without one once
+    ``ended_why_wait_s`` has passed, and at once where no frontier service runs; nothing is measured meanwhile."""
+    from cso_runtime.messages import EndedWhyMsg, GoalMsg
+    from services.sim import SimService
+
+    def sim(services: dict) -> tuple[SimService, list[tuple[str, Message]]]:
+        profile = {"lockstep": False, "scene": "generated:small:1:0", "seed": 3, "services": services}
+        svc = SimService(ServiceContext("sim", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0}))
+        out: list[tuple[str, Message]] = []
+        svc.publish = lambda topic, msg, robot=None: out.append((topic, svc.check_output(topic, msg)))  # type: ignore[method-assign]
+        svc.services_ready_s = svc.started_s
+        svc.on_tick(svc.started_s)  # step 0 goes out
+        return svc, out
+
+    pipeline = {"sim": {}, "mapper": {}, "frontier": {}, "policy": {}, "planner": {}}
+    why = "no frontier left: the map has no open cell next to unknown space"
+    for why_first in (True, False):
+        svc, out = sim(pipeline)
+        if why_first:
+            svc.on_message("r0", "ended_why", EndedWhyMsg(0, why, svc.episode), time.monotonic())
+            assert svc.running
+        svc.on_message("r0", "goal", GoalMsg(0, True, episode=svc.episode), time.monotonic())
+        if not why_first:
+            assert svc.episode_state == "exploring" and not svc.running and svc.result is None  # waits for the reason
+            svc.on_message("r0", "ended_why", EndedWhyMsg(0, why, svc.episode + 1), time.monotonic())  # another episode's
+            assert svc.result is None
+            svc.on_message("r0", "ended_why", EndedWhyMsg(0, why, svc.episode), time.monotonic())
+        assert svc.result is not None and (svc.result.terminated_by, svc.result.ended_why, svc.result.steps) == ("no_frontier", why, 0)
+        status = [m for t, m in out if t == "episode_status"][-1]
+        assert (status.state, status.terminated_by, status.reason) == ("done", "no_frontier", why)  # type: ignore[attr-defined]
+
+    svc, _ = sim(pipeline)
+    svc.on_message("r0", "goal", GoalMsg(0, True, episode=svc.episode), time.monotonic())
+    g = svc.sim.plan.geometry
+    svc.on_message("r0", "map", MapMsg.from_grid(0, g, np.zeros(g.shape, dtype=np.int8), svc.episode), time.monotonic())
+    svc.on_tick(time.monotonic() + svc.params.ended_why_wait_s / 2)
+    assert svc.result is None and svc.coverage_curve == []  # the episode ended at the goal: its map is not measured
+    svc.on_tick(time.monotonic() + svc.params.ended_why_wait_s)
+    assert svc.result is not None and (svc.result.terminated_by, svc.result.ended_why, svc.fail_reason) == ("no_frontier", "", "")
+    svc, _ = sim({})  # a sim started on its own (`service sim`), and no frontier service alive: nobody to wait for
+    svc.on_message("r0", "goal", GoalMsg(0, True, episode=svc.episode), time.monotonic())
+    assert svc.result is not None and svc.result.ended_why == ""
