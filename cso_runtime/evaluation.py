@@ -116,7 +116,9 @@ METRICS = (
 )
 PACE = ("sim_time_s", "real_time_factor")
 """How fast the simulator ran: an episode's simulated seconds and those over its wall-clock seconds (``pace``)."""
-CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s") + PACE
+CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s") + PACE + ("ended_why",)
+"""``episodes.csv``'s columns, in this order (a contract: a new column goes at the end). ``ended_why``: why the episode
+ended ``no_frontier`` (``EpisodeResult.ended_why``), empty for any other end."""
 
 
 @dataclass
@@ -361,7 +363,8 @@ def _rounded(value: float | None, digits: int) -> float | None:
 
 def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float, real_time_factor: float | None = None) -> dict[str, Any]:
     """One CSV row / JSON record of Table 1 metrics, then how fast the simulator ran: ``real_time_factor`` as
-    measured by the caller (``pace``: eval's over ``wall_s``, ``up``'s over the episode's statuses)."""
+    measured by the caller (``pace``: eval's over ``wall_s``, ``up``'s over the episode's statuses); then why it ended
+    ``no_frontier`` (empty for any other end)."""
     return {
         "method": method,
         "map": result.scene,
@@ -380,6 +383,7 @@ def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float, re
         "wall_s": round(wall_s, 3),
         "sim_time_s": _rounded(result.sim_time_s, 3),
         "real_time_factor": _rounded(real_time_factor, 3),
+        "ended_why": result.ended_why,
     }
 
 
@@ -582,6 +586,8 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], method
         entry["episodes"] = len(mine)
         entry["efficiency_episodes"] = _efficiency_episodes(mine)
         entry["terminated_by"] = {t: sum(1 for r in mine if r["terminated_by"] == t) for t in sorted({r["terminated_by"] for r in mine})}
+        # Why each of its episodes that ended no_frontier did (rows of older runs have no such column, and none is said).
+        entry["ended_why"] = [{"map": r["map"], "seed": r["seed"], "why": r["ended_why"]} for r in mine if r.get("ended_why")]
         entry["by_scale"] = {}
         for scale in SCALES:
             part = [r for r in mine if r["scale"] == scale]

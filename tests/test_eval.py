@@ -96,6 +96,45 @@ def test_an_episode_of_no_step_has_no_efficiency_not_its_area_per_step(tmp_path:
     assert (tmp_path / "out" / "episodes.csv").read_text() == csv_before
 
 
+def _corridor_scene(folder: Path, name: str, start: str) -> Path:
+    """The corridor of tests/test_planner.py (3.0 x 0.9 m at 0.05 m cells) as a map_server scene starting at ``start``."""
+    from cso_runtime.geometry import GridGeometry
+    from cso_runtime.map_files import save_map
+
+    free = np.zeros((22, 64), dtype=bool)
+    free[2:20, 2:62] = True
+    scene = save_map(folder / f"{name}.yaml", np.where(free, 0, 100).astype(np.int8), GridGeometry(0.05, free.shape))
+    scene.write_text(scene.read_text() + f"start: {start}\n")
+    return scene
+
+
+def test_evals_files_say_why_an_episode_ended_no_frontier_and_resume_keeps_it(tmp_path: Path):
+    """eval's progress said why an episode ended no_frontier (``EpisodeResult.ended_why``), its files did not: a
+    results folder showed "no_frontier" alone. ``episodes.csv``'s last column ``ended_why`` (empty for any other end),
+    the npz's metrics and ``summary.json``'s per-method ``ended_why`` now hold it, and ``--resume`` writes the same."""
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    dead_end = _corridor_scene(maps, "dead_end", "[0.5, 0.5, 0.0]")  # 0.4 m of corridor behind the 180-degree LiDAR
+    _corridor_scene(maps, "corridor", "[1.5, 0.18, -0.5]")  # explored to the end
+    expected = run_episode(KinematicSimulator(resolve_scenes(str(dead_end))[0].load(), seed=0), make_policy("greedy-dist"), ExplorationConfig(), seed=0)
+    assert expected.terminated_by == "no_frontier" and "given up around goals reached" in expected.ended_why
+    out = tmp_path / "out"
+    summary = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(maps), out_dir=out))
+    assert CSV_FIELDS[-1] == "ended_why"  # after every column before it: their order is a contract
+    with (out / "episodes.csv").open(newline="") as fh:
+        rows = {r["map"]: r for r in csv.DictReader(fh)}
+    assert (rows["dead_end"]["terminated_by"], rows["dead_end"]["ended_why"]) == ("no_frontier", expected.ended_why)
+    assert (rows["corridor"]["terminated_by"], rows["corridor"]["ended_why"]) == ("coverage", "")
+    assert summary["methods"]["greedy-dist"]["ended_why"] == [{"map": "dead_end", "seed": 0, "why": expected.ended_why}]
+    assert json.loads((out / "summary.json").read_text())["methods"]["greedy-dist"]["ended_why"] == summary["methods"]["greedy-dist"]["ended_why"]
+    with np.load(out / "episodes" / "greedy-dist" / "dead_end.npz") as data:
+        assert json.loads(str(data["metrics"]))["ended_why"] == expected.ended_why
+    csv_before = (out / "episodes.csv").read_text()
+    resumed = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(maps), out_dir=out, resume=True))
+    assert resumed["meta"]["resumed_episodes"] == 2 and resumed["methods"] == summary["methods"]
+    assert (out / "episodes.csv").read_text() == csv_before
+
+
 def test_max_steps_terminates():
     plan = load_floor_plan(builtin_scene_dir() / "img_1.png", 0.1)
     cfg = ExplorationConfig()
@@ -130,9 +169,10 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
     assert len(rows) == 4 and tuple(rows[0].keys()) == CSV_FIELDS
     assert all(int(r["steps"]) <= 60 for r in rows)
     # The simulator's pace, in two columns after the others (whose names and order are a contract): simulated
-    # seconds from the sim's clock (one 0.25 s control period a step) and those over the episode's wall clock.
+    # seconds from the sim's clock (one 0.25 s control period a step) and those over the episode's wall clock; then
+    # why an episode ended no_frontier.
     assert CSV_FIELDS[:15] == ("method", "map", "scale", "seed", *METRICS, "terminated_by", "traversable_area_m2", "decisions", "wall_s")
-    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor")
+    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor", "ended_why")
     for r in rows:
         assert float(r["sim_time_s"]) == pytest.approx(int(r["steps"]) * 0.25)
         assert float(r["real_time_factor"]) == pytest.approx(float(r["sim_time_s"]) / float(r["wall_s"]), rel=0.05, abs=0.5)

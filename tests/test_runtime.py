@@ -4114,6 +4114,24 @@ def test_up_writes_a_map_scenes_final_map_at_the_scenes_map_origin(tmp_path):
     np.testing.assert_array_equal(npz["trajectory"], [[1.0, 1.0], [2.0, 1.0]])
 
 
+def test_ups_summary_json_and_episodes_csv_say_why_the_episode_ended_no_frontier(tmp_path):
+    """``up`` writes eval's summary.json and episodes.csv for its episode: the result's ``ended_why`` (the frontier
+    service's reason, which the launcher's line ends with) is in both, as eval writes it; empty for another end."""
+    import dataclasses
+
+    from cso_runtime.launcher import write_episode_outputs
+
+    why = "no frontier left: 3 frontier cells, all given up around goals reached"
+    for result, said in ((dataclasses.replace(_fake_result(), terminated_by="no_frontier", ended_why=why), why), (_fake_result(), "")):
+        out = tmp_path / result.terminated_by
+        write_episode_outputs(out, result, wall_s=1.0, meta={})
+        with (out / "episodes.csv").open(newline="") as fh:
+            (row,) = csv.DictReader(fh)
+        assert (row["terminated_by"], row["ended_why"]) == (result.terminated_by, said)
+        entry = json.loads((out / "summary.json").read_text())["methods"]["greedy-dist"]
+        assert entry["ended_why"] == ([{"map": "s", "seed": 0, "why": why}] if said else [])
+
+
 def test_pause_holds_a_real_time_robot_still_and_resume_lets_the_episode_finish(tmp_path):
     """``cso-runtime pause`` on a real-time run: the robot holds still (odometry's pose the same, its twist zero, over
     several steps) while the sim's time goes on, ``status`` says who paused it and for how long, a planner restarted
