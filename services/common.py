@@ -639,6 +639,35 @@ class EpisodeWatch:
         return "new" if started else "same"
 
 
+class NoFrontierEnd:
+    """A referee's end of an episode on an empty goal (``no_frontier``: the sim's, the ROS 2 bridge's). The episode ends
+    at that goal's step with the frontier service's reason (``frontiers/ended_why``: the result's ``ended_why``, the
+    status's ``reason``) once heard, at once if it already was; without one after ``wait_s`` (wall clock), or at once
+    where no frontier service runs to say it."""
+
+    def __init__(self, wait_s: float) -> None:
+        self.wait_s = wait_s
+        self.heard: tuple[int, str] | None = None
+        """The frontier service's reason why the decision of a step found no goal (step, words), once heard."""
+        self.empty_goal: tuple[int, float] | None = None
+        """The step of an empty goal and when it came (``time.monotonic()``), while the end waits for its reason."""
+
+    def why_now(self, now_s: float, frontier_runs: bool) -> str | None:
+        """The reason to end the episode with now ("": none, nor any to wait for), or None: no empty goal yet, or its
+        reason still awaited."""
+        if self.empty_goal is None:
+            return None
+        step, since_s = self.empty_goal
+        if self.heard is not None and self.heard[0] == step:
+            return self.heard[1]
+        if not frontier_runs:
+            return ""
+        if now_s - since_s < self.wait_s:
+            return None
+        log.warning("no reason from the frontier service why the goal of step %d is empty: the episode ends no_frontier without one", step)
+        return ""
+
+
 def _dispatch(service: Service, key: str, payload: bytes, received_s: float, inputs: ServiceInputs | None = None) -> None:
     try:
         robot, topic = robot_of(key), topic_of(key)

@@ -17,7 +17,8 @@ slash, no ``rt/`` prefix) with the CDR bytes of the DDS sample, and forwards wha
   explore_lite's conventions) for RViz;
 * plays the sim's referee part where it can without ground truth: episode status (explored area
   from the map, path length from odometry, decisions) and the end of the episode (no reachable
-  frontier left, or ``max_steps``). Coverage is not known on a real robot and reported as 0.
+  frontier left, with the frontier service's reason as the sim has it: ``frontiers/ended_why``; or ``max_steps``).
+  Coverage is not known on a real robot and reported as 0.
 
 The time matching (``OdometryBuffer``) is pure and unit-tested; the service is the thin shell.
 """
@@ -48,6 +49,7 @@ from cso_runtime.messages import (
     EPISODE_OVER,
     ClockMsg,
     CmdVelMsg,
+    EndedWhyMsg,
     EpisodeResultMsg,
     EpisodeStatusMsg,
     ExploreResumeMsg,
@@ -64,7 +66,8 @@ from cso_runtime.messages import (
 )
 from cso_runtime.occupancy import open_on_border
 from cso_runtime.processes import starting_launcher_pid
-from services.common import Service, ServiceContext, service_main
+from services.common import NoFrontierEnd, Service, ServiceContext, service_main
+from services.dataflow import missing_producers
 
 log = logging.getLogger("cso.ros2_bridge")
 
@@ -135,6 +138,10 @@ class Ros2BridgeParams:
     no_scan_warn_s: float = 5.0
     """No LaserScan on the scan key this long (wall clock; from the bridge's start, or since the last one): said in
     the episode status and the log, with what to check (the robot's zenoh-bridge-ros2dds, its namespace)."""
+    ended_why_wait_s: float = 2.0
+    """As the sim's: when the policy's goal comes back empty (the episode ends ``no_frontier``), wait (wall clock, at most
+    this long) for the frontier service to say why (``frontiers/ended_why``: the result's ``ended_why``, ``status``'s
+    reason); the episode ends at that goal either way, and with no frontier service in the profile, without the wait."""
 
     def validate(self) -> None:
         self.namespace = self.namespace.strip("/")
@@ -164,8 +171,8 @@ class Ros2BridgeParams:
         ):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
-        if not self.map_period_s >= 0:
-            raise ConfigError("map_period_s must be >= 0")
+        if not min(self.map_period_s, self.ended_why_wait_s) >= 0:
+            raise ConfigError("map_period_s and ended_why_wait_s must be >= 0")
         if self.arena_origin_xy_m is not None and len(self.arena_origin_xy_m) != 2:
             raise ConfigError("arena_origin_xy_m must be [x_m, y_m]")
 
@@ -286,7 +293,10 @@ class Ros2BridgeService(Service):
     cmd_vel out as Twist, and the referee's part that needs no ground truth."""
 
     name = "ros2_bridge"
-    inputs: ClassVar[dict[str, type[Message]]] = {"cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg}
+    inputs: ClassVar[dict[str, type[Message]]] = {
+        "cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg, "ended_why": EndedWhyMsg,
+    }  # fmt: skip
+    optional_inputs: ClassVar[tuple[str, ...]] = ("ended_why",)  # the reason is words: the episode ends without them
     outputs: ClassVar[dict[str, type[Message]]] = {
         "scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg,
         "explore_resume": ExploreResumeMsg,
@@ -316,6 +326,9 @@ class Ros2BridgeService(Service):
         """Odometry dropped as a jump that goes on consistently from it (a new origin, once it lasts)."""
         self.mount_x_m = ctx.exploration.sensor.mount_x_m
         self.max_steps = ctx.exploration.episode.max_steps
+        listed = list(ctx.profile.get("services") or {})
+        self.frontier_expected = bool(listed) and "frontier" in listed + missing_producers(listed, ctx.profile.get("services"))
+        """Whether a frontier service runs to say why a goal is empty: the profile's, or one it leaves to another process."""
         self.counters: Counter[str] = Counter()
         self.episode = new_episode_id()
         """One episode per bridge start: a restarted bridge counts steps from 0 again."""
@@ -536,6 +549,9 @@ class Ros2BridgeService(Service):
         not mapped, and the episode may end with no frontier left inside the arena."""
         self.decisions = 0
         self.decision_ms: list[float] = []
+        self.no_frontier_end = NoFrontierEnd(self.params.ended_why_wait_s)
+        self.ended_why = ""
+        """Why the episode ended ``no_frontier`` (the frontier service's words), once it has; empty otherwise."""
 
     def _new_episode(self, why: str, counter: str) -> None:
         """Start a new episode (a new id: every service starts over, the mapper with an empty map), as a restarted
@@ -616,7 +632,7 @@ class Ros2BridgeService(Service):
         self.processed += 1
         self.last_step = k
         self.counters["steps"] += 1
-        if k >= self.max_steps and self.episode_state == "exploring":
+        if k >= self.max_steps and self.episode_state == "exploring" and self.no_frontier_end.empty_goal is None:
             self.finish(TERMINATED_MAX_STEPS)
 
     def _arena_around(self, pose: Pose2D) -> GridGeometry:
@@ -633,7 +649,10 @@ class Ros2BridgeService(Service):
         if self.of_another_episode(topic, msg, self.episode):  # a map, goal or frontiers from before this bridge started
             return
         with self._bridge_lock:
-            if isinstance(msg, CmdVelMsg):
+            if isinstance(msg, EndedWhyMsg):
+                self.no_frontier_end.heard = (msg.step, msg.why)
+                self.end_if_why_heard(time.monotonic())
+            elif isinstance(msg, CmdVelMsg):
                 self.forward_command(msg.command, received_s)
             elif isinstance(msg, MapMsg):
                 self.keep_latest("map", msg)
@@ -694,8 +713,9 @@ class Ros2BridgeService(Service):
         if g.decided:
             self.decisions += 1
             self.decision_ms.append(g.decision_ms)
-            if not g.has_goal and self.episode_state == "exploring":
-                self.finish(TERMINATED_NO_FRONTIER)
+            if not g.has_goal and self.episode_state == "exploring" and self.no_frontier_end.empty_goal is None:
+                self.no_frontier_end.empty_goal = (g.step, time.monotonic())
+                self.end_if_why_heard(time.monotonic())
         xy = g.goal_xy_m
         if xy is not None and xy != self.last_goal_xy:
             self.last_goal_xy = (float(xy[0]), float(xy[1]))
@@ -706,8 +726,16 @@ class Ros2BridgeService(Service):
         elif xy is None:
             self.last_goal_xy = None
 
+    def end_if_why_heard(self, now_s: float) -> None:
+        """While an empty goal's end waits (``NoFrontierEnd``): end with the frontier service's reason once heard, or
+        without one after ``ended_why_wait_s``."""
+        why = self.no_frontier_end.why_now(now_s, self.frontier_expected)
+        if why is not None and self.episode_state == "exploring":
+            self.finish(TERMINATED_NO_FRONTIER, why)
+
     def on_tick(self, now_s: float) -> None:
         with self._bridge_lock:
+            self.end_if_why_heard(now_s)
             if self.last_cmd_s is not None and not self.zero_sent and now_s - self.last_cmd_s > self.params.cmd_timeout_s:
                 self._put_ros(self.params.cmd_vel_topic, ros2_cdr.twist_to_cdr(VelocityCommand()))
                 self.zero_sent = True
@@ -779,7 +807,7 @@ class Ros2BridgeService(Service):
                 decisions=self.decisions,
                 last_decision_ms=self.decision_ms[-1] if self.decision_ms else 0.0,
                 terminated_by=self.terminated_by,
-                reason="; ".join(note for note in (self.no_scan_note, self.arena_edge_note()) if note),
+                reason="; ".join(note for note in (self.ended_why, self.no_scan_note, self.arena_edge_note()) if note),
                 episode=self.episode,
             )
 
@@ -804,10 +832,13 @@ class Ros2BridgeService(Service):
             method=str(self.ctx.profile.get("method", "")),
             seed=int(self.ctx.profile.get("seed", 0)),
             final_map=m,
+            ended_why=self.ended_why,
         )
 
-    def finish(self, terminated_by: str) -> None:
-        self.episode_state, self.terminated_by = "done", terminated_by
+    def finish(self, terminated_by: str, ended_why: str = "") -> None:
+        """End the episode: its status (``reason``: ``ended_why`` first) and its result go out."""
+        self.episode_state, self.terminated_by, self.ended_why = "done", terminated_by, ended_why
+        self.no_frontier_end.empty_goal = None
         if self.arena_edge_step is not None:
             log.warning("the episode ends (%s), but %s", terminated_by, self.arena_edge_note())
         log.info(

@@ -46,7 +46,7 @@ from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import Simulator, StateSaving, make_simulator, mujoco_config
 from cso_runtime.transport import track_robots_liveliness
 from services import waited_for_at_start
-from services.common import Service, ServiceContext, service_main
+from services.common import NoFrontierEnd, Service, ServiceContext, service_main
 from services.dataflow import missing_producers
 
 if TYPE_CHECKING:
@@ -213,11 +213,9 @@ class SimService(Service):
         self.status_published_s = -math.inf
         self.timeouts = 0
         self.result: EpisodeResultMsg | None = None
-        self.ended_why: tuple[int, str] | None = None
-        """The frontier service's reason why the decision of a step found no goal (step, words), once heard."""
-        self.no_goal: tuple[int, float] | None = None
-        """The step of an empty goal and when it came (``time.monotonic()``), while the episode's end waits for
-        ``ended_why`` (``ended_why_wait_s``): the episode has ended at that step, nothing more is measured or stepped."""
+        self.no_frontier_end = NoFrontierEnd(self.params.ended_why_wait_s)
+        """An empty goal's end, while it waits for the frontier service's reason: the episode has ended at that goal's
+        step, nothing more is measured or stepped."""
         self._declarations: list[Any] = []
         self.viewer = open_viewer(self.sim) if self.params.viewer else None
 
@@ -286,7 +284,7 @@ class SimService(Service):
 
     def finish(self, state: str, terminated_by: str, reason: str = "", ended_why: str = "") -> None:
         """End the episode: its status (``reason``: why it failed, or ``ended_why``) and its result go out."""
-        self.no_goal = None
+        self.no_frontier_end.empty_goal = None
         self.episode_state, self.terminated_by, self.fail_reason = state, terminated_by, reason or ended_why
         explored_free = self.metrics.explored_free(self.last_map) if self.last_map is not None else np.zeros(self.sim.plan.free.shape, bool)
         self.result = EpisodeResultMsg(
@@ -317,28 +315,21 @@ class SimService(Service):
 
     @property
     def running(self) -> bool:
-        """Whether the episode goes on: not ended, nor ending on an empty goal (``no_goal``)."""
-        return self.episode_state in ("starting", "exploring") and self.no_goal is None
+        """Whether the episode goes on: not ended, nor ending on an empty goal (``no_frontier_end``)."""
+        return self.episode_state in ("starting", "exploring") and self.no_frontier_end.empty_goal is None
 
     def end_on_empty_goal(self, step: int) -> None:
         """The goal decided at ``step`` is empty: the episode ends ``no_frontier`` there, with the frontier service's
         reason once it is heard (at once if it already was; without it after ``ended_why_wait_s``, or at once where
         no frontier service runs)."""
-        self.no_goal = (step, time.monotonic())
+        self.no_frontier_end.empty_goal = (step, time.monotonic())
         self.end_if_why_heard(time.monotonic())
 
     def end_if_why_heard(self, now_s: float) -> None:
         """While an empty goal's end waits: end with the reason of its step once heard, or without after the wait."""
-        if self.no_goal is None:
-            return
-        step, since_s = self.no_goal
-        if self.ended_why is not None and self.ended_why[0] == step:
-            self.finish("done", TERMINATED_NO_FRONTIER, ended_why=self.ended_why[1])
-        elif not self.frontier_service_runs():
-            self.finish("done", TERMINATED_NO_FRONTIER)
-        elif now_s - since_s >= self.params.ended_why_wait_s:
-            log.warning("no reason from the frontier service why the goal of step %d is empty: the episode ends no_frontier without one", step)
-            self.finish("done", TERMINATED_NO_FRONTIER)
+        why = self.no_frontier_end.why_now(now_s, self.frontier_service_runs())
+        if why is not None:
+            self.finish("done", TERMINATED_NO_FRONTIER, ended_why=why)
 
     def frontier_service_runs(self) -> bool:
         """Whether this robot's frontier service may say why a goal is empty: the profile has one, or leaves it to
@@ -410,7 +401,7 @@ class SimService(Service):
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         if isinstance(msg, EndedWhyMsg):
             if msg.episode == self.episode and self.result is None:
-                self.ended_why = (msg.step, msg.why)
+                self.no_frontier_end.heard = (msg.step, msg.why)
                 self.end_if_why_heard(time.monotonic())
             return
         if not self.running:

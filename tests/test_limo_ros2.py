@@ -8,6 +8,7 @@ ports, multicast scouting off, waits with deadlines, every process stopped in ``
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import signal
@@ -198,6 +199,13 @@ def test_up_limo_ros2_explores_a_fake_limo_and_its_recording_rebuilds_the_map(tm
     free_m2 = float(plan.free.sum()) * plan.geometry.cell_area_m2
     assert row["terminated_by"] == {"no_frontier": 1}, row
     assert row["explored_area_m2"] > 0.9 * free_m2, f"explored {row['explored_area_m2']} m2 of {free_m2:.1f} m2 free"
+    # Why it ended, in the frontier service's words, reaches the bridge's result as the sim's: the run's files and the
+    # launcher's closing line say it (they said "no_frontier" alone on a real robot).
+    (why,) = [e["why"] for e in row["ended_why"]]
+    assert why.startswith("no frontier left"), why
+    with (run_dir / "episodes.csv").open(newline="") as fh:
+        assert [r["ended_why"] for r in csv.DictReader(fh)] == [why]
+    assert any(line.endswith(f"; {why}; results in {run_dir}") for line in (run_dir / "logs" / "launcher.log").read_text().splitlines())
 
     # The recording: every step's clock and scan, and the mapper's maps. Replayed at full speed into a
     # fresh mapper, it rebuilds the map the run's mapper had at its last published step.

@@ -154,15 +154,17 @@ def test_fake_limo_refuses_a_namespace_that_is_no_ros_name(capsys):
     assert exit_info.value.code == 2 and "--namespace 'a*b' is not a ROS name" in capsys.readouterr().err
 
 
-def _bridge_without_zenoh(params: dict | None = None):
-    """The bridge service with its ROS callbacks fed by hand: what it publishes is collected, no session."""
+def _bridge_without_zenoh(params: dict | None = None, services: dict | None = None):
+    """The bridge service with its ROS callbacks fed by hand: what it publishes is collected, no session. ``services``:
+    the profile's (none: a bridge started on its own, with no frontier service to wait for)."""
     from types import SimpleNamespace
 
     from cso_runtime.transport import TransportConfig as _TC
     from services.common import ServiceContext
     from services.ros2_bridge import Ros2BridgeService
 
-    ctx = ServiceContext("ros2_bridge", "r0", {"method": "greedy-dist"}, ExplorationConfig(), _TC(connect=["tcp/127.0.0.1:1"]), params or {})
+    profile = {"method": "greedy-dist", **({"services": services} if services is not None else {})}
+    ctx = ServiceContext("ros2_bridge", "r0", profile, ExplorationConfig(), _TC(connect=["tcp/127.0.0.1:1"]), params or {})
     svc = Ros2BridgeService(ctx)
     out: list[tuple[str, Any]] = []
     svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(svc.check_output(topic, msg)), type(msg))))  # type: ignore[method-assign]
@@ -297,6 +299,51 @@ def test_a_map_that_reaches_the_arenas_edge_is_said_in_status_and_the_log(caplog
     final = [m for topic, m in out if topic == "episode_status"][-1]
     assert final.state == "done" and final.terminated_by == "no_frontier" and final.reason == reason
     assert "the episode ends (no_frontier), but the map reached the edge" in caplog.text
+
+
+def test_an_episode_that_ends_no_frontier_on_a_real_robot_says_why_as_in_the_sim():
+    """On a real robot the bridge is the referee: on an empty goal it ended the episode at once, and the frontier
+    service's reason (``frontiers/ended_why``) reached nobody: the result's ``ended_why`` and the status's ``reason``
+    were empty, so the launcher's line, ``summary.json``, ``episodes.csv`` and ``status`` said "no_frontier" alone,
+    where the sim profile says why. The bridge now waits for it as the sim does (``ended_why_wait_s``), heard before
+    or after the goal; without it the episode ends after that wait, and at once where no frontier service runs."""
+    from cso_runtime.messages import EndedWhyMsg
+
+    pipeline = {"ros2_bridge": {}, "mapper": {}, "frontier": {}, "policy": {}, "planner": {}}
+    why = "no frontier left: 3 frontier cells, all given up around goals reached"
+
+    def ended(out: list) -> tuple[EpisodeStatusMsg, EpisodeResultMsg]:
+        statuses = [m for topic, m in out if topic == "episode_status"]
+        (result,) = [m for topic, m in out if topic == "episode_result"]
+        return statuses[-1], result
+
+    for why_first in (True, False):
+        svc, out, step = _bridge_without_zenoh(services=pipeline)
+        svc._put_ros = lambda topic, payload: None  # type: ignore[method-assign]
+        step(1000.0, 0.0)
+        if why_first:
+            svc.on_message("r0", "ended_why", EndedWhyMsg(0, why, svc.episode), time.monotonic())
+        svc.take_goal(GoalMsg(0, True, None, None, method="greedy-dist", episode=svc.episode))
+        if not why_first:
+            assert svc.episode_status().state == "exploring" and not [m for topic, m in out if topic == "episode_result"]  # waits
+            svc.on_message("r0", "ended_why", EndedWhyMsg(0, why, svc.episode + 1), time.monotonic())  # another episode's
+            assert not [m for topic, m in out if topic == "episode_result"]
+            step(1000.1, 0.0)  # the robot's scans go on meanwhile: they do not end it another way
+            svc.on_message("r0", "ended_why", EndedWhyMsg(0, why, svc.episode), time.monotonic())
+        status, result = ended(out)
+        assert (status.state, status.terminated_by, status.reason) == ("done", "no_frontier", why)
+        assert (result.terminated_by, result.ended_why) == ("no_frontier", why)
+        assert svc.episode_result().ended_why == why  # the queryable's, for a launcher that missed the publication
+
+    svc, out, step = _bridge_without_zenoh(services=pipeline)
+    svc._put_ros = lambda topic, payload: None  # type: ignore[method-assign]
+    step(1000.0, 0.0)
+    svc.take_goal(GoalMsg(0, True, None, None, method="greedy-dist", episode=svc.episode))
+    svc.on_tick(time.monotonic() + svc.params.ended_why_wait_s / 2)
+    assert not [m for topic, m in out if topic == "episode_result"]
+    svc.on_tick(time.monotonic() + svc.params.ended_why_wait_s)
+    status, result = ended(out)
+    assert (status.state, status.terminated_by, status.reason, result.ended_why) == ("done", "no_frontier", "", "")
 
 
 def test_no_scan_on_the_robots_key_is_said_in_status_and_the_log(caplog):
