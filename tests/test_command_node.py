@@ -210,34 +210,53 @@ if first == 0:
     os.setsid()
     if os.fork() == 0:
         print(os.getpid(), flush=True)
-        os.execvp("sleep", ["sleep", "600"])
+        os.execvp("sleep", ["sleep", sys.argv[1]])
     os._exit(0)
 os.waitpid(first, 0)
 time.sleep(600)
 """
+"""A node that ignores SIGINT and SIGTERM and starts a daemon (a double fork, ``setsid``) that ignores them too and
+sleeps ``argv[1]`` seconds; the daemon's pid on stdout."""
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a child subreaper is Linux's")
-def test_the_guard_kills_a_daemon_that_left_its_group_and_ignores_sigterm_before_the_launchers_sigkill(tmp_path: Path):
-    """The launcher's SIGKILL to the group takes the guard; a daemon of the node's that left the group and ignores
-    SIGINT and SIGTERM would then be left running. The guard SIGKILLs it half ``--stop-timeout`` after SIGTERM."""
+@contextmanager
+def guarded_escaping_node(tmp_path: Path, daemon_sleep_s: float) -> Iterator[tuple[subprocess.Popen, int]]:
+    """The guard (``--stop-timeout 1``, a session of its own as the launcher starts it) running ``ESCAPING_NODE``; yields
+    it and its daemon's pid; SIGKILL to its group, as the launcher's last stop signal, and to the daemon afterwards."""
     guard = subprocess.Popen(
-        [*python_module_argv("cso_runtime.node_guard"), "--stop-timeout", "1", "--", sys.executable, "-c", ESCAPING_NODE],
+        [*python_module_argv("cso_runtime.node_guard"), "--stop-timeout", "1", "--", sys.executable, "-c", ESCAPING_NODE, str(daemon_sleep_s)],
         cwd=tmp_path, stdout=subprocess.PIPE, text=True, start_new_session=True,
     )  # fmt: skip
     daemon = None
     try:
         assert guard.stdout is not None
         daemon = int(guard.stdout.readline())
+        yield guard, daemon
+    finally:
+        os.killpg(guard.pid, signal.SIGKILL)
+        guard.wait(10)
+        if daemon is not None and pid_alive(daemon):
+            os.kill(daemon, signal.SIGKILL)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a child subreaper is Linux's")
+def test_the_guard_kills_a_daemon_that_left_its_group_and_ignores_sigterm_before_the_launchers_sigkill(tmp_path: Path):
+    """The launcher's SIGKILL to the group takes the guard; a daemon of the node's that left the group and ignores
+    SIGINT and SIGTERM would then be left running. The guard SIGKILLs it half ``--stop-timeout`` after SIGTERM."""
+    with guarded_escaping_node(tmp_path, 600) as (guard, daemon):
         assert pid_alive(daemon) and os.getsid(daemon) != guard.pid
         os.killpg(guard.pid, signal.SIGTERM)  # the launcher's second stop signal
         wait_for(lambda: not pid_alive(daemon), 5, "the guard to kill the daemon", period_s=0.05)
         assert guard.poll() is None, "the guard (its node ignores SIGTERM) still runs: the daemon's end is its doing"
-    finally:
-        os.killpg(guard.pid, signal.SIGKILL)  # the launcher's last stop signal
-        guard.wait(10)
-        if daemon is not None and pid_alive(daemon):
-            os.kill(daemon, signal.SIGKILL)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a child subreaper is Linux's")
+def test_the_guard_reaps_an_orphaned_daemon_of_its_node_that_exits(tmp_path: Path):
+    """A subreaper inherits the node's orphans: one that exits is the guard's to reap, or it stays a zombie under it."""
+    with guarded_escaping_node(tmp_path, 0.5) as (guard, daemon):
+        parent = lambda: int(Path(f"/proc/{daemon}/stat").read_text().rsplit(")", 1)[-1].split()[1])  # noqa: E731
+        wait_for(lambda: parent() == guard.pid, 5, "the orphaned daemon to become the guard's child", period_s=0.01)
+        wait_for(lambda: not Path(f"/proc/{daemon}").exists(), 5, "the guard to reap its daemon once it exited")
 
 
 @pytest.mark.parametrize(
