@@ -6,14 +6,18 @@ SIGTERM, then SIGKILL; ``down`` through the guard's pid in ``run.json``), and gi
 service keeps itself: it never outlives its launcher. An executable of one's own cannot be asked to watch for that, so
 the guard does: when the launcher is gone (SIGKILL, a crash; the kernel's SIGTERM, ``PR_SET_PDEATHSIG``) it sends the
 node's whole group SIGTERM, then SIGKILL after ``--stop-timeout``. The node itself gets SIGTERM should the guard die
-first (the OOM killer). The guard exits as the node did (its exit code, or the signal it died of), so the launcher
-restarts it, or gives up on it, as it would a service. It imports nothing beyond the standard library: it costs a few
+first (the OOM killer). On Linux the guard is a child subreaper: what the node starts and then leaves its process group
+(``setsid``, a daemon's double fork) becomes the guard's child when orphaned instead of init's, so the guard stops it
+with the group: it passes the launcher's SIGINT and SIGTERM on to it, and SIGKILL half ``--stop-timeout`` after SIGTERM
+(before the launcher's SIGKILL to the group takes the guard). The guard exits as the node did (its exit code, or the
+signal it died of), so the launcher restarts it, or gives up on it, as it would a service. It imports nothing beyond the standard library: it costs a few
 MB and milliseconds per node."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import ctypes
 import os
 import signal
 import subprocess
@@ -27,6 +31,21 @@ EXIT_NOT_STARTED = 2
 the launcher does not restart (``EXIT_BAD_CONFIG``)."""
 
 
+PR_SET_CHILD_SUBREAPER = 36
+"""Linux ``prctl`` option: orphaned descendants of the process re-parent to it, not to init."""
+
+
+def become_subreaper() -> bool:
+    """Make the guard a child subreaper (Linux), so that a process of the node's that left its group and lost its parent
+    stays among the guard's descendants (``leftovers``); False where it cannot (another system)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        return ctypes.CDLL("libc.so.6", use_errno=True).prctl(PR_SET_CHILD_SUBREAPER, 1, 0, 0, 0) == 0
+    except OSError:
+        return False
+
+
 def _node_death_signal() -> None:
     """In the node's process, before its executable runs: SIGTERM when the guard dies."""
     signal_on_parent_death(signal.SIGTERM)
@@ -35,7 +54,7 @@ def _node_death_signal() -> None:
 def stop_group(stop_timeout_s: float, node: subprocess.Popen) -> None:
     """The launcher is gone: SIGTERM to the guard's process group (the node and whatever it started), then SIGKILL to
     what is left of it ``stop_timeout_s`` later (the guard with it)."""
-    os.killpg(os.getpgrp(), signal.SIGTERM)  # the guard's own handler ignores it
+    os.killpg(os.getpgrp(), signal.SIGTERM)  # the guard's own handler passes it on to what escaped the group
     try:
         node.wait(timeout=stop_timeout_s)
     except subprocess.TimeoutExpired:
@@ -44,43 +63,83 @@ def stop_group(stop_timeout_s: float, node: subprocess.Popen) -> None:
             file=sys.stderr,
             flush=True,
         )
+    signal_escaped(signal.SIGKILL)
     os.killpg(os.getpgrp(), signal.SIGKILL)
 
 
-def group_leftovers() -> list[int]:
-    """The other live processes of the guard's process group (Linux ``/proc``; none elsewhere): what the node started
-    and left behind when it exited."""
-    me, group, found = os.getpid(), os.getpgrp(), []
+def leftovers(escaped_only: bool = False) -> list[int]:
+    """The other live processes of the guard's process group and its descendants (Linux ``/proc``; none elsewhere): what
+    the node started, in its group or out of it (``setsid``: re-parented to the guard, a subreaper, once orphaned).
+    ``escaped_only``: only the descendants out of the group, which a signal to the group misses."""
+    me, group = os.getpid(), os.getpgrp()
+    table: dict[int, tuple[str, int, int]] = {}  # pid -> (state, parent, group)
     for entry in os.listdir("/proc") if os.path.isdir("/proc") else []:
-        if not entry.isdigit() or int(entry) == me:
+        if not entry.isdigit():
             continue
         try:
             with open(f"/proc/{entry}/stat") as fh:
-                state, _ppid, pgrp = fh.read().rsplit(")", 1)[-1].split()[:3]
+                state, parent, pgrp = fh.read().rsplit(")", 1)[-1].split()[:3]
+            table[int(entry)] = (state, int(parent), int(pgrp))
         except (OSError, ValueError):
             continue
-        if int(pgrp) == group and state not in ("Z", "X"):
-            found.append(int(entry))
-    return found
+    children: dict[int, list[int]] = {}
+    for pid, (_, parent_pid, _) in table.items():
+        children.setdefault(parent_pid, []).append(pid)
+    descendants: set[int] = set()
+    todo = [me]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            descendants.add(child)
+            todo.append(child)
+    in_group = {pid for pid, (_, _, pgrp) in table.items() if pgrp == group}
+    found = descendants - in_group if escaped_only else descendants | in_group
+    return sorted(pid for pid in found if pid != me and table[pid][0] not in ("Z", "X"))
+
+
+def signal_escaped(sig: int) -> None:
+    """Send ``sig`` to the node's processes that left the guard's group, which a signal to the group misses."""
+    for pid in leftovers(escaped_only=True):
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(pid, sig)
+
+
+def on_stop_signal(sig: int, stop_timeout_s: float) -> None:
+    """The launcher's SIGINT or SIGTERM to the group (or the kernel's, the launcher gone): passed on to what escaped the
+    group; after SIGTERM, SIGKILL to it half ``stop_timeout_s`` later, before the launcher's SIGKILL to the group (which
+    takes the guard with it)."""
+    signal_escaped(sig)
+    if sig == signal.SIGTERM and signal.getitimer(signal.ITIMER_REAL)[0] == 0:
+        signal.signal(signal.SIGALRM, lambda *_: signal_escaped(signal.SIGKILL))
+        signal.setitimer(signal.ITIMER_REAL, stop_timeout_s / 2)
+
+
+def reap_orphans(node_pid: int) -> None:
+    """Reap the guard's exited children other than the node: orphans re-parented to it (a subreaper), zombies else."""
+    while True:
+        try:
+            info = os.waitid(os.P_ALL, 0, os.WEXITED | os.WNOHANG | os.WNOWAIT)
+        except ChildProcessError:
+            return
+        if info is None or info.si_pid == node_pid:
+            return  # the node's status is the Popen's to collect
+        with contextlib.suppress(ChildProcessError):
+            os.waitpid(info.si_pid, 0)
 
 
 def stop_leftovers(stop_timeout_s: float) -> None:
-    """The node has exited: SIGTERM to what it left in its group, SIGKILL to what is left of that ``stop_timeout_s``
-    later, so that a restarted node (a new group) never finds its predecessor's children still running."""
-    left = group_leftovers()
+    """The node has exited: SIGTERM to what it left (in its group or out of it), SIGKILL to what is left of that
+    ``stop_timeout_s`` later, so that a restarted node (a new group) never finds its predecessor's children still
+    running."""
+    left = leftovers()
     if not left:
         return
-    print(
-        f"node_guard: the node exited and left {len(left)} process(es) of its group ({left}): stopping them",
-        file=sys.stderr,
-        flush=True,
-    )
+    print(f"node_guard: the node exited and left {len(left)} process(es) ({left}): stopping them", file=sys.stderr, flush=True)
     for sig in (signal.SIGTERM, signal.SIGKILL):
         for pid in left:
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.kill(pid, sig)
         deadline_s = time.monotonic() + stop_timeout_s
-        while (left := group_leftovers()) and time.monotonic() < deadline_s:
+        while (left := leftovers()) and time.monotonic() < deadline_s:
             time.sleep(0.05)
         if not left:
             return
@@ -109,12 +168,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--stop-timeout", type=float, default=3.0, help="Seconds from SIGTERM to SIGKILL once the launcher is gone")
     p.add_argument("command", nargs=argparse.REMAINDER, help="-- EXECUTABLE [ARG...]")
     args = p.parse_args(argv)
+    for sig in (signal.SIGINT, signal.SIGTERM):  # passed on to what leaves the group
+        signal.signal(sig, lambda signum, _frame: on_stop_signal(signum, args.stop_timeout))
     command = args.command[1:] if args.command[:1] == ["--"] else args.command
     if not command:
         p.error("give the node's command after --")
     if os.getpgrp() != os.getpid():  # started by hand, not by the launcher (a session of its own): a group of its own,
         os.setpgid(0, 0)  # as the group it stops is the node's, never its starter's
     signal_on_parent_death(signal.SIGTERM)
+    subreaper = become_subreaper()
     try:
         node = subprocess.Popen(command, stdin=subprocess.DEVNULL, preexec_fn=_node_death_signal)  # noqa: PLW1509 - the guard has one thread
     except OSError as exc:
@@ -124,6 +186,8 @@ def main(argv: list[str] | None = None) -> int:
         if launcher_gone() is not None:
             print("node_guard: the launcher is gone: stopping the node's process group", file=sys.stderr, flush=True)
             stop_group(args.stop_timeout, node)
+        if subreaper:
+            reap_orphans(node.pid)
         try:
             node.wait(timeout=PARENT_CHECK_PERIOD_S)
         except subprocess.TimeoutExpired:

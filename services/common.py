@@ -185,6 +185,8 @@ class Service:
         """The rejections of each robot's inputs (``rejected`` counts them all): a service serving several robots
         answers each one's status with its own counts."""
         self.processed_by_robot: collections.Counter[str] = collections.Counter()
+        self.heard_from_s: dict[str, float] = {}
+        """Robot -> when its last input came (``time.monotonic()``), accepted or rejected: when to ``forget_robot`` it."""
         self.step_guard = StepGuard()
         self.last_step = 0
         self.state = "running"
@@ -292,6 +294,19 @@ class Service:
             query.reply(self.ctx.keys.cache(topic), encode(msg))
         else:
             query.reply_err(f"no {topic} yet".encode())
+
+    def forget_robot(self, robot: str) -> None:
+        """Drop what this service keeps of ``robot``, another robot than its own: its counts, its steps, when it was last
+        heard, the publishers of its keys. A service serving every robot forgets those gone, so that it does not grow
+        with every robot a long deployment sees; one that comes back is counted and step-checked afresh."""
+        with self._lock:
+            self.rejected_by_robot.pop(robot, None)
+        self.processed_by_robot.pop(robot, None)
+        self.heard_from_s.pop(robot, None)
+        self.step_guard.forget(robot)
+        prefix = RobotKeys(robot).prefix + "/"
+        for key in [k for k in self._publishers if k.startswith(prefix)]:
+            self._publishers.pop(key).undeclare()
 
     def check_output(self, topic: str, msg: Message | bytes) -> Message | bytes:
         """``msg`` itself when ``outputs`` declares it on ``topic``; a TypeError (a bug, not bad input) otherwise."""
@@ -587,6 +602,13 @@ class StepGuard:
         self.last[key] = self.recent[key[0]] = step  # a step back is a new episode or a retry: the services judge those
         return ""
 
+    def forget(self, robot: str) -> None:
+        """Drop ``robot``'s steps: its next message is its first (``Service.forget_robot``)."""
+        self.recent.pop(robot, None)
+        for steps in (self.last, self.held):
+            for key in [k for k in steps if k[0] == robot]:
+                del steps[key]
+
 
 EPISODES_REMEMBERED = 16
 """Ended episode ids an ``EpisodeWatch`` keeps, to tell their late messages from a new episode's."""
@@ -674,6 +696,7 @@ def _dispatch(service: Service, key: str, payload: bytes, received_s: float, inp
     except ValueError as exc:
         service.reject(key, str(exc))
         return
+    service.heard_from_s[robot] = received_s
     expected = service.inputs.get(topic)
     if expected is None:
         service.reject(topic, "unexpected topic", robot)

@@ -7,7 +7,10 @@ policy: a liveliness token ``cso/<robot>/alive/policy`` from its first decision 
 whose own policy is alive (another process's ``cso/<robot>/alive/policy``: its run has a policy of its own, or
 another server serves it) is left to that policy: two policies would send it two goals at each decision. A robot
 whose frontier service goes (its run stopped) is let go: its token is withdrawn, so the robot no longer looks
-running to ``status`` and a new run of that id may start a policy of its own.
+running to ``status`` and a new run of that id may start a policy of its own. A robot heard from by no input for
+``forget_robot_after_s`` while no frontier service of it is alive is let go too; either way the server forgets it
+(its selector, last goal, counts, steps, publisher), so that it does not grow with every robot a long deployment sees,
+and counts it in its status (``robots_forgotten``): a robot that comes back is served afresh.
 
 It answers the steps that ask for a decision with ``decided: true`` and the new goal (or none: nothing
 left to explore); on the other steps the planner keeps following the current goal without waiting for
@@ -57,10 +60,15 @@ class PolicyParams:
     serve_all_robots: bool = False
     """Answer every robot on the network (``cso/*/frontiers``), not only ``--robot``: one policy server
     for several robots (then start one policy per network, not one per robot)."""
+    forget_robot_after_s: float = 600.0
+    """With ``serve_all_robots``: a robot (not ``--robot``) heard from by no input for this long (wall clock) while no
+    frontier service of it is alive is forgotten (a robot whose frontier service goes is, at once)."""
 
     def validate(self) -> None:
         if not self.stale_after_s > 0:
             raise ConfigError("stale_after_s must be positive")
+        if not self.forget_robot_after_s > 0:
+            raise ConfigError("forget_robot_after_s must be positive")
         if self.method:
             try:
                 check_method(self.method)
@@ -121,7 +129,10 @@ class PolicyService(Service):
         """Robots left to their own policy, said once in the log until that policy goes."""
         self._inputs_gone: set[str] = set()
         """Robots whose frontier service (their decision inputs) has gone, to let go at the next tick."""
+        self._frontiers_alive: set[str] = set()
+        """Robots whose frontier service is alive: not forgotten however long they are silent (a paused run)."""
         self._gone_lock = threading.Lock()
+        self.robots_forgotten = 0
 
     def new_selector(self) -> GoalSelector:
         try:
@@ -146,30 +157,53 @@ class PolicyService(Service):
         if self.params.serve_all_robots:  # --robot's own status is the service's (run_service's queryable)
             self._queryables.append(self.session.declare_queryable(RobotKeys("*").service_status(self.name), self._on_status_query))
             self._queryables.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive(self.name), self._on_policy_alive, history=True))
-            self._queryables.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("frontier"), self._on_frontier_alive))
+            self._queryables.append(
+                self.session.liveliness().declare_subscriber(RobotKeys("*").alive("frontier"), self._on_frontier_alive, history=True)
+            )
 
     def _on_frontier_alive(self, sample: zenoh.Sample) -> None:
         """A robot's frontier service gone (its run stopped): that robot is let go at the next tick."""
         robot = str(sample.key_expr).split("/")[1]
         with self._gone_lock:
             if str(sample.kind).endswith("PUT"):
+                self._frontiers_alive.add(robot)
                 self._inputs_gone.discard(robot)  # back (a restart) before the tick: keep serving it
-            elif robot != self.ctx.robot:
-                self._inputs_gone.add(robot)
+            else:
+                self._frontiers_alive.discard(robot)
+                if robot != self.ctx.robot:
+                    self._inputs_gone.add(robot)
 
-    def release_gone_robots(self) -> None:
-        """Stop serving the robots whose frontier service went: withdraw the token under their keys and forget
-        their state (a robot that comes back is served afresh from its next decision input)."""
+    def release_gone_robots(self, now_s: float) -> None:
+        """Stop serving the robots whose frontier service went, and those heard from by no input for
+        ``forget_robot_after_s`` with no frontier service alive, and forget them."""
         with self._gone_lock:
             gone, self._inputs_gone = self._inputs_gone, set()
+            alive = set(self._frontiers_alive)
         for robot in gone:
-            if self.robots.pop(robot, None) is None:
-                continue
-            token = self._tokens.pop(robot, None)
-            if token is not None:
-                token.undeclare()
-            self._mine.discard(robot)
-            log.info("robot %s: its frontier service is gone; no longer serving it", robot)
+            if robot in self.robots or robot in self.heard_from_s:
+                self.forget_robot(robot, "its frontier service is gone")
+        for robot, heard_s in list(self.heard_from_s.items()):
+            silent_s = now_s - heard_s
+            if robot != self.ctx.robot and robot not in alive and silent_s > self.params.forget_robot_after_s:
+                self.forget_robot(robot, f"nothing heard from it for {silent_s:.0f} s, and no frontier service of it is alive")
+
+    def forget_robot(self, robot: str, why: str = "") -> None:
+        """Withdraw the token under ``robot``'s keys and forget all of it: its selector (past goals, stuck mask), last
+        goal, counts and steps. A robot that comes back is served afresh from its next decision input."""
+        super().forget_robot(robot)
+        self.robots.pop(robot, None)
+        token = self._tokens.pop(robot, None)
+        if token is not None:
+            token.undeclare()
+        self._mine.discard(robot)
+        self._left.discard(robot)
+        with self._lock:
+            self.robots_forgotten += 1
+        log.info("robot %s: %s; forgetting it (%d robots forgotten so far)", robot, why, self.robots_forgotten)
+
+    def extra_status(self) -> dict[str, int]:
+        with self._lock:
+            return {"robots_forgotten": self.robots_forgotten}
 
     def _on_policy_alive(self, sample: zenoh.Sample) -> None:
         """Track the robots that have a policy of their own (a token under their keys that is not ours)."""
@@ -251,7 +285,7 @@ class PolicyService(Service):
         self.publish("goal", out, robot)
 
     def on_tick(self, now_s: float) -> None:
-        self.release_gone_robots()
+        self.release_gone_robots(now_s)
         for robot, st in self.robots.items():
             if now_s - st.last_input_s > self.params.stale_after_s and not st.stale_reason:
                 st.stale_reason = f"robot {robot}: no frontiers for {now_s - st.last_input_s:.1f} s; not commanding"

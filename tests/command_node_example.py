@@ -6,7 +6,9 @@ appends ``<schema> <step>`` per map to the file its first argument names, and pu
 own, ``$CSO_KEY_PREFIX/ext/<$CSO_NODE_NAME>/steps``; it declares ``$CSO_ALIVE_KEY`` once
 subscribed (the profile's ``alive_token: true``: step 0 waits for it) and writes its pid to
 ``$CSO_RUN_DIR/<$CSO_NODE_NAME>.pid``. ``--stubborn``: it ignores SIGTERM and starts a ``sleep`` of its own, whose pid
-it writes to ``<name>.child.pid``: what must not outlive a killed launcher either."""
+it writes to ``<name>.child.pid``: what must not outlive a killed launcher either. ``--daemon``: it starts a ``sleep``
+as a daemon starts (a double fork and ``setsid``: out of the node's process group and session, its parent gone), whose
+pid it writes to ``<name>.daemon.pid``: what ``down`` must stop all the same."""
 
 import os
 import signal
@@ -38,6 +40,19 @@ def listen(out_path: str, stop: threading.Event) -> None:
         steps.undeclare()
 
 
+def start_daemon(pid_path: str) -> None:
+    """``sleep 600`` as a daemon: a double fork and ``setsid``, its pid in ``pid_path``; before any thread is started."""
+    first = os.fork()
+    if first == 0:
+        os.setsid()
+        if os.fork() == 0:
+            with open(pid_path, "w") as fh:
+                fh.write(str(os.getpid()))
+            os.execvp("sleep", ["sleep", "600"])
+        os._exit(0)
+    os.waitpid(first, 0)
+
+
 def main() -> int:
     out_path, stubborn = sys.argv[1], "--stubborn" in sys.argv[2:]
     stop = threading.Event()
@@ -48,6 +63,8 @@ def main() -> int:
         child = subprocess.Popen(["sleep", "600"])
         with open(os.path.join(run_dir, f"{name}.child.pid"), "w") as fh:
             fh.write(str(child.pid))
+    if "--daemon" in sys.argv[2:]:
+        start_daemon(os.path.join(run_dir, f"{name}.daemon.pid"))
     with open(os.path.join(run_dir, f"{name}.pid"), "w") as fh:
         fh.write(str(os.getpid()))
     print(f"{name}: joins {os.environ['CSO_ZENOH_ENDPOINTS']} as robot {os.environ['CSO_ROBOT']}", flush=True)

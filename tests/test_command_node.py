@@ -132,13 +132,16 @@ def test_up_runs_a_command_node_that_joins_the_run_from_its_environment_alone(tm
 def test_a_command_node_that_ignores_sigterm_does_not_outlive_its_killed_launcher(tmp_path: Path):
     """The launcher SIGKILLed mid-episode: a Python service stops by itself (PR_SET_PDEATHSIG, then ``ORPHAN_STOP_S``);
     an executable of one's own cannot be asked to, so its guard stops its whole process group, SIGTERM and, for a
-    node that ignores it, SIGKILL ``stop_timeout_s`` (1 s here) later; the ``sleep`` it started goes with it."""
-    with detached_node_run(tmp_path, listener("--stubborn")) as (_, current):
+    node that ignores it, SIGKILL ``stop_timeout_s`` (1 s here) later; the ``sleep`` it started goes with it, and so does
+    the daemon it started out of its group (on Linux, where the guard is a child subreaper)."""
+    daemon = sys.platform.startswith("linux")
+    with detached_node_run(tmp_path, listener("--stubborn", *(["--daemon"] if daemon else []))) as (_, current):
         run_dir = Path(current["run_dir"])
         guard = current["services"]["map_listener"]["pid"]
         wait_for(lambda: "listening" in (run_dir / "logs" / "map_listener.log").read_text(), 60, "the node to listen")
+        wait_for(lambda: len(node_pids(run_dir)) == 2 + daemon, 10, "the node's pids")
         pids = [guard, *node_pids(run_dir)]
-        assert len(pids) == 3 and all(pid_alive(p) for p in pids), pids
+        assert len(pids) == 3 + daemon and all(pid_alive(p) for p in pids), pids
         os.kill(current["launcher_pid"], signal.SIGKILL)
         wait_for(
             lambda: not any(pid_alive(p) for p in pids),
@@ -173,10 +176,87 @@ def test_a_command_node_that_dies_is_restarted_without_its_leftovers_and_down_st
         assert r.returncode == 0, r.stdout + r.stderr
         assert not any(pid_alive(p) for p in pids)
     text = (run_dir / "logs" / "map_listener.log").read_text()
-    assert f"node_guard: the node exited and left 1 process(es) of its group ([{sleep}]): stopping them" in text, text
+    assert f"node_guard: the node exited and left 1 process(es) ([{sleep}]): stopping them" in text, text
     assert "map_listener: stopped" in text
     launcher_log = (run_dir / "logs" / "launcher.log").read_text()
     assert f"map_listener exited (code -{int(signal.SIGKILL)}); restart 1/" in launcher_log, launcher_log
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a child subreaper is Linux's")
+def test_down_stops_a_daemon_a_command_node_started_out_of_its_process_group(tmp_path: Path):
+    """A node that starts a daemon (a double fork and ``setsid``: out of the node's process group and session, its parent
+    gone) left it running after ``down``, which signals the guard's group. The guard is a child subreaper (Linux): the
+    orphan becomes its child, and it stops its descendants with its group."""
+    with detached_node_run(tmp_path, listener("--daemon")) as (runs, current):
+        run_dir = Path(current["run_dir"])
+        guard = current["services"]["map_listener"]["pid"]
+        daemon_pid = run_dir / "map_listener.daemon.pid"
+        wait_for(lambda: daemon_pid.exists() and daemon_pid.read_text(), 60, "the node's daemon")
+        daemon = int(daemon_pid.read_text())
+        assert pid_alive(daemon) and os.getpgid(daemon) != guard and os.getsid(daemon) != os.getsid(guard)
+        parent = int(Path(f"/proc/{daemon}/stat").read_text().rsplit(")", 1)[-1].split()[1])
+        assert parent == guard, "orphaned, the daemon is the guard's (a subreaper), not init's"
+        r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stdout + r.stderr
+        assert not pid_alive(daemon) and not pid_alive(guard)
+
+
+ESCAPING_NODE = """
+import os, signal, sys, time
+for sig in (signal.SIGINT, signal.SIGTERM):
+    signal.signal(sig, signal.SIG_IGN)  # kept by its daemon, across fork and exec
+first = os.fork()
+if first == 0:
+    os.setsid()
+    if os.fork() == 0:
+        print(os.getpid(), flush=True)
+        os.execvp("sleep", ["sleep", sys.argv[1]])
+    os._exit(0)
+os.waitpid(first, 0)
+time.sleep(600)
+"""
+"""A node that ignores SIGINT and SIGTERM and starts a daemon (a double fork, ``setsid``) that ignores them too and
+sleeps ``argv[1]`` seconds; the daemon's pid on stdout."""
+
+
+@contextmanager
+def guarded_escaping_node(tmp_path: Path, daemon_sleep_s: float) -> Iterator[tuple[subprocess.Popen, int]]:
+    """The guard (``--stop-timeout 1``, a session of its own as the launcher starts it) running ``ESCAPING_NODE``; yields
+    it and its daemon's pid; SIGKILL to its group, as the launcher's last stop signal, and to the daemon afterwards."""
+    guard = subprocess.Popen(
+        [*python_module_argv("cso_runtime.node_guard"), "--stop-timeout", "1", "--", sys.executable, "-c", ESCAPING_NODE, str(daemon_sleep_s)],
+        cwd=tmp_path, stdout=subprocess.PIPE, text=True, start_new_session=True,
+    )  # fmt: skip
+    daemon = None
+    try:
+        assert guard.stdout is not None
+        daemon = int(guard.stdout.readline())
+        yield guard, daemon
+    finally:
+        os.killpg(guard.pid, signal.SIGKILL)
+        guard.wait(10)
+        if daemon is not None and pid_alive(daemon):
+            os.kill(daemon, signal.SIGKILL)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a child subreaper is Linux's")
+def test_the_guard_kills_a_daemon_that_left_its_group_and_ignores_sigterm_before_the_launchers_sigkill(tmp_path: Path):
+    """The launcher's SIGKILL to the group takes the guard; a daemon of the node's that left the group and ignores
+    SIGINT and SIGTERM would then be left running. The guard SIGKILLs it half ``--stop-timeout`` after SIGTERM."""
+    with guarded_escaping_node(tmp_path, 600) as (guard, daemon):
+        assert pid_alive(daemon) and os.getsid(daemon) != guard.pid
+        os.killpg(guard.pid, signal.SIGTERM)  # the launcher's second stop signal
+        wait_for(lambda: not pid_alive(daemon), 5, "the guard to kill the daemon", period_s=0.05)
+        assert guard.poll() is None, "the guard (its node ignores SIGTERM) still runs: the daemon's end is its doing"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a child subreaper is Linux's")
+def test_the_guard_reaps_an_orphaned_daemon_of_its_node_that_exits(tmp_path: Path):
+    """A subreaper inherits the node's orphans: one that exits is the guard's to reap, or it stays a zombie under it."""
+    with guarded_escaping_node(tmp_path, 0.5) as (guard, daemon):
+        parent = lambda: int(Path(f"/proc/{daemon}/stat").read_text().rsplit(")", 1)[-1].split()[1])  # noqa: E731
+        wait_for(lambda: parent() == guard.pid, 5, "the orphaned daemon to become the guard's child", period_s=0.01)
+        wait_for(lambda: not Path(f"/proc/{daemon}").exists(), 5, "the guard to reap its daemon once it exited")
 
 
 @pytest.mark.parametrize(

@@ -9,6 +9,7 @@ import math
 import queue
 import threading
 import time
+import types
 import weakref
 
 import numpy as np
@@ -1473,6 +1474,71 @@ def test_a_shared_policy_server_answers_each_robots_status_with_that_robots_own_
     assert (a.rejected, a.processed, a.last_step) == ({"frontiers": 2}, 6, 4)
     assert (b.rejected, b.processed, b.last_step) == ({}, 3, 2)
     assert policy.status_msg().rejected == {"frontiers": 2} and policy.status_msg().processed == 9  # the process: every robot
+
+
+class _Publisher:
+    """A declared Zenoh publisher, minus Zenoh: says whether it was undeclared."""
+
+    undeclared = False
+
+    def undeclare(self) -> None:
+        self.undeclared = True
+
+
+def _liveliness(key: str, kind: str) -> object:
+    """What Zenoh hands a liveliness subscriber's callback: a key and its kind (PUT: a token came, DELETE: it went)."""
+    return types.SimpleNamespace(key_expr=key, kind=f"SampleKind.{kind}")
+
+
+def test_a_shared_policy_server_forgets_a_robot_gone_for_forget_robot_after_s_and_serves_it_afresh(caplog):
+    """A ``serve_all_robots`` server kept what it knew of every robot it ever heard (its counts, its step guard's steps,
+    the publisher of its goal key; its selector too while its frontier service's going went unseen), so a long
+    deployment with robots coming and going grew without bound. A robot silent for ``forget_robot_after_s`` with no
+    frontier service alive is forgotten, logged and counted in the status; one silent as long whose frontier service
+    is alive (a paused run) is kept; a robot whose frontier service goes is forgotten at once; one that comes back is
+    served afresh: its own counts only, and its steps taken from where it is now (one 700 steps on was held back as a
+    leap)."""
+    from services.common import _dispatch
+
+    params = {"method": "greedy-dist", "serve_all_robots": True, "forget_robot_after_s": 60.0}
+    policy, out = _service(PolicyService, lockstep=False, params=params)
+    obs = _explorer_at(0).observe()
+    t0_s = time.monotonic()
+
+    def send(robot: str, step: int, at_s: float) -> None:
+        _dispatch(policy, RobotKeys(robot).frontiers, encode(frontiers_from_observation(step, "timeout", obs, 1.0, episode=1)), at_s)
+
+    policy._other_policies.add("d")  # robot d's run has a policy of its own: heard, never served
+    policy._on_frontier_alive(_liveliness(RobotKeys("c").alive("frontier"), "PUT"))  # robot c's run is alive
+    for step in range(3):
+        for robot in ("a", "b", "c", "d"):
+            send(robot, step, t0_s + step)
+    _dispatch(policy, RobotKeys("b").frontiers, b"\x00not msgpack", t0_s + 3.0)
+    own_goal = policy._publishers["cso/r0/goal"] = _Publisher()  # as run_service declares it
+    b_goal = policy._publishers[RobotKeys("b").goal] = _Publisher()  # as publish declared it for b's first goal
+    assert set(policy.robots) == {"a", "b", "c"} and policy.processed_by_robot["d"] == 3
+
+    policy.on_tick(t0_s + 3.0 + 59.0)
+    assert set(policy.robots) == {"a", "b", "c"} and policy.status_msg().counters == {"robots_forgotten": 0}
+    with caplog.at_level("INFO", logger="cso.policy"):
+        policy.on_tick(t0_s + 3.0 + 61.0)
+    assert set(policy.robots) == {"c"}, "a, b and d have been silent for forget_robot_after_s, c's run is alive"
+    for robot in ("a", "b", "d"):
+        assert robot not in policy.processed_by_robot and robot not in policy.rejected_by_robot and robot not in policy.step_guard.recent
+        assert f"robot {robot}: nothing heard from it for 6" in caplog.text
+    assert b_goal.undeclared and RobotKeys("b").goal not in policy._publishers and not own_goal.undeclared
+    assert policy.status_msg().counters == {"robots_forgotten": 3} and "robot b" not in policy.reason
+
+    policy._on_frontier_alive(_liveliness(RobotKeys("c").alive("frontier"), "DELETE"))  # c's run stops
+    policy.on_tick(t0_s + 3.0 + 62.0)
+    assert not policy.robots and "c" not in policy.processed_by_robot and policy.status_msg().counters == {"robots_forgotten": 4}
+
+    # Robot b comes back (a network cut off for long), its run 700 steps on: served at once, with its own counts only.
+    now_s = time.monotonic() + 100.0
+    send("b", 700, now_s)
+    assert [m.step for t, m in out if t == "goal"][-1] == 700
+    b = policy.robot_status("b", policy.robots["b"])
+    assert (b.rejected, b.processed, b.last_step) == ({}, 1, 700)
 
 
 def test_a_first_episode_with_ids_after_steps_without_ids_is_a_new_episode():
