@@ -12,7 +12,8 @@ slash, no ``rt/`` prefix) with the CDR bytes of the DDS sample, and forwards wha
   planner run unchanged. Stale, out-of-order, unmatched and undecodable scans are dropped and counted;
 * turns our ``cmd_vel`` into geometry_msgs/Twist CDR on ``NS/cmd_vel``, clamped to the robot's limits,
   and sends a zero Twist when no command arrived for ``cmd_timeout_s`` (watchdog) and when it stops;
-* publishes the map (nav_msgs/OccupancyGrid on ``NS/map``), the goal (geometry_msgs/PoseStamped on
+* publishes the map (nav_msgs/OccupancyGrid on ``NS/map``, its last one kept for a late transient-local
+  subscriber), the goal (geometry_msgs/PoseStamped on
   ``NS/goal_pose``) and the frontiers (visualization_msgs/MarkerArray on ``NS/explore/frontiers``,
   explore_lite's conventions) for RViz;
 * plays the sim's referee part where it can without ground truth: episode status (explored area
@@ -38,6 +39,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 import zenoh
+import zenoh.ext
 
 from cso_runtime import ros2_cdr
 from cso_runtime.claims import DECIDE_WITHIN_S, RunClaim, declare_claims, settle_claims
@@ -349,6 +351,8 @@ class Ros2BridgeService(Service):
         """Says on the network that this run drives the robot's ``cmd_vel`` (``keys.robot_driver_token``)."""
         self._claim_tokens: list[Any] = []
         """A bridge started by hand: its claim on the robot it drives, held while it runs (``claim_robot``)."""
+        self._latched: dict[str, Any] = {}
+        """ROS topics whose last message a late transient-local subscriber gets (``declare_latched``): the map."""
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -365,8 +369,8 @@ class Ros2BridgeService(Service):
             if self._driver_token is not None:
                 entities.append(self._driver_token)
                 self._driver_token = None
-            entities += self._claim_tokens
-            self._claim_tokens = []
+            entities += [*self._claim_tokens, *self._latched.values()]
+            self._claim_tokens, self._latched = [], {}
         for entity in entities:  # outside the lock: a callback in flight may be waiting for it
             entity.undeclare()
         if self.session is None or not self.sent_any_command:
@@ -394,6 +398,7 @@ class Ros2BridgeService(Service):
                 # at once. Exit 2: the launcher does not restart it, and the robot is left to the run that drives it.
                 raise ConfigError(f"robot {other}'s run already drives {cmd_key} on this network ({reply.ok.key_expr} is alive): stop it, or give another --namespace")
         self._driver_token = self.session.liveliness().declare_token(robot_driver_token(cmd_key, self.ctx.robot))
+        self._latched = {p.map_topic: self.declare_latched(p.ros_key(p.map_topic))}
         self._ros_subs = [
             self.session.declare_subscriber(p.ros_key(p.scan_topic), self._on_ros_scan),
             self.session.declare_subscriber(p.ros_key(p.odom_topic), self._on_ros_odom),
@@ -444,8 +449,21 @@ class Ros2BridgeService(Service):
         else:
             query.reply_err(b"episode not finished")
 
+    def declare_latched(self, key: str) -> Any:
+        """A publisher that keeps its last sample for subscribers that come later, as a transient-local ROS publisher
+        (map_server's ``/map``) does. zenoh-bridge-ros2dds subscribes for a transient-local ROS subscriber (RViz's Map
+        display, Nav2's static layer) with zenoh-ext's advanced subscriber, which detects such publishers and asks
+        them for their cache. Sample-miss detection numbers the samples, so the cache needs no timestamps (which a
+        client session does not have)."""
+        assert self.session is not None
+        numbered = zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=None)
+        return zenoh.ext.declare_advanced_publisher(
+            self.session, key, cache=zenoh.ext.CacheConfig(max_samples=1), sample_miss_detection=numbered, publisher_detection=True
+        )
+
     def _put_ros(self, topic: str, payload: bytes) -> None:
-        self.declare_publisher(self.params.ros_key(topic)).put(payload)
+        publisher = self._latched.get(topic)
+        (publisher if publisher is not None else self.declare_publisher(self.params.ros_key(topic))).put(payload)
         self.counters[f"sent:{topic}"] += 1
 
     def count_reject(self, what: str, why: str) -> None:

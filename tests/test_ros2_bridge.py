@@ -584,6 +584,59 @@ def test_fake_limo_through_the_bridge(namespace: str):
     assert not thread.is_alive()
 
 
+def test_the_map_reaches_a_ros_subscriber_that_comes_after_the_episode(monkeypatch):
+    """RViz's Map display and Nav2's static layer subscribe to ``/map`` transient-local (map_server's QoS): for such a
+    subscriber zenoh-bridge-ros2dds declares a Zenoh subscriber that asks the publishers on the key for their last
+    sample (zenoh-ext's advanced subscriber with late-publisher detection). The bridge put its maps plainly: an RViz or
+    a Nav2 started once exploration had ended (its map sent, no newer one to come) got no map at all. The bridge now
+    keeps the last OccupancyGrid for such subscribers, as a latched ``/map``; goal and frontiers stay volatile."""
+    import zenoh.ext
+
+    from services.common import ServiceContext, run_service
+    from services.ros2_bridge import Ros2BridgeService
+
+    monkeypatch.setenv("CSO_PARENT_PID", str(os.getppid()))  # as up starts it: no claim to settle first
+    port = free_tcp_port()
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t1")
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        svc = Ros2BridgeService(ServiceContext("ros2_bridge", "t1", {"method": "greedy-dist"}, ExplorationConfig(), client, {"namespace": "limo1"}))
+        stop = threading.Event()
+        thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+        thread.start()
+        late: list[bytes] = []
+        subs: list[Any] = []
+        try:
+            wait_for(lambda: svc._ros_subs, 10, "the bridge's ROS subscriptions")
+            geom = GridGeometry(0.1, (6, 8), -1.0, -2.0)
+            grids = [np.full(geom.shape, -1, np.int8) for _ in range(2)]
+            grids[1][1:4, 2:6], grids[1][0, :] = 0, 100
+            for step, grid in enumerate(grids):
+                session.put(keys.map, encode(MapMsg.from_grid(step, geom, grid)))
+                wait_for(lambda step=step: svc.counters["sent:map"] > step, 5, f"map {step} sent to ROS")
+            # A transient-local ROS subscriber appears now, as zenoh-bridge-ros2dds subscribes for it.
+            subs.append(zenoh.ext.declare_advanced_subscriber(
+                session, "limo1/map", lambda sample: late.append(sample.payload.to_bytes()),
+                history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            ))  # fmt: skip
+            wait_for(lambda: late, 5, "the last map for a late transient-local subscriber")
+            og = rosbags_decode(late[-1], "nav_msgs/msg/OccupancyGrid")
+            np.testing.assert_array_equal(np.asarray(og.data).reshape(geom.shape), grids[1])
+            assert len(late) == 1, "the last map only"
+            # An ordinary (volatile) subscriber still gets every new map.
+            volatile: list[bytes] = []
+            subs.append(session.declare_subscriber("limo1/map", lambda sample: volatile.append(sample.payload.to_bytes())))
+            time.sleep(0.2)  # the subscriber's declaration reaches the bridge's session (no sample is expected before)
+            session.put(keys.map, encode(MapMsg.from_grid(2, geom, grids[0])))
+            wait_for(lambda: volatile, 5, "a new map on a plain subscriber")
+        finally:
+            stop.set()
+            thread.join(10)
+            for sub in subs:
+                sub.undeclare()
+    assert not thread.is_alive()
+
+
 def test_a_bridge_refuses_a_robot_that_another_runs_bridge_drives(monkeypatch):
     """``up`` refuses a run whose bridge would drive a robot another run's bridge drives; a bridge started by hand (or
     one of two runs started at once) got past that and sent its Twists beside the other's. It now refuses on start
