@@ -97,7 +97,8 @@ class Ros2BridgeParams:
     resume_topic: str = "explore/resume"
     """std_msgs/Bool in (explore_lite's): false pauses exploration, true resumes it (``cso/<robot>/explore/resume``)."""
     map_frame_id: str = "odom"
-    """frame_id of the map, goal and frontiers: the map is built in the odometry frame."""
+    """frame_id of the map, goal and frontiers: the map is built in the odometry frame, so this is the frame_id of the
+    robot's odometry (warned of when that says another)."""
     match_tolerance_s: float = 0.05
     """A scan that cannot be interpolated takes the nearest odometry sample within this time."""
     interpolate_max_gap_s: float = 0.25
@@ -173,6 +174,8 @@ class Ros2BridgeParams:
         ):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
+        if not self.map_frame_id or self.map_frame_id.startswith("/") or any(c.isspace() for c in self.map_frame_id):
+            raise ConfigError(f"map_frame_id {self.map_frame_id!r} is not a tf2 frame id (not empty, no leading '/', no spaces)")
         if not min(self.map_period_s, self.ended_why_wait_s) >= 0:
             raise ConfigError("map_period_s and ended_why_wait_s must be >= 0")
         if self.arena_origin_xy_m is not None and len(self.arena_origin_xy_m) != 2:
@@ -494,6 +497,7 @@ class Ros2BridgeService(Service):
             except ros2_cdr.CdrError as exc:
                 self.count_reject("ros_odom:bad_cdr", str(exc))
                 return
+            self._check_odometry_frame(odom)
             if not self._take_odometry(odom):
                 return
             if self.pending is not None:
@@ -502,6 +506,20 @@ class Ros2BridgeService(Service):
                 if reason != "waiting":
                     self.pending = None
                     self._accept_or_drop(conv, match, reason)
+
+    def _check_odometry_frame(self, odom: ros2_cdr.OdometrySample) -> None:
+        """The map is built in the odometry's frame and sent out in ``map_frame_id``: odometry in another frame (a
+        multi-robot TF tree's ``limo1/odom``) puts the map, goal and frontiers in the wrong frame in RViz and for TF.
+        Counted (``odom_in_another_frame``) and warned of once; an empty frame_id says nothing to check."""
+        if not odom.frame_id or odom.frame_id == self.params.map_frame_id:
+            return
+        self.counters["odom_in_another_frame"] += 1
+        if self.counters["odom_in_another_frame"] == 1:
+            log.warning(
+                "the robot's odometry is in frame %r, but the map, goal and frontiers go out in %r: set "
+                "services.ros2_bridge.map_frame_id: %s (the map is built in the odometry's frame)",
+                odom.frame_id, self.params.map_frame_id, odom.frame_id,
+            )  # fmt: skip
 
     def _take_odometry(self, odom: ros2_cdr.OdometrySample) -> bool:
         """Add a decoded odometry sample to the buffer (True), or drop it and count why (False). A jump back of the

@@ -224,6 +224,42 @@ def test_odometry_that_jumps_is_dropped_and_a_lasting_jump_starts_a_new_episode(
     assert svc.path_length_m == pytest.approx(0.22 - new[0].pose.x_m)
 
 
+def test_a_frame_that_tf2_refuses_is_a_config_error_and_odometry_in_another_frame_is_warned_of(caplog):
+    """``map_frame_id: /odom`` (a ROS 1 habit) was taken as it is: every map, goal and frontiers went out in a frame
+    that tf2 in ROS 2 refuses ("frame_ids cannot start with a '/'"), and RViz showed nothing. And odometry in another
+    frame than ``map_frame_id`` (``limo1/odom`` in a multi-robot TF tree) put the map, which is built in the odometry's
+    frame, in the wrong one without a word. The first is now a ConfigError; the second is warned of once and counted."""
+    from cso_runtime.config import ConfigError, from_dict
+
+    for bad in ("/odom", "", "my odom"):
+        with pytest.raises(ConfigError, match="map_frame_id"):
+            from_dict(Ros2BridgeParams, {"map_frame_id": bad})
+    assert from_dict(Ros2BridgeParams, {"map_frame_id": "limo1/odom"}).map_frame_id == "limo1/odom"
+
+    from types import SimpleNamespace
+
+    sample = lambda raw: SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: raw))  # noqa: E731
+
+    def odom_in(frame: str, t: float) -> bytes:
+        msg = rosbags_decode(ros_odom(t, 0.0, 0.0, 0.0), "nav_msgs/msg/Odometry")
+        msg = dataclasses.replace(msg, header=dataclasses.replace(msg.header, frame_id=frame))
+        return bytes(ros2_cdr.typestore().serialize_cdr(msg, "nav_msgs/msg/Odometry"))
+
+    svc, _, _ = _bridge_without_zenoh({"namespace": "limo1"})
+    with caplog.at_level("WARNING", logger="cso.ros2_bridge"):
+        for i in range(3):
+            svc._on_ros_odom(sample(odom_in("limo1/odom", 1000.0 + 0.1 * i)))
+    assert svc.counters["odom_in_another_frame"] == 3 and svc.counters["received:odom"] == 3
+    assert caplog.text.count("odometry is in frame 'limo1/odom'") == 1 and "map_frame_id" in caplog.text, caplog.text
+    assert len(svc.odometry.samples) == 3, "the odometry is used all the same"
+    caplog.clear()
+    svc, _, _ = _bridge_without_zenoh({"namespace": "limo1", "map_frame_id": "limo1/odom"})
+    with caplog.at_level("WARNING", logger="cso.ros2_bridge"):
+        svc._on_ros_odom(sample(odom_in("limo1/odom", 1000.0)))
+        svc._on_ros_odom(sample(odom_in("", 1000.1)))  # a driver that leaves it empty says nothing to check against
+    assert svc.counters["odom_in_another_frame"] == 0 and "frame" not in caplog.text
+
+
 def test_explore_resume_from_ros_pauses_and_resumes_exploration():
     """``ros2 topic pub --once /limo1/explore/resume std_msgs/msg/Bool "{data: false}"`` (explore_lite's): the bridge
     sends it on ``cso/<robot>/explore/resume``, saying where it came from; a payload that is no Bool is counted."""
