@@ -45,7 +45,7 @@ from cso_runtime import ros2_cdr
 from cso_runtime.claims import DECIDE_WITHIN_S, RunClaim, declare_claims, settle_claims
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
-from cso_runtime.geometry import GridGeometry, Pose2D, VelocityCommand, wrap_angle_rad
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
 from cso_runtime.keys import WILDCARD, driver_claim_subject, robot_driver_token
 from cso_runtime.messages import (
     EPISODE_OVER,
@@ -613,6 +613,7 @@ class Ros2BridgeService(Service):
             except ros2_cdr.CdrError as exc:
                 self.count_reject("ros_scan:bad_cdr", str(exc))
                 return
+            self._check_scan_fov(conv.scan)
             if conv.invalid_beams or conv.too_close_beams:
                 self.counters["scans_with_invalid_beams"] += 1
                 self.counters["invalid_beams"] += conv.invalid_beams + conv.too_close_beams
@@ -628,6 +629,24 @@ class Ros2BridgeService(Service):
                 self.pending = (conv, time.monotonic())
                 return
             self._accept_or_drop(conv, match, reason)
+
+    def _check_scan_fov(self, scan: LaserScan) -> None:
+        """The policy (its weights are chosen by the field of view) and the planner take the LiDAR's field of view from
+        ``exploration.sensor.fov_deg``, not from the scans: a LaserScan that covers more or less (by more than two
+        beams) is counted (``scan_fov_mismatch``) and warned of once."""
+        increment_deg = math.degrees(scan.angle_increment_rad)
+        covers_deg = len(scan.ranges_m) * increment_deg
+        fov_deg = self.ctx.exploration.sensor.fov_deg
+        if abs(covers_deg - fov_deg) <= max(2 * increment_deg, 2.0):
+            return
+        self.counters["scan_fov_mismatch"] += 1
+        if self.counters["scan_fov_mismatch"] == 1:
+            log.warning(
+                "the robot's LaserScan covers %.0f degrees (%.0f to %.0f), but exploration.sensor.fov_deg is %g: the policy and "
+                "the planner go on with %g degrees; set exploration.sensor.fov_deg (and resolution_deg, %.2f here) in the profile",
+                covers_deg, math.degrees(scan.angle_min_rad), math.degrees(scan.angle_min_rad) + covers_deg - increment_deg,
+                fov_deg, fov_deg, increment_deg,
+            )  # fmt: skip
 
     def _accept_or_drop(self, conv: ros2_cdr.ScanConversion, odom: ros2_cdr.OdometrySample | None, reason: str) -> None:
         stamp = conv.scan.stamp_s

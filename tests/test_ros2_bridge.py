@@ -260,6 +260,25 @@ def test_a_frame_that_tf2_refuses_is_a_config_error_and_odometry_in_another_fram
     assert svc.counters["odom_in_another_frame"] == 0 and "frame" not in caplog.text
 
 
+def test_a_scan_wider_or_narrower_than_the_configured_sensor_is_warned_of(caplog):
+    """The policy (its weights are chosen by the field of view) and the planner (the turn to a goal out of view, the
+    no_frontier reason) take the LiDAR's field of view from ``exploration.sensor.fov_deg`` (the LIMO's 180 degrees),
+    never from the robot's LaserScan: a LiDAR that sees all around (or a narrower one) was mapped as it is while both
+    went on with 180 degrees, without a word. The first scan that disagrees is now warned of, and each is counted."""
+    from types import SimpleNamespace
+
+    sample = lambda raw: SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: raw))  # noqa: E731
+    svc, _, _ = _bridge_without_zenoh()
+    with caplog.at_level("WARNING", logger="cso.ros2_bridge"):
+        svc._on_ros_scan(sample(ros_scan(1000.0, np.full(181, 2.0, np.float32))))  # the LIMO's: front 180 degrees
+        assert svc.counters["scan_fov_mismatch"] == 0 and caplog.text == ""
+        ring = np.full(360, 2.0, np.float32)
+        for i in range(2):
+            svc._on_ros_scan(sample(ros_scan(1000.1 + 0.1 * i, ring, -math.pi, math.pi - 2 * math.pi / 360)))
+    assert svc.counters["scan_fov_mismatch"] == 2
+    assert caplog.text.count("covers 360 degrees") == 1 and "exploration.sensor.fov_deg is 180" in caplog.text, caplog.text
+
+
 def test_explore_resume_from_ros_pauses_and_resumes_exploration():
     """``ros2 topic pub --once /limo1/explore/resume std_msgs/msg/Bool "{data: false}"`` (explore_lite's): the bridge
     sends it on ``cso/<robot>/explore/resume``, saying where it came from; a payload that is no Bool is counted."""
