@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -142,6 +143,20 @@ def test_params_validate_names_and_build_keys():
         from_dict(Ros2BridgeParams, {"namespace": "bad ns"})
     with pytest.raises(ConfigError):
         from_dict(Ros2BridgeParams, {"cmd_timeout_s": 0})
+
+
+def test_hardware_md_names_every_bridge_parameter_with_its_default():
+    """docs/hardware.md lists the bridge's parameters for those who tune it on the robot; the topic names (to move
+    ``map`` and ``goal_pose`` aside from Nav2's, as it advises), ``odom_history_s`` and ``log_period_s`` were missing,
+    so a user read the profile's few keys as all there is. Every ``Ros2BridgeParams`` field is named, and a default
+    quoted beside one (`name` (value)) is the default."""
+    doc = (REPO / "docs" / "hardware.md").read_text(encoding="utf-8")
+    fields = {f.name: f.default for f in dataclasses.fields(Ros2BridgeParams)}
+    assert [name for name in fields if f"`{name}`" not in doc] == []
+    quoted = re.findall(r"`(" + "|".join(fields) + r")` \(`?([\w./-]+)`?[,:;)]", doc)
+    assert len(quoted) >= 20, quoted
+    is_default = lambda name, text: str(fields[name]) == text or (re.fullmatch(r"[\d.]+", text) and float(text) == fields[name])  # noqa: E731
+    assert [(name, text) for name, text in quoted if not is_default(name, text)] == []
 
 
 def test_fake_limo_refuses_a_namespace_that_is_no_ros_name(capsys):
