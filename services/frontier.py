@@ -222,6 +222,9 @@ class FrontierService(Service):
         """The grid of the episode's maps (its first map's): the mapper keeps one grid for an episode."""
         self.paused_spans: list[tuple[int, int]] = []
         """Steps decided on while paused, as spans (after, last]: left out of the count towards ``replan_every_steps``."""
+        self.why_no_goal_said = ""
+        """The reason for no goal the log said last (``say_why_no_goal``): said again only when it changes, or after a
+        goal."""
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         if isinstance(msg, ExploreResumeMsg):  # a control, of no episode or step
@@ -248,6 +251,8 @@ class FrontierService(Service):
                 return
             if msg.decided and step >= self.decision_step:
                 self.goal = None if (xy := msg.goal_xy_m) is None else Goal(xy[0], xy[1], msg.cluster_index, msg.distance_m)
+                if self.goal is not None:
+                    self.why_no_goal_said = ""
                 if self.goal is None and step == self.asked_step:
                     self.say_why_no_goal(step)
                 self.decision_step = step
@@ -279,7 +284,9 @@ class FrontierService(Service):
             return
         obs, dead = self.asked
         why = ended_no_frontier_why(obs, dead, self.ctx.exploration)
-        log.info("no goal at step %d: %s", step, why)
+        # On a real robot the scans, and so the decisions, go on after the episode ended: the log says a reason once.
+        log.log(logging.DEBUG if why == self.why_no_goal_said else logging.INFO, "no goal at step %d: %s", step, why)
+        self.why_no_goal_said = why
         self.publish("ended_why", EndedWhyMsg(step, why, self.episodes.current or 0))
 
     def of_another_grid(self, msg: MapMsg, robot: str) -> bool:

@@ -334,6 +334,26 @@ def test_a_paused_planner_without_a_newer_decision_resumes_on_the_goal_it_had():
     assert planner.planner.path is path and planner.goal_step == 0
 
 
+def test_the_same_reason_for_no_goal_is_logged_once_not_at_every_scan(caplog):
+    """On a real robot the steps go on after the episode ended ``no_frontier`` (the LiDAR keeps scanning, and a detached
+    run stays up for ``save-map``): the frontier service decides on every scan and logged its long "no goal at step N:
+    ..." line each time, 8 a second (seen on the fake LIMO: one per scan until ``down``). The reason goes to the referee
+    every time still (``ended_why``), but the log says it once, and again when it changes or after a goal."""
+    frontier, out = _service(FrontierService, lockstep=False)
+    ex = _explorer_at(0)
+    frontier.asked = (ex.observe(), np.zeros(ex.map.geometry.shape, dtype=bool))
+    with caplog.at_level("INFO", logger="cso.frontier"):
+        for step in range(5, 9):
+            frontier.say_why_no_goal(step)
+    assert [m.step for t, m in out if t == "ended_why"] == [5, 6, 7, 8]
+    assert caplog.text.count("no goal at step") == 1 and "no goal at step 5" in caplog.text, caplog.text
+    frontier.asked_step = 9
+    _feed(frontier, _far_goal(ex.observe(), 9))  # a goal again: a later "no goal" is news
+    with caplog.at_level("INFO", logger="cso.frontier"):
+        frontier.say_why_no_goal(12)
+    assert caplog.text.count("no goal at step") == 2 and "no goal at step 12" in caplog.text, caplog.text
+
+
 def test_a_paused_frontier_service_asks_for_no_decision_and_counts_no_paused_step():
     """Paused (``explore/resume`` false), the frontier service asks the policy for no decision however many scans come,
     and the paused steps do not count towards the periodic re-decision (``replan_every_steps``): resumed, it asks once
