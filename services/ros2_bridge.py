@@ -513,13 +513,19 @@ class Ros2BridgeService(Service):
         Counted (``odom_in_another_frame``) and warned of once; an empty frame_id says nothing to check."""
         if not odom.frame_id or odom.frame_id == self.params.map_frame_id:
             return
-        self.counters["odom_in_another_frame"] += 1
-        if self.counters["odom_in_another_frame"] == 1:
-            log.warning(
-                "the robot's odometry is in frame %r, but the map, goal and frontiers go out in %r: set "
-                "services.ros2_bridge.map_frame_id: %s (the map is built in the odometry's frame)",
-                odom.frame_id, self.params.map_frame_id, odom.frame_id,
-            )  # fmt: skip
+        self.count_and_warn_once(
+            "odom_in_another_frame",
+            "the robot's odometry is in frame %r, but the map, goal and frontiers go out in %r: set "
+            "services.ros2_bridge.map_frame_id: %s (the map is built in the odometry's frame)",
+            odom.frame_id, self.params.map_frame_id, odom.frame_id,
+        )  # fmt: skip
+
+    def count_and_warn_once(self, counter: str, message: str, *args: object) -> None:
+        """Count an event the operator should know of (in ``status``), and log it the first time only: most recur on
+        every scan or odometry sample."""
+        self.counters[counter] += 1
+        if self.counters[counter] == 1:
+            log.warning(message, *args)
 
     def _take_odometry(self, odom: ros2_cdr.OdometrySample) -> bool:
         """Add a decoded odometry sample to the buffer (True), or drop it and count why (False). A jump back of the
@@ -639,14 +645,13 @@ class Ros2BridgeService(Service):
         fov_deg = self.ctx.exploration.sensor.fov_deg
         if abs(covers_deg - fov_deg) <= max(2 * increment_deg, 2.0):
             return
-        self.counters["scan_fov_mismatch"] += 1
-        if self.counters["scan_fov_mismatch"] == 1:
-            log.warning(
-                "the robot's LaserScan covers %.0f degrees (%.0f to %.0f), but exploration.sensor.fov_deg is %g: the policy and "
-                "the planner go on with %g degrees; set exploration.sensor.fov_deg (and resolution_deg, %.2f here) in the profile",
-                covers_deg, math.degrees(scan.angle_min_rad), math.degrees(scan.angle_min_rad) + covers_deg - increment_deg,
-                fov_deg, fov_deg, increment_deg,
-            )  # fmt: skip
+        self.count_and_warn_once(
+            "scan_fov_mismatch",
+            "the robot's LaserScan covers %.0f degrees (%.0f to %.0f), but exploration.sensor.fov_deg is %g: the policy and "
+            "the planner go on with %g degrees; set exploration.sensor.fov_deg (and resolution_deg, %.2f here) in the profile",
+            covers_deg, math.degrees(scan.angle_min_rad), math.degrees(scan.angle_min_rad) + covers_deg - increment_deg,
+            fov_deg, fov_deg, increment_deg,
+        )  # fmt: skip
 
     def _accept_or_drop(self, conv: ros2_cdr.ScanConversion, odom: ros2_cdr.OdometrySample | None, reason: str) -> None:
         stamp = conv.scan.stamp_s

@@ -8,6 +8,7 @@ everything stopped in ``finally`` blocks.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -669,13 +670,12 @@ def test_the_map_reaches_a_ros_subscriber_that_comes_after_the_episode(monkeypat
     port = free_tcp_port()
     client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
     keys = RobotKeys("t1")
-    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session, contextlib.ExitStack() as undeclare:
         svc = Ros2BridgeService(ServiceContext("ros2_bridge", "t1", {"method": "greedy-dist"}, ExplorationConfig(), client, {"namespace": "limo1"}))
         stop = threading.Event()
         thread = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
         thread.start()
         late: list[bytes] = []
-        subs: list[Any] = []
         try:
             wait_for(lambda: svc._ros_subs, 10, "the bridge's ROS subscriptions")
             geom = GridGeometry(0.1, (6, 8), -1.0, -2.0)
@@ -685,25 +685,25 @@ def test_the_map_reaches_a_ros_subscriber_that_comes_after_the_episode(monkeypat
                 session.put(keys.map, encode(MapMsg.from_grid(step, geom, grid)))
                 wait_for(lambda step=step: svc.counters["sent:map"] > step, 5, f"map {step} sent to ROS")
             # A transient-local ROS subscriber appears now, as zenoh-bridge-ros2dds subscribes for it.
-            subs.append(zenoh.ext.declare_advanced_subscriber(
+            transient_local = zenoh.ext.declare_advanced_subscriber(
                 session, "limo1/map", lambda sample: late.append(sample.payload.to_bytes()),
                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
-            ))  # fmt: skip
+            )  # fmt: skip
+            undeclare.callback(transient_local.undeclare)
             wait_for(lambda: late, 5, "the last map for a late transient-local subscriber")
             og = rosbags_decode(late[-1], "nav_msgs/msg/OccupancyGrid")
             np.testing.assert_array_equal(np.asarray(og.data).reshape(geom.shape), grids[1])
             assert len(late) == 1, "the last map only"
             # An ordinary (volatile) subscriber still gets every new map.
             volatile: list[bytes] = []
-            subs.append(session.declare_subscriber("limo1/map", lambda sample: volatile.append(sample.payload.to_bytes())))
+            volatile_sub = session.declare_subscriber("limo1/map", lambda sample: volatile.append(sample.payload.to_bytes()))
+            undeclare.callback(volatile_sub.undeclare)
             time.sleep(0.2)  # the subscriber's declaration reaches the bridge's session (no sample is expected before)
             session.put(keys.map, encode(MapMsg.from_grid(2, geom, grids[0])))
             wait_for(lambda: volatile, 5, "a new map on a plain subscriber")
         finally:
             stop.set()
             thread.join(10)
-            for sub in subs:
-                sub.undeclare()
     assert not thread.is_alive()
 
 
