@@ -764,6 +764,15 @@ class Ros2BridgeService(Service):
         safe = command.clamped(r.max_linear_mps, r.max_angular_radps)
         if safe != command:
             self.counters["clamped_commands"] += 1
+        if self.episode_state in EPISODE_OVER and safe != VelocityCommand():
+            # The scans, and so the decisions, go on after the end: a frontier that opens later would set the robot
+            # driving again while status says done. Over is over, as for explore_lite.
+            self.count_and_warn_once(
+                "commands_after_episode",
+                "the episode is over (%s): the robot is held still, every command after it is sent as a zero Twist",
+                self.terminated_by,
+            )
+            safe = VelocityCommand()
         self._put_ros(self.params.cmd_vel_topic, ros2_cdr.twist_to_cdr(safe))
         self.last_cmd_s = received_s
         self.zero_sent = safe == VelocityCommand()

@@ -295,6 +295,30 @@ def test_a_scan_wider_or_narrower_than_the_configured_sensor_is_warned_of(caplog
     assert caplog.text.count("covers 360 degrees") == 1 and "exploration.sensor.fov_deg is 180" in caplog.text, caplog.text
 
 
+def test_after_the_episode_ended_the_robot_is_held_still():
+    """A real robot's scans go on after its episode ends (and a detached run stays up, for ``save-map``): the frontier
+    service and the policy go on deciding on each scan, and a frontier that opens later (a door, a person moving, drift)
+    gave the planner a goal that the bridge drove the robot to, while ``status`` said ``done``. As explore_lite stops
+    once exploration is over, the bridge now sends a zero Twist for every command once the episode is over (counted as
+    ``commands_after_episode``, warned of once); a new episode (a restarted robot clock) drives again."""
+    svc, _, step = _bridge_without_zenoh()
+    sent: list[tuple[str, bytes]] = []
+    svc._put_ros = lambda topic, payload: sent.append((topic, payload))  # type: ignore[method-assign]
+    step(1000.0, 0.0)
+    twists = lambda: [ros2_cdr.twist_from_cdr(raw) for topic, raw in sent if topic == "cmd_vel"]  # noqa: E731
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(0, VelocityCommand(0.3, 0.2)), 50.0)
+    assert twists() == [VelocityCommand(0.3, 0.2)]
+    svc.take_goal(GoalMsg(1, True, None, None, method="greedy-dist", episode=svc.episode))  # no frontier left: the end
+    assert svc.episode_status().state == "done"
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(5, VelocityCommand(0.4, -0.1)), 50.1)
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(6, VelocityCommand(0.4, -0.1)), 50.2)
+    assert twists()[1:] == [VelocityCommand(), VelocityCommand()] and svc.counters["commands_after_episode"] == 2
+    for i in range(3):  # the robot's clock starts again: a new episode
+        step(100.0 + 0.1 * i, 0.0)
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(1, VelocityCommand(0.2, 0.0)), 50.3)
+    assert twists()[-1] == VelocityCommand(0.2, 0.0)
+
+
 def test_explore_resume_from_ros_pauses_and_resumes_exploration():
     """``ros2 topic pub --once /limo1/explore/resume std_msgs/msg/Bool "{data: false}"`` (explore_lite's): the bridge
     sends it on ``cso/<robot>/explore/resume``, saying where it came from; a payload that is no Bool is counted."""
