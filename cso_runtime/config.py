@@ -278,7 +278,15 @@ class PlannerConfig:
     backup_distance_m: float = 0.15
     """How far the stall recovery backs up (Nav2's default ``backup_dist``)."""
     backup_speed_mps: float = 0.15
-    """How fast it backs up."""
+    """How fast it backs up, and how fast the progress recovery drives."""
+    progress_recoveries: int = 1
+    """Nav2's recovery before a goal is given up: this many times per goal, a failed progress check (the robot
+    rocking back and forth where its path clips a wall's corner, the controller's back-off and pure pursuit undoing
+    each other) first turns the robot to the open heading nearest the path's bearing and drives it
+    ``escape_distance_m`` along it, then follows the path again; the next failure reports ``no_progress``. Open means
+    clear of every scanned return for the body's sweep, within the sensor's field of view. 0 turns it off."""
+    escape_distance_m: float = 0.25
+    """How far the progress recovery drives along the open heading."""
     body: str = "disc"
     """The body the controller keeps ``stop_distance_m`` off scanned obstacles: ``disc`` (half the robot's width plus
     1 cm, the 2D simulator's robot, whose collisions are those of that disc) or ``box`` (``length_m`` x ``width_m``,
@@ -300,6 +308,8 @@ class PlannerConfig:
             raise ConfigError("planner.stall_steps must be >= 0")
         if not (self.backup_distance_m > 0 and self.backup_speed_mps > 0):
             raise ConfigError("planner.backup_distance_m and planner.backup_speed_mps must be positive")
+        if self.progress_recoveries < 0 or not self.escape_distance_m > 0:
+            raise ConfigError("planner needs progress_recoveries >= 0 and escape_distance_m > 0")
         if self.body not in BODIES:
             raise ConfigError(f"planner.body must be one of {', '.join(BODIES)}, got {self.body!r}")
 

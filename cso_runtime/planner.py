@@ -2,7 +2,8 @@
 
 Split like Nav2: ``plan_path`` is the planner server (path by descending the fast-marching distance
 field), ``PathFollower`` the controller (pure pursuit with rotate-in-place and an obstacle slow-down),
-``ProgressChecker`` Nav2's progress checker, ``StallRecovery`` its BackUp behaviour. ``LocalPlanner`` ties them and reports a status the
+``ProgressChecker`` Nav2's progress checker, ``StallRecovery`` its BackUp behaviour, ``ProgressRecovery`` the
+recovery its navigator runs before giving a goal up. ``LocalPlanner`` ties them and reports a status the
 policy can act on: ``following``, ``reached``, ``blocked`` (no path) or ``no_progress``.
 """
 
@@ -41,6 +42,16 @@ CREEP_BACK_MPS = 0.2
 
 REVERSE_LOOKAHEAD_M = 0.1
 """The least distance behind the robot checked before a reverse command (a period's travel is 4-5 cm)."""
+
+ESCAPE_HEADING_STEP_RAD = math.radians(5.0)
+"""The progress recovery's candidate headings are this far apart."""
+ESCAPE_UNSEEN_MARGIN_RAD = math.radians(45.0)
+"""With a sensor narrower than 360 degrees, the recovery's headings stay this far inside the field of view: a sweep
+along the edge of the view would pass returns the sensor never saw."""
+ESCAPE_TURNED_RAD = 0.03
+"""The recovery drives once its heading is within this of the open heading (and steers to hold it)."""
+ESCAPE_MAX_PERIODS = 40
+"""A recovery ends after this many control periods whatever happens (a turn the robot cannot make)."""
 
 
 class PlannerStatus(str, Enum):
@@ -186,7 +197,8 @@ class FollowResult:
     command: VelocityCommand
     status: PlannerStatus
     recovery: str = ""
-    """``"backup"`` when the command is the stall recovery's (``StallRecovery``); ``"reverse_blocked"``
+    """``"backup"`` when the command is the stall recovery's (``StallRecovery``); ``"escape"`` when it is the progress
+    recovery's (``ProgressRecovery``); ``"reverse_blocked"``
     when a reverse command (a back-up, or the blocked-ahead creep back) was replaced by a stop because
     the map shows an obstacle behind the robot; ``"bad_pose"`` when the pose was not finite (a stop); else empty."""
 
@@ -256,6 +268,34 @@ class PathFollower:
         forward, lateral = self._scanned_points(scan)
         ahead = (forward > 0.0) & (np.abs(lateral) < 0.5 * self.robot.width_m)
         return float(forward[ahead].min() - 0.5 * self.robot.length_m) if ahead.any() else math.inf
+
+    def open_heading_rad(self, pose: Pose2D, bearing_rad: float, scan: LaserScan | None, distance_m: float, fov_rad: float) -> float | None:
+        """The heading (world frame) nearest ``bearing_rad`` along which the body can drive ``distance_m`` and still
+        keep ``stop_distance_m`` off every scanned return (the disc's sweep, and for ``body: box`` its front too), or
+        None. Headings are checked within the sensor's field of view less ``ESCAPE_UNSEEN_MARGIN_RAD``."""
+        if scan is None:
+            return None
+        forward, lateral = self._scanned_points(scan)
+        offsets = np.arange(-math.pi, math.pi, ESCAPE_HEADING_STEP_RAD)
+        relative = np.array([wrap_angle_rad(bearing_rad + o - pose.yaw_rad) for o in offsets])
+        cos, sin = np.cos(relative)[:, None], np.sin(relative)[:, None]
+        along = forward[None, :] * cos + lateral[None, :] * sin
+        across = -forward[None, :] * sin + lateral[None, :] * cos
+        radius = 0.5 * self.robot.width_m + 0.01
+        in_sweep = (along > 0.0) & (np.abs(across) < radius)
+        travel = np.where(in_sweep, along - np.sqrt(np.maximum(radius**2 - across**2, 0.0)), np.inf).min(axis=1, initial=np.inf)
+        if self.config.body == "box":
+            in_front = (along > 0.0) & (np.abs(across) < 0.5 * self.robot.width_m)
+            travel = np.minimum(travel, np.where(in_front, along - 0.5 * self.robot.length_m, np.inf).min(axis=1, initial=np.inf))
+        clear = travel >= distance_m + self.config.stop_distance_m
+        clear &= np.roll(clear, 1) & np.roll(clear, -1)  # open a step either side too: a heading the robot can hold
+        if fov_rad < 2 * math.pi - 1e-9:
+            clear &= np.abs(relative) <= max(0.5 * fov_rad - ESCAPE_UNSEEN_MARGIN_RAD, 0.0)
+        open_ = np.flatnonzero(clear)
+        if open_.size == 0:
+            return None
+        nearest = open_[np.argmin(np.abs(offsets[open_]))]
+        return wrap_angle_rad(pose.yaw_rad + float(relative[nearest]))
 
     def obstacle_speed_scale(self, travel_m: float) -> float:
         """1 when the way ahead is clear, falling to 0 at ``stop_distance_m`` before contact."""
@@ -398,6 +438,67 @@ class StallRecovery:
         self.last = (pose, time_s, command)
 
 
+class ProgressRecovery:
+    """Nav2's recovery on a failed progress check (its navigator runs recoveries before it gives a goal up): turn
+    to the open heading nearest the path's bearing and drive ``escape_distance_m`` along it, ``progress_recoveries``
+    times per goal. The case it is for: a path that clips a wall's corner by less than the controller keeps off
+    scanned returns, where the controller backs off a few centimetres, pure pursuit drives back in, and the robot
+    rocks in place until the goal is given up (and every later goal through that corner with it)."""
+
+    def __init__(self, follower: PathFollower) -> None:
+        self.follower = follower
+        self.config = follower.config
+        self.escapes = 0
+        """Recoveries started in this planner's life (the planner service logs each)."""
+        self.reset()
+
+    def reset(self) -> None:
+        """A new goal: its full count of recoveries, none running."""
+        self.left = self.config.progress_recoveries
+        self.heading_rad: float | None = None
+        """The open heading of the recovery running now; None when none runs."""
+        self.drive_left_m = 0.0
+        self.periods = 0
+
+    def state(self) -> tuple:
+        """What a control period changes, for ``LocalPlanner.follow_state``."""
+        return self.left, self.heading_rad, self.drive_left_m, self.periods, self.escapes
+
+    def restore(self, state: tuple) -> None:
+        """Put back a ``state()``."""
+        self.left, self.heading_rad, self.drive_left_m, self.periods, self.escapes = state
+
+    def start(self, pose: Pose2D, bearing_rad: float, scan: LaserScan | None, fov_rad: float) -> bool:
+        """Begin a recovery if one is left for this goal and an open heading exists; False gives the goal up."""
+        if self.left <= 0:
+            return False
+        heading = self.follower.open_heading_rad(pose, bearing_rad, scan, self.config.escape_distance_m, fov_rad)
+        if heading is None:
+            return False
+        self.left -= 1
+        self.escapes += 1
+        self.heading_rad, self.drive_left_m, self.periods = heading, self.config.escape_distance_m, 0
+        return True
+
+    def command(self, pose: Pose2D, scan: LaserScan | None) -> VelocityCommand | None:
+        """This period's command of the running recovery (turn, then drive), or None when none runs (any more)."""
+        if self.heading_rad is None:
+            return None
+        robot = self.follower.robot
+        self.periods += 1
+        error = wrap_angle_rad(self.heading_rad - pose.yaw_rad)
+        turn_radps = float(np.clip(error / robot.control_period_s, -robot.max_angular_radps, robot.max_angular_radps))
+        if self.periods <= ESCAPE_MAX_PERIODS and abs(error) > ESCAPE_TURNED_RAD:
+            return VelocityCommand(0.0, turn_radps)
+        gap_mps = (self.follower.front_gap_m(scan) - self.config.stop_distance_m) / robot.control_period_s
+        v = min(self.config.backup_speed_mps, robot.max_linear_mps, gap_mps, self.drive_left_m / robot.control_period_s)
+        if self.periods > ESCAPE_MAX_PERIODS or v < self.follower.min_speed_mps():
+            self.heading_rad = None
+            return None
+        self.drive_left_m -= v * robot.control_period_s
+        return VelocityCommand(v, turn_radps)
+
+
 class LocalPlanner:
     """Follows one goal at a time: path, pure pursuit, goal check, progress check, blocked check."""
 
@@ -416,6 +517,7 @@ class LocalPlanner:
         self.follower = PathFollower(self.robot, self.config, sensor_mount_x_m)
         self.progress = ProgressChecker(self.config.progress_required_m, self.config.progress_window_s)
         self.stall = StallRecovery(self.config, self.robot.control_period_s)
+        self.recovery = ProgressRecovery(self.follower)
         self.path: np.ndarray | None = None
         self.free: FreeSpace | None = None
         self.progress_index = 0
@@ -434,6 +536,7 @@ class LocalPlanner:
         path = np.asarray(path_xy_m, dtype=float)
         if self.path is None or np.hypot(*(path[-1] - self.path[-1])) > self.goal_tolerance_m:
             self.progress.reset()
+            self.recovery.reset()
         self.path = path
         self.free = free
         self.progress_index = 0
@@ -471,12 +574,13 @@ class LocalPlanner:
         """What ``update`` changes (status, progress along the path, the progress anchor, the stall
         recovery's state): a caller may compute a command ahead of time and keep or undo it with
         ``restore_follow_state``."""
-        return self.status, self.progress_index, self.progress.anchor, self.stall.state()
+        return self.status, self.progress_index, self.progress.anchor, self.stall.state(), self.recovery.state()
 
     def restore_follow_state(self, state: tuple) -> None:
         """Put back a ``follow_state()``, as if the commands computed since had not been."""
-        self.status, self.progress_index, self.progress.anchor, stall = state
+        self.status, self.progress_index, self.progress.anchor, stall, recovery = state
         self.stall.restore(stall)
+        self.recovery.restore(recovery)
 
     def remaining_path(self) -> np.ndarray:
         """The path still ahead (n x 2, metres) from the point the robot last progressed to; empty without a path."""
@@ -530,6 +634,12 @@ class LocalPlanner:
             return result
         return FollowResult(VelocityCommand(0.0, 0.0), result.status, "reverse_blocked")
 
+    def _path_bearing_rad(self, pose: Pose2D) -> float:
+        """The bearing from the robot to the path's lookahead point (not pulled back to keep a free line of sight)."""
+        assert self.path is not None
+        _, look = self.follower.lookahead_index(pose, self.path, self.progress_index)
+        return math.atan2(self.path[look][1] - pose.y_m, self.path[look][0] - pose.x_m)
+
     def _update(self, pose: Pose2D, time_s: float, scan: LaserScan | None) -> FollowResult:
         stop = VelocityCommand(0.0, 0.0)
         if self.path is None or self.status != PlannerStatus.FOLLOWING:
@@ -542,9 +652,12 @@ class LocalPlanner:
                 return FollowResult(turn, self.status)  # still following: the goal is not in view yet
             self.status = PlannerStatus.REACHED
             return FollowResult(stop, self.status)
-        if not self.progress.check(pose, time_s):
+        if not self.progress.check(pose, time_s) and not self.recovery.start(pose, self._path_bearing_rad(pose), scan, self.sensor_fov_rad):
             self.status = PlannerStatus.NO_PROGRESS
             return FollowResult(stop, self.status)
+        escape = self.recovery.command(pose, scan)
+        if escape is not None:
+            return FollowResult(escape, self.status, "escape")
         backup = self.stall.command(pose, time_s)
         if backup is not None:
             return FollowResult(backup, self.status, "backup")

@@ -115,6 +115,8 @@ class PlannerService(Service):
         """A fresh planner and empty buffers (a new episode, or a fresh start)."""
         self.planner = self.new_planner()
         self.backups_logged = 0
+        self.escapes_logged = 0
+        """The planner's progress recoveries logged so far (each once, as it starts)."""
         """The planner's stall back-ups logged so far (each is logged once, as it starts)."""
         self.reverse_blocked_logged = -2
         """Last step whose reverse command was held (logged once per run of such steps)."""
@@ -341,11 +343,14 @@ class PlannerService(Service):
                 elif result.status != PlannerStatus.FOLLOWING:
                     reason = result.status.value
                 elif result.recovery:
-                    reason = result.recovery  # following, but backing up (the robot was pinned) or held: an obstacle behind
+                    reason = result.recovery  # following, but backing up (pinned), driving out (no progress) or held: an obstacle behind
                     if result.recovery == "reverse_blocked":
                         if self.reverse_blocked_logged != k - 1:  # once per run of held steps
                             log.info("step %d: an obstacle on the map behind the robot: not reversing", k)
                         self.reverse_blocked_logged = k
+                    if self.planner.recovery.escapes != self.escapes_logged:
+                        self.escapes_logged = self.planner.recovery.escapes
+                        log.info("step %d: no progress on the goal: driving out on the open heading (recovery %d)", k, self.escapes_logged)
                     if self.planner.stall.backups != self.backups_logged:
                         self.backups_logged = self.planner.stall.backups
                         log.info("step %d: the robot has not moved for %d commands: backing up (back-up %d)", k, self.ctx.exploration.planner.stall_steps, self.backups_logged)

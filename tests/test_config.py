@@ -45,6 +45,8 @@ def test_eval_yaml_documents_the_defaults():
         ({"planner": {"stop_distance_m": 0.8}}, "stop_distance_m <= slow_down_distance_m"),
         ({"planner": {"rotate_in_place_rad": 4.0}}, "rotate_in_place_rad"),
         ({"planner": {"progress_window_s": 0.0}}, "progress_window_s"),
+        ({"planner": {"progress_recoveries": -1}}, "progress_recoveries >= 0"),
+        ({"planner": {"escape_distance_m": 0.0}}, "escape_distance_m > 0"),
         ({"sensor": {"mount_x_m": 50.0}}, "sensor.mount_x_m .* puts the sensor off the robot"),
         ({"sensor": {"mount_x_m": -0.5}}, "sensor.mount_x_m .* puts the sensor off the robot"),
     ],

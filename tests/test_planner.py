@@ -422,3 +422,82 @@ def test_a_dead_end_behind_the_lidar_is_said_and_explored_once_the_lidar_turns_t
     turning = dataclasses.replace(config, planner=dataclasses.replace(config.planner, face_goal_below_fov_deg=360.0))
     result = run_episode(KinematicSimulator(plan, turning.sensor, turning.robot, seed=0), GreedyDist(), turning, seed=0)
     assert result.terminated_by == "coverage" and result.coverage_pct > 99.0 and result.ended_why == ""
+
+
+def wall_corner(start: Pose2D) -> FloorPlan:
+    """A 5.6 x 7.6 m room with a block in its north-east (x from 3.4 m, y from 4.2 m): the block's south-west corner
+    is the one a robot rocked at in Dungeon complex/img_100 (utility, 360-degree LiDAR, 0.1 m/px)."""
+    free = np.zeros((80, 60), dtype=bool)
+    free[2:78, 2:58] = True
+    free[42:78, 34:58] = False
+    return FloorPlan("wall_corner", free, 0.1, start)
+
+
+def _follow_to(planner: LocalPlanner, sim: KinematicSimulator, periods: int) -> list:
+    results = []
+    for _ in range(periods):
+        result = planner.update(sim.odometry(), sim.time_s, sim.scan())
+        results.append(result)
+        if result.status != PlannerStatus.FOLLOWING:
+            break
+        sim.step(result.command)
+    return results
+
+
+def test_a_robot_rocking_at_a_corner_drives_out_on_the_open_heading_before_the_goal_is_given_up():
+    """The path north clips the block's corner by less than the controller keeps off scanned returns: the
+    controller backs off 5 cm, pure pursuit drives back in, and the robot rocked there until the progress check
+    ended the goal (in img_100 twelve goals in a row through that corner, then no_frontier at 91.3 %). The first
+    failed progress check now turns the robot to the open heading nearest the path and drives 0.25 m along it
+    (Nav2's recovery before a goal is given up); then it follows the path to the goal."""
+    robot = RobotConfig()
+    sensor = SensorConfig.preset("lidar", fov_deg=360)
+    start, goal = Pose2D(3.41, 4.06, 2.57), np.array([3.15, 7.0])
+    outcomes = {}
+    for recoveries in (0, 1):
+        plan = wall_corner(start)
+        sim = KinematicSimulator(plan, sensor, robot)
+        planner = LocalPlanner(robot, PlannerConfig(progress_recoveries=recoveries))
+        assert planner.set_goal(ground_truth_traversable(plan), plan.geometry, sim.odometry(), goal) == PlannerStatus.FOLLOWING
+        results = _follow_to(planner, sim, 150)
+        outcomes[recoveries] = (results, sim, planner)
+    rocked, sim, planner = outcomes[0]
+    assert rocked[-1].status == PlannerStatus.NO_PROGRESS and planner.recovery.escapes == 0
+    assert math.hypot(sim.true_pose().x_m - start.x_m, sim.true_pose().y_m - start.y_m) < 0.1  # it never got away
+    freed, sim, planner = outcomes[1]
+    assert freed[-1].status == PlannerStatus.REACHED and planner.recovery.escapes == 1 and sim.collisions == 0
+    escape = [r.command for r in freed if r.recovery == "escape"]
+    assert escape and all(c.linear_mps >= 0 for c in escape)  # it turns and drives forward, never into the unseen
+    assert sum(c.linear_mps for c in escape) * robot.control_period_s == pytest.approx(0.25)
+    # Once per goal: a goal whose every heading is shut in ends no_progress after its one recovery.
+    assert planner.recovery.left == 0
+
+
+def test_the_progress_recovery_only_takes_headings_the_sensor_sees_and_goes_with_follow_state():
+    """The open heading is one the body's sweep finds clear of every return, within the sensor's view less 45
+    degrees: behind a 180-degree LiDAR nothing is seen, so nothing there counts as open. The recovery's state is
+    part of ``follow_state``, as the planner service computes commands ahead and undoes them."""
+    robot = RobotConfig()
+    follower = LocalPlanner(robot).follower
+    angles = np.radians(np.arange(-90.0, 90.5, 1.0))
+    returns = np.where(np.abs(angles) < np.radians(50), 0.15, 8.0)  # 0.15 m off within 50 degrees of ahead, nothing beyond
+    wall_ahead = LaserScan(angle_min_rad=-math.pi / 2, angle_increment_rad=math.radians(1.0), range_min_m=0.1, range_max_m=8.0, ranges_m=returns)
+    pose = Pose2D(0.0, 0.0, 0.0)
+    side = follower.open_heading_rad(pose, 0.0, wall_ahead, 0.25, math.radians(360))  # the sweep clears the returns from ~103 degrees
+    assert side is not None and math.radians(100) <= abs(side) <= math.radians(115)
+    assert follower.open_heading_rad(pose, 0.0, wall_ahead, 0.25, math.radians(180)) is None  # 45 degrees each side only
+    assert follower.open_heading_rad(pose, math.pi, wall_ahead, 0.25, math.radians(360)) == pytest.approx(math.pi)  # behind: no return
+    assert follower.open_heading_rad(pose, 0.0, None, 0.25, math.radians(360)) is None
+
+    plan = wall_corner(Pose2D(3.41, 4.06, 2.57))
+    sim = KinematicSimulator(plan, SensorConfig.preset("lidar", fov_deg=360), robot)
+    planner = LocalPlanner(robot)
+    planner.set_goal(ground_truth_traversable(plan), plan.geometry, sim.odometry(), np.array([3.15, 7.0]))
+    results = _follow_to(planner, sim, 41)  # up to the period before the failed progress check
+    assert all(r.recovery != "escape" for r in results)
+    before = planner.follow_state()
+    first = planner.update(sim.odometry(), sim.time_s, sim.scan())
+    assert first.recovery == "escape" and planner.recovery.escapes == 1
+    planner.restore_follow_state(before)
+    assert planner.recovery.escapes == 0 and planner.recovery.heading_rad is None
+    assert planner.update(sim.odometry(), sim.time_s, sim.scan()) == first
