@@ -1778,3 +1778,27 @@ def test_expert_action_refuses_the_rollout_teacher_it_cannot_score():
     _, info = env.reset(seed=0)
     with pytest.raises(ValueError, match="teacher_label"):
         expert_action(env.obs, info["action_mask"], "rollout")
+
+
+def test_train_resume_alone_goes_on_with_the_checkpoints_own_configuration(tmp_path, monkeypatch):
+    """``train --resume RUN/checkpoint.pt`` without ``--config`` read ``configs/train.yaml``, so a run trained with any
+    other ``--set`` (a checkpoint left by Ctrl-C, whose record ``<variant>.json`` is not written yet) could only be
+    resumed by typing every flag again: anything else was refused as a change of recipe. The checkpoint holds the
+    run's configuration: a resume alone takes it; flags still change what may change, and a ``--config`` given
+    with it is still held to the checkpoint's recipe."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(Path(__file__).parents[1])  # where configs/train.yaml is the default recipe
+    run = tmp_path / "run"
+    recipe = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "gamma": 0.9,
+              "generated": ["generated:small:1:0"], "progress": False}  # fmt: skip
+    train(Args(**recipe, out_dir=str(run), total_decisions=8), log=lambda _msg: None, plans=[rooms_plan(2)])
+    checkpoint = run / "checkpoint.pt"
+    r = CliRunner().invoke(app, ["train", "--resume", str(checkpoint), "--total-decisions", "16"])
+    assert r.exit_code == 0 and f"resumed from {checkpoint} at update 2" in r.output, r.output[-2000:]
+    saved = json.loads((run / "cso.json").read_text())["args"]
+    assert (saved["gamma"], saved["num_steps"], saved["generated"], saved["total_decisions"]) == (0.9, 8, ["generated:small:1:0"], 16)
+    r = CliRunner().invoke(app, ["train", "--config", "configs/train.yaml", "--set", "dungeon_dir=null", "--resume", str(checkpoint)])
+    assert r.exit_code == 2 and "changes the recipe of the run it continues" in r.output, r.output[-2000:]

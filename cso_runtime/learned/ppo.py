@@ -432,6 +432,27 @@ how long (a new ``total_decisions`` anneals the learning rate over the new total
 and where the Dungeon plans are on this machine. Every other field is the recipe, and must be the checkpoint's."""
 
 
+RESUME_OWN_FIELDS = ("out_dir", "resume", "init_from", "progress")
+"""The fields of ``Args`` a ``--resume`` never takes from the checkpoint's run (``resumed_run_settings``): where it
+writes (beside the checkpoint, unless ``--out``), what it continues from, and how this process shows progress."""
+
+
+def resumed_run_settings(path: str | Path) -> dict[str, Any]:
+    """The configuration of the run a training checkpoint continues (its ``Args``, less ``RESUME_OWN_FIELDS`` and any
+    field this version lacks), what ``train --resume`` without ``--config`` starts from, so that a run trained with its
+    own ``--set`` goes on without typing them again. Empty for a file that holds none (``load_resume_checkpoint`` then
+    says what it is)."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001  (missing, corrupt or not a checkpoint: said when it is loaded to resume)
+        return {}
+    saved = ckpt.get("args") if isinstance(ckpt, dict) else None
+    if not isinstance(saved, dict):
+        return {}
+    names = {f.name for f in dataclasses.fields(Args)}
+    return {k: v for k, v in saved.items() if k in names and k not in RESUME_OWN_FIELDS}
+
+
 def resume_recipe_changes(saved: Mapping[str, Any], args: Args) -> list[str]:
     """``"field checkpoint_value -> this_value"`` for each recipe field whose value ``args`` changes from the
     ``saved`` run's (``dataclasses.asdict`` of its Args; a field it lacks, from an older version, is not compared)."""
