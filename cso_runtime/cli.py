@@ -1062,7 +1062,7 @@ def train_command(
     time_limit: float | None = typer.Option(None, "--time-limit-s", help="Stop after this much wall time (0 = none)"),
     resume: Path | None = typer.Option(None, "--resume", help="checkpoint.pt to continue from"),
     device: str | None = typer.Option(None, "--device", help="auto, cpu, cuda or cuda:N"),
-    init_from: str | None = typer.Option(None, "--init-from", help="Fine-tune: start from these weights (.pt, or 'shipped')"),
+    init_from: str | None = typer.Option(None, "--init-from", help="Fine-tune: start from these weights (a run's <variant>.pt or checkpoint.pt, or 'shipped')"),
     num_envs: int | None = typer.Option(None, "--num-envs", help="Parallel environments"),
     async_envs: bool | None = typer.Option(None, "--async-envs/--sync-envs", help="One process per environment, or all in this one"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),

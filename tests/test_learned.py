@@ -1802,3 +1802,23 @@ def test_train_resume_alone_goes_on_with_the_checkpoints_own_configuration(tmp_p
     assert (saved["gamma"], saved["num_steps"], saved["generated"], saved["total_decisions"]) == (0.9, 8, ["generated:small:1:0"], 16)
     r = CliRunner().invoke(app, ["train", "--config", "configs/train.yaml", "--set", "dungeon_dir=null", "--resume", str(checkpoint)])
     assert r.exit_code == 2 and "changes the recipe of the run it continues" in r.output, r.output[-2000:]
+
+
+def test_fine_tuning_names_what_differs_and_starts_from_a_training_checkpoint_too(tmp_path):
+    """``--init-from`` weights of another shape said only "trained with another graph or network configuration",
+    leaving the user to guess which of a dozen fields; it now names each, with the ``--set`` that fits the weights.
+    A training checkpoint (``checkpoint.pt``, all a stopped run leaves) was refused as "not a cso-runtime checkpoint
+    (no 'graph' entry)"; its weights now start the run, as a finished run's ``<variant>.pt`` does."""
+    from cso_runtime.learned.ppo import initial_weights
+
+    plan = rooms_plan(2)
+    common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "hidden": 16, "knn": 4}
+    train(Args(**common, out_dir=str(tmp_path / "run"), total_decisions=8), log=lambda _msg: None, plans=[plan])
+    with pytest.raises(ValueError, match=re.escape("another graph or network configuration (hidden 16 -> 32, knn 4 -> 8); --set hidden=16 --set knn=4 fits them")):
+        initial_weights(Args(init_from=str(tmp_path / "run" / "cso.pt")), torch.device("cpu"))
+    ckpt = tmp_path / "run" / "checkpoint.pt"
+    with pytest.raises(ValueError, match=re.escape("(hidden 16 -> 32, knn 4 -> 8)")):
+        initial_weights(Args(init_from=str(ckpt)), torch.device("cpu"))
+    start = initial_weights(Args(**common, init_from=str(ckpt)), torch.device("cpu"))
+    saved = torch.load(ckpt, weights_only=True)["state_dict"]
+    assert start.keys() == saved.keys() and all(torch.equal(start[k], saved[k]) for k in saved)

@@ -193,8 +193,8 @@ class Args:
     resume: str | None = None
     """Path of a checkpoint.pt to continue from."""
     init_from: str | None = None
-    """Weights file (.pt from an earlier run, or ``shipped`` for the variant's shipped weights) to start PPO
-    from instead of a fresh network: fine-tuning. The warm start is skipped; the optimizer starts fresh."""
+    """Weights file (an earlier run's ``<variant>.pt`` or ``checkpoint.pt``, or ``shipped`` for the variant's shipped
+    weights) to start PPO from instead of a fresh network: fine-tuning. The warm start is skipped; the optimizer starts fresh."""
     device: str = "auto"
     """auto (CUDA when available), cpu or cuda."""
     torch_threads: int = 1
@@ -526,19 +526,61 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+ARGS_OF_GRAPH_FIELDS = {"use_cluster_size": "cluster_size_feature", "use_unknown_area": "unknown_area_feature", "egocentric": "egocentric_frame"}
+"""``GraphConfig`` fields that ``Args`` names otherwise; the others, and ``NetworkConfig``'s, have the same names."""
+
+
+def network_changes(weights: tuple[NetworkConfig, GraphConfig], args: Args, device: torch.device) -> list[tuple[str, Any, Any]]:
+    """``(field, weights_value, args_value)`` for each network or graph setting in which ``weights`` (a checkpoint's
+    network and graph) differ from what ``args`` builds, by ``Args``' name and in its order where it has one
+    (``node_features``, the input width, only where no graph setting explains it)."""
+    saved = {**dataclasses.asdict(weights[1]), **dataclasses.asdict(weights[0])}
+    wanted = {**dataclasses.asdict(args.env_config().graph), **dataclasses.asdict(build_model(args, device).config)}
+    changes = [(ARGS_OF_GRAPH_FIELDS.get(k, k), saved[k], wanted[k]) for k in wanted if k in saved and saved[k] != wanted[k]]
+    if len(changes) > 1:
+        changes = [c for c in changes if c[0] != "node_features"]
+    order = [f.name for f in dataclasses.fields(Args)]
+    return sorted(changes, key=lambda c: order.index(c[0]) if c[0] in order else len(order))
+
+
+def training_checkpoint_weights(path: Path, device: torch.device) -> tuple[GraphActorCritic, GraphConfig, dict[str, Any]] | None:
+    """The network of a training checkpoint (``checkpoint.pt``: weights, Adam's state and the run's ``Args``), as
+    ``load_checkpoint`` gives a weights file's; None for a file that is not one."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001  (not a training checkpoint: load_checkpoint's error says what it is)
+        return None
+    if not isinstance(ckpt, dict) or not {"state_dict", "optimizer", "args"} <= ckpt.keys() or not isinstance(ckpt["args"], dict):
+        return None
+    names = {f.name for f in dataclasses.fields(Args)}
+    run = Args(**{k: v for k, v in ckpt["args"].items() if k in names})
+    model = build_model(run, device)
+    try:
+        model.load_state_dict(ckpt["state_dict"])
+    except (RuntimeError, KeyError):
+        return None
+    return model.eval(), run.env_config().graph, ckpt
+
+
 def initial_weights(args: Args, device: torch.device) -> dict[str, torch.Tensor]:
-    """The state dict named by ``args.init_from``, checked against the variant and graph being trained."""
+    """The state dict named by ``args.init_from`` (a weights file, or a training checkpoint: a stopped run's
+    ``checkpoint.pt``), checked against the variant, graph and network being trained."""
     path = weights_path(args.variant, args.env_config().exploration.sensor) if args.init_from == "shipped" else Path(str(args.init_from))
     try:
         model, graph, ckpt = load_checkpoint(path, str(device))
     except FileNotFoundError:
         raise ValueError(f"--init-from {path}: no such file") from None
     except CheckpointError as exc:
-        raise ValueError(f"--init-from {exc}") from None
+        loaded = training_checkpoint_weights(path, device)
+        if loaded is None:
+            raise ValueError(f"--init-from {exc}") from None
+        model, graph, ckpt = loaded
     if ckpt.get("variant") != args.variant:
         raise ValueError(f"{path} holds variant {ckpt.get('variant')!r}, not {args.variant!r}")
-    if graph != args.env_config().graph or model.config != build_model(args, device).config:
-        raise ValueError(f"{path} was trained with another graph or network configuration")
+    if changes := network_changes((model.config, graph), args, device):
+        said = ", ".join(f"{name} {before!r} -> {now!r}" for name, before, now in changes)
+        fits = " ".join(f"--set {name}={json.dumps(before)}" for name, before, _ in changes if name in {f.name for f in dataclasses.fields(Args)})
+        raise ValueError(f"{path} was trained with another graph or network configuration ({said})" + (f"; {fits} fits them" if fits else ""))
     return model.state_dict()
 
 
