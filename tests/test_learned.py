@@ -1822,3 +1822,19 @@ def test_fine_tuning_names_what_differs_and_starts_from_a_training_checkpoint_to
     start = initial_weights(Args(**common, init_from=str(ckpt)), torch.device("cpu"))
     saved = torch.load(ckpt, weights_only=True)["state_dict"]
     assert start.keys() == saved.keys() and all(torch.equal(start[k], saved[k]) for k in saved)
+
+
+def test_a_stopped_training_run_leaves_its_learning_curve_so_far(tmp_path):
+    """Ctrl-C (or a dead environment process) left the CSV log and the checkpoint but no ``<variant>_curve.png``:
+    the curve was drawn only at the end, so the run a user stopped because it looked wrong had no picture to show
+    why. The curve of the updates logged so far is now drawn on the way out, as the CSV log holds them."""
+    common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "checkpoint_every": 1}
+
+    def stop_at_update_3(message: str) -> None:
+        if message.startswith("update 3/"):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(Args(**common, out_dir=str(tmp_path), total_decisions=80), log=stop_at_update_3, plans=[rooms_plan(2)])
+    assert (tmp_path / "cso_curve.png").is_file() and not (tmp_path / "cso.pt").exists()
+    assert [r["update"] for r in csv.DictReader((tmp_path / "cso_log.csv").open())] == ["1", "2", "3"]

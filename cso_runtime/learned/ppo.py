@@ -1094,6 +1094,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         if progress is not None:
             progress.close()
         envs.close(terminate=not finished_loop)  # after an error or Ctrl-C, do not wait for the workers' step
+        if not finished_loop:  # stopped: the curve of the updates logged so far, which the end would have drawn
+            draw_curve_so_far(log_path, out / f"{args.variant}_curve.png", args.variant, log)
 
     wall = wall_before_s + time.time() - t_start
     record.update(
@@ -1220,6 +1222,17 @@ def progress_stats(recent: Sequence[Mapping[str, float]], decisions: int, wall_s
     ret = float(np.mean([e["return"] for e in recent]))
     cov = float(np.mean([e["coverage_pct"] for e in recent]))
     return f"return {ret:.2f}  coverage {cov:.1f} % (last {len(recent)} episodes)  {rate}"
+
+
+def draw_curve_so_far(csv_path: Path, png_path: Path, title: str, log: Callable[[str], None]) -> None:
+    """``plot_learning_curve`` of a run that stopped (Ctrl-C, a dead environment process), said in the log; a failure
+    to draw it is only said, so that it never hides why the run stopped."""
+    try:
+        plot_learning_curve(csv_path, png_path, title)
+    except Exception as exc:  # noqa: BLE001
+        log(f"the learning curve so far could not be drawn ({type(exc).__name__}: {exc})")
+    else:
+        log(f"learning curve so far: {png_path}")
 
 
 def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
