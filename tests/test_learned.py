@@ -1838,3 +1838,26 @@ def test_a_stopped_training_run_leaves_its_learning_curve_so_far(tmp_path):
         train(Args(**common, out_dir=str(tmp_path), total_decisions=80), log=stop_at_update_3, plans=[rooms_plan(2)])
     assert (tmp_path / "cso_curve.png").is_file() and not (tmp_path / "cso.pt").exists()
     assert [r["update"] for r in csv.DictReader((tmp_path / "cso_log.csv").open())] == ["1", "2", "3"]
+
+
+def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp_path, monkeypatch):
+    """``eval --weights`` of a stopped run (a ``checkpoint.pt``, no ``<variant>.pt``) says to resume it; a resume with a
+    ``--total-decisions`` the checkpoint has already passed writes its weights as they are, but said "1 updates in all,
+    the learning rate anneals over them from here", as if it trained. It now says that no update is left, and the
+    weights written are the checkpoint's, which ``eval --weights`` then runs."""
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights_dir
+
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # use_weights_dir sets it for this process: put back as it was after the test
+    common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "out_dir": str(tmp_path)}
+    train(Args(**common, total_decisions=24), log=lambda _msg: None, plans=[rooms_plan(2)])
+    (tmp_path / "cso.pt").unlink()  # as a stopped run leaves it
+    with pytest.raises(ValueError, match=re.escape("or add --total-decisions 1 to write its weights as they are")):
+        use_weights_dir(tmp_path)
+    said: list[str] = []
+    record = train(Args(**common, total_decisions=1, resume=str(tmp_path / "checkpoint.pt")), log=said.append, plans=[rooms_plan(2)])
+    assert record["ppo_decisions"] == 24 and not any("anneals" in line for line in said), said
+    assert any("no update left: the weights written are the checkpoint's (update 3, 24 decisions)" in line for line in said), said
+    saved = torch.load(tmp_path / "checkpoint.pt", weights_only=True)["state_dict"]
+    written, _, _ = load_checkpoint(tmp_path / "cso.pt")
+    assert all(torch.equal(written.state_dict()[k], v) for k, v in saved.items())
+    assert use_weights_dir(tmp_path) == tmp_path.resolve()

@@ -914,7 +914,12 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
             torch.cuda.set_rng_state_all(ckpt["cuda_rng"])
         log(f"resumed from {args.resume} at update {start_update}")
         before = ckpt.get("args", {}).get("total_decisions", args.total_decisions)
-        if before != args.total_decisions:
+        if start_update > args.num_updates:  # eval --weights of a stopped run is told to resume it so
+            log(
+                f"total_decisions {args.total_decisions} ({args.num_updates} update{'s' if args.num_updates != 1 else ''}): no update left:"
+                f" the weights written are the checkpoint's (update {start_update - 1}, {global_decisions} decisions)"
+            )
+        elif before != args.total_decisions:
             log(f"total_decisions {before} -> {args.total_decisions}: {args.num_updates} updates in all, the learning rate anneals over them from here")
     elif args.init_from:
         model.load_state_dict(initial_weights(args, device))
@@ -966,7 +971,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     if new_log:
         writer.writeheader()
 
-    progress = _progress(args.progress, args.num_updates, completed=start_update - 1)  # a resumed run's bar goes on from its update
+    progress = _progress(args.progress, args.num_updates, completed=min(start_update - 1, args.num_updates))  # a resumed run's bar goes on from its update
     recent_episodes: collections.deque[dict[str, float]] = collections.deque(maxlen=20)  # for the bar's figures
     update = start_update - 1
     finished_loop = False
