@@ -449,8 +449,14 @@ def resumed_run_settings(path: str | Path) -> dict[str, Any]:
     saved = ckpt.get("args") if isinstance(ckpt, dict) else None
     if not isinstance(saved, dict):
         return {}
+    return {k: v for k, v in known_args(saved).items() if k not in RESUME_OWN_FIELDS}
+
+
+def known_args(saved: Mapping[str, Any]) -> dict[str, Any]:
+    """The fields of ``Args`` among a checkpoint's saved ones (``dataclasses.asdict``; one of another version may hold
+    fields this one lacks)."""
     names = {f.name for f in dataclasses.fields(Args)}
-    return {k: v for k, v in saved.items() if k in names and k not in RESUME_OWN_FIELDS}
+    return {k: v for k, v in saved.items() if k in names}
 
 
 def resume_recipe_changes(saved: Mapping[str, Any], args: Args) -> list[str]:
@@ -552,8 +558,7 @@ def training_checkpoint_weights(path: Path, device: torch.device) -> tuple[Graph
         return None
     if not isinstance(ckpt, dict) or not {"state_dict", "optimizer", "args"} <= ckpt.keys() or not isinstance(ckpt["args"], dict):
         return None
-    names = {f.name for f in dataclasses.fields(Args)}
-    run = Args(**{k: v for k, v in ckpt["args"].items() if k in names})
+    run = Args(**known_args(ckpt["args"]))
     model = build_model(run, device)
     try:
         model.load_state_dict(ckpt["state_dict"])
