@@ -1052,7 +1052,9 @@ def doctor_command(
 
 @app.command("train", rich_help_panel="Learned policy")
 def train_command(
-    config: Path | None = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args"),
+    config: Path | None = typer.Option(
+        None, "--config", help="YAML with the fields of learned.ppo.Args (default configs/train.yaml; with --resume, the checkpoint's own configuration)"
+    ),
     variant: str | None = typer.Option(None, "--variant", help="cso, cso-no-info, cso-no-mask, cso-sm, cso-vdm or gnn-baseline"),
     out: Path | None = typer.Option(None, "--out", help="Output folder (overrides out_dir)"),
     seed: int | None = typer.Option(None, "--seed", help="Seed (overrides the config)"),
@@ -1060,7 +1062,7 @@ def train_command(
     time_limit: float | None = typer.Option(None, "--time-limit-s", help="Stop after this much wall time (0 = none)"),
     resume: Path | None = typer.Option(None, "--resume", help="checkpoint.pt to continue from"),
     device: str | None = typer.Option(None, "--device", help="auto, cpu, cuda or cuda:N"),
-    init_from: str | None = typer.Option(None, "--init-from", help="Fine-tune: start from these weights (.pt, or 'shipped')"),
+    init_from: str | None = typer.Option(None, "--init-from", help="Fine-tune: start from these weights (a run's <variant>.pt or checkpoint.pt, or 'shipped')"),
     num_envs: int | None = typer.Option(None, "--num-envs", help="Parallel environments"),
     async_envs: bool | None = typer.Option(None, "--async-envs/--sync-envs", help="One process per environment, or all in this one"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
@@ -1076,6 +1078,8 @@ def train_command(
                  "time_limit_s": time_limit, "resume": str(resume) if resume else None, "device": device,
                  "init_from": init_from, "num_envs": num_envs, "async_envs": async_envs,
                  "dungeon_dir": str(dungeon_dir) if dungeon_dir else None, "tensorboard": tensorboard}
+    if config is None and resume is None:
+        config = DEFAULT_TRAIN_CONFIG  # a resume without --config goes on with its checkpoint's configuration
     args = training_args(config, overrides, settings)
     output_dir_or_exit(args.out_dir, "out_dir")
     checkpoint = Path(args.out_dir) / "checkpoint.pt"
@@ -1143,14 +1147,20 @@ def output_dir_or_exit(path: Path | str, label: str) -> None:
 
 
 def training_args(config: Path | None, overrides: Mapping[str, object], settings: list[str] | None) -> Args:
-    """``learned.ppo.Args`` from the YAML file, then the command's flags, then ``--set`` pairs; a missing file or
-    a bad value exits with a clear error (code 2) before anything starts."""
+    """``learned.ppo.Args`` from the YAML file (without one, for a ``resume``: the configuration its checkpoint holds),
+    then the command's flags, then ``--set`` pairs; a missing file or a bad value exits with a clear error (code 2)
+    before anything starts."""
     from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
-    from cso_runtime.learned.ppo import Args, check_training_inputs, training_scene_refs  # noqa: PLC0415
+    from cso_runtime.learned.ppo import Args, check_training_inputs, resumed_run_settings, training_scene_refs  # noqa: PLC0415
 
     config = _packaged_if_missing(config)  # run outside the repository: the packaged recipe
     try:
-        data = load_yaml(config) if config is not None else {}
+        if config is None and overrides.get("resume"):
+            data = resumed_run_settings(str(overrides["resume"]))
+            if data:
+                typer.echo(f"note: resuming with the configuration {overrides['resume']} holds (its run's --config and --set)", err=True)
+        else:
+            data = load_yaml(config) if config is not None else {}
         data.update({k: v for k, v in overrides.items() if v is not None})
         pairs = parse_settings(settings or [])
         data.update(pairs)

@@ -426,3 +426,23 @@ def test_every_commands_help_reads_whole_on_an_80_column_terminal():
     for name in cli.commands:
         r = CliRunner().invoke(app, [name, "--help"], terminal_width=80, env={"COLUMNS": "80"})
         assert r.exit_code == 0 and "…" not in r.output, f"{name} --help:\n{r.output}"
+
+
+def test_the_readme_names_every_info_key_of_the_training_environment():
+    """A Gymnasium user reads ``info`` for the episode's figures: the README's paragraph on the environment named the
+    action mask, the plan and the invalid actions, not the coverage, steps, explored area, how the episode ended or the
+    control steps a decision took (``decision_steps``, what a semi-MDP discount needs), which ``step`` also gives."""
+    import numpy as np
+
+    from cso_runtime.learned.env import make_env
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    paragraph = readme[readme.index("**The training environment**") :].split("\n\n")[0]
+    env = make_env("generated:small:1:0")
+    _, reset_info = env.reset(seed=0)
+    allowed = np.flatnonzero(reset_info["action_mask"])
+    _, _, _, _, step_info = env.step(int(allowed[0]))
+    masked = np.flatnonzero(step_info["action_mask"] == 0)
+    _, _, _, _, rejected_info = env.step(int(masked[0]))
+    keys = {*reset_info, *step_info, *rejected_info}
+    assert sorted(k for k in keys if f'info["{k}"]' not in paragraph) == []

@@ -1778,3 +1778,86 @@ def test_expert_action_refuses_the_rollout_teacher_it_cannot_score():
     _, info = env.reset(seed=0)
     with pytest.raises(ValueError, match="teacher_label"):
         expert_action(env.obs, info["action_mask"], "rollout")
+
+
+def test_train_resume_alone_goes_on_with_the_checkpoints_own_configuration(tmp_path, monkeypatch):
+    """``train --resume RUN/checkpoint.pt`` without ``--config`` read ``configs/train.yaml``, so a run trained with any
+    other ``--set`` (a checkpoint left by Ctrl-C, whose record ``<variant>.json`` is not written yet) could only be
+    resumed by typing every flag again: anything else was refused as a change of recipe. The checkpoint holds the
+    run's configuration: a resume alone takes it; flags still change what may change, and a ``--config`` given
+    with it is still held to the checkpoint's recipe."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(Path(__file__).parents[1])  # where configs/train.yaml is the default recipe
+    run = tmp_path / "run"
+    recipe = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "gamma": 0.9,
+              "generated": ["generated:small:1:0"], "progress": False}  # fmt: skip
+    train(Args(**recipe, out_dir=str(run), total_decisions=8), log=lambda _msg: None, plans=[rooms_plan(2)])
+    checkpoint = run / "checkpoint.pt"
+    r = CliRunner().invoke(app, ["train", "--resume", str(checkpoint), "--total-decisions", "16"])
+    assert r.exit_code == 0 and f"resumed from {checkpoint} at update 2" in r.output, r.output[-2000:]
+    saved = json.loads((run / "cso.json").read_text())["args"]
+    assert (saved["gamma"], saved["num_steps"], saved["generated"], saved["total_decisions"]) == (0.9, 8, ["generated:small:1:0"], 16)
+    r = CliRunner().invoke(app, ["train", "--config", "configs/train.yaml", "--set", "dungeon_dir=null", "--resume", str(checkpoint)])
+    assert r.exit_code == 2 and "changes the recipe of the run it continues" in r.output, r.output[-2000:]
+
+
+def test_fine_tuning_names_what_differs_and_starts_from_a_training_checkpoint_too(tmp_path):
+    """``--init-from`` weights of another shape said only "trained with another graph or network configuration",
+    leaving the user to guess which of a dozen fields; it now names each, with the ``--set`` that fits the weights.
+    A training checkpoint (``checkpoint.pt``, all a stopped run leaves) was refused as "not a cso-runtime checkpoint
+    (no 'graph' entry)"; its weights now start the run, as a finished run's ``<variant>.pt`` does."""
+    from cso_runtime.learned.ppo import initial_weights
+
+    plan = rooms_plan(2)
+    common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "hidden": 16, "knn": 4}
+    train(Args(**common, out_dir=str(tmp_path / "run"), total_decisions=8), log=lambda _msg: None, plans=[plan])
+    with pytest.raises(ValueError, match=re.escape("another graph or network configuration (hidden 16 -> 32, knn 4 -> 8); --set hidden=16 --set knn=4 fits them")):
+        initial_weights(Args(init_from=str(tmp_path / "run" / "cso.pt")), torch.device("cpu"))
+    ckpt = tmp_path / "run" / "checkpoint.pt"
+    with pytest.raises(ValueError, match=re.escape("(hidden 16 -> 32, knn 4 -> 8)")):
+        initial_weights(Args(init_from=str(ckpt)), torch.device("cpu"))
+    start = initial_weights(Args(**common, init_from=str(ckpt)), torch.device("cpu"))
+    saved = torch.load(ckpt, weights_only=True)["state_dict"]
+    assert start.keys() == saved.keys() and all(torch.equal(start[k], saved[k]) for k in saved)
+
+
+def test_a_stopped_training_run_leaves_its_learning_curve_so_far(tmp_path):
+    """Ctrl-C (or a dead environment process) left the CSV log and the checkpoint but no ``<variant>_curve.png``:
+    the curve was drawn only at the end, so the run a user stopped because it looked wrong had no picture to show
+    why. The curve of the updates logged so far is now drawn on the way out, as the CSV log holds them."""
+    common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "checkpoint_every": 1}
+
+    def stop_at_update_3(message: str) -> None:
+        if message.startswith("update 3/"):
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        train(Args(**common, out_dir=str(tmp_path), total_decisions=80), log=stop_at_update_3, plans=[rooms_plan(2)])
+    assert (tmp_path / "cso_curve.png").is_file() and not (tmp_path / "cso.pt").exists()
+    assert [r["update"] for r in csv.DictReader((tmp_path / "cso_log.csv").open())] == ["1", "2", "3"]
+
+
+def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp_path, monkeypatch):
+    """``eval --weights`` of a stopped run (a ``checkpoint.pt``, no ``<variant>.pt``) says to resume it; a resume with a
+    ``--total-decisions`` the checkpoint has already passed writes its weights as they are, but said "1 updates in all,
+    the learning rate anneals over them from here", as if it trained. It now says that no update is left, and the
+    weights written are the checkpoint's, which ``eval --weights`` then runs."""
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights_dir
+
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # use_weights_dir sets it for this process: put back as it was after the test
+    common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "out_dir": str(tmp_path)}
+    train(Args(**common, total_decisions=24), log=lambda _msg: None, plans=[rooms_plan(2)])
+    (tmp_path / "cso.pt").unlink()  # as a stopped run leaves it
+    with pytest.raises(ValueError, match=re.escape("or add --total-decisions 1 to write its weights as they are")):
+        use_weights_dir(tmp_path)
+    said: list[str] = []
+    record = train(Args(**common, total_decisions=1, resume=str(tmp_path / "checkpoint.pt")), log=said.append, plans=[rooms_plan(2)])
+    assert record["ppo_decisions"] == 24 and not any("anneals" in line for line in said), said
+    assert any("no update left: the weights written are the checkpoint's (update 3, 24 decisions)" in line for line in said), said
+    saved = torch.load(tmp_path / "checkpoint.pt", weights_only=True)["state_dict"]
+    written, _, _ = load_checkpoint(tmp_path / "cso.pt")
+    assert all(torch.equal(written.state_dict()[k], v) for k, v in saved.items())
+    assert use_weights_dir(tmp_path) == tmp_path.resolve()

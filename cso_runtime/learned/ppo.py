@@ -193,8 +193,8 @@ class Args:
     resume: str | None = None
     """Path of a checkpoint.pt to continue from."""
     init_from: str | None = None
-    """Weights file (.pt from an earlier run, or ``shipped`` for the variant's shipped weights) to start PPO
-    from instead of a fresh network: fine-tuning. The warm start is skipped; the optimizer starts fresh."""
+    """Weights file (an earlier run's ``<variant>.pt`` or ``checkpoint.pt``, or ``shipped`` for the variant's shipped
+    weights) to start PPO from instead of a fresh network: fine-tuning. The warm start is skipped; the optimizer starts fresh."""
     device: str = "auto"
     """auto (CUDA when available), cpu or cuda."""
     torch_threads: int = 1
@@ -432,6 +432,33 @@ how long (a new ``total_decisions`` anneals the learning rate over the new total
 and where the Dungeon plans are on this machine. Every other field is the recipe, and must be the checkpoint's."""
 
 
+RESUME_OWN_FIELDS = ("out_dir", "resume", "init_from", "progress")
+"""The fields of ``Args`` a ``--resume`` never takes from the checkpoint's run (``resumed_run_settings``): where it
+writes (beside the checkpoint, unless ``--out``), what it continues from, and how this process shows progress."""
+
+
+def resumed_run_settings(path: str | Path) -> dict[str, Any]:
+    """The configuration of the run a training checkpoint continues (its ``Args``, less ``RESUME_OWN_FIELDS`` and any
+    field this version lacks), what ``train --resume`` without ``--config`` starts from, so that a run trained with its
+    own ``--set`` goes on without typing them again. Empty for a file that holds none (``load_resume_checkpoint`` then
+    says what it is)."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001  (missing, corrupt or not a checkpoint: said when it is loaded to resume)
+        return {}
+    saved = ckpt.get("args") if isinstance(ckpt, dict) else None
+    if not isinstance(saved, dict):
+        return {}
+    return {k: v for k, v in known_args(saved).items() if k not in RESUME_OWN_FIELDS}
+
+
+def known_args(saved: Mapping[str, Any]) -> dict[str, Any]:
+    """The fields of ``Args`` among a checkpoint's saved ones (``dataclasses.asdict``; one of another version may hold
+    fields this one lacks)."""
+    names = {f.name for f in dataclasses.fields(Args)}
+    return {k: v for k, v in saved.items() if k in names}
+
+
 def resume_recipe_changes(saved: Mapping[str, Any], args: Args) -> list[str]:
     """``"field checkpoint_value -> this_value"`` for each recipe field whose value ``args`` changes from the
     ``saved`` run's (``dataclasses.asdict`` of its Args; a field it lacks, from an older version, is not compared)."""
@@ -505,19 +532,60 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+ARGS_OF_GRAPH_FIELDS = {"use_cluster_size": "cluster_size_feature", "use_unknown_area": "unknown_area_feature", "egocentric": "egocentric_frame"}
+"""``GraphConfig`` fields that ``Args`` names otherwise; the others, and ``NetworkConfig``'s, have the same names."""
+
+
+def network_changes(weights: tuple[NetworkConfig, GraphConfig], args: Args, device: torch.device) -> list[tuple[str, Any, Any]]:
+    """``(field, weights_value, args_value)`` for each network or graph setting in which ``weights`` (a checkpoint's
+    network and graph) differ from what ``args`` builds, by ``Args``' name and in its order where it has one
+    (``node_features``, the input width, only where no graph setting explains it)."""
+    saved = {**dataclasses.asdict(weights[1]), **dataclasses.asdict(weights[0])}
+    wanted = {**dataclasses.asdict(args.env_config().graph), **dataclasses.asdict(build_model(args, device).config)}
+    changes = [(ARGS_OF_GRAPH_FIELDS.get(k, k), saved[k], wanted[k]) for k in wanted if k in saved and saved[k] != wanted[k]]
+    if len(changes) > 1:
+        changes = [c for c in changes if c[0] != "node_features"]
+    order = [f.name for f in dataclasses.fields(Args)]
+    return sorted(changes, key=lambda c: order.index(c[0]) if c[0] in order else len(order))
+
+
+def training_checkpoint_weights(path: Path, device: torch.device) -> tuple[GraphActorCritic, GraphConfig, dict[str, Any]] | None:
+    """The network of a training checkpoint (``checkpoint.pt``: weights, Adam's state and the run's ``Args``), as
+    ``load_checkpoint`` gives a weights file's; None for a file that is not one."""
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001  (not a training checkpoint: load_checkpoint's error says what it is)
+        return None
+    if not isinstance(ckpt, dict) or not {"state_dict", "optimizer", "args"} <= ckpt.keys() or not isinstance(ckpt["args"], dict):
+        return None
+    run = Args(**known_args(ckpt["args"]))
+    model = build_model(run, device)
+    try:
+        model.load_state_dict(ckpt["state_dict"])
+    except (RuntimeError, KeyError):
+        return None
+    return model.eval(), run.env_config().graph, ckpt
+
+
 def initial_weights(args: Args, device: torch.device) -> dict[str, torch.Tensor]:
-    """The state dict named by ``args.init_from``, checked against the variant and graph being trained."""
+    """The state dict named by ``args.init_from`` (a weights file, or a training checkpoint: a stopped run's
+    ``checkpoint.pt``), checked against the variant, graph and network being trained."""
     path = weights_path(args.variant, args.env_config().exploration.sensor) if args.init_from == "shipped" else Path(str(args.init_from))
     try:
         model, graph, ckpt = load_checkpoint(path, str(device))
     except FileNotFoundError:
         raise ValueError(f"--init-from {path}: no such file") from None
     except CheckpointError as exc:
-        raise ValueError(f"--init-from {exc}") from None
+        loaded = training_checkpoint_weights(path, device)
+        if loaded is None:
+            raise ValueError(f"--init-from {exc}") from None
+        model, graph, ckpt = loaded
     if ckpt.get("variant") != args.variant:
         raise ValueError(f"{path} holds variant {ckpt.get('variant')!r}, not {args.variant!r}")
-    if graph != args.env_config().graph or model.config != build_model(args, device).config:
-        raise ValueError(f"{path} was trained with another graph or network configuration")
+    if changes := network_changes((model.config, graph), args, device):
+        said = ", ".join(f"{name} {before!r} -> {now!r}" for name, before, now in changes)
+        fits = " ".join(f"--set {name}={json.dumps(before)}" for name, before, _ in changes if name in {f.name for f in dataclasses.fields(Args)})
+        raise ValueError(f"{path} was trained with another graph or network configuration ({said})" + (f"; {fits} fits them" if fits else ""))
     return model.state_dict()
 
 
@@ -851,7 +919,12 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
             torch.cuda.set_rng_state_all(ckpt["cuda_rng"])
         log(f"resumed from {args.resume} at update {start_update}")
         before = ckpt.get("args", {}).get("total_decisions", args.total_decisions)
-        if before != args.total_decisions:
+        if start_update > args.num_updates:  # eval --weights of a stopped run is told to resume it so
+            log(
+                f"total_decisions {args.total_decisions} ({args.num_updates} update{'s' if args.num_updates != 1 else ''}): no update left:"
+                f" the weights written are the checkpoint's (update {start_update - 1}, {global_decisions} decisions)"
+            )
+        elif before != args.total_decisions:
             log(f"total_decisions {before} -> {args.total_decisions}: {args.num_updates} updates in all, the learning rate anneals over them from here")
     elif args.init_from:
         model.load_state_dict(initial_weights(args, device))
@@ -903,7 +976,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     if new_log:
         writer.writeheader()
 
-    progress = _progress(args.progress, args.num_updates, completed=start_update - 1)  # a resumed run's bar goes on from its update
+    progress = _progress(args.progress, args.num_updates, completed=min(start_update - 1, args.num_updates))  # a resumed run's bar goes on from its update
     recent_episodes: collections.deque[dict[str, float]] = collections.deque(maxlen=20)  # for the bar's figures
     update = start_update - 1
     finished_loop = False
@@ -1031,6 +1104,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         if progress is not None:
             progress.close()
         envs.close(terminate=not finished_loop)  # after an error or Ctrl-C, do not wait for the workers' step
+        if not finished_loop:  # stopped: the curve of the updates logged so far, which the end would have drawn
+            draw_curve_so_far(log_path, out / f"{args.variant}_curve.png", args.variant, log)
 
     wall = wall_before_s + time.time() - t_start
     record.update(
@@ -1157,6 +1232,17 @@ def progress_stats(recent: Sequence[Mapping[str, float]], decisions: int, wall_s
     ret = float(np.mean([e["return"] for e in recent]))
     cov = float(np.mean([e["coverage_pct"] for e in recent]))
     return f"return {ret:.2f}  coverage {cov:.1f} % (last {len(recent)} episodes)  {rate}"
+
+
+def draw_curve_so_far(csv_path: Path, png_path: Path, title: str, log: Callable[[str], None]) -> None:
+    """``plot_learning_curve`` of a run that stopped (Ctrl-C, a dead environment process), said in the log; a failure
+    to draw it is only said, so that it never hides why the run stopped."""
+    try:
+        plot_learning_curve(csv_path, png_path, title)
+    except Exception as exc:  # noqa: BLE001
+        log(f"the learning curve so far could not be drawn ({type(exc).__name__}: {exc})")
+    else:
+        log(f"learning curve so far: {png_path}")
 
 
 def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:

@@ -108,7 +108,8 @@ def use_weights_dir(directory: str | Path) -> Path:
     if not served and (run / RESUMABLE_CHECKPOINT).is_file():
         raise ValueError(
             f"--weights {directory}: only a training checkpoint ({RESUMABLE_CHECKPOINT}: a run that has not finished), no <method>.pt; "
-            f"finish it with `cso-runtime train --resume {run / RESUMABLE_CHECKPOINT}` and the run's own flags"
+            f"finish it with `cso-runtime train --resume {run / RESUMABLE_CHECKPOINT}` (it holds the run's configuration),"
+            " or add --total-decisions 1 to write its weights as they are and evaluate them now"
         )
     if not served:
         others = sorted(p.name for p in run.glob("*.pt"))
