@@ -1490,6 +1490,20 @@ def _liveliness(key: str, kind: str) -> object:
     return types.SimpleNamespace(key_expr=key, kind=f"SampleKind.{kind}")
 
 
+def _shared_policy_server(params: dict):
+    """A ``serve_all_robots`` policy (greedy-dist) with ``params``, what it publishes, and ``send(robot, step, at_s)``:
+    a decision input of episode 1 from ``robot``, received at ``at_s``."""
+    from services.common import _dispatch
+
+    policy, out = _service(PolicyService, lockstep=False, params={"method": "greedy-dist", "serve_all_robots": True, **params})
+    obs = _explorer_at(0).observe()
+
+    def send(robot: str, step: int, at_s: float) -> None:
+        _dispatch(policy, RobotKeys(robot).frontiers, encode(frontiers_from_observation(step, "timeout", obs, 1.0, episode=1)), at_s)
+
+    return policy, out, send
+
+
 def test_a_shared_policy_server_forgets_a_robot_gone_for_forget_robot_after_s_and_serves_it_afresh(caplog):
     """A ``serve_all_robots`` server kept what it knew of every robot it ever heard (its counts, its step guard's steps,
     the publisher of its goal key; its selector too while its frontier service's going went unseen), so a long
@@ -1500,14 +1514,8 @@ def test_a_shared_policy_server_forgets_a_robot_gone_for_forget_robot_after_s_an
     leap)."""
     from services.common import _dispatch
 
-    params = {"method": "greedy-dist", "serve_all_robots": True, "forget_robot_after_s": 60.0}
-    policy, out = _service(PolicyService, lockstep=False, params=params)
-    obs = _explorer_at(0).observe()
+    policy, out, send = _shared_policy_server({"forget_robot_after_s": 60.0})
     t0_s = time.monotonic()
-
-    def send(robot: str, step: int, at_s: float) -> None:
-        _dispatch(policy, RobotKeys(robot).frontiers, encode(frontiers_from_observation(step, "timeout", obs, 1.0, episode=1)), at_s)
-
     policy._other_policies.add("d")  # robot d's run has a policy of its own: heard, never served
     policy._on_alive(_liveliness(RobotKeys("c").alive("frontier"), "PUT"))  # robot c's run is alive
     for step in range(3):
@@ -1548,16 +1556,8 @@ def test_a_shared_policy_server_keeps_a_robots_selector_through_a_restart_of_its
     its own keeps it. A frontier service that goes while the rest of its run runs now has ``frontier_restart_grace_s``
     to come back and find the same selector; one gone longer is let go as before, and so is a robot whose whole run
     stops, at once."""
-    from services.common import _dispatch
-
-    params = {"method": "greedy-dist", "serve_all_robots": True, "frontier_restart_grace_s": 30.0}
-    policy, out = _service(PolicyService, lockstep=False, params=params)
-    obs = _explorer_at(0).observe()
+    policy, out, send = _shared_policy_server({"frontier_restart_grace_s": 30.0})
     t0_s = time.monotonic()
-
-    def send(robot: str, step: int, at_s: float) -> None:
-        _dispatch(policy, RobotKeys(robot).frontiers, encode(frontiers_from_observation(step, "timeout", obs, 1.0, episode=1)), at_s)
-
     for robot in ("a", "b"):  # two runs, each with its sim and its frontier service
         for service in ("sim", "frontier"):
             policy._on_alive(_liveliness(RobotKeys(robot).alive(service), "PUT"))
