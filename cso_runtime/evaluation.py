@@ -335,8 +335,6 @@ class EpisodeOutcome:
     """Read back from an earlier run's files by ``--resume``, not run now."""
     map_origin: Pose2D = MAP_FRAME_ORIGIN
     """The plan's pose in the user's map frame (``FloorPlan.map_origin``): the trajectory plots are drawn there."""
-    ended_why: str = ""
-    """``EpisodeResult.ended_why`` of an episode run now: shown after its line in eval's progress."""
 
     @classmethod
     def finished(
@@ -353,7 +351,6 @@ class EpisodeOutcome:
             trajectory_xy_m=result.trajectory_xy_m,
             coverage_curve_pct=result.coverage_curve_pct,
             map_origin=map_origin,
-            ended_why=result.ended_why,
         )
 
 
@@ -855,7 +852,9 @@ class RichProgress:
         if outcome.row is not None:
             r = outcome.row
             kept = ", kept from the earlier run" if outcome.kept else ""
-            why = f": {outcome.ended_why}" if outcome.ended_why else ""
+            # Why it ended no_frontier, from its row: that of an episode run now, or the npz's of one --resume kept
+            # (none in the rows of runs before the column).
+            why = f": {r['ended_why']}" if r.get("ended_why") else ""
             text = escape(f"{outcome.method} {outcome.map}: {r['coverage_pct']:.1f}% in {r['steps']} steps ({r['terminated_by']}{kept}){why}")
         else:
             text = f"[red]{escape(f'{outcome.method} {outcome.map}')}: FAILED"

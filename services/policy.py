@@ -6,8 +6,11 @@ policy: a liveliness token ``cso/<robot>/alive/policy`` from its first decision 
 ``cso/<robot>/service/policy/status`` with that robot's state, so ``status --robot ID`` shows it. A robot
 whose own policy is alive (another process's ``cso/<robot>/alive/policy``: its run has a policy of its own, or
 another server serves it) is left to that policy: two policies would send it two goals at each decision. A robot
-whose frontier service goes (its run stopped) is let go: its token is withdrawn, so the robot no longer looks
-running to ``status`` and a new run of that id may start a policy of its own. A robot heard from by no input for
+whose frontier service goes with the rest of its run (its run stopped) is let go: its token is withdrawn, so the robot
+no longer looks running to ``status`` and a new run of that id may start a policy of its own. One whose frontier
+service goes while other services of its run still run (a crash its launcher restarts) is kept for
+``frontier_restart_grace_s``, so that the restarted frontier service finds its selector as it was, as a robot with a
+policy of its own keeps its selector through such a restart; it is let go once that has passed. A robot heard from by no input for
 ``forget_robot_after_s`` while no frontier service of it is alive is let go too; either way the server forgets it
 (its selector, last goal, counts, steps, publisher), so that it does not grow with every robot a long deployment sees,
 and counts it in its status (``robots_forgotten``): a robot that comes back is served afresh.
@@ -62,13 +65,22 @@ class PolicyParams:
     for several robots (then start one policy per network, not one per robot)."""
     forget_robot_after_s: float = 600.0
     """With ``serve_all_robots``: a robot (not ``--robot``) heard from by no input for this long (wall clock) while no
-    frontier service of it is alive is forgotten (a robot whose frontier service goes is, at once)."""
+    frontier service of it is alive is forgotten (a robot whose frontier service goes is sooner:
+    ``frontier_restart_grace_s``)."""
+    frontier_restart_grace_s: float = 30.0
+    """With ``serve_all_robots``: how long (wall clock) a robot whose frontier service went while another service of its
+    run is still alive (a crash, a kill: its launcher restarts it after ``supervision.backoff_s``, doubling up to
+    ``backoff_max_s``, 8 s, then its start-up) is kept, its selector (memory of past goals, stuck mask) and its token
+    with it, for the restarted frontier service; then it is forgotten. A robot whose run stopped (no service of it
+    alive) is forgotten at the next tick whatever this is. 0: at the next tick too."""
 
     def validate(self) -> None:
         if not self.stale_after_s > 0:
             raise ConfigError("stale_after_s must be positive")
         if not self.forget_robot_after_s > 0:
             raise ConfigError("forget_robot_after_s must be positive")
+        if not self.frontier_restart_grace_s >= 0:
+            raise ConfigError("frontier_restart_grace_s must be 0 or positive seconds")
         if self.method:
             try:
                 check_method(self.method)
@@ -127,10 +139,12 @@ class PolicyService(Service):
         """Robots (not ours) whose own policy, another process, is alive: a server leaves them to it."""
         self._left: set[str] = set()
         """Robots left to their own policy, said once in the log until that policy goes."""
-        self._inputs_gone: set[str] = set()
-        """Robots whose frontier service (their decision inputs) has gone, to let go at the next tick."""
-        self._frontiers_alive: set[str] = set()
-        """Robots whose frontier service is alive: not forgotten however long they are silent (a paused run)."""
+        self._frontier_gone_s: dict[str, float | None] = {}
+        """Robots (not ``--robot``) whose frontier service (their decision inputs) has gone -> the tick that first saw it
+        gone (None until one has): let go when their run is gone too, or ``frontier_restart_grace_s`` after."""
+        self._services_alive: dict[str, set[str]] = {}
+        """Robot -> its services alive besides a policy (their ``alive/<name>`` tokens): whether its run still runs, and
+        its frontier service (a robot with one is not forgotten however long it is silent: a paused run)."""
         self._gone_lock = threading.Lock()
         self.robots_forgotten = 0
 
@@ -156,32 +170,51 @@ class PolicyService(Service):
         self._queryables.append(self.session.declare_queryable(f"cso/{self.subscribe_robot}/goal", self._on_query))
         if self.params.serve_all_robots:  # --robot's own status is the service's (run_service's queryable)
             self._queryables.append(self.session.declare_queryable(RobotKeys("*").service_status(self.name), self._on_status_query))
-            self._queryables.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive(self.name), self._on_policy_alive, history=True))
-            self._queryables.append(
-                self.session.liveliness().declare_subscriber(RobotKeys("*").alive("frontier"), self._on_frontier_alive, history=True)
-            )
+            self._queryables.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("*"), self._on_alive, history=True))
 
-    def _on_frontier_alive(self, sample: zenoh.Sample) -> None:
-        """A robot's frontier service gone (its run stopped): that robot is let go at the next tick."""
-        robot = str(sample.key_expr).split("/")[1]
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        """A service of a robot came or went: its policy (``_on_policy_alive``), or another, which says whether its run
+        still runs and whether its frontier service (its decision inputs) is alive."""
+        _, robot, _, service = str(sample.key_expr).split("/")
+        if service == self.name:
+            self._on_policy_alive(sample)
+            return
+        came = str(sample.kind).endswith("PUT")
         with self._gone_lock:
-            if str(sample.kind).endswith("PUT"):
-                self._frontiers_alive.add(robot)
-                self._inputs_gone.discard(robot)  # back (a restart) before the tick: keep serving it
+            alive = self._services_alive.setdefault(robot, set())
+            if came:
+                alive.add(service)
             else:
-                self._frontiers_alive.discard(robot)
-                if robot != self.ctx.robot:
-                    self._inputs_gone.add(robot)
+                alive.discard(service)
+                if not alive:
+                    del self._services_alive[robot]
+            if service == "frontier":
+                if came:
+                    self._frontier_gone_s.pop(robot, None)  # back (a restart): keep serving it as it was
+                elif robot != self.ctx.robot:
+                    self._frontier_gone_s.setdefault(robot, None)
 
     def release_gone_robots(self, now_s: float) -> None:
-        """Stop serving the robots whose frontier service went, and those heard from by no input for
-        ``forget_robot_after_s`` with no frontier service alive, and forget them."""
+        """Stop serving the robots whose frontier service went with their run, or ``frontier_restart_grace_s`` ago
+        without coming back, and those heard from by no input for ``forget_robot_after_s`` with no frontier service
+        alive, and forget them."""
+        grace_s = self.params.frontier_restart_grace_s
+        gone: dict[str, str] = {}
         with self._gone_lock:
-            gone, self._inputs_gone = self._inputs_gone, set()
-            alive = set(self._frontiers_alive)
-        for robot in gone:
+            for robot, gone_s in list(self._frontier_gone_s.items()):
+                if gone_s is None:
+                    gone_s = self._frontier_gone_s[robot] = now_s
+                if robot not in self._services_alive:
+                    gone[robot] = "its frontier service is gone, and no other service of its run is alive"
+                elif now_s - gone_s >= grace_s:
+                    gone[robot] = f"its frontier service has been gone for {now_s - gone_s:.0f} s (frontier_restart_grace_s)"
+                else:
+                    continue  # its launcher may be restarting it
+                del self._frontier_gone_s[robot]
+            alive = {robot for robot, services in self._services_alive.items() if "frontier" in services}
+        for robot, why in gone.items():
             if robot in self.robots or robot in self.heard_from_s:
-                self.forget_robot(robot, "its frontier service is gone")
+                self.forget_robot(robot, why)
         for robot, heard_s in list(self.heard_from_s.items()):
             silent_s = now_s - heard_s
             if robot != self.ctx.robot and robot not in alive and silent_s > self.params.forget_robot_after_s:

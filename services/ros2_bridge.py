@@ -48,7 +48,6 @@ from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
 from cso_runtime.keys import WILDCARD, driver_claim_subject, robot_driver_token
 from cso_runtime.messages import (
-    EPISODE_OVER,
     ClockMsg,
     CmdVelMsg,
     EndedWhyMsg,
@@ -447,8 +446,9 @@ class Ros2BridgeService(Service):
         )
 
     def _on_result_query(self, query: zenoh.Query) -> None:
-        if self.episode_state in EPISODE_OVER:
-            query.reply(self.ctx.keys.episode_result, encode(self.episode_result()))
+        result = self.final_result
+        if result is not None:
+            query.reply(self.ctx.keys.episode_result, encode(result))
         else:
             query.reply_err(b"episode not finished")
 
@@ -594,6 +594,8 @@ class Ros2BridgeService(Service):
         self.no_frontier_end = NoFrontierEnd(self.params.ended_why_wait_s)
         self.ended_why = ""
         """Why the episode ended ``no_frontier`` (the frontier service's words), once it has; empty otherwise."""
+        self.final_result: EpisodeResultMsg | None = None
+        """The result published at the end, answered as it was to a query (the robot's scans go on after the end)."""
 
     def _new_episode(self, why: str, counter: str) -> None:
         """Start a new episode (a new id: every service starts over, the mapper with an empty map), as a restarted
@@ -918,7 +920,8 @@ class Ros2BridgeService(Service):
             self.path_length_m,
         )
         self.publish("episode_status", self.episode_status())
-        self.publish("episode_result", self.episode_result())
+        self.final_result = self.episode_result()
+        self.publish("episode_result", self.final_result)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -108,10 +108,13 @@ def _corridor_scene(folder: Path, name: str, start: str) -> Path:
     return scene
 
 
-def test_evals_files_say_why_an_episode_ended_no_frontier_and_resume_keeps_it(tmp_path: Path):
+def test_evals_files_say_why_an_episode_ended_no_frontier_and_resume_keeps_it(tmp_path: Path, capsys):
     """eval's progress said why an episode ended no_frontier (``EpisodeResult.ended_why``), its files did not: a
     results folder showed "no_frontier" alone. ``episodes.csv``'s last column ``ended_why`` (empty for any other end),
-    the npz's metrics and ``summary.json``'s per-method ``ended_why`` now hold it, and ``--resume`` writes the same."""
+    the npz's metrics and ``summary.json``'s per-method ``ended_why`` now hold it, and ``--resume`` writes the same;
+    its progress line of an episode kept from the earlier run says why too, as that of an episode run again (it said
+    "no_frontier" alone)."""
+    from cso_runtime.evaluation import RichProgress
     maps = tmp_path / "maps"
     maps.mkdir()
     dead_end = _corridor_scene(maps, "dead_end", "[0.5, 0.5, 0.0]")  # 0.4 m of corridor behind the 180-degree LiDAR
@@ -130,9 +133,13 @@ def test_evals_files_say_why_an_episode_ended_no_frontier_and_resume_keeps_it(tm
     with np.load(out / "episodes" / "greedy-dist" / "dead_end.npz") as data:
         assert json.loads(str(data["metrics"]))["ended_why"] == expected.ended_why
     csv_before = (out / "episodes.csv").read_text()
-    resumed = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(maps), out_dir=out, resume=True))
+    capsys.readouterr()
+    resumed = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(maps), out_dir=out, resume=True), RichProgress())
     assert resumed["meta"]["resumed_episodes"] == 2 and resumed["methods"] == summary["methods"]
     assert (out / "episodes.csv").read_text() == csv_before
+    lines = {line.split()[2]: line for line in capsys.readouterr().err.splitlines() if line.startswith("[")}
+    assert lines["dead_end:"].endswith(f" steps (no_frontier, kept from the earlier run): {expected.ended_why}"), lines
+    assert lines["corridor:"].endswith(" steps (coverage, kept from the earlier run)"), lines
 
 
 def test_max_steps_terminates():
@@ -645,9 +652,9 @@ def test_a_progress_line_says_why_an_episode_found_no_frontier(capsys):
 
     progress = RichProgress(clock=lambda: 0.0)
     progress.start(1)
-    row = {"coverage_pct": 98.3, "steps": 54, "terminated_by": "no_frontier"}
     why = "no frontier left that the robot can reach: 21 frontier cells (1.05 m) remain: 21 in 2 cluster(s) ..."
-    progress.advance(EpisodeOutcome("greedy-dist", "lshape", row=row, ended_why=why))
+    row = {"coverage_pct": 98.3, "steps": 54, "terminated_by": "no_frontier", "ended_why": why}
+    progress.advance(EpisodeOutcome("greedy-dist", "lshape", row=row))
     progress.stop()
     assert capsys.readouterr().err.splitlines()[0] == f"[1/1] greedy-dist lshape: 98.3% in 54 steps (no_frontier): {why} [0:00:00 elapsed]"
 

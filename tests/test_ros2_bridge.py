@@ -428,7 +428,7 @@ def test_an_episode_that_ends_no_frontier_on_a_real_robot_says_why_as_in_the_sim
         status, result = ended(out)
         assert (status.state, status.terminated_by, status.reason) == ("done", "no_frontier", why)
         assert (result.terminated_by, result.ended_why) == ("no_frontier", why)
-        assert svc.episode_result().ended_why == why  # the queryable's, for a launcher that missed the publication
+        assert svc.final_result is not None and svc.final_result.ended_why == why  # the queryable's, for a launcher that missed the publication
 
     svc, out, step = _bridge_without_zenoh(services=pipeline)
     svc._put_ros = lambda topic, payload: None  # type: ignore[method-assign]
@@ -439,6 +439,36 @@ def test_an_episode_that_ends_no_frontier_on_a_real_robot_says_why_as_in_the_sim
     svc.on_tick(time.monotonic() + svc.params.ended_why_wait_s)
     status, result = ended(out)
     assert (status.state, status.terminated_by, status.reason, result.ended_why) == ("done", "no_frontier", "", "")
+
+
+def test_the_result_query_answers_the_final_result_as_published_once_the_episode_has_ended():
+    """After the end the bridge's result queryable built a fresh result at each query: the robot's scans go on coming
+    (the LiDAR does not stop with the episode), so its ``steps``, path and trajectory kept growing, and a launcher that
+    missed the publication and asked got another result than the one published. It answers the final result as
+    published, frozen; before the end, an error (no result yet)."""
+    from types import SimpleNamespace
+
+    svc, out, step = _bridge_without_zenoh()
+    svc._put_ros = lambda topic, payload: None  # type: ignore[method-assign]
+    replies: list[tuple[str, bytes]] = []
+    query = SimpleNamespace(reply=lambda key, payload: replies.append((key, payload)), reply_err=lambda payload: replies.append(("error", payload)))
+    for i in range(3):
+        step(1000.0 + 0.1 * i, 0.1 * i)
+    svc._on_result_query(query)
+    assert replies == [("error", b"episode not finished")]
+    svc.take_goal(GoalMsg(2, True, None, None, method="greedy-dist", episode=svc.episode))  # no frontier left: the end
+    (published,) = [m for topic, m in out if topic == "episode_result"]
+    assert published.steps == 2 and len(published.trajectory_xy_m) == 3
+    for i in range(3, 8):  # the robot's scans go on after the end
+        step(1000.0 + 0.1 * i, 0.1 * i)
+    assert svc.step == 7
+    replies.clear()
+    svc._on_result_query(query)
+    ((key, payload),) = replies
+    answered = decode(payload, EpisodeResultMsg)
+    assert key == RobotKeys("r0").episode_result
+    assert (answered.steps, answered.path_length_m, answered.terminated_by) == (published.steps, published.path_length_m, "no_frontier")
+    np.testing.assert_array_equal(answered.trajectory_xy_m, published.trajectory_xy_m)
 
 
 def test_no_scan_on_the_robots_key_is_said_in_status_and_the_log(caplog):

@@ -1510,6 +1510,20 @@ def _liveliness(key: str, kind: str) -> object:
     return types.SimpleNamespace(key_expr=key, kind=f"SampleKind.{kind}")
 
 
+def _shared_policy_server(params: dict):
+    """A ``serve_all_robots`` policy (greedy-dist) with ``params``, what it publishes, and ``send(robot, step, at_s)``:
+    a decision input of episode 1 from ``robot``, received at ``at_s``."""
+    from services.common import _dispatch
+
+    policy, out = _service(PolicyService, lockstep=False, params={"method": "greedy-dist", "serve_all_robots": True, **params})
+    obs = _explorer_at(0).observe()
+
+    def send(robot: str, step: int, at_s: float) -> None:
+        _dispatch(policy, RobotKeys(robot).frontiers, encode(frontiers_from_observation(step, "timeout", obs, 1.0, episode=1)), at_s)
+
+    return policy, out, send
+
+
 def test_a_shared_policy_server_forgets_a_robot_gone_for_forget_robot_after_s_and_serves_it_afresh(caplog):
     """A ``serve_all_robots`` server kept what it knew of every robot it ever heard (its counts, its step guard's steps,
     the publisher of its goal key; its selector too while its frontier service's going went unseen), so a long
@@ -1520,16 +1534,10 @@ def test_a_shared_policy_server_forgets_a_robot_gone_for_forget_robot_after_s_an
     leap)."""
     from services.common import _dispatch
 
-    params = {"method": "greedy-dist", "serve_all_robots": True, "forget_robot_after_s": 60.0}
-    policy, out = _service(PolicyService, lockstep=False, params=params)
-    obs = _explorer_at(0).observe()
+    policy, out, send = _shared_policy_server({"forget_robot_after_s": 60.0})
     t0_s = time.monotonic()
-
-    def send(robot: str, step: int, at_s: float) -> None:
-        _dispatch(policy, RobotKeys(robot).frontiers, encode(frontiers_from_observation(step, "timeout", obs, 1.0, episode=1)), at_s)
-
     policy._other_policies.add("d")  # robot d's run has a policy of its own: heard, never served
-    policy._on_frontier_alive(_liveliness(RobotKeys("c").alive("frontier"), "PUT"))  # robot c's run is alive
+    policy._on_alive(_liveliness(RobotKeys("c").alive("frontier"), "PUT"))  # robot c's run is alive
     for step in range(3):
         for robot in ("a", "b", "c", "d"):
             send(robot, step, t0_s + step)
@@ -1549,7 +1557,7 @@ def test_a_shared_policy_server_forgets_a_robot_gone_for_forget_robot_after_s_an
     assert b_goal.undeclared and RobotKeys("b").goal not in policy._publishers and not own_goal.undeclared
     assert policy.status_msg().counters == {"robots_forgotten": 3} and "robot b" not in policy.reason
 
-    policy._on_frontier_alive(_liveliness(RobotKeys("c").alive("frontier"), "DELETE"))  # c's run stops
+    policy._on_alive(_liveliness(RobotKeys("c").alive("frontier"), "DELETE"))  # c's run stops
     policy.on_tick(t0_s + 3.0 + 62.0)
     assert not policy.robots and "c" not in policy.processed_by_robot and policy.status_msg().counters == {"robots_forgotten": 4}
 
@@ -1559,6 +1567,43 @@ def test_a_shared_policy_server_forgets_a_robot_gone_for_forget_robot_after_s_an
     assert [m.step for t, m in out if t == "goal"][-1] == 700
     b = policy.robot_status("b", policy.robots["b"])
     assert (b.rejected, b.processed, b.last_step) == ({}, 1, 700)
+
+
+def test_a_shared_policy_server_keeps_a_robots_selector_through_a_restart_of_its_frontier_service(caplog):
+    """A ``serve_all_robots`` server let a robot go at the first tick (0.2 s) after its frontier service's token went:
+    when the launcher restarted a crashed frontier service (its back-off, then its start-up: seconds), the robot's
+    selector, with its memory of past goals and its stuck mask, was lost mid-episode, where a robot with a policy of
+    its own keeps it. A frontier service that goes while the rest of its run runs now has ``frontier_restart_grace_s``
+    to come back and find the same selector; one gone longer is let go as before, and so is a robot whose whole run
+    stops, at once."""
+    policy, out, send = _shared_policy_server({"frontier_restart_grace_s": 30.0})
+    t0_s = time.monotonic()
+    for robot in ("a", "b"):  # two runs, each with its sim and its frontier service
+        for service in ("sim", "frontier"):
+            policy._on_alive(_liveliness(RobotKeys(robot).alive(service), "PUT"))
+        for step in range(3):
+            send(robot, step, t0_s + step)
+    selectors = {robot: policy.robots[robot].selector for robot in ("a", "b")}
+
+    for robot in ("a", "b"):  # both frontier services crash; their launchers restart them
+        policy._on_alive(_liveliness(RobotKeys(robot).alive("frontier"), "DELETE"))
+    policy.on_tick(t0_s + 3.0)
+    policy.on_tick(t0_s + 3.0 + 29.0)
+    assert set(policy.robots) == {"a", "b"} and policy.status_msg().counters == {"robots_forgotten": 0}
+    policy._on_alive(_liveliness(RobotKeys("a").alive("frontier"), "PUT"))  # a's is back within the grace
+    send("a", 3, t0_s + 3.0 + 29.5)
+    assert policy.robots["a"].selector is selectors["a"] and [m.step for t, m in out if t == "goal"][-1] == 3
+    with caplog.at_level("INFO", logger="cso.policy"):
+        policy.on_tick(t0_s + 3.0 + 31.0)
+    assert set(policy.robots) == {"a"} and policy.robots["a"].selector is selectors["a"]
+    assert "robot b: its frontier service has been gone for 31 s" in caplog.text
+    assert policy.status_msg().counters == {"robots_forgotten": 1}
+
+    for service in ("frontier", "sim"):  # a's run stops: let go at the next tick, no grace
+        policy._on_alive(_liveliness(RobotKeys("a").alive(service), "DELETE"))
+    policy.on_tick(t0_s + 3.0 + 31.2)
+    assert not policy.robots and policy.status_msg().counters == {"robots_forgotten": 2}
+    assert not policy._frontier_gone_s and set(policy._services_alive) == {"b"}  # its sim runs on
 
 
 def test_a_first_episode_with_ids_after_steps_without_ids_is_a_new_episode():
