@@ -48,6 +48,7 @@ from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
 from cso_runtime.keys import WILDCARD, driver_claim_subject, robot_driver_token
 from cso_runtime.messages import (
+    EPISODE_OVER,
     ClockMsg,
     CmdVelMsg,
     EndedWhyMsg,
