@@ -962,7 +962,7 @@ def test_the_environment_passes_gymnasiums_checker_and_rejects_masked_actions_as
         env.step(env.action_space.n)
 
 
-def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_path):
+def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_path, monkeypatch):
     """``eval --weights DIR`` serves the learned methods from DIR, and summary.json says which file (and
     its SHA-256) produced the results; a folder without the method's file, or no folder, exits 2."""
     import hashlib
@@ -970,6 +970,9 @@ def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_
     import subprocess
     import sys
 
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
     from cso_runtime.learned import registry
 
     torch.manual_seed(5)
@@ -987,10 +990,15 @@ def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_
     assert shipped.returncode == 0, shipped.stderr
     weights = json.loads((tmp_path / "shipped" / "summary.json").read_text())["meta"]["weights"]["cso"]
     assert weights["shipped"] and weights["sha256"] != hashlib.sha256((run / "cso.pt").read_bytes()).hexdigest()
-    missing = subprocess.run(exe + ["--method", "gnn-baseline", "--weights", str(run), "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120, env=env)
-    assert missing.returncode == 2 and "gnn-baseline.pt" in missing.stderr and str(run.resolve()) in missing.stderr
-    nowhere = subprocess.run(exe + ["--method", "cso", "--weights", str(tmp_path / "nowhere"), "--out", str(tmp_path / "y")], capture_output=True, text=True, timeout=120, env=env)
-    assert nowhere.returncode == 2 and "not a folder" in nowhere.stderr
+    # The refusals come before any episode: in this process (a command of its own costs seconds of torch imports).
+    # --weights sets the weights folder in the environment, for the workers: set and unset here, monkeypatch takes
+    # it back out afterwards (a folder left there would serve every later test's learned methods).
+    monkeypatch.setenv(registry.WEIGHTS_DIR_ENV, "")
+    monkeypatch.delenv(registry.WEIGHTS_DIR_ENV)
+    missing = CliRunner().invoke(app, [*exe[3:], "--method", "gnn-baseline", "--weights", str(run), "--out", str(tmp_path / "x")])
+    assert missing.exit_code == 2 and "gnn-baseline.pt" in missing.stderr and str(run.resolve()) in missing.stderr
+    nowhere = CliRunner().invoke(app, [*exe[3:], "--method", "cso", "--weights", str(tmp_path / "nowhere"), "--out", str(tmp_path / "y")])
+    assert nowhere.exit_code == 2 and "not a folder" in nowhere.stderr
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
 
 
