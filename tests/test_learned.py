@@ -1009,6 +1009,9 @@ def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path
     import subprocess
     import sys
 
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
     from cso_runtime.config import ConfigError
     from cso_runtime.learned import registry
     from cso_runtime.learned.weights import weights_file_problem
@@ -1054,9 +1057,10 @@ def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path
     assert str(run / "cso.pt") in " ".join(bad.stderr.split())  # the message may wrap the path
     assert not (tmp_path / "out").exists()
     # Another variant's weights under the method's name: refused, not run and labelled as that method.
+    # (In this process: the same refusal before any episode, without a command's seconds of torch imports.)
     save_checkpoint(run / "cso.pt", GraphActorCritic().eval(), GraphConfig(), "gnn-baseline")
-    bad = subprocess.run(exe + ["--weights", str(run), "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
-    assert bad.returncode == 2 and "holds weights trained as 'gnn-baseline', not 'cso'" in " ".join(bad.stderr.split()), bad.stderr
+    refused = CliRunner().invoke(app, [*exe[3:], "--weights", str(run), "--out", str(tmp_path / "out")])
+    assert refused.exit_code == 2 and "holds weights trained as 'gnn-baseline', not 'cso'" in " ".join(refused.stderr.split()), refused.stderr
     assert not (tmp_path / "out").exists()
 
 
