@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
 
 from cso_runtime.geometry import GridGeometry
 
@@ -69,6 +68,8 @@ component (in label order, cells in row-major order within one), and where each 
 
 def frontier_components(frontier: np.ndarray) -> FrontierComponents:
     """F_t's 8-connected components (``FrontierComponents``): what clustering needs before D."""
+    from scipy import ndimage  # noqa: PLC0415  (0.3 s of imports: every CLI command reads messages, which reads this module)
+
     labels, count = ndimage.label(frontier, structure=_EIGHT)
     if count == 0:
         empty = np.zeros(0, dtype=np.intp)

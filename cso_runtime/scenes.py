@@ -16,7 +16,6 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, GridGeometry, Pose2D, compose_pose, relative_pose, wrap_angle_rad
 
@@ -81,6 +80,8 @@ class FloorPlan:
     def traversable_region(self) -> np.ndarray:
         """Free cells connected to the start: what a perfect explorer could see and count. A start walled
         into less than ``MIN_TRAVERSABLE_M2`` is no scene to explore (it would score 100 % in no step)."""
+        from scipy import ndimage  # noqa: PLC0415  (0.3 s of imports: the CLI's run commands read this module)
+
         labels, _ = ndimage.label(self.free)
         iy, ix = self.geometry.world_to_cell(self.start.x_m, self.start.y_m)
         lab = labels[int(iy), int(ix)]
@@ -229,6 +230,8 @@ def load_map_scene(path: str | Path) -> FloorPlan:
         if not (0 <= iy < free.shape[0] and 0 <= ix < free.shape[1] and free[iy, ix]):
             raise SceneError(f"{p.name}: start ({start[0]}, {start[1]}) m is not on a free cell of the map")
     else:
+        from scipy import ndimage  # noqa: PLC0415  (as in traversable_region)
+
         labels, n = ndimage.label(free)
         largest = labels == 1 + int(np.argmax(ndimage.sum_labels(free, labels, index=np.arange(1, n + 1))))
         centre_iy, centre_ix = map(int, np.unravel_index(int(np.argmax(ndimage.distance_transform_edt(largest))), free.shape))

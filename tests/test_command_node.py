@@ -57,12 +57,13 @@ def listener(*args: str) -> dict[str, Any]:
 
 @contextmanager
 def detached_node_run(
-    tmp_path: Path, node: dict[str, Any], others: dict[str, Any] | None = None
+    tmp_path: Path, node: dict[str, Any], others: dict[str, Any] | None = None, min_step_period_s: float = 0.25
 ) -> Iterator[tuple[Path, dict[str, Any]]]:
     """``up --detach`` of ``node_profile`` (the services of one's own in ``others`` imported from this checkout); yields
-    the runs folder and ``current.json``; ``down`` and a kill of whatever is left afterwards (the node's own pids too)."""
+    the runs folder and ``current.json``; ``down`` and a kill of whatever is left afterwards (the node's own pids too).
+    The default step period gives 36 steps some 9 s to look at the run meanwhile."""
     runs = tmp_path / "runs"
-    profile = node_profile(tmp_path, node, others, min_step_period_s=0.25)  # 36 steps: some 9 s to look at the run meanwhile
+    profile = node_profile(tmp_path, node, others, min_step_period_s=min_step_period_s)
     try:
         r = up_from_this_checkout("--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stderr
@@ -83,7 +84,8 @@ def test_up_runs_a_command_node_that_joins_the_run_from_its_environment_alone(tm
     token, so it gets every map from step 0's; ``status`` shows it running with its pid and no status of its own;
     run.json names its command, dataflow.md draws it; after ``down`` none of its processes is left. It publishes the
     steps it heard on a topic of its own (``ext/map_listener/steps``), which a Python service of one's own counts."""
-    with detached_node_run(tmp_path, listener(), {"steps_heard": {"class": STEPS_HEARD}}) as (runs, current):
+    # Steps of 0.1 s: what is looked at in the run (its status, the node's) stays there once the episode has ended.
+    with detached_node_run(tmp_path, listener(), {"steps_heard": {"class": STEPS_HEARD}}, min_step_period_s=0.1) as (runs, current):
         run_dir = Path(current["run_dir"])
         assert current["services"]["map_listener"]["command"] == listener()["command"]
         status = lambda: query_status(current["endpoints"], current["robot"], timeout_s=0.5)  # noqa: E731

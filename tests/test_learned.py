@@ -962,7 +962,7 @@ def test_the_environment_passes_gymnasiums_checker_and_rejects_masked_actions_as
         env.step(env.action_space.n)
 
 
-def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_path):
+def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_path, monkeypatch):
     """``eval --weights DIR`` serves the learned methods from DIR, and summary.json says which file (and
     its SHA-256) produced the results; a folder without the method's file, or no folder, exits 2."""
     import hashlib
@@ -970,6 +970,9 @@ def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_
     import subprocess
     import sys
 
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
     from cso_runtime.learned import registry
 
     torch.manual_seed(5)
@@ -987,10 +990,15 @@ def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_
     assert shipped.returncode == 0, shipped.stderr
     weights = json.loads((tmp_path / "shipped" / "summary.json").read_text())["meta"]["weights"]["cso"]
     assert weights["shipped"] and weights["sha256"] != hashlib.sha256((run / "cso.pt").read_bytes()).hexdigest()
-    missing = subprocess.run(exe + ["--method", "gnn-baseline", "--weights", str(run), "--out", str(tmp_path / "x")], capture_output=True, text=True, timeout=120, env=env)
-    assert missing.returncode == 2 and "gnn-baseline.pt" in missing.stderr and str(run.resolve()) in missing.stderr
-    nowhere = subprocess.run(exe + ["--method", "cso", "--weights", str(tmp_path / "nowhere"), "--out", str(tmp_path / "y")], capture_output=True, text=True, timeout=120, env=env)
-    assert nowhere.returncode == 2 and "not a folder" in nowhere.stderr
+    # The refusals come before any episode: in this process (a command of its own costs seconds of torch imports).
+    # --weights sets the weights folder in the environment, for the workers: set and unset here, monkeypatch takes
+    # it back out afterwards (a folder left there would serve every later test's learned methods).
+    monkeypatch.setenv(registry.WEIGHTS_DIR_ENV, "")
+    monkeypatch.delenv(registry.WEIGHTS_DIR_ENV)
+    missing = CliRunner().invoke(app, [*exe[3:], "--method", "gnn-baseline", "--weights", str(run), "--out", str(tmp_path / "x")])
+    assert missing.exit_code == 2 and "gnn-baseline.pt" in missing.stderr and str(run.resolve()) in missing.stderr
+    nowhere = CliRunner().invoke(app, [*exe[3:], "--method", "cso", "--weights", str(tmp_path / "nowhere"), "--out", str(tmp_path / "y")])
+    assert nowhere.exit_code == 2 and "not a folder" in nowhere.stderr
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
 
 
@@ -1001,6 +1009,9 @@ def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path
     import subprocess
     import sys
 
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
     from cso_runtime.config import ConfigError
     from cso_runtime.learned import registry
     from cso_runtime.learned.weights import weights_file_problem
@@ -1046,9 +1057,10 @@ def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path
     assert str(run / "cso.pt") in " ".join(bad.stderr.split())  # the message may wrap the path
     assert not (tmp_path / "out").exists()
     # Another variant's weights under the method's name: refused, not run and labelled as that method.
+    # (In this process: the same refusal before any episode, without a command's seconds of torch imports.)
     save_checkpoint(run / "cso.pt", GraphActorCritic().eval(), GraphConfig(), "gnn-baseline")
-    bad = subprocess.run(exe + ["--weights", str(run), "--out", str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
-    assert bad.returncode == 2 and "holds weights trained as 'gnn-baseline', not 'cso'" in " ".join(bad.stderr.split()), bad.stderr
+    refused = CliRunner().invoke(app, [*exe[3:], "--weights", str(run), "--out", str(tmp_path / "out")])
+    assert refused.exit_code == 2 and "holds weights trained as 'gnn-baseline', not 'cso'" in " ".join(refused.stderr.split()), refused.stderr
     assert not (tmp_path / "out").exists()
 
 
@@ -1544,11 +1556,14 @@ def test_train_closed_by_its_terminal_stops_its_env_workers_and_says_how_to_resu
     assert proc.returncode == 130, output[-2000:]
     assert f"interrupted; continue from the last checkpoint with --resume {out / 'checkpoint.pt'}" in output
     stopped_at = torch.load(out / "checkpoint.pt", weights_only=False)["update"]
-    resumed = subprocess.run([*cmd, "--resume", str(out / "checkpoint.pt"), "--time-limit-s", "0.1"], cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=120)
+    # The resume steps its envs in its own process (where they run is no part of the recipe): it spawns no
+    # workers, which cost seconds of imports each and are what the interrupted run above checks.
+    resume = [*(a for a in cmd if a != "--async-envs"), "--resume", str(out / "checkpoint.pt"), "--time-limit-s", "0.1"]
+    resumed = subprocess.run(resume, cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=120)
     assert resumed.returncode == 0 and f"resumed from {out / 'checkpoint.pt'} at update {stopped_at + 1}" in resumed.stdout, resumed.stdout[-2000:] + resumed.stderr[-2000:]
     # The run's record says the command that ran it (its flags as typed, in the order of the recipe's fields).
     command = shlex.split(json.loads((out / "cso.json").read_text())["command"])
-    flags = [*cmd[4:], "--resume", str(out / "checkpoint.pt"), "--time-limit-s", "0.1"]
+    flags = resume[4:]
     assert command[:2] == ["cso-runtime", "train"] and sorted(command[2:]) == sorted(flags), command
 
 

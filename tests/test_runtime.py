@@ -3575,7 +3575,8 @@ def test_a_launcher_stopped_and_continued_does_not_take_its_services_for_hung(tm
 def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
     """One episode status saying "done" that no result follows, while the sim goes on reporting the
     episode exploring (a stray or forged message): ignored, counted, and the run ends with the episode."""
-    with detached_run(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5) as (runs, status):
+    # 36 steps of at least 0.1 s: the stray end, sent at once, comes with more than 30 steps still to go.
+    with detached_run(tmp_path, min_step_period_s=0.1, lockstep_timeout_s=0.5) as (runs, status):
         s = wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2 and s, 60, "the episode to start")
         endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
         with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
@@ -4144,7 +4145,8 @@ def test_pause_holds_a_real_time_robot_still_and_resume_lets_the_episode_finish(
     for command in ("pause", "resume"):
         r = cli(command, "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
         assert r.returncode == 1 and "nothing running" in r.stdout, (r.stdout, r.stderr)
-    settings = ["scene=generated:small:1:0", "method=greedy-dist", "services.sim.backend=kinematic", "services.frontier.layer_helper=false", "progress_log_s=0"]
+    # Real time at twice the wall clock's pace: the test waits on steps (the robot moving, standing, the end).
+    settings = ["scene=generated:small:1:0", "method=greedy-dist", "services.sim.backend=kinematic", "services.sim.real_time_factor=2", "services.frontier.layer_helper=false", "progress_log_s=0"]
     try:
         r = cli("up", "--profile", "sim", "--detach", "--runs-dir", str(runs), *[a for s in settings for a in ("--set", s)], cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stderr[-3000:]
