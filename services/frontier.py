@@ -6,7 +6,7 @@ uses, on the planner's status after the previous step's command and the planner'
 (``path_blocked_ahead``) applied here to this step's map. The Observation is
 ``ObservationBuilder.build`` (frontiers, one fast-marching pass, entropy, clusters). Per step it
 publishes either ``decide: false`` (the planner keeps its goal) or the arrays the policy needs. Once the episode is
-over (the goal of its decision came back empty, or the referee's ``episode_status`` says done or failed) every step
+over (the goal of its decision came back empty, or in real time the referee's ``episode_status`` says done or failed) every step
 is ``decide: false`` until a new episode: a real robot's scans go on after the end, as explore_lite stops.
 """
 
@@ -237,6 +237,8 @@ class FrontierService(Service):
         goal."""
         self.episode_over = ""
         """How the episode ended ("": it goes on): no decision is asked any more (``end_episode``)."""
+        self.no_goal_left = False
+        """The goal of its decision came back empty: the referees end the episode on it, whatever a status says after."""
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         if isinstance(msg, ExploreResumeMsg):  # a control, of no episode or step
@@ -267,16 +269,17 @@ class FrontierService(Service):
                     self.why_no_goal_said = ""
                 if self.goal is None and step == self.asked_step:
                     self.say_why_no_goal(step)
+                    self.no_goal_left = True
                     self.end_episode(f"no goal at step {step}")
                 self.decision_step = step
                 if self.awaiting_goal_step is not None and step >= self.awaiting_goal_step:
                     self.awaiting_goal_step = None
             self.try_decide()
             return
-        if isinstance(msg, EpisodeStatusMsg):  # a ros2_bridge's comes with every map: a map it held back is decided now
-            if msg.state in EPISODE_OVER:
-                self.end_episode(f"{msg.state} ({msg.terminated_by})" if msg.terminated_by else msg.state)
-            self.try_decide()
+        if isinstance(msg, EpisodeStatusMsg):
+            if not self.ctx.lockstep:  # a lockstep sim steps no more after the end: nothing to save there
+                self.on_referee_status(msg)
+                self.try_decide()  # a ros2_bridge's status comes with every map: a map it held back is decided now
             return
         if isinstance(msg, PlannerFeedbackMsg):
             if msg.phase == "command" and step >= self.done_step - 1:
@@ -304,6 +307,15 @@ class FrontierService(Service):
             return
         self.episode_over = how
         log.info("episode %d over (%s): no more decisions until a new episode", self.episodes.current or 0, how)
+
+    def on_referee_status(self, msg: EpisodeStatusMsg) -> None:
+        """The referee's status (real time): done or failed ends the episode here. One that says it goes on after that
+        shows the end stray or forged (the launcher, too, ignores an end that no result follows): decide again."""
+        if msg.state in EPISODE_OVER:
+            self.end_episode(f"{msg.state} ({msg.terminated_by})" if msg.terminated_by else msg.state)
+        elif self.episode_over and not self.no_goal_left:
+            log.warning("episode %d goes on (its status says %s after %s): deciding again", self.episodes.current or 0, msg.state, self.episode_over)
+            self.episode_over = ""
 
     def say_why_no_goal(self, step: int) -> None:
         """The decision of ``step`` found no goal, and the episode ends ``no_frontier``: publish why (the frontier cells

@@ -378,6 +378,7 @@ def test_once_the_episode_is_over_the_frontier_service_asks_for_no_decision_unti
     with caplog.at_level("INFO", logger="cso.frontier"):
         _feed(frontier, GoalMsg(0, True, method="greedy-dist", episode=a))  # no frontier left: the episode ends
         assert [(m.step, m.episode) for t, m in out if t == "ended_why"] == [(0, a)]  # the referee's reason
+        _feed(frontier, EpisodeStatusMsg("exploring", 0, episode=a))  # the bridge's, sent before it heard the end
         out.clear()
         assert not any(scan(frontier, out, step, a).decide for step in range(1, 6))
     assert [t for t, _ in out] == ["frontiers"] * 5 and frontier.decisions_built == 1  # no Observation, no D
@@ -410,6 +411,14 @@ def test_once_the_episode_is_over_the_frontier_service_asks_for_no_decision_unti
     assert [scan(going, going_out, step, a).decide for step in range(1, every + 2)] == [False, False, True, False]
     assert not any(scan(ended, ended_out, step, a).decide for step in range(1, every + 2))
     assert ended.status_msg().counters["steps_after_episode"] == every + 1
+    # A status saying the episode goes on after its end shows that end stray or forged (the launcher ignores it too).
+    _feed(ended, EpisodeStatusMsg("exploring", every + 2, episode=a))
+    assert scan(ended, ended_out, every + 2, a).decide
+    # Lockstep: the sim steps no more after the end, and the frontier service goes on as it always did.
+    lockstep, lockstep_out = _service(FrontierService, lockstep=True)
+    _feed(lockstep, EpisodeStatusMsg("done", 0, terminated_by="coverage", episode=a))
+    assert scan(lockstep, lockstep_out, 0, a).decide and not lockstep.episode_over
+
     assert scan(ended, ended_out, 0, b).decide
     _feed(ended, EpisodeStatusMsg("done", 9, terminated_by="max_steps", episode=a))  # late, of the episode before
     assert ended.rejected == {"episode_status": 1}
