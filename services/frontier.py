@@ -5,7 +5,9 @@ no longer a frontier, every ``replan_every_steps``), the same function the in-pr
 uses, on the planner's status after the previous step's command and the planner's own blocked check
 (``path_blocked_ahead``) applied here to this step's map. The Observation is
 ``ObservationBuilder.build`` (frontiers, one fast-marching pass, entropy, clusters). Per step it
-publishes either ``decide: false`` (the planner keeps its goal) or the arrays the policy needs.
+publishes either ``decide: false`` (the planner keeps its goal) or the arrays the policy needs. Once the episode is
+over (the goal of its decision came back empty, or in real time the referee's ``episode_status`` says done or failed) every step
+is ``decide: false`` until a new episode: a real robot's scans go on after the end, as explore_lite stops.
 """
 
 from __future__ import annotations
@@ -21,8 +23,10 @@ from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import decision_reason, ended_no_frontier_why, goal_failed_in_place, mark_dead_frontier
 from cso_runtime.geometry import GridGeometry
 from cso_runtime.messages import (
+    EPISODE_OVER,
     DistanceMapMsg,
     EndedWhyMsg,
+    EpisodeStatusMsg,
     ExploreResumeMsg,
     FrontiersMsg,
     GoalMsg,
@@ -76,8 +80,11 @@ class FrontierService(Service):
     the policy decides on."""
 
     name = "frontier"
-    inputs = {"map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg, "explore_resume": ExploreResumeMsg}
-    optional_inputs = ("explore_resume",)  # a pause is an operator's
+    inputs = {
+        "map": MapMsg, "odom": OdometryMsg, "planner_feedback": PlannerFeedbackMsg, "goal": GoalMsg, "explore_resume": ExploreResumeMsg,
+        "episode_status": EpisodeStatusMsg,
+    }  # fmt: skip
+    optional_inputs = ("explore_resume", "episode_status")  # a pause is an operator's; the referee's end only saves work
     outputs = {"frontiers": FrontiersMsg, "distance_map": DistanceMapMsg, "ended_why": EndedWhyMsg}
 
     def __init__(self, ctx: ServiceContext) -> None:
@@ -99,6 +106,8 @@ class FrontierService(Service):
         """New helpers started in their place (the status's ``layer_helper_restarts``; at most ``helper_max_restarts``)."""
         self.helper_given_up = False
         """No new helper is started any more: the layers are computed here."""
+        self.steps_after_episode = 0
+        """Steps decided on with ``decide: false`` because the episode was over (the status's ``steps_after_episode``)."""
         self.episodes = EpisodeWatch()
         self.paused = False
         """The operator's pause (real time): no decision is asked and the paused steps do not count towards the
@@ -176,7 +185,8 @@ class FrontierService(Service):
 
     def extra_status(self) -> dict[str, int]:
         with self._lock:
-            return {"layer_helper_deaths": self.helper_deaths, "layer_helper_restarts": self.helper_restarts}
+            after = {"steps_after_episode": self.steps_after_episode} if self.steps_after_episode else {}
+            return {"layer_helper_deaths": self.helper_deaths, "layer_helper_restarts": self.helper_restarts, **after}
 
     def layers_by_helpers(self) -> int:
         """The decisions' layers computed by helper processes, lost ones included (the rest were computed here)."""
@@ -225,6 +235,10 @@ class FrontierService(Service):
         self.why_no_goal_said = ""
         """The reason for no goal the log said last (``say_why_no_goal``): said again only when it changes, or after a
         goal."""
+        self.episode_over = ""
+        """How the episode ended ("": it goes on): no decision is asked any more (``end_episode``)."""
+        self.no_goal_left = False
+        """The goal of its decision came back empty: the referees end the episode on it, whatever a status says after."""
 
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
         if isinstance(msg, ExploreResumeMsg):  # a control, of no episode or step
@@ -255,10 +269,17 @@ class FrontierService(Service):
                     self.why_no_goal_said = ""
                 if self.goal is None and step == self.asked_step:
                     self.say_why_no_goal(step)
+                    self.no_goal_left = True
+                    self.end_episode(f"no goal at step {step}")
                 self.decision_step = step
                 if self.awaiting_goal_step is not None and step >= self.awaiting_goal_step:
                     self.awaiting_goal_step = None
             self.try_decide()
+            return
+        if isinstance(msg, EpisodeStatusMsg):
+            if not self.ctx.lockstep:  # a lockstep sim steps no more after the end: nothing to save there
+                self.on_referee_status(msg)
+                self.try_decide()  # a ros2_bridge's status comes with every map: a map it held back is decided now
             return
         if isinstance(msg, PlannerFeedbackMsg):
             if msg.phase == "command" and step >= self.done_step - 1:
@@ -277,6 +298,25 @@ class FrontierService(Service):
             self.odoms[step] = msg
         self.try_decide()
 
+    def end_episode(self, how: str) -> None:
+        """The episode is over: the referees (the sim, the ROS 2 bridge) end it on an empty goal, on coverage, at
+        ``max_steps`` or on a failure. No decision is asked from now on (nor its Observation built) until a new
+        episode: a real robot's scans go on after the end, and each decision's frontiers went to RViz over its WiFi.
+        The maps go on (the mapper's), and so does ``ended_why``, which the referee waits for."""
+        if self.episode_over:
+            return
+        self.episode_over = how
+        log.info("episode %d over (%s): no more decisions until a new episode", self.episodes.current or 0, how)
+
+    def on_referee_status(self, msg: EpisodeStatusMsg) -> None:
+        """The referee's status (real time): done or failed ends the episode here. One that says it goes on after that
+        shows the end stray or forged (the launcher, too, ignores an end that no result follows): decide again."""
+        if msg.state in EPISODE_OVER:
+            self.end_episode(f"{msg.state} ({msg.terminated_by})" if msg.terminated_by else msg.state)
+        elif self.episode_over and not self.no_goal_left:
+            log.warning("episode %d goes on (its status says %s after %s): deciding again", self.episodes.current or 0, msg.state, self.episode_over)
+            self.episode_over = ""
+
     def say_why_no_goal(self, step: int) -> None:
         """The decision of ``step`` found no goal, and the episode ends ``no_frontier``: publish why (the frontier cells
         left and what kept each from being a goal, as the in-process ``Explorer`` says it) for the referee's result."""
@@ -284,7 +324,7 @@ class FrontierService(Service):
             return
         obs, dead = self.asked
         why = ended_no_frontier_why(obs, dead, self.ctx.exploration)
-        # On a real robot the scans, and so the decisions, go on after the episode ended: the log says a reason once.
+        # The same reason again (a frontier service restarted after the end asks once more): the log says it once.
         log.log(logging.DEBUG if why == self.why_no_goal_said else logging.INFO, "no goal at step %d: %s", step, why)
         self.why_no_goal_said = why
         self.publish("ended_why", EndedWhyMsg(step, why, self.episodes.current or 0))
@@ -339,6 +379,14 @@ class FrontierService(Service):
                 d.pop(s)
         for s in [s for s in self.feedback if s < k - 1]:
             self.feedback.pop(s)
+        episode = self.episodes.current or 0
+        if self.episode_over:  # nothing to decide: no map to read, no Observation to build
+            with self._lock:
+                self.steps_after_episode += 1
+            self.done_step = self.last_step = k
+            self.last_out = FrontiersMsg(k, False, episode=episode)
+            self.publish("frontiers", self.last_out)
+            return
         if self.paused:
             self.note_paused_step(k)
         self.done_step = self.last_step = k
@@ -355,7 +403,6 @@ class FrontierService(Service):
             if status == PlannerStatus.FOLLOWING and path_blocked_ahead(fb.path_ahead_xy_m, odom.pose, occupancy.occupied, occupancy.geometry, self.robot_radius_m):
                 status = PlannerStatus.BLOCKED
         reason = None if self.paused else decision_reason(self.goal, status, occupancy, self.steps_explored_since_decision(k), self.replan_every_steps)
-        episode = self.episodes.current or 0
         if reason is None or waiting:
             out = FrontiersMsg(k, False, episode=episode)
         else:

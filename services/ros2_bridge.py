@@ -732,6 +732,12 @@ class Ros2BridgeService(Service):
             elif isinstance(msg, GoalMsg):
                 self.take_goal(msg)
             elif isinstance(msg, FrontiersMsg) and msg.decide and msg.geometry is not None:
+                if self.episode_state in EPISODE_OVER:
+                    # The frontier service asks for no decision after the end, unless it did not hear it (restarted
+                    # since): it hears it now, and the decision's frontiers do not go over the robot's link.
+                    self.counters["decisions_after_episode"] += 1
+                    self.publish("episode_status", self.episode_status())
+                    return
                 points, goals = msg.cluster_points_xy_m()
                 stamp_ns = self.stamp_ns_of(msg.step, "frontiers")
                 self._put_ros(
@@ -768,8 +774,9 @@ class Ros2BridgeService(Service):
         if safe != command:
             self.counters["clamped_commands"] += 1
         if self.episode_state in EPISODE_OVER and safe != VelocityCommand():
-            # The scans, and so the decisions, go on after the end: a frontier that opens later would set the robot
-            # driving again while status says done. Over is over, as for explore_lite.
+            # The scans go on after the end, and a command may still come (the planner's last goal, a frontier service
+            # that did not hear the end): the robot would drive again while status says done. Over is over, as for
+            # explore_lite.
             self.count_and_warn_once(
                 "commands_after_episode",
                 "the episode is over (%s): the robot is held still, every command after it is sent as a zero Twist",

@@ -23,7 +23,7 @@ import pytest
 from cso_runtime.config import ConfigError, ExplorationConfig, from_dict
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D
 from cso_runtime.keys import RobotKeys
-from cso_runtime.messages import ClockMsg, MapMsg, ScanMsg, decode
+from cso_runtime.messages import ClockMsg, FrontiersMsg, GoalMsg, MapMsg, ScanMsg, decode
 from cso_runtime.recording import read_recording, replay
 from cso_runtime.run_profile import PACKAGED_PROFILES, find_profile, load_profile
 from cso_runtime.scenes import resolve_scenes
@@ -210,6 +210,13 @@ def test_up_limo_ros2_explores_a_fake_limo_and_its_recording_rebuilds_the_map(tm
     # The recording: every step's clock and scan, and the mapper's maps. Replayed at full speed into a
     # fresh mapper, it rebuilds the map the run's mapper had at its last published step.
     recording = run_dir / "recording.mcap"
+    # Once the episode is over (the policy's goal came back empty) the scans and maps go on until `up` has stopped its
+    # services, but the frontier service asks for no decision more: no frontiers for RViz over the robot's link.
+    end_step = min(g.step for g in (decode(m.payload, GoalMsg) for m in read_recording(recording, ["goal"])) if g.decided and not g.has_goal)
+    after_end = [f for f in (decode(m.payload, FrontiersMsg) for m in read_recording(recording, ["frontiers"])) if f.step > end_step]
+    asked = [f.step for f in after_end if f.decide]
+    assert len(after_end) > 0 and asked == [], f"decisions asked at steps {asked} of {len(after_end)} after the end at step {end_step}"
+    assert (run_dir / "logs" / "frontier.log").read_text().count("no more decisions until a new episode") == 1
     keys = RobotKeys("r0")
     maps = [decode(m.payload, MapMsg) for m in read_recording(recording, ["map"])]
     final = max(maps, key=lambda m: m.step)

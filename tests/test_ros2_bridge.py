@@ -319,6 +319,34 @@ def test_after_the_episode_ended_the_robot_is_held_still():
     assert twists()[-1] == VelocityCommand(0.2, 0.0)
 
 
+def test_after_the_episode_ended_a_decision_is_not_shown_and_its_asker_hears_the_end():
+    """Once the episode is over the frontier service asks for no decision (``steps_after_episode``), but one that did
+    not hear the end (restarted since: the bridge says its status only while exploring and at the end) decides again,
+    at once and whenever its goal is reached, blocked or due, and each decision's frontiers went to RViz over the
+    robot's WiFi. The bridge now sends no frontiers after the end (``decisions_after_episode``) and says its status
+    again, which that frontier service ends on."""
+    from services.common import ServiceContext
+    from services.frontier import FrontierService
+
+    svc, out, step = _bridge_without_zenoh()
+    sent: list[str] = []
+    svc._put_ros = lambda topic, payload: sent.append(topic)  # type: ignore[method-assign]
+    step(1000.0, 0.0)
+    svc.on_message("r0", "frontiers", dataclasses.replace(_frontiers_msg(1), episode=svc.episode), 0.0)
+    assert sent == ["explore/frontiers"]
+    svc.take_goal(GoalMsg(1, True, None, None, method="greedy-dist", episode=svc.episode))  # no frontier left: the end
+    out.clear()
+    svc.on_message("r0", "frontiers", dataclasses.replace(_frontiers_msg(2), episode=svc.episode), 0.0)
+    assert sent == ["explore/frontiers"] and svc.counters["decisions_after_episode"] == 1
+    (status,) = [m for topic, m in out if topic == "episode_status"]
+    assert status.state == "done" and status.terminated_by == "no_frontier" and status.episode == svc.episode
+
+    ctx = ServiceContext("frontier", "r0", {"lockstep": False}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {})
+    frontier = FrontierService(ctx)
+    frontier.on_message("r0", "episode_status", decode(encode(status), EpisodeStatusMsg), 0.0)
+    assert frontier.episode_over == "done (no_frontier)"
+
+
 def test_explore_resume_from_ros_pauses_and_resumes_exploration():
     """``ros2 topic pub --once /limo1/explore/resume std_msgs/msg/Bool "{data: false}"`` (explore_lite's): the bridge
     sends it on ``cso/<robot>/explore/resume``, saying where it came from; a payload that is no Bool is counted."""

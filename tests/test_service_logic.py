@@ -23,6 +23,7 @@ from cso_runtime.messages import (
     ClockMsg,
     CmdVelMsg,
     DistanceMapMsg,
+    EpisodeStatusMsg,
     ExploreResumeMsg,
     FrontiersMsg,
     GoalMsg,
@@ -63,7 +64,7 @@ def _feed(svc: Service, msg: Message) -> None:
     """As the service loop does: decoded from the wire, then handled."""
     topics = {
         MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", DistanceMapMsg: "distance_map", GoalMsg: "goal",
-        PlannerFeedbackMsg: "planner_feedback", ExploreResumeMsg: "explore_resume",
+        PlannerFeedbackMsg: "planner_feedback", ExploreResumeMsg: "explore_resume", EpisodeStatusMsg: "episode_status",
     }  # fmt: skip
     topic = topics[type(msg)]
     svc.on_message("r0", topic, decode(encode(msg), type(msg)), time.monotonic())
@@ -352,6 +353,77 @@ def test_the_same_reason_for_no_goal_is_logged_once_not_at_every_scan(caplog):
     with caplog.at_level("INFO", logger="cso.frontier"):
         frontier.say_why_no_goal(12)
     assert caplog.text.count("no goal at step") == 2 and "no goal at step 12" in caplog.text, caplog.text
+
+
+def test_once_the_episode_is_over_the_frontier_service_asks_for_no_decision_until_a_new_one(caplog):
+    """A real robot's scans go on after its episode ended (a detached run stays up until ``down``): the frontier service
+    asked the policy for a decision on every scan (the goal stayed empty: ``no_goal``), and the bridge sent each one's
+    frontiers to RViz over the robot's WiFi (295 MarkerArrays against 81 maps in one run). Once the answer to its
+    decision is empty (the end ``no_frontier``), or the referee's status says done or failed, it asks for none (no
+    Observation, no distance map: ``decide: false``, counted as ``steps_after_episode``, logged once) until a new
+    episode; the reason why the goal is empty still goes out (``ended_why``)."""
+    ex = _explorer_at(0)
+    _, odom, _ = _inputs(ex, 0)
+    a, b = 11, 22
+
+    def scan(svc: FrontierService, out: list, step: int, episode: int) -> FrontiersMsg:
+        _feed(svc, OdometryMsg(step, odom.stamp_s + 0.25 * step, odom.pose, episode=episode))
+        _feed(svc, MapMsg.of(step, ex.map, episode))
+        f = [msg for t, msg in out if t == "frontiers"][-1]
+        assert isinstance(f, FrontiersMsg) and f.step == step
+        return f
+
+    frontier, out = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0})
+    assert scan(frontier, out, 0, a).decide
+    with caplog.at_level("INFO", logger="cso.frontier"):
+        _feed(frontier, GoalMsg(0, True, method="greedy-dist", episode=a))  # no frontier left: the episode ends
+        assert [(m.step, m.episode) for t, m in out if t == "ended_why"] == [(0, a)]  # the referee's reason
+        _feed(frontier, EpisodeStatusMsg("exploring", 0, episode=a))  # the bridge's, sent before it heard the end
+        out.clear()
+        assert not any(scan(frontier, out, step, a).decide for step in range(1, 6))
+    assert [t for t, _ in out] == ["frontiers"] * 5 and frontier.decisions_built == 1  # no Observation, no D
+    assert frontier.status_msg().counters["steps_after_episode"] == 5
+    assert caplog.text.count("no more decisions until a new episode") == 1, caplog.text
+    assert scan(frontier, out, 0, b).decide  # a new episode (the robot's odometry or clock started again)
+
+    # A ros2_bridge's status comes with each map: one that waited behind a map (real time decides on the newest input)
+    # does not leave that map undecided until the next.
+    frontier, out = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0})
+    frontier._inbox.put("the status")
+    _feed(frontier, OdometryMsg(0, odom.stamp_s, odom.pose, episode=a))
+    _feed(frontier, MapMsg.of(0, ex.map, a))
+    assert out == []
+    frontier._inbox.get()
+    _feed(frontier, EpisodeStatusMsg("exploring", 0, episode=a))
+    assert [(t, m.step) for t, m in out] == [("frontiers", 0), ("distance_map", 0)]
+
+    # The referee's end (max_steps here; coverage, a failure), by its status: the periodic re-decision is not asked.
+    every = 3
+    base = ExplorationConfig()
+    cfg = dataclasses.replace(base, episode=dataclasses.replace(base.episode, replan_every_steps=every))
+    ended, ended_out = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0}, exploration=cfg)
+    going, going_out = _service(FrontierService, lockstep=False, params={"goal_wait_s": 30.0}, exploration=cfg)
+    for svc, svc_out in ((ended, ended_out), (going, going_out)):
+        assert scan(svc, svc_out, 0, a).decide
+        _feed(svc, dataclasses.replace(_far_goal(ex.observe(), 0), episode=a))
+        _feed(svc, EpisodeStatusMsg("exploring", 1, episode=a))  # not over
+    _feed(ended, EpisodeStatusMsg("done", 1, terminated_by="max_steps", episode=a))
+    assert [scan(going, going_out, step, a).decide for step in range(1, every + 2)] == [False, False, True, False]
+    assert not any(scan(ended, ended_out, step, a).decide for step in range(1, every + 2))
+    assert ended.status_msg().counters["steps_after_episode"] == every + 1
+    # A status saying the episode goes on after its end shows that end stray or forged (the launcher ignores it too).
+    _feed(ended, EpisodeStatusMsg("exploring", every + 2, episode=a))
+    assert scan(ended, ended_out, every + 2, a).decide
+    # Lockstep: the sim steps no more after the end, and the frontier service goes on as it always did.
+    lockstep, lockstep_out = _service(FrontierService, lockstep=True)
+    _feed(lockstep, EpisodeStatusMsg("done", 0, terminated_by="coverage", episode=a))
+    assert scan(lockstep, lockstep_out, 0, a).decide and not lockstep.episode_over
+
+    assert scan(ended, ended_out, 0, b).decide
+    _feed(ended, EpisodeStatusMsg("done", 9, terminated_by="max_steps", episode=a))  # late, of the episode before
+    assert ended.rejected == {"episode_status": 1}
+    scan(ended, ended_out, 1, b)  # waits for the goal of step 0, and is no step after the end
+    assert ended.status_msg().counters["steps_after_episode"] == every + 1
 
 
 def test_a_paused_frontier_service_asks_for_no_decision_and_counts_no_paused_step():
