@@ -836,8 +836,8 @@ def resume_command(
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
     timeout: float | None = typer.Option(
-        None, "--timeout-s", min=0.0,
-        help="How long the launcher may take to stop its services and write its results before escalating [default: three times the run's supervision.stop_timeout_s, plus 10 s]",
+        None, "--timeout-s", min=0.0,  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
+        help="How long the launcher may take to stop its services and write its results before escalating \\[default: three times the run's supervision.stop_timeout_s, plus 10 s]",
     ),
 ) -> None:
     """Stop the running episode and every service process (SIGINT, then SIGTERM, then SIGKILL)."""
