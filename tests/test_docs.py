@@ -469,3 +469,4 @@ def test_the_readme_names_every_info_key_of_the_training_environment():
     _, _, _, _, rejected_info = env.step(int(masked[0]))
     keys = {*reset_info, *step_info, *rejected_info}
     assert sorted(k for k in keys if f'info["{k}"]' not in paragraph) == []
+

@@ -277,6 +277,25 @@ def test_env_reports_the_control_steps_each_decision_took():
     assert steps == info["steps"] > 1
 
 
+def test_resets_info_has_every_key_of_a_steps_with_the_starts_values():
+    """Gymnasium wrappers and loggers expect one set of info keys: ``reset``'s lacked ``terminated_by`` and
+    ``decision_steps``, which every ``step`` gives. At the start no decision was taken and the episode goes on."""
+    import gymnasium as gym
+    from gymnasium.vector import AutoresetMode
+
+    env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
+    _, reset_info = env.reset(seed=0)
+    _, _, _, _, step_info = env.step(expert_action(env.obs, reset_info["action_mask"]))
+    assert sorted(reset_info) == sorted(step_info)
+    assert reset_info["terminated_by"] is None and reset_info["decision_steps"] == 0
+    envs = gym.vector.SyncVectorEnv([lambda: ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))] * 2, autoreset_mode=AutoresetMode.SAME_STEP)
+    try:
+        _, info = envs.reset(seed=0)
+        assert list(info["decision_steps"]) == [0, 0] and list(info["terminated_by"]) == [None, None]
+    finally:
+        envs.close()
+
+
 def test_an_episode_cut_by_the_step_limit_ends_on_its_real_state_one_that_finished_on_the_empty_graph():
     """PPO bootstraps a truncated episode with V(final observation): that must be the graph of the state the
     cut left (frontiers still open), not the all-padding graph, whose value is one constant for every cut."""
