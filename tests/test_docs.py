@@ -470,3 +470,18 @@ def test_the_readme_names_every_info_key_of_the_training_environment():
     keys = {*reset_info, *step_info, *rejected_info}
     assert sorted(k for k in keys if f'info["{k}"]' not in paragraph) == []
 
+
+def test_the_readme_says_which_scale_the_training_environment_gives_png_plans():
+    """``make_env``'s ``m_per_px`` (0.05, Dungeon's large scale) is not ``eval --m-per-px``'s (0.1, super large), and
+    the README's paragraph on the environment named the parameter without saying which it takes."""
+    import inspect
+
+    from cso_runtime.learned.env import make_env
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    paragraph = readme[readme.index("**The training environment**") :].split("\n\n")[0]
+    env_default = inspect.signature(make_env).parameters["m_per_px"].default
+    eval_default = next(p.default for p in typer.main.get_command(app).commands["eval"].params if p.name == "m_per_px")
+    assert env_default != eval_default  # the reason to say it
+    assert f"`m_per_px`, the scale of PNG plans in metres per pixel, is {env_default:g} unless given" in paragraph
+    assert f"`eval --m-per-px` is {eval_default:g}" in paragraph

@@ -385,7 +385,8 @@ def make_env(
     render_scale: int = 2,
 ) -> ExplorationEnv:
     """An ``ExplorationEnv`` over a scene spec (as ``eval --maps``: ``builtin``, a folder of PNG plans,
-    ``generated:SCALE:N:SEED``); PNG plans at ``m_per_px``. The plans load at the first reset."""
+    ``generated:SCALE:N:SEED``); PNG plans at ``m_per_px`` (0.05: Dungeon's large scale, where ``eval --m-per-px`` takes
+    0.1, super large, unless told). The plans load at the first reset."""
     from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
 
     refs = resolve_scenes(scenes, limit, m_per_px)  # a bad spec fails here, not at the first reset
