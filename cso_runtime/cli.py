@@ -836,8 +836,8 @@ def resume_command(
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
     timeout: float | None = typer.Option(
-        None, "--timeout-s", min=0.0,
-        help="How long the launcher may take to stop its services and write its results before escalating [default: three times the run's supervision.stop_timeout_s, plus 10 s]",
+        None, "--timeout-s", min=0.0,  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
+        help="How long the launcher may take to stop its services and write its results before escalating \\[default: three times the run's supervision.stop_timeout_s, plus 10 s]",
     ),
 ) -> None:
     """Stop the running episode and every service process (SIGINT, then SIGTERM, then SIGKILL)."""
@@ -1071,7 +1071,7 @@ def train_command(
 ) -> None:
     """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
     from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
-    from cso_runtime.learned.ppo import matching_eval_command, train  # noqa: PLC0415 - torch only for this command
+    from cso_runtime.learned.ppo import KEPT_CHECKPOINTS_DIR, matching_eval_command, train  # noqa: PLC0415 - torch only for this command
     from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
 
     overrides = {"variant": variant, "out_dir": str(out) if out else None, "seed": seed, "total_decisions": total_decisions,
@@ -1098,8 +1098,13 @@ def train_command(
         raise typer.Exit(EXIT_INTERRUPTED if isinstance(exc, KeyboardInterrupt) else 1) from None
     out = Path(args.out_dir)
     files = ", ".join(name for name in (f"{args.variant}.pt", f"{args.variant}_log.csv", f"{args.variant}_curve.png", f"{args.variant}.json", "checkpoint.pt") if (out / name).is_file())
+    kept = sorted((out / KEPT_CHECKPOINTS_DIR).glob(f"update_*/{args.variant}.pt")) if args.keep_checkpoints else []
+    if kept:
+        files += f", {KEPT_CHECKPOINTS_DIR}/ ({len(kept)} kept: {kept[0].parent.name} to {kept[-1].parent.name})"
     typer.echo(f"done: {record['ppo_decisions']} PPO decisions, {record['warm_start_decisions']} warm-start decisions, {record['wall_time_s']} s -> {out}: {files}")
     typer.echo(f"evaluate it as it was trained: {matching_eval_command(args)} (and your --maps, --out)")
+    if kept:
+        typer.echo(f"a kept checkpoint likewise, with --weights {kept[-1].parent} (the last; each update_<N> holds the weights after the log's update N)")
 
 
 @app.command("collect-teacher", rich_help_panel="Learned policy")

@@ -428,6 +428,29 @@ def test_every_commands_help_reads_whole_on_an_80_column_terminal():
         assert r.exit_code == 0 and "…" not in r.output, f"{name} --help:\n{r.output}"
 
 
+BRACKETED = re.compile(r"\\?\[[^\]\n]*\]")
+"""Square-bracketed text in a help string (escaped for rich as ``\\[...]`` or not)."""
+
+
+def test_every_commands_help_shows_its_bracketed_text():
+    """``down --help`` showed ``--timeout-s`` without its ``[default: three times the run's ...]``: typer renders help
+    as rich markup, in which ``[word ...]`` is a style tag and vanishes unless escaped (``\\[``)."""
+    from typer.testing import CliRunner
+
+    cli = typer.main.get_command(app)
+    checked, lost = [], []
+    for name, command in cli.commands.items():
+        texts = [command.help or "", *(getattr(p, "help", None) or "" for p in command.params)]
+        wanted = [" ".join(m.replace("\\[", "[").split()) for text in texts for m in BRACKETED.findall(text)]
+        if wanted:
+            r = CliRunner().invoke(app, [name, "--help"], terminal_width=1000, env={"COLUMNS": "1000"})
+            shown = " ".join(r.output.replace("\u2502", " ").split())  # the box's side, where a long line wraps
+            checked += [f"{name}: {w}" for w in wanted]
+            lost += [f"{name}: {w}" for w in wanted if w not in shown]
+    assert "down: [default: three times the run's supervision.stop_timeout_s, plus 10 s]" in checked
+    assert lost == []
+
+
 def test_the_readme_names_every_info_key_of_the_training_environment():
     """A Gymnasium user reads ``info`` for the episode's figures: the README's paragraph on the environment named the
     action mask, the plan and the invalid actions, not the coverage, steps, explored area, how the episode ended or the
@@ -446,3 +469,19 @@ def test_the_readme_names_every_info_key_of_the_training_environment():
     _, _, _, _, rejected_info = env.step(int(masked[0]))
     keys = {*reset_info, *step_info, *rejected_info}
     assert sorted(k for k in keys if f'info["{k}"]' not in paragraph) == []
+
+
+def test_the_readme_says_which_scale_the_training_environment_gives_png_plans():
+    """``make_env``'s ``m_per_px`` (0.05, Dungeon's large scale) is not ``eval --m-per-px``'s (0.1, super large), and
+    the README's paragraph on the environment named the parameter without saying which it takes."""
+    import inspect
+
+    from cso_runtime.learned.env import make_env
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    paragraph = readme[readme.index("**The training environment**") :].split("\n\n")[0]
+    env_default = inspect.signature(make_env).parameters["m_per_px"].default
+    eval_default = next(p.default for p in typer.main.get_command(app).commands["eval"].params if p.name == "m_per_px")
+    assert env_default != eval_default  # the reason to say it
+    assert f"`m_per_px`, the scale of PNG plans in metres per pixel, is {env_default:g} unless given" in paragraph
+    assert f"`eval --m-per-px` is {eval_default:g}" in paragraph

@@ -277,6 +277,25 @@ def test_env_reports_the_control_steps_each_decision_took():
     assert steps == info["steps"] > 1
 
 
+def test_resets_info_has_every_key_of_a_steps_with_the_starts_values():
+    """Gymnasium wrappers and loggers expect one set of info keys: ``reset``'s lacked ``terminated_by`` and
+    ``decision_steps``, which every ``step`` gives. At the start no decision was taken and the episode goes on."""
+    import gymnasium as gym
+    from gymnasium.vector import AutoresetMode
+
+    env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
+    _, reset_info = env.reset(seed=0)
+    _, _, _, _, step_info = env.step(expert_action(env.obs, reset_info["action_mask"]))
+    assert sorted(reset_info) == sorted(step_info)
+    assert reset_info["terminated_by"] is None and reset_info["decision_steps"] == 0
+    envs = gym.vector.SyncVectorEnv([lambda: ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))] * 2, autoreset_mode=AutoresetMode.SAME_STEP)
+    try:
+        _, info = envs.reset(seed=0)
+        assert list(info["decision_steps"]) == [0, 0] and list(info["terminated_by"]) == [None, None]
+    finally:
+        envs.close()
+
+
 def test_an_episode_cut_by_the_step_limit_ends_on_its_real_state_one_that_finished_on_the_empty_graph():
     """PPO bootstraps a truncated episode with V(final observation): that must be the graph of the state the
     cut left (frontiers still open), not the all-padding graph, whose value is one constant for every cut."""
@@ -1755,6 +1774,60 @@ def test_train_into_an_earlier_runs_folder_says_it_replaces_it(tmp_path):
                 out_dir=str(out), progress=False)
     train(tiny, log=said.append)
     assert f"note: {out} holds an earlier run (checkpoint.pt, cso_log.csv): this run replaces it; --resume {out / 'checkpoint.pt'} would continue it" in said
+
+
+def test_keep_checkpoints_keeps_each_checkpoints_weights_for_eval(tmp_path, monkeypatch):
+    """Training overwrote its one ``checkpoint.pt``, so the policies along the learning curve could not be evaluated
+    (SB3's ``CheckpointCallback`` keeps them). ``keep_checkpoints``: the weights of each checkpoint, in a folder
+    ``eval --weights`` serves (``checkpoints/update_<N>/``); off, the default, none. A resume may switch it on."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.learned.ppo import earlier_run_files
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights_dir
+
+    common = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 20, "checkpoint_every": 2, "progress": False}
+    plain = tmp_path / "plain"
+    train(Args(total_decisions=12, out_dir=str(plain), **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert not (plain / "checkpoints").exists()
+    out = tmp_path / "kept"
+    record = train(Args(total_decisions=12, keep_checkpoints=True, out_dir=str(out), **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert record["ppo_updates"] == 3  # checkpoints after updates 2 and 3 (the last)
+    kept = out / "checkpoints"
+    assert sorted(p.name for p in kept.iterdir()) == ["update_0002", "update_0003"]
+    assert sorted(p.name for p in (kept / "update_0002").iterdir()) == ["cso.json", "cso.pt"]
+    final = torch.load(out / "cso.pt", weights_only=True)["state_dict"]
+    at = {n: torch.load(kept / n / "cso.pt", weights_only=True)["state_dict"] for n in ("update_0002", "update_0003")}
+    assert all(torch.equal(final[k], at["update_0003"][k]) for k in final)
+    assert not all(torch.equal(final[k], at["update_0002"][k]) for k in final)  # the policy of update 2, not the last
+    kept_record = json.loads((kept / "update_0002" / "cso.json").read_text())
+    assert (kept_record["ppo_updates"], kept_record["ppo_decisions"]) == (2, 8) and kept_record["args"] == record["args"]
+    model, _, _ = load_checkpoint(kept / "update_0002" / "cso.pt")  # a weights file, as the run's own
+    assert all(torch.equal(model.state_dict()[k], at["update_0002"][k]) for k in final)
+
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # eval's --weights sets it in this process: put back as it was after the test
+    r = CliRunner().invoke(app, ["eval", "--method", "cso", "--weights", str(kept / "update_0002"), "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / "eval")])
+    assert r.exit_code == 0, r.output
+    weights = json.loads((tmp_path / "eval" / "summary.json").read_text())["meta"]["weights"]["cso"]
+    assert weights["path"] == str((kept / "update_0002" / "cso.pt").resolve())
+    with pytest.raises(ValueError, match="its folders update_0002, update_0003 hold such files: give one of them"):
+        use_weights_dir(kept)
+
+    assert earlier_run_files(out, "cso") == ["checkpoint.pt", "cso.pt", "cso_log.csv", "checkpoints/"]
+    resumed = {**common, "keep_checkpoints": True, "resume": str(plain / "checkpoint.pt"), "out_dir": str(plain)}
+    train(Args(total_decisions=16, **resumed), log=lambda _msg: None, plans=[rooms_plan(2)])  # a run that kept none
+    assert sorted(p.name for p in (plain / "checkpoints").iterdir()) == ["update_0004"]
+    timed = tmp_path / "timed"  # stopped by its time limit: the checkpoint it writes then is kept too
+    train(Args(total_decisions=12, keep_checkpoints=True, time_limit_s=1e-9, out_dir=str(timed), **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert sorted(p.name for p in (timed / "checkpoints").iterdir()) == ["update_0001"]
+    cli_out = tmp_path / "cli"  # train's last lines name them and how to evaluate one
+    tiny = ["--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--set", "num_steps=4", "--set", "num_minibatches=1",
+            "--set", "max_steps=20", "--set", "checkpoint_every=1", "--set", "keep_checkpoints=true", "--num-envs", "1", "--total-decisions", "8",
+            "--variant", "cso", "--out", str(cli_out)]  # fmt: skip
+    r = CliRunner().invoke(app, ["train", *tiny])
+    assert r.exit_code == 0, r.output
+    assert f"-> {cli_out}: cso.pt, cso_log.csv, cso_curve.png, cso.json, checkpoint.pt, checkpoints/ (2 kept: update_0001 to update_0002)" in r.output
+    assert f"a kept checkpoint likewise, with --weights {cli_out / 'checkpoints' / 'update_0002'} (the last;" in r.output
 
 
 def test_the_resume_hint_names_only_this_runs_checkpoint(tmp_path, monkeypatch):

@@ -200,6 +200,8 @@ class ExplorationEnv(gym.Env):
         return {k: np.asarray(v, dtype=self.observation_space[k].dtype) for k, v in graph.items()}
 
     def _info(self) -> dict[str, Any]:
+        """The info of ``reset`` and ``step`` alike (Gymnasium wrappers expect one set of keys): ``decision_steps`` is 0
+        until ``step`` sets the control steps its decision took; ``terminated_by`` is None while the episode goes on."""
         ex = self.explorer
         assert ex is not None
         return {
@@ -209,6 +211,8 @@ class ExplorationEnv(gym.Env):
             "explored_area_m2": ex.explored_area_m2(),
             "invalid_actions": self.invalid_actions,
             "plan": self.plan_name,
+            "terminated_by": ex.terminated_by,
+            "decision_steps": 0,
         }
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
@@ -275,7 +279,6 @@ class ExplorationEnv(gym.Env):
             reward *= r.scene_scale_area_m2 / max(ex.region_area_m2, 1e-9)
         truncated = ex.done and ex.terminated_by == TERMINATED_MAX_STEPS
         terminated = ex.done and not truncated
-        info["terminated_by"] = ex.terminated_by
         info["decision_steps"] = ex.steps - steps0
         return graph, float(reward), terminated, truncated, info
 
@@ -288,10 +291,8 @@ class ExplorationEnv(gym.Env):
         truncated = self._invalid_in_a_row >= self.config.invalid_action_limit
         info = self._info()
         info["invalid_action"] = action
-        assert self.explorer is not None
-        info["terminated_by"] = "invalid_actions" if truncated else self.explorer.terminated_by  # None while going on, as step()'s
-        info["decision_steps"] = 0
         if truncated:
+            info["terminated_by"] = "invalid_actions"
             self.obs = None  # the episode is over: step() again needs reset()
         graph = {k: v.copy() for k, v in self._graph.items()}  # new arrays: the caller keeps the ones it had
         return graph, float(self.config.reward.r_step), False, truncated, info
@@ -384,7 +385,8 @@ def make_env(
     render_scale: int = 2,
 ) -> ExplorationEnv:
     """An ``ExplorationEnv`` over a scene spec (as ``eval --maps``: ``builtin``, a folder of PNG plans,
-    ``generated:SCALE:N:SEED``); PNG plans at ``m_per_px``. The plans load at the first reset."""
+    ``generated:SCALE:N:SEED``); PNG plans at ``m_per_px`` (0.05: Dungeon's large scale, where ``eval --m-per-px`` takes
+    0.1, super large, unless told). The plans load at the first reset."""
     from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
 
     refs = resolve_scenes(scenes, limit, m_per_px)  # a bad spec fails here, not at the first reset

@@ -186,6 +186,11 @@ class Args:
     (``NetworkConfig.distance_prior``); PPO then starts from greedy-dist's choices, no warm start needed."""
     checkpoint_every: int = 5
     """Updates between resumable checkpoints."""
+    keep_checkpoints: bool = False
+    """Also keep the weights of every checkpoint, each in a folder of its own (``kept_checkpoint_dir``:
+    ``checkpoints/update_<N>/<variant>.pt`` and its record ``<variant>.json``), which ``eval --weights`` takes as it
+    takes the run's folder: the policies along the learning curve (SB3's ``CheckpointCallback``), not only the last.
+    ``checkpoint.pt`` itself, what ``--resume`` goes on from, is overwritten either way."""
     tensorboard: bool = False
     """Also write each update's figures as TensorBoard events into ``out_dir/tensorboard/`` (``tensorboard
     --logdir OUT``), tagged as CleanRL tags them (``TENSORBOARD_TAGS``) over PPO decisions; needs tensorboardX
@@ -424,7 +429,7 @@ def select_device(name: str) -> torch.device:
 
 
 RESUME_MAY_CHANGE = frozenset(
-    {"out_dir", "resume", "init_from", "device", "torch_threads", "progress", "async_envs", "tensorboard", "checkpoint_every", "time_limit_s", "total_decisions", "dungeon_dir"}
+    {"out_dir", "resume", "init_from", "device", "torch_threads", "progress", "async_envs", "tensorboard", "checkpoint_every", "keep_checkpoints", "time_limit_s", "total_decisions", "dungeon_dir"}
     | {f.name for f in dataclasses.fields(Args) if f.name.startswith("warm_start_")}  # the warm start does not run again
 )
 """The fields of ``Args`` a ``--resume`` may give other values than the run it continues: where and how it runs,
@@ -467,10 +472,45 @@ def resume_recipe_changes(saved: Mapping[str, Any], args: Args) -> list[str]:
 
 
 
+KEPT_CHECKPOINTS_DIR = "checkpoints"
+"""The folder of a run's ``--out`` that holds the weights of each checkpoint when ``keep_checkpoints`` is set."""
+
+
+def kept_checkpoint_dir(out: Path, update: int) -> Path:
+    """Where ``keep_checkpoints`` keeps the weights of the checkpoint after PPO update ``update`` (the CSV log's
+    ``update``): ``out/checkpoints/update_<N>``, N zero-padded to 4 digits so that the folders list in update order."""
+    return out / KEPT_CHECKPOINTS_DIR / f"update_{update:04d}"
+
+
 def earlier_run_files(out: Path, variant: str) -> list[str]:
-    """The files of an earlier training run of ``variant`` in ``out`` that a new run (not ``--resume``) replaces."""
+    """The files of an earlier training run of ``variant`` in ``out`` that a new run (not ``--resume``) replaces, and
+    its kept checkpoints' folder (``keep_checkpoints``), of which a new run that keeps its own replaces those of the
+    same updates."""
     names = ("checkpoint.pt", f"{variant}.pt", f"{variant}_log.csv")
-    return [name for name in names if (out / name).is_file()]
+    kept = [f"{KEPT_CHECKPOINTS_DIR}/"] if any((out / KEPT_CHECKPOINTS_DIR).glob(f"update_*/{variant}.pt")) else []
+    return [name for name in names if (out / name).is_file()] + kept
+
+
+def save_weights(folder: Path, model: GraphActorCritic, args: Args, record: dict[str, Any]) -> None:
+    """``folder/<variant>.pt`` (the weights, ``registry.save_checkpoint``) and ``folder/<variant>.json`` (``record``,
+    with the run's ``args``: ``eval`` reads the sensor and masks it was trained with): a folder ``eval --weights``
+    serves, the run's own or a kept checkpoint's."""
+    folder.mkdir(parents=True, exist_ok=True)
+    save_checkpoint(folder / f"{args.variant}.pt", model, args.env_config().graph, args.variant, {"stage": "ppo", "decisions": record["ppo_decisions"]})
+    (folder / f"{args.variant}.json").write_text(json.dumps(record, indent=2, default=str))
+
+
+def run_counts(update: int, decisions: int, warm_decisions: int, env_steps: int, wall_s: float) -> dict[str, Any]:
+    """The figures of a run's record (``<variant>.json``) that say how far it trained: the run's at its end, a kept
+    checkpoint's at that update."""
+    return {
+        "ppo_updates": update,
+        "ppo_decisions": decisions,
+        "warm_start_decisions": warm_decisions,
+        "ppo_env_steps_in_finished_episodes": env_steps,
+        "wall_time_s": round(wall_s, 1),
+    }
+
 
 def load_resume_checkpoint(
     path: str | Path, model: GraphActorCritic, optimizer: optim.Optimizer, device: torch.device, variant: str | None = None, args: Args | None = None
@@ -1090,11 +1130,16 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 progress.advance(stats=progress_stats(recent_episodes, global_decisions, wall_before_s + time.time() - t_start))  # every decision so far, in all the time so far
             else:
                 log(f"update {update}/{args.num_updates} decisions {global_decisions} return {row['mean_return']} entropy {row['entropy']:.3f}")
-            if update % args.checkpoint_every == 0 or update == args.num_updates:
+            at_checkpoint = update % args.checkpoint_every == 0 or update == args.num_updates
+            if at_checkpoint:
                 _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
-            if args.time_limit_s and time.time() - t_start > args.time_limit_s:
+            out_of_time = bool(args.time_limit_s) and time.time() - t_start > args.time_limit_s
+            if out_of_time:
                 log(f"time limit reached after update {update}")
                 _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
+            if args.keep_checkpoints and (at_checkpoint or out_of_time):  # the weights of each checkpoint.pt written, kept
+                save_weights(kept_checkpoint_dir(out, update), model, args, {**record, **run_counts(update, global_decisions, warm_decisions, env_steps, wall_before_s + time.time() - t_start)})
+            if out_of_time:
                 break
         finished_loop = True
     finally:
@@ -1110,18 +1155,13 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     wall = wall_before_s + time.time() - t_start
     record.update(
         {
-            "ppo_updates": update,
-            "ppo_decisions": global_decisions,
-            "warm_start_decisions": warm_decisions,
-            "ppo_env_steps_in_finished_episodes": env_steps,
-            "wall_time_s": round(wall, 1),
+            **run_counts(update, global_decisions, warm_decisions, env_steps, wall),
             "hardware": {"device": str(device), "cpu": cpu_name(), "cpus": os.cpu_count(), "torch_threads": args.torch_threads},
             "torch": torch.__version__,
             "scenes": len(refs),
         }
     )
-    save_checkpoint(out / f"{args.variant}.pt", model, args.env_config().graph, args.variant, {"stage": "ppo", "decisions": global_decisions})
-    (out / f"{args.variant}.json").write_text(json.dumps(record, indent=2, default=str))
+    save_weights(out, model, args, record)
     plot_learning_curve(log_path, out / f"{args.variant}_curve.png", args.variant)
     return record
 

@@ -114,6 +114,10 @@ def use_weights_dir(directory: str | Path) -> Path:
     if not served:
         others = sorted(p.name for p in run.glob("*.pt"))
         held = f"; it holds {', '.join(others)}: copy the one to use as its method's name" if others else ""
+        folders = sorted(d.name for d in run.iterdir() if d.is_dir() and any(named_for_a_method(p) for p in d.glob("*.pt")))
+        if folders and not others:  # a run's checkpoints/ (train's keep_checkpoints): each of its folders is one policy
+            shown = ", ".join(folders) if len(folders) <= 3 else f"{folders[0]}, ..., {folders[-1]}"
+            held = f"; its folders {shown} hold such files: give one of them"
         raise ValueError(f"--weights {directory}: no file named for a learned method's weights in it ({', '.join(f'{m}.pt' for m in LEARNED_METHODS)}){held}")
     os.environ[WEIGHTS_DIR_ENV] = str(path)
     return path
