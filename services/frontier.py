@@ -324,7 +324,7 @@ class FrontierService(Service):
             return
         obs, dead = self.asked
         why = ended_no_frontier_why(obs, dead, self.ctx.exploration)
-        # The same reason again (a frontier service restarted after the end asks once more): the log says it once.
+        # The same reason again (a lockstep retry of the step brings its empty goal again): the log says it once.
         log.log(logging.DEBUG if why == self.why_no_goal_said else logging.INFO, "no goal at step %d: %s", step, why)
         self.why_no_goal_said = why
         self.publish("ended_why", EndedWhyMsg(step, why, self.episodes.current or 0))

@@ -115,9 +115,9 @@ class PlannerService(Service):
         """A fresh planner and empty buffers (a new episode, or a fresh start)."""
         self.planner = self.new_planner()
         self.backups_logged = 0
+        """The planner's stall back-ups logged so far (each is logged once, as it starts)."""
         self.escapes_logged = 0
         """The planner's progress recoveries logged so far (each once, as it starts)."""
-        """The planner's stall back-ups logged so far (each is logged once, as it starts)."""
         self.reverse_blocked_logged = -2
         """Last step whose reverse command was held (logged once per run of such steps)."""
         self.odoms: dict[int, tuple[OdometryMsg, float]] = {}

@@ -65,8 +65,8 @@ class PolicyParams:
     for several robots (then start one policy per network, not one per robot)."""
     forget_robot_after_s: float = 600.0
     """With ``serve_all_robots``: a robot (not ``--robot``) heard from by no input for this long (wall clock) while no
-    frontier service of it is alive is forgotten (a robot whose frontier service goes is sooner:
-    ``frontier_restart_grace_s``)."""
+    frontier service of it is alive is forgotten (a robot whose frontier service goes is left to
+    ``frontier_restart_grace_s``, sooner or later than this)."""
     frontier_restart_grace_s: float = 30.0
     """With ``serve_all_robots``: how long (wall clock) a robot whose frontier service went while another service of its
     run is still alive (a crash, a kill: its launcher restarts it after ``supervision.backoff_s``, doubling up to
@@ -197,7 +197,7 @@ class PolicyService(Service):
     def release_gone_robots(self, now_s: float) -> None:
         """Stop serving the robots whose frontier service went with their run, or ``frontier_restart_grace_s`` ago
         without coming back, and those heard from by no input for ``forget_robot_after_s`` with no frontier service
-        alive, and forget them."""
+        alive nor one within its grace, and forget them."""
         grace_s = self.params.frontier_restart_grace_s
         gone: dict[str, str] = {}
         with self._gone_lock:
@@ -212,12 +212,13 @@ class PolicyService(Service):
                     continue  # its launcher may be restarting it
                 del self._frontier_gone_s[robot]
             alive = {robot for robot, services in self._services_alive.items() if "frontier" in services}
+            in_grace = set(self._frontier_gone_s)  # left to the grace: silent while its frontier service restarts
         for robot, why in gone.items():
             if robot in self.robots or robot in self.heard_from_s:
                 self.forget_robot(robot, why)
         for robot, heard_s in list(self.heard_from_s.items()):
             silent_s = now_s - heard_s
-            if robot != self.ctx.robot and robot not in alive and silent_s > self.params.forget_robot_after_s:
+            if robot != self.ctx.robot and robot not in alive | in_grace and silent_s > self.params.forget_robot_after_s:
                 self.forget_robot(robot, f"nothing heard from it for {silent_s:.0f} s, and no frontier service of it is alive")
 
     def forget_robot(self, robot: str, why: str = "") -> None:

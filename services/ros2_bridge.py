@@ -789,6 +789,11 @@ class Ros2BridgeService(Service):
         self.sent_any_command = True
 
     def take_goal(self, g: GoalMsg) -> None:
+        if self.episode_state in EPISODE_OVER:
+            # The answer to a decision asked after the end (a frontier service that did not hear it): the robot is held
+            # still, so its goal is not shown in RViz, nor counted among the ended episode's decisions.
+            self.counters["goals_after_episode"] += 1
+            return
         if g.decided:
             self.decisions += 1
             self.decision_ms.append(g.decision_ms)

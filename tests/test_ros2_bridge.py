@@ -347,6 +347,29 @@ def test_after_the_episode_ended_a_decision_is_not_shown_and_its_asker_hears_the
     assert frontier.episode_over == "done (no_frontier)"
 
 
+def test_after_the_episode_ended_a_goal_is_not_shown_nor_counted_as_a_decision():
+    """A frontier service that did not hear the end (restarted since) asks once more, and the policy answers with a
+    goal: the bridge held the robot still and sent no frontiers, but it sent that goal to RViz (``goal_pose``, a goal
+    the robot never drives to) and counted it among the episode's decisions, so that ``status`` went on counting
+    decisions of an episode that had ended. A goal after the end is now neither shown nor counted
+    (``goals_after_episode``); a new episode's goals are, as before."""
+    svc, _, step = _bridge_without_zenoh()
+    sent: list[str] = []
+    svc._put_ros = lambda topic, payload: sent.append(topic)  # type: ignore[method-assign]
+    step(1000.0, 0.0)
+    svc.take_goal(GoalMsg(1, True, 0.5, 0.2, 0, 1.0, method="greedy-dist", episode=svc.episode))
+    assert sent == ["goal_pose"] and svc.decisions == 1
+    svc.take_goal(GoalMsg(2, True, None, None, method="greedy-dist", episode=svc.episode))  # no frontier left: the end
+    assert svc.episode_status().state == "done" and svc.decisions == 2
+    svc.on_message("r0", "goal", GoalMsg(9, True, 1.5, -0.4, 0, 2.0, method="greedy-dist", episode=svc.episode), 0.0)
+    assert sent == ["goal_pose"], "no goal goes to RViz after the end"
+    assert svc.decisions == 2 and svc.episode_status().decisions == 2 and svc.counters["goals_after_episode"] == 1
+    for i in range(3):  # the robot's clock starts again: a new episode
+        step(100.0 + 0.1 * i, 0.0)
+    svc.take_goal(GoalMsg(1, True, 1.5, -0.4, 0, 2.0, method="greedy-dist", episode=svc.episode))
+    assert sent == ["goal_pose", "goal_pose"] and svc.decisions == 1
+
+
 def test_explore_resume_from_ros_pauses_and_resumes_exploration():
     """``ros2 topic pub --once /limo1/explore/resume std_msgs/msg/Bool "{data: false}"`` (explore_lite's): the bridge
     sends it on ``cso/<robot>/explore/resume``, saying where it came from; a payload that is no Bool is counted."""

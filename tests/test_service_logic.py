@@ -1891,3 +1891,30 @@ def test_sim_ends_on_an_empty_goal_with_the_frontier_services_reason_or_without_
     svc, _ = sim({})  # a sim started on its own (`service sim`), and no frontier service alive: nobody to wait for
     svc.on_message("r0", "goal", GoalMsg(0, True, episode=svc.episode), time.monotonic())
     assert svc.result is not None and svc.result.ended_why == ""
+
+
+def test_a_shared_policy_server_keeps_a_robot_long_silent_through_the_grace_of_its_frontier_restart():
+    """The grace of a restarted frontier service (``frontier_restart_grace_s``) did not hold for a robot that had been
+    silent for ``forget_robot_after_s`` before (a robot standing without scans) or that is silent through the grace
+    (its frontier service, its only input, is down) where ``forget_robot_after_s`` is the shorter: the silence check
+    forgot it at the first tick after its frontier service went, its selector with it. A robot within its grace is left
+    to the grace; once the grace is over without its frontier service, it is let go as before."""
+    policy, _, send = _shared_policy_server({"forget_robot_after_s": 10.0, "frontier_restart_grace_s": 30.0})
+    t0_s = time.monotonic()
+    for service in ("sim", "frontier"):
+        policy._on_alive(_liveliness(RobotKeys("a").alive(service), "PUT"))
+    send("a", 0, t0_s)
+    selector = policy.robots["a"].selector
+    policy.on_tick(t0_s + 20.0)  # silent for 20 s, but its frontier service is alive: kept
+    assert "a" in policy.robots
+    policy._on_alive(_liveliness(RobotKeys("a").alive("frontier"), "DELETE"))  # it crashes; its launcher restarts it
+    policy.on_tick(t0_s + 20.2)
+    policy.on_tick(t0_s + 40.0)
+    assert policy.robots["a"].selector is selector and policy.status_msg().counters == {"robots_forgotten": 0}
+    policy._on_alive(_liveliness(RobotKeys("a").alive("frontier"), "PUT"))  # back within the grace
+    send("a", 1, t0_s + 41.0)
+    assert policy.robots["a"].selector is selector
+    policy._on_alive(_liveliness(RobotKeys("a").alive("frontier"), "DELETE"))  # gone again, for good this time
+    policy.on_tick(t0_s + 42.0)
+    policy.on_tick(t0_s + 42.0 + 31.0)
+    assert "a" not in policy.robots and policy.status_msg().counters == {"robots_forgotten": 1}
