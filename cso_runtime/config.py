@@ -284,7 +284,8 @@ class PlannerConfig:
     rocking back and forth where its path clips a wall's corner, the controller's back-off and pure pursuit undoing
     each other) first turns the robot to the open heading nearest the path's bearing and drives it
     ``escape_distance_m`` along it, then follows the path again; the next failure reports ``no_progress``. Open means
-    clear of every scanned return for the body's sweep, within the sensor's field of view. 0 turns it off."""
+    clear of every scanned return for the body's sweep, within the sensor's field of view less 45 degrees each side, so a
+    sensor of 90 degrees or less (the depth camera) never has one and its goals end as before. 0 turns it off."""
     escape_distance_m: float = 0.25
     """How far the progress recovery drives along the open heading."""
     body: str = "disc"
