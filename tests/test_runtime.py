@@ -896,10 +896,11 @@ def test_a_runs_folder_deleted_mid_run_keeps_its_lock_and_a_second_up_is_refused
 
     profile = write_profile(tmp_path, min_step_period_s=0.3)  # an episode of minutes: it runs through the test
     runs = tmp_path / "runs"
+    first: list[int] = []
     try:
         r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
         assert r.returncode == 0, r.stderr
-        first = run_pids(runs)
+        first += run_pids(runs)
         for _ in range(20):  # as `rm -rf runs` does; the services write logs meanwhile, so one walk may meet a new file
             try:
                 shutil.rmtree(runs)
@@ -920,7 +921,7 @@ def test_a_runs_folder_deleted_mid_run_keeps_its_lock_and_a_second_up_is_refused
         assert r.returncode == 2 and "another `cso-runtime up` is running" in said and RUNS_LOCK in said, said
         assert sorted(run_pids(runs)) == sorted(first) and all(pid_alive(p) for p in first)  # the first run goes on, alone
     finally:
-        kill_leftovers(runs)
+        kill_leftovers(runs, extra=first)  # the pids read before the folder went: a run folder deleted half-way lists none
 
 
 SIGNAL_WHILE = """
