@@ -1814,6 +1814,9 @@ def test_keep_checkpoints_keeps_each_checkpoints_weights_for_eval(tmp_path, monk
         use_weights_dir(kept)
 
     assert earlier_run_files(out, "cso") == ["checkpoint.pt", "cso.pt", "cso_log.csv", "checkpoints/"]
+    said: list[str] = []  # a new run in that folder keeping fewer checkpoints: none of the old run's is left to evaluate
+    train(Args(total_decisions=4, keep_checkpoints=True, out_dir=str(out), **{**common, "checkpoint_every": 1}), log=said.append, plans=[rooms_plan(2)])
+    assert sorted(p.name for p in kept.iterdir()) == ["update_0001"] and any("removed the earlier run's 2 kept checkpoints" in m for m in said), said
     resumed = {**common, "keep_checkpoints": True, "resume": str(plain / "checkpoint.pt"), "out_dir": str(plain)}
     train(Args(total_decisions=16, **resumed), log=lambda _msg: None, plans=[rooms_plan(2)])  # a run that kept none
     assert sorted(p.name for p in (plain / "checkpoints").iterdir()) == ["update_0004"]

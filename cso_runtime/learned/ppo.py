@@ -484,11 +484,25 @@ def kept_checkpoint_dir(out: Path, update: int) -> Path:
 
 def earlier_run_files(out: Path, variant: str) -> list[str]:
     """The files of an earlier training run of ``variant`` in ``out`` that a new run (not ``--resume``) replaces, and
-    its kept checkpoints' folder (``keep_checkpoints``), of which a new run that keeps its own replaces those of the
-    same updates."""
+    its kept checkpoints' folder (``keep_checkpoints``), whose weights of ``variant`` a new run removes
+    (``drop_kept_checkpoints``)."""
     names = ("checkpoint.pt", f"{variant}.pt", f"{variant}_log.csv")
     kept = [f"{KEPT_CHECKPOINTS_DIR}/"] if any((out / KEPT_CHECKPOINTS_DIR).glob(f"update_*/{variant}.pt")) else []
     return [name for name in names if (out / name).is_file()] + kept
+
+
+def drop_kept_checkpoints(out: Path, variant: str) -> int:
+    """Remove an earlier run's kept weights of ``variant`` from ``out/checkpoints`` (and the folders left empty): left
+    beside a new run's, ``eval --weights OUT/checkpoints/update_<N>`` of an update the new run has not reached would
+    serve the old run's policy. Returns how many checkpoints were removed."""
+    removed = 0
+    for weights in sorted((out / KEPT_CHECKPOINTS_DIR).glob(f"update_*/{variant}.pt")):
+        weights.unlink()
+        weights.with_suffix(".json").unlink(missing_ok=True)
+        removed += 1
+        if not any(weights.parent.iterdir()):
+            weights.parent.rmdir()
+    return removed
 
 
 def save_weights(folder: Path, model: GraphActorCritic, args: Args, record: dict[str, Any]) -> None:
@@ -934,6 +948,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     elsewhere = not args.resume or Path(args.resume).resolve().parent != out.resolve()  # not the folder of the run it continues
     if elsewhere and (earlier := earlier_run_files(out, args.variant)):  # CleanRL never writes into an old run; say it
         log(f"note: {out} holds an earlier run ({', '.join(earlier)}): this run replaces it; --resume {out / 'checkpoint.pt'} would continue it")
+        if removed := drop_kept_checkpoints(out, args.variant):
+            log(f"note: removed the earlier run's {removed} kept checkpoint{'s' if removed != 1 else ''} of {args.variant} from {out / KEPT_CHECKPOINTS_DIR}")
     refs: list[SceneRef] | list[FloorPlan] = plans if plans else training_scene_refs(args)
     log(f"training {args.variant} on {len(refs)} scenes, device {device}: {args.num_updates} PPO update{'s' if args.num_updates != 1 else ''} of {args.batch_size} decisions "
         f"({args.num_envs} envs x {args.num_steps} steps; total_decisions {args.total_decisions} in whole updates)")
