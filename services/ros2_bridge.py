@@ -932,6 +932,9 @@ class Ros2BridgeService(Service):
             self.explored_area_m2(),
             self.path_length_m,
         )
+        if self.sent_any_command and not self.zero_sent:  # held still from the end on, not only once the watchdog fires
+            self._put_ros(self.params.cmd_vel_topic, ros2_cdr.twist_to_cdr(VelocityCommand()))
+            self.zero_sent = True
         self.publish("episode_status", self.episode_status())
         self.final_result = self.episode_result()
         self.publish("episode_result", self.final_result)

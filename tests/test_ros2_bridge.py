@@ -300,7 +300,8 @@ def test_after_the_episode_ended_the_robot_is_held_still():
     service and the policy go on deciding on each scan, and a frontier that opens later (a door, a person moving, drift)
     gave the planner a goal that the bridge drove the robot to, while ``status`` said ``done``. As explore_lite stops
     once exploration is over, the bridge now sends a zero Twist for every command once the episode is over (counted as
-    ``commands_after_episode``, warned of once); a new episode (a restarted robot clock) drives again."""
+    ``commands_after_episode``, warned of once), and one at the end itself; a new episode (a restarted robot clock)
+    drives again."""
     svc, _, step = _bridge_without_zenoh()
     sent: list[tuple[str, bytes]] = []
     svc._put_ros = lambda topic, payload: sent.append((topic, payload))  # type: ignore[method-assign]
@@ -310,9 +311,10 @@ def test_after_the_episode_ended_the_robot_is_held_still():
     assert twists() == [VelocityCommand(0.3, 0.2)]
     svc.take_goal(GoalMsg(1, True, None, None, method="greedy-dist", episode=svc.episode))  # no frontier left: the end
     assert svc.episode_status().state == "done"
+    assert twists()[1:] == [VelocityCommand()]  # a stop at the end itself, not cmd_timeout_s later from the watchdog
     svc.on_message("r0", "cmd_vel", CmdVelMsg(5, VelocityCommand(0.4, -0.1)), 50.1)
     svc.on_message("r0", "cmd_vel", CmdVelMsg(6, VelocityCommand(0.4, -0.1)), 50.2)
-    assert twists()[1:] == [VelocityCommand(), VelocityCommand()] and svc.counters["commands_after_episode"] == 2
+    assert twists()[1:] == [VelocityCommand()] * 3 and svc.counters["commands_after_episode"] == 2
     for i in range(3):  # the robot's clock starts again: a new episode
         step(100.0 + 0.1 * i, 0.0)
     svc.on_message("r0", "cmd_vel", CmdVelMsg(1, VelocityCommand(0.2, 0.0)), 50.3)
