@@ -3584,8 +3584,9 @@ def test_a_launcher_stopped_and_continued_does_not_take_its_services_for_hung(tm
 def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
     """One episode status saying "done" that no result follows, while the sim goes on reporting the
     episode exploring (a stray or forged message): ignored, counted, and the run ends with the episode."""
-    # 36 steps of at least 0.1 s: the stray end, sent at once, comes with more than 30 steps still to go.
-    with detached_run(tmp_path, min_step_period_s=0.1, lockstep_timeout_s=0.5) as (runs, status):
+    # 36 steps of at least 0.25 s: the launcher waits up to a few seconds for the stray end's result before it calls
+    # the end stray (the sim going on exploring), and the real end must not come within that wait (0.1 s steps did, once).
+    with detached_run(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5) as (runs, status):
         s = wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2 and s, 60, "the episode to start")
         endpoints = json.loads((runs / "current.json").read_text())["endpoints"]
         with open_session(TransportConfig(mode="client", connect=endpoints)) as session:
