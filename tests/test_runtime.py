@@ -900,6 +900,10 @@ def test_a_runs_folder_deleted_mid_run_keeps_its_lock_and_a_second_up_is_refused
     try:
         r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
         assert r.returncode == 0, r.stderr
+        current = json.loads((runs / "current.json").read_text())
+        # Every service has read its configuration from the run folder: deleted before that, a service that has not is
+        # refused its configuration and the run stops, which is another case (the folder is lost while the run runs).
+        wait_for(lambda: (s := query_status(current["endpoints"], current["robot"], timeout_s=0.5)) and s["state"] == "exploring", 60, "the episode to start")
         first += run_pids(runs)
         for _ in range(20):  # as `rm -rf runs` does; the services write logs meanwhile, so one walk may meet a new file
             try:
