@@ -296,6 +296,31 @@ def test_resets_info_has_every_key_of_a_steps_with_the_starts_values():
         envs.close()
 
 
+def test_every_info_has_the_same_keys_and_types_masked_actions_included():
+    """``info["invalid_action"]`` came only with a masked action's step: a vector env then adds the key (and its
+    ``_invalid_action`` flags) on some steps only, and loggers that take the first info's keys miss it. Every info
+    has it now: the masked action taken, or -1 where the step's action was allowed (and at ``reset``)."""
+    import gymnasium as gym
+
+    env = ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))
+    _, info = env.reset(seed=0)
+    types = {key: type(value) for key, value in info.items()}
+    assert info["invalid_action"] == -1
+    masked = int(np.flatnonzero(info["action_mask"] == 0)[0])
+    infos = [env.step(masked)[4], env.step(expert_action(env.obs, info["action_mask"]))[4]]
+    assert [i["invalid_action"] for i in infos] == [masked, -1]
+    for step_info in infos:
+        assert {key: type(value) for key, value in step_info.items() if key != "terminated_by"} == {k: t for k, t in types.items() if k != "terminated_by"}
+    envs = gym.vector.SyncVectorEnv([lambda: ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))] * 2)
+    try:
+        _, info = envs.reset(seed=0)
+        assert list(info["invalid_action"]) == [-1, -1] and info["_invalid_action"].all()
+        _, _, _, _, info = envs.step([masked, expert_action(envs.envs[1].unwrapped.obs, info["action_mask"][1])])
+        assert list(info["invalid_action"]) == [masked, -1] and info["_invalid_action"].all()
+    finally:
+        envs.close()
+
+
 def test_an_episode_cut_by_the_step_limit_ends_on_its_real_state_one_that_finished_on_the_empty_graph():
     """PPO bootstraps a truncated episode with V(final observation): that must be the graph of the state the
     cut left (frontiers still open), not the all-padding graph, whose value is one constant for every cut."""

@@ -43,6 +43,10 @@ RESET_OPTIONS = ("plan",)
 """The keys ``ExplorationEnv.reset(options=...)`` takes: ``plan``, the floor plan of the episode, by its name
 (``info["plan"]``) or its index in the env's plans, instead of the seeded draw."""
 
+NO_INVALID_ACTION = -1
+"""``info["invalid_action"]`` where the step's action was allowed (and at ``reset``): the key is in every info, an int,
+so that vector envs and loggers see one set of keys; a masked action's step holds that action."""
+
 ROLLOUT_TRIES = 3
 """Clusters the rollout teacher tries per decision (the nearest allowed ones)."""
 
@@ -201,7 +205,8 @@ class ExplorationEnv(gym.Env):
 
     def _info(self) -> dict[str, Any]:
         """The info of ``reset`` and ``step`` alike (Gymnasium wrappers expect one set of keys): ``decision_steps`` is 0
-        until ``step`` sets the control steps its decision took; ``terminated_by`` is None while the episode goes on."""
+        until ``step`` sets the control steps its decision took; ``terminated_by`` is None while the episode goes on;
+        ``invalid_action`` is ``NO_INVALID_ACTION`` until a masked action's step sets it."""
         ex = self.explorer
         assert ex is not None
         return {
@@ -213,6 +218,7 @@ class ExplorationEnv(gym.Env):
             "plan": self.plan_name,
             "terminated_by": ex.terminated_by,
             "decision_steps": 0,
+            "invalid_action": NO_INVALID_ACTION,
         }
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
