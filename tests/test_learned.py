@@ -398,6 +398,26 @@ def test_the_action_mask_is_gymnasiums_so_the_action_space_samples_allowed_actio
         envs.close()
 
 
+def test_the_env_gives_its_action_mask_through_action_masks_as_maskable_ppo_asks():
+    """sb3-contrib's ``MaskablePPO`` asks the env for ``action_masks()`` (a bool array; through wrappers with
+    ``get_wrapper_attr``, through a vector env with ``call``): the env had none, so it refused the env as unmasked."""
+    import gymnasium as gym
+
+    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", config=EnvConfig(max_steps=120))
+    _, info = env.reset(seed=3)
+    masks = env.get_wrapper_attr("action_masks")()
+    assert masks.dtype == bool and np.array_equal(masks, info["action_mask"] == 1)
+    masks[:] = False  # a copy: the caller's changes do not reach the env
+    _, _, _, _, info = env.step(int(np.flatnonzero(info["action_mask"])[0]))
+    assert np.array_equal(env.get_wrapper_attr("action_masks")(), info["action_mask"] == 1)
+    envs = gym.vector.SyncVectorEnv([lambda: ExplorationEnv([rooms_plan(2)], EnvConfig(max_steps=200))] * 2)
+    try:
+        _, info = envs.reset(seed=0)
+        assert np.array_equal(np.stack(envs.call("action_masks")), info["action_mask"] == 1)
+    finally:
+        envs.close()
+
+
 def test_the_default_env_fits_the_shipped_weights_and_other_graphs_say_what_to_pass():
     """``gymnasium.make`` without a config gives the graph the shipped weights read (the recipe's, so training
     is unchanged), and they run in it; weights given graphs of another feature size say which graph to build,

@@ -6,7 +6,8 @@ decision is the sum over the control steps it took of R_step + lambda_c * (new o
 The action mask (valid distance + stuck masks, via ``ActionMasker``, as the policy applies them at
 run time) is returned in ``info["action_mask"]`` as Gymnasium's spaces take one: ``np.int8`` of the action
 space's size, 1 where the action is allowed, so ``env.action_space.sample(info["action_mask"])`` samples an
-allowed action. ``info["plan"]`` is the name of the episode's floor plan.
+allowed action; ``action_masks()`` gives it as bool, as sb3-contrib's ``MaskablePPO`` asks an env. ``info["plan"]`` is
+the name of the episode's floor plan.
 
 Observation: the padded graph of ``graph.py`` as a ``spaces.Dict`` of fixed-shape boxes, so the
 standard vector envs can stack it (``spaces.Graph`` has no fixed shape and cannot be batched).
@@ -302,6 +303,12 @@ class ExplorationEnv(gym.Env):
             self.obs = None  # the episode is over: step() again needs reset()
         graph = {k: v.copy() for k, v in self._graph.items()}  # new arrays: the caller keeps the ones it had
         return graph, float(self.config.reward.r_step), False, truncated, info
+
+    def action_masks(self) -> np.ndarray:
+        """The current decision's action mask as bool (``info["action_mask"]`` holds it as ``np.int8``): the method
+        sb3-contrib's ``MaskablePPO`` calls on an env (``get_action_masks``), and ``call("action_masks")`` in a vector
+        env."""
+        return self.mask.copy()
 
     def render(self) -> np.ndarray | None:
         """The map M_t, the path so far, the candidate goals (green allowed, red masked by the action mask) and
