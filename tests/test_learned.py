@@ -993,6 +993,24 @@ def test_the_environment_is_registered_with_gymnasium():
         gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:huge:1:0")
 
 
+def test_the_environments_spec_serialises_so_it_can_be_recorded_and_made_again():
+    """``EnvSpec.to_json`` (what dataset and experiment tools record of an env) refused the spec: its entry point was
+    the function itself, and Gymnasium serialises only an entry point given by name."""
+    import gymnasium as gym
+    from gymnasium.envs.registration import EnvSpec
+
+    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4")
+    spec = EnvSpec.from_json(env.spec.to_json())
+    assert spec.kwargs == {"scenes": "generated:small:1:4"}
+    again = gym.make(spec)
+    try:
+        first, second = env.reset(seed=3)[0], again.reset(seed=3)[0]
+        assert all(np.array_equal(first[k], second[k]) for k in first)
+    finally:
+        env.close()
+        again.close()
+
+
 # The positions relative to the robot and the distances have no bound (scenes have no size limit; every feature that
 # has one is bounded: graph.FEATURE_RANGES); the checker's advice about infinite Box bounds does not apply to them.
 @pytest.mark.filterwarnings("ignore:.*A Box observation space (minimum|maximum) value is:UserWarning")

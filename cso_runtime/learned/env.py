@@ -406,4 +406,4 @@ def make_env(
     return ExplorationEnv(lambda: [ref.load() for ref in refs], config, render_mode=render_mode, render_scale=render_scale)
 
 
-gym.register(id=ENV_ID, entry_point=make_env)  # type: ignore[arg-type]  # gymnasium's EnvCreator protocol takes **kwargs only
+gym.register(id=ENV_ID, entry_point=f"{__name__}:{make_env.__name__}")  # by name, so that env.spec.to_json() works
