@@ -352,6 +352,40 @@ def test_an_episode_cut_by_the_step_limit_ends_on_its_real_state_one_that_finish
         Args(cut_observation="zero").validate()
 
 
+def test_an_episode_over_at_reset_ends_at_its_first_step_instead_of_refusing_it():
+    """A plan that the first scan explores whole (one room, a 360-degree LiDAR in its middle) has no decision to take:
+    ``reset`` returned its end, and ``step`` then raised "called before reset() or after the episode ended", which
+    stopped a vector env (it steps every env it reset) and training with it. The first step ends it, at no cost."""
+    import gymnasium as gym
+
+    from cso_runtime.config import ExplorationConfig
+
+    exploration = dataclasses.replace(ExplorationConfig(), sensor=SensorConfig.preset("lidar", 360.0))
+    config = EnvConfig(exploration=exploration, max_steps=200)
+    whole_at_once = rooms_plan(1, start=Pose2D(1.5, 1.5, 0.0))
+    env = ExplorationEnv([whole_at_once], config)
+    obs, info = env.reset(seed=0)
+    assert info["terminated_by"] == "no_frontier" and info["steps"] == 0
+    assert env.observation_space.contains(obs) and env.action_space.sample(info["action_mask"]) == 0
+    again, reward, terminated, truncated, end = env.step(0)
+    assert (reward, terminated, truncated) == (0.0, True, False) and sorted(end) == sorted(info)
+    assert all(np.array_equal(again[k], obs[k]) for k in obs) and end["decision_steps"] == 0 and end["invalid_action"] == -1
+    with pytest.raises(RuntimeError, match="after the episode ended"):
+        env.step(0)
+    assert episode_returns(env, lambda _graph, mask, _rng: int(np.argmax(mask)), [0, 1]) == [0.0, 0.0]
+    envs = gym.vector.SyncVectorEnv(
+        [lambda: ExplorationEnv([whole_at_once], config), lambda: ExplorationEnv([rooms_plan(2)], config)],
+        autoreset_mode=gym.vector.AutoresetMode.SAME_STEP,  # as training steps them: each step ends and resets env 0
+    )
+    try:
+        _, info = envs.reset(seed=0)
+        for _ in range(4):
+            _, _, terminated, _, info = envs.step(envs.action_space.sample(tuple(info["action_mask"])))
+            assert terminated[0]
+    finally:
+        envs.close()
+
+
 def test_scene_scaled_reward_is_eq6_times_the_reference_over_the_scene_area():
     """``scene_scale_area_m2``: the same episode (same choices), every reward scaled by one factor per scene."""
     from cso_runtime.learned.env import RewardConfig

@@ -152,6 +152,8 @@ class ExplorationEnv(gym.Env):
         self.invalid_actions = 0
         """Masked actions taken this episode (each rejected: ``info["invalid_actions"]``)."""
         self._invalid_in_a_row = 0
+        self._over_at_reset = False
+        """The episode ended before its first decision (``_end_at_first_step``)."""
 
     @property
     def plans(self) -> list[FloorPlan]:
@@ -236,7 +238,11 @@ class ExplorationEnv(gym.Env):
         self.masker.reset()
         self.plan_name = plan.name
         self.invalid_actions = self._invalid_in_a_row = 0
-        return self._decide()
+        graph, info = self._decide()
+        self._over_at_reset = self.obs is None
+        if self._over_at_reset:
+            self._graph = graph
+        return graph, info
 
     def _chosen_plan(self, options: dict[str, Any] | None) -> int | None:
         """The index of the plan ``options`` choose (``RESET_OPTIONS``), None where they choose none; a ValueError
@@ -265,11 +271,14 @@ class ExplorationEnv(gym.Env):
 
     def step(self, action: int) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         ex = self.explorer
-        if ex is None or self.obs is None:
+        if ex is None or (self.obs is None and not self._over_at_reset):
             raise RuntimeError("step() called before reset() or after the episode ended")
         a = int(action)
         if not self.action_space.contains(a):
             raise ValueError(f"action {a} is outside the action space Discrete({self.action_space.n})")
+        if self._over_at_reset:
+            return self._end_at_first_step()
+        assert self.obs is not None  # the episode goes on: checked above
         if not self.mask[a]:
             return self._reject(a)
         self._invalid_in_a_row = 0
@@ -288,6 +297,17 @@ class ExplorationEnv(gym.Env):
         terminated = ex.done and not truncated
         info["decision_steps"] = ex.steps - steps0
         return graph, float(reward), terminated, truncated, info
+
+    def _end_at_first_step(self) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        """An episode over at ``reset`` (the first scan explored the plan, or left no reachable frontier) has no decision
+        to take; a Gymnasium reset cannot say so, and vector envs and training loops step every env they reset, so its
+        first step, whatever its action, ends it as ``reset`` left it: the same observation, no reward."""
+        ex = self.explorer
+        assert ex is not None and self._graph is not None
+        self._over_at_reset = False
+        truncated = ex.terminated_by == TERMINATED_MAX_STEPS
+        graph = {k: v.copy() for k, v in self._graph.items()}
+        return graph, 0.0, not truncated, truncated, self._info()
 
     def _reject(self, action: int) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         """A masked action, as Gymnasium's Taxi treats an illegal move: nothing happens, the same decision is
