@@ -1609,6 +1609,31 @@ def test_a_resumed_training_logs_each_update_once_and_counts_its_time_before_the
 
 
 @pytest.mark.filterwarnings("ignore:.*A Box observation space (minimum|maximum) value is:UserWarning")
+@pytest.mark.filterwarnings("ignore:.*The HumanRendering wrapper is being applied:UserWarning")  # what the test asks for
+def test_gymnasium_make_adds_its_render_wrappers_for_the_modes_built_on_rgb_array():
+    """``gymnasium.make`` gives ``render_mode="rgb_array_list"`` (a list of the frames since the last render) and
+    ``"human"`` (a window) to an env that renders ``rgb_array``, reading the entry point's ``metadata``: the
+    registered function had none, so both were passed on to the env, which refused them."""
+    import gymnasium as gym
+
+    def wrappers(env: gym.Env) -> list[str]:
+        names = []
+        while isinstance(env, gym.Wrapper):
+            names.append(type(env).__name__)
+            env = env.env
+        return names
+
+    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="rgb_array_list")
+    _, info = env.reset(seed=3)
+    env.step(int(np.flatnonzero(info["action_mask"])[0]))
+    frames = env.render()
+    assert "RenderCollection" in wrappers(env) and len(frames) == 2 and frames[0].ndim == 3
+    env.close()
+    human = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="human")
+    assert "HumanRendering" in wrappers(human) and human.unwrapped.render_mode == "rgb_array"  # the window opens at render
+
+
+@pytest.mark.filterwarnings("ignore:.*render_mode='ansi' that is not in the possible render_modes:UserWarning")  # refused below
 def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot():
     """``render_mode="rgb_array"`` (Gymnasium's checker runs its render checks): an upright image of M_t, one
     map cell per ``render_scale`` pixels, with the candidate goals coloured by ``info["action_mask"]`` and the
@@ -1647,8 +1672,8 @@ def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot
     assert tuple(img[3, 4]) == frames.ROBOT and tuple(img[2, 0]) == frames.FREE  # a disc of 3 pixels at least, heading along +x
 
     assert gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4").unwrapped.render() is None
-    with pytest.raises(ValueError, match="renders rgb_array"):
-        gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="human")
+    with pytest.raises(ValueError, match="renders rgb_array"):  # "human" is gymnasium.make's HumanRendering over rgb_array
+        gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="ansi")
 
 
 def test_train_closed_by_its_terminal_stops_its_env_workers_and_says_how_to_resume(tmp_path):

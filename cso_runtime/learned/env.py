@@ -426,4 +426,6 @@ def make_env(
     return ExplorationEnv(lambda: [ref.load() for ref in refs], config, render_mode=render_mode, render_scale=render_scale)
 
 
+make_env.metadata = ExplorationEnv.metadata  # type: ignore[attr-defined]  # gymnasium.make reads the entry point's render modes
+"""So that ``gymnasium.make`` wraps ``render_mode="human"`` (HumanRendering) and ``"rgb_array_list"`` (RenderCollection)."""
 gym.register(id=ENV_ID, entry_point=f"{__name__}:{make_env.__name__}")  # by name, so that env.spec.to_json() works
