@@ -77,6 +77,11 @@ log = logging.getLogger("cso.ros2_bridge")
 STAMPS_HELD = 200
 """Steps whose scan time the bridge keeps, to stamp the maps, goals and frontiers computed from them."""
 
+LEGACY_PUB_CACHE_PREFIX = "@ros2_pub_cache"
+"""Where zenoh-bridge-ros2dds releases from before its advanced subscriber (zenoh-plugin-ros2dds PR #524, August 2025;
+1.0.x among them) ask for a transient-local topic's last sample: a query on ``@ros2_pub_cache/*/<key>`` that accepts
+replies on any key, which zenoh's PublicationCache answered from ``@ros2_pub_cache/<its id>/<key>``."""
+
 @dataclass
 class Ros2BridgeParams:
     """Parameters of the ROS 2 bridge service (``services.ros2_bridge`` in a profile)."""
@@ -374,6 +379,9 @@ class Ros2BridgeService(Service):
         """A bridge started by hand: its claim on the robot it drives, held while it runs (``claim_robot``)."""
         self._latched: dict[str, Any] = {}
         """ROS topics whose last message a late transient-local subscriber gets (``declare_latched``): the map."""
+        self._latched_payloads: dict[str, bytes] = {}
+        """The last message sent on each of those topics, for the queries of older zenoh-bridge-ros2dds releases
+        (``answer_legacy_cache_query``)."""
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -392,7 +400,7 @@ class Ros2BridgeService(Service):
                 entities.append(self._driver_token)
                 self._driver_token = None
             entities += [*self._claim_tokens, *self._latched.values()]
-            self._claim_tokens, self._latched = [], {}
+            self._claim_tokens, self._latched, self._latched_payloads = [], {}, {}
         for entity in entities:  # outside the lock: a callback in flight may be waiting for it
             entity.undeclare()
         if self.session is None or not self.sent_any_command:
@@ -420,7 +428,9 @@ class Ros2BridgeService(Service):
                 # at once. Exit 2: the launcher does not restart it, and the robot is left to the run that drives it.
                 raise ConfigError(f"robot {other}'s run already drives {cmd_key} on this network ({reply.ok.key_expr} is alive): stop it, or give another --namespace")
         self._driver_token = self.session.liveliness().declare_token(robot_driver_token(cmd_key, self.ctx.robot))
-        self._latched = {p.map_topic: self.declare_latched(p.ros_key(p.map_topic))}
+        map_key = p.ros_key(p.map_topic)
+        self._latched = {p.map_topic: self.declare_latched(map_key)}
+        map_cache_key = f"{LEGACY_PUB_CACHE_PREFIX}/{self.session.zid()}/{map_key}"
         self._ros_subs = [
             self.session.declare_subscriber(p.ros_key(p.scan_topic), self._on_ros_scan),
             self.session.declare_subscriber(p.ros_key(p.odom_topic), self._on_ros_odom),
@@ -431,6 +441,7 @@ class Ros2BridgeService(Service):
                 keys.episode_status, lambda q: q.reply(keys.episode_status, encode(self.episode_status()))
             ),
             self.session.declare_queryable(keys.episode_result, self._on_result_query),
+            self.session.declare_queryable(map_cache_key, lambda q: self.answer_legacy_cache_query(q, p.map_topic, map_cache_key)),
         ]
         log.info(
             "bridging ROS keys %s, %s -> %s; %s -> %s",
@@ -484,8 +495,22 @@ class Ros2BridgeService(Service):
             self.session, key, cache=zenoh.ext.CacheConfig(max_samples=1), sample_miss_detection=numbered, publisher_detection=True
         )
 
+    def answer_legacy_cache_query(self, query: zenoh.Query, topic: str, cache_key: str) -> None:
+        """The last message sent on a latched topic, for the transient-local subscriber of a zenoh-bridge-ros2dds
+        release that asks ``@ros2_pub_cache/*/<key>`` (``LEGACY_PUB_CACHE_PREFIX``) rather than the advanced publisher's
+        cache: on the topic's own key, as zenoh's PublicationCache replied (or on the queryable's, ``cache_key``, for a
+        query that takes matching replies only); nothing before the first one."""
+        with self._bridge_lock:
+            payload = self._latched_payloads.get(topic)
+        if payload is None:
+            return
+        any_key = query.accepts_replies() == zenoh.ReplyKeyExpr.ANY
+        query.reply(self.params.ros_key(topic) if any_key else cache_key, payload)
+
     def _put_ros(self, topic: str, payload: bytes) -> None:
         publisher = self._latched.get(topic)
+        if publisher is not None:
+            self._latched_payloads[topic] = payload
         (publisher if publisher is not None else self.declare_publisher(self.params.ros_key(topic))).put(payload)
         self.counters[f"sent:{topic}"] += 1
 

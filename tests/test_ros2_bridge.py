@@ -839,7 +839,10 @@ def test_the_map_reaches_a_ros_subscriber_that_comes_after_the_episode(monkeypat
     subscriber zenoh-bridge-ros2dds declares a Zenoh subscriber that asks the publishers on the key for their last
     sample (zenoh-ext's advanced subscriber with late-publisher detection). The bridge put its maps plainly: an RViz or
     a Nav2 started once exploration had ended (its map sent, no newer one to come) got no map at all. The bridge now
-    keeps the last OccupancyGrid for such subscribers, as a latched ``/map``; goal and frontiers stay volatile."""
+    keeps the last OccupancyGrid for such subscribers, as a latched ``/map``; goal and frontiers stay volatile.
+    zenoh-bridge-ros2dds releases from before its advanced subscriber (1.0.x among them) ask instead with a query on
+    ``@ros2_pub_cache/*/<key>`` that takes replies on any key, which nothing answered: they get the last map too."""
+    import zenoh
     import zenoh.ext
 
     from services.common import ServiceContext, run_service
@@ -873,6 +876,19 @@ def test_the_map_reaches_a_ros_subscriber_that_comes_after_the_episode(monkeypat
             og = rosbags_decode(late[-1], "nav_msgs/msg/OccupancyGrid")
             np.testing.assert_array_equal(np.asarray(og.data).reshape(geom.shape), grids[1])
             assert len(late) == 1, "the last map only"
+            # An older zenoh-bridge-ros2dds's transient-local route asks as its QueryingSubscriber did.
+            legacy = [
+                r.ok
+                for r in session.get(
+                    "@ros2_pub_cache/*/limo1/map", target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
+                    accept_replies=zenoh.ReplyKeyExpr.ANY, timeout=5.0,
+                )
+                if r.ok is not None
+            ]  # fmt: skip
+            assert [str(r.key_expr) for r in legacy] == ["limo1/map"] and legacy[0].payload.to_bytes() == late[-1]
+            matching = [r.ok for r in session.get("@ros2_pub_cache/**", timeout=5.0) if r.ok is not None]
+            assert [str(r.key_expr).split("/")[-2:] for r in matching] == [["limo1", "map"]] and str(matching[0].key_expr).startswith("@ros2_pub_cache/")
+            assert matching[0].payload.to_bytes() == late[-1]
             # An ordinary (volatile) subscriber still gets every new map.
             volatile: list[bytes] = []
             volatile_sub = session.declare_subscriber("limo1/map", lambda sample: volatile.append(sample.payload.to_bytes()))
