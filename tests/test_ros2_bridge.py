@@ -160,6 +160,29 @@ def test_hardware_md_names_every_bridge_parameter_with_its_default():
     assert [(name, text) for name, text in quoted if not is_default(name, text)] == []
 
 
+@pytest.mark.parametrize("stamped", [False, True])
+def test_fake_limo_drives_on_the_command_type_it_is_told(stamped: bool):
+    """``--cmd-vel-stamped``: the fake LIMO takes TwistStamped on ``cmd_vel``, as ROS 2 Jazzy's diff_drive_controller, so
+    that a run with ``cmd_vel_stamped`` can be tried without a robot; the other type is undecodable, counted, not driven
+    (before, it took Twist only: a run with ``cmd_vel_stamped`` never drove it)."""
+    from types import SimpleNamespace
+
+    from robot_sim.fake_limo import FakeLimo
+
+    session = SimpleNamespace(declare_publisher=lambda key: None, declare_subscriber=lambda key, callback: None)
+    driven: list[VelocityCommand] = []
+    sim = SimpleNamespace(set_command=lambda cmd: driven.append(cmd) or True)
+    robot = FakeLimo(session, sim, cmd_vel_stamped=stamped)  # type: ignore[arg-type]
+    sample = lambda raw: SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: raw))  # noqa: E731
+    right, wrong = ros2_cdr.twist_to_cdr(VelocityCommand(0.3, -0.2)), ros2_cdr.twist_stamped_to_cdr(VelocityCommand(0.1, 0.1), 5, "base_link")
+    if stamped:
+        right, wrong = wrong, right
+    robot._on_twist(sample(right))
+    robot._on_twist(sample(wrong))
+    assert driven == [VelocityCommand(0.1, 0.1) if stamped else VelocityCommand(0.3, -0.2)]
+    assert (robot.commands, robot.bad_commands) == (1, 1)
+
+
 def test_fake_limo_refuses_a_namespace_that_is_no_ros_name(capsys):
     """``python -m robot_sim.fake_limo --namespace 'a*b'`` loaded its scene, then died with a Zenoh traceback
     (``Invalid Key Expr a*b/odom``); it is now a usage error (exit 2) naming the flag, as the bridge's own check."""
