@@ -1,4 +1,4 @@
-"""ROS 2 messages as CDR bytes, for zenoh-bridge-ros2dds and ROS 2 bags: LaserScan, Odometry, Twist,
+"""ROS 2 messages as CDR bytes, for zenoh-bridge-ros2dds and ROS 2 bags: LaserScan, Odometry, Twist, TwistStamped,
 OccupancyGrid, PoseStamped, Path, TFMessage and explore_lite-style frontier MarkerArrays.
 
 Encoding and decoding use the rosbags typestore (the CDR payloads carry their 4-byte encapsulation
@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 LASER_SCAN = "sensor_msgs/msg/LaserScan"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TWIST = "geometry_msgs/msg/Twist"
+TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
 OCCUPANCY_GRID = "nav_msgs/msg/OccupancyGrid"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
@@ -257,12 +258,28 @@ def twist_to_cdr(cmd: VelocityCommand) -> bytes:
     return encode(_twist(cmd), TWIST)
 
 
+def _command_of(twist: geometry_msgs__msg__Twist) -> VelocityCommand:
+    if not (math.isfinite(twist.linear.x) and math.isfinite(twist.angular.z)):
+        raise CdrError("Twist has non-finite values")
+    return VelocityCommand(float(twist.linear.x), float(twist.angular.z))
+
+
 def twist_from_cdr(raw: bytes) -> VelocityCommand:
     """geometry_msgs/Twist CDR -> our velocity command (forward m/s, yaw rad/s); a non-finite value is a CdrError."""
-    msg = decode(raw, TWIST)
-    if not (math.isfinite(msg.linear.x) and math.isfinite(msg.angular.z)):
-        raise CdrError("Twist has non-finite values")
-    return VelocityCommand(float(msg.linear.x), float(msg.angular.z))
+    return _command_of(decode(raw, TWIST))
+
+
+def twist_stamped_to_cdr(cmd: VelocityCommand, stamp_ns: int, frame_id: str = "base_link") -> bytes:
+    """Our velocity command -> geometry_msgs/TwistStamped CDR (``header``, then ``twist``), what ROS 2 Jazzy's
+    diff_drive_controller takes on its ``cmd_vel`` and Nav2 sends with ``enable_stamped_cmd_vel``: stamped
+    ``stamp_ns`` in the robot's clock, ``frame_id`` its base frame, as Nav2's controller_server stamps its own."""
+    return encode(_types()[TWIST_STAMPED](header=header_msg(stamp_ns, frame_id), twist=_twist(cmd)), TWIST_STAMPED)
+
+
+def twist_stamped_from_cdr(raw: bytes) -> tuple[VelocityCommand, int, str]:
+    """geometry_msgs/TwistStamped CDR -> our velocity command, its stamp (integer ns) and frame_id."""
+    msg = decode(raw, TWIST_STAMPED)
+    return _command_of(msg.twist), header_stamp_ns(msg.header), str(msg.header.frame_id)
 
 
 def bool_to_cdr(value: bool) -> bytes:

@@ -1,14 +1,16 @@
 """A fake LIMO for development and tests: the MuJoCo LIMO speaking only ROS 2, as zenoh-bridge-ros2dds
 would expose a real one.
 
-    python -m robot_sim.fake_limo --listen tcp/127.0.0.1:7447 [--namespace limo1] [--scene SPEC] [--speed 4]
+    python -m robot_sim.fake_limo --listen tcp/127.0.0.1:7447 [--namespace limo1] [--scene SPEC] [--speed 4] [--cmd-vel-stamped]
     cso-runtime up --profile limo-ros2 --connect tcp/127.0.0.1:7447 [--namespace limo1]
 
 It opens its own Zenoh router on ``--listen`` (like the bridge on the robot, multicast scouting off),
 runs ``MujocoSimulator`` in real time (``--speed`` x), and publishes on the bare keys ``[NS/]odom``
 (nav_msgs/Odometry) and ``[NS/]scan`` (sensor_msgs/LaserScan, the front 180 degrees) the CDR bytes
 that the rosbags typestore serialises from its own message classes; it drives the robot with the
-geometry_msgs/Twist it receives on ``[NS/]cmd_vel`` (the simulator's watchdog stops it when they stop).
+geometry_msgs/Twist it receives on ``[NS/]cmd_vel`` (the simulator's watchdog stops it when they stop); with
+``--cmd-vel-stamped``, geometry_msgs/TwistStamped, as ROS 2 Jazzy's diff_drive_controller takes (the run then needs
+``--set services.ros2_bridge.cmd_vel_stamped=true``; the stamps are not checked).
 Nothing of our own message format is used. Each scan goes out with an odometry sample at its exact
 stamp (and odometry is also published at ``--odom-rate-hz``), so the scan/odometry matching is exact.
 """
@@ -83,8 +85,11 @@ def laserscan_cdr(stamp_s: float, scan: LaserScan) -> bytes:
 class FakeLimo:
     """The MuJoCo LIMO on one Zenoh session, in ROS 2 terms only."""
 
-    def __init__(self, session: Any, sim: MujocoSimulator, namespace: str = "", odom_rate_hz: float = 20.0) -> None:
+    def __init__(
+        self, session: Any, sim: MujocoSimulator, namespace: str = "", odom_rate_hz: float = 20.0, cmd_vel_stamped: bool = False
+    ) -> None:
         self.session, self.sim = session, sim
+        self.cmd_vel_type = ros2_cdr.TWIST_STAMPED if cmd_vel_stamped else ros2_cdr.TWIST
         self.prefix = f"{namespace.strip('/')}/" if namespace.strip("/") else ""
         self.odom_period_s = 1.0 / odom_rate_hz
         self.last_odom_s = -math.inf
@@ -98,13 +103,14 @@ class FakeLimo:
 
     def _on_twist(self, sample: Any) -> None:
         try:
-            msg = ros2_cdr.decode(sample.payload.to_bytes(), "geometry_msgs/msg/Twist")  # rosbags, wrapped
+            msg = ros2_cdr.decode(sample.payload.to_bytes(), self.cmd_vel_type)  # rosbags, wrapped
         except ros2_cdr.CdrError as exc:
             self.bad_commands += 1
-            log.warning("undecodable Twist (%d so far): %s", self.bad_commands, exc)
+            log.warning("undecodable %s (%d so far): %s", self.cmd_vel_type.rsplit("/", 1)[-1], self.bad_commands, exc)
             return
+        twist = msg.twist if self.cmd_vel_type == ros2_cdr.TWIST_STAMPED else msg
         with self._lock:
-            if self.sim.set_command(VelocityCommand(float(msg.linear.x), float(msg.angular.z))):
+            if self.sim.set_command(VelocityCommand(float(twist.linear.x), float(twist.angular.z))):
                 self.commands += 1
 
     def _put_odom(self, time_s: float, base_pose: Pose2D) -> None:
@@ -152,6 +158,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--speed", type=float, default=1.0, help="Real-time factor")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--odom-rate-hz", type=float, default=20.0, help="Odometry rate besides the samples at each scan")
+    p.add_argument(
+        "--cmd-vel-stamped", action="store_true",
+        help="Take geometry_msgs/TwistStamped on cmd_vel (ROS 2 Jazzy's diff_drive_controller), not Twist; the run needs "
+        "services.ros2_bridge.cmd_vel_stamped: true",
+    )  # fmt: skip
     p.add_argument("--log-level", type=str.upper, choices=("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"), default="INFO", metavar="LEVEL")
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
@@ -170,7 +181,7 @@ def main(argv: list[str] | None = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))
     with open_session(TransportConfig(mode="router", listen=list(args.listen))) as session:
-        robot = FakeLimo(session, sim, args.namespace, args.odom_rate_hz)
+        robot = FakeLimo(session, sim, args.namespace, args.odom_rate_hz, args.cmd_vel_stamped)
         log.info("fake LIMO on %s in %s at %.1fx: keys %sscan, %sodom, %scmd_vel", ", ".join(args.listen), plan.name, args.speed, *[robot.prefix] * 3)
         try:
             robot.run(stop, args.speed)

@@ -10,8 +10,9 @@ slash, no ``rt/`` prefix) with the CDR bytes of the DDS sample, and forwards wha
   publishes one step of our messages per matched scan: ``clock`` (with the mapping arena),
   ``odom`` and ``scan`` -- exactly what the sim service publishes, so mapper, frontier, policy and
   planner run unchanged. Stale, out-of-order, unmatched and undecodable scans are dropped and counted;
-* turns our ``cmd_vel`` into geometry_msgs/Twist CDR on ``NS/cmd_vel``, clamped to the robot's limits,
-  and sends a zero Twist when no command arrived for ``cmd_timeout_s`` (watchdog) and when it stops;
+* turns our ``cmd_vel`` into geometry_msgs/Twist CDR on ``NS/cmd_vel`` (TwistStamped with ``cmd_vel_stamped``),
+  clamped to the robot's limits, and sends a zero one when no command arrived for ``cmd_timeout_s`` (watchdog),
+  at the episode's end and when it stops;
 * publishes the map (nav_msgs/OccupancyGrid on ``NS/map``, its last one kept for a late transient-local
   subscriber), the goal (geometry_msgs/PoseStamped on
   ``NS/goal_pose``) and the frontiers (visualization_msgs/MarkerArray on ``NS/explore/frontiers``,
@@ -76,6 +77,11 @@ log = logging.getLogger("cso.ros2_bridge")
 STAMPS_HELD = 200
 """Steps whose scan time the bridge keeps, to stamp the maps, goals and frontiers computed from them."""
 
+LEGACY_PUB_CACHE_PREFIX = "@ros2_pub_cache"
+"""Where zenoh-bridge-ros2dds releases from before its advanced subscriber (zenoh-plugin-ros2dds PR #524, August 2025;
+1.0.x among them) ask for a transient-local topic's last sample: a query on ``@ros2_pub_cache/*/<key>`` that accepts
+replies on any key, which zenoh's PublicationCache answered from ``@ros2_pub_cache/<its id>/<key>``."""
+
 @dataclass
 class Ros2BridgeParams:
     """Parameters of the ROS 2 bridge service (``services.ros2_bridge`` in a profile)."""
@@ -87,7 +93,14 @@ class Ros2BridgeParams:
     odom_topic: str = "odom"
     """nav_msgs/Odometry in."""
     cmd_vel_topic: str = "cmd_vel"
-    """geometry_msgs/Twist out."""
+    """geometry_msgs/Twist out (TwistStamped with ``cmd_vel_stamped``)."""
+    cmd_vel_stamped: bool = False
+    """Send geometry_msgs/TwistStamped on ``cmd_vel_topic`` instead of Twist: what ROS 2 Jazzy's diff_drive_controller
+    takes (its ``~/cmd_vel``) and Nav2 sends with ``enable_stamped_cmd_vel`` (Kilted's default). Stamped with the
+    robot's clock when the command is sent (the newest scan's stamp plus the time since it came; 0, which
+    diff_drive_controller reads as its own now, before any scan and in the launcher's stop), in ``base_frame_id``."""
+    base_frame_id: str = "base_link"
+    """frame_id of the TwistStamped commands (``cmd_vel_stamped``): the robot's base frame, as Nav2 stamps its own."""
     map_topic: str = "map"
     """nav_msgs/OccupancyGrid out."""
     goal_topic: str = "goal_pose"
@@ -174,8 +187,10 @@ class Ros2BridgeParams:
         ):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
-        if not self.map_frame_id or self.map_frame_id.startswith("/") or any(c.isspace() for c in self.map_frame_id):
-            raise ConfigError(f"map_frame_id {self.map_frame_id!r} is not a tf2 frame id (not empty, no leading '/', no spaces)")
+        for name in ("map_frame_id", "base_frame_id"):
+            frame = getattr(self, name)
+            if not frame or frame.startswith("/") or any(c.isspace() for c in frame):
+                raise ConfigError(f"{name} {frame!r} is not a tf2 frame id (not empty, no leading '/', no spaces)")
         if not min(self.map_period_s, self.ended_why_wait_s) >= 0:
             raise ConfigError("map_period_s and ended_why_wait_s must be >= 0")
         if self.arena_origin_xy_m is not None and len(self.arena_origin_xy_m) != 2:
@@ -185,10 +200,18 @@ class Ros2BridgeParams:
         """The Zenoh key zenoh-bridge-ros2dds uses for a ROS topic of this robot."""
         return f"{self.namespace}/{topic}" if self.namespace else topic
 
-    def stop_command(self) -> tuple[str, bytes]:
-        """The robot's ``cmd_vel`` key and a zero geometry_msgs/Twist in CDR: what the bridge sends last when it
-        stops, and what the launcher sends for it when its process dies (``Launcher.stop_robot``)."""
-        return self.ros_key(self.cmd_vel_topic), ros2_cdr.twist_to_cdr(VelocityCommand())
+    def command_cdr(self, command: VelocityCommand, stamp_ns: int = 0) -> bytes:
+        """A velocity command as the robot's ``cmd_vel`` takes it: a Twist, or with ``cmd_vel_stamped`` a TwistStamped
+        stamped ``stamp_ns`` (the robot's clock; 0: unknown, the receiver's own now) in ``base_frame_id``."""
+        if self.cmd_vel_stamped:
+            return ros2_cdr.twist_stamped_to_cdr(command, stamp_ns, self.base_frame_id)
+        return ros2_cdr.twist_to_cdr(command)
+
+    def stop_command(self, stamp_ns: int = 0) -> tuple[str, bytes]:
+        """The robot's ``cmd_vel`` key and a zero command in CDR (``command_cdr``): what the bridge sends last when it
+        stops, and what the launcher sends for it when its process dies (``Launcher.stop_robot``; made before the robot
+        has sent any time, so stamped 0)."""
+        return self.ros_key(self.cmd_vel_topic), self.command_cdr(VelocityCommand(), stamp_ns)
 
 
 # --- time matching (pure) -------------------------------------------------------------------------
@@ -356,6 +379,9 @@ class Ros2BridgeService(Service):
         """A bridge started by hand: its claim on the robot it drives, held while it runs (``claim_robot``)."""
         self._latched: dict[str, Any] = {}
         """ROS topics whose last message a late transient-local subscriber gets (``declare_latched``): the map."""
+        self._latched_payloads: dict[str, bytes] = {}
+        """The last message sent on each of those topics, for the queries of older zenoh-bridge-ros2dds releases
+        (``answer_legacy_cache_query``)."""
 
     @classmethod
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
@@ -368,20 +394,21 @@ class Ros2BridgeService(Service):
     def shutdown(self) -> None:
         """Stop taking ROS samples, then stop the robot: one last zero Twist if we ever commanded it."""
         with self._bridge_lock:
+            stop_stamp_ns = self.robot_time_ns(time.monotonic())
             entities, self._ros_subs, self._queryables = [*self._ros_subs, *self._queryables], [], []
             if self._driver_token is not None:
                 entities.append(self._driver_token)
                 self._driver_token = None
             entities += [*self._claim_tokens, *self._latched.values()]
-            self._claim_tokens, self._latched = [], {}
+            self._claim_tokens, self._latched, self._latched_payloads = [], {}, {}
         for entity in entities:  # outside the lock: a callback in flight may be waiting for it
             entity.undeclare()
         if self.session is None or not self.sent_any_command:
             return
-        key, zero = self.params.stop_command()
+        key, zero = self.params.stop_command(stop_stamp_ns)
         try:
             self.session.put(key, zero)
-            log.info("stopping: sent a zero Twist on %s", key)
+            log.info("stopping: sent a zero %s on %s", self.command_type, key)
         except zenoh.ZError as exc:
             log.error("could not send the final zero Twist: %s", exc)
 
@@ -401,7 +428,9 @@ class Ros2BridgeService(Service):
                 # at once. Exit 2: the launcher does not restart it, and the robot is left to the run that drives it.
                 raise ConfigError(f"robot {other}'s run already drives {cmd_key} on this network ({reply.ok.key_expr} is alive): stop it, or give another --namespace")
         self._driver_token = self.session.liveliness().declare_token(robot_driver_token(cmd_key, self.ctx.robot))
-        self._latched = {p.map_topic: self.declare_latched(p.ros_key(p.map_topic))}
+        map_key = p.ros_key(p.map_topic)
+        self._latched = {p.map_topic: self.declare_latched(map_key)}
+        map_cache_key = f"{LEGACY_PUB_CACHE_PREFIX}/{self.session.zid()}/{map_key}"
         self._ros_subs = [
             self.session.declare_subscriber(p.ros_key(p.scan_topic), self._on_ros_scan),
             self.session.declare_subscriber(p.ros_key(p.odom_topic), self._on_ros_odom),
@@ -412,6 +441,7 @@ class Ros2BridgeService(Service):
                 keys.episode_status, lambda q: q.reply(keys.episode_status, encode(self.episode_status()))
             ),
             self.session.declare_queryable(keys.episode_result, self._on_result_query),
+            self.session.declare_queryable(map_cache_key, lambda q: self.answer_legacy_cache_query(q, p.map_topic, map_cache_key)),
         ]
         log.info(
             "bridging ROS keys %s, %s -> %s; %s -> %s",
@@ -465,8 +495,22 @@ class Ros2BridgeService(Service):
             self.session, key, cache=zenoh.ext.CacheConfig(max_samples=1), sample_miss_detection=numbered, publisher_detection=True
         )
 
+    def answer_legacy_cache_query(self, query: zenoh.Query, topic: str, cache_key: str) -> None:
+        """The last message sent on a latched topic, for the transient-local subscriber of a zenoh-bridge-ros2dds
+        release that asks ``@ros2_pub_cache/*/<key>`` (``LEGACY_PUB_CACHE_PREFIX``) rather than the advanced publisher's
+        cache: on the topic's own key, as zenoh's PublicationCache replied (or on the queryable's, ``cache_key``, for a
+        query that takes matching replies only); nothing before the first one."""
+        with self._bridge_lock:
+            payload = self._latched_payloads.get(topic)
+        if payload is None:
+            return
+        any_key = query.accepts_replies() == zenoh.ReplyKeyExpr.ANY
+        query.reply(self.params.ros_key(topic) if any_key else cache_key, payload)
+
     def _put_ros(self, topic: str, payload: bytes) -> None:
         publisher = self._latched.get(topic)
+        if publisher is not None:
+            self._latched_payloads[topic] = payload
         (publisher if publisher is not None else self.declare_publisher(self.params.ros_key(topic))).put(payload)
         self.counters[f"sent:{topic}"] += 1
 
@@ -577,6 +621,9 @@ class Ros2BridgeService(Service):
         self.arena: GridGeometry | None = None
         self.last_scan_stamp_s = -math.inf
         self.last_scan_stamp_ns: int | None = None
+        self.robot_clock: tuple[int, float] | None = None
+        """The newest scan's stamp (ns, the robot's clock) and when it came (``time.monotonic()``): the robot's time now
+        for stamped commands (``robot_time_ns``)."""
         self.pending = None
         self.stamps_ns: dict[int, int] = {}
         """Each of the last ``STAMPS_HELD`` steps' scan stamp, exactly as the robot sent it."""
@@ -631,6 +678,7 @@ class Ros2BridgeService(Service):
             if stamp <= newest:
                 self.count_reject("ros_scan:out_of_order", f"scan at {stamp:.3f} s is not newer than {newest:.3f} s")
                 return
+            self.robot_clock = (conv.stamp_ns, self.last_scan_wall_s)
             match, reason = self.odometry.match(stamp)
             if reason in ("waiting", "no_odometry"):
                 if self.pending is not None:
@@ -783,10 +831,31 @@ class Ros2BridgeService(Service):
                 self.terminated_by,
             )
             safe = VelocityCommand()
-        self._put_ros(self.params.cmd_vel_topic, ros2_cdr.twist_to_cdr(safe))
+        self.send_command(safe, received_s)
         self.last_cmd_s = received_s
         self.zero_sent = safe == VelocityCommand()
         self.sent_any_command = True
+
+    @property
+    def command_type(self) -> str:
+        """What the robot's ``cmd_vel`` carries, for the log: Twist or TwistStamped (``cmd_vel_stamped``)."""
+        return "TwistStamped" if self.params.cmd_vel_stamped else "Twist"
+
+    def robot_time_ns(self, now_s: float) -> int:
+        """The robot's clock at ``now_s`` (``time.monotonic()``) as the bridge knows it: the newest scan's stamp plus the
+        time since that scan came, so behind the robot's clock by the scan's delivery delay, never ahead of it. 0 before
+        any scan of this episode: an unknown time, which diff_drive_controller reads as its own now."""
+        if self.robot_clock is None:
+            return 0
+        stamp_ns, came_s = self.robot_clock
+        return stamp_ns + max(0, round((now_s - came_s) * ros2_cdr.NS_PER_S))
+
+    def send_command(self, command: VelocityCommand, now_s: float) -> None:
+        """A velocity command on the robot's ``cmd_vel``: a Twist, or a TwistStamped (``cmd_vel_stamped``) stamped with
+        the robot's time at ``now_s``, as Nav2's controller_server stamps its commands when it sends them: a driver
+        that drops commands older than its timeout (diff_drive_controller's ``cmd_vel_timeout``) measures the
+        bridge's delay, not the planner's."""
+        self._put_ros(self.params.cmd_vel_topic, self.params.command_cdr(command, self.robot_time_ns(now_s)))
 
     def take_goal(self, g: GoalMsg) -> None:
         if self.episode_state in EPISODE_OVER:
@@ -821,10 +890,10 @@ class Ros2BridgeService(Service):
         with self._bridge_lock:
             self.end_if_why_heard(now_s)
             if self.last_cmd_s is not None and not self.zero_sent and now_s - self.last_cmd_s > self.params.cmd_timeout_s:
-                self._put_ros(self.params.cmd_vel_topic, ros2_cdr.twist_to_cdr(VelocityCommand()))
+                self.send_command(VelocityCommand(), now_s)
                 self.zero_sent = True
                 self.counters["watchdog_stops"] += 1
-                log.warning("no velocity command for %.2f s: sent a zero Twist (watchdog)", now_s - self.last_cmd_s)
+                log.warning("no velocity command for %.2f s: sent a zero %s (watchdog)", now_s - self.last_cmd_s, self.command_type)
             if self.held_map is not None and self.last_ros_map_s is not None and now_s - self.last_ros_map_s >= self.params.map_period_s:
                 if self.held_map.episode in (0, self.episode):  # not one of an episode that has ended since
                     self._send_map(self.held_map, now_s)
@@ -933,7 +1002,7 @@ class Ros2BridgeService(Service):
             self.path_length_m,
         )
         if self.sent_any_command and not self.zero_sent:  # held still from the end on, not only once the watchdog fires
-            self._put_ros(self.params.cmd_vel_topic, ros2_cdr.twist_to_cdr(VelocityCommand()))
+            self.send_command(VelocityCommand(), time.monotonic())
             self.zero_sent = True
         self.publish("episode_status", self.episode_status())
         self.final_result = self.episode_result()

@@ -156,8 +156,31 @@ def test_hardware_md_names_every_bridge_parameter_with_its_default():
     assert [name for name in fields if f"`{name}`" not in doc] == []
     quoted = re.findall(r"`(" + "|".join(fields) + r")` \(`?([\w./-]+)`?[,:;)]", doc)
     assert len(quoted) >= 20, quoted
-    is_default = lambda name, text: str(fields[name]) == text or (re.fullmatch(r"[\d.]+", text) and float(text) == fields[name])  # noqa: E731
+    is_default = lambda name, text: str(fields[name]) in (text, text.capitalize()) or (re.fullmatch(r"[\d.]+", text) and float(text) == fields[name])  # noqa: E731
     assert [(name, text) for name, text in quoted if not is_default(name, text)] == []
+
+
+@pytest.mark.parametrize("stamped", [False, True])
+def test_fake_limo_drives_on_the_command_type_it_is_told(stamped: bool):
+    """``--cmd-vel-stamped``: the fake LIMO takes TwistStamped on ``cmd_vel``, as ROS 2 Jazzy's diff_drive_controller, so
+    that a run with ``cmd_vel_stamped`` can be tried without a robot; the other type is undecodable, counted, not driven
+    (before, it took Twist only: a run with ``cmd_vel_stamped`` never drove it)."""
+    from types import SimpleNamespace
+
+    from robot_sim.fake_limo import FakeLimo
+
+    session = SimpleNamespace(declare_publisher=lambda key: None, declare_subscriber=lambda key, callback: None)
+    driven: list[VelocityCommand] = []
+    sim = SimpleNamespace(set_command=lambda cmd: driven.append(cmd) or True)
+    robot = FakeLimo(session, sim, cmd_vel_stamped=stamped)  # type: ignore[arg-type]
+    sample = lambda raw: SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: raw))  # noqa: E731
+    right, wrong = ros2_cdr.twist_to_cdr(VelocityCommand(0.3, -0.2)), ros2_cdr.twist_stamped_to_cdr(VelocityCommand(0.1, 0.1), 5, "base_link")
+    if stamped:
+        right, wrong = wrong, right
+    robot._on_twist(sample(right))
+    robot._on_twist(sample(wrong))
+    assert driven == [VelocityCommand(0.1, 0.1) if stamped else VelocityCommand(0.3, -0.2)]
+    assert (robot.commands, robot.bad_commands) == (1, 1)
 
 
 def test_fake_limo_refuses_a_namespace_that_is_no_ros_name(capsys):
@@ -319,6 +342,75 @@ def test_after_the_episode_ended_the_robot_is_held_still():
         step(100.0 + 0.1 * i, 0.0)
     svc.on_message("r0", "cmd_vel", CmdVelMsg(1, VelocityCommand(0.2, 0.0)), 50.3)
     assert twists()[-1] == VelocityCommand(0.2, 0.0)
+
+
+def test_cmd_vel_stamped_sends_twist_stamped_in_the_robots_clock_every_command_and_every_stop():
+    """ROS 2 Jazzy's diff_drive_controller takes only geometry_msgs/TwistStamped on its ``cmd_vel``, and Nav2 Kilted
+    sends TwistStamped by default: the bridge sent Twist only, which such a robot never hears. With ``cmd_vel_stamped``
+    every command is a TwistStamped in ``base_frame_id``, stamped in the robot's clock when it is sent (the newest scan's
+    stamp plus the time since it came, as Nav2 stamps its own when it sends them): the commands, the watchdog's zero,
+    the zero at the episode's end and after it. Before any scan the stamp is 0 (diff_drive_controller's own now).
+    Without the parameter the bytes are the Twist they were."""
+    plain, _, plain_step = _bridge_without_zenoh()
+    plain_sent: list[tuple[str, bytes]] = []
+    plain._put_ros = lambda topic, payload: plain_sent.append((topic, payload))  # type: ignore[method-assign]
+    plain_step(1000.0, 0.0)
+    plain.on_message("r0", "cmd_vel", CmdVelMsg(0, VelocityCommand(0.3, 0.2)), 50.0)
+    assert plain_sent == [("cmd_vel", ros2_cdr.twist_to_cdr(VelocityCommand(0.3, 0.2)))]
+
+    svc, _, step = _bridge_without_zenoh({"cmd_vel_stamped": True, "base_frame_id": "limo1/base_link"})
+    sent: list[tuple[str, bytes]] = []
+    svc._put_ros = lambda topic, payload: sent.append((topic, payload))  # type: ignore[method-assign]
+
+    def commands() -> list[tuple[VelocityCommand, int]]:
+        """What went to cmd_vel, decoded by rosbags: (linear.x, angular.z) and the stamp (ns); the frame checked."""
+        out = []
+        for topic, raw in sent:
+            assert topic == "cmd_vel"
+            msg = rosbags_decode(raw, "geometry_msgs/msg/TwistStamped")
+            assert msg.header.frame_id == "limo1/base_link"
+            assert (msg.twist.linear.y, msg.twist.linear.z, msg.twist.angular.x, msg.twist.angular.y) == (0.0,) * 4
+            out.append((VelocityCommand(msg.twist.linear.x, msg.twist.angular.z), ros2_cdr.header_stamp_ns(msg.header)))
+        return out
+
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(0, VelocityCommand(0.1, 0.0)), 10.0)  # no scan yet: the robot's time unknown
+    assert commands() == [(VelocityCommand(0.1, 0.0), 0)]
+    step(1000.0, 0.0)
+    scan_ns = 1000 * 1_000_000_000
+    came_s = svc.robot_clock[1]
+    assert svc.robot_clock == (scan_ns, came_s)
+    sent.clear()
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(0, VelocityCommand(0.3, 0.2)), came_s + 0.25)
+    assert commands() == [(VelocityCommand(0.3, 0.2), scan_ns + 250_000_000)]
+    svc.on_tick(came_s + 0.25 + svc.params.cmd_timeout_s + 0.1)  # no command for cmd_timeout_s: the watchdog's zero
+    assert commands()[1:] == [(VelocityCommand(), scan_ns + 850_000_000)] and svc.counters["watchdog_stops"] == 1
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(0, VelocityCommand(0.2, 0.0)), came_s + 1.0)
+    svc.take_goal(GoalMsg(1, True, None, None, method="greedy-dist", episode=svc.episode))  # no frontier left: the end
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(1, VelocityCommand(0.4, -0.1)), came_s + 1.5)
+    (_, go_ns), (end, end_ns), (after, after_ns) = commands()[2:]
+    assert go_ns == scan_ns + 1_000_000_000
+    assert end == after == VelocityCommand() and svc.counters["commands_after_episode"] == 1
+    assert end_ns >= scan_ns and after_ns == scan_ns + 1_500_000_000  # the end's zero: stamped when it went out
+    key, zero = svc.params.stop_command(svc.robot_time_ns(came_s + 2.0))  # what shutdown sends last
+    assert key == "cmd_vel" and ros2_cdr.twist_stamped_from_cdr(zero) == (VelocityCommand(), scan_ns + 2_000_000_000, "limo1/base_link")
+
+
+def test_the_launchers_stop_for_a_dead_bridge_is_the_bridges_command_type():
+    """The launcher sends the zero command for a bridge that died (``robot_stop_commands``), made before the robot sent
+    any time: a Twist by default, and with ``cmd_vel_stamped`` a TwistStamped stamped 0, which diff_drive_controller
+    takes as its own now (a Twist would never reach a Jazzy diff_drive_controller, and the robot would drive on)."""
+    from cso_runtime.launcher import robot_stop_commands
+    from cso_runtime.run_profile import load_profile
+
+    def stop_of(settings: dict) -> tuple[str, bytes]:
+        profile, _ = load_profile("limo-ros2", connect=["tcp/127.0.0.1:1"], namespace="limo1", settings=settings)
+        return robot_stop_commands(profile)["ros2_bridge"]
+
+    assert stop_of({}) == ("limo1/cmd_vel", ros2_cdr.twist_to_cdr(VelocityCommand()))
+    key, raw = stop_of({"services.ros2_bridge.cmd_vel_stamped": True})
+    msg = rosbags_decode(raw, "geometry_msgs/msg/TwistStamped")
+    assert key == "limo1/cmd_vel" and (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id) == (0, 0, "base_link")
+    assert (msg.twist.linear.x, msg.twist.angular.z) == (0.0, 0.0)
 
 
 def test_after_the_episode_ended_a_decision_is_not_shown_and_its_asker_hears_the_end():
@@ -770,7 +862,10 @@ def test_the_map_reaches_a_ros_subscriber_that_comes_after_the_episode(monkeypat
     subscriber zenoh-bridge-ros2dds declares a Zenoh subscriber that asks the publishers on the key for their last
     sample (zenoh-ext's advanced subscriber with late-publisher detection). The bridge put its maps plainly: an RViz or
     a Nav2 started once exploration had ended (its map sent, no newer one to come) got no map at all. The bridge now
-    keeps the last OccupancyGrid for such subscribers, as a latched ``/map``; goal and frontiers stay volatile."""
+    keeps the last OccupancyGrid for such subscribers, as a latched ``/map``; goal and frontiers stay volatile.
+    zenoh-bridge-ros2dds releases from before its advanced subscriber (1.0.x among them) ask instead with a query on
+    ``@ros2_pub_cache/*/<key>`` that takes replies on any key, which nothing answered: they get the last map too."""
+    import zenoh
     import zenoh.ext
 
     from services.common import ServiceContext, run_service
@@ -804,6 +899,19 @@ def test_the_map_reaches_a_ros_subscriber_that_comes_after_the_episode(monkeypat
             og = rosbags_decode(late[-1], "nav_msgs/msg/OccupancyGrid")
             np.testing.assert_array_equal(np.asarray(og.data).reshape(geom.shape), grids[1])
             assert len(late) == 1, "the last map only"
+            # An older zenoh-bridge-ros2dds's transient-local route asks as its QueryingSubscriber did.
+            legacy = [
+                r.ok
+                for r in session.get(
+                    "@ros2_pub_cache/*/limo1/map", target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
+                    accept_replies=zenoh.ReplyKeyExpr.ANY, timeout=5.0,
+                )
+                if r.ok is not None
+            ]  # fmt: skip
+            assert [str(r.key_expr) for r in legacy] == ["limo1/map"] and legacy[0].payload.to_bytes() == late[-1]
+            matching = [r.ok for r in session.get("@ros2_pub_cache/**", timeout=5.0) if r.ok is not None]
+            assert [str(r.key_expr).split("/")[-2:] for r in matching] == [["limo1", "map"]] and str(matching[0].key_expr).startswith("@ros2_pub_cache/")
+            assert matching[0].payload.to_bytes() == late[-1]
             # An ordinary (volatile) subscriber still gets every new map.
             volatile: list[bytes] = []
             volatile_sub = session.declare_subscriber("limo1/map", lambda sample: volatile.append(sample.payload.to_bytes()))
@@ -941,16 +1049,33 @@ def test_of_bridges_started_by_hand_at_once_on_one_robot_exactly_one_drives_it(t
                 p.wait(5)
 
 
-def test_bridge_process_takes_namespace_and_stops_the_robot_on_sigint(tmp_path: Path):
+@pytest.mark.parametrize("stamped", [False, True])
+def test_bridge_process_takes_namespace_and_stops_the_robot_on_sigint(tmp_path: Path, stamped: bool):
     """``python -m services.ros2_bridge --namespace NS``: the ROS keys follow NS, and SIGINT sends a
-    last zero Twist (the watchdog is set far away so the zero can only come from the shutdown)."""
+    last zero Twist (the watchdog is set far away so the zero can only come from the shutdown). With
+    ``cmd_vel_stamped`` each is a TwistStamped in ``base_frame_id``, stamped in the robot's clock: from the robot's
+    scan on, at or after its stamp."""
     profile = yaml.safe_load((PROFILES / "limo-ros2.yaml").read_text())
     profile["services"]["ros2_bridge"]["cmd_timeout_s"] = 60.0
+    if stamped:
+        profile["services"]["ros2_bridge"].update(cmd_vel_stamped=True, base_frame_id="limo7/base_link")
     cfg = tmp_path / "limo.yaml"
     cfg.write_text(yaml.safe_dump(profile))
     port = free_tcp_port()
     keys = RobotKeys("t2")
     twists: list[bytes] = []
+    scan_s = 1_796_546_483.5
+    scan_ns = 1_796_546_483_500_000_000
+
+    def command(raw: bytes) -> tuple[float, float, int]:
+        """(linear.x, angular.z, stamp in ns: 0 for a Twist) of what went to the robot, decoded by rosbags."""
+        if not stamped:
+            msg = rosbags_decode(raw, "geometry_msgs/msg/Twist")
+            return msg.linear.x, msg.angular.z, 0
+        msg = rosbags_decode(raw, "geometry_msgs/msg/TwistStamped")
+        assert msg.header.frame_id == "limo7/base_link"
+        return msg.twist.linear.x, msg.twist.angular.z, ros2_cdr.header_stamp_ns(msg.header)
+
     with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
         sub = session.declare_subscriber("limo7/cmd_vel", lambda s: twists.append(s.payload.to_bytes()))
         proc = subprocess.Popen(
@@ -978,20 +1103,23 @@ def test_bridge_process_takes_namespace_and_stops_the_robot_on_sigint(tmp_path: 
                 20,
                 "the bridge process",
             )
+            scan = ros_scan(scan_s, np.full(181, 2.0, np.float32))
             wait_for(
-                lambda: session.put(keys.cmd_vel, encode(CmdVelMsg(0, VelocityCommand(0.3, 0.1)))) or twists,
+                lambda: session.put("limo7/scan", scan) or session.put(keys.cmd_vel, encode(CmdVelMsg(0, VelocityCommand(0.3, 0.1)))) or twists,
                 10,
                 "a Twist on limo7/cmd_vel",
             )
-            first = rosbags_decode(twists[0], "geometry_msgs/msg/Twist")
-            assert (first.linear.x, first.angular.z) == (pytest.approx(0.3), pytest.approx(0.1))
-            assert not any(rosbags_decode(t, "geometry_msgs/msg/Twist").linear.x == 0.0 for t in twists)
+            first = command(twists[0])
+            assert first[:2] == (pytest.approx(0.3), pytest.approx(0.1))
+            assert not any(command(t)[0] == 0.0 for t in twists)
             os.killpg(proc.pid, signal.SIGINT)
             assert proc.wait(15) == 0
-            last = wait_for(lambda: twists and rosbags_decode(twists[-1], "geometry_msgs/msg/Twist"), 5, "a Twist")
-            wait_for(lambda: rosbags_decode(twists[-1], "geometry_msgs/msg/Twist").linear.x == 0.0, 5, "the final zero Twist")
-            last = rosbags_decode(twists[-1], "geometry_msgs/msg/Twist")
-            assert (last.linear.x, last.angular.z) == (0.0, 0.0)
+            wait_for(lambda: twists and command(twists[-1])[0] == 0.0, 5, "the final zero Twist")
+            last = command(twists[-1])
+            assert last[:2] == (0.0, 0.0)
+            if stamped:  # a command before the scan came is stamped 0 (the robot's own now); the scan then sets the time
+                stamps = [command(t)[2] for t in twists]
+                assert stamps == sorted(stamps) and scan_ns <= last[2] < scan_ns + 60 * 1_000_000_000, stamps
         finally:
             if proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)

@@ -233,3 +233,23 @@ def test_path_poses_face_along_the_path_even_across_a_repeated_point():
     assert msg.header.frame_id == "map" and all(p.header.frame_id == "map" for p in msg.poses)
     still = cdr.decode(cdr.path_to_cdr(np.array([[2.0, 3.0], [2.0, 3.0]]), 1_000_000_000), cdr.PATH)
     assert [p.pose.orientation.w for p in still.poses] == [1.0, 1.0]  # no direction at all: the identity
+
+
+@pytest.mark.parametrize("distro", ["ROS2_JAZZY", "ROS2_KILTED"])
+def test_twist_stamped_is_the_header_then_the_twist_that_jazzy_and_kilted_read(distro: str):
+    """ROS 2 Jazzy's diff_drive_controller takes only geometry_msgs/TwistStamped on its ``cmd_vel`` (Nav2 Kilted sends
+    it by default): ``std_msgs/Header header`` then ``Twist twist``. Our Humble typestore's bytes are those a Jazzy or
+    Kilted node reads (decoded with that distribution's rosbags typestore), to the nanosecond, frame included."""
+    from rosbags.typesys import Stores, get_typestore
+
+    stamp_ns = 1_796_546_483_123_456_789
+    raw = cdr.twist_stamped_to_cdr(VelocityCommand(0.3, -0.2), stamp_ns, "limo1/base_link")
+    store = get_typestore(getattr(Stores, distro))
+    msg = store.deserialize_cdr(raw, "geometry_msgs/msg/TwistStamped")
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id) == (1_796_546_483, 123_456_789, "limo1/base_link")
+    assert (msg.twist.linear.x, msg.twist.linear.y, msg.twist.linear.z) == (0.3, 0.0, 0.0)
+    assert (msg.twist.angular.x, msg.twist.angular.y, msg.twist.angular.z) == (0.0, 0.0, -0.2)
+    assert bytes(store.serialize_cdr(msg, "geometry_msgs/msg/TwistStamped")) == raw
+    assert cdr.twist_stamped_from_cdr(raw) == (VelocityCommand(0.3, -0.2), stamp_ns, "limo1/base_link")
+    with pytest.raises(cdr.CdrError):
+        cdr.twist_stamped_from_cdr(cdr.twist_to_cdr(VelocityCommand(0.3, -0.2)))  # a bare Twist is not one
