@@ -192,12 +192,16 @@ class MujocoSimulator:
     def set_command(self, command: VelocityCommand, stamp_s: float | None = None) -> bool:
         """Set the velocity target (clamped to the limits), stamped in simulated time (default: now).
 
-        Non-finite commands are rejected (logged and counted in ``rejected_commands``); returns whether
+        Non-finite commands or stamps are rejected (logged and counted in ``rejected_commands``); returns whether
         the command was accepted. The watchdog stops the robot ``watchdog_s`` after the newest stamp.
         """
         if not (math.isfinite(command.linear_mps) and math.isfinite(command.angular_radps)):
             self.rejected_commands += 1
             log.warning("rejected non-finite velocity command %s", command)
+            return False
+        if stamp_s is not None and not math.isfinite(stamp_s):  # the watchdog's deadline would be NaN or inf
+            self.rejected_commands += 1
+            log.warning("rejected velocity command %s with non-finite stamp %s", command, stamp_s)
             return False
         with self._lock:
             stamp = self.time_s if stamp_s is None else float(stamp_s)

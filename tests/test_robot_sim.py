@@ -412,3 +412,14 @@ def test_odometry_drift_and_sensor_pose() -> None:
     err = math.hypot(truth.x_m - odom.x_m, truth.y_m - odom.y_m)
     assert 1e-4 < err < 0.3  # drift is there, and of the configured order (5 % of ~4.6 m at most)
     assert sim.sensor_pose() == odom.compose_offset(0.103)
+
+
+@pytest.mark.parametrize("stamp_s", [float("nan"), float("inf"), -float("inf")])
+def test_a_command_with_a_non_finite_stamp_is_rejected(stamp_s: float) -> None:
+    """A NaN or infinite stamp was accepted, and every later ``advance`` died computing the watchdog's deadline
+    (ValueError: cannot convert float NaN to integer; OverflowError for inf): the command is refused instead."""
+    sim = MujocoSimulator(box_room(), seed=0)
+    sim.set_command(VelocityCommand(0.5, 0.0))
+    assert not sim.set_command(VelocityCommand(0.2, 0.0), stamp_s=stamp_s) and sim.rejected_commands == 1
+    assert sim.advance(0.4) == 80  # within the watchdog: the last good command still drives it
+    assert sim.body_velocity()[0] == pytest.approx(0.5, abs=0.01)
