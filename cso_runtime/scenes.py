@@ -77,17 +77,28 @@ class FloorPlan:
     def occupied(self) -> np.ndarray:
         return ~self.free
 
+    def start_cell(self) -> tuple[int, int]:
+        """The grid cell (iy, ix) of the start pose; a SceneError when the start is no finite pose on a free cell of
+        the grid (off the plan, in a wall: a plan with no floor has no such start)."""
+        s = self.start
+        if not (math.isfinite(s.x_m) and math.isfinite(s.y_m) and math.isfinite(s.yaw_rad)):
+            raise SceneError(f"{self.name}: the start pose {s} is not finite")
+        iy, ix = (int(v) for v in self.geometry.world_to_cell(s.x_m, s.y_m))
+        height, width = self.free.shape
+        if not (0 <= iy < height and 0 <= ix < width):
+            size = f"{width * self.resolution_m:g} x {height * self.resolution_m:g} m"
+            raise SceneError(f"{self.name}: the start ({s.x_m:g}, {s.y_m:g}) m is off the plan ({size}, from (0, 0))")
+        if not self.free[iy, ix]:
+            raise SceneError(f"{self.name}: start pose is not on free space")
+        return iy, ix
+
     def traversable_region(self) -> np.ndarray:
         """Free cells connected to the start: what a perfect explorer could see and count. A start walled
         into less than ``MIN_TRAVERSABLE_M2`` is no scene to explore (it would score 100 % in no step)."""
         from scipy import ndimage  # noqa: PLC0415  (0.3 s of imports: the CLI's run commands read this module)
 
         labels, _ = ndimage.label(self.free)
-        iy, ix = self.geometry.world_to_cell(self.start.x_m, self.start.y_m)
-        lab = labels[int(iy), int(ix)]
-        if lab == 0:
-            raise SceneError(f"{self.name}: start pose is not on free space")
-        region = labels == lab
+        region = labels == labels[self.start_cell()]
         area_m2 = float(np.count_nonzero(region)) * self.resolution_m**2
         if area_m2 < MIN_TRAVERSABLE_M2:
             raise SceneError(f"{self.name}: only {area_m2:.2f} m2 of floor is reachable from the start (walled in?); a scene needs at least {MIN_TRAVERSABLE_M2:g} m2")

@@ -50,7 +50,8 @@ class MujocoSimulator:
     """Physics simulation of the LIMO in a floor plan; implements ``cso_runtime.simulator.Simulator``.
 
     Ground truth (``true_pose``) is for evaluation only; the robot's decisions use ``odometry`` and
-    ``sensor_pose`` (odometry composed with the LiDAR mount).
+    ``sensor_pose`` (odometry composed with the LiDAR mount). The plan's start must be a finite pose on a free cell
+    (``FloorPlan.start_cell``, a SceneError otherwise); a body that still overlaps a wall there is warned of.
     """
 
     def __init__(
@@ -61,6 +62,7 @@ class MujocoSimulator:
         seed: int | None = None,
         config: MujocoSimConfig | None = None,
     ) -> None:
+        plan.start_cell()  # a SceneError for a start off the plan, in a wall, or not finite (MuJoCo would eject the body)
         self.plan = plan
         self.sensor = sensor or SensorConfig()
         self.robot = robot or RobotConfig()

@@ -17,7 +17,7 @@ from cso_runtime.geometry import Pose2D, VelocityCommand, wrap_angle_rad
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import LocalPlanner, PlannerStatus
 from cso_runtime.policies import make_policy
-from cso_runtime.scenes import FloorPlan
+from cso_runtime.scenes import FloorPlan, SceneError
 from cso_runtime.simulator import Simulator
 from robot_sim import MujocoSimConfig, MujocoSimulator, RealTimePacer, merge_rectangles, wall_boxes
 from robot_sim.config import whole_steps
@@ -423,3 +423,26 @@ def test_a_command_with_a_non_finite_stamp_is_rejected(stamp_s: float) -> None:
     assert not sim.set_command(VelocityCommand(0.2, 0.0), stamp_s=stamp_s) and sim.rejected_commands == 1
     assert sim.advance(0.4) == 80  # within the watchdog: the last good command still drives it
     assert sim.body_velocity()[0] == pytest.approx(0.5, abs=0.01)
+
+
+@pytest.mark.parametrize(
+    ("start", "match"),
+    [
+        (Pose2D(0.02, 2.0, 0.0), "not on free space"),  # inside the boundary wall
+        (Pose2D(-3.0, 2.0, 0.0), r"off the plan \(4 x 4 m"),  # wrapped round to a free cell (negative index)
+        (Pose2D(9.0, 2.0, 0.0), "off the plan"),
+        (Pose2D(math.nan, 2.0, 0.0), "not finite"),
+        (Pose2D(2.0, 2.0, math.inf), "not finite"),
+    ],
+)
+def test_a_start_the_limo_cannot_stand_on_is_refused(start: Pose2D, match: str) -> None:
+    """A start in a wall was only warned of, and the contact shot the LIMO 1.45 m out of it in the first step; one off
+    the plan drove outside every wall; a NaN start went into the MJCF as "nan" and MuJoCo reset the unstable state to
+    the map origin. Each is a SceneError before the world is built, as ``traversable_region`` says of the plan."""
+    plan = box_room(start=start)
+    with pytest.raises(SceneError, match=match):
+        MujocoSimulator(plan, seed=0)
+    with pytest.raises(SceneError, match=match):
+        plan.traversable_region()
+    with pytest.raises(SceneError, match="not on free space"):
+        MujocoSimulator(FloorPlan("solid", np.zeros((40, 40), dtype=bool), RES, Pose2D(1.0, 1.0, 0.0)), seed=0)
