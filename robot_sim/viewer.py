@@ -50,6 +50,10 @@ def display_problem() -> str | None:
     return None
 
 
+class ViewerUnavailable(RuntimeError):
+    """No viewer window can open in this process; the message is ``display_problem``'s reason."""
+
+
 def launch_passive(model: mujoco.MjModel, data: mujoco.MjData) -> Any:
     """MuJoCo's passive viewer, imported when first asked for (it loads the GUI libraries)."""
     from mujoco import viewer  # noqa: PLC0415
@@ -61,6 +65,10 @@ class SimViewer:
     """A passive MuJoCo viewer on a ``MujocoSimulator``'s model and data."""
 
     def __init__(self, sim: MujocoSimulator, launch: Callable[[mujoco.MjModel, mujoco.MjData], Any] | None = None) -> None:
+        """A window on ``sim`` (``launch``: a stand-in for ``launch_passive``); ViewerUnavailable, with the reason, where
+        MuJoCo's window cannot open (without the check, GLFW's failure ends the whole process)."""
+        if launch is None and (problem := display_problem()) is not None:
+            raise ViewerUnavailable(problem)
         self.sim = sim
         # The world as a file (qpos0 at the start, where the window's Reset goes), the same sizes as the stepped model.
         self._model = mujoco.MjModel.from_xml_string(sim.mjcf)

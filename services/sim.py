@@ -134,12 +134,12 @@ def build_simulator(profile: dict[str, Any], params: SimParams, ctx: ServiceCont
 
 def open_viewer(sim: Simulator) -> SimViewer:
     """The window of ``viewer: true``; a ConfigError (the service exits 2 and is not restarted) where none can open."""
-    from robot_sim.viewer import SimViewer, display_problem  # noqa: PLC0415  (GUI code only when asked for)
+    from robot_sim.viewer import SimViewer, ViewerUnavailable  # noqa: PLC0415  (GUI code only when asked for)
 
-    problem = display_problem()
-    if problem is not None:
-        raise ConfigError(f"services.sim.viewer: {problem}")
-    return SimViewer(sim)  # type: ignore[arg-type]  # validate() allows it only with backend mujoco
+    try:
+        return SimViewer(sim)  # type: ignore[arg-type]  # validate() allows it only with backend mujoco
+    except ViewerUnavailable as exc:
+        raise ConfigError(f"services.sim.viewer: {exc}") from None
 
 
 class SimService(Service):

@@ -377,3 +377,16 @@ def test_up_refuses_a_viewer_without_a_display_before_anything_starts(monkeypatc
     monkeypatch.setattr(viewer_module, "display_problem", lambda: None)
     profile, _ = load_profile("sim", {}, settings={"services.sim.viewer": True})
     assert profile.services["sim"]["viewer"] is True
+
+
+def test_a_viewer_made_from_python_without_a_display_says_why(monkeypatch):
+    """``SimViewer(sim)`` from a script went straight to ``launch_passive``: without a display GLFW printed "could not
+    initialize GLFW" and the whole process exited with code 1, episode and all. It now raises with the reason."""
+    launched = []
+    monkeypatch.setattr(viewer_module, "display_problem", lambda: "no display to open a window on")
+    monkeypatch.setattr(viewer_module, "launch_passive", lambda model, data: launched.append(model) or FakeHandle(model, data))
+    sim = MujocoSimulator(generate_floor_plan("small", 0), seed=0)
+    with pytest.raises(RuntimeError, match="no display to open a window on"):
+        SimViewer(sim)
+    assert not launched
+    assert SimViewer(sim, launch=FakeHandle).frames == 0  # a launcher of one's own is not checked
