@@ -446,3 +446,27 @@ def test_a_start_the_limo_cannot_stand_on_is_refused(start: Pose2D, match: str) 
         plan.traversable_region()
     with pytest.raises(SceneError, match="not on free space"):
         MujocoSimulator(FloorPlan("solid", np.zeros((40, 40), dtype=bool), RES, Pose2D(1.0, 1.0, 0.0)), seed=0)
+
+
+def test_the_headless_simulator_needs_no_display_and_a_bad_mujoco_gl_is_explained() -> None:
+    """The simulator renders nothing: without DISPLAY or MUJOCO_GL it builds and steps. ``import mujoco`` sets up the
+    renderer MUJOCO_GL names, and an unusable one (osmesa without libOSMesa: "'NoneType' object has no attribute
+    'glGetError'") broke ``import robot_sim`` with nothing said about MUJOCO_GL: the error now says to unset it."""
+    import os
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "MUJOCO_GL")}
+    env["PYTHONPATH"] = os.pathsep.join([str(root), env.get("PYTHONPATH", "")])
+    script = (
+        "import numpy as np; from cso_runtime.scenes import FloorPlan; from cso_runtime.geometry import Pose2D, VelocityCommand;"
+        "from robot_sim import MujocoSimulator; free = np.zeros((40, 40), bool); free[1:-1, 1:-1] = True;"
+        "sim = MujocoSimulator(FloorPlan('box', free, 0.05, Pose2D(1.0, 1.0, 0.0)), seed=0); sim.step(VelocityCommand(0.5, 0.0));"
+        "print(sim.odometry().x_m > 1.0, len(sim.scan().ranges_m))"
+    )
+    run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and run.stdout.split() == ["True", "181"], run.stderr
+    bad = subprocess.run([sys.executable, "-c", "import robot_sim"], env={**env, "MUJOCO_GL": "nosuch"}, capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 1
+    assert "cannot import mujoco with MUJOCO_GL='nosuch'" in bad.stderr and "needs no MUJOCO_GL: unset it" in bad.stderr, bad.stderr
