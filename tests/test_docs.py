@@ -301,10 +301,27 @@ def test_the_readmes_python_example_runs_and_prints_an_episode(tmp_path):
 
 
 def readme_python_examples() -> list[str]:
-    """README's ```python blocks: the "From Python" episode, then the shipped weights in the Gymnasium env."""
+    """README's ```python blocks: the "From Python" episode, the MuJoCo LIMO on its own, then the shipped weights in the
+    Gymnasium env."""
     blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(encoding="utf-8"), flags=re.DOTALL)
-    assert len(blocks) == 2, "README's Python examples are gone"
+    assert len(blocks) == 3, "README's Python examples are gone"
     return blocks
+
+
+def test_the_readmes_mujoco_example_steps_the_limo_and_writes_a_world_mujoco_loads(tmp_path):
+    """The MuJoCo LIMO block, as pasted: it drives, prints its odometry and LiDAR, and its world.xml loads in MuJoCo
+    with the LIMO at the start pose (what ``python -m mujoco.viewer --mjcf world.xml`` opens)."""
+    import subprocess
+    import sys
+
+    import mujoco
+
+    r = subprocess.run([sys.executable, "-c", readme_python_examples()[1]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert re.fullmatch(r"odom x -?\d+\.\d\d m, y -?\d+\.\d\d m, yaw 0\.\d\d rad; 181 beams\n", r.stdout), r.stdout
+    model = mujoco.MjModel.from_xml_path(str(tmp_path / "world.xml"))
+    assert model.opt.timestep == 0.005 and model.nu == 3
+    assert list(model.qpos0) == list(model.key("start").qpos)  # the viewer opens it, and Reset goes back, to the start
 
 
 def test_the_readmes_gymnasium_example_runs_the_shipped_weights_in_the_default_env(tmp_path):
@@ -312,7 +329,7 @@ def test_the_readmes_gymnasium_example_runs_the_shipped_weights_in_the_default_e
     import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, "-c", readme_python_examples()[1]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-c", readme_python_examples()[2]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     returns = [float(x) for x in re.fullmatch(r"\[(.*)\]\n", r.stdout).group(1).split(",")]
     assert len(returns) == 2 and all(math.isfinite(x) for x in returns)
