@@ -127,8 +127,8 @@ class RobotConfig:
         if not 0 <= self.radius_m <= MAX_ROBOT_RADIUS_M:
             raise ConfigError(f"robot.radius_m must be from 0 to {MAX_ROBOT_RADIUS_M:g} m (the LIMO's is 0.2), got {self.radius_m}")
         for name in ("length_m", "width_m", "max_linear_mps", "max_angular_radps", "control_period_s"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"robot.{name} must be positive")
+            if not 0 < getattr(self, name) < math.inf:
+                raise ConfigError(f"robot.{name} must be positive and finite")
 
 
 @dataclass

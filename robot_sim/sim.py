@@ -26,7 +26,7 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
-from cso_runtime.config import RobotConfig, SensorConfig
+from cso_runtime.config import ConfigError, RobotConfig, SensorConfig
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, relative_pose, returns_as_float32, wrap_angle_rad
 from cso_runtime.scenes import FloorPlan
 from robot_sim.config import MujocoSimConfig, whole_steps
@@ -68,8 +68,14 @@ class MujocoSimulator:
         self.robot = robot or RobotConfig()
         self.config = config or MujocoSimConfig()
         self.sensor.validate()
+        self.robot.validate()  # its limits become the model's ctrlrange, its size the chassis
         self.config.validate()
         c = self.config
+        if self.sensor.rate_hz * c.timestep_s > 1.0:
+            raise ConfigError(
+                f"sensor.rate_hz ({self.sensor.rate_hz:g} Hz) is above the physics rate ({1.0 / c.timestep_s:g} Hz, timestep_s "
+                f"{c.timestep_s:g} s): the LiDAR fires at most once per physics step"
+            )
         self.lidar_mount_x_m = c.lidar_mount_for(self.sensor)
         if abs(self.lidar_mount_x_m - self.sensor.mount_x_m) > 1e-9:
             log.info(

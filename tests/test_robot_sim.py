@@ -470,3 +470,22 @@ def test_the_headless_simulator_needs_no_display_and_a_bad_mujoco_gl_is_explaine
     bad = subprocess.run([sys.executable, "-c", "import robot_sim"], env={**env, "MUJOCO_GL": "nosuch"}, capture_output=True, text=True, timeout=120)
     assert bad.returncode == 1
     assert "cannot import mujoco with MUJOCO_GL='nosuch'" in bad.stderr and "needs no MUJOCO_GL: unset it" in bad.stderr, bad.stderr
+
+
+@pytest.mark.parametrize(
+    ("robot", "sensor", "match"),
+    [
+        (RobotConfig(max_linear_mps=math.nan), SensorConfig(), "robot.max_linear_mps must be positive and finite"),
+        (RobotConfig(max_angular_radps=0.0), SensorConfig(), "robot.max_angular_radps must be positive"),
+        (RobotConfig(length_m=0.0), SensorConfig(), "robot.length_m must be positive"),
+        (RobotConfig(control_period_s=math.inf), SensorConfig(), "robot.control_period_s must be positive and finite"),
+        (RobotConfig(), SensorConfig(rate_hz=1000.0), r"sensor.rate_hz \(1000 Hz\) is above the physics rate \(200 Hz"),
+    ],
+)
+def test_a_robot_or_sensor_the_model_cannot_honour_is_a_config_error(robot: RobotConfig, sensor: SensorConfig, match: str) -> None:
+    """The simulator validated its sensor and physics but not the robot: a NaN speed limit went into the MJCF as "nan"
+    and the LIMO never moved ("Nan, Inf or huge value in CTRL"); a zero turn rate or body length came out as MuJoCo's
+    XML error, an infinite control period as an OverflowError. A LiDAR faster than the physics fired several scans
+    with the same stamp and pose each step (a 1 kHz LiDAR: 64 scans of 13 stamps per 0.25 s step, 186 dropped)."""
+    with pytest.raises(ConfigError, match=match):
+        MujocoSimulator(box_room(), sensor, robot, seed=0)
