@@ -380,8 +380,10 @@ class RealTimePacer:
         max_lag_s: float = 0.5,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        if not speed > 0:
-            raise ValueError("speed must be positive")
+        if not 0 < speed < math.inf:
+            raise ValueError(f"speed must be positive and finite, got {speed}")
+        if not 0 < max_lag_s < math.inf:  # NaN never dropped a backlog, a negative lag dropped every poll's steps
+            raise ValueError(f"max_lag_s must be positive and finite, got {max_lag_s}")
         self.sim = sim
         self.speed = speed
         self.max_lag_s = max_lag_s

@@ -489,3 +489,11 @@ def test_a_robot_or_sensor_the_model_cannot_honour_is_a_config_error(robot: Robo
     with the same stamp and pose each step (a 1 kHz LiDAR: 64 scans of 13 stamps per 0.25 s step, 186 dropped)."""
     with pytest.raises(ConfigError, match=match):
         MujocoSimulator(box_room(), sensor, robot, seed=0)
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [({"speed": math.inf}, "speed"), ({"max_lag_s": math.nan}, "max_lag_s"), ({"max_lag_s": -1.0}, "max_lag_s")])
+def test_a_real_time_pacer_refuses_what_it_cannot_keep(kwargs: dict, match: str) -> None:
+    """An infinite speed was taken and its first poll died in ``advance(inf)``; a NaN lag never dropped a backlog, and a
+    negative one dropped every poll's steps, so the simulation never moved."""
+    with pytest.raises(ValueError, match=f"{match} must be positive and finite"):
+        RealTimePacer(MujocoSimulator(box_room(), seed=0), **kwargs)
