@@ -166,8 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--log-level", type=str.upper, choices=("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"), default="INFO", metavar="LEVEL")
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
-    if not (args.speed > 0 and args.odom_rate_hz > 0):
-        p.error("--speed and --odom-rate-hz must be positive")
+    if not (0 < args.speed < math.inf and 0 < args.odom_rate_hz < math.inf):
+        p.error("--speed and --odom-rate-hz must be positive and finite")
     if args.namespace.strip("/") and not ros2_cdr.is_ros_name(args.namespace):
         p.error(f"--namespace {args.namespace!r} is not a ROS name (letters, digits, '_', '/')")
     refs = resolve_scenes(args.scene, limit=1, resolution_m=args.m_per_px)

@@ -193,6 +193,17 @@ def test_fake_limo_refuses_a_namespace_that_is_no_ros_name(capsys):
     assert exit_info.value.code == 2 and "--namespace 'a*b' is not a ROS name" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("flag", ["--speed", "--odom-rate-hz"])
+def test_fake_limo_refuses_an_infinite_rate(capsys, flag):
+    """``--speed inf`` passed the flag check, loaded the scene and opened the router, then died in the real-time pacer
+    (a ValueError traceback): a usage error (exit 2) like a zero or negative one."""
+    from robot_sim import fake_limo
+
+    with pytest.raises(SystemExit) as exit_info:
+        fake_limo.main(["--listen", "tcp/127.0.0.1:1", flag, "inf"])
+    assert exit_info.value.code == 2 and "must be positive and finite" in capsys.readouterr().err
+
+
 def _bridge_without_zenoh(params: dict | None = None, services: dict | None = None):
     """The bridge service with its ROS callbacks fed by hand: what it publishes is collected, no session. ``services``:
     the profile's (none: a bridge started on its own, with no frontier service to wait for)."""
