@@ -62,7 +62,19 @@ def wall_boxes(plan: FloorPlan, boundary_only: bool = False) -> np.ndarray:
     return np.stack([0.5 * (x0 + x1) * res, 0.5 * (y0 + y1) * res, 0.5 * (x1 - x0) * res, 0.5 * (y1 - y0) * res], axis=1)
 
 
-def _world_header(robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float, robot_at_start: bool) -> str:
+def _frames_note(plan: FloorPlan) -> str:
+    """Which frame the file's x and y are in: the plan's, whose origin is the grid's lower-left corner; for a scene with a
+    map_origin (a map_server YAML's ``origin``), where that corner lies in the scene's own map frame."""
+    o = plan.map_origin
+    if (o.x_m, o.y_m, o.yaw_rad) == (0.0, 0.0, 0.0):
+        return "x and y are in the plan's map frame"
+    return (
+        f"x and y are in the plan's frame, the runtime's odom, not the map YAML's map frame, where that corner is at its "
+        f"origin ({o.x_m:g}, {o.y_m:g}) m, yaw {o.yaw_rad:g} rad"
+    )
+
+
+def _world_header(plan: FloorPlan, robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: float, robot_at_start: bool) -> str:
     """An XML comment for whoever opens the file on its own: units, frames, the default pose and the key, controls and
     what the simulator's Python does with them, sensors and the LiDAR, geom groups and the parameters the world was
     built with."""
@@ -76,15 +88,15 @@ def _world_header(robot: RobotConfig, sim: MujocoSimConfig, lidar_mount_x_m: flo
   pose itself (robot_sim/limo.py says why); the files it writes for users have qpos0 at the start (key "start")."""
     )
     return f"""<!-- The MuJoCo LIMO in a floor plan, as cso-runtime's simulator builds it (robot_sim/scene.py).
-  Units: metres, kilograms, seconds, radians. Frames follow REP-103: z up; the map frame's origin is the plan's
-  lower-left corner; the LIMO's x forward, y left. qpos = (x_m, y_m, yaw_rad) of the robot centre in the map frame.
+  Units: metres, kilograms, seconds, radians. Frames follow REP-103: z up; the origin is the plan's lower-left corner
+  ({_frames_note(plan)}); the LIMO's x forward, y left. qpos = (x_m, y_m, yaw_rad) of the robot centre in that frame.
   {default_pose}
   Controls, velocity servos in the body frame: drive_forward m/s, drive_lateral m/s (held near 0), drive_yaw rad/s.
   The simulator's Python, not this file, drives them: a command (v, w) every {robot.control_period_s:g} s (the control period),
   clamped to {robot.max_linear_mps:g} m/s and {robot.max_angular_radps:g} rad/s, ramped to each physics step through acceleration limits of
   {sim.max_linear_accel_mps2:g} m/s^2 and {sim.max_angular_accel_radps2:g} rad/s^2; drive_lateral gets only the centripetal feed-forward
   v * w * actuator_time_constant_s. Each control's ctrlrange is the most the simulator ever sends on it.
-  Sensors: base_pos, base_quat (the base's map pose), base_vel, base_gyro (its body-frame velocity), lidar_pos.
+  Sensors: base_pos, base_quat (the base's pose in that frame), base_vel, base_gyro (its body-frame velocity), lidar_pos.
   The LiDAR is no rangefinder array (one per beam would cast all its rays on every physics step): the simulator
   casts the beams with mj_multiRay from site lidar, level in the scan plane, seeing geom group 0 only, the LIMO's
   body excluded, when a scan fires.
@@ -112,7 +124,7 @@ def world_mjcf(
     limo = limo_mjcf(robot, sim, lidar_mount_x_m, start if robot_at_start else None)
     g = plan.geometry
     # The plan's name is a file's stem: quoted, so a name with a quote, '&' or '<' still makes well-formed XML.
-    xml = f"""{_world_header(robot, sim, lidar_mount_x_m, robot_at_start)}
+    xml = f"""{_world_header(plan, robot, sim, lidar_mount_x_m, robot_at_start)}
 <mujoco model={quoteattr(f"limo_{plan.name}")}>
   <compiler angle="radian" autolimits="true"/>
   <option timestep="{sim.timestep_s:.6g}" integrator="implicitfast" gravity="0 0 -9.81"/>

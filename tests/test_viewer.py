@@ -390,3 +390,21 @@ def test_a_viewer_made_from_python_without_a_display_says_why(monkeypatch):
         SimViewer(sim)
     assert not launched
     assert SimViewer(sim, launch=FakeHandle).frames == 0  # a launcher of one's own is not checked
+
+
+def test_the_world_file_says_which_frame_a_map_yamls_scene_is_in(tmp_path):
+    """A map_server scene's walls and qpos are in the plan's frame (origin at the grid's corner), not the map YAML's: the
+    header said "the map frame", yet a LIMO at qpos (3, 2) stands at (-7, -3) in the map RViz shows."""
+    from PIL import Image
+
+    from cso_runtime.scenes import load_map_scene
+
+    free = np.zeros((60, 80), dtype=np.uint8)
+    free[1:-1, 1:-1] = 254
+    Image.fromarray(np.flipud(free)).save(tmp_path / "room.pgm")
+    (tmp_path / "room.yaml").write_text("image: room.pgm\nresolution: 0.05\norigin: [-10.0, -5.0, 0.0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    plan = load_map_scene(tmp_path / "room.yaml")
+    header = write_mujoco_world(tmp_path / "w.xml", plan).read_text(encoding="utf-8").split("-->")[0]
+    assert "not the map YAML's map frame, where that corner is at its origin (-10, -5) m, yaw 0 rad" in header
+    plain = write_mujoco_world(tmp_path / "g.xml", generate_floor_plan("small", 0)).read_text(encoding="utf-8")
+    assert "x and y are in the plan's map frame" in plain.split("-->")[0]
