@@ -44,13 +44,14 @@ class MujocoSimConfig:
     max_angular_accel_radps2: float = 3.0
     """Angular acceleration limit of the command path (assumed; Nav2's DWB default is 3.2 rad/s^2)."""
     actuator_time_constant_s: float = 0.02
-    """Time constant with which the base's velocity servos track the rate-limited command."""
+    """Time constant with which the base's velocity servos track the rate-limited command (assumed: a fast servo)."""
     traction_force_n: float = 38.0
     """Force limit of the planar servos: tyre grip, about 0.8 x 4.8 kg x g. A wall pushes back harder."""
     yaw_torque_nm: float = 6.0
-    """Torque limit of the yaw servo (skid-steer turning grip)."""
+    """Torque limit of the yaw servo (skid-steer turning grip; assumed, the manual gives none: with the body's 0.061 kg m^2
+    yaw inertia it allows ~100 rad/s^2, far above the 3 rad/s^2 ramp, so only a wall's push-back makes it bind)."""
     wall_friction: float = 0.3
-    """Sliding friction between the body and walls (a bumper scraping along a wall)."""
+    """Sliding friction coefficient between the body and walls (a bumper scraping along a wall; assumed)."""
     contact_time_constant_s: float = 0.01
     """Stiffness of robot-wall contacts (MuJoCo solref time constant, at least two physics steps): a
     stiffer contact lets the body sink less into a wall it hits at full speed."""
