@@ -64,8 +64,9 @@ def odometry_cdr(stamp_s: float, pose: Pose2D, linear_mps: float, angular_radps:
     return bytes(typestore().serialize_cdr(msg, "nav_msgs/msg/Odometry"))
 
 
-def laserscan_cdr(stamp_s: float, scan: LaserScan) -> bytes:
-    """sensor_msgs/LaserScan in laser_link, serialised by rosbags (angle_max from the beam count)."""
+def laserscan_cdr(stamp_s: float, scan: LaserScan, scan_time_s: float = 0.0) -> bytes:
+    """sensor_msgs/LaserScan in laser_link, serialised by rosbags (angle_max from the beam count; ``scan_time_s``, the
+    time between scans; time_increment 0: the simulator casts every beam at one instant)."""
     n = len(scan.ranges_m)
     msg = typestore().types["sensor_msgs/msg/LaserScan"](
         header=ros2_cdr.header_msg(ros2_cdr.stamp_ns_from_seconds(stamp_s), "laser_link"),
@@ -73,7 +74,7 @@ def laserscan_cdr(stamp_s: float, scan: LaserScan) -> bytes:
         angle_max=scan.angle_min_rad + scan.angle_increment_rad * (n - 1),
         angle_increment=scan.angle_increment_rad,
         time_increment=0.0,
-        scan_time=0.0,
+        scan_time=scan_time_s,
         range_min=scan.range_min_m,
         range_max=scan.range_max_m,
         ranges=np.asarray(scan.ranges_m, dtype=np.float32),
@@ -127,7 +128,7 @@ class FakeLimo:
             now_s, odom = self.sim.time_s, self.sim.odometry()
         for sensor_pose, scan in fired:
             self._put_odom(scan.stamp_s, sensor_pose.compose_offset(-self.sim.lidar_mount_x_m))
-            self.pub_scan.put(laserscan_cdr(BASE_STAMP_S + scan.stamp_s, scan))
+            self.pub_scan.put(laserscan_cdr(BASE_STAMP_S + scan.stamp_s, scan, 1.0 / self.sim.sensor.rate_hz))
             self.scans += 1
         if now_s - self.last_odom_s >= self.odom_period_s:
             self._put_odom(now_s, odom)

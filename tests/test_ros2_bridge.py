@@ -110,6 +110,38 @@ def test_fake_limo_odometry_has_the_limo_drivers_covariance():
     np.testing.assert_array_equal(odom.twist.covariance, np.zeros(36))
 
 
+def test_fake_limo_scans_say_their_period_as_a_lidar_driver_does():
+    """sensor_msgs/LaserScan's ``scan_time`` is the time between scans (0.125 s for the 8 Hz LiDAR); the fake LIMO sent
+    0, which ROS tools read as unknown. ``time_increment`` stays 0: the simulator casts every beam at one instant."""
+    from cso_runtime.scene_generator import generate_floor_plan
+    from robot_sim.fake_limo import FakeLimo
+    from robot_sim.sim import MujocoSimulator
+
+    class Recorder:
+        def __init__(self) -> None:
+            self.puts: list[bytes] = []
+
+        def put(self, payload: bytes) -> None:
+            self.puts.append(payload)
+
+    class Session:
+        def __init__(self) -> None:
+            self.publishers: dict[str, Recorder] = {}
+
+        def declare_publisher(self, key: str) -> Recorder:
+            return self.publishers.setdefault(key, Recorder())
+
+        def declare_subscriber(self, key: str, callback: object) -> None:
+            return None
+
+    session = Session()
+    robot = FakeLimo(session, MujocoSimulator(generate_floor_plan("small", 0), seed=0))
+    robot.sim.step(VelocityCommand(0.3, 0.0))
+    robot.publish_due()
+    scans = [rosbags_decode(raw, "sensor_msgs/msg/LaserScan") for raw in session.publishers["scan"].puts]
+    assert len(scans) == 3 and all(s.scan_time == 0.125 and s.time_increment == 0.0 for s in scans)
+
+
 # --- time matching --------------------------------------------------------------------------------
 
 
