@@ -174,10 +174,11 @@ def laserscan_from_cdr(raw: bytes) -> ScanConversion:
     return ScanConversion(scan, msg.header.frame_id, int(invalid.sum()), int(too_close.sum()), int(no_return.sum()), header_stamp_ns(msg.header))
 
 
-def laserscan_to_cdr(scan: LaserScan, stamp_ns: int, frame_id: str = "laser") -> bytes:
+def laserscan_to_cdr(scan: LaserScan, stamp_ns: int, frame_id: str = "laser", scan_time_s: float = 0.0) -> bytes:
     """Our LaserScan, stamped ``stamp_ns`` (not its ``stamp_s``) -> sensor_msgs/LaserScan CDR. A 0 m beam, our "no
     reading" (how ``laserscan_from_cdr`` keeps the robot's NaN beams), goes out as NaN, REP-117's invalid
-    measurement, not as a range; ``inf`` stays "no return", and a too-close beam stays below ``range_min``."""
+    measurement, not as a range; ``inf`` stays "no return", and a too-close beam stays below ``range_min``.
+    ``scan_time_s``: the time between scans (0: unknown); time_increment is 0, every beam cast at one instant."""
     n = len(scan.ranges_m)
     ranges = np.asarray(scan.ranges_m, dtype=np.float32)
     ranges = np.where(ranges == 0.0, np.float32(np.nan), ranges)
@@ -187,7 +188,7 @@ def laserscan_to_cdr(scan: LaserScan, stamp_ns: int, frame_id: str = "laser") ->
         angle_max=float(scan.angle_min_rad + scan.angle_increment_rad * (n - 1)),
         angle_increment=float(scan.angle_increment_rad),
         time_increment=0.0,
-        scan_time=0.0,
+        scan_time=float(scan_time_s),
         range_min=float(scan.range_min_m),
         range_max=float(scan.range_max_m),
         ranges=ranges,
@@ -230,19 +231,24 @@ on our robot or simulator."""
 def odometry_to_cdr(
     pose: Pose2D, velocity: VelocityCommand, stamp_ns: int, frame_id: str = "odom", child_frame_id: str = "base_link",
     covariance_diagonal: tuple[float, ...] = ODOMETRY_COVARIANCE_DIAGONAL,
+    twist_covariance_diagonal: tuple[float, ...] | None = None,
 ) -> bytes:  # fmt: skip
     """Our pose and velocity -> nav_msgs/Odometry CDR, as a bag's ``/odom`` holds it: pose and twist covariances both
-    diagonal, ``covariance_diagonal`` (x, y, z, roll, pitch, yaw)."""
-    if len(covariance_diagonal) != 6:
-        raise ValueError(f"covariance_diagonal: expected 6 variances (x, y, z, roll, pitch, yaw), got {len(covariance_diagonal)}")
+    diagonal, ``covariance_diagonal`` (x, y, z, roll, pitch, yaw); the twist's is ``twist_covariance_diagonal``, the
+    pose's when None (all zeros: what AgileX's LIMO driver sends)."""
+    twist_diagonal = covariance_diagonal if twist_covariance_diagonal is None else twist_covariance_diagonal
+    for name, diagonal in (("covariance_diagonal", covariance_diagonal), ("twist_covariance_diagonal", twist_diagonal)):
+        if len(diagonal) != 6:
+            raise ValueError(f"{name}: expected 6 variances (x, y, z, roll, pitch, yaw), got {len(diagonal)}")
     t = _types()
     point = t["geometry_msgs/msg/Point"](x=pose.x_m, y=pose.y_m, z=0.0)
     cov = np.diag(np.asarray(covariance_diagonal, dtype=np.float64)).ravel()
+    twist_cov = np.diag(np.asarray(twist_diagonal, dtype=np.float64)).ravel()
     msg = t[ODOMETRY](
         header=header_msg(stamp_ns, frame_id),
         child_frame_id=child_frame_id,
         pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=t["geometry_msgs/msg/Pose"](position=point, orientation=_quaternion(pose.yaw_rad)), covariance=cov),
-        twist=t["geometry_msgs/msg/TwistWithCovariance"](twist=_twist(velocity), covariance=cov.copy()),
+        twist=t["geometry_msgs/msg/TwistWithCovariance"](twist=_twist(velocity), covariance=twist_cov),
     )
     return encode(msg, ODOMETRY)
 

@@ -25,14 +25,11 @@ import sys
 import threading
 from typing import Any
 
-import numpy as np
-
 from cso_runtime import ros2_cdr
 from cso_runtime.config import ExplorationConfig
 from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand
 from cso_runtime.processes import set_from_signal_handler
-from cso_runtime.ros2_cdr import typestore
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.transport import TransportConfig, open_session
 from robot_sim.sim import MujocoSimulator, RealTimePacer
@@ -43,44 +40,22 @@ BASE_STAMP_S = 1000.0
 """Robot clock at the simulation's time 0 (a real robot's stamps are far from zero)."""
 
 
+LIMO_TWIST_COVARIANCE_DIAGONAL = (0.0,) * 6
+"""AgileX's LIMO driver leaves the twist's covariance all zero (limo_base ``LimoDriver::publishOdometry``)."""
+
+
 def odometry_cdr(stamp_s: float, pose: Pose2D, linear_mps: float, angular_radps: float) -> bytes:
-    """nav_msgs/Odometry of base_link in odom, serialised by rosbags, with the covariances AgileX's LIMO driver
-    publishes: the pose's diagonal ``ODOMETRY_COVARIANCE_DIAGONAL``, the twist's all zero."""
-    t = typestore().types
-    v3 = t["geometry_msgs/msg/Vector3"]
-    p = t["geometry_msgs/msg/Pose"](
-        position=t["geometry_msgs/msg/Point"](x=pose.x_m, y=pose.y_m, z=0.0),
-        orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(pose.yaw_rad / 2), w=math.cos(pose.yaw_rad / 2)),
-    )
-    msg = t["nav_msgs/msg/Odometry"](
-        header=ros2_cdr.header_msg(ros2_cdr.stamp_ns_from_seconds(stamp_s), "odom"),
-        child_frame_id="base_link",
-        pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=p, covariance=np.diag(ros2_cdr.ODOMETRY_COVARIANCE_DIAGONAL).ravel()),
-        twist=t["geometry_msgs/msg/TwistWithCovariance"](
-            twist=t["geometry_msgs/msg/Twist"](linear=v3(x=linear_mps, y=0.0, z=0.0), angular=v3(x=0.0, y=0.0, z=angular_radps)),
-            covariance=np.zeros(36),
-        ),
-    )
-    return bytes(typestore().serialize_cdr(msg, "nav_msgs/msg/Odometry"))
+    """nav_msgs/Odometry of base_link in odom, with the covariances AgileX's LIMO driver publishes: the pose's
+    diagonal ``ODOMETRY_COVARIANCE_DIAGONAL``, the twist's all zero."""
+    stamp_ns = ros2_cdr.stamp_ns_from_seconds(stamp_s)
+    velocity = VelocityCommand(linear_mps, angular_radps)
+    return ros2_cdr.odometry_to_cdr(pose, velocity, stamp_ns, "odom", "base_link", twist_covariance_diagonal=LIMO_TWIST_COVARIANCE_DIAGONAL)
 
 
 def laserscan_cdr(stamp_s: float, scan: LaserScan, scan_time_s: float = 0.0) -> bytes:
-    """sensor_msgs/LaserScan in laser_link, serialised by rosbags (angle_max from the beam count; ``scan_time_s``, the
-    time between scans; time_increment 0: the simulator casts every beam at one instant)."""
-    n = len(scan.ranges_m)
-    msg = typestore().types["sensor_msgs/msg/LaserScan"](
-        header=ros2_cdr.header_msg(ros2_cdr.stamp_ns_from_seconds(stamp_s), "laser_link"),
-        angle_min=scan.angle_min_rad,
-        angle_max=scan.angle_min_rad + scan.angle_increment_rad * (n - 1),
-        angle_increment=scan.angle_increment_rad,
-        time_increment=0.0,
-        scan_time=scan_time_s,
-        range_min=scan.range_min_m,
-        range_max=scan.range_max_m,
-        ranges=np.asarray(scan.ranges_m, dtype=np.float32),
-        intensities=np.zeros(0, dtype=np.float32),
-    )
-    return bytes(typestore().serialize_cdr(msg, "sensor_msgs/msg/LaserScan"))
+    """sensor_msgs/LaserScan in laser_link (``scan_time_s``, the time between scans; a beam with no reading as NaN,
+    as a real LiDAR driver sends it)."""
+    return ros2_cdr.laserscan_to_cdr(scan, ros2_cdr.stamp_ns_from_seconds(stamp_s), "laser_link", scan_time_s)
 
 
 class FakeLimo:

@@ -153,6 +153,23 @@ def test_odometry_and_twist_round_trip():
     assert cmd == VelocityCommand(0.8, 0.5)
 
 
+def test_odometry_twist_covariance_and_scan_time_are_the_callers():
+    """The fake LIMO sends odometry with the LIMO driver's all-zero twist covariance and scans with their period, through
+    these encoders (one LaserScan / Odometry encoder in the project, not a second one in the fake robot)."""
+    raw = cdr.odometry_to_cdr(Pose2D(0.0, 0.0, 0.0), VelocityCommand(0.1, 0.0), 0, twist_covariance_diagonal=(0.0,) * 6)
+    odom = cdr.decode(raw, cdr.ODOMETRY)
+    np.testing.assert_array_equal(np.asarray(odom.pose.covariance).reshape(6, 6), np.diag(cdr.ODOMETRY_COVARIANCE_DIAGONAL))
+    np.testing.assert_array_equal(odom.twist.covariance, np.zeros(36))
+    default = cdr.decode(cdr.odometry_to_cdr(Pose2D(0.0, 0.0, 0.0), VelocityCommand(0.1, 0.0), 0), cdr.ODOMETRY)
+    np.testing.assert_array_equal(default.twist.covariance, default.pose.covariance)
+    with pytest.raises(ValueError, match="twist_covariance_diagonal"):
+        cdr.odometry_to_cdr(Pose2D(0.0, 0.0, 0.0), VelocityCommand(0.0, 0.0), 0, twist_covariance_diagonal=(0.0,))
+    scan = LaserScan(-1.0, 0.5, 0.1, 8.0, np.array([0.0, 1.0, 2.0, np.inf, 3.0], dtype=np.float32), 1.0)
+    out = cdr.decode(cdr.laserscan_to_cdr(scan, 1_000_000_000, "laser_link", scan_time_s=0.125), cdr.LASER_SCAN)
+    assert out.scan_time == 0.125 and out.time_increment == 0.0 and out.header.frame_id == "laser_link"
+    assert cdr.decode(cdr.laserscan_to_cdr(scan, 0), cdr.LASER_SCAN).scan_time == 0.0
+
+
 def test_bool_round_trip_is_ros_std_msgs_bool():
     """explore_lite's ``explore/resume``: std_msgs/Bool, a 4-byte CDR header and one byte of data."""
     assert cdr.bool_from_cdr(cdr.bool_to_cdr(True)) is True
