@@ -778,7 +778,7 @@ def up_command(
 @app.command("status", rich_help_panel="Runtime (Zenoh services)")
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
-    watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends"),
+    watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends (a detached run: its episode)"),
     period_s: float = typer.Option(1.0, "--period", min=0.1, help="Seconds between two --watch refreshes"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
