@@ -878,6 +878,7 @@ def runs_command(
     from rich.table import Table  # noqa: PLC0415
 
     from cso_runtime.evaluation import table_console  # noqa: PLC0415
+    from cso_runtime.run_profile import REAL_ROBOT_SCENE  # noqa: PLC0415
 
     def num(value: object, fmt: str) -> str:
         return "-" if value is None else format(value, fmt)
@@ -892,7 +893,7 @@ def runs_command(
         state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "")
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         table.add_row(
-            escape(f"{r['run_id']}\n  {r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
+            escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
             num(r["coverage_pct"], ".1f"), num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
     table_console().print(table)

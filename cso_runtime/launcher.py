@@ -1233,7 +1233,7 @@ class Launcher:
                 pr = self.profile  # which run this is, and where to look, before the services' lines
                 log.info(
                     "run %s: profile %s, scene %s, method %s, robot %s; logs, then results, in %s/",
-                    self.run_id, pr.name, pr.scene, pr.method, pr.robot, self.run_dir,
+                    self.run_id, pr.name, pr.scene_label, pr.method, pr.robot, self.run_dir,
                 )  # fmt: skip
                 self.spawn_all()
                 self.write_run_file("running")
