@@ -815,10 +815,11 @@ class RichProgress:
     """The bar's time left before the first episode run now (rich's own placeholder)."""
 
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
-        from rich.console import Console  # noqa: PLC0415
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
-        console = Console(stderr=True)
+        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+
+        console = console_that_survives_its_reader(stderr=True, tell=False)  # `eval ... | head`: the episodes go on
         self.progress = Progress(
             TextColumn("[bold]eval"),
             BarColumn(),

@@ -627,6 +627,21 @@ def test_eval_warms_a_learned_policy_up_before_its_first_decision(tmp_path: Path
     assert calls[0] == "warm_up" and calls.count("warm_up") == 1 and "select" in calls
 
 
+def test_an_eval_whose_progress_reader_is_gone_runs_every_episode_and_writes_its_results(tmp_path: Path):
+    """``eval ... 2>&1 | head -1``: once the reader of its progress lines was gone, rich turned the broken pipe into
+    ``SystemExit(1)`` at the next line, so the eval stopped after an episode or two, silently, with exit code 1 and
+    neither summary.json nor episodes.csv. The progress goes quiet instead; the episodes run and their results
+    are written."""
+    out = tmp_path / "o"
+    cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--maps", "generated:small:3:0", "--max-steps", "5", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    assert proc.stderr is not None
+    proc.stderr.close()  # the reader gone before the first progress line
+    assert proc.wait(timeout=120) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["methods"]["greedy-dist"]["episodes"] == 3 and (out / "episodes.csv").is_file()
+
+
 def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     """Without a terminal (a log file, CI) each finished episode is one line, however long its map's name,
     and an episode ``--resume`` read back says so."""
