@@ -689,7 +689,7 @@ def up_command(
     ),
     record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
     record_out: str | None = typer.Option(None, "--record-out", help="Record the run to this new MCAP file, or to <run-id>.mcap in this folder (existing, or ending in /; implies --record)"),
-    weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt (or one of its files) for the policy service instead of the shipped weights"),
+    weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt (a `train --out` folder), or one of its <method>.pt files, for the policy service instead of the shipped weights (sets CSO_WEIGHTS_DIR)"),
     settings: list[str] | None = typer.Option(
         None, "--set", help="KEY=VALUE into the profile, repeatable, a dotted KEY for a nested one (seed=3, services.sim.viewer=true; --dry-run prints the profile)"
     ),
