@@ -885,7 +885,7 @@ class RichProgress:
 
     def writing(self, out: Path, trajectory_plots: int) -> None:
         """After the episodes: the bar says what is being written (and a log gets the same line)."""
-        text = escape(f"writing {out}/: summary.json, episodes.csv, curves and {trajectory_plots} trajectory plots")
+        text = escape(f"writing {out}/: summary.json, episodes.csv, curves and {trajectory_plots} trajectory plot{'' if trajectory_plots == 1 else 's'}")
         assert self.task is not None  # start() came first
         self.progress.update(self.task, description=text)
         if not self.progress.console.is_terminal:

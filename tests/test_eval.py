@@ -661,6 +661,17 @@ def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     assert lines[2] == "writing results/easy/: summary.json, episodes.csv, curves and 2 trajectory plots"
 
 
+def test_the_writing_line_of_an_eval_of_one_plan_says_one_trajectory_plot(capsys):
+    """``eval --limit 1`` said "writing ...: summary.json, episodes.csv, curves and 1 trajectory plots"."""
+    from cso_runtime.evaluation import RichProgress
+
+    progress = RichProgress(clock=lambda: 0.0)
+    progress.start(1)
+    progress.writing(Path("results/one"), 1)
+    progress.stop()
+    assert capsys.readouterr().err.splitlines() == ["writing results/one/: summary.json, episodes.csv, curves and 1 trajectory plot"]
+
+
 def test_a_progress_line_says_why_an_episode_found_no_frontier(capsys):
     """``no_frontier`` alone read as a bug at 93 % coverage: the line goes on with the frontier left and why."""
     from cso_runtime.evaluation import EpisodeOutcome, RichProgress
