@@ -58,6 +58,7 @@ from cso_runtime.config import (
     load_yaml,
     make_output_dir,
     set_dotted,
+    set_flag_text,
     to_dict,
     with_nearest,
 )
@@ -162,7 +163,7 @@ class EvalRequest:
             set_dotted(data, key, value)
         where = str(self.config_path or "config")
         if self.settings:  # an error names the flags that changed the file, as `up --set` does
-            where = f"{self.config_path or 'eval'} with " + " ".join(f"--set {k}={v}" for k, v in self.settings.items())
+            where = f"{self.config_path or 'eval'} with " + " ".join(set_flag_text(k, v) for k, v in self.settings.items())
         cfg = from_dict(ExplorationConfig, data, where=where)
         # The sensor is the --sensor preset (its field of view from --lidar-fov), with every other sensor key the
         # config file or --set gives explicitly on top: an ablation of the range or the resolution must not run

@@ -24,6 +24,7 @@ from cso_runtime.config import (
     from_dict,
     load_yaml,
     set_dotted,
+    set_flag_text,
     with_nearest,
 )
 from cso_runtime.keys import check_robot_id
@@ -439,7 +440,7 @@ def load_profile(
     data.setdefault("name", path.stem)
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
     flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]
-    flags += [f"--set {k}={v}" for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
+    flags += [set_flag_text(k, v) for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
     profile = from_dict(Profile, data, where=f"{path} with {' '.join(flags)}" if flags else str(path))
     return profile, data
 
