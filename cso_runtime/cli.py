@@ -689,7 +689,7 @@ def up_command(
     ),
     record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
     record_out: str | None = typer.Option(None, "--record-out", help="Record the run to this new MCAP file, or to <run-id>.mcap in this folder (existing, or ending in /; implies --record)"),
-    weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt (or one of its files) for the policy service instead of the shipped weights"),
+    weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt (a `train --out` folder), or one of its <method>.pt files, for the policy service instead of the shipped weights (sets CSO_WEIGHTS_DIR)"),
     settings: list[str] | None = typer.Option(
         None, "--set", help="KEY=VALUE into the profile, repeatable, a dotted KEY for a nested one (seed=3, services.sim.viewer=true; --dry-run prints the profile)"
     ),
@@ -778,7 +778,7 @@ def up_command(
 @app.command("status", rich_help_panel="Runtime (Zenoh services)")
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
-    watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends"),
+    watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends (a detached run: its episode)"),
     period_s: float = typer.Option(1.0, "--period", min=0.1, help="Seconds between two --watch refreshes"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
@@ -878,6 +878,7 @@ def runs_command(
     from rich.table import Table  # noqa: PLC0415
 
     from cso_runtime.evaluation import table_console  # noqa: PLC0415
+    from cso_runtime.run_profile import REAL_ROBOT_SCENE  # noqa: PLC0415
 
     def num(value: object, fmt: str) -> str:
         return "-" if value is None else format(value, fmt)
@@ -892,7 +893,7 @@ def runs_command(
         state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "")
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         table.add_row(
-            escape(f"{r['run_id']}\n  {r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
+            escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
             num(r["coverage_pct"], ".1f"), num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
     table_console().print(table)

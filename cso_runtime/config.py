@@ -518,6 +518,15 @@ def make_output_dir(path: str | Path, flag: str = "--out") -> Path:
     return p
 
 
+def set_flag_text(key: str, value: Any) -> str:
+    """``--set KEY=VALUE`` as the user typed it, for an error that names the flags: the value in YAML (``true``,
+    ``[a, 2]``), as ``--set`` reads it, not Python's repr (``True``, ``['a', 2]``)."""
+    import yaml  # noqa: PLC0415
+
+    text = yaml.safe_dump(value, default_flow_style=True, width=10**9).strip()
+    return f"--set {key}={text.removesuffix('...').strip()}"
+
+
 def set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
     """Set ``a.b.c`` in nested mappings (``--set services.sim.real_time_factor=4``), making the mappings on the
     way (a key written as ``mapper:`` with no value is an empty one); a value in the way is an error."""

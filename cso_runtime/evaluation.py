@@ -58,6 +58,7 @@ from cso_runtime.config import (
     load_yaml,
     make_output_dir,
     set_dotted,
+    set_flag_text,
     to_dict,
     with_nearest,
 )
@@ -162,7 +163,7 @@ class EvalRequest:
             set_dotted(data, key, value)
         where = str(self.config_path or "config")
         if self.settings:  # an error names the flags that changed the file, as `up --set` does
-            where = f"{self.config_path or 'eval'} with " + " ".join(f"--set {k}={v}" for k, v in self.settings.items())
+            where = f"{self.config_path or 'eval'} with " + " ".join(set_flag_text(k, v) for k, v in self.settings.items())
         cfg = from_dict(ExplorationConfig, data, where=where)
         # The sensor is the --sensor preset (its field of view from --lidar-fov), with every other sensor key the
         # config file or --set gives explicitly on top: an ablation of the range or the resolution must not run
@@ -815,10 +816,11 @@ class RichProgress:
     """The bar's time left before the first episode run now (rich's own placeholder)."""
 
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
-        from rich.console import Console  # noqa: PLC0415
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
-        console = Console(stderr=True)
+        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+
+        console = console_that_survives_its_reader(stderr=True, tell=False)  # `eval ... | head`: the episodes go on
         self.progress = Progress(
             TextColumn("[bold]eval"),
             BarColumn(),
@@ -884,7 +886,7 @@ class RichProgress:
 
     def writing(self, out: Path, trajectory_plots: int) -> None:
         """After the episodes: the bar says what is being written (and a log gets the same line)."""
-        text = escape(f"writing {out}/: summary.json, episodes.csv, curves and {trajectory_plots} trajectory plots")
+        text = escape(f"writing {out}/: summary.json, episodes.csv, curves and {trajectory_plots} trajectory plot{'' if trajectory_plots == 1 else 's'}")
         assert self.task is not None  # start() came first
         self.progress.update(self.task, description=text)
         if not self.progress.console.is_terminal:

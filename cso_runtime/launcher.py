@@ -317,6 +317,9 @@ class Launcher:
         """Length of the planner's latest path, robot to goal (live view)."""
         self.outputs_written = False
         self.episode_ended_at: float | None = None
+        self.detached = False
+        """A detached run (``stay_after_done``): it stays up after its episode until ``down``; its run file says so, for
+        ``status --watch`` to end with the episode."""
         self.episode_state: str | None = None
         """How the episode ended (``done``, ``failed``) once its results are written: what the run file says from
         then on while the launcher still runs, also when a restart rewrites it."""
@@ -394,6 +397,7 @@ class Launcher:
             "launcher_start_ticks": process_start_ticks(self.launcher_pid),
             "stop_timeout_s": self.profile.supervision.stop_timeout_s,
             "state": state,
+            **({"detached": True} if self.detached else {}),
             "started_at": round(self.started_at, 3),
             **({"outcome": self.outcome(), "exit_code": self.exit_code, "ended_at": round(time.time(), 3)} if state == "stopped" else {}),
             **({"episode_ended_at": round(self.episode_ended_at, 3)} if self.episode_ended_at is not None else {}),
@@ -1171,6 +1175,7 @@ class Launcher:
     # --- main loop --------------------------------------------------------------------------------
     def run(self, live: bool = False, stay_after_done: bool = False) -> int:
         """Start everything and supervise until the episode ends (or until stopped when ``stay_after_done``)."""
+        self.detached = stay_after_done
         self.run_dir.mkdir(parents=True, exist_ok=True)
         # First: `status` and `down` find the run while its router opens and its services spawn (seconds), not "no current run".
         self.write_run_file("starting")
@@ -1228,7 +1233,7 @@ class Launcher:
                 pr = self.profile  # which run this is, and where to look, before the services' lines
                 log.info(
                     "run %s: profile %s, scene %s, method %s, robot %s; logs, then results, in %s/",
-                    self.run_id, pr.name, pr.scene, pr.method, pr.robot, self.run_dir,
+                    self.run_id, pr.name, pr.scene_label, pr.method, pr.robot, self.run_dir,
                 )  # fmt: skip
                 self.spawn_all()
                 self.write_run_file("running")

@@ -61,18 +61,21 @@ def progress_line(status: EpisodeStatusMsg, sim_step_s: float | None, real_time_
     )
 
 
-def _console_that_survives_its_reader() -> Console:
-    """Rich's console on stdout, but one whose broken pipe (``up | head``: the reader gone) is an ``OSError`` the live
-    view handles (``LiveView.terminal_gone``), not rich's ``SystemExit(1)``, which flew through the launcher's clean-up
-    and left the services unstopped and the run unfinished. Quiet from then on: nothing more is written."""
+def console_that_survives_its_reader(stderr: bool = False, tell: bool = True) -> Console:
+    """Rich's console on stdout (or stderr), but one whose broken pipe (``up | head``: the reader gone) is not rich's
+    ``SystemExit(1)``, which flew through the launcher's clean-up and left the services unstopped and the run
+    unfinished, and stopped ``eval`` after an episode with no results. Quiet from then on: nothing more is written.
+    ``tell``: the broken pipe is an ``OSError`` for the caller to handle (``LiveView.terminal_gone``); else the work
+    goes on as if the lines were read (``eval``'s progress)."""
     from rich.console import Console  # noqa: PLC0415
 
     class QuietOnBrokenPipe(Console):
         def on_broken_pipe(self) -> None:
             self.quiet = True
-            raise BrokenPipeError(errno.EPIPE, os.strerror(errno.EPIPE))
+            if tell:
+                raise BrokenPipeError(errno.EPIPE, os.strerror(errno.EPIPE))
 
-    return QuietOnBrokenPipe()
+    return QuietOnBrokenPipe(stderr=stderr)
 
 
 class LiveView:
@@ -147,7 +150,7 @@ class LiveView:
         from rich.live import Live  # noqa: PLC0415
 
         stderr = sys.stderr
-        console = self.console if self.console is not None else _console_that_survives_its_reader()
+        console = self.console if self.console is not None else console_that_survives_its_reader()
         self._live = Live(self.render(), console=console, refresh_per_second=4, transient=False)
         self._live.start()
         if sys.stderr is not stderr:

@@ -19,6 +19,7 @@ import argparse
 import contextlib
 import ctypes
 import os
+import shlex
 import signal
 import subprocess
 import sys
@@ -29,6 +30,14 @@ from cso_runtime.processes import PARENT_CHECK_PERIOD_S, STACK_DUMP_SIGNAL, laun
 EXIT_NOT_STARTED = 2
 """The node's executable could not be started (gone or made not executable since ``up`` checked it): a configuration
 the launcher does not restart (``EXIT_BAD_CONFIG``)."""
+
+
+def say(level: str, text: str) -> None:
+    """One line of the guard's in the node's log (its stderr), time-stamped as the services' lines are: ``cso-runtime
+    logs`` places the node's own lines, which have no stamp, after the guard's line before them (its start)."""
+    now_s = time.time()
+    stamp = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(now_s)) + f",{int(now_s % 1 * 1000):03d}"
+    print(f"{stamp} {level} node_guard: {text}", file=sys.stderr, flush=True)
 
 
 PR_SET_CHILD_SUBREAPER = 36
@@ -58,11 +67,7 @@ def stop_group(stop_timeout_s: float, node: subprocess.Popen) -> None:
     try:
         node.wait(timeout=stop_timeout_s)
     except subprocess.TimeoutExpired:
-        print(
-            f"node_guard: the node (pid {node.pid}) still runs {stop_timeout_s:g} s after SIGTERM: SIGKILL to its group",
-            file=sys.stderr,
-            flush=True,
-        )
+        say("WARNING", f"the node (pid {node.pid}) still runs {stop_timeout_s:g} s after SIGTERM: SIGKILL to its group")
     signal_escaped(signal.SIGKILL)
     os.killpg(os.getpgrp(), signal.SIGKILL)
 
@@ -133,7 +138,7 @@ def stop_leftovers(stop_timeout_s: float) -> None:
     left = leftovers()
     if not left:
         return
-    print(f"node_guard: the node exited and left {len(left)} process(es) ({left}): stopping them", file=sys.stderr, flush=True)
+    say("WARNING", f"the node exited and left {len(left)} process(es) ({left}): stopping them")
     for sig in (signal.SIGTERM, signal.SIGKILL):
         for pid in left:
             with contextlib.suppress(ProcessLookupError, PermissionError):
@@ -177,14 +182,15 @@ def main(argv: list[str] | None = None) -> int:
         os.setpgid(0, 0)  # as the group it stops is the node's, never its starter's
     signal_on_parent_death(signal.SIGTERM)
     subreaper = become_subreaper()
+    say("INFO", f"starting {shlex.join(command)} (guard pid {os.getpid()})")  # before the node's first line
     try:
         node = subprocess.Popen(command, stdin=subprocess.DEVNULL, preexec_fn=_node_death_signal)  # noqa: PLW1509 - the guard has one thread
     except OSError as exc:
-        print(f"node_guard: cannot start {command[0]!r}: {exc.strerror or exc}", file=sys.stderr, flush=True)
+        say("ERROR", f"cannot start {command[0]!r}: {exc.strerror or exc}")
         return EXIT_NOT_STARTED
     while node.poll() is None:
         if launcher_gone() is not None:
-            print("node_guard: the launcher is gone: stopping the node's process group", file=sys.stderr, flush=True)
+            say("WARNING", "the launcher is gone: stopping the node's process group")
             stop_group(args.stop_timeout, node)
         if subreaper:
             reap_orphans(node.pid)

@@ -24,6 +24,7 @@ from cso_runtime.config import (
     from_dict,
     load_yaml,
     set_dotted,
+    set_flag_text,
     with_nearest,
 )
 from cso_runtime.keys import check_robot_id
@@ -108,6 +109,10 @@ class SupervisionConfig:
 
 HANG_CHECK_PERIOD_S = 1.0
 """How often the launcher asks its services for their status (``SupervisionConfig.hang_timeout_s``)."""
+
+REAL_ROBOT_SCENE = "none: the real robot explores where it is"
+"""What a run with no simulator (a real robot through ``ros2_bridge``) names as its scene: the launcher's first
+line and ``runs``; its profile's ``scene`` is never loaded."""
 
 REFEREES = ("sim", "ros2_bridge")
 """Services that own the episode (its status and end): without them the run cannot finish (nor be left out of it,
@@ -205,6 +210,11 @@ class Profile:
 
         section = self.services.get(name)
         return section if isinstance(section, dict) and not is_own_node(section) else {}
+
+    @property
+    def scene_label(self) -> str:
+        """The scene this profile's run explores, as its log names it: ``profile_scene``."""
+        return profile_scene({"scene": self.scene, "services": self.services})
 
     @property
     def policy_method(self) -> str:
@@ -310,6 +320,18 @@ class Profile:
 
 PACKAGED_PROFILES = Path(__file__).resolve().parent / "profiles"
 """The default profiles ship inside the package (package data), so an installed package finds them."""
+
+
+def runs_a_real_robot(data: dict[str, Any]) -> bool:
+    """Whether a profile's data (a run's ``profile.yaml``) runs a real robot: a ``ros2_bridge`` and no ``sim``."""
+    services = data.get("services")
+    return isinstance(services, dict) and "ros2_bridge" in services and "sim" not in services
+
+
+def profile_scene(data: dict[str, Any]) -> str:
+    """The scene a profile's data explores: its ``scene``, else the default one; for a real robot's,
+    ``REAL_ROBOT_SCENE``."""
+    return REAL_ROBOT_SCENE if runs_a_real_robot(data) else str(data.get("scene") or Profile.scene)
 
 
 def profile_exploration_config(exploration: Any, services: Any, where: str = "exploration") -> ExplorationConfig:
@@ -418,7 +440,7 @@ def load_profile(
     data.setdefault("name", path.stem)
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
     flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]
-    flags += [f"--set {k}={v}" for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
+    flags += [set_flag_text(k, v) for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
     profile = from_dict(Profile, data, where=f"{path} with {' '.join(flags)}" if flags else str(path))
     return profile, data
 

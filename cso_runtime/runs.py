@@ -48,6 +48,9 @@ class RunSummary:
     profile: str = ""
     robot: str = ""
     scene: str = ""
+    """The scene spec it explored (the profile's, else the default); empty for a real robot's run."""
+    real_robot: bool = False
+    """A real robot's run (``ros2_bridge``, no simulator): no scene."""
     method: str = ""
     metrics: dict[str, Any] = field(default_factory=dict)
     """The method's Table 1 row from ``summary.json`` (empty until the episode ended)."""
@@ -67,6 +70,7 @@ class RunSummary:
             "profile": self.profile,
             "robot": self.robot,
             "scene": self.scene,
+            "real_robot": self.real_robot,
             "method": self.method,
             **{k: self.metrics.get(k) for k in keys},
             "steps": whole_count(self.metrics.get("steps")),  # a run is one episode: summary.json's mean over its one episode
@@ -102,6 +106,10 @@ def summarize_run(run_dir: Path) -> RunSummary:
     except (OSError, yaml.YAMLError):
         profile = {}
     profile = profile if isinstance(profile, dict) else {}
+    from cso_runtime.run_profile import profile_scene, runs_a_real_robot  # noqa: PLC0415 - loads the scenes' code: only where runs are read
+
+    real_robot = runs_a_real_robot(profile)
+
     summary = read_json_object(run_dir / "summary.json") or {}
     methods = m if isinstance(m := summary.get("methods"), dict) else {}
     method = str(profile.get("method", "")) or next(iter(methods), "")
@@ -128,7 +136,8 @@ def summarize_run(run_dir: Path) -> RunSummary:
         state=state,
         profile=str(profile.get("name", "")),
         robot=str(info.get("robot") or profile.get("robot", "")),
-        scene=str(profile.get("scene", "")),
+        scene="" if real_robot or not profile else profile_scene(profile),
+        real_robot=real_robot,
         method=method,
         metrics=dict(methods.get(method) or {}),
         restarts=sum(int(s.get("restarts") or 0) for s in services.values() if isinstance(s, dict)),

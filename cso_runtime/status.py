@@ -473,6 +473,39 @@ def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_j
     return code
 
 
+def detached_run_after_episode(run_dir: Path) -> dict[str, Any] | None:
+    """The ``run.json`` of a detached run whose episode has ended and whose results are written (state ``done`` or
+    ``failed``, its launcher alive): it stays up, answering ``status``, until ``down``, so ``status --watch`` ends
+    there, as ``logs -f`` does. None otherwise (a foreground run, in that state only while it stops, included)."""
+    from cso_runtime.current_run import current_launcher_alive  # noqa: PLC0415
+    from cso_runtime.runs import read_json_object  # noqa: PLC0415
+
+    info = read_json_object(run_dir / "run.json")
+    if info is None or not info.get("detached") or info.get("state") not in EPISODE_OVER:
+        return None
+    return info if current_launcher_alive(info) else None
+
+
+def say_episode_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_json: bool) -> int:
+    """The line ``status --watch`` ends with on a detached run whose episode ended: how, where its results are, and
+    that the run stays up until ``down``; exit 0 when the episode ended done, else 1."""
+    from cso_runtime.outputs import results_said  # noqa: PLC0415
+    from cso_runtime.runs import LOG_DIR  # noqa: PLC0415
+
+    state = str(run.get("state"))
+    code = 0 if state == "done" else 1
+    ended_by = last.get("terminated_by") or ""
+    where = results_said(run_dir) if state == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
+    line = (f"run {run.get('run_id')}'s episode has ended: {state}" + (f" ({ended_by})" if ended_by else "") + f" at step {last.get('step', 0)}; "
+            f"{where}; the run stays up (for status) until `cso-runtime down`")
+    if as_json:
+        ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "exit_code": code, "terminated_by": ended_by, "step": last.get("step", 0)}
+        print(json.dumps({"state": state, "reason": line, **ended}), flush=True)
+    else:
+        print(line)
+    return code
+
+
 def await_started_run(runs_dir: Path, as_json: bool, period_s: float) -> int | None:
     """``status --watch`` on a run that is starting (``up`` writes its run file before its router opens): wait for it
     to come up, saying so (once on a terminal or in a file; ``--json``: a ``starting`` line each period). None once
@@ -565,6 +598,10 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 console.print(render_table(shown))
             if not watch:
                 return 0
+            if watched is not None and (run := detached_run_after_episode(watched[0])) is not None:
+                if live is not None:
+                    live.stop()  # the last table stays; the line below goes under it
+                return say_episode_ended(run, watched[0], last, as_json)
             # A fixed schedule: the lines come every period_s however long a query took (a slow or silent service
             # made each one up to its 0.6 s timeout later); a period that a query overran is skipped, not made up.
             next_s += period_s

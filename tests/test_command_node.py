@@ -364,3 +364,21 @@ def test_the_docs_command_node_section_is_what_up_takes(tmp_path: Path):
     prof, _ = load_profile(str(node_profile(tmp_path, section)))
     nodes = {n.name: n for n in nodes_of(list(prof.services), prof.services)}
     assert nodes["map_listener"].inputs == ("map",) and prof.services["map_listener"]["alive_token"] is True
+
+
+def test_logs_place_a_command_nodes_unstamped_lines_after_its_start_not_before_the_whole_run(tmp_path: Path):
+    """A command node's own output has no time stamps: ``cso-runtime logs`` sorted all of it before the launcher's
+    first line ("merged in time order"), tracebacks of its restarts included. Its guard writes a stamped line as it
+    starts it, so each start's lines follow that line."""
+    from cso_runtime.runs import log_files, read_logs
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "launcher.log").write_text("2000-01-01 00:00:00,000 INFO cso.launcher: started map_listener (command sh, pid 1)\n")
+    with (logs / "map_listener.log").open("w") as log:
+        r = subprocess.run([*python_module_argv("cso_runtime.node_guard"), "--", "sh", "-c", "echo listening"], stdout=log, stderr=log, timeout=30)
+    assert r.returncode == 0
+    lines, _ = read_logs(log_files(tmp_path))
+    said = [(line.service, line.text.split(": ", 1)[-1] if line.service == "launcher" else line.text) for line in lines]
+    assert said[0] == ("launcher", "started map_listener (command sh, pid 1)") and said[-1] == ("map_listener", "listening"), said
+    assert "INFO node_guard: starting sh -c 'echo listening'" in said[1][1], said

@@ -476,3 +476,15 @@ def test_a_mistyped_profile_name_or_a_missing_profile_file_says_what_is_wrong(tm
     with pytest.raises(ConfigError, match=r"profile file not found: .*sim\.yml"):
         find_profile(str(tmp_path / "sim.yml"))  # a path, even where its stem is a known name
     assert find_profile("sim").name == "sim.yaml"
+
+
+def test_an_error_quotes_each_set_flag_as_typed_not_as_pythons_repr():
+    """``up --set services.sim.viewer=true`` was refused "with --set services.sim.viewer=True", and a list as
+    ``['tcp/...']``: the flags the error names are YAML again, as the user typed them."""
+    from cso_runtime.evaluation import EvalRequest
+    from cso_runtime.run_profile import load_profile
+
+    with pytest.raises(ConfigError, match=r"^eval with --set masks.warp=true --set masks.hop=\[a, 2\]: masks: unknown key"):
+        EvalRequest(methods=["cso"], settings={"masks.warp": True, "masks.hop": ["a", 2]}).exploration_config()
+    with pytest.raises(ConfigError, match=r"with --set services.planner.nope=false: services.planner: unknown key\(s\) nope"):
+        load_profile("lockstep", settings={"services.planner.nope": False})

@@ -627,6 +627,21 @@ def test_eval_warms_a_learned_policy_up_before_its_first_decision(tmp_path: Path
     assert calls[0] == "warm_up" and calls.count("warm_up") == 1 and "select" in calls
 
 
+def test_an_eval_whose_progress_reader_is_gone_runs_every_episode_and_writes_its_results(tmp_path: Path):
+    """``eval ... 2>&1 | head -1``: once the reader of its progress lines was gone, rich turned the broken pipe into
+    ``SystemExit(1)`` at the next line, so the eval stopped after an episode or two, silently, with exit code 1 and
+    neither summary.json nor episodes.csv. The progress goes quiet instead; the episodes run and their results
+    are written."""
+    out = tmp_path / "o"
+    cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--maps", "generated:small:3:0", "--max-steps", "5", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    assert proc.stderr is not None
+    proc.stderr.close()  # the reader gone before the first progress line
+    assert proc.wait(timeout=120) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["methods"]["greedy-dist"]["episodes"] == 3 and (out / "episodes.csv").is_file()
+
+
 def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     """Without a terminal (a log file, CI) each finished episode is one line, however long its map's name,
     and an episode ``--resume`` read back says so."""
@@ -644,6 +659,17 @@ def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     assert lines[0] == f"[1/2] greedy-dist {long_name}: 99.1% in 51 steps (coverage, kept from the earlier run)"
     assert lines[1] == "[2/2] greedy-dist gen_small_0: 99.1% in 51 steps (coverage) [0:00:00 elapsed]"
     assert lines[2] == "writing results/easy/: summary.json, episodes.csv, curves and 2 trajectory plots"
+
+
+def test_the_writing_line_of_an_eval_of_one_plan_says_one_trajectory_plot(capsys):
+    """``eval --limit 1`` said "writing ...: summary.json, episodes.csv, curves and 1 trajectory plots"."""
+    from cso_runtime.evaluation import RichProgress
+
+    progress = RichProgress(clock=lambda: 0.0)
+    progress.start(1)
+    progress.writing(Path("results/one"), 1)
+    progress.stop()
+    assert capsys.readouterr().err.splitlines() == ["writing results/one/: summary.json, episodes.csv, curves and 1 trajectory plot"]
 
 
 def test_a_progress_line_says_why_an_episode_found_no_frontier(capsys):

@@ -79,7 +79,7 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     for name, text in (("run.json", "{not json"), ("profile.yaml", "[: bad"), ("summary.json", '{"methods": 3}')):
         (broken / name).write_text(text)
     assert list_runs(runs)[-1].as_dict() | {"run_dir": ""} == {
-        "run_id": broken.name, "run_dir": "", "state": "stopped", "profile": "", "robot": "", "scene": "", "method": "",
+        "run_id": broken.name, "run_dir": "", "state": "stopped", "profile": "", "robot": "", "scene": "", "real_robot": False, "method": "",
         "explored_area_m2": None, "coverage_pct": None, "steps": None, "efficiency_m2_per_step": None, "path_length_m": None,
         "terminated_by": None, "restarts": 0, "duration_s": None,
     }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback)
@@ -240,3 +240,28 @@ def test_runs_keep_and_older_than_list_old_runs_and_delete_them_only_with_yes_ne
     assert (runs / "current.json").is_file()
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--yes"])
     assert r.exit_code == 2 and "--keep N or --older-than DAYS" in r.output
+
+
+def test_a_real_robots_run_names_no_scene_of_a_simulator_in_runs_and_the_launchers_first_line():
+    """A ``limo-ros2`` run has no simulator: the launcher's first line said "scene generated:small:1:0" (the profile
+    default, never run) and ``runs`` listed its row as ", cso". Both now say that the robot explores where it is;
+    a simulated run without a ``scene`` key names the default scene it ran."""
+    from cso_runtime.run_profile import REAL_ROBOT_SCENE, Profile, load_profile, profile_scene
+
+    real = {"name": "limo-ros2", "method": "cso", "services": {"ros2_bridge": {}, "mapper": {}, "frontier": {}, "policy": {}, "planner": {}}}
+    assert profile_scene(real) == REAL_ROBOT_SCENE and "robot" in REAL_ROBOT_SCENE
+    assert profile_scene({"services": {"sim": {}}}) == Profile.scene and profile_scene({"scene": "builtin", "services": {"sim": {}}}) == "builtin"
+    assert load_profile("limo-ros2", connect=["tcp/127.0.0.1:7447"])[0].scene_label == REAL_ROBOT_SCENE
+    assert load_profile("lockstep")[0].scene_label == "generated:small:1:0"
+
+
+def test_runs_lists_a_real_robots_run_as_exploring_where_the_robot_is(tmp_path):
+    from cso_runtime.run_profile import REAL_ROBOT_SCENE
+    from cso_runtime.runs import summarize_run
+
+    d = make_run(tmp_path / "runs", "20261206-205536-limo-ros2-r0", outcome="done", summary={"coverage_pct": 0.0, "steps": 196})
+    (d / "profile.yaml").write_text(yaml.safe_dump({"name": "limo-ros2", "robot": "r0", "method": "cso", "services": {"ros2_bridge": {}, "planner": {}}}))
+    assert summarize_run(d).real_robot and summarize_run(d).as_dict()["scene"] == ""  # --json: no scene, as before
+    assert not summarize_run(make_run(tmp_path / "runs", "20261206-205537-lockstep-r0", outcome="done")).real_robot
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "runs")], env={"COLUMNS": "200"})
+    assert r.exit_code == 0 and f"{REAL_ROBOT_SCENE}, cso" in r.output and "\n    , cso" not in r.output, r.output

@@ -2705,6 +2705,55 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
     assert re.search(r"goal +│ \(1\.50, 2\.50\) m", last_table) and "last 12.5 ms" in last_table, last_table
 
 
+@pytest.mark.parametrize(("episode_state", "exit_code", "as_json"), [("done", 0, False), ("done", 0, True), ("failed", 1, False)])
+def test_status_watch_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypatch, capsys, episode_state, exit_code, as_json):
+    """``up --detach`` stays up after its episode, answering ``status``, until ``down``: ``status --watch`` on it
+    refreshed the finished episode's table for ever (``logs -f`` ends there). Once run.json says the detached run's
+    episode ended, it ends: how the episode ended, where the results are, that the run stays up until ``down``."""
+    from rich.console import Console
+
+    from cso_runtime import status
+    from cso_runtime.supervision import process_start_ticks
+
+    runs = tmp_path / "runs"
+    run_dir = runs / "20261206-120000-lockstep-r0"
+    run_dir.mkdir(parents=True)
+    running = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(),
+               "launcher_start_ticks": process_start_ticks(os.getpid()), "state": "running", "detached": True}
+    for path in (run_dir / "run.json", runs / "current.json"):
+        path.write_text(json.dumps(running))
+    services = {"sim": {"pid": 1, "restarts": 0}}
+    episode = {"state": "exploring", "step": 5, "episode": 7, "scene": "s", "method": "cso"}
+    exploring = status.status_of("r0", episode, {"run_id": "run1", "state": "running", "services": services}, {}, {"sim"})
+    over = status.status_of("r0", {**episode, "state": episode_state, "step": 9, "terminated_by": "coverage"}, {"run_id": "run1", "state": "running", "services": services}, {}, {"sim"})
+
+    def results_written() -> dict:  # as the detached launcher does once its results are written: it stays up
+        for path in (run_dir / "run.json", runs / "current.json"):
+            path.write_text(json.dumps({**running, "state": episode_state, "episode_ended_at": 1.0}))
+        return over
+
+    answers = iter([lambda: exploring, lambda: over, results_written, lambda: over, lambda: over])
+    queries: list[int] = []
+
+    def answer(connect, robot, timeout_s=0.6, zenoh_config_file=None):
+        queries.append(1)
+        return next(answers)()
+
+    monkeypatch.setattr(status, "query_status", answer)
+    monkeypatch.setattr(status.time, "sleep", lambda s: None)
+    code = status.status_main([], None, as_json=as_json, watch=True, runs_dir=runs, period_s=0.1, console=Console(file=io.StringIO(), force_terminal=False, width=100))
+    said = capsys.readouterr().out
+    assert code == exit_code and len(queries) == 3, said
+    ended = f"run run1's episode has ended: {episode_state} (coverage) at step 9"
+    stays = "the run stays up (for status) until `cso-runtime down`"
+    if as_json:
+        last = json.loads(said.splitlines()[-1])
+        assert (last["state"], last["exit_code"], last["run_dir"], last["terminated_by"], last["step"]) == (episode_state, exit_code, str(run_dir), "coverage", 9)
+        assert last["reason"].startswith(ended) and stays in last["reason"], last
+        return
+    assert said.startswith(ended) and stays in said and (f"results in {run_dir}/: report.html" in said) == (episode_state == "done"), said
+
+
 def test_status_watch_ends_by_saying_that_the_watched_runs_launcher_was_killed(tmp_path, monkeypatch, capsys):
     """``status --watch`` of a run whose launcher was then SIGKILLed ended with "nothing running (no answer for robot r0
     at tcp/...)", where ``status`` says at once that the launcher has exited and how to clear the run: it says so too."""
