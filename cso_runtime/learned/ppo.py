@@ -800,7 +800,9 @@ def collect_teacher_parallel(args: Args, workers: int, decisions: int, time_limi
     refs = training_scene_refs(args)
     per_worker = max(1, -(-decisions // workers))
     jobs = [(args, refs, args.seed + i, per_worker, time_limit_s) for i in range(workers)]
-    log(f"collecting {args.warm_start_teacher} decisions in {workers} processes on {len(refs)} scenes")
+    processes = "1 process" if workers == 1 else f"{workers} processes"
+    scenes = "1 scene" if len(refs) == 1 else f"{len(refs)} scenes"
+    log(f"collecting {args.warm_start_teacher} decisions in {processes} on {scenes}")
     parts: dict[int, TeacherData] = {}
 
     def collected(job: tuple, part: TeacherData | WorkerDied) -> None:
