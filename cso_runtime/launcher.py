@@ -769,7 +769,12 @@ class Launcher:
                 code = c.proc.returncode if c.proc is not None else -1
                 c.exit_codes.append(code)
                 self.stop_robot(c, code)  # first, before a restart or giving up
-                if code == EXIT_BAD_CONFIG:
+                if code == EXIT_BAD_CONFIG and self.config_lost_since_spawn(c):
+                    log.warning(
+                        "%s exited (code %d: %s) after the run folder, its profile.yaml with it, was deleted: made again, so it is restarted",
+                        c.name, code, c.last_error() or "no error logged",
+                    )  # fmt: skip
+                elif code == EXIT_BAD_CONFIG:
                     c.gave_up, c.gave_up_at = True, now  # the same configuration would fail the same way: no restart
                     log.error("%s refused its configuration (exit code %d): not restarting it: %s (see %s)", c.name, code, c.last_error() or "no error logged", c.log_path)
                     changed = True
@@ -791,6 +796,13 @@ class Launcher:
                 log.info("restarted %s (pid %d)", c.name, c.proc.pid if c.proc else -1)
         if changed:
             self.write_run_file("running")
+
+    def config_lost_since_spawn(self, c: Child) -> bool:
+        """Whether the run folder, with the ``profile.yaml`` ``c`` reads as it starts, was deleted since ``c`` started
+        (made again since, or still gone: the next round makes it again before the restart): its refusal may be of a
+        missing file rather than of its configuration."""
+        watch = self.run_folder
+        return watch.made_again_s >= c.spawned_at or (bool(watch.read_files) and watch.lost())
 
     def tend_runs_lock(self) -> None:
         """On each round of the run loop: the runs folder's lock file deleted (the whole runs folder removed) leaves the
@@ -1175,6 +1187,7 @@ class Launcher:
         # First: `status` and `down` find the run while its router opens and its services spawn (seconds), not "no current run".
         self.write_run_file("starting")
         self.profile_path.write_text(yaml.safe_dump(self.data, sort_keys=False))
+        self.run_folder.expect(self.profile_path)  # every service reads it as it starts
         self.write_dataflow()
         if self.stop_event.is_set():  # Ctrl-C (or SIGTERM) since `up` started: no router is opened
             log.warning("interrupted before any service was started")

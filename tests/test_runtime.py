@@ -902,7 +902,7 @@ def test_a_runs_folder_deleted_mid_run_keeps_its_lock_and_a_second_up_is_refused
         assert r.returncode == 0, r.stderr
         current = json.loads((runs / "current.json").read_text())
         # Every service has read its configuration from the run folder: deleted before that, a service that has not is
-        # refused its configuration and the run stops, which is another case (the folder is lost while the run runs).
+        # restarted once the folder is made again, which is another case (test_a_run_folder_deleted_before_a_service_...).
         wait_for(lambda: (s := query_status(current["endpoints"], current["robot"], timeout_s=0.5)) and s["state"] == "exploring", 60, "the episode to start")
         first += run_pids(runs)
         for _ in range(20):  # as `rm -rf runs` does; the services write logs meanwhile, so one walk may meet a new file
@@ -2791,6 +2791,60 @@ def test_a_run_folder_deleted_mid_run_is_made_again_with_the_logs_still_written_
     finally:
         launcher_log.removeHandler(own_log)
         own_log.close()
+        if child.alive:
+            child.proc.kill()
+            child.proc.wait(10)
+        launcher.run_folder.close()
+
+
+def test_a_run_folder_deleted_before_a_service_read_its_profile_is_made_again_and_the_service_restarted(tmp_path, caplog):
+    """``rm -rf runs/RUN`` in a run's first second, before its services had read ``profile.yaml``: each service's start
+    made ``logs/`` again (its log file), so the launcher took the folder for there, never wrote ``profile.yaml`` again,
+    and every service refused its configuration (``config file not found``, exit code 2, not restarted): the run
+    stopped (exit code 1) on a confusing "refused its configuration". The folder is made again once its profile.yaml
+    is gone, and a service that refused its configuration after the folder was made again since its start is restarted:
+    the run goes on as for a folder deleted later."""
+    import logging
+    import shutil
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    run_dir = tmp_path / "runs" / "run1"
+    launcher = Launcher(profile, data, run_dir)
+    (run_dir / "logs").mkdir(parents=True)
+    launcher.profile_path.write_text(yaml.safe_dump(data))
+    launcher.run_folder.expect(launcher.profile_path)  # as ``run`` does
+    reads = f"import pathlib, sys\nif not pathlib.Path({str(launcher.profile_path)!r}).is_file():\n    print('ERROR config file not found', flush=True)\n    sys.exit(2)\nprint('read it', flush=True)\nimport time; time.sleep(60)"
+    child = Child("mapper", [sys.executable, "-c", reads], run_dir / "logs" / "mapper.log")
+    launcher.children = [child]
+    caplog.set_level(logging.INFO, logger="cso.launcher")
+    try:
+        shutil.rmtree(run_dir)
+        child.spawn()  # makes logs/ again, and finds no profile.yaml
+        child.proc.wait(timeout=30)
+        assert (run_dir / "logs").is_dir() and not launcher.profile_path.exists()
+        launcher.supervise()
+        assert not child.gave_up and child.restart_at is not None and child.exit_codes == [2], caplog.text
+        launcher.tend_run_folder()  # the run loop's next round, before the restart
+        assert launcher.profile_path.is_file() and launcher.run_folder.losses == 1
+        launcher.supervise(child.restart_at)
+        assert child.restarts == 1
+        wait_for(lambda: "read it" in child.log_path.read_text() or not child.alive, 30, "the service to read its profile")
+        assert child.alive
+        launcher.tend_run_folder()  # nothing gone again
+        assert launcher.run_folder.losses == 1
+        # A refusal of a folder's own profile.yaml (none lost since it started) is still not restarted.
+        child.proc.kill()
+        child.proc.wait(timeout=30)
+        child.argv = [sys.executable, "-c", "raise SystemExit(2)"]
+        child.spawn()
+        child.proc.wait(timeout=30)
+        launcher.supervise()
+        assert child.gave_up, caplog.text
+    finally:
         if child.alive:
             child.proc.kill()
             child.proc.wait(10)
