@@ -1131,6 +1131,8 @@ def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
         assert current_launcher_alive({**stale, "launcher_start_ticks": ticks})  # the very process: alive
         ok, message = down(runs, timeout_s=1.0)
         assert ok and "stopped run old" in message and not (runs / "current.json").exists()
+        # Nothing of it ran: said, not a plain "stopped" as if down had stopped it.
+        assert f"its launcher, pid {bystander.pid}, had already exited: {runs / 'current.json'} cleared" in message, message
         assert bystander.poll() is None  # not signalled
         # A service the launcher found dead when it wrote the file has no start time: its pid is not its own.
         dead_service = {**stale, "services": {"mapper": {"pid": bystander.pid, "start_ticks": None}}}
@@ -1160,7 +1162,7 @@ def test_down_waits_for_the_services_it_kills_to_be_gone(tmp_path):
                 "services": {"mapper": {"pid": service.pid, "start_ticks": process_start_ticks(service.pid)}}}
         (runs / "current.json").write_text(json.dumps(info))
         ok, message = down(runs)
-        assert ok and message == "stopped run killed", message
+        assert ok and message == f"stopped run killed (its launcher, pid {gone_launcher}, had already exited: killed the 1 service(s) it left running; {runs / 'current.json'} cleared)", message
         reaper.join(timeout=10)  # poll() answers None while another thread waits on the process
         assert service.returncode == -signal.SIGKILL
     finally:
