@@ -89,6 +89,11 @@ class RunFolderWatch:
         """Whether the run folder, its ``logs/`` or a file its processes read is gone (deleted, or moved away)."""
         return not (self.run_dir / LOG_DIR).is_dir() or not all(p.is_file() for p in self.read_files)
 
+    def writes_nameless(self, pids: list[int]) -> bool:
+        """Whether ``pids`` write a file under the folder that has no name any more: the folder was deleted after they
+        opened it (a launcher's log, opened by ``up`` before the launcher ran), whatever is there now."""
+        return bool(nameless_files_under(self.run_dir, pids))
+
     def rescue(self, pids: list[int]) -> list[Path]:
         """After the folder was found gone and made again: take each nameless file under it that ``pids`` still write,
         copy it whole to its path (earlier copies went with the folder) and keep it for ``sync``; their paths."""

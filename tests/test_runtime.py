@@ -2853,6 +2853,59 @@ def test_a_run_folder_deleted_before_a_service_read_its_profile_is_made_again_an
         launcher.run_folder.close()
 
 
+DELETE_THE_RUN_FOLDER_AS_THE_LAUNCHER_STARTS = """
+import shutil, subprocess, sys
+from pathlib import Path
+real = subprocess.Popen
+
+def popen(argv, *args, **kwargs):  # `rm -rf runs/RUN` right as `up --detach` has started its launcher
+    proc = real(argv, *args, **kwargs)
+    if "cso_runtime.launcher" in argv:
+        subprocess.Popen = real
+        run_dir = Path(argv[argv.index("--run-dir") + 1])
+        Path(sys.argv[1]).write_text(str(proc.pid))  # for the test to clean up
+        shutil.rmtree(run_dir)
+    return proc
+
+subprocess.Popen = popen
+from cso_runtime.cli import main
+sys.argv = ["cso-runtime", *sys.argv[2:]]
+main()
+"""
+
+
+def test_a_run_folder_deleted_as_a_detached_launcher_starts_is_made_again_and_the_run_goes_on(tmp_path):
+    """``rm -rf runs/RUN`` in the second ``up --detach`` takes to start its launcher: the launcher read its profile from
+    the folder (``profile.requested.yaml``) and refused to start (config file not found), and ``up`` died with a
+    FileNotFoundError traceback reading the launcher's log there. The launcher gets its profile on its stdin, finds
+    its own log without a name as it starts, makes the folder again with that log copied back, and the run goes on
+    as for a folder deleted later."""
+    runs = tmp_path / "runs"
+    argv = ["up", "--profile", str(write_profile(tmp_path)), "--detach", "--set", "exploration.episode.max_steps=8", "--runs-dir", str(runs)]
+    launcher_pid: list[int] = []
+    try:
+        r = subprocess.run(
+            [sys.executable, "-c", DELETE_THE_RUN_FOLDER_AS_THE_LAUNCHER_STARTS, str(tmp_path / "pid"), *argv],
+            cwd=tmp_path, capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        said = r.stdout + r.stderr
+        if (tmp_path / "pid").exists():
+            launcher_pid.append(int((tmp_path / "pid").read_text()))
+        assert r.returncode == 0 and "started" in said and "Traceback" not in said, said[-3000:]
+        current = json.loads((runs / "current.json").read_text())
+        run_dir = Path(current["run_dir"])
+        final = wait_for(lambda: (s := query_status(current["endpoints"], current["robot"], timeout_s=0.5)) and s["state"] in EPISODE_OVER and s, 60, "the episode's end")
+        assert (final["state"], final["step"]) == ("done", 8), final
+        assert json.loads((run_dir / "run.json").read_text())["run_dir_lost"] == 1
+        log_text = (run_dir / "logs" / "launcher.log").read_text()
+        assert "was deleted while the run ran: made it again" in log_text and "logs/launcher.log" in log_text, log_text[-3000:]
+        wait_for(lambda: "episode_ended_at" in json.loads((run_dir / "run.json").read_text()), 30, "the episode's results")
+        assert (run_dir / "profile.yaml").is_file() and (run_dir / "summary.json").is_file()
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        kill_leftovers(runs, extra=launcher_pid)
+
+
 def starting_run_files(runs: Path, launcher_pid: int) -> tuple[Path, dict]:
     """A run folder and the run file ``up`` writes first (state ``starting``, no endpoints), as current run of ``runs``."""
     run_dir = runs / "20261206-120000-lockstep-r0"
