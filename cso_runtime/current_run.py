@@ -155,6 +155,9 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
     if left:
         return False, f"processes still running: {left}"
     notes = ["its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop"] if continued else []
+    if not launcher_alive:  # killed, crashed, a reboot: nothing of the run was stopped here but its leftovers
+        leftovers = f"killed the {len(killed)} service(s) it left running; " if killed else ""
+        notes.append(f"its launcher, pid {info.get('launcher_pid')}, had already exited: {leftovers}{runs_dir / CURRENT_RUN} cleared")
     if escalated:  # its results (summary.json, run.json's outcome) may be missing: say so rather than a plain "stopped"
         notes.append(f"its launcher did not stop on SIGINT within {timeout_s:g} s: {escalated}")
     return True, f"stopped run {info.get('run_id')}" + (f" ({'; '.join(notes)})" if notes else "")

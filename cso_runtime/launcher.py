@@ -23,6 +23,7 @@ import os
 import shlex
 import signal
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -773,7 +774,12 @@ class Launcher:
                 code = c.proc.returncode if c.proc is not None else -1
                 c.exit_codes.append(code)
                 self.stop_robot(c, code)  # first, before a restart or giving up
-                if code == EXIT_BAD_CONFIG:
+                if code == EXIT_BAD_CONFIG and self.config_lost_since_spawn(c):
+                    log.warning(
+                        "%s exited (code %d: %s) after the run folder, its profile.yaml with it, was deleted: made again, so it is restarted",
+                        c.name, code, c.last_error() or "no error logged",
+                    )  # fmt: skip
+                elif code == EXIT_BAD_CONFIG:
                     c.gave_up, c.gave_up_at = True, now  # the same configuration would fail the same way: no restart
                     log.error("%s refused its configuration (exit code %d): not restarting it: %s (see %s)", c.name, code, c.last_error() or "no error logged", c.log_path)
                     changed = True
@@ -796,6 +802,13 @@ class Launcher:
         if changed:
             self.write_run_file("running")
 
+    def config_lost_since_spawn(self, c: Child) -> bool:
+        """Whether the run folder, with the ``profile.yaml`` ``c`` reads as it starts, was deleted since ``c`` started
+        (made again since, or still gone: the next round makes it again before the restart): its refusal may be of a
+        missing file rather than of its configuration."""
+        watch = self.run_folder
+        return watch.made_again_s >= c.spawned_at or (bool(watch.read_files) and watch.lost())
+
     def tend_runs_lock(self) -> None:
         """On each round of the run loop: the runs folder's lock file deleted (the whole runs folder removed) leaves the
         lock on a file with no name, which stops no second ``up``: take it again on a new file, or say that another
@@ -815,14 +828,15 @@ class Launcher:
                 runs_dir / RUNS_LOCK, runs_dir,
             )  # fmt: skip
 
-    def tend_run_folder(self) -> None:
+    def tend_run_folder(self, lost: bool = False) -> None:
         """On each round of the run loop: when the run folder (or its ``logs/``) was deleted, make it again with
         ``run.json``, ``profile.yaml``, ``dataflow.md`` and ``logs/``, copy back every file the launcher and its services
         still write there (their logs, a recording: ``RunFolderWatch``, kept up to date until the run ends), and say so
         on stderr, in ``launcher.log`` and in the launcher's status (``run_dir_lost``). The run goes on: a robot is not
-        stopped for a folder; what the run had written and closed before (results, a kept map) is lost, and said."""
+        stopped for a folder; what the run had written and closed before (results, a kept map) is lost, and said.
+        ``lost``: known to have been deleted, whatever is there now."""
         watch = self.run_folder
-        if not watch.lost():
+        if not lost and not watch.lost():
             watch.sync()
             return
         try:
@@ -1180,7 +1194,10 @@ class Launcher:
         # First: `status` and `down` find the run while its router opens and its services spawn (seconds), not "no current run".
         self.write_run_file("starting")
         self.profile_path.write_text(yaml.safe_dump(self.data, sort_keys=False))
+        self.run_folder.expect(self.profile_path)  # every service reads it as it starts
         self.write_dataflow()
+        if self.run_folder.writes_nameless([os.getpid()]):  # deleted since `up` made it and opened this one's log there
+            self.tend_run_folder(lost=True)
         if self.stop_event.is_set():  # Ctrl-C (or SIGTERM) since `up` started: no router is opened
             log.warning("interrupted before any service was started")
             return self.stop_before_start(EXIT_INTERRUPTED)
@@ -1540,14 +1557,19 @@ def start_detached(
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with log_path.open("ab") as fh:
         proc = subprocess.Popen(
-            [*python_module_argv("cso_runtime.launcher"), "--profile-data", str(data_path), "--run-dir", str(run_dir)]
+            [*python_module_argv("cso_runtime.launcher"), "--profile-data", STDIN_PATH, "--run-dir", str(run_dir)]
             + (["--record", str(record_path.resolve())] if record_path is not None else [])
             + (["--animate"] if animate else []),
             stdout=fh,
             stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
+            stdin=subprocess.PIPE,
             start_new_session=True,
         )
+    # On its stdin, not from profile.requested.yaml (kept for the record): a run folder deleted in the second the
+    # launcher takes to start would leave it nothing to run (the run goes on, as for a folder deleted later).
+    assert proc.stdin is not None
+    with contextlib.suppress(OSError), proc.stdin:  # a launcher dead at once: its exit code says why, below
+        proc.stdin.write(yaml.safe_dump(data, sort_keys=False).encode())
     deadline = time.monotonic() + ready_timeout_s
     try:
         while time.monotonic() < deadline and not stop.is_set():
@@ -1558,7 +1580,7 @@ def start_detached(
             except (OSError, ValueError):
                 pass
             if proc.poll() is not None:  # its own code (2: refused, 3: no router), so `up --detach` says the same as `up`
-                return proc.returncode or 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_path.read_text()[-2000:]}"
+                return proc.returncode or 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_tail(log_path)}"
             stop.wait(0.05)
     except KeyboardInterrupt:  # Ctrl-C while waiting, without up's handlers: the same as with them
         stop.set()
@@ -1567,6 +1589,14 @@ def start_detached(
         return EXIT_INTERRUPTED, f"interrupted while the launcher started: stopped it (launcher pid {proc.pid}); see {log_path}"
     _stop_unstarted_launcher(proc, Launcher(profile, data, run_dir, record_path, animate), 1)
     return 1, f"the launcher did not start within {ready_timeout_s:.0f} s: stopped it; see {log_path}"
+
+
+def log_tail(path: Path, tail_chars: int = 2000) -> str:
+    """The end of a log for a message; what happened to it when it cannot be read (its run folder deleted)."""
+    try:
+        return path.read_text(errors="replace")[-tail_chars:]
+    except OSError as exc:
+        return f"(cannot read it: {exc.strerror or exc}; was the run folder deleted?)"
 
 
 def _stop_unstarted_launcher(proc: subprocess.Popen, run: Launcher, exit_code: int) -> None:
@@ -1601,10 +1631,14 @@ def _stop_launcher(proc: subprocess.Popen, timeout_s: float = 3 * SupervisionCon
             continue
 
 
+STDIN_PATH = "-"
+"""``--profile-data -``: the profile's data comes on the launcher's stdin (``start_detached``)."""
+
+
 def main(argv: list[str] | None = None) -> int:
     """Detached launcher process (started by ``up --detach``): runs until ``down``."""
     p = argparse.ArgumentParser(prog="python -m cso_runtime.launcher")
-    p.add_argument("--profile-data", type=Path, required=True)
+    p.add_argument("--profile-data", type=Path, required=True, help="The profile's data (YAML), as up validated it; -: on stdin")
     p.add_argument("--run-dir", type=Path, required=True)
     p.add_argument("--record", type=Path, default=None, help="MCAP file recording the run")
     p.add_argument("--animate", action="store_true", help="Draw the recording as a GIF when the run stops")
@@ -1612,8 +1646,8 @@ def main(argv: list[str] | None = None) -> int:
     stop_on_signals(stop)  # first: `up --detach` given up on (SIGTERM) while this one loads its profile is a clean stop
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
-    data = load_yaml(args.profile_data)
-    profile = from_dict(Profile, data, where=str(args.profile_data))
+    data = load_yaml(args.profile_data) if str(args.profile_data) != STDIN_PATH else yaml.safe_load(sys.stdin) or {}
+    profile = from_dict(Profile, data, where="the profile from up" if str(args.profile_data) == STDIN_PATH else str(args.profile_data))
     return run_until_stopped(Launcher(profile, data, args.run_dir, args.record, args.animate, stop_event=stop), live=False, stay_after_done=True)
 
 

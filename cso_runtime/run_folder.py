@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import os
 import stat
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
@@ -72,15 +73,32 @@ class RunFolderWatch:
         self.rescued: dict[tuple[int, int], RescuedFile] = {}
         self.losses = 0
         """How many times the folder was found gone (``rescue``)."""
+        self.read_files: list[Path] = []
+        """Files of the folder that the run's processes read (its ``profile.yaml``, ``expect``): a folder deleted and
+        made again by a service's start alone (its ``logs/``) is gone all the same without them."""
+        self.made_again_s = -float("inf")
+        """``time.monotonic()`` when the folder was last made again (``rescue``): a service started before then may
+        have found no ``profile.yaml`` to read."""
+
+    def expect(self, path: Path) -> None:
+        """Count the folder as gone when ``path`` (a file the run's processes read from it) is."""
+        if path not in self.read_files:
+            self.read_files.append(path)
 
     def lost(self) -> bool:
-        """Whether the run folder or its ``logs/`` is gone (deleted, or moved away)."""
-        return not (self.run_dir / LOG_DIR).is_dir()
+        """Whether the run folder, its ``logs/`` or a file its processes read is gone (deleted, or moved away)."""
+        return not (self.run_dir / LOG_DIR).is_dir() or not all(p.is_file() for p in self.read_files)
+
+    def writes_nameless(self, pids: list[int]) -> bool:
+        """Whether ``pids`` write a file under the folder that has no name any more: the folder was deleted after they
+        opened it (a launcher's log, opened by ``up`` before the launcher ran), whatever is there now."""
+        return bool(nameless_files_under(self.run_dir, pids))
 
     def rescue(self, pids: list[int]) -> list[Path]:
         """After the folder was found gone and made again: take each nameless file under it that ``pids`` still write,
         copy it whole to its path (earlier copies went with the folder) and keep it for ``sync``; their paths."""
         self.losses += 1
+        self.made_again_s = time.monotonic()
         for key, (path, proc_path) in nameless_files_under(self.run_dir, pids).items():
             if key in self.rescued:
                 continue

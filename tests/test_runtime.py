@@ -902,7 +902,7 @@ def test_a_runs_folder_deleted_mid_run_keeps_its_lock_and_a_second_up_is_refused
         assert r.returncode == 0, r.stderr
         current = json.loads((runs / "current.json").read_text())
         # Every service has read its configuration from the run folder: deleted before that, a service that has not is
-        # refused its configuration and the run stops, which is another case (the folder is lost while the run runs).
+        # restarted once the folder is made again, which is another case (test_a_run_folder_deleted_before_a_service_...).
         wait_for(lambda: (s := query_status(current["endpoints"], current["robot"], timeout_s=0.5)) and s["state"] == "exploring", 60, "the episode to start")
         first += run_pids(runs)
         for _ in range(20):  # as `rm -rf runs` does; the services write logs meanwhile, so one walk may meet a new file
@@ -1131,6 +1131,8 @@ def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
         assert current_launcher_alive({**stale, "launcher_start_ticks": ticks})  # the very process: alive
         ok, message = down(runs, timeout_s=1.0)
         assert ok and "stopped run old" in message and not (runs / "current.json").exists()
+        # Nothing of it ran: said, not a plain "stopped" as if down had stopped it.
+        assert f"its launcher, pid {bystander.pid}, had already exited: {runs / 'current.json'} cleared" in message, message
         assert bystander.poll() is None  # not signalled
         # A service the launcher found dead when it wrote the file has no start time: its pid is not its own.
         dead_service = {**stale, "services": {"mapper": {"pid": bystander.pid, "start_ticks": None}}}
@@ -1160,7 +1162,7 @@ def test_down_waits_for_the_services_it_kills_to_be_gone(tmp_path):
                 "services": {"mapper": {"pid": service.pid, "start_ticks": process_start_ticks(service.pid)}}}
         (runs / "current.json").write_text(json.dumps(info))
         ok, message = down(runs)
-        assert ok and message == "stopped run killed", message
+        assert ok and message == f"stopped run killed (its launcher, pid {gone_launcher}, had already exited: killed the 1 service(s) it left running; {runs / 'current.json'} cleared)", message
         reaper.join(timeout=10)  # poll() answers None while another thread waits on the process
         assert service.returncode == -signal.SIGKILL
     finally:
@@ -2844,6 +2846,113 @@ def test_a_run_folder_deleted_mid_run_is_made_again_with_the_logs_still_written_
             child.proc.kill()
             child.proc.wait(10)
         launcher.run_folder.close()
+
+
+def test_a_run_folder_deleted_before_a_service_read_its_profile_is_made_again_and_the_service_restarted(tmp_path, caplog):
+    """``rm -rf runs/RUN`` in a run's first second, before its services had read ``profile.yaml``: each service's start
+    made ``logs/`` again (its log file), so the launcher took the folder for there, never wrote ``profile.yaml`` again,
+    and every service refused its configuration (``config file not found``, exit code 2, not restarted): the run
+    stopped (exit code 1) on a confusing "refused its configuration". The folder is made again once its profile.yaml
+    is gone, and a service that refused its configuration after the folder was made again since its start is restarted:
+    the run goes on as for a folder deleted later."""
+    import logging
+    import shutil
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    run_dir = tmp_path / "runs" / "run1"
+    launcher = Launcher(profile, data, run_dir)
+    (run_dir / "logs").mkdir(parents=True)
+    launcher.profile_path.write_text(yaml.safe_dump(data))
+    launcher.run_folder.expect(launcher.profile_path)  # as ``run`` does
+    reads = f"import pathlib, sys\nif not pathlib.Path({str(launcher.profile_path)!r}).is_file():\n    print('ERROR config file not found', flush=True)\n    sys.exit(2)\nprint('read it', flush=True)\nimport time; time.sleep(60)"
+    child = Child("mapper", [sys.executable, "-c", reads], run_dir / "logs" / "mapper.log")
+    launcher.children = [child]
+    caplog.set_level(logging.INFO, logger="cso.launcher")
+    try:
+        shutil.rmtree(run_dir)
+        child.spawn()  # makes logs/ again, and finds no profile.yaml
+        child.proc.wait(timeout=30)
+        assert (run_dir / "logs").is_dir() and not launcher.profile_path.exists()
+        launcher.supervise()
+        assert not child.gave_up and child.restart_at is not None and child.exit_codes == [2], caplog.text
+        launcher.tend_run_folder()  # the run loop's next round, before the restart
+        assert launcher.profile_path.is_file() and launcher.run_folder.losses == 1
+        launcher.supervise(child.restart_at)
+        assert child.restarts == 1
+        wait_for(lambda: "read it" in child.log_path.read_text() or not child.alive, 30, "the service to read its profile")
+        assert child.alive
+        launcher.tend_run_folder()  # nothing gone again
+        assert launcher.run_folder.losses == 1
+        # A refusal of a folder's own profile.yaml (none lost since it started) is still not restarted.
+        child.proc.kill()
+        child.proc.wait(timeout=30)
+        child.argv = [sys.executable, "-c", "raise SystemExit(2)"]
+        child.spawn()
+        child.proc.wait(timeout=30)
+        launcher.supervise()
+        assert child.gave_up, caplog.text
+    finally:
+        if child.alive:
+            child.proc.kill()
+            child.proc.wait(10)
+        launcher.run_folder.close()
+
+
+DELETE_THE_RUN_FOLDER_AS_THE_LAUNCHER_STARTS = """
+import shutil, subprocess, sys
+from pathlib import Path
+real = subprocess.Popen
+
+def popen(argv, *args, **kwargs):  # `rm -rf runs/RUN` right as `up --detach` has started its launcher
+    proc = real(argv, *args, **kwargs)
+    if "cso_runtime.launcher" in argv:
+        subprocess.Popen = real
+        run_dir = Path(argv[argv.index("--run-dir") + 1])
+        Path(sys.argv[1]).write_text(str(proc.pid))  # for the test to clean up
+        shutil.rmtree(run_dir)
+    return proc
+
+subprocess.Popen = popen
+from cso_runtime.cli import main
+sys.argv = ["cso-runtime", *sys.argv[2:]]
+main()
+"""
+
+
+def test_a_run_folder_deleted_as_a_detached_launcher_starts_is_made_again_and_the_run_goes_on(tmp_path):
+    """``rm -rf runs/RUN`` in the second ``up --detach`` takes to start its launcher: the launcher read its profile from
+    the folder (``profile.requested.yaml``) and refused to start (config file not found), and ``up`` died with a
+    FileNotFoundError traceback reading the launcher's log there. The launcher gets its profile on its stdin, finds
+    its own log without a name as it starts, makes the folder again with that log copied back, and the run goes on
+    as for a folder deleted later."""
+    runs = tmp_path / "runs"
+    argv = ["up", "--profile", str(write_profile(tmp_path)), "--detach", "--set", "exploration.episode.max_steps=8", "--runs-dir", str(runs)]
+    launcher_pid: list[int] = []
+    try:
+        r = subprocess.run(
+            [sys.executable, "-c", DELETE_THE_RUN_FOLDER_AS_THE_LAUNCHER_STARTS, str(tmp_path / "pid"), *argv],
+            cwd=tmp_path, capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        said = r.stdout + r.stderr
+        if (tmp_path / "pid").exists():
+            launcher_pid.append(int((tmp_path / "pid").read_text()))
+        assert r.returncode == 0 and "started" in said and "Traceback" not in said, said[-3000:]
+        current = json.loads((runs / "current.json").read_text())
+        run_dir = Path(current["run_dir"])
+        final = wait_for(lambda: (s := query_status(current["endpoints"], current["robot"], timeout_s=0.5)) and s["state"] in EPISODE_OVER and s, 60, "the episode's end")
+        assert (final["state"], final["step"]) == ("done", 8), final
+        assert json.loads((run_dir / "run.json").read_text())["run_dir_lost"] == 1
+        log_text = (run_dir / "logs" / "launcher.log").read_text()
+        assert "was deleted while the run ran: made it again" in log_text and "logs/launcher.log" in log_text, log_text[-3000:]
+        wait_for(lambda: "episode_ended_at" in json.loads((run_dir / "run.json").read_text()), 30, "the episode's results")
+        assert (run_dir / "profile.yaml").is_file() and (run_dir / "summary.json").is_file()
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        kill_leftovers(runs, extra=launcher_pid)
 
 
 def starting_run_files(runs: Path, launcher_pid: int) -> tuple[Path, dict]:
