@@ -455,6 +455,16 @@ def recorded_lidar_mount(recording: Path, robot: str) -> Pose2D:
     return SENSOR_AT_BASE
 
 
+def nothing_exported(stats: BagExportStats) -> str:
+    """Why an export wrote no message: what the robot's messages of the recording were instead."""
+    kept = ", ".join(f"{topic} {n}" for topic, n in sorted(stats.left_out.items()))
+    *others, last = EXPORTED
+    why = f"no {', '.join(others)} or {last} message; it has {stats.messages_read} messages" + (f": {kept}" if kept else "")
+    if stats.rejected:
+        why += "; left out, did not decode: " + ", ".join(f"{topic} {n}" for topic, n in sorted(stats.rejected.items()))
+    return why
+
+
 def export_bag(
     recording: Path,
     out_dir: Path,
@@ -470,7 +480,8 @@ def export_bag(
     of several robots can be merged. ``lidar_mount``: ``base_link`` -> ``laser`` (None: as the recording shows it,
     ``recorded_lidar_mount``). ``map`` -> ``odom`` is each episode's map origin (``recorded_map_origins``).
     ``progress(read, total)`` is called every few hundred messages (total: all robots' messages, None when
-    the recording has no summary), so that a long recording does not convert in silence."""
+    the recording has no summary), so that a long recording does not convert in silence. BagExportError, and no
+    folder left, when nothing of the robot converts (``nothing_exported``): an empty bag is no run to look at."""
     from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime  # noqa: PLC0415  (rosbags loads only here)
     from rosbags.rosbag2 import StoragePlugin, Writer, WriterError  # noqa: PLC0415
 
@@ -535,5 +546,8 @@ def export_bag(
     except KeyboardInterrupt:  # Ctrl-C (or SIGTERM, in the command): the writer closed a bag that would look whole
         shutil.rmtree(out_dir, ignore_errors=True)
         raise
+    if not stats.written:  # rosbag2 would list a bag of no topics, starting at INT64_MAX: no bag at all
+        shutil.rmtree(out_dir, ignore_errors=True)
+        raise BagExportError(f"{recording} holds nothing of robot {robot} to export ({nothing_exported(stats)}): no bag written")
     stats.maps_thinned = converter.maps_thinned
     return stats

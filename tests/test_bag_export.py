@@ -238,6 +238,23 @@ def test_bad_exports_are_refused_and_leave_nothing_behind(tmp_path: Path):
         BagConverter(-1.0)
 
 
+def test_a_recording_with_nothing_to_convert_is_refused_not_written_as_an_empty_bag(tmp_path: Path):
+    """A recording of the robot's clock alone (its pipeline never came up), or one whose every message of a converted
+    topic fails to decode, is no bag: rosbag2 would list one of no topics, starting at INT64_MAX."""
+    keys = RobotKeys("r0")
+    clock_only = [m for m in episode(keys, 3, T0_NS, 1000) if m.key == keys.topic("clock")]
+    recording = tmp_path / "clock.mcap"
+    write_recording(recording, "r0", clock_only)
+    with pytest.raises(BagExportError, match=r"clock\.mcap holds nothing of robot r0 to export .*clock 3.*no bag written"):
+        export_bag(recording, tmp_path / "bag")
+    assert not (tmp_path / "bag").exists()
+    bad_scan = RecordedMessage(keys.scan, T0_NS + 10**6, msgpack.packb({"schema": "scan", "v": 99, "body": {}}))
+    write_recording(recording, "r0", [*clock_only, bad_scan])
+    with pytest.raises(BagExportError, match=r"left out, did not decode: scan 1"):
+        export_bag(recording, tmp_path / "bag")
+    assert not (tmp_path / "bag").exists()
+
+
 def test_an_interrupted_export_leaves_no_bag_that_looks_whole(tmp_path: Path, monkeypatch):
     from cso_runtime import bag_export
 
