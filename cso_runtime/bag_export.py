@@ -543,7 +543,7 @@ def export_bag(
     except (WriterError, OSError, RecordingError) as exc:
         shutil.rmtree(out_dir, ignore_errors=True)  # no half-written bag that looks complete
         raise BagExportError(f"cannot write {out_dir}: {exc}" if not isinstance(exc, RecordingError) else f"{exc}; no bag written") from None
-    except KeyboardInterrupt:  # Ctrl-C (or SIGTERM, in the command): the writer closed a bag that would look whole
+    except BaseException:  # Ctrl-C (or SIGTERM, in the command), anything unforeseen: the writer left a cut .mcap
         shutil.rmtree(out_dir, ignore_errors=True)
         raise
     if not stats.written:  # rosbag2 would list a bag of no topics, starting at INT64_MAX: no bag at all

@@ -271,6 +271,25 @@ def test_an_interrupted_export_leaves_no_bag_that_looks_whole(tmp_path: Path, mo
     assert not (tmp_path / "bag").exists()
 
 
+def test_an_export_that_fails_unforeseen_halfway_leaves_no_folder_behind(tmp_path: Path, monkeypatch):
+    """Any error halfway (a converter bug, MemoryError on a huge map) leaves no half-written folder that a second
+    export would then refuse as existing: the writer aborts without metadata.yaml but keeps the cut .mcap."""
+    recording = tmp_path / "run.mcap"
+    write_recording(recording, "r0", episode(RobotKeys("r0"), 3, T0_NS, 1000))
+    convert, calls = BagConverter.convert, []
+
+    def fails_at_the_tenth(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 10:  # some messages are written by then
+            raise MemoryError
+        return convert(self, *args, **kwargs)
+
+    monkeypatch.setattr(BagConverter, "convert", fails_at_the_tenth)
+    with pytest.raises(MemoryError):
+        export_bag(recording, tmp_path / "bag")
+    assert not (tmp_path / "bag").exists()
+
+
 def test_export_bag_command_writes_beside_the_recording_and_says_what(tmp_path: Path):
     recording = tmp_path / "run.mcap"
     write_recording(recording, "r0", episode(RobotKeys("r0"), 2, T0_NS, 1000))
