@@ -433,12 +433,12 @@ def replay_command(
     from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
     from cso_runtime.keys import TOPICS  # noqa: PLC0415
     from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
-    from cso_runtime.recording import RecordingError, ReplayRefused, check_recording, parse_speed, replay  # noqa: PLC0415
+    from cso_runtime.recording import RecordingError, ReplayRefused, check_chunks, parse_speed, replay  # noqa: PLC0415
     from cso_runtime.status import RunTarget, client_transport, endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
 
     try:
-        check_recording(file)  # a wrong or broken file is the first thing to say
+        check_chunks(file)  # a wrong, broken or damaged file is the first thing to say
     except RecordingError as exc:
         _fail(str(exc), 2)
     endpoints, _, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)

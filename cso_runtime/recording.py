@@ -360,6 +360,24 @@ def read_recording(path: Path, topics: Iterable[str] | None = None) -> Generator
         yield from _read_cut_recording(path, wanted, exc)
 
 
+def check_chunks(path: Path) -> None:
+    """Raise RecordingError when a chunk of ``path`` no longer matches its CRC (or a finished file does not read
+    through), before anything of it is used: the file read once, front to back, its chunks decompressed but no
+    message decoded (milliseconds a megabyte). A file cut short (its recorder killed) passes: ``read_recording``
+    reads it up to the cut. ``replay`` checks first, so that it never feeds a pipeline the run up to the damage."""
+    from mcap.exceptions import McapError  # noqa: PLC0415
+    from mcap.stream_reader import StreamReader  # noqa: PLC0415
+
+    check_recording(path)
+    try:
+        with Path(path).open("rb") as fh:
+            for _record in StreamReader(fh, validate_crcs=True).records:
+                pass
+    except (McapError, OSError, ValueError, EOFError, struct.error, zlib_error()) as exc:
+        if is_crc_error(exc) or _ends_with_magic(path):
+            raise RecordingError(f"cannot read {path}: {damage_reason(exc)}") from None
+
+
 def _restored(channel: Any, message: Any, wanted: set[str] | None) -> RecordedMessage | None:
     """One MCAP message back as the payload that was published, or None (a topic not wanted, a foreign channel)."""
     if wanted is not None:
@@ -553,8 +571,10 @@ def replay(
 
     ReplayRefused, before anything is published, when a robot of the recording runs on the network
     (``running_robot``): its old scans, odometry, maps and commands would mix with the live run's, and that run's
-    ROS 2 bridge would send the recorded commands to its robot as Twists."""
+    ROS 2 bridge would send the recorded commands to its robot as Twists. RecordingError, before anything is
+    published too, for a recording changed after it was written (``check_chunks``)."""
     rate = parse_speed(speed)
+    check_chunks(path)  # damage anywhere is said before the first message goes out
     if live := running_robot(session, robots_of(recording_contents(path)[0])):
         raise ReplayRefused(
             f"{live}: replaying {path} there would feed its recorded messages into the live run (and a ROS 2 bridge would "
