@@ -400,6 +400,7 @@ def record_command(
     path = recording_path(out, Path("recordings"), f"{robot.replace('*', 'all')}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
     if path.exists():  # as `ros2 bag record -o`: an earlier recording is never written over
         _fail(f"{path} exists; give another --out, or remove it first", 2)
+    output_dir_or_exit(path.parent, f"--out {out}: its folder" if out is not None else "the recordings folder")  # before connecting, as `up --record-out`
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))

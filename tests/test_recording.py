@@ -568,7 +568,8 @@ def test_record_and_replay_without_a_zenoh_session_exit_3_as_up_does(tmp_path: P
 
 
 def test_record_refuses_a_bad_robot_id_before_connecting(tmp_path: Path, monkeypatch):
-    """``record --robot a/b`` is a usage error (exit 2) before any session; '*' (every robot) goes on to connect."""
+    """``record --robot a/b`` is a usage error (exit 2) before any session; '*' (every robot) goes on to connect. So is an
+    ``--out`` whose folder cannot be made."""
     import signal
 
     from typer.testing import CliRunner
@@ -590,6 +591,9 @@ def test_record_refuses_a_bad_robot_id_before_connecting(tmp_path: Path, monkeyp
         assert r.exit_code == 2 and "--robot: robot id 'a/b' must be" in r.output and not opened
         r = CliRunner().invoke(app, [*args, "*"])
         assert r.exit_code == 3 and len(opened) == 1
+        (tmp_path / "notes.txt").write_text("a file where the recording's folder would be")
+        r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "notes.txt" / "r.mcap"), "--connect", "tcp/127.0.0.1:7447"])
+        assert r.exit_code == 2 and "notes.txt: cannot create the folder" in r.output and len(opened) == 1, r.output  # as up --record-out
     finally:
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
