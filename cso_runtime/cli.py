@@ -452,6 +452,8 @@ def replay_command(
         parse_speed(speed)
         if unknown:
             raise ValueError(f"--topics: unknown topic(s) {', '.join(unknown)}; known: {', '.join(TOPICS)}")
+        if wanted == []:  # "," or " ": it would replay nothing, silently
+            raise ValueError(f"--topics names no topic; name some ({', '.join(TOPICS)}), or leave --topics out for all")
     except ValueError as exc:
         _fail(str(exc), 2)
     stop = threading.Event()

@@ -489,6 +489,9 @@ def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path:
     recording.write_bytes(MCAP_MAGIC)  # starts like one: a topic that does not exist is said before connecting
     r = CliRunner().invoke(app, ["replay", str(recording), "--topics", "scan,scans", "--connect", "tcp/127.0.0.1:1"])
     assert r.exit_code == 2 and "unknown topic(s) scans; known: scan, odom" in r.output
+    for nothing in (",", " , "):  # a list of no topic would replay nothing, silently
+        r = CliRunner().invoke(app, ["replay", str(recording), "--topics", nothing, "--connect", "tcp/127.0.0.1:1"])
+        assert r.exit_code == 2 and "--topics names no topic" in r.output, r.output
     # then the missing run is what stops it
     r = CliRunner().invoke(app, ["replay", str(recording), "--runs-dir", str(tmp_path)])
     assert r.exit_code == 2 and "no current run" in r.output
