@@ -411,7 +411,7 @@ def recorded_map_origins(recording: Path, robot: str) -> dict[int, Pose2D]:
     ``episode_result`` carries the same origin but no episode id, and comes after a status of its episode."""
     prefix = f"cso/{robot}/"
     origins: dict[int, Pose2D] = {}
-    for m in read_recording(recording, topics=("episode_status",)):
+    for m in read_recording(recording, topics=("episode_status",), quiet=True):
         if m.key.startswith(prefix):
             try:
                 status = decode(m.payload, EpisodeStatusMsg, accept_legacy=True)
@@ -429,7 +429,7 @@ def recorded_lidar_mount(recording: Path, robot: str) -> Pose2D:
     ``MOUNT_SEARCH_MESSAGES``: ``SENSOR_AT_BASE``."""
     prefix = f"cso/{robot}/"
     seen: dict[tuple[str, int, int, float], Pose2D] = {}
-    messages = read_recording(recording, topics=("scan", "odom"))
+    messages = read_recording(recording, topics=("scan", "odom"), quiet=True)
     try:
         for m in messages:
             if not m.key.startswith(prefix):

@@ -485,3 +485,23 @@ def test_a_second_episode_in_another_scene_moves_map_to_odom_from_its_first_mess
     corners = [msg_pose(m.info.origin) for _, m in bag["/map"]]
     expected = [compose_pose(o, Pose2D(GEOM.origin_x_m, GEOM.origin_y_m, 0.0)) for o in [SCENE_ORIGIN] * 3 + [other] * 2]
     assert [as_tuple(c) for c in corners] == [approx_pose(e) for e in expected]
+
+
+def test_a_cut_recording_is_said_once_with_all_it_holds(tmp_path: Path, caplog):
+    """Export and animate read a recording cut short (its recorder killed) several times (its robot, the LiDAR mount,
+    the map origins, the messages): one warning, counting every message read, not one per pass with the count of
+    the topics that pass asked for."""
+    from cso_runtime.animation import animate_recording
+
+    whole = tmp_path / "whole.mcap"
+    write_recording(whole, "r0", episode(RobotKeys("r0"), 600, T0_NS, 1_000_000))
+    data = whole.read_bytes()
+    summary_start = int.from_bytes(data[-8 - 29 : -8][9:17], "little")  # the footer's summary_start
+    killed = tmp_path / "killed.mcap"
+    killed.write_bytes(data[:summary_start])  # the chunks, no summary and no footer
+    for run in (lambda: export_bag(killed, tmp_path / "bag"), lambda: animate_recording(killed, tmp_path / "killed.gif")):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="cso.recording"):
+            run()
+        warned = [r.getMessage() for r in caplog.records if "ends early" in r.getMessage()]
+        assert len(warned) == 1 and "read 4800 messages up to there" in warned[0], warned
