@@ -12,6 +12,7 @@ few megabytes in memory and on disk.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,7 +60,9 @@ class FrameSequence:
         self.frames.append(frame)
 
     def save_gif(self, path: Path, frame_ms: int = 120, last_frame_ms: int = 2000) -> Path:
-        """Write the frames as an animated GIF (looping; the final map held ``last_frame_ms``)."""
+        """Write the frames as an animated GIF (looping; the final map held ``last_frame_ms``; an animated PNG for a
+        ``.png`` path), whole or not at all: written beside it, then renamed over it, so that a full disk or a kill
+        leaves the earlier file (a report links it), never a cut one."""
         from PIL import Image  # noqa: PLC0415  (only animations need it)
 
         if not self.frames:
@@ -72,7 +75,13 @@ class FrameSequence:
             im.putpalette(PALETTE.ravel().tolist())
             images.append(im)
         durations = [frame_ms] * (len(images) - 1) + [last_frame_ms]
-        images[0].save(path, save_all=True, append_images=images[1:], duration=durations, loop=0, optimize=False)
+        image_format = Image.registered_extensions().get(path.suffix.lower(), "GIF")  # the partial file's name says none
+        partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+        try:
+            images[0].save(partial, format=image_format, save_all=True, append_images=images[1:], duration=durations, loop=0, optimize=False)
+            os.replace(partial, path)
+        finally:
+            partial.unlink(missing_ok=True)
         return path
 
 

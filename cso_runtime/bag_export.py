@@ -411,7 +411,7 @@ def recorded_map_origins(recording: Path, robot: str) -> dict[int, Pose2D]:
     ``episode_result`` carries the same origin but no episode id, and comes after a status of its episode."""
     prefix = f"cso/{robot}/"
     origins: dict[int, Pose2D] = {}
-    for m in read_recording(recording, topics=("episode_status",)):
+    for m in read_recording(recording, topics=("episode_status",), quiet=True):
         if m.key.startswith(prefix):
             try:
                 status = decode(m.payload, EpisodeStatusMsg, accept_legacy=True)
@@ -429,7 +429,7 @@ def recorded_lidar_mount(recording: Path, robot: str) -> Pose2D:
     ``MOUNT_SEARCH_MESSAGES``: ``SENSOR_AT_BASE``."""
     prefix = f"cso/{robot}/"
     seen: dict[tuple[str, int, int, float], Pose2D] = {}
-    messages = read_recording(recording, topics=("scan", "odom"))
+    messages = read_recording(recording, topics=("scan", "odom"), quiet=True)
     try:
         for m in messages:
             if not m.key.startswith(prefix):
@@ -455,6 +455,16 @@ def recorded_lidar_mount(recording: Path, robot: str) -> Pose2D:
     return SENSOR_AT_BASE
 
 
+def nothing_exported(stats: BagExportStats) -> str:
+    """Why an export wrote no message: what the robot's messages of the recording were instead."""
+    kept = ", ".join(f"{topic} {n}" for topic, n in sorted(stats.left_out.items()))
+    *others, last = EXPORTED
+    why = f"no {', '.join(others)} or {last} message; it has {stats.messages_read} messages" + (f": {kept}" if kept else "")
+    if stats.rejected:
+        why += "; left out, did not decode: " + ", ".join(f"{topic} {n}" for topic, n in sorted(stats.rejected.items()))
+    return why
+
+
 def export_bag(
     recording: Path,
     out_dir: Path,
@@ -470,7 +480,8 @@ def export_bag(
     of several robots can be merged. ``lidar_mount``: ``base_link`` -> ``laser`` (None: as the recording shows it,
     ``recorded_lidar_mount``). ``map`` -> ``odom`` is each episode's map origin (``recorded_map_origins``).
     ``progress(read, total)`` is called every few hundred messages (total: all robots' messages, None when
-    the recording has no summary), so that a long recording does not convert in silence."""
+    the recording has no summary), so that a long recording does not convert in silence. BagExportError, and no
+    folder left, when nothing of the robot converts (``nothing_exported``): an empty bag is no run to look at."""
     from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime  # noqa: PLC0415  (rosbags loads only here)
     from rosbags.rosbag2 import StoragePlugin, Writer, WriterError  # noqa: PLC0415
 
@@ -532,8 +543,11 @@ def export_bag(
     except (WriterError, OSError, RecordingError) as exc:
         shutil.rmtree(out_dir, ignore_errors=True)  # no half-written bag that looks complete
         raise BagExportError(f"cannot write {out_dir}: {exc}" if not isinstance(exc, RecordingError) else f"{exc}; no bag written") from None
-    except KeyboardInterrupt:  # Ctrl-C (or SIGTERM, in the command): the writer closed a bag that would look whole
+    except BaseException:  # Ctrl-C (or SIGTERM, in the command), anything unforeseen: the writer left a cut .mcap
         shutil.rmtree(out_dir, ignore_errors=True)
         raise
+    if not stats.written:  # rosbag2 would list a bag of no topics, starting at INT64_MAX: no bag at all
+        shutil.rmtree(out_dir, ignore_errors=True)
+        raise BagExportError(f"{recording} holds nothing of robot {robot} to export ({nothing_exported(stats)}): no bag written")
     stats.maps_thinned = converter.maps_thinned
     return stats

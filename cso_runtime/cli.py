@@ -400,6 +400,7 @@ def record_command(
     path = recording_path(out, Path("recordings"), f"{robot.replace('*', 'all')}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
     if path.exists():  # as `ros2 bag record -o`: an earlier recording is never written over
         _fail(f"{path} exists; give another --out, or remove it first", 2)
+    output_dir_or_exit(path.parent, f"--out {out}: its folder" if out is not None else "the recordings folder")  # before connecting, as `up --record-out`
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))
@@ -433,12 +434,12 @@ def replay_command(
     from cso_runtime.config import EXIT_NO_ZENOH  # noqa: PLC0415
     from cso_runtime.keys import TOPICS  # noqa: PLC0415
     from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
-    from cso_runtime.recording import RecordingError, ReplayRefused, check_recording, parse_speed, replay  # noqa: PLC0415
+    from cso_runtime.recording import RecordingError, ReplayRefused, check_chunks, parse_speed, replay  # noqa: PLC0415
     from cso_runtime.status import RunTarget, client_transport, endpoints_from_run_file  # noqa: PLC0415
     from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
 
     try:
-        check_recording(file)  # a wrong or broken file is the first thing to say
+        check_chunks(file)  # a wrong, broken or damaged file is the first thing to say
     except RecordingError as exc:
         _fail(str(exc), 2)
     endpoints, _, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
@@ -451,6 +452,8 @@ def replay_command(
         parse_speed(speed)
         if unknown:
             raise ValueError(f"--topics: unknown topic(s) {', '.join(unknown)}; known: {', '.join(TOPICS)}")
+        if wanted == []:  # "," or " ": it would replay nothing, silently
+            raise ValueError(f"--topics names no topic; name some ({', '.join(TOPICS)}), or leave --topics out for all")
     except ValueError as exc:
         _fail(str(exc), 2)
     stop = threading.Event()

@@ -334,10 +334,11 @@ def check_recording(path: Path) -> None:
         raise RecordingError(f"cannot read {path}: not an MCAP file (it does not start with the MCAP magic)")
 
 
-def read_recording(path: Path, topics: Iterable[str] | None = None) -> Generator[RecordedMessage, None, None]:
+def read_recording(path: Path, topics: Iterable[str] | None = None, quiet: bool = False) -> Generator[RecordedMessage, None, None]:
     """The messages of an MCAP recording in log-time order, payloads restored byte-exactly.
 
-    ``topics``: only keys whose topic name (``cso_runtime.keys.TOPICS``, e.g. ``scan``) is listed.
+    ``topics``: only keys whose topic name (``cso_runtime.keys.TOPICS``, e.g. ``scan``) is listed. ``quiet``: no
+    warning for a file cut short (a first pass over a file that the command reads again, and says so then, once).
     """
     from mcap.exceptions import McapError  # noqa: PLC0415  (mcap is loaded only by record and replay)
     from mcap.reader import make_reader  # noqa: PLC0415
@@ -357,7 +358,25 @@ def read_recording(path: Path, topics: Iterable[str] | None = None) -> Generator
         if yielded or is_crc_error(exc) or _ends_with_magic(path):  # damage further in, or in a finished file
             raise RecordingError(f"cannot read {path}: {damage_reason(exc)}") from None
         # No summary to seek with (a recorder killed before it finished the file): read it from the start.
-        yield from _read_cut_recording(path, wanted, exc)
+        yield from _read_cut_recording(path, wanted, exc, quiet)
+
+
+def check_chunks(path: Path) -> None:
+    """Raise RecordingError when a chunk of ``path`` no longer matches its CRC (or a finished file does not read
+    through), before anything of it is used: the file read once, front to back, its chunks decompressed but no
+    message decoded (milliseconds a megabyte). A file cut short (its recorder killed) passes: ``read_recording``
+    reads it up to the cut. ``replay`` checks first, so that it never feeds a pipeline the run up to the damage."""
+    from mcap.exceptions import McapError  # noqa: PLC0415
+    from mcap.stream_reader import StreamReader  # noqa: PLC0415
+
+    check_recording(path)
+    try:
+        with Path(path).open("rb") as fh:
+            for _record in StreamReader(fh, validate_crcs=True).records:
+                pass
+    except (McapError, OSError, ValueError, EOFError, struct.error, zlib_error()) as exc:
+        if is_crc_error(exc) or _ends_with_magic(path):
+            raise RecordingError(f"cannot read {path}: {damage_reason(exc)}") from None
 
 
 def _restored(channel: Any, message: Any, wanted: set[str] | None) -> RecordedMessage | None:
@@ -378,15 +397,16 @@ def _restored(channel: Any, message: Any, wanted: set[str] | None) -> RecordedMe
     return RecordedMessage(channel.topic, message.log_time, payload)
 
 
-def _read_cut_recording(path: Path, wanted: set[str] | None, why: Exception) -> Iterable[RecordedMessage]:
+def _read_cut_recording(path: Path, wanted: set[str] | None, why: Exception, quiet: bool = False) -> Iterable[RecordedMessage]:
     """The messages of an MCAP file without its summary, read front to back (in the order they were recorded)
-    up to where it was cut; RecordingError when not even one message can be read."""
+    up to where it was cut, with a warning that counts them all (``quiet``: none); RecordingError when not even
+    one message can be read."""
     from mcap.exceptions import McapError  # noqa: PLC0415
     from mcap.records import Channel, Message  # noqa: PLC0415
     from mcap.stream_reader import StreamReader  # noqa: PLC0415
 
     channels: dict[int, Any] = {}
-    count, cut = 0, None
+    count, read, cut = 0, 0, None
     with Path(path).open("rb") as fh:
         records = iter(StreamReader(fh, validate_crcs=True).records)
         while True:
@@ -402,6 +422,7 @@ def _read_cut_recording(path: Path, wanted: set[str] | None, why: Exception) -> 
             if isinstance(record, Channel):
                 channels[record.id] = record
             elif isinstance(record, Message) and record.channel_id in channels:
+                read += 1
                 try:
                     restored = _restored(channels[record.channel_id], record, wanted)
                 except ValueError as exc:  # a payload that does not decode: the file's fault, as in read_recording
@@ -413,8 +434,8 @@ def _read_cut_recording(path: Path, wanted: set[str] | None, why: Exception) -> 
         if not _ends_with_magic(path):  # no footer and nothing readable: cut before the first chunk was written
             raise RecordingError(f"cannot read {path}: it ends before its first chunk of messages (its recorder was killed before it wrote one?)")
         raise RecordingError(f"cannot read {path}: {damage_reason(why)}")
-    if cut is not None or not count:
-        log.warning("%s ends early (its recorder was killed before it finished the file?): read %d messages up to there", path, count)
+    if not quiet and (cut is not None or not count):
+        log.warning("%s ends early (its recorder was killed before it finished the file?): read %d messages up to there", path, read)
 
 
 def _ends_with_magic(path: Path) -> bool:
@@ -488,7 +509,7 @@ def recording_contents(path: Path) -> tuple[list[str], int | None]:
         counts = summary.statistics.channel_message_counts
         keys = {c.topic for cid, c in summary.channels.items() if counts.get(cid, 0) > 0}
         return sorted(keys), int(summary.statistics.message_count)
-    return sorted({m.key for m in read_recording(path)}), None
+    return sorted({m.key for m in read_recording(path, quiet=True)}), None
 
 
 @dataclass
@@ -553,8 +574,10 @@ def replay(
 
     ReplayRefused, before anything is published, when a robot of the recording runs on the network
     (``running_robot``): its old scans, odometry, maps and commands would mix with the live run's, and that run's
-    ROS 2 bridge would send the recorded commands to its robot as Twists."""
+    ROS 2 bridge would send the recorded commands to its robot as Twists. RecordingError, before anything is
+    published too, for a recording changed after it was written (``check_chunks``)."""
     rate = parse_speed(speed)
+    check_chunks(path)  # damage anywhere is said before the first message goes out
     if live := running_robot(session, robots_of(recording_contents(path)[0])):
         raise ReplayRefused(
             f"{live}: replaying {path} there would feed its recorded messages into the live run (and a ROS 2 bridge would "

@@ -271,11 +271,12 @@ class Profile:
             if problem is not None:
                 raise ConfigError(f"services.sim.viewer: {problem}")
         if "foxglove_bridge" in self.services:
-            from services.foxglove_bridge import INSTALL_HINT, FoxgloveBridgeParams, port_problem  # noqa: PLC0415
+            from services.foxglove_bridge import INSTALL_HINT, FoxgloveBridgeParams, mcap_path_problem, port_problem  # noqa: PLC0415
 
             if importlib.util.find_spec("foxglove") is None:
                 raise ConfigError(f"services.foxglove_bridge (up --foxglove) needs foxglove-sdk: {INSTALL_HINT}")
-            problem = port_problem(from_dict(FoxgloveBridgeParams, self.services["foxglove_bridge"] or {}, where="services.foxglove_bridge"))
+            bridge = from_dict(FoxgloveBridgeParams, self.services["foxglove_bridge"] or {}, where="services.foxglove_bridge")
+            problem = mcap_path_problem(bridge) or port_problem(bridge)
             if problem is not None:
                 raise ConfigError(f"services.foxglove_bridge: {problem}")
         from cso_runtime.policies import LEARNED_METHODS, available_methods, check_method, weights_held_said  # noqa: PLC0415

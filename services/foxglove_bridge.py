@@ -94,6 +94,22 @@ def port_problem(params: FoxgloveBridgeParams) -> str | None:
         return f"cannot listen on {params.host}:{params.port}: {exc.strerror or exc}; --set services.foxglove_bridge.port=0 picks a free port"
 
 
+def mcap_path_problem(params: FoxgloveBridgeParams) -> str | None:
+    """Why the bridge could not write ``mcap_path`` (a file where its folder would be, a folder given as the file, a
+    folder it cannot write in), or None; nothing is made. ``up`` asks before it starts anything."""
+    if not params.mcap_path:
+        return None
+    path = Path(params.mcap_path)
+    if path.is_dir():
+        return f"mcap_path {path} is a folder, not a file (give a file in it, such as {path / 'foxglove.mcap'})"
+    existing = next(folder for folder in path.absolute().parents if folder.exists())
+    if not existing.is_dir():
+        return f"mcap_path {path}: {existing} is not a folder"
+    if not os.access(existing, os.W_OK | os.X_OK):
+        return f"mcap_path {path}: cannot write in {existing}"
+    return None
+
+
 def websocket_handshake(host: str, port: int, timeout_s: float = 5.0) -> bytes:
     """Open a Foxglove WebSocket connection by hand and close it again; the server's reply to the upgrade request
     (``HTTP/1.1 101 Switching Protocols`` naming ``foxglove.sdk.v1``, when a Foxglove server listens there)."""
@@ -167,6 +183,8 @@ class FoxgloveBridgeService(Service):
         self.subscriptions = _Subscriptions()
         self.server: Any = None
         self.mcap: Any = None
+        if (problem := mcap_path_problem(self.params)) is not None:  # a configuration error: not restarted to fail again
+            raise ConfigError(f"services.foxglove_bridge: {problem}")
         try:  # here, not in warm_up: a port in use is a bad configuration (exit 2, not restarted), said before the episode
             self.server = foxglove.start_server(
                 name=f"cso-runtime {ctx.robot}", host=self.params.host, port=self.params.port,

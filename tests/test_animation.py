@@ -77,3 +77,28 @@ def test_a_recording_of_the_versions_before_the_episode_id_animates_as_today(tmp
     write_recording(tmp_path / "old.mcap", "r0", messages)
     stats = animate_recording(tmp_path / "old.mcap", tmp_path / "old.gif")
     assert (stats.decisions, stats.maps, stats.rejected, stats.frames) == (3, 6, 0, 3)
+
+
+def test_a_gif_that_fails_halfway_leaves_the_earlier_one_whole_and_nothing_cut(tmp_path, monkeypatch):
+    """A disk that fills, or a kill, while the GIF is written: the file at the path is the earlier one, never a cut GIF
+    (``up --animate``'s report links it), and no partial file is left beside it."""
+    write_recording(tmp_path / "run.mcap", "r0", episode(RobotKeys("r0"), 4, T0_NS, 1_000_000))
+    animate_recording(tmp_path / "run.mcap", tmp_path / "run.gif")
+    earlier = (tmp_path / "run.gif").read_bytes()
+    save = Image.Image.save
+
+    def disk_full(self, fp, *args, **kwargs):
+        save(self, fp, *args, **kwargs)
+        with open(fp, "r+b") as fh:  # what a full disk leaves: the first bytes
+            fh.truncate(100)
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(Image.Image, "save", disk_full)
+    with pytest.raises(OSError, match="No space left"):
+        animate_recording(tmp_path / "run.mcap", tmp_path / "run.gif", max_frames=2)
+    assert (tmp_path / "run.gif").read_bytes() == earlier
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.gif", "run.mcap"]
+    monkeypatch.setattr(Image.Image, "save", save)
+    animate_recording(tmp_path / "run.mcap", tmp_path / "run.png", max_frames=2)  # an animated PNG, by its name
+    with Image.open(tmp_path / "run.png") as im:
+        assert im.format == "PNG" and im.n_frames == 2

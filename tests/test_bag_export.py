@@ -238,6 +238,23 @@ def test_bad_exports_are_refused_and_leave_nothing_behind(tmp_path: Path):
         BagConverter(-1.0)
 
 
+def test_a_recording_with_nothing_to_convert_is_refused_not_written_as_an_empty_bag(tmp_path: Path):
+    """A recording of the robot's clock alone (its pipeline never came up), or one whose every message of a converted
+    topic fails to decode, is no bag: rosbag2 would list one of no topics, starting at INT64_MAX."""
+    keys = RobotKeys("r0")
+    clock_only = [m for m in episode(keys, 3, T0_NS, 1000) if m.key == keys.topic("clock")]
+    recording = tmp_path / "clock.mcap"
+    write_recording(recording, "r0", clock_only)
+    with pytest.raises(BagExportError, match=r"clock\.mcap holds nothing of robot r0 to export .*clock 3.*no bag written"):
+        export_bag(recording, tmp_path / "bag")
+    assert not (tmp_path / "bag").exists()
+    bad_scan = RecordedMessage(keys.scan, T0_NS + 10**6, msgpack.packb({"schema": "scan", "v": 99, "body": {}}))
+    write_recording(recording, "r0", [*clock_only, bad_scan])
+    with pytest.raises(BagExportError, match=r"left out, did not decode: scan 1"):
+        export_bag(recording, tmp_path / "bag")
+    assert not (tmp_path / "bag").exists()
+
+
 def test_an_interrupted_export_leaves_no_bag_that_looks_whole(tmp_path: Path, monkeypatch):
     from cso_runtime import bag_export
 
@@ -251,6 +268,25 @@ def test_an_interrupted_export_leaves_no_bag_that_looks_whole(tmp_path: Path, mo
 
     with pytest.raises(KeyboardInterrupt):
         export_bag(recording, tmp_path / "bag", progress=ctrl_c)
+    assert not (tmp_path / "bag").exists()
+
+
+def test_an_export_that_fails_unforeseen_halfway_leaves_no_folder_behind(tmp_path: Path, monkeypatch):
+    """Any error halfway (a converter bug, MemoryError on a huge map) leaves no half-written folder that a second
+    export would then refuse as existing: the writer aborts without metadata.yaml but keeps the cut .mcap."""
+    recording = tmp_path / "run.mcap"
+    write_recording(recording, "r0", episode(RobotKeys("r0"), 3, T0_NS, 1000))
+    convert, calls = BagConverter.convert, []
+
+    def fails_at_the_tenth(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) == 10:  # some messages are written by then
+            raise MemoryError
+        return convert(self, *args, **kwargs)
+
+    monkeypatch.setattr(BagConverter, "convert", fails_at_the_tenth)
+    with pytest.raises(MemoryError):
+        export_bag(recording, tmp_path / "bag")
     assert not (tmp_path / "bag").exists()
 
 
@@ -449,3 +485,23 @@ def test_a_second_episode_in_another_scene_moves_map_to_odom_from_its_first_mess
     corners = [msg_pose(m.info.origin) for _, m in bag["/map"]]
     expected = [compose_pose(o, Pose2D(GEOM.origin_x_m, GEOM.origin_y_m, 0.0)) for o in [SCENE_ORIGIN] * 3 + [other] * 2]
     assert [as_tuple(c) for c in corners] == [approx_pose(e) for e in expected]
+
+
+def test_a_cut_recording_is_said_once_with_all_it_holds(tmp_path: Path, caplog):
+    """Export and animate read a recording cut short (its recorder killed) several times (its robot, the LiDAR mount,
+    the map origins, the messages): one warning, counting every message read, not one per pass with the count of
+    the topics that pass asked for."""
+    from cso_runtime.animation import animate_recording
+
+    whole = tmp_path / "whole.mcap"
+    write_recording(whole, "r0", episode(RobotKeys("r0"), 600, T0_NS, 1_000_000))
+    data = whole.read_bytes()
+    summary_start = int.from_bytes(data[-8 - 29 : -8][9:17], "little")  # the footer's summary_start
+    killed = tmp_path / "killed.mcap"
+    killed.write_bytes(data[:summary_start])  # the chunks, no summary and no footer
+    for run in (lambda: export_bag(killed, tmp_path / "bag"), lambda: animate_recording(killed, tmp_path / "killed.gif")):
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="cso.recording"):
+            run()
+        warned = [r.getMessage() for r in caplog.records if "ends early" in r.getMessage()]
+        assert len(warned) == 1 and "read 4800 messages up to there" in warned[0], warned

@@ -516,3 +516,23 @@ def test_a_map_that_no_status_places_waits_only_so_long(tmp_path, monkeypatch):
         assert bridge.served["/map"] == 2
     finally:
         bridge.shutdown()
+
+
+def test_an_mcap_path_the_bridge_cannot_write_is_a_configuration_error_said_before_the_run(tmp_path, monkeypatch):
+    """A file where the MCAP file's folder should be, or a folder given as the file: refused when ``up`` loads the
+    profile and by the bridge itself (exit 2, not restarted), not a bridge that crashes three times and then stops the
+    run with no results."""
+    import services.foxglove_bridge as bridge_module
+    from cso_runtime.run_profile import load_profile
+
+    (tmp_path / "notes.txt").write_text("a file")
+    in_a_file = str(tmp_path / "notes.txt" / "fox.mcap")
+    for mcap_path, why in ((in_a_file, "notes.txt is not a folder"), (str(tmp_path), "is a folder, not a file")):
+        with pytest.raises(ConfigError, match=f"services.foxglove_bridge: mcap_path .*{why}"):
+            _bridge({"port": 0, "mcap_path": mcap_path})
+        with pytest.raises(ConfigError, match=f"services.foxglove_bridge: mcap_path .*{why}"):
+            load_profile("sim", {}, foxglove=True, settings={"services.foxglove_bridge.port": 0, "services.foxglove_bridge.mcap_path": mcap_path})
+    monkeypatch.setattr(bridge_module, "port_problem", lambda params: None)
+    new_folder = tmp_path / "new" / "fox.mcap"  # a folder not made yet is fine: the bridge makes it
+    assert load_profile("sim", {}, foxglove=True, settings={"services.foxglove_bridge.mcap_path": str(new_folder)})[0]
+    assert not (tmp_path / "new").exists()  # loading a profile writes nothing

@@ -489,6 +489,9 @@ def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path:
     recording.write_bytes(MCAP_MAGIC)  # starts like one: a topic that does not exist is said before connecting
     r = CliRunner().invoke(app, ["replay", str(recording), "--topics", "scan,scans", "--connect", "tcp/127.0.0.1:1"])
     assert r.exit_code == 2 and "unknown topic(s) scans; known: scan, odom" in r.output
+    for nothing in (",", " , "):  # a list of no topic would replay nothing, silently
+        r = CliRunner().invoke(app, ["replay", str(recording), "--topics", nothing, "--connect", "tcp/127.0.0.1:1"])
+        assert r.exit_code == 2 and "--topics names no topic" in r.output, r.output
     # then the missing run is what stops it
     r = CliRunner().invoke(app, ["replay", str(recording), "--runs-dir", str(tmp_path)])
     assert r.exit_code == 2 and "no current run" in r.output
@@ -568,7 +571,8 @@ def test_record_and_replay_without_a_zenoh_session_exit_3_as_up_does(tmp_path: P
 
 
 def test_record_refuses_a_bad_robot_id_before_connecting(tmp_path: Path, monkeypatch):
-    """``record --robot a/b`` is a usage error (exit 2) before any session; '*' (every robot) goes on to connect."""
+    """``record --robot a/b`` is a usage error (exit 2) before any session; '*' (every robot) goes on to connect. So is an
+    ``--out`` whose folder cannot be made."""
     import signal
 
     from typer.testing import CliRunner
@@ -590,6 +594,9 @@ def test_record_refuses_a_bad_robot_id_before_connecting(tmp_path: Path, monkeyp
         assert r.exit_code == 2 and "--robot: robot id 'a/b' must be" in r.output and not opened
         r = CliRunner().invoke(app, [*args, "*"])
         assert r.exit_code == 3 and len(opened) == 1
+        (tmp_path / "notes.txt").write_text("a file where the recording's folder would be")
+        r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "notes.txt" / "r.mcap"), "--connect", "tcp/127.0.0.1:7447"])
+        assert r.exit_code == 2 and "notes.txt: cannot create the folder" in r.output and len(opened) == 1, r.output  # as up --record-out
     finally:
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
@@ -764,3 +771,49 @@ def test_replay_refuses_a_network_where_a_robot_of_the_recording_runs(tmp_path: 
     finally:
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
+
+
+def test_replay_refuses_a_damaged_recording_before_it_publishes_anything(tmp_path: Path):
+    """A chunk changed after it was written, however far into the file, is found before the first message goes out:
+    a replay into a pipeline never feeds it the run up to the damage and then stops. A recording cut short (its
+    recorder killed) still replays up to the cut."""
+    from mcap.reader import make_reader
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.recording import RecordingError
+
+    scans, whole = _written_scans(tmp_path / "whole.mcap", 1500)
+    data = bytearray(whole.read_bytes())
+    with whole.open("rb") as fh:
+        chunks = make_reader(fh).get_summary().chunk_indexes
+    assert len(chunks) >= 2, "the damage is in a chunk after the first"
+    last = chunks[-1]
+    data[last.chunk_start_offset + last.chunk_length - 10] ^= 0x10  # in the last chunk's compressed bytes
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data))
+
+    class CountingSession:
+        """A peer session whose publishers are counted (every replayed message has one on its key)."""
+
+        def __init__(self, session) -> None:
+            self.session, self.publishers = session, 0
+
+        def __getattr__(self, name):
+            return getattr(self.session, name)
+
+        def declare_publisher(self, *args, **kwargs):
+            self.publishers += 1
+            return self.session.declare_publisher(*args, **kwargs)
+
+    with open_session(TransportConfig(mode="peer", listen=[loopback_endpoint(free_tcp_port())])) as session:
+        counting = CountingSession(session)
+        with pytest.raises(RecordingError, match=r"damaged.mcap: damaged: a Chunk's CRC does not match"):
+            replay(counting, damaged, "max")
+        assert counting.publishers == 0
+        cut = tmp_path / "cut.mcap"
+        cut.write_bytes(bytes(whole.read_bytes()[: last.chunk_start_offset + 10]))  # the chunks before the last
+        stats = replay(counting, cut, "max")
+    assert 0 < stats.messages < len(scans) and counting.publishers == 1
+    r = CliRunner().invoke(app, ["replay", str(damaged), "--connect", "tcp/127.0.0.1:1"])  # said before connecting
+    assert r.exit_code == 2 and "damaged: a Chunk's CRC does not match" in r.output, r.output
