@@ -1633,6 +1633,7 @@ def test_gymnasium_make_adds_its_render_wrappers_for_the_modes_built_on_rgb_arra
     assert "HumanRendering" in wrappers(human) and human.unwrapped.render_mode == "rgb_array"  # the window opens at render
 
 
+@pytest.mark.filterwarnings("ignore:.*A Box observation space (minimum|maximum) value is:UserWarning")
 @pytest.mark.filterwarnings("ignore:.*render_mode='ansi' that is not in the possible render_modes:UserWarning")  # refused below
 def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot():
     """``render_mode="rgb_array"`` (Gymnasium's checker runs its render checks): an upright image of M_t, one
