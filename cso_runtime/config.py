@@ -520,10 +520,10 @@ def make_output_dir(path: str | Path, flag: str = "--out") -> Path:
 
 def set_flag_text(key: str, value: Any) -> str:
     """``--set KEY=VALUE`` as the user typed it, for an error that names the flags: the value in YAML (``true``,
-    ``[a, 2]``), as ``--set`` reads it, not Python's repr (``True``, ``['a', 2]``)."""
+    ``[a, 2]``, ``café`` not ``"caf\\xE9"``), as ``--set`` reads it, not Python's repr (``True``, ``['a', 2]``)."""
     import yaml  # noqa: PLC0415
 
-    text = yaml.safe_dump(value, default_flow_style=True, width=10**9).strip()
+    text = yaml.safe_dump(value, default_flow_style=True, width=10**9, allow_unicode=True).strip()
     return f"--set {key}={text.removesuffix('...').strip()}"
 
 

@@ -488,3 +488,15 @@ def test_an_error_quotes_each_set_flag_as_typed_not_as_pythons_repr():
         EvalRequest(methods=["cso"], settings={"masks.warp": True, "masks.hop": ["a", 2]}).exploration_config()
     with pytest.raises(ConfigError, match=r"with --set services.planner.nope=false: services.planner: unknown key\(s\) nope"):
         load_profile("lockstep", settings={"services.planner.nope": False})
+
+
+def test_an_error_quotes_a_set_flags_non_ascii_text_as_typed():
+    """``--set name=café`` was named "--set name="caf\\xE9"" in the error: YAML's dump escapes non-ASCII text unless told
+    not to, and the flag the user typed is that text."""
+    from cso_runtime.config import set_flag_text
+    from cso_runtime.run_profile import load_profile
+
+    assert set_flag_text("services.planner.nope", "café 1 m²") == "--set services.planner.nope=café 1 m²"
+    assert set_flag_text("generated", ["küche", "bad"]) == "--set generated=[küche, bad]"
+    with pytest.raises(ConfigError, match=r"with --set services.planner.nope=café: services.planner: unknown key"):
+        load_profile("lockstep", settings={"services.planner.nope": "café"})

@@ -598,6 +598,19 @@ def test_short_ppo_run_beats_a_random_policy(tmp_path):
     assert trained > before + 0.1, (trained, before)  # learned, not a lucky initialisation
 
 
+def test_trainings_first_line_counts_one_scene_and_one_update_in_the_singular(tmp_path):
+    """A training on one plan said "training cso on 1 scenes ... (1 envs x 8 steps" (the warm start's line, beside it, was
+    fixed to "1 scene"): a count of one is singular on every line of the log that counts scenes, processes, updates, envs."""
+    from cso_runtime.learned.ppo import counted
+
+    said: list[str] = []
+    args = Args(variant="cso", out_dir=str(tmp_path), seed=0, total_decisions=8, num_envs=1, num_steps=8, num_minibatches=1, max_steps=20, progress=False)
+    train(args, log=said.append, plans=[rooms_plan(2)])
+    assert any(line.startswith("training cso on 1 scene, device ") and "1 PPO update of 8 decisions (1 env x 8 steps;" in line for line in said), said
+    assert [counted(n, "process", "processes") for n in (0, 1, 2)] == ["0 processes", "1 process", "2 processes"]
+    assert counted(1, "scene") == "1 scene" and counted(3, "scene") == "3 scenes"
+
+
 def test_training_with_the_per_step_discount_runs_through_episode_ends(tmp_path):
     """``gamma_per_step``: every decision discounted by its own length, through finished and truncated
     episodes (their last decision's length comes from ``final_info``), in both vector envs' shape."""
@@ -1633,6 +1646,7 @@ def test_gymnasium_make_adds_its_render_wrappers_for_the_modes_built_on_rgb_arra
     assert "HumanRendering" in wrappers(human) and human.unwrapped.render_mode == "rgb_array"  # the window opens at render
 
 
+@pytest.mark.filterwarnings("ignore:.*A Box observation space (minimum|maximum) value is:UserWarning")
 @pytest.mark.filterwarnings("ignore:.*render_mode='ansi' that is not in the possible render_modes:UserWarning")  # refused below
 def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot():
     """``render_mode="rgb_array"`` (Gymnasium's checker runs its render checks): an upright image of M_t, one

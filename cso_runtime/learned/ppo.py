@@ -317,6 +317,12 @@ class Args:
 # --- scenes -----------------------------------------------------------------------------------
 
 
+def counted(n: int, noun: str, plural: str | None = None) -> str:
+    """``n`` and ``noun``, in the plural unless ``n`` is 1 (``plural``, else ``noun`` + s): the log's counts, "1 scene",
+    "2 processes"."""
+    return f"{n} {noun if n == 1 else plural or noun + 's'}"
+
+
 def training_scene_refs(args: Args) -> list[SceneRef]:
     """Dungeon training plans (a seeded subset, at each scale) and generated plans."""
     refs: list[SceneRef] = []
@@ -800,9 +806,7 @@ def collect_teacher_parallel(args: Args, workers: int, decisions: int, time_limi
     refs = training_scene_refs(args)
     per_worker = max(1, -(-decisions // workers))
     jobs = [(args, refs, args.seed + i, per_worker, time_limit_s) for i in range(workers)]
-    processes = "1 process" if workers == 1 else f"{workers} processes"
-    scenes = "1 scene" if len(refs) == 1 else f"{len(refs)} scenes"
-    log(f"collecting {args.warm_start_teacher} decisions in {processes} on {scenes}")
+    log(f"collecting {args.warm_start_teacher} decisions in {counted(workers, 'process', 'processes')} on {counted(len(refs), 'scene')}")
     parts: dict[int, TeacherData] = {}
 
     def collected(job: tuple, part: TeacherData | WorkerDied) -> None:
@@ -951,10 +955,10 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     if elsewhere and (earlier := earlier_run_files(out, args.variant)):  # CleanRL never writes into an old run; say it
         log(f"note: {out} holds an earlier run ({', '.join(earlier)}): this run replaces it; --resume {out / 'checkpoint.pt'} would continue it")
         if removed := drop_kept_checkpoints(out, args.variant):
-            log(f"note: removed the earlier run's {removed} kept checkpoint{'s' if removed != 1 else ''} of {args.variant} from {out / KEPT_CHECKPOINTS_DIR}")
+            log(f"note: removed the earlier run's {counted(removed, 'kept checkpoint')} of {args.variant} from {out / KEPT_CHECKPOINTS_DIR}")
     refs: list[SceneRef] | list[FloorPlan] = plans if plans else training_scene_refs(args)
-    log(f"training {args.variant} on {len(refs)} scenes, device {device}: {args.num_updates} PPO update{'s' if args.num_updates != 1 else ''} of {args.batch_size} decisions "
-        f"({args.num_envs} envs x {args.num_steps} steps; total_decisions {args.total_decisions} in whole updates)")
+    log(f"training {args.variant} on {counted(len(refs), 'scene')}, device {device}: {counted(args.num_updates, 'PPO update')} of {args.batch_size} decisions "
+        f"({counted(args.num_envs, 'env')} x {counted(args.num_steps, 'step')}; total_decisions {args.total_decisions} in whole updates)")
     envs = make_vector_env(args, refs)
     model = build_model(args, device)
     optimizer = optim.Adam(parameter_groups(model, args), lr=args.learning_rate, eps=args.adam_eps)
@@ -979,11 +983,11 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
         before = ckpt.get("args", {}).get("total_decisions", args.total_decisions)
         if start_update > args.num_updates:  # eval --weights of a stopped run is told to resume it so
             log(
-                f"total_decisions {args.total_decisions} ({args.num_updates} update{'s' if args.num_updates != 1 else ''}): no update left:"
+                f"total_decisions {args.total_decisions} ({counted(args.num_updates, 'update')}): no update left:"
                 f" the weights written are the checkpoint's (update {start_update - 1}, {global_decisions} decisions)"
             )
         elif before != args.total_decisions:
-            log(f"total_decisions {before} -> {args.total_decisions}: {args.num_updates} updates in all, the learning rate anneals over them from here")
+            log(f"total_decisions {before} -> {args.total_decisions}: {counted(args.num_updates, 'update')} in all, the learning rate anneals over them from here")
     elif args.init_from:
         model.load_state_dict(initial_weights(args, device))
         record["init_from"] = str(args.init_from)
