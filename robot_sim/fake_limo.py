@@ -78,15 +78,17 @@ class FakeLimo:
         self.sub = session.declare_subscriber(self.prefix + "cmd_vel", self._on_twist)
 
     def _on_twist(self, sample: Any) -> None:
+        """A command through ros2_cdr's decoders: one of the other type, or with a NaN or infinite value, is counted
+        and not driven."""
+        raw = sample.payload.to_bytes()
         try:
-            msg = ros2_cdr.decode(sample.payload.to_bytes(), self.cmd_vel_type)  # rosbags, wrapped
+            command = ros2_cdr.twist_stamped_from_cdr(raw)[0] if self.cmd_vel_type == ros2_cdr.TWIST_STAMPED else ros2_cdr.twist_from_cdr(raw)
         except ros2_cdr.CdrError as exc:
             self.bad_commands += 1
             log.warning("undecodable %s (%d so far): %s", self.cmd_vel_type.rsplit("/", 1)[-1], self.bad_commands, exc)
             return
-        twist = msg.twist if self.cmd_vel_type == ros2_cdr.TWIST_STAMPED else msg
         with self._lock:
-            if self.sim.set_command(VelocityCommand(float(twist.linear.x), float(twist.angular.z))):
+            if self.sim.set_command(command):
                 self.commands += 1
 
     def _put_odom(self, time_s: float, base_pose: Pose2D) -> None:

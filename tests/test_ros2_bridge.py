@@ -213,6 +213,9 @@ def test_fake_limo_drives_on_the_command_type_it_is_told(stamped: bool):
     robot._on_twist(sample(wrong))
     assert driven == [VelocityCommand(0.1, 0.1) if stamped else VelocityCommand(0.3, -0.2)]
     assert (robot.commands, robot.bad_commands) == (1, 1)
+    nan = VelocityCommand(float("nan"), 0.0)  # decoded by ros2_cdr, as the bridge does: non-finite is undecodable
+    robot._on_twist(sample(ros2_cdr.twist_stamped_to_cdr(nan, 5, "base_link") if stamped else ros2_cdr.twist_to_cdr(nan)))
+    assert len(driven) == 1 and (robot.commands, robot.bad_commands) == (1, 2)
 
 
 def test_fake_limo_refuses_a_namespace_that_is_no_ros_name(capsys):
