@@ -320,12 +320,19 @@ class ExplorationConfig:
     """Everything an exploration episode needs, in one place."""
 
     sensor: SensorConfig = field(default_factory=SensorConfig)
+    """The planar range sensor (``SensorConfig``)."""
     robot: RobotConfig = field(default_factory=RobotConfig)
+    """The robot's footprint, velocity limits and control period (``RobotConfig``)."""
     mapping: MappingConfig = field(default_factory=MappingConfig)
+    """How scans build the occupancy map (``MappingConfig``)."""
     frontier: FrontierConfig = field(default_factory=FrontierConfig)
+    """Frontier clusters and the entropy window of Eq. 4 (``FrontierConfig``)."""
     masks: MaskConfig = field(default_factory=MaskConfig)
+    """The action masks of section 3.3 (``MaskConfig``)."""
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    """Step limit, replanning and the end of an episode (``EpisodeConfig``)."""
     planner: PlannerConfig = field(default_factory=PlannerConfig)
+    """The local planner: pure pursuit, clearance, progress and recoveries (``PlannerConfig``)."""
 
     def validate(self) -> None:
         """What no section can check alone: the sensor on the robot, the planner's moves against the robot's limits."""

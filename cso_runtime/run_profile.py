@@ -49,12 +49,12 @@ class RouterConfig:
     """Zenoh mode of the services: ``client`` (every message through the router) or ``peer`` (services
     also listen on a loopback port and talk directly once the router has introduced them)."""
     connect_timeout_s: float = JOIN_TIMEOUT_S
-    """A Zenoh config file (JSON5, Zenoh's own format) that the launcher's router and every service start from:
-    user/password authentication, TLS, access control (docs/hardware.md, Securing the network). ``up --zenoh-config``
-    sets it; "" takes ``$CSO_ZENOH_CONFIG`` (``cso-runtime --zenoh-config FILE``), else Zenoh's defaults."""
     """How long ``up`` waits to reach the routers in ``connect`` (its embedded router joining them, or its own
     session when ``embedded`` is false) before it stops, exit 3, no service started."""
     zenoh_config: str = ""
+    """A Zenoh config file (JSON5, Zenoh's own format) that the launcher's router and every service start from:
+    user/password authentication, TLS, access control (docs/hardware.md, Securing the network). ``up --zenoh-config``
+    sets it; "" takes ``$CSO_ZENOH_CONFIG`` (``cso-runtime --zenoh-config FILE``), else Zenoh's defaults."""
 
     def validate(self) -> None:
         if not self.connect_timeout_s > 0:
@@ -140,7 +140,9 @@ class Profile:
     exploration: dict[str, Any] = field(default_factory=dict)
     """ExplorationConfig overrides (sensor, robot, frontier, masks, episode, planner)."""
     router: RouterConfig = field(default_factory=RouterConfig)
+    """The launcher's Zenoh router and the services' Zenoh mode (``RouterConfig``)."""
     supervision: SupervisionConfig = field(default_factory=SupervisionConfig)
+    """Restarts, hang checks and stops of the services (``SupervisionConfig``)."""
     services: dict[str, Any] = field(default_factory=dict)
     """Service name -> its parameters (a mapping, possibly empty). Only listed services are started."""
     without: list[str] = field(default_factory=list)

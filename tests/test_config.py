@@ -500,3 +500,41 @@ def test_an_error_quotes_a_set_flags_non_ascii_text_as_typed():
     assert set_flag_text("generated", ["küche", "bad"]) == "--set generated=[küche, bad]"
     with pytest.raises(ConfigError, match=r"with --set services.planner.nope=café: services.planner: unknown key"):
         load_profile("lockstep", settings={"services.planner.nope": "café"})
+
+
+def _field_docstrings(cls: type) -> dict[str, str | None]:
+    """Each field of dataclass ``cls`` -> the string literal right below it (its docstring), or None."""
+    import ast
+    import inspect
+    import textwrap
+
+    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0].body
+    docs: dict[str, str | None] = {}
+    for node, after in zip(body, [*body[1:], None]):
+        if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            literal = isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str)
+            docs[node.target.id] = after.value.value if literal else None
+    return docs
+
+
+def test_every_configuration_key_has_a_docstring():
+    """Every key a YAML file, a profile or ``--set`` can give (each field of the config dataclasses, each service's
+    parameters) says what it means under it, as a Nav2 parameter does: a field without one reads as the next field's
+    docstring, as ``router.connect_timeout_s`` read as ``zenoh_config``'s."""
+    import dataclasses
+
+    from cso_runtime import config
+    from cso_runtime.learned.network import NetworkConfig
+    from cso_runtime.learned.ppo import Args
+    from cso_runtime.run_profile import Profile, RouterConfig, SupervisionConfig
+    from robot_sim.config import MujocoSimConfig
+    from services import SERVICE_NAMES, params_class
+
+    classes = [getattr(config, n) for n in ("SensorConfig", "RobotConfig", "MappingConfig", "FrontierConfig", "MaskConfig")]
+    classes += [config.EpisodeConfig, config.PlannerConfig, ExplorationConfig, Profile, RouterConfig, SupervisionConfig]
+    classes += [MujocoSimConfig, Args, NetworkConfig, *(c for n in SERVICE_NAMES if (c := params_class(n)) is not None)]
+    undocumented = [f"{cls.__name__}.{name}" for cls in classes for name, doc in _field_docstrings(cls).items() if not (doc or "").strip()]
+    assert undocumented == []
+    assert {f.name for f in dataclasses.fields(RouterConfig)} == set(_field_docstrings(RouterConfig))
+    assert "How long ``up`` waits" in _field_docstrings(RouterConfig)["connect_timeout_s"]
+    assert "Zenoh config file" in _field_docstrings(RouterConfig)["zenoh_config"]

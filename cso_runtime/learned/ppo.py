@@ -85,6 +85,7 @@ class Args:
     num_steps: int = 64
     """Decisions per environment per rollout."""
     learning_rate: float = 1e-4
+    """Adam's learning rate of the PPO updates (the actor and critic heads; ``encoder_lr_scale`` scales the encoder's)."""
     adam_eps: float = 1e-5
     """Adam's epsilon (CleanRL's 1e-5). In the first updates the actor's hidden layer gets gradients of a few
     1e-6 (under the distance prior its output layer starts at zero), where 1e-5 shrinks Adam's step; 1e-8 was
@@ -103,8 +104,11 @@ class Args:
     efficiency metric counts steps, not decisions). 0: ``gamma`` per decision. PPO only: the warm start's
     critic targets (teacher data, also saved to files) keep ``gamma`` per decision."""
     gae_lambda: float = 0.95
+    """lambda of generalised advantage estimation (GAE), in [0, 1]."""
     num_minibatches: int = 4
+    """Minibatches per epoch of an update: must divide ``num_envs`` x ``num_steps``."""
     update_epochs: int = 4
+    """Passes over each rollout per PPO update."""
     norm_adv: bool = True
     """Advantages normalised per minibatch."""
     clip_coef: float = 0.1
@@ -112,7 +116,9 @@ class Args:
     clip_vloss: bool = True
     """The value loss clipped around the rollout's values, as the policy's ratio is."""
     ent_coef: float = 0.005
+    """Weight of the entropy bonus (over the valid actions) in the PPO loss."""
     vf_coef: float = 0.5
+    """Weight of the value loss in the PPO loss."""
     max_grad_norm: float = 0.5
     """Gradients clipped to this global norm."""
     target_kl: float = 0.03
@@ -130,7 +136,9 @@ class Args:
     """Temperature, in control steps, of the soft imitation targets built from the rollout teacher's outcomes
     (``soft_targets``); 0 imitates the teacher's choice alone."""
     warm_start_epochs: int = 20
+    """Passes over the teacher data in the warm start."""
     warm_start_lr: float = 1e-3
+    """Adam's learning rate in the warm start."""
     sensor: str = "lidar"
     """Sensor preset of the training episodes (as ``eval --sensor``): lidar or depth."""
     lidar_fov_deg: float | None = None
@@ -163,12 +171,17 @@ class Args:
     """``masks.conflict`` in the training episodes: which mask wins when the stuck mask leaves none of the valid
     distance mask's goals (``distance``: the shipped weights). Evaluate such weights with ``--set masks.conflict=...``."""
     hidden: int = 32
+    """Node embedding width (``NetworkConfig.hidden``)."""
     heads: int = 4
+    """Attention heads per layer (``NetworkConfig.heads``)."""
     layers: int = 2
+    """Message-passing rounds (``NetworkConfig.layers``)."""
     knn: int = 8
     """Neighbours of each node, itself included (``GraphConfig.knn``): 1 to max_frontier_nodes + max_path_nodes - 1."""
     max_frontier_nodes: int = 200
+    """Frontier clusters kept as actions, the nearest ones: the action space size (``GraphConfig.max_frontier_nodes``)."""
     max_path_nodes: int = 20
+    """Past decision positions kept as path nodes, the newest ones (``GraphConfig.max_path_nodes``)."""
     cluster_size_feature: bool = False
     """Give the network each frontier cluster's length as a node feature (``graph.node_features``)."""
     unknown_area_feature: bool = False
@@ -203,6 +216,7 @@ class Args:
     device: str = "auto"
     """auto (CUDA when available), cpu or cuda."""
     torch_threads: int = 1
+    """Torch's CPU threads in the training process (``torch.set_num_threads``)."""
     progress: bool = True
     """Show a progress bar."""
 
