@@ -697,6 +697,9 @@ def up_command(
         None, "--set", help="KEY=VALUE into the profile, repeatable, a dotted KEY for a nested one (seed=3, services.sim.viewer=true; --dry-run prints the profile)"
     ),
     dry_run: bool = typer.Option(False, "--dry-run", help="Validate, print the profile as the services would read it (YAML), start nothing"),
+    resolved: bool = typer.Option(
+        False, "--resolved", help="Validate, print every parameter the run would use, defaults filled in (YAML, itself a profile), start nothing; implies --dry-run"
+    ),
     animate: bool = typer.Option(
         False, "--animate", help="At the end, also write the episode as a GIF under animations/, as eval does (records the run to do so, as --record)"
     ),
@@ -742,13 +745,15 @@ def up_command(
 
         if not names_a_folder(record_out) and Path(record_out).exists():  # as `record --out`: an earlier recording is never written over
             _fail(f"--record-out {record_out}: the file exists; give another, or a folder, or remove it first", 2)
-    if dry_run:
+    if dry_run or resolved:
         import yaml  # noqa: PLC0415
 
         outside = prof.left_out_services()
         left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
         typer.echo(f"# profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}")
-        typer.echo(yaml.safe_dump(data, sort_keys=False), nl=False)
+        if resolved:
+            typer.echo("# every parameter as the run would use it, defaults filled in (`up --dry-run`: the profile as written)")
+        typer.echo(yaml.safe_dump(prof.effective() if resolved else data, sort_keys=False), nl=False)
         return
     current = read_current_run(runs_dir)
     if current is not None and current_launcher_alive(current):

@@ -25,6 +25,7 @@ from cso_runtime.config import (
     load_yaml,
     set_dotted,
     set_flag_text,
+    to_dict,
     with_nearest,
 )
 from cso_runtime.keys import check_robot_id
@@ -156,6 +157,24 @@ class Profile:
     def exploration_config(self) -> ExplorationConfig:
         """The exploration settings every service of this profile runs with (raises ConfigError)."""
         return profile_exploration_config(self.exploration, self.services)
+
+    def effective(self) -> dict[str, Any]:
+        """The profile as its processes run it, every default filled in (``up --resolved``, Nav2's ``ros2 param dump``):
+        each key of the profile, ``exploration`` as every service reads it (``exploration_config``: the MuJoCo LIMO's
+        LiDAR mount and box body included), each built-in service's parameters over its ``Params`` defaults and, with
+        the MuJoCo LIMO, every one of its ``services.sim.mujoco`` parameters; a service of one's own (``class``,
+        ``command``) as given. Itself a profile that runs the same."""
+        from services import SERVICE_NAMES, is_own_node, params_class  # noqa: PLC0415 - services import zenoh
+
+        data = to_dict(self)
+        data["exploration"] = to_dict(self.exploration_config())
+        for name, section in self.services.items():
+            params_cls = params_class(name) if name in SERVICE_NAMES and not is_own_node(section) else None
+            if params_cls is not None:
+                data["services"][name] = to_dict(from_dict(params_cls, section or {}, where=f"services.{name}"))
+        if self.simulator() == "mujoco":
+            data["services"]["sim"]["mujoco"] = self.simulator_settings()
+        return data
 
     def simulator(self) -> str | None:
         """The simulator its sim service runs (``simulator.SIMULATORS``: ``2d`` or ``mujoco``); None without a sim service

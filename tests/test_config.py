@@ -538,3 +538,39 @@ def test_every_configuration_key_has_a_docstring():
     assert {f.name for f in dataclasses.fields(RouterConfig)} == set(_field_docstrings(RouterConfig))
     assert "How long ``up`` waits" in _field_docstrings(RouterConfig)["connect_timeout_s"]
     assert "Zenoh config file" in _field_docstrings(RouterConfig)["zenoh_config"]
+
+
+@pytest.mark.parametrize("name", ["sim", "lockstep", "limo-ros2"])
+def test_up_resolved_prints_every_parameter_the_run_uses_as_a_profile_that_runs_the_same(name, tmp_path: Path, monkeypatch):
+    """``up --resolved`` is the effective configuration (Nav2's ``ros2 param dump``): defaults, the file and ``--set``
+    resolved, every key of every section, where ``--dry-run`` shows the file as written (``exploration: {}``); and
+    what it prints, given back as a profile, runs the same."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.run_profile import load_profile
+    from cso_runtime.transport import JOIN_TIMEOUT_S
+    from robot_sim.config import MujocoSimConfig
+    from services.mapper import MapperParams
+
+    monkeypatch.chdir(tmp_path)  # the packaged profiles
+    connect = ["--connect", "tcp/127.0.0.1:7447"] if name == "limo-ros2" else []
+    args = ["up", "--profile", name, *connect, "--set", "exploration.planner.lookahead_m=0.4", "--resolved"]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    assert r.output.startswith(f"# profile {name}, valid: `up` would start") and "defaults filled in" in r.output
+    shown = yaml.safe_load(r.output)
+    assert shown["exploration"] == {**to_dict(ExplorationConfig()), **shown["exploration"]}  # every section, every key
+    assert set(shown["exploration"]["sensor"]) == set(to_dict(ExplorationConfig())["sensor"])
+    assert shown["exploration"]["planner"]["lookahead_m"] == 0.4  # --set
+    assert shown["router"]["connect_timeout_s"] == JOIN_TIMEOUT_S and "start_timeout_s" in shown["supervision"]
+    assert shown["services"]["mapper"] == to_dict(MapperParams())
+    if name == "sim":  # the MuJoCo LIMO: its LiDAR mount and box body, and every physics parameter
+        assert (shown["exploration"]["sensor"]["mount_x_m"], shown["exploration"]["planner"]["body"]) == (0.103, "box")
+        assert set(shown["services"]["sim"]["mujoco"]) == set(to_dict(MujocoSimConfig()))
+    profile = tmp_path / "resolved.yaml"
+    profile.write_text(r.output)
+    assert load_profile(str(profile))[0].effective() == shown
+    as_written = yaml.safe_load(CliRunner().invoke(app, ["up", "--profile", name, *connect, "--dry-run"]).output)
+    assert "connect_timeout_s" not in as_written["router"]  # --dry-run: the file as written, as before
