@@ -9,8 +9,10 @@ LIMO's physics) before anything starts: a bad profile is a ``ConfigError`` namin
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import os
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -372,6 +374,66 @@ def profile_exploration_config(exploration: Any, services: Any, where: str = "ex
     return config
 
 
+def profile_key_sections(mujoco: bool = True) -> dict[str, set[str]]:
+    """Each mapping of a profile that takes a fixed set of keys (``""`` for the top level, ``exploration.planner``,
+    ``services.sim.mujoco``...) -> those keys: its dataclass's fields, a built-in service's ``Params``. ``mujoco``: with
+    ``services.sim.mujoco`` (robot_sim imports MuJoCo, which a real robot's profile need not)."""
+    from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
+
+    def fields(cls: type) -> set[str]:
+        return {f.name for f in dataclasses.fields(cls)}
+
+    sections = {"": fields(Profile), "router": fields(RouterConfig), "supervision": fields(SupervisionConfig)}
+    sections["exploration"] = fields(ExplorationConfig)
+    sections.update({f"exploration.{name}": fields(cls) for name, cls in typing.get_type_hints(ExplorationConfig).items()})
+    sections["services"] = set(SERVICE_NAMES)
+    sections.update({f"services.{name}": fields(cls) for name in SERVICE_NAMES if (cls := params_class(name)) is not None})
+    if mujoco:
+        from robot_sim.config import MujocoSimConfig  # noqa: PLC0415 - robot_sim imports MuJoCo
+
+        sections["services.sim.mujoco"] = fields(MujocoSimConfig)
+    return sections
+
+
+def _mapping_at(data: dict[str, Any], path: str) -> dict[str, Any]:
+    """The mapping a profile's data holds at dotted ``path`` (``""``: the data), or an empty one."""
+    node: Any = data
+    for part in path.split(".") if path else []:
+        node = node.get(part) if isinstance(node, dict) else None
+    return node if isinstance(node, dict) else {}
+
+
+def misplaced_key(data: dict[str, Any]) -> str | None:
+    """What is wrong with the first key of a profile's mapping that is no key of its section but one of another
+    (``services.planner.lookahead_m``, Nav2's place for a controller's parameter, is ``exploration.planner``'s;
+    ``frontier:`` at the top level is ``exploration.frontier`` or ``services.frontier``), in ``from_dict``'s words but
+    saying where it belongs rather than the nearest spelling in the wrong section (``router``); None when none is.
+    A ``robot:`` mapping is the robot's body given where its id goes."""
+    from services import is_own_node  # noqa: PLC0415 - services import zenoh
+
+    if isinstance(data.get("robot"), dict):
+        return "robot: the robot id (a string: cso/<robot>/... keys); the robot's body and limits are exploration.robot"
+    sections = profile_key_sections(mujoco=bool(_mapping_at(data, "services.sim.mujoco")))
+    unknown = [
+        (path, key)
+        for path, keys in sections.items()
+        if not (path.startswith("services.") and is_own_node(_mapping_at(data, path)))
+        for key, value in _mapping_at(data, path).items()
+        if key not in keys and not (path == "services" and is_own_node(value))  # a service of one's own, by any name
+    ]
+    if unknown and "services.sim.mujoco" not in sections:
+        sections = profile_key_sections()  # where a misplaced key may belong: the MuJoCo LIMO's too
+    homes: dict[str, list[str]] = {}
+    for path, keys in sections.items():
+        for key in keys:
+            homes.setdefault(key, []).append(f"{path}.{key}" if path else key)
+    for path, key in unknown:
+        if elsewhere := [home for home in homes.get(key, []) if home != (f"{path}.{key}" if path else key)]:
+            said = f"{key} (did you mean {' or '.join(elsewhere)}?)"
+            return f"{path + ': ' if path else ''}unknown key(s) {said}; known: {', '.join(sorted(sections[path]))}"
+    return None
+
+
 def profile_search_path() -> list[Path]:
     """Where ``--profile NAME`` is looked up: the user's ``./configs/profiles`` (overrides), then the
     profiles shipped with the package."""
@@ -463,7 +525,10 @@ def load_profile(
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
     flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]
     flags += [set_flag_text(k, v) for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
-    profile = from_dict(Profile, data, where=f"{path} with {' '.join(flags)}" if flags else str(path))
+    where = f"{path} with {' '.join(flags)}" if flags else str(path)
+    if (problem := misplaced_key(data)) is not None:
+        raise ConfigError(f"{where}: {problem}")
+    profile = from_dict(Profile, data, where=where)
     return profile, data
 
 

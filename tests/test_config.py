@@ -574,3 +574,36 @@ def test_up_resolved_prints_every_parameter_the_run_uses_as_a_profile_that_runs_
     assert load_profile(str(profile))[0].effective() == shown
     as_written = yaml.safe_load(CliRunner().invoke(app, ["up", "--profile", name, *connect, "--dry-run"]).output)
     assert "connect_timeout_s" not in as_written["router"]  # --dry-run: the file as written, as before
+
+
+@pytest.mark.parametrize(
+    "settings, said",
+    [
+        ({"services.planner.lookahead_m": 0.4}, "services.planner: unknown key(s) lookahead_m (did you mean exploration.planner.lookahead_m?); known: path_period_s"),
+        ({"services.mapper.footprint_clearing": False}, "services.mapper: unknown key(s) footprint_clearing (did you mean exploration.mapping.footprint_clearing?)"),
+        ({"exploration.lookahead_m": 0.4}, "exploration: unknown key(s) lookahead_m (did you mean exploration.planner.lookahead_m?)"),
+        ({"services.sim.timestep_s": 0.01}, "services.sim: unknown key(s) timestep_s (did you mean services.sim.mujoco.timestep_s?)"),
+        ({"frontier": {"min_cluster_size_m": 0.5}}, "unknown key(s) frontier (did you mean exploration.frontier or services.frontier?); known: exploration"),
+        ({"backoff_s": 1.0}, "unknown key(s) backoff_s (did you mean supervision.backoff_s?)"),
+        ({"robot": {"radius_m": 0.3}}, "robot: the robot id (a string: cso/<robot>/... keys); the robot's body and limits are exploration.robot"),
+        ({"exploration.planner.lookahed_m": 0.4}, "exploration.planner: unknown key(s) lookahed_m (did you mean lookahead_m?)"),  # a typo: as before
+    ],
+)
+def test_a_profile_key_in_the_wrong_section_names_the_section_it_belongs_to(settings, said):
+    """A Nav2 user writes the controller's lookahead under the planner service, or an eval.yaml section at a profile's
+    top level: the error names where the key goes, not the nearest spelling in the wrong section (``frontier`` at the
+    top level used to suggest ``router``; ``services.sim.timestep_s``, ``cmd_timeout_s``)."""
+    from cso_runtime.run_profile import load_profile
+
+    with pytest.raises(ConfigError) as caught:
+        load_profile("lockstep", {}, settings=settings)
+    assert said in str(caught.value)
+    assert "lockstep.yaml with --set " in str(caught.value)  # the file and the flags, as every profile error
+
+
+def test_a_service_of_ones_own_may_take_any_name_and_keys():
+    """The misplaced-key check leaves a service of one's own alone: its name may be a section's elsewhere (``sensor``)."""
+    from cso_runtime.run_profile import load_profile
+
+    profile, _ = load_profile("lockstep", {}, settings={"services.sensor": {"command": ["/bin/true"]}})
+    assert profile.services["sensor"]["command"] == ["/bin/true"]
