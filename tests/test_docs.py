@@ -502,3 +502,26 @@ def test_the_readme_says_which_scale_the_training_environment_gives_png_plans():
     assert env_default != eval_default  # the reason to say it
     assert f"`m_per_px`, the scale of PNG plans in metres per pixel, is {env_default:g} unless given" in paragraph
     assert f"`eval --m-per-px` is {eval_default:g}" in paragraph
+
+
+def test_hardware_mds_defaults_are_the_codes():
+    """docs/hardware.md quotes defaults a ROS user compares with Nav2's and sets on the robot: the controller table's
+    Default column (``exploration.``) and the bridge's parameters (``Ros2BridgeParams``); each is the code's."""
+    from services.ros2_bridge import Ros2BridgeParams
+
+    text = (ROOT / "docs" / "hardware.md").read_text(encoding="utf-8")
+    exploration = dataclasses.asdict(ExplorationConfig())
+    rows = re.findall(r"^\| ((?:`(?:planner|episode|robot)\.\w+`(?:, )?)+) \| ([^|]+) \|", text, flags=re.MULTILINE)
+    assert len(rows) >= 8, "the table lost its rows, or the pattern broke"
+    wrong = []
+    for keys, values in rows:
+        numbers = [float(v.split()[0]) for v in values.split(", ")]
+        for key, number in zip(re.findall(r"`(\w+)\.(\w+)`", keys), numbers, strict=True):
+            if exploration[key[0]][key[1]] != number:
+                wrong.append(f"{'.'.join(key)}: the table says {number}, the default is {exploration[key[0]][key[1]]}")
+    bridge = text.split("The bridge's parameters", 1)[1].split("\n\n", 1)[0]
+    quoted = re.findall(r"`(\w+)` \((-?\d+(?:\.\d+)?)", bridge)
+    assert len(quoted) >= 12, "the bridge's parameters lost their defaults, or the pattern broke"
+    defaults = dataclasses.asdict(Ros2BridgeParams())
+    wrong += [f"{key}: the doc says {text}, the default is {defaults[key]}" for key, text in quoted if defaults[key] != float(text)]
+    assert wrong == []
