@@ -607,3 +607,22 @@ def test_a_service_of_ones_own_may_take_any_name_and_keys():
 
     profile, _ = load_profile("lockstep", {}, settings={"services.sensor": {"command": ["/bin/true"]}})
     assert profile.services["sensor"]["command"] == ["/bin/true"]
+
+
+def test_eval_yaml_names_every_exploration_key_with_its_default():
+    """configs/eval.yaml is where a user looks up every exploration parameter: each one is there with its default,
+    as a key or, where giving it would override a flag (the sensor preset, the MuJoCo LIMO's mount and body), as a
+    commented-out line (``# range_max_m: 8.0``)."""
+    import yaml
+
+    text = (CONFIGS / "eval.yaml").read_text(encoding="utf-8")
+    given = load_yaml(CONFIGS / "eval.yaml")
+    commented = dict(re.findall(r"^\s*# (\w+): (\S+)", text, flags=re.MULTILINE))
+    missing = []
+    for section, values in to_dict(ExplorationConfig()).items():
+        for key, default in values.items():
+            if key in (given.get(section) or {}):
+                continue
+            if key not in commented or yaml.safe_load(commented[key]) != default:
+                missing.append(f"{section}.{key} ({default})")
+    assert missing == []
