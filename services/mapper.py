@@ -36,7 +36,8 @@ class MapperParams:
     height_m: float = 0.0
     """Grid height when ``resolution_m`` is set."""
     restore_timeout_s: float = 1.0
-    """How long to wait for the cached map at start."""
+    """How long (wall clock) to wait at start for the latest map the referee (sim or ros2_bridge) holds, so that a
+    restarted mapper goes on from it."""
     max_pending_scans: int = 200
     """Scans kept while the grid is unknown (before the first clock); a replay at full speed can
     deliver many scans before the first clock is handled, each subscriber having its own thread."""
@@ -46,6 +47,8 @@ class MapperParams:
             raise ConfigError("an explicit grid needs resolution_m, width_m and height_m > 0")
         if self.max_pending_scans < 1:
             raise ConfigError("max_pending_scans must be at least 1")
+        if not self.restore_timeout_s >= 0:
+            raise ConfigError(f"restore_timeout_s must be >= 0 seconds, got {self.restore_timeout_s}")
 
 
 class MapperService(Service):

@@ -626,3 +626,26 @@ def test_eval_yaml_names_every_exploration_key_with_its_default():
             if key not in commented or yaml.safe_load(commented[key]) != default:
                 missing.append(f"{section}.{key} ({default})")
     assert missing == []
+
+
+def test_every_service_parameter_refuses_a_negative_duration_or_count():
+    """A negative time or count in a profile is a typo, refused naming the key before anything starts (the mapper's
+    ``restore_timeout_s`` of -1 used to be taken, its start-up query cut to 10 ms). Lengths that may be negative
+    (a mount behind the centre) or ignored (the mapper's grid without ``resolution_m``) aside."""
+    import dataclasses
+    import typing
+
+    from services import SERVICE_NAMES, params_class
+
+    taken = []
+    for name in SERVICE_NAMES:
+        cls = params_class(name)
+        hints = typing.get_type_hints(cls) if cls is not None else {}
+        for key in (f.name for f in dataclasses.fields(cls)) if cls is not None else ():
+            if hints[key] in (int, float) and not (name == "mapper" and key in ("width_m", "height_m")):
+                try:
+                    from_dict(cls, {key: -1}, where=f"services.{name}")
+                    taken.append(f"services.{name}.{key}")
+                except ConfigError as exc:
+                    assert key in str(exc), str(exc)
+    assert taken == []
