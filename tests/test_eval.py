@@ -1305,7 +1305,7 @@ def test_eval_warns_when_its_seed_changes_no_episode(tmp_path: Path, caplog):
     assert "changes no episode" not in caplog.text  # the default seed was not a choice
 
 
-def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(tmp_path: Path, capsys):
+def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(tmp_path: Path, capsys, monkeypatch):
     """Table 1 as researchers report it: mean ± the sample standard deviation (ddof=1) over the episodes, per method
     and per scale, in summary.json beside each mean (``<metric>_std``) and in report.html; one episode has no spread
     (null, not 0)."""
@@ -1330,10 +1330,17 @@ def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(
         assert f"<td>{e['efficiency_m2_per_step']:.4f} ± {e['efficiency_m2_per_step_std']:.4f}</td>" in page
     assert "mean ± sample standard deviation (ddof=1)" in page
     # The console: mean ± std where the table fits the width, the means alone (saying where the spread is) where not.
-    print_summary(summary, out)
-    text = capsys.readouterr().out
+    # Off a terminal the width is COLUMNS (at least 120): each case set here, not left to the shell's COLUMNS.
     e = summary["methods"]["greedy-dist"]
-    assert f"{e['coverage_pct']:.2f}" in text and (f"± {e['coverage_pct_std']:.2f}" in text or "standard deviation in report.html" in text)
+    monkeypatch.setenv("COLUMNS", "400")
+    print_summary(summary, out)
+    wide = capsys.readouterr().out
+    assert f"{e['coverage_pct']:.2f} ± {e['coverage_pct_std']:.2f}" in wide and "standard deviation in report.html" not in wide, wide
+    monkeypatch.setenv("COLUMNS", "80")  # 120 columns: too few for the spread beside each mean
+    print_summary(summary, out)
+    narrow = capsys.readouterr().out
+    assert f"{e['coverage_pct']:.2f}" in narrow and " ± " not in narrow and "standard deviation in report.html" in narrow, narrow
+    assert max(len(line) for line in narrow.splitlines() if line.startswith("│")) <= 120, narrow  # the table fits
 
     one = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path / "one", max_steps=40))
     saved = json.loads((tmp_path / "one" / "summary.json").read_text())["methods"]["greedy-dist"]
