@@ -379,10 +379,36 @@ def test_eval_compares_each_method_with_the_baseline_scene_by_scene(tmp_path: Pa
 
 @pytest.mark.parametrize("spec", ["generated:small:2:5"])
 def test_eval_on_generated_scenes_is_deterministic(tmp_path: Path, spec: str):
-    a = run_eval(EvalRequest(methods=["greedy-dist"], maps=spec, out_dir=tmp_path / "a", max_steps=80))
-    b = run_eval(EvalRequest(methods=["greedy-dist"], maps=spec, out_dir=tmp_path / "b", max_steps=80))
-    assert a["methods"]["greedy-dist"]["coverage_pct"] == b["methods"]["greedy-dist"]["coverage_pct"]
-    assert a["methods"]["greedy-dist"]["steps"] == b["methods"]["greedy-dist"]["steps"]
+    """Two evals of the same request: every episode the same, row by row and step by step (its path and coverage
+    curve), the seeded random method too, not only the means; only the timings may differ."""
+    methods = ["greedy-dist", "random"]
+    a = run_eval(EvalRequest(methods=methods, maps=spec, out_dir=tmp_path / "a", max_steps=80))
+    b = run_eval(EvalRequest(methods=methods, maps=spec, out_dir=tmp_path / "b", max_steps=80))
+    timings = {"decision_ms_p50", "decision_ms_p99", "wall_s", "real_time_factor"}
+
+    def episodes(out: Path) -> list[dict]:
+        with (out / "episodes.csv").open() as fh:
+            return [{k: v for k, v in row.items() if k not in timings} for row in csv.DictReader(fh)]
+
+    rows = episodes(tmp_path / "a")
+    assert len(rows) == 4 and rows == episodes(tmp_path / "b")
+
+    def untimed(value):
+        """``value`` without its timings (``decision_ms_p50_std`` and the like too), at any depth."""
+        if isinstance(value, dict):
+            return {k: untimed(v) for k, v in value.items() if not k.startswith(tuple(timings))}
+        return value
+
+    assert untimed(a["methods"]) == untimed(b["methods"]) and untimed(a["paired"]) == untimed(b["paired"])
+    for npz in sorted((tmp_path / "a" / "episodes").rglob("*.npz")):
+        with np.load(npz) as first, np.load(tmp_path / "b" / npz.relative_to(tmp_path / "a")) as again:
+            for key in ("explored", "trajectory", "coverage_curve"):
+                np.testing.assert_array_equal(first[key], again[key], err_msg=f"{npz.name} {key}")
+    # The random method's choices matter here: its paths differ from greedy-dist's on some scene.
+    trajectories = {m: [np.load(p)["trajectory"] for p in sorted((tmp_path / "a" / "episodes" / m).glob("*.npz"))] for m in methods}
+    assert len(trajectories["random"]) == 2 and any(
+        r.shape != g.shape or not np.array_equal(r, g) for r, g in zip(trajectories["random"], trajectories["greedy-dist"])
+    )
 
 
 def test_resume_reuses_finished_episodes(tmp_path: Path):
