@@ -658,12 +658,20 @@ def test_an_eval_whose_progress_reader_is_gone_runs_every_episode_and_writes_its
     ``SystemExit(1)`` at the next line, so the eval stopped after an episode or two, silently, with exit code 1 and
     neither summary.json nor episodes.csv. The progress goes quiet instead; the episodes run and their results
     are written."""
+    import os
+    import signal
+
     out = tmp_path / "o"
     cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--maps", "generated:small:3:0", "--max-steps", "5", "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    assert proc.stderr is not None
-    proc.stderr.close()  # the reader gone before the first progress line
-    assert proc.wait(timeout=120) == 0
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        assert proc.stderr is not None
+        proc.stderr.close()  # the reader gone before the first progress line
+        assert proc.wait(timeout=120) == 0
+    finally:  # an eval that hangs (the failure under test) is not left running, nor its workers
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=10)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["methods"]["greedy-dist"]["episodes"] == 3 and (out / "episodes.csv").is_file()
 
