@@ -1677,9 +1677,12 @@ def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot
 
     assert pixel(o.pose.x_m, o.pose.y_m) in (frames.ROBOT, frames.HEADING)
     n = len(o.clusters)
+    shown = {}
     for i, (x, y) in enumerate(o.goal_xy_m[:n]):
         if np.hypot(x - o.pose.x_m, y - o.pose.y_m) > 0.5:  # clear of the robot's disc
-            assert pixel(x, y) == (frames.ALLOWED if info["action_mask"][i] else frames.MASKED)
+            shown[i] = pixel(x, y)
+            assert shown[i] == (frames.ALLOWED if info["action_mask"][i] else frames.MASKED), i
+    assert set(shown.values()) == {frames.ALLOWED, frames.MASKED}, shown  # goals of both kinds were looked at
     unknown = np.argwhere(~env.explorer.map.explored)[0]
     assert tuple(frame[(rows - 1 - unknown[0]) * 3, unknown[1] * 3]) == frames.UNKNOWN
     # A corner: an occupied cell of the top map row is the image's first rows.
