@@ -84,8 +84,10 @@ def test_a_key_given_twice_in_a_config_is_an_error_not_a_silent_override(tmp_pat
     again = tmp_path / "again.yaml"  # the same key in two different mappings is two keys
     again.write_text("a: {x: 1}\nb: {x: 2}\n")
     assert load_yaml(again) == {"a": {"x": 1}, "b": {"x": 2}}
-    for shipped in sorted((Path(cso_runtime.__file__).parent / "profiles").glob("*.yaml")):
-        assert isinstance(load_yaml(shipped), dict), shipped  # the shipped profiles name each key once
+    shipped = sorted((Path(cso_runtime.__file__).parent / "profiles").glob("*.yaml"))
+    assert {p.name for p in shipped} >= {"sim.yaml", "lockstep.yaml", "limo-ros2.yaml"}, shipped  # the profiles are there
+    for profile in shipped:
+        assert isinstance(load_yaml(profile), dict), profile  # the shipped profiles name each key once
 
 
 def test_train_set_overrides_parse_yaml_values_and_reject_bad_pairs():
