@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -73,10 +75,27 @@ def test_animate_refuses_what_it_cannot_draw(tmp_path):
 def test_a_recording_of_the_versions_before_the_episode_id_animates_as_today(tmp_path):
     """Odometry, goals and frontiers of the versions before the episode id: read, not left out."""
     keys = RobotKeys("r0")
-    messages = [RecordedMessage(m.key, m.log_time_ns, legacy(m.payload)) for m in episode(keys, 6, T0_NS, 1_000_000)]
-    write_recording(tmp_path / "old.mcap", "r0", messages)
+    today = episode(keys, 6, T0_NS, 1_000_000)
+    old = [RecordedMessage(m.key, m.log_time_ns, legacy(m.payload)) for m in today]
+    assert sum(o.payload != m.payload for o, m in zip(old, today)) > 0  # some messages are of the older versions
+    write_recording(tmp_path / "old.mcap", "r0", old)
+    write_recording(tmp_path / "today.mcap", "r0", today)
     stats = animate_recording(tmp_path / "old.mcap", tmp_path / "old.gif")
     assert (stats.decisions, stats.maps, stats.rejected, stats.frames) == (3, 6, 0, 3)
+    assert dataclasses.replace(animate_recording(tmp_path / "today.mcap", tmp_path / "today.gif"), path=stats.path) == stats
+
+    def frames_of(gif):
+        pictures = []
+        with Image.open(gif) as im:
+            for k in range(im.n_frames):
+                im.seek(k)
+                pictures.append(np.asarray(im.convert("RGB")))
+        return pictures
+
+    old_frames, today_frames = frames_of(tmp_path / "old.gif"), frames_of(tmp_path / "today.gif")
+    assert len(old_frames) == len(today_frames) == 3
+    for k, (a, b) in enumerate(zip(old_frames, today_frames)):
+        np.testing.assert_array_equal(a, b, err_msg=f"frame {k}")  # the same picture: robot, path, goal and frontiers
 
 
 def test_a_gif_that_fails_halfway_leaves_the_earlier_one_whole_and_nothing_cut(tmp_path, monkeypatch):

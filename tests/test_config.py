@@ -84,8 +84,10 @@ def test_a_key_given_twice_in_a_config_is_an_error_not_a_silent_override(tmp_pat
     again = tmp_path / "again.yaml"  # the same key in two different mappings is two keys
     again.write_text("a: {x: 1}\nb: {x: 2}\n")
     assert load_yaml(again) == {"a": {"x": 1}, "b": {"x": 2}}
-    for shipped in sorted((Path(cso_runtime.__file__).parent / "profiles").glob("*.yaml")):
-        assert isinstance(load_yaml(shipped), dict), shipped  # the shipped profiles name each key once
+    shipped = sorted((Path(cso_runtime.__file__).parent / "profiles").glob("*.yaml"))
+    assert {p.name for p in shipped} >= {"sim.yaml", "lockstep.yaml", "limo-ros2.yaml"}, shipped  # the profiles are there
+    for profile in shipped:
+        assert isinstance(load_yaml(profile), dict), profile  # the shipped profiles name each key once
 
 
 def test_train_set_overrides_parse_yaml_values_and_reject_bad_pairs():
@@ -360,9 +362,10 @@ def test_the_mujoco_limo_control_period_must_be_whole_physics_steps_before_anyth
         load_profile("sim", {}, settings={"services.sim.mujoco.timestep_s": 0.004})
 
 
-def test_the_policy_services_own_method_and_device_are_checked_before_anything_starts():
+def test_the_policy_services_own_method_and_device_are_checked_before_anything_starts(monkeypatch):
     """``services.policy.method`` and ``device`` used to pass ``up --dry-run`` and fail only in the started policy
-    service, a device torch cannot use as a weights file that "is not a cso-runtime checkpoint"."""
+    service, a device torch cannot use as a weights file that "is not a cso-runtime checkpoint". Whether this host
+    has a GPU or not, both cases run: torch's view of CUDA is set here."""
     import torch
 
     from cso_runtime.run_profile import load_profile
@@ -373,10 +376,16 @@ def test_the_policy_services_own_method_and_device_are_checked_before_anything_s
     ]:
         with pytest.raises(ConfigError, match=said):
             load_profile("lockstep", {}, settings={key: value})
-    if not torch.cuda.is_available():
-        with pytest.raises(ConfigError, match="services.policy.device: device cuda: .*; run the policy on cpu"):
-            load_profile("lockstep", {}, settings={"services.policy.method": "cso", "services.policy.device": "cuda"})
+    on_cuda = {"services.policy.method": "cso", "services.policy.device": "cuda"}
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    with pytest.raises(ConfigError, match="services.policy.device: device cuda: .*; run the policy on cpu"):
+        load_profile("lockstep", {}, settings=on_cuda)
     load_profile("lockstep", {}, settings={"services.policy.device": "cuda"})  # a baseline runs no network
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)  # one GPU
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    load_profile("lockstep", {}, settings=on_cuda)
+    with pytest.raises(ConfigError, match=r"services.policy.device: device cuda:1: only 1 CUDA device\(s\) here; run the policy on cpu"):
+        load_profile("lockstep", {}, settings={**on_cuda, "services.policy.device": "cuda:1"})
 
 
 def test_up_warns_when_the_policys_weights_were_trained_with_another_field_of_view(tmp_path: Path):

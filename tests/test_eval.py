@@ -163,8 +163,6 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
     for m in methods:
         entry = summary["methods"][m]
         assert entry["episodes"] == 1
-        for k in METRICS:
-            assert entry[k] is not None
         assert set(entry["by_scale"]) == {"super_large"}
     assert {f["map"] for f in summary["failures"]} == {"img_0_corrupt"}
     assert len(summary["failures"]) == len(methods)
@@ -185,6 +183,8 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
         assert float(r["real_time_factor"]) == pytest.approx(float(r["sim_time_s"]) / float(r["wall_s"]), rel=0.05, abs=0.5)
     for m in methods:
         mine = [r for r in rows if r["method"] == m]
+        for k in METRICS:  # one episode each: its metrics are the method's means
+            assert summary["methods"][m][k] == pytest.approx(float(mine[0][k]), rel=1e-4), (m, k)
         assert summary["methods"][m]["sim_time_s"] == pytest.approx(float(mine[0]["sim_time_s"]))
         assert summary["methods"][m]["real_time_factor"] == pytest.approx(float(mine[0]["real_time_factor"]), abs=1e-3)
 
@@ -379,10 +379,36 @@ def test_eval_compares_each_method_with_the_baseline_scene_by_scene(tmp_path: Pa
 
 @pytest.mark.parametrize("spec", ["generated:small:2:5"])
 def test_eval_on_generated_scenes_is_deterministic(tmp_path: Path, spec: str):
-    a = run_eval(EvalRequest(methods=["greedy-dist"], maps=spec, out_dir=tmp_path / "a", max_steps=80))
-    b = run_eval(EvalRequest(methods=["greedy-dist"], maps=spec, out_dir=tmp_path / "b", max_steps=80))
-    assert a["methods"]["greedy-dist"]["coverage_pct"] == b["methods"]["greedy-dist"]["coverage_pct"]
-    assert a["methods"]["greedy-dist"]["steps"] == b["methods"]["greedy-dist"]["steps"]
+    """Two evals of the same request: every episode the same, row by row and step by step (its path and coverage
+    curve), the seeded random method too, not only the means; only the timings may differ."""
+    methods = ["greedy-dist", "random"]
+    a = run_eval(EvalRequest(methods=methods, maps=spec, out_dir=tmp_path / "a", max_steps=80))
+    b = run_eval(EvalRequest(methods=methods, maps=spec, out_dir=tmp_path / "b", max_steps=80))
+    timings = {"decision_ms_p50", "decision_ms_p99", "wall_s", "real_time_factor"}
+
+    def episodes(out: Path) -> list[dict]:
+        with (out / "episodes.csv").open() as fh:
+            return [{k: v for k, v in row.items() if k not in timings} for row in csv.DictReader(fh)]
+
+    rows = episodes(tmp_path / "a")
+    assert len(rows) == 4 and rows == episodes(tmp_path / "b")
+
+    def untimed(value):
+        """``value`` without its timings (``decision_ms_p50_std`` and the like too), at any depth."""
+        if isinstance(value, dict):
+            return {k: untimed(v) for k, v in value.items() if not k.startswith(tuple(timings))}
+        return value
+
+    assert untimed(a["methods"]) == untimed(b["methods"]) and untimed(a["paired"]) == untimed(b["paired"])
+    for npz in sorted((tmp_path / "a" / "episodes").rglob("*.npz")):
+        with np.load(npz) as first, np.load(tmp_path / "b" / npz.relative_to(tmp_path / "a")) as again:
+            for key in ("explored", "trajectory", "coverage_curve"):
+                np.testing.assert_array_equal(first[key], again[key], err_msg=f"{npz.name} {key}")
+    # The random method's choices matter here: its paths differ from greedy-dist's on some scene.
+    trajectories = {m: [np.load(p)["trajectory"] for p in sorted((tmp_path / "a" / "episodes" / m).glob("*.npz"))] for m in methods}
+    assert len(trajectories["random"]) == 2 and any(
+        r.shape != g.shape or not np.array_equal(r, g) for r, g in zip(trajectories["random"], trajectories["greedy-dist"])
+    )
 
 
 def test_resume_reuses_finished_episodes(tmp_path: Path):
@@ -632,12 +658,20 @@ def test_an_eval_whose_progress_reader_is_gone_runs_every_episode_and_writes_its
     ``SystemExit(1)`` at the next line, so the eval stopped after an episode or two, silently, with exit code 1 and
     neither summary.json nor episodes.csv. The progress goes quiet instead; the episodes run and their results
     are written."""
+    import os
+    import signal
+
     out = tmp_path / "o"
     cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--maps", "generated:small:3:0", "--max-steps", "5", "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    assert proc.stderr is not None
-    proc.stderr.close()  # the reader gone before the first progress line
-    assert proc.wait(timeout=120) == 0
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    try:
+        assert proc.stderr is not None
+        proc.stderr.close()  # the reader gone before the first progress line
+        assert proc.wait(timeout=120) == 0
+    finally:  # an eval that hangs (the failure under test) is not left running, nor its workers
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=10)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["methods"]["greedy-dist"]["episodes"] == 3 and (out / "episodes.csv").is_file()
 
@@ -1305,7 +1339,7 @@ def test_eval_warns_when_its_seed_changes_no_episode(tmp_path: Path, caplog):
     assert "changes no episode" not in caplog.text  # the default seed was not a choice
 
 
-def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(tmp_path: Path, capsys):
+def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(tmp_path: Path, capsys, monkeypatch):
     """Table 1 as researchers report it: mean ± the sample standard deviation (ddof=1) over the episodes, per method
     and per scale, in summary.json beside each mean (``<metric>_std``) and in report.html; one episode has no spread
     (null, not 0)."""
@@ -1330,10 +1364,17 @@ def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(
         assert f"<td>{e['efficiency_m2_per_step']:.4f} ± {e['efficiency_m2_per_step_std']:.4f}</td>" in page
     assert "mean ± sample standard deviation (ddof=1)" in page
     # The console: mean ± std where the table fits the width, the means alone (saying where the spread is) where not.
-    print_summary(summary, out)
-    text = capsys.readouterr().out
+    # Off a terminal the width is COLUMNS (at least 120): each case set here, not left to the shell's COLUMNS.
     e = summary["methods"]["greedy-dist"]
-    assert f"{e['coverage_pct']:.2f}" in text and (f"± {e['coverage_pct_std']:.2f}" in text or "standard deviation in report.html" in text)
+    monkeypatch.setenv("COLUMNS", "400")
+    print_summary(summary, out)
+    wide = capsys.readouterr().out
+    assert f"{e['coverage_pct']:.2f} ± {e['coverage_pct_std']:.2f}" in wide and "standard deviation in report.html" not in wide, wide
+    monkeypatch.setenv("COLUMNS", "80")  # 120 columns: too few for the spread beside each mean
+    print_summary(summary, out)
+    narrow = capsys.readouterr().out
+    assert f"{e['coverage_pct']:.2f}" in narrow and " ± " not in narrow and "standard deviation in report.html" in narrow, narrow
+    assert max(len(line) for line in narrow.splitlines() if line.startswith("│")) <= 120, narrow  # the table fits
 
     one = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path / "one", max_steps=40))
     saved = json.loads((tmp_path / "one" / "summary.json").read_text())["methods"]["greedy-dist"]

@@ -1423,9 +1423,10 @@ def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
     assert bad.exit_code == 2 and f"out_dir {below_a_file}: cannot create the folder" in bad.output
 
 
-def test_train_refuses_what_it_cannot_use_before_it_starts(tmp_path):
+def test_train_refuses_what_it_cannot_use_before_it_starts(tmp_path, monkeypatch):
     """A checkpoint, weights, teacher data, device or network shape that training cannot use is one error
-    line and exit 2 before any environment starts, not a traceback from torch later."""
+    line and exit 2 before any environment starts, not a traceback from torch later. The device case runs on any
+    host: torch's view of CUDA is set here (no GPU, then one GPU for ``cuda:1``)."""
     import torch
     from typer.testing import CliRunner
 
@@ -1447,12 +1448,16 @@ def test_train_refuses_what_it_cannot_use_before_it_starts(tmp_path):
         (["--set", "heads=3"], "hidden >= 1 divisible by heads"),
         (["--set", f"warm_start_data=[{fake}]"], "fake.png: not a teacher-data file"),
     ]
-    if not torch.cuda.is_available():
-        cases.append((["--device", "cuda"], "device cuda: .*; train with --device cpu"))
+    cases.append((["--device", "cuda"], "device cuda: .*; train with --device cpu"))
     scenes = ["--set", "dungeon_dir=null", "--set", "generated=[generated:small:2:1000]", "--out", str(tmp_path / "run")]
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
     for extra, said in cases:
         r = CliRunner().invoke(app, ["train", *scenes, *extra])
         assert r.exit_code == 2 and re.search(f"error: .*{said}", r.output) and "training cso on" not in r.output, (extra, r.output[-2000:])
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: True)
+    monkeypatch.setattr(torch.cuda, "device_count", lambda: 1)
+    r = CliRunner().invoke(app, ["train", *scenes, "--device", "cuda:1"])
+    assert r.exit_code == 2 and re.search(r"error: .*device cuda:1: only 1 CUDA device\(s\) here; train with --device cpu", r.output), r.output[-2000:]
 
 
 def test_train_outside_the_repository_uses_the_packaged_recipe_and_refuses_missing_plans(tmp_path, monkeypatch):
@@ -1672,9 +1677,12 @@ def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot
 
     assert pixel(o.pose.x_m, o.pose.y_m) in (frames.ROBOT, frames.HEADING)
     n = len(o.clusters)
+    shown = {}
     for i, (x, y) in enumerate(o.goal_xy_m[:n]):
         if np.hypot(x - o.pose.x_m, y - o.pose.y_m) > 0.5:  # clear of the robot's disc
-            assert pixel(x, y) == (frames.ALLOWED if info["action_mask"][i] else frames.MASKED)
+            shown[i] = pixel(x, y)
+            assert shown[i] == (frames.ALLOWED if info["action_mask"][i] else frames.MASKED), i
+    assert set(shown.values()) == {frames.ALLOWED, frames.MASKED}, shown  # goals of both kinds were looked at
     unknown = np.argwhere(~env.explorer.map.explored)[0]
     assert tuple(frame[(rows - 1 - unknown[0]) * 3, unknown[1] * 3]) == frames.UNKNOWN
     # A corner: an occupied cell of the top map row is the image's first rows.

@@ -794,9 +794,12 @@ def test_of_two_up_of_one_robot_started_together_one_runs_and_a_later_one_is_ref
     profile = write_profile(tmp_path, min_step_period_s=0.25)
     all_runs = [tmp_path / f"runs{i}" for i in range(3)]
 
+    started: list[subprocess.Popen] = []
+
     def up(runs: Path) -> subprocess.Popen:
         argv = ["up", "--profile", str(profile), "--connect", loopback_endpoint(port), "--detach", "--runs-dir", str(runs)]
-        return subprocess.Popen([*python_module_argv("cso_runtime.cli"), *argv], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        started.append(subprocess.Popen([*python_module_argv("cso_runtime.cli"), *argv], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+        return started[-1]
 
     try:
         with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])):
@@ -811,6 +814,10 @@ def test_of_two_up_of_one_robot_started_together_one_runs_and_a_later_one_is_ref
             _, err = later.communicate(timeout=60)
             assert later.returncode == 2 and "robot r0 is already run by another launcher" in err, err
     finally:
+        for proc in started:  # an `up` that did not return in time (the launchers it started: kill_leftovers)
+            if proc.poll() is None:
+                proc.kill()
+                proc.communicate(timeout=10)
         for runs in all_runs:
             if (runs / "current.json").exists():
                 cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
