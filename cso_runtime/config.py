@@ -474,8 +474,21 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
         try:
             validate()
         except ValueError as exc:  # ConfigError, or the ValueError of a validate() outside this module (train's Args)
-            raise ConfigError(f"{where}: {exc}") from None
+            raise ConfigError(_checked_where(where, str(exc), names)) from None
     return obj
+
+
+def _checked_where(where: str, message: str, names: set[str]) -> str:
+    """A section's ``validate()`` message under ``where``, its key on the path as a type error's is: a nested section's
+    own error (``mujoco: timestep_s must be positive``, SimParams' ``mujoco`` checked as ``services.sim``) reads
+    ``services.sim.mujoco: timestep_s ...``, and a section that names itself (SensorConfig's ``sensor.fov_deg ...`` as
+    ``exploration.sensor``) ``exploration.sensor.fov_deg ...``; a file's own keys follow its name (``_key_where``)."""
+    head = re.match(r"(\w+)([.:])", message)
+    if head is not None and head[1] in names:
+        return _key_where(where, message)
+    if head is not None and head[2] == "." and re.split(r"[.: ]", where)[-1] == head[1]:
+        return where + message[len(head[1]) :]
+    return f"{where}: {message}"
 
 
 def to_dict(obj: Any) -> dict[str, Any]:

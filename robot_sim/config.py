@@ -96,6 +96,8 @@ class MujocoSimConfig:
         return sensor.mount_x_m if self.lidar_mount_x_m is None else float(self.lidar_mount_x_m)
 
     def validate(self) -> None:
+        """Each message names the key as the config's own (``timestep_s``): ``from_dict`` puts where it sits in front
+        (``services.sim.mujoco: ``, ``configs/robot_sim.yaml: ``)."""
         positive = (
             "timestep_s", "watchdog_s", "max_linear_accel_mps2", "max_angular_accel_radps2", "actuator_time_constant_s",
             "contact_time_constant_s", "traction_force_n", "yaw_torque_nm", "wall_height_m", "mass_kg", "body_height_m", "wheel_radius_m",
@@ -103,27 +105,27 @@ class MujocoSimConfig:
         )  # fmt: skip
         for name in positive:
             if not getattr(self, name) > 0:
-                raise ConfigError(f"robot_sim.{name} must be positive")
+                raise ConfigError(f"{name} must be positive")
         for name in ("wall_friction", "odom_trans_noise_frac", "odom_rot_noise_frac", "odom_rot_per_trans_noise_radpm"):
             if getattr(self, name) < 0:
-                raise ConfigError(f"robot_sim.{name} must not be negative")
+                raise ConfigError(f"{name} must not be negative")
         for name in ("actuator_time_constant_s", "contact_time_constant_s"):
             if getattr(self, name) < 2 * self.timestep_s - 1e-12:
-                raise ConfigError(f"robot_sim.{name} must be at least two physics steps")
+                raise ConfigError(f"{name} must be at least two physics steps")
         for name in ("wheelbase_m", "track_m"):
             if not getattr(self, name) > 0:
-                raise ConfigError(f"robot_sim.{name} must be positive")
+                raise ConfigError(f"{name} must be positive")
         if not self.wheel_radius_m < self.body_height_m:
             raise ConfigError(
-                f"robot_sim.wheel_radius_m ({self.wheel_radius_m} m, the body's ground clearance) must be below "
+                f"wheel_radius_m ({self.wheel_radius_m} m, the body's ground clearance) must be below "
                 f"body_height_m ({self.body_height_m} m)"
             )
         steps = 1.0 / (self.odometry_rate_hz * self.timestep_s)
         if _steps_if_whole(steps) is None:
             near = 1.0 / (max(1, round(steps)) * self.timestep_s)
             raise ConfigError(
-                f"robot_sim.odometry_rate_hz ({self.odometry_rate_hz:g} Hz) must be a whole number of physics steps per "
+                f"odometry_rate_hz ({self.odometry_rate_hz:g} Hz) must be a whole number of physics steps per "
                 f"tick (timestep_s {self.timestep_s:g} s gives {steps:.3g}); nearest such rate: {near:g} Hz"
             )
         if not self.lidar_height_m < self.wall_height_m:
-            raise ConfigError("robot_sim.lidar_height_m must be below wall_height_m or beams pass over the walls")
+            raise ConfigError("lidar_height_m must be below wall_height_m or beams pass over the walls")

@@ -231,6 +231,30 @@ def test_an_error_names_the_file_then_the_key_path():
         from_dict(ExplorationConfig, {"masks": {"beta_far_m": "far"}}, "exploration")
 
 
+def test_a_sections_own_check_names_the_key_path_too():
+    """A value that passes its type but fails its section's check names its key path as a type error does: the MuJoCo
+    LIMO's ``services.sim.mujoco.timestep_s`` (said "services.sim: mujoco: robot_sim.timestep_s": no such path),
+    ``exploration.sensor.fov_deg`` (said "exploration.sensor: sensor.fov_deg"); a file's own keys after its name."""
+    from cso_runtime.run_profile import load_profile
+    from cso_runtime.simulator import mujoco_config
+
+    said = {}
+    bad = [("services.sim.mujoco.timestep_s", -1), ("services.sim.mujoco.timestep_s", "abc"), ("exploration.sensor.fov_deg", -1)]
+    for key, value in bad:
+        with pytest.raises(ConfigError) as caught:
+            load_profile("sim", {}, settings={key: value})
+        said[key, value] = str(caught.value).split(": ", 1)[1]  # after the file and its flags
+    assert said["services.sim.mujoco.timestep_s", -1] == "services.sim.mujoco: timestep_s must be positive"
+    assert said["services.sim.mujoco.timestep_s", "abc"] == "services.sim.mujoco.timestep_s: expected a number, got 'abc'"
+    assert said["exploration.sensor.fov_deg", -1] == "exploration.sensor.fov_deg must be in (0, 360]"
+    with pytest.raises(ConfigError, match=r"^configs/robot_sim\.yaml: wheel_radius_m \(0\.3 m"):  # eval --sim-config FILE
+        mujoco_config({"wheel_radius_m": 0.3}, ExplorationConfig().sensor, where="configs/robot_sim.yaml")
+    with pytest.raises(ConfigError, match=r"^mine\.yaml: sensor\.fov_deg must be in"):  # eval --config FILE
+        from_dict(ExplorationConfig, {"sensor": {"fov_deg": -1}}, "mine.yaml")
+    with pytest.raises(ConfigError, match=r"^exploration\.sensor\.mount_x_m \(0\.5 m\) puts the sensor off the robot"):
+        from_dict(ExplorationConfig, {"sensor": {"mount_x_m": 0.5}}, "exploration")
+
+
 def test_a_robot_radius_no_indoor_robot_has_is_refused():
     """An inflation radius of tens of metres used to pass the checks and crash the frontier service later."""
     from cso_runtime.config import RobotConfig
@@ -371,8 +395,8 @@ def test_the_policy_services_own_method_and_device_are_checked_before_anything_s
     from cso_runtime.run_profile import load_profile
 
     for key, value, said in [
-        ("services.policy.method", "bogus", "services.policy: method: unknown method 'bogus'"),
-        ("services.policy.device", "banana", "services.policy: device: unknown device 'banana'"),
+        ("services.policy.method", "bogus", "services.policy.method: unknown method 'bogus'"),
+        ("services.policy.device", "banana", "services.policy.device: unknown device 'banana'"),
     ]:
         with pytest.raises(ConfigError, match=said):
             load_profile("lockstep", {}, settings={key: value})
