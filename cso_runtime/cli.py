@@ -726,7 +726,7 @@ def up_command(
     from cso_runtime.config import EXIT_INTERRUPTED, LOG_FORMAT, ConfigError  # noqa: PLC0415
     from cso_runtime.current_run import current_launcher_alive, read_current_run  # noqa: PLC0415
     from cso_runtime.launcher import run_foreground, start_detached  # noqa: PLC0415
-    from cso_runtime.run_profile import load_profile  # noqa: PLC0415
+    from cso_runtime.run_profile import REAL_ROBOT_SCENE, UNUSED_BY_A_REAL_ROBOT, load_profile  # noqa: PLC0415
 
     if weights is not None:
         _use_weights(weights)
@@ -753,6 +753,8 @@ def up_command(
         typer.echo(f"# profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}")
         if resolved:
             typer.echo("# every parameter as the run would use it, defaults filled in (`up --dry-run`: the profile as written)")
+            if prof.scene_label == REAL_ROBOT_SCENE:
+                typer.echo(f"# scene: {REAL_ROBOT_SCENE} ({' and '.join(UNUSED_BY_A_REAL_ROBOT)} left out: never loaded)")
         typer.echo(yaml.safe_dump(prof.effective() if resolved else data, sort_keys=False), nl=False)
         return
     current = read_current_run(runs_dir)

@@ -117,6 +117,9 @@ REAL_ROBOT_SCENE = "none: the real robot explores where it is"
 """What a run with no simulator (a real robot through ``ros2_bridge``) names as its scene: the launcher's first
 line and ``runs``; its profile's ``scene`` is never loaded."""
 
+UNUSED_BY_A_REAL_ROBOT = ("scene", "m_per_px")
+"""A profile's keys that a real robot's run never reads (its scene is the room it is in): ``up --resolved`` leaves them out."""
+
 REFEREES = ("sim", "ros2_bridge")
 """Services that own the episode (its status and end): without them the run cannot finish (nor be left out of it,
 ``up --without``)."""
@@ -165,10 +168,14 @@ class Profile:
         each key of the profile, ``exploration`` as every service reads it (``exploration_config``: the MuJoCo LIMO's
         LiDAR mount and box body included), each built-in service's parameters over its ``Params`` defaults and, with
         the MuJoCo LIMO, every one of its ``services.sim.mujoco`` parameters; a service of one's own (``class``,
-        ``command``) as given. Itself a profile that runs the same."""
+        ``command``) as given. A real robot's run leaves out ``UNUSED_BY_A_REAL_ROBOT`` (the default scene it would
+        show is never loaded: ``REAL_ROBOT_SCENE``). Itself a profile that runs the same."""
         from services import SERVICE_NAMES, is_own_node, params_class  # noqa: PLC0415 - services import zenoh
 
         data = to_dict(self)
+        if runs_a_real_robot(data):
+            for key in UNUSED_BY_A_REAL_ROBOT:
+                del data[key]
         data["exploration"] = to_dict(self.exploration_config())
         for name, section in self.services.items():
             params_cls = params_class(name) if name in SERVICE_NAMES and not is_own_node(section) else None

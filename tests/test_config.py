@@ -609,6 +609,28 @@ def test_up_resolved_prints_every_parameter_the_run_uses_as_a_profile_that_runs_
     assert "connect_timeout_s" not in as_written["router"]  # --dry-run: the file as written, as before
 
 
+def test_up_resolved_of_a_real_robot_shows_no_scene_it_never_loads(tmp_path: Path, monkeypatch):
+    """``up --resolved --profile limo-ros2`` printed the default ``scene: generated:small:1:0`` (and ``m_per_px``), which a
+    real robot's run never loads; it says what the launcher's first line and ``runs`` say instead, and the YAML, given
+    back as a profile, still runs the same."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.run_profile import REAL_ROBOT_SCENE, load_profile
+
+    monkeypatch.chdir(tmp_path)  # the packaged profiles
+    r = CliRunner().invoke(app, ["up", "--profile", "limo-ros2", "--connect", "tcp/127.0.0.1:7447", "--resolved"])
+    assert r.exit_code == 0, r.output
+    shown = yaml.safe_load(r.output)
+    assert "scene" not in shown and "m_per_px" not in shown, shown
+    assert f"# scene: {REAL_ROBOT_SCENE}" in r.output
+    profile = tmp_path / "resolved.yaml"
+    profile.write_text(r.output)
+    assert load_profile(str(profile))[0].effective() == shown
+    sim = CliRunner().invoke(app, ["up", "--profile", "sim", "--resolved"]).output
+    assert yaml.safe_load(sim)["scene"] == load_profile("sim")[0].scene and "# scene:" not in sim  # a simulation's: as before
+
 @pytest.mark.parametrize(
     "settings, said",
     [
