@@ -458,6 +458,54 @@ def with_nearest(key: str, known: typing.Iterable[str], shown: str | None = None
     return f"{shown} (did you mean {max(scored)[1]}?)" if scored else shown
 
 
+def key_sections(cls: type, path: str = "") -> dict[str, set[str]]:
+    """Each mapping config dataclass ``cls`` reads, by dotted path (``path``: its own, ``""`` at the top) -> the keys it
+    takes: ``cls``'s fields and, for each field that is a dataclass, that one's, and so on down (``planner``...)."""
+    hints = typing.get_type_hints(cls)
+    sections = {path: {f.name for f in dataclasses.fields(cls)}}
+    for f in dataclasses.fields(cls):
+        if isinstance(hints[f.name], type) and dataclasses.is_dataclass(hints[f.name]):
+            sections.update(key_sections(hints[f.name], f"{path}.{f.name}" if path else f.name))
+    return sections
+
+
+def mapping_at(data: dict[str, Any], path: str) -> dict[str, Any]:
+    """The mapping ``data`` holds at dotted ``path`` (``""``: ``data``), or an empty one."""
+    node: Any = data
+    for part in path.split(".") if path else []:
+        node = node.get(part) if isinstance(node, dict) else None
+    return node if isinstance(node, dict) else {}
+
+
+def unknown_keys(data: dict[str, Any], sections: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """``(path, key)`` for each key of ``data``'s mapping at a section's path that the section does not take."""
+    return [(path, key) for path, keys in sections.items() for key in mapping_at(data, path) if key not in keys]
+
+
+def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]]) -> str | None:
+    """What is wrong with the first of the ``unknown`` keys that is no key of its section but one of another
+    (``lookahead_m`` at eval's top level is ``planner.lookahead_m``; a profile's ``services.planner.lookahead_m``,
+    Nav2's place for it, ``exploration.planner.lookahead_m``), in ``from_dict``'s words but saying where it belongs
+    rather than the nearest spelling in the wrong section; None when none is (a typo: ``from_dict`` says it)."""
+    homes: dict[str, list[str]] = {}
+    for path, keys in sections.items():
+        for key in keys:
+            homes.setdefault(key, []).append(f"{path}.{key}" if path else key)
+    for path, key in unknown:
+        if elsewhere := [home for home in homes.get(key, []) if home != (f"{path}.{key}" if path else key)]:
+            said = f"{key} (did you mean {' or '.join(elsewhere)}?)"
+            return f"{path + ': ' if path else ''}unknown key(s) {said}; known: {', '.join(sorted(sections[path]))}"
+    return None
+
+
+def from_dict_with_hints(cls: type[T], data: dict[str, Any], where: str) -> T:
+    """``from_dict`` of a whole config (a file and its ``--set`` keys), a key in the wrong section named as such first."""
+    sections = key_sections(cls)
+    if (problem := wrong_section(unknown_keys(data, sections), sections)) is not None:
+        raise ConfigError(f"{where}: {problem}")
+    return from_dict(cls, data, where)
+
+
 def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") -> T:
     """Build dataclass ``cls`` from a (possibly partial) mapping; unknown keys raise ConfigError."""
     data = data or {}

@@ -54,7 +54,7 @@ from cso_runtime.config import (
     ExplorationConfig,
     SensorConfig,
     check_seed,
-    from_dict,
+    from_dict_with_hints,
     load_yaml,
     make_output_dir,
     set_dotted,
@@ -164,7 +164,7 @@ class EvalRequest:
         where = str(self.config_path or "config")
         if self.settings:  # an error names the flags that changed the file, as `up --set` does
             where = f"{self.config_path or 'eval'} with " + " ".join(set_flag_text(k, v) for k, v in self.settings.items())
-        cfg = from_dict(ExplorationConfig, data, where=where)
+        cfg = from_dict_with_hints(ExplorationConfig, data, where)
         # The sensor is the --sensor preset (its field of view from --lidar-fov), with every other sensor key the
         # config file or --set gives explicitly on top: an ablation of the range or the resolution must not run
         # silently on the preset's values.

@@ -9,10 +9,8 @@ LIMO's physics) before anything starts: a bad profile is a ``ConfigError`` namin
 
 from __future__ import annotations
 
-import dataclasses
 import importlib.util
 import os
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,11 +22,15 @@ from cso_runtime.config import (
     ExplorationConfig,
     check_seed,
     from_dict,
+    key_sections,
     load_yaml,
+    mapping_at,
     set_dotted,
     set_flag_text,
     to_dict,
+    unknown_keys,
     with_nearest,
+    wrong_section,
 )
 from cso_runtime.keys import check_robot_id
 from cso_runtime.scenes import SceneError, resolve_scenes
@@ -387,58 +389,36 @@ def profile_key_sections(mujoco: bool = True) -> dict[str, set[str]]:
     ``services.sim.mujoco`` (robot_sim imports MuJoCo, which a real robot's profile need not)."""
     from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
 
-    def fields(cls: type) -> set[str]:
-        return {f.name for f in dataclasses.fields(cls)}
-
-    sections = {"": fields(Profile), "router": fields(RouterConfig), "supervision": fields(SupervisionConfig)}
-    sections["exploration"] = fields(ExplorationConfig)
-    sections.update({f"exploration.{name}": fields(cls) for name, cls in typing.get_type_hints(ExplorationConfig).items()})
+    sections = {**key_sections(Profile), **key_sections(ExplorationConfig, "exploration")}
     sections["services"] = set(SERVICE_NAMES)
-    sections.update({f"services.{name}": fields(cls) for name in SERVICE_NAMES if (cls := params_class(name)) is not None})
+    sections.update({f"services.{name}": key_sections(cls)[""] for name in SERVICE_NAMES if (cls := params_class(name)) is not None})
     if mujoco:
         from robot_sim.config import MujocoSimConfig  # noqa: PLC0415 - robot_sim imports MuJoCo
 
-        sections["services.sim.mujoco"] = fields(MujocoSimConfig)
+        sections["services.sim.mujoco"] = key_sections(MujocoSimConfig)[""]
     return sections
-
-
-def _mapping_at(data: dict[str, Any], path: str) -> dict[str, Any]:
-    """The mapping a profile's data holds at dotted ``path`` (``""``: the data), or an empty one."""
-    node: Any = data
-    for part in path.split(".") if path else []:
-        node = node.get(part) if isinstance(node, dict) else None
-    return node if isinstance(node, dict) else {}
 
 
 def misplaced_key(data: dict[str, Any]) -> str | None:
     """What is wrong with the first key of a profile's mapping that is no key of its section but one of another
     (``services.planner.lookahead_m``, Nav2's place for a controller's parameter, is ``exploration.planner``'s;
-    ``frontier:`` at the top level is ``exploration.frontier`` or ``services.frontier``), in ``from_dict``'s words but
-    saying where it belongs rather than the nearest spelling in the wrong section (``router``); None when none is.
-    A ``robot:`` mapping is the robot's body given where its id goes."""
+    ``frontier:`` at the top level is ``exploration.frontier`` or ``services.frontier``): ``wrong_section``'s words,
+    a service of one's own left alone (any name, any keys); None when none is. A ``robot:`` mapping is the robot's body
+    given where its id goes."""
     from services import is_own_node  # noqa: PLC0415 - services import zenoh
 
     if isinstance(data.get("robot"), dict):
         return "robot: the robot id (a string: cso/<robot>/... keys); the robot's body and limits are exploration.robot"
-    sections = profile_key_sections(mujoco=bool(_mapping_at(data, "services.sim.mujoco")))
+    sections = profile_key_sections(mujoco=bool(mapping_at(data, "services.sim.mujoco")))
     unknown = [
         (path, key)
-        for path, keys in sections.items()
-        if not (path.startswith("services.") and is_own_node(_mapping_at(data, path)))
-        for key, value in _mapping_at(data, path).items()
-        if key not in keys and not (path == "services" and is_own_node(value))  # a service of one's own, by any name
+        for path, key in unknown_keys(data, sections)
+        if not (path.startswith("services.") and is_own_node(mapping_at(data, path)))
+        and not (path == "services" and is_own_node(data["services"][key]))  # a service of one's own, by any name
     ]
     if unknown and "services.sim.mujoco" not in sections:
         sections = profile_key_sections()  # where a misplaced key may belong: the MuJoCo LIMO's too
-    homes: dict[str, list[str]] = {}
-    for path, keys in sections.items():
-        for key in keys:
-            homes.setdefault(key, []).append(f"{path}.{key}" if path else key)
-    for path, key in unknown:
-        if elsewhere := [home for home in homes.get(key, []) if home != (f"{path}.{key}" if path else key)]:
-            said = f"{key} (did you mean {' or '.join(elsewhere)}?)"
-            return f"{path + ': ' if path else ''}unknown key(s) {said}; known: {', '.join(sorted(sections[path]))}"
-    return None
+    return wrong_section(unknown, sections)
 
 
 def profile_search_path() -> list[Path]:

@@ -143,6 +143,30 @@ def test_eval_set_overrides_the_config_file_and_names_itself_in_errors(tmp_path:
         EvalRequest(methods=["cso"], settings={"masks.beta_far_m": 0.1}).exploration_config()
 
 
+@pytest.mark.parametrize(
+    "config, settings, said",
+    [
+        (None, {"lookahead_m": 0.4}, "eval with --set lookahead_m=0.4: unknown key(s) lookahead_m (did you mean planner.lookahead_m?); known: episode"),
+        ("planner: {min_cluster_size_m: 0.5}\n", {}, "mine.yaml: planner: unknown key(s) min_cluster_size_m (did you mean frontier.min_cluster_size_m?)"),
+        (None, {"masks.goal_tolerance_m": 0.5}, "masks: unknown key(s) goal_tolerance_m (did you mean episode.goal_tolerance_m?); known: alpha1_m"),
+        (None, {"planner.lookahed_m": 0.4}, "planner: unknown key(s) lookahed_m (did you mean lookahead_m?)"),  # a typo: as before
+    ],
+)
+def test_an_eval_key_in_the_wrong_section_names_the_section_it_belongs_to(config, settings, said, tmp_path: Path):
+    """``eval --config``/``--set`` give the help ``up``'s profiles give: ``lookahead_m`` at the top level used to say only
+    "unknown key(s) lookahead_m; known: episode, frontier, ...", not that it is ``planner.lookahead_m``."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    path = tmp_path / "mine.yaml"
+    if config is not None:
+        path.write_text(config)
+    args = ["eval", "--limit", "1", "--out", str(tmp_path / "out")] + ["--config", str(path)] * (config is not None)
+    r = CliRunner().invoke(app, [*args, *(f for k, v in settings.items() for f in ("--set", f"{k}={v}"))])
+    assert r.exit_code == 2 and said in " ".join(r.output.split()), r.output
+    assert not (tmp_path / "out" / "summary.json").exists()
+
 def test_eval_takes_every_sensor_key_the_config_gives_over_the_preset(tmp_path: Path):
     """A sensor ablation through eval (``--set sensor.range_max_m=2.0``) runs with that sensor, as ``up`` does
     with the same keys; the field of view stays eval's ``--lidar-fov``, and a config that sets it is refused."""
