@@ -38,7 +38,12 @@ class MujocoSimConfig:
     timestep_s: float = 0.005
     """Physics step. The control period (RobotConfig.control_period_s, 0.25 s) must be a whole number of steps."""
     watchdog_s: float = 0.5
-    """The base brakes to a stop when no command arrived for this long (simulated seconds)."""
+    """The base brakes to a stop when no command arrived for this long (simulated seconds), as the real LIMO's base
+    does: the watchdog of a LIMO driven by commands as they come (``set_command`` with ``advance`` or ``RealTimePacer``,
+    as ``python -m robot_sim.fake_limo`` drives it from ``cmd_vel``). Under ``up``'s sim service each control step sets
+    the command anew, so it never fires there while it is at least ``robot.control_period_s`` (0.25 s; shorter, it
+    brakes within every step); a stale command there is the service's ``cmd_timeout_s`` (wall clock) to stop
+    (docs/runtime.md, Command watchdogs)."""
     max_linear_accel_mps2: float = 2.0
     """Linear acceleration limit of the command path (assumed; Nav2's DWB default is 2.5 m/s^2)."""
     max_angular_accel_radps2: float = 3.0

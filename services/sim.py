@@ -70,7 +70,11 @@ class SimParams:
     real_time_factor: float = 1.0
     """Real-time mode: simulated seconds per wall-clock second."""
     cmd_timeout_s: float = 1.0
-    """Real-time mode: a command older than this (wall clock) is replaced by a stop."""
+    """Real-time mode: a command older than this (wall clock) is replaced by a stop. This is the command watchdog of a
+    simulation under ``up``, whatever the backend: each control step hands the simulator its command afresh, so the
+    MuJoCo LIMO's own ``mujoco.watchdog_s`` (simulated time) never fires here while it is at least
+    ``robot.control_period_s`` (docs/runtime.md, Command watchdogs). Wall clock: at ``real_time_factor`` k the robot
+    drives on for up to k times this in simulated time. Lockstep needs none: a step waits for its command."""
     lockstep_timeout_s: float = 2.0
     """Lockstep: re-publish the current step when no progress for this long (wall clock)."""
     lockstep_give_up_s: float = 60.0

@@ -318,6 +318,30 @@ def test_watchdog_stops_robot_when_commands_cease() -> None:
     assert sim.time_s - last_stamp > 2.0
 
 
+
+def test_under_the_sim_service_the_mujoco_watchdog_never_fires_and_the_docs_say_which_one_does() -> None:
+    """Two command watchdogs guard a MuJoCo run (docs/runtime.md, Command watchdogs): the sim service's
+    ``cmd_timeout_s`` (wall clock) and the MuJoCo LIMO's ``watchdog_s`` (simulated). The service steps the simulator
+    a control period at a time with its command afresh (``step``), so ``watchdog_s`` never fires there while it is at
+    least the period, and brakes within every step when shorter; the docs and docstrings say so, with the defaults."""
+    import inspect
+
+    from services.sim import SimParams
+
+    for watchdog_s, stops in ((MujocoSimConfig.watchdog_s, 0), (RobotConfig.control_period_s, 0), (0.1, 6)):
+        sim = MujocoSimulator(box_room(start=Pose2D(0.6, 2.0, 0.0)), seed=0, config=MujocoSimConfig(watchdog_s=watchdog_s))
+        for _ in range(6):
+            sim.step(VelocityCommand(0.3, 0.0))  # as the sim service does, real time or lockstep
+        assert sim.watchdog_stops == stops, watchdog_s
+    docs = " ".join((Path(__file__).resolve().parents[1] / "docs" / "runtime.md").read_text(encoding="utf-8").split())
+    section = docs[docs.index("### Command watchdogs") :][:3000]
+    cmd_timeout = f"`services.sim.cmd_timeout_s`: the sim steps with a stop instead of a command older than this | wall clock | {SimParams.cmd_timeout_s} s"
+    watchdog = f"`services.sim.mujoco.watchdog_s` (`configs/robot_sim.yaml`'s `watchdog_s`): the base brakes to a stop | simulated time | {MujocoSimConfig.watchdog_s} s"
+    assert cmd_timeout in section and watchdog in section
+    assert "lower `services.sim.cmd_timeout_s`, not `services.sim.mujoco.watchdog_s`" in section
+    assert "docs/runtime.md, Command watchdogs" in " ".join(inspect.getsource(SimParams).split())
+    assert "docs/runtime.md, Command watchdogs" in " ".join(inspect.getsource(MujocoSimConfig).split())
+
 def test_real_time_pacer_follows_the_clock() -> None:
     sim = MujocoSimulator(box_room(), seed=0)
     now = [100.0]
