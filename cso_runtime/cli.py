@@ -1166,7 +1166,7 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
     """``learned.ppo.Args`` from the YAML file (without one, for a ``resume``: the configuration its checkpoint holds),
     then the command's flags, then ``--set`` pairs; a missing file or a bad value exits with a clear error (code 2)
     before anything starts."""
-    from cso_runtime.config import ConfigError, from_dict, load_yaml  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, from_dict_with_hints, load_yaml  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args, check_training_inputs, resumed_run_settings, training_scene_refs  # noqa: PLC0415
 
     config = _packaged_if_missing(config)  # run outside the repository: the packaged recipe
@@ -1186,7 +1186,7 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         flags = training_flags(overrides, settings)
         if flags:
             where += " with " + " ".join(" ".join(words) for words in flags)
-        args = from_dict(Args, data, where)
+        args = from_dict_with_hints(Args, data, where)
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
         check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
     except (ConfigError, ValueError) as exc:

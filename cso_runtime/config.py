@@ -482,17 +482,20 @@ def unknown_keys(data: dict[str, Any], sections: dict[str, set[str]]) -> list[tu
     return [(path, key) for path, keys in sections.items() for key in mapping_at(data, path) if key not in keys]
 
 
-def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]]) -> str | None:
-    """What is wrong with the first of the ``unknown`` keys that is no key of its section but one of another
+def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]], data: dict[str, Any]) -> str | None:
+    """What is wrong with the first of ``data``'s ``unknown`` keys that is no key of its section but one of another
     (``lookahead_m`` at eval's top level is ``planner.lookahead_m``; a profile's ``services.planner.lookahead_m``,
-    Nav2's place for it, ``exploration.planner.lookahead_m``), in ``from_dict``'s words but saying where it belongs
-    rather than the nearest spelling in the wrong section; None when none is (a typo: ``from_dict`` says it)."""
+    Nav2's place for it, ``exploration.planner.lookahead_m``), or a mapping of keys that belong elsewhere (eval's
+    ``masks: {beta_far_m: 2.0}`` in train's flat config is ``beta_far_m``), in ``from_dict``'s words but saying where
+    it belongs rather than the nearest spelling in the wrong section; None when none is (a typo: ``from_dict`` says it)."""
     homes: dict[str, list[str]] = {}
     for path, keys in sections.items():
         for key in keys:
             homes.setdefault(key, []).append(f"{path}.{key}" if path else key)
     for path, key in unknown:
-        if elsewhere := [home for home in homes.get(key, []) if home != (f"{path}.{key}" if path else key)]:
+        elsewhere = [home for home in homes.get(key, []) if home != (f"{path}.{key}" if path else key)]
+        elsewhere = elsewhere or [home for inner in mapping_at(data, f"{path}.{key}" if path else key) for home in homes.get(inner, [])]
+        if elsewhere:
             said = f"{key} (did you mean {' or '.join(elsewhere)}?)"
             return f"{path + ': ' if path else ''}unknown key(s) {said}; known: {', '.join(sorted(sections[path]))}"
     return None
@@ -501,7 +504,7 @@ def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]])
 def from_dict_with_hints(cls: type[T], data: dict[str, Any], where: str) -> T:
     """``from_dict`` of a whole config (a file and its ``--set`` keys), a key in the wrong section named as such first."""
     sections = key_sections(cls)
-    if (problem := wrong_section(unknown_keys(data, sections), sections)) is not None:
+    if (problem := wrong_section(unknown_keys(data, sections), sections, data)) is not None:
         raise ConfigError(f"{where}: {problem}")
     return from_dict(cls, data, where)
 

@@ -418,7 +418,7 @@ def misplaced_key(data: dict[str, Any]) -> str | None:
     ]
     if unknown and "services.sim.mujoco" not in sections:
         sections = profile_key_sections()  # where a misplaced key may belong: the MuJoCo LIMO's too
-    return wrong_section(unknown, sections)
+    return wrong_section(unknown, sections, data)
 
 
 def profile_search_path() -> list[Path]:

@@ -358,6 +358,20 @@ def test_an_unknown_key_names_the_known_key_it_most_likely_misspells(tmp_path: P
     assert "unknown key(s) sensor.fov_deg (did you mean lidar_fov_deg?)" in said, said
 
 
+
+def test_a_section_of_evals_config_in_trains_flat_one_names_the_key_it_is(tmp_path: Path, capsys):
+    """train's keys are flat: eval.yaml's ``masks: {beta_far_m: 2.0}`` in a recipe listed all 70 keys; it names the one
+    its key is now (wrong_section, as for eval and the profiles), and eval's a profile's ``exploration:``."""
+    from cso_runtime.evaluation import EvalRequest
+
+    recipe = small_train_recipe(tmp_path)
+    recipe.write_text(recipe.read_text() + "masks: {beta_far_m: 2.0}\n")
+    said = " ".join(train_refusal(recipe, {}, [], capsys).split())
+    assert "unknown key(s) masks (did you mean beta_far_m?); known: adam_eps," in said, said
+    with pytest.raises(ConfigError, match=re.escape("unknown key(s) exploration (did you mean planner?); known: episode")):
+        EvalRequest(methods=["cso"], settings={"exploration.planner.lookahead_m": 0.4}).exploration_config()
+
+
 def test_a_train_error_names_the_command_flags_that_set_the_bad_value(tmp_path: Path, capsys):
     """``train --num-envs 0`` was refused naming only the file (and any ``--set``), not the flag that brought the 0."""
     recipe = small_train_recipe(tmp_path)
