@@ -256,6 +256,12 @@ def eval_command(
     settings: list[str] | None = typer.Option(
         None, "--set", help="KEY=VALUE over the --config file, dotted, repeatable: masks.beta_far_m=2.0, episode.replan_every_steps=12"
     ),
+    dry_run: bool = typer.Option(
+        False, "--dry-run", help="Validate (methods, weights, scenes, --out), say what would run: scenes per scale, sensor, simulator, --out and --resume; run and write nothing"
+    ),
+    resolved: bool = typer.Option(
+        False, "--resolved", help="Validate, print the exploration configuration the episodes would run with, defaults filled in (YAML, summary.json's meta.config, for --config); implies --dry-run"
+    ),
 ) -> None:
     """Run exploration episodes and write the paper's Table 1 metrics, curves and trajectory plots."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
@@ -290,6 +296,8 @@ def eval_command(
         animate=animate,
         settings=parameters,
     )
+    if dry_run or resolved:
+        raise typer.Exit(run_eval_cli(request, dry_run=dry_run, resolved=resolved))
     interrupt_on_sigterm()
     raise typer.Exit(run_eval_cli(request))
 
@@ -746,16 +754,16 @@ def up_command(
         if not names_a_folder(record_out) and Path(record_out).exists():  # as `record --out`: an earlier recording is never written over
             _fail(f"--record-out {record_out}: the file exists; give another, or a folder, or remove it first", 2)
     if dry_run or resolved:
-        import yaml  # noqa: PLC0415
+        from cso_runtime.config import commented_yaml  # noqa: PLC0415
 
         outside = prof.left_out_services()
         left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
-        typer.echo(f"# profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}")
+        comments = [f"profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}"]
         if resolved:
-            typer.echo("# every parameter as the run would use it, defaults filled in (`up --dry-run`: the profile as written)")
+            comments.append("every parameter as the run would use it, defaults filled in (`up --dry-run`: the profile as written)")
             if prof.scene_label == REAL_ROBOT_SCENE:
-                typer.echo(f"# scene: {REAL_ROBOT_SCENE} ({' and '.join(UNUSED_BY_A_REAL_ROBOT)} left out: never loaded)")
-        typer.echo(yaml.safe_dump(prof.effective() if resolved else data, sort_keys=False), nl=False)
+                comments.append(f"scene: {REAL_ROBOT_SCENE} ({' and '.join(UNUSED_BY_A_REAL_ROBOT)} left out: never loaded)")
+        typer.echo(commented_yaml(comments, prof.effective() if resolved else data), nl=False)
         return
     current = read_current_run(runs_dir)
     if current is not None and current_launcher_alive(current):

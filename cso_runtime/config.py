@@ -589,6 +589,29 @@ def make_output_dir(path: str | Path, flag: str = "--out") -> Path:
     return p
 
 
+def check_output_dir(path: str | Path, flag: str = "--out") -> None:
+    """``make_output_dir``'s checks, making and writing nothing (``eval --dry-run``): the folder, or the nearest folder
+    above it that exists, must be one this process can write in (ConfigError otherwise, in the same words)."""
+    import errno  # noqa: PLC0415
+    import os  # noqa: PLC0415
+
+    p = Path(path)
+    existing = p.absolute()
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ConfigError(f"{flag} {p}: cannot create the folder ({os.strerror(errno.ENOTDIR if existing != p.absolute() else errno.EEXIST)})")
+    if not os.access(existing, os.W_OK | os.X_OK):  # also False on a read-only file system
+        verb = "write in" if existing == p.absolute() else "create"
+        raise ConfigError(f"{flag} {p}: cannot {verb} the folder ({os.strerror(errno.EACCES)})")
+
+
+def commented_yaml(comments: list[str], data: Any) -> str:
+    """``comments`` as ``# `` lines, then ``data`` as YAML in its own key order: what ``up --dry-run``, ``up --resolved``
+    and ``eval --resolved`` print, a file that loads back as the profile or config it shows."""
+    return "".join(f"# {line}\n" for line in comments) + yaml.safe_dump(data, sort_keys=False)
+
+
 def set_flag_text(key: str, value: Any) -> str:
     """``--set KEY=VALUE`` as the user typed it, for an error that names the flags: the value in YAML (``true``,
     ``[a, 2]``, ``café`` not ``"caf\\xE9"``), as ``--set`` reads it, not Python's repr (``True``, ``['a', 2]``)."""

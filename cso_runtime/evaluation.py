@@ -17,6 +17,7 @@ import json
 import logging
 import math
 import multiprocessing
+import sys
 import time
 import traceback
 from collections.abc import Callable
@@ -53,7 +54,9 @@ from cso_runtime.config import (
     ConfigError,
     ExplorationConfig,
     SensorConfig,
+    check_output_dir,
     check_seed,
+    commented_yaml,
     from_dict_with_hints,
     load_yaml,
     make_output_dir,
@@ -169,9 +172,12 @@ class EvalRequest:
         # config file or --set gives explicitly on top: an ablation of the range or the resolution must not run
         # silently on the preset's values.
         explicit = data.get("sensor") or {}
-        if "fov_deg" in explicit:
-            raise ConfigError(f"{where}: sensor.fov_deg is set by eval's --lidar-fov ({LIDAR_FOVS_SAID}) or the --sensor preset, not by the config")
         preset = SensorConfig.preset(self.sensor, fov_deg=self.lidar_fov_deg if self.sensor == "lidar" else None)
+        if "fov_deg" in explicit and cfg.sensor.fov_deg != preset.fov_deg:  # the flags' own value is taken: `eval --resolved` writes it
+            raise ConfigError(
+                f"{where}: sensor.fov_deg is set by eval's --lidar-fov ({LIDAR_FOVS_SAID}) or the --sensor preset, not by the config "
+                f"(it says {cfg.sensor.fov_deg:g}; --sensor {self.sensor} gives {preset.fov_deg:g})"
+            )
         for key in explicit:
             setattr(preset, key, getattr(cfg.sensor, key))
         if "mount_x_m" not in explicit and self.sim == "mujoco":
@@ -672,42 +678,56 @@ def maps_summarized_elsewhere(out_dir: Path, methods: list[str], maps: list[str]
     return sorted(held - set(maps))
 
 
-def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict[str, Any]:
-    """Run every (method, scene) episode and write all outputs; returns the summary."""
+@dataclass
+class EvalPlan:
+    """What an eval would run, resolved and checked before any episode (``run_eval``, ``eval --dry-run``)."""
+
+    config: ExplorationConfig
+    scenes: list[SceneRef]
+    jobs: list[EpisodeJob]
+    weights: dict[str, dict[str, Any]]
+    """Each learned method's weights file and SHA-256 (``weights_provenance``)."""
+    mujoco: dict[str, Any]
+    """The ``--sim-config`` file's MuJoCo parameters ({} without one)."""
+    warnings: list[str]
+    """What the user should know before the episodes run (results the run would replace, a seed that changes nothing,
+    weights trained otherwise)."""
+
+
+def plan_eval(request: EvalRequest) -> EvalPlan:
+    """Check ``request`` and resolve what it would run: config, scenes, episodes, weights, warnings; runs and writes
+    nothing (raises ConfigError, SceneError)."""
     request.validate()
     config = request.exploration_config()
     scenes = resolve_scenes(request.maps, request.limit, request.m_per_px)
     out = Path(request.out_dir)
+    warnings: list[str] = []
     others = methods_summarized_elsewhere(out, request.methods)
     if others:
-        log.warning(
-            "%s holds the results of %s: this run's summary.json and episodes.csv replace them (their episode files stay); "
-            "give another --out, or run every method in one eval", out, ", ".join(others),
+        warnings.append(
+            f"{out} holds the results of {', '.join(others)}: this run's summary.json and episodes.csv replace them (their episode files stay); "
+            "give another --out, or run every method in one eval"
         )
     dropped = maps_summarized_elsewhere(out, request.methods, [s.name for s in scenes])
     if dropped:
-        log.warning(
-            "%s holds episodes of %d plan(s) this run leaves out (%s%s): its summary.json and episodes.csv will not count them "
-            "(their episode files stay); to run some episodes again in that folder, delete their episodes/<method>/<map>.npz "
-            "and give the earlier command (its meta.request in summary.json) with --resume",
-            out, len(dropped), ", ".join(dropped[:5]), ", ..." if len(dropped) > 5 else "",
+        warnings.append(
+            f"{out} holds episodes of {len(dropped)} plan(s) this run leaves out ({', '.join(dropped[:5])}{', ...' if len(dropped) > 5 else ''}): "
+            "its summary.json and episodes.csv will not count them (their episode files stay); to run some episodes again in that folder, "
+            "delete their episodes/<method>/<map>.npz and give the earlier command (its meta.request in summary.json) with --resume"
         )
     if request.seed != 0 and seed_changes_nothing(request.methods, config, request.sim):
-        log.warning(
-            "--seed %d changes no episode here: it draws the random method's choices and the sensor's range noise, which is 0 "
+        warnings.append(
+            f"--seed {request.seed} changes no episode here: it draws the random method's choices and the sensor's range noise, which is 0 "
             "(sensor.range_noise_std_m), and every episode starts at the plan's start pose, so these episodes are those of any "
-            "seed; give --set sensor.range_noise_std_m=0.01 (metres) for repeated tests that differ",
-            request.seed,
+            "seed; give --set sensor.range_noise_std_m=0.01 (metres) for repeated tests that differ"
         )
     weights: dict[str, dict[str, Any]] = {}
     if any(m in LEARNED_METHODS for m in request.methods):
         from cso_runtime.learned.weights import mask_mismatches, sensor_mismatches, weights_provenance  # noqa: PLC0415
 
         weights = {m: weights_provenance(m, config.sensor) for m in request.methods if m in LEARNED_METHODS}
-        for mismatch in sensor_mismatches(list(weights), config.sensor):
-            log.warning("%s (a policy does best with the sensor it was trained with)", mismatch)
-        for mismatch in mask_mismatches(list(weights), config.masks, config.sensor):
-            log.warning("%s (a policy does best with the masks it was trained under)", mismatch)
+        warnings += [f"{m} (a policy does best with the sensor it was trained with)" for m in sensor_mismatches(list(weights), config.sensor)]
+        warnings += [f"{m} (a policy does best with the masks it was trained under)" for m in mask_mismatches(list(weights), config.masks, config.sensor)]
     mujoco = request.mujoco_parameters()
     settings = {
         m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "", mujoco, own_method_code_sha256(m))
@@ -718,6 +738,65 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict
         for s in scenes
         for m in request.methods
     ]
+    return EvalPlan(config, scenes, jobs, weights, mujoco, warnings)
+
+
+DRY_RUN_SCENES_SHOWN = 5
+"""``eval --dry-run`` names this many scenes; the rest it counts."""
+
+
+def plan_said(request: EvalRequest, plan: EvalPlan) -> tuple[list[str], list[str]]:
+    """What ``eval --dry-run`` says of ``plan``: lines of what it would run, and the scenes that would fail to load
+    (a PNG or map file that is missing or no plan), which a real eval counts as failed episodes. Loads each plan to
+    tell its scale (generated ones say theirs); reads the ``--out`` folder, writes nothing."""
+    scales: dict[str, int] = {}
+    unloadable: list[str] = []
+    for ref in plan.scenes:
+        if ref.generated is not None:
+            scale = ref.generated[0]
+        else:
+            try:
+                scale = ref.load().scale
+            except (OSError, SceneError, ValueError) as exc:
+                unloadable.append(f"{ref.name}: {exc}")
+                continue
+        scales[scale] = scales.get(scale, 0) + 1
+    names = ", ".join(ref.name for ref in plan.scenes[:DRY_RUN_SCENES_SHOWN]) + (", ..." if len(plan.scenes) > DRY_RUN_SCENES_SHOWN else "")
+    by_scale = ", ".join(f"{scales[s]} {s}" for s in sorted(scales, key=scale_rank))
+    sensor = plan.config.sensor
+    methods = [f"{m} (weights {plan.weights[m]['path']}, sha256 {plan.weights[m]['sha256'][:12]})" if m in plan.weights else m for m in request.methods]
+    cell = f"{request.m_per_px:g} m/px (PNG plans)" if any(ref.scaled_by_m_per_px for ref in plan.scenes) else "each scene's own (generated plans, map files)"
+    out = Path(request.out_dir)
+    if not out.is_dir():
+        folder = "a new folder"
+    elif request.resume:
+        kept = sum(load_finished(job) is not None for job in plan.jobs)
+        folder = f"exists: --resume keeps the {kept} of these episodes it holds with the same settings, runs the other {len(plan.jobs) - kept}"
+    else:
+        held = sum(job.npz_path.is_file() for job in plan.jobs)
+        folder = f"exists, holding {held} of these episodes: without --resume every episode runs again, its files written over" if held else "exists, holding none of these episodes"
+    lines = [
+        f"eval, valid: would run {len(plan.jobs)} episode(s), {len(request.methods)} method(s) x {len(plan.scenes)} scene(s), nothing run or written now",
+        f"methods: {', '.join(methods)}",
+        f"scenes: {request.maps}: {by_scale or 'none loadable'}; {names}",
+        f"cell size: {cell}",
+        (
+            f"sensor: {request.sensor}, {sensor.fov_deg:g} degrees, {sensor.resolution_deg:g}-degree beams, "
+            f"{sensor.range_min_m:g}-{sensor.range_max_m:g} m, {sensor.mount_x_m:g} m ahead of the centre"
+        ),
+        f"simulator: {request.sim}; seed {request.seed}; at most {plan.config.episode.max_steps} steps an episode; workers: {request.workers}",
+        f"output: {out}: {folder}",
+    ]
+    return lines, unloadable
+
+
+def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict[str, Any]:
+    """Run every (method, scene) episode and write all outputs; returns the summary."""
+    plan = plan_eval(request)
+    for warning in plan.warnings:
+        log.warning("%s", warning)
+    config, scenes, jobs, weights, mujoco = plan.config, plan.scenes, plan.jobs, plan.weights, plan.mujoco
+    out = Path(request.out_dir)
     outcomes: list[EpisodeOutcome] = []
     total = len(jobs)
     if progress is not None:
@@ -943,18 +1022,39 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     console.print(escape(results_said(out_dir)), soft_wrap=True, highlight=False)
 
 
-def run_eval_cli(request: EvalRequest) -> int:
-    """CLI entry: clear errors for bad arguments, exit code 0 when every episode ran."""
+def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = False) -> int:
+    """CLI entry: clear errors for bad arguments, exit code 0 when every episode ran. ``dry_run``: check and say what
+    would run, run and write nothing (exit 1 where a scene would fail to load, as its episodes would); ``resolved``: the
+    same, and print the exploration configuration (``meta.config``) as YAML that ``--config`` takes back."""
     try:
-        request.validate()
-        request.exploration_config()
-        resolve_scenes(request.maps, request.limit, request.m_per_px)
-        make_output_dir(request.out_dir)
+        if dry_run or resolved:
+            plan = plan_eval(request)
+            check_output_dir(request.out_dir)
+        else:
+            request.validate()
+            request.exploration_config()
+            resolve_scenes(request.maps, request.limit, request.m_per_px)
+            make_output_dir(request.out_dir)
     except (ConfigError, SceneError, ValueError) as exc:
         from rich.console import Console  # noqa: PLC0415
 
         Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # brackets are text; paths unbroken
         return 2
+    if dry_run or resolved:
+        lines, unloadable = plan_said(request, plan)
+        for warning in plan.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
+        for failure in unloadable:
+            print(f"error: scene {failure}", file=sys.stderr)
+        if resolved:
+            lines += [
+                "the exploration configuration the episodes would run with, defaults filled in (summary.json's meta.config):",
+                "give it back with --config FILE and the same --sensor, --lidar-fov and --sim",
+            ]
+            print(commented_yaml(lines, to_dict(plan.config)), end="")
+        else:
+            print("\n".join(lines))
+        return 1 if unloadable else 0
     progress = RichProgress()
     try:
         summary = run_eval(request, progress)

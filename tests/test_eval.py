@@ -1577,3 +1577,89 @@ def test_report_table_1_rows_give_each_means_interval_in_their_tooltip(tmp_path:
     assert f"<td>{e['coverage_pct']:.2f} ± {e['coverage_pct_std']:.2f}</td>" in table1
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path / "one", max_steps=40))
     assert "<tr title" not in (tmp_path / "one" / "report.html").read_text()
+
+
+def _tree(folder: Path) -> dict[str, tuple[int, int]]:
+    """Every file under ``folder`` with its size and modification time: what a command that writes nothing leaves alone."""
+    return {str(p.relative_to(folder)): (p.stat().st_size, p.stat().st_mtime_ns) for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_eval_resolved_prints_the_meta_config_a_tiny_eval_records_as_a_config_that_runs_the_same(tmp_path: Path):
+    """``eval --resolved`` prints the exploration configuration the episodes run with, defaults, the file, ``--set``
+    and the flags resolved: what summary.json's ``meta.config`` records after a real eval, and given back as
+    ``--config`` (with the same ``--sensor``), the same configuration; with another sensor, refused, not run otherwise."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    flags = ["--maps", "generated:small:1:0", "--sensor", "depth", "--sim", "2d"]
+    tuned = ["--max-steps", "5", "--set", "masks.beta_far_m=2.0", "--set", "sensor.range_max_m=2.5"]
+    out = tmp_path / "eval"
+    r = CliRunner().invoke(app, ["eval", *flags, *tuned, "--out", str(out), "--resolved"])
+    assert r.exit_code == 0, r.output
+    assert not out.exists()  # nothing run, nothing written
+    shown = yaml.safe_load(r.stdout)
+    assert (shown["episode"]["max_steps"], shown["masks"]["beta_far_m"], shown["sensor"]["range_max_m"], shown["sensor"]["fov_deg"]) == (5, 2.0, 2.5, 79.0)
+    ran = CliRunner().invoke(app, ["eval", *flags, *tuned, "--out", str(out)])
+    assert ran.exit_code == 0, ran.output
+    assert shown == json.loads((out / "summary.json").read_text())["meta"]["config"]
+    config = tmp_path / "resolved.yaml"
+    config.write_text(r.stdout)
+    given_back = EvalRequest(methods=["greedy-dist"], sensor="depth", config_path=config).exploration_config()
+    assert to_dict(given_back) == shown
+    with pytest.raises(ConfigError, match="sensor.fov_deg is set by eval's --lidar-fov.*says 79.*gives 180"):
+        EvalRequest(methods=["greedy-dist"], config_path=config).exploration_config()  # the LiDAR's 180 degrees, not silently
+
+
+def test_eval_dry_run_says_what_would_run_and_writes_nothing(tmp_path: Path):
+    """``eval --dry-run`` checks what a real eval checks and says what it would run (scenes per scale and their first
+    names, the m/px, the sensor, the simulator, the workers, the learned methods' weights, what it would do with an
+    existing ``--out``) without running an episode or writing a file; a scene that would fail to load is exit 1."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    out = tmp_path / "eval"
+    r = CliRunner().invoke(app, ["eval", "--method", "greedy-dist,cso", "--maps", "builtin", "--limit", "2", "--workers", "2", "--out", str(out), "--dry-run"])
+    assert r.exit_code == 0, r.output
+    assert "would run 4 episode(s), 2 method(s) x 2 scene(s)" in r.stdout
+    assert "scenes: builtin: 2 super_large; img_1, img_2" in r.stdout and "0.1 m/px" in r.stdout
+    assert "sensor: lidar, 180 degrees" in r.stdout and "simulator: 2d" in r.stdout and "workers: 2" in r.stdout
+    assert re.search(r"cso \(weights \S+cso@fov180\.pt, sha256 [0-9a-f]{12}\)", r.stdout)
+    assert f"output: {out}: a new folder" in r.stdout
+    assert not out.exists()
+
+    tiny = ["--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(out)]
+    assert CliRunner().invoke(app, ["eval", *tiny]).exit_code == 0
+    before = _tree(out)
+    resume = CliRunner().invoke(app, ["eval", *tiny, "--resume", "--dry-run"])
+    assert resume.exit_code == 0 and "--resume keeps the 1 of these episodes" in resume.stdout and "runs the other 0" in resume.stdout
+    again = CliRunner().invoke(app, ["eval", *tiny, "--dry-run"])
+    assert again.exit_code == 0 and "holding 1 of these episodes: without --resume every episode runs again" in again.stdout
+    assert _tree(out) == before
+
+    missing = CliRunner().invoke(app, ["eval", "--maps", str(tmp_path / "nowhere.png"), "--out", str(tmp_path / "o"), "--dry-run"])
+    assert missing.exit_code == 1 and "error: scene nowhere" in missing.stderr
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [["--method", "greedy-dsit"], ["--max-steps", "0"], ["--set", "masks.nope=1"], ["--m-per-px", "-1"], ["--sim", "3d"], ["--out", "{file}/below"]],
+)
+def test_eval_dry_run_refuses_bad_input_as_a_real_eval_does(tmp_path: Path, bad: list[str]):
+    """Bad input: ``--dry-run`` and ``--resolved`` exit as a real eval does, with the same error, and write nothing."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    (tmp_path / "file").write_text("")
+    bad = [arg.replace("{file}", str(tmp_path / "file")) for arg in bad]
+    args = ["eval", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), *bad]
+    real = CliRunner().invoke(app, args)
+    assert real.exit_code == 2 and "error:" in real.stderr
+    for flag in ("--dry-run", "--resolved"):
+        checked = CliRunner().invoke(app, [*args, flag])
+        assert (checked.exit_code, checked.stderr) == (real.exit_code, real.stderr), flag
+    assert not (tmp_path / "o").exists()
