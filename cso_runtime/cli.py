@@ -228,6 +228,18 @@ def _warn_of_weights_trained_otherwise(prof: Profile) -> None:
             typer.echo(f"warning: {mismatch} (a policy does best with the masks it was trained under)", err=True)
 
 
+def _warn_of_a_watchdog_within_a_step(prof: Profile) -> None:
+    """``up``: say when the MuJoCo LIMO's ``watchdog_s`` is shorter than a control step (it brakes in every step); the
+    run goes on as asked."""
+    settings = prof.simulator_settings()
+    if settings is not None:
+        from cso_runtime.simulator import watchdog_within_a_step_said  # noqa: PLC0415
+
+        said = watchdog_within_a_step_said(settings, prof.exploration_config().robot, "services.sim.mujoco.watchdog_s", "exploration.robot.control_period_s")
+        if said is not None:
+            typer.echo(f"warning: {said}", err=True)
+
+
 @app.command("eval", rich_help_panel="Evaluation (Table 1)")
 def eval_command(
     method: str = typer.Option("greedy-dist", "--method", autocompletion=_complete_method_list, help=METHODS_HELP),
@@ -748,6 +760,7 @@ def up_command(
         _fail(str(exc), 2)
     _warn_of_weights_trained_otherwise(prof)
     _warn_of_unfed_inputs(prof)
+    _warn_of_a_watchdog_within_a_step(prof)
     if record_out is not None:
         from cso_runtime.recording import names_a_folder  # noqa: PLC0415
 

@@ -105,7 +105,14 @@ from cso_runtime.report import (
     write_report,
 )
 from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
-from cso_runtime.simulator import SIMULATORS, MountSetting, make_simulator, mujoco_config, simulator_settings
+from cso_runtime.simulator import (
+    SIMULATORS,
+    MountSetting,
+    make_simulator,
+    mujoco_config,
+    simulator_settings,
+    watchdog_within_a_step_said,
+)
 
 log = logging.getLogger(__name__)
 
@@ -729,6 +736,9 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
         warnings += [f"{m} (a policy does best with the sensor it was trained with)" for m in sensor_mismatches(list(weights), config.sensor)]
         warnings += [f"{m} (a policy does best with the masks it was trained under)" for m in mask_mismatches(list(weights), config.masks, config.sensor)]
     mujoco = request.mujoco_parameters()
+    sim_settings = simulator_settings(request.sim, config.sensor, config.robot, mujoco)
+    watchdog = watchdog_within_a_step_said(sim_settings, config.robot, f"{request.sim_config_path}: watchdog_s")
+    warnings += [watchdog] if watchdog is not None else []
     settings = {
         m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "", mujoco, own_method_code_sha256(m))
         for m in request.methods

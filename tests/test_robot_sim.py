@@ -342,6 +342,31 @@ def test_under_the_sim_service_the_mujoco_watchdog_never_fires_and_the_docs_say_
     assert "docs/runtime.md, Command watchdogs" in " ".join(inspect.getsource(SimParams).split())
     assert "docs/runtime.md, Command watchdogs" in " ".join(inspect.getsource(MujocoSimConfig).split())
 
+
+def test_up_and_eval_warn_of_a_mujoco_watchdog_shorter_than_a_control_step(tmp_path: Path, monkeypatch) -> None:
+    """``services.sim.mujoco.watchdog_s`` below ``exploration.robot.control_period_s`` brakes the MuJoCo LIMO within
+    every step (above): ``up`` says so at start, naming both keys and the one to tune, and runs as asked (a warning,
+    exit 0 here with ``--dry-run``); at the default, or equal to the period, it says nothing; eval's ``--sim-config``
+    the same."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)  # the packaged profiles
+    for watchdog_s, warned in ((0.1, True), (RobotConfig.control_period_s, False), (MujocoSimConfig.watchdog_s, False)):
+        r = CliRunner().invoke(app, ["up", "--profile", "sim", "--set", f"services.sim.mujoco.watchdog_s={watchdog_s}", "--dry-run"])
+        assert r.exit_code == 0, r.output
+        said = "warning: services.sim.mujoco.watchdog_s 0.1 s is shorter than a control step (exploration.robot.control_period_s, 0.25 s)"
+        assert (said in r.stderr) == warned, r.stderr
+        assert ("services.sim.cmd_timeout_s" in r.stderr) == warned
+    slow = CliRunner().invoke(app, ["up", "--profile", "sim", "--set", "services.sim.mujoco.watchdog_s=0.3", "--set", "exploration.robot.control_period_s=0.5", "--dry-run"])
+    assert slow.exit_code == 0 and "watchdog_s 0.3 s is shorter than a control step (exploration.robot.control_period_s, 0.5 s)" in slow.stderr
+    (tmp_path / "fast.yaml").write_text("watchdog_s: 0.1\n")
+    r = CliRunner().invoke(app, ["eval", "--sim", "mujoco", "--sim-config", "fast.yaml", "--maps", "generated:small:1:0", "--out", "o", "--dry-run"])
+    assert r.exit_code == 0 and "warning: fast.yaml: watchdog_s 0.1 s is shorter than a control step (robot.control_period_s, 0.25 s)" in r.stderr
+    assert not (tmp_path / "o").exists()
+
+
 def test_real_time_pacer_follows_the_clock() -> None:
     sim = MujocoSimulator(box_room(), seed=0)
     now = [100.0]
