@@ -998,6 +998,37 @@ def test_up_stopped_in_its_first_moments_exits_cleanly(tmp_path, sig, module, at
         kill_leftovers(runs)
 
 
+def test_up_stopped_while_its_router_waits_for_a_router_to_join_exits_at_once(tmp_path):
+    """SIGTERM while the launcher's router waited to reach the router it joins (``--connect``, gone: a robot's bridge
+    down, or a test's router closed) did nothing until ``router.connect_timeout_s`` had passed: Zenoh opens in Rust
+    code, where no Python signal handler runs. The launcher then said "cannot reach" (exit 3), or, with the router
+    back meanwhile, went on to its claims' client session and waited there again. Now the open is given up at the
+    signal: one ``interrupted`` line, exit 130, a run.json that says so, nothing left."""
+    runs = tmp_path / "runs"
+    gone = loopback_endpoint(free_tcp_port())  # no router there
+    argv = ["up", "--profile", str(write_profile(tmp_path)), "--no-live", "--runs-dir", str(runs), "--connect", gone, "--set", "router.connect_timeout_s=60"]
+    proc = subprocess.Popen([*python_module_argv("cso_runtime.cli"), *argv], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        # Its router listens as soon as Zenoh opens it, then tries the one it joins: the launcher is inside the open.
+        wait_for(lambda: proc.poll() is not None or listening_tcp_ports(proc.pid), 60, "the launcher's router to listen")
+        assert proc.poll() is None, proc.communicate()
+        signalled_s = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=20)  # before: some 60 s, the whole connect timeout
+        took_s = time.monotonic() - signalled_s
+        assert proc.returncode == 130 and "interrupted before any service was started" in err and "Traceback" not in err, (proc.returncode, err[-3000:])
+        assert took_s < 5.0, took_s
+        (run_dir,) = [d for d in runs.glob("*") if d.is_dir()]
+        info = json.loads((run_dir / "run.json").read_text())
+        assert (info["state"], info["outcome"], info["exit_code"], info["services"]) == ("stopped", "interrupted", 130, {}), info
+        assert not (runs / "current.json").exists()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=10)
+        kill_leftovers(runs)
+
+
 def test_up_stopped_while_python_imports_it_exits_cleanly(tmp_path):
     """Ctrl-C while Python imports the command line (typer, here one that is interrupted as it loads): one line, 130."""
     (tmp_path / "fake").mkdir()
