@@ -3688,8 +3688,9 @@ def test_a_service_stuck_in_a_handler_does_not_outlive_its_killed_launcher(tmp_p
     service = [MAPPER_STUCK_IN_ITS_FIRST_HANDLER, str(marker), "--config", str(PROFILES / "sim.yaml"), "--robot", "t1", "--connect", loopback_endpoint(port)]
     with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
         launcher = subprocess.Popen([sys.executable, "-c", STAND_IN_LAUNCHER, str(log_path), *service], cwd=REPO, stdout=subprocess.PIPE, text=True)
-        mapper_pid = int(launcher.stdout.readline())
-        try:
+        mapper_pid = None
+        try:  # from its first line: a stand-in that dies before it says its mapper's pid is still reaped
+            mapper_pid = int(launcher.stdout.readline())
             wait_for(lambda: any(True for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5) if r.ok), 60, "the mapper's liveliness token")
             session.put(keys.clock, encode(ClockMsg(0, 0.0, GridGeometry(0.1, (40, 40)))))
             wait_for(marker.exists, 10, "the mapper to be stuck in its handler")
@@ -3700,7 +3701,7 @@ def test_a_service_stuck_in_a_handler_does_not_outlive_its_killed_launcher(tmp_p
             launcher.kill()
             launcher.wait(10)
             launcher.stdout.close()
-            if pid_alive(mapper_pid):
+            if mapper_pid is not None and pid_alive(mapper_pid):
                 os.kill(mapper_pid, signal.SIGKILL)
     text = log_path.read_text()
     assert f"mapper: still running 1 s after its launcher (pid {launcher.pid}) went (stuck?)" in text, text[-3000:]
