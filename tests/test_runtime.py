@@ -105,9 +105,30 @@ def run_pids(runs: Path) -> list[int]:
     return pids
 
 
+def detached_launchers(runs: Path) -> list[int]:
+    """The detached launchers (``python -m cso_runtime.launcher ... --run-dir RUNS/<run-id>``) of ``runs`` running now,
+    found by their command lines (Linux /proc): one whose ``up --detach`` was killed before it wrote its run.json is in
+    no run file, and its services with it."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            argv = [os.fsdecode(a) for a in (proc / "cmdline").read_bytes().split(b"\0")]
+            cwd = Path(os.readlink(proc / "cwd"))
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+        if "cso_runtime.launcher" in argv and "--run-dir" in argv[:-1]:
+            run_dir = cwd / argv[argv.index("--run-dir") + 1]
+            if run_dir.parent.resolve() == runs.resolve():
+                found.append(int(proc.name))
+    return found
+
+
 def kill_leftovers(runs: Path, extra: list[int] = (), exclude: int | None = None) -> list[int]:
-    """SIGKILL what a test's runs left alive (each process's group), but ``exclude`` (a launcher run in the test's own process)."""
-    left = [p for p in [*run_pids(runs), *extra] if p != exclude and pid_alive(p)]
+    """SIGKILL what a test's runs left alive (each process's group), but ``exclude`` (a launcher run in the test's own
+    process): the processes of its run files, and detached launchers that wrote none (``detached_launchers``)."""
+    left = [p for p in dict.fromkeys([*run_pids(runs), *detached_launchers(runs), *extra]) if p != exclude and pid_alive(p)]
     for p in left:
         try:
             os.killpg(p, signal.SIGKILL)
@@ -822,6 +843,24 @@ def test_of_two_up_of_one_robot_started_together_one_runs_and_a_later_one_is_ref
             if (runs / "current.json").exists():
                 cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
             kill_leftovers(runs)
+
+
+def test_kill_leftovers_kills_a_detached_launcher_that_wrote_no_run_file(tmp_path):
+    """An ``up --detach`` killed by a test (one that did not return in time) after it started its launcher, before that
+    launcher wrote its run.json: ``kill_leftovers`` read only run files and left the launcher running. It finds one by
+    its command line (here a stand-in with a detached launcher's, relative ``--run-dir`` and all); another runs
+    folder's is left alone."""
+    runs, other = tmp_path / "runs", tmp_path / "other"
+    stand_in = [sys.executable, "-c", "import time; time.sleep(120)", "-m", "cso_runtime.launcher", "--profile-data", "-", "--run-dir"]
+    mine = subprocess.Popen([*stand_in, "runs/20261206-000000-lockstep-r0"], cwd=tmp_path, start_new_session=True)
+    theirs = subprocess.Popen([*stand_in, str(other / "20261206-000000-lockstep-r0")], cwd=tmp_path, start_new_session=True)
+    try:
+        assert kill_leftovers(runs) == [mine.pid]
+        assert mine.wait(10) == -signal.SIGKILL and theirs.poll() is None
+    finally:
+        for proc in (mine, theirs):
+            proc.kill()
+            proc.wait(10)
 
 
 def test_a_run_that_started_no_service_is_listed_as_it_ended(tmp_path):
