@@ -1138,6 +1138,33 @@ def test_a_detached_launcher_stopped_while_it_loads_its_profile_stops_cleanly(tm
         kill_leftovers(tmp_path / "runs")
 
 
+def test_a_detached_launcher_whose_up_was_killed_as_it_started_is_found_and_stopped_by_down(tmp_path):
+    """``up --detach`` killed outright (SIGKILL: no handler of its own runs) just after it started its launcher, before
+    that launcher wrote its run file: the launcher is a session of its own with the profile on its stdin, so it goes
+    on and writes run.json and current.json as it starts; ``status`` and ``runs`` see it, and ``down`` stops it and its
+    services. No run is left that nothing knows of (docs/runtime.md)."""
+    runs = tmp_path / "runs"
+    argv = ["up", "--profile", str(write_profile(tmp_path, min_step_period_s=0.25)), "--detach", "--runs-dir", str(runs)]
+    up = subprocess.Popen([*python_module_argv("cso_runtime.cli"), *argv], cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        (launcher,) = wait_for(lambda: detached_launchers(runs), 60, "up to start its launcher", period_s=0.005)
+        up.kill()
+        up.wait(10)
+        current = wait_for(lambda: (runs / "current.json").exists() and json.loads((runs / "current.json").read_text()), 60, "the launcher's current run")
+        assert current["launcher_pid"] == launcher
+        wait_for(lambda: json.loads((runs / "current.json").read_text())["services"], 60, "its services")
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 0 and json.loads(r.stdout)["run_id"] == current["run_id"], r.stdout + r.stderr
+        r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0 and "stopped run" in r.stdout, r.stdout + r.stderr
+        assert not pid_alive(launcher) and [p for p in run_pids(runs) if pid_alive(p)] == [] and not (runs / "current.json").exists()
+    finally:
+        if up.poll() is None:
+            up.kill()
+            up.wait(10)
+        kill_leftovers(runs)
+
+
 def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp_path, monkeypatch):
     """``up --detach`` waits for its launcher to start; Ctrl-C then, or a start slower than the deadline,
     stops that launcher instead of leaving a run behind that ``status`` and ``down`` do not know of."""
