@@ -1650,8 +1650,12 @@ def main(argv: list[str] | None = None) -> int:
     stop_on_signals(stop)  # first: `up --detach` given up on (SIGTERM) while this one loads its profile is a clean stop
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
-    data = load_yaml(args.profile_data) if str(args.profile_data) != STDIN_PATH else yaml.safe_load(sys.stdin) or {}
-    profile = from_dict(Profile, data, where="the profile from up" if str(args.profile_data) == STDIN_PATH else str(args.profile_data))
+    from_up = str(args.profile_data) == STDIN_PATH
+    data = yaml.safe_load(sys.stdin) if from_up else load_yaml(args.profile_data)
+    if from_up and not data:  # stdin closed with nothing on it: `up --detach` killed (SIGKILL) before its handover
+        log.error("no profile came from `up --detach` (was it killed as it started this launcher?): no run was started")
+        return EXIT_INTERRUPTED
+    profile = from_dict(Profile, data or {}, where="the profile from up" if from_up else str(args.profile_data))
     return run_until_stopped(Launcher(profile, data, args.run_dir, args.record, args.animate, stop_event=stop), live=False, stay_after_done=True)
 
 

@@ -1138,6 +1138,15 @@ def test_a_detached_launcher_stopped_while_it_loads_its_profile_stops_cleanly(tm
         kill_leftovers(tmp_path / "runs")
 
 
+def holds_pipe(pid: int, pipe: str) -> bool:
+    """Whether process ``pid`` has a file descriptor on ``pipe`` (``pipe:[INODE]``, as /proc names it; Linux)."""
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        with contextlib.suppress(OSError):  # closed meanwhile
+            if os.readlink(fd) == pipe:
+                return True
+    return False
+
+
 def test_a_detached_launcher_whose_up_was_killed_as_it_started_is_found_and_stopped_by_down(tmp_path):
     """``up --detach`` killed outright (SIGKILL: no handler of its own runs) just after it started its launcher, before
     that launcher wrote its run file: the launcher is a session of its own with the profile on its stdin, so it goes
@@ -1148,6 +1157,9 @@ def test_a_detached_launcher_whose_up_was_killed_as_it_started_is_found_and_stop
     up = subprocess.Popen([*python_module_argv("cso_runtime.cli"), *argv], cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         (launcher,) = wait_for(lambda: detached_launchers(runs), 60, "up to start its launcher", period_s=0.005)
+        # Killed once it has handed the profile over (closed its end of the launcher's stdin; before that, see
+        # test_a_detached_launcher_given_no_profile_by_its_killed_up_says_so_and_starts_nothing), as the launcher imports.
+        wait_for(lambda: not holds_pipe(up.pid, os.readlink(f"/proc/{launcher}/fd/0")), 60, "up to hand its launcher the profile", period_s=0.005)
         up.kill()
         up.wait(10)
         current = wait_for(lambda: (runs / "current.json").exists() and json.loads((runs / "current.json").read_text()), 60, "the launcher's current run")
@@ -1163,6 +1175,21 @@ def test_a_detached_launcher_whose_up_was_killed_as_it_started_is_found_and_stop
             up.kill()
             up.wait(10)
         kill_leftovers(runs)
+
+
+def test_a_detached_launcher_given_no_profile_by_its_killed_up_says_so_and_starts_nothing(tmp_path):
+    """``up --detach`` killed (SIGKILL) after it started its launcher and before it wrote the profile to the launcher's
+    stdin: the launcher read an empty profile and ended with a ConfigError traceback ("a profile must list at least one
+    service"), as if ``up`` had handed it a bad one. Now it says what happened in one line: exit 130, nothing started."""
+    run_dir = tmp_path / "runs" / "r"
+    (run_dir / "logs").mkdir(parents=True)
+    r = subprocess.run(
+        [*python_module_argv("cso_runtime.launcher"), "--profile-data", "-", "--run-dir", str(run_dir)],
+        stdin=subprocess.DEVNULL, cwd=tmp_path, capture_output=True, text=True, timeout=60,
+    )
+    said = r.stdout + r.stderr
+    assert r.returncode == 130 and "no profile came from `up --detach`" in said and "Traceback" not in said, (r.returncode, said[-3000:])
+    assert not (tmp_path / "runs" / "current.json").exists() and not (run_dir / "run.json").exists()
 
 
 def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp_path, monkeypatch):
