@@ -90,6 +90,7 @@ from cso_runtime.supervision import (
 )
 from cso_runtime.transport import (
     LISTEN_IN_USE,
+    STOPPED,
     TransportConfig,
     TransportError,
     any_loopback_port,
@@ -1203,10 +1204,10 @@ class Launcher:
             return self.stop_before_start(EXIT_INTERRUPTED)
         router = self.profile.router
         if router.embedded:
-            session, self.endpoints = open_router(list(router.listen), list(router.connect), router.connect_timeout_s, router.zenoh_config)
+            session, self.endpoints = open_router(list(router.listen), list(router.connect), router.connect_timeout_s, router.zenoh_config, self.stop_event)
         else:  # join the existing router(s) instead of opening one
             self.endpoints = list(router.connect)
-            session = open_session(self.client_config())
+            session = open_session(self.client_config(), self.stop_event)
         view = LiveView(self) if live else None
         self.session = session
         if router.connect:
@@ -1215,7 +1216,7 @@ class Launcher:
             if router.connect:
                 # Asked on a client of the router joined, which orders this run's claims before its questions (an
                 # embedded router answers from what has reached it so far), and holds the claims until the run is seen.
-                claims_session = session if not router.embedded else claiming.enter_context(open_session(self.client_config()))
+                claims_session = session if not router.embedded else claiming.enter_context(open_session(self.client_config(), self.stop_event))
                 if taken := self.robot_already_served(claims_session):
                     if self.stop_event.is_set():
                         log.warning("interrupted before any service was started")
@@ -1474,6 +1475,9 @@ def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> 
             return EXIT_BAD_CONFIG
         return launcher.run(live=live, stay_after_done=stay_after_done)
     except TransportError as exc:  # the router to join (a robot's) is down, or a listen port is taken
+        if exc.cause == STOPPED:  # Ctrl-C or SIGTERM while a session opened (a router to join that is not there)
+            log.warning("interrupted before any service was started")
+            return launcher.stop_before_start(EXIT_INTERRUPTED)
         log.error("%s; no service was started (%s)", exc, transport_error_hint(exc, launcher.profile.router.listen))
         return launcher.stop_before_start(EXIT_NO_ZENOH)
     finally:
@@ -1646,8 +1650,12 @@ def main(argv: list[str] | None = None) -> int:
     stop_on_signals(stop)  # first: `up --detach` given up on (SIGTERM) while this one loads its profile is a clean stop
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
-    data = load_yaml(args.profile_data) if str(args.profile_data) != STDIN_PATH else yaml.safe_load(sys.stdin) or {}
-    profile = from_dict(Profile, data, where="the profile from up" if str(args.profile_data) == STDIN_PATH else str(args.profile_data))
+    from_up = str(args.profile_data) == STDIN_PATH
+    data = yaml.safe_load(sys.stdin) if from_up else load_yaml(args.profile_data)
+    if from_up and not data:  # stdin closed with nothing on it: `up --detach` killed (SIGKILL) before its handover
+        log.error("no profile came from `up --detach` (was it killed as it started this launcher?): no run was started")
+        return EXIT_INTERRUPTED
+    profile = from_dict(Profile, data or {}, where="the profile from up" if from_up else str(args.profile_data))
     return run_until_stopped(Launcher(profile, data, args.run_dir, args.record, args.animate, stop_event=stop), live=False, stay_after_done=True)
 
 

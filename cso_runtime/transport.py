@@ -11,6 +11,7 @@ import json
 import logging
 import os
 import socket
+import threading
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,7 +39,7 @@ the thread to return (``tests/test_runtime.py``, with Zenoh 1.10)."""
 class TransportError(RuntimeError):
     """A Zenoh session could not be configured or opened. ``cause``: why, when known, so that a caller's hint fits
     it: ``LISTEN_IN_USE`` (another process holds a port to listen on), ``UNREACHABLE`` (no router to connect to
-    answered), else ""."""
+    answered), ``STOPPED`` (given up on: the caller was stopped while it opened), else ""."""
 
     def __init__(self, message: str, cause: str = "") -> None:
         super().__init__(message)
@@ -47,6 +48,7 @@ class TransportError(RuntimeError):
 
 LISTEN_IN_USE = "listen_in_use"
 UNREACHABLE = "unreachable"
+STOPPED = "stopped"
 
 
 ZENOH_CONFIG_ENV = "CSO_ZENOH_CONFIG"
@@ -182,8 +184,51 @@ def zenoh_config(conf: TransportConfig) -> zenoh.Config:
     return cfg
 
 
-def open_session(conf: TransportConfig) -> zenoh.Session:
-    """Open a Zenoh session (use it in a ``with`` block so it always closes)."""
+STOP_POLL_S = 0.05
+"""``open_session`` with a ``stop``: how often it looks at it while Zenoh opens."""
+
+
+def open_session(conf: TransportConfig, stop: threading.Event | None = None) -> zenoh.Session:
+    """Open a Zenoh session (use it in a ``with`` block so it always closes).
+
+    ``stop``: the caller's stop (the launcher's, set by Ctrl-C or SIGTERM). Zenoh opens in Rust code, where no Python
+    signal handler runs, and waits there up to ``conf.connect_timeout_s`` for a router to join: a launcher joining a
+    router that is gone sat out the whole timeout after a SIGTERM (10 s by default), then ended as "no router". With
+    ``stop`` the open runs on a thread of its own and is given up as soon as ``stop`` is set (``TransportError``,
+    cause ``STOPPED``); a session that opens after that is closed on that thread."""
+    if stop is None:
+        return _open(conf)
+    opened: list[zenoh.Session | BaseException] = []
+    lock = threading.Lock()
+    given_up = threading.Event()
+
+    def open_it() -> None:
+        try:
+            outcome: zenoh.Session | BaseException = _open(conf)
+        except BaseException as exc:  # noqa: BLE001 - raised again on the caller's thread, whatever it is
+            outcome = exc
+        with lock:
+            if not given_up.is_set():
+                opened.append(outcome)
+                return
+        if isinstance(outcome, zenoh.Session):  # opened after the caller gave up on it: its ports go with it
+            outcome.close()
+
+    thread = threading.Thread(target=open_it, name="zenoh-open", daemon=True)
+    thread.start()
+    while thread.is_alive() and not stop.wait(STOP_POLL_S):
+        pass
+    with lock:
+        if not opened:
+            given_up.set()
+            raise TransportError(f"stopped while opening the zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen})", STOPPED)
+    if isinstance(opened[0], BaseException):
+        raise opened[0]
+    return opened[0]
+
+
+def _open(conf: TransportConfig) -> zenoh.Session:
+    """``open_session`` without a stop: its failures as ``TransportError``."""
     try:
         return zenoh.open(zenoh_config(conf))
     except zenoh.ZError as exc:
@@ -205,18 +250,23 @@ PORT_TRIES = 3
 
 
 def open_router(
-    listen: list[str], connect: list[str], connect_timeout_s: float = JOIN_TIMEOUT_S, zenoh_config_file: str | None = None
+    listen: list[str],
+    connect: list[str],
+    connect_timeout_s: float = JOIN_TIMEOUT_S,
+    zenoh_config_file: str | None = None,
+    stop: threading.Event | None = None,
 ) -> tuple[zenoh.Session, list[str]]:
     """A router session and the endpoints it listens on: each endpoint ending in port ``:0`` gets a port free
     right now; when another process takes it before Zenoh binds it, another is picked (``PORT_TRIES`` in all).
     The routers in ``connect`` must be reached within ``connect_timeout_s`` (else ``TransportError``).
-    ``zenoh_config_file``: the base config (``TransportConfig.zenoh_config_file``; None: its default)."""
+    ``zenoh_config_file``: the base config (``TransportConfig.zenoh_config_file``; None: its default); ``stop``: as
+    ``open_session``'s."""
     base = {} if zenoh_config_file is None else {"zenoh_config_file": zenoh_config_file}
     picked = any(ep.endswith(":0") for ep in listen)
     for attempt in range(1, PORT_TRIES + 1):
         chosen = [f"{ep[:-2]}:{free_tcp_port()}" if ep.endswith(":0") else ep for ep in listen]
         try:
-            return open_session(TransportConfig(mode="router", listen=chosen, connect=list(connect), connect_timeout_s=connect_timeout_s, **base)), chosen
+            return open_session(TransportConfig(mode="router", listen=chosen, connect=list(connect), connect_timeout_s=connect_timeout_s, **base), stop), chosen
         except TransportError as exc:
             if not picked or attempt == PORT_TRIES or exc.cause != LISTEN_IN_USE:  # only a taken port is worth another pick
                 raise

@@ -105,9 +105,30 @@ def run_pids(runs: Path) -> list[int]:
     return pids
 
 
+def detached_launchers(runs: Path) -> list[int]:
+    """The detached launchers (``python -m cso_runtime.launcher ... --run-dir RUNS/<run-id>``) of ``runs`` running now,
+    found by their command lines (Linux /proc): one whose ``up --detach`` was killed before it wrote its run.json is in
+    no run file, and its services with it."""
+    found = []
+    for proc in Path("/proc").iterdir():
+        if not proc.name.isdigit():
+            continue
+        try:
+            argv = [os.fsdecode(a) for a in (proc / "cmdline").read_bytes().split(b"\0")]
+            cwd = Path(os.readlink(proc / "cwd"))
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+        if "cso_runtime.launcher" in argv and "--run-dir" in argv[:-1]:
+            run_dir = cwd / argv[argv.index("--run-dir") + 1]
+            if run_dir.parent.resolve() == runs.resolve():
+                found.append(int(proc.name))
+    return found
+
+
 def kill_leftovers(runs: Path, extra: list[int] = (), exclude: int | None = None) -> list[int]:
-    """SIGKILL what a test's runs left alive (each process's group), but ``exclude`` (a launcher run in the test's own process)."""
-    left = [p for p in [*run_pids(runs), *extra] if p != exclude and pid_alive(p)]
+    """SIGKILL what a test's runs left alive (each process's group), but ``exclude`` (a launcher run in the test's own
+    process): the processes of its run files, and detached launchers that wrote none (``detached_launchers``)."""
+    left = [p for p in dict.fromkeys([*run_pids(runs), *detached_launchers(runs), *extra]) if p != exclude and pid_alive(p)]
     for p in left:
         try:
             os.killpg(p, signal.SIGKILL)
@@ -824,6 +845,24 @@ def test_of_two_up_of_one_robot_started_together_one_runs_and_a_later_one_is_ref
             kill_leftovers(runs)
 
 
+def test_kill_leftovers_kills_a_detached_launcher_that_wrote_no_run_file(tmp_path):
+    """An ``up --detach`` killed by a test (one that did not return in time) after it started its launcher, before that
+    launcher wrote its run.json: ``kill_leftovers`` read only run files and left the launcher running. It finds one by
+    its command line (here a stand-in with a detached launcher's, relative ``--run-dir`` and all); another runs
+    folder's is left alone."""
+    runs, other = tmp_path / "runs", tmp_path / "other"
+    stand_in = [sys.executable, "-c", "import time; time.sleep(120)", "-m", "cso_runtime.launcher", "--profile-data", "-", "--run-dir"]
+    mine = subprocess.Popen([*stand_in, "runs/20261206-000000-lockstep-r0"], cwd=tmp_path, start_new_session=True)
+    theirs = subprocess.Popen([*stand_in, str(other / "20261206-000000-lockstep-r0")], cwd=tmp_path, start_new_session=True)
+    try:
+        assert kill_leftovers(runs) == [mine.pid]
+        assert mine.wait(10) == -signal.SIGKILL and theirs.poll() is None
+    finally:
+        for proc in (mine, theirs):
+            proc.kill()
+            proc.wait(10)
+
+
 def test_a_run_that_started_no_service_is_listed_as_it_ended(tmp_path):
     """Ctrl-C while the router opens (the first second of ``up``) left a run folder with no run.json, which
     ``runs`` never listed; a run refused before its services (robot id taken, recording that cannot open)
@@ -998,6 +1037,37 @@ def test_up_stopped_in_its_first_moments_exits_cleanly(tmp_path, sig, module, at
         kill_leftovers(runs)
 
 
+def test_up_stopped_while_its_router_waits_for_a_router_to_join_exits_at_once(tmp_path):
+    """SIGTERM while the launcher's router waited to reach the router it joins (``--connect``, gone: a robot's bridge
+    down, or a test's router closed) did nothing until ``router.connect_timeout_s`` had passed: Zenoh opens in Rust
+    code, where no Python signal handler runs. The launcher then said "cannot reach" (exit 3), or, with the router
+    back meanwhile, went on to its claims' client session and waited there again. Now the open is given up at the
+    signal: one ``interrupted`` line, exit 130, a run.json that says so, nothing left."""
+    runs = tmp_path / "runs"
+    gone = loopback_endpoint(free_tcp_port())  # no router there
+    argv = ["up", "--profile", str(write_profile(tmp_path)), "--no-live", "--runs-dir", str(runs), "--connect", gone, "--set", "router.connect_timeout_s=60"]
+    proc = subprocess.Popen([*python_module_argv("cso_runtime.cli"), *argv], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        # Its router listens as soon as Zenoh opens it, then tries the one it joins: the launcher is inside the open.
+        wait_for(lambda: proc.poll() is not None or listening_tcp_ports(proc.pid), 60, "the launcher's router to listen")
+        assert proc.poll() is None, proc.communicate()
+        signalled_s = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=20)  # before: some 60 s, the whole connect timeout
+        took_s = time.monotonic() - signalled_s
+        assert proc.returncode == 130 and "interrupted before any service was started" in err and "Traceback" not in err, (proc.returncode, err[-3000:])
+        assert took_s < 5.0, took_s
+        (run_dir,) = [d for d in runs.glob("*") if d.is_dir()]
+        info = json.loads((run_dir / "run.json").read_text())
+        assert (info["state"], info["outcome"], info["exit_code"], info["services"]) == ("stopped", "interrupted", 130, {}), info
+        assert not (runs / "current.json").exists()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=10)
+        kill_leftovers(runs)
+
+
 def test_up_stopped_while_python_imports_it_exits_cleanly(tmp_path):
     """Ctrl-C while Python imports the command line (typer, here one that is interrupted as it loads): one line, 130."""
     (tmp_path / "fake").mkdir()
@@ -1066,6 +1136,60 @@ def test_a_detached_launcher_stopped_while_it_loads_its_profile_stops_cleanly(tm
         assert not (tmp_path / "runs" / "current.json").exists()
     finally:
         kill_leftovers(tmp_path / "runs")
+
+
+def holds_pipe(pid: int, pipe: str) -> bool:
+    """Whether process ``pid`` has a file descriptor on ``pipe`` (``pipe:[INODE]``, as /proc names it; Linux)."""
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        with contextlib.suppress(OSError):  # closed meanwhile
+            if os.readlink(fd) == pipe:
+                return True
+    return False
+
+
+def test_a_detached_launcher_whose_up_was_killed_as_it_started_is_found_and_stopped_by_down(tmp_path):
+    """``up --detach`` killed outright (SIGKILL: no handler of its own runs) just after it started its launcher, before
+    that launcher wrote its run file: the launcher is a session of its own with the profile on its stdin, so it goes
+    on and writes run.json and current.json as it starts; ``status`` and ``runs`` see it, and ``down`` stops it and its
+    services. No run is left that nothing knows of (docs/runtime.md)."""
+    runs = tmp_path / "runs"
+    argv = ["up", "--profile", str(write_profile(tmp_path, min_step_period_s=0.25)), "--detach", "--runs-dir", str(runs)]
+    up = subprocess.Popen([*python_module_argv("cso_runtime.cli"), *argv], cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        (launcher,) = wait_for(lambda: detached_launchers(runs), 60, "up to start its launcher", period_s=0.005)
+        # Killed once it has handed the profile over (closed its end of the launcher's stdin; before that, see
+        # test_a_detached_launcher_given_no_profile_by_its_killed_up_says_so_and_starts_nothing), as the launcher imports.
+        wait_for(lambda: not holds_pipe(up.pid, os.readlink(f"/proc/{launcher}/fd/0")), 60, "up to hand its launcher the profile", period_s=0.005)
+        up.kill()
+        up.wait(10)
+        current = wait_for(lambda: (runs / "current.json").exists() and json.loads((runs / "current.json").read_text()), 60, "the launcher's current run")
+        assert current["launcher_pid"] == launcher
+        wait_for(lambda: json.loads((runs / "current.json").read_text())["services"], 60, "its services")
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 0 and json.loads(r.stdout)["run_id"] == current["run_id"], r.stdout + r.stderr
+        r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0 and "stopped run" in r.stdout, r.stdout + r.stderr
+        assert not pid_alive(launcher) and [p for p in run_pids(runs) if pid_alive(p)] == [] and not (runs / "current.json").exists()
+    finally:
+        if up.poll() is None:
+            up.kill()
+            up.wait(10)
+        kill_leftovers(runs)
+
+
+def test_a_detached_launcher_given_no_profile_by_its_killed_up_says_so_and_starts_nothing(tmp_path):
+    """``up --detach`` killed (SIGKILL) after it started its launcher and before it wrote the profile to the launcher's
+    stdin: the launcher read an empty profile and ended with a ConfigError traceback ("a profile must list at least one
+    service"), as if ``up`` had handed it a bad one. Now it says what happened in one line: exit 130, nothing started."""
+    run_dir = tmp_path / "runs" / "r"
+    (run_dir / "logs").mkdir(parents=True)
+    r = subprocess.run(
+        [*python_module_argv("cso_runtime.launcher"), "--profile-data", "-", "--run-dir", str(run_dir)],
+        stdin=subprocess.DEVNULL, cwd=tmp_path, capture_output=True, text=True, timeout=60,
+    )
+    said = r.stdout + r.stderr
+    assert r.returncode == 130 and "no profile came from `up --detach`" in said and "Traceback" not in said, (r.returncode, said[-3000:])
+    assert not (tmp_path / "runs" / "current.json").exists() and not (run_dir / "run.json").exists()
 
 
 def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp_path, monkeypatch):
@@ -3657,8 +3781,9 @@ def test_a_service_stuck_in_a_handler_does_not_outlive_its_killed_launcher(tmp_p
     service = [MAPPER_STUCK_IN_ITS_FIRST_HANDLER, str(marker), "--config", str(PROFILES / "sim.yaml"), "--robot", "t1", "--connect", loopback_endpoint(port)]
     with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
         launcher = subprocess.Popen([sys.executable, "-c", STAND_IN_LAUNCHER, str(log_path), *service], cwd=REPO, stdout=subprocess.PIPE, text=True)
-        mapper_pid = int(launcher.stdout.readline())
-        try:
+        mapper_pid = None
+        try:  # from its first line: a stand-in that dies before it says its mapper's pid is still reaped
+            mapper_pid = int(launcher.stdout.readline())
             wait_for(lambda: any(True for r in session.liveliness().get(keys.alive("mapper"), timeout=0.5) if r.ok), 60, "the mapper's liveliness token")
             session.put(keys.clock, encode(ClockMsg(0, 0.0, GridGeometry(0.1, (40, 40)))))
             wait_for(marker.exists, 10, "the mapper to be stuck in its handler")
@@ -3669,7 +3794,7 @@ def test_a_service_stuck_in_a_handler_does_not_outlive_its_killed_launcher(tmp_p
             launcher.kill()
             launcher.wait(10)
             launcher.stdout.close()
-            if pid_alive(mapper_pid):
+            if mapper_pid is not None and pid_alive(mapper_pid):
                 os.kill(mapper_pid, signal.SIGKILL)
     text = log_path.read_text()
     assert f"mapper: still running 1 s after its launcher (pid {launcher.pid}) went (stuck?)" in text, text[-3000:]
