@@ -3579,7 +3579,7 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         r = cli("save-map", "-f", str(tmp_path / "a_file" / "m"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 2 and "cannot write the map" in r.stderr and "Traceback" not in r.stderr, r.stderr
         r = cli("record", "--out", str(tmp_path / "a_file" / "r.mcap"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-        assert r.returncode == 2 and "cannot record into" in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert r.returncode == 2 and "--out" in r.stderr and "cannot create the folder" in r.stderr and "Traceback" not in r.stderr, r.stderr
 
         wait_for(lambda: list(runs.glob("*/summary.json")), 20, "summary.json")
         pids = run_pids(runs)
