@@ -150,6 +150,8 @@ def test_eval_set_overrides_the_config_file_and_names_itself_in_errors(tmp_path:
         ("planner: {min_cluster_size_m: 0.5}\n", {}, "mine.yaml: planner: unknown key(s) min_cluster_size_m (did you mean frontier.min_cluster_size_m?)"),
         (None, {"masks.goal_tolerance_m": 0.5}, "masks: unknown key(s) goal_tolerance_m (did you mean episode.goal_tolerance_m?); known: alpha1_m"),
         (None, {"planner.lookahed_m": 0.4}, "planner: unknown key(s) lookahed_m (did you mean lookahead_m?)"),  # a typo: as before
+        (None, {"planer.lookahead_m": 0.4}, "unknown key(s) planer (did you mean planner?); known: episode"),  # a misspelt section: as before
+        (None, {"mask.beta_far_m": 2.0}, "unknown key(s) mask (did you mean masks?); known: episode"),
     ],
 )
 def test_an_eval_key_in_the_wrong_section_names_the_section_it_belongs_to(config, settings, said, tmp_path: Path):
@@ -680,6 +682,10 @@ def test_up_resolved_of_a_real_robot_shows_no_scene_it_never_loads(tmp_path: Pat
         ({"backoff_s": 1.0}, "unknown key(s) backoff_s (did you mean supervision.backoff_s?)"),
         ({"robot": {"radius_m": 0.3}}, "robot: the robot id (a string: cso/<robot>/... keys); the robot's body and limits are exploration.robot"),
         ({"exploration.planner.lookahed_m": 0.4}, "exploration.planner: unknown key(s) lookahed_m (did you mean lookahead_m?)"),  # a typo: as before
+        # a misspelt section is a typo too, not its keys' homes (was: "exploraton (did you mean exploration.planner or
+        # services.planner?)", and lookahead_m is no key of services.planner)
+        ({"exploraton.planner.lookahead_m": 0.4}, "unknown key(s) exploraton (did you mean exploration?); known: exploration"),
+        ({"servics.mapper.restore_timeout_s": 2.0}, "unknown key(s) servics (did you mean services?); known: exploration"),
     ],
 )
 def test_a_profile_key_in_the_wrong_section_names_the_section_it_belongs_to(settings, said):
