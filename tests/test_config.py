@@ -671,6 +671,30 @@ def test_up_resolved_of_a_real_robot_shows_no_scene_it_never_loads(tmp_path: Pat
     sim = CliRunner().invoke(app, ["up", "--profile", "sim", "--resolved"]).output
     assert yaml.safe_load(sim)["scene"] == load_profile("sim")[0].scene and "# scene:" not in sim  # a simulation's: as before
 
+def test_up_resolved_says_the_weights_folder_it_runs_the_learned_methods_from(tmp_path: Path, monkeypatch):
+    """``up --weights FOLDER --resolved`` printed a profile with no word of FOLDER (no profile key holds it): given back
+    alone, it ran the shipped weights. Now a comment names the folder and says to give it again; without --weights, none."""
+    import shutil
+
+    import yaml
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_dir
+
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, "unset-below")  # restored (unset) after the test: --weights sets it in this process
+    monkeypatch.delenv(WEIGHTS_DIR_ENV)
+    plain = CliRunner().invoke(app, ["up", "--profile", "sim", "--resolved"])
+    assert plain.exit_code == 0 and "--weights" not in plain.output, plain.output
+    mine = tmp_path / "run"
+    mine.mkdir()
+    shutil.copy(weights_dir() / "cso.pt", mine / "cso.pt")
+    r = CliRunner().invoke(app, ["up", "--profile", "sim", "--weights", str(mine), "--resolved"])
+    assert r.exit_code == 0, r.output
+    assert f"# the learned methods' weights from --weights {mine.resolve()} (no profile key: give it again with this profile)" in r.output
+    assert yaml.safe_load(r.output) == yaml.safe_load(plain.output)  # the profile itself is the same
+
+
 @pytest.mark.parametrize(
     "settings, said",
     [
