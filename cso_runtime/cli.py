@@ -776,6 +776,10 @@ def up_command(
             comments.append("every parameter as the run would use it, defaults filled in (`up --dry-run`: the profile as written)")
             if prof.scene_label == REAL_ROBOT_SCENE:
                 comments.append(f"scene: {REAL_ROBOT_SCENE} ({' and '.join(UNUSED_BY_A_REAL_ROBOT)} left out: never loaded)")
+            if weights is not None:  # a setting of the run that no profile key holds: the profile alone would run the shipped weights
+                from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415
+
+                comments.append(f"the learned methods' weights from --weights {weights_dir()} (no profile key: give it again with this profile)")
         typer.echo(commented_yaml(comments, prof.effective() if resolved else data), nl=False)
         return
     current = read_current_run(runs_dir)

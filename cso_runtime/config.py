@@ -482,11 +482,17 @@ def unknown_keys(data: dict[str, Any], sections: dict[str, set[str]]) -> list[tu
     return [(path, key) for path, keys in sections.items() for key in mapping_at(data, path) if key not in keys]
 
 
+MISSPELT_SECTION_RATIO = 0.8
+"""``wrong_section``: an unknown mapping this close (``difflib`` ratio) to a key of its section is that key misspelt
+(``exploraton``, ``mask``), which ``from_dict`` names, not the homes of the keys it holds (``exploration.planner or
+services.planner``); looser, ``frontier`` would be ``router`` misspelt."""
+
+
 def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]], data: dict[str, Any]) -> str | None:
     """What is wrong with the first of ``data``'s ``unknown`` keys that is no key of its section but one of another
     (``lookahead_m`` at eval's top level is ``planner.lookahead_m``; a profile's ``services.planner.lookahead_m``,
     Nav2's place for it, ``exploration.planner.lookahead_m``), or a mapping of keys that belong elsewhere (eval's
-    ``masks: {beta_far_m: 2.0}`` in train's flat config is ``beta_far_m``), in ``from_dict``'s words but saying where
+    ``masks: {beta_far_m: 2.0}`` in train's flat config is ``beta_far_m``; not a misspelt one, ``MISSPELT_SECTION_RATIO``), in ``from_dict``'s words but saying where
     it belongs rather than the nearest spelling in the wrong section; None when none is (a typo: ``from_dict`` says it)."""
     homes: dict[str, list[str]] = {}
     for path, keys in sections.items():
@@ -494,7 +500,8 @@ def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]],
             homes.setdefault(key, []).append(f"{path}.{key}" if path else key)
     for path, key in unknown:
         elsewhere = [home for home in homes.get(key, []) if home != (f"{path}.{key}" if path else key)]
-        elsewhere = elsewhere or [home for inner in mapping_at(data, f"{path}.{key}" if path else key) for home in homes.get(inner, [])]
+        if not elsewhere and not difflib.get_close_matches(key, sections[path], n=1, cutoff=MISSPELT_SECTION_RATIO):
+            elsewhere = [home for inner in mapping_at(data, f"{path}.{key}" if path else key) for home in homes.get(inner, [])]
         if elsewhere:
             said = f"{key} (did you mean {' or '.join(elsewhere)}?)"
             return f"{path + ': ' if path else ''}unknown key(s) {said}; known: {', '.join(sorted(sections[path]))}"

@@ -737,7 +737,9 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
         warnings += [f"{m} (a policy does best with the masks it was trained under)" for m in mask_mismatches(list(weights), config.masks, config.sensor)]
     mujoco = request.mujoco_parameters()
     sim_settings = simulator_settings(request.sim, config.sensor, config.robot, mujoco)
-    watchdog = watchdog_within_a_step_said(sim_settings, config.robot, f"{request.sim_config_path}: watchdog_s")
+    watchdog_key = f"{request.sim_config_path}: watchdog_s" if request.sim_config_path is not None else f"--sim {request.sim}'s default watchdog_s"
+    advice = "eval hands every step its command, none goes stale: give --sim-config FILE with watchdog_s: at least robot.control_period_s"
+    watchdog = watchdog_within_a_step_said(sim_settings, config.robot, watchdog_key, advice=advice)
     warnings += [watchdog] if watchdog is not None else []
     settings = {
         m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "", mujoco, own_method_code_sha256(m))

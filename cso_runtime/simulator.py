@@ -235,19 +235,27 @@ def simulator_settings(name: str, sensor: SensorConfig, robot: RobotConfig, mujo
     raise ValueError(f"unknown simulator {name!r}; choose one of {', '.join(SIMULATORS)}")
 
 
+UP_WATCHDOG_ADVICE = "to stop a robot whose commands stop coming sooner, lower services.sim.cmd_timeout_s instead"
+"""What ``up`` can tune in place of a short ``watchdog_s``: its sim service's stale-command timeout."""
+
+
 def watchdog_within_a_step_said(
-    settings: Mapping[str, Any], robot: RobotConfig, watchdog_key: str = "watchdog_s", period_key: str = "robot.control_period_s"
+    settings: Mapping[str, Any],
+    robot: RobotConfig,
+    watchdog_key: str = "watchdog_s",
+    period_key: str = "robot.control_period_s",
+    advice: str = UP_WATCHDOG_ADVICE,
 ) -> str | None:
     """A warning where the MuJoCo LIMO's ``watchdog_s`` in ``settings`` (``simulator_settings``) is shorter than a control
     step: each step hands the simulator its command afresh, so the base would brake to a stop within every step,
-    commands or not (docs/runtime.md, Command watchdogs); None where it is not (or the simulator has no watchdog)."""
+    commands or not (docs/runtime.md, Command watchdogs); None where it is not (or the simulator has no watchdog).
+    ``advice``: what the caller's user can change instead (eval has no sim service, so no ``cmd_timeout_s``)."""
     watchdog_s = settings.get("watchdog_s")
     if watchdog_s is None or watchdog_s >= robot.control_period_s:
         return None
     return (
         f"{watchdog_key} {watchdog_s:g} s is shorter than a control step ({period_key}, {robot.control_period_s:g} s): the MuJoCo "
-        "LIMO brakes to a stop within every step, commands or not, and the robot barely moves; to stop a robot whose commands "
-        "stop coming sooner, lower services.sim.cmd_timeout_s instead (docs/runtime.md, Command watchdogs)"
+        f"LIMO brakes to a stop within every step, commands or not, and the robot barely moves; {advice} (docs/runtime.md, Command watchdogs)"
     )
 
 

@@ -150,6 +150,8 @@ def test_eval_set_overrides_the_config_file_and_names_itself_in_errors(tmp_path:
         ("planner: {min_cluster_size_m: 0.5}\n", {}, "mine.yaml: planner: unknown key(s) min_cluster_size_m (did you mean frontier.min_cluster_size_m?)"),
         (None, {"masks.goal_tolerance_m": 0.5}, "masks: unknown key(s) goal_tolerance_m (did you mean episode.goal_tolerance_m?); known: alpha1_m"),
         (None, {"planner.lookahed_m": 0.4}, "planner: unknown key(s) lookahed_m (did you mean lookahead_m?)"),  # a typo: as before
+        (None, {"planer.lookahead_m": 0.4}, "unknown key(s) planer (did you mean planner?); known: episode"),  # a misspelt section: as before
+        (None, {"mask.beta_far_m": 2.0}, "unknown key(s) mask (did you mean masks?); known: episode"),
     ],
 )
 def test_an_eval_key_in_the_wrong_section_names_the_section_it_belongs_to(config, settings, said, tmp_path: Path):
@@ -669,6 +671,30 @@ def test_up_resolved_of_a_real_robot_shows_no_scene_it_never_loads(tmp_path: Pat
     sim = CliRunner().invoke(app, ["up", "--profile", "sim", "--resolved"]).output
     assert yaml.safe_load(sim)["scene"] == load_profile("sim")[0].scene and "# scene:" not in sim  # a simulation's: as before
 
+def test_up_resolved_says_the_weights_folder_it_runs_the_learned_methods_from(tmp_path: Path, monkeypatch):
+    """``up --weights FOLDER --resolved`` printed a profile with no word of FOLDER (no profile key holds it): given back
+    alone, it ran the shipped weights. Now a comment names the folder and says to give it again; without --weights, none."""
+    import shutil
+
+    import yaml
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_dir
+
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, "unset-below")  # restored (unset) after the test: --weights sets it in this process
+    monkeypatch.delenv(WEIGHTS_DIR_ENV)
+    plain = CliRunner().invoke(app, ["up", "--profile", "sim", "--resolved"])
+    assert plain.exit_code == 0 and "--weights" not in plain.output, plain.output
+    mine = tmp_path / "run"
+    mine.mkdir()
+    shutil.copy(weights_dir() / "cso.pt", mine / "cso.pt")
+    r = CliRunner().invoke(app, ["up", "--profile", "sim", "--weights", str(mine), "--resolved"])
+    assert r.exit_code == 0, r.output
+    assert f"# the learned methods' weights from --weights {mine.resolve()} (no profile key: give it again with this profile)" in r.output
+    assert yaml.safe_load(r.output) == yaml.safe_load(plain.output)  # the profile itself is the same
+
+
 @pytest.mark.parametrize(
     "settings, said",
     [
@@ -680,6 +706,10 @@ def test_up_resolved_of_a_real_robot_shows_no_scene_it_never_loads(tmp_path: Pat
         ({"backoff_s": 1.0}, "unknown key(s) backoff_s (did you mean supervision.backoff_s?)"),
         ({"robot": {"radius_m": 0.3}}, "robot: the robot id (a string: cso/<robot>/... keys); the robot's body and limits are exploration.robot"),
         ({"exploration.planner.lookahed_m": 0.4}, "exploration.planner: unknown key(s) lookahed_m (did you mean lookahead_m?)"),  # a typo: as before
+        # a misspelt section is a typo too, not its keys' homes (was: "exploraton (did you mean exploration.planner or
+        # services.planner?)", and lookahead_m is no key of services.planner)
+        ({"exploraton.planner.lookahead_m": 0.4}, "unknown key(s) exploraton (did you mean exploration?); known: exploration"),
+        ({"servics.mapper.restore_timeout_s": 2.0}, "unknown key(s) servics (did you mean services?); known: exploration"),
     ],
 )
 def test_a_profile_key_in_the_wrong_section_names_the_section_it_belongs_to(settings, said):

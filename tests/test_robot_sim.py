@@ -367,6 +367,26 @@ def test_up_and_eval_warn_of_a_mujoco_watchdog_shorter_than_a_control_step(tmp_p
     assert not (tmp_path / "o").exists()
 
 
+def test_eval_warns_of_a_default_mujoco_watchdog_within_a_longer_control_step(tmp_path: Path, monkeypatch) -> None:
+    """Without ``--sim-config`` the MuJoCo LIMO's default ``watchdog_s`` (0.5 s) is within a 1 s control step: eval's warning
+    names the key as the default, not a ``None`` file, and says what eval can change (``--sim-config``'s ``watchdog_s``),
+    not ``services.sim.cmd_timeout_s``, a setting of ``up``'s sim service that eval has none of."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    args = ["eval", "--sim", "mujoco", "--set", "robot.control_period_s=1.0", "--maps", "generated:small:1:0", "--out", "o", "--dry-run"]
+    r = CliRunner().invoke(app, args)
+    assert r.exit_code == 0, r.output
+    assert "warning: --sim mujoco's default watchdog_s 0.5 s is shorter than a control step (robot.control_period_s, 1 s)" in r.stderr, r.stderr
+    assert "None" not in r.stderr and "cmd_timeout_s" not in r.stderr
+    assert "--sim-config FILE with watchdog_s: at least robot.control_period_s" in r.stderr
+    (tmp_path / "fast.yaml").write_text("watchdog_s: 0.1\n")
+    r = CliRunner().invoke(app, ["eval", "--sim", "mujoco", "--sim-config", "fast.yaml", "--maps", "generated:small:1:0", "--out", "o", "--dry-run"])
+    assert "warning: fast.yaml: watchdog_s 0.1 s" in r.stderr and "cmd_timeout_s" not in r.stderr, r.stderr
+
+
 def test_real_time_pacer_follows_the_clock() -> None:
     sim = MujocoSimulator(box_room(), seed=0)
     now = [100.0]
