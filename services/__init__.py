@@ -98,8 +98,9 @@ def command_argv(section: Any) -> list[str] | None:
 
 
 def is_own_node(section: Any) -> bool:
-    """Whether a profile's service section runs something of the user's own (``class`` or ``command``)."""
-    return own_class_spec(section) is not None or command_argv(section) is not None
+    """Whether a profile's service section runs something of the user's own (``class`` or ``command``); a command that
+    cannot be split (an unclosed quote) is one too, for ``check_command_node`` to refuse with its reason."""
+    return own_class_spec(section) is not None or (isinstance(section, dict) and section.get(COMMAND_KEY) is not None)
 
 
 def waited_for_at_start(section: Any) -> bool:
