@@ -55,6 +55,9 @@ from services.common import Service, ServiceContext, service_main
 log = logging.getLogger("cso.foxglove_bridge")
 
 INSTALL_HINT = "pip install 'cso-runtime[foxglove]' (or pip install foxglove-sdk)"
+SERVER_STOP_TIMEOUT_S = 5.0
+"""How long ``shutdown`` waits for the Foxglove server to stop: foxglove-sdk's ``stop()`` runs in Rust and, rarely, never
+returned (seen once in the test suite, after a viewer's connection closed); a bridge must not hang its stop on it."""
 MAP_ORIGIN_WAIT_S = 2.0
 """How long the map, path, goal and frontiers of an episode wait for its status's map origin (the sim publishes its
 status with the first map, the ROS 2 bridge with every map) before they go out in the origin last known."""
@@ -307,7 +310,19 @@ class FoxgloveBridgeService(Service):
         if self.mcap is not None:
             self.mcap.close()
         if self.server is not None:
-            self.server.stop()
+            stop_server(self.server, SERVER_STOP_TIMEOUT_S)
+
+
+def stop_server(server: Any, timeout_s: float) -> bool:
+    """``server.stop()`` on a thread of its own, waited for at most ``timeout_s``: False (and a warning) when it has not
+    returned by then; it is left to the process's exit, which ends it with the process."""
+    thread = threading.Thread(target=server.stop, name="foxglove-stop", daemon=True)
+    thread.start()
+    thread.join(timeout_s)
+    if thread.is_alive():
+        log.warning("the Foxglove server did not stop within %g s: left to end with the process", timeout_s)
+        return False
+    return True
 
 
 def main(argv: list[str] | None = None) -> int:

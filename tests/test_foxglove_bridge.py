@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import socket
 import sys
+import threading
+import time
 from collections import Counter
 from types import SimpleNamespace
 
@@ -536,3 +538,33 @@ def test_an_mcap_path_the_bridge_cannot_write_is_a_configuration_error_said_befo
     new_folder = tmp_path / "new" / "fox.mcap"  # a folder not made yet is fine: the bridge makes it
     assert load_profile("sim", {}, foxglove=True, settings={"services.foxglove_bridge.mcap_path": str(new_folder)})[0]
     assert not (tmp_path / "new").exists()  # loading a profile writes nothing
+
+
+def test_a_foxglove_server_that_never_stops_does_not_hang_the_bridges_shutdown(caplog, monkeypatch):
+    """foxglove-sdk's ``stop()`` once never returned in the test suite (in Rust, after a viewer's connection closed),
+    and the bridge's shutdown, and the whole test run, hung on it. The bridge waits ``SERVER_STOP_TIMEOUT_S`` at
+    most, says so, and goes on; a server that stops is waited for."""
+    import services.foxglove_bridge as fb
+
+    release = threading.Event()
+    stuck = SimpleNamespace(stop=lambda: release.wait(60))
+    start = time.monotonic()
+    try:
+        assert fb.stop_server(stuck, 0.2) is False
+        assert time.monotonic() - start < 5.0 and "did not stop within 0.2 s" in caplog.text
+    finally:
+        release.set()
+    stopped: list[bool] = []
+    assert fb.stop_server(SimpleNamespace(stop=lambda: stopped.append(True)), 5.0) is True and stopped == [True]
+    bridge = _bridge({"port": 0, "map_period_s": 0.0})
+    real_server = bridge.server
+    monkeypatch.setattr(fb, "SERVER_STOP_TIMEOUT_S", 0.2)
+    bridge.server = stuck
+    release.clear()
+    start = time.monotonic()
+    try:
+        bridge.shutdown()
+        assert time.monotonic() - start < 5.0
+    finally:
+        release.set()
+        real_server.stop()
