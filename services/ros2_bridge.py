@@ -555,7 +555,16 @@ class Ros2BridgeService(Service):
     def _check_odometry_frame(self, odom: ros2_cdr.OdometrySample) -> None:
         """The map is built in the odometry's frame and sent out in ``map_frame_id``: odometry in another frame (a
         multi-robot TF tree's ``limo1/odom``) puts the map, goal and frontiers in the wrong frame in RViz and for TF.
-        Counted (``odom_in_another_frame``) and warned of once; an empty frame_id says nothing to check."""
+        Counted (``odom_in_another_frame``) and warned of once; an empty frame_id says nothing to check. Likewise a
+        base frame (the odometry's child_frame_id) other than ``base_frame_id``, with ``cmd_vel_stamped`` on: the
+        commands would name a frame that is not the robot's (``base_in_another_frame``)."""
+        if self.params.cmd_vel_stamped and odom.child_frame_id and odom.child_frame_id != self.params.base_frame_id:
+            self.count_and_warn_once(
+                "base_in_another_frame",
+                "the robot's odometry is of frame %r, but the TwistStamped commands go out in %r: set "
+                "services.ros2_bridge.base_frame_id: %s (a multi-robot TF tree's limo1/base_link)",
+                odom.child_frame_id, self.params.base_frame_id, odom.child_frame_id,
+            )  # fmt: skip
         if not odom.frame_id or odom.frame_id == self.params.map_frame_id:
             return
         self.count_and_warn_once(

@@ -345,6 +345,24 @@ def test_a_frame_that_tf2_refuses_is_a_config_error_and_odometry_in_another_fram
         svc._on_ros_odom(sample(odom_in("", 1000.1)))  # a driver that leaves it empty says nothing to check against
     assert svc.counters["odom_in_another_frame"] == 0 and "frame" not in caplog.text
 
+    # With TwistStamped commands, their frame_id (base_frame_id) against the odometry's child_frame_id (base_link).
+    def odom_of(child: str, t: float) -> bytes:
+        msg = rosbags_decode(ros_odom(t, 0.0, 0.0, 0.0), "nav_msgs/msg/Odometry")
+        return bytes(ros2_cdr.typestore().serialize_cdr(dataclasses.replace(msg, child_frame_id=child), "nav_msgs/msg/Odometry"))
+
+    for stamped, expected in ((True, 2), (False, 0)):
+        caplog.clear()
+        svc, _, _ = _bridge_without_zenoh({"cmd_vel_stamped": stamped})
+        with caplog.at_level("WARNING", logger="cso.ros2_bridge"):
+            svc._on_ros_odom(sample(odom_of("limo1/base_link", 1000.0)))
+            svc._on_ros_odom(sample(odom_of("limo1/base_link", 1000.1)))
+            svc._on_ros_odom(sample(odom_of("", 1000.2)))  # empty: nothing to check against
+        assert svc.counters["base_in_another_frame"] == expected, stamped
+        assert caplog.text.count("base_frame_id: limo1/base_link") == (1 if stamped else 0), caplog.text
+    svc, _, _ = _bridge_without_zenoh({"cmd_vel_stamped": True})
+    svc._on_ros_odom(sample(odom_of("base_link", 1000.0)))
+    assert svc.counters["base_in_another_frame"] == 0
+
 
 def test_a_scan_wider_or_narrower_than_the_configured_sensor_is_warned_of(caplog):
     """The policy (its weights are chosen by the field of view) and the planner (the turn to a goal out of view, the
