@@ -502,8 +502,7 @@ def load_profile(
             scene = str(beside)
         if Path(scene).exists():
             data["scene"] = str(Path(scene).resolve())  # so the run's copy of the profile works from any folder
-    services = data.get("services")
-    if "scene" in given and isinstance(services, dict) and "ros2_bridge" in services and "sim" not in services:
+    if "scene" in given and runs_a_real_robot(data):
         raise ConfigError(
             f"--scene {given['scene']}: profile {path} runs a real robot (ros2_bridge) and no simulator, so there is no scene to "
             "load; the robot explores the room it is in"

@@ -772,3 +772,14 @@ def test_every_service_parameter_refuses_a_negative_duration_or_count():
                 except ConfigError as exc:
                     assert key in str(exc), str(exc)
     assert taken == []
+
+
+def test_a_scene_given_to_a_real_robots_profile_is_refused_and_its_own_default_scene_is_not():
+    """``up --profile limo-ros2 --scene builtin`` would load nothing (the robot explores the room it is in): a
+    ConfigError naming the flag. The profile on its own loads, and says its scene is the room it is in."""
+    from cso_runtime.run_profile import REAL_ROBOT_SCENE, load_profile
+
+    with pytest.raises(ConfigError, match="--scene builtin: .*runs a real robot .*no scene to load"):
+        load_profile("limo-ros2", {"scene": "builtin"})
+    profile, _ = load_profile("limo-ros2", {}, connect=["tcp/127.0.0.1:7447"])
+    assert profile.scene_label == REAL_ROBOT_SCENE
