@@ -202,16 +202,13 @@ def mujoco_config(
     sets it): one mount, not two that disagree. With ``robot``, its control period must be a whole number of
     physics steps. Raises ConfigError naming ``where`` and, for another mount, how the caller's user sets the
     sensor's (``mount``; None: the caller fixes it, the key can only be left out)."""
-    from robot_sim.config import MujocoSimConfig, whole_steps  # noqa: PLC0415 - MuJoCo only when asked for
+    from robot_sim.config import MujocoSimConfig, lidar_mount_problem, whole_steps  # noqa: PLC0415 - MuJoCo only when asked for
 
     data = dict(overrides or {})
-    given = data.get("lidar_mount_x_m")
-    if given is not None and not (isinstance(given, (int, float)) and math.isclose(float(given), sensor.mount_x_m, abs_tol=1e-9)):
+    given = data.pop("lidar_mount_x_m", None)
+    if (problem := lidar_mount_problem(given, sensor)) is not None:
         instead = f"{mount.advice(given)} (or leave this key out)" if mount is not None else "the sensor's mount is fixed here: leave this key out"
-        raise ConfigError(
-            f"{where}.lidar_mount_x_m: {given!r} is not the sensor's mount ({sensor.mount_x_m} m), which the mapper and the planner use; {instead}"
-        )
-    data["lidar_mount_x_m"] = None
+        raise ConfigError(f"{where}.{problem}; {instead}")
     config = from_dict(MujocoSimConfig, data, where=where)
     if robot is not None:
         try:

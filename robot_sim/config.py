@@ -7,9 +7,10 @@ physics adds: time step, acceleration limits, watchdog, odometry drift, the LIMO
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
-from cso_runtime.config import ConfigError, SensorConfig
+from cso_runtime.config import LIMO_LIDAR_MOUNT_X_M, ConfigError, SensorConfig
 
 _WHOLE_STEPS_REL_TOL = 1e-5
 """A duration is a whole number of physics steps to this relative precision: a rate or step written to 6
@@ -29,6 +30,22 @@ def whole_steps(duration_s: float, timestep_s: float, what: str) -> int:
     if n is None:
         raise ConfigError(f"{what} ({duration_s} s) must be a whole number of physics steps (timestep_s {timestep_s} s)")
     return n
+
+
+def limo_sensor() -> SensorConfig:
+    """The sensor of a ``MujocoSimulator`` given none: the default LiDAR where the LIMO carries it, 0.103 m ahead."""
+    return SensorConfig(mount_x_m=LIMO_LIDAR_MOUNT_X_M)
+
+
+def lidar_mount_problem(given: object, sensor: SensorConfig) -> str | None:
+    """Why ``lidar_mount_x_m: given`` cannot stand beside ``sensor``, or None (left out, or the sensor's own mount, as
+    old configs repeat it): the rays are cast from ``sensor.mount_x_m``, which the mapper and the planner use too, so
+    a second mount that disagrees would shift the map silently."""
+    if given is None or (
+        isinstance(given, (int, float)) and not isinstance(given, bool) and math.isclose(float(given), sensor.mount_x_m, abs_tol=1e-9)
+    ):
+        return None
+    return f"lidar_mount_x_m: {given!r} is not the sensor's mount ({sensor.mount_x_m} m), which the mapper and the planner use"
 
 
 @dataclass
@@ -81,9 +98,10 @@ class MujocoSimConfig:
     wheel_radius_m: float = 0.045
     """Wheel radius (visual only, assumed: the manual gives none); also where the body box starts above the floor
     (the manual's minimum ground clearance is 24 mm; neither acts on the planar base, whose floor does not collide)."""
-    lidar_mount_x_m: float | None = 0.103
-    """LiDAR position ahead of the robot centre (the LIMO's EAI X2L). None: use SensorConfig.mount_x_m.
-    The simulator's ``sensor_pose`` always uses the position the rays are cast from."""
+    lidar_mount_x_m: float | None = None
+    """Deprecated, kept so old configs load: the LiDAR sits at ``SensorConfig.mount_x_m`` (the LIMO's EAI X2L at
+    0.103 m ahead of the centre: ``limo_sensor()``), one mount for the rays, the mapper and the planner. A value here
+    must be that same mount; another is a ConfigError, never a second mount that disagrees."""
     lidar_height_m: float = 0.2
     """Height of the scan plane above the floor (below wall_height_m)."""
     odometry_rate_hz: float = 40.0
@@ -97,8 +115,11 @@ class MujocoSimConfig:
     """Odometry drift: std of the heading error of each increment per metre travelled."""
 
     def lidar_mount_for(self, sensor: SensorConfig) -> float:
-        """Where the rays are cast from, ahead of the robot centre: ``lidar_mount_x_m``, else the sensor's mount."""
-        return sensor.mount_x_m if self.lidar_mount_x_m is None else float(self.lidar_mount_x_m)
+        """Where the rays are cast from, ahead of the robot centre: the sensor's mount. A ConfigError where
+        ``lidar_mount_x_m`` says another (``lidar_mount_problem``)."""
+        if (problem := lidar_mount_problem(self.lidar_mount_x_m, sensor)) is not None:
+            raise ConfigError(f"{problem}; set SensorConfig.mount_x_m instead, or leave lidar_mount_x_m out")
+        return sensor.mount_x_m
 
     def validate(self) -> None:
         """Each message names the key as the config's own (``timestep_s``): ``from_dict`` puts where it sits in front

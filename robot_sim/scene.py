@@ -18,7 +18,7 @@ from scipy import ndimage
 
 from cso_runtime.config import RobotConfig, SensorConfig
 from cso_runtime.scenes import FloorPlan
-from robot_sim.config import MujocoSimConfig
+from robot_sim.config import MujocoSimConfig, limo_sensor
 from robot_sim.limo import GROUP_FLOOR, GROUP_WALLS, exact, limo_mjcf
 
 
@@ -155,8 +155,9 @@ def world_mjcf(
 
 def write_mujoco_world(path: Path, plan: FloorPlan, robot: RobotConfig | None = None, sim: MujocoSimConfig | None = None,
                        sensor: SensorConfig | None = None) -> Path:
-    """Write the world ``MujocoSimulator`` builds for ``plan`` (defaults: the LIMO, its LiDAR) as an MJCF file."""
+    """Write the world ``MujocoSimulator`` builds for ``plan`` (defaults: the LIMO, its LiDAR where the LIMO carries it,
+    ``limo_sensor()``) as an MJCF file."""
     sim = sim or MujocoSimConfig()
-    xml, _ = world_mjcf(plan, robot or RobotConfig(), sim, sim.lidar_mount_for(sensor or SensorConfig()))
+    xml, _ = world_mjcf(plan, robot or RobotConfig(), sim, sim.lidar_mount_for(sensor or limo_sensor()))
     path.write_text(xml, encoding="utf-8")
     return path

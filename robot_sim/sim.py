@@ -29,7 +29,7 @@ import numpy as np
 from cso_runtime.config import ConfigError, RobotConfig, SensorConfig
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, relative_pose, returns_as_float32, wrap_angle_rad
 from cso_runtime.scenes import FloorPlan
-from robot_sim.config import MujocoSimConfig, whole_steps
+from robot_sim.config import MujocoSimConfig, limo_sensor, whole_steps
 from robot_sim.limo import ACTUATORS, GROUP_WALLS, JOINTS, LIDAR_SITE, ROBOT_BODY, lateral_feedforward_mps
 from robot_sim.scene import world_mjcf
 
@@ -52,6 +52,8 @@ class MujocoSimulator:
     Ground truth (``true_pose``) is for evaluation only; the robot's decisions use ``odometry`` and
     ``sensor_pose`` (odometry composed with the LiDAR mount). The plan's start must be a finite pose on a free cell
     (``FloorPlan.start_cell``, a SceneError otherwise); a body that still overlaps a wall there is warned of.
+    The rays are cast from ``sensor.mount_x_m`` (no sensor: ``limo_sensor()``, the LIMO's 0.103 m), the mount the
+    mapper and the planner take from the same ``SensorConfig``.
     """
 
     def __init__(
@@ -64,7 +66,7 @@ class MujocoSimulator:
     ) -> None:
         plan.start_cell()  # a SceneError for a start off the plan, in a wall, or not finite (MuJoCo would eject the body)
         self.plan = plan
-        self.sensor = sensor or SensorConfig()
+        self.sensor = sensor or limo_sensor()
         self.robot = robot or RobotConfig()
         self.config = config or MujocoSimConfig()
         self.sensor.validate()
@@ -76,12 +78,7 @@ class MujocoSimulator:
                 f"sensor.rate_hz ({self.sensor.rate_hz:g} Hz) is above the physics rate ({1.0 / c.timestep_s:g} Hz, timestep_s "
                 f"{c.timestep_s:g} s): the LiDAR fires at most once per physics step"
             )
-        self.lidar_mount_x_m = c.lidar_mount_for(self.sensor)
-        if abs(self.lidar_mount_x_m - self.sensor.mount_x_m) > 1e-9:
-            log.info(
-                "LiDAR mounted at x=%.3f m on the LIMO (SensorConfig.mount_x_m=%.3f is used only by the planner's "
-                "clearance check; set it to %.3f to match)", self.lidar_mount_x_m, self.sensor.mount_x_m, self.lidar_mount_x_m,
-            )  # fmt: skip
+        self.lidar_mount_x_m = c.lidar_mount_for(self.sensor)  # the sensor's own mount, as the mapper and the planner take it
         self.steps_per_control = whole_steps(self.robot.control_period_s, c.timestep_s, "robot.control_period_s")
         self._odom_every = max(1, int(round(1.0 / (c.odometry_rate_hz * c.timestep_s))))
         self._scan_period_steps = 1.0 / (self.sensor.rate_hz * c.timestep_s)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import threading
@@ -134,10 +135,11 @@ def test_the_odometry_rate_an_error_suggests_is_accepted(timestep_s: float) -> N
 # --- LiDAR ---
 @pytest.mark.parametrize(
     "sensor",
-    [SensorConfig(), SensorConfig(fov_deg=360.0), SensorConfig.preset("depth")],
+    [SensorConfig(mount_x_m=0.103), SensorConfig(fov_deg=360.0, mount_x_m=0.103), dataclasses.replace(SensorConfig.preset("depth"), mount_x_m=0.103)],
     ids=["lidar180", "lidar360", "depth"],
 )
 def test_lidar_matches_analytic_box_room(sensor: SensorConfig) -> None:
+    """The rays leave from the sensor's mount, the LIMO's 0.103 m here."""
     start = Pose2D(1.0, 1.4, 0.3)  # looking across the room: about half the depth beams exceed 3 m
     sim = MujocoSimulator(box_room(start=start), sensor, seed=0)
     scan = sim.scan()
@@ -197,6 +199,28 @@ def test_the_runtime_takes_the_mujoco_limos_parameters_and_refuses_a_second_moun
         mujoco_config({"odom_noise": 0.1}, SensorConfig())
     with pytest.raises(ConfigError, match="need the mujoco simulator"):
         make_simulator("2d", plan, SensorConfig(), RobotConfig(), mujoco=drift)
+
+
+def test_the_simulator_casts_its_rays_from_the_sensors_mount_and_refuses_a_second_one(tmp_path: Path) -> None:
+    """One LiDAR mount, ``SensorConfig.mount_x_m``: the mapper and the planner take it from the sensor, so the rays
+    must leave from it too. ``MujocoSimConfig.lidar_mount_x_m`` defaulted to the LIMO's 0.103 m whatever the sensor
+    said, and a sensor at 0 m (``SensorConfig()``) got its scans from 0.103 m ahead with only an info line: a map
+    shifted silently. No sensor is the LIMO's (0.103 m, the mount then said so too); an old config's second mount is
+    taken where it agrees and refused where it does not."""
+    from robot_sim.scene import write_mujoco_world
+
+    plan = box_room()
+    at_centre = MujocoSimulator(plan, SensorConfig(mount_x_m=0.0))
+    assert at_centre.lidar_mount_x_m == 0.0
+    assert math.dist(at_centre.sensor_pose().xy, at_centre.odometry().xy) < 1e-9
+    limo = MujocoSimulator(plan)
+    assert limo.sensor.mount_x_m == limo.lidar_mount_x_m == 0.103
+    assert MujocoSimulator(plan, SensorConfig(mount_x_m=0.05), config=MujocoSimConfig(lidar_mount_x_m=0.05)).lidar_mount_x_m == 0.05
+    with pytest.raises(ConfigError, match=r"lidar_mount_x_m: 0.2 is not the sensor's mount \(0.0 m\).*set SensorConfig.mount_x_m"):
+        MujocoSimulator(plan, SensorConfig(), config=MujocoSimConfig(lidar_mount_x_m=0.2))
+    site = re.compile(r'<site name="lidar" pos="(\S+) ')
+    assert site.search(write_mujoco_world(tmp_path / "centre.xml", plan, sensor=SensorConfig()).read_text()).group(1) == "0"
+    assert site.search(write_mujoco_world(tmp_path / "limo.xml", plan).read_text()).group(1) == "0.103"
 
 
 def test_lidar_noise_is_seeded_and_fires_at_sensor_rate() -> None:
