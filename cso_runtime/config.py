@@ -596,21 +596,52 @@ def make_output_dir(path: str | Path, flag: str = "--out") -> Path:
     return p
 
 
+@dataclass(frozen=True)
+class FolderProblem:
+    """Why a folder could not be made, or written in: ``folder_problem``'s answer."""
+
+    existing: Path
+    """The nearest path at or above the folder that exists (absolute): the folder itself where it exists."""
+    errno: int
+    """``ENOTDIR``: a file above the folder; ``EEXIST``: a file where the folder would be; ``EACCES``: ``existing``
+    is a folder this process cannot write in (or a read-only file system's)."""
+
+    @property
+    def reason(self) -> str:
+        """The OS's words for ``errno`` (``Not a directory``, ``File exists``, ``Permission denied``)."""
+        import os  # noqa: PLC0415
+
+        return os.strerror(self.errno)
+
+
+def folder_problem(folder: str | Path) -> FolderProblem | None:
+    """Why this process could not make ``folder`` (with the folders above it) or write in it, or None; makes and writes
+    nothing. One walk up to the nearest existing path for every check made before a run starts (``eval --dry-run``'s
+    ``--out``, the Foxglove bridge's ``mcap_path``), each of which words the answer for its own key or flag."""
+    import errno  # noqa: PLC0415
+    import os  # noqa: PLC0415
+
+    target = Path(folder).absolute()
+    existing = target
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        return FolderProblem(existing, errno.EEXIST if existing == target else errno.ENOTDIR)
+    if not os.access(existing, os.W_OK | os.X_OK):  # also False on a read-only file system
+        return FolderProblem(existing, errno.EACCES)
+    return None
+
+
 def check_output_dir(path: str | Path, flag: str = "--out") -> None:
     """``make_output_dir``'s checks, making and writing nothing (``eval --dry-run``): the folder, or the nearest folder
     above it that exists, must be one this process can write in (ConfigError otherwise, in the same words)."""
     import errno  # noqa: PLC0415
-    import os  # noqa: PLC0415
 
     p = Path(path)
-    existing = p.absolute()
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ConfigError(f"{flag} {p}: cannot create the folder ({os.strerror(errno.ENOTDIR if existing != p.absolute() else errno.EEXIST)})")
-    if not os.access(existing, os.W_OK | os.X_OK):  # also False on a read-only file system
-        verb = "write in" if existing == p.absolute() else "create"
-        raise ConfigError(f"{flag} {p}: cannot {verb} the folder ({os.strerror(errno.EACCES)})")
+    problem = folder_problem(p)
+    if problem is not None:
+        verb = "write in" if problem.errno == errno.EACCES and problem.existing == p.absolute() else "create"
+        raise ConfigError(f"{flag} {p}: cannot {verb} the folder ({problem.reason})")
 
 
 def commented_yaml(comments: list[str], data: Any) -> str:

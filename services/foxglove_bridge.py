@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import argparse
 import base64
+import errno
 import logging
 import os
 import socket
@@ -46,7 +47,7 @@ from typing import Any, ClassVar
 
 from cso_runtime import ros2_cdr
 from cso_runtime.bag_export import EXPORTED, MAP_FRAME_TOPICS, ROS_TOPICS, ROS_TYPES, BagConverter, shows_something
-from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.config import ConfigError, folder_problem, from_dict
 from cso_runtime.geometry import Pose2D
 from cso_runtime.messages import DeferredMsg, EpisodeStatusMsg, Message, MessageError, deferred
 from cso_runtime.recording import unused_path
@@ -105,12 +106,12 @@ def mcap_path_problem(params: FoxgloveBridgeParams) -> str | None:
     path = Path(params.mcap_path)
     if path.is_dir():
         return f"mcap_path {path} is a folder, not a file (give a file in it, such as {path / 'foxglove.mcap'})"
-    existing = next(folder for folder in path.absolute().parents if folder.exists())
-    if not existing.is_dir():
-        return f"mcap_path {path}: {existing} is not a folder"
-    if not os.access(existing, os.W_OK | os.X_OK):
-        return f"mcap_path {path}: cannot write in {existing}"
-    return None
+    problem = folder_problem(path.absolute().parent)
+    if problem is None:
+        return None
+    if problem.errno == errno.EACCES:
+        return f"mcap_path {path}: cannot write in {problem.existing}"
+    return f"mcap_path {path}: {problem.existing} is not a folder"
 
 
 def websocket_handshake(host: str, port: int, timeout_s: float = 5.0) -> bytes:

@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 from collections import Counter
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -538,6 +539,45 @@ def test_an_mcap_path_the_bridge_cannot_write_is_a_configuration_error_said_befo
     new_folder = tmp_path / "new" / "fox.mcap"  # a folder not made yet is fine: the bridge makes it
     assert load_profile("sim", {}, foxglove=True, settings={"services.foxglove_bridge.mcap_path": str(new_folder)})[0]
     assert not (tmp_path / "new").exists()  # loading a profile writes nothing
+
+
+def test_the_bridges_mcap_path_and_evals_out_are_checked_by_one_walk_to_the_nearest_folder(tmp_path, monkeypatch):
+    """``mcap_path_problem`` and ``check_output_dir`` each walked up to the nearest existing folder and asked the same
+    questions (a file in the way, a folder this process cannot write in): one helper, ``folder_problem``, now answers
+    both, each in its own words. Root ignores modes, so the unwritable folder is one ``os.access`` says no to."""
+    import errno
+    import os
+
+    from cso_runtime.config import FolderProblem, check_output_dir, folder_problem
+    from services.foxglove_bridge import FoxgloveBridgeParams, mcap_path_problem
+
+    (tmp_path / "notes.txt").write_text("a file")
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    real_access = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode: Path(path) != locked and real_access(path, mode))
+    cases = {
+        tmp_path / "new" / "deeper": None,
+        tmp_path: None,
+        tmp_path / "notes.txt": FolderProblem(tmp_path / "notes.txt", errno.EEXIST),
+        tmp_path / "notes.txt" / "below": FolderProblem(tmp_path / "notes.txt", errno.ENOTDIR),
+        locked: FolderProblem(locked, errno.EACCES),
+        locked / "new": FolderProblem(locked, errno.EACCES),
+    }
+    for folder, expected in cases.items():
+        assert folder_problem(folder) == expected, folder
+    assert mcap_path_problem(FoxgloveBridgeParams(mcap_path=str(tmp_path / "new" / "f.mcap"))) is None
+    assert mcap_path_problem(FoxgloveBridgeParams(mcap_path=str(locked / "f.mcap"))) == f"mcap_path {locked / 'f.mcap'}: cannot write in {locked}"
+    below = tmp_path / "notes.txt" / "f.mcap"
+    assert mcap_path_problem(FoxgloveBridgeParams(mcap_path=str(below))) == f"mcap_path {below}: {tmp_path / 'notes.txt'} is not a folder"
+    with pytest.raises(ConfigError, match=r"^--out .*locked: cannot write in the folder \(Permission denied\)$"):
+        check_output_dir(locked)
+    with pytest.raises(ConfigError, match=r"^--out .*new: cannot create the folder \(Permission denied\)$"):
+        check_output_dir(locked / "new")
+    with pytest.raises(ConfigError, match=r"^--out .*below: cannot create the folder \(Not a directory\)$"):
+        check_output_dir(tmp_path / "notes.txt" / "below")
+    with pytest.raises(ConfigError, match=r"^--out .*notes.txt: cannot create the folder \(File exists\)$"):
+        check_output_dir(tmp_path / "notes.txt")
 
 
 def test_a_foxglove_server_that_never_stops_does_not_hang_the_bridges_shutdown(caplog, monkeypatch):
