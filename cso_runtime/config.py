@@ -115,13 +115,19 @@ class RobotConfig:
     length_m: float = 0.322
     """Body length (LIMO), used for the clearance ahead."""
     width_m: float = 0.220
-    """Body width (LIMO), used for the clearance ahead."""
+    """Body width (LIMO), used for the clearance ahead and, as ``disc_radius_m``, the 2D simulator's collisions."""
     max_linear_mps: float = 1.0
     """Top linear speed."""
     max_angular_radps: float = 0.78
     """Top turn rate."""
     control_period_s: float = 0.25
     """One step: the period of one velocity command."""
+
+    @property
+    def disc_radius_m(self) -> float:
+        """The body as a disc, half ``width_m`` plus 1 cm (0.12 m for the LIMO): the 2D simulator's robot collides
+        as this disc, and the planner's ``body: disc`` keeps it off scanned returns; one radius for both."""
+        return 0.5 * self.width_m + 0.01
 
     def validate(self) -> None:
         if not 0 <= self.radius_m <= MAX_ROBOT_RADIUS_M:

@@ -248,7 +248,7 @@ class PathFollower:
         if scan is None:
             return math.inf, 0.0
         forward, lateral = self._scanned_points(scan)
-        radius = 0.5 * self.robot.width_m + 0.01
+        radius = self.robot.disc_radius_m
         ahead = (forward > 0.0) & (np.abs(lateral) < radius)
         if not ahead.any():
             return math.inf, 0.0
@@ -281,7 +281,7 @@ class PathFollower:
         cos, sin = np.cos(relative)[:, None], np.sin(relative)[:, None]
         along = forward[None, :] * cos + lateral[None, :] * sin
         across = -forward[None, :] * sin + lateral[None, :] * cos
-        radius = 0.5 * self.robot.width_m + 0.01
+        radius = self.robot.disc_radius_m
         in_sweep = (along > 0.0) & (np.abs(across) < radius)
         travel = np.where(in_sweep, along - np.sqrt(np.maximum(radius**2 - across**2, 0.0)), np.inf).min(axis=1, initial=np.inf)
         if self.config.body == "box":

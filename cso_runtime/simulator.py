@@ -61,12 +61,9 @@ class StateSaving(Protocol):
         """Back to what ``save_state`` returned."""
 
 
-COLLISION_RADIUS_M = 0.12
-"""Footprint of the kinematic robot: half the LIMO's 0.22 m width plus 1 cm; planning inflates by more."""
-
-
 class KinematicSimulator:
-    """Fast 2D simulator: unicycle motion that stops at walls, LiDAR by ray casting the plan."""
+    """Fast 2D simulator: unicycle motion that stops at walls, LiDAR by ray casting the plan. The robot collides as a
+    disc, ``robot.disc_radius_m`` (the LIMO's 0.12 m), the planner's ``body: disc``; planning inflates by more."""
 
     substeps = 5
 
@@ -76,6 +73,7 @@ class KinematicSimulator:
         """The plan's walls padded by ``clearance_m``'s window half-width (made at its first call)."""
         self.sensor = sensor or SensorConfig()
         self.robot = robot or RobotConfig()
+        self.collision_radius_m = self.robot.disc_radius_m
         n = max(1, int(round(self.sensor.fov_deg / self.sensor.resolution_deg)))
         fov = math.radians(self.sensor.fov_deg)
         inc = fov / n
@@ -125,7 +123,7 @@ class KinematicSimulator:
         Cells outside the plan are walls. Called on every substep: the window of cells around (x, y)
         is a slice of the plan's walls padded by its half-width."""
         g = self.plan.geometry
-        r = int(np.ceil(2 * COLLISION_RADIUS_M / g.resolution_m)) + 1
+        r = int(np.ceil(2 * self.collision_radius_m / g.resolution_m)) + 1
         # GridGeometry.world_to_cell of one point, in plain floats (the same division and floor).
         cy, cx = math.floor((y_m - g.origin_y_m) / g.resolution_m), math.floor((x_m - g.origin_x_m) / g.resolution_m)
         if self._padded_walls is None:
@@ -149,7 +147,7 @@ class KinematicSimulator:
         """A move is allowed when the footprint stays clear of walls, or, for a robot already in
         contact, when it does not push further into them (so it can always back away)."""
         c = self.clearance_m(x_m, y_m)
-        return c >= min(COLLISION_RADIUS_M, clearance_now_m), c
+        return c >= min(self.collision_radius_m, clearance_now_m), c
 
     def step(self, command: VelocityCommand) -> None:
         cmd = command.clamped(self.robot.max_linear_mps, self.robot.max_angular_radps)
@@ -222,13 +220,13 @@ def simulator_settings(name: str, sensor: SensorConfig, robot: RobotConfig, mujo
     """Every parameter of the simulator that ``make_simulator(name, ..., mujoco=mujoco)`` builds, as it runs them, units
     in the names: ``summary.json``'s ``meta.sim_settings`` (eval and ``up``), so that a results file says what produced
     it, defaults included. The MuJoCo LIMO's are every field of ``robot_sim.MujocoSimConfig``, ``lidar_mount_x_m``
-    where its rays are cast from; the 2D simulator's, its fixed footprint and substeps. The robot and the sensor are
+    where its rays are cast from; the 2D simulator's, its collision disc (``robot.disc_radius_m``) and substeps. The robot and the sensor are
     the exploration config's (``meta.config``)."""
     if name == "mujoco":
         config = mujoco_config(mujoco, sensor, robot=robot)
         return {**dataclasses.asdict(config), "lidar_mount_x_m": config.lidar_mount_for(sensor)}
     if name == "2d":
-        return {"collision_radius_m": COLLISION_RADIUS_M, "substeps": KinematicSimulator.substeps}
+        return {"collision_radius_m": robot.disc_radius_m, "substeps": KinematicSimulator.substeps}
     raise ValueError(f"unknown simulator {name!r}; choose one of {', '.join(SIMULATORS)}")
 
 

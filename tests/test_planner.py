@@ -216,6 +216,23 @@ def test_kinematic_robot_stops_at_wall():
     assert sim.collisions > 0
 
 
+@pytest.mark.parametrize("width_m", [RobotConfig.width_m, 0.4])
+def test_the_kinematic_robot_collides_as_the_planners_disc_of_its_width(width_m: float):
+    """The 2D simulator's robot was a fixed 0.12 m disc (``COLLISION_RADIUS_M``) while the planner's ``body: disc``,
+    "the 2D simulator's robot", was half ``robot.width_m`` plus 1 cm: a wider robot passed where its planner kept it
+    off. Both take ``robot.disc_radius_m`` now (0.12 m for the LIMO, as before), and ``meta.sim_settings`` says it."""
+    from cso_runtime.simulator import simulator_settings
+
+    robot = RobotConfig(width_m=width_m)
+    plan = box_room(4.0, 3.0, 0.05)  # east wall inner face at x = 4.1
+    sim = KinematicSimulator(plan, robot=robot)
+    for _ in range(20):
+        sim.step(VelocityCommand(1.0, 0.0))
+    gap_m = 4.1 - sim.true_pose().x_m
+    assert sim.collisions > 0 and robot.disc_radius_m - 1e-9 <= gap_m < robot.disc_radius_m + 0.05, gap_m
+    assert simulator_settings("2d", SensorConfig(), robot)["collision_radius_m"] == pytest.approx(0.5 * width_m + 0.01)
+
+
 def _drive_at_the_east_wall(sensor: SensorConfig, robot: RobotConfig | None = None, steps: int = 30, body: str = "box"):
     """The follower driving straight east at the box room's east wall (inner face x = 4.1 m), its path running
     on through the wall: only the scan can stop it. Returns the simulator, the commands sent and where the
