@@ -10,7 +10,7 @@ import torch
 from gymnasium import spaces
 from gymnasium.utils.env_checker import check_env
 
-from cso_runtime.learned.env import ENV_ID, EnvConfig, observation_layout
+from cso_runtime.learned.env import ENV_ID, EnvConfig, ExplorationEnv, make_env, observation_layout
 from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph
 from cso_runtime.learned.network import to_torch
 from cso_runtime.learned.ppo import TeacherData, obs_to_torch
@@ -100,3 +100,26 @@ def test_teacher_data_of_the_0d_layout_loads_in_the_current_one(tmp_path):
     both = TeacherData.load([tmp_path / "legacy.npz", tmp_path / "new.npz"])
     assert both.graphs["robot"].tolist() == [[5], [7], [0]]
     assert all(both.graphs[k].shape[1:] == v.shape for k, v in layout.items())
+
+
+def test_close_releases_the_episode_and_the_loaded_plans():
+    """``close`` kept the simulator, the maps and every loaded floor plan alive, and the closed env went on stepping."""
+    env = make_env(SCENES)
+    env.reset(seed=0)
+    env.close()
+    assert env.explorer is None and env.obs is None and env._plans is None
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.step(0)
+    env.close()  # closing twice is harmless, as Gymnasium's envs allow
+    assert env.reset(seed=0)[1]["plan"]  # and a closed env may be reset again: it loads its plans anew
+    env.close()
+
+
+def test_a_bare_env_built_from_plans_still_holds_them_after_close():
+    """Plans given as a list (not a loader) are the caller's: ``close`` lets go of them but a reset finds them."""
+    plans = make_env(SCENES).plans
+    env = ExplorationEnv(plans)
+    env.reset(seed=0)
+    env.close()
+    assert env.reset(seed=0)[1]["plan"] == plans[0].name
+    env.close()

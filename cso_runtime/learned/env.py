@@ -346,6 +346,16 @@ class ExplorationEnv(gym.Env):
         graph = {k: v.copy() for k, v in self._graph.items()}  # new arrays: the caller keeps the ones it had
         return graph, float(self.config.reward.r_step), False, truncated, info
 
+    def close(self) -> None:
+        """Let go of the episode (simulator, maps, the current graph) and of the loaded floor plans, which a closed env
+        kept alive, and stepped on; ``step`` now needs a ``reset``, which loads the plans again."""
+        self.explorer = None
+        self.obs = None
+        self._graph = None
+        self._plans = None
+        self._over_at_reset = False
+        super().close()
+
     def action_masks(self) -> np.ndarray:
         """The current decision's action mask as bool (``info["action_mask"]`` holds it as ``np.int8``): the method
         sb3-contrib's ``MaskablePPO`` calls on an env (``get_action_masks``), and ``call("action_masks")`` in a vector
