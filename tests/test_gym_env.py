@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import pickle
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -122,4 +124,17 @@ def test_a_bare_env_built_from_plans_still_holds_them_after_close():
     env.reset(seed=0)
     env.close()
     assert env.reset(seed=0)[1]["plan"] == plans[0].name
+    env.close()
+
+
+def test_the_env_pickles_before_and_during_an_episode():
+    """``make_env`` (``gymnasium.make``'s entry point) gave the env a lambda that loads its plans, so pickling it (a
+    ``multiprocessing`` pool, a copy of a run's env) failed with "Can't pickle local object"; the copy goes on alike."""
+    env = make_env(SCENES)
+    fresh = pickle.loads(pickle.dumps(env))
+    assert fresh.reset(seed=0)[1]["plan"] == env.reset(seed=0)[1]["plan"]
+    copy = pickle.loads(pickle.dumps(env))  # mid-episode: the copy takes the same steps
+    action = int(np.flatnonzero(env.action_masks())[0])
+    original, copied = env.step(action), copy.step(action)
+    assert original[1:4] == copied[1:4] and all(np.array_equal(original[0][k], copied[0][k]) for k in original[0])
     env.close()

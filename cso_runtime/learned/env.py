@@ -16,6 +16,7 @@ standard vector envs can stack it (``spaces.Graph`` has no fixed shape and canno
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -37,7 +38,7 @@ from cso_runtime.learned.graph import (
 )
 from cso_runtime.observation import Observation
 from cso_runtime.policies import BASELINES, SCORE_BASELINES, ActionMasker, goal_of
-from cso_runtime.scenes import FloorPlan
+from cso_runtime.scenes import FloorPlan, SceneRef
 from cso_runtime.simulator import KinematicSimulator
 
 RESET_OPTIONS = ("plan",)
@@ -460,9 +461,12 @@ def make_env(
     from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
 
     refs = resolve_scenes(scenes, limit, m_per_px)  # a bad spec fails here, not at the first reset
-    return ExplorationEnv(
-        lambda: [ref.load() for ref in refs], config, render_mode=render_mode, render_scale=render_scale, robot_index_shape=robot_index_shape
-    )
+    plans = functools.partial(_load_scenes, refs)  # not a lambda: the env pickles (multiprocessing, copies of a run's env)
+    return ExplorationEnv(plans, config, render_mode=render_mode, render_scale=render_scale, robot_index_shape=robot_index_shape)
+
+
+def _load_scenes(refs: list[SceneRef]) -> list[FloorPlan]:
+    return [ref.load() for ref in refs]
 
 
 def make_legacy_env(**kwargs: Any) -> ExplorationEnv:
