@@ -10,7 +10,8 @@ allowed action; ``action_masks()`` gives it as bool, as sb3-contrib's ``Maskable
 the name of the episode's floor plan.
 
 Observation: the padded graph of ``graph.py`` as a ``spaces.Dict`` of fixed-shape boxes, so the
-standard vector envs can stack it (``spaces.Graph`` has no fixed shape and cannot be batched).
+standard vector envs can stack it (``spaces.Graph`` has no fixed shape and cannot be batched); every entry has at
+least one axis (``robot``, the robot node's index, is a one-element array), as Stable-Baselines3 needs.
 """
 
 from __future__ import annotations
