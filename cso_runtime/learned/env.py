@@ -10,12 +10,14 @@ allowed action; ``action_masks()`` gives it as bool, as sb3-contrib's ``Maskable
 the name of the episode's floor plan.
 
 Observation: the padded graph of ``graph.py`` as a ``spaces.Dict`` of fixed-shape boxes, so the
-standard vector envs can stack it (``spaces.Graph`` has no fixed shape and cannot be batched).
+standard vector envs can stack it (``spaces.Graph`` has no fixed shape and cannot be batched); every entry has at
+least one axis (``robot``, the robot node's index, is a one-element array), as Stable-Baselines3 needs.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -37,7 +39,7 @@ from cso_runtime.learned.graph import (
 )
 from cso_runtime.observation import Observation
 from cso_runtime.policies import BASELINES, SCORE_BASELINES, ActionMasker, goal_of
-from cso_runtime.scenes import FloorPlan
+from cso_runtime.scenes import FloorPlan, SceneRef
 from cso_runtime.simulator import KinematicSimulator
 
 RESET_OPTIONS = ("plan",)
@@ -99,11 +101,20 @@ def feature_box(features: tuple[str, ...], shape: tuple[int, ...]) -> spaces.Box
     return spaces.Box(low, high, dtype=np.float32)
 
 
-def graph_space(config: GraphConfig) -> spaces.Dict:
+ROBOT_INDEX_SHAPE = (1,)
+"""The shape of the observation's ``robot`` entry, the robot node's index: a one-element array, not ``build_graph``'s
+0-d one, because Stable-Baselines3 takes no 0-d entry (its ``check_env`` fails on one, its ``MultiInputPolicy``
+cannot flatten it and its rollout buffers give it back with an axis). The network reads either."""
+
+LEGACY_ROBOT_INDEX_SHAPE = ()
+"""``robot``'s shape in ``CSOExploration-v0`` (``LEGACY_ENV_ID``), kept for code written against that version."""
+
+
+def graph_space(config: GraphConfig, robot_index_shape: tuple[int, ...] = ROBOT_INDEX_SHAPE) -> spaces.Dict:
     """The observation space of the frontier graph the network reads: fixed ``max_nodes`` x ``neighbours`` arrays,
-    padded, with the ``*_valid`` masks marking the real entries (a Gymnasium space must have one shape). Each feature
-    has its range (``graph.FEATURE_RANGES``); positions and distances have no upper bound, so ``check_env`` still
-    warns of infinite bounds."""
+    padded, with the ``*_valid`` masks marking the real entries (a Gymnasium space must have one shape), and the robot
+    node's index (``ROBOT_INDEX_SHAPE``). Each feature has its range (``graph.FEATURE_RANGES``); positions and
+    distances have no upper bound, so ``check_env`` still warns of infinite bounds."""
     n, k = config.max_nodes, config.neighbours
     return spaces.Dict(
         {
@@ -112,9 +123,22 @@ def graph_space(config: GraphConfig) -> spaces.Dict:
             "neighbours": spaces.Box(0, n - 1, (n, k), np.int64),
             "neighbour_valid": spaces.MultiBinary((n, k)),
             "edges": feature_box(EDGE_FEATURE_NAMES, (n, k)),
-            "robot": spaces.Box(0, n - 1, (), np.int64),
+            "robot": spaces.Box(0, n - 1, robot_index_shape, np.int64),
         }
     )
+
+
+def observation_of(graph: dict[str, np.ndarray], space: spaces.Dict) -> dict[str, np.ndarray]:
+    """``graph`` (``build_graph``'s arrays) as ``space`` holds it: each array in its entry's dtype and shape (the valid
+    flags as ``MultiBinary``'s int8, not bool; ``robot`` with the space's axis), as a vector env stacks them, so an
+    agent sees the same arrays from one env and from many. The numbers are the graph's."""
+    return {k: np.asarray(v, dtype=space[k].dtype).reshape(space[k].shape) for k, v in graph.items()}
+
+
+def observation_layout(config: GraphConfig) -> dict[str, np.ndarray]:
+    """The all-padding observation of the env (``empty_graph`` as the observation space holds it): the shapes and
+    dtypes that training stores and that teacher-data files hold."""
+    return observation_of(empty_graph(config), graph_space(config))
 
 
 class ExplorationEnv(gym.Env):
@@ -130,6 +154,7 @@ class ExplorationEnv(gym.Env):
         config: EnvConfig | None = None,
         render_mode: str | None = None,
         render_scale: int = 2,
+        robot_index_shape: tuple[int, ...] = ROBOT_INDEX_SHAPE,
     ) -> None:
         super().__init__()
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
@@ -140,7 +165,7 @@ class ExplorationEnv(gym.Env):
         self.config = config or EnvConfig()
         self._plans_source = plans
         self._plans: list[FloorPlan] | None = None
-        self.observation_space: spaces.Dict = graph_space(self.config.graph)
+        self.observation_space: spaces.Dict = graph_space(self.config.graph, robot_index_shape)
         self.action_space: spaces.Discrete = spaces.Discrete(self.config.graph.max_frontier_nodes)
         self.masker = ActionMasker(self.config.exploration.masks)
         self.explorer: Explorer | None = None
@@ -202,9 +227,8 @@ class ExplorationEnv(gym.Env):
         return self._observation(empty_graph(self.config.graph)), self._info()
 
     def _observation(self, graph: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """``graph`` in the dtypes of ``observation_space`` (the valid flags as ``MultiBinary``'s int8, not bool), as
-        a vector env stacks them: an agent sees the same arrays from one env and from many."""
-        return {k: np.asarray(v, dtype=self.observation_space[k].dtype) for k, v in graph.items()}
+        """``graph`` as ``observation_space`` holds it (``observation_of``)."""
+        return observation_of(graph, self.observation_space)
 
     def _info(self) -> dict[str, Any]:
         """The info of ``reset`` and ``step`` alike (Gymnasium wrappers expect one set of keys): ``decision_steps`` is 0
@@ -324,6 +348,16 @@ class ExplorationEnv(gym.Env):
         graph = {k: v.copy() for k, v in self._graph.items()}  # new arrays: the caller keeps the ones it had
         return graph, float(self.config.reward.r_step), False, truncated, info
 
+    def close(self) -> None:
+        """Let go of the episode (simulator, maps, the current graph) and of the loaded floor plans, which a closed env
+        kept alive, and stepped on; ``step`` now needs a ``reset``, which loads the plans again."""
+        self.explorer = None
+        self.obs = None
+        self._graph = None
+        self._plans = None
+        self._over_at_reset = False
+        super().close()
+
     def action_masks(self) -> np.ndarray:
         """The current decision's action mask as bool (``info["action_mask"]`` holds it as ``np.int8``): the method
         sb3-contrib's ``MaskablePPO`` calls on an env (``get_action_masks``), and ``call("action_masks")`` in a vector
@@ -404,9 +438,13 @@ def mask_config_for(use_valid_distance: bool, use_stuck: bool, base: MaskConfig 
     return dataclasses.replace(base or MaskConfig(), use_valid_distance=use_valid_distance, use_stuck=use_stuck)
 
 
-ENV_ID = "CSOExploration-v0"
+ENV_ID = "CSOExploration-v1"
 """Registered with Gymnasium when this module is imported, so the standard entry point works without
-any other import: ``gymnasium.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:middle:8:0")``."""
+any other import: ``gymnasium.make("cso_runtime.learned.env:CSOExploration-v1", scenes="generated:middle:8:0")``.
+v1: ``robot`` is a one-element array (``ROBOT_INDEX_SHAPE``)."""
+
+LEGACY_ENV_ID = "CSOExploration-v0"
+"""The version before: the same env with ``robot`` a 0-d array (``LEGACY_ROBOT_INDEX_SHAPE``), still registered."""
 
 
 def make_env(
@@ -416,6 +454,7 @@ def make_env(
     config: EnvConfig | None = None,
     render_mode: str | None = None,
     render_scale: int = 2,
+    robot_index_shape: tuple[int, ...] = ROBOT_INDEX_SHAPE,
 ) -> ExplorationEnv:
     """An ``ExplorationEnv`` over a scene spec (as ``eval --maps``: ``builtin``, a folder of PNG plans,
     ``generated:SCALE:N:SEED``); PNG plans at ``m_per_px`` (0.05: Dungeon's large scale, where ``eval --m-per-px`` takes
@@ -423,9 +462,21 @@ def make_env(
     from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
 
     refs = resolve_scenes(scenes, limit, m_per_px)  # a bad spec fails here, not at the first reset
-    return ExplorationEnv(lambda: [ref.load() for ref in refs], config, render_mode=render_mode, render_scale=render_scale)
+    plans = functools.partial(_load_scenes, refs)  # not a lambda: the env pickles (multiprocessing, copies of a run's env)
+    return ExplorationEnv(plans, config, render_mode=render_mode, render_scale=render_scale, robot_index_shape=robot_index_shape)
 
 
-make_env.metadata = ExplorationEnv.metadata  # type: ignore[attr-defined]  # gymnasium.make reads the entry point's render modes
-"""So that ``gymnasium.make`` wraps ``render_mode="human"`` (HumanRendering) and ``"rgb_array_list"`` (RenderCollection)."""
+def _load_scenes(refs: list[SceneRef]) -> list[FloorPlan]:
+    return [ref.load() for ref in refs]
+
+
+def make_legacy_env(**kwargs: Any) -> ExplorationEnv:
+    """``make_env`` with ``LEGACY_ENV_ID``'s observation layout (``robot`` 0-d)."""
+    return make_env(**kwargs, robot_index_shape=LEGACY_ROBOT_INDEX_SHAPE)
+
+
+# gymnasium.make reads the entry point's render modes, so that it wraps render_mode="human" (HumanRendering) and
+# "rgb_array_list" (RenderCollection)
+make_env.metadata = make_legacy_env.metadata = ExplorationEnv.metadata  # type: ignore[attr-defined]
 gym.register(id=ENV_ID, entry_point=f"{__name__}:{make_env.__name__}")  # by name, so that env.spec.to_json() works
+gym.register(id=LEGACY_ENV_ID, entry_point=f"{__name__}:{make_legacy_env.__name__}")

@@ -44,8 +44,16 @@ from cso_runtime.config import (
     check_torch_device,
 )
 from cso_runtime.doctor import cpu_name
-from cso_runtime.learned.env import TEACHERS, EnvConfig, ExplorationEnv, RewardConfig, mask_config_for
-from cso_runtime.learned.graph import GraphConfig, empty_graph, node_features
+from cso_runtime.learned.env import (
+    ROBOT_INDEX_SHAPE,
+    TEACHERS,
+    EnvConfig,
+    ExplorationEnv,
+    RewardConfig,
+    mask_config_for,
+    observation_layout,
+)
+from cso_runtime.learned.graph import GraphConfig, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
 from cso_runtime.learned.registry import VARIANTS, CheckpointError, device_problem, load_checkpoint, save_checkpoint, weights_path
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
@@ -593,7 +601,7 @@ def check_training_inputs(args: Args) -> None:
         initial_weights(args, device)
     elif args.warm_start_data:
         data = TeacherData.load(args.warm_start_data)
-        expected = empty_graph(args.env_config().graph)
+        expected = observation_layout(args.env_config().graph)
         wrong = sorted(k for k, v in expected.items() if k not in data.graphs or data.graphs[k].shape[1:] != np.shape(v))
         if wrong or data.masks.shape[1:] != (args.max_frontier_nodes,):
             raise ValueError(f"warm_start_data: collected with another graph layout than this configuration ({', '.join(wrong) or 'action mask'}); collect it again")
@@ -705,6 +713,11 @@ class TeacherData:
     actions: np.ndarray
     returns: np.ndarray
     outcome_steps: np.ndarray
+
+    def __post_init__(self) -> None:
+        robot = self.graphs.get("robot")
+        if robot is not None and robot.ndim == 1:  # collected in CSOExploration-v0's layout: one number per decision
+            self.graphs = {**self.graphs, "robot": robot.reshape(-1, *ROBOT_INDEX_SHAPE)}
 
     def __len__(self) -> int:
         return len(self.actions)
@@ -1022,7 +1035,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 
     # preallocated rollout storage (CleanRL layout: [step, env])
     T, E = args.num_steps, args.num_envs
-    layout = empty_graph(args.env_config().graph)
+    layout = observation_layout(args.env_config().graph)  # the env's observations, as the vector env stacks them
     obs_buf = {k: torch.zeros((T, E) + v.shape, dtype=torch.as_tensor(v).dtype, device=device) for k, v in layout.items()}
     mask_buf = torch.zeros((T, E, args.max_frontier_nodes), dtype=torch.bool, device=device)
     actions = torch.zeros((T, E), dtype=torch.long, device=device)
