@@ -291,7 +291,10 @@ def test_eval_sim_config_sets_the_mujoco_limos_parameters_and_resume_tells_them_
     drift.write_text("odom_trans_noise_frac: 0.05\nodom_rot_per_trans_noise_radpm: 0.05\n")
     base = {"methods": ["greedy-dist"], "maps": "generated:small:1:0", "out_dir": tmp_path / "o", "max_steps": 12, "sim": "mujoco", "resume": True}
     plain = run_eval(EvalRequest(**base))
-    drifted = run_eval(EvalRequest(**base, sim_config_path=drift))
+    with pytest.raises(ConfigError, match=r"holds 1 episode of this run's methods and plans from another configuration .*"
+                       r"sim_settings.odom_trans_noise_frac: 0.0 there, 0.05 here.* or --overwrite to run them again here"):
+        run_eval(EvalRequest(**base, sim_config_path=drift))  # they would be written over
+    drifted = run_eval(EvalRequest(**base, sim_config_path=drift, overwrite=True))
     assert "mujoco" not in plain["meta"]
     assert drifted["meta"]["mujoco"] == {"file": str(drift), "parameters": {"odom_trans_noise_frac": 0.05, "odom_rot_per_trans_noise_radpm": 0.05}}
     # Every parameter the LIMO ran with, defaults too (meta.mujoco lists only a file's): a default run's timestep,
@@ -433,7 +436,10 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     for m in ("greedy-dist", "random"):
         assert second["methods"][m]["coverage_pct"] == first["methods"][m]["coverage_pct"]
         assert second["methods"][m]["steps"] == first["methods"][m]["steps"]
-    req.max_steps = 20  # other settings: nothing is reused, every episode runs again with them
+    req.max_steps = 20  # other settings: refused (they would write over the folder's), unless --overwrite
+    with pytest.raises(ConfigError, match="episode.max_steps: 30 there, 20 here"):
+        run_eval(req)
+    req.overwrite = True  # then nothing is reused: every episode runs again with them
     third = run_eval(req)
     assert npz.stat().st_mtime_ns != stamp
     assert third["methods"]["greedy-dist"]["steps"] <= 20 < first["methods"]["greedy-dist"]["steps"]
@@ -458,6 +464,9 @@ def test_resume_runs_again_an_episode_of_another_scene_under_the_same_name(tmp_p
     req.resume = True
     assert run_eval(req)["meta"]["resumed_episodes"] == 1 and npz.stat().st_mtime_ns == stamp  # the same scene: kept
     req.m_per_px = 0.05
+    with pytest.raises(ConfigError, match=r"another configuration \(greedy-dist office; its summary.json differs in m_per_px: 0.1 there, 0.05 here\)"):
+        run_eval(req)  # another plan under the name: its episode would be written over
+    req.overwrite = True
     second = run_eval(req)
     assert second["meta"]["resumed_episodes"] == 0 and npz.stat().st_mtime_ns != stamp
     assert traversable_m2() == pytest.approx(area_m2 / 4, rel=1e-3)  # the plan at half the cell size
@@ -1067,7 +1076,7 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     gif = tmp_path / "o" / "animations" / "greedy-dist" / "gen_small_3.gif"
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=40, resume=True))
     assert gif.is_file(), "an episode --resume keeps keeps its animation"
-    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=30))
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=30, overwrite=True))
     assert not gif.exists() and "gen_small_3.gif" not in (tmp_path / "o" / "report.html").read_text(), "a new episode, not animated"
 
 
@@ -1663,3 +1672,36 @@ def test_eval_dry_run_refuses_bad_input_as_a_real_eval_does(tmp_path: Path, bad:
         checked = CliRunner().invoke(app, [*args, flag])
         assert (checked.exit_code, checked.stderr) == (real.exit_code, real.stderr), flag
     assert not (tmp_path / "o").exists()
+
+
+def test_eval_refuses_an_out_folder_holding_this_runs_episodes_from_another_configuration(tmp_path: Path):
+    """A sweep's folder given again with another flag (``--max-steps``, a forgotten ``--lidar-fov 360``, another
+    ``--seed``), with or without ``--resume``, wrote over its episodes silently, hours of results gone: it is refused
+    (exit 2, before any episode), naming what differs, and ``--overwrite`` runs them again in place. The same
+    configuration runs as before: again without ``--resume``, kept with it."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    out = tmp_path / "o"
+    base = ["eval", "--method", "greedy-dist,random", "--maps", "generated:small:2:0", "--out", str(out)]
+    assert CliRunner().invoke(app, [*base, "--max-steps", "12"]).exit_code == 0
+    npz = sorted((out / "episodes").rglob("*.npz"))
+    stamps = {p: p.stat().st_mtime_ns for p in npz}
+    summary = (out / "summary.json").read_text()
+    for other in (["--max-steps", "10"], ["--max-steps", "10", "--resume"], ["--max-steps", "12", "--seed", "1", "--resume"],
+                  ["--max-steps", "10", "--dry-run"]):
+        r = CliRunner().invoke(app, [*base, *other])
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2, (other, r.output)
+        assert f"{out} holds 4 episodes of this run's methods and plans from another configuration" in said, said
+        assert "--overwrite" in said and "give another --out" in said
+        assert ("episode.max_steps: 12 there, 10 here" if "10" in other else "seed: 0 there, 1 here") in said, said
+    assert {p: p.stat().st_mtime_ns for p in npz} == stamps and (out / "summary.json").read_text() == summary  # nothing run, nothing written
+    assert CliRunner().invoke(app, [*base, "--max-steps", "12", "--resume"]).exit_code == 0  # the same configuration: kept
+    assert {p: p.stat().st_mtime_ns for p in npz} == stamps
+    r = CliRunner().invoke(app, [*base, "--max-steps", "10", "--overwrite"])
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    assert len(rows) == 4 and all(int(row["steps"]) <= 10 for row in rows)
+    assert json.loads((out / "summary.json").read_text())["meta"]["request"]["overwrite"] is True
