@@ -1034,6 +1034,8 @@ class RichProgress:
         """Episodes run by this command (not kept by ``--resume``): the pace of the time left."""
         self.clock = clock
         self.started_s = 0.0
+        self.writing_to: Path | None = None
+        """The folder ``writing`` said the results are being written to, once the episodes are over."""
 
     def start(self, total: int) -> None:
         self.total = total
@@ -1078,6 +1080,7 @@ class RichProgress:
 
     def writing(self, out: Path, trajectory_plots: int) -> None:
         """After the episodes: the bar says what is being written (and a log gets the same line)."""
+        self.writing_to = out
         text = escape(f"writing {out}/: summary.json, episodes.csv, curves and {trajectory_plots} trajectory plot{'' if trajectory_plots == 1 else 's'}")
         assert self.task is not None  # start() came first
         self.progress.update(self.task, description=text)
@@ -1166,8 +1169,17 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
             print("\n".join(lines))
         return 1 if unloadable else 0
     progress = RichProgress()
+    out = Path(request.out_dir)
     try:
         summary = run_eval(request, progress, plan)
+    except KeyboardInterrupt:  # not during the episodes (run_eval writes what finished): before them, or while writing it
+        progress.stop()
+        if progress.writing_to is not None:
+            print(f"interrupted while writing the results in {out}/ (report.html and the figures may be missing); the episodes that "
+                  "finished are kept: the same command with --resume writes them (and runs any episode left)")
+        else:
+            print(f"interrupted before any episode ran; the same command with --resume runs them, keeping the episodes {out}/ holds")
+        return EXIT_INTERRUPTED
     finally:
         progress.stop()
     print_summary(summary, Path(request.out_dir))

@@ -1705,3 +1705,29 @@ def test_eval_refuses_an_out_folder_holding_this_runs_episodes_from_another_conf
     rows = list(csv.DictReader((out / "episodes.csv").open()))
     assert len(rows) == 4 and all(int(row["steps"]) <= 10 for row in rows)
     assert json.loads((out / "summary.json").read_text())["meta"]["request"]["overwrite"] is True
+
+
+def test_ctrl_c_while_eval_writes_its_results_says_so_and_resume_writes_them(tmp_path: Path, monkeypatch):
+    """Ctrl-C once every episode ran, while the figures and report.html of hundreds of plans are written (or a second
+    Ctrl-C after the first stopped the episodes): the eval ended with exit code 130 and not a word, report.html and
+    the figures missing. It says what is missing and that ``--resume`` writes it, keeping every finished episode."""
+    from typer.testing import CliRunner
+
+    from cso_runtime import cli, evaluation
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)  # the test's process keeps its own handlers
+    out = tmp_path / "o"
+    args = ["eval", "--method", "greedy-dist", "--maps", "generated:small:2:0", "--max-steps", "10", "--out", str(out)]
+    with monkeypatch.context() as patched:
+        patched.setattr(evaluation, "write_report", interrupted)
+        r = CliRunner().invoke(cli.app, args)
+    said = " ".join(r.output.split())
+    assert r.exit_code == 130, r.output
+    assert f"interrupted while writing the results in {out}/" in said and "the same command with --resume writes them" in said, said
+    assert not (out / "report.html").exists() and len(list((out / "episodes" / "greedy-dist").glob("*.npz"))) == 2
+    again = CliRunner().invoke(cli.app, [*args, "--resume"])
+    assert again.exit_code == 0, again.output
+    assert (out / "report.html").is_file() and json.loads((out / "summary.json").read_text())["meta"]["resumed_episodes"] == 2
