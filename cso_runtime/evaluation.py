@@ -17,6 +17,7 @@ import json
 import logging
 import math
 import multiprocessing
+import os
 import sys
 import time
 import traceback
@@ -65,6 +66,7 @@ from cso_runtime.config import (
     to_dict,
     with_nearest,
 )
+from cso_runtime.current_run import hold_lock_file
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D
 from cso_runtime.map_files import save_map
@@ -902,10 +904,36 @@ def plan_said(request: EvalRequest, plan: EvalPlan) -> tuple[list[str], list[str
     return lines, unloadable
 
 
+EVAL_LOCK = ".eval.lock"
+"""An eval holds an exclusive lock on ``<out>/.eval.lock`` (its pid in it) from its first episode to its last file:
+one eval per output folder, or two would run every episode twice, writing over each other's files."""
+
+
+def hold_eval_lock(out_dir: Path) -> int | None:
+    """Take ``out_dir``'s eval lock (``EVAL_LOCK``); its file descriptor, or None when another eval holds it."""
+    return hold_lock_file(Path(out_dir) / EVAL_LOCK)
+
+
 def run_eval(request: EvalRequest, progress: RichProgress | None = None, plan: EvalPlan | None = None) -> dict[str, Any]:
     """Run every (method, scene) episode and write all outputs; returns the summary. ``plan``: ``plan_eval(request)``
-    when the caller made it already."""
+    when the caller made it already. Raises ConfigError, before any episode, while another eval writes ``out_dir``."""
     plan = plan if plan is not None else plan_eval(request)
+    out = Path(request.out_dir)
+    lock = hold_eval_lock(out)
+    if lock is None:
+        try:
+            holder = f" (pid {(out / EVAL_LOCK).read_text().strip()})"
+        except OSError:
+            holder = ""
+        raise ConfigError(f"{out} is being written by another eval{holder}: wait for it to end, or give another --out")
+    try:
+        return _run_eval_locked(request, plan, progress)
+    finally:
+        os.close(lock)
+
+
+def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgress | None) -> dict[str, Any]:
+    """``run_eval`` while it holds the output folder's lock."""
     for warning in plan.warnings:
         log.warning("%s", warning)
     config, scenes, jobs, weights, mujoco = plan.config, plan.scenes, plan.jobs, plan.weights, plan.mujoco
@@ -1172,6 +1200,10 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
     out = Path(request.out_dir)
     try:
         summary = run_eval(request, progress, plan)
+    except ConfigError as exc:  # another eval writes the folder
+        progress.stop()
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:  # not during the episodes (run_eval writes what finished): before them, or while writing it
         progress.stop()
         if progress.writing_to is not None:

@@ -1748,3 +1748,32 @@ def test_two_workers_give_the_rows_and_order_of_one(tmp_path: Path):
         with np.load(npz) as one, np.load(tmp_path / "w2" / npz.relative_to(tmp_path / "w1")) as two:
             for key in ("trajectory", "coverage_curve", "explored"):
                 np.testing.assert_array_equal(one[key], two[key], err_msg=f"{npz.name} {key}")
+
+
+def test_a_second_eval_into_a_folder_another_eval_is_writing_is_refused(tmp_path: Path):
+    """The same sweep started twice (a second terminal, a job resubmitted, ``--resume`` while the first still writes
+    its figures) ran both into one ``--out``: every episode twice, each writing the other's files, the last summary
+    winning. The second is refused before any episode, naming the first's pid; once that one ended (however: the
+    kernel drops its lock, a ``kill -9`` too), the folder is free again."""
+    import os
+
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.evaluation import EVAL_LOCK, hold_eval_lock
+
+    out = tmp_path / "o"
+    args = ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(out)]
+    first = hold_eval_lock(out)  # as the first eval holds it, from its start to its end
+    assert first is not None and (out / EVAL_LOCK).read_text() == f"{os.getpid()}\n"
+    try:
+        r = CliRunner().invoke(app, args)
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2 and f"{out} is being written by another eval (pid {os.getpid()})" in said, r.output
+        assert not (out / "summary.json").exists() and not (out / "episodes").exists()
+        with pytest.raises(ConfigError, match="is being written by another eval"):
+            run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=out, max_steps=5))
+    finally:
+        os.close(first)
+    assert CliRunner().invoke(app, args).exit_code == 0 and (out / "summary.json").is_file()
+    assert hold_eval_lock(out) is not None  # and released at its end
