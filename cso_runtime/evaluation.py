@@ -21,6 +21,8 @@ import os
 import sys
 import time
 import traceback
+import zipfile
+import zlib
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -449,7 +451,8 @@ class HeldEpisode:
 
 
 def read_held_episode(path: Path) -> HeldEpisode | None:
-    """The episode file at ``path``; None when there is none, or none that reads whole (it is no result)."""
+    """The episode file at ``path``; None when there is none, or none that reads whole (it is no result: an interrupted
+    copy of the folder, a full disk, a file system without atomic renames leave files cut short)."""
     if not path.is_file():
         return None
     try:
@@ -462,7 +465,7 @@ def read_held_episode(path: Path) -> HeldEpisode | None:
                 settings=str(data["settings"]) if "settings" in data.files else None,
                 scene=str(data["scene"]) if "scene" in data.files else None,
             )
-    except (OSError, KeyError, ValueError, AttributeError):
+    except (OSError, EOFError, KeyError, ValueError, AttributeError, zipfile.BadZipFile, zlib.error):  # cut short, empty, not ours
         return None
 
 

@@ -1777,3 +1777,25 @@ def test_a_second_eval_into_a_folder_another_eval_is_writing_is_refused(tmp_path
         os.close(first)
     assert CliRunner().invoke(app, args).exit_code == 0 and (out / "summary.json").is_file()
     assert hold_eval_lock(out) is not None  # and released at its end
+
+
+def test_resume_runs_again_an_episode_whose_file_is_cut_short(tmp_path: Path):
+    """An episode file cut short or empty (an interrupted copy of a results folder, a full disk, a file system without
+    atomic renames) stopped ``eval --resume`` with a BadZipFile traceback; it is no result: it runs again, the others
+    are kept."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    out = tmp_path / "o"
+    args = ["eval", "--method", "greedy-dist", "--maps", "generated:small:3:0", "--max-steps", "10", "--out", str(out)]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    folder = out / "episodes" / "greedy-dist"
+    cut, empty = folder / "gen_small_0.npz", folder / "gen_small_1.npz"
+    for again, kept in ((args, None), ([*args, "--resume"], 1)):  # without --resume too: no other configuration's results there
+        cut.write_bytes(cut.read_bytes()[:300])
+        empty.write_bytes(b"")
+        r = CliRunner().invoke(app, again)
+        assert r.exit_code == 0, r.output
+        meta = json.loads((out / "summary.json").read_text())["meta"]
+        assert meta.get("resumed_episodes") == kept and np.load(cut)["trajectory"].size > 0 and np.load(empty)["trajectory"].size > 0
