@@ -260,6 +260,9 @@ def eval_command(
         None, "--sim-config", help="YAML with the MuJoCo LIMO's parameters (see configs/robot_sim.yaml: physics, odometry drift); --sim mujoco only"
     ),
     resume: bool = typer.Option(False, "--resume", help="Keep episodes already finished in --out (same method, map, seed, config, simulator and weights)"),
+    overwrite: bool = typer.Option(
+        False, "--overwrite", help="Run again in --out the episodes it holds of these methods and plans from another configuration (refused without it)"
+    ),
     baseline: str = typer.Option("greedy-dist", "--baseline", help="Compare every other method with this one, scene by scene (paired.csv), when it runs too"),
     weights: Path | None = typer.Option(
         None, "--weights", help="Folder of <method>.pt (a `train --out` folder), or one of its <method>.pt files, to use instead of the shipped weights (sets CSO_WEIGHTS_DIR)"
@@ -304,6 +307,7 @@ def eval_command(
         config_path=_packaged_if_missing(config),
         sim_config_path=_packaged_if_missing(sim_config),
         resume=resume,
+        overwrite=overwrite,
         baseline=baseline,
         animate=animate,
         settings=parameters,

@@ -171,10 +171,16 @@ while it runs (the whole runs folder removed) is taken again on the launcher's n
 
 def hold_runs_lock(runs_dir: Path) -> int | None:
     """Take the runs folder's launcher lock; its file descriptor, or None when another launcher holds it."""
+    return hold_lock_file(runs_dir / RUNS_LOCK)
+
+
+def hold_lock_file(path: Path) -> int | None:
+    """Take an exclusive lock on ``path`` (made, with its folder, if missing) and write this process's pid in it; the
+    file descriptor that holds it (the kernel releases it however the process ends), or None when another holds it."""
     import fcntl  # noqa: PLC0415  (POSIX only, like the process groups the launcher uses)
 
-    runs_dir.mkdir(parents=True, exist_ok=True)
-    fd = os.open(runs_dir / RUNS_LOCK, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:

@@ -17,9 +17,12 @@ import json
 import logging
 import math
 import multiprocessing
+import os
 import sys
 import time
 import traceback
+import zipfile
+import zlib
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
@@ -65,6 +68,7 @@ from cso_runtime.config import (
     to_dict,
     with_nearest,
 )
+from cso_runtime.current_run import hold_lock_file
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D
 from cso_runtime.map_files import save_map
@@ -154,6 +158,9 @@ class EvalRequest:
     over its defaults; ``--sim mujoco`` only."""
     resume: bool = False
     """Reuse episodes already finished in ``out_dir`` (same method, map and seed)."""
+    overwrite: bool = False
+    """Run again, in place, the episodes ``out_dir`` holds of this run's methods and plans from another configuration
+    (``episodes_of_another_configuration``); without it such a folder is refused before any episode."""
     baseline: str = "greedy-dist"
     """Every other method is compared with this one scene by scene (``paired.csv``) when it ran too."""
     animate: bool = False
@@ -425,27 +432,123 @@ def save_episode_files(
     tmp.replace(path)  # atomic: a half-written file never looks finished
 
 
-def load_finished(job: EpisodeJob) -> EpisodeOutcome | None:
-    """The outcome of an episode a previous run already finished with the same settings, if any."""
-    if not job.npz_path.is_file():
+@dataclass
+class HeldEpisode:
+    """An episode's npz as ``save_episode_files`` wrote it, read back."""
+
+    row: dict[str, Any]
+    explored: np.ndarray
+    trajectory_xy_m: np.ndarray
+    coverage_curve_pct: np.ndarray
+    settings: str | None
+    """``EpisodeJob.settings`` it ran with; None in a file of a run before the fingerprints."""
+    scene: str | None
+    """``scene_fingerprint`` of its plan; None in a file of a run before the fingerprints."""
+
+    def same_run(self, job: EpisodeJob) -> bool:
+        """Whether it ran as ``job`` would, its plan aside (``scene``): the same method, seed and settings."""
+        return self.row.get("seed") == job.seed and self.row.get("method") == job.method and self.settings == job.settings
+
+
+def read_held_episode(path: Path) -> HeldEpisode | None:
+    """The episode file at ``path``; None when there is none, or none that reads whole (it is no result: an interrupted
+    copy of the folder, a full disk, a file system without atomic renames leave files cut short)."""
+    if not path.is_file():
         return None
     try:
-        with np.load(job.npz_path) as data:
-            row = json.loads(str(data["metrics"]))
-            explored = np.flipud(data["explored"]).copy()
-            trajectory = data["trajectory"].astype(float)
-            curve = data["coverage_curve"].astype(float)
-            settings = str(data["settings"]) if "settings" in data.files else None
-            scene_hash = str(data["scene"]) if "scene" in data.files else None
-        if row.get("seed") != job.seed or row.get("method") != job.method or settings != job.settings:
-            return None
-        plan = job.scene.load()
-        if scene_hash != scene_fingerprint(plan):  # another plan under the same name (another scale, another folder)
-            return None
-    except (OSError, KeyError, ValueError, SceneError):
+        with np.load(path) as data:
+            return HeldEpisode(
+                row=json.loads(str(data["metrics"])),
+                explored=np.flipud(data["explored"]).copy(),
+                trajectory_xy_m=data["trajectory"].astype(float),
+                coverage_curve_pct=data["coverage_curve"].astype(float),
+                settings=str(data["settings"]) if "settings" in data.files else None,
+                scene=str(data["scene"]) if "scene" in data.files else None,
+            )
+    except (OSError, EOFError, KeyError, ValueError, AttributeError, zipfile.BadZipFile, zlib.error):  # cut short, empty, not ours
         return None
-    return EpisodeOutcome(job.method, plan.name, row=row, free=plan.free, resolution_m=plan.resolution_m,
-                          explored=explored, trajectory_xy_m=trajectory, coverage_curve_pct=curve, kept=True, map_origin=plan.map_origin)
+
+
+def load_finished(job: EpisodeJob) -> EpisodeOutcome | None:
+    """The outcome of an episode a previous run already finished with the same settings, if any."""
+    held = read_held_episode(job.npz_path)
+    if held is None or not held.same_run(job):
+        return None
+    try:
+        plan = job.scene.load()
+    except (OSError, ValueError, SceneError):
+        return None
+    if held.scene != scene_fingerprint(plan):  # another plan under the same name (another scale, another folder)
+        return None
+    return EpisodeOutcome(job.method, plan.name, row=held.row, free=plan.free, resolution_m=plan.resolution_m, explored=held.explored,
+                          trajectory_xy_m=held.trajectory_xy_m, coverage_curve_pct=held.coverage_curve_pct, kept=True, map_origin=plan.map_origin)
+
+
+def episodes_of_another_configuration(jobs: list[EpisodeJob]) -> list[EpisodeJob]:
+    """The jobs whose episode file the output folder already holds from another configuration: another seed,
+    settings (config, simulator, weights, a method's code) or plan under the same name (another ``--m-per-px``,
+    another folder). Running them would write over those results, silently before: ``plan_eval`` refuses them
+    unless ``--overwrite``. A file that does not read whole is no result and does not count."""
+    scene_hashes: dict[int, str | None] = {}  # a plan is loaded once, however many methods ran on it
+
+    def scene_hash(ref: SceneRef) -> str | None:
+        if id(ref) not in scene_hashes:
+            try:
+                scene_hashes[id(ref)] = scene_fingerprint(ref.load())
+            except (OSError, ValueError, SceneError):
+                scene_hashes[id(ref)] = None  # its episode fails to load and says so; what the folder holds stays
+        return scene_hashes[id(ref)]
+
+    others = []
+    for job in jobs:
+        held = read_held_episode(job.npz_path)
+        if held is None:
+            continue
+        if not held.same_run(job) or (held.scene != scene_hash(job.scene) and scene_hash(job.scene) is not None):
+            others.append(job)
+    return others
+
+
+CHANGES_SHOWN = 4
+"""The refusal of a folder of another configuration names this many of the settings that differ."""
+
+
+def _flat(value: Any, prefix: str = "") -> dict[str, Any]:
+    """``value``'s leaves by dotted key (``episode.max_steps``), as ``--set`` names them."""
+    if isinstance(value, dict):
+        return {k: v for key, item in value.items() for k, v in _flat(item, f"{prefix}{key}.").items()}
+    return {prefix.rstrip("."): value}
+
+
+def configuration_changes(
+    out_dir: Path, request: EvalRequest, config: ExplorationConfig, sim_settings: dict[str, Any], weights: dict[str, dict[str, Any]]
+) -> list[str]:
+    """What this run sets otherwise than the earlier run whose ``summary.json`` is in ``out_dir`` (``KEY: THERE there,
+    HERE here``, dotted as ``--set`` takes them; the simulator's as ``sim_settings.KEY``, a learned method's weights by
+    their sha256); [] when it has none to compare, or none differs."""
+    try:
+        earlier = json.loads((out_dir / "summary.json").read_text()).get("meta") or {}
+        request_there = earlier.get("request") or {}
+        weights_there = {m: w.get("sha256", "")[:12] for m, w in (earlier.get("weights") or {}).items()}
+    except (OSError, ValueError, AttributeError):
+        return []
+    flags = ("seed", "sim", "m_per_px", "sensor")
+    there = {**_flat(earlier.get("config") or {}), **{k: request_there.get(k) for k in flags}, **_flat({"sim_settings": earlier.get("sim_settings") or {}})}
+    there.update({f"weights of {m}": sha for m, sha in weights_there.items()})
+    here = {**_flat(to_dict(config)), **{k: getattr(request, k) for k in flags}, **_flat({"sim_settings": sim_settings})}
+    here.update({f"weights of {m}": w["sha256"][:12] for m, w in weights.items()})
+    return [f"{key}: {there[key]} there, {here[key]} here" for key in here if key in there and there[key] != here[key]]
+
+
+def another_configuration_said(out_dir: Path, others: list[EpisodeJob], changes: list[str]) -> str:
+    """The refusal of ``out_dir``, whose episodes ``others`` ran with another configuration, naming what differs."""
+    names = ", ".join(f"{job.method} {job.scene.name}" for job in others[:3]) + (", ..." if len(others) > 3 else "")
+    differs = f"; its summary.json differs in {'; '.join(changes[:CHANGES_SHOWN])}{'; ...' if len(changes) > CHANGES_SHOWN else ''}" if changes else ""
+    return (
+        f"{out_dir} holds {len(others)} episode{'' if len(others) == 1 else 's'} of this run's methods and plans from another configuration "
+        f"({names}{differs}): this run would write over them; give another --out, the earlier command (summary.json's meta.request) "
+        "to go on with those, or --overwrite to run them again here"
+    )
 
 
 def run_job(job: EpisodeJob) -> EpisodeOutcome:
@@ -750,6 +853,8 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
         for s in scenes
         for m in request.methods
     ]
+    if not request.overwrite and (written_over := episodes_of_another_configuration(jobs)):
+        raise ConfigError(another_configuration_said(out, written_over, configuration_changes(out, request, config, sim_settings, weights)))
     return EvalPlan(config, scenes, jobs, weights, mujoco, warnings)
 
 
@@ -802,9 +907,36 @@ def plan_said(request: EvalRequest, plan: EvalPlan) -> tuple[list[str], list[str
     return lines, unloadable
 
 
-def run_eval(request: EvalRequest, progress: RichProgress | None = None) -> dict[str, Any]:
-    """Run every (method, scene) episode and write all outputs; returns the summary."""
-    plan = plan_eval(request)
+EVAL_LOCK = ".eval.lock"
+"""An eval holds an exclusive lock on ``<out>/.eval.lock`` (its pid in it) from its first episode to its last file:
+one eval per output folder, or two would run every episode twice, writing over each other's files."""
+
+
+def hold_eval_lock(out_dir: Path) -> int | None:
+    """Take ``out_dir``'s eval lock (``EVAL_LOCK``); its file descriptor, or None when another eval holds it."""
+    return hold_lock_file(Path(out_dir) / EVAL_LOCK)
+
+
+def run_eval(request: EvalRequest, progress: RichProgress | None = None, plan: EvalPlan | None = None) -> dict[str, Any]:
+    """Run every (method, scene) episode and write all outputs; returns the summary. ``plan``: ``plan_eval(request)``
+    when the caller made it already. Raises ConfigError, before any episode, while another eval writes ``out_dir``."""
+    plan = plan if plan is not None else plan_eval(request)
+    out = Path(request.out_dir)
+    lock = hold_eval_lock(out)
+    if lock is None:
+        try:
+            holder = f" (pid {(out / EVAL_LOCK).read_text().strip()})"
+        except OSError:
+            holder = ""
+        raise ConfigError(f"{out} is being written by another eval{holder}: wait for it to end, or give another --out")
+    try:
+        return _run_eval_locked(request, plan, progress)
+    finally:
+        os.close(lock)
+
+
+def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgress | None) -> dict[str, Any]:
+    """``run_eval`` while it holds the output folder's lock."""
     for warning in plan.warnings:
         log.warning("%s", warning)
     config, scenes, jobs, weights, mujoco = plan.config, plan.scenes, plan.jobs, plan.weights, plan.mujoco
@@ -933,6 +1065,8 @@ class RichProgress:
         """Episodes run by this command (not kept by ``--resume``): the pace of the time left."""
         self.clock = clock
         self.started_s = 0.0
+        self.writing_to: Path | None = None
+        """The folder ``writing`` said the results are being written to, once the episodes are over."""
 
     def start(self, total: int) -> None:
         self.total = total
@@ -977,6 +1111,7 @@ class RichProgress:
 
     def writing(self, out: Path, trajectory_plots: int) -> None:
         """After the episodes: the bar says what is being written (and a log gets the same line)."""
+        self.writing_to = out
         text = escape(f"writing {out}/: summary.json, episodes.csv, curves and {trajectory_plots} trajectory plot{'' if trajectory_plots == 1 else 's'}")
         assert self.task is not None  # start() came first
         self.progress.update(self.task, description=text)
@@ -1039,13 +1174,10 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
     would run, run and write nothing (exit 1 where a scene would fail to load, as its episodes would); ``resolved``: the
     same, and print the exploration configuration (``meta.config``) as YAML that ``--config`` takes back."""
     try:
+        plan = plan_eval(request)  # also refuses an --out of another configuration's episodes, before any runs
         if dry_run or resolved:
-            plan = plan_eval(request)
             check_output_dir(request.out_dir)
         else:
-            request.validate()
-            request.exploration_config()
-            resolve_scenes(request.maps, request.limit, request.m_per_px)
             make_output_dir(request.out_dir)
     except (ConfigError, SceneError, ValueError) as exc:
         from rich.console import Console  # noqa: PLC0415
@@ -1068,8 +1200,21 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
             print("\n".join(lines))
         return 1 if unloadable else 0
     progress = RichProgress()
+    out = Path(request.out_dir)
     try:
-        summary = run_eval(request, progress)
+        summary = run_eval(request, progress, plan)
+    except ConfigError as exc:  # another eval writes the folder
+        progress.stop()
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # not during the episodes (run_eval writes what finished): before them, or while writing it
+        progress.stop()
+        if progress.writing_to is not None:
+            print(f"interrupted while writing the results in {out}/ (report.html and the figures may be missing); the episodes that "
+                  "finished are kept: the same command with --resume writes them (and runs any episode left)")
+        else:
+            print(f"interrupted before any episode ran; the same command with --resume runs them, keeping the episodes {out}/ holds")
+        return EXIT_INTERRUPTED
     finally:
         progress.stop()
     print_summary(summary, Path(request.out_dir))

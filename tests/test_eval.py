@@ -291,7 +291,10 @@ def test_eval_sim_config_sets_the_mujoco_limos_parameters_and_resume_tells_them_
     drift.write_text("odom_trans_noise_frac: 0.05\nodom_rot_per_trans_noise_radpm: 0.05\n")
     base = {"methods": ["greedy-dist"], "maps": "generated:small:1:0", "out_dir": tmp_path / "o", "max_steps": 12, "sim": "mujoco", "resume": True}
     plain = run_eval(EvalRequest(**base))
-    drifted = run_eval(EvalRequest(**base, sim_config_path=drift))
+    with pytest.raises(ConfigError, match=r"holds 1 episode of this run's methods and plans from another configuration .*"
+                       r"sim_settings.odom_trans_noise_frac: 0.0 there, 0.05 here.* or --overwrite to run them again here"):
+        run_eval(EvalRequest(**base, sim_config_path=drift))  # they would be written over
+    drifted = run_eval(EvalRequest(**base, sim_config_path=drift, overwrite=True))
     assert "mujoco" not in plain["meta"]
     assert drifted["meta"]["mujoco"] == {"file": str(drift), "parameters": {"odom_trans_noise_frac": 0.05, "odom_rot_per_trans_noise_radpm": 0.05}}
     # Every parameter the LIMO ran with, defaults too (meta.mujoco lists only a file's): a default run's timestep,
@@ -433,7 +436,10 @@ def test_resume_reuses_finished_episodes(tmp_path: Path):
     for m in ("greedy-dist", "random"):
         assert second["methods"][m]["coverage_pct"] == first["methods"][m]["coverage_pct"]
         assert second["methods"][m]["steps"] == first["methods"][m]["steps"]
-    req.max_steps = 20  # other settings: nothing is reused, every episode runs again with them
+    req.max_steps = 20  # other settings: refused (they would write over the folder's), unless --overwrite
+    with pytest.raises(ConfigError, match="episode.max_steps: 30 there, 20 here"):
+        run_eval(req)
+    req.overwrite = True  # then nothing is reused: every episode runs again with them
     third = run_eval(req)
     assert npz.stat().st_mtime_ns != stamp
     assert third["methods"]["greedy-dist"]["steps"] <= 20 < first["methods"]["greedy-dist"]["steps"]
@@ -458,6 +464,9 @@ def test_resume_runs_again_an_episode_of_another_scene_under_the_same_name(tmp_p
     req.resume = True
     assert run_eval(req)["meta"]["resumed_episodes"] == 1 and npz.stat().st_mtime_ns == stamp  # the same scene: kept
     req.m_per_px = 0.05
+    with pytest.raises(ConfigError, match=r"another configuration \(greedy-dist office; its summary.json differs in m_per_px: 0.1 there, 0.05 here\)"):
+        run_eval(req)  # another plan under the name: its episode would be written over
+    req.overwrite = True
     second = run_eval(req)
     assert second["meta"]["resumed_episodes"] == 0 and npz.stat().st_mtime_ns != stamp
     assert traversable_m2() == pytest.approx(area_m2 / 4, rel=1e-3)  # the plan at half the cell size
@@ -1067,7 +1076,7 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     gif = tmp_path / "o" / "animations" / "greedy-dist" / "gen_small_3.gif"
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=40, resume=True))
     assert gif.is_file(), "an episode --resume keeps keeps its animation"
-    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=30))
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=30, overwrite=True))
     assert not gif.exists() and "gen_small_3.gif" not in (tmp_path / "o" / "report.html").read_text(), "a new episode, not animated"
 
 
@@ -1663,3 +1672,130 @@ def test_eval_dry_run_refuses_bad_input_as_a_real_eval_does(tmp_path: Path, bad:
         checked = CliRunner().invoke(app, [*args, flag])
         assert (checked.exit_code, checked.stderr) == (real.exit_code, real.stderr), flag
     assert not (tmp_path / "o").exists()
+
+
+def test_eval_refuses_an_out_folder_holding_this_runs_episodes_from_another_configuration(tmp_path: Path):
+    """A sweep's folder given again with another flag (``--max-steps``, a forgotten ``--lidar-fov 360``, another
+    ``--seed``), with or without ``--resume``, wrote over its episodes silently, hours of results gone: it is refused
+    (exit 2, before any episode), naming what differs, and ``--overwrite`` runs them again in place. The same
+    configuration runs as before: again without ``--resume``, kept with it."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    out = tmp_path / "o"
+    base = ["eval", "--method", "greedy-dist,random", "--maps", "generated:small:2:0", "--out", str(out)]
+    assert CliRunner().invoke(app, [*base, "--max-steps", "12"]).exit_code == 0
+    npz = sorted((out / "episodes").rglob("*.npz"))
+    stamps = {p: p.stat().st_mtime_ns for p in npz}
+    summary = (out / "summary.json").read_text()
+    for other in (["--max-steps", "10"], ["--max-steps", "10", "--resume"], ["--max-steps", "12", "--seed", "1", "--resume"],
+                  ["--max-steps", "10", "--dry-run"]):
+        r = CliRunner().invoke(app, [*base, *other])
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2, (other, r.output)
+        assert f"{out} holds 4 episodes of this run's methods and plans from another configuration" in said, said
+        assert "--overwrite" in said and "give another --out" in said
+        assert ("episode.max_steps: 12 there, 10 here" if "10" in other else "seed: 0 there, 1 here") in said, said
+    assert {p: p.stat().st_mtime_ns for p in npz} == stamps and (out / "summary.json").read_text() == summary  # nothing run, nothing written
+    assert CliRunner().invoke(app, [*base, "--max-steps", "12", "--resume"]).exit_code == 0  # the same configuration: kept
+    assert {p: p.stat().st_mtime_ns for p in npz} == stamps
+    r = CliRunner().invoke(app, [*base, "--max-steps", "10", "--overwrite"])
+    assert r.exit_code == 0, r.output
+    rows = list(csv.DictReader((out / "episodes.csv").open()))
+    assert len(rows) == 4 and all(int(row["steps"]) <= 10 for row in rows)
+    assert json.loads((out / "summary.json").read_text())["meta"]["request"]["overwrite"] is True
+
+
+def test_ctrl_c_while_eval_writes_its_results_says_so_and_resume_writes_them(tmp_path: Path, monkeypatch):
+    """Ctrl-C once every episode ran, while the figures and report.html of hundreds of plans are written (or a second
+    Ctrl-C after the first stopped the episodes): the eval ended with exit code 130 and not a word, report.html and
+    the figures missing. It says what is missing and that ``--resume`` writes it, keeping every finished episode."""
+    from typer.testing import CliRunner
+
+    from cso_runtime import cli, evaluation
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)  # the test's process keeps its own handlers
+    out = tmp_path / "o"
+    args = ["eval", "--method", "greedy-dist", "--maps", "generated:small:2:0", "--max-steps", "10", "--out", str(out)]
+    with monkeypatch.context() as patched:
+        patched.setattr(evaluation, "write_report", interrupted)
+        r = CliRunner().invoke(cli.app, args)
+    said = " ".join(r.output.split())
+    assert r.exit_code == 130, r.output
+    assert f"interrupted while writing the results in {out}/" in said and "the same command with --resume writes them" in said, said
+    assert not (out / "report.html").exists() and len(list((out / "episodes" / "greedy-dist").glob("*.npz"))) == 2
+    again = CliRunner().invoke(cli.app, [*args, "--resume"])
+    assert again.exit_code == 0, again.output
+    assert (out / "report.html").is_file() and json.loads((out / "summary.json").read_text())["meta"]["resumed_episodes"] == 2
+
+
+def test_two_workers_give_the_rows_and_order_of_one(tmp_path: Path):
+    """``--workers 2`` finishes episodes in any order: episodes.csv holds the same rows, in the same order, and each
+    episode's files the same path and coverage as ``--workers 1`` (only the timings differ)."""
+    timings = {"decision_ms_p50", "decision_ms_p99", "wall_s", "real_time_factor"}
+    runs = {}
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}"
+        run_eval(EvalRequest(methods=["random", "greedy-dist"], maps="generated:small:3:0", out_dir=out, max_steps=25, workers=workers))
+        with (out / "episodes.csv").open() as fh:
+            runs[workers] = [{k: v for k, v in row.items() if k not in timings} for row in csv.DictReader(fh)]
+    assert len(runs[1]) == 6 and runs[2] == runs[1]
+    for npz in sorted((tmp_path / "w1" / "episodes").rglob("*.npz")):
+        with np.load(npz) as one, np.load(tmp_path / "w2" / npz.relative_to(tmp_path / "w1")) as two:
+            for key in ("trajectory", "coverage_curve", "explored"):
+                np.testing.assert_array_equal(one[key], two[key], err_msg=f"{npz.name} {key}")
+
+
+def test_a_second_eval_into_a_folder_another_eval_is_writing_is_refused(tmp_path: Path):
+    """The same sweep started twice (a second terminal, a job resubmitted, ``--resume`` while the first still writes
+    its figures) ran both into one ``--out``: every episode twice, each writing the other's files, the last summary
+    winning. The second is refused before any episode, naming the first's pid; once that one ended (however: the
+    kernel drops its lock, a ``kill -9`` too), the folder is free again."""
+    import os
+
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.evaluation import EVAL_LOCK, hold_eval_lock
+
+    out = tmp_path / "o"
+    args = ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(out)]
+    first = hold_eval_lock(out)  # as the first eval holds it, from its start to its end
+    assert first is not None and (out / EVAL_LOCK).read_text() == f"{os.getpid()}\n"
+    try:
+        r = CliRunner().invoke(app, args)
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2 and f"{out} is being written by another eval (pid {os.getpid()})" in said, r.output
+        assert not (out / "summary.json").exists() and not (out / "episodes").exists()
+        with pytest.raises(ConfigError, match="is being written by another eval"):
+            run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=out, max_steps=5))
+    finally:
+        os.close(first)
+    assert CliRunner().invoke(app, args).exit_code == 0 and (out / "summary.json").is_file()
+    assert hold_eval_lock(out) is not None  # and released at its end
+
+
+def test_resume_runs_again_an_episode_whose_file_is_cut_short(tmp_path: Path):
+    """An episode file cut short or empty (an interrupted copy of a results folder, a full disk, a file system without
+    atomic renames) stopped ``eval --resume`` with a BadZipFile traceback; it is no result: it runs again, the others
+    are kept."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    out = tmp_path / "o"
+    args = ["eval", "--method", "greedy-dist", "--maps", "generated:small:3:0", "--max-steps", "10", "--out", str(out)]
+    assert CliRunner().invoke(app, args).exit_code == 0
+    folder = out / "episodes" / "greedy-dist"
+    cut, empty = folder / "gen_small_0.npz", folder / "gen_small_1.npz"
+    for again, kept in ((args, None), ([*args, "--resume"], 1)):  # without --resume too: no other configuration's results there
+        cut.write_bytes(cut.read_bytes()[:300])
+        empty.write_bytes(b"")
+        r = CliRunner().invoke(app, again)
+        assert r.exit_code == 0, r.output
+        meta = json.loads((out / "summary.json").read_text())["meta"]
+        assert meta.get("resumed_episodes") == kept and np.load(cut)["trajectory"].size > 0 and np.load(empty)["trajectory"].size > 0
