@@ -346,7 +346,7 @@ class ExplorationConfig:
         if abs(self.sensor.mount_x_m) > on_robot_m:
             raise ConfigError(
                 f"sensor.mount_x_m ({self.sensor.mount_x_m} m) puts the sensor off the robot, more than {on_robot_m:g} m from its centre "
-                "(half of robot.length_m, or robot.radius_m): the LIMO's LiDAR sits at 0.103 m"
+                f"(half of robot.length_m, or robot.radius_m): the LIMO's LiDAR sits at {LIMO_LIDAR_MOUNT_X_M:g} m"
             )
         v_max = self.robot.max_linear_mps
         if self.planner.backup_speed_mps > v_max:
@@ -359,6 +359,24 @@ class ExplorationConfig:
                 f"planner.progress_required_m ({self.planner.progress_required_m} m) is more than the robot can drive in "
                 f"progress_window_s ({self.planner.progress_window_s} s) at robot.max_linear_mps ({v_max} m/s): every goal would end no_progress"
             )
+
+
+MUJOCO_LIMO_DEFAULTS: dict[str, dict[str, Any]] = {"sensor": {"mount_x_m": LIMO_LIDAR_MOUNT_X_M}, "planner": {"body": LIMO_BODY}}
+"""The keys of an exploration config that the MuJoCo LIMO sets where the config leaves them out: where it carries its
+LiDAR (the mapper and the planner must know it) and its box body (not the 2D simulator's disc)."""
+
+
+def with_mujoco_limo_defaults(config: ExplorationConfig, given: Any = None) -> ExplorationConfig:
+    """``config`` (changed in place, and returned) as the MuJoCo LIMO runs it: each key of ``MUJOCO_LIMO_DEFAULTS``
+    that ``given``, the config's data (eval's file with ``--set``, a profile's ``exploration``), does not set. The one
+    rule for ``eval --sim mujoco``, a profile whose sim is MuJoCo and, given nothing, ``robot_sim.config.limo_sensor()``
+    (``doctor``, ``scenes --mjcf``, the fake LIMO's default), so that none of them can drift from the others."""
+    stated = given if isinstance(given, dict) else {}
+    for section, defaults in MUJOCO_LIMO_DEFAULTS.items():
+        keys = stated.get(section) or {}
+        changes = {key: value for key, value in defaults.items() if key not in keys}
+        setattr(config, section, dataclasses.replace(getattr(config, section), **changes))
+    return config
 
 
 _YAML11_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")

@@ -27,11 +27,11 @@ from typing import Any
 
 from cso_runtime import ros2_cdr
 from cso_runtime.config import ExplorationConfig
-from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand
 from cso_runtime.processes import set_from_signal_handler
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.transport import TransportConfig, open_session
+from robot_sim.config import limo_sensor
 from robot_sim.sim import MujocoSimulator, RealTimePacer
 
 log = logging.getLogger("cso.fake_limo")
@@ -152,8 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     if not refs:
         p.error(f"scene {args.scene!r} resolves to no scene")
     plan = refs[0].load()
-    exploration = ExplorationConfig()
-    exploration.sensor.mount_x_m = LIMO_LIDAR_MOUNT_X_M
+    exploration = ExplorationConfig(sensor=limo_sensor())
     sim = MujocoSimulator(plan, exploration.sensor, exploration.robot, seed=args.seed)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
