@@ -19,6 +19,7 @@ Run on one core:  OMP_NUM_THREADS=1 python benchmarks/bench_sim.py [--plan PNG] 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -26,7 +27,7 @@ from typing import final
 
 import numpy as np
 
-from cso_runtime.config import EpisodeConfig, ExplorationConfig, SensorConfig
+from cso_runtime.config import EpisodeConfig, ExplorationConfig
 from cso_runtime.episode import Explorer, run_episode
 from cso_runtime.geometry import Pose2D, VelocityCommand
 from cso_runtime.occupancy import OccupancyMap
@@ -34,6 +35,7 @@ from cso_runtime.policies import make_policy
 from cso_runtime.scenes import FloorPlan, builtin_scene_dir, load_floor_plan
 from cso_runtime.simulator import KinematicSimulator
 from robot_sim import MujocoSimulator
+from robot_sim.config import limo_sensor
 
 SHARED_PLAN = Path("/work/shared/maps/dungeon/easy/img_1.png")
 
@@ -68,7 +70,7 @@ class Clock:
 
 def bench_scan(plan: FloorPlan, fov_deg: float, n: int = 500) -> tuple[float, float]:
     """CPU ms per scan: (MuJoCo mj_multiRay, 2D grid ray casting)."""
-    sensor = SensorConfig(fov_deg=fov_deg, mount_x_m=0.103)
+    sensor = dataclasses.replace(limo_sensor(), fov_deg=fov_deg)
     sim = MujocoSimulator(plan, sensor, seed=0)
     kin = KinematicSimulator(plan, sensor, seed=0)
     poses = random_free_poses(plan, n)
@@ -84,7 +86,7 @@ def bench_scan(plan: FloorPlan, fov_deg: float, n: int = 500) -> tuple[float, fl
 
 def bench_physics(plan: FloorPlan, steps: int) -> dict[str, float]:
     """``step`` alone, driving a scripted slalom (wall contacts included); the LiDAR fires but no scan is cast."""
-    sim = MujocoSimulator(plan, SensorConfig(mount_x_m=0.103), seed=0)
+    sim = MujocoSimulator(plan, limo_sensor(), seed=0)
     with Clock() as clock:
         for k in range(steps):
             sim.step(VelocityCommand(0.8, 0.6 * math.sin(0.1 * k)))
@@ -93,7 +95,7 @@ def bench_physics(plan: FloorPlan, steps: int) -> dict[str, float]:
 
 def bench_mapping(plan: FloorPlan, steps: int, fov_deg: float) -> dict[str, float]:
     """Simulator + LiDAR + mapper, both at 8 Hz, with a reactive wander (no policy or planner)."""
-    sensor = SensorConfig(fov_deg=fov_deg, mount_x_m=0.103)
+    sensor = dataclasses.replace(limo_sensor(), fov_deg=fov_deg)
     sim = MujocoSimulator(plan, sensor, seed=0)
     occupancy = OccupancyMap(plan.geometry)
     sim.drain_scans()
@@ -124,7 +126,7 @@ def bench_mapping(plan: FloorPlan, steps: int, fov_deg: float) -> dict[str, floa
 
 def bench_episode(plan: FloorPlan, steps: int, fov_deg: float) -> dict[str, float]:
     """Full exploration loop with the LiDAR and the mapper at 8 Hz."""
-    sensor = SensorConfig(fov_deg=fov_deg, mount_x_m=0.103)
+    sensor = dataclasses.replace(limo_sensor(), fov_deg=fov_deg)
     config = ExplorationConfig(sensor=sensor, episode=EpisodeConfig(max_steps=steps))
     sim = MujocoSimulator(plan, sensor, config.robot, seed=0)
     integrated = [0]
@@ -149,7 +151,7 @@ def bench_episode(plan: FloorPlan, steps: int, fov_deg: float) -> dict[str, floa
 
 
 def compare(plans: list[Path], resolution_m: float) -> None:
-    sensor = SensorConfig(fov_deg=360.0, mount_x_m=0.103)
+    sensor = dataclasses.replace(limo_sensor(), fov_deg=360.0)
     config = ExplorationConfig(sensor=sensor)
     print(f"{'plan':<10} {'sim':<7} {'coverage %':>10} {'steps':>6} {'terminated':>11} {'collisions':>10} {'wall s':>7}")
     for path in plans:

@@ -608,9 +608,10 @@ def scenes_command(
     world_config = None
     # eval --sim mujoco's LiDAR (its 0.103 m mount) and robot: the worlds are the ones eval runs in, and a
     # --sim-config that eval refuses (another mount, a step the control period is no whole number of) is refused here too.
-    from cso_runtime.config import LIMO_LIDAR_MOUNT_X_M, RobotConfig, SensorConfig  # noqa: PLC0415
+    from cso_runtime.config import RobotConfig  # noqa: PLC0415
+    from robot_sim.config import limo_sensor  # noqa: PLC0415
 
-    world_sensor = SensorConfig(mount_x_m=LIMO_LIDAR_MOUNT_X_M)
+    world_sensor = limo_sensor()
     if sim_config is not None:
         from cso_runtime.config import ConfigError, load_yaml  # noqa: PLC0415
         from cso_runtime.simulator import mujoco_config  # noqa: PLC0415

@@ -346,7 +346,7 @@ class ExplorationConfig:
         if abs(self.sensor.mount_x_m) > on_robot_m:
             raise ConfigError(
                 f"sensor.mount_x_m ({self.sensor.mount_x_m} m) puts the sensor off the robot, more than {on_robot_m:g} m from its centre "
-                "(half of robot.length_m, or robot.radius_m): the LIMO's LiDAR sits at 0.103 m"
+                f"(half of robot.length_m, or robot.radius_m): the LIMO's LiDAR sits at {LIMO_LIDAR_MOUNT_X_M:g} m"
             )
         v_max = self.robot.max_linear_mps
         if self.planner.backup_speed_mps > v_max:
@@ -359,6 +359,24 @@ class ExplorationConfig:
                 f"planner.progress_required_m ({self.planner.progress_required_m} m) is more than the robot can drive in "
                 f"progress_window_s ({self.planner.progress_window_s} s) at robot.max_linear_mps ({v_max} m/s): every goal would end no_progress"
             )
+
+
+MUJOCO_LIMO_DEFAULTS: dict[str, dict[str, Any]] = {"sensor": {"mount_x_m": LIMO_LIDAR_MOUNT_X_M}, "planner": {"body": LIMO_BODY}}
+"""The keys of an exploration config that the MuJoCo LIMO sets where the config leaves them out: where it carries its
+LiDAR (the mapper and the planner must know it) and its box body (not the 2D simulator's disc)."""
+
+
+def with_mujoco_limo_defaults(config: ExplorationConfig, given: Any = None) -> ExplorationConfig:
+    """``config`` (changed in place, and returned) as the MuJoCo LIMO runs it: each key of ``MUJOCO_LIMO_DEFAULTS``
+    that ``given``, the config's data (eval's file with ``--set``, a profile's ``exploration``), does not set. The one
+    rule for ``eval --sim mujoco``, a profile whose sim is MuJoCo and, given nothing, ``robot_sim.config.limo_sensor()``
+    (``doctor``, ``scenes --mjcf``, the fake LIMO's default), so that none of them can drift from the others."""
+    stated = given if isinstance(given, dict) else {}
+    for section, defaults in MUJOCO_LIMO_DEFAULTS.items():
+        keys = stated.get(section) or {}
+        changes = {key: value for key, value in defaults.items() if key not in keys}
+        setattr(config, section, dataclasses.replace(getattr(config, section), **changes))
+    return config
 
 
 _YAML11_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
@@ -609,8 +627,16 @@ class FolderProblem:
     existing: Path
     """The nearest path at or above the folder that exists (absolute): the folder itself where it exists."""
     errno: int
-    """``ENOTDIR``: a file above the folder; ``EEXIST``: a file where the folder would be; ``EACCES``: ``existing``
-    is a folder this process cannot write in (or a read-only file system's)."""
+    """``ENOTDIR``: a file above the folder; ``EEXIST``: a file where the folder would be; otherwise ``existing`` is a
+    folder this process cannot make the folder, or a file, in: ``EACCES`` where its modes say so (or a read-only file
+    system's), else the error the probe got (``ENOENT`` in /proc, where root passes every mode)."""
+
+    @property
+    def in_the_way(self) -> bool:
+        """A file stands at or above the folder (``ENOTDIR``, ``EEXIST``), not a folder that refuses what is made in it."""
+        import errno  # noqa: PLC0415
+
+        return self.errno in (errno.ENOTDIR, errno.EEXIST)
 
     @property
     def reason(self) -> str:
@@ -621,8 +647,8 @@ class FolderProblem:
 
 
 def folder_problem(folder: str | Path) -> FolderProblem | None:
-    """Why this process could not make ``folder`` (with the folders above it) or write in it, or None; makes and writes
-    nothing. One walk up to the nearest existing path for every check made before a run starts (``eval --dry-run``'s
+    """Why this process could not make ``folder`` (with the folders above it) or write in it, or None; leaves nothing
+    behind. One walk up to the nearest existing path for every check made before a run starts (``eval --dry-run``'s
     ``--out``, the Foxglove bridge's ``mcap_path``), each of which words the answer for its own key or flag."""
     import errno  # noqa: PLC0415
     import os  # noqa: PLC0415
@@ -635,18 +661,24 @@ def folder_problem(folder: str | Path) -> FolderProblem | None:
         return FolderProblem(existing, errno.EEXIST if existing == target else errno.ENOTDIR)
     if not os.access(existing, os.W_OK | os.X_OK):  # also False on a read-only file system
         return FolderProblem(existing, errno.EACCES)
+    try:  # modes are not all (root passes them in /proc): what the run does first, made there and removed at once
+        if existing == target:
+            with tempfile.TemporaryFile(dir=existing):  # make_output_dir's write check
+                pass
+        else:
+            os.rmdir(tempfile.mkdtemp(dir=existing, prefix=".probe-"))  # the run's mkdir
+    except OSError as exc:
+        return FolderProblem(existing, exc.errno or errno.EACCES)
     return None
 
 
 def check_output_dir(path: str | Path, flag: str = "--out") -> None:
-    """``make_output_dir``'s checks, making and writing nothing (``eval --dry-run``): the folder, or the nearest folder
+    """``make_output_dir``'s checks, leaving nothing behind (``eval --dry-run``): the folder, or the nearest folder
     above it that exists, must be one this process can write in (ConfigError otherwise, in the same words)."""
-    import errno  # noqa: PLC0415
-
     p = Path(path)
     problem = folder_problem(p)
     if problem is not None:
-        verb = "write in" if problem.errno == errno.EACCES and problem.existing == p.absolute() else "create"
+        verb = "write in" if not problem.in_the_way and problem.existing == p.absolute() else "create"
         raise ConfigError(f"{flag} {p}: cannot {verb} the folder ({problem.reason})")
 
 

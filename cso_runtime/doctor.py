@@ -10,6 +10,7 @@ its error, and the command exits 1, so a fresh machine's problem is found before
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import importlib.metadata
 import importlib.util
@@ -131,14 +132,13 @@ def check_zenoh(timeout_s: float = 5.0) -> str:
 
 def check_mujoco() -> str:
     """The MuJoCo LIMO in a small generated scene: built, scanned, driven one step."""
-    from cso_runtime.config import ExplorationConfig, SensorConfig  # noqa: PLC0415
-    from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M  # noqa: PLC0415
+    from cso_runtime.config import ExplorationConfig  # noqa: PLC0415
     from cso_runtime.geometry import VelocityCommand  # noqa: PLC0415
     from cso_runtime.scene_generator import generate_floor_plan  # noqa: PLC0415
     from cso_runtime.simulator import make_simulator  # noqa: PLC0415
+    from robot_sim.config import limo_sensor  # noqa: PLC0415 - robot_sim imports MuJoCo
 
-    sensor = SensorConfig.preset("lidar", fov_deg=180)
-    sensor.mount_x_m = LIMO_LIDAR_MOUNT_X_M  # where the MuJoCo model carries it, as eval --sim mujoco says
+    sensor = dataclasses.replace(limo_sensor(), fov_deg=180.0)  # mounted where the MuJoCo model carries it, as eval --sim mujoco
     sim = make_simulator("mujoco", generate_floor_plan("small", 0), sensor, ExplorationConfig().robot, seed=0)
     sim.reset(0)
     before = sim.true_pose()

@@ -52,8 +52,6 @@ from cso_runtime.config import (
     EXIT_INTERRUPTED,
     LIDAR_FOVS_DEG,
     LIDAR_FOVS_SAID,
-    LIMO_BODY,
-    LIMO_LIDAR_MOUNT_X_M,
     ConfigError,
     ExplorationConfig,
     SensorConfig,
@@ -66,6 +64,7 @@ from cso_runtime.config import (
     set_dotted,
     set_flag_text,
     to_dict,
+    with_mujoco_limo_defaults,
     with_nearest,
 )
 from cso_runtime.current_run import hold_lock_file
@@ -194,15 +193,13 @@ class EvalRequest:
             )
         for key in explicit:
             setattr(preset, key, getattr(cfg.sensor, key))
-        if "mount_x_m" not in explicit and self.sim == "mujoco":
-            preset.mount_x_m = LIMO_LIDAR_MOUNT_X_M  # the MuJoCo LIMO carries its LiDAR 0.103 m ahead of the centre; the planner must know it
-        if "body" not in (data.get("planner") or {}) and self.sim == "mujoco":
-            cfg.planner = dataclasses.replace(cfg.planner, body=LIMO_BODY)  # the MuJoCo LIMO is a box, not the 2D robot's disc
+        cfg.sensor = preset
+        if self.sim == "mujoco":
+            with_mujoco_limo_defaults(cfg, data)  # its LiDAR's mount (the planner must know it) and box body, unless set
         try:
-            preset.validate()
+            cfg.sensor.validate()
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc} (the {self.sensor} preset with the config's sensor keys)") from None
-        cfg.sensor = preset
         if self.max_steps is not None:
             cfg.episode = dataclasses.replace(cfg.episode, max_steps=int(self.max_steps))
         return cfg

@@ -16,8 +16,6 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime.config import (
-    LIMO_BODY,
-    LIMO_LIDAR_MOUNT_X_M,
     ConfigError,
     ExplorationConfig,
     check_seed,
@@ -29,6 +27,7 @@ from cso_runtime.config import (
     set_flag_text,
     to_dict,
     unknown_keys,
+    with_mujoco_limo_defaults,
     with_nearest,
     wrong_section,
 )
@@ -375,11 +374,7 @@ def profile_exploration_config(exploration: Any, services: Any, where: str = "ex
     config = from_dict(ExplorationConfig, exploration or {}, where=where)
     sim = services.get("sim") if isinstance(services, dict) else None
     if isinstance(sim, dict) and sim.get("backend") == "mujoco":
-        given = exploration if isinstance(exploration, dict) else {}
-        if "mount_x_m" not in (given.get("sensor") or {}):
-            config.sensor.mount_x_m = LIMO_LIDAR_MOUNT_X_M
-        if "body" not in (given.get("planner") or {}):
-            config.planner.body = LIMO_BODY
+        with_mujoco_limo_defaults(config, exploration)
     return config
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from cso_runtime.config import LIMO_LIDAR_MOUNT_X_M, ConfigError, SensorConfig
+from cso_runtime.config import ConfigError, ExplorationConfig, SensorConfig, with_mujoco_limo_defaults
 
 _WHOLE_STEPS_REL_TOL = 1e-5
 """A duration is a whole number of physics steps to this relative precision: a rate or step written to 6
@@ -33,8 +33,9 @@ def whole_steps(duration_s: float, timestep_s: float, what: str) -> int:
 
 
 def limo_sensor() -> SensorConfig:
-    """The sensor of a ``MujocoSimulator`` given none: the default LiDAR where the LIMO carries it, 0.103 m ahead."""
-    return SensorConfig(mount_x_m=LIMO_LIDAR_MOUNT_X_M)
+    """The sensor of a ``MujocoSimulator`` given none, ``doctor``'s, ``scenes --mjcf``'s and the fake LIMO's: the default
+    LiDAR where the LIMO carries it (0.103 m ahead), by the rule ``eval --sim mujoco`` and a MuJoCo profile follow."""
+    return with_mujoco_limo_defaults(ExplorationConfig()).sensor
 
 
 def lidar_mount_problem(given: object, sensor: SensorConfig) -> str | None:

@@ -2,6 +2,7 @@
 would expose a real one.
 
     python -m robot_sim.fake_limo --listen tcp/127.0.0.1:7447 [--namespace limo1] [--scene SPEC] [--speed 4] [--cmd-vel-stamped]
+        [--lidar-mount-x-m 0.103]
     cso-runtime up --profile limo-ros2 --connect tcp/127.0.0.1:7447 [--namespace limo1]
 
 It opens its own Zenoh router on ``--listen`` (like the bridge on the robot, multicast scouting off),
@@ -13,11 +14,15 @@ geometry_msgs/Twist it receives on ``[NS/]cmd_vel`` (the simulator's watchdog st
 ``--set services.ros2_bridge.cmd_vel_stamped=true``; the stamps are not checked).
 Nothing of our own message format is used. Each scan goes out with an odometry sample at its exact
 stamp (and odometry is also published at ``--odom-rate-hz``), so the scan/odometry matching is exact.
+The LiDAR sits ``--lidar-mount-x-m`` ahead of base_link (the LIMO's 0.103 m, ``limo_sensor()``, as the ``limo-ros2``
+profile's ``exploration.sensor.mount_x_m`` says; a run against another mount needs ``--set
+exploration.sensor.mount_x_m=...`` with the same value, as no TF is sent).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import signal
@@ -26,12 +31,12 @@ import threading
 from typing import Any
 
 from cso_runtime import ros2_cdr
-from cso_runtime.config import ExplorationConfig
-from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M
+from cso_runtime.config import ConfigError, ExplorationConfig
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand
 from cso_runtime.processes import set_from_signal_handler
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.transport import TransportConfig, open_session
+from robot_sim.config import limo_sensor
 from robot_sim.sim import MujocoSimulator, RealTimePacer
 
 log = logging.getLogger("cso.fake_limo")
@@ -141,6 +146,11 @@ def main(argv: list[str] | None = None) -> int:
         help="Take geometry_msgs/TwistStamped on cmd_vel (ROS 2 Jazzy's diff_drive_controller), not Twist; the run needs "
         "services.ros2_bridge.cmd_vel_stamped: true",
     )  # fmt: skip
+    p.add_argument(
+        "--lidar-mount-x-m", type=float, default=limo_sensor().mount_x_m, metavar="M",
+        help="The LiDAR's mount ahead of base_link, m (default: the LIMO's, %(default)s, as the limo-ros2 profile's "
+        "exploration.sensor.mount_x_m; another value needs --set exploration.sensor.mount_x_m=M on up)",
+    )  # fmt: skip
     p.add_argument("--log-level", type=str.upper, choices=("DEBUG", "INFO", "WARNING", "ERROR", "CRITICAL"), default="INFO", metavar="LEVEL")
     args = p.parse_args(argv)
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s", stream=sys.stderr)
@@ -148,12 +158,17 @@ def main(argv: list[str] | None = None) -> int:
         p.error("--speed and --odom-rate-hz must be positive and finite")
     if args.namespace.strip("/") and not ros2_cdr.is_ros_name(args.namespace):
         p.error(f"--namespace {args.namespace!r} is not a ROS name (letters, digits, '_', '/')")
+    exploration = ExplorationConfig(sensor=dataclasses.replace(limo_sensor(), mount_x_m=args.lidar_mount_x_m))
+    try:  # on the robot, as a profile's sensor.mount_x_m must be
+        if not math.isfinite(args.lidar_mount_x_m):
+            raise ConfigError("the mount must be a finite number of metres")
+        exploration.validate()
+    except ConfigError as exc:
+        p.error(f"--lidar-mount-x-m {args.lidar_mount_x_m:g}: {exc}")
     refs = resolve_scenes(args.scene, limit=1, resolution_m=args.m_per_px)
     if not refs:
         p.error(f"scene {args.scene!r} resolves to no scene")
     plan = refs[0].load()
-    exploration = ExplorationConfig()
-    exploration.sensor.mount_x_m = LIMO_LIDAR_MOUNT_X_M
     sim = MujocoSimulator(plan, exploration.sensor, exploration.robot, seed=args.seed)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):

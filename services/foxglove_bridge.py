@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import base64
-import errno
 import logging
 import os
 import socket
@@ -109,7 +108,7 @@ def mcap_path_problem(params: FoxgloveBridgeParams) -> str | None:
     problem = folder_problem(path.absolute().parent)
     if problem is None:
         return None
-    if problem.errno == errno.EACCES:
+    if not problem.in_the_way:
         return f"mcap_path {path}: cannot write in {problem.existing}"
     return f"mcap_path {path}: {problem.existing} is not a folder"
 

@@ -172,8 +172,8 @@ def test_an_eval_key_in_the_wrong_section_names_the_section_it_belongs_to(config
 def test_eval_takes_every_sensor_key_the_config_gives_over_the_preset(tmp_path: Path):
     """A sensor ablation through eval (``--set sensor.range_max_m=2.0``) runs with that sensor, as ``up`` does
     with the same keys; the field of view stays eval's ``--lidar-fov``, and a config that sets it is refused."""
-    from cso_runtime.config import SensorConfig
-    from cso_runtime.evaluation import LIMO_LIDAR_MOUNT_X_M, EvalRequest
+    from cso_runtime.config import LIMO_LIDAR_MOUNT_X_M, SensorConfig
+    from cso_runtime.evaluation import EvalRequest
 
     cfg = EvalRequest(methods=["greedy-dist"], lidar_fov_deg=360.0, settings={"sensor.range_max_m": 2.0, "sensor.resolution_deg": 2.0}).exploration_config()
     assert (cfg.sensor.range_max_m, cfg.sensor.resolution_deg, cfg.sensor.fov_deg) == (2.0, 2.0, 360.0)

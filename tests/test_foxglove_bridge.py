@@ -608,3 +608,22 @@ def test_a_foxglove_server_that_never_stops_does_not_hang_the_bridges_shutdown(c
     finally:
         release.set()
         real_server.stop()
+
+
+def test_evals_dry_run_refuses_the_folders_the_run_would_refuse_though_root_passes_os_access(tmp_path):
+    """Root passes every ``os.access`` check, /proc included, so ``eval --dry-run --out /proc/new`` said "a new folder"
+    and the run itself then stopped at ``make_output_dir`` (``cannot create the folder``). ``folder_problem`` now also
+    tries what the run will do in the nearest existing folder (a folder made there, or a file written in it, removed at
+    once), and the dry run says the run's own words; a folder it can write in is left as it was."""
+    from cso_runtime.config import check_output_dir, folder_problem, make_output_dir
+    from services.foxglove_bridge import FoxgloveBridgeParams, mcap_path_problem
+
+    for folder in (Path("/proc"), Path("/proc/new")):
+        with pytest.raises(ConfigError) as run:
+            make_output_dir(folder)
+        with pytest.raises(ConfigError) as dry_run:
+            check_output_dir(folder)
+        assert str(dry_run.value) == str(run.value), folder
+    assert mcap_path_problem(FoxgloveBridgeParams(mcap_path="/proc/new/f.mcap")) == "mcap_path /proc/new/f.mcap: cannot write in /proc"
+    assert folder_problem(tmp_path) is None and folder_problem(tmp_path / "new" / "deeper") is None
+    assert list(tmp_path.iterdir()) == []  # the probes are gone

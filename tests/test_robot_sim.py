@@ -223,6 +223,54 @@ def test_the_simulator_casts_its_rays_from_the_sensors_mount_and_refuses_a_secon
     assert site.search(write_mujoco_world(tmp_path / "limo.xml", plan).read_text()).group(1) == "0.103"
 
 
+class _SimulatorBuilt(Exception):
+    """Raised by a stand-in for a simulator's constructor, once it has seen the sensor it was given."""
+
+
+def test_every_entry_point_runs_the_mujoco_limo_with_the_one_lidar_mount_and_body(tmp_path: Path, monkeypatch) -> None:
+    """The MuJoCo LIMO's LiDAR mount and box body were set in six places (eval --sim mujoco, a MuJoCo profile, doctor,
+    scenes --mjcf, the fake LIMO, the simulator given no sensor), each with its own copy of the rule or the value; one rule
+    now (``with_mujoco_limo_defaults``), and every entry point resolves the same mount (and, where a planner runs, body)
+    as the limo-ros2 profile that drives the fake LIMO, so that none can drift alone."""
+    from typer.testing import CliRunner
+
+    from cso_runtime import doctor, simulator
+    from cso_runtime.cli import app
+    from cso_runtime.config import LIMO_BODY, LIMO_LIDAR_MOUNT_X_M
+    from cso_runtime.evaluation import EvalRequest
+    from cso_runtime.run_profile import PACKAGED_PROFILES, load_profile, profile_exploration_config
+    from robot_sim import fake_limo
+    from robot_sim.config import limo_sensor
+
+    configs = {
+        "eval --sim mujoco": EvalRequest(methods=["greedy-dist"], sim="mujoco").exploration_config(),
+        "up --profile sim": load_profile("sim", {})[0].exploration_config(),
+        "a profile whose sim is MuJoCo": profile_exploration_config(None, {"sim": {"backend": "mujoco"}}),
+        "limo-ros2": from_dict(ExplorationConfig, load_yaml(PACKAGED_PROFILES / "limo-ros2.yaml")["exploration"]),
+    }
+    mounts = {name: config.sensor.mount_x_m for name, config in configs.items()}
+    assert {name: config.planner.body for name, config in configs.items()} == dict.fromkeys(configs, LIMO_BODY)
+
+    seen: list[SensorConfig] = []
+
+    def built(*args, **kwargs):
+        seen.append(next(a for a in (*args, *kwargs.values()) if isinstance(a, SensorConfig)))
+        raise _SimulatorBuilt
+
+    monkeypatch.setattr(simulator, "make_simulator", built)
+    with pytest.raises(_SimulatorBuilt):
+        doctor.check_mujoco()
+    monkeypatch.setattr(fake_limo, "MujocoSimulator", built)
+    with pytest.raises(_SimulatorBuilt):
+        fake_limo.main(["--listen", "tcp/127.0.0.1:1"])
+    mounts.update({"doctor": seen[0].mount_x_m, "fake_limo": seen[1].mount_x_m, "no sensor": limo_sensor().mount_x_m})
+    result = CliRunner().invoke(app, ["scenes", "generated:small:1:0", "--mjcf", str(tmp_path / "worlds")])
+    assert result.exit_code == 0, result.output
+    site = re.search(r'<site name="lidar" pos="(\S+) ', (tmp_path / "worlds" / "gen_small_0.xml").read_text())
+    mounts["scenes --mjcf"] = float(site.group(1))
+    assert mounts == dict.fromkeys(mounts, LIMO_LIDAR_MOUNT_X_M)
+
+
 def test_lidar_noise_is_seeded_and_fires_at_sensor_rate() -> None:
     noisy = SensorConfig(fov_deg=360.0, range_noise_std_m=0.02)
     a = MujocoSimulator(box_room(), noisy, seed=7)

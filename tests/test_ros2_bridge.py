@@ -240,6 +240,38 @@ def test_fake_limo_refuses_an_infinite_rate(capsys, flag):
     assert exit_info.value.code == 2 and "must be positive and finite" in capsys.readouterr().err
 
 
+class _SimulatorBuilt(Exception):
+    """Raised by a stand-in for ``MujocoSimulator``: the fake LIMO got as far as building its simulator."""
+
+
+@pytest.mark.parametrize(("flags", "mount_x_m"), [([], 0.103), (["--lidar-mount-x-m", "0.05"], 0.05)])
+def test_fake_limo_casts_its_rays_from_the_mount_its_flag_gives(monkeypatch, flags, mount_x_m):
+    """The fake LIMO's LiDAR sat at the LIMO's 0.103 m with no flag, so a run with another
+    ``exploration.sensor.mount_x_m`` could not be tried against it; ``--lidar-mount-x-m`` gives it (the LIMO's by default,
+    as the limo-ros2 profile's), and one off the robot, or not finite, is a usage error (exit 2)."""
+    from robot_sim import fake_limo
+
+    built: list = []
+
+    def simulator(plan, sensor, robot, seed):
+        built.append(sensor)
+        raise _SimulatorBuilt
+
+    monkeypatch.setattr(fake_limo, "MujocoSimulator", simulator)
+    with pytest.raises(_SimulatorBuilt):
+        fake_limo.main(["--listen", "tcp/127.0.0.1:1", *flags])
+    assert [sensor.mount_x_m for sensor in built] == [mount_x_m]
+
+
+@pytest.mark.parametrize("mount", ["0.5", "nan"])
+def test_fake_limo_refuses_a_lidar_mount_off_the_robot(capsys, mount):
+    from robot_sim import fake_limo
+
+    with pytest.raises(SystemExit) as exit_info:
+        fake_limo.main(["--listen", "tcp/127.0.0.1:1", "--lidar-mount-x-m", mount])
+    assert exit_info.value.code == 2 and f"--lidar-mount-x-m {mount}: " in capsys.readouterr().err
+
+
 def _bridge_without_zenoh(params: dict | None = None, services: dict | None = None):
     """The bridge service with its ROS callbacks fed by hand: what it publishes is collected, no session. ``services``:
     the profile's (none: a bridge started on its own, with no frontier service to wait for)."""
