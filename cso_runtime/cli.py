@@ -638,9 +638,10 @@ def scenes_command(
         typer.echo(json.dumps(rows, indent=2))
     else:
         from rich import box  # noqa: PLC0415
-        from rich.console import Console  # noqa: PLC0415
         from rich.markup import escape  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
+
+        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
 
         table = Table(title=escape(f"scenes of {spec}"), box=box.SIMPLE_HEAD)
         table.add_column("scene", overflow="fold")
@@ -655,7 +656,7 @@ def scenes_command(
                 escape(r["scene"]), f"{r['width_m']:.1f} x {r['height_m']:.1f}", f"{r['resolution_m']:g}", f"{r['traversable_area_m2']:.1f}",
                 r["scale"].replace("_", " "), f"{st['x_m']:.2f}, {st['y_m']:.2f}, {st['yaw_rad']:.2f}",
             )
-        console = Console()
+        console = console_that_survives_its_reader()
         console.print(table)
         for r in bad:  # a reason names a file: a column would fold it and cut it off
             console.print(f"[red]unusable[/red] {escape(r['scene'])}: {escape(r['error'])}", soft_wrap=True, highlight=False)
@@ -1042,8 +1043,9 @@ def dataflow_command(
     if fmt == "markdown":
         typer.echo(to_markdown(prof.name, nodes, outside), nl=False)
         return
-    from rich.console import Console  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
+
+    from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
 
     table = Table(title=f"profile {prof.name}: keys under cso/{prof.robot}/")
     for col in ("node", "inputs (from)", "outputs (to)"):
@@ -1053,7 +1055,7 @@ def dataflow_command(
         ins = "\n".join(f"{key} <- {', '.join(peers) or '(none)'}" for key, peers in w.inputs)
         outs = "\n".join(f"{key} -> {', '.join(peers) or '(none)'}" for key, peers in w.outputs)
         table.add_row(f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else labels[w.name], ins or "-", outs or "-")
-    Console().print(table)
+    console_that_survives_its_reader().print(table)
     for name, topics in unconnected(nodes).items():
         typer.echo(f"note: nothing in this profile publishes {', '.join(topic_key(t) for t in topics)} for {name}")
 
@@ -1072,14 +1074,15 @@ def doctor_command(
     if as_json:
         typer.echo(json.dumps([r.as_dict() for r in results], indent=2))
     else:
-        from rich.console import Console  # noqa: PLC0415
         from rich.markup import escape  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
+
+        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
 
         table = Table(title="cso-runtime doctor", show_header=False)
         for r in results:
             table.add_row(r.name, "[green]ok[/green]" if r.ok else "[red]FAIL[/red]", escape(r.detail))
-        Console().print(table)
+        console_that_survives_its_reader().print(table)
         failed = [r.name for r in results if not r.ok]
         typer.echo(f"{len(results) - len(failed)} of {len(results)} checks passed" + (f"; failed: {', '.join(failed)}" if failed else ""))
     if not all(r.ok for r in results):
@@ -1253,6 +1256,25 @@ def parse_settings(items: list[str]) -> dict[str, object]:
         except yaml.YAMLError as exc:
             raise ConfigError(f"--set {key}: {exc}") from None
     return out
+
+
+def _ending_quietly_when_its_reader_leaves(command: Callable[..., object]) -> Callable[..., object]:
+    """``command`` in ``ends_quietly_when_its_reader_leaves``: every command, ``runs | head -3`` as ``eval | head``."""
+    import functools  # noqa: PLC0415
+
+    @functools.wraps(command)  # typer reads the options from the signature, which wraps keeps
+    def wrapped(*args: object, **kwargs: object) -> object:
+        from cso_runtime.live_view import ends_quietly_when_its_reader_leaves  # noqa: PLC0415
+
+        with ends_quietly_when_its_reader_leaves():
+            return command(*args, **kwargs)
+
+    return wrapped
+
+
+for _command in app.registered_commands:
+    if _command.callback is not None:
+        _command.callback = _ending_quietly_when_its_reader_leaves(_command.callback)
 
 
 def main() -> None:

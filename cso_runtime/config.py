@@ -41,6 +41,9 @@ EXIT_NO_ZENOH = 3
 a launcher restarts a service that exits with it, since the router may come up."""
 EXIT_INTERRUPTED = 130
 """Exit code of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it)."""
+EXIT_READER_GONE = 141
+"""Exit code of a command whose output's reader left before its end (``runs | head -3``): 128 + SIGPIPE, as a
+shell tool killed by SIGPIPE reports it."""
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 """Every process's log line (services, launcher, commands): ``cso-runtime logs`` merges the services' logs
 by the time stamp in front."""
