@@ -724,6 +724,25 @@ def test_a_profile_key_in_the_wrong_section_names_the_section_it_belongs_to(sett
     assert "lockstep.yaml with --set " in str(caught.value)  # the file and the flags, as every profile error
 
 
+
+def test_every_misplaced_key_is_named_in_one_error():
+    """Three keys in the wrong sections are three fixes: the error named only the first (``wrong_section`` stopped
+    there), so a user learnt of them one run at a time. Each is named with its home, a section's keys together."""
+    from cso_runtime.evaluation import EvalRequest
+    from cso_runtime.run_profile import load_profile
+
+    settings = {"lookahead_m": 0.4, "masks.goal_tolerance_m": 0.5, "min_cluster_size_m": 0.5}
+    with pytest.raises(ConfigError) as caught:
+        EvalRequest(methods=["greedy-dist"], settings=settings).exploration_config()
+    said = str(caught.value)
+    assert "unknown key(s) lookahead_m (did you mean planner.lookahead_m?), min_cluster_size_m (did you mean frontier.min_cluster_size_m?); known: episode" in said
+    assert "masks: unknown key(s) goal_tolerance_m (did you mean episode.goal_tolerance_m?); known: alpha1_m" in said
+    with pytest.raises(ConfigError) as caught:
+        load_profile("lockstep", {}, settings={"services.planner.lookahead_m": 0.4, "services.sim.timestep_s": 0.01, "backoff_s": 1.0})
+    said = str(caught.value)
+    for home in ("exploration.planner.lookahead_m", "services.sim.mujoco.timestep_s", "supervision.backoff_s"):
+        assert f"(did you mean {home}?)" in said
+
 def test_a_service_of_ones_own_may_take_any_name_and_keys():
     """The misplaced-key check leaves a service of one's own alone: its name may be a section's elsewhere (``sensor``)."""
     from cso_runtime.run_profile import load_profile
