@@ -781,6 +781,7 @@ def up_command(
                 from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415
 
                 comments.append(f"the learned methods' weights from --weights {weights_dir()} (no profile key: give it again with this profile)")
+            comments += _fixed_simulator_settings_said(prof)
         typer.echo(commented_yaml(comments, prof.effective() if resolved else data), nl=False)
         return
     current = read_current_run(runs_dir)
@@ -809,6 +810,17 @@ def up_command(
 
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     raise typer.Exit(run_foreground(prof, data, runs_dir, live=live, record=recording, animate=animate, stop_event=stop))
+
+
+def _fixed_simulator_settings_said(prof: Profile) -> list[str]:
+    """``up --resolved``'s word of the simulator's settings that no profile key holds (the 2D simulator's footprint and
+    substeps), which the run records in ``meta.sim_settings`` as it does the MuJoCo LIMO's (``services.sim.mujoco``,
+    in the YAML): the whole configuration, the YAML still a profile that runs the same."""
+    fixed = prof.simulator_settings()
+    if not fixed or prof.simulator() == "mujoco":  # none to run (a real robot), or each one in services.sim.mujoco
+        return []
+    said = ", ".join(f"{key} {value}" for key, value in fixed.items())
+    return [f"the {prof.simulator()} simulator's fixed settings (summary.json's meta.sim_settings, no profile key): {said}"]
 
 
 @app.command("status", rich_help_panel="Runtime (Zenoh services)")
