@@ -315,6 +315,35 @@ def test_a_paused_planner_commands_a_stop_plans_no_new_goal_and_resumes_on_its_g
     assert lockstep.paused is None and lockstep_out == []
 
 
+
+def test_after_the_episode_ends_no_frontier_the_real_time_planner_sends_one_stop_not_one_per_scan():
+    """On a real robot (``limo-ros2``) the scans go on after the episode ended ``no_frontier``, and the planner sent a stop
+    on every one of them (about 10 a second until ``down``), each forwarded by the bridge to the robot's ``cmd_vel``
+    over its WiFi. One stop is enough: it is the robot's last command (the bridge also sends its zero Twist at the
+    end, and any later command as a zero one). The feedback still goes out each step; a goal again (a stray end) is followed
+    again. Lockstep is as before: its sim waits for every step's command."""
+    planner, out = _service(PlannerService, lockstep=False)
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    _, odom, scan = _inputs(ex, 0)
+
+    def scan_pair(step: int) -> None:
+        _feed(planner, OdometryMsg(step, odom.stamp_s + 0.25 * step, odom.pose))
+        _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose))
+
+    _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
+    _feed(planner, GoalMsg(0, True, method="greedy-dist"))  # no frontier left: the episode ends
+    for step in range(5):
+        scan_pair(step)
+    assert [(m.step, m.command, m.reason) for t, m in out if t == "cmd_vel"] == [(0, VelocityCommand(), "no_frontier")]
+    assert [m.step for t, m in out if t == "planner_feedback"] == [0, 1, 2, 3, 4]
+    _feed(planner, frontiers_from_observation(5, "timeout", obs, 1.0))
+    _feed(planner, _far_goal(obs, 5))
+    out.clear()
+    scan_pair(5)
+    (moving,) = [m for t, m in out if t == "cmd_vel"]
+    assert moving.step == 5 and moving.command != VelocityCommand() and moving.new_goal
+
 def test_a_paused_planner_without_a_newer_decision_resumes_on_the_goal_it_had():
     planner, out = _service(PlannerService, lockstep=False)
     ex = _explorer_at(0)
