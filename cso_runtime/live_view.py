@@ -104,8 +104,10 @@ def ends_quietly_when_its_reader_leaves() -> Iterator[None]:
     the reader's (another process's) is raised as it was. The tables are printed by ``console_that_survives_its_reader``
     consoles, whose broken pipe is this ``BrokenPipeError`` rather than rich's ``SystemExit(1)``."""
     try:
-        yield
-        sys.stdout.flush()  # a last line still in Python's buffer would break at exit, after this block
+        try:
+            yield
+        finally:  # a last line still in Python's buffer would break at exit, after this block (and its exit code)
+            sys.stdout.flush()
     except BrokenPipeError:
         if not reader_is_gone():
             raise
