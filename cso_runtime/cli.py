@@ -813,14 +813,14 @@ def up_command(
 
 
 def _fixed_simulator_settings_said(prof: Profile) -> list[str]:
-    """``up --resolved``'s word of the simulator's settings that no profile key holds (the 2D simulator's footprint and
-    substeps), which the run records in ``meta.sim_settings`` as it does the MuJoCo LIMO's (``services.sim.mujoco``,
+    """``up --resolved``'s word of the simulator's settings that no profile key of their own holds (the 2D simulator's
+    collision disc, from ``exploration.robot``, and its substeps), which the run records in ``meta.sim_settings`` as it does the MuJoCo LIMO's (``services.sim.mujoco``,
     in the YAML): the whole configuration, the YAML still a profile that runs the same."""
     fixed = prof.simulator_settings()
     if not fixed or prof.simulator() == "mujoco":  # none to run (a real robot), or each one in services.sim.mujoco
         return []
     said = ", ".join(f"{key} {value}" for key, value in fixed.items())
-    return [f"the {prof.simulator()} simulator's fixed settings (summary.json's meta.sim_settings, no profile key): {said}"]
+    return [f"the {prof.simulator()} simulator's settings as the run records them (summary.json's meta.sim_settings, no profile key of their own): {said}"]
 
 
 @app.command("status", rich_help_panel="Runtime (Zenoh services)")

@@ -652,8 +652,8 @@ def test_up_resolved_prints_every_parameter_the_run_uses_as_a_profile_that_runs_
 
 def test_up_resolved_says_the_2d_simulators_settings_the_run_records(tmp_path: Path, monkeypatch):
     """``up --resolved --profile lockstep`` said nothing of the 2D simulator's settings, which the run records in
-    summary.json's ``meta.sim_settings`` (the MuJoCo LIMO's are ``services.sim.mujoco`` in the YAML): no profile key
-    holds them, so a comment says them, and the YAML is still a profile that runs the same."""
+    summary.json's ``meta.sim_settings`` (the MuJoCo LIMO's are ``services.sim.mujoco`` in the YAML): no profile key of
+    their own holds them, so a comment says them, and the YAML is still a profile that runs the same."""
     import yaml
     from typer.testing import CliRunner
 
@@ -666,12 +666,12 @@ def test_up_resolved_says_the_2d_simulators_settings_the_run_records(tmp_path: P
     recorded = load_profile("lockstep")[0].simulator_settings()  # what write_outputs puts in meta.sim_settings
     assert recorded is not None and set(recorded) == {"collision_radius_m", "substeps"}
     said = ", ".join(f"{key} {value}" for key, value in recorded.items())
-    assert f"# the 2d simulator's fixed settings (summary.json's meta.sim_settings, no profile key): {said}\n" in r.output
+    assert f"# the 2d simulator's settings as the run records them (summary.json's meta.sim_settings, no profile key of their own): {said}\n" in r.output
     profile = tmp_path / "resolved.yaml"
     profile.write_text(r.output)
     assert load_profile(str(profile))[0].effective() == yaml.safe_load(r.output)
     sim = CliRunner().invoke(app, ["up", "--profile", "sim", "--resolved"]).output
-    assert "fixed settings" not in sim  # the MuJoCo LIMO's: every one a key of services.sim.mujoco
+    assert "simulator's settings" not in sim  # the MuJoCo LIMO's: every one a key of services.sim.mujoco
 
 def test_up_resolved_of_a_real_robot_shows_no_scene_it_never_loads(tmp_path: Path, monkeypatch):
     """``up --resolved --profile limo-ros2`` printed the default ``scene: generated:small:1:0`` (and ``m_per_px``), which a
