@@ -643,9 +643,10 @@ def scenes_command(
         typer.echo(json.dumps(rows, indent=2))
     else:
         from rich import box  # noqa: PLC0415
-        from rich.console import Console  # noqa: PLC0415
         from rich.markup import escape  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
+
+        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
 
         table = Table(title=escape(f"scenes of {spec}"), box=box.SIMPLE_HEAD)
         table.add_column("scene", overflow="fold")
@@ -660,7 +661,7 @@ def scenes_command(
                 escape(r["scene"]), f"{r['width_m']:.1f} x {r['height_m']:.1f}", f"{r['resolution_m']:g}", f"{r['traversable_area_m2']:.1f}",
                 r["scale"].replace("_", " "), f"{st['x_m']:.2f}, {st['y_m']:.2f}, {st['yaw_rad']:.2f}",
             )
-        console = Console()
+        console = console_that_survives_its_reader()
         console.print(table)
         for r in bad:  # a reason names a file: a column would fold it and cut it off
             console.print(f"[red]unusable[/red] {escape(r['scene'])}: {escape(r['error'])}", soft_wrap=True, highlight=False)
@@ -785,6 +786,7 @@ def up_command(
                 from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415
 
                 comments.append(f"the learned methods' weights from --weights {weights_dir()} (no profile key: give it again with this profile)")
+            comments += _fixed_simulator_settings_said(prof)
         typer.echo(commented_yaml(comments, prof.effective() if resolved else data), nl=False)
         return
     current = read_current_run(runs_dir)
@@ -813,6 +815,17 @@ def up_command(
 
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     raise typer.Exit(run_foreground(prof, data, runs_dir, live=live, record=recording, animate=animate, stop_event=stop))
+
+
+def _fixed_simulator_settings_said(prof: Profile) -> list[str]:
+    """``up --resolved``'s word of the simulator's settings that no profile key of their own holds (the 2D simulator's
+    collision disc, from ``exploration.robot``, and its substeps), which the run records in ``meta.sim_settings`` as it does the MuJoCo LIMO's (``services.sim.mujoco``,
+    in the YAML): the whole configuration, the YAML still a profile that runs the same."""
+    fixed = prof.simulator_settings()
+    if not fixed or prof.simulator() == "mujoco":  # none to run (a real robot), or each one in services.sim.mujoco
+        return []
+    said = ", ".join(f"{key} {value}" for key, value in fixed.items())
+    return [f"the {prof.simulator()} simulator's settings as the run records them (summary.json's meta.sim_settings, no profile key of their own): {said}"]
 
 
 @app.command("status", rich_help_panel="Runtime (Zenoh services)")
@@ -1047,8 +1060,9 @@ def dataflow_command(
     if fmt == "markdown":
         typer.echo(to_markdown(prof.name, nodes, outside), nl=False)
         return
-    from rich.console import Console  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
+
+    from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
 
     table = Table(title=f"profile {prof.name}: keys under cso/{prof.robot}/")
     for col in ("node", "inputs (from)", "outputs (to)"):
@@ -1058,7 +1072,7 @@ def dataflow_command(
         ins = "\n".join(f"{key} <- {', '.join(peers) or '(none)'}" for key, peers in w.inputs)
         outs = "\n".join(f"{key} -> {', '.join(peers) or '(none)'}" for key, peers in w.outputs)
         table.add_row(f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else labels[w.name], ins or "-", outs or "-")
-    Console().print(table)
+    console_that_survives_its_reader().print(table)
     for name, topics in unconnected(nodes).items():
         typer.echo(f"note: nothing in this profile publishes {', '.join(topic_key(t) for t in topics)} for {name}")
 
@@ -1077,14 +1091,15 @@ def doctor_command(
     if as_json:
         typer.echo(json.dumps([r.as_dict() for r in results], indent=2))
     else:
-        from rich.console import Console  # noqa: PLC0415
         from rich.markup import escape  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
+
+        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
 
         table = Table(title="cso-runtime doctor", show_header=False)
         for r in results:
             table.add_row(r.name, "[green]ok[/green]" if r.ok else "[red]FAIL[/red]", escape(r.detail))
-        Console().print(table)
+        console_that_survives_its_reader().print(table)
         failed = [r.name for r in results if not r.ok]
         typer.echo(f"{len(results) - len(failed)} of {len(results)} checks passed" + (f"; failed: {', '.join(failed)}" if failed else ""))
     if not all(r.ok for r in results):
@@ -1258,6 +1273,25 @@ def parse_settings(items: list[str]) -> dict[str, object]:
         except yaml.YAMLError as exc:
             raise ConfigError(f"--set {key}: {exc}") from None
     return out
+
+
+def _ending_quietly_when_its_reader_leaves(command: Callable[..., object]) -> Callable[..., object]:
+    """``command`` in ``ends_quietly_when_its_reader_leaves``: every command, ``runs | head -3`` as ``eval | head``."""
+    import functools  # noqa: PLC0415
+
+    @functools.wraps(command)  # typer reads the options from the signature, which wraps keeps
+    def wrapped(*args: object, **kwargs: object) -> object:
+        from cso_runtime.live_view import ends_quietly_when_its_reader_leaves  # noqa: PLC0415
+
+        with ends_quietly_when_its_reader_leaves():
+            return command(*args, **kwargs)
+
+    return wrapped
+
+
+for _command in app.registered_commands:
+    if _command.callback is not None:
+        _command.callback = _ending_quietly_when_its_reader_leaves(_command.callback)
 
 
 def main() -> None:

@@ -41,6 +41,9 @@ EXIT_NO_ZENOH = 3
 a launcher restarts a service that exits with it, since the router may come up."""
 EXIT_INTERRUPTED = 130
 """Exit code of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it)."""
+EXIT_READER_GONE = 141
+"""Exit code of a command whose output's reader left before its end (``runs | head -3``): 128 + SIGPIPE, as a
+shell tool killed by SIGPIPE reports it."""
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 """Every process's log line (services, launcher, commands): ``cso-runtime logs`` merges the services' logs
 by the time stamp in front."""
@@ -513,23 +516,28 @@ services.planner``); looser, ``frontier`` would be ``router`` misspelt."""
 
 
 def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]], data: dict[str, Any]) -> str | None:
-    """What is wrong with the first of ``data``'s ``unknown`` keys that is no key of its section but one of another
+    """What is wrong with every one of ``data``'s ``unknown`` keys that is no key of its section but one of another
     (``lookahead_m`` at eval's top level is ``planner.lookahead_m``; a profile's ``services.planner.lookahead_m``,
     Nav2's place for it, ``exploration.planner.lookahead_m``), or a mapping of keys that belong elsewhere (eval's
     ``masks: {beta_far_m: 2.0}`` in train's flat config is ``beta_far_m``; not a misspelt one, ``MISSPELT_SECTION_RATIO``), in ``from_dict``'s words but saying where
-    it belongs rather than the nearest spelling in the wrong section; None when none is (a typo: ``from_dict`` says it)."""
+    it belongs rather than the nearest spelling in the wrong section, a section's keys together and the sections one
+    after the other (three misplaced keys are three fixes, learnt in one go, not one error each); None when none is (a
+    typo: ``from_dict`` says it)."""
     homes: dict[str, list[str]] = {}
     for path, keys in sections.items():
         for key in keys:
             homes.setdefault(key, []).append(f"{path}.{key}" if path else key)
+    misplaced: dict[str, list[str]] = {}
     for path, key in unknown:
         elsewhere = [home for home in homes.get(key, []) if home != (f"{path}.{key}" if path else key)]
         if not elsewhere and not difflib.get_close_matches(key, sections[path], n=1, cutoff=MISSPELT_SECTION_RATIO):
             elsewhere = [home for inner in mapping_at(data, f"{path}.{key}" if path else key) for home in homes.get(inner, [])]
         if elsewhere:
-            said = f"{key} (did you mean {' or '.join(elsewhere)}?)"
-            return f"{path + ': ' if path else ''}unknown key(s) {said}; known: {', '.join(sorted(sections[path]))}"
-    return None
+            misplaced.setdefault(path, []).append(f"{key} (did you mean {' or '.join(elsewhere)}?)")
+    said = [
+        f"{path + ': ' if path else ''}unknown key(s) {', '.join(keys)}; known: {', '.join(sorted(sections[path]))}" for path, keys in misplaced.items()
+    ]
+    return "; ".join(said) if said else None
 
 
 def from_dict_with_hints(cls: type[T], data: dict[str, Any], where: str) -> T:

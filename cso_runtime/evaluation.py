@@ -617,10 +617,12 @@ def run_in_processes(jobs: list[EpisodeJob], workers: int, done: Callable[[Episo
 def table_console() -> Any:
     """A rich console for tables of results: off a terminal (a pipe, logs, CI) wide enough for every column
     instead of 80 characters, which would cut the last columns (m2/step)."""
-    from rich.console import Console  # noqa: PLC0415
+    from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
 
-    console = Console()
-    return console if console.is_terminal else Console(width=max(console.width, 120))
+    console = console_that_survives_its_reader()  # `eval | head`: the reader gone ends the command quietly
+    if not console.is_terminal:
+        console.width = max(console.width, 120)
+    return console
 
 
 def _rows_with(rows: list[dict[str, Any]], key: str) -> list[tuple[float, dict[str, Any]]]:

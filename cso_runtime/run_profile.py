@@ -395,7 +395,7 @@ def profile_key_sections(mujoco: bool = True) -> dict[str, set[str]]:
 
 
 def misplaced_key(data: dict[str, Any]) -> str | None:
-    """What is wrong with the first key of a profile's mapping that is no key of its section but one of another
+    """What is wrong with each key of a profile's mapping that is no key of its section but one of another
     (``services.planner.lookahead_m``, Nav2's place for a controller's parameter, is ``exploration.planner``'s;
     ``frontier:`` at the top level is ``exploration.frontier`` or ``services.frontier``): ``wrong_section``'s words,
     a service of one's own left alone (any name, any keys); None when none is. A ``robot:`` mapping is the robot's body

@@ -541,10 +541,11 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     """The ``status`` command; exit code 1 when nothing answers. ``--watch`` on a terminal redraws one table in
     place (as ``up``'s live view does); in a file or a pipe, and with ``--json``, each status follows the last.
     ``console``: rich's console on stdout when None."""
-    from rich.console import Console  # noqa: PLC0415
     from rich.live import Live  # noqa: PLC0415
 
-    console = console if console is not None else Console()
+    from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+
+    console = console if console is not None else console_that_survives_its_reader()  # `status --watch | head`: ends
     given_connect = bool(connect)
     if watch and not given_connect:
         try:

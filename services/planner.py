@@ -42,6 +42,9 @@ from services.common import EpisodeWatch, Service, ServiceContext, service_main,
 log = logging.getLogger("cso.planner")
 
 
+NO_FRONTIER_REASON = "no_frontier"
+"""A command's ``reason`` once the last decision found no reachable frontier (the episode's end): a stop."""
+
 PENDING_DECISIONS_KEPT = 16
 """Real time: decisions (frontiers with their grids, distance maps) kept while their goal has not come. A
 policy that is down or far behind must not grow the planner without bound; a goal for an older decision
@@ -317,7 +320,7 @@ class PlannerService(Service):
             cmd, reason = VelocityCommand(), self.pause_reason()
             self.set_state("running", reason)  # after a stale spell too
         elif self.no_frontier:
-            cmd, reason = VelocityCommand(), "no_frontier"
+            cmd, reason = VelocityCommand(), NO_FRONTIER_REASON
         else:
             # Lockstep: the sim holds the robot until this very command, so inputs that waited on a slow
             # decision are not stale; a stale stop would only be dropped by the sim, re-sent on each of its
@@ -356,11 +359,20 @@ class PlannerService(Service):
                         log.info("step %d: the robot has not moved for %d commands: backing up (back-up %d)", k, self.ctx.exploration.planner.stall_steps, self.backups_logged)
                 self.set_state("running")
         self.stopped_for_stale = False
+        stop_already_sent = self.ends_stopped(self.last_cmd) and reason == NO_FRONTIER_REASON
         self.last_cmd = CmdVelMsg(k, cmd, reason, new_goal=self.pending_new_goal)
         self.pending_new_goal = False
-        self.publish("cmd_vel", self.last_cmd)
+        if not stop_already_sent:
+            self.publish("cmd_vel", self.last_cmd)
         self.publish_feedback(k, reason)
         self.publish_path(k)
+
+    def ends_stopped(self, cmd: CmdVelMsg | None) -> bool:
+        """Real time: ``cmd``, the last command sent, was the stop at the episode's end (``no_frontier``), so the
+        scans that go on after it (a real robot's) get no command: one stop is enough, the robot's last command (the
+        bridge sends its own zero Twist at the end too, and forwards any later command as a zero one: docs/hardware.md);
+        a stop on every scan was noise on the robot's ``cmd_vel``. Lockstep commands every step: its sim waits for each."""
+        return not self.ctx.lockstep and cmd is not None and cmd.reason == NO_FRONTIER_REASON
 
     def publish_path(self, k: int) -> None:
         """The path still ahead, with each new plan and otherwise every ``path_period_s``."""

@@ -649,6 +649,30 @@ def test_up_resolved_prints_every_parameter_the_run_uses_as_a_profile_that_runs_
     assert "connect_timeout_s" not in as_written["router"]  # --dry-run: the file as written, as before
 
 
+
+def test_up_resolved_says_the_2d_simulators_settings_the_run_records(tmp_path: Path, monkeypatch):
+    """``up --resolved --profile lockstep`` said nothing of the 2D simulator's settings, which the run records in
+    summary.json's ``meta.sim_settings`` (the MuJoCo LIMO's are ``services.sim.mujoco`` in the YAML): no profile key of
+    their own holds them, so a comment says them, and the YAML is still a profile that runs the same."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.run_profile import load_profile
+
+    monkeypatch.chdir(tmp_path)  # the packaged profiles
+    r = CliRunner().invoke(app, ["up", "--profile", "lockstep", "--resolved"])
+    assert r.exit_code == 0, r.output
+    recorded = load_profile("lockstep")[0].simulator_settings()  # what write_outputs puts in meta.sim_settings
+    assert recorded is not None and set(recorded) == {"collision_radius_m", "substeps"}
+    said = ", ".join(f"{key} {value}" for key, value in recorded.items())
+    assert f"# the 2d simulator's settings as the run records them (summary.json's meta.sim_settings, no profile key of their own): {said}\n" in r.output
+    profile = tmp_path / "resolved.yaml"
+    profile.write_text(r.output)
+    assert load_profile(str(profile))[0].effective() == yaml.safe_load(r.output)
+    sim = CliRunner().invoke(app, ["up", "--profile", "sim", "--resolved"]).output
+    assert "simulator's settings" not in sim  # the MuJoCo LIMO's: every one a key of services.sim.mujoco
+
 def test_up_resolved_of_a_real_robot_shows_no_scene_it_never_loads(tmp_path: Path, monkeypatch):
     """``up --resolved --profile limo-ros2`` printed the default ``scene: generated:small:1:0`` (and ``m_per_px``), which a
     real robot's run never loads; it says what the launcher's first line and ``runs`` say instead, and the YAML, given
@@ -723,6 +747,25 @@ def test_a_profile_key_in_the_wrong_section_names_the_section_it_belongs_to(sett
     assert said in str(caught.value)
     assert "lockstep.yaml with --set " in str(caught.value)  # the file and the flags, as every profile error
 
+
+
+def test_every_misplaced_key_is_named_in_one_error():
+    """Three keys in the wrong sections are three fixes: the error named only the first (``wrong_section`` stopped
+    there), so a user learnt of them one run at a time. Each is named with its home, a section's keys together."""
+    from cso_runtime.evaluation import EvalRequest
+    from cso_runtime.run_profile import load_profile
+
+    settings = {"lookahead_m": 0.4, "masks.goal_tolerance_m": 0.5, "min_cluster_size_m": 0.5}
+    with pytest.raises(ConfigError) as caught:
+        EvalRequest(methods=["greedy-dist"], settings=settings).exploration_config()
+    said = str(caught.value)
+    assert "unknown key(s) lookahead_m (did you mean planner.lookahead_m?), min_cluster_size_m (did you mean frontier.min_cluster_size_m?); known: episode" in said
+    assert "masks: unknown key(s) goal_tolerance_m (did you mean episode.goal_tolerance_m?); known: alpha1_m" in said
+    with pytest.raises(ConfigError) as caught:
+        load_profile("lockstep", {}, settings={"services.planner.lookahead_m": 0.4, "services.sim.timestep_s": 0.01, "backoff_s": 1.0})
+    said = str(caught.value)
+    for home in ("exploration.planner.lookahead_m", "services.sim.mujoco.timestep_s", "supervision.backoff_s"):
+        assert f"(did you mean {home}?)" in said
 
 def test_a_service_of_ones_own_may_take_any_name_and_keys():
     """The misplaced-key check leaves a service of one's own alone: its name may be a section's elsewhere (``sensor``)."""

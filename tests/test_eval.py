@@ -685,6 +685,39 @@ def test_an_eval_whose_progress_reader_is_gone_runs_every_episode_and_writes_its
     assert summary["methods"]["greedy-dist"]["episodes"] == 3 and (out / "episodes.csv").is_file()
 
 
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["eval", "--maps", "generated:small:2:0", "--max-steps", "5", "--out", "{tmp}/o"],
+        ["eval", "--maps", "generated:small:2:0", "--out", "{tmp}/o", "--dry-run"],
+        ["eval", "--maps", "generated:small:2:0", "--out", "{tmp}/o", "--resolved"],
+        ["runs", "--runs-dir", "{tmp}"],
+        ["up", "--resolved"],
+        ["scenes", "generated:small:2:0"],
+        ["train", "--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--set", "num_steps=4", "--set", "num_minibatches=1",
+         "--set", "max_steps=40", "--num-envs", "1", "--total-decisions", "4", "--out", "{tmp}/t"],  # its progress lines
+    ],
+    ids=["eval", "eval-dry-run", "eval-resolved", "runs", "up-resolved", "scenes", "train"],
+)
+def test_a_command_whose_reader_left_ends_quietly_with_exit_code_141(tmp_path: Path, args: list[str]):
+    """``eval ... | head -3``: the pipe closed by its reader made rich's table (or typer's echo) exit 1 after the
+    results were written, as a failure. Every command ends as a shell tool does instead: exit 141 (128 + SIGPIPE),
+    nothing on stderr but what it said before; ``eval`` has written its results."""
+    import os
+
+    reader, writer = os.pipe()
+    os.close(reader)  # the reader gone before the first line: every write to stdout breaks
+    try:
+        cmd = [sys.executable, "-m", "cso_runtime.cli", *(a.replace("{tmp}", str(tmp_path)) for a in args)]
+        proc = subprocess.run(cmd, stdout=writer, stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(writer)
+    assert proc.returncode == 141, proc.stderr
+    assert "Traceback" not in proc.stderr and "Exception ignored" not in proc.stderr and "error" not in proc.stderr
+    if args[0] == "eval" and "--max-steps" in args:
+        assert json.loads((tmp_path / "o" / "summary.json").read_text())["methods"]["greedy-dist"]["episodes"] == 2
+
+
 def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     """Without a terminal (a log file, CI) each finished episode is one line, however long its map's name,
     and an episode ``--resume`` read back says so."""

@@ -90,6 +90,11 @@ def _far_goal(obs, step: int) -> GoalMsg:
     return GoalMsg(step, True, far.goal_xy_m[0], far.goal_xy_m[1], far.cluster_id, far.distance_m, 1.0, "greedy-dist")
 
 
+def _odometry_and_scan(svc: Service, odom: OdometryMsg, scan: ScanMsg, step: int) -> None:
+    """A robot's odometry and scan of ``step``, a quarter second a step after ``odom``'s (a real-time planner commands each pair)."""
+    _feed(svc, OdometryMsg(step, odom.stamp_s + 0.25 * step, odom.pose))
+    _feed(svc, ScanMsg(step, scan.scan, scan.sensor_pose))
+
 def test_blocked_check_on_the_reported_path_is_the_planners_own():
     """The frontier service runs ``path_blocked_ahead`` on the path the planner reports: same verdict as
     ``LocalPlanner.check_blocked`` when an obstacle appears on the path, and when it does not."""
@@ -280,8 +285,7 @@ def test_a_paused_planner_commands_a_stop_plans_no_new_goal_and_resumes_on_its_g
     _, odom, scan = _inputs(ex, 0)
 
     def command(step: int) -> CmdVelMsg:
-        _feed(planner, OdometryMsg(step, odom.stamp_s + 0.25 * step, odom.pose))
-        _feed(planner, ScanMsg(step, scan.scan, scan.sensor_pose))
+        _odometry_and_scan(planner, odom, scan, step)
         cmd = [m for t, m in out if t == "cmd_vel"][-1]
         assert isinstance(cmd, CmdVelMsg) and cmd.step == step
         return cmd
@@ -314,6 +318,31 @@ def test_a_paused_planner_commands_a_stop_plans_no_new_goal_and_resumes_on_its_g
     _feed(lockstep, ExploreResumeMsg(False, "bob"))
     assert lockstep.paused is None and lockstep_out == []
 
+
+
+def test_after_the_episode_ends_no_frontier_the_real_time_planner_sends_one_stop_not_one_per_scan():
+    """On a real robot (``limo-ros2``) the scans go on after the episode ended ``no_frontier``, and the planner sent a stop
+    on every one of them (about 10 a second until ``down``), each forwarded by the bridge to the robot's ``cmd_vel``
+    over its WiFi. One stop is enough: it is the robot's last command (the bridge also sends its zero Twist at the
+    end, and any later command as a zero one). The feedback still goes out each step; a goal again (a stray end) is followed
+    again. Lockstep is as before: its sim waits for every step's command."""
+    planner, out = _service(PlannerService, lockstep=False)
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    _, odom, scan = _inputs(ex, 0)
+
+    _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
+    _feed(planner, GoalMsg(0, True, method="greedy-dist"))  # no frontier left: the episode ends
+    for step in range(5):
+        _odometry_and_scan(planner, odom, scan, step)
+    assert [(m.step, m.command, m.reason) for t, m in out if t == "cmd_vel"] == [(0, VelocityCommand(), "no_frontier")]
+    assert [m.step for t, m in out if t == "planner_feedback"] == [0, 1, 2, 3, 4]
+    _feed(planner, frontiers_from_observation(5, "timeout", obs, 1.0))
+    _feed(planner, _far_goal(obs, 5))
+    out.clear()
+    _odometry_and_scan(planner, odom, scan, 5)
+    (moving,) = [m for t, m in out if t == "cmd_vel"]
+    assert moving.step == 5 and moving.command != VelocityCommand() and moving.new_goal
 
 def test_a_paused_planner_without_a_newer_decision_resumes_on_the_goal_it_had():
     planner, out = _service(PlannerService, lockstep=False)

@@ -1280,10 +1280,11 @@ class _Bar:
     before this process (a ``--resume``d run's updates), counted in the bar; the time left is this process's pace."""
 
     def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0, completed: int = 0) -> None:
-        from rich.console import Console  # noqa: PLC0415
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
 
-        console = console if console is not None else Console()
+        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+
+        console = console if console is not None else console_that_survives_its_reader()  # `train | head`: exit 141, as every command
         columns = (TextColumn("{task.description}"), BarColumn(bar_width=24), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), TextColumn("{task.fields[stats]}"))
         self._lines = not console.is_terminal
         self._p = Progress(*columns, console=console, disable=self._lines)
