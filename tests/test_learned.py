@@ -2075,6 +2075,26 @@ def test_a_stopped_training_run_leaves_its_learning_curve_so_far(tmp_path):
     assert [r["update"] for r in csv.DictReader((tmp_path / "cso_log.csv").open())] == ["1", "2", "3"]
 
 
+def test_the_learning_curve_is_redrawn_at_each_checkpoint_not_only_at_the_end(tmp_path, monkeypatch):
+    """A run of hours drew ``<variant>_curve.png`` only when it ended (or was stopped): a user watching the file (as
+    CleanRL users watch TensorBoard) saw nothing, or the last run's curve, until then. It is now redrawn from the CSV
+    log at each checkpoint, with the updates logged so far."""
+    from cso_runtime.learned import ppo
+
+    rows_drawn: list[int] = []
+    draw = ppo.plot_learning_curve
+
+    def counting_draw(csv_path: Path, png_path: Path, title: str) -> None:
+        rows_drawn.append(len(list(csv.DictReader(Path(csv_path).read_text().splitlines()))))
+        draw(csv_path, png_path, title)
+        assert png_path.is_file() and not list(tmp_path.glob("*.tmp"))  # replaced whole, no temporary file left
+
+    monkeypatch.setattr(ppo, "plot_learning_curve", counting_draw)
+    common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "checkpoint_every": 2}
+    train(Args(**common, out_dir=str(tmp_path), total_decisions=32), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert rows_drawn == [2, 4, 4]  # after the checkpoints of updates 2 and 4, then at the end
+
+
 def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp_path, monkeypatch):
     """``eval --weights`` of a stopped run (a ``checkpoint.pt``, no ``<variant>.pt``) says to resume it; a resume with a
     ``--total-decisions`` the checkpoint has already passed writes its weights as they are, but said "1 updates in all,

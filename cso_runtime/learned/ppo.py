@@ -1188,6 +1188,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
             if args.keep_checkpoints and (at_checkpoint or out_of_time):  # the weights of each checkpoint.pt written, kept
                 save_weights(kept_checkpoint_dir(out, update), model, args, {**record, **run_counts(update, global_decisions, warm_decisions, env_steps, wall_before_s + time.time() - t_start)})
+            if at_checkpoint or out_of_time:  # the curve follows the log during the run, not only at its end
+                draw_curve_so_far(log_path, out / f"{args.variant}_curve.png", args.variant, log, say_where=False)
             if out_of_time:
                 break
         finished_loop = True
@@ -1323,15 +1325,17 @@ def progress_stats(recent: Sequence[Mapping[str, float]], decisions: int, wall_s
     return f"return {ret:.2f}  coverage {cov:.1f} % (last {len(recent)} episodes)  {rate}"
 
 
-def draw_curve_so_far(csv_path: Path, png_path: Path, title: str, log: Callable[[str], None]) -> None:
-    """``plot_learning_curve`` of a run that stopped (Ctrl-C, a dead environment process), said in the log; a failure
-    to draw it is only said, so that it never hides why the run stopped."""
+def draw_curve_so_far(csv_path: Path, png_path: Path, title: str, log: Callable[[str], None], say_where: bool = True) -> None:
+    """``plot_learning_curve`` of the updates logged so far: at each checkpoint of a run, and when a run stopped (Ctrl-C,
+    a dead environment process), then said in the log (``say_where``). A failure to draw it is only said, so that it
+    never stops the training nor hides why a run stopped."""
     try:
         plot_learning_curve(csv_path, png_path, title)
     except Exception as exc:  # noqa: BLE001
         log(f"the learning curve so far could not be drawn ({type(exc).__name__}: {exc})")
     else:
-        log(f"learning curve so far: {png_path}")
+        if say_where:
+            log(f"learning curve so far: {png_path}")
 
 
 def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
@@ -1357,8 +1361,10 @@ def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
     ax.set_title(f"{title} learning curve")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(png_path, dpi=100)
+    tmp = png_path.with_name(png_path.name + ".tmp")  # replaced whole: an image viewer watching the file never reads half of one
+    fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
+    tmp.replace(png_path)
 
 
 # --- evaluation of returns (tests, quick checks) ----------------------------------------------
