@@ -2095,6 +2095,18 @@ def test_the_learning_curve_is_redrawn_at_each_checkpoint_not_only_at_the_end(tm
     assert rows_drawn == [2, 4, 4]  # after the checkpoints of updates 2 and 4, then at the end
 
 
+def test_two_runs_of_one_seed_write_the_same_log_but_for_its_times_in_one_process_or_several(tmp_path):
+    """The README promises what a CleanRL user checks first: the same configuration and seed give the same CSV log,
+    the times (``wall_s``, ``sps``) aside, whether the environments step in this process or in their own."""
+    common = {"seed": 3, "num_envs": 2, "num_steps": 8, "num_minibatches": 2, "max_steps": 40, "progress": False, "total_decisions": 48}
+    logs = []
+    for name, async_envs in (("sync", False), ("async", True)):
+        train(Args(**common, out_dir=str(tmp_path / name), async_envs=async_envs), log=lambda _msg: None, plans=[rooms_plan(2), rooms_plan(3)])
+        rows = list(csv.DictReader((tmp_path / name / "cso_log.csv").open()))
+        logs.append([{k: v for k, v in row.items() if k not in ("wall_s", "sps")} for row in rows])
+    assert len(logs[0]) == 3 and logs[0] == logs[1]
+
+
 def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp_path, monkeypatch):
     """``eval --weights`` of a stopped run (a ``checkpoint.pt``, no ``<variant>.pt``) says to resume it; a resume with a
     ``--total-decisions`` the checkpoint has already passed writes its weights as they are, but said "1 updates in all,

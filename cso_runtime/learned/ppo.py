@@ -907,9 +907,10 @@ LOG_FIELDS = [
 ]  # fmt: skip
 """The columns of ``<variant>_log.csv``, one row per PPO update (CleanRL's figures): ``decisions`` is CleanRL's
 global step (goal choices, warm start excluded); ``mean_return``, ``mean_coverage_pct`` and ``mean_episode_steps``
-(control steps) over the episodes that ended in the update (empty when none did); the losses, ``approx_kl`` and
-``clipfrac`` of its last minibatch as CleanRL logs them; ``explained_variance`` of the rollout's returns by its
-values (empty when the returns do not vary); ``sps`` the PPO decisions per second of training time so far."""
+(control steps) over the episodes that ended in the update (empty when none did); the losses and ``approx_kl`` of
+its last minibatch and ``clipfrac`` over all its minibatches, as CleanRL logs them; ``explained_variance`` of the rollout's returns by its
+values (empty when the returns do not vary); ``sps`` the PPO decisions per second of training time so far. The
+README lists them with their units (tests/test_docs.py holds it to this list)."""
 
 
 def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float | str:
