@@ -2078,7 +2078,7 @@ def test_a_stopped_training_run_leaves_its_learning_curve_so_far(tmp_path):
 def test_the_learning_curve_is_redrawn_at_each_checkpoint_not_only_at_the_end(tmp_path, monkeypatch):
     """A run of hours drew ``<variant>_curve.png`` only when it ended (or was stopped): a user watching the file (as
     CleanRL users watch TensorBoard) saw nothing, or the last run's curve, until then. It is now redrawn from the CSV
-    log at each checkpoint, with the updates logged so far."""
+    log at each checkpoint (at most every ``CURVE_REDRAW_EVERY_S``, here every time), with the updates logged so far."""
     from cso_runtime.learned import ppo
 
     rows_drawn: list[int] = []
@@ -2087,12 +2087,17 @@ def test_the_learning_curve_is_redrawn_at_each_checkpoint_not_only_at_the_end(tm
     def counting_draw(csv_path: Path, png_path: Path, title: str) -> None:
         rows_drawn.append(len(list(csv.DictReader(Path(csv_path).read_text().splitlines()))))
         draw(csv_path, png_path, title)
-        assert png_path.is_file() and not list(tmp_path.glob("*.tmp"))  # replaced whole, no temporary file left
+        assert png_path.is_file() and not list(png_path.parent.glob("*.tmp"))  # replaced whole, no temporary file left
 
     monkeypatch.setattr(ppo, "plot_learning_curve", counting_draw)
+    monkeypatch.setattr(ppo, "CURVE_REDRAW_EVERY_S", 0.0)
     common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "checkpoint_every": 2}
     train(Args(**common, out_dir=str(tmp_path), total_decisions=32), log=lambda _msg: None, plans=[rooms_plan(2)])
     assert rows_drawn == [2, 4, 4]  # after the checkpoints of updates 2 and 4, then at the end
+    rows_drawn.clear()  # the first checkpoint draws it whatever the time, so that a long run shows it early on
+    monkeypatch.setattr(ppo, "CURVE_REDRAW_EVERY_S", 1e9)
+    train(Args(**common, out_dir=str(tmp_path / "again"), total_decisions=32), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert rows_drawn == [2, 4]
 
 
 def test_two_runs_of_one_seed_write_the_same_log_but_for_its_times_in_one_process_or_several(tmp_path):
