@@ -1979,7 +1979,8 @@ def test_keep_checkpoints_keeps_each_checkpoints_weights_for_eval(tmp_path, monk
 
 def test_the_resume_hint_names_only_this_runs_checkpoint(tmp_path, monkeypatch):
     """Ctrl-C before a new run's first checkpoint said "continue ... with --resume OUT/checkpoint.pt" whenever that
-    file existed: an earlier run's, which would continue another run. Only this run's (or the one it resumed) counts."""
+    file existed: an earlier run's, which would continue another run. Only this run's (or the one it resumed) counts;
+    without one it says there is nothing to resume yet (it said a bare "interrupted")."""
     from typer.testing import CliRunner
 
     from cso_runtime.cli import app
@@ -1996,6 +1997,8 @@ def test_the_resume_hint_names_only_this_runs_checkpoint(tmp_path, monkeypatch):
     argv = ["train", "--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--out", str(out)]
     r = CliRunner().invoke(app, argv)
     assert r.exit_code == 130 and "interrupted" in r.output and "--resume" not in r.output, r.output
+    # and it says so, rather than leaving the user to look for a checkpoint (the config's checkpoint_every is 2)
+    assert "no checkpoint of this run yet (the first comes after PPO update 2): nothing to resume" in r.output, r.output
 
     def saved_then_stopped(args, log, command=None):
         (out / "checkpoint.pt").write_bytes(b"PK\x03\x04 this run's")
