@@ -2105,7 +2105,8 @@ def test_the_learning_curve_is_redrawn_at_each_checkpoint_not_only_at_the_end(tm
 
 def test_two_runs_of_one_seed_write_the_same_log_but_for_its_times_in_one_process_or_several(tmp_path):
     """The README promises what a CleanRL user checks first: the same configuration and seed give the same CSV log,
-    the times (``wall_s``, ``sps``) aside, whether the environments step in this process or in their own."""
+    the times (``wall_s``, ``sps``) aside, whether the environments step in this process or in their own; and two
+    resumes from one checkpoint give the same log too."""
     common = {"seed": 3, "num_envs": 2, "num_steps": 8, "num_minibatches": 2, "max_steps": 40, "progress": False, "total_decisions": 48}
     logs = []
     for name, async_envs in (("sync", False), ("async", True)):
@@ -2113,6 +2114,16 @@ def test_two_runs_of_one_seed_write_the_same_log_but_for_its_times_in_one_proces
         rows = list(csv.DictReader((tmp_path / name / "cso_log.csv").open()))
         logs.append([{k: v for k, v in row.items() if k not in ("wall_s", "sps")} for row in rows])
     assert len(logs[0]) == 3 and logs[0] == logs[1]
+    import shutil
+
+    resumed = []  # two resumes from one checkpoint go on alike (the torch generators are in it, the envs reseeded)
+    for name in ("resume1", "resume2"):
+        shutil.copytree(tmp_path / "sync", tmp_path / name)
+        args = Args(**{**common, "total_decisions": 64}, out_dir=str(tmp_path / name), resume=str(tmp_path / name / "checkpoint.pt"))
+        train(args, log=lambda _msg: None, plans=[rooms_plan(2), rooms_plan(3)])
+        rows = list(csv.DictReader((tmp_path / name / "cso_log.csv").open()))
+        resumed.append([{k: v for k, v in row.items() if k not in ("wall_s", "sps")} for row in rows])
+    assert len(resumed[0]) == 4 and resumed[0] == resumed[1] and resumed[0][:3] == logs[0]
 
 
 def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp_path, monkeypatch):
