@@ -2126,6 +2126,19 @@ def test_two_runs_of_one_seed_write_the_same_log_but_for_its_times_in_one_proces
     assert len(resumed[0]) == 4 and resumed[0] == resumed[1] and resumed[0][:3] == logs[0]
 
 
+def test_a_run_stopped_by_its_time_limit_says_how_to_go_on(tmp_path):
+    """``time_limit_s`` stopped a run with "time limit reached after update 1", then "done: ..." as if it had finished:
+    nothing said that it had trained 8 of its 24 decisions, nor that ``--resume`` goes on (for the same time again,
+    the checkpoint holding the limit)."""
+    said: list[str] = []
+    common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False}
+    train(Args(**common, out_dir=str(tmp_path), total_decisions=24, time_limit_s=1e-9), log=said.append, plans=[rooms_plan(2)])
+    assert (
+        f"time limit reached after update 1 (8 of 24 decisions); --resume {tmp_path / 'checkpoint.pt'} goes on from here,"
+        " for 1e-09 s more (the limit counts each process's time; add --time-limit-s 0 for none)"
+    ) in said, said
+
+
 def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp_path, monkeypatch):
     """``eval --weights`` of a stopped run (a ``checkpoint.pt``, no ``<variant>.pt``) says to resume it; a resume with a
     ``--total-decisions`` the checkpoint has already passed writes its weights as they are, but said "1 updates in all,

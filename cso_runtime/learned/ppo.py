@@ -1186,7 +1186,12 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
             out_of_time = bool(args.time_limit_s) and time.time() - t_start > args.time_limit_s
             if out_of_time:
-                log(f"time limit reached after update {update}")
+                if update < args.num_updates:  # a run cut short: say how to finish it (a resume keeps the run's time limit)
+                    log(
+                        f"time limit reached after update {update} ({global_decisions} of {args.total_decisions} decisions);"
+                        f" --resume {out / 'checkpoint.pt'} goes on from here, for {args.time_limit_s:g} s more (the limit counts"
+                        " each process's time; add --time-limit-s 0 for none)"
+                    )
                 _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
             if args.keep_checkpoints and (at_checkpoint or out_of_time):  # the weights of each checkpoint.pt written, kept
                 save_weights(kept_checkpoint_dir(out, update), model, args, {**record, **run_counts(update, global_decisions, warm_decisions, env_steps, wall_before_s + time.time() - t_start)})
