@@ -2139,6 +2139,30 @@ def test_a_run_stopped_by_its_time_limit_says_how_to_go_on(tmp_path):
     ) in said, said
 
 
+def test_training_loads_its_plotting_before_the_first_update_so_a_ctrl_c_cannot_cut_that_import_short(tmp_path):
+    """The curve drawn at the first checkpoint imported matplotlib there (1 to 2 s): a Ctrl-C in that window (found by
+    pressing it in a terminal soon after the run started) left it half-imported, and the run stopped without its curve
+    ("could not be drawn (AttributeError: module 'matplotlib' has no attribute 'get_data_path')"). A fresh process
+    shows when it is loaded: before the first update ends."""
+    import subprocess
+    import sys
+
+    script = f"""
+import sys
+from tests.test_learned import rooms_plan
+from cso_runtime.learned.ppo import Args, train
+seen = []
+def log(message):
+    if message.startswith("update 1/"):
+        seen.append("matplotlib.pyplot" in sys.modules)
+args = Args(seed=0, num_envs=1, num_steps=8, num_minibatches=1, max_steps=40, progress=False, total_decisions=8, out_dir={str(tmp_path)!r})
+train(args, log=log, plans=[rooms_plan(2)])
+print("loaded before the first update ended:", seen)
+"""
+    done = subprocess.run([sys.executable, "-c", script], cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=120)
+    assert "loaded before the first update ended: [True]" in done.stdout, done.stdout[-2000:] + done.stderr[-2000:]
+
+
 def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp_path, monkeypatch):
     """``eval --weights`` of a stopped run (a ``checkpoint.pt``, no ``<variant>.pt``) says to resume it; a resume with a
     ``--total-decisions`` the checkpoint has already passed writes its weights as they are, but said "1 updates in all,

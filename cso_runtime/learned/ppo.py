@@ -973,6 +973,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     args.validate()
     if args.tensorboard:
         summary_writer_class()  # tensorboardX missing: said now, not after a warm start
+    pyplot()  # loaded now, before any environment or file to clean up, not at the first checkpoint where a Ctrl-C could cut its import short
     t_start = time.time()
     seed_everything(args.seed)
     torch.set_num_threads(args.torch_threads)
@@ -1351,13 +1352,21 @@ def draw_curve_so_far(csv_path: Path, png_path: Path, title: str, log: Callable[
             log(f"learning curve so far: {png_path}")
 
 
-def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
-    """Mean episode return per update against decisions."""
+def pyplot() -> Any:
+    """matplotlib's pyplot on the file-only Agg backend. ``train`` loads it before its first update: imported at the first
+    checkpoint's drawing (1 to 2 s), a Ctrl-C then left matplotlib half-imported, and the curve of the stopped run
+    could not be drawn."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
+    return plt
+
+
+def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
+    """Mean episode return per update against decisions."""
+    plt = pyplot()
     xs, ys = [], []
     with open(csv_path, newline="") as f:
         for row in csv.DictReader(f):
