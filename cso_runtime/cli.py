@@ -1148,7 +1148,11 @@ def train_command(
     except (EnvWorkerDied, KeyboardInterrupt) as exc:
         # This run's checkpoint (or the one it resumed from), not an earlier run's left in the same folder.
         ours = checkpoint.is_file() and (checkpoint.stat().st_mtime >= started or args.resume and Path(args.resume).resolve() == checkpoint.resolve())
-        hint = f"; continue from the last checkpoint with --resume {checkpoint}" if ours else ""
+        hint = (
+            f"; continue from the last checkpoint with --resume {checkpoint}"
+            if ours
+            else f"; no checkpoint of this run yet (the first comes after PPO update {args.checkpoint_every}): nothing to resume, run the command again"
+        )
         why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"error: training stopped: {exc}"
         typer.echo(f"{why}{hint}", err=True)
         raise typer.Exit(EXIT_INTERRUPTED if isinstance(exc, KeyboardInterrupt) else 1) from None

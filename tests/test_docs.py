@@ -488,6 +488,17 @@ def test_the_readme_names_every_info_key_of_the_training_environment():
     assert sorted(k for k in keys if f'info["{k}"]' not in paragraph) == []
 
 
+def test_the_readme_names_every_column_of_the_training_log_with_its_unit():
+    """A CleanRL user plots ``<variant>_log.csv``: the README only pointed at ``ppo.LOG_FIELDS`` in the code, which
+    names no unit (is ``wall_s`` this process's time, ``entropy`` in nats, ``env_steps`` decisions or control steps?).
+    Its paragraph on the log now names each column with what it counts."""
+    from cso_runtime.learned.ppo import LOG_FIELDS
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    paragraph = " ".join(readme[readme.index("**The CSV log**") :].split("\n- ")[0].split())  # its lines joined
+    assert [c for c in LOG_FIELDS if f"`{c}` (" not in paragraph] == []
+
+
 def test_the_readme_says_which_scale_the_training_environment_gives_png_plans():
     """``make_env``'s ``m_per_px`` (0.05, Dungeon's large scale) is not ``eval --m-per-px``'s (0.1, super large), and
     the README's paragraph on the environment named the parameter without saying which it takes."""

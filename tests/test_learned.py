@@ -1979,7 +1979,8 @@ def test_keep_checkpoints_keeps_each_checkpoints_weights_for_eval(tmp_path, monk
 
 def test_the_resume_hint_names_only_this_runs_checkpoint(tmp_path, monkeypatch):
     """Ctrl-C before a new run's first checkpoint said "continue ... with --resume OUT/checkpoint.pt" whenever that
-    file existed: an earlier run's, which would continue another run. Only this run's (or the one it resumed) counts."""
+    file existed: an earlier run's, which would continue another run. Only this run's (or the one it resumed) counts;
+    without one it says there is nothing to resume yet (it said a bare "interrupted")."""
     from typer.testing import CliRunner
 
     from cso_runtime.cli import app
@@ -1996,6 +1997,8 @@ def test_the_resume_hint_names_only_this_runs_checkpoint(tmp_path, monkeypatch):
     argv = ["train", "--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--out", str(out)]
     r = CliRunner().invoke(app, argv)
     assert r.exit_code == 130 and "interrupted" in r.output and "--resume" not in r.output, r.output
+    # and it says so, rather than leaving the user to look for a checkpoint (the config's checkpoint_every is 2)
+    assert "no checkpoint of this run yet (the first comes after PPO update 2): nothing to resume" in r.output, r.output
 
     def saved_then_stopped(args, log, command=None):
         (out / "checkpoint.pt").write_bytes(b"PK\x03\x04 this run's")
@@ -2073,6 +2076,91 @@ def test_a_stopped_training_run_leaves_its_learning_curve_so_far(tmp_path):
         train(Args(**common, out_dir=str(tmp_path), total_decisions=80), log=stop_at_update_3, plans=[rooms_plan(2)])
     assert (tmp_path / "cso_curve.png").is_file() and not (tmp_path / "cso.pt").exists()
     assert [r["update"] for r in csv.DictReader((tmp_path / "cso_log.csv").open())] == ["1", "2", "3"]
+
+
+def test_the_learning_curve_is_redrawn_at_each_checkpoint_not_only_at_the_end(tmp_path, monkeypatch):
+    """A run of hours drew ``<variant>_curve.png`` only when it ended (or was stopped): a user watching the file (as
+    CleanRL users watch TensorBoard) saw nothing, or the last run's curve, until then. It is now redrawn from the CSV
+    log at each checkpoint (at most every ``CURVE_REDRAW_EVERY_S``, here every time), with the updates logged so far."""
+    from cso_runtime.learned import ppo
+
+    rows_drawn: list[int] = []
+    draw = ppo.plot_learning_curve
+
+    def counting_draw(csv_path: Path, png_path: Path, title: str) -> None:
+        rows_drawn.append(len(list(csv.DictReader(Path(csv_path).read_text().splitlines()))))
+        draw(csv_path, png_path, title)
+        assert png_path.is_file() and not list(png_path.parent.glob("*.tmp"))  # replaced whole, no temporary file left
+
+    monkeypatch.setattr(ppo, "plot_learning_curve", counting_draw)
+    monkeypatch.setattr(ppo, "CURVE_REDRAW_EVERY_S", 0.0)
+    common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "checkpoint_every": 2}
+    train(Args(**common, out_dir=str(tmp_path), total_decisions=32), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert rows_drawn == [2, 4, 4]  # after the checkpoints of updates 2 and 4, then at the end
+    rows_drawn.clear()  # the first checkpoint draws it whatever the time, so that a long run shows it early on
+    monkeypatch.setattr(ppo, "CURVE_REDRAW_EVERY_S", 1e9)
+    train(Args(**common, out_dir=str(tmp_path / "again"), total_decisions=32), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert rows_drawn == [2, 4]
+
+
+def test_two_runs_of_one_seed_write_the_same_log_but_for_its_times_in_one_process_or_several(tmp_path):
+    """The README promises what a CleanRL user checks first: the same configuration and seed give the same CSV log,
+    the times (``wall_s``, ``sps``) aside, whether the environments step in this process or in their own; and two
+    resumes from one checkpoint give the same log too."""
+    common = {"seed": 3, "num_envs": 2, "num_steps": 8, "num_minibatches": 2, "max_steps": 40, "progress": False, "total_decisions": 48}
+    logs = []
+    for name, async_envs in (("sync", False), ("async", True)):
+        train(Args(**common, out_dir=str(tmp_path / name), async_envs=async_envs), log=lambda _msg: None, plans=[rooms_plan(2), rooms_plan(3)])
+        rows = list(csv.DictReader((tmp_path / name / "cso_log.csv").open()))
+        logs.append([{k: v for k, v in row.items() if k not in ("wall_s", "sps")} for row in rows])
+    assert len(logs[0]) == 3 and logs[0] == logs[1]
+    import shutil
+
+    resumed = []  # two resumes from one checkpoint go on alike (the torch generators are in it, the envs reseeded)
+    for name in ("resume1", "resume2"):
+        shutil.copytree(tmp_path / "sync", tmp_path / name)
+        args = Args(**{**common, "total_decisions": 64}, out_dir=str(tmp_path / name), resume=str(tmp_path / name / "checkpoint.pt"))
+        train(args, log=lambda _msg: None, plans=[rooms_plan(2), rooms_plan(3)])
+        rows = list(csv.DictReader((tmp_path / name / "cso_log.csv").open()))
+        resumed.append([{k: v for k, v in row.items() if k not in ("wall_s", "sps")} for row in rows])
+    assert len(resumed[0]) == 4 and resumed[0] == resumed[1] and resumed[0][:3] == logs[0]
+
+
+def test_a_run_stopped_by_its_time_limit_says_how_to_go_on(tmp_path):
+    """``time_limit_s`` stopped a run with "time limit reached after update 1", then "done: ..." as if it had finished:
+    nothing said that it had trained 8 of its 24 decisions, nor that ``--resume`` goes on (for the same time again,
+    the checkpoint holding the limit)."""
+    said: list[str] = []
+    common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False}
+    train(Args(**common, out_dir=str(tmp_path), total_decisions=24, time_limit_s=1e-9), log=said.append, plans=[rooms_plan(2)])
+    assert (
+        f"time limit reached after update 1 (8 of 24 decisions); --resume {tmp_path / 'checkpoint.pt'} goes on from here,"
+        " for 1e-09 s more (the limit counts each process's time; add --time-limit-s 0 for none)"
+    ) in said, said
+
+
+def test_training_loads_its_plotting_before_the_first_update_so_a_ctrl_c_cannot_cut_that_import_short(tmp_path):
+    """The curve drawn at the first checkpoint imported matplotlib there (1 to 2 s): a Ctrl-C in that window (found by
+    pressing it in a terminal soon after the run started) left it half-imported, and the run stopped without its curve
+    ("could not be drawn (AttributeError: module 'matplotlib' has no attribute 'get_data_path')"). A fresh process
+    shows when it is loaded: before the first update ends."""
+    import subprocess
+    import sys
+
+    script = f"""
+import sys
+from tests.test_learned import rooms_plan
+from cso_runtime.learned.ppo import Args, train
+seen = []
+def log(message):
+    if message.startswith("update 1/"):
+        seen.append("matplotlib.pyplot" in sys.modules)
+args = Args(seed=0, num_envs=1, num_steps=8, num_minibatches=1, max_steps=40, progress=False, total_decisions=8, out_dir={str(tmp_path)!r})
+train(args, log=log, plans=[rooms_plan(2)])
+print("loaded before the first update ended:", seen)
+"""
+    done = subprocess.run([sys.executable, "-c", script], cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=120)
+    assert "loaded before the first update ended: [True]" in done.stdout, done.stdout[-2000:] + done.stderr[-2000:]
 
 
 def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp_path, monkeypatch):

@@ -907,9 +907,10 @@ LOG_FIELDS = [
 ]  # fmt: skip
 """The columns of ``<variant>_log.csv``, one row per PPO update (CleanRL's figures): ``decisions`` is CleanRL's
 global step (goal choices, warm start excluded); ``mean_return``, ``mean_coverage_pct`` and ``mean_episode_steps``
-(control steps) over the episodes that ended in the update (empty when none did); the losses, ``approx_kl`` and
-``clipfrac`` of its last minibatch as CleanRL logs them; ``explained_variance`` of the rollout's returns by its
-values (empty when the returns do not vary); ``sps`` the PPO decisions per second of training time so far."""
+(control steps) over the episodes that ended in the update (empty when none did); the losses and ``approx_kl`` of
+its last minibatch and ``clipfrac`` over all its minibatches, as CleanRL logs them; ``explained_variance`` of the rollout's returns by its
+values (empty when the returns do not vary); ``sps`` the PPO decisions per second of training time so far. The
+README lists them with their units (tests/test_docs.py holds it to this list)."""
 
 
 def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float | str:
@@ -972,6 +973,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     args.validate()
     if args.tensorboard:
         summary_writer_class()  # tensorboardX missing: said now, not after a warm start
+    pyplot()  # loaded now, before any environment or file to clean up, not at the first checkpoint where a Ctrl-C could cut its import short
     t_start = time.time()
     seed_everything(args.seed)
     torch.set_num_threads(args.torch_threads)
@@ -1069,6 +1071,7 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     recent_episodes: collections.deque[dict[str, float]] = collections.deque(maxlen=20)  # for the bar's figures
     update = start_update - 1
     finished_loop = False
+    curve_drawn_at = float("-inf")  # the first checkpoint draws it
     try:
         for update in range(start_update, args.num_updates + 1):
             if args.anneal_lr:
@@ -1184,10 +1187,18 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
                 _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
             out_of_time = bool(args.time_limit_s) and time.time() - t_start > args.time_limit_s
             if out_of_time:
-                log(f"time limit reached after update {update}")
+                if update < args.num_updates:  # a run cut short: say how to finish it (a resume keeps the run's time limit)
+                    log(
+                        f"time limit reached after update {update} ({global_decisions} of {args.total_decisions} decisions);"
+                        f" --resume {out / 'checkpoint.pt'} goes on from here, for {args.time_limit_s:g} s more (the limit counts"
+                        " each process's time; add --time-limit-s 0 for none)"
+                    )
                 _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
             if args.keep_checkpoints and (at_checkpoint or out_of_time):  # the weights of each checkpoint.pt written, kept
                 save_weights(kept_checkpoint_dir(out, update), model, args, {**record, **run_counts(update, global_decisions, warm_decisions, env_steps, wall_before_s + time.time() - t_start)})
+            if (at_checkpoint or out_of_time) and time.time() - curve_drawn_at >= CURVE_REDRAW_EVERY_S:  # it follows the run
+                draw_curve_so_far(log_path, out / f"{args.variant}_curve.png", args.variant, log, say_where=False)
+                curve_drawn_at = time.time()
             if out_of_time:
                 break
         finished_loop = True
@@ -1324,24 +1335,39 @@ def progress_stats(recent: Sequence[Mapping[str, float]], decisions: int, wall_s
     return f"return {ret:.2f}  coverage {cov:.1f} % (last {len(recent)} episodes)  {rate}"
 
 
-def draw_curve_so_far(csv_path: Path, png_path: Path, title: str, log: Callable[[str], None]) -> None:
-    """``plot_learning_curve`` of a run that stopped (Ctrl-C, a dead environment process), said in the log; a failure
-    to draw it is only said, so that it never hides why the run stopped."""
+CURVE_REDRAW_EVERY_S = 30.0
+"""The learning curve is redrawn at a checkpoint when this much time has passed since it was last drawn (a drawing
+costs about 0.2 s: at most about 1 % of a run, however short its updates)."""
+
+
+def draw_curve_so_far(csv_path: Path, png_path: Path, title: str, log: Callable[[str], None], say_where: bool = True) -> None:
+    """``plot_learning_curve`` of the updates logged so far: at each checkpoint of a run, and when a run stopped (Ctrl-C,
+    a dead environment process), then said in the log (``say_where``). A failure to draw it is only said, so that it
+    never stops the training nor hides why a run stopped."""
     try:
         plot_learning_curve(csv_path, png_path, title)
     except Exception as exc:  # noqa: BLE001
         log(f"the learning curve so far could not be drawn ({type(exc).__name__}: {exc})")
     else:
-        log(f"learning curve so far: {png_path}")
+        if say_where:
+            log(f"learning curve so far: {png_path}")
 
 
-def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
-    """Mean episode return per update against decisions."""
+def pyplot() -> Any:
+    """matplotlib's pyplot on the file-only Agg backend. ``train`` loads it before its first update: imported at the first
+    checkpoint's drawing (1 to 2 s), a Ctrl-C then left matplotlib half-imported, and the curve of the stopped run
+    could not be drawn."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
+    return plt
+
+
+def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
+    """Mean episode return per update against decisions."""
+    plt = pyplot()
     xs, ys = [], []
     with open(csv_path, newline="") as f:
         for row in csv.DictReader(f):
@@ -1358,8 +1384,10 @@ def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
     ax.set_title(f"{title} learning curve")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(png_path, dpi=100)
+    tmp = png_path.with_name(png_path.name + ".tmp")  # replaced whole: an image viewer watching the file never reads half of one
+    fig.savefig(tmp, dpi=100, format="png")
     plt.close(fig)
+    tmp.replace(png_path)
 
 
 # --- evaluation of returns (tests, quick checks) ----------------------------------------------
