@@ -694,10 +694,12 @@ def test_an_eval_whose_progress_reader_is_gone_runs_every_episode_and_writes_its
         ["runs", "--runs-dir", "{tmp}"],
         ["up", "--resolved"],
         ["scenes", "generated:small:2:0"],
+        ["--help"],  # typer's help, printed by rich before any command runs
+        ["eval", "--help"],
         ["train", "--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--set", "num_steps=4", "--set", "num_minibatches=1",
          "--set", "max_steps=40", "--num-envs", "1", "--total-decisions", "4", "--out", "{tmp}/t"],  # its progress lines
     ],
-    ids=["eval", "eval-dry-run", "eval-resolved", "runs", "up-resolved", "scenes", "train"],
+    ids=["eval", "eval-dry-run", "eval-resolved", "runs", "up-resolved", "scenes", "help", "eval-help", "train"],
 )
 def test_a_command_whose_reader_left_ends_quietly_with_exit_code_141(tmp_path: Path, args: list[str]):
     """``eval ... | head -3``: the pipe closed by its reader made rich's table (or typer's echo) exit 1 after the
