@@ -1183,6 +1183,9 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
 
         Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # brackets are text; paths unbroken
         return 2
+    except KeyboardInterrupt:  # the first seconds: every plan loaded and checked, --out compared with this configuration
+        print("interrupted before any episode ran, while checking the plans; nothing written")
+        return EXIT_INTERRUPTED
     if dry_run or resolved:
         lines, unloadable = plan_said(request, plan)
         for warning in plan.warnings:

@@ -1768,6 +1768,25 @@ def test_ctrl_c_while_eval_writes_its_results_says_so_and_resume_writes_them(tmp
     assert (out / "report.html").is_file() and json.loads((out / "summary.json").read_text())["meta"]["resumed_episodes"] == 2
 
 
+def test_ctrl_c_while_eval_checks_its_plans_says_nothing_ran_or_was_written(tmp_path: Path, monkeypatch):
+    """Ctrl-C in an eval's first seconds, while it loads and checks every plan: it ended with exit code 130 and not a
+    word. It says, as a later Ctrl-C does, what happened: no episode ran, nothing was written."""
+    from typer.testing import CliRunner
+
+    from cso_runtime import cli, evaluation
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)  # the test's process keeps its own handlers
+    monkeypatch.setattr(evaluation, "plan_eval", interrupted)
+    out = tmp_path / "o"
+    r = CliRunner().invoke(cli.app, ["eval", "--method", "greedy-dist", "--maps", "generated:small:2:0", "--out", str(out)])
+    assert r.exit_code == 130, r.output
+    assert "interrupted before any episode ran, while checking the plans; nothing written" in " ".join(r.output.split())
+    assert not out.exists()
+
+
 def test_two_workers_give_the_rows_and_order_of_one(tmp_path: Path):
     """``--workers 2`` finishes episodes in any order: episodes.csv holds the same rows, in the same order, and each
     episode's files the same path and coverage as ``--workers 1`` (only the timings differ)."""
