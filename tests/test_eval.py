@@ -1115,6 +1115,59 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     assert not gif.exists() and "gen_small_3.gif" not in (tmp_path / "o" / "report.html").read_text(), "a new episode, not animated"
 
 
+def test_resume_gives_an_animated_episode_its_own_gif_and_never_another_runs(tmp_path: Path):
+    """``kill -9`` of ``eval --animate`` between an episode's two files kept it on ``--resume`` without its GIF, or
+    beside a GIF another run wrote (another configuration's, written before the kill). ``--resume --animate`` runs
+    such an episode again, which writes its own GIF; without ``--animate`` a GIF that is not the episode's is removed."""
+    import hashlib
+
+    from cso_runtime.evaluation import read_held_episode
+
+    out, other = tmp_path / "o", tmp_path / "other"
+    request = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=out, max_steps=12)
+    run_eval(request)  # not animated: as a run killed between its episode file and its GIF leaves it
+    npz, gif = out / "episodes" / "greedy-dist" / "gen_small_3.npz", out / "animations" / "greedy-dist" / "gen_small_3.gif"
+    assert not gif.exists()
+    run_eval(dataclasses.replace(request, resume=True, animate=True))
+    assert gif.is_file(), "an episode --resume --animate keeps has its GIF"
+    own = gif.read_bytes()
+    assert read_held_episode(npz).animation_sha256 == hashlib.sha256(own).hexdigest()
+
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=other, max_steps=6, animate=True))
+    foreign = (other / "animations" / "greedy-dist" / "gen_small_3.gif").read_bytes()
+    assert foreign != own
+    gif.write_bytes(foreign)  # another configuration's GIF, its episode file never written: the kill came between
+    stamp = npz.stat().st_mtime_ns
+    run_eval(dataclasses.replace(request, resume=True, animate=True))
+    assert gif.read_bytes() == own and npz.stat().st_mtime_ns != stamp, "run again: its own GIF, not the other run's"
+    gif.write_bytes(foreign)
+    summary = run_eval(dataclasses.replace(request, resume=True))
+    assert summary["meta"]["resumed_episodes"] == 1 and not gif.exists(), "kept, without a GIF that is not its own"
+
+
+def test_eval_removes_the_partial_files_a_killed_eval_left_and_never_reads_them(tmp_path: Path):
+    """``kill -9`` while an episode file was written left ``<map>.partial.npz`` in the results folder for good (and
+    that name is the episode file of a plan named ``<map>.partial``). Files are written under a hidden name no
+    episode has; an eval (``--resume`` or not) removes those a killed eval left, and the old ``<map>.partial.npz``."""
+    from cso_runtime.outputs import episode_npz_path, partial_path
+
+    out = tmp_path / "o"
+    assert partial_path(episode_npz_path(out, "cso", "plan")) != episode_npz_path(out, "cso", "plan.partial")
+    assert not partial_path(episode_npz_path(out, "cso", "plan")).name.endswith(".npz")
+    request = EvalRequest(methods=["greedy-dist"], maps="generated:small:2:0", out_dir=out, max_steps=6)
+    run_eval(request)
+    folder, gifs = out / "episodes" / "greedy-dist", out / "animations" / "greedy-dist"
+    gifs.mkdir(parents=True)
+    for again in (dataclasses.replace(request, resume=True), request):
+        stale = [folder / "gen_small_0.partial.npz", partial_path(folder / "gen_small_1.npz"), partial_path(gifs / "gen_small_0.gif")]
+        for path in stale:
+            path.write_bytes(b"PK\x03\x04 cut short by kill -9")
+        summary = run_eval(again)
+        assert summary["methods"]["greedy-dist"]["episodes"] == 2 and not summary["failures"]
+        assert not [path for path in stale if path.exists()]
+    assert sorted(p.name for p in folder.iterdir()) == ["gen_small_0.npz", "gen_small_1.npz"]
+
+
 def test_the_report_shows_each_methods_final_map_and_gives_each_picture_one_caption(tmp_path: Path):
     """The Maps section shows, beside the trajectories and animations, the robot's final map of each method as
     map_server serves it, linked to its YAML; every picture has its own caption (a ``<figure>`` holds one
