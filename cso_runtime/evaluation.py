@@ -502,18 +502,23 @@ def animation_is_the_episodes(held: HeldEpisode, npz_path: Path, gif: Path) -> b
         return False
 
 
-def load_finished(job: EpisodeJob) -> EpisodeOutcome | None:
-    """The outcome of an episode a previous run already finished with the same settings, if any. With ``--animate``
-    only one with its own GIF (else it runs again, and writes it). A GIF beside it that is not its own is removed:
+def remove_a_gif_not_its_own(job: EpisodeJob) -> None:
+    """Remove the GIF beside ``job``'s kept episode when it is not the episode's own (``animation_is_the_episodes``):
     the report would show it as this episode's."""
+    held = read_held_episode(job.npz_path)
+    gif = episode_animation_path(job.out_dir, job.method, job.scene.name)
+    if held is not None and not animation_is_the_episodes(held, job.npz_path, gif):
+        gif.unlink(missing_ok=True)
+
+
+def load_finished(job: EpisodeJob) -> EpisodeOutcome | None:
+    """The outcome of an episode a previous run already finished with the same settings, if any; with ``--animate``
+    only one with its own GIF (else it runs again, and writes it). Reads only (``--dry-run``)."""
     held = read_held_episode(job.npz_path)
     if held is None or not held.same_run(job):
         return None
-    gif = episode_animation_path(job.out_dir, job.method, job.scene.name)
-    if not animation_is_the_episodes(held, job.npz_path, gif):
-        if job.animate:
-            return None
-        gif.unlink(missing_ok=True)
+    if job.animate and not animation_is_the_episodes(held, job.npz_path, episode_animation_path(job.out_dir, job.method, job.scene.name)):
+        return None
     try:
         plan = job.scene.load()
     except (OSError, ValueError, SceneError):
@@ -1004,6 +1009,7 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
             if finished is None:
                 todo.append(job)
             else:
+                remove_a_gif_not_its_own(job)
                 done(finished)
         jobs = todo
     interrupted = False

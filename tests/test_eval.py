@@ -1121,7 +1121,7 @@ def test_resume_gives_an_animated_episode_its_own_gif_and_never_another_runs(tmp
     such an episode again, which writes its own GIF; without ``--animate`` a GIF that is not the episode's is removed."""
     import hashlib
 
-    from cso_runtime.evaluation import read_held_episode
+    from cso_runtime.evaluation import read_held_episode, run_eval_cli
 
     out, other = tmp_path / "o", tmp_path / "other"
     request = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=out, max_steps=12)
@@ -1141,6 +1141,7 @@ def test_resume_gives_an_animated_episode_its_own_gif_and_never_another_runs(tmp
     run_eval(dataclasses.replace(request, resume=True, animate=True))
     assert gif.read_bytes() == own and npz.stat().st_mtime_ns != stamp, "run again: its own GIF, not the other run's"
     gif.write_bytes(foreign)
+    assert run_eval_cli(dataclasses.replace(request, resume=True), dry_run=True) == 0 and gif.read_bytes() == foreign  # writes nothing
     summary = run_eval(dataclasses.replace(request, resume=True))
     assert summary["meta"]["resumed_episodes"] == 1 and not gif.exists(), "kept, without a GIF that is not its own"
 
