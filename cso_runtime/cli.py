@@ -1278,9 +1278,9 @@ def parse_settings(items: list[str]) -> dict[str, object]:
 def main() -> None:
     """The ``cso-runtime`` script's entry point: a Ctrl-C before any command handles it exits 130 with one line; every
     output whose reader left (a command's, ``--help``'s) ends as a shell tool does, with exit 141."""
-    from cso_runtime.reader_gone import ends_quietly_when_its_reader_leaves  # noqa: PLC0415
-
     try:
+        from cso_runtime.reader_gone import ends_quietly_when_its_reader_leaves  # noqa: PLC0415
+
         with ends_quietly_when_its_reader_leaves():
             app(prog_name="cso-runtime")  # one name (and completion variable) for the script and python -m cso_runtime.cli
     except KeyboardInterrupt:  # before typer's own handling (which exits 130) or a command's
