@@ -24,6 +24,7 @@ from cso_runtime.config import RobotConfig
 from cso_runtime.frames import PALETTE, frame_scale, map_frame_indexed
 from cso_runtime.geometry import Pose2D
 from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, Message, MessageError, OdometryMsg, decode, frontiers_reading
+from cso_runtime.outputs import partial_path
 
 log = logging.getLogger("cso.animation")
 
@@ -76,7 +77,7 @@ class FrameSequence:
             images.append(im)
         durations = [frame_ms] * (len(images) - 1) + [last_frame_ms]
         image_format = Image.registered_extensions().get(path.suffix.lower(), "GIF")  # the partial file's name says none
-        partial = path.with_name(f".{path.name}.{os.getpid()}.partial")
+        partial = partial_path(path)
         try:
             images[0].save(partial, format=image_format, save_all=True, append_images=images[1:], duration=durations, loop=0, optimize=False)
             os.replace(partial, path)

@@ -1279,29 +1279,14 @@ def parse_settings(items: list[str]) -> dict[str, object]:
     return out
 
 
-def _ending_quietly_when_its_reader_leaves(command: Callable[..., object]) -> Callable[..., object]:
-    """``command`` in ``ends_quietly_when_its_reader_leaves``: every command, ``runs | head -3`` as ``eval | head``."""
-    import functools  # noqa: PLC0415
-
-    @functools.wraps(command)  # typer reads the options from the signature, which wraps keeps
-    def wrapped(*args: object, **kwargs: object) -> object:
-        from cso_runtime.live_view import ends_quietly_when_its_reader_leaves  # noqa: PLC0415
+def main() -> None:
+    """The ``cso-runtime`` script's entry point: a Ctrl-C before any command handles it exits 130 with one line; every
+    output whose reader left (a command's, ``--help``'s) ends as a shell tool does, with exit 141."""
+    try:
+        from cso_runtime.reader_gone import ends_quietly_when_its_reader_leaves  # noqa: PLC0415
 
         with ends_quietly_when_its_reader_leaves():
-            return command(*args, **kwargs)
-
-    return wrapped
-
-
-for _command in app.registered_commands:
-    if _command.callback is not None:
-        _command.callback = _ending_quietly_when_its_reader_leaves(_command.callback)
-
-
-def main() -> None:
-    """The ``cso-runtime`` script's entry point: a Ctrl-C before any command handles it exits 130 with one line."""
-    try:
-        app(prog_name="cso-runtime")  # one name (and completion variable) for the script and python -m cso_runtime.cli
+            app(prog_name="cso-runtime")  # one name (and completion variable) for the script and python -m cso_runtime.cli
     except KeyboardInterrupt:  # before typer's own handling (which exits 130) or a command's
         _interrupted_early()
 

@@ -79,6 +79,8 @@ from cso_runtime.outputs import (
     episode_map_path,
     episode_npz_path,
     file_stem,
+    partial_path,
+    remove_stale_partial_files,
     results_said,
     trajectory_plot_path,
     write_text_atomic,
@@ -403,30 +405,38 @@ def episode_row(method: str, seed: int, result: EpisodeResult, wall_s: float, re
 
 
 def save_episode_files(
-    out_dir: Path, method: str, scene: str, result: EpisodeResult, row: dict[str, Any], settings: str = "", scene_hash: str = "", map_origin: Pose2D = MAP_FRAME_ORIGIN
+    out_dir: Path, method: str, scene: str, result: EpisodeResult, row: dict[str, Any], settings: str = "", scene_hash: str = "", map_origin: Pose2D = MAP_FRAME_ORIGIN,
+    animation_sha256: str = "",
 ) -> None:
     """The episode's npz and, when its map is known, the robot's final map as map_server files (PNG:
     an evaluation writes hundreds). The npz holds ``explored`` in the plan's pixel layout (row 0 at the
     top, like the PNG), the trajectory in metres in the plan's frame with ``map_origin`` (the plan's pose in the
     user's map frame, ``FloorPlan.map_origin``) beside it, and the metric row as JSON (``metrics``) with the
     settings' and the scene's fingerprints so an interrupted eval can resume; it is written last, so an episode whose
-    npz is there has its map too. The map files are in the map frame: their ``origin`` overlays the user's own map."""
+    npz is there has its map too. The map files are in the map frame: their ``origin`` overlays the user's own map.
+    ``animation_sha256``: the sha256 of the episode's GIF (``--animate``, written before), "" for none: what ties that
+    GIF to this episode (``animation_is_the_episodes``)."""
     if result.map_grid is not None and result.map_geometry is not None:
         save_map(episode_map_path(out_dir, method, scene), result.map_grid, result.map_geometry, image_format="png", map_origin=map_origin)
     path = episode_npz_path(out_dir, method, scene)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.stem + ".partial.npz")
-    np.savez_compressed(
-        tmp,
-        explored=np.flipud(result.explored_free),
-        trajectory=result.trajectory_xy_m.astype(np.float32),
-        map_origin=np.array([map_origin.x_m, map_origin.y_m, map_origin.yaw_rad], dtype=np.float64),
-        coverage_curve=result.coverage_curve_pct.astype(np.float32),
-        metrics=np.array(json.dumps(json_row(row), allow_nan=False)),
-        settings=np.array(settings),
-        scene=np.array(scene_hash),
-    )
-    tmp.replace(path)  # atomic: a half-written file never looks finished
+    tmp = partial_path(path)  # not <map>.partial.npz: the episode file of a plan named <map>.partial
+    try:
+        with tmp.open("wb") as fh:  # a file, not its name: numpy would add .npz to it
+            np.savez_compressed(
+                fh,
+                explored=np.flipud(result.explored_free),
+                trajectory=result.trajectory_xy_m.astype(np.float32),
+                map_origin=np.array([map_origin.x_m, map_origin.y_m, map_origin.yaw_rad], dtype=np.float64),
+                coverage_curve=result.coverage_curve_pct.astype(np.float32),
+                metrics=np.array(json.dumps(json_row(row), allow_nan=False)),
+                settings=np.array(settings),
+                scene=np.array(scene_hash),
+                animation=np.array(animation_sha256),
+            )
+        os.replace(tmp, path)  # atomic: a half-written file never looks finished
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 @dataclass
@@ -441,6 +451,8 @@ class HeldEpisode:
     """``EpisodeJob.settings`` it ran with; None in a file of a run before the fingerprints."""
     scene: str | None
     """``scene_fingerprint`` of its plan; None in a file of a run before the fingerprints."""
+    animation_sha256: str | None = None
+    """The sha256 of its GIF ("" for none); None in a file of a run before it was recorded."""
 
     def same_run(self, job: EpisodeJob) -> bool:
         """Whether it ran as ``job`` would, its plan aside (``scene``): the same method, seed and settings."""
@@ -461,15 +473,51 @@ def read_held_episode(path: Path) -> HeldEpisode | None:
                 coverage_curve_pct=data["coverage_curve"].astype(float),
                 settings=str(data["settings"]) if "settings" in data.files else None,
                 scene=str(data["scene"]) if "scene" in data.files else None,
+                animation_sha256=str(data["animation"]) if "animation" in data.files else None,
             )
     except (OSError, EOFError, KeyError, ValueError, AttributeError, zipfile.BadZipFile, zlib.error):  # cut short, empty, not ours
         return None
 
 
+def file_sha256(path: Path) -> str:
+    """The sha256 of the file at ``path``; "" when there is none (or it cannot be read)."""
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return ""
+
+
+def animation_is_the_episodes(held: HeldEpisode, npz_path: Path, gif: Path) -> bool:
+    """Whether ``gif`` is the animation of the episode in ``npz_path``: the GIF that episode's run wrote (its sha256 in
+    the npz), not one of another run (``kill -9`` between the two files: a GIF written by a run with other settings,
+    or left from an earlier run beside an episode that had none). An npz of before the sha256 was recorded: a GIF
+    written after it (those runs wrote the npz first), as its own run did."""
+    if not gif.is_file():
+        return False
+    if held.animation_sha256 is not None:
+        return held.animation_sha256 != "" and file_sha256(gif) == held.animation_sha256
+    try:
+        return gif.stat().st_mtime_ns >= npz_path.stat().st_mtime_ns
+    except OSError:
+        return False
+
+
+def remove_a_gif_not_its_own(job: EpisodeJob) -> None:
+    """Remove the GIF beside ``job``'s kept episode when it is not the episode's own (``animation_is_the_episodes``):
+    the report would show it as this episode's."""
+    held = read_held_episode(job.npz_path)
+    gif = episode_animation_path(job.out_dir, job.method, job.scene.name)
+    if held is not None and not animation_is_the_episodes(held, job.npz_path, gif):
+        gif.unlink(missing_ok=True)
+
+
 def load_finished(job: EpisodeJob) -> EpisodeOutcome | None:
-    """The outcome of an episode a previous run already finished with the same settings, if any."""
+    """The outcome of an episode a previous run already finished with the same settings, if any; with ``--animate``
+    only one with its own GIF (else it runs again, and writes it). Reads only (``--dry-run``)."""
     held = read_held_episode(job.npz_path)
     if held is None or not held.same_run(job):
+        return None
+    if job.animate and not animation_is_the_episodes(held, job.npz_path, episode_animation_path(job.out_dir, job.method, job.scene.name)):
         return None
     try:
         plan = job.scene.load()
@@ -565,12 +613,14 @@ def run_job(job: EpisodeJob) -> EpisodeOutcome:
         result = run_episode(sim, policy, job.config, seed=job.seed, on_step=animation.on_step if animation else None)
         wall_s = time.perf_counter() - t0  # the frames' drawing included, when animated
         row = episode_row(job.method, job.seed, result, wall_s, real_time_factor(result.sim_time_s, wall_s))
-        save_episode_files(job.out_dir, job.method, job.scene.name, result, row, job.settings, scene_fingerprint(plan), plan.map_origin)
         gif = episode_animation_path(job.out_dir, job.method, job.scene.name)
-        if animation is not None and animation.finish():
+        if animation is not None and animation.finish():  # before the npz, which records it: a kill between leaves no pair
             animation.save_gif(gif)
         else:
             gif.unlink(missing_ok=True)  # an earlier run's animation of this episode would show another episode
+        save_episode_files(
+            job.out_dir, job.method, job.scene.name, result, row, job.settings, scene_fingerprint(plan), plan.map_origin, file_sha256(gif)
+        )
     except Exception as exc:  # one bad episode must not stop the run; it is reported
         log.debug("episode failed", exc_info=True)
         return EpisodeOutcome(job.method, job.scene.name, error=f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=3)}")
@@ -940,6 +990,8 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
         log.warning("%s", warning)
     config, scenes, jobs, weights, mujoco = plan.config, plan.scenes, plan.jobs, plan.weights, plan.mujoco
     out = Path(request.out_dir)
+    for stale in remove_stale_partial_files(out, [job.npz_path for job in jobs]):  # a killed eval's, never read
+        log.info("removed %s, left by an eval that was killed while writing it", stale)
     outcomes: list[EpisodeOutcome] = []
     total = len(jobs)
     if progress is not None:
@@ -957,6 +1009,7 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
             if finished is None:
                 todo.append(job)
             else:
+                remove_a_gif_not_its_own(job)
                 done(finished)
         jobs = todo
     interrupted = False
@@ -1183,6 +1236,9 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
 
         Console(stderr=True).print(f"[red]error:[/red] {escape(str(exc))}", soft_wrap=True)  # brackets are text; paths unbroken
         return 2
+    except KeyboardInterrupt:  # the first seconds: every plan loaded and checked, --out compared with this configuration
+        print("interrupted before any episode ran, while checking the plans; nothing written")
+        return EXIT_INTERRUPTED
     if dry_run or resolved:
         lines, unloadable = plan_said(request, plan)
         for warning in plan.warnings:

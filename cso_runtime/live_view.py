@@ -11,14 +11,13 @@ import sys
 import time
 from typing import TYPE_CHECKING, Any
 
-from cso_runtime.config import EXIT_INTERRUPTED, EXIT_READER_GONE
+from cso_runtime.config import EXIT_INTERRUPTED
 from cso_runtime.messages import EPISODE_OVER
 from cso_runtime.pace import real_time_words
 
 log = logging.getLogger("cso.launcher")
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
 
     from rich.console import Console
     from rich.live import Live
@@ -78,45 +77,6 @@ def console_that_survives_its_reader(stderr: bool = False, tell: bool = True) ->
                 raise BrokenPipeError(errno.EPIPE, os.strerror(errno.EPIPE))
 
     return QuietOnBrokenPipe(stderr=stderr)
-
-
-def reader_is_gone() -> bool:
-    """Whether stdout or stderr is a pipe whose reader has closed it (``runs | head -3``: head has its lines)."""
-    import select  # noqa: PLC0415
-
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            poller = select.poll()
-            poller.register(stream.fileno(), 0)  # POLLERR and POLLHUP are always reported: a widowed pipe's write end
-            if poller.poll(0):
-                return True
-        except (OSError, ValueError, AttributeError):  # no file descriptor (a test's captured stream), or closed
-            continue
-    return False
-
-
-@contextlib.contextmanager
-def ends_quietly_when_its_reader_leaves() -> Iterator[None]:
-    """A command whose output's reader leaves (``cso-runtime runs | head -3``, ``eval ... | head``) ends quietly with
-    exit code 141 (EXIT_READER_GONE, as a shell tool killed by SIGPIPE), not rich's or typer's exit 1 or a traceback.
-    What it was doing when the pipe broke is over (its ``finally`` blocks ran: ``eval`` has written its results by
-    its last table); stdout and stderr go to /dev/null so that nothing else fails at exit. A broken pipe that is not
-    the reader's (another process's) is raised as it was. The tables are printed by ``console_that_survives_its_reader``
-    consoles, whose broken pipe is this ``BrokenPipeError`` rather than rich's ``SystemExit(1)``."""
-    try:
-        try:
-            yield
-        finally:  # a last line still in Python's buffer would break at exit, after this block (and its exit code)
-            sys.stdout.flush()
-    except BrokenPipeError:
-        if not reader_is_gone():
-            raise
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(OSError, ValueError, AttributeError):
-                os.dup2(devnull, stream.fileno())
-        os.close(devnull)
-        raise SystemExit(EXIT_READER_GONE) from None
 
 
 class LiveView:

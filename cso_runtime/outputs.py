@@ -59,3 +59,30 @@ def write_text_atomic(path: Path, text: str) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def partial_path(path: Path) -> Path:
+    """Where ``path`` is written before it is renamed over it (whole or not at all): hidden, this process's own, and
+    ending in ``.partial``, so that no reader of the results folder takes one a kill left (``<map>.partial.npz``
+    was an episode file to a glob, and the name of a plan ``<map>.partial``'s own)."""
+    return path.with_name(f".{path.name}.{os.getpid()}.partial")
+
+
+RESULT_FILE_FOLDERS = ("episodes", "animations")
+"""The folders of ``--out`` whose files are written beside themselves first (``partial_path``)."""
+
+
+def remove_stale_partial_files(out_dir: Path, episode_files: list[Path]) -> list[Path]:
+    """Remove the partial files a killed eval left in ``out_dir`` (``kill -9`` while it wrote an episode file or a GIF),
+    and the ``<map>.partial.npz`` an earlier version left beside each of ``episode_files`` (the episodes this eval runs;
+    one that is itself one of them, a plan named ``<map>.partial``, is kept); the ones removed. Only while holding the
+    folder's eval lock: another eval's partial files are the ones it is writing."""
+    episodes = set(episode_files)
+    stale = [path for folder in RESULT_FILE_FOLDERS for path in sorted((Path(out_dir) / folder).glob("*/.*.partial"))]
+    stale += [legacy for path in episode_files if (legacy := path.with_name(f"{path.stem}.partial.npz")) not in episodes]
+    removed = []
+    for path in stale:
+        if path.is_file():
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed

@@ -694,10 +694,12 @@ def test_an_eval_whose_progress_reader_is_gone_runs_every_episode_and_writes_its
         ["runs", "--runs-dir", "{tmp}"],
         ["up", "--resolved"],
         ["scenes", "generated:small:2:0"],
+        ["--help"],  # typer's help, printed by rich before any command runs
+        ["eval", "--help"],
         ["train", "--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--set", "num_steps=4", "--set", "num_minibatches=1",
          "--set", "max_steps=40", "--num-envs", "1", "--total-decisions", "4", "--out", "{tmp}/t"],  # its progress lines
     ],
-    ids=["eval", "eval-dry-run", "eval-resolved", "runs", "up-resolved", "scenes", "train"],
+    ids=["eval", "eval-dry-run", "eval-resolved", "runs", "up-resolved", "scenes", "help", "eval-help", "train"],
 )
 def test_a_command_whose_reader_left_ends_quietly_with_exit_code_141(tmp_path: Path, args: list[str]):
     """``eval ... | head -3``: the pipe closed by its reader made rich's table (or typer's echo) exit 1 after the
@@ -1111,6 +1113,60 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     assert gif.is_file(), "an episode --resume keeps keeps its animation"
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=tmp_path / "o", max_steps=30, overwrite=True))
     assert not gif.exists() and "gen_small_3.gif" not in (tmp_path / "o" / "report.html").read_text(), "a new episode, not animated"
+
+
+def test_resume_gives_an_animated_episode_its_own_gif_and_never_another_runs(tmp_path: Path):
+    """``kill -9`` of ``eval --animate`` between an episode's two files kept it on ``--resume`` without its GIF, or
+    beside a GIF another run wrote (another configuration's, written before the kill). ``--resume --animate`` runs
+    such an episode again, which writes its own GIF; without ``--animate`` a GIF that is not the episode's is removed."""
+    import hashlib
+
+    from cso_runtime.evaluation import read_held_episode, run_eval_cli
+
+    out, other = tmp_path / "o", tmp_path / "other"
+    request = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=out, max_steps=12)
+    run_eval(request)  # not animated: as a run killed between its episode file and its GIF leaves it
+    npz, gif = out / "episodes" / "greedy-dist" / "gen_small_3.npz", out / "animations" / "greedy-dist" / "gen_small_3.gif"
+    assert not gif.exists()
+    run_eval(dataclasses.replace(request, resume=True, animate=True))
+    assert gif.is_file(), "an episode --resume --animate keeps has its GIF"
+    own = gif.read_bytes()
+    assert read_held_episode(npz).animation_sha256 == hashlib.sha256(own).hexdigest()
+
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:3", out_dir=other, max_steps=6, animate=True))
+    foreign = (other / "animations" / "greedy-dist" / "gen_small_3.gif").read_bytes()
+    assert foreign != own
+    gif.write_bytes(foreign)  # another configuration's GIF, its episode file never written: the kill came between
+    stamp = npz.stat().st_mtime_ns
+    run_eval(dataclasses.replace(request, resume=True, animate=True))
+    assert gif.read_bytes() == own and npz.stat().st_mtime_ns != stamp, "run again: its own GIF, not the other run's"
+    gif.write_bytes(foreign)
+    assert run_eval_cli(dataclasses.replace(request, resume=True), dry_run=True) == 0 and gif.read_bytes() == foreign  # writes nothing
+    summary = run_eval(dataclasses.replace(request, resume=True))
+    assert summary["meta"]["resumed_episodes"] == 1 and not gif.exists(), "kept, without a GIF that is not its own"
+
+
+def test_eval_removes_the_partial_files_a_killed_eval_left_and_never_reads_them(tmp_path: Path):
+    """``kill -9`` while an episode file was written left ``<map>.partial.npz`` in the results folder for good (and
+    that name is the episode file of a plan named ``<map>.partial``). Files are written under a hidden name no
+    episode has; an eval (``--resume`` or not) removes those a killed eval left, and the old ``<map>.partial.npz``."""
+    from cso_runtime.outputs import episode_npz_path, partial_path
+
+    out = tmp_path / "o"
+    assert partial_path(episode_npz_path(out, "cso", "plan")) != episode_npz_path(out, "cso", "plan.partial")
+    assert not partial_path(episode_npz_path(out, "cso", "plan")).name.endswith(".npz")
+    request = EvalRequest(methods=["greedy-dist"], maps="generated:small:2:0", out_dir=out, max_steps=6)
+    run_eval(request)
+    folder, gifs = out / "episodes" / "greedy-dist", out / "animations" / "greedy-dist"
+    gifs.mkdir(parents=True)
+    for again in (dataclasses.replace(request, resume=True), request):
+        stale = [folder / "gen_small_0.partial.npz", partial_path(folder / "gen_small_1.npz"), partial_path(gifs / "gen_small_0.gif")]
+        for path in stale:
+            path.write_bytes(b"PK\x03\x04 cut short by kill -9")
+        summary = run_eval(again)
+        assert summary["methods"]["greedy-dist"]["episodes"] == 2 and not summary["failures"]
+        assert not [path for path in stale if path.exists()]
+    assert sorted(p.name for p in folder.iterdir()) == ["gen_small_0.npz", "gen_small_1.npz"]
 
 
 def test_the_report_shows_each_methods_final_map_and_gives_each_picture_one_caption(tmp_path: Path):
@@ -1764,6 +1820,25 @@ def test_ctrl_c_while_eval_writes_its_results_says_so_and_resume_writes_them(tmp
     again = CliRunner().invoke(cli.app, [*args, "--resume"])
     assert again.exit_code == 0, again.output
     assert (out / "report.html").is_file() and json.loads((out / "summary.json").read_text())["meta"]["resumed_episodes"] == 2
+
+
+def test_ctrl_c_while_eval_checks_its_plans_says_nothing_ran_or_was_written(tmp_path: Path, monkeypatch):
+    """Ctrl-C in an eval's first seconds, while it loads and checks every plan: it ended with exit code 130 and not a
+    word. It says, as a later Ctrl-C does, what happened: no episode ran, nothing was written."""
+    from typer.testing import CliRunner
+
+    from cso_runtime import cli, evaluation
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)  # the test's process keeps its own handlers
+    monkeypatch.setattr(evaluation, "plan_eval", interrupted)
+    out = tmp_path / "o"
+    r = CliRunner().invoke(cli.app, ["eval", "--method", "greedy-dist", "--maps", "generated:small:2:0", "--out", str(out)])
+    assert r.exit_code == 130, r.output
+    assert "interrupted before any episode ran, while checking the plans; nothing written" in " ".join(r.output.split())
+    assert not out.exists()
 
 
 def test_two_workers_give_the_rows_and_order_of_one(tmp_path: Path):
