@@ -283,7 +283,11 @@ class PlannerConfig:
     quarter of what their commands asked (pinned on a wall's corner, which the MuJoCo LIMO can be after
     sliding on from full speed), it backs straight up ``backup_distance_m`` before following on, a period at a
     time and only while the map the path was planned on shows no obstacle in the strip behind the body
-    (``LocalPlanner`` stops a reverse command otherwise). 0 turns it off."""
+    (``LocalPlanner`` stops a reverse command otherwise). A period that asked to drive is judged by its drive
+    alone, whatever its turn did; a turn in place by its turn. With a sensor narrower than
+    ``face_goal_below_fov_deg`` (the depth camera) the cells the pinned body touches become obstacles of the
+    planner's grid for the rest of the episode, and the path is planned again round them after the back-up.
+    0 turns it off."""
     backup_distance_m: float = 0.15
     """How far the stall recovery backs up (Nav2's default ``backup_dist``)."""
     backup_speed_mps: float = 0.15

@@ -17,7 +17,7 @@ from enum import Enum
 import numpy as np
 
 from cso_runtime.config import ExplorationConfig, PlannerConfig, RobotConfig
-from cso_runtime.geodesic import disk_offsets, geodesic_distance
+from cso_runtime.geodesic import disk_cells, disk_offsets, geodesic_distance, inflate
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, no_return_mask, wrap_angle_rad
 
 FACE_GOAL_MIN_DISTANCE_M = 0.05
@@ -380,7 +380,9 @@ class StallRecovery:
     in a row that each achieved less than ``STALL_ACHIEVED_FRACTION`` of what they asked (the robot is
     pinned on a wall's corner) start a straight back-up of ``backup_distance_m``. The pure-pursuit
     follower alone keeps pushing a pinned robot into the wall: its sweep sees the wall a few centimetres
-    ahead but not the corner that holds the body."""
+    ahead but not the corner that holds the body. A period that asked to drive is judged by its drive: pinned
+    by its side on a wall outside the depth camera's view, the robot still turns as pure pursuit asks, and
+    counting those turns as movement kept the back-up from ever starting."""
 
     def __init__(self, config: PlannerConfig, control_period_s: float) -> None:
         self.config = config
@@ -415,9 +417,9 @@ class StallRecovery:
             return False
         moved_m = math.hypot(pose.x_m - last_pose.x_m, pose.y_m - last_pose.y_m)
         turned_rad = math.copysign(1.0, asked_rad) * wrap_angle_rad(pose.yaw_rad - last_pose.yaw_rad)
-        translation_stalled = asked_m < STALL_MIN_ASKED_M or moved_m < STALL_ACHIEVED_FRACTION * asked_m
-        rotation_stalled = abs(asked_rad) < STALL_MIN_ASKED_RAD or turned_rad < STALL_ACHIEVED_FRACTION * abs(asked_rad)
-        return translation_stalled and rotation_stalled
+        if asked_m >= STALL_MIN_ASKED_M:
+            return moved_m < STALL_ACHIEVED_FRACTION * asked_m  # a drive that went nowhere is pinned, whatever its turn did
+        return turned_rad < STALL_ACHIEVED_FRACTION * abs(asked_rad)  # a turn in place is judged by its turn
 
     def command(self, pose: Pose2D, time_s: float) -> VelocityCommand | None:
         """The back-up command for this period, or None to follow the path as usual."""
@@ -524,11 +526,55 @@ class LocalPlanner:
         self.status = PlannerStatus.IDLE
         self.blocked_why = ""
         """Why the last goal could not be planned (``NoPath``'s message: off the map, unreachable); empty otherwise."""
+        self.contacts_xy_m = np.zeros((0, 2))
+        """Centres (metres) of the cells a pinned robot was pressed against (``mark_contact``): obstacles that no scan
+        mapped, kept for the planner's life (an episode) and inflated into every grid it plans on."""
+        self.replan_pending = False
+        """A back-up from a new contact is running: re-plan round the contact once it ends."""
 
     @classmethod
     def for_config(cls, config: ExplorationConfig) -> LocalPlanner:
         """The planner of an episode with these settings (the in-process Explorer and the planner service)."""
         return cls(config.robot, config.planner, config.episode.goal_tolerance_m, config.sensor.mount_x_m, math.radians(config.sensor.fov_deg))
+
+    def narrow_sensor(self) -> bool:
+        """A sensor narrower than ``face_goal_below_fov_deg`` (the depth camera): it turns to goals, and a wall that pins
+        it from the side is one it cannot see."""
+        return self.sensor_fov_rad < math.radians(self.config.face_goal_below_fov_deg) - 1e-9
+
+    def without_contacts(self, traversable: np.ndarray, geometry: GridGeometry) -> np.ndarray:
+        """``traversable`` less the contacts inflated by the robot's radius (the same grid when there are none)."""
+        if len(self.contacts_xy_m) == 0:
+            return traversable
+        iy, ix = geometry.world_to_cell(self.contacts_xy_m[:, 0], self.contacts_xy_m[:, 1])
+        ok = geometry.in_bounds(iy, ix)
+        contacts = np.zeros(traversable.shape, dtype=bool)
+        contacts[iy[ok], ix[ok]] = True
+        return traversable & ~inflate(contacts, self.robot.radius_m, geometry.resolution_m)
+
+    def mark_contact(self, pose: Pose2D, forward: bool) -> None:
+        """A drive that went nowhere (``StallRecovery``) has the body pressed against something no scan shows: with a
+        narrow sensor, a wall end beside the robot, outside the view and nearer than ``range_min``, which the map left
+        unknown. Remember as obstacles the cells of the planned-on grid that are not traversable and touch the body's
+        disc (half its width plus 1 cm, and half a cell) on the side it drove to, so that the path after the back-up
+        keeps the robot's radius off them, as the bumper layers of ROS costmaps mark a contact."""
+        if self.free is None:
+            return
+        geometry, res = self.free.geometry, self.free.geometry.resolution_m
+        radius = 0.5 * self.robot.width_m + 0.01
+        iy, ix = disk_cells(geometry, pose.xy, int(math.ceil(radius / res)) + 2)
+        x0, y0 = geometry.cell_to_world(iy, ix)
+        x0, y0 = x0 - 0.5 * res, y0 - 0.5 * res  # the cells' lower-left corners
+        dx = np.maximum(np.maximum(x0 - pose.x_m, 0.0), pose.x_m - (x0 + res))
+        dy = np.maximum(np.maximum(y0 - pose.y_m, 0.0), pose.y_m - (y0 + res))
+        gap = np.hypot(dx, dy)  # from the robot's centre to the nearest point of each cell
+        sign = 1.0 if forward else -1.0
+        along = (x0 + 0.5 * res - pose.x_m) * math.cos(pose.yaw_rad) + (y0 + 0.5 * res - pose.y_m) * math.sin(pose.yaw_rad)
+        ahead = sign * along > 0.0
+        touching = (gap >= 0.5 * self.robot.width_m) & (gap <= radius + 0.5 * res) & ahead & ~self.free.traversable[iy, ix]
+        if touching.any():
+            cx, cy = geometry.cell_to_world(iy[touching], ix[touching])
+            self.contacts_xy_m = np.concatenate([self.contacts_xy_m, np.stack([cx, cy], axis=1)])
 
     def set_path(self, path_xy_m: np.ndarray, free: FreeSpace | None = None) -> None:
         """Follow a new path. Progress is tracked across re-plans to the same goal, so re-sending a
@@ -556,6 +602,9 @@ class LocalPlanner:
         ``distance_from_robot``, ``goal_distance_m`` bounds the fast-marching pass (``plan_path``).
         ``occupied`` (the same map's obstacles) lets the robot reverse only where the map shows none."""
         self.blocked_why = ""
+        self.replan_pending = False
+        if len(self.contacts_xy_m):  # the decision's grid and distances know nothing of the contacts
+            traversable, distance_from_robot = self.without_contacts(traversable, geometry), None
         try:
             path = plan_path(traversable, geometry, pose.xy, np.asarray(goal_xy_m, dtype=float), distance_from_robot, goal_distance_m)
             self.set_path(path, FreeSpace(traversable, geometry, occupied))
@@ -572,13 +621,15 @@ class LocalPlanner:
 
     def follow_state(self) -> tuple:
         """What ``update`` changes (status, progress along the path, the progress anchor, the stall
-        recovery's state): a caller may compute a command ahead of time and keep or undo it with
-        ``restore_follow_state``."""
-        return self.status, self.progress_index, self.progress.anchor, self.stall.state(), self.recovery.state()
+        recovery's state, and the path, its grid and the contacts a stall re-plans with): a caller may compute a
+        command ahead of time and keep or undo it with ``restore_follow_state``."""
+        recovered = (self.path, self.free, self.contacts_xy_m, self.replan_pending, self.blocked_why)
+        return (self.status, self.progress_index, self.progress.anchor, self.stall.state(), self.recovery.state(), *recovered)
 
     def restore_follow_state(self, state: tuple) -> None:
         """Put back a ``follow_state()``, as if the commands computed since had not been."""
-        self.status, self.progress_index, self.progress.anchor, stall, recovery = state
+        self.status, self.progress_index, self.progress.anchor, stall, recovery = state[:5]
+        self.path, self.free, self.contacts_xy_m, self.replan_pending, self.blocked_why = state[5:]
         self.stall.restore(stall)
         self.recovery.restore(recovery)
 
@@ -605,8 +656,7 @@ class LocalPlanner:
         goal within FACE_GOAL_VIEW_FRACTION of the half field of view, or None when it is there already (or
         the goal is under the robot, where no heading looks at it). Bounded like any goal: the caller's
         re-decision timeout ends a turn that never gets there."""
-        narrow = self.sensor_fov_rad < math.radians(self.config.face_goal_below_fov_deg) - 1e-9
-        if not narrow or to_goal_m < FACE_GOAL_MIN_DISTANCE_M:
+        if not self.narrow_sensor() or to_goal_m < FACE_GOAL_MIN_DISTANCE_M:
             return None
         error = wrap_angle_rad(math.atan2(goal_xy_m[1] - pose.y_m, goal_xy_m[0] - pose.x_m) - pose.yaw_rad)
         if abs(error) <= FACE_GOAL_VIEW_FRACTION * self.sensor_fov_rad / 2:
@@ -634,6 +684,21 @@ class LocalPlanner:
             return result
         return FollowResult(VelocityCommand(0.0, 0.0), result.status, "reverse_blocked")
 
+    def _replan(self, pose: Pose2D) -> bool:
+        """The path to the same goal from here on the planned-on grid less the contacts; False (``blocked``) when the
+        contacts cut every way there."""
+        assert self.path is not None and self.free is not None
+        traversable = self.without_contacts(self.free.traversable, self.free.geometry)
+        try:
+            path = plan_path(traversable, self.free.geometry, pose.xy, self.path[-1])
+        except NoPath as exc:
+            self.blocked_why = str(exc)
+            self.status = PlannerStatus.BLOCKED
+            return False
+        self.path, self.progress_index = path, 0
+        self.free = dataclasses.replace(self.free, traversable=traversable)
+        return True
+
     def _path_bearing_rad(self, pose: Pose2D) -> float:
         """The bearing from the robot to the path's lookahead point (not pulled back to keep a free line of sight)."""
         assert self.path is not None
@@ -658,9 +723,17 @@ class LocalPlanner:
         escape = self.recovery.command(pose, scan)
         if escape is not None:
             return FollowResult(escape, self.status, "escape")
+        backups = self.stall.backups
         backup = self.stall.command(pose, time_s)
         if backup is not None:
+            if self.stall.backups > backups and self.narrow_sensor() and self.stall.last is not None:
+                self.mark_contact(pose, self.stall.last[2].linear_mps > 0)
+                self.replan_pending = True
             return FollowResult(backup, self.status, "backup")
+        if self.replan_pending:
+            self.replan_pending = False
+            if not self._replan(pose):
+                return FollowResult(stop, self.status)
         nearest, look = self.follower.lookahead_index(pose, self.path, self.progress_index, self.free)
         self.progress_index = nearest
         cmd = self.follower.command(pose, self.path, nearest, look, to_goal, scan)

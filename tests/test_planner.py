@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from cso_runtime.config import PlannerConfig, RobotConfig, SensorConfig
+from cso_runtime.config import ExplorationConfig, PlannerConfig, RobotConfig, SensorConfig
 from cso_runtime.geodesic import geodesic_distance, traversable_cells
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.planner import FreeSpace, LocalPlanner, NoPath, PlannerStatus, ProgressChecker, plan_path
@@ -518,3 +518,91 @@ def test_the_progress_recovery_only_takes_headings_the_sensor_sees_and_goes_with
     planner.restore_follow_state(before)
     assert planner.recovery.escapes == 0 and planner.recovery.heading_rad is None
     assert planner.update(sim.odometry(), sim.time_s, sim.scan()) == first
+
+
+def test_a_drive_that_goes_nowhere_is_stalled_though_its_turn_goes_through():
+    """With the depth camera a robot whose side touches a wall end outside its view is held there while pure pursuit
+    asks to drive and turn: the turns go through, the drive does not. Such a period counted as moving, so the back-up
+    never started (gen_middle_2: 600 steps in place, then no_frontier at 46.8 %). A period is judged by its
+    translation when it asked for one, and by its turn only when it is a turn in place."""
+    from cso_runtime.planner import StallRecovery
+
+    config, dt = PlannerConfig(), RobotConfig().control_period_s
+    drive_and_turn, turn = VelocityCommand(0.6, 0.78), VelocityCommand(0.0, 0.78)
+
+    def backs_up(command: VelocityCommand, moved_m: float, turned_rad: float) -> bool:
+        stall = StallRecovery(config, dt)
+        pose = Pose2D(1.0, 1.0, 0.0)
+        for k in range(config.stall_steps + 1):
+            if stall.command(pose, k * dt) is not None:
+                return True
+            stall.record(pose, k * dt, command)
+            pose = Pose2D(pose.x_m + moved_m, pose.y_m, pose.yaw_rad + turned_rad)
+        return False
+
+    assert backs_up(drive_and_turn, moved_m=0.0, turned_rad=0.78 * dt)  # pinned, turning freely
+    assert not backs_up(drive_and_turn, moved_m=0.6 * dt, turned_rad=0.0)  # drives, though its turn is held
+    assert backs_up(turn, moved_m=0.0, turned_rad=0.0)  # a turn in place that does not turn
+    assert not backs_up(turn, moved_m=0.0, turned_rad=0.78 * dt)
+
+
+def wall_end_room(start: Pose2D, unseen_cells: int = 0) -> FloorPlan:
+    """A 2.9 m square room (0.05 m cells) with a wall 0.15 m thick from its south wall up to y = 1.55 m (x 1.4-1.55 m);
+    ``unseen_cells``: that many cells of the wall's top left out, as the depth camera leaves a wall end it only ever
+    saw nearer than its 0.3 m range_min."""
+    free = np.zeros((62, 62), dtype=bool)
+    free[2:60, 2:60] = True
+    free[2 : 31 - unseen_cells, 28:31] = False
+    return FloorPlan("wall_end", free, 0.05, start)
+
+
+@pytest.mark.parametrize("heading_deg", [-45.0, -41.0])
+def test_a_depth_robot_pinned_on_a_wall_end_it_never_saw_backs_up_once_and_plans_round_it(heading_deg):
+    """The robot's right side touches the end of a wall its map has not got (outside the camera's 79 degrees, nearer
+    than 0.3 m), and the path south-east passes it closer than the robot's radius. The back-up took it 0.15 m back and
+    pure pursuit drove it into the same end again, back-up after back-up, until the goal was given up (and every
+    later goal through it: gen_large_1 ended no_frontier at 39.5 %). The cells the pinned body touches are now
+    obstacles of the planner's grid, the path after the back-up keeps the robot's radius off them, and the goal is
+    reached. ``follow_state`` undoes them with the rest."""
+    robot, sensor = RobotConfig(), SensorConfig.preset("depth")
+    start, goal = Pose2D(1.602, 1.663, math.radians(heading_deg)), np.array([2.6, 0.6])
+    known = wall_end_room(start, unseen_cells=2)
+    sim = KinematicSimulator(wall_end_room(start), sensor, robot, seed=0)
+    sim.reset()
+    assert sim.clearance_m(start.x_m, start.y_m) < 0.125  # touching the wall end
+    planner = LocalPlanner.for_config(ExplorationConfig(sensor=sensor))
+    assert planner.set_goal(ground_truth_traversable(known), known.geometry, start, goal) == PlannerStatus.FOLLOWING
+    results = _follow_to(planner, sim, 120)
+    assert results[-1].status == PlannerStatus.REACHED and planner.stall.backups == 1
+    touched = planner.contacts_xy_m
+    assert len(touched) and np.all(np.hypot(touched[:, 0] - 1.55, touched[:, 1] - 1.55) < 0.15)  # at the wall's end
+
+    again = LocalPlanner.for_config(ExplorationConfig(sensor=sensor))
+    again.set_goal(ground_truth_traversable(known), known.geometry, start, goal)
+    sim = KinematicSimulator(wall_end_room(start), sensor, robot, seed=0)
+    sim.reset()
+    before = None
+    for _ in range(40):
+        state = again.follow_state()
+        result = again.update(sim.odometry(), sim.time_s, sim.scan())
+        if result.recovery == "backup":
+            before = state
+            break
+        sim.step(result.command)
+    assert before is not None and len(again.contacts_xy_m)
+    again.restore_follow_state(before)
+    assert len(again.contacts_xy_m) == 0 and again.stall.backups == 0
+
+
+def test_the_depth_camera_is_not_left_pinned_on_a_middle_scene():
+    """gen_middle_2 with the depth camera: pinned on a door's jamb from step 119 on, greedy-dist ended no_frontier at
+    46.8 % after 720 steps. It now reaches the coverage criterion."""
+    from cso_runtime.episode import run_episode
+    from cso_runtime.policies import make_policy
+    from cso_runtime.scenes import resolve_scenes
+
+    config = ExplorationConfig(sensor=SensorConfig.preset("depth"))
+    plan = resolve_scenes("generated:middle:1:2")[0].load()
+    sim = KinematicSimulator(plan, config.sensor, config.robot, seed=0)
+    result = run_episode(sim, make_policy("greedy-dist", config.masks, seed=0, sensor=config.sensor), config, seed=0)
+    assert result.terminated_by == "coverage" and result.coverage_pct > 99.0, (result.steps, result.coverage_pct)
