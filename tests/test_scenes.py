@@ -499,10 +499,14 @@ def test_a_map_scene_keeps_its_map_frame_in_the_listing_and_the_maps_it_writes(t
     np.testing.assert_array_equal(npz["map_origin"], [-3.5, 2.0, 0.0])  # what places the plan-frame trajectory
     assert npz["trajectory"][0] == pytest.approx([plan.start.x_m, plan.start.y_m], abs=1e-5)  # unchanged: the plan's frame
 
-    # The same plan moved to another origin: --resume runs it again, so the map it writes is at the new origin.
+    # The same plan moved to another origin: --resume refuses to mix it with the old episode; with --overwrite it
+    # runs it again, so the map it writes is at the new origin.
     moved = {**yaml.safe_load(yaml_path.read_text()), "origin": [1.0, -2.0, 0.0], "start": [start[0] + 4.5, start[1] - 4.0, 0.25]}
     yaml_path.write_text(yaml.safe_dump(moved))
-    r = CliRunner().invoke(app, ["eval", "--method", "greedy-dist", "--maps", str(yaml_path), "--max-steps", "30", "--out", str(out), "--resume"])
+    resume = ["eval", "--method", "greedy-dist", "--maps", str(yaml_path), "--max-steps", "30", "--out", str(out), "--resume"]
+    r = CliRunner().invoke(app, resume)
+    assert r.exit_code == 2 and "another configuration" in r.output, r.output
+    r = CliRunner().invoke(app, [*resume, "--overwrite"])
     assert r.exit_code == 0, r.output
     assert json.loads((out / "summary.json").read_text())["meta"].get("resumed_episodes", 0) == 0
     assert yaml.safe_load(written.read_text())["origin"] == [1.0, -2.0, 0.0]
