@@ -2184,3 +2184,24 @@ def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp
     written, _, _ = load_checkpoint(tmp_path / "cso.pt")
     assert all(torch.equal(written.state_dict()[k], v) for k, v in saved.items())
     assert use_weights_dir(tmp_path) == tmp_path.resolve()
+
+
+def test_weights_stopped_while_they_are_saved_leave_the_earlier_file_whole(tmp_path, monkeypatch):
+    """The final ``<variant>.pt`` was written in place: a Ctrl-C while torch wrote it left half a file that no load
+    reads. It is written through a temporary file renamed over it, as ``checkpoint.pt`` is (one helper for both)."""
+    model = GraphActorCritic(NetworkConfig())
+    path = tmp_path / "cso.pt"
+    save_checkpoint(path, model, GraphConfig(), "cso")
+    before = path.read_bytes()
+    real_save = torch.save
+
+    def cut_short(obj: object, f: str | Path) -> None:
+        real_save(obj, f)
+        Path(f).write_bytes(Path(f).read_bytes()[:100])  # half written when the Ctrl-C came
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(torch, "save", cut_short)
+    with pytest.raises(KeyboardInterrupt):
+        save_checkpoint(path, model, GraphConfig(), "cso")
+    assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["cso.pt"]  # no temporary file left
+    load_checkpoint(path)

@@ -55,7 +55,15 @@ from cso_runtime.learned.env import (
 )
 from cso_runtime.learned.graph import GraphConfig, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
-from cso_runtime.learned.registry import VARIANTS, CheckpointError, device_problem, load_checkpoint, save_checkpoint, weights_path
+from cso_runtime.learned.registry import (
+    VARIANTS,
+    CheckpointError,
+    device_problem,
+    load_checkpoint,
+    save_checkpoint,
+    save_whole,
+    weights_path,
+)
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.learned.weights import mask_set_flags, mask_settings_changed, trained_mask_settings
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
@@ -1263,8 +1271,7 @@ def _save_resumable(
     """What ``--resume`` needs: weights, Adam's state, the counters, the training time so far, the torch
     generators and the run's ``Args`` (a resume with another recipe is refused). Not the environments' state: the episodes in progress start over on new scenes, so a resumed
     run goes on like the one it continues but not bit for bit."""
-    tmp = path.with_suffix(".tmp")
-    torch.save(
+    save_whole(
         {
             "state_dict": model.state_dict(),
             "optimizer": optimizer.state_dict(),
@@ -1279,9 +1286,8 @@ def _save_resumable(
             "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() and torch.cuda.is_initialized() else None,
             "wall_s": round(wall_s, 1),
         },
-        tmp,
+        path,
     )
-    tmp.replace(path)
 
 
 class _Bar:
