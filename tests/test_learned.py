@@ -2237,3 +2237,44 @@ def test_weights_stopped_while_they_are_saved_leave_the_earlier_file_whole(tmp_p
     assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["cso.pt"]  # no temporary file left
     load_checkpoint(path)
 
+
+def test_repeated_signals_while_a_command_stops_keep_its_exit_code(tmp_path):
+    """A second SIGTERM while ``train`` wrote what finished cut that short, and one while Python ended (its handlers
+    back to the default by then) ended it with -15 although everything was written. After the first signal (the
+    command's stop), a second only says that it is stopping, a third ends the stop where it is (KeyboardInterrupt,
+    as ``up``'s stop may still be forced), and Python's end ignores them: the exit code stays 130."""
+    import subprocess
+    import sys
+
+    script = """
+import os, signal, sys, time
+from cso_runtime.cli import interrupt_on_sigterm
+
+class SignalAtTheEnd:  # a signal while Python ends, after its handlers were given back
+    def __init__(self):
+        self.kill, self.pid, self.sig = os.kill, os.getpid(), signal.SIGTERM
+    def __del__(self):
+        self.kill(self.pid, self.sig)
+
+def signalled(sig):
+    os.kill(os.getpid(), sig)
+    for _ in range(200):
+        time.sleep(0.005)
+
+interrupt_on_sigterm(wait_on_second=True)
+at_the_end = SignalAtTheEnd()
+try:
+    signalled(signal.SIGTERM)
+except KeyboardInterrupt:
+    signalled(signal.SIGHUP)
+    print("the stop went on after the second signal", flush=True)
+    try:
+        signalled(signal.SIGINT)
+    except KeyboardInterrupt:
+        print("the third ended it", flush=True)
+sys.exit(130)
+"""
+    done = subprocess.run([sys.executable, "-c", script], cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=60)
+    assert done.stdout.splitlines() == ["the stop went on after the second signal", "the third ended it"], done.stdout + done.stderr
+    assert "stopping: writing what finished; signal once more to stop at once" in done.stderr
+    assert done.returncode == 130, done.stderr
