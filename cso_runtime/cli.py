@@ -128,17 +128,46 @@ def _fail(message: str, code: int) -> NoReturn:
     raise typer.Exit(code) from None
 
 
-def interrupt_on_sigterm() -> None:
+STOPPING_NOTE = "stopping: writing what finished; signal once more to stop at once"
+"""What ``interrupt_on_sigterm(wait_on_second=True)`` says to a second signal while the command stops."""
+
+
+def interrupt_on_sigterm(wait_on_second: bool = False) -> None:
     """SIGTERM (``kill``, a job scheduler's stop) and SIGHUP (its terminal closed) end a long command as Ctrl-C does: its worker processes stopped,
     what finished written, exit code 130 and how to resume. Python's default would end it at once, writing
-    nothing and leaving its workers to run their jobs to the end."""
+    nothing and leaving its workers to run their jobs to the end.
+
+    After the first of them (or Ctrl-C), the command is stopping. With ``wait_on_second`` (``train``, whose stop
+    writes its learning curve) a second one only says so (``STOPPING_NOTE``) and the stop goes on, as ``up``'s does on
+    a repeated Ctrl-C; a third ends the stop where it is (KeyboardInterrupt, exit code 130 still). Without, each one
+    does. Once the command has ended, Python's own end ignores them: it puts their default action back, which would
+    end a process that wrote everything by the signal (exit code -15) instead of 130."""
+    import atexit  # noqa: PLC0415
+    import os  # noqa: PLC0415
     import signal  # noqa: PLC0415
 
+    stop_signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    received = 0
+
+    def ignore_stop_signals() -> None:
+        for sig in stop_signals:
+            signal.signal(sig, signal.SIG_IGN)  # SIG_IGN is the one handler Python's end leaves in place
+
     def raise_interrupt(signum: int, frame: object) -> None:
+        nonlocal received
+        received += 1
+        if received == 1:
+            atexit.register(ignore_stop_signals)  # last registered, first run: the rest of the exit included
+        elif received == 2 and wait_on_second:
+            try:
+                os.write(2, f"{STOPPING_NOTE}\n".encode())  # not sys.stderr: the handler may have cut one of its writes short
+            except OSError:
+                pass
+            return
         raise KeyboardInterrupt
 
-    signal.signal(signal.SIGTERM, raise_interrupt)
-    signal.signal(signal.SIGHUP, raise_interrupt)  # its terminal closed: the same clean stop
+    for sig in stop_signals:  # SIGHUP: its terminal closed, the same clean stop
+        signal.signal(sig, raise_interrupt)
 
 
 def _print_version(value: bool) -> None:
@@ -1140,7 +1169,7 @@ def train_command(
     output_dir_or_exit(args.out_dir, "out_dir")
     checkpoint = Path(args.out_dir) / "checkpoint.pt"
     started = time.time()
-    interrupt_on_sigterm()
+    interrupt_on_sigterm(wait_on_second=True)
     words = ["cso-runtime", "train", *(["--config", str(config)] if config is not None else [])]
     command = shlex.join(words + [w for flag in training_flags(overrides, settings) for w in flag])  # recorded in <variant>.json
     try:

@@ -220,7 +220,7 @@ def test_every_run_eval_and_train_command_the_docs_show_is_accepted(tmp_path, mo
     monkeypatch.setattr(evaluation, "run_eval", stop)
     monkeypatch.setattr(ppo, "train", stop)
     monkeypatch.setattr(ppo, "collect_teacher_parallel", collected)
-    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda **_kwargs: None)  # train passes wait_on_second=True
     monkeypatch.setattr(robot_sim.viewer, "display_problem", lambda *a, **k: None)  # no display here
     monkeypatch.setattr(services.foxglove_bridge, "port_problem", lambda *a, **k: None)  # nor a free port 8765 in CI
     repo = tmp_path / "repo"

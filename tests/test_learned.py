@@ -1903,7 +1903,8 @@ def test_weights_given_as_a_file_not_named_for_its_method_is_refused_not_swapped
 
 def test_train_into_an_earlier_runs_folder_says_it_replaces_it(tmp_path):
     """CleanRL gives every run a folder of its own; ``train --out`` into an earlier run's folder replaced its log at
-    once and its checkpoint at the first save without a word. It now says so, and how that run would be continued."""
+    once and its checkpoint at the first save without a word. It now says so, how that run would be continued until
+    the new one starts its log, and what it removed then."""
     from cso_runtime.learned.ppo import earlier_run_files
 
     out = tmp_path / "run"
@@ -1917,7 +1918,11 @@ def test_train_into_an_earlier_runs_folder_says_it_replaces_it(tmp_path):
     tiny = Args(dungeon_dir=None, generated=["generated:small:1:0"], num_envs=1, num_steps=4, num_minibatches=1, total_decisions=4, max_steps=20,
                 out_dir=str(out), progress=False)
     train(tiny, log=said.append)
-    assert f"note: {out} holds an earlier run (checkpoint.pt, cso_log.csv): this run replaces it; --resume {out / 'checkpoint.pt'} would continue it" in said
+    assert (
+        f"note: {out} holds an earlier run (checkpoint.pt, cso_log.csv): this run replaces it, removing its files as it starts its log"
+        f" (until then, --resume {out / 'checkpoint.pt'} would continue it)"
+    ) in said
+    assert f"note: removed the earlier run's checkpoint.pt from {out}" in said
 
 
 def test_keep_checkpoints_keeps_each_checkpoints_weights_for_eval(tmp_path, monkeypatch):
@@ -2184,3 +2189,92 @@ def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp
     written, _, _ = load_checkpoint(tmp_path / "cso.pt")
     assert all(torch.equal(written.state_dict()[k], v) for k, v in saved.items())
     assert use_weights_dir(tmp_path) == tmp_path.resolve()
+
+
+def test_a_new_run_stopped_before_its_first_checkpoint_leaves_no_earlier_checkpoint_to_resume(tmp_path, monkeypatch):
+    """A new run in an earlier run's folder replaced its log at once but kept its ``checkpoint.pt``, weights, record
+    and curve until its own came: stopped before then, ``--resume`` of the old checkpoint went on with the new run's
+    rows in the old run's log, and ``eval --weights`` served the old weights beside the new log. The new run removes
+    them before it writes its log (the checkpoint first), after reading its own inputs, which may be among them."""
+    from cso_runtime.learned import ppo
+
+    common = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 20, "progress": False, "out_dir": str(tmp_path)}
+    train(Args(total_decisions=4, **common), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert {"checkpoint.pt", "cso.pt", "cso.json", "cso_curve.png", "cso_log.csv"} <= {p.name for p in tmp_path.iterdir()}
+
+    def stopped(*_args: object, **_kwargs: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(ppo, "compute_gae", stopped)  # Ctrl-C in the new run's first update
+    said: list[str] = []
+    with pytest.raises(KeyboardInterrupt):  # its first weights from the earlier run's checkpoint: read before it goes
+        train(Args(total_decisions=400, checkpoint_every=50, init_from=str(tmp_path / "checkpoint.pt"), **common), log=said.append, plans=[rooms_plan(2)])
+    assert f"initialised from {tmp_path / 'checkpoint.pt'}" in said
+    assert f"note: removed the earlier run's checkpoint.pt, cso.pt, cso.json, cso_curve.png from {tmp_path}" in said
+    left = {p.name for p in tmp_path.iterdir()}
+    assert not left & {"checkpoint.pt", "cso.pt", "cso.json"}, left
+    with (tmp_path / "cso_log.csv").open() as fh:
+        assert list(csv.DictReader(fh)) == []  # the new run's log: no row of the earlier run's
+
+
+def test_weights_stopped_while_they_are_saved_leave_the_earlier_file_whole(tmp_path, monkeypatch):
+    """The final ``<variant>.pt`` was written in place: a Ctrl-C while torch wrote it left half a file that no load
+    reads. It is written through a temporary file renamed over it, as ``checkpoint.pt`` is (one helper for both)."""
+    model = GraphActorCritic(NetworkConfig())
+    path = tmp_path / "cso.pt"
+    save_checkpoint(path, model, GraphConfig(), "cso")
+    before = path.read_bytes()
+    real_save = torch.save
+
+    def cut_short(obj: object, f: str | Path) -> None:
+        real_save(obj, f)
+        Path(f).write_bytes(Path(f).read_bytes()[:100])  # half written when the Ctrl-C came
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(torch, "save", cut_short)
+    with pytest.raises(KeyboardInterrupt):
+        save_checkpoint(path, model, GraphConfig(), "cso")
+    assert path.read_bytes() == before and [p.name for p in tmp_path.iterdir()] == ["cso.pt"]  # no temporary file left
+    load_checkpoint(path)
+
+
+def test_repeated_signals_while_a_command_stops_keep_its_exit_code(tmp_path):
+    """A second SIGTERM while ``train`` wrote what finished cut that short, and one while Python ended (its handlers
+    back to the default by then) ended it with -15 although everything was written. After the first signal (the
+    command's stop), a second only says that it is stopping, a third ends the stop where it is (KeyboardInterrupt,
+    as ``up``'s stop may still be forced), and Python's end ignores them: the exit code stays 130."""
+    import subprocess
+    import sys
+
+    script = """
+import os, signal, sys, time
+from cso_runtime.cli import interrupt_on_sigterm
+
+class SignalAtTheEnd:  # a signal while Python ends, after its handlers were given back
+    def __init__(self):
+        self.kill, self.pid, self.sig = os.kill, os.getpid(), signal.SIGTERM
+    def __del__(self):
+        self.kill(self.pid, self.sig)
+
+def signalled(sig):
+    os.kill(os.getpid(), sig)
+    for _ in range(200):
+        time.sleep(0.005)
+
+interrupt_on_sigterm(wait_on_second=True)
+at_the_end = SignalAtTheEnd()
+try:
+    signalled(signal.SIGTERM)
+except KeyboardInterrupt:
+    signalled(signal.SIGHUP)
+    print("the stop went on after the second signal", flush=True)
+    try:
+        signalled(signal.SIGINT)
+    except KeyboardInterrupt:
+        print("the third ended it", flush=True)
+sys.exit(130)
+"""
+    done = subprocess.run([sys.executable, "-c", script], cwd=Path(__file__).parents[1], capture_output=True, text=True, timeout=60)
+    assert done.stdout.splitlines() == ["the stop went on after the second signal", "the third ended it"], done.stdout + done.stderr
+    assert "stopping: writing what finished; signal once more to stop at once" in done.stderr
+    assert done.returncode == 130, done.stderr

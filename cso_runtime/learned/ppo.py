@@ -55,7 +55,15 @@ from cso_runtime.learned.env import (
 )
 from cso_runtime.learned.graph import GraphConfig, node_features
 from cso_runtime.learned.network import GraphActorCritic, NetworkConfig
-from cso_runtime.learned.registry import VARIANTS, CheckpointError, device_problem, load_checkpoint, save_checkpoint, weights_path
+from cso_runtime.learned.registry import (
+    VARIANTS,
+    CheckpointError,
+    device_problem,
+    load_checkpoint,
+    save_checkpoint,
+    save_whole,
+    weights_path,
+)
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.learned.weights import mask_set_flags, mask_settings_changed, trained_mask_settings
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
@@ -517,6 +525,29 @@ def earlier_run_files(out: Path, variant: str) -> list[str]:
     names = ("checkpoint.pt", f"{variant}.pt", f"{variant}_log.csv")
     kept = [f"{KEPT_CHECKPOINTS_DIR}/"] if any((out / KEPT_CHECKPOINTS_DIR).glob(f"update_*/{variant}.pt")) else []
     return [name for name in names if (out / name).is_file()] + kept
+
+
+def earlier_run_readable_files(variant: str) -> tuple[str, ...]:
+    """The files of an earlier run that a new run in its folder removes before it writes its log: what ``--resume``
+    (``checkpoint.pt``, first: gone, no resume pairs it with the new log) and ``eval --weights`` (the weights and
+    their record) would read, and the curve drawn from the old log. Its ``<variant>_warm.pt`` and teacher data stay:
+    inputs a new run may take (``init_from``, ``warm_start_data``), of no use to a resume."""
+    return ("checkpoint.pt", f"{variant}.pt", f"{variant}.json", f"{variant}_curve.png")
+
+
+def drop_earlier_run(out: Path, variant: str, log: Callable[[str], None]) -> None:
+    """Remove an earlier run's files of ``variant`` from ``out`` (``earlier_run_readable_files``, in that order, and
+    its kept checkpoints), saying which: a new run stopped before its first checkpoint then leaves no checkpoint,
+    weights or record of the old run beside its own log, only (stopped while they go) fewer of the old run's files."""
+    removed = []
+    for name in earlier_run_readable_files(variant):
+        if (out / name).is_file():
+            (out / name).unlink()
+            removed.append(name)
+    if removed:
+        log(f"note: removed the earlier run's {', '.join(removed)} from {out}")
+    if kept := drop_kept_checkpoints(out, variant):
+        log(f"note: removed the earlier run's {counted(kept, 'kept checkpoint')} of {variant} from {out / KEPT_CHECKPOINTS_DIR}")
 
 
 def drop_kept_checkpoints(out: Path, variant: str) -> int:
@@ -981,10 +1012,12 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     elsewhere = not args.resume or Path(args.resume).resolve().parent != out.resolve()  # not the folder of the run it continues
-    if elsewhere and (earlier := earlier_run_files(out, args.variant)):  # CleanRL never writes into an old run; say it
-        log(f"note: {out} holds an earlier run ({', '.join(earlier)}): this run replaces it; --resume {out / 'checkpoint.pt'} would continue it")
-        if removed := drop_kept_checkpoints(out, args.variant):
-            log(f"note: removed the earlier run's {counted(removed, 'kept checkpoint')} of {args.variant} from {out / KEPT_CHECKPOINTS_DIR}")
+    replaces = elsewhere and bool(earlier := earlier_run_files(out, args.variant))
+    if replaces:  # CleanRL never writes into an old run; say it, while a Ctrl-C can still keep it
+        log(
+            f"note: {out} holds an earlier run ({', '.join(earlier)}): this run replaces it, removing its files as it starts its log"
+            f" (until then, --resume {out / 'checkpoint.pt'} would continue it)"
+        )
     refs: list[SceneRef] | list[FloorPlan] = plans if plans else training_scene_refs(args)
     log(f"training {args.variant} on {counted(len(refs), 'scene')}, device {device}: {counted(args.num_updates, 'PPO update')} of {args.batch_size} decisions "
         f"({counted(args.num_envs, 'env')} x {counted(args.num_steps, 'step')}; total_decisions {args.total_decisions} in whole updates)")
@@ -1056,6 +1089,8 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
 
     log_path = out / f"{args.variant}_log.csv"
     fields = LOG_FIELDS
+    if replaces:  # now: this run's inputs (init_from, warm_start_data) may be among them, and are read
+        drop_earlier_run(out, args.variant, log)
     continued_log = Path(args.resume).parent / log_path.name if args.resume else None
     if continued_log is not None and continued_log.is_file() and continued_log.resolve() != log_path.resolve():
         shutil.copyfile(continued_log, log_path)  # resumed into another --out: go on from the log of the run it continues
@@ -1263,8 +1298,7 @@ def _save_resumable(
     """What ``--resume`` needs: weights, Adam's state, the counters, the training time so far, the torch
     generators and the run's ``Args`` (a resume with another recipe is refused). Not the environments' state: the episodes in progress start over on new scenes, so a resumed
     run goes on like the one it continues but not bit for bit."""
-    tmp = path.with_suffix(".tmp")
-    torch.save(
+    save_whole(
         {
             "state_dict": model.state_dict(),
             "optimizer": optimizer.state_dict(),
@@ -1279,9 +1313,8 @@ def _save_resumable(
             "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() and torch.cuda.is_initialized() else None,
             "wall_s": round(wall_s, 1),
         },
-        tmp,
+        path,
     )
-    tmp.replace(path)
 
 
 class _Bar:

@@ -59,9 +59,23 @@ def has_method(name: str, sensor: SensorConfig | None = None) -> bool:
     return name in VARIANTS and has_weights(name, sensor)
 
 
+def save_whole(obj: Any, path: str | Path) -> None:
+    """``torch.save`` into a temporary file beside ``path``, then renamed over it: a run stopped while it writes
+    (Ctrl-C, a signal, a full disk) leaves the earlier file whole, never half of one that no load reads, and no
+    temporary file. Every weights file and training checkpoint is written so."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        torch.save(obj, tmp)
+        tmp.replace(path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
 def save_checkpoint(path: str | Path, model: GraphActorCritic, graph: GraphConfig, variant: str, extra: dict[str, Any] | None = None) -> None:
-    """Weights plus everything needed to rebuild the network and its graph (plain data only)."""
-    torch.save(
+    """Weights plus everything needed to rebuild the network and its graph (plain data only), written whole (``save_whole``)."""
+    save_whole(
         {
             "variant": variant,
             "network": dataclasses.asdict(model.config),
@@ -69,7 +83,7 @@ def save_checkpoint(path: str | Path, model: GraphActorCritic, graph: GraphConfi
             "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
             "extra": extra or {},
         },
-        Path(path),
+        path,
     )
 
 
