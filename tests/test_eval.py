@@ -720,6 +720,49 @@ def test_a_command_whose_reader_left_ends_quietly_with_exit_code_141(tmp_path: P
         assert json.loads((tmp_path / "o" / "summary.json").read_text())["methods"]["greedy-dist"]["episodes"] == 2
 
 
+READER_GONE_SCRIPT = """
+import sys
+from cso_runtime.reader_gone import ends_quietly_when_its_reader_leaves
+with ends_quietly_when_its_reader_leaves():
+    sys.stdout.write("a line still in Python's buffer")  # the pipe is closed: it breaks only when flushed
+    {ending}
+"""
+
+
+@pytest.mark.parametrize(
+    ("ending", "returncode", "said"),
+    [
+        ("raise RuntimeError('a real error')", 1, "RuntimeError: a real error"),  # a traceback, not a quiet 141
+        ("raise KeyboardInterrupt", -2, "KeyboardInterrupt"),  # Ctrl-C stays Ctrl-C (Python's own: killed by SIGINT; cli.main says one line)
+        ("raise SystemExit(3)", 3, ""),  # the command's own verdict (it said why on stderr)
+        ("raise SystemExit(0)", 141, ""),  # click's end of a command that went well: the reader gone is all there is
+        ("pass", 141, ""),
+    ],
+    ids=["error", "ctrl-c", "exit-3", "exit-0", "end"],
+)
+def test_a_reader_gone_hides_no_error_the_command_raised(tmp_path: Path, ending: str, returncode: int, said: str):
+    """The flush at the end of ``ends_quietly_when_its_reader_leaves`` broke on the closed pipe while the command's
+    own exception was on its way out, and the broken pipe took its place: exit 141 and nothing said, a traceback
+    lost (stderr still the terminal). The reader gone answers for the broken pipe only; the command's outcome stands,
+    with nothing more said at exit about the buffer."""
+    import os
+
+    script = tmp_path / "command.py"
+    script.write_text(READER_GONE_SCRIPT.format(ending=ending))
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # a buffered stdout, as a plain run has
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1])
+    reader, writer = os.pipe()
+    os.close(reader)
+    try:
+        proc = subprocess.run([sys.executable, str(script)], stdout=writer, stderr=subprocess.PIPE, text=True, timeout=60, env=env)
+    finally:
+        os.close(writer)
+    assert proc.returncode == returncode, proc.stderr
+    assert said in proc.stderr and "Exception ignored" not in proc.stderr and "BrokenPipeError" not in proc.stderr
+    if returncode == 141:
+        assert proc.stderr == ""
+
+
 def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     """Without a terminal (a log file, CI) each finished episode is one line, however long its map's name,
     and an episode ``--resume`` read back says so."""
