@@ -1930,6 +1930,31 @@ def test_a_second_eval_into_a_folder_another_eval_is_writing_is_refused(tmp_path
     assert hold_eval_lock(out) is not None  # and released at its end
 
 
+def test_an_eval_on_a_file_system_without_locks_runs_and_says_it_holds_no_lock(tmp_path: Path, monkeypatch, caplog):
+    """NFS without its lock service answers flock with ENOLCK: the eval said "is being written by another eval" and
+    refused the folder for ever, where it ran before the lock. It runs, and says that it could not take the lock (a
+    second eval into the folder would not be stopped, and it leaves alone the partial files it finds, which may be
+    such an eval's); the lock held by another eval is still a refusal."""
+    import errno
+    import fcntl
+    import logging
+    import os
+
+    def no_locks(fd: int, operation: int) -> None:
+        raise OSError(errno.ENOLCK, os.strerror(errno.ENOLCK))
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    out = tmp_path / "o"
+    another_evals = out / "episodes" / "greedy-dist" / ".other.npz.4242.partial"  # with no lock: maybe being written
+    another_evals.parent.mkdir(parents=True)
+    another_evals.write_bytes(b"PK")
+    with caplog.at_level(logging.WARNING, logger="cso_runtime.evaluation"):
+        summary = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=out, max_steps=5))
+    assert summary["methods"]["greedy-dist"]["episodes"] == 1 and (out / "summary.json").is_file()
+    assert f"cannot lock {out / '.eval.lock'} (No locks available)" in caplog.text
+    assert another_evals.is_file()  # only an eval holding the lock removes the partial files it finds
+
+
 def test_resume_runs_again_an_episode_whose_file_is_cut_short(tmp_path: Path):
     """An episode file cut short or empty (an interrupted copy of a results folder, a full disk, a file system without
     atomic renames) stopped ``eval --resume`` with a BadZipFile traceback; it is no result: it runs again, the others
