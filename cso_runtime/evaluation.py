@@ -479,6 +479,13 @@ def read_held_episode(path: Path) -> HeldEpisode | None:
         return None
 
 
+def is_an_episode_file(path: Path) -> bool:
+    """Whether ``path`` reads whole as the episode file of the plan its name says (``<map>.partial.npz``: the episode
+    of a plan named ``<map>.partial``, not a file an earlier version left half-written, or whole but of ``<map>``)."""
+    held = read_held_episode(path)
+    return held is not None and file_stem(str(held.row.get("map", ""))) == path.stem
+
+
 def file_sha256(path: Path) -> str:
     """The sha256 of the file at ``path``; "" when there is none (or it cannot be read)."""
     try:
@@ -996,7 +1003,7 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
         log.warning("%s", warning)
     config, scenes, jobs, weights, mujoco = plan.config, plan.scenes, plan.jobs, plan.weights, plan.mujoco
     out = Path(request.out_dir)
-    for stale in remove_stale_partial_files(out, [job.npz_path for job in jobs]) if locked else []:  # a killed eval's, never read
+    for stale in remove_stale_partial_files(out, [job.npz_path for job in jobs], is_an_episode_file) if locked else []:  # a killed eval's
         log.info("removed %s, left by an eval that was killed while writing it", stale)
     outcomes: list[EpisodeOutcome] = []
     total = len(jobs)

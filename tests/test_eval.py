@@ -1212,6 +1212,25 @@ def test_eval_removes_the_partial_files_a_killed_eval_left_and_never_reads_them(
     assert sorted(p.name for p in folder.iterdir()) == ["gen_small_0.npz", "gen_small_1.npz"]
 
 
+def test_an_eval_of_some_plans_keeps_the_episode_of_a_plan_named_as_an_old_partial_file(tmp_path: Path):
+    """The clean-up of the old ``<map>.partial.npz`` removed, beside each episode this eval ran, the file of that name
+    whatever it was: the finished episode of a plan named ``<map>.partial`` that an earlier eval ran into the folder,
+    when this one leaves that plan out. A file that reads whole as that plan's episode is a result, and stays."""
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    corridor = _corridor_scene(maps, "corridor", "[1.5, 0.18, -0.5]")
+    _corridor_scene(maps, "corridor.partial", "[1.5, 0.18, -0.5]")
+    out = tmp_path / "o"
+    run_eval(EvalRequest(methods=["greedy-dist"], maps=str(maps), out_dir=out, max_steps=5))
+    theirs = out / "episodes" / "greedy-dist" / "corridor.partial.npz"
+    assert theirs.is_file()
+    run_eval(EvalRequest(methods=["greedy-dist"], maps=str(corridor), out_dir=out, max_steps=5))
+    assert theirs.is_file(), "an episode of the earlier eval, removed as an old partial file"
+    theirs.write_bytes(b"PK\x03\x04 cut short by kill -9")  # an old partial file indeed: removed
+    run_eval(EvalRequest(methods=["greedy-dist"], maps=str(corridor), out_dir=out, max_steps=5))
+    assert not theirs.exists()
+
+
 def test_the_report_shows_each_methods_final_map_and_gives_each_picture_one_caption(tmp_path: Path):
     """The Maps section shows, beside the trajectories and animations, the robot's final map of each method as
     map_server serves it, linked to its YAML; every picture has its own caption (a ``<figure>`` holds one
