@@ -54,7 +54,7 @@ def results_said(out_dir: Path) -> str:
 def write_text_atomic(path: Path, text: str) -> None:
     """Write ``path`` whole or not at all (a file of its own beside it, then renamed over it): a crash, a
     kill or a reader at the wrong moment never sees half a summary or run file."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = partial_path(path)
     try:
         tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, path)
@@ -70,7 +70,8 @@ def partial_path(path: Path) -> Path:
 
 
 RESULT_FILE_FOLDERS = ("episodes", "animations")
-"""The folders of ``--out`` whose files are written beside themselves first (``partial_path``)."""
+"""The folders of ``--out`` whose files are written beside themselves first (``partial_path``), as ``--out``'s own
+(``summary.json``, ``episodes.csv``: ``write_text_atomic``)."""
 
 
 def remove_stale_partial_files(out_dir: Path, episode_files: list[Path], is_an_episode: Callable[[Path], bool]) -> list[Path]:
@@ -80,7 +81,8 @@ def remove_stale_partial_files(out_dir: Path, episode_files: list[Path], is_an_e
     this eval leaves out, is kept); the ones removed. Only while holding the folder's eval lock: another eval's partial
     files are the ones it is writing."""
     episodes = set(episode_files)
-    stale = [path for folder in RESULT_FILE_FOLDERS for path in sorted((Path(out_dir) / folder).glob("*/.*.partial"))]
+    stale = sorted(Path(out_dir).glob(".*.partial"))
+    stale += [path for folder in RESULT_FILE_FOLDERS for path in sorted((Path(out_dir) / folder).glob("*/.*.partial"))]
     legacy = [path.with_name(f"{path.stem}.partial.npz") for path in episode_files]
     stale += [path for path in legacy if path not in episodes and path.is_file() and not is_an_episode(path)]
     removed = []

@@ -1203,7 +1203,8 @@ def test_eval_removes_the_partial_files_a_killed_eval_left_and_never_reads_them(
     folder, gifs = out / "episodes" / "greedy-dist", out / "animations" / "greedy-dist"
     gifs.mkdir(parents=True)
     for again in (dataclasses.replace(request, resume=True), request):
-        stale = [folder / "gen_small_0.partial.npz", partial_path(folder / "gen_small_1.npz"), partial_path(gifs / "gen_small_0.gif")]
+        stale = [folder / "gen_small_0.partial.npz", partial_path(folder / "gen_small_1.npz"), partial_path(gifs / "gen_small_0.gif"),
+                 partial_path(out / "summary.json")]  # and summary.json's or episodes.csv's (write_text_atomic), beside them
         for path in stale:
             path.write_bytes(b"PK\x03\x04 cut short by kill -9")
         summary = run_eval(again)
