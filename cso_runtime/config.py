@@ -526,22 +526,24 @@ def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]],
     ``masks: {beta_far_m: 2.0}`` in train's flat config is ``beta_far_m``; not a misspelt one, ``MISSPELT_SECTION_RATIO``), in ``from_dict``'s words but saying where
     it belongs rather than the nearest spelling in the wrong section, a section's keys together and the sections one
     after the other (three misplaced keys are three fixes, learnt in one go, not one error each); None when none is (a
-    typo: ``from_dict`` says it)."""
+    typo: ``from_dict`` says it). A typo beside a misplaced key is named too, with its nearest spelling, so that no fix
+    is left for the next run."""
     homes: dict[str, list[str]] = {}
     for path, keys in sections.items():
         for key in keys:
             homes.setdefault(key, []).append(f"{path}.{key}" if path else key)
-    misplaced: dict[str, list[str]] = {}
+    named: dict[str, list[str]] = {}  # each section's unknown keys as the error names them, in the order given
+    any_misplaced = False
     for path, key in unknown:
         elsewhere = [home for home in homes.get(key, []) if home != (f"{path}.{key}" if path else key)]
         if not elsewhere and not difflib.get_close_matches(key, sections[path], n=1, cutoff=MISSPELT_SECTION_RATIO):
             elsewhere = [home for inner in mapping_at(data, f"{path}.{key}" if path else key) for home in homes.get(inner, [])]
-        if elsewhere:
-            misplaced.setdefault(path, []).append(f"{key} (did you mean {' or '.join(elsewhere)}?)")
-    said = [
-        f"{path + ': ' if path else ''}unknown key(s) {', '.join(keys)}; known: {', '.join(sorted(sections[path]))}" for path, keys in misplaced.items()
-    ]
-    return "; ".join(said) if said else None
+        any_misplaced = any_misplaced or bool(elsewhere)
+        named.setdefault(path, []).append(f"{key} (did you mean {' or '.join(elsewhere)}?)" if elsewhere else with_nearest(key, sections[path]))
+    if not any_misplaced:
+        return None
+    said = [f"{path + ': ' if path else ''}unknown key(s) {', '.join(keys)}; known: {', '.join(sorted(sections[path]))}" for path, keys in named.items()]
+    return "; ".join(said)
 
 
 def from_dict_with_hints(cls: type[T], data: dict[str, Any], where: str) -> T:

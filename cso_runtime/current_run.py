@@ -170,22 +170,33 @@ while it runs (the whole runs folder removed) is taken again on the launcher's n
 
 
 def hold_runs_lock(runs_dir: Path) -> int | None:
-    """Take the runs folder's launcher lock; its file descriptor, or None when another launcher holds it."""
-    return hold_lock_file(runs_dir / RUNS_LOCK)
+    """Take the runs folder's launcher lock; its file descriptor, or None when another launcher holds it (or, as
+    before ``hold_lock_file`` told them apart, when the file system takes no lock)."""
+    try:
+        return hold_lock_file(runs_dir / RUNS_LOCK)
+    except OSError as exc:
+        if exc.filename is not None:  # the lock file could not be made or opened: raised as it always was
+            raise
+        return None
 
 
 def hold_lock_file(path: Path) -> int | None:
     """Take an exclusive lock on ``path`` (made, with its folder, if missing) and write this process's pid in it; the
-    file descriptor that holds it (the kernel releases it however the process ends), or None when another holds it."""
+    file descriptor that holds it (the kernel releases it however the process ends), or None when another holds it.
+    OSError where no lock can be had at all: the file cannot be made or opened, or its file system takes no lock (NFS
+    without its lock service: ENOLCK), which is not another holder."""
     import fcntl  # noqa: PLC0415  (POSIX only, like the process groups the launcher uses)
 
     path.parent.mkdir(parents=True, exist_ok=True)
     fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
+    except BlockingIOError:  # EWOULDBLOCK: another holds it
         os.close(fd)
         return None
+    except OSError:
+        os.close(fd)
+        raise
     os.ftruncate(fd, 0)
     os.write(fd, f"{os.getpid()}\n".encode())
     return fd

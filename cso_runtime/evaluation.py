@@ -479,6 +479,13 @@ def read_held_episode(path: Path) -> HeldEpisode | None:
         return None
 
 
+def is_an_episode_file(path: Path) -> bool:
+    """Whether ``path`` reads whole as the episode file of the plan its name says (``<map>.partial.npz``: the episode
+    of a plan named ``<map>.partial``, not a file an earlier version left half-written, or whole but of ``<map>``)."""
+    held = read_held_episode(path)
+    return held is not None and file_stem(str(held.row.get("map", ""))) == path.stem
+
+
 def file_sha256(path: Path) -> str:
     """The sha256 of the file at ``path``; "" when there is none (or it cannot be read)."""
     try:
@@ -962,7 +969,8 @@ one eval per output folder, or two would run every episode twice, writing over e
 
 
 def hold_eval_lock(out_dir: Path) -> int | None:
-    """Take ``out_dir``'s eval lock (``EVAL_LOCK``); its file descriptor, or None when another eval holds it."""
+    """Take ``out_dir``'s eval lock (``EVAL_LOCK``); its file descriptor, or None when another eval holds it. OSError
+    where no lock can be had (``hold_lock_file``)."""
     return hold_lock_file(Path(out_dir) / EVAL_LOCK)
 
 
@@ -971,7 +979,11 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None, plan: E
     when the caller made it already. Raises ConfigError, before any episode, while another eval writes ``out_dir``."""
     plan = plan if plan is not None else plan_eval(request)
     out = Path(request.out_dir)
-    lock = hold_eval_lock(out)
+    try:
+        lock = hold_eval_lock(out)
+    except OSError as exc:  # NFS without its lock service, a lock file of another user's: the run goes on, as before the lock
+        log.warning("cannot lock %s (%s): a second eval into %s at the same time would not be refused", out / EVAL_LOCK, exc.strerror or exc, out)
+        return _run_eval_locked(request, plan, progress, locked=False)
     if lock is None:
         try:
             holder = f" (pid {(out / EVAL_LOCK).read_text().strip()})"
@@ -984,13 +996,14 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None, plan: E
         os.close(lock)
 
 
-def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgress | None) -> dict[str, Any]:
-    """``run_eval`` while it holds the output folder's lock."""
+def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgress | None, locked: bool = True) -> dict[str, Any]:
+    """``run_eval`` while it holds the output folder's lock; ``locked`` False where none could be had, and the partial
+    files there may be another eval's, being written."""
     for warning in plan.warnings:
         log.warning("%s", warning)
     config, scenes, jobs, weights, mujoco = plan.config, plan.scenes, plan.jobs, plan.weights, plan.mujoco
     out = Path(request.out_dir)
-    for stale in remove_stale_partial_files(out, [job.npz_path for job in jobs]):  # a killed eval's, never read
+    for stale in remove_stale_partial_files(out, [job.npz_path for job in jobs], is_an_episode_file) if locked else []:  # a killed eval's
         log.info("removed %s, left by an eval that was killed while writing it", stale)
     outcomes: list[EpisodeOutcome] = []
     total = len(jobs)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 COVERAGE_FIGURE = "coverage_curves.png"
@@ -53,7 +54,7 @@ def results_said(out_dir: Path) -> str:
 def write_text_atomic(path: Path, text: str) -> None:
     """Write ``path`` whole or not at all (a file of its own beside it, then renamed over it): a crash, a
     kill or a reader at the wrong moment never sees half a summary or run file."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = partial_path(path)
     try:
         tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, path)
@@ -69,17 +70,21 @@ def partial_path(path: Path) -> Path:
 
 
 RESULT_FILE_FOLDERS = ("episodes", "animations")
-"""The folders of ``--out`` whose files are written beside themselves first (``partial_path``)."""
+"""The folders of ``--out`` whose files are written beside themselves first (``partial_path``), as ``--out``'s own
+(``summary.json``, ``episodes.csv``: ``write_text_atomic``)."""
 
 
-def remove_stale_partial_files(out_dir: Path, episode_files: list[Path]) -> list[Path]:
+def remove_stale_partial_files(out_dir: Path, episode_files: list[Path], is_an_episode: Callable[[Path], bool]) -> list[Path]:
     """Remove the partial files a killed eval left in ``out_dir`` (``kill -9`` while it wrote an episode file or a GIF),
     and the ``<map>.partial.npz`` an earlier version left beside each of ``episode_files`` (the episodes this eval runs;
-    one that is itself one of them, a plan named ``<map>.partial``, is kept); the ones removed. Only while holding the
-    folder's eval lock: another eval's partial files are the ones it is writing."""
+    one that is itself one of them, or ``is_an_episode``, the finished episode of a plan named ``<map>.partial`` that
+    this eval leaves out, is kept); the ones removed. Only while holding the folder's eval lock: another eval's partial
+    files are the ones it is writing."""
     episodes = set(episode_files)
-    stale = [path for folder in RESULT_FILE_FOLDERS for path in sorted((Path(out_dir) / folder).glob("*/.*.partial"))]
-    stale += [legacy for path in episode_files if (legacy := path.with_name(f"{path.stem}.partial.npz")) not in episodes]
+    stale = sorted(Path(out_dir).glob(".*.partial"))
+    stale += [path for folder in RESULT_FILE_FOLDERS for path in sorted((Path(out_dir) / folder).glob("*/.*.partial"))]
+    legacy = [path.with_name(f"{path.stem}.partial.npz") for path in episode_files]
+    stale += [path for path in legacy if path not in episodes and path.is_file() and not is_an_episode(path)]
     removed = []
     for path in stale:
         if path.is_file():

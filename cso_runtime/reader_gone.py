@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
+    from typing import TextIO
 
 
 def reader_is_gone() -> bool:
@@ -49,22 +50,48 @@ def ends_quietly_when_its_reader_leaves() -> Iterator[None]:
     ends quietly with exit code 141 (EXIT_READER_GONE, as a shell tool killed by SIGPIPE), not rich's or typer's exit 1
     or a traceback. What it was doing when the pipe broke is over (its ``finally`` blocks ran: ``eval`` has written its
     results by its last table); stdout and stderr go to /dev/null so that nothing else fails at exit. A broken pipe
-    that is not the reader's (another process's) is raised as it was. The tables are printed by
+    that is not the reader's (another process's) is raised as it was, and so is what the command itself raised (an
+    error's traceback, Ctrl-C, a non-zero exit code), the output it left unread dropped quietly. The tables are printed by
     ``console_that_survives_its_reader`` consoles, whose broken pipe is this ``BrokenPipeError`` rather than rich's
     ``SystemExit(1)``; typer's help is printed by rich's own console, whose ``SystemExit(1)`` is recognised here."""
     try:
         try:
             yield
-        finally:  # a last line still in Python's buffer would break at exit, after this block (and its exit code)
-            sys.stdout.flush()
+        except BaseException as exc:
+            if _ends_well(exc):
+                sys.stdout.flush()  # as below
+            elif not _is_broken_pipe(exc):  # an error, Ctrl-C, an exit code: the command's own outcome, which the
+                _flush_or_let_go()  # reader gone must not replace (a traceback lost, exit 141 and no word)
+            raise
+        sys.stdout.flush()  # a last line still in Python's buffer would break at exit, after this block (and its exit code)
     except (BrokenPipeError, SystemExit) as exc:
         if not (_is_richs_broken_pipe_exit(exc) or (_is_broken_pipe(exc) and reader_is_gone())):
             raise
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        for stream in (sys.stdout, sys.stderr):
-            with contextlib.suppress(OSError, ValueError, AttributeError):
-                os.dup2(devnull, stream.fileno())
-        os.close(devnull)
+        _let_go((sys.stdout, sys.stderr))
         from cso_runtime.config import EXIT_READER_GONE  # noqa: PLC0415  (numpy: only once the reader has left)
 
         raise SystemExit(EXIT_READER_GONE) from None
+
+
+def _ends_well(exc: BaseException) -> bool:
+    """Click's end of a command that went well (``SystemExit(0)``): its output's reader gone is then all there is."""
+    return isinstance(exc, SystemExit) and exc.code in (0, None)
+
+
+def _flush_or_let_go() -> None:
+    """Flush stdout; where its reader has gone, let it go (``_let_go``) instead of raising the broken pipe."""
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _let_go((sys.stdout,))
+    except (OSError, ValueError, AttributeError):  # closed, or no stream: nothing to flush
+        pass
+
+
+def _let_go(streams: tuple[TextIO, ...]) -> None:
+    """Point ``streams`` at /dev/null, so that nothing written to them (Python's flush at exit) fails any more."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    for stream in streams:
+        with contextlib.suppress(OSError, ValueError, AttributeError):
+            os.dup2(devnull, stream.fileno())
+    os.close(devnull)

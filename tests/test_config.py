@@ -767,6 +767,21 @@ def test_every_misplaced_key_is_named_in_one_error():
     for home in ("exploration.planner.lookahead_m", "services.sim.mujoco.timestep_s", "supervision.backoff_s"):
         assert f"(did you mean {home}?)" in said
 
+def test_a_misspelt_key_beside_a_misplaced_one_is_named_in_the_same_error():
+    """``wrong_section`` named every misplaced key but not a misspelt one beside them, which ``from_dict`` says only
+    once they are fixed: one more run to learn of it. The error names it too, with its nearest spelling."""
+    from cso_runtime.evaluation import EvalRequest
+
+    with pytest.raises(ConfigError) as caught:
+        EvalRequest(methods=["greedy-dist"], settings={"lookahead_m": 0.4, "planner.lookahed_m": 0.5}).exploration_config()
+    said = str(caught.value)
+    assert "unknown key(s) lookahead_m (did you mean planner.lookahead_m?); known: episode" in said
+    assert "planner: unknown key(s) lookahed_m (did you mean lookahead_m?); known: " in said
+    with pytest.raises(ConfigError) as caught:  # a misspelt key alone: from_dict's words, as before
+        EvalRequest(methods=["greedy-dist"], settings={"planner.lookahed_m": 0.5}).exploration_config()
+    assert "planner: unknown key(s) lookahed_m (did you mean lookahead_m?)" in str(caught.value)
+
+
 def test_a_service_of_ones_own_may_take_any_name_and_keys():
     """The misplaced-key check leaves a service of one's own alone: its name may be a section's elsewhere (``sensor``)."""
     from cso_runtime.run_profile import load_profile

@@ -720,6 +720,49 @@ def test_a_command_whose_reader_left_ends_quietly_with_exit_code_141(tmp_path: P
         assert json.loads((tmp_path / "o" / "summary.json").read_text())["methods"]["greedy-dist"]["episodes"] == 2
 
 
+READER_GONE_SCRIPT = """
+import sys
+from cso_runtime.reader_gone import ends_quietly_when_its_reader_leaves
+with ends_quietly_when_its_reader_leaves():
+    sys.stdout.write("a line still in Python's buffer")  # the pipe is closed: it breaks only when flushed
+    {ending}
+"""
+
+
+@pytest.mark.parametrize(
+    ("ending", "returncode", "said"),
+    [
+        ("raise RuntimeError('a real error')", 1, "RuntimeError: a real error"),  # a traceback, not a quiet 141
+        ("raise KeyboardInterrupt", -2, "KeyboardInterrupt"),  # Ctrl-C stays Ctrl-C (Python's own: killed by SIGINT; cli.main says one line)
+        ("raise SystemExit(3)", 3, ""),  # the command's own verdict (it said why on stderr)
+        ("raise SystemExit(0)", 141, ""),  # click's end of a command that went well: the reader gone is all there is
+        ("pass", 141, ""),
+    ],
+    ids=["error", "ctrl-c", "exit-3", "exit-0", "end"],
+)
+def test_a_reader_gone_hides_no_error_the_command_raised(tmp_path: Path, ending: str, returncode: int, said: str):
+    """The flush at the end of ``ends_quietly_when_its_reader_leaves`` broke on the closed pipe while the command's
+    own exception was on its way out, and the broken pipe took its place: exit 141 and nothing said, a traceback
+    lost (stderr still the terminal). The reader gone answers for the broken pipe only; the command's outcome stands,
+    with nothing more said at exit about the buffer."""
+    import os
+
+    script = tmp_path / "command.py"
+    script.write_text(READER_GONE_SCRIPT.format(ending=ending))
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # a buffered stdout, as a plain run has
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1])
+    reader, writer = os.pipe()
+    os.close(reader)
+    try:
+        proc = subprocess.run([sys.executable, str(script)], stdout=writer, stderr=subprocess.PIPE, text=True, timeout=60, env=env)
+    finally:
+        os.close(writer)
+    assert proc.returncode == returncode, proc.stderr
+    assert said in proc.stderr and "Exception ignored" not in proc.stderr and "BrokenPipeError" not in proc.stderr
+    if returncode == 141:
+        assert proc.stderr == ""
+
+
 def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     """Without a terminal (a log file, CI) each finished episode is one line, however long its map's name,
     and an episode ``--resume`` read back says so."""
@@ -1160,13 +1203,33 @@ def test_eval_removes_the_partial_files_a_killed_eval_left_and_never_reads_them(
     folder, gifs = out / "episodes" / "greedy-dist", out / "animations" / "greedy-dist"
     gifs.mkdir(parents=True)
     for again in (dataclasses.replace(request, resume=True), request):
-        stale = [folder / "gen_small_0.partial.npz", partial_path(folder / "gen_small_1.npz"), partial_path(gifs / "gen_small_0.gif")]
+        stale = [folder / "gen_small_0.partial.npz", partial_path(folder / "gen_small_1.npz"), partial_path(gifs / "gen_small_0.gif"),
+                 partial_path(out / "summary.json")]  # and summary.json's or episodes.csv's (write_text_atomic), beside them
         for path in stale:
             path.write_bytes(b"PK\x03\x04 cut short by kill -9")
         summary = run_eval(again)
         assert summary["methods"]["greedy-dist"]["episodes"] == 2 and not summary["failures"]
         assert not [path for path in stale if path.exists()]
     assert sorted(p.name for p in folder.iterdir()) == ["gen_small_0.npz", "gen_small_1.npz"]
+
+
+def test_an_eval_of_some_plans_keeps_the_episode_of_a_plan_named_as_an_old_partial_file(tmp_path: Path):
+    """The clean-up of the old ``<map>.partial.npz`` removed, beside each episode this eval ran, the file of that name
+    whatever it was: the finished episode of a plan named ``<map>.partial`` that an earlier eval ran into the folder,
+    when this one leaves that plan out. A file that reads whole as that plan's episode is a result, and stays."""
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    corridor = _corridor_scene(maps, "corridor", "[1.5, 0.18, -0.5]")
+    _corridor_scene(maps, "corridor.partial", "[1.5, 0.18, -0.5]")
+    out = tmp_path / "o"
+    run_eval(EvalRequest(methods=["greedy-dist"], maps=str(maps), out_dir=out, max_steps=5))
+    theirs = out / "episodes" / "greedy-dist" / "corridor.partial.npz"
+    assert theirs.is_file()
+    run_eval(EvalRequest(methods=["greedy-dist"], maps=str(corridor), out_dir=out, max_steps=5))
+    assert theirs.is_file(), "an episode of the earlier eval, removed as an old partial file"
+    theirs.write_bytes(b"PK\x03\x04 cut short by kill -9")  # an old partial file indeed: removed
+    run_eval(EvalRequest(methods=["greedy-dist"], maps=str(corridor), out_dir=out, max_steps=5))
+    assert not theirs.exists()
 
 
 def test_the_report_shows_each_methods_final_map_and_gives_each_picture_one_caption(tmp_path: Path):
@@ -1885,6 +1948,31 @@ def test_a_second_eval_into_a_folder_another_eval_is_writing_is_refused(tmp_path
         os.close(first)
     assert CliRunner().invoke(app, args).exit_code == 0 and (out / "summary.json").is_file()
     assert hold_eval_lock(out) is not None  # and released at its end
+
+
+def test_an_eval_on_a_file_system_without_locks_runs_and_says_it_holds_no_lock(tmp_path: Path, monkeypatch, caplog):
+    """NFS without its lock service answers flock with ENOLCK: the eval said "is being written by another eval" and
+    refused the folder for ever, where it ran before the lock. It runs, and says that it could not take the lock (a
+    second eval into the folder would not be stopped, and it leaves alone the partial files it finds, which may be
+    such an eval's); the lock held by another eval is still a refusal."""
+    import errno
+    import fcntl
+    import logging
+    import os
+
+    def no_locks(fd: int, operation: int) -> None:
+        raise OSError(errno.ENOLCK, os.strerror(errno.ENOLCK))
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    out = tmp_path / "o"
+    another_evals = out / "episodes" / "greedy-dist" / ".other.npz.4242.partial"  # with no lock: maybe being written
+    another_evals.parent.mkdir(parents=True)
+    another_evals.write_bytes(b"PK")
+    with caplog.at_level(logging.WARNING, logger="cso_runtime.evaluation"):
+        summary = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=out, max_steps=5))
+    assert summary["methods"]["greedy-dist"]["episodes"] == 1 and (out / "summary.json").is_file()
+    assert f"cannot lock {out / '.eval.lock'} (No locks available)" in caplog.text
+    assert another_evals.is_file()  # only an eval holding the lock removes the partial files it finds
 
 
 def test_resume_runs_again_an_episode_whose_file_is_cut_short(tmp_path: Path):

@@ -2083,6 +2083,33 @@ def test_a_stopped_training_run_leaves_its_learning_curve_so_far(tmp_path):
     assert [r["update"] for r in csv.DictReader((tmp_path / "cso_log.csv").open())] == ["1", "2", "3"]
 
 
+def test_a_learning_curve_that_fails_to_save_leaves_the_last_one_and_nothing_else(tmp_path, monkeypatch):
+    """Redrawn at every checkpoint, a curve whose saving failed (a full disk) left its ``.tmp`` file in the run folder
+    and its figure open, one more at each checkpoint (matplotlib warns past 20). The last curve stays whole, and
+    nothing else does."""
+    import errno
+
+    from matplotlib.figure import Figure
+
+    from cso_runtime.learned import ppo
+
+    log_csv = tmp_path / "cso_log.csv"
+    log_csv.write_text("update,decisions,mean_return\n1,8,0.5\n2,16,0.7\n")
+    png = tmp_path / "cso_curve.png"
+    ppo.plot_learning_curve(log_csv, png, "cso")
+    drawn = png.read_bytes()
+
+    def disk_full(self: Figure, fname: Path, **kwargs: object) -> None:
+        Path(fname).write_bytes(drawn[:100])
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(Figure, "savefig", disk_full)
+    with pytest.raises(OSError, match="No space left"):
+        ppo.plot_learning_curve(log_csv, png, "cso")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cso_curve.png", "cso_log.csv"] and png.read_bytes() == drawn
+    assert ppo.pyplot().get_fignums() == []
+
+
 def test_the_learning_curve_is_redrawn_at_each_checkpoint_not_only_at_the_end(tmp_path, monkeypatch):
     """A run of hours drew ``<variant>_curve.png`` only when it ended (or was stopped): a user watching the file (as
     CleanRL users watch TensorBoard) saw nothing, or the last run's curve, until then. It is now redrawn from the CSV

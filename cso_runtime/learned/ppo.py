@@ -1418,9 +1418,12 @@ def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
     ax.grid(alpha=0.3)
     fig.tight_layout()
     tmp = png_path.with_name(png_path.name + ".tmp")  # replaced whole: an image viewer watching the file never reads half of one
-    fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    tmp.replace(png_path)
+    try:
+        fig.savefig(tmp, dpi=100, format="png")
+        tmp.replace(png_path)
+    finally:  # a failed drawing (a full disk) leaves neither its file nor its figure: it is tried at every checkpoint
+        plt.close(fig)
+        tmp.unlink(missing_ok=True)
 
 
 # --- evaluation of returns (tests, quick checks) ----------------------------------------------
