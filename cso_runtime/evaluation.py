@@ -79,10 +79,10 @@ from cso_runtime.outputs import (
     episode_map_path,
     episode_npz_path,
     file_stem,
-    partial_path,
     remove_stale_partial_files,
     results_said,
     trajectory_plot_path,
+    write_npz_whole,
     write_text_atomic,
 )
 from cso_runtime.pace import real_time_factor
@@ -420,23 +420,17 @@ def save_episode_files(
         save_map(episode_map_path(out_dir, method, scene), result.map_grid, result.map_geometry, image_format="png", map_origin=map_origin)
     path = episode_npz_path(out_dir, method, scene)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = partial_path(path)  # not <map>.partial.npz: the episode file of a plan named <map>.partial
-    try:
-        with tmp.open("wb") as fh:  # a file, not its name: numpy would add .npz to it
-            np.savez_compressed(
-                fh,
-                explored=np.flipud(result.explored_free),
-                trajectory=result.trajectory_xy_m.astype(np.float32),
-                map_origin=np.array([map_origin.x_m, map_origin.y_m, map_origin.yaw_rad], dtype=np.float64),
-                coverage_curve=result.coverage_curve_pct.astype(np.float32),
-                metrics=np.array(json.dumps(json_row(row), allow_nan=False)),
-                settings=np.array(settings),
-                scene=np.array(scene_hash),
-                animation=np.array(animation_sha256),
-            )
-        os.replace(tmp, path)  # atomic: a half-written file never looks finished
-    finally:
-        tmp.unlink(missing_ok=True)
+    arrays = {
+        "explored": np.flipud(result.explored_free),
+        "trajectory": result.trajectory_xy_m.astype(np.float32),
+        "map_origin": np.array([map_origin.x_m, map_origin.y_m, map_origin.yaw_rad], dtype=np.float64),
+        "coverage_curve": result.coverage_curve_pct.astype(np.float32),
+        "metrics": np.array(json.dumps(json_row(row), allow_nan=False)),
+        "settings": np.array(settings),
+        "scene": np.array(scene_hash),
+        "animation": np.array(animation_sha256),
+    }
+    write_npz_whole(path, arrays)  # a half-written file never looks finished
 
 
 @dataclass
