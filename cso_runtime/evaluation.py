@@ -927,13 +927,14 @@ def plan_said(request: EvalRequest, plan: EvalPlan) -> tuple[list[str], list[str
     methods = [f"{m} (weights {plan.weights[m]['path']}, sha256 {plan.weights[m]['sha256'][:12]})" if m in plan.weights else m for m in request.methods]
     cell = f"{request.m_per_px:g} m/px (PNG plans)" if any(ref.scaled_by_m_per_px for ref in plan.scenes) else "each scene's own (generated plans, map files)"
     out = Path(request.out_dir)
+    # One meaning of "holding", with or without --resume: the episodes --resume would keep (whole, same settings and
+    # plan, with their own GIF under --animate), not every episode file (a cut one, one --animate runs again).
+    held = sum(load_finished(job) is not None for job in plan.jobs) if out.is_dir() else 0
     if not out.is_dir():
         folder = "a new folder"
     elif request.resume:
-        kept = sum(load_finished(job) is not None for job in plan.jobs)
-        folder = f"exists: --resume keeps the {kept} of these episodes it holds with the same settings, runs the other {len(plan.jobs) - kept}"
+        folder = f"exists: --resume keeps the {held} of these episodes it holds with the same settings, runs the other {len(plan.jobs) - held}"
     else:
-        held = sum(job.npz_path.is_file() for job in plan.jobs)
         folder = f"exists, holding {held} of these episodes: without --resume every episode runs again, its files written over" if held else "exists, holding none of these episodes"
     lines = [
         f"eval, valid: would run {len(plan.jobs)} episode(s), {len(request.methods)} method(s) x {len(plan.scenes)} scene(s), nothing run or written now",
