@@ -12,7 +12,6 @@ few megabytes in memory and on disk.
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,7 +23,7 @@ from cso_runtime.config import RobotConfig
 from cso_runtime.frames import PALETTE, frame_scale, map_frame_indexed
 from cso_runtime.geometry import Pose2D
 from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, Message, MessageError, OdometryMsg, decode, frontiers_reading
-from cso_runtime.outputs import partial_path
+from cso_runtime.outputs import write_whole
 
 log = logging.getLogger("cso.animation")
 
@@ -77,12 +76,7 @@ class FrameSequence:
             images.append(im)
         durations = [frame_ms] * (len(images) - 1) + [last_frame_ms]
         image_format = Image.registered_extensions().get(path.suffix.lower(), "GIF")  # the partial file's name says none
-        partial = partial_path(path)
-        try:
-            images[0].save(partial, format=image_format, save_all=True, append_images=images[1:], duration=durations, loop=0, optimize=False)
-            os.replace(partial, path)
-        finally:
-            partial.unlink(missing_ok=True)
+        write_whole(path, lambda partial: images[0].save(partial, format=image_format, save_all=True, append_images=images[1:], duration=durations, loop=0, optimize=False))
         return path
 
 

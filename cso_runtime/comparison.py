@@ -13,6 +13,7 @@ and ``summary.json`` whenever the baseline ran too; ``cso-runtime compare`` pool
 from __future__ import annotations
 
 import csv
+import io
 import math
 from collections import defaultdict
 from collections.abc import Iterable, Mapping, Sequence
@@ -22,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from cso_runtime.outputs import write_text_atomic
 from cso_runtime.scenes import scale_rank
 
 SceneKey = tuple[str, str, str, str, str]
@@ -310,10 +312,11 @@ def markdown_table(comparisons: Sequence[PairedComparison]) -> str:
 
 def write_csv(path: Path, comparisons: Sequence[Mapping[str, Any]]) -> None:
     """``comparisons`` as ``as_dicts`` gives them (the rows of ``summary.json``'s ``paired``)."""
-    with Path(path).open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(CSV_FIELDS))
-        writer.writeheader()
-        writer.writerows(comparisons)
+    table = io.StringIO(newline="")
+    writer = csv.DictWriter(table, fieldnames=list(CSV_FIELDS))
+    writer.writeheader()
+    writer.writerows(comparisons)
+    write_text_atomic(Path(path), table.getvalue())
 
 
 def as_dicts(comparisons: Sequence[PairedComparison]) -> list[dict[str, Any]]:

@@ -79,10 +79,10 @@ from cso_runtime.outputs import (
     episode_map_path,
     episode_npz_path,
     file_stem,
-    partial_path,
     remove_stale_partial_files,
     results_said,
     trajectory_plot_path,
+    write_npz_whole,
     write_text_atomic,
 )
 from cso_runtime.pace import real_time_factor
@@ -420,23 +420,17 @@ def save_episode_files(
         save_map(episode_map_path(out_dir, method, scene), result.map_grid, result.map_geometry, image_format="png", map_origin=map_origin)
     path = episode_npz_path(out_dir, method, scene)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = partial_path(path)  # not <map>.partial.npz: the episode file of a plan named <map>.partial
-    try:
-        with tmp.open("wb") as fh:  # a file, not its name: numpy would add .npz to it
-            np.savez_compressed(
-                fh,
-                explored=np.flipud(result.explored_free),
-                trajectory=result.trajectory_xy_m.astype(np.float32),
-                map_origin=np.array([map_origin.x_m, map_origin.y_m, map_origin.yaw_rad], dtype=np.float64),
-                coverage_curve=result.coverage_curve_pct.astype(np.float32),
-                metrics=np.array(json.dumps(json_row(row), allow_nan=False)),
-                settings=np.array(settings),
-                scene=np.array(scene_hash),
-                animation=np.array(animation_sha256),
-            )
-        os.replace(tmp, path)  # atomic: a half-written file never looks finished
-    finally:
-        tmp.unlink(missing_ok=True)
+    arrays = {
+        "explored": np.flipud(result.explored_free),
+        "trajectory": result.trajectory_xy_m.astype(np.float32),
+        "map_origin": np.array([map_origin.x_m, map_origin.y_m, map_origin.yaw_rad], dtype=np.float64),
+        "coverage_curve": result.coverage_curve_pct.astype(np.float32),
+        "metrics": np.array(json.dumps(json_row(row), allow_nan=False)),
+        "settings": np.array(settings),
+        "scene": np.array(scene_hash),
+        "animation": np.array(animation_sha256),
+    }
+    write_npz_whole(path, arrays)  # a half-written file never looks finished
 
 
 @dataclass
@@ -940,13 +934,14 @@ def plan_said(request: EvalRequest, plan: EvalPlan) -> tuple[list[str], list[str
     methods = [f"{m} (weights {plan.weights[m]['path']}, sha256 {plan.weights[m]['sha256'][:12]})" if m in plan.weights else m for m in request.methods]
     cell = f"{request.m_per_px:g} m/px (PNG plans)" if any(ref.scaled_by_m_per_px for ref in plan.scenes) else "each scene's own (generated plans, map files)"
     out = Path(request.out_dir)
+    # One meaning of "holding", with or without --resume: the episodes --resume would keep (whole, same settings and
+    # plan, with their own GIF under --animate), not every episode file (a cut one, one --animate runs again).
+    held = sum(load_finished(job) is not None for job in plan.jobs) if out.is_dir() else 0
     if not out.is_dir():
         folder = "a new folder"
     elif request.resume:
-        kept = sum(load_finished(job) is not None for job in plan.jobs)
-        folder = f"exists: --resume keeps the {kept} of these episodes it holds with the same settings, runs the other {len(plan.jobs) - kept}"
+        folder = f"exists: --resume keeps the {held} of these episodes it holds with the same settings, runs the other {len(plan.jobs) - held}"
     else:
-        held = sum(job.npz_path.is_file() for job in plan.jobs)
         folder = f"exists, holding {held} of these episodes: without --resume every episode runs again, its files written over" if held else "exists, holding none of these episodes"
     lines = [
         f"eval, valid: would run {len(plan.jobs)} episode(s), {len(request.methods)} method(s) x {len(plan.scenes)} scene(s), nothing run or written now",

@@ -383,6 +383,11 @@ class Launcher:
     def profile_path(self) -> Path:
         return self.run_dir / "profile.yaml"
 
+    def write_profile(self) -> None:
+        """The run's ``profile.yaml``, whole (``write_text_atomic``): every service reads it as it starts, and one
+        that starts while it is written again (the run folder made again) must not read half of it."""
+        write_text_atomic(self.profile_path, yaml.safe_dump(self.data, sort_keys=False))
+
     def write_run_file(self, state: str) -> None:
         """``run.json`` and the runs folder's current-run file: the run's state, endpoints and processes, which
         ``status``, ``down`` and ``runs`` read. ``starting`` until its services are spawned (no endpoints before its
@@ -842,7 +847,7 @@ class Launcher:
             return
         try:
             (self.run_dir / LOG_DIR).mkdir(parents=True, exist_ok=True)
-            self.profile_path.write_text(yaml.safe_dump(self.data, sort_keys=False))
+            self.write_profile()
             self.write_dataflow()
         except OSError as exc:  # the disk, or a folder above it, gone too: the run goes on, said once a round
             log.error("the run folder %s was deleted and cannot be made again (%s): the logs written from now on are lost", self.run_dir, exc.strerror or exc)
@@ -1194,7 +1199,7 @@ class Launcher:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         # First: `status` and `down` find the run while its router opens and its services spawn (seconds), not "no current run".
         self.write_run_file("starting")
-        self.profile_path.write_text(yaml.safe_dump(self.data, sort_keys=False))
+        self.write_profile()
         self.run_folder.expect(self.profile_path)  # every service reads it as it starts
         self.write_dataflow()
         if self.run_folder.writes_nameless([os.getpid()]):  # deleted since `up` made it and opened this one's log there
@@ -1556,7 +1561,7 @@ def start_detached(
     record_path = _record_path(run_dir, record or animate)
     run_dir.mkdir(parents=True, exist_ok=True)
     data_path = run_dir / "profile.requested.yaml"
-    data_path.write_text(yaml.safe_dump(data, sort_keys=False))
+    write_text_atomic(data_path, yaml.safe_dump(data, sort_keys=False))
     log_path = run_dir / "logs" / "launcher.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with log_path.open("ab") as fh:

@@ -25,6 +25,7 @@ from PIL import Image, UnidentifiedImageError
 
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN
+from cso_runtime.outputs import write_text_atomic, write_whole
 
 PIXEL_OCCUPIED, PIXEL_FREE, PIXEL_UNKNOWN = 0, 254, 205
 """map_saver's trinary pixel values."""
@@ -102,7 +103,8 @@ def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_fo
     yaml_path = Path(yaml_path)
     image_path = yaml_path.with_suffix(f".{image_format}")
     yaml_path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.ascontiguousarray(np.flipud(pixels))).save(image_path)
+    image = Image.fromarray(np.ascontiguousarray(np.flipud(pixels)))
+    write_whole(image_path, lambda partial: image.save(partial, format=Image.registered_extensions()[image_path.suffix.lower()]))
     meta = {
         "image": image_path.name,
         "mode": "trinary",
@@ -112,7 +114,7 @@ def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_fo
         "occupied_thresh": OCCUPIED_THRESH,
         "free_thresh": FREE_THRESH,
     }
-    yaml_path.write_text(yaml.safe_dump(meta, sort_keys=False))
+    write_text_atomic(yaml_path, yaml.safe_dump(meta, sort_keys=False))  # last: a YAML there has its image
     return yaml_path
 
 

@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 COVERAGE_FIGURE = "coverage_curves.png"
 EFFICIENCY_FIGURE = "efficiency_by_scale.png"
@@ -51,15 +52,34 @@ def results_said(out_dir: Path) -> str:
     return f"results in {out_dir}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
 
 
-def write_text_atomic(path: Path, text: str) -> None:
-    """Write ``path`` whole or not at all (a file of its own beside it, then renamed over it): a crash, a
-    kill or a reader at the wrong moment never sees half a summary or run file."""
-    tmp = partial_path(path)
+def write_whole(path: Path | str, write: Callable[[Path], object]) -> None:
+    """Write ``path`` whole or not at all: ``write(partial)`` writes a file of its own beside it (``partial_path``),
+    then it is renamed over ``path``, so that a crash, a kill, a full disk or a reader at the wrong moment sees the
+    earlier file or the new one, never half of one, and a failed write leaves no partial file. The one way every
+    file another command or a resume reads is written (summaries, tables, episodes, maps, figures, weights)."""
+    path = Path(path)
+    partial = partial_path(path)
     try:
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
+        write(partial)
+        os.replace(partial, path)
     finally:
-        tmp.unlink(missing_ok=True)
+        partial.unlink(missing_ok=True)
+
+
+def write_text_atomic(path: Path | str, text: str) -> None:
+    """``text`` (UTF-8) as the whole of ``path`` (``write_whole``)."""
+    write_whole(path, lambda partial: partial.write_text(text, encoding="utf-8"))
+
+
+def write_npz_whole(path: Path | str, arrays: Mapping[str, Any]) -> None:
+    """``arrays`` as a compressed npz at exactly ``path`` (numpy would add ``.npz`` to a name without it), whole."""
+    import numpy as np  # noqa: PLC0415  (the results layout alone needs none)
+
+    def write(partial: Path) -> None:
+        with partial.open("wb") as fh:  # a file, not its name: numpy would add .npz to the partial file's
+            np.savez_compressed(fh, **arrays)
+
+    write_whole(path, write)
 
 
 def partial_path(path: Path) -> Path:
@@ -69,20 +89,20 @@ def partial_path(path: Path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.partial")
 
 
-RESULT_FILE_FOLDERS = ("episodes", "animations")
-"""The folders of ``--out`` whose files are written beside themselves first (``partial_path``), as ``--out``'s own
-(``summary.json``, ``episodes.csv``: ``write_text_atomic``)."""
+RESULT_FILE_FOLDERS = ("episodes", "animations", "maps")
+"""The folders of ``--out`` with a folder per method; every file of ``--out`` is written beside itself first
+(``partial_path``, ``write_whole``)."""
 
 
 def remove_stale_partial_files(out_dir: Path, episode_files: list[Path], is_an_episode: Callable[[Path], bool]) -> list[Path]:
-    """Remove the partial files a killed eval left in ``out_dir`` (``kill -9`` while it wrote an episode file or a GIF),
+    """Remove the partial files a killed eval left in ``out_dir`` (``kill -9`` while it wrote an episode file, a GIF, a map, a figure or a summary),
     and the ``<map>.partial.npz`` an earlier version left beside each of ``episode_files`` (the episodes this eval runs;
     one that is itself one of them, or ``is_an_episode``, the finished episode of a plan named ``<map>.partial`` that
     this eval leaves out, is kept); the ones removed. Only while holding the folder's eval lock: another eval's partial
     files are the ones it is writing."""
     episodes = set(episode_files)
-    stale = sorted(Path(out_dir).glob(".*.partial"))
-    stale += [path for folder in RESULT_FILE_FOLDERS for path in sorted((Path(out_dir) / folder).glob("*/.*.partial"))]
+    stale = [path for folder in RESULT_FILE_FOLDERS for path in sorted((Path(out_dir) / folder).glob("*/.*.partial"))]
+    stale += sorted(Path(out_dir).glob(".*.partial")) + sorted((Path(out_dir) / "trajectories").glob(".*.partial"))  # summary.json, report.html, the figures
     legacy = [path.with_name(f"{path.stem}.partial.npz") for path in episode_files]
     stale += [path for path in legacy if path not in episodes and path.is_file() and not is_an_episode(path)]
     removed = []

@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from cso_runtime.outputs import write_whole
+
 
 def _pyplot() -> ModuleType:
     """``matplotlib.pyplot`` on the Agg backend (files only: eval runs headless), imported on first use as it is slow."""
@@ -23,8 +25,10 @@ def _pyplot() -> ModuleType:
 def _save(fig: Any, path: Path, dpi: int) -> None:
     """Write a figure as a PNG (making its folder) and free it: eval writes hundreds."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
-    _pyplot().close(fig)
+    try:  # whole: report.html links it, and a resumed eval's report keeps it
+        write_whole(path, lambda partial: fig.savefig(partial, dpi=dpi, format="png"))
+    finally:
+        _pyplot().close(fig)
 
 
 LINE_STYLES = ("-", "--", "-.", ":")

@@ -21,6 +21,7 @@ from cso_runtime.outputs import (
     episode_animation_path,
     episode_map_path,
     trajectory_plot_path,
+    write_text_atomic,
 )
 from cso_runtime.policies import LEARNED_METHODS
 from cso_runtime.scenes import SCALES, scale_rank
@@ -331,5 +332,5 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
         parts.append("</div>")
     parts.append("</body></html>\n")
     path = out_dir / REPORT_NAME
-    path.write_text("\n".join(parts), encoding="utf-8")
+    write_text_atomic(path, "\n".join(parts))
     return path

@@ -1805,6 +1805,32 @@ def test_eval_dry_run_says_what_would_run_and_writes_nothing(tmp_path: Path):
     assert not (tmp_path / "o").exists()
 
 
+def test_eval_dry_run_says_holding_the_same_episodes_with_or_without_resume(tmp_path: Path):
+    """``eval --dry-run`` without ``--resume`` counted every episode file as held, while ``--resume`` counts the ones it
+    would keep: with ``--animate`` an episode without its GIF ("holding 1", "keeps the 0") and a cut episode file
+    read as held without ``--resume`` alone. Both lines now count the episodes ``--resume`` would keep."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.outputs import episode_npz_path
+
+    out = tmp_path / "eval"
+    tiny = ["--maps", "generated:small:2:0", "--max-steps", "5", "--out", str(out)]
+    assert CliRunner().invoke(app, ["eval", *tiny]).exit_code == 0
+
+    def said(*flags: str) -> str:
+        r = CliRunner().invoke(app, ["eval", *tiny, "--dry-run", *flags])
+        assert r.exit_code == 0, r.output
+        return r.stdout
+
+    assert "--resume keeps the 2 of these episodes" in said("--resume") and "holding 2 of these episodes" in said()
+    assert "--resume keeps the 0 of these episodes" in said("--resume", "--animate")  # no GIF: each runs again
+    assert "holding none of these episodes" in said("--animate")
+    cut = episode_npz_path(out, "greedy-dist", "gen_small_1")
+    cut.write_bytes(cut.read_bytes()[:50])  # a kill while an earlier version wrote it in place
+    assert "--resume keeps the 1 of these episodes" in said("--resume") and "holding 1 of these episodes" in said()
+
+
 @pytest.mark.parametrize(
     "bad",
     [["--method", "greedy-dsit"], ["--max-steps", "0"], ["--set", "masks.nope=1"], ["--m-per-px", "-1"], ["--sim", "3d"], ["--out", "{file}/below"]],

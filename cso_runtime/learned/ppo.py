@@ -66,6 +66,7 @@ from cso_runtime.learned.registry import (
 )
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.learned.weights import mask_set_flags, mask_settings_changed, trained_mask_settings
+from cso_runtime.outputs import write_npz_whole, write_text_atomic, write_whole
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
 
@@ -570,7 +571,7 @@ def save_weights(folder: Path, model: GraphActorCritic, args: Args, record: dict
     serves, the run's own or a kept checkpoint's."""
     folder.mkdir(parents=True, exist_ok=True)
     save_checkpoint(folder / f"{args.variant}.pt", model, args.env_config().graph, args.variant, {"stage": "ppo", "decisions": record["ppo_decisions"]})
-    (folder / f"{args.variant}.json").write_text(json.dumps(record, indent=2, default=str))
+    write_text_atomic(folder / f"{args.variant}.json", json.dumps(record, indent=2, default=str))  # eval --weights reads it
 
 
 def run_counts(update: int, decisions: int, warm_decisions: int, env_steps: int, wall_s: float) -> dict[str, Any]:
@@ -754,11 +755,10 @@ class TeacherData:
         return len(self.actions)
 
     def save(self, path: str | Path) -> None:
-        """Write the file at exactly ``path`` (numpy would add ``.npz`` to a name without it)."""
+        """Write the file at exactly ``path``, whole (a stopped ``collect`` or train leaves no cut file to warm-start on)."""
         arrays: dict[str, Any] = {"masks": self.masks, "actions": self.actions, "returns": self.returns}
         arrays |= {"outcome_steps": self.outcome_steps} | {f"graph_{k}": v for k, v in self.graphs.items()}
-        with Path(path).open("wb") as fh:
-            np.savez_compressed(fh, **arrays)
+        write_npz_whole(path, arrays)
 
     @classmethod
     def load(cls, paths: list[str] | list[Path]) -> TeacherData:
@@ -1284,12 +1284,14 @@ def keep_log_rows_up_to(log_path: Path, update: int, fields: Sequence[str] | Non
         reader = csv.DictReader(fh)
         old, rows = reader.fieldnames or [], [r for r in reader if r.get("update", "").isdigit() and int(r["update"]) <= update]
     fields = [*fields, *(f for f in old if f not in fields)] if fields is not None else old
-    tmp = log_path.with_suffix(".tmp")
-    with tmp.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=fields, restval="")
-        writer.writeheader()
-        writer.writerows(rows)
-    tmp.replace(log_path)
+
+    def write(partial: Path) -> None:
+        with partial.open("w", newline="") as fh:
+            writer = csv.DictWriter(fh, fieldnames=fields, restval="")
+            writer.writeheader()
+            writer.writerows(rows)
+
+    write_whole(log_path, write)
 
 
 def _save_resumable(
@@ -1417,13 +1419,10 @@ def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
     ax.set_title(f"{title} learning curve")
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    tmp = png_path.with_name(png_path.name + ".tmp")  # replaced whole: an image viewer watching the file never reads half of one
-    try:
-        fig.savefig(tmp, dpi=100, format="png")
-        tmp.replace(png_path)
-    finally:  # a failed drawing (a full disk) leaves neither its file nor its figure: it is tried at every checkpoint
+    try:  # replaced whole: an image viewer watching the file never reads half of one
+        write_whole(png_path, lambda partial: fig.savefig(partial, dpi=100, format="png"))
+    finally:
         plt.close(fig)
-        tmp.unlink(missing_ok=True)
 
 
 # --- evaluation of returns (tests, quick checks) ----------------------------------------------

@@ -22,6 +22,7 @@ from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph, fro
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
 from cso_runtime.observation import Observation
+from cso_runtime.outputs import write_whole
 from cso_runtime.policies import VARIANTS, ActionMasker, Goal, goal_of
 
 _DECISION_TRACES: weakref.WeakKeyDictionary[GraphActorCritic, dict[tuple, Any]] = weakref.WeakKeyDictionary()
@@ -60,17 +61,10 @@ def has_method(name: str, sensor: SensorConfig | None = None) -> bool:
 
 
 def save_whole(obj: Any, path: str | Path) -> None:
-    """``torch.save`` into a temporary file beside ``path``, then renamed over it: a run stopped while it writes
+    """``torch.save`` whole (``outputs.write_whole``: a file beside ``path``, then renamed over it): a run stopped while it writes
     (Ctrl-C, a signal, a full disk) leaves the earlier file whole, never half of one that no load reads, and no
     temporary file. Every weights file and training checkpoint is written so."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    try:
-        torch.save(obj, tmp)
-        tmp.replace(path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_whole(path, lambda partial: torch.save(obj, partial))
 
 
 def save_checkpoint(path: str | Path, model: GraphActorCritic, graph: GraphConfig, variant: str, extra: dict[str, Any] | None = None) -> None:
