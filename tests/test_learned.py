@@ -22,7 +22,7 @@ from gymnasium.utils.passive_env_checker import env_reset_passive_checker, env_s
 from cso_runtime.config import MaskConfig, SensorConfig
 from cso_runtime.episode import Explorer, rollout_choice
 from cso_runtime.geometry import Pose2D
-from cso_runtime.learned.env import EnvConfig, ExplorationEnv, expert_action
+from cso_runtime.learned.env import ENV_ID, EnvConfig, ExplorationEnv, expert_action
 from cso_runtime.learned.graph import GraphConfig, build_graph, node_features
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
 from cso_runtime.learned.ppo import (
@@ -437,7 +437,7 @@ def test_the_env_gives_its_action_mask_through_action_masks_as_maskable_ppo_asks
     ``get_wrapper_attr``, through a vector env with ``call``): the env had none, so it refused the env as unmasked."""
     import gymnasium as gym
 
-    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", config=EnvConfig(max_steps=120))
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4", config=EnvConfig(max_steps=120))
     _, info = env.reset(seed=3)
     masks = env.get_wrapper_attr("action_masks")()
     assert masks.dtype == bool and np.array_equal(masks, info["action_mask"] == 1)
@@ -465,7 +465,7 @@ def test_the_default_env_fits_the_shipped_weights_and_other_graphs_say_what_to_p
     for sensor in (SensorConfig.preset("lidar", 360.0), SensorConfig.preset("lidar")):  # cso.pt and cso@fov180.pt
         model, graph, _ = load_checkpoint(weights_path("cso", sensor))
         assert graph == EnvConfig().graph and model.config.node_features == len(node_features(EnvConfig().graph))
-    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4").unwrapped
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4").unwrapped
     assert np.isfinite(episode_returns(env, model_chooser(model), [0], max_decisions=3)[0])
     other = ExplorationEnv([rooms_plan(2)], EnvConfig(graph=GraphConfig()))  # the paper's six features
     with pytest.raises(ValueError, match=re.escape("have 6 node features, the weights' network reads 7")) as caught:
@@ -1028,7 +1028,7 @@ def test_the_environment_is_registered_with_gymnasium():
     frontier and pays Eq. 6's reward, and the mask comes with every observation."""
     import gymnasium as gym
 
-    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", config=EnvConfig(max_steps=120))
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4", config=EnvConfig(max_steps=120))
     obs, info = env.reset(seed=3)
     assert env.observation_space.contains(obs) and info["action_mask"].any()
     action = int(np.flatnonzero(info["action_mask"])[0])
@@ -1037,7 +1037,7 @@ def test_the_environment_is_registered_with_gymnasium():
     assert isinstance(terminated, bool) and isinstance(truncated, bool)
     env.close()
     with pytest.raises(Exception, match="generated"):
-        gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:huge:1:0")
+        gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:huge:1:0")
 
 
 def test_the_environments_spec_serialises_so_it_can_be_recorded_and_made_again():
@@ -1046,7 +1046,7 @@ def test_the_environments_spec_serialises_so_it_can_be_recorded_and_made_again()
     import gymnasium as gym
     from gymnasium.envs.registration import EnvSpec
 
-    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4")
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4")
     spec = EnvSpec.from_json(env.spec.to_json())
     assert spec.kwargs == {"scenes": "generated:small:1:4"}
     again = gym.make(spec)
@@ -1069,7 +1069,7 @@ def test_the_environment_passes_gymnasiums_checker_and_rejects_masked_actions_as
     from gymnasium.utils.env_checker import check_env
 
     config = EnvConfig(max_steps=120, invalid_action_limit=3)
-    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", config=config).unwrapped
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4", config=config).unwrapped
     check_env(env, skip_render_check=True)
     obs, info = env.reset(seed=3)
     masked = int(np.flatnonzero(info["action_mask"] == 0)[0])
@@ -1641,13 +1641,13 @@ def test_gymnasium_make_adds_its_render_wrappers_for_the_modes_built_on_rgb_arra
             env = env.env
         return names
 
-    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="rgb_array_list")
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4", render_mode="rgb_array_list")
     _, info = env.reset(seed=3)
     env.step(int(np.flatnonzero(info["action_mask"])[0]))
     frames = env.render()
     assert "RenderCollection" in wrappers(env) and len(frames) == 2 and frames[0].ndim == 3
     env.close()
-    human = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="human")
+    human = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4", render_mode="human")
     assert "HumanRendering" in wrappers(human) and human.unwrapped.render_mode == "rgb_array"  # the window opens at render
 
 
@@ -1663,7 +1663,7 @@ def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot
     from cso_runtime import frames
     from cso_runtime.geometry import GridGeometry, Pose2D
 
-    env = gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="rgb_array", render_scale=3).unwrapped
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4", render_mode="rgb_array", render_scale=3).unwrapped
     check_env(env)
     _, info = env.reset(seed=3)
     frame = env.render()
@@ -1693,9 +1693,9 @@ def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot
     assert tuple(img[0, 0]) == frames.OCCUPIED and tuple(img[3, 0]) == frames.FREE and tuple(img[2, 4]) == frames.HEADING
     assert tuple(img[3, 4]) == frames.ROBOT and tuple(img[2, 0]) == frames.FREE  # a disc of 3 pixels at least, heading along +x
 
-    assert gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4").unwrapped.render() is None
+    assert gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4").unwrapped.render() is None
     with pytest.raises(ValueError, match="renders rgb_array"):  # "human" is gymnasium.make's HumanRendering over rgb_array
-        gym.make("cso_runtime.learned.env:CSOExploration-v0", scenes="generated:small:1:4", render_mode="ansi")
+        gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4", render_mode="ansi")
 
 
 def test_train_closed_by_its_terminal_stops_its_env_workers_and_says_how_to_resume(tmp_path):
