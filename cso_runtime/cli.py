@@ -1155,7 +1155,7 @@ def train_command(
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
     """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
-    from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
+    from cso_runtime.config import EXIT_INTERRUPTED, ConfigError  # noqa: PLC0415
     from cso_runtime.learned.ppo import KEPT_CHECKPOINTS_DIR, matching_eval_command, train  # noqa: PLC0415 - torch only for this command
     from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
 
@@ -1174,6 +1174,8 @@ def train_command(
     command = shlex.join(words + [w for flag in training_flags(overrides, settings) for w in flag])  # recorded in <variant>.json
     try:
         record = train(args, log=typer.echo, command=command)
+    except ConfigError as exc:  # another train is writing --out
+        _fail(str(exc), 2)
     except (EnvWorkerDied, KeyboardInterrupt) as exc:
         # This run's checkpoint (or the one it resumed from), not an earlier run's left in the same folder.
         ours = checkpoint.is_file() and (checkpoint.stat().st_mtime >= started or args.resume and Path(args.resume).resolve() == checkpoint.resolve())

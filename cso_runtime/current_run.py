@@ -5,14 +5,17 @@ folders, and ``down``, which stops the current run from another process.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import signal
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
+from cso_runtime.config import ConfigError
 from cso_runtime.run_profile import Profile, SupervisionConfig
 from cso_runtime.supervision import pid_alive, process_state, run_process_alive, signal_group
 
@@ -200,6 +203,30 @@ def hold_lock_file(path: Path) -> int | None:
     os.ftruncate(fd, 0)
     os.write(fd, f"{os.getpid()}\n".encode())
     return fd
+
+
+@contextlib.contextmanager
+def folder_lock(path: Path, command: str, warn: Callable[[str], None]) -> Iterator[bool]:
+    """Hold the lock file ``path`` (``hold_lock_file``) for the block: one ``command`` writing ``path``'s folder at a
+    time. Yields True; False where no lock can be had (NFS without its lock service: said through ``warn``), where the
+    command goes on as before the lock but must leave alone the partial files it finds (another's, being written).
+    Raises ConfigError naming the holder's pid, before the block, while another holds it."""
+    try:
+        fd = hold_lock_file(path)
+    except OSError as exc:
+        warn(f"cannot lock {path} ({exc.strerror or exc}): a second {command} into {path.parent} at the same time would not be refused")
+        yield False
+        return
+    if fd is None:
+        try:
+            holder = f" (pid {path.read_text().strip()})"
+        except OSError:
+            holder = ""
+        raise ConfigError(f"{path.parent} is being written by another {command}{holder}: wait for it to end, or give another --out")
+    try:
+        yield True
+    finally:
+        os.close(fd)
 
 
 def runs_lock_file_is(runs_dir: Path, fd: int) -> bool:

@@ -17,7 +17,6 @@ import json
 import logging
 import math
 import multiprocessing
-import os
 import sys
 import time
 import traceback
@@ -67,7 +66,7 @@ from cso_runtime.config import (
     with_mujoco_limo_defaults,
     with_nearest,
 )
-from cso_runtime.current_run import hold_lock_file
+from cso_runtime.current_run import folder_lock, hold_lock_file
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D
 from cso_runtime.map_files import save_map
@@ -973,22 +972,8 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None, plan: E
     """Run every (method, scene) episode and write all outputs; returns the summary. ``plan``: ``plan_eval(request)``
     when the caller made it already. Raises ConfigError, before any episode, while another eval writes ``out_dir``."""
     plan = plan if plan is not None else plan_eval(request)
-    out = Path(request.out_dir)
-    try:
-        lock = hold_eval_lock(out)
-    except OSError as exc:  # NFS without its lock service, a lock file of another user's: the run goes on, as before the lock
-        log.warning("cannot lock %s (%s): a second eval into %s at the same time would not be refused", out / EVAL_LOCK, exc.strerror or exc, out)
-        return _run_eval_locked(request, plan, progress, locked=False)
-    if lock is None:
-        try:
-            holder = f" (pid {(out / EVAL_LOCK).read_text().strip()})"
-        except OSError:
-            holder = ""
-        raise ConfigError(f"{out} is being written by another eval{holder}: wait for it to end, or give another --out")
-    try:
-        return _run_eval_locked(request, plan, progress)
-    finally:
-        os.close(lock)
+    with folder_lock(Path(request.out_dir) / EVAL_LOCK, "eval", lambda said: log.warning("%s", said)) as locked:
+        return _run_eval_locked(request, plan, progress, locked=locked)
 
 
 def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgress | None, locked: bool = True) -> dict[str, Any]:

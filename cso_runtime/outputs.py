@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -101,12 +101,18 @@ def remove_stale_partial_files(out_dir: Path, episode_files: list[Path], is_an_e
     this eval leaves out, is kept); the ones removed. Only while holding the folder's eval lock: another eval's partial
     files are the ones it is writing."""
     episodes = set(episode_files)
-    stale = [path for folder in RESULT_FILE_FOLDERS for path in sorted((Path(out_dir) / folder).glob("*/.*.partial"))]
-    stale += sorted(Path(out_dir).glob(".*.partial")) + sorted((Path(out_dir) / "trajectories").glob(".*.partial"))  # summary.json, report.html, the figures
+    folders = [method for folder in RESULT_FILE_FOLDERS for method in sorted((Path(out_dir) / folder).glob("*")) if method.is_dir()]
+    folders += [Path(out_dir), Path(out_dir) / "trajectories"]  # summary.json, report.html, the figures
     legacy = [path.with_name(f"{path.stem}.partial.npz") for path in episode_files]
-    stale += [path for path in legacy if path not in episodes and path.is_file() and not is_an_episode(path)]
+    return remove_partial_files(folders, also=[path for path in legacy if path not in episodes and path.is_file() and not is_an_episode(path)])
+
+
+def remove_partial_files(folders: Iterable[Path], also: Iterable[Path] = ()) -> list[Path]:
+    """Remove the partial files (``partial_path``) a killed writer left directly in each of ``folders``, then the
+    files ``also``; the ones removed. Only while holding the lock of the command that writes those folders
+    (``current_run.folder_lock``): another's partial files are the ones it is writing."""
     removed = []
-    for path in stale:
+    for path in [path for folder in folders for path in sorted(Path(folder).glob(".*.partial"))] + list(also):
         if path.is_file():
             path.unlink(missing_ok=True)
             removed.append(path)

@@ -2305,3 +2305,77 @@ sys.exit(130)
     assert done.stdout.splitlines() == ["the stop went on after the second signal", "the third ended it"], done.stdout + done.stderr
     assert "stopping: writing what finished; signal once more to stop at once" in done.stderr
     assert done.returncode == 130, done.stderr
+
+
+def test_train_removes_the_partial_files_a_killed_train_left(tmp_path):
+    """``kill -9`` while ``train`` wrote its weights or checkpoint left ``.<variant>.pt.<pid>.partial`` (or
+    ``.checkpoint.pt.<pid>.partial``) in its folder, and nothing removed it. A train into that folder, new or
+    ``--resume``, removes those it finds (under its folder lock: none is another train's), kept checkpoints' too."""
+    common = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 20, "progress": False, "out_dir": str(tmp_path)}
+
+    def left_by_a_kill() -> list[Path]:
+        stale = [tmp_path / ".cso.pt.4242.partial", tmp_path / ".checkpoint.pt.4242.partial", tmp_path / "checkpoints" / "update_0001" / ".cso.json.4242.partial"]
+        for path in stale:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_bytes(b"PK\x03\x04 cut short by kill -9")
+        return stale
+
+    (tmp_path / ".notes").write_text("a hidden file of the user's")
+    for resume in (None, str(tmp_path / "checkpoint.pt")):
+        stale, said = left_by_a_kill(), []
+        train(Args(total_decisions=4, resume=resume, **common), log=said.append, plans=[rooms_plan(2)])
+        assert not [path for path in stale if path.exists()], resume
+        assert f"note: removed {stale[1]}, left by a train that was killed while writing it" in said, said
+    assert (tmp_path / ".notes").is_file() and not list(tmp_path.rglob("*.partial"))
+
+
+def test_a_second_train_into_a_folder_another_train_is_writing_is_refused(tmp_path):
+    """Two trains into one ``--out`` (a second terminal, a job resubmitted) wrote over each other's checkpoint, log and
+    weights; and a train removing a killed one's partial files must not take those another is writing. The second is
+    refused before it writes anything, naming the first's pid; once the first ended, the folder is free again."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.config import ConfigError
+    from cso_runtime.current_run import hold_lock_file
+    from cso_runtime.learned import ppo
+
+    out = tmp_path / "run"
+    theirs = out / ".cso.pt.4242.partial"  # the first train's weights, being written
+    theirs.parent.mkdir()
+    theirs.write_bytes(b"PK")
+    first = hold_lock_file(out / ppo.TRAIN_LOCK)  # as the first train holds it, from its start to its end
+    assert first is not None
+    args = Args(variant="cso", seed=0, num_envs=1, num_steps=4, num_minibatches=1, max_steps=20, total_decisions=4, progress=False, out_dir=str(out))
+    try:
+        with pytest.raises(ConfigError, match=re.escape(f"{out} is being written by another train (pid {os.getpid()}): wait for it to end")):
+            train(args, log=lambda _msg: None, plans=[rooms_plan(2)])
+        tiny = ["--set", "dungeon_dir=null", "--set", 'generated=["generated:small:1:0"]', "--set", "num_steps=4", "--set", "max_steps=20"]
+        r = CliRunner().invoke(app, ["train", "--config", "configs/train.yaml", "--out", str(out), "--num-envs", "1", "--total-decisions", "4", *tiny])
+        assert r.exit_code == 2 and f"is being written by another train (pid {os.getpid()})" in " ".join(r.output.split()), r.output
+        assert sorted(p.name for p in out.iterdir()) == [".cso.pt.4242.partial", ppo.TRAIN_LOCK]  # nothing written, nothing removed
+    finally:
+        os.close(first)
+    train(args, log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert (out / "cso.pt").is_file() and not theirs.exists()  # the first one's gone: a leftover now
+
+
+def test_a_train_on_a_file_system_without_locks_runs_and_leaves_the_partial_files_alone(tmp_path, monkeypatch):
+    """Where ``flock`` fails (NFS without its lock service: ENOLCK) a train runs as before its lock, says that a second
+    one would not be refused, and leaves alone the partial files it finds: they may be such a train's."""
+    import errno
+    import fcntl
+
+    from cso_runtime.learned import ppo
+
+    def no_locks(fd: int, operation: int) -> None:
+        raise OSError(errno.ENOLCK, os.strerror(errno.ENOLCK))
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    maybe_being_written = tmp_path / ".checkpoint.pt.4242.partial"
+    maybe_being_written.write_bytes(b"PK")
+    said: list[str] = []
+    args = Args(variant="cso", seed=0, num_envs=1, num_steps=4, num_minibatches=1, max_steps=20, total_decisions=4, progress=False, out_dir=str(tmp_path))
+    train(args, log=said.append, plans=[rooms_plan(2)])
+    assert (tmp_path / "cso.pt").is_file() and maybe_being_written.is_file()
+    assert f"warning: cannot lock {tmp_path / ppo.TRAIN_LOCK} (No locks available): a second train into {tmp_path} at the same time would not be refused" in said, said

@@ -43,6 +43,7 @@ from cso_runtime.config import (
     check_seed,
     check_torch_device,
 )
+from cso_runtime.current_run import folder_lock
 from cso_runtime.doctor import cpu_name
 from cso_runtime.learned.env import (
     ROBOT_INDEX_SHAPE,
@@ -66,7 +67,7 @@ from cso_runtime.learned.registry import (
 )
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.learned.weights import mask_set_flags, mask_settings_changed, trained_mask_settings
-from cso_runtime.outputs import write_npz_whole, write_text_atomic, write_whole
+from cso_runtime.outputs import remove_partial_files, write_npz_whole, write_text_atomic, write_whole
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
 
@@ -517,6 +518,17 @@ def kept_checkpoint_dir(out: Path, update: int) -> Path:
     """Where ``keep_checkpoints`` keeps the weights of the checkpoint after PPO update ``update`` (the CSV log's
     ``update``): ``out/checkpoints/update_<N>``, N zero-padded to 4 digits so that the folders list in update order."""
     return out / KEPT_CHECKPOINTS_DIR / f"update_{update:04d}"
+
+
+TRAIN_LOCK = ".train.lock"
+"""A train holds an exclusive lock on ``<out>/.train.lock`` (its pid in it) for as long as it runs: one train per
+output folder, or two would write over each other's checkpoint, log and weights."""
+
+
+def training_file_folders(out: Path) -> list[Path]:
+    """The folders a train writes its files into (each beside itself first, ``outputs.write_whole``): ``out`` and its
+    kept checkpoints' (``kept_checkpoint_dir``)."""
+    return [out, *sorted(folder for folder in (out / KEPT_CHECKPOINTS_DIR).glob("update_*") if folder.is_dir())]
 
 
 def earlier_run_files(out: Path, variant: str) -> list[str]:
@@ -1009,8 +1021,19 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     seed_everything(args.seed)
     torch.set_num_threads(args.torch_threads)
     device = select_device(args.device)
+    Path(args.out_dir).mkdir(parents=True, exist_ok=True)  # one that cannot be made fails here, not as a lock not had
+    with folder_lock(Path(args.out_dir) / TRAIN_LOCK, "train", lambda said: log(f"warning: {said}")) as locked:
+        return _train_locked(args, device, t_start, log, plans, command, locked)
+
+
+def _train_locked(
+    args: Args, device: torch.device, t_start: float, log: Callable[[str], None], plans: list[FloorPlan] | None, command: str | None, locked: bool
+) -> dict[str, Any]:
+    """``train`` while it holds its output folder's lock (``TRAIN_LOCK``); ``locked`` False where none could be had,
+    and the partial files there may be another train's, being written."""
     out = Path(args.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    for stale in remove_partial_files(training_file_folders(out)) if locked else []:  # a killed train's
+        log(f"note: removed {stale}, left by a train that was killed while writing it")
     elsewhere = not args.resume or Path(args.resume).resolve().parent != out.resolve()  # not the folder of the run it continues
     replaces = elsewhere and bool(earlier := earlier_run_files(out, args.variant))
     if replaces:  # CleanRL never writes into an old run; say it, while a Ctrl-C can still keep it
