@@ -307,17 +307,71 @@ def scene_fingerprint(plan: FloorPlan) -> str:
     return h.hexdigest()[:16]
 
 
+CONFIG_KEYS_ADDED: dict[str, Any] = {}
+"""Exploration config keys (dotted, as ``--set`` names them) added after episodes recorded their settings, each with
+the value that does what the versions before it did: at that value a key counts neither in the fingerprint nor as a
+difference, so an upgrade that adds it keeps a sweep's episodes for ``--resume``. A key added without one here (its
+earlier behaviour is not one value of it) makes every earlier episode another configuration, its refusal naming it."""
+
+SIM_SETTINGS_BEFORE_FINGERPRINTED: dict[str, dict[str, Any]] = {"2d": {"collision_radius_m": 0.12, "substeps": 5}}
+"""What each simulator ran with in the episodes written before the fingerprint took in its settings (``simulator_settings``):
+the 2D simulator's fixed 0.12 m disc (before it followed ``robot.width_m``) and its substeps. A setting counts where it
+differs from these, so those episodes keep their fingerprints and one run at another disc does not. MuJoCo's are none:
+they follow from its parameters, the sensor and the robot, which count already."""
+
+
+def _same_value(a: Any, b: Any) -> bool:
+    """Equal, floats to rounding (``0.5 * width_m + 0.01`` is the 0.12 m written)."""
+    if isinstance(a, float | int) and isinstance(b, float | int) and not isinstance(a, bool) and not isinstance(b, bool):
+        return math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
+    return a == b
+
+
+def as_before(key: str, value: Any) -> bool:
+    """Whether ``value`` of the config key ``key`` (dotted) is what versions before the key existed did (``CONFIG_KEYS_ADDED``)."""
+    return key in CONFIG_KEYS_ADDED and _same_value(CONFIG_KEYS_ADDED[key], value)
+
+
+def _without_keys_as_before(tree: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``tree`` (``to_dict`` of a config) less the added keys at their earlier behaviour's value (``as_before``)."""
+    kept: dict[str, Any] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            kept[key] = _without_keys_as_before(value, f"{prefix}{key}.")
+        elif not as_before(f"{prefix}{key}", value):
+            kept[key] = value
+    return kept
+
+
+def sim_settings_counted(sim: str, sim_settings: dict[str, Any] | None) -> dict[str, Any]:
+    """The simulator settings that count in the fingerprint: those that differ from what the episodes written before
+    they counted ran with (``SIM_SETTINGS_BEFORE_FINGERPRINTED``)."""
+    before = SIM_SETTINGS_BEFORE_FINGERPRINTED.get(sim)
+    if before is None or not sim_settings:
+        return {}
+    return {k: v for k, v in sim_settings.items() if k not in before or not _same_value(before[k], v)}
+
+
 def settings_fingerprint(
-    config: ExplorationConfig, sim: str, weights_sha256: str = "", mujoco: dict[str, Any] | None = None, code_sha256: str = ""
+    config: ExplorationConfig,
+    sim: str,
+    weights_sha256: str = "",
+    mujoco: dict[str, Any] | None = None,
+    code_sha256: str = "",
+    sim_settings: dict[str, Any] | None = None,
 ) -> str:
-    """A short hash of the settings an episode ran with (see ``EpisodeJob.settings``). MuJoCo parameters and the code
-    of a method of the user's own (``own_method_code_sha256``) count only when given, so the episodes of runs without
-    them keep their fingerprints."""
-    fields: dict[str, Any] = {"config": to_dict(config), "sim": sim, "weights": weights_sha256}
+    """A short hash of the settings an episode ran with (see ``EpisodeJob.settings``): the config, the simulator and
+    what it ran with (``sim_settings``, ``simulator_settings``), the weights. MuJoCo parameters, the code of a method of
+    the user's own (``own_method_code_sha256``), simulator settings and config keys count only where they differ from
+    what runs before them did (``sim_settings_counted``, ``CONFIG_KEYS_ADDED``), so the episodes of those runs keep
+    their fingerprints."""
+    fields: dict[str, Any] = {"config": _without_keys_as_before(to_dict(config)), "sim": sim, "weights": weights_sha256}
     if mujoco:
         fields["mujoco"] = mujoco
     if code_sha256:
         fields["code"] = code_sha256
+    if counted := sim_settings_counted(sim, sim_settings):
+        fields["sim_settings"] = counted
     text = json.dumps(fields, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
@@ -529,12 +583,9 @@ def load_finished(job: EpisodeJob) -> EpisodeOutcome | None:
                           trajectory_xy_m=held.trajectory_xy_m, coverage_curve_pct=held.coverage_curve_pct, kept=True, map_origin=plan.map_origin)
 
 
-def episodes_of_another_configuration(jobs: list[EpisodeJob]) -> list[EpisodeJob]:
-    """The jobs whose episode file the output folder already holds from another configuration: another seed,
-    settings (config, simulator, weights, a method's code) or plan under the same name (another ``--m-per-px``,
-    another folder). Running them would write over those results, silently before: ``plan_eval`` refuses them
-    unless ``--overwrite``. A file that does not read whole is no result and does not count."""
-    scene_hashes: dict[int, str | None] = {}  # a plan is loaded once, however many methods ran on it
+def _scene_hashes() -> Callable[[SceneRef], str | None]:
+    """``scene_fingerprint`` of a scene, None where it does not load; a plan is loaded once, however many methods ran on it."""
+    scene_hashes: dict[int, str | None] = {}
 
     def scene_hash(ref: SceneRef) -> str | None:
         if id(ref) not in scene_hashes:
@@ -544,14 +595,43 @@ def episodes_of_another_configuration(jobs: list[EpisodeJob]) -> list[EpisodeJob
                 scene_hashes[id(ref)] = None  # its episode fails to load and says so; what the folder holds stays
         return scene_hashes[id(ref)]
 
+    return scene_hash
+
+
+def _of_another_plan(held: HeldEpisode, job: EpisodeJob, scene_hash: Callable[[SceneRef], str | None]) -> bool:
+    """Whether ``held`` ran on another plan than ``job``'s under the same name (one that does not load aside)."""
+    return held.scene != scene_hash(job.scene) and scene_hash(job.scene) is not None
+
+
+def episodes_of_another_configuration(jobs: list[EpisodeJob], scene_hash: Callable[[SceneRef], str | None] | None = None) -> list[EpisodeJob]:
+    """The jobs whose episode file the output folder already holds from another configuration: another seed,
+    settings (config, simulator, weights, a method's code) or plan under the same name (another ``--m-per-px``,
+    another folder). Running them would write over those results, silently before: ``plan_eval`` refuses them
+    unless ``--overwrite``. A file that does not read whole is no result and does not count. ``scene_hash``: the
+    plans' fingerprints already taken (``_scene_hashes``)."""
+    scene_hash = scene_hash or _scene_hashes()
     others = []
     for job in jobs:
         held = read_held_episode(job.npz_path)
         if held is None:
             continue
-        if not held.same_run(job) or (held.scene != scene_hash(job.scene) and scene_hash(job.scene) is not None):
+        if not held.same_run(job) or _of_another_plan(held, job, scene_hash):
             others.append(job)
     return others
+
+
+def episodes_held_otherwise(jobs: list[EpisodeJob], scene_hash: Callable[[SceneRef], str | None] | None = None) -> tuple[int, int]:
+    """Of ``jobs``' episode files, how many recorded no settings (a version before the fingerprints wrote them), and
+    how many of the others ran on another plan under the same name: what a refusal says beside ``summary.json``."""
+    scene_hash = scene_hash or _scene_hashes()
+    unrecorded = another_plan = 0
+    for job in jobs:
+        held = read_held_episode(job.npz_path)
+        if held is not None and held.settings is None:
+            unrecorded += 1
+        elif held is not None and held.scene is not None and _of_another_plan(held, job, scene_hash):
+            another_plan += 1
+    return unrecorded, another_plan
 
 
 CHANGES_SHOWN = 4
@@ -565,35 +645,88 @@ def _flat(value: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix.rstrip("."): value}
 
 
+def _earlier_meta(out_dir: Path) -> dict[str, Any] | None:
+    """``meta`` of the ``summary.json`` in ``out_dir``; None when there is none that reads."""
+    try:
+        meta = json.loads((Path(out_dir) / "summary.json").read_text()).get("meta")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return meta if isinstance(meta, dict) else None
+
+
 def configuration_changes(
     out_dir: Path, request: EvalRequest, config: ExplorationConfig, sim_settings: dict[str, Any], weights: dict[str, dict[str, Any]]
 ) -> list[str]:
     """What this run sets otherwise than the earlier run whose ``summary.json`` is in ``out_dir`` (``KEY: THERE there,
     HERE here``, dotted as ``--set`` takes them; the simulator's as ``sim_settings.KEY``, a learned method's weights by
-    their sha256); [] when it has none to compare, or none differs."""
-    try:
-        earlier = json.loads((out_dir / "summary.json").read_text()).get("meta") or {}
-        request_there = earlier.get("request") or {}
-        weights_there = {m: w.get("sha256", "")[:12] for m, w in (earlier.get("weights") or {}).items()}
-    except (OSError, ValueError, AttributeError):
+    their sha256), and the keys one side has alone (another version's: ``key K: not recorded there (added in a later
+    version), D here``) unless at what the versions before them did (they count in no fingerprint:
+    ``CONFIG_KEYS_ADDED``, ``SIM_SETTINGS_BEFORE_FINGERPRINTED``); [] when it has none to compare, or none differs."""
+    earlier = _earlier_meta(out_dir)
+    if earlier is None:
         return []
-    flags = ("seed", "sim", "m_per_px", "sensor")
-    there = {**_flat(earlier.get("config") or {}), **{k: request_there.get(k) for k in flags}, **_flat({"sim_settings": earlier.get("sim_settings") or {}})}
-    there.update({f"weights of {m}": sha for m, sha in weights_there.items()})
-    here = {**_flat(to_dict(config)), **{k: getattr(request, k) for k in flags}, **_flat({"sim_settings": sim_settings})}
+    request_there = earlier.get("request") or {}
+    flags = [k for k in ("seed", "sim", "m_per_px", "sensor") if k in request_there]
+    there = {**_flat(earlier.get("config") or {}), **{k: request_there[k] for k in flags}}
+    here = {**_flat(to_dict(config)), **{k: getattr(request, k) for k in flags}}
+    same_sim = request_there.get("sim", request.sim) == request.sim  # another simulator (said as sim) has other settings
+    if same_sim and isinstance(earlier.get("sim_settings"), dict):
+        there.update(_flat({"sim_settings": earlier["sim_settings"]}))
+        here.update(_flat({"sim_settings": sim_settings}))
+    elif same_sim:  # a version before meta.sim_settings: those that count in the fingerprint are new there
+        here.update(_flat({"sim_settings": sim_settings_counted(request.sim, sim_settings)}))
+    there.update({f"weights of {m}": w.get("sha256", "")[:12] for m, w in (earlier.get("weights") or {}).items() if isinstance(w, dict)})
     here.update({f"weights of {m}": w["sha256"][:12] for m, w in weights.items()})
-    return [f"{key}: {there[key]} there, {here[key]} here" for key in here if key in there and there[key] != here[key]]
+    counted_sim = {f"sim_settings.{k}" for k in sim_settings_counted(request.sim, sim_settings)}
+    changes = []
+    for key, value in here.items():
+        if key in there:
+            if not _same_value(there[key], value):
+                changes.append(f"{key}: {there[key]} there, {value} here")
+        elif not key.startswith("weights of ") and not as_before(key, value) and (not key.startswith("sim_settings.") or key in counted_sim):
+            changes.append(f"key {key}: not recorded there (added in a later version), {value} here")
+    changes += [f"key {key}: {there[key]} there, not in this version" for key in there if key not in here and not key.startswith("weights of ")]
+    return changes
 
 
-def another_configuration_said(out_dir: Path, others: list[EpisodeJob], changes: list[str]) -> str:
-    """The refusal of ``out_dir``, whose episodes ``others`` ran with another configuration, naming what differs."""
+def another_configuration_said(out_dir: Path, others: list[EpisodeJob], changes: list[str], unrecorded: int = 0, another_plan: int = 0) -> str:
+    """The refusal of ``out_dir``, whose episodes ``others`` ran with another configuration, naming what differs: that
+    ``unrecorded`` of them recorded no settings (written before the fingerprints), that ``another_plan`` ran on another
+    plan of the same name, the settings its ``summary.json`` has otherwise (``changes``), or, where none of these
+    tells, that the summary does not say. Where another version wrote them, it says how to keep them."""
     names = ", ".join(f"{job.method} {job.scene.name}" for job in others[:3]) + (", ..." if len(others) > 3 else "")
-    differs = f"; its summary.json differs in {'; '.join(changes[:CHANGES_SHOWN])}{'; ...' if len(changes) > CHANGES_SHOWN else ''}" if changes else ""
+    version = str((_earlier_meta(out_dir) or {}).get("version") or "") or None
+    written_by = f"cso-runtime {version}" if version else "an earlier cso-runtime"
+
+    def which(count: int) -> str:
+        return ("it" if count == 1 else f"all {count}") if count == len(others) else f"{count} of them"
+
+    reasons = [f"{which(unrecorded)} recorded no settings (written by {written_by} or older)"] if unrecorded else []
+    if another_plan:
+        reasons.append(f"{which(another_plan)} ran on another plan under the same name (another --m-per-px, folder or map origin)")
+    if changes:
+        reasons.append(f"its summary.json differs in {'; '.join(changes[:CHANGES_SHOWN])}{'; ...' if len(changes) > CHANGES_SHOWN else ''}")
+    elif not (unrecorded or another_plan):
+        summary = "it has no summary.json to compare with" if _earlier_meta(out_dir) is None else "no setting its summary.json records differs"
+        reasons.append(f"{summary}: a method of one's own whose code changed, or settings summary.json does not record")
+    another_version = bool(unrecorded) or any(c.startswith("key ") for c in changes)
+    keep = f"; to keep them, go on with that sweep with the version that wrote them ({written_by})" if another_version else ""
     return (
         f"{out_dir} holds {len(others)} episode{'' if len(others) == 1 else 's'} of this run's methods and plans from another configuration "
-        f"({names}{differs}): this run would write over them; give another --out, the earlier command (summary.json's meta.request) "
-        "to go on with those, or --overwrite to run them again here"
+        f"({names}; {'; '.join(reasons)}): this run would write over them; give another --out, the earlier command (summary.json's meta.request) "
+        f"to go on with those, or --overwrite to run them again here{keep}"
     )
+
+
+def refuse_another_configuration(request: EvalRequest, plan: EvalPlan) -> None:
+    """Raise ConfigError, unless ``--overwrite``, when ``--out`` holds episodes of ``plan``'s jobs from another
+    configuration (``episodes_of_another_configuration``), naming what differs. ``plan_eval`` checks before any
+    work and ``run_eval`` again once it holds the folder's lock: an eval into it may have ended in between."""
+    if request.overwrite or not (others := episodes_of_another_configuration(plan.jobs, plan.scene_hash)):
+        return
+    out = Path(request.out_dir)
+    changes = configuration_changes(out, request, plan.config, plan.sim_settings, plan.weights)
+    raise ConfigError(another_configuration_said(out, others, changes, *episodes_held_otherwise(others, plan.scene_hash)))
 
 
 def run_job(job: EpisodeJob) -> EpisodeOutcome:
@@ -851,6 +984,10 @@ class EvalPlan:
     warnings: list[str]
     """What the user should know before the episodes run (results the run would replace, a seed that changes nothing,
     weights trained otherwise)."""
+    sim_settings: dict[str, Any] = dataclasses.field(default_factory=dict)
+    """Every parameter the simulator runs with (``simulator_settings``)."""
+    scene_hash: Callable[[SceneRef], str | None] = dataclasses.field(default_factory=_scene_hashes)
+    """Each scene's fingerprint, taken once: the folder is checked before the lock and again under it."""
 
 
 def plan_eval(request: EvalRequest) -> EvalPlan:
@@ -894,7 +1031,7 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
     watchdog = watchdog_within_a_step_said(sim_settings, config.robot, watchdog_key, advice=advice)
     warnings += [watchdog] if watchdog is not None else []
     settings = {
-        m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "", mujoco, own_method_code_sha256(m))
+        m: settings_fingerprint(config, request.sim, weights[m]["sha256"] if m in weights else "", mujoco, own_method_code_sha256(m), sim_settings)
         for m in request.methods
     }
     jobs = [
@@ -902,9 +1039,9 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
         for s in scenes
         for m in request.methods
     ]
-    if not request.overwrite and (written_over := episodes_of_another_configuration(jobs)):
-        raise ConfigError(another_configuration_said(out, written_over, configuration_changes(out, request, config, sim_settings, weights)))
-    return EvalPlan(config, scenes, jobs, weights, mujoco, warnings)
+    plan = EvalPlan(config, scenes, jobs, weights, mujoco, warnings, sim_settings)
+    refuse_another_configuration(request, plan)
+    return plan
 
 
 DRY_RUN_SCENES_SHOWN = 5
@@ -979,6 +1116,7 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None, plan: E
 def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgress | None, locked: bool = True) -> dict[str, Any]:
     """``run_eval`` while it holds the output folder's lock; ``locked`` False where none could be had, and the partial
     files there may be another eval's, being written."""
+    refuse_another_configuration(request, plan)  # again: an eval into the folder may have ended since plan_eval
     for warning in plan.warnings:
         log.warning("%s", warning)
     config, scenes, jobs, weights, mujoco = plan.config, plan.scenes, plan.jobs, plan.weights, plan.mujoco

@@ -464,7 +464,8 @@ def test_resume_runs_again_an_episode_of_another_scene_under_the_same_name(tmp_p
     req.resume = True
     assert run_eval(req)["meta"]["resumed_episodes"] == 1 and npz.stat().st_mtime_ns == stamp  # the same scene: kept
     req.m_per_px = 0.05
-    with pytest.raises(ConfigError, match=r"another configuration \(greedy-dist office; its summary.json differs in m_per_px: 0.1 there, 0.05 here\)"):
+    with pytest.raises(ConfigError, match=r"another configuration \(greedy-dist office; it ran on another plan under the same name \(another "
+                       r"--m-per-px, folder or map origin\); its summary.json differs in m_per_px: 0.1 there, 0.05 here\)"):
         run_eval(req)  # another plan under the name: its episode would be written over
     req.overwrite = True
     second = run_eval(req)
@@ -2021,3 +2022,92 @@ def test_resume_runs_again_an_episode_whose_file_is_cut_short(tmp_path: Path):
         assert r.exit_code == 0, r.output
         meta = json.loads((out / "summary.json").read_text())["meta"]
         assert meta.get("resumed_episodes") == kept and np.load(cut)["trajectory"].size > 0 and np.load(empty)["trajectory"].size > 0
+
+
+def _rewrite_episode_file(npz: Path, drop: tuple[str, ...] = (), **fields: str) -> None:
+    """Rewrite ``npz`` as another version would have written it: without ``drop``, with ``fields`` in place."""
+    with np.load(npz) as data:
+        arrays = {k: data[k] for k in data.files if k not in drop and k not in fields}
+    np.savez_compressed(npz, **arrays, **{k: np.array(v) for k, v in fields.items()})
+
+
+def _rewrite_summary_meta(out: Path, change) -> None:
+    summary = json.loads((out / "summary.json").read_text())
+    change(summary["meta"])
+    (out / "summary.json").write_text(json.dumps(summary))
+
+
+def test_episodes_written_before_the_fingerprints_are_refused_saying_why_and_how_to_keep_them(tmp_path: Path):
+    """An episode file of a version before the fingerprints (no ``settings`` nor ``scene``) may have run otherwise:
+    refused even for the same command with ``--resume``, the refusal saying that it recorded none, by which version,
+    and how to keep it (its version) or run it again (``--overwrite``): an empty list of differences said nothing."""
+    req = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:11", out_dir=tmp_path, max_steps=10, resume=True)
+    run_eval(req)
+    npz = tmp_path / "episodes" / "greedy-dist" / "gen_small_11.npz"
+    _rewrite_episode_file(npz, drop=("settings", "scene", "animation"))
+    _rewrite_summary_meta(tmp_path, lambda meta: meta.update(version="0.0.9"))
+    with pytest.raises(ConfigError) as refused:
+        run_eval(req)
+    said = str(refused.value)
+    assert "(greedy-dist gen_small_11; it recorded no settings (written by cso-runtime 0.0.9 or older))" in said
+    assert "--overwrite to run them again here" in said and "go on with that sweep with the version that wrote them (cso-runtime 0.0.9)" in said
+    req.overwrite = True
+    assert run_eval(req)["meta"]["resumed_episodes"] == 0  # run again, with its settings recorded now
+
+
+def test_a_key_an_upgrade_added_is_no_difference_at_the_old_behaviours_value_and_is_named_where_unknown(tmp_path: Path, monkeypatch):
+    """A sweep begun before an upgrade that added a config key: with the key's earlier behaviour known
+    (``CONFIG_KEYS_ADDED``) and kept, ``--resume`` keeps its episodes; unknown, the refusal names the key."""
+    from cso_runtime import evaluation
+
+    def without_the_key(config):  # the version before mapping.footprint_clearing: its config had no such key
+        data = to_dict(config)
+        del data["mapping"]["footprint_clearing"]
+        return data
+
+    req = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:11", out_dir=tmp_path, max_steps=10)
+    with monkeypatch.context() as older:
+        older.setattr(evaluation, "to_dict", without_the_key)
+        run_eval(req)
+    default = to_dict(ExplorationConfig())["mapping"]["footprint_clearing"]
+    req.resume = True
+    with pytest.raises(ConfigError, match=rf"key mapping.footprint_clearing: not recorded there \(added in a later version\), {default} here"):
+        run_eval(req)  # what the older code did is not known: the key may have changed the episodes
+    monkeypatch.setitem(evaluation.CONFIG_KEYS_ADDED, "mapping.footprint_clearing", default)
+    assert run_eval(req)["meta"]["resumed_episodes"] == 1  # its default is what the older code did: the same configuration
+    req.settings = {"mapping.footprint_clearing": not default}
+    with pytest.raises(ConfigError, match=rf"mapping.footprint_clearing: {default} there, {not default} here"):
+        run_eval(req)  # set otherwise: another configuration (that resume's summary.json records the key)
+
+
+def test_a_2d_episode_run_at_another_width_before_the_disc_followed_it_is_another_configuration(tmp_path: Path):
+    """Before the 2D simulator's collision disc followed ``robot.width_m`` it was 0.12 m whatever the width: an
+    episode of those at another width ran with another disc than today's, so ``--resume`` must not keep it. At the
+    LIMO's width the disc is the same, and such an episode keeps its fingerprint."""
+    from cso_runtime.evaluation import settings_fingerprint
+    from cso_runtime.simulator import simulator_settings
+
+    req = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:11", out_dir=tmp_path, max_steps=10, settings={"robot.width_m": 0.3})
+    run_eval(req)
+    config = req.exploration_config()
+    npz = tmp_path / "episodes" / "greedy-dist" / "gen_small_11.npz"
+    _rewrite_episode_file(npz, settings=settings_fingerprint(config, "2d"))  # the fingerprint before the sim settings counted
+    _rewrite_summary_meta(tmp_path, lambda meta: meta["sim_settings"].update(collision_radius_m=0.12))  # its fixed disc
+    req.resume = True
+    with pytest.raises(ConfigError, match=r"sim_settings.collision_radius_m: 0.12 there, 0.16 here"):
+        run_eval(req)
+    limo = ExplorationConfig()
+    assert settings_fingerprint(limo, "2d", sim_settings=simulator_settings("2d", limo.sensor, limo.robot)) == settings_fingerprint(limo, "2d")
+
+
+def test_an_eval_that_ended_in_the_folder_after_the_plan_was_checked_is_refused_under_the_lock(tmp_path: Path):
+    """``plan_eval`` checks ``--out`` before the lock is taken: an eval of another configuration that finishes into it
+    in between must still be refused once this one holds the lock, not written over."""
+    from cso_runtime.evaluation import plan_eval
+
+    req = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:11", out_dir=tmp_path, max_steps=10)
+    plan = plan_eval(req)  # the folder is empty: nothing to refuse
+    other = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:11", out_dir=tmp_path, max_steps=12))
+    with pytest.raises(ConfigError, match="episode.max_steps: 12 there, 10 here"):
+        run_eval(req, plan=plan)
+    assert json.loads((tmp_path / "summary.json").read_text())["meta"]["config"]["episode"]["max_steps"] == 12 == other["meta"]["config"]["episode"]["max_steps"]

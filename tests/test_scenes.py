@@ -506,6 +506,7 @@ def test_a_map_scene_keeps_its_map_frame_in_the_listing_and_the_maps_it_writes(t
     resume = ["eval", "--method", "greedy-dist", "--maps", str(yaml_path), "--max-steps", "30", "--out", str(out), "--resume"]
     r = CliRunner().invoke(app, resume)
     assert r.exit_code == 2 and "another configuration" in r.output, r.output
+    assert "it ran on another plan under the same name (another --m-per-px, folder or map origin)" in " ".join(r.output.split()), r.output
     r = CliRunner().invoke(app, [*resume, "--overwrite"])
     assert r.exit_code == 0, r.output
     assert json.loads((out / "summary.json").read_text())["meta"].get("resumed_episodes", 0) == 0
