@@ -111,6 +111,10 @@ def partial_path(path: Path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.partial")
 
 
+PARTIAL_NAME = re.compile(r"\..+\.\d+\.partial")
+"""The names ``partial_path`` gives (``.<name>.<pid>.partial``): the files a clean-up removes, and no other hidden file."""
+
+
 RESULT_FILE_FOLDERS = ("episodes", "animations", "maps")
 """The folders of ``--out`` with a folder per method; every file of ``--out`` is written beside itself first
 (``partial_path``, ``write_whole``)."""
@@ -134,7 +138,8 @@ def remove_partial_files(folders: Iterable[Path], also: Iterable[Path] = ()) -> 
     files ``also``; the ones removed. Only while holding the lock of the command that writes those folders
     (``current_run.folder_lock``): another's partial files are the ones it is writing."""
     removed = []
-    for path in [path for folder in folders for path in sorted(Path(folder).glob(".*.partial"))] + list(also):
+    partial = [path for folder in folders for path in sorted(Path(folder).glob(".*.partial")) if PARTIAL_NAME.fullmatch(path.name)]
+    for path in partial + list(also):
         if path.is_file():
             path.unlink(missing_ok=True)
             removed.append(path)

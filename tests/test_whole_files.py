@@ -176,8 +176,9 @@ def test_an_eval_removes_the_partial_files_a_killed_one_left_anywhere_in_its_fol
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text("half")
     (tmp_path / "summary.json").write_text("{}")
+    (tmp_path / ".draft.partial").write_text("a hidden file of the user's, not one partial_path names")
     assert sorted(remove_stale_partial_files(tmp_path, [], lambda path: False)) == sorted(stale)
-    assert [p.name for p in tmp_path.rglob("*") if p.is_file()] == ["summary.json"]
+    assert sorted(p.name for p in tmp_path.rglob("*") if p.is_file()) == [".draft.partial", "summary.json"]
 
 
 def test_a_whole_write_keeps_the_files_mode_and_owner_and_writes_through_a_link(tmp_path):
