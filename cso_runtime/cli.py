@@ -141,15 +141,28 @@ def interrupt_on_sigterm(wait_on_second: bool = False) -> None:
     writes its learning curve) a second one only says so (``STOPPING_NOTE``) and the stop goes on, as ``up``'s does on
     a repeated Ctrl-C; a third ends the stop where it is (KeyboardInterrupt, exit code 130 still). Without, each one
     does. Once the command has ended, Python's own end ignores them: it puts their default action back, which would
-    end a process that wrote everything by the signal (exit code -15) instead of 130."""
+    end a process that wrote everything by the signal (exit code -15) instead of 130. Before that, the end waits for
+    the command's non-daemon child processes (multiprocessing's own end would join them with no bound, the signals
+    ignored) while one more signal ends it at once, exit code 130: a stuck child cannot make it unstoppable."""
     import atexit  # noqa: PLC0415
     import os  # noqa: PLC0415
     import signal  # noqa: PLC0415
 
+    from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
+
     stop_signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     received = 0
 
+    def end_at_once(signum: int, frame: object) -> None:
+        os._exit(EXIT_INTERRUPTED)  # the command has ended: nothing of it is left to write
+
     def ignore_stop_signals() -> None:
+        for sig in stop_signals:
+            signal.signal(sig, end_at_once)
+        if (processes := sys.modules.get("multiprocessing.process")) is not None:
+            for child in processes.active_children():
+                if not child.daemon:  # multiprocessing's end terminates the daemons; it would wait for these
+                    child.join()
         for sig in stop_signals:
             signal.signal(sig, signal.SIG_IGN)  # SIG_IGN is the one handler Python's end leaves in place
 

@@ -10,8 +10,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import stat
 from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
@@ -56,14 +58,34 @@ def write_whole(path: Path | str, write: Callable[[Path], object]) -> None:
     """Write ``path`` whole or not at all: ``write(partial)`` writes a file of its own beside it (``partial_path``),
     then it is renamed over ``path``, so that a crash, a kill, a full disk or a reader at the wrong moment sees the
     earlier file or the new one, never half of one, and a failed write leaves no partial file. The one way every
-    file another command or a resume reads is written (summaries, tables, episodes, maps, figures, weights)."""
+    file another command or a resume reads is written (summaries, tables, episodes, maps, figures, weights).
+
+    As a write in place would: a symlink is written through (the file it names is replaced, beside itself), and an
+    earlier file's permissions and owner are kept (``keep_mode_and_owner``)."""
     path = Path(path)
+    if path.is_symlink():
+        path = Path(os.path.realpath(path))
     partial = partial_path(path)
     try:
         write(partial)
+        keep_mode_and_owner(path, partial)
         os.replace(partial, path)
     finally:
         partial.unlink(missing_ok=True)
+
+
+def keep_mode_and_owner(earlier: Path, partial: Path) -> None:
+    """Give ``partial`` the permissions and owner of ``earlier``, the file it replaces (none: nothing to keep): a
+    private file (0600) stays private, a read-only one read-only. The owner only where this process may give it
+    (root, or a group of its own); otherwise the file is this process's, as a new one would be."""
+    try:
+        st = os.stat(earlier)
+    except FileNotFoundError:
+        return
+    if (st.st_uid, st.st_gid) != (os.geteuid(), os.getegid()):
+        with contextlib.suppress(OSError):
+            os.chown(partial, st.st_uid, st.st_gid)
+    os.chmod(partial, stat.S_IMODE(st.st_mode))
 
 
 def write_text_atomic(path: Path | str, text: str) -> None:
@@ -89,6 +111,10 @@ def partial_path(path: Path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.partial")
 
 
+PARTIAL_NAME = re.compile(r"\..+\.\d+\.partial")
+"""The names ``partial_path`` gives (``.<name>.<pid>.partial``): the files a clean-up removes, and no other hidden file."""
+
+
 RESULT_FILE_FOLDERS = ("episodes", "animations", "maps")
 """The folders of ``--out`` with a folder per method; every file of ``--out`` is written beside itself first
 (``partial_path``, ``write_whole``)."""
@@ -112,7 +138,8 @@ def remove_partial_files(folders: Iterable[Path], also: Iterable[Path] = ()) -> 
     files ``also``; the ones removed. Only while holding the lock of the command that writes those folders
     (``current_run.folder_lock``): another's partial files are the ones it is writing."""
     removed = []
-    for path in [path for folder in folders for path in sorted(Path(folder).glob(".*.partial"))] + list(also):
+    partial = [path for folder in folders for path in sorted(Path(folder).glob(".*.partial")) if PARTIAL_NAME.fullmatch(path.name)]
+    for path in partial + list(also):
         if path.is_file():
             path.unlink(missing_ok=True)
             removed.append(path)

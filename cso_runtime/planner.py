@@ -561,7 +561,7 @@ class LocalPlanner:
         if self.free is None:
             return
         geometry, res = self.free.geometry, self.free.geometry.resolution_m
-        radius = 0.5 * self.robot.width_m + 0.01
+        radius = self.robot.disc_radius_m
         iy, ix = disk_cells(geometry, pose.xy, int(math.ceil(radius / res)) + 2)
         x0, y0 = geometry.cell_to_world(iy, ix)
         x0, y0 = x0 - 0.5 * res, y0 - 0.5 * res  # the cells' lower-left corners

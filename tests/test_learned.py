@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import csv
 import dataclasses
@@ -11,6 +12,7 @@ import math
 import os
 import re
 import shlex
+import time
 from pathlib import Path
 
 import numpy as np
@@ -2305,6 +2307,61 @@ sys.exit(130)
     assert done.stdout.splitlines() == ["the stop went on after the second signal", "the third ended it"], done.stdout + done.stderr
     assert "stopping: writing what finished; signal once more to stop at once" in done.stderr
     assert done.returncode == 130, done.stderr
+
+
+def test_a_signal_while_the_exit_waits_for_a_stuck_worker_ends_it_with_130():
+    """After the first signal Python's end ignored the stop signals (to keep exit code 130), but multiprocessing's own
+    exit function then joins every non-daemon child with no bound: a worker that never ended (stuck, or ignoring
+    SIGTERM) left a process that neither Ctrl-C nor ``kill`` could stop. The exit now waits for such children while
+    a stop signal ends it at once (exit code 130), and ignores the signals only after."""
+    import signal
+    import subprocess
+    import sys
+
+    script = """
+import multiprocessing, os, signal, sys, time
+from cso_runtime.cli import interrupt_on_sigterm
+
+def stuck():
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    time.sleep(60)
+
+interrupt_on_sigterm()
+child = multiprocessing.get_context("fork").Process(target=stuck)  # not a daemon: the exit joins it
+child.start()
+print(child.pid, flush=True)
+try:
+    os.kill(os.getpid(), signal.SIGTERM)
+    time.sleep(5)
+except KeyboardInterrupt:
+    sys.exit(130)
+"""
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=Path(__file__).parents[1], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    child_pid = None
+    try:
+        child_pid = int(proc.stdout.readline())
+        wchan = Path(f"/proc/{proc.pid}/wchan")
+        seen = set()
+        for _ in range(400):  # until the exit waits for the child (waitpid), at most 20 s
+            with contextlib.suppress(OSError):
+                seen.add(wchan.read_text().strip())
+            if "do_wait" in seen or proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        else:
+            if seen <= {"", "0"}:
+                pytest.skip("this kernel does not say where a process waits (/proc/PID/wchan)")
+        assert proc.poll() is None, proc.stderr.read()  # it waits for the stuck child, as multiprocessing's end does
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=10) == 130
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        if child_pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(child_pid, signal.SIGKILL)
 
 
 def test_train_removes_the_partial_files_a_killed_train_left(tmp_path):

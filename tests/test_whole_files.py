@@ -176,5 +176,38 @@ def test_an_eval_removes_the_partial_files_a_killed_one_left_anywhere_in_its_fol
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text("half")
     (tmp_path / "summary.json").write_text("{}")
+    (tmp_path / ".draft.partial").write_text("a hidden file of the user's, not one partial_path names")
     assert sorted(remove_stale_partial_files(tmp_path, [], lambda path: False)) == sorted(stale)
-    assert [p.name for p in tmp_path.rglob("*") if p.is_file()] == ["summary.json"]
+    assert sorted(p.name for p in tmp_path.rglob("*") if p.is_file()) == [".draft.partial", "summary.json"]
+
+
+def test_a_whole_write_keeps_the_files_mode_and_owner_and_writes_through_a_link(tmp_path):
+    """A file written in place kept its permissions and owner, and a symlink stayed a link to the file written. The
+    file written beside it and renamed over it had this process's umask and owner, and took the link's place: a map
+    the user made private (0600) became world-readable, a summary linked from elsewhere stopped being updated there."""
+    import os
+
+    from cso_runtime.outputs import write_text_atomic
+
+    private = tmp_path / "map.yaml"
+    private.write_text("earlier\n")
+    private.chmod(0o600)
+    write_text_atomic(private, "new\n")
+    assert private.read_text() == "new\n" and private.stat().st_mode & 0o777 == 0o600
+
+    if os.geteuid() == 0:  # only root may give a file to another owner: the one case a replaced file could lose its owner
+        owned = tmp_path / "summary.json"
+        owned.write_text("{}")
+        os.chown(owned, 4321, 4322)
+        write_text_atomic(owned, "{}\n")
+        assert (owned.stat().st_uid, owned.stat().st_gid) == (4321, 4322)
+
+    shared = tmp_path / "elsewhere" / "report.html"
+    shared.parent.mkdir()
+    shared.write_text("earlier")
+    link = tmp_path / "out" / "report.html"
+    link.parent.mkdir()
+    link.symlink_to(shared)
+    write_text_atomic(link, "new")
+    assert link.is_symlink() and shared.read_text() == "new"
+    assert not [p for p in (*link.parent.iterdir(), *shared.parent.iterdir()) if p.name.endswith(".partial")]
