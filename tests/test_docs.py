@@ -499,6 +499,17 @@ def test_the_readme_names_every_column_of_the_training_log_with_its_unit():
     assert [c for c in LOG_FIELDS if f"`{c}` (" not in paragraph] == []
 
 
+def test_the_readme_names_the_training_logs_columns_in_the_files_order():
+    """A newcomer reads the CSV log's paragraph as the file's header: it named ``mean_episode_steps`` beside
+    ``mean_return``, while the file has it (added later) after ``explained_variance``."""
+    from cso_runtime.learned.ppo import LOG_FIELDS
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    paragraph = " ".join(readme[readme.index("**The CSV log**") :].split("\n- ")[0].split())
+    named = sorted(LOG_FIELDS, key=lambda column: paragraph.index(f"`{column}` ("))
+    assert named == LOG_FIELDS
+
+
 def test_the_readme_says_which_scale_the_training_environment_gives_png_plans():
     """``make_env``'s ``m_per_px`` (0.05, Dungeon's large scale) is not ``eval --m-per-px``'s (0.1, super large), and
     the README's paragraph on the environment named the parameter without saying which it takes."""
