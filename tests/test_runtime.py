@@ -2604,6 +2604,32 @@ def test_status_and_down_with_nothing_running(tmp_path):
     assert not (tmp_path / "map.yaml").exists()
 
 
+def test_status_pause_and_save_map_at_an_endpoint_of_several_robots_ask_which_not_r0(tmp_path):
+    """``status --connect EP`` without ``--robot`` asked for robot r0 whatever answered there: with robots r1 and r2
+    on the network it said "nothing running", and with r0 among others it showed r0 alone, not saying that others
+    were there (``pause`` paused r0 so). It now takes the one robot that answers, and with several names them and
+    asks for ``--robot`` (exit code 2, nothing sent)."""
+    from cso_runtime.transport import open_router
+
+    router, (endpoint,) = open_router(["tcp/127.0.0.1:0"], [])
+    tokens = []
+    try:
+        tokens = [router.liveliness().declare_token(RobotKeys(robot).alive("sim")) for robot in ("r1", "r2")]
+        for command in (("status", "--json"), ("pause",), ("save-map", "-f", str(tmp_path / "m"))):
+            r = cli(*command, "--connect", endpoint, cwd=tmp_path, timeout_s=30)
+            assert r.returncode == 2 and "robots r1, r2 answer at" in r.stderr and "--robot" in r.stderr, (command, r.stdout, r.stderr)
+        assert not (tmp_path / "m.yaml").exists()
+        tokens.pop().undeclare()
+        r = cli("status", "--json", "--connect", endpoint, cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 0 and json.loads(r.stdout)["robot"] == "r1", (r.stdout, r.stderr)
+        r = cli("status", "--json", "--connect", endpoint, "--robot", "r2", cwd=tmp_path, timeout_s=30)  # named: asked as before
+        assert r.returncode == 1 and "no answer for robot r2" in r.stdout, (r.stdout, r.stderr)
+    finally:
+        for token in tokens:
+            token.undeclare()
+        router.close()
+
+
 def test_status_says_a_run_is_starting_before_its_router_is_open(tmp_path, monkeypatch, capsys):
     """For its first seconds (its router opening, its services spawning) a foreground ``up`` had written no run file,
     and ``status`` said "no current run". The launcher writes one, state ``starting``, before its router opens, and
