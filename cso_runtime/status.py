@@ -325,17 +325,35 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if given_connect and not robot_named:  # an endpoint of several robots' network: which one is the user's to say
-        robots = robots_answering(connect, zenoh_config_file)
-        if len(robots) > 1:
-            print(f"error: robots {', '.join(robots)} answer at {', '.join(connect)}: give --robot ID, one of them", file=sys.stderr)
+        try:
+            robot = robot_at_endpoint(connect, zenoh_config_file) or robot
+        except AmbiguousRobotError as exc:
+            print(f"error: {exc}", file=sys.stderr)
             return 2
-        robot = robots[0] if robots else robot
     return RunTarget(connect, robot, zenoh_config_file)
+
+
+class AmbiguousRobotError(ValueError):
+    """Several robots answer at the endpoint a command was given without ``--robot``."""
+
+
+def robot_at_endpoint(connect: list[str], zenoh_config_file: str | None = None, wildcard_too: bool = False) -> str | None:
+    """The one robot that answers at ``connect`` (None when none does, or no router answers), for a command given
+    ``--connect`` and no ``--robot``; an AmbiguousRobotError naming them when several do, rather than pick one.
+    ``wildcard_too``: the command also takes ``--robot '*'`` (every robot), which the error then offers."""
+    robots = robots_answering(connect, zenoh_config_file)
+    if len(robots) > 1:
+        every = ", or '*' for every robot" if wildcard_too else ""
+        raise AmbiguousRobotError(f"robots {', '.join(robots)} answer at {', '.join(connect)}: give --robot ID, one of them{every}")
+    return robots[0] if robots else None
 
 
 def robots_answering(connect: list[str], zenoh_config_file: str | None = None, timeout_s: float = 0.6) -> list[str]:
     """The ids of the robots whose services or launcher answer at ``connect``, sorted ([] when none, or no router)."""
-    session = _client_session(connect, zenoh_config_file)
+    try:
+        session = _client_session(connect, zenoh_config_file)
+    except TransportError:  # a malformed endpoint or config: the command's own session says so
+        return []
     if session is None:
         return []
     keys = RobotKeys(WILDCARD)

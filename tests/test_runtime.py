@@ -2615,13 +2615,22 @@ def test_status_pause_and_save_map_at_an_endpoint_of_several_robots_ask_which_no
     tokens = []
     try:
         tokens = [router.liveliness().declare_token(RobotKeys(robot).alive("sim")) for robot in ("r1", "r2")]
-        for command in (("status", "--json"), ("pause",), ("save-map", "-f", str(tmp_path / "m"))):
+        for command in (("status", "--json"), ("pause",), ("save-map", "-f", str(tmp_path / "m")), ("record", "--out", str(tmp_path / "r.mcap"))):
             r = cli(*command, "--connect", endpoint, cwd=tmp_path, timeout_s=30)
             assert r.returncode == 2 and "robots r1, r2 answer at" in r.stderr and "--robot" in r.stderr, (command, r.stdout, r.stderr)
-        assert not (tmp_path / "m.yaml").exists()
+        assert not (tmp_path / "m.yaml").exists() and not (tmp_path / "r.mcap").exists()
         tokens.pop().undeclare()
         r = cli("status", "--json", "--connect", endpoint, cwd=tmp_path, timeout_s=30)
         assert r.returncode == 0 and json.loads(r.stdout)["robot"] == "r1", (r.stdout, r.stderr)
+        record = [*python_module_argv("cso_runtime.cli"), "record", "--out", str(tmp_path / "r.mcap"), "--connect", endpoint]
+        with subprocess.Popen(record, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as proc:
+            try:
+                first = proc.stdout.readline()  # said once its session is open
+                proc.send_signal(signal.SIGINT)
+                proc.communicate(timeout=30)
+            finally:
+                proc.kill()
+        assert first.startswith("recording cso/r1/** from"), first
         r = cli("status", "--json", "--connect", endpoint, "--robot", "r2", cwd=tmp_path, timeout_s=30)  # named: asked as before
         assert r.returncode == 1 and "no answer for robot r2" in r.stdout, (r.stdout, r.stderr)
     finally:
