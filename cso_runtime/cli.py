@@ -784,7 +784,7 @@ def up_command(
     previous_handlers = stop_on_signals(stop)
     ctx.call_on_close(lambda: restore_signal_handlers(previous_handlers))  # however `up` ends (run inside another program)
     from cso_runtime.config import EXIT_INTERRUPTED, LOG_FORMAT, ConfigError  # noqa: PLC0415
-    from cso_runtime.current_run import current_launcher_alive, read_current_run  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive, down_command, read_current_run  # noqa: PLC0415
     from cso_runtime.launcher import run_foreground, start_detached  # noqa: PLC0415
     from cso_runtime.run_profile import REAL_ROBOT_SCENE, UNUSED_BY_A_REAL_ROBOT, load_profile  # noqa: PLC0415
 
@@ -829,7 +829,7 @@ def up_command(
         # beyond the reach of `status` and `down`, whichever robot it drives.
         _fail(
             f"run {current.get('run_id')} (robot {current.get('robot')}) is already running from {runs_dir}; "
-            "`cso-runtime down` first, or start this one with its own --runs-dir",
+            f"{down_command(runs_dir)} first, or start this one with its own --runs-dir",
             2,
         )
     recording: bool | Path = record if record_out is None else Path(record_out)

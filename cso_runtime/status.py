@@ -241,11 +241,11 @@ def dead_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | N
     """Why the current run cannot answer when its launcher (which holds the embedded router) has exited
     without removing ``runs/current.json`` (SIGKILL, a crash), else None. Said at once, not after a
     connect timeout to a router that is gone."""
-    from cso_runtime.current_run import current_launcher_alive  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive, down_command  # noqa: PLC0415
 
     if info is None or not info.get("launcher_pid") or current_launcher_alive(info):
         return None
-    return f"run {info['run_id']}'s launcher, pid {info['launcher_pid']}, has exited; `cso-runtime down` clears {runs_dir / 'current.json'}"
+    return f"run {info['run_id']}'s launcher, pid {info['launcher_pid']}, has exited; {down_command(runs_dir)} clears {runs_dir / 'current.json'}"
 
 
 def stopped_launcher_of_run(info: dict[str, Any] | None) -> str | None:

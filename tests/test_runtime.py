@@ -662,12 +662,15 @@ def test_a_zenoh_runtime_setting_zenoh_cannot_read_is_said_not_a_traceback(tmp_p
 
 def test_a_second_up_in_the_same_runs_folder_is_refused_whichever_robot(tmp_path):
     """Another robot's run in the same folder would take over runs/current.json and leave the first run
-    beyond ``status`` and ``down`` (its five services orphaned): refused, with the way out."""
+    beyond ``status`` and ``down`` (its five services orphaned): refused, with the way out (which named no
+    ``--runs-dir``: `cso-runtime down` as said stopped the run of ./runs, another robot's)."""
     runs = tmp_path / "runs"
     runs.mkdir()
     (runs / "current.json").write_text(json.dumps({"run_id": "run-a", "robot": "r0", "launcher_pid": os.getpid(), "endpoints": []}))
     r = cli("up", "--profile", "lockstep", "--robot", "r1", "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
     assert r.returncode == 2 and "run-a (robot r0) is already running" in r.stderr and "--runs-dir" in r.stderr, r.stderr
+    # the way out stops the run of this folder, not of ./runs (another robot's, when each has its own folder)
+    assert f"`cso-runtime down --runs-dir {runs}` first" in r.stderr, r.stderr
     assert sorted(p.name for p in runs.iterdir()) == ["current.json"]  # nothing started
 
 
@@ -2947,7 +2950,7 @@ def test_status_watch_ends_by_saying_that_the_watched_runs_launcher_was_killed(t
         launcher.wait(10)
     last = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert code == 1 and last["state"] == "not running", last
-    assert last["reason"].endswith(f"; run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down` clears {runs / 'current.json'})"), last
+    assert last["reason"].endswith(f"; run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down --runs-dir {runs}` clears {runs / 'current.json'})"), last
 
 
 def test_a_run_folder_deleted_mid_run_is_made_again_with_the_logs_still_written_copied_back(tmp_path, caplog):
@@ -3181,7 +3184,7 @@ def test_status_watch_of_a_starting_run_ends_when_its_launcher_dies_or_its_start
         launcher.kill()
         launcher.wait(10)
     said = capsys.readouterr().out.splitlines()
-    gone = f"run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down` clears {runs / 'current.json'}"
+    gone = f"run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down --runs-dir {runs}` clears {runs / 'current.json'}"
     assert code == 1 and len(said) == 2 and (json.loads(said[-1])["reason"] if as_json else said[-1]) == f"nothing running ({gone})", said
     assert status.status_main([], None, as_json=False, watch=False, runs_dir=runs) == 1 and capsys.readouterr().out == f"nothing running ({gone})\n"
 
