@@ -439,7 +439,7 @@ def report_command(
 @app.command("record", rich_help_panel="Recordings")
 def record_command(
     out: str | None = typer.Option(None, "--out", help="A new MCAP file, or a folder (existing, or ending in /) for <robot>-<UTC time>.mcap in it (default: recordings/)"),
-    robot: str | None = typer.Option(None, "--robot", help="Robot id, or '*' for every robot (default: the current run's, else r0)"),
+    robot: str | None = typer.Option(None, "--robot", help="Robot id, or '*' for every robot (default: the current run's, else the one robot at --connect, else r0)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
 ) -> None:
@@ -452,17 +452,22 @@ def record_command(
     from cso_runtime.keys import KeyExprError, check_robot_id  # noqa: PLC0415
     from cso_runtime.processes import set_from_signal_handler  # noqa: PLC0415
     from cso_runtime.recording import record, recording_path  # noqa: PLC0415
-    from cso_runtime.status import RunTarget, client_transport, endpoints_from_run_file  # noqa: PLC0415
+    from cso_runtime.status import AmbiguousRobotError, RunTarget, client_transport, endpoints_from_run_file, robot_at_endpoint  # noqa: PLC0415
     from cso_runtime.transport import TransportError, open_session  # noqa: PLC0415
 
     endpoints, run_robot, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
-    robot = robot or run_robot or "r0"
     try:  # before connecting: a bad id is a usage error whether or not a router answers
-        check_robot_id(robot, allow_wildcard=True)
+        check_robot_id(robot or run_robot or "r0", allow_wildcard=True)
     except KeyExprError as exc:
         _fail(f"--robot: {exc}", 2)
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
+    if robot is None and connect:  # the one robot there, not r0 whatever answers
+        try:
+            run_robot = robot_at_endpoint(endpoints, zenoh_config_file, wildcard_too=True)
+        except AmbiguousRobotError as exc:
+            _fail(str(exc), 2)
+    robot = robot or run_robot or "r0"
     path = recording_path(out, Path("recordings"), f"{robot.replace('*', 'all')}-{time.strftime('%Y%m%dT%H%M%SZ', time.gmtime())}")
     if path.exists():  # as `ros2 bag record -o`: an earlier recording is never written over
         _fail(f"{path} exists; give another --out, or remove it first", 2)
@@ -792,7 +797,7 @@ def up_command(
     previous_handlers = stop_on_signals(stop)
     ctx.call_on_close(lambda: restore_signal_handlers(previous_handlers))  # however `up` ends (run inside another program)
     from cso_runtime.config import EXIT_INTERRUPTED, LOG_FORMAT, ConfigError  # noqa: PLC0415
-    from cso_runtime.current_run import current_launcher_alive, read_current_run  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive, down_command, read_current_run  # noqa: PLC0415
     from cso_runtime.launcher import run_foreground, start_detached  # noqa: PLC0415
     from cso_runtime.run_profile import REAL_ROBOT_SCENE, UNUSED_BY_A_REAL_ROBOT, load_profile  # noqa: PLC0415
 
@@ -837,7 +842,7 @@ def up_command(
         # beyond the reach of `status` and `down`, whichever robot it drives.
         _fail(
             f"run {current.get('run_id')} (robot {current.get('robot')}) is already running from {runs_dir}; "
-            "`cso-runtime down` first, or start this one with its own --runs-dir",
+            f"{down_command(runs_dir)} first, or start this one with its own --runs-dir",
             2,
         )
     recording: bool | Path = record if record_out is None else Path(record_out)

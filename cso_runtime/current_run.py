@@ -249,3 +249,10 @@ def keep_runs_lock(runs_dir: Path, fd: int) -> int | None:
     if new_fd is not None:
         os.close(fd)
     return new_fd
+
+
+def down_command(runs_dir: Path) -> str:
+    """The ``down`` that stops the run of ``runs_dir``, as a hint says it: ``--runs-dir`` named unless it is the
+    default, so that a user running several robots (one runs folder each) is not sent to stop another's run."""
+    return "`cso-runtime down`" if Path(runs_dir) == Path("runs") else f"`cso-runtime down --runs-dir {runs_dir}`"
+

@@ -51,6 +51,7 @@ from cso_runtime.current_run import (
     DOWN_MARGIN_S,
     RUNS_LOCK,
     down,
+    down_command,
     hold_runs_lock,
     keep_runs_lock,
     new_run_dir,
@@ -1474,8 +1475,8 @@ def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> 
     try:
         if launcher.runs_lock_fd is None:
             log.error(
-                "another `cso-runtime up` is running from %s (it holds %s); `cso-runtime down` first, or give this one its own --runs-dir",
-                runs_dir, runs_dir / RUNS_LOCK,
+                "another `cso-runtime up` is running from %s (it holds %s); %s first, or give this one its own --runs-dir",
+                runs_dir, runs_dir / RUNS_LOCK, down_command(runs_dir),
             )
             return EXIT_BAD_CONFIG
         return launcher.run(live=live, stay_after_done=stay_after_done)

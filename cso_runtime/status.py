@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 import zenoh
 
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, map_frame_xy
-from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id
+from cso_runtime.keys import WILDCARD, KeyExprError, RobotKeys, check_robot_id, robot_of
 from cso_runtime.messages import (
     EPISODE_OVER,
     LAST_EPISODE_FIGURES,
@@ -241,11 +241,11 @@ def dead_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | N
     """Why the current run cannot answer when its launcher (which holds the embedded router) has exited
     without removing ``runs/current.json`` (SIGKILL, a crash), else None. Said at once, not after a
     connect timeout to a router that is gone."""
-    from cso_runtime.current_run import current_launcher_alive  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive, down_command  # noqa: PLC0415
 
     if info is None or not info.get("launcher_pid") or current_launcher_alive(info):
         return None
-    return f"run {info['run_id']}'s launcher, pid {info['launcher_pid']}, has exited; `cso-runtime down` clears {runs_dir / 'current.json'}"
+    return f"run {info['run_id']}'s launcher, pid {info['launcher_pid']}, has exited; {down_command(runs_dir)} clears {runs_dir / 'current.json'}"
 
 
 def stopped_launcher_of_run(info: dict[str, Any] | None) -> str | None:
@@ -288,10 +288,12 @@ def say_nothing_running(why: str, as_json: bool) -> int:
 def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_json: bool = False) -> RunTarget | int:
     """Whom to ask (the given endpoints and robot, else the current run's; its robot always named), or the exit code after saying why
     there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
-    ``127.0.0.1:7447``: a usage error, not "nothing running") or ``robot`` is not one robot's id."""
+    ``127.0.0.1:7447``: a usage error, not "nothing running"), ``robot`` is not one robot's id, or ``connect`` was given
+    without ``robot`` and several robots answer there (which one is the user's to say; the one that answers is taken)."""
     from cso_runtime.current_run import read_current_run, starting_run  # noqa: PLC0415
 
     given_connect = bool(connect)
+    robot_named = robot is not None
     # The run file read once: the endpoints and the launcher's liveness are then of one run, even when a new
     # run replaces the file in between (and a bad file is warned about once).
     run_info = None if given_connect else read_current_run(runs_dir)
@@ -322,7 +324,50 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     except TransportError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if given_connect and not robot_named:  # an endpoint of several robots' network: which one is the user's to say
+        try:
+            robot = robot_at_endpoint(connect, zenoh_config_file) or robot
+        except AmbiguousRobotError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     return RunTarget(connect, robot, zenoh_config_file)
+
+
+class AmbiguousRobotError(ValueError):
+    """Several robots answer at the endpoint a command was given without ``--robot``."""
+
+
+def robot_at_endpoint(connect: list[str], zenoh_config_file: str | None = None, wildcard_too: bool = False) -> str | None:
+    """The one robot that answers at ``connect`` (None when none does, or no router answers), for a command given
+    ``--connect`` and no ``--robot``; an AmbiguousRobotError naming them when several do, rather than pick one.
+    ``wildcard_too``: the command also takes ``--robot '*'`` (every robot), which the error then offers."""
+    robots = robots_answering(connect, zenoh_config_file)
+    if len(robots) > 1:
+        every = ", or '*' for every robot" if wildcard_too else ""
+        raise AmbiguousRobotError(f"robots {', '.join(robots)} answer at {', '.join(connect)}: give --robot ID, one of them{every}")
+    return robots[0] if robots else None
+
+
+def robots_answering(connect: list[str], zenoh_config_file: str | None = None, timeout_s: float = 0.6) -> list[str]:
+    """The ids of the robots whose services or launcher answer at ``connect``, sorted ([] when none, or no router)."""
+    try:
+        session = _client_session(connect, zenoh_config_file)
+    except TransportError:  # a malformed endpoint or config: the command's own session says so
+        return []
+    if session is None:
+        return []
+    keys = RobotKeys(WILDCARD)
+    with session:
+        replies = [*session.liveliness().get(keys.alive(WILDCARD), timeout=timeout_s), *session.get(keys.launcher_status, timeout=timeout_s)]
+        robots = set()
+        for reply in replies:
+            if reply.ok is None:
+                continue
+            try:
+                robots.add(robot_of(str(reply.ok.key_expr)))
+            except KeyExprError:  # not a robot's key
+                continue
+    return sorted(robots)
 
 
 def waiting_note(waiting: list[str], pause: dict[str, Any] | None = None) -> str:

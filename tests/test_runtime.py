@@ -662,12 +662,15 @@ def test_a_zenoh_runtime_setting_zenoh_cannot_read_is_said_not_a_traceback(tmp_p
 
 def test_a_second_up_in_the_same_runs_folder_is_refused_whichever_robot(tmp_path):
     """Another robot's run in the same folder would take over runs/current.json and leave the first run
-    beyond ``status`` and ``down`` (its five services orphaned): refused, with the way out."""
+    beyond ``status`` and ``down`` (its five services orphaned): refused, with the way out (which named no
+    ``--runs-dir``: `cso-runtime down` as said stopped the run of ./runs, another robot's)."""
     runs = tmp_path / "runs"
     runs.mkdir()
     (runs / "current.json").write_text(json.dumps({"run_id": "run-a", "robot": "r0", "launcher_pid": os.getpid(), "endpoints": []}))
     r = cli("up", "--profile", "lockstep", "--robot", "r1", "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
     assert r.returncode == 2 and "run-a (robot r0) is already running" in r.stderr and "--runs-dir" in r.stderr, r.stderr
+    # the way out stops the run of this folder, not of ./runs (another robot's, when each has its own folder)
+    assert f"`cso-runtime down --runs-dir {runs}` first" in r.stderr, r.stderr
     assert sorted(p.name for p in runs.iterdir()) == ["current.json"]  # nothing started
 
 
@@ -2604,6 +2607,41 @@ def test_status_and_down_with_nothing_running(tmp_path):
     assert not (tmp_path / "map.yaml").exists()
 
 
+def test_status_pause_and_save_map_at_an_endpoint_of_several_robots_ask_which_not_r0(tmp_path):
+    """``status --connect EP`` without ``--robot`` asked for robot r0 whatever answered there: with robots r1 and r2
+    on the network it said "nothing running", and with r0 among others it showed r0 alone, not saying that others
+    were there (``pause`` paused r0 so). It now takes the one robot that answers, and with several names them and
+    asks for ``--robot`` (exit code 2, nothing sent)."""
+    from cso_runtime.transport import open_router
+
+    router, (endpoint,) = open_router(["tcp/127.0.0.1:0"], [])
+    tokens = []
+    try:
+        tokens = [router.liveliness().declare_token(RobotKeys(robot).alive("sim")) for robot in ("r1", "r2")]
+        for command in (("status", "--json"), ("pause",), ("save-map", "-f", str(tmp_path / "m")), ("record", "--out", str(tmp_path / "r.mcap"))):
+            r = cli(*command, "--connect", endpoint, cwd=tmp_path, timeout_s=30)
+            assert r.returncode == 2 and "robots r1, r2 answer at" in r.stderr and "--robot" in r.stderr, (command, r.stdout, r.stderr)
+        assert not (tmp_path / "m.yaml").exists() and not (tmp_path / "r.mcap").exists()
+        tokens.pop().undeclare()
+        r = cli("status", "--json", "--connect", endpoint, cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 0 and json.loads(r.stdout)["robot"] == "r1", (r.stdout, r.stderr)
+        record = [*python_module_argv("cso_runtime.cli"), "record", "--out", str(tmp_path / "r.mcap"), "--connect", endpoint]
+        with subprocess.Popen(record, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as proc:
+            try:
+                first = proc.stdout.readline()  # said once its session is open
+                proc.send_signal(signal.SIGINT)
+                proc.communicate(timeout=30)
+            finally:
+                proc.kill()
+        assert first.startswith("recording cso/r1/** from"), first
+        r = cli("status", "--json", "--connect", endpoint, "--robot", "r2", cwd=tmp_path, timeout_s=30)  # named: asked as before
+        assert r.returncode == 1 and "no answer for robot r2" in r.stdout, (r.stdout, r.stderr)
+    finally:
+        for token in tokens:
+            token.undeclare()
+        router.close()
+
+
 def test_status_says_a_run_is_starting_before_its_router_is_open(tmp_path, monkeypatch, capsys):
     """For its first seconds (its router opening, its services spawning) a foreground ``up`` had written no run file,
     and ``status`` said "no current run". The launcher writes one, state ``starting``, before its router opens, and
@@ -2912,7 +2950,7 @@ def test_status_watch_ends_by_saying_that_the_watched_runs_launcher_was_killed(t
         launcher.wait(10)
     last = json.loads(capsys.readouterr().out.splitlines()[-1])
     assert code == 1 and last["state"] == "not running", last
-    assert last["reason"].endswith(f"; run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down` clears {runs / 'current.json'})"), last
+    assert last["reason"].endswith(f"; run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down --runs-dir {runs}` clears {runs / 'current.json'})"), last
 
 
 def test_a_run_folder_deleted_mid_run_is_made_again_with_the_logs_still_written_copied_back(tmp_path, caplog):
@@ -3146,7 +3184,7 @@ def test_status_watch_of_a_starting_run_ends_when_its_launcher_dies_or_its_start
         launcher.kill()
         launcher.wait(10)
     said = capsys.readouterr().out.splitlines()
-    gone = f"run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down` clears {runs / 'current.json'}"
+    gone = f"run run1's launcher, pid {launcher.pid}, has exited; `cso-runtime down --runs-dir {runs}` clears {runs / 'current.json'}"
     assert code == 1 and len(said) == 2 and (json.loads(said[-1])["reason"] if as_json else said[-1]) == f"nothing running ({gone})", said
     assert status.status_main([], None, as_json=False, watch=False, runs_dir=runs) == 1 and capsys.readouterr().out == f"nothing running ({gone})\n"
 
