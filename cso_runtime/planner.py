@@ -557,7 +557,8 @@ class LocalPlanner:
         narrow sensor, a wall end beside the robot, outside the view and nearer than ``range_min``, which the map left
         unknown. Remember as obstacles the cells of the planned-on grid that are not traversable and touch the body's
         disc (half its width plus 1 cm, and half a cell) on the side it drove to, so that the path after the back-up
-        keeps the robot's radius off them, as the bumper layers of ROS costmaps mark a contact."""
+        keeps the robot's radius off them, as the bumper layers of ROS costmaps mark a contact. A cell already marked
+        (a second back-up at the same place) is not added again."""
         if self.free is None:
             return
         geometry, res = self.free.geometry, self.free.geometry.resolution_m
@@ -574,7 +575,10 @@ class LocalPlanner:
         touching = (gap >= 0.5 * self.robot.width_m) & (gap <= radius + 0.5 * res) & ahead & ~self.free.traversable[iy, ix]
         if touching.any():
             cx, cy = geometry.cell_to_world(iy[touching], ix[touching])
-            self.contacts_xy_m = np.concatenate([self.contacts_xy_m, np.stack([cx, cy], axis=1)])
+            known = {(float(x), float(y)) for x, y in self.contacts_xy_m}  # a second back-up at the same place
+            new = [(float(x), float(y)) for x, y in zip(cx, cy) if (float(x), float(y)) not in known]
+            if new:
+                self.contacts_xy_m = np.concatenate([self.contacts_xy_m, np.array(new)])
 
     def set_path(self, path_xy_m: np.ndarray, free: FreeSpace | None = None) -> None:
         """Follow a new path. Progress is tracked across re-plans to the same goal, so re-sending a
@@ -686,8 +690,11 @@ class LocalPlanner:
 
     def _replan(self, pose: Pose2D) -> bool:
         """The path to the same goal from here on the planned-on grid less the contacts; False (``blocked``) when the
-        contacts cut every way there."""
-        assert self.path is not None and self.free is not None
+        contacts cut every way there. A path given without a grid (``set_path(free=None)``) has no contacts and
+        nothing to re-plan on: it is kept, and the progress checker ends a goal the robot cannot get to."""
+        assert self.path is not None
+        if self.free is None:
+            return True
         traversable = self.without_contacts(self.free.traversable, self.free.geometry)
         try:
             path = plan_path(traversable, self.free.geometry, pose.xy, self.path[-1])

@@ -606,3 +606,42 @@ def test_the_depth_camera_is_not_left_pinned_on_a_middle_scene():
     sim = KinematicSimulator(plan, config.sensor, config.robot, seed=0)
     result = run_episode(sim, make_policy("greedy-dist", config.masks, seed=0, sensor=config.sensor), config, seed=0)
     assert result.terminated_by == "coverage" and result.coverage_pct > 99.0, (result.steps, result.coverage_pct)
+
+
+def test_a_narrow_sensor_pinned_on_a_path_given_without_a_grid_backs_up_and_follows_the_path_on():
+    """``set_path`` without a grid (``free=None``) leaves the planner nothing to mark contacts on or re-plan with: a
+    stall backs up, then the robot follows the same path on (the progress checker still ends a goal it cannot
+    get to), with no assertion tripped on the missing grid."""
+    robot = RobotConfig()
+    dt = robot.control_period_s
+    planner = LocalPlanner.for_config(ExplorationConfig(sensor=SensorConfig.preset("depth")))
+    assert planner.narrow_sensor()
+    path = np.array([[1.0 + 0.05 * k, 1.5] for k in range(51)])
+    planner.set_path(path)
+    start = Pose2D(1.0, 1.5, 0.0)
+    recoveries = [planner.update(start, k * dt).recovery for k in range(5)]  # pinned: nothing moves
+    assert recoveries[-1] == "backup" and planner.stall.backups == 1
+    pose = start
+    for k in range(5, 12):
+        result = planner.update(pose, k * dt)
+        cmd = result.command
+        pose = Pose2D(pose.x_m + cmd.linear_mps * dt, pose.y_m, pose.yaw_rad + cmd.angular_radps * dt)
+    assert result.status == PlannerStatus.FOLLOWING and result.recovery == "" and cmd.linear_mps > 0
+    assert planner.path is not None and np.array_equal(planner.path, path) and len(planner.contacts_xy_m) == 0
+
+
+def test_marking_the_same_contact_again_adds_no_point_and_leaves_the_obstacles_as_they_were():
+    """A second back-up pinned at the same place touches the same cells: the contacts keep one point per cell."""
+    sensor = SensorConfig.preset("depth")
+    start, goal = Pose2D(1.602, 1.663, math.radians(-45.0)), np.array([2.6, 0.6])
+    known = wall_end_room(start, unseen_cells=2)
+    planner = LocalPlanner.for_config(ExplorationConfig(sensor=sensor))
+    t = ground_truth_traversable(known)
+    planner.set_goal(t, known.geometry, start, goal)
+    planner.mark_contact(start, forward=True)
+    once, grid_once = planner.contacts_xy_m.copy(), planner.without_contacts(t, known.geometry)
+    assert len(once)
+    planner.mark_contact(start, forward=True)
+    planner.mark_contact(Pose2D(start.x_m + 0.01, start.y_m, start.yaw_rad), forward=True)  # overlapping cells
+    assert np.array_equal(planner.contacts_xy_m, once)  # the same 4 cells, once each, in the order first marked
+    assert np.array_equal(planner.without_contacts(t, known.geometry), grid_once)
