@@ -2386,6 +2386,25 @@ def test_train_removes_the_partial_files_a_killed_train_left(tmp_path):
     assert (tmp_path / ".notes").is_file() and not list(tmp_path.rglob("*.partial"))
 
 
+def test_train_removes_the_temporary_files_a_train_killed_before_whole_file_writes_left(tmp_path):
+    """Before ``write_whole``, the checkpoint, weights, log and curve were written to ``checkpoint.tmp`` (later
+    ``checkpoint.pt.tmp``), ``<variant>.pt.tmp``, ``<variant>_log.tmp`` and ``<variant>_curve.png.tmp`` and renamed;
+    a kill left them for good. A train's start-up removes those exact names too, kept checkpoints' included, and
+    no other file (another variant's, the user's)."""
+    names = ["checkpoint.tmp", "checkpoint.pt.tmp", "cso.pt.tmp", "cso_log.tmp", "cso_curve.png.tmp", "checkpoints/update_0001/cso.pt.tmp"]
+    stale = [tmp_path / name for name in names]
+    kept = [tmp_path / "gnn-baseline.pt.tmp", tmp_path / "notes.tmp", tmp_path / "checkpoints" / "update_0001" / "notes.tmp"]
+    for path in stale + kept:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_bytes(b"cut short by kill -9")
+    said: list[str] = []
+    args = Args(variant="cso", seed=0, num_envs=1, num_steps=4, num_minibatches=1, max_steps=20, progress=False, out_dir=str(tmp_path), total_decisions=4)
+    train(args, log=said.append, plans=[rooms_plan(2)])
+    assert not [path for path in stale if path.exists()]
+    assert f"note: removed {stale[2]}, left by a train that was killed while writing it" in said, said
+    assert all(path.is_file() for path in kept)
+
+
 def test_a_second_train_into_a_folder_another_train_is_writing_is_refused(tmp_path):
     """Two trains into one ``--out`` (a second terminal, a job resubmitted) wrote over each other's checkpoint, log and
     weights; and a train removing a killed one's partial files must not take those another is writing. The second is

@@ -531,6 +531,15 @@ def training_file_folders(out: Path) -> list[Path]:
     return [out, *sorted(folder for folder in (out / KEPT_CHECKPOINTS_DIR).glob("update_*") if folder.is_dir())]
 
 
+def old_temporary_files(folders: list[Path], variant: str) -> list[Path]:
+    """The temporary files a train killed while writing left before ``outputs.write_whole`` (which names its own
+    ``.<name>.<pid>.partial``), in ``folders``: ``checkpoint.tmp`` and ``checkpoint.pt.tmp`` (the checkpoint),
+    ``<variant>.pt.tmp`` (the weights), ``<variant>_log.tmp`` (the log cut back on ``--resume``) and
+    ``<variant>_curve.png.tmp`` (the curve); these exact names only, nothing else of the folder."""
+    names = ("checkpoint.tmp", "checkpoint.pt.tmp", f"{variant}.pt.tmp", f"{variant}_log.tmp", f"{variant}_curve.png.tmp")
+    return [folder / name for folder in folders for name in names if (folder / name).is_file()]
+
+
 def earlier_run_files(out: Path, variant: str) -> list[str]:
     """The files of an earlier training run of ``variant`` in ``out`` that a new run (not ``--resume``) replaces, and
     its kept checkpoints' folder (``keep_checkpoints``), whose weights of ``variant`` a new run removes
@@ -1032,7 +1041,8 @@ def _train_locked(
     """``train`` while it holds its output folder's lock (``TRAIN_LOCK``); ``locked`` False where none could be had,
     and the partial files there may be another train's, being written."""
     out = Path(args.out_dir)
-    for stale in remove_partial_files(training_file_folders(out)) if locked else []:  # a killed train's
+    folders = training_file_folders(out)
+    for stale in remove_partial_files(folders, also=old_temporary_files(folders, args.variant)) if locked else []:  # a killed train's
         log(f"note: removed {stale}, left by a train that was killed while writing it")
     elsewhere = not args.resume or Path(args.resume).resolve().parent != out.resolve()  # not the folder of the run it continues
     replaces = elsewhere and bool(earlier := earlier_run_files(out, args.variant))
