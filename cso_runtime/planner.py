@@ -501,6 +501,26 @@ class ProgressRecovery:
         return VelocityCommand(v, turn_radps)
 
 
+CONTACT_BEYOND_GOAL_CELLS = 3
+"""``contacts_beyond_goal``'s margin past the goal's distance: the bounded pass's own (``plan_path`` marches to the
+goal's distance plus a cell, ``geodesic_distance`` a band of two cells further)."""
+
+
+def contacts_beyond_goal(
+    traversable: np.ndarray, planned_on: np.ndarray, geometry: GridGeometry, distance_from_robot: np.ndarray, goal_xy_m: np.ndarray
+) -> bool:
+    """True when every cell the contacts take off ``traversable`` (``planned_on`` is the grid less them) is, on the
+    decision's ``distance_from_robot``, at least CONTACT_BEYOND_GOAL_CELLS farther than the goal. The path descends
+    only through cells nearer than the goal, and their distances depend only on cells of smaller distance (what
+    ``plan_path``'s bounded pass relies on), so the decision's map gives the very path a pass of the planner's own
+    on ``planned_on`` would, without that pass. False for a goal off the map (``plan_path`` says so either way)."""
+    gy, gx = geometry.world_to_cell(goal_xy_m[0], goal_xy_m[1])
+    if not geometry.in_bounds(gy, gx):
+        return False
+    beyond_m = float(distance_from_robot[int(gy), int(gx)]) + CONTACT_BEYOND_GOAL_CELLS * geometry.resolution_m
+    return bool(np.all(distance_from_robot[traversable & ~planned_on] >= beyond_m))
+
+
 class LocalPlanner:
     """Follows one goal at a time: path, pure pursuit, goal check, progress check, blocked check."""
 
@@ -608,7 +628,10 @@ class LocalPlanner:
         self.blocked_why = ""
         self.replan_pending = False
         if len(self.contacts_xy_m):  # the decision's grid and distances know nothing of the contacts
-            traversable, distance_from_robot = self.without_contacts(traversable, geometry), None
+            planned_on = self.without_contacts(traversable, geometry)
+            if distance_from_robot is not None and not contacts_beyond_goal(traversable, planned_on, geometry, distance_from_robot, goal_xy_m):
+                distance_from_robot = None  # the contacts may change the distances the path descends: a pass of its own
+            traversable = planned_on
         try:
             path = plan_path(traversable, geometry, pose.xy, np.asarray(goal_xy_m, dtype=float), distance_from_robot, goal_distance_m)
             self.set_path(path, FreeSpace(traversable, geometry, occupied))

@@ -645,3 +645,30 @@ def test_marking_the_same_contact_again_adds_no_point_and_leaves_the_obstacles_a
     planner.mark_contact(Pose2D(start.x_m + 0.01, start.y_m, start.yaw_rad), forward=True)  # overlapping cells
     assert np.array_equal(planner.contacts_xy_m, once)  # the same 4 cells, once each, in the order first marked
     assert np.array_equal(planner.without_contacts(t, known.geometry), grid_once)
+
+
+def test_a_goal_whose_path_the_contacts_cannot_touch_is_planned_on_the_decisions_distances(monkeypatch):
+    """After a contact, ``set_goal`` ran a fast-marching pass of its own for every goal (the decision's distances know
+    nothing of the contacts). Where every cell the contacts take off the grid is well past the goal's distance, the
+    path descends only through cells the contacts cannot change: the decision's map gives the same path, with no
+    pass; a contact the path may pass still gets its pass, and a path round it."""
+    import cso_runtime.planner as planner_module
+
+    plan = box_room(4.0, 3.0, 0.05)
+    t = ground_truth_traversable(plan)
+    start, goal = Pose2D(1.0, 1.5, 0.0), np.array([2.0, 1.5])
+    decision = geodesic_distance(t, plan.geometry, start.xy)
+    passes: list[float | None] = []
+    real = planner_module.geodesic_distance
+    monkeypatch.setattr(planner_module, "geodesic_distance", lambda t, geo, s, within_m=None: passes.append(within_m) or real(t, geo, s, within_m))
+    for contact_xy_m, goal_distance_m, passes_run in (((3.5, 2.5), None, 0), ((3.5, 2.5), 1.0, 0), ((1.5, 1.75), None, 1), ((1.5, 1.75), 1.0, 1)):
+        planner = LocalPlanner()
+        planner.contacts_xy_m = np.array([contact_xy_m])
+        planned_on = planner.without_contacts(t, plan.geometry)
+        assert not np.array_equal(planned_on, t)  # the contact takes cells off the grid
+        expected = plan_path(planned_on, plan.geometry, start.xy, goal)
+        passes.clear()
+        assert planner.set_goal(t, plan.geometry, start, goal, decision, goal_distance_m) == PlannerStatus.FOLLOWING
+        assert len(passes) == passes_run, (contact_xy_m, passes)
+        assert planner.path is not None and np.array_equal(planner.path, expected)
+        assert planner.free is not None and np.array_equal(planner.free.traversable, planned_on)
