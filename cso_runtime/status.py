@@ -377,12 +377,18 @@ def waiting_note(waiting: list[str], pause: dict[str, Any] | None = None) -> str
     return (f"; waiting for {', '.join(waiting)}, which no process serves" if waiting else "") + pause_note(pause)
 
 
-def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False) -> list[str]:
+def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False, episode_over: str = "") -> list[str]:
     """How a service's row begins (an entry of ``status_of``'s ``services``): alive or DOWN, not started by this
     run (another process is to serve it), and whether the episode waits for it; ``status`` and the live view alike.
-    ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN)."""
+    ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN).
+    ``episode_over``: the state of an episode that has ended (done, failed), else "": a service the episode waited for
+    that this run did not start (a shared policy server) and that no longer answers for the robot is not needed any
+    more, so it reads idle, not DOWN (a server restarted after the episode only announces the robots it hears from)."""
     running = service.get("command") and service.get("process_alive")  # a command node needs no liveliness token
-    words = ["alive" if service["alive"] else "running" if running else "stopping" if stopping else "DOWN"]
+    gone = "stopping" if stopping else "DOWN"
+    if episode_over and service.get("outside") and service.get("awaited"):
+        gone = f"idle (episode {episode_over}: not needed after it)"
+    words = ["alive" if service["alive"] else "running" if running else gone]
     if service.get("outside"):
         words.append("not started by this run")
     if name in waiting:
@@ -418,7 +424,7 @@ def render_table(status: dict[str, Any]) -> Table:
     episode_over = status["state"] in EPISODE_OVER
     stopping = status.get("launcher_state") == "stopping"
     for name, s in status["services"].items():
-        bits = presence_words(name, s, waiting, stopping)
+        bits = presence_words(name, s, waiting, stopping, status["state"] if episode_over else "")
         if s.get("state") == "stale" and episode_over:
             # Inputs stop when the episode ends; "stale" would read like a fault (JSON keeps the raw state).
             bits.append(f"idle (episode {status['state']}; last step {s.get('last_step', 0)})")

@@ -2196,7 +2196,7 @@ def test_live_view_shows_a_service_the_run_leaves_out_and_what_the_episode_waits
     launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive("policy"), kind="SampleKind.DELETE"))  # and goes
     launcher.status.state = "done"
     text = view()
-    assert re.search(r"│ policy +│ DOWN, not started by this run +│", text) and "wait" not in text, text
+    assert re.search(r"│ policy +│ idle \(episode done: not needed after it\), not started by this run +│", text) and "wait" not in text, text
     full, full_data = load_profile(str(find_profile("lockstep")), {})  # a run that starts every service: no such row
     launcher = Launcher(full, full_data, tmp_path / "run2")
     assert "not started by this run" not in view() and "wait" not in view()
@@ -2452,6 +2452,55 @@ def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(t
     status, text = table({"mapper", "policy"}, exploring)
     assert status["services"]["foxglove_bridge"] == {"alive": False, "outside": True} and status["waiting_for"] == []
     assert re.search(r"service foxglove_bridge +│ DOWN, not started by this run\s", text) and "waiting" not in text, text
+
+
+def test_a_shared_policy_that_no_longer_answers_for_a_finished_robot_is_idle_not_down(tmp_path):
+    """A shared policy server restarted after a robot's episode was done announces only the robots it hears from
+    again, and a finished robot sends no more decision inputs: its ``status`` (and ``up``'s live view) kept showing
+    the policy "DOWN, not started by this run", a fault where there is none. After the episode a service the episode
+    waited for and this run did not start reads idle, not needed after it (JSON keeps the raw ``alive: false``); while
+    the episode runs it is DOWN as before, and a viewer's bridge (never awaited) gone after the end is DOWN still."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.status import render_table, status_of
+
+    profile, data = load_profile(str(find_profile("lockstep")), {"robot": "r1"})
+    del profile.services["policy"]  # served by another run's server (serve_all_robots)
+    launcher = Launcher(profile, data, tmp_path / "run")
+
+    def alive(name: str, kind: str) -> None:
+        launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive(name), kind=f"SampleKind.{kind}"))
+
+    def table(alive_names: set[str], episode: dict) -> tuple[dict, str]:
+        msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it
+        assert isinstance(msg, LauncherStatusMsg)
+        status = status_of("r1", episode, msg.to_dict(), {}, alive_names)
+        console = Console(record=True, width=200)
+        console.print(render_table(status))
+        return status, console.export_text()
+
+    alive("policy", "PUT")  # the server serves r1 ...
+    alive("foxglove_bridge", "PUT")  # ... and a viewer's bridge is attached by hand
+    alive("policy", "DELETE")  # the server restarts after r1's episode is done, and never hears from r1 again
+    alive("foxglove_bridge", "DELETE")
+    for state in ("done", "failed"):
+        status, text = table({"mapper"}, {"state": state, "step": 40})
+        assert status["services"]["policy"] == {"alive": False, "outside": True, "awaited": True}, status  # raw in JSON
+        assert re.search(rf"service policy +│ idle \(episode {state}: not needed after it\), not started by this run\s", text), text
+        assert "DOWN, not started by this run" in text.split("service foxglove_bridge")[1] and text.count("DOWN") == 1, text
+    _, text = table({"mapper"}, {"state": "exploring", "step": 40})  # gone while the episode runs: DOWN, awaited
+    assert re.search(r"service policy +│ DOWN, not started by this run, the episode waits for it", text), text
+    launcher.status = EpisodeStatusMsg(state="done", step=40, scene="s", method="greedy-dist")  # `up`'s live view alike
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    view = console.export_text()
+    assert re.search(r"│ policy +│ idle \(episode done: not needed after it\), not started by this run +│", view), view
 
 
 def test_a_service_started_by_hand_that_leaves_after_the_episode_ended_is_not_said_to_be_awaited(tmp_path, caplog):
