@@ -2777,6 +2777,8 @@ def test_status_says_that_a_stopped_launchers_run_cannot_answer_until_it_is_cont
         said = json.loads(r.stdout)
         assert r.returncode == 1 and said["state"] == "not running", r.stdout
         assert f"run frozen's launcher, pid {launcher.pid}, is stopped" in said["reason"] and f"kill -CONT {launcher.pid}" in said["reason"], said
+        # the way to stop it names its runs folder: `cso-runtime down` alone stops the run of ./runs, another robot's
+        assert said["reason"].endswith(f"`cso-runtime down --runs-dir {runs}` to stop the run)"), said
     finally:
         launcher.kill()
         launcher.wait(timeout=30)
@@ -2965,7 +2967,7 @@ def test_status_watch_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypa
     said = capsys.readouterr().out
     assert code == exit_code and len(queries) == 3, said
     ended = f"run run1's episode has ended: {episode_state} (coverage) at step 9"
-    stays = "the run stays up (for status) until `cso-runtime down`"
+    stays = f"the run stays up (for status) until `cso-runtime down --runs-dir {runs}`"  # its folder's down, not ./runs'
     if as_json:
         last = json.loads(said.splitlines()[-1])
         assert (last["state"], last["exit_code"], last["run_dir"], last["terminated_by"], last["step"]) == (episode_state, exit_code, str(run_dir), "coverage", 9)
@@ -3685,7 +3687,7 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         finally:
             if follower.poll() is None:
                 follower.kill()
-        assert follower.returncode == 0 and "episode has ended; the run stays up (for status) until `cso-runtime down`" in err, err
+        assert follower.returncode == 0 and f"episode has ended; the run stays up (for status) until `cso-runtime down --runs-dir {runs}`" in err, err
         assert re.search(r"^mapper +\| .* restored the map of step", out, re.MULTILINE) and re.search(r"^launcher +\| .* episode ", out, re.MULTILINE), out[-3000:]
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stderr
