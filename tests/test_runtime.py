@@ -2397,6 +2397,38 @@ def test_status_lists_the_services_of_the_runs_profile_not_a_fixed_five():
     assert sorted(alone["services"]) == sorted(SERVICES) and alone["state"] == "starting"
 
 
+class _RunLeavingItsPolicyToAServer:
+    """The launcher of robot r1's lockstep run whose policy is another run's server (``serve_all_robots``), its
+    liveliness events, and ``status``'s object and table from its launcher's status, as ``status`` gets it."""
+
+    def __init__(self, tmp_path: Path) -> None:
+        from cso_runtime.launcher import Launcher
+        from cso_runtime.run_profile import find_profile, load_profile
+
+        profile, data = load_profile(str(find_profile("lockstep")), {"robot": "r1"})
+        del profile.services["policy"]  # this run's policy is another run's server
+        self.launcher = Launcher(profile, data, tmp_path / "run")
+
+    def alive(self, name: str, kind: str) -> None:
+        """A token of ``name`` under r1's keys came (``PUT``) or went (``DELETE``)."""
+        from types import SimpleNamespace
+
+        self.launcher._on_alive(SimpleNamespace(key_expr=self.launcher.keys.alive(name), kind=f"SampleKind.{kind}"))
+
+    def table(self, alive_names: set[str], episode: dict | None = None) -> tuple[dict, str]:
+        from rich.console import Console
+
+        from cso_runtime.messages import LauncherStatusMsg
+        from cso_runtime.status import render_table, status_of
+
+        msg = decode(encode(self.launcher.launcher_status()), LauncherStatusMsg)
+        assert isinstance(msg, LauncherStatusMsg)
+        status = status_of("r1", episode, msg.to_dict(), {}, alive_names)
+        console = Console(record=True, width=200)
+        console.print(render_table(status))
+        return status, console.export_text()
+
+
 def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(tmp_path, caplog):
     """A robot whose run leaves its policy to a shared server (``serve_all_robots`` in another run) had no policy
     row in ``status`` at all: once that server went down the robot waited for goals with every row alive. The
@@ -2404,30 +2436,8 @@ def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(t
     simply has no policy (no ``without:``) listed it only once a server answered: before, the robot waited for a
     policy that ``status`` did not name. It is listed from the start, and awaited: the episode waits for it, which
     the state says; a viewer's bridge started by hand and gone is listed DOWN, and nothing waits for it."""
-    from types import SimpleNamespace
-
-    from rich.console import Console
-
-    from cso_runtime.launcher import Launcher
-    from cso_runtime.messages import LauncherStatusMsg
-    from cso_runtime.run_profile import find_profile, load_profile
-    from cso_runtime.status import render_table, status_of
-
-    profile, data = load_profile(str(find_profile("lockstep")), {"robot": "r1"})
-    del profile.services["policy"]  # this run's policy is another run's server
-    launcher = Launcher(profile, data, tmp_path / "run")
-
-    def alive(name: str, kind: str) -> None:
-        launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive(name), kind=f"SampleKind.{kind}"))
-
-    def table(alive_names: set[str], episode: dict | None = None) -> tuple[dict, str]:
-        msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it
-        assert isinstance(msg, LauncherStatusMsg)
-        status = status_of("r1", episode, msg.to_dict(), {}, alive_names)
-        console = Console(record=True, width=200)
-        console.print(render_table(status))
-        return status, console.export_text()
-
+    run = _RunLeavingItsPolicyToAServer(tmp_path)
+    launcher, alive, table = run.launcher, run.alive, run.table
     exploring = {"state": "exploring", "step": 3}
     status, text = table({"mapper"}, exploring)  # no server has answered yet
     assert status["services"]["policy"] == {"alive": False, "outside": True, "awaited": True} and status["waiting_for"] == ["policy"]
@@ -2460,31 +2470,12 @@ def test_a_shared_policy_that_no_longer_answers_for_a_finished_robot_is_idle_not
     the policy "DOWN, not started by this run", a fault where there is none. After the episode a service the episode
     waited for and this run did not start reads idle, not needed after it (JSON keeps the raw ``alive: false``); while
     the episode runs it is DOWN as before, and a viewer's bridge (never awaited) gone after the end is DOWN still."""
-    from types import SimpleNamespace
-
     from rich.console import Console
 
-    from cso_runtime.launcher import Launcher
     from cso_runtime.live_view import LiveView
-    from cso_runtime.messages import LauncherStatusMsg
-    from cso_runtime.run_profile import find_profile, load_profile
-    from cso_runtime.status import render_table, status_of
 
-    profile, data = load_profile(str(find_profile("lockstep")), {"robot": "r1"})
-    del profile.services["policy"]  # served by another run's server (serve_all_robots)
-    launcher = Launcher(profile, data, tmp_path / "run")
-
-    def alive(name: str, kind: str) -> None:
-        launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive(name), kind=f"SampleKind.{kind}"))
-
-    def table(alive_names: set[str], episode: dict) -> tuple[dict, str]:
-        msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it
-        assert isinstance(msg, LauncherStatusMsg)
-        status = status_of("r1", episode, msg.to_dict(), {}, alive_names)
-        console = Console(record=True, width=200)
-        console.print(render_table(status))
-        return status, console.export_text()
-
+    run = _RunLeavingItsPolicyToAServer(tmp_path)
+    launcher, alive, table = run.launcher, run.alive, run.table
     alive("policy", "PUT")  # the server serves r1 ...
     alive("foxglove_bridge", "PUT")  # ... and a viewer's bridge is attached by hand
     alive("policy", "DELETE")  # the server restarts after r1's episode is done, and never hears from r1 again
