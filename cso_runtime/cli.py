@@ -1073,7 +1073,11 @@ def logs_command(
             except KeyboardInterrupt:
                 return
         if run_is_live(run_dir):  # a detached run after its episode: up for `status` until `down`, nothing more to follow
-            typer.echo(f"run {run_dir.name}'s episode has ended; the run stays up (for status) until `cso-runtime down`", err=True)
+            from cso_runtime.current_run import down_command  # noqa: PLC0415
+
+            # `--run FOLDER` may name a run outside --runs-dir: its down is that of the folder it is in
+            its_runs_dir = runs_dir if run_dir.parent.resolve() == runs_dir.resolve() else run_dir.parent
+            typer.echo(f"run {run_dir.name}'s episode has ended; the run stays up (for status) until {down_command(its_runs_dir)}", err=True)
         else:
             typer.echo(f"run {run_dir.name} has ended", err=True)  # also when it had before -f started: nothing to wait for
 

@@ -144,7 +144,8 @@ class LiveView:
             t.add_row(f"[bold]{c.name}", f"{health}, pid {c.proc.pid if c.proc else '-'}, restarts {c.restarts}" + (f"; {escape(note)}" if note else ""))
         for name, service in seen["services"].items():
             if service.get("outside"):  # not started by this run: no pid, no restarts here
-                t.add_row(f"[bold]{name}", escape(", ".join(presence_words(name, service, seen["waiting_for"]))))
+                over = st.state if st is not None and st.state in EPISODE_OVER else ""
+                t.add_row(f"[bold]{name}", escape(", ".join(presence_words(name, service, seen["waiting_for"], episode_over=over))))
         return t
 
     def start(self) -> None:

@@ -248,10 +248,10 @@ def dead_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | N
     return f"run {info['run_id']}'s launcher, pid {info['launcher_pid']}, has exited; {down_command(runs_dir)} clears {runs_dir / 'current.json'}"
 
 
-def stopped_launcher_of_run(info: dict[str, Any] | None) -> str | None:
-    """Why the current run does not answer when its launcher is stopped (Ctrl-Z on ``up``, SIGSTOP): its embedded
-    router is stopped with it, while every service runs. None when the launcher is not stopped."""
-    from cso_runtime.current_run import current_launcher_alive  # noqa: PLC0415
+def stopped_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | None:
+    """Why the current run (of ``runs_dir``) does not answer when its launcher is stopped (Ctrl-Z on ``up``, SIGSTOP):
+    its embedded router is stopped with it, while every service runs. None when the launcher is not stopped."""
+    from cso_runtime.current_run import current_launcher_alive, down_command  # noqa: PLC0415
     from cso_runtime.supervision import process_state  # noqa: PLC0415
 
     if info is None or not info.get("launcher_pid") or not current_launcher_alive(info) or process_state(info["launcher_pid"]) != "T":
@@ -259,7 +259,7 @@ def stopped_launcher_of_run(info: dict[str, Any] | None) -> str | None:
     pid = info["launcher_pid"]
     return (
         f"run {info['run_id']}'s launcher, pid {pid}, is stopped (Ctrl-Z or SIGSTOP), and its router with it: "
-        f"`kill -CONT {pid}` (or `fg` in its terminal) to go on, `cso-runtime down` to stop the run"
+        f"`kill -CONT {pid}` (or `fg` in its terminal) to go on, {down_command(runs_dir)} to stop the run"
     )
 
 
@@ -377,12 +377,18 @@ def waiting_note(waiting: list[str], pause: dict[str, Any] | None = None) -> str
     return (f"; waiting for {', '.join(waiting)}, which no process serves" if waiting else "") + pause_note(pause)
 
 
-def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False) -> list[str]:
+def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False, episode_over: str = "") -> list[str]:
     """How a service's row begins (an entry of ``status_of``'s ``services``): alive or DOWN, not started by this
     run (another process is to serve it), and whether the episode waits for it; ``status`` and the live view alike.
-    ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN)."""
+    ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN).
+    ``episode_over``: the state of an episode that has ended (done, failed), else "": a service the episode waited for
+    that this run did not start (a shared policy server) and that no longer answers for the robot is not needed any
+    more, so it reads idle, not DOWN (a server restarted after the episode only announces the robots it hears from)."""
     running = service.get("command") and service.get("process_alive")  # a command node needs no liveliness token
-    words = ["alive" if service["alive"] else "running" if running else "stopping" if stopping else "DOWN"]
+    gone = "stopping" if stopping else "DOWN"
+    if episode_over and service.get("outside") and service.get("awaited"):
+        gone = f"idle (episode {episode_over}: not needed after it)"
+    words = ["alive" if service["alive"] else "running" if running else gone]
     if service.get("outside"):
         words.append("not started by this run")
     if name in waiting:
@@ -418,7 +424,7 @@ def render_table(status: dict[str, Any]) -> Table:
     episode_over = status["state"] in EPISODE_OVER
     stopping = status.get("launcher_state") == "stopping"
     for name, s in status["services"].items():
-        bits = presence_words(name, s, waiting, stopping)
+        bits = presence_words(name, s, waiting, stopping, status["state"] if episode_over else "")
         if s.get("state") == "stale" and episode_over:
             # Inputs stop when the episode ends; "stale" would read like a fault (JSON keeps the raw state).
             bits.append(f"idle (episode {status['state']}; last step {s.get('last_step', 0)})")
@@ -531,9 +537,10 @@ def detached_run_after_episode(run_dir: Path) -> dict[str, Any] | None:
     return info if current_launcher_alive(info) else None
 
 
-def say_episode_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_json: bool) -> int:
-    """The line ``status --watch`` ends with on a detached run whose episode ended: how, where its results are, and
-    that the run stays up until ``down``; exit 0 when the episode ended done, else 1."""
+def say_episode_ended(run: dict[str, Any], run_dir: Path, runs_dir: Path, last: dict[str, Any], as_json: bool) -> int:
+    """The line ``status --watch`` ends with on a detached run (the current run of ``runs_dir``) whose episode ended:
+    how, where its results are, and that the run stays up until ``down``; exit 0 when the episode ended done, else 1."""
+    from cso_runtime.current_run import down_command  # noqa: PLC0415
     from cso_runtime.outputs import results_said  # noqa: PLC0415
     from cso_runtime.runs import LOG_DIR  # noqa: PLC0415
 
@@ -542,7 +549,7 @@ def say_episode_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], 
     ended_by = last.get("terminated_by") or ""
     where = results_said(run_dir) if state == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
     line = (f"run {run.get('run_id')}'s episode has ended: {state}" + (f" ({ended_by})" if ended_by else "") + f" at step {last.get('step', 0)}; "
-            f"{where}; the run stays up (for status) until `cso-runtime down`")
+            f"{where}; the run stays up (for status) until {down_command(runs_dir)}")
     if as_json:
         ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "exit_code": code, "terminated_by": ended_by, "step": last.get("step", 0)}
         print(json.dumps({"state": state, "reason": line, **ended}), flush=True)
@@ -572,7 +579,7 @@ def await_started_run(runs_dir: Path, as_json: bool, period_s: float) -> int | N
             return None if run is None else say_run_ended(run, run_dir, {}, as_json)
         seen = info
         assert info is not None
-        why = stopped_launcher_of_run(info)  # Ctrl-Z on a starting `up`: it waits, and says why
+        why = stopped_launcher_of_run(info, runs_dir)  # Ctrl-Z on a starting `up`: it waits, and says why
         line = f"{starting.removesuffix(ASK_AGAIN)}; waiting for it" + (f" ({why})" if why else "") + "..."
         if as_json:
             print(json.dumps({"state": "starting", "run_id": info["run_id"], "reason": line}), flush=True)
@@ -622,7 +629,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 from cso_runtime.current_run import read_current_run  # noqa: PLC0415
 
                 info = None if given_connect else read_current_run(runs_dir)
-                why = dead_launcher_of_run(info, runs_dir) or stopped_launcher_of_run(info) or lost_router_of_run(info)
+                why = dead_launcher_of_run(info, runs_dir) or stopped_launcher_of_run(info, runs_dir) or lost_router_of_run(info)
                 return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}" + (f"; {why}" if why else ""), as_json)
             shown, last = status, status
             if watch:
@@ -647,7 +654,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
             if watched is not None and (run := detached_run_after_episode(watched[0])) is not None:
                 if live is not None:
                     live.stop()  # the last table stays; the line below goes under it
-                return say_episode_ended(run, watched[0], last, as_json)
+                return say_episode_ended(run, watched[0], runs_dir, last, as_json)
             # A fixed schedule: the lines come every period_s however long a query took (a slow or silent service
             # made each one up to its 0.6 s timeout later); a period that a query overran is skipped, not made up.
             next_s += period_s

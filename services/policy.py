@@ -327,14 +327,17 @@ class PolicyService(Service):
 
     def update_state(self) -> None:
         """One state for every robot served: stale when all of them are (each one's reason), running
-        when any is commanded (saying which others are not)."""
+        when any is commanded (saying which others are not). The robots counted are those it has a selector for:
+        heard from (a decision input) and not forgotten, not every robot whose run is up, which it cannot tell from
+        one that is starting (no input yet) or whose episode is over (no more inputs): the reason says so."""
         stale = [st.stale_reason for st in self.robots.values() if st.stale_reason]
         if not stale:
             self.set_state("running")
         elif len(stale) == len(self.robots):
             self.set_state("stale", "; ".join(stale))
         else:
-            self.set_state("running", f"serving {len(self.robots) - len(stale)} of {len(self.robots)} robots; " + "; ".join(stale))
+            commanded = len(self.robots) - len(stale)
+            self.set_state("running", f"commanding {commanded} of the {len(self.robots)} robots it has heard from; " + "; ".join(stale))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -180,13 +180,22 @@ def test_logs_follow_a_running_run_until_its_launcher_exits(tmp_path):
     assert emitted == [("sim", "sim b"), ("mapper", "mapper a"), ("sim", "sim half"), ("sim", "sim c")]
 
 
-def test_logs_follow_of_a_detached_run_ends_with_its_episode(tmp_path):
+def test_logs_follow_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypatch):
     """A detached run stays up after its episode (``status`` answers until ``down``): ``logs -f`` used to follow it
-    forever, so ``up --detach && logs -f`` never returned. It ends once run.json says the episode is over."""
-    d = make_run(tmp_path / "runs", "20261203-091000-lockstep-r0", alive=True, state="done", logs={"sim": line(1, 0, "episode coverage: 99 %")})
-    r = CliRunner().invoke(app, ["logs", "-f", "--run", d.name, "--runs-dir", str(tmp_path / "runs")])
+    forever, so ``up --detach && logs -f`` never returned. It ends once run.json says the episode is over, saying the
+    ``down`` that stops it: of its own runs folder (plain `cso-runtime down` stopped the run of ./runs, another robot's)."""
+    d = make_run(tmp_path / "runs-r1", "20261203-091000-lockstep-r1", alive=True, state="done", logs={"sim": line(1, 0, "episode coverage: 99 %")})
+    r = CliRunner().invoke(app, ["logs", "-f", "--run", d.name, "--runs-dir", str(tmp_path / "runs-r1")])
     assert r.exit_code == 0 and "episode coverage: 99 %" in r.output
-    assert f"run {d.name}'s episode has ended; the run stays up (for status) until `cso-runtime down`" in r.output
+    stays = f"run {d.name}'s episode has ended; the run stays up (for status) until `cso-runtime down"
+    assert f"{stays} --runs-dir {tmp_path / 'runs-r1'}`" in r.output, r.output
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["logs", "-f", "--run", str(d)])  # a run folder named, not under --runs-dir (./runs)
+    assert r.exit_code == 0 and f"{stays} --runs-dir {d.parent}`" in r.output, r.output
+    shutil.move(tmp_path / "runs-r1", tmp_path / "runs")  # the default folder: plain `cso-runtime down`
+    r = CliRunner().invoke(app, ["logs", "-f", "--run", d.name])
+    assert r.exit_code == 0 and f"{stays}`" in r.output, r.output
+    d = tmp_path / "runs" / d.name
     assert not run_is_exploring(d) and run_is_exploring(make_run(tmp_path / "runs", "20261203-091100-lockstep-r0", alive=True))
 
 

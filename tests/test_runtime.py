@@ -2196,7 +2196,7 @@ def test_live_view_shows_a_service_the_run_leaves_out_and_what_the_episode_waits
     launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive("policy"), kind="SampleKind.DELETE"))  # and goes
     launcher.status.state = "done"
     text = view()
-    assert re.search(r"│ policy +│ DOWN, not started by this run +│", text) and "wait" not in text, text
+    assert re.search(r"│ policy +│ idle \(episode done: not needed after it\), not started by this run +│", text) and "wait" not in text, text
     full, full_data = load_profile(str(find_profile("lockstep")), {})  # a run that starts every service: no such row
     launcher = Launcher(full, full_data, tmp_path / "run2")
     assert "not started by this run" not in view() and "wait" not in view()
@@ -2397,6 +2397,38 @@ def test_status_lists_the_services_of_the_runs_profile_not_a_fixed_five():
     assert sorted(alone["services"]) == sorted(SERVICES) and alone["state"] == "starting"
 
 
+class _RunLeavingItsPolicyToAServer:
+    """The launcher of robot r1's lockstep run whose policy is another run's server (``serve_all_robots``), its
+    liveliness events, and ``status``'s object and table from its launcher's status, as ``status`` gets it."""
+
+    def __init__(self, tmp_path: Path) -> None:
+        from cso_runtime.launcher import Launcher
+        from cso_runtime.run_profile import find_profile, load_profile
+
+        profile, data = load_profile(str(find_profile("lockstep")), {"robot": "r1"})
+        del profile.services["policy"]  # this run's policy is another run's server
+        self.launcher = Launcher(profile, data, tmp_path / "run")
+
+    def alive(self, name: str, kind: str) -> None:
+        """A token of ``name`` under r1's keys came (``PUT``) or went (``DELETE``)."""
+        from types import SimpleNamespace
+
+        self.launcher._on_alive(SimpleNamespace(key_expr=self.launcher.keys.alive(name), kind=f"SampleKind.{kind}"))
+
+    def table(self, alive_names: set[str], episode: dict | None = None) -> tuple[dict, str]:
+        from rich.console import Console
+
+        from cso_runtime.messages import LauncherStatusMsg
+        from cso_runtime.status import render_table, status_of
+
+        msg = decode(encode(self.launcher.launcher_status()), LauncherStatusMsg)
+        assert isinstance(msg, LauncherStatusMsg)
+        status = status_of("r1", episode, msg.to_dict(), {}, alive_names)
+        console = Console(record=True, width=200)
+        console.print(render_table(status))
+        return status, console.export_text()
+
+
 def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(tmp_path, caplog):
     """A robot whose run leaves its policy to a shared server (``serve_all_robots`` in another run) had no policy
     row in ``status`` at all: once that server went down the robot waited for goals with every row alive. The
@@ -2404,30 +2436,8 @@ def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(t
     simply has no policy (no ``without:``) listed it only once a server answered: before, the robot waited for a
     policy that ``status`` did not name. It is listed from the start, and awaited: the episode waits for it, which
     the state says; a viewer's bridge started by hand and gone is listed DOWN, and nothing waits for it."""
-    from types import SimpleNamespace
-
-    from rich.console import Console
-
-    from cso_runtime.launcher import Launcher
-    from cso_runtime.messages import LauncherStatusMsg
-    from cso_runtime.run_profile import find_profile, load_profile
-    from cso_runtime.status import render_table, status_of
-
-    profile, data = load_profile(str(find_profile("lockstep")), {"robot": "r1"})
-    del profile.services["policy"]  # this run's policy is another run's server
-    launcher = Launcher(profile, data, tmp_path / "run")
-
-    def alive(name: str, kind: str) -> None:
-        launcher._on_alive(SimpleNamespace(key_expr=launcher.keys.alive(name), kind=f"SampleKind.{kind}"))
-
-    def table(alive_names: set[str], episode: dict | None = None) -> tuple[dict, str]:
-        msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)  # as `status` gets it
-        assert isinstance(msg, LauncherStatusMsg)
-        status = status_of("r1", episode, msg.to_dict(), {}, alive_names)
-        console = Console(record=True, width=200)
-        console.print(render_table(status))
-        return status, console.export_text()
-
+    run = _RunLeavingItsPolicyToAServer(tmp_path)
+    launcher, alive, table = run.launcher, run.alive, run.table
     exploring = {"state": "exploring", "step": 3}
     status, text = table({"mapper"}, exploring)  # no server has answered yet
     assert status["services"]["policy"] == {"alive": False, "outside": True, "awaited": True} and status["waiting_for"] == ["policy"]
@@ -2452,6 +2462,36 @@ def test_status_shows_a_service_the_run_did_not_start_and_says_when_it_is_gone(t
     status, text = table({"mapper", "policy"}, exploring)
     assert status["services"]["foxglove_bridge"] == {"alive": False, "outside": True} and status["waiting_for"] == []
     assert re.search(r"service foxglove_bridge +│ DOWN, not started by this run\s", text) and "waiting" not in text, text
+
+
+def test_a_shared_policy_that_no_longer_answers_for_a_finished_robot_is_idle_not_down(tmp_path):
+    """A shared policy server restarted after a robot's episode was done announces only the robots it hears from
+    again, and a finished robot sends no more decision inputs: its ``status`` (and ``up``'s live view) kept showing
+    the policy "DOWN, not started by this run", a fault where there is none. After the episode a service the episode
+    waited for and this run did not start reads idle, not needed after it (JSON keeps the raw ``alive: false``); while
+    the episode runs it is DOWN as before, and a viewer's bridge (never awaited) gone after the end is DOWN still."""
+    from rich.console import Console
+
+    from cso_runtime.live_view import LiveView
+
+    run = _RunLeavingItsPolicyToAServer(tmp_path)
+    launcher, alive, table = run.launcher, run.alive, run.table
+    alive("policy", "PUT")  # the server serves r1 ...
+    alive("foxglove_bridge", "PUT")  # ... and a viewer's bridge is attached by hand
+    alive("policy", "DELETE")  # the server restarts after r1's episode is done, and never hears from r1 again
+    alive("foxglove_bridge", "DELETE")
+    for state in ("done", "failed"):
+        status, text = table({"mapper"}, {"state": state, "step": 40})
+        assert status["services"]["policy"] == {"alive": False, "outside": True, "awaited": True}, status  # raw in JSON
+        assert re.search(rf"service policy +│ idle \(episode {state}: not needed after it\), not started by this run\s", text), text
+        assert "DOWN, not started by this run" in text.split("service foxglove_bridge")[1] and text.count("DOWN") == 1, text
+    _, text = table({"mapper"}, {"state": "exploring", "step": 40})  # gone while the episode runs: DOWN, awaited
+    assert re.search(r"service policy +│ DOWN, not started by this run, the episode waits for it", text), text
+    launcher.status = EpisodeStatusMsg(state="done", step=40, scene="s", method="greedy-dist")  # `up`'s live view alike
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    view = console.export_text()
+    assert re.search(r"│ policy +│ idle \(episode done: not needed after it\), not started by this run +│", view), view
 
 
 def test_a_service_started_by_hand_that_leaves_after_the_episode_ended_is_not_said_to_be_awaited(tmp_path, caplog):
@@ -2728,6 +2768,8 @@ def test_status_says_that_a_stopped_launchers_run_cannot_answer_until_it_is_cont
         said = json.loads(r.stdout)
         assert r.returncode == 1 and said["state"] == "not running", r.stdout
         assert f"run frozen's launcher, pid {launcher.pid}, is stopped" in said["reason"] and f"kill -CONT {launcher.pid}" in said["reason"], said
+        # the way to stop it names its runs folder: `cso-runtime down` alone stops the run of ./runs, another robot's
+        assert said["reason"].endswith(f"`cso-runtime down --runs-dir {runs}` to stop the run)"), said
     finally:
         launcher.kill()
         launcher.wait(timeout=30)
@@ -2916,7 +2958,7 @@ def test_status_watch_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypa
     said = capsys.readouterr().out
     assert code == exit_code and len(queries) == 3, said
     ended = f"run run1's episode has ended: {episode_state} (coverage) at step 9"
-    stays = "the run stays up (for status) until `cso-runtime down`"
+    stays = f"the run stays up (for status) until `cso-runtime down --runs-dir {runs}`"  # its folder's down, not ./runs'
     if as_json:
         last = json.loads(said.splitlines()[-1])
         assert (last["state"], last["exit_code"], last["run_dir"], last["terminated_by"], last["step"]) == (episode_state, exit_code, str(run_dir), "coverage", 9)
@@ -3636,7 +3678,7 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         finally:
             if follower.poll() is None:
                 follower.kill()
-        assert follower.returncode == 0 and "episode has ended; the run stays up (for status) until `cso-runtime down`" in err, err
+        assert follower.returncode == 0 and f"episode has ended; the run stays up (for status) until `cso-runtime down --runs-dir {runs}`" in err, err
         assert re.search(r"^mapper +\| .* restored the map of step", out, re.MULTILINE) and re.search(r"^launcher +\| .* episode ", out, re.MULTILINE), out[-3000:]
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stderr

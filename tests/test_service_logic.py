@@ -207,8 +207,12 @@ def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_i
 def test_a_policy_serving_two_robots_says_which_one_is_stale_without_flapping():
     """One policy server, two robots; robot a's episode ended (no more frontiers), robot b's goes on. The
     service stays "running" and says robot a is not commanded, however b's decisions and the ticks
-    interleave; "stale" once neither robot sends anything."""
-    policy, out = _service(PolicyService, lockstep=False, params={"method": "greedy-dist", "stale_after_s": 2.0})
+    interleave; "stale" once neither robot sends anything. The count is of the robots it has heard from, and says
+    so: "serving 1 of 2 robots" with a third robot's run up (started, no input yet) read as an off-by-one."""
+    from types import SimpleNamespace
+
+    policy, out = _service(PolicyService, lockstep=False, params={"method": "greedy-dist", "stale_after_s": 2.0, "serve_all_robots": True})
+    policy._on_alive(SimpleNamespace(key_expr="cso/c/alive/frontier", kind="SampleKind.PUT"))  # robot c's run is up, silent so far
     obs = _explorer_at(0).observe()
     now = time.monotonic()
     policy.on_message("a", "frontiers", frontiers_from_observation(0, "no_goal", obs, 1.0), now)
@@ -218,7 +222,7 @@ def test_a_policy_serving_two_robots_says_which_one_is_stale_without_flapping():
         policy.on_message("b", "frontiers", frontiers_from_observation(step, "timeout", obs, 1.0), at_s)
         policy.on_tick(at_s)
         states.append((policy.state, policy.reason.split(";")[0]))
-    assert states[1:] == [("running", "serving 1 of 2 robots")] * 4, states
+    assert states[1:] == [("running", "commanding 1 of the 2 robots it has heard from")] * 4, states
     assert "robot a: no frontiers for" in policy.reason and [m.step for t, m in out if t == "goal"][-1] == 5
     policy.on_tick(now + 60.0)
     assert policy.state == "stale" and "robot a" in policy.reason and "robot b" in policy.reason
