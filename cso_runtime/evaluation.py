@@ -77,6 +77,7 @@ from cso_runtime.outputs import (
     episode_animation_path,
     episode_map_path,
     episode_npz_path,
+    file_sha256,
     file_stem,
     remove_stale_partial_files,
     results_said,
@@ -385,10 +386,7 @@ def own_method_code_sha256(method: str) -> str:
         return ""
     found = importlib.util.find_spec(spec.partition(":")[0])
     origin = found.origin if found is not None else None
-    try:
-        return hashlib.sha256(Path(origin).read_bytes()).hexdigest() if origin else ""
-    except OSError:
-        return ""
+    return file_sha256(Path(origin)) if origin else ""
 
 
 @dataclass
@@ -531,14 +529,6 @@ def is_an_episode_file(path: Path) -> bool:
     of a plan named ``<map>.partial``, not a file an earlier version left half-written, or whole but of ``<map>``)."""
     held = read_held_episode(path)
     return held is not None and file_stem(str(held.row.get("map", ""))) == path.stem
-
-
-def file_sha256(path: Path) -> str:
-    """The sha256 of the file at ``path``; "" when there is none (or it cannot be read)."""
-    try:
-        return hashlib.sha256(path.read_bytes()).hexdigest()
-    except OSError:
-        return ""
 
 
 def animation_is_the_episodes(held: HeldEpisode, npz_path: Path, gif: Path) -> bool:

@@ -11,6 +11,7 @@
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import os
 import re
 import stat
@@ -52,6 +53,14 @@ def trajectory_plot_path(out_dir: Path, scene: str) -> Path:
 def results_said(out_dir: Path) -> str:
     """The closing line of ``eval`` and of a finished ``up``: where the results are, and the file to open first."""
     return f"results in {out_dir}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
+
+
+def file_sha256(path: Path) -> str:
+    """The sha256 of the file at ``path``; "" when there is none (or it cannot be read)."""
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return ""
 
 
 def write_whole(path: Path | str, write: Callable[[Path], object]) -> None:

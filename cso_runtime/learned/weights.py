@@ -11,7 +11,6 @@ that field of view uses it; every other sensor uses ``<method>.pt``.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 from importlib import resources
@@ -19,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime.config import LIDAR_FOVS_DEG, ConfigError, MaskConfig, SensorConfig
+from cso_runtime.outputs import file_sha256
 
 WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
 """Environment variable naming a folder of ``<method>.pt`` files to use instead of the shipped ones
@@ -127,7 +127,7 @@ def weights_provenance(name: str, sensor: SensorConfig | None = None) -> dict[st
     """The weights file ``name`` uses with ``sensor`` and its SHA-256, for the records of a run: results
     must say which weights produced them, since ``CSO_WEIGHTS_DIR`` and the sensor can swap them."""
     path = weights_path(name, sensor)
-    digest = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else ""
+    digest = file_sha256(path)
     return {"path": str(path), "sha256": digest, "shipped": not os.environ.get(WEIGHTS_DIR_ENV)}
 
 
