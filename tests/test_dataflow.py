@@ -27,14 +27,20 @@ def _names_in(cell: str) -> set[str]:
     return set(re.findall(r"\b(" + "|".join(NODE_NAMES) + r")\b", cell))
 
 
-def _docs_rows() -> dict[str, tuple[str, str]]:
-    """Key suffix -> (Publisher, Subscribers) cells of the key table in docs/messages.md."""
+def docs_table() -> dict[str, list[str]]:
+    """Key suffix -> the cells of its row in docs/messages.md's key table: key, schema, publisher, subscribers, body
+    (tests/test_wire_conformance.py holds the schema and body cells to the code)."""
     rows = {}
     for line in (ROOT / "docs" / "messages.md").read_text().splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if len(cells) >= 5 and cells[0].startswith("`"):
-            rows[cells[0].strip("`")] = (cells[2], cells[3])
+            rows[cells[0].strip("`")] = cells
     return rows
+
+
+def _docs_rows() -> dict[str, tuple[str, str]]:
+    """Key suffix -> (Publisher, Subscribers) cells of the key table in docs/messages.md."""
+    return {key: (cells[2], cells[3]) for key, cells in docs_table().items()}
 
 
 def test_docs_key_table_names_exactly_the_publishers_and_subscribers_the_code_declares():

@@ -1,0 +1,597 @@
+"""docs/messages.md as someone writing a service in another language reads it: every schema built by hand from the
+docs alone (msgpack, numpy and zlib; nothing of ``cso_runtime.messages`` but ``decode`` and ``encode``), decoded by the
+project to the same values, and the project's own payloads read back by hand the same way. So the documented wire
+format (envelope, field names, array records, dtypes, byte and bit order, codecs, version and rejection rules) cannot
+drift from ``cso_runtime/messages.py``. tests/test_messages.py tests the codec against itself; tests/test_docs.py holds
+the docs' version paragraph, and tests/test_dataflow.py the key table's publishers and subscribers, to the code."""
+
+from __future__ import annotations
+
+import math
+import re
+import zlib
+from typing import Any
+
+import msgpack
+import numpy as np
+import pytest
+
+from cso_runtime.keys import TOPICS, RobotKeys
+from cso_runtime.messages import (
+    MESSAGE_TYPES,
+    ClockMsg,
+    CmdVelMsg,
+    DistanceMapMsg,
+    EndedWhyMsg,
+    EpisodeResultMsg,
+    EpisodeStatusMsg,
+    ExploreResumeMsg,
+    FrontiersMsg,
+    GoalMsg,
+    LauncherStatusMsg,
+    MapMsg,
+    MessageError,
+    OdometryMsg,
+    PathMsg,
+    PlannerFeedbackMsg,
+    ScanMsg,
+    ServiceStatusMsg,
+    decode,
+    encode,
+)
+from tests.test_dataflow import docs_table
+
+# --- the wire format, as docs/messages.md states it ----------------------------------------------
+
+WIRE_DTYPES = {
+    "bool": "|b1",
+    "int8": "<i1",
+    "int16": "<i2",
+    "int32": "<i4",
+    "int64": "<i8",
+    "uint8": "|u1",
+    "uint16": "<u2",
+    "float32": "<f4",
+    "float64": "<f8",
+}
+"""The dtype names an array record may carry (docs: "Arrays"), each with its little-endian numpy dtype."""
+
+
+def bits_of(cells: np.ndarray) -> bytes:
+    """Boolean cells packed 8 to a byte, row-major, cell ``8 j + k`` in bit ``k`` (value ``2**k``) of byte ``j``, the
+    last byte's unused high bits 0: the docs' words, without ``numpy.packbits``."""
+    flat = np.asarray(cells, dtype=bool).ravel().astype(np.uint8)
+    flat = np.concatenate([flat, np.zeros(-flat.size % 8, np.uint8)]).reshape(-1, 8)
+    return bytes((flat.astype(np.uint16) << np.arange(8, dtype=np.uint16)).sum(axis=1).astype(np.uint8).tolist())
+
+
+def cells_of(packed: bytes, n: int) -> np.ndarray:
+    """``bits_of`` inverted: the first ``n`` cells."""
+    byte = np.frombuffer(packed, dtype=np.uint8)
+    return ((byte[:, None] >> np.arange(8, dtype=np.uint8)) & 1).ravel()[:n].astype(bool)
+
+
+def record(a: np.ndarray, dtype: str, z: bool | str = False) -> dict[str, Any]:
+    """One array as the docs' record ``{dtype, shape, z, data}``: raw little-endian row-major bytes; ``z`` true: those
+    bytes zlib-compressed; ``"bits"`` (boolean only): bit-packed, then zlib-compressed."""
+    a = np.asarray(a)
+    if z == "bits":
+        data = zlib.compress(bits_of(a))
+    else:
+        data = np.ascontiguousarray(a, dtype=np.dtype(WIRE_DTYPES.get(dtype, dtype)).newbyteorder("<")).tobytes()
+        data = zlib.compress(data) if z else data
+    return {"dtype": dtype, "shape": list(a.shape), "z": z, "data": data}
+
+
+def read_record(rec: dict[str, Any]) -> np.ndarray:
+    """An array record read by hand, as the docs describe it (its dtype the record's)."""
+    assert set(rec) == {"dtype", "shape", "z", "data"} and isinstance(rec["data"], bytes), rec
+    n = math.prod(rec["shape"])
+    if rec["z"] == "bits":
+        assert rec["dtype"] == "bool"
+        packed = zlib.decompress(rec["data"])
+        assert len(packed) == (n + 7) // 8
+        return cells_of(packed, n).reshape(rec["shape"])
+    raw = zlib.decompress(rec["data"]) if rec["z"] is True else rec["data"]
+    assert rec["z"] in (True, False)
+    return np.frombuffer(raw, dtype=np.dtype(WIRE_DTYPES[rec["dtype"]])).reshape(rec["shape"])
+
+
+def is_record(v: Any) -> bool:
+    return isinstance(v, dict) and set(v) == {"dtype", "shape", "z", "data"}
+
+
+def envelope(schema: str, version: int, body: dict[str, Any]) -> bytes:
+    """The docs' envelope: a msgpack map of exactly ``schema``, ``v`` and ``body``; strings as msgpack str, bytes as bin."""
+    return msgpack.packb({"schema": schema, "v": version, "body": body}, use_bin_type=True)
+
+
+def read_payload(payload: bytes) -> tuple[str, int, dict[str, Any]]:
+    raw = msgpack.unpackb(payload, raw=False)
+    assert set(raw) == {"schema", "v", "body"}
+    return raw["schema"], raw["v"], raw["body"]
+
+
+def by_hand(value: Any) -> Any:
+    """A body with every array record read by hand: ``("array", dtype, shape, values)``, whatever its ``z``."""
+    if is_record(value):
+        a = read_record(value)
+        return ("array", value["dtype"], tuple(a.shape), a.tolist())
+    if isinstance(value, dict):
+        return {k: by_hand(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [by_hand(v) for v in value]
+    return value
+
+
+def bits_promised(value: Any, path: str = "") -> set[str]:
+    """The paths of the records sent ``"z": "bits"`` (what the docs promise bit-packed)."""
+    if is_record(value):
+        return {path} if value["z"] == "bits" else set()
+    if isinstance(value, dict):
+        return set().union(*(bits_promised(v, f"{path}.{k}") for k, v in value.items()))
+    if isinstance(value, list):
+        return set().union(*(bits_promised(v, f"{path}[{i}]") for i, v in enumerate(value)))
+    return set()
+
+
+# --- one body per schema, from the docs ------------------------------------------------------------
+
+GEOMETRY = {"resolution_m": 0.1, "shape": [4, 5], "origin": [-0.2, -0.25]}
+"""(ny, nx) = (4, 5) cells of 0.1 m, cell (0, 0)'s corner at (-0.2, -0.25) m."""
+EXPLORED = np.array([[1, 1, 1, 0, 0], [1, 1, 1, 1, 0], [0, 1, 1, 1, 0], [0, 0, 0, 0, 0]], dtype=bool)
+OCCUPIED = np.array([[1, 0, 0, 0, 0], [0, 0, 0, 1, 0], [0, 0, 0, 0, 0], [0, 0, 0, 0, 0]], dtype=bool)
+FRONTIER = np.array([[0, 0, 1, 0, 0], [0, 0, 0, 0, 0], [0, 1, 1, 1, 0], [0, 0, 0, 0, 0]], dtype=bool)
+ENTROPY = np.array([[0, 0, 3, 0, 0], [0, 0, 0, 0, 0], [0, 7, 250, 1, 0], [0, 0, 0, 0, 0]], dtype=np.int64)
+DISTANCE = np.array([[0.3, 0.2, 0.1, np.inf, np.inf], [0.2, 0.1, 0.0, np.inf, np.inf], [np.inf, 0.2, 0.1, 0.2, np.inf], [np.inf] * 5])
+EPISODE = 0xBEEF0000CAFE
+
+
+def map_body(step: int = 12) -> dict[str, Any]:
+    return {"step": step, "geometry": GEOMETRY, "explored": record(EXPLORED, "bool", "bits"), "occupied": record(OCCUPIED, "bool", "bits"), "episode": EPISODE}
+
+
+def decision_body() -> dict[str, Any]:
+    mask = ENTROPY != 0
+    traversable = EXPLORED & ~OCCUPIED
+    return {
+        "step": 12,
+        "decide": True,
+        "reason": "reached",
+        "episode": EPISODE,
+        "pose": [0.0, -0.1, 1.5],
+        "geometry": GEOMETRY,
+        "arrays": {
+            "explored": record(EXPLORED, "bool", "bits"),
+            "occupied": record(OCCUPIED, "bool", "bits"),
+            "traversable": record(traversable, "bool", "bits"),
+            "frontier": record(FRONTIER, "bool", "bits"),
+            "entropy": record(ENTROPY[mask], "uint8"),  # the non-zero counts, row by row, in the smallest type
+        },
+        "masks": {"entropy": record(mask, "bool", "bits")},
+        "clusters": [
+            {
+                "goal_cell": [2, 1],  # [iy, ix]
+                "goal_xy_m": [-0.05, 0.0],  # its centre: origin + (index + 0.5) * resolution
+                "distance_m": 0.2,
+                "size_m": 0.4,
+                "entropy": 258.0,
+                "centroid_xy_m": [0.0, -0.05],
+                "cells": record(np.array([[0, 2], [2, 1], [2, 2], [2, 3]]), "int32"),  # (k, 2) [iy, ix]
+            }
+        ],
+        "open_area_m2": 0.09,
+        "path_nodes_xy_m": record(np.array([[0.0, -0.1], [0.1, 0.05]]), "float64"),
+        "path_nodes_distance_m": record(np.array([0.0, np.inf]), "float64"),  # inf: unreachable
+        "build_ms": 3.5,
+    }
+
+
+BODIES: dict[str, list[dict[str, Any]]] = {
+    "clock": [{"step": 3, "time_s": 0.75, "episode": EPISODE, "geometry": GEOMETRY}, {"step": 4, "time_s": 1.0, "episode": EPISODE}],
+    "scan": [
+        {
+            "step": 3,
+            "stamp_s": 0.75,
+            "angle_min_rad": -1.5,
+            "angle_increment_rad": 0.5,
+            "range_min_m": 0.1,
+            "range_max_m": 8.0,
+            "ranges_m": record(np.array([1.0, np.inf, 2.5, 8.0, 0.0625, 3.0, 4.0]), "float32"),
+            "sensor_pose": [1.0, 2.0, 0.25],
+            "episode": EPISODE,
+        }
+    ],
+    "odom": [{"step": 3, "stamp_s": 0.75, "pose": [0.875, 2.0, 0.25], "twist": [0.2, -0.5], "episode": EPISODE}],
+    "cmd_vel": [{"step": 3, "linear_mps": 0.25, "angular_radps": -0.5, "reason": "", "new_goal": True}],
+    "map": [map_body()],
+    "frontiers": [{"step": 11, "decide": False, "reason": "", "episode": EPISODE}, decision_body()],
+    "distance_map": [
+        {
+            "step": 12,
+            "geometry": GEOMETRY,
+            "pose": [0.0, -0.1, 1.5],
+            "finite": record(np.isfinite(DISTANCE), "bool", "bits"),
+            "distance_m": record(DISTANCE[np.isfinite(DISTANCE)], "float64"),  # the finite ones, row by row
+            "episode": EPISODE,
+        }
+    ],
+    "ended_why": [{"step": 40, "why": "2 frontier cells left: both unreachable", "episode": EPISODE}],
+    "goal": [
+        {"step": 12, "decided": True, "goal": [-0.05, 0.0, 0, 0.2], "decision_ms": 4.5, "method": "greedy-dist", "reason": "reached", "episode": EPISODE},
+        {"step": 40, "decided": True, "goal": None, "decision_ms": 1.0, "method": "greedy-dist", "reason": "no_goal", "episode": EPISODE},
+    ],
+    "path": [{"step": 12, "path_xy_m": record(np.array([[0.0, -0.1], [-0.05, -0.05]]), "float32")}],
+    "planner_feedback": [
+        {
+            "step": 12,
+            "episode": EPISODE,
+            "status": "following",
+            "phase": "command",
+            "set_goal_blocked": False,
+            "reason": "",
+            "path_ahead_xy_m": record(np.array([[0.0, -0.1], [-0.05, -0.05]]), "float64"),
+            "goal_step": 12,
+        }
+    ],
+    "episode_status": [
+        {
+            "state": "exploring",
+            "step": 12,
+            "scene": "generated:small:1:0",
+            "method": "greedy-dist",
+            "coverage_pct": 42.5,
+            "explored_area_m2": 10.25,
+            "path_length_m": 3.5,
+            "goal_xy_m": [-0.05, -0.05],
+            "decisions": 2,
+            "last_decision_ms": 4.5,
+            "terminated_by": "",
+            "reason": "",
+            "lockstep_timeouts": 0,
+            "episode": EPISODE,
+            "map_origin": [1.0, -2.0, 0.5],
+        }
+    ],
+    "episode_result": [
+        {
+            "explored_area_m2": 10.25,
+            "coverage_pct": 99.5,
+            "traversable_area_m2": 11.0,
+            "path_length_m": 30.5,
+            "resolution_m": 0.1,
+            "scene": "generated:small:1:0",
+            "steps": 40,
+            "terminated_by": "no_frontier",
+            "decisions": 2,
+            "method": "greedy-dist",
+            "seed": -3,
+            "decision_ms": record(np.array([4.5, 1.0]), "float64"),
+            "trajectory_xy_m": record(np.array([[0.0, -0.1], [0.1, 0.0]]), "float64"),
+            "coverage_curve_pct": record(np.array([10.0, 99.5]), "float64"),
+            "explored_free": record(EXPLORED & ~OCCUPIED, "bool", "bits"),
+            "plan_free": record(EXPLORED, "bool", "bits"),
+            "final_map": map_body(40),
+            "map_origin": [1.0, -2.0, 0.5],
+            "ended_why": "2 frontier cells left: both unreachable",
+        }
+    ],
+    "service_status": [
+        {"service": "policy", "robot": "r0", "state": "running", "last_step": 12, "reason": "", "rejected": {"frontiers": 1}, "processed": 13, "counters": {"decisions": 2}}
+    ],
+    "launcher_status": [
+        {"run_id": "20261207-000000-r0", "state": "running", "services": {"policy": {"pid": 123, "process_alive": True, "command": True}}, "rejected": {}, "handler_errors": {}},
+        {
+            "run_id": "20261207-000000-r0",
+            "state": "running",
+            "services": {"policy": {"liveliness": True, "outside": True, "awaited": True}},
+            "rejected": {"episode_status": 1},
+            "handler_errors": {},
+            "last_episode": {"state": "exploring", "step": 12, "episode": EPISODE, "age_s": 0.5, "coverage_pct": 42.5},
+            "real_time_factor": 2.0,
+            "lost_router": "tcp/127.0.0.1:7447",
+            "run_dir_lost": 1,
+            "pause": {"paused": True, "by": "me@host", "reason": "lunch", "for_s": 3.0, "total_s": 3.0, "refused": ""},
+        },
+    ],
+    "explore_resume": [{"resume": False, "by": "me@host", "reason": "lunch", "stamp_s": 1.8e9}],
+}
+"""Bodies built from the docs alone, with every field the code sends (the project re-encodes them to the same)."""
+
+CASES = [(schema, i) for schema, bodies in BODIES.items() for i in range(len(bodies))]
+
+
+def test_every_schema_has_a_body_built_from_the_docs():
+    assert set(BODIES) == set(MESSAGE_TYPES)
+
+
+@pytest.mark.parametrize(("schema", "index"), CASES)
+def test_a_payload_built_by_hand_from_the_docs_decodes_and_encodes_back_to_the_same_values(schema: str, index: int):
+    """decode(hand-built) then encode: the same fields, dtypes, shapes and values when read by hand, and the boolean
+    grids the docs promise bit-packed are."""
+    body = BODIES[schema][index]
+    cls = MESSAGE_TYPES[schema]
+    msg = decode(envelope(schema, cls.VERSION, body), cls)
+    out_schema, out_version, out_body = read_payload(encode(msg))
+    assert (out_schema, out_version) == (schema, cls.VERSION)
+    assert by_hand(out_body) == by_hand(body)
+    assert bits_promised(out_body) == bits_promised(body)
+
+
+def test_the_values_decoded_are_the_ones_the_docs_describe():
+    """What a hand-built payload means to the project, field by field, in the docs' units, frames and orders."""
+    bodies = {schema: [decode(envelope(schema, MESSAGE_TYPES[schema].VERSION, b)) for b in bs] for schema, bs in BODIES.items()}
+    clock, no_arena = bodies["clock"]
+    assert isinstance(clock, ClockMsg) and isinstance(no_arena, ClockMsg)
+    assert (clock.step, clock.time_s, clock.episode, no_arena.arena) == (3, 0.75, EPISODE, None)
+    assert clock.arena is not None and clock.arena.shape == (4, 5) and (clock.arena.origin_x_m, clock.arena.origin_y_m) == (-0.2, -0.25)
+    # a cell's centre is the origin (cell (0, 0)'s corner) plus (index + 0.5) resolutions; [iy, ix], row = y
+    assert np.allclose(clock.arena.cell_to_world(2, 1), (-0.05, 0.0)) and clock.arena.world_to_cell(-0.05, 0.0) == (2, 1)
+    (scan,) = bodies["scan"]
+    assert isinstance(scan, ScanMsg) and scan.scan.ranges_m.dtype == np.float32
+    assert scan.scan.ranges_m.tolist() == [1.0, math.inf, 2.5, 8.0, 0.0625, 3.0, 4.0] and scan.sensor_pose.as_list() == [1.0, 2.0, 0.25]
+    (odom,) = bodies["odom"]
+    assert isinstance(odom, OdometryMsg) and (odom.pose.x_m, odom.pose.yaw_rad, odom.twist.linear_mps, odom.twist.angular_radps) == (0.875, 0.25, 0.2, -0.5)
+    (cmd,) = bodies["cmd_vel"]
+    assert isinstance(cmd, CmdVelMsg) and (cmd.command.linear_mps, cmd.command.angular_radps, cmd.new_goal) == (0.25, -0.5, True)
+    (m,) = bodies["map"]
+    assert isinstance(m, MapMsg) and (m.explored == EXPLORED).all() and (m.occupied == OCCUPIED).all()
+    assert m.grid.tolist()[0] == [100, 0, 0, -1, -1]  # the OccupancyGrid values, row 0 at the origin
+    keep, decision = bodies["frontiers"]
+    assert isinstance(keep, FrontiersMsg) and isinstance(decision, FrontiersMsg) and not keep.decide and keep.arrays == {}
+    assert (decision.arrays["entropy"] == ENTROPY).all() and (decision.arrays["frontier"] == FRONTIER).all()
+    (cluster,) = decision.clusters
+    assert cluster["goal_cell"] == (2, 1) and cluster["cells"].tolist() == [[0, 2], [2, 1], [2, 2], [2, 3]]
+    assert decision.path_nodes_distance_m.tolist() == [0.0, math.inf]
+    (dist,) = bodies["distance_map"]
+    assert isinstance(dist, DistanceMapMsg) and np.array_equal(dist.distance_m, DISTANCE)
+    goal, no_goal = bodies["goal"]
+    assert isinstance(goal, GoalMsg) and isinstance(no_goal, GoalMsg)
+    assert (goal.goal_xy_m, goal.cluster_index, goal.distance_m, no_goal.has_goal) == ((-0.05, 0.0), 0, 0.2, False)
+    (path,) = bodies["path"]
+    assert isinstance(path, PathMsg) and path.path_xy_m.dtype == np.float32 and path.path_xy_m.shape == (2, 2)
+    (feedback,) = bodies["planner_feedback"]
+    assert isinstance(feedback, PlannerFeedbackMsg) and (feedback.status, feedback.goal_step, feedback.episode) == ("following", 12, EPISODE)
+    (why,) = bodies["ended_why"]
+    assert isinstance(why, EndedWhyMsg) and why.why.startswith("2 frontier cells")
+    (status,) = bodies["episode_status"]
+    assert isinstance(status, EpisodeStatusMsg) and status.map_origin.as_list() == [1.0, -2.0, 0.5]
+    (result,) = bodies["episode_result"]
+    assert isinstance(result, EpisodeResultMsg) and result.final_map is not None and result.final_map.step == 40 and result.seed == -3
+    (service,) = bodies["service_status"]
+    assert isinstance(service, ServiceStatusMsg) and (service.rejected, service.counters) == ({"frontiers": 1}, {"decisions": 2})
+    _, launcher = bodies["launcher_status"]
+    assert isinstance(launcher, LauncherStatusMsg) and launcher.pause is not None and launcher.pause["paused"] and launcher.run_dir_lost == 1
+    (resume,) = bodies["explore_resume"]
+    assert isinstance(resume, ExploreResumeMsg) and not resume.resume
+
+
+def test_arrays_may_come_in_any_of_the_three_codings_and_any_documented_dtype():
+    """A sender picks ``z`` (the project compresses arrays of 4096 bytes or more, and bit-packs the boolean grids the docs
+    name): a receiver reads all three, and an integer count in any documented integer dtype."""
+    base = decision_body()
+    mask = ENTROPY != 0
+    for z in (False, True):
+        body = {**base, "masks": {"entropy": record(mask, "bool", z)}}
+        body["arrays"] = {k: record(read_record(v), v["dtype"], z) if v["z"] == "bits" else v for k, v in base["arrays"].items()}
+        for dtype in ("uint8", "uint16", "int8", "int16", "int32", "int64"):
+            body["arrays"]["entropy"] = record(ENTROPY[mask], dtype, z)
+            if dtype == "int8":
+                body["arrays"]["entropy"] = record(np.minimum(ENTROPY[mask], 127), dtype, z)
+            msg = decode(envelope("frontiers", FrontiersMsg.VERSION, body), FrontiersMsg)
+            assert (msg.arrays["explored"] == EXPLORED).all() and (msg.arrays["entropy"] != 0).sum() == 4
+    dist = BODIES["distance_map"][0]
+    for z in (True, False):
+        assert np.array_equal(decode(envelope("distance_map", 2, {**dist, "distance_m": record(DISTANCE[np.isfinite(DISTANCE)], "float64", z)}), DistanceMapMsg).distance_m, DISTANCE)
+
+
+def test_a_bit_packed_grids_padding_is_ignored_and_its_length_is_exact():
+    """``ceil(n / 8)`` packed bytes: what is in the last byte's unused bits does not matter, a byte more or less is rejected."""
+    body = map_body()
+    n = EXPLORED.size  # 20 cells: 3 bytes, 4 bits of padding
+    padded = bytearray(bits_of(EXPLORED))
+    padded[-1] |= 0xF0
+    assert (decode(envelope("map", 3, {**body, "explored": {**body["explored"], "data": zlib.compress(bytes(padded))}}), MapMsg).explored == EXPLORED).all()
+    for wrong in (bits_of(EXPLORED) + b"\0", bits_of(EXPLORED)[: (n + 7) // 8 - 1]):
+        with pytest.raises(MessageError, match="packed bytes"):
+            decode(envelope("map", 3, {**body, "explored": {**body["explored"], "data": zlib.compress(wrong)}}), MapMsg)
+
+
+def rejected(schema: str, body: Any, version: int | None = None, **envelope_extra: Any) -> bool:
+    v = MESSAGE_TYPES[schema].VERSION if version is None else version
+    payload = msgpack.packb({"schema": schema, "v": v, "body": body, **envelope_extra}, use_bin_type=True)
+    try:
+        decode(payload, MESSAGE_TYPES[schema])
+    except MessageError:
+        return True
+    return False
+
+
+def changed(body: dict[str, Any], path: str, value: Any) -> dict[str, Any]:
+    """``body`` with the field at the dotted ``path`` set to ``value`` (deleted when ``value`` is ``DELETE``)."""
+    head, _, rest = path.partition(".")
+    out = dict(body)
+    if rest:
+        out[head] = changed(body[head], rest, value)
+    elif value is DELETE:
+        del out[head]
+    else:
+        out[head] = value
+    return out
+
+
+DELETE = object()
+
+
+@pytest.mark.parametrize(
+    ("schema", "index", "path", "value"),
+    [
+        # the envelope's rules are tested below; a body's: a missing field, an integer sent as a float, NaN, inf
+        ("odom", 0, "step", DELETE),
+        ("odom", 0, "step", 3.0),
+        ("odom", 0, "step", -1),
+        ("odom", 0, "stamp_s", math.nan),
+        ("odom", 0, "pose", [math.inf, 0.0, 0.0]),
+        ("odom", 0, "pose", [0.0, 0.0, 11.0]),  # yaw beyond +-10 rad
+        ("cmd_vel", 0, "linear_mps", 101.0),
+        ("cmd_vel", 0, "new_goal", 1),  # a boolean is msgpack true/false, not 1
+        ("scan", 0, "ranges_m", record(np.array([1.0, math.nan]), "float32")),  # NaN: no return is inf, not NaN
+        ("scan", 0, "ranges_m", record(np.array([1.0, -1.0]), "float32")),
+        ("scan", 0, "angle_increment_rad", -0.5),  # beams go counter-clockwise
+        ("scan", 0, "range_min_m", 8.0),  # range_min_m < range_max_m
+        ("map", 0, "occupied", record(~EXPLORED, "bool", "bits")),  # only explored cells can be occupied
+        ("map", 0, "explored", record(EXPLORED[:, :4], "bool", "bits")),  # the geometry's shape
+        ("map", 0, "explored", record(EXPLORED, "uint8", True)),  # a grid's dtype is bool
+        ("map", 0, "explored", {**record(EXPLORED, "bool", "bits"), "data": "text"}),  # data is msgpack bin, not str
+        ("map", 0, "explored", {**record(EXPLORED, "bool", "bits"), "extra": 1}),  # a record has exactly its four fields
+        ("map", 0, "explored", {**record(EXPLORED, "bool", "bits"), "data": zlib.compress(bits_of(EXPLORED), wbits=-15)}),  # raw deflate
+        ("map", 0, "explored", {**record(EXPLORED, "bool", "bits"), "data": zlib.compress(bits_of(EXPLORED), wbits=31)}),  # gzip
+        ("map", 0, "geometry.shape", [4, 0]),
+        ("map", 0, "geometry.resolution_m", 0.0),
+        ("path", 0, "path_xy_m", record(np.zeros((2, 2)), "uint32")),  # not a documented dtype
+        ("path", 0, "path_xy_m", record(np.zeros((2, 3)), "float32")),
+        ("path", 0, "path_xy_m", record(np.array([[0.0, math.inf]]), "float32")),  # inf only where it means no return or unreachable
+        ("distance_map", 0, "distance_m", record(np.full(int(np.isfinite(DISTANCE).sum()), math.inf), "float64")),  # the finite values only
+        ("distance_map", 0, "distance_m", record(DISTANCE[np.isfinite(DISTANCE)], "float32")),  # float64
+        ("distance_map", 0, "distance_m", record(DISTANCE[np.isfinite(DISTANCE)][:-1], "float64")),  # one value per set cell
+        ("frontiers", 1, "clusters", [{**decision_body()["clusters"][0], "extra": 1}]),  # a cluster has exactly its fields
+        ("frontiers", 1, "arrays.entropy", record(np.array([3, 7, 250, 1]), "float64")),  # counts are integers
+        ("frontiers", 1, "arrays.extra", record(EXPLORED, "bool", "bits")),  # arrays has exactly its five grids
+        ("frontiers", 1, "path_nodes_distance_m", record(np.array([0.0, -1.0]), "float64")),
+        ("goal", 0, "goal", [1.0, 2.0, 0]),
+        ("planner_feedback", 0, "status", "lost"),
+        ("episode_status", 0, "state", "paused"),
+        ("service_status", 0, "state", "idle"),
+        ("service_status", 0, "counters", {"decisions": -1}),
+    ],
+)
+def test_what_the_docs_say_a_receiver_rejects_is_rejected(schema: str, index: int, path: str, value: Any):
+    body = BODIES[schema][index]
+    assert not rejected(schema, body)
+    assert rejected(schema, changed(body, path, value))
+
+
+def test_the_envelope_is_exactly_schema_v_and_body_of_the_current_version():
+    body = BODIES["odom"][0]
+    assert not rejected("odom", body)
+    assert rejected("odom", body, version=OdometryMsg.VERSION + 1)
+    assert rejected("odom", body, version=1)  # an older version is for the offline tools only
+    assert rejected("odom", body, version=True)
+    assert rejected("odom", body, extra=1)
+    with pytest.raises(MessageError, match="expected schema 'goal'"):
+        decode(envelope("odom", OdometryMsg.VERSION, body), GoalMsg)  # another schema on a key
+    single = msgpack.packb({"schema": "odom", "v": OdometryMsg.VERSION, "body": body}, use_bin_type=True, use_single_float=True)
+    assert decode(single, OdometryMsg).pose.x_m == 0.875  # a number packed as a msgpack float32 is a number too
+    # a body field the schema does not have is ignored (a newer sender's), an absent optional one is its default
+    assert decode(envelope("odom", OdometryMsg.VERSION, {**body, "covariance": [1.0]}), OdometryMsg).step == 3
+    result = {k: v for k, v in BODIES["episode_result"][0].items() if k != "ended_why"}
+    assert decode(envelope("episode_result", EpisodeResultMsg.VERSION, result), EpisodeResultMsg).ended_why == ""
+
+
+def test_the_project_sends_the_documented_dtypes_and_bit_packed_grids():
+    """Messages the services build (not re-encoded hand bodies), read by hand: the dtypes the docs' table names."""
+    from tests.test_messages import _observation  # a real Observation
+
+    obs = _observation()
+    from cso_runtime.messages import frontiers_from_observation
+
+    decision = read_payload(encode(frontiers_from_observation(5, "no_goal", obs, 2.0, EPISODE)))[2]
+    arrays = {k: read_record(v) for k, v in decision["arrays"].items()}
+    mask = read_record(decision["masks"]["entropy"])
+    assert {k: decision["arrays"][k]["z"] for k in ("explored", "occupied", "traversable", "frontier")} == dict.fromkeys(("explored", "occupied", "traversable", "frontier"), "bits")
+    assert decision["masks"]["entropy"]["z"] == "bits" and decision["arrays"]["entropy"]["dtype"] in ("uint8", "uint16", "int32")
+    entropy = np.zeros(mask.shape, np.int64)
+    entropy[mask] = arrays["entropy"]
+    assert np.array_equal(entropy, obs.entropy) and np.array_equal(arrays["traversable"], obs.traversable)
+    assert decision["path_nodes_distance_m"]["dtype"] == decision["path_nodes_xy_m"]["dtype"] == "float64"
+    distance = read_payload(encode(DistanceMapMsg(5, obs.geometry, obs.pose, obs.distance_m, EPISODE)))[2]
+    finite = read_record(distance["finite"])
+    d = np.full(finite.shape, np.inf)
+    d[finite] = read_record(distance["distance_m"])
+    assert distance["distance_m"]["dtype"] == "float64" and np.array_equal(d, obs.distance_m)
+    m = read_payload(encode(MapMsg.of(5, _map_of(obs), EPISODE)))[2]
+    assert m["explored"]["z"] == m["occupied"]["z"] == "bits" and np.array_equal(read_record(m["explored"]), obs.explored)
+    scan = read_payload(encode(ScanMsg(1, _scan_of(), obs.pose, EPISODE)))[2]
+    assert scan["ranges_m"]["dtype"] == "float32" and scan["ranges_m"]["z"] is False
+    path = read_payload(encode(PathMsg(1, np.zeros((3, 2)))))[2]
+    assert path["path_xy_m"]["dtype"] == "float32" and read_record(path["path_xy_m"]).shape == (3, 2)
+    feedback = read_payload(encode(PlannerFeedbackMsg(1, "idle", "command")))[2]
+    assert feedback["path_ahead_xy_m"]["dtype"] == "float64" and read_record(feedback["path_ahead_xy_m"]).shape == (0, 2)
+
+
+def _map_of(obs: Any) -> Any:
+    from cso_runtime.occupancy import OccupancyMap
+
+    return OccupancyMap.from_masks(obs.explored, obs.occupied & obs.explored, obs.geometry)
+
+
+def _scan_of() -> Any:
+    from cso_runtime.geometry import LaserScan
+
+    return LaserScan(-1.5, 0.5, 0.1, 8.0, np.array([1.0, np.inf], np.float32), 0.25)
+
+
+# --- the docs' table names every field ------------------------------------------------------------
+
+
+def table_rows() -> dict[str, tuple[str, str]]:
+    """Key suffix -> (schema, body cell) of the key table in docs/messages.md."""
+    return {key: (cells[1].strip("`"), " | ".join(cells[4:])) for key, cells in docs_table().items()}
+
+
+DYNAMIC_KEYS = {"rejected", "counters", "handler_errors", "services"}
+"""Fields whose keys are names (topics, counters, services), not field names; their entries' fields are checked."""
+
+
+def field_names(body: dict[str, Any]) -> set[str]:
+    """Every field name of a body, nested ones too, but not those inside array records."""
+    names: set[str] = set()
+    for k, v in body.items():
+        names.add(k)
+        if is_record(v):
+            continue
+        if k in DYNAMIC_KEYS and isinstance(v, dict):
+            for entry in v.values():
+                if isinstance(entry, dict):
+                    names |= field_names(entry)
+        elif isinstance(v, dict) and k not in ("final_map", "geometry"):  # a map body, and the clock's geometry (its row)
+            names |= field_names(v)
+        elif isinstance(v, list):
+            for item in v:
+                if isinstance(item, dict):
+                    names |= field_names(item)
+    return names
+
+
+@pytest.mark.parametrize("schema", sorted(MESSAGE_TYPES))
+def test_the_docs_table_names_every_field_the_code_sends(schema: str):
+    """Each field of each body (every field the code sends: ``BODIES`` re-encode to themselves) is in the docs' row of
+    the schema's key: the top-level ones quoted as `name`, the nested ones by name."""
+    rows = {s: cell for s, cell in reversed(list(table_rows().values()))}  # the first row of each schema
+    assert schema in rows, f"docs/messages.md has no row with schema {schema}"
+    cell = rows[schema]
+    for body in BODIES[schema]:
+        top = set(body)
+        missing_top = {k for k in top if f"`{k}`" not in cell}
+        missing_nested = {k for k in field_names(body) - top if not re.search(rf"\b{k}\b", cell)}
+        assert not missing_top and not missing_nested, (schema, missing_top, missing_nested)
+
+
+def test_the_docs_table_gives_each_key_the_schema_its_publishers_send():
+    """tests/test_dataflow.py holds the table's publishers and subscribers to the services' declarations; this, its
+    schema column, and the keys of the queryables and tokens that no service declares as an output."""
+    from services import SERVICE_NAMES, service_class
+
+    rows = table_rows()
+    sent = {TOPICS[topic]: cls.SCHEMA for name in SERVICE_NAMES for topic, cls in service_class(name).outputs.items()}
+    assert {key: rows[key][0] for key in sent} == sent
+    keys = RobotKeys("r0")
+    for key, schema, full in [
+        ("service/<name>/status", "service_status", keys.service_status("<name>")),
+        ("launcher/status", "launcher_status", keys.launcher_status),
+        ("cache/map", "map", keys.cache("map")),
+        ("cache/goal", "goal", keys.cache("goal")),
+        ("alive/<name>", "liveliness token", keys.alive("<name>")),
+    ]:
+        assert rows[key][0] == schema and full == f"cso/r0/{key}", (key, rows[key][0], full)
+
