@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import re
 import zlib
+from pathlib import Path
 from typing import Any
 
 import msgpack
@@ -595,3 +596,50 @@ def test_the_docs_table_gives_each_key_the_schema_its_publishers_send():
     ]:
         assert rows[key][0] == schema and full == f"cso/r0/{key}", (key, rows[key][0], full)
 
+
+# --- a node written from the docs alone, in a real run ---------------------------------------------
+
+POLICY_NODE = Path(__file__).resolve().parent / "command_policy_example.py"
+
+
+def test_a_policy_written_from_the_docs_alone_stands_in_for_the_builtin_one_step_for_step(tmp_path: Path):
+    """The lockstep profile on the small scene with its policy replaced by tests/command_policy_example.py (only Zenoh,
+    msgpack and docs/messages.md): the episode is the in-process greedy-dist one step for step, and ``status`` shows
+    the node's own status answer (its state and counts) besides its pid."""
+    import json
+    import sys
+
+    import yaml
+
+    from tests.test_own_service import up_from_this_checkout
+    from tests.test_runtime import PROFILES, SCENE, cli, in_process_result, kill_leftovers, wait_for
+
+    section = {"command": [sys.executable, str(POLICY_NODE)], "inputs": ["frontiers"], "outputs": ["goal"], "alive_token": True}
+    data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
+    data["scene"], data["method"] = SCENE, "greedy-dist"
+    data["services"]["policy"] = section
+    data["services"]["sim"]["min_step_period_s"] = 0.1  # time to ask for the status while the episode runs
+    data["supervision"] = {**(data.get("supervision") or {}), "stop_timeout_s": 1.0}
+    profile, runs = tmp_path / "foreign.yaml", tmp_path / "runs"
+    profile.write_text(yaml.safe_dump(data))
+    try:
+        r = up_from_this_checkout("--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0, r.stderr
+        run_dir = Path(json.loads((runs / "current.json").read_text())["run_dir"])
+
+        def policy_row() -> dict[str, Any] | None:
+            r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+            row = json.loads(r.stdout)["services"].get("policy") if r.returncode == 0 else None
+            return row if row and row.get("counters", {}).get("decisions") else None
+
+        row = wait_for(policy_row, 60, "the node's first decision in its status")
+        assert row["command"] and row["alive"] and row["state"] == "running" and row["processed"] >= 1, row
+        wait_for(lambda: (run_dir / "summary.json").exists(), 90, "the episode's results")
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []
+    expected = in_process_result(SCENE)
+    metrics = json.loads((run_dir / "summary.json").read_text())["methods"]["greedy-dist"]
+    assert metrics["steps"] == expected.steps and metrics["terminated_by"] == {expected.terminated_by: 1}, metrics
+    log = (run_dir / "logs" / "policy.log").read_text()
+    assert "policy: deciding for cso/r0" in log and "policy: stopped" in log, log
