@@ -281,14 +281,17 @@ BODIES: dict[str, list[dict[str, Any]]] = {
         {"service": "policy", "robot": "r0", "state": "running", "last_step": 12, "reason": "", "rejected": {"frontiers": 1}, "processed": 13, "counters": {"decisions": 2}}
     ],
     "launcher_status": [
-        {"run_id": "20261207-000000-r0", "state": "running", "services": {"policy": {"pid": 123, "process_alive": True, "command": True}}, "rejected": {}, "handler_errors": {}},
+        {"run_id": "20261207-000000-r0", "state": "running", "services": {"policy": {"pid": 123, "process_alive": True, "command": True, "restarts": 1, "gave_up": False, "hung_kills": 0, "robot_stops": 0}}, "rejected": {}, "handler_errors": {}},
         {
             "run_id": "20261207-000000-r0",
             "state": "running",
             "services": {"policy": {"liveliness": True, "outside": True, "awaited": True}},
             "rejected": {"episode_status": 1},
             "handler_errors": {},
-            "last_episode": {"state": "exploring", "step": 12, "episode": EPISODE, "age_s": 0.5, "coverage_pct": 42.5},
+            "last_episode": {
+                "state": "exploring", "step": 12, "episode": EPISODE, "age_s": 0.5, "terminated_by": "", "scene": "s", "method": "m",
+                "coverage_pct": 42.5, "explored_area_m2": 10.25, "path_length_m": 3.5, "decisions": 2, "reason": "",
+            },
             "real_time_factor": 2.0,
             "lost_router": "tcp/127.0.0.1:7447",
             "run_dir_lost": 1,
