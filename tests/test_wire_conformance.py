@@ -626,7 +626,7 @@ def test_a_policy_written_from_the_docs_alone_stands_in_for_the_builtin_one_step
     profile, runs = tmp_path / "foreign.yaml", tmp_path / "runs"
     profile.write_text(yaml.safe_dump(data))
     try:
-        r = up_from_this_checkout("--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        r = up_from_this_checkout("--profile", str(profile), "--detach", "--record", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stderr
         run_dir = Path(json.loads((runs / "current.json").read_text())["run_dir"])
 
@@ -646,3 +646,33 @@ def test_a_policy_written_from_the_docs_alone_stands_in_for_the_builtin_one_step
     assert metrics["steps"] == expected.steps and metrics["terminated_by"] == {expected.terminated_by: 1}, metrics
     log = (run_dir / "logs" / "policy.log").read_text()
     assert "policy: deciding for cso/r0" in log and "policy: stopped" in log, log
+    # What a strict receiver gets on the wire: every payload of the run decodes by hand, its integer fields (steps,
+    # counts, indices, ids, shapes) msgpack integers and every other number a msgpack float (the docs: float64 is sent).
+    from cso_runtime.recording import read_recording
+
+    schemas = set()
+    for recorded in read_recording(run_dir / "recording.mcap"):
+        schema, version, body = read_payload(recorded.payload)
+        assert version == MESSAGE_TYPES[schema].VERSION
+        schemas.add(schema)
+        for path, value in numbers_of(body):
+            assert isinstance(value, int) == (path.rsplit(".", 1)[-1] in INTEGER_FIELDS), (schema, path, value)
+    assert {"scan", "odom", "clock", "map", "frontiers", "distance_map", "goal", "cmd_vel", "planner_feedback", "path"} <= schemas
+
+
+INTEGER_FIELDS = {"step", "episode", "decisions", "lockstep_timeouts", "goal_step", "steps", "seed", "goal_cell", "shape", "goal[2]"}
+"""The integer fields of the bodies a run publishes (by their last name; ``goal[2]``: a goal's cluster index)."""
+
+
+def numbers_of(value: Any, path: str = "") -> list[tuple[str, int | float]]:
+    """(path, number) of every number of a body outside its array records; a list's items are named as the list
+    (``.geometry.shape``, ``.clusters.goal_cell``, a pose), but a goal's by their place (``.goal[2]``: its cluster index)."""
+    if is_record(value):
+        return []
+    if isinstance(value, dict):
+        return [n for k, v in value.items() for n in numbers_of(v, f"{path}.{k}")]
+    if isinstance(value, list):
+        return [n for i, v in enumerate(value) for n in numbers_of(v, f"{path}[{i}]" if path.endswith(".goal") else path)]
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return [(path, value)]
+    return []
