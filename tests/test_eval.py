@@ -2002,6 +2002,31 @@ def test_an_eval_on_a_file_system_without_locks_runs_and_says_it_holds_no_lock(t
     assert another_evals.is_file()  # only an eval holding the lock removes the partial files it finds
 
 
+def test_eval_removes_only_the_partial_files_of_its_own_files_whose_writer_is_gone(tmp_path: Path):
+    """The clean-up removed every ``.<name>.<pid>.partial`` in ``--out``: a ``train`` into the same folder (another lock)
+    or a tool of one's own lost the file it was writing, and a live process's too. Now only the partial files of eval's
+    own files whose writer runs no more go; a live writer's and another command's stay."""
+    import sys
+
+    from tests.conftest import exited_pid, process_group
+
+    out = tmp_path / "o"
+    request = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=out, max_steps=6)
+    run_eval(request)
+    folder = out / "episodes" / "greedy-dist"
+    with process_group([sys.executable, "-c", "import time; time.sleep(60)"]) as live:
+        dead = exited_pid()
+        kept = [out / f".summary.json.{live.pid}.partial", folder / f".gen_small_0.npz.{live.pid}.partial",  # being written
+                out / f".cso.pt.{dead}.partial", out / f".notes.txt.{dead}.partial", folder / f".gen_small_0.csv.{dead}.partial"]  # not eval's
+        removed = [out / f".summary.json.{dead}.partial", out / f".report.html.{dead}.partial", folder / f".gen_small_0.npz.{dead}.partial"]
+        for path in kept + removed:
+            path.write_bytes(b"PK\x03\x04 half written")
+        summary = run_eval(dataclasses.replace(request, resume=True))
+        assert summary["meta"]["resumed_episodes"] == 1
+        assert [path.name for path in kept if not path.exists()] == []
+        assert [path.name for path in removed if path.exists()] == []
+
+
 def test_resume_runs_again_an_episode_whose_file_is_cut_short(tmp_path: Path):
     """An episode file cut short or empty (an interrupted copy of a results folder, a full disk, a file system without
     atomic renames) stopped ``eval --resume`` with a BadZipFile traceback; it is no result: it runs again, the others

@@ -2372,7 +2372,10 @@ def test_train_removes_the_partial_files_a_killed_train_left(tmp_path):
     common = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 20, "progress": False, "out_dir": str(tmp_path)}
 
     def left_by_a_kill() -> list[Path]:
-        stale = [tmp_path / ".cso.pt.4242.partial", tmp_path / ".checkpoint.pt.4242.partial", tmp_path / "checkpoints" / "update_0001" / ".cso.json.4242.partial"]
+        from tests.conftest import exited_pid
+
+        dead = exited_pid()  # a kill's: its writer runs no more (a live one's are being written, and stay)
+        stale = [tmp_path / f".cso.pt.{dead}.partial", tmp_path / f".checkpoint.pt.{dead}.partial", tmp_path / "checkpoints" / "update_0001" / f".cso.json.{dead}.partial"]
         for path in stale:
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(b"PK\x03\x04 cut short by kill -9")
