@@ -2125,6 +2125,40 @@ def test_a_2d_episode_run_at_another_width_before_the_disc_followed_it_is_anothe
     assert settings_fingerprint(limo, "2d", sim_settings=simulator_settings("2d", limo.sensor, limo.robot)) == settings_fingerprint(limo, "2d")
 
 
+def test_a_mujoco_default_an_upgrade_changes_makes_the_episodes_before_it_another_configuration(tmp_path: Path, monkeypatch):
+    """The fingerprint counted only the keys a ``--sim-config`` file set: after an upgrade that changed a default of the
+    MuJoCo LIMO (its wall friction, its physics step), ``--resume`` kept the episodes run before it under a summary
+    that says the new value. Now the LIMO's settings count where they differ from the defaults episodes ran with before
+    they counted, and the refusal names the setting; the episodes of earlier versions keep their fingerprints."""
+    from cso_runtime import simulator
+    from cso_runtime.evaluation import settings_fingerprint
+    from cso_runtime.simulator import simulator_settings
+
+    req = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path, max_steps=4, sim="mujoco", resume=True)
+    run_eval(req)
+    earlier = simulator.mujoco_config
+
+    def upgraded(overrides, *args, **kwargs):  # a version whose LIMO slides along walls otherwise by default
+        return earlier({"wall_friction": 0.6, **(overrides or {})}, *args, **kwargs)
+
+    with monkeypatch.context() as upgrade:
+        upgrade.setattr(simulator, "mujoco_config", upgraded)
+        with pytest.raises(ConfigError, match=r"its summary.json differs in sim_settings.wall_friction: 0.3 there, 0.6 here"):
+            run_eval(req)
+    assert run_eval(req)["meta"]["resumed_episodes"] == 1  # the version that wrote them goes on with them
+    # Fingerprints of the settings that counted before (the --sim-config file's keys, the config's mount) are unchanged.
+    for params, settings in (({}, {}), ({"odom_trans_noise_frac": 0.05}, {}), ({"timestep_s": 0.0025}, {}), ({}, {"sensor.mount_x_m": 0.2})):
+        config = dataclasses.replace(req, settings=settings).exploration_config()
+        ran_with = simulator_settings("mujoco", config.sensor, config.robot, params)
+        assert settings_fingerprint(config, "mujoco", mujoco=params, sim_settings=ran_with) == settings_fingerprint(config, "mujoco", mujoco=params)
+    # The file's keys count as it gives them: one that sets a default is refused too, and the refusal says so (it said
+    # that no setting differed).
+    default_step = tmp_path / "limo.yaml"
+    default_step.write_text("timestep_s: 0.005\n")
+    with pytest.raises(ConfigError, match=r"its summary.json differs in --sim-config timestep_s: not set there, 0.005 here\)"):
+        run_eval(dataclasses.replace(req, sim_config_path=default_step))
+
+
 def test_an_eval_that_ended_in_the_folder_after_the_plan_was_checked_is_refused_under_the_lock(tmp_path: Path):
     """``plan_eval`` checks ``--out`` before the lock is taken: an eval of another configuration that finishes into it
     in between must still be refused once this one holds the lock, not written over."""
