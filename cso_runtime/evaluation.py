@@ -97,6 +97,7 @@ from cso_runtime.policies import (
     weights_held_said,
 )
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
+from cso_runtime.provenance import software_provenance
 from cso_runtime.report import (
     CI95_SUFFIX,
     MEANS_NOTE,
@@ -1189,6 +1190,7 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
     meta = {
         "command": "cso-runtime eval",
         "version": __version__,  # which code made the table
+        "software": software_provenance(),  # its checkout's commit, Python and libraries, the command line
         "maps": request.maps,
         # The flag's scale of PNG plans; null where none ran (generated plans and map files: their own, in cell_sizes_m).
         "m_per_px": request.m_per_px if any(ref.scaled_by_m_per_px for ref in scenes) else None,
