@@ -689,10 +689,10 @@ def configuration_changes(
         there.update(_flat({"sim_settings": earlier["sim_settings"]}))
         here.update(_flat({"sim_settings": sim_settings}))
     elif same_sim:  # a version before meta.sim_settings: those that count in the fingerprint are new there
-        here.update(_flat({"sim_settings": sim_settings_counted(request.sim, sim_settings)}))
+        here.update(_flat({"sim_settings": sim_settings_counted(request.sim, sim_settings, mujoco)}))
     there.update({f"weights of {m}": w.get("sha256", "")[:12] for m, w in (earlier.get("weights") or {}).items() if isinstance(w, dict)})
     here.update({f"weights of {m}": w["sha256"][:12] for m, w in weights.items()})
-    counted_sim = {f"sim_settings.{k}" for k in sim_settings_counted(request.sim, sim_settings)}
+    counted_sim = {f"sim_settings.{k}" for k in sim_settings_counted(request.sim, sim_settings, mujoco)}
     changes = []
     for key, value in here.items():
         if key in there:
