@@ -107,3 +107,12 @@ def test_the_readme_names_every_key_of_the_software_record():
     rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
     keys = ["software", "git_commit", "git_modified", "command_line", *software_provenance(), *software_provenance()["packages"]]
     assert [k for k in keys if f"`{k}`" not in rows["`summary.json`"] and k not in rows["`summary.json`"]] == []
+
+
+def test_the_report_header_names_the_commit_that_made_the_table():
+    """report.html's header line said the package version only: two checkouts of one version made different tables."""
+    from cso_runtime.report import run_settings_text
+
+    meta = {"command": "cso-runtime eval", "version": "0.1.0", "software": {"git_commit": "0123456789abcdef0123", "git_modified": True}, "seed": 0}
+    assert run_settings_text(meta).startswith("command: cso-runtime eval, version: 0.1.0, commit: 0123456789ab (modified), seed: 0")
+    assert "commit" not in run_settings_text({**meta, "software": {"version": "0.1.0"}})  # an installed package: none
