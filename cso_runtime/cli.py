@@ -185,9 +185,9 @@ def interrupt_on_sigterm(wait_on_second: bool = False) -> None:
 
 def _print_version(value: bool) -> None:
     if value:
-        from cso_runtime import __version__  # noqa: PLC0415
+        from cso_runtime.provenance import version_lines  # noqa: PLC0415
 
-        typer.echo(f"cso-runtime {__version__}")
+        typer.echo(version_lines())
         raise typer.Exit(0)
 
 
@@ -1336,7 +1336,10 @@ def main() -> None:
     """The ``cso-runtime`` script's entry point: a Ctrl-C before any command handles it exits 130 with one line; every
     output whose reader left (a command's, ``--help``'s) ends as a shell tool does, with exit 141."""
     try:
+        from cso_runtime.provenance import record_command_line  # noqa: PLC0415
         from cso_runtime.reader_gone import ends_quietly_when_its_reader_leaves  # noqa: PLC0415
+
+        record_command_line(["cso-runtime", *sys.argv[1:]])  # what the results files it writes record (software_provenance)
 
         with ends_quietly_when_its_reader_leaves():
             app(prog_name="cso-runtime")  # one name (and completion variable) for the script and python -m cso_runtime.cli

@@ -97,6 +97,7 @@ from cso_runtime.policies import (
     weights_held_said,
 )
 from cso_runtime.processes import WorkerDied, run_each_in_own_process, terminate_workers, worker_init
+from cso_runtime.provenance import software_provenance
 from cso_runtime.report import (
     CI95_SUFFIX,
     MEANS_NOTE,
@@ -314,11 +315,25 @@ the value that does what the versions before it did: at that value a key counts 
 difference, so an upgrade that adds it keeps a sweep's episodes for ``--resume``. A key added without one here (its
 earlier behaviour is not one value of it) makes every earlier episode another configuration, its refusal naming it."""
 
-SIM_SETTINGS_BEFORE_FINGERPRINTED: dict[str, dict[str, Any]] = {"2d": {"collision_radius_m": 0.12, "substeps": 5}}
+SIM_SETTINGS_BEFORE_FINGERPRINTED: dict[str, dict[str, Any]] = {
+    "2d": {"collision_radius_m": 0.12, "substeps": 5},
+    "mujoco": {
+        "timestep_s": 0.005, "watchdog_s": 0.5, "max_linear_accel_mps2": 2.0, "max_angular_accel_radps2": 3.0, "actuator_time_constant_s": 0.02,
+        "traction_force_n": 38.0, "yaw_torque_nm": 6.0, "wall_friction": 0.3, "contact_time_constant_s": 0.01, "wall_height_m": 1.0,
+        "walls_boundary_only": False, "mass_kg": 4.8, "body_height_m": 0.251, "wheelbase_m": 0.2, "track_m": 0.175, "wheel_radius_m": 0.045,
+        "lidar_height_m": 0.2, "odometry_rate_hz": 40.0, "odom_trans_noise_frac": 0.0, "odom_rot_noise_frac": 0.0, "odom_rot_per_trans_noise_radpm": 0.0,
+    },
+}  # fmt: skip
 """What each simulator ran with in the episodes written before the fingerprint took in its settings (``simulator_settings``):
-the 2D simulator's fixed 0.12 m disc (before it followed ``robot.width_m``) and its substeps. A setting counts where it
-differs from these, so those episodes keep their fingerprints and one run at another disc does not. MuJoCo's are none:
-they follow from its parameters, the sensor and the robot, which count already."""
+the 2D simulator's fixed 0.12 m disc (before it followed ``robot.width_m``) and its substeps; the MuJoCo LIMO's defaults
+(``robot_sim.MujocoSimConfig``), written out here so that an upgrade that changes one makes the episodes run before it
+another configuration (the fingerprint had counted only the keys a ``--sim-config`` file set). A setting counts where it
+differs from these, so those episodes keep their fingerprints and one run otherwise does not; a setting that is not here
+(one a later version adds) counts always."""
+
+SIM_SETTINGS_COUNTED_ELSEWHERE = frozenset({"lidar_mount_x_m"})
+"""Simulator settings that follow from the exploration config, which counts already: where the MuJoCo LIMO's rays are
+cast from is the sensor's ``mount_x_m``."""
 
 
 def _same_value(a: Any, b: Any) -> bool:
@@ -344,13 +359,16 @@ def _without_keys_as_before(tree: dict[str, Any], prefix: str = "") -> dict[str,
     return kept
 
 
-def sim_settings_counted(sim: str, sim_settings: dict[str, Any] | None) -> dict[str, Any]:
+def sim_settings_counted(sim: str, sim_settings: dict[str, Any] | None, mujoco: dict[str, Any] | None = None) -> dict[str, Any]:
     """The simulator settings that count in the fingerprint: those that differ from what the episodes written before
-    they counted ran with (``SIM_SETTINGS_BEFORE_FINGERPRINTED``)."""
+    they counted ran with (``SIM_SETTINGS_BEFORE_FINGERPRINTED``), less those that count otherwise: the keys of the
+    ``--sim-config`` file ``mujoco`` (counted as the file gives them, as before) and those of the config
+    (``SIM_SETTINGS_COUNTED_ELSEWHERE``)."""
     before = SIM_SETTINGS_BEFORE_FINGERPRINTED.get(sim)
     if before is None or not sim_settings:
         return {}
-    return {k: v for k, v in sim_settings.items() if k not in before or not _same_value(before[k], v)}
+    elsewhere = SIM_SETTINGS_COUNTED_ELSEWHERE | set(mujoco or {})
+    return {k: v for k, v in sim_settings.items() if k not in elsewhere and (k not in before or not _same_value(before[k], v))}
 
 
 def settings_fingerprint(
@@ -371,7 +389,7 @@ def settings_fingerprint(
         fields["mujoco"] = mujoco
     if code_sha256:
         fields["code"] = code_sha256
-    if counted := sim_settings_counted(sim, sim_settings):
+    if counted := sim_settings_counted(sim, sim_settings, mujoco):
         fields["sim_settings"] = counted
     text = json.dumps(fields, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -645,13 +663,20 @@ def _earlier_meta(out_dir: Path) -> dict[str, Any] | None:
 
 
 def configuration_changes(
-    out_dir: Path, request: EvalRequest, config: ExplorationConfig, sim_settings: dict[str, Any], weights: dict[str, dict[str, Any]]
+    out_dir: Path,
+    request: EvalRequest,
+    config: ExplorationConfig,
+    sim_settings: dict[str, Any],
+    weights: dict[str, dict[str, Any]],
+    mujoco: dict[str, Any] | None = None,
 ) -> list[str]:
     """What this run sets otherwise than the earlier run whose ``summary.json`` is in ``out_dir`` (``KEY: THERE there,
     HERE here``, dotted as ``--set`` takes them; the simulator's as ``sim_settings.KEY``, a learned method's weights by
     their sha256), and the keys one side has alone (another version's: ``key K: not recorded there (added in a later
     version), D here``) unless at what the versions before them did (they count in no fingerprint:
-    ``CONFIG_KEYS_ADDED``, ``SIM_SETTINGS_BEFORE_FINGERPRINTED``); [] when it has none to compare, or none differs."""
+    ``CONFIG_KEYS_ADDED``, ``SIM_SETTINGS_BEFORE_FINGERPRINTED``); last, the keys the ``--sim-config`` files set
+    otherwise (``mujoco``, its keys here; the fingerprint counts them as the file gives them) where the settings they
+    give do not differ (a file that sets a default, no file); [] when it has none to compare, or none differs."""
     earlier = _earlier_meta(out_dir)
     if earlier is None:
         return []
@@ -664,10 +689,10 @@ def configuration_changes(
         there.update(_flat({"sim_settings": earlier["sim_settings"]}))
         here.update(_flat({"sim_settings": sim_settings}))
     elif same_sim:  # a version before meta.sim_settings: those that count in the fingerprint are new there
-        here.update(_flat({"sim_settings": sim_settings_counted(request.sim, sim_settings)}))
+        here.update(_flat({"sim_settings": sim_settings_counted(request.sim, sim_settings, mujoco)}))
     there.update({f"weights of {m}": w.get("sha256", "")[:12] for m, w in (earlier.get("weights") or {}).items() if isinstance(w, dict)})
     here.update({f"weights of {m}": w["sha256"][:12] for m, w in weights.items()})
-    counted_sim = {f"sim_settings.{k}" for k in sim_settings_counted(request.sim, sim_settings)}
+    counted_sim = {f"sim_settings.{k}" for k in sim_settings_counted(request.sim, sim_settings, mujoco)}
     changes = []
     for key, value in here.items():
         if key in there:
@@ -676,7 +701,24 @@ def configuration_changes(
         elif not key.startswith("weights of ") and not as_before(key, value) and (not key.startswith("sim_settings.") or key in counted_sim):
             changes.append(f"key {key}: not recorded there (added in a later version), {value} here")
     changes += [f"key {key}: {there[key]} there, not in this version" for key in there if key not in here and not key.startswith("weights of ")]
+    if same_sim:
+        changes += sim_config_keys_changed((earlier.get("mujoco") or {}).get("parameters") or {}, mujoco or {}, changes)
     return changes
+
+
+def sim_config_keys_changed(there: dict[str, Any], here: dict[str, Any], changes: list[str]) -> list[str]:
+    """The keys the ``--sim-config`` file of an earlier run (``there``: its ``meta.mujoco.parameters``) and this one's
+    (``here``) set otherwise, each unless ``changes`` names its setting already (``sim_settings.KEY``)."""
+    named = {change.split(":", 1)[0].removeprefix("key ") for change in changes}
+
+    def given(params: dict[str, Any], key: str) -> str:
+        return f"{params[key]}" if key in params else "not set"
+
+    return [
+        f"--sim-config {key}: {given(there, key)} there, {given(here, key)} here"
+        for key in sorted(set(there) | set(here))
+        if f"sim_settings.{key}" not in named and (key not in there or key not in here or not _same_value(there[key], here[key]))
+    ]
 
 
 def another_configuration_said(out_dir: Path, others: list[EpisodeJob], changes: list[str], unrecorded: int = 0, another_plan: int = 0) -> str:
@@ -715,7 +757,7 @@ def refuse_another_configuration(request: EvalRequest, plan: EvalPlan) -> None:
     if request.overwrite or not (others := episodes_of_another_configuration(plan.jobs, plan.scene_hash)):
         return
     out = Path(request.out_dir)
-    changes = configuration_changes(out, request, plan.config, plan.sim_settings, plan.weights)
+    changes = configuration_changes(out, request, plan.config, plan.sim_settings, plan.weights, plan.mujoco)
     raise ConfigError(another_configuration_said(out, others, changes, *episodes_held_otherwise(others, plan.scene_hash)))
 
 
@@ -1148,6 +1190,7 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
     meta = {
         "command": "cso-runtime eval",
         "version": __version__,  # which code made the table
+        "software": software_provenance(),  # its checkout's commit, Python and libraries, the command line
         "maps": request.maps,
         # The flag's scale of PNG plans; null where none ran (generated plans and map files: their own, in cell_sizes_m).
         "m_per_px": request.m_per_px if any(ref.scaled_by_m_per_px for ref in scenes) else None,

@@ -77,6 +77,7 @@ from cso_runtime.outputs import results_said, write_text_atomic
 from cso_runtime.pace import StepPace
 from cso_runtime.pause import LOCKSTEP_REFUSAL, PauseClock
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
+from cso_runtime.provenance import command_line, record_command_line, software_provenance
 from cso_runtime.run_folder import RunFolderWatch
 from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig
 from cso_runtime.runs import LOG_DIR
@@ -928,7 +929,7 @@ class Launcher:
         return self.pace.real_time_factor if self.simulated else None
 
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
-        meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "profile": self.data}
+        meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "software": software_provenance(), "profile": self.data}
         meta["paused_s"] = self.pause_status()["total_s"]  # the robot held still (real time went on, and its steps)
         meta["config"] = to_dict(self.profile.exploration_config())  # every exploration parameter, as eval's summary
         sim_settings = self.profile.simulator_settings()
@@ -1568,6 +1569,7 @@ def start_detached(
     with log_path.open("ab") as fh:
         proc = subprocess.Popen(
             [*python_module_argv("cso_runtime.launcher"), "--profile-data", STDIN_PATH, "--run-dir", str(run_dir)]
+            + (["--command-line", line] if (line := command_line()) is not None else [])  # up's, for the run's software_provenance
             + (["--record", str(record_path.resolve())] if record_path is not None else [])
             + (["--animate"] if animate else []),
             stdout=fh,
@@ -1652,9 +1654,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--run-dir", type=Path, required=True)
     p.add_argument("--record", type=Path, default=None, help="MCAP file recording the run")
     p.add_argument("--animate", action="store_true", help="Draw the recording as a GIF when the run stops")
+    p.add_argument("--command-line", default=None, help="The command that started this launcher (up --detach's), recorded in the run's results")
     stop = threading.Event()
     stop_on_signals(stop)  # first: `up --detach` given up on (SIGTERM) while this one loads its profile is a clean stop
     args = p.parse_args(argv)
+    if args.command_line is not None:
+        record_command_line(shlex.split(args.command_line))
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     from_up = str(args.profile_data) == STDIN_PATH
     data = yaml.safe_load(sys.stdin) if from_up else load_yaml(args.profile_data)

@@ -120,7 +120,7 @@ def partial_path(path: Path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.partial")
 
 
-PARTIAL_NAME = re.compile(r"\..+\.\d+\.partial")
+PARTIAL_NAME = re.compile(r"\.(?P<name>.+)\.(?P<pid>\d+)\.partial")
 """The names ``partial_path`` gives (``.<name>.<pid>.partial``): the files a clean-up removes, and no other hidden file."""
 
 
@@ -128,26 +128,67 @@ RESULT_FILE_FOLDERS = ("episodes", "animations", "maps")
 """The folders of ``--out`` with a folder per method; every file of ``--out`` is written beside itself first
 (``partial_path``, ``write_whole``)."""
 
+EVAL_RESULT_FILES = ("summary.json", "episodes.csv", "paired.csv", "report.html", COVERAGE_FIGURE, EFFICIENCY_FIGURE, PAIRED_FIGURE)
+"""The files eval writes at the top of ``--out`` (``report.REPORT_NAME`` is ``report.html``)."""
+
+EVAL_FILE_SUFFIXES = {"episodes": (".npz",), "animations": (".gif",), "maps": (".yaml", ".png"), "trajectories": (".png",)}
+"""What eval writes in each folder of ``--out``: a method's episodes, animations and maps, the plans' trajectories."""
+
+
+def is_an_eval_file(out_dir: Path, path: Path) -> bool:
+    """Whether ``path`` is where eval writes one of its files in ``out_dir`` (``EVAL_RESULT_FILES``, ``EVAL_FILE_SUFFIXES``):
+    the partial files of anything else there (a ``train`` into the same folder, a tool of one's own) are not eval's to remove."""
+    try:
+        parts = Path(path).relative_to(out_dir).parts
+    except ValueError:
+        return False
+    if len(parts) == 1:
+        return parts[0] in EVAL_RESULT_FILES
+    in_its_folder = len(parts) == (3 if parts[0] in RESULT_FILE_FOLDERS else 2)  # episodes/<method>/<map>.npz, trajectories/<map>.png
+    return in_its_folder and Path(parts[-1]).suffix in EVAL_FILE_SUFFIXES.get(parts[0], ())
+
 
 def remove_stale_partial_files(out_dir: Path, episode_files: list[Path], is_an_episode: Callable[[Path], bool]) -> list[Path]:
     """Remove the partial files a killed eval left in ``out_dir`` (``kill -9`` while it wrote an episode file, a GIF, a map, a figure or a summary),
     and the ``<map>.partial.npz`` an earlier version left beside each of ``episode_files`` (the episodes this eval runs;
     one that is itself one of them, or ``is_an_episode``, the finished episode of a plan named ``<map>.partial`` that
-    this eval leaves out, is kept); the ones removed. Only while holding the folder's eval lock: another eval's partial
-    files are the ones it is writing."""
+    this eval leaves out, is kept); the ones removed. Only while holding the folder's eval lock, and only the partial
+    files of eval's own files (``is_an_eval_file``) whose writer is gone (``remove_partial_files``)."""
     episodes = set(episode_files)
     folders = [method for folder in RESULT_FILE_FOLDERS for method in sorted((Path(out_dir) / folder).glob("*")) if method.is_dir()]
     folders += [Path(out_dir), Path(out_dir) / "trajectories"]  # summary.json, report.html, the figures
     legacy = [path.with_name(f"{path.stem}.partial.npz") for path in episode_files]
-    return remove_partial_files(folders, also=[path for path in legacy if path not in episodes and path.is_file() and not is_an_episode(path)])
+    also = [path for path in legacy if path not in episodes and path.is_file() and not is_an_episode(path)]
+    return remove_partial_files(folders, also=also, written_for=lambda path: is_an_eval_file(out_dir, path))
 
 
-def remove_partial_files(folders: Iterable[Path], also: Iterable[Path] = ()) -> list[Path]:
+def partial_file_writer(path: Path) -> tuple[Path, int] | None:
+    """The file a partial file (``partial_path``) was written for and the process that wrote it; None for another name."""
+    found = PARTIAL_NAME.fullmatch(path.name)
+    return (path.with_name(found["name"]), int(found["pid"])) if found else None
+
+
+def writer_gone(pid: int) -> bool:
+    """Whether the process that named a partial file ``pid`` writes it no more: no process runs under that pid (a live
+    one is writing it: another command into the same folder, under another lock or none), or it is this very process,
+    which holds the folder's lock and has written nothing into it yet when it cleans up (a file of its pid is one an
+    earlier process of that pid left)."""
+    from cso_runtime.supervision import pid_alive  # noqa: PLC0415 - its process helpers only for a clean-up
+
+    return pid == os.getpid() or not pid_alive(pid)
+
+
+def remove_partial_files(folders: Iterable[Path], also: Iterable[Path] = (), written_for: Callable[[Path], bool] | None = None) -> list[Path]:
     """Remove the partial files (``partial_path``) a killed writer left directly in each of ``folders``, then the
     files ``also``; the ones removed. Only while holding the lock of the command that writes those folders
-    (``current_run.folder_lock``): another's partial files are the ones it is writing."""
+    (``current_run.folder_lock``), and only a partial file whose writer has gone (``writer_gone``) and, with
+    ``written_for``, that was written for a file it accepts (the caller's own kind)."""
     removed = []
-    partial = [path for folder in folders for path in sorted(Path(folder).glob(".*.partial")) if PARTIAL_NAME.fullmatch(path.name)]
+    partial = []
+    for path in (path for folder in folders for path in sorted(Path(folder).glob(".*.partial"))):
+        writer = partial_file_writer(path)
+        if writer is not None and writer_gone(writer[1]) and (written_for is None or written_for(writer[0])):
+            partial.append(path)
     for path in partial + list(also):
         if path.is_file():
             path.unlink(missing_ok=True)

@@ -189,8 +189,9 @@ class Service:
         """Robot -> when its last input came (``time.monotonic()``), accepted or rejected: when to ``forget_robot`` it."""
         self.step_guard = StepGuard()
         self.last_step = 0
-        self.state = "running"
-        self.reason = ""
+        self._state_and_reason = ("running", "")
+        """The service's state and why, one pair set at once (``set_state``): the status queryable reads it on Zenoh's
+        thread while the loop sets it, and two attributes set one after the other could be read half-set."""
         self._publishers: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._inbox: queue.Queue | None = None
@@ -341,17 +342,30 @@ class Service:
         self.reject(topic, f"{topic} of episode {episode}, not of this one ({own_episode}): still in flight from before a restart")
         return True
 
+    @property
+    def state(self) -> str:
+        """``running`` or ``stale`` (``set_state``)."""
+        return self._state_and_reason[0]
+
+    @property
+    def reason(self) -> str:
+        """Why the service is in its ``state`` ("" when nothing to say)."""
+        return self._state_and_reason[1]
+
     def set_state(self, state: str, reason: str = "") -> None:
-        if (state, reason) != (self.state, self.reason):
+        """Set the state and its reason as one pair (one store): a status read meanwhile shows the old pair or the
+        new one, never a new state with the old reason."""
+        if (state, reason) != self._state_and_reason:
             log.info("%s: %s%s", self.name, state, f" ({reason})" if reason else "")
-        self.state, self.reason = state, reason
+        self._state_and_reason = (state, reason)
 
     def status_msg(self) -> ServiceStatusMsg:
         with self._lock:
             rejected = dict(self.rejected)
         # Counts only (what the schema carries): anything else would make the whole status undecodable.
         counters = {str(k): v for k, v in self.extra_status().items() if isinstance(v, int) and not isinstance(v, bool) and v >= 0}
-        return ServiceStatusMsg(self.name, self.ctx.robot, self.state, self.last_step, self.reason, rejected, self.processed, counters)
+        state, reason = self._state_and_reason  # read once: the pair set together
+        return ServiceStatusMsg(self.name, self.ctx.robot, state, self.last_step, reason, rejected, self.processed, counters)
 
     def query_latest(self, key: str, expected: type[Message], timeout_s: float = 1.0, retry_period_s: float = 0.05) -> Message | None:
         """The newest valid reply to ``key`` (by ``step``), for late joiners and restarts.

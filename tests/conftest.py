@@ -135,3 +135,10 @@ def tls_config(tmp_path: Path) -> Path:
     path = tmp_path / "zenoh-tls.json5"
     path.write_text(json.dumps({"transport": {"link": {"tls": tls}}}))
     return path
+
+
+def exited_pid() -> int:
+    """The pid of a process that has run and been reaped: no process runs under it (until the pids wrap round)."""
+    proc = subprocess.Popen(["true"])
+    proc.wait()
+    return proc.pid

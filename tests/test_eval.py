@@ -2002,6 +2002,31 @@ def test_an_eval_on_a_file_system_without_locks_runs_and_says_it_holds_no_lock(t
     assert another_evals.is_file()  # only an eval holding the lock removes the partial files it finds
 
 
+def test_eval_removes_only_the_partial_files_of_its_own_files_whose_writer_is_gone(tmp_path: Path):
+    """The clean-up removed every ``.<name>.<pid>.partial`` in ``--out``: a ``train`` into the same folder (another lock)
+    or a tool of one's own lost the file it was writing, and a live process's too. Now only the partial files of eval's
+    own files whose writer runs no more go; a live writer's and another command's stay."""
+    import sys
+
+    from tests.conftest import exited_pid, process_group
+
+    out = tmp_path / "o"
+    request = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=out, max_steps=6)
+    run_eval(request)
+    folder = out / "episodes" / "greedy-dist"
+    with process_group([sys.executable, "-c", "import time; time.sleep(60)"]) as live:
+        dead = exited_pid()
+        kept = [out / f".summary.json.{live.pid}.partial", folder / f".gen_small_0.npz.{live.pid}.partial",  # being written
+                out / f".cso.pt.{dead}.partial", out / f".notes.txt.{dead}.partial", folder / f".gen_small_0.csv.{dead}.partial"]  # not eval's
+        removed = [out / f".summary.json.{dead}.partial", out / f".report.html.{dead}.partial", folder / f".gen_small_0.npz.{dead}.partial"]
+        for path in kept + removed:
+            path.write_bytes(b"PK\x03\x04 half written")
+        summary = run_eval(dataclasses.replace(request, resume=True))
+        assert summary["meta"]["resumed_episodes"] == 1
+        assert [path.name for path in kept if not path.exists()] == []
+        assert [path.name for path in removed if path.exists()] == []
+
+
 def test_resume_runs_again_an_episode_whose_file_is_cut_short(tmp_path: Path):
     """An episode file cut short or empty (an interrupted copy of a results folder, a full disk, a file system without
     atomic renames) stopped ``eval --resume`` with a BadZipFile traceback; it is no result: it runs again, the others
@@ -2098,6 +2123,40 @@ def test_a_2d_episode_run_at_another_width_before_the_disc_followed_it_is_anothe
         run_eval(req)
     limo = ExplorationConfig()
     assert settings_fingerprint(limo, "2d", sim_settings=simulator_settings("2d", limo.sensor, limo.robot)) == settings_fingerprint(limo, "2d")
+
+
+def test_a_mujoco_default_an_upgrade_changes_makes_the_episodes_before_it_another_configuration(tmp_path: Path, monkeypatch):
+    """The fingerprint counted only the keys a ``--sim-config`` file set: after an upgrade that changed a default of the
+    MuJoCo LIMO (its wall friction, its physics step), ``--resume`` kept the episodes run before it under a summary
+    that says the new value. Now the LIMO's settings count where they differ from the defaults episodes ran with before
+    they counted, and the refusal names the setting; the episodes of earlier versions keep their fingerprints."""
+    from cso_runtime import simulator
+    from cso_runtime.evaluation import settings_fingerprint
+    from cso_runtime.simulator import simulator_settings
+
+    req = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path, max_steps=4, sim="mujoco", resume=True)
+    run_eval(req)
+    earlier = simulator.mujoco_config
+
+    def upgraded(overrides, *args, **kwargs):  # a version whose LIMO slides along walls otherwise by default
+        return earlier({"wall_friction": 0.6, **(overrides or {})}, *args, **kwargs)
+
+    with monkeypatch.context() as upgrade:
+        upgrade.setattr(simulator, "mujoco_config", upgraded)
+        with pytest.raises(ConfigError, match=r"its summary.json differs in sim_settings.wall_friction: 0.3 there, 0.6 here"):
+            run_eval(req)
+    assert run_eval(req)["meta"]["resumed_episodes"] == 1  # the version that wrote them goes on with them
+    # Fingerprints of the settings that counted before (the --sim-config file's keys, the config's mount) are unchanged.
+    for params, settings in (({}, {}), ({"odom_trans_noise_frac": 0.05}, {}), ({"timestep_s": 0.0025}, {}), ({}, {"sensor.mount_x_m": 0.2})):
+        config = dataclasses.replace(req, settings=settings).exploration_config()
+        ran_with = simulator_settings("mujoco", config.sensor, config.robot, params)
+        assert settings_fingerprint(config, "mujoco", mujoco=params, sim_settings=ran_with) == settings_fingerprint(config, "mujoco", mujoco=params)
+    # The file's keys count as it gives them: one that sets a default is refused too, and the refusal says so (it said
+    # that no setting differed).
+    default_step = tmp_path / "limo.yaml"
+    default_step.write_text("timestep_s: 0.005\n")
+    with pytest.raises(ConfigError, match=r"its summary.json differs in --sim-config timestep_s: not set there, 0.005 here\)"):
+        run_eval(dataclasses.replace(req, sim_config_path=default_step))
 
 
 def test_an_eval_that_ended_in_the_folder_after_the_plan_was_checked_is_refused_under_the_lock(tmp_path: Path):

@@ -2365,6 +2365,16 @@ except KeyboardInterrupt:
                 os.kill(child_pid, signal.SIGKILL)
 
 
+def test_trains_record_names_the_software_that_trained_the_weights(tmp_path):
+    """``<variant>.json`` had the torch version and the command, not the package version, commit, Python or numpy."""
+    from cso_runtime.provenance import software_provenance
+
+    args = Args(variant="cso", seed=0, num_envs=1, num_steps=4, num_minibatches=1, max_steps=20, progress=False, out_dir=str(tmp_path), total_decisions=4)
+    train(args, log=lambda line: None, plans=[rooms_plan(2)])
+    record = json.loads((tmp_path / "cso.json").read_text())
+    assert record["software"] == software_provenance() and record["software"]["packages"]["torch"] == record["torch"]
+
+
 def test_train_removes_the_partial_files_a_killed_train_left(tmp_path):
     """``kill -9`` while ``train`` wrote its weights or checkpoint left ``.<variant>.pt.<pid>.partial`` (or
     ``.checkpoint.pt.<pid>.partial``) in its folder, and nothing removed it. A train into that folder, new or
@@ -2372,7 +2382,10 @@ def test_train_removes_the_partial_files_a_killed_train_left(tmp_path):
     common = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 20, "progress": False, "out_dir": str(tmp_path)}
 
     def left_by_a_kill() -> list[Path]:
-        stale = [tmp_path / ".cso.pt.4242.partial", tmp_path / ".checkpoint.pt.4242.partial", tmp_path / "checkpoints" / "update_0001" / ".cso.json.4242.partial"]
+        from tests.conftest import exited_pid
+
+        dead = exited_pid()  # a kill's: its writer runs no more (a live one's are being written, and stay)
+        stale = [tmp_path / f".cso.pt.{dead}.partial", tmp_path / f".checkpoint.pt.{dead}.partial", tmp_path / "checkpoints" / "update_0001" / f".cso.json.{dead}.partial"]
         for path in stale:
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(b"PK\x03\x04 cut short by kill -9")

@@ -1880,6 +1880,20 @@ def test_a_gif_that_takes_too_long_once_the_run_stops_is_left_to_cso_runtime_ani
     assert f"animation in 3 frames: {gif}" in caplog.text, caplog.text
 
 
+def test_ups_summary_records_the_software_and_the_command_line_that_ran_it(tmp_path, monkeypatch):
+    """``up``'s run folder had the package version and the profile, not the commit, Python, libraries or the command line."""
+    from cso_runtime import provenance
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    monkeypatch.setattr(provenance, "_command_line", "cso-runtime up --profile lockstep")  # as the script records it
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    Launcher(profile, data, tmp_path / "run").write_outputs(_fake_result())
+    meta = json.loads((tmp_path / "run" / "summary.json").read_text())["meta"]
+    assert meta["software"] == provenance.software_provenance() and meta["software"]["command_line"] == "cso-runtime up --profile lockstep"
+    assert meta["software"]["version"] == meta["version"] == cso_runtime.__version__
+
+
 @pytest.mark.parametrize(("name", "expected"), [("sim", "mujoco"), ("lockstep", "2d"), ("limo-ros2", None)])
 def test_ups_summary_records_every_parameter_of_its_simulator(tmp_path, name, expected):
     """``summary.json`` of ``up`` held the profile as written (``services.sim.mujoco``: only what it changes), not the

@@ -1951,3 +1951,35 @@ def test_a_shared_policy_server_keeps_a_robot_long_silent_through_the_grace_of_i
     policy.on_tick(t0_s + 42.0)
     policy.on_tick(t0_s + 42.0 + 31.0)
     assert "a" not in policy.robots and policy.status_msg().counters == {"robots_forgotten": 1}
+
+
+def test_a_status_read_while_the_state_is_set_never_shows_a_new_state_with_the_old_reason():
+    """The status queryable answers on Zenoh's thread while the loop calls ``set_state``: a status read between any
+    two instructions of ``set_state`` (traced one by one) shows the old pair or the new one, never half of each."""
+    import sys
+
+    svc, _ = _service(PlannerService, lockstep=False)
+    svc.set_state("stale", "no odometry for 2 s")
+    seen: set[tuple[str, str]] = set()
+
+    def between_instructions(frame: types.FrameType, event: str, arg: object) -> object:
+        if event == "opcode":
+            status = svc.status_msg()
+            seen.add((status.state, status.reason))
+        return between_instructions
+
+    def trace(frame: types.FrameType, event: str, arg: object) -> object:
+        if frame.f_code is not Service.set_state.__code__:
+            return None
+        frame.f_trace_opcodes = True
+        return between_instructions
+
+    previous = sys.gettrace()
+    sys.settrace(trace)
+    try:
+        svc.set_state("running", "paused by operator")
+    finally:
+        sys.settrace(previous)
+    assert ("stale", "no odometry for 2 s") in seen and ("running", "paused by operator") in seen  # the trace saw both sides
+    assert seen <= {("stale", "no odometry for 2 s"), ("running", "paused by operator")}, seen
+    assert svc.status_msg().state == svc.state == "running" and svc.status_msg().reason == svc.reason == "paused by operator"

@@ -69,6 +69,7 @@ from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.learned.weights import mask_set_flags, mask_settings_changed, trained_mask_settings
 from cso_runtime.outputs import remove_partial_files, write_npz_whole, write_text_atomic, write_whole
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
+from cso_runtime.provenance import software_provenance
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
 
 
@@ -1057,7 +1058,7 @@ def _train_locked(
     envs = make_vector_env(args, refs)
     model = build_model(args, device)
     optimizer = optim.Adam(parameter_groups(model, args), lr=args.learning_rate, eps=args.adam_eps)
-    record: dict[str, Any] = {"variant": args.variant, "args": dataclasses.asdict(args), "warm_start": {}}
+    record: dict[str, Any] = {"variant": args.variant, "args": dataclasses.asdict(args), "warm_start": {}, "software": software_provenance()}
     if command is not None:  # the command line that ran it (``train`` gives it), to run it again
         record["command"] = command
 

@@ -1,0 +1,118 @@
+"""What software produced a results file (``cso_runtime.provenance``): the record eval's ``summary.json``, ``up``'s run
+folder and ``train``'s ``<variant>.json`` keep, and ``cso-runtime --version``."""
+
+from __future__ import annotations
+
+import io
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+import cso_runtime
+from cso_runtime import provenance
+from cso_runtime.provenance import git_checkout, software_provenance
+
+ROOT = Path(__file__).resolve().parents[1]
+FROM_A_CHECKOUT = (ROOT / ".git").exists() and shutil.which("git") is not None
+
+
+def _head() -> str:
+    return subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+
+
+def test_the_record_names_the_package_its_checkouts_commit_python_and_the_libraries():
+    record = software_provenance()
+    assert record["version"] == cso_runtime.__version__ and record["python"] == ".".join(map(str, sys.version_info[:3]))
+    assert record["packages"]["numpy"] == np.__version__ and set(record["packages"]) == {"numpy", "torch", "mujoco"}
+    if FROM_A_CHECKOUT:
+        assert record["git_commit"] == _head() and isinstance(record["git_modified"], bool)
+    json.dumps(record)  # a results file's JSON
+
+
+def test_no_commit_is_recorded_without_a_checkout_of_its_own_or_without_git(tmp_path: Path, monkeypatch):
+    """An installed wheel has no ``.git`` beside the package (its site-packages may be inside another repository, whose
+    commit is not the package's); where git is missing or fails, the commit is left out and nothing fails."""
+    outer = tmp_path / "outer"
+    (outer / "site-packages").mkdir(parents=True)
+    if shutil.which("git") is not None:
+        subprocess.run(["git", "init", "-q", str(outer)], check=True)
+    assert git_checkout(outer / "site-packages") is None  # no .git of its own
+    (outer / "site-packages" / ".git").write_text("gitdir: /nowhere\n")  # a broken worktree link
+    assert git_checkout(outer / "site-packages") is None
+    if FROM_A_CHECKOUT:
+        git_checkout.cache_clear()
+        monkeypatch.setenv("PATH", str(tmp_path / "no-git-here"))
+        try:
+            assert git_checkout(ROOT) is None and "git_commit" not in software_provenance()
+        finally:
+            git_checkout.cache_clear()
+
+
+def test_version_prints_the_commit_of_a_checkout_on_a_second_line(monkeypatch):
+    """``cso-runtime --version``'s first line stays ``cso-runtime X.Y.Z`` (a contract); from a checkout, its commit follows."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    lines = CliRunner().invoke(app, ["--version"]).output.splitlines()
+    assert lines[0] == f"cso-runtime {cso_runtime.__version__}"
+    if FROM_A_CHECKOUT:
+        assert lines[1].startswith(f"git commit {_head()}") and len(lines) == 2
+    monkeypatch.setattr(provenance, "git_checkout", lambda root=None: None)  # an installed wheel
+    assert CliRunner().invoke(app, ["--version"]).output == f"cso-runtime {cso_runtime.__version__}\n"
+
+
+def test_evals_summary_records_the_software_and_the_command_line_that_ran_it(tmp_path: Path):
+    """``summary.json`` had the package version and the flags, not the commit, Python, libraries or the command line."""
+    out = tmp_path / "o"
+    args = ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--max-steps", "4", "--out", str(out)]
+    done = subprocess.run([sys.executable, "-m", "cso_runtime.cli", *args], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    software = json.loads((out / "summary.json").read_text())["meta"]["software"]
+    assert software["command_line"] == " ".join(["cso-runtime", *args])
+    assert {k: software[k] for k in ("version", "python", "packages")} == {k: software_provenance()[k] for k in ("version", "python", "packages")}
+    if FROM_A_CHECKOUT:
+        assert software["git_commit"] == _head()
+
+
+def test_a_detached_up_hands_its_command_line_to_the_launcher(tmp_path: Path, monkeypatch):
+    """The launcher of ``up --detach`` is a process of its own: the command line of ``up`` reaches it as an argument."""
+    from cso_runtime import launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    started: list[list[str]] = []
+
+    class NoLauncher:
+        def __init__(self, argv: list[str], **kwargs: object) -> None:
+            started.append(argv)
+            self.stdin, self.returncode, self.pid = io.BytesIO(), 2, 0  # refused at once, as a launcher may be
+
+        def poll(self) -> int:
+            return self.returncode
+
+    monkeypatch.setattr(launcher.subprocess, "Popen", NoLauncher)
+    monkeypatch.setattr(provenance, "_command_line", "cso-runtime up --detach --profile lockstep")
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    code, _ = launcher.start_detached(profile, data, tmp_path / "runs")
+    (argv,) = started
+    assert code == 2 and argv[argv.index("--command-line") + 1] == "cso-runtime up --detach --profile lockstep"
+
+
+def test_the_readme_names_every_key_of_the_software_record():
+    """A researcher reading ``summary.json`` finds ``meta.software`` and each of its keys in the README's table of outputs."""
+    rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
+    keys = ["software", "git_commit", "git_modified", "command_line", *software_provenance(), *software_provenance()["packages"]]
+    assert [k for k in keys if f"`{k}`" not in rows["`summary.json`"] and k not in rows["`summary.json`"]] == []
+
+
+def test_the_report_header_names_the_commit_that_made_the_table():
+    """report.html's header line said the package version only: two checkouts of one version made different tables."""
+    from cso_runtime.report import run_settings_text
+
+    meta = {"command": "cso-runtime eval", "version": "0.1.0", "software": {"git_commit": "0123456789abcdef0123", "git_modified": True}, "seed": 0}
+    assert run_settings_text(meta).startswith("command: cso-runtime eval, version: 0.1.0, commit: 0123456789ab (modified), seed: 0")
+    assert "commit" not in run_settings_text({**meta, "software": {"version": "0.1.0"}})  # an installed package: none
