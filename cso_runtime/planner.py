@@ -434,10 +434,7 @@ class StallRecovery:
             return None
         self.stalled_periods = self.stalled_periods + 1 if self._stalled(pose, time_s) else 0
         if self.backing_up == 0 and self.stalled_periods >= self.config.stall_steps:
-            self.backing_up = self.backup_periods
-            self.backups += 1
-            self.stalled_periods = 0
-            self.last_started_now = False
+            self._start(now=False)
         return self._backing_up()
 
     def back_up_now(self) -> VelocityCommand | None:
@@ -445,11 +442,14 @@ class StallRecovery:
         map has not got); its first period's command, or None when the recovery is off."""
         if self.config.stall_steps <= 0:
             return None
+        self._start(now=True)
+        return self._backing_up()
+
+    def _start(self, now: bool) -> None:
         self.backing_up = self.backup_periods
         self.backups += 1
         self.stalled_periods = 0
-        self.last_started_now = True
-        return self._backing_up()
+        self.last_started_now = now
 
     def _backing_up(self) -> VelocityCommand | None:
         if self.backing_up > 0:
