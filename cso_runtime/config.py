@@ -286,7 +286,9 @@ class PlannerConfig:
     (``LocalPlanner`` stops a reverse command otherwise). A period that asked to drive is judged by its drive
     alone, whatever its turn did; a turn in place by its turn. With a sensor narrower than
     ``face_goal_below_fov_deg`` (the depth camera) the cells the pinned body touches become obstacles of the
-    planner's grid for the rest of the episode, and the path is planned again round them after the back-up.
+    planner's grid for the rest of the episode, and the path is planned again round them after the back-up; so do
+    returns nearer than the sensor's ``range_min`` (which the mapper leaves out) that block the way ahead, and the
+    robot backs up from them at once instead of creeping back and driving in again.
     0 turns it off."""
     backup_distance_m: float = 0.15
     """How far the stall recovery backs up (Nav2's default ``backup_dist``)."""

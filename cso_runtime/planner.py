@@ -230,14 +230,19 @@ class PathFollower:
                 look -= 1
         return nearest, look
 
-    def _scanned_points(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray]:
-        """(forward_m, lateral_m) of the scan's returns in the robot's frame. A beam shorter than ``range_min``
-        is still something there (the mapper leaves it out, the controller must not drive into it); a 0 m
-        beam is no reading at all (how the ROS bridge passes on NaN and too-close beams), nor is NaN, and inf
-        or ``range_max`` is no return (``no_return_mask``)."""
+    @staticmethod
+    def valid_returns(scan: LaserScan) -> np.ndarray:
+        """Which beams of the scan are returns the controller keeps off. A beam shorter than ``range_min`` is still
+        something there (the mapper leaves it out, the controller must not drive into it); a 0 m beam is no reading
+        at all (how the ROS bridge passes on NaN and too-close beams), nor is NaN, and inf or ``range_max`` is no
+        return (``no_return_mask``)."""
         r = np.asarray(scan.ranges_m, dtype=float)
-        valid = np.isfinite(r) & (r > 0.0) & ~no_return_mask(r, scan.range_max_m)
-        r, ang = r[valid], scan.angles_rad[valid]
+        return np.isfinite(r) & (r > 0.0) & ~no_return_mask(r, scan.range_max_m)
+
+    def scanned_points(self, scan: LaserScan) -> tuple[np.ndarray, np.ndarray]:
+        """(forward_m, lateral_m) of the scan's ``valid_returns`` in the robot's frame."""
+        valid = self.valid_returns(scan)
+        r, ang = np.asarray(scan.ranges_m, dtype=float)[valid], scan.angles_rad[valid]
         return r * np.cos(ang) + self.sensor_mount_x_m, r * np.sin(ang)
 
     def clearance_ahead(self, scan: LaserScan | None) -> tuple[float, float]:
@@ -247,7 +252,7 @@ class PathFollower:
         ``front_gap_m`` is the hard limit on the body's real front."""
         if scan is None:
             return math.inf, 0.0
-        forward, lateral = self._scanned_points(scan)
+        forward, lateral = self.scanned_points(scan)
         radius = self.robot.disc_radius_m
         ahead = (forward > 0.0) & (np.abs(lateral) < radius)
         if not ahead.any():
@@ -265,7 +270,7 @@ class PathFollower:
             return math.inf
         if self.config.body != "box":
             return self.clearance_ahead(scan)[0]
-        forward, lateral = self._scanned_points(scan)
+        forward, lateral = self.scanned_points(scan)
         ahead = (forward > 0.0) & (np.abs(lateral) < 0.5 * self.robot.width_m)
         return float(forward[ahead].min() - 0.5 * self.robot.length_m) if ahead.any() else math.inf
 
@@ -275,7 +280,7 @@ class PathFollower:
         None. Headings are checked within the sensor's field of view less ``ESCAPE_UNSEEN_MARGIN_RAD``."""
         if scan is None:
             return None
-        forward, lateral = self._scanned_points(scan)
+        forward, lateral = self.scanned_points(scan)
         offsets = np.arange(-math.pi, math.pi, ESCAPE_HEADING_STEP_RAD)
         relative = np.array([wrap_angle_rad(bearing_rad + o - pose.yaw_rad) for o in offsets])
         cos, sin = np.cos(relative)[:, None], np.sin(relative)[:, None]
@@ -389,6 +394,8 @@ class StallRecovery:
         self.backup_periods = math.ceil(config.backup_distance_m / (config.backup_speed_mps * control_period_s) - 1e-9)
         self.backups = 0
         """Back-ups started in this planner's life (the planner service logs each)."""
+        self.last_started_now = False
+        """The latest back-up was started by ``back_up_now`` (a return the map has not got), not by a stall."""
         self.reset()
 
     def reset(self) -> None:
@@ -400,11 +407,11 @@ class StallRecovery:
 
     def state(self) -> tuple:
         """What a control period changes, for ``LocalPlanner.follow_state``."""
-        return self.last, self.stalled_periods, self.backing_up, self.backups
+        return self.last, self.stalled_periods, self.backing_up, self.backups, self.last_started_now
 
     def restore(self, state: tuple) -> None:
         """Put back a ``state()``."""
-        self.last, self.stalled_periods, self.backing_up, self.backups = state
+        self.last, self.stalled_periods, self.backing_up, self.backups, self.last_started_now = state
 
     def _stalled(self, pose: Pose2D, time_s: float) -> bool:
         """Whether the last period's command barely moved the robot."""
@@ -427,9 +434,24 @@ class StallRecovery:
             return None
         self.stalled_periods = self.stalled_periods + 1 if self._stalled(pose, time_s) else 0
         if self.backing_up == 0 and self.stalled_periods >= self.config.stall_steps:
-            self.backing_up = self.backup_periods
-            self.backups += 1
-            self.stalled_periods = 0
+            self._start(now=False)
+        return self._backing_up()
+
+    def back_up_now(self) -> VelocityCommand | None:
+        """Start a back-up now, whatever the last periods did (``LocalPlanner`` found the body blocked by a return its
+        map has not got); its first period's command, or None when the recovery is off."""
+        if self.config.stall_steps <= 0:
+            return None
+        self._start(now=True)
+        return self._backing_up()
+
+    def _start(self, now: bool) -> None:
+        self.backing_up = self.backup_periods
+        self.backups += 1
+        self.stalled_periods = 0
+        self.last_started_now = now
+
+    def _backing_up(self) -> VelocityCommand | None:
         if self.backing_up > 0:
             self.backing_up -= 1
             return VelocityCommand(-self.config.backup_speed_mps, 0.0)
@@ -594,11 +616,46 @@ class LocalPlanner:
         ahead = sign * along > 0.0
         touching = (gap >= 0.5 * self.robot.width_m) & (gap <= radius + 0.5 * res) & ahead & ~self.free.traversable[iy, ix]
         if touching.any():
-            cx, cy = geometry.cell_to_world(iy[touching], ix[touching])
-            known = {(float(x), float(y)) for x, y in self.contacts_xy_m}  # a second back-up at the same place
-            new = [(float(x), float(y)) for x, y in zip(cx, cy) if (float(x), float(y)) not in known]
-            if new:
-                self.contacts_xy_m = np.concatenate([self.contacts_xy_m, np.array(new)])
+            self.add_contacts(geometry, iy[touching], ix[touching])  # a second back-up at the same place adds none
+
+    def mark_unmapped_returns(self, pose: Pose2D, scan: LaserScan | None) -> bool:
+        """The follower blocked ahead (it is about to creep back) by returns nearer than the sensor's ``range_min``: the
+        mapper leaves those out, so the path, planned on the map, runs on through them (with the depth camera, the
+        end of a wall it only ever saw from nearer than 0.3 m or from outside its 79 degrees), and pure pursuit
+        drives back in after every creep back until the progress check gives the goal up. Add as contacts the cells
+        of such returns in the body's sweep ahead that the planned-on grid does not show occupied; True when one
+        was new (then the path is planned again round them, as after a pinned back-up)."""
+        if scan is None or self.free is None:
+            return False
+        ranges = np.asarray(scan.ranges_m, dtype=float)
+        forward, lateral = self.follower.scanned_points(scan)
+        near = ranges[self.follower.valid_returns(scan)] < scan.range_min_m
+        blocking = near & (forward > 0.0) & (np.abs(lateral) < self.robot.disc_radius_m)
+        if not blocking.any():
+            return False
+        # A hair beyond each return, as the mapper puts a hit: in the cell behind the surface, not the free one before it.
+        sensor_x_m = self.follower.sensor_mount_x_m
+        beyond = 1.0 + 1e-6 / np.maximum(np.hypot(forward[blocking] - sensor_x_m, lateral[blocking]), 1e-9)
+        ahead_m = sensor_x_m + (forward[blocking] - sensor_x_m) * beyond
+        side_m = lateral[blocking] * beyond
+        cos, sin = math.cos(pose.yaw_rad), math.sin(pose.yaw_rad)
+        geometry = self.free.geometry
+        iy, ix = geometry.world_to_cell(pose.x_m + ahead_m * cos - side_m * sin, pose.y_m + ahead_m * sin + side_m * cos)
+        ok = geometry.in_bounds(iy, ix)
+        iy, ix = iy[ok], ix[ok]
+        if self.free.occupied is not None:
+            unmapped = ~self.free.occupied[iy, ix]
+            iy, ix = iy[unmapped], ix[unmapped]
+        return self.add_contacts(geometry, iy, ix)
+
+    def add_contacts(self, geometry: GridGeometry, iy: np.ndarray, ix: np.ndarray) -> bool:
+        """Keep the centres of these cells as contacts; a cell already kept is not added again. True when one was new."""
+        cx, cy = geometry.cell_to_world(iy, ix)
+        known = {(float(x), float(y)) for x, y in self.contacts_xy_m}
+        new = list(dict.fromkeys((float(x), float(y)) for x, y in zip(np.atleast_1d(cx), np.atleast_1d(cy)) if (float(x), float(y)) not in known))
+        if new:
+            self.contacts_xy_m = np.concatenate([self.contacts_xy_m, np.array(new)])
+        return bool(new)
 
     def set_path(self, path_xy_m: np.ndarray, free: FreeSpace | None = None) -> None:
         """Follow a new path. Progress is tracked across re-plans to the same goal, so re-sending a
@@ -768,4 +825,9 @@ class LocalPlanner:
         self.progress_index = nearest
         cmd = self.follower.command(pose, self.path, nearest, look, to_goal, scan)
         self.status = PlannerStatus.FOLLOWING
+        if cmd.linear_mps < 0.0 and self.narrow_sensor() and self.mark_unmapped_returns(pose, scan):
+            backup = self.stall.back_up_now()  # the follower's creep back would only rock the robot on the same return
+            if backup is not None:
+                self.replan_pending = True
+                return FollowResult(backup, self.status, "backup")
         return FollowResult(cmd, self.status)

@@ -356,7 +356,10 @@ class PlannerService(Service):
                         log.info("step %d: no progress on the goal: driving out on the open heading (recovery %d)", k, self.escapes_logged)
                     if self.planner.stall.backups != self.backups_logged:
                         self.backups_logged = self.planner.stall.backups
-                        log.info("step %d: the robot has not moved for %d commands: backing up (back-up %d)", k, self.ctx.exploration.planner.stall_steps, self.backups_logged)
+                        if self.planner.stall.last_started_now:
+                            log.info("step %d: blocked ahead by a return nearer than the sensor's range_min: backing up (back-up %d)", k, self.backups_logged)
+                        else:
+                            log.info("step %d: the robot has not moved for %d commands: backing up (back-up %d)", k, self.ctx.exploration.planner.stall_steps, self.backups_logged)
                 self.set_state("running")
         self.stopped_for_stale = False
         stop_already_sent = self.ends_stopped(self.last_cmd) and reason == NO_FRONTIER_REASON

@@ -608,6 +608,50 @@ def test_the_depth_camera_is_not_left_pinned_on_a_middle_scene():
     assert result.terminated_by == "coverage" and result.coverage_pct > 99.0, (result.steps, result.coverage_pct)
 
 
+def test_a_depth_robot_blocked_ahead_by_a_wall_end_nearer_than_range_min_backs_up_once_and_plans_round_it():
+    """The path round the end of a wall passes it closer than the controller keeps off returns, because the map has
+    not got the end: the camera sees it only nearer than its 0.3 m ``range_min``, which the mapper leaves out and the
+    controller keeps off. The follower's blocked-ahead creep back took the robot 5 cm back, pure pursuit drove it in
+    again, and it rocked there until the progress check gave the goal up (gen_middle_1005, 50 steps in place). The
+    returns under ``range_min`` that block the body's sweep are now contacts: one back-up, then a path round them."""
+    robot, sensor = RobotConfig(), SensorConfig.preset("depth")
+    start, goal = Pose2D(1.75, 1.35, math.radians(135.0)), np.array([1.1, 1.1])
+    known = wall_end_room(start, unseen_cells=2)
+    sim = KinematicSimulator(wall_end_room(start), sensor, robot, seed=0)
+    sim.reset()
+    planner = LocalPlanner.for_config(ExplorationConfig(sensor=sensor))
+    assert planner.set_goal(ground_truth_traversable(known), known.geometry, start, goal) == PlannerStatus.FOLLOWING
+    results = _follow_to(planner, sim, 120)
+    assert results[-1].status == PlannerStatus.REACHED and planner.stall.backups == 1
+    assert not any(r.command.linear_mps < 0 and r.recovery == "" for r in results)  # no creep back
+    assert planner.stall.last_started_now  # the planner service logs it as such, not as a robot that has not moved
+    touched = planner.contacts_xy_m
+    assert len(touched) and np.all(np.hypot(touched[:, 0] - 1.5, touched[:, 1] - 1.5) < 0.1)  # the wall's end
+
+
+def test_returns_under_range_min_become_contacts_only_where_the_map_has_no_obstacle():
+    """``mark_unmapped_returns`` keeps the cells of returns nearer than ``range_min`` in the body's sweep ahead, a hair
+    beyond the surface as the mapper puts a hit, and leaves out returns at or beyond ``range_min`` (mapped), beside
+    the body, and on cells the planned-on grid shows occupied."""
+    geometry = GridGeometry(0.05, (40, 40))
+    free = np.ones(geometry.shape, dtype=bool)
+    planner = LocalPlanner.for_config(ExplorationConfig(sensor=SensorConfig.preset("depth")))
+    pose = Pose2D(1.0, 1.01, 0.0)
+    planner.set_path(np.array([[1.0, 1.01], [1.5, 1.01]]), FreeSpace(free, geometry, np.zeros(geometry.shape, dtype=bool)))
+
+    def scan(ranges_m):  # beams at -1, 0 and 1 rad
+        return LaserScan(angle_min_rad=-1.0, angle_increment_rad=1.0, range_min_m=0.3, range_max_m=3.0, ranges_m=np.array(ranges_m))
+
+    assert not planner.mark_unmapped_returns(pose, scan([3.0, 0.35, 0.2]))  # mapped, and beside the body
+    assert planner.mark_unmapped_returns(pose, scan([3.0, 0.2, 3.0]))
+    assert planner.contacts_xy_m == pytest.approx(np.array([[1.225, 1.025]]))  # the cell behind the surface at x = 1.2 m
+    assert not planner.mark_unmapped_returns(pose, scan([3.0, 0.2, 3.0]))  # kept already
+    occupied = np.zeros(geometry.shape, dtype=bool)
+    occupied[geometry.world_to_cell(1.175, 1.01)] = True
+    planner.set_path(np.array([[1.0, 1.01], [1.5, 1.01]]), FreeSpace(free, geometry, occupied))
+    assert not planner.mark_unmapped_returns(pose, scan([3.0, 0.15, 3.0]))  # on the map already
+
+
 def test_a_narrow_sensor_pinned_on_a_path_given_without_a_grid_backs_up_and_follows_the_path_on():
     """``set_path`` without a grid (``free=None``) leaves the planner nothing to mark contacts on or re-plan with: a
     stall backs up, then the robot follows the same path on (the progress checker still ends a goal it cannot
