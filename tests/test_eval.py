@@ -507,8 +507,8 @@ def test_ctrl_c_stops_eval_at_once_keeps_the_finished_episodes_and_resume_runs_t
     import threading
 
     out = tmp_path / "out"
-    cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--method", "random", "--maps", "generated:middle:8:0",
-           "--workers", "2", "--out", str(out)]
+    cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--method", "random", "--maps", "generated:middle:4:0",
+           "--workers", "2", "--out", str(out)]  # 4 episodes of ~3 s: one finishes while 3 remain, for --resume
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # noqa: PLW1509  (a child of a background shell starts with SIGINT ignored)
     lines: list[str] = []
@@ -517,7 +517,7 @@ def test_ctrl_c_stops_eval_at_once_keeps_the_finished_episodes_and_resume_runs_t
     def read() -> None:
         for line in proc.stdout:
             lines.append(line)
-            if line.startswith("[1/8]"):  # the progress line of the first finished episode
+            if line.startswith("[1/4]"):  # the progress line of the first finished episode
                 first_done.set()
 
     reader = threading.Thread(target=read, daemon=True)
@@ -535,7 +535,7 @@ def test_ctrl_c_stops_eval_at_once_keeps_the_finished_episodes_and_resume_runs_t
     summary = json.loads((out / "summary.json").read_text())
     stopped = summary["meta"]["interrupted"]
     finished = sorted((out / "episodes" / "random").glob("*.npz"))
-    assert 1 <= stopped["episodes_finished"] < 8 and stopped["episodes_planned"] == 8
+    assert 1 <= stopped["episodes_finished"] < 4 and stopped["episodes_planned"] == 4
     assert summary["methods"]["random"]["episodes"] == stopped["episodes_finished"]
     assert len(finished) >= stopped["episodes_finished"]  # an episode whose result was still on its way is kept for --resume
     assert "--resume runs the rest" in stdout
@@ -543,7 +543,7 @@ def test_ctrl_c_stops_eval_at_once_keeps_the_finished_episodes_and_resume_runs_t
     again = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr[-2000:]
     summary = json.loads((out / "summary.json").read_text())
-    assert "interrupted" not in summary["meta"] and summary["methods"]["random"]["episodes"] == 8
+    assert "interrupted" not in summary["meta"] and summary["methods"]["random"]["episodes"] == 4
     assert all((out / "episodes" / "random" / name).stat().st_mtime_ns == t for name, t in stamps.items())
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import functools
 import io
 import json
 import os
@@ -140,7 +141,10 @@ def kill_leftovers(runs: Path, extra: list[int] = (), exclude: int | None = None
     return left
 
 
+@functools.cache
 def in_process_result(scene: str = SCENE, method: str = "greedy-dist"):
+    """The in-process episode that a run of ``scene`` with ``method`` must match: seeded, so computed once per
+    module (several tests compare with the same one; none changes it)."""
     plan = resolve_scenes(scene)[0].load()
     config = ExplorationConfig()
     return run_episode(KinematicSimulator(plan, seed=0), make_policy(method, seed=0, sensor=config.sensor), config, seed=0)
@@ -3817,7 +3821,8 @@ def test_a_hung_service_is_killed_and_restarted_and_the_episode_completes(tmp_pa
     already reached, and found the planner it had just stopped alive."""
     from cso_runtime.supervision import process_start_ticks, run_process_alive
 
-    with detached_run(tmp_path, "--set", "supervision.hang_timeout_s=2", min_step_period_s=0.25, lockstep_timeout_s=0.5) as (runs, status):
+    # 0.1 s steps: the robot stands while its planner hangs (no goal, no coverage), so the episode cannot end before the kill.
+    with detached_run(tmp_path, "--set", "supervision.hang_timeout_s=2", min_step_period_s=0.1, lockstep_timeout_s=0.5) as (runs, status):
         wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
         before = status()["services"]["planner"]
         planner_pid, planner_ticks = before["pid"], process_start_ticks(before["pid"])
@@ -4380,23 +4385,40 @@ def test_every_command_renders_its_help_with_its_summary():
         assert name in top.output
 
 
-def test_shell_completion_offers_profiles_methods_runs_and_service_logs(tmp_path):
+def test_shell_completion_offers_profiles_methods_runs_and_service_logs(tmp_path, monkeypatch, capsys):
     """``cso-runtime --install-completion`` (typer/click): the values a user types most come from what exists:
     profile names, methods (the last of a comma list), run ids and the services with a log in the run."""
+    from cso_runtime.cli import main
     from tests.test_runs import make_run
 
     runs = tmp_path / "runs"
     make_run(runs, "20261203-091000-lockstep-r0", outcome="done", logs={"sim": "", "mapper": ""})
     make_run(runs, "20261203-091100-lockstep-r0", outcome="done", logs={"planner": ""})
 
-    def complete(line: str) -> list[str]:
-        words = line.split(" ")
-        env = {**os.environ, "_CSO_RUNTIME_COMPLETE": "complete_bash", "COMP_WORDS": line, "COMP_CWORD": str(len(words) - 1)}
+    def completion_env(line: str) -> dict[str, str]:
+        return {"_CSO_RUNTIME_COMPLETE": "complete_bash", "COMP_WORDS": line, "COMP_CWORD": str(len(line.split(" ")) - 1)}
+
+    def complete_in_a_process(line: str) -> list[str]:
+        """As the shell asks: the script run with the completion variables."""
+        env = {**os.environ, **completion_env(line)}
         r = subprocess.run([sys.executable, "-m", "cso_runtime.cli"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
         assert r.returncode == 0, r.stderr
         return r.stdout.split()
 
-    assert complete("cso-runtime up --profile ") == ["limo-ros2", "lockstep", "sim"]
+    def complete(line: str) -> list[str]:
+        """The same entry point (``main``) in this process: a second of interpreter start-up less per line."""
+        monkeypatch.chdir(tmp_path)
+        with monkeypatch.context() as m:
+            for name, value in completion_env(line).items():
+                m.setenv(name, value)
+            m.setattr(sys, "argv", ["cso-runtime"])
+            with pytest.raises(SystemExit) as exited:
+                main()
+        out, err = capsys.readouterr()
+        assert exited.value.code in (0, None), err
+        return out.split()
+
+    assert complete_in_a_process("cso-runtime up --profile ") == complete("cso-runtime up --profile ") == ["limo-ros2", "lockstep", "sim"]
     assert complete("cso-runtime eval --method greedy-dist,cso-n") == ["greedy-dist,cso-no-info", "greedy-dist,cso-no-mask"]
     assert complete("cso-runtime eval --method cso,a") == ["cso,all"]  # a group, in eval's list only
     assert complete("cso-runtime up --method a") == []
