@@ -82,3 +82,24 @@ def test_table2_has_a_row_per_method_and_a_column_per_scale(tmp_path, capsys):
     assert out[0] == ["method", "small", "large"]
     assert out[2] == ["greedy-dist", "2.0000", "1.0000"]
     assert out[3][:2] == ["cso", "-"] and out[3][2].startswith("1.1000 (+10.0 % [")
+
+
+def test_benchmarks_table1_is_what_its_printed_command_pools_from_the_committed_episodes():
+    """BENCHMARKS.md's pooling block, run as printed (bash, from the repository), gives Table 1's rows as the file
+    has them: the command names every committed folder the table comes from, and the table is not stale."""
+    import re
+    import subprocess
+    import sys
+
+    root = Path(__file__).parents[1]
+    text = (root / "BENCHMARKS.md").read_text(encoding="utf-8")
+    section = text[text.index("## Table 1") : text.index("## The learned CSO policy")]
+    block = re.search(r"^    R=benchmarks/results\n(?:    .*\n)+", section, flags=re.MULTILINE)
+    assert block is not None, "Table 1's pooling command is gone"
+    script = "\n".join(line[4:] for line in block.group(0).splitlines())
+    r = subprocess.run(["bash", "-c", f'python() {{ "{sys.executable}" "$@"; }}\nset -e\n{script}'], cwd=root, capture_output=True, text=True, timeout=300, env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(root)})
+    assert r.returncode == 0, r.stderr[-2000:]
+    table_row = re.compile(r"^\| (?:small|middle|large|super_large) \| .*$", flags=re.MULTILINE)
+    printed = table_row.findall(section.split("How the episodes ended")[0])
+    assert len(printed) == 40, "Table 1 lost rows"
+    assert table_row.findall(r.stdout) == printed
