@@ -82,3 +82,31 @@ def test_table2_has_a_row_per_method_and_a_column_per_scale(tmp_path, capsys):
     assert out[0] == ["method", "small", "large"]
     assert out[2] == ["greedy-dist", "2.0000", "1.0000"]
     assert out[3][:2] == ["cso", "-"] and out[3][2].startswith("1.1000 (+10.0 % [")
+
+
+def test_benchmarks_tables_1_and_2_are_what_the_printed_command_pools_from_the_committed_episodes():
+    """BENCHMARKS.md's pooling block, run as printed (bash, from the repository), gives Table 1's rows as the file
+    has them, and with ``--table2`` Table 2's (the same files): the command names every committed folder the tables
+    come from, and the tables are not stale."""
+    import re
+    import subprocess
+    import sys
+
+    root = Path(__file__).parents[1]
+    text = (root / "BENCHMARKS.md").read_text(encoding="utf-8")
+    section = text[text.index("## Table 1") : text.index("## The learned CSO policy")]
+    block = re.search(r"^    R=benchmarks/results\n(?:    .*\n)+", section, flags=re.MULTILINE)
+    assert block is not None, "Table 1's pooling command is gone"
+    script = "\n".join(line[4:] for line in block.group(0).splitlines())
+    table2 = script.splitlines()[-1].replace("benchmarks/tables.py", "benchmarks/tables.py --table2", 1)
+    r = subprocess.run(["bash", "-c", f'python() {{ "{sys.executable}" "$@"; }}\nset -e\n{script}\necho TABLE2\n{table2}'], cwd=root, capture_output=True, text=True, timeout=300, env={"PATH": "/usr/bin:/bin", "PYTHONPATH": str(root)})
+    assert r.returncode == 0, r.stderr[-2000:]
+    table1_out, table2_out = r.stdout.split("TABLE2\n")
+    table_row = re.compile(r"^\| (?:small|middle|large|super_large) \| .*$", flags=re.MULTILINE)
+    printed = table_row.findall(section.split("How the episodes ended")[0])
+    assert len(printed) == 40, "Table 1 lost rows"
+    assert table_row.findall(table1_out) == printed
+    method_row = re.compile(r"^\| (?:greedy|utility|random|cso|gnn)[\w-]* \| .*$", flags=re.MULTILINE)
+    table2_section = text[text.index("### Table 2") : text.index("With the paper's 2 m bound")]
+    assert len(method_row.findall(table2_section)) == 10, "Table 2 lost rows"
+    assert method_row.findall(table2_out) == method_row.findall(table2_section)
