@@ -155,3 +155,22 @@ def test_the_commit_is_the_packages_checkouts_under_a_git_hooks_environment(tmp_
     monkeypatch.setenv("GIT_INDEX_FILE", str(other / ".git" / "index"))
     git_checkout.cache_clear()
     assert git_checkout(tmp_path / "package") == {"git_commit": commit, "git_modified": False}
+
+
+def test_evals_record_names_the_commit_that_ran_the_episodes_not_the_one_checked_out_at_the_end(tmp_path: Path, monkeypatch):
+    """The record was taken as the summary was written, after every episode: an eval of hours while its checkout was
+    switched to another branch (or committed to) named the commit checked out at the end, not the code that ran."""
+    from cso_runtime import evaluation
+    from cso_runtime.evaluation import EvalRequest, run_eval
+
+    checked_out = {"git_commit": "the commit that runs the episodes"}
+    run_job = evaluation.run_job
+
+    def checkout_switched_meanwhile(job: evaluation.EpisodeJob) -> evaluation.EpisodeOutcome:
+        checked_out["git_commit"] = "a commit checked out while they ran"
+        return run_job(job)
+
+    monkeypatch.setattr(evaluation, "software_provenance", lambda: dict(checked_out))
+    monkeypatch.setattr(evaluation, "run_job", checkout_switched_meanwhile)
+    summary = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path, max_steps=4))
+    assert summary["meta"]["software"] == {"git_commit": "the commit that runs the episodes"}
