@@ -174,3 +174,13 @@ def test_evals_record_names_the_commit_that_ran_the_episodes_not_the_one_checked
     monkeypatch.setattr(evaluation, "run_job", checkout_switched_meanwhile)
     summary = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path, max_steps=4))
     assert summary["meta"]["software"] == {"git_commit": "the commit that runs the episodes"}
+
+
+def test_the_report_header_names_the_commit_beside_the_version_of_a_summary_without_a_command():
+    """The commit went in at a fixed place, third where ``version`` was a key: a summary without ``command`` (or with a
+    null ``version``) had it after the maps, or before the version."""
+    from cso_runtime.report import run_settings_text
+
+    software = {"git_commit": "0123456789abcdef0123"}
+    assert run_settings_text({"version": "0.1.0", "maps": "generated:small:1:0", "software": software}).startswith("version: 0.1.0, commit: 0123456789ab, maps")
+    assert run_settings_text({"command": "cso-runtime eval", "version": None, "seed": 0, "software": software}).startswith("command: cso-runtime eval, commit: 0123456789ab, seed")
