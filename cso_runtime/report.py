@@ -18,6 +18,7 @@ from cso_runtime.outputs import (
     COVERAGE_FIGURE,
     EFFICIENCY_FIGURE,
     PAIRED_FIGURE,
+    REPORT_NAME,
     episode_animation_path,
     episode_map_path,
     trajectory_plot_path,
@@ -26,7 +27,6 @@ from cso_runtime.outputs import (
 from cso_runtime.policies import LEARNED_METHODS
 from cso_runtime.scenes import SCALES, scale_rank
 
-REPORT_NAME = "report.html"
 FIGURES = (
     (COVERAGE_FIGURE, "Coverage against step (Fig. 4)"),
     (EFFICIENCY_FIGURE, "Efficiency by scale, and each method against the baseline (Fig. 5)"),
