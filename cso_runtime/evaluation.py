@@ -1152,6 +1152,7 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
     for warning in plan.warnings:
         log.warning("%s", warning)
     config, scenes, jobs, weights, mujoco = plan.config, plan.scenes, plan.jobs, plan.weights, plan.mujoco
+    software = software_provenance()  # before the episodes: the commit that runs them, not one checked out meanwhile
     out = Path(request.out_dir)
     for stale in remove_stale_partial_files(out, [job.npz_path for job in jobs], is_an_episode_file) if locked else []:  # a killed eval's
         log.info("removed %s, left by an eval that was killed while writing it", stale)
@@ -1190,7 +1191,7 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
     meta = {
         "command": "cso-runtime eval",
         "version": __version__,  # which code made the table
-        "software": software_provenance(),  # its checkout's commit, Python and libraries, the command line
+        "software": software,  # its checkout's commit, Python and libraries, the command line
         "maps": request.maps,
         # The flag's scale of PNG plans; null where none ran (generated plans and map files: their own, in cell_sizes_m).
         "m_per_px": request.m_per_px if any(ref.scaled_by_m_per_px for ref in scenes) else None,

@@ -290,6 +290,8 @@ class Launcher:
         """Set by Ctrl-C, SIGTERM, SIGHUP or ``down`` (``stop_event`` given: the one ``up`` set on a signal since its first line)."""
         self.launcher_pid = os.getpid()
         """The launcher's process in ``run.json`` (a detached one that never wrote its run file: its own, not ``up``'s)."""
+        self.software = software_provenance()
+        """The software that runs the profile (``meta.software``), taken as it starts: not a commit checked out meanwhile."""
         self.children: list[Child] = []
         self.endpoints: list[str] = []
         self.status: EpisodeStatusMsg | None = None
@@ -929,7 +931,7 @@ class Launcher:
         return self.pace.real_time_factor if self.simulated else None
 
     def write_outputs(self, result: EpisodeResultMsg) -> Path:
-        meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "software": software_provenance(), "profile": self.data}
+        meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "software": self.software, "profile": self.data}
         meta["paused_s"] = self.pause_status()["total_s"]  # the robot held still (real time went on, and its steps)
         meta["config"] = to_dict(self.profile.exploration_config())  # every exploration parameter, as eval's summary
         sim_settings = self.profile.simulator_settings()

@@ -22,6 +22,8 @@ from typing import Any
 COVERAGE_FIGURE = "coverage_curves.png"
 EFFICIENCY_FIGURE = "efficiency_by_scale.png"
 PAIRED_FIGURE = "paired_efficiency.png"
+REPORT_NAME = "report.html"
+"""eval's and ``up``'s page of results (``report.write_report``)."""
 
 
 def file_stem(scene: str) -> str:
@@ -128,8 +130,8 @@ RESULT_FILE_FOLDERS = ("episodes", "animations", "maps")
 """The folders of ``--out`` with a folder per method; every file of ``--out`` is written beside itself first
 (``partial_path``, ``write_whole``)."""
 
-EVAL_RESULT_FILES = ("summary.json", "episodes.csv", "paired.csv", "report.html", COVERAGE_FIGURE, EFFICIENCY_FIGURE, PAIRED_FIGURE)
-"""The files eval writes at the top of ``--out`` (``report.REPORT_NAME`` is ``report.html``)."""
+EVAL_RESULT_FILES = ("summary.json", "episodes.csv", "paired.csv", REPORT_NAME, COVERAGE_FIGURE, EFFICIENCY_FIGURE, PAIRED_FIGURE)
+"""The files eval writes at the top of ``--out``."""
 
 EVAL_FILE_SUFFIXES = {"episodes": (".npz",), "animations": (".gif",), "maps": (".yaml", ".png"), "trajectories": (".png",)}
 """What eval writes in each folder of ``--out``: a method's episodes, animations and maps, the plans' trajectories."""

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import functools
+import os
 import platform
 import shlex
 import subprocess
@@ -16,6 +17,10 @@ PROVENANCE_PACKAGES = ("numpy", "torch", "mujoco")
 
 GIT_TIMEOUT_S = 5.0
 """How long a ``git`` call may take before the commit is left out (a results file is not worth a hang)."""
+
+GIT_REPOSITORY_VARIABLES = ("GIT_DIR", "GIT_WORK_TREE", "GIT_INDEX_FILE", "GIT_COMMON_DIR", "GIT_OBJECT_DIRECTORY", "GIT_ALTERNATE_OBJECT_DIRECTORIES")
+"""Variables that point git at another repository than the one ``-C`` names (a git hook or ``git rebase --exec`` sets
+some): left out of the calls, which ask about the package's own checkout."""
 
 _command_line: str | None = None
 """The command line this process runs (``record_command_line``); None where no command line started it (an API call)."""
@@ -45,9 +50,12 @@ def installed_version(package: str) -> str | None:
 
 
 def _git(root: Path, *args: str) -> str | None:
-    """The output of ``git -C root ARGS``; None where git is missing, fails or takes too long."""
+    """The output of ``git -C root ARGS``; None where git is missing, fails or takes too long. Read-only: without optional
+    locks (``git status`` would refresh the user's index under ``.git/index.lock``, failing a ``git commit`` run
+    meanwhile) and without the variables that name another repository (``GIT_REPOSITORY_VARIABLES``)."""
+    env = {k: v for k, v in os.environ.items() if k not in GIT_REPOSITORY_VARIABLES} | {"GIT_OPTIONAL_LOCKS": "0"}
     try:
-        done = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=GIT_TIMEOUT_S, check=True)
+        done = subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=GIT_TIMEOUT_S, check=True, env=env)
     except (OSError, subprocess.SubprocessError):
         return None
     return done.stdout

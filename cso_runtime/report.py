@@ -18,6 +18,7 @@ from cso_runtime.outputs import (
     COVERAGE_FIGURE,
     EFFICIENCY_FIGURE,
     PAIRED_FIGURE,
+    REPORT_NAME,
     episode_animation_path,
     episode_map_path,
     trajectory_plot_path,
@@ -26,7 +27,6 @@ from cso_runtime.outputs import (
 from cso_runtime.policies import LEARNED_METHODS
 from cso_runtime.scenes import SCALES, scale_rank
 
-REPORT_NAME = "report.html"
 FIGURES = (
     (COVERAGE_FIGURE, "Coverage against step (Fig. 4)"),
     (EFFICIENCY_FIGURE, "Efficiency by scale, and each method against the baseline (Fig. 5)"),
@@ -265,7 +265,7 @@ def run_settings_text(meta: dict[str, Any]) -> str:
     parts = [f"{k}: {meta[k]}" for k in ("command", "version", "maps", "m_per_px", "cell_sizes_m", "seed", "sim") if meta.get(k) is not None]
     software = meta.get("software")
     if isinstance(software, dict) and software.get("git_commit"):  # run from a checkout (provenance.software_provenance)
-        parts.insert(2 if "version" in meta else 1, f"commit: {str(software['git_commit'])[:12]}{' (modified)' if software.get('git_modified') else ''}")
+        parts.insert(sum(meta.get(k) is not None for k in ("command", "version")), f"commit: {str(software['git_commit'])[:12]}{' (modified)' if software.get('git_modified') else ''}")
     profile = meta.get("profile")
     if isinstance(profile, dict):  # a run of `up`: its profile, as run, stands for eval's flags
         shown = {"profile": profile.get("name"), "scene": profile.get("scene"), "seed": profile.get("seed")}

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import cso_runtime
 from cso_runtime import provenance
@@ -116,3 +118,69 @@ def test_the_report_header_names_the_commit_that_made_the_table():
     meta = {"command": "cso-runtime eval", "version": "0.1.0", "software": {"git_commit": "0123456789abcdef0123", "git_modified": True}, "seed": 0}
     assert run_settings_text(meta).startswith("command: cso-runtime eval, version: 0.1.0, commit: 0123456789ab (modified), seed: 0")
     assert "commit" not in run_settings_text({**meta, "software": {"version": "0.1.0"}})  # an installed package: none
+
+
+def _repo(path: Path, commits: int = 1) -> str:
+    """A git repository at ``path`` with one file and ``commits`` commits; its HEAD."""
+    git = ["git", "-C", str(path), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run(["git", "init", "-q", str(path)], check=True)
+    (path / "f.txt").write_text("a\n")
+    subprocess.run([*git, "add", "f.txt"], check=True)
+    for n in range(commits):
+        subprocess.run([*git, "commit", "-q", "--allow-empty", "-m", f"commit {n}"], check=True)
+    return subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_the_commit_is_read_without_writing_the_checkouts_index(tmp_path: Path):
+    """``git status`` refreshes the index where a file's stat changed, under ``.git/index.lock``: each eval rewrote the
+    user's index, and a ``git commit`` run meanwhile could fail on the lock. The record is read without optional locks."""
+    commit = _repo(tmp_path)
+    index = tmp_path / ".git" / "index"
+    later_ns = index.stat().st_mtime_ns + 2_000_000_000
+    os.utime(tmp_path / "f.txt", ns=(later_ns, later_ns))  # touched, not changed: a refresh would rewrite the index
+    before = index.stat().st_mtime_ns, index.read_bytes()
+    git_checkout.cache_clear()
+    assert git_checkout(tmp_path) == {"git_commit": commit, "git_modified": False}
+    assert (index.stat().st_mtime_ns, index.read_bytes()) == before
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_the_commit_is_the_packages_checkouts_under_a_git_hooks_environment(tmp_path: Path, monkeypatch):
+    """Run from a git hook (a pre-commit that runs the tests) or ``git rebase --exec``, ``GIT_DIR`` and ``GIT_INDEX_FILE``
+    may name another repository: the record named that one's commit as the package's checkout's."""
+    commit = _repo(tmp_path / "package")
+    _repo(other := tmp_path / "other", commits=2)
+    monkeypatch.setenv("GIT_DIR", str(other / ".git"))
+    monkeypatch.setenv("GIT_INDEX_FILE", str(other / ".git" / "index"))
+    git_checkout.cache_clear()
+    assert git_checkout(tmp_path / "package") == {"git_commit": commit, "git_modified": False}
+
+
+def test_evals_record_names_the_commit_that_ran_the_episodes_not_the_one_checked_out_at_the_end(tmp_path: Path, monkeypatch):
+    """The record was taken as the summary was written, after every episode: an eval of hours while its checkout was
+    switched to another branch (or committed to) named the commit checked out at the end, not the code that ran."""
+    from cso_runtime import evaluation
+    from cso_runtime.evaluation import EvalRequest, run_eval
+
+    checked_out = {"git_commit": "the commit that runs the episodes"}
+    run_job = evaluation.run_job
+
+    def checkout_switched_meanwhile(job: evaluation.EpisodeJob) -> evaluation.EpisodeOutcome:
+        checked_out["git_commit"] = "a commit checked out while they ran"
+        return run_job(job)
+
+    monkeypatch.setattr(evaluation, "software_provenance", lambda: dict(checked_out))
+    monkeypatch.setattr(evaluation, "run_job", checkout_switched_meanwhile)
+    summary = run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path, max_steps=4))
+    assert summary["meta"]["software"] == {"git_commit": "the commit that runs the episodes"}
+
+
+def test_the_report_header_names_the_commit_beside_the_version_of_a_summary_without_a_command():
+    """The commit went in at a fixed place, third where ``version`` was a key: a summary without ``command`` (or with a
+    null ``version``) had it after the maps, or before the version."""
+    from cso_runtime.report import run_settings_text
+
+    software = {"git_commit": "0123456789abcdef0123"}
+    assert run_settings_text({"version": "0.1.0", "maps": "generated:small:1:0", "software": software}).startswith("version: 0.1.0, commit: 0123456789ab, maps")
+    assert run_settings_text({"command": "cso-runtime eval", "version": None, "seed": 0, "software": software}).startswith("command: cso-runtime eval, commit: 0123456789ab, seed")

@@ -1898,6 +1898,22 @@ def test_ups_summary_records_the_software_and_the_command_line_that_ran_it(tmp_p
     assert meta["software"]["version"] == meta["version"] == cso_runtime.__version__
 
 
+def test_ups_record_names_the_commit_that_started_the_run_not_the_one_checked_out_as_it_stops(tmp_path, monkeypatch):
+    """The record was taken as the run's results were written, when it stopped: a run of hours while its checkout was
+    switched to another branch named the commit checked out then, not the one whose services ran."""
+    from cso_runtime import launcher
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    checked_out = {"git_commit": "the commit that starts the services"}
+    monkeypatch.setattr(launcher, "software_provenance", lambda: dict(checked_out))
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    run = Launcher(profile, data, tmp_path / "run")
+    checked_out["git_commit"] = "a commit checked out while it ran"
+    run.write_outputs(_fake_result())
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["meta"]["software"] == {"git_commit": "the commit that starts the services"}
+
+
 @pytest.mark.parametrize(("name", "expected"), [("sim", "mujoco"), ("lockstep", "2d"), ("limo-ros2", None)])
 def test_ups_summary_records_every_parameter_of_its_simulator(tmp_path, name, expected):
     """``summary.json`` of ``up`` held the profile as written (``services.sim.mujoco``: only what it changes), not the
@@ -3392,8 +3408,11 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
 
         ran = load_profile(str(profile), {})[0].exploration_config()
         assert summary["meta"]["config"] == to_dict(ran)  # every exploration parameter, as eval's summary holds them
-        # report.html says what made its table, as eval's does: the profile, scene, seed, sensor and step limit
-        settings = f"command: cso-runtime up, version: {cso_runtime.__version__}, profile: lockstep, scene: {scene}, seed: 0, lockstep, "
+        # report.html says what made its table, as eval's does: the commit run from a checkout (none from a wheel), the
+        # profile, scene, seed, sensor and step limit
+        software = summary["meta"]["software"]
+        commit = f"commit: {software['git_commit'][:12]}{' (modified)' if software['git_modified'] else ''}, " if "git_commit" in software else ""
+        settings = f"command: cso-runtime up, version: {cso_runtime.__version__}, {commit}profile: lockstep, scene: {scene}, seed: 0, lockstep, "
         settings += f"sensor field of view: {ran.sensor.fov_deg:g} degrees, step limit: {ran.episode.max_steps}"
         assert f"<p>{settings}</p>" in (run_dir.parent / "report.html").read_text()
         expected = in_process_result(scene, method)

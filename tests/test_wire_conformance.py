@@ -605,6 +605,14 @@ def test_the_docs_table_gives_each_key_the_schema_its_publishers_send():
 POLICY_NODE = Path(__file__).resolve().parent / "command_policy_example.py"
 
 
+def test_the_example_policy_speaks_the_current_versions():
+    """A schema's version bump left the example node rejecting every ``frontiers``: the run test then failed only after a
+    minute of lockstep retries, saying no decision came. Here it fails at once, naming the schema."""
+    from tests.command_policy_example import VERSIONS
+
+    assert VERSIONS == {schema: MESSAGE_TYPES[schema].VERSION for schema in VERSIONS}
+
+
 def test_a_policy_written_from_the_docs_alone_stands_in_for_the_builtin_one_step_for_step(tmp_path: Path):
     """The lockstep profile on the small scene with its policy replaced by tests/command_policy_example.py (only Zenoh,
     msgpack and docs/messages.md): the episode is the in-process greedy-dist one step for step, and ``status`` shows
