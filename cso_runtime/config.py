@@ -284,7 +284,8 @@ class PlannerConfig:
     sliding on from full speed), it backs straight up ``backup_distance_m`` before following on, a period at a
     time and only while the map the path was planned on shows no obstacle in the strip behind the body
     (``LocalPlanner`` stops a reverse command otherwise). A period that asked to drive is judged by its drive
-    alone, whatever its turn did; a turn in place by its turn. With a sensor narrower than
+    alone, whatever its turn did (how far it got along the headings the body had: a body pressed on a wall that
+    slides along it counts only its share ahead); a turn in place by its turn. With a sensor narrower than
     ``face_goal_below_fov_deg`` (the depth camera) the cells the pinned body touches become obstacles of the
     planner's grid for the rest of the episode, and the path is planned again round them after the back-up; so do
     returns nearer than the sensor's ``range_min`` (which the mapper leaves out) that block the way ahead, and the

@@ -26,8 +26,8 @@ FACE_GOAL_VIEW_FRACTION = 0.75
 """A goal counts as in view once within this fraction of the half field of view (not at its very edge)."""
 
 STALL_ACHIEVED_FRACTION = 0.25
-"""A control period that moved the robot less than this fraction of the translation and of the rotation its
-command asked for counts as stalled."""
+"""A control period that moved the robot less than this fraction of the translation (along its heading,
+``driven_along_heading_m``) and of the rotation its command asked for counts as stalled."""
 STALL_MIN_ASKED_M = 0.01
 STALL_MIN_ASKED_RAD = 0.05
 """Commands that ask less than these in a period (a stop, a creep) are never called stalled."""
@@ -380,6 +380,27 @@ class ProgressChecker:
         return True
 
 
+def driven_along_heading_m(last_pose: Pose2D, pose: Pose2D, linear_mps: float) -> float:
+    """How far the robot got from ``last_pose`` to ``pose`` the way a drive at ``linear_mps`` takes it (ahead, or back
+    when negative): the distance moved, less what went sideways of every heading the body had on the way. A
+    differential drive moves along its heading, so a free arc (any heading between the two poses') counts in full;
+    a body pressed on a wall that slides along it (MuJoCo's LIMO, gen_middle_2001) counts only its share along
+    the heading, and a push back against the command counts negative."""
+    dx_m, dy_m = pose.x_m - last_pose.x_m, pose.y_m - last_pose.y_m
+    moved_m = math.hypot(dx_m, dy_m)
+    if moved_m == 0.0:
+        return 0.0
+    if linear_mps < 0:
+        dx_m, dy_m = -dx_m, -dy_m
+    travel_rad = wrap_angle_rad(math.atan2(dy_m, dx_m) - last_pose.yaw_rad)
+    turned_rad = wrap_angle_rad(pose.yaw_rad - last_pose.yaw_rad)
+    low_rad, high_rad = min(0.0, turned_rad), max(0.0, turned_rad)
+    if low_rad <= travel_rad <= high_rad:
+        return moved_m
+    sideways_rad = min(abs(wrap_angle_rad(travel_rad - low_rad)), abs(wrap_angle_rad(travel_rad - high_rad)))
+    return moved_m * math.cos(sideways_rad)
+
+
 class StallRecovery:
     """Nav2's BackUp recovery for a robot that its commands no longer move: ``stall_steps`` control periods
     in a row that each achieved less than ``STALL_ACHIEVED_FRACTION`` of what they asked (the robot is
@@ -387,7 +408,8 @@ class StallRecovery:
     follower alone keeps pushing a pinned robot into the wall: its sweep sees the wall a few centimetres
     ahead but not the corner that holds the body. A period that asked to drive is judged by its drive: pinned
     by its side on a wall outside the depth camera's view, the robot still turns as pure pursuit asks, and
-    counting those turns as movement kept the back-up from ever starting."""
+    counting those turns as movement kept the back-up from ever starting. Nor does a drive count what went
+    sideways: the MuJoCo LIMO pressed on a wall can slide along it at a third of the asked speed."""
 
     def __init__(self, config: PlannerConfig, control_period_s: float) -> None:
         self.config = config
@@ -422,10 +444,10 @@ class StallRecovery:
         asked_m, asked_rad = abs(cmd.linear_mps) * dt, cmd.angular_radps * dt
         if dt <= 0 or (asked_m < STALL_MIN_ASKED_M and abs(asked_rad) < STALL_MIN_ASKED_RAD):
             return False
-        moved_m = math.hypot(pose.x_m - last_pose.x_m, pose.y_m - last_pose.y_m)
         turned_rad = math.copysign(1.0, asked_rad) * wrap_angle_rad(pose.yaw_rad - last_pose.yaw_rad)
         if asked_m >= STALL_MIN_ASKED_M:
-            return moved_m < STALL_ACHIEVED_FRACTION * asked_m  # a drive that went nowhere is pinned, whatever its turn did
+            driven_m = driven_along_heading_m(last_pose, pose, cmd.linear_mps)
+            return driven_m < STALL_ACHIEVED_FRACTION * asked_m  # a drive that went nowhere is pinned, whatever its turn did
         return turned_rad < STALL_ACHIEVED_FRACTION * abs(asked_rad)  # a turn in place is judged by its turn
 
     def command(self, pose: Pose2D, time_s: float) -> VelocityCommand | None:
