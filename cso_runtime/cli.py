@@ -226,12 +226,13 @@ def _use_zenoh_config(path: Path) -> None:
     os.environ[ZENOH_CONFIG_ENV] = str(path.absolute())
 
 
-def _use_weights(folder: Path) -> None:
-    """``--weights``: serve the learned methods from a training run's folder, or exit 2 saying why."""
-    from cso_runtime.learned.weights import use_weights_dir  # noqa: PLC0415
+def _use_weights(given: Path) -> Path:
+    """``--weights``: serve the learned methods from a training run's folder, or one method from exactly the file
+    given; the folder or file, or exit 2 saying why."""
+    from cso_runtime.learned.weights import use_weights  # noqa: PLC0415
 
     try:
-        use_weights_dir(folder)
+        return use_weights(given)
     except ValueError as exc:
         _fail(str(exc), 2)
 
@@ -307,7 +308,7 @@ def eval_command(
     ),
     baseline: str = typer.Option("greedy-dist", "--baseline", help="Compare every other method with this one, scene by scene (paired.csv), when it runs too"),
     weights: Path | None = typer.Option(
-        None, "--weights", help="Folder of <method>.pt (a `train --out` folder), or one of its <method>.pt files, to use instead of the shipped weights (sets CSO_WEIGHTS_DIR)"
+        None, "--weights", help="Folder of <method>.pt (a `train --out` folder: each method its file, or its <method>@fov<deg>.pt for a sensor of that field of view; sets CSO_WEIGHTS_DIR), or one <method>.pt file, which that method then uses exactly, whatever the sensor (sets CSO_WEIGHTS_FILE), instead of the shipped weights"
     ),
     animate: bool = typer.Option(False, "--animate", help="Also write animations/<method>/<map>.gif: the robot's map, path and goal at each decision"),
     settings: list[str] | None = typer.Option(
@@ -765,7 +766,7 @@ def up_command(
     ),
     record: bool = typer.Option(False, "--record", help="Record the run to runs/<run-id>/recording.mcap"),
     record_out: str | None = typer.Option(None, "--record-out", help="Record the run to this new MCAP file, or to <run-id>.mcap in this folder (existing, or ending in /; implies --record)"),
-    weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt (a `train --out` folder), or one of its <method>.pt files, for the policy service instead of the shipped weights (sets CSO_WEIGHTS_DIR)"),
+    weights: Path | None = typer.Option(None, "--weights", help="Folder of <method>.pt (a `train --out` folder: each method its file, or its <method>@fov<deg>.pt for a sensor of that field of view; sets CSO_WEIGHTS_DIR), or one <method>.pt file, which that method then uses exactly, whatever the sensor (sets CSO_WEIGHTS_FILE), for the policy service instead of the shipped weights"),
     settings: list[str] | None = typer.Option(
         None, "--set", help="KEY=VALUE into the profile, repeatable, a dotted KEY for a nested one (seed=3, services.sim.viewer=true; --dry-run prints the profile)"
     ),
@@ -801,8 +802,7 @@ def up_command(
     from cso_runtime.launcher import run_foreground, start_detached  # noqa: PLC0415
     from cso_runtime.run_profile import REAL_ROBOT_SCENE, UNUSED_BY_A_REAL_ROBOT, load_profile  # noqa: PLC0415
 
-    if weights is not None:
-        _use_weights(weights)
+    weights_given = None if weights is None else _use_weights(weights)
     try:
         overrides = {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep}
         prof, data = load_profile(
@@ -829,10 +829,11 @@ def up_command(
             comments.append("every parameter as the run would use it, defaults filled in (`up --dry-run`: the profile as written)")
             if prof.scene_label == REAL_ROBOT_SCENE:
                 comments.append(f"scene: {REAL_ROBOT_SCENE} ({' and '.join(UNUSED_BY_A_REAL_ROBOT)} left out: never loaded)")
-            if weights is not None:  # a setting of the run that no profile key holds: the profile alone would run the shipped weights
-                from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415
+            if weights_given is not None:  # a setting of the run that no profile key holds: the profile alone would run the shipped weights
+                from cso_runtime.learned.weights import method_of_file  # noqa: PLC0415
 
-                comments.append(f"the learned methods' weights from --weights {weights_dir()} (no profile key: give it again with this profile)")
+                whose = "the learned methods'" if weights_given.is_dir() else f"{method_of_file(weights_given)}'s"
+                comments.append(f"{whose} weights from --weights {weights_given} (no profile key: give it again with this profile)")
             comments += _fixed_simulator_settings_said(prof)
         typer.echo(commented_yaml(comments, prof.effective() if resolved else data), nl=False)
         return

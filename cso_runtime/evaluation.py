@@ -239,6 +239,10 @@ class EvalRequest:
                 raise ConfigError(f"methods {other!r} and {method!r} would share the results folder episodes/{file_stem(method)}/: run them in two evals")
         if self.baseline not in known and self.baseline not in self.methods:
             raise ConfigError(f"unknown --baseline {with_nearest(self.baseline, known, shown=repr(self.baseline))}; available: {', '.join(sorted(known))}")
+        from cso_runtime.learned.weights import weights_file_refusal  # noqa: PLC0415
+
+        if refusal := weights_file_refusal(self.methods):
+            raise ConfigError(refusal)
         untrained = [m for m in self.methods if m in LEARNED_METHODS and m not in available_methods()]
         if untrained:
             from cso_runtime.learned.weights import weights_dir  # noqa: PLC0415

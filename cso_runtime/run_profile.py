@@ -322,8 +322,10 @@ class Profile:
             except ConfigError as exc:
                 raise ConfigError(f"services.policy.method: {exc}") from None
         if method in LEARNED_METHODS and not own_policy:
-            from cso_runtime.learned.weights import weights_file_problem, weights_path  # noqa: PLC0415
+            from cso_runtime.learned.weights import weights_file_problem, weights_file_refusal, weights_path  # noqa: PLC0415
 
+            if refusal := weights_file_refusal([method]):
+                raise ConfigError(f"method {method}: {refusal}")
             sensor = self.exploration_config().sensor
             if method not in available_methods():
                 fix = weights_held_said() or f"train it with `cso-runtime train --variant {method}`"

@@ -27,6 +27,16 @@ from cso_runtime.geometry import Pose2D
 from cso_runtime.scenes import FloorPlan
 
 
+def unset_weights_env(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No weights folder nor file in the environment (``CSO_WEIGHTS_DIR``, ``CSO_WEIGHTS_FILE``), each put back as it
+    was after the test: ``--weights`` (``use_weights``) sets one in this process."""
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, WEIGHTS_FILE_ENV
+
+    for name in (WEIGHTS_DIR_ENV, WEIGHTS_FILE_ENV):
+        monkeypatch.setenv(name, "")
+        monkeypatch.delenv(name)
+
+
 def box_room(width_m: float = 4.0, height_m: float = 3.0, resolution_m: float = 0.05, wall_cells: int = 2) -> FloorPlan:
     """A closed rectangular room: free interior of width x height metres, walls all round."""
     nx = int(round(width_m / resolution_m)) + 2 * wall_cells

@@ -719,6 +719,29 @@ def test_up_resolved_says_the_weights_folder_it_runs_the_learned_methods_from(tm
     assert yaml.safe_load(r.output) == yaml.safe_load(plain.output)  # the profile itself is the same
 
 
+def test_up_weights_file_is_the_policys_file_whatever_the_sensor(tmp_path: Path, monkeypatch):
+    """``up --profile sim --weights cso_runtime/data/weights/cso.pt`` (the LIMO's 180-degree LiDAR) would have served
+    ``cso@fov180.pt`` beside it: the policy service now loads the file named (the same ``weights_path`` as eval's),
+    ``up`` warns that it was trained with 360 degrees, and a profile whose learned method is another is refused."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.config import SensorConfig
+    from cso_runtime.learned.weights import weights_dir, weights_path, weights_provenance
+    from tests.conftest import unset_weights_env
+
+    unset_weights_env(monkeypatch)
+    given = (weights_dir() / "cso.pt").resolve()
+    r = CliRunner().invoke(app, ["up", "--profile", "sim", "--weights", str(given), "--resolved"])
+    assert r.exit_code == 0, r.output
+    assert f"# cso's weights from --weights {given} (no profile key: give it again with this profile)" in r.output
+    assert "warning: the weights of cso were trained with a 360-degree sensor" in r.output
+    assert weights_path("cso", SensorConfig.preset("lidar")) == given and weights_path("cso-sm", SensorConfig.preset("lidar")).name == "cso-sm.pt"
+    assert weights_provenance("cso", SensorConfig.preset("lidar"))["path"] == str(given)
+    refused = CliRunner().invoke(app, ["up", "--profile", "sim", "--method", "cso-sm", "--weights", str(given), "--dry-run"])
+    assert refused.exit_code == 2 and "the weights of cso alone, not of cso-sm" in refused.output, refused.output
+
+
 @pytest.mark.parametrize(
     "settings, said",
     [

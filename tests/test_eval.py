@@ -23,7 +23,7 @@ from cso_runtime.map_files import load_map
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import builtin_scene_dir, load_floor_plan, resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
-from tests.conftest import two_rooms
+from tests.conftest import two_rooms, unset_weights_env
 
 
 def test_greedy_dist_explores_two_rooms_completely():
@@ -1396,6 +1396,58 @@ def test_eval_warns_when_weights_were_trained_with_another_field_of_view(tmp_pat
     with caplog.at_level("WARNING"):
         run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=tmp_path / "o360", max_steps=5, lidar_fov_deg=360.0))
     assert "trained with" not in caplog.text
+
+
+def _eval_with_weights(given: Path, out: Path, methods: str = "cso") -> tuple[int, str, dict]:
+    """``eval --method METHODS --weights GIVEN`` on one small scene with the LIMO's 180-degree LiDAR, in this process
+    (the caller's monkeypatch puts back the environment ``--weights`` sets): its exit code, output, ``meta.weights``."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    r = CliRunner().invoke(app, ["eval", "--method", methods, "--weights", str(given), "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(out)])
+    summary = out / "summary.json"
+    return r.exit_code, r.output, json.loads(summary.read_text())["meta"]["weights"] if summary.is_file() else {}
+
+
+def test_eval_weights_file_runs_exactly_that_file_whatever_the_sensor(tmp_path, monkeypatch, caplog):
+    """``eval --method cso --weights cso_runtime/data/weights/cso.pt`` with the 180-degree LiDAR ran ``cso@fov180.pt``
+    beside it (the file stood for its folder), and summary.json recorded that other file: the file named is now the
+    file run and recorded, with a warning that it was trained with another field of view (its ``cso.json``: 360)."""
+    import hashlib
+
+    unset_weights_env(monkeypatch)
+    shipped = Path(cso_runtime.__file__).parent / "data" / "weights"
+    assert (shipped / "cso@fov180.pt").is_file()  # the file a folder would take for this sensor
+    with caplog.at_level("WARNING"):
+        code, output, weights = _eval_with_weights(shipped / "cso.pt", tmp_path / "file")
+    assert code == 0, output
+    assert weights["cso"]["path"] == str((shipped / "cso.pt").resolve()) and not weights["cso"]["shipped"]
+    assert weights["cso"]["sha256"] == hashlib.sha256((shipped / "cso.pt").read_bytes()).hexdigest()
+    assert "the weights of cso were trained with a 360-degree sensor" in caplog.text and "this run's sees 180 degrees" in caplog.text
+    # One method's file for another learned method too: refused, not the shipped weights for that one unasked.
+    code, output, _ = _eval_with_weights(shipped / "cso.pt", tmp_path / "two", "greedy-dist,cso,cso-sm")
+    assert code == 2 and "the weights of cso alone, not of cso-sm" in output, output
+    assert not (tmp_path / "two").exists()
+
+
+def test_eval_weights_folder_still_takes_the_sensors_own_file(tmp_path, monkeypatch):
+    """``--weights FOLDER`` is as it was: each method's ``<method>@fov<deg>.pt`` for a sensor of that field of view
+    where the folder holds one, else its ``<method>.pt``."""
+    import hashlib
+
+    unset_weights_env(monkeypatch)
+    shipped = Path(cso_runtime.__file__).parent / "data" / "weights"
+    code, output, weights = _eval_with_weights(shipped, tmp_path / "folder")
+    assert code == 0, output
+    assert weights["cso"]["path"] == str((shipped / "cso@fov180.pt").resolve()) and not weights["cso"]["shipped"]
+    assert weights["cso"]["sha256"] == hashlib.sha256((shipped / "cso@fov180.pt").read_bytes()).hexdigest()
+    run = tmp_path / "run"  # a folder of cso.pt alone: that file, for this sensor too
+    run.mkdir()
+    shutil.copy(shipped / "cso.pt", run / "cso.pt")
+    code, output, weights = _eval_with_weights(run, tmp_path / "alone")
+    assert code == 0, output
+    assert weights["cso"]["path"] == str((run / "cso.pt").resolve())
 
 
 def test_eval_warns_when_weights_were_trained_under_other_stuck_mask_settings(tmp_path, monkeypatch, caplog):

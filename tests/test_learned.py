@@ -45,6 +45,7 @@ from cso_runtime.masks import valid_distance_mask
 from cso_runtime.policies import Goal, goal_of, make_policy
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import KinematicSimulator
+from tests.conftest import unset_weights_env
 
 
 def rooms_plan(n_rooms: int = 2, res: float = 0.1, start: Pose2D | None = None) -> FloorPlan:
@@ -1829,53 +1830,49 @@ def test_a_training_checkpoint_resumes_onto_another_device_with_its_rng_state_on
     torch.set_rng_state(ckpt["torch_rng"])
 
 
-def test_weights_given_as_a_runs_file_or_as_an_unfinished_run_are_said_plainly(tmp_path):
+def test_weights_given_as_a_runs_file_or_as_an_unfinished_run_are_said_plainly(tmp_path, monkeypatch):
     """``--weights`` took only a folder; a run's ``cso.pt`` given directly was refused as "not a folder", and a
     folder holding only ``checkpoint.pt`` (a run stopped before its end) passed, to fail later as "no weights for
-    cso". A method's file now serves from its folder; a training checkpoint is named as one, with how to finish it."""
+    cso". A method's file is now that method's weights; a training checkpoint is named as one, with how to finish it."""
     import shutil
 
     from cso_runtime.learned.registry import weights_path
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights_dir
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, WEIGHTS_FILE_ENV, use_weights
 
+    unset_weights_env(monkeypatch)
     run = tmp_path / "run"
     run.mkdir()
     shutil.copy(weights_path("cso", SensorConfig.preset("lidar", 360)), run / "cso.pt")
-    before = os.environ.get(WEIGHTS_DIR_ENV)
-    try:
-        assert use_weights_dir(run / "cso.pt") == run.resolve()
-    finally:
-        if before is None:
-            os.environ.pop(WEIGHTS_DIR_ENV, None)
-        else:
-            os.environ[WEIGHTS_DIR_ENV] = before
+    assert use_weights(run / "cso.pt") == (run / "cso.pt").resolve()
+    assert os.environ[WEIGHTS_FILE_ENV] == str((run / "cso.pt").resolve()) and WEIGHTS_DIR_ENV not in os.environ
+    before = os.environ.get(WEIGHTS_FILE_ENV)
     unfinished = tmp_path / "unfinished"
     unfinished.mkdir()
     (unfinished / "checkpoint.pt").write_bytes(b"PK\x03\x04 a checkpoint")
     for given in (unfinished, unfinished / "checkpoint.pt"):
         with pytest.raises(ValueError, match=rf"only a training checkpoint .*train --resume {re.escape(str(unfinished.resolve() / 'checkpoint.pt'))}"):
-            use_weights_dir(given)
-    assert os.environ.get(WEIGHTS_DIR_ENV) == before
+            use_weights(given)
+    assert os.environ.get(WEIGHTS_FILE_ENV) == before
 
 
-def test_weights_given_as_a_file_not_named_for_its_method_is_refused_not_swapped_for_the_folders(tmp_path):
+def test_weights_given_as_a_file_not_named_for_its_method_is_refused_not_swapped_for_the_folders(tmp_path, monkeypatch):
     """``--weights RUN/mybest.pt`` (or a run's warm start, ``cso_warm.pt``) served the folder's ``cso.pt`` instead,
     another file than the one named, without a word (or failed with "no weights for cso in RUN"). Weights are found
     by their method's name, so such a file is refused, saying how to use it."""
     import shutil
 
     from cso_runtime.learned.registry import weights_path
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights_dir
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, WEIGHTS_FILE_ENV, use_weights
 
+    unset_weights_env(monkeypatch)
     run = tmp_path / "run"
     run.mkdir()
     shipped = weights_path("cso", SensorConfig.preset("lidar", 360))
     for name in ("cso.pt", "mybest.pt", "cso_warm.pt"):
         shutil.copy(shipped, run / name)
-    before = os.environ.get(WEIGHTS_DIR_ENV)
     for name in ("mybest.pt", "cso_warm.pt"):
         with pytest.raises(ValueError, match=rf"--weights {re.escape(str(run / name))}: .*named for its method .*cso\.pt"):
-            use_weights_dir(run / name)
+            use_weights(run / name)
     # A folder of no method's file: said so, up front, not "no weights for cso" once eval starts; a run stopped after its
     # warm start (checkpoint.pt beside cso_warm.pt) is an unfinished run, as one with checkpoint.pt alone.
     unnamed, warm_only = tmp_path / "unnamed", tmp_path / "warm_only"
@@ -1884,23 +1881,18 @@ def test_weights_given_as_a_file_not_named_for_its_method_is_refused_not_swapped
         for name in names:
             shutil.copy(shipped, folder / name)
     with pytest.raises(ValueError, match=r"no file named for a learned method's weights in it \(cso\.pt, .*\); it holds mybest\.pt"):
-        use_weights_dir(unnamed)
+        use_weights(unnamed)
     with pytest.raises(ValueError, match=rf"only a training checkpoint .*train --resume {re.escape(str(warm_only.resolve() / 'checkpoint.pt'))}"):
-        use_weights_dir(warm_only)
+        use_weights(warm_only)
     # A finished run's checkpoint.pt: its folder serves the run's weights.
     shutil.copy(shipped, run / "checkpoint.pt")
     with pytest.raises(ValueError, match=rf"a training checkpoint \(what train --resume goes on from\), not a method's weights; give its folder {re.escape(str(run.resolve()))}"):
-        use_weights_dir(run / "checkpoint.pt")
-    assert os.environ.get(WEIGHTS_DIR_ENV) == before
-    try:
-        assert use_weights_dir(run / "cso.pt") == use_weights_dir(run / "cso.pt") == run.resolve()
-        shutil.copy(shipped, run / "cso@fov180.pt")
-        assert use_weights_dir(run / "cso@fov180.pt") == run.resolve()  # one sensor's weights of a method
-    finally:
-        if before is None:
-            os.environ.pop(WEIGHTS_DIR_ENV, None)
-        else:
-            os.environ[WEIGHTS_DIR_ENV] = before
+        use_weights(run / "checkpoint.pt")
+    assert os.environ.get(WEIGHTS_DIR_ENV) is None and os.environ.get(WEIGHTS_FILE_ENV) is None
+    assert use_weights(run / "cso.pt") == use_weights(run / "cso.pt") == (run / "cso.pt").resolve()
+    shutil.copy(shipped, run / "cso@fov180.pt")
+    assert use_weights(run / "cso@fov180.pt") == (run / "cso@fov180.pt").resolve()  # one sensor's weights of a method
+    assert use_weights(run) == run.resolve() and os.environ[WEIGHTS_DIR_ENV] == str(run.resolve()) and WEIGHTS_FILE_ENV not in os.environ
 
 
 def test_train_into_an_earlier_runs_folder_says_it_replaces_it(tmp_path):
@@ -1935,7 +1927,7 @@ def test_keep_checkpoints_keeps_each_checkpoints_weights_for_eval(tmp_path, monk
 
     from cso_runtime.cli import app
     from cso_runtime.learned.ppo import earlier_run_files
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights_dir
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights
 
     common = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 20, "checkpoint_every": 2, "progress": False}
     plain = tmp_path / "plain"
@@ -1962,7 +1954,7 @@ def test_keep_checkpoints_keeps_each_checkpoints_weights_for_eval(tmp_path, monk
     weights = json.loads((tmp_path / "eval" / "summary.json").read_text())["meta"]["weights"]["cso"]
     assert weights["path"] == str((kept / "update_0002" / "cso.pt").resolve())
     with pytest.raises(ValueError, match="its folders update_0002, update_0003 hold such files: give one of them"):
-        use_weights_dir(kept)
+        use_weights(kept)
 
     assert earlier_run_files(out, "cso") == ["checkpoint.pt", "cso.pt", "cso_log.csv", "checkpoints/"]
     said: list[str] = []  # a new run in that folder keeping fewer checkpoints: none of the old run's is left to evaluate
@@ -2203,14 +2195,14 @@ def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp
     ``--total-decisions`` the checkpoint has already passed writes its weights as they are, but said "1 updates in all,
     the learning rate anneals over them from here", as if it trained. It now says that no update is left, and the
     weights written are the checkpoint's, which ``eval --weights`` then runs."""
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights_dir
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights
 
-    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # use_weights_dir sets it for this process: put back as it was after the test
+    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # use_weights sets it for this process: put back as it was after the test
     common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "out_dir": str(tmp_path)}
     train(Args(**common, total_decisions=24), log=lambda _msg: None, plans=[rooms_plan(2)])
     (tmp_path / "cso.pt").unlink()  # as a stopped run leaves it
     with pytest.raises(ValueError, match=re.escape("or add --total-decisions 1 to write its weights as they are")):
-        use_weights_dir(tmp_path)
+        use_weights(tmp_path)
     said: list[str] = []
     record = train(Args(**common, total_decisions=1, resume=str(tmp_path / "checkpoint.pt")), log=said.append, plans=[rooms_plan(2)])
     assert record["ppo_decisions"] == 24 and not any("anneals" in line for line in said), said
@@ -2218,7 +2210,7 @@ def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp
     saved = torch.load(tmp_path / "checkpoint.pt", weights_only=True)["state_dict"]
     written, _, _ = load_checkpoint(tmp_path / "cso.pt")
     assert all(torch.equal(written.state_dict()[k], v) for k, v in saved.items())
-    assert use_weights_dir(tmp_path) == tmp_path.resolve()
+    assert use_weights(tmp_path) == tmp_path.resolve()
 
 
 def test_a_new_run_stopped_before_its_first_checkpoint_leaves_no_earlier_checkpoint_to_resume(tmp_path, monkeypatch):

@@ -1,12 +1,15 @@
 """Where the learned methods' weights live, without importing torch (the launcher and the CLI check
 them before anything starts; ``registry`` loads them).
 
-The shipped files are ``cso_runtime/data/weights/<method>.pt``; ``$CSO_WEIGHTS_DIR`` (or ``--weights``
+The shipped files are ``cso_runtime/data/weights/<method>.pt``; ``$CSO_WEIGHTS_DIR`` (or ``--weights FOLDER``
 on ``eval`` and ``up``) points every process of a run at a training run's folder instead.
 
 A policy is trained for one sensor. Where the folder also holds ``<method>@fov<deg>.pt`` (weights trained
 with a sensor of that field of view, e.g. ``cso@fov180.pt`` for the LIMO's 180-degree LiDAR), an episode with
 that field of view uses it; every other sensor uses ``<method>.pt``.
+
+``$CSO_WEIGHTS_FILE`` (or ``--weights FILE``) names one file instead: its method (the one it is named for) uses
+exactly that file, whatever the sensor; nothing beside it takes its place.
 """
 
 from __future__ import annotations
@@ -25,8 +28,24 @@ WEIGHTS_DIR_ENV = "CSO_WEIGHTS_DIR"
 (evaluate your own training runs with ``eval`` or the policy service; child processes inherit it)."""
 
 
+WEIGHTS_FILE_ENV = "CSO_WEIGHTS_FILE"
+"""Environment variable naming one ``<method>.pt`` (or ``<method>@fov<deg>.pt``) file that its method uses exactly,
+whatever the sensor (``--weights FILE``; child processes inherit it). The other methods use ``weights_dir``'s."""
+
+
+def given_weights_file() -> Path | None:
+    """The file of ``$CSO_WEIGHTS_FILE`` (``--weights FILE``), None when none is given."""
+    given = os.environ.get(WEIGHTS_FILE_ENV)
+    return Path(given) if given else None
+
+
+def method_of_file(path: Path) -> str:
+    """The method a weights file is named for: ``cso`` for ``cso.pt`` and ``cso@fov180.pt``."""
+    return path.stem.split("@fov")[0]
+
+
 def weights_dir() -> Path:
-    """The folder of weights files: ``$CSO_WEIGHTS_DIR`` when set (``--weights``, a training run's), else the shipped ones."""
+    """The folder of weights files: ``$CSO_WEIGHTS_DIR`` when set (``--weights FOLDER``, a training run's), else the shipped ones."""
     override = os.environ.get(WEIGHTS_DIR_ENV)
     if override:
         return Path(override)
@@ -39,8 +58,12 @@ def sensor_tag(sensor: SensorConfig) -> str:
 
 
 def weights_path(name: str, sensor: SensorConfig | None = None) -> Path:
-    """``name``'s weights file: ``<name>@<sensor_tag>.pt`` when ``sensor`` is given and the folder has one
-    trained with its field of view, else ``<name>.pt``."""
+    """``name``'s weights file: the file given for it (``$CSO_WEIGHTS_FILE``, ``--weights FILE``) whatever the sensor;
+    else ``<name>@<sensor_tag>.pt`` when ``sensor`` is given and the folder has one trained with its field of view,
+    else ``<name>.pt``."""
+    given = given_weights_file()
+    if given is not None and method_of_file(given) == name:
+        return given
     folder = weights_dir()
     if sensor is not None:
         matched = folder / f"{name}@{sensor_tag(sensor)}.pt"
@@ -80,34 +103,37 @@ def named_for_a_method(path: Path) -> bool:
     """True for ``<method>.pt`` or ``<method>@fov<deg>.pt`` of a learned method: the files ``weights_path`` finds."""
     from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415 - no torch; policies imports this module
 
-    return path.suffix == ".pt" and path.stem.split("@fov")[0] in LEARNED_METHODS
+    return path.suffix == ".pt" and method_of_file(path) in LEARNED_METHODS
 
 
-def use_weights_dir(directory: str | Path) -> Path:
-    """Serve the learned methods from ``directory`` (a ``train --out`` folder of ``<method>.pt``, or one of those
-    files) in this process and the ones it starts (``eval --weights``, ``up --weights``). Raises ValueError, saying
-    what to give instead, for anything else: a file the folder would not serve (another name, the checkpoint), a
-    folder of no method's file (an unfinished run's: how to finish it)."""
+def use_weights(given: str | Path) -> Path:
+    """Serve the learned methods from ``given`` in this process and the ones it starts (``eval --weights``,
+    ``up --weights``): a ``train --out`` folder of ``<method>.pt`` (each method its file, or its ``@fov<deg>`` one for
+    a sensor of that field of view), or one such file, which its method then uses exactly, whatever the sensor. Returns
+    the folder or file. Raises ValueError, saying what to give instead, for anything else: a file not named for its
+    method, the checkpoint, a folder of no method's file (an unfinished run's: how to finish it)."""
     from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415 - no torch; policies imports this module
 
-    path = Path(directory).expanduser().resolve()
+    path = Path(given).expanduser().resolve()
     if path.is_file() and path.name != RESUMABLE_CHECKPOINT and path.suffix == ".pt":
-        if not named_for_a_method(path):  # the folder would serve its <method>.pt, not this file
+        if not named_for_a_method(path):  # which method it is for is read from its name
             raise ValueError(
-                f"--weights {directory}: a learned method's weights are found by their file name, and this one is not named for its method"
-                f" ({', '.join(f'{m}.pt' for m in LEARNED_METHODS)}); copy it into a folder of its own as the method it was trained as"
-                f" (cso.pt for train --variant cso) and give that folder"
+                f"--weights {given}: a learned method's weights are found by their file name, and this one is not named for its method"
+                f" ({', '.join(f'{m}.pt' for m in LEARNED_METHODS)}); copy it as the method it was trained as"
+                f" (cso.pt for train --variant cso) and give that file"
             )
-        path = path.parent  # a run's <method>.pt: its folder serves it (and the run's other methods)
+        os.environ.pop(WEIGHTS_DIR_ENV, None)  # the other methods: the shipped ones (weights_file_refusal keeps them out)
+        os.environ[WEIGHTS_FILE_ENV] = str(path)
+        return path
     run = path.parent if path.is_file() and path.name == RESUMABLE_CHECKPOINT else path
     if not run.is_dir():
-        raise ValueError(f"--weights {directory}: not a folder (give a training run's --out, which holds <method>.pt)")
+        raise ValueError(f"--weights {given}: not a folder (give a training run's --out, which holds <method>.pt)")
     served = sorted(p.name for p in run.glob("*.pt") if named_for_a_method(p))
     if served and run != path:
-        raise ValueError(f"--weights {directory}: a training checkpoint (what train --resume goes on from), not a method's weights; give its folder {run}, which holds {', '.join(served)}")
+        raise ValueError(f"--weights {given}: a training checkpoint (what train --resume goes on from), not a method's weights; give its folder {run}, which holds {', '.join(served)}")
     if not served and (run / RESUMABLE_CHECKPOINT).is_file():
         raise ValueError(
-            f"--weights {directory}: only a training checkpoint ({RESUMABLE_CHECKPOINT}: a run that has not finished), no <method>.pt; "
+            f"--weights {given}: only a training checkpoint ({RESUMABLE_CHECKPOINT}: a run that has not finished), no <method>.pt; "
             f"finish it with `cso-runtime train --resume {run / RESUMABLE_CHECKPOINT}` (it holds the run's configuration),"
             " or add --total-decisions 1 to write its weights as they are and evaluate them now"
         )
@@ -118,17 +144,38 @@ def use_weights_dir(directory: str | Path) -> Path:
         if folders and not others:  # a run's checkpoints/ (train's keep_checkpoints): each of its folders is one policy
             shown = ", ".join(folders) if len(folders) <= 3 else f"{folders[0]}, ..., {folders[-1]}"
             held = f"; its folders {shown} hold such files: give one of them"
-        raise ValueError(f"--weights {directory}: no file named for a learned method's weights in it ({', '.join(f'{m}.pt' for m in LEARNED_METHODS)}){held}")
+        raise ValueError(f"--weights {given}: no file named for a learned method's weights in it ({', '.join(f'{m}.pt' for m in LEARNED_METHODS)}){held}")
+    os.environ.pop(WEIGHTS_FILE_ENV, None)
     os.environ[WEIGHTS_DIR_ENV] = str(path)
     return path
 
 
+def weights_file_refusal(names: list[str]) -> str:
+    """Why ``names`` (a run's methods) cannot run with the file given (``--weights FILE``): it holds one method's
+    weights, and another learned method would run with the shipped ones, unasked; empty when no file is given or
+    every learned method of ``names`` is its method."""
+    from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415 - no torch; policies imports this module
+
+    given = given_weights_file()
+    if given is None:
+        return ""
+    others = [n for n in names if n in LEARNED_METHODS and n != method_of_file(given)]
+    if not others:
+        return ""
+    return (
+        f"--weights {given}: the weights of {method_of_file(given)} alone, not of {', '.join(others)};"
+        " give a folder that holds each method's <method>.pt, or run the others without this --weights"
+    )
+
+
 def weights_provenance(name: str, sensor: SensorConfig | None = None) -> dict[str, Any]:
     """The weights file ``name`` uses with ``sensor`` and its SHA-256, for the records of a run: results
-    must say which weights produced them, since ``CSO_WEIGHTS_DIR`` and the sensor can swap them."""
+    must say which weights produced them, since ``CSO_WEIGHTS_DIR`` (or ``CSO_WEIGHTS_FILE``) and the sensor can swap them."""
     path = weights_path(name, sensor)
     digest = file_sha256(path)
-    return {"path": str(path), "sha256": digest, "shipped": not os.environ.get(WEIGHTS_DIR_ENV)}
+    given = given_weights_file()
+    shipped = not os.environ.get(WEIGHTS_DIR_ENV) and path != given
+    return {"path": str(path), "sha256": digest, "shipped": shipped}
 
 
 def training_args(path: Path) -> dict[str, Any] | None:
