@@ -847,7 +847,8 @@ class LocalPlanner:
         self.progress_index = nearest
         cmd = self.follower.command(pose, self.path, nearest, look, to_goal, scan)
         self.status = PlannerStatus.FOLLOWING
-        if cmd.linear_mps < 0.0 and self.narrow_sensor() and self.mark_unmapped_returns(pose, scan):
+        # With the stall recovery off (stall_steps 0) no contact is kept: nothing would back up and re-plan round it.
+        if cmd.linear_mps < 0.0 and self.narrow_sensor() and self.config.stall_steps > 0 and self.mark_unmapped_returns(pose, scan):
             backup = self.stall.back_up_now()  # the follower's creep back would only rock the robot on the same return
             if backup is not None:
                 self.replan_pending = True

@@ -658,6 +658,22 @@ def test_a_depth_robot_blocked_ahead_by_a_wall_end_nearer_than_range_min_backs_u
     assert len(touched) and np.all(np.hypot(touched[:, 0] - 1.5, touched[:, 1] - 1.5) < 0.1)  # the wall's end
 
 
+def test_with_the_stall_recovery_off_returns_under_range_min_are_not_made_contacts():
+    """``stall_steps: 0`` turns the stall recovery off, the contacts it plans round with it (PlannerConfig): the blocked
+    creep back still marked the returns under ``range_min`` as contacts though no back-up followed, so every later
+    goal of the episode was planned round cells the path being followed ran on through."""
+    robot, sensor = RobotConfig(), SensorConfig.preset("depth")
+    start, goal = Pose2D(1.75, 1.35, math.radians(135.0)), np.array([1.1, 1.1])
+    known = wall_end_room(start, unseen_cells=2)
+    sim = KinematicSimulator(wall_end_room(start), sensor, robot, seed=0)
+    sim.reset()
+    planner = LocalPlanner.for_config(ExplorationConfig(sensor=sensor, planner=PlannerConfig(stall_steps=0)))
+    assert planner.set_goal(ground_truth_traversable(known), known.geometry, start, goal) == PlannerStatus.FOLLOWING
+    results = _follow_to(planner, sim, 120)
+    assert any(r.command.linear_mps < 0 and r.recovery == "" for r in results)  # the creep back, as before the contacts
+    assert planner.stall.backups == 0 and len(planner.contacts_xy_m) == 0 and not planner.replan_pending
+
+
 def test_returns_under_range_min_become_contacts_only_where_the_map_has_no_obstacle():
     """``mark_unmapped_returns`` keeps the cells of returns nearer than ``range_min`` in the body's sweep ahead, a hair
     beyond the surface as the mapper puts a hit, and leaves out returns at or beyond ``range_min`` (mapped), beside
