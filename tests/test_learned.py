@@ -1830,6 +1830,29 @@ def test_a_training_checkpoint_resumes_onto_another_device_with_its_rng_state_on
     torch.set_rng_state(ckpt["torch_rng"])
 
 
+def test_weights_given_as_a_link_named_for_its_method_is_that_methods_file(tmp_path, monkeypatch):
+    """``--weights FILE`` reads the method from the file's name, but took the name of the link's target: a
+    ``best/cso.pt`` linked to a run's ``step_100.pt`` was refused as not named for its method, and a ``cso-sm.pt``
+    linked to a ``cso.pt`` was taken for cso's weights. The name given is the one read; the folder is still resolved."""
+    import shutil
+
+    from cso_runtime.learned.registry import weights_path
+    from cso_runtime.learned.weights import WEIGHTS_FILE_ENV, use_weights
+
+    unset_weights_env(monkeypatch)
+    run, best = tmp_path / "run", tmp_path / "best"
+    run.mkdir()
+    best.mkdir()
+    shutil.copy(weights_path("cso", SensorConfig.preset("lidar", 360)), run / "step_100.pt")
+    (best / "cso.pt").symlink_to(run / "step_100.pt")
+    assert use_weights(best / "cso.pt") == best.resolve() / "cso.pt"
+    assert os.environ[WEIGHTS_FILE_ENV] == str(best.resolve() / "cso.pt")
+    assert weights_path("cso") == best.resolve() / "cso.pt"
+    shutil.copy(run / "step_100.pt", run / "cso.pt")
+    (best / "cso-sm.pt").symlink_to(run / "cso.pt")
+    assert use_weights(best / "cso-sm.pt").name == "cso-sm.pt" and weights_path("cso-sm").name == "cso-sm.pt"
+
+
 def test_weights_given_as_a_runs_file_or_as_an_unfinished_run_are_said_plainly(tmp_path, monkeypatch):
     """``--weights`` took only a folder; a run's ``cso.pt`` given directly was refused as "not a folder", and a
     folder holding only ``checkpoint.pt`` (a run stopped before its end) passed, to fail later as "no weights for

@@ -115,7 +115,10 @@ def use_weights(given: str | Path) -> Path:
     from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415 - no torch; policies imports this module
 
     path = Path(given).expanduser().resolve()
-    if path.is_file() and path.name != RESUMABLE_CHECKPOINT and path.suffix == ".pt":
+    # A file's method is read from the name given (a link best/cso.pt to a run's step_100.pt is cso's), not its target's.
+    named = Path(given).expanduser().absolute().parent.resolve() / Path(given).expanduser().name
+    if named.is_file() and named.name != RESUMABLE_CHECKPOINT and named.suffix == ".pt":
+        path = named
         if not named_for_a_method(path):  # which method it is for is read from its name
             raise ValueError(
                 f"--weights {given}: a learned method's weights are found by their file name, and this one is not named for its method"
