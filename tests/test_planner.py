@@ -572,6 +572,11 @@ def test_a_drive_that_slides_along_a_wall_is_stalled():
 
     start, arc_end = Pose2D(0.0, 0.0, 3.0), Pose2D(0.1 * math.cos(3.1), 0.1 * math.sin(3.1), 3.2)  # across +-pi
     assert driven_along_heading_m(start, arc_end, 0.5) == pytest.approx(0.1)
+    # The headings and the motion written across the wrap itself (yaw 3.0 to -3.0, the chord at -3.1 rad): still the arc.
+    wrapped_end = Pose2D(0.1 * math.cos(-3.1), 0.1 * math.sin(-3.1), -3.0)
+    assert driven_along_heading_m(start, wrapped_end, 0.5) == pytest.approx(0.1)
+    back_start, back_end = Pose2D(0.0, 0.0, 3.0 - math.pi), Pose2D(wrapped_end.x_m, wrapped_end.y_m, 3.0 - math.pi + 0.28)
+    assert driven_along_heading_m(back_start, back_end, -0.5) == pytest.approx(0.1)  # the same arc backwards, its back across the wrap
     assert driven_along_heading_m(start, start, 0.5) == 0.0
 
 
