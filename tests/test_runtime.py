@@ -3393,7 +3393,11 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         ran = load_profile(str(profile), {})[0].exploration_config()
         assert summary["meta"]["config"] == to_dict(ran)  # every exploration parameter, as eval's summary holds them
         # report.html says what made its table, as eval's does: the profile, scene, seed, sensor and step limit
-        settings = f"command: cso-runtime up, version: {cso_runtime.__version__}, profile: lockstep, scene: {scene}, seed: 0, lockstep, "
+        from cso_runtime.provenance import git_checkout
+
+        checkout = git_checkout()  # the services run from the same checkout (or none): the commit follows the version
+        commit = f"commit: {checkout['git_commit'][:12]}{' (modified)' if checkout.get('git_modified') else ''}, " if checkout else ""
+        settings = f"command: cso-runtime up, version: {cso_runtime.__version__}, {commit}profile: lockstep, scene: {scene}, seed: 0, lockstep, "
         settings += f"sensor field of view: {ran.sensor.fov_deg:g} degrees, step limit: {ran.episode.max_steps}"
         assert f"<p>{settings}</p>" in (run_dir.parent / "report.html").read_text()
         expected = in_process_result(scene, method)
