@@ -106,6 +106,17 @@ def run_pids(runs: Path) -> list[int]:
     return pids
 
 
+def current_run_with_services(runs: Path, services: int) -> dict | None:
+    """The runs folder's current-run file once it lists ``services`` spawned services (and its router's endpoints),
+    else None. The launcher writes the run's run.json before this file, so run.json's pids say nothing of it."""
+    path = runs / "current.json"
+    if not path.exists():
+        return None
+    info = json.loads(path.read_text())
+    spawned = [s for s in info["services"].values() if s.get("pid")]
+    return info if info["endpoints"] and len(spawned) == services else None
+
+
 def detached_launchers(runs: Path) -> list[int]:
     """The detached launchers (``python -m cso_runtime.launcher ... --run-dir RUNS/<run-id>``) of ``runs`` running now,
     found by their command lines (Linux /proc): one whose ``up --detach`` was killed before it wrote its run.json is in
@@ -4257,8 +4268,7 @@ def test_ctrl_c_stops_a_foreground_run_without_orphans(tmp_path, sig):
         start_new_session=True,
     )
     try:
-        wait_for(lambda: (runs / "current.json").exists() and len(run_pids(runs)) == 6, 30, "the services to start")
-        info = json.loads((runs / "current.json").read_text())
+        info = wait_for(lambda: current_run_with_services(runs, 5), 30, "the services to start")
         # 0.2 s a step: a second of exploring, in which the launcher checks five times a progress line is due
         wait_for(lambda: (s := query_status(info["endpoints"], "r0", 0.5)) and s["step"] >= 6, 60, "the first steps")
         os.killpg(proc.pid, sig)  # what Ctrl-C in a terminal does: the whole foreground group
@@ -4317,8 +4327,7 @@ def test_a_closed_terminal_stops_a_foreground_run_with_its_live_view_cleanly(tmp
     reader = threading.Thread(target=drain, daemon=True)
     reader.start()
     try:
-        wait_for(lambda: (runs / "current.json").exists() and len(run_pids(runs)) == 6, 30, "the services to start")
-        info = json.loads((runs / "current.json").read_text())
+        info = wait_for(lambda: current_run_with_services(runs, 5), 30, "the services to start")
         wait_for(lambda: (s := query_status(info["endpoints"], "r0", 0.5)) and s["step"] >= 3, 60, "the first steps")
         assert b"coverage" in shown  # the live view was drawing on the terminal
         os.close(master)  # the terminal closes: SIGHUP to its session's leader, and every later write to it fails
