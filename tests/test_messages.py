@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import functools
 import math
+import tracemalloc
 import zlib
 
 import msgpack
@@ -191,6 +193,76 @@ def test_bad_bit_packed_grids_are_rejected():
     for bad in cases:
         with pytest.raises(MessageError):
             unpack_array(bad, "grid", ndim=2)
+
+
+def _zlib_bomb(mib: int = 1024) -> bytes:
+    """The start of a valid zlib stream that inflates to ``mib`` MiB of zeros, about 1 kB a MiB, made in milliseconds:
+    one deflate block of 1 MiB of zeros, fully flushed (so that it stands alone), repeated."""
+    deflate = zlib.compressobj(9)
+    head = deflate.compress(b"")
+    block = deflate.compress(bytes(1 << 20)) + deflate.flush(zlib.Z_FULL_FLUSH)
+    return head + block * mib
+
+
+def _peak_bytes(decode_it) -> int:
+    """The most memory (bytes, Python's allocators: numpy's arrays and zlib's output included) ``decode_it()`` held at
+    once, which must raise MessageError."""
+    tracemalloc.start()
+    try:
+        with pytest.raises(MessageError) as raised:
+            decode_it()
+        return tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+        del raised
+
+
+def test_a_zlib_bomb_is_refused_by_the_size_its_record_declares_not_by_running_out_of_memory():
+    """A megabyte that inflates to a gigabyte, in a record that declares 4 floats or 1200 bit-packed cells: inflated
+    one byte past the declared size, then refused."""
+    bomb = _zlib_bomb()
+    for rec in ({"dtype": "float32", "shape": [2, 2], "z": True, "data": bomb}, {"dtype": "bool", "shape": [30, 40], "z": "bits", "data": bomb}):
+        assert _peak_bytes(functools.partial(unpack_array, rec, "a")) < 4 << 20
+
+
+def test_a_record_whose_shape_its_message_contradicts_is_refused_before_its_data_is_inflated():
+    """A 30 x 40 map whose explored grid declares 50 million cells, a distance map with 50 million finite values for
+    its 1200 cells: both declare a size ``unpack_array`` accepts, but not the one the message implies (the geometry's,
+    one value per set cell of the mask), and are refused before anything is inflated (they were refused after
+    inflating 50 MB and 400 MB)."""
+    bomb = _zlib_bomb()
+    good_map = _body(MapMsg(1, GEOM, np.ones(GEOM.shape, bool), np.zeros(GEOM.shape, bool)))
+    big_grid = {"dtype": "bool", "shape": [5000, 10_000], "z": True, "data": bomb}
+    payload = _wire("map", {**good_map, "explored": big_grid})
+    assert _peak_bytes(lambda: decode(payload)) < 4 << 20  # the payload's 1 MB bin, copied by msgpack
+    good_d = _body(DistanceMapMsg(1, GEOM, Pose2D(1.0, 1.0, 0.0), np.zeros(GEOM.shape)))
+    many = {"dtype": "float64", "shape": [50_000_000], "z": True, "data": bomb}
+    payload = _wire("distance_map", {**good_d, "distance_m": many})
+    assert _peak_bytes(lambda: decode(payload)) < 4 << 20
+
+
+def test_the_clusters_of_a_decision_together_hold_no_more_cells_than_its_grid():
+    """Each cluster's cells are one record, and there may be any number of clusters: twenty records of a million zero
+    cells (16 kB of zlib each) inflated to 320 MB, and were accepted (cell [0, 0] is inside the grid). The clusters share
+    the grid's cells (each frontier cell is in one), so the cells left to them bound each record before it is inflated."""
+    obs = _observation()
+    good = _body(frontiers_from_observation(3, "no_goal", obs, 1.0))
+    ny, nx = obs.geometry.shape
+    assert decode(_wire("frontiers", good), FrontiersMsg).clusters  # at most ny * nx cells in all: fine
+    half = dict(good["clusters"][0], cells=pack_array(np.zeros((ny * nx // 2, 2), np.int32), compress=True))
+    assert len(decode(_wire("frontiers", {**good, "clusters": [half, half]}), FrontiersMsg).clusters) == 2
+    with pytest.raises(MessageError, match="too large"):
+        decode(_wire("frontiers", {**good, "clusters": [half, half, half]}))
+    bomb = dict(good["clusters"][0], cells={"dtype": "int64", "shape": [1_000_000, 2], "z": True, "data": zlib.compress(bytes(16_000_000), 9)})
+    payload = _wire("frontiers", {**good, "clusters": [bomb] * 20})
+    assert _peak_bytes(lambda: decode(payload)) < 4 << 20
+
+
+def test_an_empty_array_with_a_huge_dimension_is_a_message_error():
+    """0 elements, so no size limit stops it, but numpy cannot shape it: a MessageError, not numpy's ValueError."""
+    for shape in ([0, 2**62], [2**40, 0]):
+        with pytest.raises(MessageError, match="bad shape"):
+            unpack_array({"dtype": "int32", "shape": shape, "z": False, "data": b""}, "cells", ndim=2)
 
 
 def test_path_and_result_round_trip():

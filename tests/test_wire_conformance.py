@@ -401,6 +401,19 @@ def test_a_bit_packed_grids_padding_is_ignored_and_its_length_is_exact():
             decode(envelope("map", 3, {**body, "explored": {**body["explored"], "data": zlib.compress(wrong)}}), MapMsg)
 
 
+@pytest.mark.parametrize("z", [True, "bits"])
+def test_compressed_data_is_one_whole_zlib_stream_and_nothing_after_it(z: bool | str):
+    """The docs' ``z``: the bytes as a zlib stream, as zlib's ``compress`` writes it: bytes after its end, or a stream cut
+    before its end (its Adler-32 checksum, or more), are rejected, though the bytes inflated so far fit the shape."""
+    body = map_body() if z == "bits" else BODIES["path"][0]
+    field, schema = ("explored", "map") if z == "bits" else ("path_xy_m", "path")
+    rec = record(EXPLORED, "bool", "bits") if z == "bits" else record(np.array([[0.0, -0.1], [-0.05, -0.05]]), "float32", True)
+    assert not rejected(schema, {**body, field: rec})
+    for data, said in ((rec["data"] + b"\0", "1 bytes after the compressed data"), (rec["data"] + zlib.compress(b""), "bytes after"), (rec["data"][:-4], "truncated"), (rec["data"][:-1], "truncated")):
+        with pytest.raises(MessageError, match=said):
+            decode(envelope(schema, MESSAGE_TYPES[schema].VERSION, {**body, field: {**rec, "data": data}}), MESSAGE_TYPES[schema])
+
+
 def rejected(schema: str, body: Any, version: int | None = None, **envelope_extra: Any) -> bool:
     v = MESSAGE_TYPES[schema].VERSION if version is None else version
     payload = msgpack.packb({"schema": schema, "v": v, "body": body, **envelope_extra}, use_bin_type=True)
@@ -462,6 +475,22 @@ DELETE = object()
         ("frontiers", 1, "arrays.entropy", record(np.array([3, 7, 250, 1]), "float64")),  # counts are integers
         ("frontiers", 1, "arrays.extra", record(EXPLORED, "bool", "bits")),  # arrays has exactly its five grids
         ("frontiers", 1, "path_nodes_distance_m", record(np.array([0.0, -1.0]), "float64")),
+        # every array in the dtype the table names, or one of the docs' few sets (scan ranges and the path ahead: a float;
+        # entropy counts: an integer of the list, at most 2^31 - 1; a cluster's cells: a signed integer)
+        ("path", 0, "path_xy_m", record(np.zeros((2, 2)), "float64")),  # float32
+        ("path", 0, "path_xy_m", record(np.zeros((2, 2)), "int64")),
+        ("path", 0, "path_xy_m", record(np.zeros((2, 2)), "bool")),
+        ("frontiers", 1, "path_nodes_xy_m", record(np.array([[0.0, -0.1], [0.1, 0.05]]), "float32")),  # float64
+        ("frontiers", 1, "clusters", [{**decision_body()["clusters"][0], "cells": record(np.array([[0, 2], [2, 1]]), "uint8")}]),
+        ("frontiers", 1, "arrays.entropy", record(np.array([3, 7, 2**31, 1]), "int64")),  # wrapped to -2^31 in the int32 grid
+        ("episode_result", 0, "trajectory_xy_m", record(np.array([[0.0, -0.1], [0.1, 0.0]]), "float32")),  # float64
+        ("episode_result", 0, "decision_ms", record(np.array([4.5, 1.0]), "float32")),
+        ("episode_result", 0, "coverage_curve_pct", record(np.array([10.0, 99.5]), "int64")),
+        ("episode_result", 0, "explored_free", record(EXPLORED & ~OCCUPIED, "uint8", True)),
+        ("episode_result", 0, "decision_ms", record(np.array([-4.5, 1.0]), "float64")),  # a time is >= 0
+        ("episode_result", 0, "coverage_curve_pct", record(np.array([-1.0, 99.5]), "float64")),
+        # one byte per bool, 0 or 1: numpy keeps a 2 as a true whose ~ is true too (an unexplored cell seen as explored)
+        ("map", 0, "explored", {**record(EXPLORED, "bool"), "data": (EXPLORED.astype(np.uint8) * 2).tobytes()}),
         ("goal", 0, "goal", [1.0, 2.0, 0]),
         ("planner_feedback", 0, "status", "lost"),
         ("episode_status", 0, "state", "paused"),
