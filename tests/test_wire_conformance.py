@@ -7,15 +7,20 @@ the docs' version paragraph, and tests/test_dataflow.py the key table's publishe
 
 from __future__ import annotations
 
+import contextlib
+import json
 import math
 import re
+import sys
 import zlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import msgpack
 import numpy as np
 import pytest
+import yaml
 
 from cso_runtime.keys import TOPICS, RobotKeys
 from cso_runtime.messages import (
@@ -41,6 +46,8 @@ from cso_runtime.messages import (
     encode,
 )
 from tests.test_dataflow import docs_table
+from tests.test_own_service import up_from_this_checkout
+from tests.test_runtime import PROFILES, SCENE, cli, in_process_result, kill_leftovers, wait_for
 
 # --- the wire format, as docs/messages.md states it ----------------------------------------------
 
@@ -632,6 +639,7 @@ def test_the_docs_table_gives_each_key_the_schema_its_publishers_send():
 # --- a node written from the docs alone, in a real run ---------------------------------------------
 
 POLICY_NODE = Path(__file__).resolve().parent / "command_policy_example.py"
+PLANNER_NODE = Path(__file__).resolve().parent / "command_planner_example.py"
 
 
 def test_the_example_policy_speaks_the_current_versions():
@@ -642,42 +650,45 @@ def test_the_example_policy_speaks_the_current_versions():
     assert VERSIONS == {schema: MESSAGE_TYPES[schema].VERSION for schema in VERSIONS}
 
 
-def test_a_policy_written_from_the_docs_alone_stands_in_for_the_builtin_one_step_for_step(tmp_path: Path):
-    """The lockstep profile on the small scene with its policy replaced by tests/command_policy_example.py (only Zenoh,
-    msgpack and docs/messages.md): the episode is the in-process greedy-dist one step for step, and ``status`` shows
-    the node's own status answer (its state and counts) besides its pid."""
-    import json
-    import sys
-
-    import yaml
-
-    from tests.test_own_service import up_from_this_checkout
-    from tests.test_runtime import PROFILES, SCENE, cli, in_process_result, kill_leftovers, wait_for
-
-    section = {"command": [sys.executable, str(POLICY_NODE)], "inputs": ["frontiers"], "outputs": ["goal"], "alive_token": True}
+@contextlib.contextmanager
+def foreign_node_run(tmp_path: Path, name: str, section: dict[str, Any], max_steps: int | None = None) -> Iterator[tuple[Path, Path]]:
+    """A detached, recorded lockstep run of the small scene with the built-in service ``name`` replaced by the command
+    node ``section``, steps of at least 0.1 s (time to ask for the status while the episode runs); yields (runs folder,
+    run folder) and stops the run, leaving no process behind, whatever happened."""
     data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
     data["scene"], data["method"] = SCENE, "greedy-dist"
-    data["services"]["policy"] = section
-    data["services"]["sim"]["min_step_period_s"] = 0.1  # time to ask for the status while the episode runs
+    data["services"][name] = section
+    data["services"]["sim"]["min_step_period_s"] = 0.1
     data["supervision"] = {**(data.get("supervision") or {}), "stop_timeout_s": 1.0}
+    if max_steps is not None:
+        data["exploration"]["episode"]["max_steps"] = max_steps
     profile, runs = tmp_path / "foreign.yaml", tmp_path / "runs"
     profile.write_text(yaml.safe_dump(data))
     try:
         r = up_from_this_checkout("--profile", str(profile), "--detach", "--record", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert r.returncode == 0, r.stderr
-        run_dir = Path(json.loads((runs / "current.json").read_text())["run_dir"])
-
-        def policy_row() -> dict[str, Any] | None:
-            r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-            row = json.loads(r.stdout)["services"].get("policy") if r.returncode == 0 else None
-            return row if row and row.get("counters", {}).get("decisions") else None
-
-        row = wait_for(policy_row, 60, "the node's first decision in its status")
-        assert row["command"] and row["alive"] and row["state"] == "running" and row["processed"] >= 1, row
-        wait_for(lambda: (run_dir / "summary.json").exists(), 90, "the episode's results")
+        yield runs, Path(json.loads((runs / "current.json").read_text())["run_dir"])
     finally:
         cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert kill_leftovers(runs) == []
+
+
+def node_status_row(tmp_path: Path, runs: Path, name: str, counter: str) -> dict[str, Any] | None:
+    """``status --json``'s row of the node ``name`` once its own status answer counts ``counter``; None before."""
+    r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+    row = json.loads(r.stdout)["services"].get(name) if r.returncode == 0 else None
+    return row if row and row.get("counters", {}).get(counter) else None
+
+
+def test_a_policy_written_from_the_docs_alone_stands_in_for_the_builtin_one_step_for_step(tmp_path: Path):
+    """The lockstep profile on the small scene with its policy replaced by tests/command_policy_example.py (only Zenoh,
+    msgpack and docs/messages.md): the episode is the in-process greedy-dist one step for step, and ``status`` shows
+    the node's own status answer (its state and counts) besides its pid."""
+    section = {"command": [sys.executable, str(POLICY_NODE)], "inputs": ["frontiers"], "outputs": ["goal"], "alive_token": True}
+    with foreign_node_run(tmp_path, "policy", section) as (runs, run_dir):
+        row = wait_for(lambda: node_status_row(tmp_path, runs, "policy", "decisions"), 60, "the node's first decision in its status")
+        assert row["command"] and row["alive"] and row["state"] == "running" and row["processed"] >= 1, row
+        wait_for(lambda: (run_dir / "summary.json").exists(), 90, "the episode's results")
     expected = in_process_result(SCENE)
     metrics = json.loads((run_dir / "summary.json").read_text())["methods"]["greedy-dist"]
     assert metrics["steps"] == expected.steps and metrics["terminated_by"] == {expected.terminated_by: 1}, metrics
@@ -695,6 +706,52 @@ def test_a_policy_written_from_the_docs_alone_stands_in_for_the_builtin_one_step
         for path, value in numbers_of(body):
             assert isinstance(value, int) == (path.rsplit(".", 1)[-1] in INTEGER_FIELDS), (schema, path, value)
     assert {"scan", "odom", "clock", "map", "frontiers", "distance_map", "goal", "cmd_vel", "planner_feedback", "path"} <= schemas
+
+
+def test_the_example_planner_speaks_the_current_versions():
+    from tests.command_planner_example import VERSIONS
+
+    assert VERSIONS == {schema: MESSAGE_TYPES[schema].VERSION for schema in VERSIONS}
+
+
+def test_a_planner_written_from_the_docs_alone_drives_a_lockstep_episode_to_its_end(tmp_path: Path):
+    """The lockstep profile with its planner replaced by tests/command_planner_example.py (only Zenoh, msgpack and the
+    docs' handshake: a ``cmd_vel`` then a ``planner/feedback`` of each step, once its odometry, frontiers and, on a
+    decision step, goal are in). Step 0 waits for its token; the sim steps on its commands alone and the frontier
+    service decides each next step on its reports, without one lockstep re-publication, to the episode's end; ``status``
+    shows the node's own status answer."""
+    section = {
+        "command": [sys.executable, str(PLANNER_NODE)],
+        "inputs": ["odom", "frontiers", "goal"],
+        "outputs": ["cmd_vel", "planner_feedback"],
+        "alive_token": True,
+    }
+    max_steps = 60
+    with foreign_node_run(tmp_path, "planner", section, max_steps=max_steps) as (runs, run_dir):
+        row = wait_for(lambda: node_status_row(tmp_path, runs, "planner", "commands"), 60, "the node's first command in its status")
+        assert row["command"] and row["alive"] and row["state"] == "running" and row["processed"] >= 1, row
+        wait_for(lambda: (run_dir / "summary.json").exists(), 90, "the episode's results")
+    metrics = json.loads((run_dir / "summary.json").read_text())["methods"]["greedy-dist"]
+    log = (run_dir / "logs" / "planner.log").read_text()
+    assert "planner: commanding cso/r0" in log and "planner: stopped" in log, log
+    from cso_runtime.messages import decode
+    from cso_runtime.recording import read_recording
+
+    by_schema: dict[str, list[Any]] = {}
+    for recorded in read_recording(run_dir / "recording.mcap"):
+        schema = read_payload(recorded.payload)[0]
+        by_schema.setdefault(schema, []).append(decode(recorded.payload))  # what the node sent decodes, strictly
+    (result,) = by_schema["episode_result"]
+    assert result.terminated_by in ("max_steps", "coverage", "no_frontier") and 0 < result.steps <= max_steps, result
+    assert metrics["steps"] == result.steps and result.path_length_m > 0.5, metrics  # it drove on the node's commands
+    commanded = {m.step for m in by_schema["cmd_vel"]}
+    reported = {m.step for m in by_schema["planner_feedback"] if m.phase == "command"}
+    assert set(range(result.steps)) <= commanded and set(range(result.steps)) <= reported, (commanded, reported)
+    decided = {m.step for m in by_schema["frontiers"] if m.decide}  # decided again on the node's reports (reached...)
+    assert len(decided) >= 2 and result.decisions >= 2 and decided == {m.step for m in by_schema["goal"]}, (decided, result.decisions)
+    assert {m.step for m in by_schema["cmd_vel"] if m.new_goal} == decided & set(range(result.steps + 1))
+    (last,) = [s for s in by_schema["episode_status"] if s.state == "done"][-1:]
+    assert last.lockstep_timeouts == 0, last  # no step needed the sim's re-publication: the handshake is complete
 
 
 INTEGER_FIELDS = {"step", "episode", "decisions", "lockstep_timeouts", "goal_step", "steps", "seed", "goal_cell", "shape", "goal[2]"}
