@@ -640,6 +640,7 @@ def test_the_docs_table_gives_each_key_the_schema_its_publishers_send():
 
 POLICY_NODE = Path(__file__).resolve().parent / "command_policy_example.py"
 PLANNER_NODE = Path(__file__).resolve().parent / "command_planner_example.py"
+FRONTIER_NODE = Path(__file__).resolve().parent / "command_frontier_example.py"
 
 
 def test_the_example_policy_speaks_the_current_versions():
@@ -708,46 +709,58 @@ def test_a_policy_written_from_the_docs_alone_stands_in_for_the_builtin_one_step
     assert {"scan", "odom", "clock", "map", "frontiers", "distance_map", "goal", "cmd_vel", "planner_feedback", "path"} <= schemas
 
 
-def test_the_example_planner_speaks_the_current_versions():
-    from tests.command_planner_example import VERSIONS
+@pytest.mark.parametrize("node", [PLANNER_NODE, FRONTIER_NODE])
+def test_the_example_nodes_speak_the_current_versions(node: Path):
+    versions = __import__(f"tests.{node.stem}", fromlist=["VERSIONS"]).VERSIONS
+    assert versions == {schema: MESSAGE_TYPES[schema].VERSION for schema in versions}
 
-    assert VERSIONS == {schema: MESSAGE_TYPES[schema].VERSION for schema in VERSIONS}
 
-
-def test_a_planner_written_from_the_docs_alone_drives_a_lockstep_episode_to_its_end(tmp_path: Path):
-    """The lockstep profile with its planner replaced by tests/command_planner_example.py (only Zenoh, msgpack and the
-    docs' handshake: a ``cmd_vel`` then a ``planner/feedback`` of each step, once its odometry, frontiers and, on a
-    decision step, goal are in). Step 0 waits for its token; the sim steps on its commands alone and the frontier
-    service decides each next step on its reports, without one lockstep re-publication, to the episode's end; ``status``
-    shows the node's own status answer."""
-    section = {
-        "command": [sys.executable, str(PLANNER_NODE)],
-        "inputs": ["odom", "frontiers", "goal"],
-        "outputs": ["cmd_vel", "planner_feedback"],
-        "alive_token": True,
-    }
-    max_steps = 60
-    with foreign_node_run(tmp_path, "planner", section, max_steps=max_steps) as (runs, run_dir):
-        row = wait_for(lambda: node_status_row(tmp_path, runs, "planner", "commands"), 60, "the node's first command in its status")
-        assert row["command"] and row["alive"] and row["state"] == "running" and row["processed"] >= 1, row
-        wait_for(lambda: (run_dir / "summary.json").exists(), 90, "the episode's results")
-    metrics = json.loads((run_dir / "summary.json").read_text())["methods"]["greedy-dist"]
-    log = (run_dir / "logs" / "planner.log").read_text()
-    assert "planner: commanding cso/r0" in log and "planner: stopped" in log, log
+def recorded_messages(run_dir: Path) -> dict[str, list[Any]]:
+    """Every message of a run's recording, decoded (strictly, as the services do), by schema in the order recorded."""
     from cso_runtime.messages import decode
     from cso_runtime.recording import read_recording
 
     by_schema: dict[str, list[Any]] = {}
     for recorded in read_recording(run_dir / "recording.mcap"):
-        schema = read_payload(recorded.payload)[0]
-        by_schema.setdefault(schema, []).append(decode(recorded.payload))  # what the node sent decodes, strictly
+        by_schema.setdefault(read_payload(recorded.payload)[0], []).append(decode(recorded.payload))
+    return by_schema
+
+
+FOREIGN_PLANNER = {"command": [sys.executable, str(PLANNER_NODE)], "inputs": ["odom", "frontiers", "goal"], "outputs": ["cmd_vel", "planner_feedback"], "alive_token": True}
+FOREIGN_FRONTIER = {
+    "command": [sys.executable, str(FRONTIER_NODE)],
+    "inputs": ["map", "odom", "planner_feedback", "goal"],
+    "outputs": ["frontiers", "ended_why"],
+    "alive_token": True,
+}
+
+
+@pytest.mark.parametrize(("name", "section", "counter"), [("planner", FOREIGN_PLANNER, "commands"), ("frontier", FOREIGN_FRONTIER, None)])
+def test_a_planner_or_frontier_service_written_from_the_docs_alone_runs_a_lockstep_episode_to_its_end(tmp_path: Path, name: str, section: dict, counter: str | None):
+    """The lockstep profile with its planner, or its frontier service, replaced by a command node written from the docs'
+    handshake alone (Zenoh, msgpack, numpy; docs/own-service.md, What each one must publish, and when): the planner's a
+    ``cmd_vel`` then a ``planner/feedback`` of each step, once its odometry, frontiers and, on a decision step, goal are
+    in; the frontier service's one ``frontiers`` of each step once its map, odometry and the planner's report on the
+    step before are in, waiting for a decision's goal. Step 0 waits for the node's token; the episode runs to its end
+    with the built-in services on the node's messages, without one lockstep re-publication (a step that waited for
+    what the node did not send); ``status`` shows the node (with its own status answer, the planner's)."""
+    max_steps = 60
+    with foreign_node_run(tmp_path, name, section, max_steps=max_steps) as (runs, run_dir):
+        if counter is not None:
+            row = wait_for(lambda: node_status_row(tmp_path, runs, name, counter), 60, "the node's first steps in its status")
+            assert row["command"] and row["alive"] and row["state"] == "running" and row["processed"] >= 1, row
+        wait_for(lambda: (run_dir / "summary.json").exists(), 90, "the episode's results")
+    log = (run_dir / "logs" / f"{name}.log").read_text()
+    assert f"{name}: stopped" in log, log
+    metrics = json.loads((run_dir / "summary.json").read_text())["methods"]["greedy-dist"]
+    by_schema = recorded_messages(run_dir)  # what the node sent decodes
     (result,) = by_schema["episode_result"]
     assert result.terminated_by in ("max_steps", "coverage", "no_frontier") and 0 < result.steps <= max_steps, result
-    assert metrics["steps"] == result.steps and result.path_length_m > 0.5, metrics  # it drove on the node's commands
-    commanded = {m.step for m in by_schema["cmd_vel"]}
-    reported = {m.step for m in by_schema["planner_feedback"] if m.phase == "command"}
-    assert set(range(result.steps)) <= commanded and set(range(result.steps)) <= reported, (commanded, reported)
-    decided = {m.step for m in by_schema["frontiers"] if m.decide}  # decided again on the node's reports (reached...)
+    assert metrics["steps"] == result.steps and result.path_length_m > 0.5, metrics  # the robot explored
+    steps = set(range(result.steps))
+    assert steps <= {m.step for m in by_schema["cmd_vel"]} and steps <= {m.step for m in by_schema["frontiers"]}
+    assert steps <= {m.step for m in by_schema["planner_feedback"] if m.phase == "command"}
+    decided = {m.step for m in by_schema["frontiers"] if m.decide}  # decided again on the planner's reports
     assert len(decided) >= 2 and result.decisions >= 2 and decided == {m.step for m in by_schema["goal"]}, (decided, result.decisions)
     assert {m.step for m in by_schema["cmd_vel"] if m.new_goal} == decided & set(range(result.steps + 1))
     (last,) = [s for s in by_schema["episode_status"] if s.state == "done"][-1:]
