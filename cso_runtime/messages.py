@@ -428,8 +428,9 @@ class MapMsg(Message):
 
 def _masked_grid_in(values_obj: Any, mask: np.ndarray, where: str, fill: float, dtype: type) -> np.ndarray:
     """A grid sent as its values (1-D, row by row) where its boolean ``mask`` is set, ``fill`` elsewhere.
-    The values must be non-negative (distances, counts), finite, and one per set cell; counts may
-    come in any integer width, distances as float64."""
+    The values must be non-negative (distances, counts), finite, and one per set cell (checked before
+    they are inflated); counts may come in any integer width of the list, each within ``dtype``,
+    distances as float64."""
     counts = np.dtype(dtype).kind in "iu"
     n_set = int(np.count_nonzero(mask))
     values = unpack_array(values_obj, where, finite=True, dtypes=INTEGER_DTYPES if counts else ("float64",), shape=(n_set,))
