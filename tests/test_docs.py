@@ -381,6 +381,23 @@ def test_the_readme_says_which_image_an_interrupted_runs_last_map_has():
     assert f"`{LAST_MAP}` and `{image}`" in readme and f"`save-map --format {LAST_MAP_IMAGE_FORMAT}`" in readme
 
 
+def test_the_readmes_summary_json_row_names_every_key_of_meta(tmp_path):
+    """``meta`` in a real eval's ``summary.json`` held ``command``, ``maps`` (the ``--maps`` spec, not the per-method
+    ``maps``), ``seed``, ``scenes`` and, with ``--resume``, ``resumed_episodes``, which the README's row did not name;
+    nor ``paused_s``, which ``up`` writes. Each key of ``meta`` is named in the row's part on ``meta``."""
+    import json
+
+    from cso_runtime.evaluation import EvalRequest, run_eval
+
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path, max_steps=5, resume=True))
+    meta = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))["meta"]
+    assert {"request", "config", "resumed_episodes"} <= set(meta)
+    others = {"interrupted", "weights", "mujoco", "profile", "paused_s"}  # Ctrl-C, a learned method, --sim-config; up's
+    rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
+    about_meta = rows["`summary.json`"].split("`meta` (", 1)[1]
+    assert sorted(k for k in {*meta, *others} if f"`{k}`" not in about_meta) == []
+
+
 def test_the_readme_names_every_array_of_an_episodes_npz(tmp_path):
     """``episodes/<method>/<map>.npz`` holds more than the three arrays the README's table named (the row, and the
     fingerprints ``--resume`` matches): a user loading one with numpy finds each of its keys there."""
