@@ -68,6 +68,16 @@ def test_every_quoted_default_is_the_default():
     assert wrong == []
 
 
+def test_the_node_feature_row_names_every_node_feature():
+    """The row on the paper's node features named the optional ``size`` but not ``unknown`` (``unknown_area_feature``,
+    a field of configs/train.yaml since the feature came): every column a graph may have is named there."""
+    from cso_runtime.learned.graph import GraphConfig, node_features
+
+    row = next(line for line in _doc().splitlines() if line.startswith("| node features"))
+    columns = node_features(GraphConfig(use_cluster_size=True, use_unknown_area=True))
+    assert len(columns) >= 8 and [c for c in columns if f"`{c}`" not in row] == []
+
+
 def test_the_training_config_names_every_field_with_its_default():
     """README says configs/train.yaml documents every field: each ``Args`` field but the flags of one run is in
     it, and nothing else is."""
