@@ -743,3 +743,19 @@ def test_every_profile_key_the_docs_name_exists_and_its_value_is_a_default_or_a_
                     wrong.append(f"{where}: {key} ({value}: the default and the shipped profiles give {keys[key]})")
     assert seen >= 60, "the docs lost their keys, or the pattern broke"
     assert wrong == []
+
+
+def test_runtime_mds_several_robots_names_every_command_that_picks_a_run():
+    """docs/runtime.md, Several robots, said that ``status``, ``save-map``, ``record``, ``logs`` and ``down`` take
+    ``--runs-dir`` and the first three ``--robot``; ``replay``, ``pause`` and ``resume`` take them too. The commands that
+    pick a run of a runs folder are those with ``--runs-dir`` but ``up`` (it makes one), ``runs`` (it lists them) and
+    ``doctor``; of them, those with ``--robot`` also ask for a robot."""
+    cli = typer.main.get_command(app)
+    options = {name: {o for p in c.params for o in p.opts} for name, c in cli.commands.items()}
+    picking = {name for name, opts in options.items() if "--runs-dir" in opts} - {"up", "runs", "doctor"}
+    asking = {name for name in picking if "--robot" in options[name]}
+    text = " ".join((ROOT / "docs" / "runtime.md").read_text(encoding="utf-8").split())
+    runs_dir = re.search(r"([^.]*) take `--runs-dir` to pick the run; ([^.(]*) also take `--robot`", text)
+    assert runs_dir is not None, "the sentence changed: update this test"
+    assert set(re.findall(r"`([\w-]+)`", runs_dir.group(1))) == picking
+    assert set(re.findall(r"`([\w-]+)`", runs_dir.group(2))) == asking
