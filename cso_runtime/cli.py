@@ -198,7 +198,7 @@ def _root(
     zenoh_config: Path | None = typer.Option(
         None,
         "--zenoh-config",
-        help="Zenoh config file (JSON5) every session of this command starts from (credentials, TLS): status, record, replay, save-map, service, up "
+        help="Zenoh config file (JSON5) every session of this command starts from (credentials, TLS): status, record, replay, save-map, pause, resume, service, up "
         "(sets $CSO_ZENOH_CONFIG)",
     ),
 ) -> None:

@@ -197,7 +197,7 @@ def episode_or_last_heard(episode: dict[str, Any] | None, launcher: dict[str, An
 
 
 class RunTarget(NamedTuple):
-    """Whom ``status``, ``save-map``, ``record`` and ``replay`` ask, and how their sessions join."""
+    """Whom ``status``, ``save-map``, ``record``, ``replay``, ``pause`` and ``resume`` ask, and how their sessions join."""
 
     connect: list[str]
     """Router endpoints (none: no run to ask)."""
@@ -226,8 +226,9 @@ def endpoints_of_run(info: dict[str, Any] | None) -> RunTarget:
 
     A run whose router asks for credentials (``up --zenoh-config``) names its Zenoh config file there: the sessions to
     it start from that file, unless this process was given one (``--zenoh-config``, ``$CSO_ZENOH_CONFIG``), so that
-    ``status``, ``save-map``, ``record`` and ``replay`` of the current run need no flag more than ``up`` had. Reading
-    the run file changes nothing in this process (its environment included): the file goes to the sessions asked."""
+    ``status``, ``save-map``, ``record``, ``replay``, ``pause`` and ``resume`` of the current run need no flag more than
+    ``up`` had. Reading the run file changes nothing in this process (its environment included): the file goes to the
+    sessions asked."""
     if info is None:
         return RunTarget([], None, None)
     run_config = info.get("zenoh_config")

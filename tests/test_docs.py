@@ -68,6 +68,16 @@ def test_every_quoted_default_is_the_default():
     assert wrong == []
 
 
+def test_the_node_feature_row_names_every_node_feature():
+    """The row on the paper's node features named the optional ``size`` but not ``unknown`` (``unknown_area_feature``,
+    a field of configs/train.yaml since the feature came): every column a graph may have is named there."""
+    from cso_runtime.learned.graph import GraphConfig, node_features
+
+    row = next(line for line in _doc().splitlines() if line.startswith("| node features"))
+    columns = node_features(GraphConfig(use_cluster_size=True, use_unknown_area=True))
+    assert len(columns) >= 8 and [c for c in columns if f"`{c}`" not in row] == []
+
+
 def test_the_training_config_names_every_field_with_its_default():
     """README says configs/train.yaml documents every field: each ``Args`` field but the flags of one run is in
     it, and nothing else is."""
@@ -133,11 +143,12 @@ def test_every_command_and_flag_the_docs_show_exists():
     assert wrong == []
 
 
-DOCS = [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").glob("*.md"))]
+DOCS = [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "configs" / "profiles" / "README.md"]
 """What users read for commands (docs/experiments/ is a record of what was tried, kept as it was)."""
 DOCUMENTED_COMMAND = re.compile(r"cso-runtime ([a-z].*?)(?: && |; |$)")
-PLACEHOLDERS = {"path/to/dungeon": "../shared/maps/dungeon", "METHODS": "all", "SET": "easy", "DEV": "../shared/maps/dungeon/train", "SCENES": "builtin"}
-"""What BENCHMARKS.md's upper-case words stand for in a command (``DEV``: a development set of training plans)."""
+PLACEHOLDERS = {"path/to/dungeon": "../shared/maps/dungeon", "METHODS": "all", "SET": "easy", "DEV": "../shared/maps/dungeon/train", "SCENES": "builtin", "NAME": "sim"}
+"""What BENCHMARKS.md's upper-case words stand for in a command (``DEV``: a development set of training plans; the
+profiles' README's ``up --profile NAME``: a profile's name)."""
 
 
 def _shown_files(doc: Path) -> dict[str, str]:
@@ -161,7 +172,7 @@ def _code(doc: Path) -> list[str]:
 
 def _documented_commands() -> list[tuple[str, str]]:
     """``(doc, "CMD ARGS")`` for every ``cso-runtime CMD ARGS`` the docs show."""
-    return [(doc.name, m) for doc in DOCS for line in _code(doc) for m in DOCUMENTED_COMMAND.findall(line)]
+    return [(str(doc.relative_to(ROOT)), m) for doc in DOCS for line in _code(doc) for m in DOCUMENTED_COMMAND.findall(line)]
 
 
 def _variants(command: str) -> list[list[str]]:
@@ -244,7 +255,7 @@ def test_every_run_eval_and_train_command_the_docs_show_is_accepted(tmp_path, mo
             trained.mkdir(parents=True, exist_ok=True)
             shutil.copy(ROOT / "cso_runtime" / "data" / "weights" / "cso.pt", trained)
         if "--profile" in argv and not (profile := Path(argv[argv.index("--profile") + 1])).exists():
-            shown = _shown_files(ROOT / doc if doc in ("README.md", "BENCHMARKS.md") else ROOT / "docs" / doc)
+            shown = _shown_files(ROOT / doc)
             if profile.name in shown:  # a profile the page shows whole (docs/own-service.md's own.yaml)
                 profile.write_text(shown[profile.name])
         if "--zenoh-config" in argv and not (zenoh_config := Path(argv[argv.index("--zenoh-config") + 1])).exists():
@@ -378,6 +389,43 @@ def test_the_readme_says_which_image_an_interrupted_runs_last_map_has():
     readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())  # a sentence may wrap
     image = Path(LAST_MAP).with_suffix(f".{LAST_MAP_IMAGE_FORMAT}").name
     assert f"`{LAST_MAP}` and `{image}`" in readme and f"`save-map --format {LAST_MAP_IMAGE_FORMAT}`" in readme
+
+
+def test_the_readmes_summary_json_row_names_every_key_of_meta(tmp_path):
+    """``meta`` in a real eval's ``summary.json`` held ``command``, ``maps`` (the ``--maps`` spec, not the per-method
+    ``maps``), ``seed``, ``scenes`` and, with ``--resume``, ``resumed_episodes``, which the README's row did not name;
+    nor ``paused_s``, which ``up`` writes. Each key of ``meta`` is named in the row's part on ``meta``."""
+    import json
+
+    from cso_runtime.evaluation import EvalRequest, run_eval
+
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path, max_steps=5, resume=True))
+    meta = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))["meta"]
+    assert {"request", "config", "resumed_episodes"} <= set(meta)
+    others = {"interrupted", "weights", "mujoco", "profile", "paused_s"}  # Ctrl-C, a learned method, --sim-config; up's
+    rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
+    about_meta = rows["`summary.json`"].split("`meta` (", 1)[1]
+    assert sorted(k for k in {*meta, *others} if f"`{k}`" not in about_meta) == []
+
+
+MERMAID_EDGE = re.compile(r"^\s*(\w+)\s*-->\|\"?([^|\"]+)\"?\|\s*(\w+)", flags=re.MULTILINE)
+
+
+def _mermaid_edges(text: str) -> set[tuple[str, str, str]]:
+    """``(from, key, to)`` of each ``a -->|k1, k2| b`` line of a mermaid flowchart."""
+    return {(a, key.strip(), b) for a, keys, b in MERMAID_EDGE.findall(text) for key in keys.split(",")}
+
+
+def test_the_readmes_dataflow_graph_is_part_of_the_sim_profiles():
+    """README's graph of ``up --profile sim`` leaves keys out (it says ``dataflow --format mermaid`` prints them all),
+    but each arrow it draws is one the code declares."""
+    from typer.testing import CliRunner
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    drawn = _mermaid_edges(re.search(r"```mermaid\n(.*?)```", readme, flags=re.DOTALL).group(1))
+    r = CliRunner().invoke(app, ["dataflow", "--profile", "sim", "--format", "mermaid"])
+    assert r.exit_code == 0, r.output
+    assert len(drawn) >= 12 and sorted(drawn - _mermaid_edges(r.output)) == []
 
 
 def test_the_readme_names_every_array_of_an_episodes_npz(tmp_path):
@@ -547,3 +595,167 @@ def test_hardware_mds_defaults_are_the_codes():
     defaults = dataclasses.asdict(Ros2BridgeParams())
     wrong += [f"{key}: the doc says {text}, the default is {defaults[key]}" for key, text in quoted if defaults[key] != float(text)]
     assert wrong == []
+
+
+def test_the_zenoh_config_flag_names_every_command_that_opens_a_session():
+    """``cso-runtime --zenoh-config`` and docs/hardware.md named ``status``, ``save-map``, ``record``, ``replay``,
+    ``service`` and ``up`` as the commands it applies to, and the first four as those that take the current run's own
+    file; ``pause`` and ``resume`` open the same sessions (``--connect``, the run file's endpoints and config) and were
+    left out. Every command with ``--connect`` opens a session; those that also read a runs folder's current run take
+    its file."""
+    cli = typer.main.get_command(app)
+
+    def options(name: str) -> set[str]:
+        return {o for p in cli.commands[name].params for o in p.opts}
+
+    opening = {name for name in cli.commands if "--connect" in options(name)} | {"service"}  # service: its own argparse flags
+    of_the_run = {name for name in opening - {"service", "up"} if "--runs-dir" in options(name)}
+    assert {"status", "pause", "record"} <= of_the_run
+    flag_help = next(p.help or "" for p in cli.params if "--zenoh-config" in p.opts)
+    assert sorted(opening - set(re.findall(r"[\w-]+", flag_help))) == []
+    text = " ".join((ROOT / "docs" / "hardware.md").read_text(encoding="utf-8").split())
+    where = text.split("**Where it applies**", 1)[1].split("\n- ", 1)[0]
+    sessions = re.search(r"any command that opens a session \(([^)]*)\)", where)
+    own = re.search(r"\); ([^;.]*) of the current run take the run's own file", where)
+    assert sessions is not None and own is not None, "the paragraph changed: update this test"
+    assert set(re.findall(r"`([\w-]+)`", sessions.group(1))) == opening
+    assert set(re.findall(r"`([\w-]+)`", own.group(1))) == of_the_run
+    runtime = " ".join((ROOT / "docs" / "runtime.md").read_text(encoding="utf-8").split())
+    said = re.search(r"gives it to any other command, and ([^.]*) of the current run take the run's own", runtime)
+    assert said is not None and set(re.findall(r"`([\w-]+)`", said.group(1))) == of_the_run
+
+
+def _bridge_counters() -> set[str]:
+    """The counters the ROS 2 bridge shows in ``status`` (``services.ros2_bridge.counters``) under a name of their own:
+    ``self.counters["NAME"]``, ``count_and_warn_once("NAME", ...)``, ``_new_episode(why, "NAME")`` and the drops of
+    ``count_reject("topic:reason", ...)`` (counted as ``dropped:topic:reason``, said as ``topic:reason``)."""
+    import ast
+
+    names = set()
+    for node in ast.walk(ast.parse((ROOT / "services" / "ros2_bridge.py").read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Attribute) and node.value.attr == "counters":
+            if isinstance(node.slice, ast.Constant):
+                names.add(node.slice.value)
+        elif isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
+            index = {"count_and_warn_once": 0, "count_reject": 0, "_new_episode": 1}.get(node.func.attr)
+            if index is not None and len(node.args) > index and isinstance(node.args[index], ast.Constant):
+                names.add(node.args[index].value)
+    return names
+
+
+def test_hardware_md_names_every_counter_and_drop_reason_of_the_bridge():
+    """A ROS user reads the bridge's counters in ``status`` and looks them up in docs/hardware.md: ``ros_scan:invalid``,
+    ``ros_resume:bad_cdr``, ``received:resume`` and ``scans_with_invalid_beams`` were counted but named nowhere."""
+    names = _bridge_counters()
+    assert {"ros_scan:bad_cdr", "watchdog_stops", "odometry_resets"} <= names, "the pattern broke"
+    text = (ROOT / "docs" / "hardware.md").read_text(encoding="utf-8")
+    assert sorted(n for n in names if f"`{n}`" not in text) == []
+
+
+MARKDOWN_LINK = re.compile(r"\]\(([^)\s]+)\)")
+
+
+def _anchors(doc: Path) -> set[str]:
+    """The anchors GitHub gives the headings of ``doc`` (lower case, punctuation dropped, spaces as ``-``)."""
+    text = re.sub(r"^ *```.*?^ *```", "", doc.read_text(encoding="utf-8"), flags=re.DOTALL | re.MULTILINE)
+    return {re.sub(r"[^\w\- ]", "", h.strip().lower()).replace(" ", "-") for h in re.findall(r"^#+ (.*)$", text, flags=re.MULTILINE)}
+
+
+def test_every_relative_link_of_the_docs_resolves():
+    """A ``[text](path#anchor)`` link between the docs leads to a file that is there and a heading it has."""
+    wrong, seen = [], 0
+    for doc in DOCS:
+        for target in MARKDOWN_LINK.findall(doc.read_text(encoding="utf-8")):
+            if target.startswith(("http://", "https://", "mailto:")):
+                continue
+            seen += 1
+            path, _, anchor = target.partition("#")
+            linked = (doc.parent / path).resolve() if path else doc
+            if not linked.exists():
+                wrong.append(f"{doc.name}: {target}: no such file")
+            elif anchor and linked.suffix == ".md" and anchor not in _anchors(linked):
+                wrong.append(f"{doc.name}: {target}: no such heading")
+    assert seen >= 20, "the docs lost their links, or the pattern broke"
+    assert wrong == []
+
+
+STATUS_JSON_PATHS = {"services.ros2_bridge.counters", "services.ros2_bridge.robot_stops"}
+"""Dotted names the docs give that are ``status --json`` paths, not profile keys."""
+PROFILE_KEY = re.compile(
+    r"`((?:exploration\.\w+|supervision|router|services\.\w+(?:\.mujoco)?)\.(?!(?:py|md|yaml|log)`)\w+)`(?: \((-?\d+(?:\.\d+)?|true|false)\b)?"
+)
+"""A profile key the docs name in full, with the value in brackets after it when they give one: ``supervision.X``,
+``router.X``, ``exploration.SECTION.X``, ``services.SERVICE.X``, ``services.sim.mujoco.X`` (not a file:
+``supervision.py``)."""
+
+
+def _profile_keys() -> dict[str, list[object]]:
+    """Every key of a profile -> its default and the values the shipped profiles give it."""
+    from cso_runtime.run_profile import RouterConfig, SupervisionConfig
+    from robot_sim.config import MujocoSimConfig
+    from services import COMMAND_NODE_KEYS, OWN_CLASS_KEY, SERVICE_NAMES, params_class
+
+    def defaults(cls: type) -> dict[str, object]:
+        return dataclasses.asdict(cls()) if dataclasses.is_dataclass(cls) else {}
+
+    keys: dict[str, list[object]] = {}
+    sections = {"supervision": SupervisionConfig, "router": RouterConfig, "services.sim.mujoco": MujocoSimConfig}
+    sections |= {f"exploration.{f.name}": type(getattr(ExplorationConfig(), f.name)) for f in dataclasses.fields(ExplorationConfig)}
+    sections |= {f"services.{name}": params_class(name) for name in SERVICE_NAMES if params_class(name) is not None}
+    for section, cls in sections.items():
+        keys |= {f"{section}.{key}": [value] for key, value in defaults(cls).items()}
+        if section.count(".") == 1 and section.startswith("services."):
+            keys |= {f"{section}.{key}": [] for key in (OWN_CLASS_KEY, *COMMAND_NODE_KEYS)}
+
+    def flatten(prefix: str, node: object) -> None:
+        if isinstance(node, dict):
+            for key, value in node.items():
+                flatten(f"{prefix}.{key}" if prefix else str(key), value)
+        elif prefix in keys:
+            keys[prefix].append(node)
+
+    for profile in sorted((ROOT / "configs" / "profiles").glob("*.yaml")):
+        flatten("", yaml.safe_load(profile.read_text(encoding="utf-8")))
+    return keys
+
+
+def test_every_profile_key_the_docs_name_exists_and_its_value_is_a_default_or_a_shipped_profiles():
+    """A key a doc names in full (``supervision.hang_timeout_s``, ``services.frontier.helper_start_s``) is one a profile
+    takes, and the value in brackets after it (``(20 s``) is its default, or the one a shipped profile gives it
+    (``services.planner.stale_after_s`` (1 s in limo-ros2)); the help of every command is held to the same."""
+    keys = _profile_keys()
+    cli = typer.main.get_command(app)
+    texts = {str(doc.relative_to(ROOT)): doc.read_text(encoding="utf-8") for doc in DOCS}
+    for name, command in [("cso-runtime", cli), *cli.commands.items()]:  # the help texts, whose keys are not in backticks
+        shown = " ".join([command.help or "", *(getattr(p, "help", None) or "" for p in command.params)])
+        texts[f"{name} --help"] = re.sub(r"(?<![\w`])((?:exploration\.\w+|supervision|router|services\.\w+)\.\w+)", r"`\1`", shown)
+    wrong, seen = [], 0
+    for where, text in texts.items():
+        for key, value in PROFILE_KEY.findall(text):
+            if key in STATUS_JSON_PATHS or (key.startswith("services.") and key.split(".")[1] not in {k.split(".")[1] for k in keys if k.startswith("services.")}):
+                continue  # a service of one's own (services.coverage_logger.every_steps), or a module (services.common.X)
+            seen += 1
+            if key not in keys:
+                wrong.append(f"{where}: no profile key {key}")
+            elif value:
+                number = {"true": True, "false": False}.get(value, value)
+                if not any(v == number if isinstance(number, bool) else isinstance(v, (int, float)) and float(v) == float(number) for v in keys[key]):
+                    wrong.append(f"{where}: {key} ({value}: the default and the shipped profiles give {keys[key]})")
+    assert seen >= 60, "the docs lost their keys, or the pattern broke"
+    assert wrong == []
+
+
+def test_runtime_mds_several_robots_names_every_command_that_picks_a_run():
+    """docs/runtime.md, Several robots, said that ``status``, ``save-map``, ``record``, ``logs`` and ``down`` take
+    ``--runs-dir`` and the first three ``--robot``; ``replay``, ``pause`` and ``resume`` take them too. The commands that
+    pick a run of a runs folder are those with ``--runs-dir`` but ``up`` (it makes one), ``runs`` (it lists them) and
+    ``doctor``; of them, those with ``--robot`` also ask for a robot."""
+    cli = typer.main.get_command(app)
+    options = {name: {o for p in c.params for o in p.opts} for name, c in cli.commands.items()}
+    picking = {name for name, opts in options.items() if "--runs-dir" in opts} - {"up", "runs", "doctor"}
+    asking = {name for name in picking if "--robot" in options[name]}
+    text = " ".join((ROOT / "docs" / "runtime.md").read_text(encoding="utf-8").split())
+    runs_dir = re.search(r"([^.]*) take `--runs-dir` to pick the run; ([^.(]*) also take `--robot`", text)
+    assert runs_dir is not None, "the sentence changed: update this test"
+    assert set(re.findall(r"`([\w-]+)`", runs_dir.group(1))) == picking
+    assert set(re.findall(r"`([\w-]+)`", runs_dir.group(2))) == asking
