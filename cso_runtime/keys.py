@@ -29,6 +29,7 @@ TOPICS = {
     "goal": "goal",
     "path": "path",
     "planner_feedback": "planner/feedback",
+    "planner_contacts": "planner/contacts",
     "clock": "clock",
     "episode_status": "episode/status",
     "episode_result": "episode/result",
@@ -148,8 +149,8 @@ class RobotKeys:
         return f"{ROOT}/{self.robot}/launcher/status"
 
     def cache(self, name: str) -> str:
-        """Queryable with the latest ``map`` (held by the referee, sim or ros2_bridge) or ``goal`` (held by
-        the launcher), for restarted services."""
+        """Queryable with the latest ``map`` or ``planner_contacts`` (held by the referee, sim or ros2_bridge) or
+        ``goal`` (held by the launcher), for restarted services."""
         return f"{ROOT}/{self.robot}/cache/{TOPICS[name]}"
 
 

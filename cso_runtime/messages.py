@@ -901,6 +901,33 @@ class PlannerFeedbackMsg(Message):
 
 
 @dataclass
+class PlannerContactsMsg(Message):
+    """Every contact the planner keeps in this episode (``LocalPlanner.contacts_xy_m``: cells a pinned robot was pressed
+    against, or returns nearer than the sensor's ``range_min``, which no map shows), sent whenever one is added. The
+    referee keeps the latest for a restarted planner (``cache/planner/contacts``), so it does not drive into the same
+    wall again; never on a step of its own, so the lockstep chain pays nothing for it."""
+
+    SCHEMA: ClassVar[str] = "planner_contacts"
+    step: int
+    """The step whose command added the newest contact."""
+    contacts_xy_m: np.ndarray
+    """Contact cell centres (float64 (n, 2), metres, odometry frame), in the order they were added."""
+    episode: int = 0
+    """Episode id of the inputs the contacts were found on: another episode's are none of this one's."""
+
+    def body(self) -> dict[str, Any]:
+        return {"step": self.step, "contacts_xy_m": pack_array(np.asarray(self.contacts_xy_m, dtype=np.float64).reshape(-1, 2)), "episode": self.episode}
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> PlannerContactsMsg:
+        w = "planner_contacts"
+        contacts = unpack_array(_get(b, "contacts_xy_m", w), "planner_contacts.contacts_xy_m", ndim=2, finite=True)
+        if contacts.shape[1:] != (2,) or contacts.dtype.kind != "f":
+            raise MessageError("planner_contacts.contacts_xy_m: expected (n, 2) floats")
+        return cls(_int(b, "step", w), contacts.astype(np.float64), _int(b, "episode", w))
+
+
+@dataclass
 class EndedWhyMsg(Message):
     """Why the decision of ``step`` found no goal (the episode ends ``no_frontier``): the frontier service's
     ``episode.ended_no_frontier_why`` on that decision's Observation and given-up frontiers, sent once the policy's
@@ -1340,6 +1367,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         GoalMsg,
         PathMsg,
         PlannerFeedbackMsg,
+        PlannerContactsMsg,
         EndedWhyMsg,
         ClockMsg,
         EpisodeStatusMsg,

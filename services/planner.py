@@ -31,6 +31,7 @@ from cso_runtime.messages import (
     Message,
     OdometryMsg,
     PathMsg,
+    PlannerContactsMsg,
     PlannerFeedbackMsg,
     PlannerFrontiersMsg,
     ScanMsg,
@@ -68,12 +69,17 @@ class PlannerParams:
     """``path`` is a view (the live view's distance ahead, a user's plot), not an input of any service: it
     goes out with every new plan and otherwise at most this often (wall clock), so that the process showing
     it is not woken on every step; 0 = with every command."""
+    restore_timeout_s: float = 1.0
+    """How long (wall clock) to wait at start for the contacts the referee (sim or ros2_bridge) keeps
+    (``cache/planner/contacts``), so that a restarted planner still keeps off what the robot bumped into."""
 
     def validate(self) -> None:
         if not self.stale_after_s > 0:
             raise ConfigError("stale_after_s must be positive")
         if not self.path_period_s >= 0:
             raise ConfigError("path_period_s must be zero or positive")
+        if not self.restore_timeout_s >= 0:
+            raise ConfigError(f"restore_timeout_s must be >= 0 seconds, got {self.restore_timeout_s}")
 
 
 class PlannerService(Service):
@@ -85,7 +91,7 @@ class PlannerService(Service):
         "odom": OdometryMsg, "scan": ScanMsg, "frontiers": PlannerFrontiersMsg, "distance_map": DistanceMapMsg, "goal": GoalMsg,
         "explore_resume": ExploreResumeMsg,
     }  # fmt: skip
-    outputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg}
+    outputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg, "planner_contacts": PlannerContactsMsg}
     optional_inputs = ("distance_map", "explore_resume")  # without D the planner runs its own fast-marching pass (the same path); a pause is an operator's
     tick_period_s = 0.1
 
@@ -99,9 +105,24 @@ class PlannerService(Service):
         self.reset_episode()
 
     def start(self) -> None:
-        """A planner (re)started while the robot is paused learns it from the launcher (``pause_in_force``)."""
+        """A planner (re)started while the robot is paused learns it from the launcher (``pause_in_force``), and one
+        restarted mid-episode gets its contacts back from the referee (``cache/planner/contacts``)."""
         if (pause := self.pause_in_force()) is not None:
             self.on_pause(pause)
+        cached = self.query_latest(self.ctx.keys.cache("planner_contacts"), PlannerContactsMsg, self.params.restore_timeout_s)
+        if isinstance(cached, PlannerContactsMsg):
+            self.restore_contacts(cached)
+
+    def restore_contacts(self, cached: PlannerContactsMsg) -> None:
+        """Keep the contacts of a planner that ran before this one in the same episode (it was killed, or crashed): the
+        paths planned from here keep off them as its did. They belong to their episode: the first input of another
+        episode starts afresh (``reset_episode``), as it does for the mapper's restored map."""
+        if len(cached.contacts_xy_m) == 0:
+            return
+        self.episodes.current = cached.episode or None  # id 0 (no ids): the episode running, whichever it is
+        self.planner.contacts_xy_m = np.array(cached.contacts_xy_m, dtype=float).reshape(-1, 2)
+        self.contacts_published = len(self.planner.contacts_xy_m)  # the referee holds them already
+        log.info("restored %d contacts of step %d (episode %d) from the cache", self.contacts_published, cached.step, cached.episode)
 
     def warm_up(self) -> None:
         """Plan once on a practice Observation (a planner thrown away), so the first goal's plan pays
@@ -149,6 +170,8 @@ class PlannerService(Service):
         """Lockstep: the command of the next step computed while the map and the frontier service's
         verdict are still on their way (step, result, planner state after it); used when the verdict
         keeps the goal, dropped when it brings a new one."""
+        self.contacts_published = 0
+        """How many of the planner's contacts ``planner_contacts`` has sent (they only grow in an episode)."""
 
     def on_pause(self, msg: ExploreResumeMsg) -> None:
         """Pause (``resume`` false) or resume exploration. Paused, every command is a stop and no goal is planned
@@ -369,6 +392,21 @@ class PlannerService(Service):
             self.publish("cmd_vel", self.last_cmd)
         self.publish_feedback(k, reason)
         self.publish_path(k)
+        self.publish_contacts(k)
+
+    def publish_contacts(self, k: int) -> None:
+        """All the contacts, once step ``k``'s command has added one (after the step's command and feedback: the
+        lockstep chain never waits for it, and a step that adds none sends nothing). The referee keeps them for a
+        restarted planner."""
+        contacts = self.planner.contacts_xy_m
+        if len(contacts) == self.contacts_published:
+            return
+        self.contacts_published = len(contacts)
+        self.publish("planner_contacts", PlannerContactsMsg(k, contacts, self.episodes.current or 0))
+
+    def extra_status(self) -> dict[str, int]:
+        """``contacts``: how many the planner keeps in this episode (restored ones included)."""
+        return {"contacts": len(self.planner.contacts_xy_m)}
 
     def ends_stopped(self, cmd: CmdVelMsg | None) -> bool:
         """Real time: ``cmd``, the last command sent, was the stop at the episode's end (``no_frontier``), so the

@@ -62,6 +62,7 @@ from cso_runtime.messages import (
     Message,
     MessageError,
     OdometryMsg,
+    PlannerContactsMsg,
     ScanMsg,
     decode,
     encode,
@@ -323,14 +324,15 @@ class Ros2BridgeService(Service):
     name = "ros2_bridge"
     inputs: ClassVar[dict[str, type[Message]]] = {
         "cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg, "ended_why": EndedWhyMsg,
+        "planner_contacts": PlannerContactsMsg,
     }  # fmt: skip
-    optional_inputs: ClassVar[tuple[str, ...]] = ("ended_why",)  # the reason is words: the episode ends without them
+    optional_inputs: ClassVar[tuple[str, ...]] = ("ended_why", "planner_contacts")  # the reason is words: the episode ends without them; contacts are kept, not used
     outputs: ClassVar[dict[str, type[Message]]] = {
         "scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg,
         "explore_resume": ExploreResumeMsg,
     }  # fmt: skip
     tick_period_s = 0.05
-    serves_latest = ("map",)
+    serves_latest = ("map", "planner_contacts")
     pending: tuple[ros2_cdr.ScanConversion, float] | None
     """A scan waiting for the odometry of its stamp, and when it came (monotonic s); set in ``_start_episode_state``."""
 
@@ -660,7 +662,8 @@ class Ros2BridgeService(Service):
         old = self.episode
         self.episode = new_episode_id()
         self._start_episode_state()
-        self.latest.pop("map", None)
+        for topic in self.serves_latest:  # the old episode's map and contacts are no restarted service's to resume from
+            self.latest.pop(topic, None)
         self.counters[counter] += 1
         log.warning("%s: episode %d ends, a new one (%d) starts with a new map", why, old, self.episode)
         self.publish("episode_status", self.episode_status())
@@ -788,6 +791,8 @@ class Ros2BridgeService(Service):
                     self.publish("episode_status", self.episode_status())
             elif isinstance(msg, GoalMsg):
                 self.take_goal(msg)
+            elif isinstance(msg, PlannerContactsMsg):  # kept for a restarted planner
+                self.keep_latest("planner_contacts", msg)
             elif isinstance(msg, FrontiersMsg) and msg.decide and msg.geometry is not None:
                 if self.episode_state in EPISODE_OVER:
                     # The frontier service asks for no decision after the end, unless it did not hear it (restarted

@@ -37,6 +37,7 @@ from cso_runtime.messages import (
     MapMsg,
     Message,
     OdometryMsg,
+    PlannerContactsMsg,
     ScanMsg,
     encode,
     new_episode_id,
@@ -151,10 +152,10 @@ class SimService(Service):
     ends the episode."""
 
     name = "sim"
-    inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "ended_why": EndedWhyMsg}
-    optional_inputs = ("cmd_vel_ahead", "ended_why")  # a step ahead is a speed-up: without it the sim steps on cmd_vel; the reason is words
+    inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "ended_why": EndedWhyMsg, "planner_contacts": PlannerContactsMsg}
+    optional_inputs = ("cmd_vel_ahead", "ended_why", "planner_contacts")  # a step ahead is a speed-up: without it the sim steps on cmd_vel; the reason is words; contacts are kept, not used
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
-    serves_latest = ("map",)
+    serves_latest = ("map", "planner_contacts")
     tick_period_s = 0.02
     """How often ``on_tick`` runs: real-time steps run on the first tick at or after they are due."""
 
@@ -407,6 +408,10 @@ class SimService(Service):
             if msg.episode == self.episode and self.result is None:
                 self.no_frontier_end.heard = (msg.step, msg.why)
                 self.end_if_why_heard(time.monotonic())
+            return
+        if isinstance(msg, PlannerContactsMsg):  # kept for a restarted planner, never waited for
+            if not self.of_another_episode(topic, msg, self.episode):
+                self.keep_latest("planner_contacts", msg)
             return
         if not self.running:
             return

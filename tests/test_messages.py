@@ -32,6 +32,7 @@ from cso_runtime.messages import (
     MessageError,
     OdometryMsg,
     PathMsg,
+    PlannerContactsMsg,
     PlannerFeedbackMsg,
     PlannerFrontiersMsg,
     ScanMsg,
@@ -123,6 +124,27 @@ def test_planner_feedback_carries_the_exact_path_ahead():
     np.testing.assert_array_equal(back.path_ahead_xy_m, path)
     empty = decode(encode(PlannerFeedbackMsg(2, "idle", "command")), PlannerFeedbackMsg)
     assert empty.path_ahead_xy_m.shape == (0, 2)
+
+
+def test_planner_contacts_arrive_bit_exact_and_bad_ones_are_refused():
+    """A restarted planner plans round the contacts its cache gives back: the same cell centres, bit for bit, in the
+    order kept; (n, 2) finite floats only."""
+    contacts = np.array([[0.125, 1.0 / 3.0], [2.0 / 7.0, -5.123456789012345]])
+    back = decode(encode(PlannerContactsMsg(14, contacts, 7)), PlannerContactsMsg)
+    assert isinstance(back, PlannerContactsMsg) and (back.step, back.episode) == (14, 7)
+    assert back.contacts_xy_m.dtype == np.float64
+    np.testing.assert_array_equal(back.contacts_xy_m, contacts)
+    assert decode(encode(PlannerContactsMsg(0, np.zeros((0, 2)))), PlannerContactsMsg).contacts_xy_m.shape == (0, 2)
+    good = _body(PlannerContactsMsg(3, contacts, 7))
+    for bad, said in [
+        ({**good, "contacts_xy_m": pack_array(np.zeros((2, 3)))}, "expected \\(n, 2\\) floats"),
+        ({**good, "contacts_xy_m": pack_array(np.zeros(4))}, "expected 2-D"),
+        ({**good, "contacts_xy_m": _body(PlannerContactsMsg(3, np.array([[np.nan, 0.0]])))["contacts_xy_m"]}, "contacts_xy_m"),
+        ({**good, "step": -1}, "step"),
+        ({k: v for k, v in good.items() if k != "episode"}, "missing field 'episode'"),
+    ]:
+        with pytest.raises(MessageError, match=said):
+            decode(_wire("planner_contacts", bad), PlannerContactsMsg)
 
 
 def test_keep_goal_frontiers_round_trip():
@@ -712,6 +734,7 @@ def _every_kind_of_message() -> list[Message]:
         GoalMsg(5, True, 1.5, 2.5, 2, 3.25, 12.5, "greedy-dist", "reached"), PathMsg(3, np.array([[1.0, -0.5], [2.0, 1.0]])),
         CmdVelMsg(3, VelocityCommand(0.5, 0.1), ""), ClockMsg(2, 0.5, GEOM),
         PlannerFeedbackMsg(3, "following", "command", False, "", np.array([[1.0, 2.0]]), 3),
+        PlannerContactsMsg(3, np.array([[1.0, 2.0], [1.05, 2.0]]), 7),
         EpisodeStatusMsg("exploring", 12, "gen_small_0", "greedy-dist", 45.5, 10.0, 3.2, [1.0, 2.0], 4, 11.0),
         ServiceStatusMsg("ros2_bridge", "r0", "running", 12, "", {"scan": 1}, 40, {"received:scan": 41}),
     ]
@@ -807,6 +830,7 @@ def test_keys_are_namespaced_by_robot():
     k = RobotKeys("robot_2")
     assert k.scan == "cso/robot_2/scan"
     assert k.planner_feedback == "cso/robot_2/planner/feedback"
+    assert k.topic("planner_contacts") == "cso/robot_2/planner/contacts" and k.cache("planner_contacts") == "cso/robot_2/cache/planner/contacts"
     assert k.alive("mapper") == "cso/robot_2/alive/mapper"
     assert RobotKeys("*").frontiers == "cso/*/frontiers"
     assert robot_of("cso/robot_2/episode/status") == "robot_2"

@@ -43,6 +43,7 @@ from cso_runtime.messages import (
     LauncherStatusMsg,
     MapMsg,
     OdometryMsg,
+    PlannerContactsMsg,
     ScanMsg,
     ServiceStatusMsg,
     decode,
@@ -4654,6 +4655,54 @@ def test_pause_holds_a_real_time_robot_still_and_resume_lets_the_episode_finish(
         assert final["state"] == "done" and not final["pause"]["paused"] and final["pause"]["total_s"] > 1.0, final
         summary = wait_for(lambda: next(iter(runs.glob("*/summary.json")), None), 30, "summary.json")
         assert json.loads(summary.read_text())["meta"]["paused_s"] > 1.0
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []
+
+
+def test_a_planner_killed_mid_episode_comes_back_with_the_contacts_of_its_episode(tmp_path):
+    """SIGKILL of the planner mid-episode: the launcher restarts it, and the new planner starts from the contacts the
+    sim keeps (``cache/planner/contacts``) instead of none, so its paths still keep off what the robot bumped into;
+    the episode completes. A contact comes from a stall against a wall no scan shows (the depth camera's), which this
+    360-degree scene never has: the test sends the planner's message itself, contacts on the scene's walls (they
+    change no path), and the first planner, which never heard them, keeps none."""
+    profile = write_profile(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5)  # 36 steps: at least 9 s
+    plan = resolve_scenes(SCENE)[0].load()
+    walls = np.argwhere(~plan.free)[:2]
+    contacts = np.stack(plan.geometry.cell_to_world(walls[:, 0], walls[:, 1]), axis=1)
+    runs = tmp_path / "runs"
+    keys = RobotKeys("r0")
+    try:
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        info = wait_for(lambda: current_run_with_services(runs, 5), 30, "the services to start")
+
+        def status() -> dict | None:
+            return query_status(info["endpoints"], "r0", timeout_s=0.5)
+
+        s = wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2 and s["services"]["planner"].get("counters") is not None and s, 60, "the episode to start")
+        assert s["services"]["planner"]["counters"].get("contacts") == 0, s["services"]["planner"]
+        with open_session(TransportConfig(mode="client", connect=info["endpoints"])) as session:
+            session.put(keys.topic("planner_contacts"), encode(PlannerContactsMsg(s["step"], contacts, s["episode"])))
+
+            def cached() -> PlannerContactsMsg | None:
+                replies = [decode(rep.ok.payload.to_bytes(), PlannerContactsMsg) for rep in session.get(keys.cache("planner_contacts"), timeout=1.0) if rep.ok]
+                return next((m for m in replies if len(m.contacts_xy_m)), None)  # type: ignore[attr-defined]
+
+            kept = wait_for(cached, 20, "the sim to keep the contacts")
+            assert kept.episode == s["episode"] and np.array_equal(kept.contacts_xy_m, contacts)
+        planner_pid = s["services"]["planner"]["pid"]
+        os.kill(planner_pid, signal.SIGKILL)
+        back = wait_for(
+            lambda: (t := status()) and t["services"]["planner"].get("restarts", 0) >= 1 and (t["services"]["planner"].get("counters") or {}).get("contacts") == 2 and t,
+            60, "the planner restarted with the two contacts",
+        )  # fmt: skip
+        assert back["services"]["planner"]["pid"] != planner_pid
+        log_text = next(runs.glob("*/logs/planner.log")).read_text()
+        assert re.search(rf"restored 2 contacts of step {s['step']} \(episode {s['episode']}\) from the cache", log_text), log_text[-3000:]
+        final = wait_for(lambda: (t := status()) and t["state"] in EPISODE_OVER and t, 90, "the end of the episode", period_s=0.2)
+        assert final["state"] == "done" and final["terminated_by"] == "coverage", final
+        assert final["services"]["planner"]["counters"]["contacts"] == 2  # to the end of the episode
     finally:
         cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert kill_leftovers(runs) == []

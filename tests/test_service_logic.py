@@ -30,6 +30,7 @@ from cso_runtime.messages import (
     MapMsg,
     Message,
     OdometryMsg,
+    PlannerContactsMsg,
     PlannerFeedbackMsg,
     ScanMsg,
     decode,
@@ -65,6 +66,7 @@ def _feed(svc: Service, msg: Message) -> None:
     topics = {
         MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", DistanceMapMsg: "distance_map", GoalMsg: "goal",
         PlannerFeedbackMsg: "planner_feedback", ExploreResumeMsg: "explore_resume", EpisodeStatusMsg: "episode_status",
+        PlannerContactsMsg: "planner_contacts",
     }  # fmt: skip
     topic = topics[type(msg)]
     svc.on_message("r0", topic, decode(encode(msg), type(msg)), time.monotonic())
@@ -667,6 +669,103 @@ def test_lockstep_planner_command_computed_ahead_is_the_one_computed_on_the_verd
         assert len(a) == 12 and a == b, topic
 
 
+def _lockstep_step(planner: PlannerService, ex: Explorer, k: int, episode: int, goal_at: int | None = None) -> None:
+    """Step ``k`` of a lockstep episode with id ``episode``, in the order the sim and the frontier service send it; a
+    decision on the far goal when ``k == goal_at``, else the verdict that keeps the goal."""
+    _, odom, scan = _inputs(ex, k)
+    _feed(planner, dataclasses.replace(odom, stamp_s=odom.stamp_s + 0.25 * k, episode=episode))
+    _feed(planner, dataclasses.replace(scan, episode=episode))
+    if k == goal_at:
+        obs = ex.observe()
+        _feed(planner, frontiers_from_observation(k, "no_goal", obs, 1.0, episode))
+        _feed(planner, dataclasses.replace(_far_goal(obs, k), episode=episode))
+    else:
+        _feed(planner, FrontiersMsg(k, False, episode=episode))
+
+
+def test_the_planner_sends_its_contacts_only_when_one_is_added_and_a_restarted_one_plans_round_them():
+    """Contacts (``LocalPlanner.contacts_xy_m``) are the planner's one memory of an episode that no other service
+    has: a planner killed and restarted forgot them and could drive into the same wall again. It sends all of them
+    (``planner_contacts``) once a step's command adds one, after that step's command and report (the lockstep chain
+    never waits for it) and never on a step that adds none; a planner started with them from the referee's cache
+    keeps them (``status`` counts them), plans its next goal round them, and drops them at another episode's input."""
+    ex = _explorer_at(0)
+    planner, out = _service(PlannerService, lockstep=True)
+    obs = ex.observe()
+    plain = LocalPlanner()
+    goal = _far_goal(obs, 0)
+    plain.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_m)
+    contact_xy = plain.path[len(plain.path) // 2]  # on the path the planner would take without it
+    iy, ix = obs.geometry.world_to_cell(contact_xy[0], contact_xy[1])
+    real_update = LocalPlanner.update
+
+    def update(self: LocalPlanner, pose: Pose2D, time_s: float, scan: object = None) -> object:
+        result = real_update(self, pose, time_s, scan)  # type: ignore[arg-type]
+        if time_s >= 0.5:  # from step 2 on the robot is pinned there (marked once: a cell kept already adds none)
+            self.add_contacts(obs.geometry, np.array([iy]), np.array([ix]))
+        return result
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(LocalPlanner, "update", update)
+        for k in range(5):
+            _lockstep_step(planner, ex, k, episode=7, goal_at=0)
+    sent = [(t, m.step) for t, m in out if t in ("cmd_vel", "planner_feedback", "planner_contacts")]
+    assert [t for t, _ in sent].count("planner_contacts") == 1
+    at = sent.index(("planner_contacts", 2))
+    assert sent[at - 2 : at] == [("cmd_vel", 2), ("planner_feedback", 2)]  # after the step's command and its report
+    (contacts,) = [m for t, m in out if t == "planner_contacts"]
+    assert contacts.episode == 7 and np.array_equal(contacts.contacts_xy_m, planner.planner.contacts_xy_m) and len(contacts.contacts_xy_m) == 1
+    assert planner.extra_status() == {"contacts": 1}
+
+    restarted, restarted_out = _service(PlannerService, lockstep=True)
+    asked: list[str] = []
+    restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: asked.append(key) or contacts  # type: ignore[method-assign]
+    restarted.start()
+    assert asked == ["cso/r0/cache/planner/contacts"] and restarted.extra_status() == {"contacts": 1}
+    for k in range(5, 8):
+        _lockstep_step(restarted, ex, k, episode=7, goal_at=5)
+    assert np.array_equal(restarted.planner.contacts_xy_m, contacts.contacts_xy_m)
+    assert restarted.planner.free is not None and not restarted.planner.free.traversable[int(iy), int(ix)]  # planned round it
+    assert not [t for t, _ in restarted_out if t == "planner_contacts"]  # the referee holds them already
+    _lockstep_step(restarted, ex, 0, episode=8, goal_at=0)  # a new episode: none of its contacts
+    assert restarted.extra_status() == {"contacts": 0} and len(restarted.planner.contacts_xy_m) == 0
+
+    fresh, _ = _service(PlannerService, lockstep=True)
+    fresh.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: None  # type: ignore[method-assign]
+    fresh.start()  # nothing cached (a first start, or an episode with no contact yet)
+    assert fresh.extra_status() == {"contacts": 0} and fresh.episodes.current is None
+
+
+def test_the_sim_keeps_the_planners_latest_contacts_of_its_episode_for_a_restarted_planner():
+    """``cache/planner/contacts`` answers the newest contacts of the sim's episode (an error reply before any), and
+    contacts of another episode, still in flight from before a restart, are rejected and counted."""
+    from types import SimpleNamespace
+
+    from services.sim import SimService
+
+    ctx = ServiceContext("sim", "r0", {"scene": "generated:small:1:0", "lockstep": True}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {})
+    sim = SimService(ctx)
+    sim.publish = lambda topic, msg, robot=None: None  # type: ignore[method-assign]
+    assert "planner_contacts" in sim.serves_latest and "planner_contacts" in sim.optional_inputs
+
+    def cached() -> PlannerContactsMsg | str:
+        replies: list[tuple[str, bytes]] = []
+        query = SimpleNamespace(reply=lambda key, payload: replies.append((key, payload)), reply_err=lambda payload: replies.append(("error", payload)))
+        sim.answer_cache_query("planner_contacts", query)
+        ((key, payload),) = replies
+        assert key in ("error", "cso/r0/cache/planner/contacts")
+        return payload.decode() if key == "error" else decode(payload, PlannerContactsMsg)
+
+    assert cached() == "no planner_contacts yet"
+    one, two = np.array([[1.0, 2.0]]), np.array([[1.0, 2.0], [1.5, 2.0]])
+    for step, xy in ((3, one), (9, two)):
+        _feed(sim, PlannerContactsMsg(step, xy, sim.episode))
+    latest = cached()
+    assert isinstance(latest, PlannerContactsMsg) and latest.step == 9 and np.array_equal(latest.contacts_xy_m, two)
+    _feed(sim, PlannerContactsMsg(12, one, sim.episode + 1))
+    assert cached().step == 9 and sim.rejected == {"planner_contacts": 1}  # type: ignore[union-attr]
+
+
 def test_sim_starts_the_episode_when_every_service_of_the_profile_is_alive():
     """Step 0 waits for the liveliness tokens of the profile's other services (a policy loading torch comes
     up last; before, its first decision waited a second for a lockstep re-publish), then start_delay_s;
@@ -1251,7 +1350,7 @@ def test_the_sim_serves_the_newest_map_of_its_episode_for_a_restarted_mapper():
     from cso_runtime.launcher import LAUNCHER_INPUTS
     from services.sim import SimService
 
-    assert "map" not in LAUNCHER_INPUTS and SimService.serves_latest == ("map",)
+    assert "map" not in LAUNCHER_INPUTS and SimService.serves_latest == ("map", "planner_contacts")
     ctx = ServiceContext("sim", "r0", {"scene": "generated:small:1:0"}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {})
     sim = SimService(ctx)
     sim.publish = lambda topic, msg, robot=None: None  # type: ignore[method-assign]

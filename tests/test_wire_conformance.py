@@ -39,6 +39,7 @@ from cso_runtime.messages import (
     MessageError,
     OdometryMsg,
     PathMsg,
+    PlannerContactsMsg,
     PlannerFeedbackMsg,
     ScanMsg,
     ServiceStatusMsg,
@@ -242,6 +243,7 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "goal_step": 12,
         }
     ],
+    "planner_contacts": [{"step": 14, "contacts_xy_m": record(np.array([[0.125, -0.075], [0.175, -0.075]]), "float64"), "episode": EPISODE}],
     "episode_status": [
         {
             "state": "exploring",
@@ -363,6 +365,8 @@ def test_the_values_decoded_are_the_ones_the_docs_describe():
     assert isinstance(path, PathMsg) and path.path_xy_m.dtype == np.float32 and path.path_xy_m.shape == (2, 2)
     (feedback,) = bodies["planner_feedback"]
     assert isinstance(feedback, PlannerFeedbackMsg) and (feedback.status, feedback.goal_step, feedback.episode) == ("following", 12, EPISODE)
+    (contacts,) = bodies["planner_contacts"]
+    assert isinstance(contacts, PlannerContactsMsg) and contacts.contacts_xy_m.tolist() == [[0.125, -0.075], [0.175, -0.075]] and contacts.episode == EPISODE
     (why,) = bodies["ended_why"]
     assert isinstance(why, EndedWhyMsg) and why.why.startswith("2 frontier cells")
     (status,) = bodies["episode_status"]
@@ -631,6 +635,7 @@ def test_the_docs_table_gives_each_key_the_schema_its_publishers_send():
         ("launcher/status", "launcher_status", keys.launcher_status),
         ("cache/map", "map", keys.cache("map")),
         ("cache/goal", "goal", keys.cache("goal")),
+        ("cache/planner/contacts", "planner_contacts", keys.cache("planner_contacts")),
         ("alive/<name>", "liveliness token", keys.alive("<name>")),
     ]:
         assert rows[key][0] == schema and full == f"cso/r0/{key}", (key, rows[key][0], full)
