@@ -289,8 +289,8 @@ class ScanMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> ScanMsg:
         w = "scan"
-        ranges = unpack_array(_get(b, "ranges_m", w), "scan.ranges_m", ndim=1, dtypes=FLOAT_DTYPES)
-        if not 0 < ranges.size <= MAX_BEAMS:
+        ranges = unpack_array(_get(b, "ranges_m", w), "scan.ranges_m", dtypes=FLOAT_DTYPES, shape=(None,), max_elements=MAX_BEAMS)
+        if ranges.size == 0:
             raise MessageError("scan.ranges_m: expected 1 to 100000 float ranges")
         if (ranges < 0).any():
             raise MessageError("scan.ranges_m: negative ranges")

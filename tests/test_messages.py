@@ -280,6 +280,18 @@ def test_the_clusters_of_a_decision_together_hold_no_more_cells_than_its_grid():
     assert _peak_bytes(lambda: decode(payload)) < 4 << 20
 
 
+def test_a_scan_declaring_more_beams_than_a_scan_may_have_is_refused_before_its_ranges_are_inflated():
+    """A scan may hold at most MAX_BEAMS ranges, which ``unpack_array`` knew only after inflating them: a 16 kB stream
+    declaring a million float64 ranges was inflated to 8 MB (and copied) before the beam count refused it; 50 million
+    ranges, 800 MB."""
+    good = _body(_scan())
+    many = {"dtype": "float64", "shape": [1_000_000], "z": True, "data": _zlib_bomb(16)}
+    payload = _wire("scan", {**good, "ranges_m": many})
+    assert _peak_bytes(lambda: decode(payload)) < 4 << 20
+    with pytest.raises(MessageError, match="too large"):
+        decode(payload)
+
+
 def test_an_empty_array_with_a_huge_dimension_is_a_message_error():
     """0 elements, so no size limit stops it, but numpy cannot shape it: a MessageError, not numpy's ValueError."""
     for shape in ([0, 2**62], [2**40, 0]):
