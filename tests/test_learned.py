@@ -2440,15 +2440,23 @@ def test_trains_record_names_the_software_that_trained_the_weights(tmp_path):
 def test_train_removes_the_partial_files_a_killed_train_left(tmp_path):
     """``kill -9`` while ``train`` wrote its weights or checkpoint left ``.<variant>.pt.<pid>.partial`` (or
     ``.checkpoint.pt.<pid>.partial``) in its folder, and nothing removed it. A train into that folder, new or
-    ``--resume``, removes those it finds (under its folder lock: none is another train's), kept checkpoints' too."""
+    ``--resume``, removes those it finds (under its folder lock: none is another train's), kept checkpoints' too; only
+    those of the files a train writes: another command's in the same folder (eval's summary, a tool of one's own) are
+    not train's to remove, even with their writer gone."""
+    from cso_runtime.learned.ppo import is_a_train_file
+
     common = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 20, "progress": False, "out_dir": str(tmp_path)}
+    kept = tmp_path / "checkpoints" / "update_0001"
+    others: list[Path] = []
 
     def left_by_a_kill() -> list[Path]:
         from tests.conftest import exited_pid
 
         dead = exited_pid()  # a kill's: its writer runs no more (a live one's are being written, and stay)
-        stale = [tmp_path / f".cso.pt.{dead}.partial", tmp_path / f".checkpoint.pt.{dead}.partial", tmp_path / "checkpoints" / "update_0001" / f".cso.json.{dead}.partial"]
-        for path in stale:
+        stale = [tmp_path / f".cso.pt.{dead}.partial", tmp_path / f".checkpoint.pt.{dead}.partial", kept / f".cso.json.{dead}.partial"]
+        stale += [tmp_path / f".gnn-baseline_log.csv.{dead}.partial", tmp_path / f".teacher_data.npz.{dead}.partial"]  # another variant's train
+        others.extend([tmp_path / f".summary.json.{dead}.partial", tmp_path / f".notes.txt.{dead}.partial", kept / f".notes.txt.{dead}.partial"])
+        for path in stale + others:
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(b"PK\x03\x04 cut short by kill -9")
         return stale
@@ -2459,7 +2467,8 @@ def test_train_removes_the_partial_files_a_killed_train_left(tmp_path):
         train(Args(total_decisions=4, resume=resume, **common), log=said.append, plans=[rooms_plan(2)])
         assert not [path for path in stale if path.exists()], resume
         assert f"note: removed {stale[1]}, left by a train that was killed while writing it" in said, said
-    assert (tmp_path / ".notes").is_file() and not list(tmp_path.rglob("*.partial"))
+    assert (tmp_path / ".notes").is_file() and sorted(tmp_path.rglob("*.partial")) == sorted(others)
+    assert not is_a_train_file(tmp_path, tmp_path / "checkpoints" / "cso.pt") and not is_a_train_file(tmp_path / "run", tmp_path / "cso.pt")
 
 
 def test_train_removes_the_temporary_files_a_train_killed_before_whole_file_writes_left(tmp_path):
