@@ -182,12 +182,15 @@ def check_foxglove() -> str:
 
 def check_weights() -> str:
     """Every shipped weights file of the learned methods loads, for eval's 360-degree sensor and the LIMO's 180; raises
-    when the ``cso`` file ``up --profile sim`` needs is missing."""
+    when the ``cso`` file ``up --profile sim`` needs is missing, or a weights file or folder the environment gives is
+    not there (``given_weights_problem``: named as given, not as the shipped folder's missing file)."""
     from cso_runtime.config import SensorConfig  # noqa: PLC0415
     from cso_runtime.learned.registry import check_weights as load  # noqa: PLC0415
-    from cso_runtime.learned.weights import weights_path  # noqa: PLC0415
+    from cso_runtime.learned.weights import given_weights_problem, weights_path  # noqa: PLC0415
     from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415
 
+    if problem := given_weights_problem():
+        raise RuntimeError(problem)
     loaded: list[str] = []
     for fov_deg in (360.0, 180.0):  # eval's --lidar-fov 360, and the LIMO's 180 of `up --profile sim`
         sensor = SensorConfig.preset("lidar", fov_deg=fov_deg)

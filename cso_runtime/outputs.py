@@ -170,26 +170,46 @@ def partial_file_writer(path: Path) -> tuple[Path, int] | None:
     return (path.with_name(found["name"]), int(found["pid"])) if found else None
 
 
-def writer_gone(pid: int) -> bool:
-    """Whether the process that named a partial file ``pid`` writes it no more: no process runs under that pid (a live
-    one is writing it: another command into the same folder, under another lock or none), or it is this very process,
-    which holds the folder's lock and has written nothing into it yet when it cleans up (a file of its pid is one an
-    earlier process of that pid left)."""
-    from cso_runtime.supervision import pid_alive  # noqa: PLC0415 - its process helpers only for a clean-up
+WRITER_START_SLACK_S = 2.0
+"""How much later than a partial file's last write (its mtime) the process under its pid must have started to be
+judged another process, one that took the dead writer's pid (``writer_gone``): the start time is known to a clock tick
+and the time since boot, an mtime to its file system's resolution (2 s on FAT)."""
 
-    return pid == os.getpid() or not pid_alive(pid)
+
+def writer_gone(pid: int, written_s: float | None = None) -> bool:
+    """Whether the process that named a partial file ``pid`` writes it no more: no process runs under that pid (a live
+    one is writing it: another command into the same folder, under another lock or none), or the one that runs under it
+    started after the file was last written (``written_s``, its mtime; more than ``WRITER_START_SLACK_S`` after), so is
+    not its writer but a process that took the dead writer's pid (Linux ``/proc``; elsewhere a live pid is taken for
+    the writer), or it is this very process, which holds the folder's lock and has written nothing into it yet when it
+    cleans up (a file of its pid is one an earlier process of that pid left)."""
+    from cso_runtime.supervision import pid_alive, process_started_s  # noqa: PLC0415 - its process helpers only for a clean-up
+
+    if pid == os.getpid() or not pid_alive(pid):
+        return True
+    if written_s is None:
+        return False
+    started_s = process_started_s(pid)
+    return started_s is not None and started_s > written_s + WRITER_START_SLACK_S
 
 
 def remove_partial_files(folders: Iterable[Path], also: Iterable[Path] = (), written_for: Callable[[Path], bool] | None = None) -> list[Path]:
     """Remove the partial files (``partial_path``) a killed writer left directly in each of ``folders``, then the
     files ``also``; the ones removed. Only while holding the lock of the command that writes those folders
     (``current_run.folder_lock``), and only a partial file whose writer has gone (``writer_gone``) and, with
-    ``written_for``, that was written for a file it accepts (the caller's own kind)."""
+    ``written_for``, that was written for a file it accepts (the caller's own kind): never a user's other hidden file
+    nor the partial files of another command's kind of file in the same folder."""
     removed = []
     partial = []
     for path in (path for folder in folders for path in sorted(Path(folder).glob(".*.partial"))):
         writer = partial_file_writer(path)
-        if writer is not None and writer_gone(writer[1]) and (written_for is None or written_for(writer[0])):
+        if writer is None or (written_for is not None and not written_for(writer[0])):
+            continue
+        try:
+            written_s = path.stat().st_mtime
+        except OSError:  # gone meanwhile (its writer renamed it into place)
+            continue
+        if writer_gone(writer[1], written_s):
             partial.append(path)
     for path in partial + list(also):
         if path.is_file():

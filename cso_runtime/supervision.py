@@ -206,6 +206,22 @@ def process_start_ticks(pid: int) -> int | None:
         return None
 
 
+def process_started_s(pid: int) -> float | None:
+    """When process ``pid`` started, wall clock (seconds since the epoch, to a clock tick): its start after boot
+    (``process_start_ticks``) placed by the time since boot now (``/proc/uptime``); None where unknown (no ``/proc``,
+    not Linux; the process gone). With a file's mtime it tells a process that took a dead writer's pid from the writer."""
+    ticks = process_start_ticks(pid)
+    if ticks is None:
+        return None
+    try:
+        with open("/proc/uptime") as fh:
+            uptime_s = float(fh.read().split()[0])
+        ticks_per_s = os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+    return time.time() - (uptime_s - ticks / ticks_per_s)
+
+
 def run_process_alive(pid: int | None, start_ticks: int | None) -> bool:
     """``pid_alive``, and still the process a run file named (same start time, when the file recorded one):
     ``down`` must never signal a process that took a dead launcher's pid."""

@@ -514,7 +514,9 @@ def test_up_of_a_learned_method_the_weights_folder_lacks_names_those_it_holds(tm
     import cso_runtime
     from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
     from cso_runtime.run_profile import load_profile
+    from tests.conftest import unset_weights_env
 
+    unset_weights_env(monkeypatch)  # a CSO_WEIGHTS_FILE of the developer's would take cso's place
     run = tmp_path / "run"
     run.mkdir()
     shutil.copy(Path(cso_runtime.__file__).parent / "data" / "weights" / "cso-sm.pt", run / "cso-sm.pt")
@@ -704,10 +706,10 @@ def test_up_resolved_says_the_weights_folder_it_runs_the_learned_methods_from(tm
     from typer.testing import CliRunner
 
     from cso_runtime.cli import app
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_dir
+    from cso_runtime.learned.weights import weights_dir
+    from tests.conftest import unset_weights_env
 
-    monkeypatch.setenv(WEIGHTS_DIR_ENV, "unset-below")  # restored (unset) after the test: --weights sets it in this process
-    monkeypatch.delenv(WEIGHTS_DIR_ENV)
+    unset_weights_env(monkeypatch)  # restored after the test: --weights sets one in this process
     plain = CliRunner().invoke(app, ["up", "--profile", "sim", "--resolved"])
     assert plain.exit_code == 0 and "--weights" not in plain.output, plain.output
     mine = tmp_path / "run"

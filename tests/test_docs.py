@@ -217,8 +217,8 @@ def test_every_run_eval_and_train_command_the_docs_show_is_accepted(tmp_path, mo
     from cso_runtime import cli, evaluation
     from cso_runtime.learned import ppo
     from cso_runtime.learned.graph import empty_graph
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
     from cso_runtime.scenes import builtin_scene_dir
+    from tests.conftest import unset_weights_env
 
     def stop(*args, **kwargs):
         raise _Validated
@@ -240,7 +240,7 @@ def test_every_run_eval_and_train_command_the_docs_show_is_accepted(tmp_path, mo
         (tmp_path / "shared" / "maps" / "dungeon" / plans).mkdir(parents=True)
         shutil.copy(builtin_scene_dir() / "img_1.png", tmp_path / "shared" / "maps" / "dungeon" / plans)
     monkeypatch.chdir(repo)
-    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # restored after the test, whatever `--weights` set in between
+    unset_weights_env(monkeypatch)  # restored after the test, whatever `--weights` set in between
     commands = [(doc, argv) for doc, command in _documented_commands() for argv in _variants(command)]
     outs = {argv[argv.index("--out") + 1] for _, argv in commands if argv[0] == "train" and "--out" in argv}
     wrong, checked = [], 0
@@ -248,7 +248,7 @@ def test_every_run_eval_and_train_command_the_docs_show_is_accepted(tmp_path, mo
         if argv[0] not in ("up", "eval", "train", "collect-teacher"):
             continue
         argv = [str(ROOT / a) if "/" in a and not a.startswith(("/", "..")) and (ROOT / a).exists() else a for a in argv]
-        monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)  # as a new shell: an earlier --weights set it
+        unset_weights_env(monkeypatch)  # as a new shell: an earlier --weights set one
         trained = Path(argv[argv.index("--weights") + 1]) if "--weights" in argv else None
         if trained is not None and not any(trained.glob("*.pt")):  # a training run's folder, as `train` leaves it
             assert str(trained) in outs, f"{doc}: --weights {trained}: no documented `train --out` writes it"

@@ -1347,6 +1347,7 @@ def test_eval_of_a_learned_method_the_weights_folder_lacks_names_those_it_holds(
     no cso.pt and to train one, not that RUN's weights are cso-sm's, to run with ``--method cso-sm``."""
     from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
 
+    unset_weights_env(monkeypatch)  # a CSO_WEIGHTS_FILE of the developer's would take cso's place
     run = tmp_path / "run"
     run.mkdir()
     shutil.copy(Path(cso_runtime.__file__).parent / "data" / "weights" / "cso-sm.pt", run / "cso-sm.pt")
@@ -1365,7 +1366,7 @@ def test_eval_warns_when_weights_were_trained_with_another_field_of_view(tmp_pat
     and says nothing where the sensors match or no record says."""
     from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, sensor_mismatches, weights_path
 
-    monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)
+    unset_weights_env(monkeypatch)
     lidar180, lidar360 = SensorConfig(), SensorConfig.preset("lidar", 360)
     assert sensor_mismatches(["cso"], lidar180) == sensor_mismatches(["cso"], lidar360) == []  # cso@fov180.pt, cso.pt
     run = tmp_path / "run"
@@ -1459,7 +1460,7 @@ def test_eval_warns_when_weights_were_trained_under_other_stuck_mask_settings(tm
     from cso_runtime.config import MaskConfig
     from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, mask_mismatches, weights_path
 
-    monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)
+    unset_weights_env(monkeypatch)
     lidar360 = SensorConfig.preset("lidar", 360)
     assert mask_mismatches(["cso", "cso-vdm"], MaskConfig(stuck_avoid="goals", conflict="stuck"), lidar360) == []  # shipped
     run = tmp_path / "run"

@@ -686,8 +686,8 @@ def test_train_ends_saying_its_files_and_the_eval_that_runs_its_weights_as_train
 
     from cso_runtime.cli import app
     from cso_runtime.learned.ppo import matching_eval_command
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV
 
+    unset_weights_env(monkeypatch)  # eval's --weights sets one in this process: put back as it was after the test
     assert matching_eval_command(Args(out_dir="runs/x")) == "cso-runtime eval --method cso --weights runs/x"
     assert matching_eval_command(Args(out_dir="runs/x", sensor="depth")) == "cso-runtime eval --method cso --weights runs/x --sensor depth"
     # a setting the variant's masks do not use is not given: cso-sm has no valid distance mask to conflict with
@@ -705,7 +705,6 @@ def test_train_ends_saying_its_files_and_the_eval_that_runs_its_weights_as_train
         "cso-runtime", "eval", "--method", "cso", "--weights", str(out), "--lidar-fov", "360",
         "--set", "masks.stuck_avoid=goals", "--set", "masks.conflict=stuck",
     ]  # fmt: skip
-    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # eval's --weights sets it in this process: put back as it was after the test
     r = CliRunner().invoke(app, [*shlex.split(said.group(1))[1:], "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / "eval")])
     assert r.exit_code == 0 and "trained with" not in r.output, r.output
     meta = json.loads((tmp_path / "eval" / "summary.json").read_text())["meta"]
@@ -882,9 +881,9 @@ def test_shipped_weights_match_the_training_config(variant, monkeypatch):
     import json
 
     from cso_runtime.cli import training_args
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path
+    from cso_runtime.learned.weights import weights_path
 
-    monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)
+    unset_weights_env(monkeypatch)  # the shipped weights, whatever folder or file the developer's environment gives
     config = Path(__file__).resolve().parents[1] / "configs" / "train.yaml"
     # The plan folder exists on the build machine only (training_args checks the scenes); it does not shape the network.
     args = training_args(config, {"variant": variant}, ["dungeon_dir=null"])
@@ -968,6 +967,7 @@ def test_weights_dir_override_serves_other_weights(tmp_path, monkeypatch, observ
     """``CSO_WEIGHTS_DIR`` makes eval and the policy service use a training run's weights."""
     from cso_runtime.learned import registry
 
+    unset_weights_env(monkeypatch)  # a CSO_WEIGHTS_FILE of the developer's would take cso's place
     torch.manual_seed(11)
     mine = GraphActorCritic().eval()
     save_checkpoint(tmp_path / "cso.pt", mine, GraphConfig(), "cso")
@@ -986,7 +986,7 @@ def test_weights_trained_with_the_sensor_serve_episodes_with_that_field_of_view(
     from cso_runtime.learned import registry
     from cso_runtime.learned.weights import weights_provenance
 
-    monkeypatch.delenv(registry.WEIGHTS_DIR_ENV, raising=False)
+    unset_weights_env(monkeypatch)  # the shipped weights first, whatever the developer's environment gives
     lidar180, lidar360, depth = SensorConfig(), SensorConfig.preset("lidar", 360), SensorConfig.preset("depth")
     assert registry.weights_path("cso", lidar180).name == "cso@fov180.pt"
     assert registry.weights_path("cso", lidar360).name == registry.weights_path("cso", depth).name == registry.weights_path("cso").name == "cso.pt"
@@ -1012,9 +1012,9 @@ def test_the_shipped_180_degree_weights_are_the_recorded_training_run(monkeypatc
 
     from cso_runtime.cli import training_args
     from cso_runtime.config import SensorConfig
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, weights_path
+    from cso_runtime.learned.weights import weights_path
 
-    monkeypatch.delenv(WEIGHTS_DIR_ENV, raising=False)
+    unset_weights_env(monkeypatch)  # the shipped weights, whatever folder or file the developer's environment gives
     config = Path(__file__).resolve().parents[1] / "configs" / "train.yaml"
     args = training_args(config, {"variant": "cso", "seed": 2}, ["dungeon_dir=null", "lidar_fov_deg=null"])
     path = weights_path("cso", SensorConfig())
@@ -1105,14 +1105,16 @@ def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_
     from typer.testing import CliRunner
 
     from cso_runtime.cli import app
-    from cso_runtime.learned import registry
 
+    # --weights sets the weights folder in the environment, for the workers: monkeypatch takes it back out afterwards
+    # (a folder left there would serve every later test's learned methods); none of the developer's is given to the commands.
+    unset_weights_env(monkeypatch)
     torch.manual_seed(5)
     run = tmp_path / "run"
     run.mkdir()
     save_checkpoint(run / "cso.pt", GraphActorCritic().eval(), GraphConfig(), "cso")
     exe = [sys.executable, "-m", "cso_runtime.cli", "eval", "--maps", "generated:small:1:3", "--max-steps", "30"]
-    env = {k: v for k, v in os.environ.items() if k != registry.WEIGHTS_DIR_ENV}
+    env = dict(os.environ)
     ok = subprocess.run(exe + ["--method", "cso", "--weights", str(run), "--out", str(tmp_path / "mine")], capture_output=True, text=True, timeout=180, env=env)
     assert ok.returncode == 0, ok.stderr
     weights = json.loads((tmp_path / "mine" / "summary.json").read_text())["meta"]["weights"]["cso"]
@@ -1123,14 +1125,10 @@ def test_eval_weights_flag_uses_a_training_folder_and_records_which_weights(tmp_
     weights = json.loads((tmp_path / "shipped" / "summary.json").read_text())["meta"]["weights"]["cso"]
     assert weights["shipped"] and weights["sha256"] != hashlib.sha256((run / "cso.pt").read_bytes()).hexdigest()
     # The refusals come before any episode: in this process (a command of its own costs seconds of torch imports).
-    # --weights sets the weights folder in the environment, for the workers: set and unset here, monkeypatch takes
-    # it back out afterwards (a folder left there would serve every later test's learned methods).
-    monkeypatch.setenv(registry.WEIGHTS_DIR_ENV, "")
-    monkeypatch.delenv(registry.WEIGHTS_DIR_ENV)
     missing = CliRunner().invoke(app, [*exe[3:], "--method", "gnn-baseline", "--weights", str(run), "--out", str(tmp_path / "x")])
     assert missing.exit_code == 2 and "gnn-baseline.pt" in missing.stderr and str(run.resolve()) in missing.stderr
     nowhere = CliRunner().invoke(app, [*exe[3:], "--method", "cso", "--weights", str(tmp_path / "nowhere"), "--out", str(tmp_path / "y")])
-    assert nowhere.exit_code == 2 and "not a folder" in nowhere.stderr
+    assert nowhere.exit_code == 2 and f"--weights {tmp_path / 'nowhere'}: no such file or folder" in " ".join(nowhere.stderr.split())
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
 
 
@@ -1149,6 +1147,7 @@ def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path
     from cso_runtime.learned.weights import weights_file_problem
     from cso_runtime.run_profile import find_profile, load_profile
 
+    unset_weights_env(monkeypatch)  # a CSO_WEIGHTS_FILE of the developer's would take cso's place
     good = tmp_path / "good.pt"
     save_checkpoint(good, GraphActorCritic().eval(), GraphConfig(), "cso")
     ckpt = torch.load(good, weights_only=True)
@@ -1926,6 +1925,54 @@ def test_weights_given_as_a_file_not_named_for_its_method_is_refused_not_swapped
     assert use_weights(run) == run.resolve() and os.environ[WEIGHTS_DIR_ENV] == str(run.resolve()) and WEIGHTS_FILE_ENV not in os.environ
 
 
+def test_weights_given_that_are_not_there_are_said_as_the_path_given_before_anything_starts(tmp_path, monkeypatch):
+    """``--weights RUN/cso.pt`` of a file not there was said as "not a folder (give a training run's --out)";
+    ``CSO_WEIGHTS_FILE`` of one as "no weights for cso in" the shipped weights folder (eval), or not at all (the policy
+    service ran the shipped weights for a file named for no method). Each is now one error naming exactly the path given,
+    exit 2 before anything starts, in eval, up, the policy service (``make_policy``) and doctor; a run of no learned
+    method is not concerned."""
+    from typer.testing import CliRunner
+
+    from cso_runtime import doctor
+    from cso_runtime.cli import app
+    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, WEIGHTS_FILE_ENV, use_weights, weights_file_refusal
+
+    unset_weights_env(monkeypatch)
+    missing = tmp_path / "nope" / "cso.pt"
+    with pytest.raises(ValueError, match=rf"^--weights {re.escape(str(missing))}: no such file or folder$"):
+        use_weights(missing)
+    named = tmp_path / "cso.pt"
+    named.symlink_to(missing)
+    with pytest.raises(ValueError, match=rf"^--weights {re.escape(str(named))}: no such file or folder \(a link to {re.escape(str(missing))}, which is not there\)$"):
+        use_weights(named)
+    assert os.environ.get(WEIGHTS_DIR_ENV) is None and os.environ.get(WEIGHTS_FILE_ENV) is None
+    runner = CliRunner()
+    for command in (["eval", "--method", "cso", "--dry-run"], ["up", "--dry-run"]):
+        r = runner.invoke(app, [*command, "--weights", str(missing)])
+        assert r.exit_code == 2 and f"--weights {missing}: no such file or folder" in " ".join(r.output.split()), (command, r.output)
+    unnamed = tmp_path / "model.pt"
+    unnamed.write_bytes(b"PK\x03\x04")
+    for given, problem in (
+        ({WEIGHTS_FILE_ENV: str(missing)}, f"{WEIGHTS_FILE_ENV}={missing}: no such file"),
+        ({WEIGHTS_FILE_ENV: str(tmp_path / "nope" / "model.pt")}, f"{WEIGHTS_FILE_ENV}={tmp_path / 'nope' / 'model.pt'}: no such file"),
+        ({WEIGHTS_FILE_ENV: str(tmp_path)}, f"{WEIGHTS_FILE_ENV}={tmp_path}: a folder, not a file"),
+        ({WEIGHTS_FILE_ENV: str(unnamed)}, f"{WEIGHTS_FILE_ENV}={unnamed}: not named for a learned method's weights (cso.pt, "),
+        ({WEIGHTS_DIR_ENV: str(tmp_path / "nodir")}, f"{WEIGHTS_DIR_ENV}={tmp_path / 'nodir'}: no such folder"),
+    ):
+        unset_weights_env(monkeypatch)
+        for name, value in given.items():
+            monkeypatch.setenv(name, value)
+        assert weights_file_refusal(["cso"]).startswith(problem) and weights_file_refusal(["greedy-dist"]) == ""
+        with pytest.raises(ValueError, match=f"^{re.escape(problem)}"):  # the policy service's selector: exit 2 (services.common)
+            make_policy("cso", MaskConfig(), sensor=SensorConfig())
+        for command in (["eval", "--method", "cso", "--dry-run"], ["up", "--dry-run"])[: 2 if given == {WEIGHTS_FILE_ENV: str(missing)} else 1]:
+            r = runner.invoke(app, command)
+            assert r.exit_code == 2 and problem in " ".join(r.output.split()), (command, r.output)
+        (checked,) = doctor.run_checks(tmp_path, only=[("weights", doctor.check_weights)])
+        assert not checked.ok and problem in checked.detail, checked
+    assert runner.invoke(app, ["eval", "--method", "greedy-dist", "--dry-run"]).exit_code == 0  # no learned method: the folder is not read
+
+
 def test_train_into_an_earlier_runs_folder_says_it_replaces_it(tmp_path):
     """CleanRL gives every run a folder of its own; ``train --out`` into an earlier run's folder replaced its log at
     once and its checkpoint at the first save without a word. It now says so, how that run would be continued until
@@ -1958,7 +2005,7 @@ def test_keep_checkpoints_keeps_each_checkpoints_weights_for_eval(tmp_path, monk
 
     from cso_runtime.cli import app
     from cso_runtime.learned.ppo import earlier_run_files
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights
+    from cso_runtime.learned.weights import use_weights
 
     common = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 20, "checkpoint_every": 2, "progress": False}
     plain = tmp_path / "plain"
@@ -1979,7 +2026,7 @@ def test_keep_checkpoints_keeps_each_checkpoints_weights_for_eval(tmp_path, monk
     model, _, _ = load_checkpoint(kept / "update_0002" / "cso.pt")  # a weights file, as the run's own
     assert all(torch.equal(model.state_dict()[k], at["update_0002"][k]) for k in final)
 
-    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # eval's --weights sets it in this process: put back as it was after the test
+    unset_weights_env(monkeypatch)  # eval's --weights sets one in this process: put back as it was after the test
     r = CliRunner().invoke(app, ["eval", "--method", "cso", "--weights", str(kept / "update_0002"), "--maps", "generated:small:1:0", "--max-steps", "5", "--out", str(tmp_path / "eval")])
     assert r.exit_code == 0, r.output
     weights = json.loads((tmp_path / "eval" / "summary.json").read_text())["meta"]["weights"]["cso"]
@@ -2226,9 +2273,9 @@ def test_a_resume_past_its_budget_writes_the_checkpoints_weights_and_says_so(tmp
     ``--total-decisions`` the checkpoint has already passed writes its weights as they are, but said "1 updates in all,
     the learning rate anneals over them from here", as if it trained. It now says that no update is left, and the
     weights written are the checkpoint's, which ``eval --weights`` then runs."""
-    from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, use_weights
+    from cso_runtime.learned.weights import use_weights
 
-    monkeypatch.setenv(WEIGHTS_DIR_ENV, "")  # use_weights sets it for this process: put back as it was after the test
+    unset_weights_env(monkeypatch)  # use_weights sets one for this process: put back as it was after the test
     common = {"seed": 0, "num_envs": 1, "num_steps": 8, "num_minibatches": 1, "max_steps": 40, "progress": False, "out_dir": str(tmp_path)}
     train(Args(**common, total_decisions=24), log=lambda _msg: None, plans=[rooms_plan(2)])
     (tmp_path / "cso.pt").unlink()  # as a stopped run leaves it
@@ -2401,15 +2448,23 @@ def test_trains_record_names_the_software_that_trained_the_weights(tmp_path):
 def test_train_removes_the_partial_files_a_killed_train_left(tmp_path):
     """``kill -9`` while ``train`` wrote its weights or checkpoint left ``.<variant>.pt.<pid>.partial`` (or
     ``.checkpoint.pt.<pid>.partial``) in its folder, and nothing removed it. A train into that folder, new or
-    ``--resume``, removes those it finds (under its folder lock: none is another train's), kept checkpoints' too."""
+    ``--resume``, removes those it finds (under its folder lock: none is another train's), kept checkpoints' too; only
+    those of the files a train writes: another command's in the same folder (eval's summary, a tool of one's own) are
+    not train's to remove, even with their writer gone."""
+    from cso_runtime.learned.ppo import is_a_train_file
+
     common = {"variant": "cso", "seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 20, "progress": False, "out_dir": str(tmp_path)}
+    kept = tmp_path / "checkpoints" / "update_0001"
+    others: list[Path] = []
 
     def left_by_a_kill() -> list[Path]:
         from tests.conftest import exited_pid
 
         dead = exited_pid()  # a kill's: its writer runs no more (a live one's are being written, and stay)
-        stale = [tmp_path / f".cso.pt.{dead}.partial", tmp_path / f".checkpoint.pt.{dead}.partial", tmp_path / "checkpoints" / "update_0001" / f".cso.json.{dead}.partial"]
-        for path in stale:
+        stale = [tmp_path / f".cso.pt.{dead}.partial", tmp_path / f".checkpoint.pt.{dead}.partial", kept / f".cso.json.{dead}.partial"]
+        stale += [tmp_path / f".gnn-baseline_log.csv.{dead}.partial", tmp_path / f".teacher_data.npz.{dead}.partial"]  # another variant's train
+        others.extend([tmp_path / f".summary.json.{dead}.partial", tmp_path / f".notes.txt.{dead}.partial", kept / f".notes.txt.{dead}.partial"])
+        for path in stale + others:
             path.parent.mkdir(parents=True, exist_ok=True)
             path.write_bytes(b"PK\x03\x04 cut short by kill -9")
         return stale
@@ -2420,7 +2475,8 @@ def test_train_removes_the_partial_files_a_killed_train_left(tmp_path):
         train(Args(total_decisions=4, resume=resume, **common), log=said.append, plans=[rooms_plan(2)])
         assert not [path for path in stale if path.exists()], resume
         assert f"note: removed {stale[1]}, left by a train that was killed while writing it" in said, said
-    assert (tmp_path / ".notes").is_file() and not list(tmp_path.rglob("*.partial"))
+    assert (tmp_path / ".notes").is_file() and sorted(tmp_path.rglob("*.partial")) == sorted(others)
+    assert not is_a_train_file(tmp_path, tmp_path / "checkpoints" / "cso.pt") and not is_a_train_file(tmp_path / "run", tmp_path / "cso.pt")
 
 
 def test_train_removes_the_temporary_files_a_train_killed_before_whole_file_writes_left(tmp_path):

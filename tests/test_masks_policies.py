@@ -231,6 +231,9 @@ def test_an_unknown_method_is_said_with_the_name_it_most_likely_misspells():
 
 
 def test_method_lists_expand_groups_in_order_each_method_once(monkeypatch, tmp_path):
+    from tests.conftest import unset_weights_env
+
+    unset_weights_env(monkeypatch)  # the shipped weights, whatever folder or file the developer's environment gives
     assert parse_methods(" greedy-dist , cso ,,greedy-dist") == ["greedy-dist", "cso"]
     assert parse_methods("baselines") == list(BASELINES)
     assert parse_methods("cso,all") == ["cso", *[m for m in available_methods() if m != "cso"]]

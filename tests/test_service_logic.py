@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import queue
+import re
 import threading
 import time
 import types
@@ -161,7 +162,9 @@ def test_policy_service_loads_the_weights_trained_with_its_sensor(tmp_path, monk
     from cso_runtime.learned.graph import GraphConfig
     from cso_runtime.learned.network import GraphActorCritic
     from cso_runtime.learned.registry import WEIGHTS_DIR_ENV, save_checkpoint
+    from tests.conftest import unset_weights_env
 
+    unset_weights_env(monkeypatch)  # a CSO_WEIGHTS_FILE of the developer's would take cso's place
     torch.manual_seed(5)
     wide, narrow = GraphActorCritic().eval(), GraphActorCritic().eval()
     save_checkpoint(tmp_path / "cso.pt", wide, GraphConfig(), "cso")
@@ -172,6 +175,32 @@ def test_policy_service_loads_the_weights_trained_with_its_sensor(tmp_path, monk
         served = policy.new_selector().model.state_dict()
         for name, value in expected.state_dict().items():
             torch.testing.assert_close(served[name], value)
+
+
+def test_policy_service_refuses_a_weights_file_it_would_not_run_naming_the_path_given(tmp_path, monkeypatch):
+    """``CSO_WEIGHTS_FILE`` naming a file that is not there, or another method's file, made the policy service run the
+    shipped weights without a word (or say "no weights for 'cso'" with a hint to train). It now refuses at its start,
+    before it joins the network (exit 2), naming the path exactly as given, as eval and up do."""
+    import shutil
+
+    from cso_runtime.config import ConfigError
+    from cso_runtime.learned.weights import WEIGHTS_FILE_ENV, weights_path
+    from tests.conftest import unset_weights_env
+
+    unset_weights_env(monkeypatch)
+    other = tmp_path / "cso-sm.pt"
+    shutil.copy(weights_path("cso-sm"), other)
+    for given, said in (
+        (tmp_path / "nope" / "cso.pt", f"{WEIGHTS_FILE_ENV}={tmp_path / 'nope' / 'cso.pt'}: no such file"),
+        (tmp_path / "nope" / "model.pt", f"{WEIGHTS_FILE_ENV}={tmp_path / 'nope' / 'model.pt'}: no such file"),
+        (other, f"--weights {other}: the weights of cso-sm alone, not of cso"),
+    ):
+        monkeypatch.setenv(WEIGHTS_FILE_ENV, str(given))
+        with pytest.raises(ConfigError, match=f"^{re.escape(said)}"):
+            _service(PolicyService, lockstep=True, params={"method": "cso"})
+    monkeypatch.setenv(WEIGHTS_FILE_ENV, str(tmp_path / "nope" / "cso.pt"))
+    policy, _ = _service(PolicyService, lockstep=True, params={"method": "greedy-dist"})  # no learned method: no weights read
+    assert policy.method == "greedy-dist"
 
 
 def test_policy_service_stuck_mask_uses_bounded_distance_maps_and_decides_like_in_process(monkeypatch):

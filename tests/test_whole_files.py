@@ -157,7 +157,9 @@ def test_run_profile_stopped_while_written_keeps_the_earlier_one(tmp_path, monke
     again) was written in place."""
     from cso_runtime.launcher import Launcher
     from cso_runtime.run_profile import load_profile
+    from tests.conftest import unset_weights_env
 
+    unset_weights_env(monkeypatch)  # the sim profile's cso on the shipped weights, whatever the developer's environment gives
     profile, data = load_profile("sim")
     launcher = Launcher(profile, data, tmp_path)
     launcher.write_profile()
@@ -179,6 +181,38 @@ def test_an_eval_removes_the_partial_files_a_killed_one_left_anywhere_in_its_fol
     (tmp_path / ".draft.partial").write_text("a hidden file of the user's, not one partial_path names")
     assert sorted(remove_stale_partial_files(tmp_path, [], lambda path: False)) == sorted(stale)
     assert sorted(p.name for p in tmp_path.rglob("*") if p.is_file()) == [".draft.partial", "summary.json"]
+
+
+def test_a_partial_file_whose_pid_a_later_process_took_is_removed_and_a_live_writers_is_kept(tmp_path, monkeypatch):
+    """A partial file's writer was judged alive whenever any process ran under the pid in its name: once an unrelated
+    process took a dead writer's pid (the pids wrap round), its partial file was kept for good. A process that started
+    after the file was last written is not its writer; one that started before may be (it is kept). Where the start
+    time is unknown (no ``/proc``), a live pid is still taken for the writer."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from cso_runtime import supervision
+    from cso_runtime.outputs import remove_partial_files
+
+    later = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])  # started now: after `taken` was written
+    try:
+        taken = tmp_path / f".cso.pt.{later.pid}.partial"  # left an hour ago by a writer long gone, whose pid `later` took
+        being_written = tmp_path / f".cso.json.{later.pid}.partial"  # written since `later` started: it may be its writer's
+        for path in (taken, being_written):
+            path.write_bytes(b"PK")
+        an_hour_ago_s = time.time() - 3600
+        os.utime(taken, (an_hour_ago_s, an_hour_ago_s))
+        with monkeypatch.context() as m:
+            m.setattr(supervision, "process_started_s", lambda pid: None)  # not Linux: no start time to tell them apart
+            assert remove_partial_files([tmp_path]) == [] and taken.is_file()
+        assert supervision.pid_alive(later.pid)
+        assert remove_partial_files([tmp_path]) == [taken]
+        assert being_written.is_file() and not taken.exists()
+    finally:
+        later.kill()
+        later.wait()
 
 
 def test_a_whole_write_keeps_the_files_mode_and_owner_and_writes_through_a_link(tmp_path):

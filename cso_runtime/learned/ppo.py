@@ -532,6 +532,41 @@ def training_file_folders(out: Path) -> list[Path]:
     return [out, *sorted(folder for folder in (out / KEPT_CHECKPOINTS_DIR).glob("update_*") if folder.is_dir())]
 
 
+def training_file_names(variant: str) -> tuple[str, ...]:
+    """The files a train of ``variant`` writes into its ``--out``, each whole (``outputs.write_whole``): the checkpoint,
+    the teacher data of a warm start, the weights and their record, the weights after the warm start, the log, the
+    curve. A kept checkpoint's folder (``kept_checkpoint_dir``) holds ``kept_checkpoint_file_names`` alone."""
+    return ("checkpoint.pt", "teacher_data.npz", *kept_checkpoint_file_names(variant), f"{variant}_warm.pt", f"{variant}_log.csv", f"{variant}_curve.png")
+
+
+def kept_checkpoint_file_names(variant: str) -> tuple[str, ...]:
+    """The files a train of ``variant`` writes into a kept checkpoint's folder (``save_weights``): the weights and their record."""
+    return (f"{variant}.pt", f"{variant}.json")
+
+
+def is_a_train_file(out: Path, path: Path) -> bool:
+    """Whether ``path`` is where a train (of any variant) writes one of its files in ``out`` (``training_file_names``,
+    ``kept_checkpoint_file_names``): the partial files of anything else there (an eval into the same folder, a tool of
+    one's own) are not train's to remove."""
+    try:
+        parts = Path(path).relative_to(out).parts
+    except ValueError:
+        return False
+    if len(parts) == 1:
+        return any(parts[0] in training_file_names(variant) for variant in VARIANTS)
+    kept = len(parts) == 3 and parts[0] == KEPT_CHECKPOINTS_DIR and parts[1].startswith("update_")
+    return kept and any(parts[2] in kept_checkpoint_file_names(variant) for variant in VARIANTS)
+
+
+def remove_stale_training_files(out: Path, variant: str) -> list[Path]:
+    """Remove the partial files a killed train left in ``out`` and its kept checkpoints' folders (``kill -9`` while it
+    wrote its weights, checkpoint, log or curve), those of train's own files alone (``is_a_train_file``) whose writer is
+    gone (``outputs.remove_partial_files``), and the temporary files of a train from before whole-file writes
+    (``old_temporary_files``); the ones removed. Only while holding the folder's train lock (``TRAIN_LOCK``)."""
+    folders = training_file_folders(out)
+    return remove_partial_files(folders, also=old_temporary_files(folders, variant), written_for=lambda path: is_a_train_file(out, path))
+
+
 def old_temporary_files(folders: list[Path], variant: str) -> list[Path]:
     """The temporary files a train killed while writing left before ``outputs.write_whole`` (which names its own
     ``.<name>.<pid>.partial``), in ``folders``: ``checkpoint.tmp`` and ``checkpoint.pt.tmp`` (the checkpoint),
@@ -1042,8 +1077,7 @@ def _train_locked(
     """``train`` while it holds its output folder's lock (``TRAIN_LOCK``); ``locked`` False where none could be had,
     and the partial files there may be another train's, being written."""
     out = Path(args.out_dir)
-    folders = training_file_folders(out)
-    for stale in remove_partial_files(folders, also=old_temporary_files(folders, args.variant)) if locked else []:  # a killed train's
+    for stale in remove_stale_training_files(out, args.variant) if locked else []:  # a killed train's
         log(f"note: removed {stale}, left by a train that was killed while writing it")
     elsewhere = not args.resume or Path(args.resume).resolve().parent != out.resolve()  # not the folder of the run it continues
     replaces = elsewhere and bool(earlier := earlier_run_files(out, args.variant))

@@ -20,7 +20,7 @@ import torch
 from cso_runtime.config import MaskConfig, SensorConfig
 from cso_runtime.learned.graph import GraphConfig, build_graph, empty_graph, frontier_count
 from cso_runtime.learned.network import GRAPH_KEYS, GraphActorCritic, NetworkConfig, to_torch, trace_decision
-from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
+from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, has_weights, weights_file_refusal, weights_path  # noqa: F401 - WEIGHTS_DIR_ENV re-exported
 from cso_runtime.observation import Observation
 from cso_runtime.outputs import write_whole
 from cso_runtime.policies import VARIANTS, ActionMasker, Goal, goal_of
@@ -222,6 +222,8 @@ def make_learned_policy(
     ship, ``weights.weights_path``); the variant's switches override the mask settings."""
     if name not in VARIANTS:
         raise ValueError(f"unknown learned method {name!r}; known: {', '.join(VARIANTS)}")
+    if refusal := weights_file_refusal([name]):  # a weights file or folder given that is not there, or another method's
+        raise ValueError(refusal)
     if not has_method(name, sensor):
         raise FileNotFoundError(f"no weights for {name!r} (expected {weights_path(name, sensor)}); train it with `cso-runtime train`")
     if problem := device_problem(str(device)):

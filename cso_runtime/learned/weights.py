@@ -117,6 +117,9 @@ def use_weights(given: str | Path) -> Path:
     path = Path(given).expanduser().resolve()
     # A file's method is read from the name given (a link best/cso.pt to a run's step_100.pt is cso's), not its target's.
     named = Path(given).expanduser().absolute().parent.resolve() / Path(given).expanduser().name
+    if not path.exists():  # said as the path given, not as a folder of no weights or as the shipped ones
+        link = f" (a link to {path}, which is not there)" if named.is_symlink() else ""
+        raise ValueError(f"--weights {given}: no such file or folder{link}")
     if named.is_file() and named.name != RESUMABLE_CHECKPOINT and named.suffix == ".pt":
         path = named
         if not named_for_a_method(path):  # which method it is for is read from its name
@@ -153,12 +156,39 @@ def use_weights(given: str | Path) -> Path:
     return path
 
 
-def weights_file_refusal(names: list[str]) -> str:
-    """Why ``names`` (a run's methods) cannot run with the file given (``--weights FILE``): it holds one method's
-    weights, and another learned method would run with the shipped ones, unasked; empty when no file is given or
-    every learned method of ``names`` is its method."""
+def given_weights_problem() -> str:
+    """Why the weights the environment names cannot be used, naming the path exactly as given: a ``$CSO_WEIGHTS_FILE``
+    that is no file or not named for a learned method, a ``$CSO_WEIGHTS_DIR`` that is no folder; empty when neither is
+    set or both may be used. Said before anything starts: otherwise a method would be said to have no weights in
+    another folder (the shipped one), or run the shipped weights unasked. ``--weights`` (``use_weights``) checks what it
+    is given itself, and sets these only to a file or folder that is there."""
     from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415 - no torch; policies imports this module
 
+    given = os.environ.get(WEIGHTS_FILE_ENV)
+    if given:
+        if Path(given).is_dir():
+            return f"{WEIGHTS_FILE_ENV}={given}: a folder, not a file (give a folder of <method>.pt as {WEIGHTS_DIR_ENV}, or --weights FOLDER)"
+        if not Path(given).is_file():
+            return f"{WEIGHTS_FILE_ENV}={given}: no such file (unset it to run the shipped weights)"
+        if not named_for_a_method(Path(given)):
+            return f"{WEIGHTS_FILE_ENV}={given}: not named for a learned method's weights ({', '.join(f'{m}.pt' for m in LEARNED_METHODS)})"
+    folder = os.environ.get(WEIGHTS_DIR_ENV)
+    if folder and not Path(folder).is_dir():
+        return f"{WEIGHTS_DIR_ENV}={folder}: no such folder (unset it to run the shipped weights)"
+    return ""
+
+
+def weights_file_refusal(names: list[str]) -> str:
+    """Why ``names`` (a run's methods) cannot run with the weights the environment gives: a file or folder that is not
+    there (``given_weights_problem``), or the file given (``--weights FILE``) holds one method's weights, and another
+    learned method would run with the shipped ones, unasked; empty when ``names`` has no learned method, or no file is
+    given and the folder is there, or every learned method of ``names`` is the file's method."""
+    from cso_runtime.policies import LEARNED_METHODS  # noqa: PLC0415 - no torch; policies imports this module
+
+    if not any(n in LEARNED_METHODS for n in names):
+        return ""
+    if problem := given_weights_problem():
+        return problem
     given = given_weights_file()
     if given is None:
         return ""
