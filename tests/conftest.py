@@ -24,7 +24,10 @@ settings.register_profile("deterministic", derandomize=True, database=None)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 from cso_runtime.geometry import Pose2D
+from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, WEIGHTS_FILE_ENV
 from cso_runtime.scenes import FloorPlan
+from cso_runtime.transport import ZENOH_CONFIG_ENV
+from services.common import TRACE_DIR_ENV
 
 
 def unset_weights_env(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -35,6 +38,19 @@ def unset_weights_env(monkeypatch: pytest.MonkeyPatch) -> None:
     for name in (WEIGHTS_DIR_ENV, WEIGHTS_FILE_ENV):
         monkeypatch.setenv(name, "")
         monkeypatch.delenv(name)
+
+
+# The variables a user may export that change what eval, up, train and the services do (weights, Zenoh config,
+# profiling and tracing dumps): unset for every test, so the suite runs the same on a developer's shell as in CI.
+# A test that needs one sets it with monkeypatch; child processes inherit the test's environment.
+USER_ENV_VARIABLES = (WEIGHTS_DIR_ENV, WEIGHTS_FILE_ENV, ZENOH_CONFIG_ENV, TRACE_DIR_ENV, "CSO_PROFILE_DIR")
+
+
+@pytest.fixture(autouse=True)
+def no_user_environment(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each of ``USER_ENV_VARIABLES`` unset for the test, put back after it."""
+    for name in USER_ENV_VARIABLES:
+        monkeypatch.delenv(name, raising=False)
 
 
 def box_room(width_m: float = 4.0, height_m: float = 3.0, resolution_m: float = 0.05, wall_cells: int = 2) -> FloorPlan:
