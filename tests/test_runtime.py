@@ -1264,6 +1264,50 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
             kill_leftovers(runs, [p.pid for p in started])
 
 
+def test_down_while_a_detached_launcher_starts_stops_it(tmp_path, monkeypatch):
+    """``down`` in the seconds between ``up --detach`` spawning its launcher and the launcher writing ``current.json``
+    (its imports: 3 s on a loaded 2-core host; found by a fault-injection soak) answered "nothing running", exit 1, and
+    the run came up all the same and stayed up until a second ``down``. ``up --detach`` now names its launcher in the
+    run folder at once (``STARTING_LAUNCHER``), and ``down`` stops it; ``up`` says so, and the run file says stopped."""
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.current_run import STARTING_LAUNCHER, down
+    from cso_runtime.launcher import start_detached
+    from cso_runtime.run_profile import load_profile
+
+    real_popen = subprocess.Popen
+    started: list[subprocess.Popen] = []
+
+    def slow_launcher(args, **kwargs):
+        """The launcher, still importing for a minute (no signal handler yet): ``down`` comes before its run file
+        whatever the host's speed."""
+        if "cso_runtime.launcher" in args:
+            started.append(real_popen([sys.executable, "-c", "import time; time.sleep(60)"], **kwargs))
+            return started[-1]
+        return real_popen(args, **kwargs)
+
+    monkeypatch.setattr(launcher_module.subprocess, "Popen", slow_launcher)
+    runs = tmp_path / "runs"
+    profile, data = load_profile(str(write_profile(tmp_path)), {})
+    result: list[tuple[int, str]] = []
+    starter = threading.Thread(target=lambda: result.append(start_detached(profile, data, runs, ready_timeout_s=120.0)))
+    starter.start()
+    try:
+        wait_for(lambda: started, 30, "up --detach to spawn its launcher")
+        ok, message = down(runs)
+        assert ok and "as it started" in message and f"launcher pid {started[0].pid}" in message, message
+        starter.join(30)
+        assert not starter.is_alive() and started[0].poll() is not None
+        ((code, said),) = result
+        assert code != 0 and "stopped as it started" in said, said
+        (run_json,) = runs.glob("*/run.json")
+        assert json.loads(run_json.read_text())["state"] == "stopped"
+        assert not (runs / "current.json").exists() and not list(runs.glob(f"*/{STARTING_LAUNCHER}"))
+    finally:
+        for proc in started:
+            proc.kill()
+        starter.join(130)
+
+
 def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
     """A run file outlives its launcher (SIGKILL, a reboot); its pids may belong to other processes since.
     The start time the file records tells them apart: ``down`` leaves such a process alone, and ``up`` is
