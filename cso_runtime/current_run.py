@@ -103,10 +103,46 @@ DOWN_TERM_WAIT_S = 3.0
 a host that stalls it longer, SIGKILL follows a SIGTERM that had already ended it."""
 
 
+STARTING_LAUNCHER = "launcher.starting.json"
+"""``up --detach`` writes ``<run-dir>/launcher.starting.json`` (its launcher's pid and start time) as it spawns the
+launcher, and removes it once the start is over, however it ended: ``down`` in the seconds before the launcher has
+written its run file (it still imports) stops that launcher, where it answered "nothing running" while the run came up."""
+
+
+def stop_starting_launchers(runs_dir: Path, timeout_s: float) -> list[str]:
+    """Stop every launcher that ``up --detach`` has spawned in ``runs_dir`` and that has not written its run file yet
+    (``STARTING_LAUNCHER``): SIGTERM (quiet while it still imports; once its handlers are in, the clean stop SIGINT
+    is), SIGKILL after ``timeout_s``. Their lines for ``down``."""
+    said = []
+    for path in sorted(runs_dir.glob(f"*/{STARTING_LAUNCHER}")):
+        try:
+            info = json.loads(path.read_text())
+            pid, ticks = info["launcher_pid"], info.get("launcher_start_ticks")
+        except (OSError, ValueError, KeyError, TypeError):  # gone as the start ended, or half-written
+            continue
+        if not isinstance(pid, int) or not run_process_alive(pid, ticks if isinstance(ticks, int) else None):
+            continue
+        for sig, wait_s in ((signal.SIGTERM, timeout_s), (signal.SIGKILL, 2.0)):
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, sig)
+            deadline = time.monotonic() + wait_s
+            while pid_alive(pid) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            if not pid_alive(pid):
+                break
+        said.append(f"stopped run {path.parent.name} as it started (launcher pid {pid}, before it had written {runs_dir / CURRENT_RUN})")
+    return said
+
+
 def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
     """Stop the current run: SIGINT to the launcher (it stops its services and writes its results), then
-    escalate. ``timeout_s``: how long the launcher may take (None: from the run's ``stop_timeout_s``)."""
+    escalate. ``timeout_s``: how long the launcher may take (None: from the run's ``stop_timeout_s``). A launcher
+    that ``up --detach`` has spawned but that has not written its run file yet is stopped too."""
     info = read_current_run(runs_dir)
+    if info is None:
+        if starting := stop_starting_launchers(runs_dir, 3 * SupervisionConfig.stop_timeout_s + DOWN_MARGIN_S if timeout_s is None else timeout_s):
+            return True, "; ".join(starting)
+        info = read_current_run(runs_dir)  # written (and its launcher's file removed) since the first look
     if info is None:
         if not (runs_dir / CURRENT_RUN).exists():  # the common case: every run has ended (or none was started here)
             return False, f"nothing running (no current run in {runs_dir}; `cso-runtime runs` lists past runs)"

@@ -50,6 +50,7 @@ from cso_runtime.current_run import (
     CURRENT_RUN,
     DOWN_MARGIN_S,
     RUNS_LOCK,
+    STARTING_LAUNCHER,
     down,
     down_command,
     hold_runs_lock,
@@ -1203,6 +1204,7 @@ class Launcher:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         # First: `status` and `down` find the run while its router opens and its services spawn (seconds), not "no current run".
         self.write_run_file("starting")
+        (self.run_dir / STARTING_LAUNCHER).unlink(missing_ok=True)  # `down` finds this launcher by its run file from now on
         self.write_profile()
         self.run_folder.expect(self.profile_path)  # every service reads it as it starts
         self.write_dataflow()
@@ -1584,6 +1586,19 @@ def start_detached(
     assert proc.stdin is not None
     with contextlib.suppress(OSError), proc.stdin:  # a launcher dead at once: its exit code says why, below
         proc.stdin.write(yaml.safe_dump(data, sort_keys=False).encode())
+    starting = run_dir / STARTING_LAUNCHER  # `down` finds the launcher by it until its run file does (current_run.down)
+    try:
+        with contextlib.suppress(OSError):  # the run folder deleted as the launcher starts (which makes it again): not found then
+            write_text_atomic(starting, json.dumps({"launcher_pid": proc.pid, "launcher_start_ticks": process_start_ticks(proc.pid)}))
+        return _wait_for_detached(proc, profile, data, run_dir, record_path, animate, log_path, ready_timeout_s, stop)
+    finally:
+        starting.unlink(missing_ok=True)
+
+
+def _wait_for_detached(
+    proc: subprocess.Popen, profile: Profile, data: dict[str, Any], run_dir: Path, record_path: Path | None, animate: bool, log_path: Path, ready_timeout_s: float, stop: threading.Event
+) -> tuple[int, str]:
+    """``start_detached``'s wait for its launcher to be ready, or its end."""
     deadline = time.monotonic() + ready_timeout_s
     try:
         while time.monotonic() < deadline and not stop.is_set():
@@ -1593,6 +1608,9 @@ def start_detached(
                     return 0, f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'} (`cso-runtime logs -f` follows them)"
             except (OSError, ValueError):
                 pass
+            if proc.poll() in (-signal.SIGTERM, -signal.SIGKILL):  # `down` as it started (STARTING_LAUNCHER), before its handlers
+                _stop_unstarted_launcher(proc, Launcher(profile, data, run_dir, record_path, animate), EXIT_INTERRUPTED)
+                return EXIT_INTERRUPTED, f"the launcher (pid {proc.pid}) was stopped as it started (`cso-runtime down`?): no run was started; see {log_path}"
             if proc.poll() is not None:  # its own code (2: refused, 3: no router), so `up --detach` says the same as `up`
                 return proc.returncode or 1, f"the launcher exited with code {proc.returncode}; see {log_path}:\n{log_tail(log_path)}"
             stop.wait(0.05)

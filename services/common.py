@@ -65,7 +65,7 @@ from cso_runtime.processes import (
     signal_on_parent_death,
 )
 from cso_runtime.run_profile import profile_exploration_config
-from cso_runtime.transport import TransportConfig, TransportError, open_session
+from cso_runtime.transport import STOPPED, TransportConfig, TransportError, open_session
 
 log = logging.getLogger("cso.service")
 
@@ -534,7 +534,17 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
             return
         query.reply(ctx.keys.service_status(service.name), encode(service.status_msg()))
 
-    with open_session(ctx.transport) as session:
+    try:
+        # With the stop: a service stopped as it starts (its launcher killed, its router gone with it) does not wait for
+        # that router up to the connect timeout, to be ended as stuck by ``_exit_once_orphaned``.
+        opened = open_session(ctx.transport, stop)
+    except TransportError as exc:
+        if exc.cause != STOPPED:
+            raise
+        _say_if_launcher_gone(service.name)
+        log.info("%s: stopped before it joined the network", service.name)
+        return 0
+    with opened as session:
         service.session = session
         handler = zenoh.handlers.Callback(inputs.on_sample, indirect=False)
         subs = [session.declare_subscriber(keys.topic(t), handler) for t in service.inputs]
@@ -566,8 +576,7 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
                     with inputs.working("a tick"):
                         service.on_tick(now)
                     next_tick = now + service.tick_period_s
-            if (gone := launcher_gone()) is not None:
-                log.warning("%s: stopping: the launcher (pid %d) is gone (killed? crashed?), and no service outlives it", service.name, gone)
+            _say_if_launcher_gone(service.name)
             if inputs.failure is not None:
                 raise inputs.failure
         finally:
@@ -584,6 +593,12 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
                 service.session = None
     log.info("%s: stopped", service.name)
     return 0
+
+
+def _say_if_launcher_gone(name: str) -> None:
+    """Log why a service stops when it is because its launcher is gone (``launcher_gone``)."""
+    if (gone := launcher_gone()) is not None:
+        log.warning("%s: stopping: the launcher (pid %d) is gone (killed? crashed?), and no service outlives it", name, gone)
 
 
 STEP_JUMP_LIMIT = 500

@@ -73,18 +73,21 @@ def worker_main(conn: Connection) -> None:
     # which ends this loop; the helper itself has nothing to say about it (and it exits with its service).
     worker_init()
     keep_freed_memory(mmap_threshold_bytes=256 << 20)
-    conn.send(("ready",))
+    reply: tuple | None = ("ready",)  # each request's answer, sent before the next is read
     while True:
         try:
+            if reply is not None:
+                conn.send(reply)
             request = conn.recv()
-        except (EOFError, OSError):
+        except (EOFError, OSError):  # the pipe closed (the service stopped), also as this helper still started or answered
             return
+        reply = None
         kind = request[0]
         try:
             if kind == "map":
                 _, path, shape = request
                 _, views = _views(path, tuple(shape), create=False)
-                conn.send(("mapped",))
+                reply = ("mapped",)
             elif kind == "layer":
                 _, seq, window_m, resolution_m, has_exclude = request
                 explored, occupied = views["explored"], views["occupied"]
@@ -94,9 +97,9 @@ def worker_main(conn: Connection) -> None:
                 views["cells_iy"][: len(iy)] = iy
                 views["cells_ix"][: len(ix)] = ix
                 views["splits"][: len(splits)] = splits
-                conn.send(("layer", seq, len(iy), len(splits)))
+                reply = ("layer", seq, len(iy), len(splits))
         except Exception as exc:  # noqa: BLE001 - reported to the service, which computes the layer itself
-            conn.send(("error", request[1] if kind == "layer" else -1, f"{type(exc).__name__}: {exc}"))
+            reply = ("error", request[1] if kind == "layer" else -1, f"{type(exc).__name__}: {exc}")
 
 
 class FrontierLayerWorker:

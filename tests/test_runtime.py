@@ -1224,8 +1224,10 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
     real_popen = subprocess.Popen
 
     def popen(*args, **kwargs):
-        started.append(real_popen(*args, **kwargs))
-        return started[-1]
+        proc = real_popen(*args, **kwargs)
+        if "cso_runtime.launcher" in args[0]:  # not the provenance's git commands (the same module's Popen)
+            started.append(proc)
+        return proc
 
     try:
         monkeypatch.setattr(launcher_module.subprocess, "Popen", popen)
@@ -1238,6 +1240,8 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
             """Ctrl-C at the first look at the launcher, microseconds after it was spawned: long before its services are
             up, whatever the host's speed (a timer of 0.3 s came after a fast launcher's start)."""
             proc = popen(*args, **kwargs)
+            if proc not in started:
+                return proc
             real_poll = proc.poll
 
             def poll():
@@ -1259,6 +1263,50 @@ def test_a_detached_start_that_is_interrupted_or_too_slow_stops_its_launcher(tmp
     finally:  # whatever failed: no launcher, and none of its services, left running
         for runs in (tmp_path / "runs", tmp_path / "runs2"):
             kill_leftovers(runs, [p.pid for p in started])
+
+
+def test_down_while_a_detached_launcher_starts_stops_it(tmp_path, monkeypatch):
+    """``down`` in the seconds between ``up --detach`` spawning its launcher and the launcher writing ``current.json``
+    (its imports: 3 s on a loaded 2-core host; found by a fault-injection soak) answered "nothing running", exit 1, and
+    the run came up all the same and stayed up until a second ``down``. ``up --detach`` now names its launcher in the
+    run folder at once (``STARTING_LAUNCHER``), and ``down`` stops it; ``up`` says so, and the run file says stopped."""
+    from cso_runtime import launcher as launcher_module
+    from cso_runtime.current_run import STARTING_LAUNCHER, down
+    from cso_runtime.launcher import start_detached
+    from cso_runtime.run_profile import load_profile
+
+    real_popen = subprocess.Popen
+    started: list[subprocess.Popen] = []
+
+    def slow_launcher(args, **kwargs):
+        """The launcher, still importing for a minute (no signal handler yet): ``down`` comes before its run file
+        whatever the host's speed."""
+        if "cso_runtime.launcher" in args:
+            started.append(real_popen([sys.executable, "-c", "import time; time.sleep(60)"], **kwargs))
+            return started[-1]
+        return real_popen(args, **kwargs)
+
+    monkeypatch.setattr(launcher_module.subprocess, "Popen", slow_launcher)
+    runs = tmp_path / "runs"
+    profile, data = load_profile(str(write_profile(tmp_path)), {})
+    result: list[tuple[int, str]] = []
+    starter = threading.Thread(target=lambda: result.append(start_detached(profile, data, runs, ready_timeout_s=120.0)))
+    starter.start()
+    try:
+        wait_for(lambda: started, 30, "up --detach to spawn its launcher")
+        ok, message = down(runs)
+        assert ok and "as it started" in message and f"launcher pid {started[0].pid}" in message, message
+        starter.join(30)
+        assert not starter.is_alive() and started[0].poll() is not None
+        ((code, said),) = result
+        assert code != 0 and "stopped as it started" in said, said
+        (run_json,) = runs.glob("*/run.json")
+        assert json.loads(run_json.read_text())["state"] == "stopped"
+        assert not (runs / "current.json").exists() and not list(runs.glob(f"*/{STARTING_LAUNCHER}"))
+    finally:
+        for proc in started:
+            proc.kill()
+        starter.join(130)
 
 
 def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
@@ -3929,6 +3977,36 @@ def test_a_service_stuck_in_a_handler_does_not_outlive_its_killed_launcher(tmp_p
     text = log_path.read_text()
     assert f"mapper: still running 1 s after its launcher (pid {launcher.pid}) went (stuck?)" in text, text[-3000:]
     assert re.search(r'File "<string>", line \d+ in stuck', text), text[-3000:]  # the stuck handler, in the stacks
+
+
+MAPPER = "import sys; from services.common import service_main; from services.mapper import MapperService; sys.exit(service_main(MapperService, sys.argv[1:]))"
+
+
+def test_a_service_whose_launcher_dies_before_it_joins_stops_at_once_and_says_why(tmp_path):
+    """The launcher SIGKILLed while a service still started (a policy loading its weights; found by a fault-injection
+    soak): the kernel's SIGTERM set the stop, but the service then opened its session all the same, waiting for the
+    killed launcher's router up to the connect timeout (10 s), and ended either by the orphan guard, with "still running
+    10 s after its launcher went (stuck?)" and every thread's stack in its log, or as "cannot reach" the router (exit
+    3): a service that was not stuck, reported as hung or as a network fault. The stop now ends the open at once."""
+    port = free_tcp_port()  # no router: the killed launcher's went with it
+    log_path = tmp_path / "mapper.log"
+    service = [MAPPER, "--config", str(PROFILES / "sim.yaml"), "--robot", "t1", "--connect", loopback_endpoint(port)]
+    launcher = subprocess.Popen([sys.executable, "-c", STAND_IN_LAUNCHER, str(log_path), *service], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    mapper_pid = None
+    try:
+        mapper_pid = int(launcher.stdout.readline())
+        launcher.kill()  # before the mapper has joined (it is still importing, or opening its session)
+        launcher.wait(10)
+        wait_for(lambda: not pid_alive(mapper_pid), 30, f"the mapper (pid {mapper_pid}) to exit once its launcher is gone")
+    finally:
+        launcher.kill()
+        launcher.wait(10)
+        launcher.stdout.close()
+        if mapper_pid is not None and pid_alive(mapper_pid):
+            os.kill(mapper_pid, signal.SIGKILL)
+    text = log_path.read_text()
+    assert f"mapper: stopping: the launcher (pid {launcher.pid}) is gone (killed? crashed?)" in text and "mapper: stopped" in text, text[-3000:]
+    assert "still running" not in text and "cannot reach" not in text and "Thread 0x" not in text, text[-3000:]
 
 
 def test_a_killed_launchers_services_stop_at_once_and_each_log_says_why(tmp_path):

@@ -8,10 +8,13 @@ import dataclasses
 import math
 import queue
 import re
+import subprocess
+import sys
 import threading
 import time
 import types
 import weakref
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -1491,6 +1494,16 @@ def test_warm_up_starts_the_helper_and_leaves_no_trace_in_the_episode():
     finally:
         frontier.shutdown()
     assert not w.proc.is_alive()
+
+
+def test_a_frontier_layer_helper_whose_service_is_gone_as_it_starts_exits_quietly():
+    """The frontier service stopped (its launcher killed) while its layer helper still imported: the helper's "ready"
+    met a closed pipe and its BrokenPipeError traceback landed in the frontier's log (found by a fault-injection soak).
+    It now exits quietly, as it does when the pipe closes while it waits for a request. Run in a process of its own:
+    the helper ignores SIGINT and watches its parent (``worker_init``)."""
+    code = "from multiprocessing import Pipe\nfrom services.frontier_layer import worker_main\nservice_end, helper_end = Pipe()\nservice_end.close()\nworker_main(helper_end)\n"
+    r = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).resolve().parents[1], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
 
 
 def test_a_frontier_layer_helper_that_dies_is_replaced_a_bounded_number_of_times_and_the_decisions_stay_the_same(caplog):
