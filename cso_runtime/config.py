@@ -220,6 +220,12 @@ class MaskConfig:
             raise ConfigError("masks.alpha1_m, alpha2_m2 and alpha3_m must be >= 0")
 
 
+MAX_EPISODE_STEPS = 1_000_000
+"""The most ``episode.max_steps`` may be (69 hours of 0.25 s steps, 28 of a 10 Hz LiDAR's): it bounds the arrays of one
+entry per step or decision on the wire (``messages.MAX_STEP_POINTS``), so a receiver can refuse a record that declares
+more before inflating it."""
+
+
 @dataclass
 class EpisodeConfig:
     """How an exploration episode runs and ends (section 4.1)."""
@@ -238,6 +244,8 @@ class EpisodeConfig:
     def validate(self) -> None:
         if self.max_steps < 1 or self.replan_every_steps < 1:
             raise ConfigError("episode.max_steps and episode.replan_every_steps must be at least 1")
+        if self.max_steps > MAX_EPISODE_STEPS:
+            raise ConfigError(f"episode.max_steps must be at most {MAX_EPISODE_STEPS:,} (an episode's result must fit its message)")
         if not self.goal_tolerance_m > 0:
             raise ConfigError("episode.goal_tolerance_m must be positive")
         if not 0 < self.done_coverage_pct <= 100:

@@ -21,6 +21,7 @@ from typing import Any, ClassVar, TypeVar, overload
 import msgpack
 import numpy as np
 
+from cso_runtime.config import MAX_EPISODE_STEPS
 from cso_runtime.frontiers import FrontierCluster
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, MAX_RANGE_M, GridGeometry, LaserScan, Pose2D, VelocityCommand, map_frame_xy
 from cso_runtime.observation import Observation
@@ -38,10 +39,16 @@ COMPRESS_MIN_BYTES = 4096
 """Arrays at least this large are zlib-compressed."""
 _DTYPES = {"bool", "int8", "int16", "int32", "int64", "uint8", "uint16", "float32", "float64"}
 FLOAT_DTYPES = ("float32", "float64")
+"""One rule for every float array (metres, ms, percent; ``unpack_array``'s ``float_as``): it may come in either, and is
+read as the dtype the code computes in; a non-float dtype (bool, an integer) is refused, never read as a quantity."""
 SIGNED_DTYPES = ("int8", "int16", "int32", "int64")
 INTEGER_DTYPES = (*SIGNED_DTYPES, "uint8", "uint16")
-"""The sets of dtypes docs/messages.md lets an array come in where it names no single one (scan ranges and the path
-ahead: a float; a cluster's cells: a signed integer; entropy counts: an integer); every other array has exactly one."""
+"""The integer sets docs/messages.md allows (a cluster's cells: a signed integer; entropy counts: any integer); every
+other non-float array (the boolean grids) has exactly one dtype."""
+MAX_STEP_POINTS = MAX_EPISODE_STEPS + 1
+"""The most entries of an array of one entry per step or per decision (an episode's trajectory, decision times and
+coverage curve, a decision's path nodes), step 0's included: what bounds these free-length arrays before they are
+inflated (``config.MAX_EPISODE_STEPS``, the most ``episode.max_steps`` may be)."""
 
 
 class MessageError(ValueError):
@@ -81,18 +88,23 @@ def unpack_array(
     dtypes: tuple[str, ...] | None = None,
     shape: tuple[int | None, ...] | None = None,
     max_elements: int = MAX_GRID_CELLS,
+    float_as: type[np.floating] | None = None,
 ) -> np.ndarray:
     """Decode and check one array; ``finite`` rejects inf too, ``no_nan`` rejects NaN.
 
-    ``dtypes``: the dtype names docs/messages.md allows for this array (None: any of the list). ``shape``: the shape the
-    message implies (None for a free dimension; it sets ``ndim``); ``max_elements``: the most elements it may hold. All
-    are checked on the record, before its data is inflated: a crafted record can make a receiver inflate no more than
-    the bytes of the shape it had to declare, and that shape no larger than its message allows."""
+    ``dtypes``: the dtype names docs/messages.md allows for this array (None: any of the list). ``float_as``: a float
+    array, which may come in any of ``FLOAT_DTYPES`` (it sets ``dtypes``) and is returned as this dtype (the finiteness
+    checks apply after the conversion: a float64 too large for a float32 is inf). ``shape``: the shape the message
+    implies (None for a free dimension; it sets ``ndim``); ``max_elements``: the most elements it may hold. All are
+    checked on the record, before its data is inflated: a crafted record can make a receiver inflate no more than the
+    bytes of the shape it had to declare, and that shape no larger than its message allows."""
     if not isinstance(obj, dict) or set(obj) != {"dtype", "shape", "z", "data"}:
         raise MessageError(f"{where}: not an array record")
     dtype, declared, data = obj["dtype"], obj["shape"], obj["data"]
     if dtype not in _DTYPES:
         raise MessageError(f"{where}: unsupported dtype {dtype!r}")
+    if float_as is not None:
+        dtypes = FLOAT_DTYPES
     if dtypes is not None and dtype not in dtypes:
         raise MessageError(f"{where}: expected {' or '.join(dtypes)}, got {dtype}")
     if not isinstance(declared, list) or not all(isinstance(s, int) and not isinstance(s, bool) and 0 <= s <= MAX_GRID_CELLS for s in declared):
@@ -125,7 +137,11 @@ def unpack_array(
         raise MessageError(f"{where}: {len(data)} bytes do not fit shape {declared} of {dtype}")
     if native == np.bool_ and n and np.frombuffer(data, dtype=np.uint8).max() > 1:
         raise MessageError(f"{where}: a bool byte is neither 0 nor 1")  # numpy would keep it, and ~ of it would be true
-    a = np.frombuffer(data, dtype=dt).reshape(declared).astype(native, copy=True)
+    if float_as is None or native == float_as:
+        a = np.frombuffer(data, dtype=dt).reshape(declared).astype(native, copy=True)
+    else:
+        with np.errstate(over="ignore"):  # a float64 beyond float32's range becomes inf, which ``finite`` rejects
+            a = np.frombuffer(data, dtype=dt).reshape(declared).astype(float_as)
     if a.dtype.kind == "f":
         if finite and not np.isfinite(a).all():
             raise MessageError(f"{where}: non-finite values")
@@ -289,7 +305,7 @@ class ScanMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> ScanMsg:
         w = "scan"
-        ranges = unpack_array(_get(b, "ranges_m", w), "scan.ranges_m", dtypes=FLOAT_DTYPES, shape=(None,), max_elements=MAX_BEAMS)
+        ranges = unpack_array(_get(b, "ranges_m", w), "scan.ranges_m", shape=(None,), max_elements=MAX_BEAMS, float_as=np.float32)
         if ranges.size == 0:
             raise MessageError("scan.ranges_m: expected 1 to 100000 float ranges")
         if (ranges < 0).any():
@@ -430,10 +446,13 @@ def _masked_grid_in(values_obj: Any, mask: np.ndarray, where: str, fill: float, 
     """A grid sent as its values (1-D, row by row) where its boolean ``mask`` is set, ``fill`` elsewhere.
     The values must be non-negative (distances, counts), finite, and one per set cell (checked before
     they are inflated); counts may come in any integer width of the list, each within ``dtype``,
-    distances as float64."""
+    distances in either float (``FLOAT_DTYPES``), read as ``dtype``."""
     counts = np.dtype(dtype).kind in "iu"
     n_set = int(np.count_nonzero(mask))
-    values = unpack_array(values_obj, where, finite=True, dtypes=INTEGER_DTYPES if counts else ("float64",), shape=(n_set,))
+    if counts:
+        values = unpack_array(values_obj, where, finite=True, dtypes=INTEGER_DTYPES, shape=(n_set,))
+    else:
+        values = unpack_array(values_obj, where, finite=True, shape=(n_set,), float_as=dtype)
     if (values < 0).any():
         raise MessageError(f"{where}: negative values")
     if counts and values.size and int(values.max()) > np.iinfo(dtype).max:
@@ -610,10 +629,12 @@ class FrontiersMsg(Message):
                     "cells": cells,
                 }
             )
-        nodes = unpack_array(_get(b, "path_nodes_xy_m", w), "frontiers.path_nodes_xy_m", finite=True, dtypes=("float64",), shape=(None, 2))
-        node_d = unpack_array(_get(b, "path_nodes_distance_m", w), "frontiers.path_nodes_distance_m", dtypes=("float64",), shape=(len(nodes),))
+        nodes = unpack_array(  # one node per decision: at most MAX_STEP_POINTS
+            _get(b, "path_nodes_xy_m", w), "frontiers.path_nodes_xy_m", finite=True, shape=(None, 2), max_elements=2 * MAX_STEP_POINTS, float_as=np.float64
+        )
+        node_d = unpack_array(_get(b, "path_nodes_distance_m", w), "frontiers.path_nodes_distance_m", shape=(len(nodes),), float_as=np.float64)
         if (node_d < 0).any():
-            raise MessageError("frontiers.path_nodes_distance_m: expected one non-negative float64 (inf: unreachable) per path node")
+            raise MessageError("frontiers.path_nodes_distance_m: expected one non-negative float (inf: unreachable) per path node")
         return cls(
             step,
             True,
@@ -839,7 +860,7 @@ class PathMsg(Message):
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> PathMsg:
-        p = unpack_array(_get(b, "path_xy_m", "path"), "path.path_xy_m", finite=True, dtypes=("float32",), shape=(None, 2))
+        p = unpack_array(_get(b, "path_xy_m", "path"), "path.path_xy_m", finite=True, shape=(None, 2), float_as=np.float32)
         return cls(_int(b, "step", "path"), p)
 
 
@@ -887,14 +908,14 @@ class PlannerFeedbackMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> PlannerFeedbackMsg:
         w = "planner_feedback"
-        path = unpack_array(_get(b, "path_ahead_xy_m", w), "planner_feedback.path_ahead_xy_m", finite=True, dtypes=FLOAT_DTYPES, shape=(None, 2))
+        path = unpack_array(_get(b, "path_ahead_xy_m", w), "planner_feedback.path_ahead_xy_m", finite=True, shape=(None, 2), float_as=np.float64)
         return cls(
             _int(b, "step", w),
             _str(b, "status", w, PLANNER_STATUSES),
             _str(b, "phase", w, ("map", "command")),
             _bool(b, "set_goal_blocked", w),
             _str(b, "reason", w),
-            path.astype(np.float64),
+            path,
             _int(b, "goal_step", w, lo=-1),
             _int(b, "episode", w),
         )
@@ -921,10 +942,8 @@ class PlannerContactsMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> PlannerContactsMsg:
         w = "planner_contacts"
-        contacts = unpack_array(_get(b, "contacts_xy_m", w), "planner_contacts.contacts_xy_m", ndim=2, finite=True)
-        if contacts.shape[1:] != (2,) or contacts.dtype.kind != "f":
-            raise MessageError("planner_contacts.contacts_xy_m: expected (n, 2) floats")
-        return cls(_int(b, "step", w), contacts.astype(np.float64), _int(b, "episode", w))
+        contacts = unpack_array(_get(b, "contacts_xy_m", w), "planner_contacts.contacts_xy_m", finite=True, shape=(None, 2), float_as=np.float64)
+        return cls(_int(b, "step", w), contacts, _int(b, "episode", w))
 
 
 @dataclass
@@ -1150,9 +1169,12 @@ class EpisodeResultMsg(Message):
         scalars = {k: _num(b, k, w, 0.0) for k in cls.SCALARS}
         ef = unpack_array(_get(b, "explored_free", w), w + ".explored_free", ndim=2, dtypes=("bool",))
         pf = unpack_array(_get(b, "plan_free", w), w + ".plan_free", dtypes=("bool",), shape=ef.shape)
-        traj = unpack_array(_get(b, "trajectory_xy_m", w), w + ".trajectory_xy_m", finite=True, dtypes=("float64",), shape=(None, 2))
-        decision_ms = unpack_array(_get(b, "decision_ms", w), w + ".decision_ms", finite=True, dtypes=("float64",), shape=(None,))
-        coverage = unpack_array(_get(b, "coverage_curve_pct", w), w + ".coverage_curve_pct", finite=True, dtypes=("float64",), shape=(None,))
+        # one entry per step (trajectory, coverage) or per decision: at most MAX_STEP_POINTS each
+        traj = unpack_array(_get(b, "trajectory_xy_m", w), w + ".trajectory_xy_m", finite=True, shape=(None, 2), max_elements=2 * MAX_STEP_POINTS, float_as=np.float64)
+        decision_ms = unpack_array(_get(b, "decision_ms", w), w + ".decision_ms", finite=True, shape=(None,), max_elements=MAX_STEP_POINTS, float_as=np.float64)
+        coverage = unpack_array(
+            _get(b, "coverage_curve_pct", w), w + ".coverage_curve_pct", finite=True, shape=(None,), max_elements=MAX_STEP_POINTS, float_as=np.float64
+        )
         if (decision_ms < 0).any() or (coverage < 0).any():
             raise MessageError(f"{w}: negative decision times or coverage")
         final_map = _get(b, "final_map", w)

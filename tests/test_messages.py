@@ -13,10 +13,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from cso_runtime.config import MAX_EPISODE_STEPS, ConfigError, EpisodeConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import (
     LEGACY_UPGRADES,
+    MAX_STEP_POINTS,
     MESSAGE_TYPES,
     SCHEMA_VERSION,
     ClockMsg,
@@ -137,8 +139,9 @@ def test_planner_contacts_arrive_bit_exact_and_bad_ones_are_refused():
     assert decode(encode(PlannerContactsMsg(0, np.zeros((0, 2)))), PlannerContactsMsg).contacts_xy_m.shape == (0, 2)
     good = _body(PlannerContactsMsg(3, contacts, 7))
     for bad, said in [
-        ({**good, "contacts_xy_m": pack_array(np.zeros((2, 3)))}, "expected \\(n, 2\\) floats"),
-        ({**good, "contacts_xy_m": pack_array(np.zeros(4))}, "expected 2-D"),
+        ({**good, "contacts_xy_m": pack_array(np.zeros((2, 3)))}, "does not fit \\[n, 2\\]"),
+        ({**good, "contacts_xy_m": pack_array(np.zeros(4))}, "does not fit \\[n, 2\\]"),
+        ({**good, "contacts_xy_m": pack_array(np.zeros((2, 2), np.int64))}, "expected float32 or float64, got int64"),
         ({**good, "contacts_xy_m": _body(PlannerContactsMsg(3, np.array([[np.nan, 0.0]])))["contacts_xy_m"]}, "contacts_xy_m"),
         ({**good, "step": -1}, "step"),
         ({k: v for k, v in good.items() if k != "episode"}, "missing field 'episode'"),
@@ -290,6 +293,65 @@ def test_a_scan_declaring_more_beams_than_a_scan_may_have_is_refused_before_its_
     assert _peak_bytes(lambda: decode(payload)) < 4 << 20
     with pytest.raises(MessageError, match="too large"):
         decode(payload)
+
+
+def test_free_length_arrays_declaring_more_entries_than_an_episode_has_steps_are_refused_before_they_are_inflated():
+    """A decision's path nodes (one per decision) and a result's trajectory, decision times and coverage curve (one per
+    step or decision) are free-length, and each could declare MAX_GRID_CELLS elements (400 MB of float64), whatever
+    the message's grid: a small payload made a receiver inflate 80 MB per record here (three records in a result,
+    gigabytes at MAX_GRID_CELLS). Each holds at most MAX_STEP_POINTS entries (``episode.max_steps`` is at most
+    MAX_EPISODE_STEPS), checked on its record."""
+    five_million_points = {"dtype": "float64", "shape": [5_000_000, 2], "z": True, "data": _zlib_bomb(80)}
+    five_million = {"dtype": "float64", "shape": [5_000_000], "z": True, "data": _zlib_bomb(40)}
+    decision = _body(frontiers_from_observation(3, "no_goal", _observation(), 1.0))
+    result = _body(_episode_result(3))
+    for schema, body in [
+        ("frontiers", {**decision, "path_nodes_xy_m": five_million_points}),
+        ("episode_result", {**result, "trajectory_xy_m": five_million_points}),
+        ("episode_result", {**result, "decision_ms": five_million}),
+        ("episode_result", {**result, "coverage_curve_pct": five_million}),
+    ]:
+        payload = _wire(schema, body)
+        assert len(payload) < 100_000
+        assert _peak_bytes(lambda payload=payload: decode(payload)) < 4 << 20
+        with pytest.raises(MessageError, match=f"too large \\(10000000 elements, at most {2 * MAX_STEP_POINTS}\\)|too large \\(5000000 elements, at most {MAX_STEP_POINTS}\\)"):
+            decode(payload)
+
+
+def _episode_result(steps: int, geometry: GridGeometry = GEOM, free: np.ndarray | None = None) -> EpisodeResultMsg:
+    """A result of ``steps`` steps, one decision a step: as long as its arrays may be (constant values: quick to zlib)."""
+    free = np.ones(geometry.shape, bool) if free is None else free
+    n = steps + 1
+    return EpisodeResultMsg(
+        "dungeon_1", steps, 10.0, 50.0, 20.0, 30.0, "max_steps", n, np.full(n, 4.5), np.full((n, 2), 1.5), np.full(n, 50.0), free, free, geometry.resolution_m
+    )
+
+
+def test_the_largest_legitimate_messages_still_pass_the_bounds():
+    """A decision on a 640 x 480 map (a Dungeon floor plan's size at 0.05 m) with a path node per decision of the longest
+    episode allowed, and that episode's result on the same grid: every array at its bound is read back whole."""
+    geometry = GridGeometry(0.05, (480, 640), 0.0, 0.0)
+    m = OccupancyMap(geometry)
+    angles = np.linspace(-math.pi, math.pi, 720, endpoint=False)
+    m.integrate_scan(Pose2D(16.0, 12.0, 0.0), LaserScan(-math.pi, angles[1] - angles[0], 0.1, 8.0, np.full(720, np.inf, np.float32)))
+    obs = ObservationBuilder().build(m, Pose2D(16.0, 12.0, 0.0), np.array([[16.0, 12.0]]))
+    body = _body(frontiers_from_observation(3, "timeout", obs, 12.0))
+    body["path_nodes_xy_m"] = pack_array(np.tile([[16.0, 12.0]], (MAX_STEP_POINTS, 1)))  # a node per decision, each step
+    body["path_nodes_distance_m"] = pack_array(np.zeros(MAX_STEP_POINTS))
+    back = decode(_wire("frontiers", body), FrontiersMsg)
+    assert back.geometry == geometry and back.path_nodes_xy_m.shape == (MAX_STEP_POINTS, 2) and len(back.clusters) == len(obs.clusters)
+    np.testing.assert_array_equal(back.arrays["entropy"], obs.entropy)
+    result = decode(encode(_episode_result(MAX_EPISODE_STEPS, geometry, m.explored & ~m.occupied)), EpisodeResultMsg)
+    assert result.trajectory_xy_m.shape == (MAX_STEP_POINTS, 2) and result.decision_ms.size == result.coverage_curve_pct.size == MAX_STEP_POINTS
+    too_long = _body(_episode_result(MAX_EPISODE_STEPS + 1))
+    with pytest.raises(MessageError, match="too large"):
+        decode(_wire("episode_result", too_long))
+
+
+def test_episode_max_steps_is_at_most_what_a_result_message_holds():
+    EpisodeConfig(max_steps=MAX_EPISODE_STEPS).validate()
+    with pytest.raises(ConfigError, match="at most"):
+        EpisodeConfig(max_steps=MAX_EPISODE_STEPS + 1).validate()
 
 
 def test_an_empty_array_with_a_huge_dimension_is_a_message_error():
@@ -688,7 +750,7 @@ def test_distance_map_travels_as_its_finite_values_and_comes_back_exactly():
         _body(DistanceMapMsg(3, obs.geometry, obs.pose, np.where(np.isfinite(obs.distance_m), np.nan, np.inf))),
         _body(DistanceMapMsg(3, obs.geometry, obs.pose, d)),  # negative distances
         {**good, "distance_m": pack_array(np.zeros(3))},  # not one value per finite cell
-        {**good, "distance_m": pack_array(np.zeros(int(np.isfinite(obs.distance_m).sum()), np.float32))},
+        {**good, "distance_m": pack_array(np.zeros(int(np.isfinite(obs.distance_m).sum()), np.int64))},  # metres are floats
         {**good, "finite": pack_array(np.ones((2, 2), bool), compress=True)},  # not the grid's shape
         {k: v for k, v in good.items() if k != "pose"},
     ]

@@ -400,6 +400,47 @@ def test_arrays_may_come_in_any_of_the_three_codings_and_any_documented_dtype():
         assert np.array_equal(decode(envelope("distance_map", 2, {**dist, "distance_m": record(DISTANCE[np.isfinite(DISTANCE)], "float64", z)}), DistanceMapMsg).distance_m, DISTANCE)
 
 
+FLOAT_FIELDS = [
+    # (schema, index in BODIES, field, the dtype the project sends and computes in, the decoded array)
+    ("scan", 0, "ranges_m", np.float32, lambda m: m.scan.ranges_m),
+    ("path", 0, "path_xy_m", np.float32, lambda m: m.path_xy_m),
+    ("planner_feedback", 0, "path_ahead_xy_m", np.float64, lambda m: m.path_ahead_xy_m),
+    ("planner_contacts", 0, "contacts_xy_m", np.float64, lambda m: m.contacts_xy_m),
+    ("frontiers", 1, "path_nodes_xy_m", np.float64, lambda m: m.path_nodes_xy_m),
+    ("frontiers", 1, "path_nodes_distance_m", np.float64, lambda m: m.path_nodes_distance_m),
+    ("distance_map", 0, "distance_m", np.float64, lambda m: m.distance_m[np.isfinite(m.distance_m)]),
+    ("episode_result", 0, "trajectory_xy_m", np.float64, lambda m: m.trajectory_xy_m),
+    ("episode_result", 0, "decision_ms", np.float64, lambda m: m.decision_ms),
+    ("episode_result", 0, "coverage_curve_pct", np.float64, lambda m: m.coverage_curve_pct),
+]
+
+
+@pytest.mark.parametrize(("schema", "index", "path", "computes_in", "decoded"), FLOAT_FIELDS, ids=[f"{s}.{p}" for s, _, p, _, _ in FLOAT_FIELDS])
+def test_a_float_array_may_come_in_float32_or_float64_and_is_read_in_the_dtype_the_code_computes_in(schema, index, path, computes_in, decoded):
+    """One rule for every float array (docs: "Arrays"): a node written to the old spec ("any dtype of the list") that
+    sends its path nodes as float32 had every decision refused once the decoders named one float dtype. Either float
+    is read, converted to the dtype the code computes in, equal within float32's precision; a bool or an integer is
+    never read as metres."""
+    body = BODIES[schema][index]
+    sent = read_record(body[path])
+    for dtype in ("float32", "float64"):
+        msg = decode(envelope(schema, MESSAGE_TYPES[schema].VERSION, changed(body, path, record(sent, dtype))))
+        got = decoded(msg)
+        assert got.dtype == computes_in and got.shape == sent.shape
+        np.testing.assert_allclose(got, sent.astype(dtype), rtol=1e-7 if dtype == "float32" else 0)
+        np.testing.assert_allclose(got, sent, rtol=1e-6)
+    for dtype in ("bool", "int8", "int32", "int64", "uint8", "uint16"):
+        assert rejected(schema, changed(body, path, record(sent != 0 if dtype == "bool" else np.zeros(sent.shape), dtype)))
+
+
+def test_a_float64_beyond_float32s_range_is_refused_where_a_finite_float32_is_computed_with():
+    """The path is computed in float32: a finite float64 of 1e300 would become inf there, where only finite metres are
+    read."""
+    body = BODIES["path"][0]
+    assert not rejected("path", changed(body, "path_xy_m", record(np.array([[0.0, 3.0e38]]), "float64")))
+    assert rejected("path", changed(body, "path_xy_m", record(np.array([[0.0, 1e300]]), "float64")))
+
+
 def test_a_bit_packed_grids_padding_is_ignored_and_its_length_is_exact():
     """``ceil(n / 8)`` packed bytes: what is in the last byte's unused bits does not matter, a byte more or less is rejected."""
     body = map_body()
@@ -480,22 +521,25 @@ DELETE = object()
         ("path", 0, "path_xy_m", record(np.zeros((2, 3)), "float32")),
         ("path", 0, "path_xy_m", record(np.array([[0.0, math.inf]]), "float32")),  # inf only where it means no return or unreachable
         ("distance_map", 0, "distance_m", record(np.full(int(np.isfinite(DISTANCE).sum()), math.inf), "float64")),  # the finite values only
-        ("distance_map", 0, "distance_m", record(DISTANCE[np.isfinite(DISTANCE)], "float32")),  # float64
+        ("distance_map", 0, "distance_m", record(DISTANCE[np.isfinite(DISTANCE)], "int64")),  # a float
         ("distance_map", 0, "distance_m", record(DISTANCE[np.isfinite(DISTANCE)][:-1], "float64")),  # one value per set cell
         ("frontiers", 1, "clusters", [{**decision_body()["clusters"][0], "extra": 1}]),  # a cluster has exactly its fields
         ("frontiers", 1, "arrays.entropy", record(np.array([3, 7, 250, 1]), "float64")),  # counts are integers
         ("frontiers", 1, "arrays.extra", record(EXPLORED, "bool", "bits")),  # arrays has exactly its five grids
         ("frontiers", 1, "path_nodes_distance_m", record(np.array([0.0, -1.0]), "float64")),
-        # every array in the dtype the table names, or one of the docs' few sets (scan ranges and the path ahead: a float;
-        # entropy counts: an integer of the list, at most 2^31 - 1; a cluster's cells: a signed integer)
-        ("path", 0, "path_xy_m", record(np.zeros((2, 2)), "float64")),  # float32
+        # a float array (metres, ms, percent) in float32 or float64, never an integer or bool; the grids in the dtype the
+        # table names; entropy counts an integer of the list, at most 2^31 - 1; a cluster's cells a signed integer
         ("path", 0, "path_xy_m", record(np.zeros((2, 2)), "int64")),
         ("path", 0, "path_xy_m", record(np.zeros((2, 2)), "bool")),
-        ("frontiers", 1, "path_nodes_xy_m", record(np.array([[0.0, -0.1], [0.1, 0.05]]), "float32")),  # float64
+        ("frontiers", 1, "path_nodes_xy_m", record(np.array([[0, -1], [1, 0]]), "int32")),
+        ("frontiers", 1, "path_nodes_distance_m", record(np.array([True, False]), "bool")),
+        ("scan", 0, "ranges_m", record(np.array([1, 2, 3]), "uint16")),
+        ("planner_feedback", 0, "path_ahead_xy_m", record(np.zeros((2, 2)), "int16")),
+        ("planner_contacts", 0, "contacts_xy_m", record(np.ones((2, 2)), "bool")),
         ("frontiers", 1, "clusters", [{**decision_body()["clusters"][0], "cells": record(np.array([[0, 2], [2, 1]]), "uint8")}]),
         ("frontiers", 1, "arrays.entropy", record(np.array([3, 7, 2**31, 1]), "int64")),  # wrapped to -2^31 in the int32 grid
-        ("episode_result", 0, "trajectory_xy_m", record(np.array([[0.0, -0.1], [0.1, 0.0]]), "float32")),  # float64
-        ("episode_result", 0, "decision_ms", record(np.array([4.5, 1.0]), "float32")),
+        ("episode_result", 0, "trajectory_xy_m", record(np.array([[0, -1], [1, 0]]), "int64")),
+        ("episode_result", 0, "decision_ms", record(np.array([True, False]), "bool")),
         ("episode_result", 0, "coverage_curve_pct", record(np.array([10.0, 99.5]), "int64")),
         ("episode_result", 0, "explored_free", record(EXPLORED & ~OCCUPIED, "uint8", True)),
         ("episode_result", 0, "decision_ms", record(np.array([-4.5, 1.0]), "float64")),  # a time is >= 0
