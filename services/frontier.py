@@ -60,7 +60,12 @@ class FrontierParams:
     cores. False: one process."""
     helper_start_s: float = 10.0
     """Wall clock: how long the warm-up waits for the layer helper to start (imports) before the
-    service says it is up; a helper still starting after that is used from the first map it is ready for."""
+    service says it is up, and for its practice layer (the helper's first calls: on a loaded host more than
+    ``helper_reply_s``); a helper still starting after that is used from the first map it is ready for."""
+    helper_reply_s: float = 2.0
+    """Wall clock: how long a decision waits for the layer helper's answer (its layer, or its mapping of a new map
+    shape) before it computes the layer here and counts the helper as lost (hung: a new one is started, as for a
+    killed one). The layer takes milliseconds; a host loaded far beyond its cores may need more than the default."""
     helper_max_restarts: int = 3
     """How many times a layer helper lost while the service runs (killed, crashed, hung) is replaced by a new one;
     after that the service computes every layer itself (the same Observation, slower). Bounded: a helper that dies
@@ -71,6 +76,8 @@ class FrontierParams:
             raise ConfigError("goal_wait_s must be positive")
         if not self.helper_start_s >= 0:
             raise ConfigError("helper_start_s must be zero or positive")
+        if not self.helper_reply_s > 0:
+            raise ConfigError("helper_reply_s must be positive")
         if not self.helper_max_restarts >= 0:
             raise ConfigError("helper_max_restarts must be zero or positive")
 
@@ -134,7 +141,7 @@ class FrontierService(Service):
         neither the helper's start nor first calls."""
         if self.params.layer_helper:
             try:
-                self.layer_worker = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m, stopping=self.stopping)
+                self.layer_worker = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m, self.params.helper_reply_s, stopping=self.stopping)
             except OSError as exc:  # no process to spare: the layers are computed here, as with layer_helper false
                 log.warning("no frontier layer helper (%s): computing the layers in this process", exc)
             else:
@@ -142,11 +149,18 @@ class FrontierService(Service):
         if self.stopping():  # stopped while it waited for its helper: no practice for a service that stops
             return
         occupancy, pose = warm_up_map()
-        obs = self.builder.build(occupancy, pose, np.array([pose.xy]), layer=self.layer_beside_d(occupancy, None))
+        w = self.layer_worker
+        if w is not None:  # the practice layer pays the helper's first calls: it may take as long as the helper's start
+            w.timeout_s = max(self.params.helper_reply_s, self.params.helper_start_s)
+        try:
+            obs = self.builder.build(occupancy, pose, np.array([pose.xy]), layer=self.layer_beside_d(occupancy, None))
+        finally:
+            if w is not None:
+                w.timeout_s = self.params.helper_reply_s
         encode(frontiers_from_observation(0, "no_goal", obs, 0.0))
         encode(DistanceMapMsg(0, obs.geometry, obs.pose, obs.distance_map()))
-        if self.layer_worker is not None:
-            self.layer_worker.layers_computed = 0  # the practice layer is not a decision's
+        if w is not None:
+            w.layers_computed = 0  # the practice layer is not a decision's
 
     def on_tick(self, now_s: float) -> None:
         self.tend_layer_helper()
@@ -170,7 +184,7 @@ class FrontierService(Service):
         self.layers_by_lost_helpers += w.layers_computed
         w.close()
         try:
-            new = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m, stopping=self.stopping)
+            new = FrontierLayerWorker(self.ctx.exploration.frontier.entropy_window_m, self.params.helper_reply_s, stopping=self.stopping)
         except OSError as exc:  # no process to spare
             self.helper_given_up = True
             log.error("frontier layer helper lost (%s), and no new one starts (%s): the layers are computed in this process from now on", w.broken, exc)

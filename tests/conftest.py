@@ -29,6 +29,11 @@ from cso_runtime.scenes import FloorPlan
 from cso_runtime.transport import ZENOH_CONFIG_ENV
 from services.common import TRACE_DIR_ENV
 
+HANG_DEADLINE_S = 120.0
+"""A bound on a wait for real processes (a helper's start or answer, a service's step) that only ends a hang: CI's
+2-core host, loaded by the other test worker and its services, has been seen to take tens of seconds for what takes
+milliseconds idle. Tests wait on the real condition up to this, never on a deadline a loaded host can outrun."""
+
 
 def unset_weights_env(monkeypatch: pytest.MonkeyPatch) -> None:
     """No weights folder nor file in the environment (``CSO_WEIGHTS_DIR``, ``CSO_WEIGHTS_FILE``), each put back as it

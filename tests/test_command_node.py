@@ -24,6 +24,7 @@ from cso_runtime.status import query_status, render_table, status_of
 from cso_runtime.supervision import pid_alive, python_module_argv
 from services import waited_for_at_start
 from services.dataflow import nodes_of
+from tests.conftest import HANG_DEADLINE_S
 from tests.test_own_service import docs_block, up_from_this_checkout
 from tests.test_runtime import PROFILES, REPO, SCENE, cli, in_process_result, kill_leftovers, run_pids, wait_for
 
@@ -248,7 +249,7 @@ def test_the_guard_kills_a_daemon_that_left_its_group_and_ignores_sigterm_before
     with guarded_escaping_node(tmp_path, 600) as (guard, daemon):
         assert pid_alive(daemon) and os.getsid(daemon) != guard.pid
         os.killpg(guard.pid, signal.SIGTERM)  # the launcher's second stop signal
-        wait_for(lambda: not pid_alive(daemon), 5, "the guard to kill the daemon", period_s=0.05)
+        wait_for(lambda: not pid_alive(daemon), HANG_DEADLINE_S, "the guard to kill the daemon", period_s=0.05)
         assert guard.poll() is None, "the guard (its node ignores SIGTERM) still runs: the daemon's end is its doing"
 
 
@@ -257,8 +258,8 @@ def test_the_guard_reaps_an_orphaned_daemon_of_its_node_that_exits(tmp_path: Pat
     """A subreaper inherits the node's orphans: one that exits is the guard's to reap, or it stays a zombie under it."""
     with guarded_escaping_node(tmp_path, 0.5) as (guard, daemon):
         parent = lambda: int(Path(f"/proc/{daemon}/stat").read_text().rsplit(")", 1)[-1].split()[1])  # noqa: E731
-        wait_for(lambda: parent() == guard.pid, 5, "the orphaned daemon to become the guard's child", period_s=0.01)
-        wait_for(lambda: not Path(f"/proc/{daemon}").exists(), 5, "the guard to reap its daemon once it exited")
+        wait_for(lambda: parent() == guard.pid, HANG_DEADLINE_S, "the orphaned daemon to become the guard's child", period_s=0.01)
+        wait_for(lambda: not Path(f"/proc/{daemon}").exists(), HANG_DEADLINE_S, "the guard to reap its daemon once it exited")
 
 
 @pytest.mark.parametrize(

@@ -27,7 +27,7 @@ from cso_runtime.messages import GoalMsg, Message, decode, deferred, encode
 from cso_runtime.transport import TransportConfig
 from services.common import ServiceContext, _dispatch
 from services.foxglove_bridge import FoxgloveBridgeService, websocket_handshake
-from tests.conftest import wait_for
+from tests.conftest import HANG_DEADLINE_S, wait_for
 from tests.test_bag_export import GEOM, SCENE_ORIGIN, T0_NS, _map, approx_pose, as_tuple, episode, msg_pose, tf_pose, with_status
 
 
@@ -344,7 +344,7 @@ def test_nothing_is_converted_for_a_topic_nobody_watches_and_a_late_viewer_gets_
         assert np.array_equal(ros2_cdr.occupancy_grid_from_cdr(received[1])[0], _map(0).grid)
         assert ros2_cdr.pose_stamped_from_cdr(received[2])[0].x_m == 1.0
         viewer.close()
-        wait_for(lambda: not bridge.watched("/map") and not bridge.watched("/goal_pose"), 5.0, "the viewer's subscriptions to end")
+        wait_for(lambda: not bridge.watched("/map") and not bridge.watched("/goal_pose"), HANG_DEADLINE_S, "the viewer's subscriptions to end")
         _feed(bridge, 3)
         bridge.shutdown()  # nor at the end
         assert conversions == {"occupancy_grid_to_cdr": 2, "pose_stamped_to_cdr": 2}

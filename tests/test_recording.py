@@ -53,7 +53,7 @@ from cso_runtime.recording import (
 from cso_runtime.scenes import resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
-from tests.conftest import wait_for
+from tests.conftest import HANG_DEADLINE_S, wait_for
 from tests.test_bag_export import T0_NS, episode, legacy
 
 PROBE = encode(ClockMsg(0, 0.0))
@@ -764,7 +764,7 @@ def test_replay_refuses_a_network_where_a_robot_of_the_recording_runs(tmp_path: 
             try:
                 r = CliRunner().invoke(app, ["replay", str(recording), "--speed", "max", "--connect", endpoint])
                 assert r.exit_code == 0 and "replayed 3 messages" in r.output, r.output
-                wait_for(lambda: len(heard) == 3, 5, "the replayed commands")
+                wait_for(lambda: len(heard) == 3, HANG_DEADLINE_S, "the replayed commands")
             finally:
                 pipeline.undeclare()
                 sub.undeclare()

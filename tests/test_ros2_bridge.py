@@ -47,7 +47,7 @@ from cso_runtime.messages import (
 from cso_runtime.transport import TransportConfig, free_tcp_port, loopback_endpoint, open_session
 from robot_sim.fake_limo import odometry_cdr
 from services.ros2_bridge import OdometryBuffer, Ros2BridgeParams
-from tests.conftest import wait_for
+from tests.conftest import HANG_DEADLINE_S, wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILES = REPO / "cso_runtime" / "profiles"
@@ -825,7 +825,7 @@ def test_fake_limo_through_the_bridge(namespace: str):
                 10,
                 "the bridge's liveliness token",
             )
-            wait_for(lambda: svc._ros_subs, 5, "the bridge's ROS subscriptions")
+            wait_for(lambda: svc._ros_subs, HANG_DEADLINE_S, "the bridge's ROS subscriptions")
             # It says which robot it drives, so that a second run on this robot is refused (keys.robot_driver_token).
             def drivers() -> list[str]:
                 return [str(r.ok.key_expr) for r in session.liveliness().get(robot_driver_token(ros("cmd_vel"), "*"), timeout=1.0) if r.ok]
@@ -835,11 +835,11 @@ def test_fake_limo_through_the_bridge(namespace: str):
             # Odometry first (the bridge holds a scan that is newer than every odometry sample).
             session.put(ros("odom"), ros_odom(100.0, 1.0, 2.0, 0.0, 0.2, 0.0))
             session.put(ros("odom"), ros_odom(100.1, 1.1, 2.0, 0.2, 0.2, 0.1))
-            wait_for(lambda: svc.counters["received:odom"] >= 2, 5, "odometry at the bridge")
+            wait_for(lambda: svc.counters["received:odom"] >= 2, HANG_DEADLINE_S, "odometry at the bridge")
             ranges = np.linspace(0.5, 3.0, 181).astype(np.float32)
             ranges[10] = np.inf
             session.put(ros("scan"), ros_scan(100.05, ranges))
-            wait_for(lambda: len(ours.get("scan", [])) >= 1, 5, "the first scan as our message")
+            wait_for(lambda: len(ours.get("scan", [])) >= 1, HANG_DEADLINE_S, "the first scan as our message")
             scan0, odom0, clock0 = ours["scan"][0], ours["odom"][0], ours["clock"][0]
             assert isinstance(scan0, ScanMsg) and isinstance(odom0, OdometryMsg) and isinstance(clock0, ClockMsg)
             assert scan0.step == odom0.step == clock0.step == 0
@@ -861,7 +861,7 @@ def test_fake_limo_through_the_bridge(namespace: str):
             nan_ranges[:5] = np.nan
             nan_ranges[5] = 0.05
             session.put(ros("scan"), ros_scan(100.08, nan_ranges, -math.pi, math.pi))
-            wait_for(lambda: len(ours.get("scan", [])) >= 2, 5, "the NaN scan")
+            wait_for(lambda: len(ours.get("scan", [])) >= 2, HANG_DEADLINE_S, "the NaN scan")
             scan1 = ours["scan"][1]
             assert scan1.step == 1 and scan1.scan.angle_min_rad == pytest.approx(-math.pi) and len(scan1.scan.ranges_m) == 361
             assert (scan1.scan.ranges_m[:5] == 0).all() and svc.counters["invalid_beams"] == 6
@@ -869,11 +869,11 @@ def test_fake_limo_through_the_bridge(namespace: str):
             # A header that does not fit its ranges, a stale scan, an out-of-order one: dropped and counted.
             session.put(ros("scan"), ros_scan(100.09, ranges, n_angles=90))
             session.put(ros("odom"), ros_odom(102.0, 1.2, 2.0, 0.2))
-            wait_for(lambda: svc.counters["received:odom"] >= 3, 5, "the newer odometry")
+            wait_for(lambda: svc.counters["received:odom"] >= 3, HANG_DEADLINE_S, "the newer odometry")
             session.put(ros("scan"), ros_scan(101.0, ranges))
             session.put(ros("scan"), ros_scan(100.07, ranges))
             session.put(ros("scan"), b"\x00\x01\x00\x00garbage")
-            wait_for(lambda: svc.counters["received:scan"] >= 6, 5, "every scan at the bridge")
+            wait_for(lambda: svc.counters["received:scan"] >= 6, HANG_DEADLINE_S, "every scan at the bridge")
             status = wait_for(
                 lambda: [
                     decode(r.ok.payload.to_bytes(), ServiceStatusMsg)
@@ -891,11 +891,11 @@ def test_fake_limo_through_the_bridge(namespace: str):
 
             # Our velocity command -> a clamped Twist; then the watchdog's zero Twist after 0.5 s.
             session.put(keys.cmd_vel, encode(CmdVelMsg(1, VelocityCommand(2.0, -1.5))))
-            wait_for(lambda: to_robot.get(ros("cmd_vel")), 5, "a Twist on cmd_vel")
+            wait_for(lambda: to_robot.get(ros("cmd_vel")), HANG_DEADLINE_S, "a Twist on cmd_vel")
             t_cmd, raw = to_robot[ros("cmd_vel")][0]
             twist = rosbags_decode(raw, "geometry_msgs/msg/Twist")
             assert (twist.linear.x, twist.angular.z) == (1.0, pytest.approx(-0.78))
-            wait_for(lambda: len(to_robot[ros("cmd_vel")]) >= 2, 3, "the watchdog's zero Twist")
+            wait_for(lambda: len(to_robot[ros("cmd_vel")]) >= 2, HANG_DEADLINE_S, "the watchdog's zero Twist")
             t_zero, raw = to_robot[ros("cmd_vel")][1]
             zero = rosbags_decode(raw, "geometry_msgs/msg/Twist")
             assert (zero.linear.x, zero.angular.z) == (0.0, 0.0)
@@ -992,7 +992,7 @@ def test_the_map_reaches_a_ros_subscriber_that_comes_after_the_episode(monkeypat
                 history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
             )  # fmt: skip
             undeclare.callback(transient_local.undeclare)
-            wait_for(lambda: late, 5, "the last map for a late transient-local subscriber")
+            wait_for(lambda: late, HANG_DEADLINE_S, "the last map for a late transient-local subscriber")
             og = rosbags_decode(late[-1], "nav_msgs/msg/OccupancyGrid")
             np.testing.assert_array_equal(np.asarray(og.data).reshape(geom.shape), grids[1])
             assert len(late) == 1, "the last map only"
@@ -1220,7 +1220,7 @@ def test_bridge_process_takes_namespace_and_stops_the_robot_on_sigint(tmp_path: 
             assert not any(command(t)[0] == 0.0 for t in twists)
             os.killpg(proc.pid, signal.SIGINT)
             assert proc.wait(15) == 0
-            wait_for(lambda: twists and command(twists[-1])[0] == 0.0, 5, "the final zero Twist")
+            wait_for(lambda: twists and command(twists[-1])[0] == 0.0, HANG_DEADLINE_S, "the final zero Twist")
             last = command(twists[-1])
             assert last[:2] == (0.0, 0.0)
             if stamped:  # a command before the scan came is stamped 0 (the robot's own now); the scan then sets the time

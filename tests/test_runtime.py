@@ -63,6 +63,7 @@ from cso_runtime.transport import (
     loopback_endpoint,
     open_session,
 )
+from tests.conftest import HANG_DEADLINE_S
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILES = REPO / "cso_runtime" / "profiles"
@@ -259,11 +260,12 @@ def test_mapper_service_over_loopback_maps_and_counts_rejections():
             nan_scan = ScanMsg(0, LaserScan(-np.pi, np.pi / 180, 0.1, 1.5, np.full(360, np.nan, np.float32)), Pose2D(2, 2, 0))
             session.put(keys.scan, encode(nan_scan))  # encoding does not validate; decoding does
             session.put(keys.scan, encode(ScanMsg(0, scan, Pose2D(2.0, 2.0, 0.0))))
-            wait_for(lambda: maps, 10, "a map")
+            wait_for(lambda: maps, HANG_DEADLINE_S, "a map")
             assert maps[-1].step == 0 and (maps[-1].grid == 0).sum() > 100
-            replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(keys.service_status("mapper"), timeout=2.0) if r.ok]
+            # A get ends with its answers: a long timeout only bounds a hang (a loaded host answers late, not never).
+            replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(keys.service_status("mapper"), timeout=HANG_DEADLINE_S) if r.ok]
             assert replies and replies[0].rejected.get("scan") == 2, replies
-            late = [decode(r.ok.payload.to_bytes(), MapMsg) for r in session.get(keys.map, timeout=2.0) if r.ok]
+            late = [decode(r.ok.payload.to_bytes(), MapMsg) for r in session.get(keys.map, timeout=HANG_DEADLINE_S) if r.ok]
             assert late and late[0].step == 0, "a late joiner gets the latest map"
         finally:
             stop.set()
@@ -363,14 +365,14 @@ def test_one_policy_server_answers_several_robots():
                 expected = make_policy("greedy-dist").select(obs)
                 for robot in ("a", "b"):
                     session.put(RobotKeys(robot).frontiers, encode(frontiers_from_observation(0, "no_goal", obs, 1.0)))
-                wait_for(lambda: set(goals) == {"a", "b"}, 10, "a goal for each robot")
+                wait_for(lambda: set(goals) == {"a", "b"}, HANG_DEADLINE_S, "a goal for each robot")
                 for g in goals.values():
                     assert g.decided and g.step == 0 and (g.x_m, g.y_m) == (expected.x_m, expected.y_m)
                 # Robot b sees the policy under its own keys, as `status --robot b` asks: alive, with b's own status.
-                assert any(r.ok for r in session.liveliness().get(RobotKeys("b").alive("policy"), timeout=2.0))
+                assert any(r.ok for r in session.liveliness().get(RobotKeys("b").alive("policy"), timeout=HANG_DEADLINE_S))
                 assert not any(r.ok for r in session.liveliness().get(RobotKeys("c").alive("policy"), timeout=0.5))  # not served
                 for robot in ("a", "b"):
-                    replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(RobotKeys(robot).service_status("*"), timeout=2.0) if r.ok]
+                    replies = [decode(r.ok.payload.to_bytes(), ServiceStatusMsg) for r in session.get(RobotKeys(robot).service_status("*"), timeout=HANG_DEADLINE_S) if r.ok]
                     assert [(m.service, m.robot, m.state, m.last_step) for m in replies] == [("policy", robot, "running", 0)], replies
                 assert not [r for r in session.get(RobotKeys("c").service_status("*"), timeout=0.5) if r.ok]
                 status = query_status([loopback_endpoint(port)], "b", timeout_s=1.0)
@@ -1776,12 +1778,12 @@ def test_a_service_that_crashes_while_the_episodes_end_is_written_is_restarted(t
     restarts_seen: list[int] = []
 
     def crash_and_wait_for_the_restart() -> None:
-        """The phase takes as long as the launcher needs to restart a service that crashes as it starts (5 s at most)."""
+        """The phase takes as long as the launcher needs to restart a service that crashes as it starts (``HANG_DEADLINE_S`` at most: a loaded host is slow to spawn it)."""
         if restarts_seen:  # `finish_recording` again, in the run's clean-up
             return
         assert planner.proc is not None
         planner.proc.kill()
-        deadline = time.monotonic() + 5.0
+        deadline = time.monotonic() + HANG_DEADLINE_S
         while planner.restarts == 0 and time.monotonic() < deadline:
             time.sleep(0.02)
         restarts_seen.append(planner.restarts)
@@ -4665,76 +4667,87 @@ def test_pause_holds_a_real_time_robot_still_and_resume_lets_the_episode_finish(
     several steps) while the sim's time goes on, ``status`` says who paused it and for how long, a planner restarted
     meanwhile stays paused (the launcher's ``cache/explore/resume``), the frontier service asks the policy for no
     decision over more than ``replan_every_steps`` paused steps, and ``resume`` lets the episode finish, its summary
-    saying how long the robot stood (``paused_s``). With nothing running both commands say so (exit 1)."""
-    from cso_runtime.messages import FrontiersMsg
+    saying how long the robot stood (``paused_s``). With nothing running both commands say so (exit 1).
+
+    The pause goes out from the test's own session as soon as odometry shows the robot moving, in Zenoh's order with
+    the steps: sent by a ``cso-runtime pause`` started then, it landed seconds later on a loaded host, after this small
+    scene's episode had ended (38 steps at twice real time), and the robot never stood "paused". The command then
+    finds the robot paused. Every wait is on its condition, bounded only against a hang (``HANG_DEADLINE_S``)."""
+    from cso_runtime.messages import ExploreResumeMsg, FrontiersMsg
+    from cso_runtime.status import operator_name
 
     runs = tmp_path / "runs"
     for command in ("pause", "resume"):
-        r = cli(command, "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        r = cli(command, "--runs-dir", str(runs), cwd=tmp_path, timeout_s=HANG_DEADLINE_S)
         assert r.returncode == 1 and "nothing running" in r.stdout, (r.stdout, r.stderr)
     # Real time at twice the wall clock's pace: the test waits on steps (the robot moving, standing, the end).
     settings = ["scene=generated:small:1:0", "method=greedy-dist", "services.sim.backend=kinematic", "services.sim.real_time_factor=2", "services.frontier.layer_helper=false", "progress_log_s=0"]
     try:
-        r = cli("up", "--profile", "sim", "--detach", "--runs-dir", str(runs), *[a for s in settings for a in ("--set", s)], cwd=tmp_path, timeout_s=60)
+        r = cli("up", "--profile", "sim", "--detach", "--runs-dir", str(runs), *[a for s in settings for a in ("--set", s)], cwd=tmp_path, timeout_s=HANG_DEADLINE_S)
         assert r.returncode == 0, r.stderr[-3000:]
         info = json.loads((runs / "current.json").read_text())
 
         def status() -> dict | None:
             return query_status(info["endpoints"], "r0", timeout_s=0.5)
 
-        wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 4 and s["path_length_m"] > 0.1, 60, "the robot moving", period_s=0.1)
         odoms: list[tuple[int, Pose2D, tuple[float, float]]] = []  # step, pose, twist
+        pause = encode(ExploreResumeMsg(False, operator_name(), "inspecting", time.time()))
+        paused_at: list[int] = []  # how many odometry steps had come when the pause went out
         with open_session(TransportConfig(mode="client", connect=info["endpoints"])) as session:
 
             def on_odom(sample: Any) -> None:
                 m = decode(sample.payload.to_bytes(), OdometryMsg)
                 odoms.append((m.step, m.pose, (m.twist.linear_mps, m.twist.angular_radps)))
+                moved_m = float(np.hypot(*(np.array(m.pose.xy) - np.array(odoms[0][1].xy))))
+                if not paused_at and m.step >= 4 and moved_m > 0.1:  # the robot moving: pause it, before its next steps
+                    session.put(RobotKeys("r0").explore_resume, pause)
+                    paused_at.append(len(odoms))
 
             sub = session.declare_subscriber(RobotKeys("r0").odom, on_odom)
             decided: list[int] = []  # the steps the frontier service asked the policy to decide
             asks = session.declare_subscriber(RobotKeys("r0").frontiers, lambda sample: (f := decode(sample.payload.to_bytes(), FrontiersMsg)).decide and decided.append(f.step))
-            r = cli("pause", "--reason", "inspecting", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
-            assert r.returncode == 0 and "paused robot r0" in r.stdout, (r.stdout, r.stderr)
-            paused_at = len(odoms)
+            wait_for(lambda: paused_at and (s := status()) and s["pause"]["paused"], HANG_DEADLINE_S, "the robot moving, then paused", period_s=0.1)
+            r = cli("pause", "--reason", "inspecting", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=HANG_DEADLINE_S)
+            assert r.returncode == 0 and "robot r0" in r.stdout and "already paused" in r.stdout, (r.stdout, r.stderr)
 
             def still_for(n: int) -> list | None:
                 """The last ``n`` odometry steps since the pause, when the robot stood through all of them."""
-                after = odoms[paused_at:]
+                after = odoms[paused_at[0] :]
                 stood = [o for o in after if abs(o[2][0]) < 1e-6 and abs(o[2][1]) < 1e-6]
                 if len(stood) < n or stood[-n:] != after[-n:]:
                     return None
                 last = after[-n:]
                 return last if all(np.allclose(o[1].as_list(), last[0][1].as_list(), atol=1e-6) for o in last) else None
 
-            held = wait_for(lambda: still_for(8), 30, "eight steps standing still", period_s=0.1)
+            held = wait_for(lambda: still_for(8), HANG_DEADLINE_S, "eight steps standing still", period_s=0.1)
             assert held[-1][0] - held[0][0] == 7  # consecutive steps: the sim's time goes on
-            s = wait_for(lambda: (t := status()) and t["services"]["planner"].get("state") and t, 10, "the planner's status")
+            s = wait_for(lambda: (t := status()) and t["services"]["planner"].get("state") and t, HANG_DEADLINE_S, "the planner's status")
             assert s["state"] == "exploring" and s["pause"]["paused"] and s["pause"]["reason"] == "inspecting", s
             assert s["services"]["planner"]["reason"].startswith("paused: by "), s["services"]["planner"]
             assert s["services"]["frontier"]["reason"].startswith("paused: by "), s["services"]["frontier"]
-            r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+            r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=HANG_DEADLINE_S)
             assert r.returncode == 0 and re.search(r"exploring; paused \(by \S+@\S+, for \d+ s\): inspecting", r.stdout), r.stdout
-            r = cli("pause", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+            r = cli("pause", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=HANG_DEADLINE_S)
             assert r.returncode == 0 and "already paused" in r.stdout, r.stdout
 
             os.kill(s["services"]["planner"]["pid"], signal.SIGKILL)  # a planner restarted while paused stays paused
-            wait_for(lambda: (t := status()) and t["services"]["planner"].get("restarts", 0) >= 1 and t["services"]["planner"].get("reason", "").startswith("paused"), 60, "the planner back, paused")
+            wait_for(lambda: (t := status()) and t["services"]["planner"].get("restarts", 0) >= 1 and t["services"]["planner"].get("reason", "").startswith("paused"), HANG_DEADLINE_S, "the planner back, paused")
             restarted_at = len(odoms)
             replan_every_steps = ExplorationConfig().episode.replan_every_steps
-            wait_for(lambda: len(odoms) >= restarted_at + 8 and odoms[-1][0] > held[0][0] + replan_every_steps + 4, 60, "more steps")
+            wait_for(lambda: len(odoms) >= restarted_at + 8 and odoms[-1][0] > held[0][0] + replan_every_steps + 4, HANG_DEADLINE_S, "more steps")
             assert all(abs(o[2][0]) < 1e-6 and abs(o[2][1]) < 1e-6 for o in odoms[restarted_at:]), odoms[restarted_at:]
             assert [k for k in decided if k >= held[0][0]] == [], decided  # no goal chosen while paused
             sub.undeclare()
             asks.undeclare()
 
-        r = cli("resume", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        r = cli("resume", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=HANG_DEADLINE_S)
         assert r.returncode == 0 and "resumed robot r0" in r.stdout, (r.stdout, r.stderr)
-        final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, 120, "the end of the episode", period_s=0.2)
+        final = wait_for(lambda: (s := status()) and s["state"] in ("done", "failed") and s, HANG_DEADLINE_S, "the end of the episode", period_s=0.2)
         assert final["state"] == "done" and not final["pause"]["paused"] and final["pause"]["total_s"] > 1.0, final
-        summary = wait_for(lambda: next(iter(runs.glob("*/summary.json")), None), 30, "summary.json")
+        summary = wait_for(lambda: next(iter(runs.glob("*/summary.json")), None), HANG_DEADLINE_S, "summary.json")
         assert json.loads(summary.read_text())["meta"]["paused_s"] > 1.0
     finally:
-        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=HANG_DEADLINE_S)
         assert kill_leftovers(runs) == []
 
 

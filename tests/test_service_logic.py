@@ -50,7 +50,7 @@ from services.common import Service, ServiceContext, ServiceInputs
 from services.frontier import FrontierService
 from services.planner import PlannerService
 from services.policy import PolicyService
-from tests.conftest import two_rooms
+from tests.conftest import HANG_DEADLINE_S, two_rooms
 
 
 def _service(
@@ -1473,7 +1473,8 @@ def test_warm_up_starts_the_helper_and_leaves_no_trace_in_the_episode():
     """``warm_up`` (run before the liveliness token) waits for the frontier service's helper and builds
     a practice Observation through it, and the planner plans once: nothing is published, no decision
     state is kept, and the episode's first decision is built by the ready helper, as in one process."""
-    frontier, out = _service(FrontierService, lockstep=True, params={"helper_start_s": 60.0})
+    # Not about the deadlines: the helper's start and answers wait for as long as a loaded host needs.
+    frontier, out = _service(FrontierService, lockstep=True, params={"helper_start_s": HANG_DEADLINE_S, "helper_reply_s": HANG_DEADLINE_S})
     planner, planner_out = _service(PlannerService, lockstep=True)
     try:
         frontier.warm_up()
@@ -1506,6 +1507,24 @@ def test_a_frontier_layer_helper_whose_service_is_gone_as_it_starts_exits_quietl
     assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
 
 
+def test_the_warm_ups_practice_layer_may_take_as_long_as_the_helpers_start_not_a_decisions_reply_deadline():
+    """The practice layer pays the helper's first calls, which a loaded host stretched past the 2 s a decision waits
+    for a layer (``helper_reply_s``): the warm-up gave its just-started helper up ("no layer for request 1 within 2.0
+    s") and the service's first tick counted a helper death. The practice layer now waits as long as the helper's
+    start (``helper_start_s``); the decisions' deadline is unchanged. A reply deadline no helper can meet shows it."""
+    frontier, _ = _service(FrontierService, lockstep=True, params={"helper_start_s": HANG_DEADLINE_S, "helper_reply_s": 1e-9})
+    try:
+        frontier.warm_up()
+        w = frontier.layer_worker
+        assert w is not None and w.ready and not w.broken, w and w.broken
+        assert w.timeout_s == 1e-9  # a decision's deadline again
+        frontier.on_tick(time.monotonic())
+        assert frontier.layer_worker is w and frontier.status_msg().counters == {"layer_helper_deaths": 0, "layer_helper_restarts": 0}
+    finally:
+        frontier.shutdown()
+    assert not w.proc.is_alive()
+
+
 def test_a_frontier_layer_helper_that_dies_is_replaced_a_bounded_number_of_times_and_the_decisions_stay_the_same(caplog):
     """A killed layer helper was not replaced: the frontier service computed every layer itself from then on (slower),
     with one warning and nothing in its status. Its next tick now notices, says so, counts it in its status
@@ -1514,7 +1533,9 @@ def test_a_frontier_layer_helper_that_dies_is_replaced_a_bounded_number_of_times
     import logging
 
     caplog.set_level(logging.INFO, logger="cso.frontier")
-    frontier, out = _service(FrontierService, lockstep=True, params={"helper_start_s": 60.0, "helper_max_restarts": 2})
+    # A lost helper is a killed one here, never a late one: its start and answers wait for as long as a loaded host needs.
+    params = {"helper_start_s": HANG_DEADLINE_S, "helper_reply_s": HANG_DEADLINE_S, "helper_max_restarts": 2}
+    frontier, out = _service(FrontierService, lockstep=True, params=params)
     alone, alone_out = _service(FrontierService, lockstep=True, params={"layer_helper": False})
     first = second = None
     try:
@@ -1532,7 +1553,7 @@ def test_a_frontier_layer_helper_that_dies_is_replaced_a_bounded_number_of_times
         said = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
         assert f"frontier layer helper (pid {first.proc.pid}) lost: the helper process exited (code -9)" in said, said
         assert not any("from now on" in line for line in said), said
-        assert second.wait_ready(60.0)
+        assert second.wait_ready(HANG_DEADLINE_S)
         ex = _explorer_at(0)
         m, odom, _ = _inputs(ex, 0)
         for svc in (frontier, alone):
