@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime.config import ConfigError
+from cso_runtime.outputs import write_text_atomic
 from cso_runtime.run_profile import Profile, SupervisionConfig
 from cso_runtime.supervision import pid_alive, process_state, run_process_alive, signal_group
 
@@ -193,6 +194,8 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
     left = [p for p in [pid, *service_pids] if pid_alive(p)]
     if left:
         return False, f"processes still running: {left}"
+    if not launcher_alive:
+        record_launcher_died(info)
     notes = ["its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop"] if continued else []
     if not launcher_alive:  # killed, crashed, a reboot: nothing of the run was stopped here but its leftovers
         leftovers = f"killed the {len(killed)} service(s) it left running; " if killed else ""
@@ -200,6 +203,32 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
     if escalated:  # its results (summary.json, run.json's outcome) may be missing: say so rather than a plain "stopped"
         notes.append(f"its launcher did not stop on SIGINT within {timeout_s:g} s: {escalated}")
     return True, f"stopped run {info.get('run_id')}" + (f" ({'; '.join(notes)})" if notes else "")
+
+
+LAUNCHER_DIED = "launcher died"
+"""How ``runs`` lists a run whose launcher was killed before it could write how the run ended."""
+
+STOPPED_BY_DOWN = f"{LAUNCHER_DIED}; stopped by down"
+"""``run.json``'s ``reason`` once ``down`` has cleaned up after a dead launcher (``record_launcher_died``)."""
+
+
+def record_launcher_died(info: dict[str, Any]) -> None:
+    """Write in the run's ``run.json`` that it ended, once ``down`` has cleaned up after its dead launcher: state
+    ``stopped``, outcome ``failed``, reason ``STOPPED_BY_DOWN`` and when (``stopped_by_down_at``; no ``ended_at``: when
+    the launcher died is not known), whole (``write_text_atomic``, as the launcher writes it). A run file that already
+    says how its run ended, or that is another run's, is left as it is; one that cannot be written, too (``runs``
+    still lists the run as ``launcher died``)."""
+    if not info.get("run_dir"):
+        return
+    path = Path(str(info["run_dir"])) / "run.json"
+    try:
+        run = json.loads(path.read_text())
+        if not isinstance(run, dict) or run.get("run_id") != info.get("run_id") or run.get("outcome"):
+            return
+        run.update(state="stopped", outcome="failed", reason=STOPPED_BY_DOWN, stopped_by_down_at=round(time.time(), 3))
+        write_text_atomic(path, json.dumps(run, indent=2))
+    except (OSError, ValueError) as exc:
+        log.warning("cannot record in %s that its run's launcher died: %s", path, exc)
 
 
 RUNS_LOCK = ".up.lock"

@@ -22,7 +22,7 @@ from typing import Any
 
 import yaml
 
-from cso_runtime.current_run import CURRENT_RUN, current_launcher_alive, read_current_run
+from cso_runtime.current_run import CURRENT_RUN, LAUNCHER_DIED, STOPPED_BY_DOWN, current_launcher_alive, read_current_run
 from cso_runtime.report import whole_count
 
 LOG_DIR = "logs"
@@ -115,10 +115,12 @@ def summarize_run(run_dir: Path) -> RunSummary:
     method = str(profile.get("method", "")) or next(iter(methods), "")
     if info and current_launcher_alive(info):
         state = str(info.get("state", "running"))
+    elif info.get("reason") == STOPPED_BY_DOWN:  # `down` wrote its end for it (failed): the listing says why
+        state = LAUNCHER_DIED
     elif info.get("outcome"):
         state = str(info["outcome"])
     elif info.get("state") not in (None, "stopped"):
-        state = "launcher died"  # it never wrote that it stopped: killed (SIGKILL, out of memory) or the host went down
+        state = LAUNCHER_DIED  # it never wrote that it stopped: killed (SIGKILL, out of memory) or the host went down
     else:
         state = "done" if methods else "stopped"
     services = s if isinstance(s := info.get("services"), dict) else {}
@@ -128,7 +130,7 @@ def summarize_run(run_dir: Path) -> RunSummary:
     if isinstance(started, (int, float)):
         if isinstance(ended, (int, float)):
             duration_s = max(0.0, float(ended) - float(started))
-        elif state not in ("launcher died", "stopped") and current_launcher_alive(info):
+        elif state not in (LAUNCHER_DIED, "stopped") and current_launcher_alive(info):
             duration_s = max(0.0, time.time() - float(started))
     return RunSummary(
         run_id=str(info.get("run_id") or run_dir.name),

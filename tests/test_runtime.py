@@ -4015,7 +4015,7 @@ def test_a_killed_launchers_services_stop_at_once_and_each_log_says_why(tmp_path
     """The launcher SIGKILLed mid-episode (its router dies with it): the kernel's SIGTERM (PR_SET_PDEATHSIG) stops
     every service and the frontier's layer helper within a second, no orphan left. Each service's log said only
     "stopped"; now a WARNING names the reason first. ``status`` says the launcher has exited, ``runs`` that it
-    died, and ``down`` clears the run."""
+    died, and ``down`` clears the run and writes in its run.json that it ended (it said "running" for good)."""
     with detached_run(tmp_path, min_step_period_s=0.25) as (runs, status):
         wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
         current = json.loads((runs / "current.json").read_text())
@@ -4039,6 +4039,35 @@ def test_a_killed_launchers_services_stop_at_once_and_each_log_says_why(tmp_path
         assert r.returncode == 0 and "launcher died" in r.stdout, r.stdout
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 0 and f"stopped run {current['run_id']}" in r.stdout and not (runs / "current.json").exists(), r.stdout + r.stderr
+        # run.json said "running" for good; once `down` has cleaned up, it says how the run ended (and `runs` still why)
+        run = json.loads((run_dir / "run.json").read_text())
+        assert (run["state"], run["outcome"], run["reason"]) == ("stopped", "failed", "launcher died; stopped by down"), run
+        assert "ended_at" not in run and run["stopped_by_down_at"] >= run["started_at"], run
+        r = cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
+        assert r.returncode == 0 and [x["state"] for x in json.loads(r.stdout)] == ["launcher died"], r.stdout
+
+
+def test_down_of_a_cso_run_stops_the_policy_service_on_sigint_and_its_log_ends_with_its_stop(tmp_path):
+    """The policy service of method cso (torch) took 1.5 to 3.4 s after its "stopped" line to exit on 2 busy cores (the
+    interpreter's teardown), past the 3 s stop timeout now and then: the launcher said "policy still running after
+    SIGINT" and sent SIGTERM on a clean stop. It now ends its process once stopped (``services.common.exit_now``): it
+    stops on the SIGINT alone, with no warning, and its log ends with its stop line."""
+    profile = write_profile(tmp_path, method="cso", min_step_period_s=0.25)
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        current = json.loads((runs / "current.json").read_text())
+        run_dir = Path(current["run_dir"])
+        wait_for(lambda: (s := query_status(current["endpoints"], current["robot"], timeout_s=0.5)) and s["step"] >= 2, 60, "the episode to run")
+        r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert r.returncode == 0 and r.stdout.strip() == f"stopped run {current['run_id']}", r.stdout + r.stderr
+        launcher_log = (run_dir / "logs" / "launcher.log").read_text()
+        assert "still running after" not in launcher_log, launcher_log
+        assert (run_dir / "logs" / "policy.log").read_text().splitlines()[-1].endswith("INFO cso.service: policy: stopped")
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []
 
 
 def test_down_continues_a_stopped_launcher_which_then_ends_its_run_itself(tmp_path):

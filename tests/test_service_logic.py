@@ -2145,3 +2145,62 @@ def test_a_status_read_while_the_state_is_set_never_shows_a_new_state_with_the_o
     assert ("stale", "no odometry for 2 s") in seen and ("running", "paused by operator") in seen  # the trace saw both sides
     assert seen <= {("stale", "no odometry for 2 s"), ("running", "paused by operator")}, seen
     assert svc.status_msg().state == svc.state == "running" and svc.status_msg().reason == svc.reason == "paused by operator"
+
+
+SLOW_TEARDOWN_SERVICE = '''
+import atexit, os, sys, time
+from pathlib import Path
+from services.common import Service, service_main
+
+class SlowToFree:
+    """Freed as the interpreter tears down, slowly: as torch's modules were on 2 busy cores (1.5 to 3.4 s)."""
+    def __del__(self):
+        time.sleep(60)
+
+KEPT = SlowToFree()
+atexit.register(lambda: Path(os.environ["ATEXIT_MARK"]).write_text("ran"))
+
+class Idle(Service):
+    name = "idle"
+
+if __name__ == "__main__":
+    raise SystemExit(service_main(Idle))
+'''
+
+
+def test_a_service_ends_its_process_once_stopped_without_the_interpreters_teardown(tmp_path):
+    """A service that has stopped cleanly ends its process at once (``exit_now``): the interpreter's teardown, which
+    for the policy service (torch) took 1.5 to 3.4 s on a busy host and outlasted the launcher's stop timeout, is
+    skipped (here an object that takes 60 s to free). Its exit code is 0, its log ends with its stop line, and what
+    an exit does is still done: the atexit functions run, the trace and the profile are written."""
+    import os
+    import signal
+
+    from cso_runtime.transport import free_tcp_port, loopback_endpoint
+
+    script = tmp_path / "idle_service.py"
+    script.write_text(SLOW_TEARDOWN_SERVICE)
+    profile = tmp_path / "profile.yaml"
+    profile.write_text("services: {}\n")
+    log_path = tmp_path / "idle.log"
+    env = {
+        **os.environ, "PYTHONPATH": str(Path(__file__).parents[1]), "ATEXIT_MARK": str(tmp_path / "atexit"),
+        "CSO_TRACE_DIR": str(tmp_path / "trace"), "CSO_PROFILE_DIR": str(tmp_path / "prof"),
+    }  # fmt: skip
+    argv = [sys.executable, str(script), "--config", str(profile), "--mode", "peer", "--listen", loopback_endpoint(free_tcp_port())]
+    with log_path.open("w") as log_file:
+        proc = subprocess.Popen(argv, env=env, stdout=log_file, stderr=subprocess.STDOUT)
+        try:
+            deadline = time.monotonic() + 60
+            while "idle: up for robot" not in log_path.read_text():
+                assert proc.poll() is None and time.monotonic() < deadline, log_path.read_text()
+                time.sleep(0.05)
+            proc.send_signal(signal.SIGINT)
+            code = proc.wait(timeout=20)  # with the teardown: 60 s and more
+        finally:
+            proc.kill()
+            proc.wait()
+    lines = log_path.read_text().splitlines()
+    assert code == 0 and lines[-1].endswith("INFO cso.service: idle: stopped"), lines[-5:]
+    assert (tmp_path / "atexit").read_text() == "ran"
+    assert (tmp_path / "trace" / "idle.trace.json").exists() and (tmp_path / "prof" / "idle.prof").exists()
