@@ -208,18 +208,20 @@ def process_start_ticks(pid: int) -> int | None:
 
 def process_started_s(pid: int) -> float | None:
     """When process ``pid`` started, wall clock (seconds since the epoch, to a clock tick): its start after boot
-    (``process_start_ticks``) placed by the time since boot now (``/proc/uptime``); None where unknown (no ``/proc``,
-    not Linux; the process gone). With a file's mtime it tells a process that took a dead writer's pid from the writer."""
+    (``process_start_ticks``) placed by the time since boot now, read on the clock that start is counted on
+    (``CLOCK_BOOTTIME``; a time namespace shifts both alike); None where unknown (no ``/proc``, not Linux; the process
+    gone). With a file's mtime it tells a process that took a dead writer's pid from the writer. Not ``/proc/uptime``:
+    LXCFS (LXD, Incus, some Docker and Kubernetes hosts) makes it the container's age while the start stays counted
+    from the host's boot, which placed every process's start in the future, so a live writer was judged a stranger."""
     ticks = process_start_ticks(pid)
     if ticks is None:
         return None
     try:
-        with open("/proc/uptime") as fh:
-            uptime_s = float(fh.read().split()[0])
+        since_boot_s = time.clock_gettime(time.CLOCK_BOOTTIME)
         ticks_per_s = os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError):
+    except (AttributeError, OSError, ValueError):  # no CLOCK_BOOTTIME: not Linux
         return None
-    return time.time() - (uptime_s - ticks / ticks_per_s)
+    return time.time() - (since_boot_s - ticks / ticks_per_s)
 
 
 def run_process_alive(pid: int | None, start_ticks: int | None) -> bool:

@@ -151,6 +151,9 @@ class FrontierLayerWorker:
             _, self.views = _views(str(path), shape, create=True)  # the views keep the mapping alive
             self.conn.send(("map", str(path), shape))
             reply = self._reply()
+        except OSError as exc:  # the helper died since ``usable`` looked (its pipe closed): a lost helper, as in ``submit``
+            self._give_up(f"cannot reach the helper ({exc})")
+            return False
         finally:
             path.unlink(missing_ok=True)  # both mapped it (or gave up): nothing to leave behind
         if reply != ("mapped",):

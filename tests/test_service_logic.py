@@ -1469,6 +1469,27 @@ def test_frontier_layer_helper_computes_what_the_service_would_and_is_dropped_wh
     assert not worker.proc.is_alive()
 
 
+def test_a_frontier_layer_helper_that_dies_just_before_a_new_map_shape_is_a_lost_helper_not_a_failed_decision():
+    """``submit`` sent a new map shape's shared arrays to the helper unguarded (``_map_shape``): a helper that died
+    after ``usable`` looked (the first map, a new grid) raised BrokenPipeError out of the decision's handler. It is now
+    given up as a lost helper (the service computes the layer itself and starts a new helper), as a failed layer send is."""
+    from cso_runtime.observation import ObservationBuilder
+    from services.frontier_layer import FrontierLayerWorker
+
+    ex = _explorer_at(6)
+    worker = FrontierLayerWorker(ObservationBuilder().frontier_config.entropy_window_m, timeout_s=HANG_DEADLINE_S)
+    try:
+        assert worker.wait_ready(HANG_DEADLINE_S), worker.broken
+        worker.proc.kill()
+        worker.proc.join(timeout=HANG_DEADLINE_S)
+        worker.proc.is_alive = lambda: True  # type: ignore[method-assign]  # its end not noticed yet: the moment between
+        assert not worker.submit(ex.map, None) and "cannot reach the helper" in worker.broken
+    finally:
+        del worker.proc.is_alive
+        worker.close()
+    assert not worker.proc.is_alive()
+
+
 def test_warm_up_starts_the_helper_and_leaves_no_trace_in_the_episode():
     """``warm_up`` (run before the liveliness token) waits for the frontier service's helper and builds
     a practice Observation through it, and the planner plans once: nothing is published, no decision

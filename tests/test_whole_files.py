@@ -245,3 +245,39 @@ def test_a_whole_write_keeps_the_files_mode_and_owner_and_writes_through_a_link(
     write_text_atomic(link, "new")
     assert link.is_symlink() and shared.read_text() == "new"
     assert not [p for p in (*link.parent.iterdir(), *shared.parent.iterdir()) if p.name.endswith(".partial")]
+
+
+def test_a_live_writer_is_not_taken_for_a_stranger_where_proc_uptime_is_the_containers_age(tmp_path, monkeypatch):
+    """``process_started_s`` placed a process's start (``/proc/<pid>/stat``, ticks since the host's boot) by
+    ``/proc/uptime``, which LXCFS (LXD, Incus, some Docker hosts) makes the container's age: every start fell in the
+    future, so a live writer's partial file was judged left by a dead one (its pid taken since) and removed as it was
+    being written. The start is now placed on the clock it is counted on (``CLOCK_BOOTTIME``)."""
+    import builtins
+    import io
+    import subprocess
+    import sys
+    import time
+
+    from cso_runtime import supervision
+    from cso_runtime.outputs import remove_partial_files
+
+    real_open = builtins.open
+
+    def lxcfs_open(file: Any, *args: Any, **kwargs: Any) -> Any:
+        if str(file) == "/proc/uptime":  # a container started 5 s ago on a host up far longer
+            return io.StringIO("5.00 9.00\n")
+        return real_open(file, *args, **kwargs)
+
+    monkeypatch.setattr(supervision, "open", lxcfs_open, raising=False)
+    before_s = time.time()
+    writer = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    after_s = time.time()
+    try:
+        being_written = tmp_path / f".cso.pt.{writer.pid}.partial"
+        being_written.write_bytes(b"PK")
+        started_s = supervision.process_started_s(writer.pid)
+        assert started_s is not None and before_s - 1.0 <= started_s <= after_s + 1.0
+        assert remove_partial_files([tmp_path]) == [] and being_written.is_file()
+    finally:
+        writer.kill()
+        writer.wait()
