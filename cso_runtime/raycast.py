@@ -75,7 +75,9 @@ FREE_CELL, AT_DIAGONAL_GAP, BLOCKED_CELL = 0, 1, 2
 def ray_codes(blocked: np.ndarray) -> np.ndarray:
     """What ``cast_rays`` reads of each cell (flat, uint8): ``BLOCKED_CELL``, ``AT_DIAGONAL_GAP`` (free, and with a free
     diagonal neighbour across the corner of two blocked cells that touch only there: a wall drawn diagonally) or
-    ``FREE_CELL``. A caller that casts on one grid every step makes it once and passes it on."""
+    ``FREE_CELL``; one entry more at the end, ``BLOCKED_CELL``: what a sample off the grid reads (a floor plan's border
+    is a wall), so every sample is one lookup. A caller that casts on one grid every step makes it once and passes it
+    on."""
     b = np.asarray(blocked, dtype=bool)
     low_left, low_right, up_left, up_right = b[:-1, :-1], b[:-1, 1:], b[1:, :-1], b[1:, 1:]  # each 2 x 2 block's cells
     rising = low_left & up_right & ~low_right & ~up_left  # blocked from lower left to upper right, the others free
@@ -87,7 +89,7 @@ def ray_codes(blocked: np.ndarray) -> np.ndarray:
     gap[1:, 1:] |= falling
     codes = gap.astype(np.uint8)
     codes[b] = BLOCKED_CELL
-    return codes.ravel()
+    return np.append(codes.ravel(), np.uint8(BLOCKED_CELL))
 
 
 def crossed_on_diagonal_steps(
@@ -140,15 +142,14 @@ def cast_rays(
     for first in range(0, n, SAMPLES_PER_CHUNK):
         lead = 1 if first else 0  # the sample before the chunk too: the step into the chunk is tested with it
         cell, inside, dist = sample_cells(geometry, origin, cos[active], sin[active], first - lead, min(first + SAMPLES_PER_CHUNK, n))
-        code = np.full(cell.shape, BLOCKED_CELL, dtype=np.uint8)  # off the grid: blocked
-        code[inside] = codes[cell[inside].astype(np.intp)]
+        cell[~inside] = len(codes) - 1  # off the grid: ray_codes' last entry, blocked
+        code = codes[cell.astype(np.intp)]
         hit = code == BLOCKED_CELL
         # A step from a cell at a diagonal gap to the cell across it (flat step +-width +-1) went between the two
         # blocked cells, which no sample lies in: the hit, at the step's sample, is the one whose edge the beam met first.
         samples = cell.shape[1]
-        at_gap = code == AT_DIAGONAL_GAP
-        at_gap[:, -1] = False
-        k = np.flatnonzero(at_gap)
+        k = np.flatnonzero(code == AT_DIAGONAL_GAP)
+        k = k[k % samples != samples - 1]  # a chunk's last sample has no step after it here
         crossed_at = crossed = k[:0]
         if len(k):
             before, after = cell.ravel()[k].astype(np.int64), cell.ravel()[k + 1].astype(np.int64)
