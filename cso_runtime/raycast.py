@@ -174,8 +174,11 @@ def cast_rays(
             via = crossed_at[i] == rows * samples + at
             hy[beams[via]], hx[beams[via]] = np.divmod(crossed[i[via]], width)
         before_at = np.maximum(at - 1, 0)
-        py[beams], px[beams] = np.divmod(np.where(at > 0, cell[rows, before_at], 0).astype(np.int64), width)
-        py[beams[at == 0]], px[beams[at == 0]] = hy[beams[at == 0]], hx[beams[at == 0]]
+        before_y, before_x = np.divmod(cell[rows, before_at].astype(np.int64), width)
+        first_hit = at == 0  # the origin's own sample: no cell before
+        if first_hit.any():
+            before_y[first_hit], before_x[first_hit] = hy[beams[first_hit]], hx[beams[first_hit]]
+        py[beams], px[beams] = before_y, before_x
         near_m[beams] = dist[before_at]
         far_m[beams] = dist[at]
         any_hit[beams] = True
