@@ -68,51 +68,131 @@ def sample_cells(
     return fy, inside, dist
 
 
+FREE_CELL, AT_DIAGONAL_GAP, BLOCKED_CELL = 0, 1, 2
+"""``ray_codes``' values."""
+
+
+def ray_codes(blocked: np.ndarray) -> np.ndarray:
+    """What ``cast_rays`` reads of each cell (flat, uint8): ``BLOCKED_CELL``, ``AT_DIAGONAL_GAP`` (free, and with a free
+    diagonal neighbour across the corner of two blocked cells that touch only there: a wall drawn diagonally) or
+    ``FREE_CELL``; one entry more at the end, ``BLOCKED_CELL``: what a sample off the grid reads (a floor plan's border
+    is a wall), so every sample is one lookup. A caller that casts on one grid every step makes it once and passes it
+    on."""
+    b = np.asarray(blocked, dtype=bool)
+    low_left, low_right, up_left, up_right = b[:-1, :-1], b[:-1, 1:], b[1:, :-1], b[1:, 1:]  # each 2 x 2 block's cells
+    rising = low_left & up_right & ~low_right & ~up_left  # blocked from lower left to upper right, the others free
+    falling = low_right & up_left & ~low_left & ~up_right
+    gap = np.zeros_like(b)
+    gap[:-1, 1:] |= rising
+    gap[1:, :-1] |= rising
+    gap[:-1, :-1] |= falling
+    gap[1:, 1:] |= falling
+    codes = gap.astype(np.uint8)
+    codes[b] = BLOCKED_CELL
+    return np.append(codes.ravel(), np.uint8(BLOCKED_CELL))
+
+
+def crossed_on_diagonal_steps(
+    geometry: GridGeometry, origin_xy_m: np.ndarray, cos: np.ndarray, sin: np.ndarray, before: np.ndarray, step: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For beams whose consecutive samples lie in the cells ``before`` and ``before + step`` (flat indices on the grid,
+    diagonal neighbours: ``step`` is +-width +-1), the two cells beside both (flat), the first in ``before``'s row, the
+    second in its column; and which of them the beam crossed, where no sample lies: -1 the first (it met the edge
+    between columns first), 1 the second, 0 neither (it went exactly through the corner all four share)."""
+    width = geometry.shape[1]
+    d_row = np.sign(step)  # |step| is width + 1 or width - 1 (at least 2): its sign is the row's
+    d_col = step - d_row * width
+    row, col = np.divmod(before, width)
+    res = geometry.resolution_m
+    t_col = (geometry.origin_x_m + (col + (d_col > 0)) * res - origin_xy_m[0]) / cos  # a diagonal step changes both:
+    t_row = (geometry.origin_y_m + (row + (d_row > 0)) * res - origin_xy_m[1]) / sin  # cos and sin are not 0
+    return before + d_col, before + d_row * width, np.sign(t_col - t_row)
+
+
 def cast_rays(
     blocked: np.ndarray,
     geometry: GridGeometry,
     origin_xy_m: np.ndarray,
     angles_rad: np.ndarray,
     max_range_m: float,
+    codes: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Exact range to the first blocked cell along each beam; ``inf`` when none within range.
+    """Range to the first blocked cell along each beam, exact where a sample fell in it; ``inf`` when none within range.
+    ``codes``: ``ray_codes(blocked)`` where the caller keeps it (made here otherwise).
 
-    Cells outside the grid count as blocked (a floor plan's border is a wall).
+    Cells outside the grid count as blocked (a floor plan's border is a wall). Beams are sampled a third of a cell
+    apart, so a beam may clip a blocked cell's corner between two samples and go on (a wall's corner a fraction of a
+    sample smaller); but across the corner two blocked cells share (a wall drawn diagonally) a beam always stops
+    (``crossed_on_diagonal_steps``): sampled only, beams saw the room behind such a wall.
     """
     origin = np.asarray(origin_xy_m, dtype=float)
     angles = np.asarray(angles_rad, dtype=float)
     cos, sin = np.cos(angles), np.sin(angles)
     n = samples_to_reach(geometry, max_range_m)
+    width = geometry.shape[1]
     any_hit = np.zeros(len(angles), dtype=bool)
     hy = np.zeros(len(angles), dtype=np.int64)
     hx = np.zeros(len(angles), dtype=np.int64)
+    py = np.zeros(len(angles), dtype=np.int64)
+    px = np.zeros(len(angles), dtype=np.int64)
+    near_m = np.zeros(len(angles))
+    far_m = np.zeros(len(angles))
     active = np.arange(len(angles))
-    blocked_flat = np.ascontiguousarray(blocked).ravel()
+    codes = ray_codes(blocked) if codes is None else codes
     for first in range(0, n, SAMPLES_PER_CHUNK):
-        cell, inside, dist = sample_cells(geometry, origin, cos[active], sin[active], first, min(first + SAMPLES_PER_CHUNK, n))
-        hit = ~inside
-        hit[inside] = blocked_flat[cell[inside].astype(np.intp)]
+        lead = 1 if first else 0  # the sample before the chunk too: the step into the chunk is tested with it
+        cell, inside, dist = sample_cells(geometry, origin, cos[active], sin[active], first - lead, min(first + SAMPLES_PER_CHUNK, n))
+        cell[~inside] = len(codes) - 1  # off the grid: ray_codes' last entry, blocked
+        code = codes[cell.astype(np.intp)]
+        hit = code == BLOCKED_CELL
+        # A step from a cell at a diagonal gap to the cell across it (flat step +-width +-1) went between the two
+        # blocked cells, which no sample lies in: the hit, at the step's sample, is the one whose edge the beam met first.
+        samples = cell.shape[1]
+        k = np.flatnonzero(code == AT_DIAGONAL_GAP)
+        k = k[k % samples != samples - 1]  # a chunk's last sample has no step after it here
+        crossed_at = crossed = k[:0]
+        if len(k):
+            before, after = cell.ravel()[k].astype(np.int64), cell.ravel()[k + 1].astype(np.int64)
+            step = np.where(inside.ravel()[k + 1], after - before, 0)
+            diagonal = (np.abs(step) == width + 1) | (np.abs(step) == width - 1)
+            k, before, step = k[diagonal], before[diagonal], step[diagonal]
+            beams = active[k // samples]
+            col_side, row_side, order = crossed_on_diagonal_steps(geometry, origin, cos[beams], sin[beams], before, step)
+            stops = (codes[col_side] == BLOCKED_CELL) & (codes[row_side] == BLOCKED_CELL)
+            crossed_at, crossed = k[stops] + 1, np.where(order < 0, col_side, row_side)[stops]  # flat samples, ascending
+            hit.ravel()[crossed_at] = True
         found = hit.any(axis=1)
         rows = np.flatnonzero(found)
         at = hit[rows].argmax(axis=1)
         beams = active[rows]
-        # The hit cell's column and row, recomputed rather than split from the flat index: a sample
-        # just outside the left or right edge (column -1 or width) would wrap into another row.
+        # The hit cell's column and row, recomputed rather than split from the flat index: a sample just outside the left
+        # or right edge (column -1 or width) would wrap into another row. The sample before is on the grid (not a hit).
         fx, fy = floor_cells(geometry, origin, cos[beams], sin[beams], dist[at])
         hx[beams], hy[beams] = fx.astype(np.int64), fy.astype(np.int64)
+        if len(crossed_at):  # a crossed cell comes before its sample's: the hit where that sample is the beam's first
+            i = np.minimum(np.searchsorted(crossed_at, rows * samples + at), len(crossed_at) - 1)
+            via = crossed_at[i] == rows * samples + at
+            hy[beams[via]], hx[beams[via]] = np.divmod(crossed[i[via]], width)
+        before_at = np.maximum(at - 1, 0)
+        before_y, before_x = np.divmod(cell[rows, before_at].astype(np.int64), width)
+        first_hit = at == 0  # the origin's own sample: no cell before
+        if first_hit.any():
+            before_y[first_hit], before_x[first_hit] = hy[beams[first_hit]], hx[beams[first_hit]]
+        py[beams], px[beams] = before_y, before_x
+        near_m[beams] = dist[before_at]
+        far_m[beams] = dist[at]
         any_hit[beams] = True
         active = active[~found]
         if not len(active):
             break
-    # Exact entry distance into the hit cell (slab test), so ranges do not depend on the sampling.
+    # Exact entry distance into the hit cell: where the beam crossed the edge (or edges) between the cell before and
+    # the hit cell, so ranges do not depend on the sampling. It lies between the two samples; the clip keeps it there
+    # for a beam along a cell's edge, whose rounding once gave a wall 3.6 m off for one 1.9 m off (and so none).
     res = geometry.resolution_m
-    x0 = geometry.origin_x_m + hx * res
-    y0 = geometry.origin_y_m + hy * res
     with np.errstate(divide="ignore", invalid="ignore"):
-        tx0, tx1 = (x0 - origin[0]) / cos, (x0 + res - origin[0]) / cos
-        ty0, ty1 = (y0 - origin[1]) / sin, (y0 + res - origin[1]) / sin
-        tx_enter = np.where(cos == 0, -np.inf, np.minimum(tx0, tx1))
-        ty_enter = np.where(sin == 0, -np.inf, np.minimum(ty0, ty1))
-        ranges = np.maximum(np.maximum(tx_enter, ty_enter), 0.0)
+        x0, y0 = geometry.origin_x_m + hx * res, geometry.origin_y_m + hy * res  # the hit cell's low edges
+        t_col = np.where(hx != px, (np.where(cos > 0, x0, x0 + res) - origin[0]) / cos, -np.inf)
+        t_row = np.where(hy != py, (np.where(sin > 0, y0, y0 + res) - origin[1]) / sin, -np.inf)
+        ranges = np.clip(np.maximum(t_col, t_row), near_m, far_m)
         ranges = np.where(any_hit & (ranges <= max_range_m), ranges, np.inf)
     return ranges

@@ -17,7 +17,7 @@ import numpy as np
 
 from cso_runtime.config import ConfigError, RobotConfig, SensorConfig, from_dict
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, returns_as_float32, wrap_angle_rad
-from cso_runtime.raycast import cast_rays
+from cso_runtime.raycast import cast_rays, ray_codes
 from cso_runtime.scenes import FloorPlan
 
 if TYPE_CHECKING:
@@ -71,6 +71,8 @@ class KinematicSimulator:
         self.plan = plan
         self._padded_walls: np.ndarray | None = None
         """The plan's walls padded by ``clearance_m``'s window half-width (made at its first call)."""
+        self._ray_codes: np.ndarray | None = None
+        """``raycast.ray_codes`` of the plan's walls (made at the first scan)."""
         self.sensor = sensor or SensorConfig()
         self.robot = robot or RobotConfig()
         self.collision_radius_m = self.robot.disc_radius_m
@@ -110,7 +112,9 @@ class KinematicSimulator:
     def scan(self) -> LaserScan:
         sp = self._pose.compose_offset(self.sensor.mount_x_m)
         rel = self._angle_min + self._increment * np.arange(self._n_beams)
-        ranges = cast_rays(self.plan.occupied, self.plan.geometry, sp.xy, rel + sp.yaw_rad, self.sensor.range_max_m)
+        if self._ray_codes is None:
+            self._ray_codes = ray_codes(self.plan.occupied)
+        ranges = cast_rays(self.plan.occupied, self.plan.geometry, sp.xy, rel + sp.yaw_rad, self.sensor.range_max_m, self._ray_codes)
         if self.sensor.range_noise_std_m > 0:
             finite = np.isfinite(ranges)
             ranges[finite] += self.rng.normal(0.0, self.sensor.range_noise_std_m, int(finite.sum()))
