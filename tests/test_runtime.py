@@ -536,7 +536,7 @@ def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_runnin
     from services.mapper import MapperService
 
     # A service given a malformed endpoint refuses its configuration (exit 2: the launcher does not restart it).
-    assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447"]) == 2
+    assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447"], exit_process=False) == 2
 
 
 def test_a_service_log_level_is_checked_and_applied_under_the_cli(capsys):
@@ -558,9 +558,9 @@ def test_a_service_log_level_is_checked_and_applied_under_the_cli(capsys):
     root.setLevel(logging.INFO)
     try:
         # A malformed endpoint: refused (exit 2) after logging is set up, without opening Zenoh.
-        assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447", "--log-level", "debug"]) == 2
+        assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447", "--log-level", "debug"], exit_process=False) == 2
         assert root.level == logging.DEBUG
-        assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447"]) == 2
+        assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447"], exit_process=False) == 2
         assert root.level == logging.DEBUG  # no --log-level: the level the command line chose stays (`cso-runtime -v service`)
     finally:
         root.removeHandler(handler)
