@@ -3936,6 +3936,16 @@ print(proc.pid, flush=True)
 time.sleep(600)
 """
 
+def end_stand_in_launcher(launcher: subprocess.Popen, service_pid: int | None) -> None:
+    """A test's clean-up of ``STAND_IN_LAUNCHER``: the launcher killed and reaped, and its service killed if still alive."""
+    launcher.kill()
+    launcher.wait(10)
+    if launcher.stdout is not None:
+        launcher.stdout.close()
+    if service_pid is not None and pid_alive(service_pid):
+        os.kill(service_pid, signal.SIGKILL)
+
+
 MAPPER_STUCK_IN_ITS_FIRST_HANDLER = """
 import sys, threading
 from pathlib import Path
@@ -3971,11 +3981,7 @@ def test_a_service_stuck_in_a_handler_does_not_outlive_its_killed_launcher(tmp_p
             launcher.wait(10)
             wait_for(lambda: not pid_alive(mapper_pid), 30, f"the stuck mapper (pid {mapper_pid}) to exit once its launcher is gone")
         finally:
-            launcher.kill()
-            launcher.wait(10)
-            launcher.stdout.close()
-            if mapper_pid is not None and pid_alive(mapper_pid):
-                os.kill(mapper_pid, signal.SIGKILL)
+            end_stand_in_launcher(launcher, mapper_pid)
     text = log_path.read_text()
     assert f"mapper: still running 1 s after its launcher (pid {launcher.pid}) went (stuck?)" in text, text[-3000:]
     assert re.search(r'File "<string>", line \d+ in stuck', text), text[-3000:]  # the stuck handler, in the stacks
@@ -4001,11 +4007,7 @@ def test_a_service_whose_launcher_dies_before_it_joins_stops_at_once_and_says_wh
         launcher.wait(10)
         wait_for(lambda: not pid_alive(mapper_pid), 30, f"the mapper (pid {mapper_pid}) to exit once its launcher is gone")
     finally:
-        launcher.kill()
-        launcher.wait(10)
-        launcher.stdout.close()
-        if mapper_pid is not None and pid_alive(mapper_pid):
-            os.kill(mapper_pid, signal.SIGKILL)
+        end_stand_in_launcher(launcher, mapper_pid)
     text = log_path.read_text()
     assert f"mapper: stopping: the launcher (pid {launcher.pid}) is gone (killed? crashed?)" in text and "mapper: stopped" in text, text[-3000:]
     assert "still running" not in text and "cannot reach" not in text and "Thread 0x" not in text, text[-3000:]
