@@ -44,6 +44,7 @@ from cso_runtime.messages import (
     MapMsg,
     OdometryMsg,
     PlannerContactsMsg,
+    PlannerStateMsg,
     ScanMsg,
     ServiceStatusMsg,
     decode,
@@ -4849,14 +4850,25 @@ def test_a_planner_killed_mid_episode_carries_on_with_its_goal_and_the_episode_e
         def status() -> dict | None:
             return query_status(info["endpoints"], "r0", timeout_s=0.5)
 
-        s = wait_for(lambda: (s := status()) and s["state"] == "exploring" and 20 <= s["step"] <= 23 and s, 60, "the episode's steps 20 to 23")
-        os.kill(s["services"]["planner"]["pid"], signal.SIGKILL)
+        with open_session(TransportConfig(mode="client", connect=info["endpoints"])) as session:
+
+            def between_steps() -> dict | None:
+                """The sim's status at a step that the planner has commanded and whose state the sim keeps: the planner
+                waits for the next step (not killed between a step's cmd_vel and its state, which leaves the cache behind)."""
+                s = status()
+                if not (s and s["state"] == "exploring" and 20 <= s["step"] <= 23):
+                    return None
+                kept = [decode(rep.ok.payload.to_bytes(), PlannerStateMsg) for rep in session.get(RobotKeys("r0").cache("planner_state"), timeout=0.5) if rep.ok]
+                return s if kept and kept[0].step == s["step"] else None
+
+            s = wait_for(between_steps, 60, "the planner between two of the episode's steps 20 to 23")
+            os.kill(s["services"]["planner"]["pid"], signal.SIGKILL)
         final = wait_for(lambda: (t := status()) and t["state"] in EPISODE_OVER and t, 90, "the end of the episode", period_s=0.2)
         assert final["services"]["planner"]["restarts"] >= 1 and final["services"]["planner"]["pid"] != s["services"]["planner"]["pid"]
         log_text = next(runs.glob("*/logs/planner.log")).read_text()
         restored = re.search(r"restored the state of step (\d+) \(episode (\d+)\) from the cache: the goal \(\S+, \S+\) of step (\d+)", log_text)
         assert restored, log_text[-3000:]
-        assert int(restored[1]) >= s["step"] - 1 and int(restored[2]) == s["episode"] and 0 <= int(restored[3]) < int(restored[1])  # mid-goal
+        assert int(restored[1]) >= s["step"] and int(restored[2]) == s["episode"] and 0 <= int(restored[3]) < int(restored[1])  # mid-goal
         assert "behind the episode" not in log_text  # killed between steps, not between a cmd_vel and its state
         assert (final["state"], final["terminated_by"], final["step"]) == ("done", expected.terminated_by, expected.steps), final
         assert abs(final["coverage_pct"] - expected.coverage_pct) < 1e-3 and final["decisions"] == expected.decisions, final

@@ -833,6 +833,18 @@ def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_
     assert [m.step for t, m in out_behind if t == "cmd_vel"] == [kill_after + 1, kill_after + 2, kill_after + 3]
     assert behind.goal_step == 0 and behind.planner.status == PlannerStatus.FOLLOWING
 
+    real_time, out_rt = _service(PlannerService, lockstep=False)  # a robot's planner: it resumes the goal too
+    kept = {t: m for t, m in out_b if t in ("planner_plan", "planner_state")}
+    real_time.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_"))  # type: ignore[method-assign]
+    real_time.start()
+    anchor = kept["planner_state"].follow.progress_anchor
+    assert anchor is not None
+    later = anchor[2] + 60.0  # the robot stood still, where progress was last seen, while no planner ran: no failed progress check for that
+    _feed(real_time, OdometryMsg(kill_after + 9, later, Pose2D(anchor[0], anchor[1], ex_c.sim.odometry().yaw_rad), episode=episode))
+    _feed(real_time, ScanMsg(kill_after + 9, ex_c.sim.scan(), ex_c.sim.sensor_pose(), episode))
+    (cmd,) = [m for t, m in out_rt if t == "cmd_vel"]
+    assert cmd.reason == "" and cmd.command.linear_mps > 0 and real_time.goal_step == 0 and real_time.planner.progress.anchor[2] == later  # type: ignore[index]
+
     state = [m for t, m in out_b if t == "planner_state"][-1]
     other_plan = dataclasses.replace([m for t, m in out_b if t == "planner_plan"][-1], step=kill_after)  # a newer plan than the state's
     for plan in (None, other_plan):
