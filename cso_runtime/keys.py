@@ -30,12 +30,18 @@ TOPICS = {
     "path": "path",
     "planner_feedback": "planner/feedback",
     "planner_contacts": "planner/contacts",
+    "planner_plan": "planner/plan",
+    "planner_state": "planner/state",
     "clock": "clock",
     "episode_status": "episode/status",
     "episode_result": "episode/result",
     "explore_resume": "explore/resume",
 }
 """Topic name -> key suffix under ``cso/<robot>/``."""
+
+PLANNER_KEPT = ("planner_contacts", "planner_plan", "planner_state")
+"""The planner's topics the referee (sim or ros2_bridge) keeps the latest of and serves on ``cache/<topic>``: what a
+planner restarted mid-episode resumes from (``services/planner.py``, ``start``)."""
 
 EXT = "ext"
 EXT_TOPIC = re.compile(r"^ext(/[A-Za-z0-9_-]{1,64}){1,8}$")
@@ -149,8 +155,8 @@ class RobotKeys:
         return f"{ROOT}/{self.robot}/launcher/status"
 
     def cache(self, name: str) -> str:
-        """Queryable with the latest ``map`` or ``planner_contacts`` (held by the referee, sim or ros2_bridge) or
-        ``goal`` (held by the launcher), for restarted services."""
+        """Queryable with the latest ``map``, ``planner_contacts``, ``planner_plan`` or ``planner_state`` (held by the
+        referee, sim or ros2_bridge) or ``goal`` (held by the launcher), for restarted services."""
         return f"{ROOT}/{self.robot}/cache/{TOPICS[name]}"
 
 

@@ -26,6 +26,7 @@ from cso_runtime.frontiers import FrontierCluster
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, MAX_RANGE_M, GridGeometry, LaserScan, Pose2D, VelocityCommand, map_frame_xy
 from cso_runtime.observation import Observation
 from cso_runtime.occupancy import OccupancyMap
+from cso_runtime.planner import FollowCheckpoint, FreeSpace, PlannerStatus
 
 SCHEMA_VERSION = 1
 """Version of the schemas unchanged since the first release; a schema that changes bumps its own ``VERSION``
@@ -946,6 +947,140 @@ class PlannerContactsMsg(Message):
         return cls(_int(b, "step", w), contacts, _int(b, "episode", w))
 
 
+PLANNER_FOLLOW_STATUSES = tuple(s.value for s in PlannerStatus)
+"""The statuses a ``LocalPlanner`` itself is in (``stale`` is the service's, never its follower's)."""
+
+
+@dataclass
+class PlannerPlanMsg(Message):
+    """The path the planner follows and the grid it was planned on (``LocalPlanner.path`` and ``free``), sent after the
+    step whose command made a new one (a new goal's plan, a re-plan round a contact, or none: blocked, no frontier). The
+    referee keeps the latest (``cache/planner/plan``) for a restarted planner, which resumes on it with
+    ``planner_state``; never on a step of its own, so the lockstep chain pays nothing for it."""
+
+    SCHEMA: ClassVar[str] = "planner_plan"
+    step: int
+    """The step whose command made this plan (``planner_state.plan_step`` names it)."""
+    path_xy_m: np.ndarray
+    """The whole path (float64 (n, 2), metres, robot first, goal last); empty: no path."""
+    free: FreeSpace | None = None
+    """The grid the path was planned on, less the contacts then known, and that map's obstacles (None: no path)."""
+    episode: int = 0
+
+    def body(self) -> dict[str, Any]:
+        f = self.free
+        free = None
+        if f is not None:
+            occupied = None if f.occupied is None else pack_array(np.asarray(f.occupied, dtype=bool), compress=True)
+            free = {"geometry": _geometry_out(f.geometry), "traversable": pack_array(np.asarray(f.traversable, dtype=bool), compress=True), "occupied": occupied}
+        path = pack_array(np.asarray(self.path_xy_m, dtype=np.float64).reshape(-1, 2))
+        return {"step": self.step, "episode": self.episode, "path_xy_m": path, "free": free}
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> PlannerPlanMsg:
+        w = "planner_plan"
+        path = unpack_array(_get(b, "path_xy_m", w), "planner_plan.path_xy_m", finite=True, shape=(None, 2), float_as=np.float64)
+        f = _get(b, "free", w)
+        free = None
+        if f is not None:
+            if not isinstance(f, dict):
+                raise MessageError("planner_plan.free: expected a mapping or null")
+            geometry = _geometry_in(f, w + ".free")
+            occupied = None if _get(f, "occupied", w + ".free") is None else _grid_in(f, "occupied", w + ".free", geometry, "bool")
+            free = FreeSpace(_grid_in(f, "traversable", w + ".free", geometry, "bool"), geometry, occupied)
+        return cls(_int(b, "step", w), path, free, _int(b, "episode", w))
+
+
+@dataclass
+class PlannerStateMsg(Message):
+    """The planner's state after a step's command (``LocalPlanner.checkpoint`` and what the service adds: the goal's
+    step, the command sent and its report's flag), sent after that step's ``cmd_vel``, ``planner/feedback``,
+    ``planner/contacts`` and ``planner/plan``. The referee keeps the latest (``cache/planner/state``): a planner
+    restarted mid-episode resumes from it on the plan it names, and commands the next steps as the one killed would
+    have."""
+
+    SCHEMA: ClassVar[str] = "planner_state"
+    step: int
+    """The step last commanded."""
+    plan_step: int
+    """The ``planner_plan`` this state follows (its ``step``; -1: none sent yet)."""
+    goal_step: int
+    """The decision step of the goal followed (-1: none yet)."""
+    no_frontier: bool
+    """The last decision found no goal: the robot stays stopped."""
+    cmd: CmdVelMsg
+    """The command sent at ``step`` (sent again on a lockstep retry of that step)."""
+    set_goal_blocked: bool
+    """The step's report said the goal of this step's decision had no path."""
+    follow: FollowCheckpoint
+    episode: int = 0
+
+    def body(self) -> dict[str, Any]:
+        f = self.follow
+        last = None if f.stall_last is None else [*_pose_out(f.stall_last[0]), f.stall_last[1], f.stall_last[2].linear_mps, f.stall_last[2].angular_radps]
+        return {
+            "step": self.step,
+            "episode": self.episode,
+            "plan_step": self.plan_step,
+            "goal_step": self.goal_step,
+            "no_frontier": self.no_frontier,
+            "cmd": self.cmd.body(),
+            "set_goal_blocked": self.set_goal_blocked,
+            "status": f.status.value,
+            "progress_index": f.progress_index,
+            "progress_anchor": None if f.progress_anchor is None else list(f.progress_anchor),
+            "stall": {"last": last, "stalled_periods": f.stalled_periods, "backing_up": f.backing_up, "backups": f.backups, "last_started_now": f.last_started_now},
+            "recovery": {"recoveries_left": f.recoveries_left, "heading_rad": f.escape_heading_rad, "drive_left_m": f.escape_drive_left_m, "escape_periods": f.escape_periods, "escapes": f.escapes},
+            "replan_pending": f.replan_pending,
+            "blocked_why": f.blocked_why,
+        }
+
+    @classmethod
+    def from_body(cls, b: dict[str, Any]) -> PlannerStateMsg:
+        w = "planner_state"
+        cmd = _get(b, "cmd", w)
+        if not isinstance(cmd, dict):
+            raise MessageError("planner_state.cmd: expected a mapping")
+        anchor = _get(b, "progress_anchor", w)
+        if anchor is not None:
+            if not isinstance(anchor, list) or len(anchor) != 3:
+                raise MessageError("planner_state.progress_anchor: expected [x_m, y_m, time_s] or null")
+            a = dict(zip("xyt", anchor))
+            anchor = (_num(a, "x", w + ".progress_anchor"), _num(a, "y", w + ".progress_anchor"), _num(a, "t", w + ".progress_anchor"))
+        stall, recovery = _get(b, "stall", w), _get(b, "recovery", w)
+        if not isinstance(stall, dict) or not isinstance(recovery, dict):
+            raise MessageError("planner_state.stall, .recovery: expected mappings")
+        ws, wr = w + ".stall", w + ".recovery"
+        last = _get(stall, "last", ws)
+        if last is not None:
+            if not isinstance(last, list) or len(last) != 6:
+                raise MessageError("planner_state.stall.last: expected [x_m, y_m, yaw_rad, time_s, linear_mps, angular_radps] or null")
+            d = dict(zip(("pose", "t", "v", "w"), ([last[0], last[1], last[2]], *last[3:])))
+            last = (_pose_in(d, "pose", ws + ".last"), _num(d, "t", ws + ".last"), VelocityCommand(_num(d, "v", ws + ".last", -100, 100), _num(d, "w", ws + ".last", -100, 100)))
+        heading = None if _get(recovery, "heading_rad", wr) is None else _num(recovery, "heading_rad", wr, -10.0, 10.0)
+        follow = FollowCheckpoint(
+            PlannerStatus(_str(b, "status", w, PLANNER_FOLLOW_STATUSES)),
+            _int(b, "progress_index", w),
+            anchor,
+            last,
+            _int(stall, "stalled_periods", ws),
+            _int(stall, "backing_up", ws),
+            _int(stall, "backups", ws),
+            _bool(stall, "last_started_now", ws),
+            _int(recovery, "recoveries_left", wr),
+            heading,
+            _num(recovery, "drive_left_m", wr),
+            _int(recovery, "escape_periods", wr),
+            _int(recovery, "escapes", wr),
+            _bool(b, "replan_pending", w),
+            _str(b, "blocked_why", w),
+        )
+        return cls(
+            _int(b, "step", w), _int(b, "plan_step", w, lo=-1), _int(b, "goal_step", w, lo=-1), _bool(b, "no_frontier", w),
+            CmdVelMsg.from_body(cmd), _bool(b, "set_goal_blocked", w), follow, _int(b, "episode", w),
+        )  # fmt: skip
+
+
 @dataclass
 class EndedWhyMsg(Message):
     """Why the decision of ``step`` found no goal (the episode ends ``no_frontier``): the frontier service's
@@ -1390,6 +1525,8 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         PathMsg,
         PlannerFeedbackMsg,
         PlannerContactsMsg,
+        PlannerPlanMsg,
+        PlannerStateMsg,
         EndedWhyMsg,
         ClockMsg,
         EpisodeStatusMsg,

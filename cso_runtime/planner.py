@@ -565,6 +565,36 @@ def contacts_beyond_goal(
     return bool(np.all(distance_from_robot[traversable & ~planned_on] >= beyond_m))
 
 
+@dataclass(frozen=True)
+class FollowCheckpoint:
+    """What ``LocalPlanner.update`` carries from one control period to the next, besides the path and the grid it was
+    planned on (``LocalPlanner.path``, ``free``) and the contacts: with them, a planner started afresh and given this
+    (``LocalPlanner.resume``) commands the next period exactly as the planner it was taken from would have (a planner
+    killed mid-episode and restarted, ``services/planner.py``)."""
+
+    status: PlannerStatus
+    progress_index: int
+    """The path point the robot last progressed to (``PathFollower.lookahead_index`` never goes back from it)."""
+    progress_anchor: tuple[float, float, float] | None
+    """``ProgressChecker.anchor``: (x_m, y_m, time_s) where progress was last seen; None before the first check."""
+    stall_last: tuple[Pose2D, float, VelocityCommand] | None
+    """``StallRecovery.last``: (pose, time_s, command) of the last control period."""
+    stalled_periods: int
+    backing_up: int
+    """Control periods of back-up still to go."""
+    backups: int
+    last_started_now: bool
+    recoveries_left: int
+    """``ProgressRecovery.left``: recoveries left for this goal."""
+    escape_heading_rad: float | None
+    """The open heading of the progress recovery running now; None when none runs."""
+    escape_drive_left_m: float
+    escape_periods: int
+    escapes: int
+    replan_pending: bool
+    blocked_why: str
+
+
 class LocalPlanner:
     """Follows one goal at a time: path, pure pursuit, goal check, progress check, blocked check."""
 
@@ -738,6 +768,25 @@ class LocalPlanner:
         self.path, self.free, self.contacts_xy_m, self.replan_pending, self.blocked_why = state[5:]
         self.stall.restore(stall)
         self.recovery.restore(recovery)
+
+    def checkpoint(self) -> FollowCheckpoint:
+        """The follower's state after this period (``FollowCheckpoint``), to resume from in another planner."""
+        last, stalled, backing_up, backups, started_now = self.stall.state()
+        left, heading, drive_left, periods, escapes = self.recovery.state()
+        return FollowCheckpoint(
+            self.status, self.progress_index, self.progress.anchor, last, stalled, backing_up, backups, started_now,
+            left, heading, drive_left, periods, escapes, self.replan_pending, self.blocked_why,
+        )  # fmt: skip
+
+    def resume(self, path_xy_m: np.ndarray | None, free: FreeSpace | None, checkpoint: FollowCheckpoint) -> None:
+        """Carry on from another planner's ``checkpoint`` on its path and grid (the contacts are set apart): the next
+        ``update`` is the one that planner would have made."""
+        c = checkpoint
+        self.path, self.free = path_xy_m, free
+        self.status, self.progress_index, self.progress.anchor = c.status, c.progress_index, c.progress_anchor
+        self.stall.restore((c.stall_last, c.stalled_periods, c.backing_up, c.backups, c.last_started_now))
+        self.recovery.restore((c.recoveries_left, c.escape_heading_rad, c.escape_drive_left_m, c.escape_periods, c.escapes))
+        self.replan_pending, self.blocked_why = c.replan_pending, c.blocked_why
 
     def remaining_path(self) -> np.ndarray:
         """The path still ahead (n x 2, metres) from the point the robot last progressed to; empty without a path."""

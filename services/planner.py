@@ -34,10 +34,12 @@ from cso_runtime.messages import (
     PlannerContactsMsg,
     PlannerFeedbackMsg,
     PlannerFrontiersMsg,
+    PlannerPlanMsg,
+    PlannerStateMsg,
     ScanMsg,
 )
 from cso_runtime.pause import LOCKSTEP_REFUSAL
-from cso_runtime.planner import FollowResult, LocalPlanner, PlannerStatus
+from cso_runtime.planner import FollowResult, FreeSpace, LocalPlanner, PlannerStatus
 from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_observation
 
 log = logging.getLogger("cso.planner")
@@ -70,8 +72,10 @@ class PlannerParams:
     goes out with every new plan and otherwise at most this often (wall clock), so that the process showing
     it is not woken on every step; 0 = with every command."""
     restore_timeout_s: float = 1.0
-    """How long (wall clock) to wait at start for the contacts the referee (sim or ros2_bridge) keeps
-    (``cache/planner/contacts``), so that a restarted planner still keeps off what the robot bumped into."""
+    """How long (wall clock) to wait at start for each of what the referee (sim or ros2_bridge) keeps of the planner: the
+    contacts (``cache/planner/contacts``), so that a restarted planner still keeps off what the robot bumped into, and
+    the plan and state (``cache/planner/plan``, ``cache/planner/state``), so that it carries on with the same goal and
+    path as if it had never stopped."""
 
     def validate(self) -> None:
         if not self.stale_after_s > 0:
@@ -91,7 +95,10 @@ class PlannerService(Service):
         "odom": OdometryMsg, "scan": ScanMsg, "frontiers": PlannerFrontiersMsg, "distance_map": DistanceMapMsg, "goal": GoalMsg,
         "explore_resume": ExploreResumeMsg,
     }  # fmt: skip
-    outputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg, "planner_contacts": PlannerContactsMsg}
+    outputs = {
+        "cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg, "planner_contacts": PlannerContactsMsg,
+        "planner_plan": PlannerPlanMsg, "planner_state": PlannerStateMsg,
+    }  # fmt: skip
     optional_inputs = ("distance_map", "explore_resume")  # without D the planner runs its own fast-marching pass (the same path); a pause is an operator's
     tick_period_s = 0.1
 
@@ -106,12 +113,16 @@ class PlannerService(Service):
 
     def start(self) -> None:
         """A planner (re)started while the robot is paused learns it from the launcher (``pause_in_force``), and one
-        restarted mid-episode gets its contacts back from the referee (``cache/planner/contacts``)."""
+        restarted mid-episode gets its contacts, its plan and its state back from the referee (``cache/planner/...``)."""
         if (pause := self.pause_in_force()) is not None:
             self.on_pause(pause)
         cached = self.query_latest(self.ctx.keys.cache("planner_contacts"), PlannerContactsMsg, self.params.restore_timeout_s)
         if isinstance(cached, PlannerContactsMsg):
             self.restore_contacts(cached)
+        state = self.query_latest(self.ctx.keys.cache("planner_state"), PlannerStateMsg, self.params.restore_timeout_s)
+        if isinstance(state, PlannerStateMsg):
+            plan = self.query_latest(self.ctx.keys.cache("planner_plan"), PlannerPlanMsg, self.params.restore_timeout_s)
+            self.restore_state(state, plan if isinstance(plan, PlannerPlanMsg) else None)
 
     def restore_contacts(self, cached: PlannerContactsMsg) -> None:
         """Keep the contacts of a planner that ran before this one in the same episode (it was killed, or crashed): the
@@ -172,6 +183,47 @@ class PlannerService(Service):
         keeps the goal, dropped when it brings a new one."""
         self.contacts_published = 0
         """How many of the planner's contacts ``planner_contacts`` has sent (they only grow in an episode)."""
+        self.published_state: tuple[int, np.ndarray | None, FreeSpace | None] = (-1, None, None)
+        """The step of the last ``planner_plan`` sent, and its path and grid (a new one goes out when they change)."""
+        self.resumed_step: int | None = None
+        """Lockstep: the step of the state restored at start (``restore_state``) until the first odometry: when that is
+        of a later step than the next, the state is behind the episode and this planner joins where it is."""
+
+    def restore_state(self, state: PlannerStateMsg, plan: PlannerPlanMsg | None) -> bool:
+        """Carry on from the state of the planner that ran before this one in the same episode (it was killed, or
+        crashed), on the plan that state names: the same goal, path, progress, stall and recovery counters, so the next
+        step's command is the one it would have sent. False (nothing restored: a fresh planner, whose report asks for
+        a new goal) when the plan is not the state's (killed between the two) or of another episode than the contacts.
+        The state and plan belong to their episode, as the contacts do."""
+        why = ""
+        if plan is None or plan.step != state.plan_step or plan.episode != state.episode:
+            why = f"no plan of step {state.plan_step} (episode {state.episode}) in the cache"
+        elif self.episodes.current is not None and state.episode != self.episodes.current:
+            why = f"the contacts restored are of episode {self.episodes.current}"
+        if plan is None or why:
+            log.info("planner state of step %d (episode %d) not restored: %s", state.step, state.episode, why)
+            return False
+        self.episodes.current = state.episode or None
+        path = plan.path_xy_m if len(plan.path_xy_m) else None
+        self.planner.resume(path, plan.free, state.follow)
+        self.published_state = (plan.step, path, plan.free)
+        self.cmd_step = self.last_step = state.step
+        self.goal_step, self.no_frontier = state.goal_step, state.no_frontier
+        self.last_cmd = state.cmd
+        self.set_goal_blocked = state.set_goal_blocked
+        self.last_feedback = self.feedback_msg(state.step, state.cmd.reason)
+        self.set_goal_blocked = False
+        self.backups_logged, self.escapes_logged = state.follow.backups, state.follow.escapes
+        self.resumed_step = state.step if self.ctx.lockstep else None
+        # Real time: the robot stood still while no planner ran (the referee stops it without commands), not because
+        # the goal is out of reach: the progress checker starts over at the first command, as after stale inputs.
+        self.stopped_for_stale = not self.ctx.lockstep
+        goal = "no goal" if path is None else f"the goal ({path[-1][0]:.2f}, {path[-1][1]:.2f})"
+        log.info(
+            "restored the state of step %d (episode %d) from the cache: %s of step %d, %s, path point %d of %d",
+            state.step, state.episode, goal, state.goal_step, state.follow.status.value, state.follow.progress_index, 0 if path is None else len(path),
+        )  # fmt: skip
+        return True
 
     def on_pause(self, msg: ExploreResumeMsg) -> None:
         """Pause (``resume`` false) or resume exploration. Paused, every command is a stop and no goal is planned
@@ -214,6 +266,8 @@ class PlannerService(Service):
             self.reset_episode()
         if isinstance(msg, (OdometryMsg, ScanMsg)):
             self.last_input_s["odometry" if isinstance(msg, OdometryMsg) else "scan"] = received_s
+        if self.ctx.lockstep and isinstance(msg, OdometryMsg) and self.resumed_step is not None:
+            self.join_behind(step)
         if self.ctx.lockstep and self.answer_again(msg, step):
             return
         if isinstance(msg, OdometryMsg):
@@ -235,6 +289,17 @@ class PlannerService(Service):
                 keep_newest(self.goals, PENDING_DECISIONS_KEPT)
         self.progress()
 
+    def join_behind(self, step: int) -> None:
+        """Lockstep, the first odometry after a restored state (``resumed_step``): of the step after it or a retry of
+        it, the state is the episode's and the steps go on from it. Of a later step, the planner was killed after a
+        command but before its state went out, so the cache holds an older one: the planner keeps that state's goal and
+        path and joins at the first step it has frontiers for, as a fresh planner does (its commands may then differ
+        from the killed planner's by the steps the state missed)."""
+        restored, self.resumed_step = self.resumed_step, None
+        if restored is not None and step > restored + 1:
+            log.warning("step %d: the restored state is of step %d, behind the episode: joining here with its goal", step, restored)
+            self.cmd_step, self.last_cmd, self.last_feedback = -1, None, None
+
     def answer_again(self, msg: Message, step: int) -> bool:
         """Lockstep: the frontier service decides step k on this planner's report after command k - 1.
         Send that report again when the sim re-publishes a step (a retry: odometry seen twice), and
@@ -243,8 +308,8 @@ class PlannerService(Service):
         if isinstance(msg, OdometryMsg) and step > 0 and (step in self.odoms or self.cmd_step < 0):
             if self.cmd_step == step - 1 and self.last_feedback is not None:
                 self.publish("planner_feedback", self.last_feedback)
-            elif self.cmd_step < 0:
-                self.publish("planner_feedback", PlannerFeedbackMsg(step - 1, self.planner.status.value, "command", episode=self.episodes.current or 0))
+            elif self.cmd_step < 0:  # a fresh planner reports idle; one whose restored state was behind, its goal
+                self.publish("planner_feedback", self.feedback_msg(step - 1, ""))
         if isinstance(msg, (FrontiersMsg, GoalMsg)) and step <= self.cmd_step:
             resend = isinstance(msg, FrontiersMsg) or msg.decided
             if step == self.cmd_step and self.last_cmd is not None and resend:
@@ -301,10 +366,14 @@ class PlannerService(Service):
         # Provisional: the sim may step ahead on it, but moves only on the step's cmd_vel.
         self.publish("cmd_vel_ahead", CmdVelMsg(k, result.command, "ahead"))
 
-    def publish_feedback(self, k: int, reason: str) -> None:
+    def feedback_msg(self, k: int, reason: str) -> PlannerFeedbackMsg:
+        """The report after step ``k``'s command: the planner's status, the path still ahead and the goal they are about."""
         p = self.planner
         ahead = p.remaining_path() if p.status == PlannerStatus.FOLLOWING else np.zeros((0, 2))
-        self.last_feedback = PlannerFeedbackMsg(k, p.status.value, "command", self.set_goal_blocked, reason, ahead, self.goal_step, self.episodes.current or 0)
+        return PlannerFeedbackMsg(k, p.status.value, "command", self.set_goal_blocked, reason, ahead, self.goal_step, self.episodes.current or 0)
+
+    def publish_feedback(self, k: int, reason: str) -> None:
+        self.last_feedback = self.feedback_msg(k, reason)
         self.set_goal_blocked = False
         self.publish("planner_feedback", self.last_feedback)
 
@@ -393,6 +462,7 @@ class PlannerService(Service):
         self.publish_feedback(k, reason)
         self.publish_path(k)
         self.publish_contacts(k)
+        self.publish_state(k)
 
     def publish_contacts(self, k: int) -> None:
         """All the contacts, once step ``k``'s command has added one (after the step's command and feedback: the
@@ -403,6 +473,19 @@ class PlannerService(Service):
             return
         self.contacts_published = len(contacts)
         self.publish("planner_contacts", PlannerContactsMsg(k, contacts, self.episodes.current or 0))
+
+    def publish_state(self, k: int) -> None:
+        """The plan (only when it changed: a new goal, a re-plan) and the state after step ``k``'s command, last of the
+        step's messages (the lockstep chain never waits for them). The referee keeps them for a restarted planner."""
+        p, (plan_step, path, free) = self.planner, self.published_state
+        if p.path is not path or p.free is not free:
+            plan_step = k
+            self.published_state = (k, p.path, p.free)
+            self.publish("planner_plan", PlannerPlanMsg(k, np.zeros((0, 2)) if p.path is None else p.path, p.free if p.path is not None else None, self.episodes.current or 0))
+        assert self.last_cmd is not None and self.last_feedback is not None  # both sent for this step
+        self.publish("planner_state", PlannerStateMsg(
+            k, plan_step, self.goal_step, self.no_frontier, self.last_cmd, self.last_feedback.set_goal_blocked, p.checkpoint(), self.episodes.current or 0,
+        ))  # fmt: skip
 
     def extra_status(self) -> dict[str, int]:
         """``contacts``: how many the planner keeps in this episode (restored ones included)."""

@@ -47,7 +47,7 @@ from cso_runtime.claims import DECIDE_WITHIN_S, RunClaim, declare_claims, settle
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
-from cso_runtime.keys import WILDCARD, driver_claim_subject, robot_driver_token
+from cso_runtime.keys import PLANNER_KEPT, WILDCARD, driver_claim_subject, robot_driver_token
 from cso_runtime.messages import (
     EPISODE_OVER,
     ClockMsg,
@@ -63,6 +63,8 @@ from cso_runtime.messages import (
     MessageError,
     OdometryMsg,
     PlannerContactsMsg,
+    PlannerPlanMsg,
+    PlannerStateMsg,
     ScanMsg,
     decode,
     encode,
@@ -324,15 +326,15 @@ class Ros2BridgeService(Service):
     name = "ros2_bridge"
     inputs: ClassVar[dict[str, type[Message]]] = {
         "cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg, "ended_why": EndedWhyMsg,
-        "planner_contacts": PlannerContactsMsg,
+        "planner_contacts": PlannerContactsMsg, "planner_plan": PlannerPlanMsg, "planner_state": PlannerStateMsg,
     }  # fmt: skip
-    optional_inputs: ClassVar[tuple[str, ...]] = ("ended_why", "planner_contacts")  # the reason is words: the episode ends without them; contacts are kept, not used
+    optional_inputs: ClassVar[tuple[str, ...]] = ("ended_why", *PLANNER_KEPT)  # the reason is words: the episode ends without them; the planner's are kept, not used
     outputs: ClassVar[dict[str, type[Message]]] = {
         "scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg,
         "explore_resume": ExploreResumeMsg,
     }  # fmt: skip
     tick_period_s = 0.05
-    serves_latest = ("map", "planner_contacts")
+    serves_latest = ("map", *PLANNER_KEPT)
     pending: tuple[ros2_cdr.ScanConversion, float] | None
     """A scan waiting for the odometry of its stamp, and when it came (monotonic s); set in ``_start_episode_state``."""
 
@@ -791,8 +793,8 @@ class Ros2BridgeService(Service):
                     self.publish("episode_status", self.episode_status())
             elif isinstance(msg, GoalMsg):
                 self.take_goal(msg)
-            elif isinstance(msg, PlannerContactsMsg):  # kept for a restarted planner
-                self.keep_latest("planner_contacts", msg)
+            elif isinstance(msg, (PlannerContactsMsg, PlannerPlanMsg, PlannerStateMsg)):  # kept for a restarted planner
+                self.keep_latest(topic, msg)
             elif isinstance(msg, FrontiersMsg) and msg.decide and msg.geometry is not None:
                 if self.episode_state in EPISODE_OVER:
                     # The frontier service asks for no decision after the end, unless it did not hear it (restarted

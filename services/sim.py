@@ -26,7 +26,7 @@ import zenoh
 from cso_runtime.config import ConfigError, SensorConfig, from_dict
 from cso_runtime.episode import TERMINATED_COVERAGE, TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER, GroundTruthMetrics
 from cso_runtime.geometry import LaserScan, VelocityCommand, mean_twist
-from cso_runtime.keys import RobotKeys
+from cso_runtime.keys import PLANNER_KEPT, RobotKeys
 from cso_runtime.messages import (
     ClockMsg,
     CmdVelMsg,
@@ -38,6 +38,8 @@ from cso_runtime.messages import (
     Message,
     OdometryMsg,
     PlannerContactsMsg,
+    PlannerPlanMsg,
+    PlannerStateMsg,
     ScanMsg,
     encode,
     new_episode_id,
@@ -152,10 +154,13 @@ class SimService(Service):
     ends the episode."""
 
     name = "sim"
-    inputs = {"cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "ended_why": EndedWhyMsg, "planner_contacts": PlannerContactsMsg}
-    optional_inputs = ("cmd_vel_ahead", "ended_why", "planner_contacts")  # a step ahead is a speed-up: without it the sim steps on cmd_vel; the reason is words; contacts are kept, not used
+    inputs = {
+        "cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "ended_why": EndedWhyMsg,
+        "planner_contacts": PlannerContactsMsg, "planner_plan": PlannerPlanMsg, "planner_state": PlannerStateMsg,
+    }  # fmt: skip
+    optional_inputs = ("cmd_vel_ahead", "ended_why", *PLANNER_KEPT)  # a step ahead is a speed-up: without it the sim steps on cmd_vel; the reason is words; the planner's are kept, not used
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
-    serves_latest = ("map", "planner_contacts")
+    serves_latest = ("map", *PLANNER_KEPT)
     tick_period_s = 0.02
     """How often ``on_tick`` runs: real-time steps run on the first tick at or after they are due."""
 
@@ -409,9 +414,9 @@ class SimService(Service):
                 self.no_frontier_end.heard = (msg.step, msg.why)
                 self.end_if_why_heard(time.monotonic())
             return
-        if isinstance(msg, PlannerContactsMsg):  # kept for a restarted planner, never waited for
+        if isinstance(msg, (PlannerContactsMsg, PlannerPlanMsg, PlannerStateMsg)):  # kept for a restarted planner, never waited for
             if not self.of_another_episode(topic, msg, self.episode):
-                self.keep_latest("planner_contacts", msg)
+                self.keep_latest(topic, msg)
             return
         if not self.running:
             return

@@ -44,6 +44,7 @@ from cso_runtime.messages import (
     MapMsg,
     OdometryMsg,
     PlannerContactsMsg,
+    PlannerStateMsg,
     ScanMsg,
     ServiceStatusMsg,
     decode,
@@ -4825,6 +4826,57 @@ def test_a_planner_killed_mid_episode_comes_back_with_the_contacts_of_its_episod
         final = wait_for(lambda: (t := status()) and t["state"] in EPISODE_OVER and t, 90, "the end of the episode", period_s=0.2)
         assert final["state"] == "done" and final["terminated_by"] == "coverage", final
         assert final["services"]["planner"]["counters"]["contacts"] == 2  # to the end of the episode
+    finally:
+        cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        assert kill_leftovers(runs) == []
+
+
+def test_a_planner_killed_mid_episode_carries_on_with_its_goal_and_the_episode_ends_as_the_uninterrupted_one(tmp_path):
+    """SIGKILL of the planner while it follows a goal: the restarted planner resumes from the state and plan the sim keeps
+    (``cache/planner/state``, ``cache/planner/plan``), the same goal, path and counters, instead of reporting idle (which
+    made the frontier service ask for a new goal, and the episode another one). The sim holds the step in flight until
+    the new planner commands it, so the lockstep episode ends exactly as the uninterrupted in-process one: the same
+    steps, coverage, decisions, trajectory and final map. The in-process episode decides on every step to step 18 and then
+    keeps its goal to step 26: a kill in steps 20 to 23 lands mid-goal (before, the restarted planner's idle report cost a
+    decision and a step: 25 decisions, 37 steps, another trajectory)."""
+    profile = write_profile(tmp_path, min_step_period_s=0.3, lockstep_timeout_s=0.5)  # 36 steps: at least 11 s
+    expected = in_process_result()
+    runs = tmp_path / "runs"
+    try:
+        r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        info = wait_for(lambda: current_run_with_services(runs, 5), 30, "the services to start")
+
+        def status() -> dict | None:
+            return query_status(info["endpoints"], "r0", timeout_s=0.5)
+
+        with open_session(TransportConfig(mode="client", connect=info["endpoints"])) as session:
+
+            def between_steps() -> dict | None:
+                """The sim's status at a step that the planner has commanded and whose state the sim keeps: the planner
+                waits for the next step (not killed between a step's cmd_vel and its state, which leaves the cache behind)."""
+                s = status()
+                if not (s and s["state"] == "exploring" and 20 <= s["step"] <= 23):
+                    return None
+                kept = [decode(rep.ok.payload.to_bytes(), PlannerStateMsg) for rep in session.get(RobotKeys("r0").cache("planner_state"), timeout=0.5) if rep.ok]
+                return s if kept and kept[0].step == s["step"] else None
+
+            s = wait_for(between_steps, 60, "the planner between two of the episode's steps 20 to 23")
+            os.kill(s["services"]["planner"]["pid"], signal.SIGKILL)
+        final = wait_for(lambda: (t := status()) and t["state"] in EPISODE_OVER and t, 90, "the end of the episode", period_s=0.2)
+        assert final["services"]["planner"]["restarts"] >= 1 and final["services"]["planner"]["pid"] != s["services"]["planner"]["pid"]
+        log_text = next(runs.glob("*/logs/planner.log")).read_text()
+        restored = re.search(r"restored the state of step (\d+) \(episode (\d+)\) from the cache: the goal \(\S+, \S+\) of step (\d+)", log_text)
+        assert restored, log_text[-3000:]
+        assert int(restored[1]) >= s["step"] and int(restored[2]) == s["episode"] and 0 <= int(restored[3]) < int(restored[1])  # mid-goal
+        assert "behind the episode" not in log_text  # killed between steps, not between a cmd_vel and its state
+        assert (final["state"], final["terminated_by"], final["step"]) == ("done", expected.terminated_by, expected.steps), final
+        assert abs(final["coverage_pct"] - expected.coverage_pct) < 1e-3 and final["decisions"] == expected.decisions, final
+        out = Path(info["run_dir"])
+        npz = wait_for(lambda: next(iter(out.glob("episodes/greedy-dist/*.npz")), None), 30, "the episode's results")
+        np.testing.assert_allclose(np.load(npz)["trajectory"], expected.trajectory_xy_m, atol=1e-9)
+        grid, geometry = load_map(next(iter(out.glob("maps/greedy-dist/*.yaml"))))
+        assert geometry == expected.map_geometry and np.array_equal(grid, expected.map_grid)
     finally:
         cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert kill_leftovers(runs) == []

@@ -36,6 +36,8 @@ from cso_runtime.messages import (
     OdometryMsg,
     PlannerContactsMsg,
     PlannerFeedbackMsg,
+    PlannerPlanMsg,
+    PlannerStateMsg,
     ScanMsg,
     decode,
     encode,
@@ -70,7 +72,7 @@ def _feed(svc: Service, msg: Message) -> None:
     topics = {
         MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", DistanceMapMsg: "distance_map", GoalMsg: "goal",
         PlannerFeedbackMsg: "planner_feedback", ExploreResumeMsg: "explore_resume", EpisodeStatusMsg: "episode_status",
-        PlannerContactsMsg: "planner_contacts",
+        PlannerContactsMsg: "planner_contacts", PlannerPlanMsg: "planner_plan", PlannerStateMsg: "planner_state",
     }  # fmt: skip
     topic = topics[type(msg)]
     svc.on_message("r0", topic, decode(encode(msg), type(msg)), time.monotonic())
@@ -751,9 +753,9 @@ def test_the_planner_sends_its_contacts_only_when_one_is_added_and_a_restarted_o
 
     restarted, restarted_out = _service(PlannerService, lockstep=True)
     asked: list[str] = []
-    restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: asked.append(key) or contacts  # type: ignore[method-assign]
+    restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: asked.append(key) or (contacts if key.endswith("/contacts") else None)  # type: ignore[method-assign]
     restarted.start()
-    assert asked == ["cso/r0/cache/planner/contacts"] and restarted.extra_status() == {"contacts": 1}
+    assert asked == ["cso/r0/cache/planner/contacts", "cso/r0/cache/planner/state"] and restarted.extra_status() == {"contacts": 1}  # no state kept: no plan asked
     for k in range(5, 8):
         _lockstep_step(restarted, ex, k, episode=7, goal_at=5)
     assert np.array_equal(restarted.planner.contacts_xy_m, contacts.contacts_xy_m)
@@ -768,9 +770,92 @@ def test_the_planner_sends_its_contacts_only_when_one_is_added_and_a_restarted_o
     assert fresh.extra_status() == {"contacts": 0} and fresh.episodes.current is None
 
 
-def test_the_sim_keeps_the_planners_latest_contacts_of_its_episode_for_a_restarted_planner():
-    """``cache/planner/contacts`` answers the newest contacts of the sim's episode (an error reply before any), and
-    contacts of another episode, still in flight from before a restart, are rejected and counted."""
+def _drive(planner: PlannerService, out: list, ex: Explorer, steps: range, episode: int, decision_obs=None) -> None:
+    """Lockstep steps on ``ex``'s simulator, each moved by the command the planner sends for it (as the sim steps);
+    step 0 decides the far goal of ``decision_obs``, every other step keeps the goal."""
+    for k in steps:
+        _feed(planner, OdometryMsg(k, ex.sim.time_s, ex.sim.odometry(), episode=episode))
+        _feed(planner, ScanMsg(k, ex.sim.scan(), ex.sim.sensor_pose(), episode))
+        if k == 0:
+            _feed(planner, frontiers_from_observation(0, "no_goal", decision_obs, 1.0, episode))
+            _feed(planner, dataclasses.replace(_far_goal(decision_obs, 0), episode=episode))
+        else:
+            _feed(planner, FrontiersMsg(k, False, episode=episode))
+        ex.sim.step([m for t, m in out if t == "cmd_vel" and m.step == k][-1].command)
+
+
+def _restarted_from(out: list, upto_step: int) -> tuple[PlannerService, list]:
+    """A planner started afresh with what the referee kept of ``out`` up to ``upto_step`` (its cache keys)."""
+    kept = {t: m for t, m in out if t in ("planner_contacts", "planner_plan", "planner_state") and m.step <= upto_step}
+    restarted, restarted_out = _service(PlannerService, lockstep=True)
+    restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_"))  # type: ignore[method-assign]
+    restarted.start()
+    return restarted, restarted_out
+
+
+def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_the_one_killed():
+    """The planner sends its plan when it changes (``planner_plan``) and its state after every command (``planner_state``),
+    last of the step's messages; one started afresh on what the referee keeps of them carries on: the same goal, path
+    and counters, so from the step after the kill every command (and report) is the uninterrupted planner's, in a
+    closed loop where each command moves the robot. A cache one step behind (killed between a step's cmd_vel and its
+    state) is seen at the next step's odometry: the planner keeps the goal and joins there instead of waiting forever
+    for a step the sim has passed."""
+    episode, kill_after, end = 5, 4, 14  # the goal is reached at step 10
+    ex_a, ex_b = _explorer_at(0), _explorer_at(0)
+    obs = ex_a.observe()
+    uninterrupted, out_a = _service(PlannerService, lockstep=True)
+    _drive(uninterrupted, out_a, ex_a, range(end), episode, obs)
+    killed, out_b = _service(PlannerService, lockstep=True)
+    _drive(killed, out_b, ex_b, range(kill_after + 1), episode, obs)
+    step_topics = [t for t, m in out_b if m.step == 2 and t != "cmd_vel_ahead"]
+    assert step_topics[-1] == "planner_state" and step_topics.index("cmd_vel") < step_topics.index("planner_feedback") < step_topics.index("planner_state")
+    assert [m.step for t, m in out_b if t == "planner_plan"] == [0]  # the plan goes out when it changes, the state every step
+    assert [m.step for t, m in out_b if t == "planner_state"] == list(range(kill_after + 1))
+
+    restarted, out_r = _restarted_from(out_b, kill_after)
+    assert (restarted.cmd_step, restarted.goal_step, restarted.planner.status) == (kill_after, 0, PlannerStatus.FOLLOWING)
+    assert restarted.planner.path is not None and np.array_equal(restarted.planner.path, killed.planner.path)
+    assert restarted.planner.checkpoint() == killed.planner.checkpoint()
+    _drive(restarted, out_r, ex_b, range(kill_after + 1, end), episode, obs)
+    after = lambda out, topic: [encode(m) for t, m in out if t == topic and m.step > kill_after]  # noqa: E731
+    assert len(after(out_a, "cmd_vel")) == end - kill_after - 1
+    for topic in ("cmd_vel", "planner_feedback", "planner_state"):
+        assert after(out_r, topic) == after(out_a, topic), topic
+    assert restarted.planner.checkpoint() == uninterrupted.planner.checkpoint()
+
+    behind, out_behind = _restarted_from(out_b, kill_after - 1)  # its state of kill_after never went out
+    ex_c = _explorer_at(0)
+    for k in range(kill_after + 1):  # the world as the killed planner left it
+        ex_c.sim.step([m for t, m in out_b if t == "cmd_vel" and m.step == k][-1].command)
+    _drive(behind, out_behind, ex_c, range(kill_after + 1, kill_after + 4), episode, obs)
+    (report,) = [m for t, m in out_behind if t == "planner_feedback" and m.step == kill_after]  # the report the frontier service waits for
+    assert (report.status, report.goal_step) == ("following", 0) and len(report.path_ahead_xy_m) > 0
+    assert [m.step for t, m in out_behind if t == "cmd_vel"] == [kill_after + 1, kill_after + 2, kill_after + 3]
+    assert behind.goal_step == 0 and behind.planner.status == PlannerStatus.FOLLOWING
+
+    real_time, out_rt = _service(PlannerService, lockstep=False)  # a robot's planner: it resumes the goal too
+    kept = {t: m for t, m in out_b if t in ("planner_plan", "planner_state")}
+    real_time.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_"))  # type: ignore[method-assign]
+    real_time.start()
+    anchor = kept["planner_state"].follow.progress_anchor
+    assert anchor is not None
+    later = anchor[2] + 60.0  # the robot stood still, where progress was last seen, while no planner ran: no failed progress check for that
+    _feed(real_time, OdometryMsg(kill_after + 9, later, Pose2D(anchor[0], anchor[1], ex_c.sim.odometry().yaw_rad), episode=episode))
+    _feed(real_time, ScanMsg(kill_after + 9, ex_c.sim.scan(), ex_c.sim.sensor_pose(), episode))
+    (cmd,) = [m for t, m in out_rt if t == "cmd_vel"]
+    assert cmd.reason == "" and cmd.command.linear_mps > 0 and real_time.goal_step == 0 and real_time.planner.progress.anchor[2] == later  # type: ignore[index]
+
+    state = [m for t, m in out_b if t == "planner_state"][-1]
+    other_plan = dataclasses.replace([m for t, m in out_b if t == "planner_plan"][-1], step=kill_after)  # a newer plan than the state's
+    for plan in (None, other_plan):
+        fresh, _ = _service(PlannerService, lockstep=True)
+        assert not fresh.restore_state(state, plan) and (fresh.cmd_step, fresh.planner.path, fresh.episodes.current) == (-1, None, None)
+
+
+def test_the_sim_keeps_the_planners_latest_contacts_plan_and_state_of_its_episode_for_a_restarted_planner():
+    """``cache/planner/contacts`` (and ``cache/planner/plan``, ``cache/planner/state``) answers the newest message of
+    the sim's episode (an error reply before any), and one of another episode, still in flight from before a restart,
+    is rejected and counted."""
     from types import SimpleNamespace
 
     from services.sim import SimService
@@ -796,6 +881,22 @@ def test_the_sim_keeps_the_planners_latest_contacts_of_its_episode_for_a_restart
     assert isinstance(latest, PlannerContactsMsg) and latest.step == 9 and np.array_equal(latest.contacts_xy_m, two)
     _feed(sim, PlannerContactsMsg(12, one, sim.episode + 1))
     assert cached().step == 9 and sim.rejected == {"planner_contacts": 1}  # type: ignore[union-attr]
+
+    def kept(topic: str, cls: type) -> Message | str:
+        replies: list[tuple[str, bytes]] = []
+        query = SimpleNamespace(reply=lambda key, payload: replies.append((key, payload)), reply_err=lambda payload: replies.append(("error", payload)))
+        sim.answer_cache_query(topic, query)
+        ((key, payload),) = replies
+        return payload.decode() if key == "error" else decode(payload, cls)
+
+    assert kept("planner_state", PlannerStateMsg) == "no planner_state yet" and kept("planner_plan", PlannerPlanMsg) == "no planner_plan yet"
+    for step in (4, 5):
+        _feed(sim, PlannerStateMsg(step, 0, 0, False, CmdVelMsg(step, VelocityCommand(0.2, 0.0)), False, LocalPlanner().checkpoint(), sim.episode))
+    _feed(sim, PlannerPlanMsg(0, two, None, sim.episode))
+    _feed(sim, PlannerStateMsg(6, 0, 0, False, CmdVelMsg(6, VelocityCommand()), False, LocalPlanner().checkpoint(), sim.episode + 1))
+    state, plan = kept("planner_state", PlannerStateMsg), kept("planner_plan", PlannerPlanMsg)
+    assert isinstance(state, PlannerStateMsg) and state.step == 5 and state.cmd.command == VelocityCommand(0.2, 0.0)
+    assert isinstance(plan, PlannerPlanMsg) and np.array_equal(plan.path_xy_m, two) and sim.rejected["planner_state"] == 1
 
 
 def test_sim_starts_the_episode_when_every_service_of_the_profile_is_alive():
@@ -1382,7 +1483,7 @@ def test_the_sim_serves_the_newest_map_of_its_episode_for_a_restarted_mapper():
     from cso_runtime.launcher import LAUNCHER_INPUTS
     from services.sim import SimService
 
-    assert "map" not in LAUNCHER_INPUTS and SimService.serves_latest == ("map", "planner_contacts")
+    assert "map" not in LAUNCHER_INPUTS and SimService.serves_latest == ("map", "planner_contacts", "planner_plan", "planner_state")
     ctx = ServiceContext("sim", "r0", {"scene": "generated:small:1:0"}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {})
     sim = SimService(ctx)
     sim.publish = lambda topic, msg, robot=None: None  # type: ignore[method-assign]

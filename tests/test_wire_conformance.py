@@ -41,6 +41,8 @@ from cso_runtime.messages import (
     PathMsg,
     PlannerContactsMsg,
     PlannerFeedbackMsg,
+    PlannerPlanMsg,
+    PlannerStateMsg,
     ScanMsg,
     ServiceStatusMsg,
     decode,
@@ -244,6 +246,49 @@ BODIES: dict[str, list[dict[str, Any]]] = {
         }
     ],
     "planner_contacts": [{"step": 14, "contacts_xy_m": record(np.array([[0.125, -0.075], [0.175, -0.075]]), "float64"), "episode": EPISODE}],
+    "planner_plan": [
+        {
+            "step": 12,
+            "episode": EPISODE,
+            "path_xy_m": record(np.array([[0.0, -0.1], [-0.05, -0.05]]), "float64"),
+            "free": {"geometry": GEOMETRY, "traversable": record(EXPLORED & ~OCCUPIED, "bool", "bits"), "occupied": record(OCCUPIED, "bool", "bits")},
+        },
+        {"step": 40, "episode": EPISODE, "path_xy_m": record(np.zeros((0, 2)), "float64"), "free": None},
+    ],
+    "planner_state": [
+        {
+            "step": 14,
+            "episode": EPISODE,
+            "plan_step": 12,
+            "goal_step": 12,
+            "no_frontier": False,
+            "cmd": {"step": 14, "linear_mps": 0.25, "angular_radps": -0.5, "reason": "backup", "new_goal": False},
+            "set_goal_blocked": False,
+            "status": "following",
+            "progress_index": 1,
+            "progress_anchor": [0.0, -0.1, 3.25],
+            "stall": {"last": [0.0, -0.1, 1.5, 3.5, 0.25, -0.5], "stalled_periods": 2, "backing_up": 3, "backups": 1, "last_started_now": False},
+            "recovery": {"recoveries_left": 1, "heading_rad": 0.75, "drive_left_m": 0.125, "escape_periods": 4, "escapes": 1},
+            "replan_pending": True,
+            "blocked_why": "",
+        },
+        {
+            "step": 40,
+            "episode": EPISODE,
+            "plan_step": 40,
+            "goal_step": 40,
+            "no_frontier": True,
+            "cmd": {"step": 40, "linear_mps": 0.0, "angular_radps": 0.0, "reason": "no_frontier", "new_goal": True},
+            "set_goal_blocked": False,
+            "status": "idle",
+            "progress_index": 0,
+            "progress_anchor": None,
+            "stall": {"last": None, "stalled_periods": 0, "backing_up": 0, "backups": 0, "last_started_now": False},
+            "recovery": {"recoveries_left": 2, "heading_rad": None, "drive_left_m": 0.0, "escape_periods": 0, "escapes": 0},
+            "replan_pending": False,
+            "blocked_why": "",
+        },
+    ],
     "episode_status": [
         {
             "state": "exploring",
@@ -366,6 +411,13 @@ def test_the_values_decoded_are_the_ones_the_docs_describe():
     (feedback,) = bodies["planner_feedback"]
     assert isinstance(feedback, PlannerFeedbackMsg) and (feedback.status, feedback.goal_step, feedback.episode) == ("following", 12, EPISODE)
     (contacts,) = bodies["planner_contacts"]
+    plan, no_plan = bodies["planner_plan"]
+    assert isinstance(plan, PlannerPlanMsg) and plan.free is not None and plan.free.occupied is not None and no_plan.free is None  # type: ignore[union-attr]
+    assert np.array_equal(plan.free.traversable, EXPLORED & ~OCCUPIED) and plan.free.geometry.origin_x_m == -0.2 and len(no_plan.path_xy_m) == 0  # type: ignore[attr-defined]
+    state, idle = bodies["planner_state"]
+    assert isinstance(state, PlannerStateMsg) and state.follow.stall_last is not None and state.cmd.reason == "backup"
+    assert state.follow.stall_last[0].yaw_rad == 1.5 and state.follow.stall_last[2].angular_radps == -0.5 and state.follow.escape_heading_rad == 0.75
+    assert idle.follow.progress_anchor is None and idle.follow.escape_heading_rad is None and idle.no_frontier  # type: ignore[attr-defined]
     assert isinstance(contacts, PlannerContactsMsg) and contacts.contacts_xy_m.tolist() == [[0.125, -0.075], [0.175, -0.075]] and contacts.episode == EPISODE
     (why,) = bodies["ended_why"]
     assert isinstance(why, EndedWhyMsg) and why.why.startswith("2 frontier cells")
@@ -406,6 +458,7 @@ FLOAT_FIELDS = [
     ("path", 0, "path_xy_m", np.float32, lambda m: m.path_xy_m),
     ("planner_feedback", 0, "path_ahead_xy_m", np.float64, lambda m: m.path_ahead_xy_m),
     ("planner_contacts", 0, "contacts_xy_m", np.float64, lambda m: m.contacts_xy_m),
+    ("planner_plan", 0, "path_xy_m", np.float64, lambda m: m.path_xy_m),
     ("frontiers", 1, "path_nodes_xy_m", np.float64, lambda m: m.path_nodes_xy_m),
     ("frontiers", 1, "path_nodes_distance_m", np.float64, lambda m: m.path_nodes_distance_m),
     ("distance_map", 0, "distance_m", np.float64, lambda m: m.distance_m[np.isfinite(m.distance_m)]),
@@ -548,6 +601,8 @@ DELETE = object()
         ("map", 0, "explored", {**record(EXPLORED, "bool"), "data": (EXPLORED.astype(np.uint8) * 2).tobytes()}),
         ("goal", 0, "goal", [1.0, 2.0, 0]),
         ("planner_feedback", 0, "status", "lost"),
+        ("planner_state", 0, "status", "stale"),  # the service's, never its follower's
+        ("planner_plan", 0, "free.traversable", record(EXPLORED[:3], "bool", "bits")),  # on the plan's geometry
         ("episode_status", 0, "state", "paused"),
         ("service_status", 0, "state", "idle"),
         ("service_status", 0, "counters", {"decisions": -1}),
@@ -680,6 +735,8 @@ def test_the_docs_table_gives_each_key_the_schema_its_publishers_send():
         ("cache/map", "map", keys.cache("map")),
         ("cache/goal", "goal", keys.cache("goal")),
         ("cache/planner/contacts", "planner_contacts", keys.cache("planner_contacts")),
+        ("cache/planner/plan", "planner_plan", keys.cache("planner_plan")),
+        ("cache/planner/state", "planner_state", keys.cache("planner_state")),
         ("alive/<name>", "liveliness token", keys.alive("<name>")),
     ]:
         assert rows[key][0] == schema and full == f"cso/r0/{key}", (key, rows[key][0], full)
@@ -816,7 +873,10 @@ def test_a_planner_or_frontier_service_written_from_the_docs_alone_runs_a_lockst
     assert last.lockstep_timeouts == 0, last  # no step needed the sim's re-publication: the handshake is complete
 
 
-INTEGER_FIELDS = {"step", "episode", "decisions", "lockstep_timeouts", "goal_step", "steps", "seed", "goal_cell", "shape", "goal[2]"}
+INTEGER_FIELDS = {
+    "step", "episode", "decisions", "lockstep_timeouts", "goal_step", "steps", "seed", "goal_cell", "shape", "goal[2]",
+    "plan_step", "progress_index", "stalled_periods", "backing_up", "backups", "recoveries_left", "escape_periods", "escapes",
+}  # fmt: skip
 """The integer fields of the bodies a run publishes (by their last name; ``goal[2]``: a goal's cluster index)."""
 
 
