@@ -73,6 +73,7 @@ from cso_runtime.messages import (
     PathMsg,
     decode,
     encode,
+    set_max_grid_cells,
 )
 from cso_runtime.outputs import results_said, write_text_atomic
 from cso_runtime.pace import StepPace
@@ -279,6 +280,7 @@ class Launcher:
         stop_event: threading.Event | None = None,
     ) -> None:
         self.profile = profile
+        set_max_grid_cells(profile.max_grid_cells)  # the results and paths it reads are bound as its services' messages
         self.record_path = record_path
         """MCAP file recording every ``cso/<robot>/**`` message of the run (None: no recording)."""
         self.animate = animate and record_path is not None
