@@ -39,8 +39,8 @@ DEFAULT_MAX_GRID_CELLS = 4_000_000
 """A run's bound on a grid's cells unless its profile sets ``max_grid_cells``: a 100 m x 100 m arena at 0.05 m (2000 x
 2000 cells), 13 times the largest grid a shipped scene has (the builtin and Dungeon plans, 640 x 480 = 307,200 cells at
 0.1 m/px; a generated super-large plan at most about 682 x 383 = 261,206 cells at its 0.05 m; limo-ros2's 20 m arena
-400 x 400 at 0.05 m). What a forged map makes a receiver inflate: 4 MB a bit-packed grid, where 50 million cells
-(``MAX_GRID_CELLS``) cost 141 MB of peak memory to refuse (docs/messages.md, Sizes)."""
+400 x 400 at 0.05 m). What a forged map makes a receiver inflate: 4 MB a bit-packed grid, where 49 million cells
+(under ``MAX_GRID_CELLS``) cost 141 MiB of peak memory to refuse (docs/messages.md, Sizes)."""
 _max_grid_cells = DEFAULT_MAX_GRID_CELLS
 MAX_BEAMS = 100_000
 COMPRESS_MIN_BYTES = 4096
