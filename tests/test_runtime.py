@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import errno
 import functools
 import io
 import json
@@ -1309,6 +1310,86 @@ def test_down_while_a_detached_launcher_starts_stops_it(tmp_path, monkeypatch):
         for proc in started:
             proc.kill()
         starter.join(130)
+
+
+SLOW_CHECK_METHOD = """\
+# A goal selector of one's own whose import blocks on a fifo: `up`'s profile check imports it (check_method), and
+# is held there until a stop, whatever the host's speed. The test holds the fifo's writing end open, never writing.
+import os
+
+with open(os.environ["CSO_TEST_CHECK_FIFO"]) as fifo:
+    fifo.read()
+"""
+
+
+def fifo_reader_waits(fifo: Path) -> int | None:
+    """A writing end of ``fifo`` once a process has it open for reading (None before: ENXIO). Kept open and never
+    written to, it holds that reader in its ``read``."""
+    try:
+        return os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+    except OSError as exc:
+        if exc.errno != errno.ENXIO:
+            raise
+        return None
+
+
+@pytest.mark.parametrize("detach", [False, True], ids=["foreground", "detach"])
+def test_down_while_up_checks_its_profile_stops_that_up(tmp_path, detach):
+    """``down`` while ``up`` still checks its profile (seconds: a learned method's weights, a scene to load, a method of
+    one's own to import), before any launcher or run file exists, answered "nothing running" (exit 1), and the ``up``
+    then started its run all the same. ``up`` now names itself in its runs folder first of all
+    (``current_run.STARTING_UP_GLOB``); ``down`` stops it and says so, and the ``up`` ends at once, in the middle of its
+    check (here held on a fifo by a method of one's own as it is imported), saying that no run was started: no process,
+    no run folder and no file of it left."""
+    from cso_runtime.config import EXIT_INTERRUPTED
+    from cso_runtime.current_run import STARTING_UP_GLOB
+
+    fifo = tmp_path / "check.fifo"
+    os.mkfifo(fifo)
+    (tmp_path / "slow_check_method.py").write_text(SLOW_CHECK_METHOD)
+    runs = tmp_path / "runs"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")])), "CSO_TEST_CHECK_FIFO": str(fifo)}
+    argv = [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(write_profile(tmp_path)), "--method", "slow_check_method:Selector"]
+    argv += ["--runs-dir", str(runs), "--no-live", *(["--detach"] if detach else [])]
+    up = subprocess.Popen(argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    writer: list[int] = []
+    try:
+        writer.append(wait_for(lambda: fifo_reader_waits(fifo), HANG_DEADLINE_S, "up to import the method of its profile"))
+        assert list(runs.glob(STARTING_UP_GLOB)) and not [d for d in runs.iterdir() if d.is_dir()]  # named, nothing started
+        down = cli("down", "--runs-dir", str(runs), cwd=tmp_path)
+        assert down.returncode == 0, down.stderr
+        assert f"stopped `up` (pid {up.pid}) before its run had started" in down.stdout and "no run was started" in down.stdout, down.stdout
+        out, err = up.communicate(timeout=30)  # gone already: down waits for it
+        assert up.returncode == EXIT_INTERRUPTED, (up.returncode, out, err)
+        assert "interrupted (`cso-runtime down`, Ctrl-C or a signal) while checking the profile: no run was started" in err, err
+        assert "Traceback" not in err, err
+        assert not runs.exists()  # made by that up for its file, and removed with it
+        assert detached_launchers(runs) == []
+    finally:
+        for fd in writer:
+            os.close(fd)
+        if up.poll() is None:
+            os.killpg(up.pid, signal.SIGKILL)
+        up.communicate(timeout=30)
+        kill_leftovers(runs, [up.pid])
+
+
+def test_down_removes_the_file_of_an_up_that_is_gone_and_never_signals_a_process_that_took_its_pid(tmp_path):
+    """An ``up`` killed (SIGKILL) in its check leaves its file (``STARTING_UP_GLOB``); its pid may be another process's
+    since. ``down`` tells them apart by the start time the file records, as for a run file: that process is left alone
+    (here this very test), and the stale file removed."""
+    from cso_runtime.current_run import down, starting_up_path
+    from cso_runtime.supervision import process_start_ticks
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    ticks = process_start_ticks(os.getpid())
+    assert ticks is not None
+    stale = starting_up_path(runs, os.getpid())
+    stale.write_text(json.dumps({"up_pid": os.getpid(), "up_start_ticks": ticks + 1}))  # the pid, not the process
+    ok, message = down(runs, timeout_s=0.0)
+    assert not ok and message.startswith("nothing running"), message
+    assert not stale.exists()
 
 
 def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
