@@ -262,7 +262,7 @@ class Profile:
     def check_grid_bound(self) -> None:
         """ConfigError for a ``max_grid_cells`` out of range, or below the cells of the grid the profile itself sets (a
         real robot's arena, ``services.ros2_bridge``; the mapper's explicit grid), which every receiver would refuse.
-        A scene's grid is known once it is loaded: its sender says so then (``messages.check_grid_fits``)."""
+        A sim's scene is checked as ``validate`` loads it."""
         try:
             check_max_grid_cells(self.max_grid_cells)
         except ValueError as exc:
@@ -291,13 +291,13 @@ class Profile:
         check_seed(self.seed)
         if not self.progress_log_s >= 0:
             raise ConfigError(f"progress_log_s must be >= 0 seconds, got {self.progress_log_s}")
-        self.check_grid_bound()
         self.exploration_config()
         from services import SERVICE_NAMES, check_profile_service  # noqa: PLC0415 - services import zenoh
         if not self.services:
             raise ConfigError("a profile must list at least one service")
         for name, params in self.services.items():
             check_profile_service(name, params)
+        self.check_grid_bound()
         referees = [name for name in REFEREES if name in self.services]
         if len(referees) > 1:  # a `--set services.sim.PARAM=...` on a robot's profile adds a sim beside its bridge
             raise ConfigError(
@@ -378,7 +378,12 @@ class Profile:
             if not refs:
                 raise ConfigError(f"scene {self.scene!r} resolves to no scene")
             if "sim" in self.services:
-                refs[0].load()  # a missing or unusable plan is a bad configuration: say so before anything starts
+                ny, nx = refs[0].load().geometry.shape  # a missing or unusable plan is a bad configuration: say so before anything starts
+                if ny * nx > self.max_grid_cells:  # every map of the run would be refused (``check_grid_bound``)
+                    raise ConfigError(
+                        f"scene {self.scene}: its grid is {nx} x {ny} = {ny * nx:_} cells, more than max_grid_cells ({self.max_grid_cells:_}): "
+                        f"raise max_grid_cells (at most {MAX_GRID_CELLS:_}), or give a coarser --m-per-px for a PNG plan"
+                    )
         except SceneError as exc:
             raise ConfigError(f"scene: {exc}") from None
         try:

@@ -870,8 +870,9 @@ def test_a_scene_given_to_a_real_robots_profile_is_refused_and_its_own_default_s
 
 def test_a_profiles_grid_bound_is_checked_against_its_own_arena_before_anything_starts():
     """``max_grid_cells`` bounds every grid the run's processes decode (docs/messages.md, Sizes): a bound out of range,
-    or below the cells of the arena the profile itself sets (limo-ros2's, the mapper's explicit grid), would have every
-    service refuse every map; it is refused at load, naming the keys. The shipped profiles fit the default."""
+    or below the cells of the arena the profile itself sets (limo-ros2's, the mapper's explicit grid) or of its sim's
+    scene, would have every service refuse every map; it is refused at load, naming the keys. The shipped profiles fit
+    the default."""
     from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, MAX_GRID_CELLS
     from cso_runtime.run_profile import load_profile
 
@@ -888,3 +889,6 @@ def test_a_profiles_grid_bound_is_checked_against_its_own_arena_before_anything_
     with pytest.raises(ConfigError, match=r"arena_width_m, arena_height_m: a 150 x 100 m grid at 0.05 m is 3000 x 2000 = 6_000_000 cells, more than max_grid_cells \(4_000_000\)"):
         load_profile("limo-ros2", {}, connect=robot, settings=big)
     assert load_profile("limo-ros2", {}, connect=robot, settings={**big, "max_grid_cells": 6_000_000})[0].max_grid_cells == 6_000_000
+    with pytest.raises(ConfigError, match=r"scene builtin: its grid is 640 x 480 = 307_200 cells, more than max_grid_cells \(300_000\): raise max_grid_cells"):
+        load_profile("lockstep", {"scene": "builtin"}, settings={"max_grid_cells": 300_000})  # a sim's scene, as it is loaded
+    assert load_profile("lockstep", {"scene": "builtin"}, settings={"max_grid_cells": 307_200})[0].max_grid_cells == 307_200

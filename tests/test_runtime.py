@@ -540,6 +540,26 @@ def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_runnin
     assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447"], exit_process=False) == 2
 
 
+def test_a_service_bounds_the_grids_it_decodes_by_its_profiles_max_grid_cells(tmp_path, caplog):
+    """Each service sets the run's grid bound (``max_grid_cells``, docs/messages.md) from its profile before it decodes
+    anything, and refuses its configuration (exit 2, not restarted) for a bound out of range. A malformed endpoint
+    stops each start here before Zenoh opens."""
+    from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, max_grid_cells, set_max_grid_cells
+    from services.common import service_main
+    from services.mapper import MapperService
+
+    data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
+    path = tmp_path / "profile.yaml"
+    try:
+        for bound in (1_000_000, 0):
+            path.write_text(yaml.safe_dump({**data, "max_grid_cells": bound}))
+            assert service_main(MapperService, ["--config", str(path), "--connect", "127.0.0.1:7447"], exit_process=False) == 2
+        assert max_grid_cells() == 1_000_000  # set by the first start; the second refused its bound
+        assert "mapper: bad configuration: max_grid_cells must be an integer in 1 .. 50_000_000, got 0" in caplog.text
+    finally:
+        set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
+
+
 def test_a_service_log_level_is_checked_and_applied_under_the_cli(capsys):
     """``--log-level`` of a service: a level logging does not know is a usage error (exit 2; it was a ValueError
     traceback from logging), and under ``cso-runtime service``, whose command line has set up logging already, the
