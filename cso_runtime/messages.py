@@ -133,10 +133,10 @@ def unpack_array(
     ``dtypes``: the dtype names docs/messages.md allows for this array (None: any of the list). ``float_as``: a float
     array, which may come in any of ``FLOAT_DTYPES`` (it sets ``dtypes``) and is returned as this dtype (the finiteness
     checks apply after the conversion: a float64 too large for a float32 is inf). ``shape``: the shape the message
-    implies (None for a free dimension; it sets ``ndim``); ``max_elements``: the most elements it may hold (None: a grid's
-bound, ``max_grid_cells``). All are
-    checked on the record, before its data is inflated: a crafted record can make a receiver inflate no more than the
-    bytes of the shape it had to declare, and that shape no larger than its message allows."""
+    implies (None for a free dimension; it sets ``ndim``); ``max_elements``: the most elements it may hold (None: a
+    grid's bound, ``max_grid_cells``). All are checked on the record, before its data is inflated: a crafted record can
+    make a receiver inflate no more than the bytes of the shape it had to declare, and that shape no larger than its
+    message allows."""
     if not isinstance(obj, dict) or set(obj) != {"dtype", "shape", "z", "data"}:
         raise MessageError(f"{where}: not an array record")
     dtype, declared, data = obj["dtype"], obj["shape"], obj["data"]
@@ -900,6 +900,7 @@ class PathMsg(Message):
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> PathMsg:
+        # no grid beside it: at most a point per cell of the largest grid of the run, as the path ahead and the contacts
         p = unpack_array(_get(b, "path_xy_m", "path"), "path.path_xy_m", finite=True, shape=(None, 2), max_elements=2 * _max_grid_cells, float_as=np.float32)
         return cls(_int(b, "step", "path"), p)
 
