@@ -798,54 +798,63 @@ def up_command(
     previous_handlers = stop_on_signals(stop)
     ctx.call_on_close(lambda: restore_signal_handlers(previous_handlers))  # however `up` ends (run inside another program)
     from cso_runtime.config import EXIT_INTERRUPTED, LOG_FORMAT, ConfigError  # noqa: PLC0415
-    from cso_runtime.current_run import current_launcher_alive, down_command, read_current_run  # noqa: PLC0415
-    from cso_runtime.launcher import run_foreground, start_detached  # noqa: PLC0415
-    from cso_runtime.run_profile import REAL_ROBOT_SCENE, UNUSED_BY_A_REAL_ROBOT, load_profile  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive, down_command, read_current_run, record_starting_up  # noqa: PLC0415
+    from cso_runtime.processes import StopRequested, stop_raises  # noqa: PLC0415
 
-    weights_given = None if weights is None else _use_weights(weights)
+    if not (dry_run or resolved):  # next: `down` finds this `up` however long its check takes (current_run.STARTING_UP_GLOB)
+        ctx.call_on_close(record_starting_up(runs_dir))
     try:
-        overrides = {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep}
-        prof, data = load_profile(
-            profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []), foxglove=foxglove, without=list(without or []),
-            zenoh_config=None if zenoh_config is None else str(zenoh_config),
-        )
-    except (ConfigError, ValueError) as exc:
-        _fail(str(exc), 2)
-    _warn_of_weights_trained_otherwise(prof)
-    _warn_of_unfed_inputs(prof)
-    _warn_of_a_watchdog_within_a_step(prof)
-    if record_out is not None:
-        from cso_runtime.recording import names_a_folder  # noqa: PLC0415
+        # The check starts nothing: a stop (`down`, Ctrl-C) ends it where it is, however long it would still take.
+        with stop_raises(stop):
+            from cso_runtime.launcher import run_foreground, start_detached  # noqa: PLC0415
+            from cso_runtime.run_profile import REAL_ROBOT_SCENE, UNUSED_BY_A_REAL_ROBOT, load_profile  # noqa: PLC0415
 
-        if not names_a_folder(record_out) and Path(record_out).exists():  # as `record --out`: an earlier recording is never written over
-            _fail(f"--record-out {record_out}: the file exists; give another, or a folder, or remove it first", 2)
-    if dry_run or resolved:
-        from cso_runtime.config import commented_yaml  # noqa: PLC0415
+            weights_given = None if weights is None else _use_weights(weights)
+            try:
+                overrides = {"scene": scene, "method": method, "robot": robot, "seed": seed, "lockstep": lockstep}
+                prof, data = load_profile(
+                    profile, overrides, connect=list(connect or []), namespace=namespace, settings=parse_settings(settings or []), foxglove=foxglove, without=list(without or []),
+                    zenoh_config=None if zenoh_config is None else str(zenoh_config),
+                )
+            except (ConfigError, ValueError) as exc:
+                _fail(str(exc), 2)
+            _warn_of_weights_trained_otherwise(prof)
+            _warn_of_unfed_inputs(prof)
+            _warn_of_a_watchdog_within_a_step(prof)
+            if record_out is not None:
+                from cso_runtime.recording import names_a_folder  # noqa: PLC0415
 
-        outside = prof.left_out_services()
-        left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
-        comments = [f"profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}"]
-        if resolved:
-            comments.append("every parameter as the run would use it, defaults filled in (`up --dry-run`: the profile as written)")
-            if prof.scene_label == REAL_ROBOT_SCENE:
-                comments.append(f"scene: {REAL_ROBOT_SCENE} ({' and '.join(UNUSED_BY_A_REAL_ROBOT)} left out: never loaded)")
-            if weights_given is not None:  # a setting of the run that no profile key holds: the profile alone would run the shipped weights
-                from cso_runtime.learned.weights import method_of_file  # noqa: PLC0415
+                if not names_a_folder(record_out) and Path(record_out).exists():  # as `record --out`: an earlier recording is never written over
+                    _fail(f"--record-out {record_out}: the file exists; give another, or a folder, or remove it first", 2)
+            if dry_run or resolved:
+                from cso_runtime.config import commented_yaml  # noqa: PLC0415
 
-                whose = "the learned methods'" if weights_given.is_dir() else f"{method_of_file(weights_given)}'s"
-                comments.append(f"{whose} weights from --weights {weights_given} (no profile key: give it again with this profile)")
-            comments += _fixed_simulator_settings_said(prof)
-        typer.echo(commented_yaml(comments, prof.effective() if resolved else data), nl=False)
-        return
-    current = read_current_run(runs_dir)
-    if current is not None and current_launcher_alive(current):
-        # One current run per runs folder: a second one would take over runs/current.json and leave the first
-        # beyond the reach of `status` and `down`, whichever robot it drives.
-        _fail(
-            f"run {current.get('run_id')} (robot {current.get('robot')}) is already running from {runs_dir}; "
-            f"{down_command(runs_dir)} first, or start this one with its own --runs-dir",
-            2,
-        )
+                outside = prof.left_out_services()
+                left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
+                comments = [f"profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}"]
+                if resolved:
+                    comments.append("every parameter as the run would use it, defaults filled in (`up --dry-run`: the profile as written)")
+                    if prof.scene_label == REAL_ROBOT_SCENE:
+                        comments.append(f"scene: {REAL_ROBOT_SCENE} ({' and '.join(UNUSED_BY_A_REAL_ROBOT)} left out: never loaded)")
+                    if weights_given is not None:  # a setting of the run that no profile key holds: the profile alone would run the shipped weights
+                        from cso_runtime.learned.weights import method_of_file  # noqa: PLC0415
+
+                        whose = "the learned methods'" if weights_given.is_dir() else f"{method_of_file(weights_given)}'s"
+                        comments.append(f"{whose} weights from --weights {weights_given} (no profile key: give it again with this profile)")
+                    comments += _fixed_simulator_settings_said(prof)
+                typer.echo(commented_yaml(comments, prof.effective() if resolved else data), nl=False)
+                return
+            current = read_current_run(runs_dir)
+            if current is not None and current_launcher_alive(current):
+                # One current run per runs folder: a second one would take over runs/current.json and leave the first
+                # beyond the reach of `status` and `down`, whichever robot it drives.
+                _fail(
+                    f"run {current.get('run_id')} (robot {current.get('robot')}) is already running from {runs_dir}; "
+                    f"{down_command(runs_dir)} first, or start this one with its own --runs-dir",
+                    2,
+                )
+    except StopRequested:
+        _fail("interrupted (`cso-runtime down`, Ctrl-C or a signal) while checking the profile: no run was started", EXIT_INTERRUPTED)
     recording: bool | Path = record if record_out is None else Path(record_out)
     if record_out is not None:
         if names_a_folder(record_out):  # made now, so that the launcher puts <run-id>.mcap inside it

@@ -13,12 +13,14 @@ import signal
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cso_runtime.config import ConfigError
 from cso_runtime.outputs import write_text_atomic
-from cso_runtime.run_profile import Profile, SupervisionConfig
-from cso_runtime.supervision import pid_alive, process_state, run_process_alive, signal_group
+from cso_runtime.supervision import pid_alive, process_start_ticks, process_state, run_process_alive, signal_group
+
+if TYPE_CHECKING:  # `up` imports this module first of all (``record_starting_up``): not the profile's modules yet
+    from cso_runtime.run_profile import Profile
 
 log = logging.getLogger("cso.launcher")
 
@@ -110,35 +112,103 @@ launcher, and removes it once the start is over, however it ended: ``down`` in t
 written its run file (it still imports) stops that launcher, where it answered "nothing running" while the run came up."""
 
 
-def stop_starting_launchers(runs_dir: Path, timeout_s: float) -> list[str]:
-    """Stop every launcher that ``up --detach`` has spawned in ``runs_dir`` and that has not written its run file yet
-    (``STARTING_LAUNCHER``): SIGTERM (quiet while it still imports; once its handlers are in, the clean stop SIGINT
-    is), SIGKILL after ``timeout_s``. Their lines for ``down``."""
-    said = []
-    for path in sorted(runs_dir.glob(f"*/{STARTING_LAUNCHER}")):
-        try:
-            info = json.loads(path.read_text())
-            pid, ticks = info["launcher_pid"], info.get("launcher_start_ticks")
-        except (OSError, ValueError, KeyError, TypeError):  # gone as the start ended, or half-written
-            continue
-        if not isinstance(pid, int) or not run_process_alive(pid, ticks if isinstance(ticks, int) else None):
-            continue
-        for sig, wait_s in ((signal.SIGTERM, timeout_s), (signal.SIGKILL, 2.0)):
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, sig)
-            deadline = time.monotonic() + wait_s
-            while pid_alive(pid) and time.monotonic() < deadline:
-                time.sleep(0.05)
-            if not pid_alive(pid):
+STARTING_UP_GLOB = ".up-*.starting.json"
+"""``up`` writes ``<runs-dir>/.up-<pid>.starting.json`` (``starting_up_path``: its own pid and start time) as its first
+act, before it checks its profile, and removes it once its launcher has written the run file (``current.json``) or as
+it ends (``record_starting_up``): ``down`` while ``up`` still checks its profile (seconds: a learned method's weights, a
+scene, a method of one's own to import) stops that ``up``, where it answered "nothing running" and the ``up`` then
+started its run all the same."""
+
+
+def starting_up_path(runs_dir: Path, pid: int) -> Path:
+    """The file that names ``up`` process ``pid`` to ``down`` until its run file does (``STARTING_UP_GLOB``)."""
+    return runs_dir / f".up-{pid}.starting.json"
+
+
+def record_starting_up(runs_dir: Path) -> Callable[[], None]:
+    """Name this ``up`` (its pid and start time, pid-reuse safe as a run file's) in ``runs_dir`` for ``down``
+    (``STARTING_UP_GLOB``), making the folder if need be; returns what removes the file, and the folders made here
+    while they are still empty (an ``up`` refused by its check leaves no runs folder behind). A folder that cannot be
+    written is left to ``up``'s own check of it (``--runs-dir``), which says why: nothing is named then."""
+    made = [folder for folder in [runs_dir, *runs_dir.parents] if not folder.exists()]  # innermost first
+    pid = os.getpid()
+    path = starting_up_path(runs_dir, pid)
+    try:
+        runs_dir.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(path, json.dumps({"up_pid": pid, "up_start_ticks": process_start_ticks(pid)}))
+    except OSError:
+        made = [folder for folder in made if folder.exists()]
+
+    def remove() -> None:
+        with contextlib.suppress(OSError):
+            path.unlink(missing_ok=True)
+        for folder in made:
+            try:
+                folder.rmdir()
+            except OSError:  # the run's folders are in it (or another's): kept
                 break
+
+    return remove
+
+
+def _starting_process(path: Path, pid_key: str, ticks_key: str) -> tuple[int, int | None] | None:
+    """The pid and start ticks a starting file names, or None when it is gone (the start over) or half-written."""
+    try:
+        info = json.loads(path.read_text())
+        pid, ticks = info[pid_key], info.get(ticks_key)
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not isinstance(pid, int) or isinstance(pid, bool):
+        return None
+    return pid, ticks if isinstance(ticks, int) and not isinstance(ticks, bool) else None
+
+
+def _stop_starting(pid: int, timeout_s: float) -> None:
+    """SIGTERM (quiet for a process still importing; a clean stop once its handlers are in), SIGKILL after ``timeout_s``."""
+    for sig, wait_s in ((signal.SIGTERM, timeout_s), (signal.SIGKILL, 2.0)):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, sig)
+        deadline = time.monotonic() + wait_s
+        while pid_alive(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        if not pid_alive(pid):
+            break
+
+
+def stop_starting_launchers(runs_dir: Path, timeout_s: float) -> list[str]:
+    """Stop every ``up`` of ``runs_dir`` whose run has not started (``STARTING_UP_GLOB``: still checking its profile,
+    or waiting for its detached launcher, which it then stops itself), then every launcher that ``up --detach`` has
+    spawned there and that has not written its run file yet (``STARTING_LAUNCHER``; one whose ``up`` had to be killed):
+    SIGTERM, SIGKILL after ``timeout_s``. Their lines for ``down``. The file of an ``up`` that is gone (killed) is
+    removed."""
+    said = []
+    for path in sorted(runs_dir.glob(STARTING_UP_GLOB)):
+        found = _starting_process(path, "up_pid", "up_start_ticks")
+        if found is None:
+            continue
+        pid, ticks = found
+        if run_process_alive(pid, ticks):
+            _stop_starting(pid, timeout_s)
+            said.append(f"stopped `up` (pid {pid}) before its run had started (before it had written {runs_dir / CURRENT_RUN}): no run was started")
+        with contextlib.suppress(OSError):  # it removes it as it ends; not when killed
+            path.unlink(missing_ok=True)
+    for path in sorted(runs_dir.glob(f"*/{STARTING_LAUNCHER}")):
+        found = _starting_process(path, "launcher_pid", "launcher_start_ticks")
+        if found is None or not run_process_alive(*found):  # gone as the start ended
+            continue
+        pid = found[0]
+        _stop_starting(pid, timeout_s)
         said.append(f"stopped run {path.parent.name} as it started (launcher pid {pid}, before it had written {runs_dir / CURRENT_RUN})")
     return said
 
 
 def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
     """Stop the current run: SIGINT to the launcher (it stops its services and writes its results), then
-    escalate. ``timeout_s``: how long the launcher may take (None: from the run's ``stop_timeout_s``). A launcher
-    that ``up --detach`` has spawned but that has not written its run file yet is stopped too."""
+    escalate. ``timeout_s``: how long the launcher may take (None: from the run's ``stop_timeout_s``). With no run
+    file yet, an ``up`` still checking its profile, and a launcher that ``up --detach`` has spawned but that has not
+    written its run file yet, are stopped (``stop_starting_launchers``)."""
+    from cso_runtime.run_profile import SupervisionConfig  # noqa: PLC0415 - see TYPE_CHECKING above
+
     info = read_current_run(runs_dir)
     if info is None:
         if starting := stop_starting_launchers(runs_dir, 3 * SupervisionConfig.stop_timeout_s + DOWN_MARGIN_S if timeout_s is None else timeout_s):

@@ -57,6 +57,7 @@ from cso_runtime.current_run import (
     keep_runs_lock,
     new_run_dir,
     read_current_run,
+    starting_up_path,
 )
 from cso_runtime.keys import WILDCARD, RobotKeys, driver_claim_subject, robot_claim_subject, robot_driver_token, topic_of
 from cso_runtime.live_view import LiveView, progress_line
@@ -73,6 +74,7 @@ from cso_runtime.messages import (
     PathMsg,
     decode,
     encode,
+    set_max_grid_cells,
 )
 from cso_runtime.outputs import results_said, write_text_atomic
 from cso_runtime.pace import StepPace
@@ -279,6 +281,7 @@ class Launcher:
         stop_event: threading.Event | None = None,
     ) -> None:
         self.profile = profile
+        set_max_grid_cells(profile.max_grid_cells)  # the results and paths it reads are bound as its services' messages
         self.record_path = record_path
         """MCAP file recording every ``cso/<robot>/**`` message of the run (None: no recording)."""
         self.animate = animate and record_path is not None
@@ -1205,6 +1208,8 @@ class Launcher:
         # First: `status` and `down` find the run while its router opens and its services spawn (seconds), not "no current run".
         self.write_run_file("starting")
         (self.run_dir / STARTING_LAUNCHER).unlink(missing_ok=True)  # `down` finds this launcher by its run file from now on
+        with contextlib.suppress(OSError):  # and a foreground `up`, this very process, by it too (STARTING_UP_GLOB)
+            starting_up_path(self.run_dir.parent, os.getpid()).unlink(missing_ok=True)
         self.write_profile()
         self.run_folder.expect(self.profile_path)  # every service reads it as it starts
         self.write_dataflow()

@@ -35,6 +35,14 @@ SCHEMA_VERSION = 1
 ``service_status`` carries the service's own counters from 2).
 Recordings of the versions before the last bumps stay readable offline: ``LEGACY_UPGRADES``."""
 MAX_GRID_CELLS = 50_000_000
+"""The format's ceiling on a grid's cells and a record's dimensions: no run's ``max_grid_cells`` may be above it."""
+DEFAULT_MAX_GRID_CELLS = 4_000_000
+"""A run's bound on a grid's cells unless its profile sets ``max_grid_cells``: a 100 m x 100 m arena at 0.05 m (2000 x
+2000 cells), 13 times the largest grid a shipped scene has (the builtin and Dungeon plans, 640 x 480 = 307,200 cells at
+0.1 m/px; a generated super-large plan at most about 682 x 383 = 261,206 cells at its 0.05 m; limo-ros2's 20 m arena
+400 x 400 at 0.05 m). What a forged map makes a receiver inflate: 4 MB a bit-packed grid, where 49 million cells
+(under ``MAX_GRID_CELLS``) cost 141 MiB of peak memory to refuse (docs/messages.md, Sizes)."""
+_max_grid_cells = DEFAULT_MAX_GRID_CELLS
 MAX_BEAMS = 100_000
 COMPRESS_MIN_BYTES = 4096
 """Arrays at least this large are zlib-compressed."""
@@ -54,6 +62,36 @@ inflated (``config.MAX_EPISODE_STEPS``, the most ``episode.max_steps`` may be)."
 
 class MessageError(ValueError):
     """A payload is malformed, out of range, non-finite, of another schema or of an unknown version."""
+
+
+def max_grid_cells() -> int:
+    """The most cells a grid may have in this process's run (``set_max_grid_cells``; ``DEFAULT_MAX_GRID_CELLS``)."""
+    return _max_grid_cells
+
+
+def set_max_grid_cells(cells: int) -> None:
+    """Bound every grid this process decodes or sends to ``cells`` (the profile's ``max_grid_cells``, set by each service
+    and the launcher as they start): a larger one is refused before any of its data is inflated. ValueError outside
+    1 .. ``MAX_GRID_CELLS``."""
+    global _max_grid_cells  # one bound for the process, as its run's profile sets it
+    check_max_grid_cells(cells)
+    _max_grid_cells = cells
+
+
+def check_max_grid_cells(cells: Any, where: str = "max_grid_cells") -> None:
+    """ValueError unless ``cells`` is an integer in 1 .. ``MAX_GRID_CELLS`` (a profile's ``max_grid_cells``)."""
+    if isinstance(cells, bool) or not isinstance(cells, int) or not 1 <= cells <= MAX_GRID_CELLS:
+        raise ValueError(f"{where} must be an integer in 1 .. {MAX_GRID_CELLS:_}, got {cells!r}")
+
+
+def check_grid_fits(shape: tuple[int, int], where: str) -> None:
+    """MessageError for a grid of more cells than ``max_grid_cells`` allows, saying how to raise the bound."""
+    cells = shape[0] * shape[1]
+    if cells > _max_grid_cells:
+        raise MessageError(
+            f"{where}: a {shape[0]} x {shape[1]} grid has {cells:_} cells, more than this run's max_grid_cells ({_max_grid_cells:_}; "
+            "a profile's max_grid_cells raises it)"
+        )
 
 
 # --- low-level helpers -------------------------------------------------------------------------
@@ -88,7 +126,7 @@ def unpack_array(
     no_nan: bool = True,
     dtypes: tuple[str, ...] | None = None,
     shape: tuple[int | None, ...] | None = None,
-    max_elements: int = MAX_GRID_CELLS,
+    max_elements: int | None = None,
     float_as: type[np.floating] | None = None,
 ) -> np.ndarray:
     """Decode and check one array; ``finite`` rejects inf too, ``no_nan`` rejects NaN.
@@ -96,9 +134,10 @@ def unpack_array(
     ``dtypes``: the dtype names docs/messages.md allows for this array (None: any of the list). ``float_as``: a float
     array, which may come in any of ``FLOAT_DTYPES`` (it sets ``dtypes``) and is returned as this dtype (the finiteness
     checks apply after the conversion: a float64 too large for a float32 is inf). ``shape``: the shape the message
-    implies (None for a free dimension; it sets ``ndim``); ``max_elements``: the most elements it may hold. All are
-    checked on the record, before its data is inflated: a crafted record can make a receiver inflate no more than the
-    bytes of the shape it had to declare, and that shape no larger than its message allows."""
+    implies (None for a free dimension; it sets ``ndim``); ``max_elements``: the most elements it may hold (None: a
+    grid's bound, ``max_grid_cells``). All are checked on the record, before its data is inflated: a crafted record can
+    make a receiver inflate no more than the bytes of the shape it had to declare, and that shape no larger than its
+    message allows."""
     if not isinstance(obj, dict) or set(obj) != {"dtype", "shape", "z", "data"}:
         raise MessageError(f"{where}: not an array record")
     dtype, declared, data = obj["dtype"], obj["shape"], obj["data"]
@@ -117,8 +156,9 @@ def unpack_array(
     elif ndim is not None and len(declared) != ndim:
         raise MessageError(f"{where}: expected {ndim}-D, got shape {declared}")
     n = math.prod(declared)
-    if n > min(max_elements, MAX_GRID_CELLS):
-        raise MessageError(f"{where}: too large ({n} elements, at most {min(max_elements, MAX_GRID_CELLS)})")
+    bound = _max_grid_cells if max_elements is None else max_elements
+    if n > bound:
+        raise MessageError(f"{where}: too large ({n} elements, at most {bound})")
     if not isinstance(data, bytes):
         raise MessageError(f"{where}: data is not bytes")
     if obj["z"] == "bits":
@@ -232,6 +272,7 @@ def _pose_in(body: dict, key: str, where: str) -> Pose2D:
 
 
 def _geometry_out(g: GridGeometry) -> dict[str, Any]:
+    check_grid_fits(g.shape, "geometry")  # said by its sender, not only by every receiver refusing it
     return {"resolution_m": g.resolution_m, "shape": list(g.shape), "origin": [g.origin_x_m, g.origin_y_m]}
 
 
@@ -243,8 +284,7 @@ def _geometry_in(body: dict, where: str) -> GridGeometry:
     shape = _get(g, "shape", where + ".geometry")
     if not isinstance(shape, list) or len(shape) != 2 or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in shape):
         raise MessageError(f"{where}.geometry.shape: expected two positive integers")
-    if shape[0] * shape[1] > MAX_GRID_CELLS:
-        raise MessageError(f"{where}.geometry.shape: grid too large")
+    check_grid_fits((shape[0], shape[1]), f"{where}.geometry.shape")
     origin = _get(g, "origin", where + ".geometry")
     if not isinstance(origin, list) or len(origin) != 2:
         raise MessageError(f"{where}.geometry.origin: expected [x_m, y_m]")
@@ -861,7 +901,8 @@ class PathMsg(Message):
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> PathMsg:
-        p = unpack_array(_get(b, "path_xy_m", "path"), "path.path_xy_m", finite=True, shape=(None, 2), float_as=np.float32)
+        # no grid beside it: at most a point per cell of the largest grid of the run, as the path ahead and the contacts
+        p = unpack_array(_get(b, "path_xy_m", "path"), "path.path_xy_m", finite=True, shape=(None, 2), max_elements=2 * _max_grid_cells, float_as=np.float32)
         return cls(_int(b, "step", "path"), p)
 
 
@@ -909,7 +950,7 @@ class PlannerFeedbackMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> PlannerFeedbackMsg:
         w = "planner_feedback"
-        path = unpack_array(_get(b, "path_ahead_xy_m", w), "planner_feedback.path_ahead_xy_m", finite=True, shape=(None, 2), float_as=np.float64)
+        path = unpack_array(_get(b, "path_ahead_xy_m", w), "planner_feedback.path_ahead_xy_m", finite=True, shape=(None, 2), max_elements=2 * _max_grid_cells, float_as=np.float64)
         return cls(
             _int(b, "step", w),
             _str(b, "status", w, PLANNER_STATUSES),
@@ -943,7 +984,7 @@ class PlannerContactsMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> PlannerContactsMsg:
         w = "planner_contacts"
-        contacts = unpack_array(_get(b, "contacts_xy_m", w), "planner_contacts.contacts_xy_m", finite=True, shape=(None, 2), float_as=np.float64)
+        contacts = unpack_array(_get(b, "contacts_xy_m", w), "planner_contacts.contacts_xy_m", finite=True, shape=(None, 2), max_elements=2 * _max_grid_cells, float_as=np.float64)
         return cls(_int(b, "step", w), contacts, _int(b, "episode", w))
 
 
@@ -1548,7 +1589,7 @@ def _envelope(payload: bytes) -> tuple[str, Any, Any]:
     if not isinstance(payload, (bytes, bytearray, memoryview)):
         raise MessageError("payload is not bytes")
     try:
-        raw = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True, max_bin_len=MAX_GRID_CELLS * 8)
+        raw = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True, max_bin_len=max(_max_grid_cells, 2 * MAX_STEP_POINTS) * 8)
     except (msgpack.ExtraData, msgpack.FormatError, msgpack.StackError, ValueError, TypeError) as exc:
         raise MessageError(f"not a msgpack payload ({type(exc).__name__}: {exc})") from None
     if not isinstance(raw, dict) or set(raw) != {"schema", "v", "body"}:

@@ -8,6 +8,7 @@ runs (an evaluation of hundreds of episodes, hours of teacher rollouts) would lo
 from __future__ import annotations
 
 import _thread
+import contextlib
 import ctypes
 import faulthandler
 import io
@@ -17,7 +18,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, TypeVar
@@ -50,6 +51,35 @@ def stop_on_signals(event: threading.Event) -> dict[int, Any]:
     KeyboardInterrupt traceback in the middle of opening its router or writing its run file. Returns the handlers
     it replaced, for ``restore_signal_handlers`` (a command run inside another program gives them back)."""
     return {sig: signal.signal(sig, lambda signum, frame: set_from_signal_handler(event)) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+
+
+class StopRequested(BaseException):
+    """A stop signal while ``stop_raises`` held: nothing had been started, so the command ends where it was. A
+    BaseException, as KeyboardInterrupt: a handler of the user's module's errors (``config.import_attribute``) must not
+    take it for one."""
+
+
+@contextlib.contextmanager
+def stop_raises(event: threading.Event) -> Iterator[None]:
+    """While inside, SIGINT, SIGTERM and SIGHUP set ``event`` and raise ``StopRequested`` wherever the main thread is:
+    ``up``'s profile check, which starts nothing, ends at once (an import or a file that blocks included) instead of
+    after the check, which ``stop_on_signals`` would wait for. The first signal puts the handlers found back, so that a
+    second one cannot break the clean-up; a stop already set raises on entry. Main thread only (signal handlers)."""
+
+    def handler(signum: int, frame: Any) -> None:
+        restore_signal_handlers(previous)
+        set_from_signal_handler(event)
+        raise StopRequested(signal.Signals(signum).name)
+
+    previous: dict[int, Any] = {}  # filled one by one: a signal between two installs finds the handlers to put back
+    try:
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            previous[sig] = signal.signal(sig, handler)
+        if event.is_set():
+            raise StopRequested("a stop before the check")
+        yield
+    finally:
+        restore_signal_handlers(previous)
 
 
 def restore_signal_handlers(previous: dict[int, Any]) -> None:

@@ -10,6 +10,7 @@ LIMO's physics) before anything starts: a bad profile is a ``ConfigError`` namin
 from __future__ import annotations
 
 import importlib.util
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +33,7 @@ from cso_runtime.config import (
     wrong_section,
 )
 from cso_runtime.keys import check_robot_id
+from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, MAX_GRID_CELLS, check_max_grid_cells
 from cso_runtime.scenes import SceneError, resolve_scenes
 from cso_runtime.transport import JOIN_TIMEOUT_S, ZENOH_CONFIG_ENV, TransportConfig, TransportError
 
@@ -159,6 +161,11 @@ class Profile:
     progress_log_s: float = 10.0
     """Without the live view on a terminal (``--no-live``, ``--detach``, output into a file) the launcher logs a
     line of the episode's progress this often, in seconds (0: never), so a log being followed is never silent."""
+    max_grid_cells: int = DEFAULT_MAX_GRID_CELLS
+    """The most cells a map grid of this run may have (``messages.DEFAULT_MAX_GRID_CELLS``, 4,000,000: a 100 m x 100 m
+    arena at 0.05 m): every process of the run refuses a message with a larger grid before inflating any of it, so a
+    forged map cannot make a service inflate hundreds of MB. Raise it for a scene or arena that large (at most
+    ``messages.MAX_GRID_CELLS``); ``validate`` says when the profile's own arena is larger (docs/messages.md, Sizes)."""
 
     def exploration_config(self) -> ExplorationConfig:
         """The exploration settings every service of this profile runs with (raises ConfigError)."""
@@ -252,6 +259,33 @@ class Profile:
         """The goal selector the policy service runs: its own ``services.policy.method``, else the profile's ``method``."""
         return self.builtin_params("policy").get("method") or self.method
 
+    def check_grid_bound(self) -> None:
+        """ConfigError for a ``max_grid_cells`` out of range, or below the cells of the grid the profile itself sets (a
+        real robot's arena, ``services.ros2_bridge``; the mapper's explicit grid), which every receiver would refuse.
+        A sim's scene is checked as ``validate`` loads it."""
+        try:
+            check_max_grid_cells(self.max_grid_cells)
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+        grids = []
+        if "ros2_bridge" in self.services:
+            from services.ros2_bridge import Ros2BridgeParams  # noqa: PLC0415 - services import zenoh
+
+            b = from_dict(Ros2BridgeParams, self.builtin_params("ros2_bridge"), where="services.ros2_bridge")
+            grids.append(("services.ros2_bridge.arena_width_m, arena_height_m", b.resolution_m, b.arena_width_m, b.arena_height_m))
+        mapper = self.builtin_params("mapper")
+        if float(mapper.get("resolution_m") or 0) > 0:
+            grids.append(("services.mapper.width_m, height_m", float(mapper["resolution_m"]), float(mapper.get("width_m") or 0), float(mapper.get("height_m") or 0)))
+        for where, resolution_m, width_m, height_m in grids:
+            if not resolution_m > 0:
+                continue  # its own check says so
+            shape = (math.ceil(height_m / resolution_m - 1e-9), math.ceil(width_m / resolution_m - 1e-9))
+            if shape[0] * shape[1] > self.max_grid_cells:
+                raise ConfigError(
+                    f"{where}: a {width_m:g} x {height_m:g} m grid at {resolution_m:g} m is {shape[1]} x {shape[0]} = {shape[0] * shape[1]:_} cells, "
+                    f"more than max_grid_cells ({self.max_grid_cells:_}): raise max_grid_cells (at most {MAX_GRID_CELLS:_}) or shrink the arena"
+                )
+
     def validate(self) -> None:
         check_robot_id(self.robot)
         check_seed(self.seed)
@@ -263,6 +297,7 @@ class Profile:
             raise ConfigError("a profile must list at least one service")
         for name, params in self.services.items():
             check_profile_service(name, params)
+        self.check_grid_bound()
         referees = [name for name in REFEREES if name in self.services]
         if len(referees) > 1:  # a `--set services.sim.PARAM=...` on a robot's profile adds a sim beside its bridge
             raise ConfigError(
@@ -343,7 +378,12 @@ class Profile:
             if not refs:
                 raise ConfigError(f"scene {self.scene!r} resolves to no scene")
             if "sim" in self.services:
-                refs[0].load()  # a missing or unusable plan is a bad configuration: say so before anything starts
+                ny, nx = refs[0].load().geometry.shape  # a missing or unusable plan is a bad configuration: say so before anything starts
+                if ny * nx > self.max_grid_cells:  # every map of the run would be refused (``check_grid_bound``)
+                    raise ConfigError(
+                        f"scene {self.scene}: its grid is {nx} x {ny} = {ny * nx:_} cells, more than max_grid_cells ({self.max_grid_cells:_}): "
+                        f"raise max_grid_cells (at most {MAX_GRID_CELLS:_}), or give a coarser --m-per-px for a PNG plan"
+                    )
         except SceneError as exc:
             raise ConfigError(f"scene: {exc}") from None
         try:

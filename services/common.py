@@ -51,7 +51,16 @@ from cso_runtime.config import (
 )
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
-from cso_runtime.messages import ExploreResumeMsg, Message, MessageError, ServiceStatusMsg, decode, encode
+from cso_runtime.messages import (
+    DEFAULT_MAX_GRID_CELLS,
+    ExploreResumeMsg,
+    Message,
+    MessageError,
+    ServiceStatusMsg,
+    decode,
+    encode,
+    set_max_grid_cells,
+)
 
 M = TypeVar("M", bound=Message)
 from cso_runtime.observation import Observation, ObservationBuilder
@@ -855,6 +864,7 @@ def _service_main(cls: type[Service], argv: list[str] | None, prog: str | None) 
     try:
         check_robot_id(args.robot)
         profile, exploration, params = load_profile_for_service(args.config, cls.name, cls)
+        set_max_grid_cells(profile.get("max_grid_cells", DEFAULT_MAX_GRID_CELLS))  # before any message is decoded
         params = cls.apply_arguments(args, dict(params))
         transport = TransportConfig(mode=args.mode, connect=list(args.connect), listen=list(args.listen))
         router = r if isinstance(r := profile.get("router"), dict) else {}

@@ -866,3 +866,29 @@ def test_a_scene_given_to_a_real_robots_profile_is_refused_and_its_own_default_s
         load_profile("limo-ros2", {"scene": "builtin"})
     profile, _ = load_profile("limo-ros2", {}, connect=["tcp/127.0.0.1:7447"])
     assert profile.scene_label == REAL_ROBOT_SCENE
+
+
+def test_a_profiles_grid_bound_is_checked_against_its_own_arena_before_anything_starts():
+    """``max_grid_cells`` bounds every grid the run's processes decode (docs/messages.md, Sizes): a bound out of range,
+    or below the cells of the arena the profile itself sets (limo-ros2's, the mapper's explicit grid) or of its sim's
+    scene, would have every service refuse every map; it is refused at load, naming the keys. The shipped profiles fit
+    the default."""
+    from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, MAX_GRID_CELLS
+    from cso_runtime.run_profile import load_profile
+
+    robot = ["tcp/127.0.0.1:7447"]
+    profile, _ = load_profile("limo-ros2", {}, connect=robot)
+    assert profile.max_grid_cells == DEFAULT_MAX_GRID_CELLS == 4_000_000
+    assert load_profile("lockstep", {})[0].max_grid_cells == DEFAULT_MAX_GRID_CELLS
+    for bad in (0, MAX_GRID_CELLS + 1):
+        with pytest.raises(ConfigError, match=rf"max_grid_cells must be an integer in 1 \.\. 50_000_000, got {bad}"):
+            load_profile("lockstep", {}, settings={"max_grid_cells": bad})
+    with pytest.raises(ConfigError, match="max_grid_cells: expected an integer, got 2.5"):
+        load_profile("lockstep", {}, settings={"max_grid_cells": 2.5})
+    big = {"services.ros2_bridge.arena_width_m": 150.0, "services.ros2_bridge.arena_height_m": 100.0}  # 3000 x 2000 at 0.05 m
+    with pytest.raises(ConfigError, match=r"arena_width_m, arena_height_m: a 150 x 100 m grid at 0.05 m is 3000 x 2000 = 6_000_000 cells, more than max_grid_cells \(4_000_000\)"):
+        load_profile("limo-ros2", {}, connect=robot, settings=big)
+    assert load_profile("limo-ros2", {}, connect=robot, settings={**big, "max_grid_cells": 6_000_000})[0].max_grid_cells == 6_000_000
+    with pytest.raises(ConfigError, match=r"scene builtin: its grid is 640 x 480 = 307_200 cells, more than max_grid_cells \(300_000\): raise max_grid_cells"):
+        load_profile("lockstep", {"scene": "builtin"}, settings={"max_grid_cells": 300_000})  # a sim's scene, as it is loaded
+    assert load_profile("lockstep", {"scene": "builtin"}, settings={"max_grid_cells": 307_200})[0].max_grid_cells == 307_200

@@ -17,6 +17,7 @@ from cso_runtime.config import MAX_EPISODE_STEPS, ConfigError, EpisodeConfig
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand
 from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import (
+    DEFAULT_MAX_GRID_CELLS,
     LEGACY_UPGRADES,
     MAX_STEP_POINTS,
     MESSAGE_TYPES,
@@ -43,8 +44,10 @@ from cso_runtime.messages import (
     encode,
     frontiers_from_observation,
     frontiers_reading,
+    max_grid_cells,
     observation_from_frontiers,
     pack_array,
+    set_max_grid_cells,
     unpack_array,
     upgrade_payload,
 )
@@ -953,3 +956,78 @@ def test_pause_refuses_a_lockstep_run_and_says_why(monkeypatch, capsys, tmp_path
     monkeypatch.setattr(status_module, "launcher_pause", lambda *a, **k: LauncherStatusMsg("run-1", "running", pause=PauseClock().status(0.0, LOCKSTEP_REFUSAL)))
     assert status_module.explore_resume_main([], None, tmp_path, resume=False) == 2
     assert f"cannot pause robot r0 (run run-1): {LOCKSTEP_REFUSAL}" in capsys.readouterr().err and sent == []
+
+
+@pytest.fixture
+def grid_bound():
+    """Restores the process's ``max_grid_cells`` after a test that sets it."""
+    yield
+    set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
+
+
+def _forged_bits(n_cells: int, last: int = 0) -> bytes:
+    """A valid zlib stream of ``n_cells`` bit-packed cells, all clear but the last byte's ``last`` bits: a few kB for
+    49 million cells (zlib's ratio on zeros is about 1000:1)."""
+    z = zlib.compressobj(9)
+    return z.compress(bytes((n_cells + 7) // 8 - 1)) + z.compress(bytes([last])) + z.flush()
+
+
+def test_a_forged_grid_larger_than_the_runs_bound_is_refused_before_any_of_it_is_inflated():
+    """A 12 kB map declaring a 7000 x 7000 grid (49 million cells: under MAX_GRID_CELLS, the only bound before) whose two
+    channels are valid streams, refused only because an occupied cell is not explored: the receiver inflated and
+    unpacked both (141 MB of peak RSS, measured in docs/messages.md) before refusing it. Every grid, and the arrays that
+    stand alone in their message (a path, the path ahead, the contacts; a result's grids), is now bound by the run's
+    ``max_grid_cells`` and refused on its declared size."""
+    ny = nx = 7000
+    n = ny * nx
+    assert n <= 50_000_000 and n > max_grid_cells()
+    good_map = _body(MapMsg(1, GEOM, np.ones(GEOM.shape, bool), np.zeros(GEOM.shape, bool)))
+    geometry = {"resolution_m": 0.05, "shape": [ny, nx], "origin": [0.0, 0.0]}
+    explored = {"dtype": "bool", "shape": [ny, nx], "z": "bits", "data": _forged_bits(n)}
+    occupied = {"dtype": "bool", "shape": [ny, nx], "z": "bits", "data": _forged_bits(n, 0x80)}
+    payload = _wire("map", {**good_map, "geometry": geometry, "explored": explored, "occupied": occupied})
+    assert len(payload) < 16_000
+    assert _peak_bytes(lambda: decode(payload)) < 1 << 20
+    with pytest.raises(MessageError, match=r"map.geometry.shape: a 7000 x 7000 grid has 49_000_000 cells, more than this run's max_grid_cells \(4_000_000"):
+        decode(payload)
+    bomb = _zlib_bomb(8)  # 8 kB, 8 MiB of zeros
+    points = {"dtype": "float64", "shape": [5_000_000, 2], "z": True, "data": bomb}  # 10 million elements: 2.5 times the bound
+    result = _body(_episode_result(3))
+    for schema, body in [
+        ("path", {"step": 1, "path_xy_m": points}),
+        ("planner_feedback", {**_body(PlannerFeedbackMsg(1, "following", "command")), "path_ahead_xy_m": points}),
+        ("planner_contacts", {"step": 1, "episode": 0, "contacts_xy_m": points}),
+        ("episode_result", {**result, "explored_free": explored, "plan_free": explored}),
+    ]:
+        payload = _wire(schema, body)
+        assert _peak_bytes(lambda payload=payload: decode(payload)) < 1 << 20, schema
+        with pytest.raises(MessageError, match=r"too large \((10000000|49000000) elements, at most (8000000|4000000)\)"):
+            decode(payload)
+
+
+def test_real_large_maps_decode_and_the_runs_grid_bound_is_what_it_says(grid_bound):
+    """A map of exactly ``max_grid_cells`` (2000 x 2000, a 100 m square at 0.05 m) round-trips, with its decision and
+    distance map; one more row is refused by its receiver and by its sender (which says how to raise the bound); a run
+    whose profile raises the bound (``set_max_grid_cells``, as each service does) reads it."""
+    geometry = GridGeometry(0.05, (2000, 2000), -50.0, -50.0)
+    m = OccupancyMap(geometry)
+    m.explored[:1000] = True
+    m.occupied[:10] = True
+    back = decode(encode(MapMsg.of(5, m)), MapMsg)
+    assert back.geometry == geometry and (back.explored == m.explored).all() and (back.occupied == (m.occupied & m.explored)).all()
+    d = np.where(m.explored, 1.0, np.inf)
+    assert (decode(encode(DistanceMapMsg(5, geometry, Pose2D(0.0, 0.0, 0.0), d)), DistanceMapMsg).distance_m == d).all()
+    taller = GridGeometry(0.05, (2001, 2000), -50.0, -50.0)
+    bigger = OccupancyMap(taller)
+    with pytest.raises(MessageError, match=r"geometry: a 2001 x 2000 grid has 4_002_000 cells, more than this run's max_grid_cells \(4_000_000; a profile's max_grid_cells raises it\)"):
+        encode(MapMsg.of(5, bigger))
+    set_max_grid_cells(2001 * 2000)
+    payload = encode(MapMsg.of(5, bigger))
+    assert decode(payload, MapMsg).geometry == taller
+    set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
+    with pytest.raises(MessageError, match="map.geometry.shape: a 2001 x 2000 grid has 4_002_000 cells"):
+        decode(payload)
+    for bad in (0, 50_000_001, 1.5, True):
+        with pytest.raises(ValueError, match="max_grid_cells must be an integer"):
+            set_max_grid_cells(bad)  # type: ignore[arg-type]
+    assert max_grid_cells() == DEFAULT_MAX_GRID_CELLS

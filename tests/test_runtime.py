@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import errno
 import functools
 import io
 import json
@@ -538,6 +539,26 @@ def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_runnin
 
     # A service given a malformed endpoint refuses its configuration (exit 2: the launcher does not restart it).
     assert service_main(MapperService, ["--config", str(PROFILES / "lockstep.yaml"), "--connect", "127.0.0.1:7447"], exit_process=False) == 2
+
+
+def test_a_service_bounds_the_grids_it_decodes_by_its_profiles_max_grid_cells(tmp_path, caplog):
+    """Each service sets the run's grid bound (``max_grid_cells``, docs/messages.md) from its profile before it decodes
+    anything, and refuses its configuration (exit 2, not restarted) for a bound out of range. A malformed endpoint
+    stops each start here before Zenoh opens."""
+    from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, max_grid_cells, set_max_grid_cells
+    from services.common import service_main
+    from services.mapper import MapperService
+
+    data = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
+    path = tmp_path / "profile.yaml"
+    try:
+        for bound in (1_000_000, 0):
+            path.write_text(yaml.safe_dump({**data, "max_grid_cells": bound}))
+            assert service_main(MapperService, ["--config", str(path), "--connect", "127.0.0.1:7447"], exit_process=False) == 2
+        assert max_grid_cells() == 1_000_000  # set by the first start; the second refused its bound
+        assert "mapper: bad configuration: max_grid_cells must be an integer in 1 .. 50_000_000, got 0" in caplog.text
+    finally:
+        set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
 
 
 def test_a_service_log_level_is_checked_and_applied_under_the_cli(capsys):
@@ -1310,6 +1331,86 @@ def test_down_while_a_detached_launcher_starts_stops_it(tmp_path, monkeypatch):
         for proc in started:
             proc.kill()
         starter.join(130)
+
+
+SLOW_CHECK_METHOD = """\
+# A goal selector of one's own whose import blocks on a fifo: `up`'s profile check imports it (check_method), and
+# is held there until a stop, whatever the host's speed. The test holds the fifo's writing end open, never writing.
+import os
+
+with open(os.environ["CSO_TEST_CHECK_FIFO"]) as fifo:
+    fifo.read()
+"""
+
+
+def fifo_reader_waits(fifo: Path) -> int | None:
+    """A writing end of ``fifo`` once a process has it open for reading (None before: ENXIO). Kept open and never
+    written to, it holds that reader in its ``read``."""
+    try:
+        return os.open(fifo, os.O_WRONLY | os.O_NONBLOCK)
+    except OSError as exc:
+        if exc.errno != errno.ENXIO:
+            raise
+        return None
+
+
+@pytest.mark.parametrize("detach", [False, True], ids=["foreground", "detach"])
+def test_down_while_up_checks_its_profile_stops_that_up(tmp_path, detach):
+    """``down`` while ``up`` still checks its profile (seconds: a learned method's weights, a scene to load, a method of
+    one's own to import), before any launcher or run file exists, answered "nothing running" (exit 1), and the ``up``
+    then started its run all the same. ``up`` now names itself in its runs folder first of all
+    (``current_run.STARTING_UP_GLOB``); ``down`` stops it and says so, and the ``up`` ends at once, in the middle of its
+    check (here held on a fifo by a method of one's own as it is imported), saying that no run was started: no process,
+    no run folder and no file of it left."""
+    from cso_runtime.config import EXIT_INTERRUPTED
+    from cso_runtime.current_run import STARTING_UP_GLOB
+
+    fifo = tmp_path / "check.fifo"
+    os.mkfifo(fifo)
+    (tmp_path / "slow_check_method.py").write_text(SLOW_CHECK_METHOD)
+    runs = tmp_path / "runs"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")])), "CSO_TEST_CHECK_FIFO": str(fifo)}
+    argv = [*python_module_argv("cso_runtime.cli"), "up", "--profile", str(write_profile(tmp_path)), "--method", "slow_check_method:Selector"]
+    argv += ["--runs-dir", str(runs), "--no-live", *(["--detach"] if detach else [])]
+    up = subprocess.Popen(argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    writer: list[int] = []
+    try:
+        writer.append(wait_for(lambda: fifo_reader_waits(fifo), HANG_DEADLINE_S, "up to import the method of its profile"))
+        assert list(runs.glob(STARTING_UP_GLOB)) and not [d for d in runs.iterdir() if d.is_dir()]  # named, nothing started
+        down = cli("down", "--runs-dir", str(runs), cwd=tmp_path)
+        assert down.returncode == 0, down.stderr
+        assert f"stopped `up` (pid {up.pid}) before its run had started" in down.stdout and "no run was started" in down.stdout, down.stdout
+        out, err = up.communicate(timeout=30)  # gone already: down waits for it
+        assert up.returncode == EXIT_INTERRUPTED, (up.returncode, out, err)
+        assert "interrupted (`cso-runtime down`, Ctrl-C or a signal) while checking the profile: no run was started" in err, err
+        assert "Traceback" not in err, err
+        assert not runs.exists()  # made by that up for its file, and removed with it
+        assert detached_launchers(runs) == []
+    finally:
+        for fd in writer:
+            os.close(fd)
+        if up.poll() is None:
+            os.killpg(up.pid, signal.SIGKILL)
+        up.communicate(timeout=30)
+        kill_leftovers(runs, [up.pid])
+
+
+def test_down_removes_the_file_of_an_up_that_is_gone_and_never_signals_a_process_that_took_its_pid(tmp_path):
+    """An ``up`` killed (SIGKILL) in its check leaves its file (``STARTING_UP_GLOB``); its pid may be another process's
+    since. ``down`` tells them apart by the start time the file records, as for a run file: that process is left alone
+    (here this very test), and the stale file removed."""
+    from cso_runtime.current_run import down, starting_up_path
+    from cso_runtime.supervision import process_start_ticks
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    ticks = process_start_ticks(os.getpid())
+    assert ticks is not None
+    stale = starting_up_path(runs, os.getpid())
+    stale.write_text(json.dumps({"up_pid": os.getpid(), "up_start_ticks": ticks + 1}))  # the pid, not the process
+    ok, message = down(runs, timeout_s=0.0)
+    assert not ok and message.startswith("nothing running"), message
+    assert not stale.exists()
 
 
 def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
