@@ -437,6 +437,15 @@ def report_command(
     typer.echo(f"wrote {path}")
 
 
+def _read_grids_of_any_run() -> None:
+    """A one-shot tool (``save-map``, ``export-bag``, ``animate``) reads the grids of any run, whatever ``max_grid_cells``
+    its profile raised the bound to: up to the format's ceiling (``messages.MAX_GRID_CELLS``). The bound of a run's
+    services and launcher guards processes that stay up against forged messages; this process ends with its file."""
+    from cso_runtime.messages import MAX_GRID_CELLS, set_max_grid_cells  # noqa: PLC0415
+
+    set_max_grid_cells(MAX_GRID_CELLS)
+
+
 @app.command("record", rich_help_panel="Recordings")
 def record_command(
     out: str | None = typer.Option(None, "--out", help="A new MCAP file, or a folder (existing, or ending in /) for <robot>-<UTC time>.mcap in it (default: recordings/)"),
@@ -573,6 +582,7 @@ def export_bag_command(
     from cso_runtime.bag_export import BagExportError, export_bag  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, check_recording  # noqa: PLC0415
 
+    _read_grids_of_any_run()
     try:
         check_recording(file)
         target = out if out is not None else file.with_suffix("")
@@ -609,6 +619,8 @@ def animate_command(
     """An animated GIF of a recorded run: the robot's map, path, goal and pose after each decision, then the final map."""
     from cso_runtime.animation import animate_recording  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, check_recording  # noqa: PLC0415
+
+    _read_grids_of_any_run()
 
     target = out if out is not None else file.with_suffix(".gif")
     try:
@@ -914,6 +926,7 @@ def save_map_command(
 
     if image_format not in IMAGE_FORMATS:
         _fail(f"--format {image_format!r}: expected one of {', '.join(IMAGE_FORMATS)}", 2)
+    _read_grids_of_any_run()
     raise typer.Exit(save_map_main(list(connect or []), robot, out, image_format, runs_dir))
 
 

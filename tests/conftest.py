@@ -25,6 +25,7 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "deterministic"))
 
 from cso_runtime.geometry import Pose2D
 from cso_runtime.learned.weights import WEIGHTS_DIR_ENV, WEIGHTS_FILE_ENV
+from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, set_max_grid_cells
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.transport import ZENOH_CONFIG_ENV
 from services.common import TRACE_DIR_ENV
@@ -56,6 +57,15 @@ def no_user_environment(monkeypatch: pytest.MonkeyPatch) -> None:
     """Each of ``USER_ENV_VARIABLES`` unset for the test, put back after it."""
     for name in USER_ENV_VARIABLES:
         monkeypatch.delenv(name, raising=False)
+
+
+@pytest.fixture(autouse=True)
+def default_grid_bound() -> Iterator[None]:
+    """Each test starts and ends with the default ``max_grid_cells``: a command run in the test's process (CliRunner,
+    a Launcher of a profile that raises it) sets the bound for the whole process."""
+    set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
+    yield
+    set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
 
 
 def box_room(width_m: float = 4.0, height_m: float = 3.0, resolution_m: float = 0.05, wall_cells: int = 2) -> FloorPlan:

@@ -505,3 +505,28 @@ def test_a_cut_recording_is_said_once_with_all_it_holds(tmp_path: Path, caplog):
             run()
         warned = [r.getMessage() for r in caplog.records if "ends early" in r.getMessage()]
         assert len(warned) == 1 and "read 4800 messages up to there" in warned[0], warned
+
+
+def test_a_recording_of_a_run_that_raised_max_grid_cells_exports_its_large_map(tmp_path: Path):
+    """A run whose profile raised ``max_grid_cells`` records maps above the default bound; ``export-bag`` (a one-shot
+    tool, not a service that stays up) reads them up to the format's ceiling instead of leaving the map out."""
+    from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, MAX_GRID_CELLS, MessageError, decode, set_max_grid_cells
+
+    keys = RobotKeys("r0")
+    messages = episode(keys, 2, T0_NS, 1000)
+    big = GridGeometry(0.05, (2001, 2000), 0.0, 0.0)  # 4,002,000 cells: a 100 m x 100 m arena and a row
+    assert big.shape[0] * big.shape[1] > DEFAULT_MAX_GRID_CELLS
+    grid = np.full(big.shape, -1, np.int8)
+    grid[:50, :60] = 0
+    set_max_grid_cells(MAX_GRID_CELLS)  # the run that recorded it (the autouse fixture puts the default back)
+    payload = encode(MapMsg.from_grid(2, big, grid))
+    set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
+    with pytest.raises(MessageError, match="max_grid_cells"):
+        decode(payload, MapMsg)  # what a service of a default run would say
+    recording = tmp_path / "big.mcap"
+    write_recording(recording, "r0", [*messages, RecordedMessage(keys.topic("map"), T0_NS + 10_000_000, payload)])
+    done = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording), "--map-period-s", "0"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "/map 3" in done.stdout and "did not decode" not in done.stdout, done.stdout
+    maps = read_bag(tmp_path / "big")["/map"]
+    assert (maps[-1][1].info.height, maps[-1][1].info.width) == big.shape
