@@ -7,11 +7,13 @@ cross-talk by accident.
 
 from __future__ import annotations
 
+import atexit
 import json
 import logging
 import os
 import socket
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -187,6 +189,27 @@ def zenoh_config(conf: TransportConfig) -> zenoh.Config:
 STOP_POLL_S = 0.05
 """``open_session`` with a ``stop``: how often it looks at it while Zenoh opens."""
 
+GIVEN_UP_OPEN_WAIT_S = 2.0
+"""How long a process's end waits for a Zenoh open that ``open_session`` gave up on (its stop set). An open that
+returned into Python while the interpreter finalized aborted the process ("FATAL: exception not rethrown", SIGABRT,
+exit 134 instead of 130: ``up`` Ctrl-C'd as its router opened); a router's open takes well under a second. An open
+still waiting for a router to join after this is left: it returns at its ``connect_timeout_s``, most likely after
+the process is gone."""
+
+_given_up_opens: list[threading.Thread] = []
+"""The opening threads ``open_session`` gave up on, for ``_wait_for_given_up_opens`` at the process's end."""
+
+
+def _wait_for_given_up_opens() -> None:
+    """At the process's end (atexit, before the interpreter finalizes): let each given-up open return and close what
+    it opened, within ``GIVEN_UP_OPEN_WAIT_S`` in all; one more Ctrl-C stops the wait."""
+    deadline_s = time.monotonic() + GIVEN_UP_OPEN_WAIT_S
+    try:
+        for thread in _given_up_opens:
+            thread.join(max(0.0, deadline_s - time.monotonic()))
+    except KeyboardInterrupt:
+        pass
+
 
 def open_session(conf: TransportConfig, stop: threading.Event | None = None) -> zenoh.Session:
     """Open a Zenoh session (use it in a ``with`` block so it always closes).
@@ -221,6 +244,9 @@ def open_session(conf: TransportConfig, stop: threading.Event | None = None) -> 
     with lock:
         if not opened:
             given_up.set()
+            if not _given_up_opens:
+                atexit.register(_wait_for_given_up_opens)
+            _given_up_opens.append(thread)
             raise TransportError(f"stopped while opening the zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen})", STOPPED)
     if isinstance(opened[0], BaseException):
         raise opened[0]

@@ -314,3 +314,33 @@ def test_peers_opened_at_once_behind_a_password_router_all_link_to_each_other(tm
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait(10)
+
+
+def test_a_process_waits_at_its_end_for_a_zenoh_open_it_gave_up_on(tmp_path):
+    """``up`` Ctrl-C'd while its router opened (``open_session`` given up on, exit 130) ended as Zenoh's open returned
+    into Python while the interpreter finalized: "FATAL: exception not rethrown", SIGABRT (exit -6 / 134). The open's
+    thread now ends (and closes what it opened) before the interpreter does; here a slow stand-in for Zenoh's open
+    writes a file when it returns, which a process that ended first never did."""
+    returned = tmp_path / "open-returned"
+    script = f"""
+import threading, time
+from pathlib import Path
+from cso_runtime import transport
+
+def slow_open(conf):
+    time.sleep(0.5)
+    Path({str(returned)!r}).write_text("returned")
+    raise transport.TransportError("not opened in this test")
+
+transport._open = slow_open
+stop = threading.Event()
+stop.set()
+try:
+    transport.open_session(transport.TransportConfig(mode="peer"), stop)
+except transport.TransportError as exc:
+    assert exc.cause == transport.STOPPED, exc
+    raise SystemExit(130)
+"""
+    proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 130, proc.stderr
+    assert returned.read_text() == "returned"
