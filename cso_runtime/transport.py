@@ -11,6 +11,7 @@ import atexit
 import json
 import logging
 import os
+import re
 import socket
 import threading
 import time
@@ -253,6 +254,11 @@ def open_session(conf: TransportConfig, stop: threading.Event | None = None) -> 
     return opened[0]
 
 
+ZENOH_SOURCE_LINE = re.compile(r"\s+at \S+\.rs:\d+\.?$")
+"""The place in Zenoh's Rust source that ends its errors (``... Timeout! at /root/.cargo/git/checkouts/zenoh-.../
+orchestrator.rs:388.``): the build machine's path, left out of what a user reads."""
+
+
 def _open(conf: TransportConfig) -> zenoh.Session:
     """``open_session`` without a stop: its failures as ``TransportError``."""
     try:
@@ -260,7 +266,8 @@ def _open(conf: TransportConfig) -> zenoh.Session:
     except zenoh.ZError as exc:
         cause = UNREACHABLE if "Unable to connect" in str(exc) else LISTEN_IN_USE if "in use" in str(exc) else ""
         unreached = f"cannot reach {', '.join(conf.connect)} within {conf.connect_timeout_s:g} s: " if cause == UNREACHABLE else ""
-        raise TransportError(f"{unreached}cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {exc}", cause) from None
+        said = ZENOH_SOURCE_LINE.sub("", str(exc))
+        raise TransportError(f"{unreached}cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {said}", cause) from None
     except BaseException as exc:
         # Zenoh panics (pyo3's PanicException, a BaseException) on a ZENOH_RUNTIME it cannot parse: `up` ended in a
         # Rust traceback, exit 1, its run folder without a run.json. Said as the session that could not open.

@@ -344,3 +344,24 @@ except transport.TransportError as exc:
     proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert proc.returncode == 130, proc.stderr
     assert returned.read_text() == "returned"
+
+
+def test_zenohs_error_is_said_without_the_rust_source_line_it_came_from(monkeypatch):
+    """``up --profile limo-ros2`` with the robot off ended on Zenoh's own text, the place in Zenoh's Rust source
+    included: "... Timeout! at /root/.cargo/git/checkouts/zenoh-.../orchestrator.rs:388.". The error keeps Zenoh's
+    words and leaves out the build machine's path, which says nothing to the user."""
+
+    def fake_open(cfg):
+        raise zenoh.ZError(
+            "Unable to connect to any of [Single(tcp/127.0.0.1:7447)]. Timeout! at "
+            "/root/.cargo/git/checkouts/zenoh-9c599d5ef3e0480e/cc83980/zenoh/src/net/runtime/orchestrator.rs:388."
+        )
+
+    monkeypatch.setattr(zenoh, "open", fake_open)
+    with pytest.raises(transport.TransportError) as err:
+        transport.open_session(TransportConfig(mode="client", connect=[loopback_endpoint(7447)], connect_timeout_s=2.0))
+    said = str(err.value)
+    assert err.value.cause == transport.UNREACHABLE
+    assert said.startswith("cannot reach tcp/127.0.0.1:7447 within 2 s: cannot open zenoh session (client")
+    assert said.endswith("Unable to connect to any of [Single(tcp/127.0.0.1:7447)]. Timeout!"), said
+    assert ".rs:" not in said and ".cargo" not in said
