@@ -2621,7 +2621,7 @@ def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts
     from cso_runtime.run_profile import REFEREES, load_profile
 
     assert REFEREES == ("sim", "ros2_bridge")
-    with pytest.raises(ConfigError, match="--without polcy: no such service; known: sim, "):
+    with pytest.raises(ConfigError, match=r"--without polcy \(did you mean policy\?\): no such service; known: sim, "):
         load_profile("lockstep", {}, without=["polcy"])
     with pytest.raises(ConfigError, match="--without foxglove_bridge: profile .*lockstep.yaml has no foxglove_bridge service"):
         load_profile("lockstep", {}, without=["foxglove_bridge"])
