@@ -2637,7 +2637,7 @@ def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts
     with pytest.raises(ConfigError, match="without: policy is also in services"):
         from_dict_profile(data)
     for args, said in (
-        (["--without", "polcy"], "error: --without polcy: no such service"),
+        (["--without", "polcy"], "error: --without polcy (did you mean policy?): no such service"),
         (["--without", "sim"], "error: --without sim: sim owns the episode (its status and end); a run cannot go without it"),
         (["--profile", "limo-ros2", "--connect", "tcp/127.0.0.1:7447", "--without", "frontier", "--without", "ros2_bridge"], "error: --without ros2_bridge"),
     ):
@@ -2646,7 +2646,7 @@ def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts
         assert "Traceback" not in r.stderr
     assert not (tmp_path / "runs").exists()
     r = cli("dataflow", "--profile", "lockstep", "--without", "planer", cwd=tmp_path)
-    assert r.returncode == 2 and "error: --without planer: no such service" in r.stderr, r.stderr
+    assert r.returncode == 2 and "error: --without planer (did you mean planner?): no such service" in r.stderr, r.stderr
     r = cli("up", "--profile", "lockstep", "--without", "policy", "--dry-run", cwd=tmp_path)
     assert r.returncode == 0 and r.stdout.startswith(
         "# profile lockstep, valid: `up` would start sim, mapper, frontier, planner for robot r0 (without policy: not started by this run)"
