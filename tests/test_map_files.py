@@ -242,3 +242,17 @@ def test_a_palette_png_with_a_transparent_entry_keeps_its_transparency(tmp_path:
     im.save(tmp_path / "p.png", transparency=0)  # entry 0: white, fully transparent
     # trinary: (3 * 254 + 0) / 4 = 190.5, occupancy 0.25: unknown; scale: not opaque, unknown; raw: alpha ignored, 254 > 100 unknown.
     assert load_map(_write_map_yaml(tmp_path, "p.png", mode))[0].tolist() == [expected]
+
+
+def test_save_maps_format_is_taken_in_any_case_as_map_saver_cli_takes_it(tmp_path: Path):
+    """``save-map --format PNG`` was refused (exit 2, "expected one of pgm, png"), where Nav2's map_saver_cli
+    lower-cases its ``--fmt``: the format is read in any case, and a wrong one still refused."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    runs = str(tmp_path / "runs")
+    r = CliRunner().invoke(app, ["save-map", "-f", str(tmp_path / "m"), "--format", "PNG", "--runs-dir", runs])
+    assert r.exit_code == 1 and "nothing running" in r.output, r.output  # past the format: no run to ask
+    r = CliRunner().invoke(app, ["save-map", "-f", str(tmp_path / "m"), "--format", "JPG", "--runs-dir", runs])
+    assert r.exit_code == 2 and "--format 'JPG': expected one of pgm, png" in r.output, r.output
