@@ -924,10 +924,10 @@ def save_map_command(
     from cso_runtime.map_files import IMAGE_FORMATS  # noqa: PLC0415
     from cso_runtime.status import save_map_main  # noqa: PLC0415
 
-    if image_format not in IMAGE_FORMATS:
+    if image_format.lower() not in IMAGE_FORMATS:  # any case, as map_saver_cli's --fmt
         _fail(f"--format {image_format!r}: expected one of {', '.join(IMAGE_FORMATS)}", 2)
     _read_grids_of_any_run()
-    raise typer.Exit(save_map_main(list(connect or []), robot, out, image_format, runs_dir))
+    raise typer.Exit(save_map_main(list(connect or []), robot, out, image_format.lower(), runs_dir))
 
 
 @app.command("pause", rich_help_panel="Runtime (Zenoh services)")

@@ -109,6 +109,18 @@ MAX_ROBOT_RADIUS_M = 2.0
 """The largest inflation radius taken: a ground robot for indoor scenes, not a car."""
 
 
+ROBOT_LIMITS: dict[str, tuple[float, str, str]] = {
+    "length_m": (2 * MAX_ROBOT_RADIUS_M, "m", "millimetres"),
+    "width_m": (2 * MAX_ROBOT_RADIUS_M, "m", "millimetres"),
+    "max_linear_mps": (5.0, "m/s", "mm/s or km/h"),
+    "max_angular_radps": (2 * math.pi, "rad/s", "degrees per second"),
+    "control_period_s": (5.0, "s", "milliseconds"),
+}
+"""``RobotConfig``'s largest values taken (an indoor ground robot, as ``MAX_ROBOT_RADIUS_M``), each with its unit and the
+unit a value above it was most likely typed in: the LIMO's width as 220 (mm), its turn rate as 45 (degrees per
+second) or its step as 250 (ms) ran an episode of a 220 m robot, a 45 rad/s turn or 250 s steps."""
+
+
 @dataclass
 class RobotConfig:
     """The AgileX LIMO in differential (skid-steer) mode."""
@@ -138,6 +150,11 @@ class RobotConfig:
         for name in ("length_m", "width_m", "max_linear_mps", "max_angular_radps", "control_period_s"):
             if not 0 < getattr(self, name) < math.inf:
                 raise ConfigError(f"robot.{name} must be positive and finite")
+        limo = RobotConfig()
+        for name, (most, unit, other_unit) in ROBOT_LIMITS.items():
+            if (value := getattr(self, name)) > most:
+                what = f"{most:.3g} {unit}" + (" (one turn a second; the LIMO's is" if name == "max_angular_radps" else " (the LIMO's is")
+                raise ConfigError(f"robot.{name} must be at most {what} {getattr(limo, name):g}), got {value:g}: a value in {other_unit}?")
 
 
 @dataclass

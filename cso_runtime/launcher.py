@@ -169,14 +169,23 @@ class StatusWatch:
         """When it asked again after not running for more than ``WATCH_BEHIND_S`` (the launcher stopped, Ctrl-Z or
         SIGSTOP, or starved of CPU): no service's silence counts from before."""
         self._session, self._keys, self._stop = session, keys, stop
+        self._closed = threading.Event()
         self._thread = threading.Thread(target=self._run, name="status-watch", daemon=True)
 
     def start(self) -> None:
         self._thread.start()
 
+    def close(self, timeout_s: float = HANG_CHECK_PERIOD_S + 1.0) -> None:
+        """Stop asking, and wait (``timeout_s`` at most) for the query in flight to end: the run's session closes
+        next, and closing it under a query (``up`` Ctrl-C'd as its services were about to start) raised "Already
+        borrowed" out of ``up`` and aborted the process at its end ("FATAL: exception not rethrown")."""
+        self._closed.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout_s)
+
     def _run(self) -> None:
         key = self._keys.service_status("*")
-        while not self._stop.is_set():
+        while not (self._stop.is_set() or self._closed.is_set()):
             try:
                 for reply in self._session.get(key, timeout=HANG_CHECK_PERIOD_S):
                     if reply.ok is not None:  # cso/<robot>/service/<name>/status
@@ -192,7 +201,9 @@ class StatusWatch:
                     "of CPU?): their silence meanwhile is not taken for a hang", now - self.asked_s,
                 )
             self.asked_s = now
-            self._stop.wait(HANG_CHECK_PERIOD_S)
+            if self._stop.is_set():
+                break
+            self._closed.wait(HANG_CHECK_PERIOD_S)
 
     def behind(self, now: float) -> bool:
         """Whether it has not asked for longer than ``WATCH_BEHIND_S``: what it knows says nothing of the services
@@ -1254,6 +1265,7 @@ class Launcher:
             if self.profile.supervision.hang_timeout_s > 0:
                 self.status_watch = StatusWatch(session, self.keys, self.stop_event)
                 self.status_watch.start()
+                claiming.callback(self.status_watch.close)  # before the session closes, however the run ends
             if self.stop_event.is_set():  # Ctrl-C (or a detached start given up on) before anything started
                 log.warning("interrupted before any service was started")
                 return self.stop_before_start(EXIT_INTERRUPTED)

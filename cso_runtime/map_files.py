@@ -38,6 +38,8 @@ IMAGE_FORMATS = ("pgm", "png")
 log = logging.getLogger("cso.map_files")
 _warned_default_thresholds: set[Path] = set()
 """The YAMLs already warned about for missing thresholds (the warning is once per file per process)."""
+_warned_unknown_read_free: set[Path] = set()
+"""The YAMLs already warned about for a ``free_thresh`` that reads the unknown grey as free (once per file per process)."""
 
 
 MAP_FILE_SUFFIXES = (".yaml", ".yml", ".pgm", ".png")
@@ -186,6 +188,7 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
         grid = np.full(value.shape, UNKNOWN, dtype=np.int8)
         grid[occ > occ_t] = OCCUPIED
         grid[occ < free_t] = FREE
+        _warn_unknown_grey_read_free(yaml_path, free_t, int(np.count_nonzero((value == PIXEL_UNKNOWN) & (grid == FREE))), resolution)
         if mode == "scale":
             between = (occ >= free_t) & (occ <= occ_t)
             grid[between] = np.rint(100 * (occ[between] - free_t) / (occ_t - free_t)).astype(np.int8)  # as Nav2
@@ -232,6 +235,21 @@ def _warn_default_thresholds(yaml_path: Path, meta: dict) -> None:
         " or ".join(missing),
         used,
     )
+
+
+def _warn_unknown_grey_read_free(yaml_path: Path, free_thresh: float, cells: int, resolution_m: float) -> None:
+    """Say once per file that ``cells`` opaque pixels of map_saver's unknown grey (205) read as free: ROS 2's
+    map_saver_cli writes ``free_thresh: 0.25`` beside them, above their occupancy of 0.196, and map_server (as this
+    loader) then serves them free, so a SLAM map's unknown margin becomes floor (slam_toolbox#587)."""
+    key = yaml_path.resolve()
+    if cells == 0 or key in _warned_unknown_read_free:
+        return
+    _warned_unknown_read_free.add(key)
+    log.warning(
+        "%s: free_thresh %g reads the unknown grey %d (an occupancy of %.3f) as free, as Nav2's map_server does: "
+        "%d cells (%.2f m2) of unknown are floor here; set free_thresh: %g (ROS 1 map_saver's value) to keep them unknown",
+        yaml_path, free_thresh, PIXEL_UNKNOWN, (255 - PIXEL_UNKNOWN) / 255, cells, cells * resolution_m**2, FREE_THRESH,
+    )  # fmt: skip
 
 
 def _number(v: object, path: Path, key: str) -> float:

@@ -311,7 +311,7 @@ class Profile:
             raise ConfigError("lockstep: a real robot (ros2_bridge) does not wait for the pipeline; its profile runs in real time")
         for name in self.without:
             if name not in SERVICE_NAMES:
-                raise ConfigError(f"without: unknown service {name!r}; known: {', '.join(SERVICE_NAMES)}")
+                raise ConfigError(f"without: unknown service {with_nearest(name, SERVICE_NAMES, shown=repr(name))}; known: {', '.join(SERVICE_NAMES)}")
             if name in self.services:
                 raise ConfigError(f"without: {name} is also in services; a service is either started by the run or left out of it")
             if name in REFEREES:
@@ -584,7 +584,10 @@ def leave_out(data: dict[str, Any], names: list[str], path: Path, foxglove: bool
         raise ConfigError(f"{path}: services must be a mapping")
     for name in names:
         if name not in SERVICE_NAMES and name not in services:
-            raise ConfigError(f"--without {name}: no such service; known: {', '.join(SERVICE_NAMES)}, and the profile's own: {', '.join(n for n in services if n not in SERVICE_NAMES) or 'none'}")
+            own = [n for n in services if n not in SERVICE_NAMES]
+            raise ConfigError(
+                f"--without {with_nearest(name, [*SERVICE_NAMES, *own])}: no such service; known: {', '.join(SERVICE_NAMES)}, and the profile's own: {', '.join(own) or 'none'}"
+            )
         if name in REFEREES:
             raise ConfigError(f"--without {name}: {name} owns the episode (its status and end); a run cannot go without it")
         if name == "foxglove_bridge" and foxglove:

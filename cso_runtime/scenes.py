@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cso_runtime.config import with_nearest
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, GridGeometry, Pose2D, compose_pose, relative_pose, wrap_angle_rad
 
 FREE_RGB = (195, 195, 194)
@@ -299,7 +300,7 @@ def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.
             raise SceneError(f"bad generated spec {spec!r}; use generated:SCALE:N:SEED")
         _, scale, n, seed = parts
         if scale not in SCALES:
-            raise SceneError(f"generated scale must be one of {', '.join(SCALES)}, got {scale!r}")
+            raise SceneError(f"generated scale must be one of {', '.join(SCALES)}, got {with_nearest(scale, SCALES, shown=repr(scale))}")
         try:
             n_i, seed_i = int(n), int(seed)
         except ValueError:
@@ -318,6 +319,7 @@ def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.
         elif p.suffix.lower() in (".png", *MAP_SUFFIXES):
             files = [p]  # a missing file is reported per scene, as a failure
         else:
-            raise SceneError(f"scene spec {spec!r} is not a folder, a .png, a map .yaml, 'builtin' or generated:SCALE:N:SEED")
+            said = with_nearest(spec, ["builtin"], shown=repr(spec)) if not p.exists() else repr(spec)
+            raise SceneError(f"scene spec {said} is not a folder, a .png, a map .yaml, 'builtin' or generated:SCALE:N:SEED")
         refs = [SceneRef(f.stem, path=str(f), resolution_m=resolution_m) for f in files]
     return refs[:limit] if limit is not None else refs

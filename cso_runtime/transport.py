@@ -7,11 +7,14 @@ cross-talk by accident.
 
 from __future__ import annotations
 
+import atexit
 import json
 import logging
 import os
+import re
 import socket
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -187,6 +190,27 @@ def zenoh_config(conf: TransportConfig) -> zenoh.Config:
 STOP_POLL_S = 0.05
 """``open_session`` with a ``stop``: how often it looks at it while Zenoh opens."""
 
+GIVEN_UP_OPEN_WAIT_S = 2.0
+"""How long a process's end waits for a Zenoh open that ``open_session`` gave up on (its stop set). An open that
+returned into Python while the interpreter finalized aborted the process ("FATAL: exception not rethrown", SIGABRT,
+exit 134 instead of 130: ``up`` Ctrl-C'd as its router opened); a router's open takes well under a second. An open
+still waiting for a router to join after this is left: it returns at its ``connect_timeout_s``, most likely after
+the process is gone."""
+
+_given_up_opens: list[threading.Thread] = []
+"""The opening threads ``open_session`` gave up on, for ``_wait_for_given_up_opens`` at the process's end."""
+
+
+def _wait_for_given_up_opens() -> None:
+    """At the process's end (atexit, before the interpreter finalizes): let each given-up open return and close what
+    it opened, within ``GIVEN_UP_OPEN_WAIT_S`` in all; one more Ctrl-C stops the wait."""
+    deadline_s = time.monotonic() + GIVEN_UP_OPEN_WAIT_S
+    try:
+        for thread in _given_up_opens:
+            thread.join(max(0.0, deadline_s - time.monotonic()))
+    except KeyboardInterrupt:
+        pass
+
 
 def open_session(conf: TransportConfig, stop: threading.Event | None = None) -> zenoh.Session:
     """Open a Zenoh session (use it in a ``with`` block so it always closes).
@@ -221,10 +245,18 @@ def open_session(conf: TransportConfig, stop: threading.Event | None = None) -> 
     with lock:
         if not opened:
             given_up.set()
+            if not _given_up_opens:
+                atexit.register(_wait_for_given_up_opens)
+            _given_up_opens.append(thread)
             raise TransportError(f"stopped while opening the zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen})", STOPPED)
     if isinstance(opened[0], BaseException):
         raise opened[0]
     return opened[0]
+
+
+ZENOH_SOURCE_LINE = re.compile(r"\s+at \S+\.rs:\d+\.?$")
+"""The place in Zenoh's Rust source that ends its errors (``... Timeout! at /root/.cargo/git/checkouts/zenoh-.../
+orchestrator.rs:388.``): the build machine's path, left out of what a user reads."""
 
 
 def _open(conf: TransportConfig) -> zenoh.Session:
@@ -234,7 +266,8 @@ def _open(conf: TransportConfig) -> zenoh.Session:
     except zenoh.ZError as exc:
         cause = UNREACHABLE if "Unable to connect" in str(exc) else LISTEN_IN_USE if "in use" in str(exc) else ""
         unreached = f"cannot reach {', '.join(conf.connect)} within {conf.connect_timeout_s:g} s: " if cause == UNREACHABLE else ""
-        raise TransportError(f"{unreached}cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {exc}", cause) from None
+        said = ZENOH_SOURCE_LINE.sub("", str(exc))
+        raise TransportError(f"{unreached}cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): {said}", cause) from None
     except BaseException as exc:
         # Zenoh panics (pyo3's PanicException, a BaseException) on a ZENOH_RUNTIME it cannot parse: `up` ended in a
         # Rust traceback, exit 1, its run folder without a run.json. Said as the session that could not open.

@@ -63,7 +63,10 @@ OWN_SERVICE_SPELLING = "a service of your own is written module.path:Attribute, 
 
 def _lookup(name: str, index: int) -> Any:
     if name not in _CLASSES:
-        raise ValueError(f"unknown service {name!r}; choose one of {', '.join(SERVICE_NAMES)}, or a service of your own as module.path:Attribute")
+        from cso_runtime.config import with_nearest  # noqa: PLC0415
+
+        said = with_nearest(name, SERVICE_NAMES, shown=repr(name))
+        raise ValueError(f"unknown service {said}; choose one of {', '.join(SERVICE_NAMES)}, or a service of your own as module.path:Attribute")
     attr = _CLASSES[name][index]
     return None if attr is None else getattr(importlib.import_module(f"services.{name}"), attr)
 
@@ -235,7 +238,7 @@ def check_profile_service(name: str, section: Any) -> None:
     """A ConfigError unless a profile's ``services.<name>`` section can run: a built-in service with its parameters,
     or a class of one's own (``class``, not in place of ``NOT_REPLACEABLE``) with the parameters its ``params_class``
     takes (any mapping without one)."""
-    from cso_runtime.config import ConfigError, from_dict  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, from_dict, with_nearest  # noqa: PLC0415
 
     if section is not None and not isinstance(section, dict):
         raise ConfigError(f"services.{name}: expected a mapping of parameters")
@@ -246,7 +249,7 @@ def check_profile_service(name: str, section: Any) -> None:
     if spec is None:
         if name not in SERVICE_NAMES:
             raise ConfigError(
-                f"services: unknown service {name!r}; known: {', '.join(SERVICE_NAMES)}; a service of your own names its class: "
+                f"services: unknown service {with_nearest(name, SERVICE_NAMES, shown=repr(name))}; known: {', '.join(SERVICE_NAMES)}; a service of your own names its class: "
                 f"`{name}: {{{OWN_CLASS_KEY}: module.path:Attribute}}`, or an executable: `{name}: {{{COMMAND_KEY}: [./my_node]}}` (docs/own-service.md)"
             )
         params_cls = params_class(name)

@@ -290,6 +290,28 @@ def test_a_robot_radius_no_indoor_robot_has_is_refused():
         RobotConfig(radius_m=50.0).validate()
 
 
+@pytest.mark.parametrize(
+    ("key", "typed", "said"),
+    [
+        ("width_m", 220.0, r"robot\.width_m must be at most 4 m \(the LIMO's is 0\.22\), got 220: a value in millimetres\?"),
+        ("length_m", 322.0, r"robot\.length_m must be at most 4 m \(the LIMO's is 0\.322\), got 322"),
+        ("max_linear_mps", 1000.0, r"robot\.max_linear_mps must be at most 5 m/s \(the LIMO's is 1\), got 1000"),
+        ("max_angular_radps", 45.0, r"robot\.max_angular_radps must be at most 6\.28 rad/s \(one turn a second; the LIMO's is 0\.78\), got 45: a value in degrees"),
+        ("control_period_s", 250.0, r"robot\.control_period_s must be at most 5 s \(the LIMO's is 0\.25\), got 250: a value in milliseconds\?"),
+    ],
+)
+def test_a_robot_limit_typed_in_another_unit_is_refused(key: str, typed: float, said: str) -> None:
+    """A user from Nav2 or a datasheet typed the LIMO's width in millimetres (``--set robot.width_m=220``), its turn
+    rate in degrees per second (``max_angular_radps=45``) or the step in milliseconds (``control_period_s=250``):
+    each was taken (``eval --dry-run`` exit 0) and the episode ran with a 220 m robot, a 45 rad/s turn or 250 s steps.
+    Each is now refused before anything runs, naming the LIMO's value; the LIMO's own values pass."""
+    from cso_runtime.config import RobotConfig
+
+    RobotConfig().validate()
+    with pytest.raises(ConfigError, match=said):
+        from_dict(ExplorationConfig, {"robot": {key: typed}}, "exploration")
+
+
 def small_train_recipe(tmp_path: Path) -> Path:
     """A training config of one small generated plan (no Dungeon folder needed)."""
     recipe = tmp_path / "mine.yaml"

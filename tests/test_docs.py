@@ -759,3 +759,16 @@ def test_runtime_mds_several_robots_names_every_command_that_picks_a_run():
     assert runs_dir is not None, "the sentence changed: update this test"
     assert set(re.findall(r"`([\w-]+)`", runs_dir.group(1))) == picking
     assert set(re.findall(r"`([\w-]+)`", runs_dir.group(2))) == asking
+
+
+def test_the_readmes_exit_code_table_says_what_record_and_replay_do_with_no_run(tmp_path, monkeypatch):
+    """``record`` (and ``replay``) with no current run and no ``--connect`` exit 2 (no router to record from or replay
+    into), which the README's table of exit codes left out: its row 1 lists "nothing is running" for status, save-map
+    and down alone, so a script could not tell which code to expect."""
+    from typer.testing import CliRunner
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "new.mcap")])
+    assert r.exit_code == 2 and "no current run" in r.output, r.output
+    row = next(line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| 2 |"))
+    assert "no current run and no `--connect` (`record`, `replay`" in row

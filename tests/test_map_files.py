@@ -171,6 +171,31 @@ def test_a_yaml_without_thresholds_loads_with_the_defaults_and_says_so_once(tmp_
     assert "occupied_thresh 0.65" in message and "free_thresh 0.196" in message
 
 
+def test_a_map_whose_free_thresh_reads_the_unknown_grey_as_free_says_so_once(tmp_path: Path, caplog: pytest.LogCaptureFixture):
+    """ROS 2's map_saver_cli writes ``free_thresh: 0.25`` beside its unknown grey 205 (an occupancy of 0.196), which
+    map_server, and so this loader, then reads as free (slam_toolbox#587): a SLAM map's unknown margin became floor,
+    and a scene of it ``scenes`` listed with the unknown's area in its traversable area, without a word. The map still
+    loads as map_server reads it; a warning names the file, the cells and the threshold that keeps them unknown."""
+    Image.fromarray(np.array([[0, 205, 205, 254]], dtype=np.uint8)).save(tmp_path / "m.png")
+    Image.fromarray(np.array([[0, 254, 254, 254]], dtype=np.uint8)).save(tmp_path / "known.png")
+    meta = {"image": "m.png", "resolution": 0.1, "origin": [0.0, 0.0, 0.0], "negate": 0, "occupied_thresh": 0.65}
+    (tmp_path / "ros2.yaml").write_text(yaml.safe_dump({**meta, "free_thresh": 0.25}))
+    (tmp_path / "ros1.yaml").write_text(yaml.safe_dump({**meta, "free_thresh": 0.196}))
+    (tmp_path / "known.yaml").write_text(yaml.safe_dump({**meta, "image": "known.png", "free_thresh": 0.25}))
+    (tmp_path / "negated.yaml").write_text(yaml.safe_dump({**meta, "free_thresh": 0.25, "negate": 1}))
+    with caplog.at_level("WARNING", logger="cso.map_files"):
+        assert load_map(tmp_path / "ros1.yaml")[0].tolist() == [[100, -1, -1, 0]]
+        assert load_map(tmp_path / "known.yaml")[0].tolist() == [[100, 0, 0, 0]]
+        assert load_map(tmp_path / "negated.yaml")[0].tolist() == [[0, 100, 100, 100]]
+        assert caplog.records == []
+        assert load_map(tmp_path / "ros2.yaml")[0].tolist() == [[100, 0, 0, 0]]  # as map_server reads it
+        load_map(tmp_path / "ros2.yaml")
+    assert len(caplog.records) == 1
+    message = caplog.records[0].getMessage()
+    assert message.startswith(f"{tmp_path / 'ros2.yaml'}: free_thresh 0.25 reads the unknown grey 205")
+    assert "2 cells (0.02 m2)" in message and "free_thresh: 0.196" in message
+
+
 @pytest.mark.parametrize(
     ("mode", "expected"),
     [
@@ -217,3 +242,17 @@ def test_a_palette_png_with_a_transparent_entry_keeps_its_transparency(tmp_path:
     im.save(tmp_path / "p.png", transparency=0)  # entry 0: white, fully transparent
     # trinary: (3 * 254 + 0) / 4 = 190.5, occupancy 0.25: unknown; scale: not opaque, unknown; raw: alpha ignored, 254 > 100 unknown.
     assert load_map(_write_map_yaml(tmp_path, "p.png", mode))[0].tolist() == [expected]
+
+
+def test_save_maps_format_is_taken_in_any_case_as_map_saver_cli_takes_it(tmp_path: Path):
+    """``save-map --format PNG`` was refused (exit 2, "expected one of pgm, png"), where Nav2's map_saver_cli
+    lower-cases its ``--fmt``: the format is read in any case, and a wrong one still refused."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    runs = str(tmp_path / "runs")
+    r = CliRunner().invoke(app, ["save-map", "-f", str(tmp_path / "m"), "--format", "PNG", "--runs-dir", runs])
+    assert r.exit_code == 1 and "nothing running" in r.output, r.output  # past the format: no run to ask
+    r = CliRunner().invoke(app, ["save-map", "-f", str(tmp_path / "m"), "--format", "JPG", "--runs-dir", runs])
+    assert r.exit_code == 2 and "--format 'JPG': expected one of pgm, png" in r.output, r.output

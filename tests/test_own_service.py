@@ -223,3 +223,19 @@ def test_the_docs_table_of_topics_keys_and_message_classes_is_the_runtimes():
     text = (REPO / "docs" / "own-service.md").read_text(encoding="utf-8")
     rows = re.findall(r"^  \| `(\w+)` \| `([\w/]+)` \| `(\w+)` \|$", text, flags=re.MULTILINE)
     assert {topic: (key, cls) for topic, key, cls in rows} == {topic: (key, published[topic]) for topic, key in TOPICS.items()}
+
+
+def test_a_misspelt_service_name_is_refused_with_the_name_it_most_likely_meant(tmp_path: Path):
+    """``service mapperr``, a profile's ``plannner:`` section and ``--without plicy`` were refused with the list of
+    names alone, where a misspelt profile, method or key gets its nearest spelling (``did you mean``)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    r = CliRunner().invoke(app, ["service", "mapperr"])
+    assert r.exit_code == 2 and "unknown service 'mapperr' (did you mean mapper?); choose one of sim, mapper" in r.output, r.output
+    with pytest.raises(ConfigError) as exc:
+        load_profile(str(own_profile(tmp_path, {"plannner": {}})))
+    assert "unknown service 'plannner' (did you mean planner?); known: sim, mapper" in str(exc.value)
+    r = CliRunner().invoke(app, ["up", "--profile", "sim", "--without", "plicy", "--dry-run"])
+    assert r.exit_code == 2 and "--without plicy (did you mean policy?): no such service; known: sim" in r.output, r.output

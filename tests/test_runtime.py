@@ -937,6 +937,64 @@ def test_a_run_that_started_no_service_is_listed_as_it_ended(tmp_path):
     assert not list(runs.glob("*/logs/*.log"))  # no service was started
 
 
+def test_a_run_stopped_as_its_status_watch_asks_closes_its_session_after_the_watch_ends(tmp_path):
+    """Ctrl-C as ``up`` was about to start its services (its status watch's first query in flight) closed the run's
+    session under that query: "RuntimeError: Already borrowed" out of ``up`` and, at the process's end, "FATAL:
+    exception not rethrown" (SIGABRT). The watch now ends before the session closes. Here a query is held in flight
+    for 0.5 s, the stop comes as it is, and the session records whether the watch's thread still ran at its close."""
+    runs = tmp_path / "runs"
+    script = textwrap.dedent(
+        f"""
+        import threading, time
+        from pathlib import Path
+        import cso_runtime.launcher as L
+        from cso_runtime.run_profile import find_profile, load_profile
+
+        class SlowGet:
+            \"\"\"The session, its status queries held in flight 0.5 s.\"\"\"
+            def __init__(self, session):
+                self.session = session
+            def get(self, *args, **kwargs):
+                replies = self.session.get(*args, **kwargs)
+                time.sleep(0.5)
+                return replies
+            def __getattr__(self, name):
+                return getattr(self.session, name)
+
+        class Recorded:
+            \"\"\"The run's session, recording at its close whether the status watch's thread still runs.\"\"\"
+            def __init__(self, session):
+                self.session = session
+            def __enter__(self):
+                self.session.__enter__()
+                return self
+            def __exit__(self, *exc):
+                print("watch alive at close:", any(t.name == "status-watch" and t.is_alive() for t in threading.enumerate()))
+                return self.session.__exit__(*exc)
+            def __getattr__(self, name):
+                return getattr(self.session, name)
+
+        real_open_router = L.open_router
+        L.open_router = lambda *a, **k: (lambda opened: (Recorded(opened[0]), opened[1]))(real_open_router(*a, **k))
+        real_start = L.StatusWatch.start
+
+        def start(self):
+            self._session = SlowGet(self._session)
+            real_start(self)
+            time.sleep(0.1)  # its first query in flight
+            launcher.stop_event.set()  # Ctrl-C, as the signal handler sets it
+
+        L.StatusWatch.start = start
+        profile, data = load_profile(str(find_profile("lockstep")), {{"scene": {SCENE!r}}})
+        launcher = L.Launcher(profile, data, Path({str(runs / "r")!r}))
+        print("exit", launcher.run())
+        """
+    )
+    r = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.splitlines() == ["watch alive at close: False", "exit 130"], r.stdout + r.stderr[-2000:]
+
+
 def test_two_up_started_at_once_cannot_both_run(tmp_path):
     """Two ``up`` started together both pass the current.json check (the first writes it only once it holds the
     runs folder's lock); the runs folder's lock lets one launcher run, and the other stops before it
@@ -2723,7 +2781,7 @@ def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts
     from cso_runtime.run_profile import REFEREES, load_profile
 
     assert REFEREES == ("sim", "ros2_bridge")
-    with pytest.raises(ConfigError, match="--without polcy: no such service; known: sim, "):
+    with pytest.raises(ConfigError, match=r"--without polcy \(did you mean policy\?\): no such service; known: sim, "):
         load_profile("lockstep", {}, without=["polcy"])
     with pytest.raises(ConfigError, match="--without foxglove_bridge: profile .*lockstep.yaml has no foxglove_bridge service"):
         load_profile("lockstep", {}, without=["foxglove_bridge"])
@@ -2739,7 +2797,7 @@ def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts
     with pytest.raises(ConfigError, match="without: policy is also in services"):
         from_dict_profile(data)
     for args, said in (
-        (["--without", "polcy"], "error: --without polcy: no such service"),
+        (["--without", "polcy"], "error: --without polcy (did you mean policy?): no such service"),
         (["--without", "sim"], "error: --without sim: sim owns the episode (its status and end); a run cannot go without it"),
         (["--profile", "limo-ros2", "--connect", "tcp/127.0.0.1:7447", "--without", "frontier", "--without", "ros2_bridge"], "error: --without ros2_bridge"),
     ):
@@ -2748,7 +2806,7 @@ def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts
         assert "Traceback" not in r.stderr
     assert not (tmp_path / "runs").exists()
     r = cli("dataflow", "--profile", "lockstep", "--without", "planer", cwd=tmp_path)
-    assert r.returncode == 2 and "error: --without planer: no such service" in r.stderr, r.stderr
+    assert r.returncode == 2 and "error: --without planer (did you mean planner?): no such service" in r.stderr, r.stderr
     r = cli("up", "--profile", "lockstep", "--without", "policy", "--dry-run", cwd=tmp_path)
     assert r.returncode == 0 and r.stdout.startswith(
         "# profile lockstep, valid: `up` would start sim, mapper, frontier, planner for robot r0 (without policy: not started by this run)"

@@ -529,3 +529,21 @@ def test_a_rotated_map_origin_is_kept_in_the_maps_written(tmp_path):
     assert map_origin_of(moved, scene.map_origin) == pytest.approx([-3.0, 2.5, math.pi / 2])  # the map's y
     p = scene.to_map_frame(Pose2D(1.0, 2.0, 0.1))
     assert (p.x_m, p.y_m, p.yaw_rad) == pytest.approx((-5.0, 2.5, math.pi / 2 + 0.1))
+
+
+@pytest.mark.parametrize(
+    ("spec", "said"),
+    [
+        ("bulitin", "scene spec 'bulitin' (did you mean builtin?) is not a folder, a .png, a map .yaml, 'builtin' or generated:SCALE:N:SEED"),
+        ("generated:super-large:2:0", "generated scale must be one of small, middle, large, super_large, got 'super-large' (did you mean super_large?)"),
+        ("generated:huge:2:0", "generated scale must be one of small, middle, large, super_large, got 'huge'"),
+    ],
+)
+def test_a_misspelt_scene_spec_is_refused_with_the_spelling_it_most_likely_meant(spec: str, said: str) -> None:
+    """``--scene bulitin`` or ``generated:super-large:...`` were refused without the nearest spelling that profiles,
+    methods and config keys get (``did you mean``): the user had to read the list and find their own typo."""
+    from cso_runtime.scenes import SceneError, resolve_scenes
+
+    with pytest.raises(SceneError) as caught:
+        resolve_scenes(spec)
+    assert str(caught.value) == said

@@ -314,3 +314,54 @@ def test_peers_opened_at_once_behind_a_password_router_all_link_to_each_other(tm
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait(10)
+
+
+def test_a_process_waits_at_its_end_for_a_zenoh_open_it_gave_up_on(tmp_path):
+    """``up`` Ctrl-C'd while its router opened (``open_session`` given up on, exit 130) ended as Zenoh's open returned
+    into Python while the interpreter finalized: "FATAL: exception not rethrown", SIGABRT (exit -6 / 134). The open's
+    thread now ends (and closes what it opened) before the interpreter does; here a slow stand-in for Zenoh's open
+    writes a file when it returns, which a process that ended first never did."""
+    returned = tmp_path / "open-returned"
+    script = f"""
+import threading, time
+from pathlib import Path
+from cso_runtime import transport
+
+def slow_open(conf):
+    time.sleep(0.5)
+    Path({str(returned)!r}).write_text("returned")
+    raise transport.TransportError("not opened in this test")
+
+transport._open = slow_open
+stop = threading.Event()
+stop.set()
+try:
+    transport.open_session(transport.TransportConfig(mode="peer"), stop)
+except transport.TransportError as exc:
+    assert exc.cause == transport.STOPPED, exc
+    raise SystemExit(130)
+"""
+    proc = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 130, proc.stderr
+    assert returned.read_text() == "returned"
+
+
+def test_zenohs_error_is_said_without_the_rust_source_line_it_came_from(monkeypatch):
+    """``up --profile limo-ros2`` with the robot off ended on Zenoh's own text, the place in Zenoh's Rust source
+    included: "... Timeout! at /root/.cargo/git/checkouts/zenoh-.../orchestrator.rs:388.". The error keeps Zenoh's
+    words and leaves out the build machine's path, which says nothing to the user."""
+
+    def fake_open(cfg):
+        raise zenoh.ZError(
+            "Unable to connect to any of [Single(tcp/127.0.0.1:7447)]. Timeout! at "
+            "/root/.cargo/git/checkouts/zenoh-9c599d5ef3e0480e/cc83980/zenoh/src/net/runtime/orchestrator.rs:388."
+        )
+
+    monkeypatch.setattr(zenoh, "open", fake_open)
+    with pytest.raises(transport.TransportError) as err:
+        transport.open_session(TransportConfig(mode="client", connect=[loopback_endpoint(7447)], connect_timeout_s=2.0))
+    said = str(err.value)
+    assert err.value.cause == transport.UNREACHABLE
+    assert said.startswith("cannot reach tcp/127.0.0.1:7447 within 2 s: cannot open zenoh session (client")
+    assert said.endswith("Unable to connect to any of [Single(tcp/127.0.0.1:7447)]. Timeout!"), said
+    assert ".rs:" not in said and ".cargo" not in said
