@@ -78,6 +78,34 @@ def test_the_seeds_of_one_plan_are_resampled_together_not_as_more_scenes():
     assert unit[1] - unit[0] < (c1.ci_high_pct - c1.ci_low_pct) / 100 * 0.85
 
 
+def test_the_metrics_of_one_set_of_plans_share_their_resamples_and_get_the_intervals_of_fresh_draws():
+    """A summary's metrics of one method and scale are resampled over the same plans: the resamples are drawn once
+    for all of them (drawing them anew for each metric was most of a summary's time), and every interval is the one
+    a fresh draw of the same seed gives, to the bit."""
+    from cso_runtime import comparison
+
+    def fresh(values: np.ndarray, labels: list[str], seed: int = 0) -> tuple[float, float]:
+        """The bootstrap of ``bootstrap_mean_ci``, with its resamples drawn anew."""
+        ids = {c: i for i, c in enumerate(dict.fromkeys(labels))}
+        index = np.array([ids[c] for c in labels])
+        picks = np.random.default_rng(seed).integers(0, len(ids), size=(10_000, len(ids)))
+        means = np.bincount(index, weights=values)[picks].sum(axis=1) / np.bincount(index)[picks].sum(axis=1)
+        lo, hi = np.percentile(means, [2.5, 97.5])
+        return float(lo), float(hi)
+
+    rng = np.random.default_rng(3)
+    plans = [f"plan{i % 7}" for i in range(20)]  # 7 plans, several episodes of each
+    comparison._cluster_bootstrap.cache_clear()
+    metrics = [rng.normal(size=20) for _ in range(5)]
+    assert [bootstrap_mean_ci(v, clusters=plans) for v in metrics] == [fresh(v, plans) for v in metrics]
+    assert comparison._cluster_bootstrap.cache_info().misses == 1  # one draw for the five metrics
+    assert bootstrap_mean_ci(metrics[0], clusters=plans, seed=1) == fresh(metrics[0], plans, seed=1)
+    comparison._bootstrap_picks.cache_clear()
+    plain = [rng.normal(size=9) for _ in range(3)]
+    expected = [tuple(np.percentile(v[np.random.default_rng(0).integers(0, 9, size=(10_000, 9))].mean(axis=1), [2.5, 97.5])) for v in plain]
+    assert [bootstrap_mean_ci(v) for v in plain] == expected and comparison._bootstrap_picks.cache_info().misses == 1
+
+
 def test_a_bad_efficiency_or_a_file_that_is_not_episodes_csv_is_a_clear_error(tmp_path: Path):
     with pytest.raises(ValueError, match="cso on a: efficiency 'fast' is not a number"):
         efficiency_by_scene([dict(zip(FIELDS, ("cso", "a", "large", 0, 100, "fast")))])
