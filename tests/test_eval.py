@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import io
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -997,6 +998,26 @@ def test_an_episode_of_no_step_is_drawn_not_left_an_empty_plot():
     assert top.get_ylim()[0] == 0.0 and "no step" in [t.get_text() for t in top.texts]
     plt.close(fig)
 
+
+
+def test_pyplot_is_imported_in_the_background_on_the_agg_backend_for_figures_drawn_later():
+    """The launcher starts ``import_pyplot_in_background`` once its services are spawned, and draws the episode's
+    figures once it ends: pyplot's import (about 1 s) is then done, on Agg (files only). Checked in a fresh process,
+    where nothing imported matplotlib before: the launcher's own start does not."""
+    script = (
+        "import sys, threading\n"
+        "import cso_runtime.launcher\n"
+        "from cso_runtime.plots import import_pyplot_in_background\n"
+        "assert 'matplotlib' not in sys.modules\n"
+        "thread = import_pyplot_in_background()\n"
+        "assert isinstance(thread, threading.Thread) and thread.daemon\n"
+        "thread.join()\n"
+        "import matplotlib\n"
+        "print('matplotlib.pyplot' in sys.modules, matplotlib.get_backend().lower())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env={k: v for k, v in os.environ.items() if k != "MPLBACKEND"})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "agg"]
 
 def test_the_coverage_figures_step_is_the_period_the_episodes_ran_with_or_a_real_robots_scan():
     """The x axis said "step (0.25 s)" whatever the step was: a run with another ``robot.control_period_s``, or a
