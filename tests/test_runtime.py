@@ -567,20 +567,30 @@ def test_a_service_log_level_is_checked_and_applied_under_the_cli(capsys):
         root.setLevel(level)
 
 
-def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path):
+def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path, caplog, monkeypatch):
     """``--runs-dir`` or ``--record-out`` below a file: one error line and exit 2, no run folder, no process
     (the recorder's thread used to die with a traceback after the router had started). ``--runs-dir`` a file: the
-    same one line, with no warning before it that its ``current.json`` is "not readable as JSON"."""
+    same one line, with no warning before it that its ``current.json`` is "not readable as JSON". These refusals
+    come before anything starts: asked of the app in this process (a command's start costs a second each), where
+    its log records reach ``caplog``; the recorder's failure, after the router has opened, from the command."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
     (tmp_path / "a_file").write_text("")
+    monkeypatch.chdir(tmp_path)
     for flags, why in (
         (["--runs-dir", str(tmp_path / "a_file" / "runs")], "--runs-dir"),
         (["--runs-dir", str(tmp_path / "a_file")], "--runs-dir"),
         (["--record-out", str(tmp_path / "a_file" / "r.mcap"), "--runs-dir", str(tmp_path / "runs")], "--record-out"),
     ):
         for detach in ([], ["--detach"]):
-            r = cli("up", "--profile", "lockstep", *flags, *detach, cwd=tmp_path, timeout_s=30)
-            assert r.returncode == 2 and why in r.stderr and "cannot create the folder" in r.stderr, r.stderr
-            assert "Traceback" not in r.stderr and "WARNING" not in r.stderr, r.stderr
+            caplog.clear()
+            with caplog.at_level("WARNING"):
+                r = CliRunner().invoke(app, ["up", "--profile", "lockstep", *flags, *detach])
+            assert r.exit_code == 2 and why in r.stderr and "cannot create the folder" in r.stderr, r.stderr
+            assert not isinstance(r.exception, Exception) and "Traceback" not in r.stderr and "WARNING" not in r.stderr, (r.exception, r.stderr)
+            assert not caplog.records, caplog.text
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
     # A recording path whose folder exists passes that check; here the recorder then fails to open it (a link
     # into a folder that is gone) and the run stops before any service starts, saying why.
