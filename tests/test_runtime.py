@@ -85,6 +85,18 @@ def cli(*args: str, cwd: Path, timeout_s: float = 60.0) -> subprocess.CompletedP
     return subprocess.run([*python_module_argv("cso_runtime.cli"), *args], cwd=cwd, capture_output=True, text=True, timeout=timeout_s)
 
 
+def usage_error(*args: str) -> str:
+    """The error that ``cso-runtime ARGS`` ends with (exit 2, no traceback), asked of its app in this process: a usage
+    error comes before anything starts, where a command of its own costs a second or more of start-up."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    r = CliRunner().invoke(app, list(args))
+    assert r.exit_code == 2 and not isinstance(r.exception, Exception) and "Traceback" not in r.stderr, (r.exit_code, r.exception, r.stderr)
+    return r.stderr
+
+
 def write_profile(tmp_path: Path, scene: str = SCENE, method: str = "greedy-dist", leave_out: tuple[str, ...] = (), **sim_params: Any) -> Path:
     """The lockstep profile on ``scene`` with ``method``, without the services in ``leave_out`` (not listed, no
     ``without:``: a profile that leaves them to another process)."""
@@ -572,11 +584,7 @@ def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path, cap
     (the recorder's thread used to die with a traceback after the router had started). ``--runs-dir`` a file: the
     same one line, with no warning before it that its ``current.json`` is "not readable as JSON". These refusals
     come before anything starts: asked of the app in this process (a command's start costs a second each), where
-    its log records reach ``caplog``; the recorder's failure, after the router has opened, from the command."""
-    from typer.testing import CliRunner
-
-    from cso_runtime.cli import app
-
+    its log records reach ``caplog`` (``usage_error``); the recorder's failure, after the router has opened, from the command."""
     (tmp_path / "a_file").write_text("")
     monkeypatch.chdir(tmp_path)
     for flags, why in (
@@ -587,9 +595,8 @@ def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path, cap
         for detach in ([], ["--detach"]):
             caplog.clear()
             with caplog.at_level("WARNING"):
-                r = CliRunner().invoke(app, ["up", "--profile", "lockstep", *flags, *detach])
-            assert r.exit_code == 2 and why in r.stderr and "cannot create the folder" in r.stderr, r.stderr
-            assert not isinstance(r.exception, Exception) and "Traceback" not in r.stderr and "WARNING" not in r.stderr, (r.exception, r.stderr)
+                said = usage_error("up", "--profile", "lockstep", *flags, *detach)
+            assert why in said and "cannot create the folder" in said and "WARNING" not in said, said
             assert not caplog.records, caplog.text
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
     # A recording path whose folder exists passes that check; here the recorder then fails to open it (a link
@@ -2623,7 +2630,7 @@ def test_a_service_started_by_hand_that_leaves_after_the_episode_ended_is_not_sa
     assert said in caplog.text and "goes on" not in caplog.text and "comes back" not in caplog.text, caplog.text
 
 
-def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts(tmp_path):
+def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts(tmp_path, monkeypatch):
     """``up --without NAME`` leaves a service of the profile out of the run (its robot served by another run's shared
     policy); a name that is no service, one the profile does not have, or a referee (the episode's owner, without
     which the run cannot end) is a usage error naming the flag, exit 2 and nothing started; ``dataflow`` too."""
@@ -2646,17 +2653,15 @@ def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts
     data["services"]["policy"] = {}  # a hand-written profile is held to the same: a service either runs or is left out
     with pytest.raises(ConfigError, match="without: policy is also in services"):
         from_dict_profile(data)
+    monkeypatch.chdir(tmp_path)
     for args, said in (
         (["--without", "polcy"], "error: --without polcy: no such service"),
         (["--without", "sim"], "error: --without sim: sim owns the episode (its status and end); a run cannot go without it"),
         (["--profile", "limo-ros2", "--connect", "tcp/127.0.0.1:7447", "--without", "frontier", "--without", "ros2_bridge"], "error: --without ros2_bridge"),
     ):
-        r = cli("up", "--profile", "lockstep", "--no-live", *args, cwd=tmp_path)
-        assert r.returncode == 2 and said in r.stderr, r.stderr
-        assert "Traceback" not in r.stderr
+        assert said in usage_error("up", "--profile", "lockstep", "--no-live", *args)
     assert not (tmp_path / "runs").exists()
-    r = cli("dataflow", "--profile", "lockstep", "--without", "planer", cwd=tmp_path)
-    assert r.returncode == 2 and "error: --without planer: no such service" in r.stderr, r.stderr
+    assert "error: --without planer: no such service" in usage_error("dataflow", "--profile", "lockstep", "--without", "planer")
     r = cli("up", "--profile", "lockstep", "--without", "policy", "--dry-run", cwd=tmp_path)
     assert r.returncode == 0 and r.stdout.startswith(
         "# profile lockstep, valid: `up` would start sim, mapper, frontier, planner for robot r0 (without policy: not started by this run)"
@@ -3595,16 +3600,17 @@ def test_a_service_attaches_to_the_current_run_and_a_bridge_started_late_serves_
         kill_leftovers(runs)
 
 
-def test_up_with_a_zenoh_config_file_zenoh_refuses_says_so_and_starts_nothing(tmp_path):
-    """A missing file, one not JSON5 and one with a key Zenoh does not know: one error line, exit 2, no run."""
+def test_up_with_a_zenoh_config_file_zenoh_refuses_says_so_and_starts_nothing(tmp_path, monkeypatch):
+    """A missing file, one not JSON5 and one with a key Zenoh does not know: one error line, exit 2, no run (usage
+    errors, asked of the app in this process: ``usage_error``)."""
     (tmp_path / "bad.json5").write_text("{ transport: ")
     (tmp_path / "typo.json5").write_text("{ transport: { auth: { usrpwd: { usr: 'cso' } } } }")
     runs = tmp_path / "runs"
+    monkeypatch.chdir(tmp_path)
     for name, said in (("missing.json5", "No such file"), ("bad.json5", "expected"), ("typo.json5", "unknown field `usr`")):
         for flags in (["up", "--profile", "lockstep", "--zenoh-config", name], ["--zenoh-config", name, "up", "--profile", "lockstep"]):
-            r = cli(*flags, "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
-            assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, r.stderr
-            assert not runs.exists()
+            assert said in usage_error(*flags, "--no-live", "--runs-dir", str(runs))
+            assert not runs.exists() and ZENOH_CONFIG_ENV not in os.environ
 
 
 def log_tails(runs: Path, chars: int = 1500) -> str:
