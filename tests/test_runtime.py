@@ -63,7 +63,7 @@ from cso_runtime.transport import (
     loopback_endpoint,
     open_session,
 )
-from tests.conftest import HANG_DEADLINE_S
+from tests.conftest import HANG_DEADLINE_S, unset_weights_env
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILES = REPO / "cso_runtime" / "profiles"
@@ -459,24 +459,23 @@ def test_a_policy_server_lets_a_robot_go_when_its_run_stops():
 # --- tier 3: real processes ------------------------------------------------------------------------
 
 
-def test_bad_profiles_fail_before_anything_starts(tmp_path):
-    r = cli("up", "--profile", "no-such-profile", "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "unknown profile 'no-such-profile'" in r.stderr
+def test_bad_profiles_fail_before_anything_starts(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # usage errors, asked of the app in this process (``usage_error``)
+    assert "unknown profile 'no-such-profile'" in usage_error("up", "--profile", "no-such-profile", "--no-live")
     bad = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
     bad["services"]["sim"]["warp_speed"] = 9
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
-    r = cli("up", "--profile", str(tmp_path / "bad.yaml"), "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "warp_speed" in r.stderr
-    r = cli("up", "--profile", "lockstep", "--scene", "generated:huge:1:0", "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "scene" in r.stderr
+    assert "warp_speed" in usage_error("up", "--profile", str(tmp_path / "bad.yaml"), "--no-live")
+    assert "scene" in usage_error("up", "--profile", "lockstep", "--scene", "generated:huge:1:0", "--no-live")
     Image.new("RGB", (40, 30), (127, 127, 127)).save(tmp_path / "walls.png")  # resolves, but no floor and no start
-    r = cli("up", "--profile", "lockstep", "--scene", "walls.png", "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "walls: no start marker" in r.stderr
-    assert "lockstep.yaml with --scene walls.png: scene:" in r.stderr  # the flag that brought the bad scene
+    said = usage_error("up", "--profile", "lockstep", "--scene", "walls.png", "--no-live")
+    assert "walls: no start marker" in said
+    assert "lockstep.yaml with --scene walls.png: scene:" in said  # the flag that brought the bad scene
     (tmp_path / "weights").mkdir()
     shutil.copy(Path(cso_runtime.__file__).parent / "data" / "weights" / "cso.pt", tmp_path / "weights" / "cso.pt")
-    r = cli("up", "--profile", "lockstep", "--method", "gnn-baseline", "--weights", str(tmp_path / "weights"), "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "gnn-baseline.pt" in r.stderr  # a learned method without weights in --weights
+    unset_weights_env(monkeypatch)  # --weights sets the weights folder in this process's environment: put back after the test
+    said = usage_error("up", "--profile", "lockstep", "--method", "gnn-baseline", "--weights", str(tmp_path / "weights"), "--no-live")
+    assert "gnn-baseline.pt" in said  # a learned method without weights in --weights
     assert not (tmp_path / "runs").exists()
 
 
@@ -502,7 +501,7 @@ def test_a_profile_finds_its_scene_beside_it_and_a_flag_is_read_from_the_working
         load_profile(str(own / "mine.yaml"), {"scene": "office.png"})
 
 
-def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file(tmp_path):
+def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file(tmp_path, monkeypatch):
     """``up --set KEY=VALUE``: a dotted key into the profile (a service's parameter, an exploration setting), set
     in the data the run's services read; an unknown parameter or a key through a value is refused before anything
     starts, naming the flag."""
@@ -524,10 +523,9 @@ def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file
     assert r.returncode == 0 and r.stdout.startswith("# profile lockstep, valid: `up` would start sim, mapper, frontier, policy, planner"), r.stderr
     shown = yaml.safe_load(r.stdout)  # what the services would read, and nothing started
     assert shown["services"]["sim"]["min_step_period_s"] == 0.1 and shown["seed"] == 3 and not (tmp_path / "runs").exists()
-    r = cli("up", "--profile", "lockstep", "--set", "services.sim", "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "--set expects KEY=VALUE, got 'services.sim'" in r.stderr
-    r = cli("up", "--profile", "lockstep", "--set", "services.sim.warp_speed=9", "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "warp_speed" in r.stderr and not (tmp_path / "runs").exists()
+    monkeypatch.chdir(tmp_path)  # usage errors, asked of the app in this process (``usage_error``)
+    assert "--set expects KEY=VALUE, got 'services.sim'" in usage_error("up", "--profile", "lockstep", "--set", "services.sim", "--no-live")
+    assert "warp_speed" in usage_error("up", "--profile", "lockstep", "--set", "services.sim.warp_speed=9", "--no-live") and not (tmp_path / "runs").exists()
 
 
 def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_running(tmp_path, capsys):
