@@ -13,6 +13,7 @@ and ``summary.json`` whenever the baseline ran too; ``cso-runtime compare`` pool
 from __future__ import annotations
 
 import csv
+import functools
 import io
 import math
 from collections import defaultdict
@@ -252,18 +253,42 @@ def bootstrap_mean_ci(values: np.ndarray, resamples: int = 10_000, seed: int = 0
     """95 % percentile interval of the mean, resampling the values with replacement; with ``clusters`` (one label
     per value), resampling whole clusters: the episodes of one plan under several seeds are not independent
     scenes, and resampling them one by one would make the interval too narrow."""
-    rng = np.random.default_rng(seed)
-    labels = list(clusters) if clusters is not None else []
+    labels = tuple(clusters) if clusters is not None else ()
     if not labels or len(set(labels)) == len(labels):  # one value per cluster: the plain bootstrap
-        means = values[rng.integers(0, len(values), size=(resamples, len(values)))].mean(axis=1)
+        means = values[_bootstrap_picks(len(values), resamples, seed)].mean(axis=1)
     else:
-        ids = {c: i for i, c in enumerate(dict.fromkeys(labels))}
-        index = np.array([ids[c] for c in labels])
-        sums, counts = np.bincount(index, weights=values), np.bincount(index)
-        picks = rng.integers(0, len(ids), size=(resamples, len(ids)))
-        means = sums[picks].sum(axis=1) / counts[picks].sum(axis=1)
+        index, picks, picked_counts = _cluster_bootstrap(labels, resamples, seed)
+        means = np.bincount(index, weights=values)[picks].sum(axis=1) / picked_counts
     lo, hi = np.percentile(means, [2.5, 97.5])
     return float(lo), float(hi)
+
+
+BOOTSTRAPS_KEPT = 4
+"""Resamplings ``bootstrap_mean_ci`` keeps for its next calls: a table's metrics of one method and scale (eval's
+summary, ``compare``, benchmarks/tables.py) are resampled over the same plans, and drawing the same resamples anew
+for each metric was most of a summary's time (BENCHMARKS.md's Table 1 pooling: 6.5 s, 2.6 s with them kept). The
+largest, 10,000 resamples of a few hundred episodes, are tens of MB."""
+
+
+@functools.lru_cache(maxsize=BOOTSTRAPS_KEPT)
+def _bootstrap_picks(n: int, resamples: int, seed: int) -> np.ndarray:
+    """The plain bootstrap's resamples of ``n`` values (``resamples`` x ``n`` indices; read-only: they are shared)."""
+    picks = np.random.default_rng(seed).integers(0, n, size=(resamples, n))
+    picks.flags.writeable = False
+    return picks
+
+
+@functools.lru_cache(maxsize=BOOTSTRAPS_KEPT)
+def _cluster_bootstrap(labels: tuple[Any, ...], resamples: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cluster bootstrap's resamples of ``labels``' clusters: each value's cluster index, the picked clusters
+    (``resamples`` x clusters) and how many values each resample holds (read-only: they are shared)."""
+    ids = {c: i for i, c in enumerate(dict.fromkeys(labels))}
+    index = np.array([ids[c] for c in labels])
+    picks = np.random.default_rng(seed).integers(0, len(ids), size=(resamples, len(ids)))
+    picked_counts = np.bincount(index)[picks].sum(axis=1)
+    for array in (index, picks, picked_counts):
+        array.flags.writeable = False
+    return index, picks, picked_counts
 
 
 def compare_to_baseline(table: EfficiencyTable, baseline: str = "greedy-dist", min_scenes: int = MIN_SCENES) -> list[PairedComparison]:

@@ -79,6 +79,7 @@ from cso_runtime.messages import (
 from cso_runtime.outputs import results_said, write_text_atomic
 from cso_runtime.pace import StepPace
 from cso_runtime.pause import LOCKSTEP_REFUSAL, PauseClock
+from cso_runtime.plots import import_pyplot_in_background
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
 from cso_runtime.provenance import command_line, record_command_line, software_provenance
 from cso_runtime.run_folder import RunFolderWatch
@@ -1275,6 +1276,7 @@ class Launcher:
                 log.error("%s: no service was started", exc)
                 return self.stop_before_start(EXIT_BAD_CONFIG)
             ending: EpisodeEnd | None = None  # the ended episode's results being written (start_episode_end)
+            pyplot_import: threading.Thread | None = None
             try:
                 pr = self.profile  # which run this is, and where to look, before the services' lines
                 log.info(
@@ -1282,6 +1284,7 @@ class Launcher:
                     self.run_id, pr.name, pr.scene_label, pr.method, pr.robot, self.run_dir,
                 )  # fmt: skip
                 self.spawn_all()
+                pyplot_import = import_pyplot_in_background()  # for the episode's figures, drawn once it ends
                 self.write_run_file("running")
                 if view is not None:
                     view.start()
@@ -1364,6 +1367,8 @@ class Launcher:
                     ending.thread.join()
                     self.settle_episode_end(ending)
                 self.finish_recording(recorder)
+                if pyplot_import is not None:  # never left importing as the interpreter exits (a run stopped at its start)
+                    pyplot_import.join()
                 if self.run_folder.lost():  # deleted since the last round: the stop's lines and the run's end are kept too
                     self.tend_run_folder()
                 alive_sub.undeclare()

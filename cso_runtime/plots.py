@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
@@ -20,6 +21,23 @@ def _pyplot() -> ModuleType:
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     return plt
+
+
+def import_pyplot_in_background() -> threading.Thread:
+    """Start ``_pyplot``'s import (about 1 s of a 2-core host's time) on a daemon thread, for a process that draws its
+    figures only after a wait of its own: the launcher, while its services start and its episode runs, drew them
+    that much later once the episode had ended. A figure drawn before the import is done waits for it (Python's
+    import lock); an import that fails here fails again, and is said, where the figure is drawn."""
+
+    def run() -> None:
+        try:
+            _pyplot()
+        except Exception:  # noqa: BLE001, S110 - only a head start: the figure's own import raises it where it is said
+            pass
+
+    thread = threading.Thread(target=run, name="import-pyplot", daemon=True)
+    thread.start()
+    return thread
 
 
 def _save(fig: Any, path: Path, dpi: int) -> None:

@@ -84,6 +84,12 @@ connections refused with usrpwd): of five peers opened at once behind a password
 3 of 17 tries, none with this strategy or without a password. A lockstep run's sim then never heard one service and
 failed its episode after ``lockstep_give_up_s``, as on a loaded host while sessions without the password were refused."""
 
+LONE_ROUTER_SCOUTING_DELAY_MS = 0
+"""``scouting/delay`` of a router that joins no other (``zenoh_config``): Zenoh's router waits out the whole delay (500 ms
+by default) as it opens, for the peers its multicast scouting would find; multicast scouting is always off here, and
+with no router to join there is no one to wait for. Every ``up`` opens one (its embedded router), as do the tests:
+half a second each for nothing. A router that joins others keeps Zenoh's delay, as does a file's own value."""
+
 FILE_KEYS = (
     "transport/auth/usrpwd/dictionary_file",
     "transport/link/tls/root_ca_certificate",
@@ -178,6 +184,8 @@ def zenoh_config(conf: TransportConfig) -> zenoh.Config:
     for key, value in TUNED_KEYS.items():
         if cfg.get_json(key) == zenoh_default.get_json(key):  # a file's own value is kept
             cfg.insert_json5(key, value)
+    if conf.mode == "router" and not conf.connect and cfg.get_json("scouting/delay") == zenoh_default.get_json("scouting/delay"):
+        cfg.insert_json5("scouting/delay", str(LONE_ROUTER_SCOUTING_DELAY_MS))
     if conf.mode == "client" or (conf.mode == "router" and conf.connect):
         # Keep retrying the router for a while instead of failing at once: services may start first. A router that
         # joins others would otherwise open at once and retry them in the background for ever, saying nothing: a

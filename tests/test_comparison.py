@@ -78,6 +78,34 @@ def test_the_seeds_of_one_plan_are_resampled_together_not_as_more_scenes():
     assert unit[1] - unit[0] < (c1.ci_high_pct - c1.ci_low_pct) / 100 * 0.85
 
 
+def test_the_metrics_of_one_set_of_plans_share_their_resamples_and_get_the_intervals_of_fresh_draws():
+    """A summary's metrics of one method and scale are resampled over the same plans: the resamples are drawn once
+    for all of them (drawing them anew for each metric was most of a summary's time), and every interval is the one
+    a fresh draw of the same seed gives, to the bit."""
+    from cso_runtime import comparison
+
+    def fresh(values: np.ndarray, labels: list[str], seed: int = 0) -> tuple[float, float]:
+        """The bootstrap of ``bootstrap_mean_ci``, with its resamples drawn anew."""
+        ids = {c: i for i, c in enumerate(dict.fromkeys(labels))}
+        index = np.array([ids[c] for c in labels])
+        picks = np.random.default_rng(seed).integers(0, len(ids), size=(10_000, len(ids)))
+        means = np.bincount(index, weights=values)[picks].sum(axis=1) / np.bincount(index)[picks].sum(axis=1)
+        lo, hi = np.percentile(means, [2.5, 97.5])
+        return float(lo), float(hi)
+
+    rng = np.random.default_rng(3)
+    plans = [f"plan{i % 7}" for i in range(20)]  # 7 plans, several episodes of each
+    comparison._cluster_bootstrap.cache_clear()
+    metrics = [rng.normal(size=20) for _ in range(5)]
+    assert [bootstrap_mean_ci(v, clusters=plans) for v in metrics] == [fresh(v, plans) for v in metrics]
+    assert comparison._cluster_bootstrap.cache_info().misses == 1  # one draw for the five metrics
+    assert bootstrap_mean_ci(metrics[0], clusters=plans, seed=1) == fresh(metrics[0], plans, seed=1)
+    comparison._bootstrap_picks.cache_clear()
+    plain = [rng.normal(size=9) for _ in range(3)]
+    expected = [tuple(np.percentile(v[np.random.default_rng(0).integers(0, 9, size=(10_000, 9))].mean(axis=1), [2.5, 97.5])) for v in plain]
+    assert [bootstrap_mean_ci(v) for v in plain] == expected and comparison._bootstrap_picks.cache_info().misses == 1
+
+
 def test_a_bad_efficiency_or_a_file_that_is_not_episodes_csv_is_a_clear_error(tmp_path: Path):
     with pytest.raises(ValueError, match="cso on a: efficiency 'fast' is not a number"):
         efficiency_by_scene([dict(zip(FIELDS, ("cso", "a", "large", 0, 100, "fast")))])
@@ -174,7 +202,12 @@ def test_compare_renames_a_method_of_one_file_to_set_two_runs_of_it_side_by_side
     """The shipped cso and a training run's are both ``cso`` in their episodes.csv: ``--rename FILE:METHOD=NEW``
     compares one file's under another name, beside the other instead of in its place (no note of a replacement).
     FILE is as given (a folder, a label); a rename of no file given, of a method the file lacks, to a method the
-    file has, or not of the form FILE:METHOD=NEW is exit 2 with the reason."""
+    file has, or not of the form FILE:METHOD=NEW is exit 2 with the reason (asked of the app in this process, where
+    a command of its own costs a second of start-up)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
     base = rows("greedy-dist", "large", {"a": 1.0, "b": 1.0, "c": 1.0})
     shipped = write(tmp_path / "shipped.csv", base + rows("cso", "large", {"a": 1.2, "b": 1.2, "c": 1.1}))
     (tmp_path / "mine").mkdir()
@@ -196,7 +229,7 @@ def test_compare_renames_a_method_of_one_file_to_set_two_runs_of_it_side_by_side
         (f"{mine}=cso-mine", "--rename expects FILE:METHOD=NEW"),
         (f"medium={mine}:cso=x", "is not one of the files compared"),  # the label must be the file's
     ):
-        wrong = subprocess.run(exe + [str(shipped), str(mine), "--rename", rename], capture_output=True, text=True, timeout=60)
-        assert wrong.returncode == 2 and said in " ".join(wrong.stderr.split()) and "Traceback" not in wrong.stderr, (rename, wrong.stderr)
+        wrong = CliRunner().invoke(app, ["compare", str(shipped), str(mine), "--rename", rename])  # usage errors: in this process
+        assert wrong.exit_code == 2 and said in " ".join(wrong.stderr.split()) and not isinstance(wrong.exception, Exception), (rename, wrong.stderr, wrong.exception)
     help_text = subprocess.run(exe + ["--help"], capture_output=True, text=True, timeout=60, env={**os.environ, "COLUMNS": "200"})
     assert "--rename" in help_text.stdout and "FILE:METHOD=NEW" in help_text.stdout

@@ -6,6 +6,7 @@ import csv
 import dataclasses
 import io
 import json
+import os
 import re
 import shutil
 import subprocess
@@ -232,6 +233,12 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
 
 
 def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
+    """The script runs an eval and ends a failed one with exit 1, in processes of their own; the usage errors (exit 2,
+    one line, before anything runs) are the same app's, asked in this process (a process start each cost seconds)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
     exe = [sys.executable, "-m", "cso_runtime.cli"]
     ok = subprocess.run(
         exe + ["eval", "--method", "baselines", "--maps", "generated:small:1:3", "--out", str(tmp_path / "o"), "--max-steps", "40"],
@@ -242,25 +249,26 @@ def test_eval_cli_runs_and_rejects_bad_arguments(tmp_path: Path):
     assert ok.returncode == 0, ok.stderr
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert list(summary["methods"]) == ["greedy-dist", "greedy-info", "utility", "random"]  # the group, expanded
-    bad = subprocess.run(exe + ["eval", "--method", "greedy-dsit"], capture_output=True, text=True, timeout=60)
-    assert bad.returncode == 2 and "unknown method 'greedy-dsit' (did you mean greedy-dist?)" in bad.stderr
-    bad_set = subprocess.run(exe + ["eval", "--set", "masks"], capture_output=True, text=True, timeout=60)
-    assert bad_set.returncode == 2 and "--set expects KEY=VALUE, got 'masks'" in bad_set.stderr
-    bad_maps = subprocess.run(exe + ["eval", "--maps", str(tmp_path / "nowhere")], capture_output=True, text=True, timeout=60)
-    assert bad_maps.returncode == 2 and "nowhere" in bad_maps.stderr
+
+    def usage_error(*args: str) -> str:
+        """``eval ARGS``'s stderr, once it ended with exit 2 and no traceback."""
+        r = CliRunner().invoke(app, ["eval", *args])
+        assert r.exit_code == 2 and not isinstance(r.exception, Exception) and "Traceback" not in r.stderr, (r.exception, r.stderr)
+        return r.stderr
+
+    assert "unknown method 'greedy-dsit' (did you mean greedy-dist?)" in usage_error("--method", "greedy-dsit")
+    assert "--set expects KEY=VALUE, got 'masks'" in usage_error("--set", "masks")
+    assert "nowhere" in usage_error("--maps", str(tmp_path / "nowhere"))
     # `up` names the option --scene; eval takes the same spelling for the same spec.
-    bad_scene = subprocess.run(exe + ["eval", "--scene", str(tmp_path / "elsewhere")], capture_output=True, text=True, timeout=60)
-    assert bad_scene.returncode == 2 and "elsewhere" in bad_scene.stderr
+    assert "elsewhere" in usage_error("--scene", str(tmp_path / "elsewhere"))
     # Messages are text, not rich markup, and never hard-wrapped: a path with brackets comes out whole.
     odd = tmp_path / "plans[red]" / "a_long_folder_name_that_would_wrap_at_eighty_columns"
-    bad_odd = subprocess.run(exe + ["eval", "--maps", str(odd)], capture_output=True, text=True, timeout=60)
-    assert bad_odd.returncode == 2 and str(odd) in bad_odd.stderr
+    assert str(odd) in usage_error("--maps", str(odd))
     (tmp_path / "m.yaml").write_text("image: m.pgm\nresolution: 0.05\norigin: [0.0, 0.0]\n")
     failed = subprocess.run(exe + ["eval", "--maps", str(tmp_path / "m.yaml"), "--out", str(tmp_path / "f")], capture_output=True, text=True, timeout=60)
     assert failed.returncode == 1 and "origin must be [x_m, y_m, yaw_rad]" in failed.stdout
     below_a_file = tmp_path / "m.yaml" / "out"  # an --out that cannot be made: said before any episode runs
-    unwritable = subprocess.run(exe + ["eval", "--maps", "generated:small:1:3", "--out", str(below_a_file)], capture_output=True, text=True, timeout=60)
-    assert unwritable.returncode == 2 and "cannot create the folder" in unwritable.stderr and "Traceback" not in unwritable.stderr
+    assert "cannot create the folder" in usage_error("--maps", "generated:small:1:3", "--out", str(below_a_file))
 
 
 def test_eval_refuses_a_lidar_field_of_view_for_the_depth_camera(tmp_path: Path):
@@ -997,6 +1005,26 @@ def test_an_episode_of_no_step_is_drawn_not_left_an_empty_plot():
     assert top.get_ylim()[0] == 0.0 and "no step" in [t.get_text() for t in top.texts]
     plt.close(fig)
 
+
+
+def test_pyplot_is_imported_in_the_background_on_the_agg_backend_for_figures_drawn_later():
+    """The launcher starts ``import_pyplot_in_background`` once its services are spawned, and draws the episode's
+    figures once it ends: pyplot's import (about 1 s) is then done, on Agg (files only). Checked in a fresh process,
+    where nothing imported matplotlib before: the launcher's own start does not."""
+    script = (
+        "import sys, threading\n"
+        "import cso_runtime.launcher\n"
+        "from cso_runtime.plots import import_pyplot_in_background\n"
+        "assert 'matplotlib' not in sys.modules\n"
+        "thread = import_pyplot_in_background()\n"
+        "assert isinstance(thread, threading.Thread) and thread.daemon\n"
+        "thread.join()\n"
+        "import matplotlib\n"
+        "print('matplotlib.pyplot' in sys.modules, matplotlib.get_backend().lower())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env={k: v for k, v in os.environ.items() if k != "MPLBACKEND"})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["True", "agg"]
 
 def test_the_coverage_figures_step_is_the_period_the_episodes_ran_with_or_a_real_robots_scan():
     """The x axis said "step (0.25 s)" whatever the step was: a run with another ``robot.control_period_s``, or a

@@ -65,7 +65,7 @@ from cso_runtime.transport import (
     loopback_endpoint,
     open_session,
 )
-from tests.conftest import HANG_DEADLINE_S
+from tests.conftest import HANG_DEADLINE_S, unset_weights_env
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILES = REPO / "cso_runtime" / "profiles"
@@ -85,6 +85,18 @@ def wait_for(cond: Callable[[], Any], timeout_s: float, what: str, period_s: flo
 def cli(*args: str, cwd: Path, timeout_s: float = 60.0) -> subprocess.CompletedProcess:
     """The command as the installed ``cso-runtime`` script runs it: the working folder is not on its module path."""
     return subprocess.run([*python_module_argv("cso_runtime.cli"), *args], cwd=cwd, capture_output=True, text=True, timeout=timeout_s)
+
+
+def usage_error(*args: str) -> str:
+    """The error that ``cso-runtime ARGS`` ends with (exit 2, no traceback), asked of its app in this process: a usage
+    error comes before anything starts, where a command of its own costs a second or more of start-up."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    r = CliRunner().invoke(app, list(args))
+    assert r.exit_code == 2 and not isinstance(r.exception, Exception) and "Traceback" not in r.stderr, (r.exit_code, r.exception, r.stderr)
+    return r.stderr
 
 
 def write_profile(tmp_path: Path, scene: str = SCENE, method: str = "greedy-dist", leave_out: tuple[str, ...] = (), **sim_params: Any) -> Path:
@@ -449,24 +461,23 @@ def test_a_policy_server_lets_a_robot_go_when_its_run_stops():
 # --- tier 3: real processes ------------------------------------------------------------------------
 
 
-def test_bad_profiles_fail_before_anything_starts(tmp_path):
-    r = cli("up", "--profile", "no-such-profile", "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "unknown profile 'no-such-profile'" in r.stderr
+def test_bad_profiles_fail_before_anything_starts(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # usage errors, asked of the app in this process (``usage_error``)
+    assert "unknown profile 'no-such-profile'" in usage_error("up", "--profile", "no-such-profile", "--no-live")
     bad = yaml.safe_load((PROFILES / "lockstep.yaml").read_text())
     bad["services"]["sim"]["warp_speed"] = 9
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(bad))
-    r = cli("up", "--profile", str(tmp_path / "bad.yaml"), "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "warp_speed" in r.stderr
-    r = cli("up", "--profile", "lockstep", "--scene", "generated:huge:1:0", "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "scene" in r.stderr
+    assert "warp_speed" in usage_error("up", "--profile", str(tmp_path / "bad.yaml"), "--no-live")
+    assert "scene" in usage_error("up", "--profile", "lockstep", "--scene", "generated:huge:1:0", "--no-live")
     Image.new("RGB", (40, 30), (127, 127, 127)).save(tmp_path / "walls.png")  # resolves, but no floor and no start
-    r = cli("up", "--profile", "lockstep", "--scene", "walls.png", "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "walls: no start marker" in r.stderr
-    assert "lockstep.yaml with --scene walls.png: scene:" in r.stderr  # the flag that brought the bad scene
+    said = usage_error("up", "--profile", "lockstep", "--scene", "walls.png", "--no-live")
+    assert "walls: no start marker" in said
+    assert "lockstep.yaml with --scene walls.png: scene:" in said  # the flag that brought the bad scene
     (tmp_path / "weights").mkdir()
     shutil.copy(Path(cso_runtime.__file__).parent / "data" / "weights" / "cso.pt", tmp_path / "weights" / "cso.pt")
-    r = cli("up", "--profile", "lockstep", "--method", "gnn-baseline", "--weights", str(tmp_path / "weights"), "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "gnn-baseline.pt" in r.stderr  # a learned method without weights in --weights
+    unset_weights_env(monkeypatch)  # --weights sets the weights folder in this process's environment: put back after the test
+    said = usage_error("up", "--profile", "lockstep", "--method", "gnn-baseline", "--weights", str(tmp_path / "weights"), "--no-live")
+    assert "gnn-baseline.pt" in said  # a learned method without weights in --weights
     assert not (tmp_path / "runs").exists()
 
 
@@ -492,7 +503,7 @@ def test_a_profile_finds_its_scene_beside_it_and_a_flag_is_read_from_the_working
         load_profile(str(own / "mine.yaml"), {"scene": "office.png"})
 
 
-def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file(tmp_path):
+def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file(tmp_path, monkeypatch):
     """``up --set KEY=VALUE``: a dotted key into the profile (a service's parameter, an exploration setting), set
     in the data the run's services read; an unknown parameter or a key through a value is refused before anything
     starts, naming the flag."""
@@ -514,10 +525,9 @@ def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file
     assert r.returncode == 0 and r.stdout.startswith("# profile lockstep, valid: `up` would start sim, mapper, frontier, policy, planner"), r.stderr
     shown = yaml.safe_load(r.stdout)  # what the services would read, and nothing started
     assert shown["services"]["sim"]["min_step_period_s"] == 0.1 and shown["seed"] == 3 and not (tmp_path / "runs").exists()
-    r = cli("up", "--profile", "lockstep", "--set", "services.sim", "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "--set expects KEY=VALUE, got 'services.sim'" in r.stderr
-    r = cli("up", "--profile", "lockstep", "--set", "services.sim.warp_speed=9", "--no-live", cwd=tmp_path)
-    assert r.returncode == 2 and "warp_speed" in r.stderr and not (tmp_path / "runs").exists()
+    monkeypatch.chdir(tmp_path)  # usage errors, asked of the app in this process (``usage_error``)
+    assert "--set expects KEY=VALUE, got 'services.sim'" in usage_error("up", "--profile", "lockstep", "--set", "services.sim", "--no-live")
+    assert "warp_speed" in usage_error("up", "--profile", "lockstep", "--set", "services.sim.warp_speed=9", "--no-live") and not (tmp_path / "runs").exists()
 
 
 def test_a_malformed_endpoint_is_a_usage_error_not_a_traceback_or_nothing_running(tmp_path, capsys):
@@ -589,20 +599,25 @@ def test_a_service_log_level_is_checked_and_applied_under_the_cli(capsys):
         root.setLevel(level)
 
 
-def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path):
+def test_up_refuses_folders_it_cannot_write_before_anything_starts(tmp_path, caplog, monkeypatch):
     """``--runs-dir`` or ``--record-out`` below a file: one error line and exit 2, no run folder, no process
     (the recorder's thread used to die with a traceback after the router had started). ``--runs-dir`` a file: the
-    same one line, with no warning before it that its ``current.json`` is "not readable as JSON"."""
+    same one line, with no warning before it that its ``current.json`` is "not readable as JSON". These refusals
+    come before anything starts: asked of the app in this process (a command's start costs a second each), where
+    its log records reach ``caplog`` (``usage_error``); the recorder's failure, after the router has opened, from the command."""
     (tmp_path / "a_file").write_text("")
+    monkeypatch.chdir(tmp_path)
     for flags, why in (
         (["--runs-dir", str(tmp_path / "a_file" / "runs")], "--runs-dir"),
         (["--runs-dir", str(tmp_path / "a_file")], "--runs-dir"),
         (["--record-out", str(tmp_path / "a_file" / "r.mcap"), "--runs-dir", str(tmp_path / "runs")], "--record-out"),
     ):
         for detach in ([], ["--detach"]):
-            r = cli("up", "--profile", "lockstep", *flags, *detach, cwd=tmp_path, timeout_s=30)
-            assert r.returncode == 2 and why in r.stderr and "cannot create the folder" in r.stderr, r.stderr
-            assert "Traceback" not in r.stderr and "WARNING" not in r.stderr, r.stderr
+            caplog.clear()
+            with caplog.at_level("WARNING"):
+                said = usage_error("up", "--profile", "lockstep", *flags, *detach)
+            assert why in said and "cannot create the folder" in said and "WARNING" not in said, said
+            assert not caplog.records, caplog.text
     assert not (tmp_path / "runs").exists() or not any((tmp_path / "runs").iterdir())
     # A recording path whose folder exists passes that check; here the recorder then fails to open it (a link
     # into a folder that is gone) and the run stops before any service starts, saying why.
@@ -2773,7 +2788,7 @@ def test_a_service_started_by_hand_that_leaves_after_the_episode_ended_is_not_sa
     assert said in caplog.text and "goes on" not in caplog.text and "comes back" not in caplog.text, caplog.text
 
 
-def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts(tmp_path):
+def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts(tmp_path, monkeypatch):
     """``up --without NAME`` leaves a service of the profile out of the run (its robot served by another run's shared
     policy); a name that is no service, one the profile does not have, or a referee (the episode's owner, without
     which the run cannot end) is a usage error naming the flag, exit 2 and nothing started; ``dataflow`` too."""
@@ -2796,17 +2811,15 @@ def test_up_without_refuses_a_service_it_cannot_leave_out_before_anything_starts
     data["services"]["policy"] = {}  # a hand-written profile is held to the same: a service either runs or is left out
     with pytest.raises(ConfigError, match="without: policy is also in services"):
         from_dict_profile(data)
+    monkeypatch.chdir(tmp_path)
     for args, said in (
         (["--without", "polcy"], "error: --without polcy (did you mean policy?): no such service"),
         (["--without", "sim"], "error: --without sim: sim owns the episode (its status and end); a run cannot go without it"),
         (["--profile", "limo-ros2", "--connect", "tcp/127.0.0.1:7447", "--without", "frontier", "--without", "ros2_bridge"], "error: --without ros2_bridge"),
     ):
-        r = cli("up", "--profile", "lockstep", "--no-live", *args, cwd=tmp_path)
-        assert r.returncode == 2 and said in r.stderr, r.stderr
-        assert "Traceback" not in r.stderr
+        assert said in usage_error("up", "--profile", "lockstep", "--no-live", *args)
     assert not (tmp_path / "runs").exists()
-    r = cli("dataflow", "--profile", "lockstep", "--without", "planer", cwd=tmp_path)
-    assert r.returncode == 2 and "error: --without planer (did you mean planner?): no such service" in r.stderr, r.stderr
+    assert "error: --without planer (did you mean planner?): no such service" in usage_error("dataflow", "--profile", "lockstep", "--without", "planer")
     r = cli("up", "--profile", "lockstep", "--without", "policy", "--dry-run", cwd=tmp_path)
     assert r.returncode == 0 and r.stdout.startswith(
         "# profile lockstep, valid: `up` would start sim, mapper, frontier, planner for robot r0 (without policy: not started by this run)"
@@ -3745,16 +3758,17 @@ def test_a_service_attaches_to_the_current_run_and_a_bridge_started_late_serves_
         kill_leftovers(runs)
 
 
-def test_up_with_a_zenoh_config_file_zenoh_refuses_says_so_and_starts_nothing(tmp_path):
-    """A missing file, one not JSON5 and one with a key Zenoh does not know: one error line, exit 2, no run."""
+def test_up_with_a_zenoh_config_file_zenoh_refuses_says_so_and_starts_nothing(tmp_path, monkeypatch):
+    """A missing file, one not JSON5 and one with a key Zenoh does not know: one error line, exit 2, no run (usage
+    errors, asked of the app in this process: ``usage_error``)."""
     (tmp_path / "bad.json5").write_text("{ transport: ")
     (tmp_path / "typo.json5").write_text("{ transport: { auth: { usrpwd: { usr: 'cso' } } } }")
     runs = tmp_path / "runs"
+    monkeypatch.chdir(tmp_path)
     for name, said in (("missing.json5", "No such file"), ("bad.json5", "expected"), ("typo.json5", "unknown field `usr`")):
         for flags in (["up", "--profile", "lockstep", "--zenoh-config", name], ["--zenoh-config", name, "up", "--profile", "lockstep"]):
-            r = cli(*flags, "--no-live", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
-            assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, r.stderr
-            assert not runs.exists()
+            assert said in usage_error(*flags, "--no-live", "--runs-dir", str(runs))
+            assert not runs.exists() and ZENOH_CONFIG_ENV not in os.environ
 
 
 def log_tails(runs: Path, chars: int = 1500) -> str:

@@ -170,6 +170,29 @@ def test_a_zenoh_config_files_settings_reach_the_session_config_with_ours_on_top
     assert json.loads(status.zenoh_config(TransportConfig(mode="client", connect=[endpoint])).get_json("transport/auth/usrpwd/user")) == "cso"
 
 
+def test_a_router_that_joins_no_other_opens_without_waiting_for_scouting(tmp_path):
+    """Zenoh's router waited out ``scouting/delay`` (500 ms) as it opened, for peers its multicast scouting would find:
+    here multicast is off, so a router that joins no other (every ``up``'s embedded one) waits for no one
+    (``LONE_ROUTER_SCOUTING_DELAY_MS``). A router that joins others keeps Zenoh's delay, and a file's own value is kept."""
+    lone = TransportConfig(mode="router", listen=[loopback_endpoint(transport.free_tcp_port())])
+    assert zenoh_config(lone).get_json("scouting/delay") == str(transport.LONE_ROUTER_SCOUTING_DELAY_MS) == "0"
+    joining = TransportConfig(mode="router", listen=[loopback_endpoint(transport.free_tcp_port())], connect=[loopback_endpoint(transport.free_tcp_port())])
+    assert zenoh_config(joining).get_json("scouting/delay") == zenoh.Config().get_json("scouting/delay")
+    own = write_zenoh_config(tmp_path, "{ scouting: { delay: 250 } }")
+    assert zenoh_config(TransportConfig(mode="router", listen=lone.listen, zenoh_config_file=str(own))).get_json("scouting/delay") == "250"
+    for mode in ("peer", "client"):
+        assert zenoh_config(TransportConfig(mode=mode, connect=lone.listen)).get_json("scouting/delay") == zenoh.Config().get_json("scouting/delay")
+    with transport.open_session(lone) as router, transport.open_session(TransportConfig(mode="client", connect=lone.listen)) as client:
+        got: list[bytes] = []
+        sub = router.declare_subscriber("t/x", lambda sample: got.append(sample.payload.to_bytes()))
+        deadline = time.monotonic() + 10
+        while not got and time.monotonic() < deadline:  # the router serves its clients as before
+            client.put("t/x", b"x")
+            time.sleep(0.02)
+        sub.undeclare()
+    assert got and set(got) == {b"x"}, got
+
+
 @pytest.mark.parametrize(("text", "said"), [
     (None, "No such file"),
     ("{ transport: ", "expected"),
