@@ -673,7 +673,9 @@ class FrontiersMsg(Message):
         nodes = unpack_array(  # one node per decision: at most MAX_STEP_POINTS
             _get(b, "path_nodes_xy_m", w), "frontiers.path_nodes_xy_m", finite=True, shape=(None, 2), max_elements=2 * MAX_STEP_POINTS, float_as=np.float64
         )
-        node_d = unpack_array(_get(b, "path_nodes_distance_m", w), "frontiers.path_nodes_distance_m", shape=(len(nodes),), float_as=np.float64)
+        node_d = unpack_array(  # one per node: bound as the nodes, not as a grid (a run's grid may have fewer cells)
+            _get(b, "path_nodes_distance_m", w), "frontiers.path_nodes_distance_m", shape=(len(nodes),), max_elements=MAX_STEP_POINTS, float_as=np.float64
+        )
         if (node_d < 0).any():
             raise MessageError("frontiers.path_nodes_distance_m: expected one non-negative float (inf: unreachable) per path node")
         return cls(

@@ -200,6 +200,10 @@ class PlannerService(Service):
             why = f"no plan of step {state.plan_step} (episode {state.episode}) in the cache"
         elif self.episodes.current is not None and state.episode != self.episodes.current:
             why = f"the contacts restored are of episode {self.episodes.current}"
+        elif state.cmd.step != state.step or not state.plan_step <= state.step or not state.goal_step <= state.step:
+            why = f"its command (step {state.cmd.step}), plan (step {state.plan_step}) or goal (step {state.goal_step}) is not of its step or before"
+        elif misfit := state.follow.misfit(plan.path_xy_m if len(plan.path_xy_m) else None):
+            why = f"it does not fit its plan: {misfit}"
         if plan is None or why:
             log.info("planner state of step %d (episode %d) not restored: %s", state.step, state.episode, why)
             return False

@@ -1031,3 +1031,17 @@ def test_real_large_maps_decode_and_the_runs_grid_bound_is_what_it_says(grid_bou
         with pytest.raises(ValueError, match="max_grid_cells must be an integer"):
             set_max_grid_cells(bad)  # type: ignore[arg-type]
     assert max_grid_cells() == DEFAULT_MAX_GRID_CELLS
+
+
+def test_a_decisions_path_nodes_are_bound_by_the_episodes_steps_not_by_the_runs_grid(grid_bound):
+    """The distances at a decision's path nodes are one per node (at most ``MAX_STEP_POINTS``, as the nodes), not a grid:
+    a run whose ``max_grid_cells`` is just its small scene's grid still reads a decision of an episode with more
+    decisions than that grid has cells."""
+    obs = _observation()
+    set_max_grid_cells(GEOM.shape[0] * GEOM.shape[1])  # 1200 cells: the bound tight on the run's own grid
+    nodes = 3 * GEOM.shape[0] * GEOM.shape[1]
+    body = _body(frontiers_from_observation(3, "timeout", obs, 12.0))
+    body["path_nodes_xy_m"] = pack_array(np.tile([[1.0, 1.0]], (nodes, 1)))
+    body["path_nodes_distance_m"] = pack_array(np.zeros(nodes))
+    back = decode(_wire("frontiers", body), FrontiersMsg)
+    assert back.path_nodes_xy_m.shape == (nodes, 2) and back.path_nodes_distance_m.shape == (nodes,)

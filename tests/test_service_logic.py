@@ -852,6 +852,36 @@ def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_
         assert not fresh.restore_state(state, plan) and (fresh.cmd_step, fresh.planner.path, fresh.episodes.current) == (-1, None, None)
 
 
+def test_a_restarted_planner_refuses_a_cached_state_that_does_not_fit_its_plan():
+    """The cache pairs a state with a plan by step and episode only: a plan of the same step from another planner (two at
+    once), or a forged one, may be shorter than the point the state follows, which failed the restarted planner's first
+    command (a ValueError in ``lookahead_index``: the argmin of an empty sequence), restart after restart; or
+    the state may follow a goal with no path, which stood the robot still reporting ``following``. Such a state is
+    not restored: the planner starts afresh. A planner's own state and plan, and its state after its goal was
+    cleared (no path, the path point left as it was), are restored."""
+    episode, kill_after = 5, 6
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    killed, out = _service(PlannerService, lockstep=True)
+    _drive(killed, out, ex, range(kill_after + 1), episode, obs)
+    state = [m for t, m in out if t == "planner_state"][-1]
+    plan = [m for t, m in out if t == "planner_plan"][-1]
+    assert state.follow.progress_index >= 2 and state.follow.status == PlannerStatus.FOLLOWING
+    fresh, _ = _service(PlannerService, lockstep=True)
+    assert fresh.restore_state(state, plan)  # its own: restored
+    short = dataclasses.replace(plan, path_xy_m=plan.path_xy_m[:2])
+    no_path = dataclasses.replace(plan, path_xy_m=np.zeros((0, 2)), free=None)
+    late_cmd = dataclasses.replace(state, cmd=dataclasses.replace(state.cmd, step=state.step + 1))
+    for s, p in ((state, short), (state, no_path), (late_cmd, plan)):
+        fresh, fresh_out = _service(PlannerService, lockstep=True)
+        assert not fresh.restore_state(decode(encode(s), PlannerStateMsg), decode(encode(p), PlannerPlanMsg))
+        assert (fresh.cmd_step, fresh.planner.path, fresh.episodes.current) == (-1, None, None)
+        _drive(fresh, fresh_out, _explorer_at(0), range(2), episode, obs)  # a fresh planner: it joins and commands
+    cleared = dataclasses.replace(state, follow=dataclasses.replace(state.follow, status=PlannerStatus.IDLE), no_frontier=True)
+    fresh, _ = _service(PlannerService, lockstep=True)
+    assert fresh.restore_state(cleared, no_path)  # no goal left: the path point is unused
+
+
 def test_the_sim_keeps_the_planners_latest_contacts_plan_and_state_of_its_episode_for_a_restarted_planner():
     """``cache/planner/contacts`` (and ``cache/planner/plan``, ``cache/planner/state``) answers the newest message of
     the sim's episode (an error reply before any), and one of another episode, still in flight from before a restart,
