@@ -1022,7 +1022,8 @@ class PlannerPlanMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> PlannerPlanMsg:
         w = "planner_plan"
-        path = unpack_array(_get(b, "path_xy_m", w), "planner_plan.path_xy_m", finite=True, shape=(None, 2), float_as=np.float64)
+        # at most a point per cell of the run's largest grid, as ``path``'s (decoded before the grid it was planned on)
+        path = unpack_array(_get(b, "path_xy_m", w), "planner_plan.path_xy_m", finite=True, shape=(None, 2), max_elements=2 * _max_grid_cells, float_as=np.float64)
         f = _get(b, "free", w)
         free = None
         if f is not None:

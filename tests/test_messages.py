@@ -38,6 +38,7 @@ from cso_runtime.messages import (
     PlannerContactsMsg,
     PlannerFeedbackMsg,
     PlannerFrontiersMsg,
+    PlannerPlanMsg,
     ScanMsg,
     ServiceStatusMsg,
     decode,
@@ -1045,3 +1046,15 @@ def test_a_decisions_path_nodes_are_bound_by_the_episodes_steps_not_by_the_runs_
     body["path_nodes_distance_m"] = pack_array(np.zeros(nodes))
     back = decode(_wire("frontiers", body), FrontiersMsg)
     assert back.path_nodes_xy_m.shape == (nodes, 2) and back.path_nodes_distance_m.shape == (nodes,)
+
+
+def test_a_plans_path_is_bound_as_the_path_it_is_published_as(grid_bound):
+    """``planner_plan.path_xy_m`` is the very path ``path`` publishes (a point per cell of the run's grid at most): one
+    that ``path`` carries, the plan carries too, where it was bound by half as many points and a restarted planner found
+    no plan to resume."""
+    set_max_grid_cells(GEOM.shape[0] * GEOM.shape[1])
+    points = np.tile([[1.0, 2.0]], (GEOM.shape[0] * GEOM.shape[1], 1))  # a point per cell: twice the bound's elements
+    assert decode(encode(PathMsg(3, points)), PathMsg).path_xy_m.shape == points.shape
+    assert decode(encode(PlannerPlanMsg(3, points, None, 7)), PlannerPlanMsg).path_xy_m.shape == points.shape
+    with pytest.raises(MessageError, match="planner_plan.path_xy_m: too large"):
+        decode(encode(PlannerPlanMsg(3, np.vstack([points, points[:1]]), None, 7)), PlannerPlanMsg)
