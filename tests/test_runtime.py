@@ -1446,6 +1446,33 @@ def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
         bystander.wait(timeout=30)
 
 
+def test_down_beside_a_run_file_its_launcher_outlived_stops_an_up_checking_its_profile(tmp_path):
+    """A run file outlives its launcher (SIGKILL, a reboot), and ``up`` starts anyway (it is not refused by a dead
+    launcher's file). ``down`` while that ``up`` checks its profile cleared the dead run's file and left the ``up``
+    alone, which then started its run: the ``up`` it named in the runs folder (``STARTING_UP_GLOB``) is stopped as with
+    no run file at all, and both are said. Here a process of the test's stands for that ``up``."""
+    from cso_runtime.current_run import down, starting_up_path
+    from cso_runtime.supervision import process_start_ticks
+
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
+    try:
+        ticks = process_start_ticks(up.pid)
+        assert isinstance(ticks, int)
+        runs = tmp_path / "runs"
+        runs.mkdir()
+        stale = {"run_id": "old", "robot": "r0", "launcher_pid": up.pid, "launcher_start_ticks": ticks - 1, "services": {}}  # its pid, since taken
+        (runs / "current.json").write_text(json.dumps(stale))
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": ticks}))
+        ok, message = down(runs, timeout_s=5.0)
+        assert ok and "stopped run old" in message and f"stopped `up` (pid {up.pid}) before its run had started" in message, message
+        assert up.wait(timeout=30) == -signal.SIGTERM
+        assert not (runs / "current.json").exists() and list(runs.iterdir()) == []
+    finally:
+        if up.poll() is None:
+            up.kill()
+        up.wait(timeout=30)
+
+
 def test_down_waits_for_the_services_it_kills_to_be_gone(tmp_path):
     """A launcher killed outright leaves its services to ``down``, which kills them; a stopped process takes a
     moment to go after SIGKILL, and ``down`` waits for that rather than report it as still running."""
