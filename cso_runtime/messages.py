@@ -1322,6 +1322,10 @@ class EpisodeResultMsg(Message):
     SCALARS: ClassVar[tuple[str, ...]] = ("explored_area_m2", "coverage_pct", "traversable_area_m2", "path_length_m", "resolution_m")
 
     def body(self) -> dict[str, Any]:
+        for name in ("explored_free", "plan_free"):  # grids without a geometry: checked as ``_geometry_out`` checks one
+            shape = np.shape(getattr(self, name))
+            if len(shape) == 2:
+                check_grid_fits((shape[0], shape[1]), f"episode_result.{name}")
         b: dict[str, Any] = {k: float(getattr(self, k)) for k in self.SCALARS}
         b.update(
             scene=self.scene,

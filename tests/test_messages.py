@@ -1058,3 +1058,14 @@ def test_a_plans_path_is_bound_as_the_path_it_is_published_as(grid_bound):
     assert decode(encode(PlannerPlanMsg(3, points, None, 7)), PlannerPlanMsg).path_xy_m.shape == points.shape
     with pytest.raises(MessageError, match="planner_plan.path_xy_m: too large"):
         decode(encode(PlannerPlanMsg(3, np.vstack([points, points[:1]]), None, 7)), PlannerPlanMsg)
+
+
+def test_a_results_grids_are_refused_by_their_sender_beyond_the_runs_bound(grid_bound):
+    """docs/messages.md: a grid of more cells than ``max_grid_cells`` is refused by its receiver and by its sender, which
+    says how to raise the bound: a result's ``explored_free`` and ``plan_free`` (grids without a ``geometry``) too, where
+    the sender sent them and only the launcher refused them, losing the episode's result."""
+    set_max_grid_cells(GEOM.shape[0] * GEOM.shape[1] - 1)
+    with pytest.raises(MessageError, match=r"episode_result.explored_free: a 30 x 40 grid has 1_200 cells, more than this run's max_grid_cells \(1_199"):
+        encode(_episode_result(3))
+    set_max_grid_cells(GEOM.shape[0] * GEOM.shape[1])
+    assert decode(encode(_episode_result(3)), EpisodeResultMsg).explored_free.shape == GEOM.shape
