@@ -767,6 +767,13 @@ class LocalPlanner:
         self.path = None
         self.status = PlannerStatus.IDLE
 
+    def stood_still(self) -> None:
+        """The robot stood still because it was told to (paused, stale inputs, no planner running), not because its goal
+        is out of reach or it is pinned: the progress check starts over, and the command before the wait is not judged
+        against where the robot is after it (``StallRecovery.last`` dropped: the next period counts no stall)."""
+        self.progress.reset()
+        self.stall.last = None
+
     def follow_state(self) -> tuple:
         """What ``update`` changes (status, progress along the path, the progress anchor, the stall
         recovery's state, and the path, its grid and the contacts a stall re-plans with): a caller may compute a
