@@ -438,7 +438,7 @@ def report_command(
 
 
 def _read_grids_of_any_run() -> None:
-    """A one-shot tool (``save-map``, ``export-bag``, ``animate``) reads the grids of any run, whatever ``max_grid_cells``
+    """A one-shot tool (``save-map``, ``export-bag``, ``animate``, ``replay``) reads the grids of any run, whatever ``max_grid_cells``
     its profile raised the bound to: up to the format's ceiling (``messages.MAX_GRID_CELLS``). The bound of a run's
     services and launcher guards processes that stay up against forged messages; this process ends with its file."""
     from cso_runtime.messages import MAX_GRID_CELLS, set_max_grid_cells  # noqa: PLC0415
@@ -540,6 +540,7 @@ def replay_command(
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):  # SIGHUP: its terminal closed
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))
+    _read_grids_of_any_run()  # it upgrades a recording's old payloads: a run's grids, whatever bound that run had
     try:
         with open_session(client_transport(endpoints, zenoh_config_file)) as session:
             stats = replay(session, file, speed, stop, wanted)

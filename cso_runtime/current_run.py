@@ -188,6 +188,8 @@ def stop_starting_launchers(runs_dir: Path, timeout_s: float) -> list[str]:
             continue
         pid, ticks = found
         if run_process_alive(pid, ticks):
+            if pid == os.getpid():  # this very `up`, cleaning up with `down` after its launcher died: neither stopped nor unnamed
+                continue
             _stop_starting(pid, timeout_s)
             said.append(f"stopped `up` (pid {pid}) before its run had started (before it had written {runs_dir / CURRENT_RUN}): no run was started")
         with contextlib.suppress(OSError):  # it removes it as it ends; not when killed
@@ -202,16 +204,21 @@ def stop_starting_launchers(runs_dir: Path, timeout_s: float) -> list[str]:
     return said
 
 
-def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
+def down(runs_dir: Path, timeout_s: float | None = None, stop_starting: bool = True) -> tuple[bool, str]:
     """Stop the current run: SIGINT to the launcher (it stops its services and writes its results), then
     escalate. ``timeout_s``: how long the launcher may take (None: from the run's ``stop_timeout_s``). With no run
     file yet, an ``up`` still checking its profile, and a launcher that ``up --detach`` has spawned but that has not
-    written its run file yet, are stopped (``stop_starting_launchers``)."""
+    written its run file yet, are stopped (``stop_starting_launchers``); so are they beside a run file whose launcher has
+    died (killed, a reboot), which ``up`` does not take for a run. ``stop_starting`` False: neither (an ``up`` cleaning up
+    after its own launcher died leaves another ``up`` of the folder to start)."""
     from cso_runtime.run_profile import SupervisionConfig  # noqa: PLC0415 - see TYPE_CHECKING above
 
     info = read_current_run(runs_dir)
+    starting: list[str] = []
+    if stop_starting and (info is None or not current_launcher_alive(info)):  # a run file its launcher outlived does not keep an `up` from starting
+        starting = stop_starting_launchers(runs_dir, 3 * SupervisionConfig.stop_timeout_s + DOWN_MARGIN_S if timeout_s is None else timeout_s)
     if info is None:
-        if starting := stop_starting_launchers(runs_dir, 3 * SupervisionConfig.stop_timeout_s + DOWN_MARGIN_S if timeout_s is None else timeout_s):
+        if starting:
             return True, "; ".join(starting)
         info = read_current_run(runs_dir)  # written (and its launcher's file removed) since the first look
     if info is None:
@@ -263,7 +270,7 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
         pass
     left = [p for p in [pid, *service_pids] if pid_alive(p)]
     if left:
-        return False, f"processes still running: {left}"
+        return False, "; ".join([f"processes still running: {left}", *starting])
     if not launcher_alive:
         record_launcher_died(info)
     notes = ["its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop"] if continued else []
@@ -272,7 +279,7 @@ def down(runs_dir: Path, timeout_s: float | None = None) -> tuple[bool, str]:
         notes.append(f"its launcher, pid {info.get('launcher_pid')}, had already exited: {leftovers}{runs_dir / CURRENT_RUN} cleared")
     if escalated:  # its results (summary.json, run.json's outcome) may be missing: say so rather than a plain "stopped"
         notes.append(f"its launcher did not stop on SIGINT within {timeout_s:g} s: {escalated}")
-    return True, f"stopped run {info.get('run_id')}" + (f" ({'; '.join(notes)})" if notes else "")
+    return True, "; ".join([f"stopped run {info.get('run_id')}" + (f" ({'; '.join(notes)})" if notes else ""), *starting])
 
 
 LAUNCHER_DIED = "launcher died"

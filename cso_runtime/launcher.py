@@ -1661,7 +1661,7 @@ def _stop_unstarted_launcher(proc: subprocess.Popen, run: Launcher, exit_code: i
     runs_dir = run.run_dir.parent
     current = read_current_run(runs_dir)
     if current is not None and current.get("run_id") == run.run_id:  # killed, not stopped, after it spawned services
-        down(runs_dir, timeout_s=0.0)
+        down(runs_dir, timeout_s=0.0, stop_starting=False)  # its run's leftovers only: another `up` of the folder starts
     try:
         if json.loads((run.run_dir / "run.json").read_text()).get("state") == "stopped":
             return

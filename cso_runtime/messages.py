@@ -673,7 +673,9 @@ class FrontiersMsg(Message):
         nodes = unpack_array(  # one node per decision: at most MAX_STEP_POINTS
             _get(b, "path_nodes_xy_m", w), "frontiers.path_nodes_xy_m", finite=True, shape=(None, 2), max_elements=2 * MAX_STEP_POINTS, float_as=np.float64
         )
-        node_d = unpack_array(_get(b, "path_nodes_distance_m", w), "frontiers.path_nodes_distance_m", shape=(len(nodes),), float_as=np.float64)
+        node_d = unpack_array(  # one per node: bound as the nodes, not as a grid (a run's grid may have fewer cells)
+            _get(b, "path_nodes_distance_m", w), "frontiers.path_nodes_distance_m", shape=(len(nodes),), max_elements=MAX_STEP_POINTS, float_as=np.float64
+        )
         if (node_d < 0).any():
             raise MessageError("frontiers.path_nodes_distance_m: expected one non-negative float (inf: unreachable) per path node")
         return cls(
@@ -1020,7 +1022,8 @@ class PlannerPlanMsg(Message):
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> PlannerPlanMsg:
         w = "planner_plan"
-        path = unpack_array(_get(b, "path_xy_m", w), "planner_plan.path_xy_m", finite=True, shape=(None, 2), float_as=np.float64)
+        # at most a point per cell of the run's largest grid, as ``path``'s (decoded before the grid it was planned on)
+        path = unpack_array(_get(b, "path_xy_m", w), "planner_plan.path_xy_m", finite=True, shape=(None, 2), max_elements=2 * _max_grid_cells, float_as=np.float64)
         f = _get(b, "free", w)
         free = None
         if f is not None:
@@ -1319,6 +1322,10 @@ class EpisodeResultMsg(Message):
     SCALARS: ClassVar[tuple[str, ...]] = ("explored_area_m2", "coverage_pct", "traversable_area_m2", "path_length_m", "resolution_m")
 
     def body(self) -> dict[str, Any]:
+        for name in ("explored_free", "plan_free"):  # grids without a geometry: checked as ``_geometry_out`` checks one
+            shape = np.shape(getattr(self, name))
+            if len(shape) == 2:
+                check_grid_fits((shape[0], shape[1]), f"episode_result.{name}")
         b: dict[str, Any] = {k: float(getattr(self, k)) for k in self.SCALARS}
         b.update(
             scene=self.scene,

@@ -594,6 +594,18 @@ class FollowCheckpoint:
     replan_pending: bool
     blocked_why: str
 
+    def misfit(self, path_xy_m: np.ndarray | None) -> str:
+        """Why this checkpoint cannot be resumed on ``path_xy_m`` (None: no path), "" when it can: a point to follow
+        past the path's end (``PathFollower.lookahead_index`` would fail on every command), or a goal followed with no
+        path (the follower would report ``following`` and stand still). A planner's own checkpoint and plan always fit;
+        a state and plan that are not each other's (two planners at once, a forged one) need not."""
+        n = 0 if path_xy_m is None else len(path_xy_m)
+        if self.status == PlannerStatus.FOLLOWING and n == 0:
+            return "it follows a goal, with no path"
+        if n and self.progress_index >= n:  # without a path the index is unused (``clear`` leaves it as it was)
+            return f"its path point {self.progress_index} is past the path's {n} points"
+        return ""
+
 
 class LocalPlanner:
     """Follows one goal at a time: path, pure pursuit, goal check, progress check, blocked check."""
@@ -754,6 +766,13 @@ class LocalPlanner:
     def clear(self) -> None:
         self.path = None
         self.status = PlannerStatus.IDLE
+
+    def stood_still(self) -> None:
+        """The robot stood still because it was told to (paused, stale inputs, no planner running), not because its goal
+        is out of reach or it is pinned: the progress check starts over, and the command before the wait is not judged
+        against where the robot is after it (``StallRecovery.last`` dropped: the next period counts no stall)."""
+        self.progress.reset()
+        self.stall.last = None
 
     def follow_state(self) -> tuple:
         """What ``update`` changes (status, progress along the path, the progress anchor, the stall

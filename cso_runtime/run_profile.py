@@ -10,7 +10,6 @@ LIMO's physics) before anything starts: a bad profile is a ``ConfigError`` namin
 from __future__ import annotations
 
 import importlib.util
-import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -267,19 +266,18 @@ class Profile:
             check_max_grid_cells(self.max_grid_cells)
         except ValueError as exc:
             raise ConfigError(str(exc)) from None
-        grids = []
-        if "ros2_bridge" in self.services:
-            from services.ros2_bridge import Ros2BridgeParams  # noqa: PLC0415 - services import zenoh
+        from services.mapper import MapperParams  # noqa: PLC0415 - services import zenoh
+        from services.ros2_bridge import Ros2BridgeParams  # noqa: PLC0415
 
+        grids = []  # each as its service makes it
+        if "ros2_bridge" in self.services:
             b = from_dict(Ros2BridgeParams, self.builtin_params("ros2_bridge"), where="services.ros2_bridge")
-            grids.append(("services.ros2_bridge.arena_width_m, arena_height_m", b.resolution_m, b.arena_width_m, b.arena_height_m))
-        mapper = self.builtin_params("mapper")
-        if float(mapper.get("resolution_m") or 0) > 0:
-            grids.append(("services.mapper.width_m, height_m", float(mapper["resolution_m"]), float(mapper.get("width_m") or 0), float(mapper.get("height_m") or 0)))
-        for where, resolution_m, width_m, height_m in grids:
-            if not resolution_m > 0:
-                continue  # its own check says so
-            shape = (math.ceil(height_m / resolution_m - 1e-9), math.ceil(width_m / resolution_m - 1e-9))
+            grids.append(("services.ros2_bridge.arena_width_m, arena_height_m", b.resolution_m, b.arena_width_m, b.arena_height_m, b.arena_shape()))
+        if "mapper" in self.services:
+            m = from_dict(MapperParams, self.builtin_params("mapper"), where="services.mapper")
+            if (shape := m.explicit_shape()) is not None:
+                grids.append(("services.mapper.width_m, height_m", m.resolution_m, m.width_m, m.height_m, shape))
+        for where, resolution_m, width_m, height_m, shape in grids:
             if shape[0] * shape[1] > self.max_grid_cells:
                 raise ConfigError(
                     f"{where}: a {width_m:g} x {height_m:g} m grid at {resolution_m:g} m is {shape[1]} x {shape[0]} = {shape[0] * shape[1]:_} cells, "

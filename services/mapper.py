@@ -42,6 +42,12 @@ class MapperParams:
     """Scans kept while the grid is unknown (before the first clock); a replay at full speed can
     deliver many scans before the first clock is handled, each subscriber having its own thread."""
 
+    def explicit_shape(self) -> tuple[int, int] | None:
+        """The explicit grid's ``(ny, nx)`` cells (``resolution_m`` set), as the mapper makes it; None: the clock's arena."""
+        if not self.resolution_m > 0:
+            return None
+        return round(self.height_m / self.resolution_m), round(self.width_m / self.resolution_m)
+
     def validate(self) -> None:
         if self.resolution_m < 0 or (self.resolution_m > 0 and not (self.width_m > 0 and self.height_m > 0)):
             raise ConfigError("an explicit grid needs resolution_m, width_m and height_m > 0")
@@ -68,9 +74,8 @@ class MapperService(Service):
         """Episode id of the map (from the clock); None until the first clock."""
         self.pending: list[ScanMsg] = []
         self._queryable: zenoh.Queryable | None = None
-        if self.params.resolution_m > 0:
-            p = self.params
-            self.map = OccupancyMap(GridGeometry(p.resolution_m, (round(p.height_m / p.resolution_m), round(p.width_m / p.resolution_m))))
+        if (shape := self.params.explicit_shape()) is not None:
+            self.map = OccupancyMap(GridGeometry(self.params.resolution_m, shape))
 
     def start(self) -> None:
         assert self.session is not None

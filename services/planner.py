@@ -200,6 +200,10 @@ class PlannerService(Service):
             why = f"no plan of step {state.plan_step} (episode {state.episode}) in the cache"
         elif self.episodes.current is not None and state.episode != self.episodes.current:
             why = f"the contacts restored are of episode {self.episodes.current}"
+        elif state.cmd.step != state.step or not state.plan_step <= state.step or not state.goal_step <= state.step:
+            why = f"its command (step {state.cmd.step}), plan (step {state.plan_step}) or goal (step {state.goal_step}) is not of its step or before"
+        elif misfit := state.follow.misfit(plan.path_xy_m if len(plan.path_xy_m) else None):
+            why = f"it does not fit its plan: {misfit}"
         if plan is None or why:
             log.info("planner state of step %d (episode %d) not restored: %s", state.step, state.episode, why)
             return False
@@ -216,7 +220,7 @@ class PlannerService(Service):
         self.backups_logged, self.escapes_logged = state.follow.backups, state.follow.escapes
         self.resumed_step = state.step if self.ctx.lockstep else None
         # Real time: the robot stood still while no planner ran (the referee stops it without commands), not because
-        # the goal is out of reach: the progress checker starts over at the first command, as after stale inputs.
+        # the goal is out of reach: the progress and stall checks start over at the first command, as after stale inputs.
         self.stopped_for_stale = not self.ctx.lockstep
         goal = "no goal" if path is None else f"the goal ({path[-1][0]:.2f}, {path[-1][1]:.2f})"
         log.info(
@@ -243,7 +247,7 @@ class PlannerService(Service):
         if self.paused is not None:
             log.info("resumed%s", f" by {msg.by}" if msg.by else "")
             self.paused = None
-            self.planner.progress.reset()  # the robot stood because it was told to, not because its goal is out of reach
+            self.planner.stood_still()  # the robot stood because it was told to, not because its goal is out of reach
             self.set_state("running")
             self.progress()
 
@@ -423,9 +427,10 @@ class PlannerService(Service):
                 self.set_state("stale", reason)
             else:
                 if self.stopped_for_stale:
-                    # The robot stood still because its inputs were stale, not because the goal is out of reach:
-                    # the progress checker starts over instead of ending the goal no_progress.
-                    self.planner.progress.reset()
+                    # The robot stood still because its inputs were stale (or no planner ran), not because the goal is
+                    # out of reach: the progress checker starts over instead of ending the goal no_progress, and the stall
+                    # check does not count the wait as a stalled period.
+                    self.planner.stood_still()
                 ahead, self.ahead = self.ahead, None
                 if ahead is not None and ahead[0] == k and g is None and self.ctx.lockstep:
                     result = ahead[1]

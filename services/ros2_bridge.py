@@ -148,6 +148,10 @@ class Ros2BridgeParams:
     """Arena height."""
     arena_origin_xy_m: list[float] | None = None
     """Lower-left corner of the arena in the odometry frame; None: centred on the first pose."""
+
+    def arena_shape(self) -> tuple[int, int]:
+        """The arena's ``(ny, nx)`` cells: its size in whole cells, rounded up."""
+        return math.ceil(self.arena_height_m / self.resolution_m - 1e-9), math.ceil(self.arena_width_m / self.resolution_m - 1e-9)
     map_period_s: float = 0.5
     """At most one map on ``map_topic`` per this long (wall clock); the newest map always goes out once nothing newer
     follows. The mapper makes one map per scan, a few hundred kB at 10 Hz: more than RViz needs, sent over the robot's
@@ -762,7 +766,7 @@ class Ros2BridgeService(Service):
 
     def _arena_around(self, pose: Pose2D) -> GridGeometry:
         p = self.params
-        shape = (math.ceil(p.arena_height_m / p.resolution_m - 1e-9), math.ceil(p.arena_width_m / p.resolution_m - 1e-9))
+        shape = p.arena_shape()
         if p.arena_origin_xy_m is not None:
             ox, oy = p.arena_origin_xy_m
         else:

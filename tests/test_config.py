@@ -914,3 +914,21 @@ def test_a_profiles_grid_bound_is_checked_against_its_own_arena_before_anything_
     with pytest.raises(ConfigError, match=r"scene builtin: its grid is 640 x 480 = 307_200 cells, more than max_grid_cells \(300_000\): raise max_grid_cells"):
         load_profile("lockstep", {"scene": "builtin"}, settings={"max_grid_cells": 300_000})  # a sim's scene, as it is loaded
     assert load_profile("lockstep", {"scene": "builtin"}, settings={"max_grid_cells": 307_200})[0].max_grid_cells == 307_200
+
+
+def test_a_mappers_explicit_grid_is_checked_against_the_bound_at_the_size_the_mapper_makes_it():
+    """The mapper makes its explicit grid ``round(height_m / resolution_m)`` x ``round(width_m / resolution_m)`` cells;
+    the profile's check of ``max_grid_cells`` counted a cell more each way where the size is not a whole number of
+    cells (100.4 cells: 101), and refused a profile whose mapper's grid fits its bound exactly. Both now count the same."""
+    from cso_runtime.run_profile import load_profile
+    from services.mapper import MapperParams
+
+    robot = ["tcp/127.0.0.1:7447"]
+    mapper = {  # a real robot's (an explicit grid is for its arena), whose bridge's arena is 100 x 100 cells too
+        "services.mapper.resolution_m": 0.1, "services.mapper.width_m": 10.04, "services.mapper.height_m": 10.04,
+        "services.ros2_bridge.arena_width_m": 5.0, "services.ros2_bridge.arena_height_m": 5.0,
+    }  # fmt: skip
+    assert load_profile("limo-ros2", {}, connect=robot, settings={**mapper, "max_grid_cells": 10_000})[0].max_grid_cells == 10_000
+    assert MapperParams(resolution_m=0.1, width_m=10.04, height_m=10.04).explicit_shape() == (100, 100)  # the mapper's map
+    with pytest.raises(ConfigError, match=r"services.mapper.width_m, height_m: a 10.04 x 10.04 m grid at 0.1 m is 100 x 100 = 10_000 cells, more than max_grid_cells \(9_999\)"):
+        load_profile("limo-ros2", {}, connect=robot, settings={**mapper, "services.ros2_bridge.arena_width_m": 4.0, "max_grid_cells": 9_999})

@@ -38,6 +38,7 @@ from cso_runtime.messages import (
     PlannerContactsMsg,
     PlannerFeedbackMsg,
     PlannerFrontiersMsg,
+    PlannerPlanMsg,
     ScanMsg,
     ServiceStatusMsg,
     decode,
@@ -1031,3 +1032,40 @@ def test_real_large_maps_decode_and_the_runs_grid_bound_is_what_it_says(grid_bou
         with pytest.raises(ValueError, match="max_grid_cells must be an integer"):
             set_max_grid_cells(bad)  # type: ignore[arg-type]
     assert max_grid_cells() == DEFAULT_MAX_GRID_CELLS
+
+
+def test_a_decisions_path_nodes_are_bound_by_the_episodes_steps_not_by_the_runs_grid(grid_bound):
+    """The distances at a decision's path nodes are one per node (at most ``MAX_STEP_POINTS``, as the nodes), not a grid:
+    a run whose ``max_grid_cells`` is just its small scene's grid still reads a decision of an episode with more
+    decisions than that grid has cells."""
+    obs = _observation()
+    set_max_grid_cells(GEOM.shape[0] * GEOM.shape[1])  # 1200 cells: the bound tight on the run's own grid
+    nodes = 3 * GEOM.shape[0] * GEOM.shape[1]
+    body = _body(frontiers_from_observation(3, "timeout", obs, 12.0))
+    body["path_nodes_xy_m"] = pack_array(np.tile([[1.0, 1.0]], (nodes, 1)))
+    body["path_nodes_distance_m"] = pack_array(np.zeros(nodes))
+    back = decode(_wire("frontiers", body), FrontiersMsg)
+    assert back.path_nodes_xy_m.shape == (nodes, 2) and back.path_nodes_distance_m.shape == (nodes,)
+
+
+def test_a_plans_path_is_bound_as_the_path_it_is_published_as(grid_bound):
+    """``planner_plan.path_xy_m`` is the very path ``path`` publishes (a point per cell of the run's grid at most): one
+    that ``path`` carries, the plan carries too, where it was bound by half as many points and a restarted planner found
+    no plan to resume."""
+    set_max_grid_cells(GEOM.shape[0] * GEOM.shape[1])
+    points = np.tile([[1.0, 2.0]], (GEOM.shape[0] * GEOM.shape[1], 1))  # a point per cell: twice the bound's elements
+    assert decode(encode(PathMsg(3, points)), PathMsg).path_xy_m.shape == points.shape
+    assert decode(encode(PlannerPlanMsg(3, points, None, 7)), PlannerPlanMsg).path_xy_m.shape == points.shape
+    with pytest.raises(MessageError, match="planner_plan.path_xy_m: too large"):
+        decode(encode(PlannerPlanMsg(3, np.vstack([points, points[:1]]), None, 7)), PlannerPlanMsg)
+
+
+def test_a_results_grids_are_refused_by_their_sender_beyond_the_runs_bound(grid_bound):
+    """docs/messages.md: a grid of more cells than ``max_grid_cells`` is refused by its receiver and by its sender, which
+    says how to raise the bound: a result's ``explored_free`` and ``plan_free`` (grids without a ``geometry``) too, where
+    the sender sent them and only the launcher refused them, losing the episode's result."""
+    set_max_grid_cells(GEOM.shape[0] * GEOM.shape[1] - 1)
+    with pytest.raises(MessageError, match=r"episode_result.explored_free: a 30 x 40 grid has 1_200 cells, more than this run's max_grid_cells \(1_199"):
+        encode(_episode_result(3))
+    set_max_grid_cells(GEOM.shape[0] * GEOM.shape[1])
+    assert decode(encode(_episode_result(3)), EpisodeResultMsg).explored_free.shape == GEOM.shape

@@ -817,3 +817,46 @@ def test_replay_refuses_a_damaged_recording_before_it_publishes_anything(tmp_pat
     assert 0 < stats.messages < len(scans) and counting.publishers == 1
     r = CliRunner().invoke(app, ["replay", str(damaged), "--connect", "tcp/127.0.0.1:1"])  # said before connecting
     assert r.exit_code == 2 and "damaged: a Chunk's CRC does not match" in r.output, r.output
+
+
+def test_replay_upgrades_the_old_messages_of_a_run_that_raised_max_grid_cells(tmp_path: Path, monkeypatch):
+    """``replay`` reads a recording's payloads to upgrade the old ones (``upgrade_payload``) as the other one-shot tools
+    that read a run's grids do (``export-bag``, ``animate``, ``save-map``): up to the format's ceiling, not the default
+    ``max_grid_cells``. A run that raised the bound recorded grids above the default: replay published those of an older
+    version as recorded, "not readable by this build", where today's services of such a run would have taken them
+    upgraded."""
+    import contextlib
+    import signal
+
+    from typer.testing import CliRunner
+
+    from cso_runtime import recording as recording_module
+    from cso_runtime import transport
+    from cso_runtime.cli import app
+    from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, MAX_GRID_CELLS, set_max_grid_cells
+
+    keys = RobotKeys("r0")
+    big = GridGeometry(0.05, (2001, 2000), 0.0, 0.0)  # 4,002,000 cells: a 100 m x 100 m arena and a row
+    d = np.full(big.shape, np.inf)
+    d[:40, :50] = 1.5
+    set_max_grid_cells(MAX_GRID_CELLS)  # the run that recorded it (the autouse fixture puts the default back)
+    old = legacy(encode(DistanceMapMsg(3, big, Pose2D(0.0, 0.0, 0.0), d)))
+    set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
+    stats = ReplayStats()
+
+    def fake_replay(session, path, speed, stop, topics) -> ReplayStats:
+        recording_module._current_payload(RecordedMessage(keys.topic("distance_map"), T0_NS, old), stats)
+        return stats
+
+    monkeypatch.setattr(transport, "open_session", lambda config: contextlib.nullcontext())
+    monkeypatch.setattr(recording_module, "replay", fake_replay)
+    recording = tmp_path / "run.mcap"
+    recording.write_bytes(MCAP_MAGIC)
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    try:
+        r = CliRunner().invoke(app, ["replay", str(recording), "--connect", "tcp/127.0.0.1:1"])
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+    assert r.exit_code == 0, r.output
+    assert stats.upgraded == {keys.topic("distance_map"): 1} and not stats.unreadable, (stats, r.output)

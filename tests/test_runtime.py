@@ -1519,6 +1519,74 @@ def test_down_never_signals_a_process_that_took_a_dead_runs_pid(tmp_path):
         bystander.wait(timeout=30)
 
 
+def test_down_beside_a_run_file_its_launcher_outlived_stops_an_up_checking_its_profile(tmp_path):
+    """A run file outlives its launcher (SIGKILL, a reboot), and ``up`` starts anyway (it is not refused by a dead
+    launcher's file). ``down`` while that ``up`` checks its profile cleared the dead run's file and left the ``up``
+    alone, which then started its run: the ``up`` it named in the runs folder (``STARTING_UP_GLOB``) is stopped as with
+    no run file at all, and both are said. Here a process of the test's stands for that ``up``."""
+    from cso_runtime.current_run import down, starting_up_path
+    from cso_runtime.supervision import process_start_ticks
+
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
+    try:
+        ticks = process_start_ticks(up.pid)
+        assert isinstance(ticks, int)
+        runs = tmp_path / "runs"
+        runs.mkdir()
+        stale = {"run_id": "old", "robot": "r0", "launcher_pid": up.pid, "launcher_start_ticks": ticks - 1, "services": {}}  # its pid, since taken
+        (runs / "current.json").write_text(json.dumps(stale))
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": ticks}))
+        ok, message = down(runs, timeout_s=5.0)
+        assert ok and "stopped run old" in message and f"stopped `up` (pid {up.pid}) before its run had started" in message, message
+        assert up.wait(timeout=30) == -signal.SIGTERM
+        assert not (runs / "current.json").exists() and list(runs.iterdir()) == []
+        bystander = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"], start_new_session=True)
+        try:  # an `up` cleaning up after its own dead launcher (launcher._stop_unstarted_launcher) leaves another `up` be
+            b_ticks = process_start_ticks(bystander.pid)
+            (runs / "current.json").write_text(json.dumps(stale))
+            starting_up_path(runs, bystander.pid).write_text(json.dumps({"up_pid": bystander.pid, "up_start_ticks": b_ticks}))
+            ok, message = down(runs, timeout_s=0.0, stop_starting=False)
+            assert ok and "stopped `up`" not in message and bystander.poll() is None and starting_up_path(runs, bystander.pid).exists(), message
+        finally:
+            bystander.kill()
+            bystander.wait(timeout=30)
+    finally:
+        if up.poll() is None:
+            up.kill()
+        up.wait(timeout=30)
+
+
+DOWN_FROM_AN_UP = """\
+# An `up --detach` whose launcher died after writing its run file cleans up with down() (launcher._stop_unstarted_launcher)
+# while its own file still names it (STARTING_UP_GLOB): down must not stop the very process that calls it.
+import json, os, sys
+from pathlib import Path
+
+from cso_runtime.current_run import down, starting_up_path
+from cso_runtime.supervision import process_start_ticks
+
+runs = Path(sys.argv[1])
+ticks = process_start_ticks(os.getpid())
+(runs / "current.json").write_text(json.dumps({"run_id": "died", "robot": "r0", "launcher_pid": os.getpid(), "launcher_start_ticks": ticks - 1, "services": {}}))
+starting_up_path(runs, os.getpid()).write_text(json.dumps({"up_pid": os.getpid(), "up_start_ticks": ticks}))
+ok, message = down(runs, timeout_s=0.0)
+print("alive after down:", ok, message, starting_up_path(runs, os.getpid()).exists())
+"""
+
+
+def test_down_called_by_an_up_never_stops_that_up(tmp_path):
+    """``up --detach`` whose launcher was killed after writing its run file cleans the run up with ``down`` (its launcher
+    is dead) while its own file still names it for ``down`` (``STARTING_UP_GLOB``): ``down`` leaves the process that
+    calls it alone (it would SIGTERM, then SIGKILL, itself) and its file in place."""
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (tmp_path / "down_from_an_up.py").write_text(DOWN_FROM_AN_UP)
+    done = subprocess.run([sys.executable, str(tmp_path / "down_from_an_up.py"), str(runs)], capture_output=True, text=True, timeout=60, start_new_session=True)
+    assert done.returncode == 0, (done.returncode, done.stdout, done.stderr)
+    assert "alive after down: True stopped run died" in done.stdout and done.stdout.rstrip().endswith("True"), done.stdout
+    assert "stopped `up`" not in done.stdout, done.stdout
+
+
 def test_down_waits_for_the_services_it_kills_to_be_gone(tmp_path):
     """A launcher killed outright leaves its services to ``down``, which kills them; a stopped process takes a
     moment to go after SIGKILL, and ``down`` waits for that rather than report it as still running."""

@@ -852,6 +852,77 @@ def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_
         assert not fresh.restore_state(state, plan) and (fresh.cmd_step, fresh.planner.path, fresh.episodes.current) == (-1, None, None)
 
 
+def test_a_restarted_planner_refuses_a_cached_state_that_does_not_fit_its_plan():
+    """The cache pairs a state with a plan by step and episode only: a plan of the same step from another planner (two at
+    once), or a forged one, may be shorter than the point the state follows, which failed the restarted planner's first
+    command (a ValueError in ``lookahead_index``: the argmin of an empty sequence), restart after restart; or
+    the state may follow a goal with no path, which stood the robot still reporting ``following``. Such a state is
+    not restored: the planner starts afresh. A planner's own state and plan, and its state after its goal was
+    cleared (no path, the path point left as it was), are restored."""
+    episode, kill_after = 5, 6
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    killed, out = _service(PlannerService, lockstep=True)
+    _drive(killed, out, ex, range(kill_after + 1), episode, obs)
+    state = [m for t, m in out if t == "planner_state"][-1]
+    plan = [m for t, m in out if t == "planner_plan"][-1]
+    assert state.follow.progress_index >= 2 and state.follow.status == PlannerStatus.FOLLOWING
+    fresh, _ = _service(PlannerService, lockstep=True)
+    assert fresh.restore_state(state, plan)  # its own: restored
+    short = dataclasses.replace(plan, path_xy_m=plan.path_xy_m[:2])
+    no_path = dataclasses.replace(plan, path_xy_m=np.zeros((0, 2)), free=None)
+    late_cmd = dataclasses.replace(state, cmd=dataclasses.replace(state.cmd, step=state.step + 1))
+    for s, p in ((state, short), (state, no_path), (late_cmd, plan)):
+        fresh, fresh_out = _service(PlannerService, lockstep=True)
+        assert not fresh.restore_state(decode(encode(s), PlannerStateMsg), decode(encode(p), PlannerPlanMsg))
+        assert (fresh.cmd_step, fresh.planner.path, fresh.episodes.current) == (-1, None, None)
+        _drive(fresh, fresh_out, _explorer_at(0), range(2), episode, obs)  # a fresh planner: it joins and commands
+    cleared = dataclasses.replace(state, follow=dataclasses.replace(state.follow, status=PlannerStatus.IDLE), no_frontier=True)
+    fresh, _ = _service(PlannerService, lockstep=True)
+    assert fresh.restore_state(cleared, no_path)  # no goal left: the path point is unused
+
+
+def test_a_robot_stood_still_by_order_is_not_judged_stalled_on_its_last_command():
+    """Real time: the robot stands still while no planner runs (a restart), while paused or while its inputs are stale,
+    because it was told to, not because it is pinned. The progress check started over after each, but the stall check
+    judged the last command before (remembered with its pose and time, ``StallRecovery.last``, and restored from the
+    cache after a restart) against where the robot was after the whole wait: one more stalled period, and a robot that
+    had stalled ``stall_steps - 1`` periods backed up (with a narrow sensor, marking contacts where nothing was). The
+    first command after such a wait is the follower's own."""
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    killed, out = _service(PlannerService, lockstep=True)
+    _drive(killed, out, ex, range(5), 5, obs)
+    state = [m for t, m in out if t == "planner_state"][-1]
+    plan = [m for t, m in out if t == "planner_plan"][-1]
+    pose, t_s = ex.sim.odometry(), ex.sim.time_s
+    stall_steps = ExplorationConfig().planner.stall_steps
+    pinned_so_far = dataclasses.replace(  # stalled one period short of a back-up, driving, where progress was last seen
+        state.follow, stalled_periods=stall_steps - 1, stall_last=(pose, t_s, VelocityCommand(0.2, 0.0)), progress_anchor=(pose.x_m, pose.y_m, t_s)
+    )
+    restarted, restarted_out = _service(PlannerService, lockstep=False)
+    assert restarted.restore_state(dataclasses.replace(state, follow=pinned_so_far), plan)
+    _feed(restarted, OdometryMsg(9, t_s + 60.0, pose, episode=5))
+    _feed(restarted, ScanMsg(9, ex.sim.scan(), ex.sim.sensor_pose(), 5))
+    (cmd,) = [m for t, m in restarted_out if t == "cmd_vel"]
+    assert cmd.reason == "" and cmd.command.linear_mps >= 0, cmd  # following, not backing up
+    assert restarted.planner.stall.stalled_periods == 0
+
+    paused, paused_out = _service(PlannerService, lockstep=False)
+    assert paused.restore_state(dataclasses.replace(state, follow=pinned_so_far), plan)
+    _feed(paused, OdometryMsg(9, t_s + 0.1, pose, episode=5))
+    _feed(paused, ScanMsg(9, ex.sim.scan(), ex.sim.sensor_pose(), 5))  # the restart's first command: judged over 0.1 s
+    paused.planner.stall.restore((pinned_so_far.stall_last, stall_steps - 1, 0, 0, False))
+    _feed(paused, ExploreResumeMsg(False, "alice@lab"))
+    _feed(paused, OdometryMsg(10, t_s + 60.0, pose, episode=5))
+    _feed(paused, ScanMsg(10, ex.sim.scan(), ex.sim.sensor_pose(), 5))
+    _feed(paused, ExploreResumeMsg(True, "alice@lab"))
+    _feed(paused, OdometryMsg(11, t_s + 60.1, pose, episode=5))
+    _feed(paused, ScanMsg(11, ex.sim.scan(), ex.sim.sensor_pose(), 5))
+    cmd = [m for t, m in paused_out if t == "cmd_vel"][-1]
+    assert cmd.step == 11 and cmd.reason == "" and cmd.command.linear_mps >= 0, cmd
+
+
 def test_the_sim_keeps_the_planners_latest_contacts_plan_and_state_of_its_episode_for_a_restarted_planner():
     """``cache/planner/contacts`` (and ``cache/planner/plan``, ``cache/planner/state``) answers the newest message of
     the sim's episode (an error reply before any), and one of another episode, still in flight from before a restart,
