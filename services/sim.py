@@ -290,6 +290,8 @@ class SimService(Service):
             lockstep_timeouts=self.timeouts,
             episode=self.episode,
             map_origin=self.sim.plan.map_origin,
+            pose=self.sim.odometry(),  # the step's odom, as published
+            twist=self.odom_twist,
         )
 
     def finish(self, state: str, terminated_by: str, reason: str = "", ended_why: str = "") -> None:

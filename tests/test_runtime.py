@@ -12,6 +12,7 @@ import errno
 import functools
 import io
 import json
+import math
 import os
 import re
 import shutil
@@ -3856,9 +3857,13 @@ def test_a_run_behind_a_mutual_tls_router_completes_and_a_session_without_a_cert
 
 def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_path):
     """``up --detach``; during the episode: malformed payloads on every key, SIGKILL of the mapper;
-    ``status --json`` during and after; ``save-map`` from the finished run; ``down`` leaves no process."""
+    ``status --json`` during and after, with the robot's pose, its odometry's; ``save-map`` from the finished run;
+    ``down`` leaves no process."""
+    from rich.console import Console
+
     profile = write_profile(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5)  # 36 steps: at least 9 s to do all this
     runs = tmp_path / "runs"
+    listening = contextlib.ExitStack()
     try:
         r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
         assert r.returncode == 0, r.stderr
@@ -3868,11 +3873,17 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         def status() -> dict | None:
             return query_status(endpoints, "r0", timeout_s=0.5)
 
+        # The robot's odometry of each step, as the sim publishes it: what `status` says of where the robot is.
+        odometry: dict[int, OdometryMsg] = {}
+        listener = listening.enter_context(open_session(TransportConfig(mode="client", connect=endpoints)))
+        heard = listener.declare_subscriber(RobotKeys("r0").topic("odom"), lambda sample: odometry.setdefault((m := decode(sample.payload.to_bytes(), OdometryMsg)).step, m))
+        listening.callback(heard.undeclare)
         wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
         r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 0, r.stdout + r.stderr
         during = json.loads(r.stdout)
         assert during["state"] == "exploring" and all(s["alive"] for s in during["services"].values())
+        assert len(during["pose"]) == 3 and len(during["twist"]) == 2, during  # [x_m, y_m, yaw_rad], [linear_mps, angular_radps]
         # Malformed payloads on every key of the robot.
         keys = RobotKeys("r0")
         nan_scan = encode(ScanMsg(1, LaserScan(0.0, 0.1, 0.1, 5.0, np.array([1.0, np.nan], np.float32)), Pose2D(0, 0, 0)))
@@ -3903,7 +3914,19 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         assert abs(final["coverage_pct"] - expected.coverage_pct) <= 5.0
 
         r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-        assert r.returncode == 0 and json.loads(r.stdout)["state"] == "done"
+        after_end = json.loads(r.stdout)
+        assert r.returncode == 0 and after_end["state"] == "done"
+        # Where the robot stopped: its odometry of the last step (the builtin scene's frame is the map frame), with its twist.
+        last = odometry[after_end["step"]]
+        assert after_end["map_origin"] == [0.0, 0.0, 0.0] and after_end["pose"] == pytest.approx(last.pose.as_list(), abs=1e-9), (after_end, last)
+        assert after_end["twist"] == pytest.approx([last.twist.linear_mps, last.twist.angular_radps], abs=1e-9)
+        first = odometry[min(odometry)]
+        assert math.hypot(last.pose.x_m - first.pose.x_m, last.pose.y_m - first.pose.y_m) > 0.1  # it moved: not a pose left at 0
+        console = Console(record=True, width=160)
+        console.print(render_table(after_end))
+        x_m, y_m, yaw_rad = last.pose.as_list()
+        assert re.search(rf"│ pose +│ x {x_m:.2f} m  y {y_m:.2f} m  yaw {yaw_rad:.2f} rad, ", console.export_text()), console.export_text()
+        listening.close()
         # The map, saved from the detached run that still answers once its episode is done.
         r = cli("save-map", "-f", str(tmp_path / "live"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 0, r.stdout + r.stderr
@@ -3949,6 +3972,7 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=10)
         assert r.returncode == 1
     finally:
+        listening.close()
         cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert kill_leftovers(runs) == []
 
