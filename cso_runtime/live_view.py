@@ -99,7 +99,7 @@ class LiveView:
         from rich.progress_bar import ProgressBar  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
-        from cso_runtime.status import COMMAND_NODE_NOTE, presence_words, status_of, waiting_note  # noqa: PLC0415
+        from cso_runtime.status import COMMAND_NODE_NOTE, pose_words, presence_words, status_of, waiting_note  # noqa: PLC0415
 
         la = self.launcher
         st = la.status
@@ -133,6 +133,7 @@ class LiveView:
                 ("explored", f"{st.explored_area_m2:.2f} m2" + (f", {st.explored_area_m2 / st.step:.3f} m2/step" if st.step else "")),
                 ("path length", f"{st.path_length_m:.2f} m"),
                 ("goal", ended_goal_words(st) or goal + ("" if la.path_ahead_m is None or st.goal_xy_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
+                ("pose", pose_words(seen["pose"], seen["twist"])),  # in the map frame, as the goal and `status`
                 ("decisions", f"{st.decisions} (last {st.last_decision_ms:.1f} ms)"),
             ):
                 t.add_row(k, escape(v))  # text, not markup: a scene file's name may hold brackets

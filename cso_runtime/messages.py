@@ -32,7 +32,7 @@ SCHEMA_VERSION = 1
 """Version of the schemas unchanged since the first release; a schema that changes bumps its own ``VERSION``
 (each class's, listed in docs/messages.md: ``clock``, ``episode_status`` and ``scan`` carry the episode id from 2,
 ``odom``, ``distance_map`` and ``goal`` from 2, ``planner_feedback`` from 3, ``map`` is at 3, ``frontiers`` at 7,
-``service_status`` carries the service's own counters from 2).
+``episode_status`` at 4, ``service_status`` carries the service's own counters from 2).
 Recordings of the versions before the last bumps stay readable offline: ``LEGACY_UPGRADES``."""
 MAX_GRID_CELLS = 50_000_000
 """The format's ceiling on a grid's cells and a record's dimensions: no run's ``max_grid_cells`` may be above it."""
@@ -263,6 +263,19 @@ def _pose_out(p: Pose2D) -> list[float]:
     return p.as_list()
 
 
+def _twist_out(t: VelocityCommand) -> list[float]:
+    return [t.linear_mps, t.angular_radps]
+
+
+def _twist_in(body: dict, key: str, where: str) -> VelocityCommand:
+    """``[linear_mps, angular_radps]``, each finite and within +-100."""
+    tw = _get(body, key, where)
+    if not isinstance(tw, list) or len(tw) != 2:
+        raise MessageError(f"{where}.{key}: expected [linear_mps, angular_radps]")
+    t = {"v": tw[0], "w": tw[1]}
+    return VelocityCommand(_num(t, "v", f"{where}.{key}", -100, 100), _num(t, "w", f"{where}.{key}", -100, 100))
+
+
 def _pose_in(body: dict, key: str, where: str) -> Pose2D:
     v = _get(body, key, where)
     if not isinstance(v, list) or len(v) != 3:
@@ -385,19 +398,14 @@ class OdometryMsg(Message):
             "step": self.step,
             "stamp_s": self.stamp_s,
             "pose": _pose_out(self.pose),
-            "twist": [self.twist.linear_mps, self.twist.angular_radps],
+            "twist": _twist_out(self.twist),
             "episode": self.episode,
         }
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> OdometryMsg:
         w = "odom"
-        tw = _get(b, "twist", w)
-        if not isinstance(tw, list) or len(tw) != 2:
-            raise MessageError("odom.twist: expected [linear_mps, angular_radps]")
-        t = {"v": tw[0], "w": tw[1]}
-        twist = VelocityCommand(_num(t, "v", "odom.twist", -100, 100), _num(t, "w", "odom.twist", -100, 100))
-        return cls(_int(b, "step", w), _num(b, "stamp_s", w, 0.0), _pose_in(b, "pose", w), twist, _int(b, "episode", w))
+        return cls(_int(b, "step", w), _num(b, "stamp_s", w, 0.0), _pose_in(b, "pose", w), _twist_in(b, "twist", w), _int(b, "episode", w))
 
 
 @dataclass
@@ -1211,8 +1219,8 @@ class EpisodeStatusMsg(Message):
     """Ground-truth progress of the episode, published by the sim (the only one that knows the truth)."""
 
     SCHEMA: ClassVar[str] = "episode_status"
-    VERSION: ClassVar[int] = 3
-    """2: the episode id. 3: the scene's ``map_origin``."""
+    VERSION: ClassVar[int] = 4
+    """2: the episode id. 3: the scene's ``map_origin``. 4: the robot's ``pose`` and ``twist``."""
     state: str
     step: int
     scene: str = ""
@@ -1231,6 +1239,12 @@ class EpisodeStatusMsg(Message):
     map_origin: Pose2D = MAP_FRAME_ORIGIN
     """The scene's pose in the user's map frame (``FloorPlan.map_origin``): ``goal_xy_m``, like every pose on the
     network, is in the scene's own frame; ``status`` shows it in the map frame."""
+    pose: Pose2D | None = None
+    """The robot's odometry pose at ``step`` in the scene's own frame (that step's ``odom``), which ``status`` and the live
+    view show in the map frame as they show the goal (``status.status_of``: x, y in metres, yaw in radians, REP-103);
+    None before the first odometry (a ROS 2 bridge before its first scan) and in a recording from before v4."""
+    twist: VelocityCommand | None = None
+    """The robot's twist on that odometry (forward m/s, yaw rad/s, in its own body frame); None as ``pose``."""
 
     def body(self) -> dict[str, Any]:
         return {
@@ -1249,6 +1263,8 @@ class EpisodeStatusMsg(Message):
             "lockstep_timeouts": self.lockstep_timeouts,
             "episode": self.episode,
             "map_origin": _pose_out(self.map_origin),
+            "pose": None if self.pose is None else _pose_out(self.pose),
+            "twist": None if self.twist is None else _twist_out(self.twist),
         }
 
     @property
@@ -1280,6 +1296,8 @@ class EpisodeStatusMsg(Message):
             _int(b, "lockstep_timeouts", w),
             _int(b, "episode", w),
             _pose_in(b, "map_origin", w),
+            None if _get(b, "pose", w) is None else _pose_in(b, "pose", w),
+            None if _get(b, "twist", w) is None else _twist_in(b, "twist", w),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -1668,6 +1686,17 @@ def _map_frame_origin(body: dict[str, Any]) -> dict[str, Any]:
     return {"map_origin": _pose_out(MAP_FRAME_ORIGIN), **body}
 
 
+def _no_robot_pose(body: dict[str, Any]) -> dict[str, Any]:
+    """An ``episode_status`` body from before it carried the robot's ``pose`` and ``twist`` (v3): none, unknown (the
+    recording's ``odom`` has them), as before a ROS 2 bridge's first scan."""
+    return {"pose": None, "twist": None, **body}
+
+
+def _map_frame_origin_no_robot_pose(body: dict[str, Any]) -> dict[str, Any]:
+    """An ``episode_status`` v2 body: neither the scene's ``map_origin`` nor the robot's pose."""
+    return _no_robot_pose(_map_frame_origin(body))
+
+
 LEGACY_UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]]] = {
     ("odom", 1): _episode_id_0,
     ("goal", 1): _episode_id_0,
@@ -1675,7 +1704,8 @@ LEGACY_UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]
     ("distance_map", 1): _episode_id_0,
     ("planner_feedback", 2): _episode_id_0,
     ("service_status", 1): _no_counters,
-    ("episode_status", 2): _map_frame_origin,
+    ("episode_status", 2): _map_frame_origin_no_robot_pose,
+    ("episode_status", 3): _no_robot_pose,
     ("episode_result", 3): _map_frame_origin,
 }
 """(schema, older version) -> its body as a body of the current version, for the changes that only added

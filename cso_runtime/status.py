@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
 import zenoh
 
-from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, map_frame_xy
+from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, compose_pose, map_frame_xy
 from cso_runtime.keys import WILDCARD, KeyExprError, RobotKeys, check_robot_id, robot_of
 from cso_runtime.messages import (
     EPISODE_OVER,
@@ -140,6 +140,7 @@ def status_of(
     over = ep.get("state") in EPISODE_OVER
     map_origin = ep.get("map_origin", MAP_FRAME_ORIGIN.as_list())  # none in the launcher's last-heard status (nor a goal)
     goal = ep.get("goal_xy_m")
+    pose = ep.get("pose")  # the robot's odometry pose in the scene's frame; none before the first odometry, nor last-heard
     return {
         "robot": robot,
         "run_id": (launcher or {}).get("run_id", ""),
@@ -151,6 +152,8 @@ def status_of(
         "path_length_m": ep.get("path_length_m", 0.0),
         "goal": None if goal is None else map_frame_xy(Pose2D(*map_origin), goal),  # in the user's map frame, as the scene's start
         "map_origin": map_origin,
+        "pose": None if pose is None else compose_pose(Pose2D(*map_origin), Pose2D(*pose)).as_list(),  # [x_m, y_m, yaw_rad], as the goal
+        "twist": ep.get("twist"),  # [linear_mps, angular_radps], the robot's own frame
         "decisions": ep.get("decisions", 0),
         "last_decision_ms": ep.get("last_decision_ms", 0.0),
         "terminated_by": ep.get("terminated_by", ""),
@@ -378,6 +381,15 @@ def waiting_note(waiting: list[str], pause: dict[str, Any] | None = None) -> str
     return (f"; waiting for {', '.join(waiting)}, which no process serves" if waiting else "") + pause_note(pause)
 
 
+def pose_words(pose_m: list[float] | None, twist: list[float] | None) -> str:
+    """The robot's pose in the map frame and its speed as ``status`` and the live view say them:
+    ``x 1.23 m  y -0.40 m  yaw 0.52 rad, 0.25 m/s 0.10 rad/s`` (``-``: no odometry yet)."""
+    if pose_m is None:
+        return "-"
+    speed = "" if twist is None else f", {twist[0]:.2f} m/s {twist[1]:.2f} rad/s"
+    return f"x {pose_m[0]:.2f} m  y {pose_m[1]:.2f} m  yaw {pose_m[2]:.2f} rad{speed}"
+
+
 def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False, episode_over: str = "") -> list[str]:
     """How a service's row begins (an entry of ``status_of``'s ``services``): alive or DOWN, not started by this
     run (another process is to serve it), and whether the episode waits for it; ``status`` and the live view alike.
@@ -419,6 +431,7 @@ def render_table(status: dict[str, Any]) -> Table:
         ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / status['step']:.3f} m2/step" if status["step"] else "")),
         ("path length", f"{status['path_length_m']:.2f} m"),
         ("goal", "-" if goal is None else f"({goal[0]:.2f}, {goal[1]:.2f}) m"),
+        ("pose", pose_words(status.get("pose"), status.get("twist"))),  # .get: a status from before the pose
         ("decisions", f"{status['decisions']} (last {status['last_decision_ms']:.1f} ms)"),
     ):
         t.add_row(k, escape(v))
@@ -639,8 +652,9 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 if watched is not None and status.get("status_age_s") is None:
                     watched = (watched[0], status)
                 elif watched is not None and watched[1].get("episode") == status.get("episode"):
-                    # The sim has stopped (the run stopping): the goal and the last decision's time as last answered.
-                    shown = {**status, "goal": watched[1].get("goal"), "last_decision_ms": watched[1].get("last_decision_ms", 0.0)}
+                    # The sim has stopped (the run stopping): the goal, the pose and the last decision's time as last answered.
+                    last_answer = watched[1]
+                    shown = {**status, **{k: last_answer.get(k) for k in ("goal", "pose", "twist")}, "last_decision_ms": last_answer.get("last_decision_ms", 0.0)}
             if as_json:
                 print(json.dumps(status), flush=True)
             elif in_place and live is None:

@@ -645,6 +645,8 @@ class Ros2BridgeService(Service):
         self.stamps_ns: dict[int, int] = {}
         """Each of the last ``STAMPS_HELD`` steps' scan stamp, exactly as the robot sent it."""
         self.last_pose: Pose2D | None = None
+        self.last_twist: VelocityCommand | None = None
+        """The twist on ``last_pose``'s odometry: with it, what ``episode_status`` says of the robot."""
         self.path_length_m = 0.0
         self.trajectory: list[tuple[float, float]] = []
         self.held_map: MapMsg | None = None
@@ -748,7 +750,7 @@ class Ros2BridgeService(Service):
             )
         if self.last_pose is not None:
             self.path_length_m += math.hypot(odom.pose.x_m - self.last_pose.x_m, odom.pose.y_m - self.last_pose.y_m)
-        self.last_pose = odom.pose
+        self.last_pose, self.last_twist = odom.pose, odom.velocity
         self.trajectory.append((odom.pose.x_m, odom.pose.y_m))
         self.stamps_ns[k] = conv.stamp_ns
         for s in [s for s in self.stamps_ns if s < k - STAMPS_HELD]:
@@ -982,6 +984,8 @@ class Ros2BridgeService(Service):
                 terminated_by=self.terminated_by,
                 reason="; ".join(note for note in (self.ended_why, self.no_scan_note, self.arena_edge_note()) if note),
                 episode=self.episode,
+                pose=self.last_pose,
+                twist=self.last_twist,
             )
 
     def episode_result(self) -> EpisodeResultMsg:

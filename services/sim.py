@@ -196,6 +196,9 @@ class SimService(Service):
         self.trajectory: list[tuple[float, float]] = [tuple(self.sim.true_pose().xy)]
         self.odom_twist = VelocityCommand()
         """``odom``'s twist: the mean over the step just run, from odometry (at rest before the first step)."""
+        self.odom_out = (self.sim.odometry(), self.odom_twist)
+        """The pose and twist of the last ``odom`` published: what the episode status says of the robot, taken as one
+        (a status query answered on another thread while the step runs sees a published odometry, never half a step)."""
         self.path_length_m = 0.0
         self.decisions = 0
         self.decision_ms: list[float] = []
@@ -261,12 +264,13 @@ class SimService(Service):
     # --- the step ---------------------------------------------------------------------------------
     def publish_step(self, scan: LaserScan | None = None) -> None:
         """Clock, odometry and scan of the current step (also used to re-request a lost step)."""
+        self.odom_out = odom = (self.sim.odometry(), self.odom_twist)
         scan = scan if scan is not None else self.sim.scan()
         # The scan first: the mapper, at the head of the step's chain, starts at once (it carries the
         # episode id, so the mapper need not wait for the clock).
         self.publish("scan", ScanMsg(self.step, scan, self.sim.sensor_pose(), self.episode))
         self.last_step = self.step  # what `status` shows for the sim
-        self.publish("odom", OdometryMsg(self.step, self.sim.time_s, self.sim.odometry(), self.odom_twist, self.episode))
+        self.publish("odom", OdometryMsg(self.step, self.sim.time_s, *odom, self.episode))
         self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry, self.episode))
         self.last_publish_s = time.monotonic()
         if self.viewer is not None:  # after the step is out: the window never delays the pipeline
@@ -290,6 +294,8 @@ class SimService(Service):
             lockstep_timeouts=self.timeouts,
             episode=self.episode,
             map_origin=self.sim.plan.map_origin,
+            pose=self.odom_out[0],  # the step's odom, as published
+            twist=self.odom_out[1],
         )
 
     def finish(self, state: str, terminated_by: str, reason: str = "", ended_why: str = "") -> None:

@@ -544,9 +544,9 @@ def test_each_older_version_upgrades_to_the_current_one_with_episode_0_offline_o
     frontiers v7): a payload of the version before reads as today's message with id 0 ("no id") in the
     offline tools; a live service's ``decode`` still rejects it as an unknown version."""
     cases = _legacy_cases()
-    # (service_status v1, which lacked the counters, and episode_status v2 / episode_result v3, the map origin, not
-    # the episode id: their own tests below)
-    others = {("service_status", 1), ("episode_status", 2), ("episode_result", 3)}
+    # (service_status v1, which lacked the counters, episode_status v2 / episode_result v3, the map origin, and
+    # episode_status v3, the robot's pose, not the episode id: their own tests below)
+    others = {("service_status", 1), ("episode_status", 2), ("episode_status", 3), ("episode_result", 3)}
     assert {(msgpack.unpackb(p)["schema"], msgpack.unpackb(p)["v"]) for p, _ in cases} | others == set(LEGACY_UPGRADES)
     for payload, expected in cases:
         cls = type(expected)
@@ -587,8 +587,27 @@ def test_episode_status_and_result_carry_the_scenes_map_origin_and_older_ones_re
             decode(payload, type(msg))
         for read in (decode(upgrade_payload(payload), type(msg)), decode(payload, type(msg), accept_legacy=True)):
             assert read.map_origin == Pose2D(0.0, 0.0, 0.0)
+            assert not isinstance(read, EpisodeStatusMsg) or (read.pose, read.twist) == (None, None)  # nor the robot's pose
     with pytest.raises(MessageError, match="episode_status: missing field 'map_origin'"):  # v3 must carry it
         decode(_wire("episode_status", {k: v for k, v in _body(status).items() if k != "map_origin"}), EpisodeStatusMsg)
+
+
+def test_episode_status_carries_the_robots_pose_and_twist_and_a_v3_one_reads_with_none():
+    """v4 carries the robot's odometry pose and twist (what ``status`` and the live view show of where the robot is); a
+    recorded v3 reads offline with none, unknown, and a live service still rejects it as an unknown version."""
+    status = EpisodeStatusMsg("exploring", 5, goal_xy_m=[1.0, 1.5], episode=3, map_origin=Pose2D(-3.5, 2.0, 0.5), pose=Pose2D(1.25, -0.5, 3.0), twist=VelocityCommand(0.25, -0.1))
+    assert decode(encode(status), EpisodeStatusMsg) == status
+    assert _body(status)["pose"] == [1.25, -0.5, 3.0] and _body(status)["twist"] == [0.25, -0.1]
+    unknown = EpisodeStatusMsg("starting", 0)  # a ROS 2 bridge before its first scan: no odometry yet
+    assert _body(unknown)["pose"] is None and decode(encode(unknown), EpisodeStatusMsg) == unknown
+    v3 = _wire("episode_status", {k: v for k, v in _body(status).items() if k not in ("pose", "twist")}, version=3)
+    with pytest.raises(MessageError, match=r"episode_status: unknown version 3 \(this build speaks v4\)"):
+        decode(v3, EpisodeStatusMsg)
+    for read in (decode(upgrade_payload(v3), EpisodeStatusMsg), decode(v3, EpisodeStatusMsg, accept_legacy=True)):
+        assert read == EpisodeStatusMsg("exploring", 5, goal_xy_m=[1.0, 1.5], episode=3, map_origin=Pose2D(-3.5, 2.0, 0.5))
+    for missing in ("pose", "twist"):  # v4 must carry both (null while unknown)
+        with pytest.raises(MessageError, match=f"episode_status: missing field '{missing}'"):
+            decode(_wire("episode_status", {k: v for k, v in _body(status).items() if k != missing}), EpisodeStatusMsg)
 
 
 def test_a_current_payload_is_not_touched_and_a_v6_frontiers_with_its_id_keeps_it():
@@ -662,6 +681,16 @@ def _mutate(msg, **changes) -> bytes:
         _mutate(PlannerFeedbackMsg(1, "following", "command"), path_ahead_xy_m=pack_array(np.zeros((2, 3)))),
         _mutate(CmdVelMsg(1, VelocityCommand()), new_goal=1),
         _mutate(EpisodeStatusMsg("exploring", 1), coverage_pct=250.0),
+        _mutate(EpisodeStatusMsg("exploring", 1), pose=[1.0, float("nan"), 0.0]),
+        _mutate(EpisodeStatusMsg("exploring", 1), pose=[float("inf"), 0.0, 0.0]),
+        _mutate(EpisodeStatusMsg("exploring", 1), pose=[1.0, 2.0]),
+        _mutate(EpisodeStatusMsg("exploring", 1), pose=[1.0, 2.0, 11.0]),  # a yaw within +-10 rad, as every pose's
+        _mutate(EpisodeStatusMsg("exploring", 1), pose=[1.0, True, 0.0]),
+        _mutate(EpisodeStatusMsg("exploring", 1), twist=[0.2, float("inf")]),
+        _mutate(EpisodeStatusMsg("exploring", 1), twist=[float("nan"), 0.0]),
+        _mutate(EpisodeStatusMsg("exploring", 1), twist=[0.2]),
+        _mutate(EpisodeStatusMsg("exploring", 1), twist=[250.0, 0.0]),
+        _mutate(EpisodeStatusMsg("exploring", 1), twist="fast"),
         _mutate(ClockMsg(1, 0.25), time_s=-1.0),
         _mutate(ServiceStatusMsg("mapper", "r0", "running"), rejected={"scan": -1}),
         _mutate(ServiceStatusMsg("mapper", "r0", "running"), counters={"received:scan": -1}),

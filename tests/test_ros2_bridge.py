@@ -296,6 +296,26 @@ def _bridge_without_zenoh(params: dict | None = None, services: dict | None = No
     return svc, out, step
 
 
+def test_the_bridges_episode_status_carries_the_robots_last_odometry_and_none_before_its_first_scan():
+    """``status`` shows where the robot is from the episode status: on a real robot, the odometry the bridge matched to
+    its newest scan (the ``odom`` of that step, pose and twist); none before the first scan, and none again in a new
+    episode until its first scan."""
+    from types import SimpleNamespace
+
+    svc, out, _ = _bridge_without_zenoh()
+    assert (svc.episode_status().pose, svc.episode_status().twist) == (None, None)
+    sample = lambda raw: SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: raw))  # noqa: E731
+    for i in range(3):
+        svc._on_ros_odom(sample(ros_odom(1000.0 + 0.1 * i, 0.5 + 0.02 * i, -0.25, 0.3, v=0.2, w=-0.1)))
+        svc._on_ros_scan(sample(ros_scan(1000.0 + 0.1 * i, np.full(181, 2.0, np.float32))))
+    (last,) = [m for topic, m in out if topic == "odom" and m.step == svc.step]
+    status = decode(encode(svc.episode_status()), EpisodeStatusMsg)
+    assert status.step == last.step == 2 and status.pose == last.pose and status.twist == last.twist
+    assert status.pose is not None and status.pose.as_list() == pytest.approx([0.54, -0.25, 0.3]) and status.twist == VelocityCommand(0.2, -0.1)
+    svc._new_episode("test", "clock_jumps_back")
+    assert (svc.episode_status().pose, svc.episode_status().twist) == (None, None)
+
+
 def test_a_robot_clock_that_starts_again_starts_a_new_episode_instead_of_dropping_everything():
     """limo_base restarted (or a bag played again with use_sim_time): stamps go back by minutes. Every later
     sample used to be dropped as out of order until the new clock passed the old one: the robot stood still

@@ -12,6 +12,7 @@ import errno
 import functools
 import io
 import json
+import math
 import os
 import re
 import shutil
@@ -2398,11 +2399,13 @@ def test_status_shows_the_simulators_real_time_factor_the_launcher_measures(tmp_
 
 
 def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
-    """The launcher's live view reports the length of the planner's latest path (robot to goal)."""
+    """The launcher's live view reports the length of the planner's latest path (robot to goal), and where the robot is."""
+    import dataclasses
     from types import SimpleNamespace
 
     from rich.console import Console
 
+    from cso_runtime.geometry import VelocityCommand
     from cso_runtime.launcher import Launcher
     from cso_runtime.live_view import LiveView
     from cso_runtime.messages import PathMsg
@@ -2421,6 +2424,12 @@ def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
     console.print(LiveView(launcher).render())
     text = console.export_text()
     assert "6.50 m ahead on the path" in text
+    assert re.search(r"│ pose +│ - +│", text), text  # no odometry in the status yet
+    # The robot's pose, in the map frame as the goal above it (a map_server scene's origin applied), and its speed.
+    launcher.status = dataclasses.replace(launcher.status, map_origin=Pose2D(1.0, -2.0, 0.0), pose=Pose2D(0.5, 0.25, -0.5), twist=VelocityCommand(0.2, 0.0))
+    console = Console(width=200, record=True)
+    console.print(LiveView(launcher).render())
+    assert re.search(r"│ pose +│ x 1\.50 m  y -1\.75 m  yaw -0\.50 rad, 0\.20 m/s 0\.00 rad/s +│", console.export_text()), console.export_text()
     assert re.search(r"│ step +│ 3 \(0\.8 s robot time, \d+ s since start\)", text), text
     assert re.search(r"│ coverage +│ ━{2}╺?━* +10\.0 % ", text) and "1.00 m2, 0.333 m2/step" in text, text  # a bar a tenth full
     launcher.status.reason = "the map reached the edge of its arena"  # the referee's note, as `status` shows it
@@ -3212,7 +3221,8 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
     """``status --watch`` on a run of ``up`` that ended normally said "nothing running (no answer ...)" and exited 1,
     its last table showing the services DOWN, goal "-" and "last 0.0 ms" as the launcher stopped them. A run it saw
     answering whose run.json then says it stopped: how it ended, where its results are, exit 0 when done (else
-    ``up``'s exit code); the frame while the launcher stops the services says "stopping" and keeps the goal."""
+    ``up``'s exit code); the frame while the launcher stops the services says "stopping" and keeps the goal and the
+    robot's pose."""
     import io
 
     from rich.console import Console
@@ -3227,6 +3237,7 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
         path.write_text(json.dumps(running))
     services = {"sim": {"pid": 1, "restarts": 0}, "planner": {"pid": 2, "restarts": 0}}
     episode = {"state": "exploring", "step": 5, "episode": 7, "scene": "s", "method": "cso", "goal_xy_m": [1.5, 2.5], "last_decision_ms": 12.5, "decisions": 3}
+    episode.update(pose=[1.25, 2.0, 0.5], twist=[0.2, 0.0])
     exploring = status.status_of("r0", episode, {"run_id": "run1", "state": "running", "services": services}, {}, {"sim", "planner"})
     heard = {"state": "done", "step": 9, "episode": 7, "age_s": 0.4, "terminated_by": "coverage", "decisions": 4}
     stopping = status.status_of("r0", None, {"run_id": "run1", "state": "stopping", "services": services, "last_episode": heard}, {}, set())
@@ -3253,6 +3264,7 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
     last_table = out.getvalue().split("robot r0  run run1")[-1]
     assert "DOWN" not in last_table and re.search(r"service sim +│ stopping", last_table), last_table
     assert re.search(r"goal +│ \(1\.50, 2\.50\) m", last_table) and "last 12.5 ms" in last_table, last_table
+    assert re.search(r"pose +│ x 1\.25 m  y 2\.00 m  yaw 0\.50 rad, 0\.20 m/s", last_table), last_table  # where the robot stopped
 
 
 @pytest.mark.parametrize(("episode_state", "exit_code", "as_json"), [("done", 0, False), ("done", 0, True), ("failed", 1, False)])
@@ -3626,6 +3638,31 @@ def test_a_status_with_no_episode_heard_places_the_scene_at_the_map_frames_origi
     assert none_heard["goal"] is None
 
 
+def test_status_shows_the_robots_pose_in_the_map_frame_as_the_goal_and_none_before_odometry():
+    """The episode status's ``pose`` is in the scene's own frame (its odometry's); ``status`` (text and ``--json``,
+    a new key ``pose`` beside ``goal``) shows it in the user's map frame, a map_server scene's ``origin`` applied as to
+    the goal (REP-103: x, y in metres, yaw in radians within +-pi), with its twist; "-" and null before any odometry,
+    and for a status the launcher last heard (it carries none)."""
+    from rich.console import Console
+
+    from cso_runtime.geometry import VelocityCommand
+
+    origin = Pose2D(-3.5, 2.0, math.pi / 2)
+    msg = EpisodeStatusMsg("exploring", 5, goal_xy_m=[1.0, 0.0], episode=3, map_origin=origin, pose=Pose2D(1.0, 0.0, 3.0), twist=VelocityCommand(0.25, -0.1))
+    status = json.loads(json.dumps(status_of("r0", decode(encode(msg), EpisodeStatusMsg).to_dict(), None, {}, set())))
+    assert status["goal"] == pytest.approx([-3.5, 3.0])  # the goal's frame
+    assert status["pose"] == pytest.approx([-3.5, 3.0, 3.0 + math.pi / 2 - 2 * math.pi]) and status["twist"] == [0.25, -0.1]
+    console = Console(record=True, width=160)
+    console.print(render_table(status))
+    assert re.search(r"│ pose +│ x -3\.50 m  y 3\.00 m  yaw -1\.71 rad, 0\.25 m/s -0\.10 rad/s +│", console.export_text()), console.export_text()
+    for unknown in (EpisodeStatusMsg("starting", 0).to_dict(), None):  # no odometry yet; nothing heard from the sim
+        status = status_of("r0", unknown, None, {}, set())
+        assert status["pose"] is None and status["twist"] is None
+        console = Console(record=True, width=160)
+        console.print(render_table(status))
+        assert re.search(r"│ pose +│ - +│", console.export_text()), console.export_text()
+
+
 def test_reading_the_run_file_passes_its_zenoh_config_on_and_leaves_the_environment_alone(tmp_path, monkeypatch, capsys):
     """A run of ``up --zenoh-config`` names its config file in runs/current.json; reading that file set
     $CSO_ZENOH_CONFIG in the reading process, for every later session of it. The file now goes, explicitly, to the
@@ -3938,9 +3975,13 @@ def test_a_run_behind_a_mutual_tls_router_completes_and_a_session_without_a_cert
 
 def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_path):
     """``up --detach``; during the episode: malformed payloads on every key, SIGKILL of the mapper;
-    ``status --json`` during and after; ``save-map`` from the finished run; ``down`` leaves no process."""
+    ``status --json`` during and after, with the robot's pose, its odometry's; ``save-map`` from the finished run;
+    ``down`` leaves no process."""
+    from rich.console import Console
+
     profile = write_profile(tmp_path, min_step_period_s=0.25, lockstep_timeout_s=0.5)  # 36 steps: at least 9 s to do all this
     runs = tmp_path / "runs"
+    listening = contextlib.ExitStack()
     try:
         r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
         assert r.returncode == 0, r.stderr
@@ -3950,11 +3991,17 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         def status() -> dict | None:
             return query_status(endpoints, "r0", timeout_s=0.5)
 
+        # The robot's odometry of each step, as the sim publishes it: what `status` says of where the robot is.
+        odometry: dict[int, OdometryMsg] = {}
+        listener = listening.enter_context(open_session(TransportConfig(mode="client", connect=endpoints)))
+        heard = listener.declare_subscriber(RobotKeys("r0").topic("odom"), lambda sample: odometry.setdefault((m := decode(sample.payload.to_bytes(), OdometryMsg)).step, m))
+        listening.callback(heard.undeclare)
         wait_for(lambda: (s := status()) and s["state"] == "exploring" and s["step"] >= 2, 60, "the episode to start")
         r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 0, r.stdout + r.stderr
         during = json.loads(r.stdout)
         assert during["state"] == "exploring" and all(s["alive"] for s in during["services"].values())
+        assert len(during["pose"]) == 3 and len(during["twist"]) == 2, during  # [x_m, y_m, yaw_rad], [linear_mps, angular_radps]
         # Malformed payloads on every key of the robot.
         keys = RobotKeys("r0")
         nan_scan = encode(ScanMsg(1, LaserScan(0.0, 0.1, 0.1, 5.0, np.array([1.0, np.nan], np.float32)), Pose2D(0, 0, 0)))
@@ -3985,7 +4032,19 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         assert abs(final["coverage_pct"] - expected.coverage_pct) <= 5.0
 
         r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
-        assert r.returncode == 0 and json.loads(r.stdout)["state"] == "done"
+        after_end = json.loads(r.stdout)
+        assert r.returncode == 0 and after_end["state"] == "done"
+        # Where the robot stopped: its odometry of the last step (the builtin scene's frame is the map frame), with its twist.
+        last = odometry[after_end["step"]]
+        assert after_end["map_origin"] == [0.0, 0.0, 0.0] and after_end["pose"] == pytest.approx(last.pose.as_list(), abs=1e-9), (after_end, last)
+        assert after_end["twist"] == pytest.approx([last.twist.linear_mps, last.twist.angular_radps], abs=1e-9)
+        first = odometry[min(odometry)]
+        assert math.hypot(last.pose.x_m - first.pose.x_m, last.pose.y_m - first.pose.y_m) > 0.1  # it moved: not a pose left at 0
+        console = Console(record=True, width=160)
+        console.print(render_table(after_end))
+        x_m, y_m, yaw_rad = last.pose.as_list()
+        assert re.search(rf"│ pose +│ x {x_m:.2f} m  y {y_m:.2f} m  yaw {yaw_rad:.2f} rad, ", console.export_text()), console.export_text()
+        listening.close()
         # The map, saved from the detached run that still answers once its episode is done.
         r = cli("save-map", "-f", str(tmp_path / "live"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 0, r.stdout + r.stderr
@@ -4031,6 +4090,7 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=10)
         assert r.returncode == 1
     finally:
+        listening.close()
         cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert kill_leftovers(runs) == []
 

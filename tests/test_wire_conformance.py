@@ -306,7 +306,28 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "lockstep_timeouts": 0,
             "episode": EPISODE,
             "map_origin": [1.0, -2.0, 0.5],
-        }
+            "pose": [0.5, -0.25, 3.0],
+            "twist": [0.2, -0.5],
+        },
+        {  # no odometry yet (a ros2_bridge before its first scan): pose and twist nil
+            "state": "starting",
+            "step": 0,
+            "scene": "ros2:/",
+            "method": "greedy-dist",
+            "coverage_pct": 0.0,
+            "explored_area_m2": 0.0,
+            "path_length_m": 0.0,
+            "goal_xy_m": None,
+            "decisions": 0,
+            "last_decision_ms": 0.0,
+            "terminated_by": "",
+            "reason": "",
+            "lockstep_timeouts": 0,
+            "episode": EPISODE,
+            "map_origin": [0.0, 0.0, 0.0],
+            "pose": None,
+            "twist": None,
+        },
     ],
     "episode_result": [
         {
@@ -421,8 +442,11 @@ def test_the_values_decoded_are_the_ones_the_docs_describe():
     assert isinstance(contacts, PlannerContactsMsg) and contacts.contacts_xy_m.tolist() == [[0.125, -0.075], [0.175, -0.075]] and contacts.episode == EPISODE
     (why,) = bodies["ended_why"]
     assert isinstance(why, EndedWhyMsg) and why.why.startswith("2 frontier cells")
-    (status,) = bodies["episode_status"]
+    status, no_odometry = bodies["episode_status"]
     assert isinstance(status, EpisodeStatusMsg) and status.map_origin.as_list() == [1.0, -2.0, 0.5]
+    assert status.pose is not None and status.twist is not None and status.pose.as_list() == [0.5, -0.25, 3.0]  # scene's frame
+    assert (status.twist.linear_mps, status.twist.angular_radps) == (0.2, -0.5)
+    assert isinstance(no_odometry, EpisodeStatusMsg) and (no_odometry.pose, no_odometry.twist) == (None, None)
     (result,) = bodies["episode_result"]
     assert isinstance(result, EpisodeResultMsg) and result.final_map is not None and result.final_map.step == 40 and result.seed == -3
     (service,) = bodies["service_status"]
@@ -604,6 +628,14 @@ DELETE = object()
         ("planner_state", 0, "status", "stale"),  # the service's, never its follower's
         ("planner_plan", 0, "free.traversable", record(EXPLORED[:3], "bool", "bits")),  # on the plan's geometry
         ("episode_status", 0, "state", "paused"),
+        ("episode_status", 0, "pose", DELETE),  # nil while unknown, never absent
+        ("episode_status", 0, "twist", DELETE),
+        ("episode_status", 0, "pose", [0.5, math.nan, 3.0]),  # a pose as every pose: three finite numbers, yaw within +-10
+        ("episode_status", 0, "pose", [0.5, -0.25]),
+        ("episode_status", 0, "pose", [0.5, -0.25, 10.5]),
+        ("episode_status", 0, "twist", [0.2, math.inf]),  # a twist as odom's: two finite numbers within +-100
+        ("episode_status", 0, "twist", [0.2, -0.5, 0.0]),
+        ("episode_status", 0, "twist", [-100.5, 0.0]),
         ("service_status", 0, "state", "idle"),
         ("service_status", 0, "counters", {"decisions": -1}),
     ],
