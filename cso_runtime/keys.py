@@ -30,8 +30,6 @@ TOPICS = {
     "path": "path",
     "planner_feedback": "planner/feedback",
     "planner_contacts": "planner/contacts",
-    "planner_plan": "planner/plan",
-    "planner_state": "planner/state",
     "clock": "clock",
     "episode_status": "episode/status",
     "episode_result": "episode/result",
@@ -39,9 +37,14 @@ TOPICS = {
 }
 """Topic name -> key suffix under ``cso/<robot>/``."""
 
-PLANNER_KEPT = ("planner_contacts", "planner_plan", "planner_state")
-"""The planner's topics the referee (sim or ros2_bridge) keeps the latest of and serves on ``cache/<topic>``: what a
-planner restarted mid-episode resumes from (``services/planner.py``, ``start``)."""
+CARRIED = {"planner_plan": "planner/plan", "planner_state": "planner/state"}
+"""What rides on another topic and has only a cache key (``cache/<suffix>``): the planner's plan and state, which its
+``cmd_vel`` carries (``CmdVelMsg.planner_plan``, ``.planner_state``) so that the lockstep chain pays no message for them."""
+
+PLANNER_KEPT = ("planner_contacts", *CARRIED)
+"""What of the planner's the referee (sim or ros2_bridge) keeps the latest of and serves on ``cache/<...>``: what a
+planner restarted mid-episode resumes from (``services/planner.py``, ``start``). Its contacts come on their own topic,
+its plan and state on ``cmd_vel`` (``CARRIED``)."""
 
 EXT = "ext"
 EXT_TOPIC = re.compile(r"^ext(/[A-Za-z0-9_-]{1,64}){1,8}$")
@@ -157,7 +160,7 @@ class RobotKeys:
     def cache(self, name: str) -> str:
         """Queryable with the latest ``map``, ``planner_contacts``, ``planner_plan`` or ``planner_state`` (held by the
         referee, sim or ros2_bridge) or ``goal`` (held by the launcher), for restarted services."""
-        return f"{ROOT}/{self.robot}/cache/{TOPICS[name]}"
+        return f"{ROOT}/{self.robot}/cache/{TOPICS[name] if name in TOPICS else CARRIED[name]}"
 
 
 def robot_of(key_expr: str) -> str:

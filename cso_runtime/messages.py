@@ -69,6 +69,27 @@ def max_grid_cells() -> int:
     return _max_grid_cells
 
 
+def max_bin_bytes() -> int:
+    """The most bytes one msgpack bin of a payload may have in this run: a grid's cells or an array of one entry per step,
+    8 bytes each (``max_grid_cells``, ``MAX_STEP_POINTS``); a longer one is refused before the payload is read."""
+    return max(_max_grid_cells, 2 * MAX_STEP_POINTS) * 8
+
+
+def max_planner_plan_bytes() -> int:
+    """The most bytes of an encoded ``planner_plan`` that ``cmd_vel`` carries (``CmdVelMsg.planner_plan``), from the run's
+    grid bound (``max_grid_cells``): a path of a point per cell (16 bytes a cell as float64), its two bit-packed grids (an
+    eighth of a byte a cell each) and 64 kB for the rest and zlib's overhead; at most one bin of a payload
+    (``max_bin_bytes``). A real plan is far smaller (the builtin scene's: about 2 kB); the planner sends none larger
+    (its state then names a plan the cache lacks: a restart starts afresh)."""
+    return min(max_bin_bytes(), 16 * _max_grid_cells + _max_grid_cells // 4 + 65536)
+
+
+MAX_PLANNER_STATE_BYTES = 65536
+"""The most bytes of an encoded ``planner_state`` that ``cmd_vel`` carries (``CmdVelMsg.planner_state``): its two texts
+(the command's ``reason`` and ``blocked_why``, each at most 4096 characters, 16 kB in UTF-8) and some thirty numbers
+(about 500 bytes) with room to spare."""
+
+
 def set_max_grid_cells(cells: int) -> None:
     """Bound every grid this process decodes or sends to ``cells`` (the profile's ``max_grid_cells``, set by each service
     and the launcher as they start): a larger one is refused before any of its data is inflated. ValueError outside
@@ -259,6 +280,19 @@ def _bool(body: dict, key: str, where: str) -> bool:
     return v
 
 
+def _opaque(body: dict, key: str, where: str, max_bytes: int) -> bytes | None:
+    """An optional field of bytes carried for another reader, unread here (None when absent or nil), refused above
+    ``max_bytes`` before its receiver keeps it."""
+    v = body.get(key)
+    if v is None:
+        return None
+    if not isinstance(v, bytes):
+        raise MessageError(f"{where}.{key}: expected bytes or null, got {type(v).__name__}")
+    if len(v) > max_bytes:
+        raise MessageError(f"{where}.{key}: too large ({len(v)} bytes, at most {max_bytes})")
+    return v
+
+
 def _pose_out(p: Pose2D) -> list[float]:
     return p.as_list()
 
@@ -410,10 +444,15 @@ class OdometryMsg(Message):
 
 @dataclass
 class CmdVelMsg(Message):
-    """The velocity command for one step (lockstep: the sim advances when it has the command of its step)."""
+    """The velocity command for one step (lockstep: the sim advances when it has the command of its step).
+
+    The project's planner also hands the referee (sim or ros2_bridge) its checkpoint on it (v3): ``planner_state`` every
+    step and ``planner_plan`` when the plan changed, each an encoded message the referee never decodes, only keeps and
+    serves (``cache/planner/state``, ``cache/planner/plan``) to a restarted planner. On the message the sim steps on
+    anyway, the lockstep chain pays no delivery of its own for them."""
 
     SCHEMA: ClassVar[str] = "cmd_vel"
-    VERSION: ClassVar[int] = 2
+    VERSION: ClassVar[int] = 3
     step: int
     command: VelocityCommand
     reason: str = ""
@@ -422,16 +461,38 @@ class CmdVelMsg(Message):
     new_goal: bool = False
     """The command follows a goal decided at this step (a lockstep sim then also waits for that goal,
     to count the decision); false on the steps that keep the current goal."""
+    episode: int = 0
+    """Episode id of the inputs the command was computed on (v3, optional; 0: no id, a planner of one's own): the
+    referee keeps the ``planner_state`` and ``planner_plan`` it carries only when they are of its episode."""
+    planner_state: bytes | None = None
+    """The encoded ``PlannerStateMsg`` after this command (optional, at most ``MAX_PLANNER_STATE_BYTES``); None: none."""
+    planner_plan: bytes | None = None
+    """The encoded ``PlannerPlanMsg`` made by this command (optional, only when the plan changed; at most
+    ``max_planner_plan_bytes()``); None: the plan kept is still the one followed."""
 
-    def body(self) -> dict[str, Any]:
+    def command_body(self) -> dict[str, Any]:
+        """The command alone (``planner_state.cmd``): what a retry of the step sends again."""
         c = self.command
         return {"step": self.step, "linear_mps": c.linear_mps, "angular_radps": c.angular_radps, "reason": self.reason, "new_goal": self.new_goal}
+
+    def body(self) -> dict[str, Any]:
+        b = self.command_body()
+        if self.episode:
+            b["episode"] = self.episode
+        if self.planner_state is not None:
+            b["planner_state"] = self.planner_state
+        if self.planner_plan is not None:
+            b["planner_plan"] = self.planner_plan
+        return b
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> CmdVelMsg:
         w = "cmd_vel"
         cmd = VelocityCommand(_num(b, "linear_mps", w, -100, 100), _num(b, "angular_radps", w, -100, 100))
-        return cls(_int(b, "step", w), cmd, _str(b, "reason", w), _bool(b, "new_goal", w))
+        episode = _int(b, "episode", w) if b.get("episode") is not None else 0
+        state = _opaque(b, "planner_state", w, MAX_PLANNER_STATE_BYTES)
+        plan = _opaque(b, "planner_plan", w, max_planner_plan_bytes())
+        return cls(_int(b, "step", w), cmd, _str(b, "reason", w), _bool(b, "new_goal", w), episode, state, plan)
 
 
 @dataclass
@@ -1076,7 +1137,7 @@ class PlannerStateMsg(Message):
             "plan_step": self.plan_step,
             "goal_step": self.goal_step,
             "no_frontier": self.no_frontier,
-            "cmd": self.cmd.body(),
+            "cmd": self.cmd.command_body(),
             "set_goal_blocked": self.set_goal_blocked,
             "status": f.status.value,
             "progress_index": f.progress_index,
@@ -1614,7 +1675,7 @@ def _envelope(payload: bytes) -> tuple[str, Any, Any]:
     if not isinstance(payload, (bytes, bytearray, memoryview)):
         raise MessageError("payload is not bytes")
     try:
-        raw = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True, max_bin_len=max(_max_grid_cells, 2 * MAX_STEP_POINTS) * 8)
+        raw = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True, max_bin_len=max_bin_bytes())
     except (msgpack.ExtraData, msgpack.FormatError, msgpack.StackError, ValueError, TypeError) as exc:
         raise MessageError(f"not a msgpack payload ({type(exc).__name__}: {exc})") from None
     if not isinstance(raw, dict) or set(raw) != {"schema", "v", "body"}:
@@ -1692,6 +1753,11 @@ def _no_robot_pose(body: dict[str, Any]) -> dict[str, Any]:
     return {"pose": None, "twist": None, **body}
 
 
+def _command_alone(body: dict[str, Any]) -> dict[str, Any]:
+    """A ``cmd_vel`` v2 body, from before it could carry the planner's episode, state and plan (all optional): as it is."""
+    return body
+
+
 def _map_frame_origin_no_robot_pose(body: dict[str, Any]) -> dict[str, Any]:
     """An ``episode_status`` v2 body: neither the scene's ``map_origin`` nor the robot's pose."""
     return _no_robot_pose(_map_frame_origin(body))
@@ -1707,6 +1773,7 @@ LEGACY_UPGRADES: dict[tuple[str, int], Callable[[dict[str, Any]], dict[str, Any]
     ("episode_status", 2): _map_frame_origin_no_robot_pose,
     ("episode_status", 3): _no_robot_pose,
     ("episode_result", 3): _map_frame_origin,
+    ("cmd_vel", 2): _command_alone,
 }
 """(schema, older version) -> its body as a body of the current version, for the changes that only added
 a field. Recordings outlive a version: the offline tools that read them (replay, export-bag, animate) read

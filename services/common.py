@@ -53,6 +53,7 @@ from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import (
     DEFAULT_MAX_GRID_CELLS,
+    CmdVelMsg,
     ExploreResumeMsg,
     Message,
     MessageError,
@@ -108,6 +109,17 @@ class MessageTrace:
             self.path.write_text(json.dumps(list(self.events)))
         except OSError as exc:
             log.error("cannot write the message trace %s: %s", self.path, exc)
+
+
+@dataclass(frozen=True)
+class KeptPayload:
+    """A message kept as the bytes it came in (``Service.keep_latest``), served as they are: the planner's state and
+    plan, which ride encoded on its ``cmd_vel`` and which the referee never decodes (no cost on the lockstep chain).
+    ``step`` and ``episode`` are those of the ``cmd_vel`` that carried it."""
+
+    step: int
+    episode: int
+    payload: bytes
 
 
 @dataclass
@@ -205,7 +217,7 @@ class Service:
         self._publishers: dict[str, Any] = {}
         self._lock = threading.Lock()
         self._inbox: queue.Queue | None = None
-        self.latest: dict[str, Message] = {}
+        self.latest: dict[str, Message | KeptPayload] = {}
         """Topic -> the message served on its ``cache`` key (``serves_latest``)."""
         self.trace: MessageTrace | None = None
         """Per-message timings, when ``CSO_TRACE_DIR`` is set (diagnostics; off by default)."""
@@ -285,12 +297,22 @@ class Service:
             pub = self._publishers[key] = self.session.declare_publisher(key)
         return pub
 
-    def keep_latest(self, topic: str, msg: Message) -> None:
+    def keep_latest(self, topic: str, msg: Message | KeptPayload) -> None:
         """Serve ``msg`` on ``cache/<topic>`` from now on, unless a later step of its episode is already
         kept (a late message never replaces a newer one; a new episode's first message does)."""
         old = self.latest.get(topic)
         if old is None or getattr(old, "episode", 0) != getattr(msg, "episode", 0) or getattr(msg, "step", 0) >= getattr(old, "step", 0):
             self.latest[topic] = msg
+
+    def keep_carried(self, cmd: CmdVelMsg, own_episode: int) -> None:
+        """Keep the planner's state and plan that ``cmd`` carries, as they came (served on ``cache/planner/state`` and
+        ``cache/planner/plan``, never decoded here), unless ``cmd`` is of another episode than ``own_episode`` (the
+        referee's: rejected and counted under ``planner_state``). A plan is kept until a newer one comes."""
+        if (cmd.planner_state is None and cmd.planner_plan is None) or self.of_another_episode("planner_state", cmd, own_episode):
+            return
+        for topic, payload in (("planner_state", cmd.planner_state), ("planner_plan", cmd.planner_plan)):
+            if payload is not None:
+                self.keep_latest(topic, KeptPayload(cmd.step, cmd.episode, payload))
 
     def kept(self, topic: str, cls: type[M]) -> M | None:
         """The message kept for ``topic`` (``keep_latest``) when it is a ``cls``; None otherwise: typed for its reader."""
@@ -302,7 +324,7 @@ class Service:
         asker need not wait for one, ``query_latest``)."""
         msg = self.latest.get(topic)
         if msg is not None:
-            query.reply(self.ctx.keys.cache(topic), encode(msg))
+            query.reply(self.ctx.keys.cache(topic), msg.payload if isinstance(msg, KeptPayload) else encode(msg))
         else:
             query.reply_err(f"no {topic} yet".encode())
 

@@ -13,6 +13,7 @@ whose decision was slow is still commanded).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -37,6 +38,8 @@ from cso_runtime.messages import (
     PlannerPlanMsg,
     PlannerStateMsg,
     ScanMsg,
+    encode,
+    max_planner_plan_bytes,
 )
 from cso_runtime.pause import LOCKSTEP_REFUSAL
 from cso_runtime.planner import FollowResult, FreeSpace, LocalPlanner, PlannerStatus
@@ -97,7 +100,6 @@ class PlannerService(Service):
     }  # fmt: skip
     outputs = {
         "cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "planner_feedback": PlannerFeedbackMsg, "path": PathMsg, "planner_contacts": PlannerContactsMsg,
-        "planner_plan": PlannerPlanMsg, "planner_state": PlannerStateMsg,
     }  # fmt: skip
     optional_inputs = ("distance_map", "explore_resume")  # without D the planner runs its own fast-marching pass (the same path); a pause is an operator's
     tick_period_s = 0.1
@@ -184,7 +186,8 @@ class PlannerService(Service):
         self.contacts_published = 0
         """How many of the planner's contacts ``planner_contacts`` has sent (they only grow in an episode)."""
         self.published_state: tuple[int, np.ndarray | None, FreeSpace | None] = (-1, None, None)
-        """The step of the last ``planner_plan`` sent, and its path and grid (a new one goes out when they change)."""
+        """The step of the last plan sent (on ``cmd_vel``, ``with_checkpoint``), and its path and grid (a new one goes out
+        when they change)."""
         self.resumed_step: int | None = None
         """Lockstep: the step of the state restored at start (``restore_state``) until the first odometry: when that is
         of a later step than the next, the state is behind the episode and this planner joins where it is."""
@@ -460,14 +463,14 @@ class PlannerService(Service):
                 self.set_state("running")
         self.stopped_for_stale = False
         stop_already_sent = self.ends_stopped(self.last_cmd) and reason == NO_FRONTIER_REASON
-        self.last_cmd = CmdVelMsg(k, cmd, reason, new_goal=self.pending_new_goal)
+        self.last_cmd = CmdVelMsg(k, cmd, reason, new_goal=self.pending_new_goal, episode=self.episodes.current or 0)
         self.pending_new_goal = False
         if not stop_already_sent:
+            self.last_cmd = self.with_checkpoint(k, self.last_cmd)
             self.publish("cmd_vel", self.last_cmd)
         self.publish_feedback(k, reason)
         self.publish_path(k)
         self.publish_contacts(k)
-        self.publish_state(k)
 
     def publish_contacts(self, k: int) -> None:
         """All the contacts, once step ``k``'s command has added one (after the step's command and feedback: the
@@ -479,18 +482,22 @@ class PlannerService(Service):
         self.contacts_published = len(contacts)
         self.publish("planner_contacts", PlannerContactsMsg(k, contacts, self.episodes.current or 0))
 
-    def publish_state(self, k: int) -> None:
-        """The plan (only when it changed: a new goal, a re-plan) and the state after step ``k``'s command, last of the
-        step's messages (the lockstep chain never waits for them). The referee keeps them for a restarted planner."""
+    def with_checkpoint(self, k: int, cmd: CmdVelMsg) -> CmdVelMsg:
+        """Step ``k``'s command carrying the planner's state after it and, when the command made a new plan (a new goal's,
+        a re-plan round a contact, or none), that plan, each encoded (``CmdVelMsg.planner_state``, ``.planner_plan``).
+        The referee keeps them for a restarted planner without decoding them: on the message the sim steps on anyway,
+        the lockstep chain pays no delivery of its own for them. Sent again as it is on a retry of the step."""
         p, (plan_step, path, free) = self.planner, self.published_state
+        plan = None
         if p.path is not path or p.free is not free:
+            plan = encode(PlannerPlanMsg(k, np.zeros((0, 2)) if p.path is None else p.path, p.free if p.path is not None else None, self.episodes.current or 0))
+            if len(plan) > max_planner_plan_bytes():  # never on a real grid; the state then names a plan the cache lacks
+                log.warning("step %d: the plan (%d bytes) is over the %d bytes cmd_vel carries: a restart would start afresh", k, len(plan), max_planner_plan_bytes())
+                plan = None
             plan_step = k
             self.published_state = (k, p.path, p.free)
-            self.publish("planner_plan", PlannerPlanMsg(k, np.zeros((0, 2)) if p.path is None else p.path, p.free if p.path is not None else None, self.episodes.current or 0))
-        assert self.last_cmd is not None and self.last_feedback is not None  # both sent for this step
-        self.publish("planner_state", PlannerStateMsg(
-            k, plan_step, self.goal_step, self.no_frontier, self.last_cmd, self.last_feedback.set_goal_blocked, p.checkpoint(), self.episodes.current or 0,
-        ))  # fmt: skip
+        state = PlannerStateMsg(k, plan_step, self.goal_step, self.no_frontier, cmd, self.set_goal_blocked, p.checkpoint(), self.episodes.current or 0)
+        return dataclasses.replace(cmd, planner_state=encode(state), planner_plan=plan)
 
     def extra_status(self) -> dict[str, int]:
         """``contacts``: how many the planner keeps in this episode (restored ones included)."""

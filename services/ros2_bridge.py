@@ -63,8 +63,6 @@ from cso_runtime.messages import (
     MessageError,
     OdometryMsg,
     PlannerContactsMsg,
-    PlannerPlanMsg,
-    PlannerStateMsg,
     ScanMsg,
     decode,
     encode,
@@ -330,9 +328,9 @@ class Ros2BridgeService(Service):
     name = "ros2_bridge"
     inputs: ClassVar[dict[str, type[Message]]] = {
         "cmd_vel": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "frontiers": FrontiersMsg, "ended_why": EndedWhyMsg,
-        "planner_contacts": PlannerContactsMsg, "planner_plan": PlannerPlanMsg, "planner_state": PlannerStateMsg,
+        "planner_contacts": PlannerContactsMsg,
     }  # fmt: skip
-    optional_inputs: ClassVar[tuple[str, ...]] = ("ended_why", *PLANNER_KEPT)  # the reason is words: the episode ends without them; the planner's are kept, not used
+    optional_inputs: ClassVar[tuple[str, ...]] = ("ended_why", "planner_contacts")  # the reason is words: the episode ends without them; the planner's are kept, not used
     outputs: ClassVar[dict[str, type[Message]]] = {
         "scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg,
         "explore_resume": ExploreResumeMsg,
@@ -777,14 +775,15 @@ class Ros2BridgeService(Service):
 
     # --- cso -> ROS -------------------------------------------------------------------------------
     def on_message(self, robot: str, topic: str, msg: Message, received_s: float) -> None:
-        if self.of_another_episode(topic, msg, self.episode):  # a map, goal or frontiers from before this bridge started
+        if not isinstance(msg, CmdVelMsg) and self.of_another_episode(topic, msg, self.episode):  # a map, goal or frontiers from before this bridge started
             return
         with self._bridge_lock:
             if isinstance(msg, EndedWhyMsg):
                 self.no_frontier_end.heard = (msg.step, msg.why)
                 self.end_if_why_heard(time.monotonic())
             elif isinstance(msg, CmdVelMsg):
-                self.forward_command(msg.command, received_s)
+                self.forward_command(msg.command, received_s)  # whatever its episode, as before it carried one
+                self.keep_carried(msg, self.episode)  # the planner's state and plan, kept as they came for a restarted planner
             elif isinstance(msg, MapMsg):
                 self.keep_latest("map", msg)
                 if self.arena_edge_step is None and open_on_border(msg.explored, msg.occupied):
@@ -799,7 +798,7 @@ class Ros2BridgeService(Service):
                     self.publish("episode_status", self.episode_status())
             elif isinstance(msg, GoalMsg):
                 self.take_goal(msg)
-            elif isinstance(msg, (PlannerContactsMsg, PlannerPlanMsg, PlannerStateMsg)):  # kept for a restarted planner
+            elif isinstance(msg, PlannerContactsMsg):  # kept for a restarted planner
                 self.keep_latest(topic, msg)
             elif isinstance(msg, FrontiersMsg) and msg.decide and msg.geometry is not None:
                 if self.episode_state in EPISODE_OVER:

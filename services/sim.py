@@ -38,8 +38,6 @@ from cso_runtime.messages import (
     Message,
     OdometryMsg,
     PlannerContactsMsg,
-    PlannerPlanMsg,
-    PlannerStateMsg,
     ScanMsg,
     encode,
     new_episode_id,
@@ -156,9 +154,9 @@ class SimService(Service):
     name = "sim"
     inputs = {
         "cmd_vel": CmdVelMsg, "cmd_vel_ahead": CmdVelMsg, "map": MapMsg, "goal": GoalMsg, "ended_why": EndedWhyMsg,
-        "planner_contacts": PlannerContactsMsg, "planner_plan": PlannerPlanMsg, "planner_state": PlannerStateMsg,
+        "planner_contacts": PlannerContactsMsg,
     }  # fmt: skip
-    optional_inputs = ("cmd_vel_ahead", "ended_why", *PLANNER_KEPT)  # a step ahead is a speed-up: without it the sim steps on cmd_vel; the reason is words; the planner's are kept, not used
+    optional_inputs = ("cmd_vel_ahead", "ended_why", "planner_contacts")  # a step ahead is a speed-up: without it the sim steps on cmd_vel; the reason is words; the planner's are kept, not used
     outputs = {"scan": ScanMsg, "odom": OdometryMsg, "clock": ClockMsg, "episode_status": EpisodeStatusMsg, "episode_result": EpisodeResultMsg}
     serves_latest = ("map", *PLANNER_KEPT)
     tick_period_s = 0.02
@@ -420,10 +418,12 @@ class SimService(Service):
                 self.no_frontier_end.heard = (msg.step, msg.why)
                 self.end_if_why_heard(time.monotonic())
             return
-        if isinstance(msg, (PlannerContactsMsg, PlannerPlanMsg, PlannerStateMsg)):  # kept for a restarted planner, never waited for
+        if isinstance(msg, PlannerContactsMsg):  # kept for a restarted planner, never waited for
             if not self.of_another_episode(topic, msg, self.episode):
                 self.keep_latest(topic, msg)
             return
+        if topic == "cmd_vel":  # the planner's state and plan ride on it: kept as they came for a restarted planner
+            self.keep_carried(msg, self.episode)  # type: ignore[arg-type]
         if not self.running:
             return
         if isinstance(msg, MapMsg) and msg.episode != self.episode:

@@ -21,7 +21,7 @@ import msgpack
 import numpy as np
 import zenoh
 
-VERSIONS = {"odom": 2, "frontiers": 7, "goal": 2, "cmd_vel": 2, "planner_feedback": 3, "service_status": 2}
+VERSIONS = {"odom": 2, "frontiers": 7, "goal": 2, "cmd_vel": 3, "planner_feedback": 3, "service_status": 2}
 """The versions this node speaks (docs/messages.md): a payload of another version is rejected, and counted."""
 REACHED_M = 0.3
 PATIENCE_STEPS = 12

@@ -112,7 +112,7 @@ def test_sim_profile_dataflow_holds_the_lockstep_chain():
     assert not any(e.source == LAUNCHER for e in edges)  # the launcher only listens
     assert Edge("policy", "goal", "mapper") not in edges  # only declared inputs are edges
     mermaid = to_mermaid(nodes)
-    assert mermaid.startswith("flowchart LR\n") and '  planner -->|"cmd_vel, cmd_vel/ahead, planner/contacts, planner/plan, planner/state"| sim\n' in mermaid
+    assert mermaid.startswith("flowchart LR\n") and '  planner -->|"cmd_vel, cmd_vel/ahead, planner/contacts"| sim\n' in mermaid
     assert '  frontier -->|"frontiers"| policy\n' in mermaid
     md = to_markdown("sim", nodes)
     assert "```mermaid\nflowchart LR" in md and "| policy | `frontiers` (frontier) | `goal` (sim, frontier, planner, launcher) |" in md

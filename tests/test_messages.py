@@ -19,6 +19,7 @@ from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id, robot_of, 
 from cso_runtime.messages import (
     DEFAULT_MAX_GRID_CELLS,
     LEGACY_UPGRADES,
+    MAX_PLANNER_STATE_BYTES,
     MAX_STEP_POINTS,
     MESSAGE_TYPES,
     SCHEMA_VERSION,
@@ -46,6 +47,7 @@ from cso_runtime.messages import (
     frontiers_from_observation,
     frontiers_reading,
     max_grid_cells,
+    max_planner_plan_bytes,
     observation_from_frontiers,
     pack_array,
     set_max_grid_cells,
@@ -546,7 +548,7 @@ def test_each_older_version_upgrades_to_the_current_one_with_episode_0_offline_o
     cases = _legacy_cases()
     # (service_status v1, which lacked the counters, episode_status v2 / episode_result v3, the map origin, and
     # episode_status v3, the robot's pose, not the episode id: their own tests below)
-    others = {("service_status", 1), ("episode_status", 2), ("episode_status", 3), ("episode_result", 3)}
+    others = {("service_status", 1), ("episode_status", 2), ("episode_status", 3), ("episode_result", 3), ("cmd_vel", 2)}
     assert {(msgpack.unpackb(p)["schema"], msgpack.unpackb(p)["v"]) for p, _ in cases} | others == set(LEGACY_UPGRADES)
     for payload, expected in cases:
         cls = type(expected)
@@ -608,6 +610,39 @@ def test_episode_status_carries_the_robots_pose_and_twist_and_a_v3_one_reads_wit
     for missing in ("pose", "twist"):  # v4 must carry both (null while unknown)
         with pytest.raises(MessageError, match=f"episode_status: missing field '{missing}'"):
             decode(_wire("episode_status", {k: v for k, v in _body(status).items() if k != missing}), EpisodeStatusMsg)
+
+
+def test_cmd_vel_carries_the_planners_state_and_plan_opaque_and_bounded_and_a_foreign_one_needs_neither():
+    """v3: the project's planner hands the referee its state (every step) and plan (when it changed) on ``cmd_vel``, as the
+    encoded messages, which ``cmd_vel``'s decoding leaves unread (the referee serves them as they came). Each is bounded
+    before its receiver keeps it; a command without them (a foreign planner's, a v2 one in a recording) is the same
+    command, with neither."""
+    plan = encode(PlannerPlanMsg(3, np.array([[0.0, 0.0], [1.0, 0.5]]), None, 7))
+    state = b"\x93not decoded here"  # opaque to cmd_vel: only the cache's reader decodes it
+    cmd = CmdVelMsg(3, VelocityCommand(0.2, -0.1), "", True, 7, state, plan)
+    assert decode(encode(cmd), CmdVelMsg) == cmd and _body(cmd)["planner_state"] == state
+    plain = CmdVelMsg(3, VelocityCommand(0.2, -0.1), "", True)
+    assert set(_body(plain)) == {"step", "linear_mps", "angular_radps", "reason", "new_goal"}  # a foreign planner's body: v3 all the same
+    for nil in (None, 0):
+        foreign = {**_body(plain), "planner_state": None, "planner_plan": None, "episode": nil}
+        assert decode(_wire("cmd_vel", foreign), CmdVelMsg) == plain
+    with pytest.raises(MessageError, match="cmd_vel.planner_state: too large"):
+        decode(_wire("cmd_vel", {**_body(plain), "planner_state": bytes(MAX_PLANNER_STATE_BYTES + 1)}), CmdVelMsg)
+    with pytest.raises(MessageError, match="cmd_vel.planner_plan: expected bytes or null"):
+        decode(_wire("cmd_vel", {**_body(plain), "planner_plan": "a plan"}), CmdVelMsg)
+    small = 64 * 64
+    try:
+        set_max_grid_cells(small)  # a run of small grids: the plan's bound follows the run's
+        assert max_planner_plan_bytes() == 16 * small + small // 4 + 65536
+        assert decode(_wire("cmd_vel", {**_body(plain), "planner_plan": bytes(max_planner_plan_bytes())}), CmdVelMsg).planner_plan is not None
+        with pytest.raises(MessageError, match="cmd_vel.planner_plan: too large"):
+            decode(_wire("cmd_vel", {**_body(plain), "planner_plan": bytes(max_planner_plan_bytes() + 1)}), CmdVelMsg)
+    finally:
+        set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
+    v2 = _wire("cmd_vel", _body(plain), version=2)
+    with pytest.raises(MessageError, match=r"cmd_vel: unknown version 2 \(this build speaks v3\)"):
+        decode(v2, CmdVelMsg)
+    assert decode(upgrade_payload(v2), CmdVelMsg) == plain == decode(v2, CmdVelMsg, accept_legacy=True)
 
 
 def test_a_current_payload_is_not_touched_and_a_v6_frontiers_with_its_id_keeps_it():

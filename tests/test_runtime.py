@@ -5154,8 +5154,10 @@ def test_a_planner_killed_mid_episode_carries_on_with_its_goal_and_the_episode_e
         with open_session(TransportConfig(mode="client", connect=info["endpoints"])) as session:
 
             def between_steps() -> dict | None:
-                """The sim's status at a step that the planner has commanded and whose state the sim keeps: the planner
-                waits for the next step (not killed between a step's cmd_vel and its state, which leaves the cache behind)."""
+                """The sim's status at a step whose command the sim has, and with it the planner's state of that step, which
+                rides on the ``cmd_vel`` (no window leaves the cache behind the sim any more: a planner killed before it
+                commands a step leaves the state of the step before, from which the next one commands that step): the
+                planner waits for the next step, so the state restored is of the step in flight or later."""
                 s = status()
                 if not (s and s["state"] == "exploring" and 20 <= s["step"] <= 23):
                     return None
@@ -5170,7 +5172,7 @@ def test_a_planner_killed_mid_episode_carries_on_with_its_goal_and_the_episode_e
         restored = re.search(r"restored the state of step (\d+) \(episode (\d+)\) from the cache: the goal \(\S+, \S+\) of step (\d+)", log_text)
         assert restored, log_text[-3000:]
         assert int(restored[1]) >= s["step"] and int(restored[2]) == s["episode"] and 0 <= int(restored[3]) < int(restored[1])  # mid-goal
-        assert "behind the episode" not in log_text  # killed between steps, not between a cmd_vel and its state
+        assert "behind the episode" not in log_text  # the state rides on the step's cmd_vel: never behind the sim
         assert (final["state"], final["terminated_by"], final["step"]) == ("done", expected.terminated_by, expected.steps), final
         assert abs(final["coverage_pct"] - expected.coverage_pct) < 1e-3 and final["decisions"] == expected.decisions, final
         out = Path(info["run_dir"])

@@ -72,7 +72,7 @@ def _feed(svc: Service, msg: Message) -> None:
     topics = {
         MapMsg: "map", OdometryMsg: "odom", ScanMsg: "scan", FrontiersMsg: "frontiers", DistanceMapMsg: "distance_map", GoalMsg: "goal",
         PlannerFeedbackMsg: "planner_feedback", ExploreResumeMsg: "explore_resume", EpisodeStatusMsg: "episode_status",
-        PlannerContactsMsg: "planner_contacts", PlannerPlanMsg: "planner_plan", PlannerStateMsg: "planner_state",
+        PlannerContactsMsg: "planner_contacts", CmdVelMsg: "cmd_vel",
     }  # fmt: skip
     topic = topics[type(msg)]
     svc.on_message("r0", topic, decode(encode(msg), type(msg)), time.monotonic())
@@ -784,9 +784,20 @@ def _drive(planner: PlannerService, out: list, ex: Explorer, steps: range, episo
         ex.sim.step([m for t, m in out if t == "cmd_vel" and m.step == k][-1].command)
 
 
+def _with_carried(out: list) -> list:
+    """``out`` with the planner's state and plan that each ``cmd_vel`` carries after it, decoded, as (``planner_state``,
+    state) and (``planner_plan``, plan): what the referee keeps of them for ``cache/planner/state`` and ``.../plan``."""
+    carried = []
+    for t, m in out:
+        carried.append((t, m))
+        if t == "cmd_vel":
+            carried += [(name, decode(payload, cls)) for name, payload, cls in (("planner_plan", m.planner_plan, PlannerPlanMsg), ("planner_state", m.planner_state, PlannerStateMsg)) if payload is not None]
+    return carried
+
+
 def _restarted_from(out: list, upto_step: int) -> tuple[PlannerService, list]:
     """A planner started afresh with what the referee kept of ``out`` up to ``upto_step`` (its cache keys)."""
-    kept = {t: m for t, m in out if t in ("planner_contacts", "planner_plan", "planner_state") and m.step <= upto_step}
+    kept = {t: m for t, m in _with_carried(out) if t in ("planner_contacts", "planner_plan", "planner_state") and m.step <= upto_step}
     restarted, restarted_out = _service(PlannerService, lockstep=True)
     restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_"))  # type: ignore[method-assign]
     restarted.start()
@@ -794,10 +805,10 @@ def _restarted_from(out: list, upto_step: int) -> tuple[PlannerService, list]:
 
 
 def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_the_one_killed():
-    """The planner sends its plan when it changes (``planner_plan``) and its state after every command (``planner_state``),
-    last of the step's messages; one started afresh on what the referee keeps of them carries on: the same goal, path
+    """The planner's ``cmd_vel`` carries its plan when it changes (``planner_plan``) and its state after every command
+    (``planner_state``), on no message of their own; one started afresh on what the referee keeps of them carries on: the same goal, path
     and counters, so from the step after the kill every command (and report) is the uninterrupted planner's, in a
-    closed loop where each command moves the robot. A cache one step behind (killed between a step's cmd_vel and its
+    closed loop where each command moves the robot. A cache one step behind (a step's cmd_vel lost with its
     state) is seen at the next step's odometry: the planner keeps the goal and joins there instead of waiting forever
     for a step the sim has passed."""
     episode, kill_after, end = 5, 4, 14  # the goal is reached at step 10
@@ -807,17 +818,19 @@ def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_
     _drive(uninterrupted, out_a, ex_a, range(end), episode, obs)
     killed, out_b = _service(PlannerService, lockstep=True)
     _drive(killed, out_b, ex_b, range(kill_after + 1), episode, obs)
-    step_topics = [t for t, m in out_b if m.step == 2 and t != "cmd_vel_ahead"]
-    assert step_topics[-1] == "planner_state" and step_topics.index("cmd_vel") < step_topics.index("planner_feedback") < step_topics.index("planner_state")
-    assert [m.step for t, m in out_b if t == "planner_plan"] == [0]  # the plan goes out when it changes, the state every step
-    assert [m.step for t, m in out_b if t == "planner_state"] == list(range(kill_after + 1))
+    assert not {t for t, _ in out_b} & {"planner_plan", "planner_state"}  # no message of their own: they ride on the step's command
+    (cmd_2,) = [m for t, m in out_b if t == "cmd_vel" and m.step == 2]
+    assert cmd_2.planner_state is not None and decode(cmd_2.planner_state, PlannerStateMsg).cmd == dataclasses.replace(cmd_2, episode=0, planner_state=None, planner_plan=None)
+    assert not [m for t, m in out_b if t == "cmd_vel_ahead" and (m.planner_state or m.planner_plan)]  # only the step's command carries them
+    assert [m.step for t, m in _with_carried(out_b) if t == "planner_plan"] == [0]  # the plan goes out when it changes, the state every step
+    assert [m.step for t, m in _with_carried(out_b) if t == "planner_state"] == list(range(kill_after + 1))
 
     restarted, out_r = _restarted_from(out_b, kill_after)
     assert (restarted.cmd_step, restarted.goal_step, restarted.planner.status) == (kill_after, 0, PlannerStatus.FOLLOWING)
     assert restarted.planner.path is not None and np.array_equal(restarted.planner.path, killed.planner.path)
     assert restarted.planner.checkpoint() == killed.planner.checkpoint()
     _drive(restarted, out_r, ex_b, range(kill_after + 1, end), episode, obs)
-    after = lambda out, topic: [encode(m) for t, m in out if t == topic and m.step > kill_after]  # noqa: E731
+    after = lambda out, topic: [encode(m) for t, m in _with_carried(out) if t == topic and m.step > kill_after]  # noqa: E731
     assert len(after(out_a, "cmd_vel")) == end - kill_after - 1
     for topic in ("cmd_vel", "planner_feedback", "planner_state"):
         assert after(out_r, topic) == after(out_a, topic), topic
@@ -834,7 +847,7 @@ def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_
     assert behind.goal_step == 0 and behind.planner.status == PlannerStatus.FOLLOWING
 
     real_time, out_rt = _service(PlannerService, lockstep=False)  # a robot's planner: it resumes the goal too
-    kept = {t: m for t, m in out_b if t in ("planner_plan", "planner_state")}
+    kept = {t: m for t, m in _with_carried(out_b) if t in ("planner_plan", "planner_state")}
     real_time.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_"))  # type: ignore[method-assign]
     real_time.start()
     anchor = kept["planner_state"].follow.progress_anchor
@@ -845,8 +858,8 @@ def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_
     (cmd,) = [m for t, m in out_rt if t == "cmd_vel"]
     assert cmd.reason == "" and cmd.command.linear_mps > 0 and real_time.goal_step == 0 and real_time.planner.progress.anchor[2] == later  # type: ignore[index]
 
-    state = [m for t, m in out_b if t == "planner_state"][-1]
-    other_plan = dataclasses.replace([m for t, m in out_b if t == "planner_plan"][-1], step=kill_after)  # a newer plan than the state's
+    state = [m for t, m in _with_carried(out_b) if t == "planner_state"][-1]
+    other_plan = dataclasses.replace([m for t, m in _with_carried(out_b) if t == "planner_plan"][-1], step=kill_after)  # a newer plan than the state's
     for plan in (None, other_plan):
         fresh, _ = _service(PlannerService, lockstep=True)
         assert not fresh.restore_state(state, plan) and (fresh.cmd_step, fresh.planner.path, fresh.episodes.current) == (-1, None, None)
@@ -864,8 +877,8 @@ def test_a_restarted_planner_refuses_a_cached_state_that_does_not_fit_its_plan()
     obs = ex.observe()
     killed, out = _service(PlannerService, lockstep=True)
     _drive(killed, out, ex, range(kill_after + 1), episode, obs)
-    state = [m for t, m in out if t == "planner_state"][-1]
-    plan = [m for t, m in out if t == "planner_plan"][-1]
+    state = [m for t, m in _with_carried(out) if t == "planner_state"][-1]
+    plan = [m for t, m in _with_carried(out) if t == "planner_plan"][-1]
     assert state.follow.progress_index >= 2 and state.follow.status == PlannerStatus.FOLLOWING
     fresh, _ = _service(PlannerService, lockstep=True)
     assert fresh.restore_state(state, plan)  # its own: restored
@@ -893,8 +906,8 @@ def test_a_robot_stood_still_by_order_is_not_judged_stalled_on_its_last_command(
     obs = ex.observe()
     killed, out = _service(PlannerService, lockstep=True)
     _drive(killed, out, ex, range(5), 5, obs)
-    state = [m for t, m in out if t == "planner_state"][-1]
-    plan = [m for t, m in out if t == "planner_plan"][-1]
+    state = [m for t, m in _with_carried(out) if t == "planner_state"][-1]
+    plan = [m for t, m in _with_carried(out) if t == "planner_plan"][-1]
     pose, t_s = ex.sim.odometry(), ex.sim.time_s
     stall_steps = ExplorationConfig().planner.stall_steps
     pinned_so_far = dataclasses.replace(  # stalled one period short of a back-up, driving, where progress was last seen
@@ -961,10 +974,14 @@ def test_the_sim_keeps_the_planners_latest_contacts_plan_and_state_of_its_episod
         return payload.decode() if key == "error" else decode(payload, cls)
 
     assert kept("planner_state", PlannerStateMsg) == "no planner_state yet" and kept("planner_plan", PlannerPlanMsg) == "no planner_plan yet"
+    def carrying(state: PlannerStateMsg | None, plan: PlannerPlanMsg | None = None) -> CmdVelMsg:  # the planner's state and plan ride on its cmd_vel
+        step, episode = (state or plan).step, (state or plan).episode  # type: ignore[union-attr]
+        return CmdVelMsg(step, VelocityCommand(), episode=episode, planner_state=state and encode(state), planner_plan=plan and encode(plan))
+
     for step in (4, 5):
-        _feed(sim, PlannerStateMsg(step, 0, 0, False, CmdVelMsg(step, VelocityCommand(0.2, 0.0)), False, LocalPlanner().checkpoint(), sim.episode))
-    _feed(sim, PlannerPlanMsg(0, two, None, sim.episode))
-    _feed(sim, PlannerStateMsg(6, 0, 0, False, CmdVelMsg(6, VelocityCommand()), False, LocalPlanner().checkpoint(), sim.episode + 1))
+        _feed(sim, carrying(PlannerStateMsg(step, 0, 0, False, CmdVelMsg(step, VelocityCommand(0.2, 0.0)), False, LocalPlanner().checkpoint(), sim.episode)))
+    _feed(sim, carrying(None, PlannerPlanMsg(0, two, None, sim.episode)))
+    _feed(sim, carrying(PlannerStateMsg(6, 0, 0, False, CmdVelMsg(6, VelocityCommand()), False, LocalPlanner().checkpoint(), sim.episode + 1)))
     state, plan = kept("planner_state", PlannerStateMsg), kept("planner_plan", PlannerPlanMsg)
     assert isinstance(state, PlannerStateMsg) and state.step == 5 and state.cmd.command == VelocityCommand(0.2, 0.0)
     assert isinstance(plan, PlannerPlanMsg) and np.array_equal(plan.path_xy_m, two) and sim.rejected["planner_state"] == 1

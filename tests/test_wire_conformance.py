@@ -377,6 +377,13 @@ BODIES: dict[str, list[dict[str, Any]]] = {
 }
 """Bodies built from the docs alone, with every field the code sends (the project re-encodes them to the same)."""
 
+BODIES["cmd_vel"].append(  # the project's planner's: its state and plan ride on it, the encoded payloads the cache serves
+    {
+        "step": 14, "linear_mps": 0.25, "angular_radps": -0.5, "reason": "backup", "new_goal": False, "episode": EPISODE,
+        "planner_state": envelope("planner_state", 1, BODIES["planner_state"][0]), "planner_plan": envelope("planner_plan", 1, BODIES["planner_plan"][0]),
+    }
+)
+
 CASES = [(schema, i) for schema, bodies in BODIES.items() for i in range(len(bodies))]
 
 
@@ -411,8 +418,11 @@ def test_the_values_decoded_are_the_ones_the_docs_describe():
     assert scan.scan.ranges_m.tolist() == [1.0, math.inf, 2.5, 8.0, 0.0625, 3.0, 4.0] and scan.sensor_pose.as_list() == [1.0, 2.0, 0.25]
     (odom,) = bodies["odom"]
     assert isinstance(odom, OdometryMsg) and (odom.pose.x_m, odom.pose.yaw_rad, odom.twist.linear_mps, odom.twist.angular_radps) == (0.875, 0.25, 0.2, -0.5)
-    (cmd,) = bodies["cmd_vel"]
+    cmd, carrying = bodies["cmd_vel"]
     assert isinstance(cmd, CmdVelMsg) and (cmd.command.linear_mps, cmd.command.angular_radps, cmd.new_goal) == (0.25, -0.5, True)
+    assert (cmd.episode, cmd.planner_state, cmd.planner_plan) == (0, None, None)  # a foreign planner's: none of them
+    assert isinstance(carrying, CmdVelMsg) and carrying.episode == EPISODE and carrying.planner_state is not None and carrying.planner_plan is not None
+    assert decode(carrying.planner_state, PlannerStateMsg) == bodies["planner_state"][0] and decode(carrying.planner_plan, PlannerPlanMsg).step == 12
     (m,) = bodies["map"]
     assert isinstance(m, MapMsg) and (m.explored == EXPLORED).all() and (m.occupied == OCCUPIED).all()
     assert m.grid.tolist()[0] == [100, 0, 0, -1, -1]  # the OccupancyGrid values, row 0 at the origin
