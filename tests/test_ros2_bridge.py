@@ -461,6 +461,34 @@ def test_after_the_episode_ended_the_robot_is_held_still():
     assert twists()[-1] == VelocityCommand(0.2, 0.0)
 
 
+def test_the_bridge_drives_on_each_cmd_vel_and_keeps_the_planners_state_and_plan_it_carries_as_they_came():
+    """On a robot the ros2_bridge is the referee: the planner's state (every command) and plan (when it changed) ride on its
+    ``cmd_vel``, and the bridge serves them unread, byte for byte, on ``cache/planner/state`` and ``cache/planner/plan``
+    (the newest of its episode; a plan until a newer one). A command of another episode still drives the robot, as
+    before it carried an id, but what it carries is rejected and counted; a planner of one's own carries nothing."""
+    from types import SimpleNamespace
+
+    svc, _, step = _bridge_without_zenoh()
+    sent: list[tuple[str, bytes]] = []
+    svc._put_ros = lambda topic, payload: sent.append((topic, payload))  # type: ignore[method-assign]
+    step(1000.0, 0.0)
+
+    def served(topic: str) -> bytes | str:
+        replies: list[tuple[str, bytes]] = []
+        svc.answer_cache_query(topic, SimpleNamespace(reply=lambda key, payload: replies.append((key, payload)), reply_err=lambda payload: replies.append(("error", payload))))
+        ((key, payload),) = replies
+        return payload.decode() if key == "error" else payload
+
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(0, VelocityCommand(0.3, 0.2)), 50.0)  # a planner of one's own
+    assert served("planner_state") == "no planner_state yet" and served("planner_plan") == "no planner_plan yet"
+    state_1, state_2, plan_1 = b"state of step 1", b"state of step 2", b"plan of step 1"  # opaque: never decoded here
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(1, VelocityCommand(0.2, 0.0), episode=svc.episode, planner_state=state_1, planner_plan=plan_1), 50.1)
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(2, VelocityCommand(0.2, 0.1), episode=svc.episode, planner_state=state_2), 50.2)
+    svc.on_message("r0", "cmd_vel", CmdVelMsg(3, VelocityCommand(0.1, 0.0), episode=svc.episode + 1, planner_state=b"late", planner_plan=b"late"), 50.3)
+    assert (served("planner_state"), served("planner_plan")) == (state_2, plan_1) and svc.rejected == {"planner_state": 1}
+    assert [ros2_cdr.twist_from_cdr(raw) for topic, raw in sent if topic == "cmd_vel"][-3:] == [VelocityCommand(0.2, 0.0), VelocityCommand(0.2, 0.1), VelocityCommand(0.1, 0.0)]
+
+
 def test_cmd_vel_stamped_sends_twist_stamped_in_the_robots_clock_every_command_and_every_stop():
     """ROS 2 Jazzy's diff_drive_controller takes only geometry_msgs/TwistStamped on its ``cmd_vel``, and Nav2 Kilted
     sends TwistStamped by default: the bridge sent Twist only, which such a robot never hears. With ``cmd_vel_stamped``

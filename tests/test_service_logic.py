@@ -978,13 +978,17 @@ def test_the_sim_keeps_the_planners_latest_contacts_plan_and_state_of_its_episod
         step, episode = (state or plan).step, (state or plan).episode  # type: ignore[union-attr]
         return CmdVelMsg(step, VelocityCommand(), episode=episode, planner_state=state and encode(state), planner_plan=plan and encode(plan))
 
-    for step in (4, 5):
-        _feed(sim, carrying(PlannerStateMsg(step, 0, 0, False, CmdVelMsg(step, VelocityCommand(0.2, 0.0)), False, LocalPlanner().checkpoint(), sim.episode)))
+    states = [PlannerStateMsg(step, 0, 0, False, CmdVelMsg(step, VelocityCommand(0.2, 0.0)), False, LocalPlanner().checkpoint(), sim.episode) for step in (4, 5)]
+    for state in states:
+        _feed(sim, carrying(state))
     _feed(sim, carrying(None, PlannerPlanMsg(0, two, None, sim.episode)))
     _feed(sim, carrying(PlannerStateMsg(6, 0, 0, False, CmdVelMsg(6, VelocityCommand()), False, LocalPlanner().checkpoint(), sim.episode + 1)))
     state, plan = kept("planner_state", PlannerStateMsg), kept("planner_plan", PlannerPlanMsg)
     assert isinstance(state, PlannerStateMsg) and state.step == 5 and state.cmd.command == VelocityCommand(0.2, 0.0)
     assert isinstance(plan, PlannerPlanMsg) and np.array_equal(plan.path_xy_m, two) and sim.rejected["planner_state"] == 1
+    raw: list[bytes] = []
+    sim.answer_cache_query("planner_state", SimpleNamespace(reply=lambda key, payload: raw.append(payload), reply_err=raw.append))
+    assert raw == [encode(states[-1])]  # served as it came on the cmd_vel, never decoded by the sim
 
 
 def test_sim_starts_the_episode_when_every_service_of_the_profile_is_alive():
