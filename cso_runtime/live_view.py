@@ -51,14 +51,18 @@ def ended_goal_words(status: EpisodeStatusMsg) -> str | None:
 def progress_line(status: EpisodeStatusMsg, sim_step_s: float | None, real_time_factor: float | None = None) -> str:
     """The episode's progress in one log line (the live view's figures, for a log that is followed). ``sim_step_s``:
     the simulated time of a step, None on a real robot."""
+    from cso_runtime.status import pose_words  # noqa: PLC0415 - as the view's render: status opens Zenoh sessions
+
     goal_m = status.goal_in_map_frame
     goal = ended_goal_words(status) or ("none" if goal_m is None else f"({goal_m[0]:.2f}, {goal_m[1]:.2f}) m")
+    pose_m, twist = status.pose_in_map_frame, status.twist
+    pose = pose_words(None if pose_m is None else pose_m.as_list(), None if twist is None else [twist.linear_mps, twist.angular_radps])
     rate = f" ({status.explored_area_m2 / status.step:.3f} m2/step)" if status.step else ""
     time_words = ", ".join(robot_time_words(status.step, sim_step_s))
     when = f" ({time_words}{pace_text(real_time_factor)})" if time_words else ""
     return (
         f"step {status.step}{when}: coverage {status.coverage_pct:.1f} %, "
-        f"{status.explored_area_m2:.2f} m2 explored{rate}, path {status.path_length_m:.2f} m, {status.decisions} decisions, goal {goal}"
+        f"{status.explored_area_m2:.2f} m2 explored{rate}, path {status.path_length_m:.2f} m, pose {pose}, {status.decisions} decisions, goal {goal}"
     )
 
 

@@ -23,7 +23,16 @@ import numpy as np
 
 from cso_runtime.config import MAX_EPISODE_STEPS
 from cso_runtime.frontiers import FrontierCluster
-from cso_runtime.geometry import MAP_FRAME_ORIGIN, MAX_RANGE_M, GridGeometry, LaserScan, Pose2D, VelocityCommand, map_frame_xy
+from cso_runtime.geometry import (
+    MAP_FRAME_ORIGIN,
+    MAX_RANGE_M,
+    GridGeometry,
+    LaserScan,
+    Pose2D,
+    VelocityCommand,
+    compose_pose,
+    map_frame_xy,
+)
 from cso_runtime.observation import Observation
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.planner import FollowCheckpoint, FreeSpace, PlannerStatus
@@ -1332,6 +1341,11 @@ class EpisodeStatusMsg(Message):
     def goal_in_map_frame(self) -> list[float] | None:
         """``goal_xy_m`` in the user's map frame (``map_origin``), as ``status`` and the live view show it."""
         return None if self.goal_xy_m is None else map_frame_xy(self.map_origin, self.goal_xy_m)
+
+    @property
+    def pose_in_map_frame(self) -> Pose2D | None:
+        """``pose`` in the user's map frame (``map_origin``), as ``status`` and the live view show it."""
+        return None if self.pose is None else compose_pose(self.map_origin, self.pose)
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> EpisodeStatusMsg:

@@ -3655,6 +3655,10 @@ def test_status_shows_the_robots_pose_in_the_map_frame_as_the_goal_and_none_befo
     console = Console(record=True, width=160)
     console.print(render_table(status))
     assert re.search(r"│ pose +│ x -3\.50 m  y 3\.00 m  yaw -1\.71 rad, 0\.25 m/s -0\.10 rad/s +│", console.export_text()), console.export_text()
+    from cso_runtime.live_view import progress_line  # up's log line every 10 s (no live view): the same pose
+
+    assert ", pose x -3.50 m  y 3.00 m  yaw -1.71 rad, 0.25 m/s -0.10 rad/s, 0 decisions, goal (-3.50, 3.00) m" in progress_line(msg, 0.25)
+    assert ", pose -, 0 decisions, goal none" in progress_line(EpisodeStatusMsg("starting", 0), 0.25)
     for unknown in (EpisodeStatusMsg("starting", 0).to_dict(), None):  # no odometry yet; nothing heard from the sim
         status = status_of("r0", unknown, None, {}, set())
         assert status["pose"] is None and status["twist"] is None
