@@ -1184,7 +1184,7 @@ def doctor_command(
 @app.command("train", rich_help_panel="Learned policy")
 def train_command(
     config: Path | None = typer.Option(
-        None, "--config", help="YAML with the fields of learned.ppo.Args (default configs/train.yaml; with --resume, the checkpoint's own configuration)"
+        None, "--config", help="YAML with the fields of learned.ppo.Args (default configs/train.yaml, the recipe; a field a file of your own leaves out takes Args' default, not the recipe's; with --resume, the checkpoint's own configuration)"
     ),
     variant: str | None = typer.Option(None, "--variant", help="cso, cso-no-info, cso-no-mask, cso-sm, cso-vdm or gnn-baseline"),
     out: Path | None = typer.Option(None, "--out", help="Output folder (overrides out_dir)"),
@@ -1306,6 +1306,8 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         data.update({k: v for k, v in overrides.items() if v is not None})
         pairs = parse_settings(settings or [])
         data.update(pairs)
+        if config is not None and not data.get("resume"):
+            _say_fields_left_at_defaults(config, data)
         if data.get("resume") and overrides.get("out_dir") is None and "out_dir" not in pairs:
             data["out_dir"] = str(Path(str(data["resume"])).parent)  # a resume goes on in its run's folder, not the config's out_dir
         where = str(config or "train")  # an error names the file, and the flags that changed it, as eval's and up's do
@@ -1318,6 +1320,23 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     return args
+
+
+def _say_fields_left_at_defaults(config: Path, data: Mapping[str, object]) -> None:
+    """A note on stderr naming the fields a training config file leaves at ``learned.ppo.Args``' defaults where the
+    packaged recipe (``configs/train.yaml``) has other values: a small file of a few fields is not the recipe with
+    those fields changed."""
+    from cso_runtime.config import load_yaml  # noqa: PLC0415
+    from cso_runtime.learned.ppo import fields_left_at_defaults  # noqa: PLC0415
+
+    left = fields_left_at_defaults(data, load_yaml(PACKAGED_CONFIGS / "train.yaml"))
+    if left:
+        said = ", ".join(f"{name} {default} (recipe: {value})" for name, default, value in left)
+        typer.echo(
+            f"note: {config} leaves {len(left)} fields at learned.ppo.Args' defaults, not configs/train.yaml's recipe: {said};"
+            " to change a few fields of the recipe, give it with --set KEY=VALUE, or copy configs/train.yaml and edit the copy",
+            err=True,
+        )
 
 
 TRAIN_FLAG_NAMES = {"out_dir": "--out", "resume": "--resume", "init_from": "--init-from", "warm_start_teacher": "--teacher"}

@@ -344,6 +344,27 @@ def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is
         assert f"error: {recipe} with --set {setting}: {said}" in train_refusal(recipe, {}, [setting], capsys)
 
 
+def test_a_partial_training_config_names_the_recipe_fields_it_leaves_at_the_defaults(tmp_path: Path, capsys):
+    """A small ``train --config mine.yaml`` of a few fields (a tiny run: fewer updates, generated plans) silently
+    trained another recipe than configs/train.yaml's, which the help calls the default: each field the file leaves
+    out takes ``ppo.Args``' default (learning rate 1e-4 instead of 3e-4, no distance prior, no cluster-length
+    feature, the 180-degree LiDAR). ``train`` says which fields, with both values, before it starts; a file that sets
+    them (the recipe itself) gets no note, nor does a field a flag or ``--set`` gives."""
+    from cso_runtime.cli import DEFAULT_TRAIN_CONFIG, training_args
+
+    recipe = small_train_recipe(tmp_path)
+    args = training_args(recipe, {"seed": 3}, ["learning_rate=0.0003"])
+    assert args.distance_prior == 0.0  # the defaults still apply, as before: only said
+    said = " ".join(capsys.readouterr().err.split())
+    assert f"note: {recipe} leaves " in said and "at learned.ppo.Args' defaults, not configs/train.yaml's recipe" in said
+    assert "distance_prior 0.0 (recipe: 4.0)" in said and "cluster_size_feature False (recipe: True)" in said
+    assert "lidar_fov_deg None (recipe: 360)" in said
+    for given in ("learning_rate", "seed", "generated", "dungeon_dir", "out_dir"):
+        assert f" {given} " not in said
+    training_args(Path(cso_runtime.__file__).resolve().parent.parent / DEFAULT_TRAIN_CONFIG, {}, ["dungeon_dir=null"])
+    assert "leaves" not in capsys.readouterr().err
+
+
 def test_train_refuses_a_field_of_view_eval_cannot_run_before_it_starts(tmp_path: Path, capsys):
     """``train --set lidar_fov_deg=270`` trained for minutes, then its weights could not be evaluated as trained:
     ``eval --lidar-fov`` runs 180 or 360 alone (and ran them at 180, warning). The depth preset has its own field of
