@@ -1343,7 +1343,8 @@ def _say_fields_left_at_defaults(config: Path, data: Mapping[str, object]) -> No
         said = ", ".join(f"{name} {default} (recipe: {value})" for name, default, value in left)
         typer.echo(
             f"note: {config} leaves {len(left)} fields at learned.ppo.Args' defaults, not configs/train.yaml's recipe: {said};"
-            " to change a few fields of the recipe, give it with --set KEY=VALUE, or copy configs/train.yaml and edit the copy",
+            " to train the recipe with a few fields changed, leave out --config and give those with --set FIELD=VALUE (or --FIELD VALUE),"
+            " or copy configs/train.yaml and edit the copy",
             err=True,
         )
 

@@ -160,3 +160,13 @@ def test_the_env_pickles_before_and_during_an_episode():
     original, copied = env.step(action), copy.step(action)
     assert original[1:4] == copied[1:4] and all(np.array_equal(original[0][k], copied[0][k]) for k in original[0])
     env.close()
+
+
+def test_render_without_a_render_mode_warns_as_gymnasiums_envs_do():
+    """``env.render()`` of an env made without ``render_mode`` returned None in silence (then ``plt.imshow(None)``
+    failed far from the cause); Gymnasium's own envs warn, naming the keyword. It still returns None."""
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes=SCENES)
+    env.reset(seed=0)
+    with pytest.warns(UserWarning, match=r'render_mode="rgb_array"'):
+        assert env.unwrapped.render() is None
+    env.close()

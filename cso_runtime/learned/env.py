@@ -366,8 +366,12 @@ class ExplorationEnv(gym.Env):
 
     def render(self) -> np.ndarray | None:
         """The map M_t, the path so far, the candidate goals (green allowed, red masked by the action mask) and
-        the robot, as an RGB array (``render_mode="rgb_array"``); None without a render mode, as Gymnasium's."""
+        the robot, as an RGB array (``render_mode="rgb_array"``); None without a render mode, with Gymnasium's warning."""
         if self.render_mode is None:
+            gym.logger.warn(
+                'render() without a render mode returns None: make the env with render_mode="rgb_array" '
+                f'(gymnasium.make("{ENV_ID}", ..., render_mode="rgb_array")) for an image of the map'
+            )
             return None
         ex = self.explorer
         if ex is None:
