@@ -1716,7 +1716,8 @@ def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot
     assert tuple(img[0, 0]) == frames.OCCUPIED and tuple(img[3, 0]) == frames.FREE and tuple(img[2, 4]) == frames.HEADING
     assert tuple(img[3, 4]) == frames.ROBOT and tuple(img[2, 0]) == frames.FREE  # a disc of 3 pixels at least, heading along +x
 
-    assert gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4").unwrapped.render() is None
+    with pytest.warns(UserWarning, match="render_mode"):  # as Gymnasium's envs warn
+        assert gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4").unwrapped.render() is None
     with pytest.raises(ValueError, match="renders rgb_array"):  # "human" is gymnasium.make's HumanRendering over rgb_array
         gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4", render_mode="ansi")
 
