@@ -1181,10 +1181,11 @@ def doctor_command(
         raise typer.Exit(1)
 
 
-@app.command("train", rich_help_panel="Learned policy")
+@app.command("train", context_settings={"allow_extra_args": True, "ignore_unknown_options": True}, rich_help_panel="Learned policy")
 def train_command(
+    ctx: typer.Context,
     config: Path | None = typer.Option(
-        None, "--config", help="YAML with the fields of learned.ppo.Args (default configs/train.yaml; with --resume, the checkpoint's own configuration)"
+        None, "--config", help="YAML with the fields of learned.ppo.Args (default configs/train.yaml, the recipe; a field a file of your own leaves out takes Args' default, not the recipe's; with --resume, the checkpoint's own configuration)"
     ),
     variant: str | None = typer.Option(None, "--variant", help="cso, cso-no-info, cso-no-mask, cso-sm, cso-vdm or gnn-baseline"),
     out: Path | None = typer.Option(None, "--out", help="Output folder (overrides out_dir)"),
@@ -1200,10 +1201,18 @@ def train_command(
     tensorboard: bool | None = typer.Option(None, "--tensorboard/--no-tensorboard", help="Also write TensorBoard events into OUT/tensorboard (needs tensorboardX)"),
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
-    """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve."""
+    """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve.
+
+    Every field of learned.ppo.Args is also a flag, as in CleanRL: --learning-rate 3e-4 is --set learning_rate=3e-4
+    (--no-anneal-lr for a false switch)."""
     from cso_runtime.config import EXIT_INTERRUPTED, ConfigError  # noqa: PLC0415
     from cso_runtime.learned.ppo import KEPT_CHECKPOINTS_DIR, matching_eval_command, train  # noqa: PLC0415 - torch only for this command
     from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
+
+    try:
+        settings = [*args_field_flags(ctx.args), *(settings or [])]  # CleanRL's flags, then --set over them
+    except ConfigError as exc:
+        _fail(str(exc), 2)
 
     overrides = {"variant": variant, "out_dir": str(out) if out else None, "seed": seed, "total_decisions": total_decisions,
                  "time_limit_s": time_limit, "resume": str(resume) if resume else None, "device": device,
@@ -1306,6 +1315,8 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         data.update({k: v for k, v in overrides.items() if v is not None})
         pairs = parse_settings(settings or [])
         data.update(pairs)
+        if config is not None and not data.get("resume"):
+            _say_fields_left_at_defaults(config, data)
         if data.get("resume") and overrides.get("out_dir") is None and "out_dir" not in pairs:
             data["out_dir"] = str(Path(str(data["resume"])).parent)  # a resume goes on in its run's folder, not the config's out_dir
         where = str(config or "train")  # an error names the file, and the flags that changed it, as eval's and up's do
@@ -1318,6 +1329,24 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     return args
+
+
+def _say_fields_left_at_defaults(config: Path, data: Mapping[str, object]) -> None:
+    """A note on stderr naming the fields a training config file leaves at ``learned.ppo.Args``' defaults where the
+    packaged recipe (``configs/train.yaml``) has other values: a small file of a few fields is not the recipe with
+    those fields changed."""
+    from cso_runtime.config import load_yaml  # noqa: PLC0415
+    from cso_runtime.learned.ppo import fields_left_at_defaults  # noqa: PLC0415
+
+    left = fields_left_at_defaults(data, load_yaml(PACKAGED_CONFIGS / "train.yaml"))
+    if left:
+        said = ", ".join(f"{name} {default} (recipe: {value})" for name, default, value in left)
+        typer.echo(
+            f"note: {config} leaves {len(left)} fields at learned.ppo.Args' defaults, not configs/train.yaml's recipe: {said};"
+            " to train the recipe with a few fields changed, leave out --config and give those with --set FIELD=VALUE (or --FIELD VALUE),"
+            " or copy configs/train.yaml and edit the copy",
+            err=True,
+        )
 
 
 TRAIN_FLAG_NAMES = {"out_dir": "--out", "resume": "--resume", "init_from": "--init-from", "warm_start_teacher": "--teacher"}
@@ -1336,6 +1365,46 @@ def training_flags(overrides: Mapping[str, object], settings: list[str] | None) 
     """The flags and ``--set`` pairs a training command was given, each as its words: what its errors name and
     what ``train`` records as its command."""
     return [_flag_of(k, v) for k, v in overrides.items() if v is not None] + [["--set", item] for item in settings or []]
+
+
+def args_field_flags(words: list[str]) -> list[str]:
+    """The words ``train`` has no option of its own for, as ``--set`` pairs: each field of ``learned.ppo.Args`` is a
+    flag, as each field of CleanRL's ``Args`` is (``--learning-rate 3e-4`` or ``--learning-rate=3e-4``:
+    ``learning_rate=3e-4``; a switch alone, ``--norm-adv``, is true, ``--no-norm-adv`` false). Anything else is a
+    ``ConfigError`` that names the flag, and the field it may have meant."""
+    import difflib  # noqa: PLC0415
+    import typing  # noqa: PLC0415
+
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.learned.ppo import Args  # noqa: PLC0415
+
+    types = typing.get_type_hints(Args)
+    pairs: list[str] = []
+    rest = list(words)
+    while rest:
+        word = rest.pop(0)
+        if not word.startswith("--") or word == "--":
+            raise ConfigError(f"unexpected argument {word!r} (train takes no arguments; its flags: cso-runtime train --help)")
+        flag, given, value = word.partition("=")
+        name = flag[2:].replace("-", "_")
+        if name not in types and name.startswith("no_") and name[3:] in types:
+            if types[name[3:]] is not bool or given:
+                raise ConfigError(f"{flag}: {name[3:]} is not a switch (true or false); give --{name[3:].replace('_', '-')} VALUE")
+            pairs.append(f"{name[3:]}=false")
+            continue
+        if name not in types:
+            close = difflib.get_close_matches(name, list(types), n=1)
+            meant = f": did you mean --{close[0].replace('_', '-')}?" if close else ""
+            raise ConfigError(f"no such option {flag}{meant} (each field of learned.ppo.Args is a flag, as --set FIELD=VALUE is; cso-runtime train --help)")
+        if not given:
+            if rest and not rest[0].startswith("--"):
+                value = rest.pop(0)
+            elif types[name] is bool:
+                value = "true"
+            else:
+                raise ConfigError(f"{flag} needs a value ({flag} VALUE, as --set {name}=VALUE)")
+        pairs.append(f"{name}={value}")
+    return pairs
 
 
 def parse_settings(items: list[str]) -> dict[str, object]:

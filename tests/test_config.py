@@ -344,6 +344,65 @@ def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is
         assert f"error: {recipe} with --set {setting}: {said}" in train_refusal(recipe, {}, [setting], capsys)
 
 
+def test_a_partial_training_config_names_the_recipe_fields_it_leaves_at_the_defaults(tmp_path: Path, capsys):
+    """A small ``train --config mine.yaml`` of a few fields (a tiny run: fewer updates, generated plans) silently
+    trained another recipe than configs/train.yaml's, which the help calls the default: each field the file leaves
+    out takes ``ppo.Args``' default (learning rate 1e-4 instead of 3e-4, no distance prior, no cluster-length
+    feature, the 180-degree LiDAR). ``train`` says which fields, with both values, before it starts; a file that sets
+    them (the recipe itself) gets no note, nor does a field a flag or ``--set`` gives."""
+    from cso_runtime.cli import DEFAULT_TRAIN_CONFIG, training_args
+
+    recipe = small_train_recipe(tmp_path)
+    args = training_args(recipe, {"seed": 3}, ["learning_rate=0.0003"])
+    assert args.distance_prior == 0.0  # the defaults still apply, as before: only said
+    said = " ".join(capsys.readouterr().err.split())
+    assert f"note: {recipe} leaves " in said and "at learned.ppo.Args' defaults, not configs/train.yaml's recipe" in said
+    assert "distance_prior 0.0 (recipe: 4.0)" in said and "cluster_size_feature False (recipe: True)" in said
+    assert "lidar_fov_deg None (recipe: 360)" in said
+    for given in ("learning_rate", "seed", "generated", "dungeon_dir", "out_dir"):
+        assert f" {given} " not in said
+    training_args(Path(cso_runtime.__file__).resolve().parent.parent / DEFAULT_TRAIN_CONFIG, {}, ["dungeon_dir=null"])
+    assert "leaves" not in capsys.readouterr().err
+
+
+def test_train_takes_every_args_field_as_a_flag_as_cleanrl_does(tmp_path: Path, monkeypatch):
+    """CleanRL's trainer takes each field of its ``Args`` as a flag (``--learning-rate 3e-4 --num-steps 128``);
+    ``train --learning-rate 3e-4`` was `No such option`, with no word of ``--set learning_rate=3e-4``. Every field of
+    ``learned.ppo.Args`` is a flag now (``--no-FIELD`` for a false switch), the same as its ``--set``; a flag that
+    is no field is refused before anything starts (exit 2), naming the field it may have meant."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.learned import ppo
+
+    ran: list[tuple[ppo.Args, str]] = []
+
+    def fake_train(args: ppo.Args, log: object = None, command: str = "") -> dict:
+        ran.append((args, command))
+        return {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0}
+
+    monkeypatch.setattr(ppo, "train", fake_train)
+    recipe = small_train_recipe(tmp_path)
+    common = ["train", "--config", str(recipe), "--out", str(tmp_path / "out")]
+    flags = ["--learning-rate", "3e-4", "--num-steps=8", "--no-anneal-lr", "--clip-vloss", "--r-step", "-0.02", "--num-envs", "4",
+             "--generated", "[generated:small:2:1000]", "--set", "gamma=0.9"]  # fmt: skip
+    result = CliRunner().invoke(app, common + flags)
+    assert result.exit_code == 0, result.output
+    args, command = ran[0]
+    assert (args.learning_rate, args.num_steps, args.anneal_lr, args.clip_vloss, args.r_step, args.num_envs) == (3e-4, 8, False, True, -0.02, 4)
+    assert args.generated == ["generated:small:2:1000"] and args.gamma == 0.9
+    assert "--set learning_rate=3e-4" in command and "--set anneal_lr=false" in command  # the record's command runs it again
+    for wrong, said in [
+        (["--learnin-rate", "1"], "no such option --learnin-rate: did you mean --learning-rate?"),
+        (["--learning-rate"], "--learning-rate needs a value"),
+        (["--no-gamma"], "--no-gamma: gamma is not a switch (true or false)"),
+        (["stray"], "unexpected argument 'stray'"),
+    ]:
+        result = CliRunner().invoke(app, common + wrong)
+        assert result.exit_code == 2 and said in " ".join(result.output.split()), result.output
+    assert len(ran) == 1
+
+
 def test_train_refuses_a_field_of_view_eval_cannot_run_before_it_starts(tmp_path: Path, capsys):
     """``train --set lidar_fov_deg=270`` trained for minutes, then its weights could not be evaluated as trained:
     ``eval --lidar-fov`` runs 180 or 360 alone (and ran them at 180, warning). The depth preset has its own field of

@@ -50,6 +50,28 @@ def test_every_observation_entry_has_an_axis_so_stable_baselines3_takes_it():
     env.close()
 
 
+def test_the_step_limit_is_a_keyword_of_gymnasium_make():
+    """``gymnasium.make(ENV, max_steps=50)`` was a TypeError from the env's creator (only ``config=EnvConfig(...)``
+    set it), though the step limit is the first thing an RL user shortens. ``max_steps`` (control steps of 0.25 s,
+    not decisions: Gymnasium's ``max_episode_steps`` counts those) is a keyword over ``config``'s, for
+    ``gymnasium.make`` and ``make_vec`` alike; the episode is truncated there, as at the default 800."""
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes=SCENES, max_steps=12)
+    assert env.unwrapped.config.max_steps == 12
+    _, info = env.reset(seed=0)
+    terminated = truncated = False
+    while not (terminated or truncated):
+        _, _, terminated, truncated, info = env.step(int(np.flatnonzero(info["action_mask"])[0]))
+    assert truncated and not terminated and info["terminated_by"] == "max_steps" and info["steps"] >= 12
+    env.close()
+    over = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes=SCENES, config=EnvConfig(max_steps=120, invalid_action_limit=7), max_steps=30)
+    assert over.unwrapped.config.max_steps == 30 and over.unwrapped.config.invalid_action_limit == 7  # the rest of config kept
+    vec = gym.make_vec(f"cso_runtime.learned.env:{ENV_ID}", num_envs=2, vectorization_mode="sync", scenes=SCENES, max_steps=40)
+    assert vec.get_attr("config")[0].max_steps == 40
+    vec.close()
+    with pytest.raises(ValueError, match="max_steps must be a positive number of control steps"):
+        make_env(scenes=SCENES, max_steps=0)
+
+
 def test_vector_envs_stack_the_robot_index_with_one_axis_and_give_each_envs_action_mask():
     """CleanRL's and Gymnasium's vector envs stack each entry with a leading env axis: ``robot`` is (num_envs, 1)."""
     vec = gym.make_vec(f"cso_runtime.learned.env:{ENV_ID}", num_envs=2, vectorization_mode="sync", scenes=SCENES)
@@ -137,4 +159,14 @@ def test_the_env_pickles_before_and_during_an_episode():
     action = int(np.flatnonzero(env.action_masks())[0])
     original, copied = env.step(action), copy.step(action)
     assert original[1:4] == copied[1:4] and all(np.array_equal(original[0][k], copied[0][k]) for k in original[0])
+    env.close()
+
+
+def test_render_without_a_render_mode_warns_as_gymnasiums_envs_do():
+    """``env.render()`` of an env made without ``render_mode`` returned None in silence (then ``plt.imshow(None)``
+    failed far from the cause); Gymnasium's own envs warn, naming the keyword. It still returns None."""
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes=SCENES)
+    env.reset(seed=0)
+    with pytest.warns(UserWarning, match=r'render_mode="rgb_array"'):
+        assert env.unwrapped.render() is None
     env.close()

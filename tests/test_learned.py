@@ -760,6 +760,27 @@ def test_the_training_bar_shows_the_latest_return_coverage_and_rate(tmp_path, mo
     assert ppo.progress_stats(two, 100, 0.0) == "return 1.50  coverage 95.0 % (last 2 episodes)  "
 
 
+@pytest.mark.parametrize("width", [80, 200])
+def test_the_training_bar_keeps_its_count_and_time_left_in_an_80_column_terminal(width):
+    """In an 80-column terminal the figures after the bar (return, coverage, decisions/s: 64 characters) squeezed
+    rich's columns to nothing: the bar read `PPO updates left return -0.25 ...`, with no update count, bar or time
+    left. The figures go on a line of their own under the bar, so every column of the bar keeps its width."""
+    import io
+
+    from rich.console import Console
+
+    from cso_runtime.learned import ppo
+
+    out = io.StringIO()
+    stats = "return -0.25  coverage 99.6 % (last 20 episodes)  96 decisions/s"
+    bar = ppo._Bar(100, console=Console(file=out, width=width, force_terminal=True, color_system=None))
+    bar.advance(stats=stats)
+    bar.close()
+    shown = out.getvalue()
+    assert "PPO updates" in shown and "1/100" in shown and "left" in shown
+    assert stats in shown
+
+
 def test_training_progress_in_a_log_file_is_plain_lines():
     """No terminal (nohup, CI, a cluster job): lines that say how far the run is, at most every line_every_s and
     at the end, instead of a bar nobody sees until the run ends."""
@@ -1695,7 +1716,8 @@ def test_rgb_array_render_shows_the_map_the_path_the_goals_by_mask_and_the_robot
     assert tuple(img[0, 0]) == frames.OCCUPIED and tuple(img[3, 0]) == frames.FREE and tuple(img[2, 4]) == frames.HEADING
     assert tuple(img[3, 4]) == frames.ROBOT and tuple(img[2, 0]) == frames.FREE  # a disc of 3 pixels at least, heading along +x
 
-    assert gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4").unwrapped.render() is None
+    with pytest.warns(UserWarning, match="render_mode"):  # as Gymnasium's envs warn
+        assert gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4").unwrapped.render() is None
     with pytest.raises(ValueError, match="renders rgb_array"):  # "human" is gymnasium.make's HumanRendering over rgb_array
         gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes="generated:small:1:4", render_mode="ansi")
 
@@ -2548,3 +2570,18 @@ def test_a_train_on_a_file_system_without_locks_runs_and_leaves_the_partial_file
     train(args, log=said.append, plans=[rooms_plan(2)])
     assert (tmp_path / "cso.pt").is_file() and maybe_being_written.is_file()
     assert f"warning: cannot lock {tmp_path / ppo.TRAIN_LOCK} (No locks available): a second train into {tmp_path} at the same time would not be refused" in said, said
+
+
+def test_the_trainer_file_runs_as_a_script_as_cleanrls_does(tmp_path):
+    """CleanRL runs its trainer as a file (``python ppo.py --total-timesteps ...``); ``python -m
+    cso_runtime.learned.ppo --help`` printed nothing and exited 0, a silent no-op. It is ``cso-runtime train``."""
+    import subprocess
+    import sys
+
+    env = {**os.environ, "COLUMNS": "200"}
+    shown = subprocess.run([sys.executable, "-m", "cso_runtime.learned.ppo", "--help"], capture_output=True, text=True, timeout=120, env=env, cwd=tmp_path)
+    assert shown.returncode == 0, shown.stderr
+    assert "Usage: cso-runtime train" in shown.stdout and "--total-decisions" in shown.stdout and "--config" in shown.stdout
+    refused = subprocess.run([sys.executable, "-m", "cso_runtime.learned.ppo", "--num-envs", "0", "--set", "dungeon_dir=null"],
+                             capture_output=True, text=True, timeout=120, env=env, cwd=tmp_path)  # fmt: skip
+    assert refused.returncode == 2 and "num_envs" in refused.stderr and not (tmp_path / "runs").exists()

@@ -366,8 +366,12 @@ class ExplorationEnv(gym.Env):
 
     def render(self) -> np.ndarray | None:
         """The map M_t, the path so far, the candidate goals (green allowed, red masked by the action mask) and
-        the robot, as an RGB array (``render_mode="rgb_array"``); None without a render mode, as Gymnasium's."""
+        the robot, as an RGB array (``render_mode="rgb_array"``); None without a render mode, with Gymnasium's warning."""
         if self.render_mode is None:
+            gym.logger.warn(
+                'render() without a render mode returns None: make the env with render_mode="rgb_array" '
+                f'(gymnasium.make("{ENV_ID}", ..., render_mode="rgb_array")) for an image of the map'
+            )
             return None
         ex = self.explorer
         if ex is None:
@@ -455,12 +459,19 @@ def make_env(
     render_mode: str | None = None,
     render_scale: int = 2,
     robot_index_shape: tuple[int, ...] = ROBOT_INDEX_SHAPE,
+    max_steps: int | None = None,
 ) -> ExplorationEnv:
     """An ``ExplorationEnv`` over a scene spec (as ``eval --maps``: ``builtin``, a folder of PNG plans,
     ``generated:SCALE:N:SEED``); PNG plans at ``m_per_px`` (0.05: Dungeon's large scale, where ``eval --m-per-px`` takes
-    0.1, super large, unless told). The plans load at the first reset."""
+    0.1, super large, unless told). The plans load at the first reset. ``max_steps``, given, is the episode's step
+    limit in control steps of 0.25 s (``EnvConfig.max_steps``, over ``config``'s; Gymnasium's own
+    ``max_episode_steps`` counts decisions)."""
     from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
 
+    if max_steps is not None:
+        if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
+            raise ValueError(f"max_steps must be a positive number of control steps (0.25 s each), got {max_steps!r}")
+        config = dataclasses.replace(config or EnvConfig(), max_steps=max_steps)
     refs = resolve_scenes(scenes, limit, m_per_px)  # a bad spec fails here, not at the first reset
     plans = functools.partial(_load_scenes, refs)  # not a lambda: the env pickles (multiprocessing, copies of a run's env)
     return ExplorationEnv(plans, config, render_mode=render_mode, render_scale=render_scale, robot_index_shape=robot_index_shape)

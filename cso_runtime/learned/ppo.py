@@ -503,6 +503,22 @@ def known_args(saved: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in saved.items() if k in names}
 
 
+RECIPE_MACHINE_FIELDS = ("out_dir", "dungeon_dir")
+"""Fields of ``configs/train.yaml`` that say where the files are on one machine, not how to train."""
+
+
+def fields_left_at_defaults(given: Mapping[str, Any], recipe: Mapping[str, Any]) -> list[tuple[str, Any, Any]]:
+    """``(field, Args default, recipe value)`` for each field a training configuration does not give (``given``: its
+    file's fields, the flags and ``--set``) whose ``Args`` default is not the recipe's (``configs/train.yaml``): a
+    file of a few fields trains ``Args``' short run of the plain actor in all the others, not the recipe."""
+    defaults = dataclasses.asdict(Args())
+    return [
+        (name, defaults[name], value)
+        for name, value in recipe.items()
+        if name in defaults and name not in given and name not in RECIPE_MACHINE_FIELDS and defaults[name] != value
+    ]
+
+
 def resume_recipe_changes(saved: Mapping[str, Any], args: Args) -> list[str]:
     """``"field checkpoint_value -> this_value"`` for each recipe field whose value ``args`` changes from the
     ``saved`` run's (``dataclasses.asdict`` of its Args; a field it lacks, from an older version, is not compared)."""
@@ -1394,14 +1410,14 @@ class _Bar:
     before this process (a ``--resume``d run's updates), counted in the bar; the time left is this process's pace."""
 
     def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0, completed: int = 0) -> None:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
+        from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
 
         from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
 
         console = console if console is not None else console_that_survives_its_reader()  # `train | head`: exit 141, as every command
-        columns = (TextColumn("{task.description}"), BarColumn(bar_width=24), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn(), TextColumn("{task.fields[stats]}"))
+        columns = (TextColumn("{task.description}"), BarColumn(bar_width=24), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn())
         self._lines = not console.is_terminal
-        self._p = Progress(*columns, console=console, disable=self._lines)
+        self._p = _progress_with_stats_below(*columns, console=console, disable=self._lines)
         self._p.start()
         self._task = self._p.add_task(what, total=total, stats="", completed=completed)
         self._what, self._total, self._done, self._done_before = what, total, completed, completed
@@ -1421,6 +1437,23 @@ class _Bar:
 
     def close(self) -> None:
         self._p.stop()
+
+
+def _progress_with_stats_below(*columns: Any, **kwargs: Any) -> Any:
+    """A rich ``Progress`` that shows each task's ``stats`` field on a line of its own under its bar: after the bar, on
+    one line, the figures (64 characters) squeezed rich's columns in an 80-column terminal until the update count, the
+    bar and the time left were gone."""
+    from rich.progress import Progress  # noqa: PLC0415
+    from rich.text import Text  # noqa: PLC0415
+
+    class ProgressWithStatsBelow(Progress):
+        def get_renderables(self) -> Any:
+            yield self.make_tasks_table(self.tasks)
+            for task in self.tasks:
+                if task.fields.get("stats"):
+                    yield Text("  " + str(task.fields["stats"]), no_wrap=True, overflow="ellipsis")
+
+    return ProgressWithStatsBelow(*columns, **kwargs)
 
 
 def _progress(enabled: bool, total: int, completed: int = 0) -> _Bar | None:
@@ -1543,3 +1576,12 @@ def check_node_features(model: GraphActorCritic, features: int) -> None:
 def random_chooser(obs: dict[str, np.ndarray], mask: np.ndarray, rng: np.random.Generator) -> int:
     """Uniformly random among the allowed actions."""
     return int(rng.choice(np.flatnonzero(mask)))
+
+
+if __name__ == "__main__":  # CleanRL runs its trainer as a file: `python -m cso_runtime.learned.ppo ARGS` is `cso-runtime train ARGS`
+    import sys
+
+    from cso_runtime.cli import main
+
+    sys.argv = ["cso-runtime", "train", *sys.argv[1:]]
+    main()
