@@ -211,6 +211,7 @@ class PlannerService(Service):
             log.info("planner state of step %d (episode %d) not restored: %s", state.step, state.episode, why)
             return False
         self.episodes.current = state.episode or None
+        self.contacts_of(state)
         path = plan.path_xy_m if len(plan.path_xy_m) else None
         self.planner.resume(path, plan.free, state.follow)
         self.published_state = (plan.step, path, plan.free)
@@ -231,6 +232,20 @@ class PlannerService(Service):
             state.step, state.episode, goal, state.goal_step, state.follow.status.value, state.follow.progress_index, 0 if path is None else len(path),
         )  # fmt: skip
         return True
+
+    def contacts_of(self, state: PlannerStateMsg) -> None:
+        """Keep the contacts ``state`` had (its ``contacts``, the first of those restored: they only grow, in order): the
+        cache's may be newer, the planner killed after it sent a step's contacts but before that step's ``cmd_vel`` and
+        state; that step is commanded again and adds them again, as it did. Fewer than the state had (a lost
+        ``planner_contacts``) are kept, and said."""
+        have = len(self.planner.contacts_xy_m)
+        if state.contacts is None or have == state.contacts:
+            return
+        if have > state.contacts:
+            self.planner.contacts_xy_m = self.planner.contacts_xy_m[: state.contacts]
+            self.contacts_published = state.contacts  # the step redone sends them again, as it did
+            return
+        log.warning("the state of step %d had %d contacts, the cache %d: going on without the %d missing", state.step, state.contacts, have, state.contacts - have)
 
     def on_pause(self, msg: ExploreResumeMsg) -> None:
         """Pause (``resume`` false) or resume exploration. Paused, every command is a stop and no goal is planned
@@ -465,17 +480,18 @@ class PlannerService(Service):
         stop_already_sent = self.ends_stopped(self.last_cmd) and reason == NO_FRONTIER_REASON
         self.last_cmd = CmdVelMsg(k, cmd, reason, new_goal=self.pending_new_goal, episode=self.episodes.current or 0)
         self.pending_new_goal = False
+        self.publish_contacts(k)  # before the command whose state counts them: the cache never has a state without its contacts
         if not stop_already_sent:
             self.last_cmd = self.with_checkpoint(k, self.last_cmd)
             self.publish("cmd_vel", self.last_cmd)
         self.publish_feedback(k, reason)
         self.publish_path(k)
-        self.publish_contacts(k)
 
     def publish_contacts(self, k: int) -> None:
-        """All the contacts, once step ``k``'s command has added one (after the step's command and feedback: the
-        lockstep chain never waits for it, and a step that adds none sends nothing). The referee keeps them for a
-        restarted planner."""
+        """All the contacts, once step ``k``'s command has added one (a step that adds none sends nothing), just before
+        that command's ``cmd_vel``: the referee keeps them for a restarted planner, and a state it keeps (riding on the
+        ``cmd_vel``) then always has its contacts in the cache too (``PlannerStateMsg.contacts``). The lockstep chain does
+        not wait for them; a step that adds a contact sends this small message before its command."""
         contacts = self.planner.contacts_xy_m
         if len(contacts) == self.contacts_published:
             return
@@ -496,7 +512,9 @@ class PlannerService(Service):
                 plan = None
             plan_step = k
             self.published_state = (k, p.path, p.free)
-        state = PlannerStateMsg(k, plan_step, self.goal_step, self.no_frontier, cmd, self.set_goal_blocked, p.checkpoint(), self.episodes.current or 0)
+        state = PlannerStateMsg(
+            k, plan_step, self.goal_step, self.no_frontier, cmd, self.set_goal_blocked, p.checkpoint(), self.episodes.current or 0, len(p.contacts_xy_m),
+        )  # fmt: skip
         return dataclasses.replace(cmd, planner_state=encode(state), planner_plan=plan)
 
     def extra_status(self) -> dict[str, int]:
