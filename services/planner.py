@@ -207,8 +207,11 @@ class PlannerService(Service):
             why = f"its command (step {state.cmd.step}), plan (step {state.plan_step}) or goal (step {state.goal_step}) is not of its step or before"
         elif misfit := state.follow.misfit(plan.path_xy_m if len(plan.path_xy_m) else None):
             why = f"it does not fit its plan: {misfit}"
-        if plan is None or why:
-            log.info("planner state of step %d (episode %d) not restored: %s", state.step, state.episode, why)
+        if plan is None and state.plan_step < 0:  # a planner that had not planned yet: nothing to resume
+            log.info("planner state of step %d (episode %d) not restored: it has no plan yet", state.step, state.episode)
+            return False
+        if plan is None or why:  # refused input, counted: `status` shows that this planner started afresh
+            self.reject("planner_state", f"the cached state of step {state.step} (episode {state.episode}) is not restored: {why}")
             return False
         self.episodes.current = state.episode or None
         self.contacts_of(state)

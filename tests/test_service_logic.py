@@ -948,6 +948,27 @@ def test_a_restarted_planner_refuses_a_cached_state_that_does_not_fit_its_plan()
     assert fresh.restore_state(cleared, no_path)  # no goal left: the path point is unused
 
 
+def test_a_cached_state_a_restarted_planner_refuses_is_counted_as_rejected():
+    """A cached state that does not fit its plan (a plan of another planner, a forged one, one of another step) was
+    only logged at info level: ``status`` showed a restarted planner that had started afresh as if it had resumed. It
+    is rejected and counted (``planner_state``), as any input refused is; a state of a planner that had not planned yet
+    (``plan_step`` -1, no plan) has nothing to resume from, and is not counted."""
+    episode = 5
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    killed, out = _service(PlannerService, lockstep=True)
+    _drive(killed, out, ex, range(4), episode, obs)
+    state = [m for t, m in _with_carried(out) if t == "planner_state"][-1]
+    plan = [m for t, m in _with_carried(out) if t == "planner_plan"][-1]
+    for p in (dataclasses.replace(plan, path_xy_m=plan.path_xy_m[:1]), dataclasses.replace(plan, step=plan.step + 1), None):
+        fresh, _ = _service(PlannerService, lockstep=True)
+        assert not fresh.restore_state(state, p)
+        assert fresh.rejected == {"planner_state": 1}
+    before_any_plan = dataclasses.replace(state, plan_step=-1, follow=dataclasses.replace(state.follow, status=PlannerStatus.IDLE))
+    fresh, _ = _service(PlannerService, lockstep=True)
+    assert not fresh.restore_state(before_any_plan, None) and fresh.rejected == {}
+
+
 def test_a_robot_stood_still_by_order_is_not_judged_stalled_on_its_last_command():
     """Real time: the robot stands still while no planner runs (a restart), while paused or while its inputs are stale,
     because it was told to, not because it is pinned. The progress check started over after each, but the stall check
