@@ -111,6 +111,8 @@ class PlannerService(Service):
         self.paused: ExploreResumeMsg | None = None
         """The operator's pause being obeyed (real time; None: exploring). It outlives an episode: a robot paused
         stays still until it is resumed."""
+        self.contacts_restored_step: int | None = None
+        """The step of the contacts restored from the referee's cache at start (``restore_contacts``); None: none."""
         self.reset_episode()
 
     def start(self) -> None:
@@ -135,6 +137,7 @@ class PlannerService(Service):
         self.episodes.current = cached.episode or None  # id 0 (no ids): the episode running, whichever it is
         self.planner.contacts_xy_m = np.array(cached.contacts_xy_m, dtype=float).reshape(-1, 2)
         self.contacts_published = len(self.planner.contacts_xy_m)  # the referee holds them already
+        self.contacts_restored_step = cached.step
         log.info("restored %d contacts of step %d (episode %d) from the cache", self.contacts_published, cached.step, cached.episode)
 
     def warm_up(self) -> None:
@@ -185,6 +188,7 @@ class PlannerService(Service):
         keeps the goal, dropped when it brings a new one."""
         self.contacts_published = 0
         """How many of the planner's contacts ``planner_contacts`` has sent (they only grow in an episode)."""
+        self.contacts_restored_step = None
         self.published_state: tuple[int, np.ndarray | None, FreeSpace | None] = (-1, None, None)
         """The step of the last plan sent (on ``cmd_vel``, ``with_checkpoint``), and its path and grid (a new one goes out
         when they change)."""
@@ -237,16 +241,19 @@ class PlannerService(Service):
         return True
 
     def contacts_of(self, state: PlannerStateMsg) -> None:
-        """Keep the contacts ``state`` had (its ``contacts``, the first of those restored: they only grow, in order): the
-        cache's may be newer, the planner killed after it sent a step's contacts but before that step's ``cmd_vel`` and
-        state; that step is commanded again and adds them again, as it did. Fewer than the state had (a lost
-        ``planner_contacts``) are kept, and said."""
+        """Lockstep: keep the contacts ``state`` had (its ``contacts``, the first of those restored: they only grow, in
+        order) when the cache's are of a later step, the planner killed after it sent a step's contacts but before that
+        step's ``cmd_vel`` and state: that step is commanded again and adds them again, as it did. Contacts the state did
+        not count that are not of a later step (another sender's), or in real time (no step is commanded again), are all
+        kept: they keep the paths off more, never less. Fewer than the state had (a lost ``planner_contacts``) are kept,
+        and said."""
         have = len(self.planner.contacts_xy_m)
         if state.contacts is None or have == state.contacts:
             return
         if have > state.contacts:
-            self.planner.contacts_xy_m = self.planner.contacts_xy_m[: state.contacts]
-            self.contacts_published = state.contacts  # the step redone sends them again, as it did
+            if self.ctx.lockstep and self.contacts_restored_step is not None and self.contacts_restored_step > state.step:
+                self.planner.contacts_xy_m = self.planner.contacts_xy_m[: state.contacts]
+                self.contacts_published = state.contacts  # the step redone sends them again, as it did
             return
         log.warning("the state of step %d had %d contacts, the cache %d: going on without the %d missing", state.step, state.contacts, have, state.contacts - have)
 

@@ -872,7 +872,8 @@ def test_a_planner_killed_anywhere_in_a_step_that_adds_a_contact_restarts_with_t
     ``planner_contacts``, other paths round it), not the uninterrupted planner's commands. Wherever in the step the
     planner is killed, the restarted one now commands, reports and sends contacts from the step after its state as the
     uninterrupted planner did: the contacts go out before the command whose state counts them (``contacts``), and
-    contacts newer than the state are dropped at the restore (its step is commanded again, adding them again)."""
+    contacts of a later step than the state are dropped at the restore (its step is commanded again, adding them
+    again). Uncounted contacts of no later step (another sender's), and any in real time (no step is redone), are kept."""
     episode, end, contact_step = 5, 7, 2
     period_s = ExplorationConfig().robot.control_period_s
     ex = _explorer_at(0)
@@ -916,6 +917,14 @@ def test_a_planner_killed_anywhere_in_a_step_that_adds_a_contact_restarts_with_t
             assert carried_after(out_r, s) == carried_after(out_a, s), (cut, s)
             assert np.array_equal(restarted.planner.contacts_xy_m, uninterrupted.planner.contacts_xy_m), cut
         assert restored_steps == {contact_step - 1, contact_step}  # killed before the step's state went out, and after
+    state = [m for t, m in sent if t == "planner_state" and m.step == contact_step - 1][-1]
+    plan = [m for t, m in sent if t == "planner_plan"][-1]
+    (contacts,) = [m for t, m in sent if t == "planner_contacts"]
+    assert state.contacts == 0 and contacts.step == contact_step and len(contacts.contacts_xy_m) == 1
+    for lockstep, contacts_step in ((True, contact_step - 1), (False, contact_step)):  # another sender's; real time, where no step is redone
+        kept_all, _ = _service(PlannerService, lockstep=lockstep)
+        kept_all.restore_contacts(dataclasses.replace(contacts, step=contacts_step))
+        assert kept_all.restore_state(state, plan) and len(kept_all.planner.contacts_xy_m) == 1, (lockstep, contacts_step)
 
 
 def test_a_restarted_planner_refuses_a_cached_state_that_does_not_fit_its_plan():
