@@ -182,18 +182,19 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
         grid = np.clip(value, -1, 100).astype(np.int8)
         grid[value > 100] = UNKNOWN
     else:
+        unknown_grey = value == PIXEL_UNKNOWN  # map_saver's unknown, by its colour (alpha may be averaged in next)
         if alpha is not None and mode == "trinary":
             value = (3.0 * value + alpha) / 4.0  # as Nav2's map_io (and ROS 1): alpha averaged in with R, G, B
         occ = value / 255.0 if negate else (255.0 - value) / 255.0
         grid = np.full(value.shape, UNKNOWN, dtype=np.int8)
         grid[occ > occ_t] = OCCUPIED
         grid[occ < free_t] = FREE
-        _warn_unknown_grey_read_free(yaml_path, free_t, int(np.count_nonzero((value == PIXEL_UNKNOWN) & (grid == FREE))), resolution)
         if mode == "scale":
             between = (occ >= free_t) & (occ <= occ_t)
             grid[between] = np.rint(100 * (occ[between] - free_t) / (occ_t - free_t)).astype(np.int8)  # as Nav2
         if alpha is not None and mode == "scale":
             grid[alpha < 255] = UNKNOWN  # as Nav2: in scale mode a pixel not fully opaque is unknown
+        _warn_unknown_grey_read_free(yaml_path, free_t, occ[unknown_grey & (grid == FREE)], resolution)
     geometry = GridGeometry(resolution, (int(grid.shape[0]), int(grid.shape[1])), x0, y0)
     return np.flipud(grid).copy(), geometry, meta
 
@@ -237,18 +238,28 @@ def _warn_default_thresholds(yaml_path: Path, meta: dict) -> None:
     )
 
 
-def _warn_unknown_grey_read_free(yaml_path: Path, free_thresh: float, cells: int, resolution_m: float) -> None:
-    """Say once per file that ``cells`` opaque pixels of map_saver's unknown grey (205) read as free: ROS 2's
-    map_saver_cli writes ``free_thresh: 0.25`` beside them, above their occupancy of 0.196, and map_server (as this
-    loader) then serves them free, so a SLAM map's unknown margin becomes floor (slam_toolbox#587)."""
+def _warn_unknown_grey_read_free(yaml_path: Path, free_thresh: float, read_free_occ: np.ndarray, resolution_m: float) -> None:
+    """Say once per file that pixels of map_saver's unknown grey (205) read as free (``read_free_occ``: the occupancy
+    each was read with): ROS 2's map_saver_cli writes ``free_thresh: 0.25`` beside them, above their occupancy of 0.196,
+    and map_server (as this loader) then serves them free, so a SLAM map's unknown margin becomes floor
+    (slam_toolbox#587). In a PNG with an alpha channel (trinary mode) the opaque alpha averaged in reads them lighter,
+    at 0.147, free at 0.196 too: the threshold that keeps them unknown is said as read."""
     key = yaml_path.resolve()
+    cells = len(read_free_occ)
     if cells == 0 or key in _warned_unknown_read_free:
         return
     _warned_unknown_read_free.add(key)
+    plain = (255 - PIXEL_UNKNOWN) / 255
+    occupancy = float(np.min(read_free_occ))
+    if occupancy >= plain - 1e-9:
+        keep = f"set free_thresh: {FREE_THRESH:g} (ROS 1 map_saver's value) to keep them unknown"
+        read = f"an occupancy of {plain:.3f}"
+    else:  # alpha averaged in with the grey (Nav2's trinary mode): lighter than 205 alone
+        keep = f"set free_thresh at most {math.floor(occupancy * 1000) / 1000:.3f}, or save the image without its alpha channel, to keep them unknown"
+        read = f"an occupancy of {occupancy:.3f} with the image's alpha averaged in, as Nav2 does"
     log.warning(
-        "%s: free_thresh %g reads the unknown grey %d (an occupancy of %.3f) as free, as Nav2's map_server does: "
-        "%d cells (%.2f m2) of unknown are floor here; set free_thresh: %g (ROS 1 map_saver's value) to keep them unknown",
-        yaml_path, free_thresh, PIXEL_UNKNOWN, (255 - PIXEL_UNKNOWN) / 255, cells, cells * resolution_m**2, FREE_THRESH,
+        "%s: free_thresh %g reads the unknown grey %d (%s) as free, as Nav2's map_server does: %d cells (%.2f m2) of unknown are floor here; %s",
+        yaml_path, free_thresh, PIXEL_UNKNOWN, read, cells, cells * resolution_m**2, keep,
     )  # fmt: skip
 
 

@@ -1136,6 +1136,10 @@ class PlannerStateMsg(Message):
     """The step's report said the goal of this step's decision had no path."""
     follow: FollowCheckpoint
     episode: int = 0
+    contacts: int | None = None
+    """How many contacts the planner kept after this step's command (optional; None: not said). The contacts go out on
+    ``planner_contacts`` before the ``cmd_vel`` that carries this state, and only grow in an episode (appended in order):
+    a restarted planner keeps the first ``contacts`` of those cached, the ones this state had."""
 
     def body(self) -> dict[str, Any]:
         f = self.follow
@@ -1155,6 +1159,7 @@ class PlannerStateMsg(Message):
             "recovery": {"recoveries_left": f.recoveries_left, "heading_rad": f.escape_heading_rad, "drive_left_m": f.escape_drive_left_m, "escape_periods": f.escape_periods, "escapes": f.escapes},
             "replan_pending": f.replan_pending,
             "blocked_why": f.blocked_why,
+            **({} if self.contacts is None else {"contacts": self.contacts}),
         }
 
     @classmethod
@@ -1200,6 +1205,7 @@ class PlannerStateMsg(Message):
         return cls(
             _int(b, "step", w), _int(b, "plan_step", w, lo=-1), _int(b, "goal_step", w, lo=-1), _bool(b, "no_frontier", w),
             CmdVelMsg.from_body(cmd), _bool(b, "set_goal_blocked", w), follow, _int(b, "episode", w),
+            None if b.get("contacts") is None else _int(b, "contacts", w),
         )  # fmt: skip
 
 

@@ -111,6 +111,8 @@ class PlannerService(Service):
         self.paused: ExploreResumeMsg | None = None
         """The operator's pause being obeyed (real time; None: exploring). It outlives an episode: a robot paused
         stays still until it is resumed."""
+        self.contacts_restored_step: int | None = None
+        """The step of the contacts restored from the referee's cache at start (``restore_contacts``); None: none."""
         self.reset_episode()
 
     def start(self) -> None:
@@ -135,6 +137,7 @@ class PlannerService(Service):
         self.episodes.current = cached.episode or None  # id 0 (no ids): the episode running, whichever it is
         self.planner.contacts_xy_m = np.array(cached.contacts_xy_m, dtype=float).reshape(-1, 2)
         self.contacts_published = len(self.planner.contacts_xy_m)  # the referee holds them already
+        self.contacts_restored_step = cached.step
         log.info("restored %d contacts of step %d (episode %d) from the cache", self.contacts_published, cached.step, cached.episode)
 
     def warm_up(self) -> None:
@@ -185,6 +188,7 @@ class PlannerService(Service):
         keeps the goal, dropped when it brings a new one."""
         self.contacts_published = 0
         """How many of the planner's contacts ``planner_contacts`` has sent (they only grow in an episode)."""
+        self.contacts_restored_step = None
         self.published_state: tuple[int, np.ndarray | None, FreeSpace | None] = (-1, None, None)
         """The step of the last plan sent (on ``cmd_vel``, ``with_checkpoint``), and its path and grid (a new one goes out
         when they change)."""
@@ -207,10 +211,14 @@ class PlannerService(Service):
             why = f"its command (step {state.cmd.step}), plan (step {state.plan_step}) or goal (step {state.goal_step}) is not of its step or before"
         elif misfit := state.follow.misfit(plan.path_xy_m if len(plan.path_xy_m) else None):
             why = f"it does not fit its plan: {misfit}"
-        if plan is None or why:
-            log.info("planner state of step %d (episode %d) not restored: %s", state.step, state.episode, why)
+        if plan is None and state.plan_step < 0:  # a planner that had not planned yet: nothing to resume
+            log.info("planner state of step %d (episode %d) not restored: it has no plan yet", state.step, state.episode)
+            return False
+        if plan is None or why:  # refused input, counted: `status` shows that this planner started afresh
+            self.reject("planner_state", f"the cached state of step {state.step} (episode {state.episode}) is not restored: {why}")
             return False
         self.episodes.current = state.episode or None
+        self.contacts_of(state)
         path = plan.path_xy_m if len(plan.path_xy_m) else None
         self.planner.resume(path, plan.free, state.follow)
         self.published_state = (plan.step, path, plan.free)
@@ -231,6 +239,23 @@ class PlannerService(Service):
             state.step, state.episode, goal, state.goal_step, state.follow.status.value, state.follow.progress_index, 0 if path is None else len(path),
         )  # fmt: skip
         return True
+
+    def contacts_of(self, state: PlannerStateMsg) -> None:
+        """Lockstep: keep the contacts ``state`` had (its ``contacts``, the first of those restored: they only grow, in
+        order) when the cache's are of a later step, the planner killed after it sent a step's contacts but before that
+        step's ``cmd_vel`` and state: that step is commanded again and adds them again, as it did. Contacts the state did
+        not count that are not of a later step (another sender's), or in real time (no step is commanded again), are all
+        kept: they keep the paths off more, never less. Fewer than the state had (a lost ``planner_contacts``) are kept,
+        and said."""
+        have = len(self.planner.contacts_xy_m)
+        if state.contacts is None or have == state.contacts:
+            return
+        if have > state.contacts:
+            if self.ctx.lockstep and self.contacts_restored_step is not None and self.contacts_restored_step > state.step:
+                self.planner.contacts_xy_m = self.planner.contacts_xy_m[: state.contacts]
+                self.contacts_published = state.contacts  # the step redone sends them again, as it did
+            return
+        log.warning("the state of step %d had %d contacts, the cache %d: going on without the %d missing", state.step, state.contacts, have, state.contacts - have)
 
     def on_pause(self, msg: ExploreResumeMsg) -> None:
         """Pause (``resume`` false) or resume exploration. Paused, every command is a stop and no goal is planned
@@ -465,17 +490,18 @@ class PlannerService(Service):
         stop_already_sent = self.ends_stopped(self.last_cmd) and reason == NO_FRONTIER_REASON
         self.last_cmd = CmdVelMsg(k, cmd, reason, new_goal=self.pending_new_goal, episode=self.episodes.current or 0)
         self.pending_new_goal = False
+        self.publish_contacts(k)  # before the command whose state counts them: the cache never has a state without its contacts
         if not stop_already_sent:
             self.last_cmd = self.with_checkpoint(k, self.last_cmd)
             self.publish("cmd_vel", self.last_cmd)
         self.publish_feedback(k, reason)
         self.publish_path(k)
-        self.publish_contacts(k)
 
     def publish_contacts(self, k: int) -> None:
-        """All the contacts, once step ``k``'s command has added one (after the step's command and feedback: the
-        lockstep chain never waits for it, and a step that adds none sends nothing). The referee keeps them for a
-        restarted planner."""
+        """All the contacts, once step ``k``'s command has added one (a step that adds none sends nothing), just before
+        that command's ``cmd_vel``: the referee keeps them for a restarted planner, and a state it keeps (riding on the
+        ``cmd_vel``) then always has its contacts in the cache too (``PlannerStateMsg.contacts``). The lockstep chain does
+        not wait for them; a step that adds a contact sends this small message before its command."""
         contacts = self.planner.contacts_xy_m
         if len(contacts) == self.contacts_published:
             return
@@ -496,7 +522,9 @@ class PlannerService(Service):
                 plan = None
             plan_step = k
             self.published_state = (k, p.path, p.free)
-        state = PlannerStateMsg(k, plan_step, self.goal_step, self.no_frontier, cmd, self.set_goal_blocked, p.checkpoint(), self.episodes.current or 0)
+        state = PlannerStateMsg(
+            k, plan_step, self.goal_step, self.no_frontier, cmd, self.set_goal_blocked, p.checkpoint(), self.episodes.current or 0, len(p.contacts_xy_m),
+        )  # fmt: skip
         return dataclasses.replace(cmd, planner_state=encode(state), planner_plan=plan)
 
     def extra_status(self) -> dict[str, int]:

@@ -728,10 +728,18 @@ class Ros2BridgeService(Service):
             self.count_reject(f"ros_scan:{reason}", f"scan at {stamp:.3f} s, newest odometry at {self.odometry.newest_s}")
             return
         scan_msg = ScanMsg(self.step + 1, conv.scan, odom.pose.compose_offset(self.mount_x_m), self.episode)
+        odom_msg = OdometryMsg(self.step + 1, stamp, odom.pose, odom.velocity, self.episode)
+        # The checks every subscriber applies, before publishing: a step whose odometry none could read (a finite
+        # twist over odom's +-100, a driver's glitch) is dropped with its scan, never kept for episode_status (v4).
         try:
-            decode(encode(scan_msg), ScanMsg)  # the checks every subscriber applies, before publishing
+            decode(encode(scan_msg), ScanMsg)
         except MessageError as exc:
             self.count_reject("ros_scan:invalid", str(exc))
+            return
+        try:
+            decode(encode(odom_msg), OdometryMsg)
+        except MessageError as exc:
+            self.count_reject("ros_odom:invalid", str(exc))
             return
         self.last_scan_stamp_s, self.last_scan_stamp_ns = stamp, conv.stamp_ns
         self.step += 1
@@ -756,7 +764,7 @@ class Ros2BridgeService(Service):
         if self.episode_state == "starting":
             self.episode_state = "exploring"
         self.publish("clock", ClockMsg(k, stamp, self.arena, self.episode))
-        self.publish("odom", OdometryMsg(k, stamp, odom.pose, odom.velocity, self.episode))
+        self.publish("odom", odom_msg)
         self.publish("scan", scan_msg)
         self.processed += 1
         self.last_step = k

@@ -991,3 +991,18 @@ def test_a_mappers_explicit_grid_is_checked_against_the_bound_at_the_size_the_ma
     assert MapperParams(resolution_m=0.1, width_m=10.04, height_m=10.04).explicit_shape() == (100, 100)  # the mapper's map
     with pytest.raises(ConfigError, match=r"services.mapper.width_m, height_m: a 10.04 x 10.04 m grid at 0.1 m is 100 x 100 = 10_000 cells, more than max_grid_cells \(9_999\)"):
         load_profile("limo-ros2", {}, connect=robot, settings={**mapper, "services.ros2_bridge.arena_width_m": 4.0, "max_grid_cells": 9_999})
+
+
+def test_an_arena_too_large_to_count_its_cells_is_refused_as_over_the_grid_bound():
+    """A finite arena whose cells overflow a float (``arena_width_m: 1e308`` at 1 mm) ended ``up``'s profile check in
+    an OverflowError traceback (``math.ceil`` of infinity) instead of the bound's refusal; the mapper's explicit grid
+    the same (``round``). Both are refused as grids over ``max_grid_cells``, naming the keys."""
+    from cso_runtime.run_profile import load_profile
+
+    robot = ["tcp/127.0.0.1:7447"]
+    huge = {"services.ros2_bridge.arena_width_m": 1e308, "services.ros2_bridge.resolution_m": 0.001}
+    with pytest.raises(ConfigError, match=r"services.ros2_bridge.arena_width_m, arena_height_m: a 1e\+308 x 20 m grid at 0.001 m is too many cells to count, more than max_grid_cells"):
+        load_profile("limo-ros2", {}, connect=robot, settings=huge)
+    mapper = {"services.mapper.resolution_m": 0.001, "services.mapper.width_m": 10.0, "services.mapper.height_m": 1e308}
+    with pytest.raises(ConfigError, match=r"services.mapper.width_m, height_m: a 10 x 1e\+308 m grid at 0.001 m is too many cells to count"):
+        load_profile("limo-ros2", {}, connect=robot, settings=mapper)

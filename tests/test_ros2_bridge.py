@@ -1388,3 +1388,26 @@ def test_fake_limo_is_explored_through_the_limo_ros2_profile():
     assert statuses[-1].terminated_by == "no_frontier" and robot.commands > 0
     assert coverage > 90.0, f"coverage {coverage:.1f}%"
     assert not any(t.is_alive() for t in threads)
+
+
+def test_odometry_no_subscriber_can_decode_is_dropped_with_its_scan_and_never_breaks_the_episode_status():
+    """A robot's odometry whose values are finite but out of what ``odom`` allows (a twist over 100 m/s or rad/s: a
+    driver's glitch) was published as the step's ``odom``, which every subscriber rejects, and kept as the robot's last
+    pose and twist: the bridge's ``episode_status`` (v4 carries them) could then not be decoded by the launcher or
+    ``status`` until the next good step, its final one at the episode's end included. The step is dropped and counted,
+    as a scan no subscriber could decode is, and the status stays the last good odometry's."""
+    from types import SimpleNamespace
+
+    svc, _, step = _bridge_without_zenoh()
+    sent: list[tuple[str, Any]] = []
+    svc.publish = lambda topic, msg, robot=None: sent.append((topic, msg))  # type: ignore[method-assign]  # as published, undecoded
+    sample = lambda raw: SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: raw))  # noqa: E731
+    for i in range(3):
+        step(1000.0 + 0.1 * i, 0.02 * i)
+    svc._on_ros_odom(sample(ros_odom(1000.3, 0.06, 0.0, 0.0, v=150.0)))
+    svc._on_ros_scan(sample(ros_scan(1000.3, np.full(181, 2.0, np.float32))))
+    for topic, msg in sent:
+        decode(encode(msg), type(msg))  # whatever went out, its subscribers can read
+    status = decode(encode(svc.episode_status()), EpisodeStatusMsg)
+    assert status.step == svc.step == 2 and status.twist == VelocityCommand(0.0, 0.0)
+    assert svc.counters["dropped:ros_odom:invalid"] == 1 and svc.rejected.get("ros_odom:invalid") == 1

@@ -720,8 +720,8 @@ def _lockstep_step(planner: PlannerService, ex: Explorer, k: int, episode: int, 
 def test_the_planner_sends_its_contacts_only_when_one_is_added_and_a_restarted_one_plans_round_them():
     """Contacts (``LocalPlanner.contacts_xy_m``) are the planner's one memory of an episode that no other service
     has: a planner killed and restarted forgot them and could drive into the same wall again. It sends all of them
-    (``planner_contacts``) once a step's command adds one, after that step's command and report (the lockstep chain
-    never waits for it) and never on a step that adds none; a planner started with them from the referee's cache
+    (``planner_contacts``) once a step's command adds one, just before that command (whose carried state counts them;
+    the lockstep chain never waits for them) and never on a step that adds none; a planner started with them from the referee's cache
     keeps them (``status`` counts them), plans its next goal round them, and drops them at another episode's input."""
     ex = _explorer_at(0)
     planner, out = _service(PlannerService, lockstep=True)
@@ -746,7 +746,7 @@ def test_the_planner_sends_its_contacts_only_when_one_is_added_and_a_restarted_o
     sent = [(t, m.step) for t, m in out if t in ("cmd_vel", "planner_feedback", "planner_contacts")]
     assert [t for t, _ in sent].count("planner_contacts") == 1
     at = sent.index(("planner_contacts", 2))
-    assert sent[at - 2 : at] == [("cmd_vel", 2), ("planner_feedback", 2)]  # after the step's command and its report
+    assert sent[at : at + 3] == [("planner_contacts", 2), ("cmd_vel", 2), ("planner_feedback", 2)]  # just before the command whose state counts them
     (contacts,) = [m for t, m in out if t == "planner_contacts"]
     assert contacts.episode == 7 and np.array_equal(contacts.contacts_xy_m, planner.planner.contacts_xy_m) and len(contacts.contacts_xy_m) == 1
     assert planner.extra_status() == {"contacts": 1}
@@ -865,6 +865,68 @@ def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_
         assert not fresh.restore_state(state, plan) and (fresh.cmd_step, fresh.planner.path, fresh.episodes.current) == (-1, None, None)
 
 
+def test_a_planner_killed_anywhere_in_a_step_that_adds_a_contact_restarts_with_the_contacts_of_its_state():
+    """The contacts (``planner_contacts``) ride on no command: they went out after the step's ``cmd_vel``, which carries
+    the state. A planner killed between the two left the cache a state of step k and the contacts of before k, and the
+    one restarted from them went on without the contact step k had added: it added it again a step later (another
+    ``planner_contacts``, other paths round it), not the uninterrupted planner's commands. Wherever in the step the
+    planner is killed, the restarted one now commands, reports and sends contacts from the step after its state as the
+    uninterrupted planner did: the contacts go out before the command whose state counts them (``contacts``), and
+    contacts of a later step than the state are dropped at the restore (its step is commanded again, adding them
+    again). Uncounted contacts of no later step (another sender's), and any in real time (no step is redone), are kept."""
+    episode, end, contact_step = 5, 7, 2
+    period_s = ExplorationConfig().robot.control_period_s
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    plain = LocalPlanner()
+    goal = _far_goal(obs, 0)
+    plain.set_goal(obs.traversable, obs.geometry, obs.pose, np.array([goal.x_m, goal.y_m]), obs.distance_m)
+    iy, ix = obs.geometry.world_to_cell(*plain.path[len(plain.path) // 2])
+    real_update = LocalPlanner.update
+
+    def update(self: LocalPlanner, pose: Pose2D, time_s: float, scan: object = None) -> object:
+        result = real_update(self, pose, time_s, scan)  # type: ignore[arg-type]
+        if time_s >= contact_step * period_s - 1e-9:  # pinned there from this step on (a cell kept already adds none)
+            self.add_contacts(obs.geometry, np.array([iy]), np.array([ix]))
+        return result
+
+    def carried_after(out: list, step: int) -> dict[str, list[bytes]]:
+        return {t: [encode(m) for u, m in _with_carried(out) if u == t and m.step > step] for t in ("cmd_vel", "planner_feedback", "planner_contacts", "planner_state")}
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(LocalPlanner, "update", update)
+        uninterrupted, out_a = _service(PlannerService, lockstep=True)
+        _drive(uninterrupted, out_a, _explorer_at(0), range(end), episode, obs)
+        killed, out_b = _service(PlannerService, lockstep=True)
+        _drive(killed, out_b, _explorer_at(0), range(contact_step + 1), episode, obs)
+        sent = _with_carried(out_b)
+        of_step = [i for i, (t, m) in enumerate(sent) if m.step == contact_step and t in ("cmd_vel", "planner_contacts")]
+        assert len(of_step) == 2  # the step adds a contact: both go out
+        restored_steps = set()
+        for cut in range(of_step[0], len(sent) + 1):  # killed before the first of the two, and after each message from there
+            kept = {t: m for t, m in sent[:cut] if t in ("planner_contacts", "planner_plan", "planner_state")}
+            restarted, out_r = _service(PlannerService, lockstep=True)
+            restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_"))  # type: ignore[method-assign]  # noqa: B023
+            restarted.start()
+            s = restarted.cmd_step
+            restored_steps.add(s)
+            world = _explorer_at(0)
+            for k in range(s + 1):  # the world as the killed planner left it: moved by the commands the sim has
+                world.sim.step([m for t, m in out_b if t == "cmd_vel" and m.step == k][-1].command)
+            _drive(restarted, out_r, world, range(s + 1, end), episode, obs)
+            assert carried_after(out_r, s) == carried_after(out_a, s), (cut, s)
+            assert np.array_equal(restarted.planner.contacts_xy_m, uninterrupted.planner.contacts_xy_m), cut
+        assert restored_steps == {contact_step - 1, contact_step}  # killed before the step's state went out, and after
+    state = [m for t, m in sent if t == "planner_state" and m.step == contact_step - 1][-1]
+    plan = [m for t, m in sent if t == "planner_plan"][-1]
+    (contacts,) = [m for t, m in sent if t == "planner_contacts"]
+    assert state.contacts == 0 and contacts.step == contact_step and len(contacts.contacts_xy_m) == 1
+    for lockstep, contacts_step in ((True, contact_step - 1), (False, contact_step)):  # another sender's; real time, where no step is redone
+        kept_all, _ = _service(PlannerService, lockstep=lockstep)
+        kept_all.restore_contacts(dataclasses.replace(contacts, step=contacts_step))
+        assert kept_all.restore_state(state, plan) and len(kept_all.planner.contacts_xy_m) == 1, (lockstep, contacts_step)
+
+
 def test_a_restarted_planner_refuses_a_cached_state_that_does_not_fit_its_plan():
     """The cache pairs a state with a plan by step and episode only: a plan of the same step from another planner (two at
     once), or a forged one, may be shorter than the point the state follows, which failed the restarted planner's first
@@ -893,6 +955,27 @@ def test_a_restarted_planner_refuses_a_cached_state_that_does_not_fit_its_plan()
     cleared = dataclasses.replace(state, follow=dataclasses.replace(state.follow, status=PlannerStatus.IDLE), no_frontier=True)
     fresh, _ = _service(PlannerService, lockstep=True)
     assert fresh.restore_state(cleared, no_path)  # no goal left: the path point is unused
+
+
+def test_a_cached_state_a_restarted_planner_refuses_is_counted_as_rejected():
+    """A cached state that does not fit its plan (a plan of another planner, a forged one, one of another step) was
+    only logged at info level: ``status`` showed a restarted planner that had started afresh as if it had resumed. It
+    is rejected and counted (``planner_state``), as any input refused is; a state of a planner that had not planned yet
+    (``plan_step`` -1, no plan) has nothing to resume from, and is not counted."""
+    episode = 5
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    killed, out = _service(PlannerService, lockstep=True)
+    _drive(killed, out, ex, range(4), episode, obs)
+    state = [m for t, m in _with_carried(out) if t == "planner_state"][-1]
+    plan = [m for t, m in _with_carried(out) if t == "planner_plan"][-1]
+    for p in (dataclasses.replace(plan, path_xy_m=plan.path_xy_m[:1]), dataclasses.replace(plan, step=plan.step + 1), None):
+        fresh, _ = _service(PlannerService, lockstep=True)
+        assert not fresh.restore_state(state, p)
+        assert fresh.rejected == {"planner_state": 1}
+    before_any_plan = dataclasses.replace(state, plan_step=-1, follow=dataclasses.replace(state.follow, status=PlannerStatus.IDLE))
+    fresh, _ = _service(PlannerService, lockstep=True)
+    assert not fresh.restore_state(before_any_plan, None) and fresh.rejected == {}
 
 
 def test_a_robot_stood_still_by_order_is_not_judged_stalled_on_its_last_command():

@@ -271,6 +271,7 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "recovery": {"recoveries_left": 1, "heading_rad": 0.75, "drive_left_m": 0.125, "escape_periods": 4, "escapes": 1},
             "replan_pending": True,
             "blocked_why": "",
+            "contacts": 2,
         },
         {
             "step": 40,
@@ -449,6 +450,7 @@ def test_the_values_decoded_are_the_ones_the_docs_describe():
     assert isinstance(state, PlannerStateMsg) and state.follow.stall_last is not None and state.cmd.reason == "backup"
     assert state.follow.stall_last[0].yaw_rad == 1.5 and state.follow.stall_last[2].angular_radps == -0.5 and state.follow.escape_heading_rad == 0.75
     assert idle.follow.progress_anchor is None and idle.follow.escape_heading_rad is None and idle.no_frontier  # type: ignore[attr-defined]
+    assert state.contacts == 2 and idle.contacts is None  # type: ignore[attr-defined]  # optional: how many contacts it had
     assert isinstance(contacts, PlannerContactsMsg) and contacts.contacts_xy_m.tolist() == [[0.125, -0.075], [0.175, -0.075]] and contacts.episode == EPISODE
     (why,) = bodies["ended_why"]
     assert isinstance(why, EndedWhyMsg) and why.why.startswith("2 frontier cells")
