@@ -138,9 +138,9 @@ def status_of(
         table[name] = entry
     ep, age_s = episode_or_last_heard(episode, launcher)
     over = ep.get("state") in EPISODE_OVER
-    map_origin = ep.get("map_origin", MAP_FRAME_ORIGIN.as_list())  # none in the launcher's last-heard status (nor a goal)
-    goal = ep.get("goal_xy_m")
-    pose = ep.get("pose")  # the robot's odometry pose in the scene's frame; none before the first odometry, nor last-heard
+    map_origin = ep.get("map_origin", MAP_FRAME_ORIGIN.as_list())  # none in an older launcher's last-heard status
+    goal = ep.get("goal_xy_m")  # none in the launcher's last-heard status
+    pose = ep.get("pose")  # the robot's odometry pose in the scene's frame; none before the first odometry (last-heard: where it ended)
     return {
         "robot": robot,
         "run_id": (launcher or {}).get("run_id", ""),

@@ -5189,6 +5189,42 @@ def test_a_planner_killed_mid_episode_carries_on_with_its_goal_and_the_episode_e
         assert kill_leftovers(runs) == []
 
 
+def test_status_after_the_episode_still_says_where_the_robot_ended(tmp_path):
+    """``status`` shows the robot's pose and twist in the map frame during the episode (episode_status v4), but once
+    the sim no longer answered (the episode over and the run stopping, or the sim hung) it showed the launcher's
+    last-heard status (``last_episode``), which had no pose: "-", where a ROS 2 user asks where the robot ended. The
+    launcher's record now carries the last status's ``pose``, ``twist`` and ``map_origin`` as episode_status has
+    them, so ``status`` says where it ended, in the same map frame; an older launcher's record (none of them) says "-"."""
+    import dataclasses
+
+    from rich.console import Console
+
+    from cso_runtime.geometry import VelocityCommand
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    origin, pose, twist = Pose2D(1.0, -2.0, math.pi / 2), Pose2D(0.5, 0.25, 0.1), VelocityCommand(0.2, -0.1)
+    ended = EpisodeStatusMsg("done", 90, "s", "cso", 99.5, 40.0, 12.25, None, 9, terminated_by="coverage", episode=7, map_origin=origin, pose=pose, twist=twist)
+    launcher.status, launcher.status_heard_at_s = ended, time.monotonic()
+    heard = decode(encode(launcher.launcher_status()), LauncherStatusMsg).to_dict()  # as `status` gets it, the sim gone
+    shown = status_of("r0", None, heard, {}, set())
+    fresh = status_of("r0", ended.to_dict(), heard, {}, set())  # what it showed while the sim answered
+    assert shown["state"] == "done" and shown["step"] == 90
+    assert shown["pose"] == pytest.approx(fresh["pose"]) and shown["pose"] == pytest.approx(ended.pose_in_map_frame.as_list())
+    assert shown["twist"] == fresh["twist"] == [0.2, -0.1] and shown["map_origin"] == fresh["map_origin"]
+    console = Console(width=200, record=True)
+    console.print(render_table(shown))
+    x, y, yaw = ended.pose_in_map_frame.as_list()
+    assert f"x {x:.2f} m  y {y:.2f} m  yaw {yaw:.2f} rad, 0.20 m/s -0.10 rad/s" in console.export_text()
+    older = {**heard, "last_episode": {k: v for k, v in heard["last_episode"].items() if k not in ("pose", "twist", "map_origin")}}
+    assert status_of("r0", None, older, {}, set())["pose"] is None
+    launcher.status = dataclasses.replace(ended, pose=None, twist=None)  # a ROS 2 bridge before its first scan
+    last = decode(encode(launcher.launcher_status()), LauncherStatusMsg).last_episode
+    assert last is not None and (last["pose"], last["twist"]) == (None, None)
+
+
 def test_up_says_why_an_episode_ended_no_frontier_as_the_in_process_episode_does(tmp_path):
     """A corridor (a map_server scene) whose start faces away from 0.4 m of dead end behind the 180-degree LiDAR
     (tests/test_planner.py's): the episode ends no_frontier at 88 % after 2 steps. ``up`` said only "no_frontier",
