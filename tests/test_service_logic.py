@@ -770,15 +770,15 @@ def test_the_planner_sends_its_contacts_only_when_one_is_added_and_a_restarted_o
     assert fresh.extra_status() == {"contacts": 0} and fresh.episodes.current is None
 
 
-def _drive(planner: PlannerService, out: list, ex: Explorer, steps: range, episode: int, decision_obs=None) -> None:
+def _drive(planner: PlannerService, out: list, ex: Explorer, steps: range, episode: int, decision_obs=None, goal: GoalMsg | None = None) -> None:
     """Lockstep steps on ``ex``'s simulator, each moved by the command the planner sends for it (as the sim steps);
-    step 0 decides the far goal of ``decision_obs``, every other step keeps the goal."""
+    step 0 decides the far goal of ``decision_obs`` (or ``goal``), every other step keeps the goal."""
     for k in steps:
         _feed(planner, OdometryMsg(k, ex.sim.time_s, ex.sim.odometry(), episode=episode))
         _feed(planner, ScanMsg(k, ex.sim.scan(), ex.sim.sensor_pose(), episode))
         if k == 0:
             _feed(planner, frontiers_from_observation(0, "no_goal", decision_obs, 1.0, episode))
-            _feed(planner, dataclasses.replace(_far_goal(decision_obs, 0), episode=episode))
+            _feed(planner, dataclasses.replace(goal or _far_goal(decision_obs, 0), episode=episode))
         else:
             _feed(planner, FrontiersMsg(k, False, episode=episode))
         ex.sim.step([m for t, m in out if t == "cmd_vel" and m.step == k][-1].command)
@@ -863,6 +863,42 @@ def test_a_planner_restarted_from_the_referees_cache_commands_the_next_steps_as_
     for plan in (None, other_plan):
         fresh, _ = _service(PlannerService, lockstep=True)
         assert not fresh.restore_state(state, plan) and (fresh.cmd_step, fresh.planner.path, fresh.episodes.current) == (-1, None, None)
+
+
+@pytest.mark.parametrize("decision", ["no_goal", "no_path"])
+def test_a_planner_killed_before_its_first_plan_restarts_from_its_state_alone(decision):
+    """The state every command carries names the plan it follows (``plan_step``), -1 before the planner's first plan: a
+    first decision with no goal (no frontier left) or a goal with no path. A planner restarted on such a state was
+    refused it ("no plan of step -1 in the cache": there is none to find) and started afresh: no longer stopped for
+    no frontier nor reporting its goal blocked, it commanded "idle" where the one killed would have said why it stood,
+    and asked the cache for a plan that cannot be there. It now resumes from the state alone, on no path, and commands
+    the next steps as the one killed."""
+    episode, kill_after, end = 5, 3, 8
+    ex_a, ex_b = _explorer_at(0), _explorer_at(0)
+    obs = ex_a.observe()
+    goal = GoalMsg(0, True, method="greedy-dist") if decision == "no_goal" else GoalMsg(0, True, 1e3, 1e3, 0, 5.0, 1.0, "greedy-dist")
+    uninterrupted, out_a = _service(PlannerService, lockstep=True)
+    _drive(uninterrupted, out_a, ex_a, range(end), episode, obs, goal)
+    killed, out_b = _service(PlannerService, lockstep=True)
+    _drive(killed, out_b, ex_b, range(kill_after + 1), episode, obs, goal)
+    assert [m.step for t, m in _with_carried(out_b) if t == "planner_plan"] == []  # never a plan
+    state = [m for t, m in _with_carried(out_b) if t == "planner_state"][-1]
+    assert (state.step, state.plan_step) == (kill_after, -1)
+    asked: list[str] = []
+    restarted, out_r = _service(PlannerService, lockstep=True)
+    kept = {"planner_state": state}
+    restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: (asked.append(key), kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_")))[1]  # type: ignore[method-assign]
+    restarted.start()
+    assert not [key for key in asked if key.endswith("planner/plan")]  # the state names no plan: none asked for
+    assert (restarted.cmd_step, restarted.goal_step, restarted.no_frontier, restarted.planner.path) == (kill_after, 0, decision == "no_goal", None)
+    assert restarted.planner.checkpoint() == killed.planner.checkpoint()
+    _drive(restarted, out_r, ex_b, range(kill_after + 1, end), episode, obs, goal)
+    after = lambda out, topic: [encode(m) for t, m in _with_carried(out) if t == topic and m.step > kill_after]  # noqa: E731
+    assert len(after(out_a, "cmd_vel")) == end - kill_after - 1
+    for topic in ("cmd_vel", "planner_feedback", "planner_state"):
+        assert after(out_r, topic) == after(out_a, topic), topic
+    reasons = {m.reason for t, m in out_r if t == "cmd_vel"}
+    assert reasons == ({"no_frontier"} if decision == "no_goal" else {f"blocked: {uninterrupted.planner.blocked_why}"}), reasons
 
 
 def test_a_restarted_planner_refuses_a_cached_state_that_does_not_fit_its_plan():
