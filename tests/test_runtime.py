@@ -1469,6 +1469,61 @@ def test_down_while_up_checks_its_profile_stops_that_up(tmp_path, detach):
         kill_leftovers(runs, [up.pid])
 
 
+def test_up_names_itself_for_down_before_its_command_line_is_parsed(tmp_path, monkeypatch):
+    """``up`` wrote its file for ``down`` (``STARTING_UP_GLOB``) only once typer had parsed its command line and the
+    command had imported its first modules: in that first fifth of a second ``down`` answered "nothing running", and
+    the ``up`` then started its run all the same. ``main`` now writes it before typer even sees the command line (here
+    typer refuses it, as a bad flag: the file and the folders made for it go); ``up`` keeps that very file (never a
+    moment without one), and writes its own where the early reading of ``--runs-dir`` was wrong. A command line that
+    starts no run (``--dry-run``, ``--resolved``, ``--help``, another command) names nothing."""
+    from cso_runtime import cli
+    from cso_runtime.current_run import STARTING_UP_GLOB, starting_up_path
+
+    runs = tmp_path / "made" / "runs"
+    seen: list[list[Path]] = []
+
+    def typer_refuses(prog_name: str) -> None:  # the moment typer gets the command line
+        seen.append(sorted(runs.glob(STARTING_UP_GLOB)))
+        raise SystemExit(2)
+
+    monkeypatch.setattr(cli, "app", typer_refuses)
+    for argv, named in (
+        (["up", "--runs-dir", str(runs), "--no-live", "--bad-flag"], True),
+        (["up", f"--runs-dir={runs}", "--profile", "sim"], True),
+        (["up", "--runs-dir", str(runs), "--dry-run"], False),
+        (["up", "--resolved", "--runs-dir", str(runs)], False),
+        (["up", "--runs-dir", str(runs), "--help"], False),
+        (["status", "--runs-dir", str(runs)], False),
+    ):
+        seen.clear()
+        monkeypatch.setattr(sys, "argv", ["cso-runtime", *argv])
+        with pytest.raises(SystemExit):
+            cli.main()
+        assert seen == [[starting_up_path(runs, os.getpid())] if named else []], argv
+        assert not (tmp_path / "made").exists(), argv  # made for the file, removed with it
+    monkeypatch.undo()
+
+    wrote: list[Path] = []
+    from cso_runtime import current_run
+
+    record = current_run.record_starting_up
+    monkeypatch.setattr(current_run, "record_starting_up", lambda runs_dir: (wrote.append(runs_dir), record(runs_dir))[1])
+    monkeypatch.chdir(tmp_path)
+    for argv, folders in (
+        (["up", "--runs-dir", str(runs), "--profile", str(tmp_path / "no-such.yaml")], [runs]),  # taken over: one file
+        (["up", "--scene", "--runs-dir", "--profile", str(tmp_path / "no-such.yaml")], [Path("--profile"), Path("runs")]),  # misread: a scene's value
+    ):
+        wrote.clear()
+        monkeypatch.setattr(sys, "argv", ["cso-runtime", *argv])
+        with pytest.raises(SystemExit) as ended:
+            cli.main()
+        assert ended.value.code not in (0, None) and wrote == folders, (ended.value.code, wrote)
+        assert not list(tmp_path.rglob(STARTING_UP_GLOB)) and sorted(tmp_path.iterdir()) == [], sorted(tmp_path.iterdir())
+    # Cheap as a first act must be: what writes the file imports no numpy (nor the profile's modules).
+    code = "import sys, cso_runtime.current_run; print(sorted(m for m in ('numpy', 'yaml', 'zenoh', 'cso_runtime.config') if m in sys.modules))"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True).stdout.strip() == "[]"
+
+
 def test_down_removes_the_file_of_an_up_that_is_gone_and_never_signals_a_process_that_took_its_pid(tmp_path):
     """An ``up`` killed (SIGKILL) in its check leaves its file (``STARTING_UP_GLOB``); its pid may be another process's
     since. ``down`` tells them apart by the start time the file records, as for a run file: that process is left alone
