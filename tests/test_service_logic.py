@@ -1835,6 +1835,66 @@ def test_a_frontier_layer_helper_that_dies_is_replaced_a_bounded_number_of_times
     assert not first.proc.is_alive() and not second.proc.is_alive() and not frontier.layer_worker.proc.is_alive()
 
 
+def test_a_frontier_layer_helper_that_never_starts_is_said_and_given_up_not_waited_for_silently(caplog, monkeypatch):
+    """A layer helper hung in its start (here stopped, SIGSTOP, before it could say it had started) was waited for by the
+    warm-up (``helper_start_s``) and then never mentioned again: no warning, nothing in the status, never counted lost
+    nor replaced (only a helper that exited or missed a reply was), while the service computed every layer itself for
+    good. The warm-up now says it (a warning, and the status's reason while it lasts) and goes on; the decisions go on
+    meanwhile, computed here; ``helper_start_limit_s`` after its spawn the helper is given up as hung, as a lost one:
+    said, counted and replaced, and the reason clears."""
+    import logging
+    import os
+    import signal
+
+    import services.frontier as frontier_module
+    from services.frontier_layer import FrontierLayerWorker
+
+    hung: list[FrontierLayerWorker] = []
+
+    class HungAtStart(FrontierLayerWorker):
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            os.kill(self.proc.pid, signal.SIGSTOP)  # long before its imports are done: it never says it has started
+            hung.append(self)
+
+    monkeypatch.setattr(frontier_module, "FrontierLayerWorker", HungAtStart)
+    caplog.set_level(logging.INFO, logger="cso.frontier")
+    params = {"helper_start_s": 0.2, "helper_start_limit_s": 60.0, "helper_reply_s": HANG_DEADLINE_S, "helper_max_restarts": 1}
+    frontier, out = _service(FrontierService, lockstep=True, params=params)
+    warnings = lambda: [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]  # noqa: E731
+    try:
+        t0 = time.monotonic()
+        frontier.warm_up()
+        assert time.monotonic() - t0 < HANG_DEADLINE_S
+        (w,) = hung
+        assert not w.ready and not w.broken and not w.conn.poll(0), w.broken  # never started, still waited for
+        (said,) = warnings()
+        assert said.startswith(f"frontier layer helper (pid {w.proc.pid}) has not started ") and "the layers are computed in this process until it does" in said, said
+        status = frontier.status_msg()
+        assert status.state == "running" and status.reason == f"layer helper (pid {w.proc.pid}) not started after 0.2 s: layers computed here; given up at 60 s", status.reason
+        frontier.on_tick(time.monotonic())  # within its limit: still waited for, said once
+        assert frontier.layer_worker is w and len(warnings()) == 1 and frontier.status_msg().counters == {"layer_helper_deaths": 0, "layer_helper_restarts": 0}
+        ex = _explorer_at(0)
+        m, odom, _ = _inputs(ex, 0)
+        _feed(frontier, odom)
+        _feed(frontier, m)
+        assert [msg.decide for topic, msg in out if topic == "frontiers"] == [True] and frontier.layers_by_helpers() == 0  # computed here
+        monkeypatch.undo()  # the next helper starts
+        frontier.on_tick(w.started_s + 60.0)  # its limit is up: given up as hung, counted and replaced
+        assert w.broken.startswith("not started 60.0 s after it was spawned") and not w.proc.is_alive(), w.broken
+        second = frontier.layer_worker
+        assert second is not None and second is not w and frontier.status_msg().counters == {"layer_helper_deaths": 1, "layer_helper_restarts": 1}
+        assert f"frontier layer helper (pid {w.proc.pid}) lost: not started 60.0 s after it was spawned (hung?)" in warnings(), warnings()
+        assert any(line.startswith("frontier layer helper lost (not started 60.0 s") and "started a new one" in line for line in warnings()), warnings()
+        assert frontier.status_msg().reason == ""
+        assert second.wait_ready(HANG_DEADLINE_S)
+        frontier.on_tick(time.monotonic())
+        assert frontier.layer_worker is second and frontier.status_msg().reason == "" and len(warnings()) == 3
+    finally:
+        frontier.shutdown()
+    assert not w.proc.is_alive() and not frontier.layer_worker.proc.is_alive()
+
+
 @pytest.mark.parametrize("stopping", [True, False], ids=["service-stopping", "helper-died"])
 def test_a_frontier_helper_lost_to_the_services_stop_is_no_warning(caplog, stopping):
     """The launcher's SIGTERM reaches a frontier service and its layer helper together (one process group): a
