@@ -1895,6 +1895,41 @@ def test_a_frontier_layer_helper_that_never_starts_is_said_and_given_up_not_wait
     assert not w.proc.is_alive() and not frontier.layer_worker.proc.is_alive()
 
 
+def test_a_frontier_layer_helper_that_hangs_in_the_warm_ups_practice_layer_is_said_and_the_service_goes_on(caplog, monkeypatch):
+    """A helper that started and then hung (stopped, SIGSTOP) before the warm-up's practice layer: the warm-up waits
+    ``helper_start_s`` for its answer, no more, says the helper lost, computes the practice here and goes on; the next
+    tick counts it and replaces it, as any helper lost."""
+    import logging
+    import os
+    import signal
+
+    import services.frontier as frontier_module
+    from services.frontier_layer import FrontierLayerWorker
+
+    class HangsOnceStarted(FrontierLayerWorker):
+        def wait_ready(self, timeout_s: float) -> bool:
+            started = super().wait_ready(HANG_DEADLINE_S)  # started, however loaded the host
+            if started:
+                os.kill(self.proc.pid, signal.SIGSTOP)
+            return started
+
+    monkeypatch.setattr(frontier_module, "FrontierLayerWorker", HangsOnceStarted)
+    caplog.set_level(logging.INFO, logger="cso.frontier")
+    frontier, _ = _service(FrontierService, lockstep=True, params={"helper_start_s": 0.5, "helper_reply_s": 0.5, "helper_max_restarts": 1})
+    try:
+        frontier.warm_up()
+        w = frontier.layer_worker
+        assert w is not None and w.ready and w.broken.startswith("no answer to mapping the shared arrays"), w and w.broken
+        said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+        assert said == [f"frontier layer helper (pid {w.proc.pid}) lost: {w.broken}"], said
+        monkeypatch.undo()
+        frontier.on_tick(time.monotonic())
+        assert frontier.layer_worker is not w and frontier.status_msg().counters == {"layer_helper_deaths": 1, "layer_helper_restarts": 1}
+    finally:
+        frontier.shutdown()
+    assert not w.proc.is_alive()
+
+
 @pytest.mark.parametrize("stopping", [True, False], ids=["service-stopping", "helper-died"])
 def test_a_frontier_helper_lost_to_the_services_stop_is_no_warning(caplog, stopping):
     """The launcher's SIGTERM reaches a frontier service and its layer helper together (one process group): a
