@@ -652,9 +652,11 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 if watched is not None and status.get("status_age_s") is None:
                     watched = (watched[0], status)
                 elif watched is not None and watched[1].get("episode") == status.get("episode"):
-                    # The sim has stopped (the run stopping): the goal, the pose and the last decision's time as last answered.
+                    # The sim has stopped (the run stopping): the goal and the last decision's time as last answered, and
+                    # the pose too unless the launcher's last-heard status has it (newer: of the episode's last step).
                     last_answer = watched[1]
-                    shown = {**status, **{k: last_answer.get(k) for k in ("goal", "pose", "twist")}, "last_decision_ms": last_answer.get("last_decision_ms", 0.0)}
+                    kept = ("goal",) if status.get("pose") is not None else ("goal", "pose", "twist")
+                    shown = {**status, **{k: last_answer.get(k) for k in kept}, "last_decision_ms": last_answer.get("last_decision_ms", 0.0)}
             if as_json:
                 print(json.dumps(status), flush=True)
             elif in_place and live is None:

@@ -3271,13 +3271,14 @@ def test_status_watch_redraws_one_table_on_a_terminal_and_appends_plain_tables_e
         assert "\x1b" not in text and text.count("robot r0  run run1") == 3  # each status once, one under the other
 
 
+@pytest.mark.parametrize("pose_heard", [False, True], ids=["older-launcher", "launcher-heard-the-pose"])
 @pytest.mark.parametrize(("outcome", "exit_code", "as_json"), [("done", 0, False), ("done", 0, True), ("interrupted", 130, False), ("failed", 1, True)])
-def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_results_are(tmp_path, monkeypatch, capsys, outcome, exit_code, as_json):
+def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_results_are(tmp_path, monkeypatch, capsys, outcome, exit_code, as_json, pose_heard):
     """``status --watch`` on a run of ``up`` that ended normally said "nothing running (no answer ...)" and exited 1,
     its last table showing the services DOWN, goal "-" and "last 0.0 ms" as the launcher stopped them. A run it saw
     answering whose run.json then says it stopped: how it ended, where its results are, exit 0 when done (else
     ``up``'s exit code); the frame while the launcher stops the services says "stopping" and keeps the goal and the
-    robot's pose."""
+    robot's pose: the launcher's last-heard one (of the episode's last step) when it has it, else the watch's last."""
     import io
 
     from rich.console import Console
@@ -3295,6 +3296,8 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
     episode.update(pose=[1.25, 2.0, 0.5], twist=[0.2, 0.0])
     exploring = status.status_of("r0", episode, {"run_id": "run1", "state": "running", "services": services}, {}, {"sim", "planner"})
     heard = {"state": "done", "step": 9, "episode": 7, "age_s": 0.4, "terminated_by": "coverage", "decisions": 4}
+    if pose_heard:  # the episode's last step, after the watch's last answer
+        heard.update(map_origin=[0.0, 0.0, 0.0], pose=[1.75, 2.25, 0.25], twist=[0.0, 0.0])
     stopping = status.status_of("r0", None, {"run_id": "run1", "state": "stopping", "services": services, "last_episode": heard}, {}, set())
 
     def launcher_ends() -> None:  # as the launcher does once its services stopped: run.json says how, current.json goes
@@ -3319,7 +3322,8 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
     last_table = out.getvalue().split("robot r0  run run1")[-1]
     assert "DOWN" not in last_table and re.search(r"service sim +│ stopping", last_table), last_table
     assert re.search(r"goal +│ \(1\.50, 2\.50\) m", last_table) and "last 12.5 ms" in last_table, last_table
-    assert re.search(r"pose +│ x 1\.25 m  y 2\.00 m  yaw 0\.50 rad, 0\.20 m/s", last_table), last_table  # where the robot stopped
+    where = r"x 1\.75 m  y 2\.25 m  yaw 0\.25 rad, 0\.00 m/s" if pose_heard else r"x 1\.25 m  y 2\.00 m  yaw 0\.50 rad, 0\.20 m/s"
+    assert re.search(r"pose +│ " + where, last_table), last_table  # where the robot stopped
 
 
 @pytest.mark.parametrize(("episode_state", "exit_code", "as_json"), [("done", 0, False), ("done", 0, True), ("failed", 1, False)])
