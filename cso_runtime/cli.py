@@ -811,11 +811,11 @@ def up_command(
     previous_handlers = stop_on_signals(stop)
     ctx.call_on_close(lambda: restore_signal_handlers(previous_handlers))  # however `up` ends (run inside another program)
     from cso_runtime.config import EXIT_INTERRUPTED, LOG_FORMAT, ConfigError  # noqa: PLC0415
-    from cso_runtime.current_run import current_launcher_alive, down_command, read_current_run, record_starting_up  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive, down_command, read_current_run  # noqa: PLC0415
     from cso_runtime.processes import StopRequested, stop_raises  # noqa: PLC0415
 
-    if not (dry_run or resolved):  # next: `down` finds this `up` however long its check takes (current_run.STARTING_UP_GLOB)
-        ctx.call_on_close(record_starting_up(runs_dir))
+    if not (dry_run or resolved):  # `down` finds this `up` however long its check takes (current_run.STARTING_UP_GLOB)
+        ctx.call_on_close(_named_starting_up(runs_dir))
     try:
         # The check starts nothing: a stop (`down`, Ctrl-C) ends it where it is, however long it would still take.
         with stop_raises(stop):
@@ -1425,10 +1425,65 @@ def parse_settings(items: list[str]) -> dict[str, object]:
     return out
 
 
+_starting_up: tuple[Path, Callable[[], None]] | None = None
+"""The file that names this ``up`` to ``down`` (``current_run.STARTING_UP_GLOB``) when ``main`` wrote it, before typer
+parsed the command line: its runs folder, and what removes it. ``up`` takes it over (``_named_starting_up``)."""
+
+
+def _up_runs_dir(args: list[str]) -> Path | None:
+    """The runs folder of an ``up`` command line that may start a run (not ``--help``, ``--dry-run``, ``--resolved``),
+    read before typer parses it (``main``); None for any other command line. Only a head start: ``up`` checks it
+    against the folder typer gives it."""
+    if not args or args[0] != "up":
+        return None
+    runs_dir = Path("runs")  # up's --runs-dir default
+    rest = args[1:]
+    for i, arg in enumerate(rest):
+        if arg == "--":
+            break
+        if arg in ("--help", "--dry-run", "--resolved"):
+            return None
+        if arg == "--runs-dir" and i + 1 < len(rest):
+            runs_dir = Path(rest[i + 1])
+        elif arg.startswith("--runs-dir="):
+            runs_dir = Path(arg.partition("=")[2])
+    return runs_dir
+
+
+def _name_starting_up_early(args: list[str]) -> None:
+    """``up``'s first act, in ``main`` before typer and the commands are even built: name this ``up`` in its runs folder
+    for ``down`` (``current_run.record_starting_up``), which otherwise answered "nothing running" for the first quarter
+    second of an ``up`` (imports and parsing) that then started its run all the same."""
+    global _starting_up
+    runs_dir = _up_runs_dir(args)
+    if runs_dir is not None and _starting_up is None:
+        from cso_runtime.current_run import record_starting_up  # noqa: PLC0415  (no numpy: cheap)
+
+        _starting_up = (runs_dir, record_starting_up(runs_dir))
+
+
+def _named_starting_up(runs_dir: Path) -> Callable[[], None]:
+    """What removes the file that names this ``up`` in ``runs_dir`` for ``down``: the one ``main`` wrote when it read the
+    same folder (kept, never a moment without it), else one written now (and ``main``'s, of a folder misread, removed)."""
+    global _starting_up
+    from cso_runtime.current_run import record_starting_up  # noqa: PLC0415
+
+    early, _starting_up = _starting_up, None
+    if early is not None and early[0] == runs_dir:
+        return early[1]
+    remove = record_starting_up(runs_dir)
+    if early is not None:
+        early[1]()
+    return remove
+
+
 def main() -> None:
     """The ``cso-runtime`` script's entry point: a Ctrl-C before any command handles it exits 130 with one line; every
-    output whose reader left (a command's, ``--help``'s) ends as a shell tool does, with exit 141."""
+    output whose reader left (a command's, ``--help``'s) ends as a shell tool does, with exit 141. ``up`` names itself
+    for ``down`` first of all (``_name_starting_up_early``)."""
+    global _starting_up
     try:
+        _name_starting_up_early(sys.argv[1:])
         from cso_runtime.provenance import record_command_line  # noqa: PLC0415
         from cso_runtime.reader_gone import ends_quietly_when_its_reader_leaves  # noqa: PLC0415
 
@@ -1438,6 +1493,10 @@ def main() -> None:
             app(prog_name="cso-runtime")  # one name (and completion variable) for the script and python -m cso_runtime.cli
     except KeyboardInterrupt:  # before typer's own handling (which exits 130) or a command's
         _interrupted_early()
+    finally:
+        early, _starting_up = _starting_up, None
+        if early is not None:  # no `up` took it over: typer refused the command line, or `up` never ran
+            early[1]()
 
 
 if __name__ == "__main__":

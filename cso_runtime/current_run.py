@@ -15,7 +15,6 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cso_runtime.config import ConfigError
 from cso_runtime.outputs import write_text_atomic
 from cso_runtime.supervision import pid_alive, process_start_ticks, process_state, run_process_alive, signal_group
 
@@ -114,10 +113,10 @@ written its run file (it still imports) stops that launcher, where it answered "
 
 STARTING_UP_GLOB = ".up-*.starting.json"
 """``up`` writes ``<runs-dir>/.up-<pid>.starting.json`` (``starting_up_path``: its own pid and start time) as its first
-act, before it checks its profile, and removes it once its launcher has written the run file (``current.json``) or as
-it ends (``record_starting_up``): ``down`` while ``up`` still checks its profile (seconds: a learned method's weights, a
-scene, a method of one's own to import) stops that ``up``, where it answered "nothing running" and the ``up`` then
-started its run all the same."""
+act (``cli.main``, before typer parses its command line; this module imports no numpy for it), and removes it once its
+launcher has written the run file (``current.json``) or as it ends (``record_starting_up``): ``down`` while ``up`` still
+checks its profile (seconds: a learned method's weights, a scene, a method of one's own to import) stops that ``up``,
+where it answered "nothing running" and the ``up`` then started its run all the same."""
 
 
 def starting_up_path(runs_dir: Path, pid: int) -> Path:
@@ -364,6 +363,8 @@ def folder_lock(path: Path, command: str, warn: Callable[[str], None]) -> Iterat
             holder = f" (pid {path.read_text().strip()})"
         except OSError:
             holder = ""
+        from cso_runtime.config import ConfigError  # noqa: PLC0415  (numpy: not for `up`'s first act, ``record_starting_up``)
+
         raise ConfigError(f"{path.parent} is being written by another {command}{holder}: wait for it to end, or give another --out")
     try:
         yield True

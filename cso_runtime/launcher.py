@@ -606,7 +606,8 @@ class Launcher:
         last = None
         if heard is not None:
             last = {"state": heard.state, "step": heard.step, "episode": heard.episode, "age_s": round(time.monotonic() - self.status_heard_at_s, 3)}
-            last.update({key: getattr(heard, key) for key in LAST_EPISODE_FIGURES})
+            body = heard.body()  # the wire forms (a pose as [x_m, y_m, yaw_rad]), as episode_status carries them
+            last.update({key: body[key] for key in LAST_EPISODE_FIGURES})
         pace = None if self.real_time_factor is None else round(self.real_time_factor, 3)
         lost = self.joined_router() if self.router_lost_at is not None else None
         return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost, self.run_folder.losses, self.pause_status())

@@ -1560,10 +1560,14 @@ LAST_EPISODE_FIGURES: dict[str, Callable[[dict, str, str], Any]] = {
     "path_length_m": lambda b, k, w: _num(b, k, w, lo=0.0),
     "decisions": _int,
     "reason": lambda b, k, w: _str(b, k, w),
+    "map_origin": lambda b, k, w: _pose_in(b, k, w).as_list(),
+    "pose": lambda b, k, w: None if b[k] is None else _pose_in(b, k, w).as_list(),
+    "twist": lambda b, k, w: None if b[k] is None else _twist_out(_twist_in(b, k, w)),
 }
-"""The figures of the last episode status that the launcher's ``last_episode`` also carries, with their readers: what
-``status`` shows of an episode whose sim no longer answers (an ended run stopping its services; ``reason``: why it
-ended, as ``no_frontier_why`` says it, or failed)."""
+"""The figures of the last episode status that the launcher's ``last_episode`` also carries (as ``episode_status``'s
+body has them), with their readers: what ``status`` shows of an episode whose sim no longer answers (an ended run
+stopping its services; ``reason``: why it ended, as ``no_frontier_why`` says it, or failed; ``pose`` and ``twist``:
+where the robot was then and how it moved, in the scene's frame, which ``map_origin`` places in the user's map frame)."""
 
 
 @dataclass

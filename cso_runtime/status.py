@@ -138,9 +138,9 @@ def status_of(
         table[name] = entry
     ep, age_s = episode_or_last_heard(episode, launcher)
     over = ep.get("state") in EPISODE_OVER
-    map_origin = ep.get("map_origin", MAP_FRAME_ORIGIN.as_list())  # none in the launcher's last-heard status (nor a goal)
-    goal = ep.get("goal_xy_m")
-    pose = ep.get("pose")  # the robot's odometry pose in the scene's frame; none before the first odometry, nor last-heard
+    map_origin = ep.get("map_origin", MAP_FRAME_ORIGIN.as_list())  # none in an older launcher's last-heard status
+    goal = ep.get("goal_xy_m")  # none in the launcher's last-heard status
+    pose = ep.get("pose")  # the robot's odometry pose in the scene's frame; none before the first odometry (last-heard: where it ended)
     return {
         "robot": robot,
         "run_id": (launcher or {}).get("run_id", ""),
@@ -652,9 +652,11 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 if watched is not None and status.get("status_age_s") is None:
                     watched = (watched[0], status)
                 elif watched is not None and watched[1].get("episode") == status.get("episode"):
-                    # The sim has stopped (the run stopping): the goal, the pose and the last decision's time as last answered.
+                    # The sim has stopped (the run stopping): the goal and the last decision's time as last answered, and
+                    # the pose too unless the launcher's last-heard status has it (newer: of the episode's last step).
                     last_answer = watched[1]
-                    shown = {**status, **{k: last_answer.get(k) for k in ("goal", "pose", "twist")}, "last_decision_ms": last_answer.get("last_decision_ms", 0.0)}
+                    kept = ("goal",) if status.get("pose") is not None else ("goal", "pose", "twist")
+                    shown = {**status, **{k: last_answer.get(k) for k in kept}, "last_decision_ms": last_answer.get("last_decision_ms", 0.0)}
             if as_json:
                 print(json.dumps(status), flush=True)
             elif in_place and live is None:

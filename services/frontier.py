@@ -66,6 +66,11 @@ class FrontierParams:
     """Wall clock: how long a decision waits for the layer helper's answer (its layer, or its mapping of a new map
     shape) before it computes the layer here and counts the helper as lost (hung: a new one is started, as for a
     killed one). The layer takes milliseconds; a host loaded far beyond its cores may need more than the default."""
+    helper_start_limit_s: float = 30.0
+    """Wall clock: a layer helper that has still not started this long after it was spawned (never less than
+    ``helper_start_s``) is given up as hung, as a lost one is: logged, counted (``layer_helper_deaths``) and replaced
+    (at most ``helper_max_restarts`` times). Meanwhile, from ``helper_start_s`` on, the log and the service's status
+    say that it has not started and that the layers are computed here."""
     helper_max_restarts: int = 3
     """How many times a layer helper lost while the service runs (killed, crashed, hung) is replaced by a new one;
     after that the service computes every layer itself (the same Observation, slower). Bounded: a helper that dies
@@ -78,6 +83,8 @@ class FrontierParams:
             raise ConfigError("helper_start_s must be zero or positive")
         if not self.helper_reply_s > 0:
             raise ConfigError("helper_reply_s must be positive")
+        if not self.helper_start_limit_s > 0:
+            raise ConfigError("helper_start_limit_s must be positive")
         if not self.helper_max_restarts >= 0:
             raise ConfigError("helper_max_restarts must be zero or positive")
 
@@ -119,6 +126,12 @@ class FrontierService(Service):
         self.paused = False
         """The operator's pause (real time): no decision is asked and the paused steps do not count towards the
         periodic re-decision. It outlives an episode, as the planner's."""
+        self.pause_note = ""
+        """The status's reason for the pause ("paused: by ..."; "" when exploring)."""
+        self.helper_note = ""
+        """The status's reason for a layer helper late to start ("" when none is: ``say_helper_late``)."""
+        self.late_helpers_said: set[int] = set()
+        """The pids of the helpers the log has said are late to start (once each)."""
         self.reset_episode()
 
     def start(self) -> None:
@@ -133,7 +146,12 @@ class FrontierService(Service):
             return
         self.paused = paused
         by = f": by {msg.by}" if msg.by else ""
-        self.set_state("running", f"paused{by}" if self.paused else "")
+        self.pause_note = f"paused{by}" if self.paused else ""
+        self.show_state()
+
+    def show_state(self) -> None:
+        """The status's state and reason: running, with the pause and a helper late to start, when there are."""
+        self.set_state("running", "; ".join(note for note in (self.pause_note, self.helper_note) if note))
 
     def warm_up(self) -> None:
         """Start the layer helper and wait for it (at most ``helper_start_s``), then build one
@@ -145,7 +163,8 @@ class FrontierService(Service):
             except OSError as exc:  # no process to spare: the layers are computed here, as with layer_helper false
                 log.warning("no frontier layer helper (%s): computing the layers in this process", exc)
             else:
-                self.layer_worker.wait_ready(self.params.helper_start_s)
+                if not self.layer_worker.wait_ready(self.params.helper_start_s) and not self.stopping():
+                    self.say_helper_late(self.layer_worker, time.monotonic())  # the service goes on: said, not silent
         if self.stopping():  # stopped while it waited for its helper: no practice for a service that stops
             return
         occupancy, pose = warm_up_map()
@@ -163,14 +182,43 @@ class FrontierService(Service):
             w.layers_computed = 0  # the practice layer is not a decision's
 
     def on_tick(self, now_s: float) -> None:
-        self.tend_layer_helper()
+        self.tend_layer_helper(now_s)
 
-    def tend_layer_helper(self) -> None:
-        """Notice a layer helper lost while the service runs (its process killed or crashed, or hung), say so, count it
-        and start a new one, at most ``helper_max_restarts`` times; meanwhile (and after) the layers are computed here,
-        with the same results. A helper lost to the service's own stop is no loss."""
+    def say_helper_late(self, w: FrontierLayerWorker, now_s: float) -> None:
+        """Say (once in the log, and in the status's reason while it lasts) that the layer helper has not started
+        ``helper_start_s`` after it was spawned, so the layers are computed here; nothing once it has (or was given up)."""
+        starting_s, pid = w.starting_for_s(now_s), w.proc.pid or 0
+        late = self.params.helper_start_s > 0 and starting_s >= self.params.helper_start_s
+        limit_s = max(self.params.helper_start_limit_s, self.params.helper_start_s)
+        start_s = self.params.helper_start_s
+        note = f"layer helper (pid {pid}) not started after {start_s:g} s: layers computed here; given up at {limit_s:g} s" if late else ""
+        if late and pid not in self.late_helpers_said:
+            self.late_helpers_said.add(pid)
+            log.warning(
+                "frontier layer helper (pid %d) has not started %.1f s after it was spawned (a loaded host, or hung): the layers are computed in "
+                "this process until it does; given up as hung %.0f s after its spawn (services.frontier.helper_start_limit_s)",
+                pid, starting_s, limit_s,
+            )  # fmt: skip
+        if note != self.helper_note:
+            self.helper_note = note
+            self.show_state()
+
+    def tend_layer_helper(self, now_s: float | None = None) -> None:
+        """Notice a layer helper lost while the service runs (its process killed or crashed, or hung: no answer in time,
+        or not started ``helper_start_limit_s`` after its spawn), say so, count it and start a new one, at most
+        ``helper_max_restarts`` times; meanwhile (and after) the layers are computed here, with the same results. A helper
+        late to start is said (``say_helper_late``). A helper lost to the service's own stop is no loss."""
         w = self.layer_worker
-        if w is None or self.helper_given_up or self.stopping() or w.usable() or w.lost_to_stop:
+        if w is None or self.helper_given_up or self.stopping():
+            return
+        now_s = time.monotonic() if now_s is None else now_s
+        if w.usable() and not w.not_started_within(now_s, max(self.params.helper_start_limit_s, self.params.helper_start_s)):
+            self.say_helper_late(w, now_s)
+            return
+        if self.helper_note:  # given up: the lines below say what follows
+            self.helper_note = ""
+            self.show_state()
+        if w.lost_to_stop:
             return
         with self._lock:
             self.helper_deaths += 1

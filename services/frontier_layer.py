@@ -11,7 +11,8 @@ cells; outputs: F_t, I, the components' cells); a pipe carries the requests and 
 as both processes have mapped it, so nothing is left behind whatever happens to either. The helper
 exits when the pipe closes (its service stopped or died); a service whose helper is gone, late or
 failing computes the layer itself (logged as a warning), so a decision never waits more than ``timeout_s``, and
-starts a new helper (``FrontierService.tend_layer_helper``, a bounded number of times).
+starts a new helper (``FrontierService.tend_layer_helper``, a bounded number of times); so it does for a helper that
+never starts (``not_started_within``).
 A helper that ends with its service's stop (the launcher's SIGTERM reaches the whole process group, and a
 helper still importing dies of it) is no failure: that is not a warning.
 """
@@ -114,6 +115,8 @@ class FrontierLayerWorker:
         self.conn, child = ctx.Pipe()
         self.proc = ctx.Process(target=worker_main, args=(child,), name="cso-frontier-layer", daemon=True)
         self.proc.start()
+        self.started_s = time.monotonic()
+        """When the helper was spawned (``time.monotonic``): how long it has been starting (``not_started_within``)."""
         child.close()
         self.shape: tuple[int, int] | None = None
         self.views: dict[str, np.ndarray] = {}
@@ -180,6 +183,24 @@ class FrontierLayerWorker:
             return False
         self.ready = True
         log.info("frontier layer helper ready (pid %d)", self.proc.pid)
+        return True
+
+    def starting_for_s(self, now_s: float) -> float:
+        """How long the helper has been starting at ``now_s`` (``time.monotonic``): 0 once it has started, or failed. Reads
+        its "ready" if it has come meanwhile (``wait_ready``, without waiting)."""
+        if self.broken or self.wait_ready(0.0):
+            return 0.0
+        return max(0.0, now_s - self.started_s)
+
+    def not_started_within(self, now_s: float, limit_s: float) -> bool:
+        """Give the helper up (``broken``, its process ended, a warning) when it has not started ``limit_s`` after it was
+        spawned (``now_s``: ``time.monotonic``): hung in its imports, or stopped (SIGSTOP). Without it a helper that
+        never started went unnoticed: never lost, never replaced, its service computing every layer itself and saying
+        nothing. True when given up now."""
+        starting_s = self.starting_for_s(now_s)
+        if starting_s < limit_s or starting_s == 0.0:
+            return False
+        self._give_up(f"not started {starting_s:.1f} s after it was spawned (hung?)")
         return True
 
     def usable(self) -> bool:

@@ -125,7 +125,8 @@ class PlannerService(Service):
             self.restore_contacts(cached)
         state = self.query_latest(self.ctx.keys.cache("planner_state"), PlannerStateMsg, self.params.restore_timeout_s)
         if isinstance(state, PlannerStateMsg):
-            plan = self.query_latest(self.ctx.keys.cache("planner_plan"), PlannerPlanMsg, self.params.restore_timeout_s)
+            # A state from before the planner's first plan (plan_step -1) names none: none to ask for (nor to wait on).
+            plan = None if state.plan_step < 0 else self.query_latest(self.ctx.keys.cache("planner_plan"), PlannerPlanMsg, self.params.restore_timeout_s)
             self.restore_state(state, plan if isinstance(plan, PlannerPlanMsg) else None)
 
     def restore_contacts(self, cached: PlannerContactsMsg) -> None:
@@ -201,8 +202,12 @@ class PlannerService(Service):
         crashed), on the plan that state names: the same goal, path, progress, stall and recovery counters, so the next
         step's command is the one it would have sent. False (nothing restored: a fresh planner, whose report asks for
         a new goal) when the plan is not the state's (killed between the two) or of another episode than the contacts.
-        The state and plan belong to their episode, as the contacts do."""
+        A state from before the planner's first plan (``plan_step`` -1: its first decision had no goal, or a goal with
+        no path) needs none: it resumes on no path, whatever ``plan`` is. The state and plan belong to their episode, as
+        the contacts do."""
         why = ""
+        if state.plan_step < 0:
+            plan = PlannerPlanMsg(state.plan_step, np.zeros((0, 2)), None, state.episode)  # the "no plan yet" it follows
         if plan is None or plan.step != state.plan_step or plan.episode != state.episode:
             why = f"no plan of step {state.plan_step} (episode {state.episode}) in the cache"
         elif self.episodes.current is not None and state.episode != self.episodes.current:
@@ -211,9 +216,6 @@ class PlannerService(Service):
             why = f"its command (step {state.cmd.step}), plan (step {state.plan_step}) or goal (step {state.goal_step}) is not of its step or before"
         elif misfit := state.follow.misfit(plan.path_xy_m if len(plan.path_xy_m) else None):
             why = f"it does not fit its plan: {misfit}"
-        if plan is None and state.plan_step < 0:  # a planner that had not planned yet: nothing to resume
-            log.info("planner state of step %d (episode %d) not restored: it has no plan yet", state.step, state.episode)
-            return False
         if plan is None or why:  # refused input, counted: `status` shows that this planner started afresh
             self.reject("planner_state", f"the cached state of step {state.step} (episode {state.episode}) is not restored: {why}")
             return False

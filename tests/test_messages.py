@@ -116,6 +116,9 @@ def test_scan_round_trip_keeps_inf_and_values():
         LauncherStatusMsg("run1", "stopping", last_episode={"state": "done", "step": 90, "episode": 7, "age_s": 0.5, "terminated_by": "coverage", "scene": "s",
                                                             "method": "cso", "coverage_pct": 99.5, "explored_area_m2": 40.0, "path_length_m": 12.25, "decisions": 9}),
         LauncherStatusMsg("run1", "running", real_time_factor=2.125),
+        LauncherStatusMsg("run1", "stopping", last_episode={"state": "done", "step": 90, "episode": 7, "age_s": 0.5, "map_origin": [1.0, -2.0, 0.5],
+                                                            "pose": [0.5, 0.25, 0.1], "twist": [0.2, -0.1]}),
+        LauncherStatusMsg("run1", "stopping", last_episode={"state": "exploring", "step": 0, "episode": 7, "age_s": 0.5, "pose": None, "twist": None}),
     ],
 )
 def test_small_messages_round_trip(msg):
@@ -743,6 +746,10 @@ def _mutate(msg, **changes) -> bytes:
         _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "done", "step": 41, "episode": 7, "age_s": 1.0, "coverage_pct": -1.0}),
         _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "done", "step": 41, "episode": 7, "age_s": 1.0, "scene": 3}),
         _mutate(LauncherStatusMsg("run1", "running"), last_episode=[1]),
+        _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "done", "step": 41, "episode": 7, "age_s": 1.0, "pose": [1.0, 2.0]}),
+        _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "done", "step": 41, "episode": 7, "age_s": 1.0, "pose": [1.0, float("nan"), 0.0]}),
+        _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "done", "step": 41, "episode": 7, "age_s": 1.0, "twist": [1e9, 0.0]}),
+        _mutate(LauncherStatusMsg("run1", "running"), last_episode={"state": "done", "step": 41, "episode": 7, "age_s": 1.0, "map_origin": None}),
         _mutate(LauncherStatusMsg("run1", "running"), real_time_factor=-1.0),
         _mutate(LauncherStatusMsg("run1", "running"), real_time_factor=float("nan")),
         _mutate(LauncherStatusMsg("run1", "running"), real_time_factor=float("inf")),

@@ -1469,6 +1469,61 @@ def test_down_while_up_checks_its_profile_stops_that_up(tmp_path, detach):
         kill_leftovers(runs, [up.pid])
 
 
+def test_up_names_itself_for_down_before_its_command_line_is_parsed(tmp_path, monkeypatch):
+    """``up`` wrote its file for ``down`` (``STARTING_UP_GLOB``) only once typer had parsed its command line and the
+    command had imported its first modules: in that first fifth of a second ``down`` answered "nothing running", and
+    the ``up`` then started its run all the same. ``main`` now writes it before typer even sees the command line (here
+    typer refuses it, as a bad flag: the file and the folders made for it go); ``up`` keeps that very file (never a
+    moment without one), and writes its own where the early reading of ``--runs-dir`` was wrong. A command line that
+    starts no run (``--dry-run``, ``--resolved``, ``--help``, another command) names nothing."""
+    from cso_runtime import cli
+    from cso_runtime.current_run import STARTING_UP_GLOB, starting_up_path
+
+    runs = tmp_path / "made" / "runs"
+    seen: list[list[Path]] = []
+
+    def typer_refuses(prog_name: str) -> None:  # the moment typer gets the command line
+        seen.append(sorted(runs.glob(STARTING_UP_GLOB)))
+        raise SystemExit(2)
+
+    monkeypatch.setattr(cli, "app", typer_refuses)
+    for argv, named in (
+        (["up", "--runs-dir", str(runs), "--no-live", "--bad-flag"], True),
+        (["up", f"--runs-dir={runs}", "--profile", "sim"], True),
+        (["up", "--runs-dir", str(runs), "--dry-run"], False),
+        (["up", "--resolved", "--runs-dir", str(runs)], False),
+        (["up", "--runs-dir", str(runs), "--help"], False),
+        (["status", "--runs-dir", str(runs)], False),
+    ):
+        seen.clear()
+        monkeypatch.setattr(sys, "argv", ["cso-runtime", *argv])
+        with pytest.raises(SystemExit):
+            cli.main()
+        assert seen == [[starting_up_path(runs, os.getpid())] if named else []], argv
+        assert not (tmp_path / "made").exists(), argv  # made for the file, removed with it
+    monkeypatch.undo()
+
+    wrote: list[Path] = []
+    from cso_runtime import current_run
+
+    record = current_run.record_starting_up
+    monkeypatch.setattr(current_run, "record_starting_up", lambda runs_dir: (wrote.append(runs_dir), record(runs_dir))[1])
+    monkeypatch.chdir(tmp_path)
+    for argv, folders in (
+        (["up", "--runs-dir", str(runs), "--profile", str(tmp_path / "no-such.yaml")], [runs]),  # taken over: one file
+        (["up", "--scene", "--runs-dir", "--profile", str(tmp_path / "no-such.yaml")], [Path("--profile"), Path("runs")]),  # misread: a scene's value
+    ):
+        wrote.clear()
+        monkeypatch.setattr(sys, "argv", ["cso-runtime", *argv])
+        with pytest.raises(SystemExit) as ended:
+            cli.main()
+        assert ended.value.code not in (0, None) and wrote == folders, (ended.value.code, wrote)
+        assert not list(tmp_path.rglob(STARTING_UP_GLOB)) and sorted(tmp_path.iterdir()) == [], sorted(tmp_path.iterdir())
+    # Cheap as a first act must be: what writes the file imports no numpy (nor the profile's modules).
+    code = "import sys, cso_runtime.current_run; print(sorted(m for m in ('numpy', 'yaml', 'zenoh', 'cso_runtime.config') if m in sys.modules))"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True).stdout.strip() == "[]"
+
+
 def test_down_removes_the_file_of_an_up_that_is_gone_and_never_signals_a_process_that_took_its_pid(tmp_path):
     """An ``up`` killed (SIGKILL) in its check leaves its file (``STARTING_UP_GLOB``); its pid may be another process's
     since. ``down`` tells them apart by the start time the file records, as for a run file: that process is left alone
@@ -3216,13 +3271,14 @@ def test_status_watch_redraws_one_table_on_a_terminal_and_appends_plain_tables_e
         assert "\x1b" not in text and text.count("robot r0  run run1") == 3  # each status once, one under the other
 
 
+@pytest.mark.parametrize("pose_heard", [False, True], ids=["older-launcher", "launcher-heard-the-pose"])
 @pytest.mark.parametrize(("outcome", "exit_code", "as_json"), [("done", 0, False), ("done", 0, True), ("interrupted", 130, False), ("failed", 1, True)])
-def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_results_are(tmp_path, monkeypatch, capsys, outcome, exit_code, as_json):
+def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_results_are(tmp_path, monkeypatch, capsys, outcome, exit_code, as_json, pose_heard):
     """``status --watch`` on a run of ``up`` that ended normally said "nothing running (no answer ...)" and exited 1,
     its last table showing the services DOWN, goal "-" and "last 0.0 ms" as the launcher stopped them. A run it saw
     answering whose run.json then says it stopped: how it ended, where its results are, exit 0 when done (else
     ``up``'s exit code); the frame while the launcher stops the services says "stopping" and keeps the goal and the
-    robot's pose."""
+    robot's pose: the launcher's last-heard one (of the episode's last step) when it has it, else the watch's last."""
     import io
 
     from rich.console import Console
@@ -3240,6 +3296,8 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
     episode.update(pose=[1.25, 2.0, 0.5], twist=[0.2, 0.0])
     exploring = status.status_of("r0", episode, {"run_id": "run1", "state": "running", "services": services}, {}, {"sim", "planner"})
     heard = {"state": "done", "step": 9, "episode": 7, "age_s": 0.4, "terminated_by": "coverage", "decisions": 4}
+    if pose_heard:  # the episode's last step, after the watch's last answer
+        heard.update(map_origin=[0.0, 0.0, 0.0], pose=[1.75, 2.25, 0.25], twist=[0.0, 0.0])
     stopping = status.status_of("r0", None, {"run_id": "run1", "state": "stopping", "services": services, "last_episode": heard}, {}, set())
 
     def launcher_ends() -> None:  # as the launcher does once its services stopped: run.json says how, current.json goes
@@ -3264,7 +3322,8 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
     last_table = out.getvalue().split("robot r0  run run1")[-1]
     assert "DOWN" not in last_table and re.search(r"service sim +│ stopping", last_table), last_table
     assert re.search(r"goal +│ \(1\.50, 2\.50\) m", last_table) and "last 12.5 ms" in last_table, last_table
-    assert re.search(r"pose +│ x 1\.25 m  y 2\.00 m  yaw 0\.50 rad, 0\.20 m/s", last_table), last_table  # where the robot stopped
+    where = r"x 1\.75 m  y 2\.25 m  yaw 0\.25 rad, 0\.00 m/s" if pose_heard else r"x 1\.25 m  y 2\.00 m  yaw 0\.50 rad, 0\.20 m/s"
+    assert re.search(r"pose +│ " + where, last_table), last_table  # where the robot stopped
 
 
 @pytest.mark.parametrize(("episode_state", "exit_code", "as_json"), [("done", 0, False), ("done", 0, True), ("failed", 1, False)])
@@ -5187,6 +5246,42 @@ def test_a_planner_killed_mid_episode_carries_on_with_its_goal_and_the_episode_e
     finally:
         cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert kill_leftovers(runs) == []
+
+
+def test_status_after_the_episode_still_says_where_the_robot_ended(tmp_path):
+    """``status`` shows the robot's pose and twist in the map frame during the episode (episode_status v4), but once
+    the sim no longer answered (the episode over and the run stopping, or the sim hung) it showed the launcher's
+    last-heard status (``last_episode``), which had no pose: "-", where a ROS 2 user asks where the robot ended. The
+    launcher's record now carries the last status's ``pose``, ``twist`` and ``map_origin`` as episode_status has
+    them, so ``status`` says where it ended, in the same map frame; an older launcher's record (none of them) says "-"."""
+    import dataclasses
+
+    from rich.console import Console
+
+    from cso_runtime.geometry import VelocityCommand
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    origin, pose, twist = Pose2D(1.0, -2.0, math.pi / 2), Pose2D(0.5, 0.25, 0.1), VelocityCommand(0.2, -0.1)
+    ended = EpisodeStatusMsg("done", 90, "s", "cso", 99.5, 40.0, 12.25, None, 9, terminated_by="coverage", episode=7, map_origin=origin, pose=pose, twist=twist)
+    launcher.status, launcher.status_heard_at_s = ended, time.monotonic()
+    heard = decode(encode(launcher.launcher_status()), LauncherStatusMsg).to_dict()  # as `status` gets it, the sim gone
+    shown = status_of("r0", None, heard, {}, set())
+    fresh = status_of("r0", ended.to_dict(), heard, {}, set())  # what it showed while the sim answered
+    assert shown["state"] == "done" and shown["step"] == 90
+    assert shown["pose"] == pytest.approx(fresh["pose"]) and shown["pose"] == pytest.approx(ended.pose_in_map_frame.as_list())
+    assert shown["twist"] == fresh["twist"] == [0.2, -0.1] and shown["map_origin"] == fresh["map_origin"]
+    console = Console(width=200, record=True)
+    console.print(render_table(shown))
+    x, y, yaw = ended.pose_in_map_frame.as_list()
+    assert f"x {x:.2f} m  y {y:.2f} m  yaw {yaw:.2f} rad, 0.20 m/s -0.10 rad/s" in console.export_text()
+    older = {**heard, "last_episode": {k: v for k, v in heard["last_episode"].items() if k not in ("pose", "twist", "map_origin")}}
+    assert status_of("r0", None, older, {}, set())["pose"] is None
+    launcher.status = dataclasses.replace(ended, pose=None, twist=None)  # a ROS 2 bridge before its first scan
+    last = decode(encode(launcher.launcher_status()), LauncherStatusMsg).last_episode
+    assert last is not None and (last["pose"], last["twist"]) == (None, None)
 
 
 def test_up_says_why_an_episode_ended_no_frontier_as_the_in_process_episode_does(tmp_path):

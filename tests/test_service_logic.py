@@ -770,15 +770,15 @@ def test_the_planner_sends_its_contacts_only_when_one_is_added_and_a_restarted_o
     assert fresh.extra_status() == {"contacts": 0} and fresh.episodes.current is None
 
 
-def _drive(planner: PlannerService, out: list, ex: Explorer, steps: range, episode: int, decision_obs=None) -> None:
+def _drive(planner: PlannerService, out: list, ex: Explorer, steps: range, episode: int, decision_obs=None, goal: GoalMsg | None = None) -> None:
     """Lockstep steps on ``ex``'s simulator, each moved by the command the planner sends for it (as the sim steps);
-    step 0 decides the far goal of ``decision_obs``, every other step keeps the goal."""
+    step 0 decides the far goal of ``decision_obs`` (or ``goal``), every other step keeps the goal."""
     for k in steps:
         _feed(planner, OdometryMsg(k, ex.sim.time_s, ex.sim.odometry(), episode=episode))
         _feed(planner, ScanMsg(k, ex.sim.scan(), ex.sim.sensor_pose(), episode))
         if k == 0:
             _feed(planner, frontiers_from_observation(0, "no_goal", decision_obs, 1.0, episode))
-            _feed(planner, dataclasses.replace(_far_goal(decision_obs, 0), episode=episode))
+            _feed(planner, dataclasses.replace(goal or _far_goal(decision_obs, 0), episode=episode))
         else:
             _feed(planner, FrontiersMsg(k, False, episode=episode))
         ex.sim.step([m for t, m in out if t == "cmd_vel" and m.step == k][-1].command)
@@ -927,6 +927,42 @@ def test_a_planner_killed_anywhere_in_a_step_that_adds_a_contact_restarts_with_t
         assert kept_all.restore_state(state, plan) and len(kept_all.planner.contacts_xy_m) == 1, (lockstep, contacts_step)
 
 
+@pytest.mark.parametrize("decision", ["no_goal", "no_path"])
+def test_a_planner_killed_before_its_first_plan_restarts_from_its_state_alone(decision):
+    """The state every command carries names the plan it follows (``plan_step``), -1 before the planner's first plan: a
+    first decision with no goal (no frontier left) or a goal with no path. A planner restarted on such a state was
+    refused it ("no plan of step -1 in the cache": there is none to find) and started afresh: no longer stopped for
+    no frontier nor reporting its goal blocked, it commanded "idle" where the one killed would have said why it stood,
+    and asked the cache for a plan that cannot be there. It now resumes from the state alone, on no path, and commands
+    the next steps as the one killed."""
+    episode, kill_after, end = 5, 3, 8
+    ex_a, ex_b = _explorer_at(0), _explorer_at(0)
+    obs = ex_a.observe()
+    goal = GoalMsg(0, True, method="greedy-dist") if decision == "no_goal" else GoalMsg(0, True, 1e3, 1e3, 0, 5.0, 1.0, "greedy-dist")
+    uninterrupted, out_a = _service(PlannerService, lockstep=True)
+    _drive(uninterrupted, out_a, ex_a, range(end), episode, obs, goal)
+    killed, out_b = _service(PlannerService, lockstep=True)
+    _drive(killed, out_b, ex_b, range(kill_after + 1), episode, obs, goal)
+    assert [m.step for t, m in _with_carried(out_b) if t == "planner_plan"] == []  # never a plan
+    state = [m for t, m in _with_carried(out_b) if t == "planner_state"][-1]
+    assert (state.step, state.plan_step) == (kill_after, -1)
+    asked: list[str] = []
+    restarted, out_r = _service(PlannerService, lockstep=True)
+    kept = {"planner_state": state}
+    restarted.query_latest = lambda key, expected, timeout_s=1.0, retry_period_s=0.05: (asked.append(key), kept.get(key.removeprefix("cso/r0/cache/").replace("/", "_")))[1]  # type: ignore[method-assign]
+    restarted.start()
+    assert not [key for key in asked if key.endswith("planner/plan")]  # the state names no plan: none asked for
+    assert (restarted.cmd_step, restarted.goal_step, restarted.no_frontier, restarted.planner.path) == (kill_after, 0, decision == "no_goal", None)
+    assert restarted.planner.checkpoint() == killed.planner.checkpoint()
+    _drive(restarted, out_r, ex_b, range(kill_after + 1, end), episode, obs, goal)
+    after = lambda out, topic: [encode(m) for t, m in _with_carried(out) if t == topic and m.step > kill_after]  # noqa: E731
+    assert len(after(out_a, "cmd_vel")) == end - kill_after - 1
+    for topic in ("cmd_vel", "planner_feedback", "planner_state"):
+        assert after(out_r, topic) == after(out_a, topic), topic
+    reasons = {m.reason for t, m in out_r if t == "cmd_vel"}
+    assert reasons == ({"no_frontier"} if decision == "no_goal" else {f"blocked: {uninterrupted.planner.blocked_why}"}), reasons
+
+
 def test_a_restarted_planner_refuses_a_cached_state_that_does_not_fit_its_plan():
     """The cache pairs a state with a plan by step and episode only: a plan of the same step from another planner (two at
     once), or a forged one, may be shorter than the point the state follows, which failed the restarted planner's first
@@ -961,7 +997,7 @@ def test_a_cached_state_a_restarted_planner_refuses_is_counted_as_rejected():
     """A cached state that does not fit its plan (a plan of another planner, a forged one, one of another step) was
     only logged at info level: ``status`` showed a restarted planner that had started afresh as if it had resumed. It
     is rejected and counted (``planner_state``), as any input refused is; a state of a planner that had not planned yet
-    (``plan_step`` -1, no plan) has nothing to resume from, and is not counted."""
+    (``plan_step`` -1) needs no plan: it is resumed on no path, and nothing is counted."""
     episode = 5
     ex = _explorer_at(0)
     obs = ex.observe()
@@ -975,7 +1011,7 @@ def test_a_cached_state_a_restarted_planner_refuses_is_counted_as_rejected():
         assert fresh.rejected == {"planner_state": 1}
     before_any_plan = dataclasses.replace(state, plan_step=-1, follow=dataclasses.replace(state.follow, status=PlannerStatus.IDLE))
     fresh, _ = _service(PlannerService, lockstep=True)
-    assert not fresh.restore_state(before_any_plan, None) and fresh.rejected == {}
+    assert fresh.restore_state(before_any_plan, None) and fresh.rejected == {} and fresh.planner.path is None
 
 
 def test_a_robot_stood_still_by_order_is_not_judged_stalled_on_its_last_command():
@@ -1880,6 +1916,101 @@ def test_a_frontier_layer_helper_that_dies_is_replaced_a_bounded_number_of_times
         frontier.shutdown()
         alone.shutdown()
     assert not first.proc.is_alive() and not second.proc.is_alive() and not frontier.layer_worker.proc.is_alive()
+
+
+def test_a_frontier_layer_helper_that_never_starts_is_said_and_given_up_not_waited_for_silently(caplog, monkeypatch):
+    """A layer helper hung in its start (here stopped, SIGSTOP, before it could say it had started) was waited for by the
+    warm-up (``helper_start_s``) and then never mentioned again: no warning, nothing in the status, never counted lost
+    nor replaced (only a helper that exited or missed a reply was), while the service computed every layer itself for
+    good. The warm-up now says it (a warning, and the status's reason while it lasts) and goes on; the decisions go on
+    meanwhile, computed here; ``helper_start_limit_s`` after its spawn the helper is given up as hung, as a lost one:
+    said, counted and replaced, and the reason clears."""
+    import logging
+    import os
+    import signal
+
+    import services.frontier as frontier_module
+    from services.frontier_layer import FrontierLayerWorker
+
+    hung: list[FrontierLayerWorker] = []
+
+    class HungAtStart(FrontierLayerWorker):
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            os.kill(self.proc.pid, signal.SIGSTOP)  # long before its imports are done: it never says it has started
+            hung.append(self)
+
+    monkeypatch.setattr(frontier_module, "FrontierLayerWorker", HungAtStart)
+    caplog.set_level(logging.INFO, logger="cso.frontier")
+    params = {"helper_start_s": 0.2, "helper_start_limit_s": 60.0, "helper_reply_s": HANG_DEADLINE_S, "helper_max_restarts": 1}
+    frontier, out = _service(FrontierService, lockstep=True, params=params)
+    warnings = lambda: [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]  # noqa: E731
+    try:
+        t0 = time.monotonic()
+        frontier.warm_up()
+        assert time.monotonic() - t0 < HANG_DEADLINE_S
+        (w,) = hung
+        assert not w.ready and not w.broken and not w.conn.poll(0), w.broken  # never started, still waited for
+        (said,) = warnings()
+        assert said.startswith(f"frontier layer helper (pid {w.proc.pid}) has not started ") and "the layers are computed in this process until it does" in said, said
+        status = frontier.status_msg()
+        assert status.state == "running" and status.reason == f"layer helper (pid {w.proc.pid}) not started after 0.2 s: layers computed here; given up at 60 s", status.reason
+        frontier.on_tick(time.monotonic())  # within its limit: still waited for, said once
+        assert frontier.layer_worker is w and len(warnings()) == 1 and frontier.status_msg().counters == {"layer_helper_deaths": 0, "layer_helper_restarts": 0}
+        ex = _explorer_at(0)
+        m, odom, _ = _inputs(ex, 0)
+        _feed(frontier, odom)
+        _feed(frontier, m)
+        assert [msg.decide for topic, msg in out if topic == "frontiers"] == [True] and frontier.layers_by_helpers() == 0  # computed here
+        monkeypatch.undo()  # the next helper starts
+        frontier.on_tick(w.started_s + 60.0)  # its limit is up: given up as hung, counted and replaced
+        assert w.broken.startswith("not started 60.0 s after it was spawned") and not w.proc.is_alive(), w.broken
+        second = frontier.layer_worker
+        assert second is not None and second is not w and frontier.status_msg().counters == {"layer_helper_deaths": 1, "layer_helper_restarts": 1}
+        assert f"frontier layer helper (pid {w.proc.pid}) lost: not started 60.0 s after it was spawned (hung?)" in warnings(), warnings()
+        assert any(line.startswith("frontier layer helper lost (not started 60.0 s") and "started a new one" in line for line in warnings()), warnings()
+        assert frontier.status_msg().reason == ""
+        assert second.wait_ready(HANG_DEADLINE_S)
+        frontier.on_tick(time.monotonic())
+        assert frontier.layer_worker is second and frontier.status_msg().reason == "" and len(warnings()) == 3
+    finally:
+        frontier.shutdown()
+    assert not w.proc.is_alive() and not frontier.layer_worker.proc.is_alive()
+
+
+def test_a_frontier_layer_helper_that_hangs_in_the_warm_ups_practice_layer_is_said_and_the_service_goes_on(caplog, monkeypatch):
+    """A helper that started and then hung (stopped, SIGSTOP) before the warm-up's practice layer: the warm-up waits
+    ``helper_start_s`` for its answer, no more, says the helper lost, computes the practice here and goes on; the next
+    tick counts it and replaces it, as any helper lost."""
+    import logging
+    import os
+    import signal
+
+    import services.frontier as frontier_module
+    from services.frontier_layer import FrontierLayerWorker
+
+    class HangsOnceStarted(FrontierLayerWorker):
+        def wait_ready(self, timeout_s: float) -> bool:
+            started = super().wait_ready(HANG_DEADLINE_S)  # started, however loaded the host
+            if started:
+                os.kill(self.proc.pid, signal.SIGSTOP)
+            return started
+
+    monkeypatch.setattr(frontier_module, "FrontierLayerWorker", HangsOnceStarted)
+    caplog.set_level(logging.INFO, logger="cso.frontier")
+    frontier, _ = _service(FrontierService, lockstep=True, params={"helper_start_s": 0.5, "helper_reply_s": 0.5, "helper_max_restarts": 1})
+    try:
+        frontier.warm_up()
+        w = frontier.layer_worker
+        assert w is not None and w.ready and w.broken.startswith("no answer to mapping the shared arrays"), w and w.broken
+        said = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+        assert said == [f"frontier layer helper (pid {w.proc.pid}) lost: {w.broken}"], said
+        monkeypatch.undo()
+        frontier.on_tick(time.monotonic())
+        assert frontier.layer_worker is not w and frontier.status_msg().counters == {"layer_helper_deaths": 1, "layer_helper_restarts": 1}
+    finally:
+        frontier.shutdown()
+    assert not w.proc.is_alive()
 
 
 @pytest.mark.parametrize("stopping", [True, False], ids=["service-stopping", "helper-died"])

@@ -367,6 +367,7 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "last_episode": {
                 "state": "exploring", "step": 12, "episode": EPISODE, "age_s": 0.5, "terminated_by": "", "scene": "s", "method": "m",
                 "coverage_pct": 42.5, "explored_area_m2": 10.25, "path_length_m": 3.5, "decisions": 2, "reason": "",
+                "map_origin": [1.0, -2.0, 0.5], "pose": [1.25, 2.0, 0.5], "twist": [0.2, -0.1],
             },
             "real_time_factor": 2.0,
             "lost_router": "tcp/127.0.0.1:7447",
