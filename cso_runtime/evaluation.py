@@ -1260,21 +1260,23 @@ class RichProgress:
     """The bar's time left before the first episode run now (rich's own placeholder)."""
 
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
+        from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
-        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+        from cso_runtime.live_view import console_that_survives_its_reader, progress_with_stats_below  # noqa: PLC0415
 
         console = console_that_survives_its_reader(stderr=True, tell=False)  # `eval ... | head`: the episodes go on
-        self.progress = Progress(
-            TextColumn("[bold]eval"),
+        # The last episode's result, then what is being written, on a line under the bar (the task's ``stats``): after
+        # it, in an 80-column terminal, they squeezed the count and the times to nothing, as the training bar's figures did.
+        self.progress = progress_with_stats_below(
+            TextColumn("[bold]{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
             TimeElapsedColumn(),
             # The time left of ``time_left_s``, as the log lines say it: rich's own estimate would count the episodes
             # ``--resume`` kept, read back in a burst, as run at once (about 0 left).
             TextColumn(f"{{task.fields[{self.TIME_LEFT_FIELD}]}}", style="progress.remaining"),
-            TextColumn("{task.description}"),
             console=console,
+            markup=True,
             get_time=clock,
             disable=not console.is_terminal,  # logs and CI get one line per episode instead of a bar
         )
@@ -1289,12 +1291,14 @@ class RichProgress:
         self.writing_to: Path | None = None
         """The folder ``writing`` said the results are being written to, once the episodes are over."""
 
-    def start(self, total: int) -> None:
+    def start(self, total: int, label: str = "eval") -> None:
+        """A bar of ``total`` episodes, named ``label`` (``eval seed 1`` for each seed of ``--seeds``)."""
         self.total = total
+        self.done = self.ran = 0
         self.started_s = self.clock()
         self.progress.start()
-        fields: dict[str, Any] = {self.TIME_LEFT_FIELD: self.UNKNOWN_TIME}
-        self.task = self.progress.add_task("", total=total, **fields)
+        fields: dict[str, Any] = {self.TIME_LEFT_FIELD: self.UNKNOWN_TIME, "stats": ""}
+        self.task = self.progress.add_task(label, total=total, **fields)
 
     def advance(self, outcome: EpisodeOutcome) -> None:
         if outcome.row is not None:
@@ -1313,7 +1317,7 @@ class RichProgress:
         left = self.UNKNOWN_TIME if left_s is None else clock_text(left_s)
         assert self.task is not None  # start() came first
         fields: dict[str, Any] = {self.TIME_LEFT_FIELD: left}
-        self.progress.update(self.task, advance=1, description=text, **fields)
+        self.progress.update(self.task, advance=1, stats=text, **fields)
         if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode, with the bar's times
             self.progress.console.print(f"{escape(f'[{self.done}/{self.total}]')} {text}{self.times_text(outcome)}", highlight=False, soft_wrap=True)  # one line, however long
 
@@ -1335,7 +1339,7 @@ class RichProgress:
         self.writing_to = out
         text = escape(f"writing {out}/: summary.json, episodes.csv, curves and {trajectory_plots} trajectory plot{'' if trajectory_plots == 1 else 's'}")
         assert self.task is not None  # start() came first
-        self.progress.update(self.task, description=text)
+        self.progress.update(self.task, stats=text)
         if not self.progress.console.is_terminal:
             self.progress.console.print(text, highlight=False, soft_wrap=True)
 

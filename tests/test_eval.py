@@ -791,6 +791,37 @@ def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     assert lines[2] == "writing results/easy/: summary.json, episodes.csv, curves and 2 trajectory plots"
 
 
+@pytest.mark.parametrize("width", [80, 200])
+def test_the_eval_bar_keeps_its_count_and_times_in_an_80_column_terminal(width, capsys):
+    """In an 80-column terminal the text after the bar (the last episode's result, then "writing OUT/: summary.json,
+    episodes.csv, ...", 100 characters) squeezed rich's columns until the episode count read ``1…`` and the bar and
+    times were gone. The text goes on a line of its own under the bar (``live_view.progress_with_stats_below``, as
+    the training bar's figures), so every column of the bar keeps its width."""
+    import io
+
+    from rich.console import Console, Group
+
+    from cso_runtime.evaluation import EpisodeOutcome, RichProgress
+
+    progress = RichProgress(clock=lambda: 0.0)
+    progress.start(12)
+
+    def shown() -> str:
+        console = Console(file=io.StringIO(), width=width, record=True)
+        console.print(Group(*progress.progress.get_renderables()))
+        return console.export_text()
+
+    row = {"coverage_pct": 99.1, "steps": 51, "terminated_by": "coverage"}
+    progress.advance(EpisodeOutcome("greedy-dist", "gen_small_0", row=row))
+    bar = shown()
+    assert "eval" in bar and "1/12" in bar and "0:00:00" in bar, bar
+    assert "greedy-dist gen_small_0: 99.1% in 51 steps (coverage)" in bar, bar
+    progress.writing(Path("results/eval/greedy_vs_cso_middle"), 12)
+    bar = shown()
+    assert "1/12" in bar and "0:00:00" in bar and "writing results/eval/greedy_vs_cso_middle/: summary.json" in bar, bar
+    progress.stop()
+
+
 def test_the_writing_line_of_an_eval_of_one_plan_says_one_trajectory_plot(capsys):
     """``eval --limit 1`` said "writing ...: summary.json, episodes.csv, curves and 1 trajectory plots"."""
     from cso_runtime.evaluation import RichProgress
