@@ -291,6 +291,9 @@ def eval_command(
     out: Path = typer.Option(Path("results/eval"), "--out", help="Output folder"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans (0.1 super large, 0.05 large)"),
     seed: int = typer.Option(0, "--seed", help="Episode seed (random policy, sensor noise)"),
+    seeds: list[str] | None = typer.Option(
+        None, "--seeds", help="Several seeds in one eval, in place of --seed (0,1,2 or repeatable): each seed's episodes in OUT/seed<S>/, all pooled in OUT's summary.json, episodes.csv (the seed column) and report.html"
+    ),
     max_steps: int | None = typer.Option(
         None, "--max-steps", help="Step limit per episode (one step = 0.25 s); default: the --config file's episode.max_steps, 3000"
     ),
@@ -332,6 +335,7 @@ def eval_command(
         _use_weights(weights)
     try:
         parameters = parse_settings(settings or [])
+        seed_list = parse_seeds(seeds or [])
     except ConfigError as exc:
         _fail(str(exc), 2)
 
@@ -354,6 +358,7 @@ def eval_command(
         baseline=baseline,
         animate=animate,
         settings=parameters,
+        seeds=seed_list,
     )
     if dry_run or resolved:
         raise typer.Exit(run_eval_cli(request, dry_run=dry_run, resolved=resolved))
@@ -1405,6 +1410,20 @@ def args_field_flags(words: list[str]) -> list[str]:
                 raise ConfigError(f"{flag} needs a value ({flag} VALUE, as --set {name}=VALUE)")
         pairs.append(f"{name}={value}")
     return pairs
+
+
+def parse_seeds(items: list[str]) -> list[int]:
+    """``eval --seeds``' arguments, each one seed or several separated by commas (``--seeds 0,1 --seeds 2``)."""
+    from cso_runtime.comparison import split_names  # noqa: PLC0415
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
+
+    seeds = []
+    for word in split_names(item.replace(" ", "") for item in items):
+        try:
+            seeds.append(int(word))
+        except ValueError:
+            raise ConfigError(f"--seeds: {word!r} is not a seed (whole numbers separated by commas: --seeds 0,1,2)") from None
+    return seeds
 
 
 def parse_settings(items: list[str]) -> dict[str, object]:

@@ -456,9 +456,9 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
                 continue
         raise ConfigError(f"{where}: {value!r} does not fit {annotation}")
     if origin in (list, tuple):
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{where}: expected a list")
         (inner, *_) = typing.get_args(annotation) or (Any,)
+        if not isinstance(value, (list, tuple)):
+            value = _one_or_separated(value, inner, where)
         items = [_convert(v, inner, f"{where}[{i}]") if inner is not Any else v for i, v in enumerate(value)]
         return items if origin is list else tuple(items)
     if origin is dict:
@@ -466,6 +466,30 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
             raise ConfigError(f"{where}: expected a mapping")
         return dict(value)
     return value
+
+
+LIST_SEPARATOR = ","
+"""What separates the values of a list field given as one text (``--set generated=A,B``): most CLIs' way."""
+
+
+def _one_or_separated(value: Any, inner: Any, where: str) -> list[Any]:
+    """A list field's value given as one value rather than a list (``--generated generated:small:2:0``, ``--set
+    dungeon_m_per_px=0.05``): the list of it, as most command lines take one; a text with commas, the list of the
+    values between them, each read as YAML unless the list's items are text (a scene spec keeps its colons, ``null``
+    stays the text). An item with a comma in it is written as a list: ``["a,b"]``. A mapping or null is no list."""
+    if value is None or isinstance(value, dict):
+        raise ConfigError(f"{where}: expected a list")
+    if not isinstance(value, str):
+        return [value]
+    items = [item.strip() for item in value.split(LIST_SEPARATOR)]
+    if not all(items):
+        raise ConfigError(f"{where}: empty item in {value!r} (values separated by commas, or a list: [a, b])")
+    if inner is str:
+        return items
+    try:
+        return [yaml.safe_load(item) for item in items]
+    except yaml.YAMLError:
+        return items  # said by the item's own check (expected a number, ...)
 
 
 def _key_where(where: str, key: str) -> str:

@@ -169,11 +169,27 @@ class EvalRequest:
     """Also write ``animations/<method>/<map>.gif``: the robot's map at each decision (``frames.EpisodeAnimation``)."""
     settings: dict[str, Any] = dataclasses.field(default_factory=dict)
     """``--set KEY=VALUE``: dotted exploration parameters set over the config file (``masks.beta_far_m=2.0``)."""
+    seeds: list[int] = dataclasses.field(default_factory=list)
+    """``--seeds``: several seeds in one eval, in place of ``seed``: each seed's episodes in ``OUT/seed<S>/``
+    (``seed_folder``: the folder ``--seed S --out OUT/seed<S>`` writes), all of them pooled in ``OUT``'s
+    summary.json, episodes.csv, paired.csv, figures and report.html; [] for the one ``seed``."""
 
     def __post_init__(self) -> None:
         # ``--method greedy-dist,greedy-dist`` means the method once: twice would run every scene twice and
         # count both in its means.
         self.methods = list(dict.fromkeys(self.methods))
+        self.seeds = list(dict.fromkeys(self.seeds))  # a seed given twice would count its episodes twice
+
+    def check_seeds(self) -> None:
+        """``--seeds``' own checks (each seed's eval checks the rest)."""
+        for seed in self.seeds:
+            check_seed(seed, "--seeds")
+        if self.seeds and self.seed != 0:
+            raise ConfigError(f"--seed {self.seed} and --seeds: give one (--seeds {','.join(map(str, self.seeds))} runs each of those seeds)")
+
+    def for_seed(self, seed: int) -> EvalRequest:
+        """The eval of one of ``seeds``: ``--seed SEED`` into ``seed_folder(out_dir, SEED)``."""
+        return dataclasses.replace(self, seed=seed, seeds=[], out_dir=seed_folder(self.out_dir, seed))
 
     def exploration_config(self) -> ExplorationConfig:
         """The config file (if any) with the CLI's sensor and step-limit flags applied on top."""
@@ -258,6 +274,7 @@ class EvalRequest:
         if self.workers <= 0:
             raise ConfigError(f"--workers must be positive, got {self.workers}")
         check_seed(self.seed, "--seed")
+        self.check_seeds()
         if not (math.isfinite(self.m_per_px) and self.m_per_px > 0):
             raise ConfigError(f"--m-per-px must be a positive number of metres per pixel, got {self.m_per_px}")
         if self.limit is not None and self.limit <= 0:
@@ -428,6 +445,8 @@ class EpisodeOutcome:
     """Read back from an earlier run's files by ``--resume``, not run now."""
     map_origin: Pose2D = MAP_FRAME_ORIGIN
     """The plan's pose in the user's map frame (``FloorPlan.map_origin``): the trajectory plots are drawn there."""
+    seed: int | None = None
+    """The seed it ran with, where an eval of several seeds (``--seeds``) pools its outcomes; None otherwise (its row says it)."""
 
     @classmethod
     def finished(
@@ -907,7 +926,7 @@ AGGREGATION = {
 a reader of the JSON alone (pandas, a notebook) need not look it up."""
 
 
-def summarize(rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist") -> dict[str, Any]:
+def summarize(rows: list[dict[str, Any]], failures: list[dict[str, Any]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist") -> dict[str, Any]:
     """Per-method means of the Table 1 metrics with their sample standard deviations, a per-scale breakdown, the failures, and each method
     against ``baseline`` scene by scene (``cso_runtime.comparison``; empty when it did not run)."""
     summary: dict[str, Any] = {"meta": meta, "aggregation": AGGREGATION, "methods": {}}
@@ -954,7 +973,7 @@ def csv_cell(value: Any) -> Any:
 
 
 def write_outputs(
-    out_dir: Path, rows: list[dict[str, Any]], failures: list[dict[str, str]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist"
+    out_dir: Path, rows: list[dict[str, Any]], failures: list[dict[str, Any]], methods: list[str], meta: dict[str, Any], baseline: str = "greedy-dist"
 ) -> dict[str, Any]:
     """summary.json, episodes.csv, and paired.csv when there is a comparison with the baseline."""
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -1024,11 +1043,50 @@ class EvalPlan:
     """Every parameter the simulator runs with (``simulator_settings``)."""
     scene_hash: Callable[[SceneRef], str | None] = dataclasses.field(default_factory=_scene_hashes)
     """Each scene's fingerprint, taken once: the folder is checked before the lock and again under it."""
+    seed_plans: list[tuple[EvalRequest, EvalPlan]] = dataclasses.field(default_factory=list)
+    """With ``--seeds``: each seed's eval (``EvalRequest.for_seed``) and its plan; ``jobs`` holds all of theirs."""
+
+
+def seed_folder(out_dir: Path | str, seed: int) -> Path:
+    """Where ``eval --seeds`` writes the episodes of ``seed``: an eval folder of that seed, inside ``--out``."""
+    return Path(out_dir) / f"seed{seed}"
+
+
+def seed_changes_nothing_said(flag: str) -> str:
+    """The warning of a seed (``--seed 3``, ``--seeds 0,1``) that changes no episode (``seed_changes_nothing``)."""
+    return (
+        f"{flag} changes no episode here: it draws the random method's choices and the sensor's range noise, which is 0 "
+        "(sensor.range_noise_std_m), and every episode starts at the plan's start pose, so these episodes are those of any "
+        "seed; give --set sensor.range_noise_std_m=0.01 (metres) for repeated tests that differ"
+    )
+
+
+def plan_seeds(request: EvalRequest) -> EvalPlan:
+    """``plan_eval`` of an eval of several seeds (``--seeds``): each seed's plan, checked before any episode, and one
+    plan of all their jobs (config, scenes, weights and settings are the same for every seed). A ``--out`` that holds a
+    one-seed eval's episodes is refused: the pooled summary.json and episodes.csv would replace that eval's."""
+    out = Path(request.out_dir)
+    if (out / "episodes").is_dir():
+        raise ConfigError(
+            f"{out} holds the episodes of a one-seed eval ({out}/episodes/): --seeds writes each seed's episodes in {out}/seed<S>/ and "
+            f"pools them in {out}'s summary.json and episodes.csv, which would replace that eval's; give another --out"
+        )
+    plans = [(one, plan_eval(one)) for one in map(request.for_seed, request.seeds)]
+    each = [said for one, plan in plans for said in plan.warnings if said != seed_changes_nothing_said(f"--seed {one.seed}")]
+    warnings = list(dict.fromkeys(each))
+    first = plans[0][1]
+    if seed_changes_nothing(request.methods, first.config, request.sim):
+        warnings.append(seed_changes_nothing_said(f"--seeds {','.join(map(str, request.seeds))}"))
+    jobs = [job for _, plan in plans for job in plan.jobs]
+    return EvalPlan(first.config, first.scenes, jobs, first.weights, first.mujoco, warnings, first.sim_settings, first.scene_hash, seed_plans=plans)
 
 
 def plan_eval(request: EvalRequest) -> EvalPlan:
     """Check ``request`` and resolve what it would run: config, scenes, episodes, weights, warnings; runs and writes
-    nothing (raises ConfigError, SceneError)."""
+    nothing (raises ConfigError, SceneError). With ``--seeds``, ``plan_seeds``."""
+    if request.seeds:
+        request.check_seeds()
+        return plan_seeds(request)
     request.validate()
     config = request.exploration_config()
     scenes = resolve_scenes(request.maps, request.limit, request.m_per_px)
@@ -1048,11 +1106,7 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
             "delete their episodes/<method>/<map>.npz and give the earlier command (its meta.request in summary.json) with --resume"
         )
     if request.seed != 0 and seed_changes_nothing(request.methods, config, request.sim):
-        warnings.append(
-            f"--seed {request.seed} changes no episode here: it draws the random method's choices and the sensor's range noise, which is 0 "
-            "(sensor.range_noise_std_m), and every episode starts at the plan's start pose, so these episodes are those of any "
-            "seed; give --set sensor.range_noise_std_m=0.01 (metres) for repeated tests that differ"
-        )
+        warnings.append(seed_changes_nothing_said(f"--seed {request.seed}"))
     weights: dict[str, dict[str, Any]] = {}
     if any(m in LEARNED_METHODS for m in request.methods):
         from cso_runtime.learned.weights import mask_mismatches, sensor_mismatches, weights_provenance  # noqa: PLC0415
@@ -1115,8 +1169,9 @@ def plan_said(request: EvalRequest, plan: EvalPlan) -> tuple[list[str], list[str
         folder = f"exists: --resume keeps the {held} of these episodes it holds with the same settings, runs the other {len(plan.jobs) - held}"
     else:
         folder = f"exists, holding {held} of these episodes: without --resume every episode runs again, its files written over" if held else "exists, holding none of these episodes"
+    seeds = f" x {len(request.seeds)} seeds" if request.seeds else ""
     lines = [
-        f"eval, valid: would run {len(plan.jobs)} episode(s), {len(request.methods)} method(s) x {len(plan.scenes)} scene(s), nothing run or written now",
+        f"eval, valid: would run {len(plan.jobs)} episode(s), {len(request.methods)} method(s) x {len(plan.scenes)} scene(s){seeds}, nothing run or written now",
         f"methods: {', '.join(methods)}",
         f"scenes: {request.maps}: {by_scale or 'none loadable'}; {names}",
         f"cell size: {cell}",
@@ -1124,10 +1179,17 @@ def plan_said(request: EvalRequest, plan: EvalPlan) -> tuple[list[str], list[str
             f"sensor: {request.sensor}, {sensor.fov_deg:g} degrees, {sensor.resolution_deg:g}-degree beams, "
             f"{sensor.range_min_m:g}-{sensor.range_max_m:g} m, {sensor.mount_x_m:g} m ahead of the centre"
         ),
-        f"simulator: {request.sim}; seed {request.seed}; at most {plan.config.episode.max_steps} steps an episode; workers: {request.workers}",
+        f"simulator: {request.sim}; {seeds_said(request)}; at most {plan.config.episode.max_steps} steps an episode; workers: {request.workers}",
         f"output: {out}: {folder}",
     ]
     return lines, unloadable
+
+
+def seeds_said(request: EvalRequest) -> str:
+    """``seed 0``, or ``seeds 0, 1, 2 (each in OUT/seed<S>/, pooled in OUT/)``."""
+    if not request.seeds:
+        return f"seed {request.seed}"
+    return f"seeds {', '.join(map(str, request.seeds))} (each in {request.out_dir}/seed<S>/, pooled in {request.out_dir}/)"
 
 
 EVAL_LOCK = ".eval.lock"
@@ -1143,9 +1205,12 @@ def hold_eval_lock(out_dir: Path) -> int | None:
 
 def run_eval(request: EvalRequest, progress: RichProgress | None = None, plan: EvalPlan | None = None) -> dict[str, Any]:
     """Run every (method, scene) episode and write all outputs; returns the summary. ``plan``: ``plan_eval(request)``
-    when the caller made it already. Raises ConfigError, before any episode, while another eval writes ``out_dir``."""
+    when the caller made it already. Raises ConfigError, before any episode, while another eval writes ``out_dir``.
+    With ``--seeds``, each seed's eval in its folder, then the pooled files (``_run_seeds``)."""
     plan = plan if plan is not None else plan_eval(request)
     with folder_lock(Path(request.out_dir) / EVAL_LOCK, "eval", lambda said: log.warning("%s", said)) as locked:
+        if plan.seed_plans:
+            return _run_seeds(request, plan, progress)
         return _run_eval_locked(request, plan, progress, locked=locked)
 
 
@@ -1155,15 +1220,47 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
     refuse_another_configuration(request, plan)  # again: an eval into the folder may have ended since plan_eval
     for warning in plan.warnings:
         log.warning("%s", warning)
-    config, scenes, jobs, weights, mujoco = plan.config, plan.scenes, plan.jobs, plan.weights, plan.mujoco
     software = software_provenance()  # before the episodes: the commit that runs them, not one checked out meanwhile
+    outcomes, interrupted = _run_episodes(request, plan, progress, locked)
+    return _write_results(request, plan, outcomes, interrupted, software, progress)
+
+
+def _run_seeds(request: EvalRequest, plan: EvalPlan, progress: RichProgress | None) -> dict[str, Any]:
+    """``run_eval`` of several seeds (``--seeds``) while it holds ``--out``'s lock: each seed's eval in its folder
+    (``seed_folder``, under that folder's lock too), as ``--seed S`` writes it, one after the other; then ``--out``'s
+    files of every seed's episodes pooled. A Ctrl-C stops after the seed it interrupts: the pooled files say so."""
+    for warning in plan.warnings:
+        log.warning("%s", warning)
+    software = software_provenance()
+    outcomes: list[EpisodeOutcome] = []
+    interrupted = False
+    for one, one_plan in plan.seed_plans:
+        folder = Path(one.out_dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        with folder_lock(folder / EVAL_LOCK, "eval", lambda said: log.warning("%s", said)) as locked:
+            refuse_another_configuration(one, one_plan)
+            mine, interrupted = _run_episodes(one, one_plan, progress, locked, label=f"eval seed {one.seed}")
+            _write_results(one, one_plan, mine, interrupted, software, progress)
+        for outcome in mine:
+            outcome.seed = one.seed
+        outcomes += mine
+        if interrupted:
+            break
+    return _write_results(request, plan, outcomes, interrupted, software, progress)
+
+
+def _run_episodes(
+    request: EvalRequest, plan: EvalPlan, progress: RichProgress | None, locked: bool, label: str = "eval"
+) -> tuple[list[EpisodeOutcome], bool]:
+    """Run ``plan``'s episodes (those ``--resume`` keeps read back); their outcomes, and whether a Ctrl-C stopped them."""
+    jobs = plan.jobs
     out = Path(request.out_dir)
     for stale in remove_stale_partial_files(out, [job.npz_path for job in jobs], is_an_episode_file) if locked else []:  # a killed eval's
         log.info("removed %s, left by an eval that was killed while writing it", stale)
     outcomes: list[EpisodeOutcome] = []
     total = len(jobs)
     if progress is not None:
-        progress.start(total)
+        progress.start(total, label)
 
     def done(outcome: EpisodeOutcome) -> None:
         outcomes.append(outcome)
@@ -1190,8 +1287,20 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
     except KeyboardInterrupt:
         interrupted = True  # the episodes that finished are written below; --resume runs the rest
         log.warning("interrupted after %d of %d episodes", len(outcomes), total)
+    return outcomes, interrupted
+
+
+def _write_results(
+    request: EvalRequest, plan: EvalPlan, outcomes: list[EpisodeOutcome], interrupted: bool, software: dict[str, Any], progress: RichProgress | None
+) -> dict[str, Any]:
+    """summary.json, episodes.csv, paired.csv, the figures and report.html of ``outcomes`` in ``request.out_dir``; the
+    summary. With ``--seeds`` (every seed's outcomes pooled), no trajectory plot: each seed's folder has its own."""
+    config, scenes, weights, mujoco = plan.config, plan.scenes, plan.weights, plan.mujoco
+    out = Path(request.out_dir)
     rows = [o.row for o in outcomes if o.row is not None]
-    failures = [{"method": o.method, "map": o.map, "error": o.error or ""} for o in outcomes if o.row is None]
+    failures: list[dict[str, Any]] = [
+        {"method": o.method, "map": o.map, "error": o.error or "", **({"seed": o.seed} if o.seed is not None else {})} for o in outcomes if o.row is None
+    ]
     meta = {
         "command": "cso-runtime eval",
         "version": __version__,  # which code made the table
@@ -1200,23 +1309,25 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
         # The flag's scale of PNG plans; null where none ran (generated plans and map files: their own, in cell_sizes_m).
         "m_per_px": request.m_per_px if any(ref.scaled_by_m_per_px for ref in scenes) else None,
         "cell_sizes_m": sorted({o.resolution_m for o in outcomes if o.row is not None}),  # what the scenes ran at (generated: 0.05, maps: their own)
-        "seed": request.seed,
+        "seed": None if request.seeds else request.seed,  # --seeds: no one seed; each row says its own
         "sim": request.sim,
         "sim_settings": simulator_settings(request.sim, config.sensor, config.robot, mujoco),  # all of them, defaults too
         "scenes": len(scenes),
         "request": request.as_record(),  # every flag the run was given (--limit, --method, --workers, ...): enough to run it again
         "config": to_dict(config),
     }
+    if request.seeds:
+        meta["seeds"] = list(request.seeds)
     if request.resume:
         meta["resumed_episodes"] = sum(o.kept for o in outcomes)  # kept from the earlier run; the rest ran now
     if interrupted:
-        meta["interrupted"] = {"episodes_finished": len(outcomes), "episodes_planned": total, "resume": "run the same command with --resume"}
+        meta["interrupted"] = {"episodes_finished": len(outcomes), "episodes_planned": len(plan.jobs), "resume": "run the same command with --resume"}
     if weights:
         meta["weights"] = weights
     if mujoco:
         meta["mujoco"] = {"file": str(request.sim_config_path), "parameters": mujoco}
     if progress is not None:  # hundreds of plans take a while to plot: say so rather than sit at N/N
-        progress.writing(out, len({o.map for o in outcomes if o.row is not None}))
+        progress.writing(out, 0 if request.seeds else len({o.map for o in outcomes if o.row is not None}), pooled_seeds=len(request.seeds))
     summary = write_outputs(out, rows, failures, request.methods, meta, request.baseline)
     from cso_runtime.plots import plot_coverage_curves, plot_efficiency_by_scale, plot_paired_efficiency, plot_trajectories  # noqa: PLC0415 - matplotlib is slow to import
 
@@ -1232,7 +1343,7 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
         (out / PAIRED_FIGURE).unlink(missing_ok=True)
     by_map: dict[str, list[EpisodeOutcome]] = {}
     for o in outcomes:
-        if o.row is not None:
+        if o.row is not None and not request.seeds:
             by_map.setdefault(o.map, []).append(o)
     for name, group in by_map.items():
         plot_trajectories(trajectory_plot_path(out, name), name, sorted(group, key=lambda o: request.methods.index(o.method)))
@@ -1260,21 +1371,23 @@ class RichProgress:
     """The bar's time left before the first episode run now (rich's own placeholder)."""
 
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
+        from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
-        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+        from cso_runtime.live_view import console_that_survives_its_reader, progress_with_stats_below  # noqa: PLC0415
 
         console = console_that_survives_its_reader(stderr=True, tell=False)  # `eval ... | head`: the episodes go on
-        self.progress = Progress(
-            TextColumn("[bold]eval"),
+        # The last episode's result, then what is being written, on a line under the bar (the task's ``stats``): after
+        # it, in an 80-column terminal, they squeezed the count and the times to nothing, as the training bar's figures did.
+        self.progress = progress_with_stats_below(
+            TextColumn("[bold]{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
             TimeElapsedColumn(),
             # The time left of ``time_left_s``, as the log lines say it: rich's own estimate would count the episodes
             # ``--resume`` kept, read back in a burst, as run at once (about 0 left).
             TextColumn(f"{{task.fields[{self.TIME_LEFT_FIELD}]}}", style="progress.remaining"),
-            TextColumn("{task.description}"),
             console=console,
+            markup=True,
             get_time=clock,
             disable=not console.is_terminal,  # logs and CI get one line per episode instead of a bar
         )
@@ -1288,13 +1401,20 @@ class RichProgress:
         self.started_s = 0.0
         self.writing_to: Path | None = None
         """The folder ``writing`` said the results are being written to, once the episodes are over."""
+        self.label = "eval"
+        """The bar's name: ``eval``, or ``eval seed S`` for each seed of ``--seeds`` (which the log lines say first)."""
 
-    def start(self, total: int) -> None:
+    def start(self, total: int, label: str = "eval") -> None:
+        """A bar of ``total`` episodes, named ``label`` (``eval seed 1`` for each seed of ``--seeds``)."""
         self.total = total
+        self.done = self.ran = 0
         self.started_s = self.clock()
         self.progress.start()
-        fields: dict[str, Any] = {self.TIME_LEFT_FIELD: self.UNKNOWN_TIME}
-        self.task = self.progress.add_task("", total=total, **fields)
+        fields: dict[str, Any] = {self.TIME_LEFT_FIELD: self.UNKNOWN_TIME, "stats": ""}
+        for task in self.progress.tasks:  # --seeds: the line under the bars is the running seed's
+            self.progress.update(task.id, stats="")
+        self.task = self.progress.add_task(label, total=total, **fields)
+        self.label = label
 
     def advance(self, outcome: EpisodeOutcome) -> None:
         if outcome.row is not None:
@@ -1313,9 +1433,10 @@ class RichProgress:
         left = self.UNKNOWN_TIME if left_s is None else clock_text(left_s)
         assert self.task is not None  # start() came first
         fields: dict[str, Any] = {self.TIME_LEFT_FIELD: left}
-        self.progress.update(self.task, advance=1, description=text, **fields)
+        self.progress.update(self.task, advance=1, stats=text, **fields)
         if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode, with the bar's times
-            self.progress.console.print(f"{escape(f'[{self.done}/{self.total}]')} {text}{self.times_text(outcome)}", highlight=False, soft_wrap=True)  # one line, however long
+            which = "" if self.label == "eval" else f"{escape(self.label.removeprefix('eval '))} "  # --seeds: the seed first
+            self.progress.console.print(f"{which}{escape(f'[{self.done}/{self.total}]')} {text}{self.times_text(outcome)}", highlight=False, soft_wrap=True)  # one line, however long
 
     def times_text(self, outcome: EpisodeOutcome) -> str:
         """`` [0:01:05 elapsed, about 0:20:10 left]`` after an episode run now: what the bar's time columns show a
@@ -1330,12 +1451,14 @@ class RichProgress:
         """``time_left_s`` now: the bar's and the log lines' time left, at the pace of the episodes run now."""
         return time_left_s(self.clock() - self.started_s, self.ran, self.total - self.done)
 
-    def writing(self, out: Path, trajectory_plots: int) -> None:
-        """After the episodes: the bar says what is being written (and a log gets the same line)."""
+    def writing(self, out: Path, trajectory_plots: int, pooled_seeds: int = 0) -> None:
+        """After the episodes: the bar says what is being written (and a log gets the same line); ``pooled_seeds``:
+        ``--seeds``' files of that many seeds pooled, which have no trajectory plot (each seed's folder has its own)."""
         self.writing_to = out
-        text = escape(f"writing {out}/: summary.json, episodes.csv, curves and {trajectory_plots} trajectory plot{'' if trajectory_plots == 1 else 's'}")
+        plots = f"curves and {trajectory_plots} trajectory plot{'' if trajectory_plots == 1 else 's'}"
+        text = escape(f"writing {out}/: summary.json, episodes.csv, {f'curves of the {pooled_seeds} seeds pooled' if pooled_seeds else plots}")
         assert self.task is not None  # start() came first
-        self.progress.update(self.task, description=text)
+        self.progress.update(self.task, stats=text)
         if not self.progress.console.is_terminal:
             self.progress.console.print(text, highlight=False, soft_wrap=True)
 
@@ -1385,7 +1508,8 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
                              "scenes of one scale with it"), soft_wrap=True, highlight=False)
     for f in summary["failures"]:
         why = f["error"].splitlines()[0] if f["error"] else ""
-        failed = escape(f"{f['method']} {f['map']}: {why}")
+        seed = f" (seed {f['seed']})" if "seed" in f else ""  # --seeds: which seed's episode
+        failed = escape(f"{f['method']} {f['map']}{seed}: {why}")
         console.print(f"[red]failed[/red] {failed}", soft_wrap=True)  # a path in it must stay whole
     console.print(escape(results_said(out_dir)), soft_wrap=True, highlight=False)
 

@@ -83,6 +83,27 @@ def console_that_survives_its_reader(stderr: bool = False, tell: bool = True) ->
     return QuietOnBrokenPipe(stderr=stderr)
 
 
+def progress_with_stats_below(*columns: Any, markup: bool = False, **kwargs: Any) -> Any:
+    """A rich ``Progress`` that shows each task's ``stats`` field on a line of its own under its bar, cut to the
+    terminal's width: after the bar, on one line, a long text (the training figures, 64 characters; eval's last
+    episode or its "writing OUT/: summary.json, ..." line) squeezed rich's columns in an 80-column terminal until the
+    count, the bar and the times were gone. ``markup``: the field is rich markup (eval's red FAILED), else plain text.
+    The bars of ``train`` (``learned.ppo._Bar``) and ``eval`` (``evaluation.RichProgress``)."""
+    from rich.progress import Progress  # noqa: PLC0415
+    from rich.text import Text  # noqa: PLC0415
+
+    class ProgressWithStatsBelow(Progress):
+        def get_renderables(self) -> Any:
+            yield self.make_tasks_table(self.tasks)
+            for task in self.tasks:
+                if stats := task.fields.get("stats"):
+                    text = Text.from_markup("  " + str(stats)) if markup else Text("  " + str(stats))
+                    text.no_wrap, text.overflow = True, "ellipsis"
+                    yield text
+
+    return ProgressWithStatsBelow(*columns, **kwargs)
+
+
 class LiveView:
     """A rich table refreshed a few times a second: episode progress and service health."""
 

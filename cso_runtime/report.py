@@ -262,7 +262,7 @@ def _map_figures(out_dir: Path, summary: dict[str, Any]) -> dict[str, list[str]]
 def run_settings_text(meta: dict[str, Any]) -> str:
     """The run's header line: what made the table, with the sensor's field of view and the step limit, which decide
     whether it compares with the paper's (360 degrees, 3000 steps); ``meta.config`` is absent from older summaries."""
-    parts = [f"{k}: {meta[k]}" for k in ("command", "version", "maps", "m_per_px", "cell_sizes_m", "seed", "sim") if meta.get(k) is not None]
+    parts = [f"{k}: {meta[k]}" for k in ("command", "version", "maps", "m_per_px", "cell_sizes_m", "seed", "seeds", "sim") if meta.get(k) is not None]
     software = meta.get("software")
     if isinstance(software, dict) and software.get("git_commit"):  # run from a checkout (provenance.software_provenance)
         parts.insert(sum(meta.get(k) is not None for k in ("command", "version")), f"commit: {str(software['git_commit'])[:12]}{' (modified)' if software.get('git_modified') else ''}")
@@ -296,6 +296,9 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
         f"<h1>Results in {html.escape(str(out_dir))}</h1>",
         "<p>" + html.escape(run_settings_text(meta)) + "</p>",
     ]
+    if meta.get("seeds"):  # eval --seeds: every seed's episodes pooled here; each seed's trajectories and maps in its folder
+        links = ", ".join(f'<a href="seed{int(s)}/{REPORT_NAME}">seed {int(s)}</a>' for s in meta["seeds"])
+        parts.append(f"<p>The episodes of {len(meta['seeds'])} seeds pooled; each seed's episodes, trajectories and maps: {links}.</p>")
     stopped = meta.get("interrupted")
     if stopped:  # a table of the episodes that finished: it must not pass for the whole run's
         parts.append(

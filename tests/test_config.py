@@ -403,6 +403,50 @@ def test_train_takes_every_args_field_as_a_flag_as_cleanrl_does(tmp_path: Path, 
     assert len(ran) == 1
 
 
+def test_a_list_field_takes_one_value_or_values_separated_by_commas_as_most_clis_do(tmp_path: Path, monkeypatch):
+    """``--generated generated:small:2:0`` (or ``--set generated=...``) said "generated: expected a list": a list field
+    had to be written ``[...]``. One value is the list of it, and values separated by commas are the list of them,
+    wherever a config is read (``config._convert``: ``--set``, ``train``'s flags, a YAML file); a value's colons stay
+    in it (a scene spec), a list written ``[...]`` is read as before (an item with a comma in it: ``["a,b"]``)."""
+    import dataclasses
+
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.learned import ppo
+
+    @dataclasses.dataclass
+    class Lists:
+        names: list[str] = dataclasses.field(default_factory=list)
+        sizes: list[float] = dataclasses.field(default_factory=list)
+        pair: tuple[int, ...] = ()
+
+    def read(**data: object) -> Lists:
+        return from_dict(Lists, data, "lists.yaml")
+
+    assert read(names="generated:small:2:0").names == ["generated:small:2:0"]
+    assert read(names="generated:small:2:0,generated:middle:2:1000").names == ["generated:small:2:0", "generated:middle:2:1000"]
+    assert read(names="generated:small:2:0, generated:middle:2:1000").names == ["generated:small:2:0", "generated:middle:2:1000"]
+    assert read(names=["a,b", "c"]).names == ["a,b", "c"]  # a YAML list as before: its items whole
+    assert read(names="null").names == ["null"]  # a string item stays the text given
+    assert read(sizes=0.05).sizes == [0.05] and read(sizes="0.05,1e-1").sizes == [0.05, 0.1] and read(pair="1,2").pair == (1, 2)
+    for data, said in [({"names": "a,,b"}, "lists.yaml: names: empty item in 'a,,b'"), ({"sizes": "0.05,far"}, r"lists.yaml: sizes\[1\]: expected a number, got 'far'"),
+                       ({"names": {"a": 1}}, "names: expected a list")]:  # fmt: skip
+        with pytest.raises(ConfigError, match=said):
+            read(**data)
+
+    ran: list[ppo.Args] = []
+    monkeypatch.setattr(ppo, "train", lambda args, log=None, command="": ran.append(args) or {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0})
+    common = ["train", "--config", str(small_train_recipe(tmp_path)), "--out", str(tmp_path / "out")]
+    for given in (["--generated", "generated:small:2:0"], ["--set", "generated=generated:small:2:0"], ["--generated=generated:small:2:0"]):
+        result = CliRunner().invoke(app, common + given)
+        assert result.exit_code == 0, result.output
+        assert ran[-1].generated == ["generated:small:2:0"], given
+    result = CliRunner().invoke(app, [*common, "--generated", "generated:small:2:0,generated:middle:2:1000", "--dungeon-m-per-px", "0.05"])
+    assert result.exit_code == 0, result.output
+    assert ran[-1].generated == ["generated:small:2:0", "generated:middle:2:1000"] and ran[-1].dungeon_m_per_px == [0.05]
+
+
 def test_train_refuses_a_field_of_view_eval_cannot_run_before_it_starts(tmp_path: Path, capsys):
     """``train --set lidar_fov_deg=270`` trained for minutes, then its weights could not be evaluated as trained:
     ``eval --lidar-fov`` runs 180 or 360 alone (and ran them at 180, warning). The depth preset has its own field of

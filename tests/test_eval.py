@@ -109,6 +109,65 @@ def _corridor_scene(folder: Path, name: str, start: str) -> Path:
     return scene
 
 
+def test_eval_seeds_runs_several_seeds_in_one_command_and_pools_them_in_one_folder(tmp_path: Path, capsys):
+    """The paper's repeated tests took one eval per seed, into 5 ``--out`` folders pooled with ``compare``.
+    ``--seeds 0,1`` runs them in one command: each seed's episodes in ``OUT/seed<S>/`` (the folder ``--seed S`` writes,
+    every file as it is), and ``OUT``'s episodes.csv (the same columns, the seed in each row), summary.json (means and
+    95 % intervals over every seed's episodes, a plan's kept together), paired.csv and report.html pool them;
+    ``--resume`` keeps every seed's episodes."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.comparison import bootstrap_mean_ci
+
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    _corridor_scene(maps, "corridor", "[1.5, 0.18, -0.5]")
+    _corridor_scene(maps, "corridor_b", "[1.0, 0.5, 0.0]")
+    out = tmp_path / "out"
+    summary = run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out, seeds=[0, 1]))
+
+    def rows(folder: Path) -> list[dict[str, str]]:
+        with (folder / "episodes.csv").open(newline="") as fh:
+            reader = csv.DictReader(fh)
+            assert reader.fieldnames == list(CSV_FIELDS)
+            return list(reader)
+
+    each = {seed: rows(out / f"seed{seed}") for seed in (0, 1)}
+    for seed, mine in each.items():
+        assert {r["seed"] for r in mine} == {str(seed)} and len(mine) == 2
+        assert json.loads((out / f"seed{seed}" / "summary.json").read_text())["meta"]["seed"] == seed
+        assert (out / f"seed{seed}" / "episodes" / "random" / "corridor.npz").is_file() and (out / f"seed{seed}" / "report.html").is_file()
+    pooled = rows(out)
+    assert sorted((r["map"], r["seed"]) for r in pooled) == [("corridor", "0"), ("corridor", "1"), ("corridor_b", "0"), ("corridor_b", "1")]
+    assert sorted(map(str, pooled)) == sorted(str(r) for mine in each.values() for r in mine)
+    entry = summary["methods"]["random"]
+    assert entry["episodes"] == 4 and summary["meta"]["seeds"] == [0, 1] and summary["meta"]["seed"] is None
+    coverage = [float(r["coverage_pct"]) for r in pooled]
+    assert entry["coverage_pct"] == pytest.approx(sum(coverage) / 4, abs=1e-6)
+    low, high = bootstrap_mean_ci(np.array(coverage), clusters=[r["map"] for r in pooled])
+    assert entry["coverage_pct_ci95"] == [pytest.approx(low, abs=1e-6), pytest.approx(high, abs=1e-6)]
+    assert json.loads((out / "summary.json").read_text())["methods"]["random"]["episodes"] == 4
+    report = (out / "report.html").read_text()
+    assert 'href="seed0/report.html"' in report and 'href="seed1/report.html"' in report
+
+    resumed = run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out, seeds=[0, 1], resume=True))
+    assert resumed["meta"]["resumed_episodes"] == 4 and resumed["methods"] == summary["methods"]
+
+    capsys.readouterr()
+    common = ["eval", "--method", "random", "--maps", str(maps), "--out", str(tmp_path / "new"), "--dry-run"]
+    said = CliRunner().invoke(app, [*common, "--seeds", "0,1", "--seeds", "2"])
+    assert said.exit_code == 0, said.output
+    assert "would run 6 episode(s), 1 method(s) x 2 scene(s) x 3 seeds" in said.output and "seeds 0, 1, 2" in said.output
+    for wrong, why in [(["--seeds", "0,x"], "--seeds: 'x' is not a seed"), (["--seeds", "0,1", "--seed", "3"], "--seed 3 and --seeds: give one")]:
+        refused = CliRunner().invoke(app, [*common, *wrong])
+        assert refused.exit_code == 2 and why in " ".join(refused.output.split()), refused.output
+    one_seed = tmp_path / "one"
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=one_seed, limit=1))
+    with pytest.raises(ConfigError, match="holds the episodes of a one-seed eval"):
+        run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=one_seed, seeds=[0, 1]))
+
+
 def test_evals_files_say_why_an_episode_ended_no_frontier_and_resume_keeps_it(tmp_path: Path, capsys):
     """eval's progress said why an episode ended no_frontier (``EpisodeResult.ended_why``), its files did not: a
     results folder showed "no_frontier" alone. ``episodes.csv``'s last column ``ended_why`` (empty for any other end),
@@ -789,6 +848,37 @@ def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     assert lines[0] == f"[1/2] greedy-dist {long_name}: 99.1% in 51 steps (coverage, kept from the earlier run)"
     assert lines[1] == "[2/2] greedy-dist gen_small_0: 99.1% in 51 steps (coverage) [0:00:00 elapsed]"
     assert lines[2] == "writing results/easy/: summary.json, episodes.csv, curves and 2 trajectory plots"
+
+
+@pytest.mark.parametrize("width", [80, 200])
+def test_the_eval_bar_keeps_its_count_and_times_in_an_80_column_terminal(width, capsys):
+    """In an 80-column terminal the text after the bar (the last episode's result, then "writing OUT/: summary.json,
+    episodes.csv, ...", 100 characters) squeezed rich's columns until the episode count read ``1…`` and the bar and
+    times were gone. The text goes on a line of its own under the bar (``live_view.progress_with_stats_below``, as
+    the training bar's figures), so every column of the bar keeps its width."""
+    import io
+
+    from rich.console import Console, Group
+
+    from cso_runtime.evaluation import EpisodeOutcome, RichProgress
+
+    progress = RichProgress(clock=lambda: 0.0)
+    progress.start(12)
+
+    def shown() -> str:
+        console = Console(file=io.StringIO(), width=width, record=True)
+        console.print(Group(*progress.progress.get_renderables()))
+        return console.export_text()
+
+    row = {"coverage_pct": 99.1, "steps": 51, "terminated_by": "coverage"}
+    progress.advance(EpisodeOutcome("greedy-dist", "gen_small_0", row=row))
+    bar = shown()
+    assert "eval" in bar and "1/12" in bar and "0:00:00" in bar, bar
+    assert "greedy-dist gen_small_0: 99.1% in 51 steps (coverage)" in bar, bar
+    progress.writing(Path("results/eval/greedy_vs_cso_middle"), 12)
+    bar = shown()
+    assert "1/12" in bar and "0:00:00" in bar and "writing results/eval/greedy_vs_cso_middle/: summary.json" in bar, bar
+    progress.stop()
 
 
 def test_the_writing_line_of_an_eval_of_one_plan_says_one_trajectory_plot(capsys):

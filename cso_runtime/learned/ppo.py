@@ -1412,12 +1412,12 @@ class _Bar:
     def __init__(self, total: int, what: str = "PPO updates", console: Any = None, line_every_s: float = 10.0, completed: int = 0) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn  # noqa: PLC0415
 
-        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+        from cso_runtime.live_view import console_that_survives_its_reader, progress_with_stats_below  # noqa: PLC0415
 
         console = console if console is not None else console_that_survives_its_reader()  # `train | head`: exit 141, as every command
         columns = (TextColumn("{task.description}"), BarColumn(bar_width=24), MofNCompleteColumn(), TimeElapsedColumn(), TextColumn("left"), TimeRemainingColumn())
         self._lines = not console.is_terminal
-        self._p = _progress_with_stats_below(*columns, console=console, disable=self._lines)
+        self._p = progress_with_stats_below(*columns, console=console, disable=self._lines)
         self._p.start()
         self._task = self._p.add_task(what, total=total, stats="", completed=completed)
         self._what, self._total, self._done, self._done_before = what, total, completed, completed
@@ -1437,23 +1437,6 @@ class _Bar:
 
     def close(self) -> None:
         self._p.stop()
-
-
-def _progress_with_stats_below(*columns: Any, **kwargs: Any) -> Any:
-    """A rich ``Progress`` that shows each task's ``stats`` field on a line of its own under its bar: after the bar, on
-    one line, the figures (64 characters) squeezed rich's columns in an 80-column terminal until the update count, the
-    bar and the time left were gone."""
-    from rich.progress import Progress  # noqa: PLC0415
-    from rich.text import Text  # noqa: PLC0415
-
-    class ProgressWithStatsBelow(Progress):
-        def get_renderables(self) -> Any:
-            yield self.make_tasks_table(self.tasks)
-            for task in self.tasks:
-                if task.fields.get("stats"):
-                    yield Text("  " + str(task.fields["stats"]), no_wrap=True, overflow="ellipsis")
-
-    return ProgressWithStatsBelow(*columns, **kwargs)
 
 
 def _progress(enabled: bool, total: int, completed: int = 0) -> _Bar | None:
