@@ -30,7 +30,7 @@ from cso_runtime.geometry import (
     LaserScan,
     Pose2D,
     VelocityCommand,
-    compose_pose,
+    map_frame_pose,
     map_frame_xy,
 )
 from cso_runtime.observation import Observation
@@ -1372,7 +1372,7 @@ class EpisodeStatusMsg(Message):
     @property
     def pose_in_map_frame(self) -> Pose2D | None:
         """``pose`` in the user's map frame (``map_origin``), as ``status`` and the live view show it."""
-        return None if self.pose is None else compose_pose(self.map_origin, self.pose)
+        return map_frame_pose(self.map_origin, self.pose)
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> EpisodeStatusMsg:
