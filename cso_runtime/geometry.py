@@ -86,6 +86,12 @@ def compose_xy(frame: Pose2D, xy_m: npt.ArrayLike) -> np.ndarray:
     return np.column_stack([frame.x_m + c * xy[:, 0] - s * xy[:, 1], frame.y_m + s * xy[:, 0] + c * xy[:, 1]])
 
 
+def map_frame_pose(map_origin: Pose2D, pose: Pose2D | None) -> Pose2D | None:
+    """The robot's ``pose`` of a scene's own frame (its odometry) in the user's map frame (``map_origin``, as
+    ``map_frame_xy``): what ``status`` and ``up``'s live view show of it; None for none (before the first odometry)."""
+    return None if pose is None else compose_pose(map_origin, pose)
+
+
 def map_frame_xy(map_origin: Pose2D, xy_m: Sequence[float]) -> list[float]:
     """A point ``[x_m, y_m]`` of a scene's own frame in the user's map frame (``map_origin``: the scene's pose there,
     ``FloorPlan.map_origin``): what ``status`` and ``up``'s live view show of a goal."""

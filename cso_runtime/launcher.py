@@ -242,6 +242,13 @@ whole lockstep episode's took 0.1 s (small scene, 25 frames) and 0.6 to 1.4 s (l
 the recording. Beyond that it is given up, and the launcher's log gives the ``cso-runtime animate`` command that
 draws it from the recording; without a stop, the GIF takes the time it needs."""
 
+PYPLOT_IMPORT_STOP_S = 1.0
+"""How long a stop waits for pyplot's import in the background (``import_pyplot_in_background``, about 1 s on a
+2-core host) once its figures are drawn or none will be: a run stopped before its results has none to draw, and a first
+run's matplotlib builds its font cache (tens of seconds) before the import ends. The figures themselves wait for it
+(they draw once it is done), so a stop that writes results has it done by then; past this the process ends with the
+import unfinished, which it does cleanly."""
+
 LAST_MAP = "last_map.yaml"
 """Where in its run folder an episode stopped before its end keeps its map so far (``Launcher.keep_last_map``; the PNG
 beside it): it has no results, and ``save-map`` can no longer ask once the run is stopped."""
@@ -1368,8 +1375,10 @@ class Launcher:
                     ending.thread.join()
                     self.settle_episode_end(ending)
                 self.finish_recording(recorder)
-                if pyplot_import is not None:  # never left importing as the interpreter exits (a run stopped at its start)
-                    pyplot_import.join()
+                if pyplot_import is not None:  # done once figures were drawn; with none to draw, not waited out
+                    pyplot_import.join(PYPLOT_IMPORT_STOP_S)
+                    if pyplot_import.is_alive():
+                        log.info("pyplot's import (for the figures; a first run builds matplotlib's font cache) is not done: the stop does not wait for it")
                 if self.run_folder.lost():  # deleted since the last round: the stop's lines and the run's end are kept too
                     self.tend_run_folder()
                 alive_sub.undeclare()

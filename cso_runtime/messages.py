@@ -21,7 +21,7 @@ from typing import Any, ClassVar, TypeVar, overload
 import msgpack
 import numpy as np
 
-from cso_runtime.config import MAX_EPISODE_STEPS
+from cso_runtime.config import MAX_EPISODE_STEPS, ConfigError
 from cso_runtime.frontiers import FrontierCluster
 from cso_runtime.geometry import (
     MAP_FRAME_ORIGIN,
@@ -30,7 +30,7 @@ from cso_runtime.geometry import (
     LaserScan,
     Pose2D,
     VelocityCommand,
-    compose_pose,
+    map_frame_pose,
     map_frame_xy,
 )
 from cso_runtime.observation import Observation
@@ -112,6 +112,27 @@ def check_max_grid_cells(cells: Any, where: str = "max_grid_cells") -> None:
     """ValueError unless ``cells`` is an integer in 1 .. ``MAX_GRID_CELLS`` (a profile's ``max_grid_cells``)."""
     if isinstance(cells, bool) or not isinstance(cells, int) or not 1 <= cells <= MAX_GRID_CELLS:
         raise ValueError(f"{where} must be an integer in 1 .. {MAX_GRID_CELLS:_}, got {cells!r}")
+
+
+def check_configured_grid(
+    where: str, resolution_m: float, width_m: float, height_m: float, shape_of: Callable[[], tuple[int, int] | None], bound: int | None = None
+) -> None:
+    """ConfigError for a grid a profile sets (``where``: its keys; ``shape_of``: its ``(ny, nx)`` cells as its service makes
+    them, None for none) of more cells than ``bound`` (this process's ``max_grid_cells`` when None), which every receiver
+    would refuse, or of sizes whose cells overflow a float (1e308 m at 1 mm). ``up`` checks the profile with it
+    (``Profile.check_grid_bound``) and a service that makes the grid (the mapper, the ROS bridge) checks its own, started
+    by hand, before allocating it."""
+    bound = _max_grid_cells if bound is None else bound
+    too_large = f"{where}: a {width_m:g} x {height_m:g} m grid at {resolution_m:g} m is"
+    try:
+        shape = shape_of()
+    except OverflowError:  # finite sizes whose cells are no float: more than any bound
+        raise ConfigError(f"{too_large} too many cells to count, more than max_grid_cells ({bound:_}): shrink the arena") from None
+    if shape is not None and shape[0] * shape[1] > bound:
+        raise ConfigError(
+            f"{too_large} {shape[1]} x {shape[0]} = {shape[0] * shape[1]:_} cells, "
+            f"more than max_grid_cells ({bound:_}): raise max_grid_cells (at most {MAX_GRID_CELLS:_}) or shrink the arena"
+        )
 
 
 def check_grid_fits(shape: tuple[int, int], where: str) -> None:
@@ -1351,7 +1372,7 @@ class EpisodeStatusMsg(Message):
     @property
     def pose_in_map_frame(self) -> Pose2D | None:
         """``pose`` in the user's map frame (``map_origin``), as ``status`` and the live view show it."""
-        return None if self.pose is None else compose_pose(self.map_origin, self.pose)
+        return map_frame_pose(self.map_origin, self.pose)
 
     @classmethod
     def from_body(cls, b: dict[str, Any]) -> EpisodeStatusMsg:

@@ -13,8 +13,9 @@ import numpy as np
 from cso_runtime.outputs import write_whole
 
 
-def _pyplot() -> ModuleType:
-    """``matplotlib.pyplot`` on the Agg backend (files only: eval runs headless), imported on first use as it is slow."""
+def pyplot() -> ModuleType:
+    """``matplotlib.pyplot`` on the Agg backend (files only: eval and train run headless), imported on first use as it is
+    slow (``import_pyplot_in_background`` gives the launcher a head start; ``train`` loads it before its first update)."""
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
@@ -24,14 +25,14 @@ def _pyplot() -> ModuleType:
 
 
 def import_pyplot_in_background() -> threading.Thread:
-    """Start ``_pyplot``'s import (about 1 s of a 2-core host's time) on a daemon thread, for a process that draws its
+    """Start ``pyplot``'s import (about 1 s of a 2-core host's time) on a daemon thread, for a process that draws its
     figures only after a wait of its own: the launcher, while its services start and its episode runs, drew them
     that much later once the episode had ended. A figure drawn before the import is done waits for it (Python's
     import lock); an import that fails here fails again, and is said, where the figure is drawn."""
 
     def run() -> None:
         try:
-            _pyplot()
+            pyplot()
         except Exception:  # noqa: BLE001, S110 - only a head start: the figure's own import raises it where it is said
             pass
 
@@ -46,7 +47,7 @@ def _save(fig: Any, path: Path, dpi: int) -> None:
     try:  # whole: report.html links it, and a resumed eval's report keeps it
         write_whole(path, lambda partial: fig.savefig(partial, dpi=dpi, format="png"))
     finally:
-        _pyplot().close(fig)
+        pyplot().close(fig)
 
 
 LINE_STYLES = ("-", "--", "-.", ":")
@@ -107,7 +108,7 @@ def coverage_figure(outcomes: Sequence[Any], methods: Sequence[str] = ()) -> Any
 
     from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
 
-    plt = _pyplot()
+    plt = pyplot()
     by_scale: dict[str, dict[str, list[np.ndarray]]] = {}
     styles: dict[str, dict[str, str]] = {m: method_style(i) for i, m in enumerate(dict.fromkeys(methods))}
     for o in outcomes:
@@ -185,7 +186,7 @@ def trajectory_figure(name: str, outcomes: Sequence[Any]) -> Any:
     free space (light blue), the path (red) from its start (green dot) to its end (red square), with a key, in the
     user's map frame (each outcome's ``map_origin``: a map_server scene's ``origin``). Panels take the plan's aspect
     ratio, so that tall and wide plans alike keep their axis labels, at most ``TRAJECTORY_COLUMNS`` to a row."""
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.lines import Line2D  # noqa: PLC0415  (matplotlib is slow to import)
     from matplotlib.patches import Patch  # noqa: PLC0415
 
@@ -249,7 +250,7 @@ def scene_figure(plan: Any) -> Any:
     counts), free space it cannot reach (beige), and the start pose as an arrow along its yaw, in the user's map
     frame (``plan.map_origin``: the start where ``scenes`` lists it); the title gives the traversable area and the
     paper's scale class."""
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.patches import Patch  # noqa: PLC0415  (matplotlib is slow to import)
 
     free = np.asarray(plan.free, dtype=bool)
@@ -288,7 +289,7 @@ def plot_paired_efficiency(path: Path, table: dict[tuple[str, str], dict[tuple, 
     efficiently."""
     from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
 
-    plt = _pyplot()
+    plt = pyplot()
     scale_colours = plt.get_cmap("viridis")(np.linspace(0.0, 0.85, len(SCALES)))  # 0.85: no pale yellow on white
     shown = {m for m, _ in table if m != baseline}
     methods = [m for m in dict.fromkeys(order) if m in shown] + sorted(shown - set(order))
@@ -331,7 +332,7 @@ def efficiency_figure(summary: dict[str, Any]) -> Any:
     bootstrap interval (``summary["paired"]``: the same figures as paired.csv)."""
     from cso_runtime.scenes import SCALES  # noqa: PLC0415  (keeps this module's import light)
 
-    plt = _pyplot()
+    plt = pyplot()
     methods = list(summary["methods"])
     scales = [sc for sc in SCALES if any(sc in summary["methods"][m]["by_scale"] for m in methods)]
     comparisons = summary["paired"]["comparisons"]

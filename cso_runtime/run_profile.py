@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import importlib.util
 import os
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -270,24 +269,10 @@ class Profile:
         from services.mapper import MapperParams  # noqa: PLC0415 - services import zenoh
         from services.ros2_bridge import Ros2BridgeParams  # noqa: PLC0415
 
-        grids: list[tuple[str, float, float, float, Callable[[], tuple[int, int] | None]]] = []  # each as its service makes it
         if "ros2_bridge" in self.services:
-            b = from_dict(Ros2BridgeParams, self.builtin_params("ros2_bridge"), where="services.ros2_bridge")
-            grids.append(("services.ros2_bridge.arena_width_m, arena_height_m", b.resolution_m, b.arena_width_m, b.arena_height_m, b.arena_shape))
+            from_dict(Ros2BridgeParams, self.builtin_params("ros2_bridge"), where="services.ros2_bridge").check_grid(self.max_grid_cells)
         if "mapper" in self.services:
-            m = from_dict(MapperParams, self.builtin_params("mapper"), where="services.mapper")
-            grids.append(("services.mapper.width_m, height_m", m.resolution_m, m.width_m, m.height_m, m.explicit_shape))
-        for where, resolution_m, width_m, height_m, shape_of in grids:
-            too_large = f"{where}: a {width_m:g} x {height_m:g} m grid at {resolution_m:g} m is"
-            try:
-                shape = shape_of()
-            except OverflowError:  # finite sizes whose cells are no float (1e308 m at 1 mm): more than any bound
-                raise ConfigError(f"{too_large} too many cells to count, more than max_grid_cells ({self.max_grid_cells:_}): shrink the arena") from None
-            if shape is not None and shape[0] * shape[1] > self.max_grid_cells:
-                raise ConfigError(
-                    f"{too_large} {shape[1]} x {shape[0]} = {shape[0] * shape[1]:_} cells, "
-                    f"more than max_grid_cells ({self.max_grid_cells:_}): raise max_grid_cells (at most {MAX_GRID_CELLS:_}) or shrink the arena"
-                )
+            from_dict(MapperParams, self.builtin_params("mapper"), where="services.mapper").check_grid(self.max_grid_cells)
 
     def validate(self) -> None:
         check_robot_id(self.robot)

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
 import zenoh
 
-from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, compose_pose, map_frame_xy
+from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, map_frame_pose, map_frame_xy
 from cso_runtime.keys import WILDCARD, KeyExprError, RobotKeys, check_robot_id, robot_of
 from cso_runtime.messages import (
     EPISODE_OVER,
@@ -141,6 +141,7 @@ def status_of(
     map_origin = ep.get("map_origin", MAP_FRAME_ORIGIN.as_list())  # none in an older launcher's last-heard status
     goal = ep.get("goal_xy_m")  # none in the launcher's last-heard status
     pose = ep.get("pose")  # the robot's odometry pose in the scene's frame; none before the first odometry (last-heard: where it ended)
+    pose_in_map = map_frame_pose(Pose2D(*map_origin), None if pose is None else Pose2D(*pose))  # as EpisodeStatusMsg.pose_in_map_frame
     return {
         "robot": robot,
         "run_id": (launcher or {}).get("run_id", ""),
@@ -152,7 +153,7 @@ def status_of(
         "path_length_m": ep.get("path_length_m", 0.0),
         "goal": None if goal is None else map_frame_xy(Pose2D(*map_origin), goal),  # in the user's map frame, as the scene's start
         "map_origin": map_origin,
-        "pose": None if pose is None else compose_pose(Pose2D(*map_origin), Pose2D(*pose)).as_list(),  # [x_m, y_m, yaw_rad], as the goal
+        "pose": None if pose_in_map is None else pose_in_map.as_list(),  # [x_m, y_m, yaw_rad], as the goal
         "twist": ep.get("twist"),  # [linear_mps, angular_radps], the robot's own frame
         "decisions": ep.get("decisions", 0),
         "last_decision_ms": ep.get("last_decision_ms", 0.0),

@@ -46,6 +46,7 @@ from cso_runtime.config import (
     LOG_FORMAT,
     ConfigError,
     ExplorationConfig,
+    check_seed,
     from_dict,
     load_yaml,
 )
@@ -887,13 +888,17 @@ def _service_main(cls: type[Service], argv: list[str] | None, prog: str | None) 
         check_robot_id(args.robot)
         profile, exploration, params = load_profile_for_service(args.config, cls.name, cls)
         set_max_grid_cells(profile.get("max_grid_cells", DEFAULT_MAX_GRID_CELLS))  # before any message is decoded
+        check_seed(profile.get("seed", 0))  # as `up` checks it: the services read it with int(), which took 1e400 or [1] badly
         params = cls.apply_arguments(args, dict(params))
         transport = TransportConfig(mode=args.mode, connect=list(args.connect), listen=list(args.listen))
         router = r if isinstance(r := profile.get("router"), dict) else {}
         transport.zenoh_config_file = args.zenoh_config or str(router.get("zenoh_config") or "") or transport.zenoh_config_file
         transport.validate()
         service = cls(ServiceContext(cls.name, args.robot, profile, exploration, transport, params))
-    except (ConfigError, TransportError, ValueError) as exc:
+    except (ConfigError, TransportError, ValueError, OverflowError, MemoryError) as exc:
+        # What a bad profile raises as the service is made from it: its checks' ConfigError, a value no type takes
+        # (ValueError), a size too large to count (OverflowError: 1e308 m at 1 mm) or to allocate (MemoryError) in a
+        # service of one's own that checks none (the built-in ones check their grids: ``messages.check_configured_grid``).
         log.error("%s: bad configuration: %s", cls.name, exc)
         return EXIT_BAD_CONFIG
     stop = threading.Event()

@@ -18,7 +18,7 @@ import zenoh
 
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.geometry import GridGeometry
-from cso_runtime.messages import ClockMsg, MapMsg, Message, ScanMsg, encode
+from cso_runtime.messages import ClockMsg, MapMsg, Message, ScanMsg, check_configured_grid, encode
 from cso_runtime.occupancy import OccupancyMap, integrate_observation
 from services.common import Service, ServiceContext, service_main
 
@@ -48,6 +48,11 @@ class MapperParams:
             return None
         return round(self.height_m / self.resolution_m), round(self.width_m / self.resolution_m)
 
+    def check_grid(self, bound: int | None = None) -> None:
+        """ConfigError for an explicit grid of more cells than ``bound`` (this process's ``max_grid_cells`` when None)
+        or too many to count (``messages.check_configured_grid``): ``up`` checks it, and the mapper before making it."""
+        check_configured_grid("services.mapper.width_m, height_m", self.resolution_m, self.width_m, self.height_m, self.explicit_shape, bound)
+
     def validate(self) -> None:
         if self.resolution_m < 0 or (self.resolution_m > 0 and not (self.width_m > 0 and self.height_m > 0)):
             raise ConfigError("an explicit grid needs resolution_m, width_m and height_m > 0")
@@ -74,6 +79,7 @@ class MapperService(Service):
         """Episode id of the map (from the clock); None until the first clock."""
         self.pending: list[ScanMsg] = []
         self._queryable: zenoh.Queryable | None = None
+        self.params.check_grid()  # started by hand, with no `up` to check its profile: before allocating the grid
         if (shape := self.params.explicit_shape()) is not None:
             self.map = OccupancyMap(GridGeometry(self.params.resolution_m, shape))
 

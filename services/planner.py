@@ -24,6 +24,7 @@ import numpy as np
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.geometry import VelocityCommand
 from cso_runtime.messages import (
+    MAX_PLANNER_STATE_BYTES,
     CmdVelMsg,
     DistanceMapMsg,
     ExploreResumeMsg,
@@ -193,6 +194,9 @@ class PlannerService(Service):
         self.published_state: tuple[int, np.ndarray | None, FreeSpace | None] = (-1, None, None)
         """The step of the last plan sent (on ``cmd_vel``, ``with_checkpoint``), and its path and grid (a new one goes out
         when they change)."""
+        self.states_too_large = 0
+        """States over ``MAX_PLANNER_STATE_BYTES`` that ``with_checkpoint`` left off their command (status counter
+        ``states_too_large`` once there is one)."""
         self.resumed_step: int | None = None
         """Lockstep: the step of the state restored at start (``restore_state``) until the first odometry: when that is
         of a later step than the next, the state is behind the episode and this planner joins where it is."""
@@ -527,11 +531,21 @@ class PlannerService(Service):
         state = PlannerStateMsg(
             k, plan_step, self.goal_step, self.no_frontier, cmd, self.set_goal_blocked, p.checkpoint(), self.episodes.current or 0, len(p.contacts_xy_m),
         )  # fmt: skip
-        return dataclasses.replace(cmd, planner_state=encode(state), planner_plan=plan)
+        encoded = encode(state)
+        if len(encoded) > MAX_PLANNER_STATE_BYTES:  # the referee would refuse the whole command (the robot stops): it goes without
+            self.states_too_large += 1
+            log.warning(
+                "step %d: the planner's state (%d bytes) is over the %d bytes cmd_vel carries: the command goes without it "
+                "(a restart would resume from an earlier state, or start afresh; %d so far)",
+                k, len(encoded), MAX_PLANNER_STATE_BYTES, self.states_too_large,
+            )  # fmt: skip
+            return dataclasses.replace(cmd, planner_state=None, planner_plan=plan)
+        return dataclasses.replace(cmd, planner_state=encoded, planner_plan=plan)
 
     def extra_status(self) -> dict[str, int]:
-        """``contacts``: how many the planner keeps in this episode (restored ones included)."""
-        return {"contacts": len(self.planner.contacts_xy_m)}
+        """``contacts``: how many the planner keeps in this episode (restored ones included); ``states_too_large``, once
+        there is one: the states left off their command (``with_checkpoint``)."""
+        return {"contacts": len(self.planner.contacts_xy_m), **({"states_too_large": self.states_too_large} if self.states_too_large else {})}
 
     def ends_stopped(self, cmd: CmdVelMsg | None) -> bool:
         """Real time: ``cmd``, the last command sent, was the stop at the episode's end (``no_frontier``), so the

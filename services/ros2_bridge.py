@@ -64,6 +64,7 @@ from cso_runtime.messages import (
     OdometryMsg,
     PlannerContactsMsg,
     ScanMsg,
+    check_configured_grid,
     decode,
     encode,
     new_episode_id,
@@ -150,6 +151,13 @@ class Ros2BridgeParams:
     def arena_shape(self) -> tuple[int, int]:
         """The arena's ``(ny, nx)`` cells: its size in whole cells, rounded up."""
         return math.ceil(self.arena_height_m / self.resolution_m - 1e-9), math.ceil(self.arena_width_m / self.resolution_m - 1e-9)
+
+    def check_grid(self, bound: int | None = None) -> None:
+        """ConfigError for an arena of more cells than ``bound`` (this process's ``max_grid_cells`` when None) or too many
+        to count (``messages.check_configured_grid``): ``up`` checks it, and the bridge as it starts."""
+        check_configured_grid(
+            "services.ros2_bridge.arena_width_m, arena_height_m", self.resolution_m, self.arena_width_m, self.arena_height_m, self.arena_shape, bound
+        )
     map_period_s: float = 0.5
     """At most one map on ``map_topic`` per this long (wall clock); the newest map always goes out once nothing newer
     follows. The mapper makes one map per scan, a few hundred kB at 10 Hz: more than RViz needs, sent over the robot's
@@ -344,6 +352,7 @@ class Ros2BridgeService(Service):
         super().__init__(ctx)
         self.params = from_dict(Ros2BridgeParams, ctx.params, where="services.ros2_bridge")
         p = self.params
+        p.check_grid()  # started by hand, with no `up` to check its profile: before the first odometry makes the arena
         self.robot_cfg = ctx.exploration.robot
         self.odometry = OdometryBuffer(
             p.odom_history_s,

@@ -18,14 +18,14 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import zenoh
 
 from cso_runtime.config import ConfigError, SensorConfig, from_dict
 from cso_runtime.episode import TERMINATED_COVERAGE, TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER, GroundTruthMetrics
-from cso_runtime.geometry import LaserScan, VelocityCommand, mean_twist
+from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, mean_twist
 from cso_runtime.keys import PLANNER_KEPT, RobotKeys
 from cso_runtime.messages import (
     ClockMsg,
@@ -60,6 +60,17 @@ MAX_STEPS_PER_TICK = 4
 late tick); up to 4 x 0.25 s / 0.02 s = 50x real time."""
 
 BACKENDS = {"kinematic": "2d", "2d": "2d", "mujoco": "mujoco"}
+
+
+class PublishedStep(NamedTuple):
+    """What the episode status says of the robot: the step last published, its odometry's pose and twist, and the path
+    driven up to it. Replaced as one by ``publish_step`` and read once by ``episode_status``, which a status query runs
+    on Zenoh's thread while the step runs: never a pose of one step with the twist or the step number of another."""
+
+    step: int
+    pose: Pose2D
+    twist: VelocityCommand
+    path_length_m: float
 
 
 @dataclass
@@ -194,10 +205,11 @@ class SimService(Service):
         self.trajectory: list[tuple[float, float]] = [tuple(self.sim.true_pose().xy)]
         self.odom_twist = VelocityCommand()
         """``odom``'s twist: the mean over the step just run, from odometry (at rest before the first step)."""
-        self.odom_out = (self.sim.odometry(), self.odom_twist)
-        """The pose and twist of the last ``odom`` published: what the episode status says of the robot, taken as one
-        (a status query answered on another thread while the step runs sees a published odometry, never half a step)."""
         self.path_length_m = 0.0
+        self.published = PublishedStep(self.step, self.sim.odometry(), self.odom_twist, self.path_length_m)
+        """The step, pose, twist and path length of the last ``odom`` published: what the episode status says of the
+        robot, taken as one (a status query answered on another thread while the step runs sees a published step,
+        never half of one: ``advance`` counts the step and its path before it publishes it)."""
         self.decisions = 0
         self.decision_ms: list[float] = []
         self.goal_xy: list[float] | None = None
@@ -262,13 +274,13 @@ class SimService(Service):
     # --- the step ---------------------------------------------------------------------------------
     def publish_step(self, scan: LaserScan | None = None) -> None:
         """Clock, odometry and scan of the current step (also used to re-request a lost step)."""
-        self.odom_out = odom = (self.sim.odometry(), self.odom_twist)
+        self.published = out = PublishedStep(self.step, self.sim.odometry(), self.odom_twist, self.path_length_m)
         scan = scan if scan is not None else self.sim.scan()
         # The scan first: the mapper, at the head of the step's chain, starts at once (it carries the
         # episode id, so the mapper need not wait for the clock).
         self.publish("scan", ScanMsg(self.step, scan, self.sim.sensor_pose(), self.episode))
         self.last_step = self.step  # what `status` shows for the sim
-        self.publish("odom", OdometryMsg(self.step, self.sim.time_s, *odom, self.episode))
+        self.publish("odom", OdometryMsg(out.step, self.sim.time_s, out.pose, out.twist, self.episode))
         self.publish("clock", ClockMsg(self.step, self.sim.time_s, self.sim.plan.geometry, self.episode))
         self.last_publish_s = time.monotonic()
         if self.viewer is not None:  # after the step is out: the window never delays the pipeline
@@ -276,14 +288,15 @@ class SimService(Service):
 
     def episode_status(self) -> EpisodeStatusMsg:
         cov = self.coverage_curve[-1] if self.coverage_curve else 0.0
+        out = self.published  # read once: a step published meanwhile replaces it whole
         return EpisodeStatusMsg(
             state=self.episode_state,
-            step=self.step,
+            step=out.step,
             scene=self.sim.plan.name,
             method=self.method,
             coverage_pct=float(min(cov, 100.0)),
             explored_area_m2=self.explored_m2,
-            path_length_m=self.path_length_m,
+            path_length_m=out.path_length_m,
             goal_xy_m=self.goal_xy,
             decisions=self.decisions,
             last_decision_ms=self.decision_ms[-1] if self.decision_ms else 0.0,
@@ -292,8 +305,8 @@ class SimService(Service):
             lockstep_timeouts=self.timeouts,
             episode=self.episode,
             map_origin=self.sim.plan.map_origin,
-            pose=self.odom_out[0],  # the step's odom, as published
-            twist=self.odom_out[1],
+            pose=out.pose,  # the step's odom, as published
+            twist=out.twist,
         )
 
     def finish(self, state: str, terminated_by: str, reason: str = "", ended_why: str = "") -> None:

@@ -1050,3 +1050,41 @@ def test_an_arena_too_large_to_count_its_cells_is_refused_as_over_the_grid_bound
     mapper = {"services.mapper.resolution_m": 0.001, "services.mapper.width_m": 10.0, "services.mapper.height_m": 1e308}
     with pytest.raises(ConfigError, match=r"services.mapper.width_m, height_m: a 10 x 1e\+308 m grid at 0.001 m is too many cells to count"):
         load_profile("limo-ros2", {}, connect=robot, settings=mapper)
+
+
+@pytest.mark.parametrize(
+    "service, profile, said",
+    [
+        ("mapper", {"services": {"mapper": {"resolution_m": 0.001, "width_m": 1e308, "height_m": 1e308}}}, "a 1e+308 x 1e+308 m grid at 0.001 m is too many cells to count"),
+        ("mapper", {"services": {"mapper": {"resolution_m": 0.001, "width_m": 200.0, "height_m": 200.0}}}, "200000 x 200000 = 40_000_000_000 cells, more than max_grid_cells"),
+        ("ros2_bridge", {"services": {"ros2_bridge": {"resolution_m": 0.001, "arena_width_m": 1e308}}}, "a 1e+308 x 20 m grid at 0.001 m is too many cells to count"),
+        ("sim", {"scene": "generated:small:1:0", "seed": float("inf"), "services": {"sim": {}}}, "seed must be an integer from 0 to 4294967295, got inf"),
+        ("sim", {"scene": "generated:small:1:0", "seed": [1], "services": {"sim": {}}}, "seed must be an integer from 0 to 4294967295, got [1]"),
+        ("overflowing", {"services": {"overflowing": {}}}, "overflowing: bad configuration: cannot convert float infinity to integer"),
+    ],
+)
+def test_a_service_started_by_hand_with_absurd_sizes_says_so_in_one_line_and_exits_2(tmp_path, caplog, service, profile, said):
+    """A service started by hand (``python -m services.mapper --config FILE``: no ``up`` checked its profile) with a grid
+    too large to count ended in an OverflowError traceback (exit 1), one too large to allocate in a MemoryError one
+    (40 GB for 200 m at 1 mm), the ROS bridge's arena only at its first odometry, and a seed no integer (``.inf``,
+    ``[1]``) in the sim's ``int()``. Each is now the bad configuration it is, in one line, exit 2 (not restarted), with
+    ``up``'s words for the grids (``messages.check_configured_grid``); a service of one's own that overflows on its
+    config as it is made gets the same line."""
+    import yaml
+
+    from services import service_class
+    from services.common import Service, service_main
+
+    class Overflowing(Service):
+        name = "overflowing"
+
+        def __init__(self, ctx: object) -> None:
+            raise OverflowError("cannot convert float infinity to integer")
+
+    cls = Overflowing if service == "overflowing" else service_class(service)
+    path = tmp_path / "profile.yaml"
+    path.write_text(yaml.safe_dump(profile))
+    assert service_main(cls, ["--config", str(path), "--connect", "tcp/127.0.0.1:1"], exit_process=False) == 2
+    errors = [r for r in caplog.records if r.levelname == "ERROR"]
+    assert len(errors) == 1 and f"{service}: bad configuration: " in errors[0].getMessage() and said in errors[0].getMessage()
+    assert errors[0].exc_info is None

@@ -953,6 +953,38 @@ def test_a_run_that_started_no_service_is_listed_as_it_ended(tmp_path):
     assert not list(runs.glob("*/logs/*.log"))  # no service was started
 
 
+def test_a_run_stopped_before_its_results_does_not_wait_out_pyplots_import(tmp_path):
+    """The launcher joined its background pyplot import with no bound as it stopped: a run stopped before its results
+    (no figure to draw) waited for a first run's matplotlib to build its font cache, tens of seconds. Here the import
+    never ends: the stop waits ``PYPLOT_IMPORT_STOP_S`` for it, says so, and the run ends (interrupted, 130) without it."""
+    runs = tmp_path / "runs"
+    script = textwrap.dedent(
+        f"""
+        import logging, threading
+        from pathlib import Path
+        import cso_runtime.launcher as L
+        from cso_runtime.run_profile import find_profile, load_profile
+
+        logging.basicConfig(level=logging.INFO)
+        never = threading.Event()
+        importing = threading.Thread(target=never.wait, name="import-pyplot", daemon=True)  # a font cache being built
+
+        def import_pyplot_in_background():
+            importing.start()
+            return importing
+
+        L.import_pyplot_in_background = import_pyplot_in_background
+        L.Launcher.spawn_all = lambda self: self.stop_event.set()  # stopped (Ctrl-C) as its services would start
+        profile, data = load_profile(str(find_profile("lockstep")), {{"scene": {SCENE!r}}})
+        launcher = L.Launcher(profile, data, Path({str(runs / "r")!r}))
+        print(launcher.run(), importing.is_alive())
+        """
+    )
+    r = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=HANG_DEADLINE_S)
+    assert r.returncode == 0 and r.stdout.split() == ["130", "True"], r.stderr[-2000:]
+    assert "pyplot's import (for the figures; a first run builds matplotlib's font cache) is not done: the stop does not wait for it" in r.stderr
+
+
 def test_a_run_stopped_as_its_status_watch_asks_closes_its_session_after_the_watch_ends(tmp_path):
     """Ctrl-C as ``up`` was about to start its services (its status watch's first query in flight) closed the run's
     session under that query: "RuntimeError: Already borrowed" out of ``up`` and, at the process's end, "FATAL:

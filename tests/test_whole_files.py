@@ -127,7 +127,7 @@ def test_figures_stopped_while_written_keep_the_earlier_ones(tmp_path, monkeypat
     from cso_runtime import plots
 
     def figure() -> Any:
-        fig, ax = plots._pyplot().subplots()
+        fig, ax = plots.pyplot().subplots()
         ax.plot([0, 1], [0, 1])
         return fig
 

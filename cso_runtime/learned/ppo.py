@@ -68,6 +68,7 @@ from cso_runtime.learned.registry import (
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.learned.weights import mask_set_flags, mask_settings_changed, trained_mask_settings
 from cso_runtime.outputs import remove_partial_files, write_npz_whole, write_text_atomic, write_whole
+from cso_runtime.plots import pyplot
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.provenance import software_provenance
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
@@ -1470,18 +1471,6 @@ def draw_curve_so_far(csv_path: Path, png_path: Path, title: str, log: Callable[
     else:
         if say_where:
             log(f"learning curve so far: {png_path}")
-
-
-def pyplot() -> Any:
-    """matplotlib's pyplot on the file-only Agg backend. ``train`` loads it before its first update: imported at the first
-    checkpoint's drawing (1 to 2 s), a Ctrl-C then left matplotlib half-imported, and the curve of the stopped run
-    could not be drawn."""
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    return plt
 
 
 def plot_learning_curve(csv_path: Path, png_path: Path, title: str) -> None:
