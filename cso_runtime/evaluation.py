@@ -1061,6 +1061,17 @@ def seed_changes_nothing_said(flag: str) -> str:
     )
 
 
+def seeds_pooled_in(out_dir: Path | str) -> list[int]:
+    """The seeds of an ``eval --seeds`` whose folder ``out_dir`` is: its summary.json's ``meta.seeds``, or, before that
+    summary is written (an eval killed in its first seed), the ``seed<S>/`` folders (``seed_folder``) holding episodes."""
+    out = Path(out_dir)
+    seeds = (_earlier_meta(out) or {}).get("seeds")
+    if isinstance(seeds, list) and seeds:
+        return [int(s) for s in seeds if isinstance(s, int) and not isinstance(s, bool)]
+    found = [p.name.removeprefix("seed") for p in out.glob("seed*") if (p / "episodes").is_dir()]
+    return sorted(int(s) for s in found if s.isdigit())
+
+
 def plan_seeds(request: EvalRequest) -> EvalPlan:
     """``plan_eval`` of an eval of several seeds (``--seeds``): each seed's plan, checked before any episode, and one
     plan of all their jobs (config, scenes, weights and settings are the same for every seed). A ``--out`` that holds a
@@ -1091,6 +1102,12 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
     config = request.exploration_config()
     scenes = resolve_scenes(request.maps, request.limit, request.m_per_px)
     out = Path(request.out_dir)
+    if pooled := seeds_pooled_in(out):  # the other way round of plan_seeds' refusal
+        raise ConfigError(
+            f"{out} holds the episodes of eval --seeds {','.join(map(str, pooled))} ({out}/seed<S>/) pooled in its summary.json and "
+            f"episodes.csv, which a one-seed eval would replace (and --seeds --resume would then refuse the folder); give another --out, "
+            f"or --out {out}/seed<S> to go on with one seed's episodes"
+        )
     warnings: list[str] = []
     others = methods_summarized_elsewhere(out, request.methods)
     if others:

@@ -168,6 +168,29 @@ def test_eval_seeds_runs_several_seeds_in_one_command_and_pools_them_in_one_fold
         run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=one_seed, seeds=[0, 1]))
 
 
+def test_a_one_seed_eval_into_the_folder_of_an_eval_of_several_seeds_is_refused(tmp_path: Path):
+    """``--seeds`` refuses an ``--out`` that holds a one-seed eval's episodes, but the other way round a one-seed eval
+    into the folder of ``--seeds 0,1`` replaced the pooled summary.json and episodes.csv with its own (no warning),
+    and left ``OUT/episodes/`` beside the seeds' folders, so ``--seeds 0,1 --resume`` then refused the folder: the
+    pooled results were lost and could not be made again there. It is refused before any episode, as is a folder of
+    seeds whose pooled files were never written (an eval killed in its first seed); a seed's own folder is not."""
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    _corridor_scene(maps, "corridor", "[1.5, 0.18, -0.5]")
+    out = tmp_path / "out"
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out, seeds=[0, 1]))
+    pooled = (out / "summary.json").read_text(), (out / "episodes.csv").read_text()
+    with pytest.raises(ConfigError, match=r"holds the episodes of eval --seeds 0,1 .* give another --out"):
+        run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out, seed=1))
+    assert ((out / "summary.json").read_text(), (out / "episodes.csv").read_text()) == pooled and not (out / "episodes").exists()
+    again = run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out, seeds=[0, 1], resume=True))
+    assert again["meta"]["resumed_episodes"] == 2
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out / "seed1", seed=1, resume=True))  # one seed's folder: as --seed wrote it
+    (out / "summary.json").unlink()  # killed before its pooled files
+    with pytest.raises(ConfigError, match="holds the episodes of eval --seeds 0,1"):
+        run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out))
+
+
 def test_evals_files_say_why_an_episode_ended_no_frontier_and_resume_keeps_it(tmp_path: Path, capsys):
     """eval's progress said why an episode ended no_frontier (``EpisodeResult.ended_why``), its files did not: a
     results folder showed "no_frontier" alone. ``episodes.csv``'s last column ``ended_why`` (empty for any other end),
