@@ -1062,14 +1062,10 @@ def seed_changes_nothing_said(flag: str) -> str:
 
 
 def seeds_pooled_in(out_dir: Path | str) -> list[int]:
-    """The seeds of an ``eval --seeds`` whose folder ``out_dir`` is: its summary.json's ``meta.seeds``, or, before that
-    summary is written (an eval killed in its first seed), the ``seed<S>/`` folders (``seed_folder``) holding episodes."""
-    out = Path(out_dir)
-    seeds = (_earlier_meta(out) or {}).get("seeds")
-    if isinstance(seeds, list) and seeds:
-        return [int(s) for s in seeds if isinstance(s, int) and not isinstance(s, bool)]
-    found = [p.name.removeprefix("seed") for p in out.glob("seed*") if (p / "episodes").is_dir()]
-    return sorted(int(s) for s in found if s.isdigit())
+    """The seeds of the ``eval --seeds`` whose pooled files ``out_dir`` holds (its summary.json's ``meta.seeds``); []
+    for any other folder (one of a one-seed eval, or a parent of ``--seed`` runs' folders of one's own)."""
+    seeds = (_earlier_meta(Path(out_dir)) or {}).get("seeds")
+    return [s for s in seeds if isinstance(s, int) and not isinstance(s, bool)] if isinstance(seeds, list) else []
 
 
 def plan_seeds(request: EvalRequest) -> EvalPlan:

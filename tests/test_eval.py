@@ -172,8 +172,8 @@ def test_a_one_seed_eval_into_the_folder_of_an_eval_of_several_seeds_is_refused(
     """``--seeds`` refuses an ``--out`` that holds a one-seed eval's episodes, but the other way round a one-seed eval
     into the folder of ``--seeds 0,1`` replaced the pooled summary.json and episodes.csv with its own (no warning),
     and left ``OUT/episodes/`` beside the seeds' folders, so ``--seeds 0,1 --resume`` then refused the folder: the
-    pooled results were lost and could not be made again there. It is refused before any episode, as is a folder of
-    seeds whose pooled files were never written (an eval killed in its first seed); a seed's own folder is not."""
+    pooled results were lost and could not be made again there. It is refused before any episode; a seed's own folder,
+    and a folder of one's own holding separate ``--seed`` runs' folders, are not."""
     maps = tmp_path / "maps"
     maps.mkdir()
     _corridor_scene(maps, "corridor", "[1.5, 0.18, -0.5]")
@@ -186,9 +186,9 @@ def test_a_one_seed_eval_into_the_folder_of_an_eval_of_several_seeds_is_refused(
     again = run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out, seeds=[0, 1], resume=True))
     assert again["meta"]["resumed_episodes"] == 2
     run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out / "seed1", seed=1, resume=True))  # one seed's folder: as --seed wrote it
-    (out / "summary.json").unlink()  # killed before its pooled files
-    with pytest.raises(ConfigError, match="holds the episodes of eval --seeds 0,1"):
-        run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out))
+    mine = tmp_path / "mine"  # the README's former method: a --seed run per folder, in a folder of one's own
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=mine / "seed0"))
+    assert run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=mine, seed=1))["meta"]["seed"] == 1
 
 
 def test_evals_files_say_why_an_episode_ended_no_frontier_and_resume_keeps_it(tmp_path: Path, capsys):
