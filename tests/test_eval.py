@@ -19,7 +19,7 @@ import pytest
 import cso_runtime
 from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, to_dict
 from cso_runtime.episode import GroundTruthMetrics, run_episode
-from cso_runtime.evaluation import CSV_FIELDS, METRICS, WORKER_DIED, EpisodeJob, EvalRequest, run_eval, run_in_processes, run_job
+from cso_runtime.evaluation import CSV_FIELDS, METRICS, WORKER_DIED, EpisodeJob, EvalRequest, plan_eval, run_eval, run_in_processes, run_job
 from cso_runtime.map_files import load_map
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import builtin_scene_dir, load_floor_plan, resolve_scenes
@@ -186,6 +186,20 @@ def test_a_one_seed_eval_into_the_folder_of_an_eval_of_several_seeds_is_refused(
     again = run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out, seeds=[0, 1], resume=True))
     assert again["meta"]["resumed_episodes"] == 2
     run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out / "seed1", seed=1, resume=True))  # one seed's folder: as --seed wrote it
+    # Planned before the other kind of eval wrote the folder, refused once it holds the folder's lock.
+    late = tmp_path / "late"
+    one_seed = EvalRequest(methods=["random"], maps=str(maps), out_dir=late)
+    planned = plan_eval(one_seed)
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=late, seeds=[0, 1]))
+    with pytest.raises(ConfigError, match="holds the episodes of eval --seeds 0,1"):
+        run_eval(one_seed, plan=planned)
+    assert not (late / "episodes").exists()
+    seeds = EvalRequest(methods=["random"], maps=str(maps), out_dir=tmp_path / "late2", seeds=[0, 1])
+    planned = plan_eval(seeds)
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=tmp_path / "late2"))
+    with pytest.raises(ConfigError, match="holds the episodes of a one-seed eval"):
+        run_eval(seeds, plan=planned)
+    assert not (tmp_path / "late2" / "seed0").exists()
     mine = tmp_path / "mine"  # the README's former method: a --seed run per folder, in a folder of one's own
     run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=mine / "seed0"))
     assert run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=mine, seed=1))["meta"]["seed"] == 1
