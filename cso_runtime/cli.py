@@ -1476,9 +1476,34 @@ def _name_starting_up_early(args: list[str]) -> None:
     global _starting_up
     runs_dir = _up_runs_dir(args)
     if runs_dir is not None and _starting_up is None:
+        import signal  # noqa: PLC0415
+
         from cso_runtime.current_run import record_starting_up  # noqa: PLC0415  (no numpy: cheap)
 
+        for sig in (signal.SIGTERM, signal.SIGHUP):  # until `up` puts in its own (processes.stop_on_signals)
+            if signal.getsignal(sig) == signal.SIG_DFL:  # not one ignored (nohup), nor a host program's
+                signal.signal(sig, _killed_before_up_ran)
+                _early_handlers.append(sig)
         _starting_up = (runs_dir, record_starting_up(runs_dir))
+
+
+_early_handlers: list[int] = []
+"""The signals ``_name_starting_up_early`` handles (``_killed_before_up_ran``), given back to the default as ``main`` ends."""
+
+
+def _killed_before_up_ran(signum: int, frame: object) -> None:
+    """SIGTERM or SIGHUP in ``up``'s first moments, before its own handlers (``down``, ``kill``, a closed terminal):
+    the file ``main`` wrote for ``down`` (and the folders made for it) goes, then the process dies of the signal, as
+    it did before it wrote one. It left the file and a runs folder behind."""
+    import os  # noqa: PLC0415
+    import signal  # noqa: PLC0415
+
+    global _starting_up
+    early, _starting_up = _starting_up, None
+    if early is not None:
+        early[1]()
+    signal.signal(signum, signal.SIG_DFL)
+    os.kill(os.getpid(), signum)
 
 
 def _named_starting_up(runs_dir: Path) -> Callable[[], None]:
@@ -1516,6 +1541,17 @@ def main() -> None:
         early, _starting_up = _starting_up, None
         if early is not None:  # no `up` took it over: typer refused the command line, or `up` never ran
             early[1]()
+        _give_back_early_handlers()
+
+
+def _give_back_early_handlers() -> None:
+    """The default again for each signal ``_name_starting_up_early`` handled, where no one has put another since."""
+    import signal  # noqa: PLC0415
+
+    while _early_handlers:
+        sig = _early_handlers.pop()
+        if signal.getsignal(sig) is _killed_before_up_ran:
+            signal.signal(sig, signal.SIG_DFL)
 
 
 if __name__ == "__main__":

@@ -1061,16 +1061,36 @@ def seed_changes_nothing_said(flag: str) -> str:
     )
 
 
-def plan_seeds(request: EvalRequest) -> EvalPlan:
-    """``plan_eval`` of an eval of several seeds (``--seeds``): each seed's plan, checked before any episode, and one
-    plan of all their jobs (config, scenes, weights and settings are the same for every seed). A ``--out`` that holds a
-    one-seed eval's episodes is refused: the pooled summary.json and episodes.csv would replace that eval's."""
+def seeds_pooled_in(out_dir: Path | str) -> list[int]:
+    """The seeds of the ``eval --seeds`` whose pooled files ``out_dir`` holds (its summary.json's ``meta.seeds``); []
+    for any other folder (one of a one-seed eval, or a parent of ``--seed`` runs' folders of one's own)."""
+    seeds = (_earlier_meta(Path(out_dir)) or {}).get("seeds")
+    return [s for s in seeds if isinstance(s, int) and not isinstance(s, bool)] if isinstance(seeds, list) else []
+
+
+def refuse_the_other_kind_of_eval(request: EvalRequest) -> None:
+    """Raise ConfigError where ``--out`` holds the other kind of eval: ``--seeds`` into a one-seed eval's folder (its
+    ``episodes/``), or a one-seed eval into the folder of ``--seeds`` (``seeds_pooled_in``), whose summary.json and
+    episodes.csv either would replace. ``plan_eval`` checks before any work and ``run_eval`` again under the lock."""
     out = Path(request.out_dir)
-    if (out / "episodes").is_dir():
+    if request.seeds and (out / "episodes").is_dir():
         raise ConfigError(
             f"{out} holds the episodes of a one-seed eval ({out}/episodes/): --seeds writes each seed's episodes in {out}/seed<S>/ and "
             f"pools them in {out}'s summary.json and episodes.csv, which would replace that eval's; give another --out"
         )
+    if not request.seeds and (pooled := seeds_pooled_in(out)):
+        raise ConfigError(
+            f"{out} holds the episodes of eval --seeds {','.join(map(str, pooled))} ({out}/seed<S>/) pooled in its summary.json and "
+            f"episodes.csv, which a one-seed eval would replace (and --seeds --resume would then refuse the folder); give another --out, "
+            f"or --out {out}/seed<S> to go on with one seed's episodes"
+        )
+
+
+def plan_seeds(request: EvalRequest) -> EvalPlan:
+    """``plan_eval`` of an eval of several seeds (``--seeds``): each seed's plan, checked before any episode, and one
+    plan of all their jobs (config, scenes, weights and settings are the same for every seed). A ``--out`` that holds a
+    one-seed eval's episodes is refused: the pooled summary.json and episodes.csv would replace that eval's."""
+    refuse_the_other_kind_of_eval(request)
     plans = [(one, plan_eval(one)) for one in map(request.for_seed, request.seeds)]
     each = [said for one, plan in plans for said in plan.warnings if said != seed_changes_nothing_said(f"--seed {one.seed}")]
     warnings = list(dict.fromkeys(each))
@@ -1091,6 +1111,7 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
     config = request.exploration_config()
     scenes = resolve_scenes(request.maps, request.limit, request.m_per_px)
     out = Path(request.out_dir)
+    refuse_the_other_kind_of_eval(request)
     warnings: list[str] = []
     others = methods_summarized_elsewhere(out, request.methods)
     if others:
@@ -1209,6 +1230,7 @@ def run_eval(request: EvalRequest, progress: RichProgress | None = None, plan: E
     With ``--seeds``, each seed's eval in its folder, then the pooled files (``_run_seeds``)."""
     plan = plan if plan is not None else plan_eval(request)
     with folder_lock(Path(request.out_dir) / EVAL_LOCK, "eval", lambda said: log.warning("%s", said)) as locked:
+        refuse_the_other_kind_of_eval(request)  # again: an eval of the other kind may have written the folder since plan_eval
         if plan.seed_plans:
             return _run_seeds(request, plan, progress)
         return _run_eval_locked(request, plan, progress, locked=locked)

@@ -194,7 +194,7 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
             grid[between] = np.rint(100 * (occ[between] - free_t) / (occ_t - free_t)).astype(np.int8)  # as Nav2
         if alpha is not None and mode == "scale":
             grid[alpha < 255] = UNKNOWN  # as Nav2: in scale mode a pixel not fully opaque is unknown
-        _warn_unknown_grey_read_free(yaml_path, free_t, occ[unknown_grey & (grid == FREE)], resolution)
+        _warn_unknown_grey_read_free(yaml_path, free_t, occ[unknown_grey & (grid == FREE)], resolution, mode)
     geometry = GridGeometry(resolution, (int(grid.shape[0]), int(grid.shape[1])), x0, y0)
     return np.flipud(grid).copy(), geometry, meta
 
@@ -238,12 +238,13 @@ def _warn_default_thresholds(yaml_path: Path, meta: dict) -> None:
     )
 
 
-def _warn_unknown_grey_read_free(yaml_path: Path, free_thresh: float, read_free_occ: np.ndarray, resolution_m: float) -> None:
+def _warn_unknown_grey_read_free(yaml_path: Path, free_thresh: float, read_free_occ: np.ndarray, resolution_m: float, mode: str = "trinary") -> None:
     """Say once per file that pixels of map_saver's unknown grey (205) read as free (``read_free_occ``: the occupancy
     each was read with): ROS 2's map_saver_cli writes ``free_thresh: 0.25`` beside them, above their occupancy of 0.196,
     and map_server (as this loader) then serves them free, so a SLAM map's unknown margin becomes floor
     (slam_toolbox#587). In a PNG with an alpha channel (trinary mode) the opaque alpha averaged in reads them lighter,
-    at 0.147, free at 0.196 too: the threshold that keeps them unknown is said as read."""
+    at 0.147, free at 0.196 too: the threshold that keeps them unknown is said as read. In scale mode no threshold
+    keeps them unknown (a grey at or just above free_thresh scales to 0, free, as in Nav2): trinary mode does."""
     key = yaml_path.resolve()
     cells = len(read_free_occ)
     if cells == 0 or key in _warned_unknown_read_free:
@@ -251,7 +252,10 @@ def _warn_unknown_grey_read_free(yaml_path: Path, free_thresh: float, read_free_
     _warned_unknown_read_free.add(key)
     plain = (255 - PIXEL_UNKNOWN) / 255
     occupancy = float(np.min(read_free_occ))
-    if occupancy >= plain - 1e-9:
+    if mode == "scale":  # only a pixel not fully opaque is unknown there: no free_thresh keeps the grey unknown
+        keep = f"mode: scale keeps no opaque pixel unknown, as Nav2's: give mode: trinary (map_saver's) with free_thresh: {FREE_THRESH:g} to keep them unknown"
+        read = f"an occupancy of {occupancy:.3f}, scaled to 0 or read free"
+    elif occupancy >= plain - 1e-9:
         keep = f"set free_thresh: {FREE_THRESH:g} (ROS 1 map_saver's value) to keep them unknown"
         read = f"an occupancy of {plain:.3f}"
     else:  # alpha averaged in with the grey (Nav2's trinary mode): lighter than 205 alone

@@ -19,7 +19,7 @@ import pytest
 import cso_runtime
 from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, to_dict
 from cso_runtime.episode import GroundTruthMetrics, run_episode
-from cso_runtime.evaluation import CSV_FIELDS, METRICS, WORKER_DIED, EpisodeJob, EvalRequest, run_eval, run_in_processes, run_job
+from cso_runtime.evaluation import CSV_FIELDS, METRICS, WORKER_DIED, EpisodeJob, EvalRequest, plan_eval, run_eval, run_in_processes, run_job
 from cso_runtime.map_files import load_map
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import builtin_scene_dir, load_floor_plan, resolve_scenes
@@ -166,6 +166,43 @@ def test_eval_seeds_runs_several_seeds_in_one_command_and_pools_them_in_one_fold
     run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=one_seed, limit=1))
     with pytest.raises(ConfigError, match="holds the episodes of a one-seed eval"):
         run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=one_seed, seeds=[0, 1]))
+
+
+def test_a_one_seed_eval_into_the_folder_of_an_eval_of_several_seeds_is_refused(tmp_path: Path):
+    """``--seeds`` refuses an ``--out`` that holds a one-seed eval's episodes, but the other way round a one-seed eval
+    into the folder of ``--seeds 0,1`` replaced the pooled summary.json and episodes.csv with its own (no warning),
+    and left ``OUT/episodes/`` beside the seeds' folders, so ``--seeds 0,1 --resume`` then refused the folder: the
+    pooled results were lost and could not be made again there. It is refused before any episode; a seed's own folder,
+    and a folder of one's own holding separate ``--seed`` runs' folders, are not."""
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    _corridor_scene(maps, "corridor", "[1.5, 0.18, -0.5]")
+    out = tmp_path / "out"
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out, seeds=[0, 1]))
+    pooled = (out / "summary.json").read_text(), (out / "episodes.csv").read_text()
+    with pytest.raises(ConfigError, match=r"holds the episodes of eval --seeds 0,1 .* give another --out"):
+        run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out, seed=1))
+    assert ((out / "summary.json").read_text(), (out / "episodes.csv").read_text()) == pooled and not (out / "episodes").exists()
+    again = run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out, seeds=[0, 1], resume=True))
+    assert again["meta"]["resumed_episodes"] == 2
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=out / "seed1", seed=1, resume=True))  # one seed's folder: as --seed wrote it
+    # Planned before the other kind of eval wrote the folder, refused once it holds the folder's lock.
+    late = tmp_path / "late"
+    one_seed = EvalRequest(methods=["random"], maps=str(maps), out_dir=late)
+    planned = plan_eval(one_seed)
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=late, seeds=[0, 1]))
+    with pytest.raises(ConfigError, match="holds the episodes of eval --seeds 0,1"):
+        run_eval(one_seed, plan=planned)
+    assert not (late / "episodes").exists()
+    seeds = EvalRequest(methods=["random"], maps=str(maps), out_dir=tmp_path / "late2", seeds=[0, 1])
+    planned = plan_eval(seeds)
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=tmp_path / "late2"))
+    with pytest.raises(ConfigError, match="holds the episodes of a one-seed eval"):
+        run_eval(seeds, plan=planned)
+    assert not (tmp_path / "late2" / "seed0").exists()
+    mine = tmp_path / "mine"  # the README's former method: a --seed run per folder, in a folder of one's own
+    run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=mine / "seed0"))
+    assert run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=mine, seed=1))["meta"]["seed"] == 1
 
 
 def test_evals_files_say_why_an_episode_ended_no_frontier_and_resume_keeps_it(tmp_path: Path, capsys):

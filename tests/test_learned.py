@@ -2585,3 +2585,31 @@ def test_the_trainer_file_runs_as_a_script_as_cleanrls_does(tmp_path):
     refused = subprocess.run([sys.executable, "-m", "cso_runtime.learned.ppo", "--num-envs", "0", "--set", "dungeon_dir=null"],
                              capture_output=True, text=True, timeout=120, env=env, cwd=tmp_path)  # fmt: skip
     assert refused.returncode == 2 and "num_envs" in refused.stderr and not (tmp_path / "runs").exists()
+
+
+def test_the_trainer_run_as_a_script_starts_its_environment_processes_without_torch(tmp_path):
+    """``--async-envs`` starts each environment process with ``spawn``, which imports the parent's main module in it.
+    Under ``cso-runtime train`` that is the CLI's (no torch: an environment needs none); under ``python -m
+    cso_runtime.learned.ppo`` it was the trainer itself, so every environment process imported torch (about 300 MB
+    and a second more each, where one needs about 80 MB). The script's processes start from the CLI's module too."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(
+        """
+        import multiprocessing, runpy, sys
+        from cso_runtime import cli
+
+        def train_with_an_environment_process():  # what train's AsyncVectorEnv does first
+            with multiprocessing.get_context("spawn").Pool(1) as pool:
+                print("torch in the environment process:", pool.apply(eval, ("'torch' in __import__('sys').modules",)))
+
+        cli.main = train_with_an_environment_process
+        sys.argv = ["ppo.py"]
+        runpy.run_module("cso_runtime.learned.ppo", run_name="__main__", alter_sys=True)  # python -m cso_runtime.learned.ppo
+        """
+    )
+    ran = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=tmp_path, check=False)
+    assert ran.returncode == 0, ran.stderr
+    assert ran.stdout.strip() == "torch in the environment process: False", ran.stdout

@@ -258,6 +258,26 @@ def test_save_maps_format_is_taken_in_any_case_as_map_saver_cli_takes_it(tmp_pat
     assert r.exit_code == 2 and "--format 'JPG': expected one of pgm, png" in r.output, r.output
 
 
+def test_the_unknown_grey_read_free_in_scale_mode_is_not_told_to_take_the_threshold_it_has(tmp_path: Path, caplog: pytest.LogCaptureFixture):
+    """In scale mode a grey at or just above free_thresh scales to 0, free, as in Nav2, so map_saver's unknown grey 205
+    is floor there whatever the threshold. Since the warning was counted after the scaling, a scale-mode map with
+    ROS 1's free_thresh 0.196 was told "free_thresh 0.196 reads the unknown grey 205 ... as free ...; set free_thresh:
+    0.196 to keep them unknown", the threshold it had, and which keeps nothing unknown there. The warning names
+    trinary mode, which keeps them unknown."""
+    Image.fromarray(np.array([[0, 205, 205, 254]], dtype=np.uint8)).save(tmp_path / "m.png")
+    meta = {"image": "m.png", "resolution": 0.1, "origin": [0.0, 0.0, 0.0], "negate": 0, "occupied_thresh": 0.65, "mode": "scale"}
+    (tmp_path / "ros1.yaml").write_text(yaml.safe_dump({**meta, "free_thresh": 0.196}))
+    (tmp_path / "trinary.yaml").write_text(yaml.safe_dump({**meta, "free_thresh": 0.196, "mode": "trinary"}))
+    with caplog.at_level("WARNING", logger="cso.map_files"):
+        assert load_map(tmp_path / "trinary.yaml")[0].tolist() == [[100, -1, -1, 0]]
+        assert caplog.records == []
+        assert load_map(tmp_path / "ros1.yaml")[0].tolist() == [[100, 0, 0, 0]]  # as map_server reads it
+    (record,) = caplog.records
+    message = record.getMessage()
+    assert message.startswith(f"{tmp_path / 'ros1.yaml'}: free_thresh 0.196 reads the unknown grey 205") and "2 cells (0.02 m2)" in message
+    assert "set free_thresh: 0.196" not in message and "mode: trinary" in message, message
+
+
 def test_the_unknown_grey_read_free_with_an_alpha_channel_is_said_too(tmp_path: Path, caplog: pytest.LogCaptureFixture):
     """A PNG map with an alpha channel has its alpha averaged in with its colour in trinary mode (as Nav2), so map_saver's
     opaque unknown grey 205 is read as a shade of 217.5, an occupancy of 0.147: free at ROS 2's free_thresh 0.25 and at

@@ -1556,6 +1556,44 @@ def test_up_names_itself_for_down_before_its_command_line_is_parsed(tmp_path, mo
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=True).stdout.strip() == "[]"
 
 
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_up_killed_before_its_own_signal_handlers_leaves_no_file_for_down(tmp_path, sig):
+    """``main`` writes ``up``'s file for ``down`` before typer parses the command line, but ``up`` puts in its signal
+    handlers only once typer has called it: a SIGTERM (``kill``, a CI's cancel, ``timeout``) or a SIGHUP (its terminal
+    closed) in between killed the process and left ``.up-<pid>.starting.json`` and the runs folder made for it. The
+    file and folder go, and the process still dies of the signal; a command line that ends normally leaves the
+    signals' handlers as it found them."""
+    runs = tmp_path / "made" / "runs"
+    script = textwrap.dedent(
+        f"""
+        import os, signal, sys, time
+        from cso_runtime import cli
+
+        def typer_parses(prog_name):  # the moment typer has the command line, before `up` runs
+            assert list((cli.Path({str(runs)!r})).glob(".up-*.starting.json")), "no file to remove"
+            if sys.argv[-1] == "--kill":
+                os.kill(os.getpid(), {int(sig)})
+                time.sleep(30)
+            raise SystemExit(2)
+
+        cli.app = typer_parses
+        sys.argv = ["cso-runtime", "up", "--runs-dir", {str(runs)!r}, sys.argv[1]]
+        try:
+            cli.main()
+        except SystemExit:
+            pass
+        print(signal.getsignal({int(sig)}) == signal.SIG_DFL)
+        """
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    killed = subprocess.run([sys.executable, "-c", script, "--kill"], capture_output=True, text=True, timeout=60, env=env, check=False)
+    assert killed.returncode == -sig, (killed.returncode, killed.stderr)
+    assert not (tmp_path / "made").exists(), sorted(str(p) for p in tmp_path.rglob("*"))
+    ended = subprocess.run([sys.executable, "-c", script, "--bad-flag"], capture_output=True, text=True, timeout=60, env=env, check=False)
+    assert ended.returncode == 0 and ended.stdout.strip() == "True", (ended.returncode, ended.stdout, ended.stderr)
+    assert not (tmp_path / "made").exists()
+
+
 def test_down_removes_the_file_of_an_up_that_is_gone_and_never_signals_a_process_that_took_its_pid(tmp_path):
     """An ``up`` killed (SIGKILL) in its check leaves its file (``STARTING_UP_GLOB``); its pid may be another process's
     since. ``down`` tells them apart by the start time the file records, as for a run file: that process is left alone

@@ -1553,7 +1553,10 @@ def random_chooser(obs: dict[str, np.ndarray], mask: np.ndarray, rng: np.random.
 if __name__ == "__main__":  # CleanRL runs its trainer as a file: `python -m cso_runtime.learned.ppo ARGS` is `cso-runtime train ARGS`
     import sys
 
-    from cso_runtime.cli import main
+    from cso_runtime import cli
 
+    # As under `cso-runtime`, the CLI's module is the main one: `spawn` imports the main module in each environment
+    # process (--async-envs), and this one would have them all import torch, which none needs (300 MB, not 80, each).
+    sys.modules["__main__"] = cli
     sys.argv = ["cso-runtime", "train", *sys.argv[1:]]
-    main()
+    cli.main()
