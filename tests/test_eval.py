@@ -19,7 +19,17 @@ import pytest
 import cso_runtime
 from cso_runtime.config import ConfigError, EpisodeConfig, ExplorationConfig, SensorConfig, to_dict
 from cso_runtime.episode import GroundTruthMetrics, run_episode
-from cso_runtime.evaluation import CSV_FIELDS, METRICS, WORKER_DIED, EpisodeJob, EvalRequest, plan_eval, run_eval, run_in_processes, run_job
+from cso_runtime.evaluation import (
+    CSV_FIELDS,
+    METRICS,
+    WORKER_DIED,
+    EpisodeJob,
+    EvalRequest,
+    plan_eval,
+    run_eval,
+    run_in_processes,
+    run_job,
+)
 from cso_runtime.map_files import load_map
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import builtin_scene_dir, load_floor_plan, resolve_scenes
