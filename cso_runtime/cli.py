@@ -2,24 +2,17 @@
 
 from __future__ import annotations
 
-import shlex
 import sys
-from typing import TYPE_CHECKING, NoReturn, overload
 
-
-def _interrupted_early() -> NoReturn:
-    """Ctrl-C in a command's first tenth of a second (Python importing this module or typer building the command,
-    before any command handles it): one line and exit code 130 (EXIT_INTERRUPTED: cso_runtime.config imports numpy,
-    not loaded here), not a KeyboardInterrupt traceback."""
-    sys.stderr.write("error: interrupted\n")
-    raise SystemExit(130) from None
-
+from cso_runtime import exit_interrupted_early as _interrupted_early  # the package's own: imported already
 
 try:
+    import shlex
     import time
     from collections.abc import Callable, Iterator, Mapping
     from contextlib import contextmanager
     from pathlib import Path
+    from typing import TYPE_CHECKING, NoReturn, overload
 
     import typer
 except KeyboardInterrupt:
@@ -290,7 +283,7 @@ def eval_command(
     limit: int | None = typer.Option(None, "--limit", help="Use at most N scenes"),
     out: Path = typer.Option(Path("results/eval"), "--out", help="Output folder"),
     m_per_px: float = typer.Option(0.1, "--m-per-px", help="Metres per pixel for PNG plans (0.1 super large, 0.05 large)"),
-    seed: int = typer.Option(0, "--seed", help="Episode seed (random policy, sensor noise)"),
+    seed: int | None = typer.Option(None, "--seed", help="Episode seed (random policy, sensor noise); default 0"),
     seeds: list[str] | None = typer.Option(
         None, "--seeds", help="Several seeds in one eval, in place of --seed (0,1,2 or repeatable): each seed's episodes in OUT/seed<S>/, all pooled in OUT's summary.json, episodes.csv (the seed column) and report.html"
     ),
@@ -326,7 +319,7 @@ def eval_command(
 ) -> None:
     """Run exploration episodes and write the paper's Table 1 metrics, curves and trajectory plots."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
-    from cso_runtime.evaluation import EvalRequest, run_eval_cli  # noqa: PLC0415 - keep CLI start fast
+    from cso_runtime.evaluation import EvalRequest, refuse_seed_with_seeds, run_eval_cli  # noqa: PLC0415 - keep CLI start fast
     from cso_runtime.policies import parse_methods  # noqa: PLC0415
 
     if lidar_fov is not None and sensor != "lidar":  # the preset's own field of view would be used, silently
@@ -336,6 +329,7 @@ def eval_command(
     try:
         parameters = parse_settings(settings or [])
         seed_list = parse_seeds(seeds or [])
+        refuse_seed_with_seeds(seed, seed_list)  # None: no --seed given (typer's default), so --seed 0 is refused too
     except ConfigError as exc:
         _fail(str(exc), 2)
 
@@ -345,7 +339,7 @@ def eval_command(
         limit=limit,
         out_dir=out,
         m_per_px=m_per_px,
-        seed=seed,
+        seed=0 if seed is None else seed,
         max_steps=max_steps,
         lidar_fov_deg=180.0 if lidar_fov is None else lidar_fov,
         sensor=sensor,
@@ -1209,20 +1203,21 @@ def train_command(
     """Train a learned CSO variant with PPO (optional greedy warm start); writes weights, CSV log and curve.
 
     Every field of learned.ppo.Args is also a flag, as in CleanRL: --learning-rate 3e-4 is --set learning_rate=3e-4
-    (--no-anneal-lr for a false switch)."""
+    (--no-anneal-lr for a false switch; a list field's flag given again adds to its list: --generated A --generated B)."""
     from cso_runtime.config import EXIT_INTERRUPTED, ConfigError  # noqa: PLC0415
     from cso_runtime.learned.ppo import KEPT_CHECKPOINTS_DIR, matching_eval_command, train  # noqa: PLC0415 - torch only for this command
     from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
-
-    try:
-        settings = [*args_field_flags(ctx.args), *(settings or [])]  # CleanRL's flags, then --set over them
-    except ConfigError as exc:
-        _fail(str(exc), 2)
 
     overrides = {"variant": variant, "out_dir": str(out) if out else None, "seed": seed, "total_decisions": total_decisions,
                  "time_limit_s": time_limit, "resume": str(resume) if resume else None, "device": device,
                  "init_from": init_from, "num_envs": num_envs, "async_envs": async_envs,
                  "dungeon_dir": str(dungeon_dir) if dungeon_dir else None, "tensorboard": tensorboard}
+    try:
+        field_flags = args_field_flags(ctx.args)  # CleanRL's flags
+        refuse_two_values_of_a_field(overrides, field_flags, settings or [])
+    except ConfigError as exc:
+        _fail(str(exc), 2)
+    settings = [*field_flags, *(settings or [])]
     if config is None and resume is None:
         config = DEFAULT_TRAIN_CONFIG  # a resume without --config goes on with its checkpoint's configuration
     args = training_args(config, overrides, settings)
@@ -1375,16 +1370,20 @@ def training_flags(overrides: Mapping[str, object], settings: list[str] | None) 
 def args_field_flags(words: list[str]) -> list[str]:
     """The words ``train`` has no option of its own for, as ``--set`` pairs: each field of ``learned.ppo.Args`` is a
     flag, as each field of CleanRL's ``Args`` is (``--learning-rate 3e-4`` or ``--learning-rate=3e-4``:
-    ``learning_rate=3e-4``; a switch alone, ``--norm-adv``, is true, ``--no-norm-adv`` false). Anything else is a
+    ``learning_rate=3e-4``; a switch alone, ``--norm-adv``, is true, ``--no-norm-adv`` false). A list field's flag
+    adds to its list each time it is given, as ``eval --seeds`` and ``up --without`` do (``--generated A --generated
+    B,C``: ``generated=[A, B, C]``), and takes several values after it, as CleanRL's tyro does (``--generated A B``);
+    any other flag given twice keeps its last value, as typer does with ``train``'s own options. Anything else is a
     ``ConfigError`` that names the flag, and the field it may have meant."""
     import difflib  # noqa: PLC0415
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, field_value, yaml_text  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
     pairs: list[str] = []
+    lists: dict[str, list[object]] = {}
     rest = list(words)
     while rest:
         word = rest.pop(0)
@@ -1393,14 +1392,29 @@ def args_field_flags(words: list[str]) -> list[str]:
         flag, given, value = word.partition("=")
         name = flag[2:].replace("-", "_")
         if name not in types and name.startswith("no_") and name[3:] in types:
-            if types[name[3:]] is not bool or given:
-                raise ConfigError(f"{flag}: {name[3:]} is not a switch (true or false); give --{name[3:].replace('_', '-')} VALUE")
+            switch = f"--{name[3:].replace('_', '-')}"
+            if types[name[3:]] is not bool:
+                raise ConfigError(f"{flag}: {name[3:]} is not a switch (true or false); give {switch} VALUE")
+            if given or (rest and not rest[0].startswith("--")):  # --no-progress=false, --no-progress false
+                typed = word if given else f"{flag} {rest[0]}"
+                raise ConfigError(
+                    f"{typed}: {flag} takes no value (it sets {name[3:]} to false); write {flag} for false, {switch} for true, or {switch}=VALUE"
+                )
             pairs.append(f"{name[3:]}=false")
             continue
         if name not in types:
             close = difflib.get_close_matches(name, list(types), n=1)
             meant = f": did you mean --{close[0].replace('_', '-')}?" if close else ""
             raise ConfigError(f"no such option {flag}{meant} (each field of learned.ppo.Args is a flag, as --set FIELD=VALUE is; cso-runtime train --help)")
+        if typing.get_origin(types[name]) is list:
+            values = [value] if given else []
+            while not given and rest and not rest[0].startswith("--"):
+                values.append(rest.pop(0))
+            if not values:
+                raise ConfigError(f"{flag} needs a value ({flag} VALUE, or several: {flag} A B, as --set {name}=A,B)")
+            for one in values:
+                lists.setdefault(name, []).extend(field_value(parse_settings([f"{name}={one}"])[name], types[name], flag))
+            continue
         if not given:
             if rest and not rest[0].startswith("--"):
                 value = rest.pop(0)
@@ -1409,7 +1423,53 @@ def args_field_flags(words: list[str]) -> list[str]:
             else:
                 raise ConfigError(f"{flag} needs a value ({flag} VALUE, as --set {name}=VALUE)")
         pairs.append(f"{name}={value}")
-    return pairs
+    return pairs + [f"{name}={yaml_text(items)}" for name, items in lists.items()]
+
+
+TRAIN_PATH_FIELDS = frozenset({"out_dir", "resume", "dungeon_dir", "init_from"})
+"""The ``Args`` fields that name a path: ``--out runs/a`` and ``--out-dir runs/a/`` set one value."""
+
+
+def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: list[str], settings: list[str]) -> None:
+    """``train``'s own options (``--out``), its field flags (``--out-dir``, ``args_field_flags``' pairs) and ``--set``
+    all set fields of ``learned.ppo.Args``: two of them that give one field different values are a ConfigError that
+    names both (one of them took over the other in silence). The same value twice is fine; so is one flag given
+    twice, whose last value counts, as typer's own options' does."""
+    import typing  # noqa: PLC0415
+
+    from cso_runtime.config import ConfigError, field_value, set_flag_text, yaml_text  # noqa: PLC0415
+    from cso_runtime.learned.ppo import Args  # noqa: PLC0415
+
+    types = typing.get_type_hints(Args)
+
+    def field_flag(name: str, value: object) -> str:
+        dashed = name.replace("_", "-")
+        if isinstance(value, bool):
+            return f"--{dashed}" if value else f"--no-{dashed}"
+        return f"--{dashed} {yaml_text(value)}"
+
+    def read(name: str, value: object) -> object:
+        try:
+            value = field_value(value, types[name], name)
+        except ConfigError:
+            return value  # from_dict says what is wrong with it
+        return Path(value) if name in TRAIN_PATH_FIELDS and isinstance(value, str) else value
+
+    given: dict[str, list[tuple[str, object]]] = {}
+    for name, value in overrides.items():
+        if value is not None:
+            given.setdefault(name, []).append((" ".join(_flag_of(name, value)), value))
+    for name, value in parse_settings(field_flags).items():
+        given.setdefault(name, []).append((field_flag(name, value), value))
+    for name, value in parse_settings(settings).items():
+        given.setdefault(name, []).append((set_flag_text(name, value), value))
+    for name, said in given.items():
+        if name not in types:
+            continue  # no field: from_dict names it
+        (first, value), *others = said
+        for other, other_value in others:
+            if read(name, other_value) != read(name, value):
+                raise ConfigError(f"{first} and {other} both set {name}, to different values: give one")
 
 
 def parse_seeds(items: list[str]) -> list[int]:

@@ -468,6 +468,13 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
     return value
 
 
+def field_value(value: Any, annotation: Any, where: str) -> Any:
+    """``value`` as ``from_dict`` reads it into a field of type ``annotation`` (a YAML value, ``--set``'s): a list
+    field's one value or values separated by commas as its list, ``1e-4`` as a number; a ConfigError naming
+    ``where`` when it does not fit."""
+    return _convert(value, annotation, where)
+
+
 LIST_SEPARATOR = ","
 """What separates the values of a list field given as one text (``--set generated=A,B``): most CLIs' way."""
 
@@ -757,10 +764,14 @@ def commented_yaml(comments: list[str], data: Any) -> str:
 def set_flag_text(key: str, value: Any) -> str:
     """``--set KEY=VALUE`` as the user typed it, for an error that names the flags: the value in YAML (``true``,
     ``[a, 2]``, ``café`` not ``"caf\\xE9"``), as ``--set`` reads it, not Python's repr (``True``, ``['a', 2]``)."""
-    import yaml  # noqa: PLC0415
+    return f"--set {key}={yaml_text(value)}"
 
+
+def yaml_text(value: Any) -> str:
+    """``value`` in YAML on one line, as a flag's value reads back (``true``, ``[a, 2]``, ``café``): what
+    ``set_flag_text`` and ``train``'s field flags write of it."""
     text = yaml.safe_dump(value, default_flow_style=True, width=10**9, allow_unicode=True).strip()
-    return f"--set {key}={text.removesuffix('...').strip()}"
+    return text.removesuffix("...").strip()
 
 
 def set_dotted(data: dict[str, Any], key: str, value: Any) -> None:

@@ -184,8 +184,7 @@ class EvalRequest:
         """``--seeds``' own checks (each seed's eval checks the rest)."""
         for seed in self.seeds:
             check_seed(seed, "--seeds")
-        if self.seeds and self.seed != 0:
-            raise ConfigError(f"--seed {self.seed} and --seeds: give one (--seeds {','.join(map(str, self.seeds))} runs each of those seeds)")
+        refuse_seed_with_seeds(self.seed or None, self.seeds)  # seed 0 is the default: no --seed given
 
     def for_seed(self, seed: int) -> EvalRequest:
         """The eval of one of ``seeds``: ``--seed SEED`` into ``seed_folder(out_dir, SEED)``."""
@@ -1045,6 +1044,13 @@ class EvalPlan:
     """Each scene's fingerprint, taken once: the folder is checked before the lock and again under it."""
     seed_plans: list[tuple[EvalRequest, EvalPlan]] = dataclasses.field(default_factory=list)
     """With ``--seeds``: each seed's eval (``EvalRequest.for_seed``) and its plan; ``jobs`` holds all of theirs."""
+
+
+def refuse_seed_with_seeds(seed: int | None, seeds: list[int]) -> None:
+    """``eval --seed S --seeds ...``: a ConfigError, ``--seed 0`` included when the command line gives it (``seed`` not
+    None): ``--seeds`` runs each of its seeds in place of the one ``--seed``."""
+    if seeds and seed is not None:
+        raise ConfigError(f"--seed {seed} and --seeds: give one (--seeds {','.join(map(str, seeds))} runs each of those seeds)")
 
 
 def seed_folder(out_dir: Path | str, seed: int) -> Path:

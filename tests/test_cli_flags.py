@@ -1,0 +1,139 @@
+"""The command line's flags, consistent with each other: train's field flags (a list field's flag repeated adds to it,
+two flags naming one field with different values are refused, ``--no-X=VALUE`` says what to write), ``eval --seed``
+with ``--seeds``, and a Ctrl-C while the ``cso-runtime`` script imports the CLI."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+import cso_runtime
+
+REPO = Path(cso_runtime.__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def train_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> list:
+    """The ``ppo.Args`` each ``train`` of the test ran with (the trainer itself replaced: nothing trains)."""
+    from cso_runtime.learned import ppo
+
+    ran: list = []
+    monkeypatch.setattr(ppo, "train", lambda args, log=None, command="": ran.append(args) or {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0})
+    return ran
+
+
+def train(tmp_path: Path, *flags: str) -> tuple[int, str]:
+    """``cso-runtime train`` with a one-plan config, ``--out`` in ``tmp_path`` unless the flags give one."""
+    from cso_runtime.cli import app
+
+    recipe = tmp_path / "mine.yaml"
+    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
+    out = [] if "--out" in flags else ["--out", str(tmp_path / "out")]
+    result = CliRunner().invoke(app, ["train", "--config", str(recipe), *out, *flags])
+    return result.exit_code, " ".join(result.output.split())
+
+
+def test_a_repeated_list_field_flag_adds_to_the_list_as_eval_seeds_does(tmp_path: Path, train_runs: list):
+    """``train --generated A --generated B`` trained on B alone: a list field's flag given twice kept its last value,
+    where the CLI's other list options (``eval --seeds``, ``up --without``) add each one. It adds now (and takes
+    several values after it, as CleanRL's tyro does); a scalar flag given twice keeps its last value, as typer does
+    with train's own options (``--seed 1 --seed 2``)."""
+    a, b, c = "generated:small:1:1", "generated:small:1:2", "generated:middle:1:3"
+    for flags, generated in [
+        (["--generated", a, "--generated", b], [a, b]),
+        (["--generated", a, "--generated", f"{b},{c}"], [a, b, c]),
+        ([f"--generated={a}", "--generated", f"[{b}]"], [a, b]),
+        (["--generated", a, b, "--gamma", "0.9"], [a, b]),
+        (["--generated", a, "--set", f"generated=[{a}]"], [a]),  # the same value twice: fine
+    ]:
+        code, said = train(tmp_path, *flags)
+        assert code == 0, said
+        assert train_runs[-1].generated == generated, flags
+    code, said = train(tmp_path, "--dungeon-m-per-px", "0.1", "--dungeon-m-per-px", "0.05,0.2")
+    assert code == 0 and train_runs[-1].dungeon_m_per_px == [0.1, 0.05, 0.2], said
+    code, said = train(tmp_path, "--seed", "1", "--seed", "2", "--gamma", "0.9", "--gamma", "0.95", "--no-norm-adv", "--norm-adv")
+    assert code == 0 and (train_runs[-1].seed, train_runs[-1].gamma, train_runs[-1].norm_adv) == (2, 0.95, True), said
+    code, said = train(tmp_path, "--generated", "--gamma", "0.9")
+    assert code == 2 and "--generated needs a value" in said, said
+
+
+def test_two_flags_setting_one_field_to_different_values_are_refused_naming_both(tmp_path: Path, train_runs: list):
+    """``train --out A --out-dir B`` wrote into B, silently (the field flag went over train's own option), and so did
+    any ``--set`` over a flag. Two flags that set one field to different values are refused before anything starts
+    (exit 2), naming both; the same value given twice (a path with or without its slash) is fine."""
+    out, other = tmp_path / "a", tmp_path / "b"
+    for flags, said in [
+        (["--out", str(out), "--out-dir", str(other)], f"--out {out} and --out-dir {other} both set out_dir, to different values: give one"),
+        (["--out-dir", str(other), "--out", str(out)], f"--out {out} and --out-dir {other} both set out_dir"),
+        (["--seed", "3", "--set", "seed=4"], "--seed 3 and --set seed=4 both set seed"),
+        (["--gamma", "0.9", "--set", "gamma=0.99"], "--gamma 0.9 and --set gamma=0.99 both set gamma"),
+        (["--async-envs", "--no-async-envs"], "--async-envs and --no-async-envs both set async_envs"),
+        (["--generated", "generated:small:1:1", "--set", "generated=generated:small:1:2"], "both set generated"),
+    ]:
+        code, output = train(tmp_path, *flags)
+        assert code == 2 and said in output, (flags, output)
+    assert not train_runs and not out.exists() and not other.exists()
+    for flags in (["--out", str(out), "--out-dir", f"{out}/"], ["--seed", "3", "--set", "seed=3"], ["--num-envs", "2", "--set", "num_envs=2"]):
+        code, output = train(tmp_path, *flags)
+        assert code == 0, (flags, output)
+    assert Path(train_runs[0].out_dir) == out
+
+
+def test_a_false_switch_given_a_value_says_what_to_write(tmp_path: Path, train_runs: list):
+    """``train --no-progress=false`` said "progress is not a switch", which it is. ``--no-FIELD`` takes no value:
+    the refusal says so and what to write for either value; a field that is no switch is still said to be none."""
+    for flags in (["--no-progress=false"], ["--no-progress", "false"]):
+        code, said = train(tmp_path, *flags)
+        assert code == 2, said
+        assert f"{' '.join(flags)}: --no-progress takes no value (it sets progress to false); write --no-progress for false, --progress for true, or --progress=VALUE" in said
+        assert "not a switch" not in said
+    code, said = train(tmp_path, "--no-gamma")
+    assert code == 2 and "--no-gamma: gamma is not a switch (true or false); give --gamma VALUE" in said, said
+    for flags, progress in [(["--no-progress"], False), (["--progress=false"], False), (["--progress", "true"], True)]:
+        code, said = train(tmp_path, *flags)
+        assert code == 0 and train_runs[-1].progress is progress, said
+
+
+def test_eval_refuses_a_seed_given_with_seeds_zero_included(tmp_path: Path):
+    """``eval --seed 3 --seeds 1,2`` was refused, but ``--seed 0 --seeds 1,2`` ran the seeds in silence: 0 was the
+    default, so a --seed given could not be told from none. Any --seed given with --seeds is refused now; --seed
+    alone (0 included) and --seeds alone run as before."""
+    from cso_runtime.cli import app
+
+    common = ["eval", "--method", "random", "--maps", "generated:small:1:0", "--dry-run"]
+    for seed in ("0", "3"):
+        r = CliRunner().invoke(app, [*common, "--out", str(tmp_path / "o"), "--seed", seed, "--seeds", "1,2"])
+        assert r.exit_code == 2, r.output
+        assert f"--seed {seed} and --seeds: give one (--seeds 1,2 runs each of those seeds)" in " ".join(r.stderr.split())
+    for given, said in [(["--seed", "0"], "seed 0"), (["--seed", "3"], "seed 3"), ([], "seed 0"), (["--seeds", "1,2"], "seeds 1, 2")]:
+        r = CliRunner().invoke(app, [*common, "--out", str(tmp_path / f"o{len(given)}{given[-1] if given else ''}"), *given])
+        assert r.exit_code == 0 and said in r.output, (given, r.output, r.stderr)
+
+
+@pytest.mark.parametrize("where", ["finding the CLI's module", "building the commands"])
+def test_a_ctrl_c_while_the_script_imports_the_cli_exits_130_in_one_line(tmp_path: Path, where: str):
+    """A Ctrl-C in any command's first ~0.05 s, while the ``cso-runtime`` script imported ``cso_runtime.cli`` (its
+    entry point) outside the module's own ``try``, ended in a KeyboardInterrupt traceback. The entry point is the
+    package's ``main`` now, which imports the CLI within its ``try``: one line, exit 130. The test runs the script
+    pip writes for ``[project.scripts]`` with the Ctrl-C raised at a fixed point of that import (no timing)."""
+    entry = re.search(r'^cso-runtime = "([\w.]+):(\w+)"$', (REPO / "pyproject.toml").read_text(), re.MULTILINE)
+    assert entry is not None
+    interrupt = {
+        "finding the CLI's module": "class Interrupt:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'cso_runtime.cli':\n"
+        "            raise KeyboardInterrupt\n"
+        "sys.meta_path.insert(0, Interrupt())\n",
+        "building the commands": "import typer\ndef interrupt(*args, **kwargs):\n    raise KeyboardInterrupt\ntyper.Typer.__init__ = interrupt\n",
+    }[where]
+    script = tmp_path / "cso-runtime"
+    script.write_text(f"import sys\n{interrupt}from {entry[1]} import {entry[2]}\nif __name__ == '__main__':\n    sys.exit({entry[2]}())\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}  # this checkout's package
+    r = subprocess.run([sys.executable, str(script), "status", "--help"], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
+    assert (r.returncode, r.stderr, r.stdout) == (130, "error: interrupted\n", ""), r.stderr
