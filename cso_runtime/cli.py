@@ -916,7 +916,7 @@ def status_command(
 @app.command("save-map", rich_help_panel="Runtime (Zenoh services)")
 def save_map_command(
     out: str = typer.Option("map", "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f; a folder (existing, or ending in /) gets map.yaml"),
-    image_format: str = typer.Option("pgm", "--format", help="Image format: pgm or png"),
+    image_format: str = typer.Option("pgm", "--format", "--fmt", help="Image format: pgm or png (--fmt, as map_saver_cli)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),

@@ -64,6 +64,7 @@ from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EPISODE_OVER,
     LAST_EPISODE_FIGURES,
+    ROS_RESUME_BY,
     EpisodeResultMsg,
     EpisodeStatusMsg,
     ExploreResumeMsg,
@@ -544,7 +545,9 @@ class Launcher:
         if changed and msg.resume:
             log.info("exploration resumed%s (paused %.1f s in all)", by, self.pause.total_s(time.monotonic()))
         elif changed:
-            log.info("exploration paused%s%s: the robot holds still until `cso-runtime resume`", by, f" ({msg.reason})" if msg.reason else "")
+            ros_key = msg.by.removeprefix(ROS_RESUME_BY) if msg.by.startswith(ROS_RESUME_BY) else ""
+            until = f"`{{data: true}}` on {ros_key} or `cso-runtime resume`" if ros_key else "`cso-runtime resume`"
+            log.info("exploration paused%s%s: the robot holds still until %s", by, f" ({msg.reason})" if msg.reason else "", until)
 
     def _on_cache_query(self, query: Any) -> None:
         if self.latest_goal is not None:

@@ -516,6 +516,21 @@ def run_end_exit_code(run: dict[str, Any]) -> int:
     return code if isinstance(code, int) and not isinstance(code, bool) and code > 0 else 1
 
 
+def episode_end_step(run_dir: Path, last: dict[str, Any]) -> Any:
+    """The step the watched run's episode ended at: its result's (``summary.json``'s steps), else the last status's. On
+    a real robot the two differ: the ROS 2 bridge's steps go on counting the robot's scans after the end (``status``
+    shows them), while the result, the bridge's log and ``episodes.csv`` say the episode's own."""
+    from cso_runtime.report import whole_count  # noqa: PLC0415
+    from cso_runtime.runs import read_json_object  # noqa: PLC0415
+
+    methods = (read_json_object(run_dir / "summary.json") or {}).get("methods")
+    if isinstance(methods, dict) and len(methods) == 1 and isinstance(row := next(iter(methods.values())), dict):
+        steps = whole_count(row.get("steps"))
+        if isinstance(steps, int) and not isinstance(steps, bool):
+            return steps
+    return last.get("step", 0)
+
+
 def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_json: bool) -> int:
     """The line ``status --watch`` ends with when the run it watched stopped: how it ended (its ``outcome``, the
     episode's end and ``terminated_by`` as last seen) and where its results are; ``run_end_exit_code``."""
@@ -526,12 +541,13 @@ def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_j
     code = run_end_exit_code(run)
     over = last.get("state") in EPISODE_OVER
     ended_by = last.get("terminated_by") or ""
-    episode = f"its episode {last.get('state')}" + (f" ({ended_by})" if ended_by else "") + f" at step {last.get('step', 0)}"
+    step = episode_end_step(run_dir, last) if over else last.get("step", 0)
+    episode = f"its episode {last.get('state')}" + (f" ({ended_by})" if ended_by else "") + f" at step {step}"
     where = results_said(run_dir) if outcome == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
     line = f"run {run.get('run_id')} ended: {outcome}" + (f", {episode}" if over else "") + (f", exit code {code}" if code else "") + f"; {where}"
     if as_json:
         ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "outcome": outcome, "exit_code": code}
-        episode_end = {"episode_state": last.get("state"), "terminated_by": ended_by, "step": last.get("step", 0)} if over else {}
+        episode_end = {"episode_state": last.get("state"), "terminated_by": ended_by, "step": step} if over else {}
         print(json.dumps({"state": NOT_RUNNING, "reason": f"nothing running ({line})", **ended, **episode_end}), flush=True)
     else:
         print(line)
@@ -561,11 +577,12 @@ def say_episode_ended(run: dict[str, Any], run_dir: Path, runs_dir: Path, last: 
     state = str(run.get("state"))
     code = 0 if state == "done" else 1
     ended_by = last.get("terminated_by") or ""
+    step = episode_end_step(run_dir, last)
     where = results_said(run_dir) if state == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
-    line = (f"run {run.get('run_id')}'s episode has ended: {state}" + (f" ({ended_by})" if ended_by else "") + f" at step {last.get('step', 0)}; "
+    line = (f"run {run.get('run_id')}'s episode has ended: {state}" + (f" ({ended_by})" if ended_by else "") + f" at step {step}; "
             f"{where}; the run stays up (for status) until {down_command(runs_dir)}")
     if as_json:
-        ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "exit_code": code, "terminated_by": ended_by, "step": last.get("step", 0)}
+        ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "exit_code": code, "terminated_by": ended_by, "step": step}
         print(json.dumps({"state": state, "reason": line, **ended}), flush=True)
     else:
         print(line)

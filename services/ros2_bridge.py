@@ -50,6 +50,7 @@ from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityComman
 from cso_runtime.keys import PLANNER_KEPT, WILDCARD, driver_claim_subject, robot_driver_token
 from cso_runtime.messages import (
     EPISODE_OVER,
+    ROS_RESUME_BY,
     ClockMsg,
     CmdVelMsg,
     EndedWhyMsg,
@@ -537,7 +538,7 @@ class Ros2BridgeService(Service):
                 self.count_reject("ros_resume:bad_cdr", str(exc))
                 return
         log.info("%s on %s", "resume" if resume else "pause", key)
-        self.publish("explore_resume", ExploreResumeMsg(resume, f"ros2 {key}", stamp_s=time.time()))
+        self.publish("explore_resume", ExploreResumeMsg(resume, f"{ROS_RESUME_BY}{key}", stamp_s=time.time()))
 
     def _on_ros_odom(self, sample: zenoh.Sample) -> None:
         raw = sample.payload.to_bytes()
@@ -942,16 +943,20 @@ class Ros2BridgeService(Service):
     def scan_silence(self, now_s: float) -> None:
         """Once no scan has come for ``no_scan_warn_s``, say so in the episode status (published at once, as the live
         view shows it) and the log: with no scan the episode neither starts nor goes on, and every service looks
-        fine. A wrong ``--namespace`` or a robot bridge that is not running look just like this."""
+        fine. A wrong ``--namespace`` or a robot bridge that is not running look just like this. While the silence
+        lasts, the note (what ``status`` asks for) says how long it has lasted; logged and published once."""
         silent_s = now_s - self.last_scan_wall_s
-        if self.no_scan_note or silent_s < self.params.no_scan_warn_s:
+        if silent_s < self.params.no_scan_warn_s:
             return
         key = self.params.ros_key(self.params.scan_topic)
         since = "since the bridge started" if self.counters["received:scan"] == 0 else "since the last one"
+        said = self.no_scan_note
         self.no_scan_note = (
             f"no LaserScan on {key} for {silent_s:.0f} s ({since}): is the robot's zenoh-bridge-ros2dds running, its LiDAR "
             "publishing, and --namespace its -n? (docs/hardware.md, Troubleshooting)"
         )
+        if said:  # said already: the note only keeps its silence up to date (it stayed "for 5 s" however long it lasted)
+            return
         log.warning("%s", self.no_scan_note)
         self.publish("episode_status", self.episode_status())
 

@@ -777,6 +777,9 @@ def test_no_scan_on_the_robots_key_is_said_in_status_and_the_log(caplog):
     assert reason.startswith("no LaserScan on limo9/scan for 6 s (since the bridge started)") and "--namespace" in reason, reason
     assert [m.reason for topic, m in out if topic == "episode_status"] == [reason], "published once, at once"
     assert caplog.text.count("no LaserScan on limo9/scan") == 1
+    svc.on_tick(start + 23.2)  # the note says how long the silence has lasted (it stayed "for 6 s"); said once
+    assert svc.episode_status().reason.startswith("no LaserScan on limo9/scan for 23 s (since the bridge started)")
+    assert len([m for topic, m in out if topic == "episode_status"]) == 1 and caplog.text.count("no LaserScan on limo9/scan") == 1
     step(1000.0, 0.0)  # scans come: the note goes
     assert svc.episode_status().reason == "" and svc.episode_status().state == "exploring"
     svc.on_tick(svc.last_scan_wall_s + 5.5)  # the LiDAR stops

@@ -3375,6 +3375,37 @@ def test_status_watch_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypa
     assert said.startswith(ended) and stays in said and (f"results in {run_dir}/: report.html" in said) == (episode_state == "done"), said
 
 
+@pytest.mark.parametrize("as_json", [False, True])
+def test_status_watch_says_the_step_a_real_robots_episode_ended_at(tmp_path, monkeypatch, capsys, as_json):
+    """On a real robot (``limo-ros2``) the bridge's steps go on counting the robot's scans after the episode's end, so
+    ``status --watch`` ended with "episode has ended: done (no_frontier) at step 202" for an episode whose result, the
+    bridge's log and ``episodes.csv`` say ended at step 188. It says the episode's own step, from its results."""
+    from rich.console import Console
+
+    from cso_runtime import status
+    from cso_runtime.supervision import process_start_ticks
+
+    runs = tmp_path / "runs"
+    run_dir = runs / "20261207-103211-limo-ros2-r0"
+    run_dir.mkdir(parents=True)
+    ended = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(),
+             "launcher_start_ticks": process_start_ticks(os.getpid()), "state": "done", "detached": True, "episode_ended_at": 1.0}
+    for path in (run_dir / "run.json", runs / "current.json"):
+        path.write_text(json.dumps(ended))
+    (run_dir / "summary.json").write_text(json.dumps({"methods": {"cso": {"steps": 188.0, "terminated_by": {"no_frontier": 1}}}}))
+    episode = {"state": "done", "step": 202, "episode": 7, "scene": "ros2:limo1", "method": "cso", "terminated_by": "no_frontier"}
+    over = status.status_of("r0", episode, {"run_id": "run1", "state": "running", "services": {"ros2_bridge": {"pid": 1, "restarts": 0}}}, {}, {"ros2_bridge"})
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: over)
+    monkeypatch.setattr(status.time, "sleep", lambda s: None)
+    code = status.status_main([], None, as_json=as_json, watch=True, runs_dir=runs, period_s=0.1, console=Console(file=io.StringIO(), force_terminal=False, width=100))
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert code == 0
+    said = json.loads(last)["reason"] if as_json else last
+    assert said.startswith("run run1's episode has ended: done (no_frontier) at step 188; "), said
+    if as_json:
+        assert json.loads(last)["step"] == 188
+
+
 def test_status_watch_ends_by_saying_that_the_watched_runs_launcher_was_killed(tmp_path, monkeypatch, capsys):
     """``status --watch`` of a run whose launcher was then SIGKILLed ended with "nothing running (no answer for robot r0
     at tcp/...)", where ``status`` says at once that the launcher has exited and how to clear the run: it says so too."""
