@@ -1234,7 +1234,14 @@ class Launcher:
         if self.stop_event.is_set():  # Ctrl-C (or SIGTERM) since `up` started: no router is opened
             log.warning("interrupted before any service was started")
             return self.stop_before_start(EXIT_INTERRUPTED)
+        pr = self.profile  # which run this is, and where to look, before the router's and the services' lines
+        log.info(
+            "run %s: profile %s, scene %s, method %s, robot %s; logs, then results, in %s/",
+            self.run_id, pr.name, pr.scene_label, pr.method, pr.robot, self.run_dir,
+        )  # fmt: skip
         router = self.profile.router
+        if router.connect:  # a robot that is off is only said once the timeout has passed: say the wait meanwhile
+            log.info("joining %s (up to %g s, router.connect_timeout_s)", ", ".join(router.connect), router.connect_timeout_s)
         if router.embedded:
             session, self.endpoints = open_router(list(router.listen), list(router.connect), router.connect_timeout_s, router.zenoh_config, self.stop_event)
         else:  # join the existing router(s) instead of opening one
@@ -1282,11 +1289,6 @@ class Launcher:
             ending: EpisodeEnd | None = None  # the ended episode's results being written (start_episode_end)
             pyplot_import: threading.Thread | None = None
             try:
-                pr = self.profile  # which run this is, and where to look, before the services' lines
-                log.info(
-                    "run %s: profile %s, scene %s, method %s, robot %s; logs, then results, in %s/",
-                    self.run_id, pr.name, pr.scene_label, pr.method, pr.robot, self.run_dir,
-                )  # fmt: skip
                 self.spawn_all()
                 pyplot_import = import_pyplot_in_background()  # for the episode's figures, drawn once it ends
                 self.write_run_file("running")

@@ -680,7 +680,8 @@ def test_up_and_eval_refuse_an_existing_folder_they_cannot_write_in(tmp_path):
 def test_up_that_cannot_reach_the_router_to_join_says_so_and_starts_nothing(tmp_path):
     """``up --connect`` to a router that is not there (a robot that is off, another run's router gone): the embedded
     router retried in the background and the run started alone, exit 0, with no word of it. Now the no-session error
-    (README: exit 3), foreground and detached alike, once ``router.connect_timeout_s`` has passed."""
+    (README: exit 3), foreground and detached alike, once ``router.connect_timeout_s`` has passed; a foreground ``up``
+    says the wait as it starts."""
     from cso_runtime.runs import list_runs
 
     nobody = loopback_endpoint(free_tcp_port())
@@ -693,6 +694,8 @@ def test_up_that_cannot_reach_the_router_to_join_says_so_and_starts_nothing(tmp_
             )  # fmt: skip
             said = r.stdout + r.stderr
             assert r.returncode == 3 and f"cannot reach {nobody}" in said and "no service was started" in said, said
+            # The wait itself is said as it starts (it was silent up to the timeout, 10 s by default, with the robot off).
+            assert detach or f"joining {nobody} (up to 0.5 s, router.connect_timeout_s)" in said, said
             assert "Traceback" not in said and not (runs / "current.json").exists()
             assert [run.state for run in list_runs(runs)] == ["failed"]
         finally:
