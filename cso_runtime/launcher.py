@@ -966,7 +966,7 @@ class Launcher:
             meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
         row = write_episode_outputs(self.run_dir, result, self.wall_s(), meta, self.sim_time_s(result), self.real_time_factor)
         self.written_result = result
-        log.info("%s%s; results in %s", episode_figures(row), ended_why_said(result), self.run_dir)
+        log.info("%s%s; results in %s", episode_figures(row, self.simulated), ended_why_said(result), self.run_dir)
         return self.run_dir
 
     def wall_s(self) -> float:
@@ -989,7 +989,7 @@ class Launcher:
                 exc.filename or self.run_dir, exc.strerror or exc, self.run_dir,
             )  # fmt: skip
             _, row = episode_record(result, self.wall_s(), self.sim_time_s(result), self.real_time_factor)
-            log.warning("%s%s; not written to %s", episode_figures(row), ended_why_said(result), self.run_dir)  # the terminal keeps them
+            log.warning("%s%s; not written to %s", episode_figures(row, self.simulated), ended_why_said(result), self.run_dir)  # the terminal keeps them
             return False
         return True
 
@@ -1453,15 +1453,16 @@ def episode_record(result: EpisodeResultMsg, wall_s: float, sim_time_s: float | 
     return er, episode_row(result.method or "unknown", result.seed, er, wall_s, real_time_factor)
 
 
-def episode_figures(row: dict[str, Any]) -> str:
+def episode_figures(row: dict[str, Any], simulated: bool = True) -> str:
     """The episode's Table 1 figures in words, from its row: the launcher's line once its results are written (or not).
-    An episode of no step has no m2/step (episodes.csv's empty cell): the line says so rather than ``nan``."""
+    An episode of no step has no m2/step (episodes.csv's empty cell): the line says so rather than ``nan``. A real
+    robot's (not ``simulated``) has no coverage (its row's 0: no ground truth): the line leaves it out."""
     from cso_runtime.evaluation import missing  # noqa: PLC0415
 
     efficiency = row["efficiency_m2_per_step"]
     per_step = "no m2/step (no step)" if missing(efficiency) else f"{efficiency:.4f} m2/step"
     return (
-        f"episode {row['terminated_by']}: {row['coverage_pct']:.2f}% coverage in {row['steps']} steps; {row['explored_area_m2']:.2f} m2 explored, "
+        f"episode {row['terminated_by']}: " + (f"{row['coverage_pct']:.2f}% coverage " if simulated else "") + f"in {row['steps']} steps; {row['explored_area_m2']:.2f} m2 explored, "
         f"{per_step}, path {row['path_length_m']:.2f} m, {row['decisions']} decisions"
     )
 

@@ -409,10 +409,18 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopp
     return words
 
 
+def of_a_real_robot(status: dict[str, Any]) -> bool:
+    """Whether ``status`` is of a real robot's run: a ``ros2_bridge`` is its referee, no ``sim``."""
+    services = status.get("services") or {}
+    return "ros2_bridge" in services and "sim" not in services
+
+
 def render_table(status: dict[str, Any]) -> Table:
     """``status``'s table on a terminal: one row per field of the episode, then one per service and the launcher."""
     from rich.markup import escape  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
+
+    from cso_runtime.live_view import NO_GROUND_TRUTH  # noqa: PLC0415 - rich's, as above
 
     # Every cell is text, not markup: a scene file or a service's reason may hold brackets.
     t = Table(title=escape(f"robot {status['robot']}  run {status['run_id'] or '-'}"))
@@ -427,7 +435,7 @@ def render_table(status: dict[str, Any]) -> Table:
         ("scene / method", f"{status['scene']} / {status['method']}"),
         ("step", f"{status['step']}{pace}"),  # as up's live view says the sim's pace
         ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
-        ("coverage", f"{status['coverage_pct']:.2f} %"),
+        ("coverage", NO_GROUND_TRUTH if of_a_real_robot(status) else f"{status['coverage_pct']:.2f} %"),
         ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / status['step']:.3f} m2/step" if status["step"] else "")),
         ("path length", f"{status['path_length_m']:.2f} m"),
         ("goal", "-" if goal is None else f"({goal[0]:.2f}, {goal[1]:.2f}) m"),

@@ -2157,6 +2157,8 @@ def test_the_launchers_line_of_an_episode_of_no_step_says_it_has_no_m2_per_step(
     assert line == "episode coverage: 98.00% coverage in 0 steps; 1.20 m2 explored, no m2/step (no step), path 4.50 m, 3 decisions"
     _, row = episode_record(_fake_result(steps=10), wall_s=1.0)
     assert "0.1200 m2/step" in episode_figures(row)
+    # A real robot's episode has no coverage (its row's 0: no ground truth): "0.00% coverage" read as a failure.
+    assert episode_figures(row, simulated=False).startswith("episode coverage: in 10 steps; 1.20 m2 explored, 0.1200 m2/step")
 
 
 def _recording_launcher(tmp_path: Path):
@@ -2392,11 +2394,14 @@ def test_up_shows_and_writes_the_simulators_real_time_factor_measured_on_the_epi
         # A real robot's steps are its scans (about 10 Hz on the LIMO), not 0.25 s control periods: 42 steps are
         # no "10.5 s robot time" there, so neither the live view nor the log line says so.
         assert "robot time" not in text and re.search(r"│ step +│ 42 \(\d+ s since start\)", text), text
-        assert line.startswith("step 42: coverage 0.0 %") and "robot time" not in line, line
+        assert line.startswith("step 42: 0.00 m2 explored") and "robot time" not in line, line
+        # No ground truth on a real robot: its coverage (0) is not shown as "0.0 %" beside the map it explores.
+        assert "coverage" not in line and re.search(r"│ coverage +│ n/a: a real robot \(no ground truth", text) and "0.0 %" not in text, text
     else:
         assert launcher.real_time_factor == pytest.approx(2.0)
         assert re.search(r"│ step +│ 42 \(10\.5 s robot time, \d+ s since start, 2\.00x real time\)", text), text
-        assert "step 42 (10.5 s robot time, 2.00x real time): coverage" in line, line
+        assert "step 42 (10.5 s robot time, 2.00x real time): coverage 0.0 %" in line, line
+        assert re.search(r"│ coverage +│ .* 0\.0 %", text), text
     status("done", 50, 1036.0)  # the end: 48 steps in 6 s
     launcher.write_outputs(_fake_result(steps=50))
     with (tmp_path / "run" / "episodes.csv").open() as fh:
@@ -2454,6 +2459,22 @@ def test_status_shows_the_simulators_real_time_factor_the_launcher_measures(tmp_
     else:
         assert status["real_time_factor"] == pytest.approx(2.0)
         assert re.search(r"│ step +│ 42 \(2\.00x real time\) +│", text), text
+
+
+def test_status_says_a_real_robots_coverage_is_not_measured_and_json_keeps_its_zero():
+    """``status`` on a LIMO said "coverage 0.00 %" for the whole run, beside a map growing by the second (there is no
+    ground truth to measure it against): the table says so; ``--json`` keeps ``coverage_pct`` 0, as summary.json."""
+    from rich.console import Console
+
+    from cso_runtime.status import render_table, status_of
+
+    episode = {"state": "exploring", "step": 42, "episode": 7, "scene": "ros2:limo1", "method": "cso", "coverage_pct": 0.0, "explored_area_m2": 6.5}
+    for referee, said in (("ros2_bridge", r"│ coverage +│ n/a: a real robot \(no ground"), ("sim", r"│ coverage +│ 0\.00 % +│")):
+        status = status_of("r0", episode, {"run_id": "run1", "state": "running", "services": {referee: {"pid": 1, "restarts": 0}}}, {}, {referee})
+        console = Console(record=True, width=200)
+        console.print(render_table(status))
+        text = console.export_text()
+        assert re.search(said, text) and status["coverage_pct"] == 0.0, text
 
 
 def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
