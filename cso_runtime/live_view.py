@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from cso_runtime.messages import EpisodeStatusMsg
 
 
-NO_GROUND_TRUTH = "n/a: a real robot (no ground truth to measure coverage against; explored m2 below)"
+NO_GROUND_TRUTH = "n/a: a real robot (no ground truth)"
 """What the tables say of coverage on a real robot, where ``coverage_pct`` is 0 (``status --json``, ``summary.json``,
 ``episodes.csv``): a "0.00 %" beside a map being explored read as a failure."""
 
