@@ -837,8 +837,12 @@ def explore_resume_main(connect: list[str], robot: str | None, runs_dir: Path, r
             if now is not None and now.pause is not None and now.pause["paused"] != resume:
                 step = (now.last_episode or {}).get("step")
                 at = f" at step {step}" if step is not None else ""
+                ended = (now.last_episode or {}).get("state")
                 if resume:
                     print(f"resumed robot {robot} (run {now.run_id}){at}, after {pause['for_s']:.0f} s paused")
+                elif ended in EPISODE_OVER:  # nothing moves it any more: the pause holds for a new episode (new odometry)
+                    print(f"paused robot {robot} (run {now.run_id}){at}: its episode has ended ({ended}), so it stands already; "
+                          "a new episode would start paused, until `cso-runtime resume`")
                 else:
                     print(f"paused robot {robot} (run {now.run_id}){at}: it holds still until `cso-runtime resume`")
                 return 0
