@@ -415,6 +415,15 @@ def of_a_real_robot(status: dict[str, Any]) -> bool:
     return "ros2_bridge" in services and "sim" not in services
 
 
+def after_end_words(status: dict[str, Any]) -> str:
+    """What the step row adds on a real robot whose episode has ended (``ended_at_step``, from its results): the
+    steps shown are the robot's scans since, not the episode's."""
+    ended = status.get("ended_at_step")
+    if ended is None or ended == status["step"]:
+        return ""
+    return f" (scans; the episode ended at step {ended})"
+
+
 def render_table(status: dict[str, Any]) -> Table:
     """``status``'s table on a terminal: one row per field of the episode, then one per service and the launcher."""
     from rich.markup import escape  # noqa: PLC0415
@@ -433,7 +442,7 @@ def render_table(status: dict[str, Any]) -> Table:
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "") + waits),
         ("scene / method", f"{status['scene']} / {status['method']}"),
-        ("step", f"{status['step']}{pace}"),  # as up's live view says the sim's pace
+        ("step", f"{status['step']}{pace}" + after_end_words(status)),  # as up's live view says the sim's pace
         ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
         ("coverage", NO_GROUND_TRUTH if of_a_real_robot(status) else f"{status['coverage_pct']:.2f} %"),
         ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / status['step']:.3f} m2/step" if status["step"] else "")),
@@ -524,10 +533,8 @@ def run_end_exit_code(run: dict[str, Any]) -> int:
     return code if isinstance(code, int) and not isinstance(code, bool) and code > 0 else 1
 
 
-def episode_end_step(run_dir: Path, last: dict[str, Any]) -> Any:
-    """The step the watched run's episode ended at: its result's (``summary.json``'s steps), else the last status's. On
-    a real robot the two differ: the ROS 2 bridge's steps go on counting the robot's scans after the end (``status``
-    shows them), while the result, the bridge's log and ``episodes.csv`` say the episode's own."""
+def result_steps(run_dir: Path) -> int | None:
+    """The steps of the run's episode as its results say them (``summary.json``), None before they are written."""
     from cso_runtime.report import whole_count  # noqa: PLC0415
     from cso_runtime.runs import read_json_object  # noqa: PLC0415
 
@@ -536,7 +543,15 @@ def episode_end_step(run_dir: Path, last: dict[str, Any]) -> Any:
         steps = whole_count(row.get("steps"))
         if isinstance(steps, int) and not isinstance(steps, bool):
             return steps
-    return last.get("step", 0)
+    return None
+
+
+def episode_end_step(run_dir: Path, last: dict[str, Any]) -> Any:
+    """The step the watched run's episode ended at: its result's (``summary.json``'s steps), else the last status's. On
+    a real robot the two differ: the ROS 2 bridge's steps go on counting the robot's scans after the end (``status``
+    shows them), while the result, the bridge's log and ``episodes.csv`` say the episode's own."""
+    steps = result_steps(run_dir)
+    return last.get("step", 0) if steps is None else steps
 
 
 def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_json: bool) -> int:
@@ -670,6 +685,9 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 info = None if given_connect else read_current_run(runs_dir)
                 why = dead_launcher_of_run(info, runs_dir) or stopped_launcher_of_run(info, runs_dir) or lost_router_of_run(info)
                 return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}" + (f"; {why}" if why else ""), as_json)
+            if status["state"] in EPISODE_OVER and of_a_real_robot(status) and (ended_in := watched_run_dir(status, runs_dir)) is not None:
+                # The bridge's steps go on with the robot's scans after the end: the step the episode ended at beside them.
+                status["ended_at_step"] = result_steps(ended_in)
             shown, last = status, status
             if watch:
                 if watched is None and (run_dir := watched_run_dir(status, runs_dir)) is not None:

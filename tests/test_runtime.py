@@ -3430,6 +3430,32 @@ def test_status_watch_says_the_step_a_real_robots_episode_ended_at(tmp_path, mon
         assert json.loads(last)["step"] == 188
 
 
+def test_status_of_a_real_robots_ended_episode_says_the_step_it_ended_at(tmp_path, monkeypatch, capsys):
+    """After a LIMO's episode ended, ``status`` said "done (no_frontier)" beside "step 816" (the bridge's steps go on with
+    the robot's scans) for an episode of 188 steps: the step row says both, and ``--json`` has ``ended_at_step``."""
+    from rich.console import Console
+
+    from cso_runtime import status
+    from cso_runtime.supervision import process_start_ticks
+
+    runs = tmp_path / "runs"
+    run_dir = runs / "20261207-103211-limo-ros2-r0"
+    run_dir.mkdir(parents=True)
+    ended = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(),
+             "launcher_start_ticks": process_start_ticks(os.getpid()), "state": "done", "detached": True, "episode_ended_at": 1.0}
+    for path in (run_dir / "run.json", runs / "current.json"):
+        path.write_text(json.dumps(ended))
+    (run_dir / "summary.json").write_text(json.dumps({"methods": {"cso": {"steps": 188.0}}}))
+    episode = {"state": "done", "step": 816, "episode": 7, "scene": "ros2:limo1", "method": "cso", "terminated_by": "no_frontier"}
+    launcher = {"run_id": "run1", "state": "running", "services": {"ros2_bridge": {"pid": 1, "restarts": 0}}}
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: status.status_of("r0", episode, launcher, {}, {"ros2_bridge"}))
+    out = io.StringIO()
+    assert status.status_main([], None, as_json=False, watch=False, runs_dir=runs, console=Console(file=out, force_terminal=False, width=120)) == 0
+    assert re.search(r"│ step +│ 816 \(scans; the episode ended at step 188\)", out.getvalue()), out.getvalue()
+    assert status.status_main([], None, as_json=True, watch=False, runs_dir=runs) == 0
+    assert json.loads(capsys.readouterr().out)["ended_at_step"] == 188
+
+
 def test_status_watch_ends_by_saying_that_the_watched_runs_launcher_was_killed(tmp_path, monkeypatch, capsys):
     """``status --watch`` of a run whose launcher was then SIGKILLed ended with "nothing running (no answer for robot r0
     at tcp/...)", where ``status`` says at once that the launcher has exited and how to clear the run: it says so too."""
