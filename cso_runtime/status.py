@@ -439,13 +439,14 @@ def render_table(status: dict[str, Any]) -> Table:
     waiting = status.get("waiting_for") or []
     waits = waiting_note(waiting, None if status["state"] in EPISODE_OVER else status.get("pause"))
     pace = "" if status.get("real_time_factor") is None else f" ({real_time_words(status['real_time_factor'])})"
+    steps = status["step"] if status.get("ended_at_step") is None else status["ended_at_step"]  # the episode's, not the scans since
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "") + waits),
         ("scene / method", f"{status['scene']} / {status['method']}"),
         ("step", f"{status['step']}{pace}" + after_end_words(status)),  # as up's live view says the sim's pace
         ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
         ("coverage", NO_GROUND_TRUTH if of_a_real_robot(status) else f"{status['coverage_pct']:.2f} %"),
-        ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / status['step']:.3f} m2/step" if status["step"] else "")),
+        ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / steps:.3f} m2/step" if steps else "")),
         ("path length", f"{status['path_length_m']:.2f} m"),
         ("goal", "-" if goal is None else f"({goal[0]:.2f}, {goal[1]:.2f}) m"),
         ("pose", pose_words(status.get("pose"), status.get("twist"))),  # .get: a status from before the pose

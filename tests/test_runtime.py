@@ -3446,12 +3446,13 @@ def test_status_of_a_real_robots_ended_episode_says_the_step_it_ended_at(tmp_pat
     for path in (run_dir / "run.json", runs / "current.json"):
         path.write_text(json.dumps(ended))
     (run_dir / "summary.json").write_text(json.dumps({"methods": {"cso": {"steps": 188.0}}}))
-    episode = {"state": "done", "step": 816, "episode": 7, "scene": "ros2:limo1", "method": "cso", "terminated_by": "no_frontier"}
+    episode = {"state": "done", "step": 816, "episode": 7, "scene": "ros2:limo1", "method": "cso", "terminated_by": "no_frontier", "explored_area_m2": 18.8}
     launcher = {"run_id": "run1", "state": "running", "services": {"ros2_bridge": {"pid": 1, "restarts": 0}}}
     monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: status.status_of("r0", episode, launcher, {}, {"ros2_bridge"}))
     out = io.StringIO()
     assert status.status_main([], None, as_json=False, watch=False, runs_dir=runs, console=Console(file=out, force_terminal=False, width=120)) == 0
     assert re.search(r"│ step +│ 816 \(scans; the episode ended at step 188\)", out.getvalue()), out.getvalue()
+    assert re.search(r"│ explored +│ 18\.80 m2, 0\.100 m2/step", out.getvalue()), out.getvalue()  # the episode's m2/step
     assert status.status_main([], None, as_json=True, watch=False, runs_dir=runs) == 0
     assert json.loads(capsys.readouterr().out)["ended_at_step"] == 188
 
