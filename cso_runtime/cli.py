@@ -915,7 +915,7 @@ def status_command(
 @app.command("save-map", rich_help_panel="Runtime (Zenoh services)")
 def save_map_command(
     out: str = typer.Option("map", "--out", "-f", help="Where to write: OUT.yaml and OUT.pgm (or .png), as map_saver_cli -f; a folder (existing, or ending in /) gets map.yaml"),
-    image_format: str = typer.Option("pgm", "--format", help="Image format: pgm or png"),
+    image_format: str = typer.Option("pgm", "--format", "--fmt", help="Image format: pgm or png (--fmt, as map_saver_cli)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
@@ -1017,7 +1017,7 @@ def runs_command(
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         table.add_row(
             escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
-            num(r["coverage_pct"], ".1f"), num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
+            "n/a" if r["real_robot"] else num(r["coverage_pct"], ".1f"), num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
     table_console().print(table)
 

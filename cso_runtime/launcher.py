@@ -64,6 +64,7 @@ from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EPISODE_OVER,
     LAST_EPISODE_FIGURES,
+    ROS_RESUME_BY,
     EpisodeResultMsg,
     EpisodeStatusMsg,
     ExploreResumeMsg,
@@ -551,7 +552,9 @@ class Launcher:
         if changed and msg.resume:
             log.info("exploration resumed%s (paused %.1f s in all)", by, self.pause.total_s(time.monotonic()))
         elif changed:
-            log.info("exploration paused%s%s: the robot holds still until `cso-runtime resume`", by, f" ({msg.reason})" if msg.reason else "")
+            ros_key = msg.by.removeprefix(ROS_RESUME_BY) if msg.by.startswith(ROS_RESUME_BY) else ""
+            until = f"`{{data: true}}` on {ros_key} or `cso-runtime resume`" if ros_key else "`cso-runtime resume`"
+            log.info("exploration paused%s%s: the robot holds still until %s", by, f" ({msg.reason})" if msg.reason else "", until)
 
     def _on_cache_query(self, query: Any) -> None:
         if self.latest_goal is not None:
@@ -970,7 +973,7 @@ class Launcher:
             meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
         row = write_episode_outputs(self.run_dir, result, self.wall_s(), meta, self.sim_time_s(result), self.real_time_factor)
         self.written_result = result
-        log.info("%s%s; results in %s", episode_figures(row), ended_why_said(result), self.run_dir)
+        log.info("%s%s; results in %s", episode_figures(row, self.simulated), ended_why_said(result), self.run_dir)
         return self.run_dir
 
     def wall_s(self) -> float:
@@ -993,7 +996,7 @@ class Launcher:
                 exc.filename or self.run_dir, exc.strerror or exc, self.run_dir,
             )  # fmt: skip
             _, row = episode_record(result, self.wall_s(), self.sim_time_s(result), self.real_time_factor)
-            log.warning("%s%s; not written to %s", episode_figures(row), ended_why_said(result), self.run_dir)  # the terminal keeps them
+            log.warning("%s%s; not written to %s", episode_figures(row, self.simulated), ended_why_said(result), self.run_dir)  # the terminal keeps them
             return False
         return True
 
@@ -1238,7 +1241,14 @@ class Launcher:
         if self.stop_event.is_set():  # Ctrl-C (or SIGTERM) since `up` started: no router is opened
             log.warning("interrupted before any service was started")
             return self.stop_before_start(EXIT_INTERRUPTED)
+        pr = self.profile  # which run this is, and where to look, before the router's and the services' lines
+        log.info(
+            "run %s: profile %s, scene %s, method %s, robot %s; logs, then results, in %s/",
+            self.run_id, pr.name, pr.scene_label, pr.method, pr.robot, self.run_dir,
+        )  # fmt: skip
         router = self.profile.router
+        if router.connect:  # a robot that is off is only said once the timeout has passed: say the wait meanwhile
+            log.info("joining %s (up to %g s, router.connect_timeout_s)", ", ".join(router.connect), router.connect_timeout_s)
         if router.embedded:
             session, self.endpoints = open_router(list(router.listen), list(router.connect), router.connect_timeout_s, router.zenoh_config, self.stop_event)
         else:  # join the existing router(s) instead of opening one
@@ -1286,11 +1296,6 @@ class Launcher:
             ending: EpisodeEnd | None = None  # the ended episode's results being written (start_episode_end)
             pyplot_import: threading.Thread | None = None
             try:
-                pr = self.profile  # which run this is, and where to look, before the services' lines
-                log.info(
-                    "run %s: profile %s, scene %s, method %s, robot %s; logs, then results, in %s/",
-                    self.run_id, pr.name, pr.scene_label, pr.method, pr.robot, self.run_dir,
-                )  # fmt: skip
                 self.spawn_all()
                 pyplot_import = import_pyplot_in_background()  # for the episode's figures, drawn once it ends
                 self.write_run_file("running")
@@ -1457,15 +1462,16 @@ def episode_record(result: EpisodeResultMsg, wall_s: float, sim_time_s: float | 
     return er, episode_row(result.method or "unknown", result.seed, er, wall_s, real_time_factor)
 
 
-def episode_figures(row: dict[str, Any]) -> str:
+def episode_figures(row: dict[str, Any], simulated: bool = True) -> str:
     """The episode's Table 1 figures in words, from its row: the launcher's line once its results are written (or not).
-    An episode of no step has no m2/step (episodes.csv's empty cell): the line says so rather than ``nan``."""
+    An episode of no step has no m2/step (episodes.csv's empty cell): the line says so rather than ``nan``. A real
+    robot's (not ``simulated``) has no coverage (its row's 0: no ground truth): the line leaves it out."""
     from cso_runtime.evaluation import missing  # noqa: PLC0415
 
     efficiency = row["efficiency_m2_per_step"]
     per_step = "no m2/step (no step)" if missing(efficiency) else f"{efficiency:.4f} m2/step"
     return (
-        f"episode {row['terminated_by']}: {row['coverage_pct']:.2f}% coverage in {row['steps']} steps; {row['explored_area_m2']:.2f} m2 explored, "
+        f"episode {row['terminated_by']}: " + (f"{row['coverage_pct']:.2f}% coverage " if simulated else "") + f"in {row['steps']} steps; {row['explored_area_m2']:.2f} m2 explored, "
         f"{per_step}, path {row['path_length_m']:.2f} m, {row['decisions']} decisions"
     )
 

@@ -27,6 +27,11 @@ if TYPE_CHECKING:
     from cso_runtime.messages import EpisodeStatusMsg
 
 
+NO_GROUND_TRUTH = "n/a: a real robot (no ground truth)"
+"""What the tables say of coverage on a real robot, where ``coverage_pct`` is 0 (``status --json``, ``summary.json``,
+``episodes.csv``): a "0.00 %" beside a map being explored read as a failure."""
+
+
 def pace_text(real_time_factor: float | None) -> str:
     """``, 1.00x real time`` (simulated over wall-clock seconds), or nothing when unknown (a real robot, too early)."""
     return "" if real_time_factor is None else f", {real_time_words(real_time_factor)}"
@@ -61,7 +66,7 @@ def progress_line(status: EpisodeStatusMsg, sim_step_s: float | None, real_time_
     time_words = ", ".join(robot_time_words(status.step, sim_step_s))
     when = f" ({time_words}{pace_text(real_time_factor)})" if time_words else ""
     return (
-        f"step {status.step}{when}: coverage {status.coverage_pct:.1f} %, "
+        f"step {status.step}{when}: " + (f"coverage {status.coverage_pct:.1f} %, " if sim_step_s is not None else "") +
         f"{status.explored_area_m2:.2f} m2 explored{rate}, path {status.path_length_m:.2f} m, pose {pose}, {status.decisions} decisions, goal {goal}"
     )
 
@@ -151,9 +156,12 @@ class LiveView:
             since = f"{time.monotonic() - la.started_s:.0f} s since start"
             when = ", ".join([*robot_time_words(st.step, la.sim_step_s), since])
             t.add_row("step", f"{st.step} ({when}{pace_text(la.real_time_factor)})")
-            coverage = Table.grid(padding=(0, 1))
-            coverage.add_row(ProgressBar(total=100.0, completed=min(st.coverage_pct, 100.0), width=self.BAR_CELLS), f"{st.coverage_pct:.1f} %")
-            t.add_row("coverage", coverage)
+            if la.sim_step_s is None:
+                t.add_row("coverage", NO_GROUND_TRUTH)
+            else:
+                coverage = Table.grid(padding=(0, 1))
+                coverage.add_row(ProgressBar(total=100.0, completed=min(st.coverage_pct, 100.0), width=self.BAR_CELLS), f"{st.coverage_pct:.1f} %")
+                t.add_row("coverage", coverage)
             for k, v in (
                 ("explored", f"{st.explored_area_m2:.2f} m2" + (f", {st.explored_area_m2 / st.step:.3f} m2/step" if st.step else "")),
                 ("path length", f"{st.path_length_m:.2f} m"),

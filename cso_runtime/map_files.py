@@ -89,6 +89,11 @@ def open_image(path: Path) -> Image.Image:
     return im
 
 
+ORIGIN_DECIMALS = 9
+"""The YAML's ``origin`` is rounded to a nanometre (a nanoradian): ``-5.275``, as map_saver_cli writes it, not the
+float sum's ``-5.2749999999999995``."""
+
+
 def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_format: str = "pgm", map_origin: Pose2D | None = None) -> Path:
     """Write ``grid`` (int8 OccupancyGrid values, row 0 at ``geometry``'s origin) as ``yaml_path`` and the
     image beside it (same stem, ``image_format`` pgm or png). Returns the YAML's path. ``map_origin``: the pose
@@ -111,7 +116,7 @@ def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_fo
         "image": image_path.name,
         "mode": "trinary",
         "resolution": float(geometry.resolution_m),
-        "origin": map_origin_of(geometry, map_origin),
+        "origin": [round(v, ORIGIN_DECIMALS) + 0.0 for v in map_origin_of(geometry, map_origin)],  # + 0.0: no -0.0
         "negate": 0,
         "occupied_thresh": OCCUPIED_THRESH,
         "free_thresh": FREE_THRESH,

@@ -1306,6 +1306,11 @@ class ExploreResumeMsg(Message):
         return cls(_bool(b, "resume", w), _str(b, "by", w, max_len=256), _str(b, "reason", w, max_len=1024), _num(b, "stamp_s", w, 0.0))
 
 
+ROS_RESUME_BY = "ros2 "
+"""What ``ExploreResumeMsg.by`` starts with when the ROS 2 bridge heard it on ``explore/resume`` (then that key): it is
+resumed there too, with ``{data: true}``."""
+
+
 EPISODE_STATES = ("starting", "exploring", "done", "failed")
 EPISODE_OVER = ("done", "failed")
 """The states of an episode that has ended: nothing is waited for after them."""

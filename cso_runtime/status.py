@@ -410,10 +410,27 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopp
     return words
 
 
+def of_a_real_robot(status: dict[str, Any]) -> bool:
+    """Whether ``status`` is of a real robot's run: a ``ros2_bridge`` is its referee, no ``sim``."""
+    services = status.get("services") or {}
+    return "ros2_bridge" in services and "sim" not in services
+
+
+def after_end_words(status: dict[str, Any]) -> str:
+    """What the step row adds on a real robot whose episode has ended (``ended_at_step``, from its results): the
+    steps shown are the robot's scans since, not the episode's."""
+    ended = status.get("ended_at_step")
+    if ended is None or ended == status["step"]:
+        return ""
+    return f" (scans; the episode ended at step {ended})"
+
+
 def render_table(status: dict[str, Any]) -> Table:
     """``status``'s table on a terminal: one row per field of the episode, then one per service and the launcher."""
     from rich.markup import escape  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
+
+    from cso_runtime.live_view import NO_GROUND_TRUTH  # noqa: PLC0415 - rich's, as above
 
     # Every cell is text, not markup: a scene file or a service's reason may hold brackets.
     t = Table(title=escape(f"robot {status['robot']}  run {status['run_id'] or '-'}"))
@@ -423,13 +440,14 @@ def render_table(status: dict[str, Any]) -> Table:
     waiting = status.get("waiting_for") or []
     waits = waiting_note(waiting, None if status["state"] in EPISODE_OVER else status.get("pause"))
     pace = "" if status.get("real_time_factor") is None else f" ({real_time_words(status['real_time_factor'])})"
+    steps = status["step"] if status.get("ended_at_step") is None else status["ended_at_step"]  # the episode's, not the scans since
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "") + waits),
         ("scene / method", f"{status['scene']} / {status['method']}"),
-        ("step", f"{status['step']}{pace}"),  # as up's live view says the sim's pace
+        ("step", f"{status['step']}{pace}" + after_end_words(status)),  # as up's live view says the sim's pace
         ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
-        ("coverage", f"{status['coverage_pct']:.2f} %"),
-        ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / status['step']:.3f} m2/step" if status["step"] else "")),
+        ("coverage", NO_GROUND_TRUTH if of_a_real_robot(status) else f"{status['coverage_pct']:.2f} %"),
+        ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / steps:.3f} m2/step" if steps else "")),
         ("path length", f"{status['path_length_m']:.2f} m"),
         ("goal", "-" if goal is None else f"({goal[0]:.2f}, {goal[1]:.2f}) m"),
         ("pose", pose_words(status.get("pose"), status.get("twist"))),  # .get: a status from before the pose
@@ -517,6 +535,27 @@ def run_end_exit_code(run: dict[str, Any]) -> int:
     return code if isinstance(code, int) and not isinstance(code, bool) and code > 0 else 1
 
 
+def result_steps(run_dir: Path) -> int | None:
+    """The steps of the run's episode as its results say them (``summary.json``), None before they are written."""
+    from cso_runtime.report import whole_count  # noqa: PLC0415
+    from cso_runtime.runs import read_json_object  # noqa: PLC0415
+
+    methods = (read_json_object(run_dir / "summary.json") or {}).get("methods")
+    if isinstance(methods, dict) and len(methods) == 1 and isinstance(row := next(iter(methods.values())), dict):
+        steps = whole_count(row.get("steps"))
+        if isinstance(steps, int) and not isinstance(steps, bool):
+            return steps
+    return None
+
+
+def episode_end_step(run_dir: Path, last: dict[str, Any]) -> Any:
+    """The step the watched run's episode ended at: its result's (``summary.json``'s steps), else the last status's. On
+    a real robot the two differ: the ROS 2 bridge's steps go on counting the robot's scans after the end (``status``
+    shows them), while the result, the bridge's log and ``episodes.csv`` say the episode's own."""
+    steps = result_steps(run_dir)
+    return last.get("step", 0) if steps is None else steps
+
+
 def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_json: bool) -> int:
     """The line ``status --watch`` ends with when the run it watched stopped: how it ended (its ``outcome``, the
     episode's end and ``terminated_by`` as last seen) and where its results are; ``run_end_exit_code``."""
@@ -527,12 +566,13 @@ def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_j
     code = run_end_exit_code(run)
     over = last.get("state") in EPISODE_OVER
     ended_by = last.get("terminated_by") or ""
-    episode = f"its episode {last.get('state')}" + (f" ({ended_by})" if ended_by else "") + f" at step {last.get('step', 0)}"
+    step = episode_end_step(run_dir, last) if over else last.get("step", 0)
+    episode = f"its episode {last.get('state')}" + (f" ({ended_by})" if ended_by else "") + f" at step {step}"
     where = results_said(run_dir) if outcome == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
     line = f"run {run.get('run_id')} ended: {outcome}" + (f", {episode}" if over else "") + (f", exit code {code}" if code else "") + f"; {where}"
     if as_json:
         ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "outcome": outcome, "exit_code": code}
-        episode_end = {"episode_state": last.get("state"), "terminated_by": ended_by, "step": last.get("step", 0)} if over else {}
+        episode_end = {"episode_state": last.get("state"), "terminated_by": ended_by, "step": step} if over else {}
         print(json.dumps({"state": NOT_RUNNING, "reason": f"nothing running ({line})", **ended, **episode_end}), flush=True)
     else:
         print(line)
@@ -562,11 +602,12 @@ def say_episode_ended(run: dict[str, Any], run_dir: Path, runs_dir: Path, last: 
     state = str(run.get("state"))
     code = 0 if state == "done" else 1
     ended_by = last.get("terminated_by") or ""
+    step = episode_end_step(run_dir, last)
     where = results_said(run_dir) if state == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
-    line = (f"run {run.get('run_id')}'s episode has ended: {state}" + (f" ({ended_by})" if ended_by else "") + f" at step {last.get('step', 0)}; "
+    line = (f"run {run.get('run_id')}'s episode has ended: {state}" + (f" ({ended_by})" if ended_by else "") + f" at step {step}; "
             f"{where}; the run stays up (for status) until {down_command(runs_dir)}")
     if as_json:
-        ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "exit_code": code, "terminated_by": ended_by, "step": last.get("step", 0)}
+        ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "exit_code": code, "terminated_by": ended_by, "step": step}
         print(json.dumps({"state": state, "reason": line, **ended}), flush=True)
     else:
         print(line)
@@ -646,6 +687,9 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 info = None if given_connect else read_current_run(runs_dir)
                 why = dead_launcher_of_run(info, runs_dir) or stopped_launcher_of_run(info, runs_dir) or lost_router_of_run(info)
                 return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}" + (f"; {why}" if why else ""), as_json)
+            if status["state"] in EPISODE_OVER and of_a_real_robot(status) and (ended_in := watched_run_dir(status, runs_dir)) is not None:
+                # The bridge's steps go on with the robot's scans after the end: the step the episode ended at beside them.
+                status["ended_at_step"] = result_steps(ended_in)
             shown, last = status, status
             if watch:
                 if watched is None and (run_dir := watched_run_dir(status, runs_dir)) is not None:
@@ -813,8 +857,12 @@ def explore_resume_main(connect: list[str], robot: str | None, runs_dir: Path, r
             if now is not None and now.pause is not None and now.pause["paused"] != resume:
                 step = (now.last_episode or {}).get("step")
                 at = f" at step {step}" if step is not None else ""
+                ended = (now.last_episode or {}).get("state")
                 if resume:
                     print(f"resumed robot {robot} (run {now.run_id}){at}, after {pause['for_s']:.0f} s paused")
+                elif ended in EPISODE_OVER:  # nothing moves it any more: the pause holds for a new episode (new odometry)
+                    print(f"paused robot {robot} (run {now.run_id}){at}: its episode has ended ({ended}), so it stands already; "
+                          "a new episode would start paused, until `cso-runtime resume`")
                 else:
                     print(f"paused robot {robot} (run {now.run_id}){at}: it holds still until `cso-runtime resume`")
                 return 0

@@ -385,10 +385,11 @@ class Service:
         """Why the service is in its ``state`` ("" when nothing to say)."""
         return self._state_and_reason[1]
 
-    def set_state(self, state: str, reason: str = "") -> None:
+    def set_state(self, state: str, reason: str = "", quiet: bool = False) -> None:
         """Set the state and its reason as one pair (one store): a status read meanwhile shows the old pair or the
-        new one, never a new state with the old reason."""
-        if (state, reason) != self._state_and_reason:
+        new one, never a new state with the old reason. A change is logged unless ``quiet`` (a reason that only
+        brings a figure up to date)."""
+        if not quiet and (state, reason) != self._state_and_reason:
             log.info("%s: %s%s", self.name, state, f" ({reason})" if reason else "")
         self._state_and_reason = (state, reason)
 

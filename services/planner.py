@@ -52,6 +52,15 @@ log = logging.getLogger("cso.planner")
 NO_FRONTIER_REASON = "no_frontier"
 """A command's ``reason`` once the last decision found no reachable frontier (the episode's end): a stop."""
 
+SILENCE_PREFIX = "stale: no "
+"""How the planner's stale reason starts when inputs stopped coming (``silence_reason``)."""
+
+
+def silence_reason(silent: dict[str, float], seconds_format: str) -> str:
+    """The planner's stale reason while inputs (name: seconds since the last) stopped coming."""
+    return "stale: " + ", ".join(f"no {name} for {age_s:{seconds_format}} s" for name, age_s in sorted(silent.items()))
+
+
 PENDING_DECISIONS_KEPT = 16
 """Real time: decisions (frontiers with their grids, distance maps) kept while their goal has not come. A
 policy that is down or far behind must not grow the planner without bound; a goal for an older decision
@@ -564,11 +573,17 @@ class PlannerService(Service):
 
     def on_tick(self, now_s: float) -> None:
         silent = {name: now_s - at_s for name, at_s in self.last_input_s.items() if now_s - at_s > self.params.stale_after_s}
-        if silent and not self.stopped_for_stale and self.cmd_step >= 0:
-            reason = "stale: " + ", ".join(f"no {name} for {age_s:.1f} s" for name, age_s in sorted(silent.items()))
+        if not silent or self.cmd_step < 0:
+            return
+        if not self.stopped_for_stale:
+            reason = silence_reason(silent, ".1f")
             self.set_state("stale", reason)
             self.publish("cmd_vel", CmdVelMsg(self.cmd_step, VelocityCommand(), reason))
             self.stopped_for_stale = True
+        elif self._state_and_reason[0] == "stale" and self._state_and_reason[1].startswith(SILENCE_PREFIX):
+            # Still silent (the robot's bridge gone): the status says for how long now, in whole seconds, where it
+            # stayed "no odometry for 1.1 s" however long the silence lasted. Neither logged nor sent again.
+            self.set_state("stale", silence_reason(silent, ".0f"), quiet=True)
 
 
 def main(argv: list[str] | None = None) -> int:

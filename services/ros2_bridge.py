@@ -47,9 +47,10 @@ from cso_runtime.claims import DECIDE_WITHIN_S, RunClaim, declare_claims, settle
 from cso_runtime.config import ConfigError, from_dict
 from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
-from cso_runtime.keys import PLANNER_KEPT, WILDCARD, driver_claim_subject, robot_driver_token
+from cso_runtime.keys import PLANNER_KEPT, ROOT, WILDCARD, driver_claim_subject, robot_driver_token
 from cso_runtime.messages import (
     EPISODE_OVER,
+    ROS_RESUME_BY,
     ClockMsg,
     CmdVelMsg,
     EndedWhyMsg,
@@ -75,6 +76,12 @@ from services.common import NoFrontierEnd, Service, ServiceContext, service_main
 from services.dataflow import missing_producers
 
 log = logging.getLogger("cso.ros2_bridge")
+
+SCANS_ELSEWHERE_SAID = 3
+"""How many other keys with LaserScans the no-scan note names at most."""
+
+SCANS_ELSEWHERE_NOTE = "LaserScans arrive on "
+"""How the no-scan note names the keys that LaserScans arrive on instead (another namespace's)."""
 
 STAMPS_HELD = 200
 """Steps whose scan time the bridge keeps, to stamp the maps, goals and frontiers computed from them."""
@@ -385,6 +392,11 @@ class Ros2BridgeService(Service):
         """When the last LaserScan arrived (wall clock, monotonic), any scan, even one dropped; the bridge's start before."""
         self.no_scan_note = ""
         """What the episode status says while no scan arrives for ``no_scan_warn_s`` (``scan_silence``)."""
+        self.scans_elsewhere: list[str] = []
+        """While no scan arrives: the other keys that LaserScans of the same topic name arrive on (another namespace's,
+        heard by ``_scan_probe``): the namespace to give, said in the note."""
+        self._scan_probe: Any = None
+        """A subscriber to ``**/<scan_topic>``, only while no scan arrives (``scan_silence``)."""
         self._bridge_lock = threading.RLock()
         self._ros_subs: list[Any] = []
         self._queryables: list[Any] = []
@@ -411,6 +423,9 @@ class Ros2BridgeService(Service):
         with self._bridge_lock:
             stop_stamp_ns = self.robot_time_ns(time.monotonic())
             entities, self._ros_subs, self._queryables = [*self._ros_subs, *self._queryables], [], []
+            if self._scan_probe is not None:
+                entities.append(self._scan_probe)
+                self._scan_probe = None
             if self._driver_token is not None:
                 entities.append(self._driver_token)
                 self._driver_token = None
@@ -546,7 +561,7 @@ class Ros2BridgeService(Service):
                 self.count_reject("ros_resume:bad_cdr", str(exc))
                 return
         log.info("%s on %s", "resume" if resume else "pause", key)
-        self.publish("explore_resume", ExploreResumeMsg(resume, f"ros2 {key}", stamp_s=time.time()))
+        self.publish("explore_resume", ExploreResumeMsg(resume, f"{ROS_RESUME_BY}{key}", stamp_s=time.time()))
 
     def _on_ros_odom(self, sample: zenoh.Sample) -> None:
         raw = sample.payload.to_bytes()
@@ -691,6 +706,7 @@ class Ros2BridgeService(Service):
             if self.no_scan_note:
                 self.no_scan_note = ""
                 log.info("scans arrive on %s", self.params.ros_key(self.params.scan_topic))
+                self.end_scan_probe()
             try:
                 conv = ros2_cdr.laserscan_from_cdr(raw)
             except ros2_cdr.CdrError as exc:
@@ -951,18 +967,51 @@ class Ros2BridgeService(Service):
     def scan_silence(self, now_s: float) -> None:
         """Once no scan has come for ``no_scan_warn_s``, say so in the episode status (published at once, as the live
         view shows it) and the log: with no scan the episode neither starts nor goes on, and every service looks
-        fine. A wrong ``--namespace`` or a robot bridge that is not running look just like this."""
+        fine. A wrong ``--namespace`` or a robot bridge that is not running look just like this. While the silence
+        lasts, the note (what ``status`` asks for) says how long it has lasted; logged and published once."""
         silent_s = now_s - self.last_scan_wall_s
-        if self.no_scan_note or silent_s < self.params.no_scan_warn_s:
+        if silent_s < self.params.no_scan_warn_s:
             return
         key = self.params.ros_key(self.params.scan_topic)
         since = "since the bridge started" if self.counters["received:scan"] == 0 else "since the last one"
-        self.no_scan_note = (
-            f"no LaserScan on {key} for {silent_s:.0f} s ({since}): is the robot's zenoh-bridge-ros2dds running, its LiDAR "
-            "publishing, and --namespace its -n? (docs/hardware.md, Troubleshooting)"
-        )
+        said = self.no_scan_note
+        if self.scans_elsewhere:  # the robot's bridge runs, in another namespace: which one is known
+            given = [f"--namespace {ns}" if (ns := k.removesuffix(self.params.scan_topic).strip("/")) else "no --namespace" for k in self.scans_elsewhere]
+            check = (
+                f"{SCANS_ELSEWHERE_NOTE}{', '.join(self.scans_elsewhere)} instead: if that is this robot, give {' or '.join(given)} "
+                "(its zenoh-bridge-ros2dds -n)"
+            )
+        else:
+            check = "is the robot's zenoh-bridge-ros2dds running, its LiDAR publishing, and --namespace its -n?"
+        self.no_scan_note = f"no LaserScan on {key} for {silent_s:.0f} s ({since}): {check} (docs/hardware.md, Troubleshooting)"
+        if not said:
+            self.start_scan_probe()
+        elif not self.scans_elsewhere or SCANS_ELSEWHERE_NOTE in said:
+            return  # said already: the note only keeps its silence up to date (it stayed "for 5 s" however long it lasted)
         log.warning("%s", self.no_scan_note)
         self.publish("episode_status", self.episode_status())
+
+    def start_scan_probe(self) -> None:
+        """Listen for LaserScans on any key that ends in the scan topic (``**/scan``), as long as none comes on ours:
+        a robot bridge in another namespace (``-n /limo1`` against ``--namespace limo2``, or none) is then named."""
+        if self.session is None or self._scan_probe is not None:
+            return
+        self._scan_probe = self.session.declare_subscriber(f"**/{self.params.scan_topic}", self._on_probe_scan)
+
+    def end_scan_probe(self) -> None:
+        """Scans come on our key: the probe and what it heard go (a callback in flight may be waiting for the lock)."""
+        probe, self._scan_probe = self._scan_probe, None
+        self.scans_elsewhere = []
+        if probe is not None:
+            threading.Thread(target=probe.undeclare, name="scan-probe-undeclare", daemon=True).start()
+
+    def _on_probe_scan(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if key == self.params.ros_key(self.params.scan_topic) or key.split("/", 1)[0] == ROOT:  # ours, or our services' scans
+            return
+        with self._bridge_lock:
+            if self.no_scan_note and key not in self.scans_elsewhere and len(self.scans_elsewhere) < SCANS_ELSEWHERE_SAID:
+                self.scans_elsewhere.append(key)
 
     def extra_status(self) -> dict[str, int]:
         with self._bridge_lock:

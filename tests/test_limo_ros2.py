@@ -331,3 +331,23 @@ def test_a_bridge_killed_outright_leaves_the_robot_stopped_by_the_launcher(tmp_p
                 os.kill(p, signal.SIGKILL)
     assert not left, f"processes left: {left}"
     assert "ros2_bridge exited (code -9): sent a zero Twist on limo1/cmd_vel" in out, out[-3000:]
+
+
+def test_a_pause_from_ros_is_logged_with_how_to_resume_it_from_ros(tmp_path, caplog):
+    """``ros2 topic pub --once /limo1/explore/resume std_msgs/msg/Bool "{data: false}"`` paused the robot, and the
+    launcher's log told the ROS user that it "holds still until `cso-runtime resume`": a pause heard on the robot's
+    ``explore/resume`` now names ``{data: true}`` on that topic too; one from ``cso-runtime pause`` names the command."""
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import ROS_RESUME_BY, ExploreResumeMsg
+
+    profile, data = load_profile("limo-ros2", connect=["tcp/10.0.0.7:7447"], namespace="limo1")
+    launcher = Launcher(profile, data, tmp_path)
+    with caplog.at_level("INFO", logger="cso.launcher"):
+        launcher.on_pause(ExploreResumeMsg(False, f"{ROS_RESUME_BY}limo1/explore/resume"))
+        launcher.on_pause(ExploreResumeMsg(True, f"{ROS_RESUME_BY}limo1/explore/resume"))
+        launcher.on_pause(ExploreResumeMsg(False, "me@laptop", "inspecting"))
+    paused = [r.getMessage() for r in caplog.records if "exploration paused" in r.getMessage()]
+    assert paused == [
+        "exploration paused by ros2 limo1/explore/resume: the robot holds still until `{data: true}` on limo1/explore/resume or `cso-runtime resume`",
+        "exploration paused by me@laptop (inspecting): the robot holds still until `cso-runtime resume`",
+    ], paused

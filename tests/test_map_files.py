@@ -296,3 +296,25 @@ def test_the_unknown_grey_read_free_with_an_alpha_channel_is_said_too(tmp_path: 
     message = record.getMessage()
     assert message.startswith(f"{tmp_path / 'ros2.yaml'}: free_thresh 0.25 reads the unknown grey 205") and "2 cells (0.02 m2)" in message
     assert "alpha" in message and "at most 0.147" in message
+
+
+def test_save_map_takes_map_saver_clis_fmt_and_writes_a_round_origin(tmp_path: Path):
+    """A Nav2 user types ``save-map -f lab --fmt png`` as for map_saver_cli: ``--fmt`` was "No such option". And the
+    YAML said ``origin: [-5.2749999999999995, ...]`` (the arena's corner as the float sum gave it), where map_saver_cli
+    writes -5.275: the origin is written rounded to a nanometre, and reads back as the same geometry to the cell."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    runs = str(tmp_path / "runs")
+    r = CliRunner().invoke(app, ["save-map", "-f", str(tmp_path / "m"), "--fmt", "png", "--runs-dir", runs])
+    assert r.exit_code == 1 and "nothing running" in r.output, r.output  # past the format: no run to ask
+    r = CliRunner().invoke(app, ["save-map", "-f", str(tmp_path / "m"), "--fmt", "jpg", "--runs-dir", runs])
+    assert r.exit_code == 2 and "expected one of pgm, png" in r.output, r.output
+    grid, _ = _grid()
+    geometry = GridGeometry(0.05, (4, 5), -5.2749999999999995, -6.725)  # the limo-ros2 arena's corner, as the bridge had it
+    yaml_path = save_map(tmp_path / "lab.yaml", grid, geometry)
+    assert "origin:\n- -5.275\n- -6.725\n- 0.0\n" in yaml_path.read_text(), yaml_path.read_text()
+    back, back_geometry = load_map(yaml_path)
+    assert back_geometry.shape == geometry.shape and abs(back_geometry.origin_x_m - geometry.origin_x_m) < 1e-9
+    np.testing.assert_array_equal(back, grid)

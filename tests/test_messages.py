@@ -1030,6 +1030,32 @@ def test_pause_refuses_a_lockstep_run_and_says_why(monkeypatch, capsys, tmp_path
     assert f"cannot pause robot r0 (run run-1): {LOCKSTEP_REFUSAL}" in capsys.readouterr().err and sent == []
 
 
+@pytest.mark.parametrize("state", ["exploring", "done"])
+def test_pause_of_an_ended_episode_says_the_robot_stands_already(monkeypatch, capsys, tmp_path, state):
+    """``cso-runtime pause`` after a LIMO's episode ended (the run stays up, detached) said "it holds still until
+    `cso-runtime resume`", as if it had stopped a robot that was driving: it says the episode has ended and what
+    the pause is for then (a new episode starts paused)."""
+    import contextlib
+
+    from cso_runtime import status as status_module
+    from cso_runtime.messages import ExploreResumeMsg, LauncherStatusMsg
+    from cso_runtime.pause import PauseClock
+
+    clock = PauseClock()
+    answers = iter([clock.status(0.0), (clock.heard(ExploreResumeMsg(False, "me@laptop"), 1.0), clock.status(1.0))[1]])
+    session = type("S", (contextlib.nullcontext,), {"put": lambda self, *a: None})()
+    monkeypatch.setattr(status_module, "reachable_target", lambda *a: status_module.RunTarget(["tcp/127.0.0.1:1"], "r0", None))
+    monkeypatch.setattr(status_module, "_client_session", lambda *a: session)
+    last = {"state": state, "step": 188, "episode": 7, "age_s": 0.1}
+    monkeypatch.setattr(status_module, "launcher_pause", lambda *a, **k: LauncherStatusMsg("run-1", "running", last_episode=last, pause=next(answers)))
+    assert status_module.explore_resume_main([], None, tmp_path, resume=False) == 0
+    said = capsys.readouterr().out
+    if state == "done":
+        assert said.startswith("paused robot r0 (run run-1) at step 188: its episode has ended (done), so it stands already; a new episode"), said
+    else:
+        assert said.startswith("paused robot r0 (run run-1) at step 188: it holds still until `cso-runtime resume`"), said
+
+
 @pytest.fixture
 def grid_bound():
     """Restores the process's ``max_grid_cells`` after a test that sets it."""

@@ -777,10 +777,39 @@ def test_no_scan_on_the_robots_key_is_said_in_status_and_the_log(caplog):
     assert reason.startswith("no LaserScan on limo9/scan for 6 s (since the bridge started)") and "--namespace" in reason, reason
     assert [m.reason for topic, m in out if topic == "episode_status"] == [reason], "published once, at once"
     assert caplog.text.count("no LaserScan on limo9/scan") == 1
+    svc.on_tick(start + 23.2)  # the note says how long the silence has lasted (it stayed "for 6 s"); said once
+    assert svc.episode_status().reason.startswith("no LaserScan on limo9/scan for 23 s (since the bridge started)")
+    assert len([m for topic, m in out if topic == "episode_status"]) == 1 and caplog.text.count("no LaserScan on limo9/scan") == 1
     step(1000.0, 0.0)  # scans come: the note goes
     assert svc.episode_status().reason == "" and svc.episode_status().state == "exploring"
     svc.on_tick(svc.last_scan_wall_s + 5.5)  # the LiDAR stops
     assert "(since the last one)" in svc.episode_status().reason
+
+
+def test_no_scan_note_names_the_namespace_the_robots_scans_arrive_in(caplog):
+    """The classic ROS mistake, ``--namespace limo9`` against a robot bridge started ``-n /limo1`` (or without ``-n``):
+    the note asked "is --namespace its -n?" and left the user to find the robot's namespace. While no scan comes, the
+    bridge listens for LaserScans on any ``**/scan`` key and the note names the keys they arrive on and the
+    ``--namespace`` to give (said in the log and published again once); our own services' keys are not the robot's."""
+    from types import SimpleNamespace
+
+    svc, out, step = _bridge_without_zenoh({"namespace": "limo9", "no_scan_warn_s": 5.0})
+    start = svc.last_scan_wall_s
+    heard = lambda key: svc._on_probe_scan(SimpleNamespace(key_expr=key))  # noqa: E731
+    with caplog.at_level("WARNING", logger="cso.ros2_bridge"):
+        heard("limo1/scan")  # before the silence is said: not yet listened for
+        svc.on_tick(start + 5.5)
+        assert "arrive on" not in svc.episode_status().reason
+        for key in ("cso/r0/scan", "limo9/scan", "limo1/scan", "scan", "limo1/scan"):
+            heard(key)
+        svc.on_tick(start + 6.5)
+        svc.on_tick(start + 7.5)
+    reason = svc.episode_status().reason
+    assert reason.startswith("no LaserScan on limo9/scan for 8 s (since the bridge started): LaserScans arrive on limo1/scan, scan instead: "
+                             "if that is this robot, give --namespace limo1 or no --namespace (its zenoh-bridge-ros2dds -n)"), reason
+    assert len([m for topic, m in out if topic == "episode_status"]) == 2 and caplog.text.count("no LaserScan on limo9/scan") == 2
+    step(1000.0, 0.0)  # scans come on ours: the note and what was heard elsewhere go
+    assert svc.episode_status().reason == "" and svc.scans_elsewhere == []
 
 
 def test_goals_frontiers_and_maps_carry_their_scans_exact_time_and_never_zero():

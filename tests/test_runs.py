@@ -274,3 +274,15 @@ def test_runs_lists_a_real_robots_run_as_exploring_where_the_robot_is(tmp_path):
     assert not summarize_run(make_run(tmp_path / "runs", "20261206-205537-lockstep-r0", outcome="done")).real_robot
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "runs")], env={"COLUMNS": "200"})
     assert r.exit_code == 0 and f"{REAL_ROBOT_SCENE}, cso" in r.output and "\n    , cso" not in r.output, r.output
+
+
+def test_runs_lists_no_coverage_for_a_real_robots_run(tmp_path):
+    """``runs`` listed a LIMO's run with "cover % 0.0" (no ground truth: its summary's 0), read as an exploration that
+    mapped nothing: the column says n/a there; ``--json`` keeps the summary's 0."""
+    d = make_run(tmp_path / "runs", "20261206-205536-limo-ros2-r0", outcome="done", summary={"coverage_pct": 0.0, "steps": 196, "explored_area_m2": 22.6})
+    (d / "profile.yaml").write_text(yaml.safe_dump({"name": "limo-ros2", "robot": "r0", "method": "cso", "services": {"ros2_bridge": {}, "planner": {}}}))
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "runs")], env={"COLUMNS": "200"})
+    (row,) = [line for line in r.output.splitlines() if "20261206-205536-limo-ros2-r0" in line]
+    assert r.exit_code == 0 and row.split()[-4:-2] == ["196", "n/a"], r.output
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "runs"), "--json"])
+    assert json.loads(r.output)[0]["coverage_pct"] == 0.0, r.output

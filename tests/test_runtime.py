@@ -680,7 +680,8 @@ def test_up_and_eval_refuse_an_existing_folder_they_cannot_write_in(tmp_path):
 def test_up_that_cannot_reach_the_router_to_join_says_so_and_starts_nothing(tmp_path):
     """``up --connect`` to a router that is not there (a robot that is off, another run's router gone): the embedded
     router retried in the background and the run started alone, exit 0, with no word of it. Now the no-session error
-    (README: exit 3), foreground and detached alike, once ``router.connect_timeout_s`` has passed."""
+    (README: exit 3), foreground and detached alike, once ``router.connect_timeout_s`` has passed; a foreground ``up``
+    says the wait as it starts."""
     from cso_runtime.runs import list_runs
 
     nobody = loopback_endpoint(free_tcp_port())
@@ -693,6 +694,8 @@ def test_up_that_cannot_reach_the_router_to_join_says_so_and_starts_nothing(tmp_
             )  # fmt: skip
             said = r.stdout + r.stderr
             assert r.returncode == 3 and f"cannot reach {nobody}" in said and "no service was started" in said, said
+            # The wait itself is said as it starts (it was silent up to the timeout, 10 s by default, with the robot off).
+            assert detach or f"joining {nobody} (up to 0.5 s, router.connect_timeout_s)" in said, said
             assert "Traceback" not in said and not (runs / "current.json").exists()
             assert [run.state for run in list_runs(runs)] == ["failed"]
         finally:
@@ -2224,6 +2227,8 @@ def test_the_launchers_line_of_an_episode_of_no_step_says_it_has_no_m2_per_step(
     assert line == "episode coverage: 98.00% coverage in 0 steps; 1.20 m2 explored, no m2/step (no step), path 4.50 m, 3 decisions"
     _, row = episode_record(_fake_result(steps=10), wall_s=1.0)
     assert "0.1200 m2/step" in episode_figures(row)
+    # A real robot's episode has no coverage (its row's 0: no ground truth): "0.00% coverage" read as a failure.
+    assert episode_figures(row, simulated=False).startswith("episode coverage: in 10 steps; 1.20 m2 explored, 0.1200 m2/step")
 
 
 def _recording_launcher(tmp_path: Path):
@@ -2459,11 +2464,14 @@ def test_up_shows_and_writes_the_simulators_real_time_factor_measured_on_the_epi
         # A real robot's steps are its scans (about 10 Hz on the LIMO), not 0.25 s control periods: 42 steps are
         # no "10.5 s robot time" there, so neither the live view nor the log line says so.
         assert "robot time" not in text and re.search(r"│ step +│ 42 \(\d+ s since start\)", text), text
-        assert line.startswith("step 42: coverage 0.0 %") and "robot time" not in line, line
+        assert line.startswith("step 42: 0.00 m2 explored") and "robot time" not in line, line
+        # No ground truth on a real robot: its coverage (0) is not shown as "0.0 %" beside the map it explores.
+        assert "coverage" not in line and re.search(r"│ coverage +│ n/a: a real robot \(no ground truth", text) and "0.0 %" not in text, text
     else:
         assert launcher.real_time_factor == pytest.approx(2.0)
         assert re.search(r"│ step +│ 42 \(10\.5 s robot time, \d+ s since start, 2\.00x real time\)", text), text
-        assert "step 42 (10.5 s robot time, 2.00x real time): coverage" in line, line
+        assert "step 42 (10.5 s robot time, 2.00x real time): coverage 0.0 %" in line, line
+        assert re.search(r"│ coverage +│ .* 0\.0 %", text), text
     status("done", 50, 1036.0)  # the end: 48 steps in 6 s
     launcher.write_outputs(_fake_result(steps=50))
     with (tmp_path / "run" / "episodes.csv").open() as fh:
@@ -2521,6 +2529,22 @@ def test_status_shows_the_simulators_real_time_factor_the_launcher_measures(tmp_
     else:
         assert status["real_time_factor"] == pytest.approx(2.0)
         assert re.search(r"│ step +│ 42 \(2\.00x real time\) +│", text), text
+
+
+def test_status_says_a_real_robots_coverage_is_not_measured_and_json_keeps_its_zero():
+    """``status`` on a LIMO said "coverage 0.00 %" for the whole run, beside a map growing by the second (there is no
+    ground truth to measure it against): the table says so; ``--json`` keeps ``coverage_pct`` 0, as summary.json."""
+    from rich.console import Console
+
+    from cso_runtime.status import render_table, status_of
+
+    episode = {"state": "exploring", "step": 42, "episode": 7, "scene": "ros2:limo1", "method": "cso", "coverage_pct": 0.0, "explored_area_m2": 6.5}
+    for referee, said in (("ros2_bridge", r"│ coverage +│ n/a: a real robot \(no ground"), ("sim", r"│ coverage +│ 0\.00 % +│")):
+        status = status_of("r0", episode, {"run_id": "run1", "state": "running", "services": {referee: {"pid": 1, "restarts": 0}}}, {}, {referee})
+        console = Console(record=True, width=200)
+        console.print(render_table(status))
+        text = console.export_text()
+        assert re.search(said, text) and status["coverage_pct"] == 0.0, text
 
 
 def test_live_view_shows_how_far_the_planned_path_goes(tmp_path):
@@ -3443,6 +3467,64 @@ def test_status_watch_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypa
         assert last["reason"].startswith(ended) and stays in last["reason"], last
         return
     assert said.startswith(ended) and stays in said and (f"results in {run_dir}/: report.html" in said) == (episode_state == "done"), said
+
+
+@pytest.mark.parametrize("as_json", [False, True])
+def test_status_watch_says_the_step_a_real_robots_episode_ended_at(tmp_path, monkeypatch, capsys, as_json):
+    """On a real robot (``limo-ros2``) the bridge's steps go on counting the robot's scans after the episode's end, so
+    ``status --watch`` ended with "episode has ended: done (no_frontier) at step 202" for an episode whose result, the
+    bridge's log and ``episodes.csv`` say ended at step 188. It says the episode's own step, from its results."""
+    from rich.console import Console
+
+    from cso_runtime import status
+    from cso_runtime.supervision import process_start_ticks
+
+    runs = tmp_path / "runs"
+    run_dir = runs / "20261207-103211-limo-ros2-r0"
+    run_dir.mkdir(parents=True)
+    ended = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(),
+             "launcher_start_ticks": process_start_ticks(os.getpid()), "state": "done", "detached": True, "episode_ended_at": 1.0}
+    for path in (run_dir / "run.json", runs / "current.json"):
+        path.write_text(json.dumps(ended))
+    (run_dir / "summary.json").write_text(json.dumps({"methods": {"cso": {"steps": 188.0, "terminated_by": {"no_frontier": 1}}}}))
+    episode = {"state": "done", "step": 202, "episode": 7, "scene": "ros2:limo1", "method": "cso", "terminated_by": "no_frontier"}
+    over = status.status_of("r0", episode, {"run_id": "run1", "state": "running", "services": {"ros2_bridge": {"pid": 1, "restarts": 0}}}, {}, {"ros2_bridge"})
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: over)
+    monkeypatch.setattr(status.time, "sleep", lambda s: None)
+    code = status.status_main([], None, as_json=as_json, watch=True, runs_dir=runs, period_s=0.1, console=Console(file=io.StringIO(), force_terminal=False, width=100))
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert code == 0
+    said = json.loads(last)["reason"] if as_json else last
+    assert said.startswith("run run1's episode has ended: done (no_frontier) at step 188; "), said
+    if as_json:
+        assert json.loads(last)["step"] == 188
+
+
+def test_status_of_a_real_robots_ended_episode_says_the_step_it_ended_at(tmp_path, monkeypatch, capsys):
+    """After a LIMO's episode ended, ``status`` said "done (no_frontier)" beside "step 816" (the bridge's steps go on with
+    the robot's scans) for an episode of 188 steps: the step row says both, and ``--json`` has ``ended_at_step``."""
+    from rich.console import Console
+
+    from cso_runtime import status
+    from cso_runtime.supervision import process_start_ticks
+
+    runs = tmp_path / "runs"
+    run_dir = runs / "20261207-103211-limo-ros2-r0"
+    run_dir.mkdir(parents=True)
+    ended = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(),
+             "launcher_start_ticks": process_start_ticks(os.getpid()), "state": "done", "detached": True, "episode_ended_at": 1.0}
+    for path in (run_dir / "run.json", runs / "current.json"):
+        path.write_text(json.dumps(ended))
+    (run_dir / "summary.json").write_text(json.dumps({"methods": {"cso": {"steps": 188.0}}}))
+    episode = {"state": "done", "step": 816, "episode": 7, "scene": "ros2:limo1", "method": "cso", "terminated_by": "no_frontier", "explored_area_m2": 18.8}
+    launcher = {"run_id": "run1", "state": "running", "services": {"ros2_bridge": {"pid": 1, "restarts": 0}}}
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: status.status_of("r0", episode, launcher, {}, {"ros2_bridge"}))
+    out = io.StringIO()
+    assert status.status_main([], None, as_json=False, watch=False, runs_dir=runs, console=Console(file=out, force_terminal=False, width=120)) == 0
+    assert re.search(r"│ step +│ 816 \(scans; the episode ended at step 188\)", out.getvalue()), out.getvalue()
+    assert re.search(r"│ explored +│ 18\.80 m2, 0\.100 m2/step", out.getvalue()), out.getvalue()  # the episode's m2/step
+    assert status.status_main([], None, as_json=True, watch=False, runs_dir=runs) == 0
+    assert json.loads(capsys.readouterr().out)["ended_at_step"] == 188
 
 
 def test_status_watch_ends_by_saying_that_the_watched_runs_launcher_was_killed(tmp_path, monkeypatch, capsys):

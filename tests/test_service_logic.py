@@ -643,6 +643,31 @@ def test_real_time_planner_says_which_input_went_silent_and_does_not_blame_the_g
     assert last.step == 90 and last.reason == "" and planner.planner.status.value == "following"
 
 
+def test_real_time_planner_says_how_long_its_inputs_have_been_silent_while_they_are(caplog):
+    """The fake LIMO killed mid-run: ``status`` said "stale: no odometry for 1.1 s, no scan for 1.1 s" for as long
+    as the robot was gone (the reason was written once, at the stop). It now says how long the silence has lasted,
+    without a log line or another stop per tick; inputs that come back clear it as before."""
+    planner, out = _service(PlannerService, lockstep=False, params={"stale_after_s": 1.0})
+    ex = _explorer_at(0)
+    obs = ex.observe()
+    _, odom, scan = _inputs(ex, 0)
+    t0 = time.monotonic()
+    planner.on_message("r0", "odom", odom, t0)
+    planner.on_message("r0", "scan", scan, t0)
+    _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
+    _feed(planner, _far_goal(obs, 0))
+    with caplog.at_level("INFO", logger="cso.service"):
+        planner.on_tick(t0 + 1.1)
+        assert planner.state == "stale" and planner.reason == "stale: no odometry for 1.1 s, no scan for 1.1 s"
+        planner.on_tick(t0 + 12.4)
+    assert planner.state == "stale" and planner.reason == "stale: no odometry for 12 s, no scan for 12 s"
+    assert [m.reason for t, m in out if t == "cmd_vel" and m.reason.startswith("stale")] == ["stale: no odometry for 1.1 s, no scan for 1.1 s"]
+    assert caplog.text.count("planner: stale") == 1, caplog.text
+    planner.on_message("r0", "odom", OdometryMsg(1, odom.stamp_s + 13.0, odom.pose), t0 + 13.0)
+    planner.on_message("r0", "scan", ScanMsg(1, scan.scan, scan.sensor_pose), t0 + 13.0)
+    assert planner.state != "stale"
+
+
 def test_planner_plans_on_the_distance_map_of_the_decision_when_it_arrives(monkeypatch):
     """D travels on its own key after the decision message: with it the planner only descends it (no
     fast-marching pass of its own), and the path is the in-process one; a D of another pose is not used."""
