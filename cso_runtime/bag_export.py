@@ -6,7 +6,7 @@ folder with MCAP storage (``metadata.yaml`` + ``.mcap``), with the names a Nav2 
 
 | ROS topic | type | from |
 | --- | --- | --- |
-| ``/scan`` | sensor_msgs/msg/LaserScan (frame ``laser``), at the scan's own stamp | ``scan`` |
+| ``/scan`` | sensor_msgs/msg/LaserScan (frame ``laser``; ``scan_time`` the recording's period between scans, ``recorded_scan_period``; ``time_increment`` 0), at the scan's own stamp | ``scan`` |
 | ``/odom`` | nav_msgs/msg/Odometry (``odom`` -> ``base_link``; covariances diagonal, ``ros2_cdr.ODOMETRY_COVARIANCE_DIAGONAL``) | ``odom`` |
 | ``/tf`` | tf2_msgs/msg/TFMessage: ``odom`` -> ``base_link`` at each odometry's time, and at each scan's (its sensor pose less the LiDAR's mount) | ``odom``, ``scan`` |
 | ``/tf_static`` | tf2_msgs/msg/TFMessage: ``map`` -> ``odom`` (the scene's map origin) and ``base_link`` -> ``laser`` (the LiDAR's mount) | ``episode/status`` |
@@ -33,6 +33,10 @@ pose less the mount, so tf2 puts ``laser`` there whether or not an odometry mess
 MuJoCo LIMO's LiDAR fires before its step's odometry); where one does (lockstep, the ROS 2 bridge), both say the
 same pose and only the first is sent (tf2 keeps the first transform of a time).
 
+The four frames' names are ``BagFrames``'s (``--map-frame``, ``--odom-frame``, ``--base-frame``, ``--laser-frame``:
+``laser_link`` for AgileX's LIMO driver's tree), each used wherever its frame appears; the defaults are the names
+above. The map's ``info.origin`` is ``geometry.rounded_pose``'d, as ``save-map``'s YAML ``origin``.
+
 Time (``time``): ``sim`` (default) puts every message at the robot's own time (each scan and odometry at its stamp,
 another message at its step's first: 0.25 s a step in the simulator, however fast a lockstep run went; a later
 episode of the same recording, whose steps start again, follows the one before), ``received`` at its reception time
@@ -44,7 +48,9 @@ the ROS 2 bridge's; the other keys (clock, status, feedback, distance maps) are 
 from __future__ import annotations
 
 import logging
+import math
 import shutil
+import statistics
 from collections import Counter, deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -54,7 +60,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cso_runtime import ros2_cdr
-from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, compose_pose, compose_xy, relative_pose
+from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, compose_pose, compose_xy, relative_pose, rounded, rounded_pose
 from cso_runtime.messages import (
     CmdVelMsg,
     DeferredMsg,
@@ -77,6 +83,33 @@ if TYPE_CHECKING:
 log = logging.getLogger("cso.bag_export")
 
 MAP_FRAME, ODOM_FRAME, BASE_FRAME, LASER_FRAME = "map", "odom", "base_link", "laser"
+"""The frames' default names (``BagFrames``)."""
+
+
+@dataclass(frozen=True)
+class BagFrames:
+    """The names of the four frames ``map`` -> ``odom`` -> ``base_link`` -> ``laser`` in a bag (before ``namespace``),
+    used in every header and transform that names them (``/scan``'s header, ``/tf``, ``/tf_static``, ``/odom``, the
+    map-frame messages): a bag whose TF tree matches the user's robot (the LIMO's ROS driver names its LiDAR's frame
+    ``laser_link``). The defaults are the names a bag has always had."""
+
+    map: str = MAP_FRAME
+    odom: str = ODOM_FRAME
+    base: str = BASE_FRAME
+    laser: str = LASER_FRAME
+
+    def check(self) -> None:
+        """ValueError unless each name is a tf2 frame id and the four are distinct (one named twice makes a TF loop)."""
+        names = {"map": self.map, "odom": self.odom, "base": self.base, "laser": self.laser}
+        for what, frame in names.items():
+            if not ros2_cdr.is_frame_id(frame):
+                raise ValueError(f"the {what} frame {frame!r} is no tf2 frame id ({ros2_cdr.FRAME_ID_RULE})")
+        if len(set(names.values())) < len(names):
+            twice = sorted({f for f in names.values() if list(names.values()).count(f) > 1})
+            raise ValueError(f"the frames must have four different names, not {', '.join(repr(f) for f in twice)} twice: tf2 cannot make a tree of them")
+
+
+DEFAULT_FRAMES = BagFrames()
 ROS_TYPES = {
     "/scan": ros2_cdr.LASER_SCAN,
     "/odom": ros2_cdr.ODOMETRY,
@@ -129,6 +162,10 @@ class BagExportStats:
     """Maps left out by ``map_period_s``."""
     lidar_mount: Pose2D = SENSOR_AT_BASE
     """``base_link`` -> ``laser``, as exported."""
+    scan_period_s: float = 0.0
+    """Each ``/scan``'s ``scan_time``: the period between scans the recording shows (0: unknown)."""
+    frames: BagFrames = DEFAULT_FRAMES
+    """The frames' names, as exported (before the namespace)."""
     map_origins: dict[int, Pose2D] = field(default_factory=dict)
     """Episode id -> its ``map`` -> ``odom`` (the episodes whose status the recording has)."""
 
@@ -208,18 +245,25 @@ class BagConverter:
     ``odom`` on ``/tf_static`` is the scene's ``map_origin`` (``episode_status.map_origin``), and the map, goal, path and
     frontiers are turned into ``map`` with it. ``map_origins`` gives each episode's (by its id); ``learn_map_origin``
     adds one. An episode whose map origin is not known keeps the one before (zeros before any), as does a message of
-    no episode (a path). ``lidar_mount``: the LiDAR's pose on the robot, ``base_link`` -> ``laser`` on ``/tf_static``."""
+    no episode (a path). ``lidar_mount``: the LiDAR's pose on the robot, ``base_link`` -> ``laser`` on ``/tf_static``.
+    ``frames``: the four frames' names (``BagFrames``). ``scan_period_s``: each ``/scan``'s ``scan_time``, the time
+    between scans (0: unknown; ``recorded_scan_period``); its ``time_increment`` is 0 (``ros2_cdr.laserscan_to_cdr``)."""
 
     def __init__(
         self, map_period_s: float = 1.0, time: str = "sim", namespace: str = "",
         lidar_mount: Pose2D = SENSOR_AT_BASE, map_origins: Mapping[int, Pose2D] | None = None,
+        frames: BagFrames = DEFAULT_FRAMES, scan_period_s: float = 0.0,
     ) -> None:  # fmt: skip
         if namespace and not ros2_cdr.is_ros_name(namespace):
             raise ValueError(f"namespace {namespace!r} is no ROS name (letters, digits and _, parts joined by /, e.g. robot1)")
+        frames.check()
         self.map_frame, self.odom_frame, self.base_frame, self.laser_frame = (
-            namespaced(f, namespace) for f in (MAP_FRAME, ODOM_FRAME, BASE_FRAME, LASER_FRAME)
+            namespaced(f, namespace) for f in (frames.map, frames.odom, frames.base, frames.laser)
         )
         """The frame ids (``NS/map``... under a ``namespace``); the topics are namespaced by the bag's writer."""
+        if not (math.isfinite(scan_period_s) and scan_period_s >= 0):
+            raise ValueError("scan_period_s must be >= 0")
+        self.scan_period_s = scan_period_s
         if not map_period_s >= 0:
             raise ValueError("map_period_s must be >= 0")
         if time not in TIME_MODES:
@@ -330,7 +374,7 @@ class BagConverter:
             if wanted("/tf"):
                 out += self.base_transform(self.base_pose_of_scan(msg.sensor_pose), t_ns)
             if wanted("/scan"):
-                out.append(("/scan", ros2_cdr.laserscan_to_cdr(msg.scan, t_ns, self.laser_frame), t_ns))
+                out.append(("/scan", ros2_cdr.laserscan_to_cdr(msg.scan, t_ns, self.laser_frame, self.scan_period_s), t_ns))
         elif isinstance(msg, MapMsg) and wanted("/map"):
             self.maps_thinned += self.pending_map is not None and self.pending_map[0] is not msg  # a held map is superseded either way
             if again or self.last_map_ns is None or t_ns - self.last_map_ns >= self.map_period_ns:
@@ -398,9 +442,6 @@ ROS_TOPICS: dict[str, tuple[str, ...]] = {
 """Our topic -> the ROS topics ``BagConverter.convert`` makes of it (besides ``/tf_static``, with the first message)."""
 
 
-MOUNT_DECIMALS = 9
-"""A LiDAR mount read from a recording is rounded to the nanometre and nanoradian: what is left of it after the
-float arithmetic of the poses it is read from."""
 MOUNT_SEARCH_MESSAGES = 200
 """How many of a robot's first scans and odometry messages ``recorded_lidar_mount`` looks at for a pair of one time."""
 
@@ -446,13 +487,47 @@ def recorded_lidar_mount(recording: Path, robot: str) -> Pose2D:
             match = seen.get((other, msg.episode, msg.step, stamp_s))
             if match is not None:
                 base, sensor = (match, pose) if kind == "scan" else (pose, match)
-                return Pose2D(*(round(v, MOUNT_DECIMALS) + 0.0 for v in relative_pose(base, sensor)))  # + 0.0: no -0.0
+                return rounded_pose(Pose2D(*relative_pose(base, sensor)))  # what float arithmetic left of it, rounded off
             seen[(kind, msg.episode, msg.step, stamp_s)] = pose
             if len(seen) >= MOUNT_SEARCH_MESSAGES:
                 break
     finally:
         messages.close()  # the reader's file, at once
     return SENSOR_AT_BASE
+
+
+SCAN_PERIOD_SCANS = 50
+"""How many of a robot's first scans ``recorded_scan_period`` reads."""
+
+
+def recorded_scan_period(recording: Path, robot: str) -> float:
+    """The period between ``robot``'s scans in ``recording`` (each ``/scan``'s ``scan_time``, sensor_msgs/LaserScan's
+    time between scans), as their stamps show it: the median of the steps between consecutive scans of one episode,
+    among its first ``SCAN_PERIOD_SCANS`` scans (a dropped scan or a LiDAR that fired early moves it not), ``rounded``
+    (0.25 s for the simulator's scan a step, the LiDAR's own on a real robot). 0 (unknown) for fewer than two scans
+    of one episode, or stamps that never advance."""
+    prefix = f"cso/{robot}/"
+    steps: list[float] = []
+    last: tuple[int, float] | None = None
+    seen = 0
+    messages = read_recording(recording, topics=("scan",), quiet=True)
+    try:
+        for m in messages:
+            if not m.key.startswith(prefix):
+                continue
+            try:
+                msg = decode(m.payload, ScanMsg, accept_legacy=True)
+            except MessageError:
+                continue
+            if last is not None and last[0] == msg.episode and msg.scan.stamp_s > last[1]:
+                steps.append(msg.scan.stamp_s - last[1])
+            last = (msg.episode, msg.scan.stamp_s)
+            seen += 1
+            if seen >= SCAN_PERIOD_SCANS:
+                break
+    finally:
+        messages.close()  # the reader's file, at once
+    return rounded(statistics.median(steps)) if steps else 0.0
 
 
 def nothing_exported(stats: BagExportStats) -> str:
@@ -474,11 +549,13 @@ def export_bag(
     progress: Callable[[int, int | None], None] | None = None,
     namespace: str = "",
     lidar_mount: Pose2D | None = None,
+    frames: BagFrames = DEFAULT_FRAMES,
 ) -> BagExportStats:
     """Write ``recording``'s messages of ``robot`` (default: its only robot) as a rosbag2 folder ``out_dir``.
     ``namespace``: every topic but /tf and /tf_static, and every frame id, under it (``namespaced``), so that the bags
-    of several robots can be merged. ``lidar_mount``: ``base_link`` -> ``laser`` (None: as the recording shows it,
-    ``recorded_lidar_mount``). ``map`` -> ``odom`` is each episode's map origin (``recorded_map_origins``).
+    of several robots can be merged. ``frames``: the names of ``map``, ``odom``, ``base_link`` and ``laser``
+    (``BagFrames``; ``laser_link`` for the LIMO's driver's). ``lidar_mount``: ``base_link`` -> ``laser`` (None: as the
+    recording shows it, ``recorded_lidar_mount``). Each ``/scan``'s ``scan_time`` is ``recorded_scan_period``. ``map`` -> ``odom`` is each episode's map origin (``recorded_map_origins``).
     ``progress(read, total)`` is called every few hundred messages (total: all robots' messages, None when
     the recording has no summary), so that a long recording does not convert in silence. BagExportError, and no
     folder left, when nothing of the robot converts (``nothing_exported``): an empty bag is no run to look at."""
@@ -486,7 +563,7 @@ def export_bag(
     from rosbags.rosbag2 import StoragePlugin, Writer, WriterError  # noqa: PLC0415
 
     recording, out_dir = Path(recording), Path(out_dir)
-    converter = BagConverter(map_period_s, time, namespace)  # checks the settings before any file is touched
+    converter = BagConverter(map_period_s, time, namespace, frames=frames)  # checks the settings before any file is touched
     if out_dir.exists():
         raise BagExportError(f"{out_dir} exists; a bag is written to a new folder (give another --out or remove it)")
     try:
@@ -496,9 +573,12 @@ def export_bag(
     try:
         converter.lidar_mount = recorded_lidar_mount(recording, robot) if lidar_mount is None else lidar_mount
         converter.map_origins.update(recorded_map_origins(recording, robot))
+        converter.scan_period_s = recorded_scan_period(recording, robot)
     except RecordingError as exc:
         raise BagExportError(str(exc)) from None
-    stats = BagExportStats(out_dir, robot, lidar_mount=converter.lidar_mount, map_origins=dict(converter.map_origins))
+    stats = BagExportStats(
+        out_dir, robot, lidar_mount=converter.lidar_mount, map_origins=dict(converter.map_origins), scan_period_s=converter.scan_period_s, frames=frames,
+    )
     never = QosTime(sec=0, nsec=0)
     latched = [Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, never, never, QosLiveliness.AUTOMATIC, never, False)]
     prefix = f"cso/{robot}/"

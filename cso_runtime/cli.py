@@ -577,20 +577,26 @@ def export_bag_command(
     map_period_s: float = typer.Option(1.0, "--map-period-s", help="At most one /map per this many seconds of the run, and the last (0: every map)"),
     time_base: str = typer.Option("sim", "--time", help="sim: each message at its step's robot time (0.25 s a step, even in lockstep); received: at its reception"),
     namespace: str = typer.Option("", "--namespace", help="Put every topic but /tf and /tf_static under /NS/ and every frame id under NS/ (robot1/base_link), so that several robots' bags can be merged"),
+    map_frame: str = typer.Option("map", "--map-frame", help="The map frame's name: /map, /plan, /goal_pose, /explore/frontiers and map -> odom on /tf_static"),
+    odom_frame: str = typer.Option("odom", "--odom-frame", help="The odometry frame's name: /odom, odom -> base_link on /tf, map -> odom"),
+    base_frame: str = typer.Option("base_link", "--base-frame", help="The robot's base frame's name: /odom's child, odom -> base_link, base_link -> laser (base_footprint...)"),
+    laser_frame: str = typer.Option("laser", "--laser-frame", help="The LiDAR's frame's name: /scan's header and base_link -> laser on /tf_static (the LIMO's ROS driver: laser_link)"),
 ) -> None:
     """Convert a recording into a ROS 2 bag (rosbag2, MCAP storage) of standard types: /scan, /odom, /tf, /map, /plan, /goal_pose, /explore/frontiers, /cmd_vel, for RViz, Foxglove and `ros2 bag play`."""
-    from cso_runtime.bag_export import BagExportError, export_bag  # noqa: PLC0415
+    from cso_runtime.bag_export import BagExportError, BagFrames, export_bag  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, check_recording  # noqa: PLC0415
 
     _read_grids_of_any_run()
+    frames = BagFrames(map_frame, odom_frame, base_frame, laser_frame)
     try:
+        frames.check()
         check_recording(file)
         target = out if out is not None else file.with_suffix("")
         if target == file:
             raise BagExportError(f"--out {out} is the recording itself")
         interrupt_on_sigterm()
         with _count_progress("export-bag") as progress:
-            stats = export_bag(file, target, robot, map_period_s, time_base, progress, namespace)
+            stats = export_bag(file, target, robot, map_period_s, time_base, progress, namespace, frames=frames)
     except (RecordingError, BagExportError, ValueError) as exc:
         _fail(str(exc), 2)
     except KeyboardInterrupt:
@@ -603,8 +609,11 @@ def export_bag_command(
         typer.echo(f"  {stats.maps_thinned} maps thinned out by --map-period-s {map_period_s:g}")
     placed = sorted({(p.x_m, p.y_m, p.yaw_rad) for p in stats.map_origins.values()} - {(0.0, 0.0, 0.0)})
     if placed:
-        typer.echo(f"  map -> odom: the scene's map origin {', '.join(f'({x:g} m, {y:g} m, {yaw:g} rad)' for x, y, yaw in placed)}")
-    typer.echo(f"  base_link -> laser: ({stats.lidar_mount.x_m:g} m, {stats.lidar_mount.y_m:g} m, {stats.lidar_mount.yaw_rad:g} rad), the LiDAR's mount as the recording shows it")
+        typer.echo(f"  {frames.map} -> {frames.odom}: the scene's map origin {', '.join(f'({x:g} m, {y:g} m, {yaw:g} rad)' for x, y, yaw in placed)}")
+    mount = stats.lidar_mount
+    typer.echo(f"  {frames.base} -> {frames.laser}: ({mount.x_m:g} m, {mount.y_m:g} m, {mount.yaw_rad:g} rad), the LiDAR's mount as the recording shows it")
+    if stats.scan_period_s:
+        typer.echo(f"  /scan scan_time: {stats.scan_period_s:g} s, the period between the recording's scans")
     if stats.rejected:
         typer.echo(f"  left out, did not decode: {', '.join(f'{k} {n}' for k, n in sorted(stats.rejected.items()))}")
 

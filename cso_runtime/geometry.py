@@ -63,6 +63,24 @@ MAP_FRAME_ORIGIN = Pose2D(0.0, 0.0, 0.0)
 """The map-frame pose of a plan's frame that is the map frame itself: Dungeon, generated and builtin plans, and a
 real robot's map (``FloorPlan.map_origin``; a map_server scene's is its YAML's ``origin``)."""
 
+WRITTEN_DECIMALS = 9
+"""A pose or time computed by float arithmetic (a grid's corner placed by a map origin, a LiDAR mount read off two
+poses, a period read off two stamps) is rounded to the nanometre, nanoradian or nanosecond where it is written out
+for people and other tools (``rounded``): ``-5.275``, as map_saver_cli writes it, not the float sum's
+``-5.2749999999999995``."""
+
+
+def rounded(value: float) -> float:
+    """``value`` rounded to ``WRITTEN_DECIMALS`` (a value that has no more decimals stays itself, to the bit); never
+    ``-0.0``."""
+    return round(float(value), WRITTEN_DECIMALS) + 0.0  # + 0.0: no -0.0
+
+
+def rounded_pose(pose: Pose2D) -> Pose2D:
+    """``pose`` with each of x, y and yaw ``rounded``: the one rounding of a map's origin in a map_server YAML
+    (``map_files.save_map``) and in an OccupancyGrid's ``info.origin`` (``ros2_cdr.occupancy_grid_to_cdr``)."""
+    return Pose2D(rounded(pose.x_m), rounded(pose.y_m), rounded(pose.yaw_rad))
+
 
 def relative_pose(a: Pose2D, b: Pose2D) -> tuple[float, float, float]:
     """Pose of b in a's frame: (dx_m forward, dy_m left, dyaw_rad)."""

@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
-from cso_runtime.geometry import GridGeometry, Pose2D
+from cso_runtime.geometry import GridGeometry, Pose2D, rounded_pose
 from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN
 from cso_runtime.outputs import write_text_atomic, write_whole
 
@@ -89,11 +89,6 @@ def open_image(path: Path) -> Image.Image:
     return im
 
 
-ORIGIN_DECIMALS = 9
-"""The YAML's ``origin`` is rounded to a nanometre (a nanoradian): ``-5.275``, as map_saver_cli writes it, not the
-float sum's ``-5.2749999999999995``."""
-
-
 def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_format: str = "pgm", map_origin: Pose2D | None = None) -> Path:
     """Write ``grid`` (int8 OccupancyGrid values, row 0 at ``geometry``'s origin) as ``yaml_path`` and the
     image beside it (same stem, ``image_format`` pgm or png). Returns the YAML's path. ``map_origin``: the pose
@@ -116,7 +111,7 @@ def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_fo
         "image": image_path.name,
         "mode": "trinary",
         "resolution": float(geometry.resolution_m),
-        "origin": [round(v, ORIGIN_DECIMALS) + 0.0 for v in map_origin_of(geometry, map_origin)],  # + 0.0: no -0.0
+        "origin": map_origin_of(geometry, map_origin),
         "negate": 0,
         "occupied_thresh": OCCUPIED_THRESH,
         "free_thresh": FREE_THRESH,
@@ -127,8 +122,10 @@ def save_map(yaml_path: Path, grid: np.ndarray, geometry: GridGeometry, image_fo
 
 def map_origin_of(geometry: GridGeometry, map_origin: Pose2D | None = None) -> list[float]:
     """A map_server ``origin`` ``[x_m, y_m, yaw_rad]``: the map-frame pose of ``geometry``'s lower-left corner,
-    ``geometry`` being in the frame whose map-frame pose is ``map_origin`` (None: the map frame itself)."""
-    return geometry.corner_pose(map_origin).as_list()
+    ``geometry`` being in the frame whose map-frame pose is ``map_origin`` (None: the map frame itself), ``rounded_pose``
+    as an exported bag's ``/map`` carries it: ``-5.275``, as map_saver_cli writes it, not the float sum's
+    ``-5.2749999999999995``."""
+    return rounded_pose(geometry.corner_pose(map_origin)).as_list()
 
 
 def load_map(yaml_path: Path) -> tuple[np.ndarray, GridGeometry]:

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime.comparison import PAIRED_COLUMNS, format_interval, paired_cells
+from cso_runtime.live_view import NO_GROUND_TRUTH
 from cso_runtime.outputs import (
     COVERAGE_FIGURE,
     EFFICIENCY_FIGURE,
@@ -45,19 +46,28 @@ TABLE1_DEFINITIONS = (
 The steps' period is the run's own: ``table1_definitions``."""
 
 
+def of_a_real_robot(summary: dict[str, Any]) -> bool:
+    """Whether ``summary`` is of a run of ``up`` on a real robot: a profile, no simulator (no ``sim_settings`` and no
+    simulated time)."""
+    meta = summary.get("meta") or {}
+    no_sim_time = all(isinstance(e, dict) and e.get("sim_time_s") is None for e in summary["methods"].values())
+    return isinstance(meta.get("profile"), dict) and "sim_settings" not in meta and no_sim_time
+
+
 def table1_definitions(summary: dict[str, Any]) -> list[tuple[str, str]]:
     """``TABLE1_DEFINITIONS`` with the steps said as the run counted them: its control period (``meta.config``'s
-    ``robot.control_period_s``, which ``--set`` changes), or, for a run of ``up`` on a real robot (a profile, no
-    simulator: no ``sim_settings`` and no simulated time), its scans."""
+    ``robot.control_period_s``, which ``--set`` changes), or, for a run of ``up`` on a real robot
+    (``of_a_real_robot``), its scans; there, coverage is ``NO_GROUND_TRUTH``."""
     meta = summary.get("meta") or {}
     robot = (meta.get("config") or {}).get("robot") or {}
     period_s = robot.get("control_period_s", 0.25)
-    no_sim_time = all(isinstance(e, dict) and e.get("sim_time_s") is None for e in summary["methods"].values())
-    if isinstance(meta.get("profile"), dict) and "sim_settings" not in meta and no_sim_time:
+    real_robot = of_a_real_robot(summary)
+    if real_robot:
         steps = "scans of the real robot (about 10 Hz on the LIMO) until the episode ended: by coverage, no reachable frontier or the step limit"
     else:
         steps = f"control periods (robot.control_period_s, {period_s:g} s) until the episode ended: by coverage, no reachable frontier or the step limit"
-    return [(column, steps if column == "steps" else words) for column, words in TABLE1_DEFINITIONS]
+    said = {"steps": steps, **({"coverage %": f"{NO_GROUND_TRUTH}; summary.json and episodes.csv hold 0"} if real_robot else {})}
+    return [(column, said.get(column, words)) for column, words in TABLE1_DEFINITIONS]
 STD_SUFFIX = "_std"
 """``summary.json``'s key of a metric's sample standard deviation (ddof=1) over the episodes, beside its mean:
 ``coverage_pct_std``."""
@@ -113,11 +123,19 @@ TABLE1_METRICS = (
 with (the cells, their spread and their intervals); the two decision times share one column."""
 
 
-def table1_cells(e: dict[str, Any], spread: bool = True) -> list[str]:
+NO_COVERAGE = "n/a"
+"""A coverage cell of a real robot's run (``of_a_real_robot``), as ``runs`` says it: its 0 is no measure (no ground
+truth, ``NO_GROUND_TRUTH``); summary.json and episodes.csv keep the 0."""
+
+
+def table1_cells(e: dict[str, Any], spread: bool = True, real_robot: bool = False) -> list[str]:
     """One Table 1 row's values after its method and scale, as the console and the report print them: each mean
-    ± its sample standard deviation (``SPREAD_NOTE``), or the means alone without ``spread``."""
+    ± its sample standard deviation (``SPREAD_NOTE``), or the means alone without ``spread``; a ``real_robot``'s
+    coverage ``NO_COVERAGE``."""
 
     def cell(metric: str, nd: int) -> str:
+        if real_robot and metric == "coverage_pct":
+            return NO_COVERAGE
         return _fmt_spread(e, metric, nd) if spread else _fmt(e[metric], nd)
 
     # A row of one episode: its steps as counted (261), as the episode's own line and `runs` say them, not "261.0".
@@ -177,8 +195,8 @@ SCENE_COLUMNS = ("plan", "method", "scale", "seed", "coverage %", "steps", "m2/s
 
 def scene_rows(out_dir: Path, summary: dict[str, Any]) -> list[list[str]]:
     """Each episode of ``out_dir/episodes.csv`` as a ``SCENE_COLUMNS`` row, by scale, plan, then method as in Table 1,
-    so the methods on one plan stand together; only ``summary``'s methods and plans (its ``maps``, where written).
-    [] without the file (a folder of an older version, or one that lost it)."""
+    so the methods on one plan stand together; only ``summary``'s methods and plans (its ``maps``, where written);
+    a real robot's coverage ``NO_COVERAGE``. [] without the file (a folder of an older version, or one that lost it)."""
     try:
         with (out_dir / "episodes.csv").open(newline="", encoding="utf-8") as fh:
             episodes = list(csv.DictReader(fh))
@@ -186,6 +204,7 @@ def scene_rows(out_dir: Path, summary: dict[str, Any]) -> list[list[str]]:
         return []
     methods = summary["methods"]
     order = list(methods)
+    real_robot = of_a_real_robot(summary)
 
     def shown(r: dict[str, str]) -> bool:
         e = methods.get(r.get("method"))
@@ -203,7 +222,8 @@ def scene_rows(out_dir: Path, summary: dict[str, Any]) -> list[list[str]]:
 
     kept = sorted(filter(shown, episodes), key=lambda r: (scale_rank(r.get("scale") or ""), r.get("scale") or "", r.get("map") or "", order.index(r["method"]), seed(r)))
     return [
-        [r.get("map") or "", r["method"], r.get("scale") or "", r.get("seed") or "", number(r, "coverage_pct", 2), r.get("steps") or "-", number(r, "efficiency_m2_per_step", 4), r.get("terminated_by") or ""]
+        [r.get("map") or "", r["method"], r.get("scale") or "", r.get("seed") or "", NO_COVERAGE if real_robot else number(r, "coverage_pct", 2),
+         r.get("steps") or "-", number(r, "efficiency_m2_per_step", 4), r.get("terminated_by") or ""]
         for r in kept
     ]
 
@@ -305,9 +325,10 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
             f"<p style='color:#b00'><b>Interrupted: {stopped.get('episodes_finished')} of {stopped.get('episodes_planned')} episodes finished</b>; "
             "the tables and figures cover those only. The same command with --resume runs the rest.</p>"
         )
+    real_robot = of_a_real_robot(summary)
     parts += [
         "<h2>Table 1</h2>",
-        _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e)] for m, s, e in table1_rows(summary)], [ci95_text(e) for _, _, e in table1_rows(summary)]),
+        _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e, real_robot=real_robot)] for m, s, e in table1_rows(summary)], [ci95_text(e) for _, _, e in table1_rows(summary)]),
         f"<p>Each cell: {html.escape(SPREAD_NOTE)}.</p>",
         f"<p>{html.escape(CI95_NOTE)}</p>",
         "<dl>" + "".join(f"<dt>{html.escape(c)}</dt><dd>{html.escape(d)}</dd>" for c, d in table1_definitions(summary)) + "</dl>",
@@ -330,7 +351,12 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     figures = [(out_dir / name, title) for name, title in FIGURES if (out_dir / name).is_file()]
     if figures:
         parts.append("<h2>Figures</h2>")
-        parts += [f"<figure>{_img(out_dir, p, t)}<figcaption>{html.escape(t)}</figcaption></figure>" for p, t in figures]
+        # A real robot's coverage curve is its row's 0 at every step: said n/a, as its cells (the file stays written).
+        parts += [
+            f"<p>{html.escape(t)}: {html.escape(NO_GROUND_TRUTH)}</p>" if real_robot and p.name == COVERAGE_FIGURE
+            else f"<figure>{_img(out_dir, p, t)}<figcaption>{html.escape(t)}</figcaption></figure>"
+            for p, t in figures
+        ]  # fmt: skip
     by_map = _map_figures(out_dir, summary)
     if by_map:
         parts.append("<h2>Maps</h2><div class='maps'>")

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, no_return_mask
+from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, no_return_mask, rounded_pose
 
 if TYPE_CHECKING:
     from rosbags.typesys.store import Typestore
@@ -51,6 +51,15 @@ ROS_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$")
 def is_ros_name(name: str) -> bool:
     """Whether ``name`` (its leading and trailing slashes taken off) is a ROS name that can stand in a Zenoh key."""
     return bool(ROS_NAME.match(name.strip("/")))
+
+
+FRAME_ID_RULE = "not empty, no leading '/', no spaces"
+"""What ``is_frame_id`` asks of a frame id, as an error message says it."""
+
+
+def is_frame_id(frame: str) -> bool:
+    """Whether ``frame`` can be a tf2 frame id (``FRAME_ID_RULE``): tf2 refuses one with a leading ``/``."""
+    return bool(frame) and not frame.startswith("/") and not any(c.isspace() for c in frame)
 
 
 class CdrError(ValueError):
@@ -178,7 +187,11 @@ def laserscan_to_cdr(scan: LaserScan, stamp_ns: int, frame_id: str = "laser", sc
     """Our LaserScan, stamped ``stamp_ns`` (not its ``stamp_s``) -> sensor_msgs/LaserScan CDR. A 0 m beam, our "no
     reading" (how ``laserscan_from_cdr`` keeps the robot's NaN beams), goes out as NaN, REP-117's invalid
     measurement, not as a range; ``inf`` stays "no return", and a too-close beam stays below ``range_min``.
-    ``scan_time_s``: the time between scans (0: unknown); time_increment is 0, every beam cast at one instant."""
+    ``scan_time_s``: sensor_msgs/LaserScan's ``scan_time``, the time between scans (0: unknown). ``time_increment``
+    (the time between two beams, by which tools such as laser_geometry's projector spread the beams over the robot's
+    motion) is 0: the scan is instantaneous as we hold it, every beam cast at one instant (the simulator's), and the
+    mapper integrates a real robot's scan at the one sensor pose of its stamp too, so a bag's consumer puts each beam
+    where the mapper did."""
     n = len(scan.ranges_m)
     ranges = np.asarray(scan.ranges_m, dtype=np.float32)
     ranges = np.where(ranges == 0.0, np.float32(np.nan), ranges)
@@ -301,12 +314,14 @@ def bool_from_cdr(raw: bytes) -> bool:
 def occupancy_grid_to_cdr(grid: np.ndarray, geometry: GridGeometry, stamp_ns: int, frame_id: str = "map", origin: Pose2D | None = None) -> bytes:
     """int8 grid (-1/0/100, row 0 at the origin) -> nav_msgs/OccupancyGrid CDR. ``origin``: the pose of cell (0, 0)'s
     corner in ``frame_id`` (``GridGeometry.corner_pose``: a yaw turns the grid, as map_server turns a map by its
-    ``origin``'s); None: ``geometry``'s corner, unturned (``geometry`` is in ``frame_id``)."""
+    ``origin``'s); None: ``geometry``'s corner, unturned (``geometry`` is in ``frame_id``). Either is written
+    ``rounded_pose``, as a map_server YAML's ``origin`` (``map_files.save_map``): ``-5.275``, not the float sum's
+    ``-5.2749999999999995``."""
     t = _types()
     grid = np.asarray(grid, dtype=np.int8)
     if grid.shape != tuple(geometry.shape):
         raise ValueError("grid and geometry shapes differ")
-    corner = geometry.corner_pose() if origin is None else origin
+    corner = rounded_pose(geometry.corner_pose() if origin is None else origin)
     origin_msg = t["geometry_msgs/msg/Pose"](
         position=t["geometry_msgs/msg/Point"](x=corner.x_m, y=corner.y_m, z=0.0), orientation=_quaternion(corner.yaw_rad)
     )

@@ -209,8 +209,8 @@ class Ros2BridgeParams:
                 raise ConfigError(f"{name} must be positive")
         for name in ("map_frame_id", "base_frame_id"):
             frame = getattr(self, name)
-            if not frame or frame.startswith("/") or any(c.isspace() for c in frame):
-                raise ConfigError(f"{name} {frame!r} is not a tf2 frame id (not empty, no leading '/', no spaces)")
+            if not ros2_cdr.is_frame_id(frame):
+                raise ConfigError(f"{name} {frame!r} is not a tf2 frame id ({ros2_cdr.FRAME_ID_RULE})")
         if not min(self.map_period_s, self.ended_why_wait_s) >= 0:
             raise ConfigError("map_period_s and ended_why_wait_s must be >= 0")
         if self.arena_origin_xy_m is not None and len(self.arena_origin_xy_m) != 2:

@@ -530,3 +530,113 @@ def test_a_recording_of_a_run_that_raised_max_grid_cells_exports_its_large_map(t
     assert "/map 3" in done.stdout and "did not decode" not in done.stdout, done.stdout
     maps = read_bag(tmp_path / "big")["/map"]
     assert (maps[-1][1].info.height, maps[-1][1].info.width) == big.shape
+
+
+def bag_frames(bag: dict[str, list[tuple[int, object]]]) -> dict[str, set[str]]:
+    """Topic -> every frame id its messages name (headers, child frames, transforms' both ends)."""
+    frames: dict[str, set[str]] = {}
+    for topic, msgs in bag.items():
+        seen = frames.setdefault(topic, set())
+        for _, m in msgs:
+            if topic in ("/tf", "/tf_static"):
+                seen |= {f for tf in m.transforms for f in (tf.header.frame_id, tf.child_frame_id)}
+            elif topic == "/explore/frontiers":
+                seen |= {marker.header.frame_id for marker in m.markers if marker.action != 3}  # DELETEALL carries one too
+            elif topic == "/odom":
+                seen |= {m.header.frame_id, m.child_frame_id}
+            elif hasattr(m, "header"):
+                seen.add(m.header.frame_id)
+    return frames
+
+
+def test_export_bag_names_the_frames_as_the_robots_tf_tree(tmp_path: Path):
+    """A ROS 2 user's LIMO names its LiDAR's frame ``laser_link`` (AgileX's driver): the bag's ``laser`` hung beside it
+    in their TF tree and RViz dropped the scans. ``--laser-frame`` (and ``--base-frame``, ``--odom-frame``,
+    ``--map-frame``) name the frames, the same name in /scan's header, /tf, /tf_static and every other header, under a
+    ``--namespace`` too; the default bag is the one written before, to the byte. A name tf2 refuses, or one frame named
+    twice (a loop), is refused before any folder is made."""
+    recording = tmp_path / "run.mcap"
+    write_recording(recording, "r0", episode(RobotKeys("r0"), 3, T0_NS, 1000))
+    cli = [sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording)]
+    done = subprocess.run([*cli, "--out", str(tmp_path / "limo"), "--laser-frame", "laser_link"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert "base_link -> laser_link: (0.1 m, 0 m, 0 rad)" in done.stdout, done.stdout
+    limo = bag_frames(read_bag(tmp_path / "limo"))
+    assert limo["/scan"] == {"laser_link"} and limo["/tf_static"] == {"map", "odom", "base_link", "laser_link"}
+    assert limo["/tf"] == limo["/odom"] == {"odom", "base_link"} and limo["/map"] == {"map"}
+
+    from cso_runtime.bag_export import BagFrames
+
+    names = BagFrames(map="world", odom="odom_wheel", base="base_footprint", laser="laser_link")
+    export_bag(recording, tmp_path / "all", frames=names, namespace="limo1")
+    with Reader(tmp_path / "all") as reader:
+        namespaced = [(conn.topic.removeprefix("/limo1"), t, ros2_cdr.decode(raw, conn.msgtype)) for conn, t, raw in reader.messages()]
+    frames = bag_frames({topic: [(t, m) for other, t, m in namespaced if other == topic] for topic, _, _ in namespaced})
+    assert frames == {
+        "/scan": {"limo1/laser_link"}, "/tf_static": {"limo1/world", "limo1/odom_wheel", "limo1/base_footprint", "limo1/laser_link"},
+        "/tf": {"limo1/odom_wheel", "limo1/base_footprint"}, "/odom": {"limo1/odom_wheel", "limo1/base_footprint"},
+        "/map": {"limo1/world"}, "/plan": {"limo1/world"}, "/goal_pose": {"limo1/world"}, "/explore/frontiers": {"limo1/world"},
+        "/cmd_vel": set(),  # a Twist: no header
+    }  # fmt: skip
+
+    export_bag(recording, tmp_path / "default")
+    export_bag(recording, tmp_path / "named", frames=BagFrames("map", "odom", "base_link", "laser"))
+    with Reader(tmp_path / "default") as want, Reader(tmp_path / "named") as got:
+        assert [(c.topic, t, raw) for c, t, raw in got.messages()] == [(c.topic, t, raw) for c, t, raw in want.messages()]
+
+    for flags, said in ((["--laser-frame", "/laser"], "no tf2 frame id"), (["--base-frame", "base link"], "no tf2 frame id"),
+                        (["--laser-frame", "base_link"], "'base_link' twice")):  # fmt: skip
+        bad = subprocess.run([*cli, "--out", str(tmp_path / "bad"), *flags], capture_output=True, text=True, timeout=60)
+        assert bad.returncode == 2 and said in bad.stderr and not (tmp_path / "bad").exists(), (flags, bad.stderr)
+
+
+def test_bag_scans_carry_the_recordings_scan_period_and_no_time_increment(tmp_path: Path):
+    """Every /scan had ``scan_time`` 0 (unknown to ROS tools): it is the period between the recording's scans (the
+    median step of their stamps: 0.25 s for the simulator's scan a step, whether or not a scan fired early or one was
+    lost), 0 where a recording has a single scan. ``time_increment`` stays 0: each scan is taken at one instant, at the
+    one sensor pose of its stamp, where the mapper integrated it (a consumer that spread its beams over the robot's
+    motion would put them elsewhere)."""
+    keys = RobotKeys("r0")
+    messages = scans_fired_early(episode(keys, 6, T0_NS, 2_000_000), keys, 0.1)
+    lost = [m for m in messages if not (m.key == keys.scan and decode(m.payload, ScanMsg).step == 4)]  # a scan lost: 0.5 s
+    write_recording(tmp_path / "run.mcap", "r0", lost)
+    stats = export_bag(tmp_path / "run.mcap", tmp_path / "bag")
+    scans = [m for _, m in read_bag(tmp_path / "bag")["/scan"]]
+    assert len(scans) == 5 and [s.scan_time for s in scans] == [0.25] * 5 and all(s.time_increment == 0.0 for s in scans)
+    assert stats.scan_period_s == 0.25
+
+    from cso_runtime.bag_export import recorded_scan_period
+
+    write_recording(tmp_path / "one.mcap", "r0", episode(keys, 1, T0_NS, 1000))
+    assert recorded_scan_period(tmp_path / "one.mcap", "r0") == 0.0
+    assert all(s.scan_time == 0.0 for _, s in read_bag(export_bag(tmp_path / "one.mcap", tmp_path / "one").path)["/scan"])
+    # Two episodes whose clocks start again: the step between them is no period.
+    write_recording(tmp_path / "two.mcap", "r0", episode(keys, 1, T0_NS, 1000, episode_id=1) + episode(keys, 1, T0_NS + 10**6, 1000, episode_id=2))
+    assert recorded_scan_period(tmp_path / "two.mcap", "r0") == 0.0
+
+
+def test_a_bags_map_origin_is_rounded_as_save_maps_yaml(tmp_path: Path):
+    """The bag's /map said ``info.origin`` -5.2749999999999995 (a real robot's arena corner as the float sum gave it),
+    where save-map's YAML says -5.275: both are rounded to the nanometre by one function (``rounded_pose``), so the
+    bag's map and the saved map lie at the same origin; a scene's map origin placing the grid is rounded alike."""
+    from cso_runtime.map_files import save_map
+
+    keys = RobotKeys("r0")
+    arena = GridGeometry(0.05, (4, 5), -5.2749999999999995, -6.725)  # the limo-ros2 arena's corner, as the bridge had it
+    grid = np.zeros(arena.shape, np.int8)
+    maps = [RecordedMessage(keys.map, T0_NS + 10**6, encode(MapMsg.from_grid(0, arena, grid)))]
+    write_recording(tmp_path / "robot.mcap", "r0", episode(keys, 1, T0_NS, 1000) + maps)
+    (_, last), *_ = reversed(read_bag(export_bag(tmp_path / "robot.mcap", tmp_path / "robot", map_period_s=0).path)["/map"])
+    saved = yaml.safe_load(save_map(tmp_path / "robot.yaml", grid, arena).read_text())["origin"]
+    assert [last.info.origin.position.x, last.info.origin.position.y] == saved[:2] == [-5.275, -6.725]
+
+    origin = Pose2D(0.7, 0.7, 0.0)  # a map_server scene's, where GEOM's corner lands at (-0.30000000000000004, 0.19999999999999996)
+    assert compose_pose(origin, Pose2D(GEOM.origin_x_m, GEOM.origin_y_m, 0.0)).x_m != -0.3
+    write_recording(tmp_path / "scene.mcap", "r0", with_status(episode(keys, 1, T0_NS, 1000, episode_id=3), keys, 3, origin))
+    (_, scene_map), *_ = read_bag(export_bag(tmp_path / "scene.mcap", tmp_path / "scene").path)["/map"]
+    saved = yaml.safe_load(save_map(tmp_path / "scene.yaml", _map(0).grid, GEOM, map_origin=origin).read_text())["origin"]
+    assert [scene_map.info.origin.position.x, scene_map.info.origin.position.y] == saved[:2] == [-0.3, 0.2]
+
+    from cso_runtime.geometry import rounded_pose
+
+    assert rounded_pose(Pose2D(-0.0, 1e-12, -5.2749999999999995)) == Pose2D(0.0, 0.0, -5.275)

@@ -1698,6 +1698,41 @@ def test_the_reports_steps_are_defined_as_the_run_counted_them(tmp_path: Path):
     assert steps_said(real_robot, None).startswith("scans of the real robot")
 
 
+def test_the_report_of_a_real_robots_run_says_its_coverage_is_na_as_status_does(tmp_path: Path):
+    """report.html of a LIMO's run (``up --profile limo-ros2``) showed coverage 0.00 in Table 1, the episode table and
+    a flat coverage curve, where ``status``, the live view and ``runs`` say ``n/a: a real robot (no ground truth)``:
+    the report says n/a there too (the definition with the same words, the curve not shown), while summary.json and
+    episodes.csv keep their 0. A simulated run's report shows its coverage as before."""
+    from cso_runtime.evaluation import write_outputs
+    from cso_runtime.live_view import NO_GROUND_TRUTH
+    from cso_runtime.outputs import COVERAGE_FIGURE
+    from cso_runtime.report import write_report
+
+    row = {"method": "cso", "map": "real robot", "seed": 0, "traversable_area_m2": 0.0, "scale": "", "terminated_by": "no_frontier",
+           "explored_area_m2": 22.6, "coverage_pct": 0.0, "steps": 196, "efficiency_m2_per_step": 22.6 / 196, "path_length_m": 10.0,
+           "decision_ms_p50": 2.0, "decision_ms_p99": 3.0, "sim_time_s": None}  # fmt: skip
+    config = to_dict(ExplorationConfig())
+
+    def report(folder: Path, meta: dict, **fields) -> str:
+        summary = write_outputs(folder, [{**row, **fields}], [], ["cso"], meta)
+        (folder / COVERAGE_FIGURE).write_bytes(b"\x89PNG")  # as up writes it beside the report
+        return write_report(folder, summary).read_text()
+
+    page = report(tmp_path / "limo", {"command": "cso-runtime up", "profile": {"name": "limo-ros2"}, "config": config})
+    table1 = page.split("<h2>Table 1</h2>")[1].split("</table>")[0]
+    episodes = page.split("Every episode, scene by scene")[1].split("</table>")[0]
+    assert "<td>n/a</td>" in table1 and "0.00" not in table1, table1
+    assert "<td>n/a</td>" in episodes and "0.00" not in episodes, episodes
+    assert page.split("<dt>coverage %</dt><dd>")[1].startswith(NO_GROUND_TRUTH)
+    assert COVERAGE_FIGURE not in page and f"Coverage against step (Fig. 4): {NO_GROUND_TRUTH}" in page
+    assert json.loads((tmp_path / "limo" / "summary.json").read_text())["methods"]["cso"]["coverage_pct"] == 0.0
+    assert next(csv.DictReader((tmp_path / "limo" / "episodes.csv").open()))["coverage_pct"] in ("0.0", "0")
+
+    sim = report(tmp_path / "sim", {"command": "cso-runtime up", "profile": {"name": "sim"}, "config": config, "sim_settings": {}},
+                 coverage_pct=87.5, sim_time_s=49.0)  # fmt: skip
+    assert "<td>87.50</td>" in sim and "n/a" not in sim and f'src="{COVERAGE_FIGURE}"' in sim
+
+
 def test_eval_warns_when_its_seed_changes_no_episode(tmp_path: Path, caplog):
     """The paper runs each scene 5 times; `eval --seed 1` on the defaults (2D simulator, no range noise) repeats seed 0's
     episodes of every method but `random` exactly, and pooled by `compare` the copies pass for more scenes. Say so."""
