@@ -180,10 +180,15 @@ class FrontierConfig:
     not publish its value; 2 m is roughly a room's half width for the LIMO."""
 
     def validate(self) -> None:
+        from cso_runtime.messages import MAX_GRID_SIDE_M  # noqa: PLC0415  (messages imports this module)
+
         if self.min_cluster_size_m < 0:
             raise ConfigError("frontier.min_cluster_size_m must be >= 0")
         if not self.entropy_window_m > 0:
             raise ConfigError("frontier.entropy_window_m must be positive")
+        for name in ("min_cluster_size_m", "entropy_window_m"):  # longer than any map: no cluster is that long, every window the whole map
+            if (value := getattr(self, name)) > MAX_GRID_SIDE_M:
+                raise ConfigError(f"frontier.{name} must be at most {MAX_GRID_SIDE_M:g} m (the longest side a map may have: messages.MAX_GRID_SIDE_M), got {value:g}")
 
 
 STUCK_AVOID = ("positions", "goals")
@@ -596,6 +601,18 @@ def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]],
         return None
     said = [f"{path + ': ' if path else ''}unknown key(s) {', '.join(keys)}; known: {', '.join(sorted(sections[path]))}" for path, keys in named.items()]
     return "; ".join(said)
+
+
+def check_field_types(cls: type, data: dict[str, Any], where: str = "config") -> None:
+    """ConfigError for a value of ``data`` that its field of dataclass ``cls`` does not take (``from_dict``'s conversion,
+    in its words: ``m_per_px: expected a number, got [1]``), without building ``cls`` or checking the whole (its
+    ``validate``) and leaving other keys alone: what a service started by hand checks of the profile's top level, which
+    it reads key by key (``up`` reads it whole with ``from_dict``)."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key, value in data.items():
+        if key in names:
+            _convert(value, hints[key], _key_where(where, key))
 
 
 def from_dict_with_hints(cls: type[T], data: dict[str, Any], where: str) -> T:

@@ -109,3 +109,17 @@ def test_an_episode_that_ends_with_no_frontier_says_what_is_left_and_why():
     assert no_frontier_why(ObservationBuilder().build(closed, Pose2D(0.5, 0.5, 0.0)), dead, 0.3, 0.2) == (
         "no frontier left: the map has no open cell next to unknown space"
     )
+
+
+def test_an_entropy_window_wider_than_the_map_counts_the_whole_map_without_padding_it_by_its_width():
+    """``frontier.entropy_window_m: 1e300`` (``up`` and the frontier service took it) padded the map by 1e301 cells: numpy's
+    ValueError in the frontier layer helper (a 1 km window at 0.05 m, a MemoryError). A window wider than twice the map
+    counts every frontier cell of it wherever it is centred: it is computed at that width, the same counts."""
+    from cso_runtime.frontiers import frontier_entropy
+
+    rng = np.random.default_rng(0)
+    frontier = rng.random((7, 11)) < 0.3
+    whole = np.full(frontier.shape, int(frontier.sum()), dtype=np.int32)
+    for window_m in (2.3, 1e3, 1e300):
+        assert np.array_equal(frontier_entropy(frontier, window_m, 0.1), whole)
+    assert not np.array_equal(frontier_entropy(frontier, 0.5, 0.1), whole)  # a window narrower than the map counts less
