@@ -177,7 +177,8 @@ class FrontierConfig:
     """Frontier clusters shorter than this (cells x resolution) are ignored as noise."""
     entropy_window_m: float = 2.0
     """gamma of Eq. 4: side of the square window in which frontier cells are counted. The paper does
-    not publish its value; 2 m is roughly a room's half width for the LIMO."""
+    not publish its value; 2 m is roughly a room's half width for the LIMO. At most ``messages.MAX_GRID_SIDE_M`` (as
+    ``min_cluster_size_m``): a longer one is longer than any map."""
 
     def validate(self) -> None:
         from cso_runtime.messages import MAX_GRID_SIDE_M  # noqa: PLC0415  (messages imports this module)
@@ -257,7 +258,7 @@ class EpisodeConfig:
     replan_every_steps: int = 25
     """A new long-term goal is chosen at least this often."""
     goal_tolerance_m: float = 0.3
-    """The goal counts as reached within this distance."""
+    """The goal counts as reached within this distance (at most ``messages.MAX_GRID_SIDE_M``, the longest side a map may have)."""
     done_coverage_pct: float = 99.0
     """Done when coverage is above this ..."""
     done_unexplored_m2: float = 1.0
@@ -270,6 +271,10 @@ class EpisodeConfig:
             raise ConfigError(f"episode.max_steps must be at most {MAX_EPISODE_STEPS:,} (an episode's result must fit its message)")
         if not self.goal_tolerance_m > 0:
             raise ConfigError("episode.goal_tolerance_m must be positive")
+        from cso_runtime.messages import MAX_GRID_SIDE_M  # noqa: PLC0415  (messages imports this module)
+
+        if self.goal_tolerance_m > MAX_GRID_SIDE_M:  # farther than any map: every goal reached where it is chosen
+            raise ConfigError(f"episode.goal_tolerance_m must be at most {MAX_GRID_SIDE_M:g} m (the longest side a map may have: messages.MAX_GRID_SIDE_M), got {self.goal_tolerance_m:g}")
         if not 0 < self.done_coverage_pct <= 100:
             raise ConfigError("episode.done_coverage_pct must be in (0, 100]")
         if self.done_unexplored_m2 < 0:

@@ -1093,3 +1093,18 @@ def test_a_service_started_by_hand_with_absurd_sizes_says_so_in_one_line_and_exi
     errors = [r for r in caplog.records if r.levelname == "ERROR"]
     assert len(errors) == 1 and f"{service}: bad configuration: " in errors[0].getMessage() and said in errors[0].getMessage()
     assert errors[0].exc_info is None
+
+
+@pytest.mark.parametrize("key", ["frontier.entropy_window_m", "frontier.min_cluster_size_m", "episode.goal_tolerance_m"])
+def test_a_length_longer_than_any_map_is_refused_naming_the_key_and_the_bound(key):
+    """``frontier.entropy_window_m`` or ``episode.goal_tolerance_m`` of 1e300 m were taken by ``up`` and ``eval`` (the
+    first failed in the frontier layer helper, the second in every episode that gave a goal up); a length above the
+    longest side a map may have (``messages.MAX_GRID_SIDE_M``: ``MAX_GRID_CELLS`` cells in one row at the coarsest cell)
+    is refused in one line that says which key and what is allowed; one up to it is taken."""
+    from cso_runtime.messages import MAX_GRID_CELLS, MAX_GRID_SIDE_M, MAX_RESOLUTION_M
+
+    section, name = key.split(".")
+    assert MAX_GRID_SIDE_M == MAX_GRID_CELLS * MAX_RESOLUTION_M == 5e9
+    with pytest.raises(ConfigError, match=rf"^exploration.{key} must be at most 5e\+09 m \(the longest side a map may have: messages.MAX_GRID_SIDE_M\), got 1e\+300$"):
+        from_dict(ExplorationConfig, {section: {name: 1e300}}, where="exploration")
+    from_dict(ExplorationConfig, {section: {name: MAX_GRID_SIDE_M}}, where="exploration")
