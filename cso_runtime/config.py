@@ -177,13 +177,19 @@ class FrontierConfig:
     """Frontier clusters shorter than this (cells x resolution) are ignored as noise."""
     entropy_window_m: float = 2.0
     """gamma of Eq. 4: side of the square window in which frontier cells are counted. The paper does
-    not publish its value; 2 m is roughly a room's half width for the LIMO."""
+    not publish its value; 2 m is roughly a room's half width for the LIMO. At most ``messages.MAX_GRID_SIDE_M`` (as
+    ``min_cluster_size_m``): a longer one is longer than any map."""
 
     def validate(self) -> None:
+        from cso_runtime.messages import MAX_GRID_SIDE_M  # noqa: PLC0415  (messages imports this module)
+
         if self.min_cluster_size_m < 0:
             raise ConfigError("frontier.min_cluster_size_m must be >= 0")
         if not self.entropy_window_m > 0:
             raise ConfigError("frontier.entropy_window_m must be positive")
+        for name in ("min_cluster_size_m", "entropy_window_m"):  # longer than any map: no cluster is that long, every window the whole map
+            if (value := getattr(self, name)) > MAX_GRID_SIDE_M:
+                raise ConfigError(f"frontier.{name} must be at most {MAX_GRID_SIDE_M:g} m (the longest side a map may have: messages.MAX_GRID_SIDE_M), got {value:g}")
 
 
 STUCK_AVOID = ("positions", "goals")
@@ -252,7 +258,7 @@ class EpisodeConfig:
     replan_every_steps: int = 25
     """A new long-term goal is chosen at least this often."""
     goal_tolerance_m: float = 0.3
-    """The goal counts as reached within this distance."""
+    """The goal counts as reached within this distance (at most ``messages.MAX_GRID_SIDE_M``, the longest side a map may have)."""
     done_coverage_pct: float = 99.0
     """Done when coverage is above this ..."""
     done_unexplored_m2: float = 1.0
@@ -265,6 +271,10 @@ class EpisodeConfig:
             raise ConfigError(f"episode.max_steps must be at most {MAX_EPISODE_STEPS:,} (an episode's result must fit its message)")
         if not self.goal_tolerance_m > 0:
             raise ConfigError("episode.goal_tolerance_m must be positive")
+        from cso_runtime.messages import MAX_GRID_SIDE_M  # noqa: PLC0415  (messages imports this module)
+
+        if self.goal_tolerance_m > MAX_GRID_SIDE_M:  # farther than any map: every goal reached where it is chosen
+            raise ConfigError(f"episode.goal_tolerance_m must be at most {MAX_GRID_SIDE_M:g} m (the longest side a map may have: messages.MAX_GRID_SIDE_M), got {self.goal_tolerance_m:g}")
         if not 0 < self.done_coverage_pct <= 100:
             raise ConfigError("episode.done_coverage_pct must be in (0, 100]")
         if self.done_unexplored_m2 < 0:
@@ -603,6 +613,18 @@ def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]],
         return None
     said = [f"{path + ': ' if path else ''}unknown key(s) {', '.join(keys)}; known: {', '.join(sorted(sections[path]))}" for path, keys in named.items()]
     return "; ".join(said)
+
+
+def check_field_types(cls: type, data: dict[str, Any], where: str = "config") -> None:
+    """ConfigError for a value of ``data`` that its field of dataclass ``cls`` does not take (``from_dict``'s conversion,
+    in its words: ``m_per_px: expected a number, got [1]``), without building ``cls`` or checking the whole (its
+    ``validate``) and leaving other keys alone: what a service started by hand checks of the profile's top level, which
+    it reads key by key (``up`` reads it whole with ``from_dict``)."""
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key, value in data.items():
+        if key in names:
+            _convert(value, hints[key], _key_where(where, key))
 
 
 def from_dict_with_hints(cls: type[T], data: dict[str, Any], where: str) -> T:

@@ -1256,7 +1256,10 @@ def _run_eval_locked(request: EvalRequest, plan: EvalPlan, progress: RichProgres
 def _run_seeds(request: EvalRequest, plan: EvalPlan, progress: RichProgress | None) -> dict[str, Any]:
     """``run_eval`` of several seeds (``--seeds``) while it holds ``--out``'s lock: each seed's eval in its folder
     (``seed_folder``, under that folder's lock too), as ``--seed S`` writes it, one after the other; then ``--out``'s
-    files of every seed's episodes pooled. A Ctrl-C stops after the seed it interrupts: the pooled files say so."""
+    files of every seed's episodes pooled. A Ctrl-C stops after the seed it interrupts, as a one-seed eval's: during a
+    seed's episodes, or between two seeds, the episodes that finished are written (that seed's folder, then the pooled
+    files, which say it was interrupted: ``--resume`` runs the rest); while a seed's files are written, it stops there
+    (``eval_main`` says which folder's files may be missing: ``--resume`` writes them)."""
     for warning in plan.warnings:
         log.warning("%s", warning)
     software = software_provenance()
@@ -1264,11 +1267,21 @@ def _run_seeds(request: EvalRequest, plan: EvalPlan, progress: RichProgress | No
     interrupted = False
     for one, one_plan in plan.seed_plans:
         folder = Path(one.out_dir)
-        folder.mkdir(parents=True, exist_ok=True)
-        with folder_lock(folder / EVAL_LOCK, "eval", lambda said: log.warning("%s", said)) as locked:
-            refuse_another_configuration(one, one_plan)
-            mine, interrupted = _run_episodes(one, one_plan, progress, locked, label=f"eval seed {one.seed}")
-            _write_results(one, one_plan, mine, interrupted, software, progress)
+        mine: list[EpisodeOutcome] = []
+        writing = False
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            with folder_lock(folder / EVAL_LOCK, "eval", lambda said: log.warning("%s", said)) as locked:
+                refuse_another_configuration(one, one_plan)
+                mine, interrupted = _run_episodes(one, one_plan, progress, locked, label=f"eval seed {one.seed}")
+                writing = True
+                _write_results(one, one_plan, mine, interrupted, software, progress)
+                writing = False
+        except KeyboardInterrupt:
+            if writing:  # its files half written: stop here, as a one-seed eval does
+                raise
+            interrupted = True  # before its episodes, or once its files were written: the pooled files say what finished
+            log.warning("interrupted at seed %d, after %d of %d episodes", one.seed, len(outcomes) + len(mine), len(plan.jobs))
         for outcome in mine:
             outcome.seed = one.seed
         outcomes += mine
@@ -1437,6 +1450,7 @@ class RichProgress:
         self.total = total
         self.done = self.ran = 0
         self.started_s = self.clock()
+        self.writing_to = None  # a seed of --seeds after the one written: its episodes, not files, now
         self.progress.start()
         fields: dict[str, Any] = {self.TIME_LEFT_FIELD: self.UNKNOWN_TIME, "stats": ""}
         for task in self.progress.tasks:  # --seeds: the line under the bars is the running seed's
@@ -1585,8 +1599,8 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
         return 2
     except KeyboardInterrupt:  # not during the episodes (run_eval writes what finished): before them, or while writing it
         progress.stop()
-        if progress.writing_to is not None:
-            print(f"interrupted while writing the results in {out}/ (report.html and the figures may be missing); the episodes that "
+        if progress.writing_to is not None:  # with --seeds, the folder of the seed being written, or --out's pooled files
+            print(f"interrupted while writing the results in {progress.writing_to}/ (report.html and the figures may be missing); the episodes that "
                   "finished are kept: the same command with --resume writes them (and runs any episode left)")
         else:
             print(f"interrupted before any episode ran; the same command with --resume runs them, keeping the episodes {out}/ holds")

@@ -28,11 +28,13 @@ def frontier_entropy(frontier: np.ndarray, window_m: float, resolution_m: float,
 
     Computed for the whole map at once with a summed-area table. The window is centred, so its side is
     an odd number of cells: gamma / resolution rounded to whole cells, plus one when that is even (2 m
-    at 0.05 m cells: 41 cells). ``out``: an int32 grid to write I into (returned).
+    at 0.05 m cells: 41 cells). A window wider than twice the map counts every cell of it wherever it is centred, as
+    one of that width does: it is computed at that width (a 1 km window at 0.05 m would pad the map by 10,000 cells).
+    ``out``: an int32 grid to write I into (returned).
     """
-    half = max(1, int(round(window_m / resolution_m))) // 2
-    k = 2 * half + 1
     ny, nx = frontier.shape
+    half = min(max(1, int(round(window_m / resolution_m))) // 2, max(ny, nx))
+    k = 2 * half + 1
     sat = np.zeros((ny + k, nx + k), dtype=np.int32)
     padded = np.pad(frontier, half).astype(np.int32)
     np.cumsum(np.cumsum(padded, axis=0, out=padded), axis=1, out=sat[1:, 1:])

@@ -29,9 +29,13 @@ def disk_offsets(radius_cells: int) -> np.ndarray:
 
 
 def disk_cells(geometry: GridGeometry, xy_m: tuple[float, float] | np.ndarray, radius_cells: int) -> tuple[np.ndarray, np.ndarray]:
-    """(rows, columns) of the cells of ``disk(radius_cells)`` around the cell of ``xy_m`` that lie on the map."""
+    """(rows, columns) of the cells of ``disk(radius_cells)`` around the cell of ``xy_m`` that lie on the map. A disk
+    that reaches past the map's farthest corner holds every cell of it, as one that reaches just that corner does: it is
+    made that large (``episode.goal_tolerance_m: 1e300`` asked numpy for a disk of 1e301 cells)."""
     iy, ix = geometry.world_to_cell(xy_m[0], xy_m[1])
-    offs = disk_offsets(radius_cells)
+    ny, nx = geometry.shape
+    farthest = math.ceil(max(math.hypot(y - int(iy), x - int(ix)) for y in (0, ny - 1) for x in (0, nx - 1)))
+    offs = disk_offsets(min(radius_cells, farthest))
     yy, xx = offs[:, 0] + int(iy), offs[:, 1] + int(ix)
     ok = geometry.in_bounds(yy, xx)
     return yy[ok], xx[ok]

@@ -45,6 +45,11 @@ SCHEMA_VERSION = 1
 Recordings of the versions before the last bumps stay readable offline: ``LEGACY_UPGRADES``."""
 MAX_GRID_CELLS = 50_000_000
 """The format's ceiling on a grid's cells and a record's dimensions: no run's ``max_grid_cells`` may be above it."""
+MAX_RESOLUTION_M = 100.0
+"""The coarsest cell a grid may have, in metres (a map's ``geometry.resolution_m`` is in 1e-4 .. this)."""
+MAX_GRID_SIDE_M = MAX_GRID_CELLS * MAX_RESOLUTION_M
+"""The longest side any map may have (5e9 m: ``MAX_GRID_CELLS`` cells in one row at ``MAX_RESOLUTION_M``): a length
+configured above it (``frontier.entropy_window_m``) is longer than every map."""
 DEFAULT_MAX_GRID_CELLS = 4_000_000
 """A run's bound on a grid's cells unless its profile sets ``max_grid_cells``: a 100 m x 100 m arena at 0.05 m (2000 x
 2000 cells), 13 times the largest grid a shipped scene has (the builtin and Dungeon plans, 640 x 480 = 307,200 cells at
@@ -357,7 +362,7 @@ def _geometry_in(body: dict, where: str) -> GridGeometry:
     g = _get(body, "geometry", where)
     if not isinstance(g, dict):
         raise MessageError(f"{where}.geometry: expected a mapping")
-    res = _num(g, "resolution_m", where + ".geometry", 1e-4, 100.0)
+    res = _num(g, "resolution_m", where + ".geometry", 1e-4, MAX_RESOLUTION_M)
     shape = _get(g, "shape", where + ".geometry")
     if not isinstance(shape, list) or len(shape) != 2 or not all(isinstance(s, int) and not isinstance(s, bool) and s > 0 for s in shape):
         raise MessageError(f"{where}.geometry.shape: expected two positive integers")

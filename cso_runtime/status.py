@@ -556,6 +556,14 @@ def episode_end_step(run_dir: Path, last: dict[str, Any]) -> Any:
     return last.get("step", 0) if steps is None else steps
 
 
+def robot_ended_at(last: dict[str, Any]) -> str:
+    """Where the robot was last seen, for the line ``status --watch`` ends with: ``, the robot at x 1.75 m  y 2.25 m  yaw
+    0.25 rad (map frame)`` (``pose_words`` of ``last``'s ``pose``, ``status_of``'s in the map frame: the launcher's
+    last-heard one of the episode's last step, else the watch's last); "" when no pose was heard."""
+    pose = last.get("pose")
+    return "" if pose is None else f", the robot at {pose_words(pose, None)} (map frame)"
+
+
 def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_json: bool) -> int:
     """The line ``status --watch`` ends with when the run it watched stopped: how it ended (its ``outcome``, the
     episode's end and ``terminated_by`` as last seen) and where its results are; ``run_end_exit_code``."""
@@ -569,9 +577,10 @@ def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_j
     step = episode_end_step(run_dir, last) if over else last.get("step", 0)
     episode = f"its episode {last.get('state')}" + (f" ({ended_by})" if ended_by else "") + f" at step {step}"
     where = results_said(run_dir) if outcome == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
-    line = f"run {run.get('run_id')} ended: {outcome}" + (f", {episode}" if over else "") + (f", exit code {code}" if code else "") + f"; {where}"
+    line = (f"run {run.get('run_id')} ended: {outcome}" + (f", {episode}" if over else "") + robot_ended_at(last) + (f", exit code {code}" if code else "")
+            + f"; {where}")
     if as_json:
-        ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "outcome": outcome, "exit_code": code}
+        ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "outcome": outcome, "exit_code": code, "pose": last.get("pose")}
         episode_end = {"episode_state": last.get("state"), "terminated_by": ended_by, "step": step} if over else {}
         print(json.dumps({"state": NOT_RUNNING, "reason": f"nothing running ({line})", **ended, **episode_end}), flush=True)
     else:
@@ -604,10 +613,11 @@ def say_episode_ended(run: dict[str, Any], run_dir: Path, runs_dir: Path, last: 
     ended_by = last.get("terminated_by") or ""
     step = episode_end_step(run_dir, last)
     where = results_said(run_dir) if state == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
-    line = (f"run {run.get('run_id')}'s episode has ended: {state}" + (f" ({ended_by})" if ended_by else "") + f" at step {step}; "
-            f"{where}; the run stays up (for status) until {down_command(runs_dir)}")
+    line = (f"run {run.get('run_id')}'s episode has ended: {state}" + (f" ({ended_by})" if ended_by else "") + f" at step {step}"
+            f"{robot_ended_at(last)}; {where}; the run stays up (for status) until {down_command(runs_dir)}")
     if as_json:
-        ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "exit_code": code, "terminated_by": ended_by, "step": step}
+        ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "exit_code": code, "terminated_by": ended_by, "step": step,
+                 "pose": last.get("pose")}
         print(json.dumps({"state": state, "reason": line, **ended}), flush=True)
     else:
         print(line)
@@ -702,6 +712,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                     last_answer = watched[1]
                     kept = ("goal",) if status.get("pose") is not None else ("goal", "pose", "twist")
                     shown = {**status, **{k: last_answer.get(k) for k in kept}, "last_decision_ms": last_answer.get("last_decision_ms", 0.0)}
+                    last = shown  # the end line says where the robot ended as the last table shows it
             if as_json:
                 print(json.dumps(status), flush=True)
             elif in_place and live is None:

@@ -46,6 +46,7 @@ from cso_runtime.config import (
     LOG_FORMAT,
     ConfigError,
     ExplorationConfig,
+    check_field_types,
     check_seed,
     from_dict,
     load_yaml,
@@ -76,7 +77,7 @@ from cso_runtime.processes import (
     set_from_signal_handler,
     signal_on_parent_death,
 )
-from cso_runtime.run_profile import profile_exploration_config
+from cso_runtime.run_profile import Profile, profile_exploration_config
 from cso_runtime.transport import STOPPED, TransportConfig, TransportError, open_session
 
 log = logging.getLogger("cso.service")
@@ -151,6 +152,7 @@ def load_profile_for_service(path: Path, name: str, cls: type[Service] | None = 
     from services import SERVICE_NAMES, command_argv, own_class_spec, service_params  # noqa: PLC0415
 
     profile = load_yaml(path)
+    check_field_types(Profile, profile, where=str(path))  # the keys it reads one by one (m_per_px, scene), as `up` converts them
     services = profile.get("services") or {}
     if not isinstance(services, dict):
         raise ConfigError(f"{path}: services must be a mapping")

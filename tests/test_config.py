@@ -1058,9 +1058,12 @@ def test_an_arena_too_large_to_count_its_cells_is_refused_as_over_the_grid_bound
         ("mapper", {"services": {"mapper": {"resolution_m": 0.001, "width_m": 1e308, "height_m": 1e308}}}, "a 1e+308 x 1e+308 m grid at 0.001 m is too many cells to count"),
         ("mapper", {"services": {"mapper": {"resolution_m": 0.001, "width_m": 200.0, "height_m": 200.0}}}, "200000 x 200000 = 40_000_000_000 cells, more than max_grid_cells"),
         ("ros2_bridge", {"services": {"ros2_bridge": {"resolution_m": 0.001, "arena_width_m": 1e308}}}, "a 1e+308 x 20 m grid at 0.001 m is too many cells to count"),
-        ("sim", {"scene": "generated:small:1:0", "seed": float("inf"), "services": {"sim": {}}}, "seed must be an integer from 0 to 4294967295, got inf"),
-        ("sim", {"scene": "generated:small:1:0", "seed": [1], "services": {"sim": {}}}, "seed must be an integer from 0 to 4294967295, got [1]"),
+        ("sim", {"scene": "generated:small:1:0", "seed": float("inf"), "services": {"sim": {}}}, "seed: expected an integer, got inf"),
+        ("sim", {"scene": "generated:small:1:0", "seed": [1], "services": {"sim": {}}}, "seed: expected an integer, got [1]"),
         ("overflowing", {"services": {"overflowing": {}}}, "overflowing: bad configuration: cannot convert float infinity to integer"),
+        ("sim", {"scene": "generated:small:1:0", "m_per_px": [1], "services": {"sim": {}}}, ": m_per_px: expected a number, got [1]"),
+        ("sim", {"scene": 5, "services": {"sim": {}}}, ": scene: expected a string, got 5"),
+        ("frontier", {"exploration": {"frontier": {"entropy_window_m": 1e300}}, "services": {"frontier": {}}}, "frontier.entropy_window_m must be at most 5e+09 m"),
     ],
 )
 def test_a_service_started_by_hand_with_absurd_sizes_says_so_in_one_line_and_exits_2(tmp_path, caplog, service, profile, said):
@@ -1069,7 +1072,9 @@ def test_a_service_started_by_hand_with_absurd_sizes_says_so_in_one_line_and_exi
     (40 GB for 200 m at 1 mm), the ROS bridge's arena only at its first odometry, and a seed no integer (``.inf``,
     ``[1]``) in the sim's ``int()``. Each is now the bad configuration it is, in one line, exit 2 (not restarted), with
     ``up``'s words for the grids (``messages.check_configured_grid``); a service of one's own that overflows on its
-    config as it is made gets the same line."""
+    config as it is made gets the same line. A top-level key of the wrong type (``m_per_px: [1]``: a TypeError traceback
+    in the sim's ``float()``) is refused in ``up``'s words (``config.check_field_types``), and a frontier window longer
+    than any map (``entropy_window_m: 1e300``, which the frontier service took) in ``FrontierConfig.validate``'s."""
     import yaml
 
     from services import service_class
@@ -1088,3 +1093,18 @@ def test_a_service_started_by_hand_with_absurd_sizes_says_so_in_one_line_and_exi
     errors = [r for r in caplog.records if r.levelname == "ERROR"]
     assert len(errors) == 1 and f"{service}: bad configuration: " in errors[0].getMessage() and said in errors[0].getMessage()
     assert errors[0].exc_info is None
+
+
+@pytest.mark.parametrize("key", ["frontier.entropy_window_m", "frontier.min_cluster_size_m", "episode.goal_tolerance_m"])
+def test_a_length_longer_than_any_map_is_refused_naming_the_key_and_the_bound(key):
+    """``frontier.entropy_window_m`` or ``episode.goal_tolerance_m`` of 1e300 m were taken by ``up`` and ``eval`` (the
+    first failed in the frontier layer helper, the second in every episode that gave a goal up); a length above the
+    longest side a map may have (``messages.MAX_GRID_SIDE_M``: ``MAX_GRID_CELLS`` cells in one row at the coarsest cell)
+    is refused in one line that says which key and what is allowed; one up to it is taken."""
+    from cso_runtime.messages import MAX_GRID_CELLS, MAX_GRID_SIDE_M, MAX_RESOLUTION_M
+
+    section, name = key.split(".")
+    assert MAX_GRID_SIDE_M == MAX_GRID_CELLS * MAX_RESOLUTION_M == 5e9
+    with pytest.raises(ConfigError, match=rf"^exploration.{key} must be at most 5e\+09 m \(the longest side a map may have: messages.MAX_GRID_SIDE_M\), got 1e\+300$"):
+        from_dict(ExplorationConfig, {section: {name: 1e300}}, where="exploration")
+    from_dict(ExplorationConfig, {section: {name: MAX_GRID_SIDE_M}}, where="exploration")

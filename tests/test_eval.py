@@ -661,6 +661,111 @@ def test_ctrl_c_stops_eval_at_once_keeps_the_finished_episodes_and_resume_runs_t
     assert all((out / "episodes" / "random" / name).stat().st_mtime_ns == t for name, t in stamps.items())
 
 
+BLOCK_ON_SEED = '''"""A goal selector of one's own that blocks in the first decision of seed BLOCK_SEED's episode (until Ctrl-C),
+once it has said so by writing BLOCK_MARKER; nearest frontier otherwise."""
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from cso_runtime.policies import goal_of
+
+
+class BlockOnSeed:
+    name = "block-on-seed"
+    grids = ()
+
+    def reset(self, seed=None):
+        self.seed = seed
+
+    def select(self, obs):
+        marker = os.environ.get("BLOCK_MARKER")
+        if marker and self.seed == int(os.environ["BLOCK_SEED"]):
+            Path(marker).write_text("blocked")
+            time.sleep(300)  # until Ctrl-C
+        reachable = [i for i, c in enumerate(obs.clusters) if np.isfinite(c.distance_m)]
+        return goal_of(obs, min(reachable, key=lambda i: obs.clusters[i].distance_m)) if reachable else None
+'''
+"""``test_ctrl_c_in_an_eval_of_several_seeds_...``'s method: the Ctrl-C lands in seed 1's episode, not at a time hoped for."""
+
+
+def test_ctrl_c_in_an_eval_of_several_seeds_writes_what_finished_exits_130_and_resume_runs_the_rest(tmp_path: Path):
+    """``eval --seeds 0,1,2`` stopped by Ctrl-C (the whole process group, as a terminal's) in seed 1's episode ends as a
+    one-seed eval does: seed 0's folder whole, seed 1's with what finished (none, and says it was interrupted), no seed 2,
+    the pooled files of the finished episodes saying it was interrupted, exit code 130 and the hint; ``--resume`` then
+    runs seeds 1 and 2, keeping seed 0's episode, and pools all three. The method blocks in seed 1's first decision once
+    it has written a file: the signal comes while that seed runs, whatever the machine's speed."""
+    import signal
+
+    from tests.conftest import process_group, wait_for
+
+    (tmp_path / "block_on_seed.py").write_text(BLOCK_ON_SEED)
+    out, marker = tmp_path / "out", tmp_path / "blocked"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(Path(__file__).resolve().parents[1]), os.environ.get("PYTHONPATH", "")])}
+    method = "block_on_seed:BlockOnSeed"
+    cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--method", method, "--maps", "generated:small:1:0", "--seeds", "0,1,2",
+           "--max-steps", "20", "--out", str(out)]  # fmt: skip
+    blocking = {**env, "BLOCK_MARKER": str(marker), "BLOCK_SEED": "1"}
+    with process_group(cmd, env=blocking, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)) as proc:  # a child of a background shell starts with SIGINT ignored
+        wait_for(lambda: marker.exists() or proc.poll() is not None, 120, "seed 1's first decision")
+        assert proc.poll() is None, proc.communicate()[0][-2000:]
+        os.killpg(proc.pid, signal.SIGINT)
+        stdout = proc.communicate(timeout=60)[0]
+    assert proc.returncode == 130, stdout[-2000:]
+    assert "interrupted: 1 of 3 episodes finished; the same command with --resume runs the rest" in " ".join(stdout.split()), stdout[-2000:]
+    pooled = json.loads((out / "summary.json").read_text())
+    assert pooled["meta"]["seeds"] == [0, 1, 2] and pooled["methods"][method]["episodes"] == 1
+    assert (pooled["meta"]["interrupted"]["episodes_finished"], pooled["meta"]["interrupted"]["episodes_planned"]) == (1, 3)
+    assert (out / "report.html").is_file() and len(list(csv.DictReader((out / "episodes.csv").open()))) == 1
+    assert "interrupted" not in json.loads((out / "seed0" / "summary.json").read_text())["meta"]
+    seed1 = json.loads((out / "seed1" / "summary.json").read_text())["meta"]["interrupted"]
+    assert (seed1["episodes_finished"], seed1["episodes_planned"]) == (0, 1) and not (out / "seed2").exists()
+    (kept,) = (out / "seed0" / "episodes").glob("*/*.npz")
+    stamp = kept.stat().st_mtime_ns
+    again = subprocess.run([*cmd, "--resume"], env=env, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stdout[-2000:] + again.stderr[-2000:]
+    pooled = json.loads((out / "summary.json").read_text())
+    assert "interrupted" not in pooled["meta"] and pooled["methods"][method]["episodes"] == 3 and pooled["meta"]["resumed_episodes"] == 1
+    assert kept.stat().st_mtime_ns == stamp and all("interrupted" not in json.loads((out / f"seed{s}" / "summary.json").read_text())["meta"] for s in (0, 1, 2))
+
+
+def test_ctrl_c_between_two_seeds_or_while_one_is_written_ends_as_a_one_seed_evals(tmp_path: Path, monkeypatch):
+    """``eval --seeds``: a Ctrl-C once seed 0's files were written and before seed 1's first episode (its folder's lock,
+    its check) left no pooled files and said "interrupted while writing the results in OUT/", where nothing was being
+    written; one while seed 1's files were written named OUT/, not that seed's folder. Between seeds it ends as in a
+    seed's episodes (the pooled files of what finished, "--resume runs the rest"); while a seed's files are written,
+    as a one-seed eval does then, naming that folder; ``--resume`` completes either."""
+    from typer.testing import CliRunner
+
+    from cso_runtime import cli, evaluation
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "interrupt_on_sigterm", lambda: None)  # the test's process keeps its own handlers
+    out = tmp_path / "o"
+    args = ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--seeds", "0,1", "--max-steps", "10", "--out", str(out)]
+    run_episodes, write_report = evaluation._run_episodes, evaluation.write_report
+    with monkeypatch.context() as patched:
+        patched.setattr(evaluation, "_run_episodes", lambda one, *a, **k: interrupted() if one.seed == 1 else run_episodes(one, *a, **k))
+        r = CliRunner().invoke(cli.app, args)
+    said = " ".join(r.output.split())
+    assert r.exit_code == 130 and "interrupted: 1 of 2 episodes finished; the same command with --resume runs the rest" in said, said
+    stopped = json.loads((out / "summary.json").read_text())["meta"]["interrupted"]
+    assert (stopped["episodes_finished"], stopped["episodes_planned"]) == (1, 2) and not (out / "seed1" / "summary.json").exists()
+    with monkeypatch.context() as patched:
+        patched.setattr(evaluation, "write_report", lambda folder, summary: interrupted() if Path(folder) == out / "seed1" else write_report(folder, summary))
+        r = CliRunner().invoke(cli.app, [*args, "--resume"])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 130 and f"interrupted while writing the results in {out / 'seed1'}/" in said and "--resume writes them" in said, said
+    again = CliRunner().invoke(cli.app, [*args, "--resume"])
+    assert again.exit_code == 0, again.output
+    pooled = json.loads((out / "summary.json").read_text())
+    assert "interrupted" not in pooled["meta"] and pooled["methods"]["greedy-dist"]["episodes"] == 2 and (out / "seed1" / "report.html").is_file()
+
+
 @pytest.mark.parametrize("signame", ["SIGTERM", "SIGHUP"])
 def test_sigterm_to_eval_alone_stops_its_workers_and_keeps_the_finished_episodes(tmp_path: Path, signame: str):
     """``kill PID`` (or a job scheduler's stop, or the terminal closing) reaches the parent only: it ends as

@@ -109,3 +109,35 @@ def test_an_episode_that_ends_with_no_frontier_says_what_is_left_and_why():
     assert no_frontier_why(ObservationBuilder().build(closed, Pose2D(0.5, 0.5, 0.0)), dead, 0.3, 0.2) == (
         "no frontier left: the map has no open cell next to unknown space"
     )
+
+
+def test_an_entropy_window_wider_than_the_map_counts_the_whole_map_without_padding_it_by_its_width():
+    """``frontier.entropy_window_m: 1e300`` (``up`` and the frontier service took it) padded the map by 1e301 cells: numpy's
+    ValueError in the frontier layer helper (a 1 km window at 0.05 m, a MemoryError). A window wider than twice the map
+    counts every frontier cell of it wherever it is centred: it is computed at that width, the same counts."""
+    from cso_runtime.frontiers import frontier_entropy
+
+    rng = np.random.default_rng(0)
+    frontier = rng.random((7, 11)) < 0.3
+    whole = np.full(frontier.shape, int(frontier.sum()), dtype=np.int32)
+    for window_m in (2.3, 1e3, 1e300):
+        assert np.array_equal(frontier_entropy(frontier, window_m, 0.1), whole)
+    assert not np.array_equal(frontier_entropy(frontier, 0.5, 0.1), whole)  # a window narrower than the map counts less
+
+
+def test_a_goal_tolerance_wider_than_the_map_marks_every_cell_without_a_disk_of_its_width():
+    """``episode.goal_tolerance_m: 1e300`` (``eval`` took it) failed every episode whose goal was given up on: the dead
+    frontier's disk of 1e301 cells was more than numpy makes (a 100 km one, 4e12 cells). A disk past the map's farthest
+    corner holds every cell of it, as one that reaches that corner does: it is made that large, the same cells."""
+    from cso_runtime.episode import mark_dead_frontier
+    from cso_runtime.geodesic import disk_cells
+
+    g = GridGeometry(0.1, (7, 11), 0.0, 0.0)
+    for xy in ((0.35, 0.55), (-0.5, 2.0)):  # a centre on the map, and one off it (its disk reaches in)
+        whole = sorted(zip(*(a.tolist() for a in disk_cells(g, xy, 40))))
+        assert len(whole) == 7 * 11 or xy[0] < 0
+        assert sorted(zip(*(a.tolist() for a in disk_cells(g, xy, 10**301)))) == whole
+        assert len(disk_cells(g, xy, 3)[0]) < len(whole)  # a disk inside the map holds less
+    dead = np.zeros(g.shape, dtype=bool)
+    mark_dead_frontier(dead, g, (0.35, 0.55), 1e300)
+    assert dead.all()

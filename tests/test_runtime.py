@@ -3372,7 +3372,8 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
     its last table showing the services DOWN, goal "-" and "last 0.0 ms" as the launcher stopped them. A run it saw
     answering whose run.json then says it stopped: how it ended, where its results are, exit 0 when done (else
     ``up``'s exit code); the frame while the launcher stops the services says "stopping" and keeps the goal and the
-    robot's pose: the launcher's last-heard one (of the episode's last step) when it has it, else the watch's last."""
+    robot's pose: the launcher's last-heard one (of the episode's last step) when it has it, else the watch's last; the
+    end line says that pose too (``robot_ended_at``: in the map frame, as the table), and ``--json``'s ``pose``."""
     import io
 
     from rich.console import Console
@@ -3410,8 +3411,11 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
         last = json.loads(said.splitlines()[-1])
         assert (last["state"], last["outcome"], last["exit_code"], last["run_dir"]) == ("not running", outcome, exit_code, str(run_dir))
         assert (last["episode_state"], last["terminated_by"], last["step"]) == ("done", "coverage", 9)
+        assert last["pose"] == ([1.75, 2.25, 0.25] if pose_heard else [1.25, 2.0, 0.5])  # where the robot ended, in the map frame
         return
     assert said.startswith(f"run run1 ended: {outcome}, its episode done (coverage) at step 9") and "no answer" not in said, said
+    at = "x 1.75 m  y 2.25 m  yaw 0.25 rad" if pose_heard else "x 1.25 m  y 2.00 m  yaw 0.50 rad"  # as the status table says it
+    assert f"at step 9, the robot at {at} (map frame)" in said.splitlines()[0], said
     assert (f"results in {run_dir}/: report.html" in said) == (outcome == "done") and (f", exit code {exit_code}" in said) == (exit_code != 0), said
     last_table = out.getvalue().split("robot r0  run run1")[-1]
     assert "DOWN" not in last_table and re.search(r"service sim +│ stopping", last_table), last_table
@@ -3424,7 +3428,8 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
 def test_status_watch_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypatch, capsys, episode_state, exit_code, as_json):
     """``up --detach`` stays up after its episode, answering ``status``, until ``down``: ``status --watch`` on it
     refreshed the finished episode's table for ever (``logs -f`` ends there). Once run.json says the detached run's
-    episode ended, it ends: how the episode ended, where the results are, that the run stays up until ``down``."""
+    episode ended, it ends: how the episode ended, where the robot ended (in the map frame), where the results are, that
+    the run stays up until ``down``."""
     from rich.console import Console
 
     from cso_runtime import status
@@ -3440,7 +3445,8 @@ def test_status_watch_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypa
     services = {"sim": {"pid": 1, "restarts": 0}}
     episode = {"state": "exploring", "step": 5, "episode": 7, "scene": "s", "method": "cso"}
     exploring = status.status_of("r0", episode, {"run_id": "run1", "state": "running", "services": services}, {}, {"sim"})
-    over = status.status_of("r0", {**episode, "state": episode_state, "step": 9, "terminated_by": "coverage"}, {"run_id": "run1", "state": "running", "services": services}, {}, {"sim"})
+    ended = {**episode, "state": episode_state, "step": 9, "terminated_by": "coverage", "pose": [1.0, 2.0, 0.5], "map_origin": [0.5, -1.0, 0.0]}
+    over = status.status_of("r0", ended, {"run_id": "run1", "state": "running", "services": services}, {}, {"sim"})
 
     def results_written() -> dict:  # as the detached launcher does once its results are written: it stays up
         for path in (run_dir / "run.json", runs / "current.json"):
@@ -3459,11 +3465,12 @@ def test_status_watch_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypa
     code = status.status_main([], None, as_json=as_json, watch=True, runs_dir=runs, period_s=0.1, console=Console(file=io.StringIO(), force_terminal=False, width=100))
     said = capsys.readouterr().out
     assert code == exit_code and len(queries) == 3, said
-    ended = f"run run1's episode has ended: {episode_state} (coverage) at step 9"
+    ended = f"run run1's episode has ended: {episode_state} (coverage) at step 9, the robot at x 1.50 m  y 1.00 m  yaw 0.50 rad (map frame)"  # as status's table
     stays = f"the run stays up (for status) until `cso-runtime down --runs-dir {runs}`"  # its folder's down, not ./runs'
     if as_json:
         last = json.loads(said.splitlines()[-1])
         assert (last["state"], last["exit_code"], last["run_dir"], last["terminated_by"], last["step"]) == (episode_state, exit_code, str(run_dir), "coverage", 9)
+        assert last["pose"] == [1.5, 1.0, 0.5]
         assert last["reason"].startswith(ended) and stays in last["reason"], last
         return
     assert said.startswith(ended) and stays in said and (f"results in {run_dir}/: report.html" in said) == (episode_state == "done"), said
