@@ -1010,6 +1010,7 @@ def runs_command(
     from rich.table import Table  # noqa: PLC0415
 
     from cso_runtime.evaluation import table_console  # noqa: PLC0415
+    from cso_runtime.live_view import NO_COVERAGE  # noqa: PLC0415 - the one word status, the live view and report.html use
     from cso_runtime.run_profile import REAL_ROBOT_SCENE  # noqa: PLC0415
 
     def num(value: object, fmt: str) -> str:
@@ -1026,7 +1027,7 @@ def runs_command(
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         table.add_row(
             escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
-            "n/a" if r["real_robot"] else num(r["coverage_pct"], ".1f"), num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
+            NO_COVERAGE if r["real_robot"] else num(r["coverage_pct"], ".1f"), num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
     table_console().print(table)
 

@@ -30,6 +30,9 @@ if TYPE_CHECKING:
 NO_GROUND_TRUTH = "n/a: a real robot (no ground truth)"
 """What the tables say of coverage on a real robot, where ``coverage_pct`` is 0 (``status --json``, ``summary.json``,
 ``episodes.csv``): a "0.00 %" beside a map being explored read as a failure."""
+NO_COVERAGE = "n/a"
+"""``NO_GROUND_TRUTH`` in a table's coverage cell (``runs``' "cover %", report.html's and the console's Table 1 and
+episodes): the one word, its reason said in the table's definitions or title."""
 
 
 def pace_text(real_time_factor: float | None) -> str:

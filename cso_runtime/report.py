@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime.comparison import PAIRED_COLUMNS, format_interval, paired_cells
-from cso_runtime.live_view import NO_GROUND_TRUTH
+from cso_runtime.live_view import NO_COVERAGE, NO_GROUND_TRUTH
 from cso_runtime.outputs import (
     COVERAGE_FIGURE,
     EFFICIENCY_FIGURE,
@@ -123,9 +123,8 @@ TABLE1_METRICS = (
 with (the cells, their spread and their intervals); the two decision times share one column."""
 
 
-NO_COVERAGE = "n/a"
-"""A coverage cell of a real robot's run (``of_a_real_robot``), as ``runs`` says it: its 0 is no measure (no ground
-truth, ``NO_GROUND_TRUTH``); summary.json and episodes.csv keep the 0."""
+# NO_COVERAGE (live_view's, as ``runs`` says it): a coverage cell of a real robot's run (``of_a_real_robot``), whose 0
+# is no measure (no ground truth, ``NO_GROUND_TRUTH``); summary.json and episodes.csv keep the 0.
 
 
 def table1_cells(e: dict[str, Any], spread: bool = True, real_robot: bool = False) -> list[str]:

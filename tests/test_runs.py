@@ -286,3 +286,16 @@ def test_runs_lists_no_coverage_for_a_real_robots_run(tmp_path):
     assert r.exit_code == 0 and row.split()[-4:-2] == ["196", "n/a"], r.output
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "runs"), "--json"])
     assert json.loads(r.output)[0]["coverage_pct"] == 0.0, r.output
+
+
+def test_runs_says_a_real_robots_coverage_in_the_one_word_of_the_report_and_the_live_view(tmp_path, monkeypatch):
+    """``runs`` wrote its own literal "n/a": the cell is ``live_view.NO_COVERAGE``, the one report.html's tables use."""
+    from cso_runtime import live_view, report
+
+    assert report.NO_COVERAGE is live_view.NO_COVERAGE
+    monkeypatch.setattr(live_view, "NO_COVERAGE", "no-truth")
+    d = make_run(tmp_path / "runs", "20261206-205536-limo-ros2-r0", outcome="done", summary={"coverage_pct": 0.0, "steps": 196, "explored_area_m2": 22.6})
+    (d / "profile.yaml").write_text(yaml.safe_dump({"name": "limo-ros2", "robot": "r0", "method": "cso", "services": {"ros2_bridge": {}, "planner": {}}}))
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "runs")], env={"COLUMNS": "200"})
+    (row,) = [line for line in r.output.splitlines() if "20261206-205536-limo-ros2-r0" in line]
+    assert r.exit_code == 0 and row.split()[-4:-2] == ["196", "no-truth"], r.output
