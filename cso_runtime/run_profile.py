@@ -446,6 +446,20 @@ def misplaced_key(data: dict[str, Any]) -> str | None:
     return wrong_section(unknown, sections, data)
 
 
+def unknown_top_level_keys(data: dict[str, Any]) -> str | None:
+    """What is wrong with each top-level key of profile ``data`` that ``Profile`` does not take, in ``up``'s words
+    (``misplaced_key``'s ``frontier (did you mean exploration.frontier or services.frontier?)``, else ``from_dict``'s
+    ``mehtod (did you mean method?)``) and naming every one; None when there is none. A service started by hand reads
+    the keys it knows one by one and warns of these (``services.common.load_profile_for_service``): refusing them, as
+    ``up`` does, would stop the files users run by hand."""
+    names = key_sections(Profile)[""]
+    unknown = [("", str(key)) for key in data if key not in names]  # str: a YAML key may be a number
+    if not unknown:
+        return None
+    misplaced = wrong_section(unknown, profile_key_sections(mujoco=False), data)
+    return misplaced or f"unknown key(s) {', '.join(with_nearest(key, names) for _, key in unknown)}; known: {', '.join(sorted(names))}"
+
+
 def profile_search_path() -> list[Path]:
     """Where ``--profile NAME`` is looked up: the user's ``./configs/profiles`` (overrides), then the
     profiles shipped with the package."""

@@ -77,7 +77,7 @@ from cso_runtime.processes import (
     set_from_signal_handler,
     signal_on_parent_death,
 )
-from cso_runtime.run_profile import Profile, profile_exploration_config
+from cso_runtime.run_profile import Profile, profile_exploration_config, unknown_top_level_keys
 from cso_runtime.transport import STOPPED, TransportConfig, TransportError, open_session
 
 log = logging.getLogger("cso.service")
@@ -153,6 +153,8 @@ def load_profile_for_service(path: Path, name: str, cls: type[Service] | None = 
 
     profile = load_yaml(path)
     check_field_types(Profile, profile, where=str(path))  # the keys it reads one by one (m_per_px, scene), as `up` converts them
+    if (unknown := unknown_top_level_keys(profile)) is not None:  # `up` refuses them; a file run by hand goes on
+        log.warning("%s: %s: ignored (a service started by hand reads only the keys it knows; `up` refuses the file)", path, unknown)
     services = profile.get("services") or {}
     if not isinstance(services, dict):
         raise ConfigError(f"{path}: services must be a mapping")

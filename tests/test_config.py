@@ -1095,6 +1095,33 @@ def test_a_service_started_by_hand_with_absurd_sizes_says_so_in_one_line_and_exi
     assert errors[0].exc_info is None
 
 
+def test_a_service_started_by_hand_warns_once_of_each_unknown_top_level_key_and_goes_on(tmp_path, caplog):
+    """A service started by hand (``cso-runtime service NAME --config FILE``) ignored a top-level key ``up`` refuses (a
+    typo: ``mehtod: cso`` ran greedy-dist in silence). It warns once, naming each, in ``up``'s words (a misspelling's
+    nearest key, a misplaced key's home), and goes on with the keys it knows: refusing would stop files run by hand."""
+    import logging
+
+    import yaml
+
+    from services.common import load_profile_for_service
+
+    path = tmp_path / "profile.yaml"
+    path.write_text(yaml.safe_dump({"mehtod": "cso", "frontier": {"min_cluster_size_m": 0.5}, 7: 1, "services": {"mapper": {}}}))
+    with caplog.at_level(logging.WARNING):
+        profile, _, params = load_profile_for_service(path, "mapper")
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 1, warnings
+    (said,) = warnings
+    assert said.startswith(f"{path}: unknown key(s) ") and "ignored" in said and "`up` refuses" in said, said
+    for named in ("mehtod (did you mean method?)", "frontier (did you mean exploration.frontier or services.frontier?)", "7"):
+        assert named in said, said
+    assert profile["mehtod"] == "cso" and params == {}
+    caplog.clear()
+    path.write_text(yaml.safe_dump({"method": "cso", "services": {"mapper": {}}}))
+    load_profile_for_service(path, "mapper")
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]
+
+
 @pytest.mark.parametrize("key", ["frontier.entropy_window_m", "frontier.min_cluster_size_m", "episode.goal_tolerance_m"])
 def test_a_length_longer_than_any_map_is_refused_naming_the_key_and_the_bound(key):
     """``frontier.entropy_window_m`` or ``episode.goal_tolerance_m`` of 1e300 m were taken by ``up`` and ``eval`` (the
