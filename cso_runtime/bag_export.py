@@ -497,19 +497,47 @@ def recorded_lidar_mount(recording: Path, robot: str) -> Pose2D:
 
 
 SCAN_PERIOD_SCANS = 50
-"""How many of a robot's first scans ``recorded_scan_period`` reads."""
+"""How many of a robot's first scans ``ScanPeriod`` reads (``recorded_scan_period``, the Foxglove bridge)."""
+
+
+class ScanPeriod:
+    """The period between one robot's scans as their stamps show it (each ``/scan``'s ``scan_time``,
+    sensor_msgs/LaserScan's time between scans): the median of the steps between consecutive scans of one episode,
+    among its first ``SCAN_PERIOD_SCANS`` scans (a dropped scan or a LiDAR that fired early moves it not), ``rounded``
+    (0.25 s for the simulator's scan a step, the LiDAR's own on a real robot); 0 (unknown) before two scans of one
+    episode, or while the stamps never advance. The one computation of it: ``export-bag`` reads a recording's first
+    scans with it before it writes (``recorded_scan_period``), the Foxglove bridge the scans as they come, so that a
+    run's live view and its bag say the same period once the bridge has seen as many scans."""
+
+    def __init__(self) -> None:
+        self.steps: list[float] = []
+        self.last: tuple[int, float] | None = None
+        """The latest scan's episode and stamp."""
+        self.seen = 0
+
+    @property
+    def complete(self) -> bool:
+        """Whether ``SCAN_PERIOD_SCANS`` scans were seen: later ones change the period no more."""
+        return self.seen >= SCAN_PERIOD_SCANS
+
+    def add(self, episode: int, stamp_s: float) -> None:
+        """One more scan, of ``episode`` at ``stamp_s`` (nothing once ``complete``)."""
+        if self.complete:
+            return
+        if self.last is not None and self.last[0] == episode and stamp_s > self.last[1]:
+            self.steps.append(stamp_s - self.last[1])
+        self.last = (episode, stamp_s)
+        self.seen += 1
+
+    @property
+    def period_s(self) -> float:
+        return rounded(statistics.median(self.steps)) if self.steps else 0.0
 
 
 def recorded_scan_period(recording: Path, robot: str) -> float:
-    """The period between ``robot``'s scans in ``recording`` (each ``/scan``'s ``scan_time``, sensor_msgs/LaserScan's
-    time between scans), as their stamps show it: the median of the steps between consecutive scans of one episode,
-    among its first ``SCAN_PERIOD_SCANS`` scans (a dropped scan or a LiDAR that fired early moves it not), ``rounded``
-    (0.25 s for the simulator's scan a step, the LiDAR's own on a real robot). 0 (unknown) for fewer than two scans
-    of one episode, or stamps that never advance."""
+    """The period between ``robot``'s scans in ``recording`` (``ScanPeriod`` of its first scans)."""
     prefix = f"cso/{robot}/"
-    steps: list[float] = []
-    last: tuple[int, float] | None = None
-    seen = 0
+    period = ScanPeriod()
     messages = read_recording(recording, topics=("scan",), quiet=True)
     try:
         for m in messages:
@@ -519,15 +547,12 @@ def recorded_scan_period(recording: Path, robot: str) -> float:
                 msg = decode(m.payload, ScanMsg, accept_legacy=True)
             except MessageError:
                 continue
-            if last is not None and last[0] == msg.episode and msg.scan.stamp_s > last[1]:
-                steps.append(msg.scan.stamp_s - last[1])
-            last = (msg.episode, msg.scan.stamp_s)
-            seen += 1
-            if seen >= SCAN_PERIOD_SCANS:
+            period.add(msg.episode, msg.scan.stamp_s)
+            if period.complete:
                 break
     finally:
         messages.close()  # the reader's file, at once
-    return rounded(statistics.median(steps)) if steps else 0.0
+    return period.period_s
 
 
 def nothing_exported(stats: BagExportStats) -> str:

@@ -13,7 +13,10 @@ the sim and the ROS 2 bridge put the LiDAR) on ``/tf_static``; the map, path, go
 map_server scene's grid overlays its own map. The map origin comes with the episode's ``episode/status`` (one more
 input), which the sim first publishes after the episode's first map: the map, path, goal and frontiers of an episode
 whose status has not come yet wait for it (the latest of each, as for a late viewer), at most ``MAP_ORIGIN_WAIT_S``,
-and messages of no episode id (0) take the origin last known.
+and messages of no episode id (0) take the origin last known. The four frames' names are params
+(``map_frame``, ``odom_frame``, ``base_frame``, ``laser_frame``: export-bag's ``--map-frame``... with its defaults and
+its check, ``BagFrames``), and each ``/scan``'s ``scan_time`` is export-bag's period between the scans, read off their
+stamps as they come by the same ``ScanPeriod``.
 
 Like ROS's foxglove_bridge, it converts only what someone watches: a topic that no viewer subscribes to (and no
 MCAP file takes) is not converted at all, so the bridge costs next to nothing while nobody looks. It keeps the
@@ -36,6 +39,7 @@ from __future__ import annotations
 import argparse
 import base64
 import logging
+import math
 import os
 import socket
 import threading
@@ -45,7 +49,20 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from cso_runtime import ros2_cdr
-from cso_runtime.bag_export import EXPORTED, MAP_FRAME_TOPICS, ROS_TOPICS, ROS_TYPES, BagConverter, shows_something
+from cso_runtime.bag_export import (
+    BASE_FRAME,
+    EXPORTED,
+    LASER_FRAME,
+    MAP_FRAME,
+    MAP_FRAME_TOPICS,
+    ODOM_FRAME,
+    ROS_TOPICS,
+    ROS_TYPES,
+    BagConverter,
+    BagFrames,
+    ScanPeriod,
+    shows_something,
+)
 from cso_runtime.config import ConfigError, folder_problem, from_dict
 from cso_runtime.geometry import Pose2D
 from cso_runtime.messages import DeferredMsg, EpisodeStatusMsg, Message, MessageError, deferred
@@ -77,12 +94,29 @@ class FoxgloveBridgeParams:
     mcap_path: str = ""
     """Also write every served message to this MCAP file (empty: none), which Foxglove opens afterwards. A file
     already there is kept: the bridge then writes ``<stem>-1.mcap`` (``-2``, ...) beside it, and logs the name."""
+    map_frame: str = MAP_FRAME
+    """The map frame's name (``export-bag --map-frame``): /map, /plan, /goal_pose, /explore/frontiers, map -> odom."""
+    odom_frame: str = ODOM_FRAME
+    """The odometry frame's name (``--odom-frame``): /odom, odom -> base_link on /tf, map -> odom."""
+    base_frame: str = BASE_FRAME
+    """The robot's base frame's name (``--base-frame``): /odom's child, odom -> base_link, base_link -> laser."""
+    laser_frame: str = LASER_FRAME
+    """The LiDAR's frame's name (``--laser-frame``; ``laser_link`` for the LIMO's ROS driver): /scan's header and
+    base_link -> laser on /tf_static."""
+
+    def frames(self) -> BagFrames:
+        """The four frames' names, as ``export-bag`` takes them."""
+        return BagFrames(self.map_frame, self.odom_frame, self.base_frame, self.laser_frame)
 
     def validate(self) -> None:
         if not 0 <= self.port <= 65535:
             raise ConfigError(f"port must be in 0..65535, got {self.port}")
         if not self.map_period_s >= 0:
             raise ConfigError("map_period_s must be >= 0")
+        try:
+            self.frames().check()  # export-bag's check: tf2 frame ids, four different names
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
 
 
 def port_problem(params: FoxgloveBridgeParams) -> str | None:
@@ -172,7 +206,10 @@ class FoxgloveBridgeService(Service):
         self.foxglove = foxglove
         self.context = foxglove.Context()
         mount = Pose2D(ctx.exploration.sensor.mount_x_m, 0.0, 0.0)  # where the sim and the ROS 2 bridge put the LiDAR
-        self.converter = BagConverter(map_period_s=self.params.map_period_s, time="received", lidar_mount=mount)
+        self.converter = BagConverter(map_period_s=self.params.map_period_s, time="received", lidar_mount=mount, frames=self.params.frames())
+        self.scan_period = ScanPeriod()
+        """The period between the robot's scans, as their stamps show it: each /scan's ``scan_time``, as export-bag
+        gives the run's bag (the same once ``SCAN_PERIOD_SCANS`` scans came; 0 before two)."""
         self.awaiting_map_origin: set[str] = set()
         """Our topics (``MAP_FRAME_TOPICS``) whose latest came before its episode's map origin: sent when it comes."""
         self.awaiting_since_s: float | None = None
@@ -257,6 +294,8 @@ class FoxgloveBridgeService(Service):
         assert isinstance(msg, DeferredMsg)  # ``inputs``
         self.last_step = msg.step
         episode = msg.kept_body.get("episode")
+        if topic == "scan":
+            self.learn_scan_period(episode, msg.kept_body.get("stamp_s"))
         if isinstance(episode, int) and not isinstance(episode, bool):  # read before decoding: a bad one fails it later
             self.serve(self.converter.observe_episode(episode, time.time_ns(), self.watched))
         if shows_something(msg):
@@ -268,6 +307,18 @@ class FoxgloveBridgeService(Service):
         self.awaiting_map_origin.discard(topic)
         if self.converter.converts(topic, self.watched) and (decoded := self.decoded(topic, msg)) is not None:
             self.serve(self.converter.convert(decoded, time.time_ns(), wanted=self.watched))
+
+    def learn_scan_period(self, episode: object, stamp_s: object) -> None:
+        """One more scan's stamp for ``scan_period`` (read before decoding: a scan whose episode or stamp is no number
+        counts not, and is rejected if it is ever decoded), and the converter's ``scan_time`` from it."""
+        if self.scan_period.complete:
+            return
+        if episode is None:
+            episode = 0  # a publisher without episode ids: 0, as ScanMsg decodes it
+        if not isinstance(episode, int) or isinstance(episode, bool) or not isinstance(stamp_s, (int, float)) or isinstance(stamp_s, bool) or not math.isfinite(stamp_s):
+            return
+        self.scan_period.add(episode, float(stamp_s))
+        self.converter.scan_period_s = self.scan_period.period_s
 
     def send_awaiting(self) -> None:
         """The latest of each topic that waited for its episode's map origin, now that it is known."""

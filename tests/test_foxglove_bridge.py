@@ -28,7 +28,21 @@ from cso_runtime.transport import TransportConfig
 from services.common import ServiceContext, _dispatch
 from services.foxglove_bridge import FoxgloveBridgeService, websocket_handshake
 from tests.conftest import HANG_DEADLINE_S, wait_for
-from tests.test_bag_export import GEOM, SCENE_ORIGIN, T0_NS, _map, approx_pose, as_tuple, episode, msg_pose, tf_pose, with_status
+from tests.test_bag_export import (
+    GEOM,
+    SCENE_ORIGIN,
+    T0_NS,
+    _map,
+    approx_pose,
+    as_tuple,
+    bag_frames,
+    episode,
+    msg_pose,
+    read_bag,
+    scans_fired_early,
+    tf_pose,
+    with_status,
+)
 
 
 def _bridge(params: dict, lidar_mount_x_m: float = 0.0) -> FoxgloveBridgeService:
@@ -627,3 +641,63 @@ def test_evals_dry_run_refuses_the_folders_the_run_would_refuse_though_root_pass
     assert mcap_path_problem(FoxgloveBridgeParams(mcap_path="/proc/new/f.mcap")) == "mcap_path /proc/new/f.mcap: cannot write in /proc"
     assert folder_problem(tmp_path) is None and folder_problem(tmp_path / "new" / "deeper") is None
     assert list(tmp_path.iterdir()) == []  # the probes are gone
+
+
+def test_the_bridges_scans_carry_the_scan_period_export_bag_gives_the_same_run(tmp_path):
+    """The live /scan said ``scan_time`` 0 where ``export-bag`` of the same run says the period between its scans: both
+    read it off the scans' stamps with one ``ScanPeriod`` (the bag its first scans before it writes, the bridge the
+    scans as they come), so the bridge says the bag's once it has seen as many scans (0 before two), whether a scan
+    fired early or one was lost; ``time_increment`` 0 in both."""
+    from cso_runtime.bag_export import export_bag
+    from cso_runtime.messages import ScanMsg
+    from cso_runtime.recording import write_recording
+
+    keys = RobotKeys("r0")
+    messages = scans_fired_early(episode(keys, 6, T0_NS, 2_000_000), keys, 0.1)
+    run = [m for m in messages if not (m.key == keys.scan and decode(m.payload, ScanMsg).step == 4)]  # a scan lost
+    write_recording(tmp_path / "run.mcap", "r0", run)
+    stats = export_bag(tmp_path / "run.mcap", tmp_path / "bag")
+    bagged = [m.scan_time for _, m in read_bag(tmp_path / "bag")["/scan"]]
+    bridge = _bridge({"port": 0, "mcap_path": str(tmp_path / "live.mcap")})
+    for m in run:
+        if m.key.rsplit("/", 1)[1] in bridge.inputs:
+            _dispatch(bridge, m.key, m.payload, 0.0)
+    bridge.shutdown()
+    live = [m for topic, _, m in _served(tmp_path / "live.mcap") if topic == "/scan"]
+    assert bagged == [0.25] * 5 and stats.scan_period_s == bridge.converter.scan_period_s == 0.25
+    assert [s.scan_time for s in live] == pytest.approx([0.0, 0.15, 0.2, 0.25, 0.25], rel=1e-6)  # float32 and all(s.time_increment == 0.0 for s in live)
+
+
+def test_the_bridge_names_its_frames_as_export_bag_does_and_checks_them_alike(tmp_path, monkeypatch):
+    """``export-bag --laser-frame laser_link`` (and the map, odom and base frames) matched the bag to a LIMO's TF tree,
+    but the live bridge said ``laser`` beside it. Its params ``map_frame``, ``odom_frame``, ``base_frame`` and
+    ``laser_frame`` (export-bag's defaults) name them in every header and transform; ``up --foxglove --set
+    services.foxglove_bridge.laser_frame=...`` passes them, and a name tf2 refuses or one frame named twice is refused
+    before anything starts, in export-bag's words (``BagFrames.check``)."""
+    import services.foxglove_bridge as bridge_module
+    from cso_runtime.run_profile import load_profile
+
+    mcap = tmp_path / "limo.mcap"
+    names = {"map_frame": "world", "odom_frame": "odom_wheel", "base_frame": "base_footprint", "laser_frame": "laser_link"}
+    bridge = _bridge({"port": 0, "mcap_path": str(mcap), "map_period_s": 0.0, **names})
+    _feed(bridge, 3)
+    bridge.shutdown()
+    served: dict[str, list[tuple[int, object]]] = {}
+    for topic, _, m in _served(mcap):
+        served.setdefault(topic, []).append((0, m))
+    assert bag_frames(served) == {
+        "/scan": {"laser_link"}, "/tf_static": {"world", "odom_wheel", "base_footprint", "laser_link"},
+        "/tf": {"odom_wheel", "base_footprint"}, "/odom": {"odom_wheel", "base_footprint"},
+        "/map": {"world"}, "/plan": {"world"}, "/goal_pose": {"world"}, "/explore/frontiers": {"world"}, "/cmd_vel": set(),
+    }  # fmt: skip
+
+    monkeypatch.setattr(bridge_module, "port_problem", lambda params: None)
+    prof, _ = load_profile("sim", {}, foxglove=True, settings={"services.foxglove_bridge.laser_frame": "laser_link"})
+    assert prof.services["foxglove_bridge"] == {"laser_frame": "laser_link"}
+    for bad, said in (({"laser_frame": "/laser"}, "the laser frame '/laser' is no tf2 frame id"),
+                      ({"base_frame": "base link"}, "the base frame 'base link' is no tf2 frame id"),
+                      ({"laser_frame": "base_link"}, "'base_link' twice")):  # fmt: skip
+        with pytest.raises(ConfigError, match=f"--foxglove: services.foxglove_bridge: .*{said}"):
+            load_profile("sim", {}, foxglove=True, settings={f"services.foxglove_bridge.{k}": v for k, v in bad.items()})
+        with pytest.raises(ConfigError, match=said):
+            _bridge({"port": 0, **bad})
