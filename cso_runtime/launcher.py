@@ -961,6 +961,8 @@ class Launcher:
         meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "software": self.software, "profile": self.data}
         meta["paused_s"] = self.pause_status()["total_s"]  # the robot held still (real time went on, and its steps)
         meta["config"] = to_dict(self.profile.exploration_config())  # every exploration parameter, as eval's summary
+        if self.ended_status is not None:  # whose results these are: a robot may go on in another episode after this end
+            meta["episode"] = self.ended_status.episode
         sim_settings = self.profile.simulator_settings()
         if sim_settings is not None:  # every parameter of the sim service's simulator, defaults too (as eval's)
             meta["sim_settings"] = sim_settings

@@ -535,12 +535,19 @@ def run_end_exit_code(run: dict[str, Any]) -> int:
     return code if isinstance(code, int) and not isinstance(code, bool) and code > 0 else 1
 
 
-def result_steps(run_dir: Path) -> int | None:
-    """The steps of the run's episode as its results say them (``summary.json``), None before they are written."""
+def result_steps(run_dir: Path, episode: Any = None) -> int | None:
+    """The steps of the run's episode as its results say them (``summary.json``), None before they are written, or
+    when they are of another episode than ``episode`` (their ``meta.episode``; None: any): a run writes its first
+    episode's results only, and a robot whose driver restarted after that end goes on in a new episode."""
     from cso_runtime.report import whole_count  # noqa: PLC0415
     from cso_runtime.runs import read_json_object  # noqa: PLC0415
 
-    methods = (read_json_object(run_dir / "summary.json") or {}).get("methods")
+    summary = read_json_object(run_dir / "summary.json") or {}
+    meta = summary.get("meta")
+    written = meta.get("episode") if isinstance(meta, dict) else None  # none in an older version's
+    if episode is not None and written is not None and written != episode:
+        return None
+    methods = summary.get("methods")
     if isinstance(methods, dict) and len(methods) == 1 and isinstance(row := next(iter(methods.values())), dict):
         steps = whole_count(row.get("steps"))
         if isinstance(steps, int) and not isinstance(steps, bool):
@@ -552,7 +559,7 @@ def episode_end_step(run_dir: Path, last: dict[str, Any]) -> Any:
     """The step the watched run's episode ended at: its result's (``summary.json``'s steps), else the last status's. On
     a real robot the two differ: the ROS 2 bridge's steps go on counting the robot's scans after the end (``status``
     shows them), while the result, the bridge's log and ``episodes.csv`` say the episode's own."""
-    steps = result_steps(run_dir)
+    steps = result_steps(run_dir, last.get("episode"))
     return last.get("step", 0) if steps is None else steps
 
 
@@ -689,7 +696,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}" + (f"; {why}" if why else ""), as_json)
             if status["state"] in EPISODE_OVER and of_a_real_robot(status) and (ended_in := watched_run_dir(status, runs_dir)) is not None:
                 # The bridge's steps go on with the robot's scans after the end: the step the episode ended at beside them.
-                status["ended_at_step"] = result_steps(ended_in)
+                status["ended_at_step"] = result_steps(ended_in, status.get("episode"))
             shown, last = status, status
             if watch:
                 if watched is None and (run_dir := watched_run_dir(status, runs_dir)) is not None:
