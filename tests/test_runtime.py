@@ -2486,6 +2486,47 @@ def test_up_shows_and_writes_the_simulators_real_time_factor_measured_on_the_epi
 
 
 @pytest.mark.parametrize("name", ["lockstep", "limo-ros2"])
+def test_the_live_views_last_table_says_the_step_a_real_robots_episode_ended_at(tmp_path, name):
+    """On a LIMO the bridge's steps go on counting the robot's scans after the episode's end, and ``up``'s live view,
+    whose last table stays on the terminal under the launcher's "episode no_frontier: in 188 steps; ... 0.1000 m2/step",
+    said "step 230" and 0.082 m2/step there: it says the step the episode ended at beside the scans, as ``status``
+    does, and its m2/step over the episode's steps. A sim's steps end with its episode: nothing is added."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile(name)), {}, connect=["tcp/127.0.0.1:7447"] if name == "limo-ros2" else None)
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+
+    def status(state: str, step: int, episode: int = 7) -> EpisodeStatusMsg:
+        msg = EpisodeStatusMsg(state=state, step=step, scene="s", method="greedy-dist", episode=episode, explored_area_m2=18.8)
+        launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda: encode(msg))))
+        return msg
+
+    def table() -> str:
+        console = Console(width=200, record=True)
+        console.print(LiveView(launcher).render())
+        return console.export_text()
+
+    launcher.ended_status = status("done", 188)  # as the run loop takes the end
+    launcher.write_outputs(_fake_result(steps=188))
+    status("done", 230 if name == "limo-ros2" else 188)  # the robot's scans go on (a sim's steps do not)
+    text = table()
+    if name == "limo-ros2":
+        assert re.search(r"│ step +│ 230 \(\d+ s since start\) \(scans; the episode ended at step 188\)", text), text
+        assert re.search(r"│ explored +│ 18\.80 m2, 0\.100 m2/step", text), text
+        status("done", 240, episode=9)  # another episode, after the robot's driver restarted: not the one that was written
+        assert re.search(r"│ step +│ 240 \(\d+ s since start\) +│", table())
+    else:
+        assert re.search(r"│ step +│ 188 \(47\.0 s robot time, \d+ s since start\) +│", text) and "m2, 0.100 m2/step" in text, text
+
+
+@pytest.mark.parametrize("name", ["lockstep", "limo-ros2"])
 def test_status_shows_the_simulators_real_time_factor_the_launcher_measures(tmp_path, monkeypatch, name):
     """``up``'s live view gave the sim's real-time factor and ``status`` did not: the launcher's status carries it
     (``real_time_factor``), ``status`` shows it on the step row in the live view's words and ``--json`` has it;
