@@ -951,6 +951,15 @@ class Launcher:
         stalled_s = now - self.step_changed_s
         return progress_line(self.status, self.sim_step_s, self.real_time_factor) + (f"; no new step for {stalled_s:.0f} s" if stalled_s >= STALLED_STEP_S else "")
 
+    def ended_at_step(self) -> int | None:
+        """On a real robot, the step its ended episode ended at (its written result's) while the status shown is of
+        that episode's end: the ROS 2 bridge's steps go on counting the robot's scans after it (``status``'s
+        ``ended_at_step``). None otherwise (a sim's steps end with its episode; another episode; no result written)."""
+        st, ended, result = self.status, self.ended_status, self.written_result
+        if self.simulated or st is None or ended is None or result is None or st.state not in EPISODE_OVER or st.episode != ended.episode:
+            return None
+        return result.steps
+
     @property
     def real_time_factor(self) -> float | None:
         """Simulated seconds per wall-clock second of the episode so far, start-up left out (``pace.StepPace``); None
@@ -961,6 +970,8 @@ class Launcher:
         meta: dict[str, Any] = {"command": "cso-runtime up", "version": __version__, "software": self.software, "profile": self.data}
         meta["paused_s"] = self.pause_status()["total_s"]  # the robot held still (real time went on, and its steps)
         meta["config"] = to_dict(self.profile.exploration_config())  # every exploration parameter, as eval's summary
+        if self.ended_status is not None:  # whose results these are: a robot may go on in another episode after this end
+            meta["episode"] = self.ended_status.episode
         sim_settings = self.profile.simulator_settings()
         if sim_settings is not None:  # every parameter of the sim service's simulator, defaults too (as eval's)
             meta["sim_settings"] = sim_settings

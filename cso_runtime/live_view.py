@@ -132,7 +132,7 @@ class LiveView:
         from rich.progress_bar import ProgressBar  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
-        from cso_runtime.status import COMMAND_NODE_NOTE, pose_words, presence_words, status_of, waiting_note  # noqa: PLC0415
+        from cso_runtime.status import COMMAND_NODE_NOTE, after_end_words, pose_words, presence_words, status_of, waiting_note  # noqa: PLC0415
 
         la = self.launcher
         st = la.status
@@ -158,7 +158,9 @@ class LiveView:
             t.add_row("scene", escape(st.scene))
             since = f"{time.monotonic() - la.started_s:.0f} s since start"
             when = ", ".join([*robot_time_words(st.step, la.sim_step_s), since])
-            t.add_row("step", f"{st.step} ({when}{pace_text(la.real_time_factor)})")
+            ended_at = la.ended_at_step()  # a real robot's scans go on after its episode's end: the step it ended at
+            steps = st.step if ended_at is None else ended_at
+            t.add_row("step", f"{st.step} ({when}{pace_text(la.real_time_factor)})" + after_end_words({"step": st.step, "ended_at_step": ended_at}))
             if la.sim_step_s is None:
                 t.add_row("coverage", NO_GROUND_TRUTH)
             else:
@@ -166,7 +168,7 @@ class LiveView:
                 coverage.add_row(ProgressBar(total=100.0, completed=min(st.coverage_pct, 100.0), width=self.BAR_CELLS), f"{st.coverage_pct:.1f} %")
                 t.add_row("coverage", coverage)
             for k, v in (
-                ("explored", f"{st.explored_area_m2:.2f} m2" + (f", {st.explored_area_m2 / st.step:.3f} m2/step" if st.step else "")),
+                ("explored", f"{st.explored_area_m2:.2f} m2" + (f", {st.explored_area_m2 / steps:.3f} m2/step" if steps else "")),
                 ("path length", f"{st.path_length_m:.2f} m"),
                 ("goal", ended_goal_words(st) or goal + ("" if la.path_ahead_m is None or st.goal_xy_m is None else f", {la.path_ahead_m:.2f} m ahead on the path")),
                 ("pose", pose_words(seen["pose"], seen["twist"])),  # in the map frame, as the goal and `status`

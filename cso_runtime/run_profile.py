@@ -385,7 +385,8 @@ PACKAGED_PROFILES = Path(__file__).resolve().parent / "profiles"
 
 
 def runs_a_real_robot(data: dict[str, Any]) -> bool:
-    """Whether a profile's data (a run's ``profile.yaml``) runs a real robot: a ``ros2_bridge`` and no ``sim``."""
+    """Whether a profile's data (a run's ``profile.yaml``) runs a real robot: a ``ros2_bridge`` and no ``sim``; also of
+    ``status``'s object, whose ``services`` are its run's."""
     services = data.get("services")
     return isinstance(services, dict) and "ros2_bridge" in services and "sim" not in services
 

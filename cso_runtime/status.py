@@ -410,12 +410,6 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopp
     return words
 
 
-def of_a_real_robot(status: dict[str, Any]) -> bool:
-    """Whether ``status`` is of a real robot's run: a ``ros2_bridge`` is its referee, no ``sim``."""
-    services = status.get("services") or {}
-    return "ros2_bridge" in services and "sim" not in services
-
-
 def after_end_words(status: dict[str, Any]) -> str:
     """What the step row adds on a real robot whose episode has ended (``ended_at_step``, from its results): the
     steps shown are the robot's scans since, not the episode's."""
@@ -431,6 +425,7 @@ def render_table(status: dict[str, Any]) -> Table:
     from rich.table import Table  # noqa: PLC0415
 
     from cso_runtime.live_view import NO_GROUND_TRUTH  # noqa: PLC0415 - rich's, as above
+    from cso_runtime.run_profile import runs_a_real_robot  # noqa: PLC0415 - a status has a profile's services
 
     # Every cell is text, not markup: a scene file or a service's reason may hold brackets.
     t = Table(title=escape(f"robot {status['robot']}  run {status['run_id'] or '-'}"))
@@ -446,7 +441,7 @@ def render_table(status: dict[str, Any]) -> Table:
         ("scene / method", f"{status['scene']} / {status['method']}"),
         ("step", f"{status['step']}{pace}" + after_end_words(status)),  # as up's live view says the sim's pace
         ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
-        ("coverage", NO_GROUND_TRUTH if of_a_real_robot(status) else f"{status['coverage_pct']:.2f} %"),
+        ("coverage", NO_GROUND_TRUTH if runs_a_real_robot(status) else f"{status['coverage_pct']:.2f} %"),
         ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / steps:.3f} m2/step" if steps else "")),
         ("path length", f"{status['path_length_m']:.2f} m"),
         ("goal", "-" if goal is None else f"({goal[0]:.2f}, {goal[1]:.2f}) m"),
@@ -535,12 +530,19 @@ def run_end_exit_code(run: dict[str, Any]) -> int:
     return code if isinstance(code, int) and not isinstance(code, bool) and code > 0 else 1
 
 
-def result_steps(run_dir: Path) -> int | None:
-    """The steps of the run's episode as its results say them (``summary.json``), None before they are written."""
+def result_steps(run_dir: Path, episode: Any = None) -> int | None:
+    """The steps of the run's episode as its results say them (``summary.json``), None before they are written, or
+    when they are of another episode than ``episode`` (their ``meta.episode``; None: any): a run writes its first
+    episode's results only, and a robot whose driver restarted after that end goes on in a new episode."""
     from cso_runtime.report import whole_count  # noqa: PLC0415
     from cso_runtime.runs import read_json_object  # noqa: PLC0415
 
-    methods = (read_json_object(run_dir / "summary.json") or {}).get("methods")
+    summary = read_json_object(run_dir / "summary.json") or {}
+    meta = summary.get("meta")
+    written = meta.get("episode") if isinstance(meta, dict) else None  # none in an older version's
+    if episode is not None and written is not None and written != episode:
+        return None
+    methods = summary.get("methods")
     if isinstance(methods, dict) and len(methods) == 1 and isinstance(row := next(iter(methods.values())), dict):
         steps = whole_count(row.get("steps"))
         if isinstance(steps, int) and not isinstance(steps, bool):
@@ -552,7 +554,7 @@ def episode_end_step(run_dir: Path, last: dict[str, Any]) -> Any:
     """The step the watched run's episode ended at: its result's (``summary.json``'s steps), else the last status's. On
     a real robot the two differ: the ROS 2 bridge's steps go on counting the robot's scans after the end (``status``
     shows them), while the result, the bridge's log and ``episodes.csv`` say the episode's own."""
-    steps = result_steps(run_dir)
+    steps = result_steps(run_dir, last.get("episode"))
     return last.get("step", 0) if steps is None else steps
 
 
@@ -662,6 +664,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     from rich.live import Live  # noqa: PLC0415
 
     from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+    from cso_runtime.run_profile import runs_a_real_robot  # noqa: PLC0415 - a status has a profile's services
 
     console = console if console is not None else console_that_survives_its_reader()  # `status --watch | head`: ends
     given_connect = bool(connect)
@@ -697,9 +700,9 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                 info = None if given_connect else read_current_run(runs_dir)
                 why = dead_launcher_of_run(info, runs_dir) or stopped_launcher_of_run(info, runs_dir) or lost_router_of_run(info)
                 return say_nothing_running(f"no answer for robot {robot} at {', '.join(connect)}" + (f"; {why}" if why else ""), as_json)
-            if status["state"] in EPISODE_OVER and of_a_real_robot(status) and (ended_in := watched_run_dir(status, runs_dir)) is not None:
+            if status["state"] in EPISODE_OVER and runs_a_real_robot(status) and (ended_in := watched_run_dir(status, runs_dir)) is not None:
                 # The bridge's steps go on with the robot's scans after the end: the step the episode ended at beside them.
-                status["ended_at_step"] = result_steps(ended_in)
+                status["ended_at_step"] = result_steps(ended_in, status.get("episode"))
             shown, last = status, status
             if watch:
                 if watched is None and (run_dir := watched_run_dir(status, runs_dir)) is not None:

@@ -2486,6 +2486,47 @@ def test_up_shows_and_writes_the_simulators_real_time_factor_measured_on_the_epi
 
 
 @pytest.mark.parametrize("name", ["lockstep", "limo-ros2"])
+def test_the_live_views_last_table_says_the_step_a_real_robots_episode_ended_at(tmp_path, name):
+    """On a LIMO the bridge's steps go on counting the robot's scans after the episode's end, and ``up``'s live view,
+    whose last table stays on the terminal under the launcher's "episode no_frontier: in 188 steps; ... 0.1000 m2/step",
+    said "step 230" and 0.082 m2/step there: it says the step the episode ended at beside the scans, as ``status``
+    does, and its m2/step over the episode's steps. A sim's steps end with its episode: nothing is added."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile(name)), {}, connect=["tcp/127.0.0.1:7447"] if name == "limo-ros2" else None)
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+
+    def status(state: str, step: int, episode: int = 7) -> EpisodeStatusMsg:
+        msg = EpisodeStatusMsg(state=state, step=step, scene="s", method="greedy-dist", episode=episode, explored_area_m2=18.8)
+        launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda: encode(msg))))
+        return msg
+
+    def table() -> str:
+        console = Console(width=200, record=True)
+        console.print(LiveView(launcher).render())
+        return console.export_text()
+
+    launcher.ended_status = status("done", 188)  # as the run loop takes the end
+    launcher.write_outputs(_fake_result(steps=188))
+    status("done", 230 if name == "limo-ros2" else 188)  # the robot's scans go on (a sim's steps do not)
+    text = table()
+    if name == "limo-ros2":
+        assert re.search(r"│ step +│ 230 \(\d+ s since start\) \(scans; the episode ended at step 188\)", text), text
+        assert re.search(r"│ explored +│ 18\.80 m2, 0\.100 m2/step", text), text
+        status("done", 240, episode=9)  # another episode, after the robot's driver restarted: not the one that was written
+        assert re.search(r"│ step +│ 240 \(\d+ s since start\) +│", table())
+    else:
+        assert re.search(r"│ step +│ 188 \(47\.0 s robot time, \d+ s since start\) +│", text) and "m2, 0.100 m2/step" in text, text
+
+
+@pytest.mark.parametrize("name", ["lockstep", "limo-ros2"])
 def test_status_shows_the_simulators_real_time_factor_the_launcher_measures(tmp_path, monkeypatch, name):
     """``up``'s live view gave the sim's real-time factor and ``status`` did not: the launcher's status carries it
     (``real_time_factor``), ``status`` shows it on the step row in the live view's words and ``--json`` has it;
@@ -3532,6 +3573,54 @@ def test_status_of_a_real_robots_ended_episode_says_the_step_it_ended_at(tmp_pat
     assert re.search(r"│ explored +│ 18\.80 m2, 0\.100 m2/step", out.getvalue()), out.getvalue()  # the episode's m2/step
     assert status.status_main([], None, as_json=True, watch=False, runs_dir=runs) == 0
     assert json.loads(capsys.readouterr().out)["ended_at_step"] == 188
+
+
+def test_status_of_a_real_robots_later_episode_does_not_take_the_first_ones_end_step(tmp_path, monkeypatch, capsys):
+    """A run writes the results of its first episode only; a LIMO whose driver restarted after that end starts another
+    episode, which may end too. ``status`` then said "the episode ended at step 188" (and m2/step over 188) of that
+    second episode, from the first one's summary.json, and ``status --watch`` ended with the same step: the results say
+    which episode they are of (``meta.episode``), and another episode's end is not read from them."""
+    from rich.console import Console
+
+    from cso_runtime import status
+    from cso_runtime.supervision import process_start_ticks
+
+    runs = tmp_path / "runs"
+    run_dir = runs / "20261207-103211-limo-ros2-r0"
+    run_dir.mkdir(parents=True)
+    ended = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(),
+             "launcher_start_ticks": process_start_ticks(os.getpid()), "state": "done", "detached": True, "episode_ended_at": 1.0}
+    for path in (run_dir / "run.json", runs / "current.json"):
+        path.write_text(json.dumps(ended))
+    (run_dir / "summary.json").write_text(json.dumps({"methods": {"cso": {"steps": 188.0}}, "meta": {"episode": 7}}))
+    launcher = {"run_id": "run1", "state": "running", "services": {"ros2_bridge": {"pid": 1, "restarts": 0}}}
+    for episode_id, said in ((7, 188), (9, None)):
+        episode = {"state": "done", "step": 816, "episode": episode_id, "scene": "ros2:limo1", "method": "cso", "terminated_by": "no_frontier", "explored_area_m2": 40.8}
+        answer = status.status_of("r0", episode, launcher, {}, {"ros2_bridge"})
+        monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None, answer=answer: answer)
+        assert status.status_main([], None, as_json=True, watch=False, runs_dir=runs) == 0
+        assert json.loads(capsys.readouterr().out)["ended_at_step"] == said, episode_id
+        out = io.StringIO()
+        assert status.status_main([], None, as_json=False, watch=False, runs_dir=runs, console=Console(file=out, force_terminal=False, width=120)) == 0
+        if said is None:
+            assert re.search(r"│ step +│ 816 +│", out.getvalue()) and "m2, 0.050 m2/step" in out.getvalue(), out.getvalue()
+        else:
+            assert "816 (scans; the episode ended at step 188)" in out.getvalue() and "m2, 0.217 m2/step" in out.getvalue(), out.getvalue()
+        assert status.episode_end_step(run_dir, answer) == (816 if said is None else 188)
+
+
+def test_ups_summary_says_which_episode_its_results_are_of(tmp_path):
+    """``meta.episode``: the id of the episode whose results the run folder holds (``status --json``'s ``episode``), so
+    that a later episode of the same run (a robot's driver restarted after the end) is not read as this one."""
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import EpisodeStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    launcher.ended_status = EpisodeStatusMsg(state="done", step=10, scene="s", method="greedy-dist", episode=0x2A2A2A2A2A2A)
+    launcher.write_outputs(_fake_result())
+    assert json.loads((tmp_path / "run" / "summary.json").read_text())["meta"]["episode"] == 0x2A2A2A2A2A2A
 
 
 def test_status_watch_ends_by_saying_that_the_watched_runs_launcher_was_killed(tmp_path, monkeypatch, capsys):
