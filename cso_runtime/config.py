@@ -619,12 +619,21 @@ def check_field_types(cls: type, data: dict[str, Any], where: str = "config") ->
     """ConfigError for a value of ``data`` that its field of dataclass ``cls`` does not take (``from_dict``'s conversion,
     in its words: ``m_per_px: expected a number, got [1]``), without building ``cls`` or checking the whole (its
     ``validate``) and leaving other keys alone: what a service started by hand checks of the profile's top level, which
-    it reads key by key (``up`` reads it whole with ``from_dict``)."""
+    it reads key by key (``up`` reads it whole with ``from_dict``). A section that is a dataclass (``router``) is checked
+    the same way, its types only: its ``validate`` may need what ``up``'s flags add (``router.embedded: false`` takes
+    ``up --connect``'s endpoint; a service started by hand has its own ``--connect``)."""
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     for key, value in data.items():
-        if key in names:
-            _convert(value, hints[key], _key_where(where, key))
+        if key not in names:
+            continue
+        annotation, key_where = hints[key], _key_where(where, key)
+        if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
+            if not isinstance(value, dict):
+                raise ConfigError(f"{key_where}: expected a mapping, got {type(value).__name__}")
+            check_field_types(annotation, value, key_where)
+        else:
+            _convert(value, annotation, key_where)
 
 
 def from_dict_with_hints(cls: type[T], data: dict[str, Any], where: str) -> T:

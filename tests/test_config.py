@@ -1135,3 +1135,25 @@ def test_a_length_longer_than_any_map_is_refused_naming_the_key_and_the_bound(ke
     with pytest.raises(ConfigError, match=rf"^exploration.{key} must be at most 5e\+09 m \(the longest side a map may have: messages.MAX_GRID_SIDE_M\), got 1e\+300$"):
         from_dict(ExplorationConfig, {section: {name: 1e300}}, where="exploration")
     from_dict(ExplorationConfig, {section: {name: MAX_GRID_SIDE_M}}, where="exploration")
+
+
+def test_a_service_started_by_hand_takes_a_profile_that_joins_the_router_given_on_its_command_line(tmp_path):
+    """``check_field_types`` built the profile's ``router`` and ``supervision`` sections with ``from_dict``, which runs
+    their ``validate``: a profile of ``router.embedded: false`` without ``router.connect`` (``up --connect ROBOT`` gives
+    the endpoint, as docs/hardware.md's ``--set router.embedded=false``) was refused by a service started by hand with
+    its own ``--connect`` (``router.embedded is false: give the router to join with --connect``), which it had run
+    before. The hand-started check is of the values' types, in the sections too; a wrong type there is still refused."""
+    import yaml
+
+    from services.common import load_profile_for_service
+
+    path = tmp_path / "profile.yaml"
+    path.write_text(yaml.safe_dump({"router": {"embedded": False}, "services": {"mapper": {}}}))
+    _, _, params = load_profile_for_service(path, "mapper")
+    assert params == {}
+    path.write_text(yaml.safe_dump({"router": {"embedded": False, "connect_timeout_s": [1]}, "services": {"mapper": {}}}))
+    with pytest.raises(ConfigError, match=r"router.connect_timeout_s: expected a number, got \[1\]"):
+        load_profile_for_service(path, "mapper")
+    path.write_text(yaml.safe_dump({"router": [1], "services": {"mapper": {}}}))
+    with pytest.raises(ConfigError, match=r"router: expected a mapping, got list"):
+        load_profile_for_service(path, "mapper")
