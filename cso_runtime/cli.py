@@ -1027,7 +1027,7 @@ def runs_command(
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         table.add_row(
             escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
-            NO_COVERAGE if r["real_robot"] else num(r["coverage_pct"], ".1f"), num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
+            num(r["coverage_pct"], ".1f") if r["coverage_measured"] else NO_COVERAGE, num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
     table_console().print(table)
 

@@ -84,7 +84,7 @@ from cso_runtime.plots import import_pyplot_in_background
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
 from cso_runtime.provenance import command_line, record_command_line, software_provenance
 from cso_runtime.run_folder import RunFolderWatch
-from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig
+from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig, measures_coverage
 from cso_runtime.runs import LOG_DIR
 from cso_runtime.supervision import (
     STACK_DUMP_WAIT_S,
@@ -379,6 +379,10 @@ class Launcher:
         """The period each command is assumed to last (``exploration.robot``); a simulated step lasts one."""
         self.simulated = profile.simulator() is not None
         """A sim service runs the robot: its steps are simulated time (on a real robot, none is)."""
+        self.coverage_measured = measures_coverage({"services": profile.services})
+        """The run has a ground truth (``run_profile.measures_coverage``: its sim's): else its coverage is no measure,
+        left out of its lines and live view, and summary.json's ``meta.coverage_measured`` says so to ``runs`` and
+        report.html."""
         self.sim_step_s = self.control_period_s if self.simulated else None
         """The simulated time of a step (one control period), None on a real robot, whose steps are its scans."""
         self.pace = StepPace(self.control_period_s)
@@ -620,7 +624,7 @@ class Launcher:
             last.update({key: body[key] for key in LAST_EPISODE_FIGURES})
         pace = None if self.real_time_factor is None else round(self.real_time_factor, 3)
         lost = self.joined_router() if self.router_lost_at is not None else None
-        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost, self.run_folder.losses, self.pause_status())
+        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost, self.run_folder.losses, self.pause_status(), self.coverage_measured)
 
     # --- supervision ------------------------------------------------------------------------------
     def stop_robot(self, c: Child, code: int | None) -> None:
@@ -949,7 +953,7 @@ class Launcher:
         ``STALLED_STEP_S`` or more (a stopped sim, a stalled lockstep pipeline): the figures alone read as all well."""
         assert self.status is not None
         stalled_s = now - self.step_changed_s
-        return progress_line(self.status, self.sim_step_s, self.real_time_factor) + (f"; no new step for {stalled_s:.0f} s" if stalled_s >= STALLED_STEP_S else "")
+        return progress_line(self.status, self.sim_step_s, self.real_time_factor, self.coverage_measured) + (f"; no new step for {stalled_s:.0f} s" if stalled_s >= STALLED_STEP_S else "")
 
     def ended_at_step(self) -> int | None:
         """On a real robot, the step its ended episode ended at (its written result's) while the status shown is of
@@ -972,6 +976,7 @@ class Launcher:
         meta["config"] = to_dict(self.profile.exploration_config())  # every exploration parameter, as eval's summary
         if self.ended_status is not None:  # whose results these are: a robot may go on in another episode after this end
             meta["episode"] = self.ended_status.episode
+        meta["coverage_measured"] = self.coverage_measured  # whether coverage_pct is a measure: `runs` and report.html read it
         sim_settings = self.profile.simulator_settings()
         if sim_settings is not None:  # every parameter of the sim service's simulator, defaults too (as eval's)
             meta["sim_settings"] = sim_settings
@@ -984,7 +989,7 @@ class Launcher:
             meta["weights"] = {result.method: weights_provenance(result.method, sensor)}  # what the policy service loaded
         row = write_episode_outputs(self.run_dir, result, self.wall_s(), meta, self.sim_time_s(result), self.real_time_factor)
         self.written_result = result
-        log.info("%s%s; results in %s", episode_figures(row, self.simulated), ended_why_said(result), self.run_dir)
+        log.info("%s%s; results in %s", episode_figures(row, self.coverage_measured), ended_why_said(result), self.run_dir)
         return self.run_dir
 
     def wall_s(self) -> float:
@@ -1007,7 +1012,7 @@ class Launcher:
                 exc.filename or self.run_dir, exc.strerror or exc, self.run_dir,
             )  # fmt: skip
             _, row = episode_record(result, self.wall_s(), self.sim_time_s(result), self.real_time_factor)
-            log.warning("%s%s; not written to %s", episode_figures(row, self.simulated), ended_why_said(result), self.run_dir)  # the terminal keeps them
+            log.warning("%s%s; not written to %s", episode_figures(row, self.coverage_measured), ended_why_said(result), self.run_dir)  # the terminal keeps them
             return False
         return True
 
@@ -1475,8 +1480,9 @@ def episode_record(result: EpisodeResultMsg, wall_s: float, sim_time_s: float | 
 
 def episode_figures(row: dict[str, Any], simulated: bool = True) -> str:
     """The episode's Table 1 figures in words, from its row: the launcher's line once its results are written (or not).
-    An episode of no step has no m2/step (episodes.csv's empty cell): the line says so rather than ``nan``. A real
-    robot's (not ``simulated``) has no coverage (its row's 0: no ground truth): the line leaves it out."""
+    An episode of no step has no m2/step (episodes.csv's empty cell): the line says so rather than ``nan``. A run with
+    no ground truth (``simulated`` False: not ``run_profile.measures_coverage``, a real robot's) has no coverage (its
+    row's 0): the line leaves it out."""
     from cso_runtime.evaluation import missing  # noqa: PLC0415
 
     efficiency = row["efficiency_m2_per_step"]

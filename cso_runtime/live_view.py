@@ -28,7 +28,8 @@ if TYPE_CHECKING:
 
 
 NO_GROUND_TRUTH = "n/a: a real robot (no ground truth)"
-"""What the tables say of coverage on a real robot, where ``coverage_pct`` is 0 (``status --json``, ``summary.json``,
+"""What the tables say of coverage on a run with no ground truth (not ``run_profile.measures_coverage``: a real robot's,
+or a referee's of one's own), where ``coverage_pct`` is 0 (``status --json``, ``summary.json``,
 ``episodes.csv``): a "0.00 %" beside a map being explored read as a failure."""
 NO_COVERAGE = "n/a"
 """``NO_GROUND_TRUTH`` in a table's coverage cell (``runs``' "cover %", report.html's and the console's Table 1 and
@@ -56,9 +57,12 @@ def ended_goal_words(status: EpisodeStatusMsg) -> str | None:
     return f"none: the episode {verb}" + (f" ({why})" if why else "")
 
 
-def progress_line(status: EpisodeStatusMsg, sim_step_s: float | None, real_time_factor: float | None = None) -> str:
+def progress_line(status: EpisodeStatusMsg, sim_step_s: float | None, real_time_factor: float | None = None, coverage_measured: bool | None = None) -> str:
     """The episode's progress in one log line (the live view's figures, for a log that is followed). ``sim_step_s``:
-    the simulated time of a step, None on a real robot."""
+    the simulated time of a step, None on a real robot. ``coverage_measured``: whether the run has a ground truth
+    (``run_profile.measures_coverage``; None: a simulated one's, ``sim_step_s`` given); its coverage is left out if not."""
+    if coverage_measured is None:
+        coverage_measured = sim_step_s is not None
     from cso_runtime.status import pose_words  # noqa: PLC0415 - as the view's render: status opens Zenoh sessions
 
     goal_m = status.goal_in_map_frame
@@ -69,7 +73,7 @@ def progress_line(status: EpisodeStatusMsg, sim_step_s: float | None, real_time_
     time_words = ", ".join(robot_time_words(status.step, sim_step_s))
     when = f" ({time_words}{pace_text(real_time_factor)})" if time_words else ""
     return (
-        f"step {status.step}{when}: " + (f"coverage {status.coverage_pct:.1f} %, " if sim_step_s is not None else "") +
+        f"step {status.step}{when}: " + (f"coverage {status.coverage_pct:.1f} %, " if coverage_measured else "") +
         f"{status.explored_area_m2:.2f} m2 explored{rate}, path {status.path_length_m:.2f} m, pose {pose}, {status.decisions} decisions, goal {goal}"
     )
 
@@ -161,7 +165,7 @@ class LiveView:
             ended_at = la.ended_at_step()  # a real robot's scans go on after its episode's end: the step it ended at
             steps = st.step if ended_at is None else ended_at
             t.add_row("step", f"{st.step} ({when}{pace_text(la.real_time_factor)})" + after_end_words({"step": st.step, "ended_at_step": ended_at}))
-            if la.sim_step_s is None:
+            if not la.coverage_measured:
                 t.add_row("coverage", NO_GROUND_TRUTH)
             else:
                 coverage = Table.grid(padding=(0, 1))

@@ -1632,9 +1632,16 @@ class LauncherStatusMsg(Message):
     """Whether exploration is paused (``explore/resume``): ``paused``, ``by``, ``reason``, ``for_s`` (this pause),
     ``total_s`` (every pause of the run) and ``refused`` (why this run cannot pause, a lockstep one; "" when it can)
     (``pause.PauseClock.status``). Optional on decoding (older launchers do not send it)."""
+    coverage_measured: bool | None = None
+    """Whether the run has a ground truth, its ``coverage_pct`` a measure (``run_profile.measures_coverage``: its sim's;
+    a real robot's or a referee's of one's own is not): the one answer ``status`` gives, as ``up``'s live view and
+    report.html. Optional on decoding (older launchers do not send it: ``status`` then judges by the services); None,
+    absent."""
 
     def body(self) -> dict[str, Any]:
         body: dict[str, Any] = {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected, "handler_errors": self.handler_errors}
+        if self.coverage_measured is not None:
+            body["coverage_measured"] = self.coverage_measured
         if self.pause is not None:
             body["pause"] = self.pause
         if self.run_dir_lost:
@@ -1685,9 +1692,10 @@ class LauncherStatusMsg(Message):
                 raise MessageError(f"{pw}: expected a mapping")
             pause = {"paused": _bool(heard, "paused", pw), "by": _str(heard, "by", pw, max_len=256), "reason": _str(heard, "reason", pw, max_len=1024)}
             pause.update(for_s=_num(heard, "for_s", pw, lo=0.0), total_s=_num(heard, "total_s", pw, lo=0.0), refused=_str(heard, "refused", pw, max_len=1024))
+        measured = None if b.get("coverage_measured") is None else _bool(b, "coverage_measured", w)
         return cls(
             _str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace, lost, run_dir_lost,
-            pause,
+            pause, measured,
         )
 
     def to_dict(self) -> dict[str, Any]:

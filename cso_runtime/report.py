@@ -48,16 +48,30 @@ The steps' period is the run's own: ``table1_definitions``."""
 
 def of_a_real_robot(summary: dict[str, Any]) -> bool:
     """Whether ``summary`` is of a run of ``up`` on a real robot: a profile, no simulator (no ``sim_settings`` and no
-    simulated time)."""
+    simulated time), so its steps are no control periods. Whether its coverage was measured is ``coverage_measured``'s."""
     meta = summary.get("meta") or {}
     no_sim_time = all(isinstance(e, dict) and e.get("sim_time_s") is None for e in summary["methods"].values())
     return isinstance(meta.get("profile"), dict) and "sim_settings" not in meta and no_sim_time
 
 
+def coverage_measured(summary: dict[str, Any]) -> bool:
+    """Whether ``summary``'s run had a ground truth, its coverage measured (``run_profile.measures_coverage``, the one
+    answer ``status``, ``runs`` and the live view give): what ``up`` wrote (``meta.coverage_measured``), else, of an
+    older version's summary, its profile's services (``meta.profile``: the sim's), and of a profile with none, the
+    simulator's traces (``of_a_real_robot``); an eval summary (no profile) ran the simulator."""
+    from cso_runtime.run_profile import measures_coverage  # noqa: PLC0415 - loads the scenes' code: only where reports are made
+
+    meta = summary.get("meta") or {}
+    profile = meta.get("profile")
+    if isinstance(meta.get("coverage_measured"), bool) or (isinstance(profile, dict) and isinstance(profile.get("services"), dict)):
+        return measures_coverage(profile if isinstance(profile, dict) else {}, meta.get("coverage_measured"))
+    return not of_a_real_robot(summary)
+
+
 def table1_definitions(summary: dict[str, Any]) -> list[tuple[str, str]]:
     """``TABLE1_DEFINITIONS`` with the steps said as the run counted them: its control period (``meta.config``'s
     ``robot.control_period_s``, which ``--set`` changes), or, for a run of ``up`` on a real robot
-    (``of_a_real_robot``), its scans; there, coverage is ``NO_GROUND_TRUTH``."""
+    (``of_a_real_robot``), its scans; coverage is ``NO_GROUND_TRUTH`` where not ``coverage_measured``."""
     meta = summary.get("meta") or {}
     robot = (meta.get("config") or {}).get("robot") or {}
     period_s = robot.get("control_period_s", 0.25)
@@ -66,7 +80,7 @@ def table1_definitions(summary: dict[str, Any]) -> list[tuple[str, str]]:
         steps = "scans of the real robot (about 10 Hz on the LIMO) until the episode ended: by coverage, no reachable frontier or the step limit"
     else:
         steps = f"control periods (robot.control_period_s, {period_s:g} s) until the episode ended: by coverage, no reachable frontier or the step limit"
-    said = {"steps": steps, **({"coverage %": f"{NO_GROUND_TRUTH}; summary.json and episodes.csv hold 0"} if real_robot else {})}
+    said = {"steps": steps, **({} if coverage_measured(summary) else {"coverage %": f"{NO_GROUND_TRUTH}; summary.json and episodes.csv hold 0"})}
     return [(column, said.get(column, words)) for column, words in TABLE1_DEFINITIONS]
 STD_SUFFIX = "_std"
 """``summary.json``'s key of a metric's sample standard deviation (ddof=1) over the episodes, beside its mean:
@@ -123,17 +137,17 @@ TABLE1_METRICS = (
 with (the cells, their spread and their intervals); the two decision times share one column."""
 
 
-# NO_COVERAGE (live_view's, as ``runs`` says it): a coverage cell of a real robot's run (``of_a_real_robot``), whose 0
-# is no measure (no ground truth, ``NO_GROUND_TRUTH``); summary.json and episodes.csv keep the 0.
+# NO_COVERAGE (live_view's, as ``runs`` says it): a coverage cell of a run with no ground truth (not
+# ``coverage_measured``: a real robot's, a referee of one's own), whose 0 is no measure (no ground truth, ``NO_GROUND_TRUTH``); summary.json and episodes.csv keep the 0.
 
 
-def table1_cells(e: dict[str, Any], spread: bool = True, real_robot: bool = False) -> list[str]:
+def table1_cells(e: dict[str, Any], spread: bool = True, no_coverage: bool = False) -> list[str]:
     """One Table 1 row's values after its method and scale, as the console and the report print them: each mean
-    ± its sample standard deviation (``SPREAD_NOTE``), or the means alone without ``spread``; a ``real_robot``'s
-    coverage ``NO_COVERAGE``."""
+    ± its sample standard deviation (``SPREAD_NOTE``), or the means alone without ``spread``; coverage
+    ``NO_COVERAGE`` with ``no_coverage`` (a run with no ground truth: not ``coverage_measured``)."""
 
     def cell(metric: str, nd: int) -> str:
-        if real_robot and metric == "coverage_pct":
+        if no_coverage and metric == "coverage_pct":
             return NO_COVERAGE
         return _fmt_spread(e, metric, nd) if spread else _fmt(e[metric], nd)
 
@@ -195,7 +209,7 @@ SCENE_COLUMNS = ("plan", "method", "scale", "seed", "coverage %", "steps", "m2/s
 def scene_rows(out_dir: Path, summary: dict[str, Any]) -> list[list[str]]:
     """Each episode of ``out_dir/episodes.csv`` as a ``SCENE_COLUMNS`` row, by scale, plan, then method as in Table 1,
     so the methods on one plan stand together; only ``summary``'s methods and plans (its ``maps``, where written);
-    a real robot's coverage ``NO_COVERAGE``. [] without the file (a folder of an older version, or one that lost it)."""
+    coverage ``NO_COVERAGE`` where it was not measured (``coverage_measured``). [] without the file (a folder of an older version, or one that lost it)."""
     try:
         with (out_dir / "episodes.csv").open(newline="", encoding="utf-8") as fh:
             episodes = list(csv.DictReader(fh))
@@ -203,7 +217,7 @@ def scene_rows(out_dir: Path, summary: dict[str, Any]) -> list[list[str]]:
         return []
     methods = summary["methods"]
     order = list(methods)
-    real_robot = of_a_real_robot(summary)
+    measured = coverage_measured(summary)
 
     def shown(r: dict[str, str]) -> bool:
         e = methods.get(r.get("method"))
@@ -221,7 +235,7 @@ def scene_rows(out_dir: Path, summary: dict[str, Any]) -> list[list[str]]:
 
     kept = sorted(filter(shown, episodes), key=lambda r: (scale_rank(r.get("scale") or ""), r.get("scale") or "", r.get("map") or "", order.index(r["method"]), seed(r)))
     return [
-        [r.get("map") or "", r["method"], r.get("scale") or "", r.get("seed") or "", NO_COVERAGE if real_robot else number(r, "coverage_pct", 2),
+        [r.get("map") or "", r["method"], r.get("scale") or "", r.get("seed") or "", number(r, "coverage_pct", 2) if measured else NO_COVERAGE,
          r.get("steps") or "-", number(r, "efficiency_m2_per_step", 4), r.get("terminated_by") or ""]
         for r in kept
     ]
@@ -324,10 +338,10 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
             f"<p style='color:#b00'><b>Interrupted: {stopped.get('episodes_finished')} of {stopped.get('episodes_planned')} episodes finished</b>; "
             "the tables and figures cover those only. The same command with --resume runs the rest.</p>"
         )
-    real_robot = of_a_real_robot(summary)
+    no_coverage = not coverage_measured(summary)
     parts += [
         "<h2>Table 1</h2>",
-        _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e, real_robot=real_robot)] for m, s, e in table1_rows(summary)], [ci95_text(e) for _, _, e in table1_rows(summary)]),
+        _table(TABLE1_COLUMNS, [[m, s, *table1_cells(e, no_coverage=no_coverage)] for m, s, e in table1_rows(summary)], [ci95_text(e) for _, _, e in table1_rows(summary)]),
         f"<p>Each cell: {html.escape(SPREAD_NOTE)}.</p>",
         f"<p>{html.escape(CI95_NOTE)}</p>",
         "<dl>" + "".join(f"<dt>{html.escape(c)}</dt><dd>{html.escape(d)}</dd>" for c, d in table1_definitions(summary)) + "</dl>",
@@ -350,9 +364,10 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     figures = [(out_dir / name, title) for name, title in FIGURES if (out_dir / name).is_file()]
     if figures:
         parts.append("<h2>Figures</h2>")
-        # A real robot's coverage curve is its row's 0 at every step: said n/a, as its cells (the file stays written).
+        # A run with no ground truth (a real robot's) has a coverage curve of its row's 0 at every step: said n/a, as
+        # its cells (the file stays written).
         parts += [
-            f"<p>{html.escape(t)}: {html.escape(NO_GROUND_TRUTH)}</p>" if real_robot and p.name == COVERAGE_FIGURE
+            f"<p>{html.escape(t)}: {html.escape(NO_GROUND_TRUTH)}</p>" if no_coverage and p.name == COVERAGE_FIGURE
             else f"<figure>{_img(out_dir, p, t)}<figcaption>{html.escape(t)}</figcaption></figure>"
             for p, t in figures
         ]  # fmt: skip

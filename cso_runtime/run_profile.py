@@ -391,6 +391,20 @@ def runs_a_real_robot(data: dict[str, Any]) -> bool:
     return isinstance(services, dict) and "ros2_bridge" in services and "sim" not in services
 
 
+def measures_coverage(data: dict[str, Any], said: Any = None) -> bool:
+    """Whether a run has a ground truth, its coverage measured: the one answer that ``status``, ``runs``, ``up``'s live
+    view and lines, and report.html give (``coverage_pct`` is 0 where it has none: no measure, ``NO_GROUND_TRUTH``).
+    What the run itself said (``said``: summary.json's ``meta.coverage_measured``, which ``up`` writes) when it is a
+    bool; else whether its profile's data (a run's ``profile.yaml``, a summary's ``meta.profile``, ``status``'s object,
+    whose ``services`` are its run's) runs the ``sim``, the one referee that knows the scene: a real robot
+    (``ros2_bridge``) and a referee of one's own (a command node) have none. Data with no services (an eval summary,
+    a status with no run) says nothing of a referee: its figures stand."""
+    if isinstance(said, bool):
+        return said
+    services = data.get("services")
+    return not isinstance(services, dict) or "sim" in services
+
+
 def profile_scene(data: dict[str, Any]) -> str:
     """The scene a profile's data explores: its ``scene``, else the default one; for a real robot's,
     ``REAL_ROBOT_SCENE``."""

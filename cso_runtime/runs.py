@@ -51,6 +51,9 @@ class RunSummary:
     """The scene spec it explored (the profile's, else the default); empty for a real robot's run."""
     real_robot: bool = False
     """A real robot's run (``ros2_bridge``, no simulator): no scene."""
+    coverage_measured: bool = True
+    """The run had a ground truth (``run_profile.measures_coverage``: summary.json's ``meta.coverage_measured``, else
+    its profile's sim): else its ``coverage_pct`` 0 is no measure, ``runs`` says ``NO_COVERAGE``."""
     method: str = ""
     metrics: dict[str, Any] = field(default_factory=dict)
     """The method's Table 1 row from ``summary.json`` (empty until the episode ended)."""
@@ -71,6 +74,7 @@ class RunSummary:
             "robot": self.robot,
             "scene": self.scene,
             "real_robot": self.real_robot,
+            "coverage_measured": self.coverage_measured,
             "method": self.method,
             **{k: self.metrics.get(k) for k in keys},
             "steps": whole_count(self.metrics.get("steps")),  # a run is one episode: summary.json's mean over its one episode
@@ -106,12 +110,13 @@ def summarize_run(run_dir: Path) -> RunSummary:
     except (OSError, yaml.YAMLError):
         profile = {}
     profile = profile if isinstance(profile, dict) else {}
-    from cso_runtime.run_profile import profile_scene, runs_a_real_robot  # noqa: PLC0415 - loads the scenes' code: only where runs are read
+    from cso_runtime.run_profile import measures_coverage, profile_scene, runs_a_real_robot  # noqa: PLC0415 - loads the scenes' code: only where runs are read
 
     real_robot = runs_a_real_robot(profile)
 
     summary = read_json_object(run_dir / "summary.json") or {}
     methods = m if isinstance(m := summary.get("methods"), dict) else {}
+    meta = m if isinstance(m := summary.get("meta"), dict) else {}
     method = str(profile.get("method", "")) or next(iter(methods), "")
     if info and current_launcher_alive(info):
         state = str(info.get("state", "running"))
@@ -140,6 +145,7 @@ def summarize_run(run_dir: Path) -> RunSummary:
         robot=str(info.get("robot") or profile.get("robot", "")),
         scene="" if real_robot or not profile else profile_scene(profile),
         real_robot=real_robot,
+        coverage_measured=measures_coverage(profile, meta.get("coverage_measured")),
         method=method,
         metrics=dict(methods.get(method) or {}),
         restarts=sum(int(s.get("restarts") or 0) for s in services.values() if isinstance(s, dict)),

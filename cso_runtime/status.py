@@ -142,6 +142,8 @@ def status_of(
     goal = ep.get("goal_xy_m")  # none in the launcher's last-heard status
     pose = ep.get("pose")  # the robot's odometry pose in the scene's frame; none before the first odometry (last-heard: where it ended)
     pose_in_map = map_frame_pose(Pose2D(*map_origin), None if pose is None else Pose2D(*pose))  # as EpisodeStatusMsg.pose_in_map_frame
+    from cso_runtime.run_profile import measures_coverage  # noqa: PLC0415 - the run's services tell whether it has a ground truth
+
     return {
         "robot": robot,
         "run_id": (launcher or {}).get("run_id", ""),
@@ -163,6 +165,9 @@ def status_of(
         "method": ep.get("method", ""),
         "lockstep_timeouts": ep.get("lockstep_timeouts", 0),
         "services": table,
+        # False: coverage_pct's 0 is no measure (no ground truth): as the launcher said, else (an older one's, or none
+        # answered) as the run's services say
+        "coverage_measured": measures_coverage({"services": table}, (launcher or {}).get("coverage_measured")),
         "waiting_for": [] if over else [name for name, e in table.items() if e.get("awaited") and not e["alive"]],
         "launcher_rejected": (launcher or {}).get("rejected", {}),
         "launcher_handler_errors": (launcher or {}).get("handler_errors", {}),
@@ -425,7 +430,7 @@ def render_table(status: dict[str, Any]) -> Table:
     from rich.table import Table  # noqa: PLC0415
 
     from cso_runtime.live_view import NO_GROUND_TRUTH  # noqa: PLC0415 - rich's, as above
-    from cso_runtime.run_profile import runs_a_real_robot  # noqa: PLC0415 - a status has a profile's services
+    from cso_runtime.run_profile import measures_coverage  # noqa: PLC0415 - a status has a profile's services
 
     # Every cell is text, not markup: a scene file or a service's reason may hold brackets.
     t = Table(title=escape(f"robot {status['robot']}  run {status['run_id'] or '-'}"))
@@ -441,7 +446,7 @@ def render_table(status: dict[str, Any]) -> Table:
         ("scene / method", f"{status['scene']} / {status['method']}"),
         ("step", f"{status['step']}{pace}" + after_end_words(status)),  # as up's live view says the sim's pace
         ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
-        ("coverage", NO_GROUND_TRUTH if runs_a_real_robot(status) else f"{status['coverage_pct']:.2f} %"),
+        ("coverage", f"{status['coverage_pct']:.2f} %" if measures_coverage(status, status.get("coverage_measured")) else NO_GROUND_TRUTH),
         ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / steps:.3f} m2/step" if steps else "")),
         ("path length", f"{status['path_length_m']:.2f} m"),
         ("goal", "-" if goal is None else f"({goal[0]:.2f}, {goal[1]:.2f}) m"),

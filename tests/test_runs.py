@@ -79,7 +79,7 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     for name, text in (("run.json", "{not json"), ("profile.yaml", "[: bad"), ("summary.json", '{"methods": 3}')):
         (broken / name).write_text(text)
     assert list_runs(runs)[-1].as_dict() | {"run_dir": ""} == {
-        "run_id": broken.name, "run_dir": "", "state": "stopped", "profile": "", "robot": "", "scene": "", "real_robot": False, "method": "",
+        "run_id": broken.name, "run_dir": "", "state": "stopped", "profile": "", "robot": "", "scene": "", "real_robot": False, "coverage_measured": True, "method": "",
         "explored_area_m2": None, "coverage_pct": None, "steps": None, "efficiency_m2_per_step": None, "path_length_m": None,
         "terminated_by": None, "restarts": 0, "duration_s": None,
     }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback)
