@@ -558,6 +558,16 @@ def with_nearest(key: str, known: typing.Iterable[str], shown: str | None = None
     return f"{shown} (did you mean {max(scored)[1]}?)" if scored else shown
 
 
+def unknown_keys_said(keys: typing.Iterable[str], known: typing.Iterable[str], named: bool = False) -> str:
+    """The one wording of keys a section does not take: ``unknown key(s) mehtod (did you mean method?), x; known: a, b``
+    (``keys`` in the order given, each with ``with_nearest``'s suggestion; ``named``: each already said as the message
+    names it, a misplaced key's home by ``wrong_section``), the section's ``known`` keys sorted. ``from_dict``,
+    ``wrong_section`` and ``run_profile.unknown_top_level_keys`` say it."""
+    known = sorted(known)
+    said = ", ".join(key if named else with_nearest(key, known) for key in keys)
+    return f"unknown key(s) {said}; known: {', '.join(known)}"
+
+
 def key_sections(cls: type, path: str = "") -> dict[str, set[str]]:
     """Each mapping config dataclass ``cls`` reads, by dotted path (``path``: its own, ``""`` at the top) -> the keys it
     takes: ``cls``'s fields and, for each field that is a dataclass, that one's, and so on down (``planner``...)."""
@@ -611,8 +621,7 @@ def wrong_section(unknown: list[tuple[str, str]], sections: dict[str, set[str]],
         named.setdefault(path, []).append(f"{key} (did you mean {' or '.join(elsewhere)}?)" if elsewhere else with_nearest(key, sections[path]))
     if not any_misplaced:
         return None
-    said = [f"{path + ': ' if path else ''}unknown key(s) {', '.join(keys)}; known: {', '.join(sorted(sections[path]))}" for path, keys in named.items()]
-    return "; ".join(said)
+    return "; ".join(f"{path + ': ' if path else ''}{unknown_keys_said(keys, sections[path], named=True)}" for path, keys in named.items())
 
 
 def check_field_types(cls: type, data: dict[str, Any], where: str = "config") -> None:
@@ -651,8 +660,7 @@ def from_dict(cls: type[T], data: dict[str, Any] | None, where: str = "config") 
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - names)
     if unknown:
-        said = ", ".join(with_nearest(key, names) for key in unknown)
-        raise ConfigError(f"{where}: unknown key(s) {said}; known: {', '.join(sorted(names))}")
+        raise ConfigError(f"{where}: {unknown_keys_said(unknown, names)}")
     kwargs = {k: _convert(v, hints[k], _key_where(where, k)) for k, v in data.items()}
     obj = cls(**kwargs)
     validate = getattr(obj, "validate", None)

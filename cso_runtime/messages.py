@@ -398,6 +398,12 @@ class Message:
         raise NotImplementedError
 
 
+def scan_episode_and_stamp(b: dict[str, Any]) -> tuple[int, float]:
+    """A ``scan`` body's episode id and stamp (seconds), checked as ``ScanMsg.from_body`` checks them (MessageError):
+    what the Foxglove bridge reads of each scan for its period without decoding the whole scan (its ranges)."""
+    return _int(b, "episode", "scan"), _num(b, "stamp_s", "scan", 0.0)
+
+
 @dataclass
 class ScanMsg(Message):
     """A range scan at one simulation step, with the odometry pose of the sensor when it was taken."""
@@ -433,19 +439,20 @@ class ScanMsg(Message):
             raise MessageError("scan.ranges_m: expected 1 to 100000 float ranges")
         if (ranges < 0).any():
             raise MessageError("scan.ranges_m: negative ranges")
+        episode, stamp_s = scan_episode_and_stamp(b)
         scan = LaserScan(
             _num(b, "angle_min_rad", w, -2 * math.pi, 2 * math.pi),
             _num(b, "angle_increment_rad", w, 1e-6, 2 * math.pi),
             _num(b, "range_min_m", w, 0.0, MAX_RANGE_M),
             _num(b, "range_max_m", w, 0.0, MAX_RANGE_M),
             ranges,
-            _num(b, "stamp_s", w, 0.0),
+            stamp_s,
         )
         try:
             scan.validate()
         except ValueError as exc:
             raise MessageError(f"scan: {exc}") from None
-        return cls(_int(b, "step", w), scan, _pose_in(b, "sensor_pose", w), _int(b, "episode", w))
+        return cls(_int(b, "step", w), scan, _pose_in(b, "sensor_pose", w), episode)
 
 
 @dataclass

@@ -27,6 +27,7 @@ from cso_runtime.config import (
     set_flag_text,
     to_dict,
     unknown_keys,
+    unknown_keys_said,
     with_mujoco_limo_defaults,
     with_nearest,
     wrong_section,
@@ -472,7 +473,7 @@ def unknown_top_level_keys(data: dict[str, Any]) -> str | None:
     if not unknown:
         return None
     misplaced = wrong_section(unknown, profile_key_sections(mujoco=False), data)
-    return misplaced or f"unknown key(s) {', '.join(with_nearest(key, names) for _, key in unknown)}; known: {', '.join(sorted(names))}"
+    return misplaced or unknown_keys_said([key for _, key in unknown], names)
 
 
 def profile_search_path() -> list[Path]:

@@ -716,13 +716,15 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                     watched = (watched[0], status)
                 elif watched is not None and watched[1].get("episode") == status.get("episode"):
                     # The sim has stopped (the run stopping): the goal and the last decision's time as last answered, and
-                    # the pose too unless the launcher's last-heard status has it (newer: of the episode's last step).
+                    # the pose too unless the launcher's last-heard status has it (newer: of the episode's last step),
+                    # with the map origin it was placed by (an older launcher's last-heard status has neither). Each
+                    # pose is status_of's, in the map frame, as the goal.
                     last_answer = watched[1]
-                    kept = ("goal",) if status.get("pose") is not None else ("goal", "pose", "twist")
+                    kept = ("goal",) if status.get("pose") is not None else ("goal", "pose", "twist", "map_origin")
                     shown = {**status, **{k: last_answer.get(k) for k in kept}, "last_decision_ms": last_answer.get("last_decision_ms", 0.0)}
                     last = shown  # the end line says where the robot ended as the last table shows it
             if as_json:
-                print(json.dumps(status), flush=True)
+                print(json.dumps(shown), flush=True)  # --watch: what the table shows, and the end line's pose after it
             elif in_place and live is None:
                 live = Live(render_table(shown), console=console, auto_refresh=False)
                 live.start(refresh=True)

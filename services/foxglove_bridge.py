@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import base64
 import logging
-import math
 import os
 import socket
 import threading
@@ -65,7 +64,7 @@ from cso_runtime.bag_export import (
 )
 from cso_runtime.config import ConfigError, folder_problem, from_dict
 from cso_runtime.geometry import Pose2D
-from cso_runtime.messages import DeferredMsg, EpisodeStatusMsg, Message, MessageError, deferred
+from cso_runtime.messages import DeferredMsg, EpisodeStatusMsg, Message, MessageError, deferred, scan_episode_and_stamp
 from cso_runtime.recording import unused_path
 from services.common import Service, ServiceContext, service_main
 
@@ -295,7 +294,7 @@ class FoxgloveBridgeService(Service):
         self.last_step = msg.step
         episode = msg.kept_body.get("episode")
         if topic == "scan":
-            self.learn_scan_period(episode, msg.kept_body.get("stamp_s"))
+            self.learn_scan_period(msg.kept_body)
         if isinstance(episode, int) and not isinstance(episode, bool):  # read before decoding: a bad one fails it later
             self.serve(self.converter.observe_episode(episode, time.time_ns(), self.watched))
         if shows_something(msg):
@@ -308,16 +307,17 @@ class FoxgloveBridgeService(Service):
         if self.converter.converts(topic, self.watched) and (decoded := self.decoded(topic, msg)) is not None:
             self.serve(self.converter.convert(decoded, time.time_ns(), wanted=self.watched))
 
-    def learn_scan_period(self, episode: object, stamp_s: object) -> None:
-        """One more scan's stamp for ``scan_period`` (read before decoding: a scan whose episode or stamp is no number
-        counts not, and is rejected if it is ever decoded), and the converter's ``scan_time`` from it."""
+    def learn_scan_period(self, body: dict[str, Any]) -> None:
+        """One more scan's stamp for ``scan_period`` (read before decoding the scan, by ``ScanMsg``'s own check of its
+        episode and stamp, ``scan_episode_and_stamp``: a scan that fails it counts not, and is rejected if it is ever
+        decoded), and the converter's ``scan_time`` from it."""
         if self.scan_period.complete:
             return
-        if episode is None:
-            episode = 0  # a publisher without episode ids: 0, as ScanMsg decodes it
-        if not isinstance(episode, int) or isinstance(episode, bool) or not isinstance(stamp_s, (int, float)) or isinstance(stamp_s, bool) or not math.isfinite(stamp_s):
+        try:
+            episode, stamp_s = scan_episode_and_stamp(body)
+        except MessageError:
             return
-        self.scan_period.add(episode, float(stamp_s))
+        self.scan_period.add(episode, stamp_s)
         self.converter.scan_period_s = self.scan_period.period_s
 
     def send_awaiting(self) -> None:

@@ -1122,6 +1122,20 @@ def test_a_service_started_by_hand_warns_once_of_each_unknown_top_level_key_and_
     assert not [r for r in caplog.records if r.levelname == "WARNING"]
 
 
+def test_a_hand_started_service_and_from_dict_say_unknown_profile_keys_in_one_wording():
+    """``run_profile.unknown_top_level_keys`` (a service started by hand) wrote its own copy of ``from_dict``'s "unknown
+    key(s) ...; known: ..." (``up``'s words): both are ``config.unknown_keys_said``'s, the same text for a typo."""
+    from cso_runtime.config import unknown_keys_said
+    from cso_runtime.run_profile import Profile, unknown_top_level_keys
+
+    data = {"mehtod": "cso", "zzz": 1}
+    with pytest.raises(ConfigError) as refused:
+        from_dict(Profile, data, where="profile")
+    said = unknown_top_level_keys(data)
+    assert said is not None and str(refused.value) == f"profile: {said}"
+    assert said.startswith("unknown key(s) mehtod (did you mean method?), zzz; known: ") and said == unknown_keys_said(["mehtod", "zzz"], Profile.__dataclass_fields__)
+
+
 @pytest.mark.parametrize("key", ["frontier.entropy_window_m", "frontier.min_cluster_size_m", "episode.goal_tolerance_m"])
 def test_a_length_longer_than_any_map_is_refused_naming_the_key_and_the_bound(key):
     """``frontier.entropy_window_m`` or ``episode.goal_tolerance_m`` of 1e300 m were taken by ``up`` and ``eval`` (the

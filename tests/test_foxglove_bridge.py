@@ -23,7 +23,7 @@ from cso_runtime.bag_export import EXPORTED, ROS_TOPICS, ROS_TYPES, BagConverter
 from cso_runtime.config import ConfigError, ExplorationConfig
 from cso_runtime.geometry import Pose2D, compose_pose
 from cso_runtime.keys import RobotKeys
-from cso_runtime.messages import GoalMsg, Message, decode, deferred, encode
+from cso_runtime.messages import GoalMsg, Message, MessageError, decode, deferred, encode
 from cso_runtime.transport import TransportConfig
 from services.common import ServiceContext, _dispatch
 from services.foxglove_bridge import FoxgloveBridgeService, websocket_handshake
@@ -701,3 +701,38 @@ def test_the_bridge_names_its_frames_as_export_bag_does_and_checks_them_alike(tm
             load_profile("sim", {}, foxglove=True, settings={f"services.foxglove_bridge.{k}": v for k, v in bad.items()})
         with pytest.raises(ConfigError, match=said):
             _bridge({"port": 0, **bad})
+
+
+def test_the_bridge_counts_for_its_scan_period_only_the_scans_that_decode_would_take():
+    """The bridge reads each scan's episode and stamp for its period before decoding it (its ranges: it converts only
+    what a viewer watches), with its own copy of ``ScanMsg``'s checks: a scan without an episode id counted as episode
+    0, one of a negative stamp or episode counted, all of which decoding rejects. Both now check them with
+    ``messages.scan_episode_and_stamp``: a scan counts exactly when its episode and stamp decode."""
+    from cso_runtime.bag_export import ScanPeriod
+    from cso_runtime.messages import ScanMsg
+
+    keys = RobotKeys("r0")
+    good = next(decode(m.payload, ScanMsg) for m in episode(keys, 2, T0_NS, 1_000_000) if m.key == keys.scan).body()
+    bodies = {
+        "good": good,
+        "no episode": {k: v for k, v in good.items() if k != "episode"},
+        "episode null": {**good, "episode": None},
+        "negative episode": {**good, "episode": -1},
+        "episode true": {**good, "episode": True},
+        "negative stamp": {**good, "stamp_s": -0.5},
+        "stamp nan": {**good, "stamp_s": float("nan")},
+        "stamp text": {**good, "stamp_s": "0.5"},
+    }
+    bridge = _bridge({"port": 0})
+    try:
+        for name, body in bodies.items():
+            bridge.scan_period = ScanPeriod()
+            bridge.learn_scan_period(body)
+            try:
+                ScanMsg.from_body(body)
+                decodes = True
+            except MessageError:
+                decodes = False
+            assert (bridge.scan_period.seen == 1) == decodes == (name == "good"), name
+    finally:
+        bridge.shutdown()

@@ -3465,6 +3465,46 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
     assert re.search(r"pose +│ " + where, last_table), last_table  # where the robot stopped
 
 
+@pytest.mark.parametrize("pose_heard", [False, True], ids=["older-launcher", "launcher-heard-the-pose"])
+def test_status_watch_json_lines_say_the_pose_the_end_line_says_in_the_map_frame(tmp_path, monkeypatch, capsys, pose_heard):
+    """``status --watch --json`` printed each raw status while its table and its end line showed the pose kept from the
+    watch's last answer once the sim stopped: with an older launcher (its last-heard status has no pose) the last
+    streamed line said ``pose: null`` (and the scene's ``map_origin`` as the identity) and the end line a pose. Every
+    pose is ``status_of``'s, in the map frame; the streamed lines are what the table shows, so the last one's ``pose``
+    and ``map_origin`` are the end line's and the last answer's."""
+    from cso_runtime import status
+
+    runs = tmp_path / "runs"
+    run_dir = runs / "20261207-120000-lockstep-r0"
+    run_dir.mkdir(parents=True)
+    running = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(), "state": "running"}
+    for path in (run_dir / "run.json", runs / "current.json"):
+        path.write_text(json.dumps(running))
+    services = {"sim": {"pid": 1, "restarts": 0}}
+    origin = [0.5, -1.0, 0.0]  # a map_server scene's origin: the scene's frame is not the map frame
+    episode = {"state": "exploring", "step": 5, "episode": 7, "scene": "s", "method": "cso", "goal_xy_m": [1.5, 2.5], "pose": [1.25, 2.0, 0.5],
+               "twist": [0.2, 0.0], "map_origin": origin}
+    exploring = status.status_of("r0", episode, {"run_id": "run1", "state": "running", "services": services}, {}, {"sim"})
+    heard = {"state": "done", "step": 9, "episode": 7, "age_s": 0.4, "terminated_by": "coverage", "decisions": 4}
+    if pose_heard:  # the episode's last step, after the watch's last answer (scene frame, as episode_status carries it)
+        heard.update(map_origin=origin, pose=[1.5, 2.25, 0.25], twist=[0.0, 0.0])
+    stopping = status.status_of("r0", None, {"run_id": "run1", "state": "stopping", "services": services, "last_episode": heard}, {}, set())
+
+    def launcher_ends() -> None:
+        (run_dir / "run.json").write_text(json.dumps({**running, "state": "stopped", "outcome": "done", "exit_code": 0}))
+        (runs / "current.json").unlink()
+
+    answers = iter([lambda: exploring, lambda: stopping, lambda: launcher_ends()])
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: next(answers)())
+    monkeypatch.setattr(status.time, "sleep", lambda s: None)
+    assert status.status_main([], None, as_json=True, watch=True, runs_dir=runs, period_s=0.1) == 0
+    *streamed, end = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [line["state"] for line in streamed] == ["exploring", "done"] and end["state"] == "not running"
+    ended_at = [2.0, 1.25, 0.25] if pose_heard else [1.75, 1.0, 0.5]  # the scene's pose moved by the map origin
+    assert streamed[0]["pose"] == [1.75, 1.0, 0.5] and streamed[-1]["pose"] == end["pose"] == ended_at, (streamed, end)
+    assert streamed[-1]["map_origin"] == origin and streamed[-1]["goal"] == streamed[0]["goal"] == [2.0, 1.5]
+
+
 @pytest.mark.parametrize(("episode_state", "exit_code", "as_json"), [("done", 0, False), ("done", 0, True), ("failed", 1, False)])
 def test_status_watch_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypatch, capsys, episode_state, exit_code, as_json):
     """``up --detach`` stays up after its episode, answering ``status``, until ``down``: ``status --watch`` on it
