@@ -903,6 +903,11 @@ def test_fake_limo_through_the_bridge(namespace: str):
                 "the bridge's liveliness token",
             )
             wait_for(lambda: svc._ros_subs, HANG_DEADLINE_S, "the bridge's ROS subscriptions")
+            # Declared in the bridge's client session, they reach this router a moment later: a put before that is
+            # routed to no one (the test then waited for odometry that was dropped, under CI's load).
+            for topic in ("odom", "scan"):
+                with session.declare_publisher(ros(topic)) as publisher:
+                    wait_for(lambda: publisher.matching_status.matching, HANG_DEADLINE_S, f"the bridge's subscription to {ros(topic)} at the router")
             # It says which robot it drives, so that a second run on this robot is refused (keys.robot_driver_token).
             def drivers() -> list[str]:
                 return [str(r.ok.key_expr) for r in session.liveliness().get(robot_driver_token(ros("cmd_vel"), "*"), timeout=1.0) if r.ok]
@@ -1057,6 +1062,8 @@ def test_the_map_reaches_a_ros_subscriber_that_comes_after_the_episode(monkeypat
         late: list[bytes] = []
         try:
             wait_for(lambda: svc._ros_subs, 10, "the bridge's ROS subscriptions")
+            with session.declare_publisher(keys.map) as publisher:  # its subscription reaches the router a moment later
+                wait_for(lambda: publisher.matching_status.matching, 10, "the bridge's subscription to the map at the router")
             geom = GridGeometry(0.1, (6, 8), -1.0, -2.0)
             grids = [np.full(geom.shape, -1, np.int8) for _ in range(2)]
             grids[1][1:4, 2:6], grids[1][0, :] = 0, 100
