@@ -3557,14 +3557,9 @@ def test_status_watch_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypa
     assert said.startswith(ended) and stays in said and (f"results in {run_dir}/: report.html" in said) == (episode_state == "done"), said
 
 
-@pytest.mark.parametrize("as_json", [False, True])
-def test_status_watch_says_the_step_a_real_robots_episode_ended_at(tmp_path, monkeypatch, capsys, as_json):
-    """On a real robot (``limo-ros2``) the bridge's steps go on counting the robot's scans after the episode's end, so
-    ``status --watch`` ended with "episode has ended: done (no_frontier) at step 202" for an episode whose result, the
-    bridge's log and ``episodes.csv`` say ended at step 188. It says the episode's own step, from its results."""
-    from rich.console import Console
-
-    from cso_runtime import status
+def _ended_detached_limo_run(tmp_path: Path, summary: dict) -> tuple[Path, Path]:
+    """A detached limo-ros2 run whose episode has ended, its launcher this process: its ``run.json``, the runs folder's
+    ``current.json`` and its results' ``summary.json``; (runs folder, run folder)."""
     from cso_runtime.supervision import process_start_ticks
 
     runs = tmp_path / "runs"
@@ -3574,7 +3569,20 @@ def test_status_watch_says_the_step_a_real_robots_episode_ended_at(tmp_path, mon
              "launcher_start_ticks": process_start_ticks(os.getpid()), "state": "done", "detached": True, "episode_ended_at": 1.0}
     for path in (run_dir / "run.json", runs / "current.json"):
         path.write_text(json.dumps(ended))
-    (run_dir / "summary.json").write_text(json.dumps({"methods": {"cso": {"steps": 188.0, "terminated_by": {"no_frontier": 1}}}}))
+    (run_dir / "summary.json").write_text(json.dumps(summary))
+    return runs, run_dir
+
+
+@pytest.mark.parametrize("as_json", [False, True])
+def test_status_watch_says_the_step_a_real_robots_episode_ended_at(tmp_path, monkeypatch, capsys, as_json):
+    """On a real robot (``limo-ros2``) the bridge's steps go on counting the robot's scans after the episode's end, so
+    ``status --watch`` ended with "episode has ended: done (no_frontier) at step 202" for an episode whose result, the
+    bridge's log and ``episodes.csv`` say ended at step 188. It says the episode's own step, from its results."""
+    from rich.console import Console
+
+    from cso_runtime import status
+
+    runs, _ = _ended_detached_limo_run(tmp_path, {"methods": {"cso": {"steps": 188.0, "terminated_by": {"no_frontier": 1}}}})
     episode = {"state": "done", "step": 202, "episode": 7, "scene": "ros2:limo1", "method": "cso", "terminated_by": "no_frontier"}
     over = status.status_of("r0", episode, {"run_id": "run1", "state": "running", "services": {"ros2_bridge": {"pid": 1, "restarts": 0}}}, {}, {"ros2_bridge"})
     monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: over)
@@ -3594,16 +3602,8 @@ def test_status_of_a_real_robots_ended_episode_says_the_step_it_ended_at(tmp_pat
     from rich.console import Console
 
     from cso_runtime import status
-    from cso_runtime.supervision import process_start_ticks
 
-    runs = tmp_path / "runs"
-    run_dir = runs / "20261207-103211-limo-ros2-r0"
-    run_dir.mkdir(parents=True)
-    ended = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(),
-             "launcher_start_ticks": process_start_ticks(os.getpid()), "state": "done", "detached": True, "episode_ended_at": 1.0}
-    for path in (run_dir / "run.json", runs / "current.json"):
-        path.write_text(json.dumps(ended))
-    (run_dir / "summary.json").write_text(json.dumps({"methods": {"cso": {"steps": 188.0}}}))
+    runs, _ = _ended_detached_limo_run(tmp_path, {"methods": {"cso": {"steps": 188.0}}})
     episode = {"state": "done", "step": 816, "episode": 7, "scene": "ros2:limo1", "method": "cso", "terminated_by": "no_frontier", "explored_area_m2": 18.8}
     launcher = {"run_id": "run1", "state": "running", "services": {"ros2_bridge": {"pid": 1, "restarts": 0}}}
     monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: status.status_of("r0", episode, launcher, {}, {"ros2_bridge"}))
@@ -3623,16 +3623,8 @@ def test_status_of_a_real_robots_later_episode_does_not_take_the_first_ones_end_
     from rich.console import Console
 
     from cso_runtime import status
-    from cso_runtime.supervision import process_start_ticks
 
-    runs = tmp_path / "runs"
-    run_dir = runs / "20261207-103211-limo-ros2-r0"
-    run_dir.mkdir(parents=True)
-    ended = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(),
-             "launcher_start_ticks": process_start_ticks(os.getpid()), "state": "done", "detached": True, "episode_ended_at": 1.0}
-    for path in (run_dir / "run.json", runs / "current.json"):
-        path.write_text(json.dumps(ended))
-    (run_dir / "summary.json").write_text(json.dumps({"methods": {"cso": {"steps": 188.0}}, "meta": {"episode": 7}}))
+    runs, run_dir = _ended_detached_limo_run(tmp_path, {"methods": {"cso": {"steps": 188.0}}, "meta": {"episode": 7}})
     launcher = {"run_id": "run1", "state": "running", "services": {"ros2_bridge": {"pid": 1, "restarts": 0}}}
     for episode_id, said in ((7, 188), (9, None)):
         episode = {"state": "done", "step": 816, "episode": episode_id, "scene": "ros2:limo1", "method": "cso", "terminated_by": "no_frontier", "explored_area_m2": 40.8}

@@ -616,10 +616,10 @@ def test_lockstep_planner_commands_a_step_whose_decision_took_longer_than_stale_
     assert [m.reason[:5] for t, m in out_rt if t == "cmd_vel"] == ["stale"]
 
 
-def test_real_time_planner_says_which_input_went_silent_and_does_not_blame_the_goal_for_the_wait():
-    """Odometry alone kept the planner "running" with no scan for as long as it liked (each input refreshed one
-    clock); and a stop for stale inputs longer than the progress window then ended the goal no_progress."""
-    planner, out = _service(PlannerService, lockstep=False, params={"stale_after_s": 2.0})
+def _real_time_planner_with_a_goal(stale_after_s: float) -> tuple[PlannerService, list, OdometryMsg, ScanMsg, float]:
+    """A real-time planner given step 0's odometry and scan at ``t0`` (now), then a far goal: (planner, its output,
+    that odometry, that scan, t0)."""
+    planner, out = _service(PlannerService, lockstep=False, params={"stale_after_s": stale_after_s})
     ex = _explorer_at(0)
     obs = ex.observe()
     _, odom, scan = _inputs(ex, 0)
@@ -628,6 +628,13 @@ def test_real_time_planner_says_which_input_went_silent_and_does_not_blame_the_g
     planner.on_message("r0", "scan", scan, t0)
     _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
     _feed(planner, _far_goal(obs, 0))
+    return planner, out, odom, scan, t0
+
+
+def test_real_time_planner_says_which_input_went_silent_and_does_not_blame_the_goal_for_the_wait():
+    """Odometry alone kept the planner "running" with no scan for as long as it liked (each input refreshed one
+    clock); and a stop for stale inputs longer than the progress window then ended the goal no_progress."""
+    planner, out, odom, scan, t0 = _real_time_planner_with_a_goal(stale_after_s=2.0)
     planner.on_message("r0", "odom", OdometryMsg(1, odom.stamp_s + 0.25, odom.pose), t0)
     planner.on_message("r0", "scan", ScanMsg(1, scan.scan, scan.sensor_pose), t0)
     assert planner.planner.status.value == "following"
@@ -647,15 +654,7 @@ def test_real_time_planner_says_how_long_its_inputs_have_been_silent_while_they_
     """The fake LIMO killed mid-run: ``status`` said "stale: no odometry for 1.1 s, no scan for 1.1 s" for as long
     as the robot was gone (the reason was written once, at the stop). It now says how long the silence has lasted,
     without a log line or another stop per tick; inputs that come back clear it as before."""
-    planner, out = _service(PlannerService, lockstep=False, params={"stale_after_s": 1.0})
-    ex = _explorer_at(0)
-    obs = ex.observe()
-    _, odom, scan = _inputs(ex, 0)
-    t0 = time.monotonic()
-    planner.on_message("r0", "odom", odom, t0)
-    planner.on_message("r0", "scan", scan, t0)
-    _feed(planner, frontiers_from_observation(0, "no_goal", obs, 1.0))
-    _feed(planner, _far_goal(obs, 0))
+    planner, out, odom, scan, t0 = _real_time_planner_with_a_goal(stale_after_s=1.0)
     with caplog.at_level("INFO", logger="cso.service"):
         planner.on_tick(t0 + 1.1)
         assert planner.state == "stale" and planner.reason == "stale: no odometry for 1.1 s, no scan for 1.1 s"
