@@ -15,6 +15,8 @@ try:
     from typing import TYPE_CHECKING, NoReturn, overload
 
     import typer
+
+    from cso_runtime.frame_names import FRAME_OPTIONS  # export-bag's options, shared with `service foxglove_bridge`
 except KeyboardInterrupt:
     _interrupted_early()
 
@@ -577,10 +579,10 @@ def export_bag_command(
     map_period_s: float = typer.Option(1.0, "--map-period-s", help="At most one /map per this many seconds of the run, and the last (0: every map)"),
     time_base: str = typer.Option("sim", "--time", help="sim: each message at its step's robot time (0.25 s a step, even in lockstep); received: at its reception"),
     namespace: str = typer.Option("", "--namespace", help="Put every topic but /tf and /tf_static under /NS/ and every frame id under NS/ (robot1/base_link), so that several robots' bags can be merged"),
-    map_frame: str = typer.Option("map", "--map-frame", help="The map frame's name: /map, /plan, /goal_pose, /explore/frontiers and map -> odom on /tf_static"),
-    odom_frame: str = typer.Option("odom", "--odom-frame", help="The odometry frame's name: /odom, odom -> base_link on /tf, map -> odom"),
-    base_frame: str = typer.Option("base_link", "--base-frame", help="The robot's base frame's name: /odom's child, odom -> base_link, base_link -> laser (base_footprint...)"),
-    laser_frame: str = typer.Option("laser", "--laser-frame", help="The LiDAR's frame's name: /scan's header and base_link -> laser on /tf_static (the LIMO's ROS driver: laser_link)"),
+    map_frame: str = typer.Option(FRAME_OPTIONS["map"].default, FRAME_OPTIONS["map"].flag, help=FRAME_OPTIONS["map"].help),
+    odom_frame: str = typer.Option(FRAME_OPTIONS["odom"].default, FRAME_OPTIONS["odom"].flag, help=FRAME_OPTIONS["odom"].help),
+    base_frame: str = typer.Option(FRAME_OPTIONS["base"].default, FRAME_OPTIONS["base"].flag, help=FRAME_OPTIONS["base"].help),
+    laser_frame: str = typer.Option(FRAME_OPTIONS["laser"].default, FRAME_OPTIONS["laser"].flag, help=FRAME_OPTIONS["laser"].help),
 ) -> None:
     """Convert a recording into a ROS 2 bag (rosbag2, MCAP storage) of standard types: /scan, /odom, /tf, /map, /plan, /goal_pose, /explore/frontiers, /cmd_vel, for RViz, Foxglove and `ros2 bag play`."""
     from cso_runtime.bag_export import BagExportError, BagFrames, export_bag  # noqa: PLC0415
