@@ -60,6 +60,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from cso_runtime import ros2_cdr
+from cso_runtime.frame_names import BASE_FRAME, LASER_FRAME, MAP_FRAME, ODOM_FRAME
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, compose_pose, compose_xy, relative_pose, rounded, rounded_pose
 from cso_runtime.messages import (
     CmdVelMsg,
@@ -81,9 +82,6 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
 
 log = logging.getLogger("cso.bag_export")
-
-MAP_FRAME, ODOM_FRAME, BASE_FRAME, LASER_FRAME = "map", "odom", "base_link", "laser"
-"""The frames' default names (``BagFrames``)."""
 
 
 @dataclass(frozen=True)

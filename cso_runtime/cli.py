@@ -15,6 +15,8 @@ try:
     from typing import TYPE_CHECKING, NoReturn, overload
 
     import typer
+
+    from cso_runtime.frame_names import FRAME_OPTIONS  # export-bag's options, shared with `service foxglove_bridge`
 except KeyboardInterrupt:
     _interrupted_early()
 
@@ -191,7 +193,7 @@ def _root(
     zenoh_config: Path | None = typer.Option(
         None,
         "--zenoh-config",
-        help="Zenoh config file (JSON5) every session of this command starts from (credentials, TLS): status, record, replay, save-map, pause, resume, service, up "
+        help="Zenoh config file (JSON5) every session of this command starts from (credentials, TLS): status, record, replay, save-map, pause, resume, service, up, router "
         "(sets $CSO_ZENOH_CONFIG)",
     ),
 ) -> None:
@@ -577,10 +579,10 @@ def export_bag_command(
     map_period_s: float = typer.Option(1.0, "--map-period-s", help="At most one /map per this many seconds of the run, and the last (0: every map)"),
     time_base: str = typer.Option("sim", "--time", help="sim: each message at its step's robot time (0.25 s a step, even in lockstep); received: at its reception"),
     namespace: str = typer.Option("", "--namespace", help="Put every topic but /tf and /tf_static under /NS/ and every frame id under NS/ (robot1/base_link), so that several robots' bags can be merged"),
-    map_frame: str = typer.Option("map", "--map-frame", help="The map frame's name: /map, /plan, /goal_pose, /explore/frontiers and map -> odom on /tf_static"),
-    odom_frame: str = typer.Option("odom", "--odom-frame", help="The odometry frame's name: /odom, odom -> base_link on /tf, map -> odom"),
-    base_frame: str = typer.Option("base_link", "--base-frame", help="The robot's base frame's name: /odom's child, odom -> base_link, base_link -> laser (base_footprint...)"),
-    laser_frame: str = typer.Option("laser", "--laser-frame", help="The LiDAR's frame's name: /scan's header and base_link -> laser on /tf_static (the LIMO's ROS driver: laser_link)"),
+    map_frame: str = typer.Option(FRAME_OPTIONS["map"].default, FRAME_OPTIONS["map"].flag, help=FRAME_OPTIONS["map"].help),
+    odom_frame: str = typer.Option(FRAME_OPTIONS["odom"].default, FRAME_OPTIONS["odom"].flag, help=FRAME_OPTIONS["odom"].help),
+    base_frame: str = typer.Option(FRAME_OPTIONS["base"].default, FRAME_OPTIONS["base"].flag, help=FRAME_OPTIONS["base"].help),
+    laser_frame: str = typer.Option(FRAME_OPTIONS["laser"].default, FRAME_OPTIONS["laser"].flag, help=FRAME_OPTIONS["laser"].help),
 ) -> None:
     """Convert a recording into a ROS 2 bag (rosbag2, MCAP storage) of standard types: /scan, /odom, /tf, /map, /plan, /goal_pose, /explore/frontiers, /cmd_vel, for RViz, Foxglove and `ros2 bag play`."""
     from cso_runtime.bag_export import BagExportError, BagFrames, export_bag  # noqa: PLC0415
@@ -978,6 +980,70 @@ def down_command(
     ok, message = down(runs_dir, timeout)
     typer.echo(message, err=not ok)
     raise typer.Exit(0 if ok else 1)
+
+
+@app.command("router", rich_help_panel="Runtime (Zenoh services)")
+def router_command(
+    ctx: typer.Context,
+    listen: list[str] | None = typer.Option(
+        None, "--listen", help="Endpoint to listen on, repeatable (default tcp/0.0.0.0:7447: Zenoh's port on every interface, as zenohd; port 0: any free port)"
+    ),
+    connect: list[str] | None = typer.Option(None, "--connect", help="Another router to join, repeatable (a robot's zenoh-bridge-ros2dds: tcp/ROBOT_IP:7447)"),
+    connect_timeout_s: float | None = typer.Option(
+        None, "--connect-timeout-s", min=0.001, help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
+    ),
+    zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="Zenoh config file (JSON5) the router starts from: user/password, TLS, access control"),
+    as_json: bool = typer.Option(False, "--json", help="Print the endpoints it listens on as one line of JSON"),
+) -> None:
+    """Run the Zenoh router that `up` embeds, alone, until Ctrl-C: for runs, services and tools on several hosts to join (no zenohd needed)."""
+    import json  # noqa: PLC0415
+    import threading  # noqa: PLC0415
+
+    from cso_runtime.config import EXIT_INTERRUPTED, EXIT_NO_ZENOH  # noqa: PLC0415
+    from cso_runtime.processes import restore_signal_handlers, stop_on_signals  # noqa: PLC0415
+    from cso_runtime.transport import (  # noqa: PLC0415
+        JOIN_TIMEOUT_S,
+        LISTEN_IN_USE,
+        ROUTER_LISTEN,
+        STOPPED,
+        UNREACHABLE,
+        TransportConfig,
+        TransportError,
+        listen_in_use_hint,
+        open_router,
+    )
+
+    stop = threading.Event()  # Ctrl-C, SIGTERM and SIGHUP stop the router cleanly, exit 0, from here on
+    previous_handlers = stop_on_signals(stop)
+    ctx.call_on_close(lambda: restore_signal_handlers(previous_handlers))
+    if zenoh_config is not None:
+        _use_zenoh_config(zenoh_config)  # exit 2 for a file Zenoh or the runtime would refuse
+    endpoints, joined = list(listen or [ROUTER_LISTEN]), list(connect or [])
+    connect_timeout_s = JOIN_TIMEOUT_S if connect_timeout_s is None else connect_timeout_s
+    try:  # a malformed endpoint is a usage error (exit 2), before anything opens
+        TransportConfig(mode="router", listen=endpoints, connect=joined, connect_timeout_s=connect_timeout_s).validate()
+    except TransportError as exc:
+        _fail(str(exc), 2)
+    if joined:  # a router to join that is off is only said once the timeout has passed: say the wait meanwhile
+        typer.echo(f"joining {', '.join(joined)} (up to {connect_timeout_s:g} s, --connect-timeout-s)", err=True)
+    try:
+        session, endpoints = open_router(endpoints, joined, connect_timeout_s, stop=stop)
+    except TransportError as exc:
+        if exc.cause == STOPPED:
+            _fail("interrupted before the router opened", EXIT_INTERRUPTED)
+        if exc.cause == LISTEN_IN_USE:
+            pick = " ".join(f"--listen {ep.rpartition(':')[0]}:PORT" for ep in endpoints)
+            _fail(f"{exc}; {listen_in_use_hint(endpoints, 'the router', pick)}; is a router (zenohd, a zenoh bridge, `up`) already running there?", EXIT_NO_ZENOH)
+        _fail(f"{exc}" + ("; is the router to join running and reachable?" if exc.cause == UNREACHABLE else ""), EXIT_NO_ZENOH)
+    with session:
+        if as_json:
+            typer.echo(json.dumps({"listen": endpoints, "connect": joined, "zid": str(session.zid())}))
+        else:
+            typer.echo(f"router {session.zid()} listening on {', '.join(endpoints)}" + (f", joined to {', '.join(joined)}" if joined else "") + " (Ctrl-C to stop)")
+            typer.echo(f"  join it with --connect {endpoints[0].replace('/0.0.0.0:', '/THIS_HOST:').replace('/[::]:', '/THIS_HOST:')}", err=True)
+        while not stop.wait(1.0):
+            pass
+    typer.echo("router stopped", err=True)
 
 
 @app.command("runs", rich_help_panel="Runtime (Zenoh services)")

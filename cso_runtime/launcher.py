@@ -101,6 +101,7 @@ from cso_runtime.transport import (
     TransportConfig,
     TransportError,
     any_loopback_port,
+    listen_in_use_hint,
     open_router,
     open_session,
     track_liveliness,
@@ -1556,10 +1557,7 @@ def transport_error_hint(exc: TransportError, listen: list[str]) -> str:
     """What to do about ``up``'s router or session that did not open: a port the embedded router is to listen on
     (``listen``, the profile's ``router.listen``) is held by another process, or the router to join is not there."""
     if exc.cause == LISTEN_IN_USE:
-        return (
-            f"another process holds a port the embedded router is to listen on ({', '.join(listen)}): stop it, or pick "
-            f"another port with the profile's router.listen or `--set 'router.listen=[{any_loopback_port(listen)}]'` (0: any free port)"
-        )
+        return listen_in_use_hint(listen, "the embedded router", f"the profile's router.listen or `--set 'router.listen=[{any_loopback_port(listen)}]'`")
     return "is the router to join running and reachable?"
 
 

@@ -262,9 +262,10 @@ def open_session(conf: TransportConfig, stop: threading.Event | None = None) -> 
     return opened[0]
 
 
-ZENOH_SOURCE_LINE = re.compile(r"\s+at \S+\.rs:\d+\.?$")
+ZENOH_SOURCE_LINE = re.compile(r"\s+at \S+\.rs:\d+\.?(?=\]|$)")
 """The place in Zenoh's Rust source that ends its errors (``... Timeout! at /root/.cargo/git/checkouts/zenoh-.../
-orchestrator.rs:388.``): the build machine's path, left out of what a user reads."""
+orchestrator.rs:388.``), or the error it quotes in brackets (a port taken: ``[127.0.0.1:7447: Address already in use
+(os error 98) at /root/.cargo/.../tcp.rs:61.]``): the build machine's path, left out of what a user reads."""
 
 
 def _open(conf: TransportConfig) -> zenoh.Session:
@@ -285,6 +286,10 @@ def _open(conf: TransportConfig) -> zenoh.Session:
         hint = f" (is ZENOH_RUNTIME={runtime!r} valid? unset it for the default)" if runtime is not None and runtime != ONE_ZENOH_THREAD else ""
         raise TransportError(f"cannot open zenoh session ({conf.mode}, connect={conf.connect}, listen={conf.listen}): Zenoh failed: {exc}{hint}") from None
 
+
+ROUTER_LISTEN = "tcp/0.0.0.0:7447"
+"""Where ``cso-runtime router`` listens unless given ``--listen``: Zenoh's own port on every interface, as zenohd and a
+robot's zenoh-bridge-ros2dds do, so that the other hosts reach it (``up``'s embedded router listens on loopback)."""
 
 PORT_TRIES = 3
 """``open_router``: picks of a free port per start (another process may take one between the pick and the bind)."""
@@ -313,6 +318,12 @@ def open_router(
                 raise
             log.warning("router port taken before it was bound (%s); picking another", ", ".join(chosen))
     raise AssertionError("unreachable")
+
+
+def listen_in_use_hint(listen: list[str], router: str, pick_another: str) -> str:
+    """What to do when a port ``router`` (``up``'s embedded router, ``cso-runtime router``) is to listen on (``listen``) is
+    held by another process (``TransportError`` cause ``LISTEN_IN_USE``); ``pick_another``: how that command picks another."""
+    return f"another process holds a port {router} is to listen on ({', '.join(listen)}): stop it, or pick another port with {pick_another} (0: any free port)"
 
 
 def free_tcp_port(host: str = "127.0.0.1") -> int:

@@ -812,9 +812,9 @@ def default_prog(name: str, cls: type[Service] | None) -> str | None:
     return f"python -m {module}" if module else None
 
 
-def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | None = None, prog: str | None = None) -> argparse.Namespace:
-    """The common service options, plus those ``cls.add_arguments`` declares; ``prog`` names the command in
-    the usage line (``python -m services.NAME`` unless run as ``cso-runtime service NAME``)."""
+def service_parser(name: str, cls: type[Service] | None = None, prog: str | None = None) -> argparse.ArgumentParser:
+    """The parser of a service's command line: the common service options, plus those ``cls.add_arguments`` declares;
+    ``prog`` names the command in the usage line (``python -m services.NAME`` unless run as ``cso-runtime service NAME``)."""
     p = argparse.ArgumentParser(prog=prog or default_prog(name, cls), description=f"cso-runtime {name} service")
     p.add_argument("--config", type=Path, default=None, help="Profile YAML (cso_runtime/profiles/*.yaml or your own); required unless --attach")
     p.add_argument("--robot", default=None, help="Robot id: namespaces every key (cso/<robot>/...); default r0, or the run's with --attach")
@@ -835,6 +835,12 @@ def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | No
     p.add_argument("--runs-dir", type=Path, default=Path("runs"), help="Where --attach finds the current run (runs/current.json)")
     if cls is not None:
         cls.add_arguments(p)
+    return p
+
+
+def parse_args(name: str, argv: list[str] | None = None, cls: type[Service] | None = None, prog: str | None = None) -> argparse.Namespace:
+    """``argv`` parsed by ``service_parser``, ``--attach`` resolved to the current run's profile, router and robot."""
+    p = service_parser(name, cls, prog)
     args = p.parse_args(argv)
     if args.attach:
         from cso_runtime.current_run import read_current_run, starting_run  # noqa: PLC0415  (only to attach)

@@ -15,8 +15,9 @@ input), which the sim first publishes after the episode's first map: the map, pa
 whose status has not come yet wait for it (the latest of each, as for a late viewer), at most ``MAP_ORIGIN_WAIT_S``,
 and messages of no episode id (0) take the origin last known. The four frames' names are params
 (``map_frame``, ``odom_frame``, ``base_frame``, ``laser_frame``: export-bag's ``--map-frame``... with its defaults and
-its check, ``BagFrames``), and each ``/scan``'s ``scan_time`` is export-bag's period between the scans, read off their
-stamps as they come by the same ``ScanPeriod``.
+its check, ``BagFrames``), which ``service foxglove_bridge`` also takes as export-bag's four flags (``frame_names``),
+and each ``/scan``'s ``scan_time`` is export-bag's period between the scans, read off their stamps as they come by the
+same ``ScanPeriod``.
 
 Like ROS's foxglove_bridge, it converts only what someone watches: a topic that no viewer subscribes to (and no
 MCAP file takes) is not converted at all, so the bridge costs next to nothing while nobody looks. It keeps the
@@ -49,12 +50,8 @@ from typing import Any, ClassVar
 
 from cso_runtime import ros2_cdr
 from cso_runtime.bag_export import (
-    BASE_FRAME,
     EXPORTED,
-    LASER_FRAME,
-    MAP_FRAME,
     MAP_FRAME_TOPICS,
-    ODOM_FRAME,
     ROS_TOPICS,
     ROS_TYPES,
     BagConverter,
@@ -63,6 +60,7 @@ from cso_runtime.bag_export import (
     shows_something,
 )
 from cso_runtime.config import ConfigError, folder_problem, from_dict
+from cso_runtime.frame_names import BASE_FRAME, LASER_FRAME, MAP_FRAME, ODOM_FRAME, add_frame_arguments, frames_given
 from cso_runtime.geometry import Pose2D
 from cso_runtime.messages import DeferredMsg, EpisodeStatusMsg, Message, MessageError, deferred, scan_episode_and_stamp
 from cso_runtime.recording import unused_path
@@ -349,10 +347,11 @@ class FoxgloveBridgeService(Service):
     def add_arguments(cls, parser: argparse.ArgumentParser) -> None:
         parser.add_argument("--port", type=int, default=None, help="WebSocket port (overrides the profile; 0: a free one)")
         parser.add_argument("--mcap", default=None, help="Also write what is served to this MCAP file (overrides mcap_path)")
+        add_frame_arguments(parser)  # export-bag's --map-frame, --odom-frame, --base-frame, --laser-frame
 
     @classmethod
     def apply_arguments(cls, args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any]:
-        given = {"port": args.port, "mcap_path": args.mcap}
+        given = {"port": args.port, "mcap_path": args.mcap, **frames_given(args)}
         return {**params, **{k: v for k, v in given.items() if v is not None}}
 
     def shutdown(self) -> None:

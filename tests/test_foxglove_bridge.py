@@ -19,7 +19,7 @@ import pytest
 from mcap.reader import make_reader
 
 from cso_runtime import ros2_cdr
-from cso_runtime.bag_export import EXPORTED, ROS_TOPICS, ROS_TYPES, BagConverter, shows_something
+from cso_runtime.bag_export import EXPORTED, ROS_TOPICS, ROS_TYPES, BagConverter, BagFrames, shows_something
 from cso_runtime.config import ConfigError, ExplorationConfig
 from cso_runtime.geometry import Pose2D, compose_pose
 from cso_runtime.keys import RobotKeys
@@ -736,3 +736,36 @@ def test_the_bridge_counts_for_its_scan_period_only_the_scans_that_decode_would_
             assert (bridge.scan_period.seen == 1) == decodes == (name == "good"), name
     finally:
         bridge.shutdown()
+
+
+def test_service_foxglove_bridge_takes_export_bags_frame_flags_with_export_bags_words(tmp_path, caplog):
+    """``export-bag`` had ``--map-frame``, ``--odom-frame``, ``--base-frame`` and ``--laser-frame``, while ``cso-runtime
+    service foxglove_bridge`` (a viewer's bridge started by hand beside a robot's run) could only name its frames in a
+    profile. It takes the same four flags, from the same definitions (``frame_names.FRAME_OPTIONS``): the same names,
+    defaults and help; each sets its profile parameter over the profile's, and a name tf2 refuses is refused as the
+    profile's would be (exit 2, before the bridge starts)."""
+    import typer.main
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.frame_names import FRAME_OPTIONS
+    from services.common import parse_args, service_main, service_parser
+
+    export_bag = {o: p for p in typer.main.get_command(app).commands["export-bag"].params for o in p.opts}
+    bridge = service_parser("foxglove_bridge", FoxgloveBridgeService)._option_string_actions
+    for option in FRAME_OPTIONS.values():
+        assert option.flag in export_bag and option.flag in bridge, option.flag
+        assert export_bag[option.flag].default == option.default and export_bag[option.flag].help == option.help
+        assert (bridge[option.flag].help or "").startswith(option.help) and bridge[option.flag].default is None
+    r = CliRunner().invoke(app, ["service", "foxglove_bridge", "--help"], terminal_width=200)
+    assert r.exit_code == 0 and all(o.flag in r.output for o in FRAME_OPTIONS.values()), r.output
+
+    profile = tmp_path / "p.yaml"
+    profile.write_text("services:\n  foxglove_bridge: {port: 0, odom_frame: odom_wheel, map_frame: world}\n")
+    args = parse_args("foxglove_bridge", ["--config", str(profile), "--connect", "tcp/127.0.0.1:1", "--laser-frame", "laser_link", "--map-frame", "earth"], FoxgloveBridgeService)
+    params = FoxgloveBridgeService.apply_arguments(args, {"port": 0, "odom_frame": "odom_wheel", "map_frame": "world"})
+    assert params == {"port": 0, "odom_frame": "odom_wheel", "map_frame": "earth", "laser_frame": "laser_link"}  # the flags win; the rest is the profile's
+    assert _bridge(params).params.frames() == BagFrames("earth", "odom_wheel", "base_link", "laser_link")
+    argv = ["--config", str(profile), "--connect", "tcp/127.0.0.1:1", "--laser-frame", "/laser"]
+    assert service_main(FoxgloveBridgeService, argv, exit_process=False) == 2  # refused before any session opens
+    assert "the laser frame '/laser' is no tf2 frame id" in caplog.text

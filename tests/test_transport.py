@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import re
+import select
+import signal
 import socket
 import subprocess
 import sys
@@ -16,6 +18,7 @@ import zenoh
 
 from cso_runtime import status, transport
 from cso_runtime.transport import TransportConfig, loopback_endpoint, zenoh_config
+from tests.conftest import HANG_DEADLINE_S, process_group, process_group_gone, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -388,3 +391,81 @@ def test_zenohs_error_is_said_without_the_rust_source_line_it_came_from(monkeypa
     assert said.startswith("cannot reach tcp/127.0.0.1:7447 within 2 s: cannot open zenoh session (client")
     assert said.endswith("Unable to connect to any of [Single(tcp/127.0.0.1:7447)]. Timeout!"), said
     assert ".rs:" not in said and ".cargo" not in said
+
+
+def _router_command(*args: str) -> list[str]:
+    """``cso-runtime router ARGS`` as the installed script runs it."""
+    from cso_runtime.supervision import python_module_argv
+
+    return [*python_module_argv("cso_runtime.cli"), "router", *args]
+
+
+def _first_json_line(proc: subprocess.Popen) -> dict:
+    """The first line of ``proc``'s output that is a JSON object (``router --json``'s endpoints), waited for at most
+    ``HANG_DEADLINE_S`` (a hang fails, it does not block the suite); the lines before it are kept in the error."""
+    seen: list[str] = []
+    deadline_s = time.monotonic() + HANG_DEADLINE_S
+    while time.monotonic() < deadline_s:
+        ready, _, _ = select.select([proc.stdout], [], [], max(0.0, deadline_s - time.monotonic()))
+        line = proc.stdout.readline() if ready else ""
+        if not line:  # ended (or nothing by the deadline)
+            break
+        if line.startswith("{"):
+            return json.loads(line)
+        seen.append(line)
+    raise AssertionError(f"no JSON line from {proc.args}: exit {proc.poll()}, {''.join(seen)!r}")
+
+
+def test_the_router_command_routes_sessions_through_it_and_stops_cleanly_on_sigterm(tmp_path):
+    """``cso-runtime router`` runs ``up``'s embedded router (``open_router``) alone, in the foreground, for hosts that
+    have no zenohd (a robot, and a policy server on a GPU box, each joining it as ROS 2 nodes join a discovery server).
+    Started as a real process on a free loopback port it says where it listens; two client sessions (scouting off)
+    reach each other through it alone: a query from one is answered by the other's queryable. SIGTERM (as Ctrl-C)
+    stops it: exit 0, no process of its group left, and its port free again."""
+    port = transport.free_tcp_port()
+    endpoint = loopback_endpoint(port)
+    with process_group(_router_command("--listen", endpoint, "--json"), cwd=tmp_path) as proc:
+        said = _first_json_line(proc)
+        assert said["listen"] == [endpoint] and said["connect"] == [], said
+        client = TransportConfig(mode="client", connect=[endpoint], connect_timeout_s=HANG_DEADLINE_S)
+        with transport.open_session(client) as answering, transport.open_session(client) as asking:
+            assert [str(z) for z in answering.info.routers_zid()] == [said["zid"]]  # this router's, and no other
+            queryable = answering.declare_queryable("cso/router-test/ping", lambda query: query.reply("cso/router-test/ping", b"pong"))
+
+            def answered() -> bool:  # until the queryable's declaration has reached the router: a get routed to no one
+                return any(r.ok is not None and r.ok.payload.to_bytes() == b"pong" for r in asking.get("cso/router-test/ping", timeout=1.0))
+
+            wait_for(answered, HANG_DEADLINE_S, "an answer through the router")
+            queryable.undeclare()
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=HANG_DEADLINE_S)
+        assert proc.returncode == 0, out
+        assert "router stopped" in out and "Traceback" not in out, out
+    assert process_group_gone(proc.pid)
+    with socket.socket() as again:  # the router let go of its port
+        again.bind(("127.0.0.1", port))
+
+
+def test_the_router_command_refuses_a_bad_endpoint_and_says_when_its_port_is_taken(tmp_path):
+    """A malformed endpoint is a usage error (exit 2) before anything opens; a port another process holds, and a router
+    to join that is not there, are no Zenoh session (exit 3), each said with what to do, without Zenoh's Rust source
+    path (a taken port's error quotes the OS's in brackets, which ended in it)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    for bad, said in (("127.0.0.1:7447", "expected PROTO/HOST:PORT"), ("tcp/127.0.0.1:70000", "the port must be a number")):
+        r = CliRunner().invoke(app, ["router", "--listen", bad])
+        assert r.exit_code == 2 and f"error: bad zenoh endpoint '{bad}'" in r.stderr and said in r.stderr, r.output
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        endpoint = loopback_endpoint(taken.getsockname()[1])
+        r = subprocess.run(_router_command("--listen", endpoint), cwd=tmp_path, capture_output=True, text=True, timeout=HANG_DEADLINE_S)
+    assert r.returncode == 3, r.stderr
+    assert f"another process holds a port the router is to listen on ({endpoint}): stop it, or pick another port with --listen tcp/127.0.0.1:PORT" in r.stderr
+    assert "Address already in use" in r.stderr and ".rs:" not in r.stderr and ".cargo" not in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr and "listening" not in r.stdout
+    nobody = loopback_endpoint(transport.free_tcp_port())
+    r = CliRunner().invoke(app, ["router", "--listen", "tcp/127.0.0.1:0", "--connect", nobody, "--connect-timeout-s", "0.5"])
+    assert r.exit_code == 3 and f"cannot reach {nobody} within 0.5 s" in r.stderr and "is the router to join running" in r.stderr, r.output
