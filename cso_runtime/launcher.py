@@ -383,7 +383,8 @@ class Launcher:
         self.coverage_measured = measures_coverage({"services": profile.services})
         """The run has a ground truth (``run_profile.measures_coverage``: its sim's): else its coverage is no measure,
         left out of its lines and live view, and summary.json's ``meta.coverage_measured`` says so to ``runs`` and
-        report.html."""
+        report.html. Judged by the profile's services until the referee says (its ``episode_status``'s
+        ``coverage_measured``: a referee of one's own with a ground truth of its own), then the referee's word."""
         self.sim_step_s = self.control_period_s if self.simulated else None
         """The simulated time of a step (one control period), None on a real robot, whose steps are its scans."""
         self.pace = StepPace(self.control_period_s)
@@ -533,6 +534,8 @@ class Launcher:
             if before is None or (before.episode, before.step, before.state) != (msg.episode, msg.step, msg.state):
                 self.step_changed_s = now
             self.status, self.status_heard_at_s = msg, now
+            if msg.coverage_measured is not None:  # the referee's word on its ground truth, over the services' names
+                self.coverage_measured = msg.coverage_measured
             if msg.state != "starting":  # the sim waits for the services before step 0: not its pace
                 self.pace.observe(msg.episode, msg.step, time.monotonic())
         elif isinstance(msg, EpisodeResultMsg):

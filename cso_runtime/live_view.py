@@ -31,6 +31,8 @@ NO_GROUND_TRUTH = "n/a: a real robot (no ground truth)"
 """What the tables say of coverage on a run with no ground truth (not ``run_profile.measures_coverage``: a real robot's,
 or a referee's of one's own), where ``coverage_pct`` is 0 (``status --json``, ``summary.json``,
 ``episodes.csv``): a "0.00 %" beside a map being explored read as a failure."""
+NO_OWN_GROUND_TRUTH = "n/a: the run's own referee measured no coverage (no ground truth)"
+"""``NO_GROUND_TRUTH`` where the run's referee is one of one's own, no real robot (report.html: ``of_an_own_referee``)."""
 NO_COVERAGE = "n/a"
 """``NO_GROUND_TRUTH`` in a table's coverage cell (``runs``' "cover %", report.html's and the console's Table 1 and
 episodes): the one word, its reason said in the table's definitions or title."""

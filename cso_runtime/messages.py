@@ -1359,9 +1359,15 @@ class EpisodeStatusMsg(Message):
     None before the first odometry (a ROS 2 bridge before its first scan) and in a recording from before v4."""
     twist: VelocityCommand | None = None
     """The robot's twist on that odometry (forward m/s, yaw rad/s, in its own body frame); None as ``pose``."""
+    coverage_measured: bool | None = None
+    """Whether the referee has a ground truth, its ``coverage_pct`` a measure: the sim's True, a ROS 2 bridge's False
+    (a real robot), a referee of one's own as it knows (its own simulator publishing the sim's keys: True). What
+    ``status`` and the launcher take before their judgement by the run's services (``run_profile.measures_coverage``).
+    Optional within v4, no version bump: None, not said (a referee from before it, or one that does not say), is sent
+    as no field at all, the body an older reader always got; a reader ignores a field it does not know."""
 
     def body(self) -> dict[str, Any]:
-        return {
+        body = {
             "state": self.state,
             "step": self.step,
             "scene": self.scene,
@@ -1380,6 +1386,9 @@ class EpisodeStatusMsg(Message):
             "pose": None if self.pose is None else _pose_out(self.pose),
             "twist": None if self.twist is None else _twist_out(self.twist),
         }
+        if self.coverage_measured is not None:
+            body["coverage_measured"] = self.coverage_measured
+        return body
 
     @property
     def goal_in_map_frame(self) -> list[float] | None:
@@ -1417,6 +1426,7 @@ class EpisodeStatusMsg(Message):
             _pose_in(b, "map_origin", w),
             None if _get(b, "pose", w) is None else _pose_in(b, "pose", w),
             None if _get(b, "twist", w) is None else _twist_in(b, "twist", w),
+            None if b.get("coverage_measured") is None else _bool(b, "coverage_measured", w),  # optional: absent or nil, not said
         )
 
     def to_dict(self) -> dict[str, Any]:

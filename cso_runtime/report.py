@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from cso_runtime.comparison import PAIRED_COLUMNS, format_interval, paired_cells
-from cso_runtime.live_view import NO_COVERAGE, NO_GROUND_TRUTH
+from cso_runtime.live_view import NO_COVERAGE, NO_GROUND_TRUTH, NO_OWN_GROUND_TRUTH
 from cso_runtime.outputs import (
     COVERAGE_FIGURE,
     EFFICIENCY_FIGURE,
@@ -54,6 +54,24 @@ def of_a_real_robot(summary: dict[str, Any]) -> bool:
     return isinstance(meta.get("profile"), dict) and "sim_settings" not in meta and no_sim_time
 
 
+def of_an_own_referee(summary: dict[str, Any]) -> bool:
+    """Whether ``summary`` is of a run of ``up`` whose referee is one of one's own (``of_a_real_robot``, with a profile
+    whose services have neither referee of ``run_profile.REFEREES``: a command node publishing ``episode_status`` and
+    ``episode_result``, a simulator of one's own, say): no real robot, its steps as that referee counts them. A profile
+    with no services (a summary of an older version, a hand-made meta) says nothing of it: a real robot's, as before."""
+    from cso_runtime.run_profile import REFEREES  # noqa: PLC0415 - loads the scenes' code: only where reports are made
+
+    profile = (summary.get("meta") or {}).get("profile")
+    services = profile.get("services") if isinstance(profile, dict) else None
+    return of_a_real_robot(summary) and isinstance(services, dict) and not any(name in services for name in REFEREES)
+
+
+def no_ground_truth_said(summary: dict[str, Any]) -> str:
+    """What report.html says of the coverage of ``summary``'s run where it was not measured: ``NO_GROUND_TRUTH`` (a real
+    robot's), or ``NO_OWN_GROUND_TRUTH`` with a referee of one's own (``of_an_own_referee``), which is no real robot."""
+    return NO_OWN_GROUND_TRUTH if of_an_own_referee(summary) else NO_GROUND_TRUTH
+
+
 def coverage_measured(summary: dict[str, Any]) -> bool:
     """Whether ``summary``'s run had a ground truth, its coverage measured (``run_profile.measures_coverage``, the one
     answer ``status``, ``runs`` and the live view give): what ``up`` wrote (``meta.coverage_measured``), else, of an
@@ -71,16 +89,18 @@ def coverage_measured(summary: dict[str, Any]) -> bool:
 def table1_definitions(summary: dict[str, Any]) -> list[tuple[str, str]]:
     """``TABLE1_DEFINITIONS`` with the steps said as the run counted them: its control period (``meta.config``'s
     ``robot.control_period_s``, which ``--set`` changes), or, for a run of ``up`` on a real robot
-    (``of_a_real_robot``), its scans; coverage is ``NO_GROUND_TRUTH`` where not ``coverage_measured``."""
+    (``of_a_real_robot``), its scans, and with a referee of one's own (``of_an_own_referee``), that referee's steps;
+    coverage is ``no_ground_truth_said`` where not ``coverage_measured``."""
     meta = summary.get("meta") or {}
     robot = (meta.get("config") or {}).get("robot") or {}
     period_s = robot.get("control_period_s", 0.25)
-    real_robot = of_a_real_robot(summary)
-    if real_robot:
+    if of_an_own_referee(summary):
+        steps = "steps as the run's own referee counted them (a referee of one's own, neither the sim nor the ros2_bridge) until the episode ended: by coverage, no reachable frontier or the step limit"
+    elif of_a_real_robot(summary):
         steps = "scans of the real robot (about 10 Hz on the LIMO) until the episode ended: by coverage, no reachable frontier or the step limit"
     else:
         steps = f"control periods (robot.control_period_s, {period_s:g} s) until the episode ended: by coverage, no reachable frontier or the step limit"
-    said = {"steps": steps, **({} if coverage_measured(summary) else {"coverage %": f"{NO_GROUND_TRUTH}; summary.json and episodes.csv hold 0"})}
+    said = {"steps": steps, **({} if coverage_measured(summary) else {"coverage %": f"{no_ground_truth_said(summary)}; summary.json and episodes.csv hold 0"})}
     return [(column, said.get(column, words)) for column, words in TABLE1_DEFINITIONS]
 STD_SUFFIX = "_std"
 """``summary.json``'s key of a metric's sample standard deviation (ddof=1) over the episodes, beside its mean:
@@ -367,7 +387,7 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
         # A run with no ground truth (a real robot's) has a coverage curve of its row's 0 at every step: said n/a, as
         # its cells (the file stays written).
         parts += [
-            f"<p>{html.escape(t)}: {html.escape(NO_GROUND_TRUTH)}</p>" if no_coverage and p.name == COVERAGE_FIGURE
+            f"<p>{html.escape(t)}: {html.escape(no_ground_truth_said(summary))}</p>" if no_coverage and p.name == COVERAGE_FIGURE
             else f"<figure>{_img(out_dir, p, t)}<figcaption>{html.escape(t)}</figcaption></figure>"
             for p, t in figures
         ]  # fmt: skip

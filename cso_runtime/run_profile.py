@@ -395,10 +395,11 @@ def runs_a_real_robot(data: dict[str, Any]) -> bool:
 def measures_coverage(data: dict[str, Any], said: Any = None) -> bool:
     """Whether a run has a ground truth, its coverage measured: the one answer that ``status``, ``runs``, ``up``'s live
     view and lines, and report.html give (``coverage_pct`` is 0 where it has none: no measure, ``NO_GROUND_TRUTH``).
-    What the run itself said (``said``: summary.json's ``meta.coverage_measured``, which ``up`` writes) when it is a
-    bool; else whether its profile's data (a run's ``profile.yaml``, a summary's ``meta.profile``, ``status``'s object,
-    whose ``services`` are its run's) runs the ``sim``, the one referee that knows the scene: a real robot
-    (``ros2_bridge``) and a referee of one's own (a command node) have none. Data with no services (an eval summary,
+    What the run itself said (``said``: summary.json's ``meta.coverage_measured``, which ``up`` writes; the referee's
+    ``episode_status``'s ``coverage_measured``, which the launcher and ``status`` take first) when it is a bool; else
+    whether its profile's data (a run's ``profile.yaml``, a summary's ``meta.profile``, ``status``'s object, whose
+    ``services`` are its run's) runs the ``sim``, the one referee that knows the scene: a real robot (``ros2_bridge``)
+    and a referee of one's own (a command node) that does not say have none. Data with no services (an eval summary,
     a status with no run) says nothing of a referee: its figures stand."""
     if isinstance(said, bool):
         return said

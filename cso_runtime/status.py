@@ -165,9 +165,9 @@ def status_of(
         "method": ep.get("method", ""),
         "lockstep_timeouts": ep.get("lockstep_timeouts", 0),
         "services": table,
-        # False: coverage_pct's 0 is no measure (no ground truth): as the launcher said, else (an older one's, or none
-        # answered) as the run's services say
-        "coverage_measured": measures_coverage({"services": table}, (launcher or {}).get("coverage_measured")),
+        # False: coverage_pct's 0 is no measure (no ground truth): as the referee's own status said (its word, also with
+        # no launcher to ask), else as the launcher said, else (an older one's, or none answered) as the run's services say
+        "coverage_measured": measures_coverage({"services": table}, coverage_said(ep, launcher)),
         "waiting_for": [] if over else [name for name, e in table.items() if e.get("awaited") and not e["alive"]],
         "launcher_rejected": (launcher or {}).get("rejected", {}),
         "launcher_handler_errors": (launcher or {}).get("handler_errors", {}),
@@ -178,6 +178,17 @@ def status_of(
         "launcher_state": (launcher or {}).get("state"),
         "pause": (launcher or {}).get("pause"),
     }
+
+
+def coverage_said(episode: dict[str, Any], launcher: dict[str, Any] | None) -> bool | None:
+    """Whether the run measures coverage as it said so itself: its referee's ``episode_status`` (``coverage_measured``,
+    the one that knows: the sim yes, a ROS 2 bridge no, a referee of one's own as it declares), else its launcher's
+    status (which takes the referee's word once heard, else judges by the services' names); None where neither says
+    (an older referee and launcher, or no launcher), for ``run_profile.measures_coverage`` to judge by the services."""
+    for said in (episode.get("coverage_measured"), (launcher or {}).get("coverage_measured")):
+        if isinstance(said, bool):
+            return said
+    return None
 
 
 COMMAND_NODE_NOTE = "no status: a command node"

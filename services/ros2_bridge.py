@@ -1051,6 +1051,7 @@ class Ros2BridgeService(Service):
                 episode=self.episode,
                 pose=self.last_pose,
                 twist=self.last_twist,
+                coverage_measured=False,  # a real robot: no ground truth, its coverage_pct 0 is no measure
             )
 
     def episode_result(self) -> EpisodeResultMsg:

@@ -307,6 +307,7 @@ class SimService(Service):
             map_origin=self.sim.plan.map_origin,
             pose=out.pose,  # the step's odom, as published
             twist=out.twist,
+            coverage_measured=True,  # the sim knows the scene: its coverage is measured against its plan
         )
 
     def finish(self, state: str, terminated_by: str, reason: str = "", ended_why: str = "") -> None:

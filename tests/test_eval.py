@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
+import html
 import io
 import json
 import os
@@ -1781,26 +1783,58 @@ def test_the_report_says_a_run_was_interrupted_what_it_ran_with_and_how_each_met
     assert "Interrupted" not in write_report(tmp_path, summarize([row], [], ["greedy-dist"], meta)).read_text()
 
 
-def test_the_reports_steps_are_defined_as_the_run_counted_them(tmp_path: Path):
-    """The definition under Table 1 said "control periods (robot.control_period_s, 0.25 s)" whatever the run: an eval
-    with ``--set robot.control_period_s=0.5`` steps every 0.5 s, and a run of ``up`` on a real LIMO counts its scans."""
+def _definitions(folder: Path, meta: dict, sim_time_s: float | None) -> dict[str, str]:
+    """report.html's definitions under Table 1 (column -> words), for one episode of a run with ``meta``."""
     from cso_runtime.evaluation import summarize
     from cso_runtime.report import write_report
 
     row = {"method": "greedy-dist", "map": "img_1", "seed": 0, "traversable_area_m2": 150.0, "scale": "large", "terminated_by": "coverage",
            "explored_area_m2": 150.0, "coverage_pct": 99.5, "steps": 1500, "efficiency_m2_per_step": 0.1, "path_length_m": 10.0,
            "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}  # fmt: skip
+    page = write_report(folder, summarize([{**row, "sim_time_s": sim_time_s}], [], ["greedy-dist"], meta)).read_text()
+    return {html.unescape(c): html.unescape(d) for c, d in re.findall(r"<dt>(.*?)</dt><dd>(.*?)</dd>", page)}
 
-    def steps_said(meta: dict, sim_time_s: float | None) -> str:
-        page = write_report(tmp_path, summarize([{**row, "sim_time_s": sim_time_s}], [], ["greedy-dist"], meta)).read_text()
-        return page.split("<dt>steps</dt><dd>")[1].split("</dd>")[0]
 
+def _steps_said(folder: Path, meta: dict, sim_time_s: float | None) -> str:
+    """What report.html's definition under Table 1 says of steps, for one episode of a run with ``meta``."""
+    return _definitions(folder, meta, sim_time_s)["steps"]
+
+
+def test_the_reports_steps_are_defined_as_the_run_counted_them(tmp_path: Path):
+    """The definition under Table 1 said "control periods (robot.control_period_s, 0.25 s)" whatever the run: an eval
+    with ``--set robot.control_period_s=0.5`` steps every 0.5 s, and a run of ``up`` on a real LIMO counts its scans."""
+    steps_said = functools.partial(_steps_said, tmp_path)
     config = to_dict(ExplorationConfig())
     assert steps_said({"config": config, "sim_settings": {}}, 375.0).startswith("control periods (robot.control_period_s, 0.25 s)")
     config["robot"]["control_period_s"] = 0.5
     assert steps_said({"config": config, "sim_settings": {}}, 750.0).startswith("control periods (robot.control_period_s, 0.5 s)")
     real_robot = {"command": "cso-runtime up", "profile": {"name": "limo-ros2"}, "config": config}  # no simulator: no sim_settings
     assert steps_said(real_robot, None).startswith("scans of the real robot")
+
+
+def test_the_reports_steps_are_said_in_the_words_of_the_runs_referee(tmp_path: Path):
+    """report.html said "scans of the real robot (about 10 Hz on the LIMO)" of every run of ``up`` without the sim, also
+    of one whose referee is one's own (a command node publishing ``episode_status`` and ``episode_result``: a simulator
+    of one's own, say), which is no real robot and whose steps are its own. Each referee's steps in their own words:
+    the sim's control periods, the ROS 2 bridge's scans of the real robot, a referee of one's own's steps as it counts
+    them, whether it measured coverage or not."""
+    config = to_dict(ExplorationConfig())
+    up = {"command": "cso-runtime up", "config": config}
+    own = {"referee": {"command": ["python3", "my_referee.py"], "outputs": ["episode_status", "episode_result"]}, "mapper": {}}
+    sim = _steps_said(tmp_path, {**up, "profile": {"services": {"sim": {}, "mapper": {}}}, "sim_settings": {}, "coverage_measured": True}, 375.0)
+    limo = _steps_said(tmp_path, {**up, "profile": {"services": {"ros2_bridge": {}, "mapper": {}}}, "coverage_measured": False}, None)
+    mine = _steps_said(tmp_path, {**up, "profile": {"services": own}, "coverage_measured": False}, None)
+    assert sim.startswith("control periods (robot.control_period_s, 0.25 s)") and limo.startswith("scans of the real robot"), (sim, limo)
+    assert mine.startswith("steps as the run's own referee counted them") and "real robot" not in mine and "control period" not in mine, mine
+    assert _steps_said(tmp_path, {**up, "profile": {"services": own}, "coverage_measured": True}, None) == mine  # one with a ground truth of its own
+    assert _steps_said(tmp_path, {**up, "profile": {"services": own}}, None) == mine  # up's summary from before meta.coverage_measured
+    # and its coverage, where it measured none, is n/a for no ground truth of its own, not for a real robot's
+    from cso_runtime.live_view import NO_GROUND_TRUTH, NO_OWN_GROUND_TRUTH
+
+    said = _definitions(tmp_path, {**up, "profile": {"services": own}, "coverage_measured": False}, None)["coverage %"]
+    assert said.startswith(f"{NO_OWN_GROUND_TRUTH}; ") and "real robot" not in said, said
+    assert _definitions(tmp_path, {**up, "profile": {"services": {"ros2_bridge": {}}}, "coverage_measured": False}, None)["coverage %"].startswith(f"{NO_GROUND_TRUTH}; ")
+    assert _definitions(tmp_path, {**up, "profile": {"services": own}, "coverage_measured": True}, None)["coverage %"] == "explored m2 over the traversable floor's m2"
 
 
 def test_the_report_of_a_real_robots_run_says_its_coverage_is_na_as_status_does(tmp_path: Path):

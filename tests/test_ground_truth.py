@@ -33,8 +33,9 @@ def own_referee_profile(tmp_path: Path) -> Path:
     return path
 
 
-def views_of(tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture) -> dict[str, bool]:
-    """Each view of one ended episode of ``kind``'s run: whether it shows the referee's coverage as a number."""
+def views_of(tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture, said: bool | None = None) -> dict[str, bool]:
+    """Each view of one ended episode of ``kind``'s run: whether it shows the referee's coverage as a number.
+    ``said``: what the referee's ``episode_status`` says of it (``coverage_measured``; None: nothing, as before)."""
     from rich.console import Console
 
     from cso_runtime.cli import app
@@ -54,7 +55,7 @@ def views_of(tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture) -> dic
     launcher = Launcher(profile, data, run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "profile.yaml").write_text(yaml.safe_dump(data))
-    msg = EpisodeStatusMsg(state="done", step=10, scene="s", method="greedy-dist", episode=7, coverage_pct=COVERAGE, explored_area_m2=1.2)
+    msg = EpisodeStatusMsg(state="done", step=10, scene="s", method="greedy-dist", episode=7, coverage_pct=COVERAGE, explored_area_m2=1.2, coverage_measured=said)
     launcher._on_sample(SimpleNamespace(key_expr=RobotKeys(profile.robot).episode_status, payload=SimpleNamespace(to_bytes=lambda: encode(msg))))
     launcher.ended_status = msg
     free = np.ones((3, 4), bool)
@@ -107,6 +108,74 @@ def test_every_view_agrees_whether_a_runs_coverage_was_measured(tmp_path, caplog
     assert views == dict.fromkeys(views, measured), views  # and what --json says, beside coverage_pct
     (summary,) = (tmp_path / "runs").glob("*/summary.json")
     assert json.loads(summary.read_text())["meta"]["coverage_measured"] is measured
+
+
+@pytest.mark.parametrize("said", [True, False])
+def test_a_referee_of_ones_own_says_whether_it_measures_coverage_and_every_view_takes_its_word(tmp_path, caplog, said):
+    """A referee of one's own with a ground truth (a simulator of one's own publishing the sim's keys) could not say so:
+    the launcher judged by the services' names alone, so its coverage was n/a everywhere. Its ``episode_status`` says
+    ``coverage_measured``, and the launcher (its status, live view, lines, summary.json's ``meta.coverage_measured``),
+    ``status``, ``runs`` and report.html all take its word; one that says nothing is judged as before (above)."""
+    import json
+
+    views = views_of(tmp_path, "own-referee", caplog, said)
+    assert views == dict.fromkeys(views, said), views
+    (summary,) = (tmp_path / "runs").glob("*/summary.json")
+    assert json.loads(summary.read_text())["meta"]["coverage_measured"] is said
+
+
+def referees_own_status(referee: str, said: bool | None = None) -> dict:
+    """The ``episode_status`` that ``referee`` answers before its episode starts, as ``status`` decodes it: the real
+    sim's and ros2_bridge's (no Zenoh), or one of one's own saying ``said`` (``coverage_measured``)."""
+    from cso_runtime.config import ExplorationConfig
+    from cso_runtime.messages import EpisodeStatusMsg, decode, encode
+    from cso_runtime.transport import TransportConfig
+    from services.common import ServiceContext
+
+    if referee == "ros2_bridge":
+        from tests.test_ros2_bridge import _bridge_without_zenoh
+
+        msg = _bridge_without_zenoh()[0].episode_status()
+    elif referee == "sim":
+        from services.sim import SimService
+
+        profile = {"lockstep": True, "scene": "generated:small:1:0", "seed": 0}
+        msg = SimService(ServiceContext("sim", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})).episode_status()
+    else:
+        msg = EpisodeStatusMsg("exploring", 3, coverage_pct=COVERAGE, episode=7, coverage_measured=said)
+    status = decode(encode(msg), EpisodeStatusMsg)
+    return {**status.to_dict(), "coverage_pct": COVERAGE}  # a number to show, or not
+
+
+@pytest.mark.parametrize(("referee", "said", "measured"), [("sim", None, True), ("ros2_bridge", None, False), ("referee", True, True), ("referee", False, False)])
+def test_status_with_no_launcher_to_ask_takes_the_referees_own_word(referee, said, measured):
+    """``status`` of a run whose launcher does not answer (services started by hand, or only the referee's queryable
+    reached) said a real robot's coverage was 0.00 %: with no launcher it judged by the five services of the sim's
+    profile, the sim among them. The referee's own ``episode_status`` says whether it measures coverage: the ROS 2
+    bridge no, the sim yes, a referee of one's own as it says; and it has the last word over a launcher's judgement by
+    the services' names (a launcher that has not heard the referee yet, or an older one)."""
+    from rich.console import Console
+
+    from cso_runtime.live_view import NO_GROUND_TRUTH
+    from cso_runtime.status import render_table, status_of
+
+    episode = referees_own_status(referee, said)
+    for launcher in (None, {"run_id": "run1", "state": "running", "services": {referee: {"pid": 1}, "mapper": {"pid": 2}}, "coverage_measured": not measured}):
+        status = status_of("r0", episode, launcher, {}, {referee, "mapper"})
+        console = Console(record=True, width=200)
+        console.print(render_table(status))
+        (row,) = [r for r in console.export_text().splitlines() if re.match(r"│ coverage +│", r)]
+        assert status["coverage_measured"] is measured and (NO_GROUND_TRUTH not in row) is measured and ("42.50 %" in row) is measured, row
+        assert status["coverage_pct"] == COVERAGE  # --json keeps what the referee sent
+
+
+def test_status_of_a_referee_that_says_nothing_with_no_launcher_is_judged_as_before():
+    """A referee from before ``coverage_measured`` (its ``episode_status`` without it) and no launcher: the services
+    ``status`` lists then (the sim profile's) say, as before."""
+    from cso_runtime.status import status_of
+
+    episode = {"state": "exploring", "step": 3, "coverage_pct": COVERAGE}
+    assert status_of("r0", episode, None, {}, {"sim", "mapper"})["coverage_measured"] is True
 
 
 @pytest.mark.parametrize(("referee", "measured"), [("sim", True), ("ros2_bridge", False), ("referee", False)])

@@ -615,6 +615,29 @@ def test_episode_status_carries_the_robots_pose_and_twist_and_a_v3_one_reads_wit
             decode(_wire("episode_status", {k: v for k, v in _body(status).items() if k != missing}), EpisodeStatusMsg)
 
 
+def test_episode_status_may_say_whether_its_referee_measures_coverage_and_a_body_without_it_still_reads():
+    """A referee says whether it has a ground truth, its ``coverage_pct`` a measure (``coverage_measured``: the sim yes,
+    a ROS 2 bridge no, a referee of one's own as it knows), so that ``status`` can say n/a with no launcher to ask. The
+    field is optional in v4, no version bump: a body without it (every referee before it, or one that does not say)
+    reads as not said (None), and none is sent then, so an older reader gets the body it always got; a newer reader's
+    older peer ignores the field (docs/messages.md: a receiver ignores a body field it does not know)."""
+    assert EpisodeStatusMsg.VERSION == 4
+    for said in (True, False):
+        status = EpisodeStatusMsg("exploring", 5, coverage_pct=12.5, episode=3, coverage_measured=said)
+        assert _body(status)["coverage_measured"] is said and decode(encode(status), EpisodeStatusMsg) == status
+    unsaid = EpisodeStatusMsg("exploring", 5, coverage_pct=12.5, episode=3)
+    assert "coverage_measured" not in _body(unsaid) and decode(encode(unsaid), EpisodeStatusMsg) == unsaid
+    assert unsaid.coverage_measured is None and "coverage_measured" not in unsaid.to_dict()
+    older = _body(unsaid)  # a v4 body as every referee sent it before the field
+    assert decode(_wire("episode_status", older), EpisodeStatusMsg).coverage_measured is None
+    assert decode(_wire("episode_status", {**older, "coverage_measured": None}), EpisodeStatusMsg).coverage_measured is None
+    for wrong in (1, 0, "yes"):  # a flag is msgpack true/false, not 0/1
+        with pytest.raises(MessageError, match=r"episode_status\.coverage_measured: expected true/false"):
+            decode(_wire("episode_status", {**older, "coverage_measured": wrong}), EpisodeStatusMsg)
+    v3 = _wire("episode_status", {k: v for k, v in older.items() if k not in ("pose", "twist")}, version=3)
+    assert decode(v3, EpisodeStatusMsg, accept_legacy=True).coverage_measured is None  # a recording: not said either
+
+
 def test_cmd_vel_carries_the_planners_state_and_plan_opaque_and_bounded_and_a_foreign_one_needs_neither():
     """v3: the project's planner hands the referee its state (every step) and plan (when it changed) on ``cmd_vel``, as the
     encoded messages, which ``cmd_vel``'s decoding leaves unread (the referee serves them as they came). Each is bounded

@@ -309,6 +309,7 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "map_origin": [1.0, -2.0, 0.5],
             "pose": [0.5, -0.25, 3.0],
             "twist": [0.2, -0.5],
+            "coverage_measured": True,  # optional: the sim measures coverage
         },
         {  # no odometry yet (a ros2_bridge before its first scan): pose and twist nil
             "state": "starting",
@@ -328,6 +329,7 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "map_origin": [0.0, 0.0, 0.0],
             "pose": None,
             "twist": None,
+            "coverage_measured": False,  # a real robot: no ground truth
         },
     ],
     "episode_result": [
@@ -460,6 +462,7 @@ def test_the_values_decoded_are_the_ones_the_docs_describe():
     assert status.pose is not None and status.twist is not None and status.pose.as_list() == [0.5, -0.25, 3.0]  # scene's frame
     assert (status.twist.linear_mps, status.twist.angular_radps) == (0.2, -0.5)
     assert isinstance(no_odometry, EpisodeStatusMsg) and (no_odometry.pose, no_odometry.twist) == (None, None)
+    assert (status.coverage_measured, no_odometry.coverage_measured) == (True, False)
     (result,) = bodies["episode_result"]
     assert isinstance(result, EpisodeResultMsg) and result.final_map is not None and result.final_map.step == 40 and result.seed == -3
     (service,) = bodies["service_status"]
@@ -674,6 +677,8 @@ def test_the_envelope_is_exactly_schema_v_and_body_of_the_current_version():
     assert decode(envelope("odom", OdometryMsg.VERSION, {**body, "covariance": [1.0]}), OdometryMsg).step == 3
     result = {k: v for k, v in BODIES["episode_result"][0].items() if k != "ended_why"}
     assert decode(envelope("episode_result", EpisodeResultMsg.VERSION, result), EpisodeResultMsg).ended_why == ""
+    status = {k: v for k, v in BODIES["episode_status"][0].items() if k != "coverage_measured"}  # a referee that does not say
+    assert decode(envelope("episode_status", EpisodeStatusMsg.VERSION, status), EpisodeStatusMsg).coverage_measured is None
 
 
 def test_the_project_sends_the_documented_dtypes_and_bit_packed_grids():
