@@ -1559,6 +1559,8 @@ def parse_seeds(items: list[str]) -> list[int]:
             seeds.append(int(word))
         except ValueError:
             raise ConfigError(f"--seeds: {word!r} is not a seed (whole numbers separated by commas: --seeds 0,1,2)") from None
+    if items and not seeds:  # `--seeds ""` (an empty variable) named none: not a one-seed eval of seed 0
+        raise ConfigError(f"--seeds: no seed given in {' '.join(map(repr, items))} (whole numbers separated by commas: --seeds 0,1,2)")
     return seeds
 
 

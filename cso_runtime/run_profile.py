@@ -19,6 +19,7 @@ from cso_runtime.config import (
     ConfigError,
     ExplorationConfig,
     check_seed,
+    field_value,
     from_dict,
     key_sections,
     load_yaml,
@@ -536,7 +537,8 @@ def load_profile(
         router = data.get("router") or {}
         if not isinstance(router, dict):
             raise ConfigError(f"{path}: router must be a mapping")
-        data["router"] = {**router, "connect": [*(router.get("connect") or []), *connect]}
+        earlier = router.get("connect")  # a list field's one value is its list (config._convert), not its letters
+        data["router"] = {**router, "connect": [*([] if earlier is None else field_value(earlier, list[str], f"{path}: router.connect")), *connect]}
     if namespace is not None:
         services = data.get("services") or {}
         if not isinstance(services, dict) or "ros2_bridge" not in services:
@@ -613,9 +615,7 @@ def leave_out(data: dict[str, Any], names: list[str], path: Path, foxglove: bool
             raise ConfigError("--without foxglove_bridge and --foxglove: give one or the other")
         if name not in services:
             raise ConfigError(f"--without {name}: profile {path} has no {name} service (it has {', '.join(services) or 'none'})")
-    earlier = data.get("without") or []
-    if not isinstance(earlier, list):
-        raise ConfigError(f"{path}: without must be a list of service names")
+    earlier = field_value(data.get("without") or [], list[str], f"{path}: without")  # one name is the list of it (config._convert)
     # A service of the profile's own that no built-in one stands for is simply not run: nothing else waits for it, and
     # the run's profile.yaml has no class left to draw it by; a built-in one is left to another process (``without``).
     data["without"] = [*earlier, *(n for n in services if n in names and n in SERVICE_NAMES)]

@@ -447,6 +447,24 @@ def test_a_list_field_takes_one_value_or_values_separated_by_commas_as_most_clis
     assert ran[-1].generated == ["generated:small:2:0", "generated:middle:2:1000"] and ran[-1].dungeon_m_per_px == [0.05]
 
 
+def test_a_profiles_one_value_list_goes_with_ups_flags_that_add_to_it(tmp_path: Path):
+    """A profile's ``router.connect: tcp/...`` and ``without: policy`` (one value: a list field's list of it,
+    ``config._convert``) are taken alone, but ``up --connect X`` unpacked the text letter by letter ("bad zenoh endpoint
+    't'") and ``up --without mapper`` refused the file ("without must be a list"): the flags add to the list read."""
+    from cso_runtime.run_profile import load_profile
+
+    profile = tmp_path / "one.yaml"
+    profile.write_text("router:\n  connect: tcp/127.0.0.1:7447\nservices:\n  sim: {}\n  mapper: {}\n  frontier: {}\nwithout: policy\n")
+    alone, _ = load_profile(str(profile))
+    assert alone.router.connect == ["tcp/127.0.0.1:7447"] and alone.without == ["policy"]
+    joined, data = load_profile(str(profile), connect=["tcp/10.0.0.1:7447"], without=["frontier"])
+    assert joined.router.connect == ["tcp/127.0.0.1:7447", "tcp/10.0.0.1:7447"]
+    assert joined.without == ["policy", "frontier"] and data["without"] == ["policy", "frontier"]
+    profile.write_text("router:\n  connect: {a: 1}\nservices:\n  sim: {}\n")
+    with pytest.raises(ConfigError, match="router.connect: expected a list"):
+        load_profile(str(profile), connect=["tcp/10.0.0.1:7447"])
+
+
 def test_train_refuses_a_field_of_view_eval_cannot_run_before_it_starts(tmp_path: Path, capsys):
     """``train --set lidar_fov_deg=270`` trained for minutes, then its weights could not be evaluated as trained:
     ``eval --lidar-fov`` runs 180 or 360 alone (and ran them at 180, warning). The depth preset has its own field of

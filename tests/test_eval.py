@@ -180,6 +180,20 @@ def test_eval_seeds_runs_several_seeds_in_one_command_and_pools_them_in_one_fold
         run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=one_seed, seeds=[0, 1]))
 
 
+def test_eval_seeds_of_no_seed_is_refused_not_run_as_seed_0(tmp_path: Path):
+    """``--seeds ""`` (an empty shell variable) or ``--seeds ,`` named no seed, and the eval ran as a one-seed eval of
+    seed 0 (or of ``--seed``, which it was to refuse beside ``--seeds``), writing its files where ``--seeds`` would have
+    pooled: it is refused as a bad ``--seeds``, as ``--seeds 0,x`` is."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    common = ["eval", "--method", "random", "--maps", "generated:small:1:0", "--out", str(tmp_path / "out"), "--dry-run"]
+    for given in (["--seeds", ""], ["--seeds", ","], ["--seeds", " ", "--seed", "3"]):
+        refused = CliRunner().invoke(app, [*common, *given])
+        assert refused.exit_code == 2 and "--seeds: no seed given" in " ".join(refused.output.split()), (given, refused.output)
+
+
 def test_a_one_seed_eval_into_the_folder_of_an_eval_of_several_seeds_is_refused(tmp_path: Path):
     """``--seeds`` refuses an ``--out`` that holds a one-seed eval's episodes, but the other way round a one-seed eval
     into the folder of ``--seeds 0,1`` replaced the pooled summary.json and episodes.csv with its own (no warning),
