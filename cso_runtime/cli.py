@@ -290,7 +290,7 @@ def eval_command(
         None, "--seeds", help="Several seeds in one eval, in place of --seed (0,1,2 or repeatable): each seed's episodes in OUT/seed<S>/, all pooled in OUT's summary.json, episodes.csv (the seed column) and report.html"
     ),
     max_steps: int | None = typer.Option(
-        None, "--max-steps", help="Step limit per episode (one step = 0.25 s); default: the --config file's episode.max_steps, 3000"
+        None, "--max-steps", help="Step limit per episode (one step = 0.25 s), 1 to 1,000,000; default: the --config file's episode.max_steps, 3000 (a --set episode.max_steps of another value is refused)"
     ),
     lidar_fov: float | None = typer.Option(None, "--lidar-fov", help="LiDAR field of view in degrees: 180 (LIMO, the default) or 360; --sensor lidar only"),
     sensor: str = typer.Option("lidar", "--sensor", help="Sensor preset: lidar or depth"),
@@ -1333,7 +1333,7 @@ def train_command(
 def collect_teacher_command(
     out: Path = typer.Option(..., "--out", help="Teacher-data file to write (.npz); train with --set warm_start_data=[FILE]"),
     config: Path | None = typer.Option(DEFAULT_TRAIN_CONFIG, "--config", help="YAML with the fields of learned.ppo.Args (scenes, variant, masks)"),
-    teacher: str = typer.Option("rollout", "--teacher", help="greedy-dist, utility, greedy-info or rollout"),
+    teacher: str | None = typer.Option(None, "--teacher", help="greedy-dist, utility, greedy-info or rollout (default: rollout, or --set warm_start_teacher's)"),
     workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
     decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
     time_limit: float = typer.Option(0.0, "--time-limit-s", min=0.0, help="Each worker stops after this wall time (0 = none)"),
@@ -1342,10 +1342,17 @@ def collect_teacher_command(
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
 ) -> None:
     """Collect a warm-start teacher's decisions once (the rollout teacher costs seconds per decision) for several training runs to imitate."""
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.learned.ppo import collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
     from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
 
-    overrides = {"seed": seed, "warm_start_teacher": teacher, "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
+    overrides: dict[str, object] = {"seed": seed, "warm_start_teacher": teacher, "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
+    try:
+        refuse_two_values_of_a_field(overrides, [], settings or [])  # --seed 3 --set seed=4, as train refuses it
+        if teacher is None and "warm_start_teacher" not in parse_settings(settings or []):
+            overrides["warm_start_teacher"] = "rollout"  # the default teacher, over the config file's (train's warm start's)
+    except ConfigError as exc:
+        _fail(str(exc), 2)
     args = training_args(config, overrides, settings)
     output_dir_or_exit(out.parent, f"--out {out}: its folder")  # before hours of rollouts, not after
     from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
@@ -1360,7 +1367,7 @@ def collect_teacher_command(
         _fail("interrupted; nothing was written (--time-limit-s stops the workers and keeps what they collected)", EXIT_INTERRUPTED)
     out.parent.mkdir(parents=True, exist_ok=True)
     collected.save(out)
-    typer.echo(f"done: {len(collected)} {teacher} decisions in {time.time() - t0:.0f} s -> {out}")
+    typer.echo(f"done: {len(collected)} {args.warm_start_teacher} decisions in {time.time() - t0:.0f} s -> {out}")
 
 
 def output_dir_or_exit(path: Path | str, label: str) -> None:
@@ -1513,7 +1520,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     twice, whose last value counts, as typer's own options' does."""
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, field_value, set_flag_text, yaml_text  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, field_value, refuse_two_values, set_flag_text, yaml_text  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1539,13 +1546,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
         given.setdefault(name, []).append((field_flag(name, value), value))
     for name, value in parse_settings(settings).items():
         given.setdefault(name, []).append((set_flag_text(name, value), value))
-    for name, said in given.items():
-        if name not in types:
-            continue  # no field: from_dict names it
-        (first, value), *others = said
-        for other, other_value in others:
-            if read(name, other_value) != read(name, value):
-                raise ConfigError(f"{first} and {other} both set {name}, to different values: give one")
+    refuse_two_values({name: said for name, said in given.items() if name in types}, read)  # a key no field is: from_dict names it
 
 
 def parse_seeds(items: list[str]) -> list[int]:

@@ -49,11 +49,82 @@ LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 by the time stamp in front."""
 
 
+def number_said(value: float) -> str:
+    """A bound or a value as an error says it: ``0.5``, ``3.14159``, ``1,000,000`` (a whole number with its commas)."""
+    if isinstance(value, int) or (float(value).is_integer() and abs(value) < 1e15):
+        return f"{int(value):,}"
+    return f"{value:g}"
+
+
+@dataclass(frozen=True)
+class Bound:
+    """The range a numeric configuration key takes, checked by its section's ``validate`` (``check_bounds``) before
+    anything starts, so that 0, a negative value or an absurd one (a lookahead of 1e9 m, a length typed in
+    millimetres) is refused naming the key, the value and the range, not run, nor failed deep inside a service."""
+
+    low: float
+    """The smallest value taken (``low_open``: the values above it)."""
+    high: float
+    """The largest value taken."""
+    unit: str = ""
+    """The key's unit as the error says it (``m``, ``s``), or none for a count."""
+    low_open: bool = False
+    """``low`` itself is refused: the key must be above it (a positive length)."""
+    why: str = ""
+    """Why ``high`` is the largest, said after the range (``a back-up is a short manoeuvre``)."""
+
+    def said(self) -> str:
+        """The range in interval notation, with its unit: ``(0, 100] m``, ``[1, 1,000,000]``."""
+        unit = f" {self.unit}" if self.unit else ""
+        return f"{'(' if self.low_open else '['}{number_said(self.low)}, {number_said(self.high)}]{unit}"
+
+    def check(self, key: str, value: float) -> None:
+        """ConfigError naming ``key``, ``value`` and the range when ``value`` is outside it."""
+        inside = (value > self.low if self.low_open else value >= self.low) and value <= self.high
+        if not inside:  # NaN included: from_dict refuses it already, a dataclass built in code may not
+            why = f" ({self.why})" if self.why else ""
+            raise ConfigError(f"{key} must be in {self.said()}{why}, got {number_said(value)}")
+
+
+def check_bounds(section: str, obj: object, bounds: typing.Mapping[str, Bound]) -> None:
+    """``bounds``' check of each of ``obj``'s keys it names (``section.key`` in the error): the one way a config
+    section bounds its numbers (each section's table, e.g. ``PLANNER_BOUNDS``, documents them)."""
+    for name, bound in bounds.items():
+        bound.check(f"{section}.{name}" if section else name, getattr(obj, name))
+
+
+MAX_WAIT_S = 86_400.0
+"""The longest wait, period or timeout a service or the launcher takes, in seconds (a day): no timeout anyone means is
+longer, and one much longer (1e300 s) overflowed Python's own waits (``threading.TIMEOUT_MAX``) deep inside a running
+service, where it is refused before anything starts."""
+MAX_RESTARTS = 1000
+"""The most restarts (a service's by the launcher, a helper process's by its service) a configuration may allow."""
+
+
+def seconds(*names: str, positive: bool = False) -> dict[str, Bound]:
+    """The bounds of time keys ``names`` (a service's waits, periods and timeouts): in [0, ``MAX_WAIT_S``] s, or above 0
+    (``positive``)."""
+    return {name: Bound(0.0, MAX_WAIT_S, "s", low_open=positive, why="a day: config.MAX_WAIT_S") for name in names}
+
+
 LIDAR_FOVS_DEG = (180.0, 360.0)
 """The LiDAR fields of view ``eval --lidar-fov`` runs, in degrees: the LIMO's EAI X2L and a full ring (the tables'),
 the sensors weights ship for; ``train``'s ``lidar_fov_deg`` takes these alone, so that its weights can be evaluated."""
 LIDAR_FOVS_SAID = " or ".join(f"{fov:g}" for fov in LIDAR_FOVS_DEG)
 """``LIDAR_FOVS_DEG`` as the errors say them: ``180 or 360``."""
+
+
+MAX_SENSOR_RATE_HZ = 1000.0
+"""The fastest scan rate taken: no planar LiDAR or depth camera scans faster (the LIMO's EAI X2L scans at 8 Hz)."""
+
+SENSOR_BOUNDS: dict[str, Bound] = {
+    "fov_deg": Bound(0.0, 360.0, "degrees", low_open=True),
+    "range_max_m": Bound(0.0, MAX_RANGE_M, "m", low_open=True, why="a scan's longest: geometry.MAX_RANGE_M"),
+    "range_noise_std_m": Bound(0.0, MAX_RANGE_M, "m", why="a scan's longest: geometry.MAX_RANGE_M"),
+    "rate_hz": Bound(0.0, MAX_SENSOR_RATE_HZ, "Hz", low_open=True, why="no planar range sensor scans faster"),
+}
+"""``SensorConfig``'s bounds; beside them ``resolution_deg`` is in (0, ``fov_deg``], ``range_min_m`` in [0,
+``range_max_m``), and a scan's beams (``fov_deg / resolution_deg``) are at most ``messages.MAX_BEAMS``."""
 
 
 @dataclass
@@ -91,18 +162,18 @@ class SensorConfig:
         return cfg
 
     def validate(self) -> None:
-        if not 0 < self.fov_deg <= 360:
-            raise ConfigError("sensor.fov_deg must be in (0, 360]")
+        check_bounds("sensor", self, SENSOR_BOUNDS)
         if not 0 < self.resolution_deg <= self.fov_deg:
-            raise ConfigError("sensor.resolution_deg must be in (0, fov_deg]")
+            raise ConfigError(f"sensor.resolution_deg must be in (0, fov_deg {self.fov_deg:g}] degrees, got {self.resolution_deg:g}")
         if not 0 <= self.range_min_m < self.range_max_m:
-            raise ConfigError("sensor needs 0 <= range_min_m < range_max_m")
-        if self.range_max_m > MAX_RANGE_M:
-            raise ConfigError(f"sensor.range_max_m must be at most {MAX_RANGE_M:g} m (a scan's longest; see geometry.MAX_RANGE_M)")
-        if self.range_noise_std_m < 0:
-            raise ConfigError("sensor.range_noise_std_m must be >= 0")
-        if not self.rate_hz > 0:
-            raise ConfigError("sensor.rate_hz must be positive")
+            raise ConfigError(f"sensor.range_min_m must be in [0, range_max_m {self.range_max_m:g}) m, got {self.range_min_m:g}")
+        from cso_runtime.messages import MAX_BEAMS  # noqa: PLC0415  (messages imports this module)
+
+        if (beams := round(self.fov_deg / self.resolution_deg)) > MAX_BEAMS:  # each scan would allocate them all
+            raise ConfigError(
+                f"sensor.resolution_deg must be at least {self.fov_deg / MAX_BEAMS:g} degrees for a {self.fov_deg:g}-degree field of view "
+                f"(at most {MAX_BEAMS:,} beams a scan: messages.MAX_BEAMS), got {self.resolution_deg:g}: {beams:,} beams"
+            )
 
 
 MAX_ROBOT_RADIUS_M = 2.0
@@ -149,7 +220,7 @@ class RobotConfig:
             raise ConfigError(f"robot.radius_m must be from 0 to {MAX_ROBOT_RADIUS_M:g} m (the LIMO's is 0.2), got {self.radius_m}")
         for name in ("length_m", "width_m", "max_linear_mps", "max_angular_radps", "control_period_s"):
             if not 0 < getattr(self, name) < math.inf:
-                raise ConfigError(f"robot.{name} must be positive and finite")
+                raise ConfigError(f"robot.{name} must be positive and finite, got {getattr(self, name):g}")
         limo = RobotConfig()
         for name, (most, unit, other_unit) in ROBOT_LIMITS.items():
             if (value := getattr(self, name)) > most:
@@ -169,6 +240,22 @@ class MappingConfig:
     the robot's own position that no turn can observe. Cells already seen are left as they are."""
 
 
+def _map_length(unit: str = "m", low_open: bool = False) -> Bound:
+    """A length, or an area, on the map: at least 0 (above it: ``low_open``), at most ``messages.MAX_GRID_SIDE_M`` (its
+    square for an area). A function, not a table: ``messages`` imports this module."""
+    from cso_runtime.messages import MAX_GRID_SIDE_M  # noqa: PLC0415  (messages imports this module)
+
+    if unit == "m2":
+        return Bound(0.0, MAX_GRID_SIDE_M**2, "m2", low_open, why="the largest area a map may have: messages.MAX_GRID_SIDE_M squared")
+    return Bound(0.0, MAX_GRID_SIDE_M, "m", low_open, why="the longest side a map may have: messages.MAX_GRID_SIDE_M")
+
+
+def frontier_bounds() -> dict[str, Bound]:
+    """``FrontierConfig``'s bounds: lengths on the map (a longer one is longer than any map: no cluster is that long,
+    every window the whole map)."""
+    return {"min_cluster_size_m": _map_length(), "entropy_window_m": _map_length(low_open=True)}
+
+
 @dataclass
 class FrontierConfig:
     """Frontier extraction and the frontier-based entropy of Eq. 4."""
@@ -181,20 +268,18 @@ class FrontierConfig:
     ``min_cluster_size_m``): a longer one is longer than any map."""
 
     def validate(self) -> None:
-        from cso_runtime.messages import MAX_GRID_SIDE_M  # noqa: PLC0415  (messages imports this module)
-
-        if self.min_cluster_size_m < 0:
-            raise ConfigError("frontier.min_cluster_size_m must be >= 0")
-        if not self.entropy_window_m > 0:
-            raise ConfigError("frontier.entropy_window_m must be positive")
-        for name in ("min_cluster_size_m", "entropy_window_m"):  # longer than any map: no cluster is that long, every window the whole map
-            if (value := getattr(self, name)) > MAX_GRID_SIDE_M:
-                raise ConfigError(f"frontier.{name} must be at most {MAX_GRID_SIDE_M:g} m (the longest side a map may have: messages.MAX_GRID_SIDE_M), got {value:g}")
+        check_bounds("frontier", self, frontier_bounds())
 
 
 STUCK_AVOID = ("positions", "goals")
 MASK_CONFLICT = ("distance", "stuck")
 """``MaskConfig.stuck_avoid``'s values."""
+
+
+def mask_bounds() -> dict[str, Bound]:
+    """``MaskConfig``'s bounds: distances and areas on the map, each at least 0 and at most the largest a map may have
+    (``beta_near_m < beta_far_m`` is checked beside them)."""
+    return {"beta_near_m": _map_length(), "beta_far_m": _map_length(), "alpha1_m": _map_length(), "alpha2_m2": _map_length("m2"), "alpha3_m": _map_length()}
 
 
 @dataclass
@@ -233,20 +318,32 @@ class MaskConfig:
     it leaves (nearer than beta_near, then farther than beta_far), dropping it only when it leaves none at all."""
 
     def validate(self) -> None:
+        check_bounds("masks", self, mask_bounds())
         if not 0 <= self.beta_near_m < self.beta_far_m:
-            raise ConfigError("masks need 0 <= beta_near_m < beta_far_m")
+            raise ConfigError(f"masks need 0 <= beta_near_m < beta_far_m, got beta_near_m {self.beta_near_m:g} and beta_far_m {self.beta_far_m:g}")
         if self.stuck_avoid not in STUCK_AVOID:
             raise ConfigError(f"masks.stuck_avoid must be one of {', '.join(STUCK_AVOID)}, not {self.stuck_avoid!r}")
         if self.conflict not in MASK_CONFLICT:
             raise ConfigError(f"masks.conflict must be one of {', '.join(MASK_CONFLICT)}, not {self.conflict!r}")
-        if min(self.alpha1_m, self.alpha2_m2, self.alpha3_m) < 0:
-            raise ConfigError("masks.alpha1_m, alpha2_m2 and alpha3_m must be >= 0")
 
 
 MAX_EPISODE_STEPS = 1_000_000
 """The most ``episode.max_steps`` may be (69 hours of 0.25 s steps, 28 of a 10 Hz LiDAR's): it bounds the arrays of one
 entry per step or decision on the wire (``messages.MAX_STEP_POINTS``), so a receiver can refuse a record that declares
 more before inflating it."""
+
+
+MAX_DONE_UNEXPLORED_M2 = 1_000_000.0
+"""The most ``episode.done_unexplored_m2`` may be: a square kilometre, 300 times the largest shipped scene (64 x 48 m);
+more leaves the coverage alone to end an episode."""
+
+EPISODE_BOUNDS: dict[str, Bound] = {
+    "max_steps": Bound(1, MAX_EPISODE_STEPS, why="an episode's result must fit its message: MAX_EPISODE_STEPS"),
+    "replan_every_steps": Bound(1, MAX_EPISODE_STEPS, why="at most the longest episode: MAX_EPISODE_STEPS"),
+    "done_coverage_pct": Bound(0.0, 100.0, "%", low_open=True),
+    "done_unexplored_m2": Bound(0.0, MAX_DONE_UNEXPLORED_M2, "m2", why="a square kilometre: MAX_DONE_UNEXPLORED_M2"),
+}
+"""``EpisodeConfig``'s bounds (``goal_tolerance_m`` is a length on the map: in (0, ``messages.MAX_GRID_SIDE_M``])."""
 
 
 @dataclass
@@ -265,20 +362,9 @@ class EpisodeConfig:
     """... and less than this much traversable area is unexplored."""
 
     def validate(self) -> None:
-        if self.max_steps < 1 or self.replan_every_steps < 1:
-            raise ConfigError("episode.max_steps and episode.replan_every_steps must be at least 1")
-        if self.max_steps > MAX_EPISODE_STEPS:
-            raise ConfigError(f"episode.max_steps must be at most {MAX_EPISODE_STEPS:,} (an episode's result must fit its message)")
-        if not self.goal_tolerance_m > 0:
-            raise ConfigError("episode.goal_tolerance_m must be positive")
-        from cso_runtime.messages import MAX_GRID_SIDE_M  # noqa: PLC0415  (messages imports this module)
-
-        if self.goal_tolerance_m > MAX_GRID_SIDE_M:  # farther than any map: every goal reached where it is chosen
-            raise ConfigError(f"episode.goal_tolerance_m must be at most {MAX_GRID_SIDE_M:g} m (the longest side a map may have: messages.MAX_GRID_SIDE_M), got {self.goal_tolerance_m:g}")
-        if not 0 < self.done_coverage_pct <= 100:
-            raise ConfigError("episode.done_coverage_pct must be in (0, 100]")
-        if self.done_unexplored_m2 < 0:
-            raise ConfigError("episode.done_unexplored_m2 must be >= 0")
+        check_bounds("episode", self, EPISODE_BOUNDS)
+        # Farther than any map: every goal reached where it is chosen.
+        _map_length(low_open=True).check("episode.goal_tolerance_m", self.goal_tolerance_m)
 
 
 BODIES = ("disc", "box")
@@ -289,6 +375,38 @@ LIMO_BODY = "box"
 
 LIMO_LIDAR_MOUNT_X_M = 0.103
 """Where the LIMO's EAI X2L sits ahead of the robot centre (the MuJoCo model mounts it there)."""
+
+
+MAX_PLANNER_DISTANCE_M = 100.0
+"""The longest of the local planner's own distances (lookahead, slow-down and stop clearance, progress): it follows a
+path within sight of the robot, and 100 m is longer than any shipped scene (the largest, 64 x 48 m); a length typed in
+millimetres or centimetres (500 for 0.5 m) is above it."""
+MAX_RECOVERY_DISTANCE_M = 5.0
+"""The longest back-up or escape drive of a recovery (Nav2's BackUp default is 0.15 m): a short manoeuvre, partly blind
+(the back-up drives only where the map the path was planned on is free)."""
+MAX_PROGRESS_WINDOW_S = 3600.0
+"""The longest progress-check window (Nav2's default is 10 s): an hour, beyond it the check never fires; a value in
+milliseconds (10000 for 10 s) is above it."""
+MAX_RECOVERY_COUNT = 1000
+"""The most control periods of a stall (``stall_steps``), or recoveries per goal (``progress_recoveries``), taken: 1000
+periods are 250 s of the LIMO pinned; 0 turns either off."""
+
+PLANNER_BOUNDS: dict[str, Bound] = {
+    "lookahead_m": Bound(0.0, MAX_PLANNER_DISTANCE_M, "m", low_open=True, why="the local planner's longest distance: MAX_PLANNER_DISTANCE_M"),
+    "rotate_in_place_rad": Bound(0.0, math.pi, "rad", low_open=True),
+    "slow_down_distance_m": Bound(0.0, MAX_PLANNER_DISTANCE_M, "m", why="the local planner's longest distance: MAX_PLANNER_DISTANCE_M"),
+    "stop_distance_m": Bound(0.0, MAX_PLANNER_DISTANCE_M, "m", why="the local planner's longest distance: MAX_PLANNER_DISTANCE_M"),
+    "progress_required_m": Bound(0.0, MAX_PLANNER_DISTANCE_M, "m", why="the local planner's longest distance: MAX_PLANNER_DISTANCE_M"),
+    "progress_window_s": Bound(0.0, MAX_PROGRESS_WINDOW_S, "s", low_open=True, why="an hour: MAX_PROGRESS_WINDOW_S"),
+    "face_goal_below_fov_deg": Bound(0.0, 360.0, "degrees"),
+    "stall_steps": Bound(0, MAX_RECOVERY_COUNT, why="0 turns it off: MAX_RECOVERY_COUNT"),
+    "backup_distance_m": Bound(0.0, MAX_RECOVERY_DISTANCE_M, "m", low_open=True, why="a short manoeuvre: MAX_RECOVERY_DISTANCE_M"),
+    "backup_speed_mps": Bound(0.0, ROBOT_LIMITS["max_linear_mps"][0], "m/s", low_open=True, why="and at most robot.max_linear_mps"),
+    "progress_recoveries": Bound(0, MAX_RECOVERY_COUNT, why="0 turns it off: MAX_RECOVERY_COUNT"),
+    "escape_distance_m": Bound(0.0, MAX_RECOVERY_DISTANCE_M, "m", low_open=True, why="a short manoeuvre: MAX_RECOVERY_DISTANCE_M"),
+}
+"""``PlannerConfig``'s bounds, each key's own (``stop_distance_m <= slow_down_distance_m`` and, with the robot, the
+back-up speed and the progress the robot can make are checked beside them)."""
 
 
 @dataclass
@@ -346,22 +464,11 @@ class PlannerConfig:
     ``eval --sim mujoco``, a profile whose sim is the MuJoCo LIMO, and the ``limo-ros2`` profile use ``box``."""
 
     def validate(self) -> None:
-        if not self.lookahead_m > 0:
-            raise ConfigError("planner.lookahead_m must be positive")
-        if not 0 < self.rotate_in_place_rad <= math.pi:
-            raise ConfigError("planner.rotate_in_place_rad must be in (0, pi]")
-        if not 0 <= self.stop_distance_m <= self.slow_down_distance_m:
-            raise ConfigError("planner needs 0 <= stop_distance_m <= slow_down_distance_m")
-        if self.progress_required_m < 0 or not self.progress_window_s > 0:
-            raise ConfigError("planner needs progress_required_m >= 0 and progress_window_s > 0")
-        if not 0 <= self.face_goal_below_fov_deg <= 360:
-            raise ConfigError("planner.face_goal_below_fov_deg must be in [0, 360]")
-        if self.stall_steps < 0:
-            raise ConfigError("planner.stall_steps must be >= 0")
-        if not (self.backup_distance_m > 0 and self.backup_speed_mps > 0):
-            raise ConfigError("planner.backup_distance_m and planner.backup_speed_mps must be positive")
-        if self.progress_recoveries < 0 or not self.escape_distance_m > 0:
-            raise ConfigError("planner needs progress_recoveries >= 0 and escape_distance_m > 0")
+        check_bounds("planner", self, PLANNER_BOUNDS)
+        if not self.stop_distance_m <= self.slow_down_distance_m:
+            raise ConfigError(
+                f"planner needs 0 <= stop_distance_m <= slow_down_distance_m, got stop_distance_m {self.stop_distance_m:g} and slow_down_distance_m {self.slow_down_distance_m:g}"
+            )
         if self.body not in BODIES:
             raise ConfigError(f"planner.body must be one of {', '.join(BODIES)}, got {self.body!r}")
 
@@ -804,6 +911,57 @@ def set_flag_text(key: str, value: Any) -> str:
     """``--set KEY=VALUE`` as the user typed it, for an error that names the flags: the value in YAML (``true``,
     ``[a, 2]``, ``café`` not ``"caf\\xE9"``), as ``--set`` reads it, not Python's repr (``True``, ``['a', 2]``)."""
     return f"--set {key}={yaml_text(value)}"
+
+
+def refuse_two_values(given: typing.Mapping[str, typing.Sequence[tuple[str, Any]]], read: typing.Callable[[str, Any], Any] | None = None) -> None:
+    """The one check of a command whose flags set one field twice: a dedicated flag and ``--set`` (``eval --max-steps 5
+    --set episode.max_steps=9``, ``up --seed 3 --set seed=4``, ``train --seed 3 --set seed=4``), or two flags of one
+    field. ``given`` holds, by field, each ``(flag as typed, value)`` that set it, in order; two of them with different
+    values (as ``read`` reads them: the field's type, ``1e3`` and ``1000.0`` alike) are a ConfigError naming both, since
+    one of them would take over the other in silence. The same value twice is fine."""
+    for name, said in given.items():
+        if not said:
+            continue
+        (first, value), *others = said
+        for other, other_value in others:
+            if (read(name, other_value) != read(name, value)) if read is not None else other_value != value:
+                raise ConfigError(f"{first} and {other} both set {name}, to different values: give one")
+
+
+def setting_of(key: str, settings: typing.Mapping[str, Any]) -> tuple[str, Any] | None:
+    """The value that ``--set`` pairs (in the order given) leave dotted ``key`` at, with the pair that set it as typed:
+    ``episode.max_steps=5`` or a whole section, ``episode={max_steps: 5}``; None when none sets it (a later pair that
+    replaces its section without it drops it, as ``set_dotted`` does)."""
+    found: tuple[str, Any] | None = None
+    for pair, value in settings.items():
+        if pair == key:
+            found = (set_flag_text(pair, value), value)
+        elif key.startswith(pair + "."):
+            node: Any = value
+            for part in key[len(pair) + 1 :].split("."):
+                node = node.get(part, _UNSET) if isinstance(node, dict) else _UNSET
+            found = None if node is _UNSET else (set_flag_text(pair, value), node)
+    return found
+
+
+_UNSET = object()
+"""``setting_of``'s mark of a key a section set by ``--set`` leaves out."""
+
+
+def refuse_a_flag_and_a_setting_that_disagree(flags: typing.Mapping[str, tuple[str, Any]], settings: typing.Mapping[str, Any], types: typing.Mapping[str, Any]) -> None:
+    """``refuse_two_values`` of a command's dedicated flags (``flags``: dotted key -> ``(flag as typed, value)``, for
+    each flag given) against its ``--set`` pairs (``settings``) for the same key, each read as its field's type
+    (``types``, by key) as ``from_dict`` reads it: ``eval --max-steps`` and ``--set episode.max_steps``, ``up --seed``
+    and ``--set seed``."""
+    given = {key: [flag, *([by_set] if (by_set := setting_of(key, settings)) is not None else [])] for key, flag in flags.items()}
+
+    def read(key: str, value: Any) -> Any:
+        try:
+            return field_value(value, types[key], key)
+        except ConfigError:
+            return value  # from_dict says what is wrong with it
+
+    refuse_two_values(given, read)
 
 
 def yaml_text(value: Any) -> str:

@@ -48,6 +48,7 @@ from cso_runtime.comparison import (
 )
 from cso_runtime.comparison import write_csv as write_paired_csv
 from cso_runtime.config import (
+    EPISODE_BOUNDS,
     EXIT_INTERRUPTED,
     LIDAR_FOVS_DEG,
     LIDAR_FOVS_SAID,
@@ -60,6 +61,7 @@ from cso_runtime.config import (
     from_dict_with_hints,
     load_yaml,
     make_output_dir,
+    refuse_a_flag_and_a_setting_that_disagree,
     set_dotted,
     set_flag_text,
     to_dict,
@@ -192,6 +194,9 @@ class EvalRequest:
 
     def exploration_config(self) -> ExplorationConfig:
         """The config file (if any) with the CLI's sensor and step-limit flags applied on top."""
+        if self.max_steps is not None:  # --max-steps over the file's episode.max_steps, but never over --set's other value
+            flag = {"episode.max_steps": (f"--max-steps {self.max_steps}", self.max_steps)}
+            refuse_a_flag_and_a_setting_that_disagree(flag, self.settings, {"episode.max_steps": int})
         data: dict[str, Any] = load_yaml(self.config_path) if self.config_path else {}
         for key, value in self.settings.items():
             set_dotted(data, key, value)
@@ -219,6 +224,7 @@ class EvalRequest:
         except ConfigError as exc:
             raise ConfigError(f"{where}: {exc} (the {self.sensor} preset with the config's sensor keys)") from None
         if self.max_steps is not None:
+            EPISODE_BOUNDS["max_steps"].check("--max-steps", self.max_steps)  # as the config's episode.max_steps
             cfg.episode = dataclasses.replace(cfg.episode, max_steps=int(self.max_steps))
         return cfg
 

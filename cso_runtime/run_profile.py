@@ -11,19 +11,25 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from cso_runtime.config import (
+    MAX_RESTARTS,
+    Bound,
     ConfigError,
     ExplorationConfig,
+    check_bounds,
     check_seed,
     field_value,
     from_dict,
     key_sections,
     load_yaml,
     mapping_at,
+    refuse_a_flag_and_a_setting_that_disagree,
+    seconds,
     set_dotted,
     set_flag_text,
     to_dict,
@@ -70,6 +76,7 @@ class RouterConfig:
             raise ConfigError(f"router.service_mode must be client or peer, got {self.service_mode!r}")
         if not self.embedded and not self.connect:
             raise ConfigError("router.embedded is false: give the router to join with --connect (e.g. tcp/ROBOT_IP:7447)")
+        check_bounds("router", self, seconds("connect_timeout_s", positive=True))
 
 
 @dataclass
@@ -102,6 +109,7 @@ class SupervisionConfig:
     hung service. 0: never."""
 
     def validate(self) -> None:
+        check_bounds("supervision", self, SUPERVISION_BOUNDS)
         if self.max_restarts < 0 or self.backoff_s < 0 or self.backoff_max_s < self.backoff_s or not self.stop_timeout_s > 0:
             raise ConfigError("supervision needs max_restarts >= 0, 0 <= backoff_s <= backoff_max_s, stop_timeout_s > 0")
         if not self.restart_window_s >= 0:
@@ -112,6 +120,14 @@ class SupervisionConfig:
             raise ConfigError(f"supervision.hang_timeout_s must be 0 (off) or at least {2 * HANG_CHECK_PERIOD_S:g} s, got {self.hang_timeout_s}")
         if not (self.start_timeout_s == 0 or self.start_timeout_s >= 5.0):
             raise ConfigError(f"supervision.start_timeout_s must be 0 (off) or at least 5 s (a service's imports and warm-up), got {self.start_timeout_s}")
+
+
+SUPERVISION_BOUNDS = {
+    "max_restarts": Bound(0, MAX_RESTARTS, why="config.MAX_RESTARTS"),
+    **seconds("restart_window_s", "backoff_s", "backoff_max_s", "given_up_grace_s", "hang_timeout_s", "start_timeout_s"),
+    **seconds("stop_timeout_s", positive=True),
+}
+"""``SupervisionConfig``'s bounds: its times at most a day (``config.MAX_WAIT_S``), its restarts ``config.MAX_RESTARTS``."""
 
 
 HANG_CHECK_PERIOD_S = 1.0
@@ -281,6 +297,7 @@ class Profile:
         check_seed(self.seed)
         if not self.progress_log_s >= 0:
             raise ConfigError(f"progress_log_s must be >= 0 seconds, got {self.progress_log_s}")
+        check_bounds("", self, seconds("progress_log_s"))
         self.exploration_config()
         from services import SERVICE_NAMES, check_profile_service  # noqa: PLC0415 - services import zenoh
         if not self.services:
@@ -530,6 +547,15 @@ def load_profile(
     path = find_profile(name_or_path)
     data = load_yaml(path)
     given = {k: v for k, v in (overrides or {}).items() if v is not None}
+    flag_of = {k: (("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}") for k, v in given.items()}
+    # A flag and a --set of the same key with another value: one of them would take over the other in silence.
+    flag_keys = {k: (flag_of[k], v) for k, v in given.items()}
+    if namespace is not None:
+        flag_keys["services.ros2_bridge.namespace"] = (f"--namespace {namespace}", namespace)
+    if zenoh_config is not None:
+        flag_keys["router.zenoh_config"] = (f"--zenoh-config {zenoh_config}", zenoh_config)
+    hints = typing.get_type_hints(Profile)
+    refuse_a_flag_and_a_setting_that_disagree(flag_keys, settings or {}, {k: hints.get(k, str) for k in flag_keys})
     data.update(given)
     for key, value in (settings or {}).items():
         set_dotted(data, key, value)
@@ -567,7 +593,7 @@ def load_profile(
         )
     data.setdefault("name", path.stem)
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
-    flags = [("--lockstep" if v else "--real-time") if k == "lockstep" else f"--{k} {v}" for k, v in given.items()]
+    flags = list(flag_of.values())
     flags += [set_flag_text(k, v) for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
     where = f"{path} with {' '.join(flags)}" if flags else str(path)
     if (problem := misplaced_key(data)) is not None:

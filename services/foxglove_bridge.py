@@ -59,7 +59,7 @@ from cso_runtime.bag_export import (
     ScanPeriod,
     shows_something,
 )
-from cso_runtime.config import ConfigError, folder_problem, from_dict
+from cso_runtime.config import ConfigError, check_bounds, folder_problem, from_dict, seconds
 from cso_runtime.frame_names import BASE_FRAME, LASER_FRAME, MAP_FRAME, ODOM_FRAME, add_frame_arguments, frames_given
 from cso_runtime.geometry import Pose2D
 from cso_runtime.messages import DeferredMsg, EpisodeStatusMsg, Message, MessageError, deferred, scan_episode_and_stamp
@@ -110,6 +110,7 @@ class FoxgloveBridgeParams:
             raise ConfigError(f"port must be in 0..65535, got {self.port}")
         if not self.map_period_s >= 0:
             raise ConfigError("map_period_s must be >= 0")
+        check_bounds("", self, seconds("map_period_s"))
         try:
             self.frames().check()  # export-bag's check: tf2 frame ids, four different names
         except ValueError as exc:

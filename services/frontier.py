@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.config import MAX_RESTARTS, Bound, ConfigError, check_bounds, from_dict, seconds
 from cso_runtime.episode import decision_reason, ended_no_frontier_why, goal_failed_in_place, mark_dead_frontier
 from cso_runtime.geometry import GridGeometry
 from cso_runtime.messages import (
@@ -45,6 +45,14 @@ from services.common import EpisodeWatch, Service, ServiceContext, service_main,
 from services.frontier_layer import FrontierLayerWorker
 
 log = logging.getLogger("cso.frontier")
+
+
+FRONTIER_PARAMS_BOUNDS = {
+    **seconds("goal_wait_s", "helper_reply_s", "helper_start_limit_s", positive=True),
+    **seconds("helper_start_s"),
+    "helper_max_restarts": Bound(0, MAX_RESTARTS, why="config.MAX_RESTARTS"),
+}
+"""``FrontierParams``' bounds: its times at most a day (``config.MAX_WAIT_S``), its restarts at most ``config.MAX_RESTARTS``."""
 
 
 @dataclass
@@ -87,6 +95,7 @@ class FrontierParams:
             raise ConfigError("helper_start_limit_s must be positive")
         if not self.helper_max_restarts >= 0:
             raise ConfigError("helper_max_restarts must be zero or positive")
+        check_bounds("", self, FRONTIER_PARAMS_BOUNDS)
 
 
 class FrontierService(Service):

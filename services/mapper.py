@@ -16,13 +16,21 @@ from dataclasses import dataclass
 
 import zenoh
 
-from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.config import Bound, ConfigError, check_bounds, from_dict, seconds
 from cso_runtime.geometry import GridGeometry
 from cso_runtime.messages import ClockMsg, MapMsg, Message, ScanMsg, check_configured_grid, encode
 from cso_runtime.occupancy import OccupancyMap, integrate_observation
 from services.common import Service, ServiceContext, service_main
 
 log = logging.getLogger("cso.mapper")
+
+
+MAX_PENDING_SCANS = 10_000
+"""The most scans ``max_pending_scans`` may keep: 10,000 of the LIMO's 180 beams are 7 MB, of the largest scan a message
+takes (``messages.MAX_BEAMS``) 4 GB."""
+
+MAPPER_PARAMS_BOUNDS = {**seconds("restore_timeout_s"), "max_pending_scans": Bound(1, MAX_PENDING_SCANS, why="MAX_PENDING_SCANS")}
+"""``MapperParams``' bounds (its explicit grid's are the run's ``max_grid_cells``: ``check_grid``)."""
 
 
 @dataclass
@@ -60,6 +68,7 @@ class MapperParams:
             raise ConfigError("max_pending_scans must be at least 1")
         if not self.restore_timeout_s >= 0:
             raise ConfigError(f"restore_timeout_s must be >= 0 seconds, got {self.restore_timeout_s}")
+        check_bounds("", self, MAPPER_PARAMS_BOUNDS)
 
 
 class MapperService(Service):

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.config import ConfigError, check_bounds, from_dict, seconds
 from cso_runtime.geometry import VelocityCommand
 from cso_runtime.messages import (
     MAX_PLANNER_STATE_BYTES,
@@ -73,6 +73,10 @@ def keep_newest(pending: dict[int, Any], n: int) -> None:
         del pending[step]
 
 
+PLANNER_PARAMS_BOUNDS = {**seconds("stale_after_s", positive=True), **seconds("path_period_s", "restore_timeout_s")}
+"""``PlannerParams``' bounds: its times at most a day (``config.MAX_WAIT_S``)."""
+
+
 @dataclass
 class PlannerParams:
     """Parameters of the planner service (``services.planner`` in a profile)."""
@@ -97,6 +101,7 @@ class PlannerParams:
             raise ConfigError("path_period_s must be zero or positive")
         if not self.restore_timeout_s >= 0:
             raise ConfigError(f"restore_timeout_s must be >= 0 seconds, got {self.restore_timeout_s}")
+        check_bounds("", self, PLANNER_PARAMS_BOUNDS)
 
 
 class PlannerService(Service):

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from cso_runtime.config import ConfigError, check_torch_device, from_dict
+from cso_runtime.config import ConfigError, check_bounds, check_torch_device, from_dict, seconds
 from cso_runtime.keys import RobotKeys
 from cso_runtime.messages import (
     FrontiersMsg,
@@ -47,6 +47,10 @@ from cso_runtime.policies import LEARNED_METHODS, GoalSelector, check_method, ma
 from services.common import EpisodeWatch, Service, ServiceContext, service_main, warm_up_observation
 
 log = logging.getLogger("cso.policy")
+
+
+POLICY_PARAMS_BOUNDS = {**seconds("stale_after_s", "forget_robot_after_s", positive=True), **seconds("frontier_restart_grace_s")}
+"""``PolicyParams``' bounds: its times at most a day (``config.MAX_WAIT_S``)."""
 
 
 @dataclass
@@ -81,6 +85,7 @@ class PolicyParams:
             raise ConfigError("forget_robot_after_s must be positive")
         if not self.frontier_restart_grace_s >= 0:
             raise ConfigError("frontier_restart_grace_s must be 0 or positive seconds")
+        check_bounds("", self, POLICY_PARAMS_BOUNDS)
         if self.method:
             try:
                 check_method(self.method)

@@ -44,12 +44,13 @@ import zenoh.ext
 
 from cso_runtime import ros2_cdr
 from cso_runtime.claims import DECIDE_WITHIN_S, RunClaim, declare_claims, settle_claims
-from cso_runtime.config import ConfigError, from_dict
+from cso_runtime.config import Bound, ConfigError, check_bounds, from_dict, seconds
 from cso_runtime.episode import TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER
 from cso_runtime.geometry import GridGeometry, LaserScan, Pose2D, VelocityCommand, wrap_angle_rad
 from cso_runtime.keys import PLANNER_KEPT, ROOT, WILDCARD, driver_claim_subject, robot_driver_token
 from cso_runtime.messages import (
     EPISODE_OVER,
+    MAX_GRID_SIDE_M,
     ROS_RESUME_BY,
     ClockMsg,
     CmdVelMsg,
@@ -90,6 +91,18 @@ LEGACY_PUB_CACHE_PREFIX = "@ros2_pub_cache"
 """Where zenoh-bridge-ros2dds releases from before its advanced subscriber (zenoh-plugin-ros2dds PR #524, August 2025;
 1.0.x among them) ask for a transient-local topic's last sample: a query on ``@ros2_pub_cache/*/<key>`` that accepts
 replies on any key, which zenoh's PublicationCache answered from ``@ros2_pub_cache/<its id>/<key>``."""
+
+ROS2_BRIDGE_PARAMS_BOUNDS = {
+    **seconds(
+        "match_tolerance_s", "interpolate_max_gap_s", "max_scan_lag_s", "odom_history_s", "clock_jump_back_s", "odom_jump_confirm_s",
+        "pending_timeout_s", "cmd_timeout_s", "log_period_s", "no_scan_warn_s", positive=True,
+    ),
+    **seconds("map_period_s", "ended_why_wait_s"),
+    "odom_jump_m": Bound(0.0, MAX_GRID_SIDE_M, "m", low_open=True, why="the longest side a map may have: messages.MAX_GRID_SIDE_M"),
+    "odom_jump_rad": Bound(0.0, 2 * math.pi, "rad", low_open=True, why="a turn: more is never a jump"),
+}
+"""``Ros2BridgeParams``' bounds: its times at most a day (``config.MAX_WAIT_S``); its arena's, the run's ``max_grid_cells``."""
+
 
 @dataclass
 class Ros2BridgeParams:
@@ -213,6 +226,7 @@ class Ros2BridgeParams:
                 raise ConfigError(f"{name} {frame!r} is not a tf2 frame id ({ros2_cdr.FRAME_ID_RULE})")
         if not min(self.map_period_s, self.ended_why_wait_s) >= 0:
             raise ConfigError("map_period_s and ended_why_wait_s must be >= 0")
+        check_bounds("", self, ROS2_BRIDGE_PARAMS_BOUNDS)
         if self.arena_origin_xy_m is not None and len(self.arena_origin_xy_m) != 2:
             raise ConfigError("arena_origin_xy_m must be [x_m, y_m]")
 

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 import zenoh
 
-from cso_runtime.config import ConfigError, SensorConfig, from_dict
+from cso_runtime.config import Bound, ConfigError, SensorConfig, check_bounds, from_dict, seconds
 from cso_runtime.episode import TERMINATED_COVERAGE, TERMINATED_MAX_STEPS, TERMINATED_NO_FRONTIER, GroundTruthMetrics
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand, mean_twist
 from cso_runtime.keys import PLANNER_KEPT, RobotKeys
@@ -71,6 +71,18 @@ class PublishedStep(NamedTuple):
     pose: Pose2D
     twist: VelocityCommand
     path_length_m: float
+
+
+MAX_REAL_TIME_FACTOR = 10_000.0
+"""The fastest ``real_time_factor`` taken: a 0.25 s control step every 25 microseconds, faster than any simulator here
+steps (the 2D one about 100 times real time); lockstep runs as fast as the pipeline does."""
+
+SIM_PARAMS_BOUNDS = {
+    "real_time_factor": Bound(0.0, MAX_REAL_TIME_FACTOR, low_open=True, why="MAX_REAL_TIME_FACTOR"),
+    **seconds("cmd_timeout_s", "lockstep_timeout_s", "lockstep_give_up_s", positive=True),
+    **seconds("min_step_period_s", "wait_for_services_s", "start_delay_s", "status_period_s", "ended_why_wait_s"),
+}
+"""``SimParams``' bounds: its times at most a day (``config.MAX_WAIT_S``)."""
 
 
 @dataclass
@@ -125,6 +137,7 @@ class SimParams:
         for name in ("real_time_factor", "cmd_timeout_s", "lockstep_timeout_s", "lockstep_give_up_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive")
+        check_bounds("", self, SIM_PARAMS_BOUNDS)
         if not self.lockstep_give_up_s > self.lockstep_timeout_s:  # else a lost message fails the episode, never re-published
             raise ConfigError(f"lockstep_give_up_s ({self.lockstep_give_up_s} s) must exceed lockstep_timeout_s ({self.lockstep_timeout_s} s)")
         if min(self.min_step_period_s, self.start_delay_s, self.status_period_s, self.wait_for_services_s, self.ended_why_wait_s) < 0:

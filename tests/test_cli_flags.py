@@ -137,3 +137,104 @@ def test_a_ctrl_c_while_the_script_imports_the_cli_exits_130_in_one_line(tmp_pat
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}  # this checkout's package
     r = subprocess.run([sys.executable, str(script), "status", "--help"], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
     assert (r.returncode, r.stderr, r.stdout) == (130, "error: interrupted\n", ""), r.stderr
+
+
+@pytest.mark.parametrize(
+    ("command", "said"),
+    [
+        (["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--set", "planner.lookahead_m=0"], "planner.lookahead_m must be in (0, 100] m (the local planner's longest distance: MAX_PLANNER_DISTANCE_M), got 0"),
+        (["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--set", "planner.lookahead_m=1e9"], "planner.lookahead_m must be in (0, 100] m (the local planner's longest distance: MAX_PLANNER_DISTANCE_M), got 1,000,000,000"),
+        (["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--set", "planner.backup_distance_m=-1"], "planner.backup_distance_m must be in (0, 5] m"),
+        (["up", "--profile", "sim", "--set", "exploration.planner.lookahead_m=0"], "exploration.planner.lookahead_m must be in (0, 100] m"),
+        (["up", "--profile", "sim", "--set", "exploration.episode.replan_every_steps=0"], "exploration.episode.replan_every_steps must be in [1, 1,000,000]"),
+    ],
+)
+def test_an_out_of_range_value_ends_the_command_at_once_naming_the_key_value_and_range(tmp_path: Path, command: list[str], said: str):
+    """``cso-runtime eval --set planner.lookahead_m=0`` (or 1e9 m) was taken and ran its episodes with it; ``up`` with
+    the same key started the services. The real command now exits 2 at once (no episode, no service, nothing written
+    in --out or --runs-dir), in one line that names the key, the value and the range."""
+    place = ["--out", str(tmp_path / "out")] if command[0] == "eval" else ["--runs-dir", str(tmp_path / "runs"), "--no-live"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}  # this checkout's package
+    r = subprocess.run([sys.executable, "-m", "cso_runtime.cli", *command, *place], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert said in " ".join(r.stderr.split()) and r.stderr.count("\n") == 1, r.stderr
+    assert not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()
+
+
+def test_eval_refuses_max_steps_with_a_set_step_limit_of_another_value(tmp_path: Path):
+    """``eval --max-steps 5 --set episode.max_steps=9`` ran 5 steps an episode, in silence (the flag took over the
+    ``--set``). Refused now, as ``train --seed 3 --set seed=4`` is (one shared check: ``config.refuse_two_values``),
+    naming both; the same value twice runs."""
+    from cso_runtime.cli import app
+
+    common = ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--dry-run"]
+    for given, said in [
+        (["--max-steps", "5", "--set", "episode.max_steps=9"], "--max-steps 5 and --set episode.max_steps=9 both set episode.max_steps, to different values: give one"),
+        (["--set", "episode={max_steps: 7}", "--max-steps", "5"], "--max-steps 5 and --set episode={max_steps: 7} both set episode.max_steps"),
+    ]:
+        r = CliRunner().invoke(app, [*common, *given])
+        assert r.exit_code == 2 and said in " ".join(r.stderr.split()), (given, r.output)
+    r = CliRunner().invoke(app, [*common, "--max-steps", "5", "--set", "episode.max_steps=5"])
+    assert r.exit_code == 0 and "at most 5 steps an episode" in r.output, r.output
+
+
+def test_up_refuses_a_flag_and_a_set_of_the_same_key_with_another_value(tmp_path: Path):
+    """``up --seed 3 --set seed=4`` ran seed 4, ``up --namespace a --set services.ros2_bridge.namespace=b`` namespace
+    a: one of the two took over the other in silence. Each such pair is refused (exit 2, naming both) before anything
+    starts; the same value twice is fine."""
+    from cso_runtime.cli import app
+
+    common = ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run"]
+    for given, said in [
+        (["--seed", "3", "--set", "seed=4"], "--seed 3 and --set seed=4 both set seed, to different values: give one"),
+        (["--real-time", "--set", "lockstep=true"], "--real-time and --set lockstep=true both set lockstep"),
+        (["--scene", "generated:small:1:0", "--set", "scene=builtin"], "--scene generated:small:1:0 and --set scene=builtin both set scene"),
+        (["--method", "utility", "--set", "method=greedy-dist"], "--method utility and --set method=greedy-dist both set method"),
+        (
+            ["--profile", "limo-ros2", "--connect", "tcp/127.0.0.1:7447", "--namespace", "a", "--set", "services.ros2_bridge.namespace=b"],
+            "--namespace a and --set services.ros2_bridge.namespace=b both set services.ros2_bridge.namespace",
+        ),
+    ]:
+        r = CliRunner().invoke(app, [*common, *given])
+        assert r.exit_code == 2 and said in " ".join(r.stderr.split()), (given, r.output)
+    for given in (["--seed", "3", "--set", "seed=3"], ["--lockstep", "--set", "lockstep=true"], ["--seed", "3", "--set", "exploration.episode.max_steps=9"]):
+        r = CliRunner().invoke(app, [*common, *given])
+        assert r.exit_code == 0, (given, r.output)
+    assert not (tmp_path / "runs").exists()
+
+
+def test_collect_teacher_refuses_a_flag_and_a_set_of_the_same_field_with_another_value(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``collect-teacher --seed 3 --set seed=4`` collected with seed 4, in silence; ``train`` refused it. Both commands
+    refuse it now through the one check, before any rollout; equal values run, and ``--set warm_start_teacher``
+    without ``--teacher`` is taken (the default teacher, rollout, is no flag given)."""
+    from cso_runtime.cli import app
+    from cso_runtime.learned import ppo
+
+    class Collected:
+        def __len__(self) -> int:
+            return 0
+
+        def save(self, path: Path) -> None:
+            path.write_text("")
+
+    ran: list = []
+    monkeypatch.setattr(ppo, "collect_teacher_parallel", lambda args, *rest, **kwargs: ran.append(args) or Collected())
+    monkeypatch.setattr("cso_runtime.cli.interrupt_on_sigterm", lambda **_kwargs: None)
+    recipe = tmp_path / "mine.yaml"
+    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\nwarm_start_teacher: greedy-dist\n")
+    common = ["collect-teacher", "--config", str(recipe), "--out", str(tmp_path / "t.npz")]
+    for given, said in [
+        (["--seed", "3", "--set", "seed=4"], "--seed 3 and --set seed=4 both set seed, to different values: give one"),
+        (["--teacher", "utility", "--set", "warm_start_teacher=greedy-dist"], "--teacher utility and --set warm_start_teacher=greedy-dist both set warm_start_teacher"),
+    ]:
+        r = CliRunner().invoke(app, [*common, *given])
+        assert r.exit_code == 2 and said in " ".join(r.output.split()), (given, r.output)
+    assert not ran
+    for given, seed, teacher in [
+        (["--seed", "3", "--set", "seed=3"], 3, "rollout"),
+        (["--set", "warm_start_teacher=utility"], None, "utility"),
+        (["--teacher", "greedy-info", "--set", "warm_start_teacher=greedy-info"], None, "greedy-info"),
+    ]:
+        r = CliRunner().invoke(app, [*common, *given])
+        assert r.exit_code == 0, (given, r.output)
+        assert ran[-1].warm_start_teacher == teacher and (seed is None or ran[-1].seed == seed), given

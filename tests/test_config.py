@@ -45,8 +45,8 @@ def test_eval_yaml_documents_the_defaults():
         ({"planner": {"stop_distance_m": 0.8}}, "stop_distance_m <= slow_down_distance_m"),
         ({"planner": {"rotate_in_place_rad": 4.0}}, "rotate_in_place_rad"),
         ({"planner": {"progress_window_s": 0.0}}, "progress_window_s"),
-        ({"planner": {"progress_recoveries": -1}}, "progress_recoveries >= 0"),
-        ({"planner": {"escape_distance_m": 0.0}}, "escape_distance_m > 0"),
+        ({"planner": {"progress_recoveries": -1}}, r"planner.progress_recoveries must be in \[0, 1,000\]"),
+        ({"planner": {"escape_distance_m": 0.0}}, r"planner.escape_distance_m must be in \(0, 5\] m"),
         ({"sensor": {"mount_x_m": 50.0}}, "sensor.mount_x_m .* puts the sensor off the robot"),
         ({"sensor": {"mount_x_m": -0.5}}, "sensor.mount_x_m .* puts the sensor off the robot"),
     ],
@@ -184,9 +184,9 @@ def test_eval_takes_every_sensor_key_the_config_gives_over_the_preset(tmp_path: 
     assert EvalRequest(methods=["greedy-dist"], sim="mujoco", settings={"sensor.mount_x_m": 0.0}).exploration_config().sensor.mount_x_m == 0.0
     with pytest.raises(ConfigError, match="sensor.fov_deg is set by eval's --lidar-fov"):
         EvalRequest(methods=["greedy-dist"], settings={"sensor.fov_deg": 90.0}).exploration_config()
-    with pytest.raises(ConfigError, match="range_min_m < range_max_m.*the depth preset"):
+    with pytest.raises(ConfigError, match=r"sensor.range_min_m must be in \[0, range_max_m 0.2\) m, got 0.3 \(the depth preset"):
         EvalRequest(methods=["greedy-dist"], sensor="depth", settings={"sensor.range_max_m": 0.2}).exploration_config()
-    with pytest.raises(ConfigError, match="range_max_m must be at most 1000 m"):  # the mapper marches no-return beams to it
+    with pytest.raises(ConfigError, match=r"sensor.range_max_m must be in \(0, 1,000\] m .*got 1,000,000,000,000$"):  # the mapper marches no-return beams to it
         EvalRequest(methods=["greedy-dist"], settings={"sensor.range_max_m": 1e12}).exploration_config()
 
 
@@ -272,7 +272,7 @@ def test_a_sections_own_check_names_the_key_path_too():
         said[key, value] = str(caught.value).split(": ", 1)[1]  # after the file and its flags
     assert said["services.sim.mujoco.timestep_s", -1] == "services.sim.mujoco: timestep_s must be positive"
     assert said["services.sim.mujoco.timestep_s", "abc"] == "services.sim.mujoco.timestep_s: expected a number, got 'abc'"
-    assert said["exploration.sensor.fov_deg", -1] == "exploration.sensor.fov_deg must be in (0, 360]"
+    assert said["exploration.sensor.fov_deg", -1] == "exploration.sensor.fov_deg must be in (0, 360] degrees, got -1"
     with pytest.raises(ConfigError, match=r"^configs/robot_sim\.yaml: wheel_radius_m \(0\.3 m"):  # eval --sim-config FILE
         mujoco_config({"wheel_radius_m": 0.3}, ExplorationConfig().sensor, where="configs/robot_sim.yaml")
     with pytest.raises(ConfigError, match=r"^mine\.yaml: sensor\.fov_deg must be in"):  # eval --config FILE
@@ -1081,7 +1081,8 @@ def test_an_arena_too_large_to_count_its_cells_is_refused_as_over_the_grid_bound
         ("overflowing", {"services": {"overflowing": {}}}, "overflowing: bad configuration: cannot convert float infinity to integer"),
         ("sim", {"scene": "generated:small:1:0", "m_per_px": [1], "services": {"sim": {}}}, ": m_per_px: expected a number, got [1]"),
         ("sim", {"scene": 5, "services": {"sim": {}}}, ": scene: expected a string, got 5"),
-        ("frontier", {"exploration": {"frontier": {"entropy_window_m": 1e300}}, "services": {"frontier": {}}}, "frontier.entropy_window_m must be at most 5e+09 m"),
+        ("frontier", {"exploration": {"frontier": {"entropy_window_m": 1e300}}, "services": {"frontier": {}}}, "frontier.entropy_window_m must be in (0, 5,000,000,000] m"),
+        ("planner", {"exploration": {"planner": {"lookahead_m": 1e9}}, "services": {"planner": {}}}, "planner.lookahead_m must be in (0, 100] m"),
     ],
 )
 def test_a_service_started_by_hand_with_absurd_sizes_says_so_in_one_line_and_exits_2(tmp_path, caplog, service, profile, said):
@@ -1164,7 +1165,7 @@ def test_a_length_longer_than_any_map_is_refused_naming_the_key_and_the_bound(ke
 
     section, name = key.split(".")
     assert MAX_GRID_SIDE_M == MAX_GRID_CELLS * MAX_RESOLUTION_M == 5e9
-    with pytest.raises(ConfigError, match=rf"^exploration.{key} must be at most 5e\+09 m \(the longest side a map may have: messages.MAX_GRID_SIDE_M\), got 1e\+300$"):
+    with pytest.raises(ConfigError, match=rf"^exploration.{key} must be in [\[(]0, 5,000,000,000\] m \(the longest side a map may have: messages.MAX_GRID_SIDE_M\), got 1e\+300$"):
         from_dict(ExplorationConfig, {section: {name: 1e300}}, where="exploration")
     from_dict(ExplorationConfig, {section: {name: MAX_GRID_SIDE_M}}, where="exploration")
 
@@ -1189,3 +1190,228 @@ def test_a_service_started_by_hand_takes_a_profile_that_joins_the_router_given_o
     path.write_text(yaml.safe_dump({"router": [1], "services": {"mapper": {}}}))
     with pytest.raises(ConfigError, match=r"router: expected a mapping, got list"):
         load_profile_for_service(path, "mapper")
+
+
+def _bounded_keys() -> list[tuple[str, type, str, object]]:
+    """Each key of an exploration config section that a ``config.Bound`` table bounds: (section, class, key, bound)."""
+    from cso_runtime.config import (
+        EPISODE_BOUNDS,
+        PLANNER_BOUNDS,
+        SENSOR_BOUNDS,
+        EpisodeConfig,
+        FrontierConfig,
+        MaskConfig,
+        PlannerConfig,
+        SensorConfig,
+        frontier_bounds,
+        mask_bounds,
+    )
+
+    tables = [
+        ("sensor", SensorConfig, SENSOR_BOUNDS),
+        ("frontier", FrontierConfig, frontier_bounds()),
+        ("masks", MaskConfig, mask_bounds()),
+        ("episode", EpisodeConfig, EPISODE_BOUNDS),
+        ("planner", PlannerConfig, PLANNER_BOUNDS),
+    ]
+    return [(section, cls, key, bound) for section, cls, table in tables for key, bound in table.items()]
+
+
+@pytest.mark.parametrize(("section", "cls", "key", "bound"), _bounded_keys(), ids=lambda v: v if isinstance(v, str) else "")
+def test_a_bounded_key_outside_its_range_is_refused_naming_the_key_the_value_and_the_range(section, cls, key, bound):
+    """``planner.lookahead_m`` of 0, -1 or 1e9 m (and the planner's, the episode's, the masks' and the sensor's other
+    numbers) was taken by ``eval``, ``up`` and a service started by hand, or failed deep inside an episode. Each is
+    refused by its section's ``validate`` in one line that names the key, the value and the range (``Bound``); the
+    bound itself is taken."""
+    import typing
+
+    from cso_runtime.config import number_said
+
+    is_int = typing.get_type_hints(cls)[key] is int
+    below = bound.low if bound.low_open else bound.low - 1
+    above = bound.high * 10 if bound.high > 0 else 1
+    for value in (below, above):
+        value = int(value) if is_int else float(value)
+        said = rf"^exploration\.{section}\.{key} must be in [\[(]{re.escape(number_said(bound.low))}, {re.escape(number_said(bound.high))}\]"
+        with pytest.raises(ConfigError, match=said + rf".*, got {re.escape(number_said(value))}$"):
+            from_dict(ExplorationConfig, {section: {key: value}}, "exploration")
+    if key == "beta_near_m":
+        return  # beta_far_m must be above it, and cannot be
+    at_most = {key: int(bound.high) if is_int else float(bound.high)}
+    if key == "stop_distance_m":
+        at_most["slow_down_distance_m"] = bound.high  # stop_distance_m <= slow_down_distance_m
+    from_dict(cls, at_most, section)
+
+
+def _numeric_keys() -> list[tuple[str, str, type]]:
+    """Every number of an exploration config: (section, key, its type)."""
+    import dataclasses
+    import typing
+
+    sections = typing.get_type_hints(ExplorationConfig)
+    return [
+        (section, f.name, hint)
+        for section, cls in sections.items()
+        for f in dataclasses.fields(cls)
+        if (hint := typing.get_type_hints(cls)[f.name]) in (int, float)
+    ]
+
+
+@pytest.mark.parametrize(("section", "key", "hint"), _numeric_keys(), ids=lambda v: v if isinstance(v, str) else "")
+def test_every_number_of_the_exploration_config_has_a_bound_on_both_sides(section, key, hint):
+    """No number of the exploration config is taken unbounded: an absurd value either way (a 1e300 m lookahead, -1e300
+    steps) is a ConfigError naming its key before anything starts, whatever the key (a key added without a bound fails
+    here)."""
+    for value in (10**15, -(10**15)) if hint is int else (1e300, -1e300):
+        with pytest.raises(ConfigError, match=rf"{section}\.{key}\b"):
+            from_dict(ExplorationConfig, {section: {key: value}}, "exploration")
+
+
+def test_a_scan_of_more_beams_than_a_message_takes_is_refused_before_it_allocates_them():
+    """``sensor.resolution_deg: 1e-6`` was taken: 180 million beams a scan, gigabytes for each ray cast (and a scan no
+    receiver takes: ``messages.MAX_BEAMS``). It is refused naming the finest resolution the field of view takes."""
+    from cso_runtime.config import SensorConfig
+    from cso_runtime.messages import MAX_BEAMS
+
+    with pytest.raises(ConfigError, match=r"^eval\.sensor\.resolution_deg must be at least 0\.0018 degrees for a 180-degree field of view .*got 1e-06: 180,000,000 beams$"):
+        from_dict(ExplorationConfig, {"sensor": {"resolution_deg": 1e-6}}, "eval")
+    SensorConfig(fov_deg=360.0, resolution_deg=360.0 / MAX_BEAMS).validate()
+
+
+def test_eval_max_steps_beyond_the_longest_episode_is_refused_as_the_configs_own_key():
+    """``eval --max-steps 2000000`` went round ``episode.max_steps``' bound (the flag replaced the checked value) and
+    ran until the result did not fit its message; it is refused as the key would be."""
+    from cso_runtime.evaluation import EvalRequest
+
+    with pytest.raises(ConfigError, match=r"^--max-steps must be in \[1, 1,000,000\] .*got 2,000,000$"):
+        EvalRequest(methods=["greedy-dist"], max_steps=2_000_000).exploration_config()
+    assert EvalRequest(methods=["greedy-dist"], max_steps=1_000_000).exploration_config().episode.max_steps == 1_000_000
+
+
+@pytest.mark.parametrize(
+    ("settings", "refused"),
+    [
+        ({"episode.max_steps": 9}, "--max-steps 5 and --set episode.max_steps=9 both set episode.max_steps, to different values: give one"),
+        ({"episode": {"max_steps": 7}}, "--max-steps 5 and --set episode={max_steps: 7} both set episode.max_steps"),
+        ({"episode.max_steps": "9"}, "--max-steps 5 and --set episode.max_steps='9' both set episode.max_steps"),
+        ({"episode.max_steps": 5}, None),
+        ({"episode": {"replan_every_steps": 3}}, None),
+        ({"episode.max_steps": 9, "episode": {"replan_every_steps": 3}}, None),  # the section replaced without it: --max-steps alone
+    ],
+)
+def test_eval_refuses_max_steps_and_a_set_step_limit_that_disagree(settings, refused):
+    """``eval --max-steps 5 --set episode.max_steps=9`` ran 5 steps, in silence; as ``train`` refuses ``--seed 3 --set
+    seed=4`` (``config.refuse_two_values``), eval now refuses the two, naming both; the same value twice is fine."""
+    from cso_runtime.evaluation import EvalRequest
+
+    request = EvalRequest(methods=["greedy-dist"], max_steps=5, settings=settings)
+    if refused is None:
+        assert request.exploration_config().episode.max_steps == 5
+    else:
+        with pytest.raises(ConfigError, match="^" + re.escape(refused)):
+            request.exploration_config()
+
+
+def _service_sections() -> list[tuple[str, type]]:
+    """Each section of a profile with numbers of its own: the services' parameters, the router, supervision and the
+    profile's top level."""
+    from cso_runtime.run_profile import Profile, RouterConfig, SupervisionConfig
+    from services.foxglove_bridge import FoxgloveBridgeParams
+    from services.frontier import FrontierParams
+    from services.mapper import MapperParams
+    from services.planner import PlannerParams
+    from services.policy import PolicyParams
+    from services.ros2_bridge import Ros2BridgeParams
+    from services.sim import SimParams
+
+    return [
+        ("services.frontier", FrontierParams),
+        ("services.mapper", MapperParams),
+        ("services.sim", SimParams),
+        ("services.policy", PolicyParams),
+        ("services.planner", PlannerParams),
+        ("services.foxglove_bridge", FoxgloveBridgeParams),
+        ("services.ros2_bridge", Ros2BridgeParams),
+        ("router", RouterConfig),
+        ("supervision", SupervisionConfig),
+        ("profile", Profile),
+    ]
+
+
+BOUNDED_ELSEWHERE = {
+    ("services.mapper", "resolution_m"): "the explicit grid's cells: MapperParams.check_grid against max_grid_cells",
+    ("services.mapper", "width_m"): "the same",
+    ("services.mapper", "height_m"): "the same",
+    ("services.ros2_bridge", "resolution_m"): "the arena's cells: Ros2BridgeParams' grid check against max_grid_cells",
+    ("services.ros2_bridge", "arena_width_m"): "the same",
+    ("services.ros2_bridge", "arena_height_m"): "the same",
+    ("profile", "m_per_px"): "the scene's metres per pixel, (0, 10] (scenes)",
+    ("profile", "max_grid_cells"): "messages.check_max_grid_cells",
+    ("profile", "seed"): "config.check_seed",
+    ("services.foxglove_bridge", "port"): "0..65535",
+}
+"""Numbers of a profile that its own checks bound, not a ``Bound`` table (tested where they are)."""
+
+
+def _service_numbers() -> list[tuple[str, type, str, type]]:
+    import dataclasses
+    import typing
+
+    return [
+        (where, cls, f.name, hint)
+        for where, cls in _service_sections()
+        for f in dataclasses.fields(cls)
+        if (hint := typing.get_type_hints(cls)[f.name]) in (int, float) and (where, f.name) not in BOUNDED_ELSEWHERE
+    ]
+
+
+@pytest.mark.parametrize(("where", "cls", "key", "hint"), _service_numbers(), ids=lambda v: v if isinstance(v, str) else "")
+def test_every_time_and_count_of_a_profile_is_bounded_above_naming_the_key_the_value_and_the_range(where, cls, key, hint):
+    """``services.planner.stale_after_s=1e300``, ``services.sim.real_time_factor=1e9``, ``supervision.backoff_max_s=1e12``
+    or ``services.mapper.max_pending_scans=100000000`` were taken by ``up --dry-run`` (and by a service started by hand),
+    to be met inside a running service. A wait, period or timeout is at most a day (``config.MAX_WAIT_S``), a count of
+    restarts ``config.MAX_RESTARTS``, and so on; above it the profile is refused in one line naming the key, the value
+    and the range. Every number of every section is covered: one added without a bound fails here."""
+    value = 10**15 if hint is int else 1e300
+    with pytest.raises(ConfigError, match=rf"\b{key} must be in [\[(][01], [^\]]+\].*, got {re.escape(f'{value:,}' if hint is int else '1e+300')}$"):
+        from_dict(cls, {key: value}, where)
+
+
+def test_the_largest_time_a_profile_takes_is_a_day():
+    """The bound itself is taken (a day: 86,400 s)."""
+    from cso_runtime.config import MAX_WAIT_S
+    from cso_runtime.run_profile import SupervisionConfig
+    from services.planner import PlannerParams
+    from services.sim import SimParams
+
+    assert MAX_WAIT_S == 86_400
+    from_dict(PlannerParams, {"stale_after_s": MAX_WAIT_S, "restore_timeout_s": MAX_WAIT_S}, "services.planner")
+    from_dict(SimParams, {"lockstep_give_up_s": MAX_WAIT_S, "wait_for_services_s": MAX_WAIT_S}, "services.sim")
+    from_dict(SupervisionConfig, {"backoff_s": MAX_WAIT_S, "backoff_max_s": MAX_WAIT_S, "restart_window_s": MAX_WAIT_S}, "supervision")
+
+
+def _training_bounds() -> list[tuple[str, object]]:
+    from cso_runtime.learned.ppo import ARGS_BOUNDS
+
+    return list(ARGS_BOUNDS.items())
+
+
+@pytest.mark.parametrize(("key", "bound"), _training_bounds(), ids=lambda v: v if isinstance(v, str) else "")
+def test_train_refuses_a_size_above_its_bound_before_anything_starts(tmp_path: Path, capsys, key, bound):
+    """``train --num-envs 100000``, ``--hidden 1000000`` or ``--set max_steps=2000000`` were taken (processes, a network
+    of gigabytes, an episode whose result no message holds); each is refused before the set-up, naming the file and the
+    flag, the key, the value and the range (``learned.ppo.ARGS_BOUNDS``); the bound itself is taken."""
+    import typing
+
+    from cso_runtime.cli import training_args
+    from cso_runtime.config import number_said
+    from cso_runtime.learned.ppo import Args
+
+    recipe = small_train_recipe(tmp_path)
+    above = int(bound.high) * 10 if typing.get_type_hints(Args)[key] is int else bound.high * 10
+    said = train_refusal(recipe, {}, [f"{key}={above}"], capsys)
+    assert f"error: {recipe} with --set {key}={above}: {key} must be in [{number_said(bound.low)}, {number_said(bound.high)}]" in said
+    assert f"got {number_said(above)}" in said
+    if key != "hidden":  # hidden must be divisible by heads
+        at_most = int(bound.high) if typing.get_type_hints(Args)[key] is int else bound.high
+        assert getattr(training_args(recipe, {}, [f"{key}={at_most}"]), key) == at_most

@@ -359,7 +359,7 @@ def test_the_largest_legitimate_messages_still_pass_the_bounds():
 
 def test_episode_max_steps_is_at_most_what_a_result_message_holds():
     EpisodeConfig(max_steps=MAX_EPISODE_STEPS).validate()
-    with pytest.raises(ConfigError, match="at most"):
+    with pytest.raises(ConfigError, match=r"episode\.max_steps must be in \[1, 1,000,000\] .*got 1,000,001$"):
         EpisodeConfig(max_steps=MAX_EPISODE_STEPS + 1).validate()
 
 

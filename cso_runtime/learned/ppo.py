@@ -36,10 +36,13 @@ from torch import nn, optim
 from cso_runtime.config import (
     LIDAR_FOVS_DEG,
     LIDAR_FOVS_SAID,
+    MAX_EPISODE_STEPS,
+    Bound,
     ConfigError,
     ExplorationConfig,
     MaskConfig,
     SensorConfig,
+    check_bounds,
     check_seed,
     check_torch_device,
 )
@@ -72,6 +75,31 @@ from cso_runtime.plots import pyplot
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.provenance import software_provenance
 from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
+
+MAX_TRAINING_TIME_S = 30 * 86_400.0
+"""The longest ``time_limit_s`` (30 days; 0 = none): a longer one is a value in another unit."""
+MAX_ENVS = 1024
+"""The most environments (``num_envs``) and torch threads (``torch_threads``) a run may have: no machine has more cores,
+and each environment is a process with ``async_envs``."""
+MAX_NETWORK_WIDTH = 4096
+"""The widest network (``hidden``; ``heads`` divide it): 128 times the shipped one's 32; wider allocates gigabytes per layer."""
+MAX_GRAPH_NODES = 10_000
+"""The most frontier or path nodes of a graph (``max_frontier_nodes``, ``max_path_nodes``): the attention over them is
+quadratic, 10,000 nodes already 400 MB a head."""
+
+ARGS_BOUNDS: dict[str, Bound] = {
+    "time_limit_s": Bound(0.0, MAX_TRAINING_TIME_S, "s", why="30 days: MAX_TRAINING_TIME_S"),
+    "num_envs": Bound(1, MAX_ENVS, why="MAX_ENVS"),
+    "num_steps": Bound(1, MAX_EPISODE_STEPS, why="config.MAX_EPISODE_STEPS"),
+    "max_steps": Bound(1, MAX_EPISODE_STEPS, why="as eval's episode.max_steps: config.MAX_EPISODE_STEPS"),
+    "hidden": Bound(1, MAX_NETWORK_WIDTH, why="MAX_NETWORK_WIDTH"),
+    "layers": Bound(0, 64),
+    "max_frontier_nodes": Bound(1, MAX_GRAPH_NODES, why="MAX_GRAPH_NODES"),
+    "max_path_nodes": Bound(1, MAX_GRAPH_NODES, why="MAX_GRAPH_NODES"),
+    "torch_threads": Bound(1, MAX_ENVS, why="MAX_ENVS"),
+}
+"""``Args``' bounds on the numbers that size a run (its processes, its network, its graphs, its episodes), each checked
+before anything starts (``config.check_bounds``); its other numbers have their own checks in ``validate``."""
 
 
 @dataclass
@@ -304,6 +332,7 @@ class Args:
                 f"knn must be at most max_frontier_nodes + max_path_nodes - 1 = {others}, the nodes besides the robot's that a"
                 f" graph holds (each node's neighbours, itself included), got {self.knn}"
             )
+        check_bounds("", self, ARGS_BOUNDS)
         try:
             SensorConfig.preset(self.sensor, self.lidar_fov_deg)
         except ConfigError as exc:
