@@ -375,7 +375,7 @@ def compare_command(
     import json  # noqa: PLC0415
 
     from cso_runtime.comparison import (  # noqa: PLC0415
-        MIN_SCENES,
+        TOO_FEW_SCENES,
         as_dicts,
         compare_to_baseline,
         labelled,
@@ -409,7 +409,7 @@ def compare_command(
     elif comparisons:  # no table of headers alone: the line below says why there is none
         typer.echo(markdown_table(comparisons))
     if not comparisons:
-        typer.echo(f"no method shares {MIN_SCENES} or more scenes of one scale with {baseline}", err=True)
+        typer.echo(f"no method shares {TOO_FEW_SCENES} with {baseline}", err=True)
         raise typer.Exit(1)
 
 

@@ -38,8 +38,8 @@ if TYPE_CHECKING:
 from cso_runtime import __version__
 from cso_runtime.animation import EpisodeAnimation
 from cso_runtime.comparison import (
-    MIN_SCENES,
     PAIRED_COLUMNS,
+    TOO_FEW_SCENES,
     as_dicts,
     bootstrap_mean_ci,
     compare_to_baseline,
@@ -1575,8 +1575,8 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
             against.add_row(*paired_cells(c))
         console.print(against)
     elif paired.get("baseline") in summary["methods"] and len(summary["methods"]) > 1:  # say why there is no comparison
-        console.print(escape(f"no comparison with {paired['baseline']} scene by scene (paired.csv): no other method shares {MIN_SCENES} "
-                             "scenes of one scale with it"), soft_wrap=True, highlight=False)
+        console.print(escape(f"no comparison with {paired['baseline']} scene by scene (paired.csv): no other method shares "
+                             f"{TOO_FEW_SCENES} with it"), soft_wrap=True, highlight=False)
     for f in summary["failures"]:
         why = f["error"].splitlines()[0] if f["error"] else ""
         seed = f" (seed {f['seed']})" if "seed" in f else ""  # --seeds: which seed's episode

@@ -835,7 +835,7 @@ def test_the_console_says_why_a_run_with_the_baseline_has_no_comparison(tmp_path
     two = [row(m, n, e) for m, e in (("greedy-dist", 1.0), ("cso", 1.1)) for n in ("img_1", "img_2")]
     print_summary(summarize(two, [], ["greedy-dist", "cso"], {}), tmp_path)
     out = capsys.readouterr().out
-    assert "no comparison with greedy-dist scene by scene (paired.csv): no other method shares 3 scenes of one scale with it" in out
+    assert "no comparison with greedy-dist scene by scene (paired.csv): no other method shares 3 or more scenes (plans: the seeds of one plan count once) of one scale with it" in out
     three = two + [row("greedy-dist", "img_3", 1.0), row("cso", "img_3", 1.1)]
     print_summary(summarize(three, [], ["greedy-dist", "cso"], {}), tmp_path)
     out = capsys.readouterr().out
