@@ -1454,7 +1454,7 @@ def args_field_flags(words: list[str]) -> list[str]:
     import difflib  # noqa: PLC0415
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, field_value, yaml_text  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, field_value, flag_value, text_field, yaml_text  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1489,7 +1489,7 @@ def args_field_flags(words: list[str]) -> list[str]:
             if not values:
                 raise ConfigError(f"{flag} needs a value ({flag} VALUE, or several: {flag} A B, as --set {name}=A,B)")
             for one in values:
-                lists.setdefault(name, []).extend(field_value(parse_settings([f"{name}={one}"])[name], types[name], flag))
+                lists.setdefault(name, []).extend(field_value(flag_value(one, types[name]), types[name], flag))
             continue
         if not given:
             if rest and not rest[0].startswith("--"):
@@ -1498,7 +1498,7 @@ def args_field_flags(words: list[str]) -> list[str]:
                 value = "true"
             else:
                 raise ConfigError(f"{flag} needs a value ({flag} VALUE, as --set {name}=VALUE)")
-        pairs.append(f"{name}={value}")
+        pairs.append(f"{name}={yaml_text(flag_value(value, types[name])) if text_field(types[name]) else value}")  # text as it is: 2024, on
     return pairs + [f"{name}={yaml_text(items)}" for name, items in lists.items()]
 
 
@@ -1513,7 +1513,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     twice, whose last value counts, as typer's own options' does."""
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, field_value, set_flag_text, yaml_text  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, field_value, set_flag_text, text_field, yaml_text  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1522,7 +1522,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
         dashed = name.replace("_", "-")
         if isinstance(value, bool):
             return f"--{dashed}" if value else f"--no-{dashed}"
-        return f"--{dashed} {yaml_text(value)}"
+        return f"--{dashed} {value if isinstance(value, str) and text_field(types.get(name)) else yaml_text(value)}"  # as typed
 
     def read(name: str, value: object) -> object:
         try:

@@ -485,6 +485,31 @@ def field_value(value: Any, annotation: Any, where: str) -> Any:
     return _convert(value, annotation, where)
 
 
+def text_field(annotation: Any) -> bool:
+    """Whether a field of type ``annotation`` holds text: ``str``, ``str | None``, ``list[str]``."""
+    args = typing.get_args(annotation)
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return [a for a in args if a is not type(None)] == [str]
+    return annotation is str or (typing.get_origin(annotation) in (list, tuple) and args[:1] == (str,))
+
+
+def flag_value(text: str, annotation: Any) -> Any:
+    """What a command-line flag's ``text`` gives a field of type ``annotation`` (``train``'s field flags, CleanRL's
+    ``--out-dir runs/a``): a ``text_field`` takes the text as it is (``2024``, ``on``, a list's ``null`` item stay
+    text; a list's values separated by commas, as ``_one_or_separated`` reads them), save a nullable one's ``null``
+    (None) and a list given as one (``[a, b]``); any other field reads it as YAML (``0.9``, ``true``), as ``--set``
+    does. The value, for ``field_value`` to check."""
+    try:
+        parsed = yaml.safe_load(text)
+    except yaml.YAMLError:
+        parsed = text  # said by the field's own check
+    if not text_field(annotation):
+        return parsed
+    if typing.get_origin(annotation) in (list, tuple):
+        return parsed if isinstance(parsed, list) else text
+    return None if parsed is None and type(None) in typing.get_args(annotation) else text
+
+
 LIST_SEPARATOR = ","
 """What separates the values of a list field given as one text (``--set generated=A,B``): most CLIs' way."""
 
