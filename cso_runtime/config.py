@@ -249,6 +249,12 @@ entry per step or decision on the wire (``messages.MAX_STEP_POINTS``), so a rece
 more before inflating it."""
 
 
+def check_max_steps(steps: int, name: str = "episode.max_steps") -> None:
+    """A ConfigError naming ``name`` where an episode's step limit ``steps`` is over ``MAX_EPISODE_STEPS``."""
+    if steps > MAX_EPISODE_STEPS:
+        raise ConfigError(f"{name} must be at most {MAX_EPISODE_STEPS:,} (an episode's result must fit its message)")
+
+
 @dataclass
 class EpisodeConfig:
     """How an exploration episode runs and ends (section 4.1)."""
@@ -267,8 +273,7 @@ class EpisodeConfig:
     def validate(self) -> None:
         if self.max_steps < 1 or self.replan_every_steps < 1:
             raise ConfigError("episode.max_steps and episode.replan_every_steps must be at least 1")
-        if self.max_steps > MAX_EPISODE_STEPS:
-            raise ConfigError(f"episode.max_steps must be at most {MAX_EPISODE_STEPS:,} (an episode's result must fit its message)")
+        check_max_steps(self.max_steps)
         if not self.goal_tolerance_m > 0:
             raise ConfigError("episode.goal_tolerance_m must be positive")
         from cso_runtime.messages import MAX_GRID_SIDE_M  # noqa: PLC0415  (messages imports this module)
