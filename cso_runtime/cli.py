@@ -1622,11 +1622,26 @@ def _name_starting_up_early(args: list[str]) -> None:
             if signal.getsignal(sig) == signal.SIG_DFL:  # not one ignored (nohup), nor a host program's
                 signal.signal(sig, _killed_before_up_ran)
                 _early_handlers.append(sig)
-        _starting_up = (runs_dir, record_starting_up(runs_dir))
+        with _early_signals_held():  # the file is never written and not yet named (a signal then left it)
+            _starting_up = (runs_dir, record_starting_up(runs_dir))
 
 
 _early_handlers: list[int] = []
 """The signals ``_name_starting_up_early`` handles (``_killed_before_up_ran``), given back to the default as ``main`` ends."""
+
+
+@contextmanager
+def _early_signals_held() -> Iterator[None]:
+    """The signals of ``_early_handlers`` held back (blocked, then acted on once let through) while ``_starting_up`` and
+    the file it names change together: a SIGTERM between writing the file and naming it, or between unnaming it and
+    removing it, ran ``_killed_before_up_ran`` with nothing named, and the process died leaving the file behind."""
+    import signal  # noqa: PLC0415
+
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, _early_handlers)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
 def _killed_before_up_ran(signum: int, frame: object) -> None:
@@ -1676,9 +1691,10 @@ def main() -> None:
     except KeyboardInterrupt:  # before typer's own handling (which exits 130) or a command's
         _interrupted_early()
     finally:
-        early, _starting_up = _starting_up, None
-        if early is not None:  # no `up` took it over: typer refused the command line, or `up` never ran
-            early[1]()
+        with _early_signals_held():  # unnamed and removed at once
+            early, _starting_up = _starting_up, None
+            if early is not None:  # no `up` took it over: typer refused the command line, or `up` never ran
+                early[1]()
         _give_back_early_handlers()
 
 
