@@ -375,7 +375,7 @@ def compare_command(
     import json  # noqa: PLC0415
 
     from cso_runtime.comparison import (  # noqa: PLC0415
-        MIN_SCENES,
+        TOO_FEW_SCENES,
         as_dicts,
         compare_to_baseline,
         labelled,
@@ -409,7 +409,7 @@ def compare_command(
     elif comparisons:  # no table of headers alone: the line below says why there is none
         typer.echo(markdown_table(comparisons))
     if not comparisons:
-        typer.echo(f"no method shares {MIN_SCENES} or more scenes of one scale with {baseline}", err=True)
+        typer.echo(f"no method shares {TOO_FEW_SCENES} with {baseline}", err=True)
         raise typer.Exit(1)
 
 
@@ -1461,7 +1461,7 @@ def args_field_flags(words: list[str]) -> list[str]:
     import difflib  # noqa: PLC0415
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, field_value, yaml_text  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, field_value, flag_value, text_field, yaml_text  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1496,7 +1496,7 @@ def args_field_flags(words: list[str]) -> list[str]:
             if not values:
                 raise ConfigError(f"{flag} needs a value ({flag} VALUE, or several: {flag} A B, as --set {name}=A,B)")
             for one in values:
-                lists.setdefault(name, []).extend(field_value(parse_settings([f"{name}={one}"])[name], types[name], flag))
+                lists.setdefault(name, []).extend(field_value(flag_value(one, types[name]), types[name], flag))
             continue
         if not given:
             if rest and not rest[0].startswith("--"):
@@ -1505,7 +1505,7 @@ def args_field_flags(words: list[str]) -> list[str]:
                 value = "true"
             else:
                 raise ConfigError(f"{flag} needs a value ({flag} VALUE, as --set {name}=VALUE)")
-        pairs.append(f"{name}={value}")
+        pairs.append(f"{name}={yaml_text(flag_value(value, types[name])) if text_field(types[name]) else value}")  # text as it is: 2024, on
     return pairs + [f"{name}={yaml_text(items)}" for name, items in lists.items()]
 
 
@@ -1520,7 +1520,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     twice, whose last value counts, as typer's own options' does."""
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, field_value, refuse_two_values, set_flag_text, yaml_text  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, field_value, refuse_two_values, set_flag_text, text_field, yaml_text  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1529,7 +1529,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
         dashed = name.replace("_", "-")
         if isinstance(value, bool):
             return f"--{dashed}" if value else f"--no-{dashed}"
-        return f"--{dashed} {yaml_text(value)}"
+        return f"--{dashed} {value if isinstance(value, str) and text_field(types.get(name)) else yaml_text(value)}"  # as typed
 
     def read(name: str, value: object) -> object:
         try:
@@ -1623,11 +1623,26 @@ def _name_starting_up_early(args: list[str]) -> None:
             if signal.getsignal(sig) == signal.SIG_DFL:  # not one ignored (nohup), nor a host program's
                 signal.signal(sig, _killed_before_up_ran)
                 _early_handlers.append(sig)
-        _starting_up = (runs_dir, record_starting_up(runs_dir))
+        with _early_signals_held():  # the file is never written and not yet named (a signal then left it)
+            _starting_up = (runs_dir, record_starting_up(runs_dir))
 
 
 _early_handlers: list[int] = []
 """The signals ``_name_starting_up_early`` handles (``_killed_before_up_ran``), given back to the default as ``main`` ends."""
+
+
+@contextmanager
+def _early_signals_held() -> Iterator[None]:
+    """The signals of ``_early_handlers`` held back (blocked, then acted on once let through) while ``_starting_up`` and
+    the file it names change together: a SIGTERM between writing the file and naming it, or between unnaming it and
+    removing it, ran ``_killed_before_up_ran`` with nothing named, and the process died leaving the file behind."""
+    import signal  # noqa: PLC0415
+
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, _early_handlers)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
 def _killed_before_up_ran(signum: int, frame: object) -> None:
@@ -1677,9 +1692,10 @@ def main() -> None:
     except KeyboardInterrupt:  # before typer's own handling (which exits 130) or a command's
         _interrupted_early()
     finally:
-        early, _starting_up = _starting_up, None
-        if early is not None:  # no `up` took it over: typer refused the command line, or `up` never ran
-            early[1]()
+        with _early_signals_held():  # unnamed and removed at once
+            early, _starting_up = _starting_up, None
+            if early is not None:  # no `up` took it over: typer refused the command line, or `up` never ran
+                early[1]()
         _give_back_early_handlers()
 
 

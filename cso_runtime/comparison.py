@@ -6,7 +6,8 @@ methods do). For every method and scale this gives the change of mean efficiency
 baseline on the shared scenes, the arithmetic and the geometric mean of the per-scene ratios, each with a
 95 % bootstrap interval (the plans resampled with replacement, the episodes of one plan under several seeds kept
 together as the paper's repeated tests of a scene are, a fixed seed), and the scenes won and lost. An interval that
-contains 0 % says these scenes do not tell the two methods apart. ``eval`` writes it to ``paired.csv``
+contains 0 % says these scenes do not tell the two methods apart. With several seeds a scene is an episode (plan, seed):
+the counts say so, and a comparison needs ``MIN_SCENES`` plans, however many seeds each ran. ``eval`` writes it to ``paired.csv``
 and ``summary.json`` whenever the baseline ran too; ``cso-runtime compare`` pools ``episodes.csv`` files.
 """
 
@@ -36,7 +37,10 @@ EfficiencyTable = dict[tuple[str, str], dict[SceneKey, float]]
 EPISODE_COLUMNS = ("method", "map", "scale", "traversable_area_m2", "seed", "efficiency_m2_per_step")
 """What a comparison reads of each ``episodes.csv`` row."""
 MIN_SCENES = 3
-"""Fewer shared scenes than this give no comparison (an interval needs a few)."""
+"""Fewer shared scenes than this give no comparison (an interval needs a few). Plans are counted: the seeds of one plan
+are resampled together (``bootstrap_mean_ci``), so one plan under 3 seeds gives an interval of one plan, a point."""
+TOO_FEW_SCENES = f"{MIN_SCENES} or more scenes (plans: the seeds of one plan count once) of one scale"
+"""What a method lacks that gets no comparison: ``compare`` and ``eval`` say ``no method shares`` it."""
 
 
 @dataclass(frozen=True)
@@ -64,13 +68,33 @@ class PairedComparison:
     geomean_ci_low_pct: float | None = None
     geomean_ci_high_pct: float | None = None
     """95 % bootstrap interval of ``geomean_pct`` (the same resamples as the arithmetic mean's)."""
+    plans: int | None = None
+    """The plans among ``scenes``: with several seeds, ``scenes``, ``won`` and ``lost`` count episodes (plan, seed), and
+    the interval resamples plans. None in a comparison written before it was counted."""
 
     def markdown_row(self) -> str:
         return (
-            f"| {self.scale} | {self.method} | {self.scenes} | {self.change_of_means_pct:+.1f} % | "
-            f"{format_interval(self.per_scene_pct, self.ci_low_pct, self.ci_high_pct)} | {self.won} of {self.scenes} ({self.lost} lost) | "
+            f"| {self.scale} | {self.method} | {scenes_said(asdict(self))} | {self.change_of_means_pct:+.1f} % | "
+            f"{format_interval(self.per_scene_pct, self.ci_low_pct, self.ci_high_pct)} | {won_said(asdict(self))} | "
             f"{format_interval(self.geomean_pct, self.geomean_ci_low_pct, self.geomean_ci_high_pct)} |"
         )
+
+
+def _of_seeds(c: Mapping[str, Any]) -> bool:
+    """Whether comparison ``c`` (``as_dicts``) counts episodes (plan, seed), not plans: several seeds of a plan."""
+    return c.get("plans") is not None and c["plans"] != c["scenes"]
+
+
+def scenes_said(c: Mapping[str, Any]) -> str:
+    """The ``scenes`` cell of comparison ``c``: ``12``, or with several seeds ``6 plans, 12 episodes (plan, seed)``."""
+    return f"{c['plans']} plans, {c['scenes']} episodes (plan, seed)" if _of_seeds(c) else str(c["scenes"])
+
+
+def won_said(c: Mapping[str, Any]) -> str:
+    """The ``scenes won`` cell of comparison ``c``: ``2 of 4 (1 lost)``, or ``5 of 12 episodes (plan, seed), 3 lost``."""
+    if _of_seeds(c):
+        return f"{c['won']} of {c['scenes']} episodes (plan, seed), {c['lost']} lost"
+    return f"{c['won']} of {c['scenes']} ({c['lost']} lost)"
 
 
 def format_interval(pct: float | None, low_pct: float | None, high_pct: float | None) -> str:
@@ -89,7 +113,7 @@ def paired_cells(c: dict) -> list[str]:
     return [
         c["method"],
         c["scale"],
-        str(c["scenes"]),
+        scenes_said(c),
         f"{c['change_of_means_pct']:+.1f} %",
         format_interval(c["per_scene_pct"], c["ci_low_pct"], c["ci_high_pct"]),
         f"{c['won']} / {c['lost']}",
@@ -299,12 +323,12 @@ def compare_to_baseline(table: EfficiencyTable, baseline: str = "greedy-dist", m
         if method == baseline or base is None:
             continue
         scenes = sorted(s for s in set(eff) & set(base) if base[s] > 0)
-        if len(scenes) < min_scenes:
+        plans = [s[:4] for s in scenes]  # the scene without its seed
+        if len(set(plans)) < min_scenes:  # the seeds of a plan are resampled together: they count once
             continue
         m = np.array([eff[s] for s in scenes])
         b = np.array([base[s] for s in scenes])
         ratio = m / b
-        plans = [s[:4] for s in scenes]  # the scene without its seed
         lo, hi = bootstrap_mean_ci(ratio, clusters=plans)
         geo: tuple[float, float, float] | tuple[None, None, None] = (None, None, None)
         if (ratio > 0).all():  # a scene the method explored nothing of has no log-ratio
@@ -325,6 +349,7 @@ def compare_to_baseline(table: EfficiencyTable, baseline: str = "greedy-dist", m
                 geomean_pct=geo[0],
                 geomean_ci_low_pct=geo[1],
                 geomean_ci_high_pct=geo[2],
+                plans=len(set(plans)),
             )
         )
     return out

@@ -346,6 +346,11 @@ EPISODE_BOUNDS: dict[str, Bound] = {
 """``EpisodeConfig``'s bounds (``goal_tolerance_m`` is a length on the map: in (0, ``messages.MAX_GRID_SIDE_M``])."""
 
 
+def check_max_steps(steps: int, name: str = "episode.max_steps") -> None:
+    """``episode.max_steps``' bound checked on a step limit given elsewhere (``name``: the gymnasium env's keyword)."""
+    EPISODE_BOUNDS["max_steps"].check(name, steps)
+
+
 @dataclass
 class EpisodeConfig:
     """How an exploration episode runs and ends (section 4.1)."""
@@ -590,6 +595,31 @@ def field_value(value: Any, annotation: Any, where: str) -> Any:
     field's one value or values separated by commas as its list, ``1e-4`` as a number; a ConfigError naming
     ``where`` when it does not fit."""
     return _convert(value, annotation, where)
+
+
+def text_field(annotation: Any) -> bool:
+    """Whether a field of type ``annotation`` holds text: ``str``, ``str | None``, ``list[str]``."""
+    args = typing.get_args(annotation)
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return [a for a in args if a is not type(None)] == [str]
+    return annotation is str or (typing.get_origin(annotation) in (list, tuple) and args[:1] == (str,))
+
+
+def flag_value(text: str, annotation: Any) -> Any:
+    """What a command-line flag's ``text`` gives a field of type ``annotation`` (``train``'s field flags, CleanRL's
+    ``--out-dir runs/a``): a ``text_field`` takes the text as it is (``2024``, ``on``, a list's ``null`` item stay
+    text; a list's values separated by commas, as ``_one_or_separated`` reads them), save a nullable one's ``null``
+    (None) and a list given as one (``[a, b]``); any other field reads it as YAML (``0.9``, ``true``), as ``--set``
+    does. The value, for ``field_value`` to check."""
+    try:
+        parsed = yaml.safe_load(text)
+    except yaml.YAMLError:
+        parsed = text  # said by the field's own check
+    if not text_field(annotation):
+        return parsed
+    if typing.get_origin(annotation) in (list, tuple):
+        return parsed if isinstance(parsed, list) else text
+    return None if parsed is None and type(None) in typing.get_args(annotation) else text
 
 
 LIST_SEPARATOR = ","

@@ -38,8 +38,8 @@ if TYPE_CHECKING:
 from cso_runtime import __version__
 from cso_runtime.animation import EpisodeAnimation
 from cso_runtime.comparison import (
-    MIN_SCENES,
     PAIRED_COLUMNS,
+    TOO_FEW_SCENES,
     as_dicts,
     bootstrap_mean_ci,
     compare_to_baseline,
@@ -1022,6 +1022,38 @@ def methods_summarized_elsewhere(out_dir: Path, methods: list[str]) -> list[str]
     return sorted(m for m in _earlier_methods(out_dir) if m not in methods)
 
 
+def methods_summarized_elsewhere_said(out_dir: Path, others: list[str]) -> str:
+    """The warning of ``methods_summarized_elsewhere``: results this run's summary.json and episodes.csv replace."""
+    return (
+        f"{out_dir} holds the results of {', '.join(others)}: this run's summary.json and episodes.csv replace them (their episode files stay); "
+        "give another --out, or run every method in one eval"
+    )
+
+
+def seeds_pooled_elsewhere(out_dir: Path, seeds: list[int]) -> list[int]:
+    """The seeds an earlier ``eval --seeds``' pooled files in ``out_dir`` hold (``seeds_pooled_in``) that ``seeds`` leaves out."""
+    return sorted(s for s in seeds_pooled_in(out_dir) if s not in seeds)
+
+
+def pooled_results_replaced_said(request: EvalRequest) -> list[str]:
+    """``eval --seeds`` into a folder whose pooled summary.json and episodes.csv hold other methods or other seeds: the
+    warnings, as a one-seed eval's of other methods (``methods_summarized_elsewhere``), that this run replaces them."""
+    out = Path(request.out_dir)
+    said = []
+    others = methods_summarized_elsewhere(out, request.methods)
+    if others:
+        said.append(methods_summarized_elsewhere_said(out, others))
+    seeds = seeds_pooled_elsewhere(out, request.seeds)
+    if seeds:
+        every = ",".join(map(str, sorted({*seeds_pooled_in(out), *request.seeds})))
+        said.append(
+            f"{out} holds the results of seed(s) {', '.join(map(str, seeds))} pooled: this run's summary.json and episodes.csv replace them "
+            f"(their seed<S>/ folders stay); give another --out, or run every seed in one eval (--seeds {every} --resume pools them all, "
+            "running only the episodes not yet run)"
+        )
+    return said
+
+
 def maps_summarized_elsewhere(out_dir: Path, methods: list[str], maps: list[str]) -> list[str]:
     """The plans whose episodes of ``methods`` an earlier run's summary.json in ``out_dir`` holds and ``maps`` leaves
     out: an eval of one plan into a folder, to run it again, would drop the others from its tables."""
@@ -1105,7 +1137,7 @@ def plan_seeds(request: EvalRequest) -> EvalPlan:
     refuse_the_other_kind_of_eval(request)
     plans = [(one, plan_eval(one)) for one in map(request.for_seed, request.seeds)]
     each = [said for one, plan in plans for said in plan.warnings if said != seed_changes_nothing_said(f"--seed {one.seed}")]
-    warnings = list(dict.fromkeys(each))
+    warnings = pooled_results_replaced_said(request) + list(dict.fromkeys(each))
     first = plans[0][1]
     if seed_changes_nothing(request.methods, first.config, request.sim):
         warnings.append(seed_changes_nothing_said(f"--seeds {','.join(map(str, request.seeds))}"))
@@ -1127,10 +1159,7 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
     warnings: list[str] = []
     others = methods_summarized_elsewhere(out, request.methods)
     if others:
-        warnings.append(
-            f"{out} holds the results of {', '.join(others)}: this run's summary.json and episodes.csv replace them (their episode files stay); "
-            "give another --out, or run every method in one eval"
-        )
+        warnings.append(methods_summarized_elsewhere_said(out, others))
     dropped = maps_summarized_elsewhere(out, request.methods, [s.name for s in scenes])
     if dropped:
         warnings.append(
@@ -1552,8 +1581,8 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
             against.add_row(*paired_cells(c))
         console.print(against)
     elif paired.get("baseline") in summary["methods"] and len(summary["methods"]) > 1:  # say why there is no comparison
-        console.print(escape(f"no comparison with {paired['baseline']} scene by scene (paired.csv): no other method shares {MIN_SCENES} "
-                             "scenes of one scale with it"), soft_wrap=True, highlight=False)
+        console.print(escape(f"no comparison with {paired['baseline']} scene by scene (paired.csv): no other method shares "
+                             f"{TOO_FEW_SCENES} with it"), soft_wrap=True, highlight=False)
     for f in summary["failures"]:
         why = f["error"].splitlines()[0] if f["error"] else ""
         seed = f" (seed {f['seed']})" if "seed" in f else ""  # --seeds: which seed's episode

@@ -63,6 +63,31 @@ def test_a_repeated_list_field_flag_adds_to_the_list_as_eval_seeds_does(tmp_path
     assert code == 2 and "--generated needs a value" in said, said
 
 
+def test_a_text_fields_flag_takes_its_text_as_it_is(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
+    """``train --out-dir 2024`` failed with "out_dir: expected a string, got 2024", and ``--generated A null`` with
+    "expected a list": a field flag's text was read as YAML, as ``--set``'s is, so a text field's ``2024``, ``on`` or
+    ``null`` turned into a number, true or nothing. A text field's flag (``config.text_field``) takes the text as it
+    is, as CleanRL's tyro does; a nullable one's ``null`` is still None, and other fields still read YAML."""
+    from cso_runtime.cli import args_field_flags, parse_settings
+
+    monkeypatch.chdir(tmp_path)
+    code, said = train(tmp_path, "--out", "2024", "--out-dir", "2024")  # the same value twice: fine
+    assert code == 0 and train_runs[-1].out_dir == "2024", said
+    code, said = train(tmp_path, "--out", "2024", "--out-dir", "2025")
+    assert code == 2 and "--out 2024 and --out-dir 2025 both set out_dir, to different values" in said, said
+    assert parse_settings(args_field_flags(["--generated", "a", "null", "--warm-start-data", "on,2024"])) == {
+        "generated": ["a", "null"],
+        "warm_start_data": ["on", "2024"],
+    }
+    assert parse_settings(args_field_flags(["--device", "on", "--dungeon-dir", "null", "--init-from", "2024", "--gamma", "0.9", "--lidar-fov-deg", "null"])) == {
+        "device": "on",
+        "dungeon_dir": None,
+        "init_from": "2024",
+        "gamma": 0.9,
+        "lidar_fov_deg": None,
+    }
+
+
 def test_two_flags_setting_one_field_to_different_values_are_refused_naming_both(tmp_path: Path, train_runs: list):
     """``train --out A --out-dir B`` wrote into B, silently (the field flag went over train's own option), and so did
     any ``--set`` over a flag. Two flags that set one field to different values are refused before anything starts

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import os
 import subprocess
@@ -76,6 +77,31 @@ def test_the_seeds_of_one_plan_are_resampled_together_not_as_more_scenes():
     assert (c2.geomean_ci_low_pct, c2.geomean_ci_high_pct) == pytest.approx((c1.geomean_ci_low_pct, c1.geomean_ci_high_pct))
     unit = bootstrap_mean_ci(np.array([ratios[n] for n in ratios for _ in (0, 1)]))  # the episodes one by one: narrower
     assert unit[1] - unit[0] < (c1.ci_high_pct - c1.ci_low_pct) / 100 * 0.85
+
+
+def test_with_several_seeds_the_minimum_counts_plans_and_the_counts_say_episodes_plan_seed(tmp_path: Path):
+    """With ``eval --seeds`` (or ``compare`` of one-seed folders) a "scene" was an episode (plan, seed): one plan under
+    3 seeds passed the minimum of 3 scenes and gave an "interval" of one plan (its seeds resampled together), a point,
+    and "5 of 6" scenes won read as 6 plans. The minimum counts plans; the counts say episodes (plan, seed), and a
+    ``plans`` field is added (the CSV/JSON fields kept)."""
+    from cso_runtime.comparison import paired_cells
+
+    one_plan = [dict(r, seed=seed) for seed in (0, 1, 2) for r in rows("greedy-dist", "large", {"a": 1.0}) + rows("cso", "large", {"a": 1.0 + seed})]
+    assert compare_to_baseline(efficiency_by_scene(one_plan)) == []
+    ratios = {"a": 1.5, "b": 0.5, "c": 1.2}
+    three = [dict(r, seed=seed) for seed in (0, 1) for r in rows("greedy-dist", "large", dict.fromkeys(ratios, 1.0)) + rows("cso", "large", ratios)]
+    (c,) = compare_to_baseline(efficiency_by_scene(three))
+    assert (c.scenes, c.plans, c.won, c.lost) == (6, 3, 4, 2)
+    assert "| 3 plans, 6 episodes (plan, seed) |" in c.markdown_row() and "| 4 of 6 episodes (plan, seed), 2 lost |" in c.markdown_row()
+    assert paired_cells(dataclasses.asdict(c))[2] == "3 plans, 6 episodes (plan, seed)"
+    assert CSV_FIELDS[-1] == "plans" and {"scenes", "won", "lost"} <= set(CSV_FIELDS)  # a field added, none renamed
+    (single,) = compare_to_baseline(efficiency_by_scene([r for r in three if r["seed"] == 0]))
+    assert single.plans == single.scenes == 3 and "| 3 |" in single.markdown_row() and "| 2 of 3 (1 lost) |" in single.markdown_row()
+    old = {k: v for k, v in dataclasses.asdict(single).items() if k != "plans"}  # a summary.json written before plans was counted
+    assert paired_cells(old)[2] == "3"
+    episodes = write_episodes_csv(tmp_path / "episodes.csv", [r for r in three if r["map"] != "c"], FIELDS)
+    said = subprocess.run([sys.executable, "-m", "cso_runtime.cli", "compare", str(episodes)], capture_output=True, text=True, timeout=60)
+    assert said.returncode == 1 and "no method shares 3 or more scenes (plans: the seeds of one plan count once) of one scale" in said.stderr
 
 
 def test_the_metrics_of_one_set_of_plans_share_their_resamples_and_get_the_intervals_of_fresh_draws():

@@ -835,7 +835,7 @@ def test_the_console_says_why_a_run_with_the_baseline_has_no_comparison(tmp_path
     two = [row(m, n, e) for m, e in (("greedy-dist", 1.0), ("cso", 1.1)) for n in ("img_1", "img_2")]
     print_summary(summarize(two, [], ["greedy-dist", "cso"], {}), tmp_path)
     out = capsys.readouterr().out
-    assert "no comparison with greedy-dist scene by scene (paired.csv): no other method shares 3 scenes of one scale with it" in out
+    assert "no comparison with greedy-dist scene by scene (paired.csv): no other method shares 3 or more scenes (plans: the seeds of one plan count once) of one scale with it" in out
     three = two + [row("greedy-dist", "img_3", 1.0), row("cso", "img_3", 1.1)]
     print_summary(summarize(three, [], ["greedy-dist", "cso"], {}), tmp_path)
     out = capsys.readouterr().out
@@ -1589,6 +1589,22 @@ def test_an_eval_into_a_folder_of_other_methods_says_it_replaces_their_summary(t
     with caplog.at_level("WARNING"):
         run_eval(EvalRequest(methods=["random"], maps="generated:small:1:0", out_dir=tmp_path / "o", max_steps=5))
     assert "holds the results of greedy-dist: this run's summary.json and episodes.csv replace them" in caplog.text
+
+
+def test_an_eval_of_other_seeds_into_a_pooled_folder_says_it_replaces_its_summary(tmp_path, caplog):
+    """``eval --seeds 2`` into the folder of ``--seeds 0,1`` replaced the pooled summary.json and episodes.csv with
+    seed 2's alone, and said nothing (as ``--seeds`` of other methods into a pooled folder of other seeds): it warns
+    as an eval of other methods does (``methods_summarized_elsewhere``), and says how to pool every seed."""
+    common = {"maps": "generated:small:1:0", "out_dir": tmp_path / "o", "max_steps": 5}
+    run_eval(EvalRequest(methods=["greedy-dist"], seeds=[0, 1], **common))
+    assert not [w for w in plan_eval(EvalRequest(methods=["greedy-dist"], seeds=[0, 1], **common)).warnings if "holds the results" in w]
+    with caplog.at_level("WARNING"):
+        run_eval(EvalRequest(methods=["greedy-dist"], seeds=[1, 2], **common))
+    assert f"{tmp_path / 'o'} holds the results of seed(s) 0 pooled: this run's summary.json and episodes.csv replace them" in caplog.text
+    assert "--seeds 0,1,2 --resume pools them all" in caplog.text
+    said = plan_eval(EvalRequest(methods=["random"], seeds=[3], **common)).warnings
+    assert f"{tmp_path / 'o'} holds the results of greedy-dist: this run's summary.json and episodes.csv replace them" in said[0]
+    assert "holds the results of seed(s) 1, 2 pooled" in said[1]
 
 
 def test_an_eval_of_fewer_plans_into_a_folder_says_its_tables_leave_the_others_out(tmp_path, caplog):

@@ -72,6 +72,25 @@ def test_the_step_limit_is_a_keyword_of_gymnasium_make():
         make_env(scenes=SCENES, max_steps=0)
 
 
+def test_the_step_limit_keyword_takes_numpy_integers_and_is_bounded_as_the_configs():
+    """``gymnasium.make(ENV, max_steps=np.int64(5))`` (a limit drawn or read with NumPy) was refused, only Python ints
+    taken, while ``max_steps=10**7`` was taken, past the bound ``episode.max_steps`` has (``MAX_EPISODE_STEPS``). A
+    NumPy integer is taken (as an int), a bool of either kind still refused, and the config's bound applies."""
+    from cso_runtime.config import MAX_EPISODE_STEPS
+
+    env = gym.make(f"cso_runtime.learned.env:{ENV_ID}", scenes=SCENES, max_steps=np.int64(5))
+    assert env.unwrapped.config.max_steps == 5 and type(env.unwrapped.config.max_steps) is int
+    env.close()
+    assert make_env(scenes=SCENES, max_steps=np.uint16(MAX_EPISODE_STEPS % 2**16)).config.max_steps == MAX_EPISODE_STEPS % 2**16
+    assert make_env(scenes=SCENES, max_steps=MAX_EPISODE_STEPS).config.max_steps == MAX_EPISODE_STEPS
+    for wrong in (True, np.True_, np.int64(0), 5.0):
+        with pytest.raises(ValueError, match="max_steps must be a positive number of control steps"):
+            make_env(scenes=SCENES, max_steps=wrong)
+    for over in (MAX_EPISODE_STEPS + 1, np.int64(10**12)):
+        with pytest.raises(ValueError, match=r"max_steps must be in \[1, 1,000,000\]"):
+            make_env(scenes=SCENES, max_steps=over)
+
+
 def test_vector_envs_stack_the_robot_index_with_one_axis_and_give_each_envs_action_mask():
     """CleanRL's and Gymnasium's vector envs stack each entry with a leading env axis: ``robot`` is (num_envs, 1)."""
     vec = gym.make_vec(f"cso_runtime.learned.env:{ENV_ID}", num_envs=2, vectorization_mode="sync", scenes=SCENES)

@@ -1597,6 +1597,59 @@ def test_up_killed_before_its_own_signal_handlers_leaves_no_file_for_down(tmp_pa
     assert not (tmp_path / "made").exists()
 
 
+@pytest.mark.parametrize("when", ["the file just written", "the file being removed"])
+def test_a_sigterm_as_main_names_or_unnames_up_still_leaves_no_file(tmp_path, when):
+    """``main``'s early handler removes ``up``'s file for ``down`` once ``_starting_up`` names it, but the file was
+    written before that: a SIGTERM just after the write (``down`` sends one as soon as it sees the file) ran the handler
+    with nothing named, and the process died leaving the file and its runs folder. Likewise as ``main`` ended, between
+    taking the file off ``_starting_up`` and removing it. The signal, sent by the process itself at those points (no
+    timing), is acted on with the file named: it goes, and the process still dies of SIGTERM."""
+    runs = tmp_path / "made" / "runs"
+    script = textwrap.dedent(
+        f"""
+        import os, signal, sys
+        from cso_runtime import cli, current_run
+
+        record = current_run.record_starting_up
+        sent = []
+
+        def kill_once():
+            if not sent:
+                sent.append(True)
+                os.kill(os.getpid(), signal.SIGTERM)
+
+        def record_then_killed(runs_dir):
+            remove = record(runs_dir)
+            if {when!r} == "the file just written":
+                kill_once()
+
+            def remove_killed():
+                if {when!r} == "the file being removed":
+                    kill_once()
+                remove()
+
+            return remove_killed
+
+        current_run.record_starting_up = record_then_killed
+
+        def typer_refuses(prog_name):
+            raise SystemExit(2)
+
+        cli.app = typer_refuses
+        sys.argv = ["cso-runtime", "up", "--runs-dir", {str(runs)!r}]
+        try:
+            cli.main()
+        except SystemExit:
+            pass
+        print("survived")
+        """
+    )
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    killed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, env=env, check=False)
+    assert killed.returncode == -signal.SIGTERM, (killed.returncode, killed.stdout, killed.stderr)
+    assert not (tmp_path / "made").exists(), sorted(str(p) for p in tmp_path.rglob("*"))
+
+
 def test_down_removes_the_file_of_an_up_that_is_gone_and_never_signals_a_process_that_took_its_pid(tmp_path):
     """An ``up`` killed (SIGKILL) in its check leaves its file (``STARTING_UP_GLOB``); its pid may be another process's
     since. ``down`` tells them apart by the start time the file records, as for a run file: that process is left alone

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import numbers
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
@@ -26,7 +27,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from cso_runtime.config import ExplorationConfig, MaskConfig, with_nearest
+from cso_runtime.config import ExplorationConfig, MaskConfig, check_max_steps, with_nearest
 from cso_runtime.episode import TERMINATED_MAX_STEPS, Explorer, best_outcome, nearest_clusters, rollout_outcomes
 from cso_runtime.learned.graph import (
     EDGE_FEATURE_NAMES,
@@ -465,13 +466,14 @@ def make_env(
     ``generated:SCALE:N:SEED``); PNG plans at ``m_per_px`` (0.05: Dungeon's large scale, where ``eval --m-per-px`` takes
     0.1, super large, unless told). The plans load at the first reset. ``max_steps``, given, is the episode's step
     limit in control steps of 0.25 s (``EnvConfig.max_steps``, over ``config``'s; Gymnasium's own
-    ``max_episode_steps`` counts decisions)."""
+    ``max_episode_steps`` counts decisions): an integer (NumPy's too) from 1 to ``config.MAX_EPISODE_STEPS``."""
     from cso_runtime.scenes import resolve_scenes  # noqa: PLC0415
 
     if max_steps is not None:
-        if isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1:
+        if isinstance(max_steps, bool) or not isinstance(max_steps, numbers.Integral) or max_steps < 1:  # np.int64 too
             raise ValueError(f"max_steps must be a positive number of control steps (0.25 s each), got {max_steps!r}")
-        config = dataclasses.replace(config or EnvConfig(), max_steps=max_steps)
+        check_max_steps(int(max_steps), "max_steps")  # as episode.max_steps is bounded (a ConfigError, a ValueError)
+        config = dataclasses.replace(config or EnvConfig(), max_steps=int(max_steps))
     refs = resolve_scenes(scenes, limit, m_per_px)  # a bad spec fails here, not at the first reset
     plans = functools.partial(_load_scenes, refs)  # not a lambda: the env pickles (multiprocessing, copies of a run's env)
     return ExplorationEnv(plans, config, render_mode=render_mode, render_scale=render_scale, robot_index_shape=robot_index_shape)
