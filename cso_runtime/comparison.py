@@ -205,8 +205,20 @@ def read_episodes(
                 reader = csv.DictReader(fh)
                 missing = [c for c in EPISODE_COLUMNS if c not in (reader.fieldnames or [])]
                 if missing:
-                    raise ValueError(f"not an episodes.csv written by eval: no column {', '.join(missing)}")
-                rows = [row for row in reader if row["map"] not in excluded]
+                    hint = f" (compare reads episodes.csv: give {Path(path).parent}/ or its episodes.csv)" if Path(path).name == "summary.json" else ""
+                    raise ValueError(f"not an episodes.csv written by eval: no column {', '.join(missing)}{hint}")
+                rows = []
+                for row in reader:
+                    # A row of other than the header's cells (a file cut short mid-row, a stray comma) would read its
+                    # missing cells as None, or a number cut short as a smaller one: refuse it rather than compare it.
+                    if None in row or None in row.values():
+                        cells = sum(v is not None for k, v in row.items() if k is not None) + len(row.get(None) or [])
+                        raise ValueError(
+                            f"line {reader.line_num} has {cells} cells, the header {len(reader.fieldnames or [])} columns "
+                            "(a file cut short or a row mangled): not an episodes.csv as eval writes it"
+                        )
+                    if row["map"] not in excluded:
+                        rows.append(row)
             own = efficiency_by_scene(renamed_methods(rows, [r for r in renames if r.applies_to(label, path)]), label)
         except UnicodeDecodeError:
             raise ValueError(f"{path}: not an episodes.csv written by eval: not UTF-8 text") from None
