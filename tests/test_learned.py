@@ -10,9 +10,11 @@ import importlib.util
 import json
 import math
 import os
+import pickle
 import re
 import shlex
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -1176,12 +1178,16 @@ def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path
     files = {
         "empty or truncated": b"",
         "not a torch file": bytes(range(256)) * 4,
+        r"\(not a torch file\)": b"hello\n",  # a text file: torch's unpickler fails on its memo, "no 101 entry" it said
+        "not a torch file of plain tensors": pickle.dumps({"a": 1}, protocol=4),  # and torch warned of the protocol
     }
     for why, content in files.items():
         (tmp_path / "bad.pt").write_bytes(content)
-        with pytest.raises(registry.CheckpointError, match=why) as err:
+        with warnings.catch_warnings(record=True) as seen, pytest.raises(registry.CheckpointError, match=why) as err:
+            warnings.simplefilter("always")
             load_checkpoint(tmp_path / "bad.pt")
         assert str(tmp_path / "bad.pt") in str(err.value) and "\n" not in str(err.value)
+        assert not [str(w.message) for w in seen]
     torch.save({"state_dict": ckpt["state_dict"]}, tmp_path / "bad.pt")
     with pytest.raises(registry.CheckpointError, match="no 'graph' entry"):
         load_checkpoint(tmp_path / "bad.pt")
