@@ -1468,6 +1468,8 @@ def test_train_refuses_what_it_cannot_use_before_it_starts(tmp_path, monkeypatch
     cases = [
         (["--resume", str(tmp_path / "nosuch.pt")], "--resume .*nosuch.pt: no such file"),
         (["--resume", str(fake)], "not a checkpoint torch can read"),
+        # A run's folder, as eval --weights takes it: named as such, not "cut short or corrupt (IsADirectoryError)".
+        (["--resume", str(tmp_path)], f"--resume {re.escape(str(tmp_path))}: a folder; it holds no checkpoint.pt; give the checkpoint.pt"),
         (["--resume", str(shipped)], "not a training checkpoint .*--init-from"),
         (["--init-from", str(tmp_path / "nosuch.pt")], "--init-from .*nosuch.pt: no such file"),
         (["--init-from", str(fake)], "--init-from .*fake.png: not a cso-runtime checkpoint"),
