@@ -425,6 +425,8 @@ def report_command(
 
     from cso_runtime.report import write_report  # noqa: PLC0415
 
+    if folder.is_file():  # its summary.json given: "summary.json/summary.json: Not a directory" said nothing useful
+        _fail(f"{folder} is a file; report takes the folder that holds summary.json: cso-runtime report {folder.parent}", 2)
     try:
         summary = json.loads((folder / "summary.json").read_text())
         if not isinstance(summary, dict) or not isinstance(summary.get("methods"), dict):
