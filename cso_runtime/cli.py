@@ -1349,6 +1349,8 @@ def collect_teacher_command(
 
     overrides = {"seed": seed, "warm_start_teacher": teacher, "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
     args = training_args(config, overrides, settings)
+    if out.is_dir():  # said before hours of rollouts: the file was to be renamed over the folder at the end, a traceback
+        _fail(f"--out {out} is a folder; give the file to write, such as {out / 'teacher.npz'}", 2)
     output_dir_or_exit(out.parent, f"--out {out}: its folder")  # before hours of rollouts, not after
     from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
 

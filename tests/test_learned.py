@@ -1448,6 +1448,10 @@ def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
     below_a_file = out / "more.npz"  # its folder cannot be made: said before the rollouts, not after them
     bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(below_a_file), "--teacher", "greedy-dist", *scenes])
     assert bad.exit_code == 2 and "cannot create the folder" in bad.output and "decisions" not in bad.output
+    # A folder as --out (as record --out DIR/ takes one): said before the rollouts; it was a traceback after them,
+    # the collected decisions lost, when the file was renamed over the folder.
+    bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(tmp_path), "--teacher", "greedy-dist", *scenes])
+    assert bad.exit_code == 2 and f"--out {tmp_path} is a folder; give the file to write" in bad.output and "decisions" not in bad.output, bad.output
     bad = CliRunner().invoke(app, ["train", "--out", str(below_a_file), *scenes])
     assert bad.exit_code == 2 and f"out_dir {below_a_file}: cannot create the folder" in bad.output
 
