@@ -381,6 +381,7 @@ def compare_command(
         labelled,
         markdown_table,
         pooled_episodes,
+        split_names,
         write_csv,
     )
 
@@ -394,6 +395,10 @@ def compare_command(
         _fail(str(exc), 2)
     for replacement in replaced:
         typer.echo(f"note: {replacement.note()}", err=True)
+    if exclude:  # a name that matches no episode leaves out nothing: a typo would compare the plans meant to be out
+        held = {scene[1] for scenes in pooled_episodes(files, [], rename or [])[0].values() for scene in scenes}
+        if unmatched := [name for name in split_names(exclude) if name not in held]:
+            typer.echo(f"note: --exclude {', '.join(unmatched)}: no such map in these files; nothing left out for it", err=True)
     methods = sorted({method for method, _ in table})
     if methods and baseline not in methods:  # a typo in --baseline, not "too few scenes"
         _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(methods)}", 2)

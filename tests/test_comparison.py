@@ -183,6 +183,8 @@ def test_compare_cli_pools_labelled_files_and_writes_json_and_csv(tmp_path: Path
     assert kept.returncode == 0, kept.stderr
     (row,) = json.loads(kept.stdout)["comparisons"]
     assert row["scenes"] == 3 and (row["won"], row["lost"]) == (2, 0)
+    # A name no file has (a typo) leaves nothing out: said, where it left the plans meant to be out in silently.
+    assert "note: --exclude zz: no such map in these files; nothing left out for it" in kept.stderr and "--exclude c" not in kept.stderr
 
 
 def test_compare_cli_says_when_the_baseline_or_the_csv_path_is_wrong(tmp_path: Path):
