@@ -1357,6 +1357,8 @@ def collect_teacher_command(
     if out.is_dir():  # said before hours of rollouts: the file was to be renamed over the folder at the end, a traceback
         _fail(f"--out {out} is a folder; give the file to write, such as {out / 'teacher.npz'}", 2)
     output_dir_or_exit(out.parent, f"--out {out}: its folder")  # before hours of rollouts, not after
+    if out.is_file():  # as train says of an earlier run in its folder: an earlier collection is not replaced unsaid
+        typer.echo(f"note: {out} exists (an earlier collection?); this one replaces it when it ends (a Ctrl-C before then keeps it)")
     from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
 
     t0 = time.time()

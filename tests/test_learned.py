@@ -1438,11 +1438,13 @@ def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
     result = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "greedy-dist", "--workers", "2",
                                       "--decisions", "6", "--seed", "3", *scenes])
     assert result.exit_code == 0, result.output
-    assert "done: 6 greedy-dist decisions" in result.output
+    assert "done: 6 greedy-dist decisions" in result.output and "exists" not in result.output
     data = TeacherData.load([out])
     assert len(data) == 6 and data.masks[np.arange(6), data.actions].all()
     data.save(tmp_path / "t5.txt")  # the very name given (numpy alone would write t5.txt.npz)
     assert (tmp_path / "t5.txt").is_file() and len(TeacherData.load([tmp_path / "t5.txt"])) == 6
+    again = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "greedy-dist", "--workers", "1", "--decisions", "2", *scenes])
+    assert again.exit_code == 0 and f"note: {out} exists (an earlier collection?); this one replaces it" in again.output, again.output
     bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "nobody", *scenes])
     assert bad.exit_code == 2 and "unknown warm_start_teacher" in bad.output
     below_a_file = out / "more.npz"  # its folder cannot be made: said before the rollouts, not after them
