@@ -24,7 +24,15 @@ import json
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from cso_runtime.comparison import PairedComparison, as_dicts, compare_to_baseline, efficiency_by_scene, format_interval, labelled
+from cso_runtime.comparison import (
+    PairedComparison,
+    as_dicts,
+    compare_to_baseline,
+    efficiency_by_scene,
+    format_interval,
+    labelled,
+    whole_rows,
+)
 from cso_runtime.evaluation import METRICS, summarize
 from cso_runtime.policies import BASELINES, LEARNED_METHODS
 from cso_runtime.report import table2
@@ -66,7 +74,7 @@ def pooled_rows(files: list[tuple[str, Path]]) -> list[dict[str, Any]]:
     pooled: dict[tuple, dict[str, Any]] = {}
     for label, path in files:
         with path.open(newline="") as fh:
-            for r in csv.DictReader(fh):
+            for r in whole_rows(csv.DictReader(fh)):  # a row cut short is an error, not pooled
                 r = dict(r)
                 r["map"] = f"{label}/{r['map']}" if label else r["map"]
                 for k in METRICS:

@@ -381,6 +381,7 @@ def compare_command(
         labelled,
         markdown_table,
         pooled_episodes,
+        split_names,
         write_csv,
     )
 
@@ -394,6 +395,10 @@ def compare_command(
         _fail(str(exc), 2)
     for replacement in replaced:
         typer.echo(f"note: {replacement.note()}", err=True)
+    if exclude:  # a name that matches no episode leaves out nothing: a typo would compare the plans meant to be out
+        held = {scene[1] for scenes in pooled_episodes(files, [], rename or [])[0].values() for scene in scenes}
+        if unmatched := [name for name in split_names(exclude) if name not in held]:
+            typer.echo(f"note: --exclude {', '.join(unmatched)}: no such map in these files; nothing left out for it", err=True)
     methods = sorted({method for method, _ in table})
     if methods and baseline not in methods:  # a typo in --baseline, not "too few scenes"
         _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(methods)}", 2)
@@ -425,6 +430,8 @@ def report_command(
 
     from cso_runtime.report import write_report  # noqa: PLC0415
 
+    if folder.is_file():  # its summary.json given: "summary.json/summary.json: Not a directory" said nothing useful
+        _fail(f"{folder} is a file; report takes the folder that holds summary.json: cso-runtime report {folder.parent}", 2)
     try:
         summary = json.loads((folder / "summary.json").read_text())
         if not isinstance(summary, dict) or not isinstance(summary.get("methods"), dict):
@@ -1354,7 +1361,11 @@ def collect_teacher_command(
     except ConfigError as exc:
         _fail(str(exc), 2)
     args = training_args(config, overrides, settings)
+    if out.is_dir():  # said before hours of rollouts: the file was to be renamed over the folder at the end, a traceback
+        _fail(f"--out {out} is a folder; give the file to write, such as {out / 'teacher.npz'}", 2)
     output_dir_or_exit(out.parent, f"--out {out}: its folder")  # before hours of rollouts, not after
+    if out.is_file():  # as train says of an earlier run in its folder: an earlier collection is not replaced unsaid
+        typer.echo(f"note: {out} exists (an earlier collection?); this one replaces it when it ends (a Ctrl-C before then keeps it)")
     from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
 
     t0 = time.time()

@@ -18,7 +18,7 @@ import functools
 import io
 import math
 from collections import defaultdict
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -206,6 +206,20 @@ class Replacement:
         )
 
 
+def whole_rows(reader: csv.DictReader[str]) -> Iterator[dict[str, str]]:
+    """The rows of ``reader``, each with the header's cells: a row of other cells (a file cut short mid-row, a stray
+    comma) would read its missing cells as None, or a number cut short as a smaller one, so it is a ValueError
+    naming its line, rather than a figure compared or pooled."""
+    for row in reader:
+        if None in row or None in row.values():
+            cells = sum(v is not None for k, v in row.items() if k is not None) + len(row.get(None) or [])
+            raise ValueError(
+                f"line {reader.line_num} has {cells} cells, the header {len(reader.fieldnames or [])} columns "
+                "(a file cut short or a row mangled): not an episodes.csv as eval writes it"
+            )
+        yield row
+
+
 def read_episodes(
     files: Sequence[Path | tuple[str, Path]], exclude_maps: Iterable[str] = (), replaced: list[Replacement] | None = None, renames: Sequence[Rename] = ()
 ) -> EfficiencyTable:
@@ -229,8 +243,9 @@ def read_episodes(
                 reader = csv.DictReader(fh)
                 missing = [c for c in EPISODE_COLUMNS if c not in (reader.fieldnames or [])]
                 if missing:
-                    raise ValueError(f"not an episodes.csv written by eval: no column {', '.join(missing)}")
-                rows = [row for row in reader if row["map"] not in excluded]
+                    hint = f" (compare reads episodes.csv: give {Path(path).parent}/ or its episodes.csv)" if Path(path).name == "summary.json" else ""
+                    raise ValueError(f"not an episodes.csv written by eval: no column {', '.join(missing)}{hint}")
+                rows = [row for row in whole_rows(reader) if row["map"] not in excluded]
             own = efficiency_by_scene(renamed_methods(rows, [r for r in renames if r.applies_to(label, path)]), label)
         except UnicodeDecodeError:
             raise ValueError(f"{path}: not an episodes.csv written by eval: not UTF-8 text") from None

@@ -365,18 +365,22 @@ def check_chunks(path: Path) -> None:
     """Raise RecordingError when a chunk of ``path`` no longer matches its CRC (or a finished file does not read
     through), before anything of it is used: the file read once, front to back, its chunks decompressed but no
     message decoded (milliseconds a megabyte). A file cut short (its recorder killed) passes: ``read_recording``
-    reads it up to the cut. ``replay`` checks first, so that it never feeds a pipeline the run up to the damage."""
+    reads it up to the cut; one cut before its first chunk, with nothing to read, is a RecordingError too. ``replay`` checks first, so that it never feeds a pipeline the run up to the damage."""
     from mcap.exceptions import McapError  # noqa: PLC0415
+    from mcap.records import Channel  # noqa: PLC0415
     from mcap.stream_reader import StreamReader  # noqa: PLC0415
 
     check_recording(path)
+    channels = 0
     try:
         with Path(path).open("rb") as fh:
-            for _record in StreamReader(fh, validate_crcs=True).records:
-                pass
+            for record in StreamReader(fh, validate_crcs=True).records:
+                channels += isinstance(record, Channel)
     except (McapError, OSError, ValueError, EOFError, struct.error, zlib_error()) as exc:
         if is_crc_error(exc) or _ends_with_magic(path):
             raise RecordingError(f"cannot read {path}: {damage_reason(exc)}") from None
+        if not channels:  # cut before anything ``read_recording`` could read: said now, as export-bag and animate say it
+            raise RecordingError(f"cannot read {path}: it ends before its first chunk of messages (its recorder was killed before it wrote one?)") from None
 
 
 def _restored(channel: Any, message: Any, wanted: set[str] | None) -> RecordedMessage | None:

@@ -151,6 +151,28 @@ def test_a_bad_efficiency_or_a_file_that_is_not_episodes_csv_is_a_clear_error(tm
         read_episodes([bad_row])
 
 
+def test_a_file_cut_short_mid_row_or_a_summary_json_given_to_compare_is_a_clear_error(tmp_path: Path):
+    """An episodes.csv cut short mid-row (an interrupted copy) read its last row's missing cells as None and a number
+    cut short as a smaller one, and compared it; a summary.json given in place of episodes.csv said only that it has
+    no column method."""
+    whole = write_episodes_csv(tmp_path / "whole.csv", rows("greedy-dist", "large", {"a": 1.0, "b": 1.0, "c": 1.25}), FIELDS)
+    text = whole.read_text()
+    cut = tmp_path / "cut.csv"
+    cut.write_text(text[: text.rindex("100.0") + 2])  # the last row cut in its traversable area: 10, no efficiency
+    assert len(read_episodes([whole])[("greedy-dist", "large")]) == 3
+    with pytest.raises(ValueError, match=r"cut.csv: line 4 has 5 cells, the header 6 columns \(a file cut short"):
+        read_episodes([cut])
+    extra = tmp_path / "extra.csv"
+    extra.write_text(text.replace("1.25", "1,25"))
+    with pytest.raises(ValueError, match="extra.csv: line 4 has 7 cells, the header 6 columns"):
+        read_episodes([extra])
+    summary = tmp_path / "run" / "summary.json"
+    summary.parent.mkdir()
+    summary.write_text('{"meta": {"command": "cso-runtime eval"}}')
+    with pytest.raises(ValueError, match=f"no column method.*compare reads episodes.csv: give {summary.parent}/ or its episodes.csv"):
+        read_episodes([summary])
+
+
 def write(path: Path, episodes: list[dict]) -> Path:
     return write_episodes_csv(path, episodes, FIELDS)
 
@@ -187,6 +209,8 @@ def test_compare_cli_pools_labelled_files_and_writes_json_and_csv(tmp_path: Path
     assert kept.returncode == 0, kept.stderr
     (row,) = json.loads(kept.stdout)["comparisons"]
     assert row["scenes"] == 3 and (row["won"], row["lost"]) == (2, 0)
+    # A name no file has (a typo) leaves nothing out: said, where it left the plans meant to be out in silently.
+    assert "note: --exclude zz: no such map in these files; nothing left out for it" in kept.stderr and "--exclude c" not in kept.stderr
 
 
 def test_compare_cli_says_when_the_baseline_or_the_csv_path_is_wrong(tmp_path: Path):

@@ -1432,6 +1432,8 @@ def test_an_animation_has_a_frame_per_decision_and_the_final_map_and_stays_bound
     assert r.exit_code == 0 and (tmp_path / "o" / "report.html").read_text() == page
     r = CliRunner().invoke(app, ["report", str(tmp_path / "nothing")])
     assert r.exit_code == 2 and f"error: {tmp_path / 'nothing' / 'summary.json'}: No such file" in r.output and "not an `eval --out` folder" in r.output
+    r = CliRunner().invoke(app, ["report", str(tmp_path / "o" / "summary.json")])  # the file, not its folder: said so
+    assert r.exit_code == 2 and f"report takes the folder that holds summary.json: cso-runtime report {tmp_path / 'o'}" in " ".join(r.output.split()), r.output
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     for broken in ({**summary, "methods": {"greedy-dist": "oops"}}, {**summary, "paired": "x"}):
         (tmp_path / "odd").mkdir(exist_ok=True)

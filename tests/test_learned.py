@@ -10,9 +10,11 @@ import importlib.util
 import json
 import math
 import os
+import pickle
 import re
 import shlex
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -1176,12 +1178,16 @@ def test_a_corrupt_weights_file_is_one_clear_error_before_anything_runs(tmp_path
     files = {
         "empty or truncated": b"",
         "not a torch file": bytes(range(256)) * 4,
+        r"\(not a torch file\)": b"hello\n",  # a text file: torch's unpickler fails on its memo, "no 101 entry" it said
+        "not a torch file of plain tensors": pickle.dumps({"a": 1}, protocol=4),  # and torch warned of the protocol
     }
     for why, content in files.items():
         (tmp_path / "bad.pt").write_bytes(content)
-        with pytest.raises(registry.CheckpointError, match=why) as err:
+        with warnings.catch_warnings(record=True) as seen, pytest.raises(registry.CheckpointError, match=why) as err:
+            warnings.simplefilter("always")
             load_checkpoint(tmp_path / "bad.pt")
         assert str(tmp_path / "bad.pt") in str(err.value) and "\n" not in str(err.value)
+        assert not [str(w.message) for w in seen]
     torch.save({"state_dict": ckpt["state_dict"]}, tmp_path / "bad.pt")
     with pytest.raises(registry.CheckpointError, match="no 'graph' entry"):
         load_checkpoint(tmp_path / "bad.pt")
@@ -1432,16 +1438,22 @@ def test_collect_teacher_command_writes_a_file_that_train_reads(tmp_path):
     result = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "greedy-dist", "--workers", "2",
                                       "--decisions", "6", "--seed", "3", *scenes])
     assert result.exit_code == 0, result.output
-    assert "done: 6 greedy-dist decisions" in result.output
+    assert "done: 6 greedy-dist decisions" in result.output and "exists" not in result.output
     data = TeacherData.load([out])
     assert len(data) == 6 and data.masks[np.arange(6), data.actions].all()
     data.save(tmp_path / "t5.txt")  # the very name given (numpy alone would write t5.txt.npz)
     assert (tmp_path / "t5.txt").is_file() and len(TeacherData.load([tmp_path / "t5.txt"])) == 6
+    again = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "greedy-dist", "--workers", "1", "--decisions", "2", *scenes])
+    assert again.exit_code == 0 and f"note: {out} exists (an earlier collection?); this one replaces it" in again.output, again.output
     bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(out), "--teacher", "nobody", *scenes])
     assert bad.exit_code == 2 and "unknown warm_start_teacher" in bad.output
     below_a_file = out / "more.npz"  # its folder cannot be made: said before the rollouts, not after them
     bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(below_a_file), "--teacher", "greedy-dist", *scenes])
     assert bad.exit_code == 2 and "cannot create the folder" in bad.output and "decisions" not in bad.output
+    # A folder as --out (as record --out DIR/ takes one): said before the rollouts; it was a traceback after them,
+    # the collected decisions lost, when the file was renamed over the folder.
+    bad = CliRunner().invoke(app, ["collect-teacher", "--out", str(tmp_path), "--teacher", "greedy-dist", *scenes])
+    assert bad.exit_code == 2 and f"--out {tmp_path} is a folder; give the file to write" in bad.output and "decisions" not in bad.output, bad.output
     bad = CliRunner().invoke(app, ["train", "--out", str(below_a_file), *scenes])
     assert bad.exit_code == 2 and f"out_dir {below_a_file}: cannot create the folder" in bad.output
 
@@ -1462,6 +1474,8 @@ def test_train_refuses_what_it_cannot_use_before_it_starts(tmp_path, monkeypatch
     cases = [
         (["--resume", str(tmp_path / "nosuch.pt")], "--resume .*nosuch.pt: no such file"),
         (["--resume", str(fake)], "not a checkpoint torch can read"),
+        # A run's folder, as eval --weights takes it: named as such, not "cut short or corrupt (IsADirectoryError)".
+        (["--resume", str(tmp_path)], f"--resume {re.escape(str(tmp_path))}: a folder; it holds no checkpoint.pt; give the checkpoint.pt"),
         (["--resume", str(shipped)], "not a training checkpoint .*--init-from"),
         (["--init-from", str(tmp_path / "nosuch.pt")], "--init-from .*nosuch.pt: no such file"),
         (["--init-from", str(fake)], "--init-from .*fake.png: not a cso-runtime checkpoint"),

@@ -486,7 +486,7 @@ def test_replay_command_names_a_missing_recording_before_anything_else(tmp_path:
     assert r.exit_code == 2 and "not an MCAP file" in r.output
     r = CliRunner().invoke(app, ["replay", str(tmp_path), "--runs-dir", str(tmp_path)])
     assert r.exit_code == 2 and f"{tmp_path} is a folder" in r.output
-    recording.write_bytes(MCAP_MAGIC)  # starts like one: a topic that does not exist is said before connecting
+    _written_scans(recording, 1)  # a readable one: a topic that does not exist is said before connecting
     r = CliRunner().invoke(app, ["replay", str(recording), "--topics", "scan,scans", "--connect", "tcp/127.0.0.1:1"])
     assert r.exit_code == 2 and "unknown topic(s) scans; known: scan, odom" in r.output
     for nothing in (",", " , "):  # a list of no topic would replay nothing, silently
@@ -514,7 +514,7 @@ def test_replay_topics_take_the_keys_as_docs_and_dataflow_name_them(tmp_path: Pa
     monkeypatch.setattr(transport, "open_session", lambda config: contextlib.nullcontext())
     monkeypatch.setattr(recording_module, "replay", lambda session, path, speed, stop, topics: wanted.append(topics) or recording_module.ReplayStats())
     recording = tmp_path / "run.mcap"
-    recording.write_bytes(MCAP_MAGIC)
+    _written_scans(recording, 1)  # a readable recording (replay checks it before connecting)
     handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
         r = CliRunner().invoke(app, ["replay", str(recording), "--topics", "planner/feedback, frontiers/distance,scan", "--connect", "tcp/127.0.0.1:1"])
@@ -558,7 +558,7 @@ def test_record_and_replay_without_a_zenoh_session_exit_3_as_up_does(tmp_path: P
 
     monkeypatch.setattr(transport, "open_session", no_router)
     recording = tmp_path / "run.mcap"
-    recording.write_bytes(MCAP_MAGIC)
+    _written_scans(recording, 1)  # a readable recording (replay checks it before connecting)
     handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}  # both commands set their own
     try:
         r = CliRunner().invoke(app, ["replay", str(recording), "--connect", "tcp/127.0.0.1:7447"])
@@ -781,7 +781,7 @@ def test_replay_refuses_a_damaged_recording_before_it_publishes_anything(tmp_pat
     from typer.testing import CliRunner
 
     from cso_runtime.cli import app
-    from cso_runtime.recording import RecordingError
+    from cso_runtime.recording import RecordingError, check_chunks
 
     scans, whole = _written_scans(tmp_path / "whole.mcap", 1500)
     data = bytearray(whole.read_bytes())
@@ -817,6 +817,15 @@ def test_replay_refuses_a_damaged_recording_before_it_publishes_anything(tmp_pat
     assert 0 < stats.messages < len(scans) and counting.publishers == 1
     r = CliRunner().invoke(app, ["replay", str(damaged), "--connect", "tcp/127.0.0.1:1"])  # said before connecting
     assert r.exit_code == 2 and "damaged: a Chunk's CRC does not match" in r.output, r.output
+    # Cut before its first chunk (its recorder killed at once): nothing to replay, said before connecting as
+    # export-bag and animate say it (exit 2), not after the session opened (it was exit 1, or "no current run").
+    early = tmp_path / "early.mcap"
+    early.write_bytes(whole.read_bytes()[:100])
+    with pytest.raises(RecordingError, match=r"early.mcap: it ends before its first chunk of messages"):
+        check_chunks(early)
+    for where in (["--connect", "tcp/127.0.0.1:1"], ["--runs-dir", str(tmp_path)]):
+        r = CliRunner().invoke(app, ["replay", str(early), *where])
+        assert r.exit_code == 2 and "it ends before its first chunk of messages" in r.output, r.output
 
 
 def test_replay_upgrades_the_old_messages_of_a_run_that_raised_max_grid_cells(tmp_path: Path, monkeypatch):
@@ -851,7 +860,7 @@ def test_replay_upgrades_the_old_messages_of_a_run_that_raised_max_grid_cells(tm
     monkeypatch.setattr(transport, "open_session", lambda config: contextlib.nullcontext())
     monkeypatch.setattr(recording_module, "replay", fake_replay)
     recording = tmp_path / "run.mcap"
-    recording.write_bytes(MCAP_MAGIC)
+    _written_scans(recording, 1)  # a readable recording (replay checks it before connecting)
     handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
         r = CliRunner().invoke(app, ["replay", str(recording), "--connect", "tcp/127.0.0.1:1"])

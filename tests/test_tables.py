@@ -59,6 +59,19 @@ def test_pools_episodes_per_scale_with_later_files_replacing_a_method_and_labels
     assert rows[("large", "greedy-dist")][9] == "" and rows[("small", "greedy-dist")][2] == "1"
 
 
+def test_an_episodes_csv_cut_short_mid_row_is_refused_not_pooled(tmp_path):
+    """A file cut short in its last row (an interrupted copy) was pooled with that row's missing cells empty and a
+    number cut short as a smaller one: a Table 1 row of wrong figures."""
+    whole = write(tmp_path / "whole.csv", [episode("greedy-dist", m, "large", 1.0) for m in "abc"])
+    text = whole.read_text()
+    cut = tmp_path / "cut.csv"
+    cut.write_text(text[: text.rindex("99.5") + 2])
+    tables = load_tables()
+    assert len(tables.pooled_rows([("", whole)])) == 3
+    with pytest.raises(ValueError, match=f"line 4 has 6 cells, the header {len(CSV_FIELDS)} columns"):
+        tables.pooled_rows([("", cut)])
+
+
 def test_mixing_summaries_and_episode_files_is_refused(tmp_path, capsys):
     tables = load_tables()
     csv_file = write(tmp_path / "e.csv", [episode("greedy-dist", "a", "large", 1.0)])

@@ -698,6 +698,10 @@ def load_resume_checkpoint(
     so is a checkpoint whose run had another recipe (``resume_recipe_changes``): a distance prior, graph size,
     reward, discount or batch of other values loads into the same network shapes, but the run would go on as a
     different one, and its weights would be saved with this configuration."""
+    if Path(path).is_dir():  # a run's folder, as `eval --weights` takes it: the file in it to give, not "corrupt"
+        inside = Path(path) / "checkpoint.pt"
+        held = f"give {inside}" if inside.is_file() else "it holds no checkpoint.pt; give the checkpoint.pt of a training run's --out"
+        raise ValueError(f"--resume {path}: a folder; {held}")
     try:
         # On the CPU whatever the device: the RNG states must stay CPU byte tensors (torch.set_rng_state and
         # torch.cuda.set_rng_state_all refuse any other), and load_state_dict moves weights and Adam's state to the model's device.

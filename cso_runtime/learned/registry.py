@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import pickle
+import warnings
 import weakref
 from pathlib import Path
 from typing import Any
@@ -93,8 +94,8 @@ def _why_unloadable(exc: Exception) -> str:
         return "empty or truncated file"
     if isinstance(exc, pickle.UnpicklingError):
         return "not a torch file of plain tensors and numbers"
-    if isinstance(exc, KeyError):
-        return f"no {exc} entry"
+    if isinstance(exc, KeyError):  # a checkpoint's missing entry; a number is the unpickler's memo: not a pickle at all
+        return f"no {exc} entry" if exc.args and isinstance(exc.args[0], str) else "not a torch file"
     first_line = (str(exc).strip().splitlines() or [""])[0]
     return f"{type(exc).__name__}: {first_line}" if first_line else type(exc).__name__
 
@@ -104,7 +105,9 @@ def load_checkpoint(path: str | Path, device: str = "cpu") -> tuple[GraphActorCr
     (FileNotFoundError for a missing file) when the file cannot give the network back."""
     path = Path(path)
     try:
-        ckpt = torch.load(path, map_location=device, weights_only=True)
+        with warnings.catch_warnings():  # torch's advice on a plain pickle's protocol: noise before the one-line error
+            warnings.filterwarnings("ignore", message="Detected pickle protocol", category=UserWarning)
+            ckpt = torch.load(path, map_location=device, weights_only=True)
         graph = GraphConfig(**ckpt["graph"])
         model = GraphActorCritic(NetworkConfig(**ckpt["network"]), graph.max_frontier_nodes).to(device)
         model.load_state_dict(ckpt["state_dict"])
