@@ -124,6 +124,17 @@ def starting_up_path(runs_dir: Path, pid: int) -> Path:
     return runs_dir / f".up-{pid}.starting.json"
 
 
+def starting_up_line(runs_dir: Path) -> str | None:
+    """What ``status`` says while an ``up`` of ``runs_dir`` still checks its profile and has written no run file
+    (``STARTING_UP_GLOB``: its first second or more, a learned method's weights or a scene to load), else None: it said
+    "nothing running (no current run)" of an ``up ... &`` just typed, and ``status --watch`` ended there."""
+    for path in sorted(runs_dir.glob(STARTING_UP_GLOB)):
+        found = _starting_process(path, "up_pid", "up_start_ticks")
+        if found is not None and found[0] != os.getpid() and run_process_alive(*found):
+            return f"`up` (pid {found[0]}) is starting in {runs_dir}: it has not written its run file yet{ASK_AGAIN}"
+    return None
+
+
 def record_starting_up(runs_dir: Path) -> Callable[[], None]:
     """Name this ``up`` (its pid and start time, pid-reuse safe as a run file's) in ``runs_dir`` for ``down``
     (``STARTING_UP_GLOB``), making the folder if need be; returns what removes the file, and the folders made here

@@ -311,7 +311,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
     ``127.0.0.1:7447``: a usage error, not "nothing running"), ``robot`` is not one robot's id, or ``connect`` was given
     without ``robot`` and several robots answer there (which one is the user's to say; the one that answers is taken)."""
-    from cso_runtime.current_run import read_current_run, starting_run  # noqa: PLC0415
+    from cso_runtime.current_run import read_current_run, starting_run, starting_up_line  # noqa: PLC0415
 
     given_connect = bool(connect)
     robot_named = robot is not None
@@ -338,6 +338,12 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     # Before "no current run": a launcher killed while starting left a run file with no endpoints.
     if not given_connect and (gone := dead_launcher_of_run(run_info, runs_dir)):
         return say_nothing_running(gone, as_json)
+    if not given_connect and run_info is None and (up_starting := starting_up_line(runs_dir)):  # `up` checks its profile
+        if as_json:
+            print(json.dumps({"state": "starting", "run_id": "", "reason": up_starting}), flush=True)
+        else:
+            print(up_starting)
+        return 1
     if not connect:
         return say_nothing_running("no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
     try:
@@ -647,13 +653,24 @@ def await_started_run(runs_dir: Path, as_json: bool, period_s: float) -> int | N
     to come up, saying so (once on a terminal or in a file; ``--json``: a ``starting`` line each period). None once
     there is no starting run (its router open: watch it), else the exit code after saying how the wait ended: its
     launcher died (exit 1, as ``status`` says it), or its start failed (how it ended, ``run_end_exit_code``)."""
-    from cso_runtime.current_run import ASK_AGAIN, read_current_run, starting_run  # noqa: PLC0415
+    from cso_runtime.current_run import ASK_AGAIN, read_current_run, starting_run, starting_up_line  # noqa: PLC0415
 
     said = ""
     seen: dict[str, Any] | None = None  # the starting run's file, as last read
     while True:
         info = read_current_run(runs_dir)
         starting = starting_run(info)
+        if starting is None and info is None and seen is None:  # an `up` still checking its profile: no run file yet
+            starting = starting_up_line(runs_dir)
+            if starting is not None:
+                line = f"{starting.removesuffix(ASK_AGAIN)}; waiting for it..."
+                if as_json:
+                    print(json.dumps({"state": "starting", "run_id": "", "reason": line}), flush=True)
+                elif line != said:
+                    print(line, flush=True)
+                said = line
+                time.sleep(period_s)
+                continue
         if starting is None:
             if seen is None or not seen.get("run_dir") or (info is not None and (info.get("run_id") != seen["run_id"] or info.get("state") != "stopped")):
                 return None  # up (or never starting, or another run, or its launcher gone): status says what there is

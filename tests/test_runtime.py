@@ -3259,6 +3259,41 @@ def test_status_says_a_run_is_starting_before_its_router_is_open(tmp_path, monke
     assert not (runs / "current.json").exists() and json.loads((runs / "run1" / "run.json").read_text())["state"] == "stopped"
 
 
+def test_status_names_an_up_still_checking_its_profile_and_watch_waits_for_it(tmp_path):
+    """``up ... &`` then ``status --watch`` at once: for its first second or more (Python's imports, its profile
+    checked, a scene or weights loaded) ``up`` has written no run file, and ``status`` said "nothing running (no current
+    run)", exit 1, and ``--watch`` ended there. ``status`` now names the ``up`` that is starting (still exit 1: nothing
+    to ask yet) and ``--watch`` waits for it; an ``up`` that ends without a run (refused) is "nothing running" as before."""
+    from cso_runtime.current_run import starting_up_path
+    from cso_runtime.supervision import process_start_ticks
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # an `up` checking its profile
+    watch = None
+    try:
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+        r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 1 and f"`up` (pid {up.pid}) is starting in {runs}" in r.stdout, (r.stdout, r.stderr)
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 1 and json.loads(r.stdout)["state"] == "starting", (r.stdout, r.stderr)
+        argv = [*python_module_argv("cso_runtime.cli"), "status", "--watch", "--period", "0.2", "--runs-dir", str(runs)]
+        watch = subprocess.Popen(argv, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert watch.stdout is not None
+        first = watch.stdout.readline()
+        assert f"`up` (pid {up.pid}) is starting" in first and "waiting for it..." in first, first
+        up.kill()  # refused: it ends with no run file
+        up.wait(timeout=30)
+        out, err = watch.communicate(timeout=30)
+        assert watch.returncode == 1 and "nothing running (no current run" in out, (out, err)
+    finally:
+        up.kill()
+        up.wait(timeout=30)
+        if watch is not None:
+            watch.kill()
+            watch.wait(timeout=30)
+
+
 def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
     """A launcher killed by SIGKILL leaves runs/current.json behind: ``status`` says its launcher has exited
     instead of waiting on the router it held. A router that is stopped (its port accepts TCP, no Zenoh
