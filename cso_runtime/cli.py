@@ -1142,9 +1142,9 @@ def logs_command(
         RunError,
         follow_logs,
         log_files,
+        logs_grow,
         read_logs,
         resolve_run,
-        run_is_exploring,
         run_is_live,
         select_services,
     )
@@ -1154,7 +1154,7 @@ def logs_command(
         files = select_services(log_files(run_dir), services or [])
     except RunError as exc:
         _fail(str(exc), 1)
-    live = run_is_exploring(run_dir)
+    live = logs_grow(run_dir)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
 
@@ -1168,7 +1168,7 @@ def logs_command(
     if follow:
         if live:
             try:
-                follow_logs(run_dir, readers, emit, alive=lambda: run_is_exploring(run_dir), pick_up_new=not services)
+                follow_logs(run_dir, readers, emit, alive=lambda: logs_grow(run_dir), pick_up_new=not services)
             except KeyboardInterrupt:
                 return
         if run_is_live(run_dir):  # a detached run after its episode: up for `status` until `down`, nothing more to follow
