@@ -133,6 +133,7 @@ def status_of(
         elif lsv is not None:
             entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
             entry["robot_stops"] = lsv.get("robot_stops", 0)
+            entry["process_alive"] = bool(lsv.get("process_alive"))  # its process runs (its token may not be there yet)
             if lsv.get("command"):  # an executable of one's own: its process is all the launcher knows of it
                 entry.update(command=True, process_alive=bool(lsv.get("process_alive")))
         table[name] = entry
@@ -414,14 +415,17 @@ def pose_words(pose_m: list[float] | None, twist: list[float] | None) -> str:
 
 
 def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False, episode_over: str = "") -> list[str]:
-    """How a service's row begins (an entry of ``status_of``'s ``services``): alive or DOWN, not started by this
-    run (another process is to serve it), and whether the episode waits for it; ``status`` and the live view alike.
+    """How a service's row begins (an entry of ``status_of``'s ``services``): alive, starting (its process runs, its
+    session is not up yet) or DOWN, not started by this run (another process is to serve it), and whether the episode
+    waits for it; ``status`` and the live view alike.
     ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN).
     ``episode_over``: the state of an episode that has ended (done, failed), else "": a service the episode waited for
     that this run did not start (a shared policy server) and that no longer answers for the robot is not needed any
     more, so it reads idle, not DOWN (a server restarted after the episode only announces the robots it hears from)."""
     running = service.get("command") and service.get("process_alive")  # a command node needs no liveliness token
     gone = "stopping" if stopping else "DOWN"
+    if not stopping and service.get("process_alive") and not service.get("gave_up"):
+        gone = "starting"  # its process runs, its session is not up yet (as the live view says it): not DOWN
     if episode_over and service.get("outside") and service.get("awaited"):
         gone = f"idle (episode {episode_over}: not needed after it)"
     words = ["alive" if service["alive"] else "running" if running else gone]
@@ -460,9 +464,9 @@ def render_table(status: dict[str, Any]) -> Table:
     steps = status["step"] if status.get("ended_at_step") is None else status["ended_at_step"]  # the episode's, not the scans since
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "") + waits),
-        ("scene / method", f"{status['scene']} / {status['method']}"),
+        ("scene / method", f"{status['scene']} / {status['method']}" if status["scene"] or status["method"] else "-"),  # none before the sim's first status
         ("step", f"{status['step']}{pace}" + after_end_words(status)),  # as up's live view says the sim's pace
-        ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
+        ("episode id", f"{status['episode']:012x}" if status["episode"] else "-"),  # 48 random bits (JSON: the integer); a new id is a new episode
         ("coverage", f"{status['coverage_pct']:.2f} %" if measures_coverage(status, status.get("coverage_measured")) else NO_GROUND_TRUTH),
         ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / steps:.3f} m2/step" if steps else "")),
         ("path length", f"{status['path_length_m']:.2f} m"),

@@ -2572,6 +2572,37 @@ def test_status_shows_the_simulators_real_time_factor_the_launcher_measures(tmp_
         assert re.search(r"│ step +│ 42 \(2\.00x real time\) +│", text), text
 
 
+def test_status_of_a_run_just_started_says_its_services_are_starting_not_down():
+    """``status`` right after ``up --detach`` (services still importing, no episode yet) listed every service whose
+    session was not up as DOWN, the scene and method as " / " and the episode id as 000000000000, as if the run had
+    failed. A service whose process the launcher says runs is "starting" (as the live view says it), one given up on
+    or whose process is gone is DOWN as before, and the rows with nothing yet say "-"."""
+    from rich.console import Console
+
+    from cso_runtime.status import render_table, status_of
+
+    launcher = {
+        "run_id": "run1",
+        "state": "running",
+        "services": {
+            "sim": {"pid": 11, "process_alive": True, "liveliness": False, "restarts": 0},
+            "mapper": {"pid": 12, "process_alive": True, "liveliness": True, "restarts": 0},
+            "planner": {"pid": 13, "process_alive": False, "liveliness": False, "restarts": 1},
+            "policy": {"pid": 14, "process_alive": True, "liveliness": False, "restarts": 3, "gave_up": True},
+        },
+    }
+    mapper = {"state": "running", "reason": "", "last_step": 0, "rejected": {}, "processed": 0}
+    status = status_of("r0", None, launcher, {"mapper": mapper}, {"mapper"})
+    console = Console(record=True, width=200)
+    console.print(render_table(status))
+    text = console.export_text()
+    assert status["state"] == "starting" and status["episode"] == 0 and status["scene"] == "", status  # JSON as before
+    assert re.search(r"│ service sim +│ starting +│", text) and re.search(r"│ service mapper +│ alive, running +│", text), text
+    assert re.search(r"│ service planner +│ DOWN, restarts 1 +│", text), text
+    assert re.search(r"│ service policy +│ DOWN, restarts 3 \(gave up\) +│", text), text
+    assert re.search(r"│ scene / method +│ - +│", text) and re.search(r"│ episode id +│ - +│", text), text
+
+
 def test_status_says_a_real_robots_coverage_is_not_measured_and_json_keeps_its_zero():
     """``status`` on a LIMO said "coverage 0.00 %" for the whole run, beside a map growing by the second (there is no
     ground truth to measure it against): the table says so; ``--json`` keeps ``coverage_pct`` 0, as summary.json."""
