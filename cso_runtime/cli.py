@@ -432,10 +432,24 @@ def report_command(
         path = write_report(folder, summary)
     except OSError as exc:
         where = exc.filename or folder
+        if not (folder / "summary.json").exists() and (folder / "run.json").is_file():  # a run folder: say why it has none
+            _fail(f"{where}: {exc.strerror or exc}; {_run_without_results(folder)}", 2)
         _fail(f"{where}: {exc.strerror or exc}" + (" (not an `eval --out` folder or a run folder?)" if not (folder / "summary.json").exists() else ""), 2)
     except (ValueError, KeyError, TypeError, AttributeError, IndexError) as exc:  # valid JSON of another shape too
         _fail(f"{folder / 'summary.json'}: not a summary eval or up wrote ({type(exc).__name__}: {exc})", 2)
     typer.echo(f"wrote {path}")
+
+
+def _run_without_results(run_dir: Path) -> str:
+    """Why a run folder has no summary.json for ``report``, as ``runs`` lists its state: ``report`` said "not an `eval
+    --out` folder or a run folder?" of a run stopped before its episode ended (Ctrl-C, ``down``), which writes none."""
+    from cso_runtime.runs import summarize_run  # noqa: PLC0415
+
+    state = summarize_run(run_dir).state
+    if state in ("starting", "running"):
+        return f"run {run_dir.name} is {state}: its results are written when its episode ends"
+    kept = f" (its map so far: {run_dir / 'last_map.yaml'})" if (run_dir / "last_map.yaml").is_file() else ""
+    return f"run {run_dir.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as {state}){kept}"
 
 
 def _read_grids_of_any_run() -> None:

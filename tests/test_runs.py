@@ -232,6 +232,23 @@ def test_logs_follow_of_a_foreground_run_goes_on_until_its_launcher_exits(tmp_pa
         launcher.wait(timeout=30)
 
 
+def test_report_of_a_run_without_results_says_why_not_that_it_is_no_run_folder(tmp_path):
+    """``report runs/<run-id>`` of a run stopped before its episode ended (Ctrl-C, ``down``) said "(not an `eval --out`
+    folder or a run folder?)" of a run folder: such a run writes no summary.json. It says so, as ``runs`` lists the run,
+    and where its map so far is; a run still exploring has its results to come; any other folder is answered as before."""
+    stopped = make_run(tmp_path / "runs", "20261203-091000-sim-r0", outcome="interrupted")
+    (stopped / "last_map.yaml").write_text("image: last_map.png\n")
+    r = CliRunner().invoke(app, ["report", str(stopped)])
+    assert r.exit_code == 2 and "not an `eval --out` folder" not in r.output, r.output
+    assert f"run {stopped.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as interrupted)" in r.output, r.output
+    assert str(stopped / "last_map.yaml") in r.output, r.output
+    running = make_run(tmp_path / "runs", "20261203-091100-sim-r0", alive=True)
+    r = CliRunner().invoke(app, ["report", str(running)])
+    assert r.exit_code == 2 and f"run {running.name} is running: its results are written when its episode ends" in r.output, r.output
+    r = CliRunner().invoke(app, ["report", str(tmp_path)])
+    assert r.exit_code == 2 and "(not an `eval --out` folder or a run folder?)" in r.output, r.output
+
+
 def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newest(tmp_path):
     runs = tmp_path / "runs"
     with pytest.raises(RunError, match="no runs in"):
