@@ -345,8 +345,8 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
         else:
             print(up_starting)
         return 1
-    if not connect:
-        return say_nothing_running("no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
+    if not connect:  # the folder looked in named: an `up` started in another working folder has its run file there
+        return say_nothing_running(f"no current run in {runs_dir}; give --runs-dir of the folder `up` used, or --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
     try:
         client_transport(connect, zenoh_config_file).validate()
     except TransportError as exc:

@@ -3199,6 +3199,8 @@ def test_up_run_in_process_gives_back_the_signal_handlers_it_found(tmp_path):
 def test_status_and_down_with_nothing_running(tmp_path):
     r = cli("status", cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "nothing running" in r.stdout and "`cso-runtime runs` lists past runs" in r.stdout
+    # where it looked, and how to look elsewhere: an `up` started in another working folder keeps its run file there
+    assert "no current run in runs; give --runs-dir of the folder `up` used, or --connect ENDPOINT" in r.stdout, r.stdout
     r = cli("status", "--json", cwd=tmp_path, timeout_s=10)  # a script reading the JSON gets JSON then too
     assert r.returncode == 1 and json.loads(r.stdout)["state"] == "not running" and "nothing running" in json.loads(r.stdout)["reason"]
     port = free_tcp_port()
