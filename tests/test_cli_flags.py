@@ -137,3 +137,12 @@ def test_a_ctrl_c_while_the_script_imports_the_cli_exits_130_in_one_line(tmp_pat
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}  # this checkout's package
     r = subprocess.run([sys.executable, str(script), "status", "--help"], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
     assert (r.returncode, r.stderr, r.stdout) == (130, "error: interrupted\n", ""), r.stderr
+
+
+def test_python_m_cso_runtime_runs_the_command(tmp_path: Path):
+    """``python -m cso_runtime --version`` (the way to run a package's command without its script on PATH, a venv
+    not activated) said "No module named cso_runtime.__main__; 'cso_runtime' is a package and cannot be directly
+    executed". It runs the ``cso-runtime`` command, as the script does."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}  # this checkout's package
+    r = subprocess.run([sys.executable, "-m", "cso_runtime", "--version"], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
+    assert r.returncode == 0 and r.stdout.startswith(f"cso-runtime {cso_runtime.__version__}\n"), (r.stdout, r.stderr)
