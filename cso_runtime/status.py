@@ -846,7 +846,10 @@ def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_
     try:
         yaml_path = save_map(yaml_out, msg.grid, msg.geometry, image_format, map_origin=map_origin)
     except OSError as exc:
-        print(f"error: cannot write the map to {yaml_out}: {exc.strerror or exc}", file=sys.stderr)
+        # A folder of the path that is a file: "File exists" (mkdir) or "Not a directory" named neither which nor why.
+        file_in_way = next((d for d in Path(yaml_out).parents if d.exists() and not d.is_dir()), None)
+        why = f"{file_in_way} is a file, not a folder" if file_in_way is not None else exc.strerror or str(exc)
+        print(f"error: cannot write the map to {yaml_out}: {why}", file=sys.stderr)
         return 2
     g = msg.geometry
     print(f"map of step {msg.step} ({g.shape[1]} x {g.shape[0]} cells at {g.resolution_m} m): {yaml_path} and {yaml_path.with_suffix('.' + image_format).name}")

@@ -3327,6 +3327,26 @@ def test_status_names_an_up_still_checking_its_profile_and_watch_waits_for_it(tm
             watch.wait(timeout=30)
 
 
+def test_save_map_below_a_file_names_the_file_in_the_way(tmp_path, monkeypatch, capsys):
+    """``save-map -f out/m`` where ``out`` is a file said "cannot write the map to out/m.yaml: File exists": neither
+    which path nor why. It names the file that is in the way of the folder; other errors are said as before."""
+    import cso_runtime.status as status_module
+    from cso_runtime.geometry import MAP_FRAME_ORIGIN
+    from cso_runtime.status import RunTarget
+
+    grid = np.zeros((4, 5), dtype=np.int8)
+    msg = MapMsg.from_grid(7, GridGeometry(0.05, (4, 5)), grid)
+    monkeypatch.setattr(status_module, "reachable_target", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
+    monkeypatch.setattr(status_module, "query_map", lambda *_a, **_k: (msg, "", MAP_FRAME_ORIGIN))
+    (tmp_path / "a_file").write_text("")
+    for out in (tmp_path / "a_file" / "m", tmp_path / "a_file" / "deeper" / "m"):
+        assert save_map_main([], None, out, "pgm", tmp_path / "runs") == 2
+        err = capsys.readouterr().err
+        assert err == f"error: cannot write the map to {out}.yaml: {tmp_path / 'a_file'} is a file, not a folder\n", err
+    assert save_map_main([], None, tmp_path / "ok" / "m", "pgm", tmp_path / "runs") == 0  # a missing folder is made
+    assert (tmp_path / "ok" / "m.yaml").is_file() and "map of step 7" in capsys.readouterr().out
+
+
 def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
     """A launcher killed by SIGKILL leaves runs/current.json behind: ``status`` says its launcher has exited
     instead of waiting on the router it held. A router that is stopped (its port accepts TCP, no Zenoh
@@ -4469,6 +4489,7 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         (tmp_path / "a_file").write_text("")
         r = cli("save-map", "-f", str(tmp_path / "a_file" / "m"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 2 and "cannot write the map" in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert f"{tmp_path / 'a_file'} is a file, not a folder" in r.stderr, r.stderr
         r = cli("record", "--out", str(tmp_path / "a_file" / "r.mcap"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 2 and "--out" in r.stderr and "cannot create the folder" in r.stderr and "Traceback" not in r.stderr, r.stderr
 
