@@ -408,5 +408,11 @@ def keep_runs_lock(runs_dir: Path, fd: int) -> int | None:
 def down_command(runs_dir: Path) -> str:
     """The ``down`` that stops the run of ``runs_dir``, as a hint says it: ``--runs-dir`` named unless it is the
     default, so that a user running several robots (one runs folder each) is not sent to stop another's run."""
-    return "`cso-runtime down`" if Path(runs_dir) == Path("runs") else f"`cso-runtime down --runs-dir {runs_dir}`"
+    return runs_command("down", runs_dir)
+
+
+def runs_command(command: str, runs_dir: Path) -> str:
+    """``cso-runtime COMMAND`` of the run of ``runs_dir`` as a hint says it (``down_command``): ``--runs-dir`` named
+    unless it is the default (a plain ``cso-runtime logs -f`` looks in ./runs)."""
+    return f"`cso-runtime {command}`" if Path(runs_dir) == Path("runs") else f"`cso-runtime {command} --runs-dir {runs_dir}`"
 

@@ -57,6 +57,7 @@ from cso_runtime.current_run import (
     keep_runs_lock,
     new_run_dir,
     read_current_run,
+    runs_command,
     starting_up_path,
 )
 from cso_runtime.keys import WILDCARD, RobotKeys, driver_claim_subject, robot_claim_subject, robot_driver_token, topic_of
@@ -1661,7 +1662,11 @@ def _wait_for_detached(
             try:
                 info = json.loads((run_dir / "run.json").read_text())
                 if info.get("services") and info.get("endpoints"):
-                    return 0, f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'} (`cso-runtime logs -f` follows them)"
+                    follow = runs_command("logs -f", run_dir.parent)  # of this runs folder: a plain `logs -f` reads ./runs
+                    return 0, (
+                        f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'} "
+                        f"({follow} follows them), results in {run_dir}/ once its episode ends"
+                    )
             except (OSError, ValueError):
                 pass
             if proc.poll() in (-signal.SIGTERM, -signal.SIGKILL):  # `down` as it started (STARTING_LAUNCHER), before its handlers

@@ -1099,6 +1099,8 @@ def test_a_runs_folder_deleted_mid_run_keeps_its_lock_and_a_second_up_is_refused
         r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
         assert r.returncode == 0, r.stderr
         current = json.loads((runs / "current.json").read_text())
+        # the way to follow it reads this runs folder (a plain `cso-runtime logs -f` said "no runs in runs"), and where its results go
+        assert f"(`cso-runtime logs -f --runs-dir {runs}` follows them), results in {runs / current['run_id']}/ once its episode ends" in r.stdout, r.stdout
         # Every service has read its configuration from the run folder: deleted before that, a service that has not is
         # restarted once the folder is made again, which is another case (test_a_run_folder_deleted_before_a_service_...).
         wait_for(lambda: (s := query_status(current["endpoints"], current["robot"], timeout_s=0.5)) and s["state"] == "exploring", 60, "the episode to start")
