@@ -882,12 +882,18 @@ def explore_resume_main(connect: list[str], robot: str | None, runs_dir: Path, r
     """The ``pause`` (``resume`` false) and ``resume`` commands: send ``explore/resume`` to the running run and wait for
     its launcher to say so. Exit 0 once it does (or was so already), 1 when nothing runs or it does not confirm, 2 when
     the run cannot pause (lockstep) or the arguments are bad (as ``status``)."""
+    from cso_runtime.current_run import runs_command  # noqa: PLC0415
+
     what = "resume" if resume else "pause"
+    given_connect = bool(connect)
     target = reachable_target(connect, robot, runs_dir)
     if isinstance(target, int):
         return target
     connect, robot, zenoh_config_file = target
     assert robot is not None  # reachable_target always names the robot
+    # The `resume` to come, of this run: a plain `cso-runtime resume` asks the run of ./runs (another robot's, or none).
+    at_endpoint = " ".join(f"--connect {endpoint}" for endpoint in connect) + f" --robot {robot}"
+    resume_hint = f"`cso-runtime resume {at_endpoint}`" if given_connect else runs_command("resume", runs_dir)
     session = _client_session(connect, zenoh_config_file)
     if session is None:
         return say_nothing_running(f"cannot reach {', '.join(connect)}", False)
@@ -918,9 +924,9 @@ def explore_resume_main(connect: list[str], robot: str | None, runs_dir: Path, r
                     print(f"resumed robot {robot} (run {now.run_id}){at}, after {pause['for_s']:.0f} s paused")
                 elif ended in EPISODE_OVER:  # nothing moves it any more: the pause holds for a new episode (new odometry)
                     print(f"paused robot {robot} (run {now.run_id}){at}: its episode has ended ({ended}), so it stands already; "
-                          "a new episode would start paused, until `cso-runtime resume`")
+                          f"a new episode would start paused, until {resume_hint}")
                 else:
-                    print(f"paused robot {robot} (run {now.run_id}){at}: it holds still until `cso-runtime resume`")
+                    print(f"paused robot {robot} (run {now.run_id}){at}: it holds still until {resume_hint}")
                 return 0
             time.sleep(0.1)
     print(f"sent {what} to robot {robot}, but its launcher has not said so within {PAUSE_CONFIRM_S:g} s; see `cso-runtime status`", file=sys.stderr)

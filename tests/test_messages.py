@@ -1076,7 +1076,13 @@ def test_pause_of_an_ended_episode_says_the_robot_stands_already(monkeypatch, ca
     if state == "done":
         assert said.startswith("paused robot r0 (run run-1) at step 188: its episode has ended (done), so it stands already; a new episode"), said
     else:
-        assert said.startswith("paused robot r0 (run run-1) at step 188: it holds still until `cso-runtime resume`"), said
+        # the resume of this run's runs folder: a plain `cso-runtime resume` asks the run of ./runs
+        assert said == f"paused robot r0 (run run-1) at step 188: it holds still until `cso-runtime resume --runs-dir {tmp_path}`\n", said
+        clock = PauseClock()
+        answers = iter([clock.status(0.0), (clock.heard(ExploreResumeMsg(False, "me@laptop"), 1.0), clock.status(1.0))[1]])
+        assert status_module.explore_resume_main(["tcp/127.0.0.1:1"], None, tmp_path / "runs", resume=False) == 0  # asked at an endpoint
+        said = capsys.readouterr().out
+        assert said.endswith("until `cso-runtime resume --connect tcp/127.0.0.1:1 --robot r0`\n"), said
 
 
 @pytest.fixture
