@@ -443,12 +443,13 @@ def report_command(
 def _run_without_results(run_dir: Path) -> str:
     """Why a run folder has no summary.json for ``report``, as ``runs`` lists its state: ``report`` said "not an `eval
     --out` folder or a run folder?" of a run stopped before its episode ended (Ctrl-C, ``down``), which writes none."""
+    from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415
     from cso_runtime.runs import summarize_run  # noqa: PLC0415
 
     state = summarize_run(run_dir).state
     if state in ("starting", "running"):
         return f"run {run_dir.name} is {state}: its results are written when its episode ends"
-    kept = f" (its map so far: {run_dir / 'last_map.yaml'})" if (run_dir / "last_map.yaml").is_file() else ""
+    kept = f" (its map so far: {run_dir / LAST_MAP})" if (run_dir / LAST_MAP).is_file() else ""
     return f"run {run_dir.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as {state}){kept}"
 
 

@@ -605,6 +605,11 @@ def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_j
     step = episode_end_step(run_dir, last) if over else last.get("step", 0)
     episode = f"its episode {last.get('state')}" + (f" ({ended_by})" if ended_by else "") + f" at step {step}"
     where = results_said(run_dir) if outcome == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
+    if outcome != "done":
+        from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415 - only for this line
+
+        if (run_dir / LAST_MAP).is_file():  # a run stopped before its episode ended: its one result, as `up` says it
+            where += f"; the episode's map so far: {run_dir / LAST_MAP}"
     line = (f"run {run.get('run_id')} ended: {outcome}" + (f", {episode}" if over else "") + robot_ended_at(last) + (f", exit code {code}" if code else "")
             + f"; {where}")
     if as_json:

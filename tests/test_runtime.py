@@ -4029,6 +4029,24 @@ def test_status_watch_of_a_starting_run_ends_when_its_launcher_dies_or_its_start
             assert said[-1] == f"run run1 ended: failed, exit code 3; its folder: {run_dir}/ (the logs in {run_dir / 'logs'}/)", said
 
 
+def test_status_watch_of_a_run_stopped_before_its_episode_ended_says_where_its_map_so_far_is(tmp_path, capsys):
+    """``status --watch`` of a run stopped by ``down`` (or Ctrl-C) ended with "its folder: RUN/ (the logs in ...)" and
+    nothing of the one result such a run keeps, its map so far (``up``'s own last line names it): it names it now,
+    where the run kept one."""
+    from cso_runtime import status
+    from cso_runtime.launcher import LAST_MAP
+
+    run_dir = tmp_path / "runs" / "run1"
+    run_dir.mkdir(parents=True)
+    run = {"run_id": "run1", "state": "stopped", "outcome": "interrupted", "exit_code": 130}
+    assert status.say_run_ended(run, run_dir, {"state": "exploring", "step": 40}, as_json=False) == 130
+    assert capsys.readouterr().out == f"run run1 ended: interrupted, exit code 130; its folder: {run_dir}/ (the logs in {run_dir / 'logs'}/)\n"
+    (run_dir / LAST_MAP).write_text("image: last_map.png\n")
+    assert status.say_run_ended(run, run_dir, {"state": "exploring", "step": 40}, as_json=False) == 130
+    said = capsys.readouterr().out
+    assert said.endswith(f"(the logs in {run_dir / 'logs'}/); the episode's map so far: {run_dir / LAST_MAP}\n"), said
+
+
 def test_status_tables_wrap_on_a_narrow_terminal_rather_than_cut_with_an_ellipsis():
     from rich.console import Console
 
