@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cso_runtime.outputs import write_text_atomic
+from cso_runtime.outputs import results_said, write_text_atomic
 from cso_runtime.supervision import pid_alive, process_start_ticks, process_state, run_process_alive, signal_group
 
 if TYPE_CHECKING:  # `up` imports this module first of all (``record_starting_up``): not the profile's modules yet
@@ -289,7 +289,24 @@ def down(runs_dir: Path, timeout_s: float | None = None, stop_starting: bool = T
         notes.append(f"its launcher, pid {info.get('launcher_pid')}, had already exited: {leftovers}{runs_dir / CURRENT_RUN} cleared")
     if escalated:  # its results (summary.json, run.json's outcome) may be missing: say so rather than a plain "stopped"
         notes.append(f"its launcher did not stop on SIGINT within {timeout_s:g} s: {escalated}")
-    return True, "; ".join([f"stopped run {info.get('run_id')}" + (f" ({'; '.join(notes)})" if notes else ""), *starting])
+    run_left = [where] if launcher_alive and (where := what_a_stopped_run_left(info)) else []
+    return True, "; ".join([f"stopped run {info.get('run_id')}" + (f" ({'; '.join(notes)})" if notes else ""), *run_left, *starting])
+
+
+def what_a_stopped_run_left(info: dict[str, Any]) -> str:
+    """Where the run that ``down`` stopped left what it wrote, as a foreground ``up``'s last line says it: its results
+    (a detached run after its episode), else its map so far (stopped before its episode ended); "" when neither is
+    there. ``down`` said "stopped run X" alone: a detached run's own last line is in its launcher.log, unseen."""
+    from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415 - the launcher's module imports this one
+
+    if not info.get("run_dir"):
+        return ""
+    run_dir = Path(str(info["run_dir"]))
+    if (run_dir / "summary.json").is_file():
+        return results_said(run_dir)
+    if (run_dir / LAST_MAP).is_file():
+        return f"no results (its episode had not ended); its map so far: {run_dir / LAST_MAP}"
+    return ""
 
 
 LAUNCHER_DIED = "launcher died"

@@ -4533,7 +4533,8 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         assert follower.returncode == 0 and f"episode has ended; the run stays up (for status) until `cso-runtime down --runs-dir {runs}`" in err, err
         assert re.search(r"^mapper +\| .* restored the map of step", out, re.MULTILINE) and re.search(r"^launcher +\| .* episode ", out, re.MULTILINE), out[-3000:]
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
-        assert r.returncode == 0, r.stderr
+        (run_dir,) = (d for d in runs.iterdir() if d.is_dir())
+        assert r.returncode == 0 and r.stdout.strip().endswith(f"; results in {run_dir}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"), r.stdout + r.stderr
         (after,) = json.loads(cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path).stdout)
         (info,) = (json.loads(f.read_text()) for f in runs.glob("*/run.json"))
         assert after["state"] == "done" and info["started_at"] < info["episode_ended_at"] <= info["ended_at"], info
@@ -4817,7 +4818,9 @@ def test_down_of_a_cso_run_stops_the_policy_service_on_sigint_and_its_log_ends_w
         run_dir = Path(current["run_dir"])
         wait_for(lambda: (s := query_status(current["endpoints"], current["robot"], timeout_s=0.5)) and s["step"] >= 2, 60, "the episode to run")
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
-        assert r.returncode == 0 and r.stdout.strip() == f"stopped run {current['run_id']}", r.stdout + r.stderr
+        # and where its map so far is (it said "stopped run X" alone: a detached run's own last line is in launcher.log)
+        kept = f"no results (its episode had not ended); its map so far: {run_dir / 'last_map.yaml'}"
+        assert r.returncode == 0 and r.stdout.strip() == f"stopped run {current['run_id']}; {kept}", r.stdout + r.stderr
         launcher_log = (run_dir / "logs" / "launcher.log").read_text()
         assert "still running after" not in launcher_log, launcher_log
         assert (run_dir / "logs" / "policy.log").read_text().splitlines()[-1].endswith("INFO cso.service: policy: stopped")
@@ -4840,7 +4843,8 @@ def test_down_continues_a_stopped_launcher_which_then_ends_its_run_itself(tmp_pa
         os.kill(current["launcher_pid"], signal.SIGSTOP)
         wait_for(lambda: process_state(current["launcher_pid"]) == "T", 10, "the launcher to be stopped")
         ok, message = down(runs, timeout_s=60)
-        assert ok and message == f"stopped run {current['run_id']} (its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop)", message
+        kept = f"no results (its episode had not ended); its map so far: {Path(current['run_dir']) / 'last_map.yaml'}"
+        assert ok and message == f"stopped run {current['run_id']} (its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop); {kept}", message
         run = json.loads((Path(current["run_dir"]) / "run.json").read_text())
         assert run["state"] == "stopped" and run["outcome"] == "interrupted", run
         assert not any(pid_alive(p) for p in run_pids(runs))
