@@ -562,7 +562,8 @@ class Launcher:
             log.info("exploration resumed%s (paused %.1f s in all)", by, self.pause.total_s(time.monotonic()))
         elif changed:
             ros_key = msg.by.removeprefix(ROS_RESUME_BY) if msg.by.startswith(ROS_RESUME_BY) else ""
-            until = f"`{{data: true}}` on {ros_key} or `cso-runtime resume`" if ros_key else "`cso-runtime resume`"
+            resume = runs_command("resume", self.run_dir.parent)  # of this runs folder: a plain one asks the run of ./runs
+            until = f"`{{data: true}}` on {ros_key} or {resume}" if ros_key else resume
             log.info("exploration paused%s%s: the robot holds still until %s", by, f" ({msg.reason})" if msg.reason else "", until)
 
     def _on_cache_query(self, query: Any) -> None:
