@@ -896,9 +896,10 @@ def explore_resume_main(connect: list[str], robot: str | None, runs_dir: Path, r
         return target
     connect, robot, zenoh_config_file = target
     assert robot is not None  # reachable_target always names the robot
-    # The `resume` to come, of this run: a plain `cso-runtime resume` asks the run of ./runs (another robot's, or none).
+    # The `resume` (`status`) to come, of this run: a plain `cso-runtime resume` asks the run of ./runs (another's, or none).
     at_endpoint = " ".join(f"--connect {endpoint}" for endpoint in connect) + f" --robot {robot}"
     resume_hint = f"`cso-runtime resume {at_endpoint}`" if given_connect else runs_command("resume", runs_dir)
+    status_hint = f"`cso-runtime status {at_endpoint}`" if given_connect else runs_command("status", runs_dir)
     session = _client_session(connect, zenoh_config_file)
     if session is None:
         return say_nothing_running(f"cannot reach {', '.join(connect)}", False)
@@ -934,5 +935,5 @@ def explore_resume_main(connect: list[str], robot: str | None, runs_dir: Path, r
                     print(f"paused robot {robot} (run {now.run_id}){at}: it holds still until {resume_hint}")
                 return 0
             time.sleep(0.1)
-    print(f"sent {what} to robot {robot}, but its launcher has not said so within {PAUSE_CONFIRM_S:g} s; see `cso-runtime status`", file=sys.stderr)
+    print(f"sent {what} to robot {robot}, but its launcher has not said so within {PAUSE_CONFIRM_S:g} s; see {status_hint}", file=sys.stderr)
     return 1
