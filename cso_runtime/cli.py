@@ -1164,6 +1164,8 @@ def logs_command(
         select_services,
     )
 
+    if follow and run is None:  # `up ... &` then `logs -f`: the run it starts, not "no runs" (or the last run's logs)
+        _await_starting_up(runs_dir)
     try:
         run_dir = resolve_run(runs_dir, run)
         files = select_services(log_files(run_dir), services or [])
@@ -1194,6 +1196,25 @@ def logs_command(
             typer.echo(f"run {run_dir.name}'s episode has ended; the run stays up (for status) until {down_command(its_runs_dir)}", err=True)
         else:
             typer.echo(f"run {run_dir.name} has ended", err=True)  # also when it had before -f started: nothing to wait for
+
+
+def _await_starting_up(runs_dir: Path, period_s: float = 0.2) -> None:
+    """Wait while an ``up`` of ``runs_dir`` has written no run file yet (``current_run.starting_up_line``: its first
+    second or more), saying so once: ``logs -f`` right after ``up ... &`` answered "no runs in runs", or followed the
+    previous run's logs and ended at once. Ctrl-C ends the command."""
+    import time  # noqa: PLC0415
+
+    from cso_runtime.current_run import ASK_AGAIN, read_current_run, starting_up_line  # noqa: PLC0415
+
+    said = False
+    try:
+        while read_current_run(runs_dir) is None and (starting := starting_up_line(runs_dir)):
+            if not said:
+                typer.echo(f"{starting.removesuffix(ASK_AGAIN)}; waiting for it...", err=True)
+                said = True
+            time.sleep(period_s)
+    except KeyboardInterrupt:
+        raise typer.Exit(0) from None
 
 
 @app.command("dataflow", rich_help_panel="Runtime (Zenoh services)")

@@ -232,6 +232,40 @@ def test_logs_follow_of_a_foreground_run_goes_on_until_its_launcher_exits(tmp_pa
         launcher.wait(timeout=30)
 
 
+def test_logs_follow_right_after_up_waits_for_the_run_it_starts(tmp_path):
+    """``up ... &`` then ``logs -f``: for its first second or more ``up`` has written no run file, and ``logs -f`` said
+    "no runs in runs" or, with older runs there, followed the newest of those and ended at once. It waits for the run
+    that ``up`` starts (``current.json``) and follows that one."""
+    from cso_runtime.current_run import starting_up_path
+
+    runs = tmp_path / "runs"
+    make_run(runs, "20261203-091000-sim-r0", outcome="done", logs={"sim": line(1, 0, "the last run")})
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # the `up` checking its profile
+    launcher = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    try:
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+
+        def up_starts_its_run() -> None:
+            time.sleep(0.5)
+            d = make_run(runs, "20261203-091100-sim-r0", state="done", logs={"sim": line(2, 0, "the new run")})
+            info = {**json.loads((d / "run.json").read_text()), "launcher_pid": launcher.pid, "launcher_start_ticks": process_start_ticks(launcher.pid)}
+            (d / "run.json").write_text(json.dumps(info))
+            (runs / "current.json").write_text(json.dumps(info))
+            time.sleep(0.5)
+            launcher.kill()
+
+        starter = threading.Thread(target=up_starts_its_run)
+        starter.start()
+        r = CliRunner().invoke(app, ["logs", "-f", "--runs-dir", str(runs)])
+        starter.join()
+        assert r.exit_code == 0 and f"`up` (pid {up.pid}) is starting in {runs}" in r.output, r.output
+        assert "the new run" in r.output and "the last run" not in r.output and "run 20261203-091100-sim-r0 has ended" in r.output, r.output
+    finally:
+        for proc in (up, launcher):
+            proc.kill()
+            proc.wait(timeout=30)
+
+
 def test_report_of_a_run_without_results_says_why_not_that_it_is_no_run_folder(tmp_path):
     """``report runs/<run-id>`` of a run stopped before its episode ended (Ctrl-C, ``down``) said "(not an `eval --out`
     folder or a run folder?)" of a run folder: such a run writes no summary.json. It says so, as ``runs`` lists the run,
