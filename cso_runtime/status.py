@@ -135,7 +135,7 @@ def status_of(
             entry["robot_stops"] = lsv.get("robot_stops", 0)
             entry["process_alive"] = bool(lsv.get("process_alive"))  # its process runs (its token may not be there yet)
             if lsv.get("command"):  # an executable of one's own: its process is all the launcher knows of it
-                entry.update(command=True, process_alive=bool(lsv.get("process_alive")))
+                entry["command"] = True
         table[name] = entry
     ep, age_s = episode_or_last_heard(episode, launcher)
     over = ep.get("state") in EPISODE_OVER
