@@ -1,5 +1,5 @@
-"""``python -m cso_runtime``: the ``cso-runtime`` command (``python -m cso_runtime eval ...``), for an environment
-whose scripts folder is not on PATH; it said "No module named cso_runtime.__main__"."""
+"""``python -m cso_runtime``: the ``cso-runtime`` command, through the package's ``main`` as the installed script runs
+it (a Ctrl-C while the CLI loads included). ``python -m cso_runtime`` said "No module named cso_runtime.__main__"."""
 
 from cso_runtime import main
 

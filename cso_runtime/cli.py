@@ -439,10 +439,25 @@ def report_command(
         path = write_report(folder, summary)
     except OSError as exc:
         where = exc.filename or folder
+        if not (folder / "summary.json").exists() and (folder / "run.json").is_file():  # a run folder: say why it has none
+            _fail(f"{where}: {exc.strerror or exc}; {_run_without_results(folder)}", 2)
         _fail(f"{where}: {exc.strerror or exc}" + (" (not an `eval --out` folder or a run folder?)" if not (folder / "summary.json").exists() else ""), 2)
     except (ValueError, KeyError, TypeError, AttributeError, IndexError) as exc:  # valid JSON of another shape too
         _fail(f"{folder / 'summary.json'}: not a summary eval or up wrote ({type(exc).__name__}: {exc})", 2)
     typer.echo(f"wrote {path}")
+
+
+def _run_without_results(run_dir: Path) -> str:
+    """Why a run folder has no summary.json for ``report``, as ``runs`` lists its state: ``report`` said "not an `eval
+    --out` folder or a run folder?" of a run stopped before its episode ended (Ctrl-C, ``down``), which writes none."""
+    from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415
+    from cso_runtime.runs import summarize_run  # noqa: PLC0415
+
+    state = summarize_run(run_dir).state
+    if state in ("starting", "running"):
+        return f"run {run_dir.name} is {state}: its results are written when its episode ends"
+    kept = f" (its map so far: {run_dir / LAST_MAP})" if (run_dir / LAST_MAP).is_file() else ""
+    return f"run {run_dir.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as {state}){kept}"
 
 
 def _read_grids_of_any_run() -> None:
@@ -1149,19 +1164,21 @@ def logs_command(
         RunError,
         follow_logs,
         log_files,
+        logs_grow,
         read_logs,
         resolve_run,
-        run_is_exploring,
         run_is_live,
         select_services,
     )
 
+    if follow and run is None:  # `up ... &` then `logs -f`: the run it starts, not "no runs" (or the last run's logs)
+        _await_starting_up(runs_dir)
     try:
         run_dir = resolve_run(runs_dir, run)
         files = select_services(log_files(run_dir), services or [])
     except RunError as exc:
         _fail(str(exc), 1)
-    live = run_is_exploring(run_dir)
+    live = logs_grow(run_dir)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
 
@@ -1175,7 +1192,7 @@ def logs_command(
     if follow:
         if live:
             try:
-                follow_logs(run_dir, readers, emit, alive=lambda: run_is_exploring(run_dir), pick_up_new=not services)
+                follow_logs(run_dir, readers, emit, alive=lambda: logs_grow(run_dir), pick_up_new=not services)
             except KeyboardInterrupt:
                 return
         if run_is_live(run_dir):  # a detached run after its episode: up for `status` until `down`, nothing more to follow
@@ -1186,6 +1203,25 @@ def logs_command(
             typer.echo(f"run {run_dir.name}'s episode has ended; the run stays up (for status) until {down_command(its_runs_dir)}", err=True)
         else:
             typer.echo(f"run {run_dir.name} has ended", err=True)  # also when it had before -f started: nothing to wait for
+
+
+def _await_starting_up(runs_dir: Path, period_s: float = 0.2) -> None:
+    """Wait while an ``up`` of ``runs_dir`` has written no run file yet (``current_run.starting_up_line``: its first
+    second or more), saying so once: ``logs -f`` right after ``up ... &`` answered "no runs in runs", or followed the
+    previous run's logs and ended at once. Ctrl-C ends the command."""
+    import time  # noqa: PLC0415
+
+    from cso_runtime.current_run import ASK_AGAIN, read_current_run, starting_up_line  # noqa: PLC0415
+
+    said = False
+    try:
+        while read_current_run(runs_dir) is None and (starting := starting_up_line(runs_dir)):
+            if not said:
+                typer.echo(f"{starting.removesuffix(ASK_AGAIN)}; waiting for it...", err=True)
+                said = True
+            time.sleep(period_s)
+    except KeyboardInterrupt:
+        raise typer.Exit(0) from None
 
 
 @app.command("dataflow", rich_help_panel="Runtime (Zenoh services)")

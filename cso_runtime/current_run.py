@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from cso_runtime.outputs import write_text_atomic
+from cso_runtime.outputs import results_said, write_text_atomic
 from cso_runtime.supervision import pid_alive, process_start_ticks, process_state, run_process_alive, signal_group
 
 if TYPE_CHECKING:  # `up` imports this module first of all (``record_starting_up``): not the profile's modules yet
@@ -122,6 +122,17 @@ where it answered "nothing running" and the ``up`` then started its run all the 
 def starting_up_path(runs_dir: Path, pid: int) -> Path:
     """The file that names ``up`` process ``pid`` to ``down`` until its run file does (``STARTING_UP_GLOB``)."""
     return runs_dir / f".up-{pid}.starting.json"
+
+
+def starting_up_line(runs_dir: Path) -> str | None:
+    """What ``status`` says while an ``up`` of ``runs_dir`` still checks its profile and has written no run file
+    (``STARTING_UP_GLOB``: its first second or more, a learned method's weights or a scene to load), else None: it said
+    "nothing running (no current run)" of an ``up ... &`` just typed, and ``status --watch`` ended there."""
+    for path in sorted(runs_dir.glob(STARTING_UP_GLOB)):
+        found = _starting_process(path, "up_pid", "up_start_ticks")
+        if found is not None and found[0] != os.getpid() and run_process_alive(*found):
+            return f"`up` (pid {found[0]}) is starting in {runs_dir}: it has not written its run file yet{ASK_AGAIN}"
+    return None
 
 
 def record_starting_up(runs_dir: Path) -> Callable[[], None]:
@@ -278,7 +289,24 @@ def down(runs_dir: Path, timeout_s: float | None = None, stop_starting: bool = T
         notes.append(f"its launcher, pid {info.get('launcher_pid')}, had already exited: {leftovers}{runs_dir / CURRENT_RUN} cleared")
     if escalated:  # its results (summary.json, run.json's outcome) may be missing: say so rather than a plain "stopped"
         notes.append(f"its launcher did not stop on SIGINT within {timeout_s:g} s: {escalated}")
-    return True, "; ".join([f"stopped run {info.get('run_id')}" + (f" ({'; '.join(notes)})" if notes else ""), *starting])
+    run_left = [where] if launcher_alive and (where := what_a_stopped_run_left(info)) else []
+    return True, "; ".join([f"stopped run {info.get('run_id')}" + (f" ({'; '.join(notes)})" if notes else ""), *run_left, *starting])
+
+
+def what_a_stopped_run_left(info: dict[str, Any]) -> str:
+    """Where the run that ``down`` stopped left what it wrote, as a foreground ``up``'s last line says it: its results
+    (a detached run after its episode), else its map so far (stopped before its episode ended); "" when neither is
+    there. ``down`` said "stopped run X" alone: a detached run's own last line is in its launcher.log, unseen."""
+    from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415 - the launcher's module imports this one
+
+    if not info.get("run_dir"):
+        return ""
+    run_dir = Path(str(info["run_dir"]))
+    if (run_dir / "summary.json").is_file():
+        return results_said(run_dir)
+    if (run_dir / LAST_MAP).is_file():
+        return f"no results (its episode had not ended); its map so far: {run_dir / LAST_MAP}"
+    return ""
 
 
 LAUNCHER_DIED = "launcher died"
@@ -397,5 +425,11 @@ def keep_runs_lock(runs_dir: Path, fd: int) -> int | None:
 def down_command(runs_dir: Path) -> str:
     """The ``down`` that stops the run of ``runs_dir``, as a hint says it: ``--runs-dir`` named unless it is the
     default, so that a user running several robots (one runs folder each) is not sent to stop another's run."""
-    return "`cso-runtime down`" if Path(runs_dir) == Path("runs") else f"`cso-runtime down --runs-dir {runs_dir}`"
+    return runs_command("down", runs_dir)
+
+
+def runs_command(command: str, runs_dir: Path) -> str:
+    """``cso-runtime COMMAND`` of the run of ``runs_dir`` as a hint says it (``down_command``): ``--runs-dir`` named
+    unless it is the default (a plain ``cso-runtime logs -f`` looks in ./runs)."""
+    return f"`cso-runtime {command}`" if Path(runs_dir) == Path("runs") else f"`cso-runtime {command} --runs-dir {runs_dir}`"
 

@@ -57,6 +57,7 @@ from cso_runtime.current_run import (
     keep_runs_lock,
     new_run_dir,
     read_current_run,
+    runs_command,
     starting_up_path,
 )
 from cso_runtime.keys import WILDCARD, RobotKeys, driver_claim_subject, robot_claim_subject, robot_driver_token, topic_of
@@ -561,7 +562,8 @@ class Launcher:
             log.info("exploration resumed%s (paused %.1f s in all)", by, self.pause.total_s(time.monotonic()))
         elif changed:
             ros_key = msg.by.removeprefix(ROS_RESUME_BY) if msg.by.startswith(ROS_RESUME_BY) else ""
-            until = f"`{{data: true}}` on {ros_key} or `cso-runtime resume`" if ros_key else "`cso-runtime resume`"
+            resume = runs_command("resume", self.run_dir.parent)  # of this runs folder: a plain one asks the run of ./runs
+            until = f"`{{data: true}}` on {ros_key} or {resume}" if ros_key else resume
             log.info("exploration paused%s%s: the robot holds still until %s", by, f" ({msg.reason})" if msg.reason else "", until)
 
     def _on_cache_query(self, query: Any) -> None:
@@ -1661,7 +1663,11 @@ def _wait_for_detached(
             try:
                 info = json.loads((run_dir / "run.json").read_text())
                 if info.get("services") and info.get("endpoints"):
-                    return 0, f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'} (`cso-runtime logs -f` follows them)"
+                    follow = runs_command("logs -f", run_dir.parent)  # of this runs folder: a plain `logs -f` reads ./runs
+                    return 0, (
+                        f"run {run_dir.name} started (launcher pid {proc.pid}, router {', '.join(info['endpoints'])}); logs in {run_dir / 'logs'} "
+                        f"({follow} follows them), results in {run_dir}/ once its episode ends"
+                    )
             except (OSError, ValueError):
                 pass
             if proc.poll() in (-signal.SIGTERM, -signal.SIGKILL):  # `down` as it started (STARTING_LAUNCHER), before its handlers

@@ -252,9 +252,20 @@ def run_is_live(run_dir: Path) -> bool:
 
 def run_is_exploring(run_dir: Path) -> bool:
     """Whether the run's episode goes on: its launcher runs and has not written the episode's end (a detached run
-    stays up after it, for ``status``, until ``down``). What ``logs -f`` follows."""
+    stays up after it, for ``status``, until ``down``). What ``logs -f`` follows of a detached run (``logs_grow``)."""
     info = read_json_object(run_dir / "run.json")
     return info is not None and info.get("state") in ("starting", "running") and current_launcher_alive(info)
+
+
+def logs_grow(run_dir: Path) -> bool:
+    """What ``logs -f`` follows: a detached run until its episode ends (``run_is_exploring``: it then stays up, for
+    ``status``, until ``down``), a foreground one until its launcher exits. It stopped at the episode's end too, and said
+    the run "stays up until down" of an ``up`` that was then stopping its services and writing its results: neither
+    their lines nor its last, where the results went, came out."""
+    info = read_json_object(run_dir / "run.json")
+    if info is not None and info.get("detached"):
+        return run_is_exploring(run_dir)
+    return info is not None and current_launcher_alive(info)
 
 
 # --- logs ------------------------------------------------------------------------------------------

@@ -133,8 +133,9 @@ def status_of(
         elif lsv is not None:
             entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
             entry["robot_stops"] = lsv.get("robot_stops", 0)
+            entry["process_alive"] = bool(lsv.get("process_alive"))  # its process runs (its token may not be there yet)
             if lsv.get("command"):  # an executable of one's own: its process is all the launcher knows of it
-                entry.update(command=True, process_alive=bool(lsv.get("process_alive")))
+                entry["command"] = True
         table[name] = entry
     ep, age_s = episode_or_last_heard(episode, launcher)
     over = ep.get("state") in EPISODE_OVER
@@ -311,7 +312,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
     ``127.0.0.1:7447``: a usage error, not "nothing running"), ``robot`` is not one robot's id, or ``connect`` was given
     without ``robot`` and several robots answer there (which one is the user's to say; the one that answers is taken)."""
-    from cso_runtime.current_run import read_current_run, starting_run  # noqa: PLC0415
+    from cso_runtime.current_run import read_current_run, starting_run, starting_up_line  # noqa: PLC0415
 
     given_connect = bool(connect)
     robot_named = robot is not None
@@ -338,8 +339,14 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     # Before "no current run": a launcher killed while starting left a run file with no endpoints.
     if not given_connect and (gone := dead_launcher_of_run(run_info, runs_dir)):
         return say_nothing_running(gone, as_json)
-    if not connect:
-        return say_nothing_running("no current run; give --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
+    if not given_connect and run_info is None and (up_starting := starting_up_line(runs_dir)):  # `up` checks its profile
+        if as_json:
+            print(json.dumps({"state": "starting", "run_id": "", "reason": up_starting}), flush=True)
+        else:
+            print(up_starting)
+        return 1
+    if not connect:  # the folder looked in named: an `up` started in another working folder has its run file there
+        return say_nothing_running(f"no current run in {runs_dir}; give --runs-dir of the folder `up` used, or --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
     try:
         client_transport(connect, zenoh_config_file).validate()
     except TransportError as exc:
@@ -408,14 +415,17 @@ def pose_words(pose_m: list[float] | None, twist: list[float] | None) -> str:
 
 
 def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False, episode_over: str = "") -> list[str]:
-    """How a service's row begins (an entry of ``status_of``'s ``services``): alive or DOWN, not started by this
-    run (another process is to serve it), and whether the episode waits for it; ``status`` and the live view alike.
+    """How a service's row begins (an entry of ``status_of``'s ``services``): alive, starting (its process runs, its
+    session is not up yet) or DOWN, not started by this run (another process is to serve it), and whether the episode
+    waits for it; ``status`` and the live view alike.
     ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN).
     ``episode_over``: the state of an episode that has ended (done, failed), else "": a service the episode waited for
     that this run did not start (a shared policy server) and that no longer answers for the robot is not needed any
     more, so it reads idle, not DOWN (a server restarted after the episode only announces the robots it hears from)."""
     running = service.get("command") and service.get("process_alive")  # a command node needs no liveliness token
     gone = "stopping" if stopping else "DOWN"
+    if not stopping and service.get("process_alive") and not service.get("gave_up"):
+        gone = "starting"  # its process runs, its session is not up yet (as the live view says it): not DOWN
     if episode_over and service.get("outside") and service.get("awaited"):
         gone = f"idle (episode {episode_over}: not needed after it)"
     words = ["alive" if service["alive"] else "running" if running else gone]
@@ -454,9 +464,9 @@ def render_table(status: dict[str, Any]) -> Table:
     steps = status["step"] if status.get("ended_at_step") is None else status["ended_at_step"]  # the episode's, not the scans since
     for k, v in (
         ("state", status["state"] + (f" ({status['terminated_by']})" if status["terminated_by"] else "") + (f": {status['reason']}" if status["reason"] else "") + waits),
-        ("scene / method", f"{status['scene']} / {status['method']}"),
+        ("scene / method", f"{status['scene']} / {status['method']}" if status["scene"] or status["method"] else "-"),  # none before the sim's first status
         ("step", f"{status['step']}{pace}" + after_end_words(status)),  # as up's live view says the sim's pace
-        ("episode id", f"{status['episode']:012x}"),  # 48 random bits (JSON: the integer); a new id is a new episode
+        ("episode id", f"{status['episode']:012x}" if status["episode"] else "-"),  # 48 random bits (JSON: the integer); a new id is a new episode
         ("coverage", f"{status['coverage_pct']:.2f} %" if measures_coverage(status, status.get("coverage_measured")) else NO_GROUND_TRUTH),
         ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / steps:.3f} m2/step" if steps else "")),
         ("path length", f"{status['path_length_m']:.2f} m"),
@@ -595,6 +605,11 @@ def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_j
     step = episode_end_step(run_dir, last) if over else last.get("step", 0)
     episode = f"its episode {last.get('state')}" + (f" ({ended_by})" if ended_by else "") + f" at step {step}"
     where = results_said(run_dir) if outcome == "done" else f"its folder: {run_dir}/ (the logs in {run_dir / LOG_DIR}/)"
+    if outcome != "done":
+        from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415 - only for this line
+
+        if (run_dir / LAST_MAP).is_file():  # a run stopped before its episode ended: its one result, as `up` says it
+            where += f"; the episode's map so far: {run_dir / LAST_MAP}"
     line = (f"run {run.get('run_id')} ended: {outcome}" + (f", {episode}" if over else "") + robot_ended_at(last) + (f", exit code {code}" if code else "")
             + f"; {where}")
     if as_json:
@@ -647,13 +662,24 @@ def await_started_run(runs_dir: Path, as_json: bool, period_s: float) -> int | N
     to come up, saying so (once on a terminal or in a file; ``--json``: a ``starting`` line each period). None once
     there is no starting run (its router open: watch it), else the exit code after saying how the wait ended: its
     launcher died (exit 1, as ``status`` says it), or its start failed (how it ended, ``run_end_exit_code``)."""
-    from cso_runtime.current_run import ASK_AGAIN, read_current_run, starting_run  # noqa: PLC0415
+    from cso_runtime.current_run import ASK_AGAIN, read_current_run, starting_run, starting_up_line  # noqa: PLC0415
 
     said = ""
     seen: dict[str, Any] | None = None  # the starting run's file, as last read
     while True:
         info = read_current_run(runs_dir)
         starting = starting_run(info)
+        if starting is None and info is None and seen is None:  # an `up` still checking its profile: no run file yet
+            starting = starting_up_line(runs_dir)
+            if starting is not None:
+                line = f"{starting.removesuffix(ASK_AGAIN)}; waiting for it..."
+                if as_json:
+                    print(json.dumps({"state": "starting", "run_id": "", "reason": line}), flush=True)
+                elif line != said:
+                    print(line, flush=True)
+                said = line
+                time.sleep(period_s)
+                continue
         if starting is None:
             if seen is None or not seen.get("run_dir") or (info is not None and (info.get("run_id") != seen["run_id"] or info.get("state") != "stopped")):
                 return None  # up (or never starting, or another run, or its launcher gone): status says what there is
@@ -825,7 +851,10 @@ def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_
     try:
         yaml_path = save_map(yaml_out, msg.grid, msg.geometry, image_format, map_origin=map_origin)
     except OSError as exc:
-        print(f"error: cannot write the map to {yaml_out}: {exc.strerror or exc}", file=sys.stderr)
+        # A folder of the path that is a file: "File exists" (mkdir) or "Not a directory" named neither which nor why.
+        file_in_way = next((d for d in Path(yaml_out).parents if d.exists() and not d.is_dir()), None)
+        why = f"{file_in_way} is a file, not a folder" if file_in_way is not None else exc.strerror or str(exc)
+        print(f"error: cannot write the map to {yaml_out}: {why}", file=sys.stderr)
         return 2
     g = msg.geometry
     print(f"map of step {msg.step} ({g.shape[1]} x {g.shape[0]} cells at {g.resolution_m} m): {yaml_path} and {yaml_path.with_suffix('.' + image_format).name}")
@@ -858,12 +887,19 @@ def explore_resume_main(connect: list[str], robot: str | None, runs_dir: Path, r
     """The ``pause`` (``resume`` false) and ``resume`` commands: send ``explore/resume`` to the running run and wait for
     its launcher to say so. Exit 0 once it does (or was so already), 1 when nothing runs or it does not confirm, 2 when
     the run cannot pause (lockstep) or the arguments are bad (as ``status``)."""
+    from cso_runtime.current_run import runs_command  # noqa: PLC0415
+
     what = "resume" if resume else "pause"
+    given_connect = bool(connect)
     target = reachable_target(connect, robot, runs_dir)
     if isinstance(target, int):
         return target
     connect, robot, zenoh_config_file = target
     assert robot is not None  # reachable_target always names the robot
+    # The `resume` (`status`) to come, of this run: a plain `cso-runtime resume` asks the run of ./runs (another's, or none).
+    at_endpoint = " ".join(f"--connect {endpoint}" for endpoint in connect) + f" --robot {robot}"
+    resume_hint = f"`cso-runtime resume {at_endpoint}`" if given_connect else runs_command("resume", runs_dir)
+    status_hint = f"`cso-runtime status {at_endpoint}`" if given_connect else runs_command("status", runs_dir)
     session = _client_session(connect, zenoh_config_file)
     if session is None:
         return say_nothing_running(f"cannot reach {', '.join(connect)}", False)
@@ -894,10 +930,10 @@ def explore_resume_main(connect: list[str], robot: str | None, runs_dir: Path, r
                     print(f"resumed robot {robot} (run {now.run_id}){at}, after {pause['for_s']:.0f} s paused")
                 elif ended in EPISODE_OVER:  # nothing moves it any more: the pause holds for a new episode (new odometry)
                     print(f"paused robot {robot} (run {now.run_id}){at}: its episode has ended ({ended}), so it stands already; "
-                          "a new episode would start paused, until `cso-runtime resume`")
+                          f"a new episode would start paused, until {resume_hint}")
                 else:
-                    print(f"paused robot {robot} (run {now.run_id}){at}: it holds still until `cso-runtime resume`")
+                    print(f"paused robot {robot} (run {now.run_id}){at}: it holds still until {resume_hint}")
                 return 0
             time.sleep(0.1)
-    print(f"sent {what} to robot {robot}, but its launcher has not said so within {PAUSE_CONFIRM_S:g} s; see `cso-runtime status`", file=sys.stderr)
+    print(f"sent {what} to robot {robot}, but its launcher has not said so within {PAUSE_CONFIRM_S:g} s; see {status_hint}", file=sys.stderr)
     return 1

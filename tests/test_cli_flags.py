@@ -263,3 +263,12 @@ def test_collect_teacher_refuses_a_flag_and_a_set_of_the_same_field_with_another
         r = CliRunner().invoke(app, [*common, *given])
         assert r.exit_code == 0, (given, r.output)
         assert ran[-1].warm_start_teacher == teacher and (seed is None or ran[-1].seed == seed), given
+
+
+def test_python_m_cso_runtime_runs_the_command(tmp_path: Path):
+    """``python -m cso_runtime --version`` (the way to run a package's command without its script on PATH, a venv
+    not activated) said "No module named cso_runtime.__main__; 'cso_runtime' is a package and cannot be directly
+    executed". It runs the ``cso-runtime`` command, as the script does."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}  # this checkout's package
+    r = subprocess.run([sys.executable, "-m", "cso_runtime", "--version"], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
+    assert r.returncode == 0 and r.stdout.startswith(f"cso-runtime {cso_runtime.__version__}\n"), (r.stdout, r.stderr)

@@ -347,7 +347,8 @@ def test_a_pause_from_ros_is_logged_with_how_to_resume_it_from_ros(tmp_path, cap
         launcher.on_pause(ExploreResumeMsg(True, f"{ROS_RESUME_BY}limo1/explore/resume"))
         launcher.on_pause(ExploreResumeMsg(False, "me@laptop", "inspecting"))
     paused = [r.getMessage() for r in caplog.records if "exploration paused" in r.getMessage()]
+    resume = f"`cso-runtime resume --runs-dir {tmp_path.parent}`"  # of this run's runs folder: a plain one asks ./runs
     assert paused == [
-        "exploration paused by ros2 limo1/explore/resume: the robot holds still until `{data: true}` on limo1/explore/resume or `cso-runtime resume`",
-        "exploration paused by me@laptop (inspecting): the robot holds still until `cso-runtime resume`",
+        f"exploration paused by ros2 limo1/explore/resume: the robot holds still until `{{data: true}}` on limo1/explore/resume or {resume}",
+        f"exploration paused by me@laptop (inspecting): the robot holds still until {resume}",
     ], paused

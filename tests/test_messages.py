@@ -1076,7 +1076,18 @@ def test_pause_of_an_ended_episode_says_the_robot_stands_already(monkeypatch, ca
     if state == "done":
         assert said.startswith("paused robot r0 (run run-1) at step 188: its episode has ended (done), so it stands already; a new episode"), said
     else:
-        assert said.startswith("paused robot r0 (run run-1) at step 188: it holds still until `cso-runtime resume`"), said
+        # the resume of this run's runs folder: a plain `cso-runtime resume` asks the run of ./runs
+        assert said == f"paused robot r0 (run run-1) at step 188: it holds still until `cso-runtime resume --runs-dir {tmp_path}`\n", said
+        clock = PauseClock()
+        answers = iter([clock.status(0.0), (clock.heard(ExploreResumeMsg(False, "me@laptop"), 1.0), clock.status(1.0))[1]])
+        assert status_module.explore_resume_main(["tcp/127.0.0.1:1"], None, tmp_path / "runs", resume=False) == 0  # asked at an endpoint
+        said = capsys.readouterr().out
+        assert said.endswith("until `cso-runtime resume --connect tcp/127.0.0.1:1 --robot r0`\n"), said
+    # a launcher that does not confirm: the status to look at is this run's too
+    monkeypatch.setattr(status_module, "PAUSE_CONFIRM_S", 0.05)
+    monkeypatch.setattr(status_module, "launcher_pause", lambda *a, **k: LauncherStatusMsg("run-1", "running", last_episode=last, pause=PauseClock().status(0.0)))
+    assert status_module.explore_resume_main([], None, tmp_path, resume=False) == 1
+    assert capsys.readouterr().err.endswith(f"has not said so within 0.05 s; see `cso-runtime status --runs-dir {tmp_path}`\n")
 
 
 @pytest.fixture

@@ -5,6 +5,9 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import subprocess
+import sys
+import threading
 import time
 from pathlib import Path
 
@@ -34,7 +37,7 @@ def line(s: int, ms: int, text: str) -> str:
 
 def make_run(
     runs: Path, run_id: str, *, outcome: str | None = None, summary: dict | None = None, alive: bool = False, logs: dict | None = None, state: str | None = None,
-    times: tuple[float, float | None] | None = None,
+    times: tuple[float, float | None] | None = None, detached: bool = False,
 ) -> Path:
     """A run folder as ``up`` leaves it: run.json (the launcher this test process when ``alive``), profile.yaml,
     summary.json when given, logs/*.log."""
@@ -51,6 +54,8 @@ def make_run(
     }
     if outcome is not None:
         info["outcome"] = outcome
+    if detached:  # `up --detach`'s launcher says so
+        info["detached"] = True
     if times is not None:  # (started_at, ended_at) as the launcher writes them (Unix time)
         info["started_at"] = times[0]
         if times[1] is not None:
@@ -184,7 +189,7 @@ def test_logs_follow_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypat
     """A detached run stays up after its episode (``status`` answers until ``down``): ``logs -f`` used to follow it
     forever, so ``up --detach && logs -f`` never returned. It ends once run.json says the episode is over, saying the
     ``down`` that stops it: of its own runs folder (plain `cso-runtime down` stopped the run of ./runs, another robot's)."""
-    d = make_run(tmp_path / "runs-r1", "20261203-091000-lockstep-r1", alive=True, state="done", logs={"sim": line(1, 0, "episode coverage: 99 %")})
+    d = make_run(tmp_path / "runs-r1", "20261203-091000-lockstep-r1", alive=True, state="done", detached=True, logs={"sim": line(1, 0, "episode coverage: 99 %")})
     r = CliRunner().invoke(app, ["logs", "-f", "--run", d.name, "--runs-dir", str(tmp_path / "runs-r1")])
     assert r.exit_code == 0 and "episode coverage: 99 %" in r.output
     stays = f"run {d.name}'s episode has ended; the run stays up (for status) until `cso-runtime down"
@@ -197,6 +202,85 @@ def test_logs_follow_of_a_detached_run_ends_with_its_episode(tmp_path, monkeypat
     assert r.exit_code == 0 and f"{stays}`" in r.output, r.output
     d = tmp_path / "runs" / d.name
     assert not run_is_exploring(d) and run_is_exploring(make_run(tmp_path / "runs", "20261203-091100-lockstep-r0", alive=True))
+
+
+def test_logs_follow_of_a_foreground_run_goes_on_until_its_launcher_exits(tmp_path):
+    """A foreground ``up`` stops its services and writes its results after its episode: ``logs -f`` stopped at the
+    episode's end, missed those lines and the launcher's last (where the results went), and said that the run "stays up
+    (for status) until down" of a run that was ending by itself. It follows it until its launcher exits and says so."""
+    launcher = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    try:
+        d = make_run(tmp_path / "runs", "20261203-091000-sim-r0", state="done", logs={"launcher": line(1, 0, "episode coverage: 99 %")})
+        info = json.loads((d / "run.json").read_text())
+        info.update(launcher_pid=launcher.pid, launcher_start_ticks=process_start_ticks(launcher.pid))
+        (d / "run.json").write_text(json.dumps(info))
+
+        def end_of_run() -> None:  # the launcher's last line, then it exits
+            time.sleep(0.5)
+            with (d / "logs" / "launcher.log").open("a") as f:
+                f.write(line(2, 0, f"results in {d}/: report.html"))
+            launcher.kill()
+
+        ender = threading.Thread(target=end_of_run)
+        ender.start()
+        r = CliRunner().invoke(app, ["logs", "-f", "--runs-dir", str(tmp_path / "runs")])
+        ender.join()
+        assert r.exit_code == 0 and f"results in {d}/: report.html" in r.output, r.output
+        assert f"run {d.name} has ended" in r.output and "stays up" not in r.output, r.output
+    finally:
+        launcher.kill()
+        launcher.wait(timeout=30)
+
+
+def test_logs_follow_right_after_up_waits_for_the_run_it_starts(tmp_path):
+    """``up ... &`` then ``logs -f``: for its first second or more ``up`` has written no run file, and ``logs -f`` said
+    "no runs in runs" or, with older runs there, followed the newest of those and ended at once. It waits for the run
+    that ``up`` starts (``current.json``) and follows that one."""
+    from cso_runtime.current_run import starting_up_path
+
+    runs = tmp_path / "runs"
+    make_run(runs, "20261203-091000-sim-r0", outcome="done", logs={"sim": line(1, 0, "the last run")})
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # the `up` checking its profile
+    launcher = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    try:
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+
+        def up_starts_its_run() -> None:
+            time.sleep(0.5)
+            d = make_run(runs, "20261203-091100-sim-r0", state="done", logs={"sim": line(2, 0, "the new run")})
+            info = {**json.loads((d / "run.json").read_text()), "launcher_pid": launcher.pid, "launcher_start_ticks": process_start_ticks(launcher.pid)}
+            (d / "run.json").write_text(json.dumps(info))
+            (runs / "current.json").write_text(json.dumps(info))
+            time.sleep(0.5)
+            launcher.kill()
+
+        starter = threading.Thread(target=up_starts_its_run)
+        starter.start()
+        r = CliRunner().invoke(app, ["logs", "-f", "--runs-dir", str(runs)])
+        starter.join()
+        assert r.exit_code == 0 and f"`up` (pid {up.pid}) is starting in {runs}" in r.output, r.output
+        assert "the new run" in r.output and "the last run" not in r.output and "run 20261203-091100-sim-r0 has ended" in r.output, r.output
+    finally:
+        for proc in (up, launcher):
+            proc.kill()
+            proc.wait(timeout=30)
+
+
+def test_report_of_a_run_without_results_says_why_not_that_it_is_no_run_folder(tmp_path):
+    """``report runs/<run-id>`` of a run stopped before its episode ended (Ctrl-C, ``down``) said "(not an `eval --out`
+    folder or a run folder?)" of a run folder: such a run writes no summary.json. It says so, as ``runs`` lists the run,
+    and where its map so far is; a run still exploring has its results to come; any other folder is answered as before."""
+    stopped = make_run(tmp_path / "runs", "20261203-091000-sim-r0", outcome="interrupted")
+    (stopped / "last_map.yaml").write_text("image: last_map.png\n")
+    r = CliRunner().invoke(app, ["report", str(stopped)])
+    assert r.exit_code == 2 and "not an `eval --out` folder" not in r.output, r.output
+    assert f"run {stopped.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as interrupted)" in r.output, r.output
+    assert str(stopped / "last_map.yaml") in r.output, r.output
+    running = make_run(tmp_path / "runs", "20261203-091100-sim-r0", alive=True)
+    r = CliRunner().invoke(app, ["report", str(running)])
+    assert r.exit_code == 2 and f"run {running.name} is running: its results are written when its episode ends" in r.output, r.output
+    r = CliRunner().invoke(app, ["report", str(tmp_path)])
+    assert r.exit_code == 2 and "(not an `eval --out` folder or a run folder?)" in r.output, r.output
 
 
 def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newest(tmp_path):

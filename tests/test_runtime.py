@@ -1099,6 +1099,8 @@ def test_a_runs_folder_deleted_mid_run_keeps_its_lock_and_a_second_up_is_refused
         r = cli("up", "--profile", str(profile), "--detach", "--runs-dir", str(runs), cwd=tmp_path)
         assert r.returncode == 0, r.stderr
         current = json.loads((runs / "current.json").read_text())
+        # the way to follow it reads this runs folder (a plain `cso-runtime logs -f` said "no runs in runs"), and where its results go
+        assert f"(`cso-runtime logs -f --runs-dir {runs}` follows them), results in {runs / current['run_id']}/ once its episode ends" in r.stdout, r.stdout
         # Every service has read its configuration from the run folder: deleted before that, a service that has not is
         # restarted once the folder is made again, which is another case (test_a_run_folder_deleted_before_a_service_...).
         wait_for(lambda: (s := query_status(current["endpoints"], current["robot"], timeout_s=0.5)) and s["state"] == "exploring", 60, "the episode to start")
@@ -2625,6 +2627,37 @@ def test_status_shows_the_simulators_real_time_factor_the_launcher_measures(tmp_
         assert re.search(r"│ step +│ 42 \(2\.00x real time\) +│", text), text
 
 
+def test_status_of_a_run_just_started_says_its_services_are_starting_not_down():
+    """``status`` right after ``up --detach`` (services still importing, no episode yet) listed every service whose
+    session was not up as DOWN, the scene and method as " / " and the episode id as 000000000000, as if the run had
+    failed. A service whose process the launcher says runs is "starting" (as the live view says it), one given up on
+    or whose process is gone is DOWN as before, and the rows with nothing yet say "-"."""
+    from rich.console import Console
+
+    from cso_runtime.status import render_table, status_of
+
+    launcher = {
+        "run_id": "run1",
+        "state": "running",
+        "services": {
+            "sim": {"pid": 11, "process_alive": True, "liveliness": False, "restarts": 0},
+            "mapper": {"pid": 12, "process_alive": True, "liveliness": True, "restarts": 0},
+            "planner": {"pid": 13, "process_alive": False, "liveliness": False, "restarts": 1},
+            "policy": {"pid": 14, "process_alive": True, "liveliness": False, "restarts": 3, "gave_up": True},
+        },
+    }
+    mapper = {"state": "running", "reason": "", "last_step": 0, "rejected": {}, "processed": 0}
+    status = status_of("r0", None, launcher, {"mapper": mapper}, {"mapper"})
+    console = Console(record=True, width=200)
+    console.print(render_table(status))
+    text = console.export_text()
+    assert status["state"] == "starting" and status["episode"] == 0 and status["scene"] == "", status  # JSON as before
+    assert re.search(r"│ service sim +│ starting +│", text) and re.search(r"│ service mapper +│ alive, running +│", text), text
+    assert re.search(r"│ service planner +│ DOWN, restarts 1 +│", text), text
+    assert re.search(r"│ service policy +│ DOWN, restarts 3 \(gave up\) +│", text), text
+    assert re.search(r"│ scene / method +│ - +│", text) and re.search(r"│ episode id +│ - +│", text), text
+
+
 def test_status_says_a_real_robots_coverage_is_not_measured_and_json_keeps_its_zero():
     """``status`` on a LIMO said "coverage 0.00 %" for the whole run, beside a map growing by the second (there is no
     ground truth to measure it against): the table says so; ``--json`` keeps ``coverage_pct`` 0, as summary.json."""
@@ -3221,6 +3254,8 @@ def test_up_run_in_process_gives_back_the_signal_handlers_it_found(tmp_path):
 def test_status_and_down_with_nothing_running(tmp_path):
     r = cli("status", cwd=tmp_path, timeout_s=10)
     assert r.returncode == 1 and "nothing running" in r.stdout and "`cso-runtime runs` lists past runs" in r.stdout
+    # where it looked, and how to look elsewhere: an `up` started in another working folder keeps its run file there
+    assert "no current run in runs; give --runs-dir of the folder `up` used, or --connect ENDPOINT" in r.stdout, r.stdout
     r = cli("status", "--json", cwd=tmp_path, timeout_s=10)  # a script reading the JSON gets JSON then too
     assert r.returncode == 1 and json.loads(r.stdout)["state"] == "not running" and "nothing running" in json.loads(r.stdout)["reason"]
     port = free_tcp_port()
@@ -3310,6 +3345,61 @@ def test_status_says_a_run_is_starting_before_its_router_is_open(tmp_path, monke
     assert said["save-map"][0] == 1 and "is starting" in str(said["save-map"][1]) and not (tmp_path / "map.yaml").exists(), said["save-map"]
     assert said["attach"][0] == 2 and "--attach: run run1 (robot r1) is starting" in str(said["attach"][1]), said["attach"]
     assert not (runs / "current.json").exists() and json.loads((runs / "run1" / "run.json").read_text())["state"] == "stopped"
+
+
+def test_status_names_an_up_still_checking_its_profile_and_watch_waits_for_it(tmp_path):
+    """``up ... &`` then ``status --watch`` at once: for its first second or more (Python's imports, its profile
+    checked, a scene or weights loaded) ``up`` has written no run file, and ``status`` said "nothing running (no current
+    run)", exit 1, and ``--watch`` ended there. ``status`` now names the ``up`` that is starting (still exit 1: nothing
+    to ask yet) and ``--watch`` waits for it; an ``up`` that ends without a run (refused) is "nothing running" as before."""
+    from cso_runtime.current_run import starting_up_path
+    from cso_runtime.supervision import process_start_ticks
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # an `up` checking its profile
+    watch = None
+    try:
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+        r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 1 and f"`up` (pid {up.pid}) is starting in {runs}" in r.stdout, (r.stdout, r.stderr)
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 1 and json.loads(r.stdout)["state"] == "starting", (r.stdout, r.stderr)
+        argv = [*python_module_argv("cso_runtime.cli"), "status", "--watch", "--period", "0.2", "--runs-dir", str(runs)]
+        watch = subprocess.Popen(argv, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert watch.stdout is not None
+        first = watch.stdout.readline()
+        assert f"`up` (pid {up.pid}) is starting" in first and "waiting for it..." in first, first
+        up.kill()  # refused: it ends with no run file
+        up.wait(timeout=30)
+        out, err = watch.communicate(timeout=30)
+        assert watch.returncode == 1 and "nothing running (no current run" in out, (out, err)
+    finally:
+        up.kill()
+        up.wait(timeout=30)
+        if watch is not None:
+            watch.kill()
+            watch.wait(timeout=30)
+
+
+def test_save_map_below_a_file_names_the_file_in_the_way(tmp_path, monkeypatch, capsys):
+    """``save-map -f out/m`` where ``out`` is a file said "cannot write the map to out/m.yaml: File exists": neither
+    which path nor why. It names the file that is in the way of the folder; other errors are said as before."""
+    import cso_runtime.status as status_module
+    from cso_runtime.geometry import MAP_FRAME_ORIGIN
+    from cso_runtime.status import RunTarget
+
+    grid = np.zeros((4, 5), dtype=np.int8)
+    msg = MapMsg.from_grid(7, GridGeometry(0.05, (4, 5)), grid)
+    monkeypatch.setattr(status_module, "reachable_target", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
+    monkeypatch.setattr(status_module, "query_map", lambda *_a, **_k: (msg, "", MAP_FRAME_ORIGIN))
+    (tmp_path / "a_file").write_text("")
+    for out in (tmp_path / "a_file" / "m", tmp_path / "a_file" / "deeper" / "m"):
+        assert save_map_main([], None, out, "pgm", tmp_path / "runs") == 2
+        err = capsys.readouterr().err
+        assert err == f"error: cannot write the map to {out}.yaml: {tmp_path / 'a_file'} is a file, not a folder\n", err
+    assert save_map_main([], None, tmp_path / "ok" / "m", "pgm", tmp_path / "runs") == 0  # a missing folder is made
+    assert (tmp_path / "ok" / "m.yaml").is_file() and "map of step 7" in capsys.readouterr().out
 
 
 def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
@@ -3992,6 +4082,24 @@ def test_status_watch_of_a_starting_run_ends_when_its_launcher_dies_or_its_start
             assert said[-1] == f"run run1 ended: failed, exit code 3; its folder: {run_dir}/ (the logs in {run_dir / 'logs'}/)", said
 
 
+def test_status_watch_of_a_run_stopped_before_its_episode_ended_says_where_its_map_so_far_is(tmp_path, capsys):
+    """``status --watch`` of a run stopped by ``down`` (or Ctrl-C) ended with "its folder: RUN/ (the logs in ...)" and
+    nothing of the one result such a run keeps, its map so far (``up``'s own last line names it): it names it now,
+    where the run kept one."""
+    from cso_runtime import status
+    from cso_runtime.launcher import LAST_MAP
+
+    run_dir = tmp_path / "runs" / "run1"
+    run_dir.mkdir(parents=True)
+    run = {"run_id": "run1", "state": "stopped", "outcome": "interrupted", "exit_code": 130}
+    assert status.say_run_ended(run, run_dir, {"state": "exploring", "step": 40}, as_json=False) == 130
+    assert capsys.readouterr().out == f"run run1 ended: interrupted, exit code 130; its folder: {run_dir}/ (the logs in {run_dir / 'logs'}/)\n"
+    (run_dir / LAST_MAP).write_text("image: last_map.png\n")
+    assert status.say_run_ended(run, run_dir, {"state": "exploring", "step": 40}, as_json=False) == 130
+    said = capsys.readouterr().out
+    assert said.endswith(f"(the logs in {run_dir / 'logs'}/); the episode's map so far: {run_dir / LAST_MAP}\n"), said
+
+
 def test_status_tables_wrap_on_a_narrow_terminal_rather_than_cut_with_an_ellipsis():
     from rich.console import Console
 
@@ -4454,6 +4562,7 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         (tmp_path / "a_file").write_text("")
         r = cli("save-map", "-f", str(tmp_path / "a_file" / "m"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 2 and "cannot write the map" in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert f"{tmp_path / 'a_file'} is a file, not a folder" in r.stderr, r.stderr
         r = cli("record", "--out", str(tmp_path / "a_file" / "r.mcap"), "--runs-dir", str(runs), cwd=tmp_path, timeout_s=20)
         assert r.returncode == 2 and "--out" in r.stderr and "cannot create the folder" in r.stderr and "Traceback" not in r.stderr, r.stderr
 
@@ -4477,7 +4586,8 @@ def test_detached_episode_survives_a_killed_mapper_and_malformed_payloads(tmp_pa
         assert follower.returncode == 0 and f"episode has ended; the run stays up (for status) until `cso-runtime down --runs-dir {runs}`" in err, err
         assert re.search(r"^mapper +\| .* restored the map of step", out, re.MULTILINE) and re.search(r"^launcher +\| .* episode ", out, re.MULTILINE), out[-3000:]
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
-        assert r.returncode == 0, r.stderr
+        (run_dir,) = (d for d in runs.iterdir() if d.is_dir())
+        assert r.returncode == 0 and r.stdout.strip().endswith(f"; results in {run_dir}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"), r.stdout + r.stderr
         (after,) = json.loads(cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path).stdout)
         (info,) = (json.loads(f.read_text()) for f in runs.glob("*/run.json"))
         assert after["state"] == "done" and info["started_at"] < info["episode_ended_at"] <= info["ended_at"], info
@@ -4761,7 +4871,9 @@ def test_down_of_a_cso_run_stops_the_policy_service_on_sigint_and_its_log_ends_w
         run_dir = Path(current["run_dir"])
         wait_for(lambda: (s := query_status(current["endpoints"], current["robot"], timeout_s=0.5)) and s["step"] >= 2, 60, "the episode to run")
         r = cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
-        assert r.returncode == 0 and r.stdout.strip() == f"stopped run {current['run_id']}", r.stdout + r.stderr
+        # and where its map so far is (it said "stopped run X" alone: a detached run's own last line is in launcher.log)
+        kept = f"no results (its episode had not ended); its map so far: {run_dir / 'last_map.yaml'}"
+        assert r.returncode == 0 and r.stdout.strip() == f"stopped run {current['run_id']}; {kept}", r.stdout + r.stderr
         launcher_log = (run_dir / "logs" / "launcher.log").read_text()
         assert "still running after" not in launcher_log, launcher_log
         assert (run_dir / "logs" / "policy.log").read_text().splitlines()[-1].endswith("INFO cso.service: policy: stopped")
@@ -4784,7 +4896,8 @@ def test_down_continues_a_stopped_launcher_which_then_ends_its_run_itself(tmp_pa
         os.kill(current["launcher_pid"], signal.SIGSTOP)
         wait_for(lambda: process_state(current["launcher_pid"]) == "T", 10, "the launcher to be stopped")
         ok, message = down(runs, timeout_s=60)
-        assert ok and message == f"stopped run {current['run_id']} (its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop)", message
+        kept = f"no results (its episode had not ended); its map so far: {Path(current['run_dir']) / 'last_map.yaml'}"
+        assert ok and message == f"stopped run {current['run_id']} (its launcher was stopped (Ctrl-Z, SIGSTOP): continued so that it could stop); {kept}", message
         run = json.loads((Path(current["run_dir"]) / "run.json").read_text())
         assert run["state"] == "stopped" and run["outcome"] == "interrupted", run
         assert not any(pid_alive(p) for p in run_pids(runs))
