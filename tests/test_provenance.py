@@ -68,12 +68,6 @@ def test_version_prints_the_commit_of_a_checkout_on_a_second_line(monkeypatch):
     assert CliRunner().invoke(app, ["--version"]).output == f"cso-runtime {cso_runtime.__version__}\n"
 
 
-def test_python_dash_m_cso_runtime_is_the_command():
-    """``python -m cso_runtime`` (a venv whose scripts are not on PATH) said "No module named cso_runtime.__main__"."""
-    done = subprocess.run([sys.executable, "-m", "cso_runtime", "--version"], cwd=ROOT, capture_output=True, text=True, timeout=60)
-    assert done.returncode == 0 and done.stdout.splitlines()[0] == f"cso-runtime {cso_runtime.__version__}", done.stderr
-
-
 def test_evals_summary_records_the_software_and_the_command_line_that_ran_it(tmp_path: Path):
     """``summary.json`` had the package version and the flags, not the commit, Python, libraries or the command line."""
     out = tmp_path / "o"
