@@ -72,15 +72,17 @@ class Bound:
     """``low`` itself is refused: the key must be above it (a positive length)."""
     why: str = ""
     """Why ``high`` is the largest, said after the range (``a back-up is a short manoeuvre``)."""
+    high_open: bool = False
+    """``high`` itself is refused: the key must be below it (PPO's clip coefficient, below 1)."""
 
     def said(self) -> str:
-        """The range in interval notation, with its unit: ``(0, 100] m``, ``[1, 1,000,000]``."""
+        """The range in interval notation, with its unit: ``(0, 100] m``, ``[1, 1,000,000]``, ``(0, 1)``."""
         unit = f" {self.unit}" if self.unit else ""
-        return f"{'(' if self.low_open else '['}{number_said(self.low)}, {number_said(self.high)}]{unit}"
+        return f"{'(' if self.low_open else '['}{number_said(self.low)}, {number_said(self.high)}{')' if self.high_open else ']'}{unit}"
 
     def check(self, key: str, value: float) -> None:
         """ConfigError naming ``key``, ``value`` and the range when ``value`` is outside it."""
-        inside = (value > self.low if self.low_open else value >= self.low) and value <= self.high
+        inside = (value > self.low if self.low_open else value >= self.low) and (value < self.high if self.high_open else value <= self.high)
         if not inside:  # NaN included: from_dict refuses it already, a dataclass built in code may not
             why = f" ({self.why})" if self.why else ""
             raise ConfigError(f"{key} must be in {self.said()}{why}, got {number_said(value)}")
@@ -240,7 +242,7 @@ class MappingConfig:
     the robot's own position that no turn can observe. Cells already seen are left as they are."""
 
 
-def _map_length(unit: str = "m", low_open: bool = False) -> Bound:
+def map_length(unit: str = "m", low_open: bool = False) -> Bound:
     """A length, or an area, on the map: at least 0 (above it: ``low_open``), at most ``messages.MAX_GRID_SIDE_M`` (its
     square for an area). A function, not a table: ``messages`` imports this module."""
     from cso_runtime.messages import MAX_GRID_SIDE_M  # noqa: PLC0415  (messages imports this module)
@@ -253,7 +255,7 @@ def _map_length(unit: str = "m", low_open: bool = False) -> Bound:
 def frontier_bounds() -> dict[str, Bound]:
     """``FrontierConfig``'s bounds: lengths on the map (a longer one is longer than any map: no cluster is that long,
     every window the whole map)."""
-    return {"min_cluster_size_m": _map_length(), "entropy_window_m": _map_length(low_open=True)}
+    return {"min_cluster_size_m": map_length(), "entropy_window_m": map_length(low_open=True)}
 
 
 @dataclass
@@ -279,7 +281,7 @@ MASK_CONFLICT = ("distance", "stuck")
 def mask_bounds() -> dict[str, Bound]:
     """``MaskConfig``'s bounds: distances and areas on the map, each at least 0 and at most the largest a map may have
     (``beta_near_m < beta_far_m`` is checked beside them)."""
-    return {"beta_near_m": _map_length(), "beta_far_m": _map_length(), "alpha1_m": _map_length(), "alpha2_m2": _map_length("m2"), "alpha3_m": _map_length()}
+    return {"beta_near_m": map_length(), "beta_far_m": map_length(), "alpha1_m": map_length(), "alpha2_m2": map_length("m2"), "alpha3_m": map_length()}
 
 
 @dataclass
@@ -369,7 +371,7 @@ class EpisodeConfig:
     def validate(self) -> None:
         check_bounds("episode", self, EPISODE_BOUNDS)
         # Farther than any map: every goal reached where it is chosen.
-        _map_length(low_open=True).check("episode.goal_tolerance_m", self.goal_tolerance_m)
+        map_length(low_open=True).check("episode.goal_tolerance_m", self.goal_tolerance_m)
 
 
 BODIES = ("disc", "box")

@@ -85,7 +85,7 @@ from cso_runtime.plots import import_pyplot_in_background
 from cso_runtime.processes import restore_signal_handlers, stop_on_signals
 from cso_runtime.provenance import command_line, record_command_line, software_provenance
 from cso_runtime.run_folder import RunFolderWatch
-from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig, measures_coverage
+from cso_runtime.run_profile import HANG_CHECK_PERIOD_S, REFEREES, Profile, SupervisionConfig, measures_coverage, referee_kind
 from cso_runtime.runs import LOG_DIR
 from cso_runtime.supervision import (
     STACK_DUMP_WAIT_S,
@@ -630,7 +630,10 @@ class Launcher:
             last.update({key: body[key] for key in LAST_EPISODE_FIGURES})
         pace = None if self.real_time_factor is None else round(self.real_time_factor, 3)
         lost = self.joined_router() if self.router_lost_at is not None else None
-        return LauncherStatusMsg(self.run_id, state, services, rejected, handler_errors, last, pace, lost, self.run_folder.losses, self.pause_status(), self.coverage_measured)
+        return LauncherStatusMsg(
+            self.run_id, state, services, rejected, handler_errors, last, pace, lost, self.run_folder.losses, self.pause_status(), self.coverage_measured,
+            referee_kind(self.profile.services),
+        )
 
     # --- supervision ------------------------------------------------------------------------------
     def stop_robot(self, c: Child, code: int | None) -> None:

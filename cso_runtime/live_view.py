@@ -32,7 +32,19 @@ NO_GROUND_TRUTH = "n/a: a real robot (no ground truth)"
 or a referee's of one's own), where ``coverage_pct`` is 0 (``status --json``, ``summary.json``,
 ``episodes.csv``): a "0.00 %" beside a map being explored read as a failure."""
 NO_OWN_GROUND_TRUTH = "n/a: the run's own referee measured no coverage (no ground truth)"
-"""``NO_GROUND_TRUTH`` where the run's referee is one of one's own, no real robot (report.html: ``of_an_own_referee``)."""
+"""``NO_GROUND_TRUTH`` where the run's referee is one of one's own, no real robot (report.html: ``of_an_own_referee``;
+``status`` and the live view: the launcher's status's ``referee``, ``no_ground_truth_words``)."""
+
+
+def no_ground_truth_words(referee: str | None) -> str:
+    """What ``status`` and the live view say of a run's coverage where it has no ground truth: ``NO_OWN_GROUND_TRUTH``
+    where the launcher's status says its referee is one of one's own (``launcher_status.referee``:
+    ``run_profile.OWN_REFEREE``), else ``NO_GROUND_TRUTH`` (a real robot's, or no launcher answered to say)."""
+    from cso_runtime.run_profile import OWN_REFEREE  # noqa: PLC0415 - loads the scenes' code: only where it is said
+
+    return NO_OWN_GROUND_TRUTH if referee == OWN_REFEREE else NO_GROUND_TRUTH
+
+
 NO_COVERAGE = "n/a"
 """``NO_GROUND_TRUTH`` in a table's coverage cell (``runs``' "cover %", report.html's and the console's Table 1 and
 episodes): the one word, its reason said in the table's definitions or title."""
@@ -168,7 +180,7 @@ class LiveView:
             steps = st.step if ended_at is None else ended_at
             t.add_row("step", f"{st.step} ({when}{pace_text(la.real_time_factor)})" + after_end_words({"step": st.step, "ended_at_step": ended_at}))
             if not la.coverage_measured:
-                t.add_row("coverage", NO_GROUND_TRUTH)
+                t.add_row("coverage", no_ground_truth_words(seen["referee"]))
             else:
                 coverage = Table.grid(padding=(0, 1))
                 coverage.add_row(ProgressBar(total=100.0, completed=min(st.coverage_pct, 100.0), width=self.BAR_CELLS), f"{st.coverage_pct:.1f} %")

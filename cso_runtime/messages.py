@@ -1654,11 +1654,18 @@ class LauncherStatusMsg(Message):
     a real robot's or a referee's of one's own is not): the one answer ``status`` gives, as ``up``'s live view and
     report.html. Optional on decoding (older launchers do not send it: ``status`` then judges by the services); None,
     absent."""
+    referee: str | None = None
+    """Which kind of referee runs the run's episode, as its profile's services say (``run_profile.referee_kind``):
+    ``sim``, ``ros2_bridge`` or ``own`` (one of one's own: a command node publishing ``episode_status``, no real robot),
+    so that ``status`` words a coverage it has no ground truth for as the run's (``live_view.no_ground_truth_words``).
+    Optional on decoding (older launchers do not send it: ``status`` then says a real robot's); None, absent."""
 
     def body(self) -> dict[str, Any]:
         body: dict[str, Any] = {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected, "handler_errors": self.handler_errors}
         if self.coverage_measured is not None:
             body["coverage_measured"] = self.coverage_measured
+        if self.referee is not None:
+            body["referee"] = self.referee
         if self.pause is not None:
             body["pause"] = self.pause
         if self.run_dir_lost:
@@ -1710,9 +1717,10 @@ class LauncherStatusMsg(Message):
             pause = {"paused": _bool(heard, "paused", pw), "by": _str(heard, "by", pw, max_len=256), "reason": _str(heard, "reason", pw, max_len=1024)}
             pause.update(for_s=_num(heard, "for_s", pw, lo=0.0), total_s=_num(heard, "total_s", pw, lo=0.0), refused=_str(heard, "refused", pw, max_len=1024))
         measured = None if b.get("coverage_measured") is None else _bool(b, "coverage_measured", w)
+        referee = None if b.get("referee") is None else _str(b, "referee", w, max_len=64)
         return cls(
             _str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace, lost, run_dir_lost,
-            pause, measured,
+            pause, measured, referee,
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -59,11 +59,11 @@ def of_an_own_referee(summary: dict[str, Any]) -> bool:
     whose services have neither referee of ``run_profile.REFEREES``: a command node publishing ``episode_status`` and
     ``episode_result``, a simulator of one's own, say): no real robot, its steps as that referee counts them. A profile
     with no services (a summary of an older version, a hand-made meta) says nothing of it: a real robot's, as before."""
-    from cso_runtime.run_profile import REFEREES  # noqa: PLC0415 - loads the scenes' code: only where reports are made
+    from cso_runtime.run_profile import OWN_REFEREE, referee_kind  # noqa: PLC0415 - loads the scenes' code: only where reports are made
 
     profile = (summary.get("meta") or {}).get("profile")
     services = profile.get("services") if isinstance(profile, dict) else None
-    return of_a_real_robot(summary) and isinstance(services, dict) and not any(name in services for name in REFEREES)
+    return of_a_real_robot(summary) and isinstance(services, dict) and referee_kind(services) == OWN_REFEREE
 
 
 def no_ground_truth_said(summary: dict[str, Any]) -> str:

@@ -143,6 +143,16 @@ UNUSED_BY_A_REAL_ROBOT = ("scene", "m_per_px")
 REFEREES = ("sim", "ros2_bridge")
 """Services that own the episode (its status and end): without them the run cannot finish (nor be left out of it,
 ``up --without``)."""
+OWN_REFEREE = "own"
+"""``referee_kind`` of a run whose services have neither of ``REFEREES``: its referee is one of one's own (a command node
+publishing ``episode_status`` and ``episode_result``, a simulator of one's own), no real robot."""
+
+
+def referee_kind(services: Any) -> str:
+    """Which kind of referee a profile's ``services`` run the episode with: ``sim``, ``ros2_bridge`` (of ``REFEREES``),
+    or ``OWN_REFEREE``, one of one's own (the launcher's status says it, ``launcher_status.referee``; report.html's
+    ``of_an_own_referee``)."""
+    return next((name for name in REFEREES if name in services), OWN_REFEREE)
 
 
 @dataclass

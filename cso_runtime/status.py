@@ -178,6 +178,7 @@ def status_of(
         "run_dir_lost": (launcher or {}).get("run_dir_lost", 0),
         "launcher_state": (launcher or {}).get("state"),
         "pause": (launcher or {}).get("pause"),
+        "referee": (launcher or {}).get("referee"),  # which kind of referee the run has (the launcher's word); None: not said
     }
 
 
@@ -450,7 +451,7 @@ def render_table(status: dict[str, Any]) -> Table:
     from rich.markup import escape  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
 
-    from cso_runtime.live_view import NO_GROUND_TRUTH  # noqa: PLC0415 - rich's, as above
+    from cso_runtime.live_view import no_ground_truth_words  # noqa: PLC0415 - rich's, as above
     from cso_runtime.run_profile import measures_coverage  # noqa: PLC0415 - a status has a profile's services
 
     # Every cell is text, not markup: a scene file or a service's reason may hold brackets.
@@ -467,7 +468,7 @@ def render_table(status: dict[str, Any]) -> Table:
         ("scene / method", f"{status['scene']} / {status['method']}" if status["scene"] or status["method"] else "-"),  # none before the sim's first status
         ("step", f"{status['step']}{pace}" + after_end_words(status)),  # as up's live view says the sim's pace
         ("episode id", f"{status['episode']:012x}" if status["episode"] else "-"),  # 48 random bits (JSON: the integer); a new id is a new episode
-        ("coverage", f"{status['coverage_pct']:.2f} %" if measures_coverage(status, status.get("coverage_measured")) else NO_GROUND_TRUTH),
+        ("coverage", f"{status['coverage_pct']:.2f} %" if measures_coverage(status, status.get("coverage_measured")) else no_ground_truth_words(status.get("referee"))),
         ("explored", f"{status['explored_area_m2']:.2f} m2" + (f", {status['explored_area_m2'] / steps:.3f} m2/step" if steps else "")),
         ("path length", f"{status['path_length_m']:.2f} m"),
         ("goal", "-" if goal is None else f"({goal[0]:.2f}, {goal[1]:.2f}) m"),

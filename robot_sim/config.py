@@ -10,7 +10,16 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from cso_runtime.config import ConfigError, ExplorationConfig, SensorConfig, with_mujoco_limo_defaults
+from cso_runtime.config import (
+    MAX_ROBOT_RADIUS_M,
+    Bound,
+    ConfigError,
+    ExplorationConfig,
+    SensorConfig,
+    check_bounds,
+    seconds,
+    with_mujoco_limo_defaults,
+)
 
 _WHOLE_STEPS_REL_TOL = 1e-5
 """A duration is a whole number of physics steps to this relative precision: a rate or step written to 6
@@ -47,6 +56,62 @@ def lidar_mount_problem(given: object, sensor: SensorConfig) -> str | None:
     ):
         return None
     return f"lidar_mount_x_m: {given!r} is not the sensor's mount ({sensor.mount_x_m} m), which the mapper and the planner use"
+
+
+MIN_TIMESTEP_S = 1e-5
+"""The finest physics step taken: 10 microseconds, already 25,000 steps for each 0.25 s control step (a finer one, typed
+in other units, would not finish an episode)."""
+MAX_TIMESTEP_S = 0.05
+"""The coarsest physics step taken: in 50 ms the robot at ``robot.max_linear_mps``' largest, 5 m/s, moves 25 cm, through
+a wall between two steps; the control period is the command's step, not this."""
+MAX_TIME_CONSTANT_S = 10.0
+"""The slowest servo or contact time constant taken: a servo that takes longer than 10 s to follow a command, or a wall
+as soft, is a value in other units (the defaults are 20 ms and 10 ms)."""
+MAX_ACCEL_MPS2 = 100.0
+"""The largest linear acceleration limit taken (about 10 g; the default is 2 m/s^2)."""
+MAX_ANGULAR_ACCEL_RADPS2 = 1000.0
+"""The largest angular acceleration limit taken (the default is 3 rad/s^2)."""
+MAX_MASS_KG = 1000.0
+"""The heaviest robot taken: a tonne, a ground robot for indoor scenes (the LIMO's is 4.8 kg)."""
+MAX_FORCE_N = 10_000.0
+"""The largest servo force taken: the grip of the heaviest robot, about ``MAX_MASS_KG`` x g."""
+MAX_TORQUE_NM = 2 * MAX_MASS_KG * 9.81 * MAX_ROBOT_RADIUS_M
+"""The largest yaw torque taken: twice the heaviest robot's grip at the largest robot radius."""
+MAX_WALL_HEIGHT_M = 100.0
+"""The tallest wall taken (the walls of an indoor scene; the default is 1 m)."""
+MAX_FRICTION = 10.0
+"""The largest sliding friction coefficient taken (the default is 0.3; rubber on concrete is about 1)."""
+MAX_ODOMETRY_RATE_HZ = 1000.0
+"""The fastest odometry rate taken (the default is 40 Hz); its period is whole physics steps besides."""
+MAX_ODOMETRY_NOISE_FRAC = 1.0
+"""The largest odometry drift taken as a fraction of each increment: an error as large as the increment itself."""
+
+MUJOCO_SIM_BOUNDS: dict[str, Bound] = {
+    "timestep_s": Bound(MIN_TIMESTEP_S, MAX_TIMESTEP_S, "s", why="MAX_TIMESTEP_S"),
+    **seconds("watchdog_s", positive=True),
+    "max_linear_accel_mps2": Bound(0.0, MAX_ACCEL_MPS2, "m/s2", low_open=True, why="MAX_ACCEL_MPS2"),
+    "max_angular_accel_radps2": Bound(0.0, MAX_ANGULAR_ACCEL_RADPS2, "rad/s2", low_open=True, why="MAX_ANGULAR_ACCEL_RADPS2"),
+    "actuator_time_constant_s": Bound(0.0, MAX_TIME_CONSTANT_S, "s", low_open=True, why="MAX_TIME_CONSTANT_S"),
+    "contact_time_constant_s": Bound(0.0, MAX_TIME_CONSTANT_S, "s", low_open=True, why="MAX_TIME_CONSTANT_S"),
+    "traction_force_n": Bound(0.0, MAX_FORCE_N, "N", low_open=True, why="the heaviest robot's grip: MAX_FORCE_N"),
+    "yaw_torque_nm": Bound(0.0, MAX_TORQUE_NM, "N m", low_open=True, why="MAX_TORQUE_NM"),
+    "wall_friction": Bound(0.0, MAX_FRICTION, why="MAX_FRICTION"),
+    "wall_height_m": Bound(0.0, MAX_WALL_HEIGHT_M, "m", low_open=True, why="MAX_WALL_HEIGHT_M"),
+    "mass_kg": Bound(0.0, MAX_MASS_KG, "kg", low_open=True, why="MAX_MASS_KG"),
+    "body_height_m": Bound(0.0, 2 * MAX_ROBOT_RADIUS_M, "m", low_open=True, why="as robot.length_m: config.MAX_ROBOT_RADIUS_M x 2"),
+    "wheelbase_m": Bound(0.0, 2 * MAX_ROBOT_RADIUS_M, "m", low_open=True, why="as robot.length_m: config.MAX_ROBOT_RADIUS_M x 2"),
+    "track_m": Bound(0.0, 2 * MAX_ROBOT_RADIUS_M, "m", low_open=True, why="as robot.width_m: config.MAX_ROBOT_RADIUS_M x 2"),
+    "wheel_radius_m": Bound(0.0, MAX_ROBOT_RADIUS_M, "m", low_open=True, why="config.MAX_ROBOT_RADIUS_M"),
+    "lidar_height_m": Bound(0.0, 2 * MAX_ROBOT_RADIUS_M, "m", low_open=True, why="on the robot, as body_height_m"),
+    "odometry_rate_hz": Bound(0.0, MAX_ODOMETRY_RATE_HZ, "Hz", low_open=True, why="MAX_ODOMETRY_RATE_HZ"),
+    "odom_trans_noise_frac": Bound(0.0, MAX_ODOMETRY_NOISE_FRAC, why="MAX_ODOMETRY_NOISE_FRAC"),
+    "odom_rot_noise_frac": Bound(0.0, MAX_ODOMETRY_NOISE_FRAC, why="MAX_ODOMETRY_NOISE_FRAC"),
+    "odom_rot_per_trans_noise_radpm": Bound(0.0, 2 * math.pi, "rad/m", why="a turn per metre"),
+}
+"""``MujocoSimConfig``'s bounds, each checked by its ``validate`` before anything starts (``config.check_bounds``), as
+``configs/robot_sim.yaml`` documents them; beside them the time constants are at least two physics steps,
+``wheel_radius_m`` is below ``body_height_m``, ``lidar_height_m`` below ``wall_height_m`` and the odometry period whole
+physics steps. ``lidar_mount_x_m`` must be the sensor's mount, which ``SensorConfig`` bounds."""
 
 
 @dataclass
@@ -125,23 +190,10 @@ class MujocoSimConfig:
     def validate(self) -> None:
         """Each message names the key as the config's own (``timestep_s``): ``from_dict`` puts where it sits in front
         (``services.sim.mujoco: ``, ``configs/robot_sim.yaml: ``)."""
-        positive = (
-            "timestep_s", "watchdog_s", "max_linear_accel_mps2", "max_angular_accel_radps2", "actuator_time_constant_s",
-            "contact_time_constant_s", "traction_force_n", "yaw_torque_nm", "wall_height_m", "mass_kg", "body_height_m", "wheel_radius_m",
-            "lidar_height_m", "odometry_rate_hz",
-        )  # fmt: skip
-        for name in positive:
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"{name} must be positive")
-        for name in ("wall_friction", "odom_trans_noise_frac", "odom_rot_noise_frac", "odom_rot_per_trans_noise_radpm"):
-            if getattr(self, name) < 0:
-                raise ConfigError(f"{name} must not be negative")
+        check_bounds("", self, MUJOCO_SIM_BOUNDS)
         for name in ("actuator_time_constant_s", "contact_time_constant_s"):
             if getattr(self, name) < 2 * self.timestep_s - 1e-12:
-                raise ConfigError(f"{name} must be at least two physics steps")
-        for name in ("wheelbase_m", "track_m"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"{name} must be positive")
+                raise ConfigError(f"{name} must be at least two physics steps (timestep_s {self.timestep_s:g} s), got {getattr(self, name):g}")
         if not self.wheel_radius_m < self.body_height_m:
             raise ConfigError(
                 f"wheel_radius_m ({self.wheel_radius_m} m, the body's ground clearance) must be below "
@@ -155,4 +207,4 @@ class MujocoSimConfig:
                 f"tick (timestep_s {self.timestep_s:g} s gives {steps:.3g}); nearest such rate: {near:g} Hz"
             )
         if not self.lidar_height_m < self.wall_height_m:
-            raise ConfigError("lidar_height_m must be below wall_height_m or beams pass over the walls")
+            raise ConfigError(f"lidar_height_m ({self.lidar_height_m:g} m) must be below wall_height_m ({self.wall_height_m:g} m) or beams pass over the walls")

@@ -270,7 +270,7 @@ def test_a_sections_own_check_names_the_key_path_too():
         with pytest.raises(ConfigError) as caught:
             load_profile("sim", {}, settings={key: value})
         said[key, value] = str(caught.value).split(": ", 1)[1]  # after the file and its flags
-    assert said["services.sim.mujoco.timestep_s", -1] == "services.sim.mujoco: timestep_s must be positive"
+    assert said["services.sim.mujoco.timestep_s", -1] == "services.sim.mujoco: timestep_s must be in [1e-05, 0.05] s (MAX_TIMESTEP_S), got -1"
     assert said["services.sim.mujoco.timestep_s", "abc"] == "services.sim.mujoco.timestep_s: expected a number, got 'abc'"
     assert said["exploration.sensor.fov_deg", -1] == "exploration.sensor.fov_deg must be in (0, 360] degrees, got -1"
     with pytest.raises(ConfigError, match=r"^configs/robot_sim\.yaml: wheel_radius_m \(0\.3 m"):  # eval --sim-config FILE
@@ -336,8 +336,8 @@ def test_a_train_error_names_the_file_and_the_flags_and_a_zero_distance_scale_is
     and an out-of-range field said neither the file nor the ``--set`` that brought it, as ``eval`` and ``up`` do."""
     recipe = small_train_recipe(tmp_path)
     for setting, said in [
-        ("distance_scale_m=0", "distance_scale_m must be positive"),
-        ("distance_scale_m=-10", "distance_scale_m must be positive"),
+        ("distance_scale_m=0", "distance_scale_m must be in (0, 5,000,000,000] m"),
+        ("distance_scale_m=-10", "distance_scale_m must be in (0, 5,000,000,000] m"),
         ("gamma=2", "gamma must be in"),
         ("device=gpu", "unknown device 'gpu'"),
     ]:
@@ -521,7 +521,7 @@ def test_a_train_error_names_the_command_flags_that_set_the_bad_value(tmp_path: 
     """``train --num-envs 0`` was refused naming only the file (and any ``--set``), not the flag that brought the 0."""
     recipe = small_train_recipe(tmp_path)
     said = train_refusal(recipe, {"num_envs": 0, "async_envs": False, "seed": None}, ["num_steps=8"], capsys)
-    assert f"error: {recipe} with --num-envs 0 --sync-envs --set num_steps=8: num_envs, num_steps and num_minibatches must be positive, got 0, 8 and 4" in said, said
+    assert f"error: {recipe} with --num-envs 0 --sync-envs --set num_steps=8: num_envs must be in [1, 1,024] (MAX_ENVS), got 0" in said, said
 
 
 def test_train_refuses_a_reward_of_the_wrong_sign_a_knn_beyond_the_graph_and_a_clip_of_one_or_more(tmp_path: Path, capsys):
@@ -532,14 +532,14 @@ def test_train_refuses_a_reward_of_the_wrong_sign_a_knn_beyond_the_graph_and_a_c
     largest knn a graph holds) are still taken."""
     recipe = small_train_recipe(tmp_path)
     for setting, said in [
-        ("r_step=0.01", "r_step must be <= 0"),
-        ("lambda_c=0", "lambda_c must be positive"),
-        ("lambda_c=-0.02", "lambda_c must be positive"),
+        ("r_step=0.01", "r_step must be in [-1,000, 0] (Eq. 6's step penalty; 0: the new area alone), got 0.01"),
+        ("lambda_c=0", "lambda_c must be in (0, 1,000] (Eq. 6's reward per m2 of new open area; MAX_LOSS_WEIGHT), got 0"),
+        ("lambda_c=-0.02", "lambda_c must be in (0, 1,000]"),
         ("knn=220", "knn must be at most max_frontier_nodes + max_path_nodes - 1 = 219"),
-        ("knn=0", "knn, max_frontier_nodes and max_path_nodes must be at least 1"),
-        ("clip_coef=1", "clip_coef must be below 1"),
+        ("knn=0", "knn must be in [1, 19,999]"),
+        ("clip_coef=1", "clip_coef must be in (0, 1) (PPO clips the ratio to [1 - clip_coef, 1 + clip_coef]), got 1"),
         ("gae_lambda=1.5", "gae_lambda must be in [0, 1], got 1.5"),
-        ("warm_start_epochs=-1", "warm_start_epochs must be >= 0"),
+        ("warm_start_epochs=-1", "warm_start_epochs must be in [0, 1,000] (MAX_EPOCHS), got -1"),
     ]:
         assert f"error: {recipe} with --set {setting}: {said}" in train_refusal(recipe, {}, [setting], capsys)
     # the bound follows the graph's size: 9 nodes, 8 besides the robot's
@@ -1396,22 +1396,141 @@ def _training_bounds() -> list[tuple[str, object]]:
     return list(ARGS_BOUNDS.items())
 
 
+AT_MOST_BESIDE = {
+    "num_minibatches": {"num_envs": 1024, "num_steps": 1_000_000},  # num_minibatches divides num_envs x num_steps
+    "heads": {"hidden": 4096},  # heads divide hidden
+    "knn": {"max_frontier_nodes": 10_000, "max_path_nodes": 10_000},  # knn <= max_frontier_nodes + max_path_nodes - 1
+}
+"""The keys a training key's largest value needs beside it (``Args.validate``'s checks between keys)."""
+
+
 @pytest.mark.parametrize(("key", "bound"), _training_bounds(), ids=lambda v: v if isinstance(v, str) else "")
-def test_train_refuses_a_size_above_its_bound_before_anything_starts(tmp_path: Path, capsys, key, bound):
+def test_train_refuses_a_number_outside_its_bound_before_anything_starts(tmp_path: Path, capsys, key, bound):
     """``train --num-envs 100000``, ``--hidden 1000000`` or ``--set max_steps=2000000`` were taken (processes, a network
-    of gigabytes, an episode whose result no message holds); each is refused before the set-up, naming the file and the
-    flag, the key, the value and the range (``learned.ppo.ARGS_BOUNDS``); the bound itself is taken."""
+    of gigabytes, an episode whose result no message holds), and ``--set learning_rate=1e9``, ``checkpoint_every=1e15``
+    or ``ent_coef=-5`` too (lower-bound checks alone, some of whose messages said no value); each is refused before the
+    set-up, naming the file and the flag, the key, the value and the range (``learned.ppo.ARGS_BOUNDS``); the bound
+    itself is taken."""
     import typing
 
     from cso_runtime.cli import training_args
     from cso_runtime.config import number_said
     from cso_runtime.learned.ppo import Args
 
+    is_int = typing.get_type_hints(Args)[key] is int
+    above = bound.high * 10 if bound.high > 0 else 1
+    below = bound.low if bound.low_open else bound.low - 1
+    opening, closing = "(" if bound.low_open else "[", ")" if bound.high_open else "]"
     recipe = small_train_recipe(tmp_path)
-    above = int(bound.high) * 10 if typing.get_type_hints(Args)[key] is int else bound.high * 10
-    said = train_refusal(recipe, {}, [f"{key}={above}"], capsys)
-    assert f"error: {recipe} with --set {key}={above}: {key} must be in [{number_said(bound.low)}, {number_said(bound.high)}]" in said
-    assert f"got {number_said(above)}" in said
-    if key != "hidden":  # hidden must be divisible by heads
-        at_most = int(bound.high) if typing.get_type_hints(Args)[key] is int else bound.high
-        assert getattr(training_args(recipe, {}, [f"{key}={at_most}"]), key) == at_most
+    for value in (int(above) if is_int else float(above), int(below) if is_int else float(below)):
+        said = train_refusal(recipe, {}, [f"{key}={value}"], capsys)
+        assert f"error: {recipe} with --set {key}={value}: {key} must be in {opening}{number_said(bound.low)}, {number_said(bound.high)}{closing}" in said, said
+        assert f"got {number_said(value)}" in said
+    if bound.high_open:
+        return  # a value below it is taken as any inside
+    at_most = int(bound.high) if is_int else bound.high
+    beside = [f"{k}={v}" for k, v in AT_MOST_BESIDE.get(key, {}).items()]
+    assert getattr(training_args(recipe, {}, [*beside, f"{key}={at_most}"]), key) == at_most
+
+
+def _training_numbers() -> list[tuple[str, type]]:
+    import dataclasses
+    import typing
+
+    from cso_runtime.learned.ppo import Args
+
+    hints = typing.get_type_hints(Args)
+    return [(f.name, hints[f.name]) for f in dataclasses.fields(Args) if hints[f.name] in (int, float)]
+
+
+@pytest.mark.parametrize(("key", "hint"), _training_numbers(), ids=lambda v: v if isinstance(v, str) else "")
+def test_every_number_of_trains_args_has_a_bound_on_both_sides(key, hint):
+    """No number of ``train``'s ``Args`` is taken unbounded: an absurd value either way (a 1e300 learning rate, -1e15
+    plans) is a ConfigError naming its key before anything starts (``ARGS_BOUNDS``; ``seed`` and ``beta_far_m`` have
+    their own checks); a key added without a bound fails here."""
+    from cso_runtime.learned.ppo import Args
+
+    for value in (10**15, -(10**15)) if hint is int else (1e300, -1e300):
+        with pytest.raises(ConfigError, match=rf"\b{key}\b"):
+            from_dict(Args, {key: value}, "train.yaml")
+
+
+def test_each_dungeon_scale_of_train_is_bounded_as_evals_m_per_px():
+    """``dungeon_m_per_px: [0.1, 50]`` (a scale in cm) was taken; each scale is refused outside (0, 10] m as eval's
+    ``--m-per-px`` is, naming the key, the value and the range."""
+    from cso_runtime.learned.ppo import Args
+
+    with pytest.raises(ConfigError, match=r"^train\.yaml: dungeon_m_per_px must be in \(0, 10\] m \(.*\), got 50$"):
+        from_dict(Args, {"dungeon_m_per_px": [0.1, 50]}, "train.yaml")
+    assert from_dict(Args, {"dungeon_m_per_px": [10.0]}, "train.yaml").dungeon_m_per_px == [10.0]
+
+
+def _mujoco_bounds() -> list[tuple[str, object]]:
+    from robot_sim.config import MUJOCO_SIM_BOUNDS
+
+    return list(MUJOCO_SIM_BOUNDS.items())
+
+
+MUJOCO_AT_MOST_BESIDE = {
+    "timestep_s": {"odometry_rate_hz": 20.0, "actuator_time_constant_s": 0.1, "contact_time_constant_s": 0.1},
+    "odometry_rate_hz": {"timestep_s": 0.001},
+    "wheel_radius_m": {"body_height_m": 4.0},  # below body_height_m
+    "lidar_height_m": {"wall_height_m": 5.0},  # below wall_height_m
+}
+"""The keys a MuJoCo parameter's largest value needs beside it (``MujocoSimConfig.validate``'s checks between keys)."""
+
+
+@pytest.mark.parametrize(("key", "bound"), _mujoco_bounds(), ids=lambda v: v if isinstance(v, str) else "")
+def test_a_mujoco_parameter_outside_its_range_is_refused_naming_the_key_the_value_and_the_range(key, bound):
+    """``timestep_s: 1e9``, ``mass_kg: 4800`` (grams), ``odometry_rate_hz: 1e300`` were taken by ``eval --sim mujoco
+    --sim-config F`` and ``up`` (lower-bound checks alone, whose "must be positive" said no value), to hang or blow up
+    inside the physics. Each is refused by ``MujocoSimConfig.validate`` naming the file, the key, the value and the
+    range (``robot_sim.config.MUJOCO_SIM_BOUNDS``); the bound itself is taken."""
+    from cso_runtime.config import number_said
+    from robot_sim.config import MujocoSimConfig
+
+    below = bound.low if bound.low_open else (bound.low - 1 if bound.low <= 0 else bound.low / 10)
+    opening = r"\(" if bound.low_open else r"\["
+    for value in (bound.high * 10, below):
+        said = rf"^sim\.yaml: {key} must be in {opening}{re.escape(number_said(bound.low))}, {re.escape(number_said(bound.high))}\]"
+        with pytest.raises(ConfigError, match=said + rf".*, got {re.escape(number_said(value))}$"):
+            from_dict(MujocoSimConfig, {key: value}, "sim.yaml")
+    from_dict(MujocoSimConfig, {**MUJOCO_AT_MOST_BESIDE.get(key, {}), key: bound.high}, "sim.yaml")
+
+
+def _mujoco_numbers() -> list[str]:
+    import dataclasses
+    import typing
+
+    from robot_sim.config import MujocoSimConfig
+
+    hints = typing.get_type_hints(MujocoSimConfig)
+    return [f.name for f in dataclasses.fields(MujocoSimConfig) if hints[f.name] in (int, float)]
+
+
+@pytest.mark.parametrize("key", _mujoco_numbers())
+def test_every_number_of_the_mujoco_config_has_a_bound_on_both_sides(key):
+    """No number of the MuJoCo LIMO's config is taken unbounded (``lidar_mount_x_m``, a float or None, must be the
+    sensor's mount, which ``SensorConfig`` bounds): an absurd value either way is a ConfigError naming its key; a key
+    added without a bound fails here."""
+    from robot_sim.config import MujocoSimConfig
+
+    for value in (1e300, -1e300):
+        with pytest.raises(ConfigError, match=rf"\b{key}\b"):
+            from_dict(MujocoSimConfig, {key: value}, "sim.yaml")
+
+
+def test_eval_and_up_refuse_a_mujoco_parameter_out_of_range_before_anything_starts(tmp_path: Path):
+    """``eval --sim mujoco --sim-config F`` with a mass in grams is refused in its check of the request (before any
+    episode), naming the file, and ``up``'s profile (``services.sim.mujoco``) the same way."""
+    from cso_runtime.evaluation import EvalRequest
+    from cso_runtime.run_profile import load_profile
+
+    params = tmp_path / "limo.yaml"
+    params.write_text("mass_kg: 4800\n")
+    request = EvalRequest(methods=["greedy-dist"], sim="mujoco", sim_config_path=params, out_dir=tmp_path / "o")
+    with pytest.raises(ConfigError, match=rf"^{re.escape(str(params))}: mass_kg must be in \(0, 1,000\] kg \(MAX_MASS_KG\), got 4,800$"):
+        request.validate()
+    assert not (tmp_path / "o").exists()
+    with pytest.raises(ConfigError, match=r"services\.sim\.mujoco: mass_kg must be in \(0, 1,000\] kg .*got 4,800$"):
+        load_profile("sim", {}, settings={"services.sim.mujoco.mass_kg": 4800})

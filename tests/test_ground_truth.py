@@ -33,15 +33,17 @@ def own_referee_profile(tmp_path: Path) -> Path:
     return path
 
 
-def views_of(tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture, said: bool | None = None) -> dict[str, bool]:
+def views_of(tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture, said: bool | None = None, rows: dict | None = None) -> dict[str, bool]:
     """Each view of one ended episode of ``kind``'s run: whether it shows the referee's coverage as a number.
-    ``said``: what the referee's ``episode_status`` says of it (``coverage_measured``; None: nothing, as before)."""
+    ``said``: what the referee's ``episode_status`` says of it (``coverage_measured``; None: nothing, as before).
+    ``rows``: filled with the coverage row of ``status`` and of the live view, and the launcher's status
+    (``launcher_status``)."""
     from rich.console import Console
 
     from cso_runtime.cli import app
     from cso_runtime.keys import RobotKeys
     from cso_runtime.launcher import Launcher
-    from cso_runtime.live_view import NO_COVERAGE, NO_GROUND_TRUTH, LiveView
+    from cso_runtime.live_view import NO_COVERAGE, NO_GROUND_TRUTH, NO_OWN_GROUND_TRUTH, LiveView
     from cso_runtime.messages import EpisodeResultMsg, EpisodeStatusMsg, encode
     from cso_runtime.run_profile import find_profile, load_profile
     from cso_runtime.runs import summarize_run
@@ -71,12 +73,16 @@ def views_of(tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture, said: 
         console.print(renderable)
         return console.export_text()
 
-    def coverage_row(table: str) -> bool:
+    def coverage_row(table: str, view: str) -> bool:
         (row,) = [r for r in table.splitlines() if re.match(r"│ coverage +│", r)]
-        assert ("42.5" in row) != (NO_GROUND_TRUTH in row), row
+        assert ("42.5" in row) + (NO_GROUND_TRUTH in row) + (NO_OWN_GROUND_TRUTH in row) == 1, row
+        if rows is not None:
+            rows[view] = row
         return "42.5" in row
 
     status = status_of(profile.robot, msg.to_dict(), launcher.launcher_status().to_dict(), {}, set(launcher.alive_services))
+    if rows is not None:
+        rows["launcher_status"] = launcher.launcher_status()
     runs = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "runs")], env={"COLUMNS": "200"})
     (runs_row,) = [r for r in runs.output.splitlines() if run_dir.name in r]
     cell = runs_row.split()[-3]  # ... cover %, m2, m2/step
@@ -84,11 +90,11 @@ def views_of(tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture, said: 
     table1 = (run_dir / "report.html").read_text().split("<h2>Table 1</h2>")[1].split("</table>")[0]
     assert ("<td>42.50" in table1) != (f"<td>{NO_COVERAGE}</td>" in table1), table1
     return {
-        "status": coverage_row(text(render_table(status))),
+        "status": coverage_row(text(render_table(status)), "status"),
         "status --json": status.get("coverage_measured", "absent"),
         "runs": cell == "42.5",
         "runs --json": summarize_run(run_dir).as_dict().get("coverage_measured", "absent"),
-        "live view": coverage_row(text(LiveView(launcher).render())),
+        "live view": coverage_row(text(LiveView(launcher).render()), "live view"),
         "progress line": "coverage 42.5 %" in launcher.progress_log_line(launcher.step_changed_s),
         "launcher line": "42.50% coverage" in line,
         "report": "<td>42.50" in table1,
@@ -108,6 +114,26 @@ def test_every_view_agrees_whether_a_runs_coverage_was_measured(tmp_path, caplog
     assert views == dict.fromkeys(views, measured), views  # and what --json says, beside coverage_pct
     (summary,) = (tmp_path / "runs").glob("*/summary.json")
     assert json.loads(summary.read_text())["meta"]["coverage_measured"] is measured
+
+
+@pytest.mark.parametrize(("kind", "referee"), [("lockstep", "sim"), ("limo-ros2", "ros2_bridge"), ("own-referee", "own")])
+def test_status_and_the_live_view_word_an_unmeasured_coverage_as_the_runs_referee_is(tmp_path, caplog, kind, referee):
+    """``status`` and the live view said "n/a: a real robot (no ground truth)" of a run whose referee is one of one's own
+    (a command node, no real robot), which report.html words as the run's own referee's. The launcher's status says
+    which kind of referee the run has (``launcher_status.referee``, from the profile's services), and both word it as
+    report.html does; the sim's coverage is a number, a real robot's n/a as before (with no launcher answering, nothing
+    says which referee: today's words, ``test_status_with_no_launcher_to_ask_takes_the_referees_own_word``)."""
+    from cso_runtime.live_view import NO_GROUND_TRUTH, NO_OWN_GROUND_TRUTH
+    from cso_runtime.messages import LauncherStatusMsg, decode, encode
+
+    rows: dict = {}
+    views_of(tmp_path, kind, caplog, rows=rows)
+    launcher_status = rows.pop("launcher_status")
+    assert launcher_status.referee == referee and decode(encode(launcher_status), LauncherStatusMsg).referee == referee
+    words = {"sim": "42.5", "ros2_bridge": NO_GROUND_TRUTH, "own": NO_OWN_GROUND_TRUTH}[referee]
+    assert all(words in rows[view] for view in ("status", "live view")), rows
+    if referee == "own":
+        assert not any("real robot" in rows[view] for view in ("status", "live view")), rows
 
 
 @pytest.mark.parametrize("said", [True, False])
@@ -166,6 +192,7 @@ def test_status_with_no_launcher_to_ask_takes_the_referees_own_word(referee, sai
         console.print(render_table(status))
         (row,) = [r for r in console.export_text().splitlines() if re.match(r"│ coverage +│", r)]
         assert status["coverage_measured"] is measured and (NO_GROUND_TRUTH not in row) is measured and ("42.50 %" in row) is measured, row
+        assert status["referee"] is None  # neither a launcher that answers none nor an older one says which: today's words
         assert status["coverage_pct"] == COVERAGE  # --json keeps what the referee sent
 
 

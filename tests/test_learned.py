@@ -1481,8 +1481,8 @@ def test_train_refuses_what_it_cannot_use_before_it_starts(tmp_path, monkeypatch
         (["--init-from", str(fake)], "--init-from .*fake.png: not a cso-runtime checkpoint"),
         (["--init-from", str(shipped.with_name("gnn-baseline.pt"))], "holds variant 'gnn-baseline', not 'cso'"),
         (["--set", "sensor=sonar"], "sensor: unknown sensor preset 'sonar'"),
-        (["--set", "hidden=0"], "hidden >= 1 divisible by heads"),
-        (["--set", "heads=3"], "hidden >= 1 divisible by heads"),
+        (["--set", "hidden=0"], r"hidden must be in \[1, 4,096\] \(MAX_NETWORK_WIDTH\), got 0"),
+        (["--set", "heads=3"], "hidden divisible by heads; got hidden 32, heads 3"),
         (["--set", f"warm_start_data=[{fake}]"], "fake.png: not a teacher-data file"),
     ]
     cases.append((["--device", "cuda"], "device cuda: .*; train with --device cpu"))
@@ -1659,7 +1659,7 @@ def test_a_resumed_training_logs_each_update_once_and_counts_its_time_before_the
     assert float(resumed[3]["wall_s"]) >= 1000.0 and record["wall_time_s"] >= 1000.0
     with pytest.raises(ValueError, match="a checkpoint of cso, not of cso-sm"):  # the same shapes, other masks
         train(Args(**{**common, "variant": "cso-sm"}, total_decisions=40, resume=str(tmp_path / "checkpoint.pt")), log=lambda _msg: None, plans=[rooms_plan(2)])
-    with pytest.raises(ValueError, match="max_path_nodes must be at least 1"):
+    with pytest.raises(ValueError, match=r"max_path_nodes must be in \[1, 10,000\] \(MAX_GRAPH_NODES\), got 0"):
         Args(max_path_nodes=0).validate()
 
 

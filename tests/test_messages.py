@@ -785,6 +785,17 @@ def test_out_of_range_and_non_finite_fields_are_rejected(payload):
         decode(payload)
 
 
+def test_a_launcher_status_says_which_kind_of_referee_its_run_has_optionally():
+    """``launcher_status.referee`` (``sim``, ``ros2_bridge``, ``own``): sent when known, absent from an older launcher's
+    (None: ``status`` words an unmeasured coverage as a real robot's), and a string or nothing."""
+    own = LauncherStatusMsg("run1", "running", referee="own")
+    assert _body(own)["referee"] == "own" and decode(encode(own)) == own
+    older = LauncherStatusMsg("run1", "running")
+    assert "referee" not in _body(older) and decode(encode(older)).referee is None
+    with pytest.raises(MessageError, match=r"launcher_status\.referee: expected a string"):
+        decode(_wire("launcher_status", {**_body(older), "referee": 3}))
+
+
 def test_a_launcher_status_field_this_side_does_not_know_is_left_out():
     msg = decode(_mutate(LauncherStatusMsg("run1", "running"), services={"sim": {"pid": 12, "gave_up": False, "newer": b"\x00"}}))
     assert msg.services == {"sim": {"pid": 12, "gave_up": False}}

@@ -111,7 +111,7 @@ def test_parameters_the_model_cannot_honour_are_config_errors() -> None:
         ({"odometry_rate_hz": 1000.0}, r"odometry_rate_hz \(1000 Hz\).*200 Hz"),
         ({"timestep_s": 0.002}, r"odometry_rate_hz \(40 Hz\).*gives 12.5"),
         ({"wheel_radius_m": 0.3}, r"wheel_radius_m \(0.3 m.*below body_height_m"),
-        ({"track_m": 0.0}, r"track_m must be positive"),
+        ({"track_m": 0.0}, r"track_m must be in \(0, 4\] m \(.*\), got 0$"),
     ):
         with pytest.raises(ConfigError, match=match):
             MujocoSimConfig(**kwargs).validate()

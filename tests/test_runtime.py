@@ -3466,7 +3466,7 @@ def test_a_profile_sets_the_mujoco_limos_parameters_checked_before_anything_star
     assert written["services"]["sim"]["mujoco"] == {"odom_trans_noise_frac": 0.02}  # what the sim service reads
     assert from_dict(SimParams, profile.services["sim"]).mujoco == {"odom_trans_noise_frac": 0.02}
     for key, value, error in [
-        ("services.sim.mujoco.timestep_s", -1, "timestep_s must be positive"),
+        ("services.sim.mujoco.timestep_s", -1, r"timestep_s must be in \[1e-05, 0\.05\] s .*got -1$"),
         ("services.sim.mujoco.odom_noise", 0.1, "unknown key"),
         ("services.sim.mujoco.lidar_mount_x_m", 0.2, "not the sensor's mount"),
     ]:

@@ -375,6 +375,8 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "lost_router": "tcp/127.0.0.1:7447",
             "run_dir_lost": 1,
             "pause": {"paused": True, "by": "me@host", "reason": "lunch", "for_s": 3.0, "total_s": 3.0, "refused": ""},
+            "coverage_measured": False,
+            "referee": "own",  # optional: a referee of one's own
         },
     ],
     "explore_resume": [{"resume": False, "by": "me@host", "reason": "lunch", "stamp_s": 1.8e9}],
@@ -468,7 +470,7 @@ def test_the_values_decoded_are_the_ones_the_docs_describe():
     (service,) = bodies["service_status"]
     assert isinstance(service, ServiceStatusMsg) and (service.rejected, service.counters) == ({"frontiers": 1}, {"decisions": 2})
     _, launcher = bodies["launcher_status"]
-    assert isinstance(launcher, LauncherStatusMsg) and launcher.pause is not None and launcher.pause["paused"] and launcher.run_dir_lost == 1
+    assert isinstance(launcher, LauncherStatusMsg) and launcher.pause is not None and launcher.pause["paused"] and launcher.run_dir_lost == 1 and launcher.referee == "own"
     (resume,) = bodies["explore_resume"]
     assert isinstance(resume, ExploreResumeMsg) and not resume.resume
 

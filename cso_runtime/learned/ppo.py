@@ -36,6 +36,7 @@ from torch import nn, optim
 from cso_runtime.config import (
     LIDAR_FOVS_DEG,
     LIDAR_FOVS_SAID,
+    MAX_DONE_UNEXPLORED_M2,
     MAX_EPISODE_STEPS,
     Bound,
     ConfigError,
@@ -45,6 +46,7 @@ from cso_runtime.config import (
     check_bounds,
     check_seed,
     check_torch_device,
+    map_length,
 )
 from cso_runtime.current_run import folder_lock
 from cso_runtime.doctor import cpu_name
@@ -74,7 +76,7 @@ from cso_runtime.outputs import remove_partial_files, write_npz_whole, write_tex
 from cso_runtime.plots import pyplot
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.provenance import software_provenance
-from cso_runtime.scenes import FloorPlan, SceneRef, resolve_scenes
+from cso_runtime.scenes import MAX_M_PER_PX, FloorPlan, SceneRef, resolve_scenes
 
 MAX_TRAINING_TIME_S = 30 * 86_400.0
 """The longest ``time_limit_s`` (30 days; 0 = none): a longer one is a value in another unit."""
@@ -87,19 +89,68 @@ MAX_GRAPH_NODES = 10_000
 """The most frontier or path nodes of a graph (``max_frontier_nodes``, ``max_path_nodes``): the attention over them is
 quadratic, 10,000 nodes already 400 MB a head."""
 
+MAX_TOTAL_DECISIONS = 10**10
+"""The largest PPO budget (``total_decisions``, ``warm_start_decisions``): ten billion decisions, far beyond
+``MAX_TRAINING_TIME_S`` at the pace docs/experiments/learned-policy.md reports (981 decisions in 517 s in one of its runs)."""
+MAX_EPOCHS = 1000
+"""The most passes over one rollout (``update_epochs``) or over the teacher data (``warm_start_epochs``)."""
+MAX_LEARNING_RATE = 1.0
+"""The largest learning rate (``learning_rate``, ``warm_start_lr``): Adam moves each weight by about this much a step."""
+MAX_LR_SCALE = 1000.0
+"""The largest ``encoder_lr_scale``: the encoder's learning rate at most this multiple of the heads'."""
+MAX_LOSS_WEIGHT = 1000.0
+"""The largest weight of a term of the losses or of the rewards (``ent_coef``, ``vf_coef``, ``distance_prior``,
+``lambda_c``, ``-r_step``) and the largest ``max_grad_norm`` and ``target_kl``: the recipe's are at most 4."""
+MAX_CHECKPOINT_EVERY = 1_000_000
+"""The most updates between checkpoints (``checkpoint_every``)."""
+MAX_TRAINING_PLANS = 100_000
+"""The most Dungeon plans a run draws (``dungeon_plans``): more than a data set holds (a folder of fewer gives all it has)."""
+DUNGEON_M_PER_PX_BOUND = Bound(0.0, MAX_M_PER_PX, "m", low_open=True, why="scenes.MAX_M_PER_PX, as eval's --m-per-px")
+"""Each of ``dungeon_m_per_px``' bound, the scale of a scene's pixel."""
+
 ARGS_BOUNDS: dict[str, Bound] = {
+    "dungeon_plans": Bound(0, MAX_TRAINING_PLANS, why="MAX_TRAINING_PLANS"),
+    "total_decisions": Bound(1, MAX_TOTAL_DECISIONS, why="MAX_TOTAL_DECISIONS"),
     "time_limit_s": Bound(0.0, MAX_TRAINING_TIME_S, "s", why="30 days: MAX_TRAINING_TIME_S"),
     "num_envs": Bound(1, MAX_ENVS, why="MAX_ENVS"),
     "num_steps": Bound(1, MAX_EPISODE_STEPS, why="config.MAX_EPISODE_STEPS"),
+    "learning_rate": Bound(0.0, MAX_LEARNING_RATE, why="MAX_LEARNING_RATE"),
+    "adam_eps": Bound(0.0, 1.0, low_open=True),
+    "encoder_lr_scale": Bound(0.0, MAX_LR_SCALE, low_open=True, why="MAX_LR_SCALE"),
+    "gamma": Bound(0.0, 1.0, low_open=True),
+    "gamma_per_step": Bound(0.0, 1.0, high_open=True, why="0: gamma per decision"),
+    "gae_lambda": Bound(0.0, 1.0),
+    "num_minibatches": Bound(1, MAX_ENVS * MAX_EPISODE_STEPS, why="the largest rollout: MAX_ENVS x config.MAX_EPISODE_STEPS"),
+    "update_epochs": Bound(1, MAX_EPOCHS, why="MAX_EPOCHS"),
+    "clip_coef": Bound(0.0, 1.0, low_open=True, high_open=True, why="PPO clips the ratio to [1 - clip_coef, 1 + clip_coef]"),
+    "ent_coef": Bound(0.0, MAX_LOSS_WEIGHT, why="MAX_LOSS_WEIGHT"),
+    "vf_coef": Bound(0.0, MAX_LOSS_WEIGHT, why="MAX_LOSS_WEIGHT"),
+    "max_grad_norm": Bound(0.0, MAX_LOSS_WEIGHT, low_open=True, why="MAX_LOSS_WEIGHT"),
+    "target_kl": Bound(0.0, MAX_LOSS_WEIGHT, why="0 = never; MAX_LOSS_WEIGHT"),
+    "warm_start_decisions": Bound(0, MAX_TOTAL_DECISIONS, why="0 = no warm start; MAX_TOTAL_DECISIONS"),
+    "warm_start_soft_steps": Bound(0.0, MAX_EPISODE_STEPS, "steps", why="0 = imitate the choice alone; the longest episode: config.MAX_EPISODE_STEPS"),
+    "warm_start_epochs": Bound(0, MAX_EPOCHS, why="MAX_EPOCHS"),
+    "warm_start_lr": Bound(0.0, MAX_LEARNING_RATE, why="MAX_LEARNING_RATE"),
+    "r_step": Bound(-MAX_LOSS_WEIGHT, 0.0, why="Eq. 6's step penalty; 0: the new area alone"),
+    "lambda_c": Bound(0.0, MAX_LOSS_WEIGHT, low_open=True, why="Eq. 6's reward per m2 of new open area; MAX_LOSS_WEIGHT"),
+    "reward_scene_scale_area_m2": Bound(0.0, MAX_DONE_UNEXPLORED_M2, "m2", why="0 = Eq. 6 unscaled; a square kilometre: config.MAX_DONE_UNEXPLORED_M2"),
     "max_steps": Bound(1, MAX_EPISODE_STEPS, why="as eval's episode.max_steps: config.MAX_EPISODE_STEPS"),
     "hidden": Bound(1, MAX_NETWORK_WIDTH, why="MAX_NETWORK_WIDTH"),
+    "heads": Bound(1, MAX_NETWORK_WIDTH, why="at most hidden: MAX_NETWORK_WIDTH"),
     "layers": Bound(0, 64),
+    "knn": Bound(1, 2 * MAX_GRAPH_NODES - 1, why="the nodes besides the robot's of the largest graph: 2 x MAX_GRAPH_NODES - 1"),
     "max_frontier_nodes": Bound(1, MAX_GRAPH_NODES, why="MAX_GRAPH_NODES"),
     "max_path_nodes": Bound(1, MAX_GRAPH_NODES, why="MAX_GRAPH_NODES"),
+    "distance_scale_m": map_length(low_open=True),
+    "distance_prior": Bound(0.0, MAX_LOSS_WEIGHT, why="0 = the paper's actor; MAX_LOSS_WEIGHT"),
+    "checkpoint_every": Bound(1, MAX_CHECKPOINT_EVERY, why="MAX_CHECKPOINT_EVERY"),
     "torch_threads": Bound(1, MAX_ENVS, why="MAX_ENVS"),
 }
-"""``Args``' bounds on the numbers that size a run (its processes, its network, its graphs, its episodes), each checked
-before anything starts (``config.check_bounds``); its other numbers have their own checks in ``validate``."""
+"""``Args``' bounds: every number of a run (its processes, its network, its graphs, its episodes, its optimiser, its
+rewards), each checked before anything starts (``config.check_bounds``), first of ``validate``'s checks. Beside them
+``seed`` is ``config.check_seed``'s, ``beta_far_m`` the masks' (``masks.beta_far_m``), each of ``dungeon_m_per_px``
+``DUNGEON_M_PER_PX_BOUND``'s, ``num_minibatches`` divides ``num_envs`` x ``num_steps``, ``heads`` divides ``hidden`` and
+``knn`` is at most ``max_frontier_nodes + max_path_nodes - 1``."""
 
 
 @dataclass
@@ -272,67 +323,31 @@ class Args:
         check_seed(self.seed)  # worker i uses seed + i
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown variant {self.variant!r}; known: {', '.join(VARIANTS)}")
-        if self.num_envs < 1 or self.num_steps < 1 or self.num_minibatches < 1:
-            raise ValueError(f"num_envs, num_steps and num_minibatches must be positive, got {self.num_envs}, {self.num_steps} and {self.num_minibatches}")
+        check_bounds("", self, ARGS_BOUNDS)
+        for scale in self.dungeon_m_per_px:
+            DUNGEON_M_PER_PX_BOUND.check("dungeon_m_per_px", scale)
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise ValueError(
                 f"num_envs x num_steps = {self.num_envs} x {self.num_steps} = {self.batch_size} decisions per update does not divide"
                 f" into {self.num_minibatches} minibatches (num_minibatches must divide num_envs x num_steps)"
             )
-        if self.total_decisions < 1 or self.update_epochs < 1 or self.max_steps < 1 or self.checkpoint_every < 1 or self.torch_threads < 1:
-            raise ValueError("total_decisions, update_epochs, max_steps, checkpoint_every and torch_threads must be at least 1")
-        if not (self.clip_coef > 0 and self.max_grad_norm > 0):
-            raise ValueError("clip_coef and max_grad_norm must be positive")
-        if not self.clip_coef < 1:  # the ratio is clipped to [1 - clip_coef, 1 + clip_coef]
-            raise ValueError(f"clip_coef must be below 1 (PPO clips the ratio to [1 - clip_coef, 1 + clip_coef]), got {self.clip_coef}")
-        if not 0 < self.gamma <= 1:
-            raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
-        if not 0 <= self.gae_lambda <= 1:
-            raise ValueError(f"gae_lambda must be in [0, 1], got {self.gae_lambda}")
-        numbers = ("learning_rate", "warm_start_lr", "ent_coef", "vf_coef", "target_kl", "time_limit_s", "warm_start_decisions", "warm_start_epochs")
-        negative = [name for name in numbers if getattr(self, name) < 0]
-        if negative:
-            raise ValueError(f"{', '.join(negative)} must be >= 0")
-        if self.dungeon_plans < 0 or not all(m > 0 for m in self.dungeon_m_per_px):
-            raise ValueError("dungeon_plans must be >= 0 and every dungeon_m_per_px positive")
         check_torch_device(self.device, allow_auto=True)
         if self.warm_start_teacher not in TEACHERS:
             raise ValueError(f"unknown warm_start_teacher {self.warm_start_teacher!r}; choose one of {', '.join(TEACHERS)}")
         self.training_masks(MaskConfig()).validate()
-        if not self.encoder_lr_scale > 0:
-            raise ValueError("encoder_lr_scale must be positive")
-        if not self.adam_eps > 0:
-            raise ValueError("adam_eps must be positive")
-        if not self.distance_scale_m > 0:  # every position and distance of the graph is divided by it
-            raise ValueError(f"distance_scale_m must be positive, got {self.distance_scale_m}")
-        if self.distance_prior < 0:
-            raise ValueError("distance_prior must be >= 0 (0 = the paper's actor)")
-        if self.reward_scene_scale_area_m2 < 0:
-            raise ValueError("reward_scene_scale_area_m2 must be >= 0 (0 = Eq. 6 unscaled)")
-        if self.r_step > 0:  # 0 (the area alone) was tried: docs/experiments/learned-policy.md, "The step penalty of the reward"
-            raise ValueError(f"r_step must be <= 0 (Eq. 6's step penalty; 0: the new area alone), got {self.r_step}")
-        if not self.lambda_c > 0:
-            raise ValueError(f"lambda_c must be positive (Eq. 6's reward per m2 of new open area), got {self.lambda_c}")
-        if not 0 <= self.gamma_per_step < 1:
-            raise ValueError("gamma_per_step must be in [0, 1) (0 = gamma per decision)")
-        if self.warm_start_soft_steps < 0:
-            raise ValueError("warm_start_soft_steps must be >= 0 (0 = imitate the choice alone)")
         missing = [p for p in self.warm_start_data if not Path(p).is_file()]
         if missing:
             raise ValueError(f"warm_start_data: no such file {', '.join(missing)}")
-        if self.hidden < 1 or self.heads < 1 or self.layers < 0 or self.hidden % self.heads:
-            raise ValueError(f"the network needs hidden >= 1 divisible by heads >= 1, and layers >= 0; got hidden {self.hidden}, heads {self.heads}, layers {self.layers}")
+        if self.hidden % self.heads:
+            raise ValueError(f"the network needs hidden divisible by heads; got hidden {self.hidden}, heads {self.heads}")
         if self.cut_observation not in ("state", "empty"):
             raise ValueError(f"cut_observation must be state or empty, not {self.cut_observation!r}")
-        if self.knn < 1 or self.max_frontier_nodes < 1 or self.max_path_nodes < 1:
-            raise ValueError("knn, max_frontier_nodes and max_path_nodes must be at least 1 (the path nodes hold the robot's node)")
         others = self.max_frontier_nodes + self.max_path_nodes - 1  # a full graph's nodes besides the robot's (graph.build_graph)
         if self.knn > others:
             raise ValueError(
                 f"knn must be at most max_frontier_nodes + max_path_nodes - 1 = {others}, the nodes besides the robot's that a"
                 f" graph holds (each node's neighbours, itself included), got {self.knn}"
             )
-        check_bounds("", self, ARGS_BOUNDS)
         try:
             SensorConfig.preset(self.sensor, self.lidar_fov_deg)
         except ConfigError as exc:
