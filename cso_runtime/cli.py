@@ -592,12 +592,13 @@ def export_bag_command(
     laser_frame: str = typer.Option(FRAME_OPTIONS["laser"].default, FRAME_OPTIONS["laser"].flag, help=FRAME_OPTIONS["laser"].help),
 ) -> None:
     """Convert a recording into a ROS 2 bag (rosbag2, MCAP storage) of standard types: /scan, /odom, /tf, /map, /plan, /goal_pose, /explore/frontiers, /cmd_vel, for RViz, Foxglove and `ros2 bag play`."""
-    from cso_runtime.bag_export import BagExportError, BagFrames, export_bag  # noqa: PLC0415
+    from cso_runtime.bag_export import BagExportError, BagFrames, check_export_settings, export_bag  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, check_recording  # noqa: PLC0415
 
     _read_grids_of_any_run()
     frames = BagFrames(map_frame, odom_frame, base_frame, laser_frame)
     try:
+        check_export_settings(map_period_s, time_base, ("--map-period-s", "--time"))  # the flags, not the Python names
         frames.check()
         check_recording(file)
         target = out if out is not None else file.with_suffix("")
