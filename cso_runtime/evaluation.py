@@ -1588,7 +1588,19 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
         seed = f" (seed {f['seed']})" if "seed" in f else ""  # --seeds: which seed's episode
         failed = escape(f"{f['method']} {f['map']}{seed}: {why}")
         console.print(f"[red]failed[/red] {failed}", soft_wrap=True)  # a path in it must stay whole
-    console.print(escape(results_said(out_dir)), soft_wrap=True, highlight=False)
+    console.print(escape(closing_said(summary, out_dir)), soft_wrap=True, highlight=False)
+
+
+def closing_said(summary: dict[str, Any], out_dir: Path) -> str:
+    """``eval``'s last line: where the results are (``results_said``); where no episode finished, that no metric and no
+    figure was written (all failed: the report and summary.json list the failures)."""
+    if any(entry.get("episodes") for entry in summary["methods"].values()):
+        return results_said(out_dir)
+    failed = len(summary["failures"])
+    if failed:
+        return (f"{'all ' if failed > 1 else 'the '}{failed} episode{'s' if failed > 1 else ''} failed (above): no metrics and no figures; "
+                f"{out_dir}/report.html and summary.json list the failures, episodes.csv holds no row")  # fmt: skip
+    return f"no episode finished: no metrics and no figures in {out_dir}/"
 
 
 def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = False) -> int:

@@ -823,6 +823,18 @@ def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_pat
     assert lines[-1] == f"results in {tmp_path}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
 
 
+def test_the_closing_line_of_an_eval_whose_every_episode_failed_says_so_not_the_figures(tmp_path: Path, capsys):
+    """Every episode failed: no metric and no figure was written, so the closing line does not send the reader to
+    "the figures" (nor to a report of results): it says that all failed and where the failures are listed."""
+    from cso_runtime.evaluation import print_summary, summarize
+
+    failures = [{"method": "greedy-dist", "map": f"plan{i}", "error": "boom"} for i in range(2)]
+    print_summary(summarize([], failures, ["greedy-dist"], {}), tmp_path)
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert "the figures" not in last and last.startswith("all 2 episodes failed (above): no metrics and no figures"), last
+    assert f"{tmp_path}/report.html and summary.json list the failures" in last, last
+
+
 def test_the_console_says_why_a_run_with_the_baseline_has_no_comparison(tmp_path: Path, capsys):
     """`eval --limit 2` with greedy-dist and cso: too few shared scenes for paired.csv (at least 3 per scale). The
     console says so, instead of leaving out the comparison without a word; with 3 scenes the table is there."""
