@@ -140,6 +140,10 @@ CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "t
 ended ``no_frontier`` (``EpisodeResult.ended_why``), empty for any other end."""
 
 
+DEFAULT_M_PER_PX = 0.1
+"""``--m-per-px``'s default: the metres per pixel of PNG plans."""
+
+
 @dataclass
 class EvalRequest:
     """What the eval command was asked to do (CLI flags and config file)."""
@@ -148,7 +152,7 @@ class EvalRequest:
     maps: str = "builtin"
     limit: int | None = None
     out_dir: Path = Path("results/eval")
-    m_per_px: float = 0.1
+    m_per_px: float = DEFAULT_M_PER_PX
     seed: int = 0
     max_steps: int | None = None
     """``--max-steps``: the step limit per episode; None keeps the config's ``episode.max_steps`` (3000)."""
@@ -1169,6 +1173,8 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
         )
     if request.seed != 0 and seed_changes_nothing(request.methods, config, request.sim):
         warnings.append(seed_changes_nothing_said(f"--seed {request.seed}"))
+    if request.m_per_px != DEFAULT_M_PER_PX and not any(ref.scaled_by_m_per_px for ref in scenes):  # the default: not known to be given
+        warnings.append(f"--m-per-px {request.m_per_px:g} is ignored: it scales PNG plans only, and these scenes (generated plans, map files) have their own cell size")
     weights: dict[str, dict[str, Any]] = {}
     if any(m in LEARNED_METHODS for m in request.methods):
         from cso_runtime.learned.weights import mask_mismatches, sensor_mismatches, weights_provenance  # noqa: PLC0415

@@ -194,6 +194,28 @@ def test_eval_seeds_of_no_seed_is_refused_not_run_as_seed_0(tmp_path: Path):
         assert refused.exit_code == 2 and "--seeds: no seed given" in " ".join(refused.output.split()), (given, refused.output)
 
 
+def test_m_per_px_given_with_only_generated_scenes_is_said_to_change_nothing(tmp_path: Path):
+    """``--m-per-px`` scales PNG plans only: ``eval --maps generated:... --m-per-px 0.05`` ran the generated plans at
+    their own cell size without a word. A value other than the default is now said to be ignored (dry run and real
+    run alike: a plan's warning); with a PNG plan among the scenes, or the default, nothing is said."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    generated = ["eval", "--method", "random", "--maps", "generated:small:1:0", "--out", str(tmp_path / "out"), "--dry-run"]
+    said = CliRunner().invoke(app, [*generated, "--m-per-px", "0.05"])
+    assert said.exit_code == 0, said.output
+    assert "warning: --m-per-px 0.05 is ignored: it scales PNG plans only" in " ".join(said.output.split()), said.output
+    assert not any("--m-per-px" in w for w in plan_eval(EvalRequest(methods=["random"], maps="generated:small:1:0", out_dir=tmp_path / "o")).warnings)
+    png = plan_eval(EvalRequest(methods=["random"], maps="builtin", limit=1, out_dir=tmp_path / "p", m_per_px=0.05))  # a PNG plan
+    assert not any("--m-per-px" in w for w in png.warnings), png.warnings
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    _corridor_scene(maps, "corridor", "[1.5, 0.18, -0.5]")  # a map file: its own resolution too
+    own = plan_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=tmp_path / "m", m_per_px=0.2))
+    assert any(w.startswith("--m-per-px 0.2 is ignored") for w in own.warnings), own.warnings
+
+
 def test_a_one_seed_eval_into_the_folder_of_an_eval_of_several_seeds_is_refused(tmp_path: Path):
     """``--seeds`` refuses an ``--out`` that holds a one-seed eval's episodes, but the other way round a one-seed eval
     into the folder of ``--seeds 0,1`` replaced the pooled summary.json and episodes.csv with its own (no warning),
