@@ -1609,6 +1609,21 @@ def closing_said(summary: dict[str, Any], out_dir: Path) -> str:
     return f"no episode finished: no metrics and no figures in {out_dir}/"
 
 
+def eval_start_said(request: EvalRequest, plan: EvalPlan) -> str:
+    """The first line of an eval written to a log (no terminal, no bar): what runs and where its results go."""
+
+    def count(n: int, what: str) -> str:
+        return f"{n} {what}{'' if n == 1 else 's'}"
+
+    sensor = f"{request.sensor} {plan.config.sensor.fov_deg:g} degrees"
+    seeds = f" x {count(len(request.seeds), 'seed')} ({', '.join(map(str, request.seeds))})" if request.seeds else ""
+    return (
+        f"eval: {count(len(plan.jobs), 'episode')}, {count(len(request.methods), 'method')} ({', '.join(request.methods)}) "
+        f"x {count(len(plan.scenes), 'scene')} ({request.maps}){seeds}, {sensor}, sim {request.sim}, {count(request.workers, 'worker')}; "
+        f"results in {request.out_dir}/"
+    )
+
+
 def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = False) -> int:
     """CLI entry: clear errors for bad arguments, exit code 0 when every episode ran. ``dry_run``: check and say what
     would run, run and write nothing (exit 1 where a scene would fail to load, as its episodes would); ``resolved``: the
@@ -1644,6 +1659,8 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
         return 1 if unloadable else 0
     progress = RichProgress()
     out = Path(request.out_dir)
+    if not progress.progress.console.is_terminal:  # a log: what runs, before the first episode's line (minutes, on a large plan)
+        progress.progress.console.print(escape(eval_start_said(request, plan)), highlight=False, soft_wrap=True)
     try:
         summary = run_eval(request, progress, plan)
     except ConfigError as exc:  # another eval writes the folder

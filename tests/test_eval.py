@@ -1033,6 +1033,20 @@ def test_a_reader_gone_hides_no_error_the_command_raised(tmp_path: Path, ending:
         assert proc.stderr == ""
 
 
+def test_an_eval_into_a_log_says_what_runs_before_the_first_episode_ends(tmp_path: Path):
+    """Without a terminal (``eval ... > log 2>&1``) nothing was written until the first episode ended, minutes on a
+    large plan: the log now starts with what runs (episodes, methods, scenes, sensor, workers, the output folder),
+    before any episode's line."""
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--method", "greedy-dist,random", "--maps", "generated:small:1:0",
+           "--max-steps", "4", "--out", str(out), "--workers", "1"]  # fmt: skip
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+    assert done.returncode in (0, 1), done.stderr
+    first = done.stderr.splitlines()[0]
+    assert first == (f"eval: 2 episodes, 2 methods (greedy-dist, random) x 1 scene (generated:small:1:0), lidar 180 degrees, "
+                     f"sim 2d, 1 worker; results in {out}/"), done.stderr  # fmt: skip
+
+
 def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     """Without a terminal (a log file, CI) each finished episode is one line, however long its map's name,
     and an episode ``--resume`` read back says so."""
