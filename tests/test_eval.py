@@ -2175,6 +2175,28 @@ def test_the_report_lists_every_episode_in_a_collapsed_per_scene_table(tmp_path:
         assert row[4:] == [f"{float(r['coverage_pct']):.2f}", r["steps"], f"{float(r['efficiency_m2_per_step']):.4f}", r["terminated_by"]]
 
 
+def test_the_report_says_when_its_per_scene_table_lacks_episodes_of_a_cut_episodes_csv(tmp_path: Path):
+    """An episodes.csv cut short (a full disk, a copy stopped halfway) lost the per-scene table's last rows without a
+    word, beside a Table 1 of every episode. The report says how many of the summary's episodes the table shows and
+    why: a row cut mid-line is named as ``compare`` names it (``comparison.whole_rows``), and not shown half-empty;
+    a file cut at a line's end is told by the count. A whole file says nothing."""
+    from cso_runtime.report import write_report
+
+    out = tmp_path / "out"
+    summary = run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:2:0", out_dir=out, max_steps=40))
+    assert "episodes.csv" not in (out / "report.html").read_text().split("<details", 1)[0].split("<h2>Table 1</h2>", 1)[1]
+    lines = (out / "episodes.csv").read_text().splitlines(keepends=True)
+    assert len(lines) == 5
+    (out / "episodes.csv").write_text("".join(lines[:3]) + lines[3][:20])  # cut inside the third episode's row
+    page = write_report(out, summary).read_text()
+    assert "episodes.csv: line 4 has" in page and "the table shows 2 of the 4 episodes summary.json counts" in page, page
+    section = page.split("<details", 1)[1].split("</details>", 1)[0]
+    assert section.count("<tr><td>") == 2, section
+    (out / "episodes.csv").write_text("".join(lines[:4]))  # cut at a line's end: whole rows, one fewer
+    page = write_report(out, summary).read_text()
+    assert "the table shows 3 of the 4 episodes summary.json counts" in page, page
+
+
 def test_the_per_scene_table_goes_by_scale_then_plan_and_shows_only_the_summarys_episodes(tmp_path: Path):
     """Scales small to super large (not alphabetical), plans by name within a scale, Table 1's method order on a
     plan; an earlier run's episodes.csv rows of other methods or plans (not in summary.json) stay out."""
