@@ -380,6 +380,7 @@ def compare_command(
         compare_to_baseline,
         labelled,
         markdown_table,
+        mixed_setups_said,
         pooled_episodes,
         split_names,
         write_csv,
@@ -395,6 +396,8 @@ def compare_command(
         _fail(str(exc), 2)
     for replacement in replaced:
         typer.echo(f"note: {replacement.note()}", err=True)
+    for said in mixed_setups_said(files, split_names(exclude or [])):  # a 360-degree LiDAR's episodes against a 180-degree one's
+        typer.echo(said, err=True)
     if exclude:  # a name that matches no episode leaves out nothing: a typo would compare the plans meant to be out
         held = {scene[1] for scenes in pooled_episodes(files, [], rename or [])[0].values() for scene in scenes}
         if unmatched := [name for name in split_names(exclude) if name not in held]:

@@ -39,6 +39,7 @@ from cso_runtime import __version__
 from cso_runtime.animation import EpisodeAnimation
 from cso_runtime.comparison import (
     PAIRED_COLUMNS,
+    SETUP_COLUMNS,
     TOO_FEW_SCENES,
     as_dicts,
     bootstrap_mean_ci,
@@ -135,9 +136,17 @@ METRICS = (
 )
 PACE = ("sim_time_s", "real_time_factor")
 """How fast the simulator ran: an episode's simulated seconds and those over its wall-clock seconds (``pace``)."""
-CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s") + PACE + ("ended_why",)
+CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s") + PACE + ("ended_why",) + SETUP_COLUMNS
 """``episodes.csv``'s columns, in this order (a contract: a new column goes at the end). ``ended_why``: why the episode
-ended ``no_frontier`` (``EpisodeResult.ended_why``), empty for any other end."""
+ended ``no_frontier`` (``EpisodeResult.ended_why``), empty for any other end; then what it ran with
+(``comparison.SETUP_COLUMNS``: ``run_setup`` of the run's meta, and its plan's cell size)."""
+
+
+def run_setup(meta: dict[str, Any]) -> dict[str, Any]:
+    """The ``SETUP_COLUMNS`` every episode of a run shares, from its summary.json's ``meta``: the sensor's field of
+    view (``config.sensor.fov_deg``) and the simulator (``sim``: None on a real robot); None where it is not said."""
+    sensor = (meta.get("config") or {}).get("sensor") or {}
+    return {"sensor_fov_deg": sensor.get("fov_deg"), "sim": meta.get("sim")}
 
 
 DEFAULT_M_PER_PX = 0.1
@@ -991,8 +1000,9 @@ def write_outputs(
     table = io.StringIO(newline="")
     writer = csv.DictWriter(table, fieldnames=list(CSV_FIELDS), extrasaction="ignore")
     writer.writeheader()
+    setup = run_setup(meta)
     for r in sorted(rows, key=lambda r: (r["method"], r["map"])):
-        writer.writerow({k: csv_cell(v) for k, v in r.items()})
+        writer.writerow({k: csv_cell(v) for k, v in {**setup, **r}.items()})
     write_text_atomic(out_dir / "episodes.csv", table.getvalue())
     if summary["paired"]["comparisons"]:
         write_paired_csv(out_dir / "paired.csv", summary["paired"]["comparisons"])
@@ -1379,7 +1389,7 @@ def _write_results(
     summary. With ``--seeds`` (every seed's outcomes pooled), no trajectory plot: each seed's folder has its own."""
     config, scenes, weights, mujoco = plan.config, plan.scenes, plan.weights, plan.mujoco
     out = Path(request.out_dir)
-    rows = [o.row for o in outcomes if o.row is not None]
+    rows = [{**o.row, "cell_size_m": o.resolution_m} for o in outcomes if o.row is not None]  # each plan's own (episodes.csv)
     failures: list[dict[str, Any]] = [
         {"method": o.method, "map": o.map, "error": o.error or "", **({"seed": o.seed} if o.seed is not None else {})} for o in outcomes if o.row is None
     ]

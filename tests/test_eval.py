@@ -109,6 +109,25 @@ def test_an_episode_of_no_step_has_no_efficiency_not_its_area_per_step(tmp_path:
     assert (tmp_path / "out" / "episodes.csv").read_text() == csv_before
 
 
+def test_episodes_csv_says_the_sensor_simulator_and_cell_size_each_episode_ran_with(tmp_path: Path):
+    """episodes.csv had no column of the sensor: a 360-degree LiDAR's eval and a 180-degree one's read the same, and
+    ``compare`` pooled them without a word. Its last columns now say each episode's setup (``SETUP_COLUMNS``), which
+    ``compare`` checks (``mixed_setups_said``); an eval --resume into the other sensor's folder was already refused."""
+    from cso_runtime.comparison import SETUP_COLUMNS, mixed_setups_said
+
+    assert CSV_FIELDS[-len(SETUP_COLUMNS) :] == SETUP_COLUMNS == ("sensor_fov_deg", "sim", "cell_size_m")
+    ring, front = tmp_path / "ring", tmp_path / "front"
+    run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=ring, max_steps=4, lidar_fov_deg=360.0))
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=front, max_steps=4))
+    with (ring / "episodes.csv").open(newline="") as fh:
+        (row,) = csv.DictReader(fh)
+    assert (row["sensor_fov_deg"], row["sim"], row["cell_size_m"]) == ("360.0", "2d", "0.05")
+    (said,) = mixed_setups_said([("", front / "episodes.csv"), ("", ring / "episodes.csv")])
+    assert said.startswith(f"warning: the same plans ran with different sensor_fov_deg: 180 ({front / 'episodes.csv'}), 360 ({ring / 'episodes.csv'}) on 1 plan (gen_small_0)"), said
+    with pytest.raises(ConfigError, match="differs in sensor.fov_deg: 360.0 there, 180.0 here"):
+        run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=ring, max_steps=4, resume=True))
+
+
 def _corridor_scene(folder: Path, name: str, start: str) -> Path:
     """The corridor of tests/test_planner.py (3.0 x 0.9 m at 0.05 m cells) as a map_server scene starting at ``start``."""
     from cso_runtime.geometry import GridGeometry
@@ -268,7 +287,7 @@ def test_evals_files_say_why_an_episode_ended_no_frontier_and_resume_keeps_it(tm
     assert expected.terminated_by == "no_frontier" and "given up around goals reached" in expected.ended_why
     out = tmp_path / "out"
     summary = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(maps), out_dir=out))
-    assert CSV_FIELDS[-1] == "ended_why"  # after every column before it: their order is a contract
+    assert CSV_FIELDS[CSV_FIELDS.index("real_time_factor") + 1] == "ended_why"  # after every column before it: their order is a contract
     with (out / "episodes.csv").open(newline="") as fh:
         rows = {r["map"]: r for r in csv.DictReader(fh)}
     assert (rows["dead_end"]["terminated_by"], rows["dead_end"]["ended_why"]) == ("no_frontier", expected.ended_why)
@@ -320,9 +339,9 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
     assert all(int(r["steps"]) <= 60 for r in rows)
     # The simulator's pace, in two columns after the others (whose names and order are a contract): simulated
     # seconds from the sim's clock (one 0.25 s control period a step) and those over the episode's wall clock; then
-    # why an episode ended no_frontier.
+    # why an episode ended no_frontier; then what it ran with (sensor, simulator, cell size).
     assert CSV_FIELDS[:15] == ("method", "map", "scale", "seed", *METRICS, "terminated_by", "traversable_area_m2", "decisions", "wall_s")
-    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor", "ended_why")
+    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor", "ended_why", "sensor_fov_deg", "sim", "cell_size_m")
     for r in rows:
         assert float(r["sim_time_s"]) == pytest.approx(int(r["steps"]) * 0.25)
         assert float(r["real_time_factor"]) == pytest.approx(float(r["sim_time_s"]) / float(r["wall_s"]), rel=0.05, abs=0.5)
