@@ -22,7 +22,19 @@ import numpy as np
 from cso_runtime.config import RobotConfig
 from cso_runtime.frames import PALETTE, frame_scale, map_frame_indexed
 from cso_runtime.geometry import Pose2D
-from cso_runtime.messages import FrontiersMsg, GoalMsg, MapMsg, Message, MessageError, OdometryMsg, decode, frontiers_reading
+from cso_runtime.keys import topic_of
+from cso_runtime.messages import (
+    EPISODE_OVER,
+    EpisodeStatusMsg,
+    FrontiersMsg,
+    GoalMsg,
+    MapMsg,
+    Message,
+    MessageError,
+    OdometryMsg,
+    decode,
+    frontiers_reading,
+)
 from cso_runtime.outputs import write_whole
 
 log = logging.getLogger("cso.animation")
@@ -154,8 +166,47 @@ ANIMATED: dict[str, type[Message]] = {
     "odom": OdometryMsg,
     "goal": GoalMsg,
     "frontiers": frontiers_reading(("frontier",), clusters=False),
+    "episode_status": EpisodeStatusMsg,
 }
-"""The keys a recording's animation reads, with the message type each must carry."""
+"""The keys a recording's animation reads, with the message type each must carry (the status: where an episode ended)."""
+
+
+class DecisionCount:
+    """The decisions of a recording as the sim counts them (``up``'s summary) and the in-process episode does
+    (``eval``): every decided goal, but a goal decided on the map of the step at which its episode ended (the frontier
+    service hears of the end after the map: no robot acts on that goal). Its empty goal, the ``no_frontier`` end
+    itself, counts. The end's status may come before or after that goal: one counted since the episode's latest map
+    is taken back when the status comes."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.ended: dict[int, int] = {}
+        """Episode id -> the step its referee ended it at (a done or failed status)."""
+        self.since_map: list[GoalMsg] = []
+        """The goals counted since the latest map."""
+
+    def acted_on(self, g: GoalMsg) -> bool:
+        """Whether decided goal ``g`` counts (and so is drawn): not one of the step at which its episode ended."""
+        end = self.ended.get(g.episode)
+        if end is not None and g.step >= end and g.has_goal:
+            return False
+        self.count += 1
+        self.since_map.append(g)
+        return True
+
+    def on_map(self, m: MapMsg) -> None:
+        self.since_map = []
+        if m.step < self.ended.get(m.episode, m.step + 1):  # a restart under the same id (a recording before ids)
+            self.ended.pop(m.episode, None)
+
+    def on_status(self, status: EpisodeStatusMsg) -> None:
+        if status.state not in EPISODE_OVER:
+            self.ended.pop(status.episode, None)
+            return
+        self.ended[status.episode] = status.step
+        late = [g for g in self.since_map if g.episode == status.episode and g.step >= status.step and g.has_goal]
+        self.count -= len(late)
+        self.since_map = [g for g in self.since_map if g not in late]
 
 
 def animate_recording(
@@ -179,13 +230,13 @@ def animate_recording(
     trajectory: list[tuple[float, float]] = []
     goal_xy: tuple[float, float] | None = None
     frontier: np.ndarray | None = None
-    decided, decisions, maps, rejected, seen = False, 0, 0, 0, 0
+    decided, counted, maps, rejected, seen = False, DecisionCount(), 0, 0, 0
     for seen, m in enumerate(read_recording(recording, topics=ANIMATED), 1):
         if progress is not None and seen % PROGRESS_EVERY == 0:
             progress(seen, total)
         if not m.key.startswith(prefix):
             continue
-        topic = m.key[len(prefix) :]
+        topic = topic_of(m.key)  # episode/status: episode_status
         try:
             msg = decode(m.payload, ANIMATED[topic], accept_legacy=True)  # a recording outlives a version
         except MessageError:
@@ -198,10 +249,13 @@ def animate_recording(
             pose = msg.pose
             trajectory.append((pose.x_m, pose.y_m))
         elif isinstance(msg, GoalMsg):
-            if msg.decided:
-                decided, decisions = True, decisions + 1
+            if msg.decided and counted.acted_on(msg):
+                decided = True
                 goal_xy = msg.goal_xy_m
+        elif isinstance(msg, EpisodeStatusMsg):
+            counted.on_status(msg)
         elif isinstance(msg, MapMsg):
+            counted.on_map(msg)
             if latest_map is not None and msg.episode != latest_map.episode:
                 trajectory = trajectory[-1:]  # a new episode: its path starts where its robot is
             latest_map, maps = msg, maps + 1
@@ -215,4 +269,4 @@ def animate_recording(
         raise RecordingError(f"{recording} holds no map and odometry of robot {robot}: nothing to animate")
     seq.add(draw(latest_map.explored, latest_map.occupied, latest_map.geometry, pose, trajectory, goal_xy, robot_radius_m))
     seq.save_gif(out)
-    return RecordingAnimationStats(Path(out), robot, len(seq.frames), decisions, maps, rejected)
+    return RecordingAnimationStats(Path(out), robot, len(seq.frames), counted.count, maps, rejected)

@@ -139,6 +139,15 @@ def namespaced(name: str, namespace: str) -> str:
     return f"/{ns}{name}" if name.startswith("/") else f"{ns}/{name}"
 
 
+def check_export_settings(map_period_s: float, time: str, names: tuple[str, str] = ("map_period_s", "time")) -> None:
+    """Refuse a ``map_period_s`` below 0 (or not finite) and a ``time`` not in ``TIME_MODES``, naming them as ``names``
+    (``export-bag`` passes its flags, ``--map-period-s`` and ``--time``)."""
+    if not (math.isfinite(map_period_s) and map_period_s >= 0):
+        raise ValueError(f"{names[0]} must be a number of seconds >= 0, not {map_period_s:g}")
+    if time not in TIME_MODES:
+        raise ValueError(f"{names[1]} must be one of {', '.join(TIME_MODES)}, not {time!r}")
+
+
 class BagExportError(RuntimeError):
     """The recording cannot be exported (unreadable, no such robot, several robots and none chosen)."""
 
@@ -262,10 +271,7 @@ class BagConverter:
         if not (math.isfinite(scan_period_s) and scan_period_s >= 0):
             raise ValueError("scan_period_s must be >= 0")
         self.scan_period_s = scan_period_s
-        if not map_period_s >= 0:
-            raise ValueError("map_period_s must be >= 0")
-        if time not in TIME_MODES:
-            raise ValueError(f"time must be one of {', '.join(TIME_MODES)}, not {time!r}")
+        check_export_settings(map_period_s, time)
         self.time = time
         self.timeline: StepTimeline | None = None
         self.map_period_ns = int(map_period_s * 1e9)

@@ -380,6 +380,7 @@ def compare_command(
         compare_to_baseline,
         labelled,
         markdown_table,
+        mixed_setups_said,
         pooled_episodes,
         split_names,
         write_csv,
@@ -395,6 +396,8 @@ def compare_command(
         _fail(str(exc), 2)
     for replacement in replaced:
         typer.echo(f"note: {replacement.note()}", err=True)
+    for said in mixed_setups_said(files, split_names(exclude or [])):  # a 360-degree LiDAR's episodes against a 180-degree one's
+        typer.echo(said, err=True)
     if exclude:  # a name that matches no episode leaves out nothing: a typo would compare the plans meant to be out
         held = {scene[1] for scenes in pooled_episodes(files, [], rename or [])[0].values() for scene in scenes}
         if unmatched := [name for name in split_names(exclude) if name not in held]:
@@ -607,12 +610,13 @@ def export_bag_command(
     laser_frame: str = typer.Option(FRAME_OPTIONS["laser"].default, FRAME_OPTIONS["laser"].flag, help=FRAME_OPTIONS["laser"].help),
 ) -> None:
     """Convert a recording into a ROS 2 bag (rosbag2, MCAP storage) of standard types: /scan, /odom, /tf, /map, /plan, /goal_pose, /explore/frontiers, /cmd_vel, for RViz, Foxglove and `ros2 bag play`."""
-    from cso_runtime.bag_export import BagExportError, BagFrames, export_bag  # noqa: PLC0415
+    from cso_runtime.bag_export import BagExportError, BagFrames, check_export_settings, export_bag  # noqa: PLC0415
     from cso_runtime.recording import RecordingError, check_recording  # noqa: PLC0415
 
     _read_grids_of_any_run()
     frames = BagFrames(map_frame, odom_frame, base_frame, laser_frame)
     try:
+        check_export_settings(map_period_s, time_base, ("--map-period-s", "--time"))  # the flags, not the Python names
         frames.check()
         check_recording(file)
         target = out if out is not None else file.with_suffix("")

@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import functools
 import io
+import json
 import math
 from collections import defaultdict
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -36,6 +37,11 @@ EfficiencyTable = dict[tuple[str, str], dict[SceneKey, float]]
 
 EPISODE_COLUMNS = ("method", "map", "scale", "traversable_area_m2", "seed", "efficiency_m2_per_step")
 """What a comparison reads of each ``episodes.csv`` row."""
+SETUP_COLUMNS = ("sensor_fov_deg", "sim", "cell_size_m")
+"""``episodes.csv``'s columns of what an episode ran with beyond its method, plan and seed: the sensor's field of view
+(degrees), the simulator (``2d``, ``mujoco``; empty on a real robot) and the plan's cell size (m: ``--m-per-px`` for a
+PNG plan). Episodes of one plan that differ in one of them do not measure the methods alone: ``compare`` warns
+(``mixed_setups_said``). Files of an eval before these columns have none (``file_setup`` reads their summary.json)."""
 MIN_SCENES = 3
 """Fewer shared scenes than this give no comparison (an interval needs a few). Plans are counted: the seeds of one plan
 are resampled together (``bootstrap_mean_ci``), so one plan under 3 seeds gives an interval of one plan, a point."""
@@ -262,6 +268,75 @@ def read_episodes(
         if replaced is not None:
             replaced.extend(Replacement(method, earlier, Path(path), count) for (method, earlier), count in sorted(changed.items(), key=lambda kv: (kv[0][0], str(kv[0][1]))))
     return table
+
+
+def file_setup(path: Path) -> dict[str, str]:
+    """The ``SETUP_COLUMNS`` an ``episodes.csv`` of an eval before them would have said, from the summary.json beside
+    it (``meta.config.sensor.fov_deg``, ``meta.sim``, ``meta.cell_sizes_m`` when one); {} without one."""
+    try:
+        meta = json.loads((Path(path).parent / "summary.json").read_text(encoding="utf-8"))["meta"]
+        fov = meta.get("config", {}).get("sensor", {}).get("fov_deg")
+        cells = meta.get("cell_sizes_m") or []
+        known = {"sensor_fov_deg": fov, "sim": meta.get("sim"), "cell_size_m": cells[0] if len(cells) == 1 else None}
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        return {}
+    return {column: setup_value(value) for column, value in known.items() if value not in (None, "")}
+
+
+def setup_value(value: Any) -> str:
+    """A ``SETUP_COLUMNS`` cell as one spelling: ``180`` for 180.0 and "180.0", the text of any other."""
+    try:
+        return f"{float(value):g}"
+    except (TypeError, ValueError):
+        return str(value)
+
+
+def mixed_setups_said(files: Sequence[tuple[str, Path]], exclude_maps: Iterable[str] = ()) -> list[str]:
+    """What ``compare`` says of ``files`` (read already: whole ``episodes.csv`` files) whose episodes of one plan (a
+    map of one label) ran with different ``SETUP_COLUMNS``: a warning per column, naming its values, their files and
+    the plans; and a note per file that says none of them (an eval before the columns, no summary.json beside it)
+    where another file does, as its episodes cannot be checked. [] where nothing differs or nothing is known."""
+    excluded = set(exclude_maps)
+    seen: dict[str, dict[tuple[str, str], dict[str, list[Path]]]] = {c: defaultdict(dict) for c in SETUP_COLUMNS}
+    """column -> (label, map) -> value -> the files that ran the plan with it."""
+    unknown: list[Path] = []
+    for label, path in files:
+        with Path(path).open(newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            fallback = {} if all(c in (reader.fieldnames or []) for c in SETUP_COLUMNS) else file_setup(path)
+            said = False
+            for row in whole_rows(reader):
+                if row["map"] in excluded:
+                    continue
+                for column in SETUP_COLUMNS:
+                    value = setup_value(row[column]) if row.get(column) else fallback.get(column)
+                    if value is not None:
+                        said = True
+                        holders = seen[column][(label, row["map"])].setdefault(value, [])
+                        if Path(path) not in holders:
+                            holders.append(Path(path))
+            if not said:
+                unknown.append(Path(path))
+    lines = []
+    for column, plans in seen.items():
+        mixed = {plan: values for plan, values in plans.items() if len(values) > 1}
+        if not mixed:
+            continue
+        values: dict[str, list[Path]] = {}
+        for by_value in mixed.values():
+            for value, holders in by_value.items():
+                known = values.setdefault(value, [])
+                known += [h for h in holders if h not in known]
+        names = sorted({plan for _, plan in mixed})
+        shown = ", ".join(names[:5]) + (", ..." if len(names) > 5 else "")
+        lines.append(
+            f"warning: the same plans ran with different {column}: "
+            + ", ".join(f"{value} ({', '.join(map(str, holders))})" for value, holders in sorted(values.items()))
+            + f" on {len(names)} plan{'' if len(names) == 1 else 's'} ({shown}): their figures compare those too, not the methods alone"
+        )
+    if len(unknown) < len(files):
+        lines += [f"note: {path} says no setup ({', '.join(SETUP_COLUMNS)}: an eval before those columns, no summary.json beside it): its episodes are not checked against the others'" for path in unknown]
+    return lines
 
 
 def pooled_episodes(files: Sequence[tuple[str, Path]], exclude: Iterable[str], renames: Iterable[str]) -> tuple[EfficiencyTable, list[Replacement]]:

@@ -39,6 +39,7 @@ from cso_runtime import __version__
 from cso_runtime.animation import EpisodeAnimation
 from cso_runtime.comparison import (
     PAIRED_COLUMNS,
+    SETUP_COLUMNS,
     TOO_FEW_SCENES,
     as_dicts,
     bootstrap_mean_ci,
@@ -135,9 +136,21 @@ METRICS = (
 )
 PACE = ("sim_time_s", "real_time_factor")
 """How fast the simulator ran: an episode's simulated seconds and those over its wall-clock seconds (``pace``)."""
-CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s") + PACE + ("ended_why",)
+CSV_FIELDS = ("method", "map", "scale", "seed") + METRICS + ("terminated_by", "traversable_area_m2", "decisions", "wall_s") + PACE + ("ended_why",) + SETUP_COLUMNS
 """``episodes.csv``'s columns, in this order (a contract: a new column goes at the end). ``ended_why``: why the episode
-ended ``no_frontier`` (``EpisodeResult.ended_why``), empty for any other end."""
+ended ``no_frontier`` (``EpisodeResult.ended_why``), empty for any other end; then what it ran with
+(``comparison.SETUP_COLUMNS``: ``run_setup`` of the run's meta, and its plan's cell size)."""
+
+
+def run_setup(meta: dict[str, Any]) -> dict[str, Any]:
+    """The ``SETUP_COLUMNS`` every episode of a run shares, from its summary.json's ``meta``: the sensor's field of
+    view (``config.sensor.fov_deg``) and the simulator (``sim``: None on a real robot); None where it is not said."""
+    sensor = (meta.get("config") or {}).get("sensor") or {}
+    return {"sensor_fov_deg": sensor.get("fov_deg"), "sim": meta.get("sim")}
+
+
+DEFAULT_M_PER_PX = 0.1
+"""``--m-per-px``'s default: the metres per pixel of PNG plans."""
 
 
 @dataclass
@@ -148,7 +161,7 @@ class EvalRequest:
     maps: str = "builtin"
     limit: int | None = None
     out_dir: Path = Path("results/eval")
-    m_per_px: float = 0.1
+    m_per_px: float = DEFAULT_M_PER_PX
     seed: int = 0
     max_steps: int | None = None
     """``--max-steps``: the step limit per episode; None keeps the config's ``episode.max_steps`` (3000)."""
@@ -987,8 +1000,9 @@ def write_outputs(
     table = io.StringIO(newline="")
     writer = csv.DictWriter(table, fieldnames=list(CSV_FIELDS), extrasaction="ignore")
     writer.writeheader()
+    setup = run_setup(meta)
     for r in sorted(rows, key=lambda r: (r["method"], r["map"])):
-        writer.writerow({k: csv_cell(v) for k, v in r.items()})
+        writer.writerow({k: csv_cell(v) for k, v in {**setup, **r}.items()})
     write_text_atomic(out_dir / "episodes.csv", table.getvalue())
     if summary["paired"]["comparisons"]:
         write_paired_csv(out_dir / "paired.csv", summary["paired"]["comparisons"])
@@ -1169,6 +1183,8 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
         )
     if request.seed != 0 and seed_changes_nothing(request.methods, config, request.sim):
         warnings.append(seed_changes_nothing_said(f"--seed {request.seed}"))
+    if request.m_per_px != DEFAULT_M_PER_PX and not any(ref.scaled_by_m_per_px for ref in scenes):  # the default: not known to be given
+        warnings.append(f"--m-per-px {request.m_per_px:g} is ignored: it scales PNG plans only, and these scenes (generated plans, map files) have their own cell size")
     weights: dict[str, dict[str, Any]] = {}
     if any(m in LEARNED_METHODS for m in request.methods):
         from cso_runtime.learned.weights import mask_mismatches, sensor_mismatches, weights_provenance  # noqa: PLC0415
@@ -1373,7 +1389,7 @@ def _write_results(
     summary. With ``--seeds`` (every seed's outcomes pooled), no trajectory plot: each seed's folder has its own."""
     config, scenes, weights, mujoco = plan.config, plan.scenes, plan.weights, plan.mujoco
     out = Path(request.out_dir)
-    rows = [o.row for o in outcomes if o.row is not None]
+    rows = [{**o.row, "cell_size_m": o.resolution_m} for o in outcomes if o.row is not None]  # each plan's own (episodes.csv)
     failures: list[dict[str, Any]] = [
         {"method": o.method, "map": o.map, "error": o.error or "", **({"seed": o.seed} if o.seed is not None else {})} for o in outcomes if o.row is None
     ]
@@ -1588,7 +1604,34 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
         seed = f" (seed {f['seed']})" if "seed" in f else ""  # --seeds: which seed's episode
         failed = escape(f"{f['method']} {f['map']}{seed}: {why}")
         console.print(f"[red]failed[/red] {failed}", soft_wrap=True)  # a path in it must stay whole
-    console.print(escape(results_said(out_dir)), soft_wrap=True, highlight=False)
+    console.print(escape(closing_said(summary, out_dir)), soft_wrap=True, highlight=False)
+
+
+def closing_said(summary: dict[str, Any], out_dir: Path) -> str:
+    """``eval``'s last line: where the results are (``results_said``); where no episode finished, that no metric and no
+    figure was written (all failed: the report and summary.json list the failures)."""
+    if any(entry.get("episodes") for entry in summary["methods"].values()):
+        return results_said(out_dir)
+    failed = len(summary["failures"])
+    if failed:
+        return (f"{'all ' if failed > 1 else 'the '}{failed} episode{'s' if failed > 1 else ''} failed (above): no metrics and no figures; "
+                f"{out_dir}/report.html and summary.json list the failures, episodes.csv holds no row")  # fmt: skip
+    return f"no episode finished: no metrics and no figures in {out_dir}/"
+
+
+def eval_start_said(request: EvalRequest, plan: EvalPlan) -> str:
+    """The first line of an eval written to a log (no terminal, no bar): what runs and where its results go."""
+
+    def count(n: int, what: str) -> str:
+        return f"{n} {what}{'' if n == 1 else 's'}"
+
+    sensor = f"{request.sensor} {plan.config.sensor.fov_deg:g} degrees"
+    seeds = f" x {count(len(request.seeds), 'seed')} ({', '.join(map(str, request.seeds))})" if request.seeds else ""
+    return (
+        f"eval: {count(len(plan.jobs), 'episode')}, {count(len(request.methods), 'method')} ({', '.join(request.methods)}) "
+        f"x {count(len(plan.scenes), 'scene')} ({request.maps}){seeds}, {sensor}, sim {request.sim}, {count(request.workers, 'worker')}; "
+        f"results in {request.out_dir}/"
+    )
 
 
 def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = False) -> int:
@@ -1626,6 +1669,8 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
         return 1 if unloadable else 0
     progress = RichProgress()
     out = Path(request.out_dir)
+    if not progress.progress.console.is_terminal:  # a log: what runs, before the first episode's line (minutes, on a large plan)
+        progress.progress.console.print(escape(eval_start_said(request, plan)), highlight=False, soft_wrap=True)
     try:
         summary = run_eval(request, progress, plan)
     except ConfigError as exc:  # another eval writes the folder

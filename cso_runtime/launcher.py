@@ -986,6 +986,7 @@ class Launcher:
         if self.ended_status is not None:  # whose results these are: a robot may go on in another episode after this end
             meta["episode"] = self.ended_status.episode
         meta["coverage_measured"] = self.coverage_measured  # whether coverage_pct is a measure: `runs` and report.html read it
+        meta["sim"] = self.profile.simulator()  # 2d or mujoco, as eval's; null on a real robot (episodes.csv's sim)
         sim_settings = self.profile.simulator_settings()
         if sim_settings is not None:  # every parameter of the sim service's simulator, defaults too (as eval's)
             meta["sim_settings"] = sim_settings
@@ -1522,7 +1523,7 @@ def write_episode_outputs(
 
     er, row = episode_record(result, wall_s, sim_time_s, real_time_factor)
     method = row["method"]
-    summary = write_outputs(out_dir, [row], [], [method], meta)
+    summary = write_outputs(out_dir, [{**row, "cell_size_m": result.resolution_m}], [], [method], meta)  # the plan's, as eval's episodes.csv
     save_episode_files(out_dir, method, result.scene, er, row, map_origin=result.map_origin)
     outcome = EpisodeOutcome.finished(method, er, row, result.plan_free, result.resolution_m, result.map_origin)
     plot_coverage_curves(out_dir / COVERAGE_FIGURE, [outcome])

@@ -13,7 +13,7 @@ import html
 from pathlib import Path
 from typing import Any
 
-from cso_runtime.comparison import PAIRED_COLUMNS, format_interval, paired_cells
+from cso_runtime.comparison import PAIRED_COLUMNS, format_interval, paired_cells, whole_rows
 from cso_runtime.live_view import NO_COVERAGE, NO_GROUND_TRUTH, NO_OWN_GROUND_TRUTH
 from cso_runtime.outputs import (
     COVERAGE_FIGURE,
@@ -230,11 +230,35 @@ def scene_rows(out_dir: Path, summary: dict[str, Any]) -> list[list[str]]:
     """Each episode of ``out_dir/episodes.csv`` as a ``SCENE_COLUMNS`` row, by scale, plan, then method as in Table 1,
     so the methods on one plan stand together; only ``summary``'s methods and plans (its ``maps``, where written);
     coverage ``NO_COVERAGE`` where it was not measured (``coverage_measured``). [] without the file (a folder of an older version, or one that lost it)."""
+    return scene_table(out_dir, summary)[0]
+
+
+def scene_table(out_dir: Path, summary: dict[str, Any]) -> tuple[list[list[str]], str]:
+    """``scene_rows``, and what the report must say of them: "" where they are every episode ``summary`` counts;
+    otherwise how many of them it shows and why (a row of ``episodes.csv`` cut short or mangled is not shown, nor any
+    after it: ``comparison.whole_rows``; a file cut at a line's end, or changed since, holds fewer rows)."""
+    problem = ""
+    episodes: list[dict[str, str]] = []
     try:
         with (out_dir / "episodes.csv").open(newline="", encoding="utf-8") as fh:
-            episodes = list(csv.DictReader(fh))
-    except (OSError, UnicodeDecodeError, csv.Error):
-        return []
+            episodes.extend(whole_rows(csv.DictReader(fh)))  # the rows before a bad one stay, when it raises
+    except FileNotFoundError:  # a folder of an older version, or one that lost it
+        return [], "no episodes.csv in the folder: no per-scene table" if any(e.get("episodes") for e in summary["methods"].values()) else ""
+    except ValueError as exc:  # UnicodeDecodeError too
+        problem = f"{exc}; "
+    except (OSError, csv.Error) as exc:
+        problem = f"cannot read it ({exc}); "
+    rows = _scene_rows(episodes, summary)
+    counted = [n for e in summary["methods"].values() if isinstance(n := e.get("episodes"), int)]
+    if len(counted) == len(summary["methods"]) and len(rows) < sum(counted):  # summaries of every version count them
+        problem += f"the table shows {len(rows)} of the {sum(counted)} episodes summary.json counts"
+    elif problem:
+        problem += f"the table shows the {len(rows)} episodes before it"
+    return rows, f"episodes.csv: {problem}" if problem else ""
+
+
+def _scene_rows(episodes: list[dict[str, str]], summary: dict[str, Any]) -> list[list[str]]:
+    """``scene_rows`` of the rows read from ``episodes.csv``."""
     methods = summary["methods"]
     order = list(methods)
     measured = coverage_measured(summary)
@@ -373,7 +397,9 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     if paired.get("comparisons"):
         parts.append(f"<h2>Against {html.escape(str(paired['baseline']))}, scene by scene</h2>")
         parts.append(_table(PAIRED_COLUMNS, [paired_cells(c) for c in paired["comparisons"]]))
-    scenes = scene_rows(out_dir, summary)
+    scenes, scenes_lacking = scene_table(out_dir, summary)
+    if scenes_lacking:  # a cut episodes.csv: the table must not pass for every episode of Table 1
+        parts.append(f"<p style='color:#b00'><b>Every episode, scene by scene: {html.escape(scenes_lacking)}</b></p>")
     if scenes:
         parts.append(f"<details><summary><b>Every episode, scene by scene</b> ({len(scenes)}, by scale then plan)</summary>")
         parts += [_table(SCENE_COLUMNS, scenes), "</details>"]

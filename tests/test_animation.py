@@ -121,3 +121,25 @@ def test_a_gif_that_fails_halfway_leaves_the_earlier_one_whole_and_nothing_cut(t
     animate_recording(tmp_path / "run.mcap", tmp_path / "run.png", max_frames=2)  # an animated PNG, by its name
     with Image.open(tmp_path / "run.png") as im:
         assert im.format == "PNG" and im.n_frames == 2
+
+
+@pytest.mark.parametrize("status_after_goal", [False, True], ids=["status-first", "goal-first"])
+def test_a_goal_decided_on_the_map_the_episode_ended_at_is_no_decision(tmp_path, status_after_goal):
+    """The frontier service decides on the map of the step at which the sim ends the episode (it hears of the end
+    later): that goal is published and recorded, but no robot acts on it, and neither the sim's count (``up``'s
+    summary) nor the in-process episode's (``eval``: no decision after its last step) has it. ``animate`` counted
+    it: 25 decisions against ``up``'s 24. A goal of the step the episode ended at, heard before or after the end's
+    status, is not counted; an empty goal there (the ``no_frontier`` end itself) is, as by the sim and eval."""
+    from cso_runtime.messages import EpisodeStatusMsg, GoalMsg
+
+    keys = RobotKeys("r0")
+    messages = episode(keys, 5, T0_NS, 1_000_000)  # goals decided at steps 0, 2 and 4
+    end_ns = T0_NS + 4 * 1_000_000 + (5500 if status_after_goal else 3500)  # the map of step 4 at +3000, its goal at +5000
+    ended = EpisodeStatusMsg(state="done", step=4, decisions=2, terminated_by="coverage")
+    write_recording(tmp_path / "run.mcap", "r0", sorted([*messages, RecordedMessage(keys.topic("episode_status"), end_ns, encode(ended))], key=lambda m: m.log_time_ns))
+    assert animate_recording(tmp_path / "run.mcap", tmp_path / "run.gif").decisions == 2 == ended.decisions
+    # The no_frontier end: the empty goal of step 4 is the episode's last decision.
+    empty = [RecordedMessage(m.key, m.log_time_ns, encode(GoalMsg(4, True, None, None, method="greedy-dist"))) if m.key.endswith("/goal") and m.log_time_ns >= T0_NS + 4 * 1_000_000 else m for m in messages]
+    no_frontier = EpisodeStatusMsg(state="done", step=4, decisions=3, terminated_by="no_frontier")
+    write_recording(tmp_path / "nf.mcap", "r0", sorted([*empty, RecordedMessage(keys.topic("episode_status"), end_ns, encode(no_frontier))], key=lambda m: m.log_time_ns))
+    assert animate_recording(tmp_path / "nf.mcap", tmp_path / "nf.gif").decisions == 3

@@ -304,6 +304,21 @@ def test_export_bag_command_writes_beside_the_recording_and_says_what(tmp_path: 
     assert missing.returncode == 2 and "no such recording" in missing.stderr
 
 
+def test_export_bag_refuses_bad_settings_by_their_flags(tmp_path: Path):
+    """A bad ``--map-period-s`` or ``--time`` is refused in the flag's name, not the Python parameter's
+    (``map_period_s``, ``time``), before any folder is made."""
+    recording = tmp_path / "run.mcap"
+    write_recording(recording, "r0", episode(RobotKeys("r0"), 2, T0_NS, 1000))
+    cli = [sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording)]
+    for flags, said in ((["--map-period-s", "-1"], "--map-period-s must be a number of seconds >= 0, not -1"),
+                        (["--map-period-s", "inf"], "--map-period-s must be a number of seconds >= 0, not inf"),
+                        (["--time", "wall"], "--time must be one of sim, received, not 'wall'")):  # fmt: skip
+        done = subprocess.run([*cli, *flags], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 2 and said in done.stderr, (flags, done.stderr)
+        assert "map_period_s" not in done.stderr and "time must" not in done.stderr.replace("--time must", ""), done.stderr
+    assert not (tmp_path / "run").exists()
+
+
 def test_export_bag_namespace_puts_topics_and_frames_under_the_robots_name(tmp_path: Path):
     """Two robots' bags, merged, collided: both had /scan, /odom... and frames odom, base_link, laser on one /tf.
     ``--namespace limo1`` names them as multi-robot ROS 2 setups do (tf2 has no tf_prefix): /limo1/scan, frames

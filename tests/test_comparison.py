@@ -283,3 +283,39 @@ def test_compare_renames_a_method_of_one_file_to_set_two_runs_of_it_side_by_side
         assert wrong.exit_code == 2 and said in " ".join(wrong.stderr.split()) and not isinstance(wrong.exception, Exception), (rename, wrong.stderr, wrong.exception)
     help_text = subprocess.run(exe + ["--help"], capture_output=True, text=True, timeout=60, env={**os.environ, "COLUMNS": "200"})
     assert "--rename" in help_text.stdout and "FILE:METHOD=NEW" in help_text.stdout
+
+
+def test_compare_warns_when_its_files_mix_episodes_of_different_sensors_on_the_same_plans(tmp_path: Path):
+    """A 360-degree LiDAR's eval and a 180-degree one's were pooled with no word (episodes.csv had no sensor column):
+    the paired figures then compare sensors, not methods alone. episodes.csv now says each episode's setup
+    (``sensor_fov_deg``, ``sim``, ``cell_size_m``) and ``compare`` warns, naming the values and their files, when
+    the same plans ran under different ones; a file of an eval before the columns is read from the summary.json
+    beside it, and without one it is not checked (files of none at all say nothing, as before)."""
+    setup = ("sensor_fov_deg", "sim", "cell_size_m")
+
+    def run(folder: str, method: str, efficiencies: dict[str, float], fov: float, sim: str = "2d") -> Path:
+        (tmp_path / folder).mkdir()
+        episodes = [{**r, "sensor_fov_deg": fov, "sim": sim, "cell_size_m": 0.05} for r in rows(method, "large", efficiencies)]
+        return write_episodes_csv(tmp_path / folder / "episodes.csv", episodes, FIELDS + setup)
+
+    base = run("base", "greedy-dist", {"a": 1.0, "b": 1.0, "c": 1.0}, 180.0)
+    ring = run("ring", "cso", {"a": 1.2, "b": 1.2, "c": 1.1}, 360.0)
+    front = run("front", "cso", {"a": 1.2, "b": 1.2, "c": 1.1}, 180.0)
+    exe = [sys.executable, "-m", "cso_runtime.cli", "compare"]
+    mixed = subprocess.run(exe + [str(base), str(ring)], capture_output=True, text=True, timeout=60)
+    assert mixed.returncode == 0 and "| large | cso | 3 |" in mixed.stdout, mixed.stderr
+    said = " ".join(mixed.stderr.split())
+    assert f"warning: the same plans ran with different sensor_fov_deg: 180 ({base}), 360 ({ring}) on 3 plans (a, b, c)" in said, said
+    assert "sim" not in said.replace("sensor_fov_deg", ""), said
+    same = subprocess.run(exe + [str(base), str(front)], capture_output=True, text=True, timeout=60)
+    assert same.returncode == 0 and same.stderr == "", same.stderr
+    # An older file (no setup columns) is read from its summary.json's meta; with none it is not checked.
+    (tmp_path / "old").mkdir()
+    old = write(tmp_path / "old" / "episodes.csv", rows("cso", "large", {"a": 1.2, "b": 1.2, "c": 1.1}))
+    alone = subprocess.run(exe + [str(base), str(old)], capture_output=True, text=True, timeout=60)
+    assert alone.returncode == 0 and f"note: {old} says no setup (sensor_fov_deg, sim, cell_size_m:" in " ".join(alone.stderr.split()), alone.stderr
+    meta = {"sim": "mujoco", "config": {"sensor": {"fov_deg": 180.0}}, "cell_sizes_m": [0.05]}
+    (tmp_path / "old" / "summary.json").write_text(json.dumps({"meta": meta, "methods": {}}))
+    read = subprocess.run(exe + [str(base), str(old)], capture_output=True, text=True, timeout=60)
+    said = " ".join(read.stderr.split())
+    assert read.returncode == 0 and f"the same plans ran with different sim: 2d ({base}), mujoco ({old})" in said and "sensor_fov_deg" not in said, said

@@ -109,6 +109,25 @@ def test_an_episode_of_no_step_has_no_efficiency_not_its_area_per_step(tmp_path:
     assert (tmp_path / "out" / "episodes.csv").read_text() == csv_before
 
 
+def test_episodes_csv_says_the_sensor_simulator_and_cell_size_each_episode_ran_with(tmp_path: Path):
+    """episodes.csv had no column of the sensor: a 360-degree LiDAR's eval and a 180-degree one's read the same, and
+    ``compare`` pooled them without a word. Its last columns now say each episode's setup (``SETUP_COLUMNS``), which
+    ``compare`` checks (``mixed_setups_said``); an eval --resume into the other sensor's folder was already refused."""
+    from cso_runtime.comparison import SETUP_COLUMNS, mixed_setups_said
+
+    assert CSV_FIELDS[-len(SETUP_COLUMNS) :] == SETUP_COLUMNS == ("sensor_fov_deg", "sim", "cell_size_m")
+    ring, front = tmp_path / "ring", tmp_path / "front"
+    run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=ring, max_steps=4, lidar_fov_deg=360.0))
+    run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=front, max_steps=4))
+    with (ring / "episodes.csv").open(newline="") as fh:
+        (row,) = csv.DictReader(fh)
+    assert (row["sensor_fov_deg"], row["sim"], row["cell_size_m"]) == ("360.0", "2d", "0.05")
+    (said,) = mixed_setups_said([("", front / "episodes.csv"), ("", ring / "episodes.csv")])
+    assert said.startswith(f"warning: the same plans ran with different sensor_fov_deg: 180 ({front / 'episodes.csv'}), 360 ({ring / 'episodes.csv'}) on 1 plan (gen_small_0)"), said
+    with pytest.raises(ConfigError, match="differs in sensor.fov_deg: 360.0 there, 180.0 here"):
+        run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=ring, max_steps=4, resume=True))
+
+
 def _corridor_scene(folder: Path, name: str, start: str) -> Path:
     """The corridor of tests/test_planner.py (3.0 x 0.9 m at 0.05 m cells) as a map_server scene starting at ``start``."""
     from cso_runtime.geometry import GridGeometry
@@ -194,6 +213,28 @@ def test_eval_seeds_of_no_seed_is_refused_not_run_as_seed_0(tmp_path: Path):
         assert refused.exit_code == 2 and "--seeds: no seed given" in " ".join(refused.output.split()), (given, refused.output)
 
 
+def test_m_per_px_given_with_only_generated_scenes_is_said_to_change_nothing(tmp_path: Path):
+    """``--m-per-px`` scales PNG plans only: ``eval --maps generated:... --m-per-px 0.05`` ran the generated plans at
+    their own cell size without a word. A value other than the default is now said to be ignored (dry run and real
+    run alike: a plan's warning); with a PNG plan among the scenes, or the default, nothing is said."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    generated = ["eval", "--method", "random", "--maps", "generated:small:1:0", "--out", str(tmp_path / "out"), "--dry-run"]
+    said = CliRunner().invoke(app, [*generated, "--m-per-px", "0.05"])
+    assert said.exit_code == 0, said.output
+    assert "warning: --m-per-px 0.05 is ignored: it scales PNG plans only" in " ".join(said.output.split()), said.output
+    assert not any("--m-per-px" in w for w in plan_eval(EvalRequest(methods=["random"], maps="generated:small:1:0", out_dir=tmp_path / "o")).warnings)
+    png = plan_eval(EvalRequest(methods=["random"], maps="builtin", limit=1, out_dir=tmp_path / "p", m_per_px=0.05))  # a PNG plan
+    assert not any("--m-per-px" in w for w in png.warnings), png.warnings
+    maps = tmp_path / "maps"
+    maps.mkdir()
+    _corridor_scene(maps, "corridor", "[1.5, 0.18, -0.5]")  # a map file: its own resolution too
+    own = plan_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=tmp_path / "m", m_per_px=0.2))
+    assert any(w.startswith("--m-per-px 0.2 is ignored") for w in own.warnings), own.warnings
+
+
 def test_a_one_seed_eval_into_the_folder_of_an_eval_of_several_seeds_is_refused(tmp_path: Path):
     """``--seeds`` refuses an ``--out`` that holds a one-seed eval's episodes, but the other way round a one-seed eval
     into the folder of ``--seeds 0,1`` replaced the pooled summary.json and episodes.csv with its own (no warning),
@@ -246,7 +287,7 @@ def test_evals_files_say_why_an_episode_ended_no_frontier_and_resume_keeps_it(tm
     assert expected.terminated_by == "no_frontier" and "given up around goals reached" in expected.ended_why
     out = tmp_path / "out"
     summary = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(maps), out_dir=out))
-    assert CSV_FIELDS[-1] == "ended_why"  # after every column before it: their order is a contract
+    assert CSV_FIELDS[CSV_FIELDS.index("real_time_factor") + 1] == "ended_why"  # after every column before it: their order is a contract
     with (out / "episodes.csv").open(newline="") as fh:
         rows = {r["map"]: r for r in csv.DictReader(fh)}
     assert (rows["dead_end"]["terminated_by"], rows["dead_end"]["ended_why"]) == ("no_frontier", expected.ended_why)
@@ -298,9 +339,9 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
     assert all(int(r["steps"]) <= 60 for r in rows)
     # The simulator's pace, in two columns after the others (whose names and order are a contract): simulated
     # seconds from the sim's clock (one 0.25 s control period a step) and those over the episode's wall clock; then
-    # why an episode ended no_frontier.
+    # why an episode ended no_frontier; then what it ran with (sensor, simulator, cell size).
     assert CSV_FIELDS[:15] == ("method", "map", "scale", "seed", *METRICS, "terminated_by", "traversable_area_m2", "decisions", "wall_s")
-    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor", "ended_why")
+    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor", "ended_why", "sensor_fov_deg", "sim", "cell_size_m")
     for r in rows:
         assert float(r["sim_time_s"]) == pytest.approx(int(r["steps"]) * 0.25)
         assert float(r["real_time_factor"]) == pytest.approx(float(r["sim_time_s"]) / float(r["wall_s"]), rel=0.05, abs=0.5)
@@ -823,6 +864,18 @@ def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_pat
     assert lines[-1] == f"results in {tmp_path}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
 
 
+def test_the_closing_line_of_an_eval_whose_every_episode_failed_says_so_not_the_figures(tmp_path: Path, capsys):
+    """Every episode failed: no metric and no figure was written, so the closing line does not send the reader to
+    "the figures" (nor to a report of results): it says that all failed and where the failures are listed."""
+    from cso_runtime.evaluation import print_summary, summarize
+
+    failures = [{"method": "greedy-dist", "map": f"plan{i}", "error": "boom"} for i in range(2)]
+    print_summary(summarize([], failures, ["greedy-dist"], {}), tmp_path)
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert "the figures" not in last and last.startswith("all 2 episodes failed (above): no metrics and no figures"), last
+    assert f"{tmp_path}/report.html and summary.json list the failures" in last, last
+
+
 def test_the_console_says_why_a_run_with_the_baseline_has_no_comparison(tmp_path: Path, capsys):
     """`eval --limit 2` with greedy-dist and cso: too few shared scenes for paired.csv (at least 3 per scale). The
     console says so, instead of leaving out the comparison without a word; with 3 scenes the table is there."""
@@ -997,6 +1050,20 @@ def test_a_reader_gone_hides_no_error_the_command_raised(tmp_path: Path, ending:
     assert said in proc.stderr and "Exception ignored" not in proc.stderr and "BrokenPipeError" not in proc.stderr
     if returncode == 141:
         assert proc.stderr == ""
+
+
+def test_an_eval_into_a_log_says_what_runs_before_the_first_episode_ends(tmp_path: Path):
+    """Without a terminal (``eval ... > log 2>&1``) nothing was written until the first episode ended, minutes on a
+    large plan: the log now starts with what runs (episodes, methods, scenes, sensor, workers, the output folder),
+    before any episode's line."""
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "cso_runtime.cli", "eval", "--method", "greedy-dist,random", "--maps", "generated:small:1:0",
+           "--max-steps", "4", "--out", str(out), "--workers", "1"]  # fmt: skip
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=180)
+    assert done.returncode in (0, 1), done.stderr
+    first = done.stderr.splitlines()[0]
+    assert first == (f"eval: 2 episodes, 2 methods (greedy-dist, random) x 1 scene (generated:small:1:0), lidar 180 degrees, "
+                     f"sim 2d, 1 worker; results in {out}/"), done.stderr  # fmt: skip
 
 
 def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
@@ -2125,6 +2192,28 @@ def test_the_report_lists_every_episode_in_a_collapsed_per_scene_table(tmp_path:
     for r in rows:
         row = next(c for c in cells if c[:2] == [r["map"], r["method"]])
         assert row[4:] == [f"{float(r['coverage_pct']):.2f}", r["steps"], f"{float(r['efficiency_m2_per_step']):.4f}", r["terminated_by"]]
+
+
+def test_the_report_says_when_its_per_scene_table_lacks_episodes_of_a_cut_episodes_csv(tmp_path: Path):
+    """An episodes.csv cut short (a full disk, a copy stopped halfway) lost the per-scene table's last rows without a
+    word, beside a Table 1 of every episode. The report says how many of the summary's episodes the table shows and
+    why: a row cut mid-line is named as ``compare`` names it (``comparison.whole_rows``), and not shown half-empty;
+    a file cut at a line's end is told by the count. A whole file says nothing."""
+    from cso_runtime.report import write_report
+
+    out = tmp_path / "out"
+    summary = run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:2:0", out_dir=out, max_steps=40))
+    assert "episodes.csv" not in (out / "report.html").read_text().split("<details", 1)[0].split("<h2>Table 1</h2>", 1)[1]
+    lines = (out / "episodes.csv").read_text().splitlines(keepends=True)
+    assert len(lines) == 5
+    (out / "episodes.csv").write_text("".join(lines[:3]) + lines[3][:20])  # cut inside the third episode's row
+    page = write_report(out, summary).read_text()
+    assert "episodes.csv: line 4 has" in page and "the table shows 2 of the 4 episodes summary.json counts" in page, page
+    section = page.split("<details", 1)[1].split("</details>", 1)[0]
+    assert section.count("<tr><td>") == 2, section
+    (out / "episodes.csv").write_text("".join(lines[:4]))  # cut at a line's end: whole rows, one fewer
+    page = write_report(out, summary).read_text()
+    assert "the table shows 3 of the 4 episodes summary.json counts" in page, page
 
 
 def test_the_per_scene_table_goes_by_scale_then_plan_and_shows_only_the_summarys_episodes(tmp_path: Path):
