@@ -99,7 +99,7 @@ METHODS_HELP = (
 DEFAULT_TRAIN_CONFIG = Path("configs/train.yaml")
 PACKAGED_CONFIGS = Path(__file__).resolve().parent / "data"
 """``configs/train.yaml``, ``eval.yaml`` and ``robot_sim.yaml`` inside the package (links in the repository), so that
-an installed package finds the files the help and the README name: the recipe of the shipped weights, the documented
+an installed package finds the files the help, README and docs name: the recipe of the shipped weights, the documented
 defaults of every exploration and MuJoCo parameter."""
 PACKAGED_TRAIN_CONFIG = PACKAGED_CONFIGS / "train.yaml"
 
@@ -118,7 +118,7 @@ def _packaged_if_missing(path: Path | None) -> Path | None:
 
 
 def _fail(message: str, code: int) -> NoReturn:
-    """Say what is wrong on stderr in one line (``error: ...``) and exit with ``code`` (README's exit codes)."""
+    """Say what is wrong on stderr in one line (``error: ...``) and exit with ``code`` (docs/commands.md's exit codes)."""
     typer.echo(f"error: {message}", err=True)
     raise typer.Exit(code) from None
 

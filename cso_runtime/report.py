@@ -42,7 +42,7 @@ TABLE1_DEFINITIONS = (
     ("path m", "metres the robot drove, from its true pose"),
     ("decision ms p50/p99", "median and 99th percentile of each episode's decision times (frontiers, fast marching, entropy, masks, goal choice)"),
 )
-"""How each Table 1 column is computed (README.md, the outputs of eval); every figure is a mean over the row's episodes.
+"""How each Table 1 column is computed (docs/eval.md, Outputs); every figure is a mean over the row's episodes.
 The steps' period is the run's own: ``table1_definitions``."""
 
 

@@ -79,7 +79,7 @@ def test_the_node_feature_row_names_every_node_feature():
 
 
 def test_the_training_config_names_every_field_with_its_default():
-    """README says configs/train.yaml documents every field: each ``Args`` field but the flags of one run is in
+    """docs/training.md says configs/train.yaml documents every field: each ``Args`` field but the flags of one run is in
     it, and nothing else is."""
     from cso_runtime.learned.ppo import Args
 
@@ -154,6 +154,11 @@ def test_every_command_and_flag_the_docs_show_exists():
 
 DOCS = [ROOT / "README.md", ROOT / "BENCHMARKS.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "configs" / "profiles" / "README.md"]
 """What users read for commands (docs/experiments/ is a record of what was tried, kept as it was)."""
+READ_FIRST = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+"""The README and the reference pages it leads to (docs/), where a fact the README once held now is."""
+TRAINING_DOC = ROOT / "docs" / "training.md"
+"""The learned policy's page: the training log's columns and the Gymnasium environment (the README's until it became a
+front page)."""
 DOCUMENTED_COMMAND = re.compile(r"cso-runtime ([a-z].*?)(?: && |; |$)")
 PLACEHOLDERS = {"path/to/dungeon": "../shared/maps/dungeon", "METHODS": "all", "SET": "easy", "DEV": "../shared/maps/dungeon/train", "SCENES": "builtin", "NAME": "sim"}
 """What BENCHMARKS.md's upper-case words stand for in a command (``DEV``: a development set of training plans; the
@@ -300,7 +305,7 @@ def test_every_repository_path_the_docs_name_exists():
         for ref in REPO_PATH.findall(doc.read_text(encoding="utf-8")):
             ref = ref.rstrip(".,)/")
             if "<" in ref or (ref.startswith("results/") and doc.name != "BENCHMARKS.md"):
-                continue  # a placeholder, or an output folder of a command (README's `--out results/easy`)
+                continue  # a placeholder, or an output folder of a command (docs/eval.md's `--out results/easy`)
             for path in _expand_braces("benchmarks/" + ref if ref.startswith("results/") else ref):
                 seen += 1
                 if not glob.glob(str(ROOT / path)):
@@ -314,18 +319,31 @@ def test_the_readmes_python_example_runs_and_prints_an_episode(tmp_path):
     import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, "-c", readme_python_examples()[0]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-c", python_examples()[0]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     coverage, steps, efficiency = re.fullmatch(r"(\d+\.\d) % in (\d+) steps, (\d\.\d{3}) m2/step\n", r.stdout).groups()
     assert float(coverage) > 99.0 and int(steps) > 0 and float(efficiency) > 0
 
 
-def readme_python_examples() -> list[str]:
-    """README's ```python blocks: the "From Python" episode, the MuJoCo LIMO on its own, then the shipped weights in the
-    Gymnasium env."""
-    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(encoding="utf-8"), flags=re.DOTALL)
-    assert len(blocks) == 3, "README's Python examples are gone"
-    return blocks
+PYTHON_EXAMPLES = [ROOT / "docs" / "eval.md", ROOT / "docs" / "simulator.md", ROOT / "docs" / "training.md"]
+"""The pages with the ```python blocks that were the README's: the "From Python" episode, the MuJoCo LIMO on its own,
+then the shipped weights in the Gymnasium env."""
+
+
+def python_examples() -> list[str]:
+    """The ```python block of each page of ``PYTHON_EXAMPLES``, in that order: one a page."""
+    blocks = [re.findall(r"```python\n(.*?)```", doc.read_text(encoding="utf-8"), flags=re.DOTALL) for doc in PYTHON_EXAMPLES]
+    assert [len(b) for b in blocks] == [1, 1, 1], "the docs' Python examples are gone"
+    return [b[0] for b in blocks]
+
+
+EVAL_DOC = ROOT / "docs" / "eval.md"
+"""The page of ``eval``'s outputs: its table of the files of a results folder (the README's until it became a front page)."""
+
+
+def _eval_output_rows() -> dict[str, str]:
+    """File name (as the table quotes it, in backticks) -> its row of docs/eval.md's table of outputs."""
+    return {line.split("|")[1].strip(): line for line in EVAL_DOC.read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
 
 
 def test_the_readmes_mujoco_example_steps_the_limo_and_writes_a_world_mujoco_loads(tmp_path):
@@ -336,7 +354,7 @@ def test_the_readmes_mujoco_example_steps_the_limo_and_writes_a_world_mujoco_loa
 
     import mujoco
 
-    r = subprocess.run([sys.executable, "-c", readme_python_examples()[1]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-c", python_examples()[1]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     assert re.fullmatch(r"odom x -?\d+\.\d\d m, y -?\d+\.\d\d m, yaw 0\.\d\d rad; 181 beams\n", r.stdout), r.stdout
     model = mujoco.MjModel.from_xml_path(str(tmp_path / "world.xml"))
@@ -349,7 +367,7 @@ def test_the_readmes_gymnasium_example_runs_the_shipped_weights_in_the_default_e
     import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, "-c", readme_python_examples()[2]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    r = subprocess.run([sys.executable, "-c", python_examples()[2]], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     returns = [float(x) for x in re.fullmatch(r"\[(.*)\]\n", r.stdout).group(1).split(",")]
     assert len(returns) == 2 and all(math.isfinite(x) for x in returns)
@@ -373,10 +391,10 @@ def test_messages_md_states_each_schemas_wire_version():
 
 def test_the_readme_names_every_column_of_episodes_csv_and_every_key_of_summary_json():
     """A user reading a results folder finds each column of episodes.csv and paired.csv and each per-method key of
-    summary.json in the README's table of outputs (with its unit), not only in the code."""
+    summary.json in the table of outputs (docs/eval.md; with its unit), not only in the code."""
     from cso_runtime.evaluation import CSV_FIELDS, METRICS, summarize
 
-    rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
+    rows = _eval_output_rows()
     csv_row, summary_row = rows["`episodes.csv`"], rows["`summary.json`"]
     assert [c for c in CSV_FIELDS if f"`{c}`" not in csv_row] == []
     from cso_runtime.comparison import CSV_FIELDS as PAIRED_FIELDS
@@ -395,7 +413,7 @@ def test_the_readme_says_which_image_an_interrupted_runs_last_map_has():
     writes the same."""
     from cso_runtime.launcher import LAST_MAP, LAST_MAP_IMAGE_FORMAT
 
-    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())  # a sentence may wrap
+    readme = " ".join(" ".join(doc.read_text(encoding="utf-8").split()) for doc in READ_FIRST)  # a sentence may wrap
     image = Path(LAST_MAP).with_suffix(f".{LAST_MAP_IMAGE_FORMAT}").name
     assert f"`{LAST_MAP}` and `{image}`" in readme and f"`save-map --format {LAST_MAP_IMAGE_FORMAT}`" in readme
 
@@ -412,7 +430,7 @@ def test_the_readmes_summary_json_row_names_every_key_of_meta(tmp_path):
     meta = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))["meta"]
     assert {"request", "config", "resumed_episodes"} <= set(meta)
     others = {"interrupted", "weights", "mujoco", "profile", "paused_s", "episode"}  # Ctrl-C, a learned method, --sim-config; up's
-    rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
+    rows = _eval_output_rows()
     about_meta = rows["`summary.json`"].split("`meta` (", 1)[1]
     assert sorted(k for k in {*meta, *others} if f"`{k}`" not in about_meta) == []
 
@@ -437,6 +455,27 @@ def test_the_readmes_dataflow_graph_is_part_of_the_sim_profiles():
     assert len(drawn) >= 12 and sorted(drawn - _mermaid_edges(r.output)) == []
 
 
+MAIN_JOB = "python3 -m venv .venv && . .venv/bin/activate && pip install -c constraints.txt -e . && cso-runtime up --profile sim"
+"""The README's main job, word for word (the set-up .ci/run repeats with the test extra)."""
+
+
+def test_the_readme_is_a_front_page_with_the_two_commands_and_a_line_for_every_command():
+    """README.md is a front page, the reference in docs/: its "Two commands" are exactly the main job and CI's
+    ``bash .ci/run``, its table of commands gives every command of the CLI a line and a link to the page that documents
+    it, it links every page of docs/, and it stays short enough to read through."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    two = readme.split("\n## Two commands\n", 1)[1].split("\n## ", 1)[0]
+    assert re.findall(r"```bash\n(.*?)\n```", two, flags=re.DOTALL) == [MAIN_JOB, "bash .ci/run"]
+    table = readme.split("\n## Commands\n", 1)[1].split("\n## ", 1)[0]
+    rows = [line.split("|") for line in table.splitlines() if line.startswith("| `")]
+    named = {name for row in rows for name in re.findall(r"`([\w-]+)`", row[1])}
+    assert sorted(set(typer.main.get_command(app).commands) - named) == []
+    assert [row[1] for row in rows if not MARKDOWN_LINK.search(row[3])] == []
+    linked = set(MARKDOWN_LINK.findall(readme))
+    assert sorted(f"docs/{doc.name}" for doc in (ROOT / "docs").glob("*.md") if f"docs/{doc.name}" not in linked) == []
+    assert len(readme.splitlines()) < 300, "the README grew back into a reference: move the details to docs/"
+
+
 def test_the_readme_names_every_array_of_an_episodes_npz(tmp_path):
     """``episodes/<method>/<map>.npz`` holds more than the three arrays the README's table named (the row, and the
     fingerprints ``--resume`` matches): a user loading one with numpy finds each of its keys there."""
@@ -446,7 +485,7 @@ def test_the_readme_names_every_array_of_an_episodes_npz(tmp_path):
     from cso_runtime.outputs import episode_npz_path
 
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path, max_steps=5))
-    rows = {line.split("|")[1].strip(): line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| `")}
+    rows = _eval_output_rows()
     keys = np.load(episode_npz_path(tmp_path, "greedy-dist", "gen_small_0")).files
     assert len(keys) >= 3 and [k for k in keys if f"`{k}`" not in rows["`episodes/<method>/<map>.npz`"]] == []
 
@@ -533,7 +572,7 @@ def test_the_readme_names_every_info_key_of_the_training_environment():
 
     from cso_runtime.learned.env import make_env
 
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    readme = TRAINING_DOC.read_text(encoding="utf-8")
     paragraph = readme[readme.index("**The training environment**") :].split("\n\n")[0]
     env = make_env("generated:small:1:0")
     _, reset_info = env.reset(seed=0)
@@ -551,7 +590,7 @@ def test_the_readme_names_every_column_of_the_training_log_with_its_unit():
     Its paragraph on the log now names each column with what it counts."""
     from cso_runtime.learned.ppo import LOG_FIELDS
 
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    readme = TRAINING_DOC.read_text(encoding="utf-8")
     paragraph = " ".join(readme[readme.index("**The CSV log**") :].split("\n- ")[0].split())  # its lines joined
     assert [c for c in LOG_FIELDS if f"`{c}` (" not in paragraph] == []
 
@@ -561,7 +600,7 @@ def test_the_readme_names_the_training_logs_columns_in_the_files_order():
     ``mean_return``, while the file has it (added later) after ``explained_variance``."""
     from cso_runtime.learned.ppo import LOG_FIELDS
 
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    readme = TRAINING_DOC.read_text(encoding="utf-8")
     paragraph = " ".join(readme[readme.index("**The CSV log**") :].split("\n- ")[0].split())
     named = sorted(LOG_FIELDS, key=lambda column: paragraph.index(f"`{column}` ("))
     assert named == LOG_FIELDS
@@ -574,7 +613,7 @@ def test_the_readme_says_which_scale_the_training_environment_gives_png_plans():
 
     from cso_runtime.learned.env import make_env
 
-    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    readme = TRAINING_DOC.read_text(encoding="utf-8")
     paragraph = readme[readme.index("**The training environment**") :].split("\n\n")[0]
     env_default = inspect.signature(make_env).parameters["m_per_px"].default
     eval_default = next(p.default for p in typer.main.get_command(app).commands["eval"].params if p.name == "m_per_px")
@@ -779,5 +818,5 @@ def test_the_readmes_exit_code_table_says_what_record_and_replay_do_with_no_run(
     monkeypatch.chdir(tmp_path)
     r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "new.mcap")])
     assert r.exit_code == 2 and "no current run" in r.output, r.output
-    row = next(line for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines() if line.startswith("| 2 |"))
+    row = next(line for line in (ROOT / "docs" / "commands.md").read_text(encoding="utf-8").splitlines() if line.startswith("| 2 |"))
     assert "no current run and no `--connect` (`record`, `replay`" in row

@@ -267,7 +267,7 @@ def test_a_one_seed_eval_into_the_folder_of_an_eval_of_several_seeds_is_refused(
     with pytest.raises(ConfigError, match="holds the episodes of a one-seed eval"):
         run_eval(seeds, plan=planned)
     assert not (tmp_path / "late2" / "seed0").exists()
-    mine = tmp_path / "mine"  # the README's former method: a --seed run per folder, in a folder of one's own
+    mine = tmp_path / "mine"  # the docs' former method: a --seed run per folder, in a folder of one's own
     run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=mine / "seed0"))
     assert run_eval(EvalRequest(methods=["random"], maps=str(maps), out_dir=mine, seed=1))["meta"]["seed"] == 1
 
@@ -505,8 +505,8 @@ def test_a_second_lidar_mount_in_evals_sim_config_names_the_key_eval_sets_the_se
 
 
 def test_eval_outside_the_repository_reads_the_packaged_configs_the_help_names(tmp_path: Path, monkeypatch):
-    """``--config configs/eval.yaml`` and ``--sim-config configs/robot_sim.yaml`` (what the help and the README
-    name) where there is no ``configs/``: the package's copies, with a note; another missing file stays an error."""
+    """``--config configs/eval.yaml`` and ``--sim-config configs/robot_sim.yaml`` (what the help, the README and
+    docs/eval.md name) where there is no ``configs/``: the package's copies, with a note; another missing file stays an error."""
     from typer.testing import CliRunner
 
     from cso_runtime.cli import PACKAGED_CONFIGS, app
@@ -2040,7 +2040,7 @@ def test_summary_and_report_give_each_table_1_metrics_sample_standard_deviation(
 def test_summary_json_says_how_each_of_its_figures_aggregates_the_episodes():
     """A reader of summary.json alone (pandas, a notebook) finds in it what each figure is: a mean over the episodes,
     the sample standard deviation beside it, the bootstrap interval with its resamples and seed (those
-    ``bootstrap_mean_ci`` runs with), without the README."""
+    ``bootstrap_mean_ci`` runs with), without the docs."""
     import inspect
 
     from cso_runtime.comparison import bootstrap_mean_ci

@@ -1807,7 +1807,7 @@ def test_a_resume_writes_beside_its_checkpoint_and_continues_that_runs_log(tmp_p
     train(Args(**recipe, out_dir=str(run), total_decisions=24), log=lambda _msg: None, plans=[rooms_plan(2)])
     train(Args(**{**recipe, "seed": 5}, out_dir=str(other), total_decisions=16), log=lambda _msg: None, plans=[rooms_plan(2)])
     checkpoint = run / "checkpoint.pt"
-    # README: the run's record gives back the env it stepped.
+    # docs/training.md: the run's record gives back the env it stepped.
     assert Args(**json.loads((run / "cso.json").read_text())["args"]).env_config() == Args(**recipe).env_config()
     monkeypatch.chdir(tmp_path)  # the default out_dir, were it used, is runs/train in here
     settings = [f"{k}={v}" for k, v in recipe.items()]
@@ -2245,7 +2245,7 @@ def test_the_learning_curve_is_redrawn_at_each_checkpoint_not_only_at_the_end(tm
 
 
 def test_two_runs_of_one_seed_write_the_same_log_but_for_its_times_in_one_process_or_several(tmp_path):
-    """The README promises what a CleanRL user checks first: the same configuration and seed give the same CSV log,
+    """docs/training.md promises what a CleanRL user checks first: the same configuration and seed give the same CSV log,
     the times (``wall_s``, ``sps``) aside, whether the environments step in this process or in their own; and two
     resumes from one checkpoint give the same log too."""
     common = {"seed": 3, "num_envs": 2, "num_steps": 8, "num_minibatches": 2, "max_steps": 40, "progress": False, "total_decisions": 48}

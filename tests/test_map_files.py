@@ -282,7 +282,7 @@ def test_the_unknown_grey_read_free_with_an_alpha_channel_is_said_too(tmp_path: 
     """A PNG map with an alpha channel has its alpha averaged in with its colour in trinary mode (as Nav2), so map_saver's
     opaque unknown grey 205 is read as a shade of 217.5, an occupancy of 0.147: free at ROS 2's free_thresh 0.25 and at
     ROS 1's 0.196 alike. The warning that says the unknown became floor compared the averaged shade with 205 and never
-    fired for such a map (README promises it); it is said, with the threshold that would keep those cells unknown."""
+    fired for such a map (docs/scenes.md promises it); it is said, with the threshold that would keep those cells unknown."""
     grey = np.array([[0, 205, 205, 254]], dtype=np.uint8)
     Image.fromarray(np.stack([grey, np.full_like(grey, 255)], axis=-1), "LA").save(tmp_path / "m.png")
     meta = {"image": "m.png", "resolution": 0.1, "origin": [0.0, 0.0, 0.0], "negate": 0, "occupied_thresh": 0.65}

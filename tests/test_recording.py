@@ -545,7 +545,7 @@ def test_a_recording_folder_gets_a_file_named_for_the_run(tmp_path: Path, monkey
 
 
 def test_record_and_replay_without_a_zenoh_session_exit_3_as_up_does(tmp_path: Path, monkeypatch):
-    """README's exit codes are the same for every command: no Zenoh session is 3 (it was 2 for record, 1 for replay)."""
+    """The exit codes (docs/commands.md) are the same for every command: no Zenoh session is 3 (it was 2 for record, 1 for replay)."""
     from typer.testing import CliRunner
 
     from cso_runtime import transport

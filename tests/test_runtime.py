@@ -680,7 +680,7 @@ def test_up_and_eval_refuse_an_existing_folder_they_cannot_write_in(tmp_path):
 def test_up_that_cannot_reach_the_router_to_join_says_so_and_starts_nothing(tmp_path):
     """``up --connect`` to a router that is not there (a robot that is off, another run's router gone): the embedded
     router retried in the background and the run started alone, exit 0, with no word of it. Now the no-session error
-    (README: exit 3), foreground and detached alike, once ``router.connect_timeout_s`` has passed; a foreground ``up``
+    (docs/commands.md: exit 3), foreground and detached alike, once ``router.connect_timeout_s`` has passed; a foreground ``up``
     says the wait as it starts."""
     from cso_runtime.runs import list_runs
 
@@ -2117,7 +2117,7 @@ def test_launcher_takes_the_published_result_and_says_when_none_comes(tmp_path):
 @pytest.mark.parametrize("stay_after_done", [False, True])
 def test_a_full_disk_at_the_episodes_end_is_said_and_the_run_stops_cleanly(tmp_path, monkeypatch, caplog, stay_after_done):
     """The episode ended, and its summary.json cannot be written (ENOSPC): the launcher raised out of its loop with a
-    traceback. It says which file and why, stops its services, leaves run.json as a failed run and exits 1 (README's
+    traceback. It says which file and why, stops its services, leaves run.json as a failed run and exits 1 (docs/commands.md's
     exit codes: ran but did not succeed), a detached run (``stay_after_done``) too: it has nothing left to stay for."""
     import errno
 

@@ -84,7 +84,7 @@ def test_the_embedded_router_picks_another_port_when_its_first_is_taken(monkeypa
 def test_an_embedded_router_that_cannot_reach_a_router_to_join_fails_to_open():
     """``up --connect tcp/HOST:PORT`` with nothing there started the run anyway (exit 0), the router retrying in the
     background with no word: a second robot ran alone, its `--without policy` episode waiting for a server it could
-    never reach. The router to join must be reachable within the timeout, as a client's is (README: exit 3)."""
+    never reach. The router to join must be reachable within the timeout, as a client's is (docs/commands.md: exit 3)."""
     nobody = loopback_endpoint(transport.free_tcp_port())
     with pytest.raises(transport.TransportError, match="Unable to connect") as err:
         transport.open_router(["tcp/127.0.0.1:0"], [nobody], connect_timeout_s=0.5)

@@ -1063,7 +1063,7 @@ global step (goal choices, warm start excluded); ``mean_return``, ``mean_coverag
 (control steps) over the episodes that ended in the update (empty when none did); the losses and ``approx_kl`` of
 its last minibatch and ``clipfrac`` over all its minibatches, as CleanRL logs them; ``explained_variance`` of the rollout's returns by its
 values (empty when the returns do not vary); ``sps`` the PPO decisions per second of training time so far. The
-README lists them with their units (tests/test_docs.py holds it to this list)."""
+docs/training.md lists them with their units (tests/test_docs.py holds it to this list)."""
 
 
 def explained_variance(values: torch.Tensor, returns: torch.Tensor) -> float | str:
