@@ -1006,7 +1006,7 @@ def router_command(
     import json  # noqa: PLC0415
     import threading  # noqa: PLC0415
 
-    from cso_runtime.config import EXIT_INTERRUPTED, EXIT_NO_ZENOH  # noqa: PLC0415
+    from cso_runtime.config import EXIT_INTERRUPTED, EXIT_NO_ZENOH, ConfigError, seconds  # noqa: PLC0415
     from cso_runtime.processes import restore_signal_handlers, stop_on_signals  # noqa: PLC0415
     from cso_runtime.transport import (  # noqa: PLC0415
         JOIN_TIMEOUT_S,
@@ -1027,9 +1027,10 @@ def router_command(
         _use_zenoh_config(zenoh_config)  # exit 2 for a file Zenoh or the runtime would refuse
     endpoints, joined = list(listen or [ROUTER_LISTEN]), list(connect or [])
     connect_timeout_s = JOIN_TIMEOUT_S if connect_timeout_s is None else connect_timeout_s
-    try:  # a malformed endpoint is a usage error (exit 2), before anything opens
+    try:  # a malformed endpoint, or a timeout a profile's router.connect_timeout_s may not be, is a usage error (exit 2), before anything opens
+        seconds("connect_timeout_s", positive=True)["connect_timeout_s"].check("--connect-timeout-s", connect_timeout_s)
         TransportConfig(mode="router", listen=endpoints, connect=joined, connect_timeout_s=connect_timeout_s).validate()
-    except TransportError as exc:
+    except (ConfigError, TransportError) as exc:
         _fail(str(exc), 2)
     if joined:  # a router to join that is off is only said once the timeout has passed: say the wait meanwhile
         typer.echo(f"joining {', '.join(joined)} (up to {connect_timeout_s:g} s, --connect-timeout-s)", err=True)
