@@ -443,7 +443,12 @@ def test_the_router_command_routes_sessions_through_it_and_stops_cleanly_on_sigt
         assert "router stopped" in out and "Traceback" not in out, out
     assert process_group_gone(proc.pid)
     with socket.socket() as again:  # the router let go of its port
+        # SO_REUSEADDR as a listener sets it (Zenoh's too): a connection of the sessions just closed may linger in
+        # TIME_WAIT on the port, which a plain bind refuses ("Address already in use", now and then); a socket still
+        # listening there is refused all the same
+        again.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         again.bind(("127.0.0.1", port))
+        again.listen()
 
 
 def test_the_router_command_refuses_a_bad_endpoint_and_says_when_its_port_is_taken(tmp_path):
