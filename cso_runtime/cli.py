@@ -1351,11 +1351,12 @@ def collect_teacher_command(
 ) -> None:
     """Collect a warm-start teacher's decisions once (the rollout teacher costs seconds per decision) for several training runs to imitate."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
-    from cso_runtime.learned.ppo import collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
+    from cso_runtime.learned.ppo import ARGS_BOUNDS, collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
     from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
 
     overrides: dict[str, object] = {"seed": seed, "warm_start_teacher": teacher, "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
     try:
+        ARGS_BOUNDS["num_envs"].check("--workers", workers)  # a process each, as train's num_envs with async_envs
         refuse_two_values_of_a_field(overrides, [], settings or [])  # --seed 3 --set seed=4, as train refuses it
         if teacher is None and "warm_start_teacher" not in parse_settings(settings or []):
             overrides["warm_start_teacher"] = "rollout"  # the default teacher, over the config file's (train's warm start's)
