@@ -44,6 +44,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from cso_runtime.config import MAX_RESTARTS
 from cso_runtime.status import query_status
 from cso_runtime.supervision import python_module_argv
 
@@ -98,8 +99,15 @@ def wait_for(cond, timeout_s: float, what: str, period_s: float = 0.2):
     raise RuntimeError(f"timed out after {timeout_s} s waiting for {what}")
 
 
+def restarts_setting(restarts: int) -> list[str]:
+    """``up``'s ``--set`` of ``supervision.max_restarts`` for a soak that kills the sim after each episode: ``restarts``,
+    at most ``config.MAX_RESTARTS`` (more is refused, exit 2; the back-off, doubled up to ``backoff_max_s`` within
+    ``restart_window_s``, lets a service restart far fewer times than that within the window anyway)."""
+    return ["--set", f"supervision.max_restarts={min(restarts, MAX_RESTARTS)}"]
+
+
 def soak_episodes(runs: Path, scene: str, method: str, episodes: int) -> list[dict]:
-    r = cli("up", "--profile", "lockstep", "--scene", scene, "--method", method, "--detach", "--set", f"supervision.max_restarts={episodes + 1}", runs=runs)
+    r = cli("up", "--profile", "lockstep", "--scene", scene, "--method", method, "--detach", *restarts_setting(episodes + 1), runs=runs)
     if r.returncode != 0:
         raise RuntimeError(f"up failed: {r.stdout}{r.stderr}")
     rows = []
@@ -173,7 +181,7 @@ def soak_minutes(runs: Path, scene: str, method: str, minutes: float, period_s: 
     """The long run: episodes one after another for ``minutes`` (``idle``: one, then the run left as it is, as a
     detached run waits for ``down``); (samples, episodes)."""
     extra = ["--record"] if record else []
-    r = cli("up", "--profile", profile, "--scene", scene, "--method", method, "--detach", "--no-live", *extra, "--set", "supervision.max_restarts=100000", runs=runs)
+    r = cli("up", "--profile", profile, "--scene", scene, "--method", method, "--detach", "--no-live", *extra, *restarts_setting(MAX_RESTARTS), runs=runs)
     if r.returncode != 0:
         raise RuntimeError(f"up failed: {r.stdout}{r.stderr}")
     samples: list[dict] = []

@@ -74,12 +74,16 @@ def pooled_rows(files: list[tuple[str, Path]]) -> list[dict[str, Any]]:
     pooled: dict[tuple, dict[str, Any]] = {}
     for label, path in files:
         with path.open(newline="") as fh:
-            for r in whole_rows(csv.DictReader(fh)):  # a row cut short is an error, not pooled
-                r = dict(r)
-                r["map"] = f"{label}/{r['map']}" if label else r["map"]
-                for k in METRICS:
-                    r[k] = float(r[k]) if r.get(k) not in (None, "") else None
-                pooled[(r["method"], r["map"], r["scale"], r["seed"])] = r
+            try:
+                rows = list(whole_rows(csv.DictReader(fh)))  # a row cut short is an error, not pooled
+            except ValueError as exc:  # which of the files, as compare says it
+                raise ValueError(f"{path}: {exc}") from None
+        for r in rows:
+            r = dict(r)
+            r["map"] = f"{label}/{r['map']}" if label else r["map"]
+            for k in METRICS:
+                r[k] = float(r[k]) if r.get(k) not in (None, "") else None
+            pooled[(r["method"], r["map"], r["scale"], r["seed"])] = r
     return list(pooled.values())
 
 
@@ -137,15 +141,19 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("give either summary.json files or episodes.csv files, not both")
     if args.table2 and len(csvs) != len(files):
         parser.error("--table2 reads episodes.csv files")
-    if args.table2:
-        print("\n".join(table2_from_episodes(csvs, args.baseline)))
-        return 0
-    if csvs:
-        print(HEADER + f" per scene vs {args.baseline} [95 % CI], won |")
-        print("| --- " * 10 + "|")
-        for line in table_from_episodes(csvs, args.baseline):
-            print(line)
-        return 0
+    try:  # an episodes.csv cut short: one line naming it (pooled_rows), not a traceback
+        if args.table2:
+            print("\n".join(table2_from_episodes(csvs, args.baseline)))
+            return 0
+        if csvs:
+            lines = table_from_episodes(csvs, args.baseline)
+            print(HEADER + f" per scene vs {args.baseline} [95 % CI], won |")
+            print("| --- " * 10 + "|")
+            for line in lines:
+                print(line)
+            return 0
+    except ValueError as exc:
+        parser.error(str(exc))
     print(HEADER)
     print("| --- " * 9 + "|")
     for _, p in files:

@@ -1025,7 +1025,7 @@ def router_command(
     import json  # noqa: PLC0415
     import threading  # noqa: PLC0415
 
-    from cso_runtime.config import EXIT_INTERRUPTED, EXIT_NO_ZENOH  # noqa: PLC0415
+    from cso_runtime.config import EXIT_INTERRUPTED, EXIT_NO_ZENOH, ConfigError, seconds  # noqa: PLC0415
     from cso_runtime.processes import restore_signal_handlers, stop_on_signals  # noqa: PLC0415
     from cso_runtime.transport import (  # noqa: PLC0415
         JOIN_TIMEOUT_S,
@@ -1046,9 +1046,10 @@ def router_command(
         _use_zenoh_config(zenoh_config)  # exit 2 for a file Zenoh or the runtime would refuse
     endpoints, joined = list(listen or [ROUTER_LISTEN]), list(connect or [])
     connect_timeout_s = JOIN_TIMEOUT_S if connect_timeout_s is None else connect_timeout_s
-    try:  # a malformed endpoint is a usage error (exit 2), before anything opens
+    try:  # a malformed endpoint, or a timeout a profile's router.connect_timeout_s may not be, is a usage error (exit 2), before anything opens
+        seconds("connect_timeout_s", positive=True)["connect_timeout_s"].check("--connect-timeout-s", connect_timeout_s)
         TransportConfig(mode="router", listen=endpoints, connect=joined, connect_timeout_s=connect_timeout_s).validate()
-    except TransportError as exc:
+    except (ConfigError, TransportError) as exc:
         _fail(str(exc), 2)
     if joined:  # a router to join that is off is only said once the timeout has passed: say the wait meanwhile
         typer.echo(f"joining {', '.join(joined)} (up to {connect_timeout_s:g} s, --connect-timeout-s)", err=True)
@@ -1390,11 +1391,12 @@ def collect_teacher_command(
 ) -> None:
     """Collect a warm-start teacher's decisions once (the rollout teacher costs seconds per decision) for several training runs to imitate."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
-    from cso_runtime.learned.ppo import collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
+    from cso_runtime.learned.ppo import ARGS_BOUNDS, collect_teacher_parallel  # noqa: PLC0415 - torch only for this command
     from cso_runtime.learned.vector_env import EnvWorkerDied  # noqa: PLC0415
 
     overrides: dict[str, object] = {"seed": seed, "warm_start_teacher": teacher, "dungeon_dir": str(dungeon_dir) if dungeon_dir else None}
     try:
+        ARGS_BOUNDS["num_envs"].check("--workers", workers)  # a process each, as train's num_envs with async_envs
         refuse_two_values_of_a_field(overrides, [], settings or [])  # --seed 3 --set seed=4, as train refuses it
         if teacher is None and "warm_start_teacher" not in parse_settings(settings or []):
             overrides["warm_start_teacher"] = "rollout"  # the default teacher, over the config file's (train's warm start's)

@@ -171,10 +171,12 @@ class SensorConfig:
             raise ConfigError(f"sensor.range_min_m must be in [0, range_max_m {self.range_max_m:g}) m, got {self.range_min_m:g}")
         from cso_runtime.messages import MAX_BEAMS  # noqa: PLC0415  (messages imports this module)
 
-        if (beams := round(self.fov_deg / self.resolution_deg)) > MAX_BEAMS:  # each scan would allocate them all
+        beams = self.fov_deg / self.resolution_deg  # infinite for a resolution of 5e-324: no round() of it
+        if not (math.isfinite(beams) and round(beams) <= MAX_BEAMS):  # each scan would allocate them all
+            said = f"{round(beams):,}" if math.isfinite(beams) else "infinitely many"
             raise ConfigError(
                 f"sensor.resolution_deg must be at least {self.fov_deg / MAX_BEAMS:g} degrees for a {self.fov_deg:g}-degree field of view "
-                f"(at most {MAX_BEAMS:,} beams a scan: messages.MAX_BEAMS), got {self.resolution_deg:g}: {beams:,} beams"
+                f"(at most {MAX_BEAMS:,} beams a scan: messages.MAX_BEAMS), got {self.resolution_deg:g}: {said} beams"
             )
 
 

@@ -272,3 +272,30 @@ def test_python_m_cso_runtime_runs_the_command(tmp_path: Path):
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}  # this checkout's package
     r = subprocess.run([sys.executable, "-m", "cso_runtime", "--version"], capture_output=True, text=True, cwd=tmp_path, env=env, timeout=60)
     assert r.returncode == 0 and r.stdout.startswith(f"cso-runtime {cso_runtime.__version__}\n"), (r.stdout, r.stderr)
+
+
+def test_collect_teacher_bounds_its_workers_as_train_bounds_num_envs(tmp_path: Path, monkeypatch):
+    """``collect-teacher --workers 5000`` started 5,000 processes (one environment each), where ``train --num-envs 5000``
+    is refused since the bounds (``learned.ppo.ARGS_BOUNDS``: at most ``MAX_ENVS``, no machine has more cores). The
+    same bound, exit 2 before any rollout; 1,024 is taken."""
+    from cso_runtime.cli import app
+    from cso_runtime.learned import ppo
+
+    class Collected:
+        def __len__(self) -> int:
+            return 0
+
+        def save(self, path: Path) -> None:
+            path.write_text("")
+
+    ran: list = []
+    monkeypatch.setattr(ppo, "collect_teacher_parallel", lambda args, workers, *rest, **kwargs: ran.append(workers) or Collected())
+    monkeypatch.setattr("cso_runtime.cli.interrupt_on_sigterm", lambda **_kwargs: None)
+    recipe = tmp_path / "mine.yaml"
+    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
+    common = ["collect-teacher", "--config", str(recipe), "--out", str(tmp_path / "t.npz"), "--teacher", "greedy-dist"]
+    r = CliRunner().invoke(app, [*common, "--workers", str(ppo.MAX_ENVS + 1)])
+    assert r.exit_code == 2 and "--workers must be in [1, 1,024] (MAX_ENVS), got 1,025" in " ".join(r.output.split()), r.output
+    assert not ran
+    r = CliRunner().invoke(app, [*common, "--workers", str(ppo.MAX_ENVS)])
+    assert r.exit_code == 0 and ran == [ppo.MAX_ENVS], r.output

@@ -1278,6 +1278,15 @@ def test_a_scan_of_more_beams_than_a_message_takes_is_refused_before_it_allocate
     SensorConfig(fov_deg=360.0, resolution_deg=360.0 / MAX_BEAMS).validate()
 
 
+@pytest.mark.parametrize("resolution_deg", [5e-324, 1e-310])
+def test_a_resolution_so_fine_its_beams_overflow_is_refused_not_an_overflow_error(resolution_deg):
+    """``sensor.resolution_deg: 5.0e-324`` (a positive float, so in (0, fov_deg]) made ``fov_deg / resolution_deg``
+    infinite, and the beams' count ``round(inf)`` an OverflowError traceback out of ``eval`` and ``up --dry-run``; it
+    is refused as any resolution finer than ``messages.MAX_BEAMS`` beams allow."""
+    with pytest.raises(ConfigError, match=r"^eval\.sensor\.resolution_deg must be at least 0\.0018 degrees for a 180-degree field of view "):
+        from_dict(ExplorationConfig, {"sensor": {"resolution_deg": resolution_deg}}, "eval")
+
+
 def test_eval_max_steps_beyond_the_longest_episode_is_refused_as_the_configs_own_key():
     """``eval --max-steps 2000000`` went round ``episode.max_steps``' bound (the flag replaced the checked value) and
     ran until the result did not fit its message; it is refused as the key would be."""

@@ -34,3 +34,21 @@ def test_episodes_pace_is_summed_up_by_medians_and_a_slope_per_episode():
     summary = soak.trends([], episodes, warmup_min=0.0)
     assert summary["episodes"] == 9 and summary["steps"] == [36]
     assert summary["real_time_factor"] == {"first_third_median": 18.0, "last_third_median": 12.0, "per_episode": pytest.approx(-1.0)}
+
+
+@pytest.mark.parametrize("restarts", [11, 1001, 100_000])
+def test_the_soaks_restarts_are_a_value_up_takes(restarts):
+    """The soak's ``up --set supervision.max_restarts=100000`` (``--minutes``), or ``--episodes`` + 1 over 1,000, was
+    refused since supervision.max_restarts is bounded by config.MAX_RESTARTS: ``up`` exited 2 and the soak with
+    "up failed". Every ``--set`` of the script is one ``up`` takes."""
+    from cso_runtime.cli import parse_settings
+    from cso_runtime.config import MAX_RESTARTS
+    from cso_runtime.run_profile import load_profile
+
+    soak = load_soak()
+    words = soak.restarts_setting(restarts)
+    assert words[0] == "--set"
+    profile, _ = load_profile("lockstep", {}, settings=parse_settings(words[1:]))
+    assert profile.supervision.max_restarts == min(restarts, MAX_RESTARTS)
+    source = (Path(__file__).parents[1] / "benchmarks" / "soak_runtime.py").read_text()
+    assert "supervision.max_restarts=" not in source.replace('f"supervision.max_restarts={min(restarts, MAX_RESTARTS)}"', ""), "every --set of it through restarts_setting"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import re
 from pathlib import Path
 
 import pytest
@@ -123,3 +124,21 @@ def test_benchmarks_tables_1_and_2_are_what_the_printed_command_pools_from_the_c
     table2_section = text[text.index("### Table 2") : text.index("With the paper's 2 m bound")]
     assert len(method_row.findall(table2_section)) == 10, "Table 2 lost rows"
     assert method_row.findall(table2_out) == method_row.findall(table2_section)
+
+
+def test_a_cut_episodes_csv_among_several_is_named_in_one_line(tmp_path, capsys):
+    """``tables.py a.csv b.csv`` with one of them cut short ended in a ValueError traceback, "line 4 has 6 cells ...",
+    naming no file; it is a usage error (exit 2) naming the file, as compare names it."""
+    whole = write(tmp_path / "whole.csv", [episode("greedy-dist", m, "large", 1.0) for m in "abc"])
+    text = whole.read_text()
+    cut = tmp_path / "cut.csv"
+    cut.write_text(text[: text.rindex("99.5") + 2])
+    tables = load_tables()
+    with pytest.raises(ValueError, match=f"^{re.escape(str(cut))}: line 4 has 6 cells"):
+        tables.pooled_rows([("", whole), ("", cut)])
+    for extra in ([], ["--table2"]):
+        with pytest.raises(SystemExit) as exited:
+            tables.main([str(whole), str(cut), *extra])
+        assert exited.value.code == 2
+        err = capsys.readouterr().err
+        assert f"{cut}: line 4 has 6 cells" in err and "Traceback" not in err, err

@@ -443,7 +443,12 @@ def test_the_router_command_routes_sessions_through_it_and_stops_cleanly_on_sigt
         assert "router stopped" in out and "Traceback" not in out, out
     assert process_group_gone(proc.pid)
     with socket.socket() as again:  # the router let go of its port
+        # SO_REUSEADDR as a listener sets it (Zenoh's too): a connection of the sessions just closed may linger in
+        # TIME_WAIT on the port, which a plain bind refuses ("Address already in use", now and then); a socket still
+        # listening there is refused all the same
+        again.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         again.bind(("127.0.0.1", port))
+        again.listen()
 
 
 def test_the_router_command_refuses_a_bad_endpoint_and_says_when_its_port_is_taken(tmp_path):
@@ -469,3 +474,18 @@ def test_the_router_command_refuses_a_bad_endpoint_and_says_when_its_port_is_tak
     nobody = loopback_endpoint(transport.free_tcp_port())
     r = CliRunner().invoke(app, ["router", "--listen", "tcp/127.0.0.1:0", "--connect", nobody, "--connect-timeout-s", "0.5"])
     assert r.exit_code == 3 and f"cannot reach {nobody} within 0.5 s" in r.stderr and "is the router to join running" in r.stderr, r.output
+
+
+@pytest.mark.parametrize("timeout_s", ["inf", "1e300", "86401"])
+def test_the_router_command_bounds_its_connect_timeout_as_a_profiles_router_connect_timeout_s(timeout_s):
+    """``router --connect-timeout-s inf`` ended in an OverflowError traceback (Zenoh's timeout in milliseconds, rounded),
+    ``1e300`` in Zenoh's "Json5Err ... error parsing integer": both after the router began to open, where
+    ``up --set router.connect_timeout_s=...`` refuses them (a day at most: config.MAX_WAIT_S). The same bound, a usage
+    error (exit 2) before anything opens."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    r = CliRunner().invoke(app, ["router", "--listen", "tcp/127.0.0.1:0", "--connect", "tcp/127.0.0.1:9", "--connect-timeout-s", timeout_s])
+    assert r.exit_code == 2, r.output
+    assert "--connect-timeout-s must be in (0, 86,400] s" in r.stderr and "Traceback" not in r.output, r.output
