@@ -938,7 +938,7 @@ def _fixed_simulator_settings_said(prof: Profile) -> list[str]:
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends (a detached run: its episode)"),
-    period_s: float = typer.Option(1.0, "--period", min=0.1, help="Seconds between two --watch refreshes"),
+    period_s: float = typer.Option(1.0, "--period", min=0.1, max=3600.0, help="Seconds between two --watch refreshes (0.1 to 3600)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),

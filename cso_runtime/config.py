@@ -99,6 +99,9 @@ MAX_WAIT_S = 86_400.0
 """The longest wait, period or timeout a service or the launcher takes, in seconds (a day): no timeout anyone means is
 longer, and one much longer (1e300 s) overflowed Python's own waits (``threading.TIMEOUT_MAX``) deep inside a running
 service, where it is refused before anything starts."""
+MAX_PROCESSES = 1024
+"""The most worker processes a command may start (``eval --workers``, ``collect-teacher --workers``, train's
+``num_envs`` with ``async_envs``) and torch threads it may take: no machine has more cores."""
 MAX_RESTARTS = 1000
 """The most restarts (a service's by the launcher, a helper process's by its service) a configuration may allow."""
 

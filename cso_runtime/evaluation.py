@@ -53,6 +53,7 @@ from cso_runtime.config import (
     EXIT_INTERRUPTED,
     LIDAR_FOVS_DEG,
     LIDAR_FOVS_SAID,
+    MAX_PROCESSES,
     ConfigError,
     ExplorationConfig,
     SensorConfig,
@@ -289,8 +290,8 @@ class EvalRequest:
         if self.max_steps is not None and self.max_steps <= 0:
             raise ConfigError(f"--max-steps must be positive, got {self.max_steps}")
         self.mujoco_parameters()
-        if self.workers <= 0:
-            raise ConfigError(f"--workers must be positive, got {self.workers}")
+        if not 1 <= self.workers <= MAX_PROCESSES:  # a process each: 5000 started 5,000 processes
+            raise ConfigError(f"--workers must be in [1, {MAX_PROCESSES:,}] (a process each: config.MAX_PROCESSES), got {self.workers}")
         check_seed(self.seed, "--seed")
         self.check_seeds()
         if not (math.isfinite(self.m_per_px) and self.m_per_px > 0):

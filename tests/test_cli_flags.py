@@ -299,3 +299,15 @@ def test_collect_teacher_bounds_its_workers_as_train_bounds_num_envs(tmp_path: P
     assert not ran
     r = CliRunner().invoke(app, [*common, "--workers", str(ppo.MAX_ENVS)])
     assert r.exit_code == 0 and ran == [ppo.MAX_ENVS], r.output
+
+
+def test_status_watch_period_is_bounded_before_anything_is_asked(tmp_path: Path):
+    """``status --watch --period 1e300`` was taken, and its wait overflowed Python's own timeout while a run went on.
+    Refused at once now (exit 2, typer's range check), as 0.05 already was; the bounds themselves are taken."""
+    from cso_runtime.cli import app
+
+    for period in ("1e300", "3600.5", "0.05"):
+        r = CliRunner().invoke(app, ["status", "--watch", "--period", period, "--runs-dir", str(tmp_path / "runs")])
+        assert r.exit_code == 2 and "--period" in r.output, (period, r.output)
+    r = CliRunner().invoke(app, ["status", "--period", "3600", "--runs-dir", str(tmp_path / "runs")])
+    assert r.exit_code == 1, r.output  # taken: nothing runs here, which status says (exit 1)

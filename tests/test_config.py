@@ -125,8 +125,12 @@ def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path
     assert EvalRequest(methods=["utility", "greedy-dist", "utility"]).methods == ["utility", "greedy-dist"]
     with pytest.raises(ConfigError, match="--max-steps must be positive, got 0"):
         EvalRequest(methods=["greedy-dist"], max_steps=0).validate()
-    with pytest.raises(ConfigError, match="--workers must be positive, got 0"):
-        EvalRequest(methods=["greedy-dist"], workers=0).validate()
+    # A process each: `--workers 5000` started 5,000 processes, as collect-teacher's and train's counts are bounded.
+    from cso_runtime.config import MAX_PROCESSES
+
+    for workers in (0, MAX_PROCESSES + 1):
+        with pytest.raises(ConfigError, match=rf"--workers must be in \[1, 1,024\] .*got {workers}"):
+            EvalRequest(methods=["greedy-dist"], workers=workers).validate()
 
 
 def test_eval_set_overrides_the_config_file_and_names_itself_in_errors(tmp_path: Path):

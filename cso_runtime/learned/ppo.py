@@ -38,6 +38,7 @@ from cso_runtime.config import (
     LIDAR_FOVS_SAID,
     MAX_DONE_UNEXPLORED_M2,
     MAX_EPISODE_STEPS,
+    MAX_PROCESSES,
     Bound,
     ConfigError,
     ExplorationConfig,
@@ -80,9 +81,9 @@ from cso_runtime.scenes import MAX_M_PER_PX, FloorPlan, SceneRef, resolve_scenes
 
 MAX_TRAINING_TIME_S = 30 * 86_400.0
 """The longest ``time_limit_s`` (30 days; 0 = none): a longer one is a value in another unit."""
-MAX_ENVS = 1024
-"""The most environments (``num_envs``) and torch threads (``torch_threads``) a run may have: no machine has more cores,
-and each environment is a process with ``async_envs``."""
+MAX_ENVS = MAX_PROCESSES
+"""The most environments (``num_envs``) and torch threads (``torch_threads``) a run may have (``config.MAX_PROCESSES``):
+each environment is a process with ``async_envs``."""
 MAX_NETWORK_WIDTH = 4096
 """The widest network (``hidden``; ``heads`` divide it): 128 times the shipped one's 32; wider allocates gigabytes per layer."""
 MAX_GRAPH_NODES = 10_000
