@@ -367,6 +367,10 @@ class Launcher:
         """When the run started (Unix time, s): ``run.json``'s ``started_at``, with ``ended_at`` once it stopped."""
         self.ended_status: EpisodeStatusMsg | None = None
         """The status that said the episode ended, while its result is awaited."""
+        self.end_heard: EpisodeStatusMsg | None = None
+        """The latest status that said the episode is over (``EPISODE_OVER``) since the run loop last looked
+        (``episode_end_heard``): one of the episode exploring can replace ``status`` before the loop, which looks every
+        0.1 s, gets to it (a stray end followed by the sim's next step's), and that end was neither judged nor counted."""
         self.status_watch: StatusWatch | None = None
         """Which services answer the launcher's status queries (their hang check), once the session is open."""
         self.service_notes: dict[str, str] = {}
@@ -535,6 +539,9 @@ class Launcher:
             if before is None or (before.episode, before.step, before.state) != (msg.episode, msg.step, msg.state):
                 self.step_changed_s = now
             self.status, self.status_heard_at_s = msg, now
+            if msg.state in EPISODE_OVER:
+                with self._lock:
+                    self.end_heard = msg
             if msg.coverage_measured is not None:  # the referee's word on its ground truth, over the services' names
                 self.coverage_measured = msg.coverage_measured
             if msg.state != "starting":  # the sim waits for the services before step 0: not its pace
@@ -948,6 +955,14 @@ class Launcher:
                 tend()
         return self.result
 
+    def episode_end_heard(self) -> EpisodeStatusMsg | None:
+        """The status that says the episode is over, for the run loop to judge: the current one, else the latest that
+        said so since the loop last asked, though one of the episode exploring came after it (``end_heard``)."""
+        with self._lock:
+            heard, self.end_heard = self.end_heard, None
+        st = self.status
+        return st if st is not None and st.state in EPISODE_OVER else heard
+
     def episode_goes_on(self) -> bool:
         """Whether the sim has reported the episode exploring again since it was said to end (the same
         episode, no step back): that end was no end (a stray or forged status), and no result will come."""
@@ -1346,20 +1361,21 @@ class Launcher:
                         logged_s = time.monotonic()
                         if st is not None and st.state == "exploring":
                             log.info("%s", self.progress_log_line(time.monotonic()))
-                    if ending is None and st is not None and st.state in EPISODE_OVER and not self.outputs_written:
-                        self.ended_status = st
+                    over = self.episode_end_heard()
+                    if ending is None and over is not None and not self.outputs_written:
+                        self.ended_status = over
                         result = self.wait_for_result(session, meanwhile=tend)
                         if result is None and self.episode_goes_on() and (now := self.status) is not None:
                             with self._lock:
                                 self.rejected["episode_status"] = self.rejected.get("episode_status", 0) + 1
-                            log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", st.state, st.step, now.step)
+                            log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", over.state, over.step, now.step)
                             self.ended_status = None
                             continue
                         if result is None:
-                            log.error("the episode is %s but its result never arrived: no summary.json was written", st.state)
+                            log.error("the episode is %s but its result never arrived: no summary.json was written", over.state)
                         # The recording ends with the episode: a detached run's file is finished (and its GIF
                         # drawn) now, not only at `down`; the loop goes on supervising meanwhile.
-                        ending, recorder = self.start_episode_end(st, result, recorder), None
+                        ending, recorder = self.start_episode_end(over, result, recorder), None
                     if ending is not None:
                         finished = not ending.thread.is_alive()  # before settling: its results are written then
                         self.settle_episode_end(ending)
