@@ -1135,7 +1135,8 @@ def _prune_runs(runs_dir: Path, keep: int | None, older_than_days: float | None,
     errors = delete_runs(plan.prune) if delete else []
     if as_json:
         spared = [str(d) for d in plan.spared]
-        typer.echo(json.dumps({"runs_dir": str(runs_dir), "deleted": delete and not errors, "runs": rows, "spared": spared, "errors": errors}, indent=2))
+        not_runs = {str(d): why for d, why in plan.not_runs.items()}
+        typer.echo(json.dumps({"runs_dir": str(runs_dir), "deleted": delete and not errors, "runs": rows, "spared": spared, "errors": errors, "not_runs": not_runs}, indent=2))
     else:
         mb = sum(sizes.values()) / 1e6
         said = "deleted" if delete else "would delete"
@@ -1143,7 +1144,9 @@ def _prune_runs(runs_dir: Path, keep: int | None, older_than_days: float | None,
         for r in rows:
             typer.echo(f"  {r['run_id']}  {r['state']}, {r['bytes'] / 1e6:.1f} MB")
         for d in plan.spared:
-            typer.echo(f"  kept: {d.name} (the current run, or its launcher runs)")
+            typer.echo(f"  kept: {d.name} (the current run, or its launcher or one of its services runs)")
+        for d, why in plan.not_runs.items():
+            typer.echo(f"  left alone: {d.name} ({why})")
         if rows and not delete:
             typer.echo("nothing deleted: add --yes to delete them")
     for error in errors:

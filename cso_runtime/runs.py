@@ -22,8 +22,16 @@ from typing import Any
 
 import yaml
 
-from cso_runtime.current_run import CURRENT_RUN, LAUNCHER_DIED, STOPPED_BY_DOWN, current_launcher_alive, read_current_run
+from cso_runtime.current_run import (
+    CURRENT_RUN,
+    LAUNCHER_DIED,
+    STOPPED_BY_DOWN,
+    current_launcher_alive,
+    read_current_run,
+    run_file_problem,
+)
 from cso_runtime.report import whole_count
+from cso_runtime.supervision import run_process_alive
 
 LOG_DIR = "logs"
 LOG_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
@@ -190,18 +198,50 @@ def folder_bytes(folder: Path) -> int:
 
 @dataclass
 class PrunePlan:
-    """The run folders ``runs --keep/--older-than`` selects: those it deletes, and those it never touches though
-    selected (the current run, or one whose launcher still runs)."""
+    """The run folders ``runs --keep/--older-than`` selects: those it deletes, those it never touches though
+    selected (the current run, or one whose launcher or a service of it still runs), and the folders of ``runs_dir``
+    with a ``run.json`` that are no run folder ``up`` wrote (``not_a_run_folder``): never selected, never counted."""
 
     prune: list[Path]
     spared: list[Path]
+    not_runs: dict[Path, str] = field(default_factory=dict)
+    """Folder -> why it is no run folder."""
+
+
+def not_a_run_folder(folder: Path) -> str:
+    """Why ``folder`` (of ``run_dirs``) is no run folder that ``up`` wrote, so that pruning never deletes it; "" when it
+    is one. A link (to a folder elsewhere: deleting it is not deleting a run of this runs folder), or a ``run.json`` that
+    is not a launcher's run file (a folder of one's own that has a file of that name; a ``run.json`` that is a folder)."""
+    if folder.is_symlink():
+        return "a link, not a run folder of this runs folder"
+    info = read_json_object(folder / "run.json") if (folder / "run.json").is_file() else None
+    if info is None or run_file_problem(info) or not isinstance(info.get("launcher_pid"), int):
+        return "its run.json is not one `up` wrote"
+    return ""
+
+
+def run_processes_alive(run_dir: Path) -> bool:
+    """Whether the run's launcher, or one of the services its run file names as running (a pid with its start time),
+    still runs: a run whose launcher died leaves its services writing their logs into its folder until ``down``."""
+    info = read_json_object(run_dir / "run.json")
+    if info is None:
+        return False
+    if current_launcher_alive(info):
+        return True
+    services = s if isinstance(s := info.get("services"), dict) else {}
+    return any(
+        isinstance(svc, dict) and isinstance(svc.get("pid"), int) and isinstance(svc.get("start_ticks"), int) and run_process_alive(svc["pid"], svc["start_ticks"])
+        for svc in services.values()
+    )
 
 
 def plan_prune(runs_dir: Path, keep: int | None = None, older_than_days: float | None = None, now_s: float | None = None) -> PrunePlan:
-    """The runs of ``runs_dir`` (folders with a run.json) beyond the newest ``keep`` and (when given) started more
-    than ``older_than_days`` ago, oldest first; both given: only those both select. A run whose start is unknown is
-    never older than anything. The current run (``runs/current.json``) and every run whose launcher is alive are spared."""
-    dirs = run_dirs(runs_dir)
+    """The runs of ``runs_dir`` (folders with a run.json that ``up`` wrote) beyond the newest ``keep`` and (when given)
+    started more than ``older_than_days`` ago, oldest first; both given: only those both select. A run whose start is
+    unknown is never older than anything. The current run (``runs/current.json``) and every run whose launcher or one of
+    whose services is alive are spared; a folder that is no run folder (``not_a_run_folder``) is neither selected nor counted."""
+    not_runs = {d: why for d in run_dirs(runs_dir) if (why := not_a_run_folder(d))}
+    dirs = [d for d in run_dirs(runs_dir) if d not in not_runs]
     selected = dirs if keep is None else dirs[: max(len(dirs) - keep, 0)]
     if older_than_days is not None:
         now = time.time() if now_s is None else now_s
@@ -210,9 +250,9 @@ def plan_prune(runs_dir: Path, keep: int | None = None, older_than_days: float |
     current_dir = Path(str(current["run_dir"])).resolve() if current.get("run_dir") else None
 
     def spared(d: Path) -> bool:
-        return d.resolve() == current_dir or d.name == current.get("run_id") or run_is_live(d)
+        return d.resolve() == current_dir or d.name == current.get("run_id") or run_processes_alive(d)
 
-    return PrunePlan([d for d in selected if not spared(d)], [d for d in selected if spared(d)])
+    return PrunePlan([d for d in selected if not spared(d)], [d for d in selected if spared(d)], not_runs)
 
 
 def delete_runs(dirs: Iterable[Path]) -> list[str]:

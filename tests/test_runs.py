@@ -335,6 +335,42 @@ def test_runs_keep_and_older_than_list_old_runs_and_delete_them_only_with_yes_ne
     assert r.exit_code == 2 and "--keep N or --older-than DAYS" in r.output
 
 
+def test_runs_prune_never_deletes_a_folder_that_is_no_run_or_a_run_whose_services_still_run(tmp_path):
+    """``runs --keep 0 --yes`` deleted every folder of the runs folder that had a file named run.json: a folder of one's
+    own (a training run's run.json), a run.json that is a folder, a link to a run elsewhere (an error: rmtree of a link),
+    and the folder of a run whose launcher died while its services still ran and wrote their logs there. Those are
+    left alone (said, and in ``--json``'s ``not_runs``) or spared, and none counts toward ``--keep``."""
+    from cso_runtime.runs import plan_prune
+
+    runs = tmp_path / "runs"
+    old = make_run(runs, "20261201-090000-lockstep-r0", outcome="done")
+    orphaned = make_run(runs, "20261201-091000-lockstep-r0", state="running")  # its launcher died, a service of it runs
+    info = json.loads((orphaned / "run.json").read_text())
+    info["services"]["sim"] = {"pid": os.getpid(), "start_ticks": process_start_ticks(os.getpid()), "restarts": 0}
+    (orphaned / "run.json").write_text(json.dumps(info))
+    (runs / "notes").mkdir()
+    (runs / "notes" / "run.json").write_text(json.dumps({"epochs": 3}))
+    (runs / "list").mkdir()
+    (runs / "list" / "run.json").write_text("[1, 2]")
+    (runs / "dirjson" / "run.json").mkdir(parents=True)
+    elsewhere = make_run(tmp_path / "elsewhere", "20261201-080000-lockstep-r0", outcome="done")
+    (runs / "20261201-085000-link").symlink_to(elsewhere)
+
+    plan = plan_prune(runs, keep=0)
+    assert plan.prune == [old] and plan.spared == [orphaned], plan
+    assert sorted(d.name for d in plan.not_runs) == ["20261201-085000-link", "dirjson", "list", "notes"]
+    assert plan_prune(runs, keep=1).prune == [old]  # the folders that are no run do not count toward the newest 1
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--keep", "0", "--yes", "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.output)
+    assert [x["run_id"] for x in out["runs"]] == [old.name] and out["errors"] == [] and out["spared"] == [str(orphaned)]
+    assert out["not_runs"][str(runs / "notes")] == "its run.json is not one `up` wrote"
+    assert sorted(p.name for p in runs.iterdir()) == ["20261201-085000-link", orphaned.name, "dirjson", "list", "notes"]
+    assert (elsewhere / "run.json").is_file() and (runs / "notes" / "run.json").is_file()
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--keep", "0"])
+    assert "left alone: notes (its run.json is not one `up` wrote)" in r.output and f"kept: {orphaned.name}" in r.output, r.output
+
+
 def test_a_real_robots_run_names_no_scene_of_a_simulator_in_runs_and_the_launchers_first_line():
     """A ``limo-ros2`` run has no simulator: the launcher's first line said "scene generated:small:1:0" (the profile
     default, never run) and ``runs`` listed its row as ", cso". Both now say that the robot explores where it is;
