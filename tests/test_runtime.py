@@ -3402,6 +3402,47 @@ def test_save_map_below_a_file_names_the_file_in_the_way(tmp_path, monkeypatch, 
     assert (tmp_path / "ok" / "m.yaml").is_file() and "map of step 7" in capsys.readouterr().out
 
 
+def test_save_map_in_a_runs_first_seconds_says_it_has_no_map_yet_not_only_the_key(tmp_path, monkeypatch, capsys):
+    """``save-map`` in the first seconds of a run said "no map for robot r0: nothing answered on cso/r0/cache/map": true,
+    but a user's question is what state the run is in. It says that the run has no map yet (its mapper has not
+    published one, the episode's state and step when its status answers, else that its services may still be
+    starting), to try again in a moment, and keeps the key and what it answered for those who debug."""
+    from types import SimpleNamespace
+
+    import cso_runtime.status as status_module
+    from cso_runtime.messages import EpisodeStatusMsg
+    from cso_runtime.status import RunTarget
+
+    def reply(ok: bytes | None = None, err: str | None = None) -> SimpleNamespace:
+        payload = SimpleNamespace(to_bytes=lambda: ok, to_string=lambda: err)
+        return SimpleNamespace(ok=None if ok is None else SimpleNamespace(payload=payload), err=None if err is None else SimpleNamespace(payload=payload))
+
+    class Session(contextlib.AbstractContextManager):  # a run's network as save-map asks it: the episode's status and the map's key
+        def __init__(self, answers: dict[str, list[SimpleNamespace]]) -> None:
+            self.answers = answers
+
+        def __exit__(self, *_exc: object) -> None:
+            pass
+
+        def get(self, key: str, **_kw: object) -> list[SimpleNamespace]:
+            return self.answers.get(key, [])
+
+    keys = RobotKeys("r0")
+    monkeypatch.setattr(status_module, "reachable_target", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
+    starting = encode(EpisodeStatusMsg(state="starting", step=0))
+    for answers, said in (
+        ({}, ("no episode status answers either: its services may still be starting", f"nothing answered on {keys.cache('map')}", "`cso-runtime status`")),
+        ({keys.episode_status: [reply(starting)]}, ("its mapper has not published one (the episode is starting, at step 0;", f"nothing answered on {keys.cache('map')}")),
+        ({keys.episode_status: [reply(starting)], keys.cache("map"): [reply(err="no map yet")]}, (f"{keys.cache('map')} answered: no map yet",)),
+    ):
+        monkeypatch.setattr(status_module, "_client_session", lambda *_a, answers=answers, **_k: Session(answers))
+        assert save_map_main([], None, tmp_path / "m", "pgm", tmp_path / "runs") == 1
+        out = capsys.readouterr().out
+        assert out.startswith("no map for robot r0: the run has no map yet") and out.rstrip().endswith("; try again in a moment"), out
+        assert all(words in out for words in said), out
+    assert not (tmp_path / "m.yaml").exists()
+
+
 def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
     """A launcher killed by SIGKILL leaves runs/current.json behind: ``status`` says its launcher has exited
     instead of waiting on the router it held. A router that is stopped (its port accepts TCP, no Zenoh
