@@ -416,8 +416,8 @@ def pose_words(pose_m: list[float] | None, twist: list[float] | None) -> str:
 
 
 def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False, episode_over: str = "") -> list[str]:
-    """How a service's row begins (an entry of ``status_of``'s ``services``): alive, starting (its process runs, its
-    session is not up yet) or DOWN, not started by this run (another process is to serve it), and whether the episode
+    """How a service's row begins (an entry of ``status_of``'s ``services``): alive (its token is there, or it answered
+    its status query), starting (its process runs, its session is not up yet) or DOWN, not started by this run (another process is to serve it), and whether the episode
     waits for it; ``status`` and the live view alike.
     ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN).
     ``episode_over``: the state of an episode that has ended (done, failed), else "": a service the episode waited for
@@ -429,7 +429,8 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopp
         gone = "starting"  # its process runs, its session is not up yet (as the live view says it): not DOWN
     if episode_over and service.get("outside") and service.get("awaited"):
         gone = f"idle (episode {episode_over}: not needed after it)"
-    words = ["alive" if service["alive"] else "running" if running else gone]
+    # One that answered its status query has its session up, before its token is seen: alive, not "starting, running".
+    words = ["alive" if service["alive"] or service.get("state") else "running" if running else gone]
     if service.get("outside"):
         words.append("not started by this run")
     if name in waiting:

@@ -2658,6 +2658,32 @@ def test_status_of_a_run_just_started_says_its_services_are_starting_not_down():
     assert re.search(r"│ scene / method +│ - +│", text) and re.search(r"│ episode id +│ - +│", text), text
 
 
+def test_status_of_a_service_that_answers_before_its_token_is_seen_says_one_state():
+    """A service answers its status query a moment before its liveliness token is seen: ``status`` read
+    "starting, running" (its process runs, its token not yet there, and its own state) and one not started by this run
+    "DOWN, not started by this run, running". One that answers is up: "alive, running", as a moment later."""
+    from rich.console import Console
+
+    from cso_runtime.status import render_table, status_of
+
+    launcher = {
+        "run_id": "run1",
+        "state": "running",
+        "services": {
+            "sim": {"pid": 11, "process_alive": True, "liveliness": False, "restarts": 0},
+            "policy": {"liveliness": False, "outside": True},
+        },
+    }
+    answers = {"state": "running", "reason": "", "last_step": 3, "rejected": {}, "processed": 3}
+    status = status_of("r0", None, launcher, {"sim": answers, "policy": answers}, set())
+    console = Console(record=True, width=200)
+    console.print(render_table(status))
+    text = console.export_text()
+    assert re.search(r"│ service sim +│ alive, running +│", text), text
+    assert re.search(r"│ service policy +│ alive, not started by this run, running +│", text), text
+    assert status["services"]["sim"]["alive"] is False  # JSON keeps the token's word
+
+
 def test_status_says_a_real_robots_coverage_is_not_measured_and_json_keeps_its_zero():
     """``status`` on a LIMO said "coverage 0.00 %" for the whole run, beside a map growing by the second (there is no
     ground truth to measure it against): the table says so; ``--json`` keeps ``coverage_pct`` 0, as summary.json."""
