@@ -1113,8 +1113,9 @@ def runs_command(
         restarts = r["restarts"]
         state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "")
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
+        steps = f"{r['stopped_at_step']} (stopped)" if r["steps"] is None and r["stopped_at_step"] is not None else num(r["steps"], ".0f")
         table.add_row(
-            escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
+            escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, steps,
             num(r["coverage_pct"], ".1f") if r["coverage_measured"] else NO_COVERAGE, num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
     table_console().print(table)

@@ -442,6 +442,8 @@ class Launcher:
             **({"detached": True} if self.detached else {}),
             "started_at": round(self.started_at, 3),
             **({"outcome": self.outcome(), "exit_code": self.exit_code, "ended_at": round(time.time(), 3)} if state == "stopped" else {}),
+            # the step the episode was at as it stopped (its last status): `runs` shows where a run without results stopped
+            **({"last_step": self.status.step} if state == "stopped" and self.status is not None else {}),
             **({"episode_ended_at": round(self.episode_ended_at, 3)} if self.episode_ended_at is not None else {}),
             **({"lost_router": self.joined_router()} if self.router_lost_at is not None else {}),
             **({"run_dir_lost": self.run_folder.losses} if self.run_folder.losses else {}),

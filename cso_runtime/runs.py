@@ -67,6 +67,9 @@ class RunSummary:
     """The method's Table 1 row from ``summary.json`` (empty until the episode ended)."""
     restarts: int = 0
     """Service restarts by the launcher, all services together."""
+    stopped_at_step: int | None = None
+    """The step its episode was at as the run stopped (run.json's ``last_step``: the last episode status its launcher
+    heard) when it has no results to give its steps (interrupted, failed); None otherwise, or not known."""
     duration_s: float | None = None
     """How long the run took to the end of its episode (``episode_ended_at - started_at`` of run.json; a detached
     run then waits for ``down``), else to its stop (``ended_at``), or has been running; None for a run file from
@@ -89,6 +92,7 @@ class RunSummary:
             "terminated_by": next(iter(self.metrics.get("terminated_by") or {}), None),
             "restarts": self.restarts,
             "duration_s": None if self.duration_s is None else round(self.duration_s, 1),
+            "stopped_at_step": self.stopped_at_step,
         }
 
 
@@ -158,6 +162,7 @@ def summarize_run(run_dir: Path) -> RunSummary:
         metrics=dict(methods.get(method) or {}),
         restarts=sum(int(s.get("restarts") or 0) for s in services.values() if isinstance(s, dict)),
         duration_s=duration_s,
+        stopped_at_step=None if methods.get(method) or state == "running" or not isinstance(last := info.get("last_step"), int) or isinstance(last, bool) else last,
     )
 
 

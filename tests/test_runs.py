@@ -86,7 +86,7 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert list_runs(runs)[-1].as_dict() | {"run_dir": ""} == {
         "run_id": broken.name, "run_dir": "", "state": "stopped", "profile": "", "robot": "", "scene": "", "real_robot": False, "coverage_measured": True, "method": "",
         "explored_area_m2": None, "coverage_pct": None, "steps": None, "efficiency_m2_per_step": None, "path_length_m": None,
-        "terminated_by": None, "restarts": 0, "duration_s": None,
+        "terminated_by": None, "restarts": 0, "duration_s": None, "stopped_at_step": None,
     }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback)
     shutil.rmtree(broken)
     killed = make_run(runs, "20261203-091500-lockstep-r0", state="running")  # its launcher is gone, the file says running
@@ -120,6 +120,24 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert "m2/step" in piped.output and "0.607" in next(ln for ln in piped.output.splitlines() if "091100" in ln)  # was cut at 80
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "none")])
     assert r.exit_code == 0 and "no runs in" in r.output
+
+
+def test_runs_shows_the_step_an_interrupted_run_stopped_at(tmp_path):
+    """``runs`` showed "-" for the steps of an interrupted run (no summary.json), though its launcher knew the step it
+    stopped at: run.json keeps it (``last_step``), and ``runs`` shows it as where the run stopped (``--json``:
+    ``stopped_at_step``); a run with results shows its episode's steps as before."""
+    runs = tmp_path / "runs"
+    stopped = make_run(runs, "20261203-091000-lockstep-r0", outcome="interrupted", times=(1000.0, 1065.4))
+    (stopped / "run.json").write_text(json.dumps(json.loads((stopped / "run.json").read_text()) | {"last_step": 120}))
+    done = make_run(runs, "20261203-091100-lockstep-r0", outcome="done", summary=ROW)
+    (done / "run.json").write_text(json.dumps(json.loads((done / "run.json").read_text()) | {"last_step": 40}))
+    old = make_run(runs, "20261203-091200-lockstep-r0", outcome="interrupted")  # a run file from before last_step
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--json"])
+    assert [(x["steps"], x["stopped_at_step"]) for x in json.loads(r.output)] == [(None, 120), (36, None), (None, None)], r.output
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "120"})
+    assert "120 (stopped)" in next(ln for ln in r.output.splitlines() if stopped.name in ln), r.output
+    assert "(stopped)" not in next(ln for ln in r.output.splitlines() if done.name in ln), r.output
+    assert "(stopped)" not in next(ln for ln in r.output.splitlines() if old.name in ln), r.output
 
 
 def test_logs_merge_services_in_time_order_keeping_each_files_own_order(tmp_path):

@@ -4944,6 +4944,11 @@ def test_down_of_a_cso_run_stops_the_policy_service_on_sigint_and_its_log_ends_w
         launcher_log = (run_dir / "logs" / "launcher.log").read_text()
         assert "still running after" not in launcher_log, launcher_log
         assert (run_dir / "logs" / "policy.log").read_text().splitlines()[-1].endswith("INFO cso.service: policy: stopped")
+        # where it stopped: run.json keeps the step, `runs` shows it (it showed "-" for a run without results)
+        assert json.loads((run_dir / "run.json").read_text())["last_step"] >= 2
+        r = cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        (row,) = json.loads(r.stdout)
+        assert row["state"] == "interrupted" and row["steps"] is None and row["stopped_at_step"] >= 2, row
     finally:
         cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert kill_leftovers(runs) == []
