@@ -1111,7 +1111,7 @@ def runs_command(
         table.add_column(col, justify="right", no_wrap=True)
     for r in rows:
         restarts = r["restarts"]
-        state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "")
+        state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "") + (f": {r['reason']}" if r["reason"] else "")
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         steps = f"{r['stopped_at_step']} (stopped)" if r["steps"] is None and r["stopped_at_step"] is not None else num(r["steps"], ".0f")
         table.add_row(

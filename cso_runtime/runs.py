@@ -67,6 +67,9 @@ class RunSummary:
     """The method's Table 1 row from ``summary.json`` (empty until the episode ended)."""
     restarts: int = 0
     """Service restarts by the launcher, all services together."""
+    reason: str = ""
+    """Why a run failed before it started any service, as its launcher wrote it (run.json's ``reason``: ``refused: robot
+    r0 is already run by another launcher ...``, no router); "" when none was written."""
     stopped_at_step: int | None = None
     """The step its episode was at as the run stopped (run.json's ``last_step``: the last episode status its launcher
     heard) when it has no results to give its steps (interrupted, failed); None otherwise, or not known."""
@@ -93,6 +96,7 @@ class RunSummary:
             "restarts": self.restarts,
             "duration_s": None if self.duration_s is None else round(self.duration_s, 1),
             "stopped_at_step": self.stopped_at_step,
+            "reason": self.reason,
         }
 
 
@@ -162,6 +166,7 @@ def summarize_run(run_dir: Path) -> RunSummary:
         metrics=dict(methods.get(method) or {}),
         restarts=sum(int(s.get("restarts") or 0) for s in services.values() if isinstance(s, dict)),
         duration_s=duration_s,
+        reason="" if info.get("reason") == STOPPED_BY_DOWN else str(info.get("reason") or ""),  # down's: the state says it
         stopped_at_step=None if methods.get(method) or state == "running" or not isinstance(last := info.get("last_step"), int) or isinstance(last, bool) else last,
     )
 

@@ -86,7 +86,7 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert list_runs(runs)[-1].as_dict() | {"run_dir": ""} == {
         "run_id": broken.name, "run_dir": "", "state": "stopped", "profile": "", "robot": "", "scene": "", "real_robot": False, "coverage_measured": True, "method": "",
         "explored_area_m2": None, "coverage_pct": None, "steps": None, "efficiency_m2_per_step": None, "path_length_m": None,
-        "terminated_by": None, "restarts": 0, "duration_s": None, "stopped_at_step": None,
+        "terminated_by": None, "restarts": 0, "duration_s": None, "stopped_at_step": None, "reason": "",
     }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback)
     shutil.rmtree(broken)
     killed = make_run(runs, "20261203-091500-lockstep-r0", state="running")  # its launcher is gone, the file says running

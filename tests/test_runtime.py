@@ -761,6 +761,16 @@ def test_up_refuses_a_robot_id_that_another_run_on_the_network_has(tmp_path, tak
             }[taken_by]
             assert r.returncode == 2 and f"robot r0 {expected}" in r.stderr and "another --robot" in r.stderr, r.stderr[-2000:]
             assert not list(runs.glob("*/logs/mapper.log"))  # no service was started
+            # Its folder is the record of the refusal (its launcher.log says it): `runs` lists it as failed, and why
+            r = cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+            (row,) = json.loads(r.stdout)
+            assert row["state"] == "failed" and row["reason"].startswith(f"refused: robot r0 {expected}"), row
+            from typer.testing import CliRunner
+
+            from cso_runtime.cli import app
+
+            table = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "200"}).output
+            assert "failed: refused: robot r0" in table, table
         finally:
             held.undeclare()
 
