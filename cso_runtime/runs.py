@@ -250,8 +250,9 @@ def plan_prune(runs_dir: Path, keep: int | None = None, older_than_days: float |
     started more than ``older_than_days`` ago, oldest first; both given: only those both select. A run whose start is
     unknown is never older than anything. The current run (``runs/current.json``) and every run whose launcher or one of
     whose services is alive are spared; a folder that is no run folder (``not_a_run_folder``) is neither selected nor counted."""
-    not_runs = {d: why for d in run_dirs(runs_dir) if (why := not_a_run_folder(d))}
-    dirs = [d for d in run_dirs(runs_dir) if d not in not_runs]
+    found = run_dirs(runs_dir)
+    not_runs = {d: why for d in found if (why := not_a_run_folder(d))}
+    dirs = [d for d in found if d not in not_runs]
     selected = dirs if keep is None else dirs[: max(len(dirs) - keep, 0)]
     if older_than_days is not None:
         now = time.time() if now_s is None else now_s
