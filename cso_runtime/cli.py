@@ -1116,10 +1116,11 @@ def runs_command(
         table.add_column(col, justify="right", no_wrap=True)
     for r in rows:
         restarts = r["restarts"]
-        state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "")
+        state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "") + (f": {r['reason']}" if r["reason"] else "")
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
+        steps = f"{r['stopped_at_step']} (stopped)" if r["steps"] is None and r["stopped_at_step"] is not None else num(r["steps"], ".0f")
         table.add_row(
-            escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, num(r["steps"], ".0f"),
+            escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, steps,
             num(r["coverage_pct"], ".1f") if r["coverage_measured"] else NO_COVERAGE, num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
     table_console().print(table)
@@ -1140,7 +1141,8 @@ def _prune_runs(runs_dir: Path, keep: int | None, older_than_days: float | None,
     errors = delete_runs(plan.prune) if delete else []
     if as_json:
         spared = [str(d) for d in plan.spared]
-        typer.echo(json.dumps({"runs_dir": str(runs_dir), "deleted": delete and not errors, "runs": rows, "spared": spared, "errors": errors}, indent=2))
+        not_runs = {str(d): why for d, why in plan.not_runs.items()}
+        typer.echo(json.dumps({"runs_dir": str(runs_dir), "deleted": delete and not errors, "runs": rows, "spared": spared, "errors": errors, "not_runs": not_runs}, indent=2))
     else:
         mb = sum(sizes.values()) / 1e6
         said = "deleted" if delete else "would delete"
@@ -1148,7 +1150,9 @@ def _prune_runs(runs_dir: Path, keep: int | None, older_than_days: float | None,
         for r in rows:
             typer.echo(f"  {r['run_id']}  {r['state']}, {r['bytes'] / 1e6:.1f} MB")
         for d in plan.spared:
-            typer.echo(f"  kept: {d.name} (the current run, or its launcher runs)")
+            typer.echo(f"  kept: {d.name} (the current run, or its launcher or one of its services runs)")
+        for d, why in plan.not_runs.items():
+            typer.echo(f"  left alone: {d.name} ({why})")
         if rows and not delete:
             typer.echo("nothing deleted: add --yes to delete them")
     for error in errors:

@@ -360,6 +360,8 @@ class Launcher:
         """The result whose outputs were written (its scene and method name the animation)."""
         self.last_map_step: int | None = None
         """The step of the map an episode stopped before its end kept (``keep_last_map``), None when none was."""
+        self.stop_reason = ""
+        """Why a run that started no service stopped (``stop_before_start``), for run.json's ``reason``: ``runs`` says it."""
         self.exit_code = 0
         self._lock = threading.Lock()
         self.started_s = time.monotonic()
@@ -446,6 +448,9 @@ class Launcher:
             **({"detached": True} if self.detached else {}),
             "started_at": round(self.started_at, 3),
             **({"outcome": self.outcome(), "exit_code": self.exit_code, "ended_at": round(time.time(), 3)} if state == "stopped" else {}),
+            # the step the episode was at as it stopped (its last status): `runs` shows where a run without results stopped
+            **({"last_step": self.status.step} if state == "stopped" and self.status is not None else {}),
+            **({"reason": self.stop_reason} if state == "stopped" and self.stop_reason else {}),
             **({"episode_ended_at": round(self.episode_ended_at, 3)} if self.episode_ended_at is not None else {}),
             **({"lost_router": self.joined_router()} if self.router_lost_at is not None else {}),
             **({"run_dir_lost": self.run_folder.losses} if self.run_folder.losses else {}),
@@ -481,12 +486,14 @@ class Launcher:
             return "done"
         return "interrupted" if self.exit_code == EXIT_INTERRUPTED else "failed"
 
-    def stop_before_start(self, exit_code: int) -> int:
+    def stop_before_start(self, exit_code: int, reason: str = "") -> int:
         """End a run that started no service (refused, no router, or interrupted while its router opened) with
-        a run file that says how it ended, so that ``runs`` lists it as failed or interrupted rather than as a
-        launcher that died or not at all; no current run is left behind. Returns ``exit_code``."""
+        a run file that says how it ended and ``reason``, why (``runs`` lists it as failed: why, rather than as a
+        launcher that died or not at all; the folder is the record of the refusal, its launcher.log with it); no
+        current run is left behind. Returns ``exit_code``."""
         self.stop_event.set()  # its status watch, if started, stops asking
         self.exit_code = exit_code
+        self.stop_reason = reason
         self.write_run_file("stopped")
         self.remove_current_pointer()
         return exit_code
@@ -1309,7 +1316,7 @@ class Launcher:
                         log.warning("interrupted before any service was started")
                         return self.stop_before_start(EXIT_INTERRUPTED)
                     log.error("%s; no service was started", taken)
-                    return self.stop_before_start(EXIT_BAD_CONFIG)
+                    return self.stop_before_start(EXIT_BAD_CONFIG, f"refused: {taken}")
             subs = [session.declare_subscriber(self.keys.topic(t), self._guarded(self._on_sample)) for t in LAUNCHER_INPUTS]
             qs = [
                 session.declare_queryable(self.keys.cache("goal"), self._guarded(self._on_cache_query)),
@@ -1333,7 +1340,7 @@ class Launcher:
                 recorder = self.start_recorder()
             except RecorderError as exc:
                 log.error("%s: no service was started", exc)
-                return self.stop_before_start(EXIT_BAD_CONFIG)
+                return self.stop_before_start(EXIT_BAD_CONFIG, str(exc))
             ending: EpisodeEnd | None = None  # the ended episode's results being written (start_episode_end)
             pyplot_import: threading.Thread | None = None
             try:
@@ -1571,7 +1578,7 @@ def run_until_stopped(launcher: Launcher, live: bool, stay_after_done: bool) -> 
             log.warning("interrupted before any service was started")
             return launcher.stop_before_start(EXIT_INTERRUPTED)
         log.error("%s; no service was started (%s)", exc, transport_error_hint(exc, launcher.profile.router.listen))
-        return launcher.stop_before_start(EXIT_NO_ZENOH)
+        return launcher.stop_before_start(EXIT_NO_ZENOH, str(exc))
     finally:
         if launcher.runs_lock_fd is not None:
             os.close(launcher.runs_lock_fd)

@@ -22,8 +22,16 @@ from typing import Any
 
 import yaml
 
-from cso_runtime.current_run import CURRENT_RUN, LAUNCHER_DIED, STOPPED_BY_DOWN, current_launcher_alive, read_current_run
+from cso_runtime.current_run import (
+    CURRENT_RUN,
+    LAUNCHER_DIED,
+    STOPPED_BY_DOWN,
+    current_launcher_alive,
+    read_current_run,
+    run_file_problem,
+)
 from cso_runtime.report import whole_count
+from cso_runtime.supervision import run_process_alive
 
 LOG_DIR = "logs"
 LOG_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
@@ -59,6 +67,12 @@ class RunSummary:
     """The method's Table 1 row from ``summary.json`` (empty until the episode ended)."""
     restarts: int = 0
     """Service restarts by the launcher, all services together."""
+    reason: str = ""
+    """Why a run failed before it started any service, as its launcher wrote it (run.json's ``reason``: ``refused: robot
+    r0 is already run by another launcher ...``, no router); "" when none was written."""
+    stopped_at_step: int | None = None
+    """The step its episode was at as the run stopped (run.json's ``last_step``: the last episode status its launcher
+    heard) when it has no results to give its steps (interrupted, failed); None otherwise, or not known."""
     duration_s: float | None = None
     """How long the run took to the end of its episode (``episode_ended_at - started_at`` of run.json; a detached
     run then waits for ``down``), else to its stop (``ended_at``), or has been running; None for a run file from
@@ -81,6 +95,8 @@ class RunSummary:
             "terminated_by": next(iter(self.metrics.get("terminated_by") or {}), None),
             "restarts": self.restarts,
             "duration_s": None if self.duration_s is None else round(self.duration_s, 1),
+            "stopped_at_step": self.stopped_at_step,
+            "reason": self.reason,
         }
 
 
@@ -150,6 +166,8 @@ def summarize_run(run_dir: Path) -> RunSummary:
         metrics=dict(methods.get(method) or {}),
         restarts=sum(int(s.get("restarts") or 0) for s in services.values() if isinstance(s, dict)),
         duration_s=duration_s,
+        reason="" if info.get("reason") == STOPPED_BY_DOWN else str(info.get("reason") or ""),  # down's: the state says it
+        stopped_at_step=None if methods.get(method) or state == "running" or not isinstance(last := info.get("last_step"), int) or isinstance(last, bool) else last,
     )
 
 
@@ -190,18 +208,51 @@ def folder_bytes(folder: Path) -> int:
 
 @dataclass
 class PrunePlan:
-    """The run folders ``runs --keep/--older-than`` selects: those it deletes, and those it never touches though
-    selected (the current run, or one whose launcher still runs)."""
+    """The run folders ``runs --keep/--older-than`` selects: those it deletes, those it never touches though
+    selected (the current run, or one whose launcher or a service of it still runs), and the folders of ``runs_dir``
+    with a ``run.json`` that are no run folder ``up`` wrote (``not_a_run_folder``): never selected, never counted."""
 
     prune: list[Path]
     spared: list[Path]
+    not_runs: dict[Path, str] = field(default_factory=dict)
+    """Folder -> why it is no run folder."""
+
+
+def not_a_run_folder(folder: Path) -> str:
+    """Why ``folder`` (of ``run_dirs``) is no run folder that ``up`` wrote, so that pruning never deletes it; "" when it
+    is one. A link (to a folder elsewhere: deleting it is not deleting a run of this runs folder), or a ``run.json`` that
+    is not a launcher's run file (a folder of one's own that has a file of that name; a ``run.json`` that is a folder)."""
+    if folder.is_symlink():
+        return "a link, not a run folder of this runs folder"
+    info = read_json_object(folder / "run.json") if (folder / "run.json").is_file() else None
+    if info is None or run_file_problem(info) or not isinstance(info.get("launcher_pid"), int):
+        return "its run.json is not one `up` wrote"
+    return ""
+
+
+def run_processes_alive(run_dir: Path) -> bool:
+    """Whether the run's launcher, or one of the services its run file names as running (a pid with its start time),
+    still runs: a run whose launcher died leaves its services writing their logs into its folder until ``down``."""
+    info = read_json_object(run_dir / "run.json")
+    if info is None:
+        return False
+    if current_launcher_alive(info):
+        return True
+    services = s if isinstance(s := info.get("services"), dict) else {}
+    return any(
+        isinstance(svc, dict) and isinstance(svc.get("pid"), int) and isinstance(svc.get("start_ticks"), int) and run_process_alive(svc["pid"], svc["start_ticks"])
+        for svc in services.values()
+    )
 
 
 def plan_prune(runs_dir: Path, keep: int | None = None, older_than_days: float | None = None, now_s: float | None = None) -> PrunePlan:
-    """The runs of ``runs_dir`` (folders with a run.json) beyond the newest ``keep`` and (when given) started more
-    than ``older_than_days`` ago, oldest first; both given: only those both select. A run whose start is unknown is
-    never older than anything. The current run (``runs/current.json``) and every run whose launcher is alive are spared."""
-    dirs = run_dirs(runs_dir)
+    """The runs of ``runs_dir`` (folders with a run.json that ``up`` wrote) beyond the newest ``keep`` and (when given)
+    started more than ``older_than_days`` ago, oldest first; both given: only those both select. A run whose start is
+    unknown is never older than anything. The current run (``runs/current.json``) and every run whose launcher or one of
+    whose services is alive are spared; a folder that is no run folder (``not_a_run_folder``) is neither selected nor counted."""
+    found = run_dirs(runs_dir)
+    not_runs = {d: why for d in found if (why := not_a_run_folder(d))}
+    dirs = [d for d in found if d not in not_runs]
     selected = dirs if keep is None else dirs[: max(len(dirs) - keep, 0)]
     if older_than_days is not None:
         now = time.time() if now_s is None else now_s
@@ -210,9 +261,9 @@ def plan_prune(runs_dir: Path, keep: int | None = None, older_than_days: float |
     current_dir = Path(str(current["run_dir"])).resolve() if current.get("run_dir") else None
 
     def spared(d: Path) -> bool:
-        return d.resolve() == current_dir or d.name == current.get("run_id") or run_is_live(d)
+        return d.resolve() == current_dir or d.name == current.get("run_id") or run_processes_alive(d)
 
-    return PrunePlan([d for d in selected if not spared(d)], [d for d in selected if spared(d)])
+    return PrunePlan([d for d in selected if not spared(d)], [d for d in selected if spared(d)], not_runs)
 
 
 def delete_runs(dirs: Iterable[Path]) -> list[str]:

@@ -416,8 +416,8 @@ def pose_words(pose_m: list[float] | None, twist: list[float] | None) -> str:
 
 
 def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False, episode_over: str = "") -> list[str]:
-    """How a service's row begins (an entry of ``status_of``'s ``services``): alive, starting (its process runs, its
-    session is not up yet) or DOWN, not started by this run (another process is to serve it), and whether the episode
+    """How a service's row begins (an entry of ``status_of``'s ``services``): alive (its token is there, or it answered
+    its status query), starting (its process runs, its session is not up yet) or DOWN, not started by this run (another process is to serve it), and whether the episode
     waits for it; ``status`` and the live view alike.
     ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN).
     ``episode_over``: the state of an episode that has ended (done, failed), else "": a service the episode waited for
@@ -429,7 +429,8 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopp
         gone = "starting"  # its process runs, its session is not up yet (as the live view says it): not DOWN
     if episode_over and service.get("outside") and service.get("awaited"):
         gone = f"idle (episode {episode_over}: not needed after it)"
-    words = ["alive" if service["alive"] else "running" if running else gone]
+    # One that answered its status query has its session up, before its token is seen: alive, not "starting, running".
+    words = ["alive" if service["alive"] or service.get("state") else "running" if running else gone]
     if service.get("outside"):
         words.append("not started by this run")
     if name in waiting:
@@ -812,23 +813,42 @@ def newest_map(session: zenoh.Session, robot: str, timeout_s: float = 1.0) -> tu
     """``query_map`` on a session already open (the launcher's own, keeping an interrupted episode's map)."""
     best: MapMsg | None = None
     map_origin = MAP_FRAME_ORIGIN
-    why = f"nothing answered on {RobotKeys(robot).cache('map')}"
+    key = RobotKeys(robot).cache("map")
+    said = f"nothing answered on {key}"  # the key, for those who debug
+    malformed = ""
     statuses = session.get(RobotKeys(robot).episode_status, target=zenoh.QueryTarget.ALL, timeout=timeout_s)  # asked at once: both wait together
-    for reply in session.get(RobotKeys(robot).cache("map"), target=zenoh.QueryTarget.ALL, timeout=timeout_s):
+    for reply in session.get(key, target=zenoh.QueryTarget.ALL, timeout=timeout_s):
         if reply.ok is None:
-            why = reply.err.payload.to_string() if reply.err is not None else why
+            said = f"{key} answered: {reply.err.payload.to_string()}" if reply.err is not None else said
             continue
         try:
             msg = decode(reply.ok.payload.to_bytes(), MapMsg)
         except MessageError as exc:
-            why = f"malformed map reply: {exc}"
+            malformed = f"malformed map reply: {exc}"
             continue
         assert isinstance(msg, MapMsg)
         if best is None or msg.step >= best.step:
             best = msg
+    episode = None
     for status in _decoded(statuses, EpisodeStatusMsg):
-        map_origin = status.map_origin
-    return best, "" if best is not None else why, map_origin
+        map_origin, episode = status.map_origin, status
+    if best is not None:
+        return best, "", map_origin
+    return None, malformed or no_map_yet_words(said, episode), map_origin
+
+
+NO_MAP_YET = "the run has no map yet"
+"""How ``newest_map`` begins its why when no map answered (rather than malformed ones): ``save-map`` adds that a moment
+later there may be one."""
+
+
+def no_map_yet_words(said: str, episode: EpisodeStatusMsg | None) -> str:
+    """Why there is no map to save, as a user reads it: the run's mapper has not published one yet (the episode's
+    state and step, as its status answered), or no episode status answers either (its services still starting);
+    ``said``, what the map's key answered, for those who debug."""
+    if episode is None:
+        return f"{NO_MAP_YET}, and no episode status answers either: its services may still be starting ({said}; `cso-runtime status` says which state it is in)"
+    return f"{NO_MAP_YET}: its mapper has not published one (the episode is {episode.state}, at step {episode.step}; {said})"
 
 
 def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_format: str, runs_dir: Path) -> int:
@@ -847,7 +867,8 @@ def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_
     except TransportError as exc:
         msg, why, map_origin = None, str(exc), MAP_FRAME_ORIGIN
     if msg is None:
-        print(f"no map for robot {robot}: {why}")
+        retry = "; try again in a moment" if why.startswith(NO_MAP_YET) else ""
+        print(f"no map for robot {robot}: {why}{retry}")
         return 1
     try:
         yaml_path = save_map(yaml_out, msg.grid, msg.geometry, image_format, map_origin=map_origin)

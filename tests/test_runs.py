@@ -86,7 +86,7 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert list_runs(runs)[-1].as_dict() | {"run_dir": ""} == {
         "run_id": broken.name, "run_dir": "", "state": "stopped", "profile": "", "robot": "", "scene": "", "real_robot": False, "coverage_measured": True, "method": "",
         "explored_area_m2": None, "coverage_pct": None, "steps": None, "efficiency_m2_per_step": None, "path_length_m": None,
-        "terminated_by": None, "restarts": 0, "duration_s": None,
+        "terminated_by": None, "restarts": 0, "duration_s": None, "stopped_at_step": None, "reason": "",
     }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback)
     shutil.rmtree(broken)
     killed = make_run(runs, "20261203-091500-lockstep-r0", state="running")  # its launcher is gone, the file says running
@@ -120,6 +120,24 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert "m2/step" in piped.output and "0.607" in next(ln for ln in piped.output.splitlines() if "091100" in ln)  # was cut at 80
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "none")])
     assert r.exit_code == 0 and "no runs in" in r.output
+
+
+def test_runs_shows_the_step_an_interrupted_run_stopped_at(tmp_path):
+    """``runs`` showed "-" for the steps of an interrupted run (no summary.json), though its launcher knew the step it
+    stopped at: run.json keeps it (``last_step``), and ``runs`` shows it as where the run stopped (``--json``:
+    ``stopped_at_step``); a run with results shows its episode's steps as before."""
+    runs = tmp_path / "runs"
+    stopped = make_run(runs, "20261203-091000-lockstep-r0", outcome="interrupted", times=(1000.0, 1065.4))
+    (stopped / "run.json").write_text(json.dumps(json.loads((stopped / "run.json").read_text()) | {"last_step": 120}))
+    done = make_run(runs, "20261203-091100-lockstep-r0", outcome="done", summary=ROW)
+    (done / "run.json").write_text(json.dumps(json.loads((done / "run.json").read_text()) | {"last_step": 40}))
+    old = make_run(runs, "20261203-091200-lockstep-r0", outcome="interrupted")  # a run file from before last_step
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--json"])
+    assert [(x["steps"], x["stopped_at_step"]) for x in json.loads(r.output)] == [(None, 120), (36, None), (None, None)], r.output
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "120"})
+    assert "120 (stopped)" in next(ln for ln in r.output.splitlines() if stopped.name in ln), r.output
+    assert "(stopped)" not in next(ln for ln in r.output.splitlines() if done.name in ln), r.output
+    assert "(stopped)" not in next(ln for ln in r.output.splitlines() if old.name in ln), r.output
 
 
 def test_logs_merge_services_in_time_order_keeping_each_files_own_order(tmp_path):
@@ -333,6 +351,42 @@ def test_runs_keep_and_older_than_list_old_runs_and_delete_them_only_with_yes_ne
     assert (runs / "current.json").is_file()
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--yes"])
     assert r.exit_code == 2 and "--keep N or --older-than DAYS" in r.output
+
+
+def test_runs_prune_never_deletes_a_folder_that_is_no_run_or_a_run_whose_services_still_run(tmp_path):
+    """``runs --keep 0 --yes`` deleted every folder of the runs folder that had a file named run.json: a folder of one's
+    own (a training run's run.json), a run.json that is a folder, a link to a run elsewhere (an error: rmtree of a link),
+    and the folder of a run whose launcher died while its services still ran and wrote their logs there. Those are
+    left alone (said, and in ``--json``'s ``not_runs``) or spared, and none counts toward ``--keep``."""
+    from cso_runtime.runs import plan_prune
+
+    runs = tmp_path / "runs"
+    old = make_run(runs, "20261201-090000-lockstep-r0", outcome="done")
+    orphaned = make_run(runs, "20261201-091000-lockstep-r0", state="running")  # its launcher died, a service of it runs
+    info = json.loads((orphaned / "run.json").read_text())
+    info["services"]["sim"] = {"pid": os.getpid(), "start_ticks": process_start_ticks(os.getpid()), "restarts": 0}
+    (orphaned / "run.json").write_text(json.dumps(info))
+    (runs / "notes").mkdir()
+    (runs / "notes" / "run.json").write_text(json.dumps({"epochs": 3}))
+    (runs / "list").mkdir()
+    (runs / "list" / "run.json").write_text("[1, 2]")
+    (runs / "dirjson" / "run.json").mkdir(parents=True)
+    elsewhere = make_run(tmp_path / "elsewhere", "20261201-080000-lockstep-r0", outcome="done")
+    (runs / "20261201-085000-link").symlink_to(elsewhere)
+
+    plan = plan_prune(runs, keep=0)
+    assert plan.prune == [old] and plan.spared == [orphaned], plan
+    assert sorted(d.name for d in plan.not_runs) == ["20261201-085000-link", "dirjson", "list", "notes"]
+    assert plan_prune(runs, keep=1).prune == [old]  # the folders that are no run do not count toward the newest 1
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--keep", "0", "--yes", "--json"])
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.output)
+    assert [x["run_id"] for x in out["runs"]] == [old.name] and out["errors"] == [] and out["spared"] == [str(orphaned)]
+    assert out["not_runs"][str(runs / "notes")] == "its run.json is not one `up` wrote"
+    assert sorted(p.name for p in runs.iterdir()) == ["20261201-085000-link", orphaned.name, "dirjson", "list", "notes"]
+    assert (elsewhere / "run.json").is_file() and (runs / "notes" / "run.json").is_file()
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--keep", "0"])
+    assert "left alone: notes (its run.json is not one `up` wrote)" in r.output and f"kept: {orphaned.name}" in r.output, r.output
 
 
 def test_a_real_robots_run_names_no_scene_of_a_simulator_in_runs_and_the_launchers_first_line():

@@ -761,6 +761,16 @@ def test_up_refuses_a_robot_id_that_another_run_on_the_network_has(tmp_path, tak
             }[taken_by]
             assert r.returncode == 2 and f"robot r0 {expected}" in r.stderr and "another --robot" in r.stderr, r.stderr[-2000:]
             assert not list(runs.glob("*/logs/mapper.log"))  # no service was started
+            # Its folder is the record of the refusal (its launcher.log says it): `runs` lists it as failed, and why
+            r = cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+            (row,) = json.loads(r.stdout)
+            assert row["state"] == "failed" and row["reason"].startswith(f"refused: robot r0 {expected}"), row
+            from typer.testing import CliRunner
+
+            from cso_runtime.cli import app
+
+            table = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "200"}).output
+            assert "failed: refused: robot r0" in table, table
         finally:
             held.undeclare()
 
@@ -2658,6 +2668,32 @@ def test_status_of_a_run_just_started_says_its_services_are_starting_not_down():
     assert re.search(r"│ scene / method +│ - +│", text) and re.search(r"│ episode id +│ - +│", text), text
 
 
+def test_status_of_a_service_that_answers_before_its_token_is_seen_says_one_state():
+    """A service answers its status query a moment before its liveliness token is seen: ``status`` read
+    "starting, running" (its process runs, its token not yet there, and its own state) and one not started by this run
+    "DOWN, not started by this run, running". One that answers is up: "alive, running", as a moment later."""
+    from rich.console import Console
+
+    from cso_runtime.status import render_table, status_of
+
+    launcher = {
+        "run_id": "run1",
+        "state": "running",
+        "services": {
+            "sim": {"pid": 11, "process_alive": True, "liveliness": False, "restarts": 0},
+            "policy": {"liveliness": False, "outside": True},
+        },
+    }
+    answers = {"state": "running", "reason": "", "last_step": 3, "rejected": {}, "processed": 3}
+    status = status_of("r0", None, launcher, {"sim": answers, "policy": answers}, set())
+    console = Console(record=True, width=200)
+    console.print(render_table(status))
+    text = console.export_text()
+    assert re.search(r"│ service sim +│ alive, running +│", text), text
+    assert re.search(r"│ service policy +│ alive, not started by this run, running +│", text), text
+    assert status["services"]["sim"]["alive"] is False  # JSON keeps the token's word
+
+
 def test_status_says_a_real_robots_coverage_is_not_measured_and_json_keeps_its_zero():
     """``status`` on a LIMO said "coverage 0.00 %" for the whole run, beside a map growing by the second (there is no
     ground truth to measure it against): the table says so; ``--json`` keeps ``coverage_pct`` 0, as summary.json."""
@@ -3400,6 +3436,47 @@ def test_save_map_below_a_file_names_the_file_in_the_way(tmp_path, monkeypatch, 
         assert err == f"error: cannot write the map to {out}.yaml: {tmp_path / 'a_file'} is a file, not a folder\n", err
     assert save_map_main([], None, tmp_path / "ok" / "m", "pgm", tmp_path / "runs") == 0  # a missing folder is made
     assert (tmp_path / "ok" / "m.yaml").is_file() and "map of step 7" in capsys.readouterr().out
+
+
+def test_save_map_in_a_runs_first_seconds_says_it_has_no_map_yet_not_only_the_key(tmp_path, monkeypatch, capsys):
+    """``save-map`` in the first seconds of a run said "no map for robot r0: nothing answered on cso/r0/cache/map": true,
+    but a user's question is what state the run is in. It says that the run has no map yet (its mapper has not
+    published one, the episode's state and step when its status answers, else that its services may still be
+    starting), to try again in a moment, and keeps the key and what it answered for those who debug."""
+    from types import SimpleNamespace
+
+    import cso_runtime.status as status_module
+    from cso_runtime.messages import EpisodeStatusMsg
+    from cso_runtime.status import RunTarget
+
+    def reply(ok: bytes | None = None, err: str | None = None) -> SimpleNamespace:
+        payload = SimpleNamespace(to_bytes=lambda: ok, to_string=lambda: err)
+        return SimpleNamespace(ok=None if ok is None else SimpleNamespace(payload=payload), err=None if err is None else SimpleNamespace(payload=payload))
+
+    class Session(contextlib.AbstractContextManager):  # a run's network as save-map asks it: the episode's status and the map's key
+        def __init__(self, answers: dict[str, list[SimpleNamespace]]) -> None:
+            self.answers = answers
+
+        def __exit__(self, *_exc: object) -> None:
+            pass
+
+        def get(self, key: str, **_kw: object) -> list[SimpleNamespace]:
+            return self.answers.get(key, [])
+
+    keys = RobotKeys("r0")
+    monkeypatch.setattr(status_module, "reachable_target", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
+    starting = encode(EpisodeStatusMsg(state="starting", step=0))
+    for answers, said in (
+        ({}, ("no episode status answers either: its services may still be starting", f"nothing answered on {keys.cache('map')}", "`cso-runtime status`")),
+        ({keys.episode_status: [reply(starting)]}, ("its mapper has not published one (the episode is starting, at step 0;", f"nothing answered on {keys.cache('map')}")),
+        ({keys.episode_status: [reply(starting)], keys.cache("map"): [reply(err="no map yet")]}, (f"{keys.cache('map')} answered: no map yet",)),
+    ):
+        monkeypatch.setattr(status_module, "_client_session", lambda *_a, answers=answers, **_k: Session(answers))
+        assert save_map_main([], None, tmp_path / "m", "pgm", tmp_path / "runs") == 1
+        out = capsys.readouterr().out
+        assert out.startswith("no map for robot r0: the run has no map yet") and out.rstrip().endswith("; try again in a moment"), out
+        assert all(words in out for words in said), out
+    assert not (tmp_path / "m.yaml").exists()
 
 
 def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
@@ -4877,6 +4954,11 @@ def test_down_of_a_cso_run_stops_the_policy_service_on_sigint_and_its_log_ends_w
         launcher_log = (run_dir / "logs" / "launcher.log").read_text()
         assert "still running after" not in launcher_log, launcher_log
         assert (run_dir / "logs" / "policy.log").read_text().splitlines()[-1].endswith("INFO cso.service: policy: stopped")
+        # where it stopped: run.json keeps the step, `runs` shows it (it showed "-" for a run without results)
+        assert json.loads((run_dir / "run.json").read_text())["last_step"] >= 2
+        r = cli("runs", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
+        (row,) = json.loads(r.stdout)
+        assert row["state"] == "interrupted" and row["steps"] is None and row["stopped_at_step"] >= 2, row
     finally:
         cli("down", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=60)
         assert kill_leftovers(runs) == []
