@@ -1566,8 +1566,10 @@ def args_field_flags(words: list[str]) -> list[str]:
     return pairs + [f"{name}={yaml_text(items)}" for name, items in lists.items()]
 
 
-TRAIN_PATH_FIELDS = frozenset({"out_dir", "resume", "dungeon_dir", "init_from"})
-"""The ``Args`` fields that name a path: ``--out runs/a`` and ``--out-dir runs/a/`` set one value."""
+TRAIN_PATH_FIELDS: dict[str, Callable[[str], bool]] = {"out_dir": bool, "resume": bool, "dungeon_dir": bool, "init_from": lambda text: bool(text) and text != "shipped"}
+"""The ``Args`` fields that name a path, each with its test of which texts are paths (``config.place_of``):
+``--out runs/a``, ``--out-dir runs/a/`` and ``--set out_dir=$PWD/runs/a`` set one value; ``--init-from shipped``
+names the shipped weights, not a file."""
 
 
 def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: list[str], settings: list[str]) -> None:
@@ -1577,7 +1579,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     twice, whose last value counts, as typer's own options' does."""
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, field_value, refuse_two_values, set_flag_text, text_field, yaml_text  # noqa: PLC0415
+    from cso_runtime.config import field_value, place_of, refuse_two_values, set_flag_text, text_field, yaml_text  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1589,11 +1591,8 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
         return f"--{dashed} {value if isinstance(value, str) and text_field(types.get(name)) else yaml_text(value)}"  # as typed
 
     def read(name: str, value: object) -> object:
-        try:
-            value = field_value(value, types[name], name)
-        except ConfigError:
-            return value  # from_dict says what is wrong with it
-        return Path(value) if name in TRAIN_PATH_FIELDS and isinstance(value, str) else value
+        value = field_value(value, types[name], name)  # a ConfigError: from_dict says what is wrong with it
+        return place_of(value, TRAIN_PATH_FIELDS[name]) if name in TRAIN_PATH_FIELDS else value
 
     given: dict[str, list[tuple[str, object]]] = {}
     for name, value in overrides.items():

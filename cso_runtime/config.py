@@ -954,15 +954,80 @@ def refuse_two_values(given: typing.Mapping[str, typing.Sequence[tuple[str, Any]
     """The one check of a command whose flags set one field twice: a dedicated flag and ``--set`` (``eval --max-steps 5
     --set episode.max_steps=9``, ``up --seed 3 --set seed=4``, ``train --seed 3 --set seed=4``), or two flags of one
     field. ``given`` holds, by field, each ``(flag as typed, value)`` that set it, in order; two of them with different
-    values (as ``read`` reads them: the field's type, ``1e3`` and ``1000.0`` alike) are a ConfigError naming both, since
-    one of them would take over the other in silence. The same value twice is fine."""
+    values (as ``read`` reads them: the field's type, ``1e3`` and ``1000.0`` alike, a path as ``place_of`` resolves
+    it) are a ConfigError naming both, since one of them would take over the other in silence. The same value twice
+    is fine. A value ``read`` refuses (a ConfigError: not of the field's type) that is the other's text as ``--set``
+    reads it (``up --robot 1 --set robot=1``: the number 1, where a robot id is text) is said as such, with the way
+    to write it (``--set robot='1'``), not as another value."""
     for name, said in given.items():
         if not said:
             continue
         (first, value), *others = said
+        reading = _reading(read, name, value)
         for other, other_value in others:
-            if (read(name, other_value) != read(name, value)) if read is not None else other_value != value:
-                raise ConfigError(f"{first} and {other} both set {name}, to different values: give one")
+            other_reading = _reading(read, name, other_value)
+            if other_reading == reading:
+                continue
+            for (bad, bad_value, bad_reading), (good, good_value, good_reading) in (
+                ((other, other_value, other_reading), (first, value, reading)),
+                ((first, value, reading), (other, other_value, other_reading)),
+            ):
+                if isinstance(bad_reading, _Unread) and not isinstance(good_reading, _Unread) and _same_yaml(bad_value, good_value):
+                    raise ConfigError(
+                        f"{bad} is read as {_kind(bad_value)}, and {name} is {_kind(good_value)} (as {good} gives it): "
+                        f"write {set_flag_text(name, good_value)}, or give {good} alone"
+                    )
+            raise ConfigError(f"{first} and {other} both set {name}, to different values: give one")
+
+
+@dataclass(frozen=True)
+class _Unread:
+    """``refuse_two_values``' reading of a value its field's type refuses: the value as given (``from_dict`` says
+    what is wrong with it), equal to another only when given the same."""
+
+    value: Any
+
+
+def _reading(read: typing.Callable[[str, Any], Any] | None, name: str, value: Any) -> Any:
+    if read is None:
+        return value
+    try:
+        return read(name, value)
+    except ConfigError:
+        return _Unread(value)
+
+
+def _same_yaml(a: Any, b: Any) -> bool:
+    """Whether ``a`` and ``b`` are one value once each text among them is read as YAML, as ``--set`` reads it: the
+    text ``1`` and the number 1, ``on`` and true; not the text ``1`` and true, though ``1 == True``."""
+
+    def as_yaml(value: Any) -> Any:
+        try:
+            return yaml.safe_load(value) if isinstance(value, str) else value
+        except yaml.YAMLError:
+            return value
+
+    a, b = as_yaml(a), as_yaml(b)
+    return type(a) is type(b) and a == b
+
+
+def _kind(value: Any) -> str:
+    """What ``value`` is, in a sentence: ``refuse_two_values``' "is read as a number, and robot is text"."""
+    if isinstance(value, bool):
+        return "true/false"
+    if isinstance(value, (int, float)):
+        return "a number"
+    if isinstance(value, str):
+        return "text"
+    return "null" if value is None else "a mapping" if isinstance(value, dict) else "a list" if isinstance(value, (list, tuple)) else type(value).__name__
+
+
+def place_of(value: Any, names_a_path: typing.Callable[[str], bool] = bool) -> Any:
+    """A path-valued field's value as two spellings of one path compare (``--scene ./plans`` and ``--set scene=plans``,
+    ``--out runs/a/`` and ``--set out_dir=$PWD/runs/a``): the path resolved against the current folder, as the command
+    resolves it; a text that ``names_a_path`` says is no path (a scene spec's ``builtin``, ``init_from``'s ``shipped``;
+    by default the empty text) and any other value as it is."""
+    return Path(value).resolve() if isinstance(value, str) and names_a_path(value) else value
 
 
 def setting_of(key: str, settings: typing.Mapping[str, Any]) -> tuple[str, Any] | None:
@@ -985,18 +1050,22 @@ _UNSET = object()
 """``setting_of``'s mark of a key a section set by ``--set`` leaves out."""
 
 
-def refuse_a_flag_and_a_setting_that_disagree(flags: typing.Mapping[str, tuple[str, Any]], settings: typing.Mapping[str, Any], types: typing.Mapping[str, Any]) -> None:
+def refuse_a_flag_and_a_setting_that_disagree(
+    flags: typing.Mapping[str, tuple[str, Any]],
+    settings: typing.Mapping[str, Any],
+    types: typing.Mapping[str, Any],
+    paths: typing.Mapping[str, typing.Callable[[str], bool]] | None = None,
+) -> None:
     """``refuse_two_values`` of a command's dedicated flags (``flags``: dotted key -> ``(flag as typed, value)``, for
     each flag given) against its ``--set`` pairs (``settings``) for the same key, each read as its field's type
     (``types``, by key) as ``from_dict`` reads it: ``eval --max-steps`` and ``--set episode.max_steps``, ``up --seed``
-    and ``--set seed``."""
+    and ``--set seed``. A key of ``paths`` holds a path: its values compare as ``place_of`` resolves them, with the
+    key's own test of which texts name a path (``up --scene``: not ``builtin``)."""
     given = {key: [flag, *([by_set] if (by_set := setting_of(key, settings)) is not None else [])] for key, flag in flags.items()}
 
     def read(key: str, value: Any) -> Any:
-        try:
-            return field_value(value, types[key], key)
-        except ConfigError:
-            return value  # from_dict says what is wrong with it
+        value = field_value(value, types[key], key)
+        return place_of(value, paths[key]) if paths and key in paths else value
 
     refuse_two_values(given, read)
 

@@ -41,7 +41,7 @@ from cso_runtime.config import (
 )
 from cso_runtime.keys import check_robot_id
 from cso_runtime.messages import DEFAULT_MAX_GRID_CELLS, MAX_GRID_CELLS, check_max_grid_cells
-from cso_runtime.scenes import SceneError, resolve_scenes
+from cso_runtime.scenes import SceneError, resolve_scenes, spec_names_a_path
 from cso_runtime.transport import JOIN_TIMEOUT_S, ZENOH_CONFIG_ENV, TransportConfig, TransportError
 
 
@@ -565,7 +565,8 @@ def load_profile(
     if zenoh_config is not None:
         flag_keys["router.zenoh_config"] = (f"--zenoh-config {zenoh_config}", zenoh_config)
     hints = typing.get_type_hints(Profile)
-    refuse_a_flag_and_a_setting_that_disagree(flag_keys, settings or {}, {k: hints.get(k, str) for k in flag_keys})
+    paths: dict[str, typing.Callable[[str], bool]] = {"scene": spec_names_a_path, "router.zenoh_config": bool}  # ./plans and plans: one folder
+    refuse_a_flag_and_a_setting_that_disagree(flag_keys, settings or {}, {k: hints.get(k, str) for k in flag_keys}, paths)
     data.update(given)
     for key, value in (settings or {}).items():
         set_dotted(data, key, value)
@@ -590,7 +591,7 @@ def load_profile(
         leave_out(data, without, path, foxglove)
     set_zenoh_config(data, path, zenoh_config)
     scene = data.get("scene")
-    if isinstance(scene, str) and scene != "builtin" and not scene.startswith("generated:"):
+    if isinstance(scene, str) and spec_names_a_path(scene):
         beside = path.parent / scene  # a file's own relative scene may also be beside the file (as in compose files)
         if "scene" not in given and not Path(scene).exists() and not Path(scene).is_absolute() and beside.exists():
             scene = str(beside)

@@ -290,6 +290,12 @@ MAX_M_PER_PX = 10.0
 """The coarsest plan scale taken (``--m-per-px``): a pixel of a floor plan is never 10 m of floor."""
 
 
+def spec_names_a_path(spec: str) -> bool:
+    """Whether scene spec ``spec`` is a path (a folder, a PNG, a map YAML), not ``builtin`` nor ``generated:...``:
+    what ``up`` resolves against the current folder, and compares so when given twice (``--scene`` and ``--set``)."""
+    return spec != "builtin" and not spec.startswith("generated:")
+
+
 def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.1) -> list[SceneRef]:
     """Expand a scene spec into scene references (see the module docstring for the forms)."""
     if not (math.isfinite(resolution_m) and 0 < resolution_m <= MAX_M_PER_PX):

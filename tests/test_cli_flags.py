@@ -311,3 +311,82 @@ def test_status_watch_period_is_bounded_before_anything_is_asked(tmp_path: Path)
         assert r.exit_code == 2 and "--period" in r.output, (period, r.output)
     r = CliRunner().invoke(app, ["status", "--period", "3600", "--runs-dir", str(tmp_path / "runs")])
     assert r.exit_code == 1, r.output  # taken: nothing runs here, which status says (exit 1)
+
+
+def test_a_set_read_as_a_number_where_the_flag_gives_text_says_so_not_different_values(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
+    """``up --robot 1 --set robot=1`` was refused as "different values": ``--set`` reads YAML, so ``robot=1`` is the
+    number 1 where ``--robot 1`` gives the text "1" (and ``--set robot=1`` alone is refused: a robot id is text).
+    The refusal says that now, and how to write it (``--set robot='1'``, which runs); ``train --out-dir 2024 --set
+    out_dir=2024`` and ``eval --max-steps 5 --set episode.max_steps='5'`` likewise. Different values are still
+    "different values"."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    up = ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run"]
+    said = "--set robot=1 is read as a number, and robot is text (as --robot 1 gives it): write --set robot='1', or give --robot 1 alone"
+    for given in (["--robot", "1", "--set", "robot=1"], ["--set", "robot=1", "--robot", "1"]):
+        r = CliRunner().invoke(app, [*up, *given])
+        assert r.exit_code == 2 and said in " ".join(r.stderr.split()) and "different values" not in r.stderr, (given, r.output)
+    r = CliRunner().invoke(app, [*up, "--robot", "on", "--set", "robot=on"])  # YAML 1.1's on: true
+    assert r.exit_code == 2 and "--set robot=true is read as true/false, and robot is text (as --robot on gives it): write --set robot='on'" in " ".join(r.stderr.split()), r.output
+    r = CliRunner().invoke(app, [*up, "--robot", "1", "--set", "robot='1'"])
+    assert r.exit_code == 0 and "robot: '1'" in r.output, r.output
+    r = CliRunner().invoke(app, [*up, "--robot", "2", "--set", "robot=1"])
+    assert r.exit_code == 2 and "--robot 2 and --set robot=1 both set robot, to different values: give one" in " ".join(r.stderr.split()), r.output
+    assert not (tmp_path / "runs").exists()
+
+    code, out = train(tmp_path, "--out", "2024", "--out-dir", "2024", "--set", "out_dir=2024")
+    assert code == 2 and "--set out_dir=2024 is read as a number, and out_dir is text (as --out 2024 gives it): write --set out_dir='2024', or give --out 2024 alone" in out, out
+    code, out = train(tmp_path, "--out", "2024", "--set", "out_dir=2024")
+    assert code == 2 and "--set out_dir=2024 is read as a number, and out_dir is text (as --out 2024 gives it)" in out, out
+    assert not train_runs
+    code, out = train(tmp_path, "--out", "2024", "--out-dir", "2024", "--set", "out_dir='2024'")
+    assert code == 0 and train_runs[-1].out_dir == "2024", out
+
+    r = CliRunner().invoke(app, ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--dry-run", "--max-steps", "5", "--set", "episode.max_steps='5'"])
+    said = "--set episode.max_steps='5' is read as text, and episode.max_steps is a number (as --max-steps 5 gives it): write --set episode.max_steps=5"
+    assert r.exit_code == 2 and said in " ".join(r.stderr.split()), r.output
+
+
+def test_one_path_written_two_ways_is_one_value(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
+    """``up --scene ./plans --set scene=plans`` and ``up --zenoh-config ./z.json5 --set router.zenoh_config=$PWD/z.json5``
+    were refused as "different values": one path, written two ways. A path-valued field's values are compared as the
+    command resolves them, against the current folder (``train --out`` and ``--set out_dir`` too); a scene spec that
+    is no path (``builtin``, ``generated:...``) is compared as text, so ``./builtin`` (a folder of that name) is another
+    value than ``builtin``, as is a folder elsewhere of the same name."""
+    import shutil
+
+    from cso_runtime.cli import app
+    from cso_runtime.scenes import builtin_scene_dir
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "plans").mkdir()
+    (tmp_path / "sub").mkdir()
+    shutil.copy(next(builtin_scene_dir().glob("*.png")), tmp_path / "plans")
+    (tmp_path / "z.json5").write_text("{}\n")
+    up = ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run"]
+    for given, shown in [
+        (["--scene", "./plans", "--set", "scene=plans"], f"scene: {tmp_path.resolve() / 'plans'}"),
+        (["--scene", str(tmp_path / "plans"), "--set", "scene=./sub/../plans/"], f"scene: {tmp_path.resolve() / 'plans'}"),
+        (["--scene", "builtin", "--set", "scene=builtin"], "scene: builtin"),
+        (["--zenoh-config", "./z.json5", "--set", f"router.zenoh_config={tmp_path / 'z.json5'}"], f"zenoh_config: {tmp_path / 'z.json5'}"),
+        (["--zenoh-config", str(tmp_path / "z.json5"), "--set", "router={zenoh_config: ./z.json5}"], f"zenoh_config: {tmp_path / 'z.json5'}"),
+    ]:
+        r = CliRunner().invoke(app, [*up, *given])
+        assert r.exit_code == 0 and shown in r.output, (given, r.output)
+    for given, said in [
+        (["--scene", "builtin", "--set", "scene=./builtin"], "--scene builtin and --set scene=./builtin both set scene, to different values"),
+        (["--scene", "generated:small:1:0", "--set", "scene=./generated:small:1:0"], "--scene generated:small:1:0 and --set scene=./generated:small:1:0 both set scene"),
+        (["--scene", "./plans", "--set", "scene=../plans"], "--scene ./plans and --set scene=../plans both set scene, to different values"),
+        (["--zenoh-config", "z.json5", "--set", "router.zenoh_config=../z.json5"], "--zenoh-config z.json5 and --set router.zenoh_config=../z.json5 both set router.zenoh_config"),
+    ]:
+        r = CliRunner().invoke(app, [*up, *given])
+        assert r.exit_code == 2 and said in " ".join(r.stderr.split()), (given, r.output)
+    assert not (tmp_path / "runs").exists()
+
+    code, out = train(tmp_path, "--out", "./runs/a", "--set", f"out_dir={tmp_path / 'runs' / 'a'}")
+    assert code == 0 and Path(train_runs[-1].out_dir).resolve() == (tmp_path / "runs" / "a").resolve(), out
+    code, out = train(tmp_path, "--out", "runs/a", "--set", "out_dir=../runs/a")
+    assert code == 2 and "--out runs/a and --set out_dir=../runs/a both set out_dir, to different values" in out, out
+    code, out = train(tmp_path, "--init-from", "shipped", "--set", "init_from=./shipped")  # the shipped weights, or a file named shipped
+    assert code == 2 and "--init-from shipped and --set init_from=./shipped both set init_from, to different values" in out, out
