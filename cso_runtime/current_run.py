@@ -233,7 +233,7 @@ def down(runs_dir: Path, timeout_s: float | None = None, stop_starting: bool = T
         info = read_current_run(runs_dir)  # written (and its launcher's file removed) since the first look
     if info is None:
         if not (runs_dir / CURRENT_RUN).exists():  # the common case: every run has ended (or none was started here)
-            return False, f"nothing running (no current run in {runs_dir}; `cso-runtime runs` lists past runs)"
+            return False, f"nothing running (no current run in {runs_dir}; {runs_command('runs', runs_dir)} lists past runs)"
         return False, f"nothing running (no usable {runs_dir / CURRENT_RUN})"
     if timeout_s is None:
         timeout_s = 3 * float(info.get("stop_timeout_s") or SupervisionConfig.stop_timeout_s) + DOWN_MARGIN_S

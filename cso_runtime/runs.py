@@ -22,7 +22,14 @@ from typing import Any
 
 import yaml
 
-from cso_runtime.current_run import CURRENT_RUN, LAUNCHER_DIED, STOPPED_BY_DOWN, current_launcher_alive, read_current_run
+from cso_runtime.current_run import (
+    CURRENT_RUN,
+    LAUNCHER_DIED,
+    STOPPED_BY_DOWN,
+    current_launcher_alive,
+    read_current_run,
+    runs_command,
+)
 from cso_runtime.report import whole_count
 
 LOG_DIR = "logs"
@@ -234,7 +241,7 @@ def resolve_run(runs_dir: Path, run: str | None = None) -> Path:
             if (candidate / "run.json").is_file() or (candidate / LOG_DIR).is_dir():
                 return candidate
         known = ", ".join(d.name for d in reversed(run_dirs(runs_dir)[-5:])) or "none"
-        raise RunError(f"no run {run!r} in {runs_dir} (newest first: {known}; `cso-runtime runs` lists them)")
+        raise RunError(f"no run {run!r} in {runs_dir} (newest first: {known}; {runs_command('runs', runs_dir)} lists them)")
     current = read_current_run(runs_dir)
     if current is not None and Path(str(current.get("run_dir", ""))).is_dir():
         return Path(current["run_dir"])

@@ -313,7 +313,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
     ``127.0.0.1:7447``: a usage error, not "nothing running"), ``robot`` is not one robot's id, or ``connect`` was given
     without ``robot`` and several robots answer there (which one is the user's to say; the one that answers is taken)."""
-    from cso_runtime.current_run import read_current_run, starting_run, starting_up_line  # noqa: PLC0415
+    from cso_runtime.current_run import read_current_run, runs_command, starting_run, starting_up_line  # noqa: PLC0415
 
     given_connect = bool(connect)
     robot_named = robot is not None
@@ -347,7 +347,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
             print(up_starting)
         return 1
     if not connect:  # the folder looked in named: an `up` started in another working folder has its run file there
-        return say_nothing_running(f"no current run in {runs_dir}; give --runs-dir of the folder `up` used, or --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
+        return say_nothing_running(f"no current run in {runs_dir}; give --runs-dir of the folder `up` used, or --connect ENDPOINT to ask another host; {runs_command('runs', runs_dir)} lists past runs", as_json)
     try:
         client_transport(connect, zenoh_config_file).validate()
     except TransportError as exc:

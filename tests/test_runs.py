@@ -383,3 +383,25 @@ def test_runs_says_a_real_robots_coverage_in_the_one_word_of_the_report_and_the_
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "runs")], env={"COLUMNS": "200"})
     (row,) = [line for line in r.output.splitlines() if "20261206-205536-limo-ros2-r0" in line]
     assert r.exit_code == 0 and row.split()[-4:-2] == ["196", "no-truth"], r.output
+
+
+def test_the_hints_of_nothing_running_name_the_runs_folder_looked_in(tmp_path, capsys, monkeypatch):
+    """``status``, ``down`` and ``logs --run`` of a runs folder of one's own (``--runs-dir``) with no such run said
+    "`cso-runtime runs` lists past runs": that lists ./runs, another folder (or "no runs"), not the one looked in. The
+    hint names it, as every other hint of a run does (``current_run.runs_command``); the default folder's stays plain."""
+    from cso_runtime.current_run import down
+    from cso_runtime.status import reachable_target
+
+    mine = tmp_path / "robot1-runs"
+    make_run(mine, "20261203-091000-lockstep-r0", outcome="done")
+    assert reachable_target([], None, mine) == 1
+    assert f"`cso-runtime runs --runs-dir {mine}` lists past runs" in capsys.readouterr().out
+    stopped, said = down(mine)
+    assert not stopped and f"`cso-runtime runs --runs-dir {mine}` lists past runs" in said, said
+    with pytest.raises(RunError, match=f"`cso-runtime runs --runs-dir {mine}` lists them"):
+        resolve_run(mine, "nope")
+    plain = Path("runs")  # the default, as a plain `cso-runtime runs` reads it
+    assert reachable_target([], None, tmp_path / plain) == 1 and "`cso-runtime runs --runs-dir" in capsys.readouterr().out
+    monkeypatch.chdir(tmp_path)
+    assert reachable_target([], None, plain) == 1
+    assert "; `cso-runtime runs` lists past runs" in capsys.readouterr().out
