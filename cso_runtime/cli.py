@@ -1166,6 +1166,7 @@ def logs_command(
     """A run's service logs merged in time order, each line after its service's name (like `docker compose logs`)."""
     from cso_runtime.runs import (  # noqa: PLC0415
         RunError,
+        await_service_logs,
         follow_logs,
         log_files,
         logs_grow,
@@ -1179,9 +1180,13 @@ def logs_command(
         _await_starting_up(runs_dir)
     try:
         run_dir = resolve_run(runs_dir, run)
+        if follow and services:  # a starting run's services have no log until they are spawned
+            await_service_logs(run_dir, services)
         files = select_services(log_files(run_dir), services or [])
     except RunError as exc:
         _fail(str(exc), 1)
+    except KeyboardInterrupt:
+        raise typer.Exit(0) from None
     live = logs_grow(run_dir)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}

@@ -298,6 +298,21 @@ def log_files(run_dir: Path) -> dict[str, Path]:
     return dict(sorted(files.items(), key=lambda kv: (kv[0] != "launcher", kv[0])))
 
 
+def await_service_logs(run_dir: Path, services: Iterable[str], wait: Callable[[float], None] | None = None, period_s: float = 0.2) -> None:
+    """Wait while the run of ``run_dir`` is starting (its launcher alive, its state ``starting``: its services not all
+    spawned yet) and one of ``services`` has no log yet. ``logs -f planner`` right after ``up ... &`` (which it waits
+    for) said "no log for planner in this run (it has: launcher)" and ended. A run past its start, or ended, returns at
+    once: ``select_services`` then says which logs it has (a name it does not run waits for its start only)."""
+    wanted = list(services)
+    while True:
+        info = read_json_object(run_dir / "run.json")
+        if info is None or info.get("state") != "starting" or not current_launcher_alive(info):
+            return
+        if all(s in log_files(run_dir) for s in wanted):
+            return
+        (wait or time.sleep)(period_s)
+
+
 def select_services(files: dict[str, Path], services: Iterable[str]) -> dict[str, Path]:
     """``logs``' service names narrowed to their files (all of them when none is named); a name without a log is a RunError."""
     wanted = list(services)

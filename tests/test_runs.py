@@ -405,3 +405,27 @@ def test_the_hints_of_nothing_running_name_the_runs_folder_looked_in(tmp_path, c
     monkeypatch.chdir(tmp_path)
     assert reachable_target([], None, plain) == 1
     assert "; `cso-runtime runs` lists past runs" in capsys.readouterr().out
+
+
+def test_logs_follow_of_a_service_waits_for_its_log_while_the_run_starts(tmp_path, monkeypatch):
+    """``up ... &`` then ``logs -f planner``: ``logs -f`` waits for the run file, and then the run is ``starting``, its
+    services not spawned yet, with the launcher's log alone: it said "no log for planner in this run (it has:
+    launcher)" and exit 1. It waits for the service's log while the run starts; a run past its start says so at once."""
+    runs = tmp_path / "runs"
+    d = make_run(runs, "20261203-091000-sim-r0", alive=True, state="starting", logs={"launcher": line(1, 0, "started sim")})
+    waits = []
+
+    def spawned(seconds: float) -> None:  # the launcher spawns its services, the episode runs, its launcher exits
+        waits.append(seconds)
+        (d / "logs" / "mapper.log").write_text(line(2, 0, "mapper: first map"))
+        info = json.loads((d / "run.json").read_text())
+        (d / "run.json").write_text(json.dumps({**info, "state": "stopped", "outcome": "done", "launcher_pid": 2**22 + 12345, "launcher_start_ticks": None}))
+
+    monkeypatch.setattr(time, "sleep", spawned)
+    r = CliRunner().invoke(app, ["logs", "-f", "mapper", "--runs-dir", str(runs)])
+    assert r.exit_code == 0 and "mapper: first map" in r.output and f"run {d.name} has ended" in r.output, r.output
+    assert len(waits) == 1
+    # Past its start (a typo, or a service this run does not run): said at once, as before.
+    make_run(runs, "20261203-091100-sim-r0", alive=True, state="running", logs={"launcher": line(1, 0, "started sim")})
+    r = CliRunner().invoke(app, ["logs", "-f", "plannr", "--run", "20261203-091100-sim-r0", "--runs-dir", str(runs)])
+    assert r.exit_code == 1 and "no log for plannr in this run (it has: launcher)" in r.output and len(waits) == 1, r.output
