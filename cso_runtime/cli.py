@@ -1220,11 +1220,11 @@ def _await_starting_up(runs_dir: Path, period_s: float = 0.2) -> None:
     previous run's logs and ended at once. Ctrl-C ends the command."""
     import time  # noqa: PLC0415
 
-    from cso_runtime.current_run import ASK_AGAIN, read_current_run, starting_up_line  # noqa: PLC0415
+    from cso_runtime.current_run import ASK_AGAIN, current_launcher_alive, read_current_run, starting_up_line  # noqa: PLC0415
 
     said = False
-    try:
-        while read_current_run(runs_dir) is None and (starting := starting_up_line(runs_dir)):
+    try:  # a run file of a launcher gone (killed) is no run: the `up` starting writes its own
+        while ((info := read_current_run(runs_dir)) is None or not current_launcher_alive(info)) and (starting := starting_up_line(runs_dir)):
             if not said:
                 typer.echo(f"{starting.removesuffix(ASK_AGAIN)}; waiting for it...", err=True)
                 said = True

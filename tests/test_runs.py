@@ -429,3 +429,39 @@ def test_logs_follow_of_a_service_waits_for_its_log_while_the_run_starts(tmp_pat
     make_run(runs, "20261203-091100-sim-r0", alive=True, state="running", logs={"launcher": line(1, 0, "started sim")})
     r = CliRunner().invoke(app, ["logs", "-f", "plannr", "--run", "20261203-091100-sim-r0", "--runs-dir", str(runs)])
     assert r.exit_code == 1 and "no log for plannr in this run (it has: launcher)" in r.output and len(waits) == 1, r.output
+
+
+def test_an_up_starting_is_seen_past_the_run_file_of_a_launcher_that_died(tmp_path, capsys, monkeypatch):
+    """A launcher killed (SIGKILL, out of memory) leaves ``runs/current.json``; an ``up`` started then has written no run
+    file of its own for its first second or more. ``status`` said the dead launcher's "nothing running (run X's
+    launcher ... has exited)", ``status --watch`` ended there, and ``logs -f`` followed the dead run's logs and ended at
+    once: the ``up`` starting was seen only where no run file was. A run file whose launcher is gone hides it no more."""
+    from cso_runtime.current_run import starting_up_path
+    from cso_runtime.status import await_started_run, reachable_target
+
+    runs = tmp_path / "runs"
+    killed = make_run(runs, "20261203-091000-sim-r0", state="running", logs={"sim": line(1, 0, "the killed run")})  # its launcher gone
+    (runs / "current.json").write_text((killed / "run.json").read_text())
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # the `up` checking its profile
+    waits: list[float] = []
+
+    def up_ends(seconds: float) -> None:  # refused by its check, say: no run of its own
+        waits.append(seconds)
+        up.kill()
+        up.wait()  # no timeout: Popen's would sleep, and sleep is this
+
+    try:
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+        assert reachable_target([], None, runs) == 1
+        said = capsys.readouterr().out
+        assert f"`up` (pid {up.pid}) is starting in {runs}" in said and "has exited" not in said, said
+        monkeypatch.setattr(time, "sleep", up_ends)
+        assert await_started_run(runs, False, 0.5) is None  # `status --watch`: waited for it, then went on
+        assert waits == [0.5] and f"`up` (pid {up.pid}) is starting in {runs}: it has not written its run file yet; waiting for it..." in capsys.readouterr().out
+        up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+        r = CliRunner().invoke(app, ["logs", "-f", "--runs-dir", str(runs)])
+        assert r.exit_code == 0 and len(waits) == 2 and f"`up` (pid {up.pid}) is starting in {runs}" in r.output, r.output
+    finally:
+        up.kill()
+        up.wait(timeout=30)
