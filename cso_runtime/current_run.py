@@ -65,6 +65,8 @@ def run_file_problem(info: Any) -> str | None:
     for key in ("launcher_pid", "launcher_start_ticks"):
         if info.get(key) is not None and (not isinstance(info[key], int) or isinstance(info[key], bool)):
             return f"{key} must be an integer"
+    if info.get("launcher_pid") is not None and info["launcher_pid"] <= 0:  # os.kill's 0 and -1 are process groups: `down` signals it
+        return "launcher_pid must be a process id (positive)"
     endpoints = info.get("endpoints", [])
     if not isinstance(endpoints, list) or not all(isinstance(e, str) for e in endpoints):
         return "endpoints must be a list of strings"

@@ -465,3 +465,22 @@ def test_an_up_starting_is_seen_past_the_run_file_of_a_launcher_that_died(tmp_pa
     finally:
         up.kill()
         up.wait(timeout=30)
+
+
+def test_a_run_file_whose_process_ids_name_no_process_is_no_live_run(tmp_path):
+    """(Older than the merges reviewed here.) A run file edited by hand or mangled: ``launcher_pid: -1`` passed as an
+    integer, and ``os.kill(-1, 0)`` succeeds (-1 is every process this user may signal), so its launcher read as alive
+    and ``down`` would have sent its SIGINT to pid -1; ``launcher_pid: "x"`` in a run folder's run.json made ``runs``,
+    ``logs`` and ``report`` end in a TypeError traceback. Neither names a process: no run is live there."""
+    from cso_runtime.current_run import read_current_run
+    from cso_runtime.supervision import pid_alive
+
+    assert not pid_alive(-1) and not pid_alive(0) and not pid_alive("x")  # type: ignore[arg-type]
+    runs = tmp_path / "runs"
+    d = make_run(runs, "20261203-091000-sim-r0", state="running")
+    info = json.loads((d / "run.json").read_text())
+    (runs / "current.json").write_text(json.dumps({**info, "launcher_pid": -1}))
+    assert read_current_run(runs) is None  # not a run file a launcher wrote: ignored, with a warning
+    (d / "run.json").write_text(json.dumps({**info, "launcher_pid": "x"}))
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)])
+    assert r.exit_code == 0 and "launcher died" in r.output and r.exception is None, r.output
