@@ -1171,6 +1171,7 @@ def logs_command(
     """A run's service logs merged in time order, each line after its service's name (like `docker compose logs`)."""
     from cso_runtime.runs import (  # noqa: PLC0415
         RunError,
+        await_service_logs,
         follow_logs,
         log_files,
         logs_grow,
@@ -1184,9 +1185,13 @@ def logs_command(
         _await_starting_up(runs_dir)
     try:
         run_dir = resolve_run(runs_dir, run)
+        if follow and services:  # a starting run's services have no log until they are spawned
+            await_service_logs(run_dir, services)
         files = select_services(log_files(run_dir), services or [])
     except RunError as exc:
         _fail(str(exc), 1)
+    except KeyboardInterrupt:
+        raise typer.Exit(0) from None
     live = logs_grow(run_dir)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
@@ -1220,11 +1225,11 @@ def _await_starting_up(runs_dir: Path, period_s: float = 0.2) -> None:
     previous run's logs and ended at once. Ctrl-C ends the command."""
     import time  # noqa: PLC0415
 
-    from cso_runtime.current_run import ASK_AGAIN, read_current_run, starting_up_line  # noqa: PLC0415
+    from cso_runtime.current_run import ASK_AGAIN, current_launcher_alive, read_current_run, starting_up_line  # noqa: PLC0415
 
     said = False
-    try:
-        while read_current_run(runs_dir) is None and (starting := starting_up_line(runs_dir)):
+    try:  # a run file of a launcher gone (killed) is no run: the `up` starting writes its own
+        while ((info := read_current_run(runs_dir)) is None or not current_launcher_alive(info)) and (starting := starting_up_line(runs_dir)):
             if not said:
                 typer.echo(f"{starting.removesuffix(ASK_AGAIN)}; waiting for it...", err=True)
                 said = True

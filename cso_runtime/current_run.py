@@ -65,6 +65,8 @@ def run_file_problem(info: Any) -> str | None:
     for key in ("launcher_pid", "launcher_start_ticks"):
         if info.get(key) is not None and (not isinstance(info[key], int) or isinstance(info[key], bool)):
             return f"{key} must be an integer"
+    if info.get("launcher_pid") is not None and info["launcher_pid"] <= 0:  # os.kill's 0 and -1 are process groups: `down` signals it
+        return "launcher_pid must be a process id (positive)"
     endpoints = info.get("endpoints", [])
     if not isinstance(endpoints, list) or not all(isinstance(e, str) for e in endpoints):
         return "endpoints must be a list of strings"
@@ -233,7 +235,7 @@ def down(runs_dir: Path, timeout_s: float | None = None, stop_starting: bool = T
         info = read_current_run(runs_dir)  # written (and its launcher's file removed) since the first look
     if info is None:
         if not (runs_dir / CURRENT_RUN).exists():  # the common case: every run has ended (or none was started here)
-            return False, f"nothing running (no current run in {runs_dir}; `cso-runtime runs` lists past runs)"
+            return False, f"nothing running (no current run in {runs_dir}; {runs_command('runs', runs_dir)} lists past runs)"
         return False, f"nothing running (no usable {runs_dir / CURRENT_RUN})"
     if timeout_s is None:
         timeout_s = 3 * float(info.get("stop_timeout_s") or SupervisionConfig.stop_timeout_s) + DOWN_MARGIN_S

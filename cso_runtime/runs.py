@@ -29,6 +29,7 @@ from cso_runtime.current_run import (
     current_launcher_alive,
     read_current_run,
     run_file_problem,
+    runs_command,
 )
 from cso_runtime.report import whole_count
 from cso_runtime.supervision import run_process_alive
@@ -285,7 +286,7 @@ def resolve_run(runs_dir: Path, run: str | None = None) -> Path:
             if (candidate / "run.json").is_file() or (candidate / LOG_DIR).is_dir():
                 return candidate
         known = ", ".join(d.name for d in reversed(run_dirs(runs_dir)[-5:])) or "none"
-        raise RunError(f"no run {run!r} in {runs_dir} (newest first: {known}; `cso-runtime runs` lists them)")
+        raise RunError(f"no run {run!r} in {runs_dir} (newest first: {known}; {runs_command('runs', runs_dir)} lists them)")
     current = read_current_run(runs_dir)
     if current is not None and Path(str(current.get("run_dir", ""))).is_dir():
         return Path(current["run_dir"])
@@ -340,6 +341,21 @@ def log_files(run_dir: Path) -> dict[str, Path]:
     """``service name -> log file`` of a run, the launcher first."""
     files = {p.stem: p for p in sorted((run_dir / LOG_DIR).glob("*.log"))}
     return dict(sorted(files.items(), key=lambda kv: (kv[0] != "launcher", kv[0])))
+
+
+def await_service_logs(run_dir: Path, services: Iterable[str], wait: Callable[[float], None] | None = None, period_s: float = 0.2) -> None:
+    """Wait while the run of ``run_dir`` is starting (its launcher alive, its state ``starting``: its services not all
+    spawned yet) and one of ``services`` has no log yet. ``logs -f planner`` right after ``up ... &`` (which it waits
+    for) said "no log for planner in this run (it has: launcher)" and ended. A run past its start, or ended, returns at
+    once: ``select_services`` then says which logs it has (a name it does not run waits for its start only)."""
+    wanted = list(services)
+    while True:
+        info = read_json_object(run_dir / "run.json")
+        if info is None or info.get("state") != "starting" or not current_launcher_alive(info):
+            return
+        if all(s in log_files(run_dir) for s in wanted):
+            return
+        (wait or time.sleep)(period_s)
 
 
 def select_services(files: dict[str, Path], services: Iterable[str]) -> dict[str, Path]:

@@ -313,7 +313,7 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     there is no one to ask: 1 when nothing runs, 2 when ``connect`` cannot name a router (a typo such as
     ``127.0.0.1:7447``: a usage error, not "nothing running"), ``robot`` is not one robot's id, or ``connect`` was given
     without ``robot`` and several robots answer there (which one is the user's to say; the one that answers is taken)."""
-    from cso_runtime.current_run import read_current_run, starting_run, starting_up_line  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive, read_current_run, runs_command, starting_run, starting_up_line  # noqa: PLC0415
 
     given_connect = bool(connect)
     robot_named = robot is not None
@@ -337,17 +337,18 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
         else:
             print(starting)
         return 1
-    # Before "no current run": a launcher killed while starting left a run file with no endpoints.
-    if not given_connect and (gone := dead_launcher_of_run(run_info, runs_dir)):
-        return say_nothing_running(gone, as_json)
-    if not given_connect and run_info is None and (up_starting := starting_up_line(runs_dir)):  # `up` checks its profile
+    # `up` checks its profile, no run file of its own yet: before a run file that a launcher gone (killed) left behind
+    if not given_connect and (run_info is None or not current_launcher_alive(run_info)) and (up_starting := starting_up_line(runs_dir)):
         if as_json:
             print(json.dumps({"state": "starting", "run_id": "", "reason": up_starting}), flush=True)
         else:
             print(up_starting)
         return 1
+    # Before "no current run": a launcher killed while starting left a run file with no endpoints.
+    if not given_connect and (gone := dead_launcher_of_run(run_info, runs_dir)):
+        return say_nothing_running(gone, as_json)
     if not connect:  # the folder looked in named: an `up` started in another working folder has its run file there
-        return say_nothing_running(f"no current run in {runs_dir}; give --runs-dir of the folder `up` used, or --connect ENDPOINT to ask another host; `cso-runtime runs` lists past runs", as_json)
+        return say_nothing_running(f"no current run in {runs_dir}; give --runs-dir of the folder `up` used, or --connect ENDPOINT to ask another host; {runs_command('runs', runs_dir)} lists past runs", as_json)
     try:
         client_transport(connect, zenoh_config_file).validate()
     except TransportError as exc:
@@ -664,14 +665,15 @@ def await_started_run(runs_dir: Path, as_json: bool, period_s: float) -> int | N
     to come up, saying so (once on a terminal or in a file; ``--json``: a ``starting`` line each period). None once
     there is no starting run (its router open: watch it), else the exit code after saying how the wait ended: its
     launcher died (exit 1, as ``status`` says it), or its start failed (how it ended, ``run_end_exit_code``)."""
-    from cso_runtime.current_run import ASK_AGAIN, read_current_run, starting_run, starting_up_line  # noqa: PLC0415
+    from cso_runtime.current_run import ASK_AGAIN, current_launcher_alive, read_current_run, starting_run, starting_up_line  # noqa: PLC0415
 
     said = ""
     seen: dict[str, Any] | None = None  # the starting run's file, as last read
     while True:
         info = read_current_run(runs_dir)
         starting = starting_run(info)
-        if starting is None and info is None and seen is None:  # an `up` still checking its profile: no run file yet
+        # An `up` still checking its profile: no run file of its own yet (one there is a launcher's gone, killed).
+        if starting is None and (info is None or not current_launcher_alive(info)) and seen is None:
             starting = starting_up_line(runs_dir)
             if starting is not None:
                 line = f"{starting.removesuffix(ASK_AGAIN)}; waiting for it..."

@@ -180,8 +180,10 @@ def process_state(pid: int) -> str:
 
 
 def pid_alive(pid: int | None) -> bool:
-    """Whether process ``pid`` is still running (a zombie is not; one of another user is)."""
-    if not pid:
+    """Whether process ``pid`` is still running (a zombie is not; one of another user is). Only a positive integer
+    names one process: ``os.kill`` takes 0 and -1 for process groups (-1: every process this user may signal), and a
+    run file edited by hand may hold either, or text."""
+    if not isinstance(pid, int) or isinstance(pid, bool) or pid <= 0:
         return False
     try:
         os.kill(pid, 0)

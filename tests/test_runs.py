@@ -437,3 +437,104 @@ def test_runs_says_a_real_robots_coverage_in_the_one_word_of_the_report_and_the_
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "runs")], env={"COLUMNS": "200"})
     (row,) = [line for line in r.output.splitlines() if "20261206-205536-limo-ros2-r0" in line]
     assert r.exit_code == 0 and row.split()[-4:-2] == ["196", "no-truth"], r.output
+
+
+def test_the_hints_of_nothing_running_name_the_runs_folder_looked_in(tmp_path, capsys, monkeypatch):
+    """``status``, ``down`` and ``logs --run`` of a runs folder of one's own (``--runs-dir``) with no such run said
+    "`cso-runtime runs` lists past runs": that lists ./runs, another folder (or "no runs"), not the one looked in. The
+    hint names it, as every other hint of a run does (``current_run.runs_command``); the default folder's stays plain."""
+    from cso_runtime.current_run import down
+    from cso_runtime.status import reachable_target
+
+    mine = tmp_path / "robot1-runs"
+    make_run(mine, "20261203-091000-lockstep-r0", outcome="done")
+    assert reachable_target([], None, mine) == 1
+    assert f"`cso-runtime runs --runs-dir {mine}` lists past runs" in capsys.readouterr().out
+    stopped, said = down(mine)
+    assert not stopped and f"`cso-runtime runs --runs-dir {mine}` lists past runs" in said, said
+    with pytest.raises(RunError, match=f"`cso-runtime runs --runs-dir {mine}` lists them"):
+        resolve_run(mine, "nope")
+    plain = Path("runs")  # the default, as a plain `cso-runtime runs` reads it
+    assert reachable_target([], None, tmp_path / plain) == 1 and "`cso-runtime runs --runs-dir" in capsys.readouterr().out
+    monkeypatch.chdir(tmp_path)
+    assert reachable_target([], None, plain) == 1
+    assert "; `cso-runtime runs` lists past runs" in capsys.readouterr().out
+
+
+def test_logs_follow_of_a_service_waits_for_its_log_while_the_run_starts(tmp_path, monkeypatch):
+    """``up ... &`` then ``logs -f planner``: ``logs -f`` waits for the run file, and then the run is ``starting``, its
+    services not spawned yet, with the launcher's log alone: it said "no log for planner in this run (it has:
+    launcher)" and exit 1. It waits for the service's log while the run starts; a run past its start says so at once."""
+    runs = tmp_path / "runs"
+    d = make_run(runs, "20261203-091000-sim-r0", alive=True, state="starting", logs={"launcher": line(1, 0, "started sim")})
+    waits = []
+
+    def spawned(seconds: float) -> None:  # the launcher spawns its services, the episode runs, its launcher exits
+        waits.append(seconds)
+        (d / "logs" / "mapper.log").write_text(line(2, 0, "mapper: first map"))
+        info = json.loads((d / "run.json").read_text())
+        (d / "run.json").write_text(json.dumps({**info, "state": "stopped", "outcome": "done", "launcher_pid": 2**22 + 12345, "launcher_start_ticks": None}))
+
+    monkeypatch.setattr(time, "sleep", spawned)
+    r = CliRunner().invoke(app, ["logs", "-f", "mapper", "--runs-dir", str(runs)])
+    assert r.exit_code == 0 and "mapper: first map" in r.output and f"run {d.name} has ended" in r.output, r.output
+    assert len(waits) == 1
+    # Past its start (a typo, or a service this run does not run): said at once, as before.
+    make_run(runs, "20261203-091100-sim-r0", alive=True, state="running", logs={"launcher": line(1, 0, "started sim")})
+    r = CliRunner().invoke(app, ["logs", "-f", "plannr", "--run", "20261203-091100-sim-r0", "--runs-dir", str(runs)])
+    assert r.exit_code == 1 and "no log for plannr in this run (it has: launcher)" in r.output and len(waits) == 1, r.output
+
+
+def test_an_up_starting_is_seen_past_the_run_file_of_a_launcher_that_died(tmp_path, capsys, monkeypatch):
+    """A launcher killed (SIGKILL, out of memory) leaves ``runs/current.json``; an ``up`` started then has written no run
+    file of its own for its first second or more. ``status`` said the dead launcher's "nothing running (run X's
+    launcher ... has exited)", ``status --watch`` ended there, and ``logs -f`` followed the dead run's logs and ended at
+    once: the ``up`` starting was seen only where no run file was. A run file whose launcher is gone hides it no more."""
+    from cso_runtime.current_run import starting_up_path
+    from cso_runtime.status import await_started_run, reachable_target
+
+    runs = tmp_path / "runs"
+    killed = make_run(runs, "20261203-091000-sim-r0", state="running", logs={"sim": line(1, 0, "the killed run")})  # its launcher gone
+    (runs / "current.json").write_text((killed / "run.json").read_text())
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # the `up` checking its profile
+    waits: list[float] = []
+
+    def up_ends(seconds: float) -> None:  # refused by its check, say: no run of its own
+        waits.append(seconds)
+        up.kill()
+        up.wait()  # no timeout: Popen's would sleep, and sleep is this
+
+    try:
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+        assert reachable_target([], None, runs) == 1
+        said = capsys.readouterr().out
+        assert f"`up` (pid {up.pid}) is starting in {runs}" in said and "has exited" not in said, said
+        monkeypatch.setattr(time, "sleep", up_ends)
+        assert await_started_run(runs, False, 0.5) is None  # `status --watch`: waited for it, then went on
+        assert waits == [0.5] and f"`up` (pid {up.pid}) is starting in {runs}: it has not written its run file yet; waiting for it..." in capsys.readouterr().out
+        up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+        r = CliRunner().invoke(app, ["logs", "-f", "--runs-dir", str(runs)])
+        assert r.exit_code == 0 and len(waits) == 2 and f"`up` (pid {up.pid}) is starting in {runs}" in r.output, r.output
+    finally:
+        up.kill()
+        up.wait(timeout=30)
+
+
+def test_a_run_file_whose_process_ids_name_no_process_is_no_live_run(tmp_path):
+    """(Older than the merges reviewed here.) A run file edited by hand or mangled: ``launcher_pid: -1`` passed as an
+    integer, and ``os.kill(-1, 0)`` succeeds (-1 is every process this user may signal), so its launcher read as alive
+    and ``down`` would have sent its SIGINT to pid -1; ``launcher_pid: "x"`` in a run folder's run.json made ``runs``,
+    ``logs`` and ``report`` end in a TypeError traceback. Neither names a process: no run is live there."""
+    from cso_runtime.current_run import read_current_run
+    from cso_runtime.supervision import pid_alive
+
+    assert not pid_alive(-1) and not pid_alive(0) and not pid_alive("x")  # type: ignore[arg-type]
+    runs = tmp_path / "runs"
+    d = make_run(runs, "20261203-091000-sim-r0", state="running")
+    info = json.loads((d / "run.json").read_text())
+    (runs / "current.json").write_text(json.dumps({**info, "launcher_pid": -1}))
+    assert read_current_run(runs) is None  # not a run file a launcher wrote: ignored, with a warning
+    (d / "run.json").write_text(json.dumps({**info, "launcher_pid": "x"}))
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)])
+    assert r.exit_code == 0 and "launcher died" in r.output and r.exception is None, r.output
