@@ -176,6 +176,11 @@ class PolicyService(Service):
         if self.params.serve_all_robots:  # --robot's own status is the service's (run_service's queryable)
             self._queryables.append(self.session.declare_queryable(RobotKeys("*").service_status(self.name), self._on_status_query))
             self._queryables.append(self.session.liveliness().declare_subscriber(RobotKeys("*").alive("*"), self._on_alive, history=True))
+            # The subscriber's history comes on its own time: a robot's decision input queued meanwhile (the loop
+            # handles it after ``start``) was served though its run has a policy of its own. Asked here, before.
+            for reply in self.session.liveliness().get(RobotKeys("*").alive(self.name), timeout=1.0):
+                if reply.ok is not None:
+                    self._on_policy_alive(reply.ok)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         """A service of a robot came or went: its policy (``_on_policy_alive``), or another, which says whether its run

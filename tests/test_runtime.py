@@ -23,6 +23,7 @@ import sys
 import textwrap
 import threading
 import time
+import types
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -421,6 +422,39 @@ def test_a_policy_server_leaves_a_robot_with_a_policy_of_its_own_to_it():
                 wait_for(lambda: ("b", 1) in goals, 10, "robot b's goal once its own policy is gone")
             finally:
                 sub.undeclare()
+
+
+def test_a_policy_server_knows_the_robots_with_a_policy_of_their_own_before_it_handles_any_input():
+    """The server learnt of other robots' policies only from its liveliness subscriber's history, which comes on its
+    own time: a decision input queued before it came (handled once ``start`` returns) was served, and a robot whose
+    run has its own policy got a second goal (CI, once, under load). ``start`` now asks for those tokens itself;
+    here the subscriber's history never comes, so only that question can tell."""
+    from services.common import ServiceContext
+    from services.policy import PolicyService
+
+    class NoHistory:
+        """The session's liveliness, with a subscriber that delivers nothing (its history late past ``start``)."""
+
+        def __init__(self, real):
+            self.real = real
+
+        def declare_subscriber(self, *args, **kwargs):
+            return types.SimpleNamespace(undeclare=lambda: None)
+
+        def get(self, *args, **kwargs):
+            return self.real.get(*args, **kwargs)
+
+    port = free_tcp_port()
+    with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as session:
+        own_policy = session.liveliness().declare_token(RobotKeys("b").alive("policy"))  # robot b's run has its own
+        try:
+            svc = PolicyService(ServiceContext("policy", "a", {"method": "greedy-dist", "seed": 0}, ExplorationConfig(), TransportConfig(), {"serve_all_robots": True}))
+            liveliness = NoHistory(session.liveliness())
+            svc.session = types.SimpleNamespace(liveliness=lambda: liveliness, declare_queryable=lambda *a, **k: types.SimpleNamespace(undeclare=lambda: None))
+            svc.start()
+            assert svc._other_policies == {"b"}
+        finally:
+            own_policy.undeclare()
 
 
 def test_a_policy_server_lets_a_robot_go_when_its_run_stops():
@@ -4333,7 +4367,8 @@ def test_up_in_lockstep_matches_the_in_process_episode(tmp_path, scene, method):
         # profile, scene, seed, sensor and step limit
         software = summary["meta"]["software"]
         commit = f"commit: {software['git_commit'][:12]}{' (modified)' if software['git_modified'] else ''}, " if "git_commit" in software else ""
-        settings = f"command: cso-runtime up, version: {cso_runtime.__version__}, {commit}profile: lockstep, scene: {scene}, seed: 0, lockstep, "
+        assert summary["meta"]["sim"] == "2d"  # as eval's meta says its simulator (episodes.csv's sim)
+        settings = f"command: cso-runtime up, version: {cso_runtime.__version__}, {commit}sim: 2d, profile: lockstep, scene: {scene}, seed: 0, lockstep, "
         settings += f"sensor field of view: {ran.sensor.fov_deg:g} degrees, step limit: {ran.episode.max_steps}"
         assert f"<p>{settings}</p>" in (run_dir.parent / "report.html").read_text()
         expected = in_process_result(scene, method)
