@@ -28,6 +28,25 @@ def train_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> list:
     return ran
 
 
+@pytest.fixture
+def collect_teacher_stub(monkeypatch: pytest.MonkeyPatch) -> list:
+    """``(args, workers)`` of each collection a ``collect-teacher`` of the test started (the rollouts replaced by an
+    empty set, saved as an empty file: nothing is collected)."""
+    from cso_runtime.learned import ppo
+
+    class Collected:
+        def __len__(self) -> int:
+            return 0
+
+        def save(self, path: Path) -> None:
+            path.write_text("")
+
+    ran: list = []
+    monkeypatch.setattr(ppo, "collect_teacher_parallel", lambda args, workers, *rest, **kwargs: ran.append((args, workers)) or Collected())
+    monkeypatch.setattr("cso_runtime.cli.interrupt_on_sigterm", lambda **_kwargs: None)
+    return ran
+
+
 def train(tmp_path: Path, *flags: str) -> tuple[int, str]:
     """``cso-runtime train`` with a one-plan config, ``--out`` in ``tmp_path`` unless the flags give one."""
     from cso_runtime.cli import app
@@ -228,23 +247,13 @@ def test_up_refuses_a_flag_and_a_set_of_the_same_key_with_another_value(tmp_path
     assert not (tmp_path / "runs").exists()
 
 
-def test_collect_teacher_refuses_a_flag_and_a_set_of_the_same_field_with_another_value(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+def test_collect_teacher_refuses_a_flag_and_a_set_of_the_same_field_with_another_value(tmp_path: Path, collect_teacher_stub: list):
     """``collect-teacher --seed 3 --set seed=4`` collected with seed 4, in silence; ``train`` refused it. Both commands
     refuse it now through the one check, before any rollout; equal values run, and ``--set warm_start_teacher``
     without ``--teacher`` is taken (the default teacher, rollout, is no flag given)."""
     from cso_runtime.cli import app
-    from cso_runtime.learned import ppo
 
-    class Collected:
-        def __len__(self) -> int:
-            return 0
-
-        def save(self, path: Path) -> None:
-            path.write_text("")
-
-    ran: list = []
-    monkeypatch.setattr(ppo, "collect_teacher_parallel", lambda args, *rest, **kwargs: ran.append(args) or Collected())
-    monkeypatch.setattr("cso_runtime.cli.interrupt_on_sigterm", lambda **_kwargs: None)
+    ran = collect_teacher_stub
     recipe = tmp_path / "mine.yaml"
     recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\nwarm_start_teacher: greedy-dist\n")
     common = ["collect-teacher", "--config", str(recipe), "--out", str(tmp_path / "t.npz")]
@@ -262,7 +271,8 @@ def test_collect_teacher_refuses_a_flag_and_a_set_of_the_same_field_with_another
     ]:
         r = CliRunner().invoke(app, [*common, *given])
         assert r.exit_code == 0, (given, r.output)
-        assert ran[-1].warm_start_teacher == teacher and (seed is None or ran[-1].seed == seed), given
+        args = ran[-1][0]
+        assert args.warm_start_teacher == teacher and (seed is None or args.seed == seed), given
 
 
 def test_python_m_cso_runtime_runs_the_command(tmp_path: Path):
@@ -274,31 +284,22 @@ def test_python_m_cso_runtime_runs_the_command(tmp_path: Path):
     assert r.returncode == 0 and r.stdout.startswith(f"cso-runtime {cso_runtime.__version__}\n"), (r.stdout, r.stderr)
 
 
-def test_collect_teacher_bounds_its_workers_as_train_bounds_num_envs(tmp_path: Path, monkeypatch):
+def test_collect_teacher_bounds_its_workers_as_train_bounds_num_envs(tmp_path: Path, collect_teacher_stub: list):
     """``collect-teacher --workers 5000`` started 5,000 processes (one environment each), where ``train --num-envs 5000``
     is refused since the bounds (``learned.ppo.ARGS_BOUNDS``: at most ``MAX_ENVS``, no machine has more cores). The
     same bound, exit 2 before any rollout; 1,024 is taken."""
     from cso_runtime.cli import app
     from cso_runtime.learned import ppo
 
-    class Collected:
-        def __len__(self) -> int:
-            return 0
-
-        def save(self, path: Path) -> None:
-            path.write_text("")
-
-    ran: list = []
-    monkeypatch.setattr(ppo, "collect_teacher_parallel", lambda args, workers, *rest, **kwargs: ran.append(workers) or Collected())
-    monkeypatch.setattr("cso_runtime.cli.interrupt_on_sigterm", lambda **_kwargs: None)
     recipe = tmp_path / "mine.yaml"
     recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")
     common = ["collect-teacher", "--config", str(recipe), "--out", str(tmp_path / "t.npz"), "--teacher", "greedy-dist"]
+    ran = collect_teacher_stub
     r = CliRunner().invoke(app, [*common, "--workers", str(ppo.MAX_ENVS + 1)])
     assert r.exit_code == 2 and "--workers must be in [1, 1,024] (MAX_ENVS), got 1,025" in " ".join(r.output.split()), r.output
     assert not ran
     r = CliRunner().invoke(app, [*common, "--workers", str(ppo.MAX_ENVS)])
-    assert r.exit_code == 0 and ran == [ppo.MAX_ENVS], r.output
+    assert r.exit_code == 0 and [workers for _args, workers in ran] == [ppo.MAX_ENVS], r.output
 
 
 def test_status_watch_period_is_bounded_before_anything_is_asked(tmp_path: Path):
