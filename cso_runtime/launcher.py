@@ -545,9 +545,9 @@ class Launcher:
             before, now = self.status, time.monotonic()
             if before is None or (before.episode, before.step, before.state) != (msg.episode, msg.step, msg.state):
                 self.step_changed_s = now
-            self.status, self.status_heard_at_s = msg, now
-            if msg.state in EPISODE_OVER:
-                with self._lock:
+            with self._lock:  # one with the end heard: the run loop, between them, would take one end twice
+                self.status, self.status_heard_at_s = msg, now
+                if msg.state in EPISODE_OVER:
                     self.end_heard = msg
             if msg.coverage_measured is not None:  # the referee's word on its ground truth, over the services' names
                 self.coverage_measured = msg.coverage_measured
@@ -965,9 +965,9 @@ class Launcher:
     def episode_end_heard(self) -> EpisodeStatusMsg | None:
         """The status that says the episode is over, for the run loop to judge: the current one, else the latest that
         said so since the loop last asked, though one of the episode exploring came after it (``end_heard``)."""
-        with self._lock:
+        with self._lock:  # the status and the end heard as ``_on_sample`` left them together
             heard, self.end_heard = self.end_heard, None
-        st = self.status
+            st = self.status
         return st if st is not None and st.state in EPISODE_OVER else heard
 
     def episode_goes_on(self) -> bool:

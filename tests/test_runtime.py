@@ -5064,6 +5064,49 @@ def test_a_stray_episode_end_does_not_end_the_run(tmp_path):
         assert "but the episode goes on" in next(runs.glob("*/logs/launcher.log")).read_text()
 
 
+def test_an_episode_end_heard_is_judged_once_however_the_launchers_threads_interleave(tmp_path):
+    """``_on_sample`` set ``status`` to an episode end, then (a statement later, under the lock) ``end_heard``: the run
+    loop asking in between (``episode_end_heard``) got the end from ``status``, and once more from ``end_heard`` at its
+    next look, after the sim's next status said the episode goes on. A stray end was judged twice: counted twice in
+    ``launcher_rejected`` and logged twice, with a second wait for a result that does not come. The switch of threads
+    is made here where the callback takes the lock: the end is handed to the loop once."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+    judged: list[EpisodeStatusMsg | None] = []
+
+    class SwitchOnTake:
+        """The launcher's lock, whose first take lets the run loop look (``episode_end_heard``) before it is held."""
+
+        def __init__(self) -> None:
+            self.lock, self.armed = threading.RLock(), True
+
+        def __enter__(self) -> None:
+            if self.armed:
+                self.armed = False
+                judged.append(launcher.episode_end_heard())
+            self.lock.acquire()
+
+        def __exit__(self, *exc: object) -> None:
+            self.lock.release()
+
+    def hear(msg: EpisodeStatusMsg) -> None:
+        launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda: encode(msg))))
+
+    hear(EpisodeStatusMsg("exploring", 4, episode=7))
+    launcher._lock = SwitchOnTake()  # type: ignore[assignment]
+    hear(EpisodeStatusMsg("done", 5, terminated_by="coverage", episode=7))  # the stray end
+    hear(EpisodeStatusMsg("exploring", 5, episode=7))  # the sim's next status: the episode goes on
+    judged += [launcher.episode_end_heard(), launcher.episode_end_heard()]
+    ends = [st for st in judged if st is not None]
+    assert [(st.state, st.step) for st in ends] == [("done", 5)], judged
+
+
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
     """A launcher of the lockstep profile joining ``endpoint`` (its own router or none), whose session's routes are
     ``routers`` (the test changes it), supervising a planner that never answers; the caller kills the planner."""
