@@ -846,10 +846,13 @@ later there may be one."""
 
 def no_map_yet_words(said: str, episode: EpisodeStatusMsg | None) -> str:
     """Why there is no map to save, as a user reads it: the run's mapper has not published one yet (the episode's
-    state and step, as its status answered), or no episode status answers either (its services still starting);
+    state and step, as its status answered), or no episode status answers either (its services still starting), or
+    the episode is over and its map is among the run's results;
     ``said``, what the map's key answered, for those who debug."""
     if episode is None:
         return f"{NO_MAP_YET}, and no episode status answers either: its services may still be starting ({said}; `cso-runtime status` says which state it is in)"
+    if episode.state in EPISODE_OVER:  # none will come: not a moment too early (a mapper restarted after the end)
+        return f"no map answers, and none will come: the episode is {episode.state}, at step {episode.step}; its final map is among the run's results (`cso-runtime runs`; {said})"
     return f"{NO_MAP_YET}: its mapper has not published one (the episode is {episode.state}, at step {episode.step}; {said})"
 
 

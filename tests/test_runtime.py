@@ -3510,6 +3510,12 @@ def test_save_map_in_a_runs_first_seconds_says_it_has_no_map_yet_not_only_the_ke
         out = capsys.readouterr().out
         assert out.startswith("no map for robot r0: the run has no map yet") and out.rstrip().endswith("; try again in a moment"), out
         assert all(words in out for words in said), out
+    # An episode over: no map will come (a mapper restarted after the end), so no "try again".
+    over = encode(EpisodeStatusMsg(state="done", step=212))
+    monkeypatch.setattr(status_module, "_client_session", lambda *_a, **_k: Session({keys.episode_status: [reply(over)]}))
+    assert save_map_main([], None, tmp_path / "m", "pgm", tmp_path / "runs") == 1
+    out = capsys.readouterr().out
+    assert "none will come: the episode is done, at step 212; its final map is among the run's results" in out and "try again" not in out, out
     assert not (tmp_path / "m.yaml").exists()
 
 
