@@ -962,6 +962,19 @@ class Launcher:
                 tend()
         return self.result
 
+    def judge_episode_end(self, session: Any, over: EpisodeStatusMsg, meanwhile: Callable[[], None]) -> tuple[EpisodeStatusMsg, EpisodeResultMsg | None] | None:
+        """The run loop's judgement of an end heard (``episode_end_heard``): the end and its result (None: it never
+        arrived), or None for a stray end, ignored (counted in ``rejected["episode_status"]``, logged): the episode goes on."""
+        self.ended_status = over
+        result = self.wait_for_result(session, meanwhile=meanwhile)
+        if result is None and self.episode_goes_on() and (now := self.status) is not None:
+            with self._lock:
+                self.rejected["episode_status"] = self.rejected.get("episode_status", 0) + 1
+            log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", over.state, over.step, now.step)
+            self.ended_status = None
+            return None
+        return over, result
+
     def episode_end_heard(self) -> EpisodeStatusMsg | None:
         """The status that says the episode is over, for the run loop to judge: the current one, else the latest that
         said so since the loop last asked, though one of the episode exploring came after it (``end_heard``)."""
@@ -1370,14 +1383,10 @@ class Launcher:
                             log.info("%s", self.progress_log_line(time.monotonic()))
                     over = self.episode_end_heard()
                     if ending is None and over is not None and not self.outputs_written:
-                        self.ended_status = over
-                        result = self.wait_for_result(session, meanwhile=tend)
-                        if result is None and self.episode_goes_on() and (now := self.status) is not None:
-                            with self._lock:
-                                self.rejected["episode_status"] = self.rejected.get("episode_status", 0) + 1
-                            log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", over.state, over.step, now.step)
-                            self.ended_status = None
+                        judged = self.judge_episode_end(session, over, tend)
+                        if judged is None:  # a stray end: ignored, counted, logged
                             continue
+                        over, result = judged
                         if result is None:
                             log.error("the episode is %s but its result never arrived: no summary.json was written", over.state)
                         # The recording ends with the episode: a detached run's file is finished (and its GIF
