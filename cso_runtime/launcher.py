@@ -973,7 +973,17 @@ class Launcher:
             log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", over.state, over.step, now.step)
             self.ended_status = None
             return None
+        if result is not None:
+            self.ended_status = over = self.end_of_result(over, result)
         return over, result
+
+    def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:
+        """The end ``result`` belongs to: the episode's real end and its result can come while a stray end is awaited,
+        and the stray's state (``failed``) would say how the run ended. Of the end awaited and the latest heard since
+        (``episode_end_heard``), the latest that ended as the result says (its ``terminated_by``), else the latest."""
+        later = self.episode_end_heard()
+        ends = [awaited] if later is None or later is awaited else [later, awaited]
+        return next((end for end in ends if end.terminated_by == result.terminated_by), ends[0])
 
     def episode_end_heard(self) -> EpisodeStatusMsg | None:
         """The status that says the episode is over, for the run loop to judge: the current one, else the latest that

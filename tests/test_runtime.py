@@ -5113,6 +5113,69 @@ def test_an_episode_end_heard_is_judged_once_however_the_launchers_threads_inter
     assert [(st.state, st.step) for st in ends] == [("done", 5)], judged
 
 
+class _ScriptedResultQueries:
+    """A launcher's session for ``judge_episode_end``: its queries for the episode's result get no answer, and each
+    first runs the next step of ``script`` (what the launcher hears meanwhile); a query past the script fails the test
+    (the launcher waited where it should not have)."""
+
+    def __init__(self, script: list[Callable[[], None]]) -> None:
+        self.script, self.queries = list(script), 0
+
+    def get(self, key: str, timeout: float) -> list[Any]:
+        self.queries += 1
+        assert self.script, f"query {self.queries} for the result: the launcher still waits"
+        self.script.pop(0)()
+        return []
+
+
+def _launcher_hearing(tmp_path):
+    """A launcher of the lockstep profile, and ``hear``, which hands it a message as its subscriber would."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import EpisodeResultMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+
+    def hear(msg: Any) -> None:
+        key = keys.episode_result if isinstance(msg, EpisodeResultMsg) else keys.episode_status
+        launcher._on_sample(SimpleNamespace(key_expr=key, payload=SimpleNamespace(to_bytes=lambda: encode(msg))))
+
+    return launcher, hear
+
+
+def _result(steps: int, terminated_by: str):
+    from cso_runtime.messages import EpisodeResultMsg
+
+    free = np.ones((4, 4), bool)
+    return EpisodeResultMsg("s", steps, 1.2, 98.0, 1.3, 4.5, terminated_by, 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, "greedy-dist", 0)
+
+
+def test_the_end_a_result_belongs_to_decides_the_run_not_a_stray_end_awaited_before_it(tmp_path):
+    """A stray end ("failed" at step 5) is awaited; meanwhile the episode really ends ("done" at step 9) and its result
+    comes. The launcher judged the stray's status with the real result: the run said "failed" (exit code 1) while its
+    summary said done. The end the result belongs to (its ``terminated_by``, the latest end of the episode) decides."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 4, episode=7))
+    hear(EpisodeStatusMsg("failed", 5, terminated_by="lockstep_timeout", episode=7))  # the stray
+    over = launcher.episode_end_heard()
+    assert over is not None and over.state == "failed"
+
+    def the_real_end() -> None:
+        hear(EpisodeStatusMsg("done", 9, terminated_by="coverage", episode=7))
+        hear(_result(9, "coverage"))
+
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([the_real_end]), over, lambda: None)
+    assert judged is not None
+    end, result = judged
+    assert result is not None and result.terminated_by == "coverage"
+    assert (end.state, end.step, end.terminated_by) == ("done", 9, "coverage"), end
+    assert launcher.ended_status is end  # summary.json's meta.episode and `status` go by it
+
+
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
     """A launcher of the lockstep profile joining ``endpoint`` (its own router or none), whose session's routes are
     ``routers`` (the test changes it), supervising a planner that never answers; the caller kills the planner."""
