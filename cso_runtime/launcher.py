@@ -373,6 +373,9 @@ class Launcher:
         """The latest status that said the episode is over (``EPISODE_OVER``) since the run loop last looked
         (``episode_end_heard``): one of the episode exploring can replace ``status`` before the loop, which looks every
         0.1 s, gets to it (a stray end followed by the sim's next step's), and that end was neither judged nor counted."""
+        self.episode_running: int | None = None
+        """The episode the referee's latest status of a running episode (starting, exploring) names: an end of
+        another (a late one of the episode before a restarted sim's, a forged one) is a stray (``judge_episode_end``)."""
         self.status_watch: StatusWatch | None = None
         """Which services answer the launcher's status queries (their hang check), once the session is open."""
         self.service_notes: dict[str, str] = {}
@@ -549,6 +552,8 @@ class Launcher:
                 self.status, self.status_heard_at_s = msg, now
                 if msg.state in EPISODE_OVER:
                     self.end_heard = msg
+                else:
+                    self.episode_running = msg.episode
             if msg.coverage_measured is not None:  # the referee's word on its ground truth, over the services' names
                 self.coverage_measured = msg.coverage_measured
             if msg.state != "starting":  # the sim waits for the services before step 0: not its pace
@@ -964,25 +969,38 @@ class Launcher:
 
     def judge_episode_end(self, session: Any, over: EpisodeStatusMsg, meanwhile: Callable[[], None]) -> tuple[EpisodeStatusMsg, EpisodeResultMsg | None] | None:
         """The run loop's judgement of an end heard (``episode_end_heard``): the end and its result (None: it never
-        arrived), or None for a stray end, ignored (counted in ``rejected["episode_status"]``, logged): the episode goes on."""
+        arrived), or None for a stray end, ignored (counted in ``rejected["episode_status"]``, logged): the episode goes on.
+        An end of another episode than the one running (``episode_running``) is a stray at once: no result of it comes."""
+        if self.of_another_episode(over):
+            self.stray_end(over, f"episode {self.episode_running} is running")
+            return None
         self.ended_status = over
         result = self.wait_for_result(session, meanwhile=meanwhile)
         if result is None and self.episode_goes_on() and (now := self.status) is not None:
-            with self._lock:
-                self.rejected["episode_status"] = self.rejected.get("episode_status", 0) + 1
-            log.warning("an episode status said %s at step %d, but the episode goes on (step %d): ignored", over.state, over.step, now.step)
-            self.ended_status = None
+            self.stray_end(over, f"the episode goes on (step {now.step})")
             return None
         if result is not None:
             self.ended_status = over = self.end_of_result(over, result)
         return over, result
 
+    def of_another_episode(self, end: EpisodeStatusMsg) -> bool:
+        """Whether ``end`` names another episode than the one running (``episode_running``; none known: not)."""
+        running = self.episode_running
+        return running is not None and end.episode != running
+
+    def stray_end(self, end: EpisodeStatusMsg, why: str) -> None:
+        """``end`` was no end (``judge_episode_end``): counted in ``rejected["episode_status"]``, logged, ignored."""
+        with self._lock:
+            self.rejected["episode_status"] = self.rejected.get("episode_status", 0) + 1
+        log.warning("an episode status said %s of episode %d at step %d, but %s: ignored", end.state, end.episode, end.step, why)
+        self.ended_status = None
+
     def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:
         """The end ``result`` belongs to: the episode's real end and its result can come while a stray end is awaited,
         and the stray's state (``failed``) would say how the run ended. Of the end awaited and the latest heard since
-        (``episode_end_heard``), the latest that ended as the result says (its ``terminated_by``), else the latest."""
+        (``episode_end_heard``; not one of another episode), the latest that ended as the result says (its ``terminated_by``), else the latest."""
         later = self.episode_end_heard()
-        ends = [awaited] if later is None or later is awaited else [later, awaited]
+        ends = [awaited] if later is None or later is awaited or self.of_another_episode(later) else [later, awaited]
         return next((end for end in ends if end.terminated_by == result.terminated_by), ends[0])
 
     def episode_end_heard(self) -> EpisodeStatusMsg | None:

@@ -5176,6 +5176,33 @@ def test_the_end_a_result_belongs_to_decides_the_run_not_a_stray_end_awaited_bef
     assert launcher.ended_status is end  # summary.json's meta.episode and `status` go by it
 
 
+def test_an_end_of_another_episode_than_the_one_running_is_a_stray_at_once(tmp_path, caplog):
+    """A late "done" of episode 7 after episode 8 started (or a forged one naming an episode not running): the
+    launcher waited for its result, as the episode going on was looked for in episode 7 only, and after 15 s said
+    "result never arrived" and stopped the run. An end of another episode than the running one (its latest
+    status's, starting or exploring) is ignored and counted at once, with no wait; so is one heard while episode
+    8 is starting. An end of the episode running is awaited as before."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))  # a restarted sim: a new episode
+    for episode_8 in (EpisodeStatusMsg("starting", 0, episode=8), EpisodeStatusMsg("exploring", 3, episode=8)):
+        hear(episode_8)
+        hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # late, of the episode before
+        over = launcher.episode_end_heard()
+        assert over is not None and over.episode == 7
+        with caplog.at_level("WARNING", logger="cso.launcher"):
+            assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+        assert launcher.ended_status is None
+    assert launcher.rejected == {"episode_status": 2}
+    assert "an episode status said done of episode 7 at step 31, but episode 8 is running: ignored" in caplog.text, caplog.text
+    # the end of the episode running: awaited, and judged with its result
+    hear(EpisodeStatusMsg("done", 9, terminated_by="coverage", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(9, "coverage"))]), over, lambda: None)
+    assert judged is not None and judged[0] is over and judged[1] is not None
+
+
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
     """A launcher of the lockstep profile joining ``endpoint`` (its own router or none), whose session's routes are
     ``routers`` (the test changes it), supervising a planner that never answers; the caller kills the planner."""
