@@ -369,6 +369,9 @@ class Launcher:
         """When the run started (Unix time, s): ``run.json``'s ``started_at``, with ``ended_at`` once it stopped."""
         self.ended_status: EpisodeStatusMsg | None = None
         """The status that said the episode ended, while its result is awaited."""
+        self.exploring_since_end: EpisodeStatusMsg | None = None
+        """The first status of the ended episode exploring that ``episode_goes_on`` saw since that end: the sim
+        stepping on from it shows an end that claimed a step ahead of the sim's stray."""
         self.end_heard: EpisodeStatusMsg | None = None
         """The latest status that said the episode is over (``EPISODE_OVER``) since the run loop last looked
         (``episode_end_heard``): one of the episode exploring can replace ``status`` before the loop, which looks every
@@ -974,7 +977,7 @@ class Launcher:
         if self.of_another_episode(over):
             self.stray_end(over, f"episode {self.episode_running} is running")
             return None
-        self.ended_status = over
+        self.ended_status, self.exploring_since_end = over, None
         result = self.wait_for_result(session, meanwhile=meanwhile)
         if result is None and self.episode_goes_on() and (now := self.status) is not None:
             self.stray_end(over, f"the episode goes on (step {now.step})")
@@ -1012,13 +1015,16 @@ class Launcher:
         return st if st is not None and st.state in EPISODE_OVER else heard
 
     def episode_goes_on(self) -> bool:
-        """Whether the sim has reported the episode exploring again since it was said to end (the same
-        episode, no step back): that end was no end (a stray or forged status), and no result will come."""
+        """Whether the sim has reported the episode exploring again since it was said to end (the same episode): at
+        the end's step or later, or stepping on from its first status of it exploring seen since (an end that claimed
+        a step ahead of the sim's, ``exploring_since_end``). That end was no end (a stray or forged status), and no
+        result will come. One status of an earlier step alone shows nothing: it can be a late one from before a real end."""
         ended, now = self.ended_status, self.status
-        return (
-            ended is not None and now is not None and now is not ended and now.state == "exploring"
-            and now.episode == ended.episode and now.step >= ended.step
-        )
+        if ended is None or now is None or now is ended or now.state != "exploring" or now.episode != ended.episode:
+            return False
+        if self.exploring_since_end is None:
+            self.exploring_since_end = now
+        return now.step >= ended.step or now.step > self.exploring_since_end.step
 
     def progress_log_line(self, now: float) -> str:
         """The episode's progress line (``progress_log_s``), with how long it has made no new step once that is

@@ -5203,6 +5203,30 @@ def test_an_end_of_another_episode_than_the_one_running_is_a_stray_at_once(tmp_p
     assert judged is not None and judged[0] is over and judged[1] is not None
 
 
+def test_an_end_claiming_a_step_ahead_is_a_stray_once_the_episode_steps_on_behind_it(tmp_path):
+    """A forged "done" at step 50 while the sim is at step 10: the episode going on was judged by a status at the
+    end's step or later, which comes only at step 50, so the launcher waited 15 s and stopped the run without a
+    summary. The sim stepping on in the same episode after the end (a later step than its first status heard since)
+    shows the end stray. One status of an earlier step after a real end (late, from before it) shows nothing: the
+    real end is awaited, and judged with its result."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 10, episode=7))
+    hear(EpisodeStatusMsg("done", 50, terminated_by="coverage", episode=7))  # forged, a step ahead
+    over = launcher.episode_end_heard()
+    assert over is not None
+    steps_on = [lambda: hear(EpisodeStatusMsg("exploring", 11, episode=7)), lambda: hear(EpisodeStatusMsg("exploring", 12, episode=7))]
+    assert launcher.judge_episode_end(_ScriptedResultQueries(steps_on), over, lambda: None) is None
+    assert launcher.rejected == {"episode_status": 1} and launcher.ended_status is None
+    # the real end, a late status from before it, then its result
+    hear(EpisodeStatusMsg("done", 40, terminated_by="coverage", episode=7))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    late = [lambda: hear(EpisodeStatusMsg("exploring", 39, episode=7)), lambda: None, lambda: hear(_result(40, "coverage"))]
+    judged = launcher.judge_episode_end(_ScriptedResultQueries(late), over, lambda: None)
+    assert judged is not None and judged[0] is over and judged[1] is not None
+    assert launcher.rejected == {"episode_status": 1}
+
+
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
     """A launcher of the lockstep profile joining ``endpoint`` (its own router or none), whose session's routes are
     ``routers`` (the test changes it), supervising a planner that never answers; the caller kills the planner."""
