@@ -623,6 +623,7 @@ class Launcher:
                 "pid": c.proc.pid if c.proc else 0,
                 "process_alive": c.alive,
                 "liveliness": c.name in self.alive_services,
+                "came_up": c.came_up,  # seen alive since it started: a token gone again is no start (SIGSTOP, hung)
                 "restarts": c.restarts,
                 "gave_up": c.gave_up,
                 "hung_kills": c.hung_kills,

@@ -134,6 +134,10 @@ def status_of(
             entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
             entry["robot_stops"] = lsv.get("robot_stops", 0)
             entry["process_alive"] = bool(lsv.get("process_alive"))  # its process runs (its token may not be there yet)
+            entry["came_up"] = bool(lsv.get("came_up"))  # seen alive since its process started (an older launcher: not said)
+            # Its process runs, it was up, its token is gone (stopped, hung: its lease ran out) and it does not answer:
+            # not "starting" (that is before it first came up), until the hang check kills it.
+            entry["not_answering"] = entry["process_alive"] and entry["came_up"] and name not in alive and s is None and not lsv.get("gave_up")
             if lsv.get("command"):  # an executable of one's own: its process is all the launcher knows of it
                 entry["command"] = True
         table[name] = entry
@@ -195,6 +199,11 @@ def coverage_said(episode: dict[str, Any], launcher: dict[str, Any] | None) -> b
 
 COMMAND_NODE_NOTE = "no status: a command node"
 """What ``status`` and the live view say of a command node (``services.<name>.command``) in place of its state."""
+
+NOT_ANSWERING = "not answering (its liveliness token is gone: stopped or hung?)"
+"""What ``status`` and the live view say of a service whose process runs, that came up in this process and whose
+liveliness token is gone since (SIGSTOP, a hang: its Zenoh lease ran out), until the hang check kills it: "starting"
+is said only before it first came up. ``status --json``: ``not_answering`` true."""
 
 STALE = "stale"
 """``status``'s state when the sim does not answer but the launcher heard an episode status from it before
@@ -418,7 +427,8 @@ def pose_words(pose_m: list[float] | None, twist: list[float] | None) -> str:
 
 def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False, episode_over: str = "") -> list[str]:
     """How a service's row begins (an entry of ``status_of``'s ``services``): alive (its token is there, or it answered
-    its status query), starting (its process runs, its session is not up yet) or DOWN, not started by this run (another process is to serve it), and whether the episode
+    its status query), starting (its process runs, its session is not up yet), not answering (its process runs, it came
+    up, and its token is gone since: stopped or hung) or DOWN, not started by this run (another process is to serve it), and whether the episode
     waits for it; ``status`` and the live view alike.
     ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN).
     ``episode_over``: the state of an episode that has ended (done, failed), else "": a service the episode waited for
@@ -427,7 +437,8 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopp
     running = service.get("command") and service.get("process_alive")  # a command node needs no liveliness token
     gone = "stopping" if stopping else "DOWN"
     if not stopping and service.get("process_alive") and not service.get("gave_up"):
-        gone = "starting"  # its process runs, its session is not up yet (as the live view says it): not DOWN
+        # its process runs: its session not up yet (as the live view says it), or up once and its token gone since
+        gone = NOT_ANSWERING if service.get("not_answering") else "starting"
     if episode_over and service.get("outside") and service.get("awaited"):
         gone = f"idle (episode {episode_over}: not needed after it)"
     # One that answered its status query has its session up, before its token is seen: alive, not "starting, running".
