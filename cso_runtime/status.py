@@ -283,16 +283,11 @@ def dead_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | N
 def stopped_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | None:
     """Why the current run (of ``runs_dir``) does not answer when its launcher is stopped (Ctrl-Z on ``up``, SIGSTOP):
     its embedded router is stopped with it, while every service runs. None when the launcher is not stopped."""
-    from cso_runtime.current_run import current_launcher_alive, down_command  # noqa: PLC0415
-    from cso_runtime.supervision import process_state  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive, down_command, stopped_words  # noqa: PLC0415
 
-    if info is None or not info.get("launcher_pid") or not current_launcher_alive(info) or process_state(info["launcher_pid"]) != "T":
+    if info is None or not info.get("launcher_pid") or not current_launcher_alive(info) or not (stopped := stopped_words(info["launcher_pid"])):
         return None
-    pid = info["launcher_pid"]
-    return (
-        f"run {info['run_id']}'s launcher, pid {pid}, is stopped (Ctrl-Z or SIGSTOP), and its router with it: "
-        f"`kill -CONT {pid}` (or `fg` in its terminal) to go on, {down_command(runs_dir)} to stop the run"
-    )
+    return f"run {info['run_id']}'s launcher, pid {info['launcher_pid']}, {stopped[0]}, and its router with it: {stopped[1]}, {down_command(runs_dir)} to stop the run"
 
 
 def lost_router_of_run(info: dict[str, Any] | None) -> str | None:

@@ -3496,6 +3496,45 @@ def test_status_names_an_up_still_checking_its_profile_and_watch_waits_for_it(tm
             watch.wait(timeout=30)
 
 
+def test_status_watch_and_logs_follow_say_that_a_starting_up_is_stopped(tmp_path):
+    """``up`` suspended (Ctrl-Z, SIGSTOP) while it checks its profile: ``status`` kept saying it "is starting", and
+    ``status --watch`` and ``logs -f`` waited as long as it stayed stopped, with no word. They say it is stopped and
+    how to go on, as ``status`` says it of a stopped launcher (``current_run.stopped_words``), and go on waiting."""
+    from cso_runtime.current_run import starting_up_path
+    from cso_runtime.supervision import process_start_ticks, process_state
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # an `up` checking its profile
+    waiting: list[subprocess.Popen] = []
+    stopped = f"is starting in {runs}: it has not written its run file yet, and it is stopped (Ctrl-Z or SIGSTOP): `kill -CONT {up.pid}` (or `fg` in its terminal) to go on"
+    try:
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+        os.kill(up.pid, signal.SIGSTOP)
+        wait_for(lambda: process_state(up.pid) == "T", 10, "the `up` to be stopped")
+        r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 1 and f"`up` (pid {up.pid}) {stopped}" in r.stdout and "ask again" not in r.stdout, (r.stdout, r.stderr)
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 1 and stopped in json.loads(r.stdout)["reason"], (r.stdout, r.stderr)
+        os.kill(up.pid, signal.SIGCONT)
+        for command, stream in ((["status", "--watch", "--period", "0.2"], "stdout"), (["logs", "-f"], "stderr")):
+            proc = subprocess.Popen([*python_module_argv("cso_runtime.cli"), *command, "--runs-dir", str(runs)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            waiting.append(proc)
+            first = getattr(proc, stream).readline()
+            assert f"`up` (pid {up.pid}) is starting" in first and "stopped" not in first, (command, first)
+            os.kill(up.pid, signal.SIGSTOP)  # Ctrl-Z while they wait: said then
+            then = getattr(proc, stream).readline()
+            assert stopped in then and then.rstrip().endswith("; waiting for it..."), (command, then)
+            assert proc.poll() is None, command  # it waits on, as for an `up` that runs
+            os.kill(up.pid, signal.SIGCONT)
+    finally:
+        up.kill()  # SIGKILL ends a stopped process too
+        up.wait(timeout=30)
+        for proc in waiting:
+            proc.kill()
+            proc.communicate(timeout=30)
+
+
 def test_save_map_below_a_file_names_the_file_in_the_way(tmp_path, monkeypatch, capsys):
     """``save-map -f out/m`` where ``out`` is a file said "cannot write the map to out/m.yaml: File exists": neither
     which path nor why. It names the file that is in the way of the folder; other errors are said as before."""
