@@ -1221,18 +1221,19 @@ def logs_command(
 
 def _await_starting_up(runs_dir: Path, period_s: float = 0.2) -> None:
     """Wait while an ``up`` of ``runs_dir`` has written no run file yet (``current_run.starting_up_line``: its first
-    second or more), saying so once: ``logs -f`` right after ``up ... &`` answered "no runs in runs", or followed the
+    second or more), saying so once (again if it changes: the ``up`` stopped, continued): ``logs -f`` right after ``up ... &`` answered "no runs in runs", or followed the
     previous run's logs and ended at once. Ctrl-C ends the command."""
     import time  # noqa: PLC0415
 
     from cso_runtime.current_run import ASK_AGAIN, current_launcher_alive, read_current_run, starting_up_line  # noqa: PLC0415
 
-    said = False
+    said = ""
     try:  # a run file of a launcher gone (killed) is no run: the `up` starting writes its own
         while ((info := read_current_run(runs_dir)) is None or not current_launcher_alive(info)) and (starting := starting_up_line(runs_dir)):
-            if not said:
-                typer.echo(f"{starting.removesuffix(ASK_AGAIN)}; waiting for it...", err=True)
-                said = True
+            line = f"{starting.removesuffix(ASK_AGAIN)}; waiting for it..."
+            if line != said:  # once, and again when it changes: an `up` stopped meanwhile (Ctrl-Z), or continued
+                typer.echo(line, err=True)
+                said = line
             time.sleep(period_s)
     except KeyboardInterrupt:
         raise typer.Exit(0) from None

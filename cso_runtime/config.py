@@ -973,11 +973,37 @@ def refuse_two_values(given: typing.Mapping[str, typing.Sequence[tuple[str, Any]
                 ((first, value, reading), (other, other_value, other_reading)),
             ):
                 if isinstance(bad_reading, _Unread) and not isinstance(good_reading, _Unread) and _same_yaml(bad_value, good_value):
-                    raise ConfigError(
-                        f"{bad} is read as {_kind(bad_value)}, and {name} is {_kind(good_value)} (as {good} gives it): "
-                        f"write {set_flag_text(name, good_value)}, or give {good} alone"
-                    )
+                    raise ConfigError(read_as_another_type(bad, bad_value, name, good_value, good))
             raise ConfigError(f"{first} and {other} both set {name}, to different values: give one")
+
+
+def read_as_another_type(flag: str, value: Any, name: str, meant: Any, given_by: str = "") -> str:
+    """The one way a flag whose value was read as another type than its field's is said, with the way to write it:
+    ``flag`` as typed (``--set robot=1``), ``value`` as read (the number 1), ``meant`` the value the field takes (the
+    text "1"), and ``given_by`` the other flag that gave it (``--robot 1``; "" when the ``--set`` came alone)."""
+    by, alone = (f" (as {given_by} gives it)", f", or give {given_by} alone") if given_by else ("", "")
+    return f"{flag} is read as {_kind(value)}, and {name} is {_kind(meant)}{by}: write {set_flag_text(name, meant)}{alone}"
+
+
+def refuse_a_setting_read_as_another_type(settings: typing.Mapping[str, Any], types: typing.Mapping[str, Any]) -> None:
+    """A ConfigError for a ``--set`` of a text field (``types``, by key) whose value YAML reads as another type and whose
+    text the field takes: ``up --set robot=1`` (the number 1, where a robot id is text) says how to write it
+    (``--set robot='1'``, ``read_as_another_type``), as with ``--robot 1`` beside it, not only the field's type error."""
+    for key, value in settings.items():
+        annotation = types.get(key)
+        if annotation is None or not text_field(annotation) or isinstance(value, (str, dict, list)):
+            continue
+        try:
+            field_value(value, annotation, key)
+            continue  # taken as it is (null, where the field may be)
+        except ConfigError:
+            pass
+        text = yaml_text(value)
+        try:
+            field_value(text, annotation, key)
+        except ConfigError:
+            continue  # its own type error says what is wrong
+        raise ConfigError(read_as_another_type(set_flag_text(key, value), value, key, text))
 
 
 @dataclass(frozen=True)

@@ -126,14 +126,25 @@ def starting_up_path(runs_dir: Path, pid: int) -> Path:
     return runs_dir / f".up-{pid}.starting.json"
 
 
+def stopped_words(pid: int) -> tuple[str, str] | None:
+    """How ``status`` says that process ``pid``, a run's launcher or an ``up`` still starting, is stopped (Ctrl-Z or
+    SIGSTOP: state T in /proc), and how to go on; None when it is not stopped. Nothing it does comes meanwhile."""
+    if process_state(pid) != "T":
+        return None
+    return "is stopped (Ctrl-Z or SIGSTOP)", f"`kill -CONT {pid}` (or `fg` in its terminal) to go on"
+
+
 def starting_up_line(runs_dir: Path) -> str | None:
     """What ``status`` says while an ``up`` of ``runs_dir`` still checks its profile and has written no run file
     (``STARTING_UP_GLOB``: its first second or more, a learned method's weights or a scene to load), else None: it said
-    "nothing running (no current run)" of an ``up ... &`` just typed, and ``status --watch`` ended there."""
+    "nothing running (no current run)" of an ``up ... &`` just typed, and ``status --watch`` ended there. An ``up``
+    stopped meanwhile (Ctrl-Z) is said to be (``stopped_words``): ``status --watch`` and ``logs -f`` wait for it as long."""
     for path in sorted(runs_dir.glob(STARTING_UP_GLOB)):
         found = _starting_process(path, "up_pid", "up_start_ticks")
         if found is not None and found[0] != os.getpid() and run_process_alive(*found):
-            return f"`up` (pid {found[0]}) is starting in {runs_dir}: it has not written its run file yet{ASK_AGAIN}"
+            starting = f"`up` (pid {found[0]}) is starting in {runs_dir}: it has not written its run file yet"
+            stopped = stopped_words(found[0])
+            return f"{starting}, and it {stopped[0]}: {stopped[1]}" if stopped else f"{starting}{ASK_AGAIN}"
     return None
 
 

@@ -1239,9 +1239,7 @@ def plan_said(request: EvalRequest, plan: EvalPlan) -> tuple[list[str], list[str
     methods = [f"{m} (weights {plan.weights[m]['path']}, sha256 {plan.weights[m]['sha256'][:12]})" if m in plan.weights else m for m in request.methods]
     cell = f"{request.m_per_px:g} m/px (PNG plans)" if any(ref.scaled_by_m_per_px for ref in plan.scenes) else "each scene's own (generated plans, map files)"
     out = Path(request.out_dir)
-    # One meaning of "holding", with or without --resume: the episodes --resume would keep (whole, same settings and
-    # plan, with their own GIF under --animate), not every episode file (a cut one, one --animate runs again).
-    held = sum(load_finished(job) is not None for job in plan.jobs) if out.is_dir() else 0
+    held = episodes_held(plan, out)
     if not out.is_dir():
         folder = "a new folder"
     elif request.resume:
@@ -1620,16 +1618,26 @@ def closing_said(summary: dict[str, Any], out_dir: Path) -> str:
     return f"no episode finished: no metrics and no figures in {out_dir}/"
 
 
+def episodes_held(plan: EvalPlan, out_dir: Path) -> int:
+    """How many of ``plan``'s episodes ``out_dir`` holds: one meaning of "holding", with or without ``--resume``, the
+    episodes ``--resume`` keeps (whole, same settings and plan, with their own GIF under ``--animate``), not every
+    episode file (a cut one, one ``--animate`` runs again). ``--dry-run`` and an eval's first line in a log say it."""
+    return sum(load_finished(job) is not None for job in plan.jobs) if Path(out_dir).is_dir() else 0
+
+
 def eval_start_said(request: EvalRequest, plan: EvalPlan) -> str:
-    """The first line of an eval written to a log (no terminal, no bar): what runs and where its results go."""
+    """The first line of an eval written to a log (no terminal, no bar): what runs and where its results go; with
+    ``--resume``, how many of its episodes are kept from the earlier run and how many run now."""
 
     def count(n: int, what: str) -> str:
         return f"{n} {what}{'' if n == 1 else 's'}"
 
     sensor = f"{request.sensor} {plan.config.sensor.fov_deg:g} degrees"
     seeds = f" x {count(len(request.seeds), 'seed')} ({', '.join(map(str, request.seeds))})" if request.seeds else ""
+    held = episodes_held(plan, Path(request.out_dir)) if request.resume else 0
+    kept = f" ({held} kept from the earlier run, {len(plan.jobs) - held} to run)" if held else ""
     return (
-        f"eval: {count(len(plan.jobs), 'episode')}, {count(len(request.methods), 'method')} ({', '.join(request.methods)}) "
+        f"eval: {count(len(plan.jobs), 'episode')}{kept}, {count(len(request.methods), 'method')} ({', '.join(request.methods)}) "
         f"x {count(len(plan.scenes), 'scene')} ({request.maps}){seeds}, {sensor}, sim {request.sim}, {count(request.workers, 'worker')}; "
         f"results in {request.out_dir}/"
     )

@@ -78,7 +78,7 @@ from cso_runtime.messages import (
     encode,
     set_max_grid_cells,
 )
-from cso_runtime.outputs import results_said, write_text_atomic
+from cso_runtime.outputs import NO_RESULTS, results_said, write_text_atomic
 from cso_runtime.pace import StepPace
 from cso_runtime.pause import LOCKSTEP_REFUSAL, PauseClock
 from cso_runtime.plots import import_pyplot_in_background
@@ -631,6 +631,7 @@ class Launcher:
                 "pid": c.proc.pid if c.proc else 0,
                 "process_alive": c.alive,
                 "liveliness": c.name in self.alive_services,
+                "came_up": c.came_up,  # seen alive since it started: a token gone again is no start (SIGSTOP, hung)
                 "restarts": c.restarts,
                 "gave_up": c.gave_up,
                 "hung_kills": c.hung_kills,
@@ -1525,7 +1526,7 @@ class Launcher:
         why = "the episode's results could not be written (see above); " if self.outputs_written else ""
         if self.last_map_step is not None:
             why += f"the episode's map at step {self.last_map_step} is in {self.run_dir / LAST_MAP}; "
-        return f"no results: {why}the run's profile and logs are in {self.run_dir}/ (`cso-runtime logs --run {self.run_dir}`)"
+        return f"{NO_RESULTS}{why}the run's profile and logs are in {self.run_dir}/ (`cso-runtime logs --run {self.run_dir}`)"
 
 
 def episode_record(result: EpisodeResultMsg, wall_s: float, sim_time_s: float | None = None, real_time_factor: float | None = None) -> tuple[Any, dict[str, Any]]:

@@ -150,7 +150,15 @@ class LiveView:
         from rich.progress_bar import ProgressBar  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
-        from cso_runtime.status import COMMAND_NODE_NOTE, after_end_words, pose_words, presence_words, status_of, waiting_note  # noqa: PLC0415
+        from cso_runtime.status import (  # noqa: PLC0415
+            COMMAND_NODE_NOTE,
+            NOT_ANSWERING,
+            after_end_words,
+            pose_words,
+            presence_words,
+            status_of,
+            waiting_note,
+        )
 
         la = self.launcher
         st = la.status
@@ -194,7 +202,9 @@ class LiveView:
             ):
                 t.add_row(k, escape(v))  # text, not markup: a scene file's name may hold brackets
         for c in la.children:
-            health = "up" if c.alive and c.name in la.alive_services else ("starting" if c.alive else ("gave up" if c.gave_up else "restarting"))
+            # its process runs, its token not there: starting, or gone since it came up (stopped, hung) until the hang check kills it
+            waits = NOT_ANSWERING if c.came_up else "starting"
+            health = "up" if c.alive and c.name in la.alive_services else (waits if c.alive else ("gave up" if c.gave_up else "restarting"))
             if c.command is not None and c.alive and not (c.awaits_token and c.name not in la.alive_services):
                 health = "running"
             note = la.service_notes.get(c.name) or (COMMAND_NODE_NOTE if c.command is not None else None)

@@ -1584,6 +1584,7 @@ LAUNCHER_SERVICE_FIELDS: dict[str, type] = {
     "pid": int,
     "process_alive": bool,
     "liveliness": bool,
+    "came_up": bool,
     "restarts": int,
     "gave_up": bool,
     "hung_kills": int,
@@ -1596,7 +1597,8 @@ LAUNCHER_SERVICE_FIELDS: dict[str, type] = {
 Each is optional: an older launcher sends fewer (``robot_stops``, the zero Twists the launcher sent for a ROS 2
 bridge that died, came later; ``outside``, a service of the robot that the launcher did not start, such as a shared
 policy server's, later still; ``awaited``, beside ``outside``: the episode waits for it, a policy and not a viewer's
-bridge, last), and a newer one's unknown fields are left out."""
+bridge, then; ``came_up``, whether its current process has been seen alive, its liveliness token there, so that one
+whose token is gone again, a process stopped or hung, reads "not answering", not "starting", last), and a newer one's unknown fields are left out."""
 
 
 LAST_EPISODE_FIGURES: dict[str, Callable[[dict, str, str], Any]] = {

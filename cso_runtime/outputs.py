@@ -52,9 +52,23 @@ def trajectory_plot_path(out_dir: Path, scene: str) -> Path:
     return Path(out_dir) / "trajectories" / f"{file_stem(scene)}.png"
 
 
+RESULTS_FILES = "report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
+"""How ``results_said`` ends: the files, the one to open first first."""
+
+NO_RESULTS = "no results: "
+"""How the closing line of an ``up`` whose episode wrote no results begins (``Launcher.closing_line``)."""
+
+
 def results_said(out_dir: Path) -> str:
     """The closing line of ``eval`` and of a finished ``up``: where the results are, and the file to open first."""
-    return f"results in {out_dir}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
+    return f"results in {out_dir}/: {RESULTS_FILES}"
+
+
+def closes_a_run(log_line: str) -> bool:
+    """Whether ``log_line`` (a line of a run's ``launcher.log``, as logged) is the launcher's closing line, its last:
+    where the results went (``results_said``), or that there are none and what was kept (``NO_RESULTS``)."""
+    line = log_line.rstrip()
+    return line.endswith(f"/: {RESULTS_FILES}") or f": {NO_RESULTS}" in line
 
 
 def file_sha256(path: Path) -> str:

@@ -29,6 +29,7 @@ from cso_runtime.config import (
     load_yaml,
     mapping_at,
     refuse_a_flag_and_a_setting_that_disagree,
+    refuse_a_setting_read_as_another_type,
     seconds,
     set_dotted,
     set_flag_text,
@@ -567,6 +568,7 @@ def load_profile(
     hints = typing.get_type_hints(Profile)
     paths: dict[str, typing.Callable[[str], bool]] = {"scene": spec_names_a_path, "router.zenoh_config": bool}  # ./plans and plans: one folder
     refuse_a_flag_and_a_setting_that_disagree(flag_keys, settings or {}, {k: hints.get(k, str) for k in flag_keys}, paths)
+    refuse_a_setting_read_as_another_type(settings or {}, hints)  # `--set robot=1` alone: the same hint as beside --robot 1
     data.update(given)
     for key, value in (settings or {}).items():
         set_dotted(data, key, value)

@@ -31,6 +31,7 @@ from cso_runtime.current_run import (
     run_file_problem,
     runs_command,
 )
+from cso_runtime.outputs import closes_a_run
 from cso_runtime.report import whole_count
 from cso_runtime.supervision import run_process_alive
 
@@ -297,9 +298,10 @@ def resolve_run(runs_dir: Path, run: str | None = None) -> Path:
 
 
 def run_is_live(run_dir: Path) -> bool:
-    """Whether the run's launcher still runs (so its logs may still grow)."""
+    """Whether the run's launcher still runs (so its logs may still grow) and has not ended the run (``run_has_ended``:
+    a launcher used as a library lives on in its program)."""
     info = read_json_object(run_dir / "run.json")
-    return info is not None and current_launcher_alive(info)
+    return info is not None and current_launcher_alive(info) and not run_has_ended(run_dir, info)
 
 
 def run_is_exploring(run_dir: Path) -> bool:
@@ -311,13 +313,36 @@ def run_is_exploring(run_dir: Path) -> bool:
 
 def logs_grow(run_dir: Path) -> bool:
     """What ``logs -f`` follows: a detached run until its episode ends (``run_is_exploring``: it then stays up, for
-    ``status``, until ``down``), a foreground one until its launcher exits. It stopped at the episode's end too, and said
-    the run "stays up until down" of an ``up`` that was then stopping its services and writing its results: neither
-    their lines nor its last, where the results went, came out."""
+    ``status``, until ``down``), a foreground one until its launcher exits or has ended the run (``run_has_ended``: a
+    launcher used as a library, in a program that goes on). It stopped at the episode's end too, and said the run
+    "stays up until down" of an ``up`` that was then stopping its services and writing its results: neither their lines
+    nor its last, where the results went, came out."""
     info = read_json_object(run_dir / "run.json")
     if info is not None and info.get("detached"):
         return run_is_exploring(run_dir)
-    return info is not None and current_launcher_alive(info)
+    return info is not None and current_launcher_alive(info) and not run_has_ended(run_dir, info)
+
+
+LOG_TAIL_BYTES = 16384
+"""How much of the end of ``launcher.log`` ``run_has_ended`` reads for its last line."""
+
+
+def run_has_ended(run_dir: Path, info: dict[str, Any]) -> bool:
+    """Whether the launcher has ended the run of ``run_dir`` (its ``run.json``, ``info``): it says ``stopped``, and the
+    launcher's closing line (``outputs.closes_a_run``), which it logs right after, is its log's last; a run that started
+    no service (refused, interrupted) has none, its reason logged before. Its process may live on after it."""
+    if info.get("state") != "stopped":
+        return False
+    if not info.get("services"):
+        return True
+    try:
+        with (run_dir / LOG_DIR / "launcher.log").open("rb") as fh:
+            fh.seek(max(0, fh.seek(0, 2) - LOG_TAIL_BYTES))
+            lines = fh.read().decode("utf-8", "replace").splitlines()
+    except OSError:
+        return False
+    last = next((line for line in reversed(lines) if line.strip()), "")
+    return closes_a_run(last)
 
 
 # --- logs ------------------------------------------------------------------------------------------

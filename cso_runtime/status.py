@@ -134,6 +134,10 @@ def status_of(
             entry.update(pid=lsv.get("pid"), restarts=lsv.get("restarts"), gave_up=lsv.get("gave_up"), hung_kills=lsv.get("hung_kills", 0))
             entry["robot_stops"] = lsv.get("robot_stops", 0)
             entry["process_alive"] = bool(lsv.get("process_alive"))  # its process runs (its token may not be there yet)
+            entry["came_up"] = bool(lsv.get("came_up"))  # seen alive since its process started (an older launcher: not said)
+            # Its process runs, it was up, its token is gone (stopped, hung: its lease ran out) and it does not answer:
+            # not "starting" (that is before it first came up), until the hang check kills it.
+            entry["not_answering"] = entry["process_alive"] and entry["came_up"] and name not in alive and s is None and not lsv.get("gave_up")
             if lsv.get("command"):  # an executable of one's own: its process is all the launcher knows of it
                 entry["command"] = True
         table[name] = entry
@@ -195,6 +199,11 @@ def coverage_said(episode: dict[str, Any], launcher: dict[str, Any] | None) -> b
 
 COMMAND_NODE_NOTE = "no status: a command node"
 """What ``status`` and the live view say of a command node (``services.<name>.command``) in place of its state."""
+
+NOT_ANSWERING = "not answering (its liveliness token is gone: stopped or hung?)"
+"""What ``status`` and the live view say of a service whose process runs, that came up in this process and whose
+liveliness token is gone since (SIGSTOP, a hang: its Zenoh lease ran out), until the hang check kills it: "starting"
+is said only before it first came up. ``status --json``: ``not_answering`` true."""
 
 STALE = "stale"
 """``status``'s state when the sim does not answer but the launcher heard an episode status from it before
@@ -274,16 +283,11 @@ def dead_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | N
 def stopped_launcher_of_run(info: dict[str, Any] | None, runs_dir: Path) -> str | None:
     """Why the current run (of ``runs_dir``) does not answer when its launcher is stopped (Ctrl-Z on ``up``, SIGSTOP):
     its embedded router is stopped with it, while every service runs. None when the launcher is not stopped."""
-    from cso_runtime.current_run import current_launcher_alive, down_command  # noqa: PLC0415
-    from cso_runtime.supervision import process_state  # noqa: PLC0415
+    from cso_runtime.current_run import current_launcher_alive, down_command, stopped_words  # noqa: PLC0415
 
-    if info is None or not info.get("launcher_pid") or not current_launcher_alive(info) or process_state(info["launcher_pid"]) != "T":
+    if info is None or not info.get("launcher_pid") or not current_launcher_alive(info) or not (stopped := stopped_words(info["launcher_pid"])):
         return None
-    pid = info["launcher_pid"]
-    return (
-        f"run {info['run_id']}'s launcher, pid {pid}, is stopped (Ctrl-Z or SIGSTOP), and its router with it: "
-        f"`kill -CONT {pid}` (or `fg` in its terminal) to go on, {down_command(runs_dir)} to stop the run"
-    )
+    return f"run {info['run_id']}'s launcher, pid {info['launcher_pid']}, {stopped[0]}, and its router with it: {stopped[1]}, {down_command(runs_dir)} to stop the run"
 
 
 def lost_router_of_run(info: dict[str, Any] | None) -> str | None:
@@ -418,7 +422,8 @@ def pose_words(pose_m: list[float] | None, twist: list[float] | None) -> str:
 
 def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopping: bool = False, episode_over: str = "") -> list[str]:
     """How a service's row begins (an entry of ``status_of``'s ``services``): alive (its token is there, or it answered
-    its status query), starting (its process runs, its session is not up yet) or DOWN, not started by this run (another process is to serve it), and whether the episode
+    its status query), starting (its process runs, its session is not up yet), not answering (its process runs, it came
+    up, and its token is gone since: stopped or hung) or DOWN, not started by this run (another process is to serve it), and whether the episode
     waits for it; ``status`` and the live view alike.
     ``stopping``: the launcher is stopping the run, and a service gone is one it stopped ("stopping", not DOWN).
     ``episode_over``: the state of an episode that has ended (done, failed), else "": a service the episode waited for
@@ -427,7 +432,8 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopp
     running = service.get("command") and service.get("process_alive")  # a command node needs no liveliness token
     gone = "stopping" if stopping else "DOWN"
     if not stopping and service.get("process_alive") and not service.get("gave_up"):
-        gone = "starting"  # its process runs, its session is not up yet (as the live view says it): not DOWN
+        # its process runs: its session not up yet (as the live view says it), or up once and its token gone since
+        gone = NOT_ANSWERING if service.get("not_answering") else "starting"
     if episode_over and service.get("outside") and service.get("awaited"):
         gone = f"idle (episode {episode_over}: not needed after it)"
     # One that answered its status query has its session up, before its token is seen: alive, not "starting, running".

@@ -349,6 +349,23 @@ def test_a_set_read_as_a_number_where_the_flag_gives_text_says_so_not_different_
     assert r.exit_code == 2 and said in " ".join(r.stderr.split()), r.output
 
 
+def test_a_set_alone_read_as_a_number_where_the_field_is_text_says_how_to_write_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``up --set robot=1`` alone said only "robot: expected a string, got 1", where beside ``--robot 1`` it said how to
+    write it: the same hint now (``config.read_as_another_type``), and ``--set robot='1'`` runs."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    up = ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run"]
+    r = CliRunner().invoke(app, [*up, "--set", "robot=1"])
+    said = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and "--set robot=1 is read as a number, and robot is text: write --set robot='1'" in said and "expected a string" not in said, r.output
+    r = CliRunner().invoke(app, [*up, "--set", "robot='1'"])
+    assert r.exit_code == 0 and "robot: '1'" in r.output, r.output
+    r = CliRunner().invoke(app, [*up, "--set", "robot=[1]"])  # no text that the field takes: its own type error, as before
+    assert r.exit_code == 2 and "robot: expected a string" in " ".join(r.stderr.split()), r.output
+    assert not (tmp_path / "runs").exists()
+
+
 def test_one_path_written_two_ways_is_one_value(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
     """``up --scene ./plans --set scene=plans`` and ``up --zenoh-config ./z.json5 --set router.zenoh_config=$PWD/z.json5``
     were refused as "different values": one path, written two ways. A path-valued field's values are compared as the

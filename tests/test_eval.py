@@ -1066,6 +1066,20 @@ def test_an_eval_into_a_log_says_what_runs_before_the_first_episode_ends(tmp_pat
                      f"sim 2d, 1 worker; results in {out}/"), done.stderr  # fmt: skip
 
 
+def test_an_eval_into_a_log_with_resume_says_how_many_episodes_are_kept_and_how_many_run(tmp_path: Path):
+    """``eval --resume`` into a log began "eval: 2 episodes" where one of them was kept from the earlier run: the
+    count now says how many are kept and how many run (as ``--dry-run`` says it); a new folder's line is as before."""
+    from cso_runtime.evaluation import eval_start_said, plan_eval
+
+    out = tmp_path / "out"
+    first = EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=out, max_steps=4)
+    assert eval_start_said(first, plan_eval(first)).startswith("eval: 1 episode, 1 method (greedy-dist) x 1 scene")
+    run_eval(first)
+    again = dataclasses.replace(first, methods=["greedy-dist", "random"], resume=True)
+    said = eval_start_said(again, plan_eval(again))
+    assert said.startswith("eval: 2 episodes (1 kept from the earlier run, 1 to run), 2 methods (greedy-dist, random) x 1 scene"), said
+
+
 def test_progress_lines_in_a_log_are_whole_and_say_what_was_kept(capsys):
     """Without a terminal (a log file, CI) each finished episode is one line, however long its map's name,
     and an episode ``--resume`` read back says so."""

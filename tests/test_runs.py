@@ -250,6 +250,45 @@ def test_logs_follow_of_a_foreground_run_goes_on_until_its_launcher_exits(tmp_pa
         launcher.wait(timeout=30)
 
 
+def test_logs_follow_of_a_foreground_run_ends_with_the_run_though_its_process_lives_on(tmp_path):
+    """``up`` run inside a long-lived program (the launcher used as a library): its process never exits, and ``logs -f``
+    followed it forever after the run had stopped. It ends once run.json says the run stopped and the launcher's
+    closing line (where its results went) is written, both, as it writes them at its end, and says the run has ended."""
+    from cso_runtime.outputs import results_said
+
+    program = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # the program the launcher ran in
+    timer = threading.Timer(60.0, program.kill)  # a logs -f that never ends fails the test, rather than hanging it
+    try:
+        d = make_run(tmp_path / "runs", "20261203-091000-sim-r0", state="done", logs={"launcher": line(1, 0, "cso_runtime.launcher: episode coverage: 99 %")})
+        info = json.loads((d / "run.json").read_text())
+        info.update(launcher_pid=program.pid, launcher_start_ticks=process_start_ticks(program.pid))
+        (d / "run.json").write_text(json.dumps(info))
+
+        def end_of_run() -> None:  # as Launcher.run ends: run.json says stopped, then its closing line
+            time.sleep(0.5)
+            (d / "run.json").write_text(json.dumps({**info, "state": "stopped", "outcome": "done", "exit_code": 0}))
+            time.sleep(0.5)  # not ended at run.json alone: its last line is still to come
+            with (d / "logs" / "launcher.log").open("a") as f:
+                f.write(line(2, 0, f"cso_runtime.launcher: {results_said(d)}"))
+
+        ender = threading.Thread(target=end_of_run)
+        ender.start()
+        timer.start()
+        r = CliRunner().invoke(app, ["logs", "-f", "--runs-dir", str(tmp_path / "runs")])
+        ender.join()
+        assert program.poll() is None, "logs -f ended only when the program was killed"
+        assert r.exit_code == 0 and results_said(d) in r.output, r.output
+        assert f"run {d.name} has ended" in r.output and "stays up" not in r.output, r.output
+        from cso_runtime.outputs import closes_a_run
+
+        # a run with no results ends on its own closing line; any other last line is no end
+        assert closes_a_run(line(3, 0, f"cso_runtime.launcher: no results: the run's profile and logs are in {d}/")) and not closes_a_run(line(3, 0, "stopping services"))
+    finally:
+        timer.cancel()
+        program.kill()
+        program.wait(timeout=30)
+
+
 def test_logs_follow_right_after_up_waits_for_the_run_it_starts(tmp_path):
     """``up ... &`` then ``logs -f``: for its first second or more ``up`` has written no run file, and ``logs -f`` said
     "no runs in runs" or, with older runs there, followed the newest of those and ended at once. It waits for the run

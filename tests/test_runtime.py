@@ -2702,6 +2702,50 @@ def test_status_of_a_run_just_started_says_its_services_are_starting_not_down():
     assert re.search(r"│ scene / method +│ - +│", text) and re.search(r"│ episode id +│ - +│", text), text
 
 
+def test_a_service_frozen_after_it_came_up_reads_not_answering_not_starting(tmp_path):
+    """A service stopped (SIGSTOP) well after its start loses its liveliness token when its lease runs out, while its
+    process runs: ``status`` and the live view said "starting" of it until the hang check killed it. "starting" is for
+    a process not yet seen alive; one that came up and whose token is gone since is "not answering" (``--json``:
+    ``not_answering`` true, the launcher's ``came_up`` beside it)."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.live_view import LiveView
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    launcher = {
+        "run_id": "run1",
+        "state": "running",
+        "services": {
+            "sim": {"pid": 11, "process_alive": True, "liveliness": False, "came_up": True, "restarts": 0},
+            "mapper": {"pid": 12, "process_alive": True, "liveliness": False, "came_up": False, "restarts": 0},
+        },
+    }
+    status = status_of("r0", None, launcher, {}, set())
+    console = Console(record=True, width=200)
+    console.print(render_table(status))
+    text = console.export_text()
+    assert re.search(r"│ service sim +│ not answering \(its liveliness token is gone: stopped or hung\?\) +│", text) and re.search(r"│ service mapper +│ starting +│", text), text
+    assert status["services"]["sim"]["not_answering"] is True and status["services"]["mapper"]["not_answering"] is False, status
+    assert status["services"]["sim"]["came_up"] is True
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    la = Launcher(profile, data, tmp_path / "run")
+    running = SimpleNamespace(pid=4242, poll=lambda: None)  # a process that runs (stopped, as far as its token says)
+    frozen = Child("sim", ["true"], tmp_path / "sim.log", proc=running, came_up=True)
+    fresh = Child("mapper", ["true"], tmp_path / "mapper.log", proc=running)
+    la.children = [frozen, fresh]
+    said = decode(encode(la.launcher_status())).to_dict()["services"]
+    assert said["sim"]["came_up"] is True and said["mapper"]["came_up"] is False, said  # through the wire's check
+    console = Console(width=200, record=True)
+    console.print(LiveView(la).render())
+    text = console.export_text()
+    assert re.search(r"│ sim +│ not answering \(its liveliness token is gone: stopped or hung\?\), pid 4242", text) and re.search(r"│ mapper +│ starting, pid 4242", text), text
+
+
 def test_status_of_a_service_that_answers_before_its_token_is_seen_says_one_state():
     """A service answers its status query a moment before its liveliness token is seen: ``status`` read
     "starting, running" (its process runs, its token not yet there, and its own state) and one not started by this run
@@ -3450,6 +3494,45 @@ def test_status_names_an_up_still_checking_its_profile_and_watch_waits_for_it(tm
         if watch is not None:
             watch.kill()
             watch.wait(timeout=30)
+
+
+def test_status_watch_and_logs_follow_say_that_a_starting_up_is_stopped(tmp_path):
+    """``up`` suspended (Ctrl-Z, SIGSTOP) while it checks its profile: ``status`` kept saying it "is starting", and
+    ``status --watch`` and ``logs -f`` waited as long as it stayed stopped, with no word. They say it is stopped and
+    how to go on, as ``status`` says it of a stopped launcher (``current_run.stopped_words``), and go on waiting."""
+    from cso_runtime.current_run import starting_up_path
+    from cso_runtime.supervision import process_start_ticks, process_state
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    up = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])  # an `up` checking its profile
+    waiting: list[subprocess.Popen] = []
+    stopped = f"is starting in {runs}: it has not written its run file yet, and it is stopped (Ctrl-Z or SIGSTOP): `kill -CONT {up.pid}` (or `fg` in its terminal) to go on"
+    try:
+        starting_up_path(runs, up.pid).write_text(json.dumps({"up_pid": up.pid, "up_start_ticks": process_start_ticks(up.pid)}))
+        os.kill(up.pid, signal.SIGSTOP)
+        wait_for(lambda: process_state(up.pid) == "T", 10, "the `up` to be stopped")
+        r = cli("status", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 1 and f"`up` (pid {up.pid}) {stopped}" in r.stdout and "ask again" not in r.stdout, (r.stdout, r.stderr)
+        r = cli("status", "--json", "--runs-dir", str(runs), cwd=tmp_path, timeout_s=30)
+        assert r.returncode == 1 and stopped in json.loads(r.stdout)["reason"], (r.stdout, r.stderr)
+        os.kill(up.pid, signal.SIGCONT)
+        for command, stream in ((["status", "--watch", "--period", "0.2"], "stdout"), (["logs", "-f"], "stderr")):
+            proc = subprocess.Popen([*python_module_argv("cso_runtime.cli"), *command, "--runs-dir", str(runs)], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+            waiting.append(proc)
+            first = getattr(proc, stream).readline()
+            assert f"`up` (pid {up.pid}) is starting" in first and "stopped" not in first, (command, first)
+            os.kill(up.pid, signal.SIGSTOP)  # Ctrl-Z while they wait: said then
+            then = getattr(proc, stream).readline()
+            assert stopped in then and then.rstrip().endswith("; waiting for it..."), (command, then)
+            assert proc.poll() is None, command  # it waits on, as for an `up` that runs
+            os.kill(up.pid, signal.SIGCONT)
+    finally:
+        up.kill()  # SIGKILL ends a stopped process too
+        up.wait(timeout=30)
+        for proc in waiting:
+            proc.kill()
+            proc.communicate(timeout=30)
 
 
 def test_save_map_below_a_file_names_the_file_in_the_way(tmp_path, monkeypatch, capsys):
