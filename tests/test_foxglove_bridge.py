@@ -217,7 +217,7 @@ def test_the_live_view_says_where_to_point_foxglove(tmp_path, monkeypatch):
     profile, data = load_profile("lockstep", {}, foxglove=True, settings={"services.foxglove_bridge.port": 9123})
     launcher = Launcher(profile, data, tmp_path / "run")
     # A child as the launcher's status reads it too (the live view shows what `status` does).
-    launcher.children.append(SimpleNamespace(name="foxglove_bridge", alive=True, gave_up=False, proc=None, restarts=0, hung_kills=0, robot_stops=0, command=None))
+    launcher.children.append(SimpleNamespace(name="foxglove_bridge", alive=True, gave_up=False, proc=None, restarts=0, hung_kills=0, robot_stops=0, command=None, came_up=False))
     console = Console(width=200, record=True)
     console.print(LiveView(launcher).render())
     assert "foxglove_bridge │ starting, pid -, restarts 0; Foxglove: open ws://127.0.0.1:9123" in console.export_text()
