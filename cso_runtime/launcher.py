@@ -376,6 +376,9 @@ class Launcher:
         """The latest status that said the episode is over (``EPISODE_OVER``) since the run loop last looked
         (``episode_end_heard``): one of the episode exploring can replace ``status`` before the loop, which looks every
         0.1 s, gets to it (a stray end followed by the sim's next step's), and that end was neither judged nor counted."""
+        self.stray_judged: EpisodeStatusMsg | None = None
+        """The latest end judged a stray (``stray_end``): while it stays ``status`` (the sim says nothing more for a
+        while), the run loop's next looks (``episode_end_heard``) do not judge, log and count it again."""
         self.episode_running: int | None = None
         """The episode the referee's latest status of a running episode (starting, exploring) names: an end of
         another (a late one of the episode before a restarted sim's, a forged one) is a stray (``judge_episode_end``)."""
@@ -997,7 +1000,7 @@ class Launcher:
         with self._lock:
             self.rejected["episode_status"] = self.rejected.get("episode_status", 0) + 1
         log.warning("an episode status said %s of episode %d at step %d, but %s: ignored", end.state, end.episode, end.step, why)
-        self.ended_status = None
+        self.ended_status, self.stray_judged = None, end
 
     def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:
         """The end ``result`` belongs to: the episode's real end and its result can come while a stray end is awaited,
@@ -1013,7 +1016,9 @@ class Launcher:
         with self._lock:  # the status and the end heard as ``_on_sample`` left them together
             heard, self.end_heard = self.end_heard, None
             st = self.status
-        return st if st is not None and st.state in EPISODE_OVER else heard
+        if st is not None and st.state in EPISODE_OVER and st is not self.stray_judged:
+            return st
+        return heard
 
     def episode_goes_on(self) -> bool:
         """Whether the sim has reported the episode exploring again since it was said to end (the same episode): at

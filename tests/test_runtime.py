@@ -5310,6 +5310,24 @@ def test_an_end_claiming_a_step_ahead_is_a_stray_once_the_episode_steps_on_behin
     assert launcher.rejected == {"episode_status": 1}
 
 
+def test_a_stray_end_of_another_episode_is_judged_once_while_it_stays_the_latest_status(tmp_path):
+    """A late "done" of episode 7 heard after episode 8 started stays ``status`` until the sim's next status (a sim
+    waiting for its services says nothing for seconds): the run loop, looking every 0.1 s, judged it again at each
+    look, logging it and counting it in ``launcher_rejected`` ten times a second. It is judged once."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # late, of the episode before
+    over = launcher.episode_end_heard()
+    assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    assert launcher.episode_end_heard() is None and launcher.episode_end_heard() is None  # the loop's next looks
+    assert launcher.rejected == {"episode_status": 1}
+    # the sim's own end, later, is heard and judged
+    hear(EpisodeStatusMsg("done", 9, terminated_by="coverage", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None and (over.episode, over.step) == (8, 9)
+
+
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
     """A launcher of the lockstep profile joining ``endpoint`` (its own router or none), whose session's routes are
     ``routers`` (the test changes it), supervising a planner that never answers; the caller kills the planner."""
