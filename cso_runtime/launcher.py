@@ -380,6 +380,10 @@ class Launcher:
         """The latest end judged a stray (``stray_end``): while it stays ``status`` (the sim says nothing more for a
         while), the run loop's next looks (``episode_end_heard``) do not judge, log and count it again."""
         self.episode_running: int | None = None
+        self.episodes_before: set[int] = set()
+        """The episodes heard running before ``episode_running`` (a restarted sim's is a new one): an end of one of
+        them is a stray at once; one of an episode never heard running (a restarted sim's that ended before it said
+        it runs) is awaited, and judged by its result."""
         """The episode the referee's latest status of a running episode (starting, exploring) names: an end of
         another (a late one of the episode before a restarted sim's, a forged one) is a stray (``judge_episode_end``)."""
         self.status_watch: StatusWatch | None = None
@@ -559,6 +563,8 @@ class Launcher:
                 if msg.state in EPISODE_OVER:
                     self.end_heard = msg
                 else:
+                    if self.episode_running is not None and self.episode_running != msg.episode:
+                        self.episodes_before.add(self.episode_running)
                     self.episode_running = msg.episode
             if msg.coverage_measured is not None:  # the referee's word on its ground truth, over the services' names
                 self.coverage_measured = msg.coverage_measured
@@ -977,7 +983,8 @@ class Launcher:
     def judge_episode_end(self, session: Any, over: EpisodeStatusMsg, meanwhile: Callable[[], None]) -> tuple[EpisodeStatusMsg, EpisodeResultMsg | None] | None:
         """The run loop's judgement of an end heard (``episode_end_heard``): the end and its result (None: it never
         arrived), or None for a stray end, ignored (counted in ``rejected["episode_status"]``, logged): the episode goes on.
-        An end of another episode than the one running (``episode_running``) is a stray at once: no result of it comes."""
+        An end of an episode heard running before the one running (``of_another_episode``) is a stray at once: no
+        result of it comes."""
         if self.of_another_episode(over):
             self.stray_end(over, f"episode {self.episode_running} is running")
             return None
@@ -991,9 +998,10 @@ class Launcher:
         return over, result
 
     def of_another_episode(self, end: EpisodeStatusMsg) -> bool:
-        """Whether ``end`` names another episode than the one running (``episode_running``; none known: not)."""
+        """Whether ``end`` names an episode heard running before the one running (``episodes_before``): not the one
+        running, nor one never heard running (none known, or a restarted sim's episode that ended before it said so)."""
         running = self.episode_running
-        return running is not None and end.episode != running
+        return running is not None and end.episode != running and end.episode in self.episodes_before
 
     def stray_end(self, end: EpisodeStatusMsg, why: str) -> None:
         """``end`` was no end (``judge_episode_end``): counted in ``rejected["episode_status"]``, logged, ignored."""

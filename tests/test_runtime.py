@@ -5328,6 +5328,23 @@ def test_a_stray_end_of_another_episode_is_judged_once_while_it_stays_the_latest
     assert over is not None and (over.episode, over.step) == (8, 9)
 
 
+def test_the_end_of_a_restarted_sims_episode_heard_before_any_status_of_it_running_ends_the_run(tmp_path):
+    """The sim restarted (a new episode id) and its episode ended before it said the episode runs (the sim sends
+    its status with a map measured: a restarted lockstep sim whose step 0 never gets its map fails "lockstep_timeout"
+    with no status before; a first map that already ends it). ``episode_running`` still named the episode before the
+    restart: the real end was a stray at once, judged again at every look, and the run never ended. An end of an
+    episode never heard running is awaited, and judged with its result; one of an episode heard before the running
+    one is still a stray at once."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("failed", 0, terminated_by="lockstep_timeout", episode=8))  # the restarted sim's end
+    over = launcher.episode_end_heard()
+    assert over is not None
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(0, "lockstep_timeout"))]), over, lambda: None)
+    assert judged is not None and judged[0] is over and judged[1] is not None
+    assert launcher.rejected == {}
+
+
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
     """A launcher of the lockstep profile joining ``endpoint`` (its own router or none), whose session's routes are
     ``routers`` (the test changes it), supervising a planner that never answers; the caller kills the planner."""
