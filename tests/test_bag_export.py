@@ -340,17 +340,7 @@ def test_export_bag_namespace_puts_topics_and_frames_under_the_robots_name(tmp_p
             got.setdefault(conn.topic, []).append(ros2_cdr.decode(raw, conn.msgtype))
     assert sorted(got) == sorted(t if t in ("/tf", "/tf_static") else f"/limo1{t}" for t in plain)
     assert {t: len(v) for t, v in got.items()} == {(t if t in ("/tf", "/tf_static") else f"/limo1{t}"): len(v) for t, v in plain.items()}
-    frames = set()
-    for topic, msgs in got.items():
-        for m in msgs:
-            if topic in ("/tf", "/tf_static"):
-                frames |= {f for tf in m.transforms for f in (tf.header.frame_id, tf.child_frame_id)}
-            elif topic == "/explore/frontiers":
-                frames |= {marker.header.frame_id for marker in m.markers if marker.action != 3}  # DELETEALL carries one too
-            elif topic == "/odom":
-                frames |= {m.header.frame_id, m.child_frame_id}
-            elif hasattr(m, "header"):
-                frames.add(m.header.frame_id)
+    frames = set().union(*bag_frames({topic: [(0, m) for m in msgs] for topic, msgs in got.items()}).values())
     assert frames == {"limo1/map", "limo1/odom", "limo1/base_link", "limo1/laser"}, frames
     bad = subprocess.run(
         [sys.executable, "-m", "cso_runtime.cli", "export-bag", str(recording), "--out", str(tmp_path / "bad"), "--namespace", "1-robot"],

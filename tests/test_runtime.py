@@ -3749,6 +3749,16 @@ def test_status_watch_redraws_one_table_on_a_terminal_and_appends_plain_tables_e
         assert "\x1b" not in text and text.count("robot r0  run run1") == 3  # each status once, one under the other
 
 
+def write_running_run(runs: Path, run_dir: Path) -> dict[str, Any]:
+    """``run_dir``'s run.json and the runs folder's current.json, of a run this process launches (robot r0, a router on
+    port 7447), as a running launcher writes them; returns that record."""
+    run_dir.mkdir(parents=True)
+    running = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(), "state": "running"}
+    for path in (run_dir / "run.json", runs / "current.json"):
+        path.write_text(json.dumps(running))
+    return running
+
+
 @pytest.mark.parametrize("pose_heard", [False, True], ids=["older-launcher", "launcher-heard-the-pose"])
 @pytest.mark.parametrize(("outcome", "exit_code", "as_json"), [("done", 0, False), ("done", 0, True), ("interrupted", 130, False), ("failed", 1, True)])
 def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_results_are(tmp_path, monkeypatch, capsys, outcome, exit_code, as_json, pose_heard):
@@ -3766,10 +3776,7 @@ def test_status_watch_ends_by_saying_how_the_run_it_watched_ended_and_where_its_
 
     runs = tmp_path / "runs"
     run_dir = runs / "20261206-120000-lockstep-r0"
-    run_dir.mkdir(parents=True)
-    running = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(), "state": "running"}
-    for path in (run_dir / "run.json", runs / "current.json"):
-        path.write_text(json.dumps(running))
+    running = write_running_run(runs, run_dir)
     services = {"sim": {"pid": 1, "restarts": 0}, "planner": {"pid": 2, "restarts": 0}}
     episode = {"state": "exploring", "step": 5, "episode": 7, "scene": "s", "method": "cso", "goal_xy_m": [1.5, 2.5], "last_decision_ms": 12.5, "decisions": 3}
     episode.update(pose=[1.25, 2.0, 0.5], twist=[0.2, 0.0])
@@ -3819,10 +3826,7 @@ def test_status_watch_json_lines_say_the_pose_the_end_line_says_in_the_map_frame
 
     runs = tmp_path / "runs"
     run_dir = runs / "20261207-120000-lockstep-r0"
-    run_dir.mkdir(parents=True)
-    running = {"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": [loopback_endpoint(7447)], "launcher_pid": os.getpid(), "state": "running"}
-    for path in (run_dir / "run.json", runs / "current.json"):
-        path.write_text(json.dumps(running))
+    running = write_running_run(runs, run_dir)
     services = {"sim": {"pid": 1, "restarts": 0}}
     origin = [0.5, -1.0, 0.0]  # a map_server scene's origin: the scene's frame is not the map frame
     episode = {"state": "exploring", "step": 5, "episode": 7, "scene": "s", "method": "cso", "goal_xy_m": [1.5, 2.5], "pose": [1.25, 2.0, 0.5],
