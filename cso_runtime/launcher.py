@@ -622,6 +622,10 @@ class Launcher:
         track_liveliness(self.alive_services, sample)
         name = str(sample.key_expr).rsplit("/", 1)[-1]
         if name in self.profile.services:
+            if name in self.alive_services:  # came up now, not at the hang check's next round (``kill_hung``)
+                for c in self.children:
+                    if c.name == name and c.alive:
+                        c.seen_up(time.monotonic())
             return
         if name in self.alive_services:
             if name not in self.outside_services or name in self.left_out:
@@ -774,11 +778,10 @@ class Launcher:
         for c in self.children:
             if c.gave_up or not c.alive or c.proc is None:
                 continue
+            if c.name in self.alive_services:  # its token came while no round looked (``_on_alive`` saw it come)
+                c.seen_up(now)
             if c.command is not None and (c.came_up or not c.awaits_token):  # answers no status query: only its start is judged
-                c.came_up = c.came_up or c.name in self.alive_services
                 continue
-            if not c.came_up and c.name in self.alive_services:
-                c.came_up, c.came_up_at = True, now
             if not c.came_up:  # still starting (importing, warming up), or hung before it came up
                 if sup.start_timeout_s <= 0 or now - max(c.spawned_at, resumed_s) < sup.start_timeout_s:
                     continue

@@ -104,14 +104,21 @@ class Child:
         last = next((line.strip() for line in reversed(lines) if line.strip()), "")
         return "" if LOGGED_LINE.match(last) else last
 
+    def seen_up(self, now: float) -> None:
+        """Its liveliness token was seen (heard come, or there at a round of the hang check): its current process came
+        up at ``now``, unless it was seen already. Once up it stays so until its next ``spawn``: a token gone again is
+        a service stopped or hung (``not answering``), never one still starting."""
+        if not self.came_up:
+            self.came_up, self.came_up_at = True, now
+
     def spawn(self) -> None:
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
+        self.came_up = False  # before its process runs: a token it declares at once is its own coming up, never undone
         with self.log_path.open("ab") as fh:
             env = {**os.environ, "PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid()), **self.env}
             self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env)
         self.restart_at = None
         self.spawned_at = time.monotonic()
-        self.came_up = False
 
 
 def signal_group(pid: int, sig: int) -> None:

@@ -2746,6 +2746,48 @@ def test_a_service_frozen_after_it_came_up_reads_not_answering_not_starting(tmp_
     assert re.search(r"│ sim +│ not answering \(its liveliness token is gone: stopped or hung\?\), pid 4242", text) and re.search(r"│ mapper +│ starting, pid 4242", text), text
 
 
+def test_a_service_that_came_up_between_the_hang_checks_rounds_reads_not_answering_once_its_token_is_gone(tmp_path):
+    """The launcher noted that a service came up only at a round of its hang check (``kill_hung``), which looks at the
+    liveliness tokens then, and skips every service while its status watch is behind (the launcher was stopped and
+    continued) or the router it joined is lost; the run loop's rounds also wait seconds at a time while an episode's
+    result is awaited. A service whose token came and went in such a gap (it came up, then froze) read "starting"
+    in ``status`` and the live view until the hang check killed it, as if it had never come up. Its token coming is
+    its coming up, whenever the launcher hears it (``_on_alive``); a restart's new process starts anew."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    la = Launcher(profile, data, tmp_path / "run")
+    running = SimpleNamespace(pid=4242, poll=lambda: None)
+    behind = Child("sim", ["true"], tmp_path / "sim.log", proc=running)  # up while the hang check waits for its watch
+    busy = Child("mapper", ["true"], tmp_path / "mapper.log", proc=running)  # up and frozen between two rounds of the loop
+    la.children = [behind, busy]
+    la.status_watch = SimpleNamespace(behind=lambda now: True, resumed_s=-np.inf, answered_s={})  # type: ignore[assignment]
+
+    def token(name: str, kind: str) -> None:
+        la._on_alive(SimpleNamespace(key_expr=la.keys.alive(name), kind=f"SampleKind.{kind}"))
+
+    token("sim", "PUT")
+    la.supervise()  # a round: the hang check waits (its watch behind)
+    token("sim", "DELETE")  # frozen: its lease ran out
+    token("mapper", "PUT")
+    token("mapper", "DELETE")  # no round of the loop in between
+    la.supervise()
+    msg = decode(encode(la.launcher_status()), LauncherStatusMsg)
+    assert isinstance(msg, LauncherStatusMsg)
+    status = status_of("r0", None, msg.to_dict(), {}, set())
+    assert {name: status["services"][name]["not_answering"] for name in ("sim", "mapper")} == {"sim": True, "mapper": True}, status["services"]
+    assert behind.came_up_at > 0 and busy.came_up_at > 0  # the hang check counts from when they came up
+    busy.argv = [sys.executable, "-c", "pass"]
+    busy.spawn()  # its restart: a new process, starting until its own token comes
+    busy.proc.wait(10)  # type: ignore[union-attr]
+    assert busy.came_up is False
+
+
 def test_status_of_a_service_that_answers_before_its_token_is_seen_says_one_state():
     """A service answers its status query a moment before its liveliness token is seen: ``status`` read
     "starting, running" (its process runs, its token not yet there, and its own state) and one not started by this run
