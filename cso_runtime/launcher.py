@@ -377,15 +377,18 @@ class Launcher:
         (``episode_end_heard``): one of the episode exploring can replace ``status`` before the loop, which looks every
         0.1 s, gets to it (a stray end followed by the sim's next step's), and that end was neither judged nor counted."""
         self.stray_judged: EpisodeStatusMsg | None = None
-        """The latest end judged a stray (``stray_end``): while it stays ``status`` (the sim says nothing more for a
-        while), the run loop's next looks (``episode_end_heard``) do not judge, log and count it again."""
+        """The latest end judged not the run's end (a stray, ``stray_end``; one of an episode a restart left behind,
+        ``end_left_behind``): while it stays ``status`` (the sim says nothing more for a while), the run loop's next
+        looks (``episode_end_heard``) do not judge, log and count it again."""
         self.episode_running: int | None = None
+        """The episode the referee's latest status of a running episode (starting, exploring) names: an end of
+        another it ran before (a late one of the episode before a restarted sim's, a forged one) is not the run's end
+        (``judge_episode_end``)."""
         self.episodes_before: set[int] = set()
         """The episodes heard running before ``episode_running`` (a restarted sim's is a new one): an end of one of
-        them is a stray at once; one of an episode never heard running (a restarted sim's that ended before it said
-        it runs) is awaited, and judged by its result."""
-        """The episode the referee's latest status of a running episode (starting, exploring) names: an end of
-        another (a late one of the episode before a restarted sim's, a forged one) is a stray (``judge_episode_end``)."""
+        them is left behind at once (``end_left_behind``), unless its result is here; a late status of one of them
+        running does not make it the running one again. An end of an episode never heard running (a restarted sim's
+        that ended before it said it runs) is awaited, and judged by its result."""
         self.status_watch: StatusWatch | None = None
         """Which services answer the launcher's status queries (their hang check), once the session is open."""
         self.service_notes: dict[str, str] = {}
@@ -562,6 +565,8 @@ class Launcher:
                 self.status, self.status_heard_at_s = msg, now
                 if msg.state in EPISODE_OVER:
                     self.end_heard = msg
+                elif msg.episode in self.episodes_before:
+                    pass  # late, of an episode a restart left behind: it runs no more (ids are drawn anew per episode)
                 else:
                     if self.episode_running is not None and self.episode_running != msg.episode:
                         self.episodes_before.add(self.episode_running)
@@ -969,12 +974,14 @@ class Launcher:
         query (the sim and the ros2_bridge answer once finished), asked again until ``wait_s`` has passed
         or the launcher is stopped. On a loaded machine one query can time out before the answer comes.
         Between its queries (3 s at most each) it calls ``meanwhile`` (the run loop's supervision and live view;
-        ``supervise`` when not given): a service that crashes or hangs while the result is awaited is restarted."""
+        ``supervise`` when not given): a service that crashes or hangs while the result is awaited is restarted. None
+        at once when the episode goes on (``episode_goes_on``), or another has started since it ended (a restarted sim's:
+        the result of the ended one went with the process that ran it)."""
         tend = self.supervise if meanwhile is None else meanwhile
         deadline = time.monotonic() + wait_s
         while self.result is None and not self.stop_event.is_set():
             left = deadline - time.monotonic()
-            if left <= 0 or self.episode_goes_on():
+            if left <= 0 or self.episode_goes_on() or (self.ended_status is not None and self.of_another_episode(self.ended_status)):
                 return None
             result = self.fetch_result(session, timeout_s=min(3.0, left))
             if result is not None:
@@ -985,14 +992,19 @@ class Launcher:
 
     def judge_episode_end(self, session: Any, over: EpisodeStatusMsg, meanwhile: Callable[[], None]) -> tuple[EpisodeStatusMsg, EpisodeResultMsg | None] | None:
         """The run loop's judgement of an end heard (``episode_end_heard``): the end and its result (None: it never
-        arrived), or None for a stray end, ignored (counted in ``rejected["episode_status"]``, logged): the episode goes on.
-        An end of an episode heard running before the one running (``of_another_episode``) is a stray at once: no
-        result of it comes."""
-        if self.of_another_episode(over):
-            self.stray_end(over, f"episode {self.episode_running} is running")
+        arrived), or None for an end that is not the run's: the episode goes on. A stray end is ignored (counted in
+        ``rejected["episode_status"]``, logged). An end of an episode heard running before the one running
+        (``of_another_episode``: the sim restarted since, into a new episode) whose result is not here, heard so or
+        while its result is awaited, is left behind (``end_left_behind``): no result of it will come, and the run goes on
+        with the episode running, as after any restart of the sim."""
+        if self.of_another_episode(over) and self.result is None:
+            self.end_left_behind(over)
             return None
         self.ended_status, self.exploring_since_end = over, None
         result = self.wait_for_result(session, meanwhile=meanwhile)
+        if result is None and self.of_another_episode(over):
+            self.end_left_behind(over)
+            return None
         if result is None and self.episode_goes_on() and (now := self.status) is not None:
             self.stray_end(over, f"the episode goes on (step {now.step})")
             return None
@@ -1011,6 +1023,19 @@ class Launcher:
         with self._lock:
             self.rejected["episode_status"] = self.rejected.get("episode_status", 0) + 1
         log.warning("an episode status said %s of episode %d at step %d, but %s: ignored", end.state, end.episode, end.step, why)
+        self.ended_status, self.stray_judged = None, end
+
+    def end_left_behind(self, end: EpisodeStatusMsg) -> None:
+        """``end`` is of an episode the referee ran before the one running (``judge_episode_end``): the sim restarted since,
+        into a new episode, and the ended one's result, never heard, went with the process that ran it. No stray (not
+        counted in ``rejected``: the status may well be that episode's real end), and not the run's end either: the run
+        goes on with the episode running, whose end and results are the run's, as after any restart of the sim. Logged."""
+        restarted = " (the sim restarted)" if self.simulated else ""
+        log.warning(
+            "episode %d ended (%s at step %d), but episode %d has started since%s and no result of episode %d came: it is lost "
+            "with the process that ran it; the run goes on with episode %d, whose results will be the run's",
+            end.episode, end.state, end.step, self.episode_running, restarted, end.episode, self.episode_running,
+        )  # fmt: skip
         self.ended_status, self.stray_judged = None, end
 
     def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:

@@ -5305,12 +5305,13 @@ def test_the_end_a_result_belongs_to_decides_the_run_not_a_stray_end_awaited_bef
     assert launcher.ended_status is end  # summary.json's meta.episode and `status` go by it
 
 
-def test_an_end_of_another_episode_than_the_one_running_is_a_stray_at_once(tmp_path, caplog):
+def test_an_end_of_another_episode_than_the_one_running_is_left_behind_at_once(tmp_path, caplog):
     """A late "done" of episode 7 after episode 8 started (or a forged one naming an episode not running): the
     launcher waited for its result, as the episode going on was looked for in episode 7 only, and after 15 s said
     "result never arrived" and stopped the run. An end of another episode than the running one (its latest
-    status's, starting or exploring) is ignored and counted at once, with no wait; so is one heard while episode
-    8 is starting. An end of the episode running is awaited as before."""
+    status's, starting or exploring) is not the run's end, at once, with no wait; so is one heard while episode
+    8 is starting. It is no stray either (not counted under ``launcher_rejected``: it may be episode 7's real end,
+    whose result went with the sim that ran it), and the log says so. An end of the episode running is awaited as before."""
     launcher, hear = _launcher_hearing(tmp_path)
     hear(EpisodeStatusMsg("exploring", 30, episode=7))
     hear(EpisodeStatusMsg("starting", 0, episode=8))  # a restarted sim: a new episode
@@ -5322,8 +5323,12 @@ def test_an_end_of_another_episode_than_the_one_running_is_a_stray_at_once(tmp_p
         with caplog.at_level("WARNING", logger="cso.launcher"):
             assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
         assert launcher.ended_status is None
-    assert launcher.rejected == {"episode_status": 2}
-    assert "an episode status said done of episode 7 at step 31, but episode 8 is running: ignored" in caplog.text, caplog.text
+    assert launcher.rejected == {}
+    said = (
+        "episode 7 ended (done at step 31), but episode 8 has started since (the sim restarted) and no result of episode 7 came: "
+        "it is lost with the process that ran it; the run goes on with episode 8, whose results will be the run's"
+    )
+    assert caplog.text.count(said) == 2, caplog.text
     # the end of the episode running: awaited, and judged with its result
     hear(EpisodeStatusMsg("done", 9, terminated_by="coverage", episode=8))
     over = launcher.episode_end_heard()
@@ -5367,7 +5372,7 @@ def test_a_stray_end_of_another_episode_is_judged_once_while_it_stays_the_latest
     over = launcher.episode_end_heard()
     assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
     assert launcher.episode_end_heard() is None and launcher.episode_end_heard() is None  # the loop's next looks
-    assert launcher.rejected == {"episode_status": 1}
+    assert launcher.rejected == {}  # left behind (the sim restarted), no stray: counted nowhere, said once
     # the sim's own end, later, is heard and judged
     hear(EpisodeStatusMsg("done", 9, terminated_by="coverage", episode=8))
     over = launcher.episode_end_heard()
@@ -5389,6 +5394,62 @@ def test_the_end_of_a_restarted_sims_episode_heard_before_any_status_of_it_runni
     judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(0, "lockstep_timeout"))]), over, lambda: None)
     assert judged is not None and judged[0] is over and judged[1] is not None
     assert launcher.rejected == {}
+
+
+def test_an_end_whose_result_is_lost_to_a_restart_of_the_sim_leaves_the_run_to_the_new_episode(tmp_path, caplog):
+    """Episode 7 ends, its result is lost (dropped on the way, and its sim died before the launcher's query: a hang,
+    the OOM killer), and the launcher restarts the sim: episode 8. Heard in this order, the end was awaited for its
+    15 s while episode 8 ran, then the launcher said "its result never arrived" and stopped the run, killing episode
+    8; heard after episode 8's first status, the same end was a stray at once, counted in ``launcher_rejected``, and
+    the run went on. One judgement for both orders, as a user reads a restart of the sim: episode 7's result went with
+    the process that ran it, the run goes on with episode 8, whose end and results are the run's, and the log says
+    so in those words; nothing was rejected. A result of episode 7 that did come is kept: the run ends with it."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # episode 7's real end; its result is lost
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    restart = [lambda: None, lambda: hear(EpisodeStatusMsg("starting", 0, episode=8))]  # the sim died and came back
+    with caplog.at_level("WARNING", logger="cso.launcher"):
+        assert launcher.judge_episode_end(_ScriptedResultQueries(restart), over, lambda: None) is None  # no wait beyond
+    assert launcher.rejected == {} and launcher.ended_status is None
+    said = "episode 7 ended (done at step 31), but episode 8 has started since (the sim restarted) and no result of episode 7 came"
+    assert said in caplog.text and "the run goes on with episode 8, whose results will be the run's" in caplog.text, caplog.text
+    assert launcher.episode_end_heard() is None  # not judged again
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="coverage", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 8
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(40, "coverage"))]), over, lambda: None)
+    assert judged is not None and judged[0] is over and judged[1] is not None and judged[1].steps == 40
+
+    # episode 7's end heard after episode 8 started, its result there too: the run ends with episode 7's results
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))
+    hear(_result(31, "coverage"))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)
+    assert judged is not None and judged[0] is over and judged[1] is not None and judged[1].steps == 31
+    assert launcher.rejected == {}
+
+
+def test_a_late_status_of_an_episode_a_restart_left_behind_does_not_make_it_the_running_one_again(tmp_path):
+    """The sim restarted (episode 7, then 8); a status of episode 7 exploring heard after episode 8 started made 7 the
+    running episode again and 8 one "before" it: episode 8's real end was then taken for an end of another episode,
+    and the run never ended. An episode a restart left behind runs no more (a new episode draws a new id)."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))  # late, of the episode before
+    assert launcher.episode_running == 8
+    hear(EpisodeStatusMsg("done", 9, terminated_by="coverage", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 8
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(9, "coverage"))]), over, lambda: None)
+    assert judged is not None and judged[0] is over and judged[1] is not None
 
 
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
