@@ -985,10 +985,17 @@ def read_as_another_type(flag: str, value: Any, name: str, meant: Any, given_by:
     return f"{flag} is read as {_kind(value)}, and {name} is {_kind(meant)}{by}: write {set_flag_text(name, meant)}{alone}"
 
 
-def refuse_a_setting_read_as_another_type(settings: typing.Mapping[str, Any], types: typing.Mapping[str, Any]) -> None:
-    """A ConfigError for a ``--set`` of a text field (``types``, by key) whose value YAML reads as another type and whose
-    text the field takes: ``up --set robot=1`` (the number 1, where a robot id is text) says how to write it
-    (``--set robot='1'``, ``read_as_another_type``), as with ``--robot 1`` beside it, not only the field's type error."""
+def refuse_a_setting_read_as_another_type(
+    settings: typing.Mapping[str, Any], types: typing.Mapping[str, Any], takes: typing.Callable[[dict[str, Any]], object] | None = None
+) -> None:
+    """A ConfigError for a ``--set`` of a text field (``types``, by dotted key: ``field_types``) whose value YAML reads as
+    another type and whose text the field takes: ``up --set robot=1`` (the number 1, where a robot id is text) says how
+    to write it (``--set robot='1'``, ``read_as_another_type``), as with ``--robot 1`` beside it, not only the field's
+    type error; so does a key of a section (``--set router.zenoh_config=2024``, ``services.NAME.KEY``). ``takes``: the
+    whole configuration built with the given ``--set`` pairs, raising a ConfigError where it is refused; given, the
+    hint is said only where the configuration with those values as text is taken (``--set method=1``: ``'1'`` is no
+    method either, so the value's own error is said, not a hint that would fail in turn)."""
+    texts: dict[str, str] = {}
     for key, value in settings.items():
         annotation = types.get(key)
         if annotation is None or not text_field(annotation) or isinstance(value, (str, dict, list)):
@@ -1003,7 +1010,29 @@ def refuse_a_setting_read_as_another_type(settings: typing.Mapping[str, Any], ty
             field_value(text, annotation, key)
         except ConfigError:
             continue  # its own type error says what is wrong
-        raise ConfigError(read_as_another_type(set_flag_text(key, value), value, key, text))
+        texts[key] = text
+    if not texts:
+        return
+    if takes is not None:
+        try:
+            takes({key: texts.get(key, value) for key, value in settings.items()})
+        except ConfigError:
+            return  # the text is refused too: the value's own error says what is wrong
+    raise ConfigError("; ".join(read_as_another_type(set_flag_text(key, settings[key]), settings[key], key, text) for key, text in texts.items()))
+
+
+def field_types(cls: type, path: str = "") -> dict[str, Any]:
+    """The type of each field of config dataclass ``cls`` by dotted key (``path``: its own, ``""`` at the top), those of
+    each field that is a dataclass too, and so on down (``router.zenoh_config``, ``planner.body``): what
+    ``refuse_a_setting_read_as_another_type`` reads a ``--set`` key's type from."""
+    hints = typing.get_type_hints(cls)
+    found: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        key = f"{path}.{f.name}" if path else f.name
+        found[key] = hints[f.name]
+        if isinstance(hints[f.name], type) and dataclasses.is_dataclass(hints[f.name]):
+            found.update(field_types(hints[f.name], key))
+    return found
 
 
 @dataclass(frozen=True)

@@ -366,6 +366,39 @@ def test_a_set_alone_read_as_a_number_where_the_field_is_text_says_how_to_write_
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_set_of_a_nested_key_read_as_a_number_where_the_field_is_text_says_how_to_write_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """The hint of ``up --set robot=1`` (``config.read_as_another_type``) was given for top-level keys alone: ``--set
+    services.foxglove_bridge.mcap_path=2024`` (a file named 2024) said only "expected a string, got 2024", and
+    ``--set router.zenoh_config=2024`` blamed the profile file ("sim.yaml: router.zenoh_config must be a file path").
+    A key of a service (``services.NAME.``), of a section (``router.``) or of the exploration (``exploration.planner.``,
+    eval's ``planner.``) gets it too, and the hint is given only where the text it suggests is taken (``--set
+    method=1`` suggested ``method='1'``, an unknown method; ``planner.body`` takes disc or box alone): otherwise the
+    value's own error, naming the flag."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    up = ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run"]
+    for key in ("services.foxglove_bridge.mcap_path", "services.foxglove_bridge.map_frame"):
+        r = CliRunner().invoke(app, [*up, "--foxglove", "--set", f"{key}=2024"])
+        said = " ".join(r.stderr.split())
+        assert r.exit_code == 2 and f"--set {key}=2024 is read as a number, and {key} is text: write --set {key}='2024'" in said, (key, r.output)
+        r = CliRunner().invoke(app, [*up, "--foxglove", "--set", f"{key}='2024'"])
+        assert r.exit_code == 0 and f"{key.rpartition('.')[2]}: '2024'" in r.output, (key, r.output)
+    # A Zenoh config file is named with its extension: 2024 is no file path as text either, so no hint; the flag is named, not the profile.
+    (tmp_path / "2024").write_text("{}\n")
+    r = CliRunner().invoke(app, [*up, "--set", "router.zenoh_config=2024"])
+    said = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and "write --set" not in said and "with --set router.zenoh_config=2024: router.zenoh_config must be a file path (text), got 2024" in said, r.output
+    for given in (["--set", "method=1"], ["--set", "exploration.planner.body=1"]):  # a text that is refused too: no hint
+        r = CliRunner().invoke(app, [*up, *given])
+        said = " ".join(r.stderr.split())
+        assert r.exit_code == 2 and "write --set" not in said and f"with --set {given[-1]}" in said, (given, r.output)
+    r = CliRunner().invoke(app, ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--dry-run", "--set", "planner.body=1"])
+    said = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and "write --set" not in said and "planner.body: expected a string, got 1" in said, r.output
+    assert not (tmp_path / "runs").exists()
+
+
 def test_one_path_written_two_ways_is_one_value(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
     """``up --scene ./plans --set scene=plans`` and ``up --zenoh-config ./z.json5 --set router.zenoh_config=$PWD/z.json5``
     were refused as "different values": one path, written two ways. A path-valued field's values are compared as the

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -1547,3 +1548,40 @@ def test_eval_and_up_refuse_a_mujoco_parameter_out_of_range_before_anything_star
     assert not (tmp_path / "o").exists()
     with pytest.raises(ConfigError, match=r"services\.sim\.mujoco: mass_kg must be in \(0, 1,000\] kg .*got 4,800$"):
         load_profile("sim", {}, settings={"services.sim.mujoco.mass_kg": 4800})
+
+
+
+@dataclasses.dataclass
+class _Inner:
+    name: str = "a"
+    count: int = 0
+
+
+@dataclasses.dataclass
+class _Outer:
+    """A config of one section, for ``field_types``."""
+
+    inner: _Inner = dataclasses.field(default_factory=_Inner)
+    label: str = ""
+
+
+def test_the_hint_of_a_set_read_as_another_type_reads_a_nested_keys_type_and_is_given_only_where_the_text_is_taken():
+    """``refuse_a_setting_read_as_another_type`` looked a key's type up among the top-level fields alone: ``--set
+    section.name=1`` of a text field one section down had no hint. ``field_types`` gives each dotted key's type, down
+    every section; ``takes`` (the whole config built) keeps the hint to a text the config takes."""
+    from cso_runtime.config import field_types, refuse_a_setting_read_as_another_type
+
+    types = field_types(_Outer)
+    assert types == {"inner": _Inner, "inner.name": str, "inner.count": int, "label": str}, types
+    with pytest.raises(ConfigError, match=re.escape("--set inner.name=1 is read as a number, and inner.name is text: write --set inner.name='1'")):
+        refuse_a_setting_read_as_another_type({"inner.name": 1, "inner.count": 2}, types)
+    built: list[dict] = []
+    with pytest.raises(ConfigError, match=re.escape("--set inner.name=true is read as true/false, and inner.name is text: write --set inner.name='true'")):
+        refuse_a_setting_read_as_another_type({"inner.name": True, "inner.count": 2}, types, built.append)  # taken as text
+    assert built == [{"inner.name": "true", "inner.count": 2}], built
+
+    def refuses(_texts: dict) -> None:
+        raise ConfigError("inner.name must be a or b")
+
+    refuse_a_setting_read_as_another_type({"inner.name": 1}, types, refuses)  # the text refused too: no hint (its own error follows)
+    refuse_a_setting_read_as_another_type({"inner.name": "1", "inner.count": 2, "inner": {"name": 1}}, types)  # text, a number's own field, a section: none
