@@ -453,14 +453,21 @@ def report_command(
 def _run_without_results(run_dir: Path) -> str:
     """Why a run folder has no summary.json for ``report``, as ``runs`` lists its state: ``report`` said "not an `eval
     --out` folder or a run folder?" of a run stopped before its episode ended (Ctrl-C, ``down``), which writes none."""
+    from cso_runtime.current_run import LAUNCHER_DIED  # noqa: PLC0415
     from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415
-    from cso_runtime.runs import summarize_run  # noqa: PLC0415
+    from cso_runtime.runs import UNKNOWN_RUN_STATE, summarize_run  # noqa: PLC0415
 
-    state = summarize_run(run_dir).state
+    run = summarize_run(run_dir)
+    state = run.state
     if state in ("starting", "running"):
         return f"run {run_dir.name} is {state}: its results are written when its episode ends"
     kept = f" (its map so far: {run_dir / LAST_MAP})" if (run_dir / LAST_MAP).is_file() else ""
-    return f"run {run_dir.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as {state}){kept}"
+    if state == UNKNOWN_RUN_STATE:
+        return f"run {run_dir.name} has no results; {run.reason}{kept}"
+    if state in ("interrupted", "stopped", LAUNCHER_DIED):
+        return f"run {run_dir.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as {state}){kept}"
+    # failed (results that could not be written, a service given up on), or done and its summary.json since removed
+    return f"run {run_dir.name} has no results (`runs` lists it as {state}); its launcher's log says why: `cso-runtime logs launcher --run {run_dir}`{kept}"
 
 
 def _read_grids_of_any_run() -> None:
@@ -1120,7 +1127,8 @@ def runs_command(
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         steps = f"{r['stopped_at_step']} (stopped)" if r["steps"] is None and r["stopped_at_step"] is not None else num(r["steps"], ".0f")
         table.add_row(
-            escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, steps,
+            escape(r["run_id"] + "".join(f"\n  {known}" for known in [", ".join(filter(None, (REAL_ROBOT_SCENE if r["real_robot"] else r["scene"], r["method"])))] if known)),
+            state, took, steps,
             num(r["coverage_pct"], ".1f") if r["coverage_measured"] else NO_COVERAGE, num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
     table_console().print(table)
@@ -1170,6 +1178,7 @@ def logs_command(
 ) -> None:
     """A run's service logs merged in time order, each line after its service's name (like `docker compose logs`)."""
     from cso_runtime.runs import (  # noqa: PLC0415
+        LOG_DIR,
         RunError,
         await_service_logs,
         follow_logs,
@@ -1193,6 +1202,8 @@ def logs_command(
     except KeyboardInterrupt:
         raise typer.Exit(0) from None
     live = logs_grow(run_dir)
+    if not files and not (follow and live):  # said, not an empty output and exit 0 (a run that is starting: followed)
+        _fail(f"run {run_dir.name} has no log: {run_dir / LOG_DIR}/ holds no .log file", 1)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
 
