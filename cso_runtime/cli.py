@@ -885,6 +885,7 @@ def up_command(
             if dry_run or resolved:
                 from cso_runtime.config import commented_yaml  # noqa: PLC0415
 
+                _up_folders_or_exit(record_out, runs_dir, make=False)  # `up` would refuse them: not "valid", nothing made
                 outside = prof.left_out_services()
                 left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
                 comments = [f"profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}"]
@@ -912,12 +913,7 @@ def up_command(
     except StopRequested:
         _fail("interrupted (`cso-runtime down`, Ctrl-C or a signal) while checking the profile: no run was started", EXIT_INTERRUPTED)
     recording: bool | Path = record if record_out is None else Path(record_out)
-    if record_out is not None:
-        if names_a_folder(record_out):  # made now, so that the launcher puts <run-id>.mcap inside it
-            output_dir_or_exit(Path(record_out), f"--record-out {record_out}")
-        else:
-            output_dir_or_exit(Path(record_out).parent, f"--record-out {record_out}: its folder")
-    output_dir_or_exit(runs_dir, "--runs-dir")  # before the router and the services start
+    _up_folders_or_exit(record_out, runs_dir)  # before the router and the services start
     if stop.is_set():
         _fail("interrupted; no run was started", EXIT_INTERRUPTED)
     if detach:
@@ -1444,14 +1440,28 @@ def collect_teacher_command(
     typer.echo(f"done: {len(collected)} {args.warm_start_teacher} decisions in {time.time() - t0:.0f} s -> {out}")
 
 
-def output_dir_or_exit(path: Path | str, label: str) -> None:
-    """Make the folder a long command will write to before it starts, or exit 2 saying why."""
-    from cso_runtime.config import ConfigError, make_output_dir  # noqa: PLC0415
+def output_dir_or_exit(path: Path | str, label: str, make: bool = True) -> None:
+    """Make the folder a long command will write to before it starts, or exit 2 saying why. ``make`` False: only
+    check that it could be made and written in (a dry run), making nothing."""
+    from cso_runtime.config import ConfigError, check_output_dir, make_output_dir  # noqa: PLC0415
 
     try:
-        make_output_dir(path, label)
+        (make_output_dir if make else check_output_dir)(path, label)
     except ConfigError as exc:
         _fail(str(exc), 2)
+
+
+def _up_folders_or_exit(record_out: str | None, runs_dir: Path, make: bool = True) -> None:
+    """The folders ``up`` writes in, made (``make`` False: checked, as ``up --dry-run`` does) or exit 2 saying why:
+    ``--record-out``'s (a folder, where the launcher puts <run-id>.mcap, or a file's folder) and ``--runs-dir``."""
+    from cso_runtime.recording import names_a_folder  # noqa: PLC0415
+
+    if record_out is not None:
+        if names_a_folder(record_out):
+            output_dir_or_exit(Path(record_out), "--record-out", make)
+        else:
+            output_dir_or_exit(Path(record_out).parent, f"--record-out {record_out}: its folder", make)
+    output_dir_or_exit(runs_dir, "--runs-dir", make)
 
 
 def training_args(config: Path | None, overrides: Mapping[str, object], settings: list[str] | None) -> Args:
@@ -1642,7 +1652,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
     """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``)."""
     import yaml  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, one_line  # noqa: PLC0415
 
     out: dict[str, object] = {}
     for item in items:
@@ -1652,7 +1662,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
         try:
             out[key.strip()] = yaml.safe_load(value)
         except yaml.YAMLError as exc:
-            raise ConfigError(f"--set {key}: {exc}") from None
+            raise ConfigError(f"--set {item}: not valid YAML: {one_line(str(exc))}") from None
     return out
 
 

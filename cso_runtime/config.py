@@ -1168,6 +1168,12 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+def one_line(text: str) -> str:
+    """``text`` on one line, its runs of spaces and line breaks one space: a YAML error (three lines or more, a caret
+    drawing among them) as every error of the CLI is said, in one line."""
+    return " ".join(text.split())
+
+
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping, with a clear error for a missing or malformed file or a key given twice."""
     p = Path(path)
@@ -1177,7 +1183,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
         with p.open(encoding="utf-8") as stream:  # a file stream, so YAML's message names the file, not "<unicode string>"
             data = yaml.load(stream, Loader=_UniqueKeyLoader)
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: not valid YAML: {exc}") from None
+        raise ConfigError(f"{p}: not valid YAML: {one_line(str(exc))}") from None
     if data is None:
         return {}
     if not isinstance(data, dict):

@@ -611,7 +611,8 @@ def load_profile(
     if without:
         leave_out(data, without, path, foxglove)
     # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
-    flags = list(flag_of.values())
+    flags = list(flag_of.values()) + [f"--connect {endpoint}" for endpoint in connect or []]
+    flags += [f"--namespace {namespace}"] * (namespace is not None) + [f"--zenoh-config {zenoh_config}"] * (zenoh_config is not None)
     flags += [set_flag_text(k, v) for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
     where = f"{path} with {' '.join(flags)}" if flags else str(path)
     set_zenoh_config(data, path, zenoh_config, where)

@@ -441,3 +441,52 @@ def test_one_path_written_two_ways_is_one_value(tmp_path: Path, train_runs: list
     assert code == 2 and "--out runs/a and --set out_dir=../runs/a both set out_dir, to different values" in out, out
     code, out = train(tmp_path, "--init-from", "shipped", "--set", "init_from=./shipped")  # the shipped weights, or a file named shipped
     assert code == 2 and "--init-from shipped and --set init_from=./shipped both set init_from, to different values" in out, out
+
+
+def test_a_set_value_that_is_not_yaml_is_said_in_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``--set "a=[1"`` printed YAML's own error over eight lines (its caret drawing included), where every other error
+    of the CLI is one line (docs/commands.md); so did a config file that is not YAML, over three."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run", "--set", "exploration=[1"])
+    assert r.exit_code == 2 and r.stderr.startswith("error: --set exploration=[1: not valid YAML: while parsing a flow sequence") and r.stderr.count("\n") == 1, r.stderr
+    (tmp_path / "bad.yaml").write_text("a: [1, 2\n")
+    r = CliRunner().invoke(app, ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--dry-run", "--config", "bad.yaml"])
+    assert r.exit_code == 2 and r.stderr.startswith("error: bad.yaml: not valid YAML") and r.stderr.count("\n") == 1, r.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+def test_an_error_of_a_value_up_was_given_by_a_flag_names_the_flag_not_the_profile_alone(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``up --connect notanendpoint`` said "sim.yaml: router: bad zenoh endpoint ...", and ``up --zenoh-config
+    nosuch.json5`` "sim.yaml: router: zenoh config ...: No such file": the profile file blamed for a flag's value. The
+    error names the flags that changed the profile, as it does those of ``--set``, ``--scene`` and ``--without``."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    up = ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run"]
+    for given in (["--connect", "notanendpoint"], ["--zenoh-config", "nosuch.json5"]):
+        r = CliRunner().invoke(app, [*up, *given])
+        said = " ".join(r.stderr.split())
+        assert r.exit_code == 2 and f"sim.yaml with {' '.join(given)}: router: " in said, (given, said)
+    assert not (tmp_path / "runs").exists()
+
+
+def test_up_dry_run_checks_the_folders_up_would_write_in(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``up --dry-run --runs-dir FILE`` (or a ``--record-out`` whose folder cannot be made) said "valid: `up` would start
+    sim, mapper, ..." and exited 0, where ``up`` refuses them (exit 2) before anything starts. The dry run checks them
+    in the same words, as ``eval --dry-run`` checks ``--out``, and makes nothing."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("")
+    for given, said in [
+        (["--runs-dir", "notes.txt"], "error: --runs-dir notes.txt: cannot create the folder"),
+        (["--runs-dir", str(tmp_path / "runs"), "--record-out", "notes.txt/run.mcap"], "error: --record-out notes.txt/run.mcap: its folder notes.txt: cannot create the folder"),
+        (["--runs-dir", str(tmp_path / "runs"), "--record-out", "notes.txt/sub/"], "error: --record-out notes.txt/sub: cannot create the folder"),
+    ]:
+        dry = CliRunner().invoke(app, ["up", "--dry-run", *given])
+        assert dry.exit_code == 2 and dry.stderr.startswith(said) and "would start" not in dry.output, (given, dry.output)
+    r = CliRunner().invoke(app, ["up", "--dry-run", "--runs-dir", str(tmp_path / "new" / "runs"), "--record-out", "rec/"])
+    assert r.exit_code == 0 and "would start" in r.output, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]  # nothing made

@@ -65,6 +65,7 @@ def test_load_yaml_errors(tmp_path: Path):
     with pytest.raises(ConfigError, match="not valid YAML") as unclosed:
         load_yaml(bad)
     assert str(bad) in str(unclosed.value).split("not valid YAML", 1)[1]  # YAML's own line points at the file
+    assert "\n" not in str(unclosed.value)  # one line, as every error of the CLI (YAML's spans three)
     binary = tmp_path / "binary.yaml"
     binary.write_bytes(b"a: \xa4\xff\x00\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
