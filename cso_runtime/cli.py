@@ -505,6 +505,7 @@ def record_command(
         _fail(f"--robot: {exc}", 2)
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
+    _endpoints_or_exit(endpoints, zenoh_config_file)
     if robot is None and connect:  # the one robot there, not r0 whatever answers
         try:
             run_robot = robot_at_endpoint(endpoints, zenoh_config_file, wildcard_too=True)
@@ -559,6 +560,7 @@ def replay_command(
     endpoints, _, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
+    _endpoints_or_exit(endpoints, zenoh_config_file)
     by_key = {key: name for name, key in TOPICS.items()}  # planner/feedback, as docs/messages.md and `dataflow` name it
     wanted = [by_key.get(t.strip(), t.strip()) for t in topics.split(",") if t.strip()] if topics else None
     unknown = [t for t in wanted or [] if t not in TOPICS]  # a typo would replay nothing, silently
@@ -588,6 +590,18 @@ def replay_command(
         typer.echo(f"  published as the current version, recorded in an older one: {', '.join(f'{k} {n}' for k, n in sorted(stats.upgraded.items()))}")
     if stats.unreadable:
         typer.echo(f"  published as recorded, not readable by this build: {', '.join(f'{k} {n}' for k, n in sorted(stats.unreadable.items()))}")
+
+
+def _endpoints_or_exit(endpoints: list[str], zenoh_config_file: str | None) -> None:
+    """Exit 2 saying why where ``endpoints`` cannot name a router (``notanendpoint``, a port out of range): a usage
+    error before anything is made, as ``status`` says it, not "no Zenoh session" (exit 3) once a session fails to open."""
+    from cso_runtime.status import client_transport  # noqa: PLC0415
+    from cso_runtime.transport import TransportError  # noqa: PLC0415
+
+    try:
+        client_transport(endpoints, zenoh_config_file).validate()
+    except TransportError as exc:
+        _fail(str(exc), 2)
 
 
 @contextmanager
