@@ -547,6 +547,12 @@ _YAML11_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
 """A number in exponent notation, which YAML 1.2 reads as a float and PyYAML's YAML 1.1 as a string."""
 
 
+def yaml12_number(value: Any) -> Any:
+    """``value`` as YAML 1.2 (and map_server's yaml-cpp) reads it: a text in exponent notation without a dot (``1e-8``,
+    ``5e-2``), which PyYAML's YAML 1.1 leaves as text, as its float; any other value as it is."""
+    return float(value) if isinstance(value, str) and _YAML11_EXPONENT.fullmatch(value.strip()) else value
+
+
 def _convert(value: Any, annotation: Any, where: str) -> Any:
     origin = typing.get_origin(annotation)
     if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
@@ -554,8 +560,7 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
             raise ConfigError(f"{where}: expected a mapping, got {type(value).__name__}")
         return from_dict(annotation, value, where)
     if annotation is float:
-        if isinstance(value, str) and _YAML11_EXPONENT.fullmatch(value.strip()):
-            value = float(value)  # PyYAML (YAML 1.1) reads 1e-8, with no dot, as a string
+        value = yaml12_number(value)  # PyYAML (YAML 1.1) reads 1e-8, with no dot, as a string
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
         if not math.isfinite(float(value)):
