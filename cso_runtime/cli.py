@@ -378,6 +378,7 @@ def compare_command(
         TOO_FEW_SCENES,
         as_dicts,
         compare_to_baseline,
+        episodes_by_method,
         labelled,
         markdown_table,
         mixed_setups_said,
@@ -403,8 +404,15 @@ def compare_command(
         if unmatched := [name for name in split_names(exclude) if name not in held]:
             typer.echo(f"note: --exclude {', '.join(unmatched)}: no such map in these files; nothing left out for it", err=True)
     methods = sorted({method for method, _ in table})
-    if methods and baseline not in methods:  # a typo in --baseline, not "too few scenes"
-        _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(methods)}", 2)
+    if methods and baseline not in methods:
+        counts = episodes_by_method(files, rename or [])
+        if baseline not in counts:  # a typo in --baseline, not "too few scenes"
+            _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(sorted(counts))}", 2)
+        # It has episodes, none comparable: said so, not "no episodes" (exit 1, as too few scenes)
+        left = episodes_by_method(files, rename or [], exclude or []).get(baseline, 0)
+        why = (f"its {counts[baseline]} in these files are all on maps --exclude leaves out" if not left
+               else f"none of its {left} in these files has an m2/step (an episode of no step has none)")
+        _fail(f"--baseline {baseline!r} has no episode to compare: {why}", 1)
     comparisons = compare_to_baseline(table, baseline)
     if out is not None:
         try:
