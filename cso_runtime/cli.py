@@ -12,7 +12,7 @@ try:
     from collections.abc import Callable, Iterator, Mapping
     from contextlib import contextmanager
     from pathlib import Path
-    from typing import TYPE_CHECKING, NoReturn, overload
+    from typing import TYPE_CHECKING, Any, NoReturn, overload
 
     import typer
 
@@ -121,6 +121,26 @@ def _fail(message: str, code: int) -> NoReturn:
     """Say what is wrong on stderr in one line (``error: ...``) and exit with ``code`` (docs/commands.md's exit codes)."""
     typer.echo(f"error: {message}", err=True)
     raise typer.Exit(code) from None
+
+
+def _bounded(low: float, high: float | None = None) -> dict[str, Any]:
+    """A number flag's ``min``/``max`` (shown in its help, ``0.1<=x<=3600``) with a parser that holds it to them and says
+    so itself: typer's own check told ``--period nan`` "Input should be less than or equal to 3600", untrue of nan.
+    ``typer.Option(1.0, "--period", **_bounded(0.1, 3600.0))``."""
+    import math  # noqa: PLC0415
+
+    within = f"from {low:g} to {high:g}" if high is not None else f">= {low:g}"
+
+    def parse(given: object) -> float:
+        try:
+            value = float(given)  # type: ignore[arg-type]  # the text typed, or the default
+        except (TypeError, ValueError):
+            value = math.nan
+        if math.isnan(value) or value < low or (high is not None and value > high):
+            raise typer.BadParameter(f"must be a number {within}, got {given}")
+        return value
+
+    return {"min": low, "max": high, "parser": parse}
 
 
 STOPPING_NOTE = "stopping: writing what finished; signal once more to stop at once"
@@ -963,7 +983,7 @@ def _fixed_simulator_settings_said(prof: Profile) -> list[str]:
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends (a detached run: its episode)"),
-    period_s: float = typer.Option(1.0, "--period", min=0.1, max=3600.0, help="Seconds between two --watch refreshes (0.1 to 3600)"),
+    period_s: float = typer.Option(1.0, "--period", **_bounded(0.1, 3600.0), help="Seconds between two --watch refreshes (0.1 to 3600)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
@@ -1021,7 +1041,7 @@ def resume_command(
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
     timeout: float | None = typer.Option(
-        None, "--timeout-s", min=0.0,  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
+        None, "--timeout-s", **_bounded(0.0),  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
         help="How long the launcher may take to stop its services and write its results before escalating \\[default: three times the run's supervision.stop_timeout_s, plus 10 s]",
     ),
 ) -> None:
@@ -1041,7 +1061,7 @@ def router_command(
     ),
     connect: list[str] | None = typer.Option(None, "--connect", help="Another router to join, repeatable (a robot's zenoh-bridge-ros2dds: tcp/ROBOT_IP:7447)"),
     connect_timeout_s: float | None = typer.Option(
-        None, "--connect-timeout-s", min=0.001, help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
+        None, "--connect-timeout-s", **_bounded(0.001), help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
     ),
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="Zenoh config file (JSON5) the router starts from: user/password, TLS, access control"),
     as_json: bool = typer.Option(False, "--json", help="Print the endpoints it listens on as one line of JSON"),
@@ -1104,7 +1124,7 @@ def runs_command(
     limit: int = typer.Option(20, "--limit", min=1, help="Show the newest N runs"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     keep: int | None = typer.Option(None, "--keep", min=0, help="Prune: the runs beyond the newest N (listed; --yes deletes them)"),
-    older_than: float | None = typer.Option(None, "--older-than", min=0, help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
+    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
     yes: bool = typer.Option(False, "--yes", help="Delete the runs --keep/--older-than select (never the current or a running one)"),
 ) -> None:
     """List the runs `up` left in --runs-dir: state, scene, method and the episode's Table 1 row; or prune old ones."""
@@ -1423,7 +1443,7 @@ def collect_teacher_command(
     teacher: str | None = typer.Option(None, "--teacher", help="greedy-dist, utility, greedy-info or rollout (default: rollout, or --set warm_start_teacher's)"),
     workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
     decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
-    time_limit: float = typer.Option(0.0, "--time-limit-s", min=0.0, help="Each worker stops after this wall time (0 = none)"),
+    time_limit: float = typer.Option(0.0, "--time-limit-s", **_bounded(0.0), help="Each worker stops after this wall time (0 = none)"),
     seed: int | None = typer.Option(None, "--seed", help="Worker i uses seed + i"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),

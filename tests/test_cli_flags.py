@@ -490,3 +490,29 @@ def test_up_dry_run_checks_the_folders_up_would_write_in(tmp_path: Path, monkeyp
     r = CliRunner().invoke(app, ["up", "--dry-run", "--runs-dir", str(tmp_path / "new" / "runs"), "--record-out", "rec/"])
     assert r.exit_code == 0 and "would start" in r.output, r.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]  # nothing made
+
+
+def test_a_nan_given_to_a_bounded_number_flag_is_said_as_such_not_as_out_of_one_bound(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``status --period nan`` said "Input should be less than or equal to 3600", and ``runs --older-than nan`` "greater
+    than or equal to 0": untrue of nan, which is neither. A bounded number flag says its range and the value given, for
+    nan and for a value out of it; a value within it is taken as before."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    for args, said in [
+        (["status", "--period", "nan"], "must be a number from 0.1 to 3600, got nan"),
+        (["status", "--period", "5000"], "must be a number from 0.1 to 3600, got 5000"),
+        (["runs", "--older-than", "nan"], "must be a number >= 0, got nan"),
+        (["runs", "--older-than", "-1"], "must be a number >= 0, got -1"),
+        (["down", "--timeout-s", "nan"], "must be a number >= 0, got nan"),
+        (["router", "--connect-timeout-s", "nan"], "must be a number >= 0.001, got nan"),
+        (["collect-teacher", "--out", "t.npz", "--time-limit-s", "nan"], "must be a number >= 0, got nan"),
+        (["status", "--period", "soon"], "must be a number from 0.1 to 3600, got soon"),
+    ]:
+        r = CliRunner().invoke(app, args)
+        said_now = " ".join(r.output.split())
+        assert r.exit_code == 2 and said in said_now and "Input should be" not in said_now, (args, r.output)
+    r = CliRunner().invoke(app, ["runs", "--older-than", "1.5", "--runs-dir", str(tmp_path / "none")])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(app, ["status", "--help"])
+    assert "0.1<=x<=3600" in " ".join(r.output.split()), r.output  # the range is still in the help
