@@ -561,6 +561,8 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
         return from_dict(annotation, value, where)
     if annotation is float:
         value = yaml12_number(value)  # PyYAML (YAML 1.1) reads 1e-8, with no dot, as a string
+        if isinstance(value, str) and value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
+            raise ConfigError(f"{where}: must be finite, got {value.strip()}")  # YAML's .nan is a float, its nan text: one answer
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
         if not math.isfinite(float(value)):

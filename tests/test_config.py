@@ -109,9 +109,11 @@ def test_exponent_numbers_without_a_dot_are_numbers(tmp_path: Path):
     f.write_text("masks: {beta_far_m: 2e0, alpha3_m: 15E-1}\n")
     cfg = from_dict(ExplorationConfig, load_yaml(f))
     assert cfg.masks.beta_far_m == 2.0 and cfg.masks.alpha3_m == 1.5
-    for bad in ("1e", "e5", "2.0m", "nan"):
+    for bad in ("1e", "e5", "2.0m"):
         with pytest.raises(ConfigError, match="expected a number"):
             from_dict(ExplorationConfig, {"masks": {"beta_far_m": bad}})
+    with pytest.raises(ConfigError, match="must be finite, got nan"):  # refused too, as .nan is
+        from_dict(ExplorationConfig, {"masks": {"beta_far_m": "nan"}})
 
 
 def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path: Path):
@@ -1586,3 +1588,15 @@ def test_the_hint_of_a_set_read_as_another_type_reads_a_nested_keys_type_and_is_
 
     refuse_a_setting_read_as_another_type({"inner.name": 1}, types, refuses)  # the text refused too: no hint (its own error follows)
     refuse_a_setting_read_as_another_type({"inner.name": "1", "inner.count": 2, "inner": {"name": 1}}, types)  # text, a number's own field, a section: none
+
+
+def test_a_nan_or_inf_written_as_most_tools_write_it_is_said_to_be_not_finite():
+    """``--set planner.lookahead_m=nan`` (YAML reads ``nan`` as text: its own spelling is ``.nan``) said "expected a
+    number, got 'nan'", where ``.nan`` says "must be finite": one value, one answer, whichever way it is written."""
+    import yaml
+
+    for text in ("nan", "NaN", "inf", "-inf", "+Infinity", ".nan", ".inf"):
+        with pytest.raises(ConfigError, match=re.escape("planner.lookahead_m: must be finite")):
+            from_dict(ExplorationConfig, {"planner": {"lookahead_m": yaml.safe_load(text)}})
+    with pytest.raises(ConfigError, match=re.escape("planner.lookahead_m: expected a number, got 'far'")):
+        from_dict(ExplorationConfig, {"planner": {"lookahead_m": "far"}})
