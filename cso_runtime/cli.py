@@ -12,7 +12,7 @@ try:
     from collections.abc import Callable, Iterator, Mapping
     from contextlib import contextmanager
     from pathlib import Path
-    from typing import TYPE_CHECKING, NoReturn, overload
+    from typing import TYPE_CHECKING, Any, NoReturn, overload
 
     import typer
 
@@ -121,6 +121,26 @@ def _fail(message: str, code: int) -> NoReturn:
     """Say what is wrong on stderr in one line (``error: ...``) and exit with ``code`` (docs/commands.md's exit codes)."""
     typer.echo(f"error: {message}", err=True)
     raise typer.Exit(code) from None
+
+
+def _bounded(low: float, high: float | None = None) -> dict[str, Any]:
+    """A number flag's ``min``/``max`` (shown in its help, ``0.1<=x<=3600``) with a parser that holds it to them and says
+    so itself: typer's own check told ``--period nan`` "Input should be less than or equal to 3600", untrue of nan.
+    ``typer.Option(1.0, "--period", **_bounded(0.1, 3600.0))``."""
+    import math  # noqa: PLC0415
+
+    within = f"from {low:g} to {high:g}" if high is not None else f">= {low:g}"
+
+    def parse(given: object) -> float:
+        try:
+            value = float(given)  # type: ignore[arg-type]  # the text typed, or the default
+        except (TypeError, ValueError):
+            value = math.nan
+        if math.isnan(value) or value < low or (high is not None and value > high):
+            raise typer.BadParameter(f"must be a number {within}, got {given}")
+        return value
+
+    return {"min": low, "max": high, "parser": parse}
 
 
 STOPPING_NOTE = "stopping: writing what finished; signal once more to stop at once"
@@ -378,6 +398,7 @@ def compare_command(
         TOO_FEW_SCENES,
         as_dicts,
         compare_to_baseline,
+        episodes_by_method,
         labelled,
         markdown_table,
         mixed_setups_said,
@@ -403,8 +424,15 @@ def compare_command(
         if unmatched := [name for name in split_names(exclude) if name not in held]:
             typer.echo(f"note: --exclude {', '.join(unmatched)}: no such map in these files; nothing left out for it", err=True)
     methods = sorted({method for method, _ in table})
-    if methods and baseline not in methods:  # a typo in --baseline, not "too few scenes"
-        _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(methods)}", 2)
+    if methods and baseline not in methods:
+        counts = episodes_by_method(files, rename or [])
+        if baseline not in counts:  # a typo in --baseline, not "too few scenes"
+            _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(sorted(counts))}", 2)
+        # It has episodes, none comparable: said so, not "no episodes" (exit 1, as too few scenes)
+        left = episodes_by_method(files, rename or [], exclude or []).get(baseline, 0)
+        why = (f"its {counts[baseline]} in these files are all on maps --exclude leaves out" if not left
+               else f"none of its {left} in these files has an m2/step (an episode of no step has none)")
+        _fail(f"--baseline {baseline!r} has no episode to compare: {why}", 1)
     comparisons = compare_to_baseline(table, baseline)
     if out is not None:
         try:
@@ -453,14 +481,21 @@ def report_command(
 def _run_without_results(run_dir: Path) -> str:
     """Why a run folder has no summary.json for ``report``, as ``runs`` lists its state: ``report`` said "not an `eval
     --out` folder or a run folder?" of a run stopped before its episode ended (Ctrl-C, ``down``), which writes none."""
+    from cso_runtime.current_run import LAUNCHER_DIED  # noqa: PLC0415
     from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415
-    from cso_runtime.runs import summarize_run  # noqa: PLC0415
+    from cso_runtime.runs import UNKNOWN_RUN_STATE, summarize_run  # noqa: PLC0415
 
-    state = summarize_run(run_dir).state
+    run = summarize_run(run_dir)
+    state = run.state
     if state in ("starting", "running"):
         return f"run {run_dir.name} is {state}: its results are written when its episode ends"
     kept = f" (its map so far: {run_dir / LAST_MAP})" if (run_dir / LAST_MAP).is_file() else ""
-    return f"run {run_dir.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as {state}){kept}"
+    if state == UNKNOWN_RUN_STATE:
+        return f"run {run_dir.name} has no results; {run.reason}{kept}"
+    if state in ("interrupted", "stopped", LAUNCHER_DIED):
+        return f"run {run_dir.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as {state}){kept}"
+    # failed (results that could not be written, a service given up on), or done and its summary.json since removed
+    return f"run {run_dir.name} has no results (`runs` lists it as {state}); its launcher's log says why: `cso-runtime logs launcher --run {run_dir}`{kept}"
 
 
 def _read_grids_of_any_run() -> None:
@@ -498,6 +533,7 @@ def record_command(
         _fail(f"--robot: {exc}", 2)
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
+    _endpoints_or_exit(endpoints, zenoh_config_file)
     if robot is None and connect:  # the one robot there, not r0 whatever answers
         try:
             run_robot = robot_at_endpoint(endpoints, zenoh_config_file, wildcard_too=True)
@@ -552,6 +588,7 @@ def replay_command(
     endpoints, _, zenoh_config_file = RunTarget(list(connect), None, None) if connect else endpoints_from_run_file(runs_dir)
     if not endpoints:
         _fail("no current run; give --connect ENDPOINT", 2)
+    _endpoints_or_exit(endpoints, zenoh_config_file)
     by_key = {key: name for name, key in TOPICS.items()}  # planner/feedback, as docs/messages.md and `dataflow` name it
     wanted = [by_key.get(t.strip(), t.strip()) for t in topics.split(",") if t.strip()] if topics else None
     unknown = [t for t in wanted or [] if t not in TOPICS]  # a typo would replay nothing, silently
@@ -581,6 +618,18 @@ def replay_command(
         typer.echo(f"  published as the current version, recorded in an older one: {', '.join(f'{k} {n}' for k, n in sorted(stats.upgraded.items()))}")
     if stats.unreadable:
         typer.echo(f"  published as recorded, not readable by this build: {', '.join(f'{k} {n}' for k, n in sorted(stats.unreadable.items()))}")
+
+
+def _endpoints_or_exit(endpoints: list[str], zenoh_config_file: str | None) -> None:
+    """Exit 2 saying why where ``endpoints`` cannot name a router (``notanendpoint``, a port out of range): a usage
+    error before anything is made, as ``status`` says it, not "no Zenoh session" (exit 3) once a session fails to open."""
+    from cso_runtime.status import client_transport  # noqa: PLC0415
+    from cso_runtime.transport import TransportError  # noqa: PLC0415
+
+    try:
+        client_transport(endpoints, zenoh_config_file).validate()
+    except TransportError as exc:
+        _fail(str(exc), 2)
 
 
 @contextmanager
@@ -878,6 +927,7 @@ def up_command(
             if dry_run or resolved:
                 from cso_runtime.config import commented_yaml  # noqa: PLC0415
 
+                _up_folders_or_exit(record_out, runs_dir, make=False)  # `up` would refuse them: not "valid", nothing made
                 outside = prof.left_out_services()
                 left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
                 comments = [f"profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}"]
@@ -905,12 +955,7 @@ def up_command(
     except StopRequested:
         _fail("interrupted (`cso-runtime down`, Ctrl-C or a signal) while checking the profile: no run was started", EXIT_INTERRUPTED)
     recording: bool | Path = record if record_out is None else Path(record_out)
-    if record_out is not None:
-        if names_a_folder(record_out):  # made now, so that the launcher puts <run-id>.mcap inside it
-            output_dir_or_exit(Path(record_out), f"--record-out {record_out}")
-        else:
-            output_dir_or_exit(Path(record_out).parent, f"--record-out {record_out}: its folder")
-    output_dir_or_exit(runs_dir, "--runs-dir")  # before the router and the services start
+    _up_folders_or_exit(record_out, runs_dir)  # before the router and the services start
     if stop.is_set():
         _fail("interrupted; no run was started", EXIT_INTERRUPTED)
     if detach:
@@ -938,7 +983,7 @@ def _fixed_simulator_settings_said(prof: Profile) -> list[str]:
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends (a detached run: its episode)"),
-    period_s: float = typer.Option(1.0, "--period", min=0.1, max=3600.0, help="Seconds between two --watch refreshes (0.1 to 3600)"),
+    period_s: float = typer.Option(1.0, "--period", **_bounded(0.1, 3600.0), help="Seconds between two --watch refreshes (0.1 to 3600)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
@@ -996,7 +1041,7 @@ def resume_command(
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
     timeout: float | None = typer.Option(
-        None, "--timeout-s", min=0.0,  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
+        None, "--timeout-s", **_bounded(0.0),  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
         help="How long the launcher may take to stop its services and write its results before escalating \\[default: three times the run's supervision.stop_timeout_s, plus 10 s]",
     ),
 ) -> None:
@@ -1016,7 +1061,7 @@ def router_command(
     ),
     connect: list[str] | None = typer.Option(None, "--connect", help="Another router to join, repeatable (a robot's zenoh-bridge-ros2dds: tcp/ROBOT_IP:7447)"),
     connect_timeout_s: float | None = typer.Option(
-        None, "--connect-timeout-s", min=0.001, help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
+        None, "--connect-timeout-s", **_bounded(0.001), help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
     ),
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="Zenoh config file (JSON5) the router starts from: user/password, TLS, access control"),
     as_json: bool = typer.Option(False, "--json", help="Print the endpoints it listens on as one line of JSON"),
@@ -1079,7 +1124,7 @@ def runs_command(
     limit: int = typer.Option(20, "--limit", min=1, help="Show the newest N runs"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     keep: int | None = typer.Option(None, "--keep", min=0, help="Prune: the runs beyond the newest N (listed; --yes deletes them)"),
-    older_than: float | None = typer.Option(None, "--older-than", min=0, help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
+    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
     yes: bool = typer.Option(False, "--yes", help="Delete the runs --keep/--older-than select (never the current or a running one)"),
 ) -> None:
     """List the runs `up` left in --runs-dir: state, scene, method and the episode's Table 1 row; or prune old ones."""
@@ -1120,7 +1165,8 @@ def runs_command(
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         steps = f"{r['stopped_at_step']} (stopped)" if r["steps"] is None and r["stopped_at_step"] is not None else num(r["steps"], ".0f")
         table.add_row(
-            escape(f"{r['run_id']}\n  {REAL_ROBOT_SCENE if r['real_robot'] else r['scene']}, {r['method']}"), state, took, steps,
+            escape(r["run_id"] + "".join(f"\n  {known}" for known in [", ".join(filter(None, (REAL_ROBOT_SCENE if r["real_robot"] else r["scene"], r["method"])))] if known)),
+            state, took, steps,
             num(r["coverage_pct"], ".1f") if r["coverage_measured"] else NO_COVERAGE, num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
     table_console().print(table)
@@ -1170,6 +1216,7 @@ def logs_command(
 ) -> None:
     """A run's service logs merged in time order, each line after its service's name (like `docker compose logs`)."""
     from cso_runtime.runs import (  # noqa: PLC0415
+        LOG_DIR,
         RunError,
         await_service_logs,
         follow_logs,
@@ -1193,6 +1240,8 @@ def logs_command(
     except KeyboardInterrupt:
         raise typer.Exit(0) from None
     live = logs_grow(run_dir)
+    if not files and not (follow and live):  # said, not an empty output and exit 0 (a run that is starting: followed)
+        _fail(f"run {run_dir.name} has no log: {run_dir / LOG_DIR}/ holds no .log file", 1)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
 
@@ -1394,7 +1443,7 @@ def collect_teacher_command(
     teacher: str | None = typer.Option(None, "--teacher", help="greedy-dist, utility, greedy-info or rollout (default: rollout, or --set warm_start_teacher's)"),
     workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
     decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
-    time_limit: float = typer.Option(0.0, "--time-limit-s", min=0.0, help="Each worker stops after this wall time (0 = none)"),
+    time_limit: float = typer.Option(0.0, "--time-limit-s", **_bounded(0.0), help="Each worker stops after this wall time (0 = none)"),
     seed: int | None = typer.Option(None, "--seed", help="Worker i uses seed + i"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
@@ -1433,14 +1482,28 @@ def collect_teacher_command(
     typer.echo(f"done: {len(collected)} {args.warm_start_teacher} decisions in {time.time() - t0:.0f} s -> {out}")
 
 
-def output_dir_or_exit(path: Path | str, label: str) -> None:
-    """Make the folder a long command will write to before it starts, or exit 2 saying why."""
-    from cso_runtime.config import ConfigError, make_output_dir  # noqa: PLC0415
+def output_dir_or_exit(path: Path | str, label: str, make: bool = True) -> None:
+    """Make the folder a long command will write to before it starts, or exit 2 saying why. ``make`` False: only
+    check that it could be made and written in (a dry run), making nothing."""
+    from cso_runtime.config import ConfigError, check_output_dir, make_output_dir  # noqa: PLC0415
 
     try:
-        make_output_dir(path, label)
+        (make_output_dir if make else check_output_dir)(path, label)
     except ConfigError as exc:
         _fail(str(exc), 2)
+
+
+def _up_folders_or_exit(record_out: str | None, runs_dir: Path, make: bool = True) -> None:
+    """The folders ``up`` writes in, made (``make`` False: checked, as ``up --dry-run`` does) or exit 2 saying why:
+    ``--record-out``'s (a folder, where the launcher puts <run-id>.mcap, or a file's folder) and ``--runs-dir``."""
+    from cso_runtime.recording import names_a_folder  # noqa: PLC0415
+
+    if record_out is not None:
+        if names_a_folder(record_out):
+            output_dir_or_exit(Path(record_out), "--record-out", make)
+        else:
+            output_dir_or_exit(Path(record_out).parent, f"--record-out {record_out}: its folder", make)
+    output_dir_or_exit(runs_dir, "--runs-dir", make)
 
 
 def training_args(config: Path | None, overrides: Mapping[str, object], settings: list[str] | None) -> Args:
@@ -1631,7 +1694,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
     """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``)."""
     import yaml  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, one_line  # noqa: PLC0415
 
     out: dict[str, object] = {}
     for item in items:
@@ -1641,7 +1704,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
         try:
             out[key.strip()] = yaml.safe_load(value)
         except yaml.YAMLError as exc:
-            raise ConfigError(f"--set {key}: {exc}") from None
+            raise ConfigError(f"--set {item}: not valid YAML: {one_line(str(exc))}") from None
     return out
 
 

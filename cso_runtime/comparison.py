@@ -348,6 +348,21 @@ def pooled_episodes(files: Sequence[tuple[str, Path]], exclude: Iterable[str], r
     return table, replaced
 
 
+def episodes_by_method(files: Sequence[tuple[str, Path]], renames: Iterable[str], exclude: Iterable[str] = ()) -> dict[str, int]:
+    """How many episodes (rows) each method has in ``files`` (as ``pooled_episodes`` read them, the ``--rename``
+    arguments applied), whatever their efficiency, without those on the maps of ``exclude``: what ``compare`` says of
+    a baseline that has episodes but none it can compare. Files ``pooled_episodes`` has read."""
+    excluded = set(split_names(exclude))
+    parsed = [parse_rename(arg) for arg in renames]
+    counts: dict[str, int] = defaultdict(int)
+    for label, path in files:
+        with Path(path).open(newline="", encoding="utf-8") as fh:
+            rows = [row for row in whole_rows(csv.DictReader(fh)) if row["map"] not in excluded]
+        for row in renamed_methods(rows, [r for r in parsed if r.applies_to(label, path)]):
+            counts[row["method"]] += 1
+    return dict(counts)
+
+
 def renamed_methods(rows: list[dict[str, str]], renames: Sequence[Rename]) -> list[dict[str, str]]:
     """One file's ``episodes.csv`` rows with each renamed method under its new name (ValueError for a method the
     rows lack, or a new name that is another of their methods: two methods' episodes would mix)."""

@@ -547,6 +547,12 @@ _YAML11_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
 """A number in exponent notation, which YAML 1.2 reads as a float and PyYAML's YAML 1.1 as a string."""
 
 
+def yaml12_number(value: Any) -> Any:
+    """``value`` as YAML 1.2 (and map_server's yaml-cpp) reads it: a text in exponent notation without a dot (``1e-8``,
+    ``5e-2``), which PyYAML's YAML 1.1 leaves as text, as its float; any other value as it is."""
+    return float(value) if isinstance(value, str) and _YAML11_EXPONENT.fullmatch(value.strip()) else value
+
+
 def _convert(value: Any, annotation: Any, where: str) -> Any:
     origin = typing.get_origin(annotation)
     if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
@@ -554,8 +560,9 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
             raise ConfigError(f"{where}: expected a mapping, got {type(value).__name__}")
         return from_dict(annotation, value, where)
     if annotation is float:
-        if isinstance(value, str) and _YAML11_EXPONENT.fullmatch(value.strip()):
-            value = float(value)  # PyYAML (YAML 1.1) reads 1e-8, with no dot, as a string
+        value = yaml12_number(value)  # PyYAML (YAML 1.1) reads 1e-8, with no dot, as a string
+        if isinstance(value, str) and value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
+            raise ConfigError(f"{where}: must be finite, got {value.strip()}")  # YAML's .nan is a float, its nan text: one answer
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
         if not math.isfinite(float(value)):
@@ -985,10 +992,17 @@ def read_as_another_type(flag: str, value: Any, name: str, meant: Any, given_by:
     return f"{flag} is read as {_kind(value)}, and {name} is {_kind(meant)}{by}: write {set_flag_text(name, meant)}{alone}"
 
 
-def refuse_a_setting_read_as_another_type(settings: typing.Mapping[str, Any], types: typing.Mapping[str, Any]) -> None:
-    """A ConfigError for a ``--set`` of a text field (``types``, by key) whose value YAML reads as another type and whose
-    text the field takes: ``up --set robot=1`` (the number 1, where a robot id is text) says how to write it
-    (``--set robot='1'``, ``read_as_another_type``), as with ``--robot 1`` beside it, not only the field's type error."""
+def refuse_a_setting_read_as_another_type(
+    settings: typing.Mapping[str, Any], types: typing.Mapping[str, Any], takes: typing.Callable[[dict[str, Any]], object] | None = None
+) -> None:
+    """A ConfigError for a ``--set`` of a text field (``types``, by dotted key: ``field_types``) whose value YAML reads as
+    another type and whose text the field takes: ``up --set robot=1`` (the number 1, where a robot id is text) says how
+    to write it (``--set robot='1'``, ``read_as_another_type``), as with ``--robot 1`` beside it, not only the field's
+    type error; so does a key of a section (``--set router.zenoh_config=2024``, ``services.NAME.KEY``). ``takes``: the
+    whole configuration built with the given ``--set`` pairs, raising a ConfigError where it is refused; given, the
+    hint is said only where the configuration with those values as text is taken (``--set method=1``: ``'1'`` is no
+    method either, so the value's own error is said, not a hint that would fail in turn)."""
+    texts: dict[str, str] = {}
     for key, value in settings.items():
         annotation = types.get(key)
         if annotation is None or not text_field(annotation) or isinstance(value, (str, dict, list)):
@@ -1003,7 +1017,29 @@ def refuse_a_setting_read_as_another_type(settings: typing.Mapping[str, Any], ty
             field_value(text, annotation, key)
         except ConfigError:
             continue  # its own type error says what is wrong
-        raise ConfigError(read_as_another_type(set_flag_text(key, value), value, key, text))
+        texts[key] = text
+    if not texts:
+        return
+    if takes is not None:
+        try:
+            takes({key: texts.get(key, value) for key, value in settings.items()})
+        except ConfigError:
+            return  # the text is refused too: the value's own error says what is wrong
+    raise ConfigError("; ".join(read_as_another_type(set_flag_text(key, settings[key]), settings[key], key, text) for key, text in texts.items()))
+
+
+def field_types(cls: type, path: str = "") -> dict[str, Any]:
+    """The type of each field of config dataclass ``cls`` by dotted key (``path``: its own, ``""`` at the top), those of
+    each field that is a dataclass too, and so on down (``router.zenoh_config``, ``planner.body``): what
+    ``refuse_a_setting_read_as_another_type`` reads a ``--set`` key's type from."""
+    hints = typing.get_type_hints(cls)
+    found: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        key = f"{path}.{f.name}" if path else f.name
+        found[key] = hints[f.name]
+        if isinstance(hints[f.name], type) and dataclasses.is_dataclass(hints[f.name]):
+            found.update(field_types(hints[f.name], key))
+    return found
 
 
 @dataclass(frozen=True)
@@ -1139,6 +1175,12 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+def one_line(text: str) -> str:
+    """``text`` on one line, its runs of spaces and line breaks one space: a YAML error (three lines or more, a caret
+    drawing among them) as every error of the CLI is said, in one line."""
+    return " ".join(text.split())
+
+
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping, with a clear error for a missing or malformed file or a key given twice."""
     p = Path(path)
@@ -1148,7 +1190,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
         with p.open(encoding="utf-8") as stream:  # a file stream, so YAML's message names the file, not "<unicode string>"
             data = yaml.load(stream, Loader=_UniqueKeyLoader)
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: not valid YAML: {exc}") from None
+        raise ConfigError(f"{p}: not valid YAML: {one_line(str(exc))}") from None
     if data is None:
         return {}
     if not isinstance(data, dict):

@@ -60,10 +60,12 @@ from cso_runtime.config import (
     check_output_dir,
     check_seed,
     commented_yaml,
+    field_types,
     from_dict_with_hints,
     load_yaml,
     make_output_dir,
     refuse_a_flag_and_a_setting_that_disagree,
+    refuse_a_setting_read_as_another_type,
     set_dotted,
     set_flag_text,
     to_dict,
@@ -211,6 +213,12 @@ class EvalRequest:
         if self.max_steps is not None:  # --max-steps over the file's episode.max_steps, but never over --set's other value
             flag = {"episode.max_steps": (f"--max-steps {self.max_steps}", self.max_steps)}
             refuse_a_flag_and_a_setting_that_disagree(flag, self.settings, {"episode.max_steps": int})
+        if self.settings:  # `--set planner.KEY=1` of a text key: how to write it, where the config takes it as text
+
+            def takes(texts: dict[str, Any]) -> object:  # the config with those values as text (no hint again)
+                return dataclasses.replace(self, settings=texts).exploration_config()
+
+            refuse_a_setting_read_as_another_type(self.settings, field_types(ExplorationConfig), takes)
         data: dict[str, Any] = load_yaml(self.config_path) if self.config_path else {}
         for key, value in self.settings.items():
             set_dotted(data, key, value)

@@ -1544,7 +1544,7 @@ class Launcher:
         if self.status is None or self.status.state == "starting":
             return
         try:
-            msg, why, map_origin = newest_map(session, self.profile.robot, timeout_s=1.0)
+            msg, why, map_origin = newest_map(session, self.profile.robot, timeout_s=1.0, run_dir=self.run_dir)
         except zenoh.ZError as exc:  # the session closing under it: no map, said
             msg, why, map_origin = None, str(exc), None
         if msg is None:

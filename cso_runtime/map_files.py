@@ -23,6 +23,7 @@ import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
+from cso_runtime.config import yaml12_number
 from cso_runtime.geometry import GridGeometry, Pose2D, rounded_pose
 from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN
 from cso_runtime.outputs import write_text_atomic, write_whole
@@ -270,6 +271,9 @@ def _warn_unknown_grey_read_free(yaml_path: Path, free_thresh: float, read_free_
 
 
 def _number(v: object, path: Path, key: str) -> float:
+    """A number of the map's YAML, as map_server reads it (``5e-2`` too: ``config.yaml12_number``), or a MapFileError."""
+    v = yaml12_number(v)
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise MapFileError(f"{path}: {key} must be finite numbers, got {v!r}")
+        what = "three finite numbers [x_m, y_m, yaw_rad]" if key == "origin" else "a finite number"
+        raise MapFileError(f"{path}: {key} must be {what}, got {v!r}")
     return float(v)

@@ -23,6 +23,7 @@ from cso_runtime.config import (
     ExplorationConfig,
     check_bounds,
     check_seed,
+    field_types,
     field_value,
     from_dict,
     key_sections,
@@ -454,6 +455,19 @@ def profile_exploration_config(exploration: Any, services: Any, where: str = "ex
     return config
 
 
+def profile_field_types() -> dict[str, Any]:
+    """The type of each key of a profile by dotted key (``robot``, ``router.zenoh_config``, ``exploration.planner.body``,
+    ``services.foxglove_bridge.mcap_path``): ``config.field_types`` of ``Profile``, of ``ExplorationConfig`` under
+    ``exploration`` and of each built-in service's ``Params`` under ``services.NAME``."""
+    from services import SERVICE_NAMES, params_class  # noqa: PLC0415 - services import zenoh
+
+    types = {**field_types(Profile), **field_types(ExplorationConfig, "exploration")}
+    for name in SERVICE_NAMES:
+        if (cls := params_class(name)) is not None:
+            types.update(field_types(cls, f"services.{name}"))
+    return types
+
+
 def profile_key_sections(mujoco: bool = True) -> dict[str, set[str]]:
     """Each mapping of a profile that takes a fixed set of keys (``""`` for the top level, ``exploration.planner``,
     ``services.sim.mujoco``...) -> those keys: its dataclass's fields, a built-in service's ``Params``. ``mujoco``: with
@@ -565,10 +579,15 @@ def load_profile(
         flag_keys["services.ros2_bridge.namespace"] = (f"--namespace {namespace}", namespace)
     if zenoh_config is not None:
         flag_keys["router.zenoh_config"] = (f"--zenoh-config {zenoh_config}", zenoh_config)
-    hints = typing.get_type_hints(Profile)
+    types = profile_field_types()
     paths: dict[str, typing.Callable[[str], bool]] = {"scene": spec_names_a_path, "router.zenoh_config": bool}  # ./plans and plans: one folder
-    refuse_a_flag_and_a_setting_that_disagree(flag_keys, settings or {}, {k: hints.get(k, str) for k in flag_keys}, paths)
-    refuse_a_setting_read_as_another_type(settings or {}, hints)  # `--set robot=1` alone: the same hint as beside --robot 1
+    refuse_a_flag_and_a_setting_that_disagree(flag_keys, settings or {}, {k: types.get(k, str) for k in flag_keys}, paths)
+    if settings:  # `--set robot=1` alone: the same hint as beside --robot 1, a section's key too
+
+        def takes(texts: dict[str, Any]) -> object:  # the profile with those values as text (no hint again): the hint only where it is taken
+            return load_profile(name_or_path, overrides, connect, namespace, texts, foxglove, without, zenoh_config)
+
+        refuse_a_setting_read_as_another_type(settings, types, takes)
     data.update(given)
     for key, value in (settings or {}).items():
         set_dotted(data, key, value)
@@ -591,7 +610,12 @@ def load_profile(
     without = list(dict.fromkeys(without or []))  # repeated names: once
     if without:
         leave_out(data, without, path, foxglove)
-    set_zenoh_config(data, path, zenoh_config)
+    # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
+    flags = list(flag_of.values()) + [f"--connect {endpoint}" for endpoint in connect or []]
+    flags += [f"--namespace {namespace}"] * (namespace is not None) + [f"--zenoh-config {zenoh_config}"] * (zenoh_config is not None)
+    flags += [set_flag_text(k, v) for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
+    where = f"{path} with {' '.join(flags)}" if flags else str(path)
+    set_zenoh_config(data, path, zenoh_config, where)
     scene = data.get("scene")
     if isinstance(scene, str) and spec_names_a_path(scene):
         beside = path.parent / scene  # a file's own relative scene may also be beside the file (as in compose files)
@@ -605,28 +629,26 @@ def load_profile(
             "load; the robot explores the room it is in"
         )
     data.setdefault("name", path.stem)
-    # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
-    flags = list(flag_of.values())
-    flags += [set_flag_text(k, v) for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
-    where = f"{path} with {' '.join(flags)}" if flags else str(path)
     if (problem := misplaced_key(data)) is not None:
         raise ConfigError(f"{where}: {problem}")
     profile = from_dict(Profile, data, where=where)
     return profile, data
 
 
-def set_zenoh_config(data: dict[str, Any], path: Path, zenoh_config: str | None) -> None:
+def set_zenoh_config(data: dict[str, Any], path: Path, zenoh_config: str | None, where: str | None = None) -> None:
     """``router.zenoh_config`` of the profile mapping from ``zenoh_config`` (a flag), else the file's own (found
     beside the file, as a scene), else ``$CSO_ZENOH_CONFIG``; made absolute, so that the run's copy of the
-    profile, and the services started from another folder, find it."""
+    profile, and the services started from another folder, find it. ``where``: the profile and the flags that changed
+    it, as an error names them (``path``'s own name without)."""
+    where = where or str(path)
     router = data.get("router") or {}
     if not isinstance(router, dict):
-        raise ConfigError(f"{path}: router must be a mapping")
+        raise ConfigError(f"{where}: router must be a mapping")
     given = zenoh_config or router.get("zenoh_config") or os.environ.get(ZENOH_CONFIG_ENV, "")
     if not given:
         return
     if not isinstance(given, str):
-        raise ConfigError(f"{path}: router.zenoh_config must be a file path")
+        raise ConfigError(f"{where}: router.zenoh_config must be a file path (text), got {given!r}")
     beside = path.parent / given
     if zenoh_config is None and router.get("zenoh_config") and not Path(given).exists() and beside.exists():
         given = str(beside)

@@ -40,6 +40,11 @@ LOG_STAMP = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) ")
 """The ``logging`` default time stamp every service's log line starts with (``asctime``)."""
 
 
+UNKNOWN_RUN_STATE = "unknown"
+"""How ``runs`` lists a run whose run.json cannot be read (not JSON, not an object): neither how it ended nor whether it
+runs is known."""
+
+
 class RunError(ValueError):
     """No such run, or no run at all: the command says why and exits non-zero."""
 
@@ -54,7 +59,7 @@ class RunSummary:
     """``running`` (its launcher is alive; ``done``/``failed`` for a detached run that waits for ``down``),
     else how it ended: ``done``, ``failed``, ``interrupted`` (stopped before the episode ended) or
     ``launcher died`` (killed before it could stop its run) or ``stopped`` (a run file from before outcomes
-    were recorded)."""
+    were recorded); ``UNKNOWN_RUN_STATE`` where its run.json cannot be read (``reason`` says why)."""
     profile: str = ""
     robot: str = ""
     scene: str = ""
@@ -104,11 +109,24 @@ class RunSummary:
 
 def read_json_object(path: Path) -> dict[str, Any] | None:
     """A JSON object file (``run.json``, ``summary.json``), or None when it is missing, unreadable or not an object."""
+    return json_object_and_problem(path)[0]
+
+
+def json_object_and_problem(path: Path) -> tuple[dict[str, Any] | None, str]:
+    """``read_json_object`` and, where it is None, why, in words (``not JSON (Expecting value at line 1 column 1)``,
+    ``a JSON list, not an object``, ``No such file or directory``); "" where the object is read."""
     try:
         data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
+    except json.JSONDecodeError as exc:
+        return None, f"not JSON ({exc.msg} at line {exc.lineno} column {exc.colno})"
+    except OSError as exc:
+        return None, exc.strerror or str(exc)
+    except ValueError as exc:  # not UTF-8 text
+        return None, f"not JSON ({exc})"
+    if not isinstance(data, dict):
+        kind = {list: "list", str: "string", int: "number", float: "number", bool: "true/false", type(None): "null"}.get(type(data), type(data).__name__)
+        return None, f"a JSON {kind}, not an object"
+    return data, ""
 
 
 def run_dirs(runs_dir: Path) -> list[Path]:
@@ -122,7 +140,8 @@ def run_dirs(runs_dir: Path) -> list[Path]:
 def summarize_run(run_dir: Path) -> RunSummary:
     """A run folder as ``runs`` lists it, read from its run.json, profile.yaml and summary.json; a missing or broken
     file leaves its fields empty instead of failing the listing."""
-    info = read_json_object(run_dir / "run.json") or {}
+    read, unreadable = json_object_and_problem(run_dir / "run.json")
+    info = read or {}
     try:
         profile = yaml.safe_load((run_dir / "profile.yaml").read_text()) or {}
     except (OSError, yaml.YAMLError):
@@ -136,7 +155,9 @@ def summarize_run(run_dir: Path) -> RunSummary:
     methods = m if isinstance(m := summary.get("methods"), dict) else {}
     meta = m if isinstance(m := summary.get("meta"), dict) else {}
     method = str(profile.get("method", "")) or next(iter(methods), "")
-    if info and current_launcher_alive(info):
+    if unreadable:  # nothing known of how it ended, nor whether it runs: not "stopped", which it may not be
+        state = UNKNOWN_RUN_STATE
+    elif info and current_launcher_alive(info):
         state = str(info.get("state", "running"))
     elif info.get("reason") == STOPPED_BY_DOWN:  # `down` wrote its end for it (failed): the listing says why
         state = LAUNCHER_DIED
@@ -168,7 +189,7 @@ def summarize_run(run_dir: Path) -> RunSummary:
         metrics=dict(methods.get(method) or {}),
         restarts=sum(int(s.get("restarts") or 0) for s in services.values() if isinstance(s, dict)),
         duration_s=duration_s,
-        reason="" if info.get("reason") == STOPPED_BY_DOWN else str(info.get("reason") or ""),  # down's: the state says it
+        reason=f"its run.json cannot be read: {unreadable}" if unreadable else "" if info.get("reason") == STOPPED_BY_DOWN else str(info.get("reason") or ""),  # down's: the state says it
         stopped_at_step=None if methods.get(method) or state == "running" or not isinstance(last := info.get("last_step"), int) or isinstance(last, bool) else last,
     )
 

@@ -528,6 +528,14 @@ RUN_END_WAIT_S = 5.0
 launcher to write that the run stopped: it stops answering just before it writes ``run.json`` a last time."""
 
 
+def current_run_dir(runs_dir: Path) -> Path | None:
+    """The folder of the current run of ``runs_dir`` (its run file's ``run_dir``); None when there is none."""
+    from cso_runtime.current_run import read_current_run  # noqa: PLC0415
+
+    info = read_current_run(runs_dir)
+    return Path(info["run_dir"]) if info is not None and info.get("run_dir") else None
+
+
 def watched_run_dir(status: dict[str, Any], runs_dir: Path) -> Path | None:
     """The folder of the run that answered ``status``: the current run file's, when that file names the same run."""
     from cso_runtime.current_run import read_current_run  # noqa: PLC0415
@@ -804,20 +812,21 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
 
 
 def query_map(
-    connect: list[str], robot: str = "r0", timeout_s: float = 1.0, zenoh_config_file: str | None = None
+    connect: list[str], robot: str = "r0", timeout_s: float = 1.0, zenoh_config_file: str | None = None, run_dir: Path | None = None
 ) -> tuple[MapMsg | None, str, Pose2D]:
     """The newest map the running episode keeps, or None and why not (nothing answered, no map yet, or
     only malformed replies), and the scene's pose in the user's map frame (the episode status's ``map_origin``;
     the scene's frame itself when no status answers), which the map's files are placed by. ``zenoh_config_file``:
-    as ``RunTarget``'s (None: this process's)."""
+    as ``RunTarget``'s (None: this process's). ``run_dir``: the run's folder where it is known here (None: not known,
+    a run given by ``--connect``), whose final map the why of an ended episode names (``final_map_words``)."""
     session = _client_session(connect, zenoh_config_file)
     if session is None:
         return None, f"cannot reach {', '.join(connect)}", MAP_FRAME_ORIGIN
     with session:
-        return newest_map(session, robot, timeout_s)
+        return newest_map(session, robot, timeout_s, run_dir)
 
 
-def newest_map(session: zenoh.Session, robot: str, timeout_s: float = 1.0) -> tuple[MapMsg | None, str, Pose2D]:
+def newest_map(session: zenoh.Session, robot: str, timeout_s: float = 1.0, run_dir: Path | None = None) -> tuple[MapMsg | None, str, Pose2D]:
     """``query_map`` on a session already open (the launcher's own, keeping an interrupted episode's map)."""
     best: MapMsg | None = None
     map_origin = MAP_FRAME_ORIGIN
@@ -842,7 +851,7 @@ def newest_map(session: zenoh.Session, robot: str, timeout_s: float = 1.0) -> tu
         map_origin, episode = status.map_origin, status
     if best is not None:
         return best, "", map_origin
-    return None, malformed or no_map_yet_words(said, episode), map_origin
+    return None, malformed or no_map_yet_words(said, episode, run_dir), map_origin
 
 
 NO_MAP_YET = "the run has no map yet"
@@ -850,16 +859,41 @@ NO_MAP_YET = "the run has no map yet"
 later there may be one."""
 
 
-def no_map_yet_words(said: str, episode: EpisodeStatusMsg | None) -> str:
+def no_map_yet_words(said: str, episode: EpisodeStatusMsg | None, run_dir: Path | None = None) -> str:
     """Why there is no map to save, as a user reads it: the run's mapper has not published one yet (the episode's
     state and step, as its status answered), or no episode status answers either (its services still starting), or
-    the episode is over and its map is among the run's results;
-    ``said``, what the map's key answered, for those who debug."""
+    the episode is over and none will come (where its final map is, or that none was written: ``final_map_words`` of
+    ``run_dir``, the run's folder where it is known here); ``said``, what the map's key answered, for those who debug."""
     if episode is None:
         return f"{NO_MAP_YET}, and no episode status answers either: its services may still be starting ({said}; `cso-runtime status` says which state it is in)"
     if episode.state in EPISODE_OVER:  # none will come: not a moment too early (a mapper restarted after the end)
-        return f"no map answers, and none will come: the episode is {episode.state}, at step {episode.step}; its final map is among the run's results (`cso-runtime runs`; {said})"
+        return f"no map answers, and none will come: the episode is {episode.state}, at step {episode.step}; {final_map_words(run_dir, episode)} ({said})"
     return f"{NO_MAP_YET}: its mapper has not published one (the episode is {episode.state}, at step {episode.step}; {said})"
+
+
+def final_map_words(run_dir: Path | None, episode: EpisodeStatusMsg) -> str:
+    """Where the final map of an ended episode is, as its run's folder ``run_dir`` holds it: its file (``maps/``), or
+    that none was written and why (results without one: an episode whose mapper published no map; no results: not
+    written yet, or they could not be, the run's map at its stop where it kept one) and where to read more. Of a run
+    whose folder is not known here (None: given by ``--connect``, maybe another host's), where to look there. It said
+    "its final map is among the run's results" of every run, of those that wrote none too."""
+    from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415 - the launcher's module imports this one
+    from cso_runtime.outputs import episode_map_path  # noqa: PLC0415
+
+    if run_dir is None:
+        return "its final map, where the run wrote one, is in maps/ of the run's folder on the host that runs it (`cso-runtime runs` there lists it)"
+    if episode.method and episode.scene:
+        final: Path | None = episode_map_path(run_dir, episode.method, episode.scene)
+    else:  # an older referee's status names neither: the one map of the run's results, if any
+        final = next(iter(sorted((run_dir / "maps").glob("*/*.yaml"))), None)
+    if final is not None and final.is_file():
+        return f"its final map is {final} (its image beside it)"
+    if (run_dir / "summary.json").is_file():
+        missing = f"{final} is not there: " if final is not None else ""
+        return f"no final map was written: the run's results in {run_dir}/ have none ({missing}an episode whose mapper published no map ends with none)"
+    if (run_dir / LAST_MAP).is_file():
+        return f"the run has not written its results; its map at the run's stop is {run_dir / LAST_MAP}"
+    return f"no final map is written: the run has not written its results in {run_dir}/ (yet, or they could not be written: `cso-runtime logs --run {run_dir}` says which)"
 
 
 def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_format: str, runs_dir: Path) -> int:
@@ -871,10 +905,11 @@ def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_
     target = reachable_target(connect, robot, runs_dir)
     if isinstance(target, int):
         return target
+    run_dir = None if connect else current_run_dir(runs_dir)  # the run asked is the current one: its folder is here
     connect, robot, zenoh_config_file = target
     assert robot is not None  # reachable_target always names the robot
     try:
-        msg, why, map_origin = query_map(connect, robot, zenoh_config_file=zenoh_config_file)
+        msg, why, map_origin = query_map(connect, robot, zenoh_config_file=zenoh_config_file, run_dir=run_dir)
     except TransportError as exc:
         msg, why, map_origin = None, str(exc), MAP_FRAME_ORIGIN
     if msg is None:

@@ -366,6 +366,39 @@ def test_a_set_alone_read_as_a_number_where_the_field_is_text_says_how_to_write_
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_set_of_a_nested_key_read_as_a_number_where_the_field_is_text_says_how_to_write_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """The hint of ``up --set robot=1`` (``config.read_as_another_type``) was given for top-level keys alone: ``--set
+    services.foxglove_bridge.mcap_path=2024`` (a file named 2024) said only "expected a string, got 2024", and
+    ``--set router.zenoh_config=2024`` blamed the profile file ("sim.yaml: router.zenoh_config must be a file path").
+    A key of a service (``services.NAME.``), of a section (``router.``) or of the exploration (``exploration.planner.``,
+    eval's ``planner.``) gets it too, and the hint is given only where the text it suggests is taken (``--set
+    method=1`` suggested ``method='1'``, an unknown method; ``planner.body`` takes disc or box alone): otherwise the
+    value's own error, naming the flag."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    up = ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run"]
+    for key in ("services.foxglove_bridge.mcap_path", "services.foxglove_bridge.map_frame"):
+        r = CliRunner().invoke(app, [*up, "--foxglove", "--set", f"{key}=2024"])
+        said = " ".join(r.stderr.split())
+        assert r.exit_code == 2 and f"--set {key}=2024 is read as a number, and {key} is text: write --set {key}='2024'" in said, (key, r.output)
+        r = CliRunner().invoke(app, [*up, "--foxglove", "--set", f"{key}='2024'"])
+        assert r.exit_code == 0 and f"{key.rpartition('.')[2]}: '2024'" in r.output, (key, r.output)
+    # A Zenoh config file is named with its extension: 2024 is no file path as text either, so no hint; the flag is named, not the profile.
+    (tmp_path / "2024").write_text("{}\n")
+    r = CliRunner().invoke(app, [*up, "--set", "router.zenoh_config=2024"])
+    said = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and "write --set" not in said and "with --set router.zenoh_config=2024: router.zenoh_config must be a file path (text), got 2024" in said, r.output
+    for given in (["--set", "method=1"], ["--set", "exploration.planner.body=1"]):  # a text that is refused too: no hint
+        r = CliRunner().invoke(app, [*up, *given])
+        said = " ".join(r.stderr.split())
+        assert r.exit_code == 2 and "write --set" not in said and f"with --set {given[-1]}" in said, (given, r.output)
+    r = CliRunner().invoke(app, ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--dry-run", "--set", "planner.body=1"])
+    said = " ".join(r.stderr.split())
+    assert r.exit_code == 2 and "write --set" not in said and "planner.body: expected a string, got 1" in said, r.output
+    assert not (tmp_path / "runs").exists()
+
+
 def test_one_path_written_two_ways_is_one_value(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
     """``up --scene ./plans --set scene=plans`` and ``up --zenoh-config ./z.json5 --set router.zenoh_config=$PWD/z.json5``
     were refused as "different values": one path, written two ways. A path-valued field's values are compared as the
@@ -408,3 +441,78 @@ def test_one_path_written_two_ways_is_one_value(tmp_path: Path, train_runs: list
     assert code == 2 and "--out runs/a and --set out_dir=../runs/a both set out_dir, to different values" in out, out
     code, out = train(tmp_path, "--init-from", "shipped", "--set", "init_from=./shipped")  # the shipped weights, or a file named shipped
     assert code == 2 and "--init-from shipped and --set init_from=./shipped both set init_from, to different values" in out, out
+
+
+def test_a_set_value_that_is_not_yaml_is_said_in_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``--set "a=[1"`` printed YAML's own error over eight lines (its caret drawing included), where every other error
+    of the CLI is one line (docs/commands.md); so did a config file that is not YAML, over three."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run", "--set", "exploration=[1"])
+    assert r.exit_code == 2 and r.stderr.startswith("error: --set exploration=[1: not valid YAML: while parsing a flow sequence") and r.stderr.count("\n") == 1, r.stderr
+    (tmp_path / "bad.yaml").write_text("a: [1, 2\n")
+    r = CliRunner().invoke(app, ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--dry-run", "--config", "bad.yaml"])
+    assert r.exit_code == 2 and r.stderr.startswith("error: bad.yaml: not valid YAML") and r.stderr.count("\n") == 1, r.stderr
+    assert not (tmp_path / "runs").exists()
+
+
+def test_an_error_of_a_value_up_was_given_by_a_flag_names_the_flag_not_the_profile_alone(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``up --connect notanendpoint`` said "sim.yaml: router: bad zenoh endpoint ...", and ``up --zenoh-config
+    nosuch.json5`` "sim.yaml: router: zenoh config ...: No such file": the profile file blamed for a flag's value. The
+    error names the flags that changed the profile, as it does those of ``--set``, ``--scene`` and ``--without``."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    up = ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run"]
+    for given in (["--connect", "notanendpoint"], ["--zenoh-config", "nosuch.json5"]):
+        r = CliRunner().invoke(app, [*up, *given])
+        said = " ".join(r.stderr.split())
+        assert r.exit_code == 2 and f"sim.yaml with {' '.join(given)}: router: " in said, (given, said)
+    assert not (tmp_path / "runs").exists()
+
+
+def test_up_dry_run_checks_the_folders_up_would_write_in(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``up --dry-run --runs-dir FILE`` (or a ``--record-out`` whose folder cannot be made) said "valid: `up` would start
+    sim, mapper, ..." and exited 0, where ``up`` refuses them (exit 2) before anything starts. The dry run checks them
+    in the same words, as ``eval --dry-run`` checks ``--out``, and makes nothing."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("")
+    for given, said in [
+        (["--runs-dir", "notes.txt"], "error: --runs-dir notes.txt: cannot create the folder"),
+        (["--runs-dir", str(tmp_path / "runs"), "--record-out", "notes.txt/run.mcap"], "error: --record-out notes.txt/run.mcap: its folder notes.txt: cannot create the folder"),
+        (["--runs-dir", str(tmp_path / "runs"), "--record-out", "notes.txt/sub/"], "error: --record-out notes.txt/sub: cannot create the folder"),
+    ]:
+        dry = CliRunner().invoke(app, ["up", "--dry-run", *given])
+        assert dry.exit_code == 2 and dry.stderr.startswith(said) and "would start" not in dry.output, (given, dry.output)
+    r = CliRunner().invoke(app, ["up", "--dry-run", "--runs-dir", str(tmp_path / "new" / "runs"), "--record-out", "rec/"])
+    assert r.exit_code == 0 and "would start" in r.output, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]  # nothing made
+
+
+def test_a_nan_given_to_a_bounded_number_flag_is_said_as_such_not_as_out_of_one_bound(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``status --period nan`` said "Input should be less than or equal to 3600", and ``runs --older-than nan`` "greater
+    than or equal to 0": untrue of nan, which is neither. A bounded number flag says its range and the value given, for
+    nan and for a value out of it; a value within it is taken as before."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    for args, said in [
+        (["status", "--period", "nan"], "must be a number from 0.1 to 3600, got nan"),
+        (["status", "--period", "5000"], "must be a number from 0.1 to 3600, got 5000"),
+        (["runs", "--older-than", "nan"], "must be a number >= 0, got nan"),
+        (["runs", "--older-than", "-1"], "must be a number >= 0, got -1"),
+        (["down", "--timeout-s", "nan"], "must be a number >= 0, got nan"),
+        (["router", "--connect-timeout-s", "nan"], "must be a number >= 0.001, got nan"),
+        (["collect-teacher", "--out", "t.npz", "--time-limit-s", "nan"], "must be a number >= 0, got nan"),
+        (["status", "--period", "soon"], "must be a number from 0.1 to 3600, got soon"),
+    ]:
+        r = CliRunner().invoke(app, args)
+        said_now = " ".join(r.output.split())
+        assert r.exit_code == 2 and said in said_now and "Input should be" not in said_now, (args, r.output)
+    r = CliRunner().invoke(app, ["runs", "--older-than", "1.5", "--runs-dir", str(tmp_path / "none")])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(app, ["status", "--help"])
+    assert "0.1<=x<=3600" in " ".join(r.output.split()), r.output  # the range is still in the help

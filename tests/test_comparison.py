@@ -319,3 +319,27 @@ def test_compare_warns_when_its_files_mix_episodes_of_different_sensors_on_the_s
     read = subprocess.run(exe + [str(base), str(old)], capture_output=True, text=True, timeout=60)
     said = " ".join(read.stderr.split())
     assert read.returncode == 0 and f"the same plans ran with different sim: 2d ({base}), mujoco ({old})" in said and "sensor_fov_deg" not in said, said
+
+
+def test_compare_says_why_a_baseline_with_episodes_has_none_to_compare(tmp_path: Path):
+    """``--baseline greedy-dist`` whose episodes have no m2/step (episodes of no step: the empty cell, or a value that
+    is not finite), or are all on the maps ``--exclude`` leaves out, was told "has no episodes in these files; their
+    methods: cso", untrue: they are there. It says why none is left to compare (exit 1: read, nothing to compare, as
+    too few scenes), and a baseline the files do not hold is said as before."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    cso = rows("cso", "large", {"a": 1.1, "b": 1.1, "c": 1.1})
+    no_steps = rows("greedy-dist", "large", {"a": 1.0, "b": 1.0, "c": 1.0})
+    for row, value in zip(no_steps, ("", "nan", "-inf"), strict=True):
+        row["efficiency_m2_per_step"] = value
+    episodes = write(tmp_path / "e.csv", no_steps + cso)
+    r = CliRunner().invoke(app, ["compare", str(episodes)])
+    assert r.exit_code == 1 and "has no episodes in these files" not in r.stderr, r.output
+    assert "error: --baseline 'greedy-dist' has no episode to compare: none of its 3 in these files has an m2/step (an episode of no step has none)" in r.stderr, r.output
+    episodes = write(tmp_path / "e.csv", rows("greedy-dist", "large", {"a": 1.0, "b": 1.0}) + cso)
+    r = CliRunner().invoke(app, ["compare", str(episodes), "--exclude", "a,b"])
+    assert r.exit_code == 1 and "error: --baseline 'greedy-dist' has no episode to compare: its 2 in these files are all on maps --exclude leaves out" in r.stderr, r.output
+    r = CliRunner().invoke(app, ["compare", str(episodes), "--baseline", "greedy_dist"])
+    assert r.exit_code == 2 and "--baseline 'greedy_dist' has no episodes in these files; their methods: cso, greedy-dist" in r.stderr, r.output

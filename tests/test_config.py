@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -64,6 +65,7 @@ def test_load_yaml_errors(tmp_path: Path):
     with pytest.raises(ConfigError, match="not valid YAML") as unclosed:
         load_yaml(bad)
     assert str(bad) in str(unclosed.value).split("not valid YAML", 1)[1]  # YAML's own line points at the file
+    assert "\n" not in str(unclosed.value)  # one line, as every error of the CLI (YAML's spans three)
     binary = tmp_path / "binary.yaml"
     binary.write_bytes(b"a: \xa4\xff\x00\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
@@ -107,9 +109,11 @@ def test_exponent_numbers_without_a_dot_are_numbers(tmp_path: Path):
     f.write_text("masks: {beta_far_m: 2e0, alpha3_m: 15E-1}\n")
     cfg = from_dict(ExplorationConfig, load_yaml(f))
     assert cfg.masks.beta_far_m == 2.0 and cfg.masks.alpha3_m == 1.5
-    for bad in ("1e", "e5", "2.0m", "nan"):
+    for bad in ("1e", "e5", "2.0m"):
         with pytest.raises(ConfigError, match="expected a number"):
             from_dict(ExplorationConfig, {"masks": {"beta_far_m": bad}})
+    with pytest.raises(ConfigError, match="must be finite, got nan"):  # refused too, as .nan is
+        from_dict(ExplorationConfig, {"masks": {"beta_far_m": "nan"}})
 
 
 def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path: Path):
@@ -1547,3 +1551,52 @@ def test_eval_and_up_refuse_a_mujoco_parameter_out_of_range_before_anything_star
     assert not (tmp_path / "o").exists()
     with pytest.raises(ConfigError, match=r"services\.sim\.mujoco: mass_kg must be in \(0, 1,000\] kg .*got 4,800$"):
         load_profile("sim", {}, settings={"services.sim.mujoco.mass_kg": 4800})
+
+
+
+@dataclasses.dataclass
+class _Inner:
+    name: str = "a"
+    count: int = 0
+
+
+@dataclasses.dataclass
+class _Outer:
+    """A config of one section, for ``field_types``."""
+
+    inner: _Inner = dataclasses.field(default_factory=_Inner)
+    label: str = ""
+
+
+def test_the_hint_of_a_set_read_as_another_type_reads_a_nested_keys_type_and_is_given_only_where_the_text_is_taken():
+    """``refuse_a_setting_read_as_another_type`` looked a key's type up among the top-level fields alone: ``--set
+    section.name=1`` of a text field one section down had no hint. ``field_types`` gives each dotted key's type, down
+    every section; ``takes`` (the whole config built) keeps the hint to a text the config takes."""
+    from cso_runtime.config import field_types, refuse_a_setting_read_as_another_type
+
+    types = field_types(_Outer)
+    assert types == {"inner": _Inner, "inner.name": str, "inner.count": int, "label": str}, types
+    with pytest.raises(ConfigError, match=re.escape("--set inner.name=1 is read as a number, and inner.name is text: write --set inner.name='1'")):
+        refuse_a_setting_read_as_another_type({"inner.name": 1, "inner.count": 2}, types)
+    built: list[dict] = []
+    with pytest.raises(ConfigError, match=re.escape("--set inner.name=true is read as true/false, and inner.name is text: write --set inner.name='true'")):
+        refuse_a_setting_read_as_another_type({"inner.name": True, "inner.count": 2}, types, built.append)  # taken as text
+    assert built == [{"inner.name": "true", "inner.count": 2}], built
+
+    def refuses(_texts: dict) -> None:
+        raise ConfigError("inner.name must be a or b")
+
+    refuse_a_setting_read_as_another_type({"inner.name": 1}, types, refuses)  # the text refused too: no hint (its own error follows)
+    refuse_a_setting_read_as_another_type({"inner.name": "1", "inner.count": 2, "inner": {"name": 1}}, types)  # text, a number's own field, a section: none
+
+
+def test_a_nan_or_inf_written_as_most_tools_write_it_is_said_to_be_not_finite():
+    """``--set planner.lookahead_m=nan`` (YAML reads ``nan`` as text: its own spelling is ``.nan``) said "expected a
+    number, got 'nan'", where ``.nan`` says "must be finite": one value, one answer, whichever way it is written."""
+    import yaml
+
+    for text in ("nan", "NaN", "inf", "-inf", "+Infinity", ".nan", ".inf"):
+        with pytest.raises(ConfigError, match=re.escape("planner.lookahead_m: must be finite")):
+            from_dict(ExplorationConfig, {"planner": {"lookahead_m": yaml.safe_load(text)}})
+    with pytest.raises(ConfigError, match=re.escape("planner.lookahead_m: expected a number, got 'far'")):
+        from_dict(ExplorationConfig, {"planner": {"lookahead_m": "far"}})

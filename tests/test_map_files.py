@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -318,3 +319,24 @@ def test_save_map_takes_map_saver_clis_fmt_and_writes_a_round_origin(tmp_path: P
     back, back_geometry = load_map(yaml_path)
     assert back_geometry.shape == geometry.shape and abs(back_geometry.origin_x_m - geometry.origin_x_m) < 1e-9
     np.testing.assert_array_equal(back, grid)
+
+
+def test_a_map_yaml_number_written_with_an_exponent_is_read_as_map_server_reads_it(tmp_path: Path):
+    """``resolution: 5e-2`` (an exponent without a dot, which PyYAML's YAML 1.1 reads as text, and map_server's yaml-cpp
+    as the number) was refused: "resolution must be finite numbers, got '5e-2'", untrue. It is read as the number, as
+    ``--set`` and the config files read it; a value that is no number is said as one value, in words that fit it."""
+    grid, geometry = _grid()
+    good = save_map(tmp_path / "map.yaml", grid, geometry)
+    meta = yaml.safe_load(good.read_text())
+    text = good.read_text().replace(f"resolution: {meta['resolution']}", "resolution: 5e-2").replace("occupied_thresh: 0.65", "occupied_thresh: 65E-2")
+    assert "5e-2" in text and "65E-2" in text, text
+    (tmp_path / "exp.yaml").write_text(text)
+    read, read_geometry = load_map(tmp_path / "exp.yaml")
+    assert read_geometry.resolution_m == 0.05 and np.array_equal(read, load_map(good)[0])
+    for value, said in (("abc", "resolution must be a finite number, got 'abc'"), (".nan", "resolution must be a finite number, got nan")):
+        (tmp_path / "bad.yaml").write_text(text.replace("resolution: 5e-2", f"resolution: {value}"))
+        with pytest.raises(MapFileError, match=re.escape(said)):
+            load_map(tmp_path / "bad.yaml")
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump({**meta, "origin": [0.0, float("nan"), 0.0]}))
+    with pytest.raises(MapFileError, match=re.escape("origin must be three finite numbers [x_m, y_m, yaw_rad], got nan")):
+        load_map(tmp_path / "bad.yaml")

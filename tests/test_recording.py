@@ -603,6 +603,38 @@ def test_record_refuses_a_bad_robot_id_before_connecting(tmp_path: Path, monkeyp
     assert not (tmp_path / "r.mcap").exists()
 
 
+
+def test_record_and_replay_given_a_malformed_endpoint_exit_2_before_anything_is_made(tmp_path: Path, monkeypatch):
+    """``record --connect notanendpoint`` made ./recordings/ and exited 3 ("no Zenoh session"), and so did ``replay``:
+    a malformed endpoint is a usage error, exit 2 (docs/commands.md), as for ``status``, said before any folder is made."""
+    import signal
+
+    from typer.testing import CliRunner
+
+    from cso_runtime import transport
+    from cso_runtime.cli import app
+
+    opened: list[object] = []
+
+    def no_router(config):
+        opened.append(config)
+        raise transport.TransportError("cannot open zenoh session (client): Timeout!")
+
+    monkeypatch.setattr(transport, "open_session", no_router)
+    monkeypatch.chdir(tmp_path)
+    recording = tmp_path / "run.mcap"
+    _written_scans(recording, 1)
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}  # both commands set their own
+    try:
+        for args in (["record", "--robot", "r0"], ["record"], ["replay", str(recording)]):
+            r = CliRunner().invoke(app, [*args, "--connect", "notanendpoint"])
+            assert r.exit_code == 2 and r.stderr == "error: bad zenoh endpoint 'notanendpoint'; expected PROTO/HOST:PORT, e.g. tcp/127.0.0.1:7447\n", (args, r.output)
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+    assert not opened and sorted(p.name for p in tmp_path.iterdir()) == ["run.mcap"]
+
+
 @pytest.mark.parametrize("stop_signal", ["SIGHUP", "SIGINT"])
 def test_record_stopped_under_a_dense_stream_finishes_its_file(tmp_path: Path, stop_signal: str):
     """SIGHUP (the terminal ``record`` ran in was closed) stops it as Ctrl-C (SIGINT) does: the MCAP file is

@@ -84,10 +84,18 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     for name, text in (("run.json", "{not json"), ("profile.yaml", "[: bad"), ("summary.json", '{"methods": 3}')):
         (broken / name).write_text(text)
     assert list_runs(runs)[-1].as_dict() | {"run_dir": ""} == {
-        "run_id": broken.name, "run_dir": "", "state": "stopped", "profile": "", "robot": "", "scene": "", "real_robot": False, "coverage_measured": True, "method": "",
+        "run_id": broken.name, "run_dir": "", "state": "unknown", "profile": "", "robot": "", "scene": "", "real_robot": False, "coverage_measured": True, "method": "",
         "explored_area_m2": None, "coverage_pct": None, "steps": None, "efficiency_m2_per_step": None, "path_length_m": None,
-        "terminated_by": None, "restarts": 0, "duration_s": None, "stopped_at_step": None, "reason": "",
-    }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback)
+        "terminated_by": None, "restarts": 0, "duration_s": None, "stopped_at_step": None,
+        "reason": "its run.json cannot be read: not JSON (Expecting property name enclosed in double quotes at line 1 column 2)",
+    }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback; nor "stopped", which it may not be)
+    # In the table: its state and why, no ", " line for a scene and method not known.
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "200"})
+    lines = r.output.splitlines()
+    at = next(i for i, ln in enumerate(lines) if broken.name in ln)
+    assert r.exit_code == 0 and "unknown: its run.json cannot be read: not JSON" in lines[at] and not any(ln.strip().startswith(",") for ln in lines), r.output
+    (broken / "run.json").write_text("[]")
+    assert list_runs(runs)[-1].state == "unknown" and list_runs(runs)[-1].reason == "its run.json cannot be read: a JSON list, not an object"
     shutil.rmtree(broken)
     killed = make_run(runs, "20261203-091500-lockstep-r0", state="running")  # its launcher is gone, the file says running
     assert list_runs(runs)[-1].state == "launcher died"
@@ -338,6 +346,17 @@ def test_report_of_a_run_without_results_says_why_not_that_it_is_no_run_folder(t
     assert r.exit_code == 2 and f"run {running.name} is running: its results are written when its episode ends" in r.output, r.output
     r = CliRunner().invoke(app, ["report", str(tmp_path)])
     assert r.exit_code == 2 and "(not an `eval --out` folder or a run folder?)" in r.output, r.output
+    # A run that did not stop before its end (failed: results that could not be written, a service given up on), or whose
+    # run.json cannot be read, was said to be "stopped before its episode ended": what `runs` says of it, and where to read why.
+    failed = make_run(tmp_path / "runs", "20261203-091200-sim-r0", outcome="failed")
+    r = CliRunner().invoke(app, ["report", str(failed)])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "stopped before its episode ended" not in said, said
+    assert f"run {failed.name} has no results (`runs` lists it as failed); its launcher's log says why: `cso-runtime logs launcher --run {failed}`" in said, said
+    (failed / "run.json").write_text("{not json")
+    r = CliRunner().invoke(app, ["report", str(failed)])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and f"run {failed.name} has no results; its run.json cannot be read: not JSON" in said and "stopped before" not in said, said
 
 
 def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newest(tmp_path):
@@ -354,6 +373,12 @@ def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newes
         resolve_run(runs, "nope")
     r = CliRunner().invoke(app, ["logs", "--runs-dir", str(tmp_path / "empty")])
     assert r.exit_code == 1 and "error: no runs in" in r.output
+    # A run without a log (its logs/ deleted, or a run file and nothing else) printed nothing and exited 0.
+    r = CliRunner().invoke(app, ["logs", "--run", old.name, "--runs-dir", str(runs)])
+    assert r.exit_code == 1 and r.output == f"error: run {old.name} has no log: {old / 'logs'}/ holds no .log file\n", r.output
+    shutil.rmtree(old / "logs")
+    r = CliRunner().invoke(app, ["logs", "--run", str(old)])
+    assert r.exit_code == 1 and "has no log" in r.output, r.output
 
 
 def test_runs_keep_and_older_than_list_old_runs_and_delete_them_only_with_yes_never_the_current_one(tmp_path):

@@ -3640,8 +3640,63 @@ def test_save_map_in_a_runs_first_seconds_says_it_has_no_map_yet_not_only_the_ke
     monkeypatch.setattr(status_module, "_client_session", lambda *_a, **_k: Session({keys.episode_status: [reply(over)]}))
     assert save_map_main([], None, tmp_path / "m", "pgm", tmp_path / "runs") == 1
     out = capsys.readouterr().out
-    assert "none will come: the episode is done, at step 212; its final map is among the run's results" in out and "try again" not in out, out
+    assert "none will come: the episode is done, at step 212; " in out and "try again" not in out, out
     assert not (tmp_path / "m.yaml").exists()
+
+
+def test_save_map_after_the_episode_says_where_its_final_map_is_or_that_none_was_written(tmp_path, monkeypatch, capsys):
+    """``save-map`` after the episode's end said "its final map is among the run's results" whatever the run wrote:
+    also of a run whose results are not written (yet, or a full disk) and of one whose result carried no map. It says
+    only what is true: the final map's file where it is there, else that none was written and why, and what to do; of
+    a run given by ``--connect`` (its folder maybe on another host), where to look there."""
+    from types import SimpleNamespace
+
+    import cso_runtime.status as status_module
+    from cso_runtime.launcher import LAST_MAP
+    from cso_runtime.outputs import episode_map_path
+    from cso_runtime.status import RunTarget
+
+    over = encode(EpisodeStatusMsg(state="done", step=212, scene="generated:small:1:0", method="cso"))
+    payload = SimpleNamespace(to_bytes=lambda: over, to_string=lambda: "")
+    keys = RobotKeys("r0")
+
+    class Session(contextlib.AbstractContextManager):  # a finished run's network: its episode's status, no map answers
+        def __exit__(self, *_exc: object) -> None:
+            pass
+
+        def get(self, key: str, **_kw: object) -> list[SimpleNamespace]:
+            return [SimpleNamespace(ok=SimpleNamespace(payload=payload), err=None)] if key == keys.episode_status else []
+
+    monkeypatch.setattr(status_module, "_client_session", lambda *_a, **_k: Session())
+    monkeypatch.setattr(status_module, "reachable_target", lambda *_a, **_k: RunTarget(["tcp/127.0.0.1:1"], "r0", None))
+    runs, run_dir = tmp_path / "runs", tmp_path / "runs" / "run1"
+    run_dir.mkdir(parents=True)
+    (runs / "current.json").write_text(json.dumps({"run_id": "run1", "run_dir": str(run_dir), "robot": "r0", "endpoints": ["tcp/127.0.0.1:1"]}))
+    final = episode_map_path(run_dir, "cso", "generated:small:1:0")
+
+    def said(connect: list[str] | None = None) -> str:
+        assert save_map_main(connect or [], None, tmp_path / "m", "pgm", runs) == 1
+        out = capsys.readouterr().out
+        assert out.startswith("no map for robot r0: no map answers, and none will come: the episode is done, at step 212; "), out
+        assert "among the run's results" not in out and "try again" not in out and not (tmp_path / "m.yaml").exists(), out
+        return out
+
+    # No results written (yet, or they could not be): no final map, and where to read why.
+    out = said()
+    assert f"no final map is written: the run has not written its results in {run_dir}/" in out and f"`cso-runtime logs --run {run_dir}`" in out, out
+    # The run's map kept at its stop, its results unwritten: that file.
+    save_map(run_dir / LAST_MAP, np.zeros((4, 5), dtype=np.int8), GridGeometry(0.05, (4, 5)), image_format="png")
+    assert f"its map at the run's stop is {run_dir / LAST_MAP}" in said()
+    # Results written whose episode carried no map: none written, said so.
+    (run_dir / "summary.json").write_text("{}")
+    out = said()
+    assert f"no final map was written: the run's results in {run_dir}/ have none ({final} is not there" in out, out
+    # Results with the final map: its file.
+    save_map(final, np.zeros((4, 5), dtype=np.int8), GridGeometry(0.05, (4, 5)), image_format="png")
+    assert f"its final map is {final}" in said()
+    # A run given by --connect: its folder is where it runs, perhaps another host.
+    out = said(["tcp/127.0.0.1:1"])
+    assert "its final map, where the run wrote one, is in maps/ of the run's folder on the host that runs it" in out and str(final) not in out, out
 
 
 def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
