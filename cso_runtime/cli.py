@@ -146,8 +146,13 @@ def _bounded(low: float, high: float | None = None) -> dict[str, Any]:
 STOPPING_NOTE = "stopping: writing what finished; signal once more to stop at once"
 """What ``interrupt_on_sigterm(wait_on_second=True)`` says to a second signal while the command stops."""
 
+TRAIN_STOP_DEADLINE_S = 60.0
+"""The most ``train``'s stop may take after its first stop signal (``interrupt_on_sigterm``'s ``stop_deadline_s``): it
+closes its environment processes (``WatchedAsyncVectorEnv.close_grace_s`` per stage) and draws its learning curve, about a
+second on a quiet 2-core host; past this it ends at once, saying where it waited."""
 
-def interrupt_on_sigterm(wait_on_second: bool = False) -> None:
+
+def interrupt_on_sigterm(wait_on_second: bool = False, stop_deadline_s: float | None = None, last_words: Callable[[], str] | None = None) -> Callable[[], bool]:
     """SIGTERM (``kill``, a job scheduler's stop) and SIGHUP (its terminal closed) end a long command as Ctrl-C does: its worker processes stopped,
     what finished written, exit code 130 and how to resume. Python's default would end it at once, writing
     nothing and leaving its workers to run their jobs to the end.
@@ -158,7 +163,13 @@ def interrupt_on_sigterm(wait_on_second: bool = False) -> None:
     does. Once the command has ended, Python's own end ignores them: it puts their default action back, which would
     end a process that wrote everything by the signal (exit code -15) instead of 130. Before that, the end waits for
     the command's non-daemon child processes (multiprocessing's own end would join them with no bound, the signals
-    ignored) while one more signal ends it at once, exit code 130: a stuck child cannot make it unstoppable."""
+    ignored) while one more signal ends it at once, exit code 130: a stuck child cannot make it unstoppable.
+
+    Returns ``stop_requested``, True once the first of them came: the handler's ``KeyboardInterrupt`` is lost where
+    Python runs the handler inside a finalizer (a garbage collection's weakref callback, a ``__del__``), so a long
+    command also asks this as it goes (``learned.ppo.raise_if_stop_requested``). With ``stop_deadline_s``, the stop is
+    bounded: where the command has not ended that long after the first signal, it ends at once with every thread's
+    stack, its worker processes killed and ``last_words()`` said (``processes.end_overdue_stop``), exit code 130."""
     import atexit  # noqa: PLC0415
     import os  # noqa: PLC0415
     import signal  # noqa: PLC0415
@@ -186,6 +197,10 @@ def interrupt_on_sigterm(wait_on_second: bool = False) -> None:
         received += 1
         if received == 1:
             atexit.register(ignore_stop_signals)  # last registered, first run: the rest of the exit included
+            if stop_deadline_s is not None:
+                from cso_runtime.processes import end_overdue_stop  # noqa: PLC0415
+
+                end_overdue_stop(stop_deadline_s, EXIT_INTERRUPTED, last_words)
         elif received == 2 and wait_on_second:
             try:
                 os.write(2, f"{STOPPING_NOTE}\n".encode())  # not sys.stderr: the handler may have cut one of its writes short
@@ -196,6 +211,7 @@ def interrupt_on_sigterm(wait_on_second: bool = False) -> None:
 
     for sig in stop_signals:  # SIGHUP: its terminal closed, the same clean stop
         signal.signal(sig, raise_interrupt)
+    return lambda: received > 0
 
 
 def _print_version(value: bool) -> None:
@@ -1407,23 +1423,24 @@ def train_command(
     output_dir_or_exit(args.out_dir, "out_dir")
     checkpoint = Path(args.out_dir) / "checkpoint.pt"
     started = time.time()
-    interrupt_on_sigterm(wait_on_second=True)
+
+    def resume_hint() -> str:
+        # This run's checkpoint (or the one it resumed from), not an earlier run's left in the same folder.
+        ours = checkpoint.is_file() and (checkpoint.stat().st_mtime >= started or args.resume and Path(args.resume).resolve() == checkpoint.resolve())
+        if ours:
+            return f"; continue from the last checkpoint with --resume {checkpoint}"
+        return f"; no checkpoint of this run yet (the first comes after PPO update {args.checkpoint_every}): nothing to resume, run the command again"
+
+    stop_requested = interrupt_on_sigterm(wait_on_second=True, stop_deadline_s=TRAIN_STOP_DEADLINE_S, last_words=lambda: f"interrupted{resume_hint()}")
     words = ["cso-runtime", "train", *(["--config", str(config)] if config is not None else [])]
     command = shlex.join(words + [w for flag in training_flags(overrides, settings) for w in flag])  # recorded in <variant>.json
     try:
-        record = train(args, log=typer.echo, command=command)
+        record = train(args, log=typer.echo, command=command, stop_requested=stop_requested)
     except ConfigError as exc:  # another train is writing --out
         _fail(str(exc), 2)
     except (EnvWorkerDied, KeyboardInterrupt) as exc:
-        # This run's checkpoint (or the one it resumed from), not an earlier run's left in the same folder.
-        ours = checkpoint.is_file() and (checkpoint.stat().st_mtime >= started or args.resume and Path(args.resume).resolve() == checkpoint.resolve())
-        hint = (
-            f"; continue from the last checkpoint with --resume {checkpoint}"
-            if ours
-            else f"; no checkpoint of this run yet (the first comes after PPO update {args.checkpoint_every}): nothing to resume, run the command again"
-        )
         why = "interrupted" if isinstance(exc, KeyboardInterrupt) else f"error: training stopped: {exc}"
-        typer.echo(f"{why}{hint}", err=True)
+        typer.echo(f"{why}{resume_hint()}", err=True)
         raise typer.Exit(EXIT_INTERRUPTED if isinstance(exc, KeyboardInterrupt) else 1) from None
     out = Path(args.out_dir)
     files = ", ".join(name for name in (f"{args.variant}.pt", f"{args.variant}_log.csv", f"{args.variant}_curve.png", f"{args.variant}.json", "checkpoint.pt") if (out / name).is_file())

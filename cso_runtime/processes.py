@@ -185,6 +185,49 @@ def keep_freed_memory(mmap_threshold_bytes: int = 32 << 20, trim_threshold_bytes
     return bool(libc.mallopt(m_mmap_threshold, mmap_threshold_bytes)) and bool(libc.mallopt(m_trim_threshold, trim_threshold_bytes))
 
 
+def stop_processes(processes: Sequence[Any], grace_s: float) -> list[Any]:
+    """Stop ``multiprocessing`` processes within a bound: SIGTERM to each one still running, up to ``grace_s`` for them
+    to end, then SIGKILL to any left and up to ``grace_s`` more (a process stuck in the kernel outlasts even that).
+    ``join`` with no timeout waits for ever on a process that ignores or never gets its SIGTERM, and ``terminate``
+    alone sends SIGTERM only. A process never started is skipped. Returns those still running (normally none)."""
+    started = [p for p in processes if p.pid is not None]
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        for process in started:
+            if process.is_alive():
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(process.pid, sig)
+        deadline = time.monotonic() + grace_s
+        for process in started:
+            process.join(max(0.0, deadline - time.monotonic()))
+        started = [p for p in started if p.is_alive()]
+        if not started:
+            break
+    return started
+
+
+def end_overdue_stop(deadline_s: float, exit_code: int, last_words: Callable[[], str] | None = None) -> None:
+    """Bound a command's stop (after its first stop signal): unless it has ended ``deadline_s`` seconds from now, say so
+    with every thread's stack (where it hung), kill its ``multiprocessing`` children, write ``last_words()`` (how to go
+    on from what it wrote) and exit with ``exit_code`` at once. A stop that waits for ever on something (a child, a lock,
+    a pipe) then still ends, and says where it waited, instead of leaving a process that looks alive and does nothing.
+    Safe to call from a signal handler: a bare thread, no lock the interrupted main thread may hold."""
+
+    def watch() -> None:
+        time.sleep(deadline_s)
+        with contextlib.suppress(Exception):
+            os.write(2, f"error: the stop took more than {deadline_s:g} s; ended at once. Where each thread was:\n".encode())
+            faulthandler.dump_traceback(file=2, all_threads=True)  # stderr's descriptor: sys.stderr may be any object
+        for child in list(getattr(multiprocessing.process, "_children", ())):  # a copy (taken whole under the GIL)
+            with contextlib.suppress(Exception):
+                os.kill(child.pid, signal.SIGKILL)
+        if last_words is not None:
+            with contextlib.suppress(Exception):
+                os.write(2, f"{last_words()}\n".encode())
+        os._exit(exit_code)
+
+    _thread.start_new_thread(watch, ())
+
+
 def terminate_workers(pool: ProcessPoolExecutor) -> None:
     """Stop a pool's processes now (Ctrl-C, an error): ``shutdown`` alone waits for running jobs."""
     for process in list((getattr(pool, "_processes", None) or {}).values()):

@@ -122,14 +122,15 @@ def process_group_gone(pgid: int) -> bool:
 @contextlib.contextmanager
 def process_group(cmd: list[str], **popen: Any) -> Iterator[subprocess.Popen]:
     """Run ``cmd`` in a process group of its own (its text output piped); on leaving, SIGKILL the group if the
-    command still runs, then wait (at most 10 s) until none of its processes (workers too) is left."""
+    command still runs, then wait (at most 10 s each) for it and until none of its processes (workers too) is left."""
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True, **popen)
     try:
         yield proc
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
-            proc.communicate()
+            with contextlib.suppress(subprocess.TimeoutExpired):  # its output's pipe held by a process outside the group
+                proc.communicate(timeout=10)
         wait_for(lambda: process_group_gone(proc.pid), 10, f"the processes of {' '.join(cmd[:4])} to exit")
 
 

@@ -24,7 +24,7 @@ def train_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> list:
     from cso_runtime.learned import ppo
 
     ran: list = []
-    monkeypatch.setattr(ppo, "train", lambda args, log=None, command="": ran.append(args) or {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0})
+    monkeypatch.setattr(ppo, "train", lambda args, log=None, command="", stop_requested=None: ran.append(args) or {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0})
     return ran
 
 

@@ -385,7 +385,7 @@ def test_train_takes_every_args_field_as_a_flag_as_cleanrl_does(tmp_path: Path, 
 
     ran: list[tuple[ppo.Args, str]] = []
 
-    def fake_train(args: ppo.Args, log: object = None, command: str = "") -> dict:
+    def fake_train(args: ppo.Args, log: object = None, command: str = "", stop_requested: object = None) -> dict:
         ran.append((args, command))
         return {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0}
 
@@ -444,7 +444,7 @@ def test_a_list_field_takes_one_value_or_values_separated_by_commas_as_most_clis
             read(**data)
 
     ran: list[ppo.Args] = []
-    monkeypatch.setattr(ppo, "train", lambda args, log=None, command="": ran.append(args) or {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0})
+    monkeypatch.setattr(ppo, "train", lambda args, log=None, command="", stop_requested=None: ran.append(args) or {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0})
     common = ["train", "--config", str(small_train_recipe(tmp_path)), "--out", str(tmp_path / "out")]
     for given in (["--generated", "generated:small:2:0"], ["--set", "generated=generated:small:2:0"], ["--generated=generated:small:2:0"]):
         result = CliRunner().invoke(app, common + given)

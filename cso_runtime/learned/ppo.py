@@ -928,11 +928,12 @@ def collect_teacher(
     log: Callable[[str], None] | None = None,
     progress: bool = False,
     time_limit_s: float = 0.0,
+    stop_requested: Callable[[], bool] | None = None,
 ) -> TeacherData:
     """Run the ``teacher`` (under the masks) in ``envs`` for ``decisions`` decisions, or until ``time_limit_s``
     (0 = no limit) has passed; returns what ``TeacherData`` holds, with Monte-Carlo returns cut at episode
     ends. ``log`` gets a line at every tenth of the way (the rollout teacher can take many minutes),
-    ``progress`` shows a bar."""
+    ``progress`` shows a bar; ``stop_requested`` as ``train``'s."""
     graphs, masks, actions, steps, rewards, ends = [], [], [], [], [], []
     obs, info = envs.reset(seed=seed)
     n = envs.num_envs
@@ -940,6 +941,7 @@ def collect_teacher(
     bar = _Bar(per_env * n, "teacher decisions") if progress else None
     t0 = time.time()
     for i in range(per_env):
+        raise_if_stop_requested(stop_requested)
         if time_limit_s and time.time() - t0 > time_limit_s:
             if log is not None:
                 log(f"warm start: time limit reached after {i * n} {teacher} decisions")
@@ -1017,9 +1019,11 @@ def soft_targets(outcome_steps: torch.Tensor, actions: torch.Tensor, temperature
     return torch.where(tried.any(-1, keepdim=True), soft, one_hot)
 
 
-def warm_start(model: GraphActorCritic, data: TeacherData, args: Args, device: torch.device, log: Callable[[str], None]) -> dict[str, float]:
+def warm_start(
+    model: GraphActorCritic, data: TeacherData, args: Args, device: torch.device, log: Callable[[str], None], stop_requested: Callable[[], bool] | None = None
+) -> dict[str, float]:
     """Behaviour cloning of the actor on the teacher's choices (or on ``soft_targets`` of the rollout's
-    outcomes) plus a value regression."""
+    outcomes) plus a value regression; ``stop_requested`` as ``train``'s."""
     b_obs = obs_to_torch(data.graphs, device)
     b_mask = mask_to_torch(data.masks, device)
     b_act = torch.as_tensor(data.actions, device=device)
@@ -1033,6 +1037,7 @@ def warm_start(model: GraphActorCritic, data: TeacherData, args: Args, device: t
         perm = torch.randperm(n, device=device)
         correct, total_ce = 0.0, 0.0
         for start in range(0, n, mb):
+            raise_if_stop_requested(stop_requested)
             idx = perm[start : start + mb]
             g = index_obs(b_obs, idx)
             logits = model.masked_logits(g, b_mask[idx])
@@ -1120,10 +1125,23 @@ def write_tensorboard_row(writer: Any, row: dict[str, Any]) -> None:
     writer.flush()
 
 
-def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan] | None = None, command: str | None = None) -> dict[str, Any]:
+def raise_if_stop_requested(stop_requested: Callable[[], bool] | None) -> None:
+    """Raise ``KeyboardInterrupt`` where a stop was asked for (``cli.interrupt_on_sigterm``'s ``stop_requested``) but
+    training goes on: the signal handler's own ``KeyboardInterrupt`` is lost where Python runs the handler inside a
+    finalizer (a garbage collection's weakref callback, a ``__del__``), which Python reports as "Exception ignored"
+    and drops. A SIGHUP that came while Python collected garbage left ``train`` running to its last update."""
+    if stop_requested is not None and stop_requested():
+        raise KeyboardInterrupt
+
+
+def train(
+    args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan] | None = None, command: str | None = None, stop_requested: Callable[[], bool] | None = None
+) -> dict[str, Any]:
     """Train one variant; returns the run record (also written as JSON next to the weights).
 
-    ``plans`` replaces the configured scenes (tests train on a tiny synthetic plan)."""
+    ``plans`` replaces the configured scenes (tests train on a tiny synthetic plan). ``stop_requested``: True once
+    a stop signal came (``cli.interrupt_on_sigterm``); training then stops at its next step (``raise_if_stop_requested``)
+    as at a ``KeyboardInterrupt``, where the signal's own was lost."""
     args.validate()
     if args.tensorboard:
         summary_writer_class()  # tensorboardX missing: said now, not after a warm start
@@ -1134,11 +1152,18 @@ def train(args: Args, log: Callable[[str], None] = print, plans: list[FloorPlan]
     device = select_device(args.device)
     Path(args.out_dir).mkdir(parents=True, exist_ok=True)  # one that cannot be made fails here, not as a lock not had
     with folder_lock(Path(args.out_dir) / TRAIN_LOCK, "train", lambda said: log(f"warning: {said}")) as locked:
-        return _train_locked(args, device, t_start, log, plans, command, locked)
+        return _train_locked(args, device, t_start, log, plans, command, locked, stop_requested)
 
 
 def _train_locked(
-    args: Args, device: torch.device, t_start: float, log: Callable[[str], None], plans: list[FloorPlan] | None, command: str | None, locked: bool
+    args: Args,
+    device: torch.device,
+    t_start: float,
+    log: Callable[[str], None],
+    plans: list[FloorPlan] | None,
+    command: str | None,
+    locked: bool,
+    stop_requested: Callable[[], bool] | None,
 ) -> dict[str, Any]:
     """``train`` while it holds its output folder's lock (``TRAIN_LOCK``); ``locked`` False where none could be had,
     and the partial files there may be another train's, being written."""
@@ -1156,6 +1181,26 @@ def _train_locked(
     log(f"training {args.variant} on {counted(len(refs), 'scene')}, device {device}: {counted(args.num_updates, 'PPO update')} of {args.batch_size} decisions "
         f"({counted(args.num_envs, 'env')} x {counted(args.num_steps, 'step')}; total_decisions {args.total_decisions} in whole updates)")
     envs = make_vector_env(args, refs)
+    try:
+        return _train_on(envs, refs, args, device, t_start, log, command, replaces, stop_requested)
+    except BaseException:  # stopped before its PPO loop (a resume, the warm start, the first reset): the workers too
+        envs.close(terminate=True)
+        raise
+
+
+def _train_on(
+    envs: gym.vector.SyncVectorEnv | gym.vector.AsyncVectorEnv,
+    refs: list[SceneRef] | list[FloorPlan],
+    args: Args,
+    device: torch.device,
+    t_start: float,
+    log: Callable[[str], None],
+    command: str | None,
+    replaces: bool,
+    stop_requested: Callable[[], bool] | None,
+) -> dict[str, Any]:
+    """``_train_locked`` in ``envs`` (which it closes: at its end, or when stopped in its PPO loop)."""
+    out = Path(args.out_dir)
     model = build_model(args, device)
     optimizer = optim.Adam(parameter_groups(model, args), lr=args.learning_rate, eps=args.adam_eps)
     record: dict[str, Any] = {"variant": args.variant, "args": dataclasses.asdict(args), "warm_start": {}, "software": software_provenance()}
@@ -1193,10 +1238,10 @@ def _train_locked(
             data = TeacherData.load(args.warm_start_data)
             log(f"warm start on {len(data)} teacher decisions from {', '.join(args.warm_start_data)}")
         else:
-            data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed, args.warm_start_teacher, log, args.progress)
+            data = collect_teacher(envs, args.warm_start_decisions, args.gamma, args.seed, args.warm_start_teacher, log, args.progress, stop_requested=stop_requested)
             data.save(out / "teacher_data.npz")
         warm_decisions = len(data)
-        record["warm_start"] = warm_start(model, data, args, device, log)
+        record["warm_start"] = warm_start(model, data, args, device, log, stop_requested)
         record["warm_start"]["decisions"] = warm_decisions
         save_checkpoint(out / f"{args.variant}_warm.pt", model, args.env_config().graph, args.variant, {"stage": "warm_start"})
 
@@ -1248,6 +1293,7 @@ def _train_locked(
                     group["lr"] = group.get("lr_scale", 1.0) * args.learning_rate * (1.0 - (update - 1.0) / args.num_updates)
             finished = []
             for step in range(T):
+                raise_if_stop_requested(stop_requested)
                 for k, buf in obs_buf.items():
                     buf[step] = next_obs[k]
                 mask_buf[step] = next_mask
@@ -1323,6 +1369,7 @@ def _train_locked(
                 if args.target_kl and approx_kl > args.target_kl:
                     break
 
+            raise_if_stop_requested(stop_requested)  # not logged nor saved: as a KeyboardInterrupt in the update would
             elapsed_s = wall_before_s + time.time() - t_start
             row = {
                 "update": update,
