@@ -1274,7 +1274,7 @@ def dataflow_command(
 
     table = Table(title=f"profile {prof.name}: keys under cso/{prof.robot}/")
     for col in ("node", "inputs (from)", "outputs (to)"):
-        table.add_column(col)
+        table.add_column(col, overflow="fold")  # a node's class of one's own (module.path:Attribute) wraps, not cut to "…"
     labels = {n.name: n.label for n in nodes}
     for w in wiring_of(nodes):
         ins = "\n".join(f"{key} <- {', '.join(peers) or '(none)'}" for key, peers in w.inputs)

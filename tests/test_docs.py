@@ -820,3 +820,31 @@ def test_the_readmes_exit_code_table_says_what_record_and_replay_do_with_no_run(
     assert r.exit_code == 2 and "no current run" in r.output, r.output
     row = next(line for line in (ROOT / "docs" / "commands.md").read_text(encoding="utf-8").splitlines() if line.startswith("| 2 |"))
     assert "no current run and no `--connect` (`record`, `replay`" in row
+
+
+def test_the_readmes_dry_run_and_resolved_bullet_names_the_commands_that_have_them():
+    """The README's Configs section said "``--dry-run`` checks everything ..." of every command, after naming ``train``'s
+    ``--set``: ``train --dry-run`` is "no such option". The bullet names the commands that take ``--dry-run`` and
+    ``--resolved``, and those alone."""
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    bullet = readme.split("- **`--dry-run`** (", 1)[1].split(")", 1)[0]
+    named = set(re.findall(r"`([\w-]+)`", bullet))
+    cli = typer.main.get_command(app)
+    for flag in ("--dry-run", "--resolved"):
+        having = {name for name, c in cli.commands.items() if any(flag in p.opts for p in c.params)}
+        assert having == named, f"{flag}: the README names {sorted(named)}, the commands that have it are {sorted(having)}"
+
+
+def test_every_file_the_readmes_layout_table_names_is_in_its_folder():
+    """The Layout table names modules by their file name alone (``occupancy.py`` on the ``cso_runtime/`` row), which
+    the check of repository paths does not see: each is a file of its row's folder."""
+    layout = (ROOT / "README.md").read_text(encoding="utf-8").split("\n## Layout\n", 1)[1].split("\n## ", 1)[0]
+    missing, seen = [], 0
+    for line in layout.splitlines():
+        if row := re.match(r"\| `([\w/]+)/`", line):
+            for name in re.findall(r"`(\w+\.py)`", line):
+                seen += 1
+                if not (ROOT / row.group(1) / name).is_file():
+                    missing.append(f"{row.group(1)}/{name}")
+    assert seen >= 30, "the Layout table lost its modules, or the pattern broke"
+    assert missing == []
