@@ -1582,10 +1582,19 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     """``train``'s own options (``--out``), its field flags (``--out-dir``, ``args_field_flags``' pairs) and ``--set``
     all set fields of ``learned.ppo.Args``: two of them that give one field different values are a ConfigError that
     names both (one of them took over the other in silence). The same value twice is fine; so is one flag given
-    twice, whose last value counts, as typer's own options' does."""
+    twice, whose last value counts, as typer's own options' does. A ``--set`` of a text field that YAML reads as
+    another type (``out_dir=2024``) is a ConfigError that says how to write it (``--set out_dir='2024'``)."""
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import field_value, place_of, refuse_two_values, set_flag_text, text_field, yaml_text  # noqa: PLC0415
+    from cso_runtime.config import (  # noqa: PLC0415
+        field_value,
+        place_of,
+        refuse_a_setting_read_as_another_type,
+        refuse_two_values,
+        set_flag_text,
+        text_field,
+        yaml_text,
+    )
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1609,6 +1618,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     for name, value in parse_settings(settings).items():
         given.setdefault(name, []).append((set_flag_text(name, value), value))
     refuse_two_values({name: said for name, said in given.items() if name in types}, read)  # a key no field is: from_dict names it
+    refuse_a_setting_read_as_another_type(parse_settings(settings), types)  # `--set out_dir=2024` alone: how to write it, as `up` says
 
 
 def parse_seeds(items: list[str]) -> list[int]:

@@ -318,3 +318,20 @@ def test_save_map_takes_map_saver_clis_fmt_and_writes_a_round_origin(tmp_path: P
     back, back_geometry = load_map(yaml_path)
     assert back_geometry.shape == geometry.shape and abs(back_geometry.origin_x_m - geometry.origin_x_m) < 1e-9
     np.testing.assert_array_equal(back, grid)
+
+
+def test_load_map_of_a_map_with_a_turned_origin_says_how_to_read_it(tmp_path: Path):
+    """``eval`` and ``up`` write the robot's map of a map_server scene whose ``origin`` has a yaw with that yaw, and
+    docs/eval.md pointed at ``load_map`` to read such files back: it refused them with "grids here are axis-aligned",
+    naming no way to read this project's own output. The refusal names ``load_map_and_meta(path,
+    rotated_origin_ok=True)``, which reads it, the grid in its own frame and the yaw in the YAML's ``origin``."""
+    from cso_runtime.geometry import Pose2D
+    from cso_runtime.map_files import load_map_and_meta
+
+    grid, geometry = _grid()
+    path = save_map(tmp_path / "turned.yaml", grid, geometry, map_origin=Pose2D(1.0, 2.0, 0.5))
+    with pytest.raises(MapFileError) as refused:
+        load_map(path)
+    assert "load_map_and_meta(path, rotated_origin_ok=True)" in str(refused.value), refused.value
+    read, read_geometry, meta = load_map_and_meta(path, rotated_origin_ok=True)
+    assert read.tolist() == grid.tolist() and read_geometry.shape == geometry.shape and meta["origin"][2] == pytest.approx(0.5)
