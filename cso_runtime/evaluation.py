@@ -224,9 +224,11 @@ class EvalRequest:
         explicit = data.get("sensor") or {}
         preset = SensorConfig.preset(self.sensor, fov_deg=self.lidar_fov_deg if self.sensor == "lidar" else None)
         if "fov_deg" in explicit and cfg.sensor.fov_deg != preset.fov_deg:  # the flags' own value is taken: `eval --resolved` writes it
+            given = f"--sensor {self.sensor}" + (f" --lidar-fov {self.lidar_fov_deg:g}" if self.sensor == "lidar" else "")  # as run: 180 unless given
             raise ConfigError(
                 f"{where}: sensor.fov_deg is set by eval's --lidar-fov ({LIDAR_FOVS_SAID}) or the --sensor preset, not by the config "
-                f"(it says {cfg.sensor.fov_deg:g}; --sensor {self.sensor} gives {preset.fov_deg:g})"
+                f"(it says {cfg.sensor.fov_deg:g}; {given} gives {preset.fov_deg:g}): give the --sensor and --lidar-fov it was"
+                " resolved with, or leave sensor.fov_deg out of the file"
             )
         for key in explicit:
             setattr(preset, key, getattr(cfg.sensor, key))

@@ -2301,6 +2301,27 @@ def test_eval_resolved_prints_the_meta_config_a_tiny_eval_records_as_a_config_th
         EvalRequest(methods=["greedy-dist"], config_path=config).exploration_config()  # the LiDAR's 180 degrees, not silently
 
 
+def test_a_resolved_config_given_to_another_lidar_fov_names_the_flag_that_gave_the_other_view(tmp_path: Path):
+    """docs/eval.md: ``eval ... --resolved > run.yaml`` then ``eval --config run.yaml`` with the same ``--lidar-fov``.
+    Given with ``--lidar-fov 360`` a config of a 180-degree run was refused with "--sensor lidar gives 360", as if the
+    preset gave it, not the flag the user typed: the refusal names ``--lidar-fov 360``, and how to go on."""
+    import yaml
+
+    from cso_runtime.evaluation import EvalRequest
+
+    config = tmp_path / "run.yaml"
+    config.write_text(yaml.safe_dump(to_dict(EvalRequest(methods=["greedy-dist"]).exploration_config())))  # --resolved's, 180 degrees
+    with pytest.raises(ConfigError) as refused:
+        EvalRequest(methods=["greedy-dist"], lidar_fov_deg=360.0, config_path=config).exploration_config()
+    said = str(refused.value)
+    assert "(it says 180; --sensor lidar --lidar-fov 360 gives 360)" in said, said
+    assert "give the --sensor and --lidar-fov it was resolved with, or leave sensor.fov_deg out of the file" in said, said
+    with pytest.raises(ConfigError, match=re.escape("(it says 79; --sensor lidar --lidar-fov 180 gives 180)")):  # no --lidar-fov: 180
+        depth = tmp_path / "depth.yaml"
+        depth.write_text(yaml.safe_dump(to_dict(EvalRequest(methods=["greedy-dist"], sensor="depth").exploration_config())))
+        EvalRequest(methods=["greedy-dist"], config_path=depth).exploration_config()
+
+
 def test_eval_dry_run_says_what_would_run_and_writes_nothing(tmp_path: Path):
     """``eval --dry-run`` checks what a real eval checks and says what it would run (scenes per scale and their first
     names, the m/px, the sensor, the simulator, the workers, the learned methods' weights, what it would do with an
