@@ -881,6 +881,7 @@ def up_command(
                 outside = prof.left_out_services()
                 left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
                 comments = [f"profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}"]
+                comments.append(f"read from {_profile_file_said(profile)}")  # ./configs/profiles/ goes before the packaged ones
                 if resolved:
                     comments.append("every parameter as the run would use it, defaults filled in (`up --dry-run`: the profile as written)")
                     if prof.scene_label == REAL_ROBOT_SCENE:
@@ -1577,6 +1578,19 @@ TRAIN_PATH_FIELDS: dict[str, Callable[[str], bool]] = {"out_dir": bool, "resume"
 ``--out runs/a``, ``--out-dir runs/a/`` and ``--set out_dir=$PWD/runs/a`` set one value; ``--init-from shipped``
 names the shipped weights, not a file."""
 
+
+def _profile_file_said(profile: str) -> str:
+    """The file ``up --profile PROFILE`` reads, and whose it is: the working folder's ``configs/profiles/NAME.yaml``
+    takes the place of the packaged profile of that name (``run_profile.profile_search_path``)."""
+    from cso_runtime.run_profile import PACKAGED_PROFILES, find_profile  # noqa: PLC0415
+
+    path = find_profile(profile)
+    if path.suffix and Path(profile).suffix:  # a path given: the file itself
+        return str(path)
+    if path.parent == PACKAGED_PROFILES:
+        return f"{path} (packaged)"
+    shadowed = any((PACKAGED_PROFILES / f"{profile}{ext}").is_file() for ext in (".yaml", ".yml"))
+    return f"{path} (the working folder's" + (f", ahead of the packaged {profile})" if shadowed else ")")
 
 def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: list[str], settings: list[str]) -> None:
     """``train``'s own options (``--out``), its field flags (``--out-dir``, ``args_field_flags``' pairs) and ``--set``
