@@ -848,3 +848,23 @@ def test_every_file_the_readmes_layout_table_names_is_in_its_folder():
                     missing.append(f"{row.group(1)}/{name}")
     assert seen >= 30, "the Layout table lost its modules, or the pattern broke"
     assert missing == []
+
+
+def test_the_table_of_evals_outputs_names_every_file_an_eval_writes_and_each_is_written(tmp_path):
+    """docs/eval.md's table of outputs is where a user looks up a file of a results folder: each file (pattern) it
+    names is one that an eval writes (with ``--animate``, and the baseline beside another method on 3 plans, as
+    ``paired.csv`` needs), and each file the eval writes is in the table."""
+    import fnmatch
+
+    from cso_runtime.evaluation import EvalRequest, run_eval
+
+    patterns = []
+    for name in _eval_output_rows():
+        for part in re.findall(r"`([^`]+)`", name):
+            part = f"{patterns[-1].rsplit('.', 1)[0]}{part}" if part.startswith(".") else part  # `a/b.yaml`, `.png`
+            patterns.append(re.sub(r"<[^>]+>", "*", part))
+    run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:3:0", out_dir=tmp_path, max_steps=5, animate=True))
+    written = [str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p.is_file() and not p.name.startswith(".")]
+    assert len(patterns) >= 12, patterns
+    assert [p for p in patterns if not fnmatch.filter(written, p)] == [], "the table names files an eval does not write"
+    assert [w for w in written if not any(fnmatch.fnmatch(w, p) for p in patterns)] == [], "an eval writes files the table does not name"
