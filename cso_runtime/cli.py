@@ -1592,6 +1592,7 @@ def _profile_file_said(profile: str) -> str:
     shadowed = any((PACKAGED_PROFILES / f"{profile}{ext}").is_file() for ext in (".yaml", ".yml"))
     return f"{path} (the working folder's" + (f", ahead of the packaged {profile})" if shadowed else ")")
 
+
 def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: list[str], settings: list[str]) -> None:
     """``train``'s own options (``--out``), its field flags (``--out-dir``, ``args_field_flags``' pairs) and ``--set``
     all set fields of ``learned.ppo.Args``: two of them that give one field different values are a ConfigError that

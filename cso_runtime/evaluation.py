@@ -1632,6 +1632,7 @@ def print_table_or_rows(console: Any, table: Any, labels: int) -> None:
     if table.caption:
         console.print(table.caption, soft_wrap=True, highlight=False)
 
+
 def closing_said(summary: dict[str, Any], out_dir: Path) -> str:
     """``eval``'s last line: where the results are (``results_said``); where no episode finished, that no metric and no
     figure was written (all failed: the report and summary.json list the failures)."""
