@@ -947,6 +947,7 @@ def up_command(
                 outside = prof.left_out_services()
                 left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
                 comments = [f"profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}"]
+                comments.append(f"read from {_profile_file_said(profile)}")  # ./configs/profiles/ goes before the packaged ones
                 if resolved:
                     comments.append("every parameter as the run would use it, defaults filled in (`up --dry-run`: the profile as written)")
                     if prof.scene_label == REAL_ROBOT_SCENE:
@@ -1339,7 +1340,7 @@ def dataflow_command(
 
     table = Table(title=f"profile {prof.name}: keys under cso/{prof.robot}/")
     for col in ("node", "inputs (from)", "outputs (to)"):
-        table.add_column(col)
+        table.add_column(col, overflow="fold")  # a node's class of one's own (module.path:Attribute) wraps, not cut to "…"
     labels = {n.name: n.label for n in nodes}
     for w in wiring_of(nodes):
         ins = "\n".join(f"{key} <- {', '.join(peers) or '(none)'}" for key, peers in w.inputs)
@@ -1658,14 +1659,37 @@ TRAIN_PATH_FIELDS: dict[str, Callable[[str], bool]] = {"out_dir": bool, "resume"
 names the shipped weights, not a file."""
 
 
+def _profile_file_said(profile: str) -> str:
+    """The file ``up --profile PROFILE`` reads, and whose it is: the working folder's ``configs/profiles/NAME.yaml``
+    takes the place of the packaged profile of that name (``run_profile.profile_search_path``)."""
+    from cso_runtime.run_profile import PACKAGED_PROFILES, find_profile  # noqa: PLC0415
+
+    path = find_profile(profile)
+    if path.suffix and Path(profile).suffix:  # a path given: the file itself
+        return str(path)
+    if path.parent == PACKAGED_PROFILES:
+        return f"{path} (packaged)"
+    shadowed = any((PACKAGED_PROFILES / f"{profile}{ext}").is_file() for ext in (".yaml", ".yml"))
+    return f"{path} (the working folder's" + (f", ahead of the packaged {profile})" if shadowed else ")")
+
+
 def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: list[str], settings: list[str]) -> None:
     """``train``'s own options (``--out``), its field flags (``--out-dir``, ``args_field_flags``' pairs) and ``--set``
     all set fields of ``learned.ppo.Args``: two of them that give one field different values are a ConfigError that
     names both (one of them took over the other in silence). The same value twice is fine; so is one flag given
-    twice, whose last value counts, as typer's own options' does."""
+    twice, whose last value counts, as typer's own options' does. A ``--set`` of a text field that YAML reads as
+    another type (``out_dir=2024``) is a ConfigError that says how to write it (``--set out_dir='2024'``)."""
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import field_value, place_of, refuse_two_values, set_flag_text, text_field, yaml_text  # noqa: PLC0415
+    from cso_runtime.config import (  # noqa: PLC0415
+        field_value,
+        place_of,
+        refuse_a_setting_read_as_another_type,
+        refuse_two_values,
+        set_flag_text,
+        text_field,
+        yaml_text,
+    )
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1689,6 +1713,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     for name, value in parse_settings(settings).items():
         given.setdefault(name, []).append((set_flag_text(name, value), value))
     refuse_two_values({name: said for name, said in given.items() if name in types}, read)  # a key no field is: from_dict names it
+    refuse_a_setting_read_as_another_type(parse_settings(settings), types)  # `--set out_dir=2024` alone: how to write it, as `up` says
 
 
 def parse_seeds(items: list[str]) -> list[int]:

@@ -232,9 +232,11 @@ class EvalRequest:
         explicit = data.get("sensor") or {}
         preset = SensorConfig.preset(self.sensor, fov_deg=self.lidar_fov_deg if self.sensor == "lidar" else None)
         if "fov_deg" in explicit and cfg.sensor.fov_deg != preset.fov_deg:  # the flags' own value is taken: `eval --resolved` writes it
+            given = f"--sensor {self.sensor}" + (f" --lidar-fov {self.lidar_fov_deg:g}" if self.sensor == "lidar" else "")  # as run: 180 unless given
             raise ConfigError(
                 f"{where}: sensor.fov_deg is set by eval's --lidar-fov ({LIDAR_FOVS_SAID}) or the --sensor preset, not by the config "
-                f"(it says {cfg.sensor.fov_deg:g}; --sensor {self.sensor} gives {preset.fov_deg:g})"
+                f"(it says {cfg.sensor.fov_deg:g}; {given} gives {preset.fov_deg:g}): give the --sensor and --lidar-fov it was"
+                " resolved with, or leave sensor.fov_deg out of the file"
             )
         for key in explicit:
             setattr(preset, key, getattr(cfg.sensor, key))
@@ -1586,7 +1588,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     table = table1(spread=True)
     if Measurement.get(console, console.options.update_width(10**6), table).maximum > console.width:  # "0.5768 ±" over "0.0425" is unreadable: means alone
         table = table1(spread=False)
-    console.print(table)
+    print_table_or_rows(console, table, labels=2)
     if shows_ablations(summary):
         header, rows = table2(summary)
         ablations = Table(title="Table 2: m2/step (per-scene change against the baseline)")
@@ -1594,7 +1596,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
             ablations.add_column(col, no_wrap=True, justify="left" if col == "method" else "right")
         for cells in rows:
             ablations.add_row(*cells)
-        console.print(ablations)
+        print_table_or_rows(console, ablations, labels=1)
     paired = summary.get("paired") or {}
     if paired.get("comparisons"):
         against = Table(title=escape(f"Against {paired['baseline']}, scene by scene ({out_dir}/paired.csv)"))
@@ -1602,7 +1604,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
             against.add_column(col, no_wrap=col in ("method", "scale"), justify="left" if col in ("method", "scale") else "right")
         for c in paired["comparisons"]:
             against.add_row(*paired_cells(c))
-        console.print(against)
+        print_table_or_rows(console, against, labels=2)
     elif paired.get("baseline") in summary["methods"] and len(summary["methods"]) > 1:  # say why there is no comparison
         console.print(escape(f"no comparison with {paired['baseline']} scene by scene (paired.csv): no other method shares "
                              f"{TOO_FEW_SCENES} with it"), soft_wrap=True, highlight=False)
@@ -1612,6 +1614,31 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
         failed = escape(f"{f['method']} {f['map']}{seed}: {why}")
         console.print(f"[red]failed[/red] {failed}", soft_wrap=True)  # a path in it must stay whole
     console.print(escape(closing_said(summary, out_dir)), soft_wrap=True, highlight=False)
+
+
+def print_table_or_rows(console: Any, table: Any, labels: int) -> None:
+    """``table`` on ``console`` where its columns fit; on a terminal too narrow for them (Table 1's nine columns on 80
+    characters), rich would cut its cells to "…" (an m2/step of ``3.3…``): then its title, one line per row (its first
+    ``labels`` cells, then each value after its column's name), and its caption, wrapped, every number whole."""
+    import io  # noqa: PLC0415
+
+    from rich.console import Console  # noqa: PLC0415
+    from rich.text import Text  # noqa: PLC0415
+
+    laid_out = io.StringIO()
+    Console(file=laid_out, width=console.width, color_system=None).print(table)  # as it would be there: rich's own ellipsis
+    if "…" not in laid_out.getvalue():
+        console.print(table)
+        return
+    if table.title:
+        console.print(table.title, soft_wrap=True, highlight=False)
+    headers = [Text.from_markup(str(c.header)).plain for c in table.columns]
+    for cells in zip(*(list(c.cells) for c in table.columns)):
+        plain = [Text.from_markup(cell).plain if isinstance(cell, str) else str(cell) for cell in cells]
+        said = ", ".join(f"{name} {value}" for name, value in zip(headers[labels:], plain[labels:]))
+        console.print(escape(f"{' '.join(plain[:labels])}: {said}"), soft_wrap=True, highlight=False)
+    if table.caption:
+        console.print(table.caption, soft_wrap=True, highlight=False)
 
 
 def closing_said(summary: dict[str, Any], out_dir: Path) -> str:

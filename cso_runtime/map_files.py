@@ -159,7 +159,10 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
     if not resolution > 0:
         raise MapFileError(f"{yaml_path}: resolution must be positive, got {resolution}")
     if abs(yaw) > 1e-9 and not rotated_origin_ok:
-        raise MapFileError(f"{yaml_path}: a rotated origin (yaw {yaw} rad) is not supported: grids here are axis-aligned")
+        raise MapFileError(
+            f"{yaml_path}: a rotated origin (yaw {yaw} rad): load_map gives an axis-aligned grid in the map frame;"
+            " load_map_and_meta(path, rotated_origin_ok=True) reads it, the grid in its own frame and the yaw in meta['origin']"
+        )
     mode = meta.get("mode", "trinary")
     if mode not in ("trinary", "scale", "raw"):
         raise MapFileError(f"{yaml_path}: unknown mode {mode!r} (trinary, scale or raw)")

@@ -211,6 +211,16 @@ MAP_SUFFIXES = (".yaml", ".yml")
 """A scene file with one of these suffixes is a map_server map (``load_map_scene``)."""
 
 
+def _map_extent(map_origin: Pose2D, shape: tuple[int, ...], resolution_m: float) -> str:
+    """Where a map's grid lies in its map frame, in words for an error (a start given off it): the span of its corners,
+    which is the grid itself unless the ``origin`` turns it."""
+    height_m, width_m = shape[0] * resolution_m, shape[1] * resolution_m
+    corners = [compose_pose(map_origin, Pose2D(x_m, y_m, 0.0)) for x_m in (0.0, width_m) for y_m in (0.0, height_m)]
+    xs, ys = [round(c.x_m, 3) for c in corners], [round(c.y_m, 3) for c in corners]
+    turned = f" (its corners' span: the origin turns it by {map_origin.yaw_rad:g} rad)" if map_origin.yaw_rad else ""
+    return f"in the map frame it covers x {min(xs):g} to {max(xs):g} m, y {min(ys):g} to {max(ys):g} m{turned}"
+
+
 def load_map_scene(path: str | Path) -> FloorPlan:
     """A map_server map (YAML + image) as a floor plan: its free cells (0) are the floor; occupied and
     unknown cells are walls. The plan's frame is the map's lower-left corner, at the map's own
@@ -239,7 +249,9 @@ def load_map_scene(path: str | Path) -> FloorPlan:
         # The map frame's pose in the grid's frame, whose corner is at `origin`, turned by its yaw (map_server's).
         pose = Pose2D(*relative_pose(map_origin, Pose2D(*map(float, start))))
         iy, ix = GridGeometry(res, free.shape).world_to_cell(pose.x_m, pose.y_m)
-        if not (0 <= iy < free.shape[0] and 0 <= ix < free.shape[1] and free[iy, ix]):
+        if not (0 <= iy < free.shape[0] and 0 <= ix < free.shape[1]):
+            raise SceneError(f"{p.name}: start ({start[0]}, {start[1]}) m is off the map: {_map_extent(map_origin, free.shape, res)}")
+        if not free[iy, ix]:
             raise SceneError(f"{p.name}: start ({start[0]}, {start[1]}) m is not on a free cell of the map")
     else:
         from scipy import ndimage  # noqa: PLC0415  (as in traversable_region)

@@ -399,6 +399,21 @@ def test_a_set_of_a_nested_key_read_as_a_number_where_the_field_is_text_says_how
     assert not (tmp_path / "runs").exists()
 
 
+def test_a_train_set_alone_read_as_a_number_where_the_field_is_text_says_how_to_write_it(tmp_path: Path, train_runs: list):
+    """docs/training.md: "``--set out_dir=2024`` is the number 2024, which the refusal says: ``--set out_dir='2024'``".
+    Beside ``--out 2024`` it did; alone, ``train`` said "out_dir: expected a string, got 2024", and ``--set
+    dungeon_dir=2024`` (a folder named for its year) "dungeon_dir: 2024 does not fit str | None", a Python type
+    where ``up --set robot=1`` alone says how to write it. ``train`` and ``collect-teacher`` say it as ``up`` does."""
+    from cso_runtime.cli import app
+
+    for command, key in (("train", "out_dir"), ("train", "dungeon_dir"), ("collect-teacher", "dungeon_dir")):
+        out = ["--out", str(tmp_path / "t.npz")] if command == "collect-teacher" else []
+        r = CliRunner().invoke(app, [command, *out, "--set", f"{key}=2024"])
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2 and f"--set {key}=2024 is read as a number, and {key} is text: write --set {key}='2024'" in said, (command, said)
+    assert not train_runs
+
+
 def test_one_path_written_two_ways_is_one_value(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
     """``up --scene ./plans --set scene=plans`` and ``up --zenoh-config ./z.json5 --set router.zenoh_config=$PWD/z.json5``
     were refused as "different values": one path, written two ways. A path-valued field's values are compared as the

@@ -1600,3 +1600,24 @@ def test_a_nan_or_inf_written_as_most_tools_write_it_is_said_to_be_not_finite():
             from_dict(ExplorationConfig, {"planner": {"lookahead_m": yaml.safe_load(text)}})
     with pytest.raises(ConfigError, match=re.escape("planner.lookahead_m: expected a number, got 'far'")):
         from_dict(ExplorationConfig, {"planner": {"lookahead_m": "far"}})
+
+
+def test_up_dry_run_names_the_profile_file_it_read(tmp_path, monkeypatch):
+    """README: "your own [profiles] in ``./configs/profiles/`` of the working folder take precedence" over the packaged
+    ones of the same name, and ``up --dry-run`` is "the profile as run". It did not say which file that was, so a
+    ``configs/profiles/sim.yaml`` left in the folder ran in place of the packaged ``sim`` unseen: the dry run (and
+    ``--resolved``) name the file read."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.run_profile import PACKAGED_PROFILES
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["up", "--profile", "sim", "--dry-run"])
+    assert r.exit_code == 0 and f"\n# read from {PACKAGED_PROFILES / 'sim.yaml'} (packaged)\n" in r.output, r.output[:400]
+    own = tmp_path / "configs" / "profiles" / "sim.yaml"
+    own.parent.mkdir(parents=True)
+    own.write_text((PACKAGED_PROFILES / "sim.yaml").read_text())
+    for flag in ("--dry-run", "--resolved"):
+        r = CliRunner().invoke(app, ["up", "--profile", "sim", flag])
+        assert r.exit_code == 0 and "\n# read from configs/profiles/sim.yaml (the working folder's, ahead of the packaged sim)\n" in r.output, r.output[:400]

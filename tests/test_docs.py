@@ -820,3 +820,51 @@ def test_the_readmes_exit_code_table_says_what_record_and_replay_do_with_no_run(
     assert r.exit_code == 2 and "no current run" in r.output, r.output
     row = next(line for line in (ROOT / "docs" / "commands.md").read_text(encoding="utf-8").splitlines() if line.startswith("| 2 |"))
     assert "no current run and no `--connect` (`record`, `replay`" in row
+
+
+def test_the_readmes_dry_run_and_resolved_bullet_names_the_commands_that_have_them():
+    """The README's Configs section said "``--dry-run`` checks everything ..." of every command, after naming ``train``'s
+    ``--set``: ``train --dry-run`` is "no such option". The bullet names the commands that take ``--dry-run`` and
+    ``--resolved``, and those alone."""
+    readme = " ".join((ROOT / "README.md").read_text(encoding="utf-8").split())
+    bullet = readme.split("- **`--dry-run`** (", 1)[1].split(")", 1)[0]
+    named = set(re.findall(r"`([\w-]+)`", bullet))
+    cli = typer.main.get_command(app)
+    for flag in ("--dry-run", "--resolved"):
+        having = {name for name, c in cli.commands.items() if any(flag in p.opts for p in c.params)}
+        assert having == named, f"{flag}: the README names {sorted(named)}, the commands that have it are {sorted(having)}"
+
+
+def test_every_file_the_readmes_layout_table_names_is_in_its_folder():
+    """The Layout table names modules by their file name alone (``occupancy.py`` on the ``cso_runtime/`` row), which
+    the check of repository paths does not see: each is a file of its row's folder."""
+    layout = (ROOT / "README.md").read_text(encoding="utf-8").split("\n## Layout\n", 1)[1].split("\n## ", 1)[0]
+    missing, seen = [], 0
+    for line in layout.splitlines():
+        if row := re.match(r"\| `([\w/]+)/`", line):
+            for name in re.findall(r"`(\w+\.py)`", line):
+                seen += 1
+                if not (ROOT / row.group(1) / name).is_file():
+                    missing.append(f"{row.group(1)}/{name}")
+    assert seen >= 30, "the Layout table lost its modules, or the pattern broke"
+    assert missing == []
+
+
+def test_the_table_of_evals_outputs_names_every_file_an_eval_writes_and_each_is_written(tmp_path):
+    """docs/eval.md's table of outputs is where a user looks up a file of a results folder: each file (pattern) it
+    names is one that an eval writes (with ``--animate``, and the baseline beside another method on 3 plans, as
+    ``paired.csv`` needs), and each file the eval writes is in the table."""
+    import fnmatch
+
+    from cso_runtime.evaluation import EvalRequest, run_eval
+
+    patterns = []
+    for name in _eval_output_rows():
+        for part in re.findall(r"`([^`]+)`", name):
+            part = f"{patterns[-1].rsplit('.', 1)[0]}{part}" if part.startswith(".") else part  # `a/b.yaml`, `.png`
+            patterns.append(re.sub(r"<[^>]+>", "*", part))
+    run_eval(EvalRequest(methods=["greedy-dist", "random"], maps="generated:small:3:0", out_dir=tmp_path, max_steps=5, animate=True))
+    written = [str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*") if p.is_file() and not p.name.startswith(".")]
+    assert len(patterns) >= 12, patterns
+    assert [p for p in patterns if not fnmatch.filter(written, p)] == [], "the table names files an eval does not write"
+    assert [w for w in written if not any(fnmatch.fnmatch(w, p) for p in patterns)] == [], "an eval writes files the table does not name"

@@ -864,6 +864,41 @@ def test_the_console_table_has_one_block_per_scale_as_the_papers_table_1(tmp_pat
     assert lines[-1] == f"results in {tmp_path}/: report.html (all of it, for a browser), summary.json, episodes.csv, the figures"
 
 
+
+def test_the_console_tables_on_an_80_column_terminal_cut_no_number(tmp_path: Path, monkeypatch):
+    """On an 80-column terminal Table 1's nine columns did not fit even without the spreads: rich cut its cells,
+    and the m2/step of the run read ``3.3…``, its coverage ``13.…``. A table too wide for the terminal is said one
+    line per row instead (each value after its column's name), so no number is cut; the comparison's too."""
+    import io
+
+    from rich.console import Console
+
+    from cso_runtime import evaluation
+    from cso_runtime.evaluation import print_summary, summarize
+
+    def row(method: str, name: str, eff: float) -> dict:
+        return {"method": method, "map": name, "seed": 0, "traversable_area_m2": 514.56, "scale": "super_large", "terminated_by": "max_steps",
+                "explored_area_m2": 67.6, "coverage_pct": 13.37, "steps": 20.0, "efficiency_m2_per_step": eff, "path_length_m": 0.2,
+                "decision_ms_p50": 8.2, "decision_ms_p99": 9.1}
+
+    rows = [row(m, n, e + i / 100) for m, e in (("greedy-dist", 3.3802), ("greedy-info", 3.4101)) for i, n in enumerate(("img_1", "img_2", "img_3"))]
+    summary = summarize(rows, [], ["greedy-dist", "greedy-info"], {})
+    for width, table in ((80, False), (200, True)):
+        screen = io.StringIO()
+        monkeypatch.setattr(evaluation, "table_console", lambda w=width, f=screen: Console(file=f, width=w, force_terminal=True, color_system=None))
+        print_summary(summary, tmp_path)
+        out = screen.getvalue()
+        assert "…" not in out, out
+        assert ("│ greedy-dist │" in out) == table, out  # a wide terminal keeps the tables
+        assert max(len(line) for line in out.splitlines()) <= width or not table, out
+    narrow = io.StringIO()
+    monkeypatch.setattr(evaluation, "table_console", lambda: Console(file=narrow, width=80, force_terminal=True, color_system=None))
+    print_summary(summary, tmp_path)
+    said = " ".join(narrow.getvalue().split())
+    assert "greedy-dist super_large: episodes 3, explored m2 67.6, coverage % 13.37, steps 20.0, m2/step 3.3902, path m 0.2, decision ms p50/p99 8.2/9.1" in said, said
+    assert "greedy-info super_large: scenes 3, m2/step vs baseline +0.9 %" in said, said  # the comparison's rows too
+
+
 def test_the_closing_line_of_an_eval_whose_every_episode_failed_says_so_not_the_figures(tmp_path: Path, capsys):
     """Every episode failed: no metric and no figure was written, so the closing line does not send the reader to
     "the figures" (nor to a report of results): it says that all failed and where the failures are listed."""
@@ -2299,6 +2334,27 @@ def test_eval_resolved_prints_the_meta_config_a_tiny_eval_records_as_a_config_th
     assert to_dict(given_back) == shown
     with pytest.raises(ConfigError, match="sensor.fov_deg is set by eval's --lidar-fov.*says 79.*gives 180"):
         EvalRequest(methods=["greedy-dist"], config_path=config).exploration_config()  # the LiDAR's 180 degrees, not silently
+
+
+def test_a_resolved_config_given_to_another_lidar_fov_names_the_flag_that_gave_the_other_view(tmp_path: Path):
+    """docs/eval.md: ``eval ... --resolved > run.yaml`` then ``eval --config run.yaml`` with the same ``--lidar-fov``.
+    Given with ``--lidar-fov 360`` a config of a 180-degree run was refused with "--sensor lidar gives 360", as if the
+    preset gave it, not the flag the user typed: the refusal names ``--lidar-fov 360``, and how to go on."""
+    import yaml
+
+    from cso_runtime.evaluation import EvalRequest
+
+    config = tmp_path / "run.yaml"
+    config.write_text(yaml.safe_dump(to_dict(EvalRequest(methods=["greedy-dist"]).exploration_config())))  # --resolved's, 180 degrees
+    with pytest.raises(ConfigError) as refused:
+        EvalRequest(methods=["greedy-dist"], lidar_fov_deg=360.0, config_path=config).exploration_config()
+    said = str(refused.value)
+    assert "(it says 180; --sensor lidar --lidar-fov 360 gives 360)" in said, said
+    assert "give the --sensor and --lidar-fov it was resolved with, or leave sensor.fov_deg out of the file" in said, said
+    with pytest.raises(ConfigError, match=re.escape("(it says 79; --sensor lidar --lidar-fov 180 gives 180)")):  # no --lidar-fov: 180
+        depth = tmp_path / "depth.yaml"
+        depth.write_text(yaml.safe_dump(to_dict(EvalRequest(methods=["greedy-dist"], sensor="depth").exploration_config())))
+        EvalRequest(methods=["greedy-dist"], config_path=depth).exploration_config()
 
 
 def test_eval_dry_run_says_what_would_run_and_writes_nothing(tmp_path: Path):

@@ -2215,6 +2215,25 @@ def test_fine_tuning_names_what_differs_and_starts_from_a_training_checkpoint_to
     assert start.keys() == saved.keys() and all(torch.equal(start[k], saved[k]) for k in saved)
 
 
+def test_fine_tuning_from_the_shipped_weights_names_the_file_it_started_from(tmp_path):
+    """``train --init-from shipped`` said only "initialised from shipped", and its record ``init_from: shipped``: which
+    of the shipped files (``cso.pt`` or ``cso@fov180.pt``, by the training sensor) the run started from, and which
+    version of it, was left to guess. The line and the record name the file, the record with its SHA-256."""
+    import hashlib
+
+    from cso_runtime.config import from_dict, load_yaml
+
+    recipe = dataclasses.asdict(from_dict(Args, load_yaml(Path(__file__).parents[1] / "configs" / "train.yaml"), "train.yaml"))
+    recipe.update(out_dir=str(tmp_path), num_envs=1, num_steps=4, num_minibatches=1, max_steps=40, progress=False, init_from="shipped", total_decisions=4)
+    said: list[str] = []
+    record = train(Args(**recipe), log=said.append, plans=[rooms_plan(2)])
+    shipped = weights_path("cso", SensorConfig.preset("lidar", 360.0))  # the recipe's 360-degree LiDAR: cso.pt
+    assert shipped.name == "cso.pt"
+    assert f"initialised from shipped weights {shipped}" in said, said
+    digest = hashlib.sha256(shipped.read_bytes()).hexdigest()
+    assert record["init_from"] == "shipped" and record["init_from_weights"] == {"path": str(shipped), "sha256": digest}
+
+
 def test_a_stopped_training_run_leaves_its_learning_curve_so_far(tmp_path):
     """Ctrl-C (or a dead environment process) left the CSV log and the checkpoint but no ``<variant>_curve.png``:
     the curve was drawn only at the end, so the run a user stopped because it looked wrong had no picture to show

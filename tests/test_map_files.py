@@ -340,3 +340,20 @@ def test_a_map_yaml_number_written_with_an_exponent_is_read_as_map_server_reads_
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump({**meta, "origin": [0.0, float("nan"), 0.0]}))
     with pytest.raises(MapFileError, match=re.escape("origin must be three finite numbers [x_m, y_m, yaw_rad], got nan")):
         load_map(tmp_path / "bad.yaml")
+
+
+def test_load_map_of_a_map_with_a_turned_origin_says_how_to_read_it(tmp_path: Path):
+    """``eval`` and ``up`` write the robot's map of a map_server scene whose ``origin`` has a yaw with that yaw, and
+    docs/eval.md pointed at ``load_map`` to read such files back: it refused them with "grids here are axis-aligned",
+    naming no way to read this project's own output. The refusal names ``load_map_and_meta(path,
+    rotated_origin_ok=True)``, which reads it, the grid in its own frame and the yaw in the YAML's ``origin``."""
+    from cso_runtime.geometry import Pose2D
+    from cso_runtime.map_files import load_map_and_meta
+
+    grid, geometry = _grid()
+    path = save_map(tmp_path / "turned.yaml", grid, geometry, map_origin=Pose2D(1.0, 2.0, 0.5))
+    with pytest.raises(MapFileError) as refused:
+        load_map(path)
+    assert "load_map_and_meta(path, rotated_origin_ok=True)" in str(refused.value), refused.value
+    read, read_geometry, meta = load_map_and_meta(path, rotated_origin_ok=True)
+    assert read.tolist() == grid.tolist() and read_geometry.shape == geometry.shape and meta["origin"][2] == pytest.approx(0.5)

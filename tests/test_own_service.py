@@ -239,3 +239,20 @@ def test_a_misspelt_service_name_is_refused_with_the_name_it_most_likely_meant(t
     assert "unknown service 'plannner' (did you mean planner?); known: sim, mapper" in str(exc.value)
     r = CliRunner().invoke(app, ["up", "--profile", "sim", "--without", "plicy", "--dry-run"])
     assert r.exit_code == 2 and "--without plicy (did you mean policy?): no such service; known: sim" in r.output, r.output
+
+
+def test_dataflow_names_each_service_of_ones_own_by_its_whole_class_on_an_80_column_terminal(tmp_path: Path):
+    """docs/own-service.md: ``dataflow --profile own.yaml`` shows "the graph with both, each named with its class". On
+    an 80-column terminal the table cut the class to ``(tests.own_service_exa…``, so the user could not see which class
+    ran: the node column wraps a long label instead."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    profile = tmp_path / "own.yaml"
+    profile.write_text(docs_block("yaml")[0])
+    r = CliRunner().invoke(app, ["dataflow", "--profile", str(profile)], terminal_width=80, env={"COLUMNS": "80"})
+    assert r.exit_code == 0, r.output
+    assert "…" not in r.output, r.output
+    first_column = "".join(line.split("│")[1].strip() for line in r.output.splitlines() if line.count("│") == 4)
+    assert f"mapper({MAPPER})" in first_column and f"coverage_logger({LOGGER})" in first_column, first_column

@@ -343,6 +343,11 @@ def test_a_map_scene_takes_its_start_from_the_yaml_and_folders_of_maps_list_the_
     _plan_as_map(tmp_path, plan, start=[-3.0 + 0.01, 1.5 + 0.01, 0.0])  # the corner: a wall
     with pytest.raises(SceneError, match="not on a free cell"):
         resolve_scenes(str(yaml_path))[0].load()
+    _plan_as_map(tmp_path, plan, start=[1.0, 1.0, 0.0])  # a start off the map: where the map lies says what to fix
+    with pytest.raises(SceneError) as off:
+        resolve_scenes(str(yaml_path))[0].load()
+    width_m, height_m = plan.free.shape[1] * plan.resolution_m, plan.free.shape[0] * plan.resolution_m
+    assert f"start (1.0, 1.0) m is off the map: in the map frame it covers x -3 to {-3 + width_m:g} m, y 1.5 to {1.5 + height_m:g} m" in str(off.value)
     _plan_as_map(tmp_path, plan, start=[1.0, "two", 0.0])
     with pytest.raises(SceneError, match=r"start must be \[x_m, y_m, yaw_rad\]"):
         resolve_scenes(str(yaml_path))[0].load()

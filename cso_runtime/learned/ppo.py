@@ -73,7 +73,7 @@ from cso_runtime.learned.registry import (
 )
 from cso_runtime.learned.vector_env import EnvWorkerDied, WatchedAsyncVectorEnv
 from cso_runtime.learned.weights import mask_set_flags, mask_settings_changed, trained_mask_settings
-from cso_runtime.outputs import remove_partial_files, write_npz_whole, write_text_atomic, write_whole
+from cso_runtime.outputs import file_sha256, remove_partial_files, write_npz_whole, write_text_atomic, write_whole
 from cso_runtime.plots import pyplot
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.provenance import software_provenance
@@ -804,10 +804,16 @@ def training_checkpoint_weights(path: Path, device: torch.device) -> tuple[Graph
     return model.eval(), run.env_config().graph, ckpt
 
 
+def init_from_path(args: Args) -> Path:
+    """The file ``args.init_from`` names: ``shipped`` is the variant's weights for the training sensor
+    (``cso.pt``, or ``cso@fov180.pt`` with the 180-degree LiDAR), anything else a path."""
+    return weights_path(args.variant, args.env_config().exploration.sensor) if args.init_from == "shipped" else Path(str(args.init_from))
+
+
 def initial_weights(args: Args, device: torch.device) -> dict[str, torch.Tensor]:
     """The state dict named by ``args.init_from`` (a weights file, or a training checkpoint: a stopped run's
     ``checkpoint.pt``), checked against the variant, graph and network being trained."""
-    path = weights_path(args.variant, args.env_config().exploration.sensor) if args.init_from == "shipped" else Path(str(args.init_from))
+    path = init_from_path(args)
     try:
         model, graph, ckpt = load_checkpoint(path, str(device))
     except FileNotFoundError:
@@ -1231,8 +1237,10 @@ def _train_on(
             log(f"total_decisions {before} -> {args.total_decisions}: {counted(args.num_updates, 'update')} in all, the learning rate anneals over them from here")
     elif args.init_from:
         model.load_state_dict(initial_weights(args, device))
+        start_file = init_from_path(args)
         record["init_from"] = str(args.init_from)
-        log(f"initialised from {args.init_from}")
+        record["init_from_weights"] = {"path": str(start_file), "sha256": file_sha256(start_file)}  # which file `shipped` was
+        log(f"initialised from shipped weights {start_file}" if args.init_from == "shipped" else f"initialised from {args.init_from}")
     elif args.warm_start_data or args.warm_start_decisions > 0:
         if args.warm_start_data:
             data = TeacherData.load(args.warm_start_data)
