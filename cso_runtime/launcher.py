@@ -386,8 +386,9 @@ class Launcher:
         (``judge_episode_end``)."""
         self.episodes_before: set[int] = set()
         """The episodes heard running before ``episode_running`` (a restarted sim's is a new one): an end of one of
-        them is left behind at once (``end_left_behind``), unless its result is here; a late status of one of them
-        running does not make it the running one again. An end of an episode never heard running (a restarted sim's
+        them is left behind at once (``end_left_behind``), unless its result is here; a late status of one of them is
+        none of the running episode's: it does not make it the running one again, nor replace ``status`` (the launcher's
+        status, the pace, the end the run loop judges: a late end of it after the running one's hid that). An end of an episode never heard running (a restarted sim's
         that ended before it said it runs) is awaited, and judged by its result."""
         self.status_watch: StatusWatch | None = None
         """Which services answer the launcher's status queries (their hang check), once the session is open."""
@@ -558,15 +559,22 @@ class Launcher:
                 log.warning("rejected payload on %s: %s", key, exc)
             return
         if isinstance(msg, EpisodeStatusMsg):
-            before, now = self.status, time.monotonic()
-            if before is None or (before.episode, before.step, before.state) != (msg.episode, msg.step, msg.state):
-                self.step_changed_s = now
+            now = time.monotonic()
             with self._lock:  # one with the end heard: the run loop, between them, would take one end twice
+                if msg.episode in self.episodes_before:
+                    # Late (or replayed), of an episode a restart left behind: it runs no more (ids are drawn anew per
+                    # episode), and its status is none of the running one's (the launcher's status, the pace, the
+                    # end the run loop judges). Its end is judged all the same (its result may be here), never in
+                    # place of an end of the running episode heard before it.
+                    if msg.state in EPISODE_OVER and self.end_heard is None:
+                        self.end_heard = msg
+                    return
+                before = self.status
+                if before is None or (before.episode, before.step, before.state) != (msg.episode, msg.step, msg.state):
+                    self.step_changed_s = now
                 self.status, self.status_heard_at_s = msg, now
                 if msg.state in EPISODE_OVER:
                     self.end_heard = msg
-                elif msg.episode in self.episodes_before:
-                    pass  # late, of an episode a restart left behind: it runs no more (ids are drawn anew per episode)
                 else:
                     if self.episode_running is not None and self.episode_running != msg.episode:
                         self.episodes_before.add(self.episode_running)

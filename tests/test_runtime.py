@@ -5362,9 +5362,10 @@ def test_an_end_claiming_a_step_ahead_is_a_stray_once_the_episode_steps_on_behin
 
 
 def test_a_stray_end_of_another_episode_is_judged_once_while_it_stays_the_latest_status(tmp_path):
-    """A late "done" of episode 7 heard after episode 8 started stays ``status`` until the sim's next status (a sim
+    """A late "done" of episode 7 heard after episode 8 started stayed ``status`` until the sim's next status (a sim
     waiting for its services says nothing for seconds): the run loop, looking every 0.1 s, judged it again at each
-    look, logging it and counting it in ``launcher_rejected`` ten times a second. It is judged once."""
+    look, logging it and counting it in ``launcher_rejected`` ten times a second. It is judged once (and, since, it
+    is never ``status``: a status of an episode a restart left behind is none of the running one's)."""
     launcher, hear = _launcher_hearing(tmp_path)
     hear(EpisodeStatusMsg("exploring", 30, episode=7))
     hear(EpisodeStatusMsg("starting", 0, episode=8))
@@ -5450,6 +5451,45 @@ def test_a_late_status_of_an_episode_a_restart_left_behind_does_not_make_it_the_
     assert over is not None and over.episode == 8
     judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(9, "coverage"))]), over, lambda: None)
     assert judged is not None and judged[0] is over and judged[1] is not None
+
+
+def test_a_late_status_of_an_episode_a_restart_left_behind_is_not_the_running_episodes_status(tmp_path):
+    """Episode 7's sim restarted into episode 8; a status of episode 7 heard after that (late, or replayed) still
+    replaced the launcher's latest status: its ``last_episode`` (``status`` with the sim silent, the live view) said
+    episode 7, the real-time factor of episode 8 was measured anew from it (episodes.csv's ``real_time_factor``
+    of episode 8 empty when it came between 8's last status and its end), and a late end of 7 heard after 8's end
+    hid 8's end: judged left behind, it stayed the latest status, 8's end was never judged and the run never ended.
+    A status of an episode a restart left behind is no status of the running episode; its end is judged all the
+    same (its result may be here)."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("exploring", 9, episode=8))
+    assert launcher.real_time_factor is not None
+    hear(EpisodeStatusMsg("exploring", 31, episode=7))  # late, of the episode before
+    last = launcher.launcher_status().last_episode
+    assert last is not None and (last["episode"], last["step"]) == (8, 9), last
+    assert launcher.real_time_factor is not None  # 8's pace, not started over on 7's status
+    hear(EpisodeStatusMsg("done", 40, terminated_by="coverage", episode=8))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # late, after 8's end
+    over = launcher.episode_end_heard()
+    assert over is not None and (over.episode, over.step) == (8, 40), over
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(40, "coverage"))]), over, lambda: None)
+    assert judged is not None and judged[0] is over and judged[1] is not None and judged[1].steps == 40
+    assert launcher.real_time_factor is not None
+
+    # 8's end heard, then 7's late end and 8's result before the run loop looks: the run's end is 8's, not 7's
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    hear(EpisodeStatusMsg("failed", 31, terminated_by="lockstep_timeout", episode=7))
+    hear(_result(40, "max_steps"))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 8, over
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)
+    assert judged is not None and (judged[0].episode, judged[0].state) == (8, "done"), judged
 
 
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
