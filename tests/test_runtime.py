@@ -2788,6 +2788,47 @@ def test_a_service_that_came_up_between_the_hang_checks_rounds_reads_not_answeri
     assert busy.came_up is False
 
 
+def test_a_restarted_service_whose_token_comes_as_the_hang_check_looks_is_not_killed_as_hung(tmp_path):
+    """Its coming up is marked on a Zenoh thread (``_on_alive`` -> ``Child.seen_up``) while the run loop's hang check
+    (``kill_hung``) reads ``came_up``, then ``came_up_at``, with no lock. ``seen_up`` wrote ``came_up`` first: a check
+    between its two writes took the process for up since its previous process came up (``came_up_at`` still that
+    one's) and, with that process's last answer as old (a hung one, killed), killed the new process as hung the
+    moment its token came. Simulated here by running the check right when ``came_up`` is written."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    la = Launcher(profile, data, tmp_path / "run")
+    now = time.monotonic()
+    assert 0 < profile.supervision.hang_timeout_s < 30
+    la.status_watch = SimpleNamespace(behind=lambda now: False, resumed_s=-np.inf, answered_s={"mapper": now - 30.0})  # type: ignore[assignment]
+    checked: list[int] = []
+
+    class CheckedBetweenWrites(Child):
+        def __setattr__(self, name: str, value: Any) -> None:
+            super().__setattr__(name, value)
+            if name == "came_up" and value is True and not checked:  # the run loop's round, on its own thread, now
+                checked.append(self.hung_kills)
+                la.kill_hung(time.monotonic())
+                checked.append(self.hung_kills)
+
+    c = CheckedBetweenWrites("mapper", [sys.executable, "-c", "import time; time.sleep(60)"], tmp_path / "mapper.log")
+    c.spawn()  # its restart, after a process that came up long ago and last answered 30 s ago (hung, killed)
+    try:
+        c.came_up_at = now - 60.0  # as its previous process left it
+        la.children = [c]
+        la._on_alive(SimpleNamespace(key_expr=la.keys.alive("mapper"), kind="SampleKind.PUT"))
+        assert checked == [0, 0], "the new process was killed as hung as its token came"
+        assert c.came_up and c.came_up_at >= now and c.alive
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(c.proc.pid, signal.SIGKILL)  # type: ignore[union-attr]
+        c.proc.wait(10)  # type: ignore[union-attr]
+
+
 def test_status_of_a_service_that_answers_before_its_token_is_seen_says_one_state():
     """A service answers its status query a moment before its liveliness token is seen: ``status`` read
     "starting, running" (its process runs, its token not yet there, and its own state) and one not started by this run
