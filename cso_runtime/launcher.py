@@ -65,6 +65,7 @@ from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EPISODE_OVER,
     LAST_EPISODE_FIGURES,
+    LOST_RESULTS_KEPT,
     ROS_RESUME_BY,
     EpisodeResultMsg,
     EpisodeStatusMsg,
@@ -390,6 +391,9 @@ class Launcher:
         none of the running episode's: it does not make it the running one again, nor replace ``status`` (the launcher's
         status, the pace, the end the run loop judges: a late end of it after the running one's hid that). An end of an episode never heard running (a restarted sim's
         that ended before it said it runs) is awaited, and judged by its result."""
+        self.lost_results: list[dict[str, Any]] = []
+        """The episodes whose end was left behind with no result (``end_left_behind``), as ``launcher_status``'s
+        ``lost_results`` names them (the latest ``LOST_RESULTS_KEPT``): ``status`` says that their results were lost."""
         self.status_watch: StatusWatch | None = None
         """Which services answer the launcher's status queries (their hang check), once the session is open."""
         self.service_notes: dict[str, str] = {}
@@ -670,6 +674,7 @@ class Launcher:
             services.setdefault(name, {"liveliness": name in self.alive_services, "outside": True, "awaited": name in self.awaited_services})
         with self._lock:
             rejected, handler_errors = dict(self.rejected), dict(self.handler_errors)
+            lost_results = [dict(e) for e in self.lost_results]
         state = "stopping" if self.stop_event.is_set() else "running"
         heard = self.status
         last = None
@@ -681,7 +686,7 @@ class Launcher:
         lost = self.joined_router() if self.router_lost_at is not None else None
         return LauncherStatusMsg(
             self.run_id, state, services, rejected, handler_errors, last, pace, lost, self.run_folder.losses, self.pause_status(), self.coverage_measured,
-            referee_kind(self.profile.services),
+            referee_kind(self.profile.services), lost_results,
         )
 
     # --- supervision ------------------------------------------------------------------------------
@@ -1037,13 +1042,17 @@ class Launcher:
         """``end`` is of an episode the referee ran before the one running (``judge_episode_end``): the sim restarted since,
         into a new episode, and the ended one's result, never heard, went with the process that ran it. No stray (not
         counted in ``rejected``: the status may well be that episode's real end), and not the run's end either: the run
-        goes on with the episode running, whose end and results are the run's, as after any restart of the sim. Logged."""
+        goes on with the episode running, whose end and results are the run's, as after any restart of the sim. Logged,
+        and named in the launcher's status (``lost_results``: ``status`` says so), once per episode."""
         restarted = " (the sim restarted)" if self.simulated else ""
         log.warning(
             "episode %d ended (%s at step %d), but episode %d has started since%s and no result of episode %d came: it is lost "
             "with the process that ran it; the run goes on with episode %d, whose results will be the run's",
             end.episode, end.state, end.step, self.episode_running, restarted, end.episode, self.episode_running,
         )  # fmt: skip
+        lost = {"episode": end.episode, "state": end.state, "step": end.step, "running": self.episode_running or 0}
+        with self._lock:  # read by the status queryable's thread
+            self.lost_results = [e for e in self.lost_results if e["episode"] != end.episode][-(LOST_RESULTS_KEPT - 1) :] + [lost]
         self.ended_status, self.stray_judged = None, end
 
     def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:

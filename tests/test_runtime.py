@@ -5494,6 +5494,39 @@ def test_a_late_status_of_an_episode_a_restart_left_behind_does_not_make_it_the_
     assert judged is not None and judged[0] is over and judged[1] is not None
 
 
+def test_status_says_that_an_episodes_result_was_lost_to_a_restart_of_the_sim(tmp_path):
+    """An episode's end left behind with no result (the sim restarted before it came, ``end_left_behind``) was said
+    in launcher.log only: ``status`` showed the new episode running as if nothing had been lost. The launcher's status
+    names it (``lost_results``: once per episode however often its end is heard), ``status --json`` has it, and the
+    table says it in words; an older launcher's status, without the field, reads as none lost."""
+    from rich.console import Console
+
+    from cso_runtime.messages import LauncherStatusMsg
+
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=0x2A))
+    hear(EpisodeStatusMsg("starting", 0, episode=0x2B))
+    for _ in range(2):  # its late end heard twice: one episode lost
+        hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=0x2A))
+        over = launcher.episode_end_heard()
+        assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)
+    assert isinstance(msg, LauncherStatusMsg)
+    assert msg.lost_results == [{"episode": 0x2A, "state": "done", "step": 31, "running": 0x2B}], msg.lost_results
+    status = status_of("r0", None, msg.to_dict(), {}, set())
+    assert status["lost_results"] == msg.lost_results
+    console = Console(record=True, width=400)
+    console.print(render_table(status))
+    text = " ".join(console.export_text().split())
+    said = (
+        "episode 00000000002a ended (done at step 31), but its result was lost: the sim restarted before it came; "
+        "the run went on with episode 00000000002b"
+    )
+    assert said in text, text
+    older = status_of("r0", None, LauncherStatusMsg("run1", "running").to_dict(), {}, set())
+    assert older["lost_results"] == []
+
+
 def test_a_late_status_of_an_episode_a_restart_left_behind_is_not_the_running_episodes_status(tmp_path):
     """Episode 7's sim restarted into episode 8; a status of episode 7 heard after that (late, or replayed) still
     replaced the launcher's latest status: its ``last_episode`` (``status`` with the sim silent, the live view) said
