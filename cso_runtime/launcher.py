@@ -1044,11 +1044,12 @@ class Launcher:
         counted in ``rejected``: the status may well be that episode's real end), and not the run's end either: the run
         goes on with the episode running, whose end and results are the run's, as after any restart of the sim. Logged,
         and named in the launcher's status (``lost_results``: ``status`` says so), once per episode."""
-        restarted = " (the sim restarted)" if self.simulated else ""
+        # A ROS 2 bridge starts a new episode in the same process (the robot's odometry or clock started again).
+        restarted, lost_with = ("the sim restarted", " with the process that ran it") if self.simulated else ("the referee started a new one", "")
         log.warning(
-            "episode %d ended (%s at step %d), but episode %d has started since%s and no result of episode %d came: it is lost "
-            "with the process that ran it; the run goes on with episode %d, whose results will be the run's",
-            end.episode, end.state, end.step, self.episode_running, restarted, end.episode, self.episode_running,
+            "episode %d ended (%s at step %d), but episode %d has started since (%s) and no result of episode %d came: it is lost%s; "
+            "the run goes on with episode %d, whose results will be the run's",
+            end.episode, end.state, end.step, self.episode_running, restarted, end.episode, lost_with, self.episode_running,
         )  # fmt: skip
         lost = {"episode": end.episode, "state": end.state, "step": end.step, "running": self.episode_running or 0}
         with self._lock:  # read by the status queryable's thread

@@ -5494,6 +5494,41 @@ def test_a_late_status_of_an_episode_a_restart_left_behind_does_not_make_it_the_
     assert judged is not None and judged[0] is over and judged[1] is not None
 
 
+def test_an_end_a_ros2_bridges_new_episode_left_behind_is_not_said_lost_with_its_process(tmp_path, caplog):
+    """On a robot the ROS 2 bridge starts a new episode in the same process (the robot's odometry or clock started
+    again): an end of the episode before it, its result never heard, is left behind as after a restart of the sim,
+    but the launcher's log said its result "is lost with the process that ran it", which still runs. It says that
+    the referee started a new episode, and ``status`` words it alike."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("limo-ros2")), {}, connect=["tcp/127.0.0.1:1"])
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+    for msg in (EpisodeStatusMsg("exploring", 30, episode=7), EpisodeStatusMsg("starting", 0, episode=8), EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7)):
+        launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda msg=msg: encode(msg))))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    with caplog.at_level("WARNING", logger="cso.launcher"):
+        assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    said = (
+        "episode 7 ended (done at step 31), but episode 8 has started since (the referee started a new one) and no result of "
+        "episode 7 came: it is lost; the run goes on with episode 8, whose results will be the run's"
+    )
+    assert said in caplog.text and "process" not in caplog.text, caplog.text
+    msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)
+    assert isinstance(msg, LauncherStatusMsg)
+    console = Console(record=True, width=400)
+    console.print(render_table(status_of("r0", None, msg.to_dict(), {}, set())))
+    text = " ".join(console.export_text().split())
+    assert "but its result was lost: the referee started a new episode before it came" in text and "sim restarted" not in text, text
+
+
 def test_status_says_that_an_episodes_result_was_lost_to_a_restart_of_the_sim(tmp_path):
     """An episode's end left behind with no result (the sim restarted before it came, ``end_left_behind``) was said
     in launcher.log only: ``status`` showed the new episode running as if nothing had been lost. The launcher's status
