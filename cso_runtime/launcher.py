@@ -376,7 +376,9 @@ class Launcher:
         self.end_heard: EpisodeStatusMsg | None = None
         """The latest status that said the episode is over (``EPISODE_OVER``) since the run loop last looked
         (``episode_end_heard``): one of the episode exploring can replace ``status`` before the loop, which looks every
-        0.1 s, gets to it (a stray end followed by the sim's next step's), and that end was neither judged nor counted."""
+        0.1 s, gets to it (a stray end followed by the sim's next step's), and that end was neither judged nor counted.
+        An end of an episode a restart left behind (``episodes_before``) is kept here only while none is: it never
+        takes the place of an end of the running episode."""
         self.stray_judged: EpisodeStatusMsg | None = None
         """The latest end judged not the run's end (a stray, ``stray_end``; one of an episode a restart left behind,
         ``end_left_behind``): while it stays ``status`` (the sim says nothing more for a while), the run loop's next
