@@ -180,6 +180,7 @@ def status_of(
         "real_time_factor": (launcher or {}).get("real_time_factor"),
         "lost_router": (launcher or {}).get("lost_router"),
         "run_dir_lost": (launcher or {}).get("run_dir_lost", 0),
+        "lost_results": (launcher or {}).get("lost_results", []),  # episodes whose result a restart of the referee lost
         "launcher_state": (launcher or {}).get("state"),
         "pause": (launcher or {}).get("pause"),
         "referee": (launcher or {}).get("referee"),  # which kind of referee the run has (the launcher's word); None: not said
@@ -445,6 +446,17 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopp
     return words
 
 
+def lost_result_words(lost: dict[str, Any], referee: str | None) -> str:
+    """What ``status`` says of an episode whose result was lost to a restart of the referee (an entry of
+    ``launcher_status``'s ``lost_results``; ``referee``: its ``referee``): ``episode 00000000002a ended (done at
+    step 31), but its result was lost: the sim restarted before it came; the run went on with episode 000000000008``."""
+    how = "the sim restarted" if referee == "sim" else "the referee started a new episode"
+    return (
+        f"episode {lost['episode']:012x} ended ({lost['state']} at step {lost['step']}), but its result was lost: {how} before it came; "
+        f"the run went on with episode {lost['running']:012x}"
+    )
+
+
 def after_end_words(status: dict[str, Any]) -> str:
     """What the step row adds on a real robot whose episode has ended (``ended_at_step``, from its results): the
     steps shown are the robot's scans since, not the episode's."""
@@ -516,6 +528,7 @@ def render_table(status: dict[str, Any]) -> Table:
         launcher_bits.insert(0, f"LOST the router at {status['lost_router']} (is the robot or its zenoh bridge down?)")
     if status.get("run_dir_lost"):  # its folder deleted mid-run: made again, the logs still written copied back
         launcher_bits.append(f"its run folder was deleted {status['run_dir_lost']} time(s) while it ran: made again (see launcher.log)")
+    launcher_bits += [lost_result_words(lost, status.get("referee")) for lost in status.get("lost_results") or []]
     if stopping:
         launcher_bits.insert(0, "stopping the run's services")
     if launcher_bits:

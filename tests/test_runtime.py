@@ -2788,6 +2788,47 @@ def test_a_service_that_came_up_between_the_hang_checks_rounds_reads_not_answeri
     assert busy.came_up is False
 
 
+def test_a_restarted_service_whose_token_comes_as_the_hang_check_looks_is_not_killed_as_hung(tmp_path):
+    """Its coming up is marked on a Zenoh thread (``_on_alive`` -> ``Child.seen_up``) while the run loop's hang check
+    (``kill_hung``) reads ``came_up``, then ``came_up_at``, with no lock. ``seen_up`` wrote ``came_up`` first: a check
+    between its two writes took the process for up since its previous process came up (``came_up_at`` still that
+    one's) and, with that process's last answer as old (a hung one, killed), killed the new process as hung the
+    moment its token came. Simulated here by running the check right when ``came_up`` is written."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    la = Launcher(profile, data, tmp_path / "run")
+    now = time.monotonic()
+    assert 0 < profile.supervision.hang_timeout_s < 30
+    la.status_watch = SimpleNamespace(behind=lambda now: False, resumed_s=-np.inf, answered_s={"mapper": now - 30.0})  # type: ignore[assignment]
+    checked: list[int] = []
+
+    class CheckedBetweenWrites(Child):
+        def __setattr__(self, name: str, value: Any) -> None:
+            super().__setattr__(name, value)
+            if name == "came_up" and value is True and not checked:  # the run loop's round, on its own thread, now
+                checked.append(self.hung_kills)
+                la.kill_hung(time.monotonic())
+                checked.append(self.hung_kills)
+
+    c = CheckedBetweenWrites("mapper", [sys.executable, "-c", "import time; time.sleep(60)"], tmp_path / "mapper.log")
+    c.spawn()  # its restart, after a process that came up long ago and last answered 30 s ago (hung, killed)
+    try:
+        c.came_up_at = now - 60.0  # as its previous process left it
+        la.children = [c]
+        la._on_alive(SimpleNamespace(key_expr=la.keys.alive("mapper"), kind="SampleKind.PUT"))
+        assert checked == [0, 0], "the new process was killed as hung as its token came"
+        assert c.came_up and c.came_up_at >= now and c.alive
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(c.proc.pid, signal.SIGKILL)  # type: ignore[union-attr]
+        c.proc.wait(10)  # type: ignore[union-attr]
+
+
 def test_status_of_a_service_that_answers_before_its_token_is_seen_says_one_state():
     """A service answers its status query a moment before its liveliness token is seen: ``status`` read
     "starting, running" (its process runs, its token not yet there, and its own state) and one not started by this run
@@ -5417,9 +5458,10 @@ def test_an_end_claiming_a_step_ahead_is_a_stray_once_the_episode_steps_on_behin
 
 
 def test_a_stray_end_of_another_episode_is_judged_once_while_it_stays_the_latest_status(tmp_path):
-    """A late "done" of episode 7 heard after episode 8 started stays ``status`` until the sim's next status (a sim
+    """A late "done" of episode 7 heard after episode 8 started stayed ``status`` until the sim's next status (a sim
     waiting for its services says nothing for seconds): the run loop, looking every 0.1 s, judged it again at each
-    look, logging it and counting it in ``launcher_rejected`` ten times a second. It is judged once."""
+    look, logging it and counting it in ``launcher_rejected`` ten times a second. It is judged once (and, since, it
+    is never ``status``: a status of an episode a restart left behind is none of the running one's)."""
     launcher, hear = _launcher_hearing(tmp_path)
     hear(EpisodeStatusMsg("exploring", 30, episode=7))
     hear(EpisodeStatusMsg("starting", 0, episode=8))
@@ -5505,6 +5547,113 @@ def test_a_late_status_of_an_episode_a_restart_left_behind_does_not_make_it_the_
     assert over is not None and over.episode == 8
     judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(9, "coverage"))]), over, lambda: None)
     assert judged is not None and judged[0] is over and judged[1] is not None
+
+
+def test_an_end_a_ros2_bridges_new_episode_left_behind_is_not_said_lost_with_its_process(tmp_path, caplog):
+    """On a robot the ROS 2 bridge starts a new episode in the same process (the robot's odometry or clock started
+    again): an end of the episode before it, its result never heard, is left behind as after a restart of the sim,
+    but the launcher's log said its result "is lost with the process that ran it", which still runs. It says that
+    the referee started a new episode, and ``status`` words it alike."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("limo-ros2")), {}, connect=["tcp/127.0.0.1:1"])
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+    for msg in (EpisodeStatusMsg("exploring", 30, episode=7), EpisodeStatusMsg("starting", 0, episode=8), EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7)):
+        launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda msg=msg: encode(msg))))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    with caplog.at_level("WARNING", logger="cso.launcher"):
+        assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    said = (
+        "episode 7 ended (done at step 31), but episode 8 has started since (the referee started a new one) and no result of "
+        "episode 7 came: it is lost; the run goes on with episode 8, whose results will be the run's"
+    )
+    assert said in caplog.text and "process" not in caplog.text, caplog.text
+    msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)
+    assert isinstance(msg, LauncherStatusMsg)
+    console = Console(record=True, width=400)
+    console.print(render_table(status_of("r0", None, msg.to_dict(), {}, set())))
+    text = " ".join(console.export_text().split())
+    assert "but its result was lost: the referee started a new episode before it came" in text and "sim restarted" not in text, text
+
+
+def test_status_says_that_an_episodes_result_was_lost_to_a_restart_of_the_sim(tmp_path):
+    """An episode's end left behind with no result (the sim restarted before it came, ``end_left_behind``) was said
+    in launcher.log only: ``status`` showed the new episode running as if nothing had been lost. The launcher's status
+    names it (``lost_results``: once per episode however often its end is heard), ``status --json`` has it, and the
+    table says it in words; an older launcher's status, without the field, reads as none lost."""
+    from rich.console import Console
+
+    from cso_runtime.messages import LauncherStatusMsg
+
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=0x2A))
+    hear(EpisodeStatusMsg("starting", 0, episode=0x2B))
+    for _ in range(2):  # its late end heard twice: one episode lost
+        hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=0x2A))
+        over = launcher.episode_end_heard()
+        assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)
+    assert isinstance(msg, LauncherStatusMsg)
+    assert msg.lost_results == [{"episode": 0x2A, "state": "done", "step": 31, "running": 0x2B}], msg.lost_results
+    status = status_of("r0", None, msg.to_dict(), {}, set())
+    assert status["lost_results"] == msg.lost_results
+    console = Console(record=True, width=400)
+    console.print(render_table(status))
+    text = " ".join(console.export_text().split())
+    said = (
+        "episode 00000000002a ended (done at step 31), but its result was lost: the sim restarted before it came; "
+        "the run went on with episode 00000000002b"
+    )
+    assert said in text, text
+    older = status_of("r0", None, LauncherStatusMsg("run1", "running").to_dict(), {}, set())
+    assert older["lost_results"] == []
+
+
+def test_a_late_status_of_an_episode_a_restart_left_behind_is_not_the_running_episodes_status(tmp_path):
+    """Episode 7's sim restarted into episode 8; a status of episode 7 heard after that (late, or replayed) still
+    replaced the launcher's latest status: its ``last_episode`` (``status`` with the sim silent, the live view) said
+    episode 7, the real-time factor of episode 8 was measured anew from it (episodes.csv's ``real_time_factor``
+    of episode 8 empty when it came between 8's last status and its end), and a late end of 7 heard after 8's end
+    hid 8's end: judged left behind, it stayed the latest status, 8's end was never judged and the run never ended.
+    A status of an episode a restart left behind is no status of the running episode; its end is judged all the
+    same (its result may be here)."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("exploring", 9, episode=8))
+    assert launcher.real_time_factor is not None
+    hear(EpisodeStatusMsg("exploring", 31, episode=7))  # late, of the episode before
+    last = launcher.launcher_status().last_episode
+    assert last is not None and (last["episode"], last["step"]) == (8, 9), last
+    assert launcher.real_time_factor is not None  # 8's pace, not started over on 7's status
+    hear(EpisodeStatusMsg("done", 40, terminated_by="coverage", episode=8))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # late, after 8's end
+    over = launcher.episode_end_heard()
+    assert over is not None and (over.episode, over.step) == (8, 40), over
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(40, "coverage"))]), over, lambda: None)
+    assert judged is not None and judged[0] is over and judged[1] is not None and judged[1].steps == 40
+    assert launcher.real_time_factor is not None
+
+    # 8's end heard, then 7's late end and 8's result before the run loop looks: the run's end is 8's, not 7's
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    hear(EpisodeStatusMsg("failed", 31, terminated_by="lockstep_timeout", episode=7))
+    hear(_result(40, "max_steps"))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 8, over
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)
+    assert judged is not None and (judged[0].episode, judged[0].state) == (8, "done"), judged
 
 
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
