@@ -1132,6 +1132,9 @@ def runs_command(
 
     from cso_runtime.runs import list_runs  # noqa: PLC0415
 
+    if not runs_dir.is_dir():  # a typo, another working folder: not "no runs in nosuch" and exit 0, as of an empty one
+        what = "it is a file" if runs_dir.exists() else "it does not exist"
+        _fail(f"no runs folder {runs_dir}: {what} (`up` makes it; give --runs-dir of the folder `up` used)", 1)
     if keep is not None or older_than is not None:
         raise typer.Exit(_prune_runs(runs_dir, keep, older_than, yes, as_json))
     if yes:

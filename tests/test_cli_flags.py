@@ -512,7 +512,8 @@ def test_a_nan_given_to_a_bounded_number_flag_is_said_as_such_not_as_out_of_one_
         r = CliRunner().invoke(app, args)
         said_now = " ".join(r.output.split())
         assert r.exit_code == 2 and said in said_now and "Input should be" not in said_now, (args, r.output)
-    r = CliRunner().invoke(app, ["runs", "--older-than", "1.5", "--runs-dir", str(tmp_path / "none")])
+    (tmp_path / "empty").mkdir()  # a runs folder that does not exist is said so, exit 1
+    r = CliRunner().invoke(app, ["runs", "--older-than", "1.5", "--runs-dir", str(tmp_path / "empty")])
     assert r.exit_code == 0, r.output
     r = CliRunner().invoke(app, ["status", "--help"])
     assert "0.1<=x<=3600" in " ".join(r.output.split()), r.output  # the range is still in the help
