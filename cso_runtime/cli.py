@@ -399,6 +399,7 @@ def compare_command(
         as_dicts,
         compare_to_baseline,
         episodes_by_method,
+        file_episodes,
         labelled,
         markdown_table,
         mixed_setups_said,
@@ -420,12 +421,13 @@ def compare_command(
     for said in mixed_setups_said(files, split_names(exclude or [])):  # a 360-degree LiDAR's episodes against a 180-degree one's
         typer.echo(said, err=True)
     if exclude:  # a name that matches no episode leaves out nothing: a typo would compare the plans meant to be out
-        held = {scene[1] for scenes in pooled_episodes(files, [], rename or [])[0].values() for scene in scenes}
+        held = {row["map"] for label, path in files for row in file_episodes(label, path)}  # of no m2/step too: there
         if unmatched := [name for name in split_names(exclude) if name not in held]:
             typer.echo(f"note: --exclude {', '.join(unmatched)}: no such map in these files; nothing left out for it", err=True)
-    methods = sorted({method for method, _ in table})
-    if methods and baseline not in methods:
+    if baseline not in {method for method, _ in table}:  # none of its episodes left: why (of every method's none too)
         counts = episodes_by_method(files, rename or [])
+        if not counts:
+            _fail(f"these files hold no episode: {', '.join(str(path) for _, path in files)}", 1)
         if baseline not in counts:  # a typo in --baseline, not "too few scenes"
             _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(sorted(counts))}", 2)
         # It has episodes, none comparable: said so, not "no episodes" (exit 1, as too few scenes)
