@@ -1246,7 +1246,8 @@ def logs_command(
         raise typer.Exit(0) from None
     live = logs_grow(run_dir)
     if not files and not (follow and live):  # said, not an empty output and exit 0 (a run that is starting: followed)
-        _fail(f"run {run_dir.name} has no log: {run_dir / LOG_DIR}/ holds no .log file", 1)
+        where = f"{run_dir / LOG_DIR}/ holds no .log file" if (run_dir / LOG_DIR).is_dir() else f"it has no {run_dir / LOG_DIR}/ folder"
+        _fail(f"run {run_dir.name} has no log: {where}", 1)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
 

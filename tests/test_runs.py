@@ -377,8 +377,8 @@ def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newes
     r = CliRunner().invoke(app, ["logs", "--run", old.name, "--runs-dir", str(runs)])
     assert r.exit_code == 1 and r.output == f"error: run {old.name} has no log: {old / 'logs'}/ holds no .log file\n", r.output
     shutil.rmtree(old / "logs")
-    r = CliRunner().invoke(app, ["logs", "--run", str(old)])
-    assert r.exit_code == 1 and "has no log" in r.output, r.output
+    r = CliRunner().invoke(app, ["logs", "--run", str(old)])  # not "logs/ holds no .log file": there is no logs/
+    assert r.exit_code == 1 and r.output == f"error: run {old.name} has no log: it has no {old / 'logs'}/ folder\n", r.output
 
 
 def test_runs_keep_and_older_than_list_old_runs_and_delete_them_only_with_yes_never_the_current_one(tmp_path):
