@@ -123,24 +123,26 @@ def _fail(message: str, code: int) -> NoReturn:
     raise typer.Exit(code) from None
 
 
-def _bounded(low: float, high: float | None = None) -> dict[str, Any]:
+def _bounded(low: float, high: float | None = None, unit: str = "", low_open: bool = False) -> dict[str, Any]:
     """A number flag's ``min``/``max`` (shown in its help, ``0.1<=x<=3600``) with a parser that holds it to them and says
-    so itself: typer's own check told ``--period nan`` "Input should be less than or equal to 3600", untrue of nan.
-    ``typer.Option(1.0, "--period", **_bounded(0.1, 3600.0))``."""
+    so itself, in ``config.Bound``'s words (the one way a number's range is checked and said: ``must be in [0.1, 3,600]
+    s, got nan``): typer's own check told ``--period nan`` "Input should be less than or equal to 3600", untrue of nan.
+    ``high`` None: no largest; ``low_open``: ``low`` itself refused. ``typer.Option(1.0, "--period", **_bounded(0.1, 3600.0, "s"))``."""
     import math  # noqa: PLC0415
 
-    within = f"from {low:g} to {high:g}" if high is not None else f">= {low:g}"
-
     def parse(given: object) -> float:
+        from cso_runtime.config import Bound  # noqa: PLC0415 - config imports yaml: only once a value is given
+
+        bound = Bound(low, math.inf if high is None else high, unit, low_open=low_open)
         try:
             value = float(given)  # type: ignore[arg-type]  # the text typed, or the default
         except (TypeError, ValueError):
-            value = math.nan
-        if math.isnan(value) or value < low or (high is not None and value > high):
-            raise typer.BadParameter(f"must be a number {within}, got {given}")
+            raise typer.BadParameter(f"must be a number {bound.within()}, got {given}") from None
+        if (problem := bound.problem(value)) is not None:
+            raise typer.BadParameter(problem)
         return value
 
-    return {"min": low, "max": high, "parser": parse}
+    return {"min": None if low_open else low, "max": high, "parser": parse}
 
 
 STOPPING_NOTE = "stopping: writing what finished; signal once more to stop at once"
@@ -985,7 +987,7 @@ def _fixed_simulator_settings_said(prof: Profile) -> list[str]:
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends (a detached run: its episode)"),
-    period_s: float = typer.Option(1.0, "--period", **_bounded(0.1, 3600.0), help="Seconds between two --watch refreshes (0.1 to 3600)"),
+    period_s: float = typer.Option(1.0, "--period", **_bounded(0.1, 3600.0, "s"), help="Seconds between two --watch refreshes (0.1 to 3600)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
@@ -1043,7 +1045,7 @@ def resume_command(
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
     timeout: float | None = typer.Option(
-        None, "--timeout-s", **_bounded(0.0),  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
+        None, "--timeout-s", **_bounded(0.0, unit="s"),  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
         help="How long the launcher may take to stop its services and write its results before escalating \\[default: three times the run's supervision.stop_timeout_s, plus 10 s]",
     ),
 ) -> None:
@@ -1063,7 +1065,7 @@ def router_command(
     ),
     connect: list[str] | None = typer.Option(None, "--connect", help="Another router to join, repeatable (a robot's zenoh-bridge-ros2dds: tcp/ROBOT_IP:7447)"),
     connect_timeout_s: float | None = typer.Option(
-        None, "--connect-timeout-s", **_bounded(0.001), help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
+        None, "--connect-timeout-s", **_bounded(0.0, unit="s", low_open=True), help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
     ),
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="Zenoh config file (JSON5) the router starts from: user/password, TLS, access control"),
     as_json: bool = typer.Option(False, "--json", help="Print the endpoints it listens on as one line of JSON"),
@@ -1126,7 +1128,7 @@ def runs_command(
     limit: int = typer.Option(20, "--limit", min=1, help="Show the newest N runs"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     keep: int | None = typer.Option(None, "--keep", min=0, help="Prune: the runs beyond the newest N (listed; --yes deletes them)"),
-    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
+    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0, unit="days"), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
     yes: bool = typer.Option(False, "--yes", help="Delete the runs --keep/--older-than select (never the current or a running one)"),
 ) -> None:
     """List the runs `up` left in --runs-dir: state, scene, method and the episode's Table 1 row; or prune old ones."""
@@ -1449,7 +1451,7 @@ def collect_teacher_command(
     teacher: str | None = typer.Option(None, "--teacher", help="greedy-dist, utility, greedy-info or rollout (default: rollout, or --set warm_start_teacher's)"),
     workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
     decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
-    time_limit: float = typer.Option(0.0, "--time-limit-s", **_bounded(0.0), help="Each worker stops after this wall time (0 = none)"),
+    time_limit: float = typer.Option(0.0, "--time-limit-s", **_bounded(0.0, unit="s"), help="Each worker stops after this wall time (0 = none)"),
     seed: int | None = typer.Option(None, "--seed", help="Worker i uses seed + i"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),

@@ -76,16 +76,30 @@ class Bound:
     """``high`` itself is refused: the key must be below it (PPO's clip coefficient, below 1)."""
 
     def said(self) -> str:
-        """The range in interval notation, with its unit: ``(0, 100] m``, ``[1, 1,000,000]``, ``(0, 1)``."""
+        """The range in interval notation, with its unit: ``(0, 100] m``, ``[1, 1,000,000]``, ``(0, 1)``; one of no
+        largest value (``high`` infinite) as its least: ``>= 0 s``, ``> 0 s``."""
         unit = f" {self.unit}" if self.unit else ""
+        if math.isinf(self.high):
+            return f"{'>' if self.low_open else '>='} {number_said(self.low)}{unit}"
         return f"{'(' if self.low_open else '['}{number_said(self.low)}, {number_said(self.high)}{')' if self.high_open else ']'}{unit}"
+
+    def within(self) -> str:
+        """``said`` after "must be": ``in (0, 100] m``, ``>= 0 s``."""
+        return self.said() if math.isinf(self.high) else f"in {self.said()}"
+
+    def problem(self, value: float) -> str | None:
+        """Why ``value`` is outside the range, naming it and the range (``must be in (0, 100] m, got 1,000``), or None
+        where it is inside. NaN is outside every range."""
+        inside = (value > self.low if self.low_open else value >= self.low) and (value < self.high if self.high_open else value <= self.high)
+        if inside:
+            return None
+        why = f" ({self.why})" if self.why else ""
+        return f"must be {self.within()}{why}, got {number_said(value)}"
 
     def check(self, key: str, value: float) -> None:
         """ConfigError naming ``key``, ``value`` and the range when ``value`` is outside it."""
-        inside = (value > self.low if self.low_open else value >= self.low) and (value < self.high if self.high_open else value <= self.high)
-        if not inside:  # NaN included: from_dict refuses it already, a dataclass built in code may not
-            why = f" ({self.why})" if self.why else ""
-            raise ConfigError(f"{key} must be in {self.said()}{why}, got {number_said(value)}")
+        if (problem := self.problem(value)) is not None:  # NaN included: from_dict refuses it already, a dataclass built in code may not
+            raise ConfigError(f"{key} {problem}")
 
 
 def check_bounds(section: str, obj: object, bounds: typing.Mapping[str, Bound]) -> None:
