@@ -525,3 +525,24 @@ def test_a_nan_given_to_a_bounded_number_flag_is_said_as_such_not_as_out_of_one_
     r = CliRunner().invoke(app, ["router", "--connect-timeout-s", "1e9"])
     said_now = " ".join(r.output.split())
     assert r.exit_code == 2 and "must be in (0, 86,400] s (a day: config.MAX_WAIT_S), got 1,000,000,000" in said_now, r.output
+
+
+def test_an_error_of_a_section_a_set_broke_names_the_set_where_up_connect_or_foxglove_reads_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``up --connect E --set router=5`` said "sim.yaml: router must be a mapping", the profile file blamed for the
+    ``--set`` (without --connect, the same error names it); so did ``--set router.connect=5`` beside ``--connect`` and
+    ``--set services=5`` beside ``--foxglove`` or ``--without``: the blocks that apply those flags read the profile before
+    its flags were named. Their errors name the flags that changed it, as every other error of the profile does."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    up = ["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run"]
+    for given, said in [
+        (["--connect", "tcp/127.0.0.1:7447", "--set", "router=5"], "sim.yaml with --connect tcp/127.0.0.1:7447 --set router=5: router must be a mapping"),
+        (["--connect", "tcp/127.0.0.1:7447", "--set", "router.connect=5"], "sim.yaml with --connect tcp/127.0.0.1:7447 --set router.connect=5: router.connect"),
+        (["--foxglove", "--set", "services=5"], "sim.yaml with --set services=5 --foxglove: services must be a mapping"),
+        (["--without", "policy", "--set", "services=5"], "sim.yaml with --set services=5 --without policy: services must be a mapping"),
+    ]:
+        r = CliRunner().invoke(app, [*up, *given])
+        said_now = " ".join(r.stderr.split())
+        assert r.exit_code == 2 and said in said_now, (given, r.output)
+    assert not (tmp_path / "runs").exists()
