@@ -557,14 +557,15 @@ def with_mujoco_limo_defaults(config: ExplorationConfig, given: Any = None) -> E
     return config
 
 
-_YAML11_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
-"""A number in exponent notation, which YAML 1.2 reads as a float and PyYAML's YAML 1.1 as a string."""
+_YAML11_TEXT_NUMBER = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+|[-+]\.[0-9]+")
+"""A number YAML 1.2 reads as a float and PyYAML's YAML 1.1 as a string: one in exponent notation without a dot or
+without a sign on its exponent (``1e-8``, ``5.0e2``), or signed with no digit before its dot (``-.5``)."""
 
 
 def yaml12_number(value: Any) -> Any:
-    """``value`` as YAML 1.2 (and map_server's yaml-cpp) reads it: a text in exponent notation without a dot (``1e-8``,
-    ``5e-2``), which PyYAML's YAML 1.1 leaves as text, as its float; any other value as it is."""
-    return float(value) if isinstance(value, str) and _YAML11_EXPONENT.fullmatch(value.strip()) else value
+    """``value`` as YAML 1.2 (and map_server's yaml-cpp) reads it: a text that PyYAML's YAML 1.1 leaves as text and YAML
+    1.2 reads as a number (``1e-8``, ``5e-2``, ``-.5``: ``_YAML11_TEXT_NUMBER``), as its float; any other value as it is."""
+    return float(value) if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value.strip()) else value
 
 
 def _convert(value: Any, annotation: Any, where: str) -> Any:
