@@ -4524,8 +4524,11 @@ def test_reading_the_run_file_passes_its_zenoh_config_on_and_leaves_the_environm
     from cso_runtime.cli import app
     from cso_runtime.config import EXIT_NO_ZENOH
 
-    r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "r.mcap"), "--runs-dir", str(runs)])  # the session refuses the run's file
-    assert r.exit_code == EXIT_NO_ZENOH and "gone.json5" in r.output and ZENOH_CONFIG_ENV not in os.environ, r.output
+    # The run's file refused before a session is opened: a bad config (exit 2), as status says it above, not "no Zenoh
+    # session" (exit 3, once the session failed to open), nor the recordings folder made first.
+    r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "r.mcap"), "--runs-dir", str(runs)])
+    assert r.exit_code == 2 != EXIT_NO_ZENOH and "gone.json5" in r.output and ZENOH_CONFIG_ENV not in os.environ, r.output
+    assert not (tmp_path / "r.mcap").exists()
     config = tmp_path / "run.json5"
     config.write_text("{}")
     (runs / "current.json").write_text(json.dumps({**run, "zenoh_config": str(config)}))
