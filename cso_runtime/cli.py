@@ -123,24 +123,26 @@ def _fail(message: str, code: int) -> NoReturn:
     raise typer.Exit(code) from None
 
 
-def _bounded(low: float, high: float | None = None) -> dict[str, Any]:
+def _bounded(low: float, high: float | None = None, unit: str = "", low_open: bool = False) -> dict[str, Any]:
     """A number flag's ``min``/``max`` (shown in its help, ``0.1<=x<=3600``) with a parser that holds it to them and says
-    so itself: typer's own check told ``--period nan`` "Input should be less than or equal to 3600", untrue of nan.
-    ``typer.Option(1.0, "--period", **_bounded(0.1, 3600.0))``."""
+    so itself, in ``config.Bound``'s words (the one way a number's range is checked and said: ``must be in [0.1, 3,600]
+    s, got nan``): typer's own check told ``--period nan`` "Input should be less than or equal to 3600", untrue of nan.
+    ``high`` None: no largest; ``low_open``: ``low`` itself refused. ``typer.Option(1.0, "--period", **_bounded(0.1, 3600.0, "s"))``."""
     import math  # noqa: PLC0415
 
-    within = f"from {low:g} to {high:g}" if high is not None else f">= {low:g}"
-
     def parse(given: object) -> float:
+        from cso_runtime.config import Bound  # noqa: PLC0415 - config imports yaml: only once a value is given
+
+        bound = Bound(low, math.inf if high is None else high, unit, low_open=low_open)
         try:
             value = float(given)  # type: ignore[arg-type]  # the text typed, or the default
         except (TypeError, ValueError):
-            value = math.nan
-        if math.isnan(value) or value < low or (high is not None and value > high):
-            raise typer.BadParameter(f"must be a number {within}, got {given}")
+            raise typer.BadParameter(f"must be a number {bound.within()}, got {given}") from None
+        if (problem := bound.problem(value)) is not None:
+            raise typer.BadParameter(problem)
         return value
 
-    return {"min": low, "max": high, "parser": parse}
+    return {"min": None if low_open else low, "max": high, "parser": parse}
 
 
 STOPPING_NOTE = "stopping: writing what finished; signal once more to stop at once"
@@ -415,6 +417,7 @@ def compare_command(
         as_dicts,
         compare_to_baseline,
         episodes_by_method,
+        file_episodes,
         labelled,
         markdown_table,
         mixed_setups_said,
@@ -436,12 +439,13 @@ def compare_command(
     for said in mixed_setups_said(files, split_names(exclude or [])):  # a 360-degree LiDAR's episodes against a 180-degree one's
         typer.echo(said, err=True)
     if exclude:  # a name that matches no episode leaves out nothing: a typo would compare the plans meant to be out
-        held = {scene[1] for scenes in pooled_episodes(files, [], rename or [])[0].values() for scene in scenes}
+        held = {row["map"] for label, path in files for row in file_episodes(label, path)}  # of no m2/step too: there
         if unmatched := [name for name in split_names(exclude) if name not in held]:
             typer.echo(f"note: --exclude {', '.join(unmatched)}: no such map in these files; nothing left out for it", err=True)
-    methods = sorted({method for method, _ in table})
-    if methods and baseline not in methods:
+    if baseline not in {method for method, _ in table}:  # none of its episodes left: why (of every method's none too)
         counts = episodes_by_method(files, rename or [])
+        if not counts:
+            _fail(f"these files hold no episode: {', '.join(str(path) for _, path in files)}", 1)
         if baseline not in counts:  # a typo in --baseline, not "too few scenes"
             _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(sorted(counts))}", 2)
         # It has episodes, none comparable: said so, not "no episodes" (exit 1, as too few scenes)
@@ -1000,7 +1004,7 @@ def _fixed_simulator_settings_said(prof: Profile) -> list[str]:
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends (a detached run: its episode)"),
-    period_s: float = typer.Option(1.0, "--period", **_bounded(0.1, 3600.0), help="Seconds between two --watch refreshes (0.1 to 3600)"),
+    period_s: float = typer.Option(1.0, "--period", **_bounded(0.1, 3600.0, "s"), help="Seconds between two --watch refreshes (0.1 to 3600)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
@@ -1058,7 +1062,7 @@ def resume_command(
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
     timeout: float | None = typer.Option(
-        None, "--timeout-s", **_bounded(0.0),  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
+        None, "--timeout-s", **_bounded(0.0, unit="s"),  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
         help="How long the launcher may take to stop its services and write its results before escalating \\[default: three times the run's supervision.stop_timeout_s, plus 10 s]",
     ),
 ) -> None:
@@ -1078,7 +1082,7 @@ def router_command(
     ),
     connect: list[str] | None = typer.Option(None, "--connect", help="Another router to join, repeatable (a robot's zenoh-bridge-ros2dds: tcp/ROBOT_IP:7447)"),
     connect_timeout_s: float | None = typer.Option(
-        None, "--connect-timeout-s", **_bounded(0.001), help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
+        None, "--connect-timeout-s", **_bounded(0.0, unit="s", low_open=True), help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
     ),
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="Zenoh config file (JSON5) the router starts from: user/password, TLS, access control"),
     as_json: bool = typer.Option(False, "--json", help="Print the endpoints it listens on as one line of JSON"),
@@ -1141,7 +1145,7 @@ def runs_command(
     limit: int = typer.Option(20, "--limit", min=1, help="Show the newest N runs"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     keep: int | None = typer.Option(None, "--keep", min=0, help="Prune: the runs beyond the newest N (listed; --yes deletes them)"),
-    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
+    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0, unit="days"), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
     yes: bool = typer.Option(False, "--yes", help="Delete the runs --keep/--older-than select (never the current or a running one)"),
 ) -> None:
     """List the runs `up` left in --runs-dir: state, scene, method and the episode's Table 1 row; or prune old ones."""
@@ -1149,6 +1153,9 @@ def runs_command(
 
     from cso_runtime.runs import list_runs  # noqa: PLC0415
 
+    if not runs_dir.is_dir():  # a typo, another working folder: not "no runs in nosuch" and exit 0, as of an empty one
+        what = "it is a file" if runs_dir.exists() else "it does not exist"
+        _fail(f"no runs folder {runs_dir}: {what} (`up` makes it; give --runs-dir of the folder `up` used)", 1)
     if keep is not None or older_than is not None:
         raise typer.Exit(_prune_runs(runs_dir, keep, older_than, yes, as_json))
     if yes:
@@ -1258,7 +1265,8 @@ def logs_command(
         raise typer.Exit(0) from None
     live = logs_grow(run_dir)
     if not files and not (follow and live):  # said, not an empty output and exit 0 (a run that is starting: followed)
-        _fail(f"run {run_dir.name} has no log: {run_dir / LOG_DIR}/ holds no .log file", 1)
+        where = f"{run_dir / LOG_DIR}/ holds no .log file" if (run_dir / LOG_DIR).is_dir() else f"it has no {run_dir / LOG_DIR}/ folder"
+        _fail(f"run {run_dir.name} has no log: {where}", 1)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
 
@@ -1461,7 +1469,7 @@ def collect_teacher_command(
     teacher: str | None = typer.Option(None, "--teacher", help="greedy-dist, utility, greedy-info or rollout (default: rollout, or --set warm_start_teacher's)"),
     workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
     decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
-    time_limit: float = typer.Option(0.0, "--time-limit-s", **_bounded(0.0), help="Each worker stops after this wall time (0 = none)"),
+    time_limit: float = typer.Option(0.0, "--time-limit-s", **_bounded(0.0, unit="s"), help="Each worker stops after this wall time (0 = none)"),
     seed: int | None = typer.Option(None, "--seed", help="Worker i uses seed + i"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),

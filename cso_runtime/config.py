@@ -76,16 +76,30 @@ class Bound:
     """``high`` itself is refused: the key must be below it (PPO's clip coefficient, below 1)."""
 
     def said(self) -> str:
-        """The range in interval notation, with its unit: ``(0, 100] m``, ``[1, 1,000,000]``, ``(0, 1)``."""
+        """The range in interval notation, with its unit: ``(0, 100] m``, ``[1, 1,000,000]``, ``(0, 1)``; one of no
+        largest value (``high`` infinite) as its least: ``>= 0 s``, ``> 0 s``."""
         unit = f" {self.unit}" if self.unit else ""
+        if math.isinf(self.high):
+            return f"{'>' if self.low_open else '>='} {number_said(self.low)}{unit}"
         return f"{'(' if self.low_open else '['}{number_said(self.low)}, {number_said(self.high)}{')' if self.high_open else ']'}{unit}"
+
+    def within(self) -> str:
+        """``said`` after "must be": ``in (0, 100] m``, ``>= 0 s``."""
+        return self.said() if math.isinf(self.high) else f"in {self.said()}"
+
+    def problem(self, value: float) -> str | None:
+        """Why ``value`` is outside the range, naming it and the range (``must be in (0, 100] m, got 1,000``), or None
+        where it is inside. NaN is outside every range."""
+        inside = (value > self.low if self.low_open else value >= self.low) and (value < self.high if self.high_open else value <= self.high)
+        if inside:
+            return None
+        why = f" ({self.why})" if self.why else ""
+        return f"must be {self.within()}{why}, got {number_said(value)}"
 
     def check(self, key: str, value: float) -> None:
         """ConfigError naming ``key``, ``value`` and the range when ``value`` is outside it."""
-        inside = (value > self.low if self.low_open else value >= self.low) and (value < self.high if self.high_open else value <= self.high)
-        if not inside:  # NaN included: from_dict refuses it already, a dataclass built in code may not
-            why = f" ({self.why})" if self.why else ""
-            raise ConfigError(f"{key} must be in {self.said()}{why}, got {number_said(value)}")
+        if (problem := self.problem(value)) is not None:  # NaN included: from_dict refuses it already, a dataclass built in code may not
+            raise ConfigError(f"{key} {problem}")
 
 
 def check_bounds(section: str, obj: object, bounds: typing.Mapping[str, Bound]) -> None:
@@ -543,14 +557,15 @@ def with_mujoco_limo_defaults(config: ExplorationConfig, given: Any = None) -> E
     return config
 
 
-_YAML11_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
-"""A number in exponent notation, which YAML 1.2 reads as a float and PyYAML's YAML 1.1 as a string."""
+_YAML11_TEXT_NUMBER = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+|[-+]\.[0-9]+")
+"""A number YAML 1.2 reads as a float and PyYAML's YAML 1.1 as a string: one in exponent notation without a dot or
+without a sign on its exponent (``1e-8``, ``5.0e2``), or signed with no digit before its dot (``-.5``)."""
 
 
 def yaml12_number(value: Any) -> Any:
-    """``value`` as YAML 1.2 (and map_server's yaml-cpp) reads it: a text in exponent notation without a dot (``1e-8``,
-    ``5e-2``), which PyYAML's YAML 1.1 leaves as text, as its float; any other value as it is."""
-    return float(value) if isinstance(value, str) and _YAML11_EXPONENT.fullmatch(value.strip()) else value
+    """``value`` as YAML 1.2 (and map_server's yaml-cpp) reads it: a text that PyYAML's YAML 1.1 leaves as text and YAML
+    1.2 reads as a number (``1e-8``, ``5e-2``, ``-.5``: ``_YAML11_TEXT_NUMBER``), as its float; any other value as it is."""
+    return float(value) if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value.strip()) else value
 
 
 def _convert(value: Any, annotation: Any, where: str) -> Any:

@@ -541,12 +541,13 @@ RUN_END_WAIT_S = 5.0
 launcher to write that the run stopped: it stops answering just before it writes ``run.json`` a last time."""
 
 
-def current_run_dir(runs_dir: Path) -> Path | None:
-    """The folder of the current run of ``runs_dir`` (its run file's ``run_dir``); None when there is none."""
+def current_run_dir(runs_dir: Path, robot: str) -> Path | None:
+    """The folder of the current run of ``runs_dir`` (its run file's ``run_dir``) where that run is ``robot``'s; None
+    when there is none, or it is another robot's (``--robot r1`` through r0's router: r1's run and folder are another's)."""
     from cso_runtime.current_run import read_current_run  # noqa: PLC0415
 
-    info = read_current_run(runs_dir)
-    return Path(info["run_dir"]) if info is not None and info.get("run_dir") else None
+    info = read_current_run(runs_dir, warn=False)  # read just before by reachable_target, which warned of a bad one
+    return Path(info["run_dir"]) if info is not None and info.get("run_dir") and info.get("robot") == robot else None
 
 
 def watched_run_dir(status: dict[str, Any], runs_dir: Path) -> Path | None:
@@ -918,9 +919,10 @@ def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_
     target = reachable_target(connect, robot, runs_dir)
     if isinstance(target, int):
         return target
-    run_dir = None if connect else current_run_dir(runs_dir)  # the run asked is the current one: its folder is here
+    given_connect = bool(connect)
     connect, robot, zenoh_config_file = target
     assert robot is not None  # reachable_target always names the robot
+    run_dir = None if given_connect else current_run_dir(runs_dir, robot)  # the run asked is the current one: its folder is here
     try:
         msg, why, map_origin = query_map(connect, robot, zenoh_config_file=zenoh_config_file, run_dir=run_dir)
     except TransportError as exc:

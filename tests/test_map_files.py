@@ -357,3 +357,22 @@ def test_load_map_of_a_map_with_a_turned_origin_says_how_to_read_it(tmp_path: Pa
     assert "load_map_and_meta(path, rotated_origin_ok=True)" in str(refused.value), refused.value
     read, read_geometry, meta = load_map_and_meta(path, rotated_origin_ok=True)
     assert read.tolist() == grid.tolist() and read_geometry.shape == geometry.shape and meta["origin"][2] == pytest.approx(0.5)
+
+
+def test_a_map_yaml_number_written_with_a_sign_and_a_leading_dot_is_read_as_map_server_reads_it(tmp_path: Path):
+    """``origin: [-.5, +.5, 0]``: YAML 1.2 (and map_server's yaml-cpp) reads ``-.5`` as -0.5, PyYAML's YAML 1.1 as text
+    (its float needs a digit before the dot once signed), and the map was refused: "origin must be three finite numbers
+    [x_m, y_m, yaw_rad], got '-.5'". Read as the number, as ``5e-2`` is; ``--set`` of a float key the same."""
+    from cso_runtime.config import ConfigError, ExplorationConfig, from_dict
+
+    grid, geometry = _grid()
+    good = save_map(tmp_path / "map.yaml", grid, geometry)
+    meta = yaml.safe_load(good.read_text())
+    assert isinstance(yaml.safe_load("[-.5, +.5, -.5e+1]")[0], str)  # PyYAML's text, which the reading turns into numbers
+    (tmp_path / "dot.yaml").write_text(yaml.safe_dump({k: v for k, v in meta.items() if k != "origin"}) + "origin: [-.5, +.5, 0]\n")
+    _, read_geometry = load_map(tmp_path / "dot.yaml")
+    assert (read_geometry.origin_x_m, read_geometry.origin_y_m) == (-0.5, 0.5)
+    assert from_dict(ExplorationConfig, {"planner": {"lookahead_m": "+.5"}}).planner.lookahead_m == 0.5
+    for text in ("-.", "+.e1", "-.5.5", "- .5"):  # no number in YAML 1.2 either: still refused
+        with pytest.raises(ConfigError, match="expected a number"):
+            from_dict(ExplorationConfig, {"planner": {"lookahead_m": text}})

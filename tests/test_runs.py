@@ -126,8 +126,8 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert " 7 s " in next(ln for ln in r.output.splitlines() if "091200" in ln)
     piped = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "80"})  # a pipe, a log, CI
     assert "m2/step" in piped.output and "0.607" in next(ln for ln in piped.output.splitlines() if "091100" in ln)  # was cut at 80
-    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "none")])
-    assert r.exit_code == 0 and "no runs in" in r.output
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "none")])  # no such folder: said so (test_runs_of_a_folder_that_does_not_exist_says_so)
+    assert r.exit_code == 1 and "no runs folder" in r.output
 
 
 def test_runs_shows_the_step_an_interrupted_run_stopped_at(tmp_path):
@@ -377,8 +377,8 @@ def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newes
     r = CliRunner().invoke(app, ["logs", "--run", old.name, "--runs-dir", str(runs)])
     assert r.exit_code == 1 and r.output == f"error: run {old.name} has no log: {old / 'logs'}/ holds no .log file\n", r.output
     shutil.rmtree(old / "logs")
-    r = CliRunner().invoke(app, ["logs", "--run", str(old)])
-    assert r.exit_code == 1 and "has no log" in r.output, r.output
+    r = CliRunner().invoke(app, ["logs", "--run", str(old)])  # not "logs/ holds no .log file": there is no logs/
+    assert r.exit_code == 1 and r.output == f"error: run {old.name} has no log: it has no {old / 'logs'}/ folder\n", r.output
 
 
 def test_runs_keep_and_older_than_list_old_runs_and_delete_them_only_with_yes_never_the_current_one(tmp_path):
@@ -602,3 +602,36 @@ def test_a_run_file_whose_process_ids_name_no_process_is_no_live_run(tmp_path):
     (d / "run.json").write_text(json.dumps({**info, "launcher_pid": "x"}))
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)])
     assert r.exit_code == 0 and "launcher died" in r.output and r.exception is None, r.output
+
+
+def test_down_says_once_that_the_run_file_is_not_usable(tmp_path, caplog):
+    """``down`` with a ``current.json`` that is not JSON warned "ignoring runs/current.json: not readable as JSON" twice:
+    it reads the file again (a run file written since its first look), and that second read warned again. Once."""
+    import logging
+
+    from cso_runtime.current_run import down
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "current.json").write_text("{not json")
+    with caplog.at_level(logging.WARNING):
+        ok, message = down(runs, 1.0)
+    warned = [r.getMessage() for r in caplog.records if "not readable as JSON" in r.getMessage()]
+    assert not ok and message == f"nothing running (no usable {runs / 'current.json'})" and len(warned) == 1, (message, warned)
+
+
+def test_runs_of_a_folder_that_does_not_exist_says_so(tmp_path):
+    """``runs --runs-dir nosuch`` answered "no runs in nosuch", exit 0, as of an empty runs folder: a folder that is not
+    there (a typo, another working folder) is said as such, exit 1, as ``logs``, ``status`` and ``down`` answer of it;
+    so are its prune (``--keep``) and ``--json``, and a file given as the folder. An empty folder still has no runs."""
+    missing = tmp_path / "nosuch"
+    for extra in ([], ["--json"], ["--keep", "1"], ["--older-than", "3"]):
+        r = CliRunner().invoke(app, ["runs", "--runs-dir", str(missing), *extra])
+        assert r.exit_code == 1 and r.stdout == "" and r.stderr.startswith(f"error: no runs folder {missing}: it does not exist"), (extra, r.output)
+    (tmp_path / "file").write_text("")
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "file")])
+    assert r.exit_code == 1 and r.stderr.startswith(f"error: no runs folder {tmp_path / 'file'}: it is a file"), r.output
+    (tmp_path / "empty").mkdir()
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "empty")])
+    assert r.exit_code == 0 and r.output == f"no runs in {tmp_path / 'empty'}\n", r.output
+    assert not missing.exists()

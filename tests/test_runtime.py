@@ -3740,6 +3740,40 @@ def test_save_map_after_the_episode_says_where_its_final_map_is_or_that_none_was
     assert "its final map, where the run wrote one, is in maps/ of the run's folder on the host that runs it" in out and str(final) not in out, out
 
 
+def test_save_map_of_another_robot_than_the_current_runs_names_no_file_of_the_current_run(tmp_path, monkeypatch, capsys):
+    """``save-map --robot r1`` after r1's episode ended, through the current run's router (r0's run, whose network r1's
+    run joined): it took the current run's folder for r1's and said "its final map is runs/<r0's run>/maps/cso/...yaml",
+    r0's map, where both robots ran one method on one scene. The current run's folder is the asked robot's only where the
+    run file names that robot; another robot's run is said as one given by ``--connect``: its folder is elsewhere."""
+    from types import SimpleNamespace
+
+    import cso_runtime.status as status_module
+    from cso_runtime.outputs import episode_map_path
+
+    over = encode(EpisodeStatusMsg(state="done", step=212, scene="generated:small:1:0", method="cso"))
+    payload = SimpleNamespace(to_bytes=lambda: over, to_string=lambda: "")
+    keys = RobotKeys("r1")
+
+    class Session(contextlib.AbstractContextManager):  # r1's ended episode answers through r0's router; no map answers
+        def __exit__(self, *_exc: object) -> None:
+            pass
+
+        def get(self, key: str, **_kw: object) -> list[SimpleNamespace]:
+            return [SimpleNamespace(ok=SimpleNamespace(payload=payload), err=None)] if key == keys.episode_status else []
+
+    monkeypatch.setattr(status_module, "_client_session", lambda *_a, **_k: Session())
+    runs, run_dir = tmp_path / "runs", tmp_path / "runs" / "run-of-r0"
+    run_dir.mkdir(parents=True)
+    (runs / "current.json").write_text(json.dumps({"run_id": run_dir.name, "run_dir": str(run_dir), "robot": "r0", "endpoints": ["tcp/127.0.0.1:1"]}))
+    r0_map = episode_map_path(run_dir, "cso", "generated:small:1:0")  # r0's own final map, of the same method and scene
+    save_map(r0_map, np.zeros((4, 5), dtype=np.int8), GridGeometry(0.05, (4, 5)), image_format="png")
+    (run_dir / "summary.json").write_text("{}")
+    assert save_map_main([], "r1", tmp_path / "m", "pgm", runs) == 1
+    out = capsys.readouterr().out
+    assert out.startswith("no map for robot r1: no map answers, and none will come: the episode is done, at step 212; "), out
+    assert str(run_dir) not in out and "its final map, where the run wrote one, is in maps/ of the run's folder on the host that runs it" in out, out
+
+
 def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
     """A launcher killed by SIGKILL leaves runs/current.json behind: ``status`` says its launcher has exited
     instead of waiting on the router it held. A router that is stopped (its port accepts TCP, no Zenoh
@@ -4531,8 +4565,11 @@ def test_reading_the_run_file_passes_its_zenoh_config_on_and_leaves_the_environm
     from cso_runtime.cli import app
     from cso_runtime.config import EXIT_NO_ZENOH
 
-    r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "r.mcap"), "--runs-dir", str(runs)])  # the session refuses the run's file
-    assert r.exit_code == EXIT_NO_ZENOH and "gone.json5" in r.output and ZENOH_CONFIG_ENV not in os.environ, r.output
+    # The run's file refused before a session is opened: a bad config (exit 2), as status says it above, not "no Zenoh
+    # session" (exit 3, once the session failed to open), nor the recordings folder made first.
+    r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "r.mcap"), "--runs-dir", str(runs)])
+    assert r.exit_code == 2 != EXIT_NO_ZENOH and "gone.json5" in r.output and ZENOH_CONFIG_ENV not in os.environ, r.output
+    assert not (tmp_path / "r.mcap").exists()
     config = tmp_path / "run.json5"
     config.write_text("{}")
     (runs / "current.json").write_text(json.dumps({**run, "zenoh_config": str(config)}))
