@@ -957,6 +957,35 @@ def test_warm_start_teacher_runs_through_subprocess_envs(tmp_path):
     assert actions[0] == expert_action(env.obs, info["action_mask"])  # the same seed, the same first choice
 
 
+def test_a_stop_in_the_teacher_collection_closes_its_progress_bar(monkeypatch):
+    """A stop (``stop_requested``, or Ctrl-C) in ``collect_teacher`` left its progress bar running: rich's live display
+    went on drawing while train stopped and never showed the terminal's cursor again. It is closed as the PPO bar is."""
+    from cso_runtime.learned import ppo
+
+    bars: list = []
+
+    class Bar:
+        def __init__(self, total: int, what: str) -> None:
+            self.advanced, self.closed = 0, False
+            bars.append(self)
+
+        def advance(self, n: int = 1) -> None:
+            self.advanced += n
+
+        def close(self) -> None:
+            self.closed = True
+
+    monkeypatch.setattr(ppo, "_Bar", Bar)
+    asked: list[bool] = []
+    envs = ppo.make_vector_env(Args(num_envs=1, async_envs=False, max_steps=100), [rooms_plan(2)])
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            ppo.collect_teacher(envs, 6, 0.98, seed=0, progress=True, stop_requested=lambda: asked.append(True) or len(asked) > 2)
+    finally:
+        envs.close()
+    assert len(bars) == 1 and bars[0].advanced == 2 and bars[0].closed
+
+
 def test_warm_start_teacher_is_the_chosen_baseline_under_the_mask():
     """The warm start imitates the configured baseline (its own score, e.g. explore_lite's utility),
     restricted to the allowed actions; greedy-dist stays the default; an unknown teacher is refused."""
