@@ -1744,7 +1744,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
     """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``)."""
     import yaml  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, one_line  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, one_line, yaml_load  # noqa: PLC0415
 
     out: dict[str, object] = {}
     for item in items:
@@ -1752,7 +1752,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
         if not sep or not key.strip():
             raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
         try:
-            out[key.strip()] = yaml.safe_load(value)
+            out[key.strip()] = yaml_load(value)
         except yaml.YAMLError as exc:
             raise ConfigError(f"--set {item}: not valid YAML: {one_line(str(exc))}") from None
     return out

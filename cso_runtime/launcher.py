@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import yaml
 import zenoh
 
 from cso_runtime import __version__
@@ -45,6 +44,8 @@ from cso_runtime.config import (
     from_dict,
     load_yaml,
     to_dict,
+    yaml_dump,
+    yaml_load,
 )
 from cso_runtime.current_run import (
     CURRENT_RUN,
@@ -450,7 +451,7 @@ class Launcher:
     def write_profile(self) -> None:
         """The run's ``profile.yaml``, whole (``write_text_atomic``): every service reads it as it starts, and one
         that starts while it is written again (the run folder made again) must not read half of it."""
-        write_text_atomic(self.profile_path, yaml.safe_dump(self.data, sort_keys=False))
+        write_text_atomic(self.profile_path, yaml_dump(self.data, sort_keys=False))
 
     def write_run_file(self, state: str) -> None:
         """``run.json`` and the runs folder's current-run file: the run's state, endpoints and processes, which
@@ -1757,7 +1758,7 @@ def start_detached(
     record_path = _record_path(run_dir, record or animate)
     run_dir.mkdir(parents=True, exist_ok=True)
     data_path = run_dir / "profile.requested.yaml"
-    write_text_atomic(data_path, yaml.safe_dump(data, sort_keys=False))
+    write_text_atomic(data_path, yaml_dump(data, sort_keys=False))
     log_path = run_dir / "logs" / "launcher.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with log_path.open("ab") as fh:
@@ -1775,7 +1776,7 @@ def start_detached(
     # launcher takes to start would leave it nothing to run (the run goes on, as for a folder deleted later).
     assert proc.stdin is not None
     with contextlib.suppress(OSError), proc.stdin:  # a launcher dead at once: its exit code says why, below
-        proc.stdin.write(yaml.safe_dump(data, sort_keys=False).encode())
+        proc.stdin.write(yaml_dump(data, sort_keys=False).encode())
     starting = run_dir / STARTING_LAUNCHER  # `down` finds the launcher by it until its run file does (current_run.down)
     try:
         with contextlib.suppress(OSError):  # the run folder deleted as the launcher starts (which makes it again): not found then
@@ -1876,7 +1877,7 @@ def main(argv: list[str] | None = None) -> int:
         record_command_line(shlex.split(args.command_line))
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     from_up = str(args.profile_data) == STDIN_PATH
-    data = yaml.safe_load(sys.stdin) if from_up else load_yaml(args.profile_data)
+    data = yaml_load(sys.stdin) if from_up else load_yaml(args.profile_data)
     if from_up and not data:  # stdin closed with nothing on it: `up --detach` killed (SIGKILL) before its handover
         log.error("no profile came from `up --detach` (was it killed as it started this launcher?): no run was started")
         return EXIT_INTERRUPTED

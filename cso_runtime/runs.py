@@ -22,6 +22,7 @@ from typing import Any
 
 import yaml
 
+from cso_runtime.config import yaml_load
 from cso_runtime.current_run import (
     CURRENT_RUN,
     LAUNCHER_DIED,
@@ -143,7 +144,7 @@ def summarize_run(run_dir: Path) -> RunSummary:
     read, unreadable = json_object_and_problem(run_dir / "run.json")
     info = read or {}
     try:
-        profile = yaml.safe_load((run_dir / "profile.yaml").read_text()) or {}
+        profile = yaml_load((run_dir / "profile.yaml").read_text()) or {}
     except (OSError, yaml.YAMLError):
         profile = {}
     profile = profile if isinstance(profile, dict) else {}

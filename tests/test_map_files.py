@@ -376,3 +376,24 @@ def test_a_map_yaml_number_written_with_a_sign_and_a_leading_dot_is_read_as_map_
     for text in ("-.", "+.e1", "-.5.5", "- .5"):  # no number in YAML 1.2 either: still refused
         with pytest.raises(ConfigError, match="expected a number"):
             from_dict(ExplorationConfig, {"planner": {"lookahead_m": text}})
+
+
+def test_a_map_yamls_numbers_are_read_as_yaml_1_2_reads_them_not_as_yaml_1_1(tmp_path: Path):
+    """``origin: [010, -0.5, 0]`` was read by PyYAML's YAML 1.1 as x = 8 (an octal), where map_server's yaml-cpp reads
+    10; ``resolution: 1_000`` (YAML 1.1: 1000) and an origin of ``1:30`` (YAML 1.1: 90, base 60) were read as
+    numbers that map_server refuses. Read as YAML 1.2 does (``config.yaml_load``): 10, and the others refused as texts."""
+    grid, geometry = _grid()
+    good = save_map(tmp_path / "map.yaml", grid, geometry)
+    meta = yaml.safe_load(good.read_text())
+    rest = yaml.safe_dump({k: v for k, v in meta.items() if k not in ("origin", "resolution")})
+    (tmp_path / "zero.yaml").write_text(rest + "resolution: 0.050\norigin: [010, -0.5, 0]\n")
+    back, back_geometry = load_map(tmp_path / "zero.yaml")
+    assert (back_geometry.origin_x_m, back_geometry.origin_y_m, back_geometry.resolution_m) == (10.0, -0.5, 0.05)
+    np.testing.assert_array_equal(back, grid)
+    for lines, said in [
+        ("resolution: 1_000\norigin: [0, 0, 0]\n", "resolution must be a finite number, got '1_000'"),
+        ("resolution: 0.05\norigin: [1:30, 0, 0]\n", "origin must be three finite numbers [x_m, y_m, yaw_rad], got '1:30'"),
+    ]:
+        (tmp_path / "bad.yaml").write_text(rest + lines)
+        with pytest.raises(MapFileError, match=re.escape(said)):
+            load_map(tmp_path / "bad.yaml")
