@@ -515,7 +515,10 @@ def _run_without_results(run_dir: Path) -> str:
     if state in ("interrupted", "stopped", LAUNCHER_DIED):
         return f"run {run_dir.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as {state}){kept}"
     # failed (results that could not be written, a service given up on), or done and its summary.json since removed
-    return f"run {run_dir.name} has no results (`runs` lists it as {state}); its launcher's log says why: `cso-runtime logs launcher --run {run_dir}`{kept}"
+    log = f"`cso-runtime logs launcher --run {run_dir}`"
+    if run.reason:  # run.json says why (refused, no router): said, and where to read more
+        return f"run {run_dir.name} has no results (`runs` lists it as {state}): {run.reason}; more in its launcher's log: {log}{kept}"
+    return f"run {run_dir.name} has no results (`runs` lists it as {state}); its launcher's log says why: {log}{kept}"
 
 
 def _read_grids_of_any_run() -> None:

@@ -359,6 +359,20 @@ def test_report_of_a_run_without_results_says_why_not_that_it_is_no_run_folder(t
     assert r.exit_code == 2 and f"run {failed.name} has no results; its run.json cannot be read: not JSON" in said and "stopped before" not in said, said
 
 
+
+def test_report_of_a_failed_run_says_the_reason_its_run_json_records(tmp_path):
+    """``report`` of a run that failed before it started a service (its robot claimed by another launcher, a refused
+    profile, no router) said only "its launcher's log says why", where its run.json records the reason, which ``runs``
+    lists: the reason is said, and the launcher's log still named for more; a failed run without one is said as before."""
+    failed = make_run(tmp_path / "runs", "20261203-091300-sim-r0", outcome="failed")
+    reason = "refused: robot r0 is already run by another launcher (pid 4242)"
+    info = json.loads((failed / "run.json").read_text())
+    (failed / "run.json").write_text(json.dumps({**info, "reason": reason}))
+    r = CliRunner().invoke(app, ["report", str(failed)])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and f"run {failed.name} has no results (`runs` lists it as failed): {reason}; more in its launcher's log: `cso-runtime logs launcher --run {failed}`" in said, said
+    assert "says why" not in said, said
+
 def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newest(tmp_path):
     runs = tmp_path / "runs"
     with pytest.raises(RunError, match="no runs in"):
