@@ -893,7 +893,9 @@ def up_command(
     ),
     dry_run: bool = typer.Option(False, "--dry-run", help="Validate, print the profile as the services would read it (YAML), start nothing"),
     resolved: bool = typer.Option(
-        False, "--resolved", help="Validate, print every parameter the run would use, defaults filled in (YAML, itself a profile), start nothing; implies --dry-run"
+        False,
+        "--resolved",
+        help="Validate, print every parameter the run would use, defaults filled in (YAML, itself a profile), start nothing; the folders the run would write in (--runs-dir, --record-out) are checked with --dry-run only",
     ),
     animate: bool = typer.Option(
         False, "--animate", help="At the end, also write the episode as a GIF under animations/, as eval does (records the run to do so, as --record)"
@@ -942,7 +944,8 @@ def up_command(
             _warn_of_weights_trained_otherwise(prof)
             _warn_of_unfed_inputs(prof)
             _warn_of_a_watchdog_within_a_step(prof)
-            if record_out is not None:
+            checks_folders = dry_run or not resolved  # --resolved alone: the profile to run later, wherever it will write
+            if record_out is not None and checks_folders:
                 from cso_runtime.recording import names_a_folder  # noqa: PLC0415
 
                 if not names_a_folder(record_out) and Path(record_out).exists():  # as `record --out`: an earlier recording is never written over
@@ -950,7 +953,8 @@ def up_command(
             if dry_run or resolved:
                 from cso_runtime.config import commented_yaml  # noqa: PLC0415
 
-                _up_folders_or_exit(record_out, runs_dir, make=False)  # `up` would refuse them: not "valid", nothing made
+                if checks_folders:
+                    _up_folders_or_exit(record_out, runs_dir, make=False)  # `up` would refuse them: not "valid", nothing made
                 outside = prof.left_out_services()
                 left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
                 comments = [f"profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}"]

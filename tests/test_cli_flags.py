@@ -507,6 +507,26 @@ def test_up_dry_run_checks_the_folders_up_would_write_in(tmp_path: Path, monkeyp
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt"]  # nothing made
 
 
+
+def test_up_resolved_prints_the_profile_wherever_the_run_would_write(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``up --resolved`` prints the profile as the run would use it, a file to run again later (elsewhere, with other
+    folders): it took ``--dry-run``'s check of ``--runs-dir`` and ``--record-out`` (``up --dry-run`` checks the folders
+    up would write in) and refused to print where the runs folder cannot be made here, though neither is in what it
+    prints. It prints the profile; ``--dry-run``, alone or with ``--resolved``, checks the folders as before."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("")
+    (tmp_path / "old.mcap").write_text("")
+    plain = CliRunner().invoke(app, ["up", "--resolved"])
+    assert plain.exit_code == 0 and "robot: r0" in plain.stdout, plain.output
+    for given in (["--runs-dir", "notes.txt"], ["--record-out", "notes.txt/run.mcap"], ["--record-out", "old.mcap"]):
+        r = CliRunner().invoke(app, ["up", "--resolved", *given])
+        assert r.exit_code == 0 and r.stdout == plain.stdout and "error" not in r.output, (given, r.output)
+        dry = CliRunner().invoke(app, ["up", "--resolved", "--dry-run", *given])
+        assert dry.exit_code == 2 and dry.stderr.startswith(f"error: {given[0]} ") and "robot: r0" not in dry.output, (given, dry.output)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "old.mcap"]  # nothing made
+
 def test_a_nan_given_to_a_bounded_number_flag_is_said_as_such_not_as_out_of_one_bound(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     """``status --period nan`` said "Input should be less than or equal to 3600", and ``runs --older-than nan`` "greater
     than or equal to 0": untrue of nan, which is neither. A bounded number flag says its range and the value given, for
