@@ -2491,6 +2491,50 @@ def test_step_pace_measures_simulated_seconds_per_wall_second_from_the_episodes_
     assert pace.real_time_factor == pytest.approx(40 * 0.25 / 2.5)
 
 
+def test_the_pace_read_as_a_new_episodes_status_arrives_is_the_old_episodes_or_none(tmp_path):
+    """The real-time factor is read by the run loop (progress lines, the live view, episodes.csv's
+    ``real_time_factor``) and the status queryable's thread while a Zenoh thread's ``_on_sample`` measures it, with no
+    lock: a new episode's status (a restarted sim) arriving between the reader's look at the measure and its use of
+    it (``_latest`` checked, then set to None, then unpacked) raised ``TypeError: cannot unpack non-iterable
+    NoneType`` in the reader: the run loop's, which stops the run, or the results' writer's. Here the status arrives at
+    each line of the reader in turn: it reads the old episode's factor or none, never raises."""
+    from cso_runtime.pace import StepPace
+
+    reader = StepPace.real_time_factor.fget.__code__  # type: ignore[attr-defined]
+    lines = sorted({line for _, _, line in reader.co_lines() if line is not None and line > reader.co_firstlineno})
+    injected = 0
+    for line in lines:
+        launcher, hear = _launcher_hearing(tmp_path)
+        launcher.simulated = True
+        hear(EpisodeStatusMsg("exploring", 10, episode=7))
+        hear(EpisodeStatusMsg("exploring", 50, episode=7))
+        old = launcher.real_time_factor
+        assert old is not None
+        arrived: list[int] = []
+
+        def trace(frame: types.FrameType, event: str, _arg: Any, line: int = line, arrived: list[int] = arrived, hear: Callable[[Any], None] = hear) -> Any:
+            if frame.f_code is not reader:
+                return None
+
+            def at_line(frame: types.FrameType, event: str, _arg: Any) -> Any:
+                if event == "line" and frame.f_lineno == line and not arrived:
+                    arrived.append(line)
+                    sys.settrace(None)
+                    hear(EpisodeStatusMsg("exploring", 0, episode=8))  # the restarted sim's, on the Zenoh thread, now
+                return at_line
+
+            return at_line
+
+        sys.settrace(trace)
+        try:
+            got = launcher.real_time_factor
+        finally:
+            sys.settrace(None)
+        assert got in (old, None), (line, got)
+        injected += len(arrived)  # a line of its docstring runs no code
+    assert injected >= 3, lines
+
+
 def test_the_progress_line_says_when_the_episode_has_made_no_step_for_a_while(tmp_path, monkeypatch):
     """A sim stopped (SIGSTOP) or a lockstep pipeline stalled on a stopped policy: ``up --no-live``'s progress line
     went on saying "step 105 (26.2 s robot time, 20.47x real time): ..." every 10 s, as if all were well, until the
