@@ -5628,6 +5628,39 @@ def test_an_end_a_ros2_bridges_new_episode_left_behind_is_not_said_lost_with_its
     assert "but its result was lost: the referee started a new episode before it came" in text and "sim restarted" not in text, text
 
 
+def test_run_json_and_summary_json_keep_the_episodes_whose_result_a_restart_lost(tmp_path):
+    """An episode's end left behind with no result (``end_left_behind``) was said in launcher.log and, while the run
+    ran, by ``status``: once the launcher exited, run.json said nothing of it, and a run whose next episode gave its
+    results (or that was stopped before it did) read in ``runs`` and report.html as if nothing had been lost. run.json
+    names them (``lost_results``, as ``launcher_status`` does) from the moment it is judged (a launcher killed later
+    leaves it there) to the run's end, and the results written after (summary.json's ``meta.lost_results``) too."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    launcher.run_dir.mkdir(parents=True)
+    launcher.write_run_file("running")
+    assert "lost_results" not in json.loads((launcher.run_dir / "run.json").read_text())
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # its result never comes
+    hear(EpisodeStatusMsg("starting", 0, episode=8))  # the sim restarted
+    over = launcher.episode_end_heard()
+    assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    lost = [{"episode": 7, "state": "done", "step": 31, "running": 8}]
+    assert json.loads((launcher.run_dir / "run.json").read_text())["lost_results"] == lost  # written as it is judged
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="coverage", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(40, "coverage"))]), over, lambda: None)
+    assert judged is not None and judged[1] is not None
+    launcher.write_outputs(judged[1])
+    summary = json.loads((launcher.run_dir / "summary.json").read_text())
+    assert summary["meta"]["lost_results"] == lost and summary["meta"]["episode"] == 8
+    launcher.write_run_file("stopped")
+    assert json.loads((launcher.run_dir / "run.json").read_text())["lost_results"] == lost
+    report = (launcher.run_dir / "report.html").read_text()
+    said = "episode 000000000007 ended (done at step 31), but its result was lost: the sim restarted before it came; the run went on with episode 000000000008"
+    assert said in report, report
+
+
 def test_status_says_that_an_episodes_result_was_lost_to_a_restart_of_the_sim(tmp_path):
     """An episode's end left behind with no result (the sim restarted before it came, ``end_left_behind``) was said
     in launcher.log only: ``status`` showed the new episode running as if nothing had been lost. The launcher's status
