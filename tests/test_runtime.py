@@ -5628,6 +5628,32 @@ def test_an_end_a_ros2_bridges_new_episode_left_behind_is_not_said_lost_with_its
     assert "but its result was lost: the referee started a new episode before it came" in text and "sim restarted" not in text, text
 
 
+def test_the_live_view_says_that_an_episodes_result_was_lost_to_a_restart_of_the_sim(tmp_path):
+    """``status`` says that an episode's result was lost to a restart of the sim (``lost_results``); ``up``'s live
+    view showed the new episode starting as if the run had just begun, its one warning line scrolled away above the
+    table (and in a file, the table written once at the end said nothing of it). It says it as ``status`` does."""
+    from rich.console import Console
+
+    from cso_runtime.live_view import LiveView
+
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=0x2A))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=0x2A))
+    hear(EpisodeStatusMsg("starting", 0, episode=0x2B))
+
+    def table() -> str:
+        console = Console(width=300, record=True)
+        console.print(LiveView(launcher).render())
+        return " ".join(console.export_text().split())
+
+    said = "episode 00000000002a ended (done at step 31), but its result was lost: the sim restarted before it came; the run went on with episode 00000000002b"
+    assert "result was lost" not in table()
+    over = launcher.episode_end_heard()
+    assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    hear(EpisodeStatusMsg("exploring", 3, episode=0x2B))
+    assert said in table(), table()
+
+
 def test_run_json_and_summary_json_keep_the_episodes_whose_result_a_restart_lost(tmp_path):
     """An episode's end left behind with no result (``end_left_behind``) was said in launcher.log and, while the run
     ran, by ``status``: once the launcher exited, run.json said nothing of it, and a run whose next episode gave its
