@@ -1056,9 +1056,11 @@ class Launcher:
             end.episode, end.state, end.step, self.episode_running, restarted, end.episode, lost_with, self.episode_running,
         )  # fmt: skip
         lost = {"episode": end.episode, "state": end.state, "step": end.step, "running": self.episode_running or 0}
+        self.ended_status, self.stray_judged = None, end
+        if lost in self.lost_results:  # its end heard again (late, replayed): nothing new to keep or write
+            return
         with self._lock:  # read by the status queryable's thread
             self.lost_results = [e for e in self.lost_results if e["episode"] != end.episode][-(LOST_RESULTS_KEPT - 1) :] + [lost]
-        self.ended_status, self.stray_judged = None, end
         self.write_run_file("running")  # run.json says it from now on: `runs` of a launcher killed later still does
 
     def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:

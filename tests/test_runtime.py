@@ -5671,6 +5671,15 @@ def test_run_json_and_summary_json_keep_the_episodes_whose_result_a_restart_lost
     assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
     lost = [{"episode": 7, "state": "done", "step": 31, "running": 8}]
     assert json.loads((launcher.run_dir / "run.json").read_text())["lost_results"] == lost  # written as it is judged
+    writes: list[str] = []
+    write_run_file = launcher.write_run_file
+    launcher.write_run_file = lambda state: writes.append(state) or write_run_file(state)  # type: ignore[method-assign]
+    for _ in range(3):  # its end replayed: judged again, nothing new to write (a flood of them writes no file a round)
+        hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))
+        over = launcher.episode_end_heard()
+        assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    assert writes == [] and launcher.lost_results == lost
+    launcher.write_run_file = write_run_file  # type: ignore[method-assign]
     hear(EpisodeStatusMsg("exploring", 5, episode=8))
     hear(EpisodeStatusMsg("done", 40, terminated_by="coverage", episode=8))
     over = launcher.episode_end_heard()
