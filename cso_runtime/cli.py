@@ -504,12 +504,14 @@ def _run_without_results(run_dir: Path) -> str:
     from cso_runtime.current_run import LAUNCHER_DIED  # noqa: PLC0415
     from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415
     from cso_runtime.runs import UNKNOWN_RUN_STATE, summarize_run  # noqa: PLC0415
+    from cso_runtime.status import lost_result_words  # noqa: PLC0415
 
     run = summarize_run(run_dir)
     state = run.state
     if state in ("starting", "running"):
         return f"run {run_dir.name} is {state}: its results are written when its episode ends"
     kept = f" (its map so far: {run_dir / LAST_MAP})" if (run_dir / LAST_MAP).is_file() else ""
+    kept += "".join(f"; {lost_result_words(lost, run.referee)}" for lost in run.lost_results)  # an end it had, with no result
     if state == UNKNOWN_RUN_STATE:
         return f"run {run_dir.name} has no results; {run.reason}{kept}"
     if state in ("interrupted", "stopped", LAUNCHER_DIED):
@@ -1167,7 +1169,8 @@ def runs_command(
         raise typer.Exit(_prune_runs(runs_dir, keep, older_than, yes, as_json))
     if yes:
         _fail("--yes deletes the runs that --keep N or --older-than DAYS select: give one of them", 2)
-    rows = [r.as_dict() for r in list_runs(runs_dir, limit)]
+    listed = list_runs(runs_dir, limit)
+    rows = [r.as_dict() for r in listed]
     if as_json:
         typer.echo(json.dumps(rows, indent=2))
         return
@@ -1190,9 +1193,13 @@ def runs_command(
     table.add_column("state", overflow="fold", min_width=6)
     for col in ("took", "steps", "cover %", "m2", "m2/step"):
         table.add_column(col, justify="right", no_wrap=True)
-    for r in rows:
+    from cso_runtime.status import lost_results_short  # noqa: PLC0415
+
+    for run, r in zip(listed, rows, strict=True):
         restarts = r["restarts"]
         state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "") + (f": {r['reason']}" if r["reason"] else "")
+        if r["lost_results"]:  # the run went on with another episode: its results, if any, are that one's
+            state += f"; {lost_results_short(r['lost_results'], run.referee)}"
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         steps = f"{r['stopped_at_step']} (stopped)" if r["steps"] is None and r["stopped_at_step"] is not None else num(r["steps"], ".0f")
         table.add_row(

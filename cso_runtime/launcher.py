@@ -478,6 +478,8 @@ class Launcher:
             **({"episode_ended_at": round(self.episode_ended_at, 3)} if self.episode_ended_at is not None else {}),
             **({"lost_router": self.joined_router()} if self.router_lost_at is not None else {}),
             **({"run_dir_lost": self.run_folder.losses} if self.run_folder.losses else {}),
+            # the episodes whose result a restart of the referee lost (`end_left_behind`): `runs` and `report` say so
+            **({"lost_results": list(self.lost_results)} if self.lost_results else {}),
             "services": {
                 c.name: {
                     "pid": c.proc.pid if c.proc else None,
@@ -1055,9 +1057,12 @@ class Launcher:
             end.episode, end.state, end.step, self.episode_running, restarted, end.episode, lost_with, self.episode_running,
         )  # fmt: skip
         lost = {"episode": end.episode, "state": end.state, "step": end.step, "running": self.episode_running or 0}
+        self.ended_status, self.stray_judged = None, end
+        if lost in self.lost_results:  # its end heard again (late, replayed): nothing new to keep or write
+            return
         with self._lock:  # read by the status queryable's thread
             self.lost_results = [e for e in self.lost_results if e["episode"] != end.episode][-(LOST_RESULTS_KEPT - 1) :] + [lost]
-        self.ended_status, self.stray_judged = None, end
+        self.write_run_file("running")  # run.json says it from now on: `runs` of a launcher killed later still does
 
     def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:
         """The end ``result`` belongs to: the episode's real end and its result can come while a stray end is awaited,
@@ -1117,6 +1122,8 @@ class Launcher:
         meta["config"] = to_dict(self.profile.exploration_config())  # every exploration parameter, as eval's summary
         if self.ended_status is not None:  # whose results these are: a robot may go on in another episode after this end
             meta["episode"] = self.ended_status.episode
+        if self.lost_results:  # episodes before it whose result a restart of the referee lost: report.html says so
+            meta["lost_results"] = list(self.lost_results)
         meta["coverage_measured"] = self.coverage_measured  # whether coverage_pct is a measure: `runs` and report.html read it
         meta["sim"] = self.profile.simulator()  # 2d or mujoco, as eval's; null on a real robot (episodes.csv's sim)
         sim_settings = self.profile.simulator_settings()

@@ -1625,8 +1625,8 @@ LOST_RESULTS_KEPT = 16
 latest): one per restart of the sim after an episode's end, so a handful at most."""
 
 
-def _lost_results(v: Any, where: str) -> list[dict[str, Any]]:
-    """``launcher_status.lost_results``: absent or nil (an older launcher's) is none."""
+def lost_results_of(v: Any, where: str) -> list[dict[str, Any]]:
+    """``launcher_status.lost_results`` (and run.json's, ``runs``): absent or nil (an older launcher's) is none."""
     if v is None:
         return []
     if not isinstance(v, list) or len(v) > LOST_RESULTS_KEPT or not all(isinstance(e, dict) for e in v):
@@ -1747,7 +1747,7 @@ class LauncherStatusMsg(Message):
         referee = None if b.get("referee") is None else _str(b, "referee", w, max_len=64)
         return cls(
             _str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace, lost, run_dir_lost,
-            pause, measured, referee, _lost_results(b.get("lost_results"), f"{w}.lost_results"),
+            pause, measured, referee, lost_results_of(b.get("lost_results"), f"{w}.lost_results"),
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -450,11 +450,23 @@ def lost_result_words(lost: dict[str, Any], referee: str | None) -> str:
     """What ``status`` says of an episode whose result was lost to a restart of the referee (an entry of
     ``launcher_status``'s ``lost_results``; ``referee``: its ``referee``): ``episode 00000000002a ended (done at
     step 31), but its result was lost: the sim restarted before it came; the run went on with episode 000000000008``."""
-    how = "the sim restarted" if referee == "sim" else "the referee started a new episode"
     return (
-        f"episode {lost['episode']:012x} ended ({lost['state']} at step {lost['step']}), but its result was lost: {how} before it came; "
+        f"episode {lost['episode']:012x} ended ({lost['state']} at step {lost['step']}), but its result was lost: {lost_how(referee)} before it came; "
         f"the run went on with episode {lost['running']:012x}"
     )
+
+
+def lost_how(referee: str | None) -> str:
+    """How an episode's result was lost, by the run's ``referee`` (``run_profile.referee_kind``): a ROS 2 bridge
+    starts a new episode in the process that ran the old one."""
+    return "the sim restarted" if referee == "sim" else "the referee started a new episode"
+
+
+def lost_results_short(lost: list[dict[str, Any]], referee: str | None) -> str:
+    """``runs``' words for the episodes whose result was lost (run.json's ``lost_results``; ``lost_result_words`` says
+    each at length): ``result of episode 00000000002a lost: the sim restarted before it came``."""
+    episodes = ", ".join(f"{e['episode']:012x}" for e in lost)
+    return f"result of episode{'s' if len(lost) > 1 else ''} {episodes} lost: {lost_how(referee)} before {'they' if len(lost) > 1 else 'it'} came"
 
 
 def after_end_words(status: dict[str, Any]) -> str:

@@ -86,7 +86,7 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert list_runs(runs)[-1].as_dict() | {"run_dir": ""} == {
         "run_id": broken.name, "run_dir": "", "state": "unknown", "profile": "", "robot": "", "scene": "", "real_robot": False, "coverage_measured": True, "method": "",
         "explored_area_m2": None, "coverage_pct": None, "steps": None, "efficiency_m2_per_step": None, "path_length_m": None,
-        "terminated_by": None, "restarts": 0, "duration_s": None, "stopped_at_step": None,
+        "terminated_by": None, "restarts": 0, "duration_s": None, "stopped_at_step": None, "lost_results": [],
         "reason": "its run.json cannot be read: not JSON (Expecting property name enclosed in double quotes at line 1 column 2)",
     }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback; nor "stopped", which it may not be)
     # In the table: its state and why, no ", " line for a scene and method not known.
@@ -372,6 +372,35 @@ def test_report_of_a_failed_run_says_the_reason_its_run_json_records(tmp_path):
     said = " ".join(r.output.split())
     assert r.exit_code == 2 and f"run {failed.name} has no results (`runs` lists it as failed): {reason}; more in its launcher's log: `cso-runtime logs launcher --run {failed}`" in said, said
     assert "says why" not in said, said
+
+
+def test_runs_and_report_say_an_episodes_result_lost_to_a_restart_of_the_sim(tmp_path):
+    """A run whose episode ended while its result was lost to a restart of the sim (run.json's ``lost_results``, as
+    the launcher's status has them) read in ``runs`` as any other: done with the next episode's results, or stopped
+    with none, and ``report`` of one stopped said only that it stopped before its episode ended. ``runs`` says whose
+    result was lost (``--json``: ``lost_results``), and so does ``report``; a malformed entry is no entry."""
+    runs = tmp_path / "runs"
+    lost = [{"episode": 0x2A, "state": "done", "step": 31, "running": 0x2B}]
+    done = make_run(runs, "20261203-091000-lockstep-r0", outcome="done", summary=ROW)
+    stopped = make_run(runs, "20261203-091100-lockstep-r0", outcome="interrupted")
+    plain = make_run(runs, "20261203-091200-lockstep-r0", outcome="done", summary=ROW)
+    bad = make_run(runs, "20261203-091300-lockstep-r0", outcome="done", summary=ROW)
+    for d in (done, stopped, plain, bad):  # as the launcher writes it: the profile's services, the sim the referee
+        (d / "profile.yaml").write_text(yaml.safe_dump({"name": "lockstep", "robot": "r0", "scene": "generated:small:1:0", "method": "cso", "services": {"sim": {}, "mapper": {}}}))
+    for d, entries in ((done, lost), (stopped, lost), (bad, [{"episode": "7"}])):
+        (d / "run.json").write_text(json.dumps(json.loads((d / "run.json").read_text()) | {"lost_results": entries, "last_step": 12}))
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--json"])
+    assert r.exit_code == 0 and [x["lost_results"] for x in json.loads(r.output)] == [lost, lost, [], []], r.output
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "250"})
+    said = "result of episode 00000000002a lost: the sim restarted before it came"
+    text = r.output
+    assert r.exit_code == 0 and text.count(said) == 2, text
+    assert said not in "".join(ln for ln in text.splitlines() if plain.name in ln or bad.name in ln), text
+    r = CliRunner().invoke(app, ["report", str(stopped)])
+    out = " ".join(r.output.split())
+    assert r.exit_code == 2 and f"run {stopped.name} has no results: a run stopped before its episode ended writes none" in out, out
+    assert "episode 00000000002a ended (done at step 31), but its result was lost: the sim restarted before it came; the run went on with episode 00000000002b" in out, out
+
 
 def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newest(tmp_path):
     runs = tmp_path / "runs"

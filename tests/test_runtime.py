@@ -2491,6 +2491,50 @@ def test_step_pace_measures_simulated_seconds_per_wall_second_from_the_episodes_
     assert pace.real_time_factor == pytest.approx(40 * 0.25 / 2.5)
 
 
+def test_the_pace_read_as_a_new_episodes_status_arrives_is_the_old_episodes_or_none(tmp_path):
+    """The real-time factor is read by the run loop (progress lines, the live view, episodes.csv's
+    ``real_time_factor``) and the status queryable's thread while a Zenoh thread's ``_on_sample`` measures it, with no
+    lock: a new episode's status (a restarted sim) arriving between the reader's look at the measure and its use of
+    it (``_latest`` checked, then set to None, then unpacked) raised ``TypeError: cannot unpack non-iterable
+    NoneType`` in the reader: the run loop's, which stops the run, or the results' writer's. Here the status arrives at
+    each line of the reader in turn: it reads the old episode's factor or none, never raises."""
+    from cso_runtime.pace import StepPace
+
+    reader = StepPace.real_time_factor.fget.__code__  # type: ignore[attr-defined]
+    lines = sorted({line for _, _, line in reader.co_lines() if line is not None and line > reader.co_firstlineno})
+    injected = 0
+    for line in lines:
+        launcher, hear = _launcher_hearing(tmp_path)
+        launcher.simulated = True
+        hear(EpisodeStatusMsg("exploring", 10, episode=7))
+        hear(EpisodeStatusMsg("exploring", 50, episode=7))
+        old = launcher.real_time_factor
+        assert old is not None
+        arrived: list[int] = []
+
+        def trace(frame: types.FrameType, event: str, _arg: Any, line: int = line, arrived: list[int] = arrived, hear: Callable[[Any], None] = hear) -> Any:
+            if frame.f_code is not reader:
+                return None
+
+            def at_line(frame: types.FrameType, event: str, _arg: Any) -> Any:
+                if event == "line" and frame.f_lineno == line and not arrived:
+                    arrived.append(line)
+                    sys.settrace(None)
+                    hear(EpisodeStatusMsg("exploring", 0, episode=8))  # the restarted sim's, on the Zenoh thread, now
+                return at_line
+
+            return at_line
+
+        sys.settrace(trace)
+        try:
+            got = launcher.real_time_factor
+        finally:
+            sys.settrace(None)
+        assert got in (old, None), (line, got)
+        injected += len(arrived)  # a line of its docstring runs no code
+    assert injected >= 3, lines
+
+
 def test_the_progress_line_says_when_the_episode_has_made_no_step_for_a_while(tmp_path, monkeypatch):
     """A sim stopped (SIGSTOP) or a lockstep pipeline stalled on a stopped policy: ``up --no-live``'s progress line
     went on saying "step 105 (26.2 s robot time, 20.47x real time): ..." every 10 s, as if all were well, until the
@@ -5619,6 +5663,74 @@ def test_an_end_a_ros2_bridges_new_episode_left_behind_is_not_said_lost_with_its
     console.print(render_table(status_of("r0", None, msg.to_dict(), {}, set())))
     text = " ".join(console.export_text().split())
     assert "but its result was lost: the referee started a new episode before it came" in text and "sim restarted" not in text, text
+
+
+def test_the_live_view_says_that_an_episodes_result_was_lost_to_a_restart_of_the_sim(tmp_path):
+    """``status`` says that an episode's result was lost to a restart of the sim (``lost_results``); ``up``'s live
+    view showed the new episode starting as if the run had just begun, its one warning line scrolled away above the
+    table (and in a file, the table written once at the end said nothing of it). It says it as ``status`` does."""
+    from rich.console import Console
+
+    from cso_runtime.live_view import LiveView
+
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=0x2A))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=0x2A))
+    hear(EpisodeStatusMsg("starting", 0, episode=0x2B))
+
+    def table() -> str:
+        console = Console(width=300, record=True)
+        console.print(LiveView(launcher).render())
+        return " ".join(console.export_text().split())
+
+    said = "episode 00000000002a ended (done at step 31), but its result was lost: the sim restarted before it came; the run went on with episode 00000000002b"
+    assert "result was lost" not in table()
+    over = launcher.episode_end_heard()
+    assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    hear(EpisodeStatusMsg("exploring", 3, episode=0x2B))
+    assert said in table(), table()
+
+
+def test_run_json_and_summary_json_keep_the_episodes_whose_result_a_restart_lost(tmp_path):
+    """An episode's end left behind with no result (``end_left_behind``) was said in launcher.log and, while the run
+    ran, by ``status``: once the launcher exited, run.json said nothing of it, and a run whose next episode gave its
+    results (or that was stopped before it did) read in ``runs`` and report.html as if nothing had been lost. run.json
+    names them (``lost_results``, as ``launcher_status`` does) from the moment it is judged (a launcher killed later
+    leaves it there) to the run's end, and the results written after (summary.json's ``meta.lost_results``) too."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    launcher.run_dir.mkdir(parents=True)
+    launcher.write_run_file("running")
+    assert "lost_results" not in json.loads((launcher.run_dir / "run.json").read_text())
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # its result never comes
+    hear(EpisodeStatusMsg("starting", 0, episode=8))  # the sim restarted
+    over = launcher.episode_end_heard()
+    assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    lost = [{"episode": 7, "state": "done", "step": 31, "running": 8}]
+    assert json.loads((launcher.run_dir / "run.json").read_text())["lost_results"] == lost  # written as it is judged
+    writes: list[str] = []
+    write_run_file = launcher.write_run_file
+    launcher.write_run_file = lambda state: writes.append(state) or write_run_file(state)  # type: ignore[method-assign]
+    for _ in range(3):  # its end replayed: judged again, nothing new to write (a flood of them writes no file a round)
+        hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))
+        over = launcher.episode_end_heard()
+        assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    assert writes == [] and launcher.lost_results == lost
+    launcher.write_run_file = write_run_file  # type: ignore[method-assign]
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="coverage", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(40, "coverage"))]), over, lambda: None)
+    assert judged is not None and judged[1] is not None
+    launcher.write_outputs(judged[1])
+    summary = json.loads((launcher.run_dir / "summary.json").read_text())
+    assert summary["meta"]["lost_results"] == lost and summary["meta"]["episode"] == 8
+    launcher.write_run_file("stopped")
+    assert json.loads((launcher.run_dir / "run.json").read_text())["lost_results"] == lost
+    report = (launcher.run_dir / "report.html").read_text()
+    said = "episode 000000000007 ended (done at step 31), but its result was lost: the sim restarted before it came; the run went on with episode 000000000008"
+    assert said in report, report
 
 
 def test_status_says_that_an_episodes_result_was_lost_to_a_restart_of_the_sim(tmp_path):
