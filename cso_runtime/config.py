@@ -570,6 +570,15 @@ def yaml12_number(value: Any) -> Any:
     return float(value) if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value.strip()) else value
 
 
+def as_float(value: float) -> float:
+    """``float(value)``, and for an integer no float holds (``10**400``, which YAML reads whole, as ``0x`` and 300
+    digits) the infinity of its sign, where ``float`` raises OverflowError: said as not finite, as ``1e400`` is."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
 def _convert(value: Any, annotation: Any, where: str) -> Any:
     origin = typing.get_origin(annotation)
     if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
@@ -582,9 +591,9 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
             raise ConfigError(f"{where}: must be finite, got {value.strip()}")  # YAML's .nan is a float, its nan text: one answer
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
-        if not math.isfinite(float(value)):
+        if not math.isfinite(number := as_float(value)):
             raise ConfigError(f"{where}: must be finite")
-        return float(value)
+        return number
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{where}: expected an integer, got {value!r}")
@@ -1202,7 +1211,24 @@ class YamlLoader(yaml.SafeLoader):
     are 10, the texts ``1_000``, ``1:30`` and ``2024-01-01``, 0.05 and -0.5 (``0x10`` 16, ``0o10`` 8). Booleans are YAML
     1.1's, ``yes``/``no``/``on``/``off`` (any case as PyYAML) true or false beside ``true``/``false``, as yaml-cpp's
     ``as<bool>`` (a map's ``negate``) and ROS 2's parameter files (rcl_yaml_param_parser) read them, and as this
-    project's ``--set`` has read them: a text ``on`` is written quoted (``'on'``)."""
+    project's ``--set`` has read them: a text ``on`` is written quoted (``'on'``). A key given twice in one mapping
+    (``010`` and ``10`` are one key) is refused, in a file or a ``--set`` value alike: PyYAML keeps the last one in
+    silence and yaml-cpp (map_server) reads the first, so an edited profile's first value would be dropped without a
+    word, and a map YAML read otherwise than map_server reads it."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, Any] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                first = seen.setdefault(key, key_node.start_mark)
+            except TypeError:  # an unhashable key: SafeLoader's own error says so
+                break
+            if first is not key_node.start_mark:
+                raise yaml.constructor.ConstructorError(
+                    "while constructing a mapping", node.start_mark, f"found key {key!r} twice (first at line {first.line + 1})", key_node.start_mark
+                )
+        return super().construct_mapping(node, deep=deep)
 
 
 YamlLoader.yaml_implicit_resolvers = {  # SafeLoader's, less YAML 1.1's numbers and dates
@@ -1237,25 +1263,6 @@ def yaml_dump(data: Any, **options: Any) -> str:
     return str(yaml.dump(data, Dumper=YamlDumper, **options))
 
 
-class _UniqueKeyLoader(YamlLoader):
-    """``YamlLoader`` that refuses a key given twice in one mapping: YAML's loaders keep the last one
-    silently, so an edited profile's first value would be dropped without a word."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
-        seen: dict[Any, Any] = {}
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)
-            try:
-                first = seen.setdefault(key, key_node.start_mark)
-            except TypeError:  # an unhashable key: SafeLoader's own error says so
-                break
-            if first is not key_node.start_mark:
-                raise yaml.constructor.ConstructorError(
-                    "while constructing a mapping", node.start_mark, f"found key {key!r} twice (first at line {first.line + 1})", key_node.start_mark
-                )
-        return super().construct_mapping(node, deep=deep)
-
-
 def one_line(text: str) -> str:
     """``text`` on one line, its runs of spaces and line breaks one space: a YAML error (three lines or more, a caret
     drawing among them) as every error of the CLI is said, in one line."""
@@ -1269,7 +1276,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"config file not found: {p}")
     try:
         with p.open(encoding="utf-8") as stream:  # a file stream, so YAML's message names the file, not "<unicode string>"
-            data = yaml.load(stream, Loader=_UniqueKeyLoader)
+            data = yaml_load(stream)
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: not valid YAML: {one_line(str(exc))}") from None
     if data is None:

@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
-from cso_runtime.config import one_line, yaml12_number, yaml_dump, yaml_load
+from cso_runtime.config import as_float, one_line, yaml12_number, yaml_dump, yaml_load
 from cso_runtime.geometry import GridGeometry, Pose2D, rounded_pose
 from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN
 from cso_runtime.outputs import write_text_atomic, write_whole
@@ -279,9 +279,9 @@ def map_yaml_number(v: object) -> float | None:
     anything else (a word, ``1_000``, ``1:30``, true, nan, inf). The one reading of the numbers of a
     map YAML: its own keys and a scene's ``start`` (``scenes.load_map_scene``)."""
     v = yaml12_number(v)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(number := as_float(v)):
         return None
-    return float(v)
+    return number
 
 
 def _number(v: object, path: Path, key: str) -> float:

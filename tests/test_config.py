@@ -1719,3 +1719,34 @@ def test_up_resolved_prints_a_text_read_as_a_number_by_yaml_1_2_quoted(tmp_path:
     (tmp_path / "saved.yaml").write_text(r.stdout)
     again = CliRunner().invoke(app, ["up", "--resolved", "--profile", str(tmp_path / "saved.yaml"), "--runs-dir", str(tmp_path / "runs")])
     assert again.exit_code == 0 and yaml_load(again.stdout) == yaml_load(r.stdout), again.output
+
+
+def test_a_number_too_large_for_a_float_is_said_as_not_finite_not_a_traceback(tmp_path: Path):
+    """A float field given an integer no float holds (``--set planner.lookahead_m=1000...0``, 400 digits, or YAML 1.2's
+    ``0x`` and 300 digits) ended with Python's OverflowError, a traceback, where ``1e400`` or ``.inf`` is a
+    ConfigError: "must be finite" for them all."""
+    from cso_runtime.cli import parse_settings
+
+    for text in ("1" + "0" * 400, "0x" + "F" * 300, "-1" + "0" * 400, "1e400"):
+        value = parse_settings([f"lookahead_m={text}"])["lookahead_m"]
+        with pytest.raises(ConfigError, match=r"planner\.lookahead_m: must be finite"):
+            from_dict(ExplorationConfig, {"planner": {"lookahead_m": value}})
+
+
+def test_a_set_value_or_a_yaml_text_giving_a_key_twice_is_refused(tmp_path: Path):
+    """A config file giving a key twice is refused (its first value would be dropped without a word), but ``--set
+    planner={lookahead_m: 1, lookahead_m: 2}`` and any other YAML text ``config.yaml_load`` reads took the last one
+    in silence: the one reader refuses it everywhere (``010`` and ``10`` are one key in YAML 1.2)."""
+    import yaml
+
+    from cso_runtime.cli import parse_settings
+    from cso_runtime.config import yaml_load
+
+    with pytest.raises(ConfigError, match=re.escape("--set planner={lookahead_m: 1, lookahead_m: 2}: not valid YAML: ") + ".*found key 'lookahead_m' twice"):
+        parse_settings(["planner={lookahead_m: 1, lookahead_m: 2}"])
+    with pytest.raises(yaml.YAMLError, match="found key 10 twice"):
+        yaml_load("010: a\n10: b\n")
+    (tmp_path / "twice.yaml").write_text("seed: 010\n10: x\n10: y\n")
+    with pytest.raises(ConfigError, match="found key 10 twice"):
+        load_yaml(tmp_path / "twice.yaml")
+    assert yaml_load("a: 1\nb: {a: 2}\n") == {"a": 1, "b": {"a": 2}}  # one key in two mappings: fine
