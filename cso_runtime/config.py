@@ -983,6 +983,28 @@ def set_flag_text(key: str, value: Any) -> str:
     return f"--set {key}={yaml_text(value)}"
 
 
+class Settings(dict[str, Any]):
+    """``--set``'s ``KEY=VALUE`` pairs (``cli.parse_settings``): each VALUE as YAML reads it, and in ``typed`` its text as
+    typed (``on``, ``010``, ``1e3``), which a message naming the ``--set`` says (``set_said``): written again from
+    what YAML read, it would be another value (``true``, ``10``, ``1000.0``), and a hint to quote it another text."""
+
+    def __init__(self, *pairs: Any, typed: dict[str, str] | None = None, **values: Any) -> None:
+        super().__init__(*pairs, **values)
+        self.typed: dict[str, str] = dict(typed or {})
+
+
+def set_said(settings: typing.Mapping[str, Any], key: str) -> str:
+    """The ``--set`` of ``key`` among ``settings`` as the user typed it (``--set robot=on``), where ``settings`` are
+    ``Settings`` that hold its text; else its value in YAML (``set_flag_text``)."""
+    typed = _typed_text(settings, key)
+    return f"--set {key}={typed}" if typed is not None else set_flag_text(key, settings[key])
+
+
+def _typed_text(settings: typing.Mapping[str, Any], key: str) -> str | None:
+    """The text of ``key``'s ``--set`` as typed, where ``settings`` hold it (``Settings``); else None."""
+    return settings.typed.get(key) if isinstance(settings, Settings) else None
+
+
 def refuse_two_values(given: typing.Mapping[str, typing.Sequence[tuple[str, Any]]], read: typing.Callable[[str, Any], Any] | None = None) -> None:
     """The one check of a command whose flags set one field twice: a dedicated flag and ``--set`` (``eval --max-steps 5
     --set episode.max_steps=9``, ``up --seed 3 --set seed=4``, ``train --seed 3 --set seed=4``), or two flags of one
@@ -1038,7 +1060,8 @@ def refuse_a_setting_read_as_another_type(
             continue  # taken as it is (null, where the field may be)
         except ConfigError:
             pass
-        text = yaml_text(value)
+        typed = _typed_text(settings, key)
+        text = typed if typed is not None else yaml_text(value)  # as typed: `on`, not `true` written again
         try:
             field_value(text, annotation, key)
         except ConfigError:
@@ -1051,7 +1074,7 @@ def refuse_a_setting_read_as_another_type(
             takes({key: texts.get(key, value) for key, value in settings.items()})
         except ConfigError:
             return  # the text is refused too: the value's own error says what is wrong
-    raise ConfigError("; ".join(read_as_another_type(set_flag_text(key, settings[key]), settings[key], key, text) for key, text in texts.items()))
+    raise ConfigError("; ".join(read_as_another_type(set_said(settings, key), settings[key], key, text) for key, text in texts.items()))
 
 
 def field_types(cls: type, path: str = "") -> dict[str, Any]:
@@ -1125,12 +1148,12 @@ def setting_of(key: str, settings: typing.Mapping[str, Any]) -> tuple[str, Any] 
     found: tuple[str, Any] | None = None
     for pair, value in settings.items():
         if pair == key:
-            found = (set_flag_text(pair, value), value)
+            found = (set_said(settings, pair), value)
         elif key.startswith(pair + "."):
             node: Any = value
             for part in key[len(pair) + 1 :].split("."):
                 node = node.get(part, _UNSET) if isinstance(node, dict) else _UNSET
-            found = None if node is _UNSET else (set_flag_text(pair, value), node)
+            found = None if node is _UNSET else (set_said(settings, pair), node)
     return found
 
 

@@ -67,7 +67,7 @@ from cso_runtime.config import (
     refuse_a_flag_and_a_setting_that_disagree,
     refuse_a_setting_read_as_another_type,
     set_dotted,
-    set_flag_text,
+    set_said,
     to_dict,
     with_mujoco_limo_defaults,
     with_nearest,
@@ -224,7 +224,7 @@ class EvalRequest:
             set_dotted(data, key, value)
         where = str(self.config_path or "config")
         if self.settings:  # an error names the flags that changed the file, as `up --set` does
-            where = f"{self.config_path or 'eval'} with " + " ".join(set_flag_text(k, v) for k, v in self.settings.items())
+            where = f"{self.config_path or 'eval'} with " + " ".join(set_said(self.settings, k) for k in self.settings)
         cfg = from_dict_with_hints(ExplorationConfig, data, where)
         # The sensor is the --sensor preset (its field of view from --lidar-fov), with every other sensor key the
         # config file or --set gives explicitly on top: an ablation of the range or the resolution must not run

@@ -1750,3 +1750,39 @@ def test_a_set_value_or_a_yaml_text_giving_a_key_twice_is_refused(tmp_path: Path
     with pytest.raises(ConfigError, match="found key 10 twice"):
         load_yaml(tmp_path / "twice.yaml")
     assert yaml_load("a: 1\nb: {a: 2}\n") == {"a": 1, "b": {"a": 2}}  # one key in two mappings: fine
+
+
+def test_a_set_is_said_as_typed_and_its_hint_writes_the_text_typed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """A message naming a ``--set`` wrote its value again from what YAML read, not as typed: ``up --set robot=on`` was
+    told "--set robot=true is read as true/false ...: write --set robot='true'", another robot than the one meant
+    (docs/runtime.md says to write ``--set robot='on'``); ``--set robot=010`` was "--set robot=10" and "write
+    --set robot='10'" (YAML 1.2 reads 10); ``--set robot=1e3`` (1000.0) had no hint at all, ``1000.0`` being no robot
+    id; ``eval --set episode.max_steps=1e3`` was "eval with --set
+    episode.max_steps=1000.0"; ``up --seed 3 --set seed=0x10`` "--set seed=16"; ``train --set out_dir=on`` "write
+    --set out_dir='true'"; ``--set robot=`` (null) "write --set robot='null'". Each says the ``--set`` as typed, and
+    the hint quotes the text typed (none for an empty one: no robot id)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    runs = ["--runs-dir", str(tmp_path / "runs")]
+    for typed in ("on", "010", "0x1F", "1e3"):
+        r = CliRunner().invoke(app, ["up", "--set", f"robot={typed}", "--resolved", *runs])
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2 and f"--set robot={typed} is read as " in said and f"write --set robot='{typed}'" in said, said
+        r = CliRunner().invoke(app, ["up", "--robot", typed, "--set", f"robot={typed}", "--resolved", *runs])  # one robot: the hint
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2 and f"--set robot={typed} is read as " in said and f"write --set robot='{typed}', or give --robot {typed} alone" in said, said
+    r = CliRunner().invoke(app, ["up", "--set", "robot=", "--resolved", *runs])  # empty: null, no hint to give robot 'null'
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "write --set" not in said and "with --set robot=: robot: expected a string, got None" in said, said
+    r = CliRunner().invoke(app, ["up", "--seed", "3", "--set", "seed=0x10", "--resolved", *runs])
+    assert r.exit_code == 2 and "--seed 3 and --set seed=0x10 both set seed" in " ".join(r.output.split()), r.output
+    r = CliRunner().invoke(app, ["eval", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--set", "episode.max_steps=1e3", "--dry-run"])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "eval with --set episode.max_steps=1e3: episode.max_steps: expected an integer, got 1000.0" in said, said
+    r = CliRunner().invoke(app, ["train", "--set", "out_dir=on", "--total-decisions", "1"])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "--set out_dir=on is read as true/false, and out_dir is text: write --set out_dir='on'" in said, said
+    assert not (tmp_path / "on").exists() and not (tmp_path / "runs").exists()
