@@ -355,7 +355,9 @@ def eval_command(
         False, "--dry-run", help="Validate (methods, weights, scenes, --out), say what would run: scenes per scale, sensor, simulator, --out and --resume; run and write nothing"
     ),
     resolved: bool = typer.Option(
-        False, "--resolved", help="Validate, print the exploration configuration the episodes would run with, defaults filled in (YAML, summary.json's meta.config, for --config); implies --dry-run"
+        False,
+        "--resolved",
+        help="Validate, print the exploration configuration the episodes would run with, defaults filled in (YAML, summary.json's meta.config, for --config); the --out folder is checked with --dry-run only",
     ),
 ) -> None:
     """Run exploration episodes and write the paper's Table 1 metrics, curves and trajectory plots."""
