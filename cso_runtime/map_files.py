@@ -174,7 +174,10 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
     free_t = _number(meta.get("free_thresh", FREE_THRESH), yaml_path, "free_thresh")
     if not 0 <= free_t < occ_t <= 1:
         raise MapFileError(f"{yaml_path}: expected 0 <= free_thresh < occupied_thresh <= 1")
-    image_path = Path(str(meta["image"]))
+    image = meta["image"]
+    if isinstance(image, bool) or not isinstance(image, (str, int, float)) or not str(image).strip():  # null, empty, a list
+        raise MapFileError(f"{yaml_path}: image must name the map's image file (a PGM or PNG), got {image!r}")
+    image_path = Path(str(image))
     if not image_path.is_absolute():
         image_path = yaml_path.parent / image_path
     with open_image(image_path) as im:

@@ -417,3 +417,16 @@ def test_a_map_yaml_number_too_large_for_a_float_or_a_key_given_twice_is_refused
         (tmp_path / "bad.yaml").write_text(rest + lines)
         with pytest.raises(MapFileError, match=re.escape(said)):
             load_map(tmp_path / "bad.yaml")
+
+
+def test_a_map_yaml_whose_image_is_null_or_empty_says_so(tmp_path: Path):
+    """``image:`` left empty (or ``~``, YAML's null) was read as the file ``None``: "None: cannot read the map image
+    ([Errno 2] No such file or directory: 'None')", a file the user never named; ``image: ""`` as the map's own
+    folder ("Is a directory"). map_server refuses both (no file name); so does load_map, naming the key."""
+    grid, geometry = _grid()
+    meta = yaml.safe_load(save_map(tmp_path / "map.yaml", grid, geometry).read_text())
+    rest = yaml.safe_dump({k: v for k, v in meta.items() if k != "image"})
+    for value in ("", "~", "null", '""', "[a.pgm]", "true"):
+        (tmp_path / "bad.yaml").write_text(rest + f"image: {value}\n")
+        with pytest.raises(MapFileError, match=re.escape(f"{tmp_path / 'bad.yaml'}: image must name the map's image file (a PGM or PNG), got ")):
+            load_map(tmp_path / "bad.yaml")
