@@ -1282,8 +1282,10 @@ def yaml_load(stream: Any) -> Any:
 
 
 def yaml_dump(data: Any, **options: Any) -> str:
-    """``data`` in YAML as ``YamlDumper`` writes it (``yaml.safe_dump``'s ``options``): what ``yaml_load`` reads back."""
-    return str(yaml.dump(data, Dumper=YamlDumper, **options))
+    """``data`` in YAML as ``YamlDumper`` writes it (``yaml.safe_dump``'s ``options``): what ``yaml_load`` reads back.
+    Non-ASCII text as it is (``café``, not ``"caf\\xE9"``, a file users read and edit): the text is UTF-8's to write
+    and to read back (``outputs.write_text_atomic``, ``load_yaml``, the launcher's stdin as bytes)."""
+    return str(yaml.dump(data, Dumper=YamlDumper, **{"allow_unicode": True, **options}))
 
 
 def one_line(text: str) -> str:

@@ -1786,3 +1786,45 @@ def test_a_set_is_said_as_typed_and_its_hint_writes_the_text_typed(tmp_path: Pat
     said = " ".join(r.output.split())
     assert r.exit_code == 2 and "--set out_dir=on is read as true/false, and out_dir is text: write --set out_dir='on'" in said, said
     assert not (tmp_path / "on").exists() and not (tmp_path / "runs").exists()
+
+
+def test_what_cso_runtime_writes_in_yaml_keeps_non_ascii_text_as_written(tmp_path: Path):
+    """``up --resolved``, a run's ``profile.yaml``, the launcher's profile and a map's YAML wrote each non-ASCII text
+    escaped, ``scene: "/maps/caf\\xE9.yaml"``, a file the user reads and edits (``set_flag_text`` already says such
+    text as typed). It is written as it is, UTF-8, and read back the same: by ``yaml_load`` from text or from bytes
+    (the launcher's stdin, whatever the locale), by ``load_yaml`` and by ``load_map``."""
+    import io
+    import os
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from cso_runtime.config import commented_yaml, yaml_dump, yaml_load
+    from cso_runtime.geometry import GridGeometry
+    from cso_runtime.map_files import load_map, save_map
+
+    data = {"scene": "/maps/café/küche.yaml", "notes": ["m²", "ok"]}
+    for written in (yaml_dump(data, sort_keys=False), commented_yaml(["profile"], data)):
+        assert "scene: /maps/café/küche.yaml\n" in written and "- m²\n" in written and "\\x" not in written, written
+        assert yaml_load(written) == data and yaml_load(io.BytesIO(written.encode())) == data
+        (tmp_path / "back.yaml").write_text(written, encoding="utf-8")
+        assert load_yaml(tmp_path / "back.yaml") == data
+    grid = np.zeros((2, 3), dtype=np.int8)
+    saved = save_map(tmp_path / "küche.yaml", grid, GridGeometry(0.05, (2, 3)))
+    assert saved.read_text(encoding="utf-8").startswith("image: küche.pgm\n")
+    assert load_map(saved)[0].shape == (2, 3)
+    from cso_runtime.run_profile import load_profile
+
+    _, given = load_profile("lockstep", {})  # the profile up hands its launcher on stdin, UTF-8, read whatever the locale
+    given["services"]["planner"]["küche"] = 1  # refused by the launcher (an unknown key): read, not run
+    run_dir = tmp_path / "runs" / "r"
+    (run_dir / "logs").mkdir(parents=True)
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONCOERCECLOCALE": "0"}
+    r = subprocess.run(
+        [sys.executable, "-m", "cso_runtime.launcher", "--profile-data", "-", "--run-dir", str(run_dir)],
+        input=yaml_dump(given, sort_keys=False).encode(), env=env, cwd=tmp_path, capture_output=True, timeout=120,
+    )
+    said = (r.stdout + r.stderr).decode(errors="replace")
+    assert r.returncode != 0 and "the profile from up.services.planner: unknown key(s) k\\xfcche" in said and "UnicodeDecodeError" not in said, said[-3000:]
+    assert not (run_dir / "run.json").exists()
