@@ -570,6 +570,20 @@ def yaml12_number(value: Any) -> Any:
     return float(value) if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value.strip()) else value
 
 
+_UNDERSCORED_NUMBER = re.compile(r"[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)?")
+"""A number with ``_`` between its digits (``6_000_000``), as cso-runtime's messages write large ones: YAML 1.1 read
+it as the number, YAML 1.2 (``yaml_load``) reads it as text."""
+
+
+def _how_to_write(value: Any) -> str:
+    """For a number field's refusal of ``value``: how to write it where it is a number written with ``_``
+    (``_UNDERSCORED_NUMBER``), which YAML 1.2 reads as text; "" for any other value."""
+    text = value.strip() if isinstance(value, str) else ""
+    if "_" in text and _UNDERSCORED_NUMBER.fullmatch(text):
+        return f" (YAML 1.2 reads a number with _ as text: write {text.replace('_', '')})"
+    return ""
+
+
 def as_float(value: float) -> float:
     """``float(value)``, and for an integer no float holds (``10**400``, which YAML reads whole, as ``0x`` and 300
     digits) the infinity of its sign, where ``float`` raises OverflowError: said as not finite, as ``1e400`` is."""
@@ -590,13 +604,13 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
         if isinstance(value, str) and value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
             raise ConfigError(f"{where}: must be finite, got {value.strip()}")  # YAML's .nan is a float, its nan text: one answer
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
+            raise ConfigError(f"{where}: expected a number, got {value!r}{_how_to_write(value)}")
         if not math.isfinite(number := as_float(value)):
             raise ConfigError(f"{where}: must be finite")
         return number
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+            raise ConfigError(f"{where}: expected an integer, got {value!r}{_how_to_write(value)}")
         return value
     if annotation is bool:
         if not isinstance(value, bool):

@@ -1828,3 +1828,27 @@ def test_what_cso_runtime_writes_in_yaml_keeps_non_ascii_text_as_written(tmp_pat
     said = (r.stdout + r.stderr).decode(errors="replace")
     assert r.returncode != 0 and "the profile from up.services.planner: unknown key(s) k\\xfcche" in said and "UnicodeDecodeError" not in said, said[-3000:]
     assert not (run_dir / "run.json").exists()
+
+
+def test_a_number_written_with_underscores_is_refused_saying_how_to_write_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """cso-runtime's own messages write large numbers with underscores ("more than max_grid_cells (4_000_000): raise
+    max_grid_cells (at most 50_000_000)"), which YAML 1.1 read back as numbers; YAML 1.2 (fef7c32) reads
+    ``6_000_000`` as text, so the value typed back from the message was refused as "expected an integer, got
+    '6_000_000'" with no word of why. The refusal says how to write it (without the underscores)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    for value, field, said in [
+        ("6_000_000", "episode.max_steps", "episode.max_steps: expected an integer, got '6_000_000' (YAML 1.2 reads a number with _ as text: write 6000000)"),
+        ("1_000.5", "planner.lookahead_m", "planner.lookahead_m: expected a number, got '1_000.5' (YAML 1.2 reads a number with _ as text: write 1000.5)"),
+    ]:
+        section, key = field.split(".")
+        with pytest.raises(ConfigError, match=re.escape(said)):
+            from_dict(ExplorationConfig, {section: {key: value}})
+    with pytest.raises(ConfigError, match=r"expected an integer, got 'a_b'$"):
+        from_dict(ExplorationConfig, {"episode": {"max_steps": "a_b"}})  # no number: no such hint
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["up", "--set", "max_grid_cells=6_000_000", "--resolved", "--runs-dir", str(tmp_path / "runs")])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "max_grid_cells: expected an integer, got '6_000_000' (YAML 1.2 reads a number with _ as text: write 6000000)" in said, said
