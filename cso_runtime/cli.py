@@ -21,6 +21,7 @@ except KeyboardInterrupt:
     _interrupted_early()
 
 if TYPE_CHECKING:
+    from cso_runtime.config import Settings
     from cso_runtime.learned.ppo import Args
     from cso_runtime.run_profile import Profile
     from cso_runtime.runs import LogLine
@@ -354,7 +355,9 @@ def eval_command(
         False, "--dry-run", help="Validate (methods, weights, scenes, --out), say what would run: scenes per scale, sensor, simulator, --out and --resume; run and write nothing"
     ),
     resolved: bool = typer.Option(
-        False, "--resolved", help="Validate, print the exploration configuration the episodes would run with, defaults filled in (YAML, summary.json's meta.config, for --config); implies --dry-run"
+        False,
+        "--resolved",
+        help="Validate, print the exploration configuration the episodes would run with, defaults filled in (YAML, summary.json's meta.config, for --config); the --out folder is checked with --dry-run only",
     ),
 ) -> None:
     """Run exploration episodes and write the paper's Table 1 metrics, curves and trajectory plots."""
@@ -1708,7 +1711,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
         place_of,
         refuse_a_setting_read_as_another_type,
         refuse_two_values,
-        set_flag_text,
+        set_said,
         text_field,
         yaml_text,
     )
@@ -1732,10 +1735,11 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
             given.setdefault(name, []).append((" ".join(_flag_of(name, value)), value))
     for name, value in parse_settings(field_flags).items():
         given.setdefault(name, []).append((field_flag(name, value), value))
-    for name, value in parse_settings(settings).items():
-        given.setdefault(name, []).append((set_flag_text(name, value), value))
+    pairs = parse_settings(settings)
+    for name, value in pairs.items():
+        given.setdefault(name, []).append((set_said(pairs, name), value))
     refuse_two_values({name: said for name, said in given.items() if name in types}, read)  # a key no field is: from_dict names it
-    refuse_a_setting_read_as_another_type(parse_settings(settings), types)  # `--set out_dir=2024` alone: how to write it, as `up` says
+    refuse_a_setting_read_as_another_type(pairs, types)  # `--set out_dir=2024` alone: how to write it, as `up` says
 
 
 def parse_seeds(items: list[str]) -> list[int]:
@@ -1754,13 +1758,14 @@ def parse_seeds(items: list[str]) -> list[int]:
     return seeds
 
 
-def parse_settings(items: list[str]) -> dict[str, object]:
-    """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``)."""
+def parse_settings(items: list[str]) -> Settings:
+    """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``), each VALUE's text kept as typed
+    for the messages that name it (``config.Settings``)."""
     import yaml  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, one_line, yaml_load  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, Settings, one_line, yaml_load  # noqa: PLC0415
 
-    out: dict[str, object] = {}
+    out = Settings()
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
@@ -1769,6 +1774,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
             out[key.strip()] = yaml_load(value)
         except yaml.YAMLError as exc:
             raise ConfigError(f"--set {item}: not valid YAML: {one_line(str(exc))}") from None
+        out.typed[key.strip()] = value.strip()
     return out
 
 

@@ -570,6 +570,29 @@ def yaml12_number(value: Any) -> Any:
     return float(value) if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value.strip()) else value
 
 
+_UNDERSCORED_NUMBER = re.compile(r"[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)?")
+"""A number with ``_`` between its digits (``6_000_000``), as cso-runtime's messages write large ones: YAML 1.1 read
+it as the number, YAML 1.2 (``yaml_load``) reads it as text."""
+
+
+def _how_to_write(value: Any) -> str:
+    """For a number field's refusal of ``value``: how to write it where it is a number written with ``_``
+    (``_UNDERSCORED_NUMBER``), which YAML 1.2 reads as text; "" for any other value."""
+    text = value.strip() if isinstance(value, str) else ""
+    if "_" in text and _UNDERSCORED_NUMBER.fullmatch(text):
+        return f" (YAML 1.2 reads a number with _ as text: write {text.replace('_', '')})"
+    return ""
+
+
+def as_float(value: float) -> float:
+    """``float(value)``, and for an integer no float holds (``10**400``, which YAML reads whole, as ``0x`` and 300
+    digits) the infinity of its sign, where ``float`` raises OverflowError: said as not finite, as ``1e400`` is."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
 def _convert(value: Any, annotation: Any, where: str) -> Any:
     origin = typing.get_origin(annotation)
     if isinstance(annotation, type) and dataclasses.is_dataclass(annotation):
@@ -581,13 +604,13 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
         if isinstance(value, str) and value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
             raise ConfigError(f"{where}: must be finite, got {value.strip()}")  # YAML's .nan is a float, its nan text: one answer
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
-        if not math.isfinite(float(value)):
+            raise ConfigError(f"{where}: expected a number, got {value!r}{_how_to_write(value)}")
+        if not math.isfinite(number := as_float(value)):
             raise ConfigError(f"{where}: must be finite")
-        return float(value)
+        return number
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where}: expected an integer, got {value!r}")
+            raise ConfigError(f"{where}: expected an integer, got {value!r}{_how_to_write(value)}")
         return value
     if annotation is bool:
         if not isinstance(value, bool):
@@ -974,6 +997,28 @@ def set_flag_text(key: str, value: Any) -> str:
     return f"--set {key}={yaml_text(value)}"
 
 
+class Settings(dict[str, Any]):
+    """``--set``'s ``KEY=VALUE`` pairs (``cli.parse_settings``): each VALUE as YAML reads it, and in ``typed`` its text as
+    typed (``on``, ``010``, ``1e3``), which a message naming the ``--set`` says (``set_said``): written again from
+    what YAML read, it would be another value (``true``, ``10``, ``1000.0``), and a hint to quote it another text."""
+
+    def __init__(self, *pairs: Any, typed: dict[str, str] | None = None, **values: Any) -> None:
+        super().__init__(*pairs, **values)
+        self.typed: dict[str, str] = dict(typed or {})
+
+
+def set_said(settings: typing.Mapping[str, Any], key: str) -> str:
+    """The ``--set`` of ``key`` among ``settings`` as the user typed it (``--set robot=on``), where ``settings`` are
+    ``Settings`` that hold its text; else its value in YAML (``set_flag_text``)."""
+    typed = _typed_text(settings, key)
+    return f"--set {key}={typed}" if typed is not None else set_flag_text(key, settings[key])
+
+
+def _typed_text(settings: typing.Mapping[str, Any], key: str) -> str | None:
+    """The text of ``key``'s ``--set`` as typed, where ``settings`` hold it (``Settings``); else None."""
+    return settings.typed.get(key) if isinstance(settings, Settings) else None
+
+
 def refuse_two_values(given: typing.Mapping[str, typing.Sequence[tuple[str, Any]]], read: typing.Callable[[str, Any], Any] | None = None) -> None:
     """The one check of a command whose flags set one field twice: a dedicated flag and ``--set`` (``eval --max-steps 5
     --set episode.max_steps=9``, ``up --seed 3 --set seed=4``, ``train --seed 3 --set seed=4``), or two flags of one
@@ -1029,7 +1074,8 @@ def refuse_a_setting_read_as_another_type(
             continue  # taken as it is (null, where the field may be)
         except ConfigError:
             pass
-        text = yaml_text(value)
+        typed = _typed_text(settings, key)
+        text = typed if typed is not None else yaml_text(value)  # as typed: `on`, not `true` written again
         try:
             field_value(text, annotation, key)
         except ConfigError:
@@ -1042,7 +1088,7 @@ def refuse_a_setting_read_as_another_type(
             takes({key: texts.get(key, value) for key, value in settings.items()})
         except ConfigError:
             return  # the text is refused too: the value's own error says what is wrong
-    raise ConfigError("; ".join(read_as_another_type(set_flag_text(key, settings[key]), settings[key], key, text) for key, text in texts.items()))
+    raise ConfigError("; ".join(read_as_another_type(set_said(settings, key), settings[key], key, text) for key, text in texts.items()))
 
 
 def field_types(cls: type, path: str = "") -> dict[str, Any]:
@@ -1116,12 +1162,12 @@ def setting_of(key: str, settings: typing.Mapping[str, Any]) -> tuple[str, Any] 
     found: tuple[str, Any] | None = None
     for pair, value in settings.items():
         if pair == key:
-            found = (set_flag_text(pair, value), value)
+            found = (set_said(settings, pair), value)
         elif key.startswith(pair + "."):
             node: Any = value
             for part in key[len(pair) + 1 :].split("."):
                 node = node.get(part, _UNSET) if isinstance(node, dict) else _UNSET
-            found = None if node is _UNSET else (set_flag_text(pair, value), node)
+            found = None if node is _UNSET else (set_said(settings, pair), node)
     return found
 
 
@@ -1202,7 +1248,24 @@ class YamlLoader(yaml.SafeLoader):
     are 10, the texts ``1_000``, ``1:30`` and ``2024-01-01``, 0.05 and -0.5 (``0x10`` 16, ``0o10`` 8). Booleans are YAML
     1.1's, ``yes``/``no``/``on``/``off`` (any case as PyYAML) true or false beside ``true``/``false``, as yaml-cpp's
     ``as<bool>`` (a map's ``negate``) and ROS 2's parameter files (rcl_yaml_param_parser) read them, and as this
-    project's ``--set`` has read them: a text ``on`` is written quoted (``'on'``)."""
+    project's ``--set`` has read them: a text ``on`` is written quoted (``'on'``). A key given twice in one mapping
+    (``010`` and ``10`` are one key) is refused, in a file or a ``--set`` value alike: PyYAML keeps the last one in
+    silence and yaml-cpp (map_server) reads the first, so an edited profile's first value would be dropped without a
+    word, and a map YAML read otherwise than map_server reads it."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, Any] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            try:
+                first = seen.setdefault(key, key_node.start_mark)
+            except TypeError:  # an unhashable key: SafeLoader's own error says so
+                break
+            if first is not key_node.start_mark:
+                raise yaml.constructor.ConstructorError(
+                    "while constructing a mapping", node.start_mark, f"found key {key!r} twice (first at line {first.line + 1})", key_node.start_mark
+                )
+        return super().construct_mapping(node, deep=deep)
 
 
 YamlLoader.yaml_implicit_resolvers = {  # SafeLoader's, less YAML 1.1's numbers and dates
@@ -1233,27 +1296,10 @@ def yaml_load(stream: Any) -> Any:
 
 
 def yaml_dump(data: Any, **options: Any) -> str:
-    """``data`` in YAML as ``YamlDumper`` writes it (``yaml.safe_dump``'s ``options``): what ``yaml_load`` reads back."""
-    return str(yaml.dump(data, Dumper=YamlDumper, **options))
-
-
-class _UniqueKeyLoader(YamlLoader):
-    """``YamlLoader`` that refuses a key given twice in one mapping: YAML's loaders keep the last one
-    silently, so an edited profile's first value would be dropped without a word."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
-        seen: dict[Any, Any] = {}
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)
-            try:
-                first = seen.setdefault(key, key_node.start_mark)
-            except TypeError:  # an unhashable key: SafeLoader's own error says so
-                break
-            if first is not key_node.start_mark:
-                raise yaml.constructor.ConstructorError(
-                    "while constructing a mapping", node.start_mark, f"found key {key!r} twice (first at line {first.line + 1})", key_node.start_mark
-                )
-        return super().construct_mapping(node, deep=deep)
+    """``data`` in YAML as ``YamlDumper`` writes it (``yaml.safe_dump``'s ``options``): what ``yaml_load`` reads back.
+    Non-ASCII text as it is (``café``, not ``"caf\\xE9"``, a file users read and edit): the text is UTF-8's to write
+    and to read back (``outputs.write_text_atomic``, ``load_yaml``, the launcher's stdin as bytes)."""
+    return str(yaml.dump(data, Dumper=YamlDumper, **{"allow_unicode": True, **options}))
 
 
 def one_line(text: str) -> str:
@@ -1269,7 +1315,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"config file not found: {p}")
     try:
         with p.open(encoding="utf-8") as stream:  # a file stream, so YAML's message names the file, not "<unicode string>"
-            data = yaml.load(stream, Loader=_UniqueKeyLoader)
+            data = yaml_load(stream)
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{p}: not valid YAML: {one_line(str(exc))}") from None
     if data is None:

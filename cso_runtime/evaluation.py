@@ -67,7 +67,7 @@ from cso_runtime.config import (
     refuse_a_flag_and_a_setting_that_disagree,
     refuse_a_setting_read_as_another_type,
     set_dotted,
-    set_flag_text,
+    set_said,
     to_dict,
     with_mujoco_limo_defaults,
     with_nearest,
@@ -224,7 +224,7 @@ class EvalRequest:
             set_dotted(data, key, value)
         where = str(self.config_path or "config")
         if self.settings:  # an error names the flags that changed the file, as `up --set` does
-            where = f"{self.config_path or 'eval'} with " + " ".join(set_flag_text(k, v) for k, v in self.settings.items())
+            where = f"{self.config_path or 'eval'} with " + " ".join(set_said(self.settings, k) for k in self.settings)
         cfg = from_dict_with_hints(ExplorationConfig, data, where)
         # The sensor is the --sensor preset (its field of view from --lidar-fov), with every other sensor key the
         # config file or --set gives explicitly on top: an ablation of the range or the resolution must not run
@@ -1155,14 +1155,15 @@ def refuse_the_other_kind_of_eval(request: EvalRequest) -> None:
         )
 
 
-def plan_seeds(request: EvalRequest) -> EvalPlan:
+def plan_seeds(request: EvalRequest, out_checked: bool = True) -> EvalPlan:
     """``plan_eval`` of an eval of several seeds (``--seeds``): each seed's plan, checked before any episode, and one
     plan of all their jobs (config, scenes, weights and settings are the same for every seed). A ``--out`` that holds a
     one-seed eval's episodes is refused: the pooled summary.json and episodes.csv would replace that eval's."""
-    refuse_the_other_kind_of_eval(request)
-    plans = [(one, plan_eval(one)) for one in map(request.for_seed, request.seeds)]
+    if out_checked:
+        refuse_the_other_kind_of_eval(request)
+    plans = [(one, plan_eval(one, out_checked)) for one in map(request.for_seed, request.seeds)]
     each = [said for one, plan in plans for said in plan.warnings if said != seed_changes_nothing_said(f"--seed {one.seed}")]
-    warnings = pooled_results_replaced_said(request) + list(dict.fromkeys(each))
+    warnings = (pooled_results_replaced_said(request) if out_checked else []) + list(dict.fromkeys(each))
     first = plans[0][1]
     if seed_changes_nothing(request.methods, first.config, request.sim):
         warnings.append(seed_changes_nothing_said(f"--seeds {','.join(map(str, request.seeds))}"))
@@ -1170,22 +1171,25 @@ def plan_seeds(request: EvalRequest) -> EvalPlan:
     return EvalPlan(first.config, first.scenes, jobs, first.weights, first.mujoco, warnings, first.sim_settings, first.scene_hash, seed_plans=plans)
 
 
-def plan_eval(request: EvalRequest) -> EvalPlan:
+def plan_eval(request: EvalRequest, out_checked: bool = True) -> EvalPlan:
     """Check ``request`` and resolve what it would run: config, scenes, episodes, weights, warnings; runs and writes
-    nothing (raises ConfigError, SceneError). With ``--seeds``, ``plan_seeds``."""
+    nothing (raises ConfigError, SceneError). With ``--seeds``, ``plan_seeds``. ``out_checked`` False (``eval
+    --resolved`` alone, the configuration to run later, elsewhere): the ``--out`` folder is neither read nor refused
+    (another configuration's episodes, the other kind of eval), nor warned of."""
     if request.seeds:
         request.check_seeds()
-        return plan_seeds(request)
+        return plan_seeds(request, out_checked)
     request.validate()
     config = request.exploration_config()
     scenes = resolve_scenes(request.maps, request.limit, request.m_per_px)
     out = Path(request.out_dir)
-    refuse_the_other_kind_of_eval(request)
+    if out_checked:
+        refuse_the_other_kind_of_eval(request)
     warnings: list[str] = []
-    others = methods_summarized_elsewhere(out, request.methods)
+    others = methods_summarized_elsewhere(out, request.methods) if out_checked else []
     if others:
         warnings.append(methods_summarized_elsewhere_said(out, others))
-    dropped = maps_summarized_elsewhere(out, request.methods, [s.name for s in scenes])
+    dropped = maps_summarized_elsewhere(out, request.methods, [s.name for s in scenes]) if out_checked else []
     if dropped:
         warnings.append(
             f"{out} holds episodes of {len(dropped)} plan(s) this run leaves out ({', '.join(dropped[:5])}{', ...' if len(dropped) > 5 else ''}): "
@@ -1219,7 +1223,8 @@ def plan_eval(request: EvalRequest) -> EvalPlan:
         for m in request.methods
     ]
     plan = EvalPlan(config, scenes, jobs, weights, mujoco, warnings, sim_settings)
-    refuse_another_configuration(request, plan)
+    if out_checked:
+        refuse_another_configuration(request, plan)
     return plan
 
 
@@ -1227,10 +1232,11 @@ DRY_RUN_SCENES_SHOWN = 5
 """``eval --dry-run`` names this many scenes; the rest it counts."""
 
 
-def plan_said(request: EvalRequest, plan: EvalPlan) -> tuple[list[str], list[str]]:
+def plan_said(request: EvalRequest, plan: EvalPlan, out_checked: bool = True) -> tuple[list[str], list[str]]:
     """What ``eval --dry-run`` says of ``plan``: lines of what it would run, and the scenes that would fail to load
     (a PNG or map file that is missing or no plan), which a real eval counts as failed episodes. Loads each plan to
-    tell its scale (generated ones say theirs); reads the ``--out`` folder, writes nothing."""
+    tell its scale (generated ones say theirs); reads the ``--out`` folder (``out_checked`` False: says it is not
+    checked), writes nothing."""
     scales: dict[str, int] = {}
     unloadable: list[str] = []
     for ref in plan.scenes:
@@ -1249,8 +1255,10 @@ def plan_said(request: EvalRequest, plan: EvalPlan) -> tuple[list[str], list[str
     methods = [f"{m} (weights {plan.weights[m]['path']}, sha256 {plan.weights[m]['sha256'][:12]})" if m in plan.weights else m for m in request.methods]
     cell = f"{request.m_per_px:g} m/px (PNG plans)" if any(ref.scaled_by_m_per_px for ref in plan.scenes) else "each scene's own (generated plans, map files)"
     out = Path(request.out_dir)
-    held = episodes_held(plan, out)
-    if not out.is_dir():
+    held = episodes_held(plan, out) if out_checked else 0
+    if not out_checked:
+        folder = "not checked (--dry-run checks it)"
+    elif not out.is_dir():
         folder = "a new folder"
     elif request.resume:
         folder = f"exists: --resume keeps the {held} of these episodes it holds with the same settings, runs the other {len(plan.jobs) - held}"
@@ -1681,12 +1689,14 @@ def eval_start_said(request: EvalRequest, plan: EvalPlan) -> str:
 def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = False) -> int:
     """CLI entry: clear errors for bad arguments, exit code 0 when every episode ran. ``dry_run``: check and say what
     would run, run and write nothing (exit 1 where a scene would fail to load, as its episodes would); ``resolved``: the
-    same, and print the exploration configuration (``meta.config``) as YAML that ``--config`` takes back."""
+    same save the ``--out`` folder, which only ``dry_run`` checks (as ``up --resolved``: the configuration to run later,
+    elsewhere), and print the exploration configuration (``meta.config``) as YAML that ``--config`` takes back."""
+    out_checked = dry_run or not resolved
     try:
-        plan = plan_eval(request)  # also refuses an --out of another configuration's episodes, before any runs
-        if dry_run or resolved:
+        plan = plan_eval(request, out_checked)  # also refuses an --out of another configuration's episodes, before any runs
+        if dry_run:
             check_output_dir(request.out_dir)
-        else:
+        elif not resolved:
             make_output_dir(request.out_dir)
     except (ConfigError, SceneError, ValueError) as exc:
         from rich.console import Console  # noqa: PLC0415
@@ -1697,7 +1707,7 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
         print("interrupted before any episode ran, while checking the plans; nothing written")
         return EXIT_INTERRUPTED
     if dry_run or resolved:
-        lines, unloadable = plan_said(request, plan)
+        lines, unloadable = plan_said(request, plan, out_checked)
         for warning in plan.warnings:
             print(f"warning: {warning}", file=sys.stderr)
         for failure in unloadable:

@@ -1884,7 +1884,7 @@ def main(argv: list[str] | None = None) -> int:
         record_command_line(shlex.split(args.command_line))
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     from_up = str(args.profile_data) == STDIN_PATH
-    data = yaml_load(sys.stdin) if from_up else load_yaml(args.profile_data)
+    data = yaml_load(sys.stdin.buffer) if from_up else load_yaml(args.profile_data)  # bytes: UTF-8 as up wrote it, whatever the locale
     if from_up and not data:  # stdin closed with nothing on it: `up --detach` killed (SIGKILL) before its handover
         log.error("no profile came from `up --detach` (was it killed as it started this launcher?): no run was started")
         return EXIT_INTERRUPTED

@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
-from cso_runtime.config import one_line, yaml12_number, yaml_dump, yaml_load
+from cso_runtime.config import as_float, one_line, yaml12_number, yaml_dump, yaml_load
 from cso_runtime.geometry import GridGeometry, Pose2D, rounded_pose
 from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN
 from cso_runtime.outputs import write_text_atomic, write_whole
@@ -174,7 +174,10 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
     free_t = _number(meta.get("free_thresh", FREE_THRESH), yaml_path, "free_thresh")
     if not 0 <= free_t < occ_t <= 1:
         raise MapFileError(f"{yaml_path}: expected 0 <= free_thresh < occupied_thresh <= 1")
-    image_path = Path(str(meta["image"]))
+    image = meta["image"]
+    if isinstance(image, bool) or not isinstance(image, (str, int, float)) or not str(image).strip():  # null, empty, a list
+        raise MapFileError(f"{yaml_path}: image must name the map's image file (a PGM or PNG), got {image!r}")
+    image_path = Path(str(image))
     if not image_path.is_absolute():
         image_path = yaml_path.parent / image_path
     with open_image(image_path) as im:
@@ -279,9 +282,9 @@ def map_yaml_number(v: object) -> float | None:
     anything else (a word, ``1_000``, ``1:30``, true, nan, inf). The one reading of the numbers of a
     map YAML: its own keys and a scene's ``start`` (``scenes.load_map_scene``)."""
     v = yaml12_number(v)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(number := as_float(v)):
         return None
-    return float(v)
+    return number
 
 
 def _number(v: object, path: Path, key: str) -> float:

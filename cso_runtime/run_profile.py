@@ -33,7 +33,7 @@ from cso_runtime.config import (
     refuse_a_setting_read_as_another_type,
     seconds,
     set_dotted,
-    set_flag_text,
+    set_said,
     to_dict,
     unknown_keys,
     unknown_keys_said,
@@ -596,7 +596,7 @@ def load_profile(
     # section a --set broke is the --set's where --connect, --foxglove or --without read it.
     flags = list(flag_of.values()) + [f"--connect {endpoint}" for endpoint in connect or []]
     flags += [f"--namespace {namespace}"] * (namespace is not None) + [f"--zenoh-config {zenoh_config}"] * (zenoh_config is not None)
-    flags += [set_flag_text(k, v) for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
+    flags += [set_said(settings or {}, k) for k in settings or {}] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
     where = f"{path} with {' '.join(flags)}" if flags else str(path)
     if connect:
         router = data.get("router") or {}

@@ -151,8 +151,8 @@ def summarize_run(run_dir: Path) -> RunSummary:
     read, unreadable = json_object_and_problem(run_dir / "run.json")
     info = read or {}
     try:
-        profile = yaml_load((run_dir / "profile.yaml").read_text()) or {}
-    except (OSError, yaml.YAMLError):
+        profile = yaml_load((run_dir / "profile.yaml").read_text(encoding="utf-8")) or {}  # as written, whatever the locale
+    except (OSError, yaml.YAMLError, UnicodeDecodeError):
         profile = {}
     profile = profile if isinstance(profile, dict) else {}
     from cso_runtime.run_profile import measures_coverage, profile_scene, referee_kind, runs_a_real_robot  # noqa: PLC0415 - loads the scenes' code: only where runs are read

@@ -329,7 +329,7 @@ def test_a_set_read_as_a_number_where_the_flag_gives_text_says_so_not_different_
         r = CliRunner().invoke(app, [*up, *given])
         assert r.exit_code == 2 and said in " ".join(r.stderr.split()) and "different values" not in r.stderr, (given, r.output)
     r = CliRunner().invoke(app, [*up, "--robot", "on", "--set", "robot=on"])  # YAML 1.1's on: true
-    assert r.exit_code == 2 and "--set robot=true is read as true/false, and robot is text (as --robot on gives it): write --set robot='on'" in " ".join(r.stderr.split()), r.output
+    assert r.exit_code == 2 and "--set robot=on is read as true/false, and robot is text (as --robot on gives it): write --set robot='on'" in " ".join(r.stderr.split()), r.output  # as typed
     r = CliRunner().invoke(app, [*up, "--robot", "1", "--set", "robot='1'"])
     assert r.exit_code == 0 and "robot: '1'" in r.output, r.output
     r = CliRunner().invoke(app, [*up, "--robot", "2", "--set", "robot=1"])

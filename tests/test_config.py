@@ -1719,3 +1719,136 @@ def test_up_resolved_prints_a_text_read_as_a_number_by_yaml_1_2_quoted(tmp_path:
     (tmp_path / "saved.yaml").write_text(r.stdout)
     again = CliRunner().invoke(app, ["up", "--resolved", "--profile", str(tmp_path / "saved.yaml"), "--runs-dir", str(tmp_path / "runs")])
     assert again.exit_code == 0 and yaml_load(again.stdout) == yaml_load(r.stdout), again.output
+
+
+def test_a_number_too_large_for_a_float_is_said_as_not_finite_not_a_traceback(tmp_path: Path):
+    """A float field given an integer no float holds (``--set planner.lookahead_m=1000...0``, 400 digits, or YAML 1.2's
+    ``0x`` and 300 digits) ended with Python's OverflowError, a traceback, where ``1e400`` or ``.inf`` is a
+    ConfigError: "must be finite" for them all."""
+    from cso_runtime.cli import parse_settings
+
+    for text in ("1" + "0" * 400, "0x" + "F" * 300, "-1" + "0" * 400, "1e400"):
+        value = parse_settings([f"lookahead_m={text}"])["lookahead_m"]
+        with pytest.raises(ConfigError, match=r"planner\.lookahead_m: must be finite"):
+            from_dict(ExplorationConfig, {"planner": {"lookahead_m": value}})
+
+
+def test_a_set_value_or_a_yaml_text_giving_a_key_twice_is_refused(tmp_path: Path):
+    """A config file giving a key twice is refused (its first value would be dropped without a word), but ``--set
+    planner={lookahead_m: 1, lookahead_m: 2}`` and any other YAML text ``config.yaml_load`` reads took the last one
+    in silence: the one reader refuses it everywhere (``010`` and ``10`` are one key in YAML 1.2)."""
+    import yaml
+
+    from cso_runtime.cli import parse_settings
+    from cso_runtime.config import yaml_load
+
+    with pytest.raises(ConfigError, match=re.escape("--set planner={lookahead_m: 1, lookahead_m: 2}: not valid YAML: ") + ".*found key 'lookahead_m' twice"):
+        parse_settings(["planner={lookahead_m: 1, lookahead_m: 2}"])
+    with pytest.raises(yaml.YAMLError, match="found key 10 twice"):
+        yaml_load("010: a\n10: b\n")
+    (tmp_path / "twice.yaml").write_text("seed: 010\n10: x\n10: y\n")
+    with pytest.raises(ConfigError, match="found key 10 twice"):
+        load_yaml(tmp_path / "twice.yaml")
+    assert yaml_load("a: 1\nb: {a: 2}\n") == {"a": 1, "b": {"a": 2}}  # one key in two mappings: fine
+
+
+def test_a_set_is_said_as_typed_and_its_hint_writes_the_text_typed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """A message naming a ``--set`` wrote its value again from what YAML read, not as typed: ``up --set robot=on`` was
+    told "--set robot=true is read as true/false ...: write --set robot='true'", another robot than the one meant
+    (docs/runtime.md says to write ``--set robot='on'``); ``--set robot=010`` was "--set robot=10" and "write
+    --set robot='10'" (YAML 1.2 reads 10); ``--set robot=1e3`` (1000.0) had no hint at all, ``1000.0`` being no robot
+    id; ``eval --set episode.max_steps=1e3`` was "eval with --set
+    episode.max_steps=1000.0"; ``up --seed 3 --set seed=0x10`` "--set seed=16"; ``train --set out_dir=on`` "write
+    --set out_dir='true'"; ``--set robot=`` (null) "write --set robot='null'". Each says the ``--set`` as typed, and
+    the hint quotes the text typed (none for an empty one: no robot id)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    runs = ["--runs-dir", str(tmp_path / "runs")]
+    for typed in ("on", "010", "0x1F", "1e3"):
+        r = CliRunner().invoke(app, ["up", "--set", f"robot={typed}", "--resolved", *runs])
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2 and f"--set robot={typed} is read as " in said and f"write --set robot='{typed}'" in said, said
+        r = CliRunner().invoke(app, ["up", "--robot", typed, "--set", f"robot={typed}", "--resolved", *runs])  # one robot: the hint
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2 and f"--set robot={typed} is read as " in said and f"write --set robot='{typed}', or give --robot {typed} alone" in said, said
+    r = CliRunner().invoke(app, ["up", "--set", "robot=", "--resolved", *runs])  # empty: null, no hint to give robot 'null'
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "write --set" not in said and "with --set robot=: robot: expected a string, got None" in said, said
+    r = CliRunner().invoke(app, ["up", "--seed", "3", "--set", "seed=0x10", "--resolved", *runs])
+    assert r.exit_code == 2 and "--seed 3 and --set seed=0x10 both set seed" in " ".join(r.output.split()), r.output
+    r = CliRunner().invoke(app, ["eval", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--set", "episode.max_steps=1e3", "--dry-run"])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "eval with --set episode.max_steps=1e3: episode.max_steps: expected an integer, got 1000.0" in said, said
+    r = CliRunner().invoke(app, ["train", "--set", "out_dir=on", "--total-decisions", "1"])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "--set out_dir=on is read as true/false, and out_dir is text: write --set out_dir='on'" in said, said
+    assert not (tmp_path / "on").exists() and not (tmp_path / "runs").exists()
+
+
+def test_what_cso_runtime_writes_in_yaml_keeps_non_ascii_text_as_written(tmp_path: Path):
+    """``up --resolved``, a run's ``profile.yaml``, the launcher's profile and a map's YAML wrote each non-ASCII text
+    escaped, ``scene: "/maps/caf\\xE9.yaml"``, a file the user reads and edits (``set_flag_text`` already says such
+    text as typed). It is written as it is, UTF-8, and read back the same: by ``yaml_load`` from text or from bytes
+    (the launcher's stdin, whatever the locale), by ``load_yaml`` and by ``load_map``."""
+    import io
+    import os
+    import subprocess
+    import sys
+
+    import numpy as np
+
+    from cso_runtime.config import commented_yaml, yaml_dump, yaml_load
+    from cso_runtime.geometry import GridGeometry
+    from cso_runtime.map_files import load_map, save_map
+
+    data = {"scene": "/maps/café/küche.yaml", "notes": ["m²", "ok"]}
+    for written in (yaml_dump(data, sort_keys=False), commented_yaml(["profile"], data)):
+        assert "scene: /maps/café/küche.yaml\n" in written and "- m²\n" in written and "\\x" not in written, written
+        assert yaml_load(written) == data and yaml_load(io.BytesIO(written.encode())) == data
+        (tmp_path / "back.yaml").write_text(written, encoding="utf-8")
+        assert load_yaml(tmp_path / "back.yaml") == data
+    grid = np.zeros((2, 3), dtype=np.int8)
+    saved = save_map(tmp_path / "küche.yaml", grid, GridGeometry(0.05, (2, 3)))
+    assert saved.read_text(encoding="utf-8").startswith("image: küche.pgm\n")
+    assert load_map(saved)[0].shape == (2, 3)
+    from cso_runtime.run_profile import load_profile
+
+    _, given = load_profile("lockstep", {})  # the profile up hands its launcher on stdin, UTF-8, read whatever the locale
+    given["services"]["planner"]["küche"] = 1  # refused by the launcher (an unknown key): read, not run
+    run_dir = tmp_path / "runs" / "r"
+    (run_dir / "logs").mkdir(parents=True)
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONCOERCECLOCALE": "0"}
+    r = subprocess.run(
+        [sys.executable, "-m", "cso_runtime.launcher", "--profile-data", "-", "--run-dir", str(run_dir)],
+        input=yaml_dump(given, sort_keys=False).encode(), env=env, cwd=tmp_path, capture_output=True, timeout=120,
+    )
+    said = (r.stdout + r.stderr).decode(errors="replace")
+    assert r.returncode != 0 and "the profile from up.services.planner: unknown key(s) k\\xfcche" in said and "UnicodeDecodeError" not in said, said[-3000:]
+    assert not (run_dir / "run.json").exists()
+
+
+def test_a_number_written_with_underscores_is_refused_saying_how_to_write_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """cso-runtime's own messages write large numbers with underscores ("more than max_grid_cells (4_000_000): raise
+    max_grid_cells (at most 50_000_000)"), which YAML 1.1 read back as numbers; YAML 1.2 (fef7c32) reads
+    ``6_000_000`` as text, so the value typed back from the message was refused as "expected an integer, got
+    '6_000_000'" with no word of why. The refusal says how to write it (without the underscores)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    for value, field, said in [
+        ("6_000_000", "episode.max_steps", "episode.max_steps: expected an integer, got '6_000_000' (YAML 1.2 reads a number with _ as text: write 6000000)"),
+        ("1_000.5", "planner.lookahead_m", "planner.lookahead_m: expected a number, got '1_000.5' (YAML 1.2 reads a number with _ as text: write 1000.5)"),
+    ]:
+        section, key = field.split(".")
+        with pytest.raises(ConfigError, match=re.escape(said)):
+            from_dict(ExplorationConfig, {section: {key: value}})
+    with pytest.raises(ConfigError, match=r"expected an integer, got 'a_b'$"):
+        from_dict(ExplorationConfig, {"episode": {"max_steps": "a_b"}})  # no number: no such hint
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["up", "--set", "max_grid_cells=6_000_000", "--resolved", "--runs-dir", str(tmp_path / "runs")])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "max_grid_cells: expected an integer, got '6_000_000' (YAML 1.2 reads a number with _ as text: write 6000000)" in said, said

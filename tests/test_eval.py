@@ -2420,7 +2420,9 @@ def test_eval_dry_run_says_holding_the_same_episodes_with_or_without_resume(tmp_
     [["--method", "greedy-dsit"], ["--max-steps", "0"], ["--set", "masks.nope=1"], ["--m-per-px", "-1"], ["--sim", "3d"], ["--out", "{file}/below"]],
 )
 def test_eval_dry_run_refuses_bad_input_as_a_real_eval_does(tmp_path: Path, bad: list[str]):
-    """Bad input: ``--dry-run`` and ``--resolved`` exit as a real eval does, with the same error, and write nothing."""
+    """Bad input: ``--dry-run`` and ``--resolved`` exit as a real eval does, with the same error, and write nothing
+    (``--out``, the folder the run would write in, is checked by ``--dry-run``, with or without ``--resolved``: see
+    test_eval_resolved_prints_the_configuration_wherever_the_run_would_write)."""
     from typer.testing import CliRunner
 
     from cso_runtime.cli import app
@@ -2430,10 +2432,40 @@ def test_eval_dry_run_refuses_bad_input_as_a_real_eval_does(tmp_path: Path, bad:
     args = ["eval", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), *bad]
     real = CliRunner().invoke(app, args)
     assert real.exit_code == 2 and "error:" in real.stderr
-    for flag in ("--dry-run", "--resolved"):
-        checked = CliRunner().invoke(app, [*args, flag])
-        assert (checked.exit_code, checked.stderr) == (real.exit_code, real.stderr), flag
+    for flags in (["--dry-run"], ["--resolved", "--dry-run"], [] if "--out" in bad else ["--resolved"]):
+        if flags:
+            checked = CliRunner().invoke(app, [*args, *flags])
+            assert (checked.exit_code, checked.stderr) == (real.exit_code, real.stderr), flags
     assert not (tmp_path / "o").exists()
+
+
+def test_eval_resolved_prints_the_configuration_wherever_the_run_would_write(tmp_path: Path):
+    """``eval --resolved`` prints the exploration configuration to run again later, elsewhere, as ``up --resolved``
+    prints its profile; but it took ``--dry-run``'s checks of ``--out``: it refused to print where ``--out`` cannot be
+    made (under a file) or holds another configuration's episodes, though ``--out`` is not in what it prints. Alone it
+    prints, the same configuration, and says ``--out`` is not checked; ``--dry-run``, alone or with ``--resolved``,
+    checks ``--out`` as before (and a real eval)."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    (tmp_path / "file").write_text("")
+    base = ["eval", "--maps", "generated:small:1:0", "--max-steps", "5"]
+    plain = CliRunner().invoke(app, [*base, "--out", str(tmp_path / "new"), "--resolved"])
+    assert plain.exit_code == 0 and "error" not in plain.output, plain.output
+    config = yaml.safe_load(plain.stdout)
+    assert config["episode"]["max_steps"] == 5 and f"# output: {tmp_path / 'new'}: not checked (--dry-run checks it)" in plain.stdout, plain.stdout
+    other = tmp_path / "other"
+    assert CliRunner().invoke(app, ["eval", "--maps", "generated:small:1:0", "--max-steps", "7", "--out", str(other)]).exit_code == 0
+    before = _tree(other)
+    for out, said in ((tmp_path / "file" / "below", "cannot create the folder"), (other, "from another configuration")):
+        r = CliRunner().invoke(app, [*base, "--out", str(out), "--resolved"])
+        assert r.exit_code == 0 and "error" not in r.output and yaml.safe_load(r.stdout) == config, (out, r.output)
+        for flags in (["--dry-run"], ["--dry-run", "--resolved"]):
+            dry = CliRunner().invoke(app, [*base, "--out", str(out), *flags])
+            assert dry.exit_code == 2 and said in " ".join(dry.stderr.split()) and "max_steps" not in dry.stdout, (out, flags, dry.output)
+    assert _tree(other) == before and not (tmp_path / "new").exists()  # nothing run, nothing written
 
 
 def test_eval_refuses_an_out_folder_holding_this_runs_episodes_from_another_configuration(tmp_path: Path):

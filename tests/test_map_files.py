@@ -397,3 +397,36 @@ def test_a_map_yamls_numbers_are_read_as_yaml_1_2_reads_them_not_as_yaml_1_1(tmp
         (tmp_path / "bad.yaml").write_text(rest + lines)
         with pytest.raises(MapFileError, match=re.escape(said)):
             load_map(tmp_path / "bad.yaml")
+
+
+def test_a_map_yaml_number_too_large_for_a_float_or_a_key_given_twice_is_refused(tmp_path: Path):
+    """``resolution: 1000...0`` (400 digits, an integer YAML reads whole; ``0x`` and 300 digits alike) ended the read
+    with Python's OverflowError, a traceback, where any other number no float holds (``1e400``, ``.inf``) is said as
+    not finite. A key given twice (``resolution`` twice) was read as its last value, where map_server's yaml-cpp
+    takes the first: the two readers drew another map from one file. Both are refused as a MapFileError."""
+    grid, geometry = _grid()
+    meta = yaml.safe_load(save_map(tmp_path / "map.yaml", grid, geometry).read_text())
+    rest = yaml.safe_dump({k: v for k, v in meta.items() if k not in ("origin", "resolution")})
+    huge = "1" + "0" * 400
+    for lines, said in [
+        (f"resolution: {huge}\norigin: [0, 0, 0]\n", "resolution must be a finite number"),
+        (f"resolution: 0.05\norigin: [0x{'F' * 300}, 0, 0]\n", "origin must be three finite numbers"),
+        ("resolution: 1e400\norigin: [0, 0, 0]\n", "resolution must be a finite number, got inf"),
+        ("resolution: 0.05\norigin: [0, 0, 0]\nresolution: 0.1\n", "found key 'resolution' twice (first at line"),
+    ]:
+        (tmp_path / "bad.yaml").write_text(rest + lines)
+        with pytest.raises(MapFileError, match=re.escape(said)):
+            load_map(tmp_path / "bad.yaml")
+
+
+def test_a_map_yaml_whose_image_is_null_or_empty_says_so(tmp_path: Path):
+    """``image:`` left empty (or ``~``, YAML's null) was read as the file ``None``: "None: cannot read the map image
+    ([Errno 2] No such file or directory: 'None')", a file the user never named; ``image: ""`` as the map's own
+    folder ("Is a directory"). map_server refuses both (no file name); so does load_map, naming the key."""
+    grid, geometry = _grid()
+    meta = yaml.safe_load(save_map(tmp_path / "map.yaml", grid, geometry).read_text())
+    rest = yaml.safe_dump({k: v for k, v in meta.items() if k != "image"})
+    for value in ("", "~", "null", '""', "[a.pgm]", "true"):
+        (tmp_path / "bad.yaml").write_text(rest + f"image: {value}\n")
+        with pytest.raises(MapFileError, match=re.escape(f"{tmp_path / 'bad.yaml'}: image must name the map's image file (a PGM or PNG), got ")):
+            load_map(tmp_path / "bad.yaml")

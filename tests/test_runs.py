@@ -678,3 +678,23 @@ def test_runs_of_a_folder_that_does_not_exist_says_so(tmp_path):
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "empty")])
     assert r.exit_code == 0 and r.output == f"no runs in {tmp_path / 'empty'}\n", r.output
     assert not missing.exists()
+
+
+def test_runs_reads_a_profile_yaml_as_utf_8_whatever_the_locale_and_lists_a_broken_one(tmp_path):
+    """A run's profile.yaml is UTF-8 (written so, its non-ASCII text as it is): ``runs`` read it in the locale's
+    encoding, so under ``LC_ALL=C`` a scene named ``küche`` ended the listing with UnicodeDecodeError, as did a
+    profile.yaml that is no UTF-8 at all in any locale, where a broken file leaves its fields empty. It reads UTF-8,
+    and lists a broken one with its fields empty."""
+    from cso_runtime.config import yaml_dump
+    from cso_runtime.runs import summarize_run
+
+    runs = tmp_path / "runs"
+    kept = make_run(runs, "20261203-091300-lockstep-r0", outcome="done")
+    (kept / "profile.yaml").write_text(yaml_dump({"name": "lockstep", "robot": "r0", "scene": "/maps/küche.yaml", "method": "cso"}), encoding="utf-8")
+    code = f"from pathlib import Path; from cso_runtime.runs import summarize_run; s = summarize_run(Path({str(kept)!r})); print(ascii((s.method, s.scene)))"
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONUTF8": "0", "PYTHONCOERCECLOCALE": "0"}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.startswith("('cso', ") and "k\\xfcche" in done.stdout, (done.stdout, done.stderr[-2000:])
+    broken = make_run(runs, "20261203-091400-lockstep-r0", outcome="done")
+    (broken / "profile.yaml").write_bytes(b"name: lockstep\nscene: caf\xe9\n")  # Latin-1, no UTF-8
+    assert summarize_run(broken).run_id == broken.name
