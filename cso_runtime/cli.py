@@ -1527,8 +1527,17 @@ def _up_folders_or_exit(record_out: str | None, runs_dir: Path, make: bool = Tru
 def training_args(config: Path | None, overrides: Mapping[str, object], settings: list[str] | None) -> Args:
     """``learned.ppo.Args`` from the YAML file (without one, for a ``resume``: the configuration its checkpoint holds),
     then the command's flags, then ``--set`` pairs; a missing file or a bad value exits with a clear error (code 2)
-    before anything starts."""
-    from cso_runtime.config import ConfigError, from_dict_with_hints, load_yaml  # noqa: PLC0415
+    before anything starts. A ``--set`` of a text field that YAML reads as another type (``out_dir=2024``) says how to
+    write it (``--set out_dir='2024'``), as ``up`` and ``eval`` do, where the configuration takes that text
+    (``variant=1``: ``'1'`` is no variant either, so the value's own error is said)."""
+    from cso_runtime.config import (  # noqa: PLC0415
+        ConfigError,
+        field_types,
+        from_dict,
+        from_dict_with_hints,
+        load_yaml,
+        refuse_a_setting_read_as_another_type,
+    )
     from cso_runtime.learned.ppo import Args, check_training_inputs, resumed_run_settings, training_scene_refs  # noqa: PLC0415
 
     config = _packaged_if_missing(config)  # run outside the repository: the packaged recipe
@@ -1550,6 +1559,11 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         flags = training_flags(overrides, settings)
         if flags:
             where += " with " + " ".join(" ".join(words) for words in flags)
+
+        def takes(texts: dict[str, object]) -> object:  # the configuration with those values as text (no hint again)
+            return from_dict(Args, {**data, **texts}, where)
+
+        refuse_a_setting_read_as_another_type(pairs, field_types(Args), takes)  # `--set out_dir=2024`: how to write it
         args = from_dict_with_hints(Args, data, where)
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
         check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
@@ -1677,19 +1691,11 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     """``train``'s own options (``--out``), its field flags (``--out-dir``, ``args_field_flags``' pairs) and ``--set``
     all set fields of ``learned.ppo.Args``: two of them that give one field different values are a ConfigError that
     names both (one of them took over the other in silence). The same value twice is fine; so is one flag given
-    twice, whose last value counts, as typer's own options' does. A ``--set`` of a text field that YAML reads as
-    another type (``out_dir=2024``) is a ConfigError that says how to write it (``--set out_dir='2024'``)."""
+    twice, whose last value counts, as typer's own options' does. (A ``--set`` of a text field that YAML reads as
+    another type, ``out_dir=2024``, is ``training_args``' to say, where the whole configuration is known.)"""
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import (  # noqa: PLC0415
-        field_value,
-        place_of,
-        refuse_a_setting_read_as_another_type,
-        refuse_two_values,
-        set_flag_text,
-        text_field,
-        yaml_text,
-    )
+    from cso_runtime.config import field_value, place_of, refuse_two_values, set_flag_text, text_field, yaml_text  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1713,7 +1719,6 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     for name, value in parse_settings(settings).items():
         given.setdefault(name, []).append((set_flag_text(name, value), value))
     refuse_two_values({name: said for name, said in given.items() if name in types}, read)  # a key no field is: from_dict names it
-    refuse_a_setting_read_as_another_type(parse_settings(settings), types)  # `--set out_dir=2024` alone: how to write it, as `up` says
 
 
 def parse_seeds(items: list[str]) -> list[int]:
