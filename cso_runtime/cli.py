@@ -1679,7 +1679,7 @@ def _profile_file_said(profile: str) -> str:
     from cso_runtime.run_profile import PACKAGED_PROFILES, find_profile  # noqa: PLC0415
 
     path = find_profile(profile)
-    if path.suffix and Path(profile).suffix:  # a path given: the file itself
+    if Path(profile).suffix in (".yaml", ".yml"):  # a path given, as find_profile tells one from a name (sim.v2): the file itself
         return str(path)
     if path.parent == PACKAGED_PROFILES:
         return f"{path} (packaged)"

@@ -1621,3 +1621,22 @@ def test_up_dry_run_names_the_profile_file_it_read(tmp_path, monkeypatch):
     for flag in ("--dry-run", "--resolved"):
         r = CliRunner().invoke(app, ["up", "--profile", "sim", flag])
         assert r.exit_code == 0 and "\n# read from configs/profiles/sim.yaml (the working folder's, ahead of the packaged sim)\n" in r.output, r.output[:400]
+
+
+def test_up_dry_run_says_whose_a_profile_named_with_a_dot_is(tmp_path, monkeypatch):
+    """``--profile sim.v2`` is a name (``find_profile``: only a .yaml or .yml suffix makes a path), found as
+    ``configs/profiles/sim.v2.yaml``; the dry run's "read from" line took its ``.v2`` for a path's suffix and said the
+    file alone, not that it is the working folder's."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.run_profile import PACKAGED_PROFILES
+
+    monkeypatch.chdir(tmp_path)
+    own = tmp_path / "configs" / "profiles" / "sim.v2.yaml"
+    own.parent.mkdir(parents=True)
+    own.write_text((PACKAGED_PROFILES / "sim.yaml").read_text())
+    r = CliRunner().invoke(app, ["up", "--profile", "sim.v2", "--dry-run"])
+    assert r.exit_code == 0 and "\n# read from configs/profiles/sim.v2.yaml (the working folder's)\n" in r.output, r.output[:400]
+    r = CliRunner().invoke(app, ["up", "--profile", str(own), "--dry-run"])  # a path: the file itself
+    assert r.exit_code == 0 and f"\n# read from {own}\n" in r.output, r.output[:400]
