@@ -1336,17 +1336,17 @@ def dataflow_command(
         return
     from rich.table import Table  # noqa: PLC0415
 
-    from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+    from cso_runtime.evaluation import table_console  # noqa: PLC0415
 
     table = Table(title=f"profile {prof.name}: keys under cso/{prof.robot}/")
     for col in ("node", "inputs (from)", "outputs (to)"):
-        table.add_column(col, overflow="fold")  # a node's class of one's own (module.path:Attribute) wraps, not cut to "…"
+        table.add_column(col, overflow="fold")  # on a narrow terminal a node's class of one's own (module.path:Attribute) wraps, not cut to "…"
     labels = {n.name: n.label for n in nodes}
     for w in wiring_of(nodes):
         ins = "\n".join(f"{key} <- {', '.join(peers) or '(none)'}" for key, peers in w.inputs)
         outs = "\n".join(f"{key} -> {', '.join(peers) or '(none)'}" for key, peers in w.outputs)
         table.add_row(f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else labels[w.name], ins or "-", outs or "-")
-    console_that_survives_its_reader().print(table)
+    table_console(table).print(table)  # a file gets each cell unwrapped
     for name, topics in unconnected(nodes).items():
         typer.echo(f"note: nothing in this profile publishes {', '.join(topic_key(t) for t in topics)} for {name}")
 

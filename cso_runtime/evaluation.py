@@ -891,14 +891,18 @@ def run_in_processes(jobs: list[EpisodeJob], workers: int, done: Callable[[Episo
     run_each_in_own_process(episode, retry, workers, again)
 
 
-def table_console() -> Any:
+def table_console(*tables: Any) -> Any:
     """A rich console for tables of results: off a terminal (a pipe, logs, CI) wide enough for every column
-    instead of 80 characters, which would cut the last columns (m2/step)."""
+    instead of 80 characters, which would cut the last columns (m2/step): at least 120, and as wide as ``tables``
+    need to have no cell wrapped (``dataflow > flow.txt``: each class and key on its one line). A terminal keeps its
+    width (``COLUMNS`` where set)."""
+    from rich.measure import Measurement  # noqa: PLC0415
+
     from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
 
     console = console_that_survives_its_reader()  # `eval | head`: the reader gone ends the command quietly
     if not console.is_terminal:
-        console.width = max(console.width, 120)
+        console.width = max(console.width, 120, *(Measurement.get(console, console.options.update_width(10**6), t).maximum for t in tables))
     return console
 
 
