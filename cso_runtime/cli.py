@@ -802,7 +802,9 @@ def scenes_command(
             progress(len(rows), len(refs))
     bad = [r for r in rows if "error" in r]
     if as_json:
-        typer.echo(json.dumps(rows, indent=2))
+        from cso_runtime.geometry import rounded_floats  # noqa: PLC0415
+
+        typer.echo(json.dumps(rounded_floats(rows), indent=2))  # 4.725 m, not 4.7250000000000005
     else:
         from rich import box  # noqa: PLC0415
         from rich.markup import escape  # noqa: PLC0415
