@@ -123,24 +123,26 @@ def _fail(message: str, code: int) -> NoReturn:
     raise typer.Exit(code) from None
 
 
-def _bounded(low: float, high: float | None = None) -> dict[str, Any]:
+def _bounded(low: float, high: float | None = None, unit: str = "", low_open: bool = False) -> dict[str, Any]:
     """A number flag's ``min``/``max`` (shown in its help, ``0.1<=x<=3600``) with a parser that holds it to them and says
-    so itself: typer's own check told ``--period nan`` "Input should be less than or equal to 3600", untrue of nan.
-    ``typer.Option(1.0, "--period", **_bounded(0.1, 3600.0))``."""
+    so itself, in ``config.Bound``'s words (the one way a number's range is checked and said: ``must be in [0.1, 3,600]
+    s, got nan``): typer's own check told ``--period nan`` "Input should be less than or equal to 3600", untrue of nan.
+    ``high`` None: no largest; ``low_open``: ``low`` itself refused. ``typer.Option(1.0, "--period", **_bounded(0.1, 3600.0, "s"))``."""
     import math  # noqa: PLC0415
 
-    within = f"from {low:g} to {high:g}" if high is not None else f">= {low:g}"
-
     def parse(given: object) -> float:
+        from cso_runtime.config import Bound  # noqa: PLC0415 - config imports yaml: only once a value is given
+
+        bound = Bound(low, math.inf if high is None else high, unit, low_open=low_open)
         try:
             value = float(given)  # type: ignore[arg-type]  # the text typed, or the default
         except (TypeError, ValueError):
-            value = math.nan
-        if math.isnan(value) or value < low or (high is not None and value > high):
-            raise typer.BadParameter(f"must be a number {within}, got {given}")
+            raise typer.BadParameter(f"must be a number {bound.within()}, got {given}") from None
+        if (problem := bound.problem(value)) is not None:
+            raise typer.BadParameter(problem)
         return value
 
-    return {"min": low, "max": high, "parser": parse}
+    return {"min": None if low_open else low, "max": high, "parser": parse}
 
 
 STOPPING_NOTE = "stopping: writing what finished; signal once more to stop at once"
@@ -415,6 +417,7 @@ def compare_command(
         as_dicts,
         compare_to_baseline,
         episodes_by_method,
+        file_episodes,
         labelled,
         markdown_table,
         mixed_setups_said,
@@ -436,12 +439,13 @@ def compare_command(
     for said in mixed_setups_said(files, split_names(exclude or [])):  # a 360-degree LiDAR's episodes against a 180-degree one's
         typer.echo(said, err=True)
     if exclude:  # a name that matches no episode leaves out nothing: a typo would compare the plans meant to be out
-        held = {scene[1] for scenes in pooled_episodes(files, [], rename or [])[0].values() for scene in scenes}
+        held = {row["map"] for label, path in files for row in file_episodes(label, path)}  # of no m2/step too: there
         if unmatched := [name for name in split_names(exclude) if name not in held]:
             typer.echo(f"note: --exclude {', '.join(unmatched)}: no such map in these files; nothing left out for it", err=True)
-    methods = sorted({method for method, _ in table})
-    if methods and baseline not in methods:
+    if baseline not in {method for method, _ in table}:  # none of its episodes left: why (of every method's none too)
         counts = episodes_by_method(files, rename or [])
+        if not counts:
+            _fail(f"these files hold no episode: {', '.join(str(path) for _, path in files)}", 1)
         if baseline not in counts:  # a typo in --baseline, not "too few scenes"
             _fail(f"--baseline {baseline!r} has no episodes in these files; their methods: {', '.join(sorted(counts))}", 2)
         # It has episodes, none comparable: said so, not "no episodes" (exit 1, as too few scenes)
@@ -500,18 +504,23 @@ def _run_without_results(run_dir: Path) -> str:
     from cso_runtime.current_run import LAUNCHER_DIED  # noqa: PLC0415
     from cso_runtime.launcher import LAST_MAP  # noqa: PLC0415
     from cso_runtime.runs import UNKNOWN_RUN_STATE, summarize_run  # noqa: PLC0415
+    from cso_runtime.status import lost_result_words  # noqa: PLC0415
 
     run = summarize_run(run_dir)
     state = run.state
     if state in ("starting", "running"):
         return f"run {run_dir.name} is {state}: its results are written when its episode ends"
     kept = f" (its map so far: {run_dir / LAST_MAP})" if (run_dir / LAST_MAP).is_file() else ""
+    kept += "".join(f"; {lost_result_words(lost, run.referee)}" for lost in run.lost_results)  # an end it had, with no result
     if state == UNKNOWN_RUN_STATE:
         return f"run {run_dir.name} has no results; {run.reason}{kept}"
     if state in ("interrupted", "stopped", LAUNCHER_DIED):
         return f"run {run_dir.name} has no results: a run stopped before its episode ended writes none (`runs` lists it as {state}){kept}"
     # failed (results that could not be written, a service given up on), or done and its summary.json since removed
-    return f"run {run_dir.name} has no results (`runs` lists it as {state}); its launcher's log says why: `cso-runtime logs launcher --run {run_dir}`{kept}"
+    log = f"`cso-runtime logs launcher --run {run_dir}`"
+    if run.reason:  # run.json says why (refused, no router): said, and where to read more
+        return f"run {run_dir.name} has no results (`runs` lists it as {state}): {run.reason}; more in its launcher's log: {log}{kept}"
+    return f"run {run_dir.name} has no results (`runs` lists it as {state}); its launcher's log says why: {log}{kept}"
 
 
 def _read_grids_of_any_run() -> None:
@@ -888,7 +897,9 @@ def up_command(
     ),
     dry_run: bool = typer.Option(False, "--dry-run", help="Validate, print the profile as the services would read it (YAML), start nothing"),
     resolved: bool = typer.Option(
-        False, "--resolved", help="Validate, print every parameter the run would use, defaults filled in (YAML, itself a profile), start nothing; implies --dry-run"
+        False,
+        "--resolved",
+        help="Validate, print every parameter the run would use, defaults filled in (YAML, itself a profile), start nothing; the folders the run would write in (--runs-dir, --record-out) are checked with --dry-run only",
     ),
     animate: bool = typer.Option(
         False, "--animate", help="At the end, also write the episode as a GIF under animations/, as eval does (records the run to do so, as --record)"
@@ -937,7 +948,8 @@ def up_command(
             _warn_of_weights_trained_otherwise(prof)
             _warn_of_unfed_inputs(prof)
             _warn_of_a_watchdog_within_a_step(prof)
-            if record_out is not None:
+            checks_folders = dry_run or not resolved  # --resolved alone: the profile to run later, wherever it will write
+            if record_out is not None and checks_folders:
                 from cso_runtime.recording import names_a_folder  # noqa: PLC0415
 
                 if not names_a_folder(record_out) and Path(record_out).exists():  # as `record --out`: an earlier recording is never written over
@@ -945,7 +957,8 @@ def up_command(
             if dry_run or resolved:
                 from cso_runtime.config import commented_yaml  # noqa: PLC0415
 
-                _up_folders_or_exit(record_out, runs_dir, make=False)  # `up` would refuse them: not "valid", nothing made
+                if checks_folders:
+                    _up_folders_or_exit(record_out, runs_dir, make=False)  # `up` would refuse them: not "valid", nothing made
                 outside = prof.left_out_services()
                 left_out = f" (without {', '.join(outside)}: not started by this run)" if outside else ""
                 comments = [f"profile {prof.name}, valid: `up` would start {', '.join(prof.services)} for robot {prof.robot}{left_out}"]
@@ -1002,7 +1015,7 @@ def _fixed_simulator_settings_said(prof: Profile) -> list[str]:
 def status_command(
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     watch: bool = typer.Option(False, "--watch", help="Refresh every --period seconds until Ctrl-C or the run ends (a detached run: its episode)"),
-    period_s: float = typer.Option(1.0, "--period", **_bounded(0.1, 3600.0), help="Seconds between two --watch refreshes (0.1 to 3600)"),
+    period_s: float = typer.Option(1.0, "--period", **_bounded(0.1, 3600.0, "s"), help="Seconds between two --watch refreshes (0.1 to 3600)"),
     robot: str | None = typer.Option(None, "--robot", help="Robot id (default: the current run's)"),
     connect: list[str] | None = typer.Option(None, "--connect", help="Zenoh endpoint (default: the current run's router)"),
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
@@ -1060,7 +1073,7 @@ def resume_command(
 def down_command(
     runs_dir: Path = typer.Option(Path("runs"), "--runs-dir", help="Where the current run file lives"),
     timeout: float | None = typer.Option(
-        None, "--timeout-s", **_bounded(0.0),  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
+        None, "--timeout-s", **_bounded(0.0, unit="s"),  # "\\[": typer renders help as rich markup, which drops an unescaped [word ...] as a tag
         help="How long the launcher may take to stop its services and write its results before escalating \\[default: three times the run's supervision.stop_timeout_s, plus 10 s]",
     ),
 ) -> None:
@@ -1080,7 +1093,7 @@ def router_command(
     ),
     connect: list[str] | None = typer.Option(None, "--connect", help="Another router to join, repeatable (a robot's zenoh-bridge-ros2dds: tcp/ROBOT_IP:7447)"),
     connect_timeout_s: float | None = typer.Option(
-        None, "--connect-timeout-s", **_bounded(0.001), help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
+        None, "--connect-timeout-s", **_bounded(0.0, unit="s", low_open=True), help="How long to wait to reach the routers of --connect before giving up, exit 3 (default 10 s, as for `up`)"
     ),
     zenoh_config: Path | None = typer.Option(None, "--zenoh-config", help="Zenoh config file (JSON5) the router starts from: user/password, TLS, access control"),
     as_json: bool = typer.Option(False, "--json", help="Print the endpoints it listens on as one line of JSON"),
@@ -1143,7 +1156,7 @@ def runs_command(
     limit: int = typer.Option(20, "--limit", min=1, help="Show the newest N runs"),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of a table"),
     keep: int | None = typer.Option(None, "--keep", min=0, help="Prune: the runs beyond the newest N (listed; --yes deletes them)"),
-    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
+    older_than: float | None = typer.Option(None, "--older-than", **_bounded(0.0, unit="days"), help="Prune: the runs started over DAYS days ago (listed; --yes deletes them)"),
     yes: bool = typer.Option(False, "--yes", help="Delete the runs --keep/--older-than select (never the current or a running one)"),
 ) -> None:
     """List the runs `up` left in --runs-dir: state, scene, method and the episode's Table 1 row; or prune old ones."""
@@ -1151,11 +1164,15 @@ def runs_command(
 
     from cso_runtime.runs import list_runs  # noqa: PLC0415
 
+    if not runs_dir.is_dir():  # a typo, another working folder: not "no runs in nosuch" and exit 0, as of an empty one
+        what = "it is a file" if runs_dir.exists() else "it does not exist"
+        _fail(f"no runs folder {runs_dir}: {what} (`up` makes it; give --runs-dir of the folder `up` used)", 1)
     if keep is not None or older_than is not None:
         raise typer.Exit(_prune_runs(runs_dir, keep, older_than, yes, as_json))
     if yes:
         _fail("--yes deletes the runs that --keep N or --older-than DAYS select: give one of them", 2)
-    rows = [r.as_dict() for r in list_runs(runs_dir, limit)]
+    listed = list_runs(runs_dir, limit)
+    rows = [r.as_dict() for r in listed]
     if as_json:
         typer.echo(json.dumps(rows, indent=2))
         return
@@ -1178,9 +1195,13 @@ def runs_command(
     table.add_column("state", overflow="fold", min_width=6)
     for col in ("took", "steps", "cover %", "m2", "m2/step"):
         table.add_column(col, justify="right", no_wrap=True)
-    for r in rows:
+    from cso_runtime.status import lost_results_short  # noqa: PLC0415
+
+    for run, r in zip(listed, rows, strict=True):
         restarts = r["restarts"]
         state = r["state"] + (f", {restarts} restart{'s' if restarts != 1 else ''}" if restarts else "") + (f": {r['reason']}" if r["reason"] else "")
+        if r["lost_results"]:  # the run went on with another episode: its results, if any, are that one's
+            state += f"; {lost_results_short(r['lost_results'], run.referee)}"
         took = "-" if r["duration_s"] is None else f"{int(r['duration_s'] // 60)} min {r['duration_s'] % 60:.0f} s" if r["duration_s"] >= 60 else f"{r['duration_s']:.0f} s"
         steps = f"{r['stopped_at_step']} (stopped)" if r["steps"] is None and r["stopped_at_step"] is not None else num(r["steps"], ".0f")
         table.add_row(
@@ -1260,7 +1281,8 @@ def logs_command(
         raise typer.Exit(0) from None
     live = logs_grow(run_dir)
     if not files and not (follow and live):  # said, not an empty output and exit 0 (a run that is starting: followed)
-        _fail(f"run {run_dir.name} has no log: {run_dir / LOG_DIR}/ holds no .log file", 1)
+        where = f"{run_dir / LOG_DIR}/ holds no .log file" if (run_dir / LOG_DIR).is_dir() else f"it has no {run_dir / LOG_DIR}/ folder"
+        _fail(f"run {run_dir.name} has no log: {where}", 1)
     width = max([len(n) for n in log_files(run_dir)] + [8])
     colours: dict[str, str] = {}
 
@@ -1463,7 +1485,7 @@ def collect_teacher_command(
     teacher: str | None = typer.Option(None, "--teacher", help="greedy-dist, utility, greedy-info or rollout (default: rollout, or --set warm_start_teacher's)"),
     workers: int = typer.Option(2, "--workers", min=1, help="Processes, one environment each"),
     decisions: int = typer.Option(1200, "--decisions", min=1, help="Decisions in all (the time limit may stop earlier)"),
-    time_limit: float = typer.Option(0.0, "--time-limit-s", **_bounded(0.0), help="Each worker stops after this wall time (0 = none)"),
+    time_limit: float = typer.Option(0.0, "--time-limit-s", **_bounded(0.0, unit="s"), help="Each worker stops after this wall time (0 = none)"),
     seed: int | None = typer.Option(None, "--seed", help="Worker i uses seed + i"),
     dungeon_dir: Path | None = typer.Option(None, "--dungeon-dir", help="Folder of Dungeon training plans"),
     settings: list[str] | None = typer.Option(None, "--set", help="KEY=VALUE for any field of the config (YAML value), repeatable"),
@@ -1743,7 +1765,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
     """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``)."""
     import yaml  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, one_line  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, one_line, yaml_load  # noqa: PLC0415
 
     out: dict[str, object] = {}
     for item in items:
@@ -1751,7 +1773,7 @@ def parse_settings(items: list[str]) -> dict[str, object]:
         if not sep or not key.strip():
             raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
         try:
-            out[key.strip()] = yaml.safe_load(value)
+            out[key.strip()] = yaml_load(value)
         except yaml.YAMLError as exc:
             raise ConfigError(f"--set {item}: not valid YAML: {one_line(str(exc))}") from None
     return out

@@ -244,18 +244,10 @@ def read_episodes(
     source: dict[tuple[str, SceneKey], Path] = {}
     """(method, scene) -> the file its episode in ``table`` came from."""
     for label, path in items:
+        rows = file_episodes(label, path, excluded, renames)
         try:
-            with Path(path).open(newline="", encoding="utf-8") as fh:
-                reader = csv.DictReader(fh)
-                missing = [c for c in EPISODE_COLUMNS if c not in (reader.fieldnames or [])]
-                if missing:
-                    hint = f" (compare reads episodes.csv: give {Path(path).parent}/ or its episodes.csv)" if Path(path).name == "summary.json" else ""
-                    raise ValueError(f"not an episodes.csv written by eval: no column {', '.join(missing)}{hint}")
-                rows = [row for row in whole_rows(reader) if row["map"] not in excluded]
-            own = efficiency_by_scene(renamed_methods(rows, [r for r in renames if r.applies_to(label, path)]), label)
-        except UnicodeDecodeError:
-            raise ValueError(f"{path}: not an episodes.csv written by eval: not UTF-8 text") from None
-        except (ValueError, csv.Error) as exc:  # every message names the file: several are read at once
+            own = efficiency_by_scene(rows, label)
+        except ValueError as exc:  # an efficiency that is no number: the file named, as file_episodes names it
             raise ValueError(f"{path}: {exc}") from None
         changed: dict[tuple[str, Path], int] = defaultdict(int)
         for (method, scale), scenes in own.items():
@@ -268,6 +260,27 @@ def read_episodes(
         if replaced is not None:
             replaced.extend(Replacement(method, earlier, Path(path), count) for (method, earlier), count in sorted(changed.items(), key=lambda kv: (kv[0][0], str(kv[0][1]))))
     return table
+
+
+def file_episodes(label: str, path: Path, exclude_maps: Iterable[str] = (), renames: Sequence[Rename] = ()) -> list[dict[str, str]]:
+    """The rows of one ``episodes.csv`` (``label``: its label) as ``read_episodes`` reads them, whatever their
+    efficiency: without the episodes of the maps of ``exclude_maps``, the methods of ``renames`` that apply to it under
+    their new names. A file that is not one eval wrote (a column missing, a row cut short, not UTF-8) is a ValueError
+    naming it."""
+    excluded = set(exclude_maps)
+    try:
+        with Path(path).open(newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            missing = [c for c in EPISODE_COLUMNS if c not in (reader.fieldnames or [])]
+            if missing:
+                hint = f" (compare reads episodes.csv: give {Path(path).parent}/ or its episodes.csv)" if Path(path).name == "summary.json" else ""
+                raise ValueError(f"not an episodes.csv written by eval: no column {', '.join(missing)}{hint}")
+            rows = [row for row in whole_rows(reader) if row["map"] not in excluded]
+        return renamed_methods(rows, [r for r in renames if r.applies_to(label, path)])
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not an episodes.csv written by eval: not UTF-8 text") from None
+    except (ValueError, csv.Error) as exc:  # every message names the file: several are read at once
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def file_setup(path: Path) -> dict[str, str]:
@@ -352,13 +365,10 @@ def episodes_by_method(files: Sequence[tuple[str, Path]], renames: Iterable[str]
     """How many episodes (rows) each method has in ``files`` (as ``pooled_episodes`` read them, the ``--rename``
     arguments applied), whatever their efficiency, without those on the maps of ``exclude``: what ``compare`` says of
     a baseline that has episodes but none it can compare. Files ``pooled_episodes`` has read."""
-    excluded = set(split_names(exclude))
-    parsed = [parse_rename(arg) for arg in renames]
+    excluded, parsed = split_names(exclude), [parse_rename(arg) for arg in renames]
     counts: dict[str, int] = defaultdict(int)
     for label, path in files:
-        with Path(path).open(newline="", encoding="utf-8") as fh:
-            rows = [row for row in whole_rows(csv.DictReader(fh)) if row["map"] not in excluded]
-        for row in renamed_methods(rows, [r for r in parsed if r.applies_to(label, path)]):
+        for row in file_episodes(label, path, excluded, parsed):
             counts[row["method"]] += 1
     return dict(counts)
 

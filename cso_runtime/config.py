@@ -76,16 +76,30 @@ class Bound:
     """``high`` itself is refused: the key must be below it (PPO's clip coefficient, below 1)."""
 
     def said(self) -> str:
-        """The range in interval notation, with its unit: ``(0, 100] m``, ``[1, 1,000,000]``, ``(0, 1)``."""
+        """The range in interval notation, with its unit: ``(0, 100] m``, ``[1, 1,000,000]``, ``(0, 1)``; one of no
+        largest value (``high`` infinite) as its least: ``>= 0 s``, ``> 0 s``."""
         unit = f" {self.unit}" if self.unit else ""
+        if math.isinf(self.high):
+            return f"{'>' if self.low_open else '>='} {number_said(self.low)}{unit}"
         return f"{'(' if self.low_open else '['}{number_said(self.low)}, {number_said(self.high)}{')' if self.high_open else ']'}{unit}"
+
+    def within(self) -> str:
+        """``said`` after "must be": ``in (0, 100] m``, ``>= 0 s``."""
+        return self.said() if math.isinf(self.high) else f"in {self.said()}"
+
+    def problem(self, value: float) -> str | None:
+        """Why ``value`` is outside the range, naming it and the range (``must be in (0, 100] m, got 1,000``), or None
+        where it is inside. NaN is outside every range."""
+        inside = (value > self.low if self.low_open else value >= self.low) and (value < self.high if self.high_open else value <= self.high)
+        if inside:
+            return None
+        why = f" ({self.why})" if self.why else ""
+        return f"must be {self.within()}{why}, got {number_said(value)}"
 
     def check(self, key: str, value: float) -> None:
         """ConfigError naming ``key``, ``value`` and the range when ``value`` is outside it."""
-        inside = (value > self.low if self.low_open else value >= self.low) and (value < self.high if self.high_open else value <= self.high)
-        if not inside:  # NaN included: from_dict refuses it already, a dataclass built in code may not
-            why = f" ({self.why})" if self.why else ""
-            raise ConfigError(f"{key} must be in {self.said()}{why}, got {number_said(value)}")
+        if (problem := self.problem(value)) is not None:  # NaN included: from_dict refuses it already, a dataclass built in code may not
+            raise ConfigError(f"{key} {problem}")
 
 
 def check_bounds(section: str, obj: object, bounds: typing.Mapping[str, Bound]) -> None:
@@ -543,14 +557,17 @@ def with_mujoco_limo_defaults(config: ExplorationConfig, given: Any = None) -> E
     return config
 
 
-_YAML11_EXPONENT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
-"""A number in exponent notation, which YAML 1.2 reads as a float and PyYAML's YAML 1.1 as a string."""
+_YAML11_TEXT_NUMBER = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+|[-+]\.[0-9]+")
+"""A number YAML 1.2 reads as a float and PyYAML's YAML 1.1 as a string: one in exponent notation without a dot or
+without a sign on its exponent (``1e-8``, ``5.0e2``), or signed with no digit before its dot (``-.5``)."""
 
 
 def yaml12_number(value: Any) -> Any:
-    """``value`` as YAML 1.2 (and map_server's yaml-cpp) reads it: a text in exponent notation without a dot (``1e-8``,
-    ``5e-2``), which PyYAML's YAML 1.1 leaves as text, as its float; any other value as it is."""
-    return float(value) if isinstance(value, str) and _YAML11_EXPONENT.fullmatch(value.strip()) else value
+    """``value`` as YAML 1.2 (and map_server's yaml-cpp) reads it: a text that PyYAML's YAML 1.1 leaves as text and YAML
+    1.2 reads as a number (``1e-8``, ``5e-2``, ``-.5``: ``_YAML11_TEXT_NUMBER``), as its float; any other value as it is.
+    A file or ``--set`` read by ``yaml_load`` has these as numbers already; this takes them where a text comes by
+    another way (a dict of the Python API, a scene's meta)."""
+    return float(value) if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value.strip()) else value
 
 
 def _convert(value: Any, annotation: Any, where: str) -> Any:
@@ -626,7 +643,7 @@ def flag_value(text: str, annotation: Any) -> Any:
     (None) and a list given as one (``[a, b]``); any other field reads it as YAML (``0.9``, ``true``), as ``--set``
     does. The value, for ``field_value`` to check."""
     try:
-        parsed = yaml.safe_load(text)
+        parsed = yaml_load(text)
     except yaml.YAMLError:
         parsed = text  # said by the field's own check
     if not text_field(annotation):
@@ -655,7 +672,7 @@ def _one_or_separated(value: Any, inner: Any, where: str) -> list[Any]:
     if inner is str:
         return items
     try:
-        return [yaml.safe_load(item) for item in items]
+        return [yaml_load(item) for item in items]
     except yaml.YAMLError:
         return items  # said by the item's own check (expected a number, ...)
 
@@ -949,7 +966,7 @@ def commented_yaml(comments: list[str], data: Any) -> str:
     """``comments`` as ``# `` lines, then ``data`` as YAML in its own key order: what ``up --dry-run``, ``up --resolved``
     and ``eval --resolved`` print, a file that loads back as the profile or config it shows: every line of a comment
     (a profile's name or a path may hold a line break) is a comment line."""
-    return "".join(f"# {line}\n" for comment in comments for line in comment.splitlines() or [""]) + yaml.safe_dump(data, sort_keys=False)
+    return "".join(f"# {line}\n" for comment in comments for line in comment.splitlines() or [""]) + yaml_dump(data, sort_keys=False)
 
 
 def set_flag_text(key: str, value: Any) -> str:
@@ -1066,7 +1083,7 @@ def _same_yaml(a: Any, b: Any) -> bool:
 
     def as_yaml(value: Any) -> Any:
         try:
-            return yaml.safe_load(value) if isinstance(value, str) else value
+            return yaml_load(value) if isinstance(value, str) else value
         except yaml.YAMLError:
             return value
 
@@ -1136,7 +1153,7 @@ def refuse_a_flag_and_a_setting_that_disagree(
 def yaml_text(value: Any) -> str:
     """``value`` in YAML on one line, as a flag's value reads back (``true``, ``[a, 2]``, ``café``): what
     ``set_flag_text`` and ``train``'s field flags write of it."""
-    text = yaml.safe_dump(value, default_flow_style=True, width=10**9, allow_unicode=True).strip()
+    text = yaml_dump(value, default_flow_style=True, width=10**9, allow_unicode=True).strip()
     return text.removesuffix("...").strip()
 
 
@@ -1157,8 +1174,72 @@ def set_dotted(data: dict[str, Any], key: str, value: Any) -> None:
     node[parts[-1]] = value
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` that refuses a key given twice in one mapping: YAML's loaders keep the last one
+_YAML_INT_TAG, _YAML_FLOAT_TAG, _YAML_TIMESTAMP_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float", "tag:yaml.org,2002:timestamp"
+_YAML12_INT = re.compile(r"^(?:[-+]?[0-9]+|0o[0-7]+|0x[0-9a-fA-F]+)$")
+"""YAML 1.2 core schema's integers: decimal (``010`` is 10), ``0o`` octal, ``0x`` hexadecimal; no ``_`` in them,
+no base 60 (``1:30``), no C octal (``010`` as 8), which YAML 1.1 has."""
+_YAML12_FLOAT = re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?|[-+]?\.(?:inf|Inf|INF)|\.nan|\.NaN|\.NAN)$")
+"""YAML 1.2 core schema's floats: ``5e-2``, ``-.5``, ``2.``, ``.inf``, ``.nan`` (an integer matches too: ints are
+tried first). Anchored, as PyYAML's resolvers match from the start only."""
+_DIGITS = "-+0123456789"
+
+
+def _yaml12_int(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> int:
+    """An integer of YAML 1.2's core schema: ``010`` is ten, ``0o10`` eight, ``0x10`` sixteen."""
+    text = str(loader.construct_scalar(node))
+    try:
+        if text.startswith(("0o", "0x")):
+            return int(text[2:], 8 if text[1] == "o" else 16)
+        return int(text, 10)
+    except ValueError:  # an explicit !!int of no integer
+        raise yaml.constructor.ConstructorError(None, None, f"{text!r} is no integer of YAML 1.2", node.start_mark) from None
+
+
+class YamlLoader(yaml.SafeLoader):
+    """The one reader of every YAML file and value cso-runtime takes (configs, profiles, ``--set`` and field flags, a
+    run's ``profile.yaml``, map_server map YAMLs, ``yaml_load``): ``yaml.SafeLoader`` with YAML 1.2 core schema's
+    numbers, as map_server's yaml-cpp and any YAML 1.2 reader reads them. PyYAML's YAML 1.1 read ``010`` as 8,
+    ``1_000`` as 1000, ``1:30`` as 90 and ``2024-01-01`` as a date, and left ``5e-2`` and ``-.5`` as text: here they
+    are 10, the texts ``1_000``, ``1:30`` and ``2024-01-01``, 0.05 and -0.5 (``0x10`` 16, ``0o10`` 8). Booleans are YAML
+    1.1's, ``yes``/``no``/``on``/``off`` (any case as PyYAML) true or false beside ``true``/``false``, as yaml-cpp's
+    ``as<bool>`` (a map's ``negate``) and ROS 2's parameter files (rcl_yaml_param_parser) read them, and as this
+    project's ``--set`` has read them: a text ``on`` is written quoted (``'on'``)."""
+
+
+YamlLoader.yaml_implicit_resolvers = {  # SafeLoader's, less YAML 1.1's numbers and dates
+    first: [(tag, regexp) for tag, regexp in resolvers if tag not in (_YAML_INT_TAG, _YAML_FLOAT_TAG, _YAML_TIMESTAMP_TAG)]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+YamlLoader.add_implicit_resolver(_YAML_INT_TAG, _YAML12_INT, list(_DIGITS))  # before the float's, which matches 10 too
+YamlLoader.add_implicit_resolver(_YAML_FLOAT_TAG, _YAML12_FLOAT, [*_DIGITS, "."])
+YamlLoader.add_constructor(_YAML_INT_TAG, _yaml12_int)
+
+
+class YamlDumper(yaml.SafeDumper):
+    """The one writer of YAML that cso-runtime reads back or hands on (``up --resolved``, a run's ``profile.yaml``,
+    the launcher's profile, a map's YAML, ``yaml_text``): ``yaml.SafeDumper``, quoting a text that YAML 1.1 or YAML
+    1.2 would read as anything but that text (``'1e3'``, ``'-.5'`` as ``'010'`` and ``'on'``), so that ``YamlLoader``,
+    PyYAML's own loader and yaml-cpp all read it back as the text."""
+
+
+for _first, _resolvers in YamlLoader.yaml_implicit_resolvers.items():
+    for _tag, _regexp in _resolvers:
+        if _tag in (_YAML_INT_TAG, _YAML_FLOAT_TAG):
+            YamlDumper.add_implicit_resolver(_tag, _regexp, [_first])
+
+
+def yaml_load(stream: Any) -> Any:
+    """A YAML text or stream as ``YamlLoader`` reads it (YAML 1.2's numbers); a ``yaml.YAMLError`` where it is no YAML."""
+    return yaml.load(stream, Loader=YamlLoader)
+
+
+def yaml_dump(data: Any, **options: Any) -> str:
+    """``data`` in YAML as ``YamlDumper`` writes it (``yaml.safe_dump``'s ``options``): what ``yaml_load`` reads back."""
+    return str(yaml.dump(data, Dumper=YamlDumper, **options))
+
+
+class _UniqueKeyLoader(YamlLoader):
+    """``YamlLoader`` that refuses a key given twice in one mapping: YAML's loaders keep the last one
     silently, so an edited profile's first value would be dropped without a word."""
 
     def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:

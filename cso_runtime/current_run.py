@@ -38,20 +38,23 @@ def new_run_dir(runs_dir: Path, profile: Profile) -> Path:
     return run_dir
 
 
-def read_current_run(runs_dir: Path) -> dict[str, Any] | None:
+def read_current_run(runs_dir: Path, warn: bool = True) -> dict[str, Any] | None:
     """The current run's file (``runs/current.json``), or None when there is none or it is not one a
-    launcher wrote (half-written, edited by hand: said in a warning, and then treated as absent)."""
+    launcher wrote (half-written, edited by hand: said in a warning, and then treated as absent). ``warn`` False: not
+    said (a second look at a file the first look warned of)."""
     path = runs_dir / CURRENT_RUN
     try:
         info = json.loads(path.read_text())
     except (FileNotFoundError, NotADirectoryError):  # no run file, or no runs folder (a file there): the command says so
         return None
     except (OSError, ValueError) as exc:
-        log.warning("ignoring %s: not readable as JSON (%s)", path, exc)
+        if warn:
+            log.warning("ignoring %s: not readable as JSON (%s)", path, exc)
         return None
     problem = run_file_problem(info)
     if problem:
-        log.warning("ignoring %s: %s", path, problem)
+        if warn:
+            log.warning("ignoring %s: %s", path, problem)
         return None
     return info
 
@@ -236,6 +239,7 @@ def down(runs_dir: Path, timeout_s: float | None = None, stop_starting: bool = T
     after its own launcher died leaves another ``up`` of the folder to start)."""
     from cso_runtime.run_profile import SupervisionConfig  # noqa: PLC0415 - see TYPE_CHECKING above
 
+    there_at_first = (runs_dir / CURRENT_RUN).exists()  # an unusable one is warned of by the first look, not again
     info = read_current_run(runs_dir)
     starting: list[str] = []
     if stop_starting and (info is None or not current_launcher_alive(info)):  # a run file its launcher outlived does not keep an `up` from starting
@@ -243,7 +247,7 @@ def down(runs_dir: Path, timeout_s: float | None = None, stop_starting: bool = T
     if info is None:
         if starting:
             return True, "; ".join(starting)
-        info = read_current_run(runs_dir)  # written (and its launcher's file removed) since the first look
+        info = read_current_run(runs_dir, warn=not there_at_first)  # written (and its launcher's file removed) since the first look
     if info is None:
         if not (runs_dir / CURRENT_RUN).exists():  # the common case: every run has ended (or none was started here)
             return False, f"nothing running (no current run in {runs_dir}; {runs_command('runs', runs_dir)} lists past runs)"

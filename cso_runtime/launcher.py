@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import yaml
 import zenoh
 
 from cso_runtime import __version__
@@ -45,6 +44,8 @@ from cso_runtime.config import (
     from_dict,
     load_yaml,
     to_dict,
+    yaml_dump,
+    yaml_load,
 )
 from cso_runtime.current_run import (
     CURRENT_RUN,
@@ -65,6 +66,7 @@ from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EPISODE_OVER,
     LAST_EPISODE_FIGURES,
+    LOST_RESULTS_KEPT,
     ROS_RESUME_BY,
     EpisodeResultMsg,
     EpisodeStatusMsg,
@@ -375,7 +377,9 @@ class Launcher:
         self.end_heard: EpisodeStatusMsg | None = None
         """The latest status that said the episode is over (``EPISODE_OVER``) since the run loop last looked
         (``episode_end_heard``): one of the episode exploring can replace ``status`` before the loop, which looks every
-        0.1 s, gets to it (a stray end followed by the sim's next step's), and that end was neither judged nor counted."""
+        0.1 s, gets to it (a stray end followed by the sim's next step's), and that end was neither judged nor counted.
+        An end of an episode a restart left behind (``episodes_before``) is kept here only while none is: it never
+        takes the place of an end of the running episode."""
         self.stray_judged: EpisodeStatusMsg | None = None
         """The latest end judged not the run's end (a stray, ``stray_end``; one of an episode a restart left behind,
         ``end_left_behind``): while it stays ``status`` (the sim says nothing more for a while), the run loop's next
@@ -386,9 +390,13 @@ class Launcher:
         (``judge_episode_end``)."""
         self.episodes_before: set[int] = set()
         """The episodes heard running before ``episode_running`` (a restarted sim's is a new one): an end of one of
-        them is left behind at once (``end_left_behind``), unless its result is here; a late status of one of them
-        running does not make it the running one again. An end of an episode never heard running (a restarted sim's
+        them is left behind at once (``end_left_behind``), unless its result is here; a late status of one of them is
+        none of the running episode's: it does not make it the running one again, nor replace ``status`` (the launcher's
+        status, the pace, the end the run loop judges: a late end of it after the running one's hid that). An end of an episode never heard running (a restarted sim's
         that ended before it said it runs) is awaited, and judged by its result."""
+        self.lost_results: list[dict[str, Any]] = []
+        """The episodes whose end was left behind with no result (``end_left_behind``), as ``launcher_status``'s
+        ``lost_results`` names them (the latest ``LOST_RESULTS_KEPT``): ``status`` says that their results were lost."""
         self.status_watch: StatusWatch | None = None
         """Which services answer the launcher's status queries (their hang check), once the session is open."""
         self.service_notes: dict[str, str] = {}
@@ -443,7 +451,7 @@ class Launcher:
     def write_profile(self) -> None:
         """The run's ``profile.yaml``, whole (``write_text_atomic``): every service reads it as it starts, and one
         that starts while it is written again (the run folder made again) must not read half of it."""
-        write_text_atomic(self.profile_path, yaml.safe_dump(self.data, sort_keys=False))
+        write_text_atomic(self.profile_path, yaml_dump(self.data, sort_keys=False))
 
     def write_run_file(self, state: str) -> None:
         """``run.json`` and the runs folder's current-run file: the run's state, endpoints and processes, which
@@ -470,6 +478,8 @@ class Launcher:
             **({"episode_ended_at": round(self.episode_ended_at, 3)} if self.episode_ended_at is not None else {}),
             **({"lost_router": self.joined_router()} if self.router_lost_at is not None else {}),
             **({"run_dir_lost": self.run_folder.losses} if self.run_folder.losses else {}),
+            # the episodes whose result a restart of the referee lost (`end_left_behind`): `runs` and `report` say so
+            **({"lost_results": list(self.lost_results)} if self.lost_results else {}),
             "services": {
                 c.name: {
                     "pid": c.proc.pid if c.proc else None,
@@ -558,15 +568,22 @@ class Launcher:
                 log.warning("rejected payload on %s: %s", key, exc)
             return
         if isinstance(msg, EpisodeStatusMsg):
-            before, now = self.status, time.monotonic()
-            if before is None or (before.episode, before.step, before.state) != (msg.episode, msg.step, msg.state):
-                self.step_changed_s = now
+            now = time.monotonic()
             with self._lock:  # one with the end heard: the run loop, between them, would take one end twice
+                if msg.episode in self.episodes_before:
+                    # Late (or replayed), of an episode a restart left behind: it runs no more (ids are drawn anew per
+                    # episode), and its status is none of the running one's (the launcher's status, the pace, the
+                    # end the run loop judges). Its end is judged all the same (its result may be here), never in
+                    # place of an end of the running episode heard before it.
+                    if msg.state in EPISODE_OVER and self.end_heard is None:
+                        self.end_heard = msg
+                    return
+                before = self.status
+                if before is None or (before.episode, before.step, before.state) != (msg.episode, msg.step, msg.state):
+                    self.step_changed_s = now
                 self.status, self.status_heard_at_s = msg, now
                 if msg.state in EPISODE_OVER:
                     self.end_heard = msg
-                elif msg.episode in self.episodes_before:
-                    pass  # late, of an episode a restart left behind: it runs no more (ids are drawn anew per episode)
                 else:
                     if self.episode_running is not None and self.episode_running != msg.episode:
                         self.episodes_before.add(self.episode_running)
@@ -662,6 +679,7 @@ class Launcher:
             services.setdefault(name, {"liveliness": name in self.alive_services, "outside": True, "awaited": name in self.awaited_services})
         with self._lock:
             rejected, handler_errors = dict(self.rejected), dict(self.handler_errors)
+            lost_results = [dict(e) for e in self.lost_results]
         state = "stopping" if self.stop_event.is_set() else "running"
         heard = self.status
         last = None
@@ -673,7 +691,7 @@ class Launcher:
         lost = self.joined_router() if self.router_lost_at is not None else None
         return LauncherStatusMsg(
             self.run_id, state, services, rejected, handler_errors, last, pace, lost, self.run_folder.losses, self.pause_status(), self.coverage_measured,
-            referee_kind(self.profile.services),
+            referee_kind(self.profile.services), lost_results,
         )
 
     # --- supervision ------------------------------------------------------------------------------
@@ -1029,14 +1047,22 @@ class Launcher:
         """``end`` is of an episode the referee ran before the one running (``judge_episode_end``): the sim restarted since,
         into a new episode, and the ended one's result, never heard, went with the process that ran it. No stray (not
         counted in ``rejected``: the status may well be that episode's real end), and not the run's end either: the run
-        goes on with the episode running, whose end and results are the run's, as after any restart of the sim. Logged."""
-        restarted = " (the sim restarted)" if self.simulated else ""
+        goes on with the episode running, whose end and results are the run's, as after any restart of the sim. Logged,
+        and named in the launcher's status (``lost_results``: ``status`` says so), once per episode."""
+        # A ROS 2 bridge starts a new episode in the same process (the robot's odometry or clock started again).
+        restarted, lost_with = ("the sim restarted", " with the process that ran it") if self.simulated else ("the referee started a new one", "")
         log.warning(
-            "episode %d ended (%s at step %d), but episode %d has started since%s and no result of episode %d came: it is lost "
-            "with the process that ran it; the run goes on with episode %d, whose results will be the run's",
-            end.episode, end.state, end.step, self.episode_running, restarted, end.episode, self.episode_running,
+            "episode %d ended (%s at step %d), but episode %d has started since (%s) and no result of episode %d came: it is lost%s; "
+            "the run goes on with episode %d, whose results will be the run's",
+            end.episode, end.state, end.step, self.episode_running, restarted, end.episode, lost_with, self.episode_running,
         )  # fmt: skip
+        lost = {"episode": end.episode, "state": end.state, "step": end.step, "running": self.episode_running or 0}
         self.ended_status, self.stray_judged = None, end
+        if lost in self.lost_results:  # its end heard again (late, replayed): nothing new to keep or write
+            return
+        with self._lock:  # read by the status queryable's thread
+            self.lost_results = [e for e in self.lost_results if e["episode"] != end.episode][-(LOST_RESULTS_KEPT - 1) :] + [lost]
+        self.write_run_file("running")  # run.json says it from now on: `runs` of a launcher killed later still does
 
     def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:
         """The end ``result`` belongs to: the episode's real end and its result can come while a stray end is awaited,
@@ -1096,6 +1122,8 @@ class Launcher:
         meta["config"] = to_dict(self.profile.exploration_config())  # every exploration parameter, as eval's summary
         if self.ended_status is not None:  # whose results these are: a robot may go on in another episode after this end
             meta["episode"] = self.ended_status.episode
+        if self.lost_results:  # episodes before it whose result a restart of the referee lost: report.html says so
+            meta["lost_results"] = list(self.lost_results)
         meta["coverage_measured"] = self.coverage_measured  # whether coverage_pct is a measure: `runs` and report.html read it
         meta["sim"] = self.profile.simulator()  # 2d or mujoco, as eval's; null on a real robot (episodes.csv's sim)
         sim_settings = self.profile.simulator_settings()
@@ -1737,7 +1765,7 @@ def start_detached(
     record_path = _record_path(run_dir, record or animate)
     run_dir.mkdir(parents=True, exist_ok=True)
     data_path = run_dir / "profile.requested.yaml"
-    write_text_atomic(data_path, yaml.safe_dump(data, sort_keys=False))
+    write_text_atomic(data_path, yaml_dump(data, sort_keys=False))
     log_path = run_dir / "logs" / "launcher.log"
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with log_path.open("ab") as fh:
@@ -1755,7 +1783,7 @@ def start_detached(
     # launcher takes to start would leave it nothing to run (the run goes on, as for a folder deleted later).
     assert proc.stdin is not None
     with contextlib.suppress(OSError), proc.stdin:  # a launcher dead at once: its exit code says why, below
-        proc.stdin.write(yaml.safe_dump(data, sort_keys=False).encode())
+        proc.stdin.write(yaml_dump(data, sort_keys=False).encode())
     starting = run_dir / STARTING_LAUNCHER  # `down` finds the launcher by it until its run file does (current_run.down)
     try:
         with contextlib.suppress(OSError):  # the run folder deleted as the launcher starts (which makes it again): not found then
@@ -1856,7 +1884,7 @@ def main(argv: list[str] | None = None) -> int:
         record_command_line(shlex.split(args.command_line))
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT)
     from_up = str(args.profile_data) == STDIN_PATH
-    data = yaml.safe_load(sys.stdin) if from_up else load_yaml(args.profile_data)
+    data = yaml_load(sys.stdin) if from_up else load_yaml(args.profile_data)
     if from_up and not data:  # stdin closed with nothing on it: `up --detach` killed (SIGKILL) before its handover
         log.error("no profile came from `up --detach` (was it killed as it started this launcher?): no run was started")
         return EXIT_INTERRUPTED

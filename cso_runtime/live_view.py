@@ -154,6 +154,7 @@ class LiveView:
             COMMAND_NODE_NOTE,
             NOT_ANSWERING,
             after_end_words,
+            lost_result_words,
             pose_words,
             presence_words,
             status_of,
@@ -201,6 +202,8 @@ class LiveView:
                 ("decisions", f"{st.decisions} (last {st.last_decision_ms:.1f} ms)"),
             ):
                 t.add_row(k, escape(v))  # text, not markup: a scene file's name may hold brackets
+        for lost in seen["lost_results"]:  # an episode before this one ended, its result lost: as `status` says it
+            t.add_row("lost result", escape(lost_result_words(lost, seen["referee"])))
         for c in la.children:
             # its process runs, its token not there: starting, or gone since it came up (stopped, hung) until the hang check kills it
             waits = NOT_ANSWERING if c.came_up else "starting"

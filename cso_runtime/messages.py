@@ -1620,6 +1620,23 @@ stopping its services; ``reason``: why it ended, as ``no_frontier_why`` says it,
 where the robot was then and how it moved, in the scene's frame, which ``map_origin`` places in the user's map frame)."""
 
 
+LOST_RESULTS_KEPT = 16
+"""How many of the run's episodes whose result was lost to a restart of the referee ``launcher_status`` names (the
+latest): one per restart of the sim after an episode's end, so a handful at most."""
+
+
+def lost_results_of(v: Any, where: str) -> list[dict[str, Any]]:
+    """``launcher_status.lost_results`` (and run.json's, ``runs``): absent or nil (an older launcher's) is none."""
+    if v is None:
+        return []
+    if not isinstance(v, list) or len(v) > LOST_RESULTS_KEPT or not all(isinstance(e, dict) for e in v):
+        raise MessageError(f"{where}: expected a list of at most {LOST_RESULTS_KEPT} mappings")
+    return [
+        {"episode": _int(e, "episode", where), "state": _str(e, "state", where, max_len=64), "step": _int(e, "step", where), "running": _int(e, "running", where)}
+        for e in v
+    ]
+
+
 @dataclass
 class LauncherStatusMsg(Message):
     """The launcher's view: run id, each service process (pid, alive, restarts, given up), rejections, and
@@ -1661,9 +1678,17 @@ class LauncherStatusMsg(Message):
     ``sim``, ``ros2_bridge`` or ``own`` (one of one's own: a command node publishing ``episode_status``, no real robot),
     so that ``status`` words a coverage it has no ground truth for as the run's (``live_view.no_ground_truth_words``).
     Optional on decoding (older launchers do not send it: ``status`` then says a real robot's); None, absent."""
+    lost_results: list[dict[str, Any]] = field(default_factory=list)
+    """The episodes whose result was lost to a restart of the referee (``Launcher.end_left_behind``: the sim restarted
+    into a new episode before the ended one's result came, and the run went on with the new one), oldest first, the
+    latest ``LOST_RESULTS_KEPT`` of the run: each ``episode`` (its id), ``state`` and ``step`` (of its end, as its
+    ``episode_status`` said) and ``running`` (the episode the run went on with), which ``status`` says in words.
+    Optional on decoding (older launchers do not send it); absent while empty."""
 
     def body(self) -> dict[str, Any]:
         body: dict[str, Any] = {"run_id": self.run_id, "state": self.state, "services": self.services, "rejected": self.rejected, "handler_errors": self.handler_errors}
+        if self.lost_results:
+            body["lost_results"] = self.lost_results
         if self.coverage_measured is not None:
             body["coverage_measured"] = self.coverage_measured
         if self.referee is not None:
@@ -1722,7 +1747,7 @@ class LauncherStatusMsg(Message):
         referee = None if b.get("referee") is None else _str(b, "referee", w, max_len=64)
         return cls(
             _str(b, "run_id", w), _str(b, "state", w), services, _counts(b, "rejected", w), _counts(b, "handler_errors", w, optional=True), last, pace, lost, run_dir_lost,
-            pause, measured, referee,
+            pause, measured, referee, lost_results_of(b.get("lost_results"), f"{w}.lost_results"),
         )
 
     def to_dict(self) -> dict[str, Any]:

@@ -28,23 +28,30 @@ class StepPace:
 
     def __init__(self, control_period_s: float) -> None:
         self.control_period_s = control_period_s
-        self._first: tuple[int, int, float] | None = None
-        """(episode, step, arrival time in s) of the first status counted."""
-        self._latest: tuple[int, float] | None = None
-        """(step, arrival time in s) of the latest status beyond the first."""
+        self._measure: tuple[tuple[int, int, float], tuple[int, float] | None] | None = None
+        """(episode, step, arrival time in s) of the first status counted, and (step, arrival time in s) of the latest
+        beyond it (None before one). One attribute, replaced whole: ``observe`` runs on a Zenoh thread while the run
+        loop and the status queryable read ``real_time_factor``, with no lock, and a reader between two writes of two
+        attributes (a new episode's first, then its latest set to None) unpacked a None."""
 
     def observe(self, episode: int, step: int, at_s: float) -> None:
         """A status of ``episode`` at ``step`` (past its start) arrived at ``at_s`` (a monotonic clock, s)."""
-        if self._first is None or episode != self._first[0]:
-            self._first, self._latest = (episode, step, at_s), None
-        elif step > self._first[1] and (self._latest is None or step >= self._latest[0]):
-            self._latest = (step, at_s)
+        measure = self._measure
+        if measure is None or episode != measure[0][0]:
+            self._measure = ((episode, step, at_s), None)
+            return
+        first, latest = measure
+        if step > first[1] and (latest is None or step >= latest[0]):
+            self._measure = (first, (step, at_s))
 
     @property
     def real_time_factor(self) -> float | None:
         """None until two statuses of one episode, some steps apart, have arrived."""
-        if self._first is None or self._latest is None:
+        measure = self._measure  # read once: ``observe`` may replace it meanwhile
+        if measure is None:
             return None
-        _, first_step, first_s = self._first
-        step, at_s = self._latest
+        (_, first_step, first_s), latest = measure
+        if latest is None:
+            return None
+        step, at_s = latest
         return real_time_factor((step - first_step) * self.control_period_s, at_s - first_s)

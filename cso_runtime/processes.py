@@ -205,24 +205,39 @@ def stop_processes(processes: Sequence[Any], grace_s: float) -> list[Any]:
     return started
 
 
-def end_overdue_stop(deadline_s: float, exit_code: int, last_words: Callable[[], str] | None = None) -> None:
-    """Bound a command's stop (after its first stop signal): unless it has ended ``deadline_s`` seconds from now, say so
-    with every thread's stack (where it hung), kill its ``multiprocessing`` children, write ``last_words()`` (how to go
-    on from what it wrote) and exit with ``exit_code`` at once. A stop that waits for ever on something (a child, a lock,
-    a pipe) then still ends, and says where it waited, instead of leaving a process that looks alive and does nothing.
-    Safe to call from a signal handler: a bare thread, no lock the interrupted main thread may hold."""
+OVERDUE_STOP_SAY_S = 2.0
+"""How long an overdue stop (``end_overdue_stop``) waits for its words (the stacks, ``last_words``) before it ends
+without them."""
 
-    def watch() -> None:
-        time.sleep(deadline_s)
+
+def end_overdue_stop(deadline_s: float, exit_code: int, last_words: Callable[[], str] | None = None, say_within_s: float = OVERDUE_STOP_SAY_S) -> None:
+    """Bound a command's stop (after its first stop signal): unless it has ended ``deadline_s`` seconds from now, say so
+    with every thread's stack (where it hung) and ``last_words()`` (how to go on from what it wrote), kill its
+    ``multiprocessing`` children and exit with ``exit_code`` at once. A stop that waits for ever on something (a child, a
+    lock, a pipe) then still ends, and says where it waited, instead of leaving a process that looks alive and does
+    nothing. Its words are said by a thread of their own, waited on for ``say_within_s`` at most: a stop hangs most
+    often where the process cannot write (stderr a pipe no one reads, a terminal paused with Ctrl-S, an output folder
+    on a file system that hangs, which ``last_words`` may look at), and the end must not wait on them too.
+    Safe to call from a signal handler: bare threads, no lock the interrupted main thread may hold."""
+    said = _thread.allocate_lock()
+    said.acquire()
+
+    def say() -> None:
         with contextlib.suppress(Exception):
             os.write(2, f"error: the stop took more than {deadline_s:g} s; ended at once. Where each thread was:\n".encode())
             faulthandler.dump_traceback(file=2, all_threads=True)  # stderr's descriptor: sys.stderr may be any object
-        for child in list(getattr(multiprocessing.process, "_children", ())):  # a copy (taken whole under the GIL)
-            with contextlib.suppress(Exception):
-                os.kill(child.pid, signal.SIGKILL)
         if last_words is not None:
             with contextlib.suppress(Exception):
                 os.write(2, f"{last_words()}\n".encode())
+        said.release()
+
+    def watch() -> None:
+        time.sleep(deadline_s)
+        _thread.start_new_thread(say, ())
+        said.acquire(timeout=say_within_s)
+        for child in list(getattr(multiprocessing.process, "_children", ())):  # a copy (taken whole under the GIL)
+            with contextlib.suppress(Exception):
+                os.kill(child.pid, signal.SIGKILL)
         os._exit(exit_code)
 
     _thread.start_new_thread(watch, ())

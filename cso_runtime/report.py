@@ -358,6 +358,24 @@ def run_settings_text(meta: dict[str, Any]) -> str:
     return ", ".join(parts)
 
 
+def lost_results_said(lost: Any, meta: dict[str, Any]) -> str:
+    """What report.html says of the episodes of a run of ``up`` whose result a restart of the referee lost before
+    the episode of its results ended (``meta.lost_results``, as run.json's), each as ``status`` says it; a malformed
+    list (a summary.json edited by hand) is said to be one."""
+    from cso_runtime.messages import MessageError, lost_results_of  # noqa: PLC0415 - the launcher's status's reading
+    from cso_runtime.run_profile import referee_kind  # noqa: PLC0415
+    from cso_runtime.status import lost_result_words  # noqa: PLC0415
+
+    profile = meta.get("profile")
+    services = profile.get("services") if isinstance(profile, dict) else None
+    try:
+        entries = lost_results_of(lost, "meta.lost_results")
+    except MessageError as exc:
+        return f"results of earlier episodes were lost to a restart of the referee ({exc})"
+    referee = referee_kind(services) if isinstance(services, dict) else None
+    return "; ".join(lost_result_words(e, referee) for e in entries)
+
+
 def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
     """Write ``out_dir/report.html`` from ``summary`` and the figures found in ``out_dir``; returns its path."""
     out_dir = Path(out_dir)
@@ -382,6 +400,8 @@ def write_report(out_dir: Path, summary: dict[str, Any]) -> Path:
             f"<p style='color:#b00'><b>Interrupted: {stopped.get('episodes_finished')} of {stopped.get('episodes_planned')} episodes finished</b>; "
             "the tables and figures cover those only. The same command with --resume runs the rest.</p>"
         )
+    if lost := meta.get("lost_results"):  # `up`'s: the episode of these results is not the run's first to end
+        parts.append(f"<p style='color:#b00'>{html.escape(lost_results_said(lost, meta))}.</p>")
     no_coverage = not coverage_measured(summary)
     parts += [
         "<h2>Table 1</h2>",

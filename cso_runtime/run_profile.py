@@ -591,12 +591,19 @@ def load_profile(
     data.update(given)
     for key, value in (settings or {}).items():
         set_dotted(data, key, value)
+    without = list(dict.fromkeys(without or []))  # repeated names: once
+    # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's, and a
+    # section a --set broke is the --set's where --connect, --foxglove or --without read it.
+    flags = list(flag_of.values()) + [f"--connect {endpoint}" for endpoint in connect or []]
+    flags += [f"--namespace {namespace}"] * (namespace is not None) + [f"--zenoh-config {zenoh_config}"] * (zenoh_config is not None)
+    flags += [set_flag_text(k, v) for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
+    where = f"{path} with {' '.join(flags)}" if flags else str(path)
     if connect:
         router = data.get("router") or {}
         if not isinstance(router, dict):
-            raise ConfigError(f"{path}: router must be a mapping")
+            raise ConfigError(f"{where}: router must be a mapping")
         earlier = router.get("connect")  # a list field's one value is its list (config._convert), not its letters
-        data["router"] = {**router, "connect": [*([] if earlier is None else field_value(earlier, list[str], f"{path}: router.connect")), *connect]}
+        data["router"] = {**router, "connect": [*([] if earlier is None else field_value(earlier, list[str], f"{where}: router.connect")), *connect]}
     if namespace is not None:
         services = data.get("services") or {}
         if not isinstance(services, dict) or "ros2_bridge" not in services:
@@ -605,16 +612,10 @@ def load_profile(
     if foxglove:
         services = data.get("services") or {}
         if not isinstance(services, dict):
-            raise ConfigError(f"{path}: services must be a mapping")
+            raise ConfigError(f"{where}: services must be a mapping")
         data["services"] = {**services, "foxglove_bridge": services.get("foxglove_bridge") or {}}
-    without = list(dict.fromkeys(without or []))  # repeated names: once
     if without:
-        leave_out(data, without, path, foxglove)
-    # An error names the profile and the flags that changed it: a bad --scene is the flag's fault, not the file's.
-    flags = list(flag_of.values()) + [f"--connect {endpoint}" for endpoint in connect or []]
-    flags += [f"--namespace {namespace}"] * (namespace is not None) + [f"--zenoh-config {zenoh_config}"] * (zenoh_config is not None)
-    flags += [set_flag_text(k, v) for k, v in (settings or {}).items()] + ["--foxglove"] * foxglove + [f"--without {n}" for n in without]
-    where = f"{path} with {' '.join(flags)}" if flags else str(path)
+        leave_out(data, without, path, foxglove, where)
     set_zenoh_config(data, path, zenoh_config, where)
     scene = data.get("scene")
     if isinstance(scene, str) and spec_names_a_path(scene):
@@ -655,15 +656,17 @@ def set_zenoh_config(data: dict[str, Any], path: Path, zenoh_config: str | None,
     data["router"] = {**router, "zenoh_config": str(Path(given).absolute())}
 
 
-def leave_out(data: dict[str, Any], names: list[str], path: Path, foxglove: bool = False) -> None:
+def leave_out(data: dict[str, Any], names: list[str], path: Path, foxglove: bool = False, where: str | None = None) -> None:
     """Move ``names`` from the profile mapping's ``services`` to its ``without`` list (``up --without``), in the
     profile's order (a service of the profile's own that stands for no built-in one is only dropped); a ConfigError (nothing started) for a name that is no service, one the profile does not
-    have, a referee (the episode cannot run without it) or the ``foxglove_bridge`` that ``--foxglove`` asks for."""
+    have, a referee (the episode cannot run without it) or the ``foxglove_bridge`` that ``--foxglove`` asks for.
+    ``where``: the profile and the flags that changed it, as an error of its keys names them (``path`` alone without)."""
     from services import SERVICE_NAMES  # noqa: PLC0415 - services import zenoh
 
+    where = where or str(path)
     services = data.get("services") or {}
     if not isinstance(services, dict):
-        raise ConfigError(f"{path}: services must be a mapping")
+        raise ConfigError(f"{where}: services must be a mapping")
     for name in names:
         if name not in SERVICE_NAMES and name not in services:
             own = [n for n in services if n not in SERVICE_NAMES]
@@ -676,7 +679,7 @@ def leave_out(data: dict[str, Any], names: list[str], path: Path, foxglove: bool
             raise ConfigError("--without foxglove_bridge and --foxglove: give one or the other")
         if name not in services:
             raise ConfigError(f"--without {name}: profile {path} has no {name} service (it has {', '.join(services) or 'none'})")
-    earlier = field_value(data.get("without") or [], list[str], f"{path}: without")  # one name is the list of it (config._convert)
+    earlier = field_value(data.get("without") or [], list[str], f"{where}: without")  # one name is the list of it (config._convert)
     # A service of the profile's own that no built-in one stands for is simply not run: nothing else waits for it, and
     # the run's profile.yaml has no class left to draw it by; a built-in one is left to another process (``without``).
     data["without"] = [*earlier, *(n for n in services if n in names and n in SERVICE_NAMES)]

@@ -22,6 +22,7 @@ from typing import Any
 
 import yaml
 
+from cso_runtime.config import yaml_load
 from cso_runtime.current_run import (
     CURRENT_RUN,
     LAUNCHER_DIED,
@@ -80,6 +81,12 @@ class RunSummary:
     stopped_at_step: int | None = None
     """The step its episode was at as the run stopped (run.json's ``last_step``: the last episode status its launcher
     heard) when it has no results to give its steps (interrupted, failed); None otherwise, or not known."""
+    lost_results: list[dict[str, Any]] = field(default_factory=list)
+    """The episodes whose result a restart of the referee lost (run.json's ``lost_results``, as ``launcher_status``
+    names them; a malformed list is none): the run went on with another episode, whose results are the run's."""
+    referee: str | None = None
+    """Which kind of referee ran its episodes (``run_profile.referee_kind`` of its profile's services); None when its
+    profile names none."""
     duration_s: float | None = None
     """How long the run took to the end of its episode (``episode_ended_at - started_at`` of run.json; a detached
     run then waits for ``down``), else to its stop (``ended_at``), or has been running; None for a run file from
@@ -103,6 +110,7 @@ class RunSummary:
             "restarts": self.restarts,
             "duration_s": None if self.duration_s is None else round(self.duration_s, 1),
             "stopped_at_step": self.stopped_at_step,
+            "lost_results": self.lost_results,
             "reason": self.reason,
         }
 
@@ -143,11 +151,11 @@ def summarize_run(run_dir: Path) -> RunSummary:
     read, unreadable = json_object_and_problem(run_dir / "run.json")
     info = read or {}
     try:
-        profile = yaml.safe_load((run_dir / "profile.yaml").read_text()) or {}
+        profile = yaml_load((run_dir / "profile.yaml").read_text()) or {}
     except (OSError, yaml.YAMLError):
         profile = {}
     profile = profile if isinstance(profile, dict) else {}
-    from cso_runtime.run_profile import measures_coverage, profile_scene, runs_a_real_robot  # noqa: PLC0415 - loads the scenes' code: only where runs are read
+    from cso_runtime.run_profile import measures_coverage, profile_scene, referee_kind, runs_a_real_robot  # noqa: PLC0415 - loads the scenes' code: only where runs are read
 
     real_robot = runs_a_real_robot(profile)
 
@@ -168,6 +176,12 @@ def summarize_run(run_dir: Path) -> RunSummary:
     else:
         state = "done" if methods else "stopped"
     services = s if isinstance(s := info.get("services"), dict) else {}
+    from cso_runtime.messages import MessageError, lost_results_of  # noqa: PLC0415 - as the launcher's status reads them
+
+    try:
+        lost_results = lost_results_of(info.get("lost_results"), "run.json's lost_results")
+    except MessageError:  # a file not this version's launcher wrote: nothing known of it
+        lost_results = []
     # A run took until its episode ended (a detached run then waits for `down`), else until it stopped.
     started, ended = info.get("started_at"), info.get("episode_ended_at", info.get("ended_at"))
     duration_s = None
@@ -190,6 +204,8 @@ def summarize_run(run_dir: Path) -> RunSummary:
         restarts=sum(int(s.get("restarts") or 0) for s in services.values() if isinstance(s, dict)),
         duration_s=duration_s,
         reason=f"its run.json cannot be read: {unreadable}" if unreadable else "" if info.get("reason") == STOPPED_BY_DOWN else str(info.get("reason") or ""),  # down's: the state says it
+        lost_results=lost_results,
+        referee=referee_kind(profile["services"]) if isinstance(profile.get("services"), dict) else None,
         stopped_at_step=None if methods.get(method) or state == "running" or not isinstance(last := info.get("last_step"), int) or isinstance(last, bool) else last,
     )
 

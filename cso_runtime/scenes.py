@@ -227,7 +227,7 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     resolution, along the grid's rows and columns; the YAML's ``origin`` (with its yaw) is kept as the plan's
     ``map_origin``, which places it in the map frame. The start is the YAML's optional ``start: [x_m, y_m, yaw_rad]`` (map frame; map_server
     ignores the key), else the free cell farthest from any wall in the largest free region."""
-    from cso_runtime.map_files import MapFileError, load_map_and_meta  # noqa: PLC0415 - PIL only for map input
+    from cso_runtime.map_files import MapFileError, load_map_and_meta, map_yaml_number  # noqa: PLC0415 - PIL only for map input
 
     p = Path(path)
     if not p.is_file():
@@ -244,10 +244,11 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     map_origin = Pose2D(x0_m, y0_m, yaw_rad if -math.pi <= yaw_rad < math.pi else wrap_angle_rad(yaw_rad))  # messages carry yaws in [-10, 10]
     res = geometry.resolution_m
     if start is not None:
-        if not (isinstance(start, list) and len(start) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in start)):
+        numbers = [n for n in map(map_yaml_number, start) if n is not None] if isinstance(start, list) else []  # read as origin is (5e-2 too)
+        if len(numbers) != 3 or len(start) != 3:
             raise SceneError(f"{p.name}: start must be [x_m, y_m, yaw_rad], three finite numbers")
         # The map frame's pose in the grid's frame, whose corner is at `origin`, turned by its yaw (map_server's).
-        pose = Pose2D(*relative_pose(map_origin, Pose2D(*map(float, start))))
+        pose = Pose2D(*relative_pose(map_origin, Pose2D(*numbers)))
         iy, ix = GridGeometry(res, free.shape).world_to_cell(pose.x_m, pose.y_m)
         if not (0 <= iy < free.shape[0] and 0 <= ix < free.shape[1]):
             raise SceneError(f"{p.name}: start ({start[0]}, {start[1]}) m is off the map: {_map_extent(map_origin, free.shape, res)}")

@@ -180,6 +180,7 @@ def status_of(
         "real_time_factor": (launcher or {}).get("real_time_factor"),
         "lost_router": (launcher or {}).get("lost_router"),
         "run_dir_lost": (launcher or {}).get("run_dir_lost", 0),
+        "lost_results": (launcher or {}).get("lost_results", []),  # episodes whose result a restart of the referee lost
         "launcher_state": (launcher or {}).get("state"),
         "pause": (launcher or {}).get("pause"),
         "referee": (launcher or {}).get("referee"),  # which kind of referee the run has (the launcher's word); None: not said
@@ -451,6 +452,29 @@ def presence_words(name: str, service: dict[str, Any], waiting: list[str], stopp
     return words
 
 
+def lost_result_words(lost: dict[str, Any], referee: str | None) -> str:
+    """What ``status`` says of an episode whose result was lost to a restart of the referee (an entry of
+    ``launcher_status``'s ``lost_results``; ``referee``: its ``referee``): ``episode 00000000002a ended (done at
+    step 31), but its result was lost: the sim restarted before it came; the run went on with episode 000000000008``."""
+    return (
+        f"episode {lost['episode']:012x} ended ({lost['state']} at step {lost['step']}), but its result was lost: {lost_how(referee)} before it came; "
+        f"the run went on with episode {lost['running']:012x}"
+    )
+
+
+def lost_how(referee: str | None) -> str:
+    """How an episode's result was lost, by the run's ``referee`` (``run_profile.referee_kind``): a ROS 2 bridge
+    starts a new episode in the process that ran the old one."""
+    return "the sim restarted" if referee == "sim" else "the referee started a new episode"
+
+
+def lost_results_short(lost: list[dict[str, Any]], referee: str | None) -> str:
+    """``runs``' words for the episodes whose result was lost (run.json's ``lost_results``; ``lost_result_words`` says
+    each at length): ``result of episode 00000000002a lost: the sim restarted before it came``."""
+    episodes = ", ".join(f"{e['episode']:012x}" for e in lost)
+    return f"result of episode{'s' if len(lost) > 1 else ''} {episodes} lost: {lost_how(referee)} before {'they' if len(lost) > 1 else 'it'} came"
+
+
 def after_end_words(status: dict[str, Any]) -> str:
     """What the step row adds on a real robot whose episode has ended (``ended_at_step``, from its results): the
     steps shown are the robot's scans since, not the episode's."""
@@ -522,6 +546,7 @@ def render_table(status: dict[str, Any]) -> Table:
         launcher_bits.insert(0, f"LOST the router at {status['lost_router']} (is the robot or its zenoh bridge down?)")
     if status.get("run_dir_lost"):  # its folder deleted mid-run: made again, the logs still written copied back
         launcher_bits.append(f"its run folder was deleted {status['run_dir_lost']} time(s) while it ran: made again (see launcher.log)")
+    launcher_bits += [lost_result_words(lost, status.get("referee")) for lost in status.get("lost_results") or []]
     if stopping:
         launcher_bits.insert(0, "stopping the run's services")
     if launcher_bits:
@@ -534,12 +559,13 @@ RUN_END_WAIT_S = 5.0
 launcher to write that the run stopped: it stops answering just before it writes ``run.json`` a last time."""
 
 
-def current_run_dir(runs_dir: Path) -> Path | None:
-    """The folder of the current run of ``runs_dir`` (its run file's ``run_dir``); None when there is none."""
+def current_run_dir(runs_dir: Path, robot: str) -> Path | None:
+    """The folder of the current run of ``runs_dir`` (its run file's ``run_dir``) where that run is ``robot``'s; None
+    when there is none, or it is another robot's (``--robot r1`` through r0's router: r1's run and folder are another's)."""
     from cso_runtime.current_run import read_current_run  # noqa: PLC0415
 
-    info = read_current_run(runs_dir)
-    return Path(info["run_dir"]) if info is not None and info.get("run_dir") else None
+    info = read_current_run(runs_dir, warn=False)  # read just before by reachable_target, which warned of a bad one
+    return Path(info["run_dir"]) if info is not None and info.get("run_dir") and info.get("robot") == robot else None
 
 
 def watched_run_dir(status: dict[str, Any], runs_dir: Path) -> Path | None:
@@ -911,9 +937,10 @@ def save_map_main(connect: list[str], robot: str | None, out: Path | str, image_
     target = reachable_target(connect, robot, runs_dir)
     if isinstance(target, int):
         return target
-    run_dir = None if connect else current_run_dir(runs_dir)  # the run asked is the current one: its folder is here
+    given_connect = bool(connect)
     connect, robot, zenoh_config_file = target
     assert robot is not None  # reachable_target always names the robot
+    run_dir = None if given_connect else current_run_dir(runs_dir, robot)  # the run asked is the current one: its folder is here
     try:
         msg, why, map_origin = query_map(connect, robot, zenoh_config_file=zenoh_config_file, run_dir=run_dir)
     except TransportError as exc:

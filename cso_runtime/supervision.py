@@ -107,9 +107,14 @@ class Child:
     def seen_up(self, now: float) -> None:
         """Its liveliness token was seen (heard come, or there at a round of the hang check): its current process came
         up at ``now``, unless it was seen already. Once up it stays so until its next ``spawn``: a token gone again is
-        a service stopped or hung (``not answering``), never one still starting."""
+        a service stopped or hung (``not answering``), never one still starting.
+
+        Called on a Zenoh thread (``Launcher._on_alive``) while the run loop's hang check reads ``came_up``, then
+        ``came_up_at``, with no lock: ``came_up_at`` is written first, so that a check between the two writes never
+        counts the new process's silence from its previous process's coming up (and kills it as hung as it comes)."""
         if not self.came_up:
-            self.came_up, self.came_up_at = True, now
+            self.came_up_at = now
+            self.came_up = True
 
     def spawn(self) -> None:
         self.log_path.parent.mkdir(parents=True, exist_ok=True)

@@ -29,3 +29,13 @@ class StuckEnv(gym.Env):
 
     def step(self, action: Any) -> Any:
         threading.Event().wait()
+
+
+class StuckInitEnv(StuckEnv):
+    """Its environment processes never finish building it (and ignore SIGTERM): ``AsyncVectorEnv``'s constructor
+    waits on their answer for ever; only a stop (Ctrl-C) ends it. The parent's own dummy env builds at once."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        if multiprocessing.parent_process() is not None:
+            threading.Event().wait()

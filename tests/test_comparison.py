@@ -343,3 +343,29 @@ def test_compare_says_why_a_baseline_with_episodes_has_none_to_compare(tmp_path:
     assert r.exit_code == 1 and "error: --baseline 'greedy-dist' has no episode to compare: its 2 in these files are all on maps --exclude leaves out" in r.stderr, r.output
     r = CliRunner().invoke(app, ["compare", str(episodes), "--baseline", "greedy_dist"])
     assert r.exit_code == 2 and "--baseline 'greedy_dist' has no episodes in these files; their methods: cso, greedy-dist" in r.stderr, r.output
+
+
+def test_compare_says_why_of_a_baseline_where_no_method_has_an_episode_left_to_compare(tmp_path: Path):
+    """The baseline's words (a typo in ``--baseline``, exit 2; a baseline whose episodes have no m2/step or lie on maps
+    ``--exclude`` leaves out, exit 1) were said only where another method had episodes left: where none had (every
+    episode excluded, or of no step), a typo was "no method shares 3 or more scenes ... with greedy_dist", exit 1,
+    as if it were a method of the files; and a baseline without m2/step the same, not why."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    episodes = write(tmp_path / "e.csv", rows("greedy-dist", "large", {"a": 1.0, "b": 1.0}) + rows("cso", "large", {"a": 1.1, "b": 1.1}))
+    r = CliRunner().invoke(app, ["compare", str(episodes), "--exclude", "a,b", "--baseline", "greedy_dist"])
+    assert r.exit_code == 2 and "error: --baseline 'greedy_dist' has no episodes in these files; their methods: cso, greedy-dist" in r.stderr, r.output
+    r = CliRunner().invoke(app, ["compare", str(episodes), "--exclude", "a,b"])
+    assert r.exit_code == 1 and "error: --baseline 'greedy-dist' has no episode to compare: its 2 in these files are all on maps --exclude leaves out" in r.stderr, r.output
+    no_steps = rows("greedy-dist", "large", {"a": 1.0, "b": 1.0}) + rows("cso", "large", {"a": 1.1, "b": 1.1})
+    for row in no_steps:
+        row["efficiency_m2_per_step"] = ""
+    episodes = write(tmp_path / "e.csv", no_steps)
+    r = CliRunner().invoke(app, ["compare", str(episodes)])
+    assert r.exit_code == 1 and "error: --baseline 'greedy-dist' has no episode to compare: none of its 2 in these files has an m2/step" in r.stderr, r.output
+    r = CliRunner().invoke(app, ["compare", str(episodes), "--exclude", "a"])  # map a is there, its episodes of no step
+    assert r.exit_code == 1 and "no such map" not in r.stderr and "none of its 1 in these files has an m2/step" in r.stderr, r.output
+    r = CliRunner().invoke(app, ["compare", str(write(tmp_path / "none.csv", []))])  # a file of no episode: said, not a baseline's fault
+    assert r.exit_code == 1 and "error: these files hold no episode" in r.stderr, r.output

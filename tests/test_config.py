@@ -1661,3 +1661,101 @@ def test_a_comment_of_a_dry_run_that_holds_a_line_break_stays_a_comment(tmp_path
         assert r.exit_code == 0, r.output
         shown = yaml.safe_load(r.output)
         assert (shown["name"], shown.get("robot", "r0")) == ("x\nrobot: evil", "r0"), r.output
+
+
+YAML12_FORMS = {
+    "leading_zero": ("010", 10),  # YAML 1.1 (PyYAML): 8, an octal
+    "signed_zero": ("-007", -7),
+    "hexadecimal": ("0x1F", 31),
+    "octal": ("0o17", 15),  # YAML 1.2's octal; YAML 1.1: the text
+    "underscores": ("1_000", "1_000"),  # YAML 1.1: 1000
+    "sexagesimal": ("1:30", "1:30"),  # YAML 1.1: 90
+    "sexagesimal_float": ("1:30.5", "1:30.5"),  # YAML 1.1: 90.5
+    "exponent": ("5e-2", 0.05),  # YAML 1.1: the text
+    "signed_dot": ("-.5", -0.5),  # YAML 1.1: the text
+    "whole_exponent": ("1E3", 1000.0),
+    "trailing_dot": ("2.", 2.0),
+    "date": ("2024-01-01", "2024-01-01"),  # YAML 1.1: a date
+    "infinity": ("-.inf", float("-inf")),
+    "word_yes": ("yes", True),  # YAML 1.1's booleans are kept, as yaml-cpp's as<bool> and ROS 2's parameter files read them
+    "word_Off": ("Off", False),
+    "word": ("robot", "robot"),
+    "tilde": ("~", None),
+}
+"""Scalars as YAML 1.2's core schema (and map_server's yaml-cpp) reads them, where PyYAML's YAML 1.1 reads most of
+them otherwise; booleans as YAML 1.1 (and yaml-cpp, and ROS 2's rcl_yaml_param_parser) reads them."""
+
+
+def _typed(data: dict) -> dict:
+    """``data`` with each value's type beside it: 1 and True (and 10 and 10.0) are not one value here."""
+    return {key: (type(value).__name__, value) for key, value in data.items()}
+
+
+def test_config_files_set_and_flags_read_numbers_as_yaml_1_2_does(tmp_path: Path):
+    """A config or profile file, ``--set`` and a field flag read scalars with PyYAML's YAML 1.1 resolver: ``010`` was
+    8 (an octal), ``1_000`` was 1000, ``1:30`` was 90 (base 60), ``2024-01-01`` a date, where YAML 1.2 (map_server's
+    yaml-cpp, and any YAML 1.2 reader of the same file) reads 10 and the texts; ``5e-2`` was the text, mended field by
+    field (``yaml12_number``). One loader (``config.yaml_load``) now reads them all as YAML 1.2's core schema does,
+    save its booleans: ``yes``/``no``/``on``/``off`` stay true/false, as yaml-cpp and ROS 2's parameter files read them."""
+    from cso_runtime.cli import parse_settings
+    from cso_runtime.config import flag_value, yaml_load
+
+    expected = _typed({key: value for key, (_, value) in YAML12_FORMS.items()})
+    f = tmp_path / "forms.yaml"
+    f.write_text("".join(f"{key}: {text}\n" for key, (text, _) in YAML12_FORMS.items()))
+    assert _typed(load_yaml(f)) == expected
+    assert _typed(yaml_load(f.read_text())) == expected
+    assert _typed(parse_settings([f"{key}={text}" for key, (text, _) in YAML12_FORMS.items()])) == expected
+    assert _typed({key: flag_value(text, int | float | None) for key, (text, _) in YAML12_FORMS.items()}) == expected
+    (tmp_path / "steps.yaml").write_text("episode: {max_steps: 0100}\nplanner: {lookahead_m: 05}\n")
+    config = from_dict(ExplorationConfig, load_yaml(tmp_path / "steps.yaml"))
+    assert (config.episode.max_steps, config.planner.lookahead_m) == (100, 5.0)
+    for text in ("1_000", "1:30"):
+        (tmp_path / "steps.yaml").write_text(f"episode: {{max_steps: {text}}}\n")
+        with pytest.raises(ConfigError, match=re.escape(f"episode.max_steps: expected an integer, got '{text}'")):
+            from_dict(ExplorationConfig, load_yaml(tmp_path / "steps.yaml"))
+    assert parse_settings(["generated=[010, 0x10]"]) == {"generated": [10, 16]}
+    assert flag_value("1_000,010", list[int]) == "1_000,010"  # a list flag's text is split and read by its field
+    assert from_dict(ExplorationConfig, {"planner": {"lookahead_m": 1}}).planner.lookahead_m == 1.0
+
+
+def test_texts_that_yaml_1_2_reads_as_numbers_are_written_quoted_so_they_read_back_as_text(tmp_path: Path):
+    """What cso-runtime writes in YAML (``up --resolved``, a run's ``profile.yaml``, the launcher's profile, a map's
+    YAML, ``--set`` texts in messages) was written by PyYAML's dumper, which quotes a text only where YAML 1.1 would
+    read it otherwise: the text ``1e3`` (a robot's name, say) was written bare, which YAML 1.2 reads as 1000.0. Each
+    text any YAML reader would take for another type is quoted now, and reads back as the text."""
+    from cso_runtime.config import commented_yaml, yaml_dump, yaml_load, yaml_text
+
+    texts = ["1e3", "-.5", "0o17", "0x1F", "010", "1_000", "1:30", "2024-01-01", "yes", "on", "null", "robot", ".inf", "5e-2"]
+    data = {"robot": texts, "nested": {text: text for text in texts}}
+    for written in (yaml_dump(data), commented_yaml(["a comment"], data)):
+        assert yaml_load(written) == data, written
+        (tmp_path / "back.yaml").write_text(written)
+        assert load_yaml(tmp_path / "back.yaml") == data
+    assert "robot: '1e3'" in yaml_dump({"robot": "1e3"})
+    for text in texts:
+        assert yaml_load(yaml_text(text)) == text, yaml_text(text)
+    numbers = {"a": 1e-08, "b": 10, "c": -0.5, "d": float("inf"), "e": True, "f": None, "g": 1e20}
+    assert yaml_load(yaml_dump(numbers)) == numbers
+    from cso_runtime.run_profile import load_profile
+
+    for name in ("sim", "lockstep"):  # what up hands its launcher, and a run's profile.yaml, read back as they were
+        profile, given = load_profile(name, {"robot": "1e3"})
+        assert yaml_load(yaml_dump(given, sort_keys=False)) == given and yaml_load(yaml_dump(profile.effective())) == profile.effective()
+
+
+def test_up_resolved_prints_a_text_read_as_a_number_by_yaml_1_2_quoted(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``up --resolved --robot 1e3`` printed ``robot: 1e3``: saved and given back as ``--profile``, YAML 1.2 reads a
+    number there, not the robot's name. It prints ``robot: '1e3'``, and the saved file runs as the same profile."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.config import yaml_load
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(app, ["up", "--resolved", "--robot", "1e3", "--runs-dir", str(tmp_path / "runs")])
+    assert r.exit_code == 0 and "robot: '1e3'" in r.stdout, r.output
+    assert yaml_load(r.stdout)["robot"] == "1e3"
+    (tmp_path / "saved.yaml").write_text(r.stdout)
+    again = CliRunner().invoke(app, ["up", "--resolved", "--profile", str(tmp_path / "saved.yaml"), "--runs-dir", str(tmp_path / "runs")])
+    assert again.exit_code == 0 and yaml_load(again.stdout) == yaml_load(r.stdout), again.output

@@ -429,7 +429,7 @@ def test_the_readmes_summary_json_row_names_every_key_of_meta(tmp_path):
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=tmp_path, max_steps=5, resume=True))
     meta = json.loads((tmp_path / "summary.json").read_text(encoding="utf-8"))["meta"]
     assert {"request", "config", "resumed_episodes"} <= set(meta)
-    others = {"interrupted", "weights", "mujoco", "profile", "paused_s", "episode"}  # Ctrl-C, a learned method, --sim-config; up's
+    others = {"interrupted", "weights", "mujoco", "profile", "paused_s", "episode", "lost_results"}  # Ctrl-C, a learned method, --sim-config; up's
     rows = _eval_output_rows()
     about_meta = rows["`summary.json`"].split("`meta` (", 1)[1]
     assert sorted(k for k in {*meta, *others} if f"`{k}`" not in about_meta) == []

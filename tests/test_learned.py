@@ -957,6 +957,35 @@ def test_warm_start_teacher_runs_through_subprocess_envs(tmp_path):
     assert actions[0] == expert_action(env.obs, info["action_mask"])  # the same seed, the same first choice
 
 
+def test_a_stop_in_the_teacher_collection_closes_its_progress_bar(monkeypatch):
+    """A stop (``stop_requested``, or Ctrl-C) in ``collect_teacher`` left its progress bar running: rich's live display
+    went on drawing while train stopped and never showed the terminal's cursor again. It is closed as the PPO bar is."""
+    from cso_runtime.learned import ppo
+
+    bars: list = []
+
+    class Bar:
+        def __init__(self, total: int, what: str) -> None:
+            self.advanced, self.closed = 0, False
+            bars.append(self)
+
+        def advance(self, n: int = 1) -> None:
+            self.advanced += n
+
+        def close(self) -> None:
+            self.closed = True
+
+    monkeypatch.setattr(ppo, "_Bar", Bar)
+    asked: list[bool] = []
+    envs = ppo.make_vector_env(Args(num_envs=1, async_envs=False, max_steps=100), [rooms_plan(2)])
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            ppo.collect_teacher(envs, 6, 0.98, seed=0, progress=True, stop_requested=lambda: asked.append(True) or len(asked) > 2)
+    finally:
+        envs.close()
+    assert len(bars) == 1 and bars[0].advanced == 2 and bars[0].closed
+
+
 def test_warm_start_teacher_is_the_chosen_baseline_under_the_mask():
     """The warm start imitates the configured baseline (its own score, e.g. explore_lite's utility),
     restricted to the allowed actions; greedy-dist stays the default; an unknown teacher is refused."""
@@ -1603,6 +1632,54 @@ def test_closing_environment_processes_that_never_answer_nor_end_is_bounded_and_
         for pid in pids:  # where close hung (before the fix), the test leaves no process behind
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
+
+
+def test_a_constructor_stopped_while_its_environment_processes_start_stops_them():
+    """Ctrl-C while ``WatchedAsyncVectorEnv``'s constructor waits on its processes (here for ever: they never finish
+    building their env, and ignore SIGTERM) leaves no object to close: the constructor stops them itself, within
+    ``close_grace_s`` per stage, where the half-built object's ``__del__`` would join them with no bound."""
+    import multiprocessing
+    import signal
+    import threading
+
+    from tests.conftest import wait_for
+    from tests.stuck_env import StuckInitEnv
+
+    before = set(multiprocessing.active_children())
+    started: list = []
+
+    def ignores_sigterm(pid: int) -> bool:  # its env under way: SIGTERM ignored (Linux's /proc)
+        with contextlib.suppress(OSError, StopIteration, ValueError):
+            status = Path(f"/proc/{pid}/status").read_text().splitlines()
+            return bool(int(next(line for line in status if line.startswith("SigIgn:")).split()[1], 16) & (1 << (signal.SIGTERM - 1)))
+        return False
+
+    def interrupt_once_both_wait() -> None:
+        wait_for(lambda: len(set(multiprocessing.active_children()) - before) == 2, 60, "the 2 environment processes to start")
+        started.extend(set(multiprocessing.active_children()) - before)
+        wait_for(lambda: all(ignores_sigterm(p.pid) for p in started), 60, "the environment processes to build their env")
+        signal.pthread_kill(threading.main_thread().ident, signal.SIGINT)
+
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    interrupter = threading.Thread(target=interrupt_once_both_wait, daemon=True)
+    saved_grace = WatchedAsyncVectorEnv.close_grace_s
+    WatchedAsyncVectorEnv.close_grace_s = 0.5
+    try:
+        interrupter.start()
+        t0 = time.monotonic()
+        with pytest.raises(KeyboardInterrupt):
+            WatchedAsyncVectorEnv([StuckInitEnv] * 2, context="spawn")
+        stopped_s = time.monotonic() - t0
+        interrupter.join(10)
+        assert len(started) == 2 and not any(p.is_alive() for p in started), started
+        assert [p.exitcode for p in started] == [-signal.SIGKILL] * 2  # SIGTERM ignored, then killed
+        assert stopped_s < 60 + 3 * WatchedAsyncVectorEnv.close_grace_s + 10
+    finally:
+        WatchedAsyncVectorEnv.close_grace_s = saved_grace
+        signal.signal(signal.SIGINT, previous)
+        for process in started:
+            if process.is_alive():
+                process.kill()
 
 
 def test_ensemble_of_benchmarks_averages_the_members_probabilities(tmp_path, observation):

@@ -357,3 +357,43 @@ def test_load_map_of_a_map_with_a_turned_origin_says_how_to_read_it(tmp_path: Pa
     assert "load_map_and_meta(path, rotated_origin_ok=True)" in str(refused.value), refused.value
     read, read_geometry, meta = load_map_and_meta(path, rotated_origin_ok=True)
     assert read.tolist() == grid.tolist() and read_geometry.shape == geometry.shape and meta["origin"][2] == pytest.approx(0.5)
+
+
+def test_a_map_yaml_number_written_with_a_sign_and_a_leading_dot_is_read_as_map_server_reads_it(tmp_path: Path):
+    """``origin: [-.5, +.5, 0]``: YAML 1.2 (and map_server's yaml-cpp) reads ``-.5`` as -0.5, PyYAML's YAML 1.1 as text
+    (its float needs a digit before the dot once signed), and the map was refused: "origin must be three finite numbers
+    [x_m, y_m, yaw_rad], got '-.5'". Read as the number, as ``5e-2`` is; ``--set`` of a float key the same."""
+    from cso_runtime.config import ConfigError, ExplorationConfig, from_dict
+
+    grid, geometry = _grid()
+    good = save_map(tmp_path / "map.yaml", grid, geometry)
+    meta = yaml.safe_load(good.read_text())
+    assert isinstance(yaml.safe_load("[-.5, +.5, -.5e+1]")[0], str)  # PyYAML's text, which the reading turns into numbers
+    (tmp_path / "dot.yaml").write_text(yaml.safe_dump({k: v for k, v in meta.items() if k != "origin"}) + "origin: [-.5, +.5, 0]\n")
+    _, read_geometry = load_map(tmp_path / "dot.yaml")
+    assert (read_geometry.origin_x_m, read_geometry.origin_y_m) == (-0.5, 0.5)
+    assert from_dict(ExplorationConfig, {"planner": {"lookahead_m": "+.5"}}).planner.lookahead_m == 0.5
+    for text in ("-.", "+.e1", "-.5.5", "- .5"):  # no number in YAML 1.2 either: still refused
+        with pytest.raises(ConfigError, match="expected a number"):
+            from_dict(ExplorationConfig, {"planner": {"lookahead_m": text}})
+
+
+def test_a_map_yamls_numbers_are_read_as_yaml_1_2_reads_them_not_as_yaml_1_1(tmp_path: Path):
+    """``origin: [010, -0.5, 0]`` was read by PyYAML's YAML 1.1 as x = 8 (an octal), where map_server's yaml-cpp reads
+    10; ``resolution: 1_000`` (YAML 1.1: 1000) and an origin of ``1:30`` (YAML 1.1: 90, base 60) were read as
+    numbers that map_server refuses. Read as YAML 1.2 does (``config.yaml_load``): 10, and the others refused as texts."""
+    grid, geometry = _grid()
+    good = save_map(tmp_path / "map.yaml", grid, geometry)
+    meta = yaml.safe_load(good.read_text())
+    rest = yaml.safe_dump({k: v for k, v in meta.items() if k not in ("origin", "resolution")})
+    (tmp_path / "zero.yaml").write_text(rest + "resolution: 0.050\norigin: [010, -0.5, 0]\n")
+    back, back_geometry = load_map(tmp_path / "zero.yaml")
+    assert (back_geometry.origin_x_m, back_geometry.origin_y_m, back_geometry.resolution_m) == (10.0, -0.5, 0.05)
+    np.testing.assert_array_equal(back, grid)
+    for lines, said in [
+        ("resolution: 1_000\norigin: [0, 0, 0]\n", "resolution must be a finite number, got '1_000'"),
+        ("resolution: 0.05\norigin: [1:30, 0, 0]\n", "origin must be three finite numbers [x_m, y_m, yaw_rad], got '1:30'"),
+    ]:
+        (tmp_path / "bad.yaml").write_text(rest + lines)
+        with pytest.raises(MapFileError, match=re.escape(said)):
+            load_map(tmp_path / "bad.yaml")

@@ -19,6 +19,7 @@ from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id, robot_of, 
 from cso_runtime.messages import (
     DEFAULT_MAX_GRID_CELLS,
     LEGACY_UPGRADES,
+    LOST_RESULTS_KEPT,
     MAX_PLANNER_STATE_BYTES,
     MAX_STEP_POINTS,
     MESSAGE_TYPES,
@@ -794,6 +795,28 @@ def test_a_launcher_status_says_which_kind_of_referee_its_run_has_optionally():
     assert "referee" not in _body(older) and decode(encode(older)).referee is None
     with pytest.raises(MessageError, match=r"launcher_status\.referee: expected a string"):
         decode(_wire("launcher_status", {**_body(older), "referee": 3}))
+
+
+def test_a_launcher_status_names_the_episodes_whose_result_a_restart_lost_optionally():
+    """``launcher_status.lost_results``: each episode's id, its end's state and step, and the episode the run went on
+    with; absent while none (and from an older launcher: none), and checked as ``status --json`` writes it."""
+    lost = [{"episode": 2**48 - 1, "state": "done", "step": 31, "running": 8}]
+    msg = LauncherStatusMsg("run1", "running", lost_results=lost)
+    assert _body(msg)["lost_results"] == lost and decode(encode(msg)) == msg
+    older = LauncherStatusMsg("run1", "running")
+    assert "lost_results" not in _body(older) and decode(encode(older)).lost_results == []
+    assert decode(_wire("launcher_status", {**_body(older), "lost_results": None})).lost_results == []
+    for bad in (
+        {"episode": 7},
+        [{"episode": 7, "state": "done", "step": -1, "running": 8}],
+        [{"episode": 7, "state": "done", "step": 3}],
+        [{"episode": "7", "state": "done", "step": 3, "running": 8}],
+        [{"episode": 7, "state": 1, "step": 3, "running": 8}],
+        [7],
+        [{"episode": 7, "state": "done", "step": 3, "running": 8}] * (LOST_RESULTS_KEPT + 1),
+    ):
+        with pytest.raises(MessageError, match=r"launcher_status\.lost_results"):
+            decode(_wire("launcher_status", {**_body(older), "lost_results": bad}))
 
 
 def test_a_launcher_status_field_this_side_does_not_know_is_left_out():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
@@ -176,3 +177,68 @@ def test_a_burst_of_stop_signals_never_deadlocks_the_stop_handler():
             if proc.poll() is None:
                 proc.kill()
                 proc.wait(timeout=10)
+
+
+@pytest.mark.parametrize("blocks", ["stderr", "last_words"])
+def test_an_overdue_stop_ends_even_where_saying_so_blocks(blocks):
+    """``end_overdue_stop`` bounds a stop that hangs, and a stop hangs most often where the process cannot write: its
+    stderr a pipe no one reads (``train ... 2>&1 | less`` paused, a terminal paused with Ctrl-S, ``| tee`` onto a file
+    system that hangs) or its output folder on a file system that hangs (``last_words``, train's ``--resume`` hint,
+    looks at the checkpoint there). The watchdog said its words itself before it killed the children and exited, so it
+    waited on them for ever as the stop did: it now says them beside it, at most ``say_within_s``, then ends anyway."""
+    import signal
+
+    from cso_runtime.supervision import pid_alive
+    from tests.conftest import wait_for
+
+    script = textwrap.dedent(
+        f"""
+        import fcntl, multiprocessing, os, signal, threading
+        from cso_runtime.processes import end_overdue_stop
+
+        def stuck():
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+            threading.Event().wait()
+
+        child = multiprocessing.get_context("fork").Process(target=stuck, daemon=True)
+        child.start()
+        if {blocks!r} == "stderr":  # fill stderr's pipe, which the test does not read: every write to it now blocks
+            flags = fcntl.fcntl(2, fcntl.F_GETFL)
+            fcntl.fcntl(2, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+            try:
+                while True:
+                    os.write(2, b"x" * 4096)
+            except BlockingIOError:
+                pass
+            fcntl.fcntl(2, fcntl.F_SETFL, flags)
+            last_words = lambda: "interrupted"
+        else:  # a stat of a checkpoint on a file system that hangs
+            last_words = lambda: threading.Event().wait() and "never said"
+        print(child.pid, flush=True)
+        end_overdue_stop(1.0, 130, last_words, say_within_s=1.0)
+        threading.Event().wait()  # the stop that hangs
+        """
+    )
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    child_pid = None
+    try:
+        child_pid = int(proc.stdout.readline() or 0) or None
+        assert child_pid is not None, "the script did not start its child"
+        try:
+            returncode = proc.wait(timeout=30)  # stderr unread while it runs
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"still running 30 s after a stop bounded to 1 s: its watchdog waits on its words ({blocks} blocks)") from None
+        assert returncode == 130
+        wait_for(lambda: not pid_alive(child_pid), 10, f"the worker {child_pid} to be killed with the stop")
+        if blocks == "last_words":  # what could be said was: where each thread was
+            err = proc.stderr.read().decode(errors="replace")
+            assert "error: the stop took more than 1 s; ended at once" in err and "never said" not in err, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(timeout=10)
+        proc.stdout.close()
+        proc.stderr.close()
+        if child_pid is not None:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(child_pid, signal.SIGKILL)

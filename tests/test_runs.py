@@ -86,7 +86,7 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert list_runs(runs)[-1].as_dict() | {"run_dir": ""} == {
         "run_id": broken.name, "run_dir": "", "state": "unknown", "profile": "", "robot": "", "scene": "", "real_robot": False, "coverage_measured": True, "method": "",
         "explored_area_m2": None, "coverage_pct": None, "steps": None, "efficiency_m2_per_step": None, "path_length_m": None,
-        "terminated_by": None, "restarts": 0, "duration_s": None, "stopped_at_step": None,
+        "terminated_by": None, "restarts": 0, "duration_s": None, "stopped_at_step": None, "lost_results": [],
         "reason": "its run.json cannot be read: not JSON (Expecting property name enclosed in double quotes at line 1 column 2)",
     }  # fmt: skip  (a corrupt file is a run with nothing known, not a traceback; nor "stopped", which it may not be)
     # In the table: its state and why, no ", " line for a scene and method not known.
@@ -126,8 +126,8 @@ def test_runs_lists_each_run_with_its_state_and_table_1_row(tmp_path):
     assert " 7 s " in next(ln for ln in r.output.splitlines() if "091200" in ln)
     piped = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "80"})  # a pipe, a log, CI
     assert "m2/step" in piped.output and "0.607" in next(ln for ln in piped.output.splitlines() if "091100" in ln)  # was cut at 80
-    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "none")])
-    assert r.exit_code == 0 and "no runs in" in r.output
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "none")])  # no such folder: said so (test_runs_of_a_folder_that_does_not_exist_says_so)
+    assert r.exit_code == 1 and "no runs folder" in r.output
 
 
 def test_runs_shows_the_step_an_interrupted_run_stopped_at(tmp_path):
@@ -359,6 +359,49 @@ def test_report_of_a_run_without_results_says_why_not_that_it_is_no_run_folder(t
     assert r.exit_code == 2 and f"run {failed.name} has no results; its run.json cannot be read: not JSON" in said and "stopped before" not in said, said
 
 
+
+def test_report_of_a_failed_run_says_the_reason_its_run_json_records(tmp_path):
+    """``report`` of a run that failed before it started a service (its robot claimed by another launcher, a refused
+    profile, no router) said only "its launcher's log says why", where its run.json records the reason, which ``runs``
+    lists: the reason is said, and the launcher's log still named for more; a failed run without one is said as before."""
+    failed = make_run(tmp_path / "runs", "20261203-091300-sim-r0", outcome="failed")
+    reason = "refused: robot r0 is already run by another launcher (pid 4242)"
+    info = json.loads((failed / "run.json").read_text())
+    (failed / "run.json").write_text(json.dumps({**info, "reason": reason}))
+    r = CliRunner().invoke(app, ["report", str(failed)])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and f"run {failed.name} has no results (`runs` lists it as failed): {reason}; more in its launcher's log: `cso-runtime logs launcher --run {failed}`" in said, said
+    assert "says why" not in said, said
+
+
+def test_runs_and_report_say_an_episodes_result_lost_to_a_restart_of_the_sim(tmp_path):
+    """A run whose episode ended while its result was lost to a restart of the sim (run.json's ``lost_results``, as
+    the launcher's status has them) read in ``runs`` as any other: done with the next episode's results, or stopped
+    with none, and ``report`` of one stopped said only that it stopped before its episode ended. ``runs`` says whose
+    result was lost (``--json``: ``lost_results``), and so does ``report``; a malformed entry is no entry."""
+    runs = tmp_path / "runs"
+    lost = [{"episode": 0x2A, "state": "done", "step": 31, "running": 0x2B}]
+    done = make_run(runs, "20261203-091000-lockstep-r0", outcome="done", summary=ROW)
+    stopped = make_run(runs, "20261203-091100-lockstep-r0", outcome="interrupted")
+    plain = make_run(runs, "20261203-091200-lockstep-r0", outcome="done", summary=ROW)
+    bad = make_run(runs, "20261203-091300-lockstep-r0", outcome="done", summary=ROW)
+    for d in (done, stopped, plain, bad):  # as the launcher writes it: the profile's services, the sim the referee
+        (d / "profile.yaml").write_text(yaml.safe_dump({"name": "lockstep", "robot": "r0", "scene": "generated:small:1:0", "method": "cso", "services": {"sim": {}, "mapper": {}}}))
+    for d, entries in ((done, lost), (stopped, lost), (bad, [{"episode": "7"}])):
+        (d / "run.json").write_text(json.dumps(json.loads((d / "run.json").read_text()) | {"lost_results": entries, "last_step": 12}))
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs), "--json"])
+    assert r.exit_code == 0 and [x["lost_results"] for x in json.loads(r.output)] == [lost, lost, [], []], r.output
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": "250"})
+    said = "result of episode 00000000002a lost: the sim restarted before it came"
+    text = r.output
+    assert r.exit_code == 0 and text.count(said) == 2, text
+    assert said not in "".join(ln for ln in text.splitlines() if plain.name in ln or bad.name in ln), text
+    r = CliRunner().invoke(app, ["report", str(stopped)])
+    out = " ".join(r.output.split())
+    assert r.exit_code == 2 and f"run {stopped.name} has no results: a run stopped before its episode ended writes none" in out, out
+    assert "episode 00000000002a ended (done at step 31), but its result was lost: the sim restarted before it came; the run went on with episode 00000000002b" in out, out
+
+
 def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newest(tmp_path):
     runs = tmp_path / "runs"
     with pytest.raises(RunError, match="no runs in"):
@@ -377,8 +420,8 @@ def test_the_run_logs_reads_is_the_named_one_else_the_current_one_else_the_newes
     r = CliRunner().invoke(app, ["logs", "--run", old.name, "--runs-dir", str(runs)])
     assert r.exit_code == 1 and r.output == f"error: run {old.name} has no log: {old / 'logs'}/ holds no .log file\n", r.output
     shutil.rmtree(old / "logs")
-    r = CliRunner().invoke(app, ["logs", "--run", str(old)])
-    assert r.exit_code == 1 and "has no log" in r.output, r.output
+    r = CliRunner().invoke(app, ["logs", "--run", str(old)])  # not "logs/ holds no .log file": there is no logs/
+    assert r.exit_code == 1 and r.output == f"error: run {old.name} has no log: it has no {old / 'logs'}/ folder\n", r.output
 
 
 def test_runs_keep_and_older_than_list_old_runs_and_delete_them_only_with_yes_never_the_current_one(tmp_path):
@@ -602,3 +645,36 @@ def test_a_run_file_whose_process_ids_name_no_process_is_no_live_run(tmp_path):
     (d / "run.json").write_text(json.dumps({**info, "launcher_pid": "x"}))
     r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)])
     assert r.exit_code == 0 and "launcher died" in r.output and r.exception is None, r.output
+
+
+def test_down_says_once_that_the_run_file_is_not_usable(tmp_path, caplog):
+    """``down`` with a ``current.json`` that is not JSON warned "ignoring runs/current.json: not readable as JSON" twice:
+    it reads the file again (a run file written since its first look), and that second read warned again. Once."""
+    import logging
+
+    from cso_runtime.current_run import down
+
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "current.json").write_text("{not json")
+    with caplog.at_level(logging.WARNING):
+        ok, message = down(runs, 1.0)
+    warned = [r.getMessage() for r in caplog.records if "not readable as JSON" in r.getMessage()]
+    assert not ok and message == f"nothing running (no usable {runs / 'current.json'})" and len(warned) == 1, (message, warned)
+
+
+def test_runs_of_a_folder_that_does_not_exist_says_so(tmp_path):
+    """``runs --runs-dir nosuch`` answered "no runs in nosuch", exit 0, as of an empty runs folder: a folder that is not
+    there (a typo, another working folder) is said as such, exit 1, as ``logs``, ``status`` and ``down`` answer of it;
+    so are its prune (``--keep``) and ``--json``, and a file given as the folder. An empty folder still has no runs."""
+    missing = tmp_path / "nosuch"
+    for extra in ([], ["--json"], ["--keep", "1"], ["--older-than", "3"]):
+        r = CliRunner().invoke(app, ["runs", "--runs-dir", str(missing), *extra])
+        assert r.exit_code == 1 and r.stdout == "" and r.stderr.startswith(f"error: no runs folder {missing}: it does not exist"), (extra, r.output)
+    (tmp_path / "file").write_text("")
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "file")])
+    assert r.exit_code == 1 and r.stderr.startswith(f"error: no runs folder {tmp_path / 'file'}: it is a file"), r.output
+    (tmp_path / "empty").mkdir()
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(tmp_path / "empty")])
+    assert r.exit_code == 0 and r.output == f"no runs in {tmp_path / 'empty'}\n", r.output
+    assert not missing.exists()

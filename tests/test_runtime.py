@@ -2491,6 +2491,50 @@ def test_step_pace_measures_simulated_seconds_per_wall_second_from_the_episodes_
     assert pace.real_time_factor == pytest.approx(40 * 0.25 / 2.5)
 
 
+def test_the_pace_read_as_a_new_episodes_status_arrives_is_the_old_episodes_or_none(tmp_path):
+    """The real-time factor is read by the run loop (progress lines, the live view, episodes.csv's
+    ``real_time_factor``) and the status queryable's thread while a Zenoh thread's ``_on_sample`` measures it, with no
+    lock: a new episode's status (a restarted sim) arriving between the reader's look at the measure and its use of
+    it (``_latest`` checked, then set to None, then unpacked) raised ``TypeError: cannot unpack non-iterable
+    NoneType`` in the reader: the run loop's, which stops the run, or the results' writer's. Here the status arrives at
+    each line of the reader in turn: it reads the old episode's factor or none, never raises."""
+    from cso_runtime.pace import StepPace
+
+    reader = StepPace.real_time_factor.fget.__code__  # type: ignore[attr-defined]
+    lines = sorted({line for _, _, line in reader.co_lines() if line is not None and line > reader.co_firstlineno})
+    injected = 0
+    for line in lines:
+        launcher, hear = _launcher_hearing(tmp_path)
+        launcher.simulated = True
+        hear(EpisodeStatusMsg("exploring", 10, episode=7))
+        hear(EpisodeStatusMsg("exploring", 50, episode=7))
+        old = launcher.real_time_factor
+        assert old is not None
+        arrived: list[int] = []
+
+        def trace(frame: types.FrameType, event: str, _arg: Any, line: int = line, arrived: list[int] = arrived, hear: Callable[[Any], None] = hear) -> Any:
+            if frame.f_code is not reader:
+                return None
+
+            def at_line(frame: types.FrameType, event: str, _arg: Any) -> Any:
+                if event == "line" and frame.f_lineno == line and not arrived:
+                    arrived.append(line)
+                    sys.settrace(None)
+                    hear(EpisodeStatusMsg("exploring", 0, episode=8))  # the restarted sim's, on the Zenoh thread, now
+                return at_line
+
+            return at_line
+
+        sys.settrace(trace)
+        try:
+            got = launcher.real_time_factor
+        finally:
+            sys.settrace(None)
+        assert got in (old, None), (line, got)
+        injected += len(arrived)  # a line of its docstring runs no code
+    assert injected >= 3, lines
+
+
 def test_the_progress_line_says_when_the_episode_has_made_no_step_for_a_while(tmp_path, monkeypatch):
     """A sim stopped (SIGSTOP) or a lockstep pipeline stalled on a stopped policy: ``up --no-live``'s progress line
     went on saying "step 105 (26.2 s robot time, 20.47x real time): ..." every 10 s, as if all were well, until the
@@ -2786,6 +2830,47 @@ def test_a_service_that_came_up_between_the_hang_checks_rounds_reads_not_answeri
     busy.spawn()  # its restart: a new process, starting until its own token comes
     busy.proc.wait(10)  # type: ignore[union-attr]
     assert busy.came_up is False
+
+
+def test_a_restarted_service_whose_token_comes_as_the_hang_check_looks_is_not_killed_as_hung(tmp_path):
+    """Its coming up is marked on a Zenoh thread (``_on_alive`` -> ``Child.seen_up``) while the run loop's hang check
+    (``kill_hung``) reads ``came_up``, then ``came_up_at``, with no lock. ``seen_up`` wrote ``came_up`` first: a check
+    between its two writes took the process for up since its previous process came up (``came_up_at`` still that
+    one's) and, with that process's last answer as old (a hung one, killed), killed the new process as hung the
+    moment its token came. Simulated here by running the check right when ``came_up`` is written."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    la = Launcher(profile, data, tmp_path / "run")
+    now = time.monotonic()
+    assert 0 < profile.supervision.hang_timeout_s < 30
+    la.status_watch = SimpleNamespace(behind=lambda now: False, resumed_s=-np.inf, answered_s={"mapper": now - 30.0})  # type: ignore[assignment]
+    checked: list[int] = []
+
+    class CheckedBetweenWrites(Child):
+        def __setattr__(self, name: str, value: Any) -> None:
+            super().__setattr__(name, value)
+            if name == "came_up" and value is True and not checked:  # the run loop's round, on its own thread, now
+                checked.append(self.hung_kills)
+                la.kill_hung(time.monotonic())
+                checked.append(self.hung_kills)
+
+    c = CheckedBetweenWrites("mapper", [sys.executable, "-c", "import time; time.sleep(60)"], tmp_path / "mapper.log")
+    c.spawn()  # its restart, after a process that came up long ago and last answered 30 s ago (hung, killed)
+    try:
+        c.came_up_at = now - 60.0  # as its previous process left it
+        la.children = [c]
+        la._on_alive(SimpleNamespace(key_expr=la.keys.alive("mapper"), kind="SampleKind.PUT"))
+        assert checked == [0, 0], "the new process was killed as hung as its token came"
+        assert c.came_up and c.came_up_at >= now and c.alive
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(c.proc.pid, signal.SIGKILL)  # type: ignore[union-attr]
+        c.proc.wait(10)  # type: ignore[union-attr]
 
 
 def test_status_of_a_service_that_answers_before_its_token_is_seen_says_one_state():
@@ -3699,6 +3784,40 @@ def test_save_map_after_the_episode_says_where_its_final_map_is_or_that_none_was
     assert "its final map, where the run wrote one, is in maps/ of the run's folder on the host that runs it" in out and str(final) not in out, out
 
 
+def test_save_map_of_another_robot_than_the_current_runs_names_no_file_of_the_current_run(tmp_path, monkeypatch, capsys):
+    """``save-map --robot r1`` after r1's episode ended, through the current run's router (r0's run, whose network r1's
+    run joined): it took the current run's folder for r1's and said "its final map is runs/<r0's run>/maps/cso/...yaml",
+    r0's map, where both robots ran one method on one scene. The current run's folder is the asked robot's only where the
+    run file names that robot; another robot's run is said as one given by ``--connect``: its folder is elsewhere."""
+    from types import SimpleNamespace
+
+    import cso_runtime.status as status_module
+    from cso_runtime.outputs import episode_map_path
+
+    over = encode(EpisodeStatusMsg(state="done", step=212, scene="generated:small:1:0", method="cso"))
+    payload = SimpleNamespace(to_bytes=lambda: over, to_string=lambda: "")
+    keys = RobotKeys("r1")
+
+    class Session(contextlib.AbstractContextManager):  # r1's ended episode answers through r0's router; no map answers
+        def __exit__(self, *_exc: object) -> None:
+            pass
+
+        def get(self, key: str, **_kw: object) -> list[SimpleNamespace]:
+            return [SimpleNamespace(ok=SimpleNamespace(payload=payload), err=None)] if key == keys.episode_status else []
+
+    monkeypatch.setattr(status_module, "_client_session", lambda *_a, **_k: Session())
+    runs, run_dir = tmp_path / "runs", tmp_path / "runs" / "run-of-r0"
+    run_dir.mkdir(parents=True)
+    (runs / "current.json").write_text(json.dumps({"run_id": run_dir.name, "run_dir": str(run_dir), "robot": "r0", "endpoints": ["tcp/127.0.0.1:1"]}))
+    r0_map = episode_map_path(run_dir, "cso", "generated:small:1:0")  # r0's own final map, of the same method and scene
+    save_map(r0_map, np.zeros((4, 5), dtype=np.int8), GridGeometry(0.05, (4, 5)), image_format="png")
+    (run_dir / "summary.json").write_text("{}")
+    assert save_map_main([], "r1", tmp_path / "m", "pgm", runs) == 1
+    out = capsys.readouterr().out
+    assert out.startswith("no map for robot r1: no map answers, and none will come: the episode is done, at step 212; "), out
+    assert str(run_dir) not in out and "its final map, where the run wrote one, is in maps/ of the run's folder on the host that runs it" in out, out
+
+
 def test_status_says_at_once_that_a_killed_launchers_run_cannot_answer(tmp_path):
     """A launcher killed by SIGKILL leaves runs/current.json behind: ``status`` says its launcher has exited
     instead of waiting on the router it held. A router that is stopped (its port accepts TCP, no Zenoh
@@ -4506,8 +4625,11 @@ def test_reading_the_run_file_passes_its_zenoh_config_on_and_leaves_the_environm
     from cso_runtime.cli import app
     from cso_runtime.config import EXIT_NO_ZENOH
 
-    r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "r.mcap"), "--runs-dir", str(runs)])  # the session refuses the run's file
-    assert r.exit_code == EXIT_NO_ZENOH and "gone.json5" in r.output and ZENOH_CONFIG_ENV not in os.environ, r.output
+    # The run's file refused before a session is opened: a bad config (exit 2), as status says it above, not "no Zenoh
+    # session" (exit 3, once the session failed to open), nor the recordings folder made first.
+    r = CliRunner().invoke(app, ["record", "--out", str(tmp_path / "r.mcap"), "--runs-dir", str(runs)])
+    assert r.exit_code == 2 != EXIT_NO_ZENOH and "gone.json5" in r.output and ZENOH_CONFIG_ENV not in os.environ, r.output
+    assert not (tmp_path / "r.mcap").exists()
     config = tmp_path / "run.json5"
     config.write_text("{}")
     (runs / "current.json").write_text(json.dumps({**run, "zenoh_config": str(config)}))
@@ -5433,9 +5555,10 @@ def test_an_end_claiming_a_step_ahead_is_a_stray_once_the_episode_steps_on_behin
 
 
 def test_a_stray_end_of_another_episode_is_judged_once_while_it_stays_the_latest_status(tmp_path):
-    """A late "done" of episode 7 heard after episode 8 started stays ``status`` until the sim's next status (a sim
+    """A late "done" of episode 7 heard after episode 8 started stayed ``status`` until the sim's next status (a sim
     waiting for its services says nothing for seconds): the run loop, looking every 0.1 s, judged it again at each
-    look, logging it and counting it in ``launcher_rejected`` ten times a second. It is judged once."""
+    look, logging it and counting it in ``launcher_rejected`` ten times a second. It is judged once (and, since, it
+    is never ``status``: a status of an episode a restart left behind is none of the running one's)."""
     launcher, hear = _launcher_hearing(tmp_path)
     hear(EpisodeStatusMsg("exploring", 30, episode=7))
     hear(EpisodeStatusMsg("starting", 0, episode=8))
@@ -5521,6 +5644,181 @@ def test_a_late_status_of_an_episode_a_restart_left_behind_does_not_make_it_the_
     assert over is not None and over.episode == 8
     judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(9, "coverage"))]), over, lambda: None)
     assert judged is not None and judged[0] is over and judged[1] is not None
+
+
+def test_an_end_a_ros2_bridges_new_episode_left_behind_is_not_said_lost_with_its_process(tmp_path, caplog):
+    """On a robot the ROS 2 bridge starts a new episode in the same process (the robot's odometry or clock started
+    again): an end of the episode before it, its result never heard, is left behind as after a restart of the sim,
+    but the launcher's log said its result "is lost with the process that ran it", which still runs. It says that
+    the referee started a new episode, and ``status`` words it alike."""
+    from types import SimpleNamespace
+
+    from rich.console import Console
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.messages import LauncherStatusMsg
+    from cso_runtime.run_profile import find_profile, load_profile
+
+    profile, data = load_profile(str(find_profile("limo-ros2")), {}, connect=["tcp/127.0.0.1:1"])
+    launcher = Launcher(profile, data, tmp_path / "run")
+    keys = RobotKeys(profile.robot)
+    for msg in (EpisodeStatusMsg("exploring", 30, episode=7), EpisodeStatusMsg("starting", 0, episode=8), EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7)):
+        launcher._on_sample(SimpleNamespace(key_expr=keys.episode_status, payload=SimpleNamespace(to_bytes=lambda msg=msg: encode(msg))))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    with caplog.at_level("WARNING", logger="cso.launcher"):
+        assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    said = (
+        "episode 7 ended (done at step 31), but episode 8 has started since (the referee started a new one) and no result of "
+        "episode 7 came: it is lost; the run goes on with episode 8, whose results will be the run's"
+    )
+    assert said in caplog.text and "process" not in caplog.text, caplog.text
+    msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)
+    assert isinstance(msg, LauncherStatusMsg)
+    console = Console(record=True, width=400)
+    console.print(render_table(status_of("r0", None, msg.to_dict(), {}, set())))
+    text = " ".join(console.export_text().split())
+    assert "but its result was lost: the referee started a new episode before it came" in text and "sim restarted" not in text, text
+
+
+def test_the_live_view_says_that_an_episodes_result_was_lost_to_a_restart_of_the_sim(tmp_path):
+    """``status`` says that an episode's result was lost to a restart of the sim (``lost_results``); ``up``'s live
+    view showed the new episode starting as if the run had just begun, its one warning line scrolled away above the
+    table (and in a file, the table written once at the end said nothing of it). It says it as ``status`` does."""
+    from rich.console import Console
+
+    from cso_runtime.live_view import LiveView
+
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=0x2A))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=0x2A))
+    hear(EpisodeStatusMsg("starting", 0, episode=0x2B))
+
+    def table() -> str:
+        console = Console(width=300, record=True)
+        console.print(LiveView(launcher).render())
+        return " ".join(console.export_text().split())
+
+    said = "episode 00000000002a ended (done at step 31), but its result was lost: the sim restarted before it came; the run went on with episode 00000000002b"
+    assert "result was lost" not in table()
+    over = launcher.episode_end_heard()
+    assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    hear(EpisodeStatusMsg("exploring", 3, episode=0x2B))
+    assert said in table(), table()
+
+
+def test_run_json_and_summary_json_keep_the_episodes_whose_result_a_restart_lost(tmp_path):
+    """An episode's end left behind with no result (``end_left_behind``) was said in launcher.log and, while the run
+    ran, by ``status``: once the launcher exited, run.json said nothing of it, and a run whose next episode gave its
+    results (or that was stopped before it did) read in ``runs`` and report.html as if nothing had been lost. run.json
+    names them (``lost_results``, as ``launcher_status`` does) from the moment it is judged (a launcher killed later
+    leaves it there) to the run's end, and the results written after (summary.json's ``meta.lost_results``) too."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    launcher.run_dir.mkdir(parents=True)
+    launcher.write_run_file("running")
+    assert "lost_results" not in json.loads((launcher.run_dir / "run.json").read_text())
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # its result never comes
+    hear(EpisodeStatusMsg("starting", 0, episode=8))  # the sim restarted
+    over = launcher.episode_end_heard()
+    assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    lost = [{"episode": 7, "state": "done", "step": 31, "running": 8}]
+    assert json.loads((launcher.run_dir / "run.json").read_text())["lost_results"] == lost  # written as it is judged
+    writes: list[str] = []
+    write_run_file = launcher.write_run_file
+    launcher.write_run_file = lambda state: writes.append(state) or write_run_file(state)  # type: ignore[method-assign]
+    for _ in range(3):  # its end replayed: judged again, nothing new to write (a flood of them writes no file a round)
+        hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))
+        over = launcher.episode_end_heard()
+        assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    assert writes == [] and launcher.lost_results == lost
+    launcher.write_run_file = write_run_file  # type: ignore[method-assign]
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="coverage", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(40, "coverage"))]), over, lambda: None)
+    assert judged is not None and judged[1] is not None
+    launcher.write_outputs(judged[1])
+    summary = json.loads((launcher.run_dir / "summary.json").read_text())
+    assert summary["meta"]["lost_results"] == lost and summary["meta"]["episode"] == 8
+    launcher.write_run_file("stopped")
+    assert json.loads((launcher.run_dir / "run.json").read_text())["lost_results"] == lost
+    report = (launcher.run_dir / "report.html").read_text()
+    said = "episode 000000000007 ended (done at step 31), but its result was lost: the sim restarted before it came; the run went on with episode 000000000008"
+    assert said in report, report
+
+
+def test_status_says_that_an_episodes_result_was_lost_to_a_restart_of_the_sim(tmp_path):
+    """An episode's end left behind with no result (the sim restarted before it came, ``end_left_behind``) was said
+    in launcher.log only: ``status`` showed the new episode running as if nothing had been lost. The launcher's status
+    names it (``lost_results``: once per episode however often its end is heard), ``status --json`` has it, and the
+    table says it in words; an older launcher's status, without the field, reads as none lost."""
+    from rich.console import Console
+
+    from cso_runtime.messages import LauncherStatusMsg
+
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=0x2A))
+    hear(EpisodeStatusMsg("starting", 0, episode=0x2B))
+    for _ in range(2):  # its late end heard twice: one episode lost
+        hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=0x2A))
+        over = launcher.episode_end_heard()
+        assert over is not None and launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None
+    msg = decode(encode(launcher.launcher_status()), LauncherStatusMsg)
+    assert isinstance(msg, LauncherStatusMsg)
+    assert msg.lost_results == [{"episode": 0x2A, "state": "done", "step": 31, "running": 0x2B}], msg.lost_results
+    status = status_of("r0", None, msg.to_dict(), {}, set())
+    assert status["lost_results"] == msg.lost_results
+    console = Console(record=True, width=400)
+    console.print(render_table(status))
+    text = " ".join(console.export_text().split())
+    said = (
+        "episode 00000000002a ended (done at step 31), but its result was lost: the sim restarted before it came; "
+        "the run went on with episode 00000000002b"
+    )
+    assert said in text, text
+    older = status_of("r0", None, LauncherStatusMsg("run1", "running").to_dict(), {}, set())
+    assert older["lost_results"] == []
+
+
+def test_a_late_status_of_an_episode_a_restart_left_behind_is_not_the_running_episodes_status(tmp_path):
+    """Episode 7's sim restarted into episode 8; a status of episode 7 heard after that (late, or replayed) still
+    replaced the launcher's latest status: its ``last_episode`` (``status`` with the sim silent, the live view) said
+    episode 7, the real-time factor of episode 8 was measured anew from it (episodes.csv's ``real_time_factor``
+    of episode 8 empty when it came between 8's last status and its end), and a late end of 7 heard after 8's end
+    hid 8's end: judged left behind, it stayed the latest status, 8's end was never judged and the run never ended.
+    A status of an episode a restart left behind is no status of the running episode; its end is judged all the
+    same (its result may be here)."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("exploring", 9, episode=8))
+    assert launcher.real_time_factor is not None
+    hear(EpisodeStatusMsg("exploring", 31, episode=7))  # late, of the episode before
+    last = launcher.launcher_status().last_episode
+    assert last is not None and (last["episode"], last["step"]) == (8, 9), last
+    assert launcher.real_time_factor is not None  # 8's pace, not started over on 7's status
+    hear(EpisodeStatusMsg("done", 40, terminated_by="coverage", episode=8))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # late, after 8's end
+    over = launcher.episode_end_heard()
+    assert over is not None and (over.episode, over.step) == (8, 40), over
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: hear(_result(40, "coverage"))]), over, lambda: None)
+    assert judged is not None and judged[0] is over and judged[1] is not None and judged[1].steps == 40
+    assert launcher.real_time_factor is not None
+
+    # 8's end heard, then 7's late end and 8's result before the run loop looks: the run's end is 8's, not 7's
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    hear(EpisodeStatusMsg("failed", 31, terminated_by="lockstep_timeout", episode=7))
+    hear(_result(40, "max_steps"))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 8, over
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)
+    assert judged is not None and (judged[0].episode, judged[0].state) == (8, "done"), judged
 
 
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):

@@ -358,6 +358,25 @@ def test_a_map_scene_takes_its_start_from_the_yaml_and_folders_of_maps_list_the_
         resolve_scenes(str(tmp_path / "gone.yaml"))[0].load()
 
 
+def test_a_map_scenes_start_written_with_an_exponent_is_read_as_its_origin_is(tmp_path):
+    """A map YAML's numbers written with an exponent (``5e-2``, ``-3e0``: PyYAML's YAML 1.1 reads them as text, map_server's
+    yaml-cpp as numbers) are read as numbers in ``resolution`` and ``origin`` (map_files): the scene's own ``start``,
+    in the same file, was refused ("start must be [x_m, y_m, yaw_rad], three finite numbers") for ``[2e0, 1.5e0, 1e0]``.
+    It is read by the same rule; what is no number (nan, a word) is still refused."""
+    plan = generate_floor_plan("small", 3)
+    x, y = plan.start.x_m - 3.0, plan.start.y_m + 1.5  # the plan's start, in the map frame of origin (-3, 1.5)
+    yaml_path = _plan_as_map(tmp_path, plan)
+    text = yaml_path.read_text()
+    yaml_path.write_text(text + f"start: [{x!r}e0, {y * 10!r}e-1, 1e0]\n")
+    assert isinstance(yaml.safe_load(yaml_path.read_text())["start"][2], str)  # PyYAML's text, as origin's would be
+    scene = resolve_scenes(str(yaml_path))[0].load()
+    assert (scene.start.x_m, scene.start.y_m, scene.start.yaw_rad) == pytest.approx((plan.start.x_m, plan.start.y_m, 1.0))
+    for bad in ("nan", ".nan", "two", "1e400"):
+        yaml_path.write_text(text + f"start: [{x!r}, {bad}, 0]\n")
+        with pytest.raises(SceneError, match=r"start must be \[x_m, y_m, yaw_rad\], three finite numbers"):
+            resolve_scenes(str(yaml_path))[0].load()
+
+
 def test_scenes_describes_each_plan_and_flags_the_unusable_ones(tmp_path):
     """``cso-runtime scenes``: size, resolution, traversable area, scale class and start of each plan, a preview
     PNG each, and a plan that cannot be used listed with its reason (exit 1), so a folder is checked before a

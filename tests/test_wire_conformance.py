@@ -377,6 +377,7 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "pause": {"paused": True, "by": "me@host", "reason": "lunch", "for_s": 3.0, "total_s": 3.0, "refused": ""},
             "coverage_measured": False,
             "referee": "own",  # optional: a referee of one's own
+            "lost_results": [{"episode": EPISODE, "state": "done", "step": 31, "running": EPISODE + 1}],  # optional: a result a restart lost
         },
     ],
     "explore_resume": [{"resume": False, "by": "me@host", "reason": "lunch", "stamp_s": 1.8e9}],
@@ -471,6 +472,7 @@ def test_the_values_decoded_are_the_ones_the_docs_describe():
     assert isinstance(service, ServiceStatusMsg) and (service.rejected, service.counters) == ({"frontiers": 1}, {"decisions": 2})
     _, launcher = bodies["launcher_status"]
     assert isinstance(launcher, LauncherStatusMsg) and launcher.pause is not None and launcher.pause["paused"] and launcher.run_dir_lost == 1 and launcher.referee == "own"
+    assert launcher.lost_results == [{"episode": EPISODE, "state": "done", "step": 31, "running": EPISODE + 1}]
     (resume,) = bodies["explore_resume"]
     assert isinstance(resume, ExploreResumeMsg) and not resume.resume
 

@@ -946,27 +946,29 @@ def collect_teacher(
     per_env = max(1, decisions // n)
     bar = _Bar(per_env * n, "teacher decisions") if progress else None
     t0 = time.time()
-    for i in range(per_env):
-        raise_if_stop_requested(stop_requested)
-        if time_limit_s and time.time() - t0 > time_limit_s:
-            if log is not None:
-                log(f"warm start: time limit reached after {i * n} {teacher} decisions")
-            break
-        if log is not None and i and i % max(1, per_env // 10) == 0:
-            log(f"warm start: {i * n}/{per_env * n} {teacher} decisions collected ({time.time() - t0:.0f} s)")
-        labels = envs.call("teacher_label", teacher)
-        chosen = np.array([a for a, _ in labels], dtype=np.int64)
-        graphs.append(obs)
-        masks.append(np.asarray(info["action_mask"], dtype=bool))  # the files hold bool masks
-        actions.append(chosen)
-        steps.append(np.stack([s for _, s in labels]))
-        obs, reward, term, trunc, info = envs.step(chosen)
-        rewards.append(reward)
-        ends.append(np.logical_or(term, trunc))
+    try:
+        for i in range(per_env):
+            raise_if_stop_requested(stop_requested)
+            if time_limit_s and time.time() - t0 > time_limit_s:
+                if log is not None:
+                    log(f"warm start: time limit reached after {i * n} {teacher} decisions")
+                break
+            if log is not None and i and i % max(1, per_env // 10) == 0:
+                log(f"warm start: {i * n}/{per_env * n} {teacher} decisions collected ({time.time() - t0:.0f} s)")
+            labels = envs.call("teacher_label", teacher)
+            chosen = np.array([a for a, _ in labels], dtype=np.int64)
+            graphs.append(obs)
+            masks.append(np.asarray(info["action_mask"], dtype=bool))  # the files hold bool masks
+            actions.append(chosen)
+            steps.append(np.stack([s for _, s in labels]))
+            obs, reward, term, trunc, info = envs.step(chosen)
+            rewards.append(reward)
+            ends.append(np.logical_or(term, trunc))
+            if bar is not None:
+                bar.advance(n)
+    finally:  # stopped too (a stop, Ctrl-C): a bar left running goes on drawing and keeps the terminal's cursor hidden
         if bar is not None:
-            bar.advance(n)
-    if bar is not None:
-        bar.close()
+            bar.close()
     rewards_a, ends_a = np.array(rewards), np.array(ends)
     returns = np.zeros_like(rewards_a)
     running = np.zeros(n)
