@@ -814,7 +814,9 @@ def scenes_command(
             progress(len(rows), len(refs))
     bad = [r for r in rows if "error" in r]
     if as_json:
-        typer.echo(json.dumps(rows, indent=2))
+        from cso_runtime.geometry import rounded_floats  # noqa: PLC0415
+
+        typer.echo(json.dumps(rounded_floats(rows), indent=2))  # 4.725 m, not 4.7250000000000005
     else:
         from rich import box  # noqa: PLC0415
         from rich.markup import escape  # noqa: PLC0415
@@ -1361,17 +1363,17 @@ def dataflow_command(
         return
     from rich.table import Table  # noqa: PLC0415
 
-    from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+    from cso_runtime.evaluation import table_console  # noqa: PLC0415
 
     table = Table(title=f"profile {prof.name}: keys under cso/{prof.robot}/")
     for col in ("node", "inputs (from)", "outputs (to)"):
-        table.add_column(col, overflow="fold")  # a node's class of one's own (module.path:Attribute) wraps, not cut to "…"
+        table.add_column(col, overflow="fold")  # on a narrow terminal a node's class of one's own (module.path:Attribute) wraps, not cut to "…"
     labels = {n.name: n.label for n in nodes}
     for w in wiring_of(nodes):
         ins = "\n".join(f"{key} <- {', '.join(peers) or '(none)'}" for key, peers in w.inputs)
         outs = "\n".join(f"{key} -> {', '.join(peers) or '(none)'}" for key, peers in w.outputs)
         table.add_row(f"{w.name} ({OUTSIDE_NOTE})" if w.name in outside else labels[w.name], ins or "-", outs or "-")
-    console_that_survives_its_reader().print(table)
+    table_console(table).print(table)  # a file gets each cell unwrapped
     for name, topics in unconnected(nodes).items():
         typer.echo(f"note: nothing in this profile publishes {', '.join(topic_key(t) for t in topics)} for {name}")
 
@@ -1552,8 +1554,17 @@ def _up_folders_or_exit(record_out: str | None, runs_dir: Path, make: bool = Tru
 def training_args(config: Path | None, overrides: Mapping[str, object], settings: list[str] | None) -> Args:
     """``learned.ppo.Args`` from the YAML file (without one, for a ``resume``: the configuration its checkpoint holds),
     then the command's flags, then ``--set`` pairs; a missing file or a bad value exits with a clear error (code 2)
-    before anything starts."""
-    from cso_runtime.config import ConfigError, from_dict_with_hints, load_yaml  # noqa: PLC0415
+    before anything starts. A ``--set`` of a text field that YAML reads as another type (``out_dir=2024``) says how to
+    write it (``--set out_dir='2024'``), as ``up`` and ``eval`` do, where the configuration takes that text
+    (``variant=1``: ``'1'`` is no variant either, so the value's own error is said)."""
+    from cso_runtime.config import (  # noqa: PLC0415
+        ConfigError,
+        field_types,
+        from_dict,
+        from_dict_with_hints,
+        load_yaml,
+        refuse_a_setting_read_as_another_type,
+    )
     from cso_runtime.learned.ppo import Args, check_training_inputs, resumed_run_settings, training_scene_refs  # noqa: PLC0415
 
     config = _packaged_if_missing(config)  # run outside the repository: the packaged recipe
@@ -1575,6 +1586,11 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         flags = training_flags(overrides, settings)
         if flags:
             where += " with " + " ".join(" ".join(words) for words in flags)
+
+        def takes(texts: dict[str, object]) -> object:  # the configuration with those values as text (no hint again)
+            return from_dict(Args, {**data, **texts}, where)
+
+        refuse_a_setting_read_as_another_type(pairs, field_types(Args), takes)  # `--set out_dir=2024`: how to write it
         args = from_dict_with_hints(Args, data, where)
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
         check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
@@ -1690,7 +1706,7 @@ def _profile_file_said(profile: str) -> str:
     from cso_runtime.run_profile import PACKAGED_PROFILES, find_profile  # noqa: PLC0415
 
     path = find_profile(profile)
-    if path.suffix and Path(profile).suffix:  # a path given: the file itself
+    if Path(profile).suffix in (".yaml", ".yml"):  # a path given, as find_profile tells one from a name (sim.v2): the file itself
         return str(path)
     if path.parent == PACKAGED_PROFILES:
         return f"{path} (packaged)"
@@ -1702,19 +1718,11 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     """``train``'s own options (``--out``), its field flags (``--out-dir``, ``args_field_flags``' pairs) and ``--set``
     all set fields of ``learned.ppo.Args``: two of them that give one field different values are a ConfigError that
     names both (one of them took over the other in silence). The same value twice is fine; so is one flag given
-    twice, whose last value counts, as typer's own options' does. A ``--set`` of a text field that YAML reads as
-    another type (``out_dir=2024``) is a ConfigError that says how to write it (``--set out_dir='2024'``)."""
+    twice, whose last value counts, as typer's own options' does. (A ``--set`` of a text field that YAML reads as
+    another type, ``out_dir=2024``, is ``training_args``' to say, where the whole configuration is known.)"""
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import (  # noqa: PLC0415
-        field_value,
-        place_of,
-        refuse_a_setting_read_as_another_type,
-        refuse_two_values,
-        set_said,
-        text_field,
-        yaml_text,
-    )
+    from cso_runtime.config import field_value, place_of, refuse_two_values, set_said, text_field, yaml_text  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1739,7 +1747,6 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     for name, value in pairs.items():
         given.setdefault(name, []).append((set_said(pairs, name), value))
     refuse_two_values({name: said for name, said in given.items() if name in types}, read)  # a key no field is: from_dict names it
-    refuse_a_setting_read_as_another_type(pairs, types)  # `--set out_dir=2024` alone: how to write it, as `up` says
 
 
 def parse_seeds(items: list[str]) -> list[int]:

@@ -987,8 +987,9 @@ def check_output_dir(path: str | Path, flag: str = "--out") -> None:
 
 def commented_yaml(comments: list[str], data: Any) -> str:
     """``comments`` as ``# `` lines, then ``data`` as YAML in its own key order: what ``up --dry-run``, ``up --resolved``
-    and ``eval --resolved`` print, a file that loads back as the profile or config it shows."""
-    return "".join(f"# {line}\n" for line in comments) + yaml_dump(data, sort_keys=False)
+    and ``eval --resolved`` print, a file that loads back as the profile or config it shows: every line of a comment
+    (a profile's name or a path may hold a line break) is a comment line."""
+    return "".join(f"# {line}\n" for comment in comments for line in comment.splitlines() or [""]) + yaml_dump(data, sort_keys=False)
 
 
 def set_flag_text(key: str, value: Any) -> str:

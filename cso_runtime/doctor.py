@@ -206,19 +206,27 @@ def check_weights() -> str:
 
 def check_profiles() -> str:
     """Every profile loads (yours in ./configs/profiles/ and the packaged ones); each one that does not is named
-    with its reason."""
+    with its reason. Those stopped by the weights the environment names (``given_weights_problem``, the weights
+    row's failure) are named together and the reason said once, not once per profile."""
     from cso_runtime.config import ConfigError  # noqa: PLC0415
+    from cso_runtime.learned.weights import given_weights_problem  # noqa: PLC0415
     from cso_runtime.run_profile import load_profile, profile_names  # noqa: PLC0415
 
     names = profile_names()
-    bad = []
+    problem = given_weights_problem()
+    stand_in = "tcp/127.0.0.1:7447"  # a profile that joins a robot's router gets one: no flag of the user's to name
+    bad, by_weights = [], []
     for name in names:
         try:
-            load_profile(name, {}, connect=["tcp/127.0.0.1:7447"])  # a profile that joins a robot's router gets a stand-in
+            load_profile(name, {}, connect=[stand_in])
         except ConfigError as exc:
-            bad.append(str(exc))
-    if bad:
-        raise ValueError(f"{len(bad)} of {len(names)} profiles do not load: " + "; ".join(bad))
+            if problem and problem in str(exc):
+                by_weights.append(name)
+            else:
+                bad.append(str(exc).replace(f" with --connect {stand_in}", "", 1))
+    if bad or by_weights:
+        said = ([f"{', '.join(by_weights)}: their method's weights: {problem}"] if by_weights else []) + bad
+        raise ValueError(f"{len(bad) + len(by_weights)} of {len(names)} profiles do not load: " + "; ".join(said))
     return f"{len(names)} profiles valid: {', '.join(names)}"
 
 

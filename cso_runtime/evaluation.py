@@ -233,10 +233,20 @@ class EvalRequest:
         preset = SensorConfig.preset(self.sensor, fov_deg=self.lidar_fov_deg if self.sensor == "lidar" else None)
         if "fov_deg" in explicit and cfg.sensor.fov_deg != preset.fov_deg:  # the flags' own value is taken: `eval --resolved` writes it
             given = f"--sensor {self.sensor}" + (f" --lidar-fov {self.lidar_fov_deg:g}" if self.sensor == "lidar" else "")  # as run: 180 unless given
+            set_alone: dict[str, Any] = {}
+            for key, value in self.settings.items():
+                set_dotted(set_alone, key, value)
+            if "fov_deg" in (set_alone.get("sensor") or {}):  # `--set sensor.fov_deg=360`: no file, no resolved run
+                by, fix = "--set", (
+                    f"give --lidar-fov {cfg.sensor.fov_deg:g} in place of the --set"
+                    if self.sensor == "lidar" and cfg.sensor.fov_deg in LIDAR_FOVS_DEG
+                    else "leave sensor.fov_deg out of the --set (the --sensor preset and --lidar-fov set it)"
+                )
+            else:
+                by, fix = "the config", "give the --sensor and --lidar-fov it was resolved with, or leave sensor.fov_deg out of the file"
             raise ConfigError(
-                f"{where}: sensor.fov_deg is set by eval's --lidar-fov ({LIDAR_FOVS_SAID}) or the --sensor preset, not by the config "
-                f"(it says {cfg.sensor.fov_deg:g}; {given} gives {preset.fov_deg:g}): give the --sensor and --lidar-fov it was"
-                " resolved with, or leave sensor.fov_deg out of the file"
+                f"{where}: sensor.fov_deg is set by eval's --lidar-fov ({LIDAR_FOVS_SAID}) or the --sensor preset, not by {by} "
+                f"(it says {cfg.sensor.fov_deg:g}; {given} gives {preset.fov_deg:g}): {fix}"
             )
         for key in explicit:
             setattr(preset, key, getattr(cfg.sensor, key))
@@ -881,14 +891,18 @@ def run_in_processes(jobs: list[EpisodeJob], workers: int, done: Callable[[Episo
     run_each_in_own_process(episode, retry, workers, again)
 
 
-def table_console() -> Any:
+def table_console(*tables: Any) -> Any:
     """A rich console for tables of results: off a terminal (a pipe, logs, CI) wide enough for every column
-    instead of 80 characters, which would cut the last columns (m2/step)."""
+    instead of 80 characters, which would cut the last columns (m2/step): at least 120, and as wide as ``tables``
+    need to have no cell wrapped (``dataflow > flow.txt``: each class and key on its one line). A terminal keeps its
+    width (``COLUMNS`` where set)."""
+    from rich.measure import Measurement  # noqa: PLC0415
+
     from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
 
     console = console_that_survives_its_reader()  # `eval | head`: the reader gone ends the command quietly
     if not console.is_terminal:
-        console.width = max(console.width, 120)
+        console.width = max(console.width, 120, *(Measurement.get(console, console.options.update_width(10**6), t).maximum for t in tables))
     return console
 
 

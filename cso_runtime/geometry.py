@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -67,13 +67,28 @@ WRITTEN_DECIMALS = 9
 """A pose or time computed by float arithmetic (a grid's corner placed by a map origin, a LiDAR mount read off two
 poses, a period read off two stamps) is rounded to the nanometre, nanoradian or nanosecond where it is written out
 for people and other tools (``rounded``): ``-5.275``, as map_saver_cli writes it, not the float sum's
-``-5.2749999999999995``."""
+``-5.2749999999999995``; so is every float of the commands' JSON (``scenes --json``, ``status --json``:
+``rounded_floats``)."""
 
 
 def rounded(value: float) -> float:
     """``value`` rounded to ``WRITTEN_DECIMALS`` (a value that has no more decimals stays itself, to the bit); never
     ``-0.0``."""
     return round(float(value), WRITTEN_DECIMALS) + 0.0  # + 0.0: no -0.0
+
+
+def rounded_floats(data: Any) -> Any:
+    """``data`` (JSON's mappings, lists, numbers, text) with each float ``rounded``: what ``scenes --json`` and
+    ``status --json`` print, ``4.725`` m, not the float sum's ``4.7250000000000005`` (every unit alike: nothing a
+    script compares or a reader reads is lost at ``WRITTEN_DECIMALS``). Ints, bools, text and None are left as they
+    are; a float with no value (NaN, inf) too."""
+    if isinstance(data, dict):
+        return {key: rounded_floats(value) for key, value in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [rounded_floats(value) for value in data]
+    if isinstance(data, float) and math.isfinite(data):
+        return rounded(data)
+    return data
 
 
 def rounded_pose(pose: Pose2D) -> Pose2D:

@@ -615,7 +615,7 @@ def replay(
         for pub in pubs.values():
             pub.undeclare()
     stats.duration_s = time.monotonic() - t0_wall
-    log.info("replayed %d messages in %.2f s (recorded span %.2f s)", stats.messages, stats.duration_s, stats.recorded_s)
+    log.debug("replayed %d messages in %.2f s (recorded span %.2f s)", stats.messages, stats.duration_s, stats.recorded_s)  # `replay` says it
     return stats
 
 

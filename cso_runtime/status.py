@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
 import zenoh
 
-from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, map_frame_pose, map_frame_xy
+from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D, map_frame_pose, map_frame_xy, rounded_floats
 from cso_runtime.keys import WILDCARD, KeyExprError, RobotKeys, check_robot_id, robot_of
 from cso_runtime.messages import (
     EPISODE_OVER,
@@ -304,10 +304,16 @@ NOT_RUNNING = "not running"
 reads the JSON gets JSON then too."""
 
 
+def print_json(data: dict[str, Any]) -> None:
+    """One line of ``status --json`` (``--watch``: one a period), each float ``rounded_floats``: a pose's ``1.2`` m, not
+    the float sum's ``1.2000000000000002``. Every line it prints comes from here."""
+    print(json.dumps(rounded_floats(data)), flush=True)
+
+
 def say_nothing_running(why: str, as_json: bool) -> int:
     """``nothing running (why)`` on stdout, or with ``--json`` a status object with the state ``not running``; exit 1."""
     if as_json:
-        print(json.dumps({"state": NOT_RUNNING, "reason": f"nothing running ({why})"}), flush=True)
+        print_json({"state": NOT_RUNNING, "reason": f"nothing running ({why})"})
     else:
         print(f"nothing running ({why})")
     return 1
@@ -338,14 +344,14 @@ def reachable_target(connect: list[str], robot: str | None, runs_dir: Path, as_j
     # Its run file is written before its router opens.
     if not connect and run_info is not None and (starting := starting_run(run_info)):
         if as_json:
-            print(json.dumps({"state": "starting", "run_id": run_info["run_id"], "reason": starting}), flush=True)
+            print_json({"state": "starting", "run_id": run_info["run_id"], "reason": starting})
         else:
             print(starting)
         return 1
     # `up` checks its profile, no run file of its own yet: before a run file that a launcher gone (killed) left behind
     if not given_connect and (run_info is None or not current_launcher_alive(run_info)) and (up_starting := starting_up_line(runs_dir)):
         if as_json:
-            print(json.dumps({"state": "starting", "run_id": "", "reason": up_starting}), flush=True)
+            print_json({"state": "starting", "run_id": "", "reason": up_starting})
         else:
             print(up_starting)
         return 1
@@ -658,7 +664,7 @@ def say_run_ended(run: dict[str, Any], run_dir: Path, last: dict[str, Any], as_j
     if as_json:
         ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "outcome": outcome, "exit_code": code, "pose": last.get("pose")}
         episode_end = {"episode_state": last.get("state"), "terminated_by": ended_by, "step": step} if over else {}
-        print(json.dumps({"state": NOT_RUNNING, "reason": f"nothing running ({line})", **ended, **episode_end}), flush=True)
+        print_json({"state": NOT_RUNNING, "reason": f"nothing running ({line})", **ended, **episode_end})
     else:
         print(line)
     return code
@@ -694,7 +700,7 @@ def say_episode_ended(run: dict[str, Any], run_dir: Path, runs_dir: Path, last: 
     if as_json:
         ended = {"run_id": run.get("run_id"), "run_dir": str(run_dir), "exit_code": code, "terminated_by": ended_by, "step": step,
                  "pose": last.get("pose")}
-        print(json.dumps({"state": state, "reason": line, **ended}), flush=True)
+        print_json({"state": state, "reason": line, **ended})
     else:
         print(line)
     return code
@@ -718,7 +724,7 @@ def await_started_run(runs_dir: Path, as_json: bool, period_s: float) -> int | N
             if starting is not None:
                 line = f"{starting.removesuffix(ASK_AGAIN)}; waiting for it..."
                 if as_json:
-                    print(json.dumps({"state": "starting", "run_id": "", "reason": line}), flush=True)
+                    print_json({"state": "starting", "run_id": "", "reason": line})
                 elif line != said:
                     print(line, flush=True)
                 said = line
@@ -736,7 +742,7 @@ def await_started_run(runs_dir: Path, as_json: bool, period_s: float) -> int | N
         why = stopped_launcher_of_run(info, runs_dir)  # Ctrl-Z on a starting `up`: it waits, and says why
         line = f"{starting.removesuffix(ASK_AGAIN)}; waiting for it" + (f" ({why})" if why else "") + "..."
         if as_json:
-            print(json.dumps({"state": "starting", "run_id": info["run_id"], "reason": line}), flush=True)
+            print_json({"state": "starting", "run_id": info["run_id"], "reason": line})
         elif line != said:
             print(line, flush=True)
         said = line
@@ -805,7 +811,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
                     shown = {**status, **{k: last_answer.get(k) for k in kept}, "last_decision_ms": last_answer.get("last_decision_ms", 0.0)}
                     last = shown  # the end line says where the robot ended as the last table shows it
             if as_json:
-                print(json.dumps(shown), flush=True)  # --watch: what the table shows, and the end line's pose after it
+                print_json(shown)  # --watch: what the table shows, and the end line's pose after it
             elif in_place and live is None:
                 live = Live(render_table(shown), console=console, auto_refresh=False)
                 live.start(refresh=True)

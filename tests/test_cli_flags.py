@@ -414,6 +414,25 @@ def test_a_train_set_alone_read_as_a_number_where_the_field_is_text_says_how_to_
     assert not train_runs
 
 
+def test_a_train_set_read_as_a_number_whose_text_is_refused_too_gets_no_hint(tmp_path: Path, train_runs: list):
+    """``up`` and ``eval`` give the how-to-write-it hint of ``--set KEY=1`` only where the text is taken (``--set
+    method=1`` would suggest ``method='1'``, an unknown method); ``train`` and ``collect-teacher`` used the same
+    helper without that check: ``--set variant=1`` said "write --set variant='1'", which is refused in turn ("unknown
+    variant '1'"), and so did ``device=0`` and ``warm_start_teacher=1``. They say the value's own error, naming the
+    flag, as ``up`` does; ``out_dir=2024`` keeps its hint."""
+    from cso_runtime.cli import app
+
+    npz = ["--out", str(tmp_path / "t.npz")]
+    for command, key in (("train", "variant"), ("train", "device"), ("train", "warm_start_teacher"), ("collect-teacher", "variant"), ("collect-teacher", "warm_start_teacher")):
+        r = CliRunner().invoke(app, [command, *(npz if command == "collect-teacher" else []), "--set", f"{key}=1"])
+        said = " ".join(r.output.split())
+        assert r.exit_code == 2 and "write --set" not in said and f"--set {key}=1: {key}: expected a string, got 1" in said, (command, said)
+    r = CliRunner().invoke(app, ["train", "--set", "out_dir=2024", "--set", "variant=1"])  # each its own: no hint of a config refused either way
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "write --set" not in said, said
+    assert not train_runs
+
+
 def test_one_path_written_two_ways_is_one_value(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
     """``up --scene ./plans --set scene=plans`` and ``up --zenoh-config ./z.json5 --set router.zenoh_config=$PWD/z.json5``
     were refused as "different values": one path, written two ways. A path-valued field's values are compared as the

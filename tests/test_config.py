@@ -1623,6 +1623,46 @@ def test_up_dry_run_names_the_profile_file_it_read(tmp_path, monkeypatch):
         assert r.exit_code == 0 and "\n# read from configs/profiles/sim.yaml (the working folder's, ahead of the packaged sim)\n" in r.output, r.output[:400]
 
 
+def test_up_dry_run_says_whose_a_profile_named_with_a_dot_is(tmp_path, monkeypatch):
+    """``--profile sim.v2`` is a name (``find_profile``: only a .yaml or .yml suffix makes a path), found as
+    ``configs/profiles/sim.v2.yaml``; the dry run's "read from" line took its ``.v2`` for a path's suffix and said the
+    file alone, not that it is the working folder's."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.run_profile import PACKAGED_PROFILES
+
+    monkeypatch.chdir(tmp_path)
+    own = tmp_path / "configs" / "profiles" / "sim.v2.yaml"
+    own.parent.mkdir(parents=True)
+    own.write_text((PACKAGED_PROFILES / "sim.yaml").read_text())
+    r = CliRunner().invoke(app, ["up", "--profile", "sim.v2", "--dry-run"])
+    assert r.exit_code == 0 and "\n# read from configs/profiles/sim.v2.yaml (the working folder's)\n" in r.output, r.output[:400]
+    r = CliRunner().invoke(app, ["up", "--profile", str(own), "--dry-run"])  # a path: the file itself
+    assert r.exit_code == 0 and f"\n# read from {own}\n" in r.output, r.output[:400]
+
+
+def test_a_comment_of_a_dry_run_that_holds_a_line_break_stays_a_comment(tmp_path, monkeypatch):
+    """``up --dry-run``/``--resolved`` print comments of what they read (the profile's name, its file, ``--weights``)
+    above the YAML, each line a ``# `` line: a name with a line break in it (``name: "x\\nrobot: evil"``) put its second
+    line out of the comment, so the printed YAML set ``robot: evil`` or did not load at all. Every line of a comment
+    is a comment line; the output loads back as the profile it shows."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.config import commented_yaml
+
+    assert yaml.safe_load(commented_yaml(["a\nrobot: evil", "b\r\nc"], {"robot": "r0"})) == {"robot": "r0"}
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "p.yaml").write_text('name: "x\\nrobot: evil"\nservices: {sim: {}, mapper: {}}\n')
+    for flag in ("--dry-run", "--resolved"):
+        r = CliRunner().invoke(app, ["up", "--profile", "p.yaml", flag])
+        assert r.exit_code == 0, r.output
+        shown = yaml.safe_load(r.output)
+        assert (shown["name"], shown.get("robot", "r0")) == ("x\nrobot: evil", "r0"), r.output
+
+
 YAML12_FORMS = {
     "leading_zero": ("010", 10),  # YAML 1.1 (PyYAML): 8, an octal
     "signed_zero": ("-007", -7),

@@ -80,3 +80,22 @@ def test_the_profiles_check_names_every_bad_profile(tmp_path, monkeypatch):
     assert "configs/profiles/mine.yaml: a profile must list at least one service" in why
     assert "configs/profiles/sim.yaml: unknown key(s) foo" in why
     assert "profiles/lockstep.yaml" not in why
+
+
+def test_the_profiles_check_says_the_weights_problem_once_not_once_per_profile(tmp_path, monkeypatch):
+    """With a ``CSO_WEIGHTS_DIR`` that is no folder, the weights row says why, and the profiles row repeated it for
+    every profile that runs a learned method ("limo-ros2.yaml ...: method cso: CSO_WEIGHTS_DIR=...: no such folder
+    ...; sim.yaml ...: method cso: CSO_WEIGHTS_DIR=...: no such folder ..."). The profiles it stops are named, the
+    reason said once; a profile wrong for its own reason is still named with it."""
+    own = tmp_path / "configs" / "profiles"
+    own.mkdir(parents=True)
+    (own / "mine.yaml").write_text("name: mine\nscene: generated:small:1:0\n")
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("CSO_WEIGHTS_DIR", str(tmp_path / "no-such-folder"))
+    with pytest.raises(ValueError) as exc:
+        doctor.check_profiles()
+    why = str(exc.value)
+    problem = f"CSO_WEIGHTS_DIR={tmp_path / 'no-such-folder'}: no such folder"
+    assert why.count(problem) == 1, why
+    assert why.startswith("3 of 4 profiles do not load: limo-ros2, sim: their method's weights: " + problem), why
+    assert "configs/profiles/mine.yaml: a profile must list at least one service" in why

@@ -2357,6 +2357,24 @@ def test_a_resolved_config_given_to_another_lidar_fov_names_the_flag_that_gave_t
         EvalRequest(methods=["greedy-dist"], config_path=depth).exploration_config()
 
 
+def test_a_set_of_the_sensors_field_of_view_is_sent_to_the_flag_that_sets_it_not_to_a_file(tmp_path: Path):
+    """``eval --set sensor.fov_deg=360`` (no config file) was refused with "give the --sensor and --lidar-fov it was
+    resolved with, or leave sensor.fov_deg out of the file": there is no file, and nothing was resolved. A field of
+    view given by ``--set`` is sent to the flag that gives it (``--lidar-fov 360`` in its place), or, where no flag
+    gives that view (a depth camera's, 100 degrees), told to be left out; a config file's keeps its words."""
+    from cso_runtime.evaluation import EvalRequest
+
+    for settings in ({"sensor.fov_deg": 360}, {"sensor": {"fov_deg": 360}}):
+        with pytest.raises(ConfigError) as refused:
+            EvalRequest(methods=["greedy-dist"], settings=settings).exploration_config()
+        said = str(refused.value)
+        assert "(it says 360; --sensor lidar --lidar-fov 180 gives 180): give --lidar-fov 360 in place of the --set" in said, said
+        assert "file" not in said.split("): ", 1)[1], said
+    with pytest.raises(ConfigError) as refused:
+        EvalRequest(methods=["greedy-dist"], sensor="depth", settings={"sensor.fov_deg": 100}).exploration_config()
+    assert "--sensor depth gives 79): leave sensor.fov_deg out of the --set (the --sensor preset and --lidar-fov set it)" in str(refused.value), refused.value
+
+
 def test_eval_dry_run_says_what_would_run_and_writes_nothing(tmp_path: Path):
     """``eval --dry-run`` checks what a real eval checks and says what it would run (scenes per scale and their first
     names, the m/px, the sensor, the simulator, the workers, the learned methods' weights, what it would do with an

@@ -2311,6 +2311,29 @@ def test_fine_tuning_from_the_shipped_weights_names_the_file_it_started_from(tmp
     assert record["init_from"] == "shipped" and record["init_from_weights"] == {"path": str(shipped), "sha256": digest}
 
 
+def test_a_fine_tuned_runs_record_keeps_the_file_it_started_from_through_a_resume(tmp_path, monkeypatch):
+    """``<variant>.json``'s ``init_from_weights`` (the file ``--init-from`` named, with its SHA-256) was written by the
+    run that started from it alone: a ``--resume`` of that run (``init_from`` is none of the resumed run's own fields)
+    wrote a record with neither ``init_from`` nor ``init_from_weights``, so a fine-tuned run that was stopped and
+    resumed said it started from a fresh network. The checkpoint carries them on. A path given relative to the
+    working folder is recorded as the absolute path of the file read; a run from a fresh network records none."""
+    import hashlib
+
+    monkeypatch.chdir(tmp_path)
+    common = {"seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 40, "progress": False, "hidden": 16, "knn": 4}
+    fresh = train(Args(**common, out_dir="a", total_decisions=4), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert "init_from" not in fresh and "init_from_weights" not in fresh  # --init-from none: no file to name
+    started = {"path": str((tmp_path / "a" / "cso.pt").resolve()), "sha256": hashlib.sha256((tmp_path / "a" / "cso.pt").read_bytes()).hexdigest()}
+    record = train(Args(**common, out_dir="b", init_from="a/cso.pt", total_decisions=4, checkpoint_every=1), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert (record["init_from"], record["init_from_weights"]) == ("a/cso.pt", started)
+    (tmp_path / "a" / "cso.pt").unlink()  # the record says what the run started from, not what is there now
+    resumed = train(Args(**common, out_dir="b", total_decisions=8, resume="b/checkpoint.pt"), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert resumed["ppo_updates"] == 2
+    assert (resumed["init_from"], resumed["init_from_weights"]) == ("a/cso.pt", started)
+    written = json.loads((tmp_path / "b" / "cso.json").read_text())
+    assert (written["init_from"], written["init_from_weights"]) == ("a/cso.pt", started)
+
+
 def test_a_stopped_training_run_leaves_its_learning_curve_so_far(tmp_path):
     """Ctrl-C (or a dead environment process) left the CSV log and the checkpoint but no ``<variant>_curve.png``:
     the curve was drawn only at the end, so the run a user stopped because it looked wrong had no picture to show

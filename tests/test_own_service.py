@@ -251,8 +251,28 @@ def test_dataflow_names_each_service_of_ones_own_by_its_whole_class_on_an_80_col
 
     profile = tmp_path / "own.yaml"
     profile.write_text(docs_block("yaml")[0])
-    r = CliRunner().invoke(app, ["dataflow", "--profile", str(profile)], terminal_width=80, env={"COLUMNS": "80"})
+    r = CliRunner().invoke(app, ["dataflow", "--profile", str(profile)], env={"COLUMNS": "80", "TTY_COMPATIBLE": "1", "NO_COLOR": "1"})  # a terminal
     assert r.exit_code == 0, r.output
     assert "…" not in r.output, r.output
-    first_column = "".join(line.split("│")[1].strip() for line in r.output.splitlines() if line.count("│") == 4)
+    lines = re.sub(r"\x1b\[[0-9;]*m", "", r.output).splitlines()
+    assert max(len(line) for line in lines) == 80, r.output
+    first_column = "".join(line.split("│")[1].strip() for line in lines if line.count("│") == 4)
     assert f"mapper({MAPPER})" in first_column and f"coverage_logger({LOGGER})" in first_column, first_column
+
+
+def test_dataflow_written_to_a_file_wraps_no_cell_and_an_80_column_terminal_still_folds(tmp_path: Path):
+    """Off a terminal (``dataflow > flow.txt``, a pipe, CI) the table was laid out for 80 columns however wide it was:
+    the class of a service of one's own was folded across two lines (``(tests.own_service_exam`` / ``ple:OwnMapper)``)
+    and a key's peers wrapped, so the file could not be searched for the class it names. Off a terminal the table is
+    as wide as its cells (``evaluation.table_console``); on an 80-column terminal it folds (the test above)."""
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    profile = tmp_path / "own.yaml"
+    profile.write_text(docs_block("yaml")[0])
+    r = CliRunner().invoke(app, ["dataflow", "--profile", str(profile)], env={"COLUMNS": "80"})  # CliRunner's output is no terminal
+    assert r.exit_code == 0, r.output
+    cells = [cell.strip() for line in r.output.splitlines() if line.count("│") == 4 for cell in line.split("│")[1:4]]
+    assert f"mapper ({MAPPER})" in cells and f"coverage_logger ({LOGGER})" in cells, r.output
+    assert "odom -> frontier, planner, coverage_logger" in cells, r.output  # a key's peers on its one line

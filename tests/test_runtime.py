@@ -3965,6 +3965,22 @@ def test_status_watch_redraws_one_table_on_a_terminal_and_appends_plain_tables_e
         assert "\x1b" not in text and text.count("robot r0  run run1") == 3  # each status once, one under the other
 
 
+def test_status_json_writes_figures_rounded_not_a_float_sums_digits(monkeypatch, capsys):
+    """``status --json`` printed a float sum's last digits (``"coverage_pct": 0.30000000000000004``, a pose's
+    ``4.7250000000000005``), which a script compares badly and a reader takes for precision: every float of its lines
+    (``status.print_json``) is ``geometry.rounded``, ints and text as they are."""
+    from cso_runtime import status
+
+    answer = status.status_of("r0", {"state": "exploring", "step": 3, "coverage_pct": 0.1 + 0.2, "explored_area_m2": 4.7250000000000005, "scene": "s", "method": "cso"},
+                              {"run_id": "run1", "services": {"sim": {"pid": 1, "restarts": 0}}}, {}, {"sim"})
+    monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: answer)
+    assert status.status_main([loopback_endpoint(7447)], "r0", as_json=True, watch=False, runs_dir=Path(".")) == 0
+    out = capsys.readouterr().out
+    shown = json.loads(out)
+    assert (shown["coverage_pct"], shown["explored_area_m2"], shown["step"]) == (0.3, 4.725, 3), out
+    assert "0000000" not in out, out
+
+
 def write_running_run(runs: Path, run_dir: Path) -> dict[str, Any]:
     """``run_dir``'s run.json and the runs folder's current.json, of a run this process launches (robot r0, a router on
     port 7447), as a running launcher writes them; returns that record."""

@@ -571,3 +571,25 @@ def test_a_misspelt_scene_spec_is_refused_with_the_spelling_it_most_likely_meant
     with pytest.raises(SceneError) as caught:
         resolve_scenes(spec)
     assert str(caught.value) == said
+
+
+def test_scenes_json_writes_figures_rounded_not_a_float_sums_digits():
+    """``scenes --json`` wrote ``"x_m": 4.7250000000000005`` and ``"free_area_m2": 21.922500000000003``: a float sum's
+    last digits, which a script compares badly and a reader takes for precision. Each float is ``geometry.rounded``
+    (``WRITTEN_DECIMALS``: the nanometre, as map files write poses), as written; ints and text untouched."""
+    import json
+    import re
+
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.geometry import WRITTEN_DECIMALS, rounded_floats
+
+    assert rounded_floats({"a": [4.7250000000000005, 2, True, "x", None], "b": {"c": -1e-12}}) == {"a": [4.725, 2, True, "x", None], "b": {"c": 0.0}}
+    assert repr(rounded_floats({"c": -1e-12})["c"]) == "0.0" and isinstance(rounded_floats([True])[0], bool)
+    r = CliRunner().invoke(app, ["scenes", "generated:small:3:0", "--json"])
+    assert r.exit_code == 0, r.output
+    rows = json.loads(r.stdout)
+    floats = re.findall(r"-?\d+\.(\d+)", r.stdout)
+    assert floats and max(len(decimals) for decimals in floats) <= WRITTEN_DECIMALS, r.stdout
+    assert rows[0]["start"]["x_m"] == 4.725 and rows[0]["free_area_m2"] == 21.9225, rows[0]

@@ -1225,6 +1225,7 @@ def _train_on(
         global_decisions, warm_decisions, env_steps = ckpt["decisions"], ckpt["warm_decisions"], ckpt["env_steps"]
         wall_before_s = float(ckpt.get("wall_s", 0.0))
         record["warm_start"] = ckpt.get("warm_start", {})
+        record.update(ckpt.get("started_from") or {})  # a fine-tuned run's init_from and init_from_weights, as it began
         torch.set_rng_state(ckpt["torch_rng"])
         if ckpt.get("cuda_rng") is not None and device.type == "cuda":
             torch.cuda.set_rng_state_all(ckpt["cuda_rng"])
@@ -1239,7 +1240,7 @@ def _train_on(
             log(f"total_decisions {before} -> {args.total_decisions}: {counted(args.num_updates, 'update')} in all, the learning rate anneals over them from here")
     elif args.init_from:
         model.load_state_dict(initial_weights(args, device))
-        start_file = init_from_path(args)
+        start_file = init_from_path(args).resolve()  # the file read, wherever the run is looked at from
         record["init_from"] = str(args.init_from)
         record["init_from_weights"] = {"path": str(start_file), "sha256": file_sha256(start_file)}  # which file `shipped` was
         log(f"initialised from shipped weights {start_file}" if args.init_from == "shipped" else f"initialised from {args.init_from}")
@@ -1410,7 +1411,7 @@ def _train_on(
                 log(f"update {update}/{args.num_updates} decisions {global_decisions} return {row['mean_return']} entropy {row['entropy']:.3f}")
             at_checkpoint = update % args.checkpoint_every == 0 or update == args.num_updates
             if at_checkpoint:
-                _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
+                _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record, wall_before_s + time.time() - t_start)
             out_of_time = bool(args.time_limit_s) and time.time() - t_start > args.time_limit_s
             if out_of_time:
                 if update < args.num_updates:  # a run cut short: say how to finish it (a resume keeps the run's time limit)
@@ -1419,7 +1420,7 @@ def _train_on(
                         f" --resume {out / 'checkpoint.pt'} goes on from here, for {args.time_limit_s:g} s more (the limit counts"
                         " each process's time; add --time-limit-s 0 for none)"
                     )
-                _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record["warm_start"], wall_before_s + time.time() - t_start)
+                _save_resumable(out / "checkpoint.pt", model, optimizer, args, update, global_decisions, warm_decisions, env_steps, record, wall_before_s + time.time() - t_start)
             if args.keep_checkpoints and (at_checkpoint or out_of_time):  # the weights of each checkpoint.pt written, kept
                 save_weights(kept_checkpoint_dir(out, update), model, args, {**record, **run_counts(update, global_decisions, warm_decisions, env_steps, wall_before_s + time.time() - t_start)})
             if (at_checkpoint or out_of_time) and time.time() - curve_drawn_at >= CURVE_REDRAW_EVERY_S:  # it follows the run
@@ -1486,11 +1487,13 @@ def keep_log_rows_up_to(log_path: Path, update: int, fields: Sequence[str] | Non
 
 
 def _save_resumable(
-    path: Path, model: nn.Module, optimizer: optim.Optimizer, args: Args, update: int, decisions: int, warm: int, env_steps: int, warm_stats: dict, wall_s: float
+    path: Path, model: nn.Module, optimizer: optim.Optimizer, args: Args, update: int, decisions: int, warm: int, env_steps: int, record: dict[str, Any], wall_s: float
 ) -> None:
     """What ``--resume`` needs: weights, Adam's state, the counters, the training time so far, the torch
-    generators and the run's ``Args`` (a resume with another recipe is refused). Not the environments' state: the episodes in progress start over on new scenes, so a resumed
-    run goes on like the one it continues but not bit for bit."""
+    generators and the run's ``Args`` (a resume with another recipe is refused), and what of the run's ``record`` it
+    carries on: its warm start's figures, and the weights a fine-tuned run started from (``init_from``,
+    ``init_from_weights``: a resume's own ``init_from`` is none). Not the environments' state: the episodes in progress
+    start over on new scenes, so a resumed run goes on like the one it continues but not bit for bit."""
     save_whole(
         {
             "state_dict": model.state_dict(),
@@ -1501,7 +1504,8 @@ def _save_resumable(
             "decisions": decisions,
             "warm_decisions": warm,
             "env_steps": env_steps,
-            "warm_start": warm_stats,
+            "warm_start": record["warm_start"],
+            "started_from": {key: record[key] for key in ("init_from", "init_from_weights") if key in record},
             "torch_rng": torch.get_rng_state(),
             "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() and torch.cuda.is_initialized() else None,
             "wall_s": round(wall_s, 1),
