@@ -346,7 +346,8 @@ class Launcher:
         self.handler_errors: dict[str, int] = {}
         """Zenoh callback -> how many times it raised (a bug: logged with its traceback, counted, the run goes on)."""
         self.result: EpisodeResultMsg | None = None
-        """The episode's result as published on ``episode_result`` (else it is asked for, ``wait_for_result``)."""
+        """The latest result published on ``episode_result`` (else it is asked for, ``wait_for_result``): the result of
+        the end judged only if it is of that end's episode (``result_of``)."""
         self.path_ahead_m: float | None = None
         """Length of the planner's latest path, robot to goal (live view)."""
         self.outputs_written = False
@@ -594,6 +595,13 @@ class Launcher:
                 self.pace.observe(msg.episode, msg.step, time.monotonic())
         elif isinstance(msg, EpisodeResultMsg):
             self.result = msg
+            with self._lock:  # lost_results: written by the run loop
+                left_behind = msg.episode != 0 and any(e["episode"] == msg.episode for e in self.lost_results)
+            if left_behind:
+                log.warning(
+                    "the result of episode %d came after its end was left behind: it is not the run's, which goes on with episode %s",
+                    msg.episode, self.episode_running,
+                )  # fmt: skip
         elif isinstance(msg, GoalMsg):
             self.latest_goal = payload
         elif isinstance(msg, PathMsg):
@@ -974,7 +982,13 @@ class Launcher:
         ]
 
     # --- results ----------------------------------------------------------------------------------
-    def fetch_result(self, session: Any, timeout_s: float = 3.0) -> EpisodeResultMsg | None:
+    def result_of(self, end: EpisodeStatusMsg | None) -> EpisodeResultMsg | None:
+        """The result heard (``result``) if it can be ``end``'s (``result_is_of``; any, with no end), else None."""
+        result = self.result
+        return result if result is not None and (end is None or result_is_of(result, end)) else None
+
+    def fetch_result(self, session: Any, timeout_s: float = 3.0, end: EpisodeStatusMsg | None = None) -> EpisodeResultMsg | None:
+        """The referee's answer to a query for the result: the first that can be ``end``'s (``result_is_of``)."""
         for reply in session.get(self.keys.episode_result, timeout=timeout_s):
             if reply.ok is None:
                 continue
@@ -984,6 +998,9 @@ class Launcher:
                 log.warning("bad episode result: %s", exc)
                 continue
             assert isinstance(msg, EpisodeResultMsg)
+            if end is not None and not result_is_of(msg, end):
+                log.debug("a result of episode %d answered while episode %d's is awaited: not its", msg.episode, end.episode)
+                continue
             return msg
         return None
 
@@ -994,19 +1011,20 @@ class Launcher:
         Between its queries (3 s at most each) it calls ``meanwhile`` (the run loop's supervision and live view;
         ``supervise`` when not given): a service that crashes or hangs while the result is awaited is restarted. None
         at once when the episode goes on (``episode_goes_on``), or another has started since it ended (a restarted sim's:
-        the result of the ended one went with the process that ran it)."""
+        the result of the ended one went with the process that ran it). Only a result of the ended episode is its
+        result (``result_of``): a late one of another episode (one a restart left behind) is not."""
         tend = self.supervise if meanwhile is None else meanwhile
         deadline = time.monotonic() + wait_s
-        while self.result is None and not self.stop_event.is_set():
+        while self.result_of(self.ended_status) is None and not self.stop_event.is_set():
             left = deadline - time.monotonic()
             if left <= 0 or self.episode_goes_on() or (self.ended_status is not None and self.of_another_episode(self.ended_status)):
                 return None
-            result = self.fetch_result(session, timeout_s=min(3.0, left))
+            result = self.fetch_result(session, timeout_s=min(3.0, left), end=self.ended_status)
             if result is not None:
                 return result
             if not self.stop_event.wait(min(0.1, left)):  # a stop's services are stopped, never restarted
                 tend()
-        return self.result
+        return self.result_of(self.ended_status)
 
     def judge_episode_end(self, session: Any, over: EpisodeStatusMsg, meanwhile: Callable[[], None]) -> tuple[EpisodeStatusMsg, EpisodeResultMsg | None] | None:
         """The run loop's judgement of an end heard (``episode_end_heard``): the end and its result (None: it never
@@ -1015,7 +1033,7 @@ class Launcher:
         (``of_another_episode``: the sim restarted since, into a new episode) whose result is not here, heard so or
         while its result is awaited, is left behind (``end_left_behind``): no result of it will come, and the run goes on
         with the episode running, as after any restart of the sim."""
-        if self.of_another_episode(over) and self.result is None:
+        if self.of_another_episode(over) and self.result_of(over) is None:
             self.end_left_behind(over)
             return None
         self.ended_status, self.exploring_since_end = over, None
@@ -1596,6 +1614,13 @@ class Launcher:
         if self.last_map_step is not None:
             why += f"the episode's map at step {self.last_map_step} is in {self.run_dir / LAST_MAP}; "
         return f"{NO_RESULTS}{why}the run's profile and logs are in {self.run_dir}/ (`cso-runtime logs --run {self.run_dir}`)"
+
+
+def result_is_of(result: EpisodeResultMsg, end: EpisodeStatusMsg) -> bool:
+    """Whether ``result`` can be the result of the episode ``end`` says ended: of its episode (``result.episode``), or
+    either without an id (0: a referee from before results named their episode, or one of one's own without ids),
+    taken as before ids. A result of another episode (a late one of an episode a restart left behind) is not."""
+    return result.episode == 0 or end.episode == 0 or result.episode == end.episode
 
 
 def episode_record(result: EpisodeResultMsg, wall_s: float, sim_time_s: float | None = None, real_time_factor: float | None = None) -> tuple[Any, dict[str, Any]]:

@@ -5453,11 +5453,92 @@ def _launcher_hearing(tmp_path):
     return launcher, hear
 
 
-def _result(steps: int, terminated_by: str):
+def _result(steps: int, terminated_by: str, episode: int = 0):
+    """A result of ``episode`` (0: no id, a referee from before results carried one)."""
     from cso_runtime.messages import EpisodeResultMsg
 
     free = np.ones((4, 4), bool)
-    return EpisodeResultMsg("s", steps, 1.2, 98.0, 1.3, 4.5, terminated_by, 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, "greedy-dist", 0)
+    return EpisodeResultMsg("s", steps, 1.2, 98.0, 1.3, 4.5, terminated_by, 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, "greedy-dist", 0, episode=episode)
+
+
+class _AnsweredResultQueries:
+    """A launcher's session for ``judge_episode_end`` whose queries for the episode's result are answered by the next
+    results of ``answers`` (a list of results per query); a query past them fails the test."""
+
+    def __init__(self, answers: list[list[Any]]) -> None:
+        self.answers, self.queries = list(answers), 0
+
+    def get(self, key: str, timeout: float) -> list[Any]:
+        from types import SimpleNamespace
+
+        self.queries += 1
+        assert self.answers, f"query {self.queries} for the result: the launcher still waits"
+        return [SimpleNamespace(ok=SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda r=r: encode(r)))) for r in self.answers.pop(0)]
+
+
+def test_a_late_result_of_an_episode_a_restart_left_behind_is_not_the_next_episodes_result(tmp_path, caplog):
+    """Episode 7 ended, its result did not come, the sim restarted (episode 8) and 7's end was left behind; then 7's
+    result came after all (late, in flight from the process that ran it). The launcher kept "whatever result arrived":
+    at episode 8's end it took episode 7's result, at once, and wrote episode 7's figures as the run's under episode
+    8's end. A result names its episode: one of another episode than the end judged is not that end's result, pushed
+    or answered to a query; a result without an id (an older referee's) is taken as before."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    restart = [lambda: None, lambda: hear(EpisodeStatusMsg("starting", 0, episode=8))]
+    assert launcher.judge_episode_end(_ScriptedResultQueries(restart), over, lambda: None) is None  # left behind
+    with caplog.at_level("WARNING", logger="cso.launcher"):
+        hear(_result(31, "coverage", episode=7))  # late: episode 7's result after all
+    said = "the result of episode 7 came after its end was left behind: it is not the run's, which goes on with episode 8"
+    assert said in caplog.text, caplog.text
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 8
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: None, lambda: hear(_result(40, "max_steps", episode=8))]), over, lambda: None)
+    assert judged is not None and judged[1] is not None, judged
+    assert (judged[1].episode, judged[1].steps, judged[0].terminated_by) == (8, 40, "max_steps"), judged
+
+    # answered to a query: a reply of another episode (a late one) is skipped, the end's own taken
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    answers = _AnsweredResultQueries([[_result(31, "coverage", episode=7)], [_result(31, "coverage", episode=7), _result(40, "max_steps", episode=8)]])
+    judged = launcher.judge_episode_end(answers, over, lambda: None)
+    assert judged is not None and judged[1] is not None and (judged[1].episode, judged[1].steps) == (8, 40) and answers.queries == 2
+
+    # a result without an id is the end's, as before ids: pushed or answered
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    judged = launcher.judge_episode_end(_AnsweredResultQueries([[_result(40, "max_steps")]]), over, lambda: None)
+    assert judged is not None and judged[1] is not None and (judged[1].episode, judged[1].steps) == (0, 40)
+
+
+def test_a_result_of_the_running_episode_is_not_taken_for_a_late_end_of_the_episode_before(tmp_path):
+    """Episode 7's end is heard after episode 8 started, and a result is here: the launcher took it for episode 7's,
+    whatever its episode, and ended the run with it. Only episode 7's own result (or one without an id, as before)
+    ends the run there; episode 8's result waits for episode 8's end."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(_result(3, "lockstep_timeout", episode=8))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # late, of the episode before
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None  # left behind, no wait
+    assert [e["episode"] for e in launcher.lost_results] == [7]
+    hear(EpisodeStatusMsg("failed", 3, terminated_by="lockstep_timeout", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)
+    assert judged is not None and judged[1] is not None and (judged[1].episode, judged[1].steps) == (8, 3)
 
 
 def test_the_end_a_result_belongs_to_decides_the_run_not_a_stray_end_awaited_before_it(tmp_path):
