@@ -61,7 +61,15 @@ from cso_runtime.current_run import (
     runs_command,
     starting_up_path,
 )
-from cso_runtime.keys import WILDCARD, RobotKeys, driver_claim_subject, robot_claim_subject, robot_driver_token, topic_of
+from cso_runtime.keys import (
+    WILDCARD,
+    RobotKeys,
+    alive_token_of,
+    driver_claim_subject,
+    robot_claim_subject,
+    robot_driver_token,
+    topic_of,
+)
 from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EPISODE_OVER,
@@ -329,6 +337,10 @@ class Launcher:
         """``time.monotonic()`` when the episode's step (or state: step 0 starts) last changed; a status of the same step
         again does not count."""
         self.alive_services: set[str] = set()
+        self.alive_incarnations: set[tuple[str, str]] = set()
+        """(service, incarnation) of each ``alive/<name>/<incarnation>`` token present: the starts of Python services a
+        launcher started (``Child.incarnation``). A child's own marks it up; ``alive_services`` (any process's
+        ``alive/<name>``) does only for a child with no incarnation, a command node (``token_seen``)."""
         self.left_out = profile.left_out_services()
         """The services this run leaves to other processes (``up --without``, or needed and not in the profile)."""
         self.awaited_services = set(profile.awaited_services())
@@ -649,13 +661,26 @@ class Launcher:
         query.reply(self.keys.launcher_status, encode(self.launcher_status()))
 
     def _on_alive(self, sample: Any) -> None:
-        track_liveliness(self.alive_services, sample)
-        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        """A liveliness token of the robot came or went: ``alive/<name>`` (any process serving ``name``) or
+        ``alive/<name>/<incarnation>`` (one start of a service a launcher started). A child is marked up (``seen_up``)
+        by its own current process's token only (``token_seen``): a predecessor's, heard late, is not its."""
+        parsed = alive_token_of(str(sample.key_expr))
+        if parsed is None:
+            return
+        name, incarnation = parsed
+        if incarnation:
+            if str(sample.kind).endswith("PUT"):
+                self.alive_incarnations.add(parsed)
+            else:
+                self.alive_incarnations.discard(parsed)
+        else:
+            track_liveliness(self.alive_services, sample)
         if name in self.profile.services:
-            if name in self.alive_services:  # came up now, not at the hang check's next round (``kill_hung``)
-                for c in self.children:
-                    if c.name == name and c.alive:
-                        c.seen_up(time.monotonic())
+            for c in self.children:  # came up now, not at the hang check's next round (``kill_hung``)
+                if c.name == name and c.alive and self.token_seen(c):
+                    c.seen_up(time.monotonic())
+            return
+        if incarnation:  # a start of a service of this robot that no child of this run is: its `alive/<name>` says the rest
             return
         if name in self.alive_services:
             if name not in self.outside_services or name in self.left_out:
@@ -667,6 +692,13 @@ class Launcher:
                 return
             meanwhile = "waits for it" if name in self.awaited_services else "goes on without it"
             log.warning("%s, which this run did not start, is gone (%s); the episode %s until one comes back", name, sample.key_expr, meanwhile)
+
+    def token_seen(self, c: Child) -> bool:
+        """Whether ``c``'s current process has its liveliness token: its own ``alive/<name>/<incarnation>`` (a Python
+        service), or, for a child with no incarnation (a command node, which declares ``$CSO_ALIVE_KEY`` alone),
+        ``alive/<name>``, as any process's."""
+        incarnation = c.incarnation  # read once: a spawn on the run loop renews it
+        return (c.name, incarnation) in self.alive_incarnations if incarnation else c.name in self.alive_services
 
     def launcher_status(self) -> LauncherStatusMsg:
         services = {
@@ -809,7 +841,7 @@ class Launcher:
         for c in self.children:
             if c.gave_up or not c.alive or c.proc is None:
                 continue
-            if c.name in self.alive_services:  # its token came while no round looked (``_on_alive`` saw it come)
+            if self.token_seen(c):  # its token came while no round looked (``_on_alive`` saw it come)
                 c.seen_up(now)
             if c.command is not None and (c.came_up or not c.awaits_token):  # answers no status query: only its start is judged
                 continue
@@ -1463,7 +1495,10 @@ class Launcher:
             if router.connect and self.seen_at_router(claims_session):
                 self.withdraw_claims()  # a run started from now on is refused by what it sees of this one
                 claiming.close()
-            alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._guarded(self._on_alive), history=True)
+            alive_subs = [
+                session.liveliness().declare_subscriber(key, self._guarded(self._on_alive), history=True)
+                for key in (self.keys.alive("*"), self.keys.alive_incarnation("*", "*"))
+            ]
             if self.profile.supervision.hang_timeout_s > 0:
                 self.status_watch = StatusWatch(session, self.keys, self.stop_event)
                 self.status_watch.start()
@@ -1566,7 +1601,8 @@ class Launcher:
                         log.info("pyplot's import (for the figures; a first run builds matplotlib's font cache) is not done: the stop does not wait for it")
                 if self.run_folder.lost():  # deleted since the last round: the stop's lines and the run's end are kept too
                     self.tend_run_folder()
-                alive_sub.undeclare()
+                for a in alive_subs:
+                    a.undeclare()
                 for q in qs:
                     q.undeclare()
                 for d in drivers:
