@@ -453,7 +453,7 @@ MOUNT_SEARCH_MESSAGES = 200
 def recorded_map_origins(recording: Path, robot: str) -> dict[int, Pose2D]:
     """Episode id -> the scene's map origin, from ``robot``'s ``episode_status`` messages in ``recording`` (the sim
     publishes one only after the first map, so it is read before the export: the first map is in the map frame too).
-    ``episode_result`` carries the same origin but no episode id, and comes after a status of its episode."""
+    ``episode_result`` carries the same origin (and its episode id only from referees that send one), and comes after a status of its episode."""
     prefix = f"cso/{robot}/"
     origins: dict[int, Pose2D] = {}
     for m in read_recording(recording, topics=("episode_status",), quiet=True):

@@ -12,6 +12,8 @@ from dataclasses import dataclass
 ROOT = "cso"
 WILDCARD = "*"
 _ROBOT_ID = re.compile(r"^[A-Za-z0-9_-]{1,64}$")
+_INCARNATION = _ROBOT_ID
+"""What a start's nonce may be (``RobotKeys.alive_incarnation``): one plain key chunk."""
 
 class KeyExprError(ValueError):
     """A robot id or key expression is not valid."""
@@ -148,6 +150,15 @@ class RobotKeys:
         """Liveliness token of one service (``*`` for all)."""
         return f"{ROOT}/{self.robot}/alive/{service}"
 
+    def alive_incarnation(self, service: str, incarnation: str) -> str:
+        """Liveliness token of one start of a service that a launcher started (``*`` for any), beside its ``alive``
+        token: ``incarnation`` is the nonce that start was given (``processes.INCARNATION_ENV``), so that the launcher
+        tells its own process's token from a predecessor's. ``alive("*")`` (one chunk) does not match it: every other
+        reader of ``alive/<name>`` sees what it always saw."""
+        if incarnation != WILDCARD and not _INCARNATION.match(incarnation):
+            raise KeyExprError(f"incarnation {incarnation!r} must be 1-64 letters, digits, '_' or '-'")
+        return f"{ROOT}/{self.robot}/alive/{service}/{incarnation}"
+
     def service_status(self, service: str) -> str:
         """Queryable with a service's own health (``ServiceStatusMsg``)."""
         return f"{ROOT}/{self.robot}/service/{service}/status"
@@ -169,6 +180,15 @@ def robot_of(key_expr: str) -> str:
     if len(parts) < 3 or parts[0] != ROOT:
         raise KeyExprError(f"{key_expr!r} is not a cso/<robot>/... key")
     return check_robot_id(parts[1])
+
+
+def alive_token_of(key_expr: str) -> tuple[str, str] | None:
+    """``(service, incarnation)`` of a concrete liveliness key ``cso/<robot>/alive/<service>`` (incarnation ``""``) or
+    ``cso/<robot>/alive/<service>/<incarnation>`` (``RobotKeys.alive_incarnation``); None for any other key."""
+    parts = str(key_expr).split("/")
+    if len(parts) not in (4, 5) or parts[0] != ROOT or parts[2] != "alive":
+        return None
+    return parts[3], parts[4] if len(parts) == 5 else ""
 
 
 def topic_of(key_expr: str) -> str:

@@ -61,7 +61,15 @@ from cso_runtime.current_run import (
     runs_command,
     starting_up_path,
 )
-from cso_runtime.keys import WILDCARD, RobotKeys, driver_claim_subject, robot_claim_subject, robot_driver_token, topic_of
+from cso_runtime.keys import (
+    WILDCARD,
+    RobotKeys,
+    alive_token_of,
+    driver_claim_subject,
+    robot_claim_subject,
+    robot_driver_token,
+    topic_of,
+)
 from cso_runtime.live_view import LiveView, progress_line
 from cso_runtime.messages import (
     EPISODE_OVER,
@@ -329,6 +337,10 @@ class Launcher:
         """``time.monotonic()`` when the episode's step (or state: step 0 starts) last changed; a status of the same step
         again does not count."""
         self.alive_services: set[str] = set()
+        self.alive_incarnations: set[tuple[str, str]] = set()
+        """(service, incarnation) of each ``alive/<name>/<incarnation>`` token present: the starts of Python services a
+        launcher started (``Child.incarnation``). A child's own marks it up; ``alive_services`` (any process's
+        ``alive/<name>``) does only for a child with no incarnation, a command node (``token_seen``)."""
         self.left_out = profile.left_out_services()
         """The services this run leaves to other processes (``up --without``, or needed and not in the profile)."""
         self.awaited_services = set(profile.awaited_services())
@@ -346,7 +358,8 @@ class Launcher:
         self.handler_errors: dict[str, int] = {}
         """Zenoh callback -> how many times it raised (a bug: logged with its traceback, counted, the run goes on)."""
         self.result: EpisodeResultMsg | None = None
-        """The episode's result as published on ``episode_result`` (else it is asked for, ``wait_for_result``)."""
+        """The latest result published on ``episode_result`` (else it is asked for, ``wait_for_result``): the result of
+        the end judged only if it is of that end's episode (``result_of``)."""
         self.path_ahead_m: float | None = None
         """Length of the planner's latest path, robot to goal (live view)."""
         self.outputs_written = False
@@ -594,6 +607,13 @@ class Launcher:
                 self.pace.observe(msg.episode, msg.step, time.monotonic())
         elif isinstance(msg, EpisodeResultMsg):
             self.result = msg
+            with self._lock:  # lost_results: written by the run loop
+                left_behind = msg.episode != 0 and any(e["episode"] == msg.episode for e in self.lost_results)
+            if left_behind:
+                log.warning(
+                    "the result of episode %d came after its end was left behind: it is not the run's, which goes on with episode %s",
+                    msg.episode, self.episode_running,
+                )  # fmt: skip
         elif isinstance(msg, GoalMsg):
             self.latest_goal = payload
         elif isinstance(msg, PathMsg):
@@ -641,13 +661,26 @@ class Launcher:
         query.reply(self.keys.launcher_status, encode(self.launcher_status()))
 
     def _on_alive(self, sample: Any) -> None:
-        track_liveliness(self.alive_services, sample)
-        name = str(sample.key_expr).rsplit("/", 1)[-1]
+        """A liveliness token of the robot came or went: ``alive/<name>`` (any process serving ``name``) or
+        ``alive/<name>/<incarnation>`` (one start of a service a launcher started). A child is marked up (``seen_up``)
+        by its own current process's token only (``token_seen``): a predecessor's, heard late, is not its."""
+        parsed = alive_token_of(str(sample.key_expr))
+        if parsed is None:
+            return
+        name, incarnation = parsed
+        if incarnation:
+            if str(sample.kind).endswith("PUT"):
+                self.alive_incarnations.add(parsed)
+            else:
+                self.alive_incarnations.discard(parsed)
+        else:
+            track_liveliness(self.alive_services, sample)
         if name in self.profile.services:
-            if name in self.alive_services:  # came up now, not at the hang check's next round (``kill_hung``)
-                for c in self.children:
-                    if c.name == name and c.alive:
-                        c.seen_up(time.monotonic())
+            for c in self.children:  # came up now, not at the hang check's next round (``kill_hung``)
+                if c.name == name and c.alive and self.token_seen(c):
+                    c.seen_up(time.monotonic())
+            return
+        if incarnation:  # a start of a service of this robot that no child of this run is: its `alive/<name>` says the rest
             return
         if name in self.alive_services:
             if name not in self.outside_services or name in self.left_out:
@@ -659,6 +692,13 @@ class Launcher:
                 return
             meanwhile = "waits for it" if name in self.awaited_services else "goes on without it"
             log.warning("%s, which this run did not start, is gone (%s); the episode %s until one comes back", name, sample.key_expr, meanwhile)
+
+    def token_seen(self, c: Child) -> bool:
+        """Whether ``c``'s current process has its liveliness token: its own ``alive/<name>/<incarnation>`` (a Python
+        service), or, for a child with no incarnation (a command node, which declares ``$CSO_ALIVE_KEY`` alone),
+        ``alive/<name>``, as any process's."""
+        incarnation = c.incarnation  # read once: a spawn on the run loop renews it
+        return (c.name, incarnation) in self.alive_incarnations if incarnation else c.name in self.alive_services
 
     def launcher_status(self) -> LauncherStatusMsg:
         services = {
@@ -801,7 +841,7 @@ class Launcher:
         for c in self.children:
             if c.gave_up or not c.alive or c.proc is None:
                 continue
-            if c.name in self.alive_services:  # its token came while no round looked (``_on_alive`` saw it come)
+            if self.token_seen(c):  # its token came while no round looked (``_on_alive`` saw it come)
                 c.seen_up(now)
             if c.command is not None and (c.came_up or not c.awaits_token):  # answers no status query: only its start is judged
                 continue
@@ -974,7 +1014,13 @@ class Launcher:
         ]
 
     # --- results ----------------------------------------------------------------------------------
-    def fetch_result(self, session: Any, timeout_s: float = 3.0) -> EpisodeResultMsg | None:
+    def result_of(self, end: EpisodeStatusMsg | None) -> EpisodeResultMsg | None:
+        """The result heard (``result``) if it can be ``end``'s (``result_is_of``; any, with no end), else None."""
+        result = self.result
+        return result if result is not None and (end is None or result_is_of(result, end)) else None
+
+    def fetch_result(self, session: Any, timeout_s: float = 3.0, end: EpisodeStatusMsg | None = None) -> EpisodeResultMsg | None:
+        """The referee's answer to a query for the result: the first that can be ``end``'s (``result_is_of``)."""
         for reply in session.get(self.keys.episode_result, timeout=timeout_s):
             if reply.ok is None:
                 continue
@@ -984,6 +1030,9 @@ class Launcher:
                 log.warning("bad episode result: %s", exc)
                 continue
             assert isinstance(msg, EpisodeResultMsg)
+            if end is not None and not result_is_of(msg, end):
+                log.debug("a result of episode %d answered while episode %d's is awaited: not its", msg.episode, end.episode)
+                continue
             return msg
         return None
 
@@ -994,19 +1043,20 @@ class Launcher:
         Between its queries (3 s at most each) it calls ``meanwhile`` (the run loop's supervision and live view;
         ``supervise`` when not given): a service that crashes or hangs while the result is awaited is restarted. None
         at once when the episode goes on (``episode_goes_on``), or another has started since it ended (a restarted sim's:
-        the result of the ended one went with the process that ran it)."""
+        the result of the ended one went with the process that ran it). Only a result of the ended episode is its
+        result (``result_of``): a late one of another episode (one a restart left behind) is not."""
         tend = self.supervise if meanwhile is None else meanwhile
         deadline = time.monotonic() + wait_s
-        while self.result is None and not self.stop_event.is_set():
+        while self.result_of(self.ended_status) is None and not self.stop_event.is_set():
             left = deadline - time.monotonic()
             if left <= 0 or self.episode_goes_on() or (self.ended_status is not None and self.of_another_episode(self.ended_status)):
                 return None
-            result = self.fetch_result(session, timeout_s=min(3.0, left))
+            result = self.fetch_result(session, timeout_s=min(3.0, left), end=self.ended_status)
             if result is not None:
                 return result
             if not self.stop_event.wait(min(0.1, left)):  # a stop's services are stopped, never restarted
                 tend()
-        return self.result
+        return self.result_of(self.ended_status)
 
     def judge_episode_end(self, session: Any, over: EpisodeStatusMsg, meanwhile: Callable[[], None]) -> tuple[EpisodeStatusMsg, EpisodeResultMsg | None] | None:
         """The run loop's judgement of an end heard (``episode_end_heard``): the end and its result (None: it never
@@ -1015,7 +1065,7 @@ class Launcher:
         (``of_another_episode``: the sim restarted since, into a new episode) whose result is not here, heard so or
         while its result is awaited, is left behind (``end_left_behind``): no result of it will come, and the run goes on
         with the episode running, as after any restart of the sim."""
-        if self.of_another_episode(over) and self.result is None:
+        if self.of_another_episode(over) and self.result_of(over) is None:
             self.end_left_behind(over)
             return None
         self.ended_status, self.exploring_since_end = over, None
@@ -1445,7 +1495,10 @@ class Launcher:
             if router.connect and self.seen_at_router(claims_session):
                 self.withdraw_claims()  # a run started from now on is refused by what it sees of this one
                 claiming.close()
-            alive_sub = session.liveliness().declare_subscriber(self.keys.alive("*"), self._guarded(self._on_alive), history=True)
+            alive_subs = [
+                session.liveliness().declare_subscriber(key, self._guarded(self._on_alive), history=True)
+                for key in (self.keys.alive("*"), self.keys.alive_incarnation("*", "*"))
+            ]
             if self.profile.supervision.hang_timeout_s > 0:
                 self.status_watch = StatusWatch(session, self.keys, self.stop_event)
                 self.status_watch.start()
@@ -1548,7 +1601,8 @@ class Launcher:
                         log.info("pyplot's import (for the figures; a first run builds matplotlib's font cache) is not done: the stop does not wait for it")
                 if self.run_folder.lost():  # deleted since the last round: the stop's lines and the run's end are kept too
                     self.tend_run_folder()
-                alive_sub.undeclare()
+                for a in alive_subs:
+                    a.undeclare()
                 for q in qs:
                     q.undeclare()
                 for d in drivers:
@@ -1596,6 +1650,13 @@ class Launcher:
         if self.last_map_step is not None:
             why += f"the episode's map at step {self.last_map_step} is in {self.run_dir / LAST_MAP}; "
         return f"{NO_RESULTS}{why}the run's profile and logs are in {self.run_dir}/ (`cso-runtime logs --run {self.run_dir}`)"
+
+
+def result_is_of(result: EpisodeResultMsg, end: EpisodeStatusMsg) -> bool:
+    """Whether ``result`` can be the result of the episode ``end`` says ended: of its episode (``result.episode``), or
+    either without an id (0: a referee from before results named their episode, or one of one's own without ids),
+    taken as before ids. A result of another episode (a late one of an episode a restart left behind) is not."""
+    return result.episode == 0 or end.episode == 0 or result.episode == end.episode
 
 
 def episode_record(result: EpisodeResultMsg, wall_s: float, sim_time_s: float | None = None, real_time_factor: float | None = None) -> tuple[Any, dict[str, Any]]:

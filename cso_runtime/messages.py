@@ -1465,6 +1465,12 @@ class EpisodeResultMsg(Message):
     """Why it ended, where ``terminated_by`` alone does not say (``EpisodeResult.ended_why``: the frontier service's
     ``ended_why`` for ``no_frontier``); empty otherwise. Optional on decoding (older referees do not send it); absent
     while empty."""
+    episode: int = 0
+    """Episode id of the episode it is the result of, as on its ``episode_status`` (the sim's and the ros2_bridge's):
+    the launcher takes a result for the end it judges only when it is of that end's episode (``Launcher.result_of``),
+    so a late result of an episode a restart left behind is never the next episode's. Optional within v4, no version
+    bump: 0, no id (a referee from before it, or one of one's own without ids), is sent as no field at all, and such a
+    result is taken for whichever end is judged, as before."""
 
     SCALARS: ClassVar[tuple[str, ...]] = ("explored_area_m2", "coverage_pct", "traversable_area_m2", "path_length_m", "resolution_m")
 
@@ -1491,6 +1497,8 @@ class EpisodeResultMsg(Message):
         )
         if self.ended_why:
             b["ended_why"] = self.ended_why
+        if self.episode:
+            b["episode"] = self.episode
         return b
 
     @classmethod
@@ -1525,6 +1533,7 @@ class EpisodeResultMsg(Message):
             final_map=MapMsg.from_body(final_map, where=f"{w}.final_map") if final_map is not None else None,
             map_origin=_pose_in(b, "map_origin", w),
             ended_why=_str(b, "ended_why", w) if "ended_why" in b else "",
+            episode=_int(b, "episode", w) if b.get("episode") is not None else 0,  # optional: absent or nil, no id
             **scalars,
         )
 

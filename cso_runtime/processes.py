@@ -108,6 +108,13 @@ PARENT_PID_ENV = "CSO_PARENT_PID"
 """The environment variable in which the launcher gives each service it starts its own pid (``launcher_gone``)."""
 
 
+INCARNATION_ENV = "CSO_INCARNATION"
+"""The environment variable in which the launcher gives each Python service it starts a nonce of its own, new at each
+start (``supervision.Child.spawn``): the service declares ``alive/<name>/<nonce>`` beside ``alive/<name>``
+(``RobotKeys.alive_incarnation``), and the launcher takes only its current process's for that process's coming up.
+Empty or unset (a service started by hand, a command node): no such token."""
+
+
 def starting_launcher_pid() -> int | None:
     """The pid of the launcher that started this service (``CSO_PARENT_PID``, which ``supervision.Child`` sets); None
     for a service started by hand (``cso-runtime service``, ``python -m services.NAME``)."""

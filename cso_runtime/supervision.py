@@ -10,6 +10,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import secrets
 import signal
 import subprocess
 import sys
@@ -17,7 +18,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cso_runtime.processes import PARENT_PID_ENV, STACK_DUMP_SIGNAL
+from cso_runtime.processes import INCARNATION_ENV, PARENT_PID_ENV, STACK_DUMP_SIGNAL
 
 log = logging.getLogger("cso.launcher")
 
@@ -69,6 +70,10 @@ class Child:
     came_up_at: float = 0.0
     """``time.monotonic()`` when the launcher saw its current process come up: its hang check counts from then, not
     from its start (a start longer than ``hang_timeout_s`` is ``start_timeout_s``'s to judge)."""
+    incarnation: str = ""
+    """The nonce its current process was given (``INCARNATION_ENV``), new at each ``spawn`` of a Python service: its
+    ``alive/<name>/<incarnation>`` token is that process's coming up, a predecessor's token never is. Empty for a
+    command node (it declares ``$CSO_ALIVE_KEY`` alone, which is its coming up) and before the first spawn."""
 
     @property
     def restarts(self) -> int:
@@ -119,8 +124,9 @@ class Child:
     def spawn(self) -> None:
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         self.came_up = False  # before its process runs: a token it declares at once is its own coming up, never undone
+        self.incarnation = secrets.token_hex(8) if self.command is None else ""  # before it runs, as ``came_up``
         with self.log_path.open("ab") as fh:
-            env = {**os.environ, "PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid()), **self.env}
+            env = {**os.environ, "PYTHONUNBUFFERED": "1", PARENT_PID_ENV: str(os.getpid()), INCARNATION_ENV: self.incarnation, **self.env}
             self.proc = subprocess.Popen(self.argv, stdout=fh, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, start_new_session=True, env=env)
         self.restart_at = None
         self.spawned_at = time.monotonic()

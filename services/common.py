@@ -52,7 +52,7 @@ from cso_runtime.config import (
     load_yaml,
 )
 from cso_runtime.geometry import GridGeometry, Pose2D
-from cso_runtime.keys import RobotKeys, check_robot_id, robot_of, topic_of
+from cso_runtime.keys import KeyExprError, RobotKeys, check_robot_id, robot_of, topic_of
 from cso_runtime.messages import (
     DEFAULT_MAX_GRID_CELLS,
     CmdVelMsg,
@@ -69,6 +69,7 @@ M = TypeVar("M", bound=Message)
 from cso_runtime.observation import Observation, ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
 from cso_runtime.processes import (
+    INCARNATION_ENV,
     PARENT_CHECK_PERIOD_S,
     PARENT_PID_ENV,
     dump_stacks_on_signal,
@@ -550,6 +551,21 @@ class ServiceInputs:
             return None
 
 
+def own_incarnation_token(session: zenoh.Session, keys: RobotKeys, name: str) -> Any | None:
+    """The token ``alive/<name>/<incarnation>`` of this start (``INCARNATION_ENV``, which the launcher that started the
+    service set: ``RobotKeys.alive_incarnation``), declared beside ``alive/<name>``; None for a service started by hand
+    (no incarnation), which its launcher, if any, does not supervise."""
+    incarnation = os.environ.get(INCARNATION_ENV, "")
+    if not incarnation:
+        return None
+    try:
+        key = keys.alive_incarnation(name, incarnation)
+    except KeyExprError as exc:  # not the launcher's: the launcher then sees it start and never come up
+        log.warning("%s: %s=%r is no key chunk (%s): no incarnation token", name, INCARNATION_ENV, incarnation, exc)
+        return None
+    return session.liveliness().declare_token(key)
+
+
 def run_service(service: Service, stop: threading.Event | None = None) -> int:
     """Open the session and run the service's event loop until ``stop`` is set (or a signal)."""
     ctx = service.ctx
@@ -596,6 +612,7 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
             log.info("%s: warmed up in %.0f ms", service.name, (time.perf_counter() - t0) * 1e3)
         except Exception:  # only a speed-up: the first step pays the one-off costs instead
             log.exception("%s: warm-up failed after %.0f ms; starting without it", service.name, (time.perf_counter() - t0) * 1e3)
+        own = own_incarnation_token(session, ctx.keys, service.name)  # first: its launcher's sign that this process is up
         token = session.liveliness().declare_token(ctx.keys.alive(service.name))
         log.info("%s: up for robot %s (inputs: %s)", service.name, sub_robot, ", ".join(service.inputs) or "none")
         try:
@@ -623,6 +640,8 @@ def run_service(service: Service, stop: threading.Event | None = None) -> int:
                     service.shutdown()
             finally:
                 token.undeclare()
+                if own is not None:
+                    own.undeclare()
                 status_q.undeclare()
                 for s in subs:
                     s.undeclare()

@@ -1090,6 +1090,7 @@ class Ros2BridgeService(Service):
             seed=int(self.ctx.profile.get("seed", 0)),
             final_map=m,
             ended_why=self.ended_why,
+            episode=self.episode,  # whose result: the bridge starts a new episode in the same process
         )
 
     def finish(self, terminated_by: str, ended_why: str = "") -> None:

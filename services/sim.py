@@ -348,6 +348,7 @@ class SimService(Service):
             final_map=self.kept("map", MapMsg),
             map_origin=self.sim.plan.map_origin,
             ended_why=ended_why,
+            episode=self.episode,  # whose result: a launcher never takes it for a later episode's (after a restart)
         )
         why = f" ({self.fail_reason})" if self.fail_reason else ""
         log.info("episode %s at step %d: %s%s, coverage %.2f%%, %.2f m2 explored", state, self.step, terminated_by, why, self.result.coverage_pct, self.explored_m2)

@@ -758,6 +758,7 @@ def test_the_result_query_answers_the_final_result_as_published_once_the_episode
     answered = decode(payload, EpisodeResultMsg)
     assert key == RobotKeys("r0").episode_result
     assert (answered.steps, answered.path_length_m, answered.terminated_by) == (published.steps, published.path_length_m, "no_frontier")
+    assert answered.episode == published.episode == svc.episode != 0  # whose result: never taken for a later episode's
     np.testing.assert_array_equal(answered.trajectory_xy_m, published.trajectory_xy_m)
 
 

@@ -2864,13 +2864,105 @@ def test_a_restarted_service_whose_token_comes_as_the_hang_check_looks_is_not_ki
     try:
         c.came_up_at = now - 60.0  # as its previous process left it
         la.children = [c]
-        la._on_alive(SimpleNamespace(key_expr=la.keys.alive("mapper"), kind="SampleKind.PUT"))
+        la._on_alive(SimpleNamespace(key_expr=la.keys.alive_incarnation("mapper", c.incarnation), kind="SampleKind.PUT"))  # its own start's
         assert checked == [0, 0], "the new process was killed as hung as its token came"
         assert c.came_up and c.came_up_at >= now and c.alive
     finally:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(c.proc.pid, signal.SIGKILL)  # type: ignore[union-attr]
         c.proc.wait(10)  # type: ignore[union-attr]
+
+
+def test_a_restarted_service_is_not_marked_up_by_its_predecessors_token(tmp_path):
+    """A liveliness token did not say which process declared it: a restarted service was marked up (``came_up``) by its
+    predecessor's token, a PUT heard late or a token still there at the hang check's round (its DELETE not read yet),
+    while the new process was still starting, so the hang check judged it by ``hang_timeout_s`` from then instead of
+    ``start_timeout_s``, and killed a slow start as hung. A service the launcher starts also declares
+    ``alive/<name>/<incarnation>``, the nonce its start was given: only its own marks it up. A command node (it declares
+    ``$CSO_ALIVE_KEY`` alone) is judged by that token as before."""
+    from types import SimpleNamespace
+
+    from cso_runtime.launcher import Launcher
+    from cso_runtime.run_profile import find_profile, load_profile
+    from cso_runtime.supervision import Child
+
+    profile, data = load_profile(str(find_profile("lockstep")), {})
+    la = Launcher(profile, data, tmp_path / "run")
+    la.status_watch = SimpleNamespace(behind=lambda now: False, resumed_s=-np.inf, answered_s={})  # type: ignore[assignment]
+
+    def token(key: str, kind: str = "PUT") -> None:
+        la._on_alive(SimpleNamespace(key_expr=key, kind=f"SampleKind.{kind}"))
+
+    c = Child("mapper", [sys.executable, "-c", "import time; time.sleep(60)"], tmp_path / "mapper.log")
+    node = Child("policy", [sys.executable, "-c", "import time; time.sleep(60)"], tmp_path / "node.log", command=["./my_policy"])  # in the policy's place
+    la.children = [c, node]
+    try:
+        c.spawn()  # a restart: its predecessor's token may still be heard
+        token(la.keys.alive("mapper"))  # the predecessor's, late
+        assert not c.came_up, "marked up by its predecessor's token"
+        la.kill_hung(time.monotonic())  # a round with that token still there
+        assert not c.came_up and c.alive
+        predecessor = la.keys.alive_incarnation("mapper", "0123456789abcdef")
+        token(predecessor)
+        la.kill_hung(time.monotonic())
+        assert not c.came_up and c.alive and c.incarnation and c.incarnation != "0123456789abcdef"
+        token(la.keys.alive_incarnation("mapper", c.incarnation))  # its own
+        assert c.came_up
+        token(predecessor, "DELETE")  # the predecessor's goes: the new one is still up
+        la.kill_hung(time.monotonic())
+        assert c.came_up and c.alive and c.hung_kills == 0
+        first = c.incarnation
+        c.spawn()  # its next restart: a new nonce, and the token of the one before is no longer its own
+        assert c.incarnation != first and not c.came_up
+        la.kill_hung(time.monotonic())
+        assert not c.came_up
+        # a command node declares $CSO_ALIVE_KEY alone: that token is its coming up, as before
+        node.spawn()
+        assert node.incarnation == ""
+        token(la.keys.alive("policy"))
+        assert node.came_up
+    finally:
+        for child in (c, node):
+            if child.proc is not None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(child.proc.pid, signal.SIGKILL)
+                child.proc.wait(10)
+
+
+def test_a_service_started_by_a_launcher_declares_its_starts_token_beside_the_one_every_reader_reads(tmp_path, monkeypatch):
+    """A Python service given an incarnation (``CSO_INCARNATION``, set by ``Child.spawn``) declares
+    ``alive/<name>/<incarnation>`` beside ``alive/<name>``, and withdraws both as it stops; ``alive/*``, which
+    ``status``, the sim, a shared policy and every reader of the documented key subscribe to, matches the plain one
+    alone. Started by hand (no incarnation) it declares the plain one alone, as before."""
+    from cso_runtime.processes import INCARNATION_ENV
+    from services.common import ServiceContext, run_service
+    from services.mapper import MapperService
+
+    port = free_tcp_port()
+    router = TransportConfig(mode="router", listen=[loopback_endpoint(port)])
+    client = TransportConfig(mode="client", connect=[loopback_endpoint(port)])
+    keys = RobotKeys("t4")
+
+    def tokens(session: Any, key: str) -> list[str]:
+        return sorted(str(r.ok.key_expr) for r in session.liveliness().get(key, timeout=0.5) if r.ok)
+
+    with open_session(router) as session:
+        for incarnation in ("5eed0123abcd4567", ""):
+            monkeypatch.setenv(INCARNATION_ENV, incarnation)
+            svc = MapperService(ServiceContext("mapper", "t4", {}, ExplorationConfig(), client, {"restore_timeout_s": 0.1}))
+            stop = threading.Event()
+            th = threading.Thread(target=run_service, args=(svc, stop), daemon=True)
+            th.start()
+            try:
+                wait_for(lambda: tokens(session, keys.alive("*")), HANG_DEADLINE_S, "the mapper's token")
+                own = [keys.alive_incarnation("mapper", incarnation)] if incarnation else []
+                wait_for(lambda own=own: tokens(session, keys.alive_incarnation("*", "*")) == own, 10, "its start's token")
+                assert tokens(session, keys.alive("*")) == [keys.alive("mapper")]
+            finally:
+                stop.set()
+                th.join(HANG_DEADLINE_S)
+            assert not th.is_alive()
+            wait_for(lambda: not tokens(session, f"{keys.prefix}/alive/**"), 10, "both tokens withdrawn")
 
 
 def test_status_of_a_service_that_answers_before_its_token_is_seen_says_one_state():
@@ -5469,11 +5561,92 @@ def _launcher_hearing(tmp_path):
     return launcher, hear
 
 
-def _result(steps: int, terminated_by: str):
+def _result(steps: int, terminated_by: str, episode: int = 0):
+    """A result of ``episode`` (0: no id, a referee from before results carried one)."""
     from cso_runtime.messages import EpisodeResultMsg
 
     free = np.ones((4, 4), bool)
-    return EpisodeResultMsg("s", steps, 1.2, 98.0, 1.3, 4.5, terminated_by, 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, "greedy-dist", 0)
+    return EpisodeResultMsg("s", steps, 1.2, 98.0, 1.3, 4.5, terminated_by, 3, np.ones(3), np.zeros((4, 2)), np.linspace(0, 98, 4), free, free, 0.1, "greedy-dist", 0, episode=episode)
+
+
+class _AnsweredResultQueries:
+    """A launcher's session for ``judge_episode_end`` whose queries for the episode's result are answered by the next
+    results of ``answers`` (a list of results per query); a query past them fails the test."""
+
+    def __init__(self, answers: list[list[Any]]) -> None:
+        self.answers, self.queries = list(answers), 0
+
+    def get(self, key: str, timeout: float) -> list[Any]:
+        from types import SimpleNamespace
+
+        self.queries += 1
+        assert self.answers, f"query {self.queries} for the result: the launcher still waits"
+        return [SimpleNamespace(ok=SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda r=r: encode(r)))) for r in self.answers.pop(0)]
+
+
+def test_a_late_result_of_an_episode_a_restart_left_behind_is_not_the_next_episodes_result(tmp_path, caplog):
+    """Episode 7 ended, its result did not come, the sim restarted (episode 8) and 7's end was left behind; then 7's
+    result came after all (late, in flight from the process that ran it). The launcher kept "whatever result arrived":
+    at episode 8's end it took episode 7's result, at once, and wrote episode 7's figures as the run's under episode
+    8's end. A result names its episode: one of another episode than the end judged is not that end's result, pushed
+    or answered to a query; a result without an id (an older referee's) is taken as before."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    restart = [lambda: None, lambda: hear(EpisodeStatusMsg("starting", 0, episode=8))]
+    assert launcher.judge_episode_end(_ScriptedResultQueries(restart), over, lambda: None) is None  # left behind
+    with caplog.at_level("WARNING", logger="cso.launcher"):
+        hear(_result(31, "coverage", episode=7))  # late: episode 7's result after all
+    said = "the result of episode 7 came after its end was left behind: it is not the run's, which goes on with episode 8"
+    assert said in caplog.text, caplog.text
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 8
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([lambda: None, lambda: hear(_result(40, "max_steps", episode=8))]), over, lambda: None)
+    assert judged is not None and judged[1] is not None, judged
+    assert (judged[1].episode, judged[1].steps, judged[0].terminated_by) == (8, 40, "max_steps"), judged
+
+    # answered to a query: a reply of another episode (a late one) is skipped, the end's own taken
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    answers = _AnsweredResultQueries([[_result(31, "coverage", episode=7)], [_result(31, "coverage", episode=7), _result(40, "max_steps", episode=8)]])
+    judged = launcher.judge_episode_end(answers, over, lambda: None)
+    assert judged is not None and judged[1] is not None and (judged[1].episode, judged[1].steps) == (8, 40) and answers.queries == 2
+
+    # a result without an id is the end's, as before ids: pushed or answered
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 5, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    judged = launcher.judge_episode_end(_AnsweredResultQueries([[_result(40, "max_steps")]]), over, lambda: None)
+    assert judged is not None and judged[1] is not None and (judged[1].episode, judged[1].steps) == (0, 40)
+
+
+def test_a_result_of_the_running_episode_is_not_taken_for_a_late_end_of_the_episode_before(tmp_path):
+    """Episode 7's end is heard after episode 8 started, and a result is here: the launcher took it for episode 7's,
+    whatever its episode, and ended the run with it. Only episode 7's own result (or one without an id, as before)
+    ends the run there; episode 8's result waits for episode 8's end."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(_result(3, "lockstep_timeout", episode=8))
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))  # late, of the episode before
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None  # left behind, no wait
+    assert [e["episode"] for e in launcher.lost_results] == [7]
+    hear(EpisodeStatusMsg("failed", 3, terminated_by="lockstep_timeout", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)
+    assert judged is not None and judged[1] is not None and (judged[1].episode, judged[1].steps) == (8, 3)
 
 
 def test_the_end_a_result_belongs_to_decides_the_run_not_a_stray_end_awaited_before_it(tmp_path):
@@ -5837,8 +6010,8 @@ def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, rou
     launcher.routers_joined = launcher.count_joined_routers()
     planner = Child("planner", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "planner.log")
     launcher.children = [planner]
-    launcher.alive_services = {"planner"}
     planner.spawn()
+    launcher.alive_services, launcher.alive_incarnations = {"planner"}, {("planner", planner.incarnation)}  # its own token
     launcher.status_watch = SimpleNamespace(answered_s={"planner": planner.spawned_at}, resumed_s=-np.inf, behind=lambda now: False)
     return launcher, planner
 
@@ -5935,10 +6108,10 @@ def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplo
     stuck = Child("mapper", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "mapper.log")
     up = Child("planner", [sys.executable, "-c", "import time; time.sleep(120)"], tmp_path / "planner.log")
     launcher.children = [stuck, up]
-    launcher.alive_services = {"planner"}  # its token came: its hangs are the status watch's (none yet)
     try:
         stuck.spawn()
         up.spawn()
+        launcher.alive_services, launcher.alive_incarnations = {"planner"}, {("planner", up.incarnation)}  # its token came: its hangs are the status watch's (none yet)
         launcher.kill_hung(stuck.spawned_at + 4.9)
         assert stuck.alive and up.alive and stuck.hung_kills == 0
         with caplog.at_level("ERROR", logger="cso.launcher"):
@@ -5946,7 +6119,7 @@ def test_a_service_that_never_comes_up_is_killed_to_be_restarted(tmp_path, caplo
         assert not stuck.alive and stuck.hung_kills == 1 and up.alive and up.hung_kills == 0
         assert any(r.message.startswith(f"mapper (pid {stuck.proc.pid}) runs but has not come up in 100 s") for r in caplog.records)
         # The planner came up; stopped (SIGSTOP), it loses its token when its lease runs out: hung, not starting.
-        launcher.alive_services = set()
+        launcher.alive_services, launcher.alive_incarnations = set(), set()
         launcher.status_watch = SimpleNamespace(
             answered_s={"planner": up.spawned_at + 200.0}, resumed_s=-np.inf, behind=lambda now: False,  # asking all along
         )
@@ -5988,7 +6161,7 @@ def test_a_service_that_comes_up_after_hang_timeout_s_is_not_killed_as_hung(tmp_
     try:
         slow.spawn()
         launcher.kill_hung(slow.spawned_at + 4.0)  # still starting
-        launcher.alive_services = {"planner"}
+        launcher.alive_services, launcher.alive_incarnations = {"planner"}, {("planner", slow.incarnation)}
         came_up_s = slow.spawned_at + 5.0  # its token came 5 s after its start
         launcher.kill_hung(came_up_s)
         launcher.kill_hung(came_up_s + 1.5)

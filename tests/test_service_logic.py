@@ -27,6 +27,7 @@ from cso_runtime.messages import (
     ClockMsg,
     CmdVelMsg,
     DistanceMapMsg,
+    EpisodeResultMsg,
     EpisodeStatusMsg,
     ExploreResumeMsg,
     FrontiersMsg,
@@ -1230,6 +1231,28 @@ def test_sim_waits_before_step_0_for_a_service_the_profile_leaves_out_and_the_ep
     svc.on_tick(svc.started_s + 3.0)
     assert svc.episode_state == "exploring" and svc.step == 0
     assert svc.left_out_needed == {"policy"} and svc.expected_services == {"mapper", "frontier", "planner", "policy"}
+
+
+def test_the_sims_result_names_the_episode_it_is_the_result_of():
+    """The sim's result carried no episode id: a launcher that heard it late, after a restart of the sim had started
+    a new episode, could not tell it from the new episode's and took it for that one's. It carries the id its status
+    and every message of the episode carry; the result query answers the same."""
+    from types import SimpleNamespace
+
+    from services.sim import SimService
+
+    profile = {"lockstep": True, "scene": "generated:small:1:0", "seed": 3, "services": {"sim": {}}}
+    svc = SimService(ServiceContext("sim", "r0", profile, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0}))
+    out: list = []
+    svc.publish = lambda topic, msg, robot=None: out.append((topic, msg))  # type: ignore[method-assign]
+    svc.on_tick(svc.started_s + 1.0)
+    svc.finish("done", "max_steps")
+    (result,) = [m for topic, m in out if topic == "episode_result"]
+    status = [m for topic, m in out if topic == "episode_status"][-1]
+    assert svc.episode != 0 and result.episode == status.episode == svc.episode
+    replies: list = []
+    svc._on_result_query(SimpleNamespace(reply=lambda key, payload: replies.append(payload)))  # type: ignore[arg-type]
+    assert [decode(p, EpisodeResultMsg).episode for p in replies] == [svc.episode]
 
 
 @pytest.mark.parametrize("real_time_factor", [1.0, 4.0, 20.0])

@@ -353,6 +353,7 @@ BODIES: dict[str, list[dict[str, Any]]] = {
             "final_map": map_body(40),
             "map_origin": [1.0, -2.0, 0.5],
             "ended_why": "2 frontier cells left: both unreachable",
+            "episode": EPISODE,  # optional: the id of the episode it is the result of
         }
     ],
     "service_status": [
@@ -468,6 +469,7 @@ def test_the_values_decoded_are_the_ones_the_docs_describe():
     assert (status.coverage_measured, no_odometry.coverage_measured) == (True, False)
     (result,) = bodies["episode_result"]
     assert isinstance(result, EpisodeResultMsg) and result.final_map is not None and result.final_map.step == 40 and result.seed == -3
+    assert result.episode == EPISODE
     (service,) = bodies["service_status"]
     assert isinstance(service, ServiceStatusMsg) and (service.rejected, service.counters) == ({"frontiers": 1}, {"decisions": 2})
     _, launcher = bodies["launcher_status"]
@@ -679,8 +681,10 @@ def test_the_envelope_is_exactly_schema_v_and_body_of_the_current_version():
     assert decode(single, OdometryMsg).pose.x_m == 0.875  # a number packed as a msgpack float32 is a number too
     # a body field the schema does not have is ignored (a newer sender's), an absent optional one is its default
     assert decode(envelope("odom", OdometryMsg.VERSION, {**body, "covariance": [1.0]}), OdometryMsg).step == 3
-    result = {k: v for k, v in BODIES["episode_result"][0].items() if k != "ended_why"}
-    assert decode(envelope("episode_result", EpisodeResultMsg.VERSION, result), EpisodeResultMsg).ended_why == ""
+    result = {k: v for k, v in BODIES["episode_result"][0].items() if k not in ("ended_why", "episode")}  # an older referee's
+    older = decode(envelope("episode_result", EpisodeResultMsg.VERSION, result), EpisodeResultMsg)
+    assert (older.ended_why, older.episode) == ("", 0)
+    assert "episode" not in read_payload(encode(older))[2]  # no id: sent as no field, the body an older reader got
     status = {k: v for k, v in BODIES["episode_status"][0].items() if k != "coverage_measured"}  # a referee that does not say
     assert decode(envelope("episode_status", EpisodeStatusMsg.VERSION, status), EpisodeStatusMsg).coverage_measured is None
 
