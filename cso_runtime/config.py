@@ -988,8 +988,19 @@ def check_output_dir(path: str | Path, flag: str = "--out") -> None:
 def commented_yaml(comments: list[str], data: Any) -> str:
     """``comments`` as ``# `` lines, then ``data`` as YAML in its own key order: what ``up --dry-run``, ``up --resolved``
     and ``eval --resolved`` print, a file that loads back as the profile or config it shows: every line of a comment
-    (a profile's name or a path may hold a line break) is a comment line."""
-    return "".join(f"# {line}\n" for comment in comments for line in comment.splitlines() or [""]) + yaml_dump(data, sort_keys=False)
+    (a profile's name or a path may hold a line break) is a comment line, and a character YAML allows nowhere in a
+    file (a control character, ``\\x07``) is written as its escape, as the YAML below writes it in a value."""
+    lines = (line for comment in comments for line in comment.splitlines() or [""])
+    return "".join(f"# {_YAML_REFUSES.sub(_escaped, line)}\n" for line in lines) + yaml_dump(data, sort_keys=False)
+
+
+_YAML_REFUSES = yaml.reader.Reader.NON_PRINTABLE
+"""The characters PyYAML's reader refuses anywhere in a stream, a comment too ("unacceptable character #x0007")."""
+
+
+def _escaped(found: re.Match[str]) -> str:
+    """A character ``_YAML_REFUSES`` found, as its Python escape: ``\\x07``, ``\\x1b``, ``\\udcff``."""
+    return found.group().encode("unicode_escape").decode("ascii")
 
 
 def set_flag_text(key: str, value: Any) -> str:

@@ -1663,6 +1663,29 @@ def test_a_comment_of_a_dry_run_that_holds_a_line_break_stays_a_comment(tmp_path
         assert (shown["name"], shown.get("robot", "r0")) == ("x\nrobot: evil", "r0"), r.output
 
 
+def test_a_comment_of_a_dry_run_with_a_character_yaml_refuses_stays_yaml(tmp_path, monkeypatch):
+    """A comment's line breaks are comment lines (above), but a character YAML allows nowhere in a file, in a comment
+    neither (a control character: a profile's ``name: "x\\ay"``, a path with an escape sequence in it), was written as
+    it is: the YAML reader refused the whole output ("unacceptable character #x0007"), so ``up --dry-run > p.yaml``
+    gave no profile that loads, and a terminal was sent the raw control characters. Such a character is written as its
+    escape (``\\x07``), as the YAML below the comments writes it in a value."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+    from cso_runtime.config import commented_yaml
+
+    written = commented_yaml(["a\x07b", "c\x1b[2Jd\x7f", "caf\u00e9\tok", "e\udcfff"], {"robot": "r0"})
+    assert yaml.safe_load(written) == {"robot": "r0"}, written
+    assert written.startswith("# a\\x07b\n# c\\x1b[2Jd\\x7f\n# caf\u00e9\tok\n# e\\udcfff\n"), written  # what YAML takes, as it is
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "p.yaml").write_text('name: "x\\ay"\nservices: {sim: {}, mapper: {}}\n')
+    for flag in ("--dry-run", "--resolved"):
+        r = CliRunner().invoke(app, ["up", "--profile", "p.yaml", flag])
+        assert r.exit_code == 0 and "# profile x\\x07y, valid" in r.output, r.output
+        assert yaml.safe_load(r.output)["name"] == "x\ay", r.output
+
+
 YAML12_FORMS = {
     "leading_zero": ("010", 10),  # YAML 1.1 (PyYAML): 8, an octal
     "signed_zero": ("-007", -7),
