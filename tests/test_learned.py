@@ -2334,6 +2334,28 @@ def test_a_fine_tuned_runs_record_keeps_the_file_it_started_from_through_a_resum
     assert (written["init_from"], written["init_from_weights"]) == ("a/cso.pt", started)
 
 
+def test_a_fine_tuned_runs_checkpoint_from_before_started_from_still_names_what_it_started_from(tmp_path, monkeypatch):
+    """A checkpoint written before ``started_from`` (the test above) resumes as before, but its resume wrote a record
+    with neither ``init_from`` nor ``init_from_weights``, as a run from a fresh network, though the checkpoint's
+    ``args`` hold the ``--init-from`` the run was given. The resume records that ``init_from``, and carries it on in
+    its own checkpoints; no ``init_from_weights``, whose SHA-256 would be of the file as it is now, not as it was read."""
+    from cso_runtime.learned.ppo import started_from
+
+    monkeypatch.chdir(tmp_path)
+    common = {"seed": 0, "num_envs": 1, "num_steps": 4, "num_minibatches": 1, "max_steps": 40, "progress": False, "hidden": 16, "knn": 4}
+    train(Args(**common, out_dir="a", total_decisions=4), log=lambda _msg: None, plans=[rooms_plan(2)])
+    train(Args(**common, out_dir="b", init_from="a/cso.pt", total_decisions=4, checkpoint_every=1), log=lambda _msg: None, plans=[rooms_plan(2)])
+    older = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=True)
+    assert older.pop("started_from") == {"init_from": "a/cso.pt", "init_from_weights": json.loads((tmp_path / "b" / "cso.json").read_text())["init_from_weights"]}
+    torch.save(older, tmp_path / "b" / "checkpoint.pt")  # as the version before wrote it
+    resumed = train(Args(**common, out_dir="b", total_decisions=8, checkpoint_every=1, resume="b/checkpoint.pt"), log=lambda _msg: None, plans=[rooms_plan(2)])
+    assert resumed["ppo_updates"] == 2 and resumed["init_from"] == "a/cso.pt" and "init_from_weights" not in resumed, resumed
+    assert json.loads((tmp_path / "b" / "cso.json").read_text())["init_from"] == "a/cso.pt"
+    assert torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=True)["started_from"] == {"init_from": "a/cso.pt"}  # a resume of the resume keeps it
+    # an older resume's checkpoint: its args' init_from (a --init-from given with --resume) is none it started from
+    assert started_from({"args": {"resume": "b/checkpoint.pt", "init_from": "other.pt"}}) == {} and started_from({"args": {"init_from": None}}) == {}
+
+
 def test_a_stopped_training_run_leaves_its_learning_curve_so_far(tmp_path):
     """Ctrl-C (or a dead environment process) left the CSV log and the checkpoint but no ``<variant>_curve.png``:
     the curve was drawn only at the end, so the run a user stopped because it looked wrong had no picture to show

@@ -1225,7 +1225,7 @@ def _train_on(
         global_decisions, warm_decisions, env_steps = ckpt["decisions"], ckpt["warm_decisions"], ckpt["env_steps"]
         wall_before_s = float(ckpt.get("wall_s", 0.0))
         record["warm_start"] = ckpt.get("warm_start", {})
-        record.update(ckpt.get("started_from") or {})  # a fine-tuned run's init_from and init_from_weights, as it began
+        record.update(started_from(ckpt))  # a fine-tuned run's init_from and init_from_weights, as it began
         torch.set_rng_state(ckpt["torch_rng"])
         if ckpt.get("cuda_rng") is not None and device.type == "cuda":
             torch.cuda.set_rng_state_all(ckpt["cuda_rng"])
@@ -1484,6 +1484,20 @@ def keep_log_rows_up_to(log_path: Path, update: int, fields: Sequence[str] | Non
             writer.writerows(rows)
 
     write_whole(log_path, write)
+
+
+def started_from(ckpt: Mapping[str, Any]) -> dict[str, Any]:
+    """What the run a resumable checkpoint continues was fine-tuned from, for its resume's record: the checkpoint's
+    ``started_from`` (``init_from`` and ``init_from_weights``, ``_save_resumable``); one written before it held them
+    names the ``init_from`` its run's ``args`` hold (no ``init_from_weights``: the file's SHA-256 now need not be the
+    one it was read with), unless that run was a resume itself, whose ``init_from`` was none of its own (a ``--init-from``
+    given with ``--resume`` is not read). Empty for a run that started from a fresh network, or where it is not known."""
+    if "started_from" in ckpt:
+        return dict(ckpt["started_from"] or {})
+    saved = ckpt.get("args")
+    if not isinstance(saved, Mapping) or saved.get("resume") or not saved.get("init_from"):
+        return {}
+    return {"init_from": str(saved["init_from"])}
 
 
 def _save_resumable(
