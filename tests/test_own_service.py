@@ -251,7 +251,8 @@ def test_dataflow_names_each_service_of_ones_own_by_its_whole_class_on_an_80_col
 
     profile = tmp_path / "own.yaml"
     profile.write_text(docs_block("yaml")[0])
-    r = CliRunner().invoke(app, ["dataflow", "--profile", str(profile)], env={"COLUMNS": "80", "TTY_COMPATIBLE": "1", "NO_COLOR": "1"})  # a terminal
+    # a terminal: TTY_COMPATIBLE for rich 14 on, FORCE_COLOR for rich 13 (pyproject's rich>=13), which has no TTY_COMPATIBLE
+    r = CliRunner().invoke(app, ["dataflow", "--profile", str(profile)], env={"COLUMNS": "80", "TTY_COMPATIBLE": "1", "FORCE_COLOR": "1", "NO_COLOR": "1"})
     assert r.exit_code == 0, r.output
     assert "…" not in r.output, r.output
     lines = re.sub(r"\x1b\[[0-9;]*m", "", r.output).splitlines()
@@ -264,14 +265,17 @@ def test_dataflow_written_to_a_file_wraps_no_cell_and_an_80_column_terminal_stil
     """Off a terminal (``dataflow > flow.txt``, a pipe, CI) the table was laid out for 80 columns however wide it was:
     the class of a service of one's own was folded across two lines (``(tests.own_service_exam`` / ``ple:OwnMapper)``)
     and a key's peers wrapped, so the file could not be searched for the class it names. Off a terminal the table is
-    as wide as its cells (``evaluation.table_console``); on an 80-column terminal it folds (the test above)."""
+    as wide as its cells (``evaluation.table_console``); on an 80-column terminal it folds (the test above). Whatever
+    the environment the tests run in: a FORCE_COLOR (a CI's, for coloured logs) or TTY_COMPATIBLE=1 there made rich
+    take CliRunner's output for a terminal, and this test fail."""
     from typer.testing import CliRunner
 
     from cso_runtime.cli import app
 
     profile = tmp_path / "own.yaml"
     profile.write_text(docs_block("yaml")[0])
-    r = CliRunner().invoke(app, ["dataflow", "--profile", str(profile)], env={"COLUMNS": "80"})  # CliRunner's output is no terminal
+    no_terminal = {"COLUMNS": "80", "FORCE_COLOR": None, "TTY_COMPATIBLE": None}  # None: unset; CliRunner's output is then no terminal
+    r = CliRunner().invoke(app, ["dataflow", "--profile", str(profile)], env=no_terminal)
     assert r.exit_code == 0, r.output
     cells = [cell.strip() for line in r.output.splitlines() if line.count("│") == 4 for cell in line.split("│")[1:4]]
     assert f"mapper ({MAPPER})" in cells and f"coverage_logger ({LOGGER})" in cells, r.output
