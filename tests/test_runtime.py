@@ -5649,6 +5649,43 @@ def test_a_result_of_the_running_episode_is_not_taken_for_a_late_end_of_the_epis
     assert judged is not None and judged[1] is not None and (judged[1].episode, judged[1].steps) == (8, 3)
 
 
+def test_a_late_result_of_an_end_left_behind_neither_ends_the_run_nor_displaces_the_running_episodes(tmp_path):
+    """Episode 7's end was left behind (the sim restarted into episode 8), then 7's result came late: the launcher said
+    "it is not the run's" but kept it as the result heard. Its end heard again (late or replayed, which ``_on_sample``
+    hands to the run loop to judge) then ended the run with episode 7's result, an episode ``lost_results`` still named
+    lost; and heard after episode 8's own result, it put that one out of reach of a referee that answers no query.
+    A result of an end left behind is never kept."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    end7 = EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7)
+    hear(end7)
+    over = launcher.episode_end_heard()
+    assert over is not None
+    restart = [lambda: None, lambda: hear(EpisodeStatusMsg("starting", 0, episode=8))]
+    assert launcher.judge_episode_end(_ScriptedResultQueries(restart), over, lambda: None) is None  # left behind
+    hear(EpisodeStatusMsg("exploring", 2, episode=8))
+    hear(_result(31, "coverage", episode=7))  # late: not the run's (logged so)
+    hear(end7)  # its end again, late
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None, "the run ended with an episode left behind"
+    assert [e["episode"] for e in launcher.lost_results] == [7]
+    # heard on the Zenoh thread as the run loop left its end behind, before ``lost_results`` named it: kept, but an end
+    # once left behind is left behind whatever result comes later
+    launcher.result = _result(31, "coverage", episode=7)
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None, "the run ended with an episode left behind"
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    hear(_result(40, "max_steps", episode=8))
+    hear(_result(31, "coverage", episode=7))  # once more, late
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 8
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)  # pushed, no query answered
+    assert judged is not None and judged[1] is not None and (judged[1].episode, judged[1].steps) == (8, 40), judged
+
+
 def test_the_end_a_result_belongs_to_decides_the_run_not_a_stray_end_awaited_before_it(tmp_path):
     """A stray end ("failed" at step 5) is awaited; meanwhile the episode really ends ("done" at step 9) and its result
     comes. The launcher judged the stray's status with the real result: the run said "failed" (exit code 1) while its
