@@ -1124,9 +1124,10 @@ class Launcher:
     def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:
         """The end ``result`` belongs to: the episode's real end and its result can come while a stray end is awaited,
         and the stray's state (``failed``) would say how the run ended. Of the end awaited and the latest heard since
-        (``episode_end_heard``; not one of another episode), the latest that ended as the result says (its ``terminated_by``), else the latest."""
+        (``episode_end_heard``; not one of another episode, nor of another episode than the result's, ``result_is_of``),
+        the latest that ended as the result says (its ``terminated_by``), else the latest."""
         later = self.episode_end_heard()
-        ends = [awaited] if later is None or later is awaited or self.of_another_episode(later) else [later, awaited]
+        ends = [awaited] if later is None or later is awaited or self.of_another_episode(later) or not result_is_of(result, later) else [later, awaited]
         return next((end for end in ends if end.terminated_by == result.terminated_by), ends[0])
 
     def episode_end_heard(self) -> EpisodeStatusMsg | None:

@@ -5708,6 +5708,27 @@ def test_the_end_a_result_belongs_to_decides_the_run_not_a_stray_end_awaited_bef
     assert launcher.ended_status is end  # summary.json's meta.episode and `status` go by it
 
 
+def test_the_end_a_result_belongs_to_is_one_of_its_episode(tmp_path):
+    """Episode 8's end is awaited; meanwhile an end of episode 9 is heard (a restarted sim's, which ended before it said
+    it ran), then episode 8's result. The end the result belongs to was chosen by ``terminated_by`` alone: episode 9's
+    end, of the same ``terminated_by``, became the run's end with episode 8's figures (summary.json's meta.episode 9).
+    A result that names its episode belongs to an end of that episode."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+
+    def meanwhile() -> None:
+        hear(EpisodeStatusMsg("done", 2, terminated_by="max_steps", episode=9))
+        hear(_result(40, "max_steps", episode=8))
+
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([meanwhile]), over, lambda: None)
+    assert judged is not None and judged[1] is not None
+    assert (judged[0].episode, judged[0].step, judged[1].episode) == (8, 40, 8), judged
+    assert launcher.ended_status is judged[0]
+
+
 def test_an_end_of_another_episode_than_the_one_running_is_left_behind_at_once(tmp_path, caplog):
     """A late "done" of episode 7 after episode 8 started (or a forged one naming an episode not running): the
     launcher waited for its result, as the episode going on was looked for in episode 7 only, and after 15 s said
