@@ -359,7 +359,8 @@ class Launcher:
         """Zenoh callback -> how many times it raised (a bug: logged with its traceback, counted, the run goes on)."""
         self.result: EpisodeResultMsg | None = None
         """The latest result published on ``episode_result`` (else it is asked for, ``wait_for_result``): the result of
-        the end judged only if it is of that end's episode (``result_of``)."""
+        the end judged only if it is of that end's episode (``result_of``). A late one of an end left behind
+        (``lost_results``) is never kept."""
         self.path_ahead_m: float | None = None
         """Length of the planner's latest path, robot to goal (live view)."""
         self.outputs_written = False
@@ -606,14 +607,13 @@ class Launcher:
             if msg.state != "starting":  # the sim waits for the services before step 0: not its pace
                 self.pace.observe(msg.episode, msg.step, time.monotonic())
         elif isinstance(msg, EpisodeResultMsg):
-            self.result = msg
-            with self._lock:  # lost_results: written by the run loop
-                left_behind = msg.episode != 0 and any(e["episode"] == msg.episode for e in self.lost_results)
-            if left_behind:
+            if self.left_behind(msg.episode):  # never kept: its end heard again would end the run with it, and it would hide the running episode's
                 log.warning(
                     "the result of episode %d came after its end was left behind: it is not the run's, which goes on with episode %s",
                     msg.episode, self.episode_running,
                 )  # fmt: skip
+            else:
+                self.result = msg
         elif isinstance(msg, GoalMsg):
             self.latest_goal = payload
         elif isinstance(msg, PathMsg):
@@ -1064,9 +1064,10 @@ class Launcher:
         ``rejected["episode_status"]``, logged). An end of an episode heard running before the one running
         (``of_another_episode``: the sim restarted since, into a new episode) whose result is not here, heard so or
         while its result is awaited, is left behind (``end_left_behind``): no result of it will come, and the run goes on
-        with the episode running, as after any restart of the sim."""
-        if self.of_another_episode(over) and self.result_of(over) is None:
-            self.end_left_behind(over)
+        with the episode running, as after any restart of the sim. Heard again (late, replayed), an end left behind is
+        left behind again, whatever result of it came since: that result is not the run's (``left_behind``)."""
+        if self.of_another_episode(over) and (self.result_of(over) is None or self.left_behind(over.episode)):
+            self.end_left_behind(over)  # once left behind, whatever result of it came since (not the run's): heard again
             return None
         self.ended_status, self.exploring_since_end = over, None
         result = self.wait_for_result(session, meanwhile=meanwhile)
@@ -1093,6 +1094,12 @@ class Launcher:
         log.warning("an episode status said %s of episode %d at step %d, but %s: ignored", end.state, end.episode, end.step, why)
         self.ended_status, self.stray_judged = None, end
 
+    def left_behind(self, episode: int) -> bool:
+        """Whether the end of ``episode`` (an id; 0, none, never) was left behind (``end_left_behind``, ``lost_results``):
+        its result, if it comes late, is not the run's."""
+        with self._lock:  # lost_results: written by the run loop, read by the Zenoh threads too
+            return episode != 0 and any(e["episode"] == episode for e in self.lost_results)
+
     def end_left_behind(self, end: EpisodeStatusMsg) -> None:
         """``end`` is of an episode the referee ran before the one running (``judge_episode_end``): the sim restarted since,
         into a new episode, and the ended one's result, never heard, went with the process that ran it. No stray (not
@@ -1117,9 +1124,10 @@ class Launcher:
     def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:
         """The end ``result`` belongs to: the episode's real end and its result can come while a stray end is awaited,
         and the stray's state (``failed``) would say how the run ended. Of the end awaited and the latest heard since
-        (``episode_end_heard``; not one of another episode), the latest that ended as the result says (its ``terminated_by``), else the latest."""
+        (``episode_end_heard``; not one of another episode, nor of another episode than the result's, ``result_is_of``),
+        the latest that ended as the result says (its ``terminated_by``), else the latest."""
         later = self.episode_end_heard()
-        ends = [awaited] if later is None or later is awaited or self.of_another_episode(later) else [later, awaited]
+        ends = [awaited] if later is None or later is awaited or self.of_another_episode(later) or not result_is_of(result, later) else [later, awaited]
         return next((end for end in ends if end.terminated_by == result.terminated_by), ends[0])
 
     def episode_end_heard(self) -> EpisodeStatusMsg | None:

@@ -1266,8 +1266,12 @@ class EndedWhyMsg(Message):
 def new_episode_id() -> int:
     """A fresh episode id (48 random bits): every publisher of ``clock`` draws one per episode, so
     subscribers detect a new episode by the id, not by the step going back (messages on different keys
-    may be handled out of order)."""
-    return secrets.randbits(48)
+    may be handled out of order). Never 0, which reads as no id where an id is optional (``EpisodeResultMsg.episode``,
+    ``CmdVelMsg.episode``)."""
+    while True:
+        episode = secrets.randbits(48)
+        if episode:
+            return episode
 
 
 @dataclass

@@ -1234,3 +1234,16 @@ def test_a_results_grids_are_refused_by_their_sender_beyond_the_runs_bound(grid_
         encode(_episode_result(3))
     set_max_grid_cells(GEOM.shape[0] * GEOM.shape[1])
     assert decode(encode(_episode_result(3)), EpisodeResultMsg).explored_free.shape == GEOM.shape
+
+
+def test_an_episode_id_is_never_0_which_messages_read_as_no_id(monkeypatch):
+    """0 is "no id" where an episode id is optional (``episode_result``'s ``episode``, ``cmd_vel``'s): a sim or ROS 2
+    bridge that drew 0 (48 random bits) sent its result with no id, taken for whichever end a launcher judges, and its
+    planner's commands as of no episode. A draw of 0 is drawn again."""
+    import secrets
+
+    from cso_runtime.messages import new_episode_id
+
+    draws = iter([0, 0, 12345])
+    monkeypatch.setattr(secrets, "randbits", lambda k: next(draws))
+    assert new_episode_id() == 12345

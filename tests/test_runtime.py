@@ -5649,6 +5649,43 @@ def test_a_result_of_the_running_episode_is_not_taken_for_a_late_end_of_the_epis
     assert judged is not None and judged[1] is not None and (judged[1].episode, judged[1].steps) == (8, 3)
 
 
+def test_a_late_result_of_an_end_left_behind_neither_ends_the_run_nor_displaces_the_running_episodes(tmp_path):
+    """Episode 7's end was left behind (the sim restarted into episode 8), then 7's result came late: the launcher said
+    "it is not the run's" but kept it as the result heard. Its end heard again (late or replayed, which ``_on_sample``
+    hands to the run loop to judge) then ended the run with episode 7's result, an episode ``lost_results`` still named
+    lost; and heard after episode 8's own result, it put that one out of reach of a referee that answers no query.
+    A result of an end left behind is never kept."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=7))
+    end7 = EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7)
+    hear(end7)
+    over = launcher.episode_end_heard()
+    assert over is not None
+    restart = [lambda: None, lambda: hear(EpisodeStatusMsg("starting", 0, episode=8))]
+    assert launcher.judge_episode_end(_ScriptedResultQueries(restart), over, lambda: None) is None  # left behind
+    hear(EpisodeStatusMsg("exploring", 2, episode=8))
+    hear(_result(31, "coverage", episode=7))  # late: not the run's (logged so)
+    hear(end7)  # its end again, late
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None, "the run ended with an episode left behind"
+    assert [e["episode"] for e in launcher.lost_results] == [7]
+    # heard on the Zenoh thread as the run loop left its end behind, before ``lost_results`` named it: kept, but an end
+    # once left behind is left behind whatever result comes later
+    launcher.result = _result(31, "coverage", episode=7)
+    hear(EpisodeStatusMsg("done", 31, terminated_by="coverage", episode=7))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    assert launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None) is None, "the run ended with an episode left behind"
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    hear(_result(40, "max_steps", episode=8))
+    hear(_result(31, "coverage", episode=7))  # once more, late
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 8
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)  # pushed, no query answered
+    assert judged is not None and judged[1] is not None and (judged[1].episode, judged[1].steps) == (8, 40), judged
+
+
 def test_the_end_a_result_belongs_to_decides_the_run_not_a_stray_end_awaited_before_it(tmp_path):
     """A stray end ("failed" at step 5) is awaited; meanwhile the episode really ends ("done" at step 9) and its result
     comes. The launcher judged the stray's status with the real result: the run said "failed" (exit code 1) while its
@@ -5669,6 +5706,27 @@ def test_the_end_a_result_belongs_to_decides_the_run_not_a_stray_end_awaited_bef
     assert result is not None and result.terminated_by == "coverage"
     assert (end.state, end.step, end.terminated_by) == ("done", 9, "coverage"), end
     assert launcher.ended_status is end  # summary.json's meta.episode and `status` go by it
+
+
+def test_the_end_a_result_belongs_to_is_one_of_its_episode(tmp_path):
+    """Episode 8's end is awaited; meanwhile an end of episode 9 is heard (a restarted sim's, which ended before it said
+    it ran), then episode 8's result. The end the result belongs to was chosen by ``terminated_by`` alone: episode 9's
+    end, of the same ``terminated_by``, became the run's end with episode 8's figures (summary.json's meta.episode 9).
+    A result that names its episode belongs to an end of that episode."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("exploring", 30, episode=8))
+    hear(EpisodeStatusMsg("done", 40, terminated_by="max_steps", episode=8))
+    over = launcher.episode_end_heard()
+    assert over is not None
+
+    def meanwhile() -> None:
+        hear(EpisodeStatusMsg("done", 2, terminated_by="max_steps", episode=9))
+        hear(_result(40, "max_steps", episode=8))
+
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([meanwhile]), over, lambda: None)
+    assert judged is not None and judged[1] is not None
+    assert (judged[0].episode, judged[0].step, judged[1].episode) == (8, 40, 8), judged
+    assert launcher.ended_status is judged[0]
 
 
 def test_an_end_of_another_episode_than_the_one_running_is_left_behind_at_once(tmp_path, caplog):

@@ -796,6 +796,7 @@ def test_the_docs_table_gives_each_key_the_schema_its_publishers_send():
         ("cache/planner/plan", "planner_plan", keys.cache("planner_plan")),
         ("cache/planner/state", "planner_state", keys.cache("planner_state")),
         ("alive/<name>", "liveliness token", keys.alive("<name>")),
+        ("alive/<name>/<incarnation>", "liveliness token", keys.alive_incarnation("<name>", "*").replace("*", "<incarnation>")),
     ]:
         assert rows[key][0] == schema and full == f"cso/r0/{key}", (key, rows[key][0], full)
 
