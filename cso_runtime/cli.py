@@ -1553,7 +1553,9 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
     """``learned.ppo.Args`` from the YAML file (without one, for a ``resume``: the configuration its checkpoint holds),
     then the command's flags, then ``--set`` pairs; a missing file or a bad value exits with a clear error (code 2)
     before anything starts."""
-    from cso_runtime.config import ConfigError, from_dict_with_hints, load_yaml  # noqa: PLC0415
+    import typing  # noqa: PLC0415
+
+    from cso_runtime.config import ConfigError, from_dict_with_hints, load_yaml, refuse_a_setting_read_as_another_type  # noqa: PLC0415
     from cso_runtime.learned.ppo import Args, check_training_inputs, resumed_run_settings, training_scene_refs  # noqa: PLC0415
 
     config = _packaged_if_missing(config)  # run outside the repository: the packaged recipe
@@ -1565,17 +1567,23 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         else:
             data = load_yaml(config) if config is not None else {}
         data.update({k: v for k, v in overrides.items() if v is not None})
-        pairs = parse_settings(settings or [])
+        pairs = parse_settings(settings or [], last_counts=True)  # field flags and --set, checked against each other
         data.update(pairs)
-        if config is not None and not data.get("resume"):
-            _say_fields_left_at_defaults(config, data)
         if data.get("resume") and overrides.get("out_dir") is None and "out_dir" not in pairs:
             data["out_dir"] = str(Path(str(data["resume"])).parent)  # a resume goes on in its run's folder, not the config's out_dir
         where = str(config or "train")  # an error names the file, and the flags that changed it, as eval's and up's do
         flags = training_flags(overrides, settings)
         if flags:
             where += " with " + " ".join(" ".join(words) for words in flags)
+        if pairs:  # `--set out_dir=2024` alone: how to write it, as `up` and `eval` say it, where the text is taken
+
+            def takes(texts: dict[str, object]) -> object:
+                return from_dict_with_hints(Args, {**data, **texts}, where)
+
+            refuse_a_setting_read_as_another_type(pairs, typing.get_type_hints(Args), takes)
         args = from_dict_with_hints(Args, data, where)
+        if config is not None and not data.get("resume"):  # once the configuration is taken: an error alone is one line
+            _say_fields_left_at_defaults(config, data)
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
         check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
     except (ConfigError, ValueError) as exc:
@@ -1702,14 +1710,14 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     """``train``'s own options (``--out``), its field flags (``--out-dir``, ``args_field_flags``' pairs) and ``--set``
     all set fields of ``learned.ppo.Args``: two of them that give one field different values are a ConfigError that
     names both (one of them took over the other in silence). The same value twice is fine; so is one flag given
-    twice, whose last value counts, as typer's own options' does. A ``--set`` of a text field that YAML reads as
-    another type (``out_dir=2024``) is a ConfigError that says how to write it (``--set out_dir='2024'``)."""
+    twice, whose last value counts, as typer's own options' does (a ``--set`` key twice is not: ``parse_settings``).
+    A ``--set`` of a text field that YAML reads as another type is ``training_args``' to say, as ``up`` and ``eval``
+    say it: with the configuration it would make."""
     import typing  # noqa: PLC0415
 
     from cso_runtime.config import (  # noqa: PLC0415
         field_value,
         place_of,
-        refuse_a_setting_read_as_another_type,
         refuse_two_values,
         set_said,
         text_field,
@@ -1733,13 +1741,12 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     for name, value in overrides.items():
         if value is not None:
             given.setdefault(name, []).append((" ".join(_flag_of(name, value)), value))
-    for name, value in parse_settings(field_flags).items():
+    for name, value in parse_settings(field_flags, last_counts=True).items():
         given.setdefault(name, []).append((field_flag(name, value), value))
     pairs = parse_settings(settings)
     for name, value in pairs.items():
         given.setdefault(name, []).append((set_said(pairs, name), value))
     refuse_two_values({name: said for name, said in given.items() if name in types}, read)  # a key no field is: from_dict names it
-    refuse_a_setting_read_as_another_type(pairs, types)  # `--set out_dir=2024` alone: how to write it, as `up` says
 
 
 def parse_seeds(items: list[str]) -> list[int]:
@@ -1758,23 +1765,30 @@ def parse_seeds(items: list[str]) -> list[int]:
     return seeds
 
 
-def parse_settings(items: list[str]) -> Settings:
+def parse_settings(items: list[str], last_counts: bool = False) -> Settings:
     """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``), each VALUE's text kept as typed
-    for the messages that name it (``config.Settings``)."""
+    for the messages that name it (``config.Settings``). A KEY given twice with another value is a ConfigError naming
+    both ``--set`` as typed, as a key given twice in one YAML mapping is (``config.YamlLoader``): the first one would
+    be dropped in silence. ``last_counts``: the last one counts instead (train's field flags, ``--lr 1 --lr 2``, as
+    typer's own options; and their pairs merged with ``--set`` once ``refuse_two_values_of_a_field`` checked them)."""
     import yaml  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, Settings, one_line, yaml_load  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, Settings, one_line, set_said, yaml_load  # noqa: PLC0415
 
     out = Settings()
     for item in items:
         key, sep, value = item.partition("=")
-        if not sep or not key.strip():
+        key = key.strip()
+        if not sep or not key:
             raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
         try:
-            out[key.strip()] = yaml_load(value)
+            parsed = yaml_load(value)
         except yaml.YAMLError as exc:
             raise ConfigError(f"--set {item}: not valid YAML: {one_line(str(exc))}") from None
-        out.typed[key.strip()] = value.strip()
+        if not last_counts and key in out and (out[key] != parsed or type(out[key]) is not type(parsed)):
+            raise ConfigError(f"{set_said(out, key)} and --set {key}={value.strip()} both set {key}, to different values: give one")
+        out[key] = parsed
+        out.typed[key] = value.strip()
     return out
 
 

@@ -581,3 +581,61 @@ def test_an_error_of_a_section_a_set_broke_names_the_set_where_up_connect_or_fox
         said_now = " ".join(r.stderr.split())
         assert r.exit_code == 2 and said in said_now, (given, r.output)
     assert not (tmp_path / "runs").exists()
+
+
+SAME_MISTAKES = {  # the one mistake of each kind, as each command's keys write it: (its --set items, the words said)
+    "up": {
+        "a number for a text field": (["robot=1"], "--set robot=1"),
+        "a key twice": (["seed=1", "seed=2"], "--set seed=1 and --set seed=2 both set seed, to different values: give one"),
+        "a key twice in one value": (["exploration.episode={max_steps: 1, max_steps: 2}"], "found key 'max_steps' twice"),
+        "an underscore number": (["seed=1_000"], "--set seed=1_000: seed: expected an integer, got '1_000' (YAML 1.2 reads a number with _ as text: write 1000)"),
+        "nan": (["exploration.planner.lookahead_m=nan"], "--set exploration.planner.lookahead_m=nan: exploration.planner.lookahead_m: must be finite, got nan"),
+        "an unknown key": (["nosuch=1"], "--set nosuch=1: unknown key(s) nosuch; known:"),
+        "an out-of-bounds value": (["exploration.planner.lookahead_m=0"], "--set exploration.planner.lookahead_m=0: exploration.planner.lookahead_m must be in (0, 100] m"),
+    },
+    "eval": {
+        "a number for a text field": (["planner.body=1"], "--set planner.body=1: planner.body: expected a string, got 1"),
+        "a key twice": (["episode.max_steps=5", "episode.max_steps=6"], "--set episode.max_steps=5 and --set episode.max_steps=6 both set episode.max_steps, to different values: give one"),
+        "a key twice in one value": (["episode={max_steps: 1, max_steps: 2}"], "found key 'max_steps' twice"),
+        "an underscore number": (["episode.max_steps=1_000"], "--set episode.max_steps=1_000: episode.max_steps: expected an integer, got '1_000' (YAML 1.2 reads a number with _ as text: write 1000)"),
+        "nan": (["planner.lookahead_m=nan"], "--set planner.lookahead_m=nan: planner.lookahead_m: must be finite, got nan"),
+        "an unknown key": (["nosuch=1"], "--set nosuch=1: unknown key(s) nosuch; known:"),
+        "an out-of-bounds value": (["planner.lookahead_m=0"], "--set planner.lookahead_m=0: planner.lookahead_m must be in (0, 100] m"),
+    },
+    "train": {
+        "a number for a text field": (["warm_start_teacher=1"], "--set warm_start_teacher=1: warm_start_teacher: expected a string, got 1"),
+        "a key twice": (["seed=1", "seed=2"], "--set seed=1 and --set seed=2 both set seed, to different values: give one"),
+        "a key twice in one value": (["generated={a: 1, a: 2}"], "found key 'a' twice"),
+        "an underscore number": (["seed=1_000"], "--set seed=1_000: seed: expected an integer, got '1_000' (YAML 1.2 reads a number with _ as text: write 1000)"),
+        "nan": (["gamma=nan"], "--set gamma=nan: gamma: must be finite, got nan"),
+        "an unknown key": (["nosuch=1"], "--set nosuch=1: unknown key(s) nosuch; known:"),
+        "an out-of-bounds value": (["gamma=2"], "--set gamma=2: gamma must be in (0, 1], got 2"),
+    },
+}
+SAME_MISTAKES["collect-teacher"] = SAME_MISTAKES["train"]
+
+
+@pytest.mark.parametrize(("command", "mistake"), [(command, mistake) for command, cases in SAME_MISTAKES.items() for mistake in cases])
+def test_each_command_that_takes_set_says_the_same_mistake_alike(tmp_path: Path, command: str, mistake: str, train_runs: list, collect_teacher_stub: list):
+    """The same bad ``--set`` through each command that takes one (``up``, ``eval``, ``train``, ``collect-teacher``):
+    each exits 2 before anything runs, in one line on stderr that names the ``--set`` as typed and the same words for
+    the same mistake. Before: a key given twice (``--set seed=1 --set seed=2``) ran with the last in silence in all
+    four; ``train`` and ``collect-teacher`` said a note on their config file's fields before the error (two lines), and
+    hinted ``--set warm_start_teacher='1'``, a teacher they then refused, where ``up`` and ``eval`` hint only a text
+    the configuration takes."""
+    from cso_runtime.cli import app
+
+    recipe = tmp_path / "mine.yaml"
+    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")  # a few fields: train's note on the rest
+    place = {
+        "up": ["--runs-dir", str(tmp_path / "runs"), "--dry-run"],
+        "eval": ["--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "out"), "--dry-run"],
+        "train": ["--config", str(recipe), "--out", str(tmp_path / "out")],
+        "collect-teacher": ["--config", str(recipe), "--out", str(tmp_path / "out" / "t.npz")],
+    }[command]
+    items, said = SAME_MISTAKES[command][mistake]
+    r = CliRunner().invoke(app, [command, *place, *(word for item in items for word in ("--set", item))])
+    assert r.exit_code == 2, (r.exit_code, r.output)
+    assert r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, r.stderr
+    assert said in r.stderr and f"--set {items[-1]}" in r.stderr, r.stderr
+    assert not train_runs and not collect_teacher_stub and not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()
