@@ -1773,7 +1773,7 @@ def parse_settings(items: list[str], last_counts: bool = False) -> Settings:
     typer's own options; and their pairs merged with ``--set`` once ``refuse_two_values_of_a_field`` checked them)."""
     import yaml  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, Settings, one_line, set_said, yaml_load  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, Settings, not_yaml_said, set_said, yaml_load  # noqa: PLC0415
 
     out = Settings()
     for item in items:
@@ -1784,7 +1784,7 @@ def parse_settings(items: list[str], last_counts: bool = False) -> Settings:
         try:
             parsed = yaml_load(value)
         except yaml.YAMLError as exc:
-            raise ConfigError(f"--set {item}: not valid YAML: {one_line(str(exc))}") from None
+            raise ConfigError(not_yaml_said(f"--set {item}", exc)) from None
         if not last_counts and key in out and (out[key] != parsed or type(out[key]) is not type(parsed)):
             raise ConfigError(f"{set_said(out, key)} and --set {key}={value.strip()} both set {key}, to different values: give one")
         out[key] = parsed

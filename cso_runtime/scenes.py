@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cso_runtime.config import with_nearest
+from cso_runtime.config import finite_number, with_nearest
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, GridGeometry, Pose2D, compose_pose, relative_pose, wrap_angle_rad
 
 FREE_RGB = (195, 195, 194)
@@ -227,7 +227,7 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     resolution, along the grid's rows and columns; the YAML's ``origin`` (with its yaw) is kept as the plan's
     ``map_origin``, which places it in the map frame. The start is the YAML's optional ``start: [x_m, y_m, yaw_rad]`` (map frame; map_server
     ignores the key), else the free cell farthest from any wall in the largest free region."""
-    from cso_runtime.map_files import MapFileError, load_map_and_meta, map_yaml_number  # noqa: PLC0415 - PIL only for map input
+    from cso_runtime.map_files import MapFileError, load_map_and_meta  # noqa: PLC0415 - PIL only for map input
 
     p = Path(path)
     if not p.is_file():
@@ -244,7 +244,7 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     map_origin = Pose2D(x0_m, y0_m, yaw_rad if -math.pi <= yaw_rad < math.pi else wrap_angle_rad(yaw_rad))  # messages carry yaws in [-10, 10]
     res = geometry.resolution_m
     if start is not None:
-        numbers = [n for n in map(map_yaml_number, start) if n is not None] if isinstance(start, list) else []  # read as origin is (5e-2 too)
+        numbers = [n for n in map(finite_number, start) if n is not None] if isinstance(start, list) else []  # read as origin is (5e-2 too)
         if len(numbers) != 3 or len(start) != 3:
             raise SceneError(f"{p.name}: start must be [x_m, y_m, yaw_rad], three finite numbers")
         # The map frame's pose in the grid's frame, whose corner is at `origin`, turned by its yaw (map_server's).
