@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cso_runtime.config import finite_number, with_nearest
+from cso_runtime.config import Bound, finite_number, with_nearest
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, GridGeometry, Pose2D, compose_pose, relative_pose, wrap_angle_rad
 
 FREE_RGB = (195, 195, 194)
@@ -301,6 +301,9 @@ class SceneRef:
 
 MAX_M_PER_PX = 10.0
 """The coarsest plan scale taken (``--m-per-px``): a pixel of a floor plan is never 10 m of floor."""
+M_PER_PX_BOUND = Bound(0.0, MAX_M_PER_PX, "m", low_open=True, why="scenes.MAX_M_PER_PX")
+"""The metres per pixel of a floor plan (``eval --m-per-px``, ``scenes --m-per-px``, train's ``dungeon_m_per_px``):
+the one range of it, checked and said by ``config.Bound``."""
 
 
 def spec_names_a_path(spec: str) -> bool:
@@ -311,8 +314,8 @@ def spec_names_a_path(spec: str) -> bool:
 
 def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.1) -> list[SceneRef]:
     """Expand a scene spec into scene references (see the module docstring for the forms)."""
-    if not (math.isfinite(resolution_m) and 0 < resolution_m <= MAX_M_PER_PX):
-        raise SceneError(f"metres per pixel must be a number in (0, {MAX_M_PER_PX:g}], got {resolution_m}")
+    if (problem := M_PER_PX_BOUND.problem(resolution_m)) is not None:
+        raise SceneError(f"metres per pixel {problem}")
     if spec.startswith("generated:"):
         parts = spec.split(":")
         if len(parts) != 4:

@@ -127,13 +127,13 @@ def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path
     assert EvalRequest(methods=["greedy-dist"]).exploration_config().episode.max_steps == 3000
     # A method named twice runs once, in the order first given.
     assert EvalRequest(methods=["utility", "greedy-dist", "utility"]).methods == ["utility", "greedy-dist"]
-    with pytest.raises(ConfigError, match="--max-steps must be positive, got 0"):
+    with pytest.raises(ConfigError, match=re.escape("--max-steps must be in [1, 1,000,000] (an episode's result must fit its message: MAX_EPISODE_STEPS), got 0")):
         EvalRequest(methods=["greedy-dist"], max_steps=0).validate()
     # A process each: `--workers 5000` started 5,000 processes, as collect-teacher's and train's counts are bounded.
     from cso_runtime.config import MAX_PROCESSES
 
     for workers in (0, MAX_PROCESSES + 1):
-        with pytest.raises(ConfigError, match=rf"--workers must be in \[1, 1,024\] .*got {workers}"):
+        with pytest.raises(ConfigError, match=rf"--workers must be in \[1, 1,024\] .*got {workers:,}"):
             EvalRequest(methods=["greedy-dist"], workers=workers).validate()
 
 
