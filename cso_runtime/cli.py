@@ -1773,22 +1773,23 @@ def parse_settings(items: list[str], last_counts: bool = False) -> Settings:
     typer's own options; and their pairs merged with ``--set`` once ``refuse_two_values_of_a_field`` checked them)."""
     import yaml  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, Settings, not_yaml_said, set_said, yaml_load  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, Settings, not_yaml_said, refuse_two_values, yaml_load  # noqa: PLC0415
 
     out = Settings()
+    given: dict[str, list[tuple[str, object]]] = {}
     for item in items:
         key, sep, value = item.partition("=")
         key = key.strip()
         if not sep or not key:
             raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
         try:
-            parsed = yaml_load(value)
+            out[key] = yaml_load(value)
         except yaml.YAMLError as exc:
             raise ConfigError(not_yaml_said(f"--set {item}", exc)) from None
-        if not last_counts and key in out and (out[key] != parsed or type(out[key]) is not type(parsed)):
-            raise ConfigError(f"{set_said(out, key)} and --set {key}={value.strip()} both set {key}, to different values: give one")
-        out[key] = parsed
         out.typed[key] = value.strip()
+        given.setdefault(key, []).append((f"--set {key}={value.strip()}", out[key]))
+    if not last_counts:  # 1 and 1.0, 1 and true: other values
+        refuse_two_values(given, lambda _key, value: (type(value), value))
     return out
 
 

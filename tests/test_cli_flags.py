@@ -639,3 +639,18 @@ def test_each_command_that_takes_set_says_the_same_mistake_alike(tmp_path: Path,
     assert r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, r.stderr
     assert said in r.stderr and f"--set {items[-1]}" in r.stderr, r.stderr
     assert not train_runs and not collect_teacher_stub and not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()
+
+
+def test_a_set_key_given_twice_is_refused_unless_its_value_is_the_same():
+    """``--set seed=1 --set seed=2`` ran seed 2, the first dropped in silence (a key twice in one YAML mapping is
+    refused). Refused now through ``config.refuse_two_values``, naming both as typed; the same value twice is fine, and
+    train's field flags (``last_counts``) keep their last value, as typer's options do."""
+    from cso_runtime.cli import parse_settings
+    from cso_runtime.config import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape("--set seed=1 and --set seed=on both set seed, to different values: give one")):
+        parse_settings(["seed=1", "seed=on"])
+    with pytest.raises(ConfigError, match=re.escape("--set gamma=1 and --set gamma=1.0 both set gamma")):
+        parse_settings(["gamma=1", "gamma=1.0"])
+    assert parse_settings(["seed=1", " seed = 01"]) == {"seed": 1}
+    assert parse_settings(["seed=1", "seed=2"], last_counts=True) == {"seed": 2}
