@@ -769,13 +769,15 @@ def scenes_command(
     """Each scene of a spec: size, traversable area, the paper's scale class and start pose; unusable plans with why (exit 1)."""
     import json  # noqa: PLC0415
 
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.plots import plot_scene  # noqa: PLC0415
-    from cso_runtime.scenes import SceneError, describe_scene, resolve_scenes  # noqa: PLC0415
+    from cso_runtime.scenes import M_PER_PX_BOUND, SceneError, describe_scene, resolve_scenes  # noqa: PLC0415
     from robot_sim.scene import write_mujoco_world  # noqa: PLC0415
 
     try:
+        M_PER_PX_BOUND.check("--m-per-px", m_per_px)  # named as typed, as eval's --m-per-px
         refs = resolve_scenes(spec, limit, m_per_px)
-    except SceneError as exc:
+    except (ConfigError, SceneError) as exc:
         _fail(str(exc), 2)
     if preview is not None:
         output_dir_or_exit(preview, "--preview")

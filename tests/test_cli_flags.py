@@ -654,3 +654,16 @@ def test_a_set_key_given_twice_is_refused_unless_its_value_is_the_same():
         parse_settings(["gamma=1", "gamma=1.0"])
     assert parse_settings(["seed=1", " seed = 01"]) == {"seed": 1}
     assert parse_settings(["seed=1", "seed=2"], last_counts=True) == {"seed": 2}
+
+
+@pytest.mark.parametrize("value", ["0", "nan", "20"])
+def test_m_per_px_out_of_its_range_is_said_alike_by_eval_and_scenes(tmp_path: Path, value: str):
+    """``scenes --m-per-px 0`` said "metres per pixel must be a number in (0, 10]" and ``eval --m-per-px 0`` "--m-per-px
+    must be a positive number of metres per pixel" (its 20 refused in resolve_scenes' words): two checks of one range. One now
+    (``scenes.M_PER_PX_BOUND``, a ``config.Bound``), said in the same words by both, naming the flag."""
+    from cso_runtime.cli import app
+
+    said = f"error: --m-per-px must be in (0, 10] m (scenes.MAX_M_PER_PX), got {value}\n"
+    for command in (["scenes", "generated:small:1:0"], ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--dry-run"]):
+        r = CliRunner().invoke(app, [*command, "--m-per-px", value])
+        assert r.exit_code == 2 and r.stderr == said, (command, r.output)

@@ -1852,3 +1852,22 @@ def test_a_number_written_with_underscores_is_refused_saying_how_to_write_it(tmp
     r = CliRunner().invoke(app, ["up", "--set", "max_grid_cells=6_000_000", "--resolved", "--runs-dir", str(tmp_path / "runs")])
     said = " ".join(r.output.split())
     assert r.exit_code == 2 and "max_grid_cells: expected an integer, got '6_000_000' (YAML 1.2 reads a number with _ as text: write 6000000)" in said, said
+
+
+@pytest.mark.parametrize(
+    ("text", "read"),
+    [("1e5", 1e5), ("5e-2", 0.05), ("-.5", -0.5), ("+.5", 0.5), ("0o10", 8.0), ("0x10", None), ("010", None), ("1_000", None), ("1:30", None), (".nan", None), ("on", None)],
+)
+def test_a_number_field_given_as_text_is_read_as_the_yaml_reader_reads_that_text(text: str, read: float | None):
+    """``yaml12_number`` (a text that came by another way than ``yaml_load``: a dict of the Python API) kept a pattern
+    of its own of the texts YAML 1.2 reads as numbers and YAML 1.1 as text, beside ``YamlLoader``'s: ``0o10`` was 8
+    in a file and refused given as text. It asks the loader now: a text YAML 1.1 left as text is the number the file
+    reads; a text YAML 1.1 read as a number too (``010``, quoted in a file) stays a text, refused as before."""
+    from cso_runtime.config import field_value, finite_number
+
+    if read is None:
+        assert finite_number(text) is None
+        with pytest.raises(ConfigError, match="lookahead_m"):
+            field_value(text, float, "lookahead_m")
+    else:
+        assert finite_number(text) == read == field_value(text, float, "lookahead_m")
