@@ -1502,11 +1502,11 @@ def collect_teacher_command(
     try:
         ARGS_BOUNDS["num_envs"].check("--workers", workers)  # a process each, as train's num_envs with async_envs
         refuse_two_values_of_a_field(overrides, [], settings or [])  # --seed 3 --set seed=4, as train refuses it
-        if teacher is None and "warm_start_teacher" not in parse_settings(settings or []):
-            overrides["warm_start_teacher"] = "rollout"  # the default teacher, over the config file's (train's warm start's)
+        # The default teacher, over the config file's (train's warm start's): no flag the user typed, so no error names it
+        fixed = {"warm_start_teacher": "rollout"} if teacher is None and "warm_start_teacher" not in parse_settings(settings or []) else {}
     except ConfigError as exc:
         _fail(str(exc), 2)
-    args = training_args(config, overrides, settings)
+    args = training_args(config, overrides, settings, fixed)
     if out.is_dir():  # said before hours of rollouts: the file was to be renamed over the folder at the end, a traceback
         _fail(f"--out {out} is a folder; give the file to write, such as {out / 'teacher.npz'}", 2)
     output_dir_or_exit(out.parent, f"--out {out}: its folder")  # before hours of rollouts, not after
@@ -1551,10 +1551,11 @@ def _up_folders_or_exit(record_out: str | None, runs_dir: Path, make: bool = Tru
     output_dir_or_exit(runs_dir, "--runs-dir", make)
 
 
-def training_args(config: Path | None, overrides: Mapping[str, object], settings: list[str] | None) -> Args:
+def training_args(config: Path | None, overrides: Mapping[str, object], settings: list[str] | None, fixed: Mapping[str, object] | None = None) -> Args:
     """``learned.ppo.Args`` from the YAML file (without one, for a ``resume``: the configuration its checkpoint holds),
-    then the command's flags, then ``--set`` pairs; a missing file or a bad value exits with a clear error (code 2)
-    before anything starts."""
+    then ``fixed`` (the command's own values of fields no flag set: ``collect-teacher``'s default teacher), then the
+    command's flags, then ``--set`` pairs; a missing file or a bad value exits with a clear error (code 2) before
+    anything starts, naming the file and the flags as typed."""
     import typing  # noqa: PLC0415
 
     from cso_runtime.config import ConfigError, from_dict_with_hints, load_yaml, refuse_a_setting_read_as_another_type  # noqa: PLC0415
@@ -1568,7 +1569,7 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
                 typer.echo(f"note: resuming with the configuration {overrides['resume']} holds (its run's --config and --set)", err=True)
         else:
             data = load_yaml(config) if config is not None else {}
-        data.update({k: v for k, v in overrides.items() if v is not None})
+        data.update({**(fixed or {}), **{k: v for k, v in overrides.items() if v is not None}})
         pairs = parse_settings(settings or [], last_counts=True)  # field flags and --set, checked against each other
         data.update(pairs)
         if data.get("resume") and overrides.get("out_dir") is None and "out_dir" not in pairs:

@@ -622,7 +622,7 @@ def test_each_command_that_takes_set_says_the_same_mistake_alike(tmp_path: Path,
     the same mistake. Before: a key given twice (``--set seed=1 --set seed=2``) ran with the last in silence in all
     four; ``train`` and ``collect-teacher`` said a note on their config file's fields before the error (two lines), and
     hinted ``--set warm_start_teacher='1'``, a teacher they then refused, where ``up`` and ``eval`` hint only a text
-    the configuration takes."""
+    the configuration takes; ``collect-teacher`` named ``--teacher rollout``, its default, among the flags given."""
     from cso_runtime.cli import app
 
     recipe = tmp_path / "mine.yaml"
@@ -638,6 +638,7 @@ def test_each_command_that_takes_set_says_the_same_mistake_alike(tmp_path: Path,
     assert r.exit_code == 2, (r.exit_code, r.output)
     assert r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, r.stderr
     assert said in r.stderr and f"--set {items[-1]}" in r.stderr, r.stderr
+    assert "--teacher" not in r.stderr, r.stderr  # collect-teacher's default teacher is no flag the user typed
     assert not train_runs and not collect_teacher_stub and not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()
 
 
