@@ -1871,3 +1871,25 @@ def test_a_number_field_given_as_text_is_read_as_the_yaml_reader_reads_that_text
             field_value(text, float, "lookahead_m")
     else:
         assert finite_number(text) == read == field_value(text, float, "lookahead_m")
+
+
+@pytest.mark.parametrize(
+    ("service", "params", "said"),
+    [
+        ("planner", {"stale_after_s": 0}, "services.planner: stale_after_s must be in (0, 86,400] s (a day: config.MAX_WAIT_S), got 0"),
+        ("planner", {"path_period_s": -1}, "services.planner: path_period_s must be in [0, 86,400] s (a day: config.MAX_WAIT_S), got -1"),
+        ("planner", {"restore_timeout_s": -1}, "services.planner: restore_timeout_s must be in [0, 86,400] s (a day: config.MAX_WAIT_S), got -1"),
+        ("mapper", {"max_pending_scans": 0}, "services.mapper: max_pending_scans must be in [1, 10,000] (MAX_PENDING_SCANS), got 0"),
+        ("mapper", {"restore_timeout_s": -1}, "services.mapper: restore_timeout_s must be in [0, 86,400] s (a day: config.MAX_WAIT_S), got -1"),
+    ],
+)
+def test_a_service_time_out_of_its_range_is_said_by_its_bound_alone(service: str, params: dict, said: str):
+    """The planner's and the mapper's times were checked twice: a hand check first (``stale_after_s must be
+    positive``, ``restore_timeout_s must be >= 0 seconds``), then their ``config.Bound`` table, which documents
+    them. One check now, in the words every bounded key is said in (key, range, why, value)."""
+    from services.mapper import MapperParams
+    from services.planner import PlannerParams
+
+    with pytest.raises(ConfigError) as refused:
+        from_dict({"planner": PlannerParams, "mapper": MapperParams}[service], params, f"services.{service}")
+    assert str(refused.value) == said
