@@ -1444,7 +1444,9 @@ def train_command(
         refuse_two_values_of_a_field(overrides, field_flags, settings or [])
     except ConfigError as exc:
         _fail(str(exc), 2)
-    settings = [*field_flags, *(settings or [])]
+    # One pair a field, its last value (a field flag given twice; its --set of the same value): the command recorded in
+    # <variant>.json runs again as it is, where one --set key given twice with other values is refused.
+    settings = list({item.partition("=")[0].strip(): item for item in [*field_flags, *(settings or [])]}.values())
     if config is None and resume is None:
         config = DEFAULT_TRAIN_CONFIG  # a resume without --config goes on with its checkpoint's configuration
     args = training_args(config, overrides, settings)

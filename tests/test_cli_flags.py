@@ -668,3 +668,21 @@ def test_m_per_px_out_of_its_range_is_said_alike_by_eval_and_scenes(tmp_path: Pa
     for command in (["scenes", "generated:small:1:0"], ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--dry-run"]):
         r = CliRunner().invoke(app, [*command, "--m-per-px", value])
         assert r.exit_code == 2 and r.stderr == said, (command, r.output)
+
+
+def test_train_records_a_command_that_runs_again_with_one_pair_a_field(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``train --gamma 0.9 --gamma 0.95`` (a field flag given twice keeps its last value) recorded ``--set gamma=0.9
+    --set gamma=0.95`` in its command, which, run again, a --set key given twice with other values refuses. The
+    command holds one pair a field, its last value, and runs again as recorded."""
+    import shlex
+
+    from cso_runtime.learned import ppo
+
+    commands: list[str] = []
+    monkeypatch.setattr(ppo, "train", lambda args, log=None, command="", stop_requested=None: commands.append(command) or {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0})
+    code, said = train(tmp_path, "--gamma", "0.9", "--gamma", "0.95", "--set", "gamma=0.95", "--seed", "1")
+    assert code == 0, said
+    words = shlex.split(commands[-1])
+    assert [w for w in words if w.startswith("gamma=")] == ["gamma=0.95"], commands[-1]
+    code, said = train(tmp_path, *words[2:])
+    assert code == 0 and shlex.split(commands[-1]) == words, said
