@@ -769,13 +769,15 @@ def scenes_command(
     """Each scene of a spec: size, traversable area, the paper's scale class and start pose; unusable plans with why (exit 1)."""
     import json  # noqa: PLC0415
 
+    from cso_runtime.config import ConfigError  # noqa: PLC0415
     from cso_runtime.plots import plot_scene  # noqa: PLC0415
-    from cso_runtime.scenes import SceneError, describe_scene, resolve_scenes  # noqa: PLC0415
+    from cso_runtime.scenes import M_PER_PX_BOUND, SceneError, describe_scene, resolve_scenes  # noqa: PLC0415
     from robot_sim.scene import write_mujoco_world  # noqa: PLC0415
 
     try:
+        M_PER_PX_BOUND.check("--m-per-px", m_per_px)  # named as typed, as eval's --m-per-px
         refs = resolve_scenes(spec, limit, m_per_px)
-    except SceneError as exc:
+    except (ConfigError, SceneError) as exc:
         _fail(str(exc), 2)
     if preview is not None:
         output_dir_or_exit(preview, "--preview")
@@ -1444,7 +1446,9 @@ def train_command(
         refuse_two_values_of_a_field(overrides, field_flags, settings or [])
     except ConfigError as exc:
         _fail(str(exc), 2)
-    settings = [*field_flags, *(settings or [])]
+    # One pair a field, its last value (a field flag given twice; its --set of the same value): the command recorded in
+    # <variant>.json runs again as it is, where one --set key given twice with other values is refused.
+    settings = list({item.partition("=")[0].strip(): item for item in [*field_flags, *(settings or [])]}.values())
     if config is None and resume is None:
         config = DEFAULT_TRAIN_CONFIG  # a resume without --config goes on with its checkpoint's configuration
     args = training_args(config, overrides, settings)
@@ -1502,11 +1506,11 @@ def collect_teacher_command(
     try:
         ARGS_BOUNDS["num_envs"].check("--workers", workers)  # a process each, as train's num_envs with async_envs
         refuse_two_values_of_a_field(overrides, [], settings or [])  # --seed 3 --set seed=4, as train refuses it
-        if teacher is None and "warm_start_teacher" not in parse_settings(settings or []):
-            overrides["warm_start_teacher"] = "rollout"  # the default teacher, over the config file's (train's warm start's)
+        # The default teacher, over the config file's (train's warm start's): no flag the user typed, so no error names it
+        fixed = {"warm_start_teacher": "rollout"} if teacher is None and "warm_start_teacher" not in parse_settings(settings or []) else {}
     except ConfigError as exc:
         _fail(str(exc), 2)
-    args = training_args(config, overrides, settings)
+    args = training_args(config, overrides, settings, fixed)
     if out.is_dir():  # said before hours of rollouts: the file was to be renamed over the folder at the end, a traceback
         _fail(f"--out {out} is a folder; give the file to write, such as {out / 'teacher.npz'}", 2)
     output_dir_or_exit(out.parent, f"--out {out}: its folder")  # before hours of rollouts, not after
@@ -1551,12 +1555,13 @@ def _up_folders_or_exit(record_out: str | None, runs_dir: Path, make: bool = Tru
     output_dir_or_exit(runs_dir, "--runs-dir", make)
 
 
-def training_args(config: Path | None, overrides: Mapping[str, object], settings: list[str] | None) -> Args:
+def training_args(config: Path | None, overrides: Mapping[str, object], settings: list[str] | None, fixed: Mapping[str, object] | None = None) -> Args:
     """``learned.ppo.Args`` from the YAML file (without one, for a ``resume``: the configuration its checkpoint holds),
-    then the command's flags, then ``--set`` pairs; a missing file or a bad value exits with a clear error (code 2)
-    before anything starts. A ``--set`` of a text field that YAML reads as another type (``out_dir=2024``) says how to
-    write it (``--set out_dir='2024'``), as ``up`` and ``eval`` do, where the configuration takes that text
-    (``variant=1``: ``'1'`` is no variant either, so the value's own error is said)."""
+    then ``fixed`` (the command's own values of fields no flag set: ``collect-teacher``'s default teacher), then the
+    command's flags, then ``--set`` pairs; a missing file or a bad value exits with a clear error (code 2) before
+    anything starts, naming the file and the flags as typed. A ``--set`` of a text field that YAML reads as another
+    type (``out_dir=2024``) says how to write it (``--set out_dir='2024'``), as ``up`` and ``eval`` do, where the
+    configuration takes that text (``variant=1``: ``'1'`` is no variant either, so the value's own error is said)."""
     from cso_runtime.config import (  # noqa: PLC0415
         ConfigError,
         field_types,
@@ -1575,23 +1580,24 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
                 typer.echo(f"note: resuming with the configuration {overrides['resume']} holds (its run's --config and --set)", err=True)
         else:
             data = load_yaml(config) if config is not None else {}
-        data.update({k: v for k, v in overrides.items() if v is not None})
-        pairs = parse_settings(settings or [])
+        data.update({**(fixed or {}), **{k: v for k, v in overrides.items() if v is not None}})
+        pairs = parse_settings(settings or [], last_counts=True)  # field flags and --set, checked against each other
         data.update(pairs)
-        if config is not None and not data.get("resume"):
-            _say_fields_left_at_defaults(config, data)
         if data.get("resume") and overrides.get("out_dir") is None and "out_dir" not in pairs:
             data["out_dir"] = str(Path(str(data["resume"])).parent)  # a resume goes on in its run's folder, not the config's out_dir
         where = str(config or "train")  # an error names the file, and the flags that changed it, as eval's and up's do
         flags = training_flags(overrides, settings)
         if flags:
             where += " with " + " ".join(" ".join(words) for words in flags)
+        if pairs:  # `--set out_dir=2024` alone: how to write it, as `up` and `eval` say it, where the text is taken
 
-        def takes(texts: dict[str, object]) -> object:  # the configuration with those values as text (no hint again)
-            return from_dict(Args, {**data, **texts}, where)
+            def takes(texts: dict[str, object]) -> object:  # the configuration with those values as text (no hint again)
+                return from_dict(Args, {**data, **texts}, where)
 
-        refuse_a_setting_read_as_another_type(pairs, field_types(Args), takes)  # `--set out_dir=2024`: how to write it
+            refuse_a_setting_read_as_another_type(pairs, field_types(Args), takes)
         args = from_dict_with_hints(Args, data, where)
+        if config is not None and not data.get("resume"):  # once the configuration is taken: an error alone is one line
+            _say_fields_left_at_defaults(config, data)
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
         check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
     except (ConfigError, ValueError) as exc:
@@ -1718,11 +1724,19 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     """``train``'s own options (``--out``), its field flags (``--out-dir``, ``args_field_flags``' pairs) and ``--set``
     all set fields of ``learned.ppo.Args``: two of them that give one field different values are a ConfigError that
     names both (one of them took over the other in silence). The same value twice is fine; so is one flag given
-    twice, whose last value counts, as typer's own options' does. (A ``--set`` of a text field that YAML reads as
-    another type, ``out_dir=2024``, is ``training_args``' to say, where the whole configuration is known.)"""
+    twice, whose last value counts, as typer's own options' does (a ``--set`` key twice is not: ``parse_settings``).
+    A ``--set`` of a text field that YAML reads as another type is ``training_args``' to say, as ``up`` and ``eval``
+    say it: with the configuration it would make."""
     import typing  # noqa: PLC0415
 
-    from cso_runtime.config import field_value, place_of, refuse_two_values, set_said, text_field, yaml_text  # noqa: PLC0415
+    from cso_runtime.config import (  # noqa: PLC0415
+        field_value,
+        place_of,
+        refuse_two_values,
+        set_said,
+        text_field,
+        yaml_text,
+    )
     from cso_runtime.learned.ppo import Args  # noqa: PLC0415
 
     types = typing.get_type_hints(Args)
@@ -1741,7 +1755,7 @@ def refuse_two_values_of_a_field(overrides: Mapping[str, object], field_flags: l
     for name, value in overrides.items():
         if value is not None:
             given.setdefault(name, []).append((" ".join(_flag_of(name, value)), value))
-    for name, value in parse_settings(field_flags).items():
+    for name, value in parse_settings(field_flags, last_counts=True).items():
         given.setdefault(name, []).append((field_flag(name, value), value))
     pairs = parse_settings(settings)
     for name, value in pairs.items():
@@ -1765,23 +1779,31 @@ def parse_seeds(items: list[str]) -> list[int]:
     return seeds
 
 
-def parse_settings(items: list[str]) -> Settings:
+def parse_settings(items: list[str], last_counts: bool = False) -> Settings:
     """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``), each VALUE's text kept as typed
-    for the messages that name it (``config.Settings``)."""
+    for the messages that name it (``config.Settings``). A KEY given twice with another value is a ConfigError naming
+    both ``--set`` as typed, as a key given twice in one YAML mapping is (``config.YamlLoader``): the first one would
+    be dropped in silence. ``last_counts``: the last one counts instead (train's field flags, ``--lr 1 --lr 2``, as
+    typer's own options; and their pairs merged with ``--set`` once ``refuse_two_values_of_a_field`` checked them)."""
     import yaml  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, Settings, one_line, yaml_load  # noqa: PLC0415
+    from cso_runtime.config import ConfigError, Settings, not_yaml_said, refuse_two_values, yaml_load  # noqa: PLC0415
 
     out = Settings()
+    given: dict[str, list[tuple[str, object]]] = {}
     for item in items:
         key, sep, value = item.partition("=")
-        if not sep or not key.strip():
+        key = key.strip()
+        if not sep or not key:
             raise ConfigError(f"--set expects KEY=VALUE, got {item!r}")
         try:
-            out[key.strip()] = yaml_load(value)
+            out[key] = yaml_load(value)
         except yaml.YAMLError as exc:
-            raise ConfigError(f"--set {item}: not valid YAML: {one_line(str(exc))}") from None
-        out.typed[key.strip()] = value.strip()
+            raise ConfigError(not_yaml_said(f"--set {item}", exc)) from None
+        out.typed[key] = value.strip()
+        given.setdefault(key, []).append((f"--set {key}={value.strip()}", out[key]))
+    if not last_counts:  # 1 and 1.0, 1 and true: other values
+        refuse_two_values(given, lambda _key, value: (type(value), value))
     return out
 
 

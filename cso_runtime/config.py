@@ -557,17 +557,19 @@ def with_mujoco_limo_defaults(config: ExplorationConfig, given: Any = None) -> E
     return config
 
 
-_YAML11_TEXT_NUMBER = re.compile(r"[-+]?([0-9]+\.?[0-9]*|\.[0-9]+)[eE][-+]?[0-9]+|[-+]\.[0-9]+")
-"""A number YAML 1.2 reads as a float and PyYAML's YAML 1.1 as a string: one in exponent notation without a dot or
-without a sign on its exponent (``1e-8``, ``5.0e2``), or signed with no digit before its dot (``-.5``)."""
-
-
 def yaml12_number(value: Any) -> Any:
-    """``value`` as YAML 1.2 (and map_server's yaml-cpp) reads it: a text that PyYAML's YAML 1.1 leaves as text and YAML
-    1.2 reads as a number (``1e-8``, ``5e-2``, ``-.5``: ``_YAML11_TEXT_NUMBER``), as its float; any other value as it is.
+    """``value`` as YAML 1.2 (and map_server's yaml-cpp) reads it: a text that ``yaml_load`` reads as a number and
+    PyYAML's YAML 1.1 leaves as text (``1e-8``, ``5e-2``, ``-.5``, ``0o10``), as that number; any other value as it is.
     A file or ``--set`` read by ``yaml_load`` has these as numbers already; this takes them where a text comes by
-    another way (a dict of the Python API, a scene's meta)."""
-    return float(value) if isinstance(value, str) and _YAML11_TEXT_NUMBER.fullmatch(value.strip()) else value
+    another way (a dict of the Python API, a scene's meta). ``YamlLoader`` itself says which texts are numbers: no
+    second pattern of them here."""
+    if not isinstance(value, str):
+        return value
+    try:
+        number, yaml11 = yaml_load(value), yaml.safe_load(value)
+    except yaml.YAMLError:
+        return value
+    return number if isinstance(number, (int, float)) and not isinstance(number, bool) and isinstance(yaml11, str) else value
 
 
 _UNDERSCORED_NUMBER = re.compile(r"[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?(?:[eE][-+]?[0-9]+)?")
@@ -584,13 +586,19 @@ def _how_to_write(value: Any) -> str:
     return ""
 
 
-def as_float(value: float) -> float:
-    """``float(value)``, and for an integer no float holds (``10**400``, which YAML reads whole, as ``0x`` and 300
-    digits) the infinity of its sign, where ``float`` raises OverflowError: said as not finite, as ``1e400`` is."""
+def finite_number(value: Any) -> float | None:
+    """``value`` as a finite float where YAML 1.2 reads it as a number (an int or a float, not a bool; a text
+    ``yaml12_number`` reads); None for anything else: a word, ``1_000``, ``1:30``, true, nan, inf, and an integer no
+    float holds (``10**400``, which YAML reads whole: ``float`` would raise OverflowError). The one reading of a number
+    field: ``from_dict``'s (which says why where it is None) and a map YAML's (``map_files``, a scene's ``start``)."""
+    value = yaml12_number(value)
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
     try:
-        return float(value)
+        number = float(value)
     except OverflowError:
-        return math.inf if value > 0 else -math.inf
+        return None
+    return number if math.isfinite(number) else None
 
 
 def _convert(value: Any, annotation: Any, where: str) -> Any:
@@ -600,14 +608,14 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
             raise ConfigError(f"{where}: expected a mapping, got {type(value).__name__}")
         return from_dict(annotation, value, where)
     if annotation is float:
-        value = yaml12_number(value)  # PyYAML (YAML 1.1) reads 1e-8, with no dot, as a string
+        if (number := finite_number(value)) is not None:  # PyYAML (YAML 1.1) reads 1e-8, with no dot, as a string
+            return number
+        value = yaml12_number(value)
         if isinstance(value, str) and value.strip().lower().lstrip("+-") in ("nan", "inf", "infinity"):
             raise ConfigError(f"{where}: must be finite, got {value.strip()}")  # YAML's .nan is a float, its nan text: one answer
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}{_how_to_write(value)}")
-        if not math.isfinite(number := as_float(value)):
-            raise ConfigError(f"{where}: must be finite")
-        return number
+        raise ConfigError(f"{where}: must be finite")
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{where}: expected an integer, got {value!r}{_how_to_write(value)}")
@@ -1320,6 +1328,12 @@ def one_line(text: str) -> str:
     return " ".join(text.split())
 
 
+def not_yaml_said(where: object, exc: Exception) -> str:
+    """What a text that ``yaml_load`` refuses is said as, wherever it came from (a config or profile file, a map YAML, a
+    ``--set``; a key given twice included): ``WHERE: not valid YAML: YAML's own words``, on one line."""
+    return f"{where}: not valid YAML: {one_line(str(exc))}"
+
+
 def load_yaml(path: str | Path) -> dict[str, Any]:
     """Read a YAML mapping, with a clear error for a missing or malformed file or a key given twice."""
     p = Path(path)
@@ -1329,7 +1343,7 @@ def load_yaml(path: str | Path) -> dict[str, Any]:
         with p.open(encoding="utf-8") as stream:  # a file stream, so YAML's message names the file, not "<unicode string>"
             data = yaml_load(stream)
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{p}: not valid YAML: {one_line(str(exc))}") from None
+        raise ConfigError(not_yaml_said(p, exc)) from None
     if data is None:
         return {}
     if not isinstance(data, dict):

@@ -54,6 +54,7 @@ from cso_runtime.config import (
     LIDAR_FOVS_DEG,
     LIDAR_FOVS_SAID,
     MAX_PROCESSES,
+    Bound,
     ConfigError,
     ExplorationConfig,
     SensorConfig,
@@ -116,7 +117,7 @@ from cso_runtime.report import (
     table2,
     write_report,
 )
-from cso_runtime.scenes import SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
+from cso_runtime.scenes import M_PER_PX_BOUND, SCALES, FloorPlan, SceneError, SceneRef, resolve_scenes, scale_of, scale_rank
 from cso_runtime.simulator import (
     SIMULATORS,
     MountSetting,
@@ -307,15 +308,13 @@ class EvalRequest:
             raise ConfigError(f"no weights for {', '.join(untrained)} in {weights_dir()} ({missing}); {fix}")
         if self.sim not in SIMULATORS:
             raise ConfigError(f"unknown --sim {self.sim!r}; choose {' or '.join(SIMULATORS)}")
-        if self.max_steps is not None and self.max_steps <= 0:
-            raise ConfigError(f"--max-steps must be positive, got {self.max_steps}")
+        if self.max_steps is not None:
+            EPISODE_BOUNDS["max_steps"].check("--max-steps", self.max_steps)  # as the config's episode.max_steps
         self.mujoco_parameters()
-        if not 1 <= self.workers <= MAX_PROCESSES:  # a process each: 5000 started 5,000 processes
-            raise ConfigError(f"--workers must be in [1, {MAX_PROCESSES:,}] (a process each: config.MAX_PROCESSES), got {self.workers}")
+        Bound(1, MAX_PROCESSES, why="a process each: config.MAX_PROCESSES").check("--workers", self.workers)  # a process each: 5000 started 5,000 processes
         check_seed(self.seed, "--seed")
         self.check_seeds()
-        if not (math.isfinite(self.m_per_px) and self.m_per_px > 0):
-            raise ConfigError(f"--m-per-px must be a positive number of metres per pixel, got {self.m_per_px}")
+        M_PER_PX_BOUND.check("--m-per-px", self.m_per_px)  # as resolve_scenes and train's dungeon_m_per_px
         if self.limit is not None and self.limit <= 0:
             raise ConfigError(f"--limit must be positive, got {self.limit}")
         if self.sensor == "lidar" and self.lidar_fov_deg not in LIDAR_FOVS_DEG:

@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 from PIL import Image, UnidentifiedImageError
 
-from cso_runtime.config import as_float, one_line, yaml12_number, yaml_dump, yaml_load
+from cso_runtime.config import finite_number, not_yaml_said, one_line, yaml12_number, yaml_dump, yaml_load
 from cso_runtime.geometry import GridGeometry, Pose2D, rounded_pose
 from cso_runtime.occupancy import FREE, OCCUPIED, UNKNOWN
 from cso_runtime.outputs import write_text_atomic, write_whole
@@ -144,8 +144,10 @@ def load_map_and_meta(yaml_path: Path, rotated_origin_ok: bool = False) -> tuple
     try:
         with yaml_path.open(encoding="utf-8") as stream:
             meta = yaml_load(stream)
-    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise MapFileError(f"{yaml_path}: cannot read the map YAML ({one_line(str(exc))})") from None  # YAML's spans several
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:  # as a config file's (a key twice too), on one line
+        raise MapFileError(not_yaml_said(yaml_path, exc)) from None
+    except OSError as exc:
+        raise MapFileError(f"{yaml_path}: cannot read the map YAML ({one_line(str(exc))})") from None
     if not isinstance(meta, dict):
         raise MapFileError(f"{yaml_path}: expected a mapping with image, resolution and origin")
     for key in ("image", "resolution", "origin"):
@@ -276,20 +278,9 @@ def _warn_unknown_grey_read_free(yaml_path: Path, free_thresh: float, read_free_
     )  # fmt: skip
 
 
-def map_yaml_number(v: object) -> float | None:
-    """A finite number of a map's YAML as map_server reads it (YAML 1.2's: ``5e-2``, ``-.5``, ``010`` as 10, as
-    ``config.yaml_load`` reads the file; ``config.yaml12_number`` for such a text that came by another way); None for
-    anything else (a word, ``1_000``, ``1:30``, true, nan, inf). The one reading of the numbers of a
-    map YAML: its own keys and a scene's ``start`` (``scenes.load_map_scene``)."""
-    v = yaml12_number(v)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(number := as_float(v)):
-        return None
-    return number
-
-
 def _number(v: object, path: Path, key: str) -> float:
-    """``map_yaml_number`` of the map's ``key``, or a MapFileError."""
-    number = map_yaml_number(v)
+    """The map's ``key`` as map_server reads it (YAML 1.2's numbers: ``config.finite_number``), or a MapFileError."""
+    number = finite_number(v)
     if number is None:
         what = "three finite numbers [x_m, y_m, yaw_rad]" if key == "origin" else "a finite number"
         raise MapFileError(f"{path}: {key} must be {what}, got {yaml12_number(v)!r}")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cso_runtime.config import with_nearest
+from cso_runtime.config import Bound, finite_number, with_nearest
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, GridGeometry, Pose2D, compose_pose, relative_pose, wrap_angle_rad
 
 FREE_RGB = (195, 195, 194)
@@ -227,7 +227,7 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     resolution, along the grid's rows and columns; the YAML's ``origin`` (with its yaw) is kept as the plan's
     ``map_origin``, which places it in the map frame. The start is the YAML's optional ``start: [x_m, y_m, yaw_rad]`` (map frame; map_server
     ignores the key), else the free cell farthest from any wall in the largest free region."""
-    from cso_runtime.map_files import MapFileError, load_map_and_meta, map_yaml_number  # noqa: PLC0415 - PIL only for map input
+    from cso_runtime.map_files import MapFileError, load_map_and_meta  # noqa: PLC0415 - PIL only for map input
 
     p = Path(path)
     if not p.is_file():
@@ -244,7 +244,7 @@ def load_map_scene(path: str | Path) -> FloorPlan:
     map_origin = Pose2D(x0_m, y0_m, yaw_rad if -math.pi <= yaw_rad < math.pi else wrap_angle_rad(yaw_rad))  # messages carry yaws in [-10, 10]
     res = geometry.resolution_m
     if start is not None:
-        numbers = [n for n in map(map_yaml_number, start) if n is not None] if isinstance(start, list) else []  # read as origin is (5e-2 too)
+        numbers = [n for n in map(finite_number, start) if n is not None] if isinstance(start, list) else []  # read as origin is (5e-2 too)
         if len(numbers) != 3 or len(start) != 3:
             raise SceneError(f"{p.name}: start must be [x_m, y_m, yaw_rad], three finite numbers")
         # The map frame's pose in the grid's frame, whose corner is at `origin`, turned by its yaw (map_server's).
@@ -301,6 +301,9 @@ class SceneRef:
 
 MAX_M_PER_PX = 10.0
 """The coarsest plan scale taken (``--m-per-px``): a pixel of a floor plan is never 10 m of floor."""
+M_PER_PX_BOUND = Bound(0.0, MAX_M_PER_PX, "m", low_open=True, why="scenes.MAX_M_PER_PX")
+"""The metres per pixel of a floor plan (``eval --m-per-px``, ``scenes --m-per-px``, train's ``dungeon_m_per_px``):
+the one range of it, checked and said by ``config.Bound``."""
 
 
 def spec_names_a_path(spec: str) -> bool:
@@ -311,8 +314,8 @@ def spec_names_a_path(spec: str) -> bool:
 
 def resolve_scenes(spec: str, limit: int | None = None, resolution_m: float = 0.1) -> list[SceneRef]:
     """Expand a scene spec into scene references (see the module docstring for the forms)."""
-    if not (math.isfinite(resolution_m) and 0 < resolution_m <= MAX_M_PER_PX):
-        raise SceneError(f"metres per pixel must be a number in (0, {MAX_M_PER_PX:g}], got {resolution_m}")
+    if (problem := M_PER_PX_BOUND.problem(resolution_m)) is not None:
+        raise SceneError(f"metres per pixel {problem}")
     if spec.startswith("generated:"):
         parts = spec.split(":")
         if len(parts) != 4:

@@ -108,8 +108,6 @@ class FoxgloveBridgeParams:
     def validate(self) -> None:
         if not 0 <= self.port <= 65535:
             raise ConfigError(f"port must be in 0..65535, got {self.port}")
-        if not self.map_period_s >= 0:
-            raise ConfigError("map_period_s must be >= 0")
         check_bounds("", self, seconds("map_period_s"))
         try:
             self.frames().check()  # export-bag's check: tf2 frame ids, four different names

@@ -64,11 +64,7 @@ class MapperParams:
     def validate(self) -> None:
         if self.resolution_m < 0 or (self.resolution_m > 0 and not (self.width_m > 0 and self.height_m > 0)):
             raise ConfigError("an explicit grid needs resolution_m, width_m and height_m > 0")
-        if self.max_pending_scans < 1:
-            raise ConfigError("max_pending_scans must be at least 1")
-        if not self.restore_timeout_s >= 0:
-            raise ConfigError(f"restore_timeout_s must be >= 0 seconds, got {self.restore_timeout_s}")
-        check_bounds("", self, MAPPER_PARAMS_BOUNDS)
+        check_bounds("", self, MAPPER_PARAMS_BOUNDS)  # max_pending_scans, restore_timeout_s: their one check
 
 
 class MapperService(Service):

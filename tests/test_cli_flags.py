@@ -600,3 +600,108 @@ def test_an_error_of_a_section_a_set_broke_names_the_set_where_up_connect_or_fox
         said_now = " ".join(r.stderr.split())
         assert r.exit_code == 2 and said in said_now, (given, r.output)
     assert not (tmp_path / "runs").exists()
+
+
+SAME_MISTAKES = {  # the one mistake of each kind, as each command's keys write it: (its --set items, the words said)
+    "up": {
+        "a number for a text field": (["robot=1"], "--set robot=1"),
+        "a key twice": (["seed=1", "seed=2"], "--set seed=1 and --set seed=2 both set seed, to different values: give one"),
+        "a key twice in one value": (["exploration.episode={max_steps: 1, max_steps: 2}"], "found key 'max_steps' twice"),
+        "an underscore number": (["seed=1_000"], "--set seed=1_000: seed: expected an integer, got '1_000' (YAML 1.2 reads a number with _ as text: write 1000)"),
+        "nan": (["exploration.planner.lookahead_m=nan"], "--set exploration.planner.lookahead_m=nan: exploration.planner.lookahead_m: must be finite, got nan"),
+        "an unknown key": (["nosuch=1"], "--set nosuch=1: unknown key(s) nosuch; known:"),
+        "an out-of-bounds value": (["exploration.planner.lookahead_m=0"], "--set exploration.planner.lookahead_m=0: exploration.planner.lookahead_m must be in (0, 100] m"),
+    },
+    "eval": {
+        "a number for a text field": (["planner.body=1"], "--set planner.body=1: planner.body: expected a string, got 1"),
+        "a key twice": (["episode.max_steps=5", "episode.max_steps=6"], "--set episode.max_steps=5 and --set episode.max_steps=6 both set episode.max_steps, to different values: give one"),
+        "a key twice in one value": (["episode={max_steps: 1, max_steps: 2}"], "found key 'max_steps' twice"),
+        "an underscore number": (["episode.max_steps=1_000"], "--set episode.max_steps=1_000: episode.max_steps: expected an integer, got '1_000' (YAML 1.2 reads a number with _ as text: write 1000)"),
+        "nan": (["planner.lookahead_m=nan"], "--set planner.lookahead_m=nan: planner.lookahead_m: must be finite, got nan"),
+        "an unknown key": (["nosuch=1"], "--set nosuch=1: unknown key(s) nosuch; known:"),
+        "an out-of-bounds value": (["planner.lookahead_m=0"], "--set planner.lookahead_m=0: planner.lookahead_m must be in (0, 100] m"),
+    },
+    "train": {
+        "a number for a text field": (["warm_start_teacher=1"], "--set warm_start_teacher=1: warm_start_teacher: expected a string, got 1"),
+        "a key twice": (["seed=1", "seed=2"], "--set seed=1 and --set seed=2 both set seed, to different values: give one"),
+        "a key twice in one value": (["generated={a: 1, a: 2}"], "found key 'a' twice"),
+        "an underscore number": (["seed=1_000"], "--set seed=1_000: seed: expected an integer, got '1_000' (YAML 1.2 reads a number with _ as text: write 1000)"),
+        "nan": (["gamma=nan"], "--set gamma=nan: gamma: must be finite, got nan"),
+        "an unknown key": (["nosuch=1"], "--set nosuch=1: unknown key(s) nosuch; known:"),
+        "an out-of-bounds value": (["gamma=2"], "--set gamma=2: gamma must be in (0, 1], got 2"),
+    },
+}
+SAME_MISTAKES["collect-teacher"] = SAME_MISTAKES["train"]
+
+
+@pytest.mark.parametrize(("command", "mistake"), [(command, mistake) for command, cases in SAME_MISTAKES.items() for mistake in cases])
+def test_each_command_that_takes_set_says_the_same_mistake_alike(tmp_path: Path, command: str, mistake: str, train_runs: list, collect_teacher_stub: list):
+    """The same bad ``--set`` through each command that takes one (``up``, ``eval``, ``train``, ``collect-teacher``):
+    each exits 2 before anything runs, in one line on stderr that names the ``--set`` as typed and the same words for
+    the same mistake. Before: a key given twice (``--set seed=1 --set seed=2``) ran with the last in silence in all
+    four; ``train`` and ``collect-teacher`` said a note on their config file's fields before the error (two lines), and
+    hinted ``--set warm_start_teacher='1'``, a teacher they then refused, where ``up`` and ``eval`` hint only a text
+    the configuration takes; ``collect-teacher`` named ``--teacher rollout``, its default, among the flags given."""
+    from cso_runtime.cli import app
+
+    recipe = tmp_path / "mine.yaml"
+    recipe.write_text("dungeon_dir: null\ngenerated: [generated:small:1:1000]\n")  # a few fields: train's note on the rest
+    place = {
+        "up": ["--runs-dir", str(tmp_path / "runs"), "--dry-run"],
+        "eval": ["--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "out"), "--dry-run"],
+        "train": ["--config", str(recipe), "--out", str(tmp_path / "out")],
+        "collect-teacher": ["--config", str(recipe), "--out", str(tmp_path / "out" / "t.npz")],
+    }[command]
+    items, said = SAME_MISTAKES[command][mistake]
+    r = CliRunner().invoke(app, [command, *place, *(word for item in items for word in ("--set", item))])
+    assert r.exit_code == 2, (r.exit_code, r.output)
+    assert r.stderr.startswith("error: ") and r.stderr.count("\n") == 1, r.stderr
+    assert said in r.stderr and f"--set {items[-1]}" in r.stderr, r.stderr
+    assert "--teacher" not in r.stderr, r.stderr  # collect-teacher's default teacher is no flag the user typed
+    assert not train_runs and not collect_teacher_stub and not (tmp_path / "out").exists() and not (tmp_path / "runs").exists()
+
+
+def test_a_set_key_given_twice_is_refused_unless_its_value_is_the_same():
+    """``--set seed=1 --set seed=2`` ran seed 2, the first dropped in silence (a key twice in one YAML mapping is
+    refused). Refused now through ``config.refuse_two_values``, naming both as typed; the same value twice is fine, and
+    train's field flags (``last_counts``) keep their last value, as typer's options do."""
+    from cso_runtime.cli import parse_settings
+    from cso_runtime.config import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape("--set seed=1 and --set seed=on both set seed, to different values: give one")):
+        parse_settings(["seed=1", "seed=on"])
+    with pytest.raises(ConfigError, match=re.escape("--set gamma=1 and --set gamma=1.0 both set gamma")):
+        parse_settings(["gamma=1", "gamma=1.0"])
+    assert parse_settings(["seed=1", " seed = 01"]) == {"seed": 1}
+    assert parse_settings(["seed=1", "seed=2"], last_counts=True) == {"seed": 2}
+
+
+@pytest.mark.parametrize("value", ["0", "nan", "20"])
+def test_m_per_px_out_of_its_range_is_said_alike_by_eval_and_scenes(tmp_path: Path, value: str):
+    """``scenes --m-per-px 0`` said "metres per pixel must be a number in (0, 10]" and ``eval --m-per-px 0`` "--m-per-px
+    must be a positive number of metres per pixel" (its 20 refused in resolve_scenes' words): two checks of one range. One now
+    (``scenes.M_PER_PX_BOUND``, a ``config.Bound``), said in the same words by both, naming the flag."""
+    from cso_runtime.cli import app
+
+    said = f"error: --m-per-px must be in (0, 10] m (scenes.MAX_M_PER_PX), got {value}\n"
+    for command in (["scenes", "generated:small:1:0"], ["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--dry-run"]):
+        r = CliRunner().invoke(app, [*command, "--m-per-px", value])
+        assert r.exit_code == 2 and r.stderr == said, (command, r.output)
+
+
+def test_train_records_a_command_that_runs_again_with_one_pair_a_field(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``train --gamma 0.9 --gamma 0.95`` (a field flag given twice keeps its last value) recorded ``--set gamma=0.9
+    --set gamma=0.95`` in its command, which, run again, a --set key given twice with other values refuses. The
+    command holds one pair a field, its last value, and runs again as recorded."""
+    import shlex
+
+    from cso_runtime.learned import ppo
+
+    commands: list[str] = []
+    monkeypatch.setattr(ppo, "train", lambda args, log=None, command="", stop_requested=None: commands.append(command) or {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0})
+    code, said = train(tmp_path, "--gamma", "0.9", "--gamma", "0.95", "--set", "gamma=0.95", "--seed", "1")
+    assert code == 0, said
+    words = shlex.split(commands[-1])
+    assert [w for w in words if w.startswith("gamma=")] == ["gamma=0.95"], commands[-1]
+    code, said = train(tmp_path, *words[2:])
+    assert code == 0 and shlex.split(commands[-1]) == words, said

@@ -127,13 +127,13 @@ def test_eval_step_limit_comes_from_the_config_unless_the_flag_is_given(tmp_path
     assert EvalRequest(methods=["greedy-dist"]).exploration_config().episode.max_steps == 3000
     # A method named twice runs once, in the order first given.
     assert EvalRequest(methods=["utility", "greedy-dist", "utility"]).methods == ["utility", "greedy-dist"]
-    with pytest.raises(ConfigError, match="--max-steps must be positive, got 0"):
+    with pytest.raises(ConfigError, match=re.escape("--max-steps must be in [1, 1,000,000] (an episode's result must fit its message: MAX_EPISODE_STEPS), got 0")):
         EvalRequest(methods=["greedy-dist"], max_steps=0).validate()
     # A process each: `--workers 5000` started 5,000 processes, as collect-teacher's and train's counts are bounded.
     from cso_runtime.config import MAX_PROCESSES
 
     for workers in (0, MAX_PROCESSES + 1):
-        with pytest.raises(ConfigError, match=rf"--workers must be in \[1, 1,024\] .*got {workers}"):
+        with pytest.raises(ConfigError, match=rf"--workers must be in \[1, 1,024\] .*got {workers:,}"):
             EvalRequest(methods=["greedy-dist"], workers=workers).validate()
 
 
@@ -1915,3 +1915,53 @@ def test_a_number_written_with_underscores_is_refused_saying_how_to_write_it(tmp
     r = CliRunner().invoke(app, ["up", "--set", "max_grid_cells=6_000_000", "--resolved", "--runs-dir", str(tmp_path / "runs")])
     said = " ".join(r.output.split())
     assert r.exit_code == 2 and "max_grid_cells: expected an integer, got '6_000_000' (YAML 1.2 reads a number with _ as text: write 6000000)" in said, said
+
+
+@pytest.mark.parametrize(
+    ("text", "read"),
+    [("1e5", 1e5), ("5e-2", 0.05), ("-.5", -0.5), ("+.5", 0.5), ("0o10", 8.0), ("0x10", None), ("010", None), ("1_000", None), ("1:30", None), (".nan", None), ("on", None)],
+)
+def test_a_number_field_given_as_text_is_read_as_the_yaml_reader_reads_that_text(text: str, read: float | None):
+    """``yaml12_number`` (a text that came by another way than ``yaml_load``: a dict of the Python API) kept a pattern
+    of its own of the texts YAML 1.2 reads as numbers and YAML 1.1 as text, beside ``YamlLoader``'s: ``0o10`` was 8
+    in a file and refused given as text. It asks the loader now: a text YAML 1.1 left as text is the number the file
+    reads; a text YAML 1.1 read as a number too (``010``, quoted in a file) stays a text, refused as before."""
+    from cso_runtime.config import field_value, finite_number
+
+    if read is None:
+        assert finite_number(text) is None
+        with pytest.raises(ConfigError, match="lookahead_m"):
+            field_value(text, float, "lookahead_m")
+    else:
+        assert finite_number(text) == read == field_value(text, float, "lookahead_m")
+
+
+@pytest.mark.parametrize(
+    ("service", "params", "said"),
+    [
+        ("planner", {"stale_after_s": 0}, "services.planner: stale_after_s must be in (0, 86,400] s (a day: config.MAX_WAIT_S), got 0"),
+        ("planner", {"path_period_s": -1}, "services.planner: path_period_s must be in [0, 86,400] s (a day: config.MAX_WAIT_S), got -1"),
+        ("planner", {"restore_timeout_s": -1}, "services.planner: restore_timeout_s must be in [0, 86,400] s (a day: config.MAX_WAIT_S), got -1"),
+        ("mapper", {"max_pending_scans": 0}, "services.mapper: max_pending_scans must be in [1, 10,000] (MAX_PENDING_SCANS), got 0"),
+        ("mapper", {"restore_timeout_s": -1}, "services.mapper: restore_timeout_s must be in [0, 86,400] s (a day: config.MAX_WAIT_S), got -1"),
+        ("frontier", {"goal_wait_s": 0}, "services.frontier: goal_wait_s must be in (0, 86,400] s"),
+        ("frontier", {"helper_max_restarts": -1}, "services.frontier: helper_max_restarts must be in [0, "),
+        ("sim", {"cmd_timeout_s": 0}, "services.sim: cmd_timeout_s must be in (0, "),
+        ("sim", {"status_period_s": -1}, "services.sim: status_period_s must be in [0, 86,400] s"),
+        ("policy", {"forget_robot_after_s": 0}, "services.policy: forget_robot_after_s must be in (0, 86,400] s"),
+        ("policy", {"frontier_restart_grace_s": -1}, "services.policy: frontier_restart_grace_s must be in [0, 86,400] s"),
+        ("foxglove_bridge", {"map_period_s": -1}, "services.foxglove_bridge: map_period_s must be in [0, 86,400] s"),
+        ("ros2_bridge", {"log_period_s": 0}, "services.ros2_bridge: log_period_s must be in (0, 86,400] s"),
+        ("ros2_bridge", {"ended_why_wait_s": -1}, "services.ros2_bridge: ended_why_wait_s must be in [0, 86,400] s"),
+    ],
+)
+def test_a_service_time_out_of_its_range_is_said_by_its_bound_alone(service: str, params: dict, said: str):
+    """Each service's times were checked twice: a hand check first (``stale_after_s must be positive``,
+    ``restore_timeout_s must be >= 0 seconds``, ``map_period_s must be >= 0``: no value said), then their
+    ``config.Bound`` table, which documents them. One check now, in the words every bounded key is said in (key,
+    range, why, value)."""
+    from services import params_class
+
+    with pytest.raises(ConfigError) as refused:
+        from_dict(params_class(service), params, f"services.{service}")
+    assert str(refused.value).startswith(said) and str(refused.value).endswith(f"got {next(iter(params.values()))}")

@@ -554,7 +554,7 @@ def test_set_changes_one_parameter_of_the_profile_and_is_validated_like_the_file
     assert profile.exploration_config().episode.max_steps == 40 and profile.seed == 3
     with pytest.raises(ConfigError, match="--set seed.x: seed is 0, not a mapping"):
         load_profile("lockstep", {}, settings={"seed.x": 1})
-    with pytest.raises(ConfigError, match="progress_log_s must be >= 0 seconds, got -1"):
+    with pytest.raises(ConfigError, match=re.escape("progress_log_s must be in [0, 86,400] s (a day: config.MAX_WAIT_S), got -1")):
         load_profile("lockstep", {}, settings={"progress_log_s": -1})
     r = cli("up", "--profile", "lockstep", "--set", "services.sim.min_step_period_s=0.1", "--seed", "3", "--dry-run", cwd=tmp_path)
     assert r.returncode == 0 and r.stdout.startswith("# profile lockstep, valid: `up` would start sim, mapper, frontier, policy, planner"), r.stderr

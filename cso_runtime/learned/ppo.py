@@ -77,7 +77,7 @@ from cso_runtime.outputs import file_sha256, remove_partial_files, write_npz_who
 from cso_runtime.plots import pyplot
 from cso_runtime.processes import WorkerDied, run_each_in_own_process
 from cso_runtime.provenance import software_provenance
-from cso_runtime.scenes import MAX_M_PER_PX, FloorPlan, SceneRef, resolve_scenes
+from cso_runtime.scenes import M_PER_PX_BOUND, FloorPlan, SceneRef, resolve_scenes
 
 MAX_TRAINING_TIME_S = 30 * 86_400.0
 """The longest ``time_limit_s`` (30 days; 0 = none): a longer one is a value in another unit."""
@@ -106,7 +106,6 @@ MAX_CHECKPOINT_EVERY = 1_000_000
 """The most updates between checkpoints (``checkpoint_every``)."""
 MAX_TRAINING_PLANS = 100_000
 """The most Dungeon plans a run draws (``dungeon_plans``): more than a data set holds (a folder of fewer gives all it has)."""
-DUNGEON_M_PER_PX_BOUND = Bound(0.0, MAX_M_PER_PX, "m", low_open=True, why="scenes.MAX_M_PER_PX, as eval's --m-per-px")
 """Each of ``dungeon_m_per_px``' bound, the scale of a scene's pixel."""
 
 ARGS_BOUNDS: dict[str, Bound] = {
@@ -150,7 +149,7 @@ ARGS_BOUNDS: dict[str, Bound] = {
 """``Args``' bounds: every number of a run (its processes, its network, its graphs, its episodes, its optimiser, its
 rewards), each checked before anything starts (``config.check_bounds``), first of ``validate``'s checks. Beside them
 ``seed`` is ``config.check_seed``'s, ``beta_far_m`` the masks' (``masks.beta_far_m``), each of ``dungeon_m_per_px``
-``DUNGEON_M_PER_PX_BOUND``'s, ``num_minibatches`` divides ``num_envs`` x ``num_steps``, ``heads`` divides ``hidden`` and
+``scenes.M_PER_PX_BOUND``'s, ``num_minibatches`` divides ``num_envs`` x ``num_steps``, ``heads`` divides ``hidden`` and
 ``knn`` is at most ``max_frontier_nodes + max_path_nodes - 1``."""
 
 
@@ -326,7 +325,7 @@ class Args:
             raise ValueError(f"unknown variant {self.variant!r}; known: {', '.join(VARIANTS)}")
         check_bounds("", self, ARGS_BOUNDS)
         for scale in self.dungeon_m_per_px:
-            DUNGEON_M_PER_PX_BOUND.check("dungeon_m_per_px", scale)
+            M_PER_PX_BOUND.check("dungeon_m_per_px", scale)  # as eval's --m-per-px
         if (self.num_envs * self.num_steps) % self.num_minibatches:
             raise ValueError(
                 f"num_envs x num_steps = {self.num_envs} x {self.num_steps} = {self.batch_size} decisions per update does not divide"
