@@ -1564,8 +1564,15 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         from_dict_with_hints,
         load_yaml,
         refuse_a_setting_read_as_another_type,
+        set_said,
     )
-    from cso_runtime.learned.ppo import Args, check_training_inputs, resumed_run_settings, training_scene_refs  # noqa: PLC0415
+    from cso_runtime.learned.ppo import (  # noqa: PLC0415
+        Args,
+        check_training_inputs,
+        init_from_with_resume_problem,
+        resumed_run_settings,
+        training_scene_refs,
+    )
 
     config = _packaged_if_missing(config)  # run outside the repository: the packaged recipe
     try:
@@ -1594,6 +1601,15 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         args = from_dict_with_hints(Args, data, where)
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
         check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
+        if args.resume and args.init_from:  # a resume reads no init_from: other weights than its run's are refused
+            if "init_from" in pairs:
+                said = set_said(pairs, "init_from")
+            elif overrides.get("init_from") is not None:
+                said = " ".join(_flag_of("init_from", overrides["init_from"]))
+            else:
+                said = f"init_from {args.init_from} in {config}"
+            if problem := init_from_with_resume_problem(args, said):
+                raise ConfigError(problem)
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     return args
