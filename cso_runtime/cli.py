@@ -822,7 +822,7 @@ def scenes_command(
         from rich.markup import escape  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
-        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+        from cso_runtime.live_view import table_console  # noqa: PLC0415
 
         table = Table(title=escape(f"scenes of {spec}"), box=box.SIMPLE_HEAD)
         table.add_column("scene", overflow="fold")
@@ -837,7 +837,7 @@ def scenes_command(
                 escape(r["scene"]), f"{r['width_m']:.1f} x {r['height_m']:.1f}", f"{r['resolution_m']:g}", f"{r['traversable_area_m2']:.1f}",
                 r["scale"].replace("_", " "), f"{st['x_m']:.2f}, {st['y_m']:.2f}, {st['yaw_rad']:.2f}",
             )
-        console = console_that_survives_its_reader()
+        console = table_console(table)  # `scenes > list.txt`: each scene's path on its line
         console.print(table)
         for r in bad:  # a reason names a file: a column would fold it and cut it off
             console.print(f"[red]unusable[/red] {escape(r['scene'])}: {escape(r['error'])}", soft_wrap=True, highlight=False)
@@ -1186,8 +1186,7 @@ def runs_command(
     from rich.markup import escape  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
 
-    from cso_runtime.evaluation import table_console  # noqa: PLC0415
-    from cso_runtime.live_view import NO_COVERAGE  # noqa: PLC0415 - the one word status, the live view and report.html use
+    from cso_runtime.live_view import NO_COVERAGE, table_console  # noqa: PLC0415 - the one word status, the live view and report.html use
     from cso_runtime.run_profile import REAL_ROBOT_SCENE  # noqa: PLC0415
 
     def num(value: object, fmt: str) -> str:
@@ -1212,7 +1211,7 @@ def runs_command(
             state, took, steps,
             num(r["coverage_pct"], ".1f") if r["coverage_measured"] else NO_COVERAGE, num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
-    table_console().print(table)
+    table_console(table).print(table)  # `runs > runs.txt`, `runs | grep`: a long scene or reason on its line, not folded
 
 
 LOG_COLOURS = ("cyan", "green", "yellow", "magenta", "blue", "bright_red", "bright_cyan", "bright_green")
@@ -1363,7 +1362,7 @@ def dataflow_command(
         return
     from rich.table import Table  # noqa: PLC0415
 
-    from cso_runtime.evaluation import table_console  # noqa: PLC0415
+    from cso_runtime.live_view import table_console  # noqa: PLC0415
 
     table = Table(title=f"profile {prof.name}: keys under cso/{prof.robot}/")
     for col in ("node", "inputs (from)", "outputs (to)"):
@@ -1395,12 +1394,12 @@ def doctor_command(
         from rich.markup import escape  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
-        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+        from cso_runtime.live_view import table_console  # noqa: PLC0415
 
         table = Table(title="cso-runtime doctor", show_header=False)
         for r in results:
             table.add_row(r.name, "[green]ok[/green]" if r.ok else "[red]FAIL[/red]", escape(r.detail))
-        console_that_survives_its_reader().print(table)
+        table_console(table).print(table)  # `doctor > report.txt`: each check's detail on its line
         failed = [r.name for r in results if not r.ok]
         typer.echo(f"{len(results) - len(failed)} of {len(results)} checks passed" + (f"; failed: {', '.join(failed)}" if failed else ""))
     if not all(r.ok for r in results):
