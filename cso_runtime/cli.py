@@ -824,7 +824,7 @@ def scenes_command(
         from rich.markup import escape  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
-        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+        from cso_runtime.live_view import table_console  # noqa: PLC0415
 
         table = Table(title=escape(f"scenes of {spec}"), box=box.SIMPLE_HEAD)
         table.add_column("scene", overflow="fold")
@@ -839,7 +839,7 @@ def scenes_command(
                 escape(r["scene"]), f"{r['width_m']:.1f} x {r['height_m']:.1f}", f"{r['resolution_m']:g}", f"{r['traversable_area_m2']:.1f}",
                 r["scale"].replace("_", " "), f"{st['x_m']:.2f}, {st['y_m']:.2f}, {st['yaw_rad']:.2f}",
             )
-        console = console_that_survives_its_reader()
+        console = table_console(table)  # `scenes > list.txt`: each scene's path on its line
         console.print(table)
         for r in bad:  # a reason names a file: a column would fold it and cut it off
             console.print(f"[red]unusable[/red] {escape(r['scene'])}: {escape(r['error'])}", soft_wrap=True, highlight=False)
@@ -1188,8 +1188,7 @@ def runs_command(
     from rich.markup import escape  # noqa: PLC0415
     from rich.table import Table  # noqa: PLC0415
 
-    from cso_runtime.evaluation import table_console  # noqa: PLC0415
-    from cso_runtime.live_view import NO_COVERAGE  # noqa: PLC0415 - the one word status, the live view and report.html use
+    from cso_runtime.live_view import NO_COVERAGE, table_console  # noqa: PLC0415 - the one word status, the live view and report.html use
     from cso_runtime.run_profile import REAL_ROBOT_SCENE  # noqa: PLC0415
 
     def num(value: object, fmt: str) -> str:
@@ -1214,7 +1213,7 @@ def runs_command(
             state, took, steps,
             num(r["coverage_pct"], ".1f") if r["coverage_measured"] else NO_COVERAGE, num(r["explored_area_m2"], ".1f"), num(r["efficiency_m2_per_step"], ".3f"),
         )
-    table_console().print(table)
+    table_console(table).print(table)  # `runs > runs.txt`, `runs | grep`: a long scene or reason on its line, not folded
 
 
 LOG_COLOURS = ("cyan", "green", "yellow", "magenta", "blue", "bright_red", "bright_cyan", "bright_green")
@@ -1365,7 +1364,7 @@ def dataflow_command(
         return
     from rich.table import Table  # noqa: PLC0415
 
-    from cso_runtime.evaluation import table_console  # noqa: PLC0415
+    from cso_runtime.live_view import table_console  # noqa: PLC0415
 
     table = Table(title=f"profile {prof.name}: keys under cso/{prof.robot}/")
     for col in ("node", "inputs (from)", "outputs (to)"):
@@ -1397,12 +1396,12 @@ def doctor_command(
         from rich.markup import escape  # noqa: PLC0415
         from rich.table import Table  # noqa: PLC0415
 
-        from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+        from cso_runtime.live_view import table_console  # noqa: PLC0415
 
         table = Table(title="cso-runtime doctor", show_header=False)
         for r in results:
             table.add_row(r.name, "[green]ok[/green]" if r.ok else "[red]FAIL[/red]", escape(r.detail))
-        console_that_survives_its_reader().print(table)
+        table_console(table).print(table)  # `doctor > report.txt`: each check's detail on its line
         failed = [r.name for r in results if not r.ok]
         typer.echo(f"{len(results) - len(failed)} of {len(results)} checks passed" + (f"; failed: {', '.join(failed)}" if failed else ""))
     if not all(r.ok for r in results):
@@ -1569,8 +1568,15 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         from_dict_with_hints,
         load_yaml,
         refuse_a_setting_read_as_another_type,
+        set_said,
     )
-    from cso_runtime.learned.ppo import Args, check_training_inputs, resumed_run_settings, training_scene_refs  # noqa: PLC0415
+    from cso_runtime.learned.ppo import (  # noqa: PLC0415
+        Args,
+        check_training_inputs,
+        init_from_with_resume_problem,
+        resumed_run_settings,
+        training_scene_refs,
+    )
 
     config = _packaged_if_missing(config)  # run outside the repository: the packaged recipe
     try:
@@ -1600,6 +1606,15 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
             _say_fields_left_at_defaults(config, data)
         training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
         check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
+        if args.resume and args.init_from:  # a resume reads no init_from: other weights than its run's are refused
+            if "init_from" in pairs:
+                said = set_said(pairs, "init_from")
+            elif overrides.get("init_from") is not None:
+                said = " ".join(_flag_of("init_from", overrides["init_from"]))
+            else:
+                said = f"init_from {args.init_from} in {config}"
+            if problem := init_from_with_resume_problem(args, said):
+                raise ConfigError(problem)
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     return args

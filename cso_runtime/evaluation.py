@@ -76,6 +76,7 @@ from cso_runtime.config import (
 from cso_runtime.current_run import folder_lock, hold_lock_file
 from cso_runtime.episode import EpisodeResult, run_episode
 from cso_runtime.geometry import MAP_FRAME_ORIGIN, Pose2D
+from cso_runtime.live_view import fit_off_a_terminal, table_console
 from cso_runtime.map_files import save_map
 from cso_runtime.outputs import (
     COVERAGE_FIGURE,
@@ -890,21 +891,6 @@ def run_in_processes(jobs: list[EpisodeJob], workers: int, done: Callable[[Episo
     run_each_in_own_process(episode, retry, workers, again)
 
 
-def table_console(*tables: Any) -> Any:
-    """A rich console for tables of results: off a terminal (a pipe, logs, CI) wide enough for every column
-    instead of 80 characters, which would cut the last columns (m2/step): at least 120, and as wide as ``tables``
-    need to have no cell wrapped (``dataflow > flow.txt``: each class and key on its one line). A terminal keeps its
-    width (``COLUMNS`` where set)."""
-    from rich.measure import Measurement  # noqa: PLC0415
-
-    from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
-
-    console = console_that_survives_its_reader()  # `eval | head`: the reader gone ends the command quietly
-    if not console.is_terminal:
-        console.width = max(console.width, 120, *(Measurement.get(console, console.options.update_width(10**6), t).maximum for t in tables))
-    return console
-
-
 def _rows_with(rows: list[dict[str, Any]], key: str) -> list[tuple[float, dict[str, Any]]]:
     """``(value, row)`` of each row that has a finite ``key``."""
     # Rows read back from episodes.csv (benchmarks/tables.py) hold text, "" for a cell left empty (sim_time_s on a real robot).
@@ -1646,6 +1632,7 @@ def print_table_or_rows(console: Any, table: Any, labels: int) -> None:
     from rich.console import Console  # noqa: PLC0415
     from rich.text import Text  # noqa: PLC0415
 
+    fit_off_a_terminal(console, table)  # a file, a pipe: the whole table, each cell on its line
     laid_out = io.StringIO()
     Console(file=laid_out, width=console.width, color_system=None).print(table)  # as it would be there: rich's own ellipsis
     if "…" not in laid_out.getvalue():

@@ -109,6 +109,40 @@ def console_that_survives_its_reader(stderr: bool = False, tell: bool = True) ->
     return QuietOnBrokenPipe(stderr=stderr)
 
 
+PIPED_TABLE_MIN_WIDTH = 120
+"""The fewest columns a table is laid out in off a terminal (rich's own default there is 80, which cut the last columns)."""
+
+
+def fit_off_a_terminal(console: Console, *tables: Any) -> Console:
+    """``console`` (returned, for ``fit_off_a_terminal(console, table).print(table)``), made wide enough off a terminal
+    (a file, a pipe, CI) for ``tables`` to be written with no cell folded or wrapped, nor a title: at least
+    ``PIPED_TABLE_MIN_WIDTH`` columns, and as wide as the widest table needs, so that ``grep`` and ``awk`` find each
+    row whole on its line (a long scene path or reason folded at 120 columns broke them). A table whose title is wider
+    than its columns is given that width (``min_width``), as a title wider than its table wraps. On a terminal
+    nothing changes: it keeps its width (``COLUMNS`` where set), and cells fold there as before."""
+    if console.is_terminal:
+        return console
+    from rich.measure import Measurement  # noqa: PLC0415
+    from rich.text import Text  # noqa: PLC0415
+
+    wide = console.options.update_width(10**6)
+    for table in tables:
+        title = getattr(table, "title", None)
+        if title is not None:
+            said = title.cell_len if isinstance(title, Text) else console.render_str(str(title)).cell_len
+            table.min_width = max(table.min_width or 0, said)
+    console.width = max(console.width, PIPED_TABLE_MIN_WIDTH, *(Measurement.get(console, wide, table).maximum for table in tables))
+    return console
+
+
+def table_console(*tables: Any) -> Console:
+    """Rich's console on stdout for commands that print tables (``runs``, ``status``, ``eval``, ``scenes``,
+    ``doctor``, ``dataflow``): ``console_that_survives_its_reader`` (``runs | head``: the reader gone ends the
+    command quietly), wide enough off a terminal for ``tables`` (``fit_off_a_terminal``: ``runs > runs.txt`` has each
+    cell on its one line); a terminal keeps its width."""
+    return fit_off_a_terminal(console_that_survives_its_reader(), *tables)
+
+
 def progress_with_stats_below(*columns: Any, markup: bool = False, **kwargs: Any) -> Any:
     """A rich ``Progress`` that shows each task's ``stats`` field on a line of its own under its bar, cut to the
     terminal's width: after the bar, on one line, a long text (the training figures, 64 characters; eval's last
@@ -249,7 +283,9 @@ class LiveView:
         if self._live is not None:
             live = self._live
             try:
-                live.update(self.render())
+                table = self.render()
+                fit_off_a_terminal(live.console, table)  # in a file, the last table: no cell folded
+                live.update(table)
                 self.give_back_log_streams()
                 live.stop()
                 if not live.console.is_terminal:  # rich ends the last table with a newline on a terminal only

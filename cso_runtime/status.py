@@ -755,7 +755,7 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
     ``console``: rich's console on stdout when None."""
     from rich.live import Live  # noqa: PLC0415
 
-    from cso_runtime.live_view import console_that_survives_its_reader  # noqa: PLC0415
+    from cso_runtime.live_view import console_that_survives_its_reader, fit_off_a_terminal  # noqa: PLC0415
     from cso_runtime.run_profile import runs_a_real_robot  # noqa: PLC0415 - a status has a profile's services
 
     console = console if console is not None else console_that_survives_its_reader()  # `status --watch | head`: ends
@@ -818,7 +818,8 @@ def status_main(connect: list[str], robot: str | None, as_json: bool, watch: boo
             elif live is not None:
                 live.update(render_table(shown), refresh=True)
             else:
-                console.print(render_table(shown))
+                table = render_table(shown)
+                fit_off_a_terminal(console, table).print(table)  # `status > now.txt`: a long scene or reason on its line
             if not watch:
                 return 0
             if watched is not None and (run := detached_run_after_episode(watched[0])) is not None:

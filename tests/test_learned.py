@@ -2902,3 +2902,46 @@ def test_the_trainer_run_as_a_script_starts_its_environment_processes_without_to
     ran = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, cwd=tmp_path, check=False)
     assert ran.returncode == 0, ran.stderr
     assert ran.stdout.strip() == "torch in the environment process: False", ran.stdout
+
+
+def test_train_resume_refuses_an_init_from_other_than_what_its_run_started_from(tmp_path, monkeypatch):
+    """``train --resume CKPT --init-from X`` went on from the checkpoint and ignored ``X`` in silence. Other weights than
+    the run started from are refused, one line, exit 2, before anything trains, however they are given (``--init-from``,
+    ``--set init_from=``, a config file's ``init_from``), naming both flags and how to fine-tune instead; the run's own
+    ``init_from`` (the text it was given, the same file written otherwise, or the configuration its checkpoint holds,
+    ``init_from`` and all, as a config file) is taken in silence, and so is a resume without one."""
+    import yaml
+    from typer.testing import CliRunner
+
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    tiny = ["--set", "dungeon_dir=null", "--set", "generated=[generated:small:1:0]", "--set", "num_steps=4", "--set", "num_minibatches=1",
+            "--set", "max_steps=40", "--set", "hidden=16", "--set", "knn=4", "--set", "checkpoint_every=1", "--set", "progress=false",
+            "--num-envs", "1", "--sync-envs", "--total-decisions", "4", "--device", "cpu"]  # fmt: skip
+    for run in (["--out", "a"], ["--out", "b", "--init-from", "a/cso.pt"]):
+        r = CliRunner().invoke(app, ["train", *tiny, *run])
+        assert r.exit_code == 0, r.output[-2000:]
+    resume = ["train", "--resume", "b/checkpoint.pt", "--total-decisions", "4"]  # none left: writes the weights, trains no further
+    saved = torch.load(tmp_path / "b" / "checkpoint.pt", weights_only=True)["args"]
+    own = tmp_path / "own.yaml"
+    own.write_text(yaml.safe_dump({k: v for k, v in saved.items() if k not in ("resume", "out_dir")}))
+    other = tmp_path / "other.yaml"
+    other.write_text(yaml.safe_dump({**yaml.safe_load(own.read_text()), "init_from": "shipped"}))
+    refused = [
+        (["--init-from", "shipped"], "--init-from shipped with --resume b/checkpoint.pt"),
+        (["--set", "init_from=a/cso_log.csv"], "--set init_from=a/cso_log.csv with --resume b/checkpoint.pt"),
+        (["--config", str(other)], f"init_from shipped in {other} with --resume b/checkpoint.pt"),
+    ]
+    for extra, said in refused:
+        r = CliRunner().invoke(app, [*resume, *extra])
+        lines = [line for line in r.output.splitlines() if line.startswith("error:")]
+        assert r.exit_code == 2 and len(lines) == 1 and lines[0].startswith(f"error: {said}: --resume continues that run"), (extra, r.output[-2000:])
+        assert "(it started from a/cso.pt)" in lines[0] and "--init-from" in lines[0] and "without --resume" in lines[0], lines[0]
+        assert "resumed from" not in r.output and "done:" not in r.output, r.output
+    # a run from a fresh network started from no weights: any --init-from with its resume is refused
+    r = CliRunner().invoke(app, ["train", "--resume", "a/checkpoint.pt", "--init-from", "a/cso.pt"])
+    assert r.exit_code == 2 and "(it started from a fresh network)" in r.output, r.output[-2000:]
+    for extra in ([], ["--init-from", "a/cso.pt"], ["--init-from", str(tmp_path / "a" / "cso.pt")], ["--set", "init_from=./a/cso.pt"], ["--config", str(own)]):
+        r = CliRunner().invoke(app, [*resume, *extra])
+        assert r.exit_code == 0 and "error" not in r.output and "done:" in r.output, (extra, r.output[-2000:])

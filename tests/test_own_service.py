@@ -265,7 +265,7 @@ def test_dataflow_written_to_a_file_wraps_no_cell_and_an_80_column_terminal_stil
     """Off a terminal (``dataflow > flow.txt``, a pipe, CI) the table was laid out for 80 columns however wide it was:
     the class of a service of one's own was folded across two lines (``(tests.own_service_exam`` / ``ple:OwnMapper)``)
     and a key's peers wrapped, so the file could not be searched for the class it names. Off a terminal the table is
-    as wide as its cells (``evaluation.table_console``); on an 80-column terminal it folds (the test above). Whatever
+    as wide as its cells (``live_view.table_console``); on an 80-column terminal it folds (the test above). Whatever
     the environment the tests run in: a FORCE_COLOR (a CI's, for coloured logs) or TTY_COMPATIBLE=1 there made rich
     take CliRunner's output for a terminal, and this test fail."""
     from typer.testing import CliRunner

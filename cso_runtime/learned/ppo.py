@@ -311,7 +311,8 @@ class Args:
     """Path of a checkpoint.pt to continue from."""
     init_from: str | None = None
     """Weights file (an earlier run's ``<variant>.pt`` or ``checkpoint.pt``, or ``shipped`` for the variant's shipped
-    weights) to start PPO from instead of a fresh network: fine-tuning. The warm start is skipped; the optimizer starts fresh."""
+    weights) to start PPO from instead of a fresh network: fine-tuning. The warm start is skipped; the optimizer starts fresh.
+    A ``resume`` reads none: with one, other weights than its run started from are refused (``init_from_with_resume_problem``)."""
     device: str = "auto"
     """auto (CUDA when available), cpu or cuda."""
     torch_threads: int = 1
@@ -1497,6 +1498,41 @@ def started_from(ckpt: Mapping[str, Any]) -> dict[str, Any]:
     if not isinstance(saved, Mapping) or saved.get("resume") or not saved.get("init_from"):
         return {}
     return {"init_from": str(saved["init_from"])}
+
+
+def init_from_with_resume_problem(args: Args, said: str) -> str | None:
+    """What is wrong with ``args.init_from`` given with ``args.resume`` (``said``: how it was given, ``--init-from X``,
+    ``--set init_from=X`` or ``init_from X in FILE``), as one line naming both flags, or None where there is nothing
+    to say. A resume goes on with the weights its checkpoint holds and reads no ``init_from``: one that names other
+    weights than the run itself started from (``started_from``, by text or by the file it names; ``shipped`` is the
+    variant's file) would be ignored in silence, so it is refused. The run's own value is not: a configuration of its
+    own, or a flag that repeats it; nor, for a checkpoint of a resume written before ``started_from`` (which does not
+    say what its run started from), the ``init_from`` its ``args`` hold. None too for a file that is no training
+    checkpoint (``check_training_inputs`` says what it is)."""
+    if not (args.resume and args.init_from):
+        return None
+    try:
+        ckpt = torch.load(args.resume, map_location="cpu", weights_only=True)
+    except Exception:  # noqa: BLE001  (said when it is loaded to resume)
+        return None
+    if not isinstance(ckpt, dict) or not isinstance(ckpt.get("args"), Mapping):
+        return None
+    began = started_from(ckpt)
+    known = "started_from" in ckpt or not ckpt["args"].get("resume")
+    recorded = began.get("init_from") if known else ckpt["args"].get("init_from")
+
+    def file_of(text: str) -> Path:
+        return init_from_path(dataclasses.replace(args, init_from=text)).resolve()
+
+    given = str(args.init_from)
+    if recorded and (given == str(recorded) or file_of(given) == Path(str(began.get("init_from_weights", {}).get("path") or file_of(str(recorded))))):
+        return None
+    what = f"it started from {recorded}" if recorded else ("it started from a fresh network" if known else "its checkpoint does not say what it started from")
+    return (
+        f"{said} with --resume {args.resume}: --resume continues that run with the weights its checkpoint holds ({what})"
+        f" and reads no --init-from; to continue it, leave out {said}; to fine-tune from {given}, start a new run:"
+        f" train --init-from {given} --out NEW_FOLDER, without --resume"
+    )
 
 
 def _save_resumable(
