@@ -1156,6 +1156,21 @@ def _same_yaml(a: Any, b: Any) -> bool:
     return type(a) is type(b) and a == b
 
 
+def yaml_value_compared(value: Any) -> Any:
+    """``value`` (as ``yaml_load`` reads a text) as two values of one ``--set`` key are compared (``cli.parse_settings``):
+    a number as a number, however written (``1``, ``1.0``, ``1e0``; a NaN as NaN), true and false never a number nor a
+    text (Python's ``1 == True``, ``[1] == [True]``), a list item by item, a mapping key by key in any order."""
+    if isinstance(value, bool):
+        return ("bool", value)
+    if isinstance(value, (int, float)):
+        return ("number", "nan" if isinstance(value, float) and math.isnan(value) else value)
+    if isinstance(value, (list, tuple)):
+        return ("list", tuple(yaml_value_compared(item) for item in value))
+    if isinstance(value, dict):
+        return ("mapping", {yaml_value_compared(key): yaml_value_compared(item) for key, item in value.items()})
+    return (type(value), value)
+
+
 def _kind(value: Any) -> str:
     """What ``value`` is, in a sentence: ``refuse_two_values``' "is read as a number, and robot is text"."""
     if isinstance(value, bool):

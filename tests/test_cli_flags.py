@@ -670,10 +670,49 @@ def test_a_set_key_given_twice_is_refused_unless_its_value_is_the_same():
 
     with pytest.raises(ConfigError, match=re.escape("--set seed=1 and --set seed=on both set seed, to different values: give one")):
         parse_settings(["seed=1", "seed=on"])
-    with pytest.raises(ConfigError, match=re.escape("--set gamma=1 and --set gamma=1.0 both set gamma")):
-        parse_settings(["gamma=1", "gamma=1.0"])
     assert parse_settings(["seed=1", " seed = 01"]) == {"seed": 1}
     assert parse_settings(["seed=1", "seed=2"], last_counts=True) == {"seed": 2}
+
+
+@pytest.mark.parametrize(
+    ("first", "second"),
+    [("1", "1.0"), ("1e3", "1000"), ("0x10", "16"), (".nan", ".nan"), ("[1, {a: 2}]", "[1.0, {a: 2e0}]"), ("{a: 1, b: 2}", "{b: 2, a: 1}")],
+)
+def test_a_set_key_given_twice_with_the_same_number_is_one_value(first: str, second: str):
+    """``--set gamma=1 --set gamma=1.0`` was refused as two values (``both set gamma, to different values``): the
+    same number, written two ways, as ``refuse_two_values`` takes ``1e3`` and ``1000.0`` for a flag and its ``--set``.
+    One value now, numbers compared as numbers, in a list or a mapping too (and ``.nan`` twice: the same text);
+    the last is kept."""
+    from cso_runtime.cli import parse_settings
+
+    assert parse_settings([f"k={first}", f"k={second}"]).typed == {"k": second}
+
+
+@pytest.mark.parametrize(("first", "second"), [("1", "true"), ("0", "false"), ("[1]", "[true]"), ("{a: 0}", "{a: false}"), ("1", "'1'"), ("[1, 2]", "[2, 1]")])
+def test_a_set_key_given_twice_with_values_alike_only_to_python_is_refused(first: str, second: str):
+    """``1 == True`` in Python, and ``[1] == [True]``: ``--set generated=[1] --set generated=[true]`` was taken as the
+    same value twice, the first dropped in silence. true is no number, nor a text a number, in a list too."""
+    from cso_runtime.cli import parse_settings
+    from cso_runtime.config import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(f"--set k={first} and --set k={second} both set k, to different values: give one")):
+        parse_settings([f"k={first}", f"k={second}"])
+
+
+def test_train_takes_one_number_given_twice_and_records_it_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``train --set gamma=1 --set gamma=1.0`` (the same number) runs, and records one pair, which runs again."""
+    import shlex
+
+    from cso_runtime.learned import ppo
+
+    commands: list[str] = []
+    monkeypatch.setattr(ppo, "train", lambda args, log=None, command="", stop_requested=None: commands.append(command) or {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0})
+    code, said = train(tmp_path, "--set", "gamma=1", "--set", "gamma=1.0", "--gamma", "1")
+    assert code == 0, said
+    words = shlex.split(commands[-1])
+    assert [w for w in words if w.startswith("gamma=")] == ["gamma=1.0"], commands[-1]
+    code, said = train(tmp_path, *words[2:])
+    assert code == 0 and shlex.split(commands[-1]) == words, said
 
 
 @pytest.mark.parametrize("value", ["0", "nan", "20"])
