@@ -1199,15 +1199,42 @@ def setting_of(key: str, settings: typing.Mapping[str, Any]) -> tuple[str, Any] 
         if pair == key:
             found = (set_said(settings, pair), value)
         elif key.startswith(pair + "."):
-            node: Any = value
-            for part in key[len(pair) + 1 :].split("."):
-                node = node.get(part, _UNSET) if isinstance(node, dict) else _UNSET
+            node = _inside(value, key[len(pair) + 1 :])
             found = None if node is _UNSET else (set_said(settings, pair), node)
     return found
 
 
 _UNSET = object()
 """``setting_of``'s mark of a key a section set by ``--set`` leaves out."""
+
+
+def _inside(section: Any, key: str) -> Any:
+    """The value at dotted ``key`` within a section's value (``{max_steps: 5}``, ``max_steps``), or ``_UNSET``."""
+    node = section
+    for part in key.split("."):
+        node = node.get(part, _UNSET) if isinstance(node, dict) else _UNSET
+    return node
+
+
+def settings_by_key(pairs: typing.Sequence[tuple[str, str, Any]]) -> dict[str, list[tuple[str, Any]]]:
+    """``--set`` pairs (``(key, --set as typed, value)``, in the order given) as ``refuse_two_values`` takes them: by
+    key, each pair that sets it, itself or a section of it (``episode={max_steps: 5}`` sets ``episode.max_steps``),
+    with the value it gives it. A section given after a key of it without that key is a ConfigError: it replaces the
+    section whole (``set_dotted``), and the key's value would be dropped in silence."""
+    given: dict[str, list[tuple[str, Any]]] = {}
+    for key in dict.fromkeys(key for key, _, _ in pairs):
+        said = given[key] = []
+        for pair, flag, value in pairs:
+            if pair == key:
+                said.append((flag, value))
+            elif key.startswith(pair + "."):
+                if (node := _inside(value, key[len(pair) + 1 :])) is not _UNSET:
+                    said.append((flag, node))
+                elif said:
+                    raise ConfigError(
+                        f"{flag} replaces all of {pair}, without {key}: {said[-1][0]} would be dropped; give it in {pair}'s value, or after it"
+                    )
+    return given
 
 
 def refuse_a_flag_and_a_setting_that_disagree(

@@ -699,6 +699,47 @@ def test_a_set_key_given_twice_with_values_alike_only_to_python_is_refused(first
         parse_settings([f"k={first}", f"k={second}"])
 
 
+@pytest.mark.parametrize(
+    ("items", "said"),
+    [
+        (["episode.max_steps=5", "episode={max_steps: 6}"], "--set episode.max_steps=5 and --set episode={max_steps: 6} both set episode.max_steps, to different values: give one"),
+        (["episode={max_steps: 6}", "episode.max_steps=5"], "--set episode={max_steps: 6} and --set episode.max_steps=5 both set episode.max_steps, to different values: give one"),
+        (["a.b.c=1", "a={b: {c: 2}}"], "--set a.b.c=1 and --set a={b: {c: 2}} both set a.b.c, to different values: give one"),
+        (
+            ["episode.max_steps=5", "episode={replan_every_steps: 3}"],
+            (
+                "--set episode={replan_every_steps: 3} replaces all of episode, without episode.max_steps: --set episode.max_steps=5 would be dropped;"
+                " give it in episode's value, or after it"
+            ),
+        ),
+    ],
+)
+def test_a_set_key_and_its_section_given_other_values_are_refused(items: list[str], said: str):
+    """``--set episode.max_steps=5 --set 'episode={max_steps: 6}'`` ran 6 (a later section replaces the key, as
+    ``set_dotted`` does), and ``--set 'episode={max_steps: 6}' --set episode.max_steps=5`` ran 5: one field given two
+    values, the first dropped in silence, where the same key twice is refused. Refused alike now; and a section given
+    after a key of it, without that key, which dropped the key's value in silence."""
+    from cso_runtime.cli import parse_settings
+    from cso_runtime.config import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(said)):
+        parse_settings(items)
+
+
+@pytest.mark.parametrize(
+    "items",
+    [
+        ["episode.max_steps=5", "episode={max_steps: 5.0, replan_every_steps: 3}"],  # the same value: fine
+        ["episode={max_steps: 5}", "episode.replan_every_steps=3"],  # a key of the section after it: one more key
+        ["episode.max_steps=5", "episode.replan_every_steps=3", "episodes=1"],  # not a section of each other
+    ],
+)
+def test_a_set_key_and_its_section_that_agree_are_taken(items: list[str]):
+    from cso_runtime.cli import parse_settings
+
+    assert list(parse_settings(items)) == [item.partition("=")[0] for item in items]
+
+
 def test_train_takes_one_number_given_twice_and_records_it_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
     """``train --set gamma=1 --set gamma=1.0`` (the same number) runs, and records one pair, which runs again."""
     import shlex
