@@ -615,7 +615,8 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
             raise ConfigError(f"{where}: must be finite, got {value.strip()}")  # YAML's .nan is a float, its nan text: one answer
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}{_how_to_write(value)}")
-        raise ConfigError(f"{where}: must be finite")
+        # YAML's .nan and -.inf said as the text nan is (an integer no float holds has no shorter words than these)
+        raise ConfigError(f"{where}: must be finite" + (f", got {value:g}" if isinstance(value, float) else ""))
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{where}: expected an integer, got {value!r}{_how_to_write(value)}")
