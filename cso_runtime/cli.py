@@ -1798,14 +1798,24 @@ def parse_settings(items: list[str], last_counts: bool = False) -> Settings:
     """``KEY=VALUE`` pairs with YAML values (``gamma=0.995``, ``generated=[a, b]``), each VALUE's text kept as typed
     for the messages that name it (``config.Settings``). A KEY given twice with another value is a ConfigError naming
     both ``--set`` as typed, as a key given twice in one YAML mapping is (``config.YamlLoader``): the first one would
-    be dropped in silence. ``last_counts``: the last one counts instead (train's field flags, ``--lr 1 --lr 2``, as
+    be dropped in silence; so is a key and a section that holds it (``episode.max_steps=5``, ``episode={max_steps:
+    6}``: ``config.settings_by_key``). The same value twice is fine, a number written two ways too (``1`` and
+    ``1.0``: ``config.yaml_value_compared``); the last is kept. ``last_counts``: the last one counts instead (train's field flags, ``--lr 1 --lr 2``, as
     typer's own options; and their pairs merged with ``--set`` once ``refuse_two_values_of_a_field`` checked them)."""
     import yaml  # noqa: PLC0415
 
-    from cso_runtime.config import ConfigError, Settings, not_yaml_said, refuse_two_values, yaml_load  # noqa: PLC0415
+    from cso_runtime.config import (  # noqa: PLC0415
+        ConfigError,
+        Settings,
+        not_yaml_said,
+        refuse_two_values,
+        settings_by_key,
+        yaml_load,
+        yaml_value_compared,
+    )
 
     out = Settings()
-    given: dict[str, list[tuple[str, object]]] = {}
+    given: list[tuple[str, str, object]] = []
     for item in items:
         key, sep, value = item.partition("=")
         key = key.strip()
@@ -1816,9 +1826,9 @@ def parse_settings(items: list[str], last_counts: bool = False) -> Settings:
         except yaml.YAMLError as exc:
             raise ConfigError(not_yaml_said(f"--set {item}", exc)) from None
         out.typed[key] = value.strip()
-        given.setdefault(key, []).append((f"--set {key}={value.strip()}", out[key]))
-    if not last_counts:  # 1 and 1.0, 1 and true: other values
-        refuse_two_values(given, lambda _key, value: (type(value), value))
+        given.append((key, f"--set {key}={value.strip()}", out[key]))
+    if not last_counts:  # 1 and 1.0: one number; 1 and true, [1] and [true]: other values
+        refuse_two_values(settings_by_key(given), lambda _key, value: yaml_value_compared(value))
     return out
 
 

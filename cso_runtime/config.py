@@ -615,7 +615,8 @@ def _convert(value: Any, annotation: Any, where: str) -> Any:
             raise ConfigError(f"{where}: must be finite, got {value.strip()}")  # YAML's .nan is a float, its nan text: one answer
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}{_how_to_write(value)}")
-        raise ConfigError(f"{where}: must be finite")
+        # YAML's .nan and -.inf said as the text nan is (an integer no float holds has no shorter words than these)
+        raise ConfigError(f"{where}: must be finite" + (f", got {value:g}" if isinstance(value, float) else ""))
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{where}: expected an integer, got {value!r}{_how_to_write(value)}")
@@ -1156,6 +1157,21 @@ def _same_yaml(a: Any, b: Any) -> bool:
     return type(a) is type(b) and a == b
 
 
+def yaml_value_compared(value: Any) -> Any:
+    """``value`` (as ``yaml_load`` reads a text) as two values of one ``--set`` key are compared (``cli.parse_settings``):
+    a number as a number, however written (``1``, ``1.0``, ``1e0``; a NaN as NaN), true and false never a number nor a
+    text (Python's ``1 == True``, ``[1] == [True]``), a list item by item, a mapping key by key in any order."""
+    if isinstance(value, bool):
+        return ("bool", value)
+    if isinstance(value, (int, float)):
+        return ("number", "nan" if isinstance(value, float) and math.isnan(value) else value)
+    if isinstance(value, (list, tuple)):
+        return ("list", tuple(yaml_value_compared(item) for item in value))
+    if isinstance(value, dict):
+        return ("mapping", {yaml_value_compared(key): yaml_value_compared(item) for key, item in value.items()})
+    return (type(value), value)
+
+
 def _kind(value: Any) -> str:
     """What ``value`` is, in a sentence: ``refuse_two_values``' "is read as a number, and robot is text"."""
     if isinstance(value, bool):
@@ -1184,15 +1200,42 @@ def setting_of(key: str, settings: typing.Mapping[str, Any]) -> tuple[str, Any] 
         if pair == key:
             found = (set_said(settings, pair), value)
         elif key.startswith(pair + "."):
-            node: Any = value
-            for part in key[len(pair) + 1 :].split("."):
-                node = node.get(part, _UNSET) if isinstance(node, dict) else _UNSET
+            node = _inside(value, key[len(pair) + 1 :])
             found = None if node is _UNSET else (set_said(settings, pair), node)
     return found
 
 
 _UNSET = object()
 """``setting_of``'s mark of a key a section set by ``--set`` leaves out."""
+
+
+def _inside(section: Any, key: str) -> Any:
+    """The value at dotted ``key`` within a section's value (``{max_steps: 5}``, ``max_steps``), or ``_UNSET``."""
+    node = section
+    for part in key.split("."):
+        node = node.get(part, _UNSET) if isinstance(node, dict) else _UNSET
+    return node
+
+
+def settings_by_key(pairs: typing.Sequence[tuple[str, str, Any]]) -> dict[str, list[tuple[str, Any]]]:
+    """``--set`` pairs (``(key, --set as typed, value)``, in the order given) as ``refuse_two_values`` takes them: by
+    key, each pair that sets it, itself or a section of it (``episode={max_steps: 5}`` sets ``episode.max_steps``),
+    with the value it gives it. A section given after a key of it without that key is a ConfigError: it replaces the
+    section whole (``set_dotted``), and the key's value would be dropped in silence."""
+    given: dict[str, list[tuple[str, Any]]] = {}
+    for key in dict.fromkeys(key for key, _, _ in pairs):
+        said = given[key] = []
+        for pair, flag, value in pairs:
+            if pair == key:
+                said.append((flag, value))
+            elif key.startswith(pair + "."):
+                if (node := _inside(value, key[len(pair) + 1 :])) is not _UNSET:
+                    said.append((flag, node))
+                elif said:
+                    raise ConfigError(
+                        f"{flag} replaces all of {pair}, without {key}: {said[-1][0]} would be dropped; give it in {pair}'s value, or after it"
+                    )
+    return given
 
 
 def refuse_a_flag_and_a_setting_that_disagree(

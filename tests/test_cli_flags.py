@@ -609,6 +609,8 @@ SAME_MISTAKES = {  # the one mistake of each kind, as each command's keys write 
         "a key twice in one value": (["exploration.episode={max_steps: 1, max_steps: 2}"], "found key 'max_steps' twice"),
         "an underscore number": (["seed=1_000"], "--set seed=1_000: seed: expected an integer, got '1_000' (YAML 1.2 reads a number with _ as text: write 1000)"),
         "nan": (["exploration.planner.lookahead_m=nan"], "--set exploration.planner.lookahead_m=nan: exploration.planner.lookahead_m: must be finite, got nan"),
+        "YAML's nan": (["exploration.planner.lookahead_m=.nan"], "--set exploration.planner.lookahead_m=.nan: exploration.planner.lookahead_m: must be finite, got nan"),
+        "YAML's infinity": (["exploration.planner.lookahead_m=-.inf"], "--set exploration.planner.lookahead_m=-.inf: exploration.planner.lookahead_m: must be finite, got -inf"),
         "an unknown key": (["nosuch=1"], "--set nosuch=1: unknown key(s) nosuch; known:"),
         "an out-of-bounds value": (["exploration.planner.lookahead_m=0"], "--set exploration.planner.lookahead_m=0: exploration.planner.lookahead_m must be in (0, 100] m"),
     },
@@ -618,6 +620,8 @@ SAME_MISTAKES = {  # the one mistake of each kind, as each command's keys write 
         "a key twice in one value": (["episode={max_steps: 1, max_steps: 2}"], "found key 'max_steps' twice"),
         "an underscore number": (["episode.max_steps=1_000"], "--set episode.max_steps=1_000: episode.max_steps: expected an integer, got '1_000' (YAML 1.2 reads a number with _ as text: write 1000)"),
         "nan": (["planner.lookahead_m=nan"], "--set planner.lookahead_m=nan: planner.lookahead_m: must be finite, got nan"),
+        "YAML's nan": (["planner.lookahead_m=.nan"], "--set planner.lookahead_m=.nan: planner.lookahead_m: must be finite, got nan"),
+        "YAML's infinity": (["planner.lookahead_m=-.inf"], "--set planner.lookahead_m=-.inf: planner.lookahead_m: must be finite, got -inf"),
         "an unknown key": (["nosuch=1"], "--set nosuch=1: unknown key(s) nosuch; known:"),
         "an out-of-bounds value": (["planner.lookahead_m=0"], "--set planner.lookahead_m=0: planner.lookahead_m must be in (0, 100] m"),
     },
@@ -627,6 +631,8 @@ SAME_MISTAKES = {  # the one mistake of each kind, as each command's keys write 
         "a key twice in one value": (["generated={a: 1, a: 2}"], "found key 'a' twice"),
         "an underscore number": (["seed=1_000"], "--set seed=1_000: seed: expected an integer, got '1_000' (YAML 1.2 reads a number with _ as text: write 1000)"),
         "nan": (["gamma=nan"], "--set gamma=nan: gamma: must be finite, got nan"),
+        "YAML's nan": (["gamma=.nan"], "--set gamma=.nan: gamma: must be finite, got nan"),
+        "YAML's infinity": (["gamma=-.inf"], "--set gamma=-.inf: gamma: must be finite, got -inf"),
         "an unknown key": (["nosuch=1"], "--set nosuch=1: unknown key(s) nosuch; known:"),
         "an out-of-bounds value": (["gamma=2"], "--set gamma=2: gamma must be in (0, 1], got 2"),
     },
@@ -670,10 +676,90 @@ def test_a_set_key_given_twice_is_refused_unless_its_value_is_the_same():
 
     with pytest.raises(ConfigError, match=re.escape("--set seed=1 and --set seed=on both set seed, to different values: give one")):
         parse_settings(["seed=1", "seed=on"])
-    with pytest.raises(ConfigError, match=re.escape("--set gamma=1 and --set gamma=1.0 both set gamma")):
-        parse_settings(["gamma=1", "gamma=1.0"])
     assert parse_settings(["seed=1", " seed = 01"]) == {"seed": 1}
     assert parse_settings(["seed=1", "seed=2"], last_counts=True) == {"seed": 2}
+
+
+@pytest.mark.parametrize(
+    ("first", "second"),
+    [("1", "1.0"), ("1e3", "1000"), ("0x10", "16"), (".nan", ".nan"), ("[1, {a: 2}]", "[1.0, {a: 2e0}]"), ("{a: 1, b: 2}", "{b: 2, a: 1}")],
+)
+def test_a_set_key_given_twice_with_the_same_number_is_one_value(first: str, second: str):
+    """``--set gamma=1 --set gamma=1.0`` was refused as two values (``both set gamma, to different values``): the
+    same number, written two ways, as ``refuse_two_values`` takes ``1e3`` and ``1000.0`` for a flag and its ``--set``.
+    One value now, numbers compared as numbers, in a list or a mapping too (and ``.nan`` twice: the same text);
+    the last is kept."""
+    from cso_runtime.cli import parse_settings
+
+    assert parse_settings([f"k={first}", f"k={second}"]).typed == {"k": second}
+
+
+@pytest.mark.parametrize(("first", "second"), [("1", "true"), ("0", "false"), ("[1]", "[true]"), ("{a: 0}", "{a: false}"), ("1", "'1'"), ("[1, 2]", "[2, 1]")])
+def test_a_set_key_given_twice_with_values_alike_only_to_python_is_refused(first: str, second: str):
+    """``1 == True`` in Python, and ``[1] == [True]``: ``--set generated=[1] --set generated=[true]`` was taken as the
+    same value twice, the first dropped in silence. true is no number, nor a text a number, in a list too."""
+    from cso_runtime.cli import parse_settings
+    from cso_runtime.config import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(f"--set k={first} and --set k={second} both set k, to different values: give one")):
+        parse_settings([f"k={first}", f"k={second}"])
+
+
+@pytest.mark.parametrize(
+    ("items", "said"),
+    [
+        (["episode.max_steps=5", "episode={max_steps: 6}"], "--set episode.max_steps=5 and --set episode={max_steps: 6} both set episode.max_steps, to different values: give one"),
+        (["episode={max_steps: 6}", "episode.max_steps=5"], "--set episode={max_steps: 6} and --set episode.max_steps=5 both set episode.max_steps, to different values: give one"),
+        (["a.b.c=1", "a={b: {c: 2}}"], "--set a.b.c=1 and --set a={b: {c: 2}} both set a.b.c, to different values: give one"),
+        (
+            ["episode.max_steps=5", "episode={replan_every_steps: 3}"],
+            (
+                "--set episode={replan_every_steps: 3} replaces all of episode, without episode.max_steps: --set episode.max_steps=5 would be dropped;"
+                " give it in episode's value, or after it"
+            ),
+        ),
+    ],
+)
+def test_a_set_key_and_its_section_given_other_values_are_refused(items: list[str], said: str):
+    """``--set episode.max_steps=5 --set 'episode={max_steps: 6}'`` ran 6 (a later section replaces the key, as
+    ``set_dotted`` does), and ``--set 'episode={max_steps: 6}' --set episode.max_steps=5`` ran 5: one field given two
+    values, the first dropped in silence, where the same key twice is refused. Refused alike now; and a section given
+    after a key of it, without that key, which dropped the key's value in silence."""
+    from cso_runtime.cli import parse_settings
+    from cso_runtime.config import ConfigError
+
+    with pytest.raises(ConfigError, match=re.escape(said)):
+        parse_settings(items)
+
+
+@pytest.mark.parametrize(
+    "items",
+    [
+        ["episode.max_steps=5", "episode={max_steps: 5.0, replan_every_steps: 3}"],  # the same value: fine
+        ["episode={max_steps: 5}", "episode.replan_every_steps=3"],  # a key of the section after it: one more key
+        ["episode.max_steps=5", "episode.replan_every_steps=3", "episodes=1"],  # not a section of each other
+    ],
+)
+def test_a_set_key_and_its_section_that_agree_are_taken(items: list[str]):
+    from cso_runtime.cli import parse_settings
+
+    assert list(parse_settings(items)) == [item.partition("=")[0] for item in items]
+
+
+def test_train_takes_one_number_given_twice_and_records_it_once(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``train --set gamma=1 --set gamma=1.0`` (the same number) runs, and records one pair, which runs again."""
+    import shlex
+
+    from cso_runtime.learned import ppo
+
+    commands: list[str] = []
+    monkeypatch.setattr(ppo, "train", lambda args, log=None, command="", stop_requested=None: commands.append(command) or {"ppo_decisions": 0, "warm_start_decisions": 0, "wall_time_s": 0.0})
+    code, said = train(tmp_path, "--set", "gamma=1", "--set", "gamma=1.0", "--gamma", "1")
+    assert code == 0, said
+    words = shlex.split(commands[-1])
+    assert [w for w in words if w.startswith("gamma=")] == ["gamma=1.0"], commands[-1]
+    code, said = train(tmp_path, *words[2:])
+    assert code == 0 and shlex.split(commands[-1]) == words, said
 
 
 @pytest.mark.parametrize("value", ["0", "nan", "20"])

@@ -106,7 +106,6 @@ MAX_CHECKPOINT_EVERY = 1_000_000
 """The most updates between checkpoints (``checkpoint_every``)."""
 MAX_TRAINING_PLANS = 100_000
 """The most Dungeon plans a run draws (``dungeon_plans``): more than a data set holds (a folder of fewer gives all it has)."""
-"""Each of ``dungeon_m_per_px``' bound, the scale of a scene's pixel."""
 
 ARGS_BOUNDS: dict[str, Bound] = {
     "dungeon_plans": Bound(0, MAX_TRAINING_PLANS, why="MAX_TRAINING_PLANS"),
