@@ -1593,6 +1593,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
 
     console = table_console()
     table = table1(spread=True)
+    fit_off_a_terminal(console, table)  # a file, a pipe: as wide as the spreads need, so they are kept there
     if Measurement.get(console, console.options.update_width(10**6), table).maximum > console.width:  # "0.5768 ±" over "0.0425" is unreadable: means alone
         table = table1(spread=False)
     print_table_or_rows(console, table, labels=2)

@@ -2133,14 +2133,22 @@ def test_the_console_table_shows_the_spread_when_it_fits_and_the_means_alone_whe
         return {"method": "greedy-dist", "map": f"plan_{m2}", "seed": 0, "scale": "small", "traversable_area_m2": m2, "terminated_by": "coverage", "explored_area_m2": m2, "coverage_pct": m2,
                 "steps": 100, "efficiency_m2_per_step": m2 / 100, "path_length_m": 10.0, "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}
 
+    import io
+
+    from rich.console import Console
+
+    from cso_runtime import evaluation
+
+    def on_a_terminal(columns: int) -> str:  # off one (capsys: a file) the table is as wide as its spreads need
+        screen = io.StringIO()
+        monkeypatch.setattr(evaluation, "table_console", lambda: Console(file=screen, width=columns, force_terminal=True, color_system=None))
+        print_summary(summary, tmp_path)
+        return screen.getvalue()
+
     summary = summarize([row(20.0), row(30.0)], [], ["greedy-dist"], {})
-    monkeypatch.setenv("COLUMNS", "200")
-    print_summary(summary, tmp_path)
-    wide = capsys.readouterr().out
+    wide = on_a_terminal(200)
     assert "│ greedy-dist │ small │        2 │  25.0 ± 7.1 │ 25.00 ± 7.07 │ 100.0 ± 0.0 │ 0.2500 ± 0.0707 │ 10.0 ± 0.0 │ 2.0 ± 0.0/3.0 ± 0.0 │" in wide
-    monkeypatch.setenv("COLUMNS", "100")
-    print_summary(summary, tmp_path)
-    narrow = capsys.readouterr().out
+    narrow = on_a_terminal(120)
     assert "±" not in narrow.split("means over")[0]  # no cell cut in two lines
     assert "│ greedy-dist │ small │        2 │        25.0 │      25.00 │ 100.0 │  0.2500 │" in narrow
     assert "each with its standard deviation in report.html and summary.json" in narrow

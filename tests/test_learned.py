@@ -2945,3 +2945,38 @@ def test_train_resume_refuses_an_init_from_other_than_what_its_run_started_from(
     for extra in ([], ["--init-from", "a/cso.pt"], ["--init-from", str(tmp_path / "a" / "cso.pt")], ["--set", "init_from=./a/cso.pt"], ["--config", str(own)]):
         r = CliRunner().invoke(app, [*resume, *extra])
         assert r.exit_code == 0 and "error" not in r.output and "done:" in r.output, (extra, r.output[-2000:])
+
+
+def test_a_resume_refuses_the_runs_own_init_from_text_where_it_names_other_weights_now(tmp_path, monkeypatch):
+    """The run's own ``init_from`` was taken by its text alone: ``a/cso.pt`` typed again in another folder (or through a
+    link repointed since) names other weights than the run started from, and those were ignored in silence, what
+    ``init_from_with_resume_problem`` is for. Where the text names a file that is not the one recorded
+    (``init_from_weights``), the resume is refused, naming both files; the same text where no such file is (the run's
+    own configuration used from another folder) and any spelling of the recorded file are still taken."""
+    from cso_runtime.learned.ppo import Args, init_from_with_resume_problem
+
+    run, elsewhere = tmp_path / "p", tmp_path / "q"
+    for folder in (run / "a", run / "z", elsewhere / "a"):
+        folder.mkdir(parents=True)
+        (folder / "cso.pt").write_bytes(str(folder).encode())
+    (run / "latest").symlink_to(run / "a")
+    ckpt = tmp_path / "checkpoint.pt"
+    for started in ("a/cso.pt", "latest/cso.pt"):
+        torch.save({"args": {"resume": None, "init_from": started},
+                    "started_from": {"init_from": started, "init_from_weights": {"path": str(run / "a" / "cso.pt"), "sha256": "-"}}}, ckpt)  # fmt: skip
+
+        def problem(init_from: str, cwd: Path, started: str = started) -> str | None:
+            monkeypatch.chdir(cwd)
+            return init_from_with_resume_problem(Args(resume=str(ckpt), init_from=init_from), f"--init-from {init_from}")
+
+        assert problem(started, run) is None
+        assert problem(str(run / "a" / "cso.pt"), elsewhere) is None
+        assert problem("../a/cso.pt", run / "z") is None
+        assert problem(started, tmp_path) is None  # no such file there: the run's own configuration, from another folder
+        if started == "a/cso.pt":
+            refused = problem(started, elsewhere)  # another run's a/ there
+            assert refused is not None and f"(it started from a/cso.pt, {run / 'a' / 'cso.pt'}; here a/cso.pt is {elsewhere / 'a' / 'cso.pt'})" in refused, refused
+    (run / "latest").unlink()
+    (run / "latest").symlink_to(run / "z")  # the link names another run's weights now
+    refused = problem("latest/cso.pt", run)
+    assert refused is not None and f"here latest/cso.pt is {run / 'z' / 'cso.pt'}" in refused, refused

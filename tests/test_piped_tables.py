@@ -161,7 +161,34 @@ def test_ups_last_table_written_to_a_file_keeps_a_long_scene_and_reason_on_their
         view.start()
         view.stop()
         lines = plain(out.getvalue())
+        assert any(f"cso-runtime {launcher.run_id}" in line for line in lines), out.getvalue()  # the table, either way
         if terminal:
             assert not any(LONG_SCENE in line for line in lines), out.getvalue()
         else:
             assert any(LONG_SCENE in line for line in lines) and any(LONG_REASON in line for line in lines), out.getvalue()
+
+
+def test_eval_table_1_written_to_a_file_keeps_its_spreads_however_wide(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """``eval > results.txt``: Table 1 with its spreads ("3.3902 ± 0.0100") wider than the console's 120 columns was
+    swapped for the means alone before the console was widened for it, so a file lost the spreads that it had room
+    for (the table is as wide as its cells off a terminal). An 80-column terminal still gets the means alone."""
+    from cso_runtime import evaluation
+    from cso_runtime.evaluation import print_summary, summarize
+
+    def row(method: str, name: str, eff: float) -> dict:
+        return {"method": method, "map": name, "seed": 0, "traversable_area_m2": 514.56, "scale": "super_large", "terminated_by": "max_steps",
+                "explored_area_m2": 67.6, "coverage_pct": 13.37, "steps": 20.0, "efficiency_m2_per_step": eff, "path_length_m": 0.2,
+                "decision_ms_p50": 8.2, "decision_ms_p99": 9.1}
+
+    rows = [row(m, n, e + i / 100) for m, e in (("greedy-dist", 3.3802), ("greedy-info", 3.4101)) for i, n in enumerate(("img_1", "img_2", "img_3"))]
+    summary = summarize(rows, [], ["greedy-dist", "greedy-info"], {})
+    for terminal in (False, True):
+        out = io.StringIO()
+        monkeypatch.setattr(evaluation, "table_console", lambda f=out, t=terminal: Console(file=f, width=80 if t else 120, force_terminal=t, color_system=None))
+        print_summary(summary, tmp_path)
+        lines = plain(out.getvalue())
+        row1 = next(line for line in lines if "greedy-dist" in line and "super_large" in line)
+        if terminal:
+            assert "±" not in out.getvalue(), out.getvalue()
+        else:
+            assert "│" in row1 and "3.3902 ± 0.0100" in row1 and "…" not in out.getvalue(), out.getvalue()

@@ -1503,8 +1503,9 @@ def init_from_with_resume_problem(args: Args, said: str) -> str | None:
     """What is wrong with ``args.init_from`` given with ``args.resume`` (``said``: how it was given, ``--init-from X``,
     ``--set init_from=X`` or ``init_from X in FILE``), as one line naming both flags, or None where there is nothing
     to say. A resume goes on with the weights its checkpoint holds and reads no ``init_from``: one that names other
-    weights than the run itself started from (``started_from``, by text or by the file it names; ``shipped`` is the
-    variant's file) would be ignored in silence, so it is refused. The run's own value is not: a configuration of its
+    weights than the run itself started from (``started_from``: the file it read, ``init_from_weights``, however
+    written; the same text where it names no other file here; ``shipped`` is the variant's file) would be ignored in
+    silence, so it is refused. The run's own value is not: a configuration of its
     own, or a flag that repeats it; nor, for a checkpoint of a resume written before ``started_from`` (which does not
     say what its run started from), the ``init_from`` its ``args`` hold. None too for a file that is no training
     checkpoint (``check_training_inputs`` says what it is)."""
@@ -1524,9 +1525,17 @@ def init_from_with_resume_problem(args: Args, said: str) -> str | None:
         return init_from_path(dataclasses.replace(args, init_from=text)).resolve()
 
     given = str(args.init_from)
-    if recorded and (given == str(recorded) or file_of(given) == Path(str(began.get("init_from_weights", {}).get("path") or file_of(str(recorded))))):
-        return None
-    what = f"it started from {recorded}" if recorded else ("it started from a fresh network" if known else "its checkpoint does not say what it started from")
+    what = "it started from a fresh network" if known else "its checkpoint does not say what it started from"
+    if recorded:
+        read = (began.get("init_from_weights") or {}).get("path")  # absolute, resolved: the file the run read
+        was, now = Path(str(read)) if read else file_of(str(recorded)), file_of(given)
+        if now == was:
+            return None
+        # The same text names the same weights unless it names another file here: a relative path typed in another
+        # folder than the run's, or through a link repointed since. ``shipped`` is the variant's, wherever installed.
+        if given == str(recorded) and (given == "shipped" or not read or not now.exists()):
+            return None
+        what = f"it started from {recorded}" + (f", {was}; here {given} is {now}" if given == str(recorded) else "")
     return (
         f"{said} with --resume {args.resume}: --resume continues that run with the weights its checkpoint holds ({what})"
         f" and reads no --init-from; to continue it, leave out {said}; to fine-tune from {given}, start a new run:"
