@@ -393,7 +393,12 @@ class Launcher:
         (``episode_end_heard``): one of the episode exploring can replace ``status`` before the loop, which looks every
         0.1 s, gets to it (a stray end followed by the sim's next step's), and that end was neither judged nor counted.
         An end of an episode a restart left behind (``episodes_before``) is kept here only while none is: it never
-        takes the place of an end of the running episode."""
+        takes the place of an end of the running episode (it waits in ``ends_behind``)."""
+        self.ends_behind: list[EpisodeStatusMsg] = []
+        """Ends of episodes a restart left behind (``episodes_before``) heard while another end waited in ``end_heard``
+        (or waiting there when an end of the running episode came), one per episode: the run loop judges each, one a
+        look, once no other end waits (``episode_end_heard``), and the run's end leaves those still here behind
+        (``leave_ends_behind``). Dropped, as they were, ``lost_results`` never named them."""
         self.stray_judged: EpisodeStatusMsg | None = None
         """The latest end judged not the run's end (a stray, ``stray_end``; one of an episode a restart left behind,
         ``end_left_behind``): while it stays ``status`` (the sim says nothing more for a while), the run loop's next
@@ -589,15 +594,17 @@ class Launcher:
                     # episode), and its status is none of the running one's (the launcher's status, the pace, the
                     # end the run loop judges). Its end is judged all the same (its result may be here), never in
                     # place of an end of the running episode heard before it.
-                    if msg.state in EPISODE_OVER and self.end_heard is None:
-                        self.end_heard = msg
+                    if msg.state in EPISODE_OVER:
+                        self.hear_end_behind(msg)
                     return
                 before = self.status
                 if before is None or (before.episode, before.step, before.state) != (msg.episode, msg.step, msg.state):
                     self.step_changed_s = now
                 self.status, self.status_heard_at_s = msg, now
                 if msg.state in EPISODE_OVER:
-                    self.end_heard = msg
+                    waiting, self.end_heard = self.end_heard, msg
+                    if waiting is not None and waiting.episode != msg.episode and waiting.episode in self.episodes_before:
+                        self.hear_end_behind(waiting)  # heard before its episode was left behind: judged all the same
                 else:
                     if self.episode_running is not None and self.episode_running != msg.episode:
                         self.episodes_before.add(self.episode_running)
@@ -612,8 +619,13 @@ class Launcher:
                     "the result of episode %d came after its end was left behind: it is not the run's, which goes on with episode %s",
                     msg.episode, self.episode_running,
                 )  # fmt: skip
-            else:
-                self.result = msg
+                return
+            with self._lock:  # late, from the sim before a restart, after the running episode's (or a later one's): never in its place, its end awaits it
+                kept = self.result
+                if kept is None or kept.episode in (0, msg.episode) or msg.episode not in self.episodes_before or kept.episode in self.episodes_before:
+                    self.result, kept = msg, None
+            if kept is not None:
+                log.warning("a late result of episode %d, which a restart left behind, came after episode %d's: it is not the run's", msg.episode, kept.episode)
         elif isinstance(msg, GoalMsg):
             self.latest_goal = payload
         elif isinstance(msg, PathMsg):
@@ -621,6 +633,14 @@ class Launcher:
             self.path_ahead_m = float(np.hypot(*np.diff(xy, axis=0).T).sum()) if len(xy) > 1 else 0.0
         elif isinstance(msg, ExploreResumeMsg):
             self.on_pause(msg)
+
+    def hear_end_behind(self, end: EpisodeStatusMsg) -> None:
+        """An end of an episode a restart left behind (``episodes_before``) for the run loop to judge: in ``end_heard``
+        while none waits there, else in ``ends_behind`` (once per episode: a replayed one adds nothing). Under ``_lock``."""
+        if self.end_heard is None:
+            self.end_heard = end
+        elif self.end_heard.episode != end.episode and all(e.episode != end.episode for e in self.ends_behind):
+            self.ends_behind.append(end)
 
     def on_pause(self, msg: ExploreResumeMsg) -> None:
         """An operator's pause or resume: kept and logged; a lockstep run refuses it (``LOCKSTEP_REFUSAL``)."""
@@ -1077,9 +1097,23 @@ class Launcher:
         if result is None and self.episode_goes_on() and (now := self.status) is not None:
             self.stray_end(over, f"the episode goes on (step {now.step})")
             return None
-        if result is not None:
-            self.ended_status = over = self.end_of_result(over, result)
+        self.leave_ends_behind()
+        self.ended_status = over = self.end_of_result(over, result) if result is not None else over
         return over, result
+
+    def leave_ends_behind(self) -> None:
+        """The run's end is judged (``judge_episode_end``): the ends of episodes a restart left behind heard beside it
+        and not judged yet (``ends_behind``, one waiting in ``end_heard``) are left behind (``end_left_behind``): their
+        results are not the run's, and ``lost_results`` names them. The end judged is set again after (it clears it)."""
+        with self._lock:
+            ends, self.ends_behind = self.ends_behind, []
+            if self.end_heard is not None and self.end_heard.episode in self.episodes_before:
+                ends.append(self.end_heard)
+                self.end_heard = None
+        stray = self.stray_judged
+        for end in ends:
+            self.end_left_behind(end)
+        self.stray_judged = stray
 
     def of_another_episode(self, end: EpisodeStatusMsg) -> bool:
         """Whether ``end`` names an episode heard running before the one running (``episodes_before``): not the one
@@ -1124,15 +1158,23 @@ class Launcher:
     def end_of_result(self, awaited: EpisodeStatusMsg, result: EpisodeResultMsg) -> EpisodeStatusMsg:
         """The end ``result`` belongs to: the episode's real end and its result can come while a stray end is awaited,
         and the stray's state (``failed``) would say how the run ended. Of the end awaited and the latest heard since
-        (``episode_end_heard``; not one of another episode, nor of another episode than the result's, ``result_is_of``),
+        (``latest_end_heard``; not one of another episode, nor of another episode than the result's, ``result_is_of``),
         the latest that ended as the result says (its ``terminated_by``), else the latest."""
-        later = self.episode_end_heard()
+        later = self.latest_end_heard()
         ends = [awaited] if later is None or later is awaited or self.of_another_episode(later) or not result_is_of(result, later) else [later, awaited]
         return next((end for end in ends if end.terminated_by == result.terminated_by), ends[0])
 
     def episode_end_heard(self) -> EpisodeStatusMsg | None:
-        """The status that says the episode is over, for the run loop to judge: the current one, else the latest that
-        said so since the loop last asked, though one of the episode exploring came after it (``end_heard``)."""
+        """The status that says an episode is over, for the run loop to judge: ``latest_end_heard``, else an end of an
+        episode a restart left behind that waited beside another (``ends_behind``), one a look."""
+        if (latest := self.latest_end_heard()) is not None:
+            return latest
+        with self._lock:
+            return self.ends_behind.pop(0) if self.ends_behind else None
+
+    def latest_end_heard(self) -> EpisodeStatusMsg | None:
+        """The status that says the episode is over: the current one, else the latest that said so since the run loop
+        last asked, though one of the episode exploring came after it (``end_heard``)."""
         with self._lock:  # the status and the end heard as ``_on_sample`` left them together
             heard, self.end_heard = self.end_heard, None
             st = self.status

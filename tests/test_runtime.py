@@ -14,6 +14,7 @@ import io
 import json
 import math
 import os
+import random
 import re
 import shutil
 import signal
@@ -42,6 +43,7 @@ from cso_runtime.map_files import load_map, save_map
 from cso_runtime.messages import (
     EPISODE_OVER,
     ClockMsg,
+    EpisodeResultMsg,
     EpisodeStatusMsg,
     LauncherStatusMsg,
     MapMsg,
@@ -6050,6 +6052,260 @@ def test_a_late_status_of_an_episode_a_restart_left_behind_is_not_the_running_ep
     assert over is not None and over.episode == 8, over
     judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)
     assert judged is not None and (judged[0].episode, judged[0].state) == (8, "done"), judged
+
+
+def test_an_end_of_an_episode_a_restart_left_behind_heard_beside_another_end_is_left_behind_too(tmp_path):
+    """Found by the seeded interleavings below. The run loop looks for an end every 0.1 s and took one end heard since
+    (``end_heard``): an end of an episode a restart left behind heard while another end waited there was dropped, and
+    one waiting there was replaced by the running episode's end. That end was never judged: the run went on and ended
+    well, but neither its log, ``status`` nor summary.json's ``meta.lost_results`` said that episode's result was lost.
+    The running episode's end is judged first, as before; the others are left behind, in turn or with the run's end."""
+
+    def judge_until_the_run_ends(launcher):
+        ends = []
+        while (over := launcher.episode_end_heard()) is not None:
+            judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)
+            if judged is not None:
+                return ends, judged
+            ends.append(over.episode)
+        return ends, None
+
+    # episode 8's end, then 7's late one and 8's result, before the run loop looks
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("starting", 0, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("done", 9, terminated_by="coverage", episode=8))
+    hear(EpisodeStatusMsg("failed", 3, terminated_by="lockstep_timeout", episode=7))  # late, of the episode before
+    hear(_result(9, "coverage", episode=8))
+    ends, judged = judge_until_the_run_ends(launcher)
+    assert judged is not None and judged[1] is not None and (judged[0].episode, judged[0].state, judged[1].episode) == (8, "done", 8), judged
+    assert launcher.ended_status is judged[0]  # summary.json's meta.episode
+    assert [e["episode"] for e in launcher.lost_results] == [7]
+
+    # episode 7's end, then 8 starts and ends, before the run loop looks; and 6's late end heard twice meanwhile
+    launcher, hear = _launcher_hearing(tmp_path / "2")
+    hear(EpisodeStatusMsg("starting", 0, episode=6))
+    hear(EpisodeStatusMsg("starting", 0, episode=7))
+    hear(EpisodeStatusMsg("done", 5, terminated_by="coverage", episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("done", 4, terminated_by="coverage", episode=6))  # late
+    hear(EpisodeStatusMsg("done", 4, terminated_by="coverage", episode=6))  # and replayed
+    hear(EpisodeStatusMsg("exploring", 3, episode=8))
+    ends, judged = judge_until_the_run_ends(launcher)  # the run loop looks with no end of episode 8 yet
+    assert judged is None and sorted(ends) == [6, 7], ends
+    assert sorted(e["episode"] for e in launcher.lost_results) == [6, 7]
+    hear(EpisodeStatusMsg("done", 9, terminated_by="max_steps", episode=8))
+    hear(_result(9, "max_steps", episode=8))
+    ends, judged = judge_until_the_run_ends(launcher)
+    assert ends == [] and judged is not None and judged[1] is not None and (judged[0].episode, judged[1].episode) == (8, 8), (ends, judged)
+    assert sorted(e["episode"] for e in launcher.lost_results) == [6, 7] and launcher.rejected == {}
+
+    # episode 7's end waits for the run loop when episode 8 starts and ends, with its result
+    launcher, hear = _launcher_hearing(tmp_path / "3")
+    hear(EpisodeStatusMsg("starting", 0, episode=7))
+    hear(EpisodeStatusMsg("done", 5, terminated_by="coverage", episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("failed", 9, terminated_by="lockstep_timeout", episode=8))
+    hear(_result(9, "lockstep_timeout", episode=8))
+    ends, judged = judge_until_the_run_ends(launcher)
+    assert judged is not None and judged[1] is not None and (judged[0].episode, judged[0].state, judged[1].episode) == (8, "failed", 8), judged
+    assert [e["episode"] for e in launcher.lost_results] == [7]
+
+
+def test_a_late_result_of_an_episode_before_a_restart_does_not_displace_the_running_episodes(tmp_path):
+    """Found by the seeded interleavings below. Episode 8 (the sim restarted into it) ended and its result came; then
+    episode 7's end and result, late, from the sim before: the launcher kept the latest result heard, 7's, so 8's end
+    found no result of its own, waited 15 s and the run ended with "its result never arrived" and no summary.json. A
+    late result of an episode a restart left behind never takes the place of a result of another episode."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("starting", 0, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("done", 9, terminated_by="coverage", episode=8))
+    hear(_result(9, "coverage", episode=8))
+    hear(EpisodeStatusMsg("failed", 3, terminated_by="lockstep_timeout", episode=7))  # late, of the episode before
+    hear(_result(3, "lockstep_timeout", episode=7))  # late too
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 8
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)  # no query answered: pushed only
+    assert judged is not None and judged[1] is not None and (judged[0].episode, judged[1].episode, judged[1].steps) == (8, 8, 9), judged
+    assert launcher.ended_status is judged[0] and [e["episode"] for e in launcher.lost_results] == [7]
+
+
+# --- the launcher's judgement of an episode's end, over seeded interleavings ---------------------------------------
+#
+# A history is 1 to 3 episodes, each run by a sim process of its own (a restart between them, ids drawn anew): each
+# process sends its statuses, then (maybe: killed before) its end, then its result (the last one's, unless the case is
+# "its result lost"; an earlier one's at times, else it died with its sim), and maybe its end once more, in that order;
+# the launcher hears the processes' messages merged in a random order that keeps each process's order (a dead process's
+# messages come late), the run loop looking in between (``episode_end_heard``, ``judge_episode_end``), and the referee's
+# queries and the run loop's tending while a result is awaited are further points where messages arrive.
+
+
+class _Interleaving:
+    """One seeded history and the order it is heard in (``deliveries``), with what the launcher should make of it."""
+
+    def __init__(self, seed: int) -> None:
+        rng = self.rng = random.Random(seed)
+        count = rng.randint(1, 3)
+        self.ids = rng.sample(range(1, 10_000), count)
+        self.result_lost = rng.random() < 0.15  # the last episode's result never comes (its sim died after its end)
+        self.answers_queries = rng.random() < 0.5  # the last sim answers the queries for its result once it sent it
+        self.processes: list[list[Any]] = []
+        self.ends: dict[int, EpisodeStatusMsg] = {}
+        self.results: dict[int, EpisodeResultMsg] = {}
+        self.completed: set[int] = set()  # earlier episodes whose sim sent their result before it died (late, or in time)
+        for i, episode in enumerate(self.ids):
+            last = i == count - 1
+            steps = rng.randint(1, 4)
+            sent: list[Any] = [EpisodeStatusMsg("starting", 0, episode=episode)]
+            sent += [EpisodeStatusMsg("exploring", s, episode=episode) for s in range(1, steps + 1)]
+            if last or rng.random() < 0.6:  # else killed mid-episode: no end
+                state, by = rng.choice([("done", "coverage"), ("done", "max_steps"), ("failed", "lockstep_timeout")])
+                end = self.ends[episode] = EpisodeStatusMsg(state, steps + 1, terminated_by=by, episode=episode)
+                sent.append(end)
+                if last and not self.result_lost or not last and rng.random() < 0.35:  # else it died with its sim
+                    result = self.results[episode] = _result(steps + 1, by, episode=episode)
+                    sent.append(result)
+                    if not last:
+                        self.completed.add(episode)
+                if not last and rng.random() < 0.3:
+                    sent.append(EpisodeStatusMsg(state, steps + 1, terminated_by=by, episode=episode))  # replayed
+            self.processes.append(sent)
+        # A random merge that keeps each process's order, where a sim's first status comes after the first of the sim
+        # before it (the launcher heard an episode run before the next one started: ids say no order).
+        queues = [list(p) for p in self.processes]
+        started = 0
+        self.deliveries: list[Any] = []
+        while any(queues):
+            ready = [i for i, q in enumerate(queues) if q and (i <= started)]
+            i = rng.choice(ready)
+            self.deliveries.append(queues[i].pop(0))
+            if i == started and started + 1 < count:
+                started += 1
+        self.heard = 0  # how many of ``deliveries`` the launcher heard so far
+
+    @property
+    def last(self) -> int:
+        return self.ids[-1]
+
+    def delivered(self, msg: Any) -> bool:
+        return any(m is msg for m in self.deliveries[: self.heard])
+
+    def describe(self) -> str:
+        def said(m: Any) -> str:
+            if isinstance(m, EpisodeStatusMsg):
+                return f"{m.state}({m.episode}@{m.step})"
+            return f"result({m.episode})"
+
+        return (
+            f"episodes {self.ids}, completed={sorted(self.completed)}, result_lost={self.result_lost}, answers_queries={self.answers_queries}: "
+            + " ".join(said(m) for m in self.deliveries)
+        )
+
+
+class _InterleavedSession:
+    """The launcher's session while it awaits a result (``judge_episode_end``): each query first lets the next message
+    be heard, and the last sim answers it with its result once it sent it (heard: sent before); each query is half a
+    second of the launcher's clock (``clock``), so the 15 s wait ends once nothing more comes."""
+
+    def __init__(self, case: _Interleaving, hear_next: Callable[[], None], clock: list[float]) -> None:
+        self.case, self.hear_next, self.clock = case, hear_next, clock
+
+    def get(self, key: str, timeout: float) -> list[Any]:
+        from types import SimpleNamespace
+
+        self.clock[0] += 0.5
+        self.hear_next()
+        result = self.case.processes[-1][-1]
+        if not (self.case.answers_queries and isinstance(result, EpisodeResultMsg) and self.case.delivered(result)):
+            return []
+        return [SimpleNamespace(ok=SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: encode(result))))]
+
+
+def _run_interleaving(seed: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> str | None:
+    """Drive the launcher's judgement (``_on_sample``, the run loop's ``episode_end_heard`` and ``judge_episode_end``)
+    with seed's interleaving; what went wrong, or None."""
+    from types import SimpleNamespace
+
+    import cso_runtime.launcher as launcher_module
+
+    case = _Interleaving(seed)
+    rng = case.rng
+    clock = [1000.0]
+    monkeypatch.setattr(launcher_module, "time", SimpleNamespace(monotonic=lambda: clock[0], time=time.time))
+    launcher, hear = _launcher_hearing(tmp_path / str(seed))
+    launcher.run_dir.mkdir(parents=True)  # run.json names the lost results as they are judged
+    launcher.stop_event = SimpleNamespace(is_set=lambda: False, wait=lambda timeout=None: False)  # type: ignore[assignment]
+
+    def hear_next() -> None:
+        if case.heard < len(case.deliveries):
+            case.heard += 1
+            hear(case.deliveries[case.heard - 1])
+
+    def tend() -> None:  # the run loop's supervision between queries: the callbacks run meanwhile too
+        if rng.random() < 0.5:
+            hear_next()
+
+    session = _InterleavedSession(case, hear_next, clock)
+    judged = None
+    ended_at = -1
+    looks_after_all = 0
+    while judged is None and looks_after_all < 3:
+        if case.heard < len(case.deliveries) and rng.random() < 0.6:
+            hear_next()
+            continue
+        looks_after_all += case.heard == len(case.deliveries)
+        over = launcher.episode_end_heard()  # the run loop looks
+        if over is not None:
+            judged = launcher.judge_episode_end(session, over, tend)
+            ended_at = case.heard
+    problems = []
+    if judged is None:
+        problems.append("the run never ended")
+    else:
+        end, result = judged
+        ran = end.episode  # the episode whose end is the run's: the last, or an earlier one whose result came in time
+        if ran != case.last and ran not in case.completed:
+            problems.append(f"the run ended with episode {ran}'s end, not the last one's ({case.last}), and no result of {ran} was sent")
+        if not case.delivered(case.ends[ran]):
+            problems.append(f"the run ended before episode {ran}'s end was heard")
+        if ran == case.last and case.result_lost:
+            if result is not None:
+                problems.append(f"a result of episode {result.episode} though the last one's was lost")
+        elif result is None:
+            problems.append(f"the run ended with no result though episode {ran}'s came")
+        else:
+            sent = case.results[ran]
+            if result.episode != ran or result.steps != sent.steps:
+                problems.append(f"the run's result is episode {result.episode}'s, its end episode {ran}'s")
+            if not case.delivered(sent):
+                problems.append(f"the run ended before episode {ran}'s result was heard")
+            if (end.state, end.terminated_by) != (case.ends[ran].state, case.ends[ran].terminated_by):
+                problems.append(f"the run ended {end.state}/{end.terminated_by}, episode {ran} {case.ends[ran].state}/{case.ends[ran].terminated_by}")
+        if launcher.ended_status is not end or (result is not None and launcher.ended_status.episode != result.episode):
+            problems.append(f"meta.episode would be {launcher.ended_status and launcher.ended_status.episode}, the run's end is of {end.episode}")
+    # an earlier episode's end heard before the run's end was judged, whose result never came: it went with its sim, and
+    # the run says so; one whose result came late may be so too, never the run's
+    heard_before_end = case.deliveries[: ended_at if judged is not None else case.heard]
+    ends_heard = {m.episode for m in heard_before_end if isinstance(m, EpisodeStatusMsg) and m.state in EPISODE_OVER and m.episode != case.last}
+    lost = [e["episode"] for e in launcher.lost_results]
+    ran_set = {judged[0].episode} if judged is not None else set()
+    if len(lost) != len(set(lost)) or not ends_heard - case.completed - ran_set <= set(lost) <= ends_heard - ran_set:
+        problems.append(f"lost_results {lost}, but the ends of earlier episodes heard before the run ended are of {sorted(ends_heard)}")
+    if launcher.rejected.get("episode_status", 0):
+        problems.append(f"{launcher.rejected['episode_status']} ends counted as strays")
+    return f"seed {seed}: {'; '.join(problems)}\n  {case.describe()}" if problems else None
+
+
+def test_the_launcher_judges_the_run_s_end_alike_over_seeded_interleavings_of_restarts(tmp_path, monkeypatch):
+    """300 seeded histories of 1 to 3 episodes (a sim restart between them), heard in random orders a network makes
+    possible, with the run loop looking in between: the run ends (never waits for good) once the last episode's end and
+    result are heard (or its end, with no result, when that result was lost), never on an earlier episode's end unless
+    that episode's own result came, with that end's result (summary.json's meta.episode is its episode);
+    ``lost_results`` names, once, each earlier episode whose end was heard before the run's end and whose result never
+    came, maybe one whose result came late, never the run's; no end is counted a stray."""
+    failures = [f for seed in range(300) if (f := _run_interleaving(seed, tmp_path, monkeypatch)) is not None]
+    assert not failures, f"{len(failures)} of 300 interleavings:\n" + "\n".join(failures[:8])
 
 
 def _launcher_with_a_silent_planner(tmp_path, endpoint: str, embedded: bool, routers: list[str]):
