@@ -398,7 +398,12 @@ class Launcher:
         """Ends of episodes a restart left behind (``episodes_before``) heard while another end waited in ``end_heard``
         (or waiting there when an end of the running episode came), one per episode: the run loop judges each, one a
         look, once no other end waits (``episode_end_heard``), and the run's end leaves those still here behind
-        (``leave_ends_behind``). Dropped, as they were, ``lost_results`` never named them."""
+        (``leave_ends_behind``). Dropped, as they were, ``lost_results`` never named them. The latest ``LOST_RESULTS_KEPT``
+        only (``lost_results`` names no more): a referee replaying the ends of many episodes never grows it for good."""
+        self.results_not_kept: dict[int, int] = {}
+        """Episodes a restart left behind whose late result came after another episode's and was not kept (``_on_sample``),
+        each with that episode: their end left behind says their result came (``end_left_behind``), not that none did.
+        The latest ``LOST_RESULTS_KEPT``."""
         self.stray_judged: EpisodeStatusMsg | None = None
         """The latest end judged not the run's end (a stray, ``stray_end``; one of an episode a restart left behind,
         ``end_left_behind``): while it stays ``status`` (the sim says nothing more for a while), the run loop's next
@@ -624,6 +629,11 @@ class Launcher:
                 kept = self.result
                 if kept is None or kept.episode in (0, msg.episode) or msg.episode not in self.episodes_before or kept.episode in self.episodes_before:
                     self.result, kept = msg, None
+                else:
+                    self.results_not_kept.pop(msg.episode, None)
+                    self.results_not_kept[msg.episode] = kept.episode
+                    while len(self.results_not_kept) > LOST_RESULTS_KEPT:
+                        del self.results_not_kept[next(iter(self.results_not_kept))]
             if kept is not None:
                 log.warning("a late result of episode %d, which a restart left behind, came after episode %d's: it is not the run's", msg.episode, kept.episode)
         elif isinstance(msg, GoalMsg):
@@ -641,6 +651,7 @@ class Launcher:
             self.end_heard = end
         elif self.end_heard.episode != end.episode and all(e.episode != end.episode for e in self.ends_behind):
             self.ends_behind.append(end)
+            del self.ends_behind[:-LOST_RESULTS_KEPT]  # the latest: a referee replaying many episodes' ends grows it no more
 
     def on_pause(self, msg: ExploreResumeMsg) -> None:
         """An operator's pause or resume: kept and logged; a lockstep run refuses it (``LOCKSTEP_REFUSAL``)."""
@@ -1097,18 +1108,21 @@ class Launcher:
         if result is None and self.episode_goes_on() and (now := self.status) is not None:
             self.stray_end(over, f"the episode goes on (step {now.step})")
             return None
-        self.leave_ends_behind()
+        self.leave_ends_behind(over.episode)
         self.ended_status = over = self.end_of_result(over, result) if result is not None else over
         return over, result
 
-    def leave_ends_behind(self) -> None:
+    def leave_ends_behind(self, run_episode: int) -> None:
         """The run's end is judged (``judge_episode_end``): the ends of episodes a restart left behind heard beside it
         and not judged yet (``ends_behind``, one waiting in ``end_heard``) are left behind (``end_left_behind``): their
-        results are not the run's, and ``lost_results`` names them. The end judged is set again after (it clears it)."""
+        results are not the run's, and ``lost_results`` names them. The end judged is set again after (it clears it).
+        Never an end of ``run_episode``, the episode the run ends with (one a restart left behind whose own result came):
+        heard again (replayed) since the run loop took it, it is the run's end, its result not lost."""
         with self._lock:
-            ends, self.ends_behind = self.ends_behind, []
+            ends, self.ends_behind = [e for e in self.ends_behind if e.episode != run_episode], []
             if self.end_heard is not None and self.end_heard.episode in self.episodes_before:
-                ends.append(self.end_heard)
+                if self.end_heard.episode != run_episode:
+                    ends.append(self.end_heard)
                 self.end_heard = None
         stray = self.stray_judged
         for end in ends:
@@ -1142,10 +1156,15 @@ class Launcher:
         and named in the launcher's status (``lost_results``: ``status`` says so), once per episode."""
         # A ROS 2 bridge starts a new episode in the same process (the robot's odometry or clock started again).
         restarted, lost_with = ("the sim restarted", " with the process that ran it") if self.simulated else ("the referee started a new one", "")
+        with self._lock:
+            after = self.results_not_kept.get(end.episode)
+        came = (
+            f"no result of episode {end.episode} came: it is lost{lost_with}" if after is None
+            else f"its result came late, after episode {after}'s, and was not kept: it is not the run's"
+        )  # fmt: skip
         log.warning(
-            "episode %d ended (%s at step %d), but episode %d has started since (%s) and no result of episode %d came: it is lost%s; "
-            "the run goes on with episode %d, whose results will be the run's",
-            end.episode, end.state, end.step, self.episode_running, restarted, end.episode, lost_with, self.episode_running,
+            "episode %d ended (%s at step %d), but episode %d has started since (%s) and %s; the run goes on with episode %d, whose results will be the run's",
+            end.episode, end.state, end.step, self.episode_running, restarted, came, self.episode_running,
         )  # fmt: skip
         lost = {"episode": end.episode, "state": end.state, "step": end.step, "running": self.episode_running or 0}
         self.ended_status, self.stray_judged = None, end

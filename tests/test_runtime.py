@@ -6131,6 +6131,59 @@ def test_a_late_result_of_an_episode_before_a_restart_does_not_displace_the_runn
     assert launcher.ended_status is judged[0] and [e["episode"] for e in launcher.lost_results] == [7]
 
 
+def test_a_replayed_end_of_the_episode_the_run_ends_with_is_not_named_lost(tmp_path):
+    """Review of the ends left behind: the run can end on an episode a restart left behind whose own result came. Its
+    end heard again (replayed) after the run loop took it waited in ``end_heard``, and ``leave_ends_behind`` named that
+    very episode lost (log: "no result of episode 7 came", ``lost_results``), while the run ended with its result."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("starting", 0, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("done", 5, terminated_by="coverage", episode=7))  # late, of the episode before
+    hear(_result(5, "coverage", episode=7))
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == 7
+    hear(EpisodeStatusMsg("done", 5, terminated_by="coverage", episode=7))  # replayed, before the run loop judges it
+    judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)
+    assert judged is not None and judged[1] is not None and (judged[0].episode, judged[1].episode) == (7, 7), judged
+    assert launcher.lost_results == [] and launcher.ended_status is judged[0]
+
+
+def test_ends_left_behind_wait_in_a_bounded_list(tmp_path):
+    """Review of the ends left behind: a misbehaving referee replaying the ends of many episodes a restart left behind,
+    while an end waits, grew ``ends_behind`` without bound; it keeps the latest ``LOST_RESULTS_KEPT`` (``lost_results``
+    names no more)."""
+    from cso_runtime.messages import LOST_RESULTS_KEPT
+
+    launcher, hear = _launcher_hearing(tmp_path)
+    ids = range(1, 4 * LOST_RESULTS_KEPT + 2)
+    for episode in ids:
+        hear(EpisodeStatusMsg("starting", 0, episode=episode))
+    for episode in ids[:-1]:
+        hear(EpisodeStatusMsg("done", 3, terminated_by="coverage", episode=episode))
+    assert len(launcher.ends_behind) <= LOST_RESULTS_KEPT
+    assert launcher.ends_behind[-1].episode == ids[-2]  # the latest kept
+
+
+def test_the_log_of_an_end_left_behind_says_its_late_result_came(tmp_path, caplog):
+    """Review of the ends left behind: a late result of an episode a restart left behind, heard after the running
+    episode's, is not kept; its end, left behind, was logged "no result of episode 7 came", which was untrue."""
+    launcher, hear = _launcher_hearing(tmp_path)
+    hear(EpisodeStatusMsg("starting", 0, episode=7))
+    hear(EpisodeStatusMsg("starting", 0, episode=8))
+    hear(EpisodeStatusMsg("done", 9, terminated_by="coverage", episode=8))
+    hear(_result(9, "coverage", episode=8))
+    hear(EpisodeStatusMsg("failed", 3, terminated_by="lockstep_timeout", episode=7))  # late
+    hear(_result(3, "lockstep_timeout", episode=7))  # late too: not kept
+    over = launcher.episode_end_heard()
+    assert over is not None
+    with caplog.at_level("WARNING", logger="cso.launcher"):
+        judged = launcher.judge_episode_end(_ScriptedResultQueries([]), over, lambda: None)
+    assert judged is not None and judged[0].episode == 8 and [e["episode"] for e in launcher.lost_results] == [7]
+    lines = [r.getMessage() for r in caplog.records if "episode 7 ended" in r.getMessage()]
+    assert lines and not any("no result of episode 7 came" in line for line in lines), lines
+    assert any("its result came" in line for line in lines), lines
+
+
 # --- the launcher's judgement of an episode's end, over seeded interleavings ---------------------------------------
 #
 # A history is 1 to 3 episodes, each run by a sim process of its own (a restart between them, ids drawn anew): each
@@ -6256,6 +6309,8 @@ def _run_interleaving(seed: int, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
             continue
         looks_after_all += case.heard == len(case.deliveries)
         over = launcher.episode_end_heard()  # the run loop looks
+        if over is not None and rng.random() < 0.3:
+            hear_next()  # the callbacks run between the run loop's look and its judgement too
         if over is not None:
             judged = launcher.judge_episode_end(session, over, tend)
             ended_at = case.heard
