@@ -68,6 +68,20 @@ def default_grid_bound() -> Iterator[None]:
     set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
 
 
+def super_large_summary() -> dict:
+    """``eval``'s summary of greedy-dist and greedy-info on three super-large plans, 20 steps each: a Table 1 whose
+    spreads ("3.3902 ± 0.0100") make it wider than 80 columns, for the tests of how its console table is written."""
+    from cso_runtime.evaluation import summarize
+
+    def row(method: str, name: str, eff: float) -> dict:
+        return {"method": method, "map": name, "seed": 0, "traversable_area_m2": 514.56, "scale": "super_large", "terminated_by": "max_steps",
+                "explored_area_m2": 67.6, "coverage_pct": 13.37, "steps": 20.0, "efficiency_m2_per_step": eff, "path_length_m": 0.2,
+                "decision_ms_p50": 8.2, "decision_ms_p99": 9.1}
+
+    rows = [row(m, n, e + i / 100) for m, e in (("greedy-dist", 3.3802), ("greedy-info", 3.4101)) for i, n in enumerate(("img_1", "img_2", "img_3"))]
+    return summarize(rows, [], ["greedy-dist", "greedy-info"], {})
+
+
 def box_room(width_m: float = 4.0, height_m: float = 3.0, resolution_m: float = 0.05, wall_cells: int = 2) -> FloorPlan:
     """A closed rectangular room: free interior of width x height metres, walls all round."""
     nx = int(round(width_m / resolution_m)) + 2 * wall_cells

@@ -36,7 +36,7 @@ from cso_runtime.map_files import load_map
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import builtin_scene_dir, load_floor_plan, resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
-from tests.conftest import two_rooms, unset_weights_env
+from tests.conftest import super_large_summary, two_rooms, unset_weights_env
 
 
 def test_greedy_dist_explores_two_rooms_completely():
@@ -874,15 +874,9 @@ def test_the_console_tables_on_an_80_column_terminal_cut_no_number(tmp_path: Pat
     from rich.console import Console
 
     from cso_runtime import evaluation
-    from cso_runtime.evaluation import print_summary, summarize
+    from cso_runtime.evaluation import print_summary
 
-    def row(method: str, name: str, eff: float) -> dict:
-        return {"method": method, "map": name, "seed": 0, "traversable_area_m2": 514.56, "scale": "super_large", "terminated_by": "max_steps",
-                "explored_area_m2": 67.6, "coverage_pct": 13.37, "steps": 20.0, "efficiency_m2_per_step": eff, "path_length_m": 0.2,
-                "decision_ms_p50": 8.2, "decision_ms_p99": 9.1}
-
-    rows = [row(m, n, e + i / 100) for m, e in (("greedy-dist", 3.3802), ("greedy-info", 3.4101)) for i, n in enumerate(("img_1", "img_2", "img_3"))]
-    summary = summarize(rows, [], ["greedy-dist", "greedy-info"], {})
+    summary = super_large_summary()
     for width, table in ((80, False), (200, True)):
         screen = io.StringIO()
         monkeypatch.setattr(evaluation, "table_console", lambda w=width, f=screen: Console(file=f, width=w, force_terminal=True, color_system=None))

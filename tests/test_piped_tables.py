@@ -16,6 +16,7 @@ from rich.table import Table
 from typer.testing import CliRunner
 
 from cso_runtime.cli import app
+from tests.conftest import super_large_summary
 
 NO_TERMINAL = {"COLUMNS": "80", "FORCE_COLOR": None, "TTY_COMPATIBLE": None}
 """CliRunner's output, whatever the environment the tests run in (None: unset): no terminal, as a file or a pipe."""
@@ -173,15 +174,9 @@ def test_eval_table_1_written_to_a_file_keeps_its_spreads_however_wide(tmp_path:
     swapped for the means alone before the console was widened for it, so a file lost the spreads that it had room
     for (the table is as wide as its cells off a terminal). An 80-column terminal still gets the means alone."""
     from cso_runtime import evaluation
-    from cso_runtime.evaluation import print_summary, summarize
+    from cso_runtime.evaluation import print_summary
 
-    def row(method: str, name: str, eff: float) -> dict:
-        return {"method": method, "map": name, "seed": 0, "traversable_area_m2": 514.56, "scale": "super_large", "terminated_by": "max_steps",
-                "explored_area_m2": 67.6, "coverage_pct": 13.37, "steps": 20.0, "efficiency_m2_per_step": eff, "path_length_m": 0.2,
-                "decision_ms_p50": 8.2, "decision_ms_p99": 9.1}
-
-    rows = [row(m, n, e + i / 100) for m, e in (("greedy-dist", 3.3802), ("greedy-info", 3.4101)) for i, n in enumerate(("img_1", "img_2", "img_3"))]
-    summary = summarize(rows, [], ["greedy-dist", "greedy-info"], {})
+    summary = super_large_summary()
     for terminal in (False, True):
         out = io.StringIO()
         monkeypatch.setattr(evaluation, "table_console", lambda f=out, t=terminal: Console(file=f, width=80 if t else 120, force_terminal=t, color_system=None))
