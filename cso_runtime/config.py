@@ -1046,7 +1046,9 @@ def refuse_two_values(given: typing.Mapping[str, typing.Sequence[tuple[str, Any]
     field. ``given`` holds, by field, each ``(flag as typed, value)`` that set it, in order; two of them with different
     values (as ``read`` reads them: the field's type, ``1e3`` and ``1000.0`` alike, a path as ``place_of`` resolves
     it) are a ConfigError naming both, since one of them would take over the other in silence. The same value twice
-    is fine. A value ``read`` refuses (a ConfigError: not of the field's type) that is the other's text as ``--set``
+    is fine, and so is one number written two ways where the field's type refuses one of them (``--max-steps 40`` and
+    ``--set episode.max_steps=40.0``): not "different values", but the field's own type error, said where the
+    configuration is read ("expected an integer, got 40.0"). A value ``read`` refuses (a ConfigError: not of the field's type) that is the other's text as ``--set``
     reads it (``up --robot 1 --set robot=1``: the number 1, where a robot id is text) is said as such, with the way
     to write it (``--set robot='1'``), not as another value."""
     for name, said in given.items():
@@ -1064,6 +1066,8 @@ def refuse_two_values(given: typing.Mapping[str, typing.Sequence[tuple[str, Any]
             ):
                 if isinstance(bad_reading, _Unread) and not isinstance(good_reading, _Unread) and _same_yaml(bad_value, good_value):
                     raise ConfigError(read_as_another_type(bad, bad_value, name, good_value, good))
+            if isinstance(reading, _Unread) != isinstance(other_reading, _Unread) and _one_yaml_value(value, other_value):
+                continue  # --max-steps 40 and --set episode.max_steps=40.0: one value, which the field's own check refuses
             raise ConfigError(f"{first} and {other} both set {name}, to different values: give one")
 
 
@@ -1143,18 +1147,25 @@ def _reading(read: typing.Callable[[str, Any], Any] | None, name: str, value: An
         return _Unread(value)
 
 
+def _as_yaml(value: Any) -> Any:
+    """``value``, a text read as YAML as ``--set`` reads it (a text YAML cannot read, and any other value, as it is)."""
+    try:
+        return yaml_load(value) if isinstance(value, str) else value
+    except yaml.YAMLError:
+        return value
+
+
 def _same_yaml(a: Any, b: Any) -> bool:
     """Whether ``a`` and ``b`` are one value once each text among them is read as YAML, as ``--set`` reads it: the
     text ``1`` and the number 1, ``on`` and true; not the text ``1`` and true, though ``1 == True``."""
-
-    def as_yaml(value: Any) -> Any:
-        try:
-            return yaml_load(value) if isinstance(value, str) else value
-        except yaml.YAMLError:
-            return value
-
-    a, b = as_yaml(a), as_yaml(b)
+    a, b = _as_yaml(a), _as_yaml(b)
     return type(a) is type(b) and a == b
+
+
+def _one_yaml_value(a: Any, b: Any) -> bool:
+    """Whether ``a`` and ``b`` are one value once read as YAML and compared as two ``--set`` values of one key are
+    (``yaml_value_compared``): 40 and 40.0 alike, 1 and true not."""
+    return bool(yaml_value_compared(_as_yaml(a)) == yaml_value_compared(_as_yaml(b)))
 
 
 def yaml_value_compared(value: Any) -> Any:

@@ -222,6 +222,28 @@ def test_eval_refuses_max_steps_with_a_set_step_limit_of_another_value(tmp_path:
     assert r.exit_code == 0 and "at most 5 steps an episode" in r.output, r.output
 
 
+def test_a_number_written_two_ways_says_the_fields_type_error_not_different_values(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
+    """``eval --max-steps 40 --set episode.max_steps=40.0`` was refused as "different values", where the one problem is
+    that 40.0 is no integer: 40 and 40.0 are one value (``config.yaml_value_compared``), and the field's own type error
+    is said, as ``--set episode.max_steps=40.0`` alone says it; ``up`` and ``train`` (``--seed 3 --set seed=3.0``)
+    likewise. Another number is still "different values"."""
+    from cso_runtime.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    cases = [
+        (["eval", "--method", "greedy-dist", "--maps", "generated:small:1:0", "--out", str(tmp_path / "o"), "--dry-run", "--max-steps", "40",
+          "--set", "episode.max_steps=40.0"], "episode.max_steps: expected an integer, got 40.0"),
+        (["up", "--runs-dir", str(tmp_path / "runs"), "--dry-run", "--seed", "3", "--set", "seed=3.0"], "seed: expected an integer, got 3.0"),
+        (["train", "--out", str(tmp_path / "t"), "--seed", "3", "--set", "seed=3.0"], "seed: expected an integer, got 3.0"),
+    ]
+    for command, said in cases:
+        r = CliRunner().invoke(app, command)
+        assert r.exit_code == 2 and said in " ".join(r.stderr.split()) and "different values" not in r.stderr, (command, r.output)
+    r = CliRunner().invoke(app, [*cases[0][0][:-2], "--set", "episode.max_steps=41.0"])
+    assert r.exit_code == 2 and "--max-steps 40 and --set episode.max_steps=41.0 both set episode.max_steps, to different values" in " ".join(r.stderr.split()), r.output
+    assert not train_runs and not (tmp_path / "o").exists() and not (tmp_path / "t").exists()
+
+
 def test_up_refuses_a_flag_and_a_set_of_the_same_key_with_another_value(tmp_path: Path):
     """``up --seed 3 --set seed=4`` ran seed 4, ``up --namespace a --set services.ros2_bridge.namespace=b`` namespace
     a: one of the two took over the other in silence. Each such pair is refused (exit 2, naming both) before anything
