@@ -273,6 +273,11 @@ STALLED_STEP_S = 5.0
 """How long an exploring episode may make no new step before its progress line says so: a step takes 0.25 s in real
 time, less in lockstep (where the sim re-publishes a step after ``lockstep_timeout_s``, 1 s), about 0.1 s on a robot."""
 
+EPISODES_BEFORE_KEPT = 4 * LOST_RESULTS_KEPT
+"""How many of the episodes a restart of the sim left behind the launcher knows as such (``episodes_before``): the
+latest, well over the ``LOST_RESULTS_KEPT`` whose ends ``ends_behind`` and ``lost_results`` may name, so that a late
+status of any of them is still told from the running episode's; a sim restarted without end grows it no more."""
+
 STOP_EXTRAS_S = STACK_DUMP_WAIT_S + RECORDING_STOP_S + ANIMATION_STOPPING_S
 """What the launcher's stop may take beyond its services' three stop stages: the stacks of a hung service, the
 recording, the GIF. ``down`` waits ``DOWN_MARGIN_S`` beyond the stages, which must hold it (a test holds them to it)."""
@@ -412,8 +417,10 @@ class Launcher:
         """The episode the referee's latest status of a running episode (starting, exploring) names: an end of
         another it ran before (a late one of the episode before a restarted sim's, a forged one) is not the run's end
         (``judge_episode_end``)."""
-        self.episodes_before: set[int] = set()
-        """The episodes heard running before ``episode_running`` (a restarted sim's is a new one): an end of one of
+        self.episodes_before: dict[int, None] = {}
+        """The episodes heard running before ``episode_running`` (a restarted sim's is a new one), in the order left
+        (a dict as an ordered set), the latest ``EPISODES_BEFORE_KEPT`` only: a sim restarted over and over never grows
+        it for good, and an episode left that long ago sends nothing late any more. An end of one of
         them is left behind at once (``end_left_behind``), unless its result is here; a late status of one of them is
         none of the running episode's: it does not make it the running one again, nor replace ``status`` (the launcher's
         status, the pace, the end the run loop judges: a late end of it after the running one's hid that). An end of an episode never heard running (a restarted sim's
@@ -612,7 +619,10 @@ class Launcher:
                         self.hear_end_behind(waiting)  # heard before its episode was left behind: judged all the same
                 else:
                     if self.episode_running is not None and self.episode_running != msg.episode:
-                        self.episodes_before.add(self.episode_running)
+                        self.episodes_before.pop(self.episode_running, None)
+                        self.episodes_before[self.episode_running] = None
+                        while len(self.episodes_before) > EPISODES_BEFORE_KEPT:
+                            del self.episodes_before[next(iter(self.episodes_before))]  # the oldest
                     self.episode_running = msg.episode
             if msg.coverage_measured is not None:  # the referee's word on its ground truth, over the services' names
                 self.coverage_measured = msg.coverage_measured

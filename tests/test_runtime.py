@@ -6164,6 +6164,25 @@ def test_ends_left_behind_wait_in_a_bounded_list(tmp_path):
     assert launcher.ends_behind[-1].episode == ids[-2]  # the latest kept
 
 
+def test_the_episodes_a_restart_left_behind_are_a_bounded_set_that_keeps_the_latest(tmp_path):
+    """Review of the ends left behind: ``episodes_before`` grew by one episode per restart of the sim, for good, in a
+    long run (``ends_behind`` and ``lost_results`` keep the latest ``LOST_RESULTS_KEPT``). It keeps the latest
+    ``EPISODES_BEFORE_KEPT``; a late status of a recent one is still none of the running episode's."""
+    from cso_runtime.launcher import EPISODES_BEFORE_KEPT
+
+    launcher, hear = _launcher_hearing(tmp_path)
+    ids = range(1, 3 * EPISODES_BEFORE_KEPT + 2)
+    for episode in ids:
+        hear(EpisodeStatusMsg("starting", 0, episode=episode))
+    assert len(launcher.episodes_before) == EPISODES_BEFORE_KEPT
+    assert list(launcher.episodes_before) == list(ids[-EPISODES_BEFORE_KEPT - 1 : -1])  # the latest, in order
+    hear(EpisodeStatusMsg("exploring", 4, episode=ids[-EPISODES_BEFORE_KEPT - 1]))  # late, of the oldest kept
+    assert launcher.episode_running == ids[-1] and launcher.status is not None and launcher.status.episode == ids[-1]
+    hear(EpisodeStatusMsg("done", 5, terminated_by="coverage", episode=ids[-2]))  # late end of the episode just before
+    over = launcher.episode_end_heard()
+    assert over is not None and over.episode == ids[-2] and launcher.of_another_episode(over)
+
+
 def test_the_log_of_an_end_left_behind_says_its_late_result_came(tmp_path, caplog):
     """Review of the ends left behind: a late result of an episode a restart left behind, heard after the running
     episode's, is not kept; its end, left behind, was logged "no result of episode 7 came", which was untrue."""
