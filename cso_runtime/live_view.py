@@ -113,14 +113,26 @@ PIPED_TABLE_MIN_WIDTH = 120
 """The fewest columns a table is laid out in off a terminal (rich's own default there is 80, which cut the last columns)."""
 
 
+def writes_to_a_terminal(console: Console) -> bool:
+    """Whether ``console`` writes to a terminal: its file's own ``isatty()``. Not rich's ``is_terminal``, which
+    ``FORCE_COLOR`` (and rich 14's ``TTY_COMPATIBLE``) make true for a file or a pipe: CI sets ``FORCE_COLOR=1`` for
+    coloured logs, and ``FORCE_COLOR=1 runs > runs.txt`` was laid out in 80 columns, its cells folded. The colours
+    stay as ``FORCE_COLOR`` asks; only the layout is a file's."""
+    try:
+        return bool(console.file.isatty())
+    except (AttributeError, ValueError, OSError):  # no isatty, a closed file: no terminal
+        return False
+
+
 def fit_off_a_terminal(console: Console, *tables: Any) -> Console:
     """``console`` (returned, for ``fit_off_a_terminal(console, table).print(table)``), made wide enough off a terminal
     (a file, a pipe, CI) for ``tables`` to be written with no cell folded or wrapped, nor a title: at least
     ``PIPED_TABLE_MIN_WIDTH`` columns, and as wide as the widest table needs, so that ``grep`` and ``awk`` find each
     row whole on its line (a long scene path or reason folded at 120 columns broke them). A table whose title is wider
     than its columns is given that width (``min_width``), as a title wider than its table wraps. On a terminal
-    nothing changes: it keeps its width (``COLUMNS`` where set), and cells fold there as before."""
-    if console.is_terminal:
+    nothing changes: it keeps its width (``COLUMNS`` where set), and cells fold there as before. Whether it is a
+    terminal is ``writes_to_a_terminal``'s word, not rich's (``FORCE_COLOR=1 runs > runs.txt``, common in CI)."""
+    if writes_to_a_terminal(console):
         return console
     from rich.measure import Measurement  # noqa: PLC0415
     from rich.text import Text  # noqa: PLC0415

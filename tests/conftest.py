@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import io
 import json
 import os
 import shutil
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
@@ -17,6 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 from hypothesis import settings
+from typer.testing import CliRunner
 
 # Property tests draw the same examples on every run and machine (CI's failure is the one a developer gets), and
 # keep no example database in the checkout: a derandomized profile, the default unless HYPOTHESIS_PROFILE names another.
@@ -66,6 +69,27 @@ def default_grid_bound() -> Iterator[None]:
     set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
     yield
     set_max_grid_cells(DEFAULT_MAX_GRID_CELLS)
+
+
+class TerminalFile(io.StringIO):
+    """A fake terminal for rich's console: its text kept as a StringIO's, and ``isatty()`` true, as
+    ``live_view.writes_to_a_terminal`` tells a terminal (``force_terminal`` alone no longer makes one: a file under
+    ``FORCE_COLOR`` is laid out as a file)."""
+
+    def isatty(self) -> bool:
+        return True
+
+
+class TerminalRunner(CliRunner):
+    """Typer's ``CliRunner`` whose stdout and stderr are a terminal (``isatty()`` true, ``live_view.writes_to_a_terminal``),
+    for a command's output as on a terminal; give ``TTY_COMPATIBLE``/``FORCE_COLOR`` too for rich's own idea of one."""
+
+    @contextlib.contextmanager
+    def isolation(self, *args: Any, **kwargs: Any) -> Iterator[Any]:
+        with super().isolation(*args, **kwargs) as streams:
+            for stream in (sys.stdout, sys.stderr):
+                stream.isatty = lambda: True  # type: ignore[method-assign]
+            yield streams
 
 
 def super_large_summary() -> dict:

@@ -36,7 +36,7 @@ from cso_runtime.map_files import load_map
 from cso_runtime.policies import make_policy
 from cso_runtime.scenes import builtin_scene_dir, load_floor_plan, resolve_scenes
 from cso_runtime.simulator import KinematicSimulator
-from tests.conftest import super_large_summary, two_rooms, unset_weights_env
+from tests.conftest import TerminalFile, super_large_summary, two_rooms, unset_weights_env
 
 
 def test_greedy_dist_explores_two_rooms_completely():
@@ -869,7 +869,6 @@ def test_the_console_tables_on_an_80_column_terminal_cut_no_number(tmp_path: Pat
     """On an 80-column terminal Table 1's nine columns did not fit even without the spreads: rich cut its cells,
     and the m2/step of the run read ``3.3…``, its coverage ``13.…``. A table too wide for the terminal is said one
     line per row instead (each value after its column's name), so no number is cut; the comparison's too."""
-    import io
 
     from rich.console import Console
 
@@ -878,14 +877,14 @@ def test_the_console_tables_on_an_80_column_terminal_cut_no_number(tmp_path: Pat
 
     summary = super_large_summary()
     for width, table in ((80, False), (200, True)):
-        screen = io.StringIO()
+        screen = TerminalFile()
         monkeypatch.setattr(evaluation, "table_console", lambda w=width, f=screen: Console(file=f, width=w, force_terminal=True, color_system=None))
         print_summary(summary, tmp_path)
         out = screen.getvalue()
         assert "…" not in out, out
         assert ("│ greedy-dist │" in out) == table, out  # a wide terminal keeps the tables
         assert max(len(line) for line in out.splitlines()) <= width or not table, out
-    narrow = io.StringIO()
+    narrow = TerminalFile()
     monkeypatch.setattr(evaluation, "table_console", lambda: Console(file=narrow, width=80, force_terminal=True, color_system=None))
     print_summary(summary, tmp_path)
     said = " ".join(narrow.getvalue().split())
@@ -2124,14 +2123,13 @@ def test_the_console_table_shows_the_spread_when_it_fits_and_the_means_alone_whe
         return {"method": "greedy-dist", "map": f"plan_{m2}", "seed": 0, "scale": "small", "traversable_area_m2": m2, "terminated_by": "coverage", "explored_area_m2": m2, "coverage_pct": m2,
                 "steps": 100, "efficiency_m2_per_step": m2 / 100, "path_length_m": 10.0, "decision_ms_p50": 2.0, "decision_ms_p99": 3.0}
 
-    import io
 
     from rich.console import Console
 
     from cso_runtime import evaluation
 
     def on_a_terminal(columns: int) -> str:  # off one (capsys: a file) the table is as wide as its spreads need
-        screen = io.StringIO()
+        screen = TerminalFile()
         monkeypatch.setattr(evaluation, "table_console", lambda: Console(file=screen, width=columns, force_terminal=True, color_system=None))
         print_summary(summary, tmp_path)
         return screen.getvalue()

@@ -21,6 +21,7 @@ from cso_runtime.run_profile import load_profile
 from cso_runtime.supervision import pid_alive, python_module_argv
 from services.common import Service, _dispatch
 from services.dataflow import missing_producers
+from tests.conftest import TerminalRunner
 from tests.own_service_example import CoverageLogger
 from tests.test_runtime import PROFILES, REPO, SCENE, in_process_result, kill_leftovers, run_pids
 from tests.test_service_logic import _explorer_at, _inputs, _service
@@ -245,14 +246,14 @@ def test_dataflow_names_each_service_of_ones_own_by_its_whole_class_on_an_80_col
     """docs/own-service.md: ``dataflow --profile own.yaml`` shows "the graph with both, each named with its class". On
     an 80-column terminal the table cut the class to ``(tests.own_service_exa…``, so the user could not see which class
     ran: the node column wraps a long label instead."""
-    from typer.testing import CliRunner
 
     from cso_runtime.cli import app
 
     profile = tmp_path / "own.yaml"
     profile.write_text(docs_block("yaml")[0])
-    # a terminal: TTY_COMPATIBLE for rich 14 on, FORCE_COLOR for rich 13 (pyproject's rich>=13), which has no TTY_COMPATIBLE
-    r = CliRunner().invoke(app, ["dataflow", "--profile", str(profile)], env={"COLUMNS": "80", "TTY_COMPATIBLE": "1", "FORCE_COLOR": "1", "NO_COLOR": "1"})
+    # a terminal: TerminalRunner's output (isatty() true); TTY_COMPATIBLE for rich 14 on, FORCE_COLOR for rich 13
+    # (pyproject's rich>=13), which has no TTY_COMPATIBLE, for rich's own idea of one
+    r = TerminalRunner().invoke(app, ["dataflow", "--profile", str(profile)], env={"COLUMNS": "80", "TTY_COMPATIBLE": "1", "FORCE_COLOR": "1", "NO_COLOR": "1"})
     assert r.exit_code == 0, r.output
     assert "…" not in r.output, r.output
     lines = re.sub(r"\x1b\[[0-9;]*m", "", r.output).splitlines()

@@ -16,12 +16,13 @@ from rich.table import Table
 from typer.testing import CliRunner
 
 from cso_runtime.cli import app
-from tests.conftest import super_large_summary
+from tests.conftest import TerminalFile, TerminalRunner, super_large_summary
 
 NO_TERMINAL = {"COLUMNS": "80", "FORCE_COLOR": None, "TTY_COMPATIBLE": None}
 """CliRunner's output, whatever the environment the tests run in (None: unset): no terminal, as a file or a pipe."""
 TERMINAL = {"COLUMNS": "80", "TTY_COMPATIBLE": "1", "FORCE_COLOR": "1", "NO_COLOR": "1"}
-"""An 80-column terminal (TTY_COMPATIBLE for rich 14, FORCE_COLOR for rich 13)."""
+"""An 80-column terminal, with ``TerminalRunner`` (whose output's ``isatty()`` is true; TTY_COMPATIBLE for rich 14,
+FORCE_COLOR for rich 13, for rich's own idea of one)."""
 LONG_SCENE = "/data/plans/" + "/".join(f"building_{i}_floor_plans_scanned_in_2026" for i in range(4)) + "/level_3.yaml"
 LONG_REASON = "refused: " + ", ".join(f"service policy_{i} could not import tests.own_service_example:OwnPolicy{i}" for i in range(3))
 
@@ -50,9 +51,32 @@ def test_runs_written_to_a_file_keeps_a_long_scene_and_reason_on_their_lines(tmp
     assert any(f"{LONG_SCENE}, cso" in line for line in lines), r.output
     row = next(line for line in lines if "20261207-090000-map-r0" in line)
     assert f"failed: {LONG_REASON}" in row and "m2/step" in r.output, r.output
-    on_a_terminal = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env=TERMINAL)
+    on_a_terminal = TerminalRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env=TERMINAL)
     assert on_a_terminal.exit_code == 0 and max(len(line) for line in plain(on_a_terminal.output)) <= 80, on_a_terminal.output
     assert not any(LONG_SCENE in line for line in plain(on_a_terminal.output)), on_a_terminal.output  # folded there, as before
+
+
+def test_force_color_off_a_terminal_keeps_the_colours_and_lays_the_table_out_as_a_files(tmp_path: Path):
+    """``FORCE_COLOR=1 cso-runtime runs > runs.txt`` (CI sets FORCE_COLOR for coloured logs) still folded the table at
+    80 columns: rich takes a forced colour for a terminal. Off a terminal is the output's own ``isatty()``
+    (``live_view.writes_to_a_terminal``): the table is as wide as its cells, coloured as FORCE_COLOR asks; and a
+    forced terminal console writing to a file is laid out as a file's."""
+    from cso_runtime.live_view import fit_off_a_terminal, writes_to_a_terminal
+
+    runs = tmp_path / "runs"
+    a_failed_run(runs, "20261207-090000-map-r0")
+    r = CliRunner().invoke(app, ["runs", "--runs-dir", str(runs)], env={"COLUMNS": None, "FORCE_COLOR": "1", "TTY_COMPATIBLE": None, "NO_COLOR": None})
+    assert r.exit_code == 0 and "\x1b[" in r.output, r.output  # coloured, as asked
+    lines = plain(r.output)
+    assert any(f"{LONG_SCENE}, cso" in line for line in lines), r.output
+    assert any(f"failed: {LONG_REASON}" in line for line in lines), r.output
+    forced = Console(file=io.StringIO(), width=80, force_terminal=True)
+    assert forced.is_terminal and not writes_to_a_terminal(forced)
+    wide = Table()
+    wide.add_column("reason", overflow="fold")
+    wide.add_row(LONG_REASON)
+    assert fit_off_a_terminal(forced, wide).width == len(LONG_REASON) + 4
+    assert writes_to_a_terminal(Console(file=TerminalFile())) and not writes_to_a_terminal(Console(file=io.StringIO(), force_terminal=True))
 
 
 def test_doctor_written_to_a_file_keeps_each_checks_detail_on_its_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
@@ -63,7 +87,7 @@ def test_doctor_written_to_a_file_keeps_each_checks_detail_on_its_line(tmp_path:
     monkeypatch.setattr(doctor, "checks", lambda runs_dir: [("runs folder", lambda: detail)])
     r = CliRunner().invoke(app, ["doctor", "--runs-dir", str(tmp_path)], env=NO_TERMINAL)
     assert r.exit_code == 0 and any(detail in line for line in plain(r.output)), r.output
-    on_a_terminal = CliRunner().invoke(app, ["doctor", "--runs-dir", str(tmp_path)], env=TERMINAL)
+    on_a_terminal = TerminalRunner().invoke(app, ["doctor", "--runs-dir", str(tmp_path)], env=TERMINAL)
     assert on_a_terminal.exit_code == 0 and max(len(line) for line in plain(on_a_terminal.output)) <= 80, on_a_terminal.output
 
 
@@ -78,7 +102,7 @@ def test_scenes_written_to_a_file_keeps_a_long_plan_name_on_its_line(tmp_path: P
     lines = plain(r.output)
     assert any(name in line and "unusable" not in line for line in lines), r.output
     assert any(f"scenes of {tmp_path}" in line for line in lines), r.output
-    on_a_terminal = CliRunner().invoke(app, ["scenes", str(tmp_path)], env=TERMINAL)  # folded there, as before
+    on_a_terminal = TerminalRunner().invoke(app, ["scenes", str(tmp_path)], env=TERMINAL)  # folded there, as before
     assert "wing0_second_f" in on_a_terminal.output and not any(name in line for line in plain(on_a_terminal.output)), on_a_terminal.output
 
 
@@ -92,7 +116,7 @@ def test_status_written_to_a_file_keeps_a_long_scene_and_reason_on_their_lines(t
     monkeypatch.setattr(status_module, "reachable_target", lambda *args, **kwargs: (["tcp/127.0.0.1:7447"], "r0", None))
     monkeypatch.setattr(status_module, "query_status", lambda *args, **kwargs: dict(seen))
     for terminal in (False, True):
-        out = io.StringIO()
+        out = TerminalFile() if terminal else io.StringIO()
         console = Console(file=out, width=80, force_terminal=terminal, color_system=None)
         assert status_main([], "r0", as_json=False, watch=False, runs_dir=tmp_path, console=console) == 0
         lines = plain(out.getvalue())
@@ -122,7 +146,7 @@ def test_eval_results_tables_written_to_a_file_are_whole_tables_with_no_cell_cut
     header = next(line for line in lines if "metric number 0" in line)
     row = next(line for line in lines if "cso-no-info" in line)
     assert "│" in row and "metric number 11" in header and row.count("± 0.0425") == 12 and "…" not in out.getvalue(), out.getvalue()  # one row
-    terminal = io.StringIO()
+    terminal = TerminalFile()
     print_table_or_rows(Console(file=terminal, width=80, force_terminal=True, color_system=None), table(), labels=1)
     assert "cso-no-info: metric number 0 1000.5678 ± 0.0425" in terminal.getvalue(), terminal.getvalue()
 
@@ -140,7 +164,7 @@ def test_fit_off_a_terminal_widens_for_cells_and_title_and_leaves_a_terminal_as_
     wide.add_row(LONG_REASON)
     assert fit_off_a_terminal(Console(file=io.StringIO(), width=80), wide).width == len(LONG_REASON) + 4  # its borders and padding
     assert fit_off_a_terminal(Console(file=io.StringIO(), width=80), Table()).width == 120  # never under 120: the last columns whole
-    on = Console(file=io.StringIO(), width=80, force_terminal=True)
+    on = Console(file=TerminalFile(), width=80, force_terminal=True)
     kept = Table(title="runs in " + LONG_SCENE)
     assert fit_off_a_terminal(on, kept, wide).width == 80 and kept.min_width is None
 
@@ -157,7 +181,7 @@ def test_ups_last_table_written_to_a_file_keeps_a_long_scene_and_reason_on_their
     launcher = Launcher(profile, data, tmp_path / "run")
     launcher.status = EpisodeStatusMsg(state="exploring", step=3, scene=LONG_SCENE, method="greedy-dist", reason=LONG_REASON)
     for terminal in (False, True):
-        out = io.StringIO()
+        out = TerminalFile() if terminal else io.StringIO()
         view = LiveView(launcher, console=Console(file=out, width=80, force_terminal=terminal, color_system=None))
         view.start()
         view.stop()
@@ -178,7 +202,7 @@ def test_eval_table_1_written_to_a_file_keeps_its_spreads_however_wide(tmp_path:
 
     summary = super_large_summary()
     for terminal in (False, True):
-        out = io.StringIO()
+        out = TerminalFile() if terminal else io.StringIO()
         monkeypatch.setattr(evaluation, "table_console", lambda f=out, t=terminal: Console(file=f, width=80 if t else 120, force_terminal=t, color_system=None))
         print_summary(summary, tmp_path)
         lines = plain(out.getvalue())

@@ -69,7 +69,7 @@ from cso_runtime.transport import (
     loopback_endpoint,
     open_session,
 )
-from tests.conftest import HANG_DEADLINE_S, unset_weights_env
+from tests.conftest import HANG_DEADLINE_S, TerminalFile, unset_weights_env
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILES = REPO / "cso_runtime" / "profiles"
@@ -3262,7 +3262,7 @@ def test_log_lines_during_the_live_view_print_above_the_table_not_inside_it(tmp_
 
     profile, data = load_profile(str(find_profile("lockstep")), {})
     launcher = Launcher(profile, data, tmp_path / "run")
-    terminal = io.StringIO()
+    terminal = TerminalFile()
     handler = logging.StreamHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger()
@@ -4048,7 +4048,7 @@ def test_status_watch_redraws_one_table_on_a_terminal_and_appends_plain_tables_e
     answers = iter([at(3), at(4), at(5), None])
     monkeypatch.setattr(status, "query_status", lambda connect, robot, timeout_s=0.6, zenoh_config_file=None: next(answers))
     monkeypatch.setattr(status.time, "sleep", lambda s: None)
-    out = io.StringIO()
+    out = TerminalFile() if terminal else io.StringIO()
     console = Console(file=out, force_terminal=terminal, width=80, height=40, color_system=None)
     code = status.status_main([loopback_endpoint(7447)], "r0", as_json=False, watch=True, runs_dir=Path("."), period_s=0.1, console=console)
     text = out.getvalue()
