@@ -283,11 +283,16 @@ def test_a_bridge_killed_outright_leaves_the_robot_stopped_by_the_launcher(tmp_p
     with open_session(TransportConfig(mode="router", listen=[loopback_endpoint(port)])) as robot:
         sub = robot.declare_subscriber("limo1/cmd_vel", lambda s: twists.append((time.monotonic(), s.payload.to_bytes())))
 
+        first_start: list[str] = []  # the token of the bridge's first start (its incarnation's key)
+
         def on_alive(sample) -> None:
-            if killed_at and sample.kind == zenoh.SampleKind.PUT:  # the restarted bridge's token
+            # The restarted bridge's token is the one of another start (``alive/ros2_bridge/<incarnation>``): a PUT of
+            # the first start's token heard again after the kill (a router re-announcing it as the links change) is
+            # no restart.
+            if killed_at and sample.kind == zenoh.SampleKind.PUT and str(sample.key_expr) not in first_start:
                 bridge_back.append(time.monotonic())
 
-        alive = robot.liveliness().declare_subscriber(keys.alive("ros2_bridge"), on_alive)
+        alive = robot.liveliness().declare_subscriber(keys.alive_incarnation("ros2_bridge", "*"), on_alive)
         try:
             up = subprocess.Popen(
                 [
@@ -297,6 +302,10 @@ def test_a_bridge_killed_outright_leaves_the_robot_stopped_by_the_launcher(tmp_p
                 cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
             )  # fmt: skip
             wait_for(lambda: any(r.ok for r in robot.liveliness().get(keys.alive("ros2_bridge"), timeout=0.5)), 60, "the bridge")
+            wait_for(
+                lambda: first_start.extend(str(r.ok.key_expr) for r in robot.liveliness().get(keys.alive_incarnation("ros2_bridge", "*"), timeout=0.5) if r.ok) or first_start,
+                10, "the token of the bridge's first start",
+            )  # fmt: skip
             (run_file,) = runs.glob("*/run.json")
             pid = int(json.loads(run_file.read_text())["services"]["ros2_bridge"]["pid"])
             assert not twists, "the bridge had nothing to command: no Twist of its own"
@@ -314,6 +323,8 @@ def test_a_bridge_killed_outright_leaves_the_robot_stopped_by_the_launcher(tmp_p
 
             st = wait_for(lambda: (s := status()) and s.get("restarts") == 1 and s, 30, "the restarted bridge")
             assert st["robot_stops"] == 1, st
+            wait_for(lambda: bridge_back, 30, "the token of the restarted bridge's start")
+            assert t_zero < bridge_back[0], "the zero Twist went out before the restarted bridge came up"
         finally:
             if up is not None and up.poll() is None:
                 os.killpg(up.pid, signal.SIGINT)  # the launcher stops its services
