@@ -94,6 +94,23 @@ def test_unreachable_cells_are_infinite():
     assert d.max() == np.inf and np.nanmax(d[np.isfinite(d)]) < 10.0
 
 
+@pytest.mark.parametrize("within_m", [None, 1.0])
+@pytest.mark.parametrize(("x_m", "y_m"), [(2.98, 1.0), (2.93, 1.0), (1.0, 1.98), (1.0, 1.93), (2.99, 1.99), (0.01, 0.01)])
+def test_a_source_within_two_cells_of_any_map_edge_gets_a_distance_map(x_m, y_m, within_m):
+    """A robot near the top or right edge of its map (a SLAM map that has not grown past it yet): the 5 x 5 patch
+    around the source was cut by the map on one side only, and fast marching failed with a broadcast ValueError."""
+    g = GridGeometry(0.05, (40, 60))  # 3 x 2 m
+    traversable = np.ones(g.shape, dtype=bool)
+    d = geodesic_distance(traversable, g, np.array([x_m, y_m]), within_m)
+    iy, ix = (int(v) for v in g.world_to_cell(x_m, y_m))
+    assert d[iy, ix] < g.resolution_m
+    cx, cy = g.cell_to_world(*np.nonzero(np.isfinite(d)))
+    straight = np.hypot(cx - x_m, cy - y_m)
+    assert np.allclose(d[np.isfinite(d)], straight, atol=0.02)  # open space: fast marching's straight line
+    if within_m is None:
+        assert np.isfinite(d).all()
+
+
 def test_inflation_and_traversable_keep_unknown_uninflated():
     g = GridGeometry(0.1, (20, 20))
     occ = np.zeros(g.shape, dtype=bool)
