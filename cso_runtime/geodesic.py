@@ -53,8 +53,8 @@ def inflate(occupied: np.ndarray, radius_m: float, resolution_m: float) -> np.nd
         return out
     ny, nx = occupied.shape
     for dy, dx in disk_offsets(r):
-        if dy == 0 and dx == 0:
-            continue
+        if (dy == 0 and dx == 0) or abs(dy) >= ny or abs(dx) >= nx:
+            continue  # itself, or a shift off the grid (a grid narrower than the disk): a slice end would go negative
         out[max(dy, 0) : ny + min(dy, 0), max(dx, 0) : nx + min(dx, 0)] |= occupied[
             max(-dy, 0) : ny + min(-dy, 0), max(-dx, 0) : nx + min(-dx, 0)
         ]

@@ -6,9 +6,10 @@ import math
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from cso_runtime.frontiers import frontier_cells, frontier_components, frontier_entropy
-from cso_runtime.geodesic import geodesic_distance, inflate, traversable_cells
+from cso_runtime.geodesic import disk, geodesic_distance, inflate, traversable_cells
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
@@ -122,6 +123,18 @@ def test_inflation_and_traversable_keep_unknown_uninflated():
     t = traversable_cells(open_cells & ~occ, occ, 0.2, 0.1)
     assert t[5, 3]  # next to unknown is still traversable
     assert not t[10, 11]
+
+
+@pytest.mark.parametrize("shape", [(24, 2), (2, 24), (1, 1), (3, 3), (5, 9)])
+def test_inflation_of_a_map_narrower_than_the_robot_is_the_disk_dilation(shape):
+    """A grid fewer cells wide than the inflation radius (a SLAM map's first scans): a disk offset as long as the grid
+    made a slice end negative, which wrapped round, and the shifted OR failed with a broadcast ValueError."""
+    occ = np.zeros(shape, dtype=bool)
+    occ[shape[0] // 2, shape[1] // 2] = True
+    occ[0, 0] = True
+    for radius_m, cells in [(0.2, 4), (0.1, 2), (0.05, 1)]:
+        expected = ndimage.binary_dilation(occ, structure=disk(cells))
+        assert (inflate(occ, radius_m, 0.05) == expected).all()
 
 
 def test_entropy_counts_frontier_cells_in_window():
