@@ -53,8 +53,8 @@ def inflate(occupied: np.ndarray, radius_m: float, resolution_m: float) -> np.nd
         return out
     ny, nx = occupied.shape
     for dy, dx in disk_offsets(r):
-        if dy == 0 and dx == 0:
-            continue
+        if (dy == 0 and dx == 0) or abs(dy) >= ny or abs(dx) >= nx:
+            continue  # itself, or a shift off the grid (a grid narrower than the disk): a slice end would go negative
         out[max(dy, 0) : ny + min(dy, 0), max(dx, 0) : nx + min(dx, 0)] |= occupied[
             max(-dy, 0) : ny + min(-dy, 0), max(-dx, 0) : nx + min(-dx, 0)
         ]
@@ -131,7 +131,8 @@ def geodesic_distance(traversable: np.ndarray, geometry: GridGeometry, source_xy
     # it needs true values; everywhere else any positive number will do): FMM measures from it.
     r0 = 0.75 * res
     phi = np.ones(sub.shape)
-    py, px = slice(max(ly - 2, 0), ly + 3), slice(max(lx - 2, 0), lx + 3)
+    # cut to the map on every side (the box may reach past its top or right edge: a robot 2 cells from it)
+    py, px = slice(max(ly - 2, 0), min(ly + 3, sub.shape[0])), slice(max(lx - 2, 0), min(lx + 3, sub.shape[1]))
     pys, pxs = np.mgrid[py, px]
     cx, cy = geometry.cell_to_world(pys + by.start, pxs + bx.start)
     near = np.hypot(cx - source_xy_m[0], cy - source_xy_m[1])

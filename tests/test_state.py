@@ -6,9 +6,10 @@ import math
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from cso_runtime.frontiers import frontier_cells, frontier_components, frontier_entropy
-from cso_runtime.geodesic import geodesic_distance, inflate, traversable_cells
+from cso_runtime.geodesic import disk, geodesic_distance, inflate, traversable_cells
 from cso_runtime.geometry import GridGeometry, Pose2D
 from cso_runtime.observation import ObservationBuilder
 from cso_runtime.occupancy import OccupancyMap
@@ -94,6 +95,23 @@ def test_unreachable_cells_are_infinite():
     assert d.max() == np.inf and np.nanmax(d[np.isfinite(d)]) < 10.0
 
 
+@pytest.mark.parametrize("within_m", [None, 1.0])
+@pytest.mark.parametrize(("x_m", "y_m"), [(2.98, 1.0), (2.93, 1.0), (1.0, 1.98), (1.0, 1.93), (2.99, 1.99), (0.01, 0.01)])
+def test_a_source_within_two_cells_of_any_map_edge_gets_a_distance_map(x_m, y_m, within_m):
+    """A robot near the top or right edge of its map (a SLAM map that has not grown past it yet): the 5 x 5 patch
+    around the source was cut by the map on one side only, and fast marching failed with a broadcast ValueError."""
+    g = GridGeometry(0.05, (40, 60))  # 3 x 2 m
+    traversable = np.ones(g.shape, dtype=bool)
+    d = geodesic_distance(traversable, g, np.array([x_m, y_m]), within_m)
+    iy, ix = (int(v) for v in g.world_to_cell(x_m, y_m))
+    assert d[iy, ix] < g.resolution_m
+    cx, cy = g.cell_to_world(*np.nonzero(np.isfinite(d)))
+    straight = np.hypot(cx - x_m, cy - y_m)
+    assert np.allclose(d[np.isfinite(d)], straight, atol=0.02)  # open space: fast marching's straight line
+    if within_m is None:
+        assert np.isfinite(d).all()
+
+
 def test_inflation_and_traversable_keep_unknown_uninflated():
     g = GridGeometry(0.1, (20, 20))
     occ = np.zeros(g.shape, dtype=bool)
@@ -105,6 +123,18 @@ def test_inflation_and_traversable_keep_unknown_uninflated():
     t = traversable_cells(open_cells & ~occ, occ, 0.2, 0.1)
     assert t[5, 3]  # next to unknown is still traversable
     assert not t[10, 11]
+
+
+@pytest.mark.parametrize("shape", [(24, 2), (2, 24), (1, 1), (3, 3), (5, 9)])
+def test_inflation_of_a_map_narrower_than_the_robot_is_the_disk_dilation(shape):
+    """A grid fewer cells wide than the inflation radius (a SLAM map's first scans): a disk offset as long as the grid
+    made a slice end negative, which wrapped round, and the shifted OR failed with a broadcast ValueError."""
+    occ = np.zeros(shape, dtype=bool)
+    occ[shape[0] // 2, shape[1] // 2] = True
+    occ[0, 0] = True
+    for radius_m, cells in [(0.2, 4), (0.1, 2), (0.05, 1)]:
+        expected = ndimage.binary_dilation(occ, structure=disk(cells))
+        assert (inflate(occ, radius_m, 0.05) == expected).all()
 
 
 def test_entropy_counts_frontier_cells_in_window():
