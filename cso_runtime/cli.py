@@ -666,9 +666,13 @@ def _count_progress(label: str, unit: str = "messages") -> Iterator[Callable[[in
     from rich.console import Console  # noqa: PLC0415
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
+    from cso_runtime.live_view import writes_to_a_terminal  # noqa: PLC0415
+
     console = Console(stderr=True)
+    # A terminal is the output's own isatty(): under FORCE_COLOR rich takes a file for one, and the bar's redraws
+    # (cursor moves, line erases) landed in the log.
     with Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn(unit), TimeElapsedColumn(),
-                  console=console, disable=not console.is_terminal, transient=True) as bar:
+                  console=console, disable=not writes_to_a_terminal(console), transient=True) as bar:
         task = bar.add_task("", total=None)
         yield lambda done, total: bar.update(task, completed=done, total=total)
 
