@@ -179,6 +179,12 @@ def interrupt_on_sigterm(wait_on_second: bool = False, stop_deadline_s: float | 
 
     from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
 
+    if stop_deadline_s is not None:
+        # Bound now, before the handler is in place, not imported in it: an import in a signal handler waits on the
+        # import lock, which the main thread it interrupted may hold (a signal in the middle of an import), and
+        # processes is not imported at module level as it costs the CLI's start-up (multiprocessing, concurrent.futures).
+        from cso_runtime.processes import end_overdue_stop  # noqa: PLC0415
+
     stop_signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     received = 0
 
@@ -201,8 +207,6 @@ def interrupt_on_sigterm(wait_on_second: bool = False, stop_deadline_s: float | 
         if received == 1:
             atexit.register(ignore_stop_signals)  # last registered, first run: the rest of the exit included
             if stop_deadline_s is not None:
-                from cso_runtime.processes import end_overdue_stop  # noqa: PLC0415
-
                 end_overdue_stop(stop_deadline_s, EXIT_INTERRUPTED, last_words)
         elif received == 2 and wait_on_second:
             try:

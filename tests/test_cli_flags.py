@@ -813,3 +813,51 @@ def test_train_records_a_command_that_runs_again_with_one_pair_a_field(tmp_path:
     assert [w for w in words if w.startswith("gamma=")] == ["gamma=0.95"], commands[-1]
     code, said = train(tmp_path, *words[2:])
     assert code == 0 and shlex.split(commands[-1]) == words, said
+
+
+def test_the_stop_signals_handler_imports_nothing(monkeypatch: pytest.MonkeyPatch):
+    """``interrupt_on_sigterm``'s handler imported ``processes.end_overdue_stop`` at ``train``'s first stop signal: an
+    import in a signal handler waits on the import lock, which the main thread it interrupted may hold (the signal
+    landing in an import), so the stop could hang before its bound was even set. It is bound with the handler, before
+    any signal; the handler imports nothing, and bounds the stop as before."""
+    import atexit
+    import builtins
+    import signal
+
+    from cso_runtime import cli, processes
+    from cso_runtime.config import EXIT_INTERRUPTED
+
+    bounded: list[tuple] = []
+    monkeypatch.setattr(processes, "end_overdue_stop", lambda *args: bounded.append(args))  # no watch thread that ends pytest
+    monkeypatch.setattr(atexit, "register", lambda fn: fn)  # the test's process keeps its own end
+
+    def words() -> str:
+        return "interrupted; continue with --resume"
+
+    signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    kept = {sig: signal.getsignal(sig) for sig in signals}
+    try:
+        stop_requested = cli.interrupt_on_sigterm(wait_on_second=True, stop_deadline_s=60.0, last_words=words)
+        handler = signal.getsignal(signal.SIGTERM)
+    finally:
+        for sig, previous in kept.items():
+            signal.signal(sig, previous)
+    assert callable(handler) and not stop_requested()
+    imported: list[str] = []
+    real_import = builtins.__import__
+
+    def tracked(name: str, *args: object, **kwargs: object) -> object:
+        imported.append(name)
+        return real_import(name, *args, **kwargs)  # type: ignore[arg-type]
+
+    interrupted = False
+    builtins.__import__ = tracked
+    try:
+        handler(signal.SIGTERM, None)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        builtins.__import__ = real_import
+    assert interrupted and stop_requested()
+    assert imported == [], imported
+    assert bounded == [(60.0, EXIT_INTERRUPTED, words)], bounded
