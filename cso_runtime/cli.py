@@ -1595,6 +1595,7 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         else:
             data = load_yaml(config) if config is not None else {}
         data.update({**(fixed or {}), **{k: v for k, v in overrides.items() if v is not None}})
+        unset = dict(data)  # the configuration before the --set pairs: what a hint's values are weighed against
         pairs = parse_settings(settings or [], last_counts=True)  # field flags and --set, checked against each other
         data.update(pairs)
         if data.get("resume") and overrides.get("out_dir") is None and "out_dir" not in pairs:
@@ -1603,26 +1604,46 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         flags = training_flags(overrides, settings)
         if flags:
             where += " with " + " ".join(" ".join(words) for words in flags)
+
+        def check(args: Args) -> None:
+            """What is checked of the configuration once it is read, before anything starts (a ConfigError or ValueError):
+            the one check of the command and of the values a hint suggests."""
+            training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
+            check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
+            if args.resume and args.init_from:  # a resume reads no init_from: other weights than its run's are refused
+                if "init_from" in pairs:
+                    said = set_said(pairs, "init_from")
+                elif overrides.get("init_from") is not None:
+                    said = " ".join(_flag_of("init_from", overrides["init_from"]))
+                else:
+                    said = f"init_from {args.init_from} in {config}"
+                if problem := init_from_with_resume_problem(args, said):
+                    raise ConfigError(problem)
+
         if pairs:  # `--set out_dir=2024` alone: how to write it, as `up` and `eval` say it, where the text is taken
 
+            def refusal(values: dict[str, object]) -> str | None:
+                try:
+                    check(from_dict(Args, values, where))
+                except (ConfigError, ValueError) as exc:
+                    return str(exc)
+                return None
+
             def takes(texts: dict[str, object]) -> object:  # the configuration with those values as text (no hint again)
-                return from_dict(Args, {**data, **texts}, where)
+                taken = from_dict(Args, {**data, **texts}, where)
+                # Taken by the check too (`--set generated=1` suggested generated='1', no scene spec; `init_from=1`, no
+                # file), unless what the check refuses is not theirs: the configuration without those --set has it too.
+                if (refused := refusal({**data, **texts})) is not None:
+                    without = {k: v for k, v in data.items() if k not in texts} | {k: unset[k] for k in texts if k in unset}
+                    if refused != refusal(without):
+                        raise ConfigError(refused)
+                return taken
 
             refuse_a_setting_read_as_another_type(pairs, field_types(Args), takes)
         args = from_dict_with_hints(Args, data, where)
         if config is not None and not data.get("resume"):  # once the configuration is taken: an error alone is one line
             _say_fields_left_at_defaults(config, data)
-        training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
-        check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
-        if args.resume and args.init_from:  # a resume reads no init_from: other weights than its run's are refused
-            if "init_from" in pairs:
-                said = set_said(pairs, "init_from")
-            elif overrides.get("init_from") is not None:
-                said = " ".join(_flag_of("init_from", overrides["init_from"]))
-            else:
-                said = f"init_from {args.init_from} in {config}"
-            if problem := init_from_with_resume_problem(args, said):
-                raise ConfigError(problem)
+        check(args)
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     return args

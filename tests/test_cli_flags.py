@@ -421,13 +421,20 @@ def test_a_set_of_a_nested_key_read_as_a_number_where_the_field_is_text_says_how
     assert not (tmp_path / "runs").exists()
 
 
-def test_a_train_set_alone_read_as_a_number_where_the_field_is_text_says_how_to_write_it(tmp_path: Path, train_runs: list):
+def test_a_train_set_alone_read_as_a_number_where_the_field_is_text_says_how_to_write_it(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
     """docs/training.md: "``--set out_dir=2024`` is the number 2024, which the refusal says: ``--set out_dir='2024'``".
     Beside ``--out 2024`` it did; alone, ``train`` said "out_dir: expected a string, got 2024", and ``--set
     dungeon_dir=2024`` (a folder named for its year) "dungeon_dir: 2024 does not fit str | None", a Python type
-    where ``up --set robot=1`` alone says how to write it. ``train`` and ``collect-teacher`` say it as ``up`` does."""
-    from cso_runtime.cli import app
+    where ``up --set robot=1`` alone says how to write it. ``train`` and ``collect-teacher`` say it as ``up`` does
+    (where the folder is there: the hint's value passes the command's check, as
+    ``test_a_train_set_hint_suggests_only_a_value_the_training_check_takes`` says)."""
+    import shutil
 
+    from cso_runtime.cli import app
+    from cso_runtime.scenes import builtin_scene_dir
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(builtin_scene_dir(), tmp_path / "2024")  # a folder of plans named for its year
     for command, key in (("train", "out_dir"), ("train", "dungeon_dir"), ("collect-teacher", "dungeon_dir")):
         out = ["--out", str(tmp_path / "t.npz")] if command == "collect-teacher" else []
         r = CliRunner().invoke(app, [command, *out, "--set", f"{key}=2024"])
@@ -861,3 +868,33 @@ def test_the_stop_signals_handler_imports_nothing(monkeypatch: pytest.MonkeyPatc
     assert interrupted and stop_requested()
     assert imported == [], imported
     assert bounded == [(60.0, EXIT_INTERRUPTED, words)], bounded
+
+
+def test_a_train_set_hint_suggests_only_a_value_the_training_check_takes(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
+    """``train --set generated=1`` said "write --set generated='1'", and ``--set init_from=1`` "write --set
+    init_from='1'": each refused in turn ("scene spec '1' is not a folder, ...", "--init-from 1: no such file"), the
+    hint taken from the fields' types alone. A hint's values now pass the check the command makes of its configuration
+    before anything starts (``training_args``' ``check``: scenes, checkpoint, weights); else the value's own error is
+    said. A folder of plans named 2024 gets the hint, which runs; and a refusal that is not the value's (the config's
+    Dungeon folder missing) leaves the hint of ``out_dir=2024`` as it was."""
+    import shutil
+
+    from cso_runtime.scenes import builtin_scene_dir
+
+    monkeypatch.chdir(tmp_path)
+    for key in ("generated", "init_from", "resume"):
+        code, out = train(tmp_path, "--set", f"{key}=1")
+        assert code == 2 and "write --set" not in out and f"--set {key}=1" in out, (key, out)
+    shutil.copytree(builtin_scene_dir(), tmp_path / "2024")
+    code, out = train(tmp_path, "--set", "generated=2024")
+    assert code == 2 and "--set generated=2024 is read as a number, and generated is text: write --set generated='2024'" in out, out
+    code, out = train(tmp_path, "--set", "generated='2024'")
+    assert code == 0 and train_runs[-1].generated == ["2024"], out
+    no_dungeon = tmp_path / "no_dungeon.yaml"
+    no_dungeon.write_text("dungeon_dir: not_here\n")
+    from cso_runtime.cli import app
+
+    r = CliRunner().invoke(app, ["train", "--config", str(no_dungeon), "--set", "out_dir=2024"])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "--set out_dir=2024 is read as a number, and out_dir is text: write --set out_dir='2024'" in said, said
+    assert len(train_runs) == 1
