@@ -179,6 +179,12 @@ def interrupt_on_sigterm(wait_on_second: bool = False, stop_deadline_s: float | 
 
     from cso_runtime.config import EXIT_INTERRUPTED  # noqa: PLC0415
 
+    if stop_deadline_s is not None:
+        # Bound now, before the handler is in place, not imported in it: an import in a signal handler waits on the
+        # import lock, which the main thread it interrupted may hold (a signal in the middle of an import), and
+        # processes is not imported at module level as it costs the CLI's start-up (multiprocessing, concurrent.futures).
+        from cso_runtime.processes import end_overdue_stop  # noqa: PLC0415
+
     stop_signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
     received = 0
 
@@ -201,8 +207,6 @@ def interrupt_on_sigterm(wait_on_second: bool = False, stop_deadline_s: float | 
         if received == 1:
             atexit.register(ignore_stop_signals)  # last registered, first run: the rest of the exit included
             if stop_deadline_s is not None:
-                from cso_runtime.processes import end_overdue_stop  # noqa: PLC0415
-
                 end_overdue_stop(stop_deadline_s, EXIT_INTERRUPTED, last_words)
         elif received == 2 and wait_on_second:
             try:
@@ -666,9 +670,13 @@ def _count_progress(label: str, unit: str = "messages") -> Iterator[Callable[[in
     from rich.console import Console  # noqa: PLC0415
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
+    from cso_runtime.live_view import writes_to_a_terminal  # noqa: PLC0415
+
     console = Console(stderr=True)
+    # A terminal is the output's own isatty(): under FORCE_COLOR rich takes a file for one, and the bar's redraws
+    # (cursor moves, line erases) landed in the log.
     with Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn(unit), TimeElapsedColumn(),
-                  console=console, disable=not console.is_terminal, transient=True) as bar:
+                  console=console, disable=not writes_to_a_terminal(console), transient=True) as bar:
         task = bar.add_task("", total=None)
         yield lambda done, total: bar.update(task, completed=done, total=total)
 
@@ -1587,6 +1595,7 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         else:
             data = load_yaml(config) if config is not None else {}
         data.update({**(fixed or {}), **{k: v for k, v in overrides.items() if v is not None}})
+        unset = dict(data)  # the configuration before the --set pairs: what a hint's values are weighed against
         pairs = parse_settings(settings or [], last_counts=True)  # field flags and --set, checked against each other
         data.update(pairs)
         if data.get("resume") and overrides.get("out_dir") is None and "out_dir" not in pairs:
@@ -1595,26 +1604,46 @@ def training_args(config: Path | None, overrides: Mapping[str, object], settings
         flags = training_flags(overrides, settings)
         if flags:
             where += " with " + " ".join(" ".join(words) for words in flags)
+
+        def check(args: Args) -> None:
+            """What is checked of the configuration once it is read, before anything starts (a ConfigError or ValueError):
+            the one check of the command and of the values a hint suggests."""
+            training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
+            check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
+            if args.resume and args.init_from:  # a resume reads no init_from: other weights than its run's are refused
+                if "init_from" in pairs:
+                    said = set_said(pairs, "init_from")
+                elif overrides.get("init_from") is not None:
+                    said = " ".join(_flag_of("init_from", overrides["init_from"]))
+                else:
+                    said = f"init_from {args.init_from} in {config}"
+                if problem := init_from_with_resume_problem(args, said):
+                    raise ConfigError(problem)
+
         if pairs:  # `--set out_dir=2024` alone: how to write it, as `up` and `eval` say it, where the text is taken
 
+            def refusal(values: dict[str, object]) -> str | None:
+                try:
+                    check(from_dict(Args, values, where))
+                except (ConfigError, ValueError) as exc:
+                    return str(exc)
+                return None
+
             def takes(texts: dict[str, object]) -> object:  # the configuration with those values as text (no hint again)
-                return from_dict(Args, {**data, **texts}, where)
+                taken = from_dict(Args, {**data, **texts}, where)
+                # Taken by the check too (`--set generated=1` suggested generated='1', no scene spec; `init_from=1`, no
+                # file), unless what the check refuses is not theirs: the configuration without those --set has it too.
+                if (refused := refusal({**data, **texts})) is not None:
+                    without = {k: v for k, v in data.items() if k not in texts} | {k: unset[k] for k in texts if k in unset}
+                    if refused != refusal(without):
+                        raise ConfigError(refused)
+                return taken
 
             refuse_a_setting_read_as_another_type(pairs, field_types(Args), takes)
         args = from_dict_with_hints(Args, data, where)
         if config is not None and not data.get("resume"):  # once the configuration is taken: an error alone is one line
             _say_fields_left_at_defaults(config, data)
-        training_scene_refs(args)  # a missing plan folder or a bad scene spec is said now, not after the set-up
-        check_training_inputs(args)  # so are a device, checkpoint, weights or teacher data it cannot use
-        if args.resume and args.init_from:  # a resume reads no init_from: other weights than its run's are refused
-            if "init_from" in pairs:
-                said = set_said(pairs, "init_from")
-            elif overrides.get("init_from") is not None:
-                said = " ".join(_flag_of("init_from", overrides["init_from"]))
-            else:
-                said = f"init_from {args.init_from} in {config}"
-            if problem := init_from_with_resume_problem(args, said):
-                raise ConfigError(problem)
+        check(args)
     except (ConfigError, ValueError) as exc:
         _fail(str(exc), 2)
     return args

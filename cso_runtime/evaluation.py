@@ -1481,9 +1481,12 @@ class RichProgress:
     def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn  # noqa: PLC0415
 
-        from cso_runtime.live_view import console_that_survives_its_reader, progress_with_stats_below  # noqa: PLC0415
+        from cso_runtime.live_view import console_that_survives_its_reader, progress_with_stats_below, writes_to_a_terminal  # noqa: PLC0415
 
         console = console_that_survives_its_reader(stderr=True, tell=False)  # `eval ... | head`: the episodes go on
+        self.on_terminal = writes_to_a_terminal(console)
+        """A bar redrawn in place on a terminal; else (a log, CI, a pipe: the output's own ``isatty()``, not rich's
+        ``is_terminal``, which ``FORCE_COLOR`` makes true there) one plain line per episode, no cursor control."""
         # The last episode's result, then what is being written, on a line under the bar (the task's ``stats``): after
         # it, in an 80-column terminal, they squeezed the count and the times to nothing, as the training bar's figures did.
         self.progress = progress_with_stats_below(
@@ -1497,7 +1500,7 @@ class RichProgress:
             console=console,
             markup=True,
             get_time=clock,
-            disable=not console.is_terminal,  # logs and CI get one line per episode instead of a bar
+            disable=not self.on_terminal,  # logs and CI get one line per episode instead of a bar
         )
         self.task: TaskID | None = None
         """The bar's task, from ``start`` on."""
@@ -1543,7 +1546,7 @@ class RichProgress:
         assert self.task is not None  # start() came first
         fields: dict[str, Any] = {self.TIME_LEFT_FIELD: left}
         self.progress.update(self.task, advance=1, stats=text, **fields)
-        if not self.progress.console.is_terminal:  # logs and CI: one line per finished episode, with the bar's times
+        if not self.on_terminal:  # logs and CI: one line per finished episode, with the bar's times
             which = "" if self.label == "eval" else f"{escape(self.label.removeprefix('eval '))} "  # --seeds: the seed first
             self.progress.console.print(f"{which}{escape(f'[{self.done}/{self.total}]')} {text}{self.times_text(outcome)}", highlight=False, soft_wrap=True)  # one line, however long
 
@@ -1568,7 +1571,7 @@ class RichProgress:
         text = escape(f"writing {out}/: summary.json, episodes.csv, {f'curves of the {pooled_seeds} seeds pooled' if pooled_seeds else plots}")
         assert self.task is not None  # start() came first
         self.progress.update(self.task, stats=text)
-        if not self.progress.console.is_terminal:
+        if not self.on_terminal:
             self.progress.console.print(text, highlight=False, soft_wrap=True)
 
     def stop(self) -> None:
@@ -1724,7 +1727,7 @@ def run_eval_cli(request: EvalRequest, dry_run: bool = False, resolved: bool = F
         return 1 if unloadable else 0
     progress = RichProgress()
     out = Path(request.out_dir)
-    if not progress.progress.console.is_terminal:  # a log: what runs, before the first episode's line (minutes, on a large plan)
+    if not progress.on_terminal:  # a log: what runs, before the first episode's line (minutes, on a large plan)
         progress.progress.console.print(escape(eval_start_said(request, plan)), highlight=False, soft_wrap=True)
     try:
         summary = run_eval(request, progress, plan)

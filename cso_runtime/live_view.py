@@ -183,6 +183,10 @@ class LiveView:
         self.launcher = launcher
         self.console = console  # None: rich's console on stdout
         self._live: Live | None = None
+        """Rich's live display, on a terminal only (``writes_to_a_terminal``), from ``start`` on."""
+        self._in_a_file: Console | None = None
+        """Off a terminal (a file, a pipe, CI; under ``FORCE_COLOR`` too), the console the last table is written to
+        once, by ``stop``: no live display there, whose redraws (cursor moves, line erases) landed in the file."""
         self._last = 0.0
         self._rerouted: list[tuple[logging.StreamHandler, Any]] = []
         """Log handlers on stderr sent through the live display while it runs, with the stream to give back."""
@@ -269,6 +273,9 @@ class LiveView:
 
         stderr = sys.stderr
         console = self.console if self.console is not None else console_that_survives_its_reader()
+        if not writes_to_a_terminal(console):  # not rich's is_terminal, which FORCE_COLOR=1 (CI) makes true for a file
+            self._in_a_file = console
+            return
         self._live = Live(self.render(), console=console, refresh_per_second=4, transient=False)
         self._live.start()
         if sys.stderr is not stderr:
@@ -281,7 +288,7 @@ class LiveView:
     @property
     def on_terminal(self) -> bool:
         """The table is redrawn in place on a terminal; in a file it is written once, at the end."""
-        return self._live is not None and self._live.console.is_terminal
+        return self._live is not None
 
     def update(self) -> None:
         if self._live is not None and time.monotonic() - self._last > 0.25:
@@ -292,16 +299,19 @@ class LiveView:
                 self.terminal_gone(exc)
 
     def stop(self) -> None:
+        if self._in_a_file is not None:
+            console, self._in_a_file = self._in_a_file, None
+            try:
+                table = self.render()
+                fit_off_a_terminal(console, table).print(table)  # the last table, once: no cell folded
+            except OSError as exc:
+                self.terminal_gone(exc)
         if self._live is not None:
             live = self._live
             try:
-                table = self.render()
-                fit_off_a_terminal(live.console, table)  # in a file, the last table: no cell folded
-                live.update(table)
+                live.update(self.render())
                 self.give_back_log_streams()
                 live.stop()
-                if not live.console.is_terminal:  # rich ends the last table with a newline on a terminal only
-                    live.console.line()
             except OSError as exc:
                 self.terminal_gone(exc)
 

@@ -421,13 +421,20 @@ def test_a_set_of_a_nested_key_read_as_a_number_where_the_field_is_text_says_how
     assert not (tmp_path / "runs").exists()
 
 
-def test_a_train_set_alone_read_as_a_number_where_the_field_is_text_says_how_to_write_it(tmp_path: Path, train_runs: list):
+def test_a_train_set_alone_read_as_a_number_where_the_field_is_text_says_how_to_write_it(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
     """docs/training.md: "``--set out_dir=2024`` is the number 2024, which the refusal says: ``--set out_dir='2024'``".
     Beside ``--out 2024`` it did; alone, ``train`` said "out_dir: expected a string, got 2024", and ``--set
     dungeon_dir=2024`` (a folder named for its year) "dungeon_dir: 2024 does not fit str | None", a Python type
-    where ``up --set robot=1`` alone says how to write it. ``train`` and ``collect-teacher`` say it as ``up`` does."""
-    from cso_runtime.cli import app
+    where ``up --set robot=1`` alone says how to write it. ``train`` and ``collect-teacher`` say it as ``up`` does
+    (where the folder is there: the hint's value passes the command's check, as
+    ``test_a_train_set_hint_suggests_only_a_value_the_training_check_takes`` says)."""
+    import shutil
 
+    from cso_runtime.cli import app
+    from cso_runtime.scenes import builtin_scene_dir
+
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(builtin_scene_dir(), tmp_path / "2024")  # a folder of plans named for its year
     for command, key in (("train", "out_dir"), ("train", "dungeon_dir"), ("collect-teacher", "dungeon_dir")):
         out = ["--out", str(tmp_path / "t.npz")] if command == "collect-teacher" else []
         r = CliRunner().invoke(app, [command, *out, "--set", f"{key}=2024"])
@@ -813,3 +820,81 @@ def test_train_records_a_command_that_runs_again_with_one_pair_a_field(tmp_path:
     assert [w for w in words if w.startswith("gamma=")] == ["gamma=0.95"], commands[-1]
     code, said = train(tmp_path, *words[2:])
     assert code == 0 and shlex.split(commands[-1]) == words, said
+
+
+def test_the_stop_signals_handler_imports_nothing(monkeypatch: pytest.MonkeyPatch):
+    """``interrupt_on_sigterm``'s handler imported ``processes.end_overdue_stop`` at ``train``'s first stop signal: an
+    import in a signal handler waits on the import lock, which the main thread it interrupted may hold (the signal
+    landing in an import), so the stop could hang before its bound was even set. It is bound with the handler, before
+    any signal; the handler imports nothing, and bounds the stop as before."""
+    import atexit
+    import builtins
+    import signal
+
+    from cso_runtime import cli, processes
+    from cso_runtime.config import EXIT_INTERRUPTED
+
+    bounded: list[tuple] = []
+    monkeypatch.setattr(processes, "end_overdue_stop", lambda *args: bounded.append(args))  # no watch thread that ends pytest
+    monkeypatch.setattr(atexit, "register", lambda fn: fn)  # the test's process keeps its own end
+
+    def words() -> str:
+        return "interrupted; continue with --resume"
+
+    signals = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    kept = {sig: signal.getsignal(sig) for sig in signals}
+    try:
+        stop_requested = cli.interrupt_on_sigterm(wait_on_second=True, stop_deadline_s=60.0, last_words=words)
+        handler = signal.getsignal(signal.SIGTERM)
+    finally:
+        for sig, previous in kept.items():
+            signal.signal(sig, previous)
+    assert callable(handler) and not stop_requested()
+    imported: list[str] = []
+    real_import = builtins.__import__
+
+    def tracked(name: str, *args: object, **kwargs: object) -> object:
+        imported.append(name)
+        return real_import(name, *args, **kwargs)  # type: ignore[arg-type]
+
+    interrupted = False
+    builtins.__import__ = tracked
+    try:
+        handler(signal.SIGTERM, None)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        builtins.__import__ = real_import
+    assert interrupted and stop_requested()
+    assert imported == [], imported
+    assert bounded == [(60.0, EXIT_INTERRUPTED, words)], bounded
+
+
+def test_a_train_set_hint_suggests_only_a_value_the_training_check_takes(tmp_path: Path, train_runs: list, monkeypatch: pytest.MonkeyPatch):
+    """``train --set generated=1`` said "write --set generated='1'", and ``--set init_from=1`` "write --set
+    init_from='1'": each refused in turn ("scene spec '1' is not a folder, ...", "--init-from 1: no such file"), the
+    hint taken from the fields' types alone. A hint's values now pass the check the command makes of its configuration
+    before anything starts (``training_args``' ``check``: scenes, checkpoint, weights); else the value's own error is
+    said. A folder of plans named 2024 gets the hint, which runs; and a refusal that is not the value's (the config's
+    Dungeon folder missing) leaves the hint of ``out_dir=2024`` as it was."""
+    import shutil
+
+    from cso_runtime.scenes import builtin_scene_dir
+
+    monkeypatch.chdir(tmp_path)
+    for key in ("generated", "init_from", "resume"):
+        code, out = train(tmp_path, "--set", f"{key}=1")
+        assert code == 2 and "write --set" not in out and f"--set {key}=1" in out, (key, out)
+    shutil.copytree(builtin_scene_dir(), tmp_path / "2024")
+    code, out = train(tmp_path, "--set", "generated=2024")
+    assert code == 2 and "--set generated=2024 is read as a number, and generated is text: write --set generated='2024'" in out, out
+    code, out = train(tmp_path, "--set", "generated='2024'")
+    assert code == 0 and train_runs[-1].generated == ["2024"], out
+    no_dungeon = tmp_path / "no_dungeon.yaml"
+    no_dungeon.write_text("dungeon_dir: not_here\n")
+    from cso_runtime.cli import app
+
+    r = CliRunner().invoke(app, ["train", "--config", str(no_dungeon), "--set", "out_dir=2024"])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2 and "--set out_dir=2024 is read as a number, and out_dir is text: write --set out_dir='2024'" in said, said
+    assert len(train_runs) == 1

@@ -48,7 +48,7 @@ from cso_runtime.masks import valid_distance_mask
 from cso_runtime.policies import Goal, goal_of, make_policy
 from cso_runtime.scenes import FloorPlan
 from cso_runtime.simulator import KinematicSimulator
-from tests.conftest import unset_weights_env
+from tests.conftest import TerminalFile, unset_weights_env
 
 
 def rooms_plan(n_rooms: int = 2, res: float = 0.1, start: Pose2D | None = None) -> FloorPlan:
@@ -768,20 +768,18 @@ def test_the_training_bar_keeps_its_count_and_time_left_in_an_80_column_terminal
     """In an 80-column terminal the figures after the bar (return, coverage, decisions/s: 64 characters) squeezed
     rich's columns to nothing: the bar read `PPO updates left return -0.25 ...`, with no update count, bar or time
     left. The figures go on a line of their own under the bar, so every column of the bar keeps its width."""
-    import io
-
     from rich.console import Console
 
     from cso_runtime.learned import ppo
 
-    out = io.StringIO()
+    out = TerminalFile()  # a terminal: its isatty() is true (live_view.writes_to_a_terminal)
     stats = "return -0.25  coverage 99.6 % (last 20 episodes)  96 decisions/s"
     bar = ppo._Bar(100, console=Console(file=out, width=width, force_terminal=True, color_system=None))
     bar.advance(stats=stats)
     bar.close()
     shown = out.getvalue()
     assert "PPO updates" in shown and "1/100" in shown and "left" in shown
-    assert stats in shown
+    assert stats in shown and "PPO updates 1/100 (" not in shown  # the bar, not a log's line
 
 
 def test_training_progress_in_a_log_file_is_plain_lines():
