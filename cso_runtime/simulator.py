@@ -90,6 +90,9 @@ class KinematicSimulator:
         self._pose = self.plan.start
         self.time_s = 0.0
         self.collisions = 0
+        self._scan: LaserScan | None = None
+        """The scan of this step, cast at its first ``scan()`` (None until then): a scan asked for again (the sim service
+        re-publishing a step whose answer was lost) is the same one, not new noise that also shifts every later scan's."""
 
     def true_pose(self) -> Pose2D:
         return self._pose
@@ -97,10 +100,10 @@ class KinematicSimulator:
     def save_state(self) -> tuple:
         """Everything ``step`` and ``scan`` change (pose, time, collision count, noise generator): a
         lockstep sim steps ahead on a provisional command and keeps or undoes it (``restore_state``)."""
-        return self._pose, self.time_s, self.collisions, self.rng.bit_generator.state
+        return self._pose, self.time_s, self.collisions, self.rng.bit_generator.state, self._scan
 
     def restore_state(self, state: tuple) -> None:
-        self._pose, self.time_s, self.collisions, rng_state = state
+        self._pose, self.time_s, self.collisions, rng_state, self._scan = state
         self.rng.bit_generator.state = rng_state
 
     def odometry(self) -> Pose2D:
@@ -110,6 +113,12 @@ class KinematicSimulator:
         return self._pose.compose_offset(self.sensor.mount_x_m)
 
     def scan(self) -> LaserScan:
+        """The scan at the pose of this step: cast (and its noise drawn) once per step, as the MuJoCo LIMO's."""
+        if self._scan is None:
+            self._scan = self._cast_scan()
+        return self._scan
+
+    def _cast_scan(self) -> LaserScan:
         sp = self._pose.compose_offset(self.sensor.mount_x_m)
         rel = self._angle_min + self._increment * np.arange(self._n_beams)
         if self._ray_codes is None:
@@ -170,6 +179,7 @@ class KinematicSimulator:
             yaw = wrap_angle_rad(yaw + cmd.angular_radps * dt)
         self._pose = Pose2D(x, y, yaw)
         self.time_s += self.robot.control_period_s
+        self._scan = None
 
 
 SIMULATORS = ("2d", "mujoco")
