@@ -638,3 +638,34 @@ def test_a_real_time_pacer_refuses_what_it_cannot_keep(kwargs: dict, match: str)
     negative one dropped every poll's steps, so the simulation never moved."""
     with pytest.raises(ValueError, match=f"{match} must be positive and finite"):
         RealTimePacer(MujocoSimulator(box_room(), seed=0), **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("flags", "said"),
+    [
+        (["--scene", "{tmp}/truncated.png"], "truncated.png: not a readable image"),
+        (["--scene", "{tmp}/missing.png"], "missing.png: file not found"),
+        (["--scene", "generated:tiny:1:0"], "generated scale must be one of"),
+        (["--scene", "{tmp}/walled_in.png"], "start pose is not on free space"),
+        (["--seed", "-1"], "--seed must be an integer from 0"),
+    ],
+)
+def test_the_fake_limo_says_what_is_wrong_with_its_scene_or_seed_and_exits_2(tmp_path: Path, capsys, flags: list[str], said: str) -> None:
+    """A corrupt, missing or unusable plan (or a negative seed) ended the fake LIMO in a traceback (a SceneError or
+    numpy's "expected non-negative integer"), exit code 1; it is a bad flag: exit 2 with one line, as for the sim service."""
+    from PIL import Image
+
+    from robot_sim import fake_limo
+
+    good = Path(__file__).resolve().parents[1] / "cso_runtime" / "data" / "scenes"
+    png = next(good.glob("*.png")).read_bytes()
+    (tmp_path / "truncated.png").write_bytes(png[: len(png) // 2])
+    rgb = np.full((8, 8, 3), (195, 195, 194), dtype=np.uint8)
+    rgb[0, :2], rgb[1, :2] = (255, 216, 0), (255, 216, 0)
+    rgb[0, 6:], rgb[1, 6:] = (255, 216, 0), (255, 216, 0)  # two start markers: their centre lies between them ...
+    rgb[:, 3:5] = (127, 127, 127)  # ... in a wall
+    Image.fromarray(rgb).save(tmp_path / "walled_in.png")
+    with pytest.raises(SystemExit) as exited:
+        fake_limo.main(["--listen", "tcp/127.0.0.1:1", *(f.format(tmp=tmp_path) for f in flags)])
+    assert exited.value.code == 2
+    assert said in capsys.readouterr().err
