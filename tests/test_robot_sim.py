@@ -661,9 +661,8 @@ def test_the_fake_limo_says_what_is_wrong_with_its_scene_or_seed_and_exits_2(tmp
     png = next(good.glob("*.png")).read_bytes()
     (tmp_path / "truncated.png").write_bytes(png[: len(png) // 2])
     rgb = np.full((8, 8, 3), (195, 195, 194), dtype=np.uint8)
-    rgb[0, :2], rgb[1, :2] = (255, 216, 0), (255, 216, 0)
-    rgb[0, 6:], rgb[1, 6:] = (255, 216, 0), (255, 216, 0)  # two start markers: their centre lies between them ...
-    rgb[:, 3:5] = (127, 127, 127)  # ... in a wall
+    rgb[2:5, 2:5] = (255, 216, 0)  # a start marker, a ring whose centre ...
+    rgb[3, 3] = (127, 127, 127)  # ... is a wall
     Image.fromarray(rgb).save(tmp_path / "walled_in.png")
     with pytest.raises(SystemExit) as exited:
         fake_limo.main(["--listen", "tcp/127.0.0.1:1", *(f.format(tmp=tmp_path) for f in flags)])
