@@ -668,3 +668,18 @@ def test_the_fake_limo_says_what_is_wrong_with_its_scene_or_seed_and_exits_2(tmp
         fake_limo.main(["--listen", "tcp/127.0.0.1:1", *(f.format(tmp=tmp_path) for f in flags)])
     assert exited.value.code == 2
     assert said in capsys.readouterr().err
+
+
+def test_every_yaw_wraps_into_minus_pi_to_pi_the_float_just_below_minus_pi_included() -> None:
+    """``wrap_angle_rad`` (odometry, ground truth, REP-103 yaws) gave +pi for the float just below -pi: ``(-ulp) % 2 pi``
+    rounds to 2 pi itself, so the result lay outside its own [-pi, pi)."""
+    below = float(np.nextafter(-math.pi, -math.inf))
+    for angle in (below, below - 2 * math.pi, below + 4 * math.pi, -math.pi, math.pi, 3 * math.pi, 0.0, -1e-300, 7.0, -7.0):
+        wrapped = wrap_angle_rad(angle)
+        assert -math.pi <= wrapped < math.pi, (angle, wrapped)
+        assert math.isclose(math.cos(wrapped), math.cos(angle), abs_tol=1e-12) and math.isclose(math.sin(wrapped), math.sin(angle), abs_tol=1e-12)
+    assert wrap_angle_rad(below) == -math.pi
+    assert math.isnan(wrap_angle_rad(math.nan))
+    plan = box_room(start=Pose2D(2.0, 2.0, below))
+    assert plan.to_map_frame(plan.start).yaw_rad == -math.pi  # compose_pose wraps it
+    assert MujocoSimulator(plan, seed=0).true_pose().yaw_rad == -math.pi
