@@ -87,7 +87,11 @@ class KinematicSimulator:
 
     def reset(self, seed: int | None = None) -> None:
         self.rng = np.random.default_rng(seed)
-        self._pose = self.plan.start
+        # The start's yaw in [-pi, pi), as every later one (a plan made in code may say 4 rad); one already there is kept
+        # to the bit (wrapping moves its last bits).
+        start = self.plan.start
+        yaw_rad = start.yaw_rad if -math.pi <= start.yaw_rad < math.pi else wrap_angle_rad(start.yaw_rad)
+        self._pose = Pose2D(start.x_m, start.y_m, yaw_rad)
         self.time_s = 0.0
         self.collisions = 0
         self._scan: LaserScan | None = None

@@ -683,3 +683,14 @@ def test_every_yaw_wraps_into_minus_pi_to_pi_the_float_just_below_minus_pi_inclu
     plan = box_room(start=Pose2D(2.0, 2.0, below))
     assert plan.to_map_frame(plan.start).yaw_rad == -math.pi  # compose_pose wraps it
     assert MujocoSimulator(plan, seed=0).true_pose().yaw_rad == -math.pi
+
+
+@pytest.mark.parametrize("backend", ["2d", "mujoco"])
+def test_both_simulators_report_the_start_yaw_in_minus_pi_to_pi(backend: str) -> None:
+    """The 2D simulator reported a plan's start yaw as given (4 rad) in its odometry, ground truth and sensor pose until
+    its first step, where it wrapped it; the MuJoCo LIMO wraps it at once. Both now say the same REP-103 yaw."""
+    from cso_runtime.simulator import make_simulator
+
+    sim = make_simulator(backend, box_room(start=Pose2D(2.0, 2.0, 4.0)), SensorConfig(), RobotConfig(), seed=0)
+    for pose in (sim.odometry(), sim.true_pose(), sim.sensor_pose()):
+        assert pose.yaw_rad == pytest.approx(4.0 - 2 * math.pi, abs=1e-12)
