@@ -105,12 +105,15 @@ def test_simulator_protocol_and_config_errors() -> None:
 def test_parameters_the_model_cannot_honour_are_config_errors() -> None:
     """An odometry rate whose period is not whole physics steps ran silently at another rate (30 Hz at 5 ms
     ticked every 7 steps, 28.6 Hz; 1000 Hz ran at 200 Hz), which changes how much the drift noise adds up; a
-    wheel radius (the body's clearance) above the body's height came out as MuJoCo's XML error."""
+    wheel radius (the body's clearance) above the body's height came out as MuJoCo's XML error; walls lower than that
+    clearance let the robot drive through them."""
     for kwargs, match in (
         ({"odometry_rate_hz": 30.0}, r"odometry_rate_hz \(30 Hz\).*nearest such rate: 28.5714 Hz"),
         ({"odometry_rate_hz": 1000.0}, r"odometry_rate_hz \(1000 Hz\).*200 Hz"),
         ({"timestep_s": 0.002}, r"odometry_rate_hz \(40 Hz\).*gives 12.5"),
         ({"wheel_radius_m": 0.3}, r"wheel_radius_m \(0.3 m.*below body_height_m"),
+        # Walls below the body's clearance: the LiDAR (below them) sees them and the body drove over them, out of the plan.
+        ({"wall_height_m": 0.04, "lidar_height_m": 0.03}, r"wall_height_m \(0.04 m\) must be above wheel_radius_m \(0.045 m"),
         ({"track_m": 0.0}, r"track_m must be in \(0, 4\] m \(.*\), got 0$"),
     ):
         with pytest.raises(ConfigError, match=match):
