@@ -94,9 +94,10 @@ class KinematicSimulator:
         self._pose = Pose2D(start.x_m, start.y_m, yaw_rad)
         self.time_s = 0.0
         self.collisions = 0
-        self._scan: LaserScan | None = None
-        """The scan of this step, cast at its first ``scan()`` (None until then): a scan asked for again (the sim service
-        re-publishing a step whose answer was lost) is the same one, not new noise that also shifts every later scan's."""
+        self._scan: tuple[Pose2D, LaserScan] | None = None
+        """The scan of this step and the pose it was cast at, cast at the step's first ``scan()`` (None until then): a scan
+        asked for again (the sim service re-publishing a step whose answer was lost) is the same one, not new noise that
+        also shifts every later scan's. Another pose (a step, a restored state) casts anew."""
 
     def true_pose(self) -> Pose2D:
         return self._pose
@@ -118,9 +119,9 @@ class KinematicSimulator:
 
     def scan(self) -> LaserScan:
         """The scan at the pose of this step: cast (and its noise drawn) once per step, as the MuJoCo LIMO's."""
-        if self._scan is None:
-            self._scan = self._cast_scan()
-        return self._scan
+        if self._scan is None or self._scan[0] is not self._pose:
+            self._scan = (self._pose, self._cast_scan())
+        return self._scan[1]
 
     def _cast_scan(self) -> LaserScan:
         sp = self._pose.compose_offset(self.sensor.mount_x_m)
@@ -183,7 +184,6 @@ class KinematicSimulator:
             yaw = wrap_angle_rad(yaw + cmd.angular_radps * dt)
         self._pose = Pose2D(x, y, yaw)
         self.time_s += self.robot.control_period_s
-        self._scan = None
 
 
 SIMULATORS = ("2d", "mujoco")
