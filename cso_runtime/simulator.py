@@ -65,7 +65,17 @@ class KinematicSimulator:
     """Fast 2D simulator: unicycle motion that stops at walls, LiDAR by ray casting the plan. The robot collides as a
     disc, ``robot.disc_radius_m`` (the LIMO's 0.12 m), the planner's ``body: disc``; planning inflates by more."""
 
-    substeps = 5
+    MIN_SUBSTEPS = 5
+    """Substeps of a control step (the LIMO's: 5 cm each at its 1 m/s), or more where a substep at ``max_linear_mps``
+    would be longer than the collision disc's radius (``substeps_for``)."""
+
+    @staticmethod
+    def substeps_for(robot: RobotConfig) -> int:
+        """Substeps of ``robot``'s control step: enough that none at full speed is longer than ``robot.disc_radius_m``.
+        A move is checked at its end only, so a longer one (a 1 s step at 5 m/s: 1 m in 5 substeps) jumped the disc
+        over a wall thinner than the substep less its diameter, onto the floor behind it."""
+        travel_m = robot.max_linear_mps * robot.control_period_s
+        return max(KinematicSimulator.MIN_SUBSTEPS, math.ceil(travel_m / robot.disc_radius_m))
 
     def __init__(self, plan: FloorPlan, sensor: SensorConfig | None = None, robot: RobotConfig | None = None, seed: int | None = None) -> None:
         self.plan = plan
@@ -76,6 +86,7 @@ class KinematicSimulator:
         self.sensor = sensor or SensorConfig()
         self.robot = robot or RobotConfig()
         self.collision_radius_m = self.robot.disc_radius_m
+        self.substeps = self.substeps_for(self.robot)
         n = max(1, int(round(self.sensor.fov_deg / self.sensor.resolution_deg)))
         fov = math.radians(self.sensor.fov_deg)
         inc = fov / n
@@ -244,7 +255,7 @@ def simulator_settings(name: str, sensor: SensorConfig, robot: RobotConfig, mujo
         config = mujoco_config(mujoco, sensor, robot=robot)
         return {**dataclasses.asdict(config), "lidar_mount_x_m": config.lidar_mount_for(sensor)}
     if name == "2d":
-        return {"collision_radius_m": robot.disc_radius_m, "substeps": KinematicSimulator.substeps}
+        return {"collision_radius_m": robot.disc_radius_m, "substeps": KinematicSimulator.substeps_for(robot)}
     raise ValueError(f"unknown simulator {name!r}; choose one of {', '.join(SIMULATORS)}")
 
 

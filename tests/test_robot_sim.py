@@ -697,3 +697,22 @@ def test_both_simulators_report_the_start_yaw_in_minus_pi_to_pi(backend: str) ->
     sim = make_simulator(backend, box_room(start=Pose2D(2.0, 2.0, 4.0)), SensorConfig(), RobotConfig(), seed=0)
     for pose in (sim.odometry(), sim.true_pose(), sim.sensor_pose()):
         assert pose.yaw_rad == pytest.approx(4.0 - 2 * math.pi, abs=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["2d", "mujoco"])
+@pytest.mark.parametrize(("control_period_s", "max_linear_mps"), [(0.25, 1.0), (1.0, 5.0), (2.0, 2.0)])
+def test_no_robot_the_config_takes_drives_through_a_one_cell_wall(backend: str, control_period_s: float, max_linear_mps: float) -> None:
+    """The 2D simulator checks each of its substeps at its end only, and took five per step whatever the step's length:
+    with a 1 s step at 5 m/s (robot limits it accepts) each was 1 m, and the disc jumped a 5 cm wall onto the floor
+    behind it (x 5.75 m after 4 s). A substep is now at most the disc's radius at full speed."""
+    from cso_runtime.simulator import make_simulator
+
+    free = np.zeros((80, 120), dtype=bool)
+    free[1:-1, 1:-1] = True
+    free[:, 60] = False  # a wall one cell thick, x from 3.0 to 3.05 m
+    plan = FloorPlan("wall", free, RES, Pose2D(2.5, 2.0, 0.0))
+    robot = RobotConfig(control_period_s=control_period_s, max_linear_mps=max_linear_mps)
+    sim = make_simulator(backend, plan, SensorConfig(), robot, seed=0)
+    for _ in range(int(round(4.0 / control_period_s))):
+        sim.step(VelocityCommand(max_linear_mps, 0.0))
+    assert 2.7 < sim.true_pose().x_m < 3.0 - 0.1  # it drove up to the wall, and stopped at it
