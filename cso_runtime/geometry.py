@@ -19,8 +19,10 @@ if TYPE_CHECKING:
 
 
 def wrap_angle_rad(angle_rad: float) -> float:
-    """Wrap an angle to [-pi, pi)."""
-    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+    """Wrap an angle to [-pi, pi) (NaN stays NaN)."""
+    wrapped = (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+    # The float just below -pi gives (-ulp) % 2 pi, which rounds to 2 pi itself, and so +pi: outside the range.
+    return -math.pi if wrapped >= math.pi else wrapped
 
 
 @dataclass(frozen=True)

@@ -166,7 +166,8 @@ OTHER_PLANS_HINT = (
 
 
 def floor_plan_from_rgb(name: str, rgb: np.ndarray, resolution_m: float, start_yaw_rad: float = 0.0, source: str = "") -> FloorPlan:
-    """Decode a Dungeon-style image: free (195,195,194), wall (127,127,127), start square (255,216,0)."""
+    """Decode a Dungeon-style image: free (195,195,194), wall (127,127,127), start square (255,216,0): one marker (its
+    pixels 8-connected), whose centre is the start pose; a SceneError for none or several."""
     if rgb.ndim != 3 or rgb.shape[2] < 3:
         raise SceneError(f"{name}: expected an RGB(A) image, got shape {rgb.shape}")
     rgb = rgb[:, :, :3]
@@ -178,6 +179,11 @@ def floor_plan_from_rgb(name: str, rgb: np.ndarray, resolution_m: float, start_y
         raise SceneError(f"{name}: no start marker (colour {START_RGB}); {OTHER_PLANS_HINT}")
     if not floor.any():
         raise SceneError(f"{name}: no floor of the Dungeon free colour {FREE_RGB}; {OTHER_PLANS_HINT}")
+    from scipy import ndimage  # noqa: PLC0415  (as in traversable_region)
+
+    _, markers = ndimage.label(start, structure=np.ones((3, 3), dtype=bool))
+    if markers > 1:  # the start is the centre of the marker's pixels: of two, a point between them (in a wall, another room)
+        raise SceneError(f"{name}: {markers} start markers (colour {START_RGB}); a plan has one square, whose centre is the start pose")
     free_px = floor | start
     free = np.flipud(free_px)
     sy, sx = np.nonzero(np.flipud(start))

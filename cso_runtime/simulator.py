@@ -65,7 +65,17 @@ class KinematicSimulator:
     """Fast 2D simulator: unicycle motion that stops at walls, LiDAR by ray casting the plan. The robot collides as a
     disc, ``robot.disc_radius_m`` (the LIMO's 0.12 m), the planner's ``body: disc``; planning inflates by more."""
 
-    substeps = 5
+    MIN_SUBSTEPS = 5
+    """Substeps of a control step (the LIMO's: 5 cm each at its 1 m/s), or more where a substep at ``max_linear_mps``
+    would be longer than the collision disc's radius (``substeps_for``)."""
+
+    @staticmethod
+    def substeps_for(robot: RobotConfig) -> int:
+        """Substeps of ``robot``'s control step: enough that none at full speed is longer than ``robot.disc_radius_m``.
+        A move is checked at its end only, so a longer one (a 1 s step at 5 m/s: 1 m in 5 substeps) jumped the disc
+        over a wall thinner than the substep less its diameter, onto the floor behind it."""
+        travel_m = robot.max_linear_mps * robot.control_period_s
+        return max(KinematicSimulator.MIN_SUBSTEPS, math.ceil(travel_m / robot.disc_radius_m))
 
     def __init__(self, plan: FloorPlan, sensor: SensorConfig | None = None, robot: RobotConfig | None = None, seed: int | None = None) -> None:
         self.plan = plan
@@ -76,6 +86,7 @@ class KinematicSimulator:
         self.sensor = sensor or SensorConfig()
         self.robot = robot or RobotConfig()
         self.collision_radius_m = self.robot.disc_radius_m
+        self.substeps = self.substeps_for(self.robot)
         n = max(1, int(round(self.sensor.fov_deg / self.sensor.resolution_deg)))
         fov = math.radians(self.sensor.fov_deg)
         inc = fov / n
@@ -87,9 +98,17 @@ class KinematicSimulator:
 
     def reset(self, seed: int | None = None) -> None:
         self.rng = np.random.default_rng(seed)
-        self._pose = self.plan.start
+        # The start's yaw in [-pi, pi), as every later one (a plan made in code may say 4 rad); one already there is kept
+        # to the bit (wrapping moves its last bits).
+        start = self.plan.start
+        yaw_rad = start.yaw_rad if -math.pi <= start.yaw_rad < math.pi else wrap_angle_rad(start.yaw_rad)
+        self._pose = Pose2D(start.x_m, start.y_m, yaw_rad)
         self.time_s = 0.0
         self.collisions = 0
+        self._scan: tuple[Pose2D, LaserScan] | None = None
+        """The scan of this step and the pose it was cast at, cast at the step's first ``scan()`` (None until then): a scan
+        asked for again (the sim service re-publishing a step whose answer was lost) is the same one, not new noise that
+        also shifts every later scan's. Another pose (a step, a restored state) casts anew."""
 
     def true_pose(self) -> Pose2D:
         return self._pose
@@ -97,10 +116,10 @@ class KinematicSimulator:
     def save_state(self) -> tuple:
         """Everything ``step`` and ``scan`` change (pose, time, collision count, noise generator): a
         lockstep sim steps ahead on a provisional command and keeps or undoes it (``restore_state``)."""
-        return self._pose, self.time_s, self.collisions, self.rng.bit_generator.state
+        return self._pose, self.time_s, self.collisions, self.rng.bit_generator.state, self._scan
 
     def restore_state(self, state: tuple) -> None:
-        self._pose, self.time_s, self.collisions, rng_state = state
+        self._pose, self.time_s, self.collisions, rng_state, self._scan = state
         self.rng.bit_generator.state = rng_state
 
     def odometry(self) -> Pose2D:
@@ -110,6 +129,12 @@ class KinematicSimulator:
         return self._pose.compose_offset(self.sensor.mount_x_m)
 
     def scan(self) -> LaserScan:
+        """The scan at the pose of this step: cast (and its noise drawn) once per step, as the MuJoCo LIMO's."""
+        if self._scan is None or self._scan[0] is not self._pose:
+            self._scan = (self._pose, self._cast_scan())
+        return self._scan[1]
+
+    def _cast_scan(self) -> LaserScan:
         sp = self._pose.compose_offset(self.sensor.mount_x_m)
         rel = self._angle_min + self._increment * np.arange(self._n_beams)
         if self._ray_codes is None:
@@ -230,7 +255,7 @@ def simulator_settings(name: str, sensor: SensorConfig, robot: RobotConfig, mujo
         config = mujoco_config(mujoco, sensor, robot=robot)
         return {**dataclasses.asdict(config), "lidar_mount_x_m": config.lidar_mount_for(sensor)}
     if name == "2d":
-        return {"collision_radius_m": robot.disc_radius_m, "substeps": KinematicSimulator.substeps}
+        return {"collision_radius_m": robot.disc_radius_m, "substeps": KinematicSimulator.substeps_for(robot)}
     raise ValueError(f"unknown simulator {name!r}; choose one of {', '.join(SIMULATORS)}")
 
 

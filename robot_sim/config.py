@@ -110,8 +110,8 @@ MUJOCO_SIM_BOUNDS: dict[str, Bound] = {
 }
 """``MujocoSimConfig``'s bounds, each checked by its ``validate`` before anything starts (``config.check_bounds``), as
 ``configs/robot_sim.yaml`` documents them; beside them the time constants are at least two physics steps,
-``wheel_radius_m`` is below ``body_height_m``, ``lidar_height_m`` below ``wall_height_m`` and the odometry period whole
-physics steps. ``lidar_mount_x_m`` must be the sensor's mount, which ``SensorConfig`` bounds."""
+``wheel_radius_m`` is below ``body_height_m`` and ``wall_height_m``, ``lidar_height_m`` below ``wall_height_m`` and the
+odometry period whole physics steps. ``lidar_mount_x_m`` must be the sensor's mount, which ``SensorConfig`` bounds."""
 
 
 @dataclass
@@ -205,6 +205,11 @@ class MujocoSimConfig:
             raise ConfigError(
                 f"odometry_rate_hz ({self.odometry_rate_hz:g} Hz) must be a whole number of physics steps per "
                 f"tick (timestep_s {self.timestep_s:g} s gives {steps:.3g}); nearest such rate: {near:g} Hz"
+            )
+        if not self.wheel_radius_m < self.wall_height_m:  # the body's box spans wheel_radius_m to body_height_m
+            raise ConfigError(
+                f"wall_height_m ({self.wall_height_m:g} m) must be above wheel_radius_m ({self.wheel_radius_m:g} m, where the "
+                "body starts above the floor) or the robot drives over the walls its LiDAR sees"
             )
         if not self.lidar_height_m < self.wall_height_m:
             raise ConfigError(f"lidar_height_m ({self.lidar_height_m:g} m) must be below wall_height_m ({self.wall_height_m:g} m) or beams pass over the walls")

@@ -31,10 +31,10 @@ import threading
 from typing import Any
 
 from cso_runtime import ros2_cdr
-from cso_runtime.config import ConfigError, ExplorationConfig
+from cso_runtime.config import ConfigError, ExplorationConfig, check_seed
 from cso_runtime.geometry import LaserScan, Pose2D, VelocityCommand
 from cso_runtime.processes import set_from_signal_handler
-from cso_runtime.scenes import resolve_scenes
+from cso_runtime.scenes import SceneError, resolve_scenes
 from cso_runtime.transport import TransportConfig, open_session
 from robot_sim.config import limo_sensor
 from robot_sim.sim import MujocoSimulator, RealTimePacer
@@ -165,11 +165,18 @@ def main(argv: list[str] | None = None) -> int:
         exploration.validate()
     except ConfigError as exc:
         p.error(f"--lidar-mount-x-m {args.lidar_mount_x_m:g}: {exc}")
-    refs = resolve_scenes(args.scene, limit=1, resolution_m=args.m_per_px)
-    if not refs:
-        p.error(f"scene {args.scene!r} resolves to no scene")
-    plan = refs[0].load()
-    sim = MujocoSimulator(plan, exploration.sensor, exploration.robot, seed=args.seed)
+    try:
+        check_seed(args.seed, "--seed")
+    except ConfigError as exc:
+        p.error(str(exc))
+    try:  # a missing, corrupt or unusable plan is a bad --scene (exit 2, one line), as for the sim service
+        refs = resolve_scenes(args.scene, limit=1, resolution_m=args.m_per_px)
+        if not refs:
+            p.error(f"scene {args.scene!r} resolves to no scene")
+        plan = refs[0].load()
+        sim = MujocoSimulator(plan, exploration.sensor, exploration.robot, seed=args.seed)
+    except (SceneError, ConfigError) as exc:
+        p.error(f"--scene {args.scene} (--m-per-px {args.m_per_px:g}): {exc}")
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: set_from_signal_handler(stop))

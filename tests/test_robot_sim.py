@@ -105,12 +105,15 @@ def test_simulator_protocol_and_config_errors() -> None:
 def test_parameters_the_model_cannot_honour_are_config_errors() -> None:
     """An odometry rate whose period is not whole physics steps ran silently at another rate (30 Hz at 5 ms
     ticked every 7 steps, 28.6 Hz; 1000 Hz ran at 200 Hz), which changes how much the drift noise adds up; a
-    wheel radius (the body's clearance) above the body's height came out as MuJoCo's XML error."""
+    wheel radius (the body's clearance) above the body's height came out as MuJoCo's XML error; walls lower than that
+    clearance let the robot drive through them."""
     for kwargs, match in (
         ({"odometry_rate_hz": 30.0}, r"odometry_rate_hz \(30 Hz\).*nearest such rate: 28.5714 Hz"),
         ({"odometry_rate_hz": 1000.0}, r"odometry_rate_hz \(1000 Hz\).*200 Hz"),
         ({"timestep_s": 0.002}, r"odometry_rate_hz \(40 Hz\).*gives 12.5"),
         ({"wheel_radius_m": 0.3}, r"wheel_radius_m \(0.3 m.*below body_height_m"),
+        # Walls below the body's clearance: the LiDAR (below them) sees them and the body drove over them, out of the plan.
+        ({"wall_height_m": 0.04, "lidar_height_m": 0.03}, r"wall_height_m \(0.04 m\) must be above wheel_radius_m \(0.045 m"),
         ({"track_m": 0.0}, r"track_m must be in \(0, 4\] m \(.*\), got 0$"),
     ):
         with pytest.raises(ConfigError, match=match):
@@ -638,3 +641,78 @@ def test_a_real_time_pacer_refuses_what_it_cannot_keep(kwargs: dict, match: str)
     negative one dropped every poll's steps, so the simulation never moved."""
     with pytest.raises(ValueError, match=f"{match} must be positive and finite"):
         RealTimePacer(MujocoSimulator(box_room(), seed=0), **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("flags", "said"),
+    [
+        (["--scene", "{tmp}/truncated.png"], "truncated.png: not a readable image"),
+        (["--scene", "{tmp}/missing.png"], "missing.png: file not found"),
+        (["--scene", "generated:tiny:1:0"], "generated scale must be one of"),
+        (["--scene", "{tmp}/walled_in.png"], "start pose is not on free space"),
+        (["--seed", "-1"], "--seed must be an integer from 0"),
+    ],
+)
+def test_the_fake_limo_says_what_is_wrong_with_its_scene_or_seed_and_exits_2(tmp_path: Path, capsys, flags: list[str], said: str) -> None:
+    """A corrupt, missing or unusable plan (or a negative seed) ended the fake LIMO in a traceback (a SceneError or
+    numpy's "expected non-negative integer"), exit code 1; it is a bad flag: exit 2 with one line, as for the sim service."""
+    from PIL import Image
+
+    from robot_sim import fake_limo
+
+    good = Path(__file__).resolve().parents[1] / "cso_runtime" / "data" / "scenes"
+    png = next(good.glob("*.png")).read_bytes()
+    (tmp_path / "truncated.png").write_bytes(png[: len(png) // 2])
+    rgb = np.full((8, 8, 3), (195, 195, 194), dtype=np.uint8)
+    rgb[2:5, 2:5] = (255, 216, 0)  # a start marker, a ring whose centre ...
+    rgb[3, 3] = (127, 127, 127)  # ... is a wall
+    Image.fromarray(rgb).save(tmp_path / "walled_in.png")
+    with pytest.raises(SystemExit) as exited:
+        fake_limo.main(["--listen", "tcp/127.0.0.1:1", *(f.format(tmp=tmp_path) for f in flags)])
+    assert exited.value.code == 2
+    assert said in capsys.readouterr().err
+
+
+def test_every_yaw_wraps_into_minus_pi_to_pi_the_float_just_below_minus_pi_included() -> None:
+    """``wrap_angle_rad`` (odometry, ground truth, REP-103 yaws) gave +pi for the float just below -pi: ``(-ulp) % 2 pi``
+    rounds to 2 pi itself, so the result lay outside its own [-pi, pi)."""
+    below = float(np.nextafter(-math.pi, -math.inf))
+    for angle in (below, below - 2 * math.pi, below + 4 * math.pi, -math.pi, math.pi, 3 * math.pi, 0.0, -1e-300, 7.0, -7.0):
+        wrapped = wrap_angle_rad(angle)
+        assert -math.pi <= wrapped < math.pi, (angle, wrapped)
+        assert math.isclose(math.cos(wrapped), math.cos(angle), abs_tol=1e-12) and math.isclose(math.sin(wrapped), math.sin(angle), abs_tol=1e-12)
+    assert wrap_angle_rad(below) == -math.pi
+    assert math.isnan(wrap_angle_rad(math.nan))
+    plan = box_room(start=Pose2D(2.0, 2.0, below))
+    assert plan.to_map_frame(plan.start).yaw_rad == -math.pi  # compose_pose wraps it
+    assert MujocoSimulator(plan, seed=0).true_pose().yaw_rad == -math.pi
+
+
+@pytest.mark.parametrize("backend", ["2d", "mujoco"])
+def test_both_simulators_report_the_start_yaw_in_minus_pi_to_pi(backend: str) -> None:
+    """The 2D simulator reported a plan's start yaw as given (4 rad) in its odometry, ground truth and sensor pose until
+    its first step, where it wrapped it; the MuJoCo LIMO wraps it at once. Both now say the same REP-103 yaw."""
+    from cso_runtime.simulator import make_simulator
+
+    sim = make_simulator(backend, box_room(start=Pose2D(2.0, 2.0, 4.0)), SensorConfig(), RobotConfig(), seed=0)
+    for pose in (sim.odometry(), sim.true_pose(), sim.sensor_pose()):
+        assert pose.yaw_rad == pytest.approx(4.0 - 2 * math.pi, abs=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["2d", "mujoco"])
+@pytest.mark.parametrize(("control_period_s", "max_linear_mps"), [(0.25, 1.0), (1.0, 5.0), (2.0, 2.0)])
+def test_no_robot_the_config_takes_drives_through_a_one_cell_wall(backend: str, control_period_s: float, max_linear_mps: float) -> None:
+    """The 2D simulator checks each of its substeps at its end only, and took five per step whatever the step's length:
+    with a 1 s step at 5 m/s (robot limits it accepts) each was 1 m, and the disc jumped a 5 cm wall onto the floor
+    behind it (x 5.75 m after 4 s). A substep is now at most the disc's radius at full speed."""
+    from cso_runtime.simulator import make_simulator
+
+    free = np.zeros((80, 120), dtype=bool)
+    free[1:-1, 1:-1] = True
+    free[:, 60] = False  # a wall one cell thick, x from 3.0 to 3.05 m
+    plan = FloorPlan("wall", free, RES, Pose2D(2.5, 2.0, 0.0))
+    robot = RobotConfig(control_period_s=control_period_s, max_linear_mps=max_linear_mps)
+    sim = make_simulator(backend, plan, SensorConfig(), robot, seed=0)
+    for _ in range(int(round(4.0 / control_period_s))):
+        sim.step(VelocityCommand(max_linear_mps, 0.0))
+    assert 2.7 < sim.true_pose().x_m < 3.0 - 0.1  # it drove up to the wall, and stopped at it

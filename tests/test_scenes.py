@@ -219,6 +219,21 @@ def test_corrupt_missing_and_markerless_pngs_raise_scene_error(tmp_path):
         load_floor_plan(tmp_path / "nostart.png")
 
 
+def test_a_png_with_two_start_markers_is_a_scene_error_not_a_start_between_them(tmp_path):
+    """The start is the centre of the start colour's pixels: a plan with two markers started the robot halfway between
+    them, in another room or a wall (where the error blamed the start, not the markers). One marker, its pixels
+    touching (a corner will do), is the start."""
+    px = _tiny_plan_pixels()
+    px[5:7, 7:9] = START_RGB  # a second square, bottom right
+    _write_png(tmp_path / "two.png", px)
+    with pytest.raises(SceneError, match="two: 2 start markers"):
+        load_floor_plan(tmp_path / "two.png")
+    px = _tiny_plan_pixels()
+    px[3, 5] = START_RGB  # diagonal to the square's corner pixel (2, 4): the same marker
+    plan = floor_plan_from_rgb("one", px, 0.1)
+    assert plan.start.x_m == pytest.approx(((3 + 4 + 3 + 4 + 5) / 5 + 0.5) * 0.1)
+
+
 def test_a_truncated_png_is_named_by_its_path_as_an_unreadable_one_is(tmp_path):
     """A folder of plans with a cut-off download among them: eval's failure list must say which file, by the path a
     user can open (plans of the easy and complex sets share names), as it does for a file that is no image at all."""

@@ -1385,6 +1385,41 @@ def test_lockstep_sim_stepped_ahead_publishes_what_it_would_have_computed():
         assert len(a) == len(commands) + 1 and a == b, topic
 
 
+def test_a_lockstep_step_re_published_carries_the_same_scan_and_changes_no_later_one():
+    """A step whose answer is lost is re-published after ``lockstep_timeout_s``. With LiDAR noise on, the 2D simulator
+    drew new noise for the re-published scan (a second scan of the same step, which a mapper that lost the first
+    integrated instead), and the draw shifted the noise of every later scan: one lost message changed the episode."""
+    from cso_runtime.geometry import VelocityCommand
+    from cso_runtime.occupancy import OccupancyMap
+    from services.sim import SimService
+
+    def sim_service():
+        ctx = ServiceContext("sim", "r0", {"lockstep": True, "scene": "generated:small:1:0", "seed": 3}, ExplorationConfig(), TransportConfig(connect=["tcp/127.0.0.1:1"]), {"start_delay_s": 0.0})
+        ctx.exploration.sensor.range_noise_std_m = 0.02
+        svc = SimService(ctx)
+        out: list[tuple[str, Message]] = []
+        svc.publish = lambda topic, msg, robot=None: out.append((topic, decode(encode(svc.check_output(topic, msg)), type(msg))))  # type: ignore[method-assign]
+        svc.episode = 7
+        svc.on_tick(time.monotonic())  # step 0 goes out
+        return svc, out
+
+    retried, out_retried = sim_service()
+    plain, out_plain = sim_service()
+    empty_map = OccupancyMap(plain.sim.plan.geometry)
+    for k, cmd in enumerate([VelocityCommand(0.3, 0.1), VelocityCommand(0.0, 0.78), VelocityCommand(0.5, -0.2)]):
+        if k == 1:  # step 1's map never came: the step is published again
+            retried.on_tick(time.monotonic() + 2 * retried.params.lockstep_timeout_s)
+            assert retried.timeouts == 1
+        for svc in (retried, plain):
+            svc.on_message("r0", "map", decode(encode(MapMsg.of(k, empty_map, 7)), MapMsg), time.monotonic())
+            svc.on_message("r0", "cmd_vel", decode(encode(CmdVelMsg(k, cmd)), CmdVelMsg), time.monotonic())
+    scans_retried = [m for t, m in out_retried if t == "scan"]
+    scans_plain = [m for t, m in out_plain if t == "scan"]
+    assert [m.step for m in scans_retried] == [0, 1, 1, 2, 3]
+    assert encode(scans_retried[1]) == encode(scans_retried[2])  # the same scan of step 1, twice
+    assert [encode(m) for m in scans_retried[:2] + scans_retried[3:]] == [encode(m) for m in scans_plain]
+
+
 def test_the_sim_rejects_and_counts_a_map_of_another_grid_instead_of_crashing():
     """A mapper with its own grid (or another robot's map on a shared network) used to raise in the coverage
     measure: the sim exited, was restarted three times and the run stopped. Such a map is a counted rejection,
