@@ -916,8 +916,10 @@ def _std(rows: list[dict[str, Any]], key: str) -> float | None:
 def _ci95(rows: list[dict[str, Any]], key: str) -> list[float] | None:
     """95 % interval of ``key``'s mean by the bootstrap of ``compare`` (``bootstrap_mean_ci``: the plans resampled,
     a plan's episodes kept together, a fixed seed, so the same episodes give the same interval); None under two
-    plans: one plan gives nothing to resample."""
-    kept = _rows_with(rows, key)
+    plans: one plan gives nothing to resample. The episodes are taken in episodes.csv's order (by plan, then seed),
+    whatever order they finished in: the bootstrap's resamples pick by position, so an eval with ``--workers``, or one
+    ``--resume`` finished (its kept episodes first), gave the same episodes another interval."""
+    kept = sorted(_rows_with(rows, key), key=lambda vr: (str(vr[1]["map"]), str(vr[1].get("seed")), vr[0]))
     plans = [r["map"] for _, r in kept]
     if len(set(plans)) < 2:
         return None
@@ -1181,6 +1183,7 @@ def plan_eval(request: EvalRequest, out_checked: bool = True) -> EvalPlan:
     request.validate()
     config = request.exploration_config()
     scenes = resolve_scenes(request.maps, request.limit, request.m_per_px)
+    refuse_scenes_sharing_files(scenes)
     out = Path(request.out_dir)
     if out_checked:
         refuse_the_other_kind_of_eval(request)
@@ -1225,6 +1228,25 @@ def plan_eval(request: EvalRequest, out_checked: bool = True) -> EvalPlan:
     if out_checked:
         refuse_another_configuration(request, plan)
     return plan
+
+
+def refuse_scenes_sharing_files(scenes: list[SceneRef]) -> None:
+    """Raise ConfigError where two scenes of a spec would write the same files: the same name (``a.yaml`` and ``a.yml``
+    in one folder), or names that ``file_stem`` makes one (``room 1.png`` and ``room_1.png``). Each episode would write
+    over the other's npz, map and trajectory plot, one plan's results lost from the folder (and ``--resume`` would then
+    refuse it, the file of another plan under its name)."""
+
+    def said(r: SceneRef) -> str:
+        return f"{r.name!r} ({r.path})" if r.path else repr(r.name)
+
+    seen: dict[str, SceneRef] = {}
+    for ref in scenes:
+        other = seen.setdefault(file_stem(ref.name), ref)
+        if other is not ref:
+            raise ConfigError(
+                f"scenes {said(other)} and {said(ref)} would share the files episodes/<method>/{file_stem(ref.name)}.npz, its map and "
+                "trajectory plot, one plan's results written over by the other's: rename one of them, or run them in two evals, each with its own --out"
+            )
 
 
 DRY_RUN_SCENES_SHOWN = 5

@@ -645,6 +645,33 @@ def test_resume_runs_again_an_episode_of_another_scene_under_the_same_name(tmp_p
     assert second["meta"]["cell_sizes_m"] == [0.05] and second["meta"]["m_per_px"] == 0.05  # a PNG plan: the flag counts
 
 
+def test_eval_refuses_two_plans_whose_names_share_one_episode_file(tmp_path: Path):
+    """``room 1.png`` and ``room_1.png`` (or ``a.yaml`` and ``a.yml``) in one folder are two plans whose files are one:
+    ``episodes/<method>/room_1.npz``, its map and trajectory plot. The second episode wrote over the first, one plan's
+    results were lost from the folder, and ``--resume`` then refused it. The eval is refused before any episode,
+    naming both plans, as two methods sharing a folder are."""
+    plans = tmp_path / "plans"
+    plans.mkdir()
+    for name in ("room 1.png", "room_1.png", "img_2.png"):
+        shutil.copy(Path(cso_runtime.__file__).parent / "data" / "scenes" / "img_1.png", plans / name)
+    out = tmp_path / "out"
+    request = EvalRequest(methods=["greedy-dist"], maps=str(plans), out_dir=out, max_steps=10)
+    with pytest.raises(ConfigError, match=r"scenes 'room 1' \(.*room 1\.png\) and 'room_1' \(.*room_1\.png\) would share the files "
+                       r"episodes/<method>/room_1\.npz"):
+        plan_eval(request)
+    assert not out.exists()
+    result = subprocess.run([sys.executable, "-m", "cso_runtime", "eval", "--maps", str(plans), "--out", str(out), "--max-steps", "10", "--dry-run"],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and "would share the files" in result.stderr, result.stderr
+    (plans / "room 1.png").unlink()
+    (plans / "yard.yaml").write_text("image: room_1.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n")
+    (plans / "yard.yml").write_text((plans / "yard.yaml").read_text())
+    with pytest.raises(ConfigError, match=r"scenes 'yard' \(.*yard\.yaml\) and 'yard' \(.*yard\.yml\) would share"):
+        plan_eval(request)
+    (plans / "yard.yml").unlink()
+    assert [job.scene.name for job in plan_eval(request).jobs] == ["yard"]  # one plan a name: runs
+
+
 def _episode_whose_process_dies_on_one_scene(job):
     """A worker that is killed (as by the kernel's OOM killer) whenever it runs gen_small_1."""
     import os
@@ -2217,6 +2244,36 @@ def test_summary_gives_each_table_1_mean_its_95_percent_bootstrap_interval_over_
     saved = json.loads((tmp_path / "one" / "summary.json").read_text())["methods"]["greedy-dist"]
     for part in (saved, saved["by_scale"]["small"]):
         assert all(f"{k}_ci95" in part and part[f"{k}_ci95"] is None for k in METRICS)
+
+
+def test_the_table_1_intervals_do_not_depend_on_the_order_the_episodes_finished_in(tmp_path: Path):
+    """The bootstrap picks its resamples by position, and summary.json's ``<metric>_ci95`` took the episodes in the order
+    they finished: an eval finished by ``--resume`` (its kept episodes first, those it ran last) or run with
+    ``--workers`` gave the very same episodes another interval. They are taken as episodes.csv lists them."""
+    from cso_runtime.evaluation import summarize
+
+    out = tmp_path / "out"
+    request = EvalRequest(methods=["greedy-dist"], maps="generated:small:8:0", out_dir=out, max_steps=200)
+    first = run_eval(request)["methods"]["greedy-dist"]
+    for name in ("gen_small_0", "gen_small_3"):
+        (out / "episodes" / "greedy-dist" / f"{name}.npz").unlink()
+    request.resume = True
+    again = run_eval(request)
+    assert again["meta"]["resumed_episodes"] == 6
+    resumed = again["methods"]["greedy-dist"]
+    for k in METRICS:
+        if k.startswith("decision_ms"):  # timed: each run its own
+            continue
+        assert resumed[k] == first[k], k  # the same episodes
+        assert resumed[f"{k}_ci95"] == first[f"{k}_ci95"], k
+
+    rows = [
+        {"method": "m", "map": f"p{i}", "scale": "small", "seed": 0, "terminated_by": "coverage", "efficiency_m2_per_step": 0.1 + 0.07 * (i % 5) + 0.01 * i,
+         **{k: float(i * i % 7) for k in METRICS if k != "efficiency_m2_per_step"}}
+        for i in range(12)
+    ]
+    shuffled = rows[5:] + rows[:5][::-1]
+    assert summarize(shuffled, [], ["m"], {}, baseline="")["methods"]["m"] == summarize(rows, [], ["m"], {}, baseline="")["methods"]["m"]
 
 
 def test_the_report_lists_every_episode_in_a_collapsed_per_scene_table(tmp_path: Path):
