@@ -112,6 +112,7 @@ from cso_runtime.report import (
     SPREAD_NOTE,
     STD_SUFFIX,
     TABLE1_COLUMNS,
+    failure_said,
     shows_ablations,
     table1_cells,
     table1_rows,
@@ -1639,10 +1640,7 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
         console.print(escape(f"no comparison with {paired['baseline']} scene by scene (paired.csv): no other method shares "
                              f"{TOO_FEW_SCENES} with it"), soft_wrap=True, highlight=False)
     for f in summary["failures"]:
-        why = f["error"].splitlines()[0] if f["error"] else ""
-        seed = f" (seed {f['seed']})" if "seed" in f else ""  # --seeds: which seed's episode
-        failed = escape(f"{f['method']} {f['map']}{seed}: {why}")
-        console.print(f"[red]failed[/red] {failed}", soft_wrap=True)  # a path in it must stay whole
+        console.print(f"[red]failed[/red] {escape(failure_said(f))}", soft_wrap=True)  # a path in it must stay whole; --seeds: its seed
     console.print(escape(closing_said(summary, out_dir)), soft_wrap=True, highlight=False)
 
 

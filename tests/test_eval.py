@@ -672,6 +672,26 @@ def test_eval_refuses_two_plans_whose_names_share_one_episode_file(tmp_path: Pat
     assert [job.scene.name for job in plan_eval(request).jobs] == ["yard"]  # one plan a name: runs
 
 
+def test_the_report_names_the_seed_of_each_failed_episode_of_an_eval_of_several_seeds(tmp_path: Path, capsys):
+    """With ``--seeds``, a plan that fails fails once a seed: the console said each failure's seed, but report.html
+    listed the two as one line twice, as if the same episode were counted twice."""
+    from cso_runtime.evaluation import print_summary
+
+    plans = tmp_path / "plans"
+    plans.mkdir()
+    shutil.copy(Path(cso_runtime.__file__).parent / "data" / "scenes" / "img_1.png", plans / "good.png")
+    (plans / "bad.png").write_text("not a picture")
+    out = tmp_path / "out"
+    summary = run_eval(EvalRequest(methods=["greedy-dist"], maps=str(plans), out_dir=out, max_steps=5, seeds=[0, 1]))
+    assert [(f["map"], f["seed"]) for f in summary["failures"]] == [("bad", 0), ("bad", 1)]
+    page = (out / "report.html").read_text()
+    failures = page.split("<h2>Failures</h2>", 1)[1].split("</ul>", 1)[0]
+    assert re.findall(r"<li>greedy-dist bad \(seed (\d)\): .*?bad\.png", failures) == ["0", "1"], failures
+    print_summary(summary, out)
+    said = capsys.readouterr().out
+    assert "failed greedy-dist bad (seed 0): " in said and "failed greedy-dist bad (seed 1): " in said
+
+
 def _episode_whose_process_dies_on_one_scene(job):
     """A worker that is killed (as by the kernel's OOM killer) whenever it runs gen_small_1."""
     import os
