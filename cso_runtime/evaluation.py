@@ -1639,6 +1639,9 @@ def print_summary(summary: dict[str, Any], out_dir: Path) -> None:
     elif paired.get("baseline") in summary["methods"] and len(summary["methods"]) > 1:  # say why there is no comparison
         console.print(escape(f"no comparison with {paired['baseline']} scene by scene (paired.csv): no other method shares "
                              f"{TOO_FEW_SCENES} with it"), soft_wrap=True, highlight=False)
+    elif paired.get("baseline") and len(summary["methods"]) > 1:  # `--method cso,utility`, `--baseline X` of a method not run
+        console.print(escape(f"no comparison scene by scene (paired.csv): its baseline {paired['baseline']} did not run; add it to --method, "
+                             f"or give --baseline one of {', '.join(summary['methods'])}"), soft_wrap=True, highlight=False)
     for f in summary["failures"]:
         console.print(f"[red]failed[/red] {escape(failure_said(f))}", soft_wrap=True)  # a path in it must stay whole; --seeds: its seed
     console.print(escape(closing_said(summary, out_dir)), soft_wrap=True, highlight=False)

@@ -970,6 +970,13 @@ def test_the_console_says_why_a_run_with_the_baseline_has_no_comparison(tmp_path
     assert "no comparison" not in out and "Against greedy-dist, scene by scene" in out
     print_summary(summarize(two, [], ["cso"], {}), tmp_path)  # the baseline did not run: nothing to explain
     assert "no comparison" not in capsys.readouterr().out
+    # Two methods, neither the baseline (`--method cso,utility`, or a --baseline of a method not run): not a word was said.
+    others = [row(m, n, e) for m, e in (("utility", 1.0), ("cso", 1.1)) for n in ("img_1", "img_2", "img_3")]
+    print_summary(summarize(others, [], ["utility", "cso"], {}), tmp_path)
+    assert ("no comparison scene by scene (paired.csv): its baseline greedy-dist did not run; add it to --method, or give --baseline one of "
+            "utility, cso") in " ".join(capsys.readouterr().out.split())
+    print_summary(summarize(others, [], ["utility", "cso"], {}, baseline="utility"), tmp_path)
+    assert "no comparison" not in capsys.readouterr().out
 
 
 def test_a_run_with_ablations_is_also_laid_out_as_the_papers_table_2(tmp_path: Path, capsys):
