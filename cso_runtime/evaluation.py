@@ -961,6 +961,7 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, Any]], method
     """Per-method means of the Table 1 metrics with their sample standard deviations, a per-scale breakdown, the failures, and each method
     against ``baseline`` scene by scene (``cso_runtime.comparison``; empty when it did not run)."""
     summary: dict[str, Any] = {"meta": meta, "aggregation": AGGREGATION, "methods": {}}
+    failures = sorted(failures, key=lambda f: (str(f["method"]), str(f["map"]), str(f.get("seed", ""))))  # not in the order they happened
     for method in methods:
         mine = [r for r in rows if r["method"] == method]
         entry: dict[str, Any] = table1_stats(mine)
@@ -969,7 +970,9 @@ def summarize(rows: list[dict[str, Any]], failures: list[dict[str, Any]], method
         entry["efficiency_episodes"] = _efficiency_episodes(mine)
         entry["terminated_by"] = {t: sum(1 for r in mine if r["terminated_by"] == t) for t in sorted({r["terminated_by"] for r in mine})}
         # Why each of its episodes that ended no_frontier did (rows of older runs have no such column, and none is said).
-        entry["ended_why"] = [{"map": r["map"], "seed": r["seed"], "why": r["ended_why"]} for r in mine if r.get("ended_why")]
+        entry["ended_why"] = sorted(  # by plan and seed, as episodes.csv: not the order episodes finished in (--workers, --resume)
+            ({"map": r["map"], "seed": r["seed"], "why": r["ended_why"]} for r in mine if r.get("ended_why")), key=lambda e: (str(e["map"]), str(e["seed"]))
+        )
         entry["by_scale"] = {}
         for scale in SCALES:
             part = [r for r in mine if r["scale"] == scale]

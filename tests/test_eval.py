@@ -2276,7 +2276,8 @@ def test_summary_gives_each_table_1_mean_its_95_percent_bootstrap_interval_over_
 def test_the_table_1_intervals_do_not_depend_on_the_order_the_episodes_finished_in(tmp_path: Path):
     """The bootstrap picks its resamples by position, and summary.json's ``<metric>_ci95`` took the episodes in the order
     they finished: an eval finished by ``--resume`` (its kept episodes first, those it ran last) or run with
-    ``--workers`` gave the very same episodes another interval. They are taken as episodes.csv lists them."""
+    ``--workers`` gave the very same episodes another interval. They are taken as episodes.csv lists them; so are the
+    summary's lists (the why of each ``no_frontier`` end, the failures)."""
     from cso_runtime.evaluation import summarize
 
     out = tmp_path / "out"
@@ -2295,12 +2296,15 @@ def test_the_table_1_intervals_do_not_depend_on_the_order_the_episodes_finished_
         assert resumed[f"{k}_ci95"] == first[f"{k}_ci95"], k
 
     rows = [
-        {"method": "m", "map": f"p{i}", "scale": "small", "seed": 0, "terminated_by": "coverage", "efficiency_m2_per_step": 0.1 + 0.07 * (i % 5) + 0.01 * i,
+        {"method": "m", "map": f"p{i}", "scale": "small", "seed": 0, "terminated_by": "no_frontier" if i % 3 else "coverage",
+         "ended_why": f"{i} frontier cells unreachable" if i % 3 else "", "efficiency_m2_per_step": 0.1 + 0.07 * (i % 5) + 0.01 * i,
          **{k: float(i * i % 7) for k in METRICS if k != "efficiency_m2_per_step"}}
         for i in range(12)
     ]
+    failures = [{"method": "m", "map": f"q{i}", "error": "boom"} for i in range(3)]
     shuffled = rows[5:] + rows[:5][::-1]
-    assert summarize(shuffled, [], ["m"], {}, baseline="")["methods"]["m"] == summarize(rows, [], ["m"], {}, baseline="")["methods"]["m"]
+    # The whole summary (the why of each no_frontier end, the failures too) as with the episodes in order.
+    assert summarize(shuffled, failures[::-1], ["m"], {}, baseline="") == summarize(rows, failures, ["m"], {}, baseline="")
 
 
 def test_the_report_lists_every_episode_in_a_collapsed_per_scene_table(tmp_path: Path):
