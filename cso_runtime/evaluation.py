@@ -150,9 +150,11 @@ ended ``no_frontier`` (``EpisodeResult.ended_why``), empty for any other end; th
 
 def run_setup(meta: dict[str, Any]) -> dict[str, Any]:
     """The ``SETUP_COLUMNS`` every episode of a run shares, from its summary.json's ``meta``: the sensor's field of
-    view (``config.sensor.fov_deg``) and the simulator (``sim``: None on a real robot); None where it is not said."""
-    sensor = (meta.get("config") or {}).get("sensor") or {}
-    return {"sensor_fov_deg": sensor.get("fov_deg"), "sim": meta.get("sim")}
+    view (``config.sensor.fov_deg``), the simulator (``sim``: None on a real robot) and the step limit
+    (``config.episode.max_steps``); None where it is not said."""
+    config = meta.get("config") or {}
+    sensor, episode = config.get("sensor") or {}, config.get("episode") or {}
+    return {"sensor_fov_deg": sensor.get("fov_deg"), "sim": meta.get("sim"), "max_steps": episode.get("max_steps")}
 
 
 DEFAULT_M_PER_PX = 0.1

@@ -115,13 +115,13 @@ def test_episodes_csv_says_the_sensor_simulator_and_cell_size_each_episode_ran_w
     ``compare`` checks (``mixed_setups_said``); an eval --resume into the other sensor's folder was already refused."""
     from cso_runtime.comparison import SETUP_COLUMNS, mixed_setups_said
 
-    assert CSV_FIELDS[-len(SETUP_COLUMNS) :] == SETUP_COLUMNS == ("sensor_fov_deg", "sim", "cell_size_m")
+    assert CSV_FIELDS[-len(SETUP_COLUMNS) :] == SETUP_COLUMNS == ("sensor_fov_deg", "sim", "cell_size_m", "max_steps")
     ring, front = tmp_path / "ring", tmp_path / "front"
     run_eval(EvalRequest(methods=["cso"], maps="generated:small:1:0", out_dir=ring, max_steps=4, lidar_fov_deg=360.0))
     run_eval(EvalRequest(methods=["greedy-dist"], maps="generated:small:1:0", out_dir=front, max_steps=4))
     with (ring / "episodes.csv").open(newline="") as fh:
         (row,) = csv.DictReader(fh)
-    assert (row["sensor_fov_deg"], row["sim"], row["cell_size_m"]) == ("360.0", "2d", "0.05")
+    assert (row["sensor_fov_deg"], row["sim"], row["cell_size_m"], row["max_steps"]) == ("360.0", "2d", "0.05", "4")
     (said,) = mixed_setups_said([("", front / "episodes.csv"), ("", ring / "episodes.csv")])
     assert said.startswith(f"warning: the same plans ran with different sensor_fov_deg: 180 ({front / 'episodes.csv'}), 360 ({ring / 'episodes.csv'}) on 1 plan (gen_small_0)"), said
     with pytest.raises(ConfigError, match="differs in sensor.fov_deg: 360.0 there, 180.0 here"):
@@ -339,9 +339,9 @@ def test_eval_writes_every_output_and_reports_bad_maps(tmp_path: Path):
     assert all(int(r["steps"]) <= 60 for r in rows)
     # The simulator's pace, in two columns after the others (whose names and order are a contract): simulated
     # seconds from the sim's clock (one 0.25 s control period a step) and those over the episode's wall clock; then
-    # why an episode ended no_frontier; then what it ran with (sensor, simulator, cell size).
+    # why an episode ended no_frontier; then what it ran with (sensor, simulator, cell size, step limit).
     assert CSV_FIELDS[:15] == ("method", "map", "scale", "seed", *METRICS, "terminated_by", "traversable_area_m2", "decisions", "wall_s")
-    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor", "ended_why", "sensor_fov_deg", "sim", "cell_size_m")
+    assert CSV_FIELDS[15:] == ("sim_time_s", "real_time_factor", "ended_why", "sensor_fov_deg", "sim", "cell_size_m", "max_steps")
     for r in rows:
         assert float(r["sim_time_s"]) == pytest.approx(int(r["steps"]) * 0.25)
         assert float(r["real_time_factor"]) == pytest.approx(float(r["sim_time_s"]) / float(r["wall_s"]), rel=0.05, abs=0.5)
