@@ -922,8 +922,8 @@ def _ci95(rows: list[dict[str, Any]], key: str) -> list[float] | None:
     plans: one plan gives nothing to resample. The episodes are taken in episodes.csv's order (by plan, then seed),
     whatever order they finished in: the bootstrap's resamples pick by position, so an eval with ``--workers``, or one
     ``--resume`` finished (its kept episodes first), gave the same episodes another interval."""
-    kept = sorted(_rows_with(rows, key), key=lambda vr: (str(vr[1]["map"]), str(vr[1].get("seed")), vr[0]))
-    plans = [r["map"] for _, r in kept]
+    kept = sorted(_rows_with(rows, key), key=lambda vr: (str(vr[1]["map"]), str(vr[1].get("traversable_area_m2")), str(vr[1].get("seed")), vr[0]))
+    plans = [(str(r["map"]), str(r.get("traversable_area_m2"))) for _, r in kept]  # a plan as compare tells it: one name at two cell sizes is two
     if len(set(plans)) < 2:
         return None
     low, high = bootstrap_mean_ci(np.array([v for v, _ in kept]), clusters=plans)
