@@ -156,11 +156,16 @@ def main(argv: list[str] | None = None) -> int:
             return 0
     except ValueError as exc:
         parser.error(str(exc))
+    lines = []
+    for _, p in files:  # a summary.json cut short or of another shape: one line naming it, as an episodes.csv's
+        try:
+            lines += rows(json.loads(p.read_text()))
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            parser.error(f"{p}: not a summary.json eval wrote ({type(exc).__name__}: {exc})")
     print(HEADER)
     print("| --- " * 9 + "|")
-    for _, p in files:
-        for line in rows(json.loads(p.read_text())):
-            print(line)
+    for line in lines:
+        print(line)
     return 0
 
 

@@ -166,3 +166,19 @@ def test_a_plan_of_one_name_at_two_cell_sizes_is_two_plans_in_table_1_as_in_its_
     pooled = tables.pool([("easy", coarse), ("easy", fine)], "greedy-dist")
     expected = bootstrap_mean_ci(np.array([1.0, 0.5, 1.0, 0.5, 1.0, 0.5]))
     assert pooled.by_scale[("greedy-dist", "small")]["efficiency_m2_per_step_ci95"] == pytest.approx(list(expected), abs=1e-6)
+
+
+def test_a_summary_json_that_does_not_read_is_one_line_naming_it_not_a_traceback(tmp_path, capsys):
+    """An episodes.csv cut short was one line naming it; a summary.json cut short (or of another shape) was a
+    JSONDecodeError traceback, after the table's header had been printed."""
+    cut = tmp_path / "summary.json"
+    cut.write_text('{"methods": {"greedy-dist": {"by_sc')
+    tables = load_tables()
+    with pytest.raises(SystemExit) as ended:
+        tables.main([str(cut)])
+    said = capsys.readouterr()
+    assert ended.value.code == 2 and f"{cut}: not a summary.json eval wrote (JSONDecodeError" in said.err and said.out == "", said
+    cut.write_text('{"methods": []}')
+    with pytest.raises(SystemExit):
+        tables.main([str(cut)])
+    assert f"{cut}: not a summary.json eval wrote (AttributeError" in capsys.readouterr().err
